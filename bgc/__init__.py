@@ -1,0 +1,36 @@
+"""bgc: a bond-graph model compiler for model-based fault diagnosis.
+
+A plant described as a bond graph in YAML is compiled, stage by stage, into a
+probabilistic fault diagnoser (see :mod:`bgc.pipeline`): validated model ->
+causality (SCAP) -> temporal causal graph -> state equations -> dynamic Bayesian
+networks -> generated NumPy particle filters.
+
+Glossary
+--------
+e, f
+    Effort and flow of a bond (voltage/current, pressure/volume flow,
+    force/velocity); ``e4`` and ``f4`` are those of bond 4.
+p, q
+    Momentum (integral of effort) and displacement (integral of flow).
+Se, Sf
+    Effort and flow sources; MSe, MSf their modulated forms.
+R, C, I
+    Resistor, capacitor and inertia; MR a modulated resistor.
+TF, GY
+    Transformer (``e_in = m e_out``, ``f_out = m f_in``) and gyrator
+    (``e_in = r f_out``, ``e_out = r f_in``); MTF, MGY modulated.
+0, 1
+    Junctions: common effort (flows sum to zero) and common flow (efforts sum).
+SCAP
+    Sequential causality assignment procedure.
+TCG
+    Temporal causal graph (Mosterman and Biswas, 1999).
+DBN, 2TBN
+    Dynamic Bayesian network, given by its two-slice template.
+x, u, y, theta
+    States, inputs, measurements and parameters of the state-space model.
+logw, ancestors, ess
+    Log-weights, resampling indices and effective sample size of a particle filter.
+"""
+
+__version__ = "0.1.0"

@@ -1,0 +1,288 @@
+"""Stage 3: :class:`~bgc.ir.BondGraph` -> :class:`~bgc.ir.CausalBondGraph` by SCAP.
+
+The sequential causality assignment procedure (SCAP; Karnopp, Margolis and
+Rosenberg, *System Dynamics*, ch. 5) gives every bond a causal stroke: which end
+imposes the effort and which the flow.
+
+1. Each source gets its required causality (Se imposes effort, Sf flow) and the
+   consequences are propagated through junctions, transformers and gyrators.
+2. Each storage element still free gets integral causality (C imposes effort,
+   I imposes flow), then propagation. A storage element whose causality was
+   already forced the other way is in derivative causality; this is reported.
+3. Each resistor still free gets a causality chosen arbitrarily (the form its law
+   is written in, else conductance form ``f = e/R``): these resistors close
+   algebraic loops. A choice that leads to a conflict is undone and the other
+   one tried (backtracking).
+4. Any bond still free (between junctions only) gets a choice likewise.
+
+Constraints propagated: a 0-junction has exactly one bond whose neighbour imposes
+the effort; a 1-junction exactly one bond whose neighbour imposes the flow; a
+transformer passes causality through (one of its bonds has its effort imposed by
+the TF); a gyrator swaps it (both or neither). Elements are visited in sorted
+name order, so the result does not depend on the order of the model file.
+
+Examples
+--------
+>>> from bgc.load import loads
+>>> from bgc.validate import validate
+>>> g = validate(loads('''
+... name: rc
+... parameters: {R: 1.0, C: 2.0}
+... inputs: {V: 1.0}
+... elements: {V: {kind: Se}, j: {kind: "1"}, R: {kind: R}, C: {kind: C}}
+... bonds: {1: [V, j], 2: [j, R], 3: [j, C]}
+... '''))
+>>> cbg = assign(g)
+>>> [(s.element, s.state, s.integral) for s in cbg.storage]
+[('C', 'e3', True)]
+>>> cbg.causality(2)
+BondCausality(bond=2, effort_by='j', flow_by='R')
+"""
+
+from __future__ import annotations
+
+from typing import Iterable
+
+from .errors import CausalityError, ErrorGroup
+from .ir import (
+    JUNCTIONS, RESISTORS, SOURCES, STORAGE, BondCausality, BondGraph, CausalBondGraph, Diagnostic,
+    StorageCausality,
+)
+
+
+class _Conflict(Exception):
+    def __init__(self, element: str, why: str):
+        self.element = element
+        self.why = why
+
+
+class _Solver:
+    """Causal constraints of a bond graph and unit propagation over them."""
+
+    def __init__(self, model: BondGraph):
+        self.model = model
+        self.kind = {el.name: el.kind for el in model.elements}
+        self.ends = {b.number: (b.tail, b.head) for b in model.bonds}
+        self.ports: dict[str, list[int]] = {el.name: [] for el in model.elements}
+        for b in model.bonds:
+            self.ports[b.tail].append(b.number)
+            self.ports[b.head].append(b.number)
+        self.effort_by: dict[int, str] = {}
+
+    def other(self, bond: int, element: str) -> str:
+        tail, head = self.ends[bond]
+        return head if element == tail else tail
+
+    def snapshot(self) -> dict[int, str]:
+        return dict(self.effort_by)
+
+    def restore(self, snap: dict[int, str]) -> None:
+        self.effort_by = snap
+
+    def set(self, bond: int, effort_by: str, queue: list[str]) -> None:
+        current = self.effort_by.get(bond)
+        if current is None:
+            self.effort_by[bond] = effort_by
+            queue.extend(self.ends[bond])
+        elif current != effort_by:
+            tail, head = self.ends[bond]
+            raise _Conflict(effort_by if effort_by in (tail, head) else tail,
+                            f"bond {bond} would need its effort imposed by both {current} and {self.other(bond, current)}")
+
+    def assign(self, bond: int, effort_by: str) -> None:
+        """Fix one bond and propagate; raises _Conflict."""
+        queue: list[str] = []
+        self.set(bond, effort_by, queue)
+        self.propagate(queue)
+
+    def propagate(self, queue: list[str]) -> None:
+        while queue:
+            name = queue.pop()
+            kind = self.kind[name]
+            bonds = self.ports[name]
+            if kind in JUNCTIONS:
+                self.junction(name, kind, bonds, queue)
+            elif kind in ("TF", "MTF"):
+                a, b = bonds
+                for x, y in ((a, b), (b, a)):
+                    if x in self.effort_by:
+                        by_tf = self.effort_by[x] == name
+                        self.set(y, self.other(y, name) if by_tf else name, queue)
+            elif kind in ("GY", "MGY"):
+                a, b = bonds
+                for x, y in ((a, b), (b, a)):
+                    if x in self.effort_by:
+                        by_gy = self.effort_by[x] == name
+                        self.set(y, name if by_gy else self.other(y, name), queue)
+            else:
+                self.one_port(name, kind, bonds[0], queue)
+
+    def one_port(self, name: str, kind: str, bond: int, queue: list[str]) -> None:
+        if kind in ("Se", "MSe"):
+            self.set(bond, name, queue)
+        elif kind in ("Sf", "MSf"):
+            self.set(bond, self.other(bond, name), queue)
+
+    def junction(self, name: str, kind: str, bonds: list[int], queue: list[str]) -> None:
+        # 0-junction: exactly one bond whose effort comes from outside (the neighbour);
+        # 1-junction: exactly one bond whose effort comes from the junction.
+        def special(b: int) -> bool:
+            by = self.effort_by[b]
+            return by != name if kind == "0" else by == name
+
+        assigned = [b for b in bonds if b in self.effort_by]
+        free = [b for b in bonds if b not in self.effort_by]
+        specials = [b for b in assigned if special(b)]
+        what = "effort" if kind == "0" else "flow"
+        if len(specials) > 1:
+            who = sorted(self.other(b, name) for b in specials)
+            raise _Conflict(name, f"{kind}-junction {name} gets its {what} imposed by both "
+                                  f"{who[0]} and {who[1]}")
+        if len(specials) == 1:
+            for b in free:
+                self.set(b, name if kind == "0" else self.other(b, name), queue)
+        elif not free:
+            raise _Conflict(name, f"{kind}-junction {name} has no bond that imposes its {what}")
+        elif len(free) == 1:
+            b = free[0]
+            self.set(b, self.other(b, name) if kind == "0" else name, queue)
+
+
+def assign(model: BondGraph) -> CausalBondGraph:
+    """Run SCAP on a validated bond graph.
+
+    Raises
+    ------
+    ErrorGroup
+        Causal conflicts among sources (e.g. two effort sources on one
+        0-junction), each naming the elements involved.
+    """
+    solver = _Solver(model)
+    errors: list[CausalityError] = []
+    elements = sorted(model.elements, key=lambda el: el.name)
+
+    # 1. Sources.
+    for el in elements:
+        if el.kind in SOURCES:
+            bond = solver.ports[el.name][0]
+            snap = solver.snapshot()
+            try:
+                want = el.name if el.kind in ("Se", "MSe") else solver.other(bond, el.name)
+                solver.assign(bond, want)
+            except _Conflict as c:
+                solver.restore(snap)
+                errors.append(CausalityError(f"causal conflict: {c.why}", el.loc,
+                                             f"source {el.name} cannot impose its "
+                                             f"{'effort' if el.kind in ('Se', 'MSe') else 'flow'} there; "
+                                             "remove or move one of the sources"))
+    if errors:
+        raise ErrorGroup(errors)
+
+    # 2. Storage elements: integral causality where still possible.
+    storage: list[StorageCausality] = []
+    diagnostics: list[Diagnostic] = []
+    for el in elements:
+        if el.kind not in STORAGE:
+            continue
+        bond = solver.ports[el.name][0]
+        integral_by = el.name if el.kind == "C" else solver.other(bond, el.name)
+        if bond not in solver.effort_by:
+            snap = solver.snapshot()
+            try:
+                solver.assign(bond, integral_by)
+            except _Conflict:
+                solver.restore(snap)
+                solver.assign(bond, solver.other(bond, integral_by))
+        integral = solver.effort_by[bond] == integral_by
+        storage.append(StorageCausality(el.name, el.kind, bond, integral))
+        if not integral:
+            diagnostics.append(Diagnostic(
+                "warning", f"{el.kind} element {el.name} is in derivative causality: its {'effort' if el.kind == 'C' else 'flow'} "
+                           f"is fixed by the rest of the graph and it adds no state", el.name))
+
+    # 3 and 4. Resistors, then any remaining bond, with backtracking.
+    decisions: list[tuple[int, str, str | None]] = []
+    for el in elements:
+        if el.kind in RESISTORS:
+            bond = solver.ports[el.name][0]
+            prefer = solver.other(bond, el.name)  # conductance form f = e/R
+            if el.law is not None and el.law.output.startswith("e"):
+                prefer = el.name
+            decisions.append((bond, prefer, el.name))
+    for b in sorted(solver.ends):
+        decisions.append((b, solver.ends[b][0], None))
+    arbitrary: list[str] = []
+    if not _search(solver, decisions, 0, arbitrary):
+        raise ErrorGroup([CausalityError("no consistent causal assignment exists for the free bonds",
+                                         model.source, "check the junction structure")])
+    for name in arbitrary:
+        diagnostics.append(Diagnostic("note", f"resistor {name} was assigned causality arbitrarily: "
+                                               "it closes an algebraic loop", name))
+
+    causal = tuple(
+        BondCausality(b.number, solver.effort_by[b.number], b.other(solver.effort_by[b.number]))
+        for b in model.bonds
+    )
+    return CausalBondGraph(model, causal, tuple(storage), tuple(sorted(arbitrary)), tuple(diagnostics))
+
+
+def _search(solver: _Solver, decisions: list[tuple[int, str, str | None]], start: int,
+            arbitrary: list[str]) -> bool:
+    """Depth-first search over the remaining free bonds, preferred choice first."""
+    for i in range(start, len(decisions)):
+        bond, prefer, resistor = decisions[i]
+        if bond in solver.effort_by:
+            continue
+        for choice in (prefer, solver.other(bond, prefer)):
+            snap = solver.snapshot()
+            try:
+                solver.assign(bond, choice)
+            except _Conflict:
+                solver.restore(snap)
+                continue
+            if resistor is not None:
+                arbitrary.append(resistor)
+            if _search(solver, decisions, i + 1, arbitrary):
+                return True
+            if resistor is not None:
+                arbitrary.pop()
+            solver.restore(snap)
+        return False
+    return True
+
+
+def check_assignment(model: BondGraph, effort_by: dict[int, str]) -> list[str]:
+    """Every causal rule a complete assignment breaks (empty when valid).
+
+    Independent of the solver; used by tests and by ``bgc show causality``.
+    """
+    problems = []
+    ports: dict[str, list[int]] = {el.name: [] for el in model.elements}
+    ends = {b.number: b for b in model.bonds}
+    for b in model.bonds:
+        ports[b.tail].append(b.number)
+        ports[b.head].append(b.number)
+    for el in model.elements:
+        bonds = ports[el.name]
+        by_me = [effort_by[b] == el.name for b in bonds]
+        if el.kind in ("Se", "MSe") and not by_me[0]:
+            problems.append(f"{el.name} must impose effort")
+        if el.kind in ("Sf", "MSf") and by_me[0]:
+            problems.append(f"{el.name} must impose flow")
+        if el.kind == "0" and sum(not m for m in by_me) != 1:
+            problems.append(f"0-junction {el.name} needs exactly one effort-imposing bond")
+        if el.kind == "1" and sum(by_me) != 1:
+            problems.append(f"1-junction {el.name} needs exactly one flow-imposing bond")
+        if el.kind in ("TF", "MTF") and sum(by_me) != 1:
+            problems.append(f"transformer {el.name} must pass causality through")
+        if el.kind in ("GY", "MGY") and sum(by_me) not in (0, 2):
+            problems.append(f"gyrator {el.name} must swap causality")
+    for number, b in ends.items():
+        if effort_by[number] not in (b.tail, b.head):
+            problems.append(f"bond {number} has no valid causal stroke")
+    return problems
+
+
+def states(cbg: CausalBondGraph) -> Iterable[str]:
+    """Names of the state variables (storage elements in integral causality)."""
+    return (s.state for s in cbg.storage if s.integral)

@@ -1,0 +1,95 @@
+"""Errors of the compiler, one subclass per stage.
+
+A :class:`BgcError` is a user error: the CLI prints its one-line message and exits
+with status 1, without a traceback. Every message says what is wrong, where
+(``models/ro.yaml:42:7`` or an element or bond name) and how to fix it.
+:class:`InternalError` is a bug in bgc and keeps its traceback.
+
+Examples
+--------
+>>> loc = SourceLoc("models/x.yaml", 3, 5)
+>>> str(ValidationError("bond 4 names unknown element 'R9'", loc, "declare R9 under 'elements'"))
+"models/x.yaml:3:5: bond 4 names unknown element 'R9' (declare R9 under 'elements')"
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class SourceLoc:
+    """A place in a model file; ``line`` and ``col`` count from 1."""
+
+    file: str
+    line: int
+    col: int
+
+    def __str__(self) -> str:
+        return f"{self.file}:{self.line}:{self.col}"
+
+
+class BgcError(Exception):
+    """A user error: one line, with a location and a fix."""
+
+    def __init__(self, what: str, loc: SourceLoc | str | None = None, fix: str | None = None):
+        self.what = what
+        self.loc = loc
+        self.fix = fix
+        super().__init__(self.line())
+
+    def line(self) -> str:
+        """The one-line message the CLI prints."""
+        text = f"{self.loc}: {self.what}" if self.loc else self.what
+        if self.fix:
+            text += f" ({self.fix})"
+        return text
+
+    def sort_key(self) -> tuple:
+        loc = self.loc
+        if isinstance(loc, SourceLoc):
+            return (loc.file, loc.line, loc.col, self.what)
+        return (str(loc or ""), 0, 0, self.what)
+
+
+class ErrorGroup(BgcError):
+    """Several user errors found in one run, reported together."""
+
+    def __init__(self, errors: list[BgcError]):
+        self.errors = tuple(sorted(errors, key=BgcError.sort_key))
+        super().__init__("; ".join(e.line() for e in self.errors))
+
+    def lines(self) -> tuple[str, ...]:
+        return tuple(e.line() for e in self.errors)
+
+
+class LoadError(BgcError):
+    """The file cannot be read or is not well-formed YAML."""
+
+
+class ValidationError(BgcError):
+    """The model breaks the schema or a semantic rule."""
+
+
+class ExpressionError(BgcError):
+    """An expression in the model is refused by the safe parser."""
+
+
+class CausalityError(BgcError):
+    """SCAP found a causal conflict."""
+
+
+class EquationError(BgcError):
+    """State equations cannot be derived (e.g. an unsolvable algebraic loop)."""
+
+
+class CodegenError(BgcError):
+    """Generated code cannot be produced for the model."""
+
+
+class SimulationError(BgcError):
+    """A simulation or diagnosis request is malformed."""
+
+
+class InternalError(Exception):
+    """A bug in bgc: reported with its traceback."""

@@ -1,0 +1,277 @@
+"""Intermediate representations (IRs) of the compiler, in pipeline order.
+
+Every IR is a frozen dataclass holding tuples, sympy expressions and frozen
+networkx graphs. Stages take one IR and return the next; nothing here does I/O.
+
+Pipeline order: :class:`RawModel` -> :class:`BondGraph` -> :class:`CausalBondGraph`
+-> ``TemporalCausalGraph`` -> ``StateSpaceModel`` -> ``DbnModel``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import sympy
+
+from .errors import SourceLoc
+
+#: Element kinds bond graphs are built from, and their port counts (None: any, >= 2).
+ELEMENT_PORTS: Mapping[str, int | None] = {
+    "Se": 1, "Sf": 1, "MSe": 1, "MSf": 1,
+    "R": 1, "MR": 1, "C": 1, "I": 1,
+    "TF": 2, "MTF": 2, "GY": 2, "MGY": 2,
+    "0": None, "1": None,
+}
+SOURCES = frozenset({"Se", "Sf", "MSe", "MSf"})
+RESISTORS = frozenset({"R", "MR"})
+STORAGE = frozenset({"C", "I"})
+TWO_PORTS = frozenset({"TF", "MTF", "GY", "MGY"})
+JUNCTIONS = frozenset({"0", "1"})
+MODULATED = frozenset({"MSe", "MSf", "MR", "MTF", "MGY"})
+FAULT_KINDS = ("abrupt", "incipient")
+
+
+def sym(name: str) -> sympy.Symbol:
+    """The one sympy symbol bgc uses for a name (no assumptions: they are slow)."""
+    return sympy.Symbol(name)
+
+
+def effort(bond: int) -> str:
+    """Name of the effort variable of a bond, e.g. ``effort(4) == 'e4'``."""
+    return f"e{bond}"
+
+
+def flow(bond: int) -> str:
+    """Name of the flow variable of a bond, e.g. ``flow(10) == 'f10'``."""
+    return f"f{bond}"
+
+
+# --------------------------------------------------------------------------- load
+@dataclass(frozen=True, slots=True)
+class RawModel:
+    """A YAML document as plain data, with the location of every node.
+
+    ``locations`` maps a path (tuple of keys and indices from the root) to the
+    place where that node starts; ``key_locations`` maps a mapping entry's path to
+    where its key starts.
+    """
+
+    path: str
+    data: Any
+    locations: Mapping[tuple, SourceLoc]
+    key_locations: Mapping[tuple, SourceLoc]
+
+    def loc(self, *path: Any) -> SourceLoc:
+        """Location of the deepest existing node on ``path``."""
+        p = tuple(path)
+        while p:
+            if p in self.locations:
+                return self.locations[p]
+            p = p[:-1]
+        return self.locations.get((), SourceLoc(self.path, 1, 1))
+
+    def key_loc(self, *path: Any) -> SourceLoc:
+        p = tuple(path)
+        return self.key_locations.get(p) or self.loc(*p)
+
+
+# ------------------------------------------------------------------ bond graph
+@dataclass(frozen=True, slots=True)
+class Parameter:
+    name: str
+    value: float
+    unit: str | None
+    description: str | None
+    loc: SourceLoc
+
+
+@dataclass(frozen=True, slots=True)
+class Law:
+    """A constitutive law ``output = expr`` in the element's own bond variables.
+
+    ``output`` is the bond variable the law gives (``'e5'`` or ``'f5'``); ``text`` is
+    the law as written in the model file, with the element-local names ``e``/``f``.
+    """
+
+    output: str
+    expr: sympy.Expr
+    text: str
+    loc: SourceLoc
+
+
+@dataclass(frozen=True, slots=True)
+class Element:
+    """One bond-graph element.
+
+    ``parameter`` is the coefficient of a linear law (R: e = R f; C: de/dt = f/C;
+    I: df/dt = e/I; TF: e_in = m e_out, f_out = m f_in; GY: e_in = r f_out,
+    e_out = r f_in); for modulated elements it may depend on bond variables.
+    ``source`` is the value a source imposes. ``law`` replaces ``parameter`` for a
+    nonlinear resistor.
+    """
+
+    name: str
+    kind: str
+    parameter: sympy.Expr | None
+    law: Law | None
+    source: sympy.Expr | None
+    initial: float | None
+    description: str | None
+    loc: SourceLoc
+
+
+@dataclass(frozen=True, slots=True)
+class Bond:
+    """A bond; power flows from ``tail`` to ``head`` (the half arrow's direction)."""
+
+    number: int
+    tail: str
+    head: str
+    loc: SourceLoc
+
+    def other(self, element: str) -> str:
+        return self.head if element == self.tail else self.tail
+
+
+@dataclass(frozen=True, slots=True)
+class Signal:
+    """An input signal: ``constant`` (value), ``step`` (value until start, then
+    final) or ``ramp`` (value until start, then value + slope * (t - start))."""
+
+    kind: str
+    value: float
+    final: float | None = None
+    start: float | None = None
+    slope: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Input:
+    name: str
+    signal: Signal
+    unit: str | None
+    description: str | None
+    loc: SourceLoc
+
+
+@dataclass(frozen=True, slots=True)
+class Measurement:
+    name: str
+    expr: sympy.Expr
+    text: str
+    noise: float
+    unit: str | None
+    description: str | None
+    loc: SourceLoc
+
+
+@dataclass(frozen=True, slots=True)
+class FaultCandidate:
+    """A parameter that may fail, the fault kinds considered and a prior."""
+
+    parameter: str
+    kinds: tuple[str, ...]
+    direction: str
+    prior: float
+    loc: SourceLoc
+
+
+@dataclass(frozen=True, slots=True)
+class Settings:
+    """Defaults for simulation and filtering; noise as a fraction of the signal."""
+
+    dt: float = 1.0
+    steps: int = 300
+    process_noise: float = 0.03
+    measurement_noise: float = 0.02
+
+
+@dataclass(frozen=True, slots=True)
+class BondGraph:
+    """A validated bond-graph model. Tuples are sorted by name or bond number."""
+
+    name: str
+    description: str
+    source: str
+    parameters: tuple[Parameter, ...]
+    elements: tuple[Element, ...]
+    bonds: tuple[Bond, ...]
+    inputs: tuple[Input, ...]
+    measurements: tuple[Measurement, ...]
+    faults: tuple[FaultCandidate, ...]
+    settings: Settings
+    source_sha256: str = ""
+
+    def element(self, name: str) -> Element:
+        for el in self.elements:
+            if el.name == name:
+                return el
+        raise KeyError(name)
+
+    def bond(self, number: int) -> Bond:
+        for b in self.bonds:
+            if b.number == number:
+                return b
+        raise KeyError(number)
+
+    def bonds_of(self, name: str) -> tuple[Bond, ...]:
+        return tuple(b for b in self.bonds if name in (b.tail, b.head))
+
+    def parameter_values(self) -> dict[str, float]:
+        return {p.name: p.value for p in self.parameters}
+
+
+# ------------------------------------------------------------------- causality
+@dataclass(frozen=True, slots=True)
+class Diagnostic:
+    """A finding short of an error, shown by the CLI."""
+
+    severity: str  # "warning" or "note"
+    message: str
+    element: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class BondCausality:
+    """Causality of one bond: ``effort_by`` imposes the effort, ``flow_by`` the flow.
+
+    The causal stroke sits at the ``flow_by`` end, i.e. next to the element that
+    receives the effort and imposes the flow.
+    """
+
+    bond: int
+    effort_by: str
+    flow_by: str
+
+
+@dataclass(frozen=True, slots=True)
+class StorageCausality:
+    element: str
+    kind: str
+    bond: int
+    integral: bool
+
+    @property
+    def state(self) -> str:
+        """The co-energy state variable: ``e`` of a C, ``f`` of an I."""
+        return effort(self.bond) if self.kind == "C" else flow(self.bond)
+
+
+@dataclass(frozen=True, slots=True)
+class CausalBondGraph:
+    model: BondGraph
+    bonds: tuple[BondCausality, ...]
+    storage: tuple[StorageCausality, ...]
+    arbitrary: tuple[str, ...]
+    diagnostics: tuple[Diagnostic, ...] = field(default=())
+
+    def causality(self, bond: int) -> BondCausality:
+        for c in self.bonds:
+            if c.bond == bond:
+                return c
+        raise KeyError(bond)
+
+    @property
+    def states(self) -> tuple[StorageCausality, ...]:
+        return tuple(s for s in self.storage if s.integral)

@@ -1,0 +1,122 @@
+"""Stage 1: path -> :class:`~bgc.ir.RawModel`.
+
+Reads a YAML model with PyYAML's safe composer (no Python tags, nothing is
+executed) and turns the node tree into plain data while recording the
+``file:line:column`` of every node, so later stages can point at the source.
+Mapping keys are kept as the text written (bond ``4`` has key ``'4'``), so
+the data is JSON-like for schema validation. Duplicate mapping keys, which YAML silently overwrites, are reported here: a
+duplicate element name or bond number is an error, not a surprise.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .errors import ErrorGroup, LoadError, SourceLoc
+from .ir import RawModel
+
+#: Refuse documents larger than this: a bond graph is small; a giant file is a mistake or an attack.
+MAX_BYTES = 2_000_000
+#: Refuse alias expansion beyond this many nodes ("billion laughs").
+MAX_NODES = 200_000
+
+
+def load(path: str | Path) -> RawModel:
+    """Read a model file.
+
+    Raises
+    ------
+    LoadError
+        The file is missing, unreadable, too large or not well-formed YAML.
+    """
+    name = str(path)
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except FileNotFoundError:
+        raise LoadError(f"{name}: no such file", None, "check the path") from None
+    except OSError as exc:
+        raise LoadError(f"{name}: cannot read: {exc.strerror}", None) from None
+    if len(raw) > MAX_BYTES:
+        raise LoadError(f"{name}: file is {len(raw)} bytes, more than {MAX_BYTES}", None,
+                        "a bond-graph model should be far smaller")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise LoadError(f"not UTF-8 text (byte {exc.start})", SourceLoc(name, 1, 1),
+                        "save the file as UTF-8") from None
+    return loads(text, name)
+
+
+def loads(text: str, name: str = "<string>") -> RawModel:
+    """Parse YAML text; ``name`` is used in locations."""
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        loc = SourceLoc(name, mark.line + 1, mark.column + 1) if mark else SourceLoc(name, 1, 1)
+        raise LoadError(f"YAML syntax error: {exc.problem or exc.context}", loc,
+                        "fix the YAML syntax at this place") from None
+    except yaml.YAMLError as exc:
+        raise LoadError(f"YAML error: {exc}", SourceLoc(name, 1, 1)) from None
+    if node is None:
+        raise LoadError("the file is empty", SourceLoc(name, 1, 1),
+                        "write a model: see docs/format.md")
+    return _Walker(name).run(node)
+
+
+class _Walker:
+    def __init__(self, name: str):
+        self.name = name
+        self.constructor = yaml.SafeLoader("")  # only its scalar constructors are used
+        self.locations: dict[tuple, SourceLoc] = {}
+        self.key_locations: dict[tuple, SourceLoc] = {}
+        self.errors: list[LoadError] = []
+        self.count = 0
+
+    def run(self, node: yaml.Node) -> RawModel:
+        data = self.walk(node, ())
+        if self.errors:
+            raise ErrorGroup(self.errors)
+        return RawModel(self.name, data, self.locations, self.key_locations)
+
+    def mark(self, node: yaml.Node) -> SourceLoc:
+        return SourceLoc(self.name, node.start_mark.line + 1, node.start_mark.column + 1)
+
+    def walk(self, node: yaml.Node, path: tuple) -> Any:
+        self.count += 1
+        if self.count > MAX_NODES:
+            raise LoadError(f"more than {MAX_NODES} YAML nodes (alias expansion?)", self.mark(node),
+                            "do not use anchors and aliases to multiply content")
+        self.locations[path] = self.mark(node)
+        if isinstance(node, yaml.MappingNode):
+            self.constructor.flatten_mapping(node)
+            out: dict = {}
+            for key_node, value_node in node.value:
+                if not isinstance(key_node, yaml.ScalarNode):
+                    self.errors.append(LoadError("mapping keys must be plain names or numbers",
+                                                 self.mark(key_node), "write a scalar key"))
+                    continue
+                key = key_node.value  # keys stay text as written: bond 4 is the key '4'
+                if key in out:
+                    first = self.key_locations[path + (key,)]
+                    self.errors.append(LoadError(
+                        f"duplicate key '{key}' (first at line {first.line})", self.mark(key_node),
+                        "names and bond numbers must be unique: rename or remove one"))
+                    continue
+                self.key_locations[path + (key,)] = self.mark(key_node)
+                out[key] = self.walk(value_node, path + (key,))
+            return out
+        if isinstance(node, yaml.SequenceNode):
+            return [self.walk(item, path + (i,)) for i, item in enumerate(node.value)]
+        return self.scalar(node)
+
+    def scalar(self, node: yaml.Node) -> Any:
+        try:
+            return self.constructor.construct_object(node, deep=True)
+        except yaml.YAMLError as exc:
+            self.errors.append(LoadError(f"bad value: {exc}", self.mark(node), "fix this value"))
+            return None

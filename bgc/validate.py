@@ -1,0 +1,449 @@
+"""Stage 2: :class:`~bgc.ir.RawModel` -> :class:`~bgc.ir.BondGraph`.
+
+First the document is checked against the JSON Schema in
+``schemas/bondgraph.schema.json`` (draft 2020-12); then semantic rules that a
+schema cannot say are checked: bonds name existing elements, junctions have at
+least two bonds, one-ports exactly one, two-ports one bond in and one out, names
+are Python identifiers that are not keywords or reserved, expressions use only
+declared names, measurements and faults name things that exist, and there is at
+least one storage element. All errors are collected and reported together, each
+as ``file:line:col: what (how to fix)``.
+"""
+
+from __future__ import annotations
+
+import builtins
+import hashlib
+import json
+import keyword
+import re
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Iterable
+
+import jsonschema
+import sympy
+
+from . import expressions
+from .errors import BgcError, ErrorGroup, ExpressionError, SourceLoc, ValidationError
+from .ir import (
+    ELEMENT_PORTS, JUNCTIONS, MODULATED, SOURCES, STORAGE, TWO_PORTS, Bond, BondGraph, Element,
+    FaultCandidate, Input, Law, Measurement, Parameter, RawModel, Settings, Signal, effort, flow, sym,
+)
+
+SCHEMA_PATH = Path(__file__).resolve().parent.parent / "schemas" / "bondgraph.schema.json"
+KINDS = tuple(sorted(ELEMENT_PORTS))
+_BOND_VARIABLE = re.compile(r"^[ef][0-9]+$")
+#: Names generated code and expressions use for themselves.
+RESERVED = frozenset({
+    "np", "numpy", "math", "x", "u", "y", "t", "dt", "theta", "rng", "logw", "N", "self",
+    "e", "f", "pi", "E", "I_", *expressions.FUNCTIONS,
+}) | frozenset(dir(builtins))
+#: Keys each kind accepts beyond ``kind`` and ``description``.
+_KIND_KEYS = {
+    **{k: {"value"} for k in SOURCES},
+    "R": {"parameter", "law"}, "MR": {"parameter", "law"},
+    "C": {"parameter", "initial"}, "I": {"parameter", "initial"},
+    **{k: {"parameter"} for k in TWO_PORTS},
+    "0": set(), "1": set(),
+}
+
+
+@lru_cache(maxsize=1)
+def schema() -> dict:
+    """The JSON Schema of model files."""
+    return json.loads(SCHEMA_PATH.read_text(encoding="utf-8"))
+
+
+def validate(raw: RawModel) -> BondGraph:
+    """Check a raw model and build the :class:`BondGraph`.
+
+    Raises
+    ------
+    ErrorGroup
+        Every schema and semantic error found, sorted by location.
+    """
+    return _Validator(raw).run()
+
+
+class _Validator:
+    def __init__(self, raw: RawModel):
+        self.raw = raw
+        self.errors: list[BgcError] = []
+        self.bad_paths: set[tuple] = set()
+
+    # ------------------------------------------------------------------ helpers
+    def error(self, what: str, path: tuple, fix: str | None = None, key: bool = False) -> None:
+        loc = self.raw.key_loc(*path) if key else self.raw.loc(*path)
+        self.errors.append(ValidationError(what, loc, fix))
+
+    def bad(self, path: tuple) -> bool:
+        return any(path[: len(p)] == p for p in self.bad_paths)
+
+    def expr(self, text: Any, names: Iterable[str], path: tuple, where: str) -> sympy.Expr | None:
+        try:
+            return expressions.parse(text, frozenset(names), self.raw.loc(*path), where)
+        except ExpressionError as exc:
+            self.errors.append(exc)
+            return None
+
+    # -------------------------------------------------------------------- run
+    def run(self) -> BondGraph:
+        data = self.raw.data
+        if not isinstance(data, dict):
+            raise ErrorGroup([ValidationError("the model must be a mapping of sections", self.raw.loc(),
+                                              "start with 'name:', 'elements:' and 'bonds:'")])
+        self.check_schema(data)
+        if any(not isinstance(data.get(k), dict) for k in ("elements", "bonds")) or not isinstance(data.get("name"), str):
+            raise ErrorGroup(self.errors)
+        model = self.build(data)
+        if self.errors:
+            raise ErrorGroup(self.errors)
+        return model
+
+    def check_schema(self, data: dict) -> None:
+        validator = jsonschema.Draft202012Validator(schema())
+        for err in validator.iter_errors(data):
+            path = tuple(err.absolute_path)
+            if "propertyNames" in err.absolute_schema_path:
+                path = path + (err.instance,)  # the offending key itself
+            self.bad_paths.add(path)
+            what, fix, key = _schema_message(err, path)
+            self.error(what, path, fix, key=key)
+
+    # ------------------------------------------------------------------ build
+    def build(self, data: dict) -> BondGraph:
+        parameters = self.parameters(data.get("parameters") or {})
+        inputs = self.inputs(data.get("inputs") or {})
+        pnames = {p.name for p in parameters}
+        inames = {i.name for i in inputs}
+        for name in sorted(pnames & inames):
+            self.error(f"'{name}' is both a parameter and an input", ("inputs", name),
+                       "rename one of them", key=True)
+        bonds = self.bonds(data["bonds"])
+        raw_elements = data["elements"]
+        variables = {n for b in bonds for n in (effort(b.number), flow(b.number))}
+        elements = self.elements(raw_elements, bonds, pnames, inames, variables)
+        self.topology(elements, bonds)
+        settings = self.settings(data.get("simulation") or {})
+        measurements = self.measurements(data.get("measurements") or {}, pnames | inames | variables,
+                                         variables, pnames | inames, settings.measurement_noise)
+        faults = self.faults(data.get("faults") or {}, pnames)
+        text = json.dumps(data, sort_keys=True, default=str)
+        return BondGraph(
+            name=data["name"],
+            description=str(data.get("description", "")),
+            source=self.raw.path,
+            parameters=parameters,
+            elements=elements,
+            bonds=bonds,
+            inputs=inputs,
+            measurements=measurements,
+            faults=faults,
+            settings=settings,
+            source_sha256=hashlib.sha256(text.encode()).hexdigest(),
+        )
+
+    def name_ok(self, name: str, path: tuple, what: str) -> bool:
+        if not isinstance(name, str) or not name.isidentifier():
+            self.error(f"{what} name '{name}' is not a Python identifier", path,
+                       "use letters, digits and underscores, not starting with a digit", key=True)
+            return False
+        if keyword.iskeyword(name) or keyword.issoftkeyword(name):
+            self.error(f"{what} name '{name}' is a Python keyword", path, "rename it, e.g. " + name + "_", key=True)
+            return False
+        if name in RESERVED or name.startswith("_"):
+            self.error(f"{what} name '{name}' is reserved for generated code", path,
+                       "rename it, e.g. " + name.strip("_") + "_1", key=True)
+            return False
+        return True
+
+    def parameters(self, raw: dict) -> tuple[Parameter, ...]:
+        out = []
+        for name in sorted(raw):
+            path = ("parameters", name)
+            if self.bad(path) or not self.name_ok(name, path, "parameter"):
+                continue
+            if _BOND_VARIABLE.match(name):
+                self.error(f"parameter name '{name}' looks like a bond variable", path,
+                           "names e<N> and f<N> are the efforts and flows of bonds: rename it", key=True)
+                continue
+            spec = raw[name]
+            if isinstance(spec, dict):
+                out.append(Parameter(name, float(spec["value"]), spec.get("unit"), spec.get("description"),
+                                     self.raw.key_loc(*path)))
+            else:
+                out.append(Parameter(name, float(spec), None, None, self.raw.key_loc(*path)))
+        return tuple(out)
+
+    def inputs(self, raw: dict) -> tuple[Input, ...]:
+        out = []
+        for name in sorted(raw):
+            path = ("inputs", name)
+            if self.bad(path) or not self.name_ok(name, path, "input"):
+                continue
+            if _BOND_VARIABLE.match(name):
+                self.error(f"input name '{name}' looks like a bond variable", path,
+                           "names e<N> and f<N> are the efforts and flows of bonds: rename it", key=True)
+                continue
+            spec = raw[name]
+            if not isinstance(spec, dict):
+                spec = {"value": spec}
+            kind = spec.get("signal", "constant")
+            need = {"constant": (), "step": ("final", "start"), "ramp": ("slope",)}[kind]
+            missing = [k for k in need if k not in spec]
+            if missing:
+                self.error(f"input {name}: a {kind} signal needs {', '.join(missing)}", path,
+                           f"add {', '.join(k + ': <number>' for k in missing)}")
+                continue
+            signal = Signal(kind, float(spec["value"]),
+                            final=float(spec["final"]) if "final" in spec else None,
+                            start=float(spec.get("start", 0.0)) if kind != "constant" else None,
+                            slope=float(spec["slope"]) if "slope" in spec else None)
+            out.append(Input(name, signal, spec.get("unit"), spec.get("description"), self.raw.key_loc(*path)))
+        return tuple(out)
+
+    def bonds(self, raw: dict) -> tuple[Bond, ...]:
+        out = []
+        for key in sorted(raw, key=lambda k: (len(k), k)):
+            path = ("bonds", key)
+            if self.bad(path):
+                continue
+            tail, head = raw[key]
+            number = int(key)
+            if tail == head:
+                self.error(f"bond {number} connects {tail} to itself", path, "a bond joins two different elements")
+                continue
+            out.append(Bond(number, tail, head, self.raw.key_loc(*path)))
+        return tuple(out)
+
+    def elements(self, raw: dict, bonds: tuple[Bond, ...], pnames: set[str], inames: set[str],
+                 variables: set[str]) -> tuple[Element, ...]:
+        out = []
+        for name in sorted(raw):
+            path = ("elements", name)
+            if self.bad(path) or not self.name_ok(name, path, "element"):
+                continue
+            spec = raw[name]
+            kind = str(spec["kind"])
+            extra = sorted(set(spec) - {"kind", "description"} - _KIND_KEYS[kind])
+            if extra:
+                allowed = sorted(_KIND_KEYS[kind] | {"kind", "description"})
+                self.error(f"element {name} of kind {kind} has no key '{extra[0]}'", path + (extra[0],),
+                           f"keys of a {kind}: {', '.join(allowed)}", key=True)
+                continue
+            mine = [b for b in bonds if name in (b.tail, b.head)]
+            own = {}
+            if len(mine) == 1:
+                own = {"e": effort(mine[0].number), "f": flow(mine[0].number)}
+            modulated = kind in MODULATED
+            signal_names = variables if modulated else set()
+            parameter = law = source = None
+            loc = self.raw.key_loc(*path)
+            if kind in SOURCES:
+                text = spec.get("value", name if name in inames else None)
+                if text is None:
+                    self.error(f"source {name} has no value", path,
+                               f"add 'value: <expression>' or declare an input named {name}")
+                    continue
+                names = pnames | inames | signal_names
+                source = self.expr(text, names, path + ("value",), f"value of {name}")
+                if source is not None and not modulated:
+                    used = {s.name for s in source.free_symbols} & variables
+                    if used:
+                        self.error(f"source {name} depends on bond variable {sorted(used)[0]}", path + ("value",),
+                                   f"use kind M{kind} for a modulated source")
+                        continue
+            elif kind in JUNCTIONS:
+                pass
+            elif "law" in spec:
+                law = self.law(name, spec["law"], own, pnames | signal_names, path + ("law",))
+                if law is None:
+                    continue
+            else:
+                text = spec.get("parameter", name if name in pnames else None)
+                if text is None:
+                    self.error(f"element {name} has no parameter", path,
+                               f"declare a parameter named {name} or add 'parameter: <expression>'")
+                    continue
+                parameter = self.expr(text, pnames | signal_names, path + ("parameter",), f"parameter of {name}")
+                if parameter is None:
+                    continue
+                if parameter.is_number and float(parameter) == 0.0:
+                    self.error(f"element {name} has a zero parameter", path + ("parameter",),
+                               "a zero coefficient removes the element: give a non-zero value")
+                    continue
+            initial = spec.get("initial")
+            out.append(Element(name, kind, parameter, law, source,
+                               float(initial) if initial is not None else (0.0 if kind in STORAGE else None),
+                               spec.get("description"), loc))
+        return tuple(out)
+
+    def law(self, name: str, text: str, own: dict[str, str], names: set[str], path: tuple) -> Law | None:
+        if not own:
+            return None  # the port-count rule reports the element
+        if text.count("=") != 1:
+            self.error(f"law of {name} must have the form 'f = <expression of e>' or 'e = <expression of f>'", path,
+                       "write exactly one '='")
+            return None
+        lhs, rhs = (s.strip() for s in text.split("="))
+        if lhs not in ("e", "f"):
+            self.error(f"law of {name} gives '{lhs}', not e or f", path, "write 'f = ...' or 'e = ...'")
+            return None
+        other = "f" if lhs == "e" else "e"
+        expr = self.expr(rhs, names | {other}, path, f"law of {name}")
+        if expr is None:
+            return None
+        expr = expr.xreplace({sym(other): sym(own[other])})
+        return Law(own[lhs], expr, text, self.raw.loc(*path))
+
+    def topology(self, elements: tuple[Element, ...], bonds: tuple[Bond, ...]) -> None:
+        declared = set(self.raw.data["elements"])
+        for b in bonds:
+            for end in (b.tail, b.head):
+                if end not in declared:
+                    close = _closest(end, declared)
+                    self.error(f"bond {b.number} names unknown element '{end}'", ("bonds", str(b.number)),
+                               f"did you mean '{close}'?" if close else "declare it under 'elements'")
+        for el in elements:
+            mine = [b for b in bonds if el.name in (b.tail, b.head)]
+            ports = ELEMENT_PORTS[el.kind]
+            path = ("elements", el.name)
+            if ports is None and len(mine) < 2:
+                self.error(f"junction {el.name} has {len(mine)} bond{'s' if len(mine) != 1 else ''}, needs at least 2",
+                           path, "connect it or remove it", key=True)
+            elif ports == 1 and len(mine) != 1:
+                self.error(f"{el.kind} element {el.name} has {len(mine)} bonds, needs exactly 1", path,
+                           "a one-port element sits at the end of one bond: add a 0- or 1-junction", key=True)
+            elif ports == 2:
+                if len(mine) != 2:
+                    self.error(f"{el.kind} element {el.name} has {len(mine)} bonds, needs exactly 2", path,
+                               "a two-port has one bond in and one bond out", key=True)
+                elif sum(b.head == el.name for b in mine) != 1:
+                    self.error(f"{el.kind} element {el.name} needs one bond in and one bond out", path,
+                               "reverse one of its bonds so power passes through it", key=True)
+        if not any(el.kind in STORAGE for el in elements) and not self.errors:
+            self.error("the model has no storage element (C or I)", ("elements",),
+                       "a dynamic model needs at least one C or I", key=True)
+
+    def measurements(self, raw: dict, names: set[str], variables: set[str],
+                     declared: set[str], default_noise: float) -> tuple[Measurement, ...]:
+        out = []
+        for name in sorted(raw):
+            path = ("measurements", name)
+            if self.bad(path):
+                continue
+            spec = raw[name] or {}
+            if "expr" in spec:
+                if not self.name_ok(name, path, "measurement"):
+                    continue
+                if name in declared:
+                    self.error(f"measurement name '{name}' is already a parameter or input", path,
+                               "rename the measurement", key=True)
+                    continue
+                text = spec["expr"]
+            elif name in variables:
+                text = name
+            else:
+                self.error(f"measurement '{name}' is not a bond variable of this model", path,
+                           "name an existing e<N>/f<N> or give 'expr: <expression>'", key=True)
+                continue
+            expr = self.expr(text, names, path + ("expr",), f"measurement {name}")
+            if expr is None:
+                continue
+            if not (expr.free_symbols & {sym(v) for v in variables}):
+                self.error(f"measurement {name} does not depend on any bond variable", path,
+                           "measure an effort or flow (e<N>, f<N>)", key=True)
+                continue
+            out.append(Measurement(name, expr, str(text), float(spec.get("noise", default_noise)), spec.get("unit"),
+                                   spec.get("description"), self.raw.key_loc(*path)))
+        return tuple(out)
+
+    def faults(self, raw: dict, pnames: set[str]) -> tuple[FaultCandidate, ...]:
+        out = []
+        for name in sorted(raw):
+            path = ("faults", name)
+            if self.bad(path):
+                continue
+            if name not in pnames:
+                close = _closest(name, pnames)
+                self.error(f"fault names unknown parameter '{name}'", path,
+                           f"did you mean '{close}'?" if close else "faults are on declared parameters", key=True)
+                continue
+            spec = raw[name]
+            if not isinstance(spec, dict):
+                spec = {"kinds": spec}
+            out.append(FaultCandidate(name, tuple(sorted(spec["kinds"])), spec.get("direction", "both"),
+                                      float(spec.get("prior", 0.01)), self.raw.key_loc(*path)))
+        return tuple(out)
+
+    def settings(self, raw: dict) -> Settings:
+        if self.bad(("simulation",)):
+            return Settings()
+        base = Settings()
+        return Settings(dt=float(raw.get("dt", base.dt)), steps=int(raw.get("steps", base.steps)),
+                        process_noise=float(raw.get("process_noise", base.process_noise)),
+                        measurement_noise=float(raw.get("measurement_noise", base.measurement_noise)))
+
+
+def _closest(name: str, options: Iterable[str]) -> str | None:
+    import difflib
+
+    match = difflib.get_close_matches(name, sorted(options), n=1, cutoff=0.6)
+    return match[0] if match else None
+
+
+def _schema_message(err: jsonschema.ValidationError, path: tuple) -> tuple[str, str | None, bool]:
+    """Turn a jsonschema error into (what, fix, point at key)."""
+    where = ".".join(str(p) for p in path) or "the model"
+    v = err.validator
+    if v == "additionalProperties":
+        extra = sorted(set(err.instance) - set(err.schema.get("properties", {})))
+        allowed = ", ".join(sorted(err.schema.get("properties", {})))
+        if path == ():
+            return (f"unknown section '{extra[0]}'", f"sections are: {allowed}", False)
+        return (f"unknown key '{extra[0]}' in {where}", f"allowed keys: {allowed}", False)
+    if v == "required":
+        missing = err.message.split("'")[1] if "'" in err.message else err.message
+        return (f"{where} is missing '{missing}'", f"add '{missing}: ...'", False)
+    if v == "enum":
+        options = [str(o) for o in err.validator_value]
+        options = sorted(dict.fromkeys(options))
+        if path and path[-1] == "kind":
+            return (f"unknown element kind '{err.instance}' in {where}", "valid kinds: " + ", ".join(KINDS), False)
+        return (f"'{err.instance}' is not valid for {where}", "choose one of: " + ", ".join(options), False)
+    if v == "type":
+        want = err.validator_value if isinstance(err.validator_value, str) else " or ".join(err.validator_value)
+        return (f"{where} must be {_article(want)}, not {_json_type(err.instance)}", None, False)
+    if v == "pattern":
+        if path[:1] == ("bonds",) and len(path) == 2:
+            return (f"bond number '{err.instance}' is not a positive integer", "number bonds 1, 2, 3, ...", True)
+        return (f"name '{err.instance}' in {'.'.join(str(p) for p in path[:-1]) or 'the model'} is not a Python identifier",
+                "use letters, digits and underscores, not starting with a digit", True)
+    if v == "maxLength":
+        return (f"name '{str(err.instance)[:20]}...' is too long", "use at most 64 characters", True)
+    if v in ("minItems", "maxItems"):
+        return (f"{where} must list exactly two elements [from, to]", "write [tail, head]", False)
+    if v == "minProperties":
+        return (f"{where} is empty", "add at least one entry", False)
+    if v in ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum"):
+        return (f"{where} is out of range: {err.message}", None, False)
+    return (f"{where}: {err.message}", None, False)
+
+
+def _article(word: str) -> str:
+    return ("an " if word[:1] in "aeiou" else "a ") + word
+
+
+def _json_type(value: Any) -> str:
+    if value is None:
+        return "empty"
+    if isinstance(value, bool):
+        return "a boolean"
+    if isinstance(value, (int, float)):
+        return "a number"
+    if isinstance(value, str):
+        return f"text '{value[:30]}'"
+    if isinstance(value, list):
+        return "a list"
+    return "a mapping"
