@@ -18,7 +18,7 @@ length, and powers whose value would be astronomically large.
 Examples
 --------
 >>> parse("cd*sqrt(abs(e))*sign(e)", {"cd", "e"})
-cd*sign(e)*sqrt(Abs(e))
+cd*sqrt(Abs(e))*sign(e)
 >>> parse("-(a + 2)/b**2", {"a", "b"})
 (-a - 2)/b**2
 >>> parse("__import__('os')", {"a"})
