@@ -11,7 +11,10 @@ import sys
 from collections import Counter
 from typing import Sequence
 
-from . import __version__, pipeline
+import time
+from pathlib import Path
+
+from . import __version__, artifacts, codegen, draw, pipeline, render
 from .errors import BgcError, ErrorGroup
 from .ir import CausalBondGraph
 
@@ -62,6 +65,85 @@ def cmd_check(args: argparse.Namespace) -> int:
     return status
 
 
+def cmd_compile(args: argparse.Namespace) -> int:
+    for path in args.models:
+        start = time.perf_counter()
+        c = pipeline.compile_model(path)
+        files: dict[str, str | bytes] = dict(codegen.text_files(c.dbn))
+        outdir = Path(args.output) / c.model.name
+        if args.check:
+            diffs = artifacts.diff(outdir, codegen.text_files(c.dbn))
+            if diffs:
+                for d in diffs:
+                    print(d, file=sys.stderr)
+                print(f"{outdir}: out of date; refresh with: bgc compile {path}", file=sys.stderr)
+                return 1
+            print(f"{outdir}: up to date ({len(files)} files)")
+            continue
+        if not args.no_pictures:
+            files.update(codegen.pictures(c.dbn, args.engine))
+        artifacts.write(outdir, files)
+        seconds = time.perf_counter() - start
+        n_dbn = 1 + len(c.dbn.faulty)
+        print(f"{path}: wrote {outdir}/ ({len(files)} files: equations, TCG, {n_dbn} DBNs"
+              f"{'' if args.no_pictures else ', pictures'}) in {seconds:.2f} s")
+        for d in c.causal.diagnostics:
+            print(f"  {d.severity}: {d.message}")
+    return 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    c = pipeline.compile_model(args.model)
+    stage, fmt = args.stage, args.format
+    if args.fault and stage != "dbn":
+        raise BgcError("--fault applies to 'bgc show dbn' only", None, "drop --fault or show the dbn stage")
+    if stage == "dbn":
+        name = "nominal"
+        if args.fault:
+            name = args.fault
+            if name.count(":") != 1:
+                raise BgcError(f"--fault {name}: expected PARAM:KIND", None, "e.g. --fault R_pipe:incipient")
+        try:
+            d = c.dbn.get(name)
+        except KeyError as exc:
+            raise BgcError(str(exc.args[0]), None, "pick a fault candidate and kind the model declares") from None
+    texts = {
+        ("causality", "text"): lambda: render.causality_text(c.causal),
+        ("causality", "json"): lambda: render.to_json(render.causality_json(c.causal)),
+        ("tcg", "text"): lambda: render.tcg_text(c.tcg),
+        ("tcg", "json"): lambda: render.to_json(render.tcg_json(c.tcg)),
+        ("tcg", "dot"): lambda: render.tcg_dot(c.tcg),
+        ("equations", "text"): lambda: render.equations_text(c.equations),
+        ("equations", "json"): lambda: render.to_json(render.equations_json(c.equations)),
+        ("equations", "latex"): lambda: render.equations_latex(c.equations),
+        ("dbn", "text"): lambda: render.dbn_text(d),
+        ("dbn", "json"): lambda: render.to_json(render.dbn_json(d)),
+        ("dbn", "dot"): lambda: render.dbn_dot(d),
+    }
+    if fmt in ("svg", "png"):
+        if stage == "tcg":
+            data = draw.tcg_picture(c.tcg, fmt, args.engine)
+        elif stage == "dbn":
+            data = draw.dbn_picture(d, fmt, args.engine)
+        else:
+            raise BgcError(f"stage {stage} has no picture", None, "pictures exist for tcg and dbn")
+        suffix = f"-{codegen.dbn_file_stem(d.name)}" if stage == "dbn" else ""
+        out = Path(args.output or f"{c.model.name}-{stage}{suffix}.{fmt}")
+        artifacts.write_file(out, data)
+        print(f"wrote {out}")
+        return 0
+    if (stage, fmt) not in texts:
+        valid = sorted(f for s_, f in texts if s_ == stage)
+        raise BgcError(f"stage {stage} has no format {fmt}", None, f"use one of: {', '.join(valid + ['svg', 'png'] if stage in ('tcg', 'dbn') else valid)}")
+    text = texts[(stage, fmt)]()
+    if args.output:
+        artifacts.write_file(Path(args.output), text)
+        print(f"wrote {args.output}")
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bgc", description="Bond-graph model compiler for model-based fault diagnosis.")
@@ -70,6 +152,24 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("check", help="validate models and print a summary (elements, states, causality)")
     p.add_argument("models", nargs="+", metavar="MODEL", help="model files (YAML)")
     p.set_defaults(run=cmd_check)
+
+    p = sub.add_parser("compile", help="compile models into generated/<model>/ (equations, TCG, DBNs, pictures)")
+    p.add_argument("models", nargs="+", metavar="MODEL")
+    p.add_argument("-o", "--output", default="generated", metavar="DIR", help="output root (default: generated)")
+    p.add_argument("--no-pictures", action="store_true", help="skip the SVG pictures")
+    p.add_argument("--check", action="store_true", help="compare with DIR instead of writing; exit 1 on a difference")
+    p.add_argument("--engine", choices=["auto", "graphviz", "matplotlib"], default="auto",
+                   help="picture renderer (auto: Graphviz dot when installed)")
+    p.set_defaults(run=cmd_compile)
+
+    p = sub.add_parser("show", help="print or render one stage of a model")
+    p.add_argument("stage", choices=["causality", "tcg", "equations", "dbn"])
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--fault", metavar="PARAM:KIND", help="with dbn: the faulty DBN, e.g. R_pipe:incipient")
+    p.add_argument("--format", default="text", choices=["text", "json", "dot", "latex", "svg", "png"])
+    p.add_argument("-o", "--output", metavar="FILE", help="write to FILE (pictures default to MODEL-STAGE.FMT)")
+    p.add_argument("--engine", choices=["auto", "graphviz", "matplotlib"], default="auto")
+    p.set_defaults(run=cmd_show)
     return parser
 
 

@@ -117,6 +117,20 @@ class _Parser:
         return self.walk(tree.body, 0)
 
     def walk(self, node: ast.AST, depth: int) -> sympy.Expr:
+        expr = self.build(node, depth)
+        if expr.is_number:
+            # Bound every constant subexpression as it is built, so no later step
+            # (a float(), an is_zero) asks sympy for a value like exp(exp(exp(100))).
+            try:
+                value = float(expr)
+            except (TypeError, ValueError, OverflowError):  # complex (sqrt(-1)) or infinite (log(0))
+                raise self.fail(f"'{_short(str(expr))}' is not a finite real number",
+                                "check the arguments of log, sqrt and powers") from None
+            if not math.isfinite(value):
+                raise self.fail("number is out of range", "rescale the formula")
+        return expr
+
+    def build(self, node: ast.AST, depth: int) -> sympy.Expr:
         if depth > MAX_DEPTH:
             raise self.fail("expression is nested too deeply", f"use at most {MAX_DEPTH} levels of nesting")
         d = depth + 1

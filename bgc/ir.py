@@ -61,6 +61,7 @@ class RawModel:
     data: Any
     locations: Mapping[tuple, SourceLoc]
     key_locations: Mapping[tuple, SourceLoc]
+    sha256: str = ""
 
     def loc(self, *path: Any) -> SourceLoc:
         """Location of the deepest existing node on ``path``."""
@@ -275,3 +276,93 @@ class CausalBondGraph:
     @property
     def states(self) -> tuple[StorageCausality, ...]:
         return tuple(s for s in self.storage if s.integral)
+
+
+# ------------------------------------------------------------------------- TCG
+@dataclass(frozen=True, slots=True)
+class TcgEdge:
+    """One TCG edge ``source -> target``.
+
+    ``parameters`` are the component parameters of the relation and ``effects``
+    the sign of the target's change when each increases (None: undetermined);
+    ``sign`` is the sign of the target's change when the source increases.
+    """
+
+    source: str
+    target: str
+    label: str
+    relation: str
+    element: str | None
+    parameters: tuple[str, ...]
+    effects: tuple[int | None, ...]
+    sign: int | None
+    temporal: bool
+
+
+@dataclass(frozen=True, slots=True)
+class TemporalCausalGraph:
+    """The TCG (``graph``, frozen networkx DiGraph) and its simplified form over
+    state, input and measured variables (``simplified``)."""
+
+    causal: CausalBondGraph
+    graph: Any
+    simplified: Any
+    edges: tuple[TcgEdge, ...]
+
+    @property
+    def model(self) -> BondGraph:
+        return self.causal.model
+
+
+# ------------------------------------------------------------------- equations
+@dataclass(frozen=True, slots=True)
+class StateSpaceModel:
+    """``dx/dt = rhs(x, u, theta)``, ``y = output_exprs(x, u, theta)``.
+
+    ``variables`` gives every bond variable in terms of states, inputs and
+    parameters; ``loops`` lists the algebraic loops that were solved.
+    """
+
+    tcg: TemporalCausalGraph
+    states: tuple[str, ...]
+    state_elements: tuple[str, ...]
+    inputs: tuple[str, ...]
+    parameters: tuple[str, ...]
+    parameter_values: tuple[float, ...]
+    outputs: tuple[str, ...]
+    rhs: tuple[Any, ...]
+    output_exprs: tuple[Any, ...]
+    variables: tuple[tuple[str, Any], ...]
+    initial: tuple[float, ...]
+    loops: tuple[tuple[str, ...], ...]
+
+    @property
+    def model(self) -> BondGraph:
+        return self.tcg.causal.model
+
+
+# ------------------------------------------------------------------------- DBN
+@dataclass(frozen=True, slots=True)
+class Dbn:
+    """One two-slice DBN: nodes ``var@t`` / ``var@t+1`` with ``role`` and ``slice``
+    attributes, arcs with ``arc`` in persistence/temporal/intra/fault/drift/indicator."""
+
+    name: str
+    parameter: str | None
+    kind: str | None
+    graph: Any
+
+
+@dataclass(frozen=True, slots=True)
+class DbnModel:
+    equations: StateSpaceModel
+    nominal: Dbn
+    faulty: tuple[Dbn, ...]
+
+    def get(self, name: str) -> Dbn:
+        """The DBN called ``nominal`` or ``PARAM:KIND``."""
+        for d in (self.nominal, *self.faulty):
+            if d.name == name:
+                return d
+        valid = ", ".join(d.name for d in (self.nominal, *self.faulty))
+        raise KeyError(f"no DBN '{name}' (valid: {valid})")

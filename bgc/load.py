@@ -10,6 +10,7 @@ duplicate element name or bond number is an error, not a surprise.
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,8 @@ from .ir import RawModel
 MAX_BYTES = 2_000_000
 #: Refuse alias expansion beyond this many nodes ("billion laughs").
 MAX_NODES = 200_000
+#: The only tags a mapping or a list may carry (the implicit ones): no ``!!python/...``.
+_COLLECTION_TAGS = frozenset({"tag:yaml.org,2002:map", "tag:yaml.org,2002:seq"})
 
 
 def load(path: str | Path) -> RawModel:
@@ -62,10 +65,17 @@ def loads(text: str, name: str = "<string>") -> RawModel:
                         "fix the YAML syntax at this place") from None
     except yaml.YAMLError as exc:
         raise LoadError(f"YAML error: {exc}", SourceLoc(name, 1, 1)) from None
+    except RecursionError:
+        raise LoadError("YAML is nested too deeply", SourceLoc(name, 1, 1),
+                        "a model needs only a few levels of nesting") from None
     if node is None:
         raise LoadError("the file is empty", SourceLoc(name, 1, 1),
                         "write a model: see docs/format.md")
-    return _Walker(name).run(node)
+    try:
+        return _Walker(name).run(node, hashlib.sha256(text.encode("utf-8")).hexdigest())
+    except RecursionError:
+        raise LoadError("YAML is nested too deeply", SourceLoc(name, 1, 1),
+                        "a model needs only a few levels of nesting") from None
 
 
 class _Walker:
@@ -76,12 +86,13 @@ class _Walker:
         self.key_locations: dict[tuple, SourceLoc] = {}
         self.errors: list[LoadError] = []
         self.count = 0
+        self.open: set[int] = set()  # ids of the collection nodes being walked (recursive aliases)
 
-    def run(self, node: yaml.Node) -> RawModel:
+    def run(self, node: yaml.Node, sha256: str) -> RawModel:
         data = self.walk(node, ())
         if self.errors:
             raise ErrorGroup(self.errors)
-        return RawModel(self.name, data, self.locations, self.key_locations)
+        return RawModel(self.name, data, self.locations, self.key_locations, sha256)
 
     def mark(self, node: yaml.Node) -> SourceLoc:
         return SourceLoc(self.name, node.start_mark.line + 1, node.start_mark.column + 1)
@@ -92,6 +103,22 @@ class _Walker:
             raise LoadError(f"more than {MAX_NODES} YAML nodes (alias expansion?)", self.mark(node),
                             "do not use anchors and aliases to multiply content")
         self.locations[path] = self.mark(node)
+        if isinstance(node, (yaml.MappingNode, yaml.SequenceNode)):
+            if node.tag not in _COLLECTION_TAGS:
+                self.errors.append(LoadError(f"YAML tag '{node.tag}' is not allowed", self.mark(node),
+                                             "remove the tag: a model is plain mappings, lists and scalars"))
+                return None
+            if id(node) in self.open:
+                raise LoadError("recursive YAML alias", self.mark(node),
+                                "an alias must not refer to a node that contains it")
+            self.open.add(id(node))
+            try:
+                return self.collection(node, path)
+            finally:
+                self.open.discard(id(node))
+        return self.scalar(node)
+
+    def collection(self, node: yaml.Node, path: tuple) -> Any:
         if isinstance(node, yaml.MappingNode):
             self.constructor.flatten_mapping(node)
             out: dict = {}
@@ -110,13 +137,14 @@ class _Walker:
                 self.key_locations[path + (key,)] = self.mark(key_node)
                 out[key] = self.walk(value_node, path + (key,))
             return out
-        if isinstance(node, yaml.SequenceNode):
-            return [self.walk(item, path + (i,)) for i, item in enumerate(node.value)]
-        return self.scalar(node)
+        return [self.walk(item, path + (i,)) for i, item in enumerate(node.value)]
 
     def scalar(self, node: yaml.Node) -> Any:
         try:
             return self.constructor.construct_object(node, deep=True)
-        except yaml.YAMLError as exc:
-            self.errors.append(LoadError(f"bad value: {exc}", self.mark(node), "fix this value"))
-            return None
+        except yaml.MarkedYAMLError as exc:
+            what = exc.problem or exc.context or "cannot read the value"
+        except (yaml.YAMLError, ValueError, OverflowError) as exc:  # e.g. the date 2001-13-45
+            what = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        self.errors.append(LoadError(f"bad value: {what}", self.mark(node), "fix this value"))
+        return None

@@ -13,7 +13,6 @@ as ``file:line:col: what (how to fix)``.
 from __future__ import annotations
 
 import builtins
-import hashlib
 import json
 import keyword
 import re
@@ -78,7 +77,8 @@ class _Validator:
         self.errors.append(ValidationError(what, loc, fix))
 
     def bad(self, path: tuple) -> bool:
-        return any(path[: len(p)] == p for p in self.bad_paths)
+        """Whether the schema found an error in the node at ``path``, inside it or around it."""
+        return any(path[: len(p)] == p or p[: len(path)] == path for p in self.bad_paths)
 
     def expr(self, text: Any, names: Iterable[str], path: tuple, where: str) -> sympy.Expr | None:
         try:
@@ -109,7 +109,12 @@ class _Validator:
                 path = path + (err.instance,)  # the offending key itself
             self.bad_paths.add(path)
             what, fix, key = _schema_message(err, path)
-            self.error(what, path, fix, key=key)
+            where = path
+            if err.validator == "additionalProperties" and isinstance(err.instance, dict):
+                extra = sorted(set(err.instance) - set(err.schema.get("properties", {})))
+                if extra:  # point at the unknown key, not at the mapping holding it
+                    where, key = path + (extra[0],), True
+            self.error(what, where, fix, key=key)
 
     # ------------------------------------------------------------------ build
     def build(self, data: dict) -> BondGraph:
@@ -129,7 +134,6 @@ class _Validator:
         measurements = self.measurements(data.get("measurements") or {}, pnames | inames | variables,
                                          variables, pnames | inames, settings.measurement_noise)
         faults = self.faults(data.get("faults") or {}, pnames)
-        text = json.dumps(data, sort_keys=True, default=str)
         return BondGraph(
             name=data["name"],
             description=str(data.get("description", "")),
@@ -141,7 +145,7 @@ class _Validator:
             measurements=measurements,
             faults=faults,
             settings=settings,
-            source_sha256=hashlib.sha256(text.encode()).hexdigest(),
+            source_sha256=self.raw.sha256,
         )
 
     def name_ok(self, name: str, path: tuple, what: str) -> bool:
@@ -237,7 +241,6 @@ class _Validator:
             if len(mine) == 1:
                 own = {"e": effort(mine[0].number), "f": flow(mine[0].number)}
             modulated = kind in MODULATED
-            signal_names = variables if modulated else set()
             parameter = law = source = None
             loc = self.raw.key_loc(*path)
             if kind in SOURCES:
@@ -246,19 +249,16 @@ class _Validator:
                     self.error(f"source {name} has no value", path,
                                f"add 'value: <expression>' or declare an input named {name}")
                     continue
-                names = pnames | inames | signal_names
+                names = pnames | inames | variables
                 source = self.expr(text, names, path + ("value",), f"value of {name}")
-                if source is not None and not modulated:
-                    used = {s.name for s in source.free_symbols} & variables
-                    if used:
-                        self.error(f"source {name} depends on bond variable {sorted(used)[0]}", path + ("value",),
-                                   f"use kind M{kind} for a modulated source")
-                        continue
+                if source is None or not self.unmodulated(name, kind, source, variables, path + ("value",)):
+                    continue
             elif kind in JUNCTIONS:
                 pass
             elif "law" in spec:
-                law = self.law(name, spec["law"], own, pnames | signal_names, path + ("law",))
-                if law is None:
+                law = self.law(name, spec["law"], own, pnames | variables, path + ("law",))
+                if law is None or not self.unmodulated(name, kind, law.expr, variables - set(own.values()),
+                                                       path + ("law",)):
                     continue
             else:
                 text = spec.get("parameter", name if name in pnames else None)
@@ -266,8 +266,9 @@ class _Validator:
                     self.error(f"element {name} has no parameter", path,
                                f"declare a parameter named {name} or add 'parameter: <expression>'")
                     continue
-                parameter = self.expr(text, pnames | signal_names, path + ("parameter",), f"parameter of {name}")
-                if parameter is None:
+                parameter = self.expr(text, pnames | variables, path + ("parameter",), f"parameter of {name}")
+                if parameter is None or not self.unmodulated(name, kind, parameter, variables,
+                                                             path + ("parameter",)):
                     continue
                 if parameter.is_number and float(parameter) == 0.0:
                     self.error(f"element {name} has a zero parameter", path + ("parameter",),
@@ -278,6 +279,16 @@ class _Validator:
                                float(initial) if initial is not None else (0.0 if kind in STORAGE else None),
                                spec.get("description"), loc))
         return tuple(out)
+
+    def unmodulated(self, name: str, kind: str, expr: sympy.Expr, variables: set[str], path: tuple) -> bool:
+        """Check that only a modulated kind (MSe, MR, ...) depends on the bond ``variables``."""
+        used = sorted({s.name for s in expr.free_symbols} & variables)
+        if not used or kind in MODULATED:
+            return True
+        fix = (f"use kind M{kind} for a modulated element" if f"M{kind}" in MODULATED
+               else f"a {kind} element is never modulated: use parameters only")
+        self.error(f"{kind} element {name} depends on bond variable {used[0]}", path, fix)
+        return False
 
     def law(self, name: str, text: str, own: dict[str, str], names: set[str], path: tuple) -> Law | None:
         if not own:

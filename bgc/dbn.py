@@ -1,0 +1,105 @@
+"""Stage 6: :class:`~bgc.ir.StateSpaceModel` -> :class:`~bgc.ir.DbnModel`.
+
+Two-slice dynamic Bayesian networks (2TBN) built from the simplified TCG as in
+Roychoudhury (2009) and the thesis (sections III.2 and III.3):
+
+* every state ``X`` has nodes ``X@t`` and ``X@t+1`` and a persistence arc;
+* a temporal (integrating) path ``X_j -> X_i`` in the TCG gives the inter-slice
+  arc ``X_j@t -> X_i@t+1``; an input ``U`` gives ``U@t -> X@t+1`` for the first
+  states it reaches;
+* a measurement ``Y`` algebraically related to a state or input gets intra-slice
+  arcs in both slices.
+
+One faulty DBN per fault candidate and kind (thesis Fig. III.2 b, c; Fig. IV.5):
+
+* abrupt fault of parameter ``P``: a persistent bias node ``delta_P``
+  (``delta_P(t+1) = delta_P(t)``) replaces ``P`` by ``P + delta_P`` in every
+  relation; it is a parent of every state and measurement whose equation
+  involves ``P``;
+* incipient fault: ``P`` itself becomes a random variable with a persistent drift
+  ``delta_P``: ``P(t+1) = P(t) + delta_P(t)``, and ``P`` replaces every
+  occurrence of the nominal parameter.
+
+A discrete fault-indicator node ``D_P`` (persistent) is the parent of the fault
+node, as in the thesis's Fig. III.1.
+"""
+
+from __future__ import annotations
+
+import networkx as nx
+
+from .ir import Dbn, DbnModel, StateSpaceModel, sym
+
+
+def node(variable: str, slice_: int) -> str:
+    """Node id of a variable in slice 0 (``t``) or 1 (``t+1``): ``node('e4', 1) == 'e4@t+1'``."""
+    return f"{variable}@t" if slice_ == 0 else f"{variable}@t+1"
+
+
+def build(ssm: StateSpaceModel) -> DbnModel:
+    """The nominal DBN and one faulty DBN per fault candidate and kind."""
+    nominal = _nominal(ssm)
+    faulty = []
+    for fault in ssm.model.faults:
+        for kind in fault.kinds:
+            faulty.append(_faulty(ssm, nominal, fault.parameter, kind))
+    return DbnModel(ssm, Dbn("nominal", None, None, nx.freeze(nominal)), tuple(faulty))
+
+
+def _nominal(ssm: StateSpaceModel) -> nx.DiGraph:
+    s = ssm.tcg.simplified
+    g = nx.DiGraph()
+    roles = {n: d["role"] for n, d in s.nodes(data=True)}
+    elements = dict(zip(ssm.states, ssm.state_elements))
+    for x in ssm.states:
+        for k in (0, 1):
+            g.add_node(node(x, k), variable=x, slice=k, role="state", element=elements[x])
+        g.add_edge(node(x, 0), node(x, 1), arc="persistence")
+    tg = ssm.tcg.graph
+    for n, role in roles.items():
+        if role == "input":
+            for k in (0, 1):
+                g.add_node(node(n, k), variable=n, slice=k, role="input",
+                           element=tg.nodes[n].get("element"), signal=",".join(tg.nodes[n].get("inputs", ())))
+    for name in ssm.outputs:
+        for k in (0, 1):
+            g.add_node(node(name, k), variable=name, slice=k, role="measurement", element=None)
+    for a, b, d in s.edges(data=True):
+        if roles[a] not in ("state", "input"):
+            continue
+        if roles.get(b) == "state" and d["temporal"]:
+            g.add_edge(node(a, 0), node(b, 1), arc="temporal")
+        elif b in ssm.outputs and not d["temporal"]:
+            for k in (0, 1):
+                g.add_edge(node(a, k), node(b, k), arc="intra")
+    return g
+
+
+def _faulty(ssm: StateSpaceModel, nominal: nx.DiGraph, parameter: str, kind: str) -> Dbn:
+    g = nx.DiGraph(nominal)
+    p = sym(parameter)
+    d = f"D_{parameter}"
+    delta = f"delta_{parameter}"
+    for k in (0, 1):
+        g.add_node(node(d, k), variable=d, slice=k, role="fault_indicator", element=None)
+        g.add_node(node(delta, k), variable=delta, slice=k,
+                   role="fault_bias" if kind == "abrupt" else "fault_slope", element=None)
+        g.add_edge(node(d, k), node(delta, k), arc="indicator")
+    g.add_edge(node(d, 0), node(d, 1), arc="persistence")
+    g.add_edge(node(delta, 0), node(delta, 1), arc="persistence")
+    if kind == "abrupt":
+        carrier = delta
+    else:
+        carrier = parameter
+        for k in (0, 1):
+            g.add_node(node(parameter, k), variable=parameter, slice=k, role="fault_parameter", element=None)
+        g.add_edge(node(parameter, 0), node(parameter, 1), arc="persistence")
+        g.add_edge(node(delta, 0), node(parameter, 1), arc="drift")
+    for x, rhs in zip(ssm.states, ssm.rhs):
+        if p in rhs.free_symbols:
+            g.add_edge(node(carrier, 0), node(x, 1), arc="fault")
+    for y, expr in zip(ssm.outputs, ssm.output_exprs):
+        if p in expr.free_symbols:
+            for k in (0, 1):
+                g.add_edge(node(carrier, k), node(y, k), arc="fault")
+    return Dbn(f"{parameter}:{kind}", parameter, kind, nx.freeze(g))

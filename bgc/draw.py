@@ -1,0 +1,120 @@
+"""Pictures of the TCG and the DBNs: Graphviz ``dot`` when installed, otherwise a
+matplotlib drawing with a fixed layered layout, so a picture always comes out.
+
+The matplotlib SVG output is made deterministic (fixed hash salt, no date, text
+kept as text).
+"""
+
+from __future__ import annotations
+
+import io
+import shutil
+import subprocess
+
+from .ir import Dbn, TemporalCausalGraph
+from .render import _dbn_nodes, _var_key, dbn_dot, tcg_dot
+
+_ROLE_COLOR = {"state": "#f4c7a1", "input": "#c9e4c5", "measurement": "#a9c8ec", "algebraic": "#ffffff",
+               "fault_indicator": "#e0e0e0", "fault_bias": "#d6b4e8", "fault_slope": "#d6b4e8",
+               "fault_parameter": "#e8b4c8"}
+
+
+def graphviz_available() -> bool:
+    return shutil.which("dot") is not None
+
+
+def render_dot(dot_text: str, fmt: str) -> bytes:
+    """Render DOT text with Graphviz (``fmt`` is ``svg`` or ``png``)."""
+    out = subprocess.run(["dot", f"-T{fmt}"], input=dot_text.encode(), capture_output=True, check=True, timeout=60)
+    return out.stdout
+
+
+def tcg_picture(tcg: TemporalCausalGraph, fmt: str, engine: str = "auto") -> bytes:
+    if engine == "graphviz" or (engine == "auto" and graphviz_available()):
+        return render_dot(tcg_dot(tcg), fmt)
+    g = tcg.graph
+    bonds = sorted({d["bond"] for _, d in g.nodes(data=True) if d.get("bond") is not None})
+    col = {b: i for i, b in enumerate(bonds)}
+    pos = {}
+    for n, d in g.nodes(data=True):
+        if d["kind"] == "effort":
+            pos[n] = (col[d["bond"]], 1.0)
+        elif d["kind"] == "flow":
+            pos[n] = (col[d["bond"]], 0.0)
+    meas = sorted((n for n, d in g.nodes(data=True) if d["kind"] == "measurement"), key=_var_key)
+    for i, n in enumerate(meas):
+        src = min((pos[p][0] for p in g.predecessors(n) if p in pos), default=i)
+        pos[n] = (src + 0.5, -1.0 if i % 2 == 0 else -1.5)
+    labels = {(e.source, e.target): e.label for e in tcg.edges}
+    temporal = {(e.source, e.target) for e in tcg.edges if e.temporal}
+    roles = {n: ("measurement" if d["measured"] else d["role"]) for n, d in g.nodes(data=True)}
+    width = max(6.0, 1.1 * len(bonds))
+    return _draw(pos, sorted(g.nodes, key=_var_key), [(e.source, e.target) for e in tcg.edges], labels, temporal,
+                 roles, {n: n for n in g.nodes}, f"TCG of {tcg.model.name} (red: integrating edges)",
+                 (width, 6.0), fmt)
+
+
+def dbn_picture(d: Dbn, fmt: str, engine: str = "auto") -> bytes:
+    if engine == "graphviz" or (engine == "auto" and graphviz_available()):
+        return render_dot(dbn_dot(d), fmt)
+    g = d.graph
+    column = {"input": 0, "fault_indicator": 0, "fault_bias": 0, "fault_slope": 0, "fault_parameter": 0,
+              "state": 1, "measurement": 2}
+    groups: dict[tuple[int, int], list[str]] = {}
+    for n in _dbn_nodes(d):
+        a = g.nodes[n]
+        groups.setdefault((a["slice"], column[a["role"]]), []).append(n)
+    tallest = max(len(v) for v in groups.values())
+    pos = {}
+    for (slice_, c), members in groups.items():
+        top = (tallest - len(members)) / 2.0
+        for r, n in enumerate(members):
+            pos[n] = (slice_ * 3.8 + c * 1.1, -(top + r))
+    rows = {k: len(v) for k, v in groups.items()}
+    temporal = {(a, b) for a, b, k in g.edges(data="arc") if k == "temporal"}
+    roles = {n: g.nodes[n]["role"] for n in g.nodes}
+    labels_n = {n: g.nodes[n]["variable"] for n in g.nodes}
+    height = max(4.0, 0.8 * max(rows.values()) + 1.5)
+    return _draw(pos, _dbn_nodes(d), sorted(g.edges), {}, temporal, roles, labels_n,
+                 f"DBN '{d.name}': slice t (left), t+1 (right)", (9.0, height), fmt)
+
+
+def _draw(pos, nodes, edges, edge_labels, highlight, roles, node_labels, title, size, fmt) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import FancyArrowPatch
+
+    with matplotlib.rc_context({"svg.hashsalt": "bgc", "svg.fonttype": "none", "font.size": 8,
+                                "path.simplify": False}):
+        fig, ax = plt.subplots(figsize=size)
+        ax.set_title(title)
+        for a, b in edges:
+            (x1, y1), (x2, y2) = pos[a], pos[b]
+            rad = 0.25 if (b, a) in edges or abs(y1 - y2) < 1e-9 else 0.08
+            arrow = FancyArrowPatch((x1, y1), (x2, y2), arrowstyle="-|>", mutation_scale=9,
+                                    connectionstyle=f"arc3,rad={rad}", shrinkA=11, shrinkB=11, lw=0.8,
+                                    color="#b03030" if (a, b) in highlight else "#404040")
+            ax.add_patch(arrow)
+            if (a, b) in edge_labels:
+                mx, my = (x1 + x2) / 2, (y1 + y2) / 2
+                dx, dy = x2 - x1, y2 - y1
+                ax.text(mx - rad * dy * 0.5, my + rad * dx * 0.5, edge_labels[(a, b)], fontsize=6,
+                        ha="center", va="center", color="#303080",
+                        bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.8})
+        for n in nodes:
+            x, y = pos[n]
+            ax.text(x, y, node_labels[n], ha="center", va="center", fontsize=8,
+                    bbox={"boxstyle": "round,pad=0.3" if roles[n] != "measurement" else "square,pad=0.3",
+                          "fc": _ROLE_COLOR.get(roles[n], "#ffffff"), "ec": "#202020", "lw": 0.8})
+        xs = [p[0] for p in pos.values()]
+        ys = [p[1] for p in pos.values()]
+        ax.set_xlim(min(xs) - 0.7, max(xs) + 0.7)
+        ax.set_ylim(min(ys) - 0.7, max(ys) + 0.7)
+        ax.axis("off")
+        buf = io.BytesIO()
+        meta = {"Date": None, "Creator": None} if fmt == "svg" else {"Software": None}
+        fig.savefig(buf, format=fmt, metadata=meta, dpi=110)
+        plt.close(fig)
+    return buf.getvalue()

@@ -1,0 +1,114 @@
+"""Stage 5: :class:`~bgc.ir.TemporalCausalGraph` -> :class:`~bgc.ir.StateSpaceModel`.
+
+Derives ``dx/dt = f(x, u, theta)`` and ``y = h(x, u, theta)`` with sympy from the
+causal relations the TCG carries (each node's ``definition``). States are the
+co-energy variables of the storage elements in integral causality (``e`` of a
+C, ``f`` of an I), as in the thesis; parameters stay symbols so fault models can
+replace them.
+
+The algebraic relations are ordered by causality (a topological order of the
+TCG without its integrating edges) and substituted in that order, so the cost
+grows with the size of the graph, not with a generic symbolic solve. A cycle of
+algebraic relations (an algebraic loop, closed by a resistor SCAP assigned
+arbitrarily) is solved symbolically: a linear loop by Gaussian elimination on
+its few unknowns, a nonlinear one by ``sympy.solve`` when that gives a unique
+solution; otherwise a located error names the loop.
+
+The expressions solved here never come from model text directly: they are built
+by the safe parser (:mod:`bgc.expressions`) and by the causal relations.
+"""
+
+from __future__ import annotations
+
+import networkx as nx
+import sympy
+
+from .errors import EquationError
+from .ir import StateSpaceModel, TemporalCausalGraph, sym
+from .tcg import _var_key
+
+
+def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
+    """Derive the state and measurement equations.
+
+    Raises
+    ------
+    EquationError
+        An algebraic loop without a unique symbolic solution.
+    """
+    g = tcg.graph
+    model = tcg.model
+    states = tuple(sorted((n for n, d in g.nodes(data=True) if d["role"] == "state"), key=_var_key))
+    variables = [n for n, d in g.nodes(data=True) if d["kind"] != "measurement"]
+    state_set = set(states)
+    algebraic = nx.DiGraph()
+    algebraic.add_nodes_from(v for v in variables if v not in state_set)
+    for u, v, d in g.edges(data=True):
+        if not d["temporal"] and v in algebraic and u in algebraic:
+            algebraic.add_edge(u, v)
+
+    resolved: dict[sympy.Symbol, sympy.Expr] = {sym(x): sym(x) for x in states}
+    loops: list[tuple[str, ...]] = []
+    condensed = nx.condensation(algebraic)
+    order = nx.lexicographical_topological_sort(
+        condensed, key=lambda c: _var_key(min(condensed.nodes[c]["members"], key=_var_key)))
+    for comp in order:
+        members = sorted(condensed.nodes[comp]["members"], key=_var_key)
+        if len(members) == 1 and not algebraic.has_edge(members[0], members[0]):
+            v = members[0]
+            if "definition" not in g.nodes[v]:
+                raise EquationError(f"variable {v} is computed by no element", model.source,
+                                    "check the causality of the bonds around it")
+            resolved[sym(v)] = _substitute(g.nodes[v]["definition"], resolved)
+            continue
+        loops.append(tuple(members))
+        resolved.update(_solve_loop(tcg, members, resolved))
+
+    rhs = tuple(_substitute(g.nodes[x]["derivative"], resolved) for x in states)
+    outputs = []
+    for m in model.measurements:
+        outputs.append(_substitute(m.expr, resolved))
+    storage = {s.state: s.element for s in tcg.causal.states}
+    initial = tuple(model.element(storage[x]).initial or 0.0 for x in states)
+    bond_vars = tuple(sorted(((v, resolved[sym(v)]) for v in variables), key=lambda p: _var_key(p[0])))
+    return StateSpaceModel(
+        tcg=tcg,
+        states=states,
+        state_elements=tuple(storage[x] for x in states),
+        inputs=tuple(i.name for i in model.inputs),
+        parameters=tuple(p.name for p in model.parameters),
+        parameter_values=tuple(p.value for p in model.parameters),
+        outputs=tuple(m.name for m in model.measurements),
+        rhs=rhs,
+        output_exprs=tuple(outputs),
+        variables=bond_vars,
+        initial=initial,
+        loops=tuple(loops),
+    )
+
+
+def _substitute(expr: sympy.Expr, resolved: dict[sympy.Symbol, sympy.Expr]) -> sympy.Expr:
+    sub = {s: resolved[s] for s in expr.free_symbols if s in resolved and resolved[s] is not s}
+    return expr.xreplace(sub) if sub else expr
+
+
+def _solve_loop(tcg: TemporalCausalGraph, members: list[str],
+                resolved: dict[sympy.Symbol, sympy.Expr]) -> dict[sympy.Symbol, sympy.Expr]:
+    g = tcg.graph
+    unknowns = [sym(v) for v in members]
+    eqs = [sym(v) - _substitute(g.nodes[v]["definition"], resolved) for v in members]
+    elements = sorted({g.nodes[v].get("element") or "?" for v in members})
+    where = f"algebraic loop through {', '.join(members)} (elements {', '.join(elements)})"
+    try:
+        a, b = sympy.linear_eq_to_matrix(eqs, unknowns)
+    except sympy.solvers.solveset.NonlinearError:
+        solutions = sympy.solve(eqs, unknowns, dict=True)
+        if len(solutions) != 1 or set(solutions[0]) != set(unknowns):
+            raise EquationError(f"{where} has {len(solutions)} symbolic solutions", tcg.model.source,
+                                "break the loop, e.g. add a small storage element (C or I) in it") from None
+        return {u: solutions[0][u] for u in unknowns}
+    if a.det() == 0:
+        raise EquationError(f"{where} is singular", tcg.model.source,
+                            "the loop's resistors fix no unique values: check the model")
+    x = a.LUsolve(b)
+    return {u: sympy.factor_terms(sympy.cancel(x[i])) for i, u in enumerate(unknowns)}

@@ -1,0 +1,229 @@
+"""Stable text, JSON and Graphviz DOT dumps of every IR (what ``bgc show`` prints).
+
+Everything is sorted (bonds by number, variables by bond then e/f, names
+alphabetically), so the same model always gives the same text.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import networkx as nx
+import sympy
+
+from .ir import CausalBondGraph, Dbn, DbnModel, StateSpaceModel, TemporalCausalGraph
+from .tcg import _var_key
+
+
+def to_json(data: Any) -> str:
+    """Canonical JSON: sorted keys, two-space indent, final newline."""
+    return json.dumps(data, indent=2, sort_keys=True, ensure_ascii=False) + "\n"
+
+
+def _num(v: float) -> float | int:
+    return int(v) if float(v).is_integer() and abs(v) < 1e15 else float(v)
+
+
+# ------------------------------------------------------------------- causality
+def causality_text(cbg: CausalBondGraph) -> str:
+    m = cbg.model
+    lines = [f"# causal bond graph of {m.name} (SCAP); stroke = end that receives the effort",
+             f"{'bond':>5}  {'from -> to':<28} {'effort by':<12} {'flow by (stroke)':<12}"]
+    for b in m.bonds:
+        c = cbg.causality(b.number)
+        lines.append(f"{b.number:>5}  {b.tail + ' -> ' + b.head:<28} {c.effort_by:<12} {c.flow_by:<12}")
+    lines.append("storage:")
+    for s in cbg.storage:
+        lines.append(f"  {s.element} ({s.kind}, bond {s.bond}): {'integral, state ' + s.state if s.integral else 'derivative'}")
+    lines.append("resistors assigned arbitrarily: " + (", ".join(cbg.arbitrary) or "none"))
+    for d in cbg.diagnostics:
+        lines.append(f"{d.severity}: {d.message}")
+    return "\n".join(lines) + "\n"
+
+
+def causality_json(cbg: CausalBondGraph) -> dict:
+    return {
+        "model": cbg.model.name,
+        "bonds": [{"bond": c.bond, "effort_by": c.effort_by, "flow_by": c.flow_by} for c in cbg.bonds],
+        "storage": [{"element": s.element, "kind": s.kind, "bond": s.bond, "integral": s.integral,
+                     "state": s.state if s.integral else None} for s in cbg.storage],
+        "arbitrary": list(cbg.arbitrary),
+        "diagnostics": [{"severity": d.severity, "message": d.message, "element": d.element} for d in cbg.diagnostics],
+    }
+
+
+# ------------------------------------------------------------------------- TCG
+def tcg_text(tcg: TemporalCausalGraph) -> str:
+    g = tcg.graph
+    lines = [f"# temporal causal graph of {tcg.model.name}: source -[label]-> target  (element; parameters)"]
+    for e in tcg.edges:
+        params = ", ".join(f"{p}{_effect_sign(s)}" for p, s in zip(e.parameters, e.effects)) or "-"
+        dt = "  [temporal]" if e.temporal else ""
+        lines.append(f"{e.source:>8} -[{e.label}]-> {e.target:<8} ({e.element or '-'}; {params}){dt}")
+    lines.append("# simplified TCG (states, inputs, measured variables)")
+    for a, b, d in sorted(tcg.simplified.edges(data=True), key=lambda t: (_var_key(t[0]), _var_key(t[1]))):
+        lines.append(f"{a:>8} -{'[dt]' if d['temporal'] else '---'}-> {b:<8} ({', '.join(d['parameters']) or '-'})")
+    roles = {}
+    for n, d in g.nodes(data=True):
+        roles.setdefault(d["role"], []).append(n)
+    for role in sorted(roles):
+        lines.append(f"# {role}: {', '.join(sorted(roles[role], key=_var_key))}")
+    return "\n".join(lines) + "\n"
+
+
+def _effect_sign(s: int | None) -> str:
+    return {1: "(+)", -1: "(-)", 0: "(0)"}.get(s, "(?)")
+
+
+def tcg_json(tcg: TemporalCausalGraph) -> dict:
+    g = tcg.graph
+    nodes = []
+    for n in sorted(g.nodes, key=_var_key):
+        d = g.nodes[n]
+        item = {"id": n, "kind": d["kind"], "role": d["role"], "measured": d["measured"],
+                "bond": d.get("bond"), "element": d.get("element")}
+        if "definition" in d:
+            item["definition"] = str(d["definition"])
+        if "derivative" in d:
+            item["derivative"] = str(d["derivative"])
+        nodes.append(item)
+    edges = [{"source": e.source, "target": e.target, "label": e.label, "relation": e.relation,
+              "element": e.element, "parameters": list(e.parameters), "effects": list(e.effects),
+              "sign": e.sign, "temporal": e.temporal} for e in tcg.edges]
+    simplified = [{"source": a, "target": b, "temporal": d["temporal"], "parameters": list(d["parameters"])}
+                  for a, b, d in sorted(tcg.simplified.edges(data=True), key=lambda t: (_var_key(t[0]), _var_key(t[1])))]
+    return {"model": tcg.model.name, "nodes": nodes, "edges": edges, "simplified_edges": simplified}
+
+
+def _dot_id(name: str) -> str:
+    return '"' + name.replace('"', '\\"') + '"'
+
+
+def tcg_dot(tcg: TemporalCausalGraph) -> str:
+    g = tcg.graph
+    lines = [f"digraph {_dot_id('tcg_' + tcg.model.name)} {{", "  rankdir=LR;",
+             '  node [fontname="Helvetica", fontsize=11];', '  edge [fontname="Helvetica", fontsize=9];']
+    for n in sorted(g.nodes, key=_var_key):
+        d = g.nodes[n]
+        shape = {"state": "doublecircle", "input": "diamond", "measurement": "box"}.get(d["role"], "circle")
+        if d["measured"] and d["role"] != "measurement":
+            shape = "box" if d["role"] == "algebraic" else shape
+        lines.append(f"  {_dot_id(n)} [shape={shape}];")
+    for e in tcg.edges:
+        style = ', style=bold, color="#b03030"' if e.temporal else ""
+        lines.append(f"  {_dot_id(e.source)} -> {_dot_id(e.target)} [label={_dot_id(e.label)}{style}];")
+    lines.append("}")
+    return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------- equations
+def equations_text(ssm: StateSpaceModel) -> str:
+    lines = [f"# state equations of {ssm.model.name}: dx/dt = f(x, u, theta), y = h(x, u, theta)",
+             f"# states x: {', '.join(f'{x} ({el})' for x, el in zip(ssm.states, ssm.state_elements))}",
+             f"# inputs u: {', '.join(ssm.inputs) or '-'}",
+             f"# parameters theta: {', '.join(f'{p}={v:g}' for p, v in zip(ssm.parameters, ssm.parameter_values))}"]
+    for x, f in zip(ssm.states, ssm.rhs):
+        lines.append(f"d{x}/dt = {sympy.sstr(f)}")
+    for y, h in zip(ssm.outputs, ssm.output_exprs):
+        lines.append(f"{y} = {sympy.sstr(h)}")
+    if ssm.loops:
+        lines.append("# algebraic loops solved: " + "; ".join(", ".join(loop) for loop in ssm.loops))
+    return "\n".join(lines) + "\n"
+
+
+def equations_latex(ssm: StateSpaceModel) -> str:
+    sym = {s: sympy.Symbol(_latex_name(s.name)) for f in (*ssm.rhs, *ssm.output_exprs) for s in f.free_symbols}
+    lines = [f"% state equations of {ssm.model.name}, generated by bgc", r"\begin{aligned}"]
+    for x, f in zip(ssm.states, ssm.rhs):
+        lines.append(rf"\frac{{d{_latex_name(x)}}}{{dt}} &= {sympy.latex(f.xreplace(sym))} \\")
+    for y, h in zip(ssm.outputs, ssm.output_exprs):
+        lines.append(rf"{_latex_name(y)} &= {sympy.latex(h.xreplace(sym))} \\")
+    lines.append(r"\end{aligned}")
+    return "\n".join(lines) + "\n"
+
+
+def _latex_name(name: str) -> str:
+    if name[:1] in "ef" and name[1:].isdigit():
+        return f"{name[0]}_{{{name[1:]}}}"
+    if "_" in name:
+        head, tail = name.split("_", 1)
+        return f"{head}_{{\\mathrm{{{tail.replace('_', ' ')}}}}}"
+    return name
+
+
+def equations_json(ssm: StateSpaceModel) -> dict:
+    return {
+        "model": ssm.model.name,
+        "states": [{"name": x, "element": el, "initial": _num(v), "derivative": str(f)}
+                   for x, el, v, f in zip(ssm.states, ssm.state_elements, ssm.initial, ssm.rhs)],
+        "inputs": [{"name": i.name, "signal": i.signal.kind, "value": _num(i.signal.value)} for i in ssm.model.inputs],
+        "parameters": [{"name": p, "value": _num(v)} for p, v in zip(ssm.parameters, ssm.parameter_values)],
+        "outputs": [{"name": y, "expression": str(h), "noise": _num(m.noise)}
+                    for y, h, m in zip(ssm.outputs, ssm.output_exprs, ssm.model.measurements)],
+        "variables": {v: str(e) for v, e in ssm.variables},
+        "algebraic_loops": [list(loop) for loop in ssm.loops],
+    }
+
+
+# ------------------------------------------------------------------------- DBN
+def _dbn_nodes(d: Dbn) -> list[str]:
+    g = d.graph
+    order = {"input": 0, "fault_indicator": 1, "fault_bias": 2, "fault_slope": 2, "fault_parameter": 3,
+             "state": 4, "measurement": 5}
+    return sorted(g.nodes, key=lambda n: (g.nodes[n]["slice"], order[g.nodes[n]["role"]],
+                                          _var_key(g.nodes[n]["variable"])))
+
+
+def _arcs(d: Dbn) -> list[tuple[str, str, str]]:
+    idx = {n: i for i, n in enumerate(_dbn_nodes(d))}
+    return sorted(((a, b, k) for a, b, k in d.graph.edges(data="arc")), key=lambda t: (idx[t[0]], idx[t[1]]))
+
+
+def dbn_text(d: Dbn) -> str:
+    g = d.graph
+    lines = [f"# two-slice DBN '{d.name}'"]
+    for n in _dbn_nodes(d):
+        lines.append(f"node {n:<22} {g.nodes[n]['role']}")
+    for a, b, k in _arcs(d):
+        lines.append(f"arc  {a:>22} -> {b:<22} {k}")
+    return "\n".join(lines) + "\n"
+
+
+def dbn_json(d: Dbn) -> dict:
+    g = d.graph
+    return {
+        "name": d.name, "parameter": d.parameter, "kind": d.kind,
+        "nodes": [{"id": n, **{k: g.nodes[n][k] for k in sorted(g.nodes[n])}} for n in _dbn_nodes(d)],
+        "arcs": [{"source": a, "target": b, "arc": k} for a, b, k in _arcs(d)],
+    }
+
+
+def dbn_dot(d: Dbn) -> str:
+    g = d.graph
+    shape = {"state": "circle", "measurement": "box", "input": "diamond", "fault_indicator": "octagon",
+             "fault_bias": "hexagon", "fault_slope": "hexagon", "fault_parameter": "doublecircle"}
+    lines = [f"digraph {_dot_id('dbn_' + d.name)} {{", "  rankdir=LR; newrank=true;",
+             '  node [fontname="Helvetica", fontsize=11];']
+    for k, title in ((0, "t"), (1, "t+1")):
+        lines.append(f"  subgraph {_dot_id('cluster_slice_' + str(k))} {{")
+        lines.append(f"    label={_dot_id('slice ' + title)};")
+        for n in _dbn_nodes(d):
+            if g.nodes[n]["slice"] == k:
+                lines.append(f"    {_dot_id(n)} [shape={shape[g.nodes[n]['role']]}, label={_dot_id(g.nodes[n]['variable'])}];")
+        lines.append("  }")
+    style = {"persistence": 'color="#808080"', "temporal": 'color="#b03030", style=bold', "intra": "color=black",
+             "fault": 'color="#2060c0"', "drift": 'color="#2060c0", style=dashed', "indicator": "style=dotted"}
+    for a, b, k in _arcs(d):
+        lines.append(f"  {_dot_id(a)} -> {_dot_id(b)} [{style[k]}];")
+    lines.append("}")
+    return "\n".join(lines) + "\n"
+
+
+def dbn_model_text(m: DbnModel) -> str:
+    return "".join(dbn_text(d) for d in (m.nominal, *m.faulty))
+
+
+def graph_digest(g: nx.DiGraph) -> tuple:
+    """Sorted (nodes, edges) of a graph, for comparisons in tests."""
+    return (tuple(sorted(g.nodes)), tuple(sorted(g.edges)))

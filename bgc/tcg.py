@@ -1,0 +1,287 @@
+"""Stage 4: :class:`~bgc.ir.CausalBondGraph` -> :class:`~bgc.ir.TemporalCausalGraph`.
+
+The temporal causal graph (TCG; Mosterman and Biswas, 1999; thesis section
+II.3.2) is the signal-flow graph of the causal bond graph. Its nodes are the
+effort and flow variables ``e_i``, ``f_i`` (plus one node per named
+measurement); an edge ``a -> b`` says that ``a`` appears in the causal relation
+that computes ``b``. Edge labels follow the thesis:
+
+* ``=`` junction equalities, ``+1``/``-1`` junction sums;
+* ``R`` and ``1/R`` for resistors by causality, ``law`` for nonlinear ones;
+* ``dt/C`` and ``dt/I`` for storage in integral causality (temporal edges);
+* ``m``, ``1/m`` for TF and GY moduli;
+* ``signal`` for the signal links of modulated elements.
+
+Every edge records the component parameters it involves and the qualitative
+effect of an increase of each (the sign of the partial derivative of the
+relation, variables taken positive), which is what TRANSCEND-style fault
+isolation propagates. Every node records its defining relation as a sympy
+expression of its predecessors (``definition``; for states ``derivative``), so
+the equation stage works from the TCG alone.
+
+The simplified TCG (thesis III.3, Roychoudhury's step ii) keeps only state,
+input and measured variables: ``a -> b`` when a path from ``a`` reaches ``b``
+through other variables only; it is temporal when the path integrates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import networkx as nx
+import sympy
+
+from .errors import EquationError
+from .ir import (
+    CausalBondGraph, Element, TemporalCausalGraph, TcgEdge, effort, flow, sym,
+)
+
+
+@dataclass(slots=True)
+class _Relation:
+    """``target = expr`` (or ``d target/dt = expr`` when ``derivative``)."""
+
+    target: str
+    expr: sympy.Expr
+    relation: str
+    element: str
+    labels: dict[str, str]
+    derivative: bool = False
+
+
+def build(cbg: CausalBondGraph) -> TemporalCausalGraph:
+    """Build the TCG and its simplified form from a causal bond graph.
+
+    Raises
+    ------
+    EquationError
+        A storage element in derivative causality (not supported yet), or a
+        nonlinear law that cannot be put in the causal form SCAP chose.
+    """
+    model = cbg.model
+    params = {p.name for p in model.parameters}
+    inputs = {i.name for i in model.inputs}
+    values = model.parameter_values()
+    rels = _relations(cbg)
+    variables = {effort(b.number) for b in model.bonds} | {flow(b.number) for b in model.bonds}
+
+    g = nx.DiGraph()
+    states = {s.state: s for s in cbg.states}
+    for b in model.bonds:
+        for name, kind in ((effort(b.number), "effort"), (flow(b.number), "flow")):
+            g.add_node(name, kind=kind, bond=b.number, role="algebraic", measured=False)
+    for r in rels:
+        node = g.nodes[r.target]
+        node["element"] = r.element
+        if r.derivative:
+            node["role"] = "state"
+            node["derivative"] = r.expr
+            node["definition"] = sym(r.target)
+        else:
+            node["definition"] = r.expr
+        if r.relation == "source":
+            used = {s.name for s in r.expr.free_symbols}
+            if not used & variables:
+                node["role"] = "input"
+            node["inputs"] = tuple(sorted(used & inputs))
+        for s in sorted(r.expr.free_symbols, key=lambda s: s.name):
+            if s.name not in variables:
+                continue
+            pnames = tuple(sorted(p.name for p in r.expr.free_symbols if p.name in params))
+            g.add_edge(s.name, r.target,
+                       label=r.labels.get(s.name, "signal"),
+                       relation=r.relation if s.name in r.labels else "signal",
+                       element=r.element,
+                       parameters=pnames,
+                       effects=tuple(_effect(r.expr, p, variables, values) for p in pnames),
+                       sign=_sign(sympy.diff(r.expr, s), variables, values),
+                       temporal=r.derivative)
+    for m in model.measurements:
+        used = sorted(s.name for s in m.expr.free_symbols if s.name in variables)
+        if m.name in variables and m.expr == sym(m.name):
+            g.nodes[m.name]["measured"] = True
+            g.nodes[m.name]["measurement"] = m.name
+            continue
+        pnames = tuple(sorted(p.name for p in m.expr.free_symbols if p.name in params))
+        g.add_node(m.name, kind="measurement", bond=None, role="measurement", measured=True,
+                   measurement=m.name, definition=m.expr, element=None)
+        for v in used:
+            bare = m.expr == sym(v)
+            g.add_edge(v, m.name, label="=" if bare else "signal", relation="measurement", element=None,
+                       parameters=pnames, effects=tuple(_effect(m.expr, p, variables, values) for p in pnames),
+                       sign=_sign(sympy.diff(m.expr, sym(v)), variables, values), temporal=False)
+    simplified = _simplify(g, states)
+    edges = tuple(TcgEdge(u, v, d["label"], d["relation"], d["element"], d["parameters"], d["effects"],
+                          d["sign"], d["temporal"]) for u, v, d in sorted(g.edges(data=True), key=_edge_key))
+    return TemporalCausalGraph(cbg, nx.freeze(g), nx.freeze(simplified), edges)
+
+
+def _edge_key(e: tuple) -> tuple:
+    return (_var_key(e[0]), _var_key(e[1]))
+
+
+def _var_key(name: str) -> tuple:
+    if name[:1] in "ef" and name[1:].isdigit():
+        return (0, int(name[1:]), name[0])
+    return (1, 0, name)
+
+
+def _sign(d: sympy.Expr, variables: set[str], values: dict[str, float]) -> int | None:
+    """Sign of a partial derivative with parameters at nominal values and every
+    variable taken as +1 (TRANSCEND's reading of linear relations)."""
+    sub = {s: (1 if s.name in variables else values.get(s.name, 1.0)) for s in d.free_symbols}
+    try:
+        v = float(d.xreplace(sub))
+    except (TypeError, ValueError):
+        return None
+    return 0 if v == 0 else (1 if v > 0 else -1)
+
+
+def _effect(expr: sympy.Expr, parameter: str, variables: set[str], values: dict[str, float]) -> int | None:
+    return _sign(sympy.diff(expr, sym(parameter)), variables, values)
+
+
+def _simplify(g: nx.DiGraph, states: dict) -> nx.DiGraph:
+    """Edges between kept variables (states, inputs, measured): ``a -> b`` when a
+    path leads from ``a`` to ``b`` without passing through a state or an input
+    (a measured algebraic variable is recorded and passed through)."""
+    keep = [n for n, d in g.nodes(data=True) if d["role"] in ("state", "input") or d["measured"]]
+    keep_set = set(keep)
+    barrier = {n for n in keep if g.nodes[n]["role"] in ("state", "input")}
+    s = nx.DiGraph()
+    for n in keep:
+        s.add_node(n, **{k: v for k, v in g.nodes[n].items() if k in ("kind", "role", "measured", "bond")})
+    for a in keep:
+        seen: set = set()
+        stack = [(a, False, frozenset())]
+        found: dict[str, tuple[bool, set[str]]] = {}
+        while stack:
+            node, temporal, params = stack.pop()
+            for nxt in g.successors(node):
+                d = g.edges[node, nxt]
+                t = temporal or d["temporal"]
+                p = params | frozenset(d["parameters"])
+                if nxt in keep_set and nxt != a:
+                    old = found.get(nxt, (False, set()))
+                    found[nxt] = (old[0] or t, old[1] | p)
+                if nxt in barrier or nxt == a:
+                    continue
+                key = (nxt, t, p)
+                if key in seen:
+                    continue
+                seen.add(key)
+                stack.append((nxt, t, p))
+        for b, (t, p) in found.items():
+            s.add_edge(a, b, temporal=t, parameters=tuple(sorted(p)))
+    return s
+
+
+def _relations(cbg: CausalBondGraph) -> list[_Relation]:
+    model = cbg.model
+    ports: dict[str, list] = {el.name: [] for el in model.elements}
+    for b in model.bonds:
+        ports[b.tail].append(b)
+        ports[b.head].append(b)
+    by = {c.bond: c.effort_by for c in cbg.bonds}
+    out: list[_Relation] = []
+    for el in model.elements:
+        bonds = ports[el.name]
+        k = el.kind
+        if k in ("0", "1"):
+            out.extend(_junction(el, bonds, by))
+        elif k in ("Se", "MSe"):
+            b = bonds[0].number
+            out.append(_Relation(effort(b), el.source, "source", el.name, {}))
+        elif k in ("Sf", "MSf"):
+            b = bonds[0].number
+            out.append(_Relation(flow(b), el.source, "source", el.name, {}))
+        elif k in ("C", "I"):
+            out.append(_storage(el, bonds[0].number, by))
+        elif k in ("R", "MR"):
+            out.append(_resistor(el, bonds[0].number, by))
+        else:
+            out.extend(_two_port(el, bonds, by))
+    return out
+
+
+def _pname(el: Element) -> str:
+    p = el.parameter
+    return p.name if isinstance(p, sympy.Symbol) else el.name
+
+
+def _junction(el: Element, bonds: list, by: dict[int, str]) -> list[_Relation]:
+    name = el.name
+    sign = {b.number: (1 if b.head == name else -1) for b in bonds}
+    if el.kind == "0":
+        det = next(b.number for b in bonds if by[b.number] != name)
+        same, summed = effort, flow
+    else:
+        det = next(b.number for b in bonds if by[b.number] == name)
+        same, summed = flow, effort
+    rels = []
+    others = [b.number for b in bonds if b.number != det]
+    for b in others:
+        rels.append(_Relation(same(b), sym(same(det)), "equality", name, {same(det): "="}))
+    terms = {summed(b): -sign[b] * sign[det] for b in others}
+    expr = sympy.Add(*(c * sym(v) for v, c in terms.items()))
+    rels.append(_Relation(summed(det), expr, "sum", name, {v: ("+1" if c > 0 else "-1") for v, c in terms.items()}))
+    return rels
+
+
+def _storage(el: Element, b: int, by: dict[int, str]) -> _Relation:
+    integral = (by[b] == el.name) == (el.kind == "C")
+    if not integral:
+        raise EquationError(f"{el.kind} element {el.name} is in derivative causality; bgc cannot derive "
+                            "equations for it yet", el.loc,
+                            "merge it with the storage element that fixes it, or add a resistor in between")
+    p = _pname(el)
+    if el.kind == "C":
+        return _Relation(effort(b), sym(flow(b)) / el.parameter, "integral", el.name, {flow(b): f"dt/{p}"}, True)
+    return _Relation(flow(b), sym(effort(b)) / el.parameter, "integral", el.name, {effort(b): f"dt/{p}"}, True)
+
+
+def _resistor(el: Element, b: int, by: dict[int, str]) -> _Relation:
+    e, f = effort(b), flow(b)
+    gives_effort = by[b] == el.name
+    target, source = (e, f) if gives_effort else (f, e)
+    if el.law is None:
+        p = _pname(el)
+        if gives_effort:
+            return _Relation(e, el.parameter * sym(f), "resistive", el.name, {f: p})
+        return _Relation(f, sym(e) / el.parameter, "resistive", el.name, {e: f"1/{p}"})
+    law = el.law
+    if law.output == target:
+        expr = law.expr
+    else:
+        expr = _invert(el, law.expr, source, target)
+    return _Relation(target, expr, "law", el.name, {source: "law"})
+
+
+def _invert(el: Element, expr: sympy.Expr, given: str, wanted: str) -> sympy.Expr:
+    """Solve ``given = expr(wanted)`` for ``wanted`` (a law written in the other causality)."""
+    w = sympy.Dummy(wanted)
+    solutions = sympy.solve(sympy.Eq(sym(given), expr.xreplace({sym(wanted): w})), w)
+    if len(solutions) != 1:
+        raise EquationError(
+            f"law of {el.name} ({el.law.text}) must be inverted for the causality SCAP chose, "
+            f"and it has {len(solutions)} solutions for {wanted[0]}", el.law.loc,
+            f"write the law as '{wanted[0]} = <expression of {given[0]}>'")
+    return solutions[0]
+
+
+def _two_port(el: Element, bonds: list, by: dict[int, str]) -> list[_Relation]:
+    bin_ = next(b.number for b in bonds if b.head == el.name)
+    bout = next(b.number for b in bonds if b.tail == el.name)
+    m = el.parameter
+    p = _pname(el)
+    if el.kind in ("TF", "MTF"):
+        if by[bin_] == el.name:   # TF imposes e_in: e_in = m e_out, f_out = m f_in
+            return [_Relation(effort(bin_), m * sym(effort(bout)), "transformer", el.name, {effort(bout): p}),
+                    _Relation(flow(bout), m * sym(flow(bin_)), "transformer", el.name, {flow(bin_): p})]
+        return [_Relation(effort(bout), sym(effort(bin_)) / m, "transformer", el.name, {effort(bin_): f"1/{p}"}),
+                _Relation(flow(bin_), sym(flow(bout)) / m, "transformer", el.name, {flow(bout): f"1/{p}"})]
+    if by[bin_] == el.name:       # GY imposes both efforts: e_in = r f_out, e_out = r f_in
+        return [_Relation(effort(bin_), m * sym(flow(bout)), "gyrator", el.name, {flow(bout): p}),
+                _Relation(effort(bout), m * sym(flow(bin_)), "gyrator", el.name, {flow(bin_): p})]
+    return [_Relation(flow(bout), sym(effort(bin_)) / m, "gyrator", el.name, {effort(bin_): f"1/{p}"}),
+            _Relation(flow(bin_), sym(effort(bout)) / m, "gyrator", el.name, {effort(bout): f"1/{p}"})]
