@@ -47,6 +47,9 @@ class _Relation:
     element: str
     labels: dict[str, str]
     derivative: bool = False
+    #: Known qualitative signs for linear relations: (d target/d source, d target/d parameter);
+    #: None: computed from the expression.
+    signs: tuple[int, int] | None = None
 
 
 def build(cbg: CausalBondGraph) -> TemporalCausalGraph:
@@ -84,17 +87,20 @@ def build(cbg: CausalBondGraph) -> TemporalCausalGraph:
             if not used & variables:
                 node["role"] = "input"
             node["inputs"] = tuple(sorted(used & inputs))
+        pnames = tuple(sorted(p.name for p in r.expr.free_symbols if p.name in params))
         for s in sorted(r.expr.free_symbols, key=lambda s: s.name):
             if s.name not in variables:
                 continue
-            pnames = tuple(sorted(p.name for p in r.expr.free_symbols if p.name in params))
-            g.add_edge(s.name, r.target,
-                       label=r.labels.get(s.name, "signal"),
+            label = r.labels.get(s.name, "signal")
+            if r.signs is not None and label != "signal":
+                sign = r.signs[0] if r.relation != "sum" else (1 if label == "+1" else -1)
+                effects = tuple(r.signs[1] for _ in pnames)
+            else:
+                sign = _sign(sympy.diff(r.expr, s), variables, values)
+                effects = tuple(_effect(r.expr, p, variables, values) for p in pnames)
+            g.add_edge(s.name, r.target, label=label,
                        relation=r.relation if s.name in r.labels else "signal",
-                       element=r.element,
-                       parameters=pnames,
-                       effects=tuple(_effect(r.expr, p, variables, values) for p in pnames),
-                       sign=_sign(sympy.diff(r.expr, s), variables, values),
+                       element=r.element, parameters=pnames, effects=effects, sign=sign,
                        temporal=r.derivative)
     for m in model.measurements:
         used = sorted(s.name for s in m.expr.free_symbols if s.name in variables)
@@ -144,7 +150,9 @@ def _effect(expr: sympy.Expr, parameter: str, variables: set[str], values: dict[
 def _simplify(g: nx.DiGraph, states: dict) -> nx.DiGraph:
     """Edges between kept variables (states, inputs, measured): ``a -> b`` when a
     path leads from ``a`` to ``b`` without passing through a state or an input
-    (a measured algebraic variable is recorded and passed through)."""
+    (a measured algebraic variable is recorded and passed through). The edge is
+    temporal when the path ends with an integrating edge, and carries the
+    parameters of every edge on such paths."""
     keep = [n for n, d in g.nodes(data=True) if d["role"] in ("state", "input") or d["measured"]]
     keep_set = set(keep)
     barrier = {n for n in keep if g.nodes[n]["role"] in ("state", "input")}
@@ -152,27 +160,38 @@ def _simplify(g: nx.DiGraph, states: dict) -> nx.DiGraph:
     for n in keep:
         s.add_node(n, **{k: v for k, v in g.nodes[n].items() if k in ("kind", "role", "measured", "bond")})
     for a in keep:
-        seen: set = set()
-        stack = [(a, False, frozenset())]
-        found: dict[str, tuple[bool, set[str]]] = {}
+        # Nodes reachable from a through non-barrier nodes (a itself excluded).
+        inner = {a}
+        stack = [a]
         while stack:
-            node, temporal, params = stack.pop()
+            node = stack.pop()
             for nxt in g.successors(node):
-                d = g.edges[node, nxt]
-                t = temporal or d["temporal"]
-                p = params | frozenset(d["parameters"])
-                if nxt in keep_set and nxt != a:
-                    old = found.get(nxt, (False, set()))
-                    found[nxt] = (old[0] or t, old[1] | p)
-                if nxt in barrier or nxt == a:
+                if nxt not in inner and nxt not in barrier:
+                    inner.add(nxt)
+                    stack.append(nxt)
+        targets = {v for u in inner for v in g.successors(u) if v in keep_set and v != a}
+        for b in targets:
+            # Nodes of inner that reach b (backwards within inner).
+            back = {b}
+            stack = [b]
+            while stack:
+                node = stack.pop()
+                for prev in g.predecessors(node):
+                    if prev in inner and prev not in back:
+                        back.add(prev)
+                        if prev != a:  # a path leaves a once and never passes it again
+                            stack.append(prev)
+            params: set[str] = set()
+            temporal = False
+            for u in back:
+                if u == b:
                     continue
-                key = (nxt, t, p)
-                if key in seen:
-                    continue
-                seen.add(key)
-                stack.append((nxt, t, p))
-        for b, (t, p) in found.items():
-            s.add_edge(a, b, temporal=t, parameters=tuple(sorted(p)))
+                for v in g.successors(u):
+                    if v in back and v != a:
+                        d = g.edges[u, v]
+                        params.update(d["parameters"])
+                        temporal = temporal or (v == b and d["temporal"])
+            s.add_edge(a, b, temporal=temporal, parameters=tuple(sorted(params)))
     return s
 
 
@@ -221,10 +240,11 @@ def _junction(el: Element, bonds: list, by: dict[int, str]) -> list[_Relation]:
     rels = []
     others = [b.number for b in bonds if b.number != det]
     for b in others:
-        rels.append(_Relation(same(b), sym(same(det)), "equality", name, {same(det): "="}))
+        rels.append(_Relation(same(b), sym(same(det)), "equality", name, {same(det): "="}, signs=(1, 0)))
     terms = {summed(b): -sign[b] * sign[det] for b in others}
     expr = sympy.Add(*(c * sym(v) for v, c in terms.items()))
-    rels.append(_Relation(summed(det), expr, "sum", name, {v: ("+1" if c > 0 else "-1") for v, c in terms.items()}))
+    rels.append(_Relation(summed(det), expr, "sum", name, {v: ("+1" if c > 0 else "-1") for v, c in terms.items()},
+                          signs=(1, 0)))
     return rels
 
 
@@ -235,9 +255,10 @@ def _storage(el: Element, b: int, by: dict[int, str]) -> _Relation:
                             "equations for it yet", el.loc,
                             "merge it with the storage element that fixes it, or add a resistor in between")
     p = _pname(el)
+    signs = (1, -1) if isinstance(el.parameter, sympy.Symbol) else None
     if el.kind == "C":
-        return _Relation(effort(b), sym(flow(b)) / el.parameter, "integral", el.name, {flow(b): f"dt/{p}"}, True)
-    return _Relation(flow(b), sym(effort(b)) / el.parameter, "integral", el.name, {effort(b): f"dt/{p}"}, True)
+        return _Relation(effort(b), sym(flow(b)) / el.parameter, "integral", el.name, {flow(b): f"dt/{p}"}, True, signs)
+    return _Relation(flow(b), sym(effort(b)) / el.parameter, "integral", el.name, {effort(b): f"dt/{p}"}, True, signs)
 
 
 def _resistor(el: Element, b: int, by: dict[int, str]) -> _Relation:
@@ -246,9 +267,11 @@ def _resistor(el: Element, b: int, by: dict[int, str]) -> _Relation:
     target, source = (e, f) if gives_effort else (f, e)
     if el.law is None:
         p = _pname(el)
+        plain = isinstance(el.parameter, sympy.Symbol)
         if gives_effort:
-            return _Relation(e, el.parameter * sym(f), "resistive", el.name, {f: p})
-        return _Relation(f, sym(e) / el.parameter, "resistive", el.name, {e: f"1/{p}"})
+            return _Relation(e, el.parameter * sym(f), "resistive", el.name, {f: p}, signs=(1, 1) if plain else None)
+        return _Relation(f, sym(e) / el.parameter, "resistive", el.name, {e: f"1/{p}"},
+                         signs=(1, -1) if plain else None)
     law = el.law
     if law.output == target:
         expr = law.expr

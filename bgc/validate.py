@@ -224,6 +224,7 @@ class _Validator:
     def elements(self, raw: dict, bonds: tuple[Bond, ...], pnames: set[str], inames: set[str],
                  variables: set[str]) -> tuple[Element, ...]:
         out = []
+        ports = _ports(bonds)
         for name in sorted(raw):
             path = ("elements", name)
             if self.bad(path) or not self.name_ok(name, path, "element"):
@@ -236,7 +237,7 @@ class _Validator:
                 self.error(f"element {name} of kind {kind} has no key '{extra[0]}'", path + (extra[0],),
                            f"keys of a {kind}: {', '.join(allowed)}", key=True)
                 continue
-            mine = [b for b in bonds if name in (b.tail, b.head)]
+            mine = ports.get(name, [])
             own = {}
             if len(mine) == 1:
                 own = {"e": effort(mine[0].number), "f": flow(mine[0].number)}
@@ -256,10 +257,11 @@ class _Validator:
             elif kind in JUNCTIONS:
                 pass
             elif "law" in spec:
-                law = self.law(name, spec["law"], own, pnames | variables, path + ("law",))
-                if law is None or not self.unmodulated(name, kind, law.expr, variables - set(own.values()),
-                                                       path + ("law",)):
-                    continue
+                if own:  # else keep the element without its law: the port-count rule reports it
+                    law = self.law(name, spec["law"], own, pnames | variables, path + ("law",))
+                    if law is None or not self.unmodulated(name, kind, law.expr, variables - set(own.values()),
+                                                           path + ("law",)):
+                        continue
             else:
                 text = spec.get("parameter", name if name in pnames else None)
                 if text is None:
@@ -291,8 +293,6 @@ class _Validator:
         return False
 
     def law(self, name: str, text: str, own: dict[str, str], names: set[str], path: tuple) -> Law | None:
-        if not own:
-            return None  # the port-count rule reports the element
         if text.count("=") != 1:
             self.error(f"law of {name} must have the form 'f = <expression of e>' or 'e = <expression of f>'", path,
                        "write exactly one '='")
@@ -316,19 +316,20 @@ class _Validator:
                     close = _closest(end, declared)
                     self.error(f"bond {b.number} names unknown element '{end}'", ("bonds", str(b.number)),
                                f"did you mean '{close}'?" if close else "declare it under 'elements'")
+        ports_of = _ports(bonds)
         for el in elements:
-            mine = [b for b in bonds if el.name in (b.tail, b.head)]
+            mine = ports_of.get(el.name, [])
             ports = ELEMENT_PORTS[el.kind]
             path = ("elements", el.name)
             if ports is None and len(mine) < 2:
-                self.error(f"junction {el.name} has {len(mine)} bond{'s' if len(mine) != 1 else ''}, needs at least 2",
+                self.error(f"junction {el.name} has {_bonds(len(mine))}, needs at least 2",
                            path, "connect it or remove it", key=True)
             elif ports == 1 and len(mine) != 1:
-                self.error(f"{el.kind} element {el.name} has {len(mine)} bonds, needs exactly 1", path,
+                self.error(f"{el.kind} element {el.name} has {_bonds(len(mine))}, needs exactly 1", path,
                            "a one-port element sits at the end of one bond: add a 0- or 1-junction", key=True)
             elif ports == 2:
                 if len(mine) != 2:
-                    self.error(f"{el.kind} element {el.name} has {len(mine)} bonds, needs exactly 2", path,
+                    self.error(f"{el.kind} element {el.name} has {_bonds(len(mine))}, needs exactly 2", path,
                                "a two-port has one bond in and one bond out", key=True)
                 elif sum(b.head == el.name for b in mine) != 1:
                     self.error(f"{el.kind} element {el.name} needs one bond in and one bond out", path,
@@ -395,6 +396,19 @@ class _Validator:
         return Settings(dt=float(raw.get("dt", base.dt)), steps=int(raw.get("steps", base.steps)),
                         process_noise=float(raw.get("process_noise", base.process_noise)),
                         measurement_noise=float(raw.get("measurement_noise", base.measurement_noise)))
+
+
+def _bonds(n: int) -> str:
+    return f"{n} bond" if n == 1 else f"{n} bonds"
+
+
+def _ports(bonds: Iterable[Bond]) -> dict[str, list[Bond]]:
+    """Element name -> its bonds, in bond order."""
+    out: dict[str, list[Bond]] = {}
+    for b in bonds:
+        out.setdefault(b.tail, []).append(b)
+        out.setdefault(b.head, []).append(b)
+    return out
 
 
 def _closest(name: str, options: Iterable[str]) -> str | None:
