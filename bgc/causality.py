@@ -8,7 +8,8 @@ imposes the effort and which the flow.
    consequences are propagated through junctions, transformers and gyrators.
 2. Each storage element still free gets integral causality (C imposes effort,
    I imposes flow), then propagation. A storage element whose causality was
-   already forced the other way is in derivative causality; this is reported.
+   already forced the other way, or whose integral causality leads to a
+   conflict later on, is in derivative causality; this is reported.
 3. Each resistor still free gets a causality chosen arbitrarily (the form its law
    is written in, else conductance form ``f = e/R``): these resistors close
    algebraic loops. A choice that leads to a conflict is undone and the other
@@ -178,30 +179,15 @@ def assign(model: BondGraph) -> CausalBondGraph:
     if errors:
         raise ErrorGroup(errors)
 
-    # 2. Storage elements: integral causality where still possible.
-    storage: list[StorageCausality] = []
-    diagnostics: list[Diagnostic] = []
-    for el in elements:
-        if el.kind not in STORAGE:
-            continue
-        bond = solver.ports[el.name][0]
-        integral_by = el.name if el.kind == "C" else solver.other(bond, el.name)
-        if bond not in solver.effort_by:
-            snap = solver.snapshot()
-            try:
-                solver.assign(bond, integral_by)
-            except _Conflict:
-                solver.restore(snap)
-                solver.assign(bond, solver.other(bond, integral_by))
-        integral = solver.effort_by[bond] == integral_by
-        storage.append(StorageCausality(el.name, el.kind, bond, integral))
-        if not integral:
-            diagnostics.append(Diagnostic(
-                "warning", f"{el.kind} element {el.name} is in derivative causality: its {'effort' if el.kind == 'C' else 'flow'} "
-                           f"is fixed by the rest of the graph and it adds no state", el.name))
-
-    # 3 and 4. Resistors, then any remaining bond, with backtracking.
+    # 2-4. Storage elements (integral preferred), then resistors (conductance
+    # form, or the form their law is written in), then any free bond; each choice
+    # is propagated, and a choice that leads to a dead end later is undone
+    # (depth-first search), so SCAP fails only when no assignment exists.
     decisions: list[tuple[int, str, str | None]] = []
+    for el in elements:
+        if el.kind in STORAGE:
+            bond = solver.ports[el.name][0]
+            decisions.append((bond, el.name if el.kind == "C" else solver.other(bond, el.name), None))
     for el in elements:
         if el.kind in RESISTORS:
             bond = solver.ports[el.name][0]
@@ -212,9 +198,23 @@ def assign(model: BondGraph) -> CausalBondGraph:
     for b in sorted(solver.ends):
         decisions.append((b, solver.ends[b][0], None))
     arbitrary: list[str] = []
-    if not _search(solver, decisions, 0, arbitrary):
+    if not _search(solver, decisions, arbitrary):
         raise ErrorGroup([CausalityError("no consistent causal assignment exists for the free bonds",
                                          model.source, "check the junction structure")])
+    storage: list[StorageCausality] = []
+    diagnostics: list[Diagnostic] = []
+    for el in elements:
+        if el.kind not in STORAGE:
+            continue
+        bond = solver.ports[el.name][0]
+        integral_by = el.name if el.kind == "C" else solver.other(bond, el.name)
+        integral = solver.effort_by[bond] == integral_by
+        storage.append(StorageCausality(el.name, el.kind, bond, integral))
+        if not integral:
+            diagnostics.append(Diagnostic(
+                "warning", f"{el.kind} element {el.name} is in derivative causality: its "
+                           f"{'effort' if el.kind == 'C' else 'flow'} is fixed by the rest of the graph "
+                           "and it adds no state", el.name))
     for name in arbitrary:
         diagnostics.append(Diagnostic("note", f"resistor {name} was assigned causality arbitrarily: "
                                                "it closes an algebraic loop", name))
@@ -226,29 +226,42 @@ def assign(model: BondGraph) -> CausalBondGraph:
     return CausalBondGraph(model, causal, tuple(storage), tuple(sorted(arbitrary)), tuple(diagnostics))
 
 
-def _search(solver: _Solver, decisions: list[tuple[int, str, str | None]], start: int,
-            arbitrary: list[str]) -> bool:
-    """Depth-first search over the remaining free bonds, preferred choice first."""
-    for i in range(start, len(decisions)):
+def _search(solver: _Solver, decisions: list[tuple[int, str, str | None]], arbitrary: list[str]) -> bool:
+    """Depth-first search over the free bonds in ``decisions`` order, preferred
+    choice first, undoing choices that lead to a conflict (iterative: no
+    recursion limit on large graphs). ``arbitrary`` collects the resistors chosen."""
+    stack: list[tuple[int, int, dict[int, str]]] = []
+    i, alt = 0, 0
+    while True:
+        while i < len(decisions) and decisions[i][0] in solver.effort_by:
+            i += 1
+        if i == len(decisions):
+            return True
         bond, prefer, resistor = decisions[i]
-        if bond in solver.effort_by:
-            continue
-        for choice in (prefer, solver.other(bond, prefer)):
+        placed = False
+        while alt < 2:
             snap = solver.snapshot()
             try:
-                solver.assign(bond, choice)
+                solver.assign(bond, prefer if alt == 0 else solver.other(bond, prefer))
             except _Conflict:
                 solver.restore(snap)
+                alt += 1
                 continue
+            stack.append((i, alt, snap))
             if resistor is not None:
                 arbitrary.append(resistor)
-            if _search(solver, decisions, i + 1, arbitrary):
-                return True
-            if resistor is not None:
-                arbitrary.pop()
-            solver.restore(snap)
-        return False
-    return True
+            placed = True
+            break
+        if placed:
+            i, alt = i + 1, 0
+            continue
+        if not stack:
+            return False
+        i, alt, snap = stack.pop()
+        if decisions[i][2] is not None:
+            arbitrary.pop()
+        solver.restore(snap)
+        alt += 1
 
 
 def check_assignment(model: BondGraph, effort_by: dict[int, str]) -> list[str]:

@@ -144,6 +144,48 @@ def cmd_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_noise(text: str | None) -> tuple[float | None, float | None]:
+    if not text:
+        return None, None
+    values = {"process": None, "measurement": None}
+    for part in text.split(","):
+        key, _, val = part.partition("=")
+        key = key.strip()
+        if key not in values:
+            raise BgcError(f"--noise: unknown key '{key}'", None, "write process=0.03,measurement=0.02")
+        try:
+            values[key] = float(val)
+        except ValueError:
+            raise BgcError(f"--noise: '{val}' is not a number", None, "write process=0.03,measurement=0.02") from None
+        if values[key] < 0:
+            raise BgcError(f"--noise: {key} level must be >= 0", None, "noise levels are fractions of the signal")
+    return values["process"], values["measurement"]
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from . import simulate as sim
+
+    c = pipeline.compile_model(args.model)
+    process, measurement = _parse_noise(args.noise)
+    fault = sim.parse_fault(args.fault, c.equations) if args.fault else None
+    if args.steps is not None and args.steps < 1:
+        raise BgcError("--steps must be at least 1", None, "e.g. --steps 300")
+    options = sim.SimulationOptions(steps=args.steps, process_noise=process, measurement_noise=measurement,
+                                    seed=args.seed, fault=fault)
+    start = time.perf_counter()
+    result = sim.simulate(c.equations, options)
+    out = Path(args.output or f"{c.model.name}-run.csv")
+    artifacts.write_file(out, sim.to_csv(result))
+    print(f"wrote {out}: {len(result.time)} steps of {c.model.name}, fault: "
+          f"{fault.describe() if fault else 'none'} ({time.perf_counter() - start:.2f} s)")
+    if args.plot:
+        from . import plots
+
+        artifacts.write_file(Path(args.plot), plots.simulation_figure(result, "png"))
+        print(f"wrote {args.plot}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bgc", description="Bond-graph model compiler for model-based fault diagnosis.")
@@ -170,6 +212,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="FILE", help="write to FILE (pictures default to MODEL-STAGE.FMT)")
     p.add_argument("--engine", choices=["auto", "graphviz", "matplotlib"], default="auto")
     p.set_defaults(run=cmd_show)
+
+    p = sub.add_parser("simulate", help="simulate the plant (truth) with noise and an injected fault, to CSV")
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--steps", type=int, default=None, help="number of samples (default: the model's)")
+    p.add_argument("--fault", metavar="PARAM:KIND:MAGNITUDE@TIME",
+                   help="inject a fault, e.g. R_pipe:incipient:0.5@165 (slope per unit time) or R_pipe:abrupt:31@165 (bias)")
+    p.add_argument("--noise", metavar="process=Q,measurement=R", help="noise levels as fractions of the signal")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("-o", "--output", metavar="FILE.csv")
+    p.add_argument("--plot", metavar="FILE.png", help="also plot measurements and states")
+    p.set_defaults(run=cmd_simulate)
     return parser
 
 
@@ -185,6 +238,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("bgc: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # e.g. bgc show ... | head
+        sys.stderr.close()
+        return 0
 
 
 if __name__ == "__main__":

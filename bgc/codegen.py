@@ -26,6 +26,10 @@ class CodegenOptions:
     engine: str = "auto"
 
 
+#: Sub-directory of generated/<model>/ that holds the NumPy package.
+PACKAGE = "numpy_model"
+
+
 def display_source(path: str) -> str:
     """The model path as written into generated files: ``models/<file>`` for the
     shipped layout, else the file name, so output does not depend on the cwd."""
@@ -61,6 +65,8 @@ def text_files(m: DbnModel) -> dict[str, str]:
         files[f"dbn/{stem}.txt"] = head + render.dbn_text(d)
         files[f"dbn/{stem}.json"] = render.to_json(render.dbn_json(d))
         files[f"dbn/{stem}.dot"] = dot_head + render.dbn_dot(d)
+    for rel, text in package_files(m).items():
+        files[f"{PACKAGE}/{rel}"] = text
     files["manifest.json"] = render.to_json({
         "generated_by": "bgc",
         "model": cbg.model.name,
@@ -107,3 +113,143 @@ def _render(obj: object, engine: str) -> bytes:
     if isinstance(obj, TemporalCausalGraph):
         return draw.tcg_picture(obj, "svg", engine)
     return draw.dbn_picture(obj, "svg", engine)
+
+
+# ------------------------------------------------------------ NumPy package
+def _env():
+    import jinja2
+
+    return jinja2.Environment(
+        loader=jinja2.PackageLoader("bgc", "templates"),
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+        keep_trailing_newline=True,
+        autoescape=False,
+    )
+
+
+def _tuple(items) -> str:
+    items = list(items)
+    if not items:
+        return "()"
+    return "(" + ", ".join(items) + ("," if len(items) == 1 else "") + ")"
+
+
+def _floats(values) -> str:
+    return "[" + ", ".join(repr(float(v)) for v in values) + "]"
+
+
+def module_name(dbn_name: str) -> str:
+    """Python module of a model: ``nominal`` or ``R_pipe_abrupt``."""
+    return dbn_file_stem(dbn_name)
+
+
+def package_files(m: DbnModel) -> dict[str, str]:
+    """The generated NumPy package: one module per model, the filters, ``__init__``."""
+    import sympy
+
+    from . import modelspec
+    from .printing import cse_block, print_expr
+
+    ssm = m.equations
+    model = ssm.model
+    src = display_source(model.source)
+    env = _env()
+    num = modelspec.numerics(ssm)
+    horizon = model.settings.steps * model.settings.dt
+    theta = dict(zip(ssm.parameters, ssm.parameter_values))
+    faults = {f.parameter: f for f in model.faults}
+    files: dict[str, str] = {}
+    modules = []
+    for d in (m.nominal, *m.faulty):
+        states = list(ssm.states)
+        kinds = ["physical"] * len(states)
+        rhs = list(ssm.rhs)
+        proc = list(num.process_std)
+        x0 = list(ssm.initial)
+        x0_std = [2.0 * s for s in proc]
+        fault_ctx = None
+        override: list[str] = []
+        if d.parameter is not None:
+            p = d.parameter
+            value = theta[p]
+            lo, hi = modelspec.fault_prior(d.kind, faults[p].direction, value, horizon)
+            delta = f"delta_{p}"
+            n_phys = len(states)
+            if d.kind == "abrupt":
+                states.append(delta)
+                kinds.append("bias")
+                rhs.append(sympy.Integer(0))
+                proc.append(modelspec.FAULT_JITTER * abs(value or 1.0))
+                x0.append(0.0)
+                x0_std.append(0.0)
+                override.append(f"{p} = {p} + x[{n_phys}]")
+                p_index = n_phys
+                note = f"{p} + {delta}, {delta} persistent"
+                prior_note = f"bias {delta} on [{lo:g}, {hi:g}]"
+            else:
+                states += [p, delta]
+                kinds += ["parameter", "slope"]
+                rhs += [sym_(delta), sympy.Integer(0)]
+                proc += [0.0, modelspec.SLOPE_JITTER * (hi - lo)]
+                x0 += [value, 0.0]
+                x0_std += [0.0, 0.0]
+                override.append(f"{p} = x[{n_phys}]")
+                p_index = n_phys
+                note = f"{p}(t+dt) = {p}(t) + {delta} * dt, {delta} persistent"
+                prior_note = f"slope {delta} (per unit time) on [{lo:g}, {hi:g}]"
+            fault_ctx = {
+                "parameter": p, "kind": d.kind, "note": note, "prior_note": prior_note,
+                "prior_low": repr(float(lo)), "prior_high": repr(float(hi)),
+                "magnitude_index": len(states) - 1, "parameter_index": p_index,
+                "theta_index": ssm.parameters.index(p),
+            }
+        unpack = [f"{x} = x[{i}]" for i, x in enumerate(states) if x not in ssm.parameters]
+        unpack += [f"{u} = u[{i}]" for i, u in enumerate(ssm.inputs)]
+        if ssm.parameters:
+            unpack.append(f"{', '.join(ssm.parameters)}{',' if len(ssm.parameters) == 1 else ''} = theta")
+        unpack += override
+        rhs_lines, rhs_out = cse_block(rhs)
+        out_lines, out_out = cse_block(list(ssm.output_exprs))
+        used_out = set().union(*(e.free_symbols for e in ssm.output_exprs)) if ssm.output_exprs else set()
+        unpack_out = [line for line in unpack if line.split(" = ")[0].split(",")[0] in {s.name for s in used_out}
+                      or " = theta" in line or line in override]
+        name = module_name(d.name)
+        modules.append(name)
+        title = (f"Nominal model of {model.name}." if d.parameter is None
+                 else f"Model of {model.name} with an {d.kind} fault of {d.parameter}.")
+        ctx = {
+            "source": src, "title": title, "description": model.description, "name": name, "model": model.name,
+            "states": states, "inputs": list(ssm.inputs), "outputs": list(ssm.outputs),
+            "states_tuple": _tuple(repr(s) for s in states), "state_kinds_tuple": _tuple(repr(k) for k in kinds),
+            "inputs_tuple": _tuple(repr(s) for s in ssm.inputs), "outputs_tuple": _tuple(repr(s) for s in ssm.outputs),
+            "parameters_tuple": _tuple(repr(s) for s in ssm.parameters),
+            "theta_tuple": _tuple(repr(float(v)) for v in ssm.parameter_values),
+            "dt": repr(float(model.settings.dt)), "substeps": num.substeps,
+            "eigenvalues_tuple": _tuple(f"({z.real!r}, {z.imag!r})" for z in
+                                        (complex(round(z.real, 10), round(z.imag, 10)) for z in num.eigenvalues)),
+            "method_note": (f"RK4, {num.substeps} substep(s) per sample of {model.settings.dt:g}: largest "
+                            f"|eigenvalue| of the nominal linearisation {max(abs(z) for z in num.eigenvalues):.4g}, "
+                            f"|lambda| h <= {modelspec.H_LAMBDA:g}."),
+            "x0": _floats(x0), "x0_std": _floats(x0_std), "process_std": _floats(proc),
+            "measurement_std": _floats(num.measurement_std),
+            "fault": fault_ctx, "fault_dict": repr({"parameter": d.parameter, "kind": d.kind}) if d.parameter else "None",
+            "n_physical": len(ssm.states),
+            "input_exprs": [modelspec.input_code(i.signal) for i in model.inputs],
+            "unpack": unpack, "rhs_cse": rhs_lines,
+            "rhs_assign": [f"dx[{i}] = {e}" for i, e in enumerate(rhs_out)],
+            "unpack_out": unpack_out, "out_cse": out_lines,
+            "out_assign": [f"y[{i}] = {e}" for i, e in enumerate(out_out)],
+        }
+        files[f"{name}.py"] = env.get_template("model.py.j2").render(**ctx)
+    files["filters.py"] = env.get_template("filters.py.j2").render(source=src, model=model.name)
+    files["__init__.py"] = env.get_template("package_init.py.j2").render(
+        source=src, model=model.name, description=model.description, modules=modules)
+    return files
+
+
+def sym_(name: str):
+    from .ir import sym
+
+    return sym(name)

@@ -36,6 +36,12 @@ def node(variable: str, slice_: int) -> str:
     return f"{variable}@t" if slice_ == 0 else f"{variable}@t+1"
 
 
+def measurement_id(name: str, states: tuple[str, ...]) -> str:
+    """Variable id of a measurement's node: its name, or ``y_<name>`` when the
+    measurement is named like the state it reads (``e3`` measured directly)."""
+    return f"y_{name}" if name in states else name
+
+
 def build(ssm: StateSpaceModel) -> DbnModel:
     """The nominal DBN and one faulty DBN per fault candidate and kind."""
     nominal = _nominal(ssm)
@@ -61,17 +67,22 @@ def _nominal(ssm: StateSpaceModel) -> nx.DiGraph:
             for k in (0, 1):
                 g.add_node(node(n, k), variable=n, slice=k, role="input",
                            element=tg.nodes[n].get("element"), signal=",".join(tg.nodes[n].get("inputs", ())))
+    outputs = set(ssm.outputs)
     for name in ssm.outputs:
         for k in (0, 1):
-            g.add_node(node(name, k), variable=name, slice=k, role="measurement", element=None)
+            g.add_node(node(measurement_id(name, ssm.states), k), variable=name, slice=k, role="measurement",
+                       element=None)
+        if name in elements:  # a state measured directly
+            for k in (0, 1):
+                g.add_edge(node(name, k), node(measurement_id(name, ssm.states), k), arc="intra")
     for a, b, d in s.edges(data=True):
         if roles[a] not in ("state", "input"):
             continue
         if roles.get(b) == "state" and d["temporal"]:
             g.add_edge(node(a, 0), node(b, 1), arc="temporal")
-        elif b in ssm.outputs and not d["temporal"]:
+        elif b in outputs and not d["temporal"]:
             for k in (0, 1):
-                g.add_edge(node(a, k), node(b, k), arc="intra")
+                g.add_edge(node(a, k), node(measurement_id(b, ssm.states), k), arc="intra")
     return g
 
 
@@ -101,5 +112,5 @@ def _faulty(ssm: StateSpaceModel, nominal: nx.DiGraph, parameter: str, kind: str
     for y, expr in zip(ssm.outputs, ssm.output_exprs):
         if p in expr.free_symbols:
             for k in (0, 1):
-                g.add_edge(node(carrier, k), node(y, k), arc="fault")
+                g.add_edge(node(carrier, k), node(measurement_id(y, ssm.states), k), arc="fault")
     return Dbn(f"{parameter}:{kind}", parameter, kind, nx.freeze(g))

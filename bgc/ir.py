@@ -120,6 +120,9 @@ class Element:
     initial: float | None
     description: str | None
     loc: SourceLoc
+    #: Process-noise level of a storage element's state (fraction of the signal);
+    #: None: the model's default.
+    noise: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -73,8 +73,10 @@ def build(cbg: CausalBondGraph) -> TemporalCausalGraph:
     for b in model.bonds:
         for name, kind in ((effort(b.number), "effort"), (flow(b.number), "flow")):
             g.add_node(name, kind=kind, bond=b.number, role="algebraic", measured=False)
+    by_target = {}
     for r in rels:
         node = g.nodes[r.target]
+        by_target[r.target] = r
         node["element"] = r.element
         if r.derivative:
             node["role"] = "state"
@@ -87,6 +89,8 @@ def build(cbg: CausalBondGraph) -> TemporalCausalGraph:
             if not used & variables:
                 node["role"] = "input"
             node["inputs"] = tuple(sorted(used & inputs))
+    point = _operating_point(cbg, rels, values)
+    for r in rels:
         pnames = tuple(sorted(p.name for p in r.expr.free_symbols if p.name in params))
         for s in sorted(r.expr.free_symbols, key=lambda s: s.name):
             if s.name not in variables:
@@ -94,10 +98,11 @@ def build(cbg: CausalBondGraph) -> TemporalCausalGraph:
             label = r.labels.get(s.name, "signal")
             if r.signs is not None and label != "signal":
                 sign = r.signs[0] if r.relation != "sum" else (1 if label == "+1" else -1)
-                effects = tuple(r.signs[1] for _ in pnames)
+                source_sign = 1 if point.get(s.name, 1.0) >= 0 else -1
+                effects = tuple(r.signs[1] * source_sign for _ in pnames)
             else:
-                sign = _sign(sympy.diff(r.expr, s), variables, values)
-                effects = tuple(_effect(r.expr, p, variables, values) for p in pnames)
+                sign = _sign(sympy.diff(r.expr, s), point)
+                effects = tuple(_sign(sympy.diff(r.expr, sym(p)), point) for p in pnames)
             g.add_edge(s.name, r.target, label=label,
                        relation=r.relation if s.name in r.labels else "signal",
                        element=r.element, parameters=pnames, effects=effects, sign=sign,
@@ -114,8 +119,8 @@ def build(cbg: CausalBondGraph) -> TemporalCausalGraph:
         for v in used:
             bare = m.expr == sym(v)
             g.add_edge(v, m.name, label="=" if bare else "signal", relation="measurement", element=None,
-                       parameters=pnames, effects=tuple(_effect(m.expr, p, variables, values) for p in pnames),
-                       sign=_sign(sympy.diff(m.expr, sym(v)), variables, values), temporal=False)
+                       parameters=pnames, effects=tuple(_sign(sympy.diff(m.expr, sym(p)), point) for p in pnames),
+                       sign=_sign(sympy.diff(m.expr, sym(v)), point), temporal=False)
     simplified = _simplify(g, states)
     edges = tuple(TcgEdge(u, v, d["label"], d["relation"], d["element"], d["parameters"], d["effects"],
                           d["sign"], d["temporal"]) for u, v, d in sorted(g.edges(data=True), key=_edge_key))
@@ -132,19 +137,60 @@ def _var_key(name: str) -> tuple:
     return (1, 0, name)
 
 
-def _sign(d: sympy.Expr, variables: set[str], values: dict[str, float]) -> int | None:
-    """Sign of a partial derivative with parameters at nominal values and every
-    variable taken as +1 (TRANSCEND's reading of linear relations)."""
-    sub = {s: (1 if s.name in variables else values.get(s.name, 1.0)) for s in d.free_symbols}
+def _sign(d: sympy.Expr, point: dict[str, float]) -> int | None:
+    """Sign of a partial derivative at the operating point (None: not a number there)."""
+    sub = {x: point.get(x.name, 1.0) for x in d.free_symbols}
     try:
         v = float(d.xreplace(sub))
     except (TypeError, ValueError):
         return None
+    if v != v:
+        return None
     return 0 if v == 0 else (1 if v > 0 else -1)
 
 
-def _effect(expr: sympy.Expr, parameter: str, variables: set[str], values: dict[str, float]) -> int | None:
-    return _sign(sympy.diff(expr, sym(parameter)), variables, values)
+def _operating_point(cbg: CausalBondGraph, rels: list[_Relation], values: dict[str, float]) -> dict[str, float]:
+    """Values of parameters, inputs (at t = 0) and every variable at the initial
+    state, for the signs of the qualitative effects. Variables that are zero,
+    in an algebraic loop or not finite are left out (read as +1, TRANSCEND's
+    convention for magnitudes)."""
+    model = cbg.model
+    point = dict(values)
+    for i in model.inputs:
+        point[i.name] = i.signal.value
+    for st in cbg.states:
+        point[st.state] = model.element(st.element).initial or 0.0
+    algebraic = {r.target: r for r in rels if not r.derivative}
+    deps = nx.DiGraph()
+    deps.add_nodes_from(algebraic)
+    for t, r in algebraic.items():
+        for x in r.expr.free_symbols:
+            if x.name in algebraic:
+                deps.add_edge(x.name, t)
+    known = dict(point)
+    for t in _topo(deps):
+        expr = algebraic[t].expr
+        if all(x.name in known for x in expr.free_symbols):
+            args = {x: known[x.name] for x in expr.free_symbols}
+            try:
+                v = float(expr.xreplace(args))
+            except (TypeError, ValueError, ZeroDivisionError):
+                continue
+            scale = max((abs(a) for a in args.values()), default=1.0)
+            if v == v and abs(v) != float("inf"):
+                # a value lost in the rounding of its inputs is zero, not a sign
+                known[t] = 0.0 if abs(v) <= 1e-9 * max(scale, 1.0) else v
+    return {k: v for k, v in known.items() if v != 0.0}
+
+
+def _topo(g: nx.DiGraph) -> list[str]:
+    """Nodes in dependency order (the members of a cycle, i.e. an algebraic loop,
+    together; their values stay unknown)."""
+    order: list[str] = []
+    cond = nx.condensation(g)
+    for c in nx.lexicographical_topological_sort(cond, key=str):
+        order.extend(sorted(cond.nodes[c]["members"]))
+    return order
 
 
 def _simplify(g: nx.DiGraph, states: dict) -> nx.DiGraph:

@@ -42,7 +42,7 @@ RESERVED = frozenset({
 _KIND_KEYS = {
     **{k: {"value"} for k in SOURCES},
     "R": {"parameter", "law"}, "MR": {"parameter", "law"},
-    "C": {"parameter", "initial"}, "I": {"parameter", "initial"},
+    "C": {"parameter", "initial", "noise"}, "I": {"parameter", "initial", "noise"},
     **{k: {"parameter"} for k in TWO_PORTS},
     "0": set(), "1": set(),
 }
@@ -70,6 +70,7 @@ class _Validator:
         self.raw = raw
         self.errors: list[BgcError] = []
         self.bad_paths: set[tuple] = set()
+        self.dropped_ends: set[str] = set()  # elements at the end of a bond refused with an error
 
     # ------------------------------------------------------------------ helpers
     def error(self, what: str, path: tuple, fix: str | None = None, key: bool = False) -> None:
@@ -118,22 +119,24 @@ class _Validator:
 
     # ------------------------------------------------------------------ build
     def build(self, data: dict) -> BondGraph:
-        parameters = self.parameters(data.get("parameters") or {})
-        inputs = self.inputs(data.get("inputs") or {})
-        pnames = {p.name for p in parameters}
-        inames = {i.name for i in inputs}
-        for name in sorted(pnames & inames):
+        parameters = self.parameters(_section(data, "parameters"))
+        inputs = self.inputs(_section(data, "inputs"))
+        for name in sorted({p.name for p in parameters} & {i.name for i in inputs}):
             self.error(f"'{name}' is both a parameter and an input", ("inputs", name),
                        "rename one of them", key=True)
+        # A parameter or input refused above still counts as declared, so its error is
+        # reported once and not again at every use (no model is built when errors exist).
+        pnames = {str(k) for k in _section(data, "parameters")}
+        inames = {str(k) for k in _section(data, "inputs")}
         bonds = self.bonds(data["bonds"])
         raw_elements = data["elements"]
         variables = {n for b in bonds for n in (effort(b.number), flow(b.number))}
         elements = self.elements(raw_elements, bonds, pnames, inames, variables)
         self.topology(elements, bonds)
-        settings = self.settings(data.get("simulation") or {})
-        measurements = self.measurements(data.get("measurements") or {}, pnames | inames | variables,
+        settings = self.settings(_section(data, "simulation"))
+        measurements = self.measurements(_section(data, "measurements"), pnames | inames | variables,
                                          variables, pnames | inames, settings.measurement_noise)
-        faults = self.faults(data.get("faults") or {}, pnames)
+        faults = self.faults(_section(data, "faults"), pnames)
         return BondGraph(
             name=data["name"],
             description=str(data.get("description", "")),
@@ -212,11 +215,14 @@ class _Validator:
         for key in sorted(raw, key=lambda k: (len(k), k)):
             path = ("bonds", key)
             if self.bad(path):
+                if isinstance(raw[key], list):  # its ends lose a bond: do not also report their port counts
+                    self.dropped_ends.update(end for end in raw[key] if isinstance(end, str))
                 continue
             tail, head = raw[key]
             number = int(key)
             if tail == head:
                 self.error(f"bond {number} connects {tail} to itself", path, "a bond joins two different elements")
+                self.dropped_ends.add(tail)
                 continue
             out.append(Bond(number, tail, head, self.raw.key_loc(*path)))
         return tuple(out)
@@ -277,9 +283,10 @@ class _Validator:
                                "a zero coefficient removes the element: give a non-zero value")
                     continue
             initial = spec.get("initial")
+            noise = spec.get("noise")
             out.append(Element(name, kind, parameter, law, source,
                                float(initial) if initial is not None else (0.0 if kind in STORAGE else None),
-                               spec.get("description"), loc))
+                               spec.get("description"), loc, float(noise) if noise is not None else None))
         return tuple(out)
 
     def unmodulated(self, name: str, kind: str, expr: sympy.Expr, variables: set[str], path: tuple) -> bool:
@@ -321,6 +328,8 @@ class _Validator:
             mine = ports_of.get(el.name, [])
             ports = ELEMENT_PORTS[el.kind]
             path = ("elements", el.name)
+            if el.name in self.dropped_ends:
+                continue
             if ports is None and len(mine) < 2:
                 self.error(f"junction {el.name} has {_bonds(len(mine))}, needs at least 2",
                            path, "connect it or remove it", key=True)
@@ -396,6 +405,12 @@ class _Validator:
         return Settings(dt=float(raw.get("dt", base.dt)), steps=int(raw.get("steps", base.steps)),
                         process_noise=float(raw.get("process_noise", base.process_noise)),
                         measurement_noise=float(raw.get("measurement_noise", base.measurement_noise)))
+
+
+def _section(data: dict, key: str) -> dict:
+    """A section of the model, or nothing if it is absent or not a mapping (the schema reports that)."""
+    value = data.get(key)
+    return value if isinstance(value, dict) else {}
 
 
 def _bonds(n: int) -> str:
