@@ -13,6 +13,13 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/bgc check models/circuit.yaml models/two_tank.yaml models/ro.yaml
+	$(BIN)/bgc compile models/ro.yaml -o out/generated
+	$(BIN)/bgc show equations models/ro.yaml
+	$(BIN)/bgc show dbn models/ro.yaml --fault R_pipe:incipient --format png -o out/ro-dbn-R_pipe_incipient.png
+	$(BIN)/bgc simulate models/ro.yaml --steps 300 --fault R_pipe:incipient:0.5@165 --noise process=0.03,measurement=0.02 --seed 1 -o out/ro-run.csv --plot out/ro-run.png
+	$(BIN)/bgc filter models/ro.yaml out/ro-run.csv --generated out/generated --plot out/ro-nominal-filter.png
+	$(BIN)/bgc filter models/ro.yaml out/ro-run.csv --generated out/generated --fault R_pipe:incipient --start 167 --plot out/ro-R_pipe-incipient-filter.png
+	@echo "demo: pictures and data in out/"
 
 test: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m pytest

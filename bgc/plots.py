@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import io
 
+import numpy as np
+
 
 def _figure(rows: int, width: float = 9.0, height_per_row: float = 1.7):
     import matplotlib
@@ -40,5 +42,43 @@ def simulation_figure(r, fmt: str = "png") -> bytes:
         ax.set_ylabel(r.fault.parameter)
     axes[0].legend(loc="best", fontsize=7)
     axes[0].set_title(f"{r.model}: simulated run ({r.fault.describe() if r.fault else 'no fault'})")
+    axes[-1].set_xlabel("time")
+    return _save(plt, fig, fmt)
+
+
+def tracking_figure(run, results, fmt: str = "png") -> bytes:
+    """Measurements with each filter's predicted measurement (mean +- 2 std), then
+    the states (true and estimated), like the thesis's Figs. IV.4 and IV.6."""
+    first = results[0]
+    names_y = first.output_names
+    names_x = [n for n in first.state_names]
+    n = len(names_y) + len(names_x)
+    plt, fig, axes = _figure(n, height_per_row=1.5)
+    colors = ["#2060c0", "#20a040", "#c08020", "#8040c0"]
+    for j, name in enumerate(names_y):
+        ax = axes[j]
+        ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
+        for r, c in zip(results, colors):
+            ax.plot(r.time, r.y_mean[:, j], "-", lw=1.0, color=c, label=f"{r.method.upper()} {r.model}")
+            ax.fill_between(r.time, r.y_mean[:, j] - 2 * r.y_std[:, j], r.y_mean[:, j] + 2 * r.y_std[:, j],
+                            color=c, alpha=0.15, lw=0)
+        ax.set_ylabel(name)
+    for i, name in enumerate(names_x):
+        ax = axes[len(names_y) + i]
+        truth = run.states.get(name, run.parameters.get(name))
+        if truth is None and name.startswith("delta_") and name[6:] in run.parameters:
+            p = run.parameters[name[6:]]
+            truth = p - p[0] if first.model.endswith("_abrupt") else np.gradient(p, run.time)
+        if truth is not None:
+            ax.plot(run.time, truth, "-", lw=1.0, color="#202020", label="true")
+        for r, c in zip(results, colors):
+            if name in r.state_names:
+                k = r.state_names.index(name)
+                ax.plot(r.time, r.mean[:, k], "--", lw=1.0, color=c)
+                ax.fill_between(r.time, r.mean[:, k] - 2 * r.std[:, k], r.mean[:, k] + 2 * r.std[:, k],
+                                color=c, alpha=0.15, lw=0)
+        ax.set_ylabel(name)
+    axes[0].legend(loc="best", fontsize=7)
+    axes[0].set_title(f"{first.model}: filter estimates (bands: +-2 std)")
     axes[-1].set_xlabel("time")
     return _save(plt, fig, fmt)

@@ -211,15 +211,15 @@ def test_fault_arcs_reach_exactly_the_equations_containing_the_parameter(name):
 def test_ro_incipient_r_pipe_dbn_matches_thesis_fig_iv5():
     """Fig. IV.5: R_pipe is a parent of f22, e6, e13 and e27 in t+1 (the pipe
     flow q_pipe = (m2*f22 + e6 - e13)/R_pipe drives all four; by hand it does not
-    enter df3/dt = (tau_fp - R_fp*f3 - m1*e6)/I_fp) and of no measurement (P_memb
-    = e13, F_perm = e13/MR_memb, P_return = e13 - e6, F_back = (e13 - e6)/R_brine
-    contain no R_pipe)."""
+    enter df3/dt = (tau_fp - R_fp*f3 - m1*e6)/I_fp). Of the measurements (P_memb
+    = e13, F_perm = e13/MR_memb, F_loop = q_pipe, F_back = (e13 - e6)/R_brine)
+    only the loop flow F_loop contains R_pipe, in both slices."""
     g = compiled("ro").dbn.get("R_pipe:incipient").graph
-    assert set(g.successors("R_pipe@t")) == {"f22@t+1", "e6@t+1", "e13@t+1", "e27@t+1", "R_pipe@t+1"}
-    assert set(g.successors("R_pipe@t+1")) == set()
+    assert set(g.successors("R_pipe@t")) == {"f22@t+1", "e6@t+1", "e13@t+1", "e27@t+1", "R_pipe@t+1", "F_loop@t"}
+    assert set(g.successors("R_pipe@t+1")) == {"F_loop@t+1"}
     measurements = {n for n, d in g.nodes(data=True) if d["role"] == "measurement"}
-    assert {variable(m) for m in measurements} == {"P_memb", "F_perm", "P_return", "F_back"}
-    assert not any(variable(u) == "R_pipe" for m in measurements for u in g.predecessors(m))
+    assert {variable(m) for m in measurements} == {"P_memb", "F_perm", "F_loop", "F_back"}
+    assert {variable(m) for m in measurements for u in g.predecessors(m) if variable(u) == "R_pipe"} == {"F_loop"}
     assert set(g.predecessors("R_pipe@t+1")) == {"R_pipe@t", "delta_R_pipe@t"}
 
 

@@ -269,12 +269,13 @@ def test_ro_conductivity_state_equation():
 
 
 def test_ro_measurement_equations_by_hand():
-    """P_memb = e13; F_perm = e13/MR_memb; P_return = e18 = e13 - e6 (the brine
-    pipe's 1-junction: membrane pressure minus reservoir pressure); F_back = f18."""
+    """P_memb = e13; F_perm = e13/MR_memb; F_loop = f10 = q_pipe, the pipe flow
+    (pump boost plus reservoir pressure minus membrane pressure, over R_pipe);
+    F_back = f18 = (e13 - e6)/R_brine."""
     outputs = {
         "P_memb": e13,
         "F_perm": e13 / MR_SCALED,
-        "P_return": e13 - e6,
+        "F_loop": q_pipe,
         "F_back": (e13 - e6) / R_brine,
     }
     got = output_equations(ro())

@@ -5,7 +5,7 @@ Reverse Osmosis plant, primary mode, with the conductivity sub-model (thesis ch.
 
 States x (7, particles along axis 1): f3, e6, e13, f22, e27, R_brine, delta_R_brine
 Inputs u: tau_fp, tau_rp
-Measurements y: F_back, F_perm, P_memb, P_return
+Measurements y: F_back, F_loop, F_perm, P_memb
 Fault: incipient change of parameter R_brine (R_brine(t+dt) = R_brine(t) + delta_R_brine * dt, delta_R_brine persistent).
 Integration: RK4, 2 substep(s) per sample of 1: largest |eigenvalue| of the nominal linearisation 2.584, |lambda| h <= 1.5.
 Noise: process std per step and state, measurement std per output (absolute
@@ -19,7 +19,7 @@ MODEL = "ro"
 STATES = ('f3', 'e6', 'e13', 'f22', 'e27', 'R_brine', 'delta_R_brine')
 STATE_KINDS = ('physical', 'physical', 'physical', 'physical', 'physical', 'parameter', 'slope')
 INPUTS = ('tau_fp', 'tau_rp')
-OUTPUTS = ('F_back', 'F_perm', 'P_memb', 'P_return')
+OUTPUTS = ('F_back', 'F_loop', 'F_perm', 'P_memb')
 PARAMETERS = ('C_k', 'C_memb', 'C_res', 'I_fp', 'I_rp', 'K0', 'K_slope', 'R_brine', 'R_fp', 'R_memb', 'R_pipe', 'R_rp', 'k_scale', 'm1', 'm2')
 #: Nominal parameter values, in the order of PARAMETERS.
 THETA = (565.0, 0.6, 1.5, 0.1, 2.0, 12000.0, 165.0, 220.0, 0.1, 26.0, 69.0, 0.1, 3.46, 1.0, 1.0)
@@ -30,7 +30,7 @@ EIGENVALUES = ((0.0003327326, 0.0), (-0.0532358059, 0.0), (-0.1001116478, 0.0), 
 X0 = np.array([13.98906, -0.398906, 363.7155, 1443.559, 12000.0, 220.0, 0.0])
 X0_STD = np.array([0.8393436, 0.0038133285320663913, 9.554003537386823, 29.30723113012857, 1.9595917942265426, 0.0, 0.0])
 PROCESS_STD = np.array([0.4196718, 0.0019066642660331957, 4.777001768693411, 14.653615565064285, 0.9797958971132713, 0.0, 0.029333333333333333])
-MEASUREMENT_STD = np.array([0.03310130963636364, 0.2797811538461539, 7.274310000000001, 7.2822881200000005])
+MEASUREMENT_STD = np.array([0.03310130963636364, 0.3128824910144928, 0.2797811538461539, 7.274310000000001])
 FAULT = {'parameter': 'R_brine', 'kind': 'incipient'}
 #: Uniform prior of the fault magnitude: slope delta_R_brine (per unit time) on [0, 2.93333].
 FAULT_PRIOR = (0.0, 2.933333333333333)
@@ -95,15 +95,15 @@ def observe(x, u, theta):
     """Noise-free measurements for every particle: (n_y, N)."""
     e6 = x[1]
     e13 = x[2]
+    f22 = x[3]
     e27 = x[4]
     C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
     R_brine = x[5]
-    _c0 = e13 - e6
     y = np.empty((len(OUTPUTS), x.shape[1]))
-    y[0] = _c0/R_brine
-    y[1] = 29*e13/(R_memb*(29 + (-K0 + e27)/K_slope))
-    y[2] = e13
-    y[3] = _c0
+    y[0] = (e13 - e6)/R_brine
+    y[1] = (-e13 + e6 + f22*m2)/R_pipe
+    y[2] = 29*e13/(R_memb*(29 + (-K0 + e27)/K_slope))
+    y[3] = e13
     return y
 
 
