@@ -51,7 +51,7 @@ def tcg_picture(tcg: TemporalCausalGraph, fmt: str, engine: str = "auto") -> byt
     width = max(6.0, 1.1 * len(bonds))
     return _draw(pos, sorted(g.nodes, key=_var_key), [(e.source, e.target) for e in tcg.edges], labels, temporal,
                  roles, {n: n for n in g.nodes}, f"TCG of {tcg.model.name} (red: integrating edges)",
-                 (width, 6.0), fmt)
+                 (width, 4.8 if meas else 3.4), fmt)
 
 
 def dbn_picture(d: Dbn, fmt: str, engine: str = "auto") -> bytes:
@@ -79,30 +79,57 @@ def dbn_picture(d: Dbn, fmt: str, engine: str = "auto") -> bytes:
                  f"DBN '{d.name}': slice t (left), t+1 (right)", (9.0, height), fmt)
 
 
+def _curve(p1, p2, rad: float, shrink: float, n: int = 24):
+    """Points of a quadratic Bezier from p1 to p2 bent by ``rad`` (fraction of
+    the length, to the left), trimmed by ``shrink`` at both ends; and the unit
+    tangent at the end."""
+    import numpy as np
+
+    a, b = np.asarray(p1, float), np.asarray(p2, float)
+    d = b - a
+    length = float(np.hypot(*d)) or 1.0
+    ctrl = (a + b) / 2 + rad * np.array([-d[1], d[0]])
+    t = np.linspace(0.0, 1.0, n)[:, None]
+    pts = (1 - t) ** 2 * a + 2 * (1 - t) * t * ctrl + t ** 2 * b
+    seg = np.hypot(*np.diff(pts, axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    keep = (s >= shrink) & (s <= s[-1] - shrink)
+    pts = pts[keep] if keep.sum() >= 2 else pts[[0, -1]]
+    tangent = pts[-1] - pts[-2]
+    tangent = tangent / (float(np.hypot(*tangent)) or 1.0)
+    return pts, tangent, length
+
+
 def _draw(pos, nodes, edges, edge_labels, highlight, roles, node_labels, title, size, fmt) -> bytes:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.patches import FancyArrowPatch
+    import numpy as np
+    from matplotlib.collections import LineCollection, PolyCollection
 
     with matplotlib.rc_context({"svg.hashsalt": "bgc", "svg.fonttype": "none", "font.size": 8,
                                 "path.simplify": False}):
         fig, ax = plt.subplots(figsize=size)
         ax.set_title(title)
+        edge_set = set(edges)
+        lines, heads, colors = [], [], []
         for a, b in edges:
-            (x1, y1), (x2, y2) = pos[a], pos[b]
-            rad = 0.25 if (b, a) in edges or abs(y1 - y2) < 1e-9 else 0.08
-            arrow = FancyArrowPatch((x1, y1), (x2, y2), arrowstyle="-|>", mutation_scale=9,
-                                    connectionstyle=f"arc3,rad={rad}", shrinkA=11, shrinkB=11, lw=0.8,
-                                    color="#b03030" if (a, b) in highlight else "#404040")
-            ax.add_patch(arrow)
+            rad = 0.18 if (b, a) in edge_set or abs(pos[a][1] - pos[b][1]) < 1e-9 else 0.06
+            pts, tan, _ = _curve(pos[a], pos[b], rad, 0.22)
+            color = "#b03030" if (a, b) in highlight else "#404040"
+            lines.append(pts)
+            tip = pts[-1]
+            normal = np.array([-tan[1], tan[0]])
+            heads.append([tip, tip - 0.07 * tan + 0.025 * normal, tip - 0.07 * tan - 0.025 * normal])
+            colors.append(color)
             if (a, b) in edge_labels:
-                mx, my = (x1 + x2) / 2, (y1 + y2) / 2
-                dx, dy = x2 - x1, y2 - y1
-                ax.text(mx - rad * dy * 0.5, my + rad * dx * 0.5, edge_labels[(a, b)], fontsize=6,
-                        ha="center", va="center", color="#303080",
-                        bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.8})
+                mid = pts[len(pts) // 2]
+                ax.text(mid[0], mid[1], edge_labels[(a, b)], fontsize=6, ha="center", va="center",
+                        color="#303080", bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none",
+                                               "alpha": 0.8})
+        ax.add_collection(LineCollection(lines, colors=colors, linewidths=0.8))
+        ax.add_collection(PolyCollection(heads, facecolors=colors, edgecolors=colors, linewidths=0.5))
         for n in nodes:
             x, y = pos[n]
             ax.text(x, y, node_labels[n], ha="center", va="center", fontsize=8,
@@ -115,6 +142,7 @@ def _draw(pos, nodes, edges, edge_labels, highlight, roles, node_labels, title, 
         ax.axis("off")
         buf = io.BytesIO()
         meta = {"Date": None, "Creator": None} if fmt == "svg" else {"Software": None}
+        fig.subplots_adjust(left=0.01, right=0.99, top=0.92, bottom=0.01)
         fig.savefig(buf, format=fmt, metadata=meta, dpi=110)
         plt.close(fig)
     return buf.getvalue()
