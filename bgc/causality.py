@@ -197,10 +197,12 @@ def assign(model: BondGraph) -> CausalBondGraph:
             decisions.append((bond, prefer, el.name))
     for b in sorted(solver.ends):
         decisions.append((b, solver.ends[b][0], None))
+    after_sources = solver.snapshot()
     arbitrary: list[str] = []
     if not _search(solver, decisions, arbitrary):
         raise ErrorGroup([CausalityError("no consistent causal assignment exists for the free bonds",
                                          model.source, "check the junction structure")])
+    arbitrary = [r for r in arbitrary if _really_free(solver, after_sources, decisions, r)]
     storage: list[StorageCausality] = []
     diagnostics: list[Diagnostic] = []
     for el in elements:
@@ -218,6 +220,15 @@ def assign(model: BondGraph) -> CausalBondGraph:
     for name in arbitrary:
         diagnostics.append(Diagnostic("note", f"resistor {name} was assigned causality arbitrarily: "
                                                "it closes an algebraic loop", name))
+    for el in elements:
+        if el.kind in RESISTORS | STORAGE and model.bonds_of(el.name)[0].tail == el.name:
+            diagnostics.append(Diagnostic(
+                "warning", f"the bond of {el.kind} element {el.name} points out of it: its law reads with the "
+                           "opposite sign (a negative resistance or capacitance); reverse the bond", el.name))
+        if el.kind in SOURCES and model.bonds_of(el.name)[0].head == el.name:
+            diagnostics.append(Diagnostic(
+                "warning", f"the bond of source {el.name} points into it: it absorbs the power it imposes; "
+                           "reverse the bond if that is not intended", el.name))
 
     causal = tuple(
         BondCausality(b.number, solver.effort_by[b.number], b.other(solver.effort_by[b.number]))
@@ -262,6 +273,30 @@ def _search(solver: _Solver, decisions: list[tuple[int, str, str | None]], arbit
             arbitrary.pop()
         solver.restore(snap)
         alt += 1
+
+
+def _really_free(solver: _Solver, after_sources: dict[int, str],
+                 decisions: list[tuple[int, str, str | None]], resistor: str) -> bool:
+    """Whether the resistor's causality was a real choice: with the sources and
+    storage elements as chosen, its other causality also completes the graph.
+    (The search can pick a resistor's preferred form, fail later and flip it;
+    then it was forced, not arbitrary.)"""
+    final = solver.snapshot()
+    bond = solver.ports[resistor][0]
+    try:
+        solver.restore(dict(after_sources))
+        for name, kind in sorted(solver.kind.items()):
+            b = solver.ports[name][0] if kind in STORAGE else None
+            if b is not None and b not in solver.effort_by:
+                solver.assign(b, final[b])
+        if bond in solver.effort_by:  # forced by the sources and storage alone
+            return False
+        solver.assign(bond, solver.other(bond, final[bond]))
+        return _search(solver, decisions, [])
+    except _Conflict:
+        return False
+    finally:
+        solver.restore(final)
 
 
 def check_assignment(model: BondGraph, effort_by: dict[int, str]) -> list[str]:

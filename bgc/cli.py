@@ -34,8 +34,9 @@ def summary(cbg: CausalBondGraph) -> str:
     lines = [f"{m.source}: ok: {m.name}" + (f" ({m.description})" if m.description else "")]
     lines.append(f"  elements: {len(m.elements)} ({kind_text})")
     lines.append(f"  bonds: {len(m.bonds)}")
-    states = [s for s in cbg.storage if s.integral]
-    lines.append(f"  states: {len(states)}: " + ", ".join(f"{s.state} ({s.element}, integral)" for s in states))
+    states = sorted((s for s in cbg.storage if s.integral), key=lambda s: s.bond)
+    listed = ", ".join(f"{s.state} ({s.element}, integral)" for s in states)
+    lines.append(f"  states: {len(states)}" + (f": {listed}" if listed else ""))
     deriv = [s for s in cbg.storage if not s.integral]
     if deriv:
         lines.append("  derivative causality: " + ", ".join(f"{s.element} ({s.kind}, bond {s.bond})" for s in deriv))
@@ -49,7 +50,9 @@ def summary(cbg: CausalBondGraph) -> str:
     notes = [d for d in cbg.diagnostics if d.severity != "warning"]
     lines.append(f"  warnings: {len(warnings) or 'none'}")
     lines.extend(f"    warning: {d.message}" for d in warnings)
-    lines.extend(f"    note: {d.message}" for d in notes)
+    if notes:
+        lines.append(f"  notes: {len(notes)}")
+        lines.extend(f"    note: {d.message}" for d in notes)
     return "\n".join(lines)
 
 
@@ -159,8 +162,9 @@ def _parse_noise(text: str | None) -> tuple[float | None, float | None]:
             values[key] = float(val)
         except ValueError:
             raise BgcError(f"--noise: '{val}' is not a number", None, "write process=0.03,measurement=0.02") from None
-        if values[key] < 0:
-            raise BgcError(f"--noise: {key} level must be >= 0", None, "noise levels are fractions of the signal")
+        if not np.isfinite(values[key]) or values[key] < 0:
+            raise BgcError(f"--noise: {key} level must be a finite number >= 0", None,
+                           "noise levels are fractions of the signal")
     return values["process"], values["measurement"]
 
 

@@ -238,9 +238,10 @@ def package_files(m: DbnModel) -> dict[str, str]:
             "n_physical": len(ssm.states),
             "input_exprs": [modelspec.input_code(i.signal) for i in model.inputs],
             "unpack": unpack, "rhs_cse": rhs_lines,
-            "rhs_assign": [f"dx[{i}] = {e}" for i, e in enumerate(rhs_out)],
+            "rhs_assign": [f"_dx[{i}] = {e}" for i, e in enumerate(rhs_out)],
             "unpack_out": unpack_out, "out_cse": out_lines,
-            "out_assign": [f"y[{i}] = {e}" for i, e in enumerate(out_out)],
+            "out_assign": [f"_y[{i}] = {e}" for i, e in enumerate(out_out)],
+            "predictive_std": _floats(num.predictive_std),
         }
         files[f"{name}.py"] = env.get_template("model.py.j2").render(**ctx)
     files["filters.py"] = env.get_template("filters.py.j2").render(source=src, model=model.name)

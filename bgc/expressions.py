@@ -13,7 +13,8 @@ measurement). They are never given to ``eval``, ``exec``, ``sympify`` or
 Everything else (attributes, subscripts, lambdas, comprehensions, keywords,
 strings, comparisons) is refused with a located error. Sizes are bounded so no
 input can make the parser or sympy run away: text length, nesting depth, literal
-length, and powers whose value would be astronomically large.
+length, and powers whose value would be astronomically large; every constant
+subexpression must be a finite real number (not ``exp(1000)``, ``log(0)``, ``sqrt(-1)``).
 
 Examples
 --------
@@ -210,7 +211,12 @@ class _Parser:
         if (arity is None and n < 2) or (arity is not None and n != arity):
             want = "two or more arguments" if arity is None else f"{arity} argument"
             raise self.fail(f"{name} takes {want}, got {n}", f"call {name} with {want}")
-        return function(*(self.walk(a, depth) for a in node.args))
+        args = [self.walk(a, depth) for a in node.args]
+        try:
+            return function(*args)
+        except (ValueError, TypeError) as exc:  # e.g. Max of an argument sympy knows is not real
+            raise self.fail(f"cannot take {name} here: {_short(str(exc), 80)}",
+                            f"give {name} real arguments") from None
 
 
 def _short(text: str, n: int = 40) -> str:

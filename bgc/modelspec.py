@@ -46,6 +46,7 @@ class Numerics:
     process_std: tuple[float, ...]
     measurement_std: tuple[float, ...]
     jacobian_diag: tuple[float, ...]
+    predictive_std: tuple[float, ...]
 
 
 def input_value(signal, t: float) -> float:
@@ -103,8 +104,13 @@ def numerics(ssm: StateSpaceModel, process_noise: float | None = None,
         process.append(q * s * math.sqrt(min(1.0, 2.0 * dt / tau)))
     meas = tuple((m.noise if measurement_noise is None else measurement_noise) * (abs(y) or 1.0)
                  for m, y in zip(model.measurements, y0))
+    hjac = sympy.Matrix(ssm.output_exprs).jacobian(xs) if ssm.output_exprs else sympy.zeros(0, len(xs))
+    h = np.array([[float(sympy.N(e.xreplace(sub))) for e in row] for row in hjac.tolist()], dtype=float)
+    h = h.reshape(len(ssm.output_exprs), len(xs))
+    spread = (h ** 2) @ (np.array(process) ** 2) if len(xs) else np.zeros(len(meas))
+    predictive = tuple(float(np.sqrt(m * m + v)) for m, v in zip(meas, spread))
     return Numerics(tuple(complex(z) for z in eig), substeps, u0, y0, tuple(process), meas,
-                    tuple(float(v) for v in np.diag(j)))
+                    tuple(float(v) for v in np.diag(j)), predictive)
 
 
 def fault_prior(kind: str, direction: str, value: float, horizon: float) -> tuple[float, float]:

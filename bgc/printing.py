@@ -42,6 +42,9 @@ class StrictNumPyPrinter(NumPyPrinter):
     def _print_Float(self, expr: sympy.Float) -> str:
         return repr(float(expr))
 
+    def _print_Abs(self, expr: sympy.Abs) -> str:
+        return f"np.abs({self._print(expr.args[0])})"
+
     def _print_Min(self, expr: sympy.Min) -> str:
         return self._nested("np.minimum", expr.args)
 
@@ -65,18 +68,53 @@ class StrictNumPyPrinter(NumPyPrinter):
 _PRINTER = StrictNumPyPrinter()
 
 
-def print_expr(expr: sympy.Expr) -> str:
-    """NumPy source text of one expression; raises CodegenError when impossible."""
+def print_expr(expr: sympy.Expr, names: frozenset[str] | None = None) -> str:
+    """NumPy source text of one expression; raises CodegenError when impossible.
+
+    The text is checked: it may use only ``np.<function>``, the expression's
+    own symbols and ``names`` (e.g. CSE temporaries), so nothing that would need
+    another import (``math.erf``, ``builtins.sum``) or an undefined name
+    (``Lambda``) reaches a generated module.
+    """
     try:
-        return _PRINTER.doprint(expr)
+        text = _PRINTER.doprint(expr)
     except PrintMethodNotImplementedError as exc:
         raise CodegenError(f"cannot generate NumPy code for {sympy.sstr(expr)[:60]}: {str(exc).splitlines()[0]}",
                            None, "use only the functions bgc documents") from None
+    except Exception as exc:  # sympy's printers raise KeyError etc. for e.g. zoo
+        raise CodegenError(f"cannot generate NumPy code for {sympy.sstr(expr)[:60]}: {type(exc).__name__}",
+                           None, "use only the functions bgc documents") from None
+    allowed = {s.name for s in expr.free_symbols} | set(names or ())
+    _check_numpy_only(text, allowed, expr)
+    return text
+
+
+def _check_numpy_only(text: str, allowed: set[str], expr: sympy.Expr) -> None:
+    import ast
+
+    def fail(what: str) -> CodegenError:
+        return CodegenError(f"cannot generate NumPy code for {sympy.sstr(expr)[:60]}: it would need {what}",
+                            None, "use only the functions bgc documents")
+
+    try:
+        tree = ast.parse(text, mode="eval")
+    except SyntaxError:
+        raise fail("text that does not parse") from None
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute):
+            base = node
+            while isinstance(base, ast.Attribute):
+                base = base.value
+            if not (isinstance(base, ast.Name) and base.id == "np"):
+                raise fail(f"'{ast.unparse(node)}'")
+        elif isinstance(node, ast.Name) and node.id != "np" and node.id not in allowed:
+            raise fail(f"the name '{node.id}'")
 
 
 def cse_block(exprs: Sequence[sympy.Expr], prefix: str = "_c") -> tuple[list[str], list[str]]:
     """CSE over ``exprs``: (assignment lines, printed reduced expressions)."""
     symbols = sympy.numbered_symbols(prefix)
     replacements, reduced = sympy.cse(list(exprs), symbols=symbols, order="canonical")
-    lines = [f"{s.name} = {print_expr(e)}" for s, e in replacements]
-    return lines, [print_expr(e) for e in reduced]
+    temps = frozenset(s.name for s, _ in replacements)
+    lines = [f"{s.name} = {print_expr(e, temps)}" for s, e in replacements]
+    return lines, [print_expr(e, temps) for e in reduced]

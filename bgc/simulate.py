@@ -117,15 +117,19 @@ def simulate(ssm: StateSpaceModel, options: SimulationOptions) -> SimulationResu
     fault = options.fault
     index = ssm.parameters.index(fault.parameter) if fault else None
 
-    def theta_at(t: float) -> np.ndarray:
+    def theta_at(t: float, interval_start: float | None = None) -> np.ndarray:
+        """Parameters at time t. An abrupt change takes effect at the start of an
+        integration substep (``interval_start``), so no substep straddles the
+        discontinuity; an incipient one is continuous and evaluated at t."""
         if fault is None:
             return theta0
         th = theta0.copy()
-        th[index] = fault.value(theta0[index], t)
+        when = interval_start if (fault.kind == "abrupt" and interval_start is not None) else t
+        th[index] = fault.value(theta0[index], when)
         return th
 
-    def rhs(x, u, t):
-        return np.array(f(x, u, theta_at(t)), dtype=float)
+    def rhs(x, u, t, t_sub):
+        return np.array(f(x, u, theta_at(t, t_sub)), dtype=float)
 
     rng = np.random.default_rng(options.seed)
     x = np.array(ssm.initial, dtype=float)
@@ -142,10 +146,10 @@ def simulate(ssm: StateSpaceModel, options: SimulationOptions) -> SimulationResu
         u = np.array([modelspec.input_value(i.signal, t0) for i in model.inputs], dtype=float)
         for s in range(substeps):
             t = t0 + s * h
-            k1 = rhs(x, u, t)
-            k2 = rhs(x + 0.5 * h * k1, u, t + 0.5 * h)
-            k3 = rhs(x + 0.5 * h * k2, u, t + 0.5 * h)
-            k4 = rhs(x + h * k3, u, t + h)
+            k1 = rhs(x, u, t, t)
+            k2 = rhs(x + 0.5 * h * k1, u, t + 0.5 * h, t)
+            k3 = rhs(x + 0.5 * h * k2, u, t + 0.5 * h, t)
+            k4 = rhs(x + h * k3, u, t + h, t)
             x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         x = x + proc * rng.standard_normal(len(xs))
         if not np.all(np.isfinite(x)):

@@ -36,7 +36,7 @@ _BOND_VARIABLE = re.compile(r"^[ef][0-9]+$")
 #: Names generated code and expressions use for themselves.
 RESERVED = frozenset({
     "np", "numpy", "math", "x", "u", "y", "t", "dt", "theta", "rng", "logw", "N", "self",
-    "e", "f", "pi", "E", "I_", *expressions.FUNCTIONS,
+    "e", "f", "pi", *expressions.FUNCTIONS,
 }) | frozenset(dir(builtins))
 #: Keys each kind accepts beyond ``kind`` and ``description``.
 _KIND_KEYS = {
@@ -79,7 +79,8 @@ class _Validator:
 
     def bad(self, path: tuple) -> bool:
         """Whether the schema found an error in the node at ``path``, inside it or around it."""
-        return any(path[: len(p)] == p or p[: len(path)] == path for p in self.bad_paths)
+        # a root-level error (an unknown section) does not make every node bad
+        return any((p and path[: len(p)] == p) or p[: len(path)] == path for p in self.bad_paths)
 
     def expr(self, text: Any, names: Iterable[str], path: tuple, where: str) -> sympy.Expr | None:
         try:
@@ -119,6 +120,8 @@ class _Validator:
 
     # ------------------------------------------------------------------ build
     def build(self, data: dict) -> BondGraph:
+        if keyword.iskeyword(data["name"]) or keyword.issoftkeyword(data["name"]):
+            self.error(f"model name '{data['name']}' is a Python keyword", ("name",), "rename the model")
         parameters = self.parameters(_section(data, "parameters"))
         inputs = self.inputs(_section(data, "inputs"))
         for name in sorted({p.name for p in parameters} & {i.name for i in inputs}):
@@ -159,7 +162,7 @@ class _Validator:
         if keyword.iskeyword(name) or keyword.issoftkeyword(name):
             self.error(f"{what} name '{name}' is a Python keyword", path, "rename it, e.g. " + name + "_", key=True)
             return False
-        if name in RESERVED or name.startswith("_"):
+        if name in RESERVED or name.startswith(("_", "delta_")):
             self.error(f"{what} name '{name}' is reserved for generated code", path,
                        "rename it, e.g. " + name.strip("_") + "_1", key=True)
             return False
@@ -241,7 +244,7 @@ class _Validator:
             if extra:
                 allowed = sorted(_KIND_KEYS[kind] | {"kind", "description"})
                 self.error(f"element {name} of kind {kind} has no key '{extra[0]}'", path + (extra[0],),
-                           f"keys of a {kind}: {', '.join(allowed)}", key=True)
+                           f"keys of {_article(kind)}: {', '.join(allowed)}", key=True)
                 continue
             mine = ports.get(name, [])
             own = {}
@@ -264,9 +267,9 @@ class _Validator:
                 pass
             elif "law" in spec:
                 if own:  # else keep the element without its law: the port-count rule reports it
-                    law = self.law(name, spec["law"], own, pnames | variables, path + ("law",))
-                    if law is None or not self.unmodulated(name, kind, law.expr, variables - set(own.values()),
-                                                           path + ("law",)):
+                    law = self.law(name, spec["law"], own, pnames | variables | inames, path + ("law",))
+                    if law is None or not self.unmodulated(name, kind, law.expr,
+                                                           (variables | inames) - set(own.values()), path + ("law",)):
                         continue
             else:
                 text = spec.get("parameter", name if name in pnames else None)
@@ -274,8 +277,9 @@ class _Validator:
                     self.error(f"element {name} has no parameter", path,
                                f"declare a parameter named {name} or add 'parameter: <expression>'")
                     continue
-                parameter = self.expr(text, pnames | variables, path + ("parameter",), f"parameter of {name}")
-                if parameter is None or not self.unmodulated(name, kind, parameter, variables,
+                parameter = self.expr(text, pnames | variables | inames, path + ("parameter",),
+                                      f"parameter of {name}")
+                if parameter is None or not self.unmodulated(name, kind, parameter, variables | inames,
                                                              path + ("parameter",)):
                     continue
                 if parameter.is_number and float(parameter) == 0.0:
@@ -290,13 +294,15 @@ class _Validator:
         return tuple(out)
 
     def unmodulated(self, name: str, kind: str, expr: sympy.Expr, variables: set[str], path: tuple) -> bool:
-        """Check that only a modulated kind (MSe, MR, ...) depends on the bond ``variables``."""
+        """Check that only a modulated kind (MSe, MR, ...) depends on the signals
+        ``variables`` (bond variables, and inputs for non-sources)."""
         used = sorted({s.name for s in expr.free_symbols} & variables)
         if not used or kind in MODULATED:
             return True
         fix = (f"use kind M{kind} for a modulated element" if f"M{kind}" in MODULATED
                else f"a {kind} element is never modulated: use parameters only")
-        self.error(f"{kind} element {name} depends on bond variable {used[0]}", path, fix)
+        what = "bond variable" if _BOND_VARIABLE.match(used[0]) else "input"
+        self.error(f"{kind} element {name} depends on {what} {used[0]}", path, fix)
         return False
 
     def law(self, name: str, text: str, own: dict[str, str], names: set[str], path: tuple) -> Law | None:

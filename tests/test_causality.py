@@ -139,7 +139,7 @@ def test_circuit_states_are_e4_e8_f10_integral_without_arbitrary_resistors():
         ("C1", "C", 4, "e4", True), ("C2", "C", 8, "e8", True), ("L", "I", 10, "f10", True)]
     assert [s.state for s in cbg.states] == ["e4", "e8", "f10"]
     assert cbg.arbitrary == ()
-    assert not [d for d in cbg.diagnostics if d.severity == "warning"]
+    assert not [d for d in cbg.diagnostics if d.severity == "warning" and "derivative causality" in d.message]
     # Independent check: with all storage integral the assignment is the only valid one.
     integral = [s for s in oracle(g) if all(is_integral(el, s, g) for el in storage_elements(g))]
     assert integral == [CIRCUIT_EXPECTED]
@@ -170,7 +170,7 @@ def test_two_capacitors_on_one_0_junction_one_is_derivative(first, second):
     assert [(s.element, s.integral) for s in cbg.storage] == [(a, True), (b, False)]
     assert effort_map(cbg) == {1: "j", 2: a, 3: "j"}
     assert [s.element for s in cbg.states] == [a]
-    warnings = [d for d in cbg.diagnostics if d.severity == "warning"]
+    warnings = [d for d in cbg.diagnostics if d.severity == "warning" and "derivative causality" in d.message]
     assert [d.element for d in warnings] == [b]
     assert b in warnings[0].message and "derivative" in warnings[0].message
 
@@ -182,7 +182,7 @@ def test_effort_source_on_a_0_junction_puts_its_capacitor_in_derivative_causalit
     assert effort_map(cbg) == {1: "E", 2: "j", 3: "j"}
     assert [(s.element, s.state, s.integral) for s in cbg.storage] == [("Cx", "e2", False)]
     assert cbg.states == ()
-    (w,) = [d for d in cbg.diagnostics if d.severity == "warning"]
+    (w,) = [d for d in cbg.diagnostics if d.severity == "warning" and "derivative causality" in d.message]
     assert w.element == "Cx" and "Cx" in w.message
 
 
@@ -193,7 +193,7 @@ def test_flow_source_on_a_1_junction_puts_its_inductor_in_derivative_causality()
     cbg = assign(g)
     assert effort_map(cbg) == {1: "j", 2: "Lx"}
     assert [(s.element, s.state, s.integral) for s in cbg.storage] == [("Lx", "f2", False)]
-    assert [d.element for d in cbg.diagnostics if d.severity == "warning"] == ["Lx"]
+    assert [d.element for d in cbg.diagnostics if d.severity == "warning" and "derivative causality" in d.message] == ["Lx"]
 
 
 ALGEBRAIC = ({"E": "Se", "j1": "1", "R1": "R", "j0": "0", "R2": "R", "j1b": "1", "R3": "R", "C": "C"},
@@ -458,7 +458,7 @@ def assert_causal_rules(g: BondGraph, cbg: CausalBondGraph) -> None:
     assert check_assignment(g, effort_by) == []
     # Storage: every C/I once, in name order, with integral meaning what it says.
     assert [s.element for s in cbg.storage] == sorted(el.name for el in storage_elements(g))
-    warned = {d.element for d in cbg.diagnostics if d.severity == "warning"}
+    warned = {d.element for d in cbg.diagnostics if d.severity == "warning" and "derivative causality" in d.message}
     for s in cbg.storage:
         el = g.element(s.element)
         assert s.kind == el.kind and ends[s.bond].count(el.name) == 1
@@ -566,7 +566,7 @@ def test_gyrator_loop_puts_the_capacitor_in_derivative_causality():
     cbg = assign(GYRATOR_LOOP)
     assert effort_map(cbg) == {1: "j", 2: "G", 3: "G"}
     assert [(s.element, s.integral) for s in cbg.storage] == [("C", False)]
-    assert [d.element for d in cbg.diagnostics if d.severity == "warning"] == ["C"]
+    assert [d.element for d in cbg.diagnostics if d.severity == "warning" and "derivative causality" in d.message] == ["C"]
 
 
 @settings(max_examples=100)
@@ -578,3 +578,67 @@ def test_scap_succeeds_exactly_when_an_assignment_exists(g):
     solutions = oracle(g)
     cbg = run_assign(g)
     assert (cbg is None) == (not solutions)
+
+
+# A 0-junction with an inductor, a resistor and a gyrator looped back onto it (bonds
+# 3, 4). The gyrator loop brings the junction two efforts or none, so it must bring
+# none (j imposes e3 and e4) and exactly one of L, R imposes the junction's effort.
+# With L integral (j imposes e1) the resistor must impose e2: e = R f is explicit,
+# there is no algebraic loop and nothing was chosen. SCAP tries R in conductance form
+# first, the search over bonds 3 and 4 then fails, it backtracks to the other form and
+# still lists R in ``arbitrary`` with the note "it closes an algebraic loop".
+FORCED_RESISTOR = make_graph({"L": "I", "R": "R", "j": "0", "G": "GY"},
+                             {1: ("j", "L"), 2: ("j", "R"), 3: ("j", "G"), 4: ("G", "j")})
+
+
+def test_forced_resistor_graph_has_one_assignment_with_the_inductor_integral():
+    assert [s for s in oracle(FORCED_RESISTOR) if s[1] == "j"] == [{1: "j", 2: "R", 3: "j", 4: "j"}]
+    cbg = assign(FORCED_RESISTOR)
+    assert effort_map(cbg) == {1: "j", 2: "R", 3: "j", 4: "j"}
+    assert [(s.element, s.integral) for s in cbg.storage] == [("L", True)]
+
+
+@settings(max_examples=100)
+@example(g=FORCED_RESISTOR)
+@given(g=bond_graphs(max_junctions=3, max_one_ports=4, cycles=True, max_bonds=10))
+def test_resistors_are_arbitrary_only_when_the_assignment_is_not_unique(g):
+    # As on trees (test_scap_succeeds_exactly_when_an_assignment_exists_on_trees), but on
+    # graphs with loops and in one direction only: junction-only loops may leave a free
+    # bond that is not a resistor's.
+    cbg = run_assign(g)
+    assume(cbg is not None)
+    chosen = {s.bond: effort_map(cbg)[s.bond] for s in cbg.storage}
+    completions = [s for s in oracle(g) if all(s[b] == e for b, e in chosen.items())]
+    if len(completions) == 1:
+        assert cbg.arbitrary == ()
+        assert not [d for d in cbg.diagnostics if d.severity == "note"]
+
+
+# ------------------------------------------------------- bond-direction warnings
+def _rc(bonds: str) -> str:
+    return f"""
+name: rc
+parameters: {{R: 1.0, C: 2.0}}
+inputs: {{V: 1.0}}
+elements: {{V: {{kind: Se}}, j: {{kind: "1"}}, R: {{kind: R}}, C: {{kind: C}}}}
+bonds: {bonds}
+"""
+
+
+def test_reversed_resistor_bond_is_warned_by_name():
+    from bgc.load import loads
+    from bgc.validate import validate
+
+    cbg = assign(validate(loads(_rc("{1: [V, j], 2: [R, j], 3: [j, C]}"))))
+    warned = [d for d in cbg.diagnostics if d.severity == "warning"]
+    assert [d.element for d in warned] == ["R"] and "points out of it" in warned[0].message
+
+
+def test_source_absorbing_power_is_warned_and_normal_directions_are_not():
+    from bgc.load import loads
+    from bgc.validate import validate
+
+    cbg = assign(validate(loads(_rc("{1: [j, V], 2: [j, R], 3: [j, C]}"))))
+    assert [d.element for d in cbg.diagnostics if d.severity == "warning"] == ["V"]
+    cbg = assign(validate(loads(_rc("{1: [V, j], 2: [j, R], 3: [j, C]}"))))
+    assert not [d for d in cbg.diagnostics if d.severity == "warning"]

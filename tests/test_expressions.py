@@ -2,15 +2,15 @@
 
 import builtins
 import math
-import random
 import subprocess
 import sys
 import textwrap
 import time
 
+import numpy as np
 import pytest
 import sympy
-from hypothesis import given
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bgc.errors import ExpressionError, SourceLoc
@@ -188,6 +188,7 @@ def fast_refusal(text: str, message: str) -> ExpressionError:
     ("a/(b - b)", "division by zero"),
     ("log(0)", "not a finite real number"),
     ("sqrt(-1)", "not a finite real number"),
+    ("max(log(min(-1.0, a)), 1)", "cannot take max here"),   # once a ValueError traceback
     ("123456789012345678901234567890", "integer literal with more than 24 digits"),
 ])
 def test_runaway_numbers_are_refused_fast(text, message):
@@ -317,10 +318,14 @@ def _negate(node):
 
 
 def _call(name, args):
-    texts = ", ".join(n[0] for n in args)
-    bad = any(n[3] for n in args)
-    ref = sympy.nan if bad else FUNCTIONS[name][0](*(n[1] for n in args))
-    return f"{name}({texts})", ref, 4, bad or _refused(ref)
+    text = f"{name}({', '.join(n[0] for n in args)})"
+    if any(n[3] for n in args):
+        return text, sympy.nan, 4, True
+    try:
+        ref = FUNCTIONS[name][0](*(n[1] for n in args))
+    except ValueError:  # sympy's Min/Max refuse arguments known not to be real
+        return text, sympy.nan, 4, True
+    return text, ref, 4, _refused(ref)
 
 
 def _tree(depth: int) -> st.SearchStrategy:
@@ -339,27 +344,30 @@ def _tree(depth: int) -> st.SearchStrategy:
     )
 
 
-expressions = _tree(5)
+expressions = _tree(4)
 
 
 def numerically_equal(x: sympy.Expr, y: sympy.Expr, seed: int) -> bool:
-    rng = random.Random(seed)
-    for _ in range(3):
-        point = {sympy.Symbol(n): sympy.Float(rng.uniform(0.5, 3.0)) for n in VARIABLES}
-        vx, vy = complex(x.evalf(30, subs=point)), complex(y.evalf(30, subs=point))
-        if not (cmath_close(vx, vy)):
-            return False
+    """Equal at random points (complex arithmetic: sqrt of a negative is fine)."""
+    symbols = [sympy.Symbol(n) for n in VARIABLES]
+    fx, fy = (sympy.lambdify(symbols, e, modules="numpy") for e in (x, y))
+    rng = np.random.default_rng(seed)
+    with np.errstate(all="ignore"):
+        for _ in range(5):
+            point = rng.uniform(0.5, 3.0, size=len(symbols)).astype(complex)
+            u, v = complex(fx(*point)), complex(fy(*point))
+            if np.isfinite(u) and np.isfinite(v) and not np.isclose(u, v, rtol=1e-9, atol=1e-12):
+                return False
+            if np.isfinite(u) != np.isfinite(v):
+                return False
     return True
 
 
-def cmath_close(u: complex, v: complex) -> bool:
-    return abs(u - v) <= 1e-9 * max(1.0, abs(u), abs(v))
-
-
+@settings(suppress_health_check=[HealthCheck.too_slow])  # sympy builds the examples
 @given(expressions, st.integers(0, 2**32))
 def test_parsed_text_equals_the_tree_it_was_printed_from(node, seed):
     text, ref, _, refused = node
-    if refused:
+    if refused or len(text) > MAX_LENGTH:
         with pytest.raises(ExpressionError):
             parse(text, NAMES, LOC)
         return
@@ -371,4 +379,4 @@ def test_the_property_oracle_can_see_a_misparse():
     # the comparison used above tells apart what a precedence bug would confuse
     assert not numerically_equal(parse("a - b - c", NAMES), a - (b - c), 1)
     assert not numerically_equal(parse("a**b**c", NAMES), (a ** b) ** c, 1)
-    assert not numerically_equal(parse("-a**2", NAMES), (-a) ** 2 * -1 * -1, 1)
+    assert not numerically_equal(parse("-a**2", NAMES), (-a) ** 2, 1)

@@ -31,12 +31,14 @@ X0 = np.array([7.5, 2.5, 2.5, 0.5, 0.0])
 X0_STD = np.array([0.24647515087732477, 0.03354101966249684, 0.06708203932499368, 0.0, 0.0])
 PROCESS_STD = np.array([0.12323757543866239, 0.01677050983124842, 0.03354101966249684, 0.0, 0.0006666666666666666])
 MEASUREMENT_STD = np.array([0.05, 0.05, 0.05])
+#: Std of the one-step predictive of y given the noise-free prediction: measurement
+#: noise plus the process noise seen through the outputs (sqrt(R + diag(H Q H')),
+#: H at X0); used by the auxiliary particle filter's first stage.
+PREDICTIVE_STD = np.array([0.06020797289396148, 0.13299436078270388, 0.07979465834252317])
 FAULT = {'parameter': 'C1', 'kind': 'incipient'}
 #: Uniform prior of the fault magnitude: slope delta_C1 (per unit time) on [-0.0666667, 0].
 FAULT_PRIOR = (-0.06666666666666667, 0.0)
-_LOG_NORM = float(-0.5 * len(OUTPUTS) * np.log(2.0 * np.pi) - np.sum(np.log(MEASUREMENT_STD)))
 _PROCESS_STD = PROCESS_STD[:, None]
-_MEASUREMENT_STD = MEASUREMENT_STD[:, None]
 
 
 def inputs(t):
@@ -55,13 +57,13 @@ def derivative(x, u, theta):
     C1 = x[3]
     _c0 = -e8
     _c1 = (_c0 + e4)/R2
-    dx = np.empty_like(x)
-    dx[0] = (-_c1 + (V - e4)/R1)/C1
-    dx[1] = (_c1 - f10)/C2
-    dx[2] = (-R3*f10 - _c0)/L
-    dx[3] = delta_C1
-    dx[4] = 0
-    return dx
+    _dx = np.empty_like(x)
+    _dx[0] = (-_c1 + (V - e4)/R1)/C1
+    _dx[1] = (_c1 - f10)/C2
+    _dx[2] = (-R3*f10 - _c0)/L
+    _dx[3] = delta_C1
+    _dx[4] = 0
+    return _dx
 
 
 def predict(x, u, theta, dt):
@@ -93,24 +95,32 @@ def observe(x, u, theta):
     V = u[0]
     C1, C2, L, R1, R2, R3 = theta
     C1 = x[3]
-    y = np.empty((len(OUTPUTS), x.shape[1]))
-    y[0] = R3*f10
-    y[1] = (V - e4)/R1
-    y[2] = (e4 - e8)/R2
-    return y
+    _y = np.empty((3, x.shape[1]))
+    _y[0] = R3*f10
+    _y[1] = (V - e4)/R1
+    _y[2] = (e4 - e8)/R2
+    return _y
 
 
 def loglik(y, x, u, theta):
     """log p(y | x) for every particle (Gaussian measurement noise); NaN in y: not measured."""
-    r = observe(x, u, theta)
-    r -= np.asarray(y, dtype=float)[:, None]
-    r /= _MEASUREMENT_STD
-    r *= r
+    return _gaussian_loglik(y, observe(x, u, theta), MEASUREMENT_STD)
+
+
+def loglik_predictive(y, x, u, theta):
+    """Approximate log p(y | noise-free prediction x), with PREDICTIVE_STD."""
+    return _gaussian_loglik(y, observe(x, u, theta), PREDICTIVE_STD)
+
+
+def _gaussian_loglik(y, yhat, std):
+    y = np.asarray(y, dtype=float)
     seen = np.isfinite(y)
-    if seen.all():
-        return _LOG_NORM - 0.5 * r.sum(axis=0)
-    norm = float(-0.5 * seen.sum() * np.log(2.0 * np.pi) - np.sum(np.log(MEASUREMENT_STD[seen])))
-    return norm - 0.5 * r[seen].sum(axis=0)
+    if not seen.all():
+        y, yhat, std = y[seen], yhat[seen], std[seen]
+    r = yhat - y[:, None]
+    r /= std[:, None]
+    r *= r
+    return float(-0.5 * len(y) * np.log(2.0 * np.pi) - np.sum(np.log(std))) - 0.5 * r.sum(axis=0)
 
 
 def initial_particles(rng, n):

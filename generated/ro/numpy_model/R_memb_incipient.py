@@ -31,12 +31,14 @@ X0 = np.array([13.98906, -0.398906, 363.7155, 1443.559, 12000.0, 26.0, 0.0])
 X0_STD = np.array([0.8393436, 0.0038133285320663913, 9.554003537386823, 29.30723113012857, 1.9595917942265426, 0.0, 0.0])
 PROCESS_STD = np.array([0.4196718, 0.0019066642660331957, 4.777001768693411, 14.653615565064285, 0.9797958971132713, 0.0, 0.003466666666666667])
 MEASUREMENT_STD = np.array([0.03310130963636364, 0.3128824910144928, 0.2797811538461539, 7.274310000000001])
+#: Std of the one-step predictive of y given the noise-free prediction: measurement
+#: noise plus the process noise seen through the outputs (sqrt(R + diag(H Q H')),
+#: H at X0); used by the auxiliary particle filter's first stage.
+PREDICTIVE_STD = np.array([0.03958761331552928, 0.38443472121650263, 0.3347278293094676, 8.70260489015789])
 FAULT = {'parameter': 'R_memb', 'kind': 'incipient'}
 #: Uniform prior of the fault magnitude: slope delta_R_memb (per unit time) on [0, 0.346667].
 FAULT_PRIOR = (0.0, 0.3466666666666667)
-_LOG_NORM = float(-0.5 * len(OUTPUTS) * np.log(2.0 * np.pi) - np.sum(np.log(MEASUREMENT_STD)))
 _PROCESS_STD = PROCESS_STD[:, None]
-_MEASUREMENT_STD = MEASUREMENT_STD[:, None]
 
 
 def inputs(t):
@@ -59,15 +61,15 @@ def derivative(x, u, theta):
     _c0 = (e13 - e6)/R_brine
     _c1 = (-e13 + e6 + f22*m2)/R_pipe
     _c2 = _c0 - _c1
-    dx = np.empty_like(x)
-    dx[0] = (-R_fp*f3 - e6*m1 + tau_fp)/I_fp
-    dx[1] = (_c2 + f3*m1)/C_res
-    dx[2] = (-_c2 - 29*e13/(R_memb*(29 + (-K0 + e27)/K_slope)))/C_memb
-    dx[3] = (-R_rp*f22 - _c1*m2 + tau_rp)/I_rp
-    dx[4] = _c1*k_scale*(6*_c0*k_scale + 0.1)/C_k
-    dx[5] = delta_R_memb
-    dx[6] = 0
-    return dx
+    _dx = np.empty_like(x)
+    _dx[0] = (-R_fp*f3 - e6*m1 + tau_fp)/I_fp
+    _dx[1] = (_c2 + f3*m1)/C_res
+    _dx[2] = (-_c2 - 29*e13/(R_memb*(29 + (-K0 + e27)/K_slope)))/C_memb
+    _dx[3] = (-R_rp*f22 - _c1*m2 + tau_rp)/I_rp
+    _dx[4] = _c1*k_scale*(6*_c0*k_scale + 0.1)/C_k
+    _dx[5] = delta_R_memb
+    _dx[6] = 0
+    return _dx
 
 
 def predict(x, u, theta, dt):
@@ -99,25 +101,33 @@ def observe(x, u, theta):
     e27 = x[4]
     C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
     R_memb = x[5]
-    y = np.empty((len(OUTPUTS), x.shape[1]))
-    y[0] = (e13 - e6)/R_brine
-    y[1] = (-e13 + e6 + f22*m2)/R_pipe
-    y[2] = 29*e13/(R_memb*(29 + (-K0 + e27)/K_slope))
-    y[3] = e13
-    return y
+    _y = np.empty((4, x.shape[1]))
+    _y[0] = (e13 - e6)/R_brine
+    _y[1] = (-e13 + e6 + f22*m2)/R_pipe
+    _y[2] = 29*e13/(R_memb*(29 + (-K0 + e27)/K_slope))
+    _y[3] = e13
+    return _y
 
 
 def loglik(y, x, u, theta):
     """log p(y | x) for every particle (Gaussian measurement noise); NaN in y: not measured."""
-    r = observe(x, u, theta)
-    r -= np.asarray(y, dtype=float)[:, None]
-    r /= _MEASUREMENT_STD
-    r *= r
+    return _gaussian_loglik(y, observe(x, u, theta), MEASUREMENT_STD)
+
+
+def loglik_predictive(y, x, u, theta):
+    """Approximate log p(y | noise-free prediction x), with PREDICTIVE_STD."""
+    return _gaussian_loglik(y, observe(x, u, theta), PREDICTIVE_STD)
+
+
+def _gaussian_loglik(y, yhat, std):
+    y = np.asarray(y, dtype=float)
     seen = np.isfinite(y)
-    if seen.all():
-        return _LOG_NORM - 0.5 * r.sum(axis=0)
-    norm = float(-0.5 * seen.sum() * np.log(2.0 * np.pi) - np.sum(np.log(MEASUREMENT_STD[seen])))
-    return norm - 0.5 * r[seen].sum(axis=0)
+    if not seen.all():
+        y, yhat, std = y[seen], yhat[seen], std[seen]
+    r = yhat - y[:, None]
+    r /= std[:, None]
+    r *= r
+    return float(-0.5 * len(y) * np.log(2.0 * np.pi) - np.sum(np.log(std))) - 0.5 * r.sum(axis=0)
 
 
 def initial_particles(rng, n):

@@ -76,6 +76,8 @@ class _Filter:
 
     def _finish(self, logw, y_mean, y_std, recovered):
         if not np.isfinite(logw.max()):
+            if recovered:  # this step's failure is already counted
+                self.recoveries -= 1
             self._recover()
             logw, recovered = self.logw, True
         logw, ess = normalise(logw)
@@ -90,9 +92,12 @@ class _Filter:
         var = ((self.x - mean[:, None]) ** 2) @ w
         return StepResult(mean, np.sqrt(np.maximum(var, 0.0)), y_mean, y_std, ess, resampled, recovered)
 
-    def _predicted_measurement(self, u):
+    def _predicted_measurement(self, u, logw=None):
+        """Weighted mean and std of y over the current particles (weights: the
+        filter's, or ``logw``), measurement noise included."""
+        logw = self.logw if logw is None else logw
         y = self.model.observe(self.x, u, self.theta)
-        w = np.exp(self.logw - self.logw.max())
+        w = np.exp(logw - logw.max())
         w /= w.sum()
         mean = y @ w
         var = ((y - mean[:, None]) ** 2) @ w + self.model.MEASUREMENT_STD ** 2
@@ -129,7 +134,13 @@ class GenericParticleFilter(_Filter):
 
 class AuxiliaryParticleFilter(_Filter):
     """Thesis Algorithm 2: choose ancestors by w_k-1 * p(y_k | mu_k), propagate,
-    weight by p(y_k | x_k) / p(y_k | mu_k)."""
+    weight by p(y_k | x_k) / p(y_k | mu_k).
+
+    p(y_k | mu_k) is the model's predictive likelihood (``loglik_predictive``:
+    measurement noise plus the process noise seen through the outputs), which
+    keeps the second-stage weights from being heavy-tailed when the process
+    noise is not small against the measurement noise (Pitt and Shephard, 1999).
+    """
 
     def step(self, y, u, dt=None):
         dt = self.model.DT if dt is None else dt
@@ -139,19 +150,19 @@ class AuxiliaryParticleFilter(_Filter):
             y_mean, y_std = self._predicted_measurement(u)
             return self._finish(self.logw, y_mean, y_std, False)
         mu = self.model.predict(self.x, u, self.theta, dt)
-        first = self.model.loglik(y, mu, u, self.theta)
+        first = self.model.loglik_predictive(y, mu, u, self.theta)
         stage1 = self.logw + first
         recovered = False
-        if not np.isfinite(stage1.max()):
-            stage1 = self.logw.copy()
+        if not np.isfinite(stage1.max()):  # every first-stage weight underflowed: plain GPF step
             first = np.zeros(self.n)
+            stage1 = self.logw
             recovered = True
+            self.recoveries += 1
         stage1, _ = normalise(stage1)
         ancestors = systematic_resample(stage1, self.rng)
         self.x = self.model.transition(self.x[:, ancestors], u, self.theta, dt, self.rng)
-        self.logw = np.full(self.n, -np.log(self.n))
-        y_mean, y_std = self._predicted_measurement(u)
+        # The new particles weighted by 1 / p(y | mu) are a sample of the prior
+        # predictive: that gives the predicted measurement (before using y).
+        y_mean, y_std = self._predicted_measurement(u, -first[ancestors])
         logw = self.model.loglik(y, self.x, u, self.theta) - first[ancestors]
-        if recovered:
-            self.recoveries += 1
         return self._finish(logw, y_mean, y_std, recovered)

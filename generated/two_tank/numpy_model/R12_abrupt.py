@@ -31,12 +31,14 @@ X0 = np.array([2.2222222, 1.3333333, 0.0])
 X0_STD = np.array([0.08164965727627602, 0.0596284779092824, 0.0])
 PROCESS_STD = np.array([0.04082482863813801, 0.0298142389546412, 0.008])
 MEASUREMENT_STD = np.array([0.011111111, 0.008888889, 0.008888888666666667])
+#: Std of the one-step predictive of y given the noise-free prediction: measurement
+#: noise plus the process noise seen through the outputs (sqrt(R + diag(H Q H')),
+#: H at X0); used by the auxiliary particle filter's first stage.
+PREDICTIVE_STD = np.array([0.015087194975795014, 0.02679367867797861, 0.013333333])
 FAULT = {'parameter': 'R12', 'kind': 'abrupt'}
 #: Uniform prior of the fault magnitude: bias delta_R12 on [0, 2].
 FAULT_PRIOR = (0.0, 2.0)
-_LOG_NORM = float(-0.5 * len(OUTPUTS) * np.log(2.0 * np.pi) - np.sum(np.log(MEASUREMENT_STD)))
 _PROCESS_STD = PROCESS_STD[:, None]
-_MEASUREMENT_STD = MEASUREMENT_STD[:, None]
 
 
 def inputs(t):
@@ -53,11 +55,11 @@ def derivative(x, u, theta):
     C1, C2, R10, R12, R20 = theta
     R12 = R12 + x[2]
     _c0 = (e2 - e7)/R12
-    dx = np.empty_like(x)
-    dx[0] = (-_c0 + f_in - e2/R10)/C1
-    dx[1] = (_c0 - e7/R20)/C2
-    dx[2] = 0
-    return dx
+    _dx = np.empty_like(x)
+    _dx[0] = (-_c0 + f_in - e2/R10)/C1
+    _dx[1] = (_c0 - e7/R20)/C2
+    _dx[2] = 0
+    return _dx
 
 
 def predict(x, u, theta, dt):
@@ -87,24 +89,32 @@ def observe(x, u, theta):
     e7 = x[1]
     C1, C2, R10, R12, R20 = theta
     R12 = R12 + x[2]
-    y = np.empty((len(OUTPUTS), x.shape[1]))
-    y[0] = e2/R10
-    y[1] = (e2 - e7)/R12
-    y[2] = e7/R20
-    return y
+    _y = np.empty((3, x.shape[1]))
+    _y[0] = e2/R10
+    _y[1] = (e2 - e7)/R12
+    _y[2] = e7/R20
+    return _y
 
 
 def loglik(y, x, u, theta):
     """log p(y | x) for every particle (Gaussian measurement noise); NaN in y: not measured."""
-    r = observe(x, u, theta)
-    r -= np.asarray(y, dtype=float)[:, None]
-    r /= _MEASUREMENT_STD
-    r *= r
+    return _gaussian_loglik(y, observe(x, u, theta), MEASUREMENT_STD)
+
+
+def loglik_predictive(y, x, u, theta):
+    """Approximate log p(y | noise-free prediction x), with PREDICTIVE_STD."""
+    return _gaussian_loglik(y, observe(x, u, theta), PREDICTIVE_STD)
+
+
+def _gaussian_loglik(y, yhat, std):
+    y = np.asarray(y, dtype=float)
     seen = np.isfinite(y)
-    if seen.all():
-        return _LOG_NORM - 0.5 * r.sum(axis=0)
-    norm = float(-0.5 * seen.sum() * np.log(2.0 * np.pi) - np.sum(np.log(MEASUREMENT_STD[seen])))
-    return norm - 0.5 * r[seen].sum(axis=0)
+    if not seen.all():
+        y, yhat, std = y[seen], yhat[seen], std[seen]
+    r = yhat - y[:, None]
+    r /= std[:, None]
+    r *= r
+    return float(-0.5 * len(y) * np.log(2.0 * np.pi) - np.sum(np.log(std))) - 0.5 * r.sum(axis=0)
 
 
 def initial_particles(rng, n):

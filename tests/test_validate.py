@@ -1,0 +1,381 @@
+"""The validator: RawModel -> BondGraph, and every rule's error message.
+
+Part 1 runs ``bgc check`` on every broken model in ``tests/data/invalid/``; each
+file says, in its leading ``# expect: LINE:COL: text`` comments, where the error
+is and a distinctive part of its message (locations counted by hand in the file).
+Part 2 builds small models from YAML text and checks the BondGraph.
+"""
+
+import re
+import subprocess
+import sys
+import textwrap
+
+import pytest
+import sympy
+
+from bgc.errors import BgcError, ErrorGroup, ExpressionError, SourceLoc, ValidationError
+from bgc.ir import ELEMENT_PORTS, Settings
+from bgc.load import load, loads
+from bgc.validate import KINDS, validate
+
+from conftest import MODELS, ROOT
+
+INVALID = ROOT / "tests" / "data" / "invalid"
+FILES = sorted(p.name for p in INVALID.glob("*.yaml"))
+EXPECT = re.compile(r"# expect: (\d+):(\d+): (.+)")
+#: Files in which one mistake is (rightly) reported more than once.
+MORE_THAN_ONE_LINE = {
+    "two_effort_sources.yaml": "SCAP reports the conflict at each of the two sources",
+}
+#: Files a command in them would create if the model were run instead of refused.
+SENTINELS = ("bgc_injection_sentinel", "bgc_tag_sentinel")
+
+
+def expectations(name: str) -> list[tuple[int, int, str]]:
+    """The ``# expect:`` lines at the top of a file (it may not be UTF-8: that is a test)."""
+    out = []
+    for line in (INVALID / name).read_bytes().decode("utf-8", "replace").splitlines():
+        m = EXPECT.fullmatch(line.rstrip())
+        if not m:
+            break
+        out.append((int(m[1]), int(m[2]), m[3]))
+    return out
+
+
+def bgc_check(*paths: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "bgc", "check", *paths],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def batch():
+    """One ``bgc check`` over every broken model.
+
+    The CLI checks each file in turn and goes on after a broken one, prefixing
+    every error with its file and printing ``FILE: ok: ...`` on stdout only for a
+    valid model, so one process tells each file's verdict apart. (A process per
+    file costs a second of imports each: too slow for 40 files.)
+    """
+    return bgc_check(*(f"tests/data/invalid/{name}" for name in FILES))
+
+
+def lines_of(batch, name: str) -> list[str]:
+    prefix = f"tests/data/invalid/{name}:"
+    return [line for line in batch.stderr.splitlines() if line.startswith(prefix)]
+
+
+def test_there_is_a_broken_model_for_each_rule():
+    assert len(FILES) >= 25
+    for name in FILES:
+        assert expectations(name), f"{name} has no '# expect: LINE:COL: text' first line"
+
+
+def test_bgc_check_fails_on_every_broken_model_without_a_traceback(batch):
+    assert batch.returncode == 1
+    assert "Traceback" not in batch.stderr
+    assert batch.stdout == "", "a broken model was reported ok"
+    form = re.compile(r"tests/data/invalid/([\w.]+\.yaml):(\d+):(\d+): \S.*")
+    for line in batch.stderr.splitlines():
+        assert form.fullmatch(line), f"not FILE:LINE:COL: message: {line!r}"
+    for sentinel in SENTINELS:
+        assert not (ROOT / sentinel).exists(), "a command in a model ran"
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_bgc_check_reports_the_expected_errors(batch, name):
+    assert f"tests/data/invalid/{name}: ok:" not in batch.stdout
+    lines = lines_of(batch, name)
+    assert lines, f"no error for {name}"
+    n_lines = len((INVALID / name).read_bytes().splitlines())
+    form = re.compile(rf"tests/data/invalid/{re.escape(name)}:(\d+):(\d+): \S.*")
+    for line in lines:
+        m = form.fullmatch(line)
+        assert m, f"not FILE:LINE:COL: message: {line!r}"
+        assert 1 <= int(m[1]) <= max(n_lines, 1), line
+    for line_no, col, text in expectations(name):
+        prefix = f"tests/data/invalid/{name}:{line_no}:{col}: "
+        assert any(line.startswith(prefix) and text in line for line in lines), \
+            f"expected {prefix}...{text}...\ngot:\n" + "\n".join(lines)
+
+
+@pytest.mark.parametrize("name", [n for n in FILES if n not in MORE_THAN_ONE_LINE])
+def test_one_mistake_gives_one_error_each(batch, name):
+    """No cascade: an error is not reported again at every use of what it broke."""
+    places = {(line, col) for line, col, _ in expectations(name)}
+    assert len(lines_of(batch, name)) == len(places), "\n".join(lines_of(batch, name))
+
+
+def test_three_independent_errors_come_out_of_one_run_in_file_order():
+    r = bgc_check("tests/data/invalid/three_errors.yaml")
+    assert r.returncode == 1 and "Traceback" not in r.stderr
+    assert [line.split(": ", 1)[0] for line in r.stderr.splitlines()] == [
+        "tests/data/invalid/three_errors.yaml:8:3",
+        "tests/data/invalid/three_errors.yaml:21:6",
+        "tests/data/invalid/three_errors.yaml:23:3",
+    ]
+
+
+def test_unknown_kind_lists_every_valid_kind(batch):
+    (line,) = lines_of(batch, "unknown_kind.yaml")
+    assert "valid kinds: " + ", ".join(sorted(ELEMENT_PORTS)) in line
+    assert KINDS == tuple(sorted(ELEMENT_PORTS))
+
+
+def test_a_valid_model_among_broken_ones_is_still_checked(batch):
+    r = bgc_check("tests/data/invalid/unknown_kind.yaml", "models/two_tank.yaml", "tests/data/invalid/no_storage.yaml")
+    assert r.returncode == 1
+    assert r.stdout.startswith("models/two_tank.yaml: ok: two_tank")
+    assert r.stderr.splitlines() == lines_of(batch, "unknown_kind.yaml") + lines_of(batch, "no_storage.yaml")
+
+
+# ------------------------------------------------------------ unit tests
+def build(text: str):
+    return validate(loads(textwrap.dedent(text), "m.yaml"))
+
+
+def errors(text: str) -> tuple[BgcError, ...]:
+    with pytest.raises(ErrorGroup) as info:
+        build(text)
+    return info.value.errors
+
+
+def same(x, y) -> bool:
+    return sympy.simplify(x - y) == 0
+
+
+S = sympy.Symbol
+
+# Elements and bonds are declared out of order on purpose.
+RC = """\
+name: rc
+description: an RC circuit
+parameters:
+  R: {value: 2.5, unit: ohm, description: resistor}
+  C: 0.5
+  gain: 3
+inputs:
+  V: {signal: step, value: 1.0, final: 2.0, start: 5.0, unit: V}
+  slope_in: {signal: ramp, value: 0.0, slope: 0.5}
+  level: 7.0
+elements:
+  j: {kind: "1"}
+  V: {kind: Se}
+  R: {kind: R}
+  C: {kind: C, initial: 1.5}
+bonds:
+  3: [j, C]
+  1: [V, j]
+  2: [j, R]
+measurements:
+  f2:
+  P: {expr: "gain*e3 + level", noise: 0.1, unit: V, description: scaled voltage}
+faults:
+  R: [incipient, abrupt]
+  C: {kinds: [abrupt], direction: decrease, prior: 0.2}
+"""
+
+
+def test_bond_graph_content():
+    g = build(RC)
+    assert (g.name, g.description, g.source) == ("rc", "an RC circuit", "m.yaml")
+    assert [e.name for e in g.elements] == ["C", "R", "V", "j"]              # sorted by name
+    assert [(b.number, b.tail, b.head) for b in g.bonds] == [(1, "V", "j"), (2, "j", "R"), (3, "j", "C")]
+    assert g.bond(2).loc == SourceLoc("m.yaml", 19, 3)
+    assert g.element("R").loc == SourceLoc("m.yaml", 14, 3)
+    assert [e.kind for e in g.elements] == ["C", "R", "Se", "1"]
+
+
+def test_parameters():
+    g = build(RC)
+    assert [(p.name, p.value, p.unit, p.description) for p in g.parameters] == [
+        ("C", 0.5, None, None), ("R", 2.5, "ohm", "resistor"), ("gain", 3.0, None, None)]
+    assert g.parameter_values() == {"C": 0.5, "R": 2.5, "gain": 3.0}
+    assert g.parameters[1].loc == SourceLoc("m.yaml", 4, 3)
+
+
+def test_element_parameter_defaults_to_the_parameter_named_like_it():
+    g = build(RC)
+    assert g.element("R").parameter == S("R") and g.element("C").parameter == S("C")
+    assert g.element("R").law is None and g.element("R").source is None
+    g2 = build(RC.replace("R: {kind: R}", 'R: {kind: R, parameter: "2*C + gain"}'))
+    assert same(g2.element("R").parameter, 2 * S("C") + S("gain"))
+
+
+def test_source_value_defaults_to_the_input_named_like_it():
+    g = build(RC)
+    assert g.element("V").source == S("V") and g.element("V").parameter is None
+    g2 = build(RC.replace("V: {kind: Se}", 'V: {kind: Se, value: "level - V/2"}'))
+    assert same(g2.element("V").source, S("level") - S("V") / 2)
+    g3 = build(RC.replace("V: {kind: Se}", "V: {kind: Se, value: 12}"))
+    assert g3.element("V").source == 12
+
+
+def test_initial_state_defaults_to_zero_for_storage_only():
+    g = build(RC)
+    assert g.element("C").initial == 1.5
+    assert g.element("R").initial is None and g.element("j").initial is None
+    assert build(RC.replace("C: {kind: C, initial: 1.5}", "C: {kind: C}")).element("C").initial == 0.0
+
+
+def test_inputs_and_their_signals():
+    g = build(RC)
+    inputs = {i.name: i for i in g.inputs}
+    assert [i.name for i in g.inputs] == ["V", "level", "slope_in"]
+    v = inputs["V"].signal
+    assert (v.kind, v.value, v.final, v.start, v.slope) == ("step", 1.0, 2.0, 5.0, None)
+    assert inputs["V"].unit == "V"
+    r = inputs["slope_in"].signal
+    assert (r.kind, r.value, r.slope, r.start) == ("ramp", 0.0, 0.5, 0.0)   # a ramp starts at 0 by default
+    c = inputs["level"].signal
+    assert (c.kind, c.value, c.final, c.start, c.slope) == ("constant", 7.0, None, None, None)
+
+
+def test_measurements_are_sympy_expressions():
+    g = build(RC)
+    ms = {m.name: m for m in g.measurements}
+    assert [m.name for m in g.measurements] == ["P", "f2"]
+    assert ms["f2"].expr == S("f2") and ms["f2"].text == "f2"
+    assert same(ms["P"].expr, S("gain") * S("e3") + S("level"))
+    assert (ms["P"].noise, ms["P"].unit, ms["P"].description) == (0.1, "V", "scaled voltage")
+    assert ms["f2"].noise == 0.02  # the default measurement noise
+    assert ms["P"].loc == SourceLoc("m.yaml", 22, 3)
+
+
+def test_measurement_noise_default_follows_the_simulation_section():
+    g = build(RC + "simulation: {measurement_noise: 0.07}\n")
+    assert {m.name: m.noise for m in g.measurements} == {"P": 0.1, "f2": 0.07}
+
+
+def test_fault_candidates_and_their_defaults():
+    g = build(RC)
+    faults = {f.parameter: f for f in g.faults}
+    assert [f.parameter for f in g.faults] == ["C", "R"]
+    assert (faults["R"].kinds, faults["R"].direction, faults["R"].prior) == (("abrupt", "incipient"), "both", 0.01)
+    assert (faults["C"].kinds, faults["C"].direction, faults["C"].prior) == (("abrupt",), "decrease", 0.2)
+    assert faults["C"].loc == SourceLoc("m.yaml", 25, 3)
+
+
+def test_settings_defaults():
+    g = build(RC)
+    assert (g.settings.dt, g.settings.steps, g.settings.process_noise, g.settings.measurement_noise) \
+        == (1.0, 300, 0.03, 0.02)
+    g2 = build(RC + "simulation: {dt: 0.25, steps: 40}\n")
+    assert g2.settings == Settings(dt=0.25, steps=40, process_noise=0.03, measurement_noise=0.02)
+
+
+def test_junction_kind_may_be_written_as_a_number():
+    g = build(RC.replace('j: {kind: "1"}', "j: {kind: 1}"))
+    assert g.element("j").kind == "1"
+
+
+# Bond 5 joins the 0-junction 'tank' to the orifice R_o; e5 is the pressure across
+# it and f5 the flow through it.
+ORIFICE = """\
+name: tank
+parameters: {C1: 2.0, cd: 0.4, k: 3.0}
+inputs: {q_in: 1.0}
+elements:
+  Q: {kind: Sf, value: q_in}
+  tank: {kind: "0"}
+  C1: {kind: C}
+  R_o: {kind: R, law: "f = cd*sqrt(e)"}
+bonds:
+  1: [Q, tank]
+  4: [tank, C1]
+  5: [tank, R_o]
+"""
+
+
+def test_nonlinear_law_in_the_bond_variables_of_the_element():
+    law = build(ORIFICE).element("R_o").law
+    assert law.output == "f5"
+    assert same(law.expr, S("cd") * sympy.sqrt(S("e5")))
+    assert law.text == "f = cd*sqrt(e)"
+    assert law.loc == SourceLoc("m.yaml", 8, 23)
+    assert build(ORIFICE).element("R_o").parameter is None
+
+
+def test_nonlinear_law_in_resistance_form():
+    law = build(ORIFICE.replace("f = cd*sqrt(e)", "e = k*f*abs(f)")).element("R_o").law
+    assert law.output == "e5"
+    assert same(law.expr, S("k") * S("f5") * sympy.Abs(S("f5")))
+
+
+def test_law_left_side_must_be_e_or_f():
+    (err,) = errors(ORIFICE.replace("f = cd*sqrt(e)", "q = cd*sqrt(e)"))
+    assert "gives 'q', not e or f" in err.what and err.loc == SourceLoc("m.yaml", 8, 23)
+
+
+def test_law_of_an_element_without_exactly_one_bond_is_reported_not_dropped():
+    # once the element silently vanished and SCAP crashed on its bonds
+    (err,) = errors(ORIFICE + "  6: [tank, R_o]\n")
+    assert "R element R_o has 2 bonds, needs exactly 1" in err.what
+
+
+def test_modulated_elements_may_use_bond_variables():
+    g = build(ORIFICE.replace('R_o: {kind: R, law: "f = cd*sqrt(e)"}', 'R_o: {kind: MR, parameter: "k*(1 + e4)"}')
+              .replace("Q: {kind: Sf, value: q_in}", 'Q: {kind: MSf, value: "q_in*tanh(e4)"}'))
+    assert same(g.element("R_o").parameter, S("k") * (1 + S("e4")))
+    assert same(g.element("Q").source, S("q_in") * sympy.tanh(S("e4")))
+
+
+def test_modulated_law_may_use_another_bond_variable():
+    law = build(ORIFICE.replace('{kind: R, law: "f = cd*sqrt(e)"}', '{kind: MR, law: "f = cd*e4*sqrt(e)"}')
+                ).element("R_o").law
+    assert same(law.expr, S("cd") * S("e4") * sympy.sqrt(S("e5")))
+
+
+@pytest.mark.parametrize("element, fix", [
+    ('R_o: {kind: R, law: "f = cd*e4*sqrt(e)"}', "use kind MR"),
+    ('R_o: {kind: R, parameter: "k*e4"}', "use kind MR"),
+    ('Q: {kind: Sf, value: "q_in*f4"}', "use kind MSf"),
+    ('C1: {kind: C, parameter: "C1*e5"}', "a C element is never modulated"),
+])
+def test_unmodulated_elements_may_not_use_bond_variables(element, fix):
+    name = element.split(":")[0]
+    text = re.sub(rf"^  {name}: .*$", "  " + element, ORIFICE, flags=re.M)
+    (err,) = errors(text)
+    assert isinstance(err, ValidationError) and "depends on bond variable" in err.what
+    assert fix in err.line()
+
+
+def test_several_errors_are_reported_together_sorted_by_place():
+    text = RC.replace("gain: 3", "np: 3").replace('  P: {expr: "gain*e3 + level", noise: 0.1, unit: V,'
+                                                  ' description: scaled voltage}\n', "  P: {expr: \"e3 + q\"}\n")
+    text = text.replace("  2: [j, R]\n", "  2: [j, R]\n  4: [j, Rx]\n")
+    errs = errors(text)
+    places = [(e.loc.line, e.loc.col) for e in errs]
+    assert places == sorted(places) and len(errs) == 3
+    assert "parameter name 'np' is reserved" in errs[0].what
+    assert "bond 4 names unknown element 'Rx'" in errs[1].what
+    assert isinstance(errs[2], ExpressionError) and "undefined name 'q'" in errs[2].what
+    assert places == [(6, 3), (20, 6), (23, 13)]
+
+
+def test_a_model_that_is_not_a_mapping():
+    (err,) = errors("- just\n- a list\n")
+    assert "must be a mapping" in err.what and err.loc == SourceLoc("m.yaml", 1, 1)
+
+
+@pytest.mark.parametrize("section", ["parameters", "inputs", "measurements", "faults", "simulation"])
+def test_a_section_that_is_not_a_mapping_is_an_error_not_a_crash(section):
+    text = re.sub(rf"^{section}:.*\n(  .*\n)*", "", RC, flags=re.M) + f"{section}: 5\n"
+    errs = errors(text)
+    assert any(f"{section} must be an object" in e.what for e in errs), [e.line() for e in errs]
+
+
+def test_the_three_models_validate():
+    for path in sorted(MODELS.glob("*.yaml")):
+        g = validate(load(path))
+        assert g.name == path.stem and g.source == str(path)
+
+
+def test_ro_membrane_resistance_is_modulated_by_the_conductivity():
+    # models/ro.yaml: MR_memb: parameter "R_memb*((e27 - K0)/K_slope + 29)/29"
+    g = validate(load(MODELS / "ro.yaml"))
+    mr = g.element("MR_memb")
+    assert mr.kind == "MR"
+    assert same(mr.parameter, S("R_memb") * ((S("e27") - S("K0")) / S("K_slope") + 29) / 29)
+    msf = g.element("MSf_k")
+    assert same(msf.source, S("k_scale") * S("f10") * (6 * S("k_scale") * S("f18") + sympy.Rational(1, 10)))
