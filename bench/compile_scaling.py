@@ -61,22 +61,19 @@ def time_bgc(n: int) -> dict[str, float]:
 
 
 def time_bgt(n: int) -> float | None:
+    """Seconds for BondGraphTools to build the same ladder and derive its
+    constitutive relations (its equations), or None when it is not installed."""
     try:
         import BondGraphTools as bgt
     except ImportError:
         return None
     t0 = time.perf_counter()
     model = bgt.new(name="ladder")
-    src = bgt.new("Se", value=1.0)
-    comps = [src]
-    prev = src
-    for i in range(n):
-        s = bgt.new("1")
-        r = bgt.new("R", value=1.0)
-        p = bgt.new("0")
-        c = bgt.new("C", value=1.0)
-        comps += [s, r, p, c]
-        bgt.add(model, s, r, p, c) if i else bgt.add(model, src, s, r, p, c)
+    prev = bgt.new("Se", name="V")
+    bgt.add(model, prev)
+    for _ in range(n):
+        s, r, p, c = bgt.new("1"), bgt.new("R", value=1.0), bgt.new("0"), bgt.new("C", value=1.0)
+        bgt.add(model, s, r, p, c)
         bgt.connect(prev, s)
         bgt.connect(s, r)
         bgt.connect(s, p)
@@ -86,6 +83,7 @@ def time_bgt(n: int) -> float | None:
     bgt.add(model, rl)
     bgt.connect(prev, rl)
     _ = model.constitutive_relations
+    assert len(model.state_vars) == n
     return time.perf_counter() - t0
 
 
@@ -99,7 +97,8 @@ def fit_exponent(ns: list[int], ts: list[float]) -> float:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--max", type=int, default=320)
-    ap.add_argument("--bgt", action="store_true", help="also time BondGraphTools (slow: minutes at n >= 40)")
+    ap.add_argument("--bgt", action="store_true",
+                    help="also time BondGraphTools (pip install '.[bench]'; slow: minutes at n >= 40)")
     ap.add_argument("--bgt-max", type=int, default=40)
     args = ap.parse_args()
     ns = [n for n in (5, 10, 20, 40, 80, 160, 320, 640) if n <= args.max]

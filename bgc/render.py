@@ -60,10 +60,12 @@ def tcg_text(tcg: TemporalCausalGraph) -> str:
     for e in tcg.edges:
         params = ", ".join(f"{p}{_effect_sign(s)}" for p, s in zip(e.parameters, e.effects)) or "-"
         dt = "  [temporal]" if e.temporal else ""
-        lines.append(f"{e.source:>8} -[{e.label}]-> {e.target:<8} ({e.element or '-'}; {params}){dt}")
+        arrow = f"-[{e.label}]->"
+        lines.append(f"{e.source:>8} {arrow:<16} {e.target:<8} ({e.element or '-'}; {params}){dt}")
     lines.append("# simplified TCG (states, inputs, measured variables)")
     for a, b, d in sorted(tcg.simplified.edges(data=True), key=lambda t: (_var_key(t[0]), _var_key(t[1]))):
-        lines.append(f"{a:>8} -{'[dt]' if d['temporal'] else '---'}-> {b:<8} ({', '.join(d['parameters']) or '-'})")
+        arrow = "-[dt]->" if d["temporal"] else "------>"
+        lines.append(f"{a:>8} {arrow:<16} {b:<8} ({', '.join(d['parameters']) or '-'})")
     roles = {}
     for n, d in g.nodes(data=True):
         roles.setdefault(d["role"], []).append(n)
