@@ -2,10 +2,12 @@
 
 Runs in bench/.venvs/particles (``particles`` pins numpy < 2). Same equations
 as _handwritten_numpy.py (typed in by hand from generated/ro/equations.txt;
-derivative and rk4 are imported from there), same RK4 with ``substeps`` substeps, same noise levels;
-the bootstrap filter is ``particles.SMC(fk=Bootstrap(...),
-resampling='systematic', ESSrmin=0.5)``, i.e. systematic resampling when
-ESS < 0.5 N, the generated filters' rule.
+derivative and rk4 are imported from there), same RK4 with ``substeps``
+substeps, same noise levels; the bootstrap filter is
+``particles.SMC(fk=Bootstrap(...), resampling='systematic', ESSrmin=0.5)``,
+i.e. systematic resampling when ESS < 0.5 N, the generated filters' rule.
+PX0 and PX are custom ProbDists (the RK4 map plus Gaussian noise), PY a
+``dists.MvNormal`` around the noise-free outputs.
 
 Time indexing. The generated filters draw x from the prior, then at step k
 propagate with u_k and weight by y_k. `particles` weights X_0 by y_0, so X_0
@@ -73,11 +75,11 @@ class RO(ssms.StateSpaceModel):
         return RK4Transition(xp, self.us[t], self.dt, self.substeps, self.process_std)
 
     def PY(self, t, xp, x):
+        # MvNormal with (N, d) loc and a (d,) scale, identity cov: independent Gaussian noise per output.
+        # An IndepProd of four dists.Normal (scipy.stats logpdf) gives the same numbers, 1.4x slower at N = 200.
         e6, e13, f22, e27 = x[:, 1], x[:, 2], x[:, 3], x[:, 4]
-        s = self.measurement_std
-        return dists.IndepProd(
-            dists.Normal(loc=(e13 - e6) / R_brine, scale=s[0]),                                # F_back
-            dists.Normal(loc=(-e13 + e6 + f22 * m2) / R_pipe, scale=s[1]),                     # F_loop
-            dists.Normal(loc=29 * e13 / (R_memb * (29 + (-K0 + e27) / K_slope)), scale=s[2]),  # F_perm
-            dists.Normal(loc=e13, scale=s[3]),                                                  # P_memb
-        )
+        loc = np.stack([(e13 - e6) / R_brine,                                # F_back
+                        (-e13 + e6 + f22 * m2) / R_pipe,                     # F_loop
+                        29 * e13 / (R_memb * (29 + (-K0 + e27) / K_slope)),  # F_perm
+                        e13], axis=1)                                        # P_memb
+        return dists.MvNormal(loc=loc, scale=self.measurement_std)

@@ -1,6 +1,6 @@
 """Time one filter implementation at one N, in a fresh process; print one JSON line.
 
-Started by bench/filter_speed.py, once per (implementation, N), with the
+Started by bench/filter_speed.py, once per (implementation, N, round), with the
 interpreter of the venv the implementation needs:
 
   gpf, apf, numpy   the project's .venv (generated package, hand-written NumPy)
@@ -9,14 +9,19 @@ interpreter of the venv the implementation needs:
 
 Steps: import, load the data (.npz), one warm-up run (T = 3 steps, N = min(N,
 200): imports, numba compilation), then ``repeats`` timed runs on the full
-record (seeds 1..repeats; seconds per run = filter construction + all T
-steps), then, with --tracemalloc, one more untimed run under tracemalloc.
+record (seeds 1..repeats; a run = filter construction + all T steps; both
+wall-clock seconds and the process's CPU seconds, user + system, which other
+processes on a busy machine do not inflate), then, with --tracemalloc, one more
+untimed run under tracemalloc. It prints the weighted state mean and std at
+every step of the last timed run, for the correctness check.
 
 Memory, two measures:
-  rss_mb     ru_maxrss after the timed runs minus ru_maxrss before them: the
-             growth of the process's peak resident set caused by the runs
-             (coarse: it can only under-count, e.g. when freed import-time memory
-             is reused; covers numba's own allocations);
+  rss_mb     peak resident set during the timed runs minus the resident set
+             before them: /proc/self/status VmHWM, reset to the current RSS by
+             writing 5 to /proc/self/clear_refs, minus VmRSS (Linux). Not
+             ru_maxrss: a child inherits its parent's peak through fork and exec,
+             so the driver's own size would hide the runner's. Covers every
+             allocator, numba's included; pages, not bytes;
   traced_mb  tracemalloc peak over one untimed run (every NumPy array buffer,
              exact; blind to numba's allocator, so not used for numba).
 """
@@ -30,7 +35,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import resource  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import tracemalloc  # noqa: E402
@@ -57,7 +61,7 @@ def check_names(data, states, outputs):
 
 
 def make(impl, data, model):
-    """A function run(ys, us, n, seed) -> (final mean, final std, number of resampling steps)."""
+    """A function run(ys, us, n, seed) -> (mean (T, n_x), std (T, n_x)): the weighted moments at every step."""
     if impl in ("gpf", "apf"):
         sys.path.insert(0, str(ROOT / "generated" / "ro"))
         from numpy_model import filters, nominal
@@ -67,7 +71,7 @@ def make(impl, data, model):
 
         def run(ys, us, n, seed):
             out = cls(nominal, n, np.random.default_rng(seed)).run(ys, us)
-            return out["mean"][-1], out["std"][-1], int(np.sum(out["ess"] < 0.5 * n))
+            return out["mean"], out["std"]
         return run
 
     import _handwritten_numpy as hand
@@ -83,7 +87,7 @@ def make(impl, data, model):
 
         def run(ys, us, n, seed):
             out = module.run(ys, us, n, seed, model)
-            return out["mean"][-1], out["std"][-1], int(np.sum(out["ess"] < 0.5 * n))
+            return out["mean"], out["std"]
         return run
 
     if impl == "particles":
@@ -99,16 +103,30 @@ def make(impl, data, model):
             pf = particles.SMC(fk=ssms.Bootstrap(ssm=ssm, data=list(ys)), N=n, resampling="systematic",
                                ESSrmin=0.5, collect=[collectors.Moments()])
             pf.run()
-            mean = np.average(pf.X, weights=pf.W, axis=0)
-            std = np.sqrt(np.average((pf.X - mean) ** 2, weights=pf.W, axis=0))
-            # rs_flags[t]: resampled before step t, i.e. because ESS after step t-1 < ESSrmin N
-            return mean, std, int(np.sum(pf.summaries.rs_flags)) + int(pf.wgts.ESS < 0.5 * n)
+            moments = pf.summaries.moments  # weighted mean and var of X_t given y_0..y_t, every t
+            return (np.array([m["mean"] for m in moments]),
+                    np.sqrt(np.maximum(np.array([m["var"] for m in moments]), 0.0)))
         return run
     raise SystemExit(f"unknown implementation {impl}; choose from {', '.join(IMPLEMENTATIONS)}")
 
 
-def maxrss_mb():
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
+def _status_mb(field):
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith(field + ":"):
+                return int(line.split()[1]) / 1024.0  # kB
+    raise RuntimeError(f"no {field} in /proc/self/status")
+
+
+def reset_peak_rss():
+    """Reset VmHWM to the current RSS; return the current RSS in MB."""
+    with open("/proc/self/clear_refs", "w") as f:
+        f.write("5")
+    return _status_mb("VmRSS")
+
+
+def peak_rss():
+    return _status_mb("VmHWM")
 
 
 def main():
@@ -123,21 +141,22 @@ def main():
     ys, us = data["ys"], data["us"]
     run = make(args.impl, data, model)
     run(ys[:3], us[:3], min(args.n, 200), 0)  # warm-up: imports, numba compilation
-    before = maxrss_mb()
-    seconds = []
+    before = reset_peak_rss()
+    seconds, cpu_seconds = [], []
     for seed in range(1, args.repeats + 1):
-        t0 = time.perf_counter()
-        mean, std, resampled = run(ys, us, args.n, seed)
+        t0, c0 = time.perf_counter(), time.process_time()
+        mean, std = run(ys, us, args.n, seed)
+        cpu_seconds.append(time.process_time() - c0)
         seconds.append(time.perf_counter() - t0)
-    rss = maxrss_mb() - before
+    rss = peak_rss() - before
     traced = None
     if args.tracemalloc:
         tracemalloc.start()
         run(ys, us, args.n, 1)
         traced = tracemalloc.get_traced_memory()[1] / 2**20
         tracemalloc.stop()
-    print(json.dumps({"impl": args.impl, "n": args.n, "seconds": seconds, "final_mean": [float(v) for v in mean],
-                      "final_std": [float(v) for v in std], "resampled": resampled, "rss_mb": rss,
+    print(json.dumps({"impl": args.impl, "n": args.n, "seconds": seconds, "cpu_seconds": cpu_seconds,
+                      "mean": np.asarray(mean).tolist(), "std": np.asarray(std).tolist(), "rss_mb": rss,
                       "traced_mb": traced, "numpy": np.__version__}))
 
 

@@ -17,7 +17,8 @@
 * **Fault priors.** Abrupt: the bias is uniform on [0, 1] x |theta| for an
   increase, [-0.5, 0] x |theta| for a decrease, [-0.5, 1] x |theta| for both.
   Incipient: the slope (per unit time) is uniform on [0, 4] x |theta| / horizon
-  (increase), and likewise for decrease/both.
+  for an increase, [-0.8, 0] x |theta| / horizon for a decrease (the parameter
+  stays positive over the horizon), [-0.8, 4] x |theta| / horizon for both.
 """
 
 from __future__ import annotations
@@ -118,6 +119,7 @@ def fault_prior(kind: str, direction: str, value: float, horizon: float) -> tupl
     if kind == "abrupt":
         lo, hi = {"increase": (0.0, 1.0), "decrease": (-0.5, 0.0), "both": (-0.5, 1.0)}[direction]
         return lo * a, hi * a
-    s = 4.0 * a / horizon
-    lo, hi = {"increase": (0.0, 1.0), "decrease": (-0.5, 0.0), "both": (-0.5, 1.0)}[direction]
-    return lo * s, hi * s
+    # slopes that change the parameter by up to +400 % or -80 % over the horizon
+    # (a decreasing parameter stays positive)
+    lo, hi = {"increase": (0.0, 4.0), "decrease": (-0.8, 0.0), "both": (-0.8, 4.0)}[direction]
+    return lo * a / horizon, hi * a / horizon

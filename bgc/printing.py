@@ -81,6 +81,8 @@ def print_expr(expr: sympy.Expr, names: frozenset[str] | None = None) -> str:
     except PrintMethodNotImplementedError as exc:
         raise CodegenError(f"cannot generate NumPy code for {sympy.sstr(expr)[:60]}: {str(exc).splitlines()[0]}",
                            None, "use only the functions bgc documents") from None
+    except CodegenError:
+        raise
     except Exception as exc:  # sympy's printers raise KeyError etc. for e.g. zoo
         raise CodegenError(f"cannot generate NumPy code for {sympy.sstr(expr)[:60]}: {type(exc).__name__}",
                            None, "use only the functions bgc documents") from None

@@ -29,15 +29,15 @@ SUBSTEPS = 1
 EIGENVALUES = ((-1.193306905, -1.0703121758), (-1.193306905, 1.0703121758), (-3.1133861901, 0.0))
 X0 = np.array([7.5, 2.5, 2.5, 1.0, 0.0])
 X0_STD = np.array([0.24647515087732477, 0.03354101966249684, 0.06708203932499368, 0.0, 0.0])
-PROCESS_STD = np.array([0.12323757543866239, 0.01677050983124842, 0.03354101966249684, 0.0, 0.004])
+PROCESS_STD = np.array([0.12323757543866239, 0.01677050983124842, 0.03354101966249684, 0.0, 0.0032])
 MEASUREMENT_STD = np.array([0.05, 0.05, 0.05])
 #: Std of the one-step predictive of y given the noise-free prediction: measurement
 #: noise plus the process noise seen through the outputs (sqrt(R + diag(H Q H')),
 #: H at X0); used by the auxiliary particle filter's first stage.
 PREDICTIVE_STD = np.array([0.06020797289396148, 0.13299436078270388, 0.07979465834252317])
 FAULT = {'parameter': 'R3', 'kind': 'incipient'}
-#: Uniform prior of the fault magnitude: slope delta_R3 (per unit time) on [-0.133333, 0.266667].
-FAULT_PRIOR = (-0.13333333333333333, 0.26666666666666666)
+#: Uniform prior of the fault magnitude: slope delta_R3 (per unit time) on [-0.0533333, 0.266667].
+FAULT_PRIOR = (-0.05333333333333334, 0.26666666666666666)
 _PROCESS_STD = PROCESS_STD[:, None]
 
 

@@ -29,15 +29,15 @@ SUBSTEPS = 1
 EIGENVALUES = ((-0.1628155314, 0.0), (-0.7677400242, 0.0))
 X0 = np.array([2.2222222, 1.3333333, 4.0, 0.0])
 X0_STD = np.array([0.08164965727627602, 0.0596284779092824, 0.0, 0.0])
-PROCESS_STD = np.array([0.04082482863813801, 0.0298142389546412, 0.0, 0.0016])
+PROCESS_STD = np.array([0.04082482863813801, 0.0298142389546412, 0.0, 0.00128])
 MEASUREMENT_STD = np.array([0.011111111, 0.008888889, 0.008888888666666667])
 #: Std of the one-step predictive of y given the noise-free prediction: measurement
 #: noise plus the process noise seen through the outputs (sqrt(R + diag(H Q H')),
 #: H at X0); used by the auxiliary particle filter's first stage.
 PREDICTIVE_STD = np.array([0.015087194975795014, 0.02679367867797861, 0.013333333])
 FAULT = {'parameter': 'R10', 'kind': 'incipient'}
-#: Uniform prior of the fault magnitude: slope delta_R10 (per unit time) on [-0.0533333, 0.106667].
-FAULT_PRIOR = (-0.05333333333333334, 0.10666666666666667)
+#: Uniform prior of the fault magnitude: slope delta_R10 (per unit time) on [-0.0213333, 0.106667].
+FAULT_PRIOR = (-0.021333333333333336, 0.10666666666666667)
 _PROCESS_STD = PROCESS_STD[:, None]
 
 

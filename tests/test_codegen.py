@@ -1,0 +1,512 @@
+"""The generated NumPy packages (bgc.codegen + templates), checked as a reviewed product.
+
+Four ways, as STYLE.md asks: the committed modules parse and import numpy only;
+they compute what ``sympy.lambdify`` computes from the compiler's own equations
+(``compile_model(...).equations``) at random points; the RK4 step agrees with the
+exact matrix-exponential discretisation of a linear model within a derived
+bound; and the stability rule gives the number of substeps the eigenvalues of
+an independently computed linearisation ask for. Same seed, same numbers.
+"""
+
+import ast
+import importlib.util
+import math
+import re
+import subprocess
+import sys
+import textwrap
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+import sympy
+
+from bgc import codegen
+from bgc.errors import BgcError
+from bgc.ir import sym
+from bgc.pipeline import compile_model
+
+from conftest import ROOT
+
+MODELS = ["circuit", "two_tank", "ro"]
+LINEAR = ["circuit", "two_tank"]
+#: RK4 stability margin of the rule: |lambda|max * h <= 1.5 (bgc.modelspec documents it).
+H_LAMBDA = 1.5
+
+
+# ------------------------------------------------------------------ helpers
+def package_dir(model: str) -> Path:
+    return ROOT / "generated" / model / "numpy_model"
+
+
+def load_package(directory: Path, name: str):
+    """Import a generated package by path, as a package (its __init__ uses relative imports)."""
+    spec = importlib.util.spec_from_file_location(name, directory / "__init__.py",
+                                                  submodule_search_locations=[str(directory)])
+    package = importlib.util.module_from_spec(spec)
+    sys.modules[name] = package
+    spec.loader.exec_module(package)
+    return package
+
+
+@lru_cache(maxsize=None)
+def package(model: str):
+    return load_package(package_dir(model), f"_bgc_generated_{model}")
+
+
+@lru_cache(maxsize=None)
+def compiled(model: str):
+    return compile_model(ROOT / "models" / f"{model}.yaml")
+
+
+def module_files(model: str) -> list[str]:
+    return sorted(p.stem for p in package_dir(model).glob("*.py") if p.stem not in ("__init__", "filters"))
+
+
+MODULES = [(m, name) for m in MODELS for name in module_files(m)]
+FAULT_MODULES = [(m, name) for m, name in MODULES if name != "nominal"]
+
+
+class Reference:
+    """``sympy.lambdify`` of the compiler's equations, vectorised over particles."""
+
+    def __init__(self, ssm):
+        xs = [sym(s) for s in ssm.states]
+        us = [sym(s) for s in ssm.inputs]
+        ps = [sym(s) for s in ssm.parameters]
+        self.ssm = ssm
+        self._rhs = sympy.lambdify([xs, us, ps], list(ssm.rhs), modules="numpy")
+        self._out = sympy.lambdify([xs, us, ps], list(ssm.output_exprs), modules="numpy")
+
+    @staticmethod
+    def _stack(values, n):
+        return np.array([np.broadcast_to(np.asarray(v, dtype=float), (n,)) for v in values])
+
+    def rhs(self, x, u, theta):
+        return self._stack(self._rhs(list(x), list(u), list(theta)), x.shape[1])
+
+    def out(self, x, u, theta):
+        return self._stack(self._out(list(x), list(u), list(theta)), x.shape[1])
+
+
+@lru_cache(maxsize=None)
+def reference(model: str) -> Reference:
+    return Reference(compiled(model).equations)
+
+
+def random_point(mod, ssm, rng, n=50):
+    """Physical states, inputs and parameters near the nominal operating point."""
+    x0 = np.array(ssm.initial)
+    scale = np.where(x0 != 0, np.abs(x0), 1.0)
+    x = x0[:, None] + 0.05 * scale[:, None] * rng.standard_normal((len(x0), n))
+    u = mod.inputs(0.0) * (1.0 + 0.05 * rng.standard_normal(len(ssm.inputs)))
+    theta = np.array(ssm.parameter_values) * (1.0 + 0.05 * rng.standard_normal(len(ssm.parameters)))
+    return x, u, theta
+
+
+def assert_close(got, want, what):
+    """Relative 1e-10 per element, plus 1e-12 of the row's largest value: rounding differences are
+    relative to the size of the terms, and one particle's result can be small by cancellation."""
+    got, want = np.asarray(got, dtype=float), np.asarray(want, dtype=float)
+    assert got.shape == want.shape, (what, got.shape, want.shape)
+    scale = np.max(np.abs(want), axis=1, keepdims=True)
+    bad = ~(np.abs(got - want) <= 1e-10 * np.abs(want) + 1e-12 * scale)
+    assert not bad.any(), f"{what}: {bad.sum()} values differ, e.g. row {np.argwhere(bad)[0][0]}: " \
+                          f"{got[bad][:3]} != {want[bad][:3]}"
+
+
+def linearisation(ssm, u0, theta):
+    """Jacobian d rhs / d x at (X0, u0, theta) and the constant term, by sympy (an independent derivation)."""
+    xs = [sym(s) for s in ssm.states]
+    sub = {sym(p): v for p, v in zip(ssm.parameters, theta)}
+    sub.update({sym(i): float(v) for i, v in zip(ssm.inputs, u0)})
+    at_x0 = {**sub, **{x: v for x, v in zip(xs, ssm.initial)}}
+    jac = sympy.Matrix(list(ssm.rhs)).jacobian(xs)
+    a = np.array([[float(e.xreplace(at_x0)) for e in row] for row in jac.tolist()])
+    return jac, a, sub
+
+
+def expm(m):
+    """Matrix exponential: Taylor series to 30 terms after scaling to norm <= 1/2, then squaring."""
+    norm = np.linalg.norm(m, 1)
+    s = max(0, math.ceil(math.log2(norm / 0.5))) if norm > 0 else 0
+    a = m / 2.0 ** s
+    result = np.eye(len(m))
+    term = np.eye(len(m))
+    for k in range(1, 30):
+        term = term @ a / k
+        result = result + term
+    for _ in range(s):
+        result = result @ result
+    return result
+
+
+def taylor(z, order):
+    """sum_{k <= order} z^k / k!: R(z) of an explicit Runge-Kutta method of that order on a linear ODE."""
+    result = np.eye(len(z))
+    term = np.eye(len(z))
+    for k in range(1, order + 1):
+        term = term @ z / k
+        result = result + term
+    return result
+
+
+# ------------------------------------------------------ static: text and imports
+@pytest.mark.parametrize("model,name", MODULES)
+def test_model_module_parses_has_header_and_imports_numpy_only(model, name):
+    source = (package_dir(model) / f"{name}.py").read_text()
+    assert source.splitlines()[0] == f"# generated by bgc from models/{model}.yaml, do not edit"
+    tree = ast.parse(source)
+    imports = [n for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom))]
+    assert imports, "a model module uses numpy"
+    for node in imports:
+        assert isinstance(node, ast.Import), ast.unparse(node)
+        assert [(a.name, a.asname) for a in node.names] == [("numpy", "np")], ast.unparse(node)
+    assert "bgc" not in {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+    # Dynamic imports would dodge the walk above.
+    assert not re.search(r"__import__|importlib|\bexec\(|\beval\(", source)
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_filters_and_init_import_numpy_and_siblings_only(model):
+    d = package_dir(model)
+    filters = (d / "filters.py").read_text()
+    assert filters.splitlines()[0] == f"# generated by bgc from models/{model}.yaml, do not edit"
+    for node in ast.walk(ast.parse(filters)):
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            assert isinstance(node, ast.Import) and [a.name for a in node.names] == ["numpy"], ast.unparse(node)
+    init = (d / "__init__.py").read_text()
+    assert init.splitlines()[0] == f"# generated by bgc from models/{model}.yaml, do not edit"
+    for node in ast.walk(ast.parse(init)):
+        if isinstance(node, ast.Import):
+            pytest.fail(ast.unparse(node))
+        if isinstance(node, ast.ImportFrom):
+            assert node.level == 1 and node.module is None, ast.unparse(node)
+            assert {a.name for a in node.names} <= set(module_files(model)) | {"filters"}
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_package_lists_one_module_per_dbn_of_the_compiler(model):
+    c = compiled(model)
+    expected = {"nominal"} | {codegen.module_name(d.name) for d in c.dbn.faulty}
+    assert set(module_files(model)) == expected
+    pkg = package(model)
+    assert set(pkg.MODELS) == expected
+    for name, mod in pkg.MODELS.items():
+        assert mod.NAME == name and mod.MODEL == model
+        assert mod.__file__ == str(package_dir(model) / f"{name}.py")
+
+
+def test_importing_the_packages_loads_neither_bgc_nor_sympy():
+    script = textwrap.dedent(f"""
+        import importlib.util, sys
+        for model in {MODELS!r}:
+            d = {str(ROOT)!r} + "/generated/" + model + "/numpy_model"
+            spec = importlib.util.spec_from_file_location("g_" + model, d + "/__init__.py",
+                                                          submodule_search_locations=[d])
+            m = importlib.util.module_from_spec(spec); sys.modules["g_" + model] = m; spec.loader.exec_module(m)
+            assert len(m.MODELS) > 1
+        bad = sorted(k for k in sys.modules if k.split(".")[0] in ("bgc", "sympy", "jinja2", "networkx"))
+        print(bad)
+    """)
+    r = subprocess.run([sys.executable, "-c", script], cwd="/", capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]"
+
+
+# -------------------------------------------------- numbers: lambdify agreement
+@pytest.mark.parametrize("model", MODELS)
+def test_nominal_derivative_and_observe_equal_lambdify(model):
+    mod, ssm, ref = package(model).nominal, compiled(model).equations, reference(model)
+    assert mod.STATES == ssm.states and mod.OUTPUTS == ssm.outputs and mod.PARAMETERS == ssm.parameters
+    assert mod.THETA == ssm.parameter_values
+    rng = np.random.default_rng(101)
+    for _ in range(4):
+        x, u, theta = random_point(mod, ssm, rng)
+        assert_close(mod.derivative(x, u, tuple(theta)), ref.rhs(x, u, theta), "derivative")
+        assert_close(mod.observe(x, u, tuple(theta)), ref.out(x, u, theta), "observe")
+
+
+def _fault_layout(mod, ssm):
+    p, kind = mod.FAULT["parameter"], mod.FAULT["kind"]
+    n = len(ssm.states)
+    assert mod.STATES[:n] == ssm.states
+    if kind == "abrupt":
+        assert mod.STATES[n:] == (f"delta_{p}",) and mod.STATE_KINDS[n:] == ("bias",)
+    else:
+        assert kind == "incipient"
+        assert mod.STATES[n:] == (p, f"delta_{p}") and mod.STATE_KINDS[n:] == ("parameter", "slope")
+    return p, kind, n, ssm.parameters.index(p)
+
+
+@pytest.mark.parametrize("model,name", FAULT_MODULES)
+def test_fault_module_at_its_neutral_value_is_the_nominal_model(model, name):
+    mod, ssm, ref = package(model).MODELS[name], compiled(model).equations, reference(model)
+    p, kind, n, j = _fault_layout(mod, ssm)
+    rng = np.random.default_rng(202)
+    for _ in range(3):
+        xp, u, theta = random_point(mod, ssm, rng)
+        N = xp.shape[1]
+        if kind == "abrupt":
+            x = np.vstack([xp, np.zeros((1, N))])
+        else:  # parameter state = the parameter's value, any slope
+            x = np.vstack([xp, np.full((1, N), theta[j]), rng.uniform(-1.0, 1.0, (1, N)) * abs(theta[j])])
+        dx = mod.derivative(x, u, tuple(theta))
+        assert_close(dx[:n], ref.rhs(xp, u, theta), "physical part of the derivative")
+        assert_close(mod.observe(x, u, tuple(theta)), ref.out(xp, u, theta), "observe")
+        if kind == "abrupt":
+            np.testing.assert_array_equal(dx[n], 0.0)
+        else:
+            np.testing.assert_array_equal(dx[n], x[n + 1])  # d theta / dt = slope
+            np.testing.assert_array_equal(dx[n + 1], 0.0)
+        np.testing.assert_allclose(mod.parameter_value(x, theta), theta[j], rtol=1e-15)
+
+
+@pytest.mark.parametrize("model,name", FAULT_MODULES)
+def test_fault_module_with_a_fault_replaces_the_parameter(model, name):
+    mod, ssm, ref = package(model).MODELS[name], compiled(model).equations, reference(model)
+    p, kind, n, j = _fault_layout(mod, ssm)
+    rng = np.random.default_rng(303)
+    for _ in range(3):
+        xp, u, theta = random_point(mod, ssm, rng)
+        N = xp.shape[1]
+        change = rng.uniform(-0.4, 0.4, N) * abs(theta[j])  # per particle, both signs
+        faulty = [np.full(N, v) for v in theta]
+        faulty[j] = theta[j] + change
+        if kind == "abrupt":
+            x = np.vstack([xp, change[None]])
+        else:
+            x = np.vstack([xp, faulty[j][None], rng.uniform(-1.0, 1.0, (1, N))])
+        assert_close(mod.derivative(x, u, tuple(theta))[:n], ref.rhs(xp, u, faulty), "derivative with the fault")
+        assert_close(mod.observe(x, u, tuple(theta)), ref.out(xp, u, faulty), "observe with the fault")
+        np.testing.assert_allclose(mod.parameter_value(x, theta), faulty[j], rtol=1e-15)
+        # And it really differs from the nominal wherever the parameter acts.
+        nominal = ref.rhs(xp, u, theta)
+        acts = [i for i, e in enumerate(ssm.rhs) if sym(p) in e.free_symbols]
+        assert acts, f"{p} appears in no state equation"
+        assert not np.allclose(mod.derivative(x, u, tuple(theta))[acts], nominal[acts], rtol=1e-6, atol=0)
+
+
+@pytest.mark.parametrize("model,name", FAULT_MODULES)
+def test_augment_lifts_nominal_particles_to_the_neutral_fault_state(model, name):
+    mod, ssm = package(model).MODELS[name], compiled(model).equations
+    p, kind, n, j = _fault_layout(mod, ssm)
+    xp = package(model).nominal.initial_particles(np.random.default_rng(1), 400)
+    x = mod.augment(xp, np.random.default_rng(2))
+    np.testing.assert_array_equal(x[:n], xp)
+    magnitude = x[-1]
+    lo, hi = mod.FAULT_PRIOR
+    assert lo < hi and np.all((magnitude >= lo) & (magnitude <= hi)) and np.ptp(magnitude) > 0.5 * (hi - lo)
+    if kind == "incipient":
+        np.testing.assert_array_equal(x[n], ssm.parameter_values[j])
+
+
+# ------------------------------------------------- RK4 against the exact step
+@pytest.mark.parametrize("model", LINEAR)
+def test_predict_agrees_with_the_exact_discretisation_within_the_rk4_bound(model):
+    """dx/dt = A x + c with a constant input. RK4 maps the equilibrium x* = -A^-1 c to itself, and the
+    deviation d = x - x* to R(hA)^n d with n substeps of h = dt/n and R(Z) = I + Z + Z^2/2 + Z^3/6 + Z^4/24;
+    the exact step maps d to exp(dt A) d. With E = exp(hA) and a = ||hA||_2: ||R - E|| <= sum_{k>=5} a^k/k!
+    = e^a - R(a), so ||R^n - E^n|| = ||sum_j R^j (R - E) E^(n-1-j)|| <= n (e^a - R(a)) e^((n-1) a), and
+    the error of predict is at most that times ||d||."""
+    mod, ssm = package(model).nominal, compiled(model).equations
+    u0 = mod.inputs(0.0)
+    jac, a_mat, sub = linearisation(ssm, u0, ssm.parameter_values)
+    xs = [sym(s) for s in ssm.states]
+    assert all(not (e.free_symbols & set(xs)) for e in jac), f"{model} is not linear"
+    c = np.array([float(e.xreplace({**sub, **{x: 0 for x in xs}})) for e in ssm.rhs])
+    equilibrium = np.linalg.solve(a_mat, -c)
+    dt, n = mod.DT, mod.SUBSTEPS
+    exact = expm(dt * a_mat)
+    # The oracle itself: the Taylor expm agrees with the eigen-decomposition.
+    lam, v = np.linalg.eig(a_mat)
+    np.testing.assert_allclose(exact, (v @ np.diag(np.exp(dt * lam)) @ np.linalg.inv(v)).real,
+                               rtol=1e-12, atol=1e-14)
+    a = np.linalg.norm((dt / n) * a_mat, 2)
+    tail = math.exp(a) - (1 + a + a ** 2 / 2 + a ** 3 / 6 + a ** 4 / 24)
+    bound_factor = n * tail * math.exp((n - 1) * a)
+    rng = np.random.default_rng(404)
+    x, _, _ = random_point(mod, ssm, rng, n=64)
+    x[:, :8] *= rng.uniform(0.0, 2.0, (len(xs), 8))  # some far from the operating point too
+    d = x - equilibrium[:, None]
+    want = equilibrium[:, None] + exact @ d
+    got = mod.predict(x, u0, mod.THETA, dt)
+    # Rounding: x is O(|x|), its error O(1e-16 |x|) per operation.
+    rounding = 1e-13 * np.linalg.norm(x, axis=0)
+    err = np.linalg.norm(got - want, axis=0)
+    bound = bound_factor * np.linalg.norm(d, axis=0)
+    assert np.all(err <= bound + rounding), ((err - rounding) / bound).max()
+    # It is RK4 with SUBSTEPS substeps exactly: R(hA)^n, to rounding.
+    rk4 = np.linalg.matrix_power(taylor((dt / n) * a_mat, 4), n)
+    assert np.all(np.linalg.norm(got - (equilibrium[:, None] + rk4 @ d), axis=0) <= rounding)
+    # The bound discriminates: a third-order method breaks it at most of the points.
+    rk3 = np.linalg.matrix_power(taylor((dt / n) * a_mat, 3), n)
+    err3 = np.linalg.norm(rk3 @ d - exact @ d, axis=0)
+    assert np.mean(err3 > bound) > 0.5
+    print(f"\n{model}: RK4 error / bound: max {(err / bound).max():.3g}; third-order error / bound: median "
+          f"{np.median(err3 / bound):.3g}")
+
+
+# ------------------------------------------------------------- stability rule
+def expected_substeps(ssm, mod):
+    _, a_mat, _ = linearisation(ssm, mod.inputs(0.0), ssm.parameter_values)
+    eig = np.linalg.eigvals(a_mat)
+    ratio = np.max(np.abs(eig)) * mod.DT / H_LAMBDA
+    assert abs(ratio - round(ratio)) > 1e-9 or ratio < 1, "on a rounding boundary: the test cannot decide"
+    return max(1, math.ceil(ratio)), eig
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_substeps_follow_the_stability_rule(model):
+    pkg, ssm = package(model), compiled(model).equations
+    substeps, eig = expected_substeps(ssm, pkg.nominal)
+    assert pkg.nominal.SUBSTEPS == substeps
+    table = np.array([complex(re_, im) for re_, im in pkg.nominal.EIGENVALUES])
+    key = lambda z: (round(z.real, 6), round(z.imag, 6))  # noqa: E731
+    np.testing.assert_allclose(sorted(table, key=key), sorted(eig, key=key), atol=1e-8)
+    for mod in pkg.MODELS.values():  # fault models integrate like the nominal one
+        assert mod.SUBSTEPS == substeps and mod.DT == pkg.nominal.DT
+
+
+def _stiff_circuit(tmp_path):
+    text = (ROOT / "models" / "circuit.yaml").read_text()
+    stiff = text.replace("C1: {value: 0.5,", "C1: {value: 1.0e-3,")
+    assert stiff != text
+    (tmp_path / "models").mkdir()
+    path = tmp_path / "models" / "circuit.yaml"
+    path.write_text(stiff)
+    c = compile_model(path)
+    out = tmp_path / "numpy_model"
+    out.mkdir()
+    for rel, content in codegen.package_files(c.dbn).items():
+        (out / rel).write_text(content)
+    return c, load_package(out, f"_bgc_stiff_{abs(hash(str(tmp_path)))}")
+
+
+def test_stiff_circuit_gets_more_substeps_and_stays_bounded(tmp_path, monkeypatch):
+    c, pkg = _stiff_circuit(tmp_path)
+    mod = pkg.nominal
+    substeps, eig = expected_substeps(c.equations, mod)
+    assert mod.SUBSTEPS == substeps
+    assert substeps > package("circuit").nominal.SUBSTEPS
+    # DC steady state of the circuit does not depend on C1: i = V / (R1 + R2 + R3).
+    i = 10.0 / (1.0 + 2.0 + 1.0)
+    steady = np.array([10.0 - 1.0 * i, 10.0 - 3.0 * i, i])
+    rng = np.random.default_rng(5)
+    x0 = steady[:, None] * (1.0 + 0.2 * rng.standard_normal((3, 8)))
+    x = x0
+    u, theta = mod.inputs(0.0), mod.THETA
+    peak = 0.0
+    for _ in range(1000):
+        x = mod.predict(x, u, theta, mod.DT)
+        peak = max(peak, float(np.abs(x).max()))
+    assert np.all(np.isfinite(x)) and peak < 2 * np.abs(x0).max()
+    np.testing.assert_allclose(x, np.broadcast_to(steady[:, None], x.shape), atol=1e-6)
+    # Control: with the nominal circuit's substep count the same plant blows up, so the rule matters.
+    monkeypatch.setattr(mod, "SUBSTEPS", package("circuit").nominal.SUBSTEPS)
+    x = x0
+    with np.errstate(all="ignore"):
+        for _ in range(50):
+            x = mod.predict(x, u, theta, mod.DT)
+    assert not np.all(np.isfinite(x) & (np.abs(x) < 1e6))
+
+
+# ---------------------------------------------------------------- same seed
+def _data(mod, steps, seed):
+    rng = np.random.default_rng(seed)
+    x = mod.initial_particles(rng, 1)
+    ys = []
+    u = mod.inputs(0.0)
+    for _ in range(steps):
+        x = mod.transition(x, u, mod.THETA, mod.DT, rng)
+        ys.append(mod.observe(x, u, mod.THETA)[:, 0] + mod.MEASUREMENT_STD * rng.standard_normal(len(mod.OUTPUTS)))
+    return np.array(ys), np.tile(u, (steps, 1))
+
+
+@pytest.mark.parametrize("name", ["nominal", "R2_abrupt", "C1_incipient"])
+def test_same_seed_gives_identical_particles_and_filter_outputs(name):
+    pkg = package("circuit")
+    mod = pkg.MODELS[name]
+    a = mod.initial_particles(np.random.default_rng(11), 300)
+    b = mod.initial_particles(np.random.default_rng(11), 300)
+    c = mod.initial_particles(np.random.default_rng(12), 300)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    ys, us = _data(pkg.nominal, 40, 99)
+    for cls in (pkg.filters.GenericParticleFilter, pkg.filters.AuxiliaryParticleFilter):
+        runs = [cls(mod, 300, np.random.default_rng(seed)).run(ys, us) for seed in (11, 11, 12)]
+        for key in runs[0]:
+            assert runs[0][key].tobytes() == runs[1][key].tobytes(), (cls.__name__, key)
+        assert not np.array_equal(runs[0]["mean"], runs[2]["mean"]), cls.__name__
+
+
+# ----------------------------------------------- names the generated code uses
+CIRCUIT_TEXT = (ROOT / "models" / "circuit.yaml").read_text()
+
+
+def _renamed_model(tmp_path, old, new):
+    text = re.sub(rf"\b{old}\b", new, CIRCUIT_TEXT)
+    assert text != CIRCUIT_TEXT
+    (tmp_path / "models").mkdir()
+    path = tmp_path / "models" / "circuit.yaml"
+    path.write_text(text)
+    return path
+
+
+def _renamed_package(tmp_path, old, new):
+    c = compile_model(_renamed_model(tmp_path, old, new))
+    out = tmp_path / "numpy_model"
+    out.mkdir()
+    for rel, content in codegen.package_files(c.dbn).items():
+        (out / rel).write_text(content)
+    return c, load_package(out, f"_bgc_renamed_{new}_{abs(hash(str(tmp_path)))}")
+
+
+@pytest.mark.parametrize("old,new", [("R2", "R_mid"), ("C1", "dx"), ("V", "dx"), ("R3", "OUTPUTS"), ("L", "r"),
+                                     ("R1", "seen"), ("C2", "SUBSTEPS")])
+def test_model_names_do_not_collide_with_names_the_generated_code_uses(tmp_path, old, new):
+    c, pkg = _renamed_package(tmp_path, old, new)
+    ssm, ref = c.equations, Reference(c.equations)
+    rng = np.random.default_rng(606)
+    for name, mod in pkg.MODELS.items():
+        xp, u, theta = random_point(mod, ssm, rng)
+        N = xp.shape[1]
+        if mod.FAULT is None:
+            x, faulty = xp, theta
+        else:
+            p, kind, n, j = _fault_layout(mod, ssm)
+            faulty = [np.full(N, v) for v in theta]
+            faulty[j] = theta[j] * (1.0 + rng.uniform(-0.3, 0.3, N))
+            extra = [faulty[j] - theta[j]] if kind == "abrupt" else [faulty[j], rng.uniform(-1.0, 1.0, N)]
+            x = np.vstack([xp, *extra])
+        assert_close(mod.observe(x, u, tuple(theta)), ref.out(xp, u, faulty), f"{name}: observe")
+        dx = mod.derivative(x, u, tuple(theta))
+        assert_close(dx[:len(ssm.states)], ref.rhs(xp, u, faulty), f"{name}: derivative")
+        if mod.FAULT is not None and mod.FAULT["kind"] == "incipient":
+            np.testing.assert_array_equal(dx[-2], x[-1], err_msg=f"{name}: d{mod.FAULT['parameter']}/dt = slope")
+
+
+@pytest.mark.parametrize("name", ["delta_R2", "_dx", "np", "theta"])
+def test_names_of_generated_code_are_refused_in_the_model(tmp_path, name):
+    """A parameter named like a fault state (delta_<p>) or a name the modules use is a model error."""
+    with pytest.raises(BgcError) as info:
+        compile_model(_renamed_model(tmp_path, "R1", name))
+    assert "reserved" in info.value.line() and name in info.value.line()
+
+
+# ------------------------------------------------------- APF first stage
+@pytest.mark.parametrize("model", MODELS)
+def test_predictive_std_is_measurement_noise_plus_process_noise_seen_through_the_outputs(model):
+    """PREDICTIVE_STD = sqrt(R + diag(H Q H')), H = d observe / d x at X0 (sympy Jacobian, derived here)."""
+    mod, ssm = package(model).nominal, compiled(model).equations
+    xs = [sym(s) for s in ssm.states]
+    sub = {sym(p): v for p, v in zip(ssm.parameters, ssm.parameter_values)}
+    sub.update({sym(i): float(v) for i, v in zip(ssm.inputs, mod.inputs(0.0))})
+    sub.update({x: v for x, v in zip(xs, ssm.initial)})
+    h = np.array([[float(e.xreplace(sub)) for e in row]
+                  for row in sympy.Matrix(list(ssm.output_exprs)).jacobian(xs).tolist()])
+    want = np.sqrt(mod.MEASUREMENT_STD ** 2 + np.diag(h @ np.diag(mod.PROCESS_STD ** 2) @ h.T))
+    np.testing.assert_allclose(mod.PREDICTIVE_STD, want, rtol=1e-12)
+    assert np.all(mod.PREDICTIVE_STD > mod.MEASUREMENT_STD)
+    for fault in package(model).MODELS.values():
+        assert len(fault.PREDICTIVE_STD) == len(ssm.outputs)
