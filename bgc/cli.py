@@ -220,6 +220,21 @@ def cmd_filter(args: argparse.Namespace) -> int:
         print("  RMSE vs truth: " + ", ".join(rmse))
         last = ", ".join(f"{x} {m:.4g} +- {s:.2g}" for x, m, s in zip(r.state_names, r.mean[-1], r.std[-1]))
         print(f"  final estimate: {last}")
+        fault = package.MODELS[name].FAULT
+        if fault:
+            p = fault["parameter"]
+            nominal = dict(zip(package.MODELS[name].PARAMETERS, package.MODELS[name].THETA))[p]
+            k = r.state_names.index(f"delta_{p}")
+            if fault["kind"] == "abrupt":
+                est, sd, what = nominal + r.mean[-1, k], r.std[-1, k], f"{p} = {nominal:g} + delta"
+            else:
+                est, sd, what = r.mean[-1, k], r.std[-1, k], f"slope of {p} (per unit time)"
+            truth = run.parameters.get(p)
+            true_text = ""
+            if truth is not None:
+                true_value = truth[-1] if fault["kind"] == "abrupt" else (truth[-1] - truth[-2]) / (run.time[-1] - run.time[-2])
+                true_text = f" (true {true_value:.4g}, error {100 * abs(est - true_value) / abs(true_value or 1):.1f} %)"
+            print(f"  estimate of {what} at t = {r.time[-1]:g}: {est:.4g} +- {sd:.2g}{true_text}")
     if args.plot:
         from . import plots
 

@@ -210,8 +210,9 @@ def package_files(m: DbnModel) -> dict[str, str]:
         if ssm.parameters:
             unpack.append(f"{', '.join(ssm.parameters)}{',' if len(ssm.parameters) == 1 else ''} = theta")
         unpack += override
-        rhs_lines, rhs_out = cse_block(rhs)
-        out_lines, out_out = cse_block(list(ssm.output_exprs))
+        arrays = frozenset(x for x in states)
+        rhs_lines, rhs_out = cse_block(rhs, arrays=arrays)
+        out_lines, out_out = cse_block(list(ssm.output_exprs), arrays=arrays)
         used_out = set().union(*(e.free_symbols for e in ssm.output_exprs)) if ssm.output_exprs else set()
         unpack_out = [line for line in unpack if line.split(" = ")[0].split(",")[0] in {s.name for s in used_out}
                       or " = theta" in line or line in override]

@@ -34,6 +34,25 @@ class StrictNumPyPrinter(NumPyPrinter):
 
     def __init__(self) -> None:
         super().__init__({"fully_qualified_modules": True, "strict": True, "allow_unknown_functions": False})
+        #: Names bound to arrays (one value per particle); products put their
+        #: scalar factors first, in one parenthesised group, so Python folds them
+        #: into one float before a single array operation.
+        self.arrays: frozenset[str] = frozenset()
+
+    def _print_Mul(self, expr: sympy.Mul) -> str:
+        if not self.arrays:
+            return super()._print_Mul(expr)
+        scalars, arrays = [], []
+        for a in expr.args:
+            (arrays if any(s.name in self.arrays for s in a.free_symbols) else scalars).append(a)
+        if not scalars or not arrays or (len(scalars) == 1 and scalars[0] == -1):
+            return super()._print_Mul(expr)
+        coefficient = sympy.Mul(*scalars)
+        rest = sympy.Mul(*arrays)
+        rest_text = self._print(rest)
+        if isinstance(rest, sympy.Add):
+            rest_text = f"({rest_text})"
+        return f"({self._print(coefficient)})*{rest_text}"
 
     def _module_format(self, fqn: str, register: bool = True) -> str:
         text = super()._module_format(fqn, register)
@@ -68,7 +87,8 @@ class StrictNumPyPrinter(NumPyPrinter):
 _PRINTER = StrictNumPyPrinter()
 
 
-def print_expr(expr: sympy.Expr, names: frozenset[str] | None = None) -> str:
+def print_expr(expr: sympy.Expr, names: frozenset[str] | None = None,
+               arrays: frozenset[str] = frozenset()) -> str:
     """NumPy source text of one expression; raises CodegenError when impossible.
 
     The text is checked: it may use only ``np.<function>``, the expression's
@@ -77,6 +97,7 @@ def print_expr(expr: sympy.Expr, names: frozenset[str] | None = None) -> str:
     (``Lambda``) reaches a generated module.
     """
     try:
+        _PRINTER.arrays = arrays
         text = _PRINTER.doprint(expr)
     except PrintMethodNotImplementedError as exc:
         raise CodegenError(f"cannot generate NumPy code for {sympy.sstr(expr)[:60]}: {str(exc).splitlines()[0]}",
@@ -86,6 +107,8 @@ def print_expr(expr: sympy.Expr, names: frozenset[str] | None = None) -> str:
     except Exception as exc:  # sympy's printers raise KeyError etc. for e.g. zoo
         raise CodegenError(f"cannot generate NumPy code for {sympy.sstr(expr)[:60]}: {type(exc).__name__}",
                            None, "use only the functions bgc documents") from None
+    finally:
+        _PRINTER.arrays = frozenset()
     allowed = {s.name for s in expr.free_symbols} | set(names or ())
     _check_numpy_only(text, allowed, expr)
     return text
@@ -113,10 +136,22 @@ def _check_numpy_only(text: str, allowed: set[str], expr: sympy.Expr) -> None:
             raise fail(f"the name '{node.id}'")
 
 
-def cse_block(exprs: Sequence[sympy.Expr], prefix: str = "_c") -> tuple[list[str], list[str]]:
-    """CSE over ``exprs``: (assignment lines, printed reduced expressions)."""
+def cse_block(exprs: Sequence[sympy.Expr], prefix: str = "_c",
+              arrays: frozenset[str] = frozenset()) -> tuple[list[str], list[str]]:
+    """CSE over ``exprs``: (assignment lines, printed reduced expressions).
+
+    With ``arrays`` (the names that hold one value per particle), every product
+    prints its scalar factors as one group, computed in Python floats before a
+    single array operation.
+    """
+    exprs = list(exprs)
     symbols = sympy.numbered_symbols(prefix)
-    replacements, reduced = sympy.cse(list(exprs), symbols=symbols, order="canonical")
+    replacements, reduced = sympy.cse(exprs, symbols=symbols, order="canonical")
     temps = frozenset(s.name for s, _ in replacements)
-    lines = [f"{s.name} = {print_expr(e, temps)}" for s, e in replacements]
-    return lines, [print_expr(e, temps) for e in reduced]
+    arrays_now = set(arrays)
+    lines = []
+    for s, e in replacements:
+        lines.append(f"{s.name} = {print_expr(e, temps, frozenset(arrays_now))}")
+        if any(x.name in arrays_now for x in e.free_symbols):
+            arrays_now.add(s.name)
+    return lines, [print_expr(e, temps, frozenset(arrays_now)) for e in reduced]

@@ -56,35 +56,65 @@ def derivative(x, u, theta):
     C1, C2, L, R1, R2, R3 = theta
     R1 = x[3]
     _c0 = -e8
-    _c1 = (_c0 + e4)/R2
+    _c1 = (R2**(-1.0))*(_c0 + e4)
     _dx = np.empty_like(x)
-    _dx[0] = (-_c1 + (V - e4)/R1)/C1
-    _dx[1] = (_c1 - f10)/C2
-    _dx[2] = (-R3*f10 - _c0)/L
+    _dx[0] = (C1**(-1.0))*(-_c1 + (V - e4)/R1)
+    _dx[1] = (C2**(-1.0))*(_c1 - f10)
+    _dx[2] = (L**(-1.0))*((-R3)*f10 - _c0)
     _dx[3] = delta_R1
     _dx[4] = 0
     return _dx
 
 
-def predict(x, u, theta, dt):
-    """Noise-free state after one sample period: RK4 with SUBSTEPS substeps."""
+#: Particles per block in predict/transition: temporaries of this length stay in
+#: cache and are recycled by the allocator instead of being paged in afresh.
+BLOCK = 8192
+
+
+def predict(x, u, theta, dt, out=None):
+    """Noise-free state after one sample period: RK4 with SUBSTEPS substeps.
+
+    Works on blocks of BLOCK particles; ``out`` may be ``x`` itself (in place).
+    """
+    out = np.empty_like(x) if out is None else out
     h = dt / SUBSTEPS
-    for _ in range(SUBSTEPS):
-        k1 = derivative(x, u, theta)
-        k2 = derivative(x + (0.5 * h) * k1, u, theta)
-        k3 = derivative(x + (0.5 * h) * k2, u, theta)
-        k4 = derivative(x + h * k3, u, theta)
-        x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+    n = x.shape[1]
+    for start in range(0, n, BLOCK):
+        stop = min(start + BLOCK, n)
+        xb = x[:, start:stop]
+        for _ in range(SUBSTEPS):
+            k1 = derivative(xb, u, theta)
+            k2 = derivative(xb + (0.5 * h) * k1, u, theta)
+            k3 = derivative(xb + (0.5 * h) * k2, u, theta)
+            k4 = derivative(xb + h * k3, u, theta)
+            k2 += k3
+            k2 *= 2.0
+            k2 += k1
+            k2 += k4
+            k2 *= h / 6.0
+            k2 += xb
+            xb = k2
+        out[:, start:stop] = xb
+    return out
+
+
+def perturb(x, rng):
+    """Add process noise in place: x += PROCESS_STD * N(0, 1), block by block."""
+    n_x, n = x.shape
+    noise = np.empty(n_x * min(n, BLOCK))
+    for start in range(0, n, BLOCK):
+        stop = min(start + BLOCK, n)
+        buf = noise[: n_x * (stop - start)].reshape(n_x, stop - start)
+        rng.standard_normal(out=buf)
+        buf *= _PROCESS_STD
+        x[:, start:stop] += buf
     return x
 
 
-def transition(x, u, theta, dt, rng):
-    """Sample x(t+dt) ~ p(x(t+dt) | x(t)): predict, then add process noise."""
-    x = predict(x, u, theta, dt)
-    noise = rng.standard_normal(x.shape)
-    noise *= _PROCESS_STD
-    x += noise
-    return x
+def transition(x, u, theta, dt, rng, out=None):
+    """Sample x(t+dt) ~ p(x(t+dt) | x(t)): predict, then add process noise.
+    ``out`` may be ``x`` itself (in place)."""
+    return perturb(predict(x, u, theta, dt, out), rng)
 
 
 def observe(x, u, theta):
@@ -96,15 +126,20 @@ def observe(x, u, theta):
     C1, C2, L, R1, R2, R3 = theta
     R1 = x[3]
     _y = np.empty((3, x.shape[1]))
-    _y[0] = R3*f10
+    _y[0] = (R3)*f10
     _y[1] = (V - e4)/R1
-    _y[2] = (e4 - e8)/R2
+    _y[2] = (R2**(-1.0))*(e4 - e8)
     return _y
 
 
 def loglik(y, x, u, theta):
     """log p(y | x) for every particle (Gaussian measurement noise); NaN in y: not measured."""
-    return _gaussian_loglik(y, observe(x, u, theta), MEASUREMENT_STD)
+    return loglik_observed(y, observe(x, u, theta))
+
+
+def loglik_observed(y, yhat):
+    """log p(y | x) from the particles' noise-free measurements yhat = observe(x, ...)."""
+    return _gaussian_loglik(y, yhat, MEASUREMENT_STD)
 
 
 def loglik_predictive(y, x, u, theta):
@@ -117,10 +152,16 @@ def _gaussian_loglik(y, yhat, std):
     seen = np.isfinite(y)
     if not seen.all():
         y, yhat, std = y[seen], yhat[seen], std[seen]
-    r = yhat - y[:, None]
-    r /= std[:, None]
-    r *= r
-    return float(-0.5 * len(y) * np.log(2.0 * np.pi) - np.sum(np.log(std))) - 0.5 * r.sum(axis=0)
+    total = np.zeros(yhat.shape[1])
+    row = np.empty(yhat.shape[1])
+    for j in range(len(y)):
+        np.subtract(yhat[j], y[j], out=row)
+        row *= 1.0 / std[j]
+        row *= row
+        total += row
+    total *= -0.5
+    total += float(-0.5 * len(y) * np.log(2.0 * np.pi) - np.sum(np.log(std)))
+    return total
 
 
 def initial_particles(rng, n):

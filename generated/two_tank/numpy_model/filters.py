@@ -40,6 +40,18 @@ def normalise(logw):
     return logw - (m + np.log(s)), 1.0 / np.dot(w, w)
 
 
+def moments(a, w):
+    """Weighted mean and std of each row of a (n, N) with weights w summing to 1."""
+    mean = a @ w
+    var = np.empty(a.shape[0])
+    row = np.empty(a.shape[1])
+    for j in range(a.shape[0]):
+        np.subtract(a[j], mean[j], out=row)
+        row *= row
+        var[j] = row @ w
+    return mean, np.sqrt(np.maximum(var, 0.0))
+
+
 class StepResult:
     """What one filter step gives: weighted mean and std of the state, the
     predicted measurement (before the update), the ESS and flags."""
@@ -84,24 +96,23 @@ class _Filter:
         resampled = ess < self.threshold
         if resampled:
             ancestors = systematic_resample(logw, self.rng)
-            self.x = self.x[:, ancestors]
+            row = np.empty(self.n)
+            for j in range(self.x.shape[0]):  # gather row by row: no second (n_x, N) array
+                np.take(self.x[j], ancestors, out=row)
+                self.x[j] = row
             logw = np.full(self.n, -np.log(self.n))
         self.logw = logw
-        w = np.exp(logw)
-        mean = self.x @ w
-        var = ((self.x - mean[:, None]) ** 2) @ w
-        return StepResult(mean, np.sqrt(np.maximum(var, 0.0)), y_mean, y_std, ess, resampled, recovered)
+        mean, std = moments(self.x, np.exp(logw))
+        return StepResult(mean, std, y_mean, y_std, ess, resampled, recovered)
 
-    def _predicted_measurement(self, u, logw=None):
-        """Weighted mean and std of y over the current particles (weights: the
-        filter's, or ``logw``), measurement noise included."""
+    def _predicted_measurement(self, yhat, logw=None):
+        """Weighted mean and std of y over the particles' noise-free measurements
+        ``yhat`` (weights: the filter's, or ``logw``), measurement noise included."""
         logw = self.logw if logw is None else logw
-        y = self.model.observe(self.x, u, self.theta)
         w = np.exp(logw - logw.max())
         w /= w.sum()
-        mean = y @ w
-        var = ((y - mean[:, None]) ** 2) @ w + self.model.MEASUREMENT_STD ** 2
-        return mean, np.sqrt(var)
+        mean, std = moments(yhat, w)
+        return mean, np.sqrt(std ** 2 + self.model.MEASUREMENT_STD ** 2)
 
     def run(self, ys, us, dt=None):
         """Filter a whole record: ys (T, n_y), us (T, n_u). Returns a dict of arrays."""
@@ -124,12 +135,13 @@ class GenericParticleFilter(_Filter):
 
     def step(self, y, u, dt=None):
         dt = self.model.DT if dt is None else dt
-        self.x = self.model.transition(self.x, u, self.theta, dt, self.rng)
-        y_mean, y_std = self._predicted_measurement(u)
+        self.model.transition(self.x, u, self.theta, dt, self.rng, out=self.x)
+        yhat = self.model.observe(self.x, u, self.theta)
+        y_mean, y_std = self._predicted_measurement(yhat)
         y = np.asarray(y, dtype=float)
         if np.isnan(y).all():
             return self._finish(self.logw, y_mean, y_std, False)
-        return self._finish(self.logw + self.model.loglik(y, self.x, u, self.theta), y_mean, y_std, False)
+        return self._finish(self.logw + self.model.loglik_observed(y, yhat), y_mean, y_std, False)
 
 
 class AuxiliaryParticleFilter(_Filter):
@@ -140,16 +152,18 @@ class AuxiliaryParticleFilter(_Filter):
     measurement noise plus the process noise seen through the outputs), which
     keeps the second-stage weights from being heavy-tailed when the process
     noise is not small against the measurement noise (Pitt and Shephard, 1999).
+    The noise-free prediction mu is computed once: the new particles are
+    mu[ancestors] plus process noise.
     """
 
     def step(self, y, u, dt=None):
         dt = self.model.DT if dt is None else dt
         y = np.asarray(y, dtype=float)
+        mu = self.model.predict(self.x, u, self.theta, dt, out=self.x)
         if np.isnan(y).all():
-            self.x = self.model.transition(self.x, u, self.theta, dt, self.rng)
-            y_mean, y_std = self._predicted_measurement(u)
+            self.model.perturb(mu, self.rng)
+            y_mean, y_std = self._predicted_measurement(self.model.observe(mu, u, self.theta))
             return self._finish(self.logw, y_mean, y_std, False)
-        mu = self.model.predict(self.x, u, self.theta, dt)
         first = self.model.loglik_predictive(y, mu, u, self.theta)
         stage1 = self.logw + first
         recovered = False
@@ -160,9 +174,15 @@ class AuxiliaryParticleFilter(_Filter):
             self.recoveries += 1
         stage1, _ = normalise(stage1)
         ancestors = systematic_resample(stage1, self.rng)
-        self.x = self.model.transition(self.x[:, ancestors], u, self.theta, dt, self.rng)
+        row = np.empty(self.n)
+        for j in range(mu.shape[0]):  # x = mu[:, ancestors], row by row, in place
+            np.take(mu[j], ancestors, out=row)
+            mu[j] = row
+        self.x = self.model.perturb(mu, self.rng)
+        yhat = self.model.observe(self.x, u, self.theta)
         # The new particles weighted by 1 / p(y | mu) are a sample of the prior
         # predictive: that gives the predicted measurement (before using y).
-        y_mean, y_std = self._predicted_measurement(u, -first[ancestors])
-        logw = self.model.loglik(y, self.x, u, self.theta) - first[ancestors]
+        back = -first[ancestors]
+        y_mean, y_std = self._predicted_measurement(yhat, back)
+        logw = self.model.loglik_observed(y, yhat) + back
         return self._finish(logw, y_mean, y_std, recovered)
