@@ -246,6 +246,7 @@ def package_files(m: DbnModel) -> dict[str, str]:
         }
         files[f"{name}.py"] = env.get_template("model.py.j2").render(**ctx)
     files["filters.py"] = env.get_template("filters.py.j2").render(source=src, model=model.name)
+    files["_kernel.py"] = env.get_template("kernel.py.j2").render(source=src, model=model.name)
     files["__init__.py"] = env.get_template("package_init.py.j2").render(
         source=src, model=model.name, description=model.description, modules=modules)
     return files

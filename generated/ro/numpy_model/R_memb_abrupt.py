@@ -14,6 +14,8 @@ values, computed by bgc from the model's relative noise levels).
 
 import numpy as np
 
+from . import _kernel
+
 NAME = "R_memb_abrupt"
 MODEL = "ro"
 STATES = ('f3', 'e6', 'e13', 'f22', 'e27', 'delta_R_memb')
@@ -38,7 +40,6 @@ PREDICTIVE_STD = np.array([0.03958761331552928, 0.38443472121650263, 0.334727829
 FAULT = {'parameter': 'R_memb', 'kind': 'abrupt'}
 #: Uniform prior of the fault magnitude: bias delta_R_memb on [0, 26].
 FAULT_PRIOR = (0.0, 26.0)
-_PROCESS_STD = PROCESS_STD[:, None]
 
 
 def inputs(t):
@@ -71,49 +72,15 @@ def derivative(x, u, theta):
     return _dx
 
 
-#: Particles per block in predict/transition: temporaries of this length stay in
-#: cache and are recycled by the allocator instead of being paged in afresh.
-BLOCK = 8192
-
-
 def predict(x, u, theta, dt, out=None):
-    """Noise-free state after one sample period: RK4 with SUBSTEPS substeps.
-
-    Works on blocks of BLOCK particles; ``out`` may be ``x`` itself (in place).
-    """
-    out = np.empty_like(x) if out is None else out
-    h = dt / SUBSTEPS
-    n = x.shape[1]
-    for start in range(0, n, BLOCK):
-        stop = min(start + BLOCK, n)
-        xb = x[:, start:stop]
-        for _ in range(SUBSTEPS):
-            k1 = derivative(xb, u, theta)
-            k2 = derivative(xb + (0.5 * h) * k1, u, theta)
-            k3 = derivative(xb + (0.5 * h) * k2, u, theta)
-            k4 = derivative(xb + h * k3, u, theta)
-            k2 += k3
-            k2 *= 2.0
-            k2 += k1
-            k2 += k4
-            k2 *= h / 6.0
-            k2 += xb
-            xb = k2
-        out[:, start:stop] = xb
-    return out
+    """Noise-free state after one sample period (RK4, SUBSTEPS substeps); ``out``
+    may be ``x`` itself (in place)."""
+    return _kernel.rk4(derivative, x, u, theta, dt, SUBSTEPS, out)
 
 
 def perturb(x, rng):
-    """Add process noise in place: x += PROCESS_STD * N(0, 1), block by block."""
-    n_x, n = x.shape
-    noise = np.empty(n_x * min(n, BLOCK))
-    for start in range(0, n, BLOCK):
-        stop = min(start + BLOCK, n)
-        buf = noise[: n_x * (stop - start)].reshape(n_x, stop - start)
-        rng.standard_normal(out=buf)
-        buf *= _PROCESS_STD
-        x[:, start:stop] += buf
-    return x
+    """Add process noise in place: x += PROCESS_STD * N(0, 1)."""
+    return _kernel.perturb(x, PROCESS_STD, rng)
 
 
 def transition(x, u, theta, dt, rng, out=None):
@@ -140,34 +107,17 @@ def observe(x, u, theta):
 
 def loglik(y, x, u, theta):
     """log p(y | x) for every particle (Gaussian measurement noise); NaN in y: not measured."""
-    return loglik_observed(y, observe(x, u, theta))
+    return _kernel.gaussian_loglik(y, observe(x, u, theta), MEASUREMENT_STD)
 
 
 def loglik_observed(y, yhat):
     """log p(y | x) from the particles' noise-free measurements yhat = observe(x, ...)."""
-    return _gaussian_loglik(y, yhat, MEASUREMENT_STD)
+    return _kernel.gaussian_loglik(y, yhat, MEASUREMENT_STD)
 
 
 def loglik_predictive(y, x, u, theta):
     """Approximate log p(y | noise-free prediction x), with PREDICTIVE_STD."""
-    return _gaussian_loglik(y, observe(x, u, theta), PREDICTIVE_STD)
-
-
-def _gaussian_loglik(y, yhat, std):
-    y = np.asarray(y, dtype=float)
-    seen = np.isfinite(y)
-    if not seen.all():
-        y, yhat, std = y[seen], yhat[seen], std[seen]
-    total = np.zeros(yhat.shape[1])
-    row = np.empty(yhat.shape[1])
-    for j in range(len(y)):
-        np.subtract(yhat[j], y[j], out=row)
-        row *= 1.0 / std[j]
-        row *= row
-        total += row
-    total *= -0.5
-    total += float(-0.5 * len(y) * np.log(2.0 * np.pi) - np.sum(np.log(std)))
-    return total
+    return _kernel.gaussian_loglik(y, observe(x, u, theta), PREDICTIVE_STD)
 
 
 def initial_particles(rng, n):

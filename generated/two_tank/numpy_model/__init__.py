@@ -8,7 +8,7 @@ Each module offers initial_particles, transition, predict, observe, loglik and
 tables of names and nominal values; ``filters`` has the GPF and APF.
 """
 
-from . import filters
+from . import _kernel, filters
 from . import nominal
 from . import C1_abrupt
 from . import C2_abrupt
