@@ -8,7 +8,6 @@ returns unified diffs (used by the golden test and ``bgc compile --check``).
 from __future__ import annotations
 
 import difflib
-import shutil
 from pathlib import Path
 from typing import Mapping
 
@@ -67,6 +66,3 @@ def diff(directory: Path, files: Mapping[str, str]) -> list[str]:
                                                     fromfile=f"{path} (committed)", tofile=f"{path} (compiler now)")))
     return out
 
-
-def remove_tree(directory: Path) -> None:
-    shutil.rmtree(directory, ignore_errors=True)

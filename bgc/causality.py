@@ -42,7 +42,6 @@ BondCausality(bond=2, effort_by='j', flow_by='R')
 
 from __future__ import annotations
 
-from typing import Iterable
 
 from .errors import CausalityError, ErrorGroup
 from .ir import (
@@ -330,7 +329,3 @@ def check_assignment(model: BondGraph, effort_by: dict[int, str]) -> list[str]:
             problems.append(f"bond {number} has no valid causal stroke")
     return problems
 
-
-def states(cbg: CausalBondGraph) -> Iterable[str]:
-    """Names of the state variables (storage elements in integral causality)."""
-    return (s.state for s in cbg.storage if s.integral)

@@ -11,19 +11,10 @@ from __future__ import annotations
 import hashlib
 import multiprocessing
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 from . import draw, render
-from .ir import DbnModel, TemporalCausalGraph
-
-
-@dataclass(frozen=True, slots=True)
-class CodegenOptions:
-    """What to emit. ``pictures``: render SVGs of the TCG and DBNs."""
-
-    pictures: bool = True
-    engine: str = "auto"
+from .ir import DbnModel, TemporalCausalGraph, sym
 
 
 #: Sub-directory of generated/<model>/ that holds the NumPy package.
@@ -150,7 +141,7 @@ def package_files(m: DbnModel) -> dict[str, str]:
     import sympy
 
     from . import modelspec
-    from .printing import cse_block, print_expr
+    from .printing import cse_block
 
     ssm = m.equations
     model = ssm.model
@@ -191,7 +182,7 @@ def package_files(m: DbnModel) -> dict[str, str]:
             else:
                 states += [p, delta]
                 kinds += ["parameter", "slope"]
-                rhs += [sym_(delta), sympy.Integer(0)]
+                rhs += [sym(delta), sympy.Integer(0)]
                 proc += [0.0, modelspec.SLOPE_JITTER * (hi - lo)]
                 x0 += [value, 0.0]
                 x0_std += [0.0, 0.0]
@@ -251,8 +242,3 @@ def package_files(m: DbnModel) -> dict[str, str]:
         source=src, model=model.name, description=model.description, modules=modules)
     return files
 
-
-def sym_(name: str):
-    from .ir import sym
-
-    return sym(name)

@@ -9,10 +9,9 @@ from __future__ import annotations
 import json
 from typing import Any
 
-import networkx as nx
 import sympy
 
-from .ir import CausalBondGraph, Dbn, DbnModel, StateSpaceModel, TemporalCausalGraph
+from .ir import CausalBondGraph, Dbn, StateSpaceModel, TemporalCausalGraph
 from .tcg import _var_key
 
 
@@ -221,11 +220,3 @@ def dbn_dot(d: Dbn) -> str:
     lines.append("}")
     return "\n".join(lines) + "\n"
 
-
-def dbn_model_text(m: DbnModel) -> str:
-    return "".join(dbn_text(d) for d in (m.nominal, *m.faulty))
-
-
-def graph_digest(g: nx.DiGraph) -> tuple:
-    """Sorted (nodes, edges) of a graph, for comparisons in tests."""
-    return (tuple(sorted(g.nodes)), tuple(sorted(g.edges)))

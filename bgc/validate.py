@@ -24,7 +24,7 @@ import jsonschema
 import sympy
 
 from . import expressions
-from .errors import BgcError, ErrorGroup, ExpressionError, SourceLoc, ValidationError
+from .errors import BgcError, ErrorGroup, ExpressionError, ValidationError
 from .ir import (
     ELEMENT_PORTS, JUNCTIONS, MODULATED, SOURCES, STORAGE, TWO_PORTS, Bond, BondGraph, Element,
     FaultCandidate, Input, Law, Measurement, Parameter, RawModel, Settings, Signal, effort, flow, sym,
@@ -250,7 +250,6 @@ class _Validator:
             own = {}
             if len(mine) == 1:
                 own = {"e": effort(mine[0].number), "f": flow(mine[0].number)}
-            modulated = kind in MODULATED
             parameter = law = source = None
             loc = self.raw.key_loc(*path)
             if kind in SOURCES:
