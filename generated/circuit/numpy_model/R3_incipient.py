@@ -116,7 +116,9 @@ def loglik_predictive(y, x, u, theta):
 
 def initial_particles(rng, n):
     """n particles from the prior of x(0): (n_x, n)."""
-    x = X0[:, None] + X0_STD[:, None] * rng.standard_normal((len(STATES), n))
+    x = rng.standard_normal((len(STATES), n))
+    x *= X0_STD[:, None]
+    x += X0[:, None]
     x[4] = rng.uniform(FAULT_PRIOR[0], FAULT_PRIOR[1], n)
     return x
 

@@ -22,22 +22,30 @@ import numpy as np
 def systematic_resample(logw, rng):
     """Ancestor indices by systematic resampling (one uniform draw), O(N)."""
     n = logw.shape[0]
-    w = np.exp(logw - logw.max())
-    cumulative = np.cumsum(w)
+    cumulative = np.subtract(logw, logw.max())
+    np.exp(cumulative, out=cumulative)
+    np.cumsum(cumulative, out=cumulative)
     cumulative /= cumulative[-1]
-    positions = (rng.random() + np.arange(n)) / n
+    positions = np.arange(n, dtype=float)
+    positions += rng.random()
+    positions /= n
     ancestors = np.searchsorted(cumulative, positions)
+    del positions, cumulative
     np.minimum(ancestors, n - 1, out=ancestors)
     return ancestors
 
 
 def normalise(logw):
-    """Normalised log-weights and the effective sample size 1 / sum(w^2)."""
+    """Normalised log-weights (``logw`` is overwritten) and the effective sample
+    size 1 / sum(w^2)."""
     m = logw.max()
-    w = np.exp(logw - m)
+    w = np.subtract(logw, m)
+    np.exp(w, out=w)
     s = w.sum()
     w /= s
-    return logw - (m + np.log(s)), 1.0 / np.dot(w, w)
+    ess = 1.0 / np.dot(w, w)
+    logw -= m + np.log(s)
+    return logw, ess
 
 
 def moments(a, w):
@@ -100,9 +108,11 @@ class _Filter:
             for j in range(self.x.shape[0]):  # gather row by row: no second (n_x, N) array
                 np.take(self.x[j], ancestors, out=row)
                 self.x[j] = row
-            logw = np.full(self.n, -np.log(self.n))
+            del ancestors, row
+            logw.fill(-np.log(self.n))
         self.logw = logw
-        mean, std = moments(self.x, np.exp(logw))
+        w = np.exp(logw)
+        mean, std = moments(self.x, w)
         return StepResult(mean, std, y_mean, y_std, ess, resampled, recovered)
 
     def _predicted_measurement(self, yhat, logw=None):
@@ -136,13 +146,38 @@ class GenericParticleFilter(_Filter):
     def step(self, y, u, dt=None):
         dt = self.model.DT if dt is None else dt
         self.model.transition(self.x, u, self.theta, dt, self.rng, out=self.x)
-        yhat = self.model.observe(self.x, u, self.theta)
-        y_mean, y_std = self._predicted_measurement(yhat)
         y = np.asarray(y, dtype=float)
-        if np.isnan(y).all():
+        missing = np.isnan(y).all()
+        loglik, y_mean, y_std = self._weigh(None if missing else y, u)
+        if missing:
             return self._finish(self.logw, y_mean, y_std, False)
-        return self._finish(self.logw + self.model.loglik_observed(y, yhat), y_mean, y_std, False)
+        loglik += self.logw
+        self.logw = loglik  # the old weights are not needed any more: one array, not two
+        return self._finish(loglik, y_mean, y_std, False)
 
+    def _weigh(self, y, u):
+        """log p(y | x) of every particle (None without y) and the predicted
+        measurement, observing one block of particles at a time."""
+        n = self.n
+        block = getattr(getattr(self.model, "_kernel", None), "BLOCK", 8192)
+        w = np.subtract(self.logw, self.logw.max())
+        np.exp(w, out=w)
+        w /= w.sum()
+        n_y = len(self.model.OUTPUTS)
+        s1 = np.zeros(n_y)
+        s2 = np.zeros(n_y)
+        loglik = np.empty(n) if y is not None else None
+        for start in range(0, n, block):
+            stop = min(start + block, n)
+            yhat = self.model.observe(self.x[:, start:stop], u, self.theta)
+            if y is not None:
+                loglik[start:stop] = self.model.loglik_observed(y, yhat)
+            wb = w[start:stop]
+            s1 += yhat @ wb
+            yhat *= yhat
+            s2 += yhat @ wb
+        var = np.maximum(s2 - s1 * s1, 0.0) + self.model.MEASUREMENT_STD ** 2
+        return loglik, s1, np.sqrt(var)
 
 class AuxiliaryParticleFilter(_Filter):
     """Thesis Algorithm 2: choose ancestors by w_k-1 * p(y_k | mu_k), propagate,
