@@ -11,32 +11,16 @@ circuit and RO.
 
 from __future__ import annotations
 
-from functools import lru_cache
 
 import pytest
 import sympy
 
 from bgc import causality, dbn, equations, tcg
 from bgc.load import loads
-from bgc.pipeline import compile_model
 from bgc.validate import validate
 
-from conftest import MODELS, ROOT
+from conftest import ALL_MODELS, compiled
 
-TEST_MODELS = ROOT / "tests" / "data" / "models"
-ALL_MODELS = {
-    "circuit": MODELS / "circuit.yaml",
-    "two_tank": MODELS / "two_tank.yaml",
-    "ro": MODELS / "ro.yaml",
-    "dc_motor": TEST_MODELS / "dc_motor.yaml",
-    "resistor_loop": TEST_MODELS / "resistor_loop.yaml",
-    "mass_spring_damper": TEST_MODELS / "mass_spring_damper.yaml",
-}
-
-
-@lru_cache(maxsize=None)
-def compiled(name: str):
-    return compile_model(ALL_MODELS[name])
 
 
 def arcs(graph, kind: str | None = None) -> set[tuple[str, str]]:

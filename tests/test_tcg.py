@@ -15,29 +15,13 @@ gives -1 for C1; ``e11 = R3*f11`` gives +1 for R3.
 
 from __future__ import annotations
 
-from functools import lru_cache
 
 import pytest
 import sympy
 
-from bgc.pipeline import compile_model
 
-from conftest import MODELS, ROOT
+from conftest import ALL_MODELS, compiled
 
-TEST_MODELS = ROOT / "tests" / "data" / "models"
-ALL_MODELS = {
-    "circuit": MODELS / "circuit.yaml",
-    "two_tank": MODELS / "two_tank.yaml",
-    "ro": MODELS / "ro.yaml",
-    "dc_motor": TEST_MODELS / "dc_motor.yaml",
-    "resistor_loop": TEST_MODELS / "resistor_loop.yaml",
-    "mass_spring_damper": TEST_MODELS / "mass_spring_damper.yaml",
-}
-
-
-@lru_cache(maxsize=None)
-def compiled(name: str):
-    return compile_model(ALL_MODELS[name])
 
 
 def edge(tcg, source: str, target: str):
