@@ -196,17 +196,19 @@ def package_files(m: DbnModel) -> dict[str, str]:
                 "magnitude_index": len(states) - 1, "parameter_index": p_index,
                 "theta_index": ssm.parameters.index(p),
             }
-        unpack = [f"{x} = x[{i}]" for i, x in enumerate(states) if x not in ssm.parameters]
-        unpack += [f"{u} = u[{i}]" for i, u in enumerate(ssm.inputs)]
-        if ssm.parameters:
-            unpack.append(f"{', '.join(ssm.parameters)}{',' if len(ssm.parameters) == 1 else ''} = theta")
-        unpack += override
+        # Local names of derivative() and observe(): states and inputs by index,
+        # every parameter from theta, then the fault model's replacement.
+        named = [(x, f"{x} = x[{i}]") for i, x in enumerate(states) if x not in ssm.parameters]
+        named += [(u, f"{u} = u[{i}]") for i, u in enumerate(ssm.inputs)]
+        tail = [f"{', '.join(ssm.parameters)}{',' if len(ssm.parameters) == 1 else ''} = theta"] \
+            if ssm.parameters else []
+        tail += override
+        unpack = [line for _, line in named] + tail
+        used_out = {s.name for e in ssm.output_exprs for s in e.free_symbols}
+        unpack_out = [line for n, line in named if n in used_out] + tail
         arrays = frozenset(x for x in states)
         rhs_lines, rhs_out = cse_block(rhs, arrays=arrays)
         out_lines, out_out = cse_block(list(ssm.output_exprs), arrays=arrays)
-        used_out = set().union(*(e.free_symbols for e in ssm.output_exprs)) if ssm.output_exprs else set()
-        unpack_out = [line for line in unpack if line.split(" = ")[0].split(",")[0] in {s.name for s in used_out}
-                      or " = theta" in line or line in override]
         name = module_name(d.name)
         modules.append(name)
         title = (f"Nominal model of {model.name}." if d.parameter is None
