@@ -202,6 +202,10 @@ def cmd_filter(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise BgcError(f"{args.run_csv}: cannot read: {exc.strerror}", None, "give a CSV written by bgc simulate") from None
     run = sim.read_csv(text, args.run_csv)
+    if args.particles < 1:
+        raise BgcError("--particles must be at least 1", None, "e.g. --particles 200")
+    if args.start is not None and not args.fault:
+        raise BgcError("--start hands over to a fault model", None, "give --fault PARAM:KIND with --start")
     package = runtime.load_package(args.generated, c.model.name)
     name = args.fault.replace(":", "_") if args.fault else "nominal"
     results = []

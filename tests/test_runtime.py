@@ -1,0 +1,93 @@
+"""End to end: truth from the simulator (sympy, 8x finer RK4), filters from the
+committed generated package, fault injected, estimates and residuals checked."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from bgc import simulate as sim
+from bgc.diagnosis import runtime
+
+from conftest import ROOT, compiled
+
+
+def run_of(model: str, fault: str | None, seed: int) -> sim.Run:
+    ssm = compiled(model).equations
+    options = sim.SimulationOptions(seed=seed, fault=sim.parse_fault(fault, ssm) if fault else None)
+    return sim.read_csv(sim.to_csv(sim.simulate(ssm, options)))
+
+
+def normalised_residuals(r: runtime.TrackResult, run: sim.Run) -> np.ndarray:
+    y = np.column_stack([run.measurements[name] for name in r.output_names])
+    return (y - r.y_mean) / r.y_std
+
+
+@pytest.fixture(scope="module")
+def ro():
+    return runtime.load_package(ROOT / "generated", "ro")
+
+
+@pytest.mark.parametrize("method", ["gpf", "apf"])
+def test_ro_membrane_abrupt_fault_is_identified(ro, method):
+    """R_memb 26 -> 50 at t = 165 (thesis Table IV.3: GPF 45.73, APF 47.92): after
+    the hand-over at t = 167 the faulty-model filter ends within 5 % of 50."""
+    run = run_of("ro", "R_memb:abrupt:24@165", seed=5)
+    r = runtime.track(run, ro, "R_memb_abrupt", method, 200, seed=0, start=167)
+    k = r.state_names.index("delta_R_memb")
+    estimate = 26.0 + r.mean[-20:, k].mean()
+    assert abs(estimate - 50.0) < 0.05 * 50.0, estimate
+    assert np.isnan(r.mean[: 166, k]).all() and np.isfinite(r.mean[166:, k]).all()
+
+
+def test_ro_nominal_filter_is_consistent_without_fault_and_not_after_one(ro):
+    """No fault: the nominal filter's normalised residuals (y - predicted y) /
+    predicted std have mean square about 1, so a detector on them stays quiet.
+    After an R_pipe abrupt fault (69 -> 100 at t = 165) the loop-flow residual
+    leaves that band: its mean square over t > 170 is many times larger."""
+    quiet = normalised_residuals(runtime.track(run_of("ro", None, seed=3), ro, "nominal", "gpf", 200, 0),
+                                 run_of("ro", None, seed=3))
+    assert np.all(np.mean(quiet[20:] ** 2, axis=0) < 2.0), np.mean(quiet[20:] ** 2, axis=0)
+    faulty = run_of("ro", "R_pipe:abrupt:31@165", seed=3)
+    r = runtime.track(faulty, ro, "nominal", "gpf", 200, 0)
+    z = normalised_residuals(r, faulty)
+    loop = r.output_names.index("F_loop")
+    assert np.mean(z[166:175, loop] ** 2) > 10 * np.mean(quiet[20:, loop] ** 2)
+
+
+def test_the_true_fault_model_explains_the_data_better_than_a_wrong_one(ro):
+    """Thesis Fig. IV.6: after the hand-over, the filter on the true fault model
+    (R_pipe incipient) predicts the measurements better than the one on a wrong
+    hypothesis (R_fp incipient)."""
+    run = run_of("ro", "R_pipe:incipient:0.5@165", seed=1)
+    right = runtime.track(run, ro, "R_pipe_incipient", "gpf", 200, 0, start=167)
+    wrong = runtime.track(run, ro, "R_fp_incipient", "gpf", 200, 0, start=167)
+    late = slice(200, None)
+    right_ms = np.mean(normalised_residuals(right, run)[late] ** 2)
+    wrong_ms = np.mean(normalised_residuals(wrong, run)[late] ** 2)
+    assert right_ms < 1.3 and right_ms < 0.7 * wrong_ms, (right_ms, wrong_ms)
+
+
+def test_circuit_abrupt_fault_on_r2_is_identified():
+    pkg = runtime.load_package(ROOT / "generated", "circuit")
+    run = run_of("circuit", "R2:abrupt:1.0@5", seed=1)
+    r = runtime.track(run, pkg, "R2_abrupt", "apf", 300, seed=0, start=5.1)
+    k = r.state_names.index("delta_R2")
+    assert abs(2.0 + r.mean[-1, k] - 3.0) < 0.15
+
+
+def test_cli_filter_prints_the_estimate_and_refuses_bad_options(tmp_path):
+    csv = tmp_path / "run.csv"
+    subprocess.run([sys.executable, "-m", "bgc", "simulate", "models/circuit.yaml", "--fault", "R2:abrupt:1.0@5",
+                    "--seed", "1", "-o", str(csv)], cwd=ROOT, check=True, capture_output=True)
+    out = subprocess.run([sys.executable, "-m", "bgc", "filter", "models/circuit.yaml", str(csv), "--fault",
+                          "R2:abrupt", "--start", "5.1", "--method", "gpf", "--plot", str(tmp_path / "p.png")],
+                         cwd=ROOT, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "estimate of R2 = 2 + delta" in out.stdout and "(true 3," in out.stdout
+    assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for bad in (["--particles", "0"], ["--start", "3"]):
+        r = subprocess.run([sys.executable, "-m", "bgc", "filter", "models/circuit.yaml", str(csv), *bad],
+                           cwd=ROOT, capture_output=True, text=True)
+        assert r.returncode == 1 and "Traceback" not in r.stderr and r.stderr.count("\n") == 1, r.stderr
