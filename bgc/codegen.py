@@ -141,7 +141,7 @@ def package_files(m: DbnModel) -> dict[str, str]:
     import sympy
 
     from . import modelspec
-    from .printing import cse_block
+    from .printing import cse_block, print_expr, split_linear
 
     ssm = m.equations
     model = ssm.model
@@ -206,8 +206,17 @@ def package_files(m: DbnModel) -> dict[str, str]:
         unpack = [line for _, line in named] + tail
         used_out = {s.name for e in ssm.output_exprs for s in e.free_symbols}
         unpack_out = [line for n, line in named if n in used_out] + tail
-        arrays = frozenset(x for x in states)
-        rhs_lines, rhs_out = cse_block(rhs, arrays=arrays)
+        # Arrays: the states, and a fault parameter replaced by a state expression.
+        arrays = frozenset(states) | ({d.parameter} if d.parameter is not None else frozenset())
+        splits = [split_linear(f, states, arrays) for f in rhs]
+        rest_rows = [i for i, (_, _, r) in enumerate(splits) if r != 0]
+        rhs_lines, rhs_out = cse_block([splits[i][2] for i in rest_rows], arrays=arrays)
+        linear_rows = [", ".join(print_expr(a.get(j, sympy.Integer(0))) for j in range(len(states)))
+                       for a, _, _ in splits]
+        linear_b = ", ".join(print_expr(b) for _, b, _ in splits)
+        linear_unpack = [line for n, line in named if n in ssm.inputs] + \
+            ([f"{', '.join(ssm.parameters)}{',' if len(ssm.parameters) == 1 else ''} = theta"]
+             if ssm.parameters else [])
         out_lines, out_out = cse_block(list(ssm.output_exprs), arrays=arrays)
         name = module_name(d.name)
         modules.append(name)
@@ -232,7 +241,8 @@ def package_files(m: DbnModel) -> dict[str, str]:
             "n_physical": len(ssm.states),
             "input_exprs": [modelspec.input_code(i.signal) for i in model.inputs],
             "unpack": unpack, "rhs_cse": rhs_lines,
-            "rhs_assign": [f"_dx[{i}] = {e}" for i, e in enumerate(rhs_out)],
+            "rhs_assign": [f"_dx[{i}] += {e}" for i, e in zip(rest_rows, rhs_out)],
+            "linear_rows": linear_rows, "linear_b": linear_b, "linear_unpack": linear_unpack,
             "unpack_out": unpack_out, "out_cse": out_lines,
             "out_assign": [f"_y[{i}] = {e}" for i, e in enumerate(out_out)],
             "predictive_std": _floats(num.predictive_std),

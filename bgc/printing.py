@@ -136,6 +136,49 @@ def _check_numpy_only(text: str, allowed: set[str], expr: sympy.Expr) -> None:
             raise fail(f"the name '{node.id}'")
 
 
+def split_linear(expr: sympy.Expr, states: Sequence[str], arrays: frozenset[str]
+                 ) -> tuple[dict[int, sympy.Expr], sympy.Expr, sympy.Expr]:
+    """Split ``expr`` into ``sum_j A_j * states[j] + b + rest``: ``A_j`` and ``b``
+    depend on no array, ``rest`` holds the terms that are not linear in one
+    state with a scalar coefficient. Scalar factors of sums are distributed
+    first, so ``(x1 - x2)/C`` gives two linear terms.
+
+    Examples
+    --------
+    >>> x1, x2, c, k = sympy.symbols("x1 x2 c k")
+    >>> split_linear((x1 - x2) / c + k * x1 * x2 + 3, ["x1", "x2"], frozenset({"x1", "x2"}))
+    ({0: 1/c, 1: -1/c}, 3, k*x1*x2)
+    """
+    index = {name: i for i, name in enumerate(states)}
+
+    def is_array(e: sympy.Expr) -> bool:
+        return any(s.name in arrays for s in e.free_symbols)
+
+    def distribute(e: sympy.Expr) -> list[sympy.Expr]:
+        if isinstance(e, sympy.Add):
+            return [t for a in e.args for t in distribute(a)]
+        if isinstance(e, sympy.Mul):
+            sums = [a for a in e.args if isinstance(a, sympy.Add) and is_array(a)]
+            others = [a for a in e.args if not (isinstance(a, sympy.Add) and is_array(a))]
+            if len(sums) == 1 and not any(is_array(a) for a in others):
+                c = sympy.Mul(*others)
+                return [t for a in sums[0].args for t in distribute(c * a)]
+        return [e]
+
+    coefficients: dict[int, sympy.Expr] = {}
+    constant, rest = sympy.Integer(0), sympy.Integer(0)
+    for term in distribute(expr):
+        if not is_array(term):
+            constant += term
+            continue
+        c, r = term.as_independent(*[sympy.Symbol(a) for a in sorted(arrays)], as_Add=False)
+        if isinstance(r, sympy.Symbol) and r.name in index and not is_array(c):
+            coefficients[index[r.name]] = coefficients.get(index[r.name], sympy.Integer(0)) + c
+        else:
+            rest += term
+    return coefficients, constant, rest
+
+
 def cse_block(exprs: Sequence[sympy.Expr], prefix: str = "_c",
               arrays: frozenset[str] = frozenset()) -> tuple[list[str], list[str]]:
     """CSE over ``exprs``: (assignment lines, printed reduced expressions).

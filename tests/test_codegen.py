@@ -518,9 +518,9 @@ def test_predictive_std_is_measurement_noise_plus_process_noise_seen_through_the
 
 def test_blocked_transition_matches_unblocked_for_a_partial_last_block():
     """predict/perturb work on blocks of BLOCK particles: with N = 2 BLOCK + 5
-    (a partial last block) the noise-free prediction equals a single-block one
-    particle for particle, in place or not, and perturb adds noise of the model's
-    std to every particle."""
+    (a partial last block) the noise-free prediction equals a single-particle one
+    (to rounding), in place or not, and perturb adds noise of the model's std to
+    every particle."""
     import numpy as np
 
     from bgc.diagnosis.runtime import load_package
@@ -534,7 +534,8 @@ def test_blocked_transition_matches_unblocked_for_a_partial_last_block():
     u = m.inputs(0.0)
     whole = m.predict(x, u, m.THETA, m.DT)
     one_by_one = np.column_stack([m.predict(x[:, i:i + 1], u, m.THETA, m.DT) for i in (0, block, n - 1)])
-    assert np.array_equal(whole[:, [0, block, n - 1]], one_by_one)
+    # equal up to the summation order of the matrix product (BLAS kernels differ with N)
+    np.testing.assert_allclose(whole[:, [0, block, n - 1]], one_by_one, rtol=1e-13, atol=0)
     inplace = x.copy()
     m.predict(inplace, u, m.THETA, m.DT, out=inplace)
     assert np.array_equal(inplace, whole)

@@ -47,6 +47,31 @@ def inputs(t):
     return np.array([10.0], dtype=float)
 
 
+_LINEAR = {}
+
+
+def _linear(u, theta):
+    """A, b of the part of dx/dt that is linear in x, dx/dt = A x + b + rest(x),
+    computed once per (u, theta) and cached."""
+    key = (tuple(theta), tuple(u))
+    hit = _LINEAR.get(key)
+    if hit is None:
+        V = u[0]
+        C1, C2, L, R1, R2, R3 = theta
+        A = np.array([
+            [-1/(C1*R2), 1/(C1*R2), 0, 0, 0],
+            [1/(C2*R2), -1/(C2*R2), -1/C2, 0, 0],
+            [0, L**(-1.0), -R3/L, 0, 0],
+            [0, 0, 0, 0, 1],
+            [0, 0, 0, 0, 0],
+        ], dtype=float)
+        b = np.array([0, 0, 0, 0, 0], dtype=float)[:, None]
+        if len(_LINEAR) > 256:
+            _LINEAR.clear()
+        _LINEAR[key] = hit = (A, b)
+    return hit
+
+
 def derivative(x, u, theta):
     """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N)."""
     e4 = x[0]
@@ -56,14 +81,10 @@ def derivative(x, u, theta):
     V = u[0]
     C1, C2, L, R1, R2, R3 = theta
     R1 = x[3]
-    _c0 = -e8
-    _c1 = (R2**(-1.0))*(_c0 + e4)
-    _dx = np.empty_like(x)
-    _dx[0] = (C1**(-1.0))*(-_c1 + (V - e4)/R1)
-    _dx[1] = (C2**(-1.0))*(_c1 - f10)
-    _dx[2] = (L**(-1.0))*((-R3)*f10 - _c0)
-    _dx[3] = delta_R1
-    _dx[4] = 0
+    _A, _b = _linear(u, theta)
+    _dx = _A @ x
+    _dx += _b
+    _dx[0] += (C1**(-1.0))*(V - e4)/R1
     return _dx
 
 

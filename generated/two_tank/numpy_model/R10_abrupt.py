@@ -47,6 +47,29 @@ def inputs(t):
     return np.array([1.0], dtype=float)
 
 
+_LINEAR = {}
+
+
+def _linear(u, theta):
+    """A, b of the part of dx/dt that is linear in x, dx/dt = A x + b + rest(x),
+    computed once per (u, theta) and cached."""
+    key = (tuple(theta), tuple(u))
+    hit = _LINEAR.get(key)
+    if hit is None:
+        f_in = u[0]
+        C1, C2, R10, R12, R20 = theta
+        A = np.array([
+            [-1/(C1*R12), 1/(C1*R12), 0],
+            [1/(C2*R12), -1/(C2*R20) - 1/(C2*R12), 0],
+            [0, 0, 0],
+        ], dtype=float)
+        b = np.array([f_in/C1, 0, 0], dtype=float)[:, None]
+        if len(_LINEAR) > 256:
+            _LINEAR.clear()
+        _LINEAR[key] = hit = (A, b)
+    return hit
+
+
 def derivative(x, u, theta):
     """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N)."""
     e2 = x[0]
@@ -55,11 +78,10 @@ def derivative(x, u, theta):
     f_in = u[0]
     C1, C2, R10, R12, R20 = theta
     R10 = R10 + x[2]
-    _c0 = (R12**(-1.0))*(e2 - e7)
-    _dx = np.empty_like(x)
-    _dx[0] = (C1**(-1.0))*(-_c0 + f_in + (-1/R10)*e2)
-    _dx[1] = (C2**(-1.0))*(_c0 + (-1/R20)*e7)
-    _dx[2] = 0
+    _A, _b = _linear(u, theta)
+    _dx = _A @ x
+    _dx += _b
+    _dx[0] += (-1/C1)*e2/R10
     return _dx
 
 
@@ -87,7 +109,7 @@ def observe(x, u, theta):
     C1, C2, R10, R12, R20 = theta
     R10 = R10 + x[2]
     _y = np.empty((3, x.shape[1]))
-    _y[0] = (R10**(-1.0))*e2
+    _y[0] = e2/R10
     _y[1] = (R12**(-1.0))*(e2 - e7)
     _y[2] = (R20**(-1.0))*e7
     return _y
