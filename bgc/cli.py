@@ -74,10 +74,11 @@ def cmd_compile(args: argparse.Namespace) -> int:
     for path in args.models:
         start = time.perf_counter()
         c = pipeline.compile_model(path)
-        files: dict[str, str | bytes] = dict(codegen.text_files(c.dbn))
+        texts = codegen.text_files(c.dbn)
+        files: dict[str, str | bytes] = dict(texts)
         outdir = Path(args.output) / c.model.name
         if args.check:
-            diffs = artifacts.diff(outdir, codegen.text_files(c.dbn))
+            diffs = artifacts.diff(outdir, texts)
             if diffs:
                 for d in diffs:
                     print(d, file=sys.stderr)

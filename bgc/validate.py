@@ -168,15 +168,21 @@ class _Validator:
             return False
         return True
 
+    def expression_name_ok(self, name: str, path: tuple, what: str) -> bool:
+        """A name expressions use (parameter, input): an identifier, and not a bond variable."""
+        if not self.name_ok(name, path, what):
+            return False
+        if _BOND_VARIABLE.match(name):
+            self.error(f"{what} name '{name}' looks like a bond variable", path,
+                       "names e<N> and f<N> are the efforts and flows of bonds: rename it", key=True)
+            return False
+        return True
+
     def parameters(self, raw: dict) -> tuple[Parameter, ...]:
         out = []
         for name in sorted(raw):
             path = ("parameters", name)
-            if self.bad(path) or not self.name_ok(name, path, "parameter"):
-                continue
-            if _BOND_VARIABLE.match(name):
-                self.error(f"parameter name '{name}' looks like a bond variable", path,
-                           "names e<N> and f<N> are the efforts and flows of bonds: rename it", key=True)
+            if self.bad(path) or not self.expression_name_ok(name, path, "parameter"):
                 continue
             spec = raw[name]
             if isinstance(spec, dict):
@@ -190,11 +196,7 @@ class _Validator:
         out = []
         for name in sorted(raw):
             path = ("inputs", name)
-            if self.bad(path) or not self.name_ok(name, path, "input"):
-                continue
-            if _BOND_VARIABLE.match(name):
-                self.error(f"input name '{name}' looks like a bond variable", path,
-                           "names e<N> and f<N> are the efforts and flows of bonds: rename it", key=True)
+            if self.bad(path) or not self.expression_name_ok(name, path, "input"):
                 continue
             spec = raw[name]
             if not isinstance(spec, dict):

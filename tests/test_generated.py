@@ -7,14 +7,14 @@ import pytest
 from bgc import artifacts, codegen
 from bgc.pipeline import compile_model
 
-from conftest import ROOT
+from conftest import ROOT, compiled
 
 MODELS = ["circuit", "two_tank", "ro"]
 
 
 @pytest.mark.parametrize("name", MODELS)
 def test_generated_text_matches_compiler_byte_for_byte(name):
-    c = compile_model(ROOT / "models" / f"{name}.yaml")
+    c = compiled(name)
     files = codegen.text_files(c.dbn)
     diffs = artifacts.diff(ROOT / "generated" / name, files)
     assert not diffs, ("generated/ is out of date; refresh with: bgc compile models/" + name + ".yaml\n"
@@ -23,7 +23,7 @@ def test_generated_text_matches_compiler_byte_for_byte(name):
 
 @pytest.mark.parametrize("name", MODELS)
 def test_generated_has_no_stray_files_and_pictures_parse(name):
-    c = compile_model(ROOT / "models" / f"{name}.yaml")
+    c = compiled(name)
     expected = set(codegen.text_files(c.dbn)) | set(codegen.picture_names(c.dbn))
     on_disk = {str(p.relative_to(ROOT / "generated" / name)) for p in (ROOT / "generated" / name).rglob("*")
                if p.is_file()}
