@@ -209,11 +209,29 @@ def package_files(m: DbnModel) -> dict[str, str]:
         # Arrays: the states, and a fault parameter replaced by a state expression.
         arrays = frozenset(states) | ({d.parameter} if d.parameter is not None else frozenset())
         splits = [split_linear(f, states, arrays) for f in rhs]
-        rest_rows = [i for i, (_, _, r) in enumerate(splits) if r != 0]
-        rhs_lines, rhs_out = cse_block([splits[i][2] for i in rest_rows], arrays=arrays)
-        linear_rows = [", ".join(print_expr(a.get(j, sympy.Integer(0))) for j in range(len(states)))
-                       for a, _, _ in splits]
-        linear_b = ", ".join(print_expr(b) for _, b, _ in splits)
+        # The matrix product covers the smallest block of rows and columns that
+        # holds every nonzero of A; rows outside it are written whole.
+        nz = [(i, j) for i, (a, _, _) in enumerate(splits) for j, c in a.items() if c != 0]
+        rows = range(min(i for i, _ in nz), max(i for i, _ in nz) + 1) if nz else range(0)
+        cols = range(min(j for _, j in nz), max(j for _, j in nz) + 1) if nz else range(0)
+        exprs, targets = [], []
+        for i, (_, b, r) in enumerate(splits):
+            if i in rows:
+                if r != 0:
+                    exprs.append(r)
+                    targets.append(f"_dx[{i}] += ")
+            else:
+                exprs.append(r + b)
+                targets.append(f"_dx[{i}] = ")
+        rhs_lines, rhs_out = cse_block(exprs, arrays=arrays)
+        rhs_assign = [t + (e if e != "0" else "0.0") for t, e in zip(targets, rhs_out)]
+
+        def span(r: range, n: int) -> str:
+            return "" if (r.start, r.stop) == (0, n) else f"[{r.start}:{r.stop}]"
+
+        linear_rows = [", ".join(print_expr(splits[i][0].get(j, sympy.Integer(0))) for j in cols) for i in rows]
+        linear_b = ", ".join(print_expr(splits[i][1]) for i in rows)
+        has_b = any(splits[i][1] != 0 for i in rows)
         linear_unpack = [line for n, line in named if n in ssm.inputs] + \
             ([f"{', '.join(ssm.parameters)}{',' if len(ssm.parameters) == 1 else ''} = theta"]
              if ssm.parameters else [])
@@ -240,9 +258,11 @@ def package_files(m: DbnModel) -> dict[str, str]:
             "fault": fault_ctx, "fault_dict": repr({"parameter": d.parameter, "kind": d.kind}) if d.parameter else "None",
             "n_physical": len(ssm.states),
             "input_exprs": [modelspec.input_code(i.signal) for i in model.inputs],
-            "unpack": unpack, "rhs_cse": rhs_lines,
-            "rhs_assign": [f"_dx[{i}] += {e}" for i, e in zip(rest_rows, rhs_out)],
+            "unpack": unpack, "rhs_cse": rhs_lines, "rhs_assign": rhs_assign,
             "linear_rows": linear_rows, "linear_b": linear_b, "linear_unpack": linear_unpack,
+            "has_linear": bool(nz), "has_b": has_b, "linear_note": (
+                f"rows {rows.start}..{rows.stop - 1}, columns {cols.start}..{cols.stop - 1}" if nz else ""),
+            "x_cols": "x" + span(cols, len(states)), "dx_rows": "_dx" + span(rows, len(states)),
             "unpack_out": unpack_out, "out_cse": out_lines,
             "out_assign": [f"_y[{i}] = {e}" for i, e in enumerate(out_out)],
             "predictive_std": _floats(num.predictive_std),

@@ -52,27 +52,28 @@ _LINEAR = {}
 
 def _linear(u, theta):
     """A, b of the part of dx/dt that is linear in x, dx/dt = A x + b + rest(x),
-    computed once per (u, theta) and cached."""
+    over the block of A that holds its nonzeros (rows 0..2, columns 0..2); computed
+    once per (u, theta) and cached."""
     key = (tuple(theta), tuple(u))
     hit = _LINEAR.get(key)
     if hit is None:
         V = u[0]
         C1, C2, L, R1, R2, R3 = theta
         A = np.array([
-            [-1/(C1*R2) - 1/(C1*R1), 1/(C1*R2), 0, 0],
-            [1/(C2*R2), -1/(C2*R2), -1/C2, 0],
-            [0, L**(-1.0), 0, 0],
-            [0, 0, 0, 0],
+            [-1/(C1*R2) - 1/(C1*R1), 1/(C1*R2), 0],
+            [1/(C2*R2), -1/(C2*R2), -1/C2],
+            [0, L**(-1.0), 0],
         ], dtype=float)
-        b = np.array([V/(C1*R1), 0, 0, 0], dtype=float)[:, None]
+        b = np.array([V/(C1*R1), 0, 0], dtype=float)[:, None]
         if len(_LINEAR) > 256:
             _LINEAR.clear()
         _LINEAR[key] = hit = (A, b)
     return hit
 
 
-def derivative(x, u, theta):
-    """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N)."""
+def derivative(x, u, theta, out=None):
+    """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N),
+    written into ``out`` when it is given."""
     e4 = x[0]
     e8 = x[1]
     f10 = x[2]
@@ -80,10 +81,12 @@ def derivative(x, u, theta):
     V = u[0]
     C1, C2, L, R1, R2, R3 = theta
     R3 = R3 + x[3]
+    _dx = np.empty(x.shape) if out is None else out
     _A, _b = _linear(u, theta)
-    _dx = _A @ x
-    _dx += _b
+    np.matmul(_A, x[0:3], out=_dx[0:3])
+    _dx[0:3] += _b
     _dx[2] += (-1/L)*R3*f10
+    _dx[3] = 0.0
     return _dx
 
 
@@ -104,15 +107,16 @@ def transition(x, u, theta, dt, rng, out=None):
     return perturb(predict(x, u, theta, dt, out), rng)
 
 
-def observe(x, u, theta):
-    """Noise-free measurements for every particle: (n_y, N)."""
+def observe(x, u, theta, out=None):
+    """Noise-free measurements for every particle: (n_y, N), written into
+    ``out`` when it is given."""
     e4 = x[0]
     e8 = x[1]
     f10 = x[2]
     V = u[0]
     C1, C2, L, R1, R2, R3 = theta
     R3 = R3 + x[3]
-    _y = np.empty((3, x.shape[1]))
+    _y = np.empty((3, x.shape[1])) if out is None else out
     _y[0] = R3*f10
     _y[1] = (R1**(-1.0))*(V - e4)
     _y[2] = (R2**(-1.0))*(e4 - e8)

@@ -52,7 +52,8 @@ _LINEAR = {}
 
 def _linear(u, theta):
     """A, b of the part of dx/dt that is linear in x, dx/dt = A x + b + rest(x),
-    computed once per (u, theta) and cached."""
+    over the block of A that holds its nonzeros (rows 0..5, columns 0..6); computed
+    once per (u, theta) and cached."""
     key = (tuple(theta), tuple(u))
     hit = _LINEAR.get(key)
     if hit is None:
@@ -66,17 +67,17 @@ def _linear(u, theta):
             [0, -m2/(I_rp*R_pipe), m2/(I_rp*R_pipe), -m2**2/(I_rp*R_pipe), 0, 0, 0],
             [0, 0, 0, 0, 0, 0, 0],
             [0, 0, 0, 0, 0, 0, 1],
-            [0, 0, 0, 0, 0, 0, 0],
         ], dtype=float)
-        b = np.array([tau_fp/I_fp, 0, 0, tau_rp/I_rp, 0, 0, 0], dtype=float)[:, None]
+        b = np.array([tau_fp/I_fp, 0, 0, tau_rp/I_rp, 0, 0], dtype=float)[:, None]
         if len(_LINEAR) > 256:
             _LINEAR.clear()
         _LINEAR[key] = hit = (A, b)
     return hit
 
 
-def derivative(x, u, theta):
-    """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N)."""
+def derivative(x, u, theta, out=None):
+    """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N),
+    written into ``out`` when it is given."""
     f3 = x[0]
     e6 = x[1]
     e13 = x[2]
@@ -87,12 +88,14 @@ def derivative(x, u, theta):
     tau_rp = u[1]
     C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
     R_rp = x[5]
+    _dx = np.empty(x.shape) if out is None else out
     _A, _b = _linear(u, theta)
-    _dx = _A @ x
-    _dx += _b
+    np.matmul(_A, x, out=_dx[0:6])
+    _dx[0:6] += _b
     _dx[2] += (-29/(C_memb*R_memb))*e13/(29 + (K_slope**(-1.0))*(-K0 + e27))
     _dx[3] += (-1/I_rp)*R_rp*f22
     _dx[4] += (k_scale/(C_k*R_pipe))*(0.1 + (6*k_scale/R_brine)*(e13 - e6))*(-e13 + e6 + (m2)*f22)
+    _dx[6] = 0.0
     return _dx
 
 
@@ -113,15 +116,16 @@ def transition(x, u, theta, dt, rng, out=None):
     return perturb(predict(x, u, theta, dt, out), rng)
 
 
-def observe(x, u, theta):
-    """Noise-free measurements for every particle: (n_y, N)."""
+def observe(x, u, theta, out=None):
+    """Noise-free measurements for every particle: (n_y, N), written into
+    ``out`` when it is given."""
     e6 = x[1]
     e13 = x[2]
     f22 = x[3]
     e27 = x[4]
     C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
     R_rp = x[5]
-    _y = np.empty((4, x.shape[1]))
+    _y = np.empty((4, x.shape[1])) if out is None else out
     _y[0] = (R_brine**(-1.0))*(e13 - e6)
     _y[1] = (R_pipe**(-1.0))*(-e13 + e6 + (m2)*f22)
     _y[2] = (29/R_memb)*e13/(29 + (K_slope**(-1.0))*(-K0 + e27))

@@ -49,7 +49,8 @@ _LINEAR = {}
 
 def _linear(u, theta):
     """A, b of the part of dx/dt that is linear in x, dx/dt = A x + b + rest(x),
-    computed once per (u, theta) and cached."""
+    over the block of A that holds its nonzeros (rows 0..3, columns 0..3); computed
+    once per (u, theta) and cached."""
     key = (tuple(theta), tuple(u))
     hit = _LINEAR.get(key)
     if hit is None:
@@ -57,21 +58,21 @@ def _linear(u, theta):
         tau_rp = u[1]
         C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
         A = np.array([
-            [-R_fp/I_fp, -m1/I_fp, 0, 0, 0],
-            [m1/C_res, -1/(C_res*R_pipe) - 1/(C_res*R_brine), 1/(C_res*R_pipe) + 1/(C_res*R_brine), -m2/(C_res*R_pipe), 0],
-            [0, 1/(C_memb*R_pipe) + 1/(C_memb*R_brine), -1/(C_memb*R_pipe) - 1/(C_memb*R_brine), m2/(C_memb*R_pipe), 0],
-            [0, -m2/(I_rp*R_pipe), m2/(I_rp*R_pipe), -R_rp/I_rp - m2**2/(I_rp*R_pipe), 0],
-            [0, 0, 0, 0, 0],
+            [-R_fp/I_fp, -m1/I_fp, 0, 0],
+            [m1/C_res, -1/(C_res*R_pipe) - 1/(C_res*R_brine), 1/(C_res*R_pipe) + 1/(C_res*R_brine), -m2/(C_res*R_pipe)],
+            [0, 1/(C_memb*R_pipe) + 1/(C_memb*R_brine), -1/(C_memb*R_pipe) - 1/(C_memb*R_brine), m2/(C_memb*R_pipe)],
+            [0, -m2/(I_rp*R_pipe), m2/(I_rp*R_pipe), -R_rp/I_rp - m2**2/(I_rp*R_pipe)],
         ], dtype=float)
-        b = np.array([tau_fp/I_fp, 0, 0, tau_rp/I_rp, 0], dtype=float)[:, None]
+        b = np.array([tau_fp/I_fp, 0, 0, tau_rp/I_rp], dtype=float)[:, None]
         if len(_LINEAR) > 256:
             _LINEAR.clear()
         _LINEAR[key] = hit = (A, b)
     return hit
 
 
-def derivative(x, u, theta):
-    """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N)."""
+def derivative(x, u, theta, out=None):
+    """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N),
+    written into ``out`` when it is given."""
     f3 = x[0]
     e6 = x[1]
     e13 = x[2]
@@ -80,11 +81,12 @@ def derivative(x, u, theta):
     tau_fp = u[0]
     tau_rp = u[1]
     C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
+    _dx = np.empty(x.shape) if out is None else out
     _A, _b = _linear(u, theta)
-    _dx = _A @ x
-    _dx += _b
+    np.matmul(_A, x[0:4], out=_dx[0:4])
+    _dx[0:4] += _b
     _dx[2] += (-29/(C_memb*R_memb))*e13/(29 + (K_slope**(-1.0))*(-K0 + e27))
-    _dx[4] += (k_scale/(C_k*R_pipe))*(0.1 + (6*k_scale/R_brine)*(e13 - e6))*(-e13 + e6 + (m2)*f22)
+    _dx[4] = (k_scale/(C_k*R_pipe))*(0.1 + (6*k_scale/R_brine)*(e13 - e6))*(-e13 + e6 + (m2)*f22)
     return _dx
 
 
@@ -105,14 +107,15 @@ def transition(x, u, theta, dt, rng, out=None):
     return perturb(predict(x, u, theta, dt, out), rng)
 
 
-def observe(x, u, theta):
-    """Noise-free measurements for every particle: (n_y, N)."""
+def observe(x, u, theta, out=None):
+    """Noise-free measurements for every particle: (n_y, N), written into
+    ``out`` when it is given."""
     e6 = x[1]
     e13 = x[2]
     f22 = x[3]
     e27 = x[4]
     C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
-    _y = np.empty((4, x.shape[1]))
+    _y = np.empty((4, x.shape[1])) if out is None else out
     _y[0] = (R_brine**(-1.0))*(e13 - e6)
     _y[1] = (R_pipe**(-1.0))*(-e13 + e6 + (m2)*f22)
     _y[2] = (29/R_memb)*e13/(29 + (K_slope**(-1.0))*(-K0 + e27))

@@ -52,36 +52,39 @@ _LINEAR = {}
 
 def _linear(u, theta):
     """A, b of the part of dx/dt that is linear in x, dx/dt = A x + b + rest(x),
-    computed once per (u, theta) and cached."""
+    over the block of A that holds its nonzeros (rows 0..1, columns 0..1); computed
+    once per (u, theta) and cached."""
     key = (tuple(theta), tuple(u))
     hit = _LINEAR.get(key)
     if hit is None:
         f_in = u[0]
         C1, C2, R10, R12, R20 = theta
         A = np.array([
-            [-1/(C1*R12) - 1/(C1*R10), 1/(C1*R12), 0],
-            [1/(C2*R12), -1/(C2*R12), 0],
-            [0, 0, 0],
+            [-1/(C1*R12) - 1/(C1*R10), 1/(C1*R12)],
+            [1/(C2*R12), -1/(C2*R12)],
         ], dtype=float)
-        b = np.array([f_in/C1, 0, 0], dtype=float)[:, None]
+        b = np.array([f_in/C1, 0], dtype=float)[:, None]
         if len(_LINEAR) > 256:
             _LINEAR.clear()
         _LINEAR[key] = hit = (A, b)
     return hit
 
 
-def derivative(x, u, theta):
-    """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N)."""
+def derivative(x, u, theta, out=None):
+    """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N),
+    written into ``out`` when it is given."""
     e2 = x[0]
     e7 = x[1]
     delta_R20 = x[2]
     f_in = u[0]
     C1, C2, R10, R12, R20 = theta
     R20 = R20 + x[2]
+    _dx = np.empty(x.shape) if out is None else out
     _A, _b = _linear(u, theta)
-    _dx = _A @ x
-    _dx += _b
+    np.matmul(_A, x[0:2], out=_dx[0:2])
+    _dx[0:2] += _b
     _dx[1] += (-1/C2)*e7/R20
+    _dx[2] = 0.0
     return _dx
 
 
@@ -102,13 +105,14 @@ def transition(x, u, theta, dt, rng, out=None):
     return perturb(predict(x, u, theta, dt, out), rng)
 
 
-def observe(x, u, theta):
-    """Noise-free measurements for every particle: (n_y, N)."""
+def observe(x, u, theta, out=None):
+    """Noise-free measurements for every particle: (n_y, N), written into
+    ``out`` when it is given."""
     e2 = x[0]
     e7 = x[1]
     C1, C2, R10, R12, R20 = theta
     R20 = R20 + x[2]
-    _y = np.empty((3, x.shape[1]))
+    _y = np.empty((3, x.shape[1])) if out is None else out
     _y[0] = (R10**(-1.0))*e2
     _y[1] = (R12**(-1.0))*(e2 - e7)
     _y[2] = e7/R20

@@ -20,19 +20,25 @@ import numpy as np
 
 
 def systematic_resample(logw, rng):
-    """Ancestor indices by systematic resampling (one uniform draw), O(N)."""
+    """Ancestor indices by systematic resampling (one uniform draw U), in O(N):
+    with the positions (j + U) / N and c the cumulative normalised weights,
+    particle i is the ancestor of the positions in (c[i-1], c[i]], that is of
+    K[i] - K[i-1] of them, K[i] = floor(N c[i] - U) + 1 (K[N-1] = N); no search."""
     n = logw.shape[0]
-    cumulative = np.subtract(logw, logw.max())
-    np.exp(cumulative, out=cumulative)
-    np.cumsum(cumulative, out=cumulative)
-    cumulative /= cumulative[-1]
-    positions = np.arange(n, dtype=float)
-    positions += rng.random()
-    positions /= n
-    ancestors = np.searchsorted(cumulative, positions)
-    del positions, cumulative
-    np.minimum(ancestors, n - 1, out=ancestors)
-    return ancestors
+    c = np.subtract(logw, logw.max())
+    np.exp(c, out=c)
+    np.cumsum(c, out=c)
+    c *= n / c[-1]
+    c -= rng.random()
+    np.floor(c, out=c)
+    np.minimum(c, n - 1, out=c)
+    c[-1] = n - 1
+    k = c.astype(np.intp)
+    del c
+    counts = np.empty(n, np.intp)
+    counts[0] = k[0] + 1
+    np.subtract(k[1:], k[:-1], out=counts[1:])
+    return np.repeat(np.arange(n), counts)
 
 
 def normalise(logw):
@@ -159,7 +165,7 @@ class GenericParticleFilter(_Filter):
         """log p(y | x) of every particle (None without y) and the predicted
         measurement, observing one block of particles at a time."""
         n = self.n
-        block = getattr(getattr(self.model, "_kernel", None), "BLOCK", 8192)
+        kernel = self.model._kernel
         w = np.subtract(self.logw, self.logw.max())
         np.exp(w, out=w)
         w /= w.sum()
@@ -167,9 +173,11 @@ class GenericParticleFilter(_Filter):
         s1 = np.zeros(n_y)
         s2 = np.zeros(n_y)
         loglik = np.empty(n) if y is not None else None
-        for start in range(0, n, block):
-            stop = min(start + block, n)
-            yhat = self.model.observe(self.x[:, start:stop], u, self.theta)
+        parts, width = kernel.spans(n)
+        (scratch,) = kernel.block_views("observe", 1, n_y, width)
+        for start, stop in parts:
+            yhat = scratch[:, :stop - start]
+            self.model.observe(self.x[:, start:stop], u, self.theta, out=yhat)
             if y is not None:
                 loglik[start:stop] = self.model.loglik_observed(y, yhat)
             wb = w[start:stop]
