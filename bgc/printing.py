@@ -54,6 +54,33 @@ class StrictNumPyPrinter(NumPyPrinter):
             rest_text = f"({rest_text})"
         return f"({self._print(coefficient)})*{rest_text}"
 
+    def _print_Add(self, expr: sympy.Add, order: str | None = None) -> str:
+        """As sympy prints it, except with arrays: the terms without arrays come
+        first (Python adds them as floats, then one array operation adds their
+        sum), and then an array term without a minus sign comes first: ``e6 - e13``
+        (one array operation), not ``-e13 + e6`` (two)."""
+        if not self.arrays:
+            return super()._print_Add(expr, order)
+        from sympy.printing.precedence import precedence
+
+        ordered = self._as_ordered_terms(expr, order=None)
+        scalar = [t for t in ordered if not any(s.name in self.arrays for s in t.free_symbols)]
+        terms = scalar + [t for t in ordered if t not in scalar]
+        printed = [self._print(t) for t in terms]
+        first = 0 if scalar else next((i for i, t in enumerate(printed) if not t.startswith("-")), 0)
+        order_ = [first] + [i for i in range(len(terms)) if i != first]
+        parts: list[str] = []
+        for i in order_:
+            text = printed[i]
+            sign = "+"
+            if text.startswith("-"):
+                sign, text = "-", text[1:]
+            if precedence(terms[i]) < precedence(expr) or isinstance(terms[i], sympy.Add):
+                text = f"({text})"
+            parts += [sign, text]
+        head = parts.pop(0)
+        return ("" if head == "+" else head) + " ".join(parts)
+
     def _module_format(self, fqn: str, register: bool = True) -> str:
         text = super()._module_format(fqn, register)
         return "np." + text[len("numpy."):] if text.startswith("numpy.") else text
@@ -179,6 +206,88 @@ def split_linear(expr: sympy.Expr, states: Sequence[str], arrays: frozenset[str]
     return coefficients, constant, rest
 
 
+def array_op_count(expr: sympy.Expr, arrays: frozenset[str]) -> int:
+    """Number of NumPy operations on arrays the printed ``expr`` performs: the
+    operators and calls whose operands include an array name."""
+    import ast
+
+    tree = ast.parse(print_expr(expr, arrays=arrays), mode="eval")
+
+    def has_array(node: ast.AST) -> bool:
+        return any(isinstance(n, ast.Name) and n.id in arrays for n in ast.walk(node))
+
+    return sum(1 for n in ast.walk(tree) if isinstance(n, (ast.BinOp, ast.UnaryOp, ast.Call)) and has_array(n))
+
+
+def _divides_safely(c: sympy.Expr) -> bool:
+    """True when dividing by ``c`` adds no singularity: ``c`` is a product of
+    negative powers (of parameters or their sums) and nonzero numbers, e.g. 1/K
+    or 2/(R1*C1), so that ``t / c`` only multiplies ``t``."""
+    if not c.free_symbols:
+        return False
+    for f in (c.args if isinstance(c, sympy.Mul) else (c,)):
+        if f.is_Number and f != 0:
+            continue
+        if isinstance(f, sympy.Pow) and f.exp.is_number and f.exp.is_negative:
+            continue
+        return False
+    return True
+
+
+def fewer_array_ops(expr: sympy.Expr, arrays: frozenset[str]) -> sympy.Expr:
+    """An equal expression that costs fewer array operations, or ``expr``.
+
+    A sum over arrays ``c*x + c*y*z + k`` (scalars c, k) becomes
+    ``c*(x + y*z + k/c)`` when c divides safely (see :func:`_divides_safely`),
+    scalar factors of inner sums being distributed first: the common factor
+    then joins the scalar factors of the enclosing product, which Python folds
+    into one float. A rewrite is kept only where :func:`array_op_count` drops.
+
+    Examples
+    --------
+    >>> e13, e27, K0, Ks = sympy.symbols("e13 e27 K0 K_slope")
+    >>> e = e13 / (29 + (e27 - K0) / Ks)
+    >>> print(print_expr(fewer_array_ops(e, frozenset({"e13", "e27"})), arrays=frozenset({"e13", "e27"})))
+    (K_slope)*e13/(-K0 + 29*K_slope + e27)
+    """
+
+    def is_array(e: sympy.Expr) -> bool:
+        return any(s.name in arrays for s in e.free_symbols)
+
+    def rewrite(e: sympy.Expr) -> sympy.Expr:
+        if not e.args or not is_array(e):
+            return e
+        e = e.func(*[rewrite(a) for a in e.args])
+        if not isinstance(e, sympy.Add):
+            return e
+        terms: list[sympy.Expr] = []
+        for t in e.args:
+            if isinstance(t, sympy.Mul):
+                inner = [a for a in t.args if isinstance(a, sympy.Add) and is_array(a)]
+                rest = [a for a in t.args if not (isinstance(a, sympy.Add) and is_array(a))]
+                if len(inner) == 1 and not any(is_array(a) for a in rest):
+                    terms += [sympy.Mul(*rest) * a for a in inner[0].args]
+                    continue
+            terms.append(t)
+        symbols = [sympy.Symbol(a) for a in sorted(arrays)]
+        split = [t.as_independent(*symbols, as_Add=False) if is_array(t) else (t, None) for t in terms]
+        best, best_cost = e, array_op_count(e, arrays)
+        seen: set[sympy.Expr] = set()
+        for c, m in split:
+            if m is None or c in seen or not _divides_safely(c):
+                continue
+            seen.add(c)
+            inner = sympy.Add(*[(cc / c) * (mm if mm is not None else 1) for cc, mm in split])
+            candidate = sympy.Mul(c, inner)
+            cost = array_op_count(candidate, arrays)
+            if cost < best_cost:
+                best, best_cost = candidate, cost
+        return best
+
+    out = rewrite(expr)
+    return out if array_op_count(out, arrays) < array_op_count(expr, arrays) else expr
+
+
 def cse_block(exprs: Sequence[sympy.Expr], prefix: str = "_c",
               arrays: frozenset[str] = frozenset()) -> tuple[list[str], list[str]]:
     """CSE over ``exprs``: (assignment lines, printed reduced expressions).
@@ -187,7 +296,7 @@ def cse_block(exprs: Sequence[sympy.Expr], prefix: str = "_c",
     prints its scalar factors as one group, computed in Python floats before a
     single array operation.
     """
-    exprs = list(exprs)
+    exprs = [fewer_array_ops(e, arrays) for e in exprs] if arrays else list(exprs)
     symbols = sympy.numbered_symbols(prefix)
     replacements, reduced = sympy.cse(exprs, symbols=symbols, order="canonical")
     temps = frozenset(s.name for s, _ in replacements)

@@ -85,7 +85,7 @@ def derivative(x, u, theta, out=None):
     _A, _b = _linear(u, theta)
     np.matmul(_A, x[0:3], out=_dx[0:3])
     _dx[0:3] += _b
-    _dx[1] += (-f10 + (R2**(-1.0))*(e4 - e8))/C2
+    _dx[1] += ((R2**(-1.0))*(e4 - e8) - f10)/C2
     _dx[3] = 0.0
     return _dx
 

@@ -92,9 +92,10 @@ def derivative(x, u, theta, out=None):
     _dx[0:4] += _b
     _c0 = (R_brine**(-1.0))*(e13 - e6)
     _c1 = R_pipe**(-1.0)
-    _c2 = -e13 + e6 + (m2)*f22
-    _dx[2] += (-_c0 + (_c1)*_c2 + (-29/R_memb)*e13/(29 + (K_slope**(-1.0))*(-K0 + e27)))/C_memb
-    _dx[4] = (_c1*k_scale/C_k)*_c2*((6*k_scale)*_c0 + 0.1)
+    _c2 = e6 - e13 + (m2)*f22
+    _c3 = 29*K_slope
+    _dx[2] += ((_c1)*_c2 - _c0 + (-_c3/R_memb)*e13/(-K0 + _c3 + e27))/C_memb
+    _dx[4] = (_c1*k_scale/C_k)*_c2*(0.1 + (6*k_scale)*_c0)
     _dx[5] = 0.0
     return _dx
 
@@ -125,10 +126,11 @@ def observe(x, u, theta, out=None):
     e27 = x[4]
     C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
     C_memb = C_memb + x[5]
+    _c0 = 29*K_slope
     _y = np.empty((4, x.shape[1])) if out is None else out
     _y[0] = (R_brine**(-1.0))*(e13 - e6)
-    _y[1] = (R_pipe**(-1.0))*(-e13 + e6 + (m2)*f22)
-    _y[2] = (29/R_memb)*e13/(29 + (K_slope**(-1.0))*(-K0 + e27))
+    _y[1] = (R_pipe**(-1.0))*(e6 - e13 + (m2)*f22)
+    _y[2] = (_c0/R_memb)*e13/(-K0 + _c0 + e27)
     _y[3] = e13
     return _y
 

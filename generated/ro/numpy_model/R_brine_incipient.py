@@ -94,9 +94,10 @@ def derivative(x, u, theta, out=None):
     _dx[0:6] += _b
     _c0 = (e13 - e6)/R_brine
     _c1 = C_memb**(-1.0)
+    _c2 = 29*K_slope
     _dx[1] += (C_res**(-1.0))*_c0
-    _dx[2] += (-_c1)*_c0 + (-29*_c1/R_memb)*e13/(29 + (K_slope**(-1.0))*(-K0 + e27))
-    _dx[4] += (k_scale/(C_k*R_pipe))*((6*k_scale)*_c0 + 0.1)*(-e13 + e6 + (m2)*f22)
+    _dx[2] += (-_c1)*_c0 + (-_c1*_c2/R_memb)*e13/(-K0 + _c2 + e27)
+    _dx[4] += (k_scale/(C_k*R_pipe))*(0.1 + (6*k_scale)*_c0)*(e6 - e13 + (m2)*f22)
     _dx[6] = 0.0
     return _dx
 
@@ -127,10 +128,11 @@ def observe(x, u, theta, out=None):
     e27 = x[4]
     C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
     R_brine = x[5]
+    _c0 = 29*K_slope
     _y = np.empty((4, x.shape[1])) if out is None else out
     _y[0] = (e13 - e6)/R_brine
-    _y[1] = (R_pipe**(-1.0))*(-e13 + e6 + (m2)*f22)
-    _y[2] = (29/R_memb)*e13/(29 + (K_slope**(-1.0))*(-K0 + e27))
+    _y[1] = (R_pipe**(-1.0))*(e6 - e13 + (m2)*f22)
+    _y[2] = (_c0/R_memb)*e13/(-K0 + _c0 + e27)
     _y[3] = e13
     return _y
 

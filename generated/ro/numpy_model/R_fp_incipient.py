@@ -92,9 +92,10 @@ def derivative(x, u, theta, out=None):
     _A, _b = _linear(u, theta)
     np.matmul(_A, x, out=_dx[0:6])
     _dx[0:6] += _b
+    _c0 = 29*K_slope
     _dx[0] += (-1/I_fp)*R_fp*f3
-    _dx[2] += (-29/(C_memb*R_memb))*e13/(29 + (K_slope**(-1.0))*(-K0 + e27))
-    _dx[4] += (k_scale/(C_k*R_pipe))*(0.1 + (6*k_scale/R_brine)*(e13 - e6))*(-e13 + e6 + (m2)*f22)
+    _dx[2] += (-_c0/(C_memb*R_memb))*e13/(-K0 + _c0 + e27)
+    _dx[4] += (k_scale/(C_k*R_pipe))*(0.1 + (6*k_scale/R_brine)*(e13 - e6))*(e6 - e13 + (m2)*f22)
     _dx[6] = 0.0
     return _dx
 
@@ -125,10 +126,11 @@ def observe(x, u, theta, out=None):
     e27 = x[4]
     C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
     R_fp = x[5]
+    _c0 = 29*K_slope
     _y = np.empty((4, x.shape[1])) if out is None else out
     _y[0] = (R_brine**(-1.0))*(e13 - e6)
-    _y[1] = (R_pipe**(-1.0))*(-e13 + e6 + (m2)*f22)
-    _y[2] = (29/R_memb)*e13/(29 + (K_slope**(-1.0))*(-K0 + e27))
+    _y[1] = (R_pipe**(-1.0))*(e6 - e13 + (m2)*f22)
+    _y[2] = (_c0/R_memb)*e13/(-K0 + _c0 + e27)
     _y[3] = e13
     return _y
 

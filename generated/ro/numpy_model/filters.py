@@ -54,18 +54,6 @@ def normalise(logw):
     return logw, ess
 
 
-def moments(a, w):
-    """Weighted mean and std of each row of a (n, N) with weights w summing to 1."""
-    mean = a @ w
-    var = np.empty(a.shape[0])
-    row = np.empty(a.shape[1])
-    for j in range(a.shape[0]):
-        np.subtract(a[j], mean[j], out=row)
-        row *= row
-        var[j] = row @ w
-    return mean, np.sqrt(np.maximum(var, 0.0))
-
-
 class StepResult:
     """What one filter step gives: weighted mean and std of the state, the
     predicted measurement (before the update), the ESS and flags."""
@@ -118,7 +106,7 @@ class _Filter:
             logw.fill(-np.log(self.n))
         self.logw = logw
         w = np.exp(logw)
-        mean, std = moments(self.x, w)
+        mean, std = self.model._kernel.moments(self.x, w)
         return StepResult(mean, std, y_mean, y_std, ess, resampled, recovered)
 
     def _predicted_measurement(self, yhat, logw=None):
@@ -127,7 +115,7 @@ class _Filter:
         logw = self.logw if logw is None else logw
         w = np.exp(logw - logw.max())
         w /= w.sum()
-        mean, std = moments(yhat, w)
+        mean, std = self.model._kernel.moments(yhat, w)
         return mean, np.sqrt(std ** 2 + self.model.MEASUREMENT_STD ** 2)
 
     def run(self, ys, us, dt=None):
