@@ -71,9 +71,10 @@ def _linear(u, theta):
     return hit
 
 
-def derivative(x, u, theta, out=None):
+def derivative(x, u, theta, out=None, linear=None):
     """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N),
-    written into ``out`` when it is given."""
+    written into ``out`` when it is given; ``linear``: _linear(u, theta), when
+    the caller has it."""
     e4 = x[0]
     e8 = x[1]
     f10 = x[2]
@@ -82,7 +83,7 @@ def derivative(x, u, theta, out=None):
     C1, C2, L, R1, R2, R3 = theta
     R1 = R1 + x[3]
     _dx = np.empty(x.shape) if out is None else out
-    _A, _b = _linear(u, theta)
+    _A, _b = _linear(u, theta) if linear is None else linear
     np.matmul(_A, x[0:3], out=_dx[0:3])
     _dx[0] += (C1**(-1.0))*(V - e4)/R1
     _dx[3] = 0.0
@@ -92,7 +93,7 @@ def derivative(x, u, theta, out=None):
 def predict(x, u, theta, dt, out=None):
     """Noise-free state after one sample period (RK4, SUBSTEPS substeps); ``out``
     may be ``x`` itself (in place)."""
-    return _kernel.rk4(derivative, x, u, theta, dt, SUBSTEPS, out)
+    return _kernel.rk4(derivative, x, u, theta, dt, SUBSTEPS, out, _linear(u, theta))
 
 
 def perturb(x, rng):

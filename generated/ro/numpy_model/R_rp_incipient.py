@@ -75,9 +75,10 @@ def _linear(u, theta):
     return hit
 
 
-def derivative(x, u, theta, out=None):
+def derivative(x, u, theta, out=None, linear=None):
     """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N),
-    written into ``out`` when it is given."""
+    written into ``out`` when it is given; ``linear``: _linear(u, theta), when
+    the caller has it."""
     f3 = x[0]
     e6 = x[1]
     e13 = x[2]
@@ -89,7 +90,7 @@ def derivative(x, u, theta, out=None):
     C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
     R_rp = x[5]
     _dx = np.empty(x.shape) if out is None else out
-    _A, _b = _linear(u, theta)
+    _A, _b = _linear(u, theta) if linear is None else linear
     np.matmul(_A, x, out=_dx[0:6])
     _dx[0:6] += _b
     _c0 = 29*K_slope
@@ -103,7 +104,7 @@ def derivative(x, u, theta, out=None):
 def predict(x, u, theta, dt, out=None):
     """Noise-free state after one sample period (RK4, SUBSTEPS substeps); ``out``
     may be ``x`` itself (in place)."""
-    return _kernel.rk4(derivative, x, u, theta, dt, SUBSTEPS, out)
+    return _kernel.rk4(derivative, x, u, theta, dt, SUBSTEPS, out, _linear(u, theta))
 
 
 def perturb(x, rng):

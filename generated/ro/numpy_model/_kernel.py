@@ -29,26 +29,33 @@ def spans(n):
 
 
 def block_views(name, count, rows, width):
-    """``count`` contiguous scratch arrays of shape (rows, width) of this thread,
-    made once and reused from call to call (contents undefined)."""
-    cache = getattr(_scratch, "views", None)
-    if cache is None:
-        cache = _scratch.views = {}
-    key = (name, count, rows, width)
-    views = cache.get(key)
+    """A contiguous scratch array of shape (count, rows, width) of this thread:
+    a view of one flat buffer per ``name``, made once and reused from call to
+    call (contents undefined)."""
+    views = getattr(_scratch, "views", None)
     if views is None:
-        if len(cache) > 32:
-            cache.clear()
-        flat = np.empty(count * rows * width)
-        views = cache[key] = [flat[i * rows * width:(i + 1) * rows * width].reshape(rows, width)
-                              for i in range(count)]
-    return views
+        views = _scratch.views = {}
+        _scratch.flat = {}
+    key = (name, count, rows, width)
+    view = views.get(key)
+    if view is None:
+        size = count * rows * width
+        flat = _scratch.flat.get(name)
+        if flat is None or flat.shape[0] < size:
+            flat = _scratch.flat[name] = np.empty(size)
+            for k in [k for k in views if k[0] == name]:
+                del views[k]
+        if len(views) > 64:
+            views.clear()
+        view = views[key] = flat[:size].reshape(count, rows, width)
+    return view
 
 
-def rk4(derivative, x, u, theta, dt, substeps, out=None):
+def rk4(derivative, x, u, theta, dt, substeps, out=None, linear=None):
     """State after dt by classical RK4 with ``substeps`` substeps, for every
     particle (column) of x; ``out`` may be ``x`` itself (in place).
-    ``derivative(x, u, theta, out)`` writes dx/dt into ``out``."""
+    ``derivative(x, u, theta, out, linear)`` writes dx/dt into ``out``;
+    ``linear`` is handed through (the model's A, b, looked up once per call)."""
     if out is None:
         out = x.copy()
     elif out is not x:
@@ -56,27 +63,27 @@ def rk4(derivative, x, u, theta, dt, substeps, out=None):
     h = dt / substeps
     n_x, n = out.shape
     parts, width = spans(n)
-    views = block_views("rk4", 5, n_x, width)
+    weights = np.array([h / 6.0, h / 3.0, h / 3.0, h / 6.0])
     for start, stop in parts:
-        k1, k2, k3, k4, s = views if stop - start == width else [v[:, :stop - start] for v in views]
+        w = stop - start
+        ks = block_views("rk4", 5, n_x, w)
+        k1, k2, k3, k4, s = ks
+        stages = ks[:4].reshape(4, n_x * w)
+        step = s.reshape(n_x * w)
         xb = out[:, start:stop]
         for _ in range(substeps):
-            derivative(xb, u, theta, k1)
+            derivative(xb, u, theta, k1, linear)
             np.multiply(k1, 0.5 * h, out=s)
             s += xb
-            derivative(s, u, theta, k2)
+            derivative(s, u, theta, k2, linear)
             np.multiply(k2, 0.5 * h, out=s)
             s += xb
-            derivative(s, u, theta, k3)
+            derivative(s, u, theta, k3, linear)
             np.multiply(k3, h, out=s)
             s += xb
-            derivative(s, u, theta, k4)
-            k2 += k3
-            k2 *= 2.0
-            k2 += k1
-            k2 += k4
-            k2 *= h / 6.0
-            xb += k2
+            derivative(s, u, theta, k4, linear)
+            np.matmul(weights, stages, out=step)  # h/6 (k1 + 2 k2 + 2 k3 + k4)
+            xb += s
     return out
 
 
@@ -85,9 +92,8 @@ def perturb(x, std, rng):
     n_x, n = x.shape
     scale = np.asarray(std, dtype=float)[:, None]
     parts, width = spans(n)
-    (flat,) = block_views("noise", 1, 1, n_x * width)
     for start, stop in parts:
-        buf = flat[0, :n_x * (stop - start)].reshape(n_x, stop - start)  # contiguous, as rng needs
+        buf = block_views("noise", 1, n_x, stop - start)[0]  # contiguous, as rng needs
         rng.standard_normal(out=buf)
         buf *= scale
         x[:, start:stop] += buf
@@ -105,11 +111,10 @@ def gaussian_loglik(y, yhat, std):
     n_y, n = yhat.shape
     weight = -0.5 / (std * std)
     total = np.empty(n)
-    parts, width = spans(n)
-    (scratch,) = block_views("loglik", 1, n_y, width)
+    parts, _ = spans(n)
     column = y[:, None]
     for start, stop in parts:
-        d = scratch[:, :stop - start]
+        d = block_views("loglik", 1, n_y, stop - start)[0]
         np.subtract(yhat[:, start:stop], column, out=d)
         d *= d
         np.matmul(weight, d, out=total[start:stop])
@@ -122,11 +127,10 @@ def moments(a, w):
     centred one block of particles at a time."""
     mean = a @ w
     var = np.zeros(a.shape[0])
-    parts, width = spans(a.shape[1])
-    (scratch,) = block_views("moments", 1, a.shape[0], width)
+    parts, _ = spans(a.shape[1])
     column = mean[:, None]
     for start, stop in parts:
-        d = scratch[:, :stop - start]
+        d = block_views("moments", 1, a.shape[0], stop - start)[0]
         np.subtract(a[:, start:stop], column, out=d)
         d *= d
         var += d @ w[start:stop]

@@ -20,14 +20,21 @@ import numpy as np
 
 
 def systematic_resample(logw, rng):
-    """Ancestor indices by systematic resampling (one uniform draw U), in O(N):
-    with the positions (j + U) / N and c the cumulative normalised weights,
-    particle i is the ancestor of the positions in (c[i-1], c[i]], that is of
-    K[i] - K[i-1] of them, K[i] = floor(N c[i] - U) + 1 (K[N-1] = N); no search."""
-    n = logw.shape[0]
-    c = np.subtract(logw, logw.max())
-    np.exp(c, out=c)
-    np.cumsum(c, out=c)
+    """Ancestor indices by systematic resampling (one uniform draw U), in O(N);
+    ``logw`` need not be normalised. See :func:`resample_weights`."""
+    w = np.subtract(logw, logw.max())
+    np.exp(w, out=w)
+    w /= w.sum()
+    return resample_weights(w, rng)
+
+
+def resample_weights(w, rng):
+    """Ancestor indices by systematic resampling of normalised weights ``w``:
+    with the positions (j + U) / N and c the cumulative weights, particle i is
+    the ancestor of the positions in (c[i-1], c[i]], that is of K[i] - K[i-1] of
+    them, K[i] = floor(N c[i] - U) + 1 (K[N-1] = N); no search."""
+    n = w.shape[0]
+    c = np.cumsum(w)
     c *= n / c[-1]
     c -= rng.random()
     np.floor(c, out=c)
@@ -44,6 +51,12 @@ def systematic_resample(logw, rng):
 def normalise(logw):
     """Normalised log-weights (``logw`` is overwritten) and the effective sample
     size 1 / sum(w^2)."""
+    logw, ess, _ = _normalise(logw)
+    return logw, ess
+
+
+def _normalise(logw):
+    """normalise(), also giving the normalised weights."""
     m = logw.max()
     w = np.subtract(logw, m)
     np.exp(w, out=w)
@@ -51,7 +64,7 @@ def normalise(logw):
     w /= s
     ess = 1.0 / np.dot(w, w)
     logw -= m + np.log(s)
-    return logw, ess
+    return logw, ess, w
 
 
 class StepResult:
@@ -75,6 +88,7 @@ class _Filter:
         self.threshold = float(threshold) * self.n
         self.x = model.initial_particles(rng, self.n) if x is None else np.array(x, dtype=float)
         self.logw = np.full(self.n, -np.log(self.n))
+        self.w = np.full(self.n, 1.0 / self.n)  # exp(logw), kept with it
         self.recoveries = 0
 
     def _recover(self):
@@ -86,6 +100,7 @@ class _Filter:
             good = np.flatnonzero(~bad)
             self.x[:, bad] = self.x[:, self.rng.choice(good, bad.sum())]
         self.logw = np.full(self.n, -np.log(self.n))
+        self.w = np.full(self.n, 1.0 / self.n)
         self.recoveries += 1
 
     def _finish(self, logw, y_mean, y_std, recovered):
@@ -94,27 +109,37 @@ class _Filter:
                 self.recoveries -= 1
             self._recover()
             logw, recovered = self.logw, True
-        logw, ess = normalise(logw)
+        logw, ess, w = _normalise(logw)
         resampled = ess < self.threshold
         if resampled:
-            ancestors = systematic_resample(logw, self.rng)
-            row = np.empty(self.n)
-            for j in range(self.x.shape[0]):  # gather row by row: no second (n_x, N) array
-                np.take(self.x[j], ancestors, out=row)
-                self.x[j] = row
-            del ancestors, row
+            ancestors = resample_weights(w, self.rng)
+            self.x = self._gather(self.x, ancestors)
+            del ancestors
             logw.fill(-np.log(self.n))
-        self.logw = logw
-        w = np.exp(logw)
+            w.fill(1.0 / self.n)
+        self.logw, self.w = logw, w
         mean, std = self.model._kernel.moments(self.x, w)
         return StepResult(mean, std, y_mean, y_std, ess, resampled, recovered)
+
+    def _gather(self, x, ancestors):
+        """x[:, ancestors]: one np.take (the fastest) for up to two blocks of
+        particles, else row by row in place (no second (n_x, N) array)."""
+        if self.n < 2 * self.model._kernel.BLOCK:
+            return np.take(x, ancestors, axis=1)
+        row = np.empty(self.n)
+        for j in range(x.shape[0]):
+            np.take(x[j], ancestors, out=row)
+            x[j] = row
+        return x
 
     def _predicted_measurement(self, yhat, logw=None):
         """Weighted mean and std of y over the particles' noise-free measurements
         ``yhat`` (weights: the filter's, or ``logw``), measurement noise included."""
-        logw = self.logw if logw is None else logw
-        w = np.exp(logw - logw.max())
-        w /= w.sum()
+        if logw is None:
+            w = self.w
+        else:
+            w = np.exp(logw - logw.max())
+            w /= w.sum()
         mean, std = self.model._kernel.moments(yhat, w)
         return mean, np.sqrt(std ** 2 + self.model.MEASUREMENT_STD ** 2)
 
@@ -154,17 +179,14 @@ class GenericParticleFilter(_Filter):
         measurement, observing one block of particles at a time."""
         n = self.n
         kernel = self.model._kernel
-        w = np.subtract(self.logw, self.logw.max())
-        np.exp(w, out=w)
-        w /= w.sum()
+        w = self.w
         n_y = len(self.model.OUTPUTS)
         s1 = np.zeros(n_y)
         s2 = np.zeros(n_y)
         loglik = np.empty(n) if y is not None else None
-        parts, width = kernel.spans(n)
-        (scratch,) = kernel.block_views("observe", 1, n_y, width)
+        parts, _ = kernel.spans(n)
         for start, stop in parts:
-            yhat = scratch[:, :stop - start]
+            yhat = kernel.block_views("observe", 1, n_y, stop - start)[0]
             self.model.observe(self.x[:, start:stop], u, self.theta, out=yhat)
             if y is not None:
                 loglik[start:stop] = self.model.loglik_observed(y, yhat)
@@ -203,13 +225,10 @@ class AuxiliaryParticleFilter(_Filter):
             stage1 = self.logw
             recovered = True
             self.recoveries += 1
-        stage1, _ = normalise(stage1)
-        ancestors = systematic_resample(stage1, self.rng)
-        row = np.empty(self.n)
-        for j in range(mu.shape[0]):  # x = mu[:, ancestors], row by row, in place
-            np.take(mu[j], ancestors, out=row)
-            mu[j] = row
-        self.x = self.model.perturb(mu, self.rng)
+        _, _, w1 = _normalise(stage1)
+        ancestors = resample_weights(w1, self.rng)
+        del w1
+        self.x = self.model.perturb(self._gather(mu, ancestors), self.rng)
         yhat = self.model.observe(self.x, u, self.theta)
         # The new particles weighted by 1 / p(y | mu) are a sample of the prior
         # predictive: that gives the predicted measurement (before using y).
