@@ -36,8 +36,9 @@ not (both are printed; on an idle machine they agree for these one-thread
 runs). Particle-steps/s is N * T / CPU seconds.
 
 Peak memory, measured in round 1: the tracemalloc peak over one extra untimed
-run, from before the filter is built (every NumPy buffer the filter allocates,
-its particle array included; blind to numba's allocator), and the growth of the
+run before the timed ones, from before the filter is built (every NumPy buffer
+the filter allocates, its particle array and the generated kernel's scratch
+included; blind to numba's allocator), and the growth of the
 resident set over the timed run (peak RSS from /proc/self/status VmHWM after a
 reset through /proc/self/clear_refs, minus the RSS before; Linux; pages rather
 than bytes, so coarse, but it sees numba's allocations too). The memory target

@@ -241,7 +241,8 @@ def fewer_array_ops(expr: sympy.Expr, arrays: frozenset[str]) -> sympy.Expr:
     ``c*(x + y*z + k/c)`` when c divides safely (see :func:`_divides_safely`),
     scalar factors of inner sums being distributed first: the common factor
     then joins the scalar factors of the enclosing product, which Python folds
-    into one float. A rewrite is kept only where :func:`array_op_count` drops.
+    into one float. The whole rewrite is kept only if :func:`array_op_count`
+    of the expression drops.
 
     Examples
     --------
@@ -280,7 +281,8 @@ def fewer_array_ops(expr: sympy.Expr, arrays: frozenset[str]) -> sympy.Expr:
             inner = sympy.Add(*[(cc / c) * (mm if mm is not None else 1) for cc, mm in split])
             candidate = sympy.Mul(c, inner)
             cost = array_op_count(candidate, arrays)
-            if cost < best_cost:
+            if cost < best_cost or (cost == best_cost and best is e):
+                # a tie here is kept: the factor may join an enclosing product
                 best, best_cost = candidate, cost
         return best
 

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import sympy
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bgc import codegen
 from bgc.errors import BgcError
@@ -572,3 +574,19 @@ def test_predict_in_threads_equals_serial():
         threaded = list(pool.map(run, starts))
     for a, b in zip(serial, threaded):
         assert np.array_equal(a, b)
+
+
+@settings(max_examples=200)
+@given(n=st.integers(1, 200_000))
+def test_kernel_spans_split_particles_evenly_into_blocks_of_one_to_two_block_lengths(n):
+    from bgc.diagnosis.runtime import load_package
+
+    kernel = load_package(ROOT / "generated", "ro")._kernel
+    parts, width = kernel.spans(n)
+    assert parts[0][0] == 0 and parts[-1][1] == n
+    assert all(a[1] == b[0] for a, b in zip(parts, parts[1:]))            # contiguous, no overlap
+    sizes = [stop - start for start, stop in parts]
+    assert max(sizes) == width and max(sizes) - min(sizes) <= 1    # as even as integers allow
+    assert len(parts) == max(1, n // kernel.BLOCK)
+    if n >= kernel.BLOCK:
+        assert kernel.BLOCK <= min(sizes) and width < 2 * kernel.BLOCK

@@ -234,3 +234,72 @@ def test_cse_numbering_does_not_depend_on_the_hash_seed():
         out, err = proc.communicate(timeout=120)
         assert proc.returncode == 0, err
         assert out.splitlines() == expected, f"PYTHONHASHSEED={seed}"
+
+
+# ------------------------------------------------- fewer array operations
+from bgc.printing import array_op_count, fewer_array_ops  # noqa: E402
+
+a, b = sympy.symbols("a b")          # arrays (one value per particle)
+p, q, r = sympy.symbols("p q r")     # parameters (scalars)
+ARR = frozenset({"a", "b"})
+#: Arrays and parameters at sample points; parameters positive and away from 0.
+SCALARS = {"p": 1.7, "q": 0.6, "r": 2.3}
+ARRAYS = {"a": RNG.uniform(-3.0, 3.0, 40), "b": RNG.uniform(0.5, 3.0, 40)}
+
+
+@pytest.mark.parametrize("expr, fewer", [
+    # (a - q)/p + 29 in a denominator: 1/p factors out and joins the product's scalar
+    (b / (29 + (a - q) / p), True),
+    (r * b / (p + a / q), True),
+    (a / p + b / p + q, True),
+    # the common factor r does not divide safely (r = 0 would make r*(a + q/r) NaN): unchanged
+    (q + r * (a - b), False),
+    (a * b + p, False),
+    (a - b, False),
+])
+def test_fewer_array_ops_is_equal_and_never_costs_more(expr, fewer):
+    new = fewer_array_ops(expr, ARR)
+    assert sympy.simplify(new - expr) == 0
+    before, after = array_op_count(expr, ARR), array_op_count(new, ARR)
+    assert (after < before) if fewer else (new == expr and after == before), (print_expr(new, arrays=ARR), before, after)
+    # the printed text computes the same numbers as sympy's own evaluation of the original
+    got = run_printed(print_expr(new, arrays=ARR), {**ARRAYS, **SCALARS})
+    want = sympy.lambdify([a, b, p, q, r], expr, "numpy")(ARRAYS["a"], ARRAYS["b"], *SCALARS.values())
+    np.testing.assert_allclose(np.broadcast_to(got, (40,)), np.broadcast_to(want, (40,)), rtol=1e-12)
+
+
+def test_array_op_count_counts_operations_on_arrays_only():
+    assert array_op_count(a * (p + q) / r, ARR) == 1           # the scalar group is folded in Python
+    assert array_op_count(-a + b, ARR) == 1                    # printed b - a
+    assert array_op_count(sympy.exp(a) + p * b, ARR) == 3
+    assert array_op_count(p * q, ARR) == 0
+
+
+def test_fewer_array_ops_adds_no_singularity_at_a_zero_parameter():
+    """Only factors that are negative powers are pulled out of sums: where a
+    parameter is 0, the rewritten expression is as finite as the original."""
+    cases = [q + r * (a - b), b / (29 + (a - q) / p), a / p + b * q + r, (a + b * r) * (p * a + q)]
+    for expr in cases:
+        new = fewer_array_ops(expr, ARR)
+        for zero in ("q", "r"):
+            point = {**ARRAYS, **SCALARS, zero: 0.0}
+            with np.errstate(all="ignore"):
+                old_v = np.broadcast_to(run_printed(print_expr(expr, arrays=ARR), point), (40,))
+                new_v = np.broadcast_to(run_printed(print_expr(new, arrays=ARR), point), (40,))
+            assert np.array_equal(np.isfinite(old_v), np.isfinite(new_v)), (expr, zero)
+            np.testing.assert_allclose(new_v[np.isfinite(old_v)], old_v[np.isfinite(old_v)], rtol=1e-12)
+
+
+@pytest.mark.parametrize("expr, text", [
+    (-a + b, "b - a"),                        # not -a + b: one array operation, not two
+    (-a + b + p * a, "(p)*a - a + b"),
+    (-a - b, "-a - b"),                       # no positive term: the minus stays first
+    (p - a * b, "p - a*b"),                   # scalar terms first
+    (-p + q + a, "-p + q + a"),               # Python adds the floats, then one array operation
+    (-(a + b) ** 2 + b, "b - (a + b)**2"),
+])
+def test_sums_over_arrays_print_scalars_then_a_positive_array_term_first(expr, text):
+    assert print_expr(expr, arrays=ARR) == text
+    np.testing.assert_allclose(run_printed(text, {**ARRAYS, **SCALARS}),
+                               sympy.lambdify([a, b, p, q], expr, "numpy")(ARRAYS["a"], ARRAYS["b"], SCALARS["p"],
+                                                                           SCALARS["q"]), rtol=1e-12)

@@ -92,10 +92,9 @@ def derivative(x, u, theta, out=None, linear=None):
     np.matmul(_A, x[0:4], out=_dx[0:4])
     _dx[0:4] += _b
     _c0 = (e13 - e6)/R_brine
-    _c1 = C_memb**(-1.0)
-    _c2 = 29*K_slope
+    _c1 = 29*K_slope
     _dx[1] += (C_res**(-1.0))*_c0
-    _dx[2] += (-_c1)*_c0 + (-_c1*_c2/R_memb)*e13/(-K0 + _c2 + e27)
+    _dx[2] += (-1/C_memb)*(_c0 + (_c1/R_memb)*e13/(-K0 + _c1 + e27))
     _dx[4] = (k_scale/(C_k*R_pipe))*(0.1 + (6*k_scale)*_c0)*(e6 - e13 + (m2)*f22)
     _dx[5] = 0.0
     return _dx

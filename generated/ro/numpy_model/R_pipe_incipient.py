@@ -96,10 +96,9 @@ def derivative(x, u, theta, out=None, linear=None):
     _c0 = R_pipe**(-1.0)
     _c1 = e6 - e13 + (m2)*f22
     _c2 = _c0*_c1
-    _c3 = C_memb**(-1.0)
-    _c4 = 29*K_slope
+    _c3 = 29*K_slope
     _dx[1] += (-1/C_res)*_c2
-    _dx[2] += (_c3)*_c0*_c1 + (-_c3*_c4/R_memb)*e13/(-K0 + _c4 + e27)
+    _dx[2] += (C_memb**(-1.0))*(_c0*_c1 + (-_c3/R_memb)*e13/(-K0 + _c3 + e27))
     _dx[3] += (-m2/I_rp)*_c2
     _dx[4] += (k_scale/C_k)*_c2*(0.1 + (6*k_scale/R_brine)*(e13 - e6))
     _dx[6] = 0.0

@@ -21,31 +21,39 @@ import numpy as np
 
 def systematic_resample(logw, rng):
     """Ancestor indices by systematic resampling (one uniform draw U), in O(N);
-    ``logw`` need not be normalised. See :func:`resample_weights`."""
+    ``logw`` need not be normalised. See :func:`offspring_counts`."""
     w = np.subtract(logw, logw.max())
     np.exp(w, out=w)
     w /= w.sum()
-    return resample_weights(w, rng)
+    return np.repeat(np.arange(w.shape[0]), offspring_counts(w, rng, overwrite=True))
 
 
-def resample_weights(w, rng):
-    """Ancestor indices by systematic resampling of normalised weights ``w``:
-    with the positions (j + U) / N and c the cumulative weights, particle i is
-    the ancestor of the positions in (c[i-1], c[i]], that is of K[i] - K[i-1] of
-    them, K[i] = floor(N c[i] - U) + 1 (K[N-1] = N); no search."""
+def offspring_counts(w, rng, overwrite=False, chunk=8192):
+    """How many copies of each particle systematic resampling of the normalised
+    weights ``w`` keeps (one uniform draw U; an intp array summing to N).
+
+    With the positions (j + U) / N and c the cumulative weights, particle i is
+    the ancestor of the positions in (c[i-1], c[i]], that is of K[i] - K[i-1]
+    of them, K[i] = floor(N c[i] - U) + 1 (K[N-1] = N): no search, no index
+    array. With ``overwrite`` the counts are computed in the memory of ``w``
+    (its values are lost), with temporaries of ``chunk`` elements only."""
     n = w.shape[0]
-    c = np.cumsum(w)
+    c = np.cumsum(w, out=w if overwrite else None)
     c *= n / c[-1]
     c -= rng.random()
     np.floor(c, out=c)
     np.minimum(c, n - 1, out=c)
     c[-1] = n - 1
-    k = c.astype(np.intp)
-    del c
-    counts = np.empty(n, np.intp)
-    counts[0] = k[0] + 1
-    np.subtract(k[1:], k[:-1], out=counts[1:])
-    return np.repeat(np.arange(n), counts)
+    # K[i] - K[i-1] in place, from the last chunk back: each chunk reads the
+    # (still cumulative) element before it
+    for stop in range(n, 1, -chunk):
+        start = max(1, stop - chunk)
+        c[start:stop] -= c[start - 1:stop - 1]
+    c[0] += 1.0
+    counts = c.view(np.intp)
+    for start in range(0, n, chunk):
+        counts[start:start + chunk] = c[start:start + chunk]  # float -> int in place, a chunk at a time
+    return counts
 
 
 def normalise(logw):
@@ -88,8 +96,20 @@ class _Filter:
         self.threshold = float(threshold) * self.n
         self.x = model.initial_particles(rng, self.n) if x is None else np.array(x, dtype=float)
         self.logw = np.full(self.n, -np.log(self.n))
-        self.w = np.full(self.n, 1.0 / self.n)  # exp(logw), kept with it
+        self.w = None  # normalised exp(logw), kept from step to step for up to two blocks
         self.recoveries = 0
+        self._gauss = {}
+
+    def _weights(self):
+        """The normalised weights exp(logw): the ones kept from the last step
+        (up to two blocks of particles), else computed afresh (for more
+        particles: one array of N less to keep)."""
+        if self.w is not None:
+            return self.w
+        w = np.subtract(self.logw, self.logw.max())
+        np.exp(w, out=w)
+        w /= w.sum()
+        return w
 
     def _recover(self):
         """Replace non-finite particles by copies of finite ones and reset weights."""
@@ -100,10 +120,11 @@ class _Filter:
             good = np.flatnonzero(~bad)
             self.x[:, bad] = self.x[:, self.rng.choice(good, bad.sum())]
         self.logw = np.full(self.n, -np.log(self.n))
-        self.w = np.full(self.n, 1.0 / self.n)
+        self.w = None
         self.recoveries += 1
 
     def _finish(self, logw, y_mean, y_std, recovered):
+        self.w = None  # the weights before the update: not needed any more
         if not np.isfinite(logw.max()):
             if recovered:  # this step's failure is already counted
                 self.recoveries -= 1
@@ -112,31 +133,30 @@ class _Filter:
         logw, ess, w = _normalise(logw)
         resampled = ess < self.threshold
         if resampled:
-            ancestors = resample_weights(w, self.rng)
-            self.x = self._gather(self.x, ancestors)
-            del ancestors
+            self.x = self._replicate(self.x, offspring_counts(w, self.rng, overwrite=True))
             logw.fill(-np.log(self.n))
-            w.fill(1.0 / self.n)
-        self.logw, self.w = logw, w
+            w.fill(1.0 / self.n)  # w held the counts
+        self.logw = logw
         mean, std = self.model._kernel.moments(self.x, w)
+        if self.n < 2 * self.model._kernel.BLOCK:
+            self.w = w
         return StepResult(mean, std, y_mean, y_std, ess, resampled, recovered)
 
-    def _gather(self, x, ancestors):
-        """x[:, ancestors]: one np.take (the fastest) for up to two blocks of
-        particles, else row by row in place (no second (n_x, N) array)."""
+    def _replicate(self, x, counts):
+        """The resampled particles: column i of x repeated counts[i] times. One
+        np.repeat for up to two blocks of particles, else row by row in place
+        (one row of temporary: no second (n_x, N) array)."""
         if self.n < 2 * self.model._kernel.BLOCK:
-            return np.take(x, ancestors, axis=1)
-        row = np.empty(self.n)
+            return np.repeat(x, counts, axis=1)
         for j in range(x.shape[0]):
-            np.take(x[j], ancestors, out=row)
-            x[j] = row
+            x[j] = np.repeat(x[j], counts)
         return x
 
     def _predicted_measurement(self, yhat, logw=None):
         """Weighted mean and std of y over the particles' noise-free measurements
         ``yhat`` (weights: the filter's, or ``logw``), measurement noise included."""
         if logw is None:
-            w = self.w
+            w = self._weights()
         else:
             w = np.exp(logw - logw.max())
             w /= w.sum()
@@ -167,35 +187,46 @@ class GenericParticleFilter(_Filter):
         self.model.transition(self.x, u, self.theta, dt, self.rng, out=self.x)
         y = np.asarray(y, dtype=float)
         missing = np.isnan(y).all()
-        loglik, y_mean, y_std = self._weigh(None if missing else y, u)
-        if missing:
-            return self._finish(self.logw, y_mean, y_std, False)
-        loglik += self.logw
-        self.logw = loglik  # the old weights are not needed any more: one array, not two
-        return self._finish(loglik, y_mean, y_std, False)
+        y_mean, y_std = self._weigh(None if missing else y, u)
+        return self._finish(self.logw, y_mean, y_std, False)
 
     def _weigh(self, y, u):
-        """log p(y | x) of every particle (None without y) and the predicted
-        measurement, observing one block of particles at a time."""
-        n = self.n
-        kernel = self.model._kernel
-        w = self.w
-        n_y = len(self.model.OUTPUTS)
+        """Add log p(y | x) to the log-weights in place (nothing without y) and
+        give the predicted measurement (over the weights before the update),
+        one block of particles at a time: the residuals d = yhat - y give both
+        the Gaussian log-likelihood and, centred on y, the moments of yhat."""
+        model, kernel = self.model, self.model._kernel
+        w = self._weights()
+        std = model.MEASUREMENT_STD
+        n_y = len(std)
+        if y is None:
+            centre = np.zeros(n_y)
+        else:
+            seen = np.isfinite(y)
+            key = seen.tobytes()
+            if key not in self._gauss:  # per pattern of missing outputs: -1/(2 std^2), log-normaliser
+                self._gauss[key] = (np.where(seen, -0.5 / (std * std), 0.0),
+                                    float(-0.5 * seen.sum() * np.log(2.0 * np.pi) - np.sum(np.log(std[seen]))))
+            weight, constant = self._gauss[key]
+            centre = np.where(seen, y, 0.0)
+        column = centre[:, None]
         s1 = np.zeros(n_y)
         s2 = np.zeros(n_y)
-        loglik = np.empty(n) if y is not None else None
-        parts, _ = kernel.spans(n)
+        parts, _ = kernel.spans(self.n)
         for start, stop in parts:
-            yhat = kernel.block_views("observe", 1, n_y, stop - start)[0]
-            self.model.observe(self.x[:, start:stop], u, self.theta, out=yhat)
-            if y is not None:
-                loglik[start:stop] = self.model.loglik_observed(y, yhat)
+            d = kernel.block_views("state", 1, n_y, stop - start)[0]  # no kernel call while in use
+            model.observe(self.x[:, start:stop], u, self.theta, out=d)
+            d -= column
             wb = w[start:stop]
-            s1 += yhat @ wb
-            yhat *= yhat
-            s2 += yhat @ wb
-        var = np.maximum(s2 - s1 * s1, 0.0) + self.model.MEASUREMENT_STD ** 2
-        return loglik, s1, np.sqrt(var)
+            s1 += d @ wb
+            d *= d
+            s2 += d @ wb
+            if y is not None:
+                self.logw[start:stop] += weight @ d
+        if y is not None:
+            self.logw += constant
+        var = np.maximum(s2 - s1 * s1, 0.0) + std * std
+        return centre + s1, np.sqrt(var)
 
 class AuxiliaryParticleFilter(_Filter):
     """Thesis Algorithm 2: choose ancestors by w_k-1 * p(y_k | mu_k), propagate,
@@ -226,13 +257,14 @@ class AuxiliaryParticleFilter(_Filter):
             recovered = True
             self.recoveries += 1
         _, _, w1 = _normalise(stage1)
-        ancestors = resample_weights(w1, self.rng)
-        del w1
-        self.x = self.model.perturb(self._gather(mu, ancestors), self.rng)
+        counts = offspring_counts(w1, self.rng, overwrite=True)
+        self.x = self.model.perturb(self._replicate(mu, counts), self.rng)
         yhat = self.model.observe(self.x, u, self.theta)
         # The new particles weighted by 1 / p(y | mu) are a sample of the prior
         # predictive: that gives the predicted measurement (before using y).
-        back = -first[ancestors]
+        back = np.repeat(first, counts)
+        np.negative(back, out=back)
+        del counts, w1
         y_mean, y_std = self._predicted_measurement(yhat, back)
         logw = self.model.loglik_observed(y, yhat) + back
         return self._finish(logw, y_mean, y_std, recovered)

@@ -9,23 +9,32 @@ once per thread and block width and then reused: no large array is allocated
 and freed per step (that costs page faults: the allocator hands big buffers
 back to the system), temporaries stay in cache, and memory beyond the particle
 array stays a few blocks. Scratch arrays are per thread, so filters may run in
-several threads at once.
+several threads at once. rk4, perturb, moments and the filters' weighing share
+one scratch buffer ("state"): what they leave in it is not valid after they
+return. BLOCK balances the cost of a NumPy call (fewer, longer blocks are
+faster) against that scratch memory (five state-sized blocks for RK4).
 """
 
 import threading
 
 import numpy as np
 
-BLOCK = 8192
+BLOCK = 6144
 
 _scratch = threading.local()
 
 
 def spans(n):
-    """range(n) split evenly into max(1, n // BLOCK) blocks: ([(start, stop)], width)."""
+    """range(n) split into max(1, n // BLOCK) blocks whose sizes differ by at
+    most one: ([(start, stop)], largest size)."""
     count = max(1, n // BLOCK)
-    width = -(-n // count)
-    return [(start, min(start + width, n)) for start in range(0, n, width)], width
+    size, extra = divmod(n, count)
+    parts, start = [], 0
+    for i in range(count):
+        stop = start + size + (i < extra)
+        parts.append((start, stop))
+        start = stop
+    return parts, size + (extra > 0)
 
 
 def block_views(name, count, rows, width):
@@ -62,11 +71,11 @@ def rk4(derivative, x, u, theta, dt, substeps, out=None, linear=None):
         out[...] = x
     h = dt / substeps
     n_x, n = out.shape
-    parts, width = spans(n)
+    parts, _ = spans(n)
     weights = np.array([h / 6.0, h / 3.0, h / 3.0, h / 6.0])
     for start, stop in parts:
         w = stop - start
-        ks = block_views("rk4", 5, n_x, w)
+        ks = block_views("state", 5, n_x, w)
         k1, k2, k3, k4, s = ks
         stages = ks[:4].reshape(4, n_x * w)
         step = s.reshape(n_x * w)
@@ -91,9 +100,9 @@ def perturb(x, std, rng):
     """x += std[:, None] * N(0, 1), in place, drawing one block at a time."""
     n_x, n = x.shape
     scale = np.asarray(std, dtype=float)[:, None]
-    parts, width = spans(n)
+    parts, _ = spans(n)
     for start, stop in parts:
-        buf = block_views("noise", 1, n_x, stop - start)[0]  # contiguous, as rng needs
+        buf = block_views("state", 1, n_x, stop - start)[0]  # contiguous, as rng needs
         rng.standard_normal(out=buf)
         buf *= scale
         x[:, start:stop] += buf
@@ -130,7 +139,7 @@ def moments(a, w):
     parts, _ = spans(a.shape[1])
     column = mean[:, None]
     for start, stop in parts:
-        d = block_views("moments", 1, a.shape[0], stop - start)[0]
+        d = block_views("state", 1, a.shape[0], stop - start)[0]
         np.subtract(a[:, start:stop], column, out=d)
         d *= d
         var += d @ w[start:stop]
