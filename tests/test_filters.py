@@ -352,6 +352,42 @@ def test_systematic_resample_equals_the_search_definition():
             assert np.count_nonzero(got != want) <= 1, (n, np.flatnonzero(got != want)[:5])
 
 
+@pytest.mark.parametrize("chunk", [1, 7, 8192])
+def test_offspring_counts_in_place_equal_the_counts_of_the_search_definition(chunk):
+    """The in-place counts (computed a chunk at a time in the weights' own
+    memory) are the bincount of the ancestors of the search definition."""
+    rng = np.random.default_rng(5)
+    for n in (1, 3, 50, 1001):
+        w = rng.dirichlet(np.full(n, 0.5)) if n > 1 else np.ones(1)
+        w[::4] = 0.0 if n > 4 else w[::4]
+        w /= w.sum()
+        u = np.random.default_rng(n + chunk).random()
+        want = np.bincount(np.minimum(np.searchsorted(np.cumsum(w), (np.arange(n) + u) / n), n - 1), minlength=n)
+        kept = w.copy()
+        apart = FILTERS.offspring_counts(kept, np.random.default_rng(n + chunk), chunk=chunk)
+        assert np.array_equal(kept, w)  # without overwrite the weights are left alone
+        inplace = FILTERS.offspring_counts(w, np.random.default_rng(n + chunk), overwrite=True, chunk=chunk)
+        assert apart.dtype == inplace.dtype == np.intp
+        assert apart.sum() == n and np.array_equal(apart, inplace)
+        assert np.count_nonzero(apart != want) <= 2  # a position on a cumulative weight, to rounding
+
+
+def test_replicate_row_by_row_beyond_two_blocks_equals_np_repeat():
+    """Beyond two blocks the filter resamples row by row in place; the result is
+    np.repeat of the columns all the same."""
+    from bgc.diagnosis.runtime import load_package
+
+    pkg = load_package(ROOT / "generated", "ro")
+    m = pkg.MODELS["nominal"]
+    n = 2 * pkg._kernel.BLOCK + 5
+    f = pkg.filters.GenericParticleFilter(m, n, np.random.default_rng(2))
+    x = f.x.copy()
+    counts = np.random.default_rng(3).multinomial(n, np.full(n, 1.0 / n))
+    out = f._replicate(f.x, counts)
+    assert out is f.x  # in place
+    assert np.array_equal(out, np.repeat(x, counts, axis=1))
+
+
 def test_systematic_resample_is_unbiased():
     w = np.array([0.05, 0.4, 0.15, 0.3, 0.1])
     draws = 4000
