@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import sympy
 
+from .errors import EquationError
 from .ir import StateSpaceModel, sym
 
 H_LAMBDA = 1.5
@@ -69,6 +70,39 @@ def input_code(signal) -> str:
     return f"({v} if t < {start} else {v} + {repr(float(signal.slope))} * (t - {start}))"
 
 
+def jacobian_at(exprs: list[sympy.Expr], xs: list[sympy.Symbol], point: dict, names: list[str],
+                source: str) -> np.ndarray:
+    """d exprs / d xs at ``point`` (a float for every free symbol), as a float array.
+
+    The symbols are taken as real while differentiating, so |x| and sign(x)
+    have their real derivatives (sign(x), 0 away from 0). An entry that is not a
+    finite number there, at the kink of a nonlinear law (sqrt(abs(e)) at e = 0),
+    is a user error: the linearisation, and with it the integration step and
+    the noise levels, is not defined at that initial state.
+    """
+    real = {s: sympy.Dummy(s.name, real=True) for e in exprs for s in e.free_symbols}
+    at = {real[s]: v for s, v in point.items() if s in real}
+    out = np.zeros((len(exprs), len(xs)))
+    for i, e in enumerate(exprs):
+        er = e.xreplace(real)
+        for k, x in enumerate(xs):
+            if x not in e.free_symbols:
+                continue
+            d = sympy.diff(er, real[x]).xreplace(at)
+            try:
+                v = complex(sympy.N(d))
+            except (TypeError, ValueError):
+                v = complex("nan")
+            if not (np.isfinite(v) and abs(v.imag) <= 1e-12 * max(1.0, abs(v.real))):
+                raise EquationError(
+                    f"{names[i]} has no finite derivative with respect to {x} at the initial state: "
+                    "the linearisation that sets the integration step and the noise levels is not "
+                    "defined there", source,
+                    "start the states where the nonlinear laws are smooth, e.g. away from sqrt(abs(e)) at e = 0")
+            out[i, k] = v.real
+    return out
+
+
 def numerics(ssm: StateSpaceModel, process_noise: float | None = None,
              measurement_noise: float | None = None) -> Numerics:
     """Eigenvalues, substeps and absolute noise levels at the nominal operating point.
@@ -83,8 +117,7 @@ def numerics(ssm: StateSpaceModel, process_noise: float | None = None,
     u0 = tuple(input_value(i.signal, 0.0) for i in model.inputs)
     sub.update({sym(i.name): v for i, v in zip(model.inputs, u0)})
     sub.update({x: v for x, v in zip(xs, ssm.initial)})
-    jac = sympy.Matrix(ssm.rhs).jacobian(xs)
-    j = np.array([[float(sympy.N(e.xreplace(sub))) for e in row] for row in jac.tolist()], dtype=float)
+    j = jacobian_at(list(ssm.rhs), xs, sub, [f"d{x}/dt" for x in ssm.states], model.source)
     eig = np.linalg.eigvals(j)
     eig = np.array(sorted(eig, key=lambda z: (round(abs(z), 12), round(z.real, 12), round(z.imag, 12))))
     dt = model.settings.dt
@@ -105,9 +138,7 @@ def numerics(ssm: StateSpaceModel, process_noise: float | None = None,
         process.append(q * s * math.sqrt(min(1.0, 2.0 * dt / tau)))
     meas = tuple((m.noise if measurement_noise is None else measurement_noise) * (abs(y) or 1.0)
                  for m, y in zip(model.measurements, y0))
-    hjac = sympy.Matrix(ssm.output_exprs).jacobian(xs) if ssm.output_exprs else sympy.zeros(0, len(xs))
-    h = np.array([[float(sympy.N(e.xreplace(sub))) for e in row] for row in hjac.tolist()], dtype=float)
-    h = h.reshape(len(ssm.output_exprs), len(xs))
+    h = jacobian_at(list(ssm.output_exprs), xs, sub, [f"measurement {m}" for m in ssm.outputs], model.source)
     spread = (h ** 2) @ (np.array(process) ** 2) if len(xs) else np.zeros(len(meas))
     predictive = tuple(float(np.sqrt(m * m + v)) for m, v in zip(meas, spread))
     return Numerics(tuple(complex(z) for z in eig), substeps, u0, y0, tuple(process), meas,

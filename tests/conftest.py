@@ -22,6 +22,7 @@ ALL_MODELS = {
     "dc_motor": TEST_MODELS / "dc_motor.yaml",
     "resistor_loop": TEST_MODELS / "resistor_loop.yaml",
     "mass_spring_damper": TEST_MODELS / "mass_spring_damper.yaml",
+    "orifice_tanks": TEST_MODELS / "orifice_tanks.yaml",
 }
 
 

@@ -39,3 +39,22 @@ def test_usage_error_exit_2():
 def test_version():
     r = run("--version")
     assert r.returncode == 0 and r.stdout.startswith("bgc ")
+
+
+def test_nonlinear_law_at_its_kink_is_one_line_exit_1(tmp_path):
+    """sqrt(abs(e)) has no finite derivative at e = 0: starting both tanks at the
+    same pressure leaves the linearisation (integration step, noise levels)
+    undefined. bgc compile says so in one located line, without a traceback."""
+    text = (ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml").read_text()
+    kink = tmp_path / "kink.yaml"
+    kink.write_text(text.replace("C2: {kind: C, initial: 1.5}", "C2: {kind: C, initial: 1.2}"))
+    r = run("compile", str(kink), "-o", str(tmp_path / "out"), "--no-pictures")
+    assert r.returncode == 1 and "Traceback" not in r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith(f"{kink}: de2/dt has no finite derivative with respect to e2 at the initial state")
+    assert "away from sqrt(abs(e)) at e = 0" in lines[0]
+    # away from the kink the same plant compiles
+    ok = run("compile", str(ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml"), "-o", str(tmp_path / "ok"),
+             "--no-pictures")
+    assert ok.returncode == 0, ok.stderr

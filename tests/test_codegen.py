@@ -590,3 +590,51 @@ def test_kernel_spans_split_particles_evenly_into_blocks_of_one_to_two_block_len
     assert len(parts) == max(1, n // kernel.BLOCK)
     if n >= kernel.BLOCK:
         assert kernel.BLOCK <= min(sizes) and width < 2 * kernel.BLOCK
+
+
+# ------------------------------ every test plant, through a freshly generated package
+@lru_cache(maxsize=None)
+def fresh_package(name: str):
+    """The package bgc generates for one of conftest.ALL_MODELS, written to a
+    temporary directory and imported (the test plants have no generated/ copy)."""
+    import tempfile
+
+    from conftest import compiled as compiled_any
+
+    root = Path(tempfile.mkdtemp(prefix=f"bgc-{name}-")) / "numpy_model"
+    root.mkdir()
+    for rel, text in codegen.package_files(compiled_any(name).dbn).items():
+        (root / rel).write_text(text)
+    return load_package(root, f"_bgc_fresh_{name}")
+
+
+@pytest.mark.parametrize("name", sorted(__import__("conftest").ALL_MODELS))
+def test_every_plant_derivative_and_observe_equal_lambdify_also_into_strided_out(name):
+    """Nominal and fault modules of every test plant (gyrator, algebraic loop,
+    nonlinear orifice with a linear block that starts at row 1) against lambdify
+    of the compiler's equations; derivative and observe also write into ``out``
+    given as a strided view of a larger array (what the kernel hands them)."""
+    from conftest import compiled as compiled_any
+
+    pkg, ssm = fresh_package(name), compiled_any(name).equations
+    ref = Reference(ssm)
+    rng = np.random.default_rng(404)
+    for mod_name, mod in pkg.MODELS.items():
+        n_phys = len(ssm.states)
+        for _ in range(2):
+            xp, u, theta = random_point(mod, ssm, rng, n=37)
+            x = np.zeros((len(mod.STATES), xp.shape[1]))  # fault states at their neutral value
+            x[:n_phys] = xp
+            if mod.FAULT and mod.FAULT["kind"] == "incipient":
+                x[n_phys] = theta[ssm.parameters.index(mod.FAULT["parameter"])]  # parameter state = its value
+            want_dx, want_y = ref.rhs(xp, u, theta), ref.out(xp, u, theta)
+            assert_close(mod.derivative(x, u, tuple(theta))[:n_phys], want_dx, f"{mod_name} derivative")
+            assert_close(mod.observe(x, u, tuple(theta)), want_y, f"{mod_name} observe")
+            big = np.full((len(mod.STATES) + 2, 60), np.nan)
+            out = big[1:-1, 5:5 + x.shape[1]]                      # strided, not contiguous
+            assert mod.derivative(x, u, tuple(theta), out) is out
+            assert_close(out[:n_phys], want_dx, f"{mod_name} derivative into out")
+            ybig = np.full((len(mod.OUTPUTS), 50), np.nan)
+            yout = ybig[:, 3:3 + x.shape[1]]
+            assert mod.observe(x, u, tuple(theta), out=yout) is yout
+            assert_close(yout, want_y, f"{mod_name} observe into out")
