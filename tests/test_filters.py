@@ -271,6 +271,76 @@ def test_missing_measurement_skips_the_update(cls):
     assert r.ess == pytest.approx(ess, rel=1e-12) and r.resampled == (ess < 0.5 * 2000)
 
 
+def with_observe(patch):
+    """MODEL with observe() followed by patch(yhat) (a copy of the module's namespace)."""
+    import types
+
+    m = types.SimpleNamespace(**{k: getattr(MODEL, k) for k in dir(MODEL) if not k.startswith("__")})
+
+    def observe(x, u, theta, out=None):
+        yhat = MODEL.observe(x, u, theta, out=out)
+        patch(yhat)
+        return yhat
+
+    m.observe = observe
+    return m
+
+
+def test_gpf_update_ignores_a_broken_output_that_is_not_measured():
+    """One particle's prediction of an output is inf while that output is not
+    measured this step: the measured outputs still weigh every particle."""
+    def patch(yhat):
+        yhat[1, 0] = np.inf
+
+    f = GPF(with_observe(patch), 1000, np.random.default_rng(0), threshold=0.0)
+    y = y_at_x0() + 0.3 * MODEL.MEASUREMENT_STD
+    y[1] = np.nan
+    before = f.logw.copy()
+    with np.errstate(invalid="ignore"):
+        r = f.step(y, U)
+    assert not r.recovered and f.recoveries == 0
+    want, ess = FILTERS.normalise(before + manual_loglik(y, f.x))
+    np.testing.assert_allclose(f.logw, want, rtol=0, atol=1e-10)
+    assert r.ess == pytest.approx(ess, rel=1e-10)
+
+
+@pytest.mark.parametrize("cls", [GPF, APF], ids=["GPF", "APF"])
+def test_a_particle_whose_likelihood_is_nan_gets_no_weight(cls):
+    """A particle whose prediction of a measured output is NaN (its state finite)
+    is impossible, not a reason to throw the step's measurement away."""
+    def patch(yhat):
+        yhat[0, 0] = np.nan
+
+    f = cls(with_observe(patch), 1000, np.random.default_rng(1), threshold=0.0)
+    with np.errstate(invalid="ignore"):
+        r = f.step(y_at_x0(), U)
+    assert not r.recovered and f.recoveries == 0
+    assert f.logw[0] == -np.inf and np.all(np.isfinite(f.logw[1:]))
+    assert r.ess < 0.99 * 1000 and np.all(np.isfinite(r.mean))
+
+
+def test_gpf_predicted_measurement_does_not_depend_on_how_far_y_is():
+    """The predicted measurement is a moment of the particles before the update:
+    an outlier in y (here up to 1e10 std away) does not change it."""
+    ref = GPF(MODEL, 500, np.random.default_rng(2)).step(y_at_x0(), U)
+    for offset in (1e3, 1e6, 1e8):
+        y = y_at_x0().copy()
+        y[0] += offset
+        with np.errstate(over="ignore", invalid="ignore"):
+            r = GPF(MODEL, 500, np.random.default_rng(2)).step(y, U)
+        np.testing.assert_allclose(r.y_mean, ref.y_mean, rtol=1e-12)
+        np.testing.assert_allclose(r.y_std, ref.y_std, rtol=1e-9)
+
+
+def test_systematic_resample_accepts_float32_log_weights():
+    logw = np.log(np.random.default_rng(3).dirichlet(np.ones(10)))
+    a = FILTERS.systematic_resample(logw, np.random.default_rng(4))
+    b = FILTERS.systematic_resample(logw.astype(np.float32), np.random.default_rng(4))
+    assert b.shape == (10,) and np.count_nonzero(a != b) <= 1
+    counts = FILTERS.offspring_counts(np.full(10, 0.1, dtype=np.float32), np.random.default_rng(5))
+    assert counts.sum() == 10 and np.all(counts == 1)
+
+
 def manual_loglik(y, x, std=None):
     """log prod_j N(y_j; h_j(x), sigma_j^2) over the finite y_j only, written out."""
     std = MODEL.MEASUREMENT_STD if std is None else std

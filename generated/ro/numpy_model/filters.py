@@ -37,6 +37,8 @@ def offspring_counts(w, rng, overwrite=False, chunk=8192):
     of them, K[i] = floor(N c[i] - U) + 1 (K[N-1] = N): no search, no index
     array. With ``overwrite`` the counts are computed in the memory of ``w``
     (its values are lost), with temporaries of ``chunk`` elements only."""
+    if w.dtype != np.float64:  # the counts are made in float64 memory
+        w, overwrite = w.astype(np.float64), True
     n = w.shape[0]
     c = np.cumsum(w, out=w if overwrite else None)
     c *= n / c[-1]
@@ -125,7 +127,13 @@ class _Filter:
 
     def _finish(self, logw, y_mean, y_std, recovered):
         self.w = None  # the weights before the update: not needed any more
-        if not np.isfinite(logw.max()):
+        top = logw.max()
+        if np.isnan(top) and np.isfinite(self.x).all():
+            # a (finite) particle whose likelihood is not a number is impossible,
+            # not a reason to throw the step away; broken particles are recovered below
+            logw[np.isnan(logw)] = -np.inf
+            top = logw.max()
+        if not np.isfinite(top):
             if recovered:  # this step's failure is already counted
                 self.recoveries -= 1
             self._recover()
@@ -193,40 +201,55 @@ class GenericParticleFilter(_Filter):
     def _weigh(self, y, u):
         """Add log p(y | x) to the log-weights in place (nothing without y) and
         give the predicted measurement (over the weights before the update),
-        one block of particles at a time: the residuals d = yhat - y give both
-        the Gaussian log-likelihood and, centred on y, the moments of yhat."""
+        one block of particles at a time.
+
+        Residuals are taken from a shift K, the first particle's prediction (a
+        value inside the cloud keeps the moments free of cancellation, however
+        far y is): with d = yhat - K and r = K - y, the predicted measurement
+        has mean K + E[d] and variance E[d^2] - E[d]^2, and over the measured
+        outputs sum_j (yhat_j - y_j)^2 / std_j^2 = sum_j (d_j^2 + 2 r_j d_j + r_j^2) / std_j^2.
+        """
         model, kernel = self.model, self.model._kernel
         w = self._weights()
         std = model.MEASUREMENT_STD
         n_y = len(std)
-        if y is None:
-            centre = np.zeros(n_y)
-        else:
+        if y is not None:
             seen = np.isfinite(y)
             key = seen.tobytes()
-            if key not in self._gauss:  # per pattern of missing outputs: -1/(2 std^2), log-normaliser
-                self._gauss[key] = (np.where(seen, -0.5 / (std * std), 0.0),
+            if key not in self._gauss:  # per pattern of missing outputs
+                self._gauss[key] = (None if seen.all() else np.flatnonzero(seen), -0.5 / (std[seen] * std[seen]),
                                     float(-0.5 * seen.sum() * np.log(2.0 * np.pi) - np.sum(np.log(std[seen]))))
-            weight, constant = self._gauss[key]
-            centre = np.where(seen, y, 0.0)
-        column = centre[:, None]
+            rows, weight, constant = self._gauss[key]
+            measured = y if rows is None else y[rows]
         s1 = np.zeros(n_y)
         s2 = np.zeros(n_y)
+        shift = None
         parts, _ = kernel.spans(self.n)
         for start, stop in parts:
             d = kernel.block_views("state", 1, n_y, stop - start)[0]  # no kernel call while in use
             model.observe(self.x[:, start:stop], u, self.theta, out=d)
+            if shift is None:
+                shift = np.where(np.isfinite(d[:, 0]), d[:, 0], 0.0)
+                column = shift[:, None]
+                if y is not None:
+                    r = (shift if rows is None else shift[rows]) - measured
+                    linear = 2.0 * weight * r
+                    constant = constant + float(weight @ (r * r))
             d -= column
             wb = w[start:stop]
             s1 += d @ wb
+            if y is not None:
+                cross = linear @ (d if rows is None else d[rows])
             d *= d
             s2 += d @ wb
             if y is not None:
-                self.logw[start:stop] += weight @ d
+                block = self.logw[start:stop]
+                block += weight @ (d if rows is None else d[rows])
+                block += cross
         if y is not None:
             self.logw += constant
         var = np.maximum(s2 - s1 * s1, 0.0) + std * std
-        return centre + s1, np.sqrt(var)
+        return shift + s1, np.sqrt(var)
 
 class AuxiliaryParticleFilter(_Filter):
     """Thesis Algorithm 2: choose ancestors by w_k-1 * p(y_k | mu_k), propagate,
