@@ -207,6 +207,12 @@ def cmd_filter(args: argparse.Namespace) -> int:
         raise BgcError("--particles must be at least 1", None, "e.g. --particles 200")
     if args.start is not None and not args.fault:
         raise BgcError("--start hands over to a fault model", None, "give --fault PARAM:KIND with --start")
+    if not c.model.measurements:
+        raise BgcError(f"{args.model}: {c.model.name} has no measurements, so there is nothing to filter", None,
+                       "declare the plant's sensors under 'measurements'")
+    if args.start is not None and not (run.time[0] <= args.start <= run.time[-1]):
+        raise BgcError(f"--start {args.start:g} is outside the run ({run.time[0]:g} to {run.time[-1]:g})", None,
+                       "hand over at a time inside the run")
     package = runtime.load_package(args.generated, c.model.name)
     name = args.fault.replace(":", "_") if args.fault else "nominal"
     results = []
@@ -281,7 +287,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fault", metavar="PARAM:KIND:MAGNITUDE@TIME",
                    help="inject a fault, e.g. R_pipe:incipient:0.5@165 (slope per unit time) or R_pipe:abrupt:31@165 (bias)")
     p.add_argument("--noise", metavar="process=Q,measurement=R", help="noise levels as fractions of the signal")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=_seed, default=0, help="random seed, an integer >= 0")
     p.add_argument("-o", "--output", metavar="FILE.csv")
     p.add_argument("--plot", metavar="FILE.png", help="also plot measurements and states")
     p.set_defaults(run=cmd_simulate)
@@ -292,13 +298,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fault", metavar="PARAM:KIND", help="track with this fault model (default: nominal)")
     p.add_argument("--method", choices=["gpf", "apf", "both"], default="both")
     p.add_argument("--particles", type=int, default=200)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=_seed, default=0, help="random seed, an integer >= 0")
     p.add_argument("--start", type=float, metavar="T",
                    help="with --fault: track the nominal model until T, then hand over to the fault model")
     p.add_argument("--generated", default="generated", metavar="DIR", help="where bgc compile wrote the package")
     p.add_argument("--plot", metavar="FILE.png")
     p.set_defaults(run=cmd_filter)
     return parser
+
+
+def _seed(text: str) -> int:
+    """argparse type of --seed: an integer >= 0 (NumPy's generators take no negative seed)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is negative: give an integer >= 0")
+    return value
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -309,6 +326,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BgcError as exc:
         for line in _error_lines(exc):
             print(line, file=sys.stderr)
+        return 1
+    except OSError as exc:  # an output path that is a directory, a missing parent, no permission
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"{where}{exc.strerror or exc} (choose a writable file path for the output)", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("bgc: interrupted", file=sys.stderr)

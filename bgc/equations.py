@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import networkx as nx
 import sympy
+from sympy.solvers.solveset import NonlinearError
 
 from .errors import EquationError
 from .ir import StateSpaceModel, TemporalCausalGraph, sym
@@ -101,8 +102,12 @@ def _solve_loop(tcg: TemporalCausalGraph, members: list[str],
     where = f"algebraic loop through {', '.join(members)} (elements {', '.join(elements)})"
     try:
         a, b = sympy.linear_eq_to_matrix(eqs, unknowns)
-    except sympy.solvers.solveset.NonlinearError:
-        solutions = sympy.solve(eqs, unknowns, dict=True)
+    except NonlinearError:
+        try:
+            solutions = sympy.solve(eqs, unknowns, dict=True)
+        except (NotImplementedError, ValueError, TypeError):
+            raise EquationError(f"{where} is nonlinear and bgc cannot solve it", tcg.model.source,
+                                "break the loop, e.g. add a small storage element (C or I) in it") from None
         if len(solutions) != 1 or set(solutions[0]) != set(unknowns):
             raise EquationError(f"{where} has {len(solutions)} symbolic solutions", tcg.model.source,
                                 "break the loop, e.g. add a small storage element (C or I) in it") from None

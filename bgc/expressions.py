@@ -147,20 +147,30 @@ class _Parser:
         if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
             operand = self.walk(node.operand, d)
             return -operand if isinstance(node.op, ast.USub) else operand
-        if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Add, ast.Sub, ast.Mult, ast.Div, ast.Pow)):
-            left = self.walk(node.left, d)
-            right = self.walk(node.right, d)
-            if isinstance(node.op, ast.Add):
-                return left + right
-            if isinstance(node.op, ast.Sub):
-                return left - right
-            if isinstance(node.op, ast.Mult):
-                return left * right
-            if isinstance(node.op, ast.Div):
-                if right.is_zero:
-                    raise self.fail("division by zero", "fix the denominator")
-                return left / right
-            return self.power(left, right)
+        if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Add, ast.Sub, ast.Mult, ast.Div)):
+            # a flat chain a + b - c + ... (or a * b / c ...) is one level of nesting however
+            # long it is: its left spine is walked in a loop, not recursively
+            group = (ast.Add, ast.Sub) if isinstance(node.op, (ast.Add, ast.Sub)) else (ast.Mult, ast.Div)
+            chain = []
+            while isinstance(node, ast.BinOp) and isinstance(node.op, group):
+                chain.append((node.op, node.right))
+                node = node.left
+            result = self.walk(node, d)
+            for op, right_node in reversed(chain):
+                right = self.walk(right_node, d)
+                if isinstance(op, ast.Add):
+                    result = result + right
+                elif isinstance(op, ast.Sub):
+                    result = result - right
+                elif isinstance(op, ast.Mult):
+                    result = result * right
+                else:
+                    if right.is_zero:
+                        raise self.fail("division by zero", "fix the denominator")
+                    result = result / right
+            return result
+        if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Pow):
+            return self.power(self.walk(node.left, d), self.walk(node.right, d))
         if isinstance(node, ast.Call):
             return self.call(node, d)
         raise self.fail(f"{_describe(node)} is not allowed", "use only " + _ALLOWED)

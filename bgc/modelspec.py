@@ -33,6 +33,9 @@ from .errors import EquationError
 from .ir import StateSpaceModel, sym
 
 H_LAMBDA = 1.5
+#: More RK4 substeps per sample than this is refused: the plant is too stiff for
+#: its sample period (the truth simulator takes 8 times as many).
+MAX_SUBSTEPS = 200
 #: Per-step random-walk std of the fault magnitude state, as a fraction of |theta|
 #: (abrupt bias) or of the slope prior's width (incipient slope).
 FAULT_JITTER = 0.004
@@ -121,7 +124,15 @@ def numerics(ssm: StateSpaceModel, process_noise: float | None = None,
     eig = np.linalg.eigvals(j)
     eig = np.array(sorted(eig, key=lambda z: (round(abs(z), 12), round(z.real, 12), round(z.imag, 12))))
     dt = model.settings.dt
-    substeps = max(1, math.ceil(max(abs(eig)) * dt / H_LAMBDA - 1e-12))
+    fastest = float(max(abs(eig))) if len(eig) else 0.0
+    substeps = max(1, math.ceil(fastest * dt / H_LAMBDA - 1e-12))
+    if substeps > MAX_SUBSTEPS:
+        raise EquationError(
+            f"model '{model.name}' is stiff for its sample period: the fastest mode at the initial state has "
+            f"|lambda| = {fastest:.3g}, so RK4 would need {substeps} substeps per sample of {dt:g} "
+            f"(at most {MAX_SUBSTEPS})", model.source,
+            f"set simulation.dt to at most {MAX_SUBSTEPS * H_LAMBDA / fastest:.3g}, or make the fastest "
+            "storage element slower")
     y0 = tuple(float(sympy.N(h.xreplace(sub))) for h in ssm.output_exprs)
     horizon = model.settings.steps * dt
     storage_noise = {el.name: el.noise for el in model.elements if el.kind in ("C", "I")}

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import re
 from dataclasses import dataclass
 
@@ -95,10 +96,14 @@ def parse_fault(text: str, ssm: StateSpaceModel) -> FaultInjection:
     if kind not in FAULT_KINDS:
         raise SimulationError(f"--fault: unknown kind '{kind}'", None, "kinds: " + ", ".join(FAULT_KINDS))
     try:
-        return FaultInjection(name, kind, float(mag), float(time))
+        injection = FaultInjection(name, kind, float(mag), float(time))
     except ValueError:
         raise SimulationError(f"--fault '{text}': magnitude and time must be numbers", None,
                               "e.g. R_pipe:abrupt:31@165") from None
+    if not (math.isfinite(injection.magnitude) and math.isfinite(injection.time)):
+        raise SimulationError(f"--fault '{text}': magnitude and time must be finite numbers", None,
+                              "e.g. R_pipe:abrupt:31@165")
+    return injection
 
 
 def simulate(ssm: StateSpaceModel, options: SimulationOptions) -> SimulationResult:

@@ -29,9 +29,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import networkx as nx
+import numpy as np
 import sympy
 
-from .errors import EquationError
+from .errors import BgcError, EquationError
 from .ir import (
     CausalBondGraph, Element, TemporalCausalGraph, TcgEdge, effort, flow, sym,
 )
@@ -263,7 +264,7 @@ def _relations(cbg: CausalBondGraph) -> list[_Relation]:
         elif k in ("C", "I"):
             out.append(_storage(el, bonds[0].number, by))
         elif k in ("R", "MR"):
-            out.append(_resistor(el, bonds[0].number, by))
+            out.append(_resistor(el, bonds[0].number, by, model.parameter_values()))
         else:
             out.extend(_two_port(el, bonds, by))
     return out
@@ -307,7 +308,7 @@ def _storage(el: Element, b: int, by: dict[int, str]) -> _Relation:
     return _Relation(flow(b), sym(effort(b)) / el.parameter, "integral", el.name, {effort(b): f"dt/{p}"}, True, signs)
 
 
-def _resistor(el: Element, b: int, by: dict[int, str]) -> _Relation:
+def _resistor(el: Element, b: int, by: dict[int, str], values: dict[str, float]) -> _Relation:
     e, f = effort(b), flow(b)
     gives_effort = by[b] == el.name
     target, source = (e, f) if gives_effort else (f, e)
@@ -322,20 +323,61 @@ def _resistor(el: Element, b: int, by: dict[int, str]) -> _Relation:
     if law.output == target:
         expr = law.expr
     else:
-        expr = _invert(el, law.expr, source, target)
+        expr = _invert(el, law.expr, source, target, values)
     return _Relation(target, expr, "law", el.name, {source: "law"})
 
 
-def _invert(el: Element, expr: sympy.Expr, given: str, wanted: str) -> sympy.Expr:
-    """Solve ``given = expr(wanted)`` for ``wanted`` (a law written in the other causality)."""
+#: Values of the wanted variable at which an inverse is checked (both signs, several scales).
+_INVERSE_SAMPLES = (-7.0, -2.0, -0.5, -0.05, 0.05, 0.5, 2.0, 7.0)
+
+
+def _invert(el: Element, expr: sympy.Expr, given: str, wanted: str, values: dict[str, float]) -> sympy.Expr:
+    """Solve ``given = expr(wanted)`` for ``wanted`` (a law written in the other causality).
+
+    sympy's candidates are checked numerically, not trusted: at the nominal
+    parameter values (other variables of an MR law at 0.7), a candidate must
+    give back every sample of the wanted variable from the law's value there,
+    as a real number, and be printable as NumPy code. Exactly one must pass
+    (sympy offers e.g. f**2/a**2 for the orifice f = a*sqrt(|e|)*sign(e), which
+    loses the sign, or the complex roots of a cubic).
+    """
+    from .printing import print_expr
+
+    fix = f"write the law as '{wanted[0]} = <expression of {given[0]}>'"
+    head = f"law of {el.name} ({el.law.text}) must be inverted for the causality SCAP chose"
     w = sympy.Dummy(wanted)
-    solutions = sympy.solve(sympy.Eq(sym(given), expr.xreplace({sym(wanted): w})), w)
-    if len(solutions) != 1:
-        raise EquationError(
-            f"law of {el.name} ({el.law.text}) must be inverted for the causality SCAP chose, "
-            f"and it has {len(solutions)} solutions for {wanted[0]}", el.law.loc,
-            f"write the law as '{wanted[0]} = <expression of {given[0]}>'")
-    return solutions[0]
+    try:
+        candidates = sympy.solve(sympy.Eq(sym(given), expr.xreplace({sym(wanted): w})), w)
+    except (NotImplementedError, ValueError, TypeError):
+        raise EquationError(f"{head}, and bgc cannot solve it for {wanted[0]}", el.law.loc, fix) from None
+    point = {s: values.get(s.name, 0.7) for s in expr.free_symbols if s.name not in (wanted, given)}
+    checked = []
+    for c in candidates:
+        good = 0
+        for v in _INVERSE_SAMPLES:
+            try:
+                g = complex(sympy.N(expr.xreplace({**point, sym(wanted): v})))
+                if not np.isfinite(g) or abs(g.imag) > 1e-12 * max(1.0, abs(g.real)):
+                    continue  # the law is not defined there
+                back = complex(sympy.N(c.xreplace({**point, sym(given): g.real})))
+            except (TypeError, ValueError, ZeroDivisionError):
+                back = complex("nan")
+            if not (np.isfinite(back) and abs(back.imag) <= 1e-9 * max(1.0, abs(back.real))
+                    and abs(back.real - v) <= 1e-7 * max(1.0, abs(v))):
+                break
+            good += 1
+        else:
+            if good:
+                checked.append(c)
+    if len(checked) != 1:
+        found = f"sympy gives {len(candidates)} solution(s) for {wanted[0]}, {len(checked)} of them a real inverse"
+        raise EquationError(f"{head}, and {found}", el.law.loc, fix)
+    try:
+        print_expr(checked[0])
+    except BgcError:
+        raise EquationError(f"{head}, and its inverse {sympy.sstr(checked[0])[:50]} uses a function bgc cannot "
+                            "evaluate", el.law.loc, fix) from None
+    return checked[0]
 
 
 def _two_port(el: Element, bonds: list, by: dict[int, str]) -> list[_Relation]:

@@ -58,3 +58,58 @@ def test_nonlinear_law_at_its_kink_is_one_line_exit_1(tmp_path):
     ok = run("compile", str(ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml"), "-o", str(tmp_path / "ok"),
              "--no-pictures")
     assert ok.returncode == 0, ok.stderr
+
+
+RC = """name: rc1
+description: single-state RC (test model)
+parameters: {R: %s, C: %s}
+inputs: {V: 1.0}
+elements: {V: {kind: Se}, j: {kind: "1"}, R: {kind: R}, C: {kind: C}}
+bonds: {1: [V, j], 2: [j, R], 3: [j, C]}
+%s
+faults: {R: [abrupt, incipient]}
+"""
+
+
+def one_line_error(r):
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    return lines[0]
+
+
+def test_stiff_plant_for_its_sample_period_is_refused_not_run_for_hours(tmp_path):
+    """tau = R C = 1e-6 with dt = 1 would take 666 667 RK4 substeps per sample."""
+    model = tmp_path / "stiff.yaml"
+    model.write_text(RC % ("1.0e-3", "1.0e-3", "measurements: {e3: {}}"))
+    line = one_line_error(run("compile", str(model), "-o", str(tmp_path / "g"), "--no-pictures"))
+    assert line.startswith(f"{model}: model 'rc1' is stiff for its sample period")
+    assert "666667 substeps" in line and "set simulation.dt to at most 0.0003" in line
+    assert one_line_error(run("simulate", str(model), "--steps", "3", "-o", str(tmp_path / "r.csv"))) == line
+
+
+def test_run_time_options_out_of_range_are_one_line_errors(tmp_path):
+    model = tmp_path / "rc.yaml"
+    model.write_text(RC % ("1.0", "2.0", "measurements: {e3: {}}"))
+    csv = tmp_path / "run.csv"
+    assert run("compile", str(model), "-o", str(tmp_path / "g"), "--no-pictures").returncode == 0
+    assert run("simulate", str(model), "--steps", "20", "-o", str(csv)).returncode == 0
+    r = run("simulate", str(model), "--steps", "5", "--seed", "-1", "-o", str(csv))
+    assert r.returncode == 2 and "--seed: -1 is negative" in r.stderr and "Traceback" not in r.stderr
+    line = one_line_error(run("simulate", str(model), "--steps", "5", "--fault", "R:abrupt:1e400@2", "-o", str(csv)))
+    assert "must be finite numbers" in line
+    line = one_line_error(run("simulate", str(model), "--steps", "5", "-o", str(tmp_path)))
+    assert line.startswith(f"{tmp_path}: Is a directory") and "writable file path" in line
+    line = one_line_error(run("filter", str(model), str(csv), "--generated", str(tmp_path / "g"),
+                              "--fault", "R:abrupt", "--start", "60"))
+    assert line.startswith("--start 60 is outside the run (1 to 20)")  # samples at t = 1..20 (dt = 1)
+
+
+def test_filter_on_a_plant_without_sensors_says_there_is_nothing_to_filter(tmp_path):
+    model = tmp_path / "blind.yaml"
+    model.write_text(RC % ("1.0", "2.0", ""))
+    csv = tmp_path / "run.csv"
+    assert run("compile", str(model), "-o", str(tmp_path / "g"), "--no-pictures").returncode == 0
+    assert run("simulate", str(model), "--steps", "5", "-o", str(csv)).returncode == 0
+    line = one_line_error(run("filter", str(model), str(csv), "--generated", str(tmp_path / "g")))
+    assert "has no measurements, so there is nothing to filter" in line

@@ -16,11 +16,13 @@ gives -1 for C1; ``e11 = R3*f11`` gives +1 for R3.
 from __future__ import annotations
 
 
+import math
+
 import pytest
 import sympy
 
 
-from conftest import ALL_MODELS, compiled
+from conftest import ALL_MODELS, ROOT, compiled
 
 
 
@@ -238,3 +240,63 @@ def test_ro_storage_effect_is_not_decided_by_rounding_noise():
     assert Fraction("1") - Fraction("0.1") * Fraction("13.98906") + Fraction("0.398906") == 0
     e = edge(compiled("ro").tcg, "e3", "f3")
     assert e.effects == (-1,)
+
+
+# ------------------------------------------------------- inverting nonlinear laws
+LAWS = ROOT / "tests" / "data" / "laws"
+
+
+@pytest.mark.parametrize("name, message", [
+    ("orifice_inverted", "law of Rt (f = g0*sqrt(abs(e))*sign(e)) must be inverted"),
+    ("lambertw", "uses a function bgc cannot evaluate"),
+    ("unsolvable", "bgc cannot solve it for e"),
+])
+def test_a_law_without_a_usable_inverse_is_a_located_one_line_error(name, message):
+    from bgc.errors import EquationError
+    from bgc.pipeline import compile_model
+
+    with pytest.raises(EquationError) as info:
+        compile_model(LAWS / f"{name}.yaml")
+    line = info.value.line()
+    assert "\n" not in line and message in line
+    assert line.startswith(f"{LAWS / name}.yaml:9:22: ") or line.startswith(f"tests/data/laws/{name}.yaml:9:22: ")
+    assert line.endswith("(write the law as 'e = <expression of f>')")
+
+
+def test_sign_losing_inverse_that_sympy_offers_is_refused():
+    """For f = a*sqrt(|e|)*sign(e) sympy (plain symbols) offers e = f**2/a**2,
+    right for f > 0 only; the numerical check on both signs refuses it."""
+    from types import SimpleNamespace
+
+    from bgc.errors import EquationError
+    from bgc.tcg import _invert
+
+    e, f, a = sympy.symbols("e3 f3 a")
+    el = SimpleNamespace(name="Rt", law=SimpleNamespace(text="f = a*sqrt(abs(e))*sign(e)", loc="x.yaml:1:1"))
+    with pytest.raises(EquationError):
+        _invert(el, a * sympy.sqrt(sympy.Abs(e)) * sympy.sign(e), "f3", "e3", {"a": 2.0})
+    # a law with a real inverse on its whole range passes: e = a*atanh(f/g0)
+    g0 = sympy.Symbol("g0")
+    inv = _invert(el, g0 * sympy.tanh(e / a), "f3", "e3", {"a": 2.0, "g0": 0.5})
+    for v in (-0.4, -0.1, 0.2, 0.45):
+        assert float(inv.subs({f: v, a: 2.0, g0: 0.5})) == pytest.approx(2.0 * math.atanh(v / 0.5), rel=1e-12)
+
+
+def test_tanh_law_inverted_gives_the_hand_derived_state_equation():
+    """Se F -> 1-junction -> I m and R with f = g0*tanh(e/a): the R needs e = a*atanh(f/g0),
+    so dp/dt = F - a*atanh(f2/g0) with f2 = p/m; by hand at f2 = 0.1: (0.2 - 2*atanh(0.2))/1."""
+    from bgc.pipeline import compile_model
+
+    ssm = compile_model(LAWS / "tanh_inverted.yaml").equations
+    rhs = ssm.rhs[0].subs({sympy.Symbol(n): v for n, v in zip(ssm.parameters, ssm.parameter_values)})
+    rhs = rhs.subs({sympy.Symbol("F"): 0.2, sympy.Symbol(ssm.states[0]): 0.1})
+    assert float(rhs) == pytest.approx(0.2 - 2.0 * math.atanh(0.1 / 0.5), rel=1e-12)
+
+
+def test_nonlinear_algebraic_loop_sympy_cannot_solve_is_one_line():
+    from bgc.errors import EquationError
+    from bgc.pipeline import compile_model
+
+    with pytest.raises(EquationError) as info:
+        compile_model(LAWS / "nonlinear_loop.yaml")
+    assert "is nonlinear and bgc cannot solve it" in info.value.line() and "\n" not in info.value.line()
