@@ -213,7 +213,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
     if args.start is not None and not (run.time[0] <= args.start <= run.time[-1]):
         raise BgcError(f"--start {args.start:g} is outside the run ({run.time[0]:g} to {run.time[-1]:g})", None,
                        "hand over at a time inside the run")
-    package = runtime.load_package(args.generated, c.model.name)
+    package = runtime.load_package(args.generated, c.model.name, args.model)
     name = args.fault.replace(":", "_") if args.fault else "nominal"
     results = []
     for method in (["gpf", "apf"] if args.method == "both" else [args.method]):

@@ -158,8 +158,8 @@ def simulate(ssm: StateSpaceModel, options: SimulationOptions) -> SimulationResu
             x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         x = x + proc * rng.standard_normal(len(xs))
         if not np.all(np.isfinite(x)):
-            raise SimulationError(f"the simulation of {model.name} diverged at t = {times[k]:g}", None,
-                                  "reduce the fault magnitude or the noise")
+            raise SimulationError(f"the simulation of {model.name} diverged at t = {times[k]:g}", model.source,
+                                  "reduce the fault magnitude or the noise, or check the model's values")
         tk = times[k]
         states[k] = x
         inputs[k] = u

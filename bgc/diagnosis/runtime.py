@@ -21,12 +21,15 @@ from ..errors import SimulationError
 from ..simulate import Run
 
 
-def load_package(generated_dir: str | Path, model: str) -> ModuleType:
-    """Import ``<generated_dir>/<model>/numpy_model`` as ``bgc_generated_<model>``."""
+def load_package(generated_dir: str | Path, model: str, source: str | None = None) -> ModuleType:
+    """Import ``<generated_dir>/<model>/numpy_model`` as ``bgc_generated_<model>``
+    (``source``: the model file, for the hint when the package is missing)."""
     root = Path(generated_dir) / model / PACKAGE
     init = root / "__init__.py"
     if not init.exists():
-        raise SimulationError(f"no generated package at {root}", None, f"run: bgc compile models/{model}.yaml")
+        out = "" if Path(generated_dir) == Path("generated") else f" -o {generated_dir}"
+        raise SimulationError(f"no generated package at {root}", None,
+                              f"run: bgc compile {source or 'MODEL.yaml'}{out}")
     name = f"bgc_generated_{model}"
     if name in sys.modules and getattr(sys.modules[name], "__file__", None) == str(init):
         return sys.modules[name]
