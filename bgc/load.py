@@ -11,6 +11,7 @@ duplicate element name or bond number is an error, not a surprise.
 from __future__ import annotations
 
 import hashlib
+import re
 from pathlib import Path
 from typing import Any
 
@@ -63,8 +64,14 @@ def loads(text: str, name: str = "<string>") -> RawModel:
         loc = SourceLoc(name, mark.line + 1, mark.column + 1) if mark else SourceLoc(name, 1, 1)
         raise LoadError(f"YAML syntax error: {exc.problem or exc.context}", loc,
                         "fix the YAML syntax at this place") from None
+    except yaml.reader.ReaderError as exc:  # a control character such as NUL: not marked
+        raise LoadError(f"character {_char_name(exc.character)} is not allowed in YAML",
+                        _position(text, name, exc.position),
+                        "delete it: a model file is plain text") from None
     except yaml.YAMLError as exc:
-        raise LoadError(f"YAML error: {exc}", SourceLoc(name, 1, 1)) from None
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise LoadError(f"YAML error: {first}", SourceLoc(name, 1, 1),
+                        "fix the YAML syntax: see docs/format.md") from None
     except RecursionError:
         raise LoadError("YAML is nested too deeply", SourceLoc(name, 1, 1),
                         "a model needs only a few levels of nesting") from None
@@ -76,6 +83,27 @@ def loads(text: str, name: str = "<string>") -> RawModel:
     except RecursionError:
         raise LoadError("YAML is nested too deeply", SourceLoc(name, 1, 1),
                         "a model needs only a few levels of nesting") from None
+
+
+#: What YAML counts as a line break (as its reader does: a CR only when no LF follows).
+_BREAK = re.compile("\r\n|[\n\r\x85\u2028\u2029]")
+
+
+def _position(text: str, name: str, position: int) -> SourceLoc:
+    """The place of a character offset in ``text``, lines counted as YAML counts them."""
+    before = text[: max(0, min(position, len(text)))]
+    breaks = list(_BREAK.finditer(before))
+    start = breaks[-1].end() if breaks else int(text.startswith("\ufeff"))  # a BOM is no column
+    return SourceLoc(name, len(breaks) + 1, len(before) - start + 1)
+
+
+def _char_name(character: object) -> str:
+    """``#x0000 (NUL)`` for a code point."""
+    if isinstance(character, str) and character:
+        character = ord(character[0])
+    if not isinstance(character, int):
+        return "a special character"
+    return f"#x{character:04x}" + (" (NUL)" if character == 0 else "")
 
 
 class _Walker:

@@ -15,13 +15,16 @@ from __future__ import annotations
 import builtins
 import json
 import keyword
+import math
 import re
+import sys
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Iterator
 
 import jsonschema
 import sympy
+import yaml
 
 from . import expressions
 from .errors import BgcError, ErrorGroup, ExpressionError, ValidationError
@@ -105,18 +108,33 @@ class _Validator:
 
     def check_schema(self, data: dict) -> None:
         validator = jsonschema.Draft202012Validator(schema())
+        # .inf, .nan, 1.0e+400 and integers beyond the float range pass "type: number" (and
+        # .nan every bound): they are refused here, at each number of the model.
+        non_finite = dict(_non_finite(data))
+        unknown: set[tuple] = set()  # keys the schema refuses as unknown: nothing under them is checked
         for err in validator.iter_errors(data):
             path = tuple(err.absolute_path)
             if "propertyNames" in err.absolute_schema_path:
                 path = path + (err.instance,)  # the offending key itself
             self.bad_paths.add(path)
+            if path in non_finite:
+                if err.validator in _RANGE or (err.validator == "type" and _wants_number(err.validator_value)):
+                    continue  # said below: the number is not finite
+                del non_finite[path]  # e.g. 'name: .inf': the schema says better what is wrong
             what, fix, key = _schema_message(err, path)
             where = path
             if err.validator == "additionalProperties" and isinstance(err.instance, dict):
                 extra = sorted(set(err.instance) - set(err.schema.get("properties", {})))
+                unknown.update(path + (k,) for k in extra)
                 if extra:  # point at the unknown key, not at the mapping holding it
                     where, key = path + (extra[0],), True
             self.error(what, where, fix, key=key)
+        for path, what in non_finite.items():
+            if any(path[:i] in unknown for i in range(1, len(path) + 1)):
+                continue
+            self.bad_paths.add(path)
+            self.error(f"{_where(path)} is {what}", path,
+                       "write a finite number, at most 1.8e308 in magnitude")
 
     # ------------------------------------------------------------------ build
     def build(self, data: dict) -> BondGraph:
@@ -440,9 +458,17 @@ def _closest(name: str, options: Iterable[str]) -> str | None:
     return match[0] if match else None
 
 
-def _schema_message(err: jsonschema.ValidationError, path: tuple) -> tuple[str, str | None, bool]:
-    """Turn a jsonschema error into (what, fix, point at key)."""
-    where = ".".join(str(p) for p in path) or "the model"
+#: Bound keywords of the schema, with how a fix states them.
+_RANGE = {"minimum": ">=", "exclusiveMinimum": ">", "maximum": "<=", "exclusiveMaximum": "<"}
+
+
+def _where(path: tuple) -> str:
+    return ".".join(str(p) for p in path) or "the model"
+
+
+def _schema_message(err: jsonschema.ValidationError, path: tuple) -> tuple[str, str, bool]:
+    """Turn a jsonschema error into (what, fix, point at key): every message has a fix."""
+    where = _where(path)
     v = err.validator
     if v == "additionalProperties":
         extra = sorted(set(err.instance) - set(err.schema.get("properties", {})))
@@ -460,8 +486,12 @@ def _schema_message(err: jsonschema.ValidationError, path: tuple) -> tuple[str, 
             return (f"unknown element kind '{err.instance}' in {where}", "valid kinds: " + ", ".join(KINDS), False)
         return (f"'{err.instance}' is not valid for {where}", "choose one of: " + ", ".join(options), False)
     if v == "type":
-        want = err.validator_value if isinstance(err.validator_value, str) else " or ".join(err.validator_value)
-        return (f"{where} must be {_article(want)}, not {_json_type(err.instance)}", None, False)
+        want = [err.validator_value] if isinstance(err.validator_value, str) else list(err.validator_value)
+        if want == ["null"]:  # a measurement: empty or a mapping
+            return (f"{where} must be empty or a mapping, not {_json_type(err.instance)}",
+                    f"write '{path[-1]}:' alone or '{path[-1]}: {{expr: ..., noise: ...}}'", False)
+        return (f"{where} must be {_article(' or '.join(want))}, not {_json_type(err.instance)}",
+                _type_fix(want, err.instance, path), False)
     if v == "pattern":
         if path[:1] == ("bonds",) and len(path) == 2:
             return (f"bond number '{err.instance}' is not a positive integer", "number bonds 1, 2, 3, ...", True)
@@ -470,12 +500,113 @@ def _schema_message(err: jsonschema.ValidationError, path: tuple) -> tuple[str, 
     if v == "maxLength":
         return (f"name '{str(err.instance)[:20]}...' is too long", "use at most 64 characters", True)
     if v in ("minItems", "maxItems"):
+        options = err.schema.get("items", {}).get("enum")
+        if options:  # fault kinds
+            return (f"{where} is empty", "list at least one of: " + ", ".join(options), False)
         return (f"{where} must list exactly two elements [from, to]", "write [tail, head]", False)
+    if v == "uniqueItems":
+        items = [json.dumps(i) if not isinstance(i, str) else i for i in err.instance]
+        twice = next((i for n, i in enumerate(items) if i in items[:n]), "an item")
+        what = "kind" if path[:1] == ("faults",) else "item"
+        return (f"{where} lists '{twice}' more than once", f"list each {what} once", False)
     if v == "minProperties":
         return (f"{where} is empty", "add at least one entry", False)
-    if v in ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum"):
-        return (f"{where} is out of range: {err.message}", None, False)
-    return (f"{where}: {err.message}", None, False)
+    if v in _RANGE:
+        if _is_sensor_noise(path):
+            return (f"{where} must be positive, not {err.instance}", "give a positive noise level such as 0.02: "
+                    "zero sensor noise makes the filter's likelihood degenerate", False)
+        bounds = " and ".join(f"{op} {_number(err.schema[k])}" for k, op in _RANGE.items() if k in err.schema)
+        kind = "a whole number" if err.schema.get("type") == "integer" else "a number"
+        return (f"{where} is out of range: {err.message}", f"use {kind} {bounds}", False)
+    return (f"{where}: {err.message}", "see docs/format.md for what this place takes", False)
+
+
+def _is_sensor_noise(path: tuple) -> bool:
+    """A measurement noise level: zero would make the filter's likelihood degenerate."""
+    return (len(path) == 3 and path[0] == "measurements" and path[2] == "noise") \
+        or path == ("simulation", "measurement_noise")
+
+
+def _wants_number(types: str | list) -> bool:
+    return bool({"number", "integer"} & ({types} if isinstance(types, str) else set(types)))
+
+
+def _type_fix(want: list[str], value: Any, path: tuple) -> str:
+    """How to write a value of one of the types ``want``."""
+    if _wants_number(want):
+        if isinstance(value, str):
+            number = _number_text(value)
+            if number is not None:
+                return number
+            if path[:1] == ("parameters",):
+                return "write a number such as 1.5; a formula goes in an element's 'parameter'"
+        return "write a whole number such as 300" if want == ["integer"] else "write a number such as 1.5"
+    if "string" in want:
+        return "write text; quote it if YAML would read it as something else"
+    if "array" in want:
+        if path[:1] == ("bonds",):
+            return "write [tail, head]"
+        if path[:1] == ("faults",):
+            return "write a list such as [abrupt] or [abrupt, incipient]"
+        return "write a list [a, b, ...]"
+    if "object" in want:
+        return "write a mapping: 'key: value' entries, indented or in {braces}"
+    return "see docs/format.md for what this place takes"
+
+
+def _number_text(text: str) -> str | None:
+    """The fix for a number YAML read as text, or None if ``text`` is no number."""
+    try:
+        value = float(text)
+    except ValueError:
+        return None
+    if not math.isfinite(value) or len(text) > 40:
+        return None
+    if _reads_as_number(text):  # it was quoted
+        return f"write {text.strip()} without quotes"
+    # the YAML 1.1 trap: '1e3' is text; a float needs a '.' and a signed exponent: 1.0e+3
+    mantissa, _, exponent = text.strip().lower().partition("e")
+    sign = mantissa[:1] if mantissa[:1] in "+-" else ""
+    digits = mantissa[len(sign):]
+    digits = "0" + digits if digits.startswith(".") else digits
+    digits += "0" if digits.endswith(".") else "" if "." in digits else ".0"
+    if exponent:
+        digits += "e" + (exponent if exponent[:1] in "+-" else "+" + exponent)
+    exact = value != 0 or not any(c in "123456789" for c in mantissa)  # not 1e-400 -> 0
+    plain = str(int(value)) if value.is_integer() and abs(value) < 1e15 and exact else None
+    options = [w for w in dict.fromkeys([sign + digits, plain]) if w and _reads_as_number(w)]
+    if not options:
+        return None
+    return f"YAML reads '{text}' as text: write {' or '.join(options)}"
+
+
+def _reads_as_number(text: str) -> bool:
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return False
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _number(value: Any) -> str:
+    return str(int(value)) if isinstance(value, float) and value.is_integer() else str(value)
+
+
+def _non_finite(data: Any) -> Iterator[tuple[tuple, str]]:
+    """(path, what it is) of every number of ``data`` that is not a finite float, in file order."""
+    stack: list[tuple[tuple, Any]] = [((), data)]
+    while stack:  # no recursion: the loader accepts deeper nesting than Python's stack
+        path, value = stack.pop()
+        if isinstance(value, dict):
+            stack.extend(reversed([(path + (k,), v) for k, v in value.items()]))
+        elif isinstance(value, list):
+            stack.extend(reversed([(path + (i,), v) for i, v in enumerate(value)]))
+        elif isinstance(value, float) and math.isnan(value):
+            yield path, "NaN (.nan), not a finite number"
+        elif isinstance(value, float) and math.isinf(value):
+            yield path, f"{'' if value > 0 else 'minus '}infinite, not a finite number"
+        elif isinstance(value, int) and not isinstance(value, bool) and abs(value) > sys.float_info.max:
+            yield path, "too large to be a floating-point number"
 
 
 def _article(word: str) -> str:

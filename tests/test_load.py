@@ -230,3 +230,38 @@ def test_load_of_a_file_with_a_python_tag_does_not_run_it(tmp_path):
     with pytest.raises(BgcError):
         load(path)
     assert not sentinel.exists()
+
+
+# --------------------------------------------------------- special characters
+@pytest.mark.parametrize("text, line, col, char", [
+    ("name: rc\nfaults: {R: [abrupt]}\n\0", 3, 1, "#x0000 (NUL)"),       # the fuzzer's file: NUL at the end
+    ("name: rc\ndescription: R\0C\n", 2, 15, "#x0000 (NUL)"),
+    ("name: rc\r\ndescription: \x07\r\n", 2, 14, "#x0007"),              # CRLF is one line break
+    ("name: rc\rdescription: \x1b\r", 2, 14, "#x001b"),                  # so is a lone CR, for YAML
+    ("\ufeffname: \x00\n", 1, 7, "#x0000 (NUL)"),                        # a BOM is no column, as in YAML's marks
+])
+def test_a_special_character_is_a_one_line_error_at_its_place(text, line, col, char):
+    (err,) = load_error(text)
+    assert err.loc == SourceLoc("m.yaml", line, col)
+    assert err.what == f"character {char} is not allowed in YAML"
+    assert err.fix and "delete it" in err.fix
+
+
+def test_a_nul_byte_in_a_file(tmp_path):
+    path = tmp_path / "nul.yaml"
+    path.write_bytes(b"name: rc\nparameters: {R: 1.0}\n\x00\n")
+    with pytest.raises(LoadError) as info:
+        load(path)
+    assert info.value.line() == (f"{path}:3:1: character #x0000 (NUL) is not allowed in YAML "
+                                 "(delete it: a model file is plain text)")
+
+
+def test_any_other_yaml_error_is_one_line_with_a_place_and_a_fix(monkeypatch):
+    import yaml
+
+    def broken(*args, **kwargs):
+        raise yaml.YAMLError("something odd\n  in \"<unicode string>\", position 3")
+
+    monkeypatch.setattr(yaml, "compose", broken)
+    (err,) = load_error("name: rc\n")
+    assert err.line() == "m.yaml:1:1: YAML error: something odd (fix the YAML syntax: see docs/format.md)"

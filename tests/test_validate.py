@@ -379,3 +379,151 @@ def test_ro_membrane_resistance_is_modulated_by_the_conductivity():
     assert same(mr.parameter, S("R_memb") * ((S("e27") - S("K0")) / S("K_slope") + 29) / 29)
     msf = g.element("MSf_k")
     assert same(msf.source, S("k_scale") * S("f10") * (6 * S("k_scale") * S("f18") + sympy.Rational(1, 10)))
+
+
+# ------------------------------------------------------- numbers and schema fixes
+def at_value(text: str, written: str, literal: str) -> tuple[int, int]:
+    """Line and column (from 1) of ``literal`` inside the first ``written`` in ``text``."""
+    before = text[: text.index(written) + written.index(literal)]
+    return before.count("\n") + 1, len(before) - (before.rfind("\n") + 1) + 1
+
+
+@pytest.mark.parametrize("old, new, where", [
+    ("C: 0.5", "C: .inf", "parameters.C is infinite"),
+    ("C: 0.5", "C: -.inf", "parameters.C is minus infinite"),
+    ("C: 0.5", "C: .NaN", "parameters.C is NaN"),
+    ("C: 0.5", "C: 1.0e+400", "parameters.C is infinite"),                 # overflows to .inf
+    ("C: 0.5", "C: 1" + "0" * 400, "parameters.C is too large"),           # an int: float() would raise
+    ("{value: 2.5, unit: ohm", "{value: -.inf, unit: ohm", "parameters.R.value is minus infinite"),
+    ("level: 7.0", "level: .nan", "inputs.level is NaN"),
+    ("value: 1.0, final: 2.0", "value: 1.0, final: .inf", "inputs.V.final is infinite"),
+    ("start: 5.0", "start: .inf", "inputs.V.start is infinite"),
+    ("start: 5.0", "start: -.inf", "inputs.V.start is minus infinite"),   # not also 'out of range'
+    ("slope: 0.5", "slope: .nan", "inputs.slope_in.slope is NaN"),
+    ("initial: 1.5", "initial: .nan", "elements.C.initial is NaN"),
+    ("C: {kind: C, initial: 1.5}", "C: {kind: C, noise: .nan}", "elements.C.noise is NaN"),
+    ("V: {kind: Se}", "V: {kind: Se, value: .inf}", "elements.V.value is infinite"),
+    ("R: {kind: R}", "R: {kind: R, parameter: .nan}", "elements.R.parameter is NaN"),
+    ("noise: 0.1", "noise: .inf", "measurements.P.noise is infinite"),
+    ("prior: 0.2", "prior: .nan", "faults.C.prior is NaN"),
+    ("prior: 0.2", "prior: .inf", "faults.C.prior is infinite"),          # not also 'out of range'
+])
+def test_a_number_that_is_not_finite_is_refused_where_it_is(old, new, where):
+    text = RC.replace(old, new, 1)
+    assert text != RC
+    (err,) = errors(text)
+    assert isinstance(err, ValidationError)
+    assert err.what.startswith(where) and ("not a finite number" in err.what or "too large" in err.what)
+    assert "write a finite number" in err.fix
+    literal = re.search(r"-?\.(inf|nan|NaN)|1\.0e\+400|10{400}", new)[0]
+    assert (err.loc.line, err.loc.col) == at_value(text, new, literal)
+
+
+@pytest.mark.parametrize("setting", ["dt: .inf", "dt: .nan", "steps: .inf", "process_noise: .nan",
+                                     "measurement_noise: .inf", "dt: 1.0e+999"])
+def test_a_simulation_setting_that_is_not_finite_is_refused(setting):
+    (err,) = errors(RC + f"simulation: {{{setting}}}\n")
+    assert err.what.startswith("simulation." + setting.split(":")[0]) and "not a finite number" in err.what
+    assert err.loc == SourceLoc("m.yaml", 26, 16 + len(setting.split(":")[0]))  # "simulation: {" is 13
+
+
+def test_a_non_finite_value_where_no_number_goes_gets_the_schema_error_only():
+    (err,) = errors(RC.replace("name: rc", "name: .inf"))
+    assert err.what == "name must be a string, not a number" and err.fix
+    (err,) = errors(RC.replace("R: {kind: R}", "R: {kind: .nan}"))
+    assert "unknown element kind" in err.what
+
+
+def test_a_non_finite_value_under_an_unknown_key_is_not_reported_again():
+    (err,) = errors(RC + "solver: {tol: .inf, atol: [.nan]}\n")
+    assert err.what.startswith("unknown section 'solver'")
+    (err,) = errors(RC.replace("prior: 0.2}", "prior: 0.2, weight: .nan}"))
+    assert err.what.startswith("unknown key 'weight'")
+
+
+@pytest.mark.parametrize("old, new, where", [
+    ("noise: 0.1", "noise: 0", "measurements.P.noise"),
+    ("noise: 0.1", "noise: 0.0", "measurements.P.noise"),
+    ("  f2:\n", "  f2: {noise: 0}\n", "measurements.f2.noise"),
+])
+def test_zero_sensor_noise_is_refused(old, new, where):
+    (err,) = errors(RC.replace(old, new))
+    assert err.what.startswith(f"{where} must be positive")
+    assert "give a positive noise level" in err.fix
+
+
+def test_zero_default_measurement_noise_is_refused_but_zero_process_noise_is_not():
+    (err,) = errors(RC + "simulation: {measurement_noise: 0}\n")
+    assert err.what == "simulation.measurement_noise must be positive, not 0"
+    assert err.loc == SourceLoc("m.yaml", 26, 33) and "give a positive noise level" in err.fix
+    g = build(RC.replace("C: {kind: C, initial: 1.5}", "C: {kind: C, initial: 1.5, noise: 0}")
+              + "simulation: {process_noise: 0, measurement_noise: 1.0e-6}\n")
+    assert g.settings.process_noise == 0.0 and g.element("C").noise == 0.0
+    assert {m.name: m.noise for m in g.measurements} == {"P": 0.1, "f2": 1e-6}
+
+
+# One broken place per case: every error the schema finds has a fix (the brief's rule).
+SCHEMA_CASES = [
+    # (replace, with, start of what, part of the fix)
+    ("name: rc", "name: 12", "name must be a string, not a number", "write text"),
+    ("C: 0.5", "C: one", "parameters.C must be a number, not text 'one'", "write a number"),
+    ("C: 0.5", "C: 2*R", "parameters.C must be a number", "a formula goes in an element's 'parameter'"),
+    ("C: 0.5", "C: 1e3", "parameters.C must be a number, not text '1e3'",
+     "YAML reads '1e3' as text: write 1.0e+3 or 1000"),
+    ("C: 0.5", 'C: "1.5e-3"', "parameters.C must be a number", "write 1.5e-3 without quotes"),
+    ("C: 0.5", "C: 2E-5", "parameters.C must be a number", "YAML reads '2E-5' as text: write 2.0e-5"),
+    ("C: 0.5", 'C: "0.5"', "parameters.C must be a number, not text '0.5'", "write 0.5 without quotes"),
+    ("C: 0.5", "C: true", "parameters.C must be a number, not a boolean", "write a number"),
+    ("C: 0.5", "C:", "parameters.C must be a number, not empty", "write a number"),
+    ("initial: 1.5", "initial: [1]", "elements.C.initial must be a number, not a list", "write a number"),
+    ("  f2:\n", "  f2: 3\n", "measurements.f2 must be empty or a mapping", "write 'f2:' alone"),
+    ("R: [incipient, abrupt]", "R: abrupt", "faults.R must be an array", "write a list such as [abrupt]"),
+    ("kinds: [abrupt]", "kinds: abrupt", "faults.C.kinds must be an array", "write a list"),
+    ("kinds: [abrupt]", "kinds: [abrupt, abrupt]", "faults.C.kinds lists 'abrupt' more than once",
+     "list each kind once"),
+    ("kinds: [abrupt]", "kinds: []", "faults.C.kinds is empty", "list at least one of: abrupt, incipient"),
+    ("R: [incipient, abrupt]", "R: []", "faults.R is empty", "list at least one of: abrupt, incipient"),
+    ("prior: 0.2", "prior: 0", "faults.C.prior is out of range", "use a number > 0 and <= 1"),
+    ("prior: 0.2", "prior: 1.5", "faults.C.prior is out of range", "use a number > 0 and <= 1"),
+    ("start: 5.0", "start: -1.0", "inputs.V.start is out of range", "use a number >= 0"),
+    ("initial: 1.5", "initial: 1.5, noise: -0.1", "elements.C.noise is out of range", "use a number >= 0"),
+    ("3: [j, C]", "3: [j, C, R]", "bonds.3 must list exactly two elements", "write [tail, head]"),
+    ("3: [j, C]", "3: j", "bonds.3 must be an array", "write [tail, head]"),
+    ("parameters:\n", "parameters: 5\nx:\n", "parameters must be an object", "write a mapping"),
+    ("direction: decrease", "direction: down", "'down' is not valid for faults.C.direction",
+     "choose one of: both, decrease, increase"),
+    ("R: {kind: R}", "R: {kind: R, resistance: 1}", "unknown key 'resistance' in elements.R", "allowed keys:"),
+    ("name: rc", "nom: rc", "the model is missing 'name'", "add 'name: ...'"),
+]
+SIMULATION_CASES = [
+    ("dt: -0.5", "simulation.dt is out of range: -0.5 is less than or equal to the minimum of 0", "use a number > 0"),
+    ("dt: 0", "simulation.dt is out of range", "use a number > 0"),
+    ("steps: 0", "simulation.steps is out of range: 0 is less than the minimum of 1", "use a whole number >= 1"),
+    ("steps: 2.5", "simulation.steps must be an integer, not a number", "write a whole number"),
+    ("steps: 1e3", "simulation.steps must be an integer, not text '1e3'", "write 1.0e+3 or 1000"),
+    ("process_noise: -1.0", "simulation.process_noise is out of range", "use a number >= 0"),
+    ("measurement_noise: -1.0", "simulation.measurement_noise must be positive", "give a positive noise level"),
+]
+
+
+@pytest.mark.parametrize("old, new, what, fix", SCHEMA_CASES
+                         + [("", "simulation: {" + s + "}\n", w, f) for s, w, f in SIMULATION_CASES])
+def test_every_schema_error_has_a_fix(old, new, what, fix):
+    text = RC.replace(old, new, 1) if old else RC + new
+    assert text != RC
+    errs = [e for e in errors(text) if e.what.startswith(what)]
+    assert len(errs) == 1, [e.line() for e in errors(text)]
+    (err,) = errs
+    assert err.fix and fix in err.fix, err.line()
+    assert "\n" not in err.line()
+
+
+def test_a_schema_error_without_a_specific_message_still_has_a_fix():
+    import jsonschema
+
+    from bgc.validate import _schema_message
+
+    err = jsonschema.ValidationError("5 is not a multiple of 2", validator="multipleOf", validator_value=2,
+                                     instance=5, schema={"multipleOf": 2})
+    what, fix, _ = _schema_message(err, ("simulation", "steps"))
+    assert what == "simulation.steps: 5 is not a multiple of 2" and "docs/format.md" in fix
