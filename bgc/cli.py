@@ -71,9 +71,18 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_compile(args: argparse.Namespace) -> int:
+    failed = 0
     for path in args.models:
         start = time.perf_counter()
-        c = pipeline.compile_model(path)
+        try:
+            c = pipeline.compile_model(path)
+        except BgcError as exc:  # report, and go on with the other models (as bgc check does)
+            if len(args.models) == 1:
+                raise
+            for line in _error_lines(exc):
+                print(line, file=sys.stderr)
+            failed = 1
+            continue
         texts = codegen.text_files(c.dbn)
         files: dict[str, str | bytes] = dict(texts)
         outdir = Path(args.output) / c.model.name
@@ -95,7 +104,7 @@ def cmd_compile(args: argparse.Namespace) -> int:
               f"{'' if args.no_pictures else ', pictures'}) in {seconds:.2f} s")
         for d in c.causal.diagnostics:
             print(f"  {d.severity}: {d.message}")
-    return 0
+    return failed
 
 
 def cmd_show(args: argparse.Namespace) -> int:
@@ -203,6 +212,10 @@ def cmd_filter(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise BgcError(f"{args.run_csv}: cannot read: {exc.strerror}", None, "give a CSV written by bgc simulate") from None
     run = sim.read_csv(text, args.run_csv)
+    recorded = next((h.split(":")[0][len("model "):] for h in run.header if h.startswith("model ")), None)
+    if recorded is not None and recorded != c.model.name:
+        raise BgcError(f"{args.run_csv} is a run of model '{recorded}', not of '{c.model.name}'", None,
+                       f"simulate {args.model} first, or filter with the model the run was made with")
     if args.particles < 1:
         raise BgcError("--particles must be at least 1", None, "e.g. --particles 200")
     if args.start is not None and not args.fault:
@@ -217,7 +230,8 @@ def cmd_filter(args: argparse.Namespace) -> int:
     name = args.fault.replace(":", "_") if args.fault else "nominal"
     results = []
     for method in (["gpf", "apf"] if args.method == "both" else [args.method]):
-        r = runtime.track(run, package, name, method, args.particles, args.seed, args.start)
+        with np.errstate(all="ignore"):  # particles outside a law's domain are weighted out and counted
+            r = runtime.track(run, package, name, method, args.particles, args.seed, args.start)
         results.append(r)
         rmse = []
         for k, x in enumerate(r.state_names):

@@ -152,7 +152,8 @@ class _Validator:
         bonds = self.bonds(data["bonds"])
         raw_elements = data["elements"]
         variables = {n for b in bonds for n in (effort(b.number), flow(b.number))}
-        elements = self.elements(raw_elements, bonds, pnames, inames, variables)
+        elements = self.elements(raw_elements, bonds, pnames, inames, variables,
+                                 {p.name: p.value for p in parameters})
         self.topology(elements, bonds)
         settings = self.settings(_section(data, "simulation"))
         measurements = self.measurements(_section(data, "measurements"), pnames | inames | variables,
@@ -251,7 +252,7 @@ class _Validator:
         return tuple(out)
 
     def elements(self, raw: dict, bonds: tuple[Bond, ...], pnames: set[str], inames: set[str],
-                 variables: set[str]) -> tuple[Element, ...]:
+                 variables: set[str], pvalues: dict[str, float] | None = None) -> tuple[Element, ...]:
         out = []
         ports = _ports(bonds)
         for name in sorted(raw):
@@ -305,6 +306,16 @@ class _Validator:
                     self.error(f"element {name} has a zero parameter", path + ("parameter",),
                                "a zero coefficient removes the element: give a non-zero value")
                     continue
+                at = {s: pvalues[s.name] for s in parameter.free_symbols if pvalues and s.name in pvalues}
+                if at and len(at) == len(parameter.free_symbols):  # parameters only: its nominal value
+                    try:
+                        nominal = complex(sympy.N(parameter.xreplace(at)))
+                    except (TypeError, ValueError):
+                        nominal = complex("nan")
+                    if not (math.isfinite(nominal.real) and math.isfinite(nominal.imag) and nominal.imag == 0):
+                        self.error(f"parameter of {name} is not a finite real number at the nominal parameter "
+                                   "values", path + ("parameter",), "rescale the expression or the parameters")
+                        continue
             initial = spec.get("initial")
             noise = spec.get("noise")
             out.append(Element(name, kind, parameter, law, source,

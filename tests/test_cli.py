@@ -113,3 +113,21 @@ def test_filter_on_a_plant_without_sensors_says_there_is_nothing_to_filter(tmp_p
     assert run("simulate", str(model), "--steps", "5", "-o", str(csv)).returncode == 0
     line = one_line_error(run("filter", str(model), str(csv), "--generated", str(tmp_path / "g")))
     assert "has no measurements, so there is nothing to filter" in line
+
+
+def test_compile_reports_a_bad_model_and_goes_on_with_the_others(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(RC % ("one", "2.0", "measurements: {e3: {}}"))
+    good = tmp_path / "rc.yaml"
+    good.write_text(RC % ("1.0", "2.0", "measurements: {e3: {}}"))
+    r = run("compile", str(bad), str(good), "-o", str(tmp_path / "g"), "--no-pictures")
+    assert r.returncode == 1 and "Traceback" not in r.stderr
+    assert r.stderr.strip().splitlines()[0].startswith(f"{bad}:3:17: parameters.R must be a number")
+    assert (tmp_path / "g" / "rc1" / "numpy_model" / "__init__.py").exists()   # the good one was compiled
+
+
+def test_filter_refuses_a_run_of_another_model(tmp_path):
+    csv = tmp_path / "circuit.csv"
+    assert run("simulate", "models/circuit.yaml", "--steps", "3", "-o", str(csv)).returncode == 0
+    line = one_line_error(run("filter", "models/ro.yaml", str(csv)))
+    assert line.startswith(f"{csv} is a run of model 'circuit', not of 'ro'")
