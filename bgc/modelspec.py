@@ -13,7 +13,10 @@
   state i: its per-step std ``q_i * s_i * sqrt(min(1, 2 dt / tau_i))``, with
   ``s_i = |X0_i|`` and ``tau_i = 1/|J_ii|`` the state's own time constant
   (the whole horizon when J_ii = 0): a stable state then fluctuates by about
-  ``q_i`` of its value, whatever its time constant.
+  ``q_i`` of its value, whatever its time constant. A state or output that is
+  0 at X0 takes as its size the largest |value| it reaches over the noise-free
+  nominal run (1 only if it stays 0), so a plant that starts at rest gets
+  noise in proportion to its signals.
 * **Fault priors.** Abrupt: the bias is uniform on [0, 1] x |theta| for an
   increase, [-0.5, 0] x |theta| for a decrease, [-0.5, 1] x |theta| for both.
   Incipient: the slope (per unit time) is uniform on [0, 4] x |theta| / horizon
@@ -135,6 +138,12 @@ def numerics(ssm: StateSpaceModel, process_noise: float | None = None,
             "storage element slower")
     y0 = tuple(float(sympy.N(h.xreplace(sub))) for h in ssm.output_exprs)
     horizon = model.settings.steps * dt
+    x_scale = [abs(v) for v in ssm.initial]
+    y_scale = [abs(v) for v in y0]
+    if not all(x_scale) or not all(y_scale):  # a signal that starts at 0: its size over the nominal run
+        x_max, y_max = _nominal_magnitudes(ssm, substeps)
+        x_scale = [v or m or 1.0 for v, m in zip(x_scale, x_max)]
+        y_scale = [v or m or 1.0 for v, m in zip(y_scale, y_max)]
     storage_noise = {el.name: el.noise for el in model.elements if el.kind in ("C", "I")}
     process = []
     for i, (x, el) in enumerate(zip(ssm.states, ssm.state_elements)):
@@ -144,16 +153,49 @@ def numerics(ssm: StateSpaceModel, process_noise: float | None = None,
             q = default if process_noise is None else process_noise
         elif process_noise is not None:
             q = q * (process_noise / default if default else 1.0)
-        s = abs(ssm.initial[i]) or 1.0
+        s = x_scale[i]
         tau = 1.0 / abs(j[i, i]) if j[i, i] != 0 else horizon
         process.append(q * s * math.sqrt(min(1.0, 2.0 * dt / tau)))
-    meas = tuple((m.noise if measurement_noise is None else measurement_noise) * (abs(y) or 1.0)
-                 for m, y in zip(model.measurements, y0))
+    meas = tuple((m.noise if measurement_noise is None else measurement_noise) * y
+                 for m, y in zip(model.measurements, y_scale))
     h = jacobian_at(list(ssm.output_exprs), xs, sub, [f"measurement {m}" for m in ssm.outputs], model.source)
     spread = (h ** 2) @ (np.array(process) ** 2) if len(xs) else np.zeros(len(meas))
     predictive = tuple(float(np.sqrt(m * m + v)) for m, v in zip(meas, spread))
     return Numerics(tuple(complex(z) for z in eig), substeps, u0, y0, tuple(process), meas,
                     tuple(float(v) for v in np.diag(j)), predictive)
+
+
+def _nominal_magnitudes(ssm: StateSpaceModel, substeps: int) -> tuple[list[float], list[float]]:
+    """max |x_i(t)| and max |y_j(t)| over the noise-free nominal run (RK4 with
+    ``substeps`` substeps per sample, the model's inputs and horizon); 0 where
+    a signal stays 0 or the run leaves the finite numbers."""
+    model = ssm.model
+    xs = [sym(x) for x in ssm.states]
+    args = [xs, [sym(i.name) for i in model.inputs], [sym(p) for p in ssm.parameters]]
+    rhs = sympy.lambdify(args, list(ssm.rhs), modules="numpy")
+    out = sympy.lambdify(args, list(ssm.output_exprs), modules="numpy")
+    theta = list(ssm.parameter_values)
+    dt = model.settings.dt
+    h = dt / substeps
+    x = np.array(ssm.initial, dtype=float)
+    x_max = np.abs(x)
+    y_max = np.zeros(len(ssm.output_exprs))
+    with np.errstate(all="ignore"):
+        for k in range(model.settings.steps):
+            u = [input_value(i.signal, k * dt) for i in model.inputs]
+            f = lambda x: np.array(rhs(list(x), u, theta), dtype=float)  # noqa: E731
+            for _ in range(substeps):
+                k1 = f(x)
+                k2 = f(x + 0.5 * h * k1)
+                k3 = f(x + 0.5 * h * k2)
+                k4 = f(x + h * k3)
+                x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            if not np.all(np.isfinite(x)):
+                break
+            x_max = np.maximum(x_max, np.abs(x))
+            y = np.abs(np.array(out(list(x), u, theta), dtype=float)) if len(y_max) else y_max
+            y_max = np.where(np.isfinite(y), np.maximum(y_max, y), y_max)
+    return [float(v) for v in x_max], [float(v) for v in y_max]
 
 
 def fault_prior(kind: str, direction: str, value: float, horizon: float) -> tuple[float, float]:

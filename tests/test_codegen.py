@@ -638,3 +638,24 @@ def test_every_plant_derivative_and_observe_equal_lambdify_also_into_strided_out
             yout = ybig[:, 3:3 + x.shape[1]]
             assert mod.observe(x, u, tuple(theta), out=yout) is yout
             assert_close(yout, want_y, f"{mod_name} observe into out")
+
+
+def test_noise_of_a_signal_that_starts_at_zero_scales_with_its_size_over_the_run(tmp_path):
+    """An RC charging from 0 towards V = 1e-3 (tau = R C = 2, dt = 1): noise is a
+    fraction of the signal, so the capacitor voltage's scale is its size over
+    the nominal run, V (not an arbitrary 1): process std 0.03 * V * sqrt(min(1,
+    2 dt / tau)) = 3e-5, sensor std 0.02 * V = 2e-5 (derived by hand)."""
+    from bgc import modelspec
+
+    model = tmp_path / "rc0.yaml"
+    model.write_text("""name: rc0
+description: RC charging from rest (test model)
+parameters: {R: 1.0, C: 2.0}
+inputs: {V: 1.0e-3}
+elements: {V: {kind: Se}, j: {kind: "1"}, R: {kind: R}, C: {kind: C}}
+bonds: {1: [V, j], 2: [j, R], 3: [j, C]}
+measurements: {e3: {}}
+""")
+    num = modelspec.numerics(compile_model(model).equations)
+    assert num.process_std[0] == pytest.approx(0.03 * 1e-3, rel=1e-6)
+    assert num.measurement_std[0] == pytest.approx(0.02 * 1e-3, rel=1e-6)
