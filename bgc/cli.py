@@ -108,7 +108,13 @@ def cmd_compile(args: argparse.Namespace) -> int:
 
 
 def cmd_show(args: argparse.Namespace) -> int:
-    c = pipeline.compile_model(args.model)
+    if args.stage == "causality":  # only as far as causality: it shows why a later stage fails
+        from types import SimpleNamespace
+
+        causal = pipeline.check_model(args.model)
+        c = SimpleNamespace(causal=causal, model=causal.model)
+    else:
+        c = pipeline.compile_model(args.model)
     stage, fmt = args.stage, args.format
     if args.fault and stage != "dbn":
         raise BgcError("--fault applies to 'bgc show dbn' only", None, "drop --fault or show the dbn stage")

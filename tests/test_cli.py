@@ -131,3 +131,22 @@ def test_filter_refuses_a_run_of_another_model(tmp_path):
     assert run("simulate", "models/circuit.yaml", "--steps", "3", "-o", str(csv)).returncode == 0
     line = one_line_error(run("filter", "models/ro.yaml", str(csv)))
     assert line.startswith(f"{csv} is a run of model 'circuit', not of 'ro'")
+
+
+def test_show_causality_works_where_a_later_stage_fails(tmp_path):
+    """Derivative causality stops the equations, but bgc show causality still
+    shows the causal strokes: it is how a user finds out why."""
+    model = tmp_path / "deriv.yaml"
+    model.write_text("""name: deriv
+description: a C on a 0-junction whose effort the source fixes (test model)
+parameters: {R: 1.0, C: 2.0}
+inputs: {V: 1.0}
+elements: {V: {kind: Se}, n: {kind: "0"}, R: {kind: R}, C: {kind: C}}
+bonds: {1: [V, n], 2: [n, R], 3: [n, C]}
+measurements: {f3: {}}
+""")
+    r = run("show", "causality", str(model))
+    assert r.returncode == 0, r.stderr
+    assert "C (C, bond 3): derivative" in r.stdout
+    assert one_line_error(run("show", "equations", str(model))).endswith(
+        "(merge it with the storage element that fixes it, or add a resistor in between)")
