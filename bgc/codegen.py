@@ -136,6 +136,11 @@ def module_name(dbn_name: str) -> str:
     return dbn_file_stem(dbn_name)
 
 
+def _slice(r: range, n: int) -> str:
+    """Index text for rows/columns ``r`` of n: nothing when it is all of them."""
+    return "" if (r.start, r.stop) == (0, n) else f"[{r.start}:{r.stop}]"
+
+
 def package_files(m: DbnModel) -> dict[str, str]:
     """The generated NumPy package: one module per model, the filters, ``__init__``."""
     import sympy
@@ -226,9 +231,6 @@ def package_files(m: DbnModel) -> dict[str, str]:
         rhs_lines, rhs_out = cse_block(exprs, arrays=arrays)
         rhs_assign = [t + (e if e != "0" else "0.0") for t, e in zip(targets, rhs_out)]
 
-        def span(r: range, n: int) -> str:
-            return "" if (r.start, r.stop) == (0, n) else f"[{r.start}:{r.stop}]"
-
         linear_rows = [", ".join(print_expr(splits[i][0].get(j, sympy.Integer(0))) for j in cols) for i in rows]
         linear_b = ", ".join(print_expr(splits[i][1]) for i in rows)
         has_b = any(splits[i][1] != 0 for i in rows)
@@ -262,7 +264,7 @@ def package_files(m: DbnModel) -> dict[str, str]:
             "linear_rows": linear_rows, "linear_b": linear_b, "linear_unpack": linear_unpack,
             "has_linear": bool(nz), "has_b": has_b, "linear_note": (
                 f"rows {rows.start}..{rows.stop - 1}, columns {cols.start}..{cols.stop - 1}" if nz else ""),
-            "x_cols": "x" + span(cols, len(states)), "dx_rows": "_dx" + span(rows, len(states)),
+            "x_cols": "x" + _slice(cols, len(states)), "dx_rows": "_dx" + _slice(rows, len(states)),
             "unpack_out": unpack_out, "out_cse": out_lines,
             "out_assign": [f"_y[{i}] = {e}" for i, e in enumerate(out_out)],
             "predictive_std": _floats(num.predictive_std),

@@ -165,35 +165,48 @@ def numerics(ssm: StateSpaceModel, process_noise: float | None = None,
                     tuple(float(v) for v in np.diag(j)), predictive)
 
 
+def lambdified(ssm: StateSpaceModel):
+    """(dx/dt, y) of ``ssm`` as NumPy functions of (x, u, theta) lists, by sympy's
+    lambdify: an evaluation path independent of bgc's own code generation."""
+    args = [[sym(x) for x in ssm.states], [sym(u) for u in ssm.inputs], [sym(p) for p in ssm.parameters]]
+    return (sympy.lambdify(args, list(ssm.rhs), modules="numpy", cse=True),
+            sympy.lambdify(args, list(ssm.output_exprs), modules="numpy", cse=True))
+
+
+def rk4_sample(rhs, x: np.ndarray, t0: float, h: float, substeps: int) -> np.ndarray:
+    """x after ``substeps`` classical RK4 steps of length h from t0, one state
+    vector; ``rhs(x, t, t_sub)`` is dx/dt at time t within the substep that
+    starts at t_sub."""
+    for s in range(substeps):
+        t = t0 + s * h
+        k1 = rhs(x, t, t)
+        k2 = rhs(x + 0.5 * h * k1, t + 0.5 * h, t)
+        k3 = rhs(x + 0.5 * h * k2, t + 0.5 * h, t)
+        k4 = rhs(x + h * k3, t + h, t)
+        x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return x
+
+
 def _nominal_magnitudes(ssm: StateSpaceModel, substeps: int) -> tuple[list[float], list[float]]:
     """max |x_i(t)| and max |y_j(t)| over the noise-free nominal run (RK4 with
     ``substeps`` substeps per sample, the model's inputs and horizon); 0 where
     a signal stays 0 or the run leaves the finite numbers."""
     model = ssm.model
-    xs = [sym(x) for x in ssm.states]
-    args = [xs, [sym(i.name) for i in model.inputs], [sym(p) for p in ssm.parameters]]
-    rhs = sympy.lambdify(args, list(ssm.rhs), modules="numpy")
-    out = sympy.lambdify(args, list(ssm.output_exprs), modules="numpy")
+    f, g = lambdified(ssm)
     theta = list(ssm.parameter_values)
     dt = model.settings.dt
-    h = dt / substeps
     x = np.array(ssm.initial, dtype=float)
     x_max = np.abs(x)
     y_max = np.zeros(len(ssm.output_exprs))
     with np.errstate(all="ignore"):
         for k in range(model.settings.steps):
             u = [input_value(i.signal, k * dt) for i in model.inputs]
-            f = lambda x: np.array(rhs(list(x), u, theta), dtype=float)  # noqa: E731
-            for _ in range(substeps):
-                k1 = f(x)
-                k2 = f(x + 0.5 * h * k1)
-                k3 = f(x + 0.5 * h * k2)
-                k4 = f(x + h * k3)
-                x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            x = rk4_sample(lambda x, t, t_sub: np.array(f(list(x), u, theta), dtype=float),  # noqa: B023
+                           x, k * dt, dt / substeps, substeps)
             if not np.all(np.isfinite(x)):
                 break
             x_max = np.maximum(x_max, np.abs(x))
-            y = np.abs(np.array(out(list(x), u, theta), dtype=float)) if len(y_max) else y_max
+            y = np.abs(np.array(g(list(x), u, theta), dtype=float)) if len(y_max) else y_max
             y_max = np.where(np.isfinite(y), np.maximum(y_max, y), y_max)
     return [float(v) for v in x_max], [float(v) for v in y_max]
 

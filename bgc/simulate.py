@@ -26,7 +26,6 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
-import sympy
 
 from . import modelspec
 from .errors import SimulationError
@@ -115,9 +114,7 @@ def simulate(ssm: StateSpaceModel, options: SimulationOptions) -> SimulationResu
     h = dt / substeps
     xs = [sym(x) for x in ssm.states]
     us = [sym(u) for u in ssm.inputs]
-    ps = [sym(p) for p in ssm.parameters]
-    f = sympy.lambdify([xs, us, ps], list(ssm.rhs), modules="numpy", cse=True)
-    g = sympy.lambdify([xs, us, ps], list(ssm.output_exprs), modules="numpy", cse=True)
+    f, g = modelspec.lambdified(ssm)
     theta0 = np.array(ssm.parameter_values, dtype=float)
     fault = options.fault
     index = ssm.parameters.index(fault.parameter) if fault else None
@@ -149,13 +146,7 @@ def simulate(ssm: StateSpaceModel, options: SimulationOptions) -> SimulationResu
     for k in range(T):
         t0 = k * dt
         u = np.array([modelspec.input_value(i.signal, t0) for i in model.inputs], dtype=float)
-        for s in range(substeps):
-            t = t0 + s * h
-            k1 = rhs(x, u, t, t)
-            k2 = rhs(x + 0.5 * h * k1, u, t + 0.5 * h, t)
-            k3 = rhs(x + 0.5 * h * k2, u, t + 0.5 * h, t)
-            k4 = rhs(x + h * k3, u, t + h, t)
-            x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        x = modelspec.rk4_sample(lambda x, t, t_sub: rhs(x, u, t, t_sub), x, t0, h, substeps)  # noqa: B023
         x = x + proc * rng.standard_normal(len(xs))
         if not np.all(np.isfinite(x)):
             raise SimulationError(f"the simulation of {model.name} diverged at t = {times[k]:g}", model.source,

@@ -429,7 +429,8 @@ def test_offspring_counts_in_place_equal_the_counts_of_the_search_definition(chu
     rng = np.random.default_rng(5)
     for n in (1, 3, 50, 1001):
         w = rng.dirichlet(np.full(n, 0.5)) if n > 1 else np.ones(1)
-        w[::4] = 0.0 if n > 4 else w[::4]
+        if n > 4:
+            w[::4] = 0.0  # some particles cannot be drawn
         w /= w.sum()
         u = np.random.default_rng(n + chunk).random()
         want = np.bincount(np.minimum(np.searchsorted(np.cumsum(w), (np.arange(n) + u) / n), n - 1), minlength=n)

@@ -19,12 +19,21 @@ measurement that is NaN is not used; an all-NaN measurement skips the update.
 import numpy as np
 
 
+def _exp_normalised(logw):
+    """(w, m, s): the weights exp(logw) normalised to sum 1 (``logw`` left alone),
+    max(logw) and the sum of exp(logw - m)."""
+    m = logw.max()
+    w = np.subtract(logw, m)
+    np.exp(w, out=w)
+    s = w.sum()
+    w /= s
+    return w, m, s
+
+
 def systematic_resample(logw, rng):
     """Ancestor indices by systematic resampling (one uniform draw U), in O(N);
     ``logw`` need not be normalised. See :func:`offspring_counts`."""
-    w = np.subtract(logw, logw.max())
-    np.exp(w, out=w)
-    w /= w.sum()
+    w, _, _ = _exp_normalised(logw)
     return np.repeat(np.arange(w.shape[0]), offspring_counts(w, rng, overwrite=True))
 
 
@@ -67,11 +76,7 @@ def normalise(logw):
 
 def _normalise(logw):
     """normalise(), also giving the normalised weights."""
-    m = logw.max()
-    w = np.subtract(logw, m)
-    np.exp(w, out=w)
-    s = w.sum()
-    w /= s
+    w, m, s = _exp_normalised(logw)
     ess = 1.0 / np.dot(w, w)
     logw -= m + np.log(s)
     return logw, ess, w
@@ -99,6 +104,8 @@ class _Filter:
         self.x = model.initial_particles(rng, self.n) if x is None else np.array(x, dtype=float)
         self.logw = np.full(self.n, -np.log(self.n))
         self.w = None  # normalised exp(logw), kept from step to step for up to two blocks
+        #: up to two blocks of particles: keep the weights, resample in one np.repeat
+        self._small = self.n < 2 * model._kernel.BLOCK
         self.recoveries = 0
         self._gauss = {}
 
@@ -106,12 +113,7 @@ class _Filter:
         """The normalised weights exp(logw): the ones kept from the last step
         (up to two blocks of particles), else computed afresh (for more
         particles: one array of N less to keep)."""
-        if self.w is not None:
-            return self.w
-        w = np.subtract(self.logw, self.logw.max())
-        np.exp(w, out=w)
-        w /= w.sum()
-        return w
+        return self.w if self.w is not None else _exp_normalised(self.logw)[0]
 
     def _recover(self):
         """Replace non-finite particles by copies of finite ones and reset weights."""
@@ -146,7 +148,7 @@ class _Filter:
             w.fill(1.0 / self.n)  # w held the counts
         self.logw = logw
         mean, std = self.model._kernel.moments(self.x, w)
-        if self.n < 2 * self.model._kernel.BLOCK:
+        if self._small:
             self.w = w
         return StepResult(mean, std, y_mean, y_std, ess, resampled, recovered)
 
@@ -154,7 +156,7 @@ class _Filter:
         """The resampled particles: column i of x repeated counts[i] times. One
         np.repeat for up to two blocks of particles, else row by row in place
         (one row of temporary: no second (n_x, N) array)."""
-        if self.n < 2 * self.model._kernel.BLOCK:
+        if self._small:
             return np.repeat(x, counts, axis=1)
         for j in range(x.shape[0]):
             x[j] = np.repeat(x[j], counts)
@@ -163,11 +165,7 @@ class _Filter:
     def _predicted_measurement(self, yhat, logw=None):
         """Weighted mean and std of y over the particles' noise-free measurements
         ``yhat`` (weights: the filter's, or ``logw``), measurement noise included."""
-        if logw is None:
-            w = self._weights()
-        else:
-            w = np.exp(logw - logw.max())
-            w /= w.sum()
+        w = self._weights() if logw is None else _exp_normalised(logw)[0]
         mean, std = self.model._kernel.moments(yhat, w)
         return mean, np.sqrt(std ** 2 + self.model.MEASUREMENT_STD ** 2)
 
@@ -218,7 +216,7 @@ class GenericParticleFilter(_Filter):
             key = seen.tobytes()
             if key not in self._gauss:  # per pattern of missing outputs
                 self._gauss[key] = (None if seen.all() else np.flatnonzero(seen), -0.5 / (std[seen] * std[seen]),
-                                    float(-0.5 * seen.sum() * np.log(2.0 * np.pi) - np.sum(np.log(std[seen]))))
+                                    kernel.log_normaliser(std[seen]))
             rows, weight, constant = self._gauss[key]
             measured = y if rows is None else y[rows]
         s1 = np.zeros(n_y)

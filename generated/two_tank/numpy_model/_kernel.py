@@ -127,8 +127,14 @@ def gaussian_loglik(y, yhat, std):
         np.subtract(yhat[:, start:stop], column, out=d)
         d *= d
         np.matmul(weight, d, out=total[start:stop])
-    total += float(-0.5 * n_y * np.log(2.0 * np.pi) - np.sum(np.log(std)))
+    total += log_normaliser(std)
     return total
+
+
+def log_normaliser(std):
+    """log of the normalising constant of independent Gaussians of these stds:
+    -n/2 log(2 pi) - sum(log std)."""
+    return float(-0.5 * len(std) * np.log(2.0 * np.pi) - np.sum(np.log(std)))
 
 
 def moments(a, w):
