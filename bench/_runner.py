@@ -73,7 +73,7 @@ def make(impl, data, model):
 
         def run(ys, us, n, seed):
             out = cls(nominal, n, np.random.default_rng(seed)).run(ys, us)
-            return out["mean"], out["std"]
+            return out.mean, out.std
         return run
 
     import _handwritten_numpy as hand

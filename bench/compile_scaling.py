@@ -21,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bgc import causality, dbn, equations, load, tcg, validate  # noqa: E402
+from bgc.compiler import causality, dbn, equations, load, tcg, validate  # noqa: E402
 
 
 def ladder_yaml(n: int) -> str:

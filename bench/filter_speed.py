@@ -113,12 +113,12 @@ def progress(message: str) -> None:
 def make_data(directory: Path) -> Path:
     """Simulate the RO plant (seed 1, T steps) and write what every column needs to one .npz."""
     from bgc import pipeline
-    from bgc import simulate as sim
+    from bgc.runtime import simulate as sim
     from numpy_model import nominal
 
     compiled = pipeline.compile_model(ROOT / "models" / "ro.yaml")
     ssm = compiled.equations
-    result = sim.simulate(ssm, sim.SimulationOptions(steps=T, seed=SEED))
+    result = sim.simulate(compiled.numerics, sim.SimulationOptions(steps=T, seed=SEED))
     ys = result.measurements[:, [result.output_names.index(n) for n in nominal.OUTPUTS]]
     us = result.inputs[:, [result.input_names.index(n) for n in nominal.INPUTS]]
     states = result.states[:, [result.state_names.index(n) for n in nominal.STATES]]

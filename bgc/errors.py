@@ -1,9 +1,11 @@
-"""Errors of the compiler, one subclass per stage.
+"""Errors of bgc: one subclass per compiler stage and per runtime part.
 
 A :class:`BgcError` is a user error: the CLI prints its one-line message and exits
 with status 1, without a traceback. Every message says what is wrong, where
-(``models/ro.yaml:42:7`` or an element or bond name) and how to fix it.
-:class:`InternalError` is a bug in bgc and keeps its traceback.
+(``models/ro.yaml:42:7`` or an element or bond name) and how to fix it. The
+line passes through :func:`printable`, so text echoed from a model or a data
+file (a newline, an ANSI escape) can never print a second line or colour the
+terminal. :class:`InternalError` is a bug in bgc and keeps its traceback.
 
 Examples
 --------
@@ -17,6 +19,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 
+def printable(text: str) -> str:
+    r"""``text`` with every character that is not printable written as its
+    Python escape (``\n``, ``\x1b``, ``\ud800``): one line, no terminal
+    control sequences, encodable as UTF-8.
+
+    >>> print(printable("a" + chr(10) + "b: ok" + chr(27) + "[31m"))
+    a\nb: ok\x1b[31m
+    """
+    if text.isprintable():
+        return text
+    return "".join(ch if ch.isprintable() else ch.encode("unicode_escape", "backslashreplace").decode("ascii")
+                   for ch in text)
+
+
 @dataclass(frozen=True, slots=True)
 class SourceLoc:
     """A place in a model file; ``line`` and ``col`` count from 1."""
@@ -26,7 +42,7 @@ class SourceLoc:
     col: int
 
     def __str__(self) -> str:
-        return f"{self.file}:{self.line}:{self.col}"
+        return f"{printable(self.file)}:{self.line}:{self.col}"
 
 
 class BgcError(Exception):
@@ -39,11 +55,11 @@ class BgcError(Exception):
         super().__init__(self.line())
 
     def line(self) -> str:
-        """The one-line message the CLI prints."""
+        """The one-line message the CLI prints (printable characters only)."""
         text = f"{self.loc}: {self.what}" if self.loc else self.what
         if self.fix:
             text += f" ({self.fix})"
-        return text
+        return printable(text)
 
     def sort_key(self) -> tuple:
         loc = self.loc
@@ -87,8 +103,27 @@ class CodegenError(BgcError):
     """Generated code cannot be produced for the model."""
 
 
-class SimulationError(BgcError):
-    """A simulation or diagnosis request is malformed."""
+class RuntimeFailure(BgcError):
+    """An error of the runtime (simulation, recorded data, filters): the base
+    class of its parts' errors."""
+
+
+class SimulationError(RuntimeFailure):
+    """A simulation request is malformed, or the simulated plant diverges."""
+
+
+class DataError(RuntimeFailure):
+    """A recorded run (CSV) cannot be read or does not fit the model."""
+
+
+class TrackingError(RuntimeFailure):
+    """A filter cannot run: no generated package, an unknown model, no
+    measurements, a request beyond the memory."""
+
+
+class OutputError(BgcError):
+    """An output cannot be written where asked (bgc does not replace files it
+    did not write)."""
 
 
 class InternalError(Exception):

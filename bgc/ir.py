@@ -4,37 +4,35 @@ Every IR is a frozen dataclass holding tuples, sympy expressions and frozen
 networkx graphs. Stages take one IR and return the next; nothing here does I/O.
 
 Pipeline order: :class:`RawModel` -> :class:`BondGraph` -> :class:`CausalBondGraph`
--> ``TemporalCausalGraph`` -> ``StateSpaceModel`` -> ``DbnModel``.
+-> :class:`TemporalCausalGraph` -> :class:`StateSpaceModel` -> :class:`DbnModel`
+-> :class:`Numerics` -> :class:`GeneratedPackage`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import PurePath
 from typing import Any, Mapping
 
+import numpy as np
 import sympy
 
 from .errors import SourceLoc
+from .kinds import element_kind
 
-#: Element kinds bond graphs are built from, and their port counts (None: any, >= 2).
-ELEMENT_PORTS: Mapping[str, int | None] = {
-    "Se": 1, "Sf": 1, "MSe": 1, "MSf": 1,
-    "R": 1, "MR": 1, "C": 1, "I": 1,
-    "TF": 2, "MTF": 2, "GY": 2, "MGY": 2,
-    "0": None, "1": None,
-}
-SOURCES = frozenset({"Se", "Sf", "MSe", "MSf"})
-RESISTORS = frozenset({"R", "MR"})
-STORAGE = frozenset({"C", "I"})
-TWO_PORTS = frozenset({"TF", "MTF", "GY", "MGY"})
-JUNCTIONS = frozenset({"0", "1"})
-MODULATED = frozenset({"MSe", "MSf", "MR", "MTF", "MGY"})
-FAULT_KINDS = ("abrupt", "incipient")
 
 
 def sym(name: str) -> sympy.Symbol:
     """The one sympy symbol bgc uses for a name (no assumptions: they are slow)."""
     return sympy.Symbol(name)
+
+
+def var_key(name: str) -> tuple:
+    """Sort key of variable names: bond variables by bond number, effort before
+    flow, then every other name alphabetically (``e2 < f2 < e10 < y``)."""
+    if name[:1] in "ef" and name[1:].isdigit():
+        return (0, int(name[1:]), name[0])
+    return (1, 0, name)
 
 
 def effort(bond: int) -> str:
@@ -149,6 +147,14 @@ class Signal:
     start: float | None = None
     slope: float | None = None
 
+    def at(self, t: float) -> float:
+        """The signal's value at time t."""
+        if self.kind == "constant" or t < (self.start or 0.0):
+            return self.value
+        if self.kind == "step":
+            return self.final
+        return self.value + self.slope * (t - self.start)
+
 
 @dataclass(frozen=True, slots=True)
 class Input:
@@ -225,6 +231,14 @@ class BondGraph:
     def parameter_values(self) -> dict[str, float]:
         return {p.name: p.value for p in self.parameters}
 
+    @property
+    def display_source(self) -> str:
+        """The model path as written into generated files: ``models/<file>`` for
+        the shipped layout, else ``<folder>/<file>``, so output does not depend on
+        the working directory. Model text: escape it where it enters code."""
+        p = PurePath(self.source)
+        return f"{p.parent.name}/{p.name}" if p.parent.name else p.name
+
 
 # ------------------------------------------------------------------- causality
 @dataclass(frozen=True, slots=True)
@@ -259,7 +273,7 @@ class StorageCausality:
     @property
     def state(self) -> str:
         """The co-energy state variable: ``e`` of a C, ``f`` of an I."""
-        return effort(self.bond) if self.kind == "C" else flow(self.bond)
+        return effort(self.bond) if element_kind(self.kind).state_variable == "e" else flow(self.bond)
 
 
 @dataclass(frozen=True, slots=True)
@@ -369,3 +383,107 @@ class DbnModel:
                 return d
         valid = ", ".join(d.name for d in (self.nominal, *self.faulty))
         raise KeyError(f"no DBN '{name}' (valid: {valid})")
+
+
+# -------------------------------------------------------------------- numerics
+@dataclass(frozen=True, slots=True)
+class NoiseLevels:
+    """Absolute noise stds: per state and step (``process``), per measurement
+    (``measurement``), and of the one-step predictive of each measurement
+    (``predictive``: measurement noise plus the process noise seen through the
+    outputs)."""
+
+    process: tuple[float, ...]
+    measurement: tuple[float, ...]
+    predictive: tuple[float, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class FaultNumerics:
+    """The numbers of one fault model (``name``: its DBN, ``PARAM:KIND``): the
+    nominal value of the parameter, the uniform prior of the fault magnitude and
+    the per-step random-walk std (``jitter``) of the magnitude state."""
+
+    name: str
+    parameter: str
+    kind: str
+    nominal: float
+    prior: tuple[float, float]
+    jitter: float
+
+
+@dataclass(frozen=True, slots=True)
+class Numerics:
+    """What bgc fixes at compile time for the generated filters, at the
+    nominal operating point (states X0, inputs at t = 0, nominal parameters).
+
+    ``eigenvalues`` of the Jacobian there set the RK4 ``substeps`` per sample;
+    ``x_scale`` and ``y_scale`` are the sizes that relative noise levels
+    multiply; ``process_factor`` (per state) is ``sqrt(min(1, 2 dt / tau))``,
+    ``tau`` the state's own time constant; ``process_levels`` the
+    storage elements' own relative levels (None: the model's default);
+    ``output_jacobian`` is H = dy/dx there. ``noise`` holds the absolute stds
+    at the model's own levels; :meth:`noise_at` gives them at other levels.
+    """
+
+    dbn: DbnModel
+    eigenvalues: tuple[complex, ...]
+    substeps: int
+    u0: tuple[float, ...]
+    y0: tuple[float, ...]
+    jacobian_diag: tuple[float, ...]
+    output_jacobian: tuple[tuple[float, ...], ...]
+    x_scale: tuple[float, ...]
+    y_scale: tuple[float, ...]
+    process_factor: tuple[float, ...]
+    process_levels: tuple[float | None, ...]
+    noise: NoiseLevels
+    faults: tuple[FaultNumerics, ...]
+
+    @property
+    def equations(self) -> StateSpaceModel:
+        return self.dbn.equations
+
+    def fault(self, name: str) -> FaultNumerics:
+        for f in self.faults:
+            if f.name == name:
+                return f
+        raise KeyError(name)
+
+    def noise_at(self, process_noise: float | None = None,
+                 measurement_noise: float | None = None) -> NoiseLevels:
+        """Absolute stds for relative levels: ``process_noise`` replaces the
+        model's default level and scales the storage elements' own levels by
+        the same ratio; ``measurement_noise`` replaces every sensor's level."""
+        settings = self.equations.model.settings
+        default = settings.process_noise
+        process = []
+        for own, s, factor in zip(self.process_levels, self.x_scale, self.process_factor):
+            q = own
+            if q is None:
+                q = default if process_noise is None else process_noise
+            elif process_noise is not None:
+                q = q * (process_noise / default if default else 1.0)
+            process.append(q * s * factor)
+        measurement = tuple((m.noise if measurement_noise is None else measurement_noise) * s
+                            for m, s in zip(self.equations.model.measurements, self.y_scale))
+        h = np.array(self.output_jacobian, dtype=float).reshape(len(measurement), len(process))
+        spread = (h ** 2) @ (np.array(process) ** 2) if process else np.zeros(len(measurement))
+        predictive = tuple(float(np.sqrt(r * r + v)) for r, v in zip(measurement, spread))
+        return NoiseLevels(tuple(process), measurement, predictive)
+
+
+# ------------------------------------------------------------------- codegen
+#: Folder of ``generated/<model>/`` that holds the generated NumPy package.
+PACKAGE = "numpy_model"
+
+
+@dataclass(frozen=True, slots=True)
+class GeneratedPackage:
+    """The generated NumPy package of a model: ``files`` are (path relative to
+    the package, Python source), sorted by path; ``modules`` the model modules
+    (``nominal`` first, then one per fault model)."""
+
+    numerics: Numerics
+    files: tuple[tuple[str, str], ...]
+    modules: tuple[str, ...]

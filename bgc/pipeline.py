@@ -1,9 +1,16 @@
-"""The whole compiler, one line per stage.
+"""The whole compiler, one line per stage, from a model file to its generated package.
+
+Every stage is one module of :mod:`bgc.compiler` with one public function from
+one intermediate representation (:mod:`bgc.ir`) to the next; :class:`Compiled`
+keeps every IR. ``bgc check`` runs the same chain as ``bgc compile`` (a model
+that checks is a model that compiles); only the writing differs.
 
 >>> from bgc.pipeline import compile_model
 >>> c = compile_model("models/circuit.yaml")
 >>> c.equations.states
 ('e4', 'e8', 'f10')
+>>> c.package.modules[:2]
+('nominal', 'C1_abrupt')
 """
 
 from __future__ import annotations
@@ -11,8 +18,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from . import causality, dbn, equations, load, tcg, validate
-from .ir import BondGraph, CausalBondGraph, DbnModel, RawModel, StateSpaceModel, TemporalCausalGraph
+from .compiler import causality, codegen, dbn, equations, load, numerics, tcg, validate
+from .ir import (
+    BondGraph, CausalBondGraph, DbnModel, GeneratedPackage, Numerics, RawModel, StateSpaceModel,
+    TemporalCausalGraph,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -25,21 +35,38 @@ class Compiled:
     tcg: TemporalCausalGraph
     equations: StateSpaceModel
     dbn: DbnModel
-
-
-def check_model(path: str | Path) -> CausalBondGraph:
-    """Load, validate and assign causality: what ``bgc check`` runs."""
-    raw = load.load(path)                    # path -> RawModel
-    model = validate.validate(raw)           # RawModel -> BondGraph
-    return causality.assign(model)           # BondGraph -> CausalBondGraph
+    numerics: Numerics
+    package: GeneratedPackage
 
 
 def compile_model(path: str | Path) -> Compiled:
-    """Run every stage up to the DBNs."""
-    raw = load.load(path)                    # path -> RawModel
-    model = validate.validate(raw)           # RawModel -> BondGraph
-    causal = causality.assign(model)         # BondGraph -> CausalBondGraph
-    graph = tcg.build(causal)                # CausalBondGraph -> TemporalCausalGraph
-    ssm = equations.derive(graph)            # TemporalCausalGraph -> StateSpaceModel
-    dbns = dbn.build(ssm)                    # StateSpaceModel -> DbnModel
-    return Compiled(raw, model, causal, graph, ssm, dbns)
+    """Run every stage, from the model file to the generated package (in memory)."""
+    raw = load.load(path)                        # path -> RawModel
+    model = validate.validate(raw)               # RawModel -> BondGraph
+    causal = causality.assign(model)             # BondGraph -> CausalBondGraph
+    graph = tcg.build(causal)                    # CausalBondGraph -> TemporalCausalGraph
+    ssm = equations.derive(graph)                # TemporalCausalGraph -> StateSpaceModel
+    dbns = dbn.build(ssm)                        # StateSpaceModel -> DbnModel
+    num = numerics.derive(dbns)                  # DbnModel -> Numerics
+    package = codegen.generate(dbns, num)        # DbnModel, Numerics -> GeneratedPackage
+    return Compiled(raw, model, causal, graph, ssm, dbns, num, package)
+
+
+def assign_causality(path: str | Path) -> CausalBondGraph:
+    """Only as far as causality: what ``bgc show causality`` prints, also for a
+    model a later stage refuses (it shows why)."""
+    return causality.assign(validate.validate(load.load(path)))
+
+
+def generated_files(c: Compiled) -> dict[str, str]:
+    """The text files of ``generated/<model>/``: every IR's dump, the package, the manifest."""
+    from .output import artifacts
+
+    return artifacts.folder_files(c.dbn, c.package)
+
+
+def pictures(c: Compiled, engine: str = "auto") -> dict[str, bytes]:
+    """The SVG pictures of ``generated/<model>/`` (TCG and every DBN)."""
+    from .output import draw
+
+    return draw.pictures(c.dbn, engine)

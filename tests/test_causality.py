@@ -23,11 +23,11 @@ import sympy
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
-from bgc.causality import assign, check_assignment
+from bgc.compiler.causality import assign, check_assignment
 from bgc.errors import ErrorGroup, SourceLoc
 from bgc.ir import Bond, BondGraph, CausalBondGraph, Element, Law, Settings
-from bgc.load import load, loads
-from bgc.validate import validate
+from bgc.compiler.load import load, loads
+from bgc.compiler.validate import validate
 
 from conftest import MODELS
 
@@ -626,8 +626,8 @@ bonds: {bonds}
 
 
 def test_reversed_resistor_bond_is_warned_by_name():
-    from bgc.load import loads
-    from bgc.validate import validate
+    from bgc.compiler.load import loads
+    from bgc.compiler.validate import validate
 
     cbg = assign(validate(loads(_rc("{1: [V, j], 2: [R, j], 3: [j, C]}"))))
     warned = [d for d in cbg.diagnostics if d.severity == "warning"]
@@ -635,8 +635,8 @@ def test_reversed_resistor_bond_is_warned_by_name():
 
 
 def test_source_absorbing_power_is_warned_and_normal_directions_are_not():
-    from bgc.load import loads
-    from bgc.validate import validate
+    from bgc.compiler.load import loads
+    from bgc.compiler.validate import validate
 
     cbg = assign(validate(loads(_rc("{1: [j, V], 2: [j, R], 3: [j, C]}"))))
     assert [d.element for d in cbg.diagnostics if d.severity == "warning"] == ["V"]

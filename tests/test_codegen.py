@@ -24,9 +24,10 @@ import sympy
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bgc import codegen
+from bgc.compiler import codegen
 from bgc.errors import BgcError
 from bgc.ir import sym
+from bgc.kinds import fault_kind
 from bgc.pipeline import compile_model
 
 from conftest import ROOT
@@ -387,7 +388,7 @@ def _stiff_circuit(tmp_path):
     c = compile_model(path)
     out = tmp_path / "numpy_model"
     out.mkdir()
-    for rel, content in codegen.package_files(c.dbn).items():
+    for rel, content in c.package.files:
         (out / rel).write_text(content)
     return c, load_package(out, f"_bgc_stiff_{abs(hash(str(tmp_path)))}")
 
@@ -443,9 +444,9 @@ def test_same_seed_gives_identical_particles_and_filter_outputs(name):
     ys, us = _data(pkg.nominal, 40, 99)
     for cls in (pkg.filters.GenericParticleFilter, pkg.filters.AuxiliaryParticleFilter):
         runs = [cls(mod, 300, np.random.default_rng(seed)).run(ys, us) for seed in (11, 11, 12)]
-        for key in runs[0]:
-            assert runs[0][key].tobytes() == runs[1][key].tobytes(), (cls.__name__, key)
-        assert not np.array_equal(runs[0]["mean"], runs[2]["mean"]), cls.__name__
+        for key in pkg.filters.FilterRun.__slots__:
+            assert getattr(runs[0], key).tobytes() == getattr(runs[1], key).tobytes(), (cls.__name__, key)
+        assert not np.array_equal(runs[0].mean, runs[2].mean), cls.__name__
 
 
 # ----------------------------------------------- names the generated code uses
@@ -465,7 +466,7 @@ def _renamed_package(tmp_path, old, new):
     c = compile_model(_renamed_model(tmp_path, old, new))
     out = tmp_path / "numpy_model"
     out.mkdir()
-    for rel, content in codegen.package_files(c.dbn).items():
+    for rel, content in c.package.files:
         (out / rel).write_text(content)
     return c, load_package(out, f"_bgc_renamed_{new}_{abs(hash(str(tmp_path)))}")
 
@@ -527,7 +528,7 @@ def test_blocked_transition_matches_unblocked_for_a_partial_last_block():
     every particle."""
     import numpy as np
 
-    from bgc.diagnosis.runtime import load_package
+    from bgc.runtime.track import load_package
 
     pkg = load_package(ROOT / "generated", "ro")
     m = pkg.MODELS["nominal"]
@@ -555,7 +556,7 @@ def test_predict_in_threads_equals_serial():
 
     import numpy as np
 
-    from bgc.diagnosis.runtime import load_package
+    from bgc.runtime.track import load_package
 
     pkg = load_package(ROOT / "generated", "ro")
     m = pkg.MODELS["nominal"]
@@ -579,7 +580,7 @@ def test_predict_in_threads_equals_serial():
 @settings(max_examples=200)
 @given(n=st.integers(1, 200_000))
 def test_kernel_spans_split_particles_evenly_into_blocks_of_one_to_two_block_lengths(n):
-    from bgc.diagnosis.runtime import load_package
+    from bgc.runtime.track import load_package
 
     kernel = load_package(ROOT / "generated", "ro")._kernel
     parts, width = kernel.spans(n)
@@ -603,7 +604,7 @@ def fresh_package(name: str):
 
     root = Path(tempfile.mkdtemp(prefix=f"bgc-{name}-")) / "numpy_model"
     root.mkdir()
-    for rel, text in codegen.package_files(compiled_any(name).dbn).items():
+    for rel, text in compiled_any(name).package.files:
         (root / rel).write_text(text)
     return load_package(root, f"_bgc_fresh_{name}")
 
@@ -625,7 +626,7 @@ def test_every_plant_derivative_and_observe_equal_lambdify_also_into_strided_out
             xp, u, theta = random_point(mod, ssm, rng, n=37)
             x = np.zeros((len(mod.STATES), xp.shape[1]))  # fault states at their neutral value
             x[:n_phys] = xp
-            if mod.FAULT and mod.FAULT["kind"] == "incipient":
+            if mod.FAULT and fault_kind(mod.FAULT["kind"]).drifts:
                 x[n_phys] = theta[ssm.parameters.index(mod.FAULT["parameter"])]  # parameter state = its value
             want_dx, want_y = ref.rhs(xp, u, theta), ref.out(xp, u, theta)
             assert_close(mod.derivative(x, u, tuple(theta))[:n_phys], want_dx, f"{mod_name} derivative")
@@ -645,8 +646,6 @@ def test_noise_of_a_signal_that_starts_at_zero_scales_with_its_size_over_the_run
     fraction of the signal, so the capacitor voltage's scale is its size over
     the nominal run, V (not an arbitrary 1): process std 0.03 * V * sqrt(min(1,
     2 dt / tau)) = 3e-5, sensor std 0.02 * V = 2e-5 (derived by hand)."""
-    from bgc import modelspec
-
     model = tmp_path / "rc0.yaml"
     model.write_text("""name: rc0
 description: RC charging from rest (test model)
@@ -656,6 +655,6 @@ elements: {V: {kind: Se}, j: {kind: "1"}, R: {kind: R}, C: {kind: C}}
 bonds: {1: [V, j], 2: [j, R], 3: [j, C]}
 measurements: {e3: {}}
 """)
-    num = modelspec.numerics(compile_model(model).equations)
-    assert num.process_std[0] == pytest.approx(0.03 * 1e-3, rel=1e-6)
-    assert num.measurement_std[0] == pytest.approx(0.02 * 1e-3, rel=1e-6)
+    noise = compile_model(model).numerics.noise
+    assert noise.process[0] == pytest.approx(0.03 * 1e-3, rel=1e-6)
+    assert noise.measurement[0] == pytest.approx(0.02 * 1e-3, rel=1e-6)

@@ -15,9 +15,9 @@ from __future__ import annotations
 import pytest
 import sympy
 
-from bgc import causality, dbn, equations, tcg
-from bgc.load import loads
-from bgc.validate import validate
+from bgc.compiler import causality, dbn, equations, tcg
+from bgc.compiler.load import loads
+from bgc.compiler.validate import validate
 
 from conftest import ALL_MODELS, compiled
 

@@ -14,7 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bgc.errors import ExpressionError, SourceLoc
-from bgc.expressions import FUNCTIONS, MAX_DEPTH, MAX_LENGTH, free_names, parse
+from bgc.compiler.expressions import FUNCTIONS, MAX_DEPTH, MAX_LENGTH, free_names, parse
 
 from conftest import ROOT
 

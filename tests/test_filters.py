@@ -145,13 +145,13 @@ def test_kalman_oracle_is_consistent_with_its_data():
 def test_particle_filter_agrees_with_the_kalman_filter(name):
     ys, kf, result = runs()
     out = result[name]
-    assert out["mean"].shape == (STEPS, 3) and np.all(np.isfinite(out["mean"]))
-    s = mc_std(kf, out["ess"])
-    z = np.abs(out["mean"] - kf["mean"]) / s
-    z_ess = np.abs(out["mean"] - kf["mean"]) / (kf["std"] / np.sqrt(out["ess"][:, None]))
-    in_std = np.abs(out["mean"] - kf["mean"]) / kf["std"]
-    ratio = out["std"] / kf["std"]
-    print(f"\n{name}, N = {N_PARTICLES}, {STEPS} steps; ESS mean {out['ess'].mean():.0f}, min {out['ess'].min():.0f}")
+    assert out.mean.shape == (STEPS, 3) and np.all(np.isfinite(out.mean))
+    s = mc_std(kf, out.ess)
+    z = np.abs(out.mean - kf["mean"]) / s
+    z_ess = np.abs(out.mean - kf["mean"]) / (kf["std"] / np.sqrt(out.ess[:, None]))
+    in_std = np.abs(out.mean - kf["mean"]) / kf["std"]
+    ratio = out.std / kf["std"]
+    print(f"\n{name}, N = {N_PARTICLES}, {STEPS} steps; ESS mean {out.ess.mean():.0f}, min {out.ess.min():.0f}")
     print(f"  |pf - kf| / MC std (propagated): mean {np.round(z.mean(0), 2)}, max {np.round(z.max(0), 2)}")
     print(f"  |pf - kf| / (kf std / sqrt ESS): mean {np.round(z_ess.mean(0), 2)}, max {np.round(z_ess.max(0), 2)}")
     print(f"  |pf - kf| / kf std:              mean {np.round(in_std.mean(0), 3)}, max {np.round(in_std.max(0), 3)}")
@@ -161,7 +161,7 @@ def test_particle_filter_agrees_with_the_kalman_filter(name):
     assert np.all(np.abs(ratio - 1).mean(axis=0) <= STD_TOLERANCE), np.abs(ratio - 1).mean(axis=0)
     # The tolerance has power: against a Kalman filter that assumes twice the measurement noise it fails.
     wrong = kalman(ys, 2.0 * MODEL.MEASUREMENT_STD)
-    assert np.max(np.mean(np.abs(out["mean"] - wrong["mean"]) / s, axis=0)) > TOLERANCE
+    assert np.max(np.mean(np.abs(out.mean - wrong["mean"]) / s, axis=0)) > TOLERANCE
 
 
 @pytest.mark.parametrize("name", ["GenericParticleFilter", "AuxiliaryParticleFilter"])
@@ -169,10 +169,10 @@ def test_predicted_measurement_is_the_one_step_prediction(name):
     """y_mean / y_std are p(y_k | y_1:k-1), before y_k is used: the Kalman innovation mean and std."""
     ys, kf, result = runs()
     out = result[name]
-    err = np.abs(out["y_mean"] - kf["y_mean"]) / kf["y_std"]
+    err = np.abs(out.y_mean - kf["y_mean"]) / kf["y_std"]
     print(f"\n{name}: |y_mean - kf predictive mean| / predictive std: mean {np.round(err.mean(0), 3)}")
     assert np.all(err.mean(axis=0) <= 0.1), err.mean(axis=0)
-    np.testing.assert_allclose(out["y_std"].mean(0), kf["y_std"].mean(0), rtol=0.05)
+    np.testing.assert_allclose(out.y_std.mean(0), kf["y_std"].mean(0), rtol=0.05)
 
 
 def test_auxiliary_filter_is_at_least_nearly_as_efficient_as_the_generic_one():
@@ -180,7 +180,7 @@ def test_auxiliary_filter_is_at_least_nearly_as_efficient_as_the_generic_one():
     alone (ignoring the process noise, 2.5x larger on e4) give the circuit's APF about half the GPF's
     mean ESS and heavy-tailed second-stage weights; this is the test that catches it."""
     _, _, result = runs()
-    gpf, apf = result["GenericParticleFilter"]["ess"], result["AuxiliaryParticleFilter"]["ess"]
+    gpf, apf = result["GenericParticleFilter"].ess, result["AuxiliaryParticleFilter"].ess
     print(f"\nmean ESS: GPF {gpf.mean():.0f}, APF {apf.mean():.0f}; min ESS: GPF {gpf.min():.0f}, APF {apf.min():.0f}")
     assert apf.mean() >= 0.8 * gpf.mean()
 
@@ -446,7 +446,7 @@ def test_offspring_counts_in_place_equal_the_counts_of_the_search_definition(chu
 def test_replicate_row_by_row_beyond_two_blocks_equals_np_repeat():
     """Beyond two blocks the filter resamples row by row in place; the result is
     np.repeat of the columns all the same."""
-    from bgc.diagnosis.runtime import load_package
+    from bgc.runtime.track import load_package
 
     pkg = load_package(ROOT / "generated", "ro")
     m = pkg.MODELS["nominal"]
@@ -503,5 +503,5 @@ def test_stepping_equals_run(cls):
     steps = [b.step(y, u) for y, u in zip(ys, us)]
     for key in ("mean", "std", "y_mean", "y_std", "ess", "resampled", "recovered"):
         got = np.array([getattr(s, key) for s in steps])
-        assert got.tobytes() == out[key].astype(got.dtype).tobytes(), key
+        assert got.tobytes() == getattr(out, key).astype(got.dtype).tobytes(), key
     assert np.array_equal(a.x, b.x) and np.array_equal(a.logw, b.logw)

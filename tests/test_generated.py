@@ -4,8 +4,8 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from bgc import artifacts, codegen
-from bgc.pipeline import compile_model
+from bgc.output import artifacts
+from bgc.pipeline import compile_model, generated_files
 
 from conftest import ROOT, compiled
 
@@ -15,7 +15,7 @@ MODELS = ["circuit", "two_tank", "ro"]
 @pytest.mark.parametrize("name", MODELS)
 def test_generated_text_matches_compiler_byte_for_byte(name):
     c = compiled(name)
-    files = codegen.text_files(c.dbn)
+    files = generated_files(c)
     diffs = artifacts.diff(ROOT / "generated" / name, files)
     assert not diffs, ("generated/ is out of date; refresh with: bgc compile models/" + name + ".yaml\n"
                        + "\n".join(diffs))
@@ -24,19 +24,19 @@ def test_generated_text_matches_compiler_byte_for_byte(name):
 @pytest.mark.parametrize("name", MODELS)
 def test_generated_has_no_stray_files_and_pictures_parse(name):
     c = compiled(name)
-    expected = set(codegen.text_files(c.dbn)) | set(codegen.picture_names(c.dbn))
+    expected = set(generated_files(c)) | set(artifacts.picture_names(c.dbn))
     on_disk = {str(p.relative_to(ROOT / "generated" / name)) for p in (ROOT / "generated" / name).rglob("*")
                if p.is_file()}
     assert on_disk == expected
-    for pic in codegen.picture_names(c.dbn):
+    for pic in artifacts.picture_names(c.dbn):
         root = ET.parse(ROOT / "generated" / name / pic).getroot()
         assert root.tag.endswith("svg")
 
 
 def test_same_model_same_bytes_twice_and_independent_of_file_order(tmp_path):
     text = (ROOT / "models" / "circuit.yaml").read_text()
-    a = codegen.text_files(compile_model(ROOT / "models" / "circuit.yaml").dbn)
-    b = codegen.text_files(compile_model(ROOT / "models" / "circuit.yaml").dbn)
+    a = generated_files(compile_model(ROOT / "models" / "circuit.yaml"))
+    b = generated_files(compile_model(ROOT / "models" / "circuit.yaml"))
     assert a == b
     # Reorder the elements section: every artefact but the manifest's source hash is the same.
     lines = text.splitlines(keepends=True)
@@ -46,7 +46,7 @@ def test_same_model_same_bytes_twice_and_independent_of_file_order(tmp_path):
     (tmp_path / "models").mkdir()
     p = tmp_path / "models" / "circuit.yaml"
     p.write_text("".join(shuffled))
-    c = codegen.text_files(compile_model(p).dbn)
+    c = generated_files(compile_model(p))
     for rel in a:
         if rel != "manifest.json":
             assert c[rel] == a[rel], rel
@@ -54,7 +54,7 @@ def test_same_model_same_bytes_twice_and_independent_of_file_order(tmp_path):
 
 def test_diff_reports_a_changed_file(tmp_path):
     files = {"a.txt": "one\ntwo\n"}
-    artifacts.write(tmp_path, files)
+    artifacts.write_folder(tmp_path, files)
     assert artifacts.diff(tmp_path, files) == []
     out = artifacts.diff(tmp_path, {"a.txt": "one\nthree\n"})
     assert out and "-two" in out[0] and "+three" in out[0]

@@ -9,7 +9,7 @@ import time
 import pytest
 
 from bgc.errors import BgcError, ErrorGroup, LoadError, SourceLoc
-from bgc.load import MAX_BYTES, load, loads
+from bgc.compiler.load import MAX_BYTES, load, loads
 
 MODEL = """\
 name: rc

@@ -18,7 +18,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from bgc.errors import CodegenError
-from bgc.printing import cse_block, print_expr
+from bgc.compiler.printing import cse_block, print_expr
 
 from conftest import ROOT
 
@@ -177,7 +177,7 @@ EXPRS = _cse_exprs()
 
 CSE_SCRIPT = CSE_EXPRS_SOURCE + textwrap.dedent("""
     from bgc.pipeline import compile_model
-    from bgc.printing import cse_block
+    from bgc.compiler.printing import cse_block
     print(repr(cse_block(EXPRS)))
     for name in ("ro", "circuit"):
         ssm = compile_model({root!r} + "/models/" + name + ".yaml").equations
@@ -237,7 +237,7 @@ def test_cse_numbering_does_not_depend_on_the_hash_seed():
 
 
 # ------------------------------------------------- fewer array operations
-from bgc.printing import array_op_count, fewer_array_ops  # noqa: E402
+from bgc.compiler.printing import array_op_count, fewer_array_ops  # noqa: E402
 
 a, b = sympy.symbols("a b")          # arrays (one value per particle)
 p, q, r = sympy.symbols("p q r")     # parameters (scalars)

@@ -1,4 +1,4 @@
-"""The truth simulator (bgc.simulate) and ``bgc simulate``.
+"""The truth simulator (bgc.runtime.simulate), run files (bgc.runtime.runs) and ``bgc simulate``.
 
 Expected trajectories are derived here, independently of the simulator: the circuit
 is linear, so its exact solution is x* + exp(t A)(x0 - x*) with A the sympy Jacobian
@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 import sympy
 
-from bgc import simulate as sim
 from bgc.cli import main
-from bgc.errors import SimulationError
+from bgc.errors import DataError
+from bgc.runtime import runs
+from bgc.runtime import simulate as sim
 from bgc.ir import sym
 from bgc.pipeline import compile_model
 
@@ -29,8 +30,12 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 @lru_cache(maxsize=None)
+def circuit_compiled():
+    return compile_model(CIRCUIT)
+
+
 def circuit():
-    return compile_model(CIRCUIT).equations
+    return circuit_compiled().equations
 
 
 @lru_cache(maxsize=None)
@@ -79,10 +84,10 @@ def steady_state(theta, v=10.0):
     return np.array([v - p["R1"] * i, v - (p["R1"] + p["R2"]) * i, i])
 
 
-def quiet(steps=60, fault=None, seed=0, process=0.0, measurement=0.0, ssm=None):
+def quiet(steps=60, fault=None, seed=0, process=0.0, measurement=0.0, num=None):
     options = sim.SimulationOptions(steps=steps, process_noise=process, measurement_noise=measurement,
                                     seed=seed, fault=fault)
-    return sim.simulate(ssm or circuit(), options)
+    return sim.simulate(num or circuit_compiled().numerics, options)
 
 
 def cli(tmp_path, *args, name="run.csv"):
@@ -116,7 +121,7 @@ def test_cli_writes_a_csv_whose_header_says_what_is_in_it(tmp_path, capsys):
 def test_csv_round_trip_is_exact():
     fault = sim.FaultInjection("C1", "incipient", -0.02, 0.8)
     r = quiet(steps=50, fault=fault, seed=4, process=0.03, measurement=0.02)
-    run = sim.read_csv(sim.to_csv(r))
+    run = runs.parse_run(sim.to_csv(r))
     assert run.header == r.header
     assert np.array_equal(run.time, r.time)
     for j, name in enumerate(r.input_names):
@@ -128,11 +133,21 @@ def test_csv_round_trip_is_exact():
     assert list(run.parameters) == ["C1"] and np.array_equal(run.parameters["C1"], r.parameter)
 
 
-@pytest.mark.parametrize("text,what", [("# only a comment\n", "no data"), ("time,y:a\n0.1,abc\n", "not numeric"),
-                                       ("t,y:a\n0.1,2\n", "malformed")])
+@pytest.mark.parametrize("text,what", [
+    ("# only a comment\n", "bad.csv: no data"),
+    ("time,y:a\n0.1,abc\n", "bad.csv:2: 'abc' in column y:a is not a number"),
+    ("t,y:a\n0.1,2\n", "bad.csv:1: the first column must be 'time', not 't'"),
+    ("time,a\n0.1,2\n", "bad.csv:1: column 'a' is not time, u:NAME"),
+    ("time,y:a\n", "bad.csv: the run has no data rows"),
+    ("time,y:a\n0.1,2,3\n", "bad.csv:2: 3 fields, expected 2"),
+    ("time,y:a\n0.2,2\n0.1,3\n", "bad.csv:3: time 0.1 does not increase"),
+    ("time,y:a,y:a\n0.1,2,3\n", "bad.csv:1: column 'y:a' appears twice"),
+    ("time,y:a\n0.1," + "9" * 2000 + "\n", "bad.csv:2: a field of 2000 characters"),
+])
 def test_read_csv_rejects_what_bgc_did_not_write(text, what):
-    with pytest.raises(SimulationError, match=what):
-        sim.read_csv(text, "bad.csv")
+    with pytest.raises(DataError) as err:
+        runs.parse_run(text, "bad.csv")
+    assert err.value.line().startswith(what), err.value.line()
 
 
 # --------------------------------------------------------- the integrator
@@ -153,8 +168,9 @@ def test_truth_is_rk4_eight_times_finer_than_the_filters(tmp_path):
     (tmp_path / "models").mkdir()
     path = tmp_path / "models" / "circuit.yaml"
     path.write_text(text)
-    ssm = compile_model(path).equations
-    r = quiet(steps=80, ssm=ssm)
+    rest = compile_model(path)
+    ssm = rest.equations
+    r = quiet(steps=80, num=rest.numerics)
     mod = generated()
     a, c = linear(ssm, ssm.parameter_values, mod.inputs(0.0))
     x_ss = np.linalg.solve(a, -c)
@@ -184,7 +200,7 @@ def test_truth_is_rk4_eight_times_finer_than_the_filters(tmp_path):
 def test_abrupt_fault_changes_the_parameter_exactly_from_t_f(tmp_path, t_f):
     status, out = cli(tmp_path, "--steps", "60", "--fault", f"R2:abrupt:0.5@{t_f}", "--seed", "1")
     assert status == 0
-    run = sim.read_csv(out.read_text())
+    run = runs.parse_run(out.read_text())
     r2 = dict(zip(circuit().parameters, circuit().parameter_values))["R2"]
     after = run.time >= t_f
     assert after.any() and (~after).any()
@@ -194,7 +210,7 @@ def test_abrupt_fault_changes_the_parameter_exactly_from_t_f(tmp_path, t_f):
         assert run.time[np.argmax(after)] == 1.0  # the sample at t_f itself is faulty (t >= t_f)
     # The plant before t_f is the no-fault plant, step for step (same seed, same noise).
     _, clean = cli(tmp_path, "--steps", "60", "--seed", "1", name="clean.csv")
-    base = sim.read_csv(clean.read_text())
+    base = runs.parse_run(clean.read_text())
     for name in base.states:
         before = run.time < t_f - 0.05 + 1e-9  # samples whose whole step lies before t_f
         assert np.array_equal(run.states[name][before], base.states[name][before])
@@ -220,7 +236,7 @@ def test_noise_free_abrupt_fault_follows_the_exact_piecewise_solution():
 def test_incipient_fault_is_a_ramp_from_t_f(tmp_path):
     status, out = cli(tmp_path, "--steps", "80", "--fault", "C1:incipient:-0.05@1.5", "--seed", "2")
     assert status == 0
-    run = sim.read_csv(out.read_text())
+    run = runs.parse_run(out.read_text())
     c1 = dict(zip(circuit().parameters, circuit().parameter_values))["C1"]
     t = run.time
     after = t > 1.5

@@ -269,7 +269,7 @@ def test_sign_losing_inverse_that_sympy_offers_is_refused():
     from types import SimpleNamespace
 
     from bgc.errors import EquationError
-    from bgc.tcg import _invert
+    from bgc.compiler.tcg import _invert
 
     e, f, a = sympy.symbols("e3 f3 a")
     el = SimpleNamespace(name="Rt", law=SimpleNamespace(text="f = a*sqrt(abs(e))*sign(e)", loc="x.yaml:1:1"))

@@ -15,9 +15,10 @@ import pytest
 import sympy
 
 from bgc.errors import BgcError, ErrorGroup, ExpressionError, SourceLoc, ValidationError
-from bgc.ir import ELEMENT_PORTS, Settings
-from bgc.load import load, loads
-from bgc.validate import KINDS, validate
+from bgc.ir import Settings
+from bgc.kinds import ELEMENT_KINDS, FAULT_KINDS
+from bgc.compiler.load import load, loads
+from bgc.compiler.validate import KINDS, validate
 
 from conftest import MODELS, ROOT
 
@@ -118,8 +119,18 @@ def test_three_independent_errors_come_out_of_one_run_in_file_order():
 
 def test_unknown_kind_lists_every_valid_kind(batch):
     (line,) = lines_of(batch, "unknown_kind.yaml")
-    assert "valid kinds: " + ", ".join(sorted(ELEMENT_PORTS)) in line
-    assert KINDS == tuple(sorted(ELEMENT_PORTS))
+    assert "valid kinds: " + ", ".join(sorted(ELEMENT_KINDS)) in line
+    assert KINDS == tuple(sorted(ELEMENT_KINDS))
+
+
+def test_the_schema_lists_the_kinds_of_the_registry():
+    """Element and fault kinds are declared once (bgc.kinds): the schema's
+    enumerations are that registry (plus the junctions written as numbers)."""
+    from bgc.compiler.validate import schema
+
+    defs = schema()["$defs"]
+    assert set(defs["element"]["properties"]["kind"]["enum"]) == set(ELEMENT_KINDS) | {0, 1}
+    assert defs["faultKinds"]["items"]["enum"] == list(FAULT_KINDS)
 
 
 def test_a_valid_model_among_broken_ones_is_still_checked(batch):
@@ -521,7 +532,7 @@ def test_every_schema_error_has_a_fix(old, new, what, fix):
 def test_a_schema_error_without_a_specific_message_still_has_a_fix():
     import jsonschema
 
-    from bgc.validate import _schema_message
+    from bgc.compiler.validate import _schema_message
 
     err = jsonschema.ValidationError("5 is not a multiple of 2", validator="multipleOf", validator_value=2,
                                      instance=5, schema={"multipleOf": 2})

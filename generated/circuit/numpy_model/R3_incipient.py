@@ -30,16 +30,16 @@ SUBSTEPS = 1
 #: Eigenvalues of the nominal linearisation at X0 (real, imaginary), for the stability check.
 EIGENVALUES = ((-1.193306905, -1.0703121758), (-1.193306905, 1.0703121758), (-3.1133861901, 0.0))
 X0 = np.array([7.5, 2.5, 2.5, 1.0, 0.0])
-X0_STD = np.array([0.24647515087732477, 0.03354101966249684, 0.06708203932499368, 0.0, 0.0])
-PROCESS_STD = np.array([0.12323757543866239, 0.01677050983124842, 0.03354101966249684, 0.0, 0.0032])
+X0_STD = np.array([0.2464751508773248, 0.03354101966249684, 0.0670820393249937, 0.0, 0.0])
+PROCESS_STD = np.array([0.1232375754386624, 0.01677050983124842, 0.03354101966249684, 0.0, 0.0032])
 MEASUREMENT_STD = np.array([0.05, 0.05, 0.05])
 #: Std of the one-step predictive of y given the noise-free prediction: measurement
 #: noise plus the process noise seen through the outputs (sqrt(R + diag(H Q H')),
 #: H at X0); used by the auxiliary particle filter's first stage.
-PREDICTIVE_STD = np.array([0.06020797289396148, 0.13299436078270388, 0.07979465834252317])
-FAULT = {'parameter': 'R3', 'kind': 'incipient'}
+PREDICTIVE_STD = np.array([0.06020797289396148, 0.1329943607827039, 0.07979465834252317])
+FAULT = {'parameter': 'R3', 'kind': 'incipient', 'magnitude': 'slope'}
 #: Uniform prior of the fault magnitude: slope delta_R3 (per unit time) on [-0.0533333, 0.266667].
-FAULT_PRIOR = (-0.05333333333333334, 0.26666666666666666)
+FAULT_PRIOR = (-0.05333333333333334, 0.2666666666666667)
 
 
 def inputs(t):
@@ -54,37 +54,37 @@ def _linear(u, theta):
     """A, b of the part of dx/dt that is linear in x, dx/dt = A x + b + rest(x),
     over the block of A that holds its nonzeros (rows 0..3, columns 0..4); computed
     once per (u, theta) and cached."""
-    key = (tuple(theta), tuple(u))
-    hit = _LINEAR.get(key)
-    if hit is None:
+    _key = (tuple(theta), tuple(u))
+    _hit = _LINEAR.get(_key)
+    if _hit is None:
         V = u[0]
-        C1, C2, L, R1, R2, R3 = theta
-        A = np.array([
+        C1 = theta[0]
+        C2 = theta[1]
+        L = theta[2]
+        R1 = theta[3]
+        R2 = theta[4]
+        _A = np.array([
             [-1/(C1*R2) - 1/(C1*R1), 1/(C1*R2), 0, 0, 0],
             [1/(C2*R2), -1/(C2*R2), -1/C2, 0, 0],
-            [0, L**(-1.0), 0, 0, 0],
+            [0, 1/L, 0, 0, 0],
             [0, 0, 0, 0, 1],
         ], dtype=float)
-        b = np.array([V/(C1*R1), 0, 0, 0], dtype=float)[:, None]
+        _b = np.array([V/(C1*R1), 0, 0, 0], dtype=float)[:, None]
         if len(_LINEAR) > 256:
             _LINEAR.clear()
-        _LINEAR[key] = hit = (A, b)
-    return hit
+        _LINEAR[_key] = _hit = (_A, _b)
+    return _hit
 
 
 def derivative(x, u, theta, out=None, linear=None):
     """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N),
     written into ``out`` when it is given; ``linear``: _linear(u, theta), when
     the caller has it."""
-    e4 = x[0]
-    e8 = x[1]
-    f10 = x[2]
-    delta_R3 = x[4]
-    V = u[0]
-    C1, C2, L, R1, R2, R3 = theta
-    R3 = x[3]
     _dx = np.empty(x.shape) if out is None else out
     _A, _b = _linear(u, theta) if linear is None else linear
+    f10 = x[2]
+    R3 = x[3]
+    L = theta[2]
     np.matmul(_A, x, out=_dx[0:4])
     _dx[0:4] += _b
     _dx[2] += (-1/L)*R3*f10
@@ -112,16 +112,17 @@ def transition(x, u, theta, dt, rng, out=None):
 def observe(x, u, theta, out=None):
     """Noise-free measurements for every particle: (n_y, N), written into
     ``out`` when it is given."""
+    _y = np.empty((3, x.shape[1])) if out is None else out
     e4 = x[0]
     e8 = x[1]
     f10 = x[2]
-    V = u[0]
-    C1, C2, L, R1, R2, R3 = theta
     R3 = x[3]
-    _y = np.empty((3, x.shape[1])) if out is None else out
+    V = u[0]
+    R1 = theta[3]
+    R2 = theta[4]
     _y[0] = R3*f10
-    _y[1] = (R1**(-1.0))*(V - e4)
-    _y[2] = (R2**(-1.0))*(e4 - e8)
+    _y[1] = (1/R1)*(V - e4)
+    _y[2] = (1/R2)*(e4 - e8)
     return _y
 
 

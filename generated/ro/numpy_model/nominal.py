@@ -29,13 +29,13 @@ SUBSTEPS = 2
 #: Eigenvalues of the nominal linearisation at X0 (real, imaginary), for the stability check.
 EIGENVALUES = ((0.0003327326, 0.0), (-0.0532358059, 0.0), (-0.1001116478, 0.0), (-0.5063783527, -2.5342702978), (-0.5063783527, 2.5342702978))
 X0 = np.array([13.98906, -0.398906, 363.7155, 1443.559, 12000.0])
-X0_STD = np.array([0.8393436, 0.0038133285320663913, 9.554003537386823, 29.30723113012857, 1.9595917942265426])
+X0_STD = np.array([0.8393436, 0.003813328532066391, 9.554003537386823, 29.30723113012857, 1.9595917942265426])
 PROCESS_STD = np.array([0.4196718, 0.0019066642660331957, 4.777001768693411, 14.653615565064285, 0.9797958971132713])
-MEASUREMENT_STD = np.array([0.03310130963636364, 0.3128824910144928, 0.2797811538461539, 7.274310000000001])
+MEASUREMENT_STD = np.array([0.03310130963636364, 0.3128824910144928, 0.2797811538461539, 7.27431])
 #: Std of the one-step predictive of y given the noise-free prediction: measurement
 #: noise plus the process noise seen through the outputs (sqrt(R + diag(H Q H')),
 #: H at X0); used by the auxiliary particle filter's first stage.
-PREDICTIVE_STD = np.array([0.03958761331552928, 0.38443472121650263, 0.3347278293094676, 8.70260489015789])
+PREDICTIVE_STD = np.array([0.03958761331552928, 0.3844347212165026, 0.3347278293094676, 8.70260489015789])
 FAULT = None
 
 
@@ -51,39 +51,53 @@ def _linear(u, theta):
     """A, b of the part of dx/dt that is linear in x, dx/dt = A x + b + rest(x),
     over the block of A that holds its nonzeros (rows 0..3, columns 0..3); computed
     once per (u, theta) and cached."""
-    key = (tuple(theta), tuple(u))
-    hit = _LINEAR.get(key)
-    if hit is None:
+    _key = (tuple(theta), tuple(u))
+    _hit = _LINEAR.get(_key)
+    if _hit is None:
         tau_fp = u[0]
         tau_rp = u[1]
-        C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
-        A = np.array([
+        C_memb = theta[1]
+        C_res = theta[2]
+        I_fp = theta[3]
+        I_rp = theta[4]
+        R_brine = theta[7]
+        R_fp = theta[8]
+        R_pipe = theta[10]
+        R_rp = theta[11]
+        m1 = theta[13]
+        m2 = theta[14]
+        _A = np.array([
             [-R_fp/I_fp, -m1/I_fp, 0, 0],
             [m1/C_res, -1/(C_res*R_pipe) - 1/(C_res*R_brine), 1/(C_res*R_pipe) + 1/(C_res*R_brine), -m2/(C_res*R_pipe)],
             [0, 1/(C_memb*R_pipe) + 1/(C_memb*R_brine), -1/(C_memb*R_pipe) - 1/(C_memb*R_brine), m2/(C_memb*R_pipe)],
             [0, -m2/(I_rp*R_pipe), m2/(I_rp*R_pipe), -R_rp/I_rp - m2**2/(I_rp*R_pipe)],
         ], dtype=float)
-        b = np.array([tau_fp/I_fp, 0, 0, tau_rp/I_rp], dtype=float)[:, None]
+        _b = np.array([tau_fp/I_fp, 0, 0, tau_rp/I_rp], dtype=float)[:, None]
         if len(_LINEAR) > 256:
             _LINEAR.clear()
-        _LINEAR[key] = hit = (A, b)
-    return hit
+        _LINEAR[_key] = _hit = (_A, _b)
+    return _hit
 
 
 def derivative(x, u, theta, out=None, linear=None):
     """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N),
     written into ``out`` when it is given; ``linear``: _linear(u, theta), when
     the caller has it."""
-    f3 = x[0]
+    _dx = np.empty(x.shape) if out is None else out
+    _A, _b = _linear(u, theta) if linear is None else linear
     e6 = x[1]
     e13 = x[2]
     f22 = x[3]
     e27 = x[4]
-    tau_fp = u[0]
-    tau_rp = u[1]
-    C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
-    _dx = np.empty(x.shape) if out is None else out
-    _A, _b = _linear(u, theta) if linear is None else linear
+    C_k = theta[0]
+    C_memb = theta[1]
+    K0 = theta[5]
+    K_slope = theta[6]
+    R_brine = theta[7]
+    R_memb = theta[9]
+    R_pipe = theta[10]
+    k_scale = theta[12]
+    m2 = theta[14]
     np.matmul(_A, x[0:4], out=_dx[0:4])
     _dx[0:4] += _b
     _c0 = 29*K_slope
@@ -112,15 +126,20 @@ def transition(x, u, theta, dt, rng, out=None):
 def observe(x, u, theta, out=None):
     """Noise-free measurements for every particle: (n_y, N), written into
     ``out`` when it is given."""
+    _y = np.empty((4, x.shape[1])) if out is None else out
     e6 = x[1]
     e13 = x[2]
     f22 = x[3]
     e27 = x[4]
-    C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, R_brine, R_fp, R_memb, R_pipe, R_rp, k_scale, m1, m2 = theta
+    K0 = theta[5]
+    K_slope = theta[6]
+    R_brine = theta[7]
+    R_memb = theta[9]
+    R_pipe = theta[10]
+    m2 = theta[14]
     _c0 = 29*K_slope
-    _y = np.empty((4, x.shape[1])) if out is None else out
-    _y[0] = (R_brine**(-1.0))*(e13 - e6)
-    _y[1] = (R_pipe**(-1.0))*(e6 - e13 + (m2)*f22)
+    _y[0] = (1/R_brine)*(e13 - e6)
+    _y[1] = (1/R_pipe)*(e6 - e13 + (m2)*f22)
     _y[2] = (_c0/R_memb)*e13/(-K0 + _c0 + e27)
     _y[3] = e13
     return _y

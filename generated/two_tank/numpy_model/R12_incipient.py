@@ -30,14 +30,14 @@ SUBSTEPS = 1
 #: Eigenvalues of the nominal linearisation at X0 (real, imaginary), for the stability check.
 EIGENVALUES = ((-0.1628155314, 0.0), (-0.7677400242, 0.0))
 X0 = np.array([2.2222222, 1.3333333, 2.0, 0.0])
-X0_STD = np.array([0.08164965727627602, 0.0596284779092824, 0.0, 0.0])
-PROCESS_STD = np.array([0.04082482863813801, 0.0298142389546412, 0.0, 0.0005333333333333334])
+X0_STD = np.array([0.081649657276276, 0.0596284779092824, 0.0, 0.0])
+PROCESS_STD = np.array([0.040824828638138, 0.0298142389546412, 0.0, 0.0005333333333333334])
 MEASUREMENT_STD = np.array([0.011111111, 0.008888889, 0.008888888666666667])
 #: Std of the one-step predictive of y given the noise-free prediction: measurement
 #: noise plus the process noise seen through the outputs (sqrt(R + diag(H Q H')),
 #: H at X0); used by the auxiliary particle filter's first stage.
 PREDICTIVE_STD = np.array([0.015087194975795014, 0.02679367867797861, 0.013333333])
-FAULT = {'parameter': 'R12', 'kind': 'incipient'}
+FAULT = {'parameter': 'R12', 'kind': 'incipient', 'magnitude': 'slope'}
 #: Uniform prior of the fault magnitude: slope delta_R12 (per unit time) on [0, 0.0533333].
 FAULT_PRIOR = (0.0, 0.05333333333333334)
 
@@ -54,40 +54,42 @@ def _linear(u, theta):
     """A, b of the part of dx/dt that is linear in x, dx/dt = A x + b + rest(x),
     over the block of A that holds its nonzeros (rows 0..2, columns 0..3); computed
     once per (u, theta) and cached."""
-    key = (tuple(theta), tuple(u))
-    hit = _LINEAR.get(key)
-    if hit is None:
+    _key = (tuple(theta), tuple(u))
+    _hit = _LINEAR.get(_key)
+    if _hit is None:
         f_in = u[0]
-        C1, C2, R10, R12, R20 = theta
-        A = np.array([
+        C1 = theta[0]
+        C2 = theta[1]
+        R10 = theta[2]
+        R20 = theta[4]
+        _A = np.array([
             [-1/(C1*R10), 0, 0, 0],
             [0, -1/(C2*R20), 0, 0],
             [0, 0, 0, 1],
         ], dtype=float)
-        b = np.array([f_in/C1, 0, 0], dtype=float)[:, None]
+        _b = np.array([f_in/C1, 0, 0], dtype=float)[:, None]
         if len(_LINEAR) > 256:
             _LINEAR.clear()
-        _LINEAR[key] = hit = (A, b)
-    return hit
+        _LINEAR[_key] = _hit = (_A, _b)
+    return _hit
 
 
 def derivative(x, u, theta, out=None, linear=None):
     """dx/dt for every particle: x (n_x, N), u (n_u,), theta (n_theta,) -> (n_x, N),
     written into ``out`` when it is given; ``linear``: _linear(u, theta), when
     the caller has it."""
-    e2 = x[0]
-    e7 = x[1]
-    delta_R12 = x[3]
-    f_in = u[0]
-    C1, C2, R10, R12, R20 = theta
-    R12 = x[2]
     _dx = np.empty(x.shape) if out is None else out
     _A, _b = _linear(u, theta) if linear is None else linear
+    e2 = x[0]
+    e7 = x[1]
+    R12 = x[2]
+    C1 = theta[0]
+    C2 = theta[1]
     np.matmul(_A, x, out=_dx[0:3])
     _dx[0:3] += _b
     _c0 = (e2 - e7)/R12
     _dx[0] += (-1/C1)*_c0
-    _dx[1] += (C2**(-1.0))*_c0
+    _dx[1] += (1/C2)*_c0
     _dx[3] = 0.0
     return _dx
 
@@ -112,14 +114,15 @@ def transition(x, u, theta, dt, rng, out=None):
 def observe(x, u, theta, out=None):
     """Noise-free measurements for every particle: (n_y, N), written into
     ``out`` when it is given."""
+    _y = np.empty((3, x.shape[1])) if out is None else out
     e2 = x[0]
     e7 = x[1]
-    C1, C2, R10, R12, R20 = theta
     R12 = x[2]
-    _y = np.empty((3, x.shape[1])) if out is None else out
-    _y[0] = (R10**(-1.0))*e2
+    R10 = theta[2]
+    R20 = theta[4]
+    _y[0] = (1/R10)*e2
     _y[1] = (e2 - e7)/R12
-    _y[2] = (R20**(-1.0))*e7
+    _y[2] = (1/R20)*e7
     return _y
 
 

@@ -93,6 +93,22 @@ class StepResult:
         self.ess, self.resampled, self.recovered = ess, resampled, recovered
 
 
+class FilterRun:
+    """What a filter gives over a whole record of T steps: weighted mean and
+    std of the state (T, n_x), predicted measurement mean and std before each
+    update (T, n_y), ESS (T,), and per step whether the particles were
+    resampled and whether the filter had to recover (bool, (T,))."""
+
+    __slots__ = ("mean", "std", "y_mean", "y_std", "ess", "resampled", "recovered")
+
+    def __init__(self, steps, n_x, n_y):
+        self.mean, self.std = np.empty((steps, n_x)), np.empty((steps, n_x))
+        self.y_mean, self.y_std = np.empty((steps, n_y)), np.empty((steps, n_y))
+        self.ess = np.empty(steps)
+        self.resampled = np.zeros(steps, bool)
+        self.recovered = np.zeros(steps, bool)
+
+
 class _Filter:
     def __init__(self, model, n_particles, rng, theta=None, threshold=0.5, x=None):
         """model: a generated model module; threshold: resample when ESS < threshold * N."""
@@ -170,18 +186,15 @@ class _Filter:
         return mean, np.sqrt(std ** 2 + self.model.MEASUREMENT_STD ** 2)
 
     def run(self, ys, us, dt=None):
-        """Filter a whole record: ys (T, n_y), us (T, n_u). Returns a dict of arrays."""
+        """Filter a whole record: ys (T, n_y), us (T, n_u). Returns a FilterRun."""
         ys = np.asarray(ys, dtype=float)
         us = np.asarray(us, dtype=float)
-        T = ys.shape[0]
-        out = {"mean": np.empty((T, self.x.shape[0])), "std": np.empty((T, self.x.shape[0])),
-               "y_mean": np.empty((T, ys.shape[1])), "y_std": np.empty((T, ys.shape[1])),
-               "ess": np.empty(T), "resampled": np.zeros(T, bool), "recovered": np.zeros(T, bool)}
-        for k in range(T):
+        out = FilterRun(ys.shape[0], self.x.shape[0], ys.shape[1])
+        for k in range(ys.shape[0]):
             r = self.step(ys[k], us[k], dt)
-            out["mean"][k], out["std"][k], out["ess"][k] = r.mean, r.std, r.ess
-            out["y_mean"][k], out["y_std"][k] = r.y_mean, r.y_std
-            out["resampled"][k], out["recovered"][k] = r.resampled, r.recovered
+            out.mean[k], out.std[k], out.ess[k] = r.mean, r.std, r.ess
+            out.y_mean[k], out.y_std[k] = r.y_mean, r.y_std
+            out.resampled[k], out.recovered[k] = r.resampled, r.recovered
         return out
 
 

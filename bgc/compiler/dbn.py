@@ -28,7 +28,8 @@ from __future__ import annotations
 
 import networkx as nx
 
-from .ir import Dbn, DbnModel, StateSpaceModel, sym
+from ..ir import Dbn, DbnModel, StateSpaceModel, sym
+from ..kinds import fault_kind
 
 
 def node(variable: str, slice_: int) -> str:
@@ -88,19 +89,20 @@ def _nominal(ssm: StateSpaceModel) -> nx.DiGraph:
 
 def _faulty(ssm: StateSpaceModel, nominal: nx.DiGraph, parameter: str, kind: str) -> Dbn:
     g = nx.DiGraph(nominal)
+    drifts = fault_kind(kind).drifts
     p = sym(parameter)
     d = f"D_{parameter}"
     delta = f"delta_{parameter}"
     for k in (0, 1):
         g.add_node(node(d, k), variable=d, slice=k, role="fault_indicator", element=None)
         g.add_node(node(delta, k), variable=delta, slice=k,
-                   role="fault_bias" if kind == "abrupt" else "fault_slope", element=None)
+                   role=f"fault_{fault_kind(kind).magnitude}", element=None)
         g.add_edge(node(d, k), node(delta, k), arc="indicator")
     g.add_edge(node(d, 0), node(d, 1), arc="persistence")
     g.add_edge(node(delta, 0), node(delta, 1), arc="persistence")
-    if kind == "abrupt":
+    if not drifts:  # P + delta_P
         carrier = delta
-    else:
+    else:  # P itself drifts at the slope delta_P
         carrier = parameter
         for k in (0, 1):
             g.add_node(node(parameter, k), variable=parameter, slice=k, role="fault_parameter", element=None)

@@ -17,8 +17,8 @@ from typing import Any
 
 import yaml
 
-from .errors import ErrorGroup, LoadError, SourceLoc
-from .ir import RawModel
+from ..errors import ErrorGroup, LoadError, SourceLoc
+from ..ir import RawModel
 
 #: Refuse documents larger than this: a bond graph is small; a giant file is a mistake or an attack.
 MAX_BYTES = 2_000_000

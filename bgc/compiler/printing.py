@@ -20,13 +20,14 @@ np.sqrt(x)*np.maximum(0.1, np.maximum(x, y))
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import sympy
 from sympy.printing.codeprinter import PrintMethodNotImplementedError
 from sympy.printing.numpy import NumPyPrinter
 
-from .errors import CodegenError
+from ..errors import CodegenError
 
 
 class StrictNumPyPrinter(NumPyPrinter):
@@ -87,6 +88,17 @@ class StrictNumPyPrinter(NumPyPrinter):
 
     def _print_Float(self, expr: sympy.Float) -> str:
         return repr(float(expr))
+
+    def _print_Pow(self, expr: sympy.Pow, rational: bool = False) -> str:
+        """A whole-number exponent prints as the integer it is, a reciprocal as
+        a division: ``1/L``, not ``L**(-1.0)``; ``x**2``, not ``x**2.0``. (sympy's
+        NumPy printer makes negative integer exponents floats, for integer
+        arrays; every array here holds floats.)"""
+        e = expr.exp
+        if e.is_number and e.is_real and float(e).is_integer() and abs(float(e)) <= 64:
+            expr = sympy.Pow(expr.base, sympy.Integer(int(e)), evaluate=False)
+            return self._hprint_Pow(expr, rational=rational, sqrt=self._module + ".sqrt")
+        return super()._print_Pow(expr, rational)
 
     def _print_Abs(self, expr: sympy.Abs) -> str:
         return f"np.abs({self._print(expr.args[0])})"
@@ -309,3 +321,72 @@ def cse_block(exprs: Sequence[sympy.Expr], prefix: str = "_c",
         if any(x.name in arrays_now for x in e.free_symbols):
             arrays_now.add(s.name)
     return lines, [print_expr(e, temps, frozenset(arrays_now)) for e in reduced]
+
+
+def escape(text: str, newlines: bool = False) -> str:
+    r"""Model text as it may stand in generated source: inside a (non-raw)
+    string literal, triple-quoted or not, it reads back as ``text``, and in a
+    ``#`` comment it stays on its line.
+
+    Backslashes and double quotes are escaped; every character that is not
+    printable (control characters, NUL, line and paragraph separators, lone
+    surrogates, ANSI escapes) becomes its Python escape sequence, newlines
+    included unless ``newlines`` (a docstring keeps the description's line
+    breaks). The one function through which model text reaches generated code.
+
+    Examples
+    --------
+    >>> print(escape('end" + 1\\c\nimport os'))
+    end\" + 1\\c\nimport os
+    >>> escape("two\nlines", newlines=True) == "two\nlines"
+    True
+    >>> print(escape("\x1b[31m\ud800"))
+    \x1b[31m\ud800
+    """
+    out = []
+    for ch in text:
+        if ch == "\\":
+            out.append("\\\\")
+        elif ch == '"':
+            out.append('\\"')
+        elif ch == "\n" and newlines:
+            out.append(ch)
+        elif ch.isprintable():
+            out.append(ch)
+        else:
+            out.append(ch.encode("unicode_escape", "backslashreplace").decode("ascii"))
+    return "".join(out)
+
+
+#: A number printed into generated code may differ from bgc's float by at most
+#: this many units in the last place (the rounding of one operation), if that
+#: gives a shorter repr (0.02 *
+#: 363.7155 is 7.274310000000001 in floating point: it prints as 7.27431).
+ROUNDING_ULPS = 1
+
+
+def print_number(value: float, what: str = "a number", where: str | None = None) -> str:
+    """The shortest repr of a float within ROUNDING_ULPS of ``value`` (the
+    rounding of bgc's own arithmetic, not a change of value); a number that is
+    not finite is a :class:`~bgc.errors.CodegenError` naming ``what``.
+
+    Examples
+    --------
+    >>> print_number(0.02 * 363.7155), print_number(0.1 + 0.2), print_number(1e-300)
+    ('7.27431', '0.3', '1e-300')
+    >>> print_number(float("inf"), "a process-noise std")
+    Traceback (most recent call last):
+    ...
+    bgc.errors.CodegenError: a process-noise std is inf, not a finite number (rescale the model's values)
+    """
+    v = float(value)
+    if not math.isfinite(v):
+        raise CodegenError(f"{what} is {v!r}, not a finite number", where, "rescale the model's values")
+    if v == 0.0:
+        return "0.0"
+    tolerance = ROUNDING_ULPS * math.ulp(v)
+    for digits in range(1, 18):
+        text = repr(float(f"{v:.{digits}g}"))
+        if abs(float(text) - v) <= tolerance:
+            return text
+    return repr(v)

@@ -19,7 +19,7 @@ import math
 import re
 import sys
 from functools import lru_cache
-from pathlib import Path
+from importlib import resources
 from typing import Any, Iterable, Iterator
 
 import jsonschema
@@ -27,34 +27,31 @@ import sympy
 import yaml
 
 from . import expressions
-from .errors import BgcError, ErrorGroup, ExpressionError, ValidationError
-from .ir import (
-    ELEMENT_PORTS, JUNCTIONS, MODULATED, SOURCES, STORAGE, TWO_PORTS, Bond, BondGraph, Element,
+from ..errors import BgcError, ErrorGroup, ExpressionError, ValidationError
+from ..kinds import ELEMENT_KINDS, element_kind
+from ..ir import (
+    Bond, BondGraph, Element,
     FaultCandidate, Input, Law, Measurement, Parameter, RawModel, Settings, Signal, effort, flow, sym,
 )
 
-SCHEMA_PATH = Path(__file__).resolve().parent.parent / "schemas" / "bondgraph.schema.json"
-KINDS = tuple(sorted(ELEMENT_PORTS))
+#: The JSON Schema of model files ships inside the package (``bgc/schema/``);
+#: ``schemas/bondgraph.schema.json`` at the top of the repository is its
+#: published copy (a test checks they are identical).
+SCHEMA_RESOURCE = ("bgc", "schema/bondgraph.schema.json")
+KINDS = tuple(ELEMENT_KINDS)
 _BOND_VARIABLE = re.compile(r"^[ef][0-9]+$")
 #: Names generated code and expressions use for themselves.
 RESERVED = frozenset({
     "np", "numpy", "math", "x", "u", "y", "t", "dt", "theta", "rng", "logw", "N", "self",
     "e", "f", "pi", *expressions.FUNCTIONS,
 }) | frozenset(dir(builtins))
-#: Keys each kind accepts beyond ``kind`` and ``description``.
-_KIND_KEYS = {
-    **{k: {"value"} for k in SOURCES},
-    "R": {"parameter", "law"}, "MR": {"parameter", "law"},
-    "C": {"parameter", "initial", "noise"}, "I": {"parameter", "initial", "noise"},
-    **{k: {"parameter"} for k in TWO_PORTS},
-    "0": set(), "1": set(),
-}
 
 
 @lru_cache(maxsize=1)
 def schema() -> dict:
     """The JSON Schema of model files."""
-    return json.loads(SCHEMA_PATH.read_text(encoding="utf-8"))
+    package, name = SCHEMA_RESOURCE
+    return json.loads(resources.files(package).joinpath(name).read_text(encoding="utf-8"))
 
 
 def validate(raw: RawModel) -> BondGraph:
@@ -261,9 +258,11 @@ class _Validator:
                 continue
             spec = raw[name]
             kind = str(spec["kind"])
-            extra = sorted(set(spec) - {"kind", "description"} - _KIND_KEYS[kind])
+            keys = element_kind(kind).keys
+            role = element_kind(kind).role
+            extra = sorted(set(spec) - {"kind", "description"} - keys)
             if extra:
-                allowed = sorted(_KIND_KEYS[kind] | {"kind", "description"})
+                allowed = sorted(keys | {"kind", "description"})
                 self.error(f"element {name} of kind {kind} has no key '{extra[0]}'", path + (extra[0],),
                            f"keys of {_article(kind)}: {', '.join(allowed)}", key=True)
                 continue
@@ -273,7 +272,7 @@ class _Validator:
                 own = {"e": effort(mine[0].number), "f": flow(mine[0].number)}
             parameter = law = source = None
             loc = self.raw.key_loc(*path)
-            if kind in SOURCES:
+            if role == "source":
                 text = spec.get("value", name if name in inames else None)
                 if text is None:
                     self.error(f"source {name} has no value", path,
@@ -283,7 +282,7 @@ class _Validator:
                 source = self.expr(text, names, path + ("value",), f"value of {name}")
                 if source is None or not self.unmodulated(name, kind, source, variables, path + ("value",)):
                     continue
-            elif kind in JUNCTIONS:
+            elif role == "junction":
                 pass
             elif "law" in spec:
                 if own:  # else keep the element without its law: the port-count rule reports it
@@ -319,7 +318,7 @@ class _Validator:
             initial = spec.get("initial")
             noise = spec.get("noise")
             out.append(Element(name, kind, parameter, law, source,
-                               float(initial) if initial is not None else (0.0 if kind in STORAGE else None),
+                               float(initial) if initial is not None else (0.0 if role == "storage" else None),
                                spec.get("description"), loc, float(noise) if noise is not None else None))
         return tuple(out)
 
@@ -327,9 +326,10 @@ class _Validator:
         """Check that only a modulated kind (MSe, MR, ...) depends on the signals
         ``variables`` (bond variables, and inputs for non-sources)."""
         used = sorted({s.name for s in expr.free_symbols} & variables)
-        if not used or kind in MODULATED:
+        if not used or element_kind(kind).modulated:
             return True
-        fix = (f"use kind M{kind} for a modulated element" if f"M{kind}" in MODULATED
+        modulated = [k for k, v in ELEMENT_KINDS.items() if v.modulated and v.base == kind]
+        fix = (f"use kind {modulated[0]} for a modulated element" if modulated
                else f"a {kind} element is never modulated: use parameters only")
         what = "bond variable" if _BOND_VARIABLE.match(used[0]) else "input"
         self.error(f"{kind} element {name} depends on {what} {used[0]}", path, fix)
@@ -362,7 +362,7 @@ class _Validator:
         ports_of = _ports(bonds)
         for el in elements:
             mine = ports_of.get(el.name, [])
-            ports = ELEMENT_PORTS[el.kind]
+            ports = element_kind(el.kind).ports
             path = ("elements", el.name)
             if el.name in self.dropped_ends:
                 continue
@@ -379,7 +379,7 @@ class _Validator:
                 elif sum(b.head == el.name for b in mine) != 1:
                     self.error(f"{el.kind} element {el.name} needs one bond in and one bond out", path,
                                "reverse one of its bonds so power passes through it", key=True)
-        if not any(el.kind in STORAGE for el in elements) and not self.errors:
+        if not any(element_kind(el.kind).role == "storage" for el in elements) and not self.errors:
             self.error("the model has no storage element (C or I)", ("elements",),
                        "a dynamic model needs at least one C or I", key=True)
 

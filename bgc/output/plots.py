@@ -6,6 +6,9 @@ import io
 
 import numpy as np
 
+from ..kinds import fault_kind
+from .artifacts import mark_picture
+
 
 def _figure(rows: int, width: float = 9.0, height_per_row: float = 1.7):
     import matplotlib
@@ -22,7 +25,7 @@ def _save(plt, fig, fmt: str) -> bytes:
     fig.tight_layout()
     fig.savefig(buf, format=fmt, dpi=100, metadata={"Software": None} if fmt == "png" else {"Date": None})
     plt.close(fig)
-    return buf.getvalue()
+    return mark_picture(buf.getvalue(), fmt)
 
 
 def simulation_figure(r, fmt: str = "png") -> bytes:
@@ -66,9 +69,10 @@ def tracking_figure(run, results, fmt: str = "png") -> bytes:
     for i, name in enumerate(names_x):
         ax = axes[len(names_y) + i]
         truth = run.states.get(name, run.parameters.get(name))
-        if truth is None and name.startswith("delta_") and name[6:] in run.parameters:
-            p = run.parameters[name[6:]]
-            truth = p - p[0] if first.model.endswith("_abrupt") else np.gradient(p, run.time)
+        if truth is None and first.fault and name == f"delta_{first.fault['parameter']}" \
+                and first.fault["parameter"] in run.parameters:  # the magnitude: a bias, or a slope
+            p = run.parameters[first.fault["parameter"]]
+            truth = np.gradient(p, run.time) if fault_kind(first.fault["kind"]).drifts else p - p[0]
         if truth is not None:
             ax.plot(run.time, truth, "-", lw=1.0, color="#202020", label="true")
         for r, c in zip(results, colors):

@@ -7,19 +7,20 @@ import sys
 import numpy as np
 import pytest
 
-from bgc import simulate as sim
-from bgc.diagnosis import runtime
+from bgc.runtime import runs
+from bgc.runtime import simulate as sim
+from bgc.runtime import track as runtime
 
 from conftest import ROOT, compiled
 
 
-def run_of(model: str, fault: str | None, seed: int) -> sim.Run:
-    ssm = compiled(model).equations
-    options = sim.SimulationOptions(seed=seed, fault=sim.parse_fault(fault, ssm) if fault else None)
-    return sim.read_csv(sim.to_csv(sim.simulate(ssm, options)))
+def run_of(model: str, fault: str | None, seed: int) -> runs.Run:
+    num = compiled(model).numerics
+    options = sim.SimulationOptions(seed=seed, fault=sim.parse_fault(fault, num) if fault else None)
+    return runs.parse_run(sim.to_csv(sim.simulate(num, options)))
 
 
-def normalised_residuals(r: runtime.TrackResult, run: sim.Run) -> np.ndarray:
+def normalised_residuals(r: runtime.TrackResult, run: runs.Run) -> np.ndarray:
     y = np.column_stack([run.measurements[name] for name in r.output_names])
     return (y - r.y_mean) / r.y_std
 

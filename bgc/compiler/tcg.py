@@ -32,10 +32,10 @@ import networkx as nx
 import numpy as np
 import sympy
 
-from .errors import BgcError, EquationError
-from .ir import (
-    CausalBondGraph, Element, TemporalCausalGraph, TcgEdge, effort, flow, sym,
-)
+from ..errors import EquationError
+from ..ir import CausalBondGraph, Element, TemporalCausalGraph, TcgEdge, effort, flow, sym, var_key
+from ..kinds import element_kind
+from .expressions import FUNCTIONS
 
 
 @dataclass(slots=True)
@@ -129,13 +129,7 @@ def build(cbg: CausalBondGraph) -> TemporalCausalGraph:
 
 
 def _edge_key(e: tuple) -> tuple:
-    return (_var_key(e[0]), _var_key(e[1]))
-
-
-def _var_key(name: str) -> tuple:
-    if name[:1] in "ef" and name[1:].isdigit():
-        return (0, int(name[1:]), name[0])
-    return (1, 0, name)
+    return (var_key(e[0]), var_key(e[1]))
 
 
 def _sign(d: sympy.Expr, point: dict[str, float]) -> int | None:
@@ -252,18 +246,15 @@ def _relations(cbg: CausalBondGraph) -> list[_Relation]:
     out: list[_Relation] = []
     for el in model.elements:
         bonds = ports[el.name]
-        k = el.kind
-        if k in ("0", "1"):
+        kind = element_kind(el.kind)
+        if kind.role == "junction":
             out.extend(_junction(el, bonds, by))
-        elif k in ("Se", "MSe"):
+        elif kind.role == "source":
             b = bonds[0].number
-            out.append(_Relation(effort(b), el.source, "source", el.name, {}))
-        elif k in ("Sf", "MSf"):
-            b = bonds[0].number
-            out.append(_Relation(flow(b), el.source, "source", el.name, {}))
-        elif k in ("C", "I"):
+            out.append(_Relation(effort(b) if kind.imposes == "effort" else flow(b), el.source, "source", el.name, {}))
+        elif kind.role == "storage":
             out.append(_storage(el, bonds[0].number, by))
-        elif k in ("R", "MR"):
+        elif kind.role == "resistor":
             out.append(_resistor(el, bonds[0].number, by, model.parameter_values()))
         else:
             out.extend(_two_port(el, bonds, by))
@@ -278,7 +269,7 @@ def _pname(el: Element) -> str:
 def _junction(el: Element, bonds: list, by: dict[int, str]) -> list[_Relation]:
     name = el.name
     sign = {b.number: (1 if b.head == name else -1) for b in bonds}
-    if el.kind == "0":
+    if element_kind(el.kind).common == "effort":
         det = next(b.number for b in bonds if by[b.number] != name)
         same, summed = effort, flow
     else:
@@ -296,14 +287,15 @@ def _junction(el: Element, bonds: list, by: dict[int, str]) -> list[_Relation]:
 
 
 def _storage(el: Element, b: int, by: dict[int, str]) -> _Relation:
-    integral = (by[b] == el.name) == (el.kind == "C")
+    own = element_kind(el.kind).imposes == "effort"  # C: integrates its flow into its effort
+    integral = (by[b] == el.name) == own
     if not integral:
         raise EquationError(f"{el.kind} element {el.name} is in derivative causality; bgc cannot derive "
                             "equations for it yet", el.loc,
                             "merge it with the storage element that fixes it, or add a resistor in between")
     p = _pname(el)
     signs = (1, -1) if isinstance(el.parameter, sympy.Symbol) else None
-    if el.kind == "C":
+    if own:
         return _Relation(effort(b), sym(flow(b)) / el.parameter, "integral", el.name, {flow(b): f"dt/{p}"}, True, signs)
     return _Relation(flow(b), sym(effort(b)) / el.parameter, "integral", el.name, {effort(b): f"dt/{p}"}, True, signs)
 
@@ -341,8 +333,6 @@ def _invert(el: Element, expr: sympy.Expr, given: str, wanted: str, values: dict
     (sympy offers e.g. f**2/a**2 for the orifice f = a*sqrt(|e|)*sign(e), which
     loses the sign, or the complex roots of a cubic).
     """
-    from .printing import print_expr
-
     fix = f"write the law as '{wanted[0]} = <expression of {given[0]}>'"
     head = f"law of {el.name} ({el.law.text}) must be inverted for the causality SCAP chose"
     w = sympy.Dummy(wanted)
@@ -372,12 +362,22 @@ def _invert(el: Element, expr: sympy.Expr, given: str, wanted: str, values: dict
     if len(checked) != 1:
         found = f"sympy gives {len(candidates)} solution(s) for {wanted[0]}, {len(checked)} of them a real inverse"
         raise EquationError(f"{head}, and {found}", el.law.loc, fix)
-    try:
-        print_expr(checked[0])
-    except BgcError:
+    if not _evaluable(checked[0]):
         raise EquationError(f"{head}, and its inverse {sympy.sstr(checked[0])[:50]} uses a function bgc cannot "
                             "evaluate", el.law.loc, fix) from None
     return checked[0]
+
+
+#: The sympy functions generated code evaluates: those model expressions may call.
+_EVALUABLE = frozenset(f for f, _ in FUNCTIONS.values())
+
+
+def _evaluable(expr: sympy.Expr) -> bool:
+    """Whether ``expr`` uses only arithmetic and the functions of model expressions
+    (sympy's inverse of a law may bring LambertW or Piecewise)."""
+    if expr.has(sympy.Piecewise, sympy.I, sympy.zoo, sympy.nan, sympy.oo):
+        return False
+    return all(type(f) in _EVALUABLE or f.func in _EVALUABLE for f in expr.atoms(sympy.Function))
 
 
 def _two_port(el: Element, bonds: list, by: dict[int, str]) -> list[_Relation]:
@@ -385,7 +385,7 @@ def _two_port(el: Element, bonds: list, by: dict[int, str]) -> list[_Relation]:
     bout = next(b.number for b in bonds if b.tail == el.name)
     m = el.parameter
     p = _pname(el)
-    if el.kind in ("TF", "MTF"):
+    if element_kind(el.kind).two_port == "transformer":
         if by[bin_] == el.name:   # TF imposes e_in: e_in = m e_out, f_out = m f_in
             return [_Relation(effort(bin_), m * sym(effort(bout)), "transformer", el.name, {effort(bout): p}),
                     _Relation(flow(bout), m * sym(flow(bin_)), "transformer", el.name, {flow(bin_): p})]

@@ -11,8 +11,9 @@ from typing import Any
 
 import sympy
 
-from .ir import CausalBondGraph, Dbn, StateSpaceModel, TemporalCausalGraph
-from .tcg import _var_key
+from ..errors import printable
+from ..ir import CausalBondGraph, Dbn, StateSpaceModel, TemporalCausalGraph, var_key
+from ..kinds import ELEMENT_KINDS, FAULT_KINDS
 
 
 def to_json(data: Any) -> str:
@@ -62,14 +63,14 @@ def tcg_text(tcg: TemporalCausalGraph) -> str:
         arrow = f"-[{e.label}]->"
         lines.append(f"{e.source:>8} {arrow:<16} {e.target:<8} ({e.element or '-'}; {params}){dt}")
     lines.append("# simplified TCG (states, inputs, measured variables)")
-    for a, b, d in sorted(tcg.simplified.edges(data=True), key=lambda t: (_var_key(t[0]), _var_key(t[1]))):
+    for a, b, d in sorted(tcg.simplified.edges(data=True), key=lambda t: (var_key(t[0]), var_key(t[1]))):
         arrow = "-[dt]->" if d["temporal"] else "------>"
         lines.append(f"{a:>8} {arrow:<16} {b:<8} ({', '.join(d['parameters']) or '-'})")
     roles = {}
     for n, d in g.nodes(data=True):
         roles.setdefault(d["role"], []).append(n)
     for role in sorted(roles):
-        lines.append(f"# {role}: {', '.join(sorted(roles[role], key=_var_key))}")
+        lines.append(f"# {role}: {', '.join(sorted(roles[role], key=var_key))}")
     return "\n".join(lines) + "\n"
 
 
@@ -80,7 +81,7 @@ def _effect_sign(s: int | None) -> str:
 def tcg_json(tcg: TemporalCausalGraph) -> dict:
     g = tcg.graph
     nodes = []
-    for n in sorted(g.nodes, key=_var_key):
+    for n in sorted(g.nodes, key=var_key):
         d = g.nodes[n]
         item = {"id": n, "kind": d["kind"], "role": d["role"], "measured": d["measured"],
                 "bond": d.get("bond"), "element": d.get("element")}
@@ -93,7 +94,7 @@ def tcg_json(tcg: TemporalCausalGraph) -> dict:
               "element": e.element, "parameters": list(e.parameters), "effects": list(e.effects),
               "sign": e.sign, "temporal": e.temporal} for e in tcg.edges]
     simplified = [{"source": a, "target": b, "temporal": d["temporal"], "parameters": list(d["parameters"])}
-                  for a, b, d in sorted(tcg.simplified.edges(data=True), key=lambda t: (_var_key(t[0]), _var_key(t[1])))]
+                  for a, b, d in sorted(tcg.simplified.edges(data=True), key=lambda t: (var_key(t[0]), var_key(t[1])))]
     return {"model": tcg.model.name, "nodes": nodes, "edges": edges, "simplified_edges": simplified}
 
 
@@ -105,7 +106,7 @@ def tcg_dot(tcg: TemporalCausalGraph) -> str:
     g = tcg.graph
     lines = [f"digraph {_dot_id('tcg_' + tcg.model.name)} {{", "  rankdir=LR;",
              '  node [fontname="Helvetica", fontsize=11];', '  edge [fontname="Helvetica", fontsize=9];']
-    for n in sorted(g.nodes, key=_var_key):
+    for n in sorted(g.nodes, key=var_key):
         d = g.nodes[n]
         shape = {"state": "doublecircle", "input": "diamond", "measurement": "box"}.get(d["role"], "circle")
         if d["measured"] and d["role"] != "measurement":
@@ -168,23 +169,23 @@ def equations_json(ssm: StateSpaceModel) -> dict:
 
 
 # ------------------------------------------------------------------------- DBN
-def _dbn_nodes(d: Dbn) -> list[str]:
+def dbn_nodes(d: Dbn) -> list[str]:
     g = d.graph
-    order = {"input": 0, "fault_indicator": 1, "fault_bias": 2, "fault_slope": 2, "fault_parameter": 3,
-             "state": 4, "measurement": 5}
+    order = {"input": 0, "fault_indicator": 1, **{f"fault_{k.magnitude}": 2 for k in FAULT_KINDS.values()},
+             "fault_parameter": 3, "state": 4, "measurement": 5}
     return sorted(g.nodes, key=lambda n: (g.nodes[n]["slice"], order[g.nodes[n]["role"]],
-                                          _var_key(g.nodes[n]["variable"])))
+                                          var_key(g.nodes[n]["variable"])))
 
 
 def _arcs(d: Dbn) -> list[tuple[str, str, str]]:
-    idx = {n: i for i, n in enumerate(_dbn_nodes(d))}
+    idx = {n: i for i, n in enumerate(dbn_nodes(d))}
     return sorted(((a, b, k) for a, b, k in d.graph.edges(data="arc")), key=lambda t: (idx[t[0]], idx[t[1]]))
 
 
 def dbn_text(d: Dbn) -> str:
     g = d.graph
     lines = [f"# two-slice DBN '{d.name}'"]
-    for n in _dbn_nodes(d):
+    for n in dbn_nodes(d):
         lines.append(f"node {n:<22} {g.nodes[n]['role']}")
     for a, b, k in _arcs(d):
         lines.append(f"arc  {a:>22} -> {b:<22} {k}")
@@ -195,7 +196,7 @@ def dbn_json(d: Dbn) -> dict:
     g = d.graph
     return {
         "name": d.name, "parameter": d.parameter, "kind": d.kind,
-        "nodes": [{"id": n, **{k: g.nodes[n][k] for k in sorted(g.nodes[n])}} for n in _dbn_nodes(d)],
+        "nodes": [{"id": n, **{k: g.nodes[n][k] for k in sorted(g.nodes[n])}} for n in dbn_nodes(d)],
         "arcs": [{"source": a, "target": b, "arc": k} for a, b, k in _arcs(d)],
     }
 
@@ -203,13 +204,13 @@ def dbn_json(d: Dbn) -> dict:
 def dbn_dot(d: Dbn) -> str:
     g = d.graph
     shape = {"state": "circle", "measurement": "box", "input": "diamond", "fault_indicator": "octagon",
-             "fault_bias": "hexagon", "fault_slope": "hexagon", "fault_parameter": "doublecircle"}
+             **{f"fault_{k.magnitude}": "hexagon" for k in FAULT_KINDS.values()}, "fault_parameter": "doublecircle"}
     lines = [f"digraph {_dot_id('dbn_' + d.name)} {{", "  rankdir=LR; newrank=true;",
              '  node [fontname="Helvetica", fontsize=11];']
     for k, title in ((0, "t"), (1, "t+1")):
         lines.append(f"  subgraph {_dot_id('cluster_slice_' + str(k))} {{")
         lines.append(f"    label={_dot_id('slice ' + title)};")
-        for n in _dbn_nodes(d):
+        for n in dbn_nodes(d):
             if g.nodes[n]["slice"] == k:
                 lines.append(f"    {_dot_id(n)} [shape={shape[g.nodes[n]['role']]}, label={_dot_id(g.nodes[n]['variable'])}];")
         lines.append("  }")
@@ -220,3 +221,43 @@ def dbn_dot(d: Dbn) -> str:
     lines.append("}")
     return "\n".join(lines) + "\n"
 
+
+
+# ---------------------------------------------------------------- bgc check
+def check_summary(ssm: StateSpaceModel) -> str:
+    """What ``bgc check`` prints for a model that compiles: elements, states,
+    causality findings, algebraic loops (each with the resistors that close
+    it), inputs, measurements, fault candidates. Model text is printed
+    escaped (one line per item, no control characters)."""
+    cbg = ssm.tcg.causal
+    m = cbg.model
+    counts = {k: sum(el.kind == k for el in m.elements) for k in ELEMENT_KINDS}
+    kind_text = ", ".join(f"{k} {n}" for k, n in counts.items() if n)
+    lines = [f"{m.source}: ok: {m.name}" + (f" ({m.description})" if m.description else "")]
+    lines.append(f"  elements: {len(m.elements)} ({kind_text})")
+    lines.append(f"  bonds: {len(m.bonds)}")
+    states = sorted(cbg.states, key=lambda s: s.bond)
+    listed = ", ".join(f"{s.state} ({s.element}, integral)" for s in states)
+    lines.append(f"  states: {len(states)}" + (f": {listed}" if listed else ""))
+    deriv = [s for s in cbg.storage if not s.integral]
+    if deriv:
+        lines.append("  derivative causality: " + ", ".join(f"{s.element} ({s.kind}, bond {s.bond})" for s in deriv))
+    g = ssm.tcg.graph
+    loops = []
+    for loop in ssm.loops:
+        closing = sorted({g.nodes[v].get("element") for v in loop} & set(cbg.arbitrary))
+        loops.append(f"through {', '.join(loop)}" + (f", closed by {' and '.join(closing)}" if closing else ""))
+    lines.append(f"  algebraic loops: {len(loops) or 'none'}" + (": " + "; ".join(loops) if loops else ""))
+    lines.append(f"  inputs: {', '.join(i.name for i in m.inputs) or 'none'}")
+    measured = [y.name if y.text == y.name else f"{y.name} = {y.text}" for y in m.measurements]
+    lines.append("  measurements: " + (", ".join(measured) or "none"))
+    faults = [f"{f.parameter} ({'/'.join(f.kinds)})" for f in m.faults]
+    lines.append("  fault candidates: " + (", ".join(faults) or "none"))
+    warnings = [d for d in cbg.diagnostics if d.severity == "warning"]
+    notes = [d for d in cbg.diagnostics if d.severity != "warning"]
+    lines.append(f"  warnings: {len(warnings) or 'none'}")
+    lines.extend(f"    warning: {d.message}" for d in warnings)
+    if notes:
+        lines.append(f"  notes: {len(notes)}")
+        lines.extend(f"    note: {d.message}" for d in notes)
+    return "\n".join(printable(line) for line in lines)

@@ -24,9 +24,8 @@ import networkx as nx
 import sympy
 from sympy.solvers.solveset import NonlinearError
 
-from .errors import EquationError
-from .ir import StateSpaceModel, TemporalCausalGraph, sym
-from .tcg import _var_key
+from ..errors import EquationError
+from ..ir import StateSpaceModel, TemporalCausalGraph, sym, var_key
 
 
 def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
@@ -39,7 +38,7 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
     """
     g = tcg.graph
     model = tcg.model
-    states = tuple(sorted((n for n, d in g.nodes(data=True) if d["role"] == "state"), key=_var_key))
+    states = tuple(sorted((n for n, d in g.nodes(data=True) if d["role"] == "state"), key=var_key))
     variables = [n for n, d in g.nodes(data=True) if d["kind"] != "measurement"]
     state_set = set(states)
     algebraic = nx.DiGraph()
@@ -52,9 +51,9 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
     loops: list[tuple[str, ...]] = []
     condensed = nx.condensation(algebraic)
     order = nx.lexicographical_topological_sort(
-        condensed, key=lambda c: _var_key(min(condensed.nodes[c]["members"], key=_var_key)))
+        condensed, key=lambda c: var_key(min(condensed.nodes[c]["members"], key=var_key)))
     for comp in order:
-        members = sorted(condensed.nodes[comp]["members"], key=_var_key)
+        members = sorted(condensed.nodes[comp]["members"], key=var_key)
         if len(members) == 1 and not algebraic.has_edge(members[0], members[0]):
             v = members[0]
             if "definition" not in g.nodes[v]:
@@ -71,7 +70,7 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
         outputs.append(_substitute(m.expr, resolved))
     storage = {s.state: s.element for s in tcg.causal.states}
     initial = tuple(model.element(storage[x]).initial or 0.0 for x in states)
-    bond_vars = tuple(sorted(((v, resolved[sym(v)]) for v in variables), key=lambda p: _var_key(p[0])))
+    bond_vars = tuple(sorted(((v, resolved[sym(v)]) for v in variables), key=lambda p: var_key(p[0])))
     return StateSpaceModel(
         tcg=tcg,
         states=states,

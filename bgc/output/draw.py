@@ -8,14 +8,20 @@ kept as text).
 from __future__ import annotations
 
 import io
+import multiprocessing
+import os
 import shutil
 import subprocess
 
-from .ir import Dbn, TemporalCausalGraph
-from .render import _dbn_nodes, _var_key, dbn_dot, tcg_dot
+from ..ir import Dbn, DbnModel, TemporalCausalGraph, var_key
+from ..kinds import FAULT_KINDS
+from .artifacts import dbn_file_stem, mark_picture
+from .render import dbn_dot, dbn_nodes, tcg_dot
 
+#: DBN node roles of the fault magnitudes (``fault_bias``, ``fault_slope``).
+_MAGNITUDE_ROLES = tuple(f"fault_{k.magnitude}" for k in FAULT_KINDS.values())
 _ROLE_COLOR = {"state": "#f4c7a1", "input": "#c9e4c5", "measurement": "#a9c8ec", "algebraic": "#ffffff",
-               "fault_indicator": "#e0e0e0", "fault_bias": "#d6b4e8", "fault_slope": "#d6b4e8",
+               "fault_indicator": "#e0e0e0", **{r: "#d6b4e8" for r in _MAGNITUDE_ROLES},
                "fault_parameter": "#e8b4c8"}
 
 
@@ -30,6 +36,11 @@ def render_dot(dot_text: str, fmt: str) -> bytes:
 
 
 def tcg_picture(tcg: TemporalCausalGraph, fmt: str, engine: str = "auto") -> bytes:
+    """The TCG as an SVG or PNG picture (Graphviz when installed, else matplotlib), with bgc's mark."""
+    return mark_picture(_tcg_picture(tcg, fmt, engine), fmt)
+
+
+def _tcg_picture(tcg: TemporalCausalGraph, fmt: str, engine: str) -> bytes:
     if engine == "graphviz" or (engine == "auto" and graphviz_available()):
         return render_dot(tcg_dot(tcg), fmt)
     g = tcg.graph
@@ -41,7 +52,7 @@ def tcg_picture(tcg: TemporalCausalGraph, fmt: str, engine: str = "auto") -> byt
             pos[n] = (col[d["bond"]], 1.0)
         elif d["kind"] == "flow":
             pos[n] = (col[d["bond"]], 0.0)
-    meas = sorted((n for n, d in g.nodes(data=True) if d["kind"] == "measurement"), key=_var_key)
+    meas = sorted((n for n, d in g.nodes(data=True) if d["kind"] == "measurement"), key=var_key)
     for i, n in enumerate(meas):
         src = min((pos[p][0] for p in g.predecessors(n) if p in pos), default=i)
         pos[n] = (src + 0.5, -1.0 if i % 2 == 0 else -1.5)
@@ -49,19 +60,24 @@ def tcg_picture(tcg: TemporalCausalGraph, fmt: str, engine: str = "auto") -> byt
     temporal = {(e.source, e.target) for e in tcg.edges if e.temporal}
     roles = {n: ("measurement" if d["measured"] else d["role"]) for n, d in g.nodes(data=True)}
     width = max(6.0, 1.1 * len(bonds))
-    return _draw(pos, sorted(g.nodes, key=_var_key), [(e.source, e.target) for e in tcg.edges], labels, temporal,
+    return _draw(pos, sorted(g.nodes, key=var_key), [(e.source, e.target) for e in tcg.edges], labels, temporal,
                  roles, {n: n for n in g.nodes}, f"TCG of {tcg.model.name} (red: integrating edges)",
                  (width, 4.8 if meas else 3.4), fmt)
 
 
 def dbn_picture(d: Dbn, fmt: str, engine: str = "auto") -> bytes:
+    """A DBN as an SVG or PNG picture, with bgc's mark."""
+    return mark_picture(_dbn_picture(d, fmt, engine), fmt)
+
+
+def _dbn_picture(d: Dbn, fmt: str, engine: str) -> bytes:
     if engine == "graphviz" or (engine == "auto" and graphviz_available()):
         return render_dot(dbn_dot(d), fmt)
     g = d.graph
-    column = {"input": 0, "fault_indicator": 0, "fault_bias": 0, "fault_slope": 0, "fault_parameter": 0,
+    column = {"input": 0, "fault_indicator": 0, **{r: 0 for r in _MAGNITUDE_ROLES}, "fault_parameter": 0,
               "state": 1, "measurement": 2}
     groups: dict[tuple[int, int], list[str]] = {}
-    for n in _dbn_nodes(d):
+    for n in dbn_nodes(d):
         a = g.nodes[n]
         groups.setdefault((a["slice"], column[a["role"]]), []).append(n)
     tallest = max(len(v) for v in groups.values())
@@ -75,7 +91,7 @@ def dbn_picture(d: Dbn, fmt: str, engine: str = "auto") -> bytes:
     roles = {n: g.nodes[n]["role"] for n in g.nodes}
     labels_n = {n: g.nodes[n]["variable"] for n in g.nodes}
     height = max(4.0, 0.8 * max(rows.values()) + 1.5)
-    return _draw(pos, _dbn_nodes(d), sorted(g.edges), {}, temporal, roles, labels_n,
+    return _draw(pos, dbn_nodes(d), sorted(g.edges), {}, temporal, roles, labels_n,
                  f"DBN '{d.name}': slice t (left), t+1 (right)", (9.0, height), fmt)
 
 
@@ -146,3 +162,37 @@ def _draw(pos, nodes, edges, edge_labels, highlight, roles, node_labels, title, 
         fig.savefig(buf, format=fmt, metadata=meta, dpi=110)
         plt.close(fig)
     return buf.getvalue()
+
+
+def pictures(dbns: DbnModel, engine: str = "auto", workers: int | None = None) -> dict[str, bytes]:
+    """SVG pictures of the TCG and of every DBN (the names of
+    :func:`~bgc.output.artifacts.picture_names`), rendered on up to ``workers``
+    processes (default: the number of CPUs, at most 4)."""
+    jobs: list[tuple[str, object]] = [("tcg.svg", dbns.equations.tcg)]
+    jobs += [(f"dbn/{dbn_file_stem(d.name)}.svg", d) for d in (dbns.nominal, *dbns.faulty)]
+    n = workers if workers is not None else min(4, os.cpu_count() or 1)
+    if n > 1 and len(jobs) > 3 and "fork" in multiprocessing.get_all_start_methods():
+        global _JOBS
+        _JOBS = (jobs, engine)
+        try:
+            with multiprocessing.get_context("fork").Pool(n) as pool:
+                images = pool.map(_render_job, range(len(jobs)))
+        finally:
+            _JOBS = None
+    else:
+        images = [_render(obj, engine) for _, obj in jobs]
+    return {name: img for (name, _), img in zip(jobs, images)}
+
+
+_JOBS: tuple | None = None
+
+
+def _render_job(i: int) -> bytes:
+    jobs, engine = _JOBS
+    return _render(jobs[i][1], engine)
+
+
+def _render(obj: object, engine: str) -> bytes:
+    if isinstance(obj, TemporalCausalGraph):
+        return tcg_picture(obj, "svg", engine)
+    return dbn_picture(obj, "svg", engine)

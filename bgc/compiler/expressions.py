@@ -36,8 +36,8 @@ from typing import Callable, Collection, Mapping
 
 import sympy
 
-from .errors import ExpressionError, SourceLoc
-from .ir import sym
+from ..errors import ExpressionError, SourceLoc
+from ..ir import sym
 
 #: The functions an expression may call, with their arity (None: two or more).
 FUNCTIONS: Mapping[str, tuple[Callable[..., sympy.Expr], int | None]] = {

@@ -5,10 +5,11 @@ independent of the generated filter code) with classical RK4 on a step
 ``TRUTH_REFINEMENT`` times finer than the generated filters use, so a filter is
 never handed its own discretisation as the truth.
 
-Fault profiles follow the thesis: abrupt (eq. II.1) ``p(t) = p + b`` for
-``t >= t_f``; incipient (eq. II.2) ``p(t) = p + c (t - t_f)`` for ``t > t_f``,
-evaluated at every integration substep. Noise (zero-mean Gaussian) has the
-absolute levels :mod:`bgc.modelspec` derives from the relative levels (process
+Fault profiles are the fault kinds' own (:mod:`bgc.kinds`; the thesis's abrupt
+``p(t) = p + b`` for ``t >= t_f``, eq. II.1, and incipient ``p(t) = p + c (t -
+t_f)`` for ``t > t_f``, eq. II.2), evaluated at every integration substep; a
+step change takes effect at the start of a substep, so no substep straddles it. Noise (zero-mean Gaussian) has the
+absolute levels of the compiled model's :class:`~bgc.ir.Numerics` from the relative levels (process
 noise added once per sample period, measurement noise on every sample).
 
 Time grid: row k (k = 1..steps) holds time ``t_k = k dt``, the input held over
@@ -19,24 +20,29 @@ parameter at ``t_k``.
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import re
 from dataclasses import dataclass
 
 import numpy as np
 
-from . import modelspec
-from .errors import SimulationError
-from .ir import FAULT_KINDS, StateSpaceModel, sym
+from ..compiler.numerics import lambdified, rk4_sample
+from ..errors import SimulationError
+from ..ir import Numerics
+from ..kinds import FAULT_KINDS, fault_kind
+from .runs import to_csv as _csv_text
 
 TRUTH_REFINEMENT = 8
+#: Longest simulation: the loop is Python, and the arrays grow with it.
+MAX_STEPS = 10_000_000
+#: Memory the arrays of one simulation may take.
+MAX_BYTES = 2_000_000_000
 
 
 @dataclass(frozen=True, slots=True)
 class FaultInjection:
-    """``magnitude``: bias b (abrupt) or slope c per unit time (incipient)."""
+    """``magnitude``: what the fault kind's ``magnitude`` names (a bias b for
+    an abrupt fault, a slope c per unit time for an incipient one)."""
 
     parameter: str
     kind: str
@@ -44,13 +50,10 @@ class FaultInjection:
     time: float
 
     def value(self, nominal: float, t: float) -> float:
-        if self.kind == "abrupt":
-            return nominal + self.magnitude if t >= self.time else nominal
-        return nominal + self.magnitude * (t - self.time) if t > self.time else nominal
+        return fault_kind(self.kind).value(nominal, self.magnitude, self.time, t)
 
     def describe(self) -> str:
-        what = "bias" if self.kind == "abrupt" else "slope"
-        return f"{self.parameter} {self.kind}, {what} {self.magnitude:g} from t = {self.time:g}"
+        return f"{self.parameter} {self.kind}, {fault_kind(self.kind).magnitude} {self.magnitude:g} from t = {self.time:g}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,11 +85,12 @@ class SimulationResult:
 _FAULT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([a-z]+):([-+0-9.eE]+)@([0-9.eE+]+)$")
 
 
-def parse_fault(text: str, ssm: StateSpaceModel) -> FaultInjection:
+def parse_fault(text: str, num: Numerics) -> FaultInjection:
     """``PARAM:KIND:MAGNITUDE@TIME``, e.g. ``R_pipe:incipient:0.5@165``."""
+    ssm = num.equations
     m = _FAULT.match(text.strip())
     if not m:
-        raise SimulationError(f"--fault '{text}' is not PARAM:KIND:MAGNITUDE@TIME", None,
+        raise SimulationError(f"--fault {text!r} is not PARAM:KIND:MAGNITUDE@TIME", None,
                               "e.g. R_pipe:incipient:0.5@165 or R_pipe:abrupt:31@165")
     name, kind, mag, time = m.groups()
     if name not in ssm.parameters:
@@ -97,36 +101,51 @@ def parse_fault(text: str, ssm: StateSpaceModel) -> FaultInjection:
     try:
         injection = FaultInjection(name, kind, float(mag), float(time))
     except ValueError:
-        raise SimulationError(f"--fault '{text}': magnitude and time must be numbers", None,
+        raise SimulationError(f"--fault {text!r}: magnitude and time must be numbers", None,
                               "e.g. R_pipe:abrupt:31@165") from None
     if not (math.isfinite(injection.magnitude) and math.isfinite(injection.time)):
-        raise SimulationError(f"--fault '{text}': magnitude and time must be finite numbers", None,
+        raise SimulationError(f"--fault {text!r}: magnitude and time must be finite numbers", None,
                               "e.g. R_pipe:abrupt:31@165")
     return injection
 
 
-def simulate(ssm: StateSpaceModel, options: SimulationOptions) -> SimulationResult:
+def check_steps(steps: int, num: Numerics, where: str) -> None:
+    """Refuse, before any work, a run longer than MAX_STEPS or whose arrays
+    would take more than MAX_BYTES."""
+    ssm = num.equations
+    width = 2 * len(ssm.outputs) + len(ssm.states) + len(ssm.inputs) + 2
+    if steps < 1:
+        raise SimulationError(f"{where}: {steps} steps", None, "simulate at least 1 step, e.g. --steps 300")
+    if steps > MAX_STEPS or steps * width * 8 > MAX_BYTES:
+        raise SimulationError(f"{where}: {steps} steps is more than bgc simulates in one run "
+                              f"(at most {min(MAX_STEPS, MAX_BYTES // (width * 8))} for this model)", None,
+                              "simulate fewer steps, e.g. --steps 300")
+
+
+def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
+    """Simulate the plant of ``num`` (its equations, at its noise scales)."""
+    ssm = num.equations
     model = ssm.model
     steps = options.steps or model.settings.steps
+    check_steps(steps, num, "--steps" if options.steps else f"{model.source}: simulation.steps")
     dt = model.settings.dt
-    num = modelspec.numerics(ssm, options.process_noise, options.measurement_noise)
+    noise = num.noise_at(options.process_noise, options.measurement_noise)
     substeps = num.substeps * TRUTH_REFINEMENT
     h = dt / substeps
-    xs = [sym(x) for x in ssm.states]
-    us = [sym(u) for u in ssm.inputs]
-    f, g = modelspec.lambdified(ssm)
+    f, g = lambdified(ssm)
     theta0 = np.array(ssm.parameter_values, dtype=float)
     fault = options.fault
     index = ssm.parameters.index(fault.parameter) if fault else None
+    steps_at_substeps = fault is not None and not fault_kind(fault.kind).drifts
 
     def theta_at(t: float, interval_start: float | None = None) -> np.ndarray:
-        """Parameters at time t. An abrupt change takes effect at the start of an
+        """Parameters at time t. A step change takes effect at the start of an
         integration substep (``interval_start``), so no substep straddles the
-        discontinuity; an incipient one is continuous and evaluated at t."""
+        discontinuity; a drift is continuous and evaluated at t."""
         if fault is None:
             return theta0
         th = theta0.copy()
-        when = interval_start if (fault.kind == "abrupt" and interval_start is not None) else t
+        when = interval_start if (steps_at_substeps and interval_start is not None) else t
         th[index] = fault.value(theta0[index], when)
         return th
 
@@ -135,19 +154,19 @@ def simulate(ssm: StateSpaceModel, options: SimulationOptions) -> SimulationResu
 
     rng = np.random.default_rng(options.seed)
     x = np.array(ssm.initial, dtype=float)
-    proc = np.array(num.process_std)
-    meas = np.array(num.measurement_std)
+    proc = np.array(noise.process)
+    meas = np.array(noise.measurement)
     T = steps
-    states = np.empty((T, len(xs)))
+    states = np.empty((T, len(ssm.states)))
     clean = np.empty((T, len(ssm.outputs)))
-    inputs = np.empty((T, len(us)))
+    inputs = np.empty((T, len(ssm.inputs)))
     times = dt * np.arange(1, T + 1)
     param = np.empty(T) if fault else None
     for k in range(T):
         t0 = k * dt
-        u = np.array([modelspec.input_value(i.signal, t0) for i in model.inputs], dtype=float)
-        x = modelspec.rk4_sample(lambda x, t, t_sub: rhs(x, u, t, t_sub), x, t0, h, substeps)  # noqa: B023
-        x = x + proc * rng.standard_normal(len(xs))
+        u = np.array([i.signal.at(t0) for i in model.inputs], dtype=float)
+        x = rk4_sample(lambda x, t, t_sub: rhs(x, u, t, t_sub), x, t0, h, substeps)  # noqa: B023
+        x = x + proc * rng.standard_normal(len(ssm.states))
         if not np.all(np.isfinite(x)):
             raise SimulationError(f"the simulation of {model.name} diverged at t = {times[k]:g}", model.source,
                                   "reduce the fault magnitude or the noise, or check the model's values")
@@ -158,15 +177,14 @@ def simulate(ssm: StateSpaceModel, options: SimulationOptions) -> SimulationResu
         if fault:
             param[k] = theta_at(tk)[index]
     noisy = clean + meas * rng.standard_normal(clean.shape)
-    from .codegen import display_source
-
-    src = display_source(model.source)
+    src = model.display_source
+    settings = model.settings
     header = (
         f"generated by bgc simulate from {src}",
         f"model {model.name}: {steps} steps of dt = {dt:g}; truth by RK4 with {substeps} substeps per step "
         f"({TRUTH_REFINEMENT}x finer than the generated filters)",
         "fault: " + (fault.describe() if fault else "none"),
-        f"noise: process {options.process_noise if options.process_noise is not None else model.settings.process_noise:g}, "
+        f"noise: process {options.process_noise if options.process_noise is not None else settings.process_noise:g}, "
         f"measurement {options.measurement_noise if options.measurement_noise is not None else 'per model'} "
         f"(fractions of the signal); seed {options.seed}",
         "columns: time; u:* inputs held over the step ending at time; y:* noisy measurements; "
@@ -177,52 +195,11 @@ def simulate(ssm: StateSpaceModel, options: SimulationOptions) -> SimulationResu
 
 
 def to_csv(r: SimulationResult) -> str:
-    buf = io.StringIO()
-    for line in r.header:
-        buf.write(f"# {line}\n")
-    w = csv.writer(buf, lineterminator="\n")
-    cols = ["time"] + [f"u:{n}" for n in r.input_names] + [f"y:{n}" for n in r.output_names]
-    cols += [f"x:{n}" for n in r.state_names]
+    """The run as the CSV text :func:`bgc.runtime.runs.read_run` reads."""
+    columns = [("time", r.time)]
+    columns += [(f"u:{n}", r.inputs[:, j]) for j, n in enumerate(r.input_names)]
+    columns += [(f"y:{n}", r.measurements[:, j]) for j, n in enumerate(r.output_names)]
+    columns += [(f"x:{n}", r.states[:, j]) for j, n in enumerate(r.state_names)]
     if r.fault:
-        cols.append(f"theta:{r.fault.parameter}")
-    w.writerow(cols)
-    for k in range(len(r.time)):
-        row = [r.time[k], *r.inputs[k], *r.measurements[k], *r.states[k]]
-        if r.fault:
-            row.append(r.parameter[k])
-        w.writerow([repr(float(v)) for v in row])
-    return buf.getvalue()
-
-
-@dataclass(frozen=True, slots=True)
-class Run:
-    """A run read back from CSV: columns by prefix."""
-
-    time: np.ndarray
-    inputs: dict[str, np.ndarray]
-    measurements: dict[str, np.ndarray]
-    states: dict[str, np.ndarray]
-    parameters: dict[str, np.ndarray]
-    header: tuple[str, ...]
-
-
-def read_csv(text: str, name: str = "<csv>") -> Run:
-    lines = text.splitlines()
-    header = tuple(l[2:] for l in lines if l.startswith("# "))
-    body = [l for l in lines if not l.startswith("#")]
-    if not body:
-        raise SimulationError(f"{name}: no data", None, "write it with bgc simulate")
-    rows = list(csv.reader(body))
-    cols = rows[0]
-    try:
-        data = np.array([[float(v) for v in r] for r in rows[1:]], dtype=float)
-    except ValueError as exc:
-        raise SimulationError(f"{name}: not numeric: {exc}", None, "write it with bgc simulate") from None
-    if data.ndim != 2 or data.shape[1] != len(cols) or cols[0] != "time":
-        raise SimulationError(f"{name}: malformed columns", None, "write it with bgc simulate")
-    groups: dict[str, dict[str, np.ndarray]] = {"u": {}, "y": {}, "x": {}, "theta": {}}
-    for i, c in enumerate(cols[1:], start=1):
-        prefix, _, rest = c.partition(":")
-        if prefix in groups:
-            groups[prefix][rest] = data[:, i]
-    return Run(data[:, 0], groups["u"], groups["y"], groups["x"], groups["theta"], header)
+        columns.append((f"theta:{r.fault.parameter}", r.parameter))
+    return _csv_text(r.header, columns)

@@ -24,8 +24,8 @@ name order, so the result does not depend on the order of the model file.
 
 Examples
 --------
->>> from bgc.load import loads
->>> from bgc.validate import validate
+>>> from bgc.compiler.load import loads
+>>> from bgc.compiler.validate import validate
 >>> g = validate(loads('''
 ... name: rc
 ... parameters: {R: 1.0, C: 2.0}
@@ -43,11 +43,9 @@ BondCausality(bond=2, effort_by='j', flow_by='R')
 from __future__ import annotations
 
 
-from .errors import CausalityError, ErrorGroup
-from .ir import (
-    JUNCTIONS, RESISTORS, SOURCES, STORAGE, BondCausality, BondGraph, CausalBondGraph, Diagnostic,
-    StorageCausality,
-)
+from ..errors import CausalityError, ErrorGroup
+from ..ir import BondCausality, BondGraph, CausalBondGraph, Diagnostic, StorageCausality
+from ..kinds import element_kind
 
 
 class _Conflict(Exception):
@@ -98,54 +96,52 @@ class _Solver:
     def propagate(self, queue: list[str]) -> None:
         while queue:
             name = queue.pop()
-            kind = self.kind[name]
+            kind = element_kind(self.kind[name])
             bonds = self.ports[name]
-            if kind in JUNCTIONS:
-                self.junction(name, kind, bonds, queue)
-            elif kind in ("TF", "MTF"):
+            if kind.role == "junction":
+                self.junction(name, kind.name, kind.common, bonds, queue)
+            elif kind.two_port == "transformer":
                 a, b = bonds
                 for x, y in ((a, b), (b, a)):
                     if x in self.effort_by:
                         by_tf = self.effort_by[x] == name
                         self.set(y, self.other(y, name) if by_tf else name, queue)
-            elif kind in ("GY", "MGY"):
+            elif kind.two_port == "gyrator":
                 a, b = bonds
                 for x, y in ((a, b), (b, a)):
                     if x in self.effort_by:
                         by_gy = self.effort_by[x] == name
                         self.set(y, name if by_gy else self.other(y, name), queue)
-            else:
-                self.one_port(name, kind, bonds[0], queue)
+            elif kind.role == "source":
+                bond = bonds[0]
+                self.set(bond, name if kind.imposes == "effort" else self.other(bond, name), queue)
 
-    def one_port(self, name: str, kind: str, bond: int, queue: list[str]) -> None:
-        if kind in ("Se", "MSe"):
-            self.set(bond, name, queue)
-        elif kind in ("Sf", "MSf"):
-            self.set(bond, self.other(bond, name), queue)
+    def junction(self, name: str, kind: str, common: str, bonds: list[int], queue: list[str]) -> None:
+        # 0-junction (common effort): exactly one bond whose effort comes from
+        # outside (the neighbour); 1-junction (common flow): exactly one bond
+        # whose effort comes from the junction.
+        zero = common == "effort"
 
-    def junction(self, name: str, kind: str, bonds: list[int], queue: list[str]) -> None:
-        # 0-junction: exactly one bond whose effort comes from outside (the neighbour);
-        # 1-junction: exactly one bond whose effort comes from the junction.
         def special(b: int) -> bool:
             by = self.effort_by[b]
-            return by != name if kind == "0" else by == name
+            return by != name if zero else by == name
 
         assigned = [b for b in bonds if b in self.effort_by]
         free = [b for b in bonds if b not in self.effort_by]
         specials = [b for b in assigned if special(b)]
-        what = "effort" if kind == "0" else "flow"
+        what = common
         if len(specials) > 1:
             who = sorted(self.other(b, name) for b in specials)
             raise _Conflict(name, f"{kind}-junction {name} gets its {what} imposed by both "
                                   f"{who[0]} and {who[1]}")
         if len(specials) == 1:
             for b in free:
-                self.set(b, name if kind == "0" else self.other(b, name), queue)
+                self.set(b, name if zero else self.other(b, name), queue)
         elif not free:
             raise _Conflict(name, f"{kind}-junction {name} has no bond that imposes its {what}")
         elif len(free) == 1:
             b = free[0]
-            self.set(b, self.other(b, name) if kind == "0" else name, queue)
+            self.set(b, self.other(b, name) if zero else name, queue)
 
 
 def assign(model: BondGraph) -> CausalBondGraph:
@@ -162,18 +158,19 @@ def assign(model: BondGraph) -> CausalBondGraph:
     elements = sorted(model.elements, key=lambda el: el.name)
 
     # 1. Sources.
+    kinds = {el.name: element_kind(el.kind) for el in elements}
     for el in elements:
-        if el.kind in SOURCES:
+        if kinds[el.name].role == "source":
             bond = solver.ports[el.name][0]
             snap = solver.snapshot()
             try:
-                want = el.name if el.kind in ("Se", "MSe") else solver.other(bond, el.name)
+                want = el.name if kinds[el.name].imposes == "effort" else solver.other(bond, el.name)
                 solver.assign(bond, want)
             except _Conflict as c:
                 solver.restore(snap)
                 errors.append(CausalityError(f"causal conflict: {c.why}", el.loc,
                                              f"source {el.name} cannot impose its "
-                                             f"{'effort' if el.kind in ('Se', 'MSe') else 'flow'} there; "
+                                             f"{kinds[el.name].imposes} there; "
                                              "remove or move one of the sources"))
     if errors:
         raise ErrorGroup(errors)
@@ -184,11 +181,12 @@ def assign(model: BondGraph) -> CausalBondGraph:
     # (depth-first search), so SCAP fails only when no assignment exists.
     decisions: list[tuple[int, str, str | None]] = []
     for el in elements:
-        if el.kind in STORAGE:
+        if kinds[el.name].role == "storage":  # integral causality: impose its own variable
             bond = solver.ports[el.name][0]
-            decisions.append((bond, el.name if el.kind == "C" else solver.other(bond, el.name), None))
+            own = kinds[el.name].imposes == "effort"
+            decisions.append((bond, el.name if own else solver.other(bond, el.name), None))
     for el in elements:
-        if el.kind in RESISTORS:
+        if kinds[el.name].role == "resistor":
             bond = solver.ports[el.name][0]
             prefer = solver.other(bond, el.name)  # conductance form f = e/R
             if el.law is not None and el.law.output.startswith("e"):
@@ -205,26 +203,27 @@ def assign(model: BondGraph) -> CausalBondGraph:
     storage: list[StorageCausality] = []
     diagnostics: list[Diagnostic] = []
     for el in elements:
-        if el.kind not in STORAGE:
+        kind = kinds[el.name]
+        if kind.role != "storage":
             continue
         bond = solver.ports[el.name][0]
-        integral_by = el.name if el.kind == "C" else solver.other(bond, el.name)
+        integral_by = el.name if kind.imposes == "effort" else solver.other(bond, el.name)
         integral = solver.effort_by[bond] == integral_by
         storage.append(StorageCausality(el.name, el.kind, bond, integral))
         if not integral:
             diagnostics.append(Diagnostic(
                 "warning", f"{el.kind} element {el.name} is in derivative causality: its "
-                           f"{'effort' if el.kind == 'C' else 'flow'} is fixed by the rest of the graph "
+                           f"{kind.imposes} is fixed by the rest of the graph "
                            "and it adds no state", el.name))
     for name in arbitrary:
         diagnostics.append(Diagnostic("note", f"resistor {name} was assigned causality arbitrarily: "
                                                "it closes an algebraic loop", name))
     for el in elements:
-        if el.kind in RESISTORS | STORAGE and model.bonds_of(el.name)[0].tail == el.name:
+        if kinds[el.name].role in ("resistor", "storage") and model.bonds_of(el.name)[0].tail == el.name:
             diagnostics.append(Diagnostic(
                 "warning", f"the bond of {el.kind} element {el.name} points out of it: its law reads with the "
                            "opposite sign (a negative resistance or capacitance); reverse the bond", el.name))
-        if el.kind in SOURCES and model.bonds_of(el.name)[0].head == el.name:
+        if kinds[el.name].role == "source" and model.bonds_of(el.name)[0].head == el.name:
             diagnostics.append(Diagnostic(
                 "warning", f"the bond of source {el.name} points into it: it absorbs the power it imposes; "
                            "reverse the bond if that is not intended", el.name))
@@ -285,7 +284,7 @@ def _really_free(solver: _Solver, after_sources: dict[int, str],
     try:
         solver.restore(dict(after_sources))
         for name, kind in sorted(solver.kind.items()):
-            b = solver.ports[name][0] if kind in STORAGE else None
+            b = solver.ports[name][0] if element_kind(kind).role == "storage" else None
             if b is not None and b not in solver.effort_by:
                 solver.assign(b, final[b])
         if bond in solver.effort_by:  # forced by the sources and storage alone
@@ -312,17 +311,18 @@ def check_assignment(model: BondGraph, effort_by: dict[int, str]) -> list[str]:
     for el in model.elements:
         bonds = ports[el.name]
         by_me = [effort_by[b] == el.name for b in bonds]
-        if el.kind in ("Se", "MSe") and not by_me[0]:
+        kind = element_kind(el.kind)
+        if kind.role == "source" and kind.imposes == "effort" and not by_me[0]:
             problems.append(f"{el.name} must impose effort")
-        if el.kind in ("Sf", "MSf") and by_me[0]:
+        if kind.role == "source" and kind.imposes == "flow" and by_me[0]:
             problems.append(f"{el.name} must impose flow")
-        if el.kind == "0" and sum(not m for m in by_me) != 1:
+        if kind.common == "effort" and sum(not m for m in by_me) != 1:
             problems.append(f"0-junction {el.name} needs exactly one effort-imposing bond")
-        if el.kind == "1" and sum(by_me) != 1:
+        if kind.common == "flow" and sum(by_me) != 1:
             problems.append(f"1-junction {el.name} needs exactly one flow-imposing bond")
-        if el.kind in ("TF", "MTF") and sum(by_me) != 1:
+        if kind.two_port == "transformer" and sum(by_me) != 1:
             problems.append(f"transformer {el.name} must pass causality through")
-        if el.kind in ("GY", "MGY") and sum(by_me) not in (0, 2):
+        if kind.two_port == "gyrator" and sum(by_me) not in (0, 2):
             problems.append(f"gyrator {el.name} must swap causality")
     for number, b in ends.items():
         if effort_by[number] not in (b.tail, b.head):

@@ -1,0 +1,229 @@
+"""Stage 7: :class:`~bgc.ir.DbnModel` -> :class:`~bgc.ir.Numerics`.
+
+The numbers bgc fixes at compile time for the generated filters.
+
+* **Integration.** The state equations are linearised at the nominal operating
+  point (x = X0, u = u(0), theta nominal); with the largest eigenvalue modulus
+  ``|lambda|max`` and sample period ``dt``, RK4 takes
+  ``SUBSTEPS = ceil(|lambda|max * dt / H_LAMBDA)`` substeps. RK4's stability
+  region reaches |h lambda| ~ 2.8 on both axes; ``H_LAMBDA`` of 1.5 keeps a
+  margin of almost 2 and a local error of order (h lambda)^5 / 120 < 7 % on the
+  fastest mode (which is the most damped one), so a stiff plant gets more
+  substeps instead of blowing up silently.
+* **Noise.** Levels in the model file are fractions of the signal (thesis
+  IV.2). Measurement std of output j: ``r_j * |y_j(X0)|``. Process noise of
+  state i: its per-step std ``q_i * s_i * sqrt(min(1, 2 dt / tau_i))``, with
+  ``s_i = |X0_i|`` and ``tau_i = 1/|J_ii|`` the state's own time constant
+  (the whole horizon when J_ii = 0): a stable state then fluctuates by about
+  ``q_i`` of its value, whatever its time constant. A state or output that is
+  0 at X0 takes as its size the largest |value| it reaches over the noise-free
+  nominal run (over at most ``MAX_NOMINAL_RUN`` samples; 1 only if it stays 0),
+  so a plant that starts at rest gets noise in proportion to its signals.
+* **Fault priors** come from the fault kind's entry in :mod:`bgc.kinds`:
+  abrupt, a bias uniform on [0, 1] x |theta| for an increase, [-0.5, 0] x
+  |theta| for a decrease, [-0.5, 1] x |theta| for both; incipient, a slope
+  (per unit time) uniform on [0, 4] x |theta| / horizon for an increase,
+  [-0.8, 0] x |theta| / horizon for a decrease, [-0.8, 4] x |theta| / horizon
+  for both.
+
+Every number is checked finite here: a model whose values overflow (a
+parameter of 1e308 with an incipient fault, a process-noise level of 1e308)
+is a located error, never an ``inf`` in generated code.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import sympy
+
+from ..errors import EquationError
+from ..ir import DbnModel, FaultNumerics, Numerics, StateSpaceModel, sym
+from ..kinds import element_kind, fault_kind
+
+H_LAMBDA = 1.5
+#: More RK4 substeps per sample than this is refused: the plant is too stiff for
+#: its sample period (the truth simulator takes 8 times as many).
+MAX_SUBSTEPS = 200
+#: The noise-free nominal run that sizes signals starting at 0 covers at most
+#: this many samples (it is a Python loop: a horizon of 1e9 steps must not spin).
+MAX_NOMINAL_RUN = 20_000
+
+
+def derive(dbns: DbnModel) -> Numerics:
+    """Eigenvalues, substeps, noise levels and fault priors at the nominal
+    operating point.
+
+    Raises
+    ------
+    EquationError
+        The linearisation is not defined at the initial state (a kink of a
+        nonlinear law), the plant is too stiff for its sample period, or a
+        number overflows.
+    """
+    ssm = dbns.equations
+    model = ssm.model
+    xs = [sym(x) for x in ssm.states]
+    sub = {sym(p): v for p, v in zip(ssm.parameters, ssm.parameter_values)}
+    u0 = tuple(i.signal.at(0.0) for i in model.inputs)
+    sub.update({sym(i.name): v for i, v in zip(model.inputs, u0)})
+    sub.update({x: v for x, v in zip(xs, ssm.initial)})
+    j = jacobian_at(list(ssm.rhs), xs, sub, [f"d{x}/dt" for x in ssm.states], model.source)
+    eig = np.linalg.eigvals(j)
+    eig = np.array(sorted(eig, key=lambda z: (round(abs(z), 12), round(z.real, 12), round(z.imag, 12))))
+    dt = model.settings.dt
+    fastest = float(max(abs(eig))) if len(eig) else 0.0
+    if not math.isfinite(fastest * dt):
+        raise EquationError(f"model '{model.name}': the linearisation at the initial state is not finite "
+                            f"(|lambda| dt = {fastest * dt:g})", model.source,
+                            "check the parameter values and simulation.dt")
+    substeps = max(1, math.ceil(fastest * dt / H_LAMBDA - 1e-12))
+    if substeps > MAX_SUBSTEPS:
+        raise EquationError(
+            f"model '{model.name}' is stiff for its sample period: the fastest mode at the initial state has "
+            f"|lambda| = {fastest:.3g}, so RK4 would need {substeps} substeps per sample of {dt:g} "
+            f"(at most {MAX_SUBSTEPS})", model.source,
+            f"set simulation.dt to at most {MAX_SUBSTEPS * H_LAMBDA / fastest:.3g}, or make the fastest "
+            "storage element slower")
+    y0 = tuple(float(sympy.N(h.xreplace(sub))) for h in ssm.output_exprs)
+    horizon = model.settings.steps * dt
+    x_scale = [abs(v) for v in ssm.initial]
+    y_scale = [abs(v) for v in y0]
+    if not all(x_scale) or not all(y_scale):  # a signal that starts at 0: its size over the nominal run
+        x_max, y_max = _nominal_magnitudes(ssm, substeps)
+        x_scale = [v or m or 1.0 for v, m in zip(x_scale, x_max)]
+        y_scale = [v or m or 1.0 for v, m in zip(y_scale, y_max)]
+    own_levels = {el.name: el.noise for el in model.elements if element_kind(el.kind).role == "storage"}
+    factor = []
+    for i in range(len(xs)):
+        tau = 1.0 / abs(j[i, i]) if j[i, i] != 0 else horizon
+        factor.append(math.sqrt(min(1.0, 2.0 * dt / tau)))
+    h = jacobian_at(list(ssm.output_exprs), xs, sub, [f"measurement {m}" for m in ssm.outputs], model.source)
+    faults = []
+    candidates = {f.parameter: f for f in model.faults}
+    theta = dict(zip(ssm.parameters, ssm.parameter_values))
+    for d in dbns.faulty:
+        kind = fault_kind(d.kind)
+        value = theta[d.parameter]
+        prior = kind.prior_bounds(candidates[d.parameter].direction, value, horizon)
+        faults.append(FaultNumerics(d.name, d.parameter, d.kind, value, prior, kind.jitter_std(value, prior)))
+    num = Numerics(dbns, tuple(complex(z) for z in eig), substeps, u0, y0, tuple(float(v) for v in np.diag(j)),
+                   tuple(tuple(float(v) for v in row) for row in h), tuple(float(v) for v in x_scale),
+                   tuple(float(v) for v in y_scale), tuple(factor), tuple(own_levels.get(el) for el in ssm.state_elements),
+                   None, tuple(faults))
+    num = replace(num, noise=num.noise_at())
+    _check_finite(num)
+    return num
+
+
+def _check_finite(num: Numerics) -> None:
+    """Every number generated code will hold is finite: else a located error
+    naming the first one that is not."""
+    model = num.equations.model
+    where = model.source
+    checks = [
+        ("a state's size", num.x_scale, "give the storage elements' 'initial' values a smaller magnitude"),
+        ("a measurement's size", num.y_scale, "rescale the parameters or the measurement expressions"),
+        ("a process-noise std", num.noise.process, "use a smaller simulation.process_noise or storage 'noise'"),
+        ("a measurement-noise std", num.noise.measurement, "use a smaller measurement noise level"),
+        ("a predictive std", num.noise.predictive, "use smaller noise levels"),
+        ("the output Jacobian", [v for row in num.output_jacobian for v in row], "rescale the parameters"),
+        ("an input value at t = 0", num.u0, "rescale the input"),
+        ("a measurement at the initial state", num.y0, "rescale the parameters or the initial values"),
+    ]
+    for what, values, fix in checks:
+        if not all(math.isfinite(v) for v in values):
+            raise EquationError(f"model '{model.name}': {what} is not a finite number", where, fix)
+    for f in num.faults:
+        if not (all(math.isfinite(v) for v in f.prior) and math.isfinite(f.jitter)):
+            loc = next((c.loc for c in model.faults if c.parameter == f.parameter), where)
+            raise EquationError(f"fault {f.name}: the prior of its {fault_kind(f.kind).magnitude} "
+                                f"({f.prior[0]:g} to {f.prior[1]:g}) is not finite", loc,
+                                f"give {f.parameter} a nominal value of smaller magnitude")
+        if f.prior[0] == f.prior[1]:
+            loc = next((c.loc for c in model.faults if c.parameter == f.parameter), where)
+            raise EquationError(f"fault {f.name}: the prior of its {fault_kind(f.kind).magnitude} is empty "
+                                f"({f.prior[0]:g} to {f.prior[1]:g})", loc,
+                                "check the parameter's value and simulation.dt and steps")
+
+
+def jacobian_at(exprs: list[sympy.Expr], xs: list[sympy.Symbol], point: dict, names: list[str],
+                source: str) -> np.ndarray:
+    """d exprs / d xs at ``point`` (a float for every free symbol), as a float array.
+
+    The symbols are taken as real while differentiating, so |x| and sign(x)
+    have their real derivatives (sign(x), 0 away from 0). An entry that is not a
+    finite number there, at the kink of a nonlinear law (sqrt(abs(e)) at e = 0),
+    is a user error: the linearisation, and with it the integration step and
+    the noise levels, is not defined at that initial state.
+    """
+    real = {s: sympy.Dummy(s.name, real=True) for e in exprs for s in e.free_symbols}
+    at = {real[s]: v for s, v in point.items() if s in real}
+    out = np.zeros((len(exprs), len(xs)))
+    for i, e in enumerate(exprs):
+        er = e.xreplace(real)
+        for k, x in enumerate(xs):
+            if x not in e.free_symbols:
+                continue
+            d = sympy.diff(er, real[x]).xreplace(at)
+            try:
+                v = complex(sympy.N(d))
+            except (TypeError, ValueError):
+                v = complex("nan")
+            if not (np.isfinite(v) and abs(v.imag) <= 1e-12 * max(1.0, abs(v.real))):
+                raise EquationError(
+                    f"{names[i]} has no finite derivative with respect to {x} at the initial state: "
+                    "the linearisation that sets the integration step and the noise levels is not "
+                    "defined there", source,
+                    "start the states where the nonlinear laws are smooth, e.g. away from sqrt(abs(e)) at e = 0")
+            out[i, k] = v.real
+    return out
+
+
+def lambdified(ssm: StateSpaceModel):
+    """(dx/dt, y) of ``ssm`` as NumPy functions of (x, u, theta) lists, by sympy's
+    lambdify: an evaluation path independent of bgc's own code generation."""
+    args = [[sym(x) for x in ssm.states], [sym(u) for u in ssm.inputs], [sym(p) for p in ssm.parameters]]
+    return (sympy.lambdify(args, list(ssm.rhs), modules="numpy", cse=True),
+            sympy.lambdify(args, list(ssm.output_exprs), modules="numpy", cse=True))
+
+
+def rk4_sample(rhs, x: np.ndarray, t0: float, h: float, substeps: int) -> np.ndarray:
+    """x after ``substeps`` classical RK4 steps of length h from t0, one state
+    vector; ``rhs(x, t, t_sub)`` is dx/dt at time t within the substep that
+    starts at t_sub."""
+    for s in range(substeps):
+        t = t0 + s * h
+        k1 = rhs(x, t, t)
+        k2 = rhs(x + 0.5 * h * k1, t + 0.5 * h, t)
+        k3 = rhs(x + 0.5 * h * k2, t + 0.5 * h, t)
+        k4 = rhs(x + h * k3, t + h, t)
+        x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return x
+
+
+def _nominal_magnitudes(ssm: StateSpaceModel, substeps: int) -> tuple[list[float], list[float]]:
+    """max |x_i(t)| and max |y_j(t)| over the noise-free nominal run (RK4 with
+    ``substeps`` substeps per sample, the model's inputs, at most
+    MAX_NOMINAL_RUN samples of the horizon); 0 where a signal stays 0 or the
+    run leaves the finite numbers."""
+    model = ssm.model
+    f, g = lambdified(ssm)
+    theta = list(ssm.parameter_values)
+    dt = model.settings.dt
+    x = np.array(ssm.initial, dtype=float)
+    x_max = np.abs(x)
+    y_max = np.zeros(len(ssm.output_exprs))
+    with np.errstate(all="ignore"):
+        for k in range(min(model.settings.steps, MAX_NOMINAL_RUN)):
+            u = [i.signal.at(k * dt) for i in model.inputs]
+            x = rk4_sample(lambda x, t, t_sub: np.array(f(list(x), u, theta), dtype=float),  # noqa: B023
+                           x, k * dt, dt / substeps, substeps)
+            if not np.all(np.isfinite(x)):
+                break
+            x_max = np.maximum(x_max, np.abs(x))
+            y = np.abs(np.array(g(list(x), u, theta), dtype=float)) if len(y_max) else y_max
+            y_max = np.where(np.isfinite(y), np.maximum(y_max, y), y_max)
+    return [float(v) for v in x_max], [float(v) for v in y_max]
