@@ -189,12 +189,23 @@ class FaultCandidate:
 
 @dataclass(frozen=True, slots=True)
 class Settings:
-    """Defaults for simulation and filtering; noise as a fraction of the signal."""
+    """Defaults for simulation and filtering; noise as a fraction of the signal.
+
+    ``locations``: where each setting the model gives is written (key ->
+    place), and under ``""`` the place errors about the settings point at when
+    the key is not written (the ``simulation`` section, else the model's name).
+    """
 
     dt: float = 1.0
     steps: int = 300
     process_noise: float = 0.03
     measurement_noise: float = 0.02
+    locations: tuple[tuple[str, SourceLoc], ...] = ()
+
+    def loc(self, key: str) -> SourceLoc | None:
+        """Where setting ``key`` is written, or where the settings are."""
+        places = dict(self.locations)
+        return places.get(key, places.get(""))
 
 
 @dataclass(frozen=True, slots=True)

@@ -44,7 +44,9 @@ def test_version():
 def test_nonlinear_law_at_its_kink_is_one_line_exit_1(tmp_path):
     """sqrt(abs(e)) has no finite derivative at e = 0: starting both tanks at the
     same pressure leaves the linearisation (integration step, noise levels)
-    undefined. bgc compile says so in one located line, without a traceback."""
+    undefined. bgc compile says so in one line located at the law with the
+    kink (line 22, column 25 of the test plant: the valve's law), without a
+    traceback; bgc check says the same (it runs every stage)."""
     text = (ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml").read_text()
     kink = tmp_path / "kink.yaml"
     kink.write_text(text.replace("C2: {kind: C, initial: 1.5}", "C2: {kind: C, initial: 1.2}"))
@@ -52,7 +54,10 @@ def test_nonlinear_law_at_its_kink_is_one_line_exit_1(tmp_path):
     assert r.returncode == 1 and "Traceback" not in r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1, r.stderr
-    assert lines[0].startswith(f"{kink}: de2/dt has no finite derivative with respect to e2 at the initial state")
+    assert lines[0].startswith(f"{kink}:22:25: de2/dt has no finite derivative with respect to e2 at the initial "
+                               "state")
+    check = run("check", str(kink))
+    assert check.returncode == 1 and check.stderr == r.stderr and check.stdout == ""
     assert "away from sqrt(abs(e)) at e = 0" in lines[0]
     # away from the kink the same plant compiles
     ok = run("compile", str(ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml"), "-o", str(tmp_path / "ok"),
@@ -83,7 +88,7 @@ def test_stiff_plant_for_its_sample_period_is_refused_not_run_for_hours(tmp_path
     model = tmp_path / "stiff.yaml"
     model.write_text(RC % ("1.0e-3", "1.0e-3", "measurements: {e3: {}}"))
     line = one_line_error(run("compile", str(model), "-o", str(tmp_path / "g"), "--no-pictures"))
-    assert line.startswith(f"{model}: model 'rc1' is stiff for its sample period")
+    assert line.startswith(f"{model}:1:1: model 'rc1' is stiff for its sample period")  # no simulation section: at the name
     assert "666667 substeps" in line and "set simulation.dt to at most 0.0003" in line
     assert one_line_error(run("simulate", str(model), "--steps", "3", "-o", str(tmp_path / "r.csv"))) == line
 

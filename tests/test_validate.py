@@ -15,7 +15,6 @@ import pytest
 import sympy
 
 from bgc.errors import BgcError, ErrorGroup, ExpressionError, SourceLoc, ValidationError
-from bgc.ir import Settings
 from bgc.kinds import ELEMENT_KINDS, FAULT_KINDS
 from bgc.compiler.load import load, loads
 from bgc.compiler.validate import KINDS, validate
@@ -271,8 +270,14 @@ def test_settings_defaults():
     g = build(RC)
     assert (g.settings.dt, g.settings.steps, g.settings.process_noise, g.settings.measurement_noise) \
         == (1.0, 300, 0.03, 0.02)
+    assert g.settings.loc("dt") == SourceLoc("m.yaml", 1, 1)  # no simulation section: errors point at the name
     g2 = build(RC + "simulation: {dt: 0.25, steps: 40}\n")
-    assert g2.settings == Settings(dt=0.25, steps=40, process_noise=0.03, measurement_noise=0.02)
+    assert (g2.settings.dt, g2.settings.steps, g2.settings.process_noise, g2.settings.measurement_noise) \
+        == (0.25, 40, 0.03, 0.02)
+    # the places errors about the settings point at: the keys as written (line 26 of the text)
+    assert g2.settings.loc("dt") == SourceLoc("m.yaml", 26, 14)
+    assert g2.settings.loc("steps") == SourceLoc("m.yaml", 26, 24)
+    assert g2.settings.loc("process_noise") == SourceLoc("m.yaml", 26, 1)
 
 
 def test_junction_kind_may_be_written_as_a_number():

@@ -65,30 +65,34 @@ def derive(dbns: DbnModel) -> Numerics:
     """
     ssm = dbns.equations
     model = ssm.model
+    settings = model.settings
     xs = [sym(x) for x in ssm.states]
     sub = {sym(p): v for p, v in zip(ssm.parameters, ssm.parameter_values)}
     u0 = tuple(i.signal.at(0.0) for i in model.inputs)
     sub.update({sym(i.name): v for i, v in zip(model.inputs, u0)})
     sub.update({x: v for x, v in zip(xs, ssm.initial)})
-    j = jacobian_at(list(ssm.rhs), xs, sub, [f"d{x}/dt" for x in ssm.states], model.source)
+    j = _jacobian(ssm, list(ssm.rhs), xs, sub, [f"d{x}/dt" for x in ssm.states], [None] * len(xs))
+    if not np.all(np.isfinite(j)):
+        raise EquationError(f"model '{model.name}': the linearisation at the initial state is not finite",
+                            settings.loc(""), "check the parameter values and the initial values")
     eig = np.linalg.eigvals(j)
     eig = np.array(sorted(eig, key=lambda z: (round(abs(z), 12), round(z.real, 12), round(z.imag, 12))))
-    dt = model.settings.dt
+    dt = settings.dt
     fastest = float(max(abs(eig))) if len(eig) else 0.0
     if not math.isfinite(fastest * dt):
-        raise EquationError(f"model '{model.name}': the linearisation at the initial state is not finite "
-                            f"(|lambda| dt = {fastest * dt:g})", model.source,
+        raise EquationError(f"model '{model.name}': the fastest mode times the sample period is not finite "
+                            f"(|lambda| dt = {fastest * dt:g})", settings.loc("dt"),
                             "check the parameter values and simulation.dt")
     substeps = max(1, math.ceil(fastest * dt / H_LAMBDA - 1e-12))
     if substeps > MAX_SUBSTEPS:
         raise EquationError(
             f"model '{model.name}' is stiff for its sample period: the fastest mode at the initial state has "
             f"|lambda| = {fastest:.3g}, so RK4 would need {substeps} substeps per sample of {dt:g} "
-            f"(at most {MAX_SUBSTEPS})", model.source,
+            f"(at most {MAX_SUBSTEPS})", settings.loc("dt"),
             f"set simulation.dt to at most {MAX_SUBSTEPS * H_LAMBDA / fastest:.3g}, or make the fastest "
             "storage element slower")
     y0 = tuple(float(sympy.N(h.xreplace(sub))) for h in ssm.output_exprs)
-    horizon = model.settings.steps * dt
+    horizon = settings.steps * dt
     x_scale = [abs(v) for v in ssm.initial]
     y_scale = [abs(v) for v in y0]
     if not all(x_scale) or not all(y_scale):  # a signal that starts at 0: its size over the nominal run
@@ -100,7 +104,8 @@ def derive(dbns: DbnModel) -> Numerics:
     for i in range(len(xs)):
         tau = 1.0 / abs(j[i, i]) if j[i, i] != 0 else horizon
         factor.append(math.sqrt(min(1.0, 2.0 * dt / tau)))
-    h = jacobian_at(list(ssm.output_exprs), xs, sub, [f"measurement {m}" for m in ssm.outputs], model.source)
+    h = _jacobian(ssm, list(ssm.output_exprs), xs, sub, [f"measurement {m}" for m in ssm.outputs],
+                  [m.loc for m in model.measurements])
     faults = []
     candidates = {f.parameter: f for f in model.faults}
     theta = dict(zip(ssm.parameters, ssm.parameter_values))
@@ -120,44 +125,100 @@ def derive(dbns: DbnModel) -> Numerics:
 
 def _check_finite(num: Numerics) -> None:
     """Every number generated code will hold is finite: else a located error
-    naming the first one that is not."""
-    model = num.equations.model
-    where = model.source
-    checks = [
-        ("a state's size", num.x_scale, "give the storage elements' 'initial' values a smaller magnitude"),
-        ("a measurement's size", num.y_scale, "rescale the parameters or the measurement expressions"),
-        ("a process-noise std", num.noise.process, "use a smaller simulation.process_noise or storage 'noise'"),
-        ("a measurement-noise std", num.noise.measurement, "use a smaller measurement noise level"),
-        ("a predictive std", num.noise.predictive, "use smaller noise levels"),
-        ("the output Jacobian", [v for row in num.output_jacobian for v in row], "rescale the parameters"),
-        ("an input value at t = 0", num.u0, "rescale the input"),
-        ("a measurement at the initial state", num.y0, "rescale the parameters or the initial values"),
+    naming the first one that is not, at the element, measurement, input or
+    fault it belongs to."""
+    ssm = num.equations
+    model = ssm.model
+    settings = model.settings
+    storage = [model.element(el) for el in ssm.state_elements]
+    per_state = [
+        ("size", num.x_scale, "give its 'initial' value a smaller magnitude"),
+        ("process-noise std", num.noise.process,
+         "use a smaller process-noise level (simulation.process_noise or the element's 'noise')"),
     ]
-    for what, values, fix in checks:
-        if not all(math.isfinite(v) for v in values):
-            raise EquationError(f"model '{model.name}': {what} is not a finite number", where, fix)
+    for what, values, fix in per_state:
+        for el, x, v in zip(storage, ssm.states, values):
+            if not math.isfinite(v):
+                raise EquationError(f"state {x} of {el.name}: its {what} is {v!r}, not a finite number", el.loc, fix)
+    per_output = [
+        ("value at the initial state", num.y0, "rescale the parameters or the initial values"),
+        ("size", num.y_scale, "rescale the parameters or the measurement expression"),
+        ("noise std", num.noise.measurement, "use a smaller noise level"),
+        ("one-step predictive std", num.noise.predictive, "use smaller noise levels"),
+        ("sensitivity to the states", [max((abs(v) for v in row), default=0.0) for row in num.output_jacobian],
+         "rescale the parameters or the measurement expression"),
+    ]
+    for what, values, fix in per_output:
+        for m, v in zip(model.measurements, values):
+            if not math.isfinite(v):
+                raise EquationError(f"measurement {m.name}: its {what} is {v!r}, not a finite number", m.loc, fix)
+    for i, v in zip(model.inputs, num.u0):
+        if not math.isfinite(v):
+            raise EquationError(f"input {i.name} is {v!r} at t = 0", i.loc, "rescale the input")
+    horizon = settings.steps * settings.dt
     for f in num.faults:
-        if not (all(math.isfinite(v) for v in f.prior) and math.isfinite(f.jitter)):
-            loc = next((c.loc for c in model.faults if c.parameter == f.parameter), where)
-            raise EquationError(f"fault {f.name}: the prior of its {fault_kind(f.kind).magnitude} "
-                                f"({f.prior[0]:g} to {f.prior[1]:g}) is not finite", loc,
-                                f"give {f.parameter} a nominal value of smaller magnitude")
-        if f.prior[0] == f.prior[1]:
-            loc = next((c.loc for c in model.faults if c.parameter == f.parameter), where)
-            raise EquationError(f"fault {f.name}: the prior of its {fault_kind(f.kind).magnitude} is empty "
-                                f"({f.prior[0]:g} to {f.prior[1]:g})", loc,
-                                "check the parameter's value and simulation.dt and steps")
+        loc = next(c.loc for c in model.faults if c.parameter == f.parameter)
+        magnitude = fault_kind(f.kind).magnitude
+        scale = (f"|{f.parameter}| / horizon, the horizon being steps x dt = {horizon:g}"
+                 if fault_kind(f.kind).drifts else f"|{f.parameter}|")
+        if not (all(math.isfinite(v) for v in f.prior) and math.isfinite(f.jitter)) or f.prior[0] == f.prior[1]:
+            raise EquationError(f"fault {f.name}: the prior of its {magnitude} ({f.prior[0]:g} to {f.prior[1]:g}, "
+                                f"in units of {scale}) is not a finite, non-empty range", loc,
+                                f"give {f.parameter} a nominal value of moderate magnitude"
+                                + (" and the run a longer horizon" if fault_kind(f.kind).drifts else ""))
 
 
-def jacobian_at(exprs: list[sympy.Expr], xs: list[sympy.Symbol], point: dict, names: list[str],
-                source: str) -> np.ndarray:
+class _NoDerivative(Exception):
+    def __init__(self, row: int, column: int):
+        self.row, self.column = row, column
+
+
+def _jacobian(ssm: StateSpaceModel, exprs: list[sympy.Expr], xs: list[sympy.Symbol], point: dict,
+              names: list[str], locs: list) -> np.ndarray:
+    """:func:`jacobian_at`, with its error located: at ``locs[i]`` of the row,
+    else at the element whose own law has the kink."""
+    try:
+        return jacobian_at(exprs, xs, point)
+    except _NoDerivative as k:
+        loc = locs[k.row] or _kink(ssm, point) or ssm.model.settings.loc("")
+        raise EquationError(
+            f"{names[k.row]} has no finite derivative with respect to {xs[k.column]} at the initial state: "
+            "the linearisation that sets the integration step and the noise levels is not defined there", loc,
+            "start the states where the nonlinear laws are smooth, e.g. away from sqrt(abs(e)) at e = 0") from None
+
+
+def _kink(ssm: StateSpaceModel, point: dict):
+    """Where the element whose law (or modulated value) has no finite
+    derivative at the operating point is written, or None."""
+    values = dict(point)
+    for v, e in ssm.variables:
+        try:
+            values[sym(v)] = float(e.xreplace(point))
+        except (TypeError, ValueError):
+            pass
+    bond_variables = {sym(v) for v, _ in ssm.variables}
+    for el in ssm.model.elements:
+        own = [(el.law.expr, el.law.loc)] if el.law is not None else []
+        own += [(e, el.loc) for e in (el.parameter, el.source) if e is not None]
+        for e, loc in own:
+            if not all(s in values for s in e.free_symbols):
+                continue
+            signals = sorted((s for s in e.free_symbols if s in bond_variables), key=lambda s: s.name)
+            try:
+                jacobian_at([e], signals, values)
+            except _NoDerivative:
+                return loc
+    return None
+
+
+def jacobian_at(exprs: list[sympy.Expr], xs: list[sympy.Symbol], point: dict) -> np.ndarray:
     """d exprs / d xs at ``point`` (a float for every free symbol), as a float array.
 
     The symbols are taken as real while differentiating, so |x| and sign(x)
     have their real derivatives (sign(x), 0 away from 0). An entry that is not a
     finite number there, at the kink of a nonlinear law (sqrt(abs(e)) at e = 0),
-    is a user error: the linearisation, and with it the integration step and
-    the noise levels, is not defined at that initial state.
+    raises ``_NoDerivative``: the linearisation, and with it the integration
+    step and the noise levels, is not defined at that initial state.
     """
     real = {s: sympy.Dummy(s.name, real=True) for e in exprs for s in e.free_symbols}
     at = {real[s]: v for s, v in point.items() if s in real}
@@ -173,11 +234,7 @@ def jacobian_at(exprs: list[sympy.Expr], xs: list[sympy.Symbol], point: dict, na
             except (TypeError, ValueError):
                 v = complex("nan")
             if not (np.isfinite(v) and abs(v.imag) <= 1e-12 * max(1.0, abs(v.real))):
-                raise EquationError(
-                    f"{names[i]} has no finite derivative with respect to {x} at the initial state: "
-                    "the linearisation that sets the integration step and the noise levels is not "
-                    "defined there", source,
-                    "start the states where the nonlinear laws are smooth, e.g. away from sqrt(abs(e)) at e = 0")
+                raise _NoDerivative(i, k)
             out[i, k] = v.real
     return out
 

@@ -435,12 +435,16 @@ class _Validator:
         return tuple(out)
 
     def settings(self, raw: dict) -> Settings:
+        section = ("simulation",) if "simulation" in self.raw.data else ("name",)
+        places = [("", self.raw.key_loc(*section))]
         if self.bad(("simulation",)):
-            return Settings()
+            return Settings(locations=tuple(places))
+        places += [(k, self.raw.key_loc("simulation", k)) for k in sorted(raw)]
         base = Settings()
         return Settings(dt=float(raw.get("dt", base.dt)), steps=int(raw.get("steps", base.steps)),
                         process_noise=float(raw.get("process_noise", base.process_noise)),
-                        measurement_noise=float(raw.get("measurement_noise", base.measurement_noise)))
+                        measurement_noise=float(raw.get("measurement_noise", base.measurement_noise)),
+                        locations=tuple(places))
 
 
 def _section(data: dict, key: str) -> dict:
