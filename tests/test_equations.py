@@ -4,7 +4,7 @@ Every expected equation is derived by hand in this file from the physics of the
 plant (Kirchhoff's laws, Newton's law, mass balances), written in sympy with the
 model's names, and compared symbolically with ``sympy.simplify(a - b) == 0``.
 The RO equations are compared with the thesis's equation IV.1 as printed, with
-exactly the corrections documented in ``shared/reference/ro_model.md``.
+exactly the corrections documented in ``docs/ro_model.md``.
 """
 
 from __future__ import annotations

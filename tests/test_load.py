@@ -140,7 +140,7 @@ def test_missing_file(tmp_path):
 def test_directory_is_not_a_model(tmp_path):
     with pytest.raises(LoadError) as info:
         load(tmp_path)
-    assert "cannot read" in info.value.line()
+    assert info.value.line() == f"{tmp_path}: not a regular file (give a model file (YAML))"
 
 
 def test_too_large_file_is_refused_before_parsing(tmp_path):
@@ -262,6 +262,45 @@ def test_any_other_yaml_error_is_one_line_with_a_place_and_a_fix(monkeypatch):
     def broken(*args, **kwargs):
         raise yaml.YAMLError("something odd\n  in \"<unicode string>\", position 3")
 
-    monkeypatch.setattr(yaml, "compose", broken)
+    from bgc.compiler import load as load_module
+
+    monkeypatch.setattr(load_module._Loader, "get_single_node", broken)
     (err,) = load_error("name: rc\n")
     assert err.line() == "m.yaml:1:1: YAML error: something odd (fix the YAML syntax: see docs/format.md)"
+
+
+# ------------------------------------------------- YAML 1.2 numbers, limits
+def test_numbers_are_read_as_yaml_1_2_reads_them():
+    """PyYAML (YAML 1.1) reads 1e5 as text; every SI-unit plant writes it so.
+    Quoted, a number stays text (the validator then says to drop the quotes)."""
+    raw = loads("a: [1e5, 2.5e-3, 1E+3, -.5, +3e0, 7, 1.5]\nb: '1e5'\nc: 1.2.3\nd: 0x1F\n", "m.yaml")
+    assert raw.data["a"] == [1e5, 2.5e-3, 1e3, -0.5, 3.0, 7, 1.5]
+    assert [type(v) for v in raw.data["a"]] == [float] * 5 + [int, float]
+    assert raw.data["b"] == "1e5" and raw.data["c"] == "1.2.3" and raw.data["d"] == 31
+
+
+@pytest.mark.parametrize("special", ["/dev/zero", "fifo"])
+def test_a_device_or_a_fifo_is_refused_before_reading(tmp_path, special):
+    """/dev/zero would be read until memory runs out, a FIFO would block
+    forever: only a regular file is read, and its size is checked first."""
+    import os
+
+    path = special
+    if special == "fifo":
+        path = tmp_path / "model.yaml"
+        os.mkfifo(path)
+    with pytest.raises(LoadError) as info:
+        load(path)
+    assert info.value.line() == f"{path}: not a regular file (give a model file (YAML))"
+
+
+@pytest.mark.parametrize("text, where, what", [
+    ('d: "\\ud800"\n', "m.yaml:1:4", "text holds an invalid Unicode character"),
+    ('"\\udfff": 1\n', "m.yaml:1:1", "a key holds an invalid Unicode character"),
+    ('d: "\\UFFFFFFFF"\n', "m.yaml:1:7", "an escape sequence names no Unicode character"),
+    ("a: {<<: 5}\n", "m.yaml:1:9", "bad merge key '<<'"),
+    ("a: {<<: [1, 2]}\n", "m.yaml:1:10", "bad merge key '<<'"),
+])
+def test_text_that_is_not_unicode_and_bad_merges_are_located_errors(text, where, what):
+    (err,) = load_error(text)
+    assert err.line().startswith(f"{where}: {what}"), err.line()

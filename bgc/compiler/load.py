@@ -4,14 +4,26 @@ Reads a YAML model with PyYAML's safe composer (no Python tags, nothing is
 executed) and turns the node tree into plain data while recording the
 ``file:line:column`` of every node, so later stages can point at the source.
 Mapping keys are kept as the text written (bond ``4`` has key ``'4'``), so
-the data is JSON-like for schema validation. Duplicate mapping keys, which YAML silently overwrites, are reported here: a
-duplicate element name or bond number is an error, not a surprise.
+the data is JSON-like for schema validation. Duplicate mapping keys, which
+YAML silently overwrites, are reported here: a duplicate element name or bond
+number is an error, not a surprise.
+
+Numbers are read as YAML 1.2 reads them: ``1e5``, ``2.5e-3`` and ``-.5`` are
+floats (PyYAML follows YAML 1.1, where a float needs a dot and a signed
+exponent, and reads them as text). A quoted number stays text, and the
+validator says so.
+
+The file is data from outside: it must be a regular file (not a FIFO or a
+device, which could block or never end), its size is checked before it is read,
+alias expansion is bounded, and text that is not valid Unicode (a lone
+surrogate escape ``\\ud800``, an escape beyond U+10FFFF) is a located error.
 """
 
 from __future__ import annotations
 
 import hashlib
 import re
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -28,24 +40,59 @@ MAX_NODES = 200_000
 _COLLECTION_TAGS = frozenset({"tag:yaml.org,2002:map", "tag:yaml.org,2002:seq"})
 
 
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader with YAML 1.2's floats (see the module docstring)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:\.[0-9]+(?:[eE][-+]?[0-9]+)?|[0-9]+\.[0-9]*(?:[eE][-+]?[0-9]+)?|[0-9]+[eE][-+]?[0-9]+)$"),
+    list("-+.0123456789"))
+
+
+def scalar_value(text: str) -> Any:
+    """What bgc's YAML reader makes of ``text`` written unquoted as a value
+    (None when it is not one plain scalar): ``'1e3'`` -> 1000.0."""
+    try:
+        node = yaml.compose(text, Loader=_Loader)
+    except (yaml.YAMLError, ValueError, OverflowError):
+        return None
+    if not isinstance(node, yaml.ScalarNode):
+        return None
+    try:
+        return _Loader("").construct_object(node, deep=True)
+    except (yaml.YAMLError, ValueError, OverflowError):
+        return None
+
+
 def load(path: str | Path) -> RawModel:
     """Read a model file.
 
     Raises
     ------
     LoadError
-        The file is missing, unreadable, too large or not well-formed YAML.
+        The file is missing, unreadable, not a regular file, too large or not
+        well-formed YAML.
     """
     name = str(path)
     p = Path(path)
     try:
-        raw = p.read_bytes()
+        info = p.stat()
+        if not stat.S_ISREG(info.st_mode):
+            raise LoadError(f"{name}: not a regular file", None, "give a model file (YAML)")
+        if info.st_size > MAX_BYTES:
+            raise LoadError(f"{name}: file is {info.st_size} bytes, more than {MAX_BYTES}", None,
+                            "a bond-graph model should be far smaller")
+        with open(p, "rb") as f:
+            raw = f.read(MAX_BYTES + 1)
     except FileNotFoundError:
         raise LoadError(f"{name}: no such file", None, "check the path") from None
+    except IsADirectoryError:
+        raise LoadError(f"{name}: is a folder", None, "give a model file (YAML)") from None
     except OSError as exc:
-        raise LoadError(f"{name}: cannot read: {exc.strerror}", None) from None
+        raise LoadError(f"{name}: cannot read: {exc.strerror}", None, "check the path and its permissions") from None
     if len(raw) > MAX_BYTES:
-        raise LoadError(f"{name}: file is {len(raw)} bytes, more than {MAX_BYTES}", None,
+        raise LoadError(f"{name}: file is more than {MAX_BYTES} bytes", None,
                         "a bond-graph model should be far smaller")
     try:
         text = raw.decode("utf-8")
@@ -57,8 +104,14 @@ def load(path: str | Path) -> RawModel:
 
 def loads(text: str, name: str = "<string>") -> RawModel:
     """Parse YAML text; ``name`` is used in locations."""
+    loader = None
     try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        loader = _Loader(text)  # its reader refuses control characters at once
+        node = loader.get_single_node()
+    except (ValueError, OverflowError):  # an escape beyond U+10FFFF (\UFFFFFFFF): not marked
+        mark = loader.get_mark()
+        raise LoadError("an escape sequence names no Unicode character", SourceLoc(name, mark.line + 1, mark.column + 1),
+                        "write a character from U+0000 to U+10FFFF") from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         loc = SourceLoc(name, mark.line + 1, mark.column + 1) if mark else SourceLoc(name, 1, 1)
@@ -75,6 +128,9 @@ def loads(text: str, name: str = "<string>") -> RawModel:
     except RecursionError:
         raise LoadError("YAML is nested too deeply", SourceLoc(name, 1, 1),
                         "a model needs only a few levels of nesting") from None
+    finally:
+        if loader is not None:
+            loader.dispose()
     if node is None:
         raise LoadError("the file is empty", SourceLoc(name, 1, 1),
                         "write a model: see docs/format.md")
@@ -109,7 +165,7 @@ def _char_name(character: object) -> str:
 class _Walker:
     def __init__(self, name: str):
         self.name = name
-        self.constructor = yaml.SafeLoader("")  # only its scalar constructors are used
+        self.constructor = _Loader("")  # only its scalar constructors are used
         self.locations: dict[tuple, SourceLoc] = {}
         self.key_locations: dict[tuple, SourceLoc] = {}
         self.errors: list[LoadError] = []
@@ -148,7 +204,14 @@ class _Walker:
 
     def collection(self, node: yaml.Node, path: tuple) -> Any:
         if isinstance(node, yaml.MappingNode):
-            self.constructor.flatten_mapping(node)
+            try:
+                self.constructor.flatten_mapping(node)
+            except yaml.MarkedYAMLError as exc:  # a merge key '<<' on something that is not a mapping
+                mark = exc.problem_mark or exc.context_mark
+                where = SourceLoc(self.name, mark.line + 1, mark.column + 1) if mark else self.mark(node)
+                self.errors.append(LoadError(f"bad merge key '<<': {exc.problem or exc.context}", where,
+                                             "merge only mappings, or remove the '<<' key"))
+                return None
             out: dict = {}
             for key_node, value_node in node.value:
                 if not isinstance(key_node, yaml.ScalarNode):
@@ -156,6 +219,10 @@ class _Walker:
                                                  self.mark(key_node), "write a scalar key"))
                     continue
                 key = key_node.value  # keys stay text as written: bond 4 is the key '4'
+                if not _valid_unicode(key):
+                    self.errors.append(LoadError("a key holds an invalid Unicode character (a lone surrogate)",
+                                                 self.mark(key_node), "remove the \\u escape"))
+                    continue
                 if key in out:
                     first = self.key_locations[path + (key,)]
                     self.errors.append(LoadError(
@@ -169,10 +236,24 @@ class _Walker:
 
     def scalar(self, node: yaml.Node) -> Any:
         try:
-            return self.constructor.construct_object(node, deep=True)
+            value = self.constructor.construct_object(node, deep=True)
+            if isinstance(value, str) and not _valid_unicode(value):
+                self.errors.append(LoadError("text holds an invalid Unicode character (a lone surrogate such as "
+                                             "\\ud800)", self.mark(node), "remove the \\u escape"))
+                return None
+            return value
         except yaml.MarkedYAMLError as exc:
             what = exc.problem or exc.context or "cannot read the value"
         except (yaml.YAMLError, ValueError, OverflowError) as exc:  # e.g. the date 2001-13-45
             what = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         self.errors.append(LoadError(f"bad value: {what}", self.mark(node), "fix this value"))
         return None
+
+
+def _valid_unicode(text: str) -> bool:
+    """Whether ``text`` can be written as UTF-8 (no lone surrogates)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True

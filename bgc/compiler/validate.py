@@ -24,9 +24,8 @@ from typing import Any, Iterable, Iterator
 
 import jsonschema
 import sympy
-import yaml
 
-from . import expressions
+from . import expressions, load
 from ..errors import BgcError, ErrorGroup, ExpressionError, ValidationError
 from ..kinds import ELEMENT_KINDS, element_kind
 from ..ir import (
@@ -257,7 +256,15 @@ class _Validator:
             if self.bad(path) or not self.name_ok(name, path, "element"):
                 continue
             spec = raw[name]
-            kind = str(spec["kind"])
+            kind = spec["kind"]
+            if not isinstance(kind, str):  # the schema lets 0 and 1 through (and 1.0, which equals 1)
+                if isinstance(kind, int) and not isinstance(kind, bool):
+                    kind = str(kind)
+                else:
+                    self.error(f"element kind {kind!r} of {name} is not a kind name", path + ("kind",),
+                               f"write kind: \"{int(kind)}\" for a junction" if kind in (0, 1) else
+                               "valid kinds: " + ", ".join(KINDS))
+                    continue
             keys = element_kind(kind).keys
             role = element_kind(kind).role
             extra = sorted(set(spec) - {"kind", "description"} - keys)
@@ -311,9 +318,16 @@ class _Validator:
                         nominal = complex(sympy.N(parameter.xreplace(at)))
                     except (TypeError, ValueError):
                         nominal = complex("nan")
+                    where = path + ("parameter",) if "parameter" in spec else ("parameters", str(parameter))
                     if not (math.isfinite(nominal.real) and math.isfinite(nominal.imag) and nominal.imag == 0):
                         self.error(f"parameter of {name} is not a finite real number at the nominal parameter "
-                                   "values", path + ("parameter",), "rescale the expression or the parameters")
+                                   "values", where, "rescale the expression or the parameters",
+                                   key=where[0] == "parameters")
+                        continue
+                    if nominal.real == 0.0:
+                        self.error(f"the parameter of {element_kind(kind).title} {name} is 0 at the nominal "
+                                   "values", where, f"give {name} a non-zero {_coefficient(kind)}; 0 removes the "
+                                   "element or divides by zero", key=where[0] == "parameters")
                         continue
             initial = spec.get("initial")
             noise = spec.get("noise")
@@ -393,6 +407,12 @@ class _Validator:
             spec = raw[name] or {}
             if "expr" in spec:
                 if not self.name_ok(name, path, "measurement"):
+                    continue
+                if _BOND_VARIABLE.match(name) and str(spec["expr"]).strip() != name:
+                    self.error(f"measurement name '{name}' is the name of a bond variable, but its expression is "
+                               f"{str(spec['expr'])[:40]!r}", path,
+                               f"rename the measurement (e.g. y_{name}), or measure {name} itself with '{name}:'",
+                               key=True)
                     continue
                 if name in declared:
                     self.error(f"measurement name '{name}' is already a parameter or input", path,
@@ -488,9 +508,15 @@ def _schema_message(err: jsonschema.ValidationError, path: tuple) -> tuple[str, 
     if v == "additionalProperties":
         extra = sorted(set(err.instance) - set(err.schema.get("properties", {})))
         allowed = ", ".join(sorted(err.schema.get("properties", {})))
+        prose = " " in str(extra[0]) and str(extra[0]).isprintable()  # text cut at a comma
         if path == ():
-            return (f"unknown section '{extra[0]}'", f"sections are: {allowed}", False)
-        return (f"unknown key '{extra[0]}' in {where}", f"allowed keys: {allowed}", False)
+            return (f"unknown section {extra[0]!r}", f"sections are: {allowed}" if not prose else
+                    "quote the description: in {...} a comma ends the text and starts a new key", False)
+        if prose and "description" in err.schema.get("properties", {}):
+            return (f"unknown key {extra[0]!r} in {where}",
+                    "quote the description, e.g. description: \"a, b\": in {...} a comma ends the text and "
+                    "starts a new key", False)
+        return (f"unknown key {extra[0]!r} in {where}", f"allowed keys: {allowed}", False)
     if v == "required":
         missing = err.message.split("'")[1] if "'" in err.message else err.message
         return (f"{where} is missing '{missing}'", f"add '{missing}: ...'", False)
@@ -505,8 +531,10 @@ def _schema_message(err: jsonschema.ValidationError, path: tuple) -> tuple[str, 
         if want == ["null"]:  # a measurement: empty or a mapping
             return (f"{where} must be empty or a mapping, not {_json_type(err.instance)}",
                     f"write '{path[-1]}:' alone or '{path[-1]}: {{expr: ..., noise: ...}}'", False)
-        return (f"{where} must be {_article(' or '.join(want))}, not {_json_type(err.instance)}",
-                _type_fix(want, err.instance, path), False)
+        fix = _type_fix(want, err.instance, path)
+        if want == ["string"] and path and path[-1] == "description" and isinstance(err.instance, (dict, list)):
+            fix = "quote it: YAML reads text in {...} or [...], or with ': ' inside, as a mapping or list"
+        return (f"{where} must be {_article(' or '.join(want))}, not {_json_type(err.instance)}", fix, False)
     if v == "pattern":
         if path[:1] == ("bonds",) and len(path) == 2:
             return (f"bond number '{err.instance}' is not a positive integer", "number bonds 1, 2, 3, ...", True)
@@ -570,37 +598,16 @@ def _type_fix(want: list[str], value: Any, path: tuple) -> str:
 
 
 def _number_text(text: str) -> str | None:
-    """The fix for a number YAML read as text, or None if ``text`` is no number."""
-    try:
-        value = float(text)
-    except ValueError:
+    """The fix for a number written as text (quoted), or None if ``text`` is no number."""
+    if len(text) > 40 or not _reads_as_number(text.strip()):
         return None
-    if not math.isfinite(value) or len(text) > 40:
-        return None
-    if _reads_as_number(text):  # it was quoted
-        return f"write {text.strip()} without quotes"
-    # the YAML 1.1 trap: '1e3' is text; a float needs a '.' and a signed exponent: 1.0e+3
-    mantissa, _, exponent = text.strip().lower().partition("e")
-    sign = mantissa[:1] if mantissa[:1] in "+-" else ""
-    digits = mantissa[len(sign):]
-    digits = "0" + digits if digits.startswith(".") else digits
-    digits += "0" if digits.endswith(".") else "" if "." in digits else ".0"
-    if exponent:
-        digits += "e" + (exponent if exponent[:1] in "+-" else "+" + exponent)
-    exact = value != 0 or not any(c in "123456789" for c in mantissa)  # not 1e-400 -> 0
-    plain = str(int(value)) if value.is_integer() and abs(value) < 1e15 and exact else None
-    options = [w for w in dict.fromkeys([sign + digits, plain]) if w and _reads_as_number(w)]
-    if not options:
-        return None
-    return f"YAML reads '{text}' as text: write {' or '.join(options)}"
+    return f"write {text.strip()} without quotes"
 
 
 def _reads_as_number(text: str) -> bool:
-    try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError:
-        return False
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+    """Whether bgc's YAML reader reads ``text``, unquoted, as a finite number."""
+    value = load.scalar_value(text)
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _number(value: Any) -> str:
@@ -622,6 +629,12 @@ def _non_finite(data: Any) -> Iterator[tuple[tuple, str]]:
             yield path, f"{'' if value > 0 else 'minus '}infinite, not a finite number"
         elif isinstance(value, int) and not isinstance(value, bool) and abs(value) > sys.float_info.max:
             yield path, "too large to be a floating-point number"
+
+
+def _coefficient(kind: str) -> str:
+    """What the parameter of a linear element is called in a fix."""
+    return {"resistor": "resistance", "storage": "capacitance or inertance",
+            "two_port": "modulus"}.get(element_kind(kind).role, "value")
 
 
 def _article(word: str) -> str:
