@@ -3,6 +3,8 @@
 import subprocess
 import sys
 
+import pytest
+
 from bgc.cli import main
 
 from conftest import ROOT
@@ -155,3 +157,92 @@ measurements: {f3: {}}
     assert "C (C, bond 3): derivative" in r.stdout
     assert one_line_error(run("show", "equations", str(model))).endswith(
         "(merge it with the storage element that fixes it, or add a resistor in between)")
+
+
+# ------------------------------------------------ pipes, limits, data from outside
+@pytest.mark.parametrize("reader", ["true", "head -1"])
+def test_a_closed_pipe_ends_quietly_with_status_0(reader):
+    """``bgc show equations models/ro.yaml | true`` (the reader never reads) or
+    ``| head -1`` (it stops early): no message, status 0, as other CLIs do."""
+    r = subprocess.run(["bash", "-c", f"set -o pipefail; {sys.executable} -m bgc show equations models/ro.yaml"
+                                      f" | {reader} > /dev/null"], cwd=ROOT, capture_output=True, text=True)
+    assert (r.returncode, r.stderr) == (0, "")
+    big = subprocess.run(["bash", "-c", f"set -o pipefail; {sys.executable} -m bgc show tcg models/ro.yaml"
+                                        f" --format json | {reader} > /dev/null"], cwd=ROOT, capture_output=True,
+                         text=True)
+    assert (big.returncode, big.stderr) == (0, "")
+
+
+def test_check_says_one_loop_is_one_loop():
+    r = run("check", "tests/data/models/resistor_loop.yaml")
+    assert r.returncode == 0, r.stderr
+    loops = [line for line in r.stdout.splitlines() if line.startswith("  algebraic loops:")]
+    assert loops == ["  algebraic loops: 1: through e2, f2, e3, f3, e4, f4, e5, f5, e6, f6, closed by R1 and R2"]
+
+
+def test_check_prints_model_text_escaped_on_its_own_lines(tmp_path):
+    """A description with a newline and an ANSI escape cannot forge a line of
+    bgc's output or colour the terminal."""
+    model = tmp_path / "rc.yaml"
+    model.write_text((RC % ("1.0", "2.0", "measurements: {e3: {}}")).replace(
+        "description: single-state RC (test model)", 'description: "x\\nrc.yaml: ok: forged\\e[31m"'))
+    r = run("check", str(model))
+    assert r.returncode == 0, r.stderr
+    first = r.stdout.splitlines()[0]
+    assert first == f"{model}: ok: rc1 (x\\nrc.yaml: ok: forged\\x1b[31m)"
+    assert "\x1b" not in r.stdout and not any(line.startswith("rc.yaml") for line in r.stdout.splitlines())
+
+
+def test_requests_beyond_the_limits_are_refused_before_any_work(tmp_path):
+    """A billion simulated steps or ten billion particles: one located line at
+    once, not an hour of work or a memory error."""
+    model = tmp_path / "rc.yaml"
+    model.write_text(RC % ("1.0", "2.0", "measurements: {e3: {}}"))
+    csv = tmp_path / "run.csv"
+    assert run("compile", str(model), "-o", str(tmp_path / "g"), "--no-pictures").returncode == 0
+    line = one_line_error(run("simulate", str(model), "--steps", "1000000000", "-o", str(csv)))
+    assert line.startswith("--steps: 1000000000 steps is more than bgc simulates in one run (at most 10000000")
+    assert not csv.exists()
+    assert run("simulate", str(model), "--steps", "20", "-o", str(csv)).returncode == 0
+    line = one_line_error(run("filter", str(model), str(csv), "--generated", str(tmp_path / "g"),
+                              "--particles", "10000000000"))
+    assert line.startswith("--particles 10000000000 would take about") and "use at most" in line
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"time,y:e3\n1.0,2.0\n2.0,\xff\n", "{csv}:3: not UTF-8 text (byte 22 is 0xff)"),
+    (b"time,y:e3\n1.0," + b"9" * 50_000_000 + b"\n", "{csv}:2: line is 50000004 characters long"),
+    (b"time,y:e3\n", "{csv}: the run has no data rows, only column names"),
+    (b"time,y:other\n1.0,2.0\n", "the run has no column y:e3"),
+])
+def test_filter_on_a_broken_run_file_is_one_located_line(tmp_path, content, message):
+    model = tmp_path / "rc.yaml"
+    model.write_text(RC % ("1.0", "2.0", "measurements: {e3: {}}"))
+    assert run("compile", str(model), "-o", str(tmp_path / "g"), "--no-pictures").returncode == 0
+    csv = tmp_path / "run.csv"
+    csv.write_bytes(content)
+    line = one_line_error(run("filter", str(model), str(csv), "--generated", str(tmp_path / "g")))
+    assert line.startswith(message.format(csv=csv)), line
+
+
+def test_filter_on_a_run_of_one_sample_works(tmp_path):
+    model = tmp_path / "rc.yaml"
+    model.write_text(RC % ("1.0", "2.0", "measurements: {e3: {}}"))
+    csv = tmp_path / "run.csv"
+    assert run("compile", str(model), "-o", str(tmp_path / "g"), "--no-pictures").returncode == 0
+    assert run("simulate", str(model), "--steps", "1", "-o", str(csv)).returncode == 0
+    r = run("filter", str(model), str(csv), "--generated", str(tmp_path / "g"), "--method", "gpf")
+    assert r.returncode == 0 and "GPF on nominal, N = 200: 1 steps" in r.stdout, r.stderr
+    r = run("filter", str(model), str(csv), "--generated", str(tmp_path / "g"), "--method", "gpf",
+            "--fault", "R:incipient", "--start", "1")
+    assert r.returncode == 0 and "estimate of slope of R" in r.stdout, r.stderr
+
+
+def test_filter_without_the_compiled_package_names_generated(tmp_path):
+    """After bgc compile -o DIR the package is in DIR: the hint says --generated."""
+    model = tmp_path / "rc.yaml"
+    model.write_text(RC % ("1.0", "2.0", "measurements: {e3: {}}"))
+    csv = tmp_path / "run.csv"
+    assert run("simulate", str(model), "--steps", "5", "-o", str(csv)).returncode == 0
+    line = one_line_error(run("filter", str(model), str(csv), "--generated", str(tmp_path / "nowhere")))
+    assert "point --generated at the folder bgc compile -o wrote" in line

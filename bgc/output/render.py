@@ -13,7 +13,7 @@ import sympy
 
 from ..errors import printable
 from ..ir import CausalBondGraph, Dbn, StateSpaceModel, TemporalCausalGraph, var_key
-from ..kinds import ELEMENT_KINDS, FAULT_KINDS
+from ..kinds import ELEMENT_KINDS, FAULT_KINDS, ROLES
 
 
 def to_json(data: Any) -> str:
@@ -231,7 +231,8 @@ def check_summary(ssm: StateSpaceModel) -> str:
     escaped (one line per item, no control characters)."""
     cbg = ssm.tcg.causal
     m = cbg.model
-    counts = {k: sum(el.kind == k for el in m.elements) for k in ELEMENT_KINDS}
+    order = sorted(ELEMENT_KINDS.values(), key=lambda k: (ROLES.index(k.role), k.base, k.modulated))
+    counts = {k.name: sum(el.kind == k.name for el in m.elements) for k in order}
     kind_text = ", ".join(f"{k} {n}" for k, n in counts.items() if n)
     lines = [f"{m.source}: ok: {m.name}" + (f" ({m.description})" if m.description else "")]
     lines.append(f"  elements: {len(m.elements)} ({kind_text})")

@@ -38,3 +38,5 @@ MODELS = {
     "R3_abrupt": R3_abrupt,
     "R3_incipient": R3_incipient,
 }
+
+__all__ = ["MODELS", "filters", "_kernel", "nominal", "C1_abrupt", "C1_incipient", "C2_abrupt", "C2_incipient", "L_abrupt", "L_incipient", "R1_abrupt", "R1_incipient", "R2_abrupt", "R2_incipient", "R3_abrupt", "R3_incipient"]

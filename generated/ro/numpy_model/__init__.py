@@ -38,3 +38,5 @@ MODELS = {
     "R_rp_abrupt": R_rp_abrupt,
     "R_rp_incipient": R_rp_incipient,
 }
+
+__all__ = ["MODELS", "filters", "_kernel", "nominal", "C_memb_abrupt", "C_res_abrupt", "R_brine_abrupt", "R_brine_incipient", "R_fp_abrupt", "R_fp_incipient", "R_memb_abrupt", "R_memb_incipient", "R_pipe_abrupt", "R_pipe_incipient", "R_rp_abrupt", "R_rp_incipient"]

@@ -30,3 +30,5 @@ MODELS = {
     "R20_abrupt": R20_abrupt,
     "R20_incipient": R20_incipient,
 }
+
+__all__ = ["MODELS", "filters", "_kernel", "nominal", "C1_abrupt", "C2_abrupt", "R10_abrupt", "R10_incipient", "R12_abrupt", "R12_incipient", "R20_abrupt", "R20_incipient"]
