@@ -111,6 +111,8 @@ def cmd_show(args: argparse.Namespace) -> int:
         ("equations", "text"): lambda: render.equations_text(c.equations),
         ("equations", "json"): lambda: render.to_json(render.equations_json(c.equations)),
         ("equations", "latex"): lambda: render.equations_latex(c.equations),
+        ("signatures", "text"): lambda: render.signatures_text(c.signatures),
+        ("signatures", "json"): lambda: render.to_json(render.signatures_json(c.signatures)),
         ("dbn", "text"): lambda: render.dbn_text(d),
         ("dbn", "json"): lambda: render.to_json(render.dbn_json(d)),
         ("dbn", "dot"): lambda: render.dbn_dot(d),
@@ -250,7 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=cmd_compile)
 
     p = sub.add_parser("show", help="print or render one stage of a model")
-    p.add_argument("stage", choices=["causality", "tcg", "equations", "dbn"])
+    p.add_argument("stage", choices=["causality", "tcg", "equations", "signatures", "dbn"])
     p.add_argument("model", metavar="MODEL")
     p.add_argument("--fault", metavar="PARAM:KIND", help="with dbn: the faulty DBN, e.g. R_pipe:incipient")
     p.add_argument("--format", default="text", choices=["text", "json", "dot", "latex", "svg", "png"])

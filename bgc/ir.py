@@ -396,6 +396,48 @@ class DbnModel:
         raise KeyError(f"no DBN '{name}' (valid: {valid})")
 
 
+# ------------------------------------------------------------------ signatures
+@dataclass(frozen=True, slots=True)
+class Signature:
+    """TRANSCEND signature of one fault: ``symbols[j][k]`` is the deviation of
+    measurement j at derivative order k (``+ - 0 ?``); ``first`` the
+    measurements expected to deviate first. ``direction``: +1 increase, -1
+    decrease."""
+
+    parameter: str
+    direction: int
+    kind: str
+    symbols: tuple[tuple[str, ...], ...]
+    first: tuple[str, ...]
+
+    @property
+    def name(self) -> str:
+        """``R2+:abrupt``: parameter, direction, kind."""
+        return f"{self.parameter}{'+' if self.direction > 0 else '-'}:{self.kind}"
+
+
+@dataclass(frozen=True, slots=True)
+class FaultSignatures:
+    """Every fault's signature (``measurements`` in model order), the order up
+    to which they separate the faults (``orders``), the groups of faults with
+    identical signatures (``ambiguity``), groups of fault parameters that enter
+    the model as one combination (``structural``) and faults no sensor sees."""
+
+    equations: StateSpaceModel
+    measurements: tuple[str, ...]
+    orders: int
+    signatures: tuple[Signature, ...]
+    ambiguity: tuple[tuple[str, ...], ...]
+    structural: tuple[tuple[str, ...], ...]
+    undetectable: tuple[str, ...]
+
+    def get(self, name: str) -> Signature:
+        for s in self.signatures:
+            if s.name == name:
+                return s
+        raise KeyError(name)
+
+
 # -------------------------------------------------------------------- numerics
 @dataclass(frozen=True, slots=True)
 class NoiseLevels:

@@ -18,10 +18,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from .compiler import causality, codegen, dbn, equations, load, numerics, tcg, validate
+from .compiler import causality, codegen, dbn, equations, load, numerics, signatures, tcg, validate
 from .ir import (
-    BondGraph, CausalBondGraph, DbnModel, GeneratedPackage, Numerics, RawModel, StateSpaceModel,
-    TemporalCausalGraph,
+    BondGraph, CausalBondGraph, DbnModel, FaultSignatures, GeneratedPackage, Numerics, RawModel,
+    StateSpaceModel, TemporalCausalGraph,
 )
 
 
@@ -34,6 +34,7 @@ class Compiled:
     causal: CausalBondGraph
     tcg: TemporalCausalGraph
     equations: StateSpaceModel
+    signatures: FaultSignatures
     dbn: DbnModel
     numerics: Numerics
     package: GeneratedPackage
@@ -46,10 +47,11 @@ def compile_model(path: str | Path) -> Compiled:
     causal = causality.assign(model)             # BondGraph -> CausalBondGraph
     graph = tcg.build(causal)                    # CausalBondGraph -> TemporalCausalGraph
     ssm = equations.derive(graph)                # TemporalCausalGraph -> StateSpaceModel
+    sigs = signatures.derive(ssm)                # StateSpaceModel -> FaultSignatures
     dbns = dbn.build(ssm)                        # StateSpaceModel -> DbnModel
     num = numerics.derive(dbns)                  # DbnModel -> Numerics
     package = codegen.generate(dbns, num)        # DbnModel, Numerics -> GeneratedPackage
-    return Compiled(raw, model, causal, graph, ssm, dbns, num, package)
+    return Compiled(raw, model, causal, graph, ssm, sigs, dbns, num, package)
 
 
 def assign_causality(path: str | Path) -> CausalBondGraph:
@@ -62,7 +64,7 @@ def generated_files(c: Compiled) -> dict[str, str]:
     """The text files of ``generated/<model>/``: every IR's dump, the package, the manifest."""
     from .output import artifacts
 
-    return artifacts.folder_files(c.dbn, c.package)
+    return artifacts.folder_files(c.dbn, c.signatures, c.package)
 
 
 def pictures(c: Compiled, engine: str = "auto") -> dict[str, bytes]:

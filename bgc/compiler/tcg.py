@@ -122,10 +122,30 @@ def build(cbg: CausalBondGraph) -> TemporalCausalGraph:
             g.add_edge(v, m.name, label="=" if bare else "signal", relation="measurement", element=None,
                        parameters=pnames, effects=tuple(_sign(sympy.diff(m.expr, sym(p)), point) for p in pnames),
                        sign=_sign(sympy.diff(m.expr, sym(v)), point), temporal=False)
+    _node_effects(g, params, point)
     simplified = _simplify(g, states)
     edges = tuple(TcgEdge(u, v, d["label"], d["relation"], d["element"], d["parameters"], d["effects"],
                           d["sign"], d["temporal"]) for u, v, d in sorted(g.edges(data=True), key=_edge_key))
     return TemporalCausalGraph(cbg, nx.freeze(g), nx.freeze(simplified), edges)
+
+
+def _node_effects(g: nx.DiGraph, params: set[str], point: dict[str, float]) -> None:
+    """Give every node the qualitative effect of each parameter of its relation
+    (``effects``: sorted (parameter, sign) pairs; the derivative's for a state):
+    the sign its in-edges carry, or, for a relation no edge carries a parameter
+    on (a source's value), the sign of the partial derivative at the operating
+    point. This is where a fault enters the TCG (TRANSCEND's forward
+    propagation starts here)."""
+    for v, d in g.nodes(data=True):
+        expr = d.get("derivative", d.get("definition"))
+        if expr is None:
+            continue
+        effects: dict[str, int | None] = {}
+        for _, _, e in g.in_edges(v, data=True):
+            effects.update(zip(e["parameters"], e["effects"]))
+        for p in sorted(s.name for s in expr.free_symbols if s.name in params and s.name not in effects):
+            effects[p] = _sign(sympy.diff(expr, sym(p)), point)
+        d["effects"] = tuple(sorted(effects.items()))
 
 
 def _edge_key(e: tuple) -> tuple:

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Mapping
 
 from ..errors import OutputError, printable
-from ..ir import PACKAGE, DbnModel, GeneratedPackage
+from ..ir import PACKAGE, DbnModel, FaultSignatures, GeneratedPackage
 from . import render
 
 MANIFEST = "manifest.json"
@@ -48,7 +48,7 @@ def header(comment: str, source: str) -> str:
     return f"{comment} {MARK} from {printable(source)}, do not edit\n"
 
 
-def folder_files(dbns: DbnModel, package: GeneratedPackage) -> dict[str, str]:
+def folder_files(dbns: DbnModel, signatures: FaultSignatures, package: GeneratedPackage) -> dict[str, str]:
     """Every deterministic text file of ``generated/<model>/``, by relative path."""
     ssm = dbns.equations
     tcg = ssm.tcg
@@ -63,6 +63,8 @@ def folder_files(dbns: DbnModel, package: GeneratedPackage) -> dict[str, str]:
         "equations.txt": header("#", src) + render.equations_text(ssm),
         "equations.tex": header("%", src) + render.equations_latex(ssm),
         "equations.json": render.to_json(render.equations_json(ssm)),
+        "signatures.txt": header("#", src) + render.signatures_text(signatures),
+        "signatures.json": render.to_json(render.signatures_json(signatures)),
     }
     for d in (dbns.nominal, *dbns.faulty):
         stem = dbn_file_stem(d.name)

@@ -12,7 +12,7 @@ from typing import Any
 import sympy
 
 from ..errors import printable
-from ..ir import CausalBondGraph, Dbn, StateSpaceModel, TemporalCausalGraph, var_key
+from ..ir import CausalBondGraph, Dbn, FaultSignatures, StateSpaceModel, TemporalCausalGraph, var_key
 from ..kinds import ELEMENT_KINDS, FAULT_KINDS, ROLES
 
 
@@ -165,6 +165,44 @@ def equations_json(ssm: StateSpaceModel) -> dict:
                     for y, h, m in zip(ssm.outputs, ssm.output_exprs, ssm.model.measurements)],
         "variables": {v: str(e) for v, e in ssm.variables},
         "algebraic_loops": [list(loop) for loop in ssm.loops],
+    }
+
+
+# ------------------------------------------------------------------ signatures
+def signatures_text(s: FaultSignatures) -> str:
+    """The signature table: one row per fault, symbols at orders 0..n per measurement."""
+    shown = max(s.orders, 1) + 1
+    model = s.equations.model.name
+    width = max([len(m) for m in s.measurements] + [shown])
+    name_width = max([len(x.name) for x in s.signatures] + [5])
+    lines = [f"# fault signatures of {model}: TRANSCEND forward propagation on the TCG",
+             f"# per measurement, the deviation at derivative orders 0..{shown - 1} (0: magnitude, a jump;"
+             " 1: slope; ...):",
+             "# + above nominal, - below, 0 none, ? undetermined; orders up to "
+             f"{s.orders} separate every pair of faults the full signatures separate",
+             f"{'fault':<{name_width}}  " + "  ".join(f"{m:<{width}}" for m in s.measurements) + "  first to deviate"]
+    for x in s.signatures:
+        cells = "  ".join(f"{''.join(sym_[:shown]):<{width}}" for sym_ in x.symbols)
+        lines.append(f"{x.name:<{name_width}}  {cells}  {', '.join(x.first) or '-'}")
+    lines.append("ambiguity groups (identical signatures): "
+                 + ("; ".join(", ".join(grp) for grp in s.ambiguity) if s.ambiguity else "none"))
+    lines.append("parameters that enter the model as one combination: "
+                 + ("; ".join(", ".join(grp) for grp in s.structural) if s.structural else "none"))
+    lines.append("undetectable with these sensors: " + (", ".join(s.undetectable) or "none"))
+    return "\n".join(lines) + "\n"
+
+
+def signatures_json(s: FaultSignatures) -> dict:
+    return {
+        "model": s.equations.model.name,
+        "measurements": list(s.measurements),
+        "orders": s.orders,
+        "signatures": [{"fault": x.name, "parameter": x.parameter, "direction": "+" if x.direction > 0 else "-",
+                        "kind": x.kind, "symbols": {m: "".join(sym_) for m, sym_ in zip(s.measurements, x.symbols)},
+                        "first": list(x.first)} for x in s.signatures],
+        "ambiguity_groups": [list(g) for g in s.ambiguity],
+        "structural_groups": [list(g) for g in s.structural],
+        "undetectable": list(s.undetectable),
     }
 
 

@@ -1,0 +1,196 @@
+"""Stage 6: :class:`~bgc.ir.StateSpaceModel` -> :class:`~bgc.ir.FaultSignatures`.
+
+TRANSCEND's fault signatures (Mosterman and Biswas, 1999; thesis section
+II.3.3), by forward propagation on the temporal causal graph.
+
+A fault is a parameter ``P``, a direction (``+``: it increases, ``-``: it
+decreases) and a kind. Its deviation enters the TCG at the relations that hold
+``P`` (each node's ``effects``: the sign of the relation's change when ``P``
+increases, at the operating point): an algebraic relation changes at once
+(derivative order 0), a state's derivative changes, so the state itself moves
+from order 1. A drifting fault kind (incipient) changes ``P`` continuously from
+zero, which moves every entry one order up. From there the deviations
+propagate, order by order: along an algebraic edge within the same order
+(times the edge's sign), along an integrating edge (``dt/C``, ``dt/I``) into the
+next order. Contributions of opposite signs to one variable at one order
+make it ambiguous (``?``); a sign the TCG cannot determine is ``?`` too.
+
+As in TRANSCEND, the fault strikes a plant at steady state: a relation's
+direct change from a parameter (``R f``) enters at one order only, its other
+variables' nominal trends being zero; and a variable that is 0 at the
+operating point (a capacitor's current at rest) counts as positive, so a
+capacitance or inertance fault has the signature it shows once the plant
+moves (at rest it changes nothing).
+
+The signature of a fault at a measurement is its symbols at orders 0, 1, ...:
+``+``, ``-``, ``0``, ``?``. TRANSCEND's (magnitude, slope) pair is orders 0
+and 1 for an abrupt fault; the first non-zero order says how soon the
+measurement deviates (a jump, a bend, ...), and the measurements with the
+lowest first order deviate first. :attr:`FaultSignatures.orders` is the
+lowest order up to which the signatures separate every pair of faults that
+the full signatures separate.
+
+Two lists say what the sensors cannot tell apart:
+
+* ``ambiguity``: faults with identical signatures at every measurement
+  (qualitatively indistinguishable: TRANSCEND keeps them together);
+* ``structural``: fault parameters that enter the model only as one
+  combination (their gradients of every state derivative and measurement
+  are parallel, e.g. a product ``R*C``): a change of one is, to first order,
+  exactly the change of the other, so no filter can separate them.
+
+Faults whose every symbol is 0 are ``undetectable`` with these sensors.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import networkx as nx
+import sympy
+
+from ..ir import FaultSignatures, Signature, StateSpaceModel, sym, var_key
+from ..kinds import fault_kind
+
+#: Directions of a fault candidate, as signs.
+DIRECTIONS = {"increase": (1,), "decrease": (-1,), "both": (1, -1)}
+
+
+def derive(ssm: StateSpaceModel) -> FaultSignatures:
+    """Signatures of every fault candidate, direction and kind of the model."""
+    tcg = ssm.tcg
+    g = tcg.graph
+    model = ssm.model
+    measured = _measured_nodes(g, ssm.outputs)
+    depth = len(ssm.states) + 2  # a path through every integrator, plus a drift's order
+    algebraic = nx.DiGraph()
+    algebraic.add_nodes_from(g.nodes)
+    algebraic.add_edges_from((u, v) for u, v, d in g.edges(data=True) if not d["temporal"])
+    order = _order(algebraic)
+    signatures = []
+    for fault in model.faults:
+        for kind in fault.kinds:
+            for direction in DIRECTIONS[fault.direction]:
+                dev = _propagate(g, order, fault.parameter, direction, int(fault_kind(kind).drifts), depth)
+                symbols = tuple(tuple(dev[measured[m]]) for m in ssm.outputs)
+                signatures.append(Signature(fault.parameter, direction, kind, symbols, _first(ssm.outputs, symbols)))
+    full = {s.name: (s.symbols, s.first) for s in signatures}
+    groups = _groups(full)
+    orders = next(k for k in range(depth + 1)
+                  if _groups({n: tuple(m[: k + 1] for m in sym_) for n, (sym_, _) in full.items()}) == groups)
+    undetectable = tuple(s.name for s in signatures if all(c == "0" for m in s.symbols for c in m))
+    return FaultSignatures(ssm, tuple(ssm.outputs), orders, tuple(signatures),
+                           tuple(g_ for g_ in groups if len(g_) > 1), _structural(ssm), undetectable)
+
+
+def _measured_nodes(g: nx.DiGraph, outputs: tuple[str, ...]) -> dict[str, str]:
+    """The TCG node of each measurement (a bond variable measured directly, or its own node)."""
+    out = {}
+    for n, d in g.nodes(data=True):
+        if d.get("measurement") in outputs:
+            out[d["measurement"]] = n
+    return out
+
+
+def _order(algebraic: nx.DiGraph) -> list[list[str]]:
+    """The algebraic relations in causal order: groups of nodes, a group being
+    one variable or the members of an algebraic loop."""
+    cond = nx.condensation(algebraic)
+    return [sorted(cond.nodes[c]["members"], key=var_key)
+            for c in nx.lexicographical_topological_sort(cond, key=lambda c: var_key(min(
+                cond.nodes[c]["members"], key=var_key)))]
+
+
+def qsum(a: str, b: str) -> str:
+    """Qualitative sum of two symbols: ``+`` and ``-`` make ``?``.
+
+    >>> qsum("+", "0"), qsum("+", "+"), qsum("+", "-"), qsum("?", "0")
+    ('+', '+', '?', '?')
+    """
+    if a == "0":
+        return b
+    if b == "0" or a == b:
+        return a
+    return "?"
+
+
+def qmul(sign: int | None, a: str) -> str:
+    """A symbol times an edge's sign (None: undetermined)."""
+    if a == "0" or sign == 0:
+        return "0"
+    if sign is None or a == "?":
+        return "?"
+    return a if sign > 0 else {"+": "-", "-": "+"}[a]
+
+
+def _propagate(g: nx.DiGraph, order: list[list[str]], parameter: str, direction: int, shift: int,
+               depth: int) -> dict[str, list[str]]:
+    """Symbols of every node at orders 0..depth for one fault."""
+    dev = {n: ["0"] * (depth + 1) for n in g.nodes}
+    seeds: dict[tuple[str, int], str] = {}
+    for n, d in g.nodes(data=True):
+        effect = dict(d.get("effects", ())).get(parameter, 0)
+        if effect == 0:
+            continue
+        k = shift + (1 if d["role"] == "state" else 0)
+        if k <= depth:
+            seeds[(n, k)] = qmul(effect, "+" if direction > 0 else "-")
+    temporal = [(u, v, d["sign"]) for u, v, d in g.edges(data=True) if d["temporal"]]
+    for k in range(depth + 1):
+        for (n, at), s in seeds.items():
+            if at == k:
+                dev[n][k] = qsum(dev[n][k], s)
+        if k > 0:
+            for u, v, sign in temporal:
+                dev[v][k] = qsum(dev[v][k], qmul(sign, dev[u][k - 1]))
+        for group in order:
+            # a loop is swept until nothing changes (symbols only move up to '?')
+            for _ in range(2 * len(group) + 1 if len(group) > 1 else 1):
+                for v in group:
+                    if g.nodes[v]["role"] == "state":
+                        continue
+                    total = seeds.get((v, k), "0")
+                    for u, _, d in g.in_edges(v, data=True):
+                        if not d["temporal"]:
+                            total = qsum(total, qmul(d["sign"], dev[u][k]))
+                    dev[v][k] = total
+    return dev
+
+
+def _first(outputs: tuple[str, ...], symbols: tuple[tuple[str, ...], ...]) -> tuple[str, ...]:
+    """The measurements whose first non-zero symbol comes at the lowest order."""
+    first = {m: next((k for k, c in enumerate(s) if c != "0"), None) for m, s in zip(outputs, symbols)}
+    seen = [k for k in first.values() if k is not None]
+    if not seen:
+        return ()
+    return tuple(m for m in outputs if first[m] == min(seen))
+
+
+def _groups(signatures: dict) -> tuple[tuple[str, ...], ...]:
+    """Fault names grouped by equal signatures, each group and the list sorted."""
+    by: dict = {}
+    for name, key in signatures.items():
+        by.setdefault(key, []).append(name)
+    return tuple(sorted(tuple(sorted(v)) for v in by.values()))
+
+
+def _structural(ssm: StateSpaceModel) -> tuple[tuple[str, ...], ...]:
+    """Groups of fault parameters whose gradients of every state derivative
+    and measurement are parallel (every 2 x 2 minor cancels to 0): they enter
+    the model as one combination."""
+    exprs = list(ssm.rhs) + list(ssm.output_exprs)
+    params = sorted({f.parameter for f in ssm.model.faults})
+    grad = {p: [sympy.diff(e, sym(p)) for e in exprs] for p in params}
+    constants = {sym(x) for x in ssm.parameters}
+    linked = nx.Graph()
+    linked.add_nodes_from(params)
+    for p, q in itertools.combinations(params, 2):
+        a, b = grad[p], grad[q]
+        if any((x == 0) != (y == 0) for x, y in zip(a, b)):
+            continue
+        rows = [i for i, x in enumerate(a) if x != 0]
+        if not rows or any(sympy.cancel(a[i] * b[j] - a[j] * b[i]) != 0 for i, j in itertools.combinations(rows, 2)):
+            continue
+        if sympy.cancel(a[rows[0]] / b[rows[0]]).free_symbols <= constants:  # the same constant ratio everywhere
+            linked.add_edge(p, q)
+    return tuple(sorted(tuple(sorted(c)) for c in nx.connected_components(linked) if len(c) > 1))
