@@ -1,0 +1,440 @@
+"""Diagnosis: is the plant faulty, which fault, when, how large, how sure.
+
+The architecture of the thesis (Fig. II.5, sections II.3.3, II.4 and IV.2.1),
+with the onset, not the detection time, as the hand-over:
+
+1. **Track** the plant with the nominal observer (a generated particle
+   filter), one step at a time, keeping its particle clouds of the last
+   ``history`` steps.
+2. **Detect** with the sliding-window Z-test on its normalised residuals
+   (:mod:`bgc.runtime.detect`), and estimate the onset.
+3. **Isolate qualitatively**: stop the observer, run its cloud at the onset
+   open loop, read each sensor's first deviation and keep the faults whose
+   TRANSCEND signatures agree (:mod:`bgc.runtime.isolate`).
+4. **Isolate and identify quantitatively**: for each remaining (parameter,
+   kind), the generated fault-model filter starts at the onset from the
+   nominal cloud of that time, lifted into the fault model with the fault
+   magnitude drawn from its prior, and runs to the end of the data, estimating
+   the magnitude jointly with the state. The filters are independent and run
+   in parallel processes.
+5. **Drop** every hypothesis whose filter cannot follow the data: the same
+   windowed Z-test on its own normalised residuals, with a probability
+   ``rejection`` of dropping the true hypothesis over the run.
+6. **Weigh** the hypotheses by the probability the data give each: the
+   product of each filter's one-step predictive densities (their Gaussian
+   approximation, mean and std of the predicted measurement), over a common
+   span (the nominal filter's densities before a later onset), averaged over
+   the onsets tried, times the candidate's prior. A survivor less probable
+   than the best by a Bayes factor above ``bayes_factor`` is dropped too. The
+   survivors are the diagnosis; when several survive, they form an ambiguity
+   group, ranked by probability, each with its estimate.
+
+The onset is a parameter too: each hypothesis is tried from the detector's
+change point and from a grid of earlier steps (``spacing`` apart, back to
+``history`` steps before the alarm), and the onsets are weighed like the
+hypotheses; a slow drift is detected long after it began, and starting its
+filter late biases the slope.
+
+**Identification.** The fault magnitude (a bias for an abrupt fault, a slope
+for an incipient one) is a state of the fault model, with a small random walk
+(per step std: a fraction of |theta| for a bias, of the prior's width for a
+slope; :mod:`bgc.kinds`). After every step its particles get Liu and West's
+(2001) kernel move with shrinkage ``shrinkage`` (a = 0.98, a discount of
+about 0.99): the weighted mean and variance are kept, and the particles that
+resampling duplicated become distinct again, so the cloud does not collapse
+onto a few values while the data narrow the magnitude down. The cloud at the
+last step gives the estimate (its weighted mean) and a central interval
+(weighted quantiles).
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from types import ModuleType
+
+import numpy as np
+
+from ..errors import TrackingError
+from ..ir import FaultSignatures
+from ..kinds import fault_kind
+from .detect import Detection, Detector, DetectorOptions
+from .isolate import Symbol, hypotheses, observed_symbols
+from .runs import Run
+from .track import check_particles, run_arrays
+
+
+@dataclass(frozen=True, slots=True)
+class DiagnosisOptions:
+    """``false_alarm``: the detector's probability of any alarm in a
+    fault-free run; ``rejection``: the probability of dropping the true
+    hypothesis over the run; ``windows``: the Z-tests' window lengths;
+    ``history``: how far before the detection the onset is looked for (and
+    the nominal clouds kept); ``spacing``: steps between the onsets tried
+    (the detector's estimate is always one); ``symbol_steps``: open-loop
+    steps read for the symbols; ``interval``: probability of the reported interval;
+    ``bayes_factor``: a surviving hypothesis this many times less probable
+    than the best is dropped (100: "decisive" on Jeffreys' scale);
+    ``workers``: parallel processes for the hypothesis filters (1: in this
+    process)."""
+
+    method: str = "gpf"
+    particles: int = 200
+    seed: int = 0
+    false_alarm: float = 0.01
+    rejection: float = 0.001
+    windows: tuple[int, ...] = (1, 8, 32)
+    history: int = 64
+    spacing: int = 4
+    symbol_steps: int = 30
+    interval: float = 0.95
+    bayes_factor: float = 100.0
+    shrinkage: float = 0.98
+    workers: int = 2
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """The fault magnitude at the end of the run: ``magnitude`` names it (bias
+    or slope), ``value`` its mean, ``low`` and ``high`` the interval of
+    probability ``level``; ``parameter_value``: the faulty parameter's value
+    (nominal + bias, or at the last step for a drift); ``truth`` when the
+    run records it."""
+
+    parameter: str
+    kind: str
+    magnitude: str
+    value: float
+    std: float
+    low: float
+    high: float
+    level: float
+    parameter_value: float
+    nominal: float
+    truth: float | None = None
+
+    @property
+    def covers(self) -> bool | None:
+        return None if self.truth is None else bool(self.low <= self.truth <= self.high)
+
+    @property
+    def relative_error(self) -> float | None:
+        return None if self.truth is None else abs(self.value - self.truth) / abs(self.truth or 1.0)
+
+
+@dataclass(frozen=True, slots=True)
+class Hypothesis:
+    """One fault model: its filters from every onset tried (``onsets``, with
+    their posterior probabilities), and from the most probable one
+    (``start``) its per-step predicted measurements, normalised residuals and
+    magnitude (mean, interval), when it was dropped and why (None: it
+    survived), its log evidence (over the onsets) and posterior probability
+    among the hypotheses."""
+
+    name: str
+    parameter: str
+    kind: str
+    signatures: tuple[str, ...]
+    start: int
+    onsets: tuple[int, ...]
+    onset_posterior: tuple[float, ...]
+    y_mean: np.ndarray
+    y_std: np.ndarray
+    z: np.ndarray
+    magnitude: np.ndarray
+    magnitude_band: np.ndarray
+    dropped: int | None
+    reason: str
+    log_evidence: float
+    posterior: float
+    estimate: Estimate
+    seconds: float
+
+
+@dataclass(frozen=True, slots=True)
+class Diagnosis:
+    """What :func:`diagnose` found. ``verdict``: ``no fault``, ``isolated``
+    (one hypothesis survives), ``ambiguous`` (several do: ``candidates``, best
+    first) or ``unexplained`` (none does; ``candidates`` then holds the one
+    that lasted longest). Steps are indices into the run."""
+
+    model: str
+    time: np.ndarray
+    outputs: tuple[str, ...]
+    verdict: str
+    detection: Detection | None
+    onset: int | None
+    symbols: tuple[Symbol, ...]
+    refuted: tuple[tuple[str, str], ...]
+    hypotheses: tuple[Hypothesis, ...]
+    candidates: tuple[str, ...]
+    nominal_y_mean: np.ndarray
+    nominal_y_std: np.ndarray
+    nominal_z: np.ndarray
+    statistics: np.ndarray
+    threshold: float
+    options: DiagnosisOptions
+    seconds: float
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def best(self) -> Hypothesis | None:
+        if not self.candidates:
+            return None
+        return next(h for h in self.hypotheses if h.name == self.candidates[0])
+
+    @property
+    def estimate(self) -> Estimate | None:
+        return self.best.estimate if self.best is not None else None
+
+    def time_of(self, step: int | None) -> float | None:
+        return None if step is None else float(self.time[step])
+
+
+def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors: dict[str, float],
+             options: DiagnosisOptions = DiagnosisOptions(), progress=None) -> Diagnosis:
+    """Diagnose a recorded run with a generated package and the model's signatures.
+
+    ``priors``: each fault candidate's prior probability (the model's
+    ``faults: ... prior``); ``progress(text)``, when given, is told what is
+    being done.
+    """
+    started = time.perf_counter()
+    say = progress or (lambda text: None)
+    nominal = package.MODELS["nominal"]
+    check_particles(options.particles, package, "nominal")
+    if options.method not in ("gpf", "apf"):
+        raise TrackingError(f"unknown filter {options.method!r}", None, "use gpf or apf")
+    ys, us = run_arrays(run, package, "nominal")
+    T, n_y = ys.shape
+    outputs = tuple(nominal.OUTPUTS)
+    cls = {"gpf": package.filters.GenericParticleFilter, "apf": package.filters.AuxiliaryParticleFilter}
+    rng = np.random.default_rng([options.seed, 0])
+    pf = cls[options.method](nominal, options.particles, rng)
+    detector = Detector(outputs, DetectorOptions(options.false_alarm, options.windows, T))
+    clouds: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # step -> cloud after that step
+    y_mean = np.full((T, n_y), np.nan)
+    y_std = np.full((T, n_y), np.nan)
+    z = np.full((T, n_y), np.nan)
+    detection = None
+    say("tracking the nominal model")
+    with np.errstate(all="ignore"):
+        for k in range(T):
+            r = pf.step(ys[k], us[k])
+            y_mean[k], y_std[k] = r.y_mean, r.y_std
+            z[k] = (ys[k] - r.y_mean) / r.y_std
+            if detection is None:
+                clouds[k] = (pf.x.copy(), pf.logw.copy())
+                clouds.pop(k - options.history - 1, None)
+                detection = detector.update(z[k])
+                if detection is not None:
+                    say(f"fault detected at t = {run.time[k]:g} on {detection.sensor}")
+    statistics = np.array(detector.statistics + [np.full(n_y, np.nan)] * (T - len(detector.statistics)))
+    common = dict(model=nominal.MODEL, time=run.time, outputs=outputs, nominal_y_mean=y_mean,
+                  nominal_y_std=y_std, nominal_z=z, statistics=statistics, threshold=detector.threshold,
+                  options=options)
+    if detection is None:
+        return Diagnosis(verdict="no fault", detection=None, onset=None, symbols=(), refuted=(), hypotheses=(),
+                         candidates=(), seconds=time.perf_counter() - started, **common)
+    notes = []
+    # onsets tried: the detector's estimate and a grid back to `history` steps before the alarm
+    starts = sorted({detection.onset, *range(detection.step, max(0, detection.step - options.history) - 1,
+                                               -options.spacing)})
+    # 3. qualitative isolation on the open-loop nominal prediction from the detector's onset
+    say("reading the symbols of the deviating sensors")
+    onset = detection.onset
+    steps = min(T - onset, max(options.symbol_steps, detection.step - onset + 1))
+    seen = observed_symbols(_open_loop(cls[options.method], nominal, _cloud(clouds, onset), ys, us, onset, steps,
+                                       options), outputs, onset)
+    keep, dropped = hypotheses(signatures, seen)
+    if not keep:
+        notes.append("no fault signature agrees with the observed symbols: every fault model is tried")
+        keep = list(signatures.signatures)
+    refuted = tuple((s.name, why) for s, why in dropped)
+    models: dict[str, list[str]] = {}
+    for s in keep:
+        models.setdefault(f"{s.parameter}_{s.kind}", []).append(s.name)
+    names = [n for n in sorted(models) if n in package.MODELS]
+    # 4. every fault-model filter from every onset tried, in parallel
+    jobs = [(name, package.__name__, options.method, options.particles, [options.seed, 1 + i, start],
+             _cloud(clouds, start), ys[start:], us[start:], options.interval, options.shrinkage)
+            for i, name in enumerate(names) for start in starts]
+    say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from {len(starts)} onsets "
+        f"(t = {run.time[starts[0]]:g} to {run.time[starts[-1]]:g})")
+    results = dict(zip(((j[0], j[6].shape[0]) for j in jobs), _run_all(jobs, options.workers)))
+    # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
+    nominal_density = np.where(np.isfinite(z), -0.5 * z ** 2 - np.log(y_std), 0.0).sum(axis=1)
+    first = starts[0]
+    hyps = []
+    for name in names:
+        module = package.MODELS[name]
+        evidence = []
+        for start in starts:
+            out = results[(name, T - start)]
+            zh = (ys[start:] - out["y_mean"]) / out["y_std"]
+            density = np.where(np.isfinite(zh), -0.5 * zh ** 2 - np.log(out["y_std"]), 0.0).sum(axis=1)
+            evidence.append(float(nominal_density[first:start].sum() + density.sum()))
+        evidence = np.array(evidence)
+        best = int(np.argmax(evidence))
+        start = starts[best]
+        out = results[(name, T - start)]
+        zh = (ys[start:] - out["y_mean"]) / out["y_std"]
+        check = Detector(outputs, DetectorOptions(options.rejection, options.windows, len(zh)))
+        dropped_at, reason = None, ""
+        for k in range(len(zh)):
+            a = check.update(zh[k])
+            if a is not None:
+                dropped_at = start + k
+                reason = (f"its residual of {a.sensor} over {a.window} sample(s) reached {a.statistic:.1f} "
+                          f"(threshold {a.threshold:.1f})")
+                break
+        onset_weights = np.exp(evidence - evidence.max())
+        onset_weights /= onset_weights.sum()
+        log_evidence = float(evidence.max() + math.log(np.mean(np.exp(evidence - evidence.max()))))
+        hyps.append(dict(name=name, parameter=module.FAULT["parameter"], kind=module.FAULT["kind"],
+                         signatures=tuple(models[name]), start=start, onsets=tuple(starts),
+                         onset_posterior=tuple(float(w) for w in onset_weights),
+                         y_mean=out["y_mean"], y_std=out["y_std"], z=zh, magnitude=out["magnitude"],
+                         magnitude_band=out["band"], dropped=dropped_at, reason=reason,
+                         log_evidence=log_evidence, seconds=sum(results[(name, T - s)]["seconds"] for s in starts),
+                         estimate=_estimate(module, out, run, options.interval)))
+    weights = np.array([math.log(max(priors.get(h["parameter"], 0.01), 1e-300)) + h["log_evidence"] for h in hyps])
+    weights = np.exp(weights - weights.max()) if len(weights) else weights
+    weights = weights / weights.sum() if len(weights) else weights
+    top = max(weights) if len(weights) else 0.0
+    for h, w in zip(hyps, weights):  # 6. decisively less probable than the best: dropped as well
+        if h["dropped"] is None and w < top / options.bayes_factor:
+            h["dropped"] = T - 1
+            h["reason"] = (f"the data favour another hypothesis by a Bayes factor above {options.bayes_factor:g} "
+                           f"(posterior {w:.2g})")
+    hypothesis_list = tuple(Hypothesis(posterior=float(w), **h) for h, w in zip(hyps, weights))
+    survivors = sorted((h for h in hypothesis_list if h.dropped is None), key=lambda h: -h.posterior)
+    if len(survivors) == 1:
+        verdict, candidates = "isolated", (survivors[0].name,)
+    elif survivors:
+        verdict, candidates = "ambiguous", tuple(h.name for h in survivors)
+    elif hypothesis_list:
+        last = max(hypothesis_list, key=lambda h: (h.dropped, h.posterior))
+        verdict, candidates = "unexplained", (last.name,)
+    else:
+        verdict, candidates = "unexplained", ()
+    best_onset = next((h.start for h in hypothesis_list if candidates and h.name == candidates[0]), onset)
+    say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
+    return Diagnosis(verdict=verdict, detection=detection, onset=best_onset, symbols=seen, refuted=refuted,
+                     hypotheses=hypothesis_list, candidates=candidates, seconds=time.perf_counter() - started,
+                     notes=tuple(notes), **common)
+
+
+def _cloud(clouds: dict, start: int):
+    """The nominal cloud after the step before ``start`` (None: start at the model's prior)."""
+    before = [k for k in clouds if k < start]
+    return clouds[max(before)] if before else None
+
+
+def _open_loop(cls, nominal, cloud, ys, us, onset, steps, options) -> np.ndarray:
+    """Normalised deviations of the data from the nominal model run open loop
+    from the cloud before the onset (the observer stopped): steps x sensors."""
+    rng = np.random.default_rng([options.seed, 9999])
+    x = None if cloud is None else cloud[0][:, _resample(cloud[1], rng)]
+    pf = cls(nominal, options.particles, rng, x=x)
+    blind = np.full(ys.shape[1], np.nan)
+    out = np.empty((steps, ys.shape[1]))
+    with np.errstate(all="ignore"):
+        for t in range(steps):
+            r = pf.step(blind, us[onset + t])
+            out[t] = (ys[onset + t] - r.y_mean) / r.y_std
+    return out
+
+
+def _resample(logw: np.ndarray, rng) -> np.ndarray:
+    w = np.exp(logw - logw.max())
+    w /= w.sum()
+    n = len(w)
+    positions = (rng.random() + np.arange(n)) / n
+    return np.minimum(np.searchsorted(np.cumsum(w), positions), n - 1)
+
+
+def _weighted_quantiles(values: np.ndarray, logw: np.ndarray, qs) -> np.ndarray:
+    w = np.exp(logw - logw.max())
+    order = np.argsort(values)
+    c = np.cumsum(w[order])
+    c /= c[-1]
+    return np.interp(qs, c - 0.5 * w[order] / w.sum(), values[order])
+
+
+def _run_hypothesis(job) -> dict:
+    """One fault-model filter from the onset (run in a worker process)."""
+    import sys
+
+    name, package_name, method, particles, seed, cloud, ys, us, level, shrinkage = job
+    package = sys.modules[package_name]
+    module = package.MODELS[name]
+    cls = {"gpf": package.filters.GenericParticleFilter, "apf": package.filters.AuxiliaryParticleFilter}[method]
+    rng = np.random.default_rng(seed)
+    started = time.perf_counter()
+    x0 = None
+    if cloud is not None:
+        x0 = module.augment(cloud[0][:, _resample(cloud[1], rng)], rng)
+    pf = cls(module, particles, rng, x=x0)
+    T = len(ys)
+    k_mag = len(module.STATES) - 1
+    out = {"y_mean": np.empty((T, ys.shape[1])), "y_std": np.empty((T, ys.shape[1])),
+           "magnitude": np.empty(T), "band": np.empty((T, 2)), "mean": np.empty((T, len(module.STATES))),
+           "std": np.empty((T, len(module.STATES)))}
+    tail = (1.0 - level) / 2.0
+    with np.errstate(all="ignore"):
+        for k in range(T):
+            r = pf.step(ys[k], us[k])
+            _kernel_shrinkage(pf.x[k_mag], pf.logw, shrinkage, rng)
+            out["y_mean"][k], out["y_std"][k] = r.y_mean, r.y_std
+            out["mean"][k], out["std"][k] = r.mean, r.std
+            out["magnitude"][k] = r.mean[k_mag]
+            out["band"][k] = _weighted_quantiles(pf.x[k_mag], pf.logw, [tail, 1.0 - tail])
+    out["final_std"] = float(out["std"][-1, k_mag])
+    out["parameter_value"] = float(np.exp(pf.logw - pf.logw.max()) @ module.parameter_value(pf.x, pf.theta)
+                                   / np.exp(pf.logw - pf.logw.max()).sum())
+    out["seconds"] = time.perf_counter() - started
+    return out
+
+
+def _kernel_shrinkage(theta: np.ndarray, logw: np.ndarray, a: float, rng) -> None:
+    """Liu and West's (2001) kernel move of a static parameter's particles, in
+    place: theta <- a theta + (1 - a) mean + sqrt(1 - a^2) std N(0, 1), which
+    keeps the weighted mean and variance and gives particles that resampling
+    duplicated distinct values again (so the cloud does not collapse onto a
+    few values of the magnitude)."""
+    if a >= 1.0:
+        return
+    w = np.exp(logw - logw.max())
+    w /= w.sum()
+    mean = float(w @ theta)
+    std = math.sqrt(max(float(w @ (theta - mean) ** 2), 0.0))
+    theta *= a
+    theta += (1.0 - a) * mean + math.sqrt(1.0 - a * a) * std * rng.standard_normal(theta.shape[0])
+
+
+def _run_all(jobs: list, workers: int) -> list[dict]:
+    if workers <= 1 or len(jobs) <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+        return [_run_hypothesis(j) for j in jobs]
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)),
+                             mp_context=multiprocessing.get_context("fork")) as pool:
+        return list(pool.map(_run_hypothesis, jobs))
+
+
+def _estimate(module, out: dict, run: Run, level: float) -> Estimate:
+    p, kind_name = module.FAULT["parameter"], module.FAULT["kind"]
+    kind = fault_kind(kind_name)
+    nominal = dict(zip(module.PARAMETERS, module.THETA))[p]
+    truth = None
+    recorded = run.parameters.get(p)
+    if recorded is not None and len(recorded) > 1:
+        if kind.drifts:
+            truth = float((recorded[-1] - recorded[-2]) / (run.time[-1] - run.time[-2]))
+        else:
+            truth = float(recorded[-1] - nominal)
+    return Estimate(p, kind_name, kind.magnitude, float(out["magnitude"][-1]), out["final_std"],
+                    float(out["band"][-1, 0]), float(out["band"][-1, 1]), level, out["parameter_value"],
+                    nominal, truth)
