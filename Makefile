@@ -19,7 +19,8 @@ demo: $(STAMP)
 	$(BIN)/bgc simulate models/ro.yaml --steps 300 --fault R_pipe:incipient:0.5@165 --noise process=0.03,measurement=0.02 --seed 1 -o out/ro-run.csv --plot out/ro-run.png
 	$(BIN)/bgc filter models/ro.yaml out/ro-run.csv --generated out/generated --plot out/ro-nominal-filter.png
 	$(BIN)/bgc filter models/ro.yaml out/ro-run.csv --generated out/generated --fault R_pipe:incipient --start 167 --plot out/ro-R_pipe-incipient-filter.png
-	@echo "demo: pictures and data in out/"
+	$(BIN)/bgc diagnose models/ro.yaml --data out/ro-run.csv --noise process=0.03,measurement=0.02 --generated out/generated -o out/diagnosis
+	@echo "demo: pictures and data in out/; the diagnosis report is out/diagnosis/report.md (plots beside it)"
 
 test: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m pytest

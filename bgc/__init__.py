@@ -34,3 +34,13 @@ logw, ancestors, ess
 """
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    """``bgc.diagnose`` and ``bgc.DiagnosisReport`` (:mod:`bgc.api`), imported
+    on first use so that ``import bgc`` stays light."""
+    if name in ("diagnose", "DiagnosisReport"):
+        from . import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'bgc' has no attribute {name!r}")

@@ -232,6 +232,73 @@ def cmd_filter(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    import json
+
+    from . import api
+    from .output import artifacts, plots, report
+
+    if (args.data is None) == (args.scenario is None):
+        raise BgcError("give --data RUN.csv or --scenario PARAM:KIND:MAGNITUDE@TIME", None,
+                       "e.g. --scenario R_pipe:incipient:0.5@165, or --scenario none for a fault-free run")
+    process, measurement = _parse_noise(args.noise)
+    progress = _Progress()
+    try:
+        r = api.diagnose(args.model, data=args.data, scenario=args.scenario, method=args.filter,
+                         particles=args.particles, seed=args.seed, process_noise=process,
+                         measurement_noise=measurement, steps=args.steps, generated=args.generated,
+                         progress=progress)
+    finally:
+        progress.close()
+    files: dict[str, str | bytes] = {
+        "report.json": json.dumps(report.report_data(r), indent=2, sort_keys=True) + "\n",
+        "report.md": report.report_markdown(r),
+    }
+    files.update(plots.diagnosis_figures(r))
+    if args.scenario is not None:
+        from .runtime import runs
+
+        files["run.csv"] = runs.run_csv(r.run)
+    files["manifest.json"] = artifacts.manifest(files, model=r.model)
+    out = Path(args.output or f"{r.model}-diagnosis")
+    artifacts.write_folder(out, files)
+    d = r.diagnosis
+    print(f"{r.model}: {d.verdict}" + (f": {', '.join(d.candidates)}" if d.candidates else ""))
+    if d.detection is not None:
+        print(f"  detected at t = {d.time_of(d.detection.step):g} ({d.detection.sensor}), "
+              f"onset t = {d.time_of(d.onset):g}")
+    e = d.estimate
+    if e is not None and d.verdict != "no fault":
+        truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
+        print(f"  {e.magnitude} of {e.parameter}: {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}] "
+              f"({100 * e.level:.0f} %){truth}")
+    print(f"wrote {printable(str(out))}/: report.md, report.json, {len(files) - 3} more files "
+          f"({d.seconds:.1f} s)")
+    return 0
+
+
+class _Progress:
+    """One line on stderr saying what is being done, rewritten in place, on a
+    terminal (stderr then holds only errors when it is a file or a pipe)."""
+
+    def __init__(self):
+        self.tty = sys.stderr.isatty()
+        self.width = 0
+
+    def __call__(self, text: str) -> None:
+        if not self.tty:
+            return
+        line = printable(f"bgc diagnose: {text}")
+        sys.stderr.write("\r" + line.ljust(self.width))
+        sys.stderr.flush()
+        self.width = len(line)
+
+    def close(self) -> None:
+        if self.tty and self.width:
+            sys.stderr.write("\r" + " " * self.width + "\r")
+            sys.stderr.flush()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bgc", description="Bond-graph model compiler for model-based fault diagnosis.")
@@ -284,6 +351,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="where bgc compile wrote the package (its -o DIR; default: generated)")
     p.add_argument("--plot", metavar="FILE.png")
     p.set_defaults(run=cmd_filter)
+
+    p = sub.add_parser("diagnose", help="detect, isolate and identify a fault in a run (report and plots)")
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--data", metavar="RUN.csv", help="a recorded run (a CSV as bgc simulate writes)")
+    p.add_argument("--scenario", metavar="PARAM:KIND:MAGNITUDE@TIME",
+                   help="simulate this fault (or 'none'), then diagnose, e.g. R_pipe:incipient:0.5@165")
+    p.add_argument("--filter", choices=["gpf", "apf"], default="gpf")
+    p.add_argument("--particles", type=int, default=1000)
+    p.add_argument("--seed", type=_seed, default=0, help="random seed, an integer >= 0")
+    p.add_argument("--noise", metavar="process=Q,measurement=R",
+                   help="relative noise levels of the data (and of a simulated scenario); default: the model's")
+    p.add_argument("--steps", type=int, default=None, help="with --scenario: samples to simulate")
+    p.add_argument("--generated", metavar="DIR",
+                   help="use the package bgc compile wrote there (default: generate one for this run)")
+    p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-diagnosis)")
+    p.set_defaults(run=cmd_diagnose)
     return parser
 
 

@@ -84,6 +84,14 @@ def folder_files(dbns: DbnModel, signatures: FaultSignatures, package: Generated
     return dict(sorted(files.items()))
 
 
+def manifest(files: Mapping[str, str | bytes], **fields) -> str:
+    """``manifest.json`` of a folder bgc writes: ``fields`` and the SHA-256 of
+    every file (what a later write may replace or remove)."""
+    digests = {p: hashlib.sha256(c.encode("utf-8") if isinstance(c, str) else c).hexdigest()
+               for p, c in sorted(files.items())}
+    return render.to_json({"generated_by": "bgc", **fields, "files": digests})
+
+
 def picture_names(dbns: DbnModel) -> list[str]:
     """The pictures of ``generated/<model>/`` (their bytes depend on the renderer)."""
     return ["tcg.svg"] + [f"dbn/{dbn_file_stem(d.name)}.svg" for d in (dbns.nominal, *dbns.faulty)]

@@ -86,3 +86,109 @@ def tracking_figure(run, results, fmt: str = "png") -> bytes:
     axes[0].set_title(f"{first.model}: filter estimates (bands: +-2 std)")
     axes[-1].set_xlabel("time")
     return _save(plt, fig, fmt)
+
+
+# ------------------------------------------------------------------ diagnosis
+_COLORS = ["#2060c0", "#20a040", "#c08020", "#8040c0", "#c04080", "#40a0a0"]
+
+
+def _marks(ax, d) -> None:
+    """Vertical marks: onset (dashed) and detection (solid)."""
+    if d.onset is not None:
+        ax.axvline(d.time[d.onset], color="#808080", ls="--", lw=0.9)
+    if d.detection is not None:
+        ax.axvline(d.time[d.detection.step], color="#c03030", ls="-", lw=0.9)
+
+
+def diagnosis_measurements(r, fmt: str = "png") -> bytes:
+    """Measurements and the nominal observer's predicted measurements (mean +-
+    2 std), onset and detection marked (thesis Fig. IV.4)."""
+    d, run = r.diagnosis, r.run
+    plt, fig, axes = _figure(len(d.outputs))
+    for j, name in enumerate(d.outputs):
+        ax = axes[j]
+        ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
+        ax.plot(d.time, d.nominal_y_mean[:, j], "-", lw=1.0, color="#2060c0", label="nominal observer")
+        ax.fill_between(d.time, d.nominal_y_mean[:, j] - 2 * d.nominal_y_std[:, j],
+                        d.nominal_y_mean[:, j] + 2 * d.nominal_y_std[:, j], color="#2060c0", alpha=0.15, lw=0)
+        _marks(ax, d)
+        ax.set_ylabel(name)
+    axes[0].legend(loc="best", fontsize=7)
+    axes[0].set_title(f"{d.model}: measurements and the nominal observer (dashed: onset, red: detection)")
+    axes[-1].set_xlabel("time")
+    return _save(plt, fig, fmt)
+
+
+def diagnosis_residuals(r, fmt: str = "png") -> bytes:
+    """Each sensor's normalised residual and its largest windowed |Z|, with the
+    detection threshold and mark."""
+    d = r.diagnosis
+    plt, fig, axes = _figure(len(d.outputs))
+    for j, name in enumerate(d.outputs):
+        ax = axes[j]
+        ax.plot(d.time, d.nominal_z[:, j], ".", ms=2.5, color="#808080", label="normalised residual")
+        ax.plot(d.time, d.statistics[:, j], "-", lw=1.0, color="#2060c0", label="largest windowed |Z|")
+        ax.axhline(d.threshold, color="#c03030", ls=":", lw=1.0, label=f"threshold {d.threshold:.2f}")
+        _marks(ax, d)
+        ax.set_ylabel(name)
+    axes[0].legend(loc="best", fontsize=7)
+    axes[0].set_title(f"{d.model}: detection (false-alarm probability {d.options.false_alarm:g} per run)")
+    axes[-1].set_xlabel("time")
+    return _save(plt, fig, fmt)
+
+
+def diagnosis_hypotheses(r, fmt: str = "png") -> bytes:
+    """Each hypothesis's predicted measurements against the data from its
+    onset, a cross where it was dropped (thesis Fig. IV.6)."""
+    d, run = r.diagnosis, r.run
+    plt, fig, axes = _figure(len(d.outputs))
+    for j, name in enumerate(d.outputs):
+        ax = axes[j]
+        ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
+        for h, c in zip(sorted(d.hypotheses, key=lambda h: -h.posterior), _COLORS * 4):
+            t = d.time[h.start:]
+            style = "-" if h.dropped is None else ":"
+            ax.plot(t, h.y_mean[:, j], style, lw=1.0, color=c, label=f"{h.name} (p = {h.posterior:.2g})")
+            if h.dropped is not None:
+                ax.plot(d.time[h.dropped], h.y_mean[h.dropped - h.start, j], "X", color=c, ms=6)
+        _marks(ax, d)
+        ax.set_ylabel(name)
+    if d.hypotheses:
+        axes[0].legend(loc="best", fontsize=6)
+    axes[0].set_title(f"{d.model}: fault hypotheses' predicted measurements (dotted: dropped, X: where)")
+    axes[-1].set_xlabel("time")
+    return _save(plt, fig, fmt)
+
+
+def diagnosis_estimate(r, fmt: str = "png") -> bytes:
+    """The fault magnitude of the diagnosed hypotheses over time, its interval
+    and the truth when known (thesis Fig. IV.7)."""
+    d, run = r.diagnosis, r.run
+    shown = [h for h in d.hypotheses if h.name in d.candidates] or list(d.hypotheses[:1])
+    plt, fig, axes = _figure(max(1, len(shown)), height_per_row=2.4)
+    for ax, h, c in zip(axes, shown, _COLORS * 4):
+        t = d.time[h.start:]
+        e = h.estimate
+        ax.plot(t, h.magnitude, "-", lw=1.2, color=c, label="estimate")
+        ax.fill_between(t, h.magnitude_band[:, 0], h.magnitude_band[:, 1], color=c, alpha=0.2, lw=0,
+                        label=f"{100 * e.level:.0f} % interval")
+        truth = run.parameters.get(h.parameter)
+        if truth is not None and fault_kind(h.kind).drifts:
+            ax.plot(run.time, np.gradient(truth, run.time), "-", lw=1.0, color="#202020", label="truth")
+        elif truth is not None:
+            ax.plot(run.time, truth - e.nominal, "-", lw=1.0, color="#202020", label="truth")
+        _marks(ax, d)
+        ax.set_ylabel(f"{e.magnitude} of {h.parameter}")
+        ax.legend(loc="best", fontsize=7)
+    axes[0].set_title(f"{d.model}: fault magnitude" + (f" ({d.verdict})" if d.hypotheses else ": no fault"))
+    axes[-1].set_xlabel("time")
+    return _save(plt, fig, fmt)
+
+
+def diagnosis_figures(r) -> dict[str, bytes]:
+    """Every diagnosis picture, by file name."""
+    figures = {"measurements.png": diagnosis_measurements(r), "residuals.png": diagnosis_residuals(r)}
+    if r.diagnosis.hypotheses:
+        figures["hypotheses.png"] = diagnosis_hypotheses(r)
+        figures["estimate.png"] = diagnosis_estimate(r)
+    return figures

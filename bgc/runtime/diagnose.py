@@ -76,13 +76,16 @@ class DiagnosisOptions:
     the nominal clouds kept); ``spacing``: steps between the onsets tried
     (the detector's estimate is always one); ``symbol_steps``: open-loop
     steps read for the symbols; ``interval``: probability of the reported interval;
+    ``particles``: 1000 by default: with 200, the RO plant's fault magnitude
+    scatters twice as far as the filter's own interval says (Monte Carlo
+    error), with 1000 the intervals cover (measured in docs/diagnosis.md).
     ``bayes_factor``: a surviving hypothesis this many times less probable
     than the best is dropped (100: "decisive" on Jeffreys' scale);
     ``workers``: parallel processes for the hypothesis filters (1: in this
     process)."""
 
     method: str = "gpf"
-    particles: int = 200
+    particles: int = 1000
     seed: int = 0
     false_alarm: float = 0.01
     rejection: float = 0.001
@@ -240,9 +243,12 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         return Diagnosis(verdict="no fault", detection=None, onset=None, symbols=(), refuted=(), hypotheses=(),
                          candidates=(), seconds=time.perf_counter() - started, **common)
     notes = []
-    # onsets tried: the detector's estimate and a grid back to `history` steps before the alarm
-    starts = sorted({detection.onset, *range(detection.step, max(0, detection.step - options.history) - 1,
-                                               -options.spacing)})
+    # onsets tried: for a drift, the detector's estimate and a grid back to `history`
+    # steps before the alarm; for a step change (its change point is sharp), the
+    # samples around the detector's estimate
+    grid = {detection.onset, *range(detection.step, max(0, detection.step - options.history) - 1, -options.spacing)}
+    near = {k for k in range(detection.onset - options.spacing, detection.onset + 3) if 0 <= k <= detection.step}
+    onsets = {True: sorted(grid), False: sorted(near)}
     # 3. qualitative isolation on the open-loop nominal prediction from the detector's onset
     say("reading the symbols of the deviating sensors")
     onset = detection.onset
@@ -259,18 +265,20 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         models.setdefault(f"{s.parameter}_{s.kind}", []).append(s.name)
     names = [n for n in sorted(models) if n in package.MODELS]
     # 4. every fault-model filter from every onset tried, in parallel
+    starts_of = {name: onsets[fault_kind(package.MODELS[name].FAULT["kind"]).drifts] for name in names}
     jobs = [(name, package.__name__, options.method, options.particles, [options.seed, 1 + i, start],
              _cloud(clouds, start), ys[start:], us[start:], options.interval, options.shrinkage)
-            for i, name in enumerate(names) for start in starts]
-    say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from {len(starts)} onsets "
-        f"(t = {run.time[starts[0]]:g} to {run.time[starts[-1]]:g})")
+            for i, name in enumerate(names) for start in starts_of[name]]
+    first = min(min(s) for s in onsets.values())
+    say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from {len(jobs)} onsets and hypotheses "
+        f"(t = {run.time[first]:g} to {run.time[detection.step]:g})")
     results = dict(zip(((j[0], j[6].shape[0]) for j in jobs), _run_all(jobs, options.workers)))
     # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
     nominal_density = np.where(np.isfinite(z), -0.5 * z ** 2 - np.log(y_std), 0.0).sum(axis=1)
-    first = starts[0]
     hyps = []
     for name in names:
         module = package.MODELS[name]
+        starts = starts_of[name]
         evidence = []
         for start in starts:
             out = results[(name, T - start)]
@@ -430,7 +438,9 @@ def _estimate(module, out: dict, run: Run, level: float) -> Estimate:
     nominal = dict(zip(module.PARAMETERS, module.THETA))[p]
     truth = None
     recorded = run.parameters.get(p)
-    if recorded is not None and len(recorded) > 1:
+    # the run's truth is this hypothesis's only if it is of the same kind: a
+    # parameter still moving at the end drifts, one that stopped stepped
+    if recorded is not None and len(recorded) > 1 and bool(recorded[-1] != recorded[-2]) == kind.drifts:
         if kind.drifts:
             truth = float((recorded[-1] - recorded[-2]) / (run.time[-1] - run.time[-2]))
         else:

@@ -66,6 +66,14 @@ def to_csv(header: tuple[str, ...], columns: list[tuple[str, np.ndarray]]) -> st
     return buf.getvalue()
 
 
+def run_csv(run: Run) -> str:
+    """A run as CSV text again (what :func:`parse_run` reads back)."""
+    columns = [("time", run.time)]
+    for prefix, group in (("u", run.inputs), ("y", run.measurements), ("x", run.states), ("theta", run.parameters)):
+        columns += [(f"{prefix}:{name}", values) for name, values in group.items()]
+    return to_csv(run.header, columns)
+
+
 def read_run(path: str | Path) -> Run:
     """Read a run file (see the module docstring for the checks)."""
     name = printable(str(path))

@@ -9,6 +9,7 @@ table, never from the compiler.
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import sys
 import time
@@ -19,7 +20,7 @@ from types import ModuleType
 import numpy as np
 
 from ..errors import DataError, TrackingError, printable
-from ..ir import PACKAGE
+from ..ir import PACKAGE, NoiseLevels
 from ..kinds import fault_kind
 from .runs import Run
 #: Memory the particle arrays of one filter may take (several state-sized
@@ -30,9 +31,17 @@ MAX_FILTER_BYTES = 4_000_000_000
 _ROWS_ALIVE = 3
 
 
-def load_package(generated_dir: str | Path, model: str, source: str | None = None) -> ModuleType:
+def load_package(generated_dir: str | Path, model: str, source: str | None = None,
+                 noise: NoiseLevels | None = None) -> ModuleType:
     """Import ``<generated_dir>/<model>/numpy_model`` as ``bgc_generated_<model>``
-    (``source``: the model file, for the hint when the package is missing)."""
+    (``source``: the model file, for the hint when the package is missing).
+
+    With ``noise`` (absolute stds, e.g. :meth:`bgc.ir.Numerics.noise_at` of
+    other relative levels), a separate instance of the package is loaded
+    whose models use those process, measurement and predictive stds (their
+    fault states keep theirs, and the initial spread ``X0_STD`` stays the
+    compiled one): the filters then match data simulated at other noise levels.
+    """
     root = Path(generated_dir) / model / PACKAGE
     init = root / "__init__.py"
     if not init.exists():
@@ -42,12 +51,26 @@ def load_package(generated_dir: str | Path, model: str, source: str | None = Non
             f"run: bgc compile {printable(source or 'MODEL.yaml')}{out}, or point --generated at the folder "
             "bgc compile -o wrote")
     name = f"bgc_generated_{model}"
+    if noise is not None:
+        key = hashlib.sha256(repr((noise.process, noise.measurement, noise.predictive)).encode()).hexdigest()[:16]
+        name = f"{name}_noise_{key}"
     if name in sys.modules and getattr(sys.modules[name], "__file__", None) == str(init):
         return sys.modules[name]
+    for old in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
+        del sys.modules[old]  # another folder's package of that name: none of its modules may be reused
     spec = importlib.util.spec_from_file_location(name, init, submodule_search_locations=[str(root)])
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     spec.loader.exec_module(module)
+    if noise is not None:
+        for m in module.MODELS.values():
+            n = len(noise.process)
+            if len(m.MEASUREMENT_STD) != len(noise.measurement) or len(m.PROCESS_STD) < n:
+                raise TrackingError(f"the package at {printable(str(root))} does not have this model's states and "
+                                    "sensors", None, f"run: bgc compile {printable(source or 'MODEL.yaml')}")
+            m.PROCESS_STD[:n] = noise.process
+            m.MEASUREMENT_STD[:] = noise.measurement
+            m.PREDICTIVE_STD[:] = noise.predictive
     return module
 
 

@@ -1,0 +1,107 @@
+"""The Python API: what the CLI does, for a notebook or a script.
+
+>>> import bgc
+>>> report = bgc.diagnose("models/circuit.yaml", scenario="R2:abrupt:0.6@5", seed=1)
+>>> report.diagnosis.verdict, report.diagnosis.candidates
+('isolated', ('R2_abrupt',))
+>>> e = report.diagnosis.estimate
+>>> round(e.value, 1), e.low < 0.6 < e.high
+(0.6, True)
+
+:func:`diagnose` compiles the model, generates its NumPy package (into a
+private folder, or uses the one ``generated`` points at), reads the run (or
+simulates ``scenario`` with the truth simulator), and runs
+:func:`bgc.runtime.diagnose.diagnose`. :mod:`bgc.output.report` turns the
+result into ``report.json``, ``report.md`` and plots.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from . import pipeline
+from .errors import SimulationError
+from .ir import NoiseLevels
+from .runtime import runs, simulate, track
+from .runtime.diagnose import Diagnosis, DiagnosisOptions
+from .runtime.diagnose import diagnose as run_diagnosis
+
+
+@dataclass(frozen=True, slots=True)
+class DiagnosisReport:
+    """A diagnosis and what it was made from: the model file, the run (read or
+    simulated), the injected fault of a simulated ``scenario`` (None for data
+    from a file or a fault-free scenario), the relative noise levels the
+    filters assumed (None: the model's), and the options."""
+
+    model: str
+    source: str
+    run: runs.Run
+    scenario: str | None
+    injected: simulate.FaultInjection | None
+    noise: tuple[float | None, float | None]
+    noise_levels: NoiseLevels
+    options: DiagnosisOptions
+    diagnosis: Diagnosis
+
+
+def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scenario: str | None = None, *,
+             method: str = "gpf", particles: int = 1000, seed: int = 0,
+             process_noise: float | None = None, measurement_noise: float | None = None,
+             steps: int | None = None, generated: str | Path | None = None,
+             options: DiagnosisOptions | None = None, progress=None) -> DiagnosisReport:
+    """Diagnose ``data`` (a run file or a :class:`~bgc.runtime.runs.Run`) or a
+    simulated ``scenario`` (``PARAM:KIND:MAGNITUDE@TIME``, or ``none`` for a
+    fault-free run) of ``model``.
+
+    ``process_noise`` and ``measurement_noise`` are relative levels (fractions
+    of the signal): a scenario is simulated with them, and the filters assume
+    them (default: the model's). ``options`` overrides ``method``,
+    ``particles`` and ``seed`` when given. ``progress(text)`` is told what is
+    being done.
+    """
+    if (data is None) == (scenario is None):
+        raise SimulationError("give either data or a scenario", None,
+                              "e.g. --data run.csv or --scenario R_pipe:incipient:0.5@165")
+    say = progress or (lambda text: None)
+    say("compiling the model")
+    c = pipeline.compile_model(model)
+    opts = options or DiagnosisOptions(method=method, particles=particles, seed=seed)
+    injected = None
+    if scenario is not None:
+        if scenario.strip().lower() != "none":
+            injected = simulate.parse_fault(scenario, c.numerics)
+        if steps is not None:
+            simulate.check_steps(steps, c.numerics, "--steps")
+        say("simulating the scenario")
+        result = simulate.simulate(c.numerics, simulate.SimulationOptions(
+            steps=steps, process_noise=process_noise, measurement_noise=measurement_noise, seed=seed,
+            fault=injected))
+        run = runs.parse_run(simulate.to_csv(result), f"scenario {scenario}")
+    elif isinstance(data, runs.Run):
+        run = data
+    else:
+        run = runs.read_run(data)
+        track.check_run_of(run, c.model.name, str(data))
+    levels = c.numerics.noise_at(process_noise, measurement_noise)
+    custom = levels if (process_noise, measurement_noise) != (None, None) else None
+    if generated is not None:
+        package = track.load_package(generated, c.model.name, str(model), custom)
+        return _run(c, run, package, scenario, injected, (process_noise, measurement_noise), levels, opts, say)
+    with tempfile.TemporaryDirectory(prefix="bgc-") as folder:
+        root = Path(folder) / c.model.name / "numpy_model"
+        root.mkdir(parents=True)
+        for rel, text in c.package.files:
+            (root / rel).write_text(text, encoding="utf-8")
+        package = track.load_package(folder, c.model.name, str(model), custom)
+        return _run(c, run, package, scenario, injected, (process_noise, measurement_noise), levels, opts, say)
+
+
+def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> DiagnosisReport:
+    track.check_request(run, package, "nominal", opts.particles, None, "the run")
+    priors = {f.parameter: f.prior for f in c.model.faults}
+    result = run_diagnosis(run, package, c.signatures, priors, opts, say)
+    return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,
+                           result)

@@ -1,0 +1,135 @@
+"""A diagnosis as ``report.json`` and ``report.md``: what was found, when, how
+large, how sure, and what was ruled out and why."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from ..errors import printable
+
+
+def _t(d, step: int | None) -> float | None:
+    return d.time_of(step)
+
+
+def _num(v: float | None) -> float | None:
+    if v is None or not math.isfinite(v):
+        return None
+    return float(f"{v:.6g}")
+
+
+def report_data(r) -> dict[str, Any]:
+    """The report as plain data (what ``report.json`` holds)."""
+    d = r.diagnosis
+    det = d.detection
+    out: dict[str, Any] = {
+        "generated_by": "bgc",
+        "model": r.model,
+        "source": r.source,
+        "data": {"scenario": r.scenario, "steps": int(len(d.time)), "t_first": _num(float(d.time[0])),
+                 "t_last": _num(float(d.time[-1])),
+                 "injected": None if r.injected is None else {
+                     "parameter": r.injected.parameter, "kind": r.injected.kind,
+                     "magnitude": _num(r.injected.magnitude), "time": _num(r.injected.time)}},
+        "settings": {"filter": d.options.method, "particles": d.options.particles, "seed": d.options.seed,
+                     "false_alarm_per_run": d.options.false_alarm, "rejection": d.options.rejection,
+                     "windows": list(d.options.windows), "bayes_factor": d.options.bayes_factor,
+                     "interval": d.options.interval, "threshold": _num(d.threshold),
+                     "process_noise": r.noise[0], "measurement_noise": r.noise[1]},
+        "verdict": d.verdict,
+        "detection": None if det is None else {
+            "time": _num(_t(d, det.step)), "sensor": det.sensor, "window": det.window,
+            "statistic": _num(det.statistic), "threshold": _num(det.threshold),
+            "onset_change_point": _num(_t(d, det.onset))},
+        "onset": _num(_t(d, d.onset)),
+        "symbols": [{"sensor": s.sensor, "sign": s.sign, "time": _num(_t(d, s.step))} for s in d.symbols],
+        "refuted_by_signatures": [{"fault": n, "why": why} for n, why in d.refuted],
+        "hypotheses": [],
+        "diagnosis": list(d.candidates),
+        "notes": list(d.notes),
+        "seconds": _num(d.seconds),
+    }
+    for h in d.hypotheses:
+        e = h.estimate
+        out["hypotheses"].append({
+            "model": h.name, "parameter": h.parameter, "kind": h.kind, "signatures": list(h.signatures),
+            "onset": _num(_t(d, h.start)), "posterior": _num(h.posterior), "log_evidence": _num(h.log_evidence),
+            "dropped": None if h.dropped is None else {"time": _num(_t(d, h.dropped)), "why": h.reason},
+            "estimate": {"magnitude": e.magnitude, "value": _num(e.value), "std": _num(e.std),
+                         "interval": [_num(e.low), _num(e.high)], "level": e.level,
+                         "parameter_value": _num(e.parameter_value), "nominal": _num(e.nominal),
+                         "truth": _num(e.truth), "covers_truth": e.covers}})
+    return out
+
+
+def report_markdown(r) -> str:
+    """The report for people: ``report.md``."""
+    d = r.diagnosis
+    det = d.detection
+    lines = [f"# Diagnosis of {printable(r.model)} (`{printable(r.source)}`)", ""]
+    if r.scenario:
+        lines.append(f"Data: simulated scenario `{printable(r.scenario)}`, {len(d.time)} samples "
+                     f"(t = {d.time[0]:g} to {d.time[-1]:g}).")
+    else:
+        lines.append(f"Data: {len(d.time)} samples (t = {d.time[0]:g} to {d.time[-1]:g}).")
+    noise = ("the model's noise levels" if r.noise == (None, None) else
+             f"relative noise levels process {r.noise[0] if r.noise[0] is not None else 'per model'}, "
+             f"measurement {r.noise[1] if r.noise[1] is not None else 'per model'}")
+    lines += [f"Filter: {d.options.method.upper()}, {d.options.particles} particles, seed {d.options.seed}; "
+              f"{noise}.", ""]
+    verdict = {"no fault": "**No fault detected.**",
+               "isolated": f"**Fault isolated: {d.candidates[0] if d.candidates else ''}.**",
+               "ambiguous": "**Fault detected; the data cannot separate: " + ", ".join(d.candidates) + ".**",
+               "unexplained": "**Fault detected, but no fault model explains the data"
+                              + (f" (the one that lasted longest: {d.candidates[0]})" if d.candidates else "")
+                              + ".**"}[d.verdict]
+    lines += ["## Verdict", "", verdict, ""]
+    if det is None:
+        lines += [f"No window of the nominal observer's normalised residuals passed the threshold "
+                  f"{d.threshold:.2f} (a false-alarm probability of {d.options.false_alarm:g} per run, "
+                  f"windows {', '.join(map(str, d.options.windows))} samples).", ""]
+    else:
+        lines += ["## Detection", "",
+                  f"- alarm at t = {_t(d, det.step):g}: sensor {det.sensor}, window of {det.window} sample(s), "
+                  f"|Z| = {det.statistic:.2f} > {det.threshold:.2f} (false-alarm probability "
+                  f"{d.options.false_alarm:g} per run)",
+                  f"- change point of the residuals: t = {_t(d, det.onset):g}; onset of the diagnosis: "
+                  f"t = {_t(d, d.onset):g}", ""]
+        lines += ["## Qualitative isolation (TRANSCEND signatures)", ""]
+        if d.symbols:
+            lines.append("Observed first deviations: " + ", ".join(
+                f"{s.sensor} {s.sign} (t = {_t(d, s.step):g})" for s in d.symbols) + ".")
+        else:
+            lines.append("No sensor deviated significantly from the open-loop nominal prediction.")
+        if d.refuted:
+            lines += ["", "Ruled out by their signatures:", ""]
+            lines += [f"- {n}: {printable(why)}" for n, why in d.refuted]
+        lines += ["", "## Fault-model filters", "",
+                  "| hypothesis | onset | posterior | estimate | interval | dropped | why |",
+                  "|---|---|---|---|---|---|---|"]
+        for h in sorted(d.hypotheses, key=lambda h: -h.posterior):
+            e = h.estimate
+            truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
+            lines.append(f"| {h.name} | {_t(d, h.start):g} | {h.posterior:.3g} | {e.magnitude} {e.value:.4g}{truth} | "
+                         f"[{e.low:.4g}, {e.high:.4g}] | "
+                         f"{'-' if h.dropped is None else f't = {_t(d, h.dropped):g}'} | {printable(h.reason) or '-'} |")
+        best = d.best
+        if best is not None and d.verdict in ("isolated", "ambiguous"):
+            lines += ["", "## Identification", ""]
+            for name in d.candidates:
+                h = next(x for x in d.hypotheses if x.name == name)
+                e = h.estimate
+                what = (f"{e.parameter} = {e.nominal:g} + bias" if e.magnitude == "bias"
+                        else f"slope of {e.parameter} (per unit time)")
+                truth = ""
+                if e.truth is not None:
+                    truth = (f"; truth {e.truth:.4g}, error {100 * e.relative_error:.1f} %, "
+                             f"{'inside' if e.covers else 'outside'} the interval")
+                lines.append(f"- {name}: {what}: {e.magnitude} {e.value:.4g} +- {e.std:.2g}, "
+                             f"{100 * e.level:.0f} % interval [{e.low:.4g}, {e.high:.4g}], {e.parameter} at the "
+                             f"end {e.parameter_value:.4g}, onset t = {_t(d, h.start):g}{truth}")
+    if d.notes:
+        lines += ["", "## Notes", ""] + [f"- {printable(n)}" for n in d.notes]
+    lines += ["", f"Diagnosis computed in {d.seconds:.2f} s.", ""]
+    return "\n".join(lines)
