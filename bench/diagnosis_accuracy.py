@@ -2,6 +2,7 @@
 magnitude's error and whether its interval covers the truth.
 
     .venv/bin/python bench/diagnosis_accuracy.py [--runs 20] [--particles 1000] [--false-alarm-runs 100]
+                                                 [--only TEXT]
 
 Each scenario is simulated by the truth simulator (8x finer RK4 than the
 filters) with seeds 100, 101, ...; the same seed drives the filters. Prints
@@ -46,6 +47,7 @@ def main() -> None:
     parser.add_argument("--particles", type=int, default=1000)
     parser.add_argument("--filter", default="gpf", choices=["gpf", "apf"])
     parser.add_argument("--false-alarm-runs", type=int, default=100)
+    parser.add_argument("--only", metavar="TEXT", help="only the scenarios whose model or scenario holds TEXT")
     args = parser.parse_args()
     if args.runs:
         accuracy(args)
@@ -84,6 +86,8 @@ def accuracy(args) -> None:
     print(head)
     print("-" * len(head))
     for model, scenario, q, r in SCENARIOS:
+        if args.only and args.only not in f"{model} {scenario}":
+            continue
         rows = []
         started = time.perf_counter()
         for i in range(args.runs):
