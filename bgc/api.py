@@ -100,7 +100,7 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
 
 
 def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> DiagnosisReport:
-    track.check_request(run, package, "nominal", opts.particles, None, "the run")
+    track.check_request(run, package, "nominal", opts.particles, None)
     priors = {f.parameter: f.prior for f in c.model.faults}
     result = run_diagnosis(run, package, c.signatures, priors, opts, say)
     return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,

@@ -135,13 +135,8 @@ def cmd_show(args: argparse.Namespace) -> int:
                        f"use one of: {', '.join(valid + ['svg', 'png'] if stage in ('tcg', 'dbn') else valid)}")
     text = texts[(stage, fmt)]()
     if args.output:
-        comment = {"json": None, "dot": "//", "latex": "%"}.get(fmt, "#")
         source = causal.model.display_source if stage == "causality" else c.model.display_source
-        if comment is None:  # JSON has no comments: the mark is a key
-            text = text.replace("{\n", '{\n  "generated_by": "bgc",\n', 1)
-        else:
-            text = artifacts.header(comment, source) + text
-        artifacts.write_file(Path(args.output), text)
+        artifacts.write_file(Path(args.output), artifacts.mark_text(text, fmt, source))
         print(f"wrote {printable(args.output)}")
     else:
         sys.stdout.write(text)
@@ -206,7 +201,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
     track.check_run_of(run, c.model.name, args.run_csv)
     package = track.load_package(args.generated, c.model.name, args.model)
     name = args.fault.replace(":", "_") if args.fault else "nominal"
-    track.check_request(run, package, name, args.particles, args.start, args.run_csv)
+    track.check_request(run, package, name, args.particles, args.start)
     results = []
     for method in (["gpf", "apf"] if args.method == "both" else [args.method]):
         r = track.track(run, package, name, method, args.particles, args.seed, args.start)

@@ -475,7 +475,7 @@ class Numerics:
     multiply; ``process_factor`` (per state) is ``sqrt(min(1, 2 dt / tau))``,
     ``tau`` the state's own time constant; ``process_levels`` the
     storage elements' own relative levels (None: the model's default);
-    ``output_jacobian`` is H = dy/dx there. ``noise`` holds the absolute stds
+    ``output_jacobian`` is H = dy/dx there. ``noise`` gives the absolute stds
     at the model's own levels; :meth:`noise_at` gives them at other levels.
     """
 
@@ -490,12 +490,16 @@ class Numerics:
     y_scale: tuple[float, ...]
     process_factor: tuple[float, ...]
     process_levels: tuple[float | None, ...]
-    noise: NoiseLevels
     faults: tuple[FaultNumerics, ...]
 
     @property
     def equations(self) -> StateSpaceModel:
         return self.dbn.equations
+
+    @property
+    def noise(self) -> NoiseLevels:
+        """The absolute stds at the model's own relative levels."""
+        return self.noise_at()
 
     def fault(self, name: str) -> FaultNumerics:
         for f in self.faults:

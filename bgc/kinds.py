@@ -96,13 +96,9 @@ def element_kind(name: str) -> ElementKind:
         raise KeyError(f"unknown element kind '{name}' (valid: {', '.join(ELEMENT_KINDS)})") from None
 
 
-def kinds_of(role: str) -> frozenset[str]:
-    """Names of the element kinds with a role (``source``, ``storage``, ...)."""
-    return frozenset(k for k, v in ELEMENT_KINDS.items() if v.role == role)
-
-
 # -------------------------------------------------------------------- faults
-DIRECTIONS = ("increase", "decrease", "both")
+#: Directions a fault candidate may take, and the signs of change they allow.
+DIRECTIONS: Mapping[str, tuple[int, ...]] = {"increase": (1,), "decrease": (-1,), "both": (1, -1)}
 
 
 @dataclass(frozen=True, slots=True)

@@ -118,6 +118,19 @@ def test_single_outputs_replace_only_files_bgc_wrote(tmp_path):
     assert one_line(r).startswith(f"{photo} exists and bgc did not write it")
 
 
+@pytest.mark.parametrize("fmt", ["text", "json", "dot", "svg"])
+def test_bgc_show_rewrites_the_dump_it_wrote(tmp_path, fmt):
+    """Every format of ``bgc show -o`` carries the mark, so a second run may
+    replace the first (and the JSON still parses)."""
+    out = tmp_path / f"tcg.{fmt}"
+    for _ in range(2):
+        r = bgc("show", "tcg", "models/circuit.yaml", "--format", fmt, "-o", str(out), "--engine", "matplotlib")
+        assert r.returncode == 0, r.stderr
+    assert artifacts.written_by_bgc(out)
+    if fmt == "json":
+        assert json.loads(out.read_text())["generated_by"] == "bgc"
+
+
 @pytest.mark.parametrize("fmt", ["png", "svg"])
 def test_pictures_carry_the_mark_and_stay_valid(fmt):
     """The mark is a PNG text chunk (with its CRC) or an SVG comment."""

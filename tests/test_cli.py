@@ -174,6 +174,9 @@ def test_a_closed_pipe_ends_quietly_with_status_0(reader):
 
 
 def test_check_says_one_loop_is_one_loop():
+    """The test plant's one loop, by hand: the source fixes bond 1 and the
+    capacitor bond 7; every variable of bonds 2 to 6 (R1, the j1-j0 bond, R2,
+    the j0-j2 bond, R3) depends on the others; SCAP chose R1's and R2's forms."""
     r = run("check", "tests/data/models/resistor_loop.yaml")
     assert r.returncode == 0, r.stderr
     loops = [line for line in r.stdout.splitlines() if line.startswith("  algebraic loops:")]
@@ -210,7 +213,7 @@ def test_requests_beyond_the_limits_are_refused_before_any_work(tmp_path):
 
 
 @pytest.mark.parametrize("content, message", [
-    (b"time,y:e3\n1.0,2.0\n2.0,\xff\n", "{csv}:3: not UTF-8 text (byte 22 is 0xff)"),
+    (b"time,y:e3\n1.0,2.0\n2.0,\xff\n", "{csv}:3: not UTF-8 text (byte 22 is 0xff)"),  # 10 + 8 + 4 bytes before
     (b"time,y:e3\n1.0," + b"9" * 50_000_000 + b"\n", "{csv}:2: line is 50000004 characters long"),
     (b"time,y:e3\n", "{csv}: the run has no data rows, only column names"),
     (b"time,y:other\n1.0,2.0\n", "the run has no column y:e3"),

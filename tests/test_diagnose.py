@@ -87,7 +87,7 @@ def test_the_filters_of_a_diagnosis_run_in_worker_processes_with_the_same_result
                      options=DiagnosisOptions(seed=5, workers=2)).diagnosis
     b = bgc.diagnose(model, scenario="R2:abrupt:0.6@5", generated=GENERATED,
                      options=DiagnosisOptions(seed=5, workers=1)).diagnosis
-    assert [h.name for h in a.hypotheses] == [h.name for h in b.hypotheses]
+    assert a.hypotheses and [h.name for h in a.hypotheses] == [h.name for h in b.hypotheses]
     for x, y in zip(a.hypotheses, b.hypotheses):
         assert x.log_evidence == y.log_evidence and (x.magnitude == y.magnitude).all()
 

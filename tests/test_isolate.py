@@ -44,4 +44,4 @@ def test_circuit_symbols_against_signatures():
     keep, dropped = hypotheses(s, (Symbol("f6", "-", 5, -9.0), Symbol("e11", "-", 6, -9.0)))
     names = {x.name for x in keep}
     assert "R2+:abrupt" in names and "R1-:abrupt" not in names
-    assert all(why for _, why in dropped)
+    assert dropped and all(why for _, why in dropped)

@@ -34,7 +34,6 @@ is a located error, never an ``inf`` in generated code.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 import sympy
@@ -117,8 +116,7 @@ def derive(dbns: DbnModel) -> Numerics:
     num = Numerics(dbns, tuple(complex(z) for z in eig), substeps, u0, y0, tuple(float(v) for v in np.diag(j)),
                    tuple(tuple(float(v) for v in row) for row in h), tuple(float(v) for v in x_scale),
                    tuple(float(v) for v in y_scale), tuple(factor), tuple(own_levels.get(el) for el in ssm.state_elements),
-                   None, tuple(faults))
-    num = replace(num, noise=num.noise_at())
+                   tuple(faults))
     _check_finite(num)
     return num
 
@@ -131,9 +129,10 @@ def _check_finite(num: Numerics) -> None:
     model = ssm.model
     settings = model.settings
     storage = [model.element(el) for el in ssm.state_elements]
+    noise = num.noise
     per_state = [
         ("size", num.x_scale, "give its 'initial' value a smaller magnitude"),
-        ("process-noise std", num.noise.process,
+        ("process-noise std", noise.process,
          "use a smaller process-noise level (simulation.process_noise or the element's 'noise')"),
     ]
     for what, values, fix in per_state:
@@ -143,8 +142,8 @@ def _check_finite(num: Numerics) -> None:
     per_output = [
         ("value at the initial state", num.y0, "rescale the parameters or the initial values"),
         ("size", num.y_scale, "rescale the parameters or the measurement expression"),
-        ("noise std", num.noise.measurement, "use a smaller noise level"),
-        ("one-step predictive std", num.noise.predictive, "use smaller noise levels"),
+        ("noise std", noise.measurement, "use a smaller noise level"),
+        ("one-step predictive std", noise.predictive, "use smaller noise levels"),
         ("sensitivity to the states", [max((abs(v) for v in row), default=0.0) for row in num.output_jacobian],
          "rescale the parameters or the measurement expression"),
     ]

@@ -27,7 +27,7 @@ import sympy
 from sympy.printing.codeprinter import PrintMethodNotImplementedError
 from sympy.printing.numpy import NumPyPrinter
 
-from ..errors import CodegenError
+from ..errors import CodegenError, printable
 
 
 class StrictNumPyPrinter(NumPyPrinter):
@@ -343,19 +343,10 @@ def escape(text: str, newlines: bool = False) -> str:
     >>> print(escape("\x1b[31m\ud800"))
     \x1b[31m\ud800
     """
-    out = []
-    for ch in text:
-        if ch == "\\":
-            out.append("\\\\")
-        elif ch == '"':
-            out.append('\\"')
-        elif ch == "\n" and newlines:
-            out.append(ch)
-        elif ch.isprintable():
-            out.append(ch)
-        else:
-            out.append(ch.encode("unicode_escape", "backslashreplace").decode("ascii"))
-    return "".join(out)
+    quoted = text.replace("\\", "\\\\").replace('"', '\\"')
+    if newlines:
+        return "\n".join(printable(line) for line in quoted.split("\n"))
+    return printable(quoted)
 
 
 #: A number printed into generated code may differ from bgc's float by at most

@@ -50,10 +50,7 @@ import networkx as nx
 import sympy
 
 from ..ir import FaultSignatures, Signature, StateSpaceModel, sym, var_key
-from ..kinds import fault_kind
-
-#: Directions of a fault candidate, as signs.
-DIRECTIONS = {"increase": (1,), "decrease": (-1,), "both": (1, -1)}
+from ..kinds import DIRECTIONS, fault_kind
 
 
 def derive(ssm: StateSpaceModel) -> FaultSignatures:

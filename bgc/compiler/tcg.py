@@ -397,7 +397,7 @@ def _evaluable(expr: sympy.Expr) -> bool:
     (sympy's inverse of a law may bring LambertW or Piecewise)."""
     if expr.has(sympy.Piecewise, sympy.I, sympy.zoo, sympy.nan, sympy.oo):
         return False
-    return all(type(f) in _EVALUABLE or f.func in _EVALUABLE for f in expr.atoms(sympy.Function))
+    return all(f.func in _EVALUABLE for f in expr.atoms(sympy.Function))
 
 
 def _two_port(el: Element, bonds: list, by: dict[int, str]) -> list[_Relation]:

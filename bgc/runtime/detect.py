@@ -47,6 +47,13 @@ from statistics import NormalDist
 import numpy as np
 
 
+def union_threshold(alpha: float, tests: int) -> float:
+    """The two-sided Z threshold c with P(any |Z| > c) <= alpha over ``tests``
+    N(0, 1) tests, whatever their correlation (the union bound):
+    c = Phi^-1(1 - alpha / (2 tests))."""
+    return NormalDist().inv_cdf(1.0 - alpha / (2.0 * max(1, tests)))
+
+
 @dataclass(frozen=True, slots=True)
 class DetectorOptions:
     """``false_alarm``: probability of any alarm in a fault-free run of
@@ -59,8 +66,7 @@ class DetectorOptions:
 
     def threshold(self, sensors: int) -> float:
         """The |S| above which the detector alarms (see the module docstring)."""
-        tests = max(1, self.steps) * max(1, sensors) * len(self.windows)
-        return NormalDist().inv_cdf(1.0 - self.false_alarm / (2.0 * tests))
+        return union_threshold(self.false_alarm, max(1, self.steps) * max(1, sensors) * len(self.windows))
 
 
 @dataclass(frozen=True, slots=True)

@@ -253,7 +253,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     say("reading the symbols of the deviating sensors")
     onset = detection.onset
     steps = min(T - onset, max(options.symbol_steps, detection.step - onset + 1))
-    seen = observed_symbols(_open_loop(cls[options.method], nominal, _cloud(clouds, onset), ys, us, onset, steps,
+    seen = observed_symbols(_open_loop(package, cls[options.method], nominal, _cloud(clouds, onset), ys, us, onset, steps,
                                        options), outputs, onset)
     keep, dropped = hypotheses(signatures, seen)
     if not keep:
@@ -274,7 +274,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         f"(t = {run.time[first]:g} to {run.time[detection.step]:g})")
     results = dict(zip(((j[0], j[6].shape[0]) for j in jobs), _run_all(jobs, options.workers)))
     # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
-    nominal_density = np.where(np.isfinite(z), -0.5 * z ** 2 - np.log(y_std), 0.0).sum(axis=1)
+    nominal_density = _log_density(z, y_std)
     hyps = []
     for name in names:
         module = package.MODELS[name]
@@ -283,8 +283,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         for start in starts:
             out = results[(name, T - start)]
             zh = (ys[start:] - out["y_mean"]) / out["y_std"]
-            density = np.where(np.isfinite(zh), -0.5 * zh ** 2 - np.log(out["y_std"]), 0.0).sum(axis=1)
-            evidence.append(float(nominal_density[first:start].sum() + density.sum()))
+            evidence.append(float(nominal_density[first:start].sum() + _log_density(zh, out["y_std"]).sum()))
         evidence = np.array(evidence)
         best = int(np.argmax(evidence))
         start = starts[best]
@@ -342,11 +341,11 @@ def _cloud(clouds: dict, start: int):
     return clouds[max(before)] if before else None
 
 
-def _open_loop(cls, nominal, cloud, ys, us, onset, steps, options) -> np.ndarray:
+def _open_loop(package, cls, nominal, cloud, ys, us, onset, steps, options) -> np.ndarray:
     """Normalised deviations of the data from the nominal model run open loop
     from the cloud before the onset (the observer stopped): steps x sensors."""
     rng = np.random.default_rng([options.seed, 9999])
-    x = None if cloud is None else cloud[0][:, _resample(cloud[1], rng)]
+    x = None if cloud is None else cloud[0][:, package.filters.systematic_resample(cloud[1], rng)]
     pf = cls(nominal, options.particles, rng, x=x)
     blind = np.full(ys.shape[1], np.nan)
     out = np.empty((steps, ys.shape[1]))
@@ -357,12 +356,11 @@ def _open_loop(cls, nominal, cloud, ys, us, onset, steps, options) -> np.ndarray
     return out
 
 
-def _resample(logw: np.ndarray, rng) -> np.ndarray:
-    w = np.exp(logw - logw.max())
-    w /= w.sum()
-    n = len(w)
-    positions = (rng.random() + np.arange(n)) / n
-    return np.minimum(np.searchsorted(np.cumsum(w), positions), n - 1)
+def _log_density(z: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """Per step, the Gaussian log density of the measurements (normalised
+    residuals ``z``, predicted stds ``std``) up to a constant; unread sensors
+    count 0."""
+    return np.where(np.isfinite(z), -0.5 * z ** 2 - np.log(std), 0.0).sum(axis=1)
 
 
 def _weighted_quantiles(values: np.ndarray, logw: np.ndarray, qs) -> np.ndarray:
@@ -385,7 +383,7 @@ def _run_hypothesis(job) -> dict:
     started = time.perf_counter()
     x0 = None
     if cloud is not None:
-        x0 = module.augment(cloud[0][:, _resample(cloud[1], rng)], rng)
+        x0 = module.augment(cloud[0][:, package.filters.systematic_resample(cloud[1], rng)], rng)
     pf = cls(module, particles, rng, x=x0)
     T = len(ys)
     k_mag = len(module.STATES) - 1
@@ -402,8 +400,8 @@ def _run_hypothesis(job) -> dict:
             out["magnitude"][k] = r.mean[k_mag]
             out["band"][k] = _weighted_quantiles(pf.x[k_mag], pf.logw, [tail, 1.0 - tail])
     out["final_std"] = float(out["std"][-1, k_mag])
-    out["parameter_value"] = float(np.exp(pf.logw - pf.logw.max()) @ module.parameter_value(pf.x, pf.theta)
-                                   / np.exp(pf.logw - pf.logw.max()).sum())
+    w = np.exp(pf.logw - pf.logw.max())
+    out["parameter_value"] = float(w @ module.parameter_value(pf.x, pf.theta) / w.sum())
     out["seconds"] = time.perf_counter() - started
     return out
 

@@ -25,11 +25,10 @@ diagnosis: the fault-model filters decide.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from statistics import NormalDist
-
 import numpy as np
 
 from ..ir import FaultSignatures, Signature
+from .detect import union_threshold
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,7 +43,7 @@ class Symbol:
 
 def threshold(alpha: float, sensors: int, steps: int) -> float:
     """The Z threshold for a false-symbol probability ``alpha`` over ``sensors`` x ``steps`` tests."""
-    return NormalDist().inv_cdf(1.0 - alpha / (2.0 * max(1, sensors * steps)))
+    return union_threshold(alpha, sensors * steps)
 
 
 def observed_symbols(r: np.ndarray, sensors: tuple[str, ...], onset: int, alpha: float = 0.01) -> tuple[Symbol, ...]:

@@ -195,14 +195,13 @@ def check_run_of(run: Run, model: str, where: str) -> None:
                         "filter it with the model the run was made with")
 
 
-def check_request(run: Run, package: ModuleType, model_name: str, particles: int, start: float | None,
-                  where: str) -> None:
-    """Refuse a filter request that cannot run, before any work: a run of
-    another model (``where``: the run's file), a model the package lacks, no
-    sensors, a hand-over without a fault model or outside the run, too many
-    particles, a run without the model's measurements."""
+def check_request(run: Run, package: ModuleType, model_name: str, particles: int, start: float | None) -> None:
+    """Refuse a filter request that cannot run, before any work: a model the
+    package lacks, no sensors, a hand-over without a fault model or outside
+    the run, too many particles, a run without the model's measurements.
+    Whether the run is of this model at all is :func:`check_run_of`, which
+    callers ask first."""
     name = package.MODELS["nominal"].MODEL
-    check_run_of(run, name, where)
     if model_name not in package.MODELS:
         raise TrackingError(f"no generated model {printable(repr(model_name))}", None,
                             "choose one of: " + ", ".join(package.MODELS))
@@ -218,6 +217,7 @@ def check_request(run: Run, package: ModuleType, model_name: str, particles: int
     run_arrays(run, package, model_name)
 
 
+@np.errstate(all="ignore")  # particles outside a law's domain are weighted out and counted
 def track(run: Run, package: ModuleType, model_name: str = "nominal", method: str = "gpf",
           particles: int = 200, seed: int = 0, start: float | None = None) -> TrackResult:
     """Run the generated GPF or APF of ``model_name`` over the run.
@@ -239,11 +239,6 @@ def track(run: Run, package: ModuleType, model_name: str = "nominal", method: st
     if start is not None and model.FAULT is not None:
         split = int(np.searchsorted(run.time, start))
     started = time.perf_counter()
-    with np.errstate(all="ignore"):  # particles outside a law's domain are weighted out and counted
-        return _track(run, package, model_name, method, cls, model, ys, us, rng, particles, split, started)
-
-
-def _track(run, package, model_name, method, cls, model, ys, us, rng, particles, split, started) -> TrackResult:
     T = len(run.time)
     n_x = len(model.STATES)
     mean = np.full((T, n_x), np.nan)
