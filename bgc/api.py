@@ -58,9 +58,10 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
 
     ``process_noise`` and ``measurement_noise`` are relative levels (fractions
     of the signal): a scenario is simulated with them, and the filters assume
-    them (default: the model's). ``options`` overrides ``method``,
-    ``particles`` and ``seed`` when given. ``progress(text)`` is told what is
-    being done.
+    them (default: the model's). ``seed`` seeds the simulation of a scenario
+    and, unless ``options`` is given, the filters; ``options`` overrides
+    ``method``, ``particles`` and the filters' seed. ``progress(text)`` is
+    told what is being done.
     """
     if (data is None) == (scenario is None):
         raise SimulationError("give either data or a scenario", None,

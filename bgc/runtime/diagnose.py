@@ -77,8 +77,8 @@ class DiagnosisOptions:
     (the detector's estimate is always one); ``symbol_steps``: open-loop
     steps read for the symbols; ``interval``: probability of the reported interval;
     ``particles``: 1000 by default: with 200, the RO plant's fault magnitude
-    scatters twice as far as the filter's own interval says (Monte Carlo
-    error), with 1000 the intervals cover (measured in docs/diagnosis.md).
+    scatters about twice as far as the filter's own interval says (Monte
+    Carlo error), with 1000 the intervals cover (measured in docs/diagnosis.md).
     ``bayes_factor``: a surviving hypothesis this many times less probable
     than the best is dropped (100: "decisive" on Jeffreys' scale);
     ``workers``: parallel processes for the hypothesis filters (1: in this
