@@ -17,11 +17,15 @@ result into ``report.json``, ``report.md`` and plots.
 
 from __future__ import annotations
 
+import atexit
+import hashlib
+import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 from . import pipeline
+from .compiler.load import MAX_BYTES
 from .errors import SimulationError
 from .ir import NoiseLevels
 from .runtime import runs, simulate, track
@@ -68,7 +72,7 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
                               "e.g. --data run.csv or --scenario R_pipe:incipient:0.5@165")
     say = progress or (lambda text: None)
     say("compiling the model")
-    c = pipeline.compile_model(model)
+    c, private = _compiled(model)
     opts = options or DiagnosisOptions(method=method, particles=particles, seed=seed)
     injected = None
     if scenario is not None:
@@ -91,13 +95,42 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
     if generated is not None:
         package = track.load_package(generated, c.model.name, str(model), custom)
         return _run(c, run, package, scenario, injected, (process_noise, measurement_noise), levels, opts, say)
-    with tempfile.TemporaryDirectory(prefix="bgc-") as folder:
-        root = Path(folder) / c.model.name / "numpy_model"
+    package = track.load_package(private, c.model.name, str(model), custom)
+    return _run(c, run, package, scenario, injected, (process_noise, measurement_noise), levels, opts, say)
+
+
+#: Compilations of this process by the model file's path and content, each
+#: with the private folder its package was written to (removed at exit): a
+#: notebook or a campaign worker diagnosing one model many times compiles it
+#: and imports its package once.
+_COMPILED: dict[tuple[str, str], tuple[pipeline.Compiled, str]] = {}
+_FOLDERS: list[str] = []
+
+
+def _compiled(model: str | Path) -> tuple[pipeline.Compiled, str]:
+    digest = ""  # not a regular file: compile_model says what is wrong with the path
+    try:
+        if Path(model).is_file():
+            with open(model, "rb") as f:
+                digest = hashlib.sha256(f.read(MAX_BYTES + 1)).hexdigest()
+    except OSError:
+        pass
+    key = (str(model), digest)
+    if digest and key in _COMPILED:
+        return _COMPILED[key]
+    c = pipeline.compile_model(model)
+    if not _FOLDERS:
+        _FOLDERS.append(tempfile.mkdtemp(prefix="bgc-"))
+        atexit.register(shutil.rmtree, _FOLDERS[0], True)
+    folder = Path(_FOLDERS[0]) / c.raw.sha256[:16]
+    root = folder / c.model.name / "numpy_model"
+    if not root.exists():
         root.mkdir(parents=True)
         for rel, text in c.package.files:
             (root / rel).write_text(text, encoding="utf-8")
-        package = track.load_package(folder, c.model.name, str(model), custom)
-        return _run(c, run, package, scenario, injected, (process_noise, measurement_noise), levels, opts, say)
+    if digest:
+        _COMPILED[key] = (c, str(folder))
+    return c, str(folder)
 
 
 def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> DiagnosisReport:

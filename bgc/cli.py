@@ -272,6 +272,29 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_experiment(args: argparse.Namespace) -> int:
+    from . import campaign
+    from .output import tables
+
+    c = campaign.load_campaign(args.config)
+    out = Path(args.output or Path("out") / c.name)
+    workers = args.workers
+    where = f"the Dask cluster at {printable(args.scheduler)}" if args.scheduler else \
+        f"{workers or os.cpu_count() or 1} local processes"
+    print(f"campaign {c.name}: {len(c.specs)} runs on {where}, results in {printable(str(out))}/", file=sys.stderr)
+    try:
+        r = campaign.run_campaign(c, out, scheduler=args.scheduler, workers=workers,
+                                  progress=None if not args.no_progress else False)
+    except KeyboardInterrupt:
+        print(f"bgc: interrupted; finished runs are in {printable(str(out / campaign.RUNS))}: run the same command "
+              "to resume", file=sys.stderr)
+        return 130
+    print(tables.summary_markdown(list(r.rows)), end="")
+    print(f"{c.name}: {r.ran} runs done, {r.reused} reused from an earlier run, {r.failed} failed "
+          f"({r.seconds:.1f} s); tables in {printable(str(out))}/tables.md, plots in {printable(str(out))}/plots/")
+    return 1 if r.failed and r.failed == r.ran and r.ran else 0
+
+
 class _Progress:
     """One line on stderr saying what is being done, rewritten in place, on a
     terminal (stderr then holds only errors when it is a file or a pipe)."""
@@ -362,7 +385,28 @@ def build_parser() -> argparse.ArgumentParser:
                    help="use the package bgc compile wrote there (default: generate one for this run)")
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-diagnosis)")
     p.set_defaults(run=cmd_diagnose)
+
+    p = sub.add_parser("experiment", help="run a campaign of diagnoses (grid or randomised) and write its tables")
+    p.add_argument("config", metavar="CONFIG.yaml")
+    p.add_argument("-o", "--output", metavar="DIR", help="results folder (default: out/CAMPAIGN); an interrupted "
+                   "campaign resumes from it")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="run on this Dask distributed scheduler "
+                   "(e.g. tcp://10.0.0.5:8786) instead of local processes")
+    p.add_argument("--workers", type=_positive, default=None, help="local processes (default: every core)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(run=cmd_experiment)
     return parser
+
+
+def _positive(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value}: give an integer >= 1")
+    return value
 
 
 def _seed(text: str) -> int:

@@ -126,5 +126,10 @@ class OutputError(BgcError):
     did not write)."""
 
 
+class ExperimentError(BgcError):
+    """A campaign file is malformed, or a campaign cannot run (its output
+    folder, its Dask scheduler)."""
+
+
 class InternalError(Exception):
     """A bug in bgc: reported with its traceback."""

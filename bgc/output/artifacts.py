@@ -245,6 +245,25 @@ def write_file(path: Path, content: str | bytes) -> Path:
     return path
 
 
+def append_text(path: Path, text: str) -> None:
+    """Append ``text`` to a file bgc wrote (a campaign's ``runs.csv`` grows a
+    row per finished run), flushed to disk so that an interrupted campaign
+    keeps every finished row.
+
+    Raises
+    ------
+    OutputError
+        The file is missing, a link, or not bgc's.
+    """
+    path = Path(path)
+    if path.is_symlink() or not path.is_file() or not written_by_bgc(path):
+        raise OutputError(f"{printable(str(path))} is not a file bgc wrote", None, "choose another output folder")
+    with open(path, "a", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+
+
 def diff(directory: Path, files: Mapping[str, str]) -> list[str]:
     """Unified diffs between ``files`` and what ``directory`` holds (empty: identical).
 

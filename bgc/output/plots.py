@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+from pathlib import Path
 
 import numpy as np
 
@@ -192,3 +193,92 @@ def diagnosis_figures(r) -> dict[str, bytes]:
         figures["hypotheses.png"] = diagnosis_hypotheses(r)
         figures["estimate.png"] = diagnosis_estimate(r)
     return figures
+
+
+# ------------------------------------------------------------------ campaigns
+def _grid(cols: int, width: float = 9.0, height: float = 3.2):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, cols, figsize=(width, height), squeeze=False)
+    return plt, fig, axes[0]
+
+
+def _values(rows, metric, **match) -> list[float]:
+    out = []
+    for r in rows:
+        if r.get("status") != "ok" or any(r.get(k) != v for k, v in match.items()):
+            continue
+        v = r.get(metric)
+        if v is not None and np.isfinite(v):
+            out.append(float(v))
+    return out
+
+
+def campaign_figures(rows) -> dict[str, bytes]:
+    """A campaign's plots (PNG): distributions of the estimation error and of
+    the time to convergence per filter, accuracy against the particle count
+    and the noise level (when the campaign varies them), and an isolation
+    confusion matrix per model."""
+    from .tables import confusion
+
+    rows = list(rows)
+    filters = [f for f in ("gpf", "apf") if any(r["filter"] == f for r in rows)]
+    out: dict[str, bytes] = {}
+    plt, fig, axes = _grid(2)
+    for ax, metric, title in ((axes[0], "est_error", "fault-magnitude error (%)"), (axes[1], "ct", "time to convergence")):
+        data = [[100 * v if metric == "est_error" else v for v in _values(rows, metric, filter=f)] for f in filters]
+        if any(data):
+            ax.boxplot([d if d else [np.nan] for d in data], showfliers=True)
+            ax.set_xticks(range(1, len(filters) + 1), [f.upper() for f in filters])
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, alpha=0.3)
+    out["distributions.png"] = _save(plt, fig, "png")
+    for axis, label in (("particles", "particles"), ("noise", "noise level")):
+        levels = list(dict.fromkeys(r[axis] for r in rows))
+        if len(levels) < 2:
+            continue
+        plt, fig, axes = _grid(2)
+        for f in filters:
+            err = [np.mean(_values(rows, "est_error", filter=f, **{axis: x}) or [np.nan]) * 100 for x in levels]
+            right = [np.mean(_values(rows, "right", filter=f, **{axis: x}) or [np.nan]) * 100 for x in levels]
+            xs = levels if axis == "particles" else list(range(len(levels)))
+            axes[0].plot(xs, err, "o-", label=f.upper())
+            axes[1].plot(xs, right, "o-", label=f.upper())
+        for ax, title in ((axes[0], "mean magnitude error (%)"), (axes[1], "right isolation (%)")):
+            ax.set_title(title, fontsize=9)
+            ax.set_xlabel(label, fontsize=8)
+            if axis == "particles":
+                ax.set_xscale("log")
+            else:
+                ax.set_xticks(range(len(levels)), [str(x) for x in levels])
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=7)
+        out[f"accuracy_by_{axis}.png"] = _save(plt, fig, "png")
+    for model in dict.fromkeys(r["model"] for r in rows):
+        truths, saids, counts = confusion(rows, model)
+        if not truths:
+            continue
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, ax = plt.subplots(figsize=(max(4.0, 0.45 * len(saids) + 3), max(3.0, 0.35 * len(truths) + 2)))
+        m = np.array([[counts.get((t, s), 0) for s in saids] for t in truths], dtype=float)
+        share = m / np.maximum(m.sum(axis=1, keepdims=True), 1)
+        ax.imshow(share, cmap="Blues", vmin=0, vmax=1, aspect="auto")
+        for i in range(len(truths)):
+            for j in range(len(saids)):
+                if m[i, j]:
+                    ax.text(j, i, str(int(m[i, j])), ha="center", va="center", fontsize=7,
+                            color="white" if share[i, j] > 0.6 else "black")
+        ax.set_xticks(range(len(saids)), saids, rotation=60, ha="right", fontsize=7)
+        ax.set_yticks(range(len(truths)), truths, fontsize=7)
+        ax.set_xlabel("diagnosed", fontsize=8)
+        ax.set_ylabel("injected", fontsize=8)
+        ax.set_title(f"isolation: {Path(model).stem}", fontsize=9)
+        out[f"confusion_{Path(model).stem}.png"] = _save(plt, fig, "png")
+    return out

@@ -18,13 +18,17 @@ with the onset, not the detection time, as the hand-over:
    the magnitude jointly with the state. The filters are independent and run
    in parallel processes.
 5. **Drop** every hypothesis whose filter cannot follow the data: the same
-   windowed Z-test on its own normalised residuals, with a probability
-   ``rejection`` of dropping the true hypothesis over the run.
+   windowed Z-test runs on each filter's own normalised residuals, with a
+   probability ``rejection`` of rejecting a filter of the true hypothesis
+   over the run. A rejected filter stops at once (the work on wrong
+   hypotheses ends early); a hypothesis is dropped when its filters from
+   every onset tried were rejected.
 6. **Weigh** the hypotheses by the probability the data give each: the
    product of each filter's one-step predictive densities (their Gaussian
    approximation, mean and std of the predicted measurement), over a common
    span (the nominal filter's densities before a later onset), averaged over
-   the onsets tried, times the candidate's prior. A survivor less probable
+   the onsets tried (a rejected onset counts zero), times the candidate's
+   prior. A survivor less probable
    than the best by a Bayes factor above ``bayes_factor`` is dropped too. The
    survivors are the diagnosis; when several survive, they form an ambiguity
    group, ranked by probability, each with its estimate.
@@ -44,7 +48,8 @@ about 0.99): the weighted mean and variance are kept, and the particles that
 resampling duplicated become distinct again, so the cloud does not collapse
 onto a few values while the data narrow the magnitude down. The cloud at the
 last step gives the estimate (its weighted mean) and a central interval
-(weighted quantiles).
+(weighted quantiles); the band plotted over time is the weighted mean plus or
+minus the normal quantile times the weighted std.
 """
 
 from __future__ import annotations
@@ -54,6 +59,7 @@ import multiprocessing
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from statistics import NormalDist
 from types import ModuleType
 
 import numpy as np
@@ -132,8 +138,9 @@ class Estimate:
 class Hypothesis:
     """One fault model: its filters from every onset tried (``onsets``, with
     their posterior probabilities), and from the most probable one
-    (``start``) its per-step predicted measurements, normalised residuals and
-    magnitude (mean, interval), when it was dropped and why (None: it
+    (``start``) its per-step predicted measurements, normalised residuals,
+    state estimates (mean, std of the plant's states) and magnitude (mean,
+    interval), when it was dropped and why (None: it
     survived), its log evidence (over the onsets) and posterior probability
     among the hypotheses."""
 
@@ -147,6 +154,8 @@ class Hypothesis:
     y_mean: np.ndarray
     y_std: np.ndarray
     z: np.ndarray
+    x_mean: np.ndarray
+    x_std: np.ndarray
     magnitude: np.ndarray
     magnitude_band: np.ndarray
     dropped: int | None
@@ -162,11 +171,14 @@ class Diagnosis:
     """What :func:`diagnose` found. ``verdict``: ``no fault``, ``isolated``
     (one hypothesis survives), ``ambiguous`` (several do: ``candidates``, best
     first) or ``unexplained`` (none does; ``candidates`` then holds the one
-    that lasted longest). Steps are indices into the run."""
+    that lasted longest). Steps are indices into the run; ``nominal_x_mean``
+    and ``nominal_x_std`` are the nominal observer's state estimates (steps x
+    ``states``)."""
 
     model: str
     time: np.ndarray
     outputs: tuple[str, ...]
+    states: tuple[str, ...]
     verdict: str
     detection: Detection | None
     onset: int | None
@@ -177,6 +189,8 @@ class Diagnosis:
     nominal_y_mean: np.ndarray
     nominal_y_std: np.ndarray
     nominal_z: np.ndarray
+    nominal_x_mean: np.ndarray
+    nominal_x_std: np.ndarray
     statistics: np.ndarray
     threshold: float
     options: DiagnosisOptions
@@ -195,6 +209,16 @@ class Diagnosis:
 
     def time_of(self, step: int | None) -> float | None:
         return None if step is None else float(self.time[step])
+
+    def state_estimate(self) -> tuple[np.ndarray, np.ndarray]:
+        """The state estimate (mean, std; steps x ``states``) the diagnosis
+        stands for: the nominal observer's, then from its onset on the
+        filter of the diagnosed hypothesis (``candidates[0]``)."""
+        mean, std = self.nominal_x_mean.copy(), self.nominal_x_std.copy()
+        best = self.best
+        if best is not None:
+            mean[best.start:], std[best.start:] = best.x_mean, best.x_std
+        return mean, std
 
 
 def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors: dict[str, float],
@@ -222,12 +246,15 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     y_mean = np.full((T, n_y), np.nan)
     y_std = np.full((T, n_y), np.nan)
     z = np.full((T, n_y), np.nan)
+    x_mean = np.full((T, len(nominal.STATES)), np.nan)
+    x_std = np.full((T, len(nominal.STATES)), np.nan)
     detection = None
     say("tracking the nominal model")
     with np.errstate(all="ignore"):
         for k in range(T):
             r = pf.step(ys[k], us[k])
             y_mean[k], y_std[k] = r.y_mean, r.y_std
+            x_mean[k], x_std[k] = r.mean, r.std
             z[k] = (ys[k] - r.y_mean) / r.y_std
             if detection is None:
                 clouds[k] = (pf.x.copy(), pf.logw.copy())
@@ -236,8 +263,9 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                 if detection is not None:
                     say(f"fault detected at t = {run.time[k]:g} on {detection.sensor}")
     statistics = np.array(detector.statistics + [np.full(n_y, np.nan)] * (T - len(detector.statistics)))
-    common = dict(model=nominal.MODEL, time=run.time, outputs=outputs, nominal_y_mean=y_mean,
-                  nominal_y_std=y_std, nominal_z=z, statistics=statistics, threshold=detector.threshold,
+    common = dict(model=nominal.MODEL, time=run.time, outputs=outputs, states=tuple(nominal.STATES),
+                  nominal_y_mean=y_mean, nominal_y_std=y_std, nominal_z=z, nominal_x_mean=x_mean,
+                  nominal_x_std=x_std, statistics=statistics, threshold=detector.threshold,
                   options=options)
     if detection is None:
         return Diagnosis(verdict="no fault", detection=None, onset=None, symbols=(), refuted=(), hypotheses=(),
@@ -267,7 +295,8 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     # 4. every fault-model filter from every onset tried, in parallel
     starts_of = {name: onsets[fault_kind(package.MODELS[name].FAULT["kind"]).drifts] for name in names}
     jobs = [(name, package.__name__, options.method, options.particles, [options.seed, 1 + i, start],
-             _cloud(clouds, start), ys[start:], us[start:], options.interval, options.shrinkage)
+             _cloud(clouds, start), ys[start:], us[start:], options.interval, options.shrinkage,
+             DetectorOptions(options.rejection, options.windows, T - start), outputs)
             for i, name in enumerate(names) for start in starts_of[name]]
     first = min(min(s) for s in onsets.values())
     say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from {len(jobs)} onsets and hypotheses "
@@ -282,35 +311,45 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         evidence = []
         for start in starts:
             out = results[(name, T - start)]
+            if out["rejected"] is not None:  # its consistency test failed: this onset is out
+                evidence.append(-math.inf)
+                continue
             zh = (ys[start:] - out["y_mean"]) / out["y_std"]
             evidence.append(float(nominal_density[first:start].sum() + _log_density(zh, out["y_std"]).sum()))
         evidence = np.array(evidence)
-        best = int(np.argmax(evidence))
-        start = starts[best]
+        dropped_at, reason = None, ""
+        if np.isfinite(evidence).any():
+            start = starts[int(np.argmax(evidence))]
+        else:  # every onset's filter was rejected: dropped when the last one was
+            start = max(starts, key=lambda s: (s + results[(name, T - s)]["rejected"][0], s))
+            k, a = results[(name, T - start)]["rejected"]
+            dropped_at = start + k
+            reason = (f"its residual of {a.sensor} over {a.window} sample(s) reached {a.statistic:.1f} "
+                      f"(threshold {a.threshold:.1f})" + (f", from every onset tried ({len(starts)})"
+                                                         if len(starts) > 1 else ""))
         out = results[(name, T - start)]
         zh = (ys[start:] - out["y_mean"]) / out["y_std"]
-        check = Detector(outputs, DetectorOptions(options.rejection, options.windows, len(zh)))
-        dropped_at, reason = None, ""
-        for k in range(len(zh)):
-            a = check.update(zh[k])
-            if a is not None:
-                dropped_at = start + k
-                reason = (f"its residual of {a.sensor} over {a.window} sample(s) reached {a.statistic:.1f} "
-                          f"(threshold {a.threshold:.1f})")
-                break
-        onset_weights = np.exp(evidence - evidence.max())
-        onset_weights /= onset_weights.sum()
-        log_evidence = float(evidence.max() + math.log(np.mean(np.exp(evidence - evidence.max()))))
+        if np.isfinite(evidence).any():
+            onset_weights = np.exp(evidence - evidence.max())
+            onset_weights /= onset_weights.sum()
+            log_evidence = float(evidence.max() + math.log(np.mean(np.exp(evidence - evidence.max()))))
+        else:
+            onset_weights, log_evidence = np.zeros(len(starts)), -math.inf
         hyps.append(dict(name=name, parameter=module.FAULT["parameter"], kind=module.FAULT["kind"],
                          signatures=tuple(models[name]), start=start, onsets=tuple(starts),
                          onset_posterior=tuple(float(w) for w in onset_weights),
-                         y_mean=out["y_mean"], y_std=out["y_std"], z=zh, magnitude=out["magnitude"],
+                         y_mean=out["y_mean"], y_std=out["y_std"], z=zh,
+                         x_mean=out["mean"][:, :len(nominal.STATES)], x_std=out["std"][:, :len(nominal.STATES)],
+                         magnitude=out["magnitude"],
                          magnitude_band=out["band"], dropped=dropped_at, reason=reason,
                          log_evidence=log_evidence, seconds=sum(results[(name, T - s)]["seconds"] for s in starts),
                          estimate=_estimate(module, out, run, options.interval)))
     weights = np.array([math.log(max(priors.get(h["parameter"], 0.01), 1e-300)) + h["log_evidence"] for h in hyps])
-    weights = np.exp(weights - weights.max()) if len(weights) else weights
-    weights = weights / weights.sum() if len(weights) else weights
+    if np.isfinite(weights).any():
+        weights = np.exp(weights - weights.max())
+        weights = weights / weights.sum()
+    else:  # none survives (or none was tried)
+        weights = np.zeros(len(hyps))
     top = max(weights) if len(weights) else 0.0
     for h, w in zip(hyps, weights):  # 6. decisively less probable than the best: dropped as well
         if h["dropped"] is None and w < top / options.bayes_factor:
@@ -375,7 +414,7 @@ def _run_hypothesis(job) -> dict:
     """One fault-model filter from the onset (run in a worker process)."""
     import sys
 
-    name, package_name, method, particles, seed, cloud, ys, us, level, shrinkage = job
+    name, package_name, method, particles, seed, cloud, ys, us, level, shrinkage, rejection, outputs = job
     package = sys.modules[package_name]
     module = package.MODELS[name]
     cls = {"gpf": package.filters.GenericParticleFilter, "apf": package.filters.AuxiliaryParticleFilter}[method]
@@ -387,10 +426,13 @@ def _run_hypothesis(job) -> dict:
     pf = cls(module, particles, rng, x=x0)
     T = len(ys)
     k_mag = len(module.STATES) - 1
-    out = {"y_mean": np.empty((T, ys.shape[1])), "y_std": np.empty((T, ys.shape[1])),
-           "magnitude": np.empty(T), "band": np.empty((T, 2)), "mean": np.empty((T, len(module.STATES))),
-           "std": np.empty((T, len(module.STATES)))}
+    nan = np.nan
+    out = {"y_mean": np.full((T, ys.shape[1]), nan), "y_std": np.full((T, ys.shape[1]), nan),
+           "magnitude": np.full(T, nan), "band": np.full((T, 2), nan), "mean": np.full((T, len(module.STATES)), nan),
+           "std": np.full((T, len(module.STATES)), nan), "rejected": None}
     tail = (1.0 - level) / 2.0
+    check = Detector(outputs, rejection)
+    last = T - 1
     with np.errstate(all="ignore"):
         for k in range(T):
             r = pf.step(ys[k], us[k])
@@ -398,8 +440,16 @@ def _run_hypothesis(job) -> dict:
             out["y_mean"][k], out["y_std"][k] = r.y_mean, r.y_std
             out["mean"][k], out["std"][k] = r.mean, r.std
             out["magnitude"][k] = r.mean[k_mag]
-            out["band"][k] = _weighted_quantiles(pf.x[k_mag], pf.logw, [tail, 1.0 - tail])
-    out["final_std"] = float(out["std"][-1, k_mag])
+            alarm = check.update((ys[k] - r.y_mean) / r.y_std)
+            if alarm is not None:  # inconsistent with the data: this filter stops here
+                out["rejected"] = (k, alarm)
+                last = k
+                break
+    out["band"][last] = _weighted_quantiles(pf.x[k_mag], pf.logw, [tail, 1.0 - tail])
+    sd = out["std"][:, k_mag]
+    out["band"][:last] = out["magnitude"][:last, None] + NormalDist().inv_cdf(1.0 - tail) * np.outer(sd[:last], [-1, 1])
+    out["final_std"] = float(out["std"][last, k_mag])
+    out["last"] = last
     w = np.exp(pf.logw - pf.logw.max())
     out["parameter_value"] = float(w @ module.parameter_value(pf.x, pf.theta) / w.sum())
     out["seconds"] = time.perf_counter() - started
@@ -443,6 +493,7 @@ def _estimate(module, out: dict, run: Run, level: float) -> Estimate:
             truth = float((recorded[-1] - recorded[-2]) / (run.time[-1] - run.time[-2]))
         else:
             truth = float(recorded[-1] - nominal)
-    return Estimate(p, kind_name, kind.magnitude, float(out["magnitude"][-1]), out["final_std"],
-                    float(out["band"][-1, 0]), float(out["band"][-1, 1]), level, out["parameter_value"],
+    last = out["last"]
+    return Estimate(p, kind_name, kind.magnitude, float(out["magnitude"][last]), out["final_std"],
+                    float(out["band"][last, 0]), float(out["band"][last, 1]), level, out["parameter_value"],
                     nominal, truth)

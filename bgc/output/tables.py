@@ -1,0 +1,211 @@
+"""A campaign's tables: the ones its file asks for (shaped like the thesis's
+Tables IV.2 to IV.4, with published numbers beside ours), a summary per group,
+filter, noise level and particle count, and an isolation confusion matrix per
+model. Rows are the dicts of :mod:`bgc.campaign` (``runs.csv``).
+
+>>> rows = [{"filter": "gpf", "status": "ok", "scenario": "none", "rt": 1.0, "right": None},
+...         {"filter": "gpf", "status": "ok", "scenario": "none", "rt": 3.0, "right": None}]
+>>> cell(rows, "rt")
+(2.0, 1.4142135623730951, 2)
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Iterable
+
+from . import render
+
+#: Metrics shown as a percentage of the runs where they are defined.
+RATES = ("detected", "false_alarm", "right", "covers")
+#: Metrics that are relative errors, shown in percent.
+PERCENT = ("est_error", "param_error")
+HEAD = {"rt": "RT s", "mse": "MSE", "nmse": "NMSE %", "ct": "CT", "delay": "delay", "detected": "detected",
+        "false_alarm": "false alarm", "right": "right", "estimate": "estimate", "est_error": "magnitude error %",
+        "parameter": "parameter", "param_error": "parameter error %", "covers": "95 % covers"}
+
+
+def _ok(rows: Iterable[dict]) -> list[dict]:
+    return [r for r in rows if r.get("status") == "ok"]
+
+
+def cell(rows: list[dict], metric: str) -> tuple[float, float, int] | None:
+    """(mean, sample sd, n) of ``metric`` over the rows where it is defined;
+    for a rate, (fraction true, 0, n)."""
+    values = [r.get(metric) for r in _ok(rows)]
+    values = [v for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))]
+    if not values:
+        return None
+    if metric in RATES:
+        return sum(bool(v) for v in values) / len(values), 0.0, len(values)
+    n = len(values)
+    mean = sum(values) / n
+    sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1)) if n > 1 else 0.0
+    return mean, sd, n
+
+
+def _fmt(x: float) -> str:
+    if x == 0 or 1e-3 <= abs(x) < 1e5:
+        return f"{x:.4g}" if abs(x) < 100 else f"{x:.1f}"
+    return f"{x:.3g}"
+
+
+def format_cell(c: tuple[float, float, int] | None, metric: str) -> str:
+    if c is None:
+        return "–"
+    mean, sd, n = c
+    if metric in RATES:
+        return f"{round(mean * n)}/{n}"
+    if metric in PERCENT or metric == "nmse":
+        return f"{_fmt(100 * mean)} ({_fmt(100 * sd)})"
+    return f"{_fmt(mean)} ({_fmt(sd)})"
+
+
+def _label(row: dict, rows: str) -> str:
+    from ..campaign import row_label
+
+    return row_label(row, rows)
+
+
+def table_markdown(spec, rows: list[dict]) -> str:
+    """One table of the campaign file: a line per row label, for each filter
+    the metrics as mean (sd) over the runs, published numbers in brackets."""
+    chosen = [r for r in rows if r["group"] in spec.groups and (spec.scenarios is None or r["scenario"] in spec.scenarios)]
+    filters = [f for f in ("gpf", "apf") if any(r["filter"] == f for r in chosen)]
+    labels = list(dict.fromkeys(_label(r, spec.rows) for r in chosen))
+    head = [spec.rows] + [f"{f.upper()} {HEAD[m]}" for f in filters for m in spec.metrics]
+    lines = [f"### {spec.title}", ""]
+    if spec.reference is not None:
+        lines += [f"Ours: mean (sd) over the runs; in brackets: {spec.reference.source}.", ""]
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for label in labels:
+        out = [label]
+        for f in filters:
+            mine = [r for r in chosen if r["filter"] == f and _label(r, spec.rows) == label]
+            ref = spec.reference.values.get((label, f), {}) if spec.reference else {}
+            for m in spec.metrics:
+                text = format_cell(cell(mine, m), m)
+                if m in ref:
+                    mean, sd = ref[m]
+                    text += f" [{_fmt(mean)}" + (f" ({_fmt(sd)})" if sd is not None else "") + "]"
+                out.append(text)
+        lines.append("| " + " | ".join(out) + " |")
+    n_runs = len(chosen)
+    n_failed = sum(r["status"] != "ok" for r in chosen)
+    lines += ["", f"{n_runs} runs" + (f", {n_failed} failed (not counted)" if n_failed else "") + "."]
+    return "\n".join(lines) + "\n"
+
+
+def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
+    """Per group, filter, noise level and particle count: how the runs went."""
+    keys = list(dict.fromkeys((r["group"], r["filter"], r["noise"], r["particles"]) for r in rows))
+    out = []
+    for g, f, noise, n in keys:
+        mine = [r for r in rows if (r["group"], r["filter"], r["noise"], r["particles"]) == (g, f, noise, n)]
+        ok = _ok(mine)
+        free = [r for r in ok if not r.get("fault")]
+        faulty = [r for r in ok if r.get("fault")]
+        plain = [r for r in faulty if not r.get("ambiguous")]
+        out.append({
+            "group": g, "filter": f, "noise": noise, "particles": n, "runs": len(mine),
+            "failed": len(mine) - len(ok), "fault_free": len(free),
+            "false_alarms": sum(bool(r["false_alarm"]) for r in ok),
+            "faulty": len(faulty), "detected": sum(bool(r["detected"]) for r in faulty),
+            "right": sum(bool(r["right"]) for r in faulty),
+            "right_outside_ambiguity": sum(bool(r["right"]) for r in plain), "outside_ambiguity": len(plain),
+            "in_candidates": sum(bool(r["in_candidates"]) for r in faulty),
+            "est_error": cell(faulty, "est_error"), "covers": cell(faulty, "covers"),
+            "delay": cell(faulty, "delay"), "rt": cell(ok, "rt"),
+        })
+    return out
+
+
+def _frac(k: int, n: int) -> str:
+    return "–" if n == 0 else f"{k}/{n} ({100 * k / n:.1f} %)"
+
+
+def summary_markdown(rows: list[dict]) -> str:
+    head = ["group", "filter", "noise", "N", "runs", "failed", "false alarms (fault-free)", "detected",
+            "right", "right outside ambiguity groups", "right among survivors", "error % mean (sd)",
+            "95 % covers", "delay", "RT s"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for s in summary_rows(rows):
+        lines.append("| " + " | ".join([
+            s["group"], s["filter"], s["noise"], str(s["particles"]), str(s["runs"]), str(s["failed"]),
+            _frac(s["false_alarms"], s["fault_free"]) if s["fault_free"] else
+            (f"{s['false_alarms']} before the onset" if s["faulty"] else "–"),
+            _frac(s["detected"], s["faulty"]), _frac(s["right"], s["faulty"]),
+            _frac(s["right_outside_ambiguity"], s["outside_ambiguity"]), _frac(s["in_candidates"], s["faulty"]),
+            format_cell(s["est_error"], "est_error"), format_cell(s["covers"], "covers"),
+            format_cell(s["delay"], "delay"), format_cell(s["rt"], "rt")]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def confusion(rows: list[dict], model: str) -> tuple[list[str], list[str], dict[tuple[str, str], int]]:
+    """(true labels, diagnosed labels, counts) over one model's finished runs."""
+    counts: dict[tuple[str, str], int] = {}
+    for r in _ok(rows):
+        if r["model"] != model:
+            continue
+        truth = f"{r['fault']}_{r['kind']}" if r.get("fault") else "none"
+        said = r.get("diagnosed") or "none"
+        counts[(truth, said)] = counts.get((truth, said), 0) + 1
+    truths = sorted({t for t, _ in counts}, key=lambda t: (t != "none", t))
+    saids = sorted({s for _, s in counts}, key=lambda s: (s != "none", s))
+    return truths, saids, counts
+
+
+def confusion_markdown(rows: list[dict], model: str) -> str:
+    truths, saids, counts = confusion(rows, model)
+    lines = ["| truth \\ diagnosed | " + " | ".join(saids) + " |", "|" + "---|" * (len(saids) + 1)]
+    for t in truths:
+        lines.append(f"| {t} | " + " | ".join(str(counts.get((t, s), "")) for s in saids) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def campaign_markdown(c, rows: tuple[dict, ...]) -> str:
+    """``tables.md``: the campaign's tables, the summary and the confusion matrices."""
+    from .artifacts import MARK
+
+    rows = list(rows)
+    out = [f"<!-- {MARK} experiment from {c.source} -->", f"# Campaign {c.name}", ""]
+    if c.description:
+        out += [c.description.strip(), ""]
+    out += [f"{len(rows)} runs ({sum(r['status'] != 'ok' for r in rows)} failed). Metrics are defined in "
+            "docs/experiments.md.", ""]
+    for spec in c.tables:
+        out += [table_markdown(spec, rows), ""]
+    out += ["## Summary", "", summary_markdown(rows), ""]
+    for model in dict.fromkeys(r["model"] for r in rows):
+        out += [f"## Isolation confusion matrix: {model}", "", confusion_markdown(rows, model), ""]
+    failed = [r for r in rows if r["status"] != "ok"]
+    if failed:
+        out += ["## Failed runs", ""] + [f"- run {r['index']} ({r['scenario']}, {r['filter']}, seed {r['seed']}): "
+                                         f"{r['failure']}" for r in failed[:50]] + [""]
+    return "\n".join(out).rstrip() + "\n"
+
+
+def campaign_json(c, rows: tuple[dict, ...]) -> str:
+    """``summary.json``: the summary rows and every table's cells as numbers."""
+    rows = list(rows)
+    tables = []
+    for spec in c.tables:
+        chosen = [r for r in rows if r["group"] in spec.groups and (spec.scenarios is None or r["scenario"] in spec.scenarios)]
+        cells = []
+        for label in dict.fromkeys(_label(r, spec.rows) for r in chosen):
+            for f in ("gpf", "apf"):
+                mine = [r for r in chosen if r["filter"] == f and _label(r, spec.rows) == label]
+                if not mine:
+                    continue
+                values = {}
+                for m in spec.metrics:
+                    x = cell(mine, m)
+                    values[m] = None if x is None else {"mean": x[0], "sd": x[1], "n": x[2]}
+                cells.append({"row": label, "filter": f, "metrics": values})
+        tables.append({"title": spec.title, "cells": cells})
+    summary = []
+    for s in summary_rows(rows):
+        summary.append({k: ({"mean": v[0], "sd": v[1], "n": v[2]} if isinstance(v, tuple) else v)
+                        for k, v in s.items()})
+    return render.to_json({"generated_by": "bgc", "campaign": c.name, "source": c.source, "runs": len(rows),
+                           "tables": tables, "summary": summary})
