@@ -284,7 +284,7 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
             onset = round(float(rng.uniform(o_lo, o_hi)) * steps) * dt
             nominal = prior[(p, k)].nominal
             size = sign * change * abs(nominal)
-            magnitude = size / (duration - onset) if fault_kind(k).drifts else size
+            magnitude = size / duration if fault_kind(k).drifts else size  # a drift: that change per run length
             b_lo, b_hi = prior[(p, k)].prior
             if not b_lo <= magnitude <= b_hi:
                 raise ExperimentError(f"a draw of {p}:{k} with change {sign * change:.3g} lies outside the prior of "
@@ -386,6 +386,10 @@ def _schema_message(err: jsonschema.ValidationError, path: tuple) -> tuple[str, 
     if v == "oneOf" and path and isinstance(path[-1], int) and len(path) == 2 and path[0] == "groups":
         return (f"{where} must give either 'scenarios' or 'draws'",
                 "a group is a grid of scenarios or randomised draws, not both")
+    if v == "oneOf" and err.context:  # say what is wrong with the form it comes nearest to
+        # the branch that got furthest into the value is the form meant
+        sub = max(err.context, key=lambda e: (len(e.absolute_path), e.validator not in ("const", "type")))
+        return _schema_message(sub, tuple(sub.absolute_path))
     if v == "oneOf":
         return f"{where} has no valid form", "see docs/experiments.md for what it may be"
     if v == "pattern":
@@ -447,7 +451,7 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
             status="ok", rt=d.seconds, mse=float(np.mean(list(m.mse.values()))), nmse=m.nmse,
             mse_states=" ".join(f"{k}={v:.6g}" for k, v in m.mse.items()), ct=m.ct, detected=m.detected,
             detection_time=m.detection_time, delay=m.delay, false_alarm=m.false_alarm, verdict=m.verdict,
-            diagnosed=m.diagnosed, candidates=" ".join(d.candidates), right=m.right, in_candidates=m.in_candidates,
+            diagnosed=m.diagnosed, candidates=" ".join(d.candidates) or None, right=m.right, in_candidates=m.in_candidates,
             estimate=m.estimate, low=m.low, high=m.high, est_error=m.error, covers=m.covers)
         if m.right and best is not None and spec.parameter_truth is not None:
             row["parameter"] = best.estimate.parameter_value
@@ -524,7 +528,9 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
 
 # ------------------------------------------------------------------ running
 def _local(specs: list[RunSpec], workers: int) -> Iterator[tuple[RunSpec, dict]]:
-    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+    # fork where there is one: workers inherit the loaded modules and run from a
+    # notebook or a script without a __main__ guard (spawn re-imports __main__)
+    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method)) as pool:
         futures = {pool.submit(run_one, s): s for s in specs}
         try:
@@ -624,6 +630,7 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
 def _bar(total: int, initial: int, name: str, show: bool):
     from tqdm import tqdm
 
+    tqdm.monitor_interval = 0  # no monitor thread in a process that forks workers
     return tqdm(total=total, initial=initial, desc=name, unit="run", disable=not show, dynamic_ncols=True,
                 smoothing=0.1)
 

@@ -1,0 +1,135 @@
+"""How well can the slope of the RO plant's R_pipe drift be known from the data?
+bgc's estimate against an exact-in-the-limit reference on the same data.
+
+    .venv/bin/python bench/slope_reference.py [--seeds 5] [--particles 1000] [--ref-particles 2000]
+
+The RO plant is not linear in its states, so the reference is a grid posterior
+computed with marginal likelihoods from particle filters (the pseudo-marginal
+idea of PMMH, Andrieu, Doucet and Holenstein 2010, evaluated on a grid instead
+of by MCMC): for every onset tau and slope c of a grid, a bootstrap particle
+filter with ``--ref-particles`` particles and both fixed gives an unbiased
+estimate of p(y_1:T | tau, c); the nominal filter up to tau is shared by every
+c. With a flat prior on the grid, p(c | y) is proportional to sum over tau of
+p(y | tau, c). Its mean and std are what the data allow; bgc's estimate (its
+own onset search and a slope state with Liu-West moves) is compared with it
+run by run.
+
+The reference filter is written here (a plain bootstrap filter with
+systematic resampling on the generated model's ``transition`` and
+``loglik``), not bgc's filter loop. Scenario: the thesis's R_pipe incipient
+fault, slope 0.5 from t = 165, model noise levels, seeds 100, 101, ...
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import bgc  # noqa: E402
+from bgc.runtime import track  # noqa: E402
+from bgc.runtime.diagnose import DiagnosisOptions  # noqa: E402
+
+SLOPE, ONSET = 0.5, 165.0
+
+
+def logsumexp(a: np.ndarray) -> float:
+    m = float(np.max(a))
+    return m + math.log(float(np.sum(np.exp(a - m))))
+
+
+def resample(x: np.ndarray, logw: np.ndarray, rng) -> np.ndarray:
+    w = np.exp(logw - logw.max())
+    w /= w.sum()
+    n = len(w)
+    positions = (rng.random() + np.arange(n)) / n
+    idx = np.minimum(np.searchsorted(np.cumsum(w), positions), n - 1)
+    return x[:, idx]
+
+
+def bootstrap(model, x, ys, us, rng, fix=None) -> tuple[float, np.ndarray]:
+    """log p(ys | start cloud x) by a bootstrap filter; ``fix`` (row, value)
+    holds a state at a value (the fixed slope). Returns it and the final cloud."""
+    theta = model.THETA
+    total = 0.0
+    for k in range(len(ys)):
+        model.transition(x, us[k], theta, model.DT, rng, out=x)
+        if fix is not None:
+            x[fix[0]] = fix[1]
+        ll = model.loglik(ys[k], x, us[k], theta)
+        total += logsumexp(ll) - math.log(x.shape[1])
+        x = resample(x, ll, rng)
+    return total, x
+
+
+def reference(package, run, taus, slopes, n: int, seed: int) -> np.ndarray:
+    """log p(y | tau, c) on the grid (rows: taus, columns: slopes)."""
+    ys, us = track.run_arrays(run, package, "nominal")
+    nominal = package.MODELS["nominal"]
+    fault = package.MODELS["R_pipe_incipient"]
+    rng = np.random.default_rng([seed, 77])
+    out = np.empty((len(taus), len(slopes)))
+    x = nominal.initial_particles(rng, n)
+    done, ll0 = 0, 0.0
+    row = len(fault.STATES) - 1
+    for i, tau in enumerate(taus):  # the nominal filter advanced to each onset in turn
+        part, x = bootstrap(nominal, x, ys[done:tau], us[done:tau], rng)
+        ll0 += part
+        done = tau
+        for j, c in enumerate(slopes):
+            xf = fault.augment(x.copy(), rng)
+            xf[row] = c
+            # the drift: the generated model advances R_pipe by c per step from the onset
+            part, _ = bootstrap(fault, xf, ys[tau:], us[tau:], rng, fix=(row, c))
+            out[i, j] = ll0 + part
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--particles", type=int, default=1000, help="bgc diagnose's particles")
+    ap.add_argument("--ref-particles", type=int, default=2000)
+    args = ap.parse_args()
+    package = track.load_package(ROOT / "generated", "ro", "models/ro.yaml")
+    taus = list(range(145, 186, 3))  # steps (dt = 1, run time t = step + 1)
+    slopes = np.round(np.arange(0.30, 0.701, 0.02), 4)
+    print(f"R_pipe incipient, slope {SLOPE} from t = {ONSET:g}; reference grid: onsets {taus[0]}..{taus[-1]} "
+          f"step 3, slopes {slopes[0]}..{slopes[-1]} step 0.02, {args.ref_particles} particles per filter\n")
+    print("| seed | bgc estimate | bgc 95 % interval | bgc error % | reference mean | reference sd | "
+          "reference error % | reference s |")
+    print("|---|---|---|---|---|---|---|---|")
+    errors, ref_errors, ref_sds = [], [], []
+    for i in range(args.seeds):
+        seed = 100 + i
+        r = bgc.diagnose(ROOT / "models" / "ro.yaml", scenario=f"R_pipe:incipient:{SLOPE}@{ONSET:g}", seed=seed,
+                         generated=ROOT / "generated",
+                         options=DiagnosisOptions(particles=args.particles, seed=seed))
+        e = r.diagnosis.estimate
+        started = time.perf_counter()
+        ll = reference(package, r.run, taus, slopes, args.ref_particles, seed)
+        seconds = time.perf_counter() - started
+        post = np.exp(ll - ll.max()).sum(axis=0)
+        post /= post.sum()
+        mean = float(post @ slopes)
+        sd = math.sqrt(float(post @ (slopes - mean) ** 2))
+        right = r.diagnosis.candidates[:1] == ("R_pipe_incipient",)
+        err = abs(e.value - SLOPE) / SLOPE if right else float("nan")
+        errors.append(err)
+        ref_errors.append(abs(mean - SLOPE) / SLOPE)
+        ref_sds.append(sd)
+        print(f"| {seed} | {e.value:.3f}{'' if right else ' (wrong fault)'} | [{e.low:.3f}, {e.high:.3f}] | "
+              f"{100 * err:.1f} | {mean:.3f} | {sd:.3f} | {100 * ref_errors[-1]:.1f} | {seconds:.0f} |")
+    print(f"\nmean error: bgc {100 * np.nanmean(errors):.1f} %, reference {100 * np.mean(ref_errors):.1f} %; "
+          f"reference posterior sd {np.mean(ref_sds):.3f} ({100 * np.mean(ref_sds) / SLOPE:.1f} % of the slope)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,273 @@
+"""Campaigns (bgc experiment): the file is checked like a model, expanded into
+runs as written, run on local processes or a Dask cluster with the same rows,
+resumed without redoing finished runs; a failing run is recorded and the
+campaign goes on; tables and metrics computed as defined."""
+
+import csv
+import dataclasses
+import math
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bgc import campaign
+from bgc.errors import BgcError
+from bgc.output import tables
+from bgc.runtime import metrics
+
+from conftest import ROOT
+
+CIRCUIT = ROOT / "models" / "circuit.yaml"
+TWO_TANK = ROOT / "models" / "two_tank.yaml"
+
+SMALL = f"""\
+campaign: small
+defaults:
+  steps: 80
+  filters: [gpf, apf]
+  particles: [100]
+  seeds: 2
+groups:
+  - name: grid
+    model: {CIRCUIT}
+    scenarios: [none, "R2:abrupt:0.6@1.5"]
+  - name: draws
+    model: {TWO_TANK}
+    draws: {{count: 2, change: [0.3, 0.5], onset: [0.3, 0.4]}}
+    filters: [gpf]
+    seeds: 1
+tables:
+  - title: grid
+    groups: [grid]
+    metrics: [rt, right, est_error]
+    reference:
+      source: a reference
+      values:
+        - {{row: "R2:abrupt:0.6@1.5", filter: gpf, est_error: 5}}
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "c.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(textwrap.dedent(text), encoding="utf-8")
+    return p
+
+
+def without_time(rows):
+    return [{k: v for k, v in r.items() if k != "rt"} for r in rows]
+
+
+# ------------------------------------------------------------------ the file
+def test_the_grid_expands_into_every_combination_in_order(tmp_path):
+    c = campaign.load_campaign(write(tmp_path, SMALL))
+    grid = [s for s in c.specs if s.group == "grid"]
+    # 2 scenarios x 1 noise x 2 filters x 1 particle count x 2 seeds
+    assert len(grid) == 8 and len([s for s in c.specs if s.group == "draws"]) == 2
+    assert [s.index for s in c.specs] == list(range(10))
+    assert len({s.id for s in c.specs}) == 10
+    assert {(s.scenario, s.filter, s.seed) for s in grid} == {
+        (sc, f, seed) for sc in ("none", "R2:abrupt:0.6@1.5") for f in ("gpf", "apf") for seed in (0, 1)}
+    r2 = next(s for s in grid if s.fault == "R2")
+    # R2's nominal value in circuit.yaml is 2.0: 2.0 + 0.6 after the step
+    assert (r2.kind, r2.magnitude, r2.onset, r2.parameter_truth) == ("abrupt", 0.6, 1.5, 2.6)
+
+
+def test_draws_are_reproducible_and_respect_ranges_and_declared_directions(tmp_path):
+    text = f"""\
+    campaign: d
+    seed: 7
+    groups:
+      - name: g
+        model: {CIRCUIT}
+        draws: {{count: 60, change: [0.2, 0.5], onset: [0.3, 0.6]}}
+    """
+    a = campaign.load_campaign(write(tmp_path, text))
+    b = campaign.load_campaign(write(tmp_path, text, "again.yaml"))
+    assert [s.scenario for s in a.specs] == [s.scenario for s in b.specs]
+    assert len({s.seed for s in a.specs}) == 60  # every draw its own noise
+    nominal = {"R1": 1.0, "R2": 2.0, "R3": 1.0, "C1": 0.5, "C2": 1.0, "L": 0.5}  # circuit.yaml
+    duration = 300 * 0.05
+    for s in a.specs:
+        change = abs(s.magnitude) / nominal[s.fault] * (duration if s.kind == "incipient" else 1.0)
+        assert 0.2 - 1e-4 <= change <= 0.5 + 1e-4, s.scenario
+        assert 0.3 * duration - 0.05 <= s.onset <= 0.6 * duration + 0.05
+        if s.fault in ("C1", "C2"):  # declared 'decrease'
+            assert s.magnitude < 0
+        if s.fault == "R2":  # declared 'increase'
+            assert s.magnitude > 0
+    assert {s.fault for s in a.specs} >= {"R1", "R2", "C1", "L"}
+
+
+@pytest.mark.parametrize("body, where, words", [
+    ("groups: [{name: g, model: M, scenarios: [none], colour: red}]", ":2:", "unknown key 'colour'"),
+    ("groups: [{name: g, model: M}]", ":2:", "either 'scenarios' or 'draws'"),
+    ("groups: [{name: g, model: M, scenarios: [none], filters: [ekf]}]", ":2:", "'ekf' is not valid"),
+    ("groups: [{name: g, model: M, scenarios: ['R2:abrupt:x@1']}]", ":2:", "not PARAM:KIND:MAGNITUDE@TIME"),
+    ("groups: [{name: g, model: M, scenarios: ['Rx:abrupt:1@1']}]", ":2:", "'Rx' is not a parameter"),
+    ("groups: [{name: g, model: M, scenarios: ['R2:abrupt:1@99']}]", ":2:", "outside the run"),
+    ("groups: [{name: g, model: nowhere.yaml, scenarios: [none]}]", ":2:", "not found"),
+    ("groups: [{name: g, model: M, draws: {count: 3, change: [0.5, 0.2], onset: [0.3, 0.5]}}]", ":2:",
+     "change range"),
+    ("groups: [{name: g, model: M, draws: {count: 3, change: [0.2, 0.5], onset: [0.3, 0.5], faults: [Q]}}]",
+     ":2:", "'Q' is not a fault candidate"),
+    ("groups: [{name: g, model: M, scenarios: [none], noise: [{name: 'a b', process: 1, measurement: 1}]}]",
+     ":2:", "has characters a name may not have"),
+    ("groups: [{name: g, model: M, scenarios: [none]}]\ntables: [{title: t, groups: [h], metrics: [rt]}]",
+     ":3:", "names no group 'h'"),
+    ("groups: [{name: g, model: M, scenarios: [none]}]\n"
+     "tables: [{title: t, groups: [g], metrics: [rt], reference: {source: s, values: [{row: x, filter: gpf}]}}]",
+     ":3:", "reference row 'x'"),
+])
+def test_a_bad_campaign_is_one_located_line_without_traceback(tmp_path, body, where, words):
+    path = write(tmp_path, "campaign: bad\n" + body.replace("model: M", f"model: {CIRCUIT}") + "\n")
+    with pytest.raises(BgcError) as err:
+        campaign.load_campaign(path)
+    assert words in str(err.value) and f"{path}{where}" in str(err.value)
+    r = subprocess.run([sys.executable, "-m", "bgc", "experiment", str(path), "-o", str(tmp_path / "o")],
+                       capture_output=True, text=True)
+    assert r.returncode == 1 and "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert words in r.stderr
+
+
+def test_the_published_campaign_schema_is_the_packaged_one():
+    assert (ROOT / "schemas" / "campaign.schema.json").read_bytes() == \
+        (ROOT / "bgc" / "schema" / "campaign.schema.json").read_bytes(), \
+        "after editing bgc/schema/campaign.schema.json run: cp bgc/schema/campaign.schema.json schemas/"
+
+
+def test_the_shipped_campaigns_load():
+    thesis = campaign.load_campaign(ROOT / "experiments" / "thesis_tables.yaml")
+    # Tables IV.2 to IV.4: 5 scenarios x 2 filters x 10 seeds, and R_pipe abrupt at the high noise level
+    assert len(thesis.specs) == 100 + 20 and len(thesis.tables) == 4
+    sweep = campaign.load_campaign(ROOT / "experiments" / "sweep.yaml")
+    faulty = [s for s in sweep.specs if s.fault]
+    for model in ("ro", "circuit", "two_tank"):
+        mine = {s.scenario for s in faulty if s.model_name == model}
+        free = [s for s in sweep.specs if s.model_name == model and not s.fault]
+        assert len(mine) >= 100 and len(free) >= 100
+    assert {s.filter for s in sweep.specs} == {"gpf", "apf"} and len({s.noise for s in sweep.specs}) == 2
+
+
+# ------------------------------------------------------------------ running
+def test_a_failing_run_is_recorded_and_does_not_raise(tmp_path):
+    c = campaign.load_campaign(write(tmp_path, SMALL))
+    broken = dataclasses.replace(c.specs[0], model_text="name: [\n")
+    row = campaign.run_one(broken)
+    assert row["status"] == "failed" and "YAML" in row["failure"] and row["index"] == 0
+
+
+@pytest.fixture(scope="module")
+def local_run(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("campaign")
+    config = write(folder, SMALL)
+    c = campaign.load_campaign(config)
+    return c, campaign.run_campaign(c, folder / "out", workers=2, progress=False), folder
+
+
+def test_a_local_campaign_writes_rows_tables_and_plots(local_run):
+    c, r, folder = local_run
+    out = folder / "out"
+    assert r.failed == 0, [row["failure"] for row in r.rows if row["status"] != "ok"]
+    assert r.ran == 10 and [row["index"] for row in r.rows] == list(range(10))
+    rows = campaign.read_rows(out / "runs.csv")
+    assert without_time(rows) == without_time(r.rows)
+    for row in rows:
+        if row["scenario"] == "none":  # fault-free: no alarm expected at the model's noise
+            assert row["right"] is None and row["estimate"] is None
+        if row["scenario"] == "R2:abrupt:0.6@1.5":
+            assert row["detected"] and row["delay"] >= 0 and row["right"]
+            assert row["parameter"] == pytest.approx(2.0 + row["estimate"], rel=1e-3)
+            assert row["est_error"] == pytest.approx(abs(row["estimate"] - 0.6) / 0.6)
+    text = (out / "tables.md").read_text()
+    assert "### grid" in text and "[5]" in text and "## Isolation confusion matrix" in text
+    assert (out / "plots" / "distributions.png").read_bytes()[:4] == b"\x89PNG"
+    assert (out / "plots" / "confusion_circuit.png").exists()
+
+
+def test_an_interrupted_campaign_resumes_without_redoing_finished_runs(local_run):
+    c, first, folder = local_run
+    out = folder / "resume"
+    campaign.run_campaign(c, out, workers=2, progress=False, outputs=False)
+    lines = (out / "runs.csv").read_text().splitlines(keepends=True)
+    # keep the header and 6 rows, then half a row (the process was killed while writing)
+    (out / "runs.csv").write_text("".join(lines[:8]) + lines[8][:30])
+    again = campaign.run_campaign(c, out, workers=2, progress=False)
+    assert (again.reused, again.ran) == (6, 4)
+    assert without_time(again.rows) == without_time(first.rows)
+
+
+def test_a_dask_cluster_gives_the_local_rows_row_for_row(local_run):
+    distributed = pytest.importorskip("distributed")
+    c, local, folder = local_run
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=None) as cluster:
+        remote = campaign.run_campaign(c, folder / "dask", scheduler=cluster.scheduler_address, progress=False)
+    assert remote.ran == 10 and remote.failed == 0
+    assert without_time(remote.rows) == without_time(local.rows)
+
+
+def test_the_campaign_folder_is_bgc_s_own(local_run, tmp_path):
+    c, _, folder = local_run
+    (tmp_path / "mine.txt").write_text("notes")
+    with pytest.raises(BgcError, match="holds no bgc manifest.json"):
+        campaign.run_campaign(c, tmp_path, progress=False)
+    other = dataclasses.replace(c, name="other")
+    with pytest.raises(BgcError, match="holds campaign 'small'"):
+        campaign.run_campaign(other, folder / "out", progress=False)
+
+
+def test_an_unreachable_scheduler_is_one_line(tmp_path):
+    config = write(tmp_path, SMALL)
+    r = subprocess.run([sys.executable, "-m", "bgc", "experiment", str(config), "-o", str(tmp_path / "o"),
+                        "--scheduler", "tcp://127.0.0.1:9"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 1 and "Traceback" not in r.stderr and "Dask scheduler" in r.stderr
+
+
+# ------------------------------------------------------------------ tables and metrics
+def test_cells_are_mean_and_sample_sd_and_rates_count_defined_runs():
+    rows = [{"status": "ok", "rt": x, "right": r} for x, r in ((1.0, True), (2.0, False), (6.0, None))]
+    rows.append({"status": "failed", "rt": 100.0, "right": True})
+    assert tables.cell(rows, "rt") == (3.0, math.sqrt(7.0), 3)  # (4 + 1 + 9) / 2 = 7
+    assert tables.cell(rows, "right") == (0.5, 0.0, 2)
+    assert tables.format_cell(tables.cell(rows, "right"), "right") == "1/2"
+
+
+def test_the_confusion_matrix_counts_truth_against_diagnosis():
+    rows = [{"status": "ok", "model": "m", "fault": f, "kind": k, "diagnosed": d}
+            for f, k, d in (("R1", "abrupt", "R1_abrupt"), ("R1", "abrupt", "R2_abrupt"), (None, None, "none"))]
+    truths, saids, counts = tables.confusion(rows, "m")
+    assert truths == ["none", "R1_abrupt"] and counts == {("R1_abrupt", "R1_abrupt"): 1,
+                                                          ("R1_abrupt", "R2_abrupt"): 1, ("none", "none"): 1}
+
+
+def test_convergence_needs_every_later_window_to_pass():
+    T = 60
+    truth = np.zeros((T, 3))
+    std = np.ones((T, 3))
+    mean = truth.copy()
+    assert metrics.convergence_step(mean, truth, std, 0) == 0
+    mean[T - 1] = 10.0  # the last window fails: not converged
+    assert metrics.convergence_step(mean, truth, std, 0) is None
+    mean[T - 1] = 0.0
+    mean[20:25] = 4.0  # NEES 16 on 5 of 10 steps: window average 8 > chi2_0.999(30)/30 = 1.98
+    k = metrics.convergence_step(mean, truth, std, 0)
+    # a window of 10 steps fails with two of the bad steps (2 x 16 / 10 = 3.2 > 1.99) and passes
+    # with one (1.6): the last failing window is [23, 33), holding 23 and 24; from step 33 on,
+    # every window that ends there or later holds at most step 24
+    assert k == 33
+
+
+def test_the_chi_square_quantile_matches_tables():
+    for q, dof, table in ((0.999, 30, 59.703), (0.99, 50, 76.154), (0.95, 100, 124.342)):
+        assert metrics.chi2_quantile(q, dof) == pytest.approx(table, rel=5e-3)
+
+
+def test_runs_csv_round_trips_every_column(local_run):
+    _, r, folder = local_run
+    with open(folder / "out" / "runs.csv", encoding="utf-8") as f:
+        lines = [ln for ln in f if not ln.startswith("#")]
+    assert tuple(next(csv.reader(lines))) == campaign.COLUMNS
