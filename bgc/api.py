@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import atexit
 import hashlib
+import os
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -104,7 +105,19 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
 #: notebook or a campaign worker diagnosing one model many times compiles it
 #: and imports its package once.
 _COMPILED: dict[tuple[str, str], tuple[pipeline.Compiled, str]] = {}
-_FOLDERS: list[str] = []
+_FOLDERS: dict[int, str] = {}  # process id -> its private folder (a forked worker makes its own)
+
+
+def private_folder(prefix: str) -> str:
+    """A new temporary folder of this process, removed when it exits: at
+    interpreter exit, or at the end of a multiprocessing worker (which skips
+    atexit handlers)."""
+    from multiprocessing import util
+
+    folder = tempfile.mkdtemp(prefix=prefix)
+    atexit.register(shutil.rmtree, folder, True)
+    util.Finalize(None, shutil.rmtree, args=(folder, True), exitpriority=0)
+    return folder
 
 
 def _compiled(model: str | Path) -> tuple[pipeline.Compiled, str]:
@@ -116,13 +129,14 @@ def _compiled(model: str | Path) -> tuple[pipeline.Compiled, str]:
     except OSError:
         pass
     key = (str(model), digest)
+    pid = os.getpid()
+    if pid not in _FOLDERS:  # first use in this process: a forked child must not share its parent's folder
+        _COMPILED.clear()
+        _FOLDERS[pid] = private_folder("bgc-")
     if digest and key in _COMPILED:
         return _COMPILED[key]
     c = pipeline.compile_model(model)
-    if not _FOLDERS:
-        _FOLDERS.append(tempfile.mkdtemp(prefix="bgc-"))
-        atexit.register(shutil.rmtree, _FOLDERS[0], True)
-    folder = Path(_FOLDERS[0]) / c.raw.sha256[:16]
+    folder = Path(_FOLDERS[pid]) / c.raw.sha256[:16]
     root = folder / c.model.name / "numpy_model"
     if not root.exists():
         root.mkdir(parents=True)

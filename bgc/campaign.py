@@ -26,7 +26,6 @@ import math
 import multiprocessing
 import os
 import sys
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
@@ -405,21 +404,21 @@ def _schema_message(err: jsonschema.ValidationError, path: tuple) -> tuple[str, 
 
 # ------------------------------------------------------------------ one run
 _MODEL_FILES: dict[str, str] = {}
-_MODEL_DIR: list[str] = []
+_MODEL_DIR: dict[int, str] = {}  # process id -> its private folder (a forked worker makes its own)
 
 
 def _model_file(spec: RunSpec) -> str:
     """The model's text written once per process into a private folder (a
     worker on another machine has no copy of the campaign's files)."""
+    from .api import private_folder
+
+    pid = os.getpid()
+    if pid not in _MODEL_DIR:  # never share the folder a parent process made: workers would race
+        _MODEL_FILES.clear()
+        _MODEL_DIR[pid] = private_folder("bgc-campaign-")
     digest = hashlib.sha256(spec.model_text.encode("utf-8")).hexdigest()[:16]
     if digest not in _MODEL_FILES:
-        if not _MODEL_DIR:
-            import atexit
-            import shutil
-
-            _MODEL_DIR.append(tempfile.mkdtemp(prefix="bgc-campaign-"))
-            atexit.register(shutil.rmtree, _MODEL_DIR[0], True)
-        path = Path(_MODEL_DIR[0]) / digest / f"{spec.model_name}.yaml"
+        path = Path(_MODEL_DIR[pid]) / digest / f"{spec.model_name}.yaml"
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(spec.model_text, encoding="utf-8")
         _MODEL_FILES[digest] = str(path)

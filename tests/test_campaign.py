@@ -165,6 +165,9 @@ def local_run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("campaign")
     config = write(folder, SMALL)
     c = campaign.load_campaign(config)
+    # this process fills its caches first: forked workers must make their own folders
+    # (sharing them, two workers once wrote the same model file at once and a run failed)
+    assert campaign.run_one(c.specs[1])["status"] == "ok"
     return c, campaign.run_campaign(c, folder / "out", workers=2, progress=False), folder
 
 

@@ -20,14 +20,17 @@ with the onset, not the detection time, as the hand-over:
 5. **Drop** every hypothesis whose filter cannot follow the data: the same
    windowed Z-test runs on each filter's own normalised residuals, with a
    probability ``rejection`` of rejecting a filter of the true hypothesis
-   over the run. A rejected filter stops at once (the work on wrong
-   hypotheses ends early); a hypothesis is dropped when its filters from
-   every onset tried were rejected.
+   over the run. A filter whose statistic goes beyond ``FAR`` (2) times the
+   threshold is far off the data: it stops there and its onset is out, so
+   the work on wrong hypotheses and onsets ends early (a filter just over the
+   threshold runs on: at low noise the right model is sometimes just off the
+   truth). A hypothesis is dropped when the filter of its most probable onset
+   is rejected, or when every onset's filter stopped.
 6. **Weigh** the hypotheses by the probability the data give each: the
    product of each filter's one-step predictive densities (their Gaussian
    approximation, mean and std of the predicted measurement), over a common
    span (the nominal filter's densities before a later onset), averaged over
-   the onsets tried (a rejected onset counts zero), times the candidate's
+   the onsets tried (a stopped onset counts zero), times the candidate's
    prior. A survivor less probable
    than the best by a Bayes factor above ``bayes_factor`` is dropped too. The
    survivors are the diagnosis; when several survive, they form an ambiguity
@@ -311,7 +314,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         evidence = []
         for start in starts:
             out = results[(name, T - start)]
-            if out["rejected"] is not None:  # its consistency test failed: this onset is out
+            if out["stopped"]:  # rejected within its first steps: this onset is out
                 evidence.append(-math.inf)
                 continue
             zh = (ys[start:] - out["y_mean"]) / out["y_std"]
@@ -320,13 +323,15 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         dropped_at, reason = None, ""
         if np.isfinite(evidence).any():
             start = starts[int(np.argmax(evidence))]
-        else:  # every onset's filter was rejected: dropped when the last one was
+            every = ""
+        else:  # every onset's filter was stopped: dropped when the last one was
             start = max(starts, key=lambda s: (s + results[(name, T - s)]["rejected"][0], s))
+            every = f", from every onset tried ({len(starts)})" if len(starts) > 1 else ""
+        if results[(name, T - start)]["rejected"] is not None:  # the best onset's filter failed its test
             k, a = results[(name, T - start)]["rejected"]
             dropped_at = start + k
             reason = (f"its residual of {a.sensor} over {a.window} sample(s) reached {a.statistic:.1f} "
-                      f"(threshold {a.threshold:.1f})" + (f", from every onset tried ({len(starts)})"
-                                                         if len(starts) > 1 else ""))
+                      f"(threshold {a.threshold:.1f})" + every)
         out = results[(name, T - start)]
         zh = (ys[start:] - out["y_mean"]) / out["y_std"]
         if np.isfinite(evidence).any():
@@ -410,6 +415,11 @@ def _weighted_quantiles(values: np.ndarray, logw: np.ndarray, qs) -> np.ndarray:
     return np.interp(qs, c - 0.5 * w[order] / w.sum(), values[order])
 
 
+#: A hypothesis filter whose consistency statistic exceeds this many times the
+#: threshold is stopped (its onset is out of the evidence).
+FAR = 2.0
+
+
 def _run_hypothesis(job) -> dict:
     """One fault-model filter from the onset (run in a worker process)."""
     import sys
@@ -429,7 +439,7 @@ def _run_hypothesis(job) -> dict:
     nan = np.nan
     out = {"y_mean": np.full((T, ys.shape[1]), nan), "y_std": np.full((T, ys.shape[1]), nan),
            "magnitude": np.full(T, nan), "band": np.full((T, 2), nan), "mean": np.full((T, len(module.STATES)), nan),
-           "std": np.full((T, len(module.STATES)), nan), "rejected": None}
+           "std": np.full((T, len(module.STATES)), nan), "rejected": None, "stopped": False}
     tail = (1.0 - level) / 2.0
     check = Detector(outputs, rejection)
     last = T - 1
@@ -441,8 +451,12 @@ def _run_hypothesis(job) -> dict:
             out["mean"][k], out["std"][k] = r.mean, r.std
             out["magnitude"][k] = r.mean[k_mag]
             alarm = check.update((ys[k] - r.y_mean) / r.y_std)
-            if alarm is not None:  # inconsistent with the data: this filter stops here
+            if alarm is not None and out["rejected"] is None:
                 out["rejected"] = (k, alarm)
+            if alarm is not None and alarm.statistic > FAR * alarm.threshold:
+                # far off the data: a wrong hypothesis or onset, stopped here (a filter only just
+                # over the threshold may be the right one with a model slightly off the truth)
+                out["stopped"] = True
                 last = k
                 break
     out["band"][last] = _weighted_quantiles(pf.x[k_mag], pf.logw, [tail, 1.0 - tail])
