@@ -232,6 +232,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     from . import api
     from .output import artifacts, plots, report
+    from .runtime.diagnose import DiagnosisOptions
 
     if (args.data is None) == (args.scenario is None):
         raise BgcError("give --data RUN.csv or --scenario PARAM:KIND:MAGNITUDE@TIME", None,
@@ -239,10 +240,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     process, measurement = _parse_noise(args.noise)
     progress = _Progress()
     try:
-        r = api.diagnose(args.model, data=args.data, scenario=args.scenario, method=args.filter,
-                         particles=args.particles, seed=args.seed, process_noise=process,
+        options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed,
+                                   refine=args.refine)
+        r = api.diagnose(args.model, data=args.data, scenario=args.scenario, seed=args.seed, process_noise=process,
                          measurement_noise=measurement, steps=args.steps, generated=args.generated,
-                         progress=progress)
+                         options=options, progress=progress)
     finally:
         progress.close()
     files: dict[str, str | bytes] = {
@@ -383,6 +385,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=None, help="with --scenario: samples to simulate")
     p.add_argument("--generated", metavar="DIR",
                    help="use the package bgc compile wrote there (default: generate one for this run)")
+    p.add_argument("--refine", action="store_true",
+                   help="estimate the fault magnitude by marginal likelihood on a grid (slower, more accurate)")
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-diagnosis)")
     p.set_defaults(run=cmd_diagnose)
 

@@ -59,7 +59,7 @@ def report_data(r) -> dict[str, Any]:
             "estimate": {"magnitude": e.magnitude, "value": _num(e.value), "std": _num(e.std),
                          "interval": [_num(e.low), _num(e.high)], "level": e.level,
                          "parameter_value": _num(e.parameter_value), "nominal": _num(e.nominal),
-                         "truth": _num(e.truth), "covers_truth": e.covers}})
+                         "truth": _num(e.truth), "covers_truth": e.covers, "method": e.method}})
     return out
 
 
@@ -128,7 +128,8 @@ def report_markdown(r) -> str:
                              f"{'inside' if e.covers else 'outside'} the interval")
                 lines.append(f"- {name}: {what}: {e.magnitude} {e.value:.4g} +- {e.std:.2g}, "
                              f"{100 * e.level:.0f} % interval [{e.low:.4g}, {e.high:.4g}], {e.parameter} at the "
-                             f"end {e.parameter_value:.4g}, onset t = {_t(d, h.start):g}{truth}")
+                             f"end {e.parameter_value:.4g}, onset t = {_t(d, h.start):g}{truth}"
+                             + (" (grid posterior of the marginal likelihood)" if e.method == "grid" else ""))
     if d.notes:
         lines += ["", "## Notes", ""] + [f"- {printable(n)}" for n in d.notes]
     lines += ["", f"Diagnosis computed in {d.seconds:.2f} s.", ""]

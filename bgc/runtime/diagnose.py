@@ -57,6 +57,7 @@ minus the normal quantile times the weighted std.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import multiprocessing
 import time
@@ -70,7 +71,9 @@ import numpy as np
 from ..errors import TrackingError
 from ..ir import FaultSignatures
 from ..kinds import fault_kind
+from . import identify
 from .detect import Detection, Detector, DetectorOptions
+from .identify import GridOptions
 from .isolate import Symbol, hypotheses, observed_symbols
 from .runs import Run
 from .track import check_particles, run_arrays
@@ -91,7 +94,10 @@ class DiagnosisOptions:
     ``bayes_factor``: a surviving hypothesis this many times less probable
     than the best is dropped (100: "decisive" on Jeffreys' scale);
     ``workers``: parallel processes for the hypothesis filters (1: in this
-    process)."""
+    process). ``refine``: replace each surviving hypothesis's estimate by the
+    grid posterior of :mod:`bgc.runtime.identify` (``grid``): slower (about a
+    second or two more on the RO plant), about three times more accurate for
+    a slow drift's slope (docs/results.md)."""
 
     method: str = "gpf"
     particles: int = 1000
@@ -106,6 +112,8 @@ class DiagnosisOptions:
     bayes_factor: float = 100.0
     shrinkage: float = 0.98
     workers: int = 2
+    refine: bool = False
+    grid: GridOptions = GridOptions()
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,6 +135,7 @@ class Estimate:
     parameter_value: float
     nominal: float
     truth: float | None = None
+    method: str = "filter"
 
     @property
     def covers(self) -> bool | None:
@@ -295,43 +304,52 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     for s in keep:
         models.setdefault(f"{s.parameter}_{s.kind}", []).append(s.name)
     names = [n for n in sorted(models) if n in package.MODELS]
-    # 4. every fault-model filter from every onset tried, in parallel
+    # 4. every fault-model filter from every onset tried: one job per hypothesis, in parallel
     starts_of = {name: onsets[fault_kind(package.MODELS[name].FAULT["kind"]).drifts] for name in names}
-    jobs = [(name, package.__name__, options.method, options.particles, [options.seed, 1 + i, start],
-             _cloud(clouds, start), ys[start:], us[start:], options.interval, options.shrinkage,
-             DetectorOptions(options.rejection, options.windows, T - start), outputs)
-            for i, name in enumerate(names) for start in starts_of[name]]
-    first = min(min(s) for s in onsets.values())
-    say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from {len(jobs)} onsets and hypotheses "
-        f"(t = {run.time[first]:g} to {run.time[detection.step]:g})")
-    results = dict(zip(((j[0], j[6].shape[0]) for j in jobs), _run_all(jobs, options.workers)))
-    # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
     nominal_density = _log_density(z, y_std)
+    jobs = []
+    for i, name in enumerate(names):
+        f = min(starts_of[name])
+        rel = [s - f for s in starts_of[name]]
+        jobs.append((name, package.__name__, options.method, options.particles,
+                     {s - f: [options.seed, 1 + i, s] for s in starts_of[name]},
+                     {s - f: _cloud(clouds, s) for s in starts_of[name]}, ys[f:], us[f:], rel, options.interval,
+                     options.shrinkage, {s - f: DetectorOptions(options.rejection, options.windows, T - s)
+                                         for s in starts_of[name]}, outputs, nominal_density[f:]))
+    first = min(min(s) for s in onsets.values())
+    say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from "
+        f"{sum(len(starts_of[n]) for n in names)} onsets and hypotheses "
+        f"(t = {run.time[first]:g} to {run.time[detection.step]:g})")
+    results = {}
+    for name, res in zip(names, _run_all(jobs, options.workers)):
+        f = min(starts_of[name])
+        for rel, o in res.items():
+            o["evidence"] += float(nominal_density[first:f].sum())  # the common span starts at `first`
+            results[(name, T - (rel + f))] = o
+    # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
     hyps = []
     for name in names:
         module = package.MODELS[name]
         starts = starts_of[name]
         evidence = []
-        for start in starts:
-            out = results[(name, T - start)]
-            if out["stopped"]:  # rejected within its first steps: this onset is out
-                evidence.append(-math.inf)
-                continue
-            zh = (ys[start:] - out["y_mean"]) / out["y_std"]
-            evidence.append(float(nominal_density[first:start].sum() + _log_density(zh, out["y_std"]).sum()))
+        for start in starts:  # stopped or pruned onsets count -inf
+            evidence.append(results[(name, T - start)]["evidence"])
         evidence = np.array(evidence)
         dropped_at, reason = None, ""
         if np.isfinite(evidence).any():
             start = starts[int(np.argmax(evidence))]
             every = ""
-        else:  # every onset's filter was stopped: dropped when the last one was
-            start = max(starts, key=lambda s: (s + results[(name, T - s)]["rejected"][0], s))
+        else:  # every onset's filter was stopped or pruned: dropped when the last one was
+            start = max(starts, key=lambda s: (s + results[(name, T - s)]["last"], s))
             every = f", from every onset tried ({len(starts)})" if len(starts) > 1 else ""
         if results[(name, T - start)]["rejected"] is not None:  # the best onset's filter failed its test
             k, a = results[(name, T - start)]["rejected"]
             dropped_at = start + k
             reason = (f"its residual of {a.sensor} over {a.window} sample(s) reached {a.statistic:.1f} "
                       f"(threshold {a.threshold:.1f})" + every)
+        elif not np.isfinite(evidence).any():  # pruned onsets only (a filter never started)
+            dropped_at = start + max(results[(name, T - start)]["last"], 0)
+            reason = "another onset of it explained the data decisively better, and that one failed" + every
         out = results[(name, T - start)]
         zh = (ys[start:] - out["y_mean"]) / out["y_std"]
         if np.isfinite(evidence).any():
@@ -347,7 +365,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                          x_mean=out["mean"][:, :len(nominal.STATES)], x_std=out["std"][:, :len(nominal.STATES)],
                          magnitude=out["magnitude"],
                          magnitude_band=out["band"], dropped=dropped_at, reason=reason,
-                         log_evidence=log_evidence, seconds=sum(results[(name, T - s)]["seconds"] for s in starts),
+                         log_evidence=log_evidence, seconds=results[(name, T - starts[0])]["seconds"],
                          estimate=_estimate(module, out, run, options.interval)))
     weights = np.array([math.log(max(priors.get(h["parameter"], 0.01), 1e-300)) + h["log_evidence"] for h in hyps])
     if np.isfinite(weights).any():
@@ -372,11 +390,37 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         verdict, candidates = "unexplained", (last.name,)
     else:
         verdict, candidates = "unexplained", ()
+    if options.refine and candidates:  # 7. identification by marginal likelihood on a grid
+        say(f"refining the magnitude of {', '.join(candidates)} on a grid")
+        hypothesis_list = tuple(_refined(h, package, clouds, ys, us, run, options) if h.name in candidates else h
+                                for h in hypothesis_list)
     best_onset = next((h.start for h in hypothesis_list if candidates and h.name == candidates[0]), onset)
     say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
     return Diagnosis(verdict=verdict, detection=detection, onset=best_onset, symbols=seen, refuted=refuted,
                      hypotheses=hypothesis_list, candidates=candidates, seconds=time.perf_counter() - started,
                      notes=tuple(notes), **common)
+
+
+def _refined(h: Hypothesis, package, clouds: dict, ys, us, run: Run, options: DiagnosisOptions) -> Hypothesis:
+    """``h`` with its estimate from the grid posterior (:mod:`bgc.runtime.identify`)."""
+    module = package.MODELS[h.name]
+    order = np.argsort(h.onset_posterior)[::-1][: options.grid.onsets]
+    onsets = tuple(sorted(h.onsets[i] for i in order if h.onset_posterior[i] > 0)) or (h.start,)
+    e = h.estimate
+    g = identify.refine(package, h.name, _cloud(clouds, min(onsets)), ys, us, onsets, e.low, e.high,
+                        tuple(module.FAULT_PRIOR), options.interval, options.grid,
+                        [options.seed, 7, sum(map(ord, h.name))], parts=max(1, options.workers),
+                        mapper=lambda fn, jobs: _run_all(jobs, options.workers, fn))
+    if fault_kind(h.kind).drifts:  # the parameter at the last step: nominal + slope x time since the onset
+        joint = np.exp(g.loglik - np.max(g.loglik))
+        joint /= joint.sum()
+        spans = np.array([(len(ys) - t) * module.DT for t in g.onsets])
+        value = float(e.nominal + np.sum(joint * np.outer(spans, g.values)))
+    else:
+        value = e.nominal + g.mean
+    estimate = dataclasses.replace(e, value=g.mean, std=g.std, low=g.low, high=g.high, parameter_value=value,
+                                   method="grid")
+    return dataclasses.replace(h, estimate=estimate)
 
 
 def _cloud(clouds: dict, start: int):
@@ -420,53 +464,97 @@ def _weighted_quantiles(values: np.ndarray, logw: np.ndarray, qs) -> np.ndarray:
 FAR = 2.0
 
 
-def _run_hypothesis(job) -> dict:
-    """One fault-model filter from the onset (run in a worker process)."""
+#: Onsets of a hypothesis whose running log evidence falls this far behind
+#: the best onset's are pruned (a Bayes factor of e^20: they do not come back).
+PRUNE = 20.0
+
+
+def _run_hypothesis(job) -> dict[int, dict]:
+    """One hypothesis's filters from every onset, run in lockstep (in a worker
+    process): per onset, its arrays, its rejection, and its running log
+    evidence over [the hypothesis's first onset, T) (the nominal observer's
+    density before its onset). An onset whose evidence falls ``PRUNE`` behind
+    the best one's is pruned: a started filter stops, a later onset is never
+    started. Each filter has its own random numbers: a filter that runs gives
+    the same numbers whichever others run beside it."""
     import sys
 
-    name, package_name, method, particles, seed, cloud, ys, us, level, shrinkage, rejection, outputs = job
+    (name, package_name, method, particles, seeds, clouds, ys, us, starts, level, shrinkage, rejection, outputs,
+     nominal_density) = job
     package = sys.modules[package_name]
     module = package.MODELS[name]
     cls = {"gpf": package.filters.GenericParticleFilter, "apf": package.filters.AuxiliaryParticleFilter}[method]
-    rng = np.random.default_rng(seed)
     started = time.perf_counter()
-    x0 = None
-    if cloud is not None:
-        x0 = module.augment(cloud[0][:, package.filters.systematic_resample(cloud[1], rng)], rng)
-    pf = cls(module, particles, rng, x=x0)
-    T = len(ys)
-    k_mag = len(module.STATES) - 1
-    nan = np.nan
-    out = {"y_mean": np.full((T, ys.shape[1]), nan), "y_std": np.full((T, ys.shape[1]), nan),
-           "magnitude": np.full(T, nan), "band": np.full((T, 2), nan), "mean": np.full((T, len(module.STATES)), nan),
-           "std": np.full((T, len(module.STATES)), nan), "rejected": None, "stopped": False}
+    T = len(ys)  # steps from the first onset
+    n_y, n_x = ys.shape[1], len(module.STATES)
+    k_mag = n_x - 1
     tail = (1.0 - level) / 2.0
-    check = Detector(outputs, rejection)
-    last = T - 1
+    out: dict[int, dict] = {}
+    filters: dict[int, tuple] = {}
+    evidence = {s: 0.0 for s in starts}
+    live = set(starts)
+    for s in starts:
+        span = T - s
+        out[s] = {"y_mean": np.full((span, n_y), np.nan), "y_std": np.full((span, n_y), np.nan),
+                  "magnitude": np.full(span, np.nan), "band": np.full((span, 2), np.nan),
+                  "mean": np.full((span, n_x), np.nan), "std": np.full((span, n_x), np.nan),
+                  "rejected": None, "stopped": False, "pruned": False, "last": -1, "final_std": math.nan,
+                  "parameter_value": math.nan}
     with np.errstate(all="ignore"):
-        for k in range(T):
-            r = pf.step(ys[k], us[k])
-            _kernel_shrinkage(pf.x[k_mag], pf.logw, shrinkage, rng)
-            out["y_mean"][k], out["y_std"][k] = r.y_mean, r.y_std
-            out["mean"][k], out["std"][k] = r.mean, r.std
-            out["magnitude"][k] = r.mean[k_mag]
-            alarm = check.update((ys[k] - r.y_mean) / r.y_std)
-            if alarm is not None and out["rejected"] is None:
-                out["rejected"] = (k, alarm)
-            if alarm is not None and alarm.statistic > FAR * alarm.threshold:
-                # far off the data: a wrong hypothesis or onset, stopped here (a filter only just
-                # over the threshold may be the right one with a model slightly off the truth)
-                out["stopped"] = True
-                last = k
+        for k in range(min(starts), T):
+            for s in sorted(live):
+                o = out[s]
+                if k < s:  # not started: the nominal observer's density
+                    evidence[s] += float(nominal_density[k])
+                    continue
+                if s not in filters:
+                    rng = np.random.default_rng(seeds[s])
+                    x0 = None
+                    if clouds[s] is not None:
+                        x0 = module.augment(clouds[s][0][:, package.filters.systematic_resample(clouds[s][1], rng)],
+                                            rng)
+                    filters[s] = (cls(module, particles, rng, x=x0), rng, Detector(outputs, rejection[s]))
+                pf, rng, check = filters[s]
+                r = pf.step(ys[k], us[k])
+                _kernel_shrinkage(pf.x[k_mag], pf.logw, shrinkage, rng)
+                i = k - s
+                o["y_mean"][i], o["y_std"][i] = r.y_mean, r.y_std
+                o["mean"][i], o["std"][i] = r.mean, r.std
+                o["magnitude"][i] = r.mean[k_mag]
+                o["last"] = i
+                zk = (ys[k] - r.y_mean) / r.y_std
+                evidence[s] += float(_log_density(zk[None, :], r.y_std[None, :])[0])
+                alarm = check.update(zk)
+                if alarm is not None and o["rejected"] is None:
+                    o["rejected"] = (i, alarm)
+                if alarm is not None and alarm.statistic > FAR * alarm.threshold:
+                    # far off the data: a wrong hypothesis or onset, stopped here (a filter only just
+                    # over the threshold may be the right one with a model slightly off the truth)
+                    o["stopped"] = True
+                    live.discard(s)
+            best = max((evidence[s] for s in live), default=-math.inf)
+            for s in sorted(live):
+                if evidence[s] < best - PRUNE:
+                    out[s]["pruned"] = True
+                    live.discard(s)
+            if not live:
                 break
-    out["band"][last] = _weighted_quantiles(pf.x[k_mag], pf.logw, [tail, 1.0 - tail])
-    sd = out["std"][:, k_mag]
-    out["band"][:last] = out["magnitude"][:last, None] + NormalDist().inv_cdf(1.0 - tail) * np.outer(sd[:last], [-1, 1])
-    out["final_std"] = float(out["std"][last, k_mag])
-    out["last"] = last
-    w = np.exp(pf.logw - pf.logw.max())
-    out["parameter_value"] = float(w @ module.parameter_value(pf.x, pf.theta) / w.sum())
-    out["seconds"] = time.perf_counter() - started
+    for s in starts:
+        o = out[s]
+        o["evidence"] = evidence[s] if s in live else -math.inf
+        if s not in filters or o["last"] < 0:
+            continue
+        pf, _, _ = filters[s]
+        last = o["last"]
+        o["band"][last] = _weighted_quantiles(pf.x[k_mag], pf.logw, [tail, 1.0 - tail])
+        sd = o["std"][:, k_mag]
+        o["band"][:last] = o["magnitude"][:last, None] + NormalDist().inv_cdf(1.0 - tail) * np.outer(sd[:last], [-1, 1])
+        o["final_std"] = float(o["std"][last, k_mag])
+        w = np.exp(pf.logw - pf.logw.max())
+        o["parameter_value"] = float(w @ module.parameter_value(pf.x, pf.theta) / w.sum())
+    out_seconds = time.perf_counter() - started
+    for o in out.values():
+        o["seconds"] = out_seconds
     return out
 
 
@@ -486,12 +574,14 @@ def _kernel_shrinkage(theta: np.ndarray, logw: np.ndarray, a: float, rng) -> Non
     theta += (1.0 - a) * mean + math.sqrt(1.0 - a * a) * std * rng.standard_normal(theta.shape[0])
 
 
-def _run_all(jobs: list, workers: int) -> list[dict]:
+def _run_all(jobs: list, workers: int, fn=None) -> list:
+    """``fn`` (default: one hypothesis's filters) over the jobs, on ``workers`` forked processes."""
+    fn = fn or _run_hypothesis
     if workers <= 1 or len(jobs) <= 1 or "fork" not in multiprocessing.get_all_start_methods():
-        return [_run_hypothesis(j) for j in jobs]
+        return [fn(j) for j in jobs]
     with ProcessPoolExecutor(max_workers=min(workers, len(jobs)),
                              mp_context=multiprocessing.get_context("fork")) as pool:
-        return list(pool.map(_run_hypothesis, jobs))
+        return list(pool.map(fn, jobs))
 
 
 def _estimate(module, out: dict, run: Run, level: float) -> Estimate:

@@ -1,0 +1,159 @@
+"""Identification by marginal likelihood on a grid: an optional refinement of
+the fault magnitude once a hypothesis is isolated (``DiagnosisOptions.refine``).
+
+The hypothesis filter estimates the magnitude as a particle state with a
+random walk and Liu and West moves: one filter per onset, cheap, but its
+Monte Carlo error is large for a slow drift (on the RO plant's R_pipe drift,
+about three times the error the data allow: docs/results.md, section 3).
+This refinement evaluates the data's likelihood directly: for each of the
+``onsets`` most probable onsets and each of ``points`` magnitudes on a grid
+around the filter's interval, a bootstrap particle filter with the magnitude
+held fixed gives an unbiased estimate of p(y | onset, magnitude) (the
+pseudo-marginal idea of Andrieu, Doucet and Holenstein 2010, evaluated on a
+grid instead of by MCMC). Every filter starts from the nominal observer's
+cloud before the earliest of those onsets, and the nominal model runs up to
+each onset, so all likelihoods cover the same data. The same random numbers
+are used for every magnitude at an onset (common random numbers), so that the
+grid's likelihoods differ by the magnitude, not by the noise of the estimate.
+With a flat prior on the grid, the posterior of the magnitude is the
+likelihood summed over the onsets; its mean, std and central interval
+replace the filter's estimate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import ModuleType
+
+import numpy as np
+
+
+@dataclass(frozen=True, slots=True)
+class GridOptions:
+    """``points`` magnitudes on the grid, ``onsets`` onsets (the most probable
+    ones of the hypothesis), ``particles`` per filter, ``widen``: the grid
+    spans the filter's interval widened by this fraction of its width on each
+    side (and once more if the posterior piles up at an end)."""
+
+    points: int = 21
+    onsets: int = 3
+    particles: int = 500
+    widen: float = 0.2
+
+
+@dataclass(frozen=True, slots=True)
+class GridPosterior:
+    """The grid (``values``), the onsets (steps), log p(y | onset, value) and
+    the posterior of the magnitude: mean, std and the central interval of
+    probability ``level``."""
+
+    values: np.ndarray
+    onsets: tuple[int, ...]
+    loglik: np.ndarray
+    posterior: np.ndarray
+    mean: float
+    std: float
+    low: float
+    high: float
+    level: float
+
+
+def _logsumexp(a: np.ndarray) -> float:
+    m = float(np.max(a))
+    return m + math.log(float(np.sum(np.exp(a - m)))) if np.isfinite(m) else m
+
+
+def _bootstrap(package: ModuleType, model: ModuleType, x: np.ndarray, ys: np.ndarray, us: np.ndarray, rng,
+               fixed: tuple[int, float] | None = None) -> tuple[float, np.ndarray]:
+    """log p(ys | the cloud x) by a bootstrap filter (its unbiased estimate);
+    ``fixed`` (row, value) holds a state at a value. Returns it and the final cloud."""
+    theta = model.THETA
+    total = 0.0
+    n = x.shape[1]
+    with np.errstate(all="ignore"):
+        for k in range(len(ys)):
+            model.transition(x, us[k], theta, model.DT, rng, out=x)
+            if fixed is not None:
+                x[fixed[0]] = fixed[1]
+            ll = model.loglik(ys[k], x, us[k], theta)
+            ll = np.where(np.isfinite(ll), ll, -np.inf)
+            total += _logsumexp(ll) - math.log(n)
+            if not np.isfinite(total):
+                return -math.inf, x
+            x = x[:, package.filters.systematic_resample(ll, rng)]
+    return total, x
+
+
+def loglik_grid(package: ModuleType, name: str, cloud, ys: np.ndarray, us: np.ndarray, first: int,
+                onsets: tuple[int, ...], values: np.ndarray, particles: int, seed) -> np.ndarray:
+    """log p(ys[first:] | onset, value) for every onset (steps, each >= first)
+    and grid value; ``cloud`` (x, logw): the nominal cloud before ``first``
+    (None: the model's prior)."""
+    nominal = package.MODELS["nominal"]
+    model = package.MODELS[name]
+    row = len(model.STATES) - 1  # the magnitude state
+    rng = np.random.default_rng([*seed, 0])
+    if cloud is None:
+        x = nominal.initial_particles(rng, particles)
+    else:
+        x = cloud[0][:, package.filters.systematic_resample(cloud[1], rng)]
+        if x.shape[1] != particles:
+            x = x[:, rng.integers(0, x.shape[1], particles)]
+    out = np.full((len(onsets), len(values)), -np.inf)
+    done, before = first, 0.0
+    for i, onset in enumerate(sorted(onsets)):
+        part, x = _bootstrap(package, nominal, x, ys[done:onset], us[done:onset], rng)
+        before += part
+        done = onset
+        for j, value in enumerate(values):
+            crn = np.random.default_rng([*seed, 1 + i])  # the same random numbers for every value
+            xf = model.augment(x.copy(), crn)
+            xf[row] = value
+            part, _ = _bootstrap(package, model, xf, ys[onset:], us[onset:], crn, fixed=(row, float(value)))
+            out[i, j] = before + part
+    return out
+
+
+def grid_job(job) -> np.ndarray:
+    """:func:`loglik_grid` on a part of the grid (run in a worker process: the
+    nominal path is the same in every part, its random numbers being the same)."""
+    import sys
+
+    package_name, name, cloud, ys, us, first, onsets, values, particles, seed = job
+    return loglik_grid(sys.modules[package_name], name, cloud, ys, us, first, onsets, values, particles, seed)
+
+
+def refine(package: ModuleType, name: str, cloud, ys: np.ndarray, us: np.ndarray, onsets: tuple[int, ...],
+           low: float, high: float, prior: tuple[float, float], level: float, options: GridOptions,
+           seed, parts: int = 1, mapper=None) -> GridPosterior:
+    """The grid posterior of the magnitude of fault model ``name`` (a key of
+    ``package.MODELS``), from ``onsets`` (steps) and the filter's interval
+    (``low``, ``high``), kept inside the magnitude's ``prior``. The grid is
+    cut into ``parts`` jobs that ``mapper(grid_job, jobs)`` runs (default: here,
+    one after the other)."""
+    mapper = mapper or (lambda fn, jobs: [fn(j) for j in jobs])
+    width = max(high - low, 1e-9 * max(1.0, abs(high)))
+    lo, hi = low - options.widen * width, high + options.widen * width
+    first = min(onsets)
+    for attempt in range(2):
+        lo, hi = max(lo, prior[0]), min(hi, prior[1])
+        values = np.linspace(lo, hi, options.points)
+        chunks = [c for c in np.array_split(values, max(1, parts)) if len(c)]
+        jobs = [(package.__name__, name, cloud, ys, us, first, tuple(sorted(onsets)), c, options.particles, seed)
+                for c in chunks]
+        ll = np.concatenate(mapper(grid_job, jobs), axis=1)
+        top = np.max(ll)
+        post = np.exp(ll - top).sum(axis=0) if np.isfinite(top) else np.ones(len(values))
+        post /= post.sum()
+        edge = post[0] > 0.02 and lo > prior[0] or post[-1] > 0.02 and hi < prior[1]
+        if attempt == 1 or not edge:
+            break
+        shift = (hi - lo) / 2.0 * (1 if post[-1] > post[0] else -1)  # the mass is at an end: move that way
+        lo, hi = lo + shift, hi + shift
+    mean = float(post @ values)
+    std = math.sqrt(max(float(post @ (values - mean) ** 2), 0.0))
+    tail = (1.0 - level) / 2.0
+    c = np.cumsum(post) - 0.5 * post
+    q_low, q_high = np.interp([tail, 1.0 - tail], c, values)
+    return GridPosterior(values, tuple(sorted(onsets)), ll, post, mean, std, float(q_low), float(q_high), level)
