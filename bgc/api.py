@@ -22,6 +22,7 @@ import hashlib
 import os
 import shutil
 import tempfile
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -93,13 +94,15 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
         track.check_run_of(run, c.model.name, str(data))
     levels = c.numerics.noise_at(process_noise, measurement_noise)
     custom = levels if (process_noise, measurement_noise) != (None, None) else None
-    if generated is not None:
-        package = track.load_package(generated, c.model.name, str(model), custom)
-        return _run(c, run, package, scenario, injected, (process_noise, measurement_noise), levels, opts, say)
-    package = track.load_package(private, c.model.name, str(model), custom)
+    with _LOCK:  # another thread must not see a package half imported
+        package = track.load_package(generated if generated is not None else private, c.model.name, str(model),
+                                     custom)
     return _run(c, run, package, scenario, injected, (process_noise, measurement_noise), levels, opts, say)
 
 
+#: The compile cache, the private folders and the package imports are shared
+#: by the threads of a process (a Dask worker runs several tasks at once).
+_LOCK = threading.RLock()
 #: Compilations of this process by the model file's path and content, each
 #: with the private folder its package was written to (removed at exit): a
 #: notebook or a campaign worker diagnosing one model many times compiles it
@@ -121,6 +124,11 @@ def private_folder(prefix: str) -> str:
 
 
 def _compiled(model: str | Path) -> tuple[pipeline.Compiled, str]:
+    with _LOCK:
+        return _compile_once(model)
+
+
+def _compile_once(model: str | Path) -> tuple[pipeline.Compiled, str]:
     digest = ""  # not a regular file: compile_model says what is wrong with the path
     try:
         if Path(model).is_file():

@@ -26,6 +26,7 @@ import math
 import multiprocessing
 import os
 import sys
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
@@ -199,6 +200,16 @@ def load_campaign(path: str | Path) -> Campaign:
                                       len(specs)))
         except BgcError as exc:
             errors.append(exc)
+    seen: dict[str, RunSpec] = {}
+    for spec in specs:
+        if spec.id in seen:
+            g = group_names.index(spec.group)
+            errors.append(ExperimentError(
+                f"group '{spec.group}' runs '{spec.scenario}' with the same filter, particles, noise and seed as "
+                f"group '{seen[spec.id].group}' ('{seen[spec.id].scenario}')", raw.loc("groups", g),
+                "list each scenario once (none, None and 'none ' are one scenario)"))
+            break
+        seen[spec.id] = spec
     tables = []
     for t_index, table in enumerate(data.get("tables", [])):
         try:
@@ -280,7 +291,7 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
             p, k = pool[int(rng.integers(len(pool)))]
             sign = int(rng.choice(DIRECTIONS[candidates[p].direction]))
             change = float(rng.uniform(lo, hi))
-            onset = round(float(rng.uniform(o_lo, o_hi)) * steps) * dt
+            onset = min(max(round(float(rng.uniform(o_lo, o_hi)) * steps), 1), steps - 1) * dt  # a sample inside
             nominal = prior[(p, k)].nominal
             size = sign * change * abs(nominal)
             magnitude = size / duration if fault_kind(k).drifts else size  # a drift: that change per run length
@@ -289,7 +300,7 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
                 raise ExperimentError(f"a draw of {p}:{k} with change {sign * change:.3g} lies outside the prior of "
                                       f"its fault model ({b_lo:.4g} to {b_hi:.4g})", raw.loc(*dwhere, "change"),
                                       "draw smaller changes (the filters cannot estimate what their prior excludes)")
-            text = f"{p}:{k}:{magnitude:.6g}@{onset:g}"
+            text = f"{p}:{k}:{magnitude:.6g}@{onset:.12g}"
             inj = simulate.parse_fault(text, num)
             run_seeds = [int(np.random.SeedSequence([campaign_seed, g_index, j, s]).generate_state(1)[0])
                          for s in seeds]
@@ -412,6 +423,14 @@ def _model_file(spec: RunSpec) -> str:
     worker on another machine has no copy of the campaign's files)."""
     from .api import private_folder
 
+    with _MODEL_LOCK:  # the threads of a Dask worker share the folder
+        return _write_model(spec, private_folder)
+
+
+_MODEL_LOCK = threading.Lock()
+
+
+def _write_model(spec: RunSpec, private_folder) -> str:
     pid = os.getpid()
     if pid not in _MODEL_DIR:  # never share the folder a parent process made: workers would race
         _MODEL_FILES.clear()
@@ -481,6 +500,8 @@ def parse_value(column: str, text: str) -> Any:
     if column in _FLOAT:
         return float(text)
     if column in _BOOL:
+        if text not in ("true", "false"):
+            raise ValueError(text)
         return text == "true"
     return text
 
@@ -508,7 +529,8 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
         text = path.read_text(encoding="utf-8", errors="replace")
     except OSError:
         return out
-    lines = [ln for ln in text.splitlines(keepends=True) if not ln.startswith("#")]
+    # a line without its newline was cut by an interruption: run again
+    lines = [ln for ln in text.splitlines(keepends=True) if not ln.startswith("#") and ln.endswith("\n")]
     if not lines:
         return out
     reader = csv.reader(lines)
@@ -549,7 +571,7 @@ def _dask(specs: list[RunSpec], address: str) -> Iterator[tuple[RunSpec, dict]]:
         raise ExperimentError("--scheduler needs dask.distributed", None, "pip install 'dask[distributed]'") from None
     try:
         client = Client(address, timeout=30)
-    except (OSError, TimeoutError) as exc:
+    except (OSError, TimeoutError, ValueError) as exc:
         raise ExperimentError(f"cannot reach the Dask scheduler at {printable(address)}: {exc}", None,
                               "start one (dask scheduler; dask worker ADDRESS) or check the address") from None
     try:
@@ -590,9 +612,10 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
     started = time.perf_counter()
     folder = Path(out)
     previous = artifacts.read_manifest(folder) if folder.is_dir() else None
-    if previous is not None and previous.get("campaign") not in (None, c.name):
-        raise ExperimentError(f"{printable(str(folder))} holds campaign '{printable(str(previous.get('campaign')))}'",
-                              None, "choose another -o folder")
+    if previous is not None and previous.get("campaign") != c.name:
+        what = (f"campaign '{printable(str(previous.get('campaign')))}'" if previous.get("campaign")
+                else "another bgc output (not a campaign)")
+        raise ExperimentError(f"{printable(str(folder))} holds {what}", None, "choose another -o folder")
     ids = {s.id for s in c.specs}
     done = {}
     if previous is not None:
@@ -604,7 +627,7 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
     artifacts.write_folder(folder, {RUNS: rows_text, artifacts.MANIFEST: artifacts.manifest(
         {RUNS: rows_text}, campaign=c.name, source=c.source)})
     by_id = {s.id: s for s in c.specs}
-    rows = {k: {**v, "index": by_id[k].index} for k, v in done.items()}
+    rows = {k: {**v, **by_id[k].identity()} for k, v in done.items()}  # where it sits now, its model's path now
     failed = 0
     if todo:
         show = sys.stderr.isatty() if progress is None else progress

@@ -98,8 +98,9 @@ def table_markdown(spec, rows: list[dict]) -> str:
 
 def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
     """Per group, filter, noise level and particle count: how the runs went.
-    Isolation is counted among the faulty runs whose fault was detected (a
-    fault the detector does not see cannot be isolated): the most probable
+    Isolation is counted among the faulty runs whose fault was detected at or
+    after its onset (a fault the detector does not see cannot be isolated; an
+    alarm before the onset is a false alarm): the most probable
     hypothesis is right, the truth is among the survivors, the verdict is
     'isolated' and right, and the same outside the ambiguity groups the
     signatures predict."""
@@ -110,13 +111,14 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
         ok = _ok(mine)
         free = [r for r in ok if not r.get("fault")]
         faulty = [r for r in ok if r.get("fault")]
-        seen = [r for r in faulty if r["detected"]]
+        seen = [r for r in faulty if r["delay"] is not None]  # detected at or after the onset
         plain = [r for r in seen if not r.get("ambiguous")]
         isolated = [r for r in seen if r["verdict"] == "isolated"]
         out.append({
             "group": g, "filter": f, "noise": noise, "particles": n, "runs": len(mine),
             "failed": len(mine) - len(ok), "fault_free": len(free),
-            "false_alarms": sum(bool(r["false_alarm"]) for r in ok),
+            "false_alarms": sum(bool(r["false_alarm"]) for r in free),
+            "early_alarms": sum(bool(r["false_alarm"]) for r in faulty),
             "faulty": len(faulty), "detected": len(seen),
             "right": sum(bool(r["right"]) for r in seen),
             "right_parameter": sum(right_parameter(r) for r in seen),
@@ -149,8 +151,8 @@ def summary_markdown(rows: list[dict]) -> str:
     for s in summary_rows(rows):
         lines.append("| " + " | ".join([
             s["group"], s["filter"], s["noise"], str(s["particles"]), str(s["runs"]), str(s["failed"]),
-            _frac(s["false_alarms"], s["fault_free"]) if s["fault_free"] else
-            (f"{s['false_alarms']} before the onset" if s["faulty"] else "–"),
+            "; ".join(x for x in (_frac(s["false_alarms"], s["fault_free"]) if s["fault_free"] else "",
+                                  f"{s['early_alarms']} before the onset" if s["faulty"] else "") if x) or "–",
             _frac(s["detected"], s["faulty"]), _frac(s["right"], s["detected"]),
             _frac(s["right_parameter"], s["detected"]), _frac(s["in_candidates"], s["detected"]), _frac(s["isolated_right"], s["isolated"]),
             _frac(s["right_outside_ambiguity"], s["outside_ambiguity"]),

@@ -15,8 +15,10 @@ with the onset, not the detection time, as the hand-over:
    kind), the generated fault-model filter starts at the onset from the
    nominal cloud of that time, lifted into the fault model with the fault
    magnitude drawn from its prior, and runs to the end of the data, estimating
-   the magnitude jointly with the state. The filters are independent and run
-   in parallel processes.
+   the magnitude jointly with the state. One hypothesis's filters run in
+   lockstep over its onsets (an onset whose running evidence falls ``PRUNE``
+   behind the best one's is pruned); the hypotheses run in parallel
+   processes.
 5. **Drop** every hypothesis whose filter cannot follow the data: the same
    windowed Z-test runs on each filter's own normalised residuals, with a
    probability ``rejection`` of rejecting a filter of the true hypothesis
@@ -35,6 +37,8 @@ with the onset, not the detection time, as the hand-over:
    than the best by a Bayes factor above ``bayes_factor`` is dropped too. The
    survivors are the diagnosis; when several survive, they form an ambiguity
    group, ranked by probability, each with its estimate.
+7. **Refine** (``refine``, off by default): each survivor's magnitude by
+   marginal likelihood on a grid (:mod:`bgc.runtime.identify`).
 
 The onset is a parameter too: each hypothesis is tried from the detector's
 change point and from a grid of earlier steps (``spacing`` apart, back to
@@ -340,7 +344,8 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
             start = starts[int(np.argmax(evidence))]
             every = ""
         else:  # every onset's filter was stopped or pruned: dropped when the last one was
-            start = max(starts, key=lambda s: (s + results[(name, T - s)]["last"], s))
+            start = max(starts, key=lambda s: (results[(name, T - s)]["last"] >= 0,
+                                               s + results[(name, T - s)]["last"], s))
             every = f", from every onset tried ({len(starts)})" if len(starts) > 1 else ""
         if results[(name, T - start)]["rejected"] is not None:  # the best onset's filter failed its test
             k, a = results[(name, T - start)]["rejected"]
@@ -390,7 +395,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         verdict, candidates = "unexplained", (last.name,)
     else:
         verdict, candidates = "unexplained", ()
-    if options.refine and candidates:  # 7. identification by marginal likelihood on a grid
+    if options.refine and verdict in ("isolated", "ambiguous"):  # 7. the survivors' magnitudes on a grid
         say(f"refining the magnitude of {', '.join(candidates)} on a grid")
         hypothesis_list = tuple(_refined(h, package, clouds, ys, us, run, options) if h.name in candidates else h
                                 for h in hypothesis_list)

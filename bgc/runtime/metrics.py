@@ -108,17 +108,18 @@ def convergence_step(mean: np.ndarray, truth: np.ndarray, std: np.ndarray, start
     ``window`` steps passes the NEES test (module docstring); None when the
     last window fails. Steps are rows of ``mean``, ``truth``, ``std``."""
     e = ((mean - truth) / np.where(std > 0, std, np.nan)) ** 2
-    e = np.where(np.isfinite(e), e, np.inf)  # a zero or missing std with an error: not converged
     n = e.shape[1]
     per_step = e.mean(axis=1)
+    bad = ~np.isfinite(per_step)  # a zero or missing std, a missing estimate: that window fails
     T = len(per_step)
     if T - start < window:
         return None
-    c = np.concatenate([[0.0], np.cumsum(np.where(np.isinf(per_step), 1e300, per_step))])
+    c = np.concatenate([[0.0], np.cumsum(np.where(bad, 0.0, per_step))])
+    nb = np.concatenate([[0], np.cumsum(bad)])
     ends = np.arange(start + window, T + 1)  # window [end - window, end)
     average = (c[ends] - c[ends - window]) / window
     bound = chi2_quantile(quantile, window * n) / (window * n)
-    failed = np.nonzero(average > bound)[0]
+    failed = np.nonzero((average > bound) | (nb[ends] - nb[ends - window] > 0))[0]
     if len(failed) == 0:
         return start
     last = int(ends[failed[-1]])  # the last failing window ends before this step
@@ -138,11 +139,12 @@ def measure(d: Diagnosis, run: Run, truth: Truth) -> RunMetrics:
     t_alarm = d.time_of(d.detection.step) if detected else None
     false_alarm = detected and (truth.onset is None or t_alarm < truth.onset)
     delay = t_alarm - truth.onset if detected and truth.onset is not None and not false_alarm else None
-    diagnosed = d.candidates[0] if d.candidates else "none"
+    # an 'unexplained' verdict has no survivor: nothing is diagnosed
+    diagnosed = d.candidates[0] if d.candidates and d.verdict in ("isolated", "ambiguous") else "none"
     right = in_candidates = estimate = low = high = error = covers = None
     if truth.parameter is not None:
         right = diagnosed == truth.name
-        in_candidates = truth.name in d.candidates
+        in_candidates = diagnosed != "none" and truth.name in d.candidates
         if right:
             e = d.estimate
             estimate, low, high = e.value, e.low, e.high
