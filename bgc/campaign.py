@@ -48,10 +48,10 @@ COLUMNS = (
     "particles", "noise", "process_noise", "measurement_noise", "seed", "steps", "status", "failure", "rt",
     "mse", "nmse", "mse_states", "ct", "detected", "detection_time", "delay", "false_alarm", "verdict",
     "diagnosed", "candidates", "right", "in_candidates", "estimate", "low", "high", "est_error", "parameter",
-    "parameter_truth", "param_error", "covers",
+    "parameter_truth", "param_error", "covers", "refine",
 )
 _INT = {"index", "particles", "seed", "steps"}
-_BOOL = {"ambiguous", "detected", "false_alarm", "right", "in_candidates", "covers"}
+_BOOL = {"ambiguous", "detected", "false_alarm", "right", "in_candidates", "covers", "refine"}
 _FLOAT = {"magnitude", "onset", "process_noise", "measurement_noise", "rt", "mse", "nmse", "ct", "detection_time",
           "delay", "estimate", "low", "high", "est_error", "parameter", "parameter_truth", "param_error"}
 RUNS = "runs.csv"
@@ -83,6 +83,7 @@ class RunSpec:
     measurement_noise: float | None
     seed: int
     steps: int | None
+    refine: bool = False
 
     @property
     def id(self) -> str:
@@ -91,6 +92,8 @@ class RunSpec:
         fields = asdict(self)
         for name in ("index", "model"):  # where the run sits in the plan, how its file is called
             fields.pop(name)
+        if not self.refine:  # the runs of campaigns from before the setting keep their ids
+            fields.pop("refine")
         fields["model_text"] = hashlib.sha256(self.model_text.encode("utf-8")).hexdigest()
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode("utf-8")).hexdigest()[:16]
 
@@ -101,7 +104,7 @@ class RunSpec:
                 "onset": self.onset, "ambiguous": self.ambiguous, "filter": self.filter,
                 "particles": self.particles, "noise": self.noise, "process_noise": self.process_noise,
                 "measurement_noise": self.measurement_noise, "seed": self.seed, "steps": self.steps,
-                "parameter_truth": self.parameter_truth}
+                "parameter_truth": self.parameter_truth, "refine": self.refine}
 
 
 @dataclass(frozen=True, slots=True)
@@ -175,6 +178,7 @@ def load_campaign(path: str | Path) -> Campaign:
         raise ErrorGroup(errors)
     base = Path(path).parent
     defaults = {"steps": None, "filters": ["gpf"], "particles": [1000], "noise": ["model"], "seeds": 1,
+                "refine": [False],
                 **data.get("defaults", {})}
     specs: list[RunSpec] = []
     group_names: list[str] = []
@@ -313,14 +317,14 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
             truth_value = inj.value(float(_nominal(c, inj.parameter)), duration)
         for noise, process, measurement in noises:
             for method in settings["filters"]:
-                for particles in settings["particles"]:
+                for particles, refine in [(p, r) for p in settings["particles"] for r in settings["refine"]]:
                     for seed in run_seeds:
                         out.append(RunSpec(
                             first_index + len(out), group["name"], _display(model_path), c.model.name, text,
                             scenario, inj.parameter if inj else None, inj.kind if inj else None,
                             inj.magnitude if inj else None, inj.time if inj else None,
                             bool(inj and f"{inj.parameter}:{inj.kind}" in ambiguous), truth_value, method,
-                            int(particles), noise, process, measurement, int(seed), steps))
+                            int(particles), noise, process, measurement, int(seed), steps, bool(refine)))
     return out
 
 
@@ -374,6 +378,8 @@ def row_label(row: dict, rows: str) -> str:
         return "none" if not row.get("fault") else f"{row['fault']}:{row['kind']}"
     if rows == "particles":
         return str(row["particles"])
+    if rows == "refine":
+        return "grid" if row.get("refine") else "filter"
     return str(row[rows])
 
 
@@ -458,7 +464,8 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     row: dict[str, Any] = dict.fromkeys(COLUMNS)
     row.update(spec.identity())
     try:
-        options = DiagnosisOptions(method=spec.filter, particles=spec.particles, seed=spec.seed, workers=1)
+        options = DiagnosisOptions(method=spec.filter, particles=spec.particles, seed=spec.seed, workers=1,
+                                   refine=spec.refine)
         report = api.diagnose(_model_file(spec), scenario=spec.scenario, seed=spec.seed,
                               process_noise=spec.process_noise, measurement_noise=spec.measurement_noise,
                               steps=spec.steps, options=options)
@@ -534,14 +541,17 @@ def read_rows(path: Path) -> list[dict[str, Any]]:
     if not lines:
         return out
     reader = csv.reader(lines)
-    header = next(reader, None)
-    if tuple(header or ()) != COLUMNS:
+    header = tuple(next(reader, None) or ())
+    if not header or COLUMNS[: len(header)] != header:  # a file of this version, or of one with fewer columns
         return out
     for values in reader:
-        if len(values) != len(COLUMNS):
+        if len(values) != len(header):
             continue
         try:
-            out.append({k: parse_value(k, v) for k, v in zip(COLUMNS, values)})
+            row = dict.fromkeys(COLUMNS)
+            row.update({k: parse_value(k, v) for k, v in zip(header, values)})
+            row["refine"] = bool(row["refine"])
+            out.append(row)
         except ValueError:
             continue
     return out

@@ -402,26 +402,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _positive(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value}: give an integer >= 1")
-    return value
+def _at_least(low: int, why: str):
+    """An argparse type: an integer >= ``low`` (``why`` says what is asked)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(f"{value}: give an integer >= {low}{why}")
+        return value
+    return parse
 
 
-def _seed(text: str) -> int:
-    """argparse type of --seed: an integer >= 0 (NumPy's generators take no negative seed)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} is negative: give an integer >= 0")
-    return value
+_positive = _at_least(1, "")
+#: --seed: NumPy's generators take no negative seed.
+_seed = _at_least(0, " (a seed is not negative)")
 
 
 def _quiet_stdout() -> None:

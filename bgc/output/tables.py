@@ -104,10 +104,13 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
     hypothesis is right, the truth is among the survivors, the verdict is
     'isolated' and right, and the same outside the ambiguity groups the
     signatures predict."""
-    keys = list(dict.fromkeys((r["group"], r["filter"], r["noise"], r["particles"]) for r in rows))
+    def key(r):
+        return r["group"], r["filter"], r["noise"], f"{r['particles']}" + (" +grid" if r.get("refine") else "")
+
+    keys = list(dict.fromkeys(key(r) for r in rows))
     out = []
     for g, f, noise, n in keys:
-        mine = [r for r in rows if (r["group"], r["filter"], r["noise"], r["particles"]) == (g, f, noise, n)]
+        mine = [r for r in rows if key(r) == (g, f, noise, n)]
         ok = _ok(mine)
         free = [r for r in ok if not r.get("fault")]
         faulty = [r for r in ok if r.get("fault")]
