@@ -402,22 +402,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _at_least(low: int, why: str):
-    """An argparse type: an integer >= ``low`` (``why`` says what is asked)."""
+def _at_least(low: int, message: str):
+    """An argparse type: an integer >= ``low``; ``message`` (with ``{value}``) says what is wrong."""
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
         if value < low:
-            raise argparse.ArgumentTypeError(f"{value}: give an integer >= {low}{why}")
+            raise argparse.ArgumentTypeError(message.format(value=value))
         return value
     return parse
 
 
-_positive = _at_least(1, "")
+_positive = _at_least(1, "{value}: give an integer >= 1")
 #: --seed: NumPy's generators take no negative seed.
-_seed = _at_least(0, " (a seed is not negative)")
+_seed = _at_least(0, "{value} is negative: give an integer >= 0")
 
 
 def _quiet_stdout() -> None:
