@@ -41,6 +41,7 @@ from . import pipeline
 from .compiler import load
 from .errors import BgcError, ExperimentError, ErrorGroup, printable
 from .kinds import DIRECTIONS, FAULT_KINDS, fault_kind
+from .output.tables import row_label
 
 #: The columns of ``runs.csv``, in order (docs/experiments.md defines each).
 COLUMNS = (
@@ -350,7 +351,7 @@ def _table(table: dict, where: tuple, raw, group_names: list[str], specs: list[R
     rows = table.get("rows", "scenario")
     ref = None
     if "reference" in table:
-        labels = {row_label(asdict(s) | {"noise": s.noise}, rows) for s in specs if s.group in table["groups"]}
+        labels = {row_label(s.identity(), rows) for s in specs if s.group in table["groups"]}
         values: dict[tuple[str, str], dict[str, tuple[float, float | None]]] = {}
         for i, v in enumerate(table["reference"]["values"]):
             if str(v["row"]) not in labels:
@@ -370,17 +371,6 @@ def _table(table: dict, where: tuple, raw, group_names: list[str], specs: list[R
         ref = Reference(table["reference"]["source"], values)
     return TableSpec(table["title"], tuple(table["groups"]), rows, tuple(table["scenarios"]) if "scenarios" in table
                      else None, tuple(table["metrics"]), ref)
-
-
-def row_label(row: dict, rows: str) -> str:
-    """The label of a run in a table whose rows are ``rows``."""
-    if rows == "fault":
-        return "none" if not row.get("fault") else f"{row['fault']}:{row['kind']}"
-    if rows == "particles":
-        return str(row["particles"])
-    if rows == "refine":
-        return "grid" if row.get("refine") else "filter"
-    return str(row[rows])
 
 
 def _schema_message(err: jsonschema.ValidationError, path: tuple) -> tuple[str, str]:
@@ -682,4 +672,4 @@ def write_outputs(result: CampaignResult) -> list[Path]:
 
 
 __all__ = ["COLUMNS", "Campaign", "CampaignResult", "RunSpec", "load_campaign", "run_campaign", "run_one",
-           "read_rows", "write_outputs", "row_label", "schema"]
+           "read_rows", "write_outputs", "schema"]

@@ -61,18 +61,33 @@ def format_cell(c: tuple[float, float, int] | None, metric: str) -> str:
     return f"{_fmt(mean)} ({_fmt(sd)})"
 
 
-def _label(row: dict, rows: str) -> str:
-    from ..campaign import row_label
+def row_label(row: dict, rows: str) -> str:
+    """The label of a run in a table whose rows are ``rows``."""
+    if rows == "fault":
+        return "none" if not row.get("fault") else f"{row['fault']}:{row['kind']}"
+    if rows == "particles":
+        return str(row["particles"])
+    if rows == "refine":
+        return "grid" if row.get("refine") else "filter"
+    return str(row[rows])
 
-    return row_label(row, rows)
+
+def table_groups(spec, rows: list[dict]) -> tuple[list[dict], list[str], dict[tuple[str, str], list[dict]]]:
+    """The runs a table takes, its row labels in order, and its runs by (label,
+    filter) (a filter is there when some run used it)."""
+    chosen = [r for r in rows if r["group"] in spec.groups and (spec.scenarios is None or r["scenario"] in spec.scenarios)]
+    labels = list(dict.fromkeys(row_label(r, spec.rows) for r in chosen))
+    by: dict[tuple[str, str], list[dict]] = {}
+    for r in chosen:
+        by.setdefault((row_label(r, spec.rows), r["filter"]), []).append(r)
+    return chosen, labels, by
 
 
 def table_markdown(spec, rows: list[dict]) -> str:
     """One table of the campaign file: a line per row label, for each filter
     the metrics as mean (sd) over the runs, published numbers in brackets."""
-    chosen = [r for r in rows if r["group"] in spec.groups and (spec.scenarios is None or r["scenario"] in spec.scenarios)]
+    chosen, labels, by = table_groups(spec, rows)
     filters = [f for f in ("gpf", "apf") if any(r["filter"] == f for r in chosen)]
-    labels = list(dict.fromkeys(_label(r, spec.rows) for r in chosen))
     head = [spec.rows] + [f"{f.upper()} {HEAD[m]}" for f in filters for m in spec.metrics]
     lines = [f"### {spec.title}", ""]
     if spec.reference is not None:
@@ -81,7 +96,7 @@ def table_markdown(spec, rows: list[dict]) -> str:
     for label in labels:
         out = [label]
         for f in filters:
-            mine = [r for r in chosen if r["filter"] == f and _label(r, spec.rows) == label]
+            mine = by.get((label, f), [])
             ref = spec.reference.values.get((label, f), {}) if spec.reference else {}
             for m in spec.metrics:
                 text = format_cell(cell(mine, m), m)
@@ -213,11 +228,11 @@ def campaign_json(c, rows: tuple[dict, ...]) -> str:
     rows = list(rows)
     tables = []
     for spec in c.tables:
-        chosen = [r for r in rows if r["group"] in spec.groups and (spec.scenarios is None or r["scenario"] in spec.scenarios)]
+        _, labels, by = table_groups(spec, rows)
         cells = []
-        for label in dict.fromkeys(_label(r, spec.rows) for r in chosen):
+        for label in labels:
             for f in ("gpf", "apf"):
-                mine = [r for r in chosen if r["filter"] == f and _label(r, spec.rows) == label]
+                mine = by.get((label, f))
                 if not mine:
                     continue
                 values = {}
