@@ -43,7 +43,9 @@ def report_data(r) -> dict[str, Any]:
             "statistic": _num(det.statistic), "threshold": _num(det.threshold),
             "onset_change_point": _num(_t(d, det.onset))},
         "onset": _num(_t(d, d.onset)),
-        "symbols": [{"sensor": s.sensor, "sign": s.sign, "time": _num(_t(d, s.step))} for s in d.symbols],
+        "symbols": [{"sensor": s.sensor, "sign": s.sign, "time": _num(_t(d, s.step)), "window": s.window,
+                     "statistic": _num(s.statistic), "slope": s.slope or None,
+                     "slope_statistic": _num(s.slope_statistic)} for s in d.symbols],
         "refuted_by_signatures": [{"fault": n, "why": why} for n, why in d.refuted],
         "hypotheses": [],
         "diagnosis": list(d.candidates),
@@ -98,8 +100,9 @@ def report_markdown(r) -> str:
                   f"t = {_t(d, d.onset):g}", ""]
         lines += ["## Qualitative isolation (TRANSCEND signatures)", ""]
         if d.symbols:
-            lines.append("Observed first deviations: " + ", ".join(
-                f"{s.sensor} {s.sign} (t = {_t(d, s.step):g})" for s in d.symbols) + ".")
+            lines.append("Observed deviations: " + "; ".join(
+                f"{s.sensor} {s.sign} at t = {_t(d, s.step):g} ({s.window}-sample window, Z {s.statistic:.1f}), "
+                f"slope {s.slope or 'not significant'} (Z {s.slope_statistic:.1f})" for s in d.symbols) + ".")
         else:
             lines.append("No sensor deviated significantly from the open-loop nominal prediction.")
         if d.refuted:

@@ -9,8 +9,9 @@ with the onset, not the detection time, as the hand-over:
 2. **Detect** with the sliding-window Z-test on its normalised residuals
    (:mod:`bgc.runtime.detect`), and estimate the onset.
 3. **Isolate qualitatively**: stop the observer, run its cloud at the onset
-   open loop, read each sensor's first deviation and keep the faults whose
-   TRANSCEND signatures agree (:mod:`bgc.runtime.isolate`).
+   open loop, read each sensor's magnitude and slope symbols (window tests
+   against the open-loop particle paths) and keep the faults whose TRANSCEND
+   signatures agree (:mod:`bgc.runtime.isolate`).
 4. **Isolate and identify quantitatively**: for each remaining (parameter,
    kind), the generated fault-model filter starts at the onset from the
    nominal cloud of that time, lifted into the fault model with the fault
@@ -27,7 +28,9 @@ with the onset, not the detection time, as the hand-over:
    the work on wrong hypotheses and onsets ends early (a filter just over the
    threshold runs on: at low noise the right model is sometimes just off the
    truth). A hypothesis is dropped when the filter of its most probable onset
-   is rejected, or when every onset's filter stopped.
+   is rejected, or when every onset's filter stopped; once every onset still
+   running has been rejected (and none is still to start), the hypothesis
+   cannot survive, and all its filters stop.
 6. **Weigh** the hypotheses by the probability the data give each: the
    product of each filter's one-step predictive densities (their Gaussian
    approximation, mean and std of the predicted measurement), over a common
@@ -78,7 +81,7 @@ from ..kinds import fault_kind
 from . import identify
 from .detect import Detection, Detector, DetectorOptions
 from .identify import GridOptions
-from .isolate import Symbol, hypotheses, observed_symbols
+from .isolate import OpenLoop, Symbol, hypotheses, observed_symbols
 from .runs import Run
 from .track import check_particles, run_arrays
 
@@ -91,7 +94,8 @@ class DiagnosisOptions:
     ``history``: how far before the detection the onset is looked for (and
     the nominal clouds kept); ``spacing``: steps between the onsets tried
     (the detector's estimate is always one); ``symbol_steps``: open-loop
-    steps read for the symbols; ``interval``: probability of the reported interval;
+    steps read for the symbols after the detection (a slope needs samples
+    after the magnitude is seen); ``interval``: probability of the reported interval;
     ``particles``: 1000 by default: with 200, the RO plant's fault magnitude
     scatters about twice as far as the filter's own interval says (Monte
     Carlo error), with 1000 the intervals cover (measured in docs/diagnosis.md).
@@ -111,7 +115,7 @@ class DiagnosisOptions:
     windows: tuple[int, ...] = (1, 8, 32)
     history: int = 64
     spacing: int = 4
-    symbol_steps: int = 30
+    symbol_steps: int = 32
     interval: float = 0.95
     bayes_factor: float = 100.0
     shrinkage: float = 0.98
@@ -296,9 +300,9 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     # 3. qualitative isolation on the open-loop nominal prediction from the detector's onset
     say("reading the symbols of the deviating sensors")
     onset = detection.onset
-    steps = min(T - onset, max(options.symbol_steps, detection.step - onset + 1))
+    steps = min(T - onset, detection.step - onset + 1 + options.symbol_steps)
     seen = observed_symbols(_open_loop(package, cls[options.method], nominal, _cloud(clouds, onset), ys, us, onset, steps,
-                                       options), outputs, onset)
+                                       options), outputs, options.windows)
     keep, dropped = hypotheses(signatures, seen)
     if not keep:
         notes.append("no fault signature agrees with the observed symbols: every fault model is tried")
@@ -345,7 +349,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
             every = ""
         else:  # every onset's filter was stopped or pruned: dropped when the last one was
             start = max(starts, key=lambda s: (results[(name, T - s)]["last"] >= 0,
-                                               s + results[(name, T - s)]["last"], s))
+                                               s + results[(name, T - s)]["last"], results[(name, T - s)]["partial"]))
             every = f", from every onset tried ({len(starts)})" if len(starts) > 1 else ""
         if results[(name, T - start)]["rejected"] is not None:  # the best onset's filter failed its test
             k, a = results[(name, T - start)]["rejected"]
@@ -434,19 +438,22 @@ def _cloud(clouds: dict, start: int):
     return clouds[max(before)] if before else None
 
 
-def _open_loop(package, cls, nominal, cloud, ys, us, onset, steps, options) -> np.ndarray:
-    """Normalised deviations of the data from the nominal model run open loop
-    from the cloud before the onset (the observer stopped): steps x sensors."""
+def _open_loop(package, cls, nominal, cloud, ys, us, onset, steps, options) -> OpenLoop:
+    """The nominal model run open loop from the cloud before the onset (the
+    observer stopped): the data's deviations from its mean prediction and
+    each particle's path (see :class:`bgc.runtime.isolate.OpenLoop`)."""
     rng = np.random.default_rng([options.seed, 9999])
     x = None if cloud is None else cloud[0][:, package.filters.systematic_resample(cloud[1], rng)]
     pf = cls(nominal, options.particles, rng, x=x)
     blind = np.full(ys.shape[1], np.nan)
-    out = np.empty((steps, ys.shape[1]))
+    deviation = np.empty((steps, ys.shape[1]))
+    paths = np.empty((steps, ys.shape[1], options.particles))
     with np.errstate(all="ignore"):
         for t in range(steps):
-            r = pf.step(blind, us[onset + t])
-            out[t] = (ys[onset + t] - r.y_mean) / r.y_std
-    return out
+            r = pf.step(blind, us[onset + t])  # no measurement: no weighing, no resampling
+            deviation[t] = ys[onset + t] - r.y_mean
+            paths[t] = nominal.observe(pf.x, us[onset + t], pf.theta) - r.y_mean[:, None]
+    return OpenLoop(onset, deviation, paths, np.asarray(nominal.MEASUREMENT_STD, dtype=float))
 
 
 def _log_density(z: np.ndarray, std: np.ndarray) -> np.ndarray:
@@ -542,11 +549,18 @@ def _run_hypothesis(job) -> dict[int, dict]:
                 if evidence[s] < best - PRUNE:
                     out[s]["pruned"] = True
                     live.discard(s)
+            if live and all(s <= k and out[s]["rejected"] is not None for s in live):
+                # every onset left has failed its test and none is still to start: whichever
+                # is best at the end, the hypothesis is dropped; its filters stop here
+                for s in live:
+                    out[s]["stopped"] = True
+                live.clear()
             if not live:
                 break
     for s in starts:
         o = out[s]
         o["evidence"] = evidence[s] if s in live else -math.inf
+        o["partial"] = evidence[s]  # up to where its filter stopped
         if s not in filters or o["last"] < 0:
             continue
         pf, _, _ = filters[s]

@@ -2,24 +2,48 @@
 
 After a detection, the nominal observer is stopped (thesis section II.3.3):
 its particle cloud at the estimated onset is propagated open loop, without
-the faulty measurements, and each measurement is compared with that nominal
-prediction (mean and std, process and measurement noise included). Without a
-fault each normalised deviation r_t = (y_t - mean_t) / std_t is N(0, 1), but
-successive ones are strongly correlated (the truth's process noise persists
-in its state), so they are tested one at a time, not summed: the first t at
-which |r_t| > c gives that sensor's observed symbol, the sign of r_t (the
-direction of its first deviation) and the step it was seen. ``c`` is a Z
-threshold with a false-symbol probability ``alpha`` over the sensors and the
-steps looked at (the union bound, valid whatever the correlation).
+the faulty measurements (:class:`OpenLoop`). Each particle is then a path of
+the nominal model from the onset on, so the cloud is a sample of what the
+sensors would read without a fault, with the correlation over time that the
+plant's process noise gives (a deviation of the truth persists in its state).
 
-A fault signature is consistent with the observations when every sensor
-that deviated has, as the first non-zero symbol of its signature, the
-observed sign (or ``?``), and no sensor deviated whose signature is all 0
-(that fault cannot move it). Sensors that have not deviated (yet) rule out
-nothing: a fault may reach them at a higher derivative order than the data
-shows so far. Signatures are derived for a plant at steady state (the
-signature stage's docstring), so this is a filter on hypotheses, not the
-diagnosis: the fault-model filters decide.
+**Symbols from tests over windows.** A symbol is a linear statistic of a
+sensor's deviation ``d_t = y_t - mean_t`` from the mean nominal prediction,
+``S = sum_t a_t d_t``, tested against its distribution without a fault: its
+variance is the variance of ``sum_t a_t (h(x_t^i) - mean_t)`` over the
+particle paths (the plant's own correlation) plus ``sum_t a_t^2 sigma^2``
+(the white measurement noise), so ``Z = S / sd`` is N(0, 1) without a fault,
+however correlated the samples are.
+
+* **Magnitude** (``+``/``-``): the sign of the first window mean that
+  deviates, windows of ``W`` samples in ``windows`` (1, 8, 32: a jump is seen
+  in one sample, a slow drift only over many), the first step ``t`` at which
+  any ``|Z| > c_m``.
+* **Slope** (``+``/``-``, or ``""`` when the data do not say): the sign of the
+  least-squares slope of the deviation over the ``max(8, W)`` samples from
+  the step the magnitude was seen on (after the fault, whatever the onset
+  estimate), when its ``|Z| > c_s``.
+
+The thresholds are Z thresholds for a false-symbol probability ``alpha``
+each, over every test made (the union bound, valid whatever the correlation):
+``c_m`` over sensors x steps x windows, ``c_s`` over sensors.
+
+**Matching** (TRANSCEND). A signature's symbols at a sensor are the signs of
+the deviation's derivatives at orders 0, 1, 2, ... at the fault (a jump, a
+slope, a bend); its first non-zero order ``k`` dominates from the start, so:
+
+* the magnitude seen must be the symbol at order ``k`` (or ``?``), and a
+  sensor whose signature is all 0 must not deviate;
+* the slope seen must be the symbol at order ``k`` too when ``k >= 1`` (the
+  deviation grows from zero), and after a jump (``k = 0``) the first non-zero
+  symbol after it (the transient that follows the jump); a slope the data do
+  not show, or a ``?``, rules out nothing.
+
+Sensors that have not deviated (yet) rule out nothing: a fault may reach
+them at a higher derivative order than the data shows so far. Signatures are
+derived for a plant at steady state (the signature stage's docstring), so
+this is a filter on hypotheses, not the diagnosis: the fault-model filters
+decide.
 """
 
 from __future__ import annotations
@@ -33,37 +57,104 @@ from .detect import union_threshold
 
 @dataclass(frozen=True, slots=True)
 class Symbol:
-    """A sensor's observed first deviation: ``sign`` + or -, seen at ``step``."""
+    """A sensor's observed deviation: magnitude ``sign`` (+ or -) seen at
+    ``step`` by a window of ``window`` samples (``statistic``: its Z), and
+    ``slope`` (+, -, or "" when not significant; ``slope_statistic``: its Z)."""
 
     sensor: str
     sign: str
     step: int
     statistic: float
+    window: int = 1
+    slope: str = ""
+    slope_statistic: float = 0.0
 
 
-def threshold(alpha: float, sensors: int, steps: int) -> float:
-    """The Z threshold for a false-symbol probability ``alpha`` over ``sensors`` x ``steps`` tests."""
-    return union_threshold(alpha, sensors * steps)
+@dataclass(frozen=True, slots=True)
+class OpenLoop:
+    """The nominal model run open loop from step ``onset``: ``deviation`` (steps
+    x sensors) of the data from the mean prediction (NaN: not read),
+    ``paths`` (steps x sensors x particles) of each particle's noise-free
+    measurement from that mean, ``noise`` the measurement noise std per sensor."""
+
+    onset: int
+    deviation: np.ndarray
+    paths: np.ndarray
+    noise: np.ndarray
 
 
-def observed_symbols(r: np.ndarray, sensors: tuple[str, ...], onset: int, alpha: float = 0.01) -> tuple[Symbol, ...]:
-    """First significant deviation of each sensor in the open-loop residuals
-    ``r`` (steps x sensors, row 0 at step ``onset``); NaN entries are skipped."""
-    r = np.where(np.isfinite(r), r, 0.0)
-    c = threshold(alpha, len(sensors), len(r))
+def threshold(alpha: float, sensors: int, steps: int, windows: int = 1) -> float:
+    """The Z threshold for a false-symbol probability ``alpha`` over ``sensors`` x ``steps`` x ``windows`` tests."""
+    return union_threshold(alpha, sensors * steps * windows)
+
+
+def window_z(run: OpenLoop, w: int) -> np.ndarray:
+    """Z of the sum of the deviation over the window of ``w`` samples ending at
+    each step (steps x sensors; NaN before ``w`` samples)."""
+    d = np.where(np.isfinite(run.deviation), run.deviation, 0.0)
+    n = len(d)
+    out = np.full(d.shape, np.nan)
+    if n < w:
+        return out
+    c = np.concatenate([np.zeros((1,) + d.shape[1:]), np.cumsum(d, axis=0)])
+    cp = np.concatenate([np.zeros((1,) + run.paths.shape[1:]), np.cumsum(run.paths, axis=0)])
+    s = c[w:] - c[:-w]
+    sp = cp[w:] - cp[:-w]
+    var = sp.var(axis=-1) + w * run.noise ** 2
+    out[w - 1:] = s / np.sqrt(var)
+    return out
+
+
+def slope_z(run: OpenLoop, j: int, start: int, length: int) -> float | None:
+    """Z of the least-squares slope of sensor ``j``'s deviation over ``length``
+    steps from ``start`` (None when the run is shorter)."""
+    if start + length > len(run.deviation) or length < 3:
+        return None
+    t = np.arange(length, dtype=float)
+    a = (t - t.mean()) / ((t - t.mean()) ** 2).sum()
+    d = run.deviation[start:start + length, j]
+    seen = np.isfinite(d)
+    a = np.where(seen, a, 0.0)
+    value = float(a @ np.where(seen, d, 0.0))
+    var = float((a @ run.paths[start:start + length, j, :]).var() + (a * a).sum() * run.noise[j] ** 2)
+    return value / np.sqrt(var) if var > 0 else None
+
+
+def observed_symbols(run: OpenLoop, sensors: tuple[str, ...], windows: tuple[int, ...] = (1, 8, 32),
+                     alpha: float = 0.01) -> tuple[Symbol, ...]:
+    """Each deviating sensor's magnitude and slope symbols (see the module docstring)."""
+    steps = len(run.deviation)
+    c_m = threshold(alpha, len(sensors), steps, len(windows))
+    c_s = threshold(alpha, len(sensors), 1)
+    zs = {w: window_z(run, w) for w in windows}
     out = []
     for j, name in enumerate(sensors):
-        for t in range(len(r)):
-            s = r[t, j]
-            if abs(s) > c:
-                out.append(Symbol(name, "+" if s > 0 else "-", onset + t, float(s)))
-                break
+        for t in range(steps):
+            hits = [(abs(zs[w][t, j]), w) for w in windows if np.isfinite(zs[w][t, j]) and abs(zs[w][t, j]) > c_m]
+            if not hits:
+                continue
+            _, w = max(hits)
+            z = float(zs[w][t, j])
+            s = slope_z(run, j, t, max(8, w))
+            slope = "" if s is None or abs(s) <= c_s else ("+" if s > 0 else "-")
+            out.append(Symbol(name, "+" if z > 0 else "-", run.onset + t, z, w, slope, 0.0 if s is None else float(s)))
+            break
     return tuple(out)
 
 
 def first_symbol(symbols: tuple[str, ...]) -> str:
     """The first symbol of a signature that is not 0 (``0`` if none)."""
     return next((s for s in symbols if s != "0"), "0")
+
+
+def expected_slope(symbols: tuple[str, ...]) -> str:
+    """The slope a sensor shows once it deviates: its first non-zero symbol
+    when that is at order 1 or higher, after a jump (order 0) the first
+    non-zero symbol after it (``0``: none)."""
+    k = next((i for i, s in enumerate(symbols) if s != "0"), None)
+    if k is None:
+        return "0"
+    return first_symbol(symbols[k + 1:]) if k == 0 else symbols[k]
 
 
 def consistent(signature: Signature, measurements: tuple[str, ...], seen: tuple[Symbol, ...]) -> str | None:
@@ -75,6 +166,9 @@ def consistent(signature: Signature, measurements: tuple[str, ...], seen: tuple[
             return f"{s.sensor} deviated ({s.sign}) but {signature.name} does not move it"
         if first not in ("?", s.sign):
             return f"{s.sensor} deviated {s.sign}, {signature.name} predicts {first}"
+        slope = expected_slope(predicted[s.sensor])
+        if s.slope and slope in ("+", "-") and slope != s.slope:
+            return f"{s.sensor}'s slope is {s.slope}, {signature.name} predicts {slope}"
     return None
 
 
