@@ -28,9 +28,10 @@ with the onset, not the detection time, as the hand-over:
    the work on wrong hypotheses and onsets ends early (a filter just over the
    threshold runs on: at low noise the right model is sometimes just off the
    truth). A hypothesis is dropped when the filter of its most probable onset
-   is rejected, or when every onset's filter stopped; once every onset still
-   running has been rejected (and none is still to start), the hypothesis
-   cannot survive, and all its filters stop.
+   is rejected, or when every onset's filter stopped. (A hypothesis whose
+   every onset has been rejected runs on to the end all the same: at low
+   noise the right one sometimes is, and its estimate over the whole run is
+   still the best there is, reported with the verdict ``unexplained``.)
 6. **Weigh** the hypotheses by the probability the data give each: the
    product of each filter's one-step predictive densities (their Gaussian
    approximation, mean and std of the predicted measurement), over a common
@@ -549,12 +550,6 @@ def _run_hypothesis(job) -> dict[int, dict]:
                 if evidence[s] < best - PRUNE:
                     out[s]["pruned"] = True
                     live.discard(s)
-            if live and all(s <= k and out[s]["rejected"] is not None for s in live):
-                # every onset left has failed its test and none is still to start: whichever
-                # is best at the end, the hypothesis is dropped; its filters stop here
-                for s in live:
-                    out[s]["stopped"] = True
-                live.clear()
             if not live:
                 break
     for s in starts:
