@@ -482,10 +482,12 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
 def format_value(value: Any) -> str:
     if value is None:
         return ""
-    if isinstance(value, bool):
+    if isinstance(value, (bool, np.bool_)):
         return "true" if value else "false"
-    if isinstance(value, float):
-        return "nan" if math.isnan(value) else repr(value)
+    if isinstance(value, (float, np.floating)):  # a NumPy float's repr is np.float64(...): print the number
+        return "nan" if math.isnan(value) else repr(float(value))
+    if isinstance(value, np.integer):
+        return str(int(value))
     return str(value)
 
 

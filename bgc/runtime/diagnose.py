@@ -57,10 +57,12 @@ slope; :mod:`bgc.kinds`). After every step its particles get Liu and West's
 (2001) kernel move with shrinkage ``shrinkage`` (a = 0.98, a discount of
 about 0.99): the weighted mean and variance are kept, and the particles that
 resampling duplicated become distinct again, so the cloud does not collapse
-onto a few values while the data narrow the magnitude down. The cloud at the
-last step gives the estimate (its weighted mean) and a central interval
-(weighted quantiles); the band plotted over time is the weighted mean plus or
-minus the normal quantile times the weighted std.
+onto a few values while the data narrow the magnitude down. The clouds at the
+last step of every onset's filter, weighed by the onset's posterior
+probability, form a mixture that gives the estimate (its weighted mean) and a
+central interval (weighted quantiles): the onset is averaged over, not fixed at
+its most probable value. The band plotted over time is the most probable
+onset's weighted mean plus or minus the normal quantile times its weighted std.
 """
 
 from __future__ import annotations
@@ -376,7 +378,8 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                          magnitude=out["magnitude"],
                          magnitude_band=out["band"], dropped=dropped_at, reason=reason,
                          log_evidence=log_evidence, seconds=results[(name, T - starts[0])]["seconds"],
-                         estimate=_estimate(module, out, run, options.interval)))
+                         estimate=_estimate(module, out, run, options.interval,
+                                            [(w, results[(name, T - s)]) for w, s in zip(onset_weights, starts)])))
     weights = np.array([math.log(max(priors.get(h["parameter"], 0.01), 1e-300)) + h["log_evidence"] for h in hyps])
     if np.isfinite(weights).any():
         weights = np.exp(weights - weights.max())
@@ -566,6 +569,7 @@ def _run_hypothesis(job) -> dict[int, dict]:
         o["final_std"] = float(o["std"][last, k_mag])
         w = np.exp(pf.logw - pf.logw.max())
         o["parameter_value"] = float(w @ module.parameter_value(pf.x, pf.theta) / w.sum())
+        o["final"] = (pf.x[k_mag].copy(), pf.logw.copy())  # the magnitude's last cloud
     out_seconds = time.perf_counter() - started
     for o in out.values():
         o["seconds"] = out_seconds
@@ -598,7 +602,11 @@ def _run_all(jobs: list, workers: int, fn=None) -> list:
         return list(pool.map(fn, jobs))
 
 
-def _estimate(module, out: dict, run: Run, level: float) -> Estimate:
+def _estimate(module, out: dict, run: Run, level: float, onsets=()) -> Estimate:
+    """The magnitude's estimate: averaged over the onsets tried, each weighed
+    by its posterior probability (``onsets``: (weight, filter output) pairs;
+    the mixture of their last clouds gives the mean, std and interval), or
+    when no onset has a weight (a dropped hypothesis), its filter ``out``'s."""
     p, kind_name = module.FAULT["parameter"], module.FAULT["kind"]
     kind = fault_kind(kind_name)
     nominal = dict(zip(module.PARAMETERS, module.THETA))[p]
@@ -611,6 +619,20 @@ def _estimate(module, out: dict, run: Run, level: float) -> Estimate:
             truth = float((recorded[-1] - recorded[-2]) / (run.time[-1] - run.time[-2]))
         else:
             truth = float(recorded[-1] - nominal)
+    mixture = [(w, o) for w, o in onsets if w > 0 and "final" in o]
+    if mixture:
+        total = float(sum(w for w, _ in mixture))
+        values = np.concatenate([o["final"][0] for _, o in mixture])
+        logw = np.concatenate([o["final"][1] - np.logaddexp.reduce(o["final"][1]) + math.log(w / total)
+                               for w, o in mixture])
+        weights = np.exp(logw - logw.max())
+        weights /= weights.sum()
+        value = float(weights @ values)
+        std = math.sqrt(max(float(weights @ (values - value) ** 2), 0.0))
+        low, high = _weighted_quantiles(values, logw, [(1.0 - level) / 2.0, (1.0 + level) / 2.0])
+        parameter_value = float(sum(w * o["parameter_value"] for w, o in mixture) / total)
+        return Estimate(p, kind_name, kind.magnitude, value, std, float(low), float(high), level, parameter_value,
+                        nominal, truth)
     last = out["last"]
     return Estimate(p, kind_name, kind.magnitude, float(out["magnitude"][last]), out["final_std"],
                     float(out["band"][last, 0]), float(out["band"][last, 1]), level, out["parameter_value"],
