@@ -45,10 +45,11 @@ with the onset, not the detection time, as the hand-over:
    marginal likelihood on a grid (:mod:`bgc.runtime.identify`).
 
 The onset is a parameter too: each hypothesis is tried from the detector's
-change point and from a grid of earlier steps (``spacing`` apart, back to
-``history`` steps before the alarm), and the onsets are weighed like the
-hypotheses; a slow drift is detected long after it began, and starting its
-filter late biases the slope.
+change point and, for a drift, from a grid of earlier steps (``spacing``
+apart, back to ``history`` steps before the alarm; a step change is tried
+from the ``near`` samples before the change point to 2 after it), and the
+onsets are weighed like the hypotheses; a slow drift is detected long after
+it began, and starting its filter late biases the slope.
 
 **Identification.** The fault magnitude (a bias for an abrupt fault, a slope
 for an incipient one) is a state of the fault model, with a small random walk
@@ -95,8 +96,9 @@ class DiagnosisOptions:
     fault-free run; ``rejection``: the probability of dropping the true
     hypothesis over the run; ``windows``: the Z-tests' window lengths;
     ``history``: how far before the detection the onset is looked for (and
-    the nominal clouds kept); ``spacing``: steps between the onsets tried
-    (the detector's estimate is always one); ``symbol_steps``: open-loop
+    the nominal clouds kept); ``spacing``: steps between the onsets a drift is
+    tried from (the detector's estimate is always one); ``near``: samples
+    before the detector's change point a step change is tried from; ``symbol_steps``: open-loop
     steps read for the symbols after the detection (a slope needs samples
     after the magnitude is seen); ``interval``: probability of the reported interval;
     ``particles``: 1000 by default: with 200, the RO plant's fault magnitude
@@ -118,6 +120,7 @@ class DiagnosisOptions:
     windows: tuple[int, ...] = (1, 8, 32)
     history: int = 64
     spacing: int = 4
+    near: int = 4
     symbol_steps: int = 32
     interval: float = 0.95
     bayes_factor: float = 100.0
@@ -298,7 +301,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     # steps before the alarm; for a step change (its change point is sharp), the
     # samples around the detector's estimate
     grid = {detection.onset, *range(detection.step, max(0, detection.step - options.history) - 1, -options.spacing)}
-    near = {k for k in range(detection.onset - options.spacing, detection.onset + 3) if 0 <= k <= detection.step}
+    near = {k for k in range(detection.onset - options.near, detection.onset + 3) if 0 <= k <= detection.step}
     onsets = {True: sorted(grid), False: sorted(near)}
     # 3. qualitative isolation on the open-loop nominal prediction from the detector's onset
     say("reading the symbols of the deviating sensors")
