@@ -172,3 +172,16 @@ def test_bgc_diagnose_rewrites_its_own_folder_but_no_one_elses(tmp_path):
     (mine / "notes.txt").write_text("x")
     line = one_line(bgc_cli("diagnose", "models/two_tank.yaml", "--scenario", "none", "-o", str(mine)))
     assert line.startswith(f"{mine} is not empty and holds no bgc manifest.json")
+
+
+def test_symbols_from_a_subsample_of_the_paths_when_particles_are_many(monkeypatch):
+    """Above ``PATHS`` particles the open loop keeps a random subsample of
+    the paths for the symbols' null distribution (memory); the circuit's R2
+    step is still read as f6 falling and isolated."""
+    from bgc.runtime import diagnose as module
+
+    monkeypatch.setattr(module, "PATHS", 64)
+    d = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R2:abrupt:0.6@5", seed=1, generated=GENERATED,
+                     options=DiagnosisOptions(seed=1, particles=300, workers=1)).diagnosis
+    assert [(s.sensor, s.sign) for s in d.symbols][:1] == [("f6", "-")]
+    assert d.candidates[0] == "R2_abrupt"

@@ -454,12 +454,15 @@ def _open_loop(package, cls, nominal, cloud, ys, us, onset, steps, options) -> O
     pf = cls(nominal, options.particles, rng, x=x)
     blind = np.full(ys.shape[1], np.nan)
     deviation = np.empty((steps, ys.shape[1]))
-    paths = np.empty((steps, ys.shape[1], options.particles))
+    # the paths kept: all of them up to PATHS, else PATHS drawn at random (memory: steps x sensors x PATHS)
+    kept = (slice(None) if options.particles <= PATHS
+            else np.sort(np.random.default_rng([options.seed, 9998]).choice(options.particles, PATHS, replace=False)))
+    paths = np.empty((steps, ys.shape[1], min(options.particles, PATHS)))
     with np.errstate(all="ignore"):
         for t in range(steps):
             r = pf.step(blind, us[onset + t])  # no measurement: no weighing, no resampling
             deviation[t] = ys[onset + t] - r.y_mean
-            paths[t] = nominal.observe(pf.x, us[onset + t], pf.theta) - r.y_mean[:, None]
+            paths[t] = nominal.observe(pf.x[:, kept], us[onset + t], pf.theta) - r.y_mean[:, None]
     return OpenLoop(onset, deviation, paths, np.asarray(nominal.MEASUREMENT_STD, dtype=float))
 
 
@@ -476,6 +479,11 @@ def _weighted_quantiles(values: np.ndarray, logw: np.ndarray, qs) -> np.ndarray:
     c = np.cumsum(w[order])
     c /= c[-1]
     return np.interp(qs, c - 0.5 * w[order] / w.sum(), values[order])
+
+
+#: Open-loop particle paths kept for the symbols' null distribution: enough for
+#: the variance of a statistic to within a few per cent, whatever N.
+PATHS = 4000
 
 
 #: A hypothesis filter whose consistency statistic exceeds this many times the
