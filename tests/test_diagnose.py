@@ -185,3 +185,16 @@ def test_symbols_from_a_subsample_of_the_paths_when_particles_are_many(monkeypat
                      options=DiagnosisOptions(seed=1, particles=300, workers=1)).diagnosis
     assert [(s.sensor, s.sign) for s in d.symbols][:1] == [("f6", "-")]
     assert d.candidates[0] == "R2_abrupt"
+
+
+def test_the_estimate_over_onsets_is_the_weighted_mixture_of_their_clouds():
+    """Hand values: onset A (weight 1) has particles 1, 1, 1, 1 of equal weight,
+    onset B (weight 3) particles 3 and 3 with log-weights that differ only by a
+    constant. The mixture is 1 with probability 1/4 and 3 with 3/4: mean 2.5,
+    variance 1/4 * 1.5^2 + 3/4 * 0.5^2 = 0.75; its 95 % interval runs from the
+    1's to the 3's."""
+    from bgc.runtime.diagnose import onset_mixture
+
+    mean, std, low, high = onset_mixture([(1.0, [1.0] * 4, [0.0] * 4), (3.0, [3.0, 3.0], [-7.0, -7.0])], 0.95)
+    assert mean == pytest.approx(2.5) and std == pytest.approx(0.75 ** 0.5)
+    assert low == pytest.approx(1.0) and high == pytest.approx(3.0)

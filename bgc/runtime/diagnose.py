@@ -613,6 +613,23 @@ def _run_all(jobs: list, workers: int, fn=None) -> list:
         return list(pool.map(fn, jobs))
 
 
+def onset_mixture(parts, level: float) -> tuple[float, float, float, float]:
+    """Mean, std and central interval of probability ``level`` of a mixture of
+    weighted particle clouds: ``parts`` holds (weight, values, log-weights)
+    per onset; each cloud's weights are normalised, then scaled by the onset's
+    weight (the weights need not sum to 1)."""
+    total = float(sum(w for w, _, _ in parts))
+    values = np.concatenate([np.asarray(v, dtype=float) for _, v, _ in parts])
+    logw = np.concatenate([np.asarray(lw, dtype=float) - np.logaddexp.reduce(lw) + math.log(w / total)
+                           for w, _, lw in parts])
+    weights = np.exp(logw - logw.max())
+    weights /= weights.sum()
+    mean = float(weights @ values)
+    std = math.sqrt(max(float(weights @ (values - mean) ** 2), 0.0))
+    low, high = _weighted_quantiles(values, logw, [(1.0 - level) / 2.0, (1.0 + level) / 2.0])
+    return mean, std, float(low), float(high)
+
+
 def _estimate(module, out: dict, run: Run, level: float, onsets=()) -> Estimate:
     """The magnitude's estimate: averaged over the onsets tried, each weighed
     by its posterior probability (``onsets``: (weight, filter output) pairs;
@@ -632,18 +649,10 @@ def _estimate(module, out: dict, run: Run, level: float, onsets=()) -> Estimate:
             truth = float(recorded[-1] - nominal)
     mixture = [(w, o) for w, o in onsets if w > 0 and "final" in o]
     if mixture:
+        value, std, low, high = onset_mixture([(w, *o["final"]) for w, o in mixture], level)
         total = float(sum(w for w, _ in mixture))
-        values = np.concatenate([o["final"][0] for _, o in mixture])
-        logw = np.concatenate([o["final"][1] - np.logaddexp.reduce(o["final"][1]) + math.log(w / total)
-                               for w, o in mixture])
-        weights = np.exp(logw - logw.max())
-        weights /= weights.sum()
-        value = float(weights @ values)
-        std = math.sqrt(max(float(weights @ (values - value) ** 2), 0.0))
-        low, high = _weighted_quantiles(values, logw, [(1.0 - level) / 2.0, (1.0 + level) / 2.0])
         parameter_value = float(sum(w * o["parameter_value"] for w, o in mixture) / total)
-        return Estimate(p, kind_name, kind.magnitude, value, std, float(low), float(high), level, parameter_value,
-                        nominal, truth)
+        return Estimate(p, kind_name, kind.magnitude, value, std, low, high, level, parameter_value, nominal, truth)
     last = out["last"]
     return Estimate(p, kind_name, kind.magnitude, float(out["magnitude"][last]), out["final_std"],
                     float(out["band"][last, 0]), float(out["band"][last, 1]), level, out["parameter_value"],
