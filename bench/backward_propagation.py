@@ -28,11 +28,12 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
 
-from conftest import ALL_MODELS, compiled  # noqa: E402
-
+from bgc.pipeline import compile_model  # noqa: E402
 from bgc.runtime.isolate import first_symbol  # noqa: E402
+
+#: the plants of models/ and of the test suite's tests/data/models/
+MODELS = sorted([*(ROOT / "models").glob("*.yaml"), *(ROOT / "tests" / "data" / "models").glob("*.yaml")])
 
 
 def signs(edge_sign, s):
@@ -67,8 +68,9 @@ def main() -> None:
     print("| model | measurement | sign | forward matching | backward, first assignment | backward, every path "
           "| candidates | lost by backward propagation |")
     print("|---|---|---|---|---|---|---|---|")
-    for name in ALL_MODELS:
-        fs = compiled(name).signatures
+    for path in MODELS:
+        name = path.stem
+        fs = compile_model(path).signatures
         g = fs.equations.tcg.graph
         node = {d["measurement"]: n for n, d in g.nodes(data=True) if d.get("measurement")}
         faults = {(s.parameter, s.direction) for s in fs.signatures}

@@ -21,7 +21,7 @@ def test_window_z_of_white_noise_is_the_window_sum_over_its_std():
     """Hand value: 8 samples of 1.5 with noise std 0.5 sum to 12, whose std is
     0.5 sqrt(8): Z = 12 / (0.5 sqrt 8) = 8.485."""
     run = white(np.full((10, 1), 1.5), 0.5)
-    z = window_z(run, 8)
+    z = window_z(run, (8,))[8]
     assert np.isnan(z[:7]).all() and z[7:, 0] == pytest.approx(12 / (0.5 * np.sqrt(8)))
 
 

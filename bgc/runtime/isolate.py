@@ -88,20 +88,18 @@ def threshold(alpha: float, sensors: int, steps: int, windows: int = 1) -> float
     return union_threshold(alpha, sensors * steps * windows)
 
 
-def window_z(run: OpenLoop, w: int) -> np.ndarray:
-    """Z of the sum of the deviation over the window of ``w`` samples ending at
-    each step (steps x sensors; NaN before ``w`` samples)."""
+def window_z(run: OpenLoop, windows: tuple[int, ...]) -> dict[int, np.ndarray]:
+    """Per window length ``w``: Z of the sum of the deviation over the ``w``
+    samples ending at each step (steps x sensors; NaN before ``w`` samples)."""
     d = np.where(np.isfinite(run.deviation), run.deviation, 0.0)
-    n = len(d)
-    out = np.full(d.shape, np.nan)
-    if n < w:
-        return out
     c = np.concatenate([np.zeros((1,) + d.shape[1:]), np.cumsum(d, axis=0)])
     cp = np.concatenate([np.zeros((1,) + run.paths.shape[1:]), np.cumsum(run.paths, axis=0)])
-    s = c[w:] - c[:-w]
-    sp = cp[w:] - cp[:-w]
-    var = sp.var(axis=-1) + w * run.noise ** 2
-    out[w - 1:] = s / np.sqrt(var)
+    out = {}
+    for w in windows:
+        out[w] = np.full(d.shape, np.nan)
+        if len(d) >= w:
+            var = (cp[w:] - cp[:-w]).var(axis=-1) + w * run.noise ** 2
+            out[w][w - 1:] = (c[w:] - c[:-w]) / np.sqrt(var)
     return out
 
 
@@ -126,7 +124,7 @@ def observed_symbols(run: OpenLoop, sensors: tuple[str, ...], windows: tuple[int
     steps = len(run.deviation)
     c_m = threshold(alpha, len(sensors), steps, len(windows))
     c_s = threshold(alpha, len(sensors), 1)
-    zs = {w: window_z(run, w) for w in windows}
+    zs = window_z(run, windows)
     out = []
     for j, name in enumerate(sensors):
         for t in range(steps):
