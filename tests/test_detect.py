@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from bgc.runtime.detect import Detector, DetectorOptions
+from bgc.runtime.detect import Detector, DetectorOptions, monte_carlo_share
 
 
 def normal_quantile(p: float) -> float:
@@ -74,3 +74,53 @@ def test_a_small_persistent_shift_is_caught_by_a_long_window_and_its_onset_found
 def test_missing_samples_do_not_alarm():
     det = Detector(("a",), DetectorOptions(steps=10))
     assert all(det.update(np.array([np.nan])) is None for _ in range(10))
+
+
+def test_monte_carlo_share_by_hand():
+    """y_std 2, measurement std 1.2: the particles' share of the variance is
+    4 - 1.44 = 2.56; ESS 100 of N = 1000: 2.56 (1/100 + 1/1000) = 0.02816,
+    whose root over y_std is 0.16781 / 2 = 0.083905."""
+    a = monte_carlo_share(np.array([2.0, 1.0]), np.array([1.2, 1.0]), 100.0, 1000)
+    assert a[0] == pytest.approx(math.sqrt(0.02816) / 2, rel=1e-12)
+    assert a[0] == pytest.approx(0.083905, abs=1e-6)
+    assert a[1] == 0.0  # all measurement noise: no Monte Carlo error
+
+
+def test_window_statistic_widens_by_the_monte_carlo_share_by_hand():
+    """z = 1 and a = 0.25 on every step: after 8 steps the 8-sample window is
+    8 / sqrt(8 + (8 x 0.25)^2) = 8 / sqrt(12) = 2.3094, the one-sample window
+    1 / sqrt(1 + 0.0625) = 0.9701; without the shares 8 / sqrt(8) = 2.8284."""
+    for mc, want in ((np.array([0.25]), 8 / math.sqrt(12)), (None, math.sqrt(8))):
+        det = Detector(("a",), DetectorOptions(windows=(1, 8), steps=8))
+        for _ in range(8):
+            det.update(np.array([1.0]), mc)
+        assert det.statistics[-1][0] == pytest.approx(want, rel=1e-12)
+    det = Detector(("a",), DetectorOptions(windows=(1,), steps=1))
+    det.update(np.array([1.0]), np.array([0.25]))
+    assert det.statistics[-1][0] == pytest.approx(1 / math.sqrt(1.0625), rel=1e-12)
+
+
+def test_the_allowance_keeps_the_rate_when_the_prediction_has_a_slow_monte_carlo_error():
+    """Residuals = white N(0, 1) + a slowly varying prediction error of std
+    0.15 (AR(1), coefficient 0.97: ancestors shared over tens of steps). A
+    32-sample window sum then has variance about 32 + 0.0225 x 759 = 49
+    instead of 32 (759: the sum of 0.97^|i-j| over the window's pairs):
+    alarms well above the target without the allowance, below it with the
+    allowance (which takes the error as fully correlated: 32 + 0.0225 x 1024)."""
+    alpha, runs, sd, rho = 0.05, 400, 0.15, 0.97
+    rng = np.random.default_rng(21)
+    plain = allowed = 0
+    for _ in range(runs):
+        e = np.empty((300, 2))
+        e[0] = sd * rng.standard_normal(2)
+        for k in range(1, 300):
+            e[k] = rho * e[k - 1] + sd * math.sqrt(1 - rho * rho) * rng.standard_normal(2)
+        z = rng.standard_normal((300, 2)) + e
+        a = np.full(2, sd)
+        d1 = Detector(("a", "b"), DetectorOptions(false_alarm=alpha, steps=300))
+        d2 = Detector(("a", "b"), DetectorOptions(false_alarm=alpha, steps=300))
+        plain += any(d1.update(z[k]) is not None for k in range(300))
+        allowed += any(d2.update(z[k], a) is not None for k in range(300))
+    sigma = math.sqrt(alpha * (1 - alpha) / runs)
+    assert plain / runs > alpha + 3 * sigma, plain
+    assert allowed / runs <= alpha + 3 * sigma, allowed

@@ -201,9 +201,16 @@ class _Filter:
 class GenericParticleFilter(_Filter):
     """Thesis Algorithm 1: sample from the prior p(x_k | x_k-1), weight by p(y_k | x_k)."""
 
-    def step(self, y, u, dt=None):
+    def step(self, y, u, dt=None, predicted=False):
+        """One step with measurement y (NaN: not read) and input u.
+        ``predicted``: the particles were already moved by ``model.predict``
+        (a caller that predicts several filters' particles in one array, the
+        same model and theta); only the process noise is added here."""
         dt = self.model.DT if dt is None else dt
-        self.model.transition(self.x, u, self.theta, dt, self.rng, out=self.x)
+        if predicted:
+            self.model.perturb(self.x, self.rng)
+        else:
+            self.model.transition(self.x, u, self.theta, dt, self.rng, out=self.x)
         y = np.asarray(y, dtype=float)
         missing = np.isnan(y).all()
         y_mean, y_std = self._weigh(None if missing else y, u)
@@ -274,15 +281,29 @@ class AuxiliaryParticleFilter(_Filter):
     mu[ancestors] plus process noise.
     """
 
-    def step(self, y, u, dt=None):
+    def step(self, y, u, dt=None, predicted=False):
+        """As :meth:`GenericParticleFilter.step`."""
         dt = self.model.DT if dt is None else dt
         y = np.asarray(y, dtype=float)
-        mu = self.model.predict(self.x, u, self.theta, dt, out=self.x)
+        mu = self.x if predicted else self.model.predict(self.x, u, self.theta, dt, out=self.x)
         if np.isnan(y).all():
             self.model.perturb(mu, self.rng)
             y_mean, y_std = self._predicted_measurement(self.model.observe(mu, u, self.theta))
             return self._finish(self.logw, y_mean, y_std, False)
-        first = self.model.loglik_predictive(y, mu, u, self.theta)
+        # The predicted measurement (before y is used) from the cloud before the
+        # selection: the weighted mean and spread of the noise-free predictions,
+        # plus PREDICTIVE_STD (measurement noise and the process noise seen
+        # through the outputs). The selected particles re-weighted by
+        # 1 / p(y | mu) give the same in expectation, but with a large variance
+        # when y is far out: the selection has moved them towards it.
+        ymu = self.model.observe(mu, u, self.theta)
+        y_mean, y_spread = self.model._kernel.moments(ymu, self._weights())
+        y_std = np.sqrt(y_spread * y_spread + self.model.PREDICTIVE_STD ** 2)
+        first = self.model._kernel.gaussian_loglik(y, ymu, self.model.PREDICTIVE_STD)  # loglik_predictive
+        del ymu
+        broken = np.isnan(first)
+        if broken.any():  # a finite particle whose prediction is not a number is impossible
+            first[broken & np.isfinite(mu).all(axis=0)] = -np.inf
         stage1 = self.logw + first
         recovered = False
         if not np.isfinite(stage1.max()):  # every first-stage weight underflowed: plain GPF step
@@ -294,11 +315,8 @@ class AuxiliaryParticleFilter(_Filter):
         counts = offspring_counts(w1, self.rng, overwrite=True)
         self.x = self.model.perturb(self._replicate(mu, counts), self.rng)
         yhat = self.model.observe(self.x, u, self.theta)
-        # The new particles weighted by 1 / p(y | mu) are a sample of the prior
-        # predictive: that gives the predicted measurement (before using y).
         back = np.repeat(first, counts)
         np.negative(back, out=back)
         del counts, w1
-        y_mean, y_std = self._predicted_measurement(yhat, back)
         logw = self.model.loglik_observed(y, yhat) + back
         return self._finish(logw, y_mean, y_std, recovered)
