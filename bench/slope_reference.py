@@ -140,6 +140,10 @@ def main() -> None:
     print(f"\nmean error: bgc {100 * np.nanmean(errors):.1f} %, bgc --refine {100 * np.nanmean(refined):.1f} %, "
           f"reference {100 * np.mean(ref_errors):.1f} %; reference posterior sd {np.mean(ref_sds):.3f} "
           f"({100 * np.mean(ref_sds) / SLOPE:.1f} % of the slope)")
+    # An estimator whose error is N(0, sd^2), sd the exact posterior's, is off by sd sqrt(2 / pi) on average:
+    # the mean error the data allow, which the reference's own error (a few seeds) estimates noisily.
+    print(f"mean error the data allow (posterior sd x sqrt(2 / pi)): "
+          f"{100 * math.sqrt(2 / math.pi) * np.mean(ref_sds) / SLOPE:.1f} %")
     print(f"diagnosis seconds (2 processes, simulation excluded): bgc {np.mean(t_plain):.2f}, "
           f"bgc --refine {np.mean(t_refine):.2f}")
 

@@ -198,3 +198,19 @@ def test_the_estimate_over_onsets_is_the_weighted_mixture_of_their_clouds():
     mean, std, low, high = onset_mixture([(1.0, [1.0] * 4, [0.0] * 4), (3.0, [3.0, 3.0], [-7.0, -7.0])], 0.95)
     assert mean == pytest.approx(2.5) and std == pytest.approx(0.75 ** 0.5)
     assert low == pytest.approx(1.0) and high == pytest.approx(3.0)
+
+
+def test_filters_predicted_together_move_as_if_each_were_predicted_alone():
+    """_predict_together (one integrator call over several filters' particles)
+    leaves each filter's particles where its own predict() would."""
+    from bgc.runtime import track
+    from bgc.runtime.diagnose import _predict_together
+
+    package = track.load_package(ROOT / "generated", "ro")
+    model = package.MODELS["R_pipe_incipient"]
+    u = model.inputs(0.0)
+    pfs = [package.filters.GenericParticleFilter(model, n, np.random.default_rng(n)) for n in (300, 500, 200)]
+    want = [model.predict(pf.x.copy(), u, model.THETA, model.DT) for pf in pfs]
+    _predict_together(model, pfs, u)
+    for pf, x in zip(pfs, want):
+        np.testing.assert_allclose(pf.x, x, rtol=1e-13, atol=0)

@@ -505,3 +505,20 @@ def test_stepping_equals_run(cls):
         got = np.array([getattr(s, key) for s in steps])
         assert got.tobytes() == getattr(out, key).astype(got.dtype).tobytes(), key
     assert np.array_equal(a.x, b.x) and np.array_equal(a.logw, b.logw)
+
+
+@pytest.mark.parametrize("cls", [GPF, APF], ids=["GPF", "APF"])
+def test_a_step_on_particles_predicted_outside_is_the_same_step(cls):
+    """step(predicted=True) after model.predict is step(): the same particles,
+    weights and predicted measurement (the caller only moved the integration)."""
+    ys, us = simulate(steps=3)
+    a = cls(MODEL, 500, np.random.default_rng(9))
+    b = cls(MODEL, 500, np.random.default_rng(9))
+    for y, u in zip(ys, us):
+        ra = a.step(y, u)
+        MODEL.predict(b.x, u, MODEL.THETA, MODEL.DT, out=b.x)
+        rb = b.step(y, u, predicted=True)
+        np.testing.assert_array_equal(a.x, b.x)
+        np.testing.assert_array_equal(a.logw, b.logw)
+        np.testing.assert_array_equal(ra.y_mean, rb.y_mean)
+        np.testing.assert_array_equal(ra.y_std, rb.y_std)
