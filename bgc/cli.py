@@ -386,7 +386,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--generated", metavar="DIR",
                    help="use the package bgc compile wrote there (default: generate one for this run)")
     p.add_argument("--refine", action="store_true",
-                   help="estimate the fault magnitude by marginal likelihood on a grid (slower, more accurate)")
+                   help="estimate the fault magnitude by marginal likelihood on a grid "
+                        "(slower; a check of the filter's estimate)")
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-diagnosis)")
     p.set_defaults(run=cmd_diagnose)
 

@@ -40,14 +40,25 @@ def test_ro_abrupt_pipe_blockage_is_detected_at_once_isolated_and_sized():
 
 @pytest.mark.slow
 def test_ro_incipient_pipe_blockage_its_slope_and_onset():
-    """R_pipe drifting at 0.5 per unit time from t = 165 (Table IV.4): found long
-    after it began, but the onsets tried reach back to it; the slope within
-    25 %, inside its interval."""
-    d = run("ro", "R_pipe:incipient:0.5@165", seed=1)
-    assert d.candidates[0] == "R_pipe_incipient" and d.verdict in ("isolated", "ambiguous")
-    assert d.time_of(d.detection.step) > 170 and abs(d.time_of(d.onset) - 165) <= 8
-    e = d.estimate
-    assert abs(e.value - 0.5) < 0.25 * 0.5 and e.low <= 0.5 <= e.high
+    """R_pipe drifting at 0.5 per unit time from t = 165 (Table IV.4), five
+    seeded runs: found long after it began, but the onsets tried reach back to
+    it (mean onset error within two steps of the onset grid, 8 samples), and
+    the slope is sized (mean error under 15 %, about twice what 20 seeds of
+    bench/diagnosis_accuracy.py average; its interval holding it in at least 4
+    of 5 runs). One seed alone is too few: the onset and the slope trade off,
+    and a single run's onset can be 9 samples off."""
+    onset_errors, slope_errors, covered = [], [], 0
+    for seed in range(1, 6):
+        d = run("ro", "R_pipe:incipient:0.5@165", seed=seed)
+        assert d.candidates[0] == "R_pipe_incipient" and d.verdict in ("isolated", "ambiguous")
+        assert d.time_of(d.detection.step) > 170
+        onset_errors.append(abs(d.time_of(d.onset) - 165))
+        e = d.estimate
+        slope_errors.append(abs(e.value - 0.5) / 0.5)
+        covered += e.low <= 0.5 <= e.high
+    assert np.mean(onset_errors) <= 8, onset_errors
+    assert np.mean(slope_errors) < 0.15, slope_errors
+    assert covered >= 4, covered
 
 
 @pytest.mark.slow
@@ -150,15 +161,17 @@ def test_bgc_diagnose_bad_input_is_one_located_line(tmp_path):
     ("circuit", "R2:abrupt:0.6@5", 0.6, {"process_noise": 0.01, "measurement_noise": 0.01}),
 ])
 def test_the_95_percent_interval_covers_the_truth_in_at_least_9_of_10_seeded_runs(model, scenario, truth, noise):
-    """Honest uncertainty: over ten seeded runs (data and filters), the
+    """Honest uncertainty: over twenty seeded runs (data and filters), the
     reported 95 % interval of the fault magnitude holds the injected value at
-    least nine times (bench/diagnosis_accuracy.py measures more scenarios)."""
+    least 16 times: with a true coverage of 90 % (the issue's target) that
+    passes with probability 0.96, with 70 % only 0.24
+    (bench/diagnosis_accuracy.py measures more scenarios)."""
     covered = 0
-    for seed in range(200, 210):
+    for seed in range(200, 220):
         d = run(model, scenario, seed, **noise)
         h = next((h for h in d.hypotheses if h.name == "_".join(scenario.split(":")[:2])), None)
         covered += h is not None and h.estimate.low <= truth <= h.estimate.high
-    assert covered >= 9, covered
+    assert covered >= 16, covered
 
 
 def test_bgc_diagnose_rewrites_its_own_folder_but_no_one_elses(tmp_path):
@@ -214,3 +227,16 @@ def test_filters_predicted_together_move_as_if_each_were_predicted_alone():
     _predict_together(model, pfs, u)
     for pf, x in zip(pfs, want):
         np.testing.assert_allclose(pf.x, x, rtol=1e-13, atol=0)
+
+
+def test_a_hypothesis_is_seeded_by_its_name_not_by_its_rank():
+    """The hypothesis filters' seeds depend on the run's seed, the hypothesis's
+    name and the onset only: the same whichever other hypotheses survive the
+    symbols, and different for different names, onsets and seeds."""
+    import zlib
+
+    from bgc.runtime.diagnose import hypothesis_seed
+
+    assert hypothesis_seed(3, "R_pipe_incipient", 160) == [3, 1, zlib.crc32(b"R_pipe_incipient"), 160]
+    seeds = {tuple(hypothesis_seed(s, n, o)) for s in (0, 1) for n in ("R1_abrupt", "R2_abrupt") for o in (5, 6)}
+    assert len(seeds) == 8

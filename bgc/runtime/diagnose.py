@@ -72,6 +72,7 @@ import dataclasses
 import math
 import multiprocessing
 import time
+import zlib
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from statistics import NormalDist
@@ -108,9 +109,9 @@ class DiagnosisOptions:
     than the best is dropped (100: "decisive" on Jeffreys' scale);
     ``workers``: parallel processes for the hypothesis filters (1: in this
     process). ``refine``: replace each surviving hypothesis's estimate by the
-    grid posterior of :mod:`bgc.runtime.identify` (``grid``): slower (about a
-    second or two more on the RO plant), about three times more accurate for
-    a slow drift's slope (docs/results.md)."""
+    grid posterior of :mod:`bgc.runtime.identify` (``grid``): about 2.6 times
+    slower on the RO drift, and since the estimate averages over the onsets no
+    more accurate there (docs/results.md, section 3)."""
 
     method: str = "gpf"
     particles: int = 1000
@@ -325,11 +326,11 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     starts_of = {name: onsets[fault_kind(package.MODELS[name].FAULT["kind"]).drifts] for name in names}
     nominal_density = _log_density(z, y_std)
     jobs = []
-    for i, name in enumerate(names):
+    for name in names:
         f = min(starts_of[name])
         rel = [s - f for s in starts_of[name]]
         jobs.append((name, package.__name__, options.method, options.particles,
-                     {s - f: [options.seed, 1 + i, s] for s in starts_of[name]},
+                     {s - f: hypothesis_seed(options.seed, name, s) for s in starts_of[name]},
                      {s - f: _cloud(clouds, s) for s in starts_of[name]}, ys[f:], us[f:], rel, options.interval,
                      options.shrinkage, {s - f: DetectorOptions(options.rejection, options.windows, T - s)
                                          for s in starts_of[name]}, outputs, nominal_density[f:]))
@@ -420,6 +421,13 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                      notes=tuple(notes), **common)
 
 
+def hypothesis_seed(seed: int, name: str, onset: int) -> list[int]:
+    """The seed of hypothesis ``name``'s filter from ``onset``: fixed by the
+    name (a CRC-32 of it, the same in every process), so that a hypothesis gets
+    the same random numbers whichever other hypotheses the symbols keep."""
+    return [seed, 1, zlib.crc32(name.encode()), onset]
+
+
 def _refined(h: Hypothesis, package, clouds: dict, ys, us, run: Run, options: DiagnosisOptions) -> Hypothesis:
     """``h`` with its estimate from the grid posterior (:mod:`bgc.runtime.identify`)."""
     module = package.MODELS[h.name]
@@ -497,8 +505,8 @@ FAR = 2.0
 #: Onsets of a hypothesis whose running log evidence falls this far behind
 #: the best onset's are pruned: a Bayes factor of e^10 (22026), so such an
 #: onset would weigh under 5e-5 in the onset mixture of the estimate. Against
-#: e^20, the same slope estimates to three decimals on ten RO drift runs
-#: (seeds 100 to 109) in a quarter less time (docs/diagnosis.md, section 4).
+#: e^20 it gives the same RO drift slopes in a quarter less time
+#: (bench/onset_pruning.py; docs/diagnosis.md, section 4).
 PRUNE = 10.0
 
 
