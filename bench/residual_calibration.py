@@ -107,6 +107,7 @@ def sources(runs: int, particles: int) -> None:
     count = {"white N(0, 1)": 0, "Kalman filter (exact)": 0}
     for name in ("GPF", "APF"):
         count[f"{name}, no allowance"] = count[f"{name}, with the allowance"] = 0
+    shares = {"GPF": [], "APF": []}
     for i in range(runs):
         run = simulate.simulate(compiled.numerics, simulate.SimulationOptions(seed=5000 + i))
         ys = run.measurements
@@ -120,6 +121,7 @@ def sources(runs: int, particles: int) -> None:
             ess = np.concatenate([[particles], out.ess[:-1]])  # of the weights that made each prediction
             mc = np.array([monte_carlo_share(out.y_std[k], model.MEASUREMENT_STD, ess[k], particles)
                            for k in range(len(ys))])
+            shares[name].append(mc.mean())
             count[f"{name}, no allowance"] += alarms(z)
             count[f"{name}, with the allowance"] += alarms(z, mc)
     print(f"Circuit, {runs} fault-free runs (seeds 5000, ...), detector at 1 % per run, N = {particles}\n")
@@ -127,7 +129,7 @@ def sources(runs: int, particles: int) -> None:
     print("|---|---|---|")
     for name, n in count.items():
         print(f"| {name} | {n}/{runs} | {100 * n / runs:.1f} % |")
-    print()
+    print(f"\nmean Monte Carlo share a_k: GPF {np.mean(shares['GPF']):.3f}, APF {np.mean(shares['APF']):.3f}\n")
 
 
 if __name__ == "__main__":

@@ -42,7 +42,7 @@ its std is
 
     a_k,j = sqrt(v_p (1/ESS_k-1 + 1/N)) / y_std_k,j.
 
-It is small (about 0.07 on the circuit at N = 1000), but the errors of
+It is small (0.074 on average on the circuit at N = 1000), but the errors of
 successive predictions share ancestors, so they do not average out over a
 window, and they add to the innovations, which are independent of them. With
 the errors fully correlated inside a window (the worst case) the window sum

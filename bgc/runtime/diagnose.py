@@ -109,9 +109,9 @@ class DiagnosisOptions:
     than the best is dropped (100: "decisive" on Jeffreys' scale);
     ``workers``: parallel processes for the hypothesis filters (1: in this
     process). ``refine``: replace each surviving hypothesis's estimate by the
-    grid posterior of :mod:`bgc.runtime.identify` (``grid``): about 2.6 times
-    slower on the RO drift, and since the estimate averages over the onsets no
-    more accurate there (docs/results.md, section 3)."""
+    grid posterior of :mod:`bgc.runtime.identify` (``grid``): about three times
+    slower on the RO drift, and since the estimate averages over the onsets only
+    a little more accurate there (docs/results.md, section 3)."""
 
     method: str = "gpf"
     particles: int = 1000
