@@ -319,15 +319,17 @@ def test_a_particle_whose_likelihood_is_nan_gets_no_weight(cls):
     assert r.ess < 0.99 * 1000 and np.all(np.isfinite(r.mean))
 
 
-def test_gpf_predicted_measurement_does_not_depend_on_how_far_y_is():
-    """The predicted measurement is a moment of the particles before the update:
-    an outlier in y (here up to 1e10 std away) does not change it."""
-    ref = GPF(MODEL, 500, np.random.default_rng(2)).step(y_at_x0(), U)
+@pytest.mark.parametrize("cls", [GPF, APF], ids=["GPF", "APF"])
+def test_predicted_measurement_does_not_depend_on_how_far_y_is(cls):
+    """The predicted measurement is a moment of the particles before the update
+    (for the APF: before its first-stage selection, which y steers): an outlier
+    in y (here up to 1e10 std away) does not change it."""
+    ref = cls(MODEL, 500, np.random.default_rng(2)).step(y_at_x0(), U)
     for offset in (1e3, 1e6, 1e8):
         y = y_at_x0().copy()
         y[0] += offset
         with np.errstate(over="ignore", invalid="ignore"):
-            r = GPF(MODEL, 500, np.random.default_rng(2)).step(y, U)
+            r = cls(MODEL, 500, np.random.default_rng(2)).step(y, U)
         np.testing.assert_allclose(r.y_mean, ref.y_mean, rtol=1e-12)
         np.testing.assert_allclose(r.y_std, ref.y_std, rtol=1e-9)
 
