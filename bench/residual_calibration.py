@@ -119,8 +119,7 @@ def sources(runs: int, particles: int) -> None:
             out = cls(model, particles, np.random.default_rng(5000 + i)).run(ys, np.tile(u, (len(ys), 1)))
             z = (ys - out.y_mean) / out.y_std
             ess = np.concatenate([[particles], out.ess[:-1]])  # of the weights that made each prediction
-            mc = np.array([monte_carlo_share(out.y_std[k], model.MEASUREMENT_STD, ess[k], particles)
-                           for k in range(len(ys))])
+            mc = monte_carlo_share(out.y_std, model.MEASUREMENT_STD, ess[:, None], particles)
             shares[name].append(mc.mean())
             count[f"{name}, no allowance"] += alarms(z)
             count[f"{name}, with the allowance"] += alarms(z, mc)

@@ -124,3 +124,13 @@ def test_the_allowance_keeps_the_rate_when_the_prediction_has_a_slow_monte_carlo
     sigma = math.sqrt(alpha * (1 - alpha) / runs)
     assert plain / runs > alpha + 3 * sigma, plain
     assert allowed / runs <= alpha + 3 * sigma, allowed
+
+
+def test_monte_carlo_share_takes_an_effective_sample_size_per_step():
+    """An array of ESS (one per step) gives, row by row, what the scalar call gives."""
+    y_std = np.array([[2.0, 1.5], [2.0, 1.5]])
+    r = np.array([1.2, 1.0])
+    a = monte_carlo_share(y_std, r, np.array([[100.0], [10.0]]), 1000)
+    np.testing.assert_allclose(a[0], monte_carlo_share(y_std[0], r, 100.0, 1000), rtol=1e-15)
+    np.testing.assert_allclose(a[1], monte_carlo_share(y_std[1], r, 10.0, 1000), rtol=1e-15)
+    assert a[0, 0] == pytest.approx(0.083905, abs=1e-6)

@@ -72,13 +72,15 @@ from statistics import NormalDist
 import numpy as np
 
 
-def monte_carlo_share(y_std: np.ndarray, measurement_std: np.ndarray, ess: float, particles: int) -> np.ndarray:
+def monte_carlo_share(y_std: np.ndarray, measurement_std: np.ndarray, ess, particles: int) -> np.ndarray:
     """a_k: the Monte Carlo std of a particle filter's predicted measurement
     mean, in units of its predicted std ``y_std`` (module docstring); ``ess``:
-    the effective sample size of the weights that made the prediction."""
+    the effective sample size of the weights that made the prediction (a
+    number, or an array that broadcasts against ``y_std``)."""
     y_std = np.asarray(y_std, dtype=float)
     spread = np.maximum(y_std * y_std - np.asarray(measurement_std, dtype=float) ** 2, 0.0)
-    return np.sqrt(spread * (1.0 / max(float(ess), 1.0) + 1.0 / max(int(particles), 1))) / y_std
+    inverse = 1.0 / np.maximum(np.asarray(ess, dtype=float), 1.0) + 1.0 / max(int(particles), 1)
+    return np.sqrt(spread * inverse) / y_std
 
 
 def union_threshold(alpha: float, tests: int) -> float:

@@ -284,14 +284,14 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
             y_mean[k], y_std[k] = r.y_mean, r.y_std
             x_mean[k], x_std[k] = r.mean, r.std
             z[k] = (ys[k] - r.y_mean) / r.y_std
-            mc = monte_carlo_share(r.y_std, nominal.MEASUREMENT_STD, ess, options.particles)
-            ess = r.ess
             if detection is None:
                 clouds[k] = (pf.x.copy(), pf.logw.copy())
                 clouds.pop(k - options.history - 1, None)
-                detection = detector.update(z[k], mc)
+                detection = detector.update(z[k], monte_carlo_share(r.y_std, nominal.MEASUREMENT_STD, ess,
+                                                                    options.particles))
                 if detection is not None:
                     say(f"fault detected at t = {run.time[k]:g} on {detection.sensor}")
+            ess = r.ess
     statistics = np.array(detector.statistics + [np.full(n_y, np.nan)] * (T - len(detector.statistics)))
     common = dict(model=nominal.MODEL, time=run.time, outputs=outputs, states=tuple(nominal.STATES),
                   nominal_y_mean=y_mean, nominal_y_std=y_std, nominal_z=z, nominal_x_mean=x_mean,
@@ -533,6 +533,7 @@ def _run_hypothesis(job) -> dict[int, dict]:
     out: dict[int, dict] = {}
     filters: dict[int, tuple] = {}
     evidence = {s: 0.0 for s in starts}
+    ess = {s: float(particles) for s in starts}  # of the weights that predict each filter's next step
     live = set(starts)
     for s in starts:
         span = T - s
@@ -540,7 +541,7 @@ def _run_hypothesis(job) -> dict[int, dict]:
                   "magnitude": np.full(span, np.nan), "band": np.full((span, 2), np.nan),
                   "mean": np.full((span, n_x), np.nan), "std": np.full((span, n_x), np.nan),
                   "rejected": None, "stopped": False, "pruned": False, "last": -1, "final_std": math.nan,
-                  "parameter_value": math.nan, "ess": float(particles)}
+                  "parameter_value": math.nan}
     with np.errstate(all="ignore"):
         for k in range(min(starts), T):
             for s in sorted(live):
@@ -567,8 +568,8 @@ def _run_hypothesis(job) -> dict[int, dict]:
                 o["last"] = i
                 zk = (ys[k] - r.y_mean) / r.y_std
                 evidence[s] += float(_log_density(zk[None, :], r.y_std[None, :])[0])
-                alarm = check.update(zk, monte_carlo_share(r.y_std, module.MEASUREMENT_STD, o["ess"], particles))
-                o["ess"] = r.ess
+                alarm = check.update(zk, monte_carlo_share(r.y_std, module.MEASUREMENT_STD, ess[s], particles))
+                ess[s] = r.ess
                 if alarm is not None and o["rejected"] is None:
                     o["rejected"] = (i, alarm)
                 if alarm is not None and alarm.statistic > FAR * alarm.threshold:
