@@ -2,7 +2,7 @@
 magnitude's error and whether its interval covers the truth.
 
     .venv/bin/python bench/diagnosis_accuracy.py [--runs 20] [--particles 1000] [--false-alarm-runs 100]
-                                                 [--only TEXT]
+                                                 [--only TEXT] [--jitter-scale X]
 
 Each scenario is simulated by the truth simulator (8x finer RK4 than the
 filters) with seeds 100, 101, ...; the same seed drives the filters. Prints
@@ -12,6 +12,10 @@ coverage of the 95 % interval, mean |onset error|, mean detection delay and
 the z-score spread (error / reported std: about 1 when the std is honest).
 Then, per plant and noise level, the share of fault-free runs that raise an
 alarm (the detector's target: 1 % per run).
+
+``--jitter-scale X`` is an experiment: the fault states' random walk
+(``FaultKind.jitter`` in ``bgc/kinds.py``) times X, the models compiled into a
+private folder instead of read from ``generated/``.
 """
 
 from __future__ import annotations
@@ -48,7 +52,18 @@ def main() -> None:
     parser.add_argument("--filter", default="gpf", choices=["gpf", "apf"])
     parser.add_argument("--false-alarm-runs", type=int, default=100)
     parser.add_argument("--only", metavar="TEXT", help="only the scenarios whose model or scenario holds TEXT")
+    parser.add_argument("--jitter-scale", type=float, default=None, metavar="X",
+                        help="multiply the fault states' random walk by X (models compiled privately)")
     args = parser.parse_args()
+    args.generated = ROOT / "generated"
+    if args.jitter_scale is not None:
+        import dataclasses
+
+        from bgc import kinds
+
+        for name, kind in list(kinds.FAULT_KINDS.items()):
+            kinds.FAULT_KINDS[name] = dataclasses.replace(kind, jitter=kind.jitter * args.jitter_scale)
+        args.generated = None  # compiled with the changed kinds
     if args.runs:
         accuracy(args)
     if args.false_alarm_runs:
@@ -70,7 +85,7 @@ def false_alarms(args) -> None:
         for q, r in NOISE:
             started = time.perf_counter()
             alarms = sum(bgc.diagnose(ROOT / "models" / f"{model}.yaml", scenario="none", seed=5000 + i,
-                                      process_noise=q, measurement_noise=r, generated=ROOT / "generated",
+                                      process_noise=q, measurement_noise=r, generated=args.generated,
                                       options=DiagnosisOptions(method=args.filter, particles=args.particles,
                                                                seed=5000 + i)).diagnosis.detection is not None
                          for i in range(args.false_alarm_runs))
@@ -80,7 +95,8 @@ def false_alarms(args) -> None:
 
 
 def accuracy(args) -> None:
-    print(f"{args.runs} seeded runs per scenario, {args.filter.upper()} with {args.particles} particles\n")
+    jitter = "" if args.jitter_scale is None else f", fault-state random walk x {args.jitter_scale:g}"
+    print(f"{args.runs} seeded runs per scenario, {args.filter.upper()} with {args.particles} particles{jitter}\n")
     head = (f"{'model':<9} {'scenario':<26} {'noise q/r':<11} {'det.':>6} {'right':>6} {'isol.':>6} {'err %':>6} {'worst %':>8} "
             f"{'cover':>6} {'|onset err|':>11} {'delay':>6} {'z sd':>5} {'s/run':>6}")
     print(head)
@@ -93,7 +109,7 @@ def accuracy(args) -> None:
         for i in range(args.runs):
             seed = 100 + i
             rep = bgc.diagnose(ROOT / "models" / f"{model}.yaml", scenario=scenario, seed=seed, process_noise=q,
-                               measurement_noise=r, generated=ROOT / "generated",
+                               measurement_noise=r, generated=args.generated,
                                options=DiagnosisOptions(method=args.filter, particles=args.particles, seed=seed))
             d = rep.diagnosis
             truth = f"{rep.injected.parameter}_{rep.injected.kind}"

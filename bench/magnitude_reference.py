@@ -1,25 +1,29 @@
-"""How well can the slope of the RO plant's R_pipe drift be known from the data?
-bgc's estimate against an exact-in-the-limit reference on the same data.
+"""How well can the magnitude of the RO plant's R_pipe fault (the slope of its
+drift, or the bias of its step) be known from the data? bgc's estimate against
+an exact-in-the-limit reference on the same data.
 
-    .venv/bin/python bench/slope_reference.py [--seeds 5] [--particles 1000] [--ref-particles 2000]
+    .venv/bin/python bench/magnitude_reference.py [--kind incipient|abrupt] [--seeds 5] [--particles 1000]
+                                                  [--ref-particles 2000]
 
 The RO plant is not linear in its states, so the reference is a grid posterior
 computed with marginal likelihoods from particle filters (the pseudo-marginal
 idea of PMMH, Andrieu, Doucet and Holenstein 2010, evaluated on a grid instead
-of by MCMC): for every onset tau and slope c of a grid, a bootstrap particle
-filter with ``--ref-particles`` particles and both fixed gives an unbiased
-estimate of p(y_1:T | tau, c); the nominal filter up to tau is shared by every
-c. With a flat prior on the grid, p(c | y) is proportional to sum over tau of
-p(y | tau, c). Its mean and std are what the data allow; bgc's estimate (its
-own onset search and a slope state with Liu-West moves) is compared with it
+of by MCMC): for every onset tau and magnitude c (slope or bias) of a grid, a bootstrap
+particle filter with ``--ref-particles`` particles and both fixed gives an
+unbiased estimate of p(y_1:T | tau, c); the nominal filter up to tau is shared
+by every c. With a flat prior on the grid, p(c | y) is proportional to sum over
+tau of p(y | tau, c). Its mean and std are what the data allow; bgc's estimate
+(its own onset search and a magnitude state with Liu-West moves) is compared with it
 run by run, and so is bgc's optional refinement (``--refine``:
 :mod:`bgc.runtime.identify`, the same idea on a small grid around the
 filter's interval).
 
 The reference filter is written here (a plain bootstrap filter with
 systematic resampling on the generated model's ``transition`` and
-``loglik``), not bgc's filter loop. Scenario: the thesis's R_pipe incipient
-fault, slope 0.5 from t = 165, model noise levels, seeds 100, 101, ...
+``loglik``), not bgc's filter loop. Scenarios (``--kind``), those of the RO
+rows of ``bench/diagnosis_accuracy.py``: the thesis's R_pipe incipient fault,
+slope 0.5 from t = 165, or its abrupt fault, 69 -> 100 (bias 31) at t = 165;
+model noise levels, seeds 100, 101, ...
 """
 
 from __future__ import annotations
@@ -39,7 +43,13 @@ import bgc  # noqa: E402
 from bgc.runtime import track  # noqa: E402
 from bgc.runtime.diagnose import DiagnosisOptions  # noqa: E402
 
-SLOPE, ONSET = 0.5, 165.0
+ONSET = 165.0
+#: kind -> (fault model, true magnitude, reference grid of onsets (steps; dt = 1, run time t = step + 1), of
+#: magnitudes): a drift's onset and slope trade off (a wide onset grid); a step's onset is sharp.
+KINDS = {
+    "incipient": ("R_pipe_incipient", 0.5, list(range(145, 186, 3)), np.round(np.arange(0.30, 0.701, 0.02), 4)),
+    "abrupt": ("R_pipe_abrupt", 31.0, list(range(162, 169)), np.round(np.arange(25.0, 37.01, 0.25), 4)),
+}
 
 
 def logsumexp(a: np.ndarray) -> float:
@@ -71,11 +81,11 @@ def bootstrap(model, x, ys, us, rng, fix=None) -> tuple[float, np.ndarray]:
     return total, x
 
 
-def reference(package, run, taus, slopes, n: int, seed: int) -> np.ndarray:
-    """log p(y | tau, c) on the grid (rows: taus, columns: slopes)."""
+def reference(package, fault_model: str, run, taus, slopes, n: int, seed: int) -> np.ndarray:
+    """log p(y | tau, c) on the grid (rows: taus, columns: magnitudes)."""
     ys, us = track.run_arrays(run, package, "nominal")
     nominal = package.MODELS["nominal"]
-    fault = package.MODELS["R_pipe_incipient"]
+    fault = package.MODELS[fault_model]
     rng = np.random.default_rng([seed, 77])
     out = np.empty((len(taus), len(slopes)))
     x = nominal.initial_particles(rng, n)
@@ -88,7 +98,7 @@ def reference(package, run, taus, slopes, n: int, seed: int) -> np.ndarray:
         for j, c in enumerate(slopes):
             xf = fault.augment(x.copy(), rng)
             xf[row] = c
-            # the drift: the generated model advances R_pipe by c per step from the onset
+            # held at c: the drift (the generated model advances R_pipe by c per step from the onset), or the bias
             part, _ = bootstrap(fault, xf, ys[tau:], us[tau:], rng, fix=(row, c))
             out[i, j] = ll0 + part
     return out
@@ -96,42 +106,46 @@ def reference(package, run, taus, slopes, n: int, seed: int) -> np.ndarray:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--kind", choices=sorted(KINDS), default="incipient")
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--particles", type=int, default=1000, help="bgc diagnose's particles")
     ap.add_argument("--ref-particles", type=int, default=2000)
     args = ap.parse_args()
     package = track.load_package(ROOT / "generated", "ro", "models/ro.yaml")
-    taus = list(range(145, 186, 3))  # steps (dt = 1, run time t = step + 1)
-    slopes = np.round(np.arange(0.30, 0.701, 0.02), 4)
-    print(f"R_pipe incipient, slope {SLOPE} from t = {ONSET:g}; reference grid: onsets {taus[0]}..{taus[-1]} "
-          f"step 3, slopes {slopes[0]}..{slopes[-1]} step 0.02, {args.ref_particles} particles per filter\n")
+    name, truth, taus, values = KINDS[args.kind]
+    what, whats = ("slope", "slopes") if args.kind == "incipient" else ("bias", "biases")
+    scenario = f"R_pipe:{args.kind}:{truth:g}@{ONSET:g}"
+    print(f"{scenario} (R_pipe {args.kind}, {what} {truth:g} from t = {ONSET:g}); reference grid: onsets "
+          f"{taus[0]}..{taus[-1]} step {taus[1] - taus[0]}, {whats} {values[0]:g}..{values[-1]:g} step "
+          f"{values[1] - values[0]:g}, {args.ref_particles} particles per filter\n")
     print("| seed | bgc estimate | bgc 95 % interval | bgc error % | bgc --refine | its interval | its error % | "
           "reference mean | reference sd | reference error % | reference s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     errors, refined, ref_errors, ref_sds, t_plain, t_refine = [], [], [], [], [], []
     for i in range(args.seeds):
         seed = 100 + i
-        r = bgc.diagnose(ROOT / "models" / "ro.yaml", scenario=f"R_pipe:incipient:{SLOPE}@{ONSET:g}", seed=seed,
-                         generated=ROOT / "generated",
+        r = bgc.diagnose(ROOT / "models" / "ro.yaml", scenario=scenario, seed=seed, generated=ROOT / "generated",
                          options=DiagnosisOptions(particles=args.particles, seed=seed))
         e = r.diagnosis.estimate
         t_plain.append(r.diagnosis.seconds)
         g = bgc.diagnose(ROOT / "models" / "ro.yaml", data=r.run, generated=ROOT / "generated",
                          options=DiagnosisOptions(particles=args.particles, seed=seed, refine=True)).diagnosis
         t_refine.append(g.seconds)
-        g_right = g.candidates[:1] == ("R_pipe_incipient",)
-        refined.append(abs(g.estimate.value - SLOPE) / SLOPE if g_right else float("nan"))
+        g_right = g.candidates[:1] == (name,)
+        refined.append(abs(g.estimate.value - truth) / truth if g_right else float("nan"))
         started = time.perf_counter()
-        ll = reference(package, r.run, taus, slopes, args.ref_particles, seed)
+        ll = reference(package, name, r.run, taus, values, args.ref_particles, seed)
         seconds = time.perf_counter() - started
         post = np.exp(ll - ll.max()).sum(axis=0)
         post /= post.sum()
-        mean = float(post @ slopes)
-        sd = math.sqrt(float(post @ (slopes - mean) ** 2))
-        right = r.diagnosis.candidates[:1] == ("R_pipe_incipient",)
-        err = abs(e.value - SLOPE) / SLOPE if right else float("nan")
+        if max(post[0], post[-1]) > 0.01:
+            print(f"(seed {seed}: the reference posterior reaches the end of its grid: {post[0]:.3f}, {post[-1]:.3f})")
+        mean = float(post @ values)
+        sd = math.sqrt(float(post @ (values - mean) ** 2))
+        right = r.diagnosis.candidates[:1] == (name,)
+        err = abs(e.value - truth) / truth if right else float("nan")
         errors.append(err)
-        ref_errors.append(abs(mean - SLOPE) / SLOPE)
+        ref_errors.append(abs(mean - truth) / truth)
         ref_sds.append(sd)
         ge = g.estimate
         print(f"| {seed} | {e.value:.3f}{'' if right else ' (wrong fault)'} | [{e.low:.3f}, {e.high:.3f}] | "
@@ -139,11 +153,11 @@ def main() -> None:
               f"{100 * refined[-1]:.1f} | {mean:.3f} | {sd:.3f} | {100 * ref_errors[-1]:.1f} | {seconds:.0f} |")
     print(f"\nmean error: bgc {100 * np.nanmean(errors):.1f} %, bgc --refine {100 * np.nanmean(refined):.1f} %, "
           f"reference {100 * np.mean(ref_errors):.1f} %; reference posterior sd {np.mean(ref_sds):.3f} "
-          f"({100 * np.mean(ref_sds) / SLOPE:.1f} % of the slope)")
+          f"({100 * np.mean(ref_sds) / truth:.1f} % of the {what})")
     # An estimator whose error is N(0, sd^2), sd the exact posterior's, is off by sd sqrt(2 / pi) on average:
     # the mean error the data allow, which the reference's own error (a few seeds) estimates noisily.
     print(f"mean error the data allow (posterior sd x sqrt(2 / pi)): "
-          f"{100 * math.sqrt(2 / math.pi) * np.mean(ref_sds) / SLOPE:.1f} %")
+          f"{100 * math.sqrt(2 / math.pi) * np.mean(ref_sds) / truth:.1f} %")
     print(f"diagnosis seconds (2 processes, simulation excluded): bgc {np.mean(t_plain):.2f}, "
           f"bgc --refine {np.mean(t_refine):.2f}")
 
