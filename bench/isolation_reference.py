@@ -83,9 +83,14 @@ def main() -> None:
             continue
         r = next(iter(filters.values()))
         jobs.append((key, str(ROOT / r["model"]), r, draws[r["group"]], args.magnitudes))
-    if args.limit:
-        kept: dict[str, int] = defaultdict(int)
-        jobs = [j for j in jobs if (kept.__setitem__(j[0][0], kept[j[0][0]] + 1) or kept[j[0][0]] <= args.limit)]
+    if args.limit:  # the first --limit of each group
+        seen: dict[str, int] = defaultdict(int)
+        kept = []
+        for j in jobs:
+            seen[j[0][0]] += 1
+            if seen[j[0][0]] <= args.limit:
+                kept.append(j)
+        jobs = kept
     print(f"exact Bayes classifier on {len(jobs)} detected scenarios x noise levels of {path} "
           f"({args.magnitudes} magnitudes x every onset sample per hypothesis)", flush=True)
     started = time.perf_counter()
