@@ -28,7 +28,7 @@ often on these runs. Printed per model, fault kind and noise level:
   only bgc: agreement run by run (GPF).
 
 The Kalman filters are written here (batched over the grid in numpy), not
-bgc's filters; the matrices are read off the generated model's ``predict``
+bgc's filters; the matrices are read off the committed generated model's (generated/) ``predict``
 and ``observe`` at the unit vectors, with the fault state set to the grid
 point's value at that step (a step change from its onset sample, a ramp from
 its onset evaluated continuously inside the step, as the simulator does).
@@ -43,6 +43,7 @@ import sys
 import time
 from collections import defaultdict
 from concurrent.futures import ProcessPoolExecutor
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -51,7 +52,7 @@ import yaml
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bgc import api  # noqa: E402
+from bgc import pipeline  # noqa: E402
 from bgc.kinds import DIRECTIONS, fault_kind  # noqa: E402
 from bgc.runtime import runs, simulate, track  # noqa: E402
 
@@ -108,11 +109,12 @@ def main() -> None:
 def reference(job) -> dict:
     """The exact posterior of every (parameter, kind) on one run's data."""
     key, model, row, draws, n_mag = job
-    c, private = api._compiled(model)
+    c = _compiled(model)
     pn = float(row["process_noise"]) if row["process_noise"] else None
     mn = float(row["measurement_noise"]) if row["measurement_noise"] else None
     levels = c.numerics.noise_at(pn, mn)
-    package = track.load_package(private, c.model.name, model, levels if (pn, mn) != (None, None) else None)
+    package = track.load_package(ROOT / "generated", c.model.name, model,
+                                 levels if (pn, mn) != (None, None) else None)
     inj = simulate.parse_fault(row["scenario"], c.numerics)
     result = simulate.simulate(c.numerics, simulate.SimulationOptions(
         steps=int(row["steps"]), process_noise=pn, measurement_noise=mn, seed=int(row["seed"]), fault=inj))
@@ -131,6 +133,7 @@ def reference(job) -> dict:
     logpost = {}
     for p, k in pool:
         module = package.MODELS[f"{p}_{k}"]
+        _checked_affine(module, nominal, us[0], dt, len(nominal.STATES))
         p0 = float(dict(zip(module.PARAMETERS, module.THETA))[p])
         signs = DIRECTIONS[candidates[p].direction]
         terms = []
@@ -138,7 +141,7 @@ def reference(job) -> dict:
             size = sign * changes * abs(p0)
             mags = size / duration if fault_kind(k).drifts else size
             ll = kalman_grid(module, nominal, ys, us, dt, onsets, mags, fault_kind(k).drifts, p0)
-            terms.append(_logmeanexp(ll) - math.log(len(signs)))
+            terms.append(np.logaddexp.reduce(ll) - math.log(len(ll) * len(signs)))  # the grid's mean
         logpost[f"{p}_{k}"] = float(np.logaddexp.reduce(terms)) - math.log(len(pool))
     names = list(logpost)
     lp = np.array([logpost[n] for n in names])
@@ -147,9 +150,11 @@ def reference(job) -> dict:
     return {"posterior": dict(zip(names, post.tolist())), "truth": f"{row['fault']}_{row['kind']}"}
 
 
-def _logmeanexp(a: np.ndarray) -> float:
-    m = float(np.max(a))
-    return m + math.log(float(np.mean(np.exp(a - m))))
+@lru_cache(maxsize=None)
+def _compiled(model: str) -> pipeline.Compiled:
+    """The model compiled once per process (its equations, for the simulator;
+    its filters are the committed ones in generated/)."""
+    return pipeline.compile_model(model)
 
 
 def kalman_grid(module, nominal, ys, us, dt, onsets, mags, drifts: bool, p0: float) -> np.ndarray:
@@ -183,7 +188,6 @@ def kalman_grid(module, nominal, ys, us, dt, onsets, mags, drifts: bool, p0: flo
     ll = np.full(G, ll0)
     cols = np.zeros((n + n_f, G, n + 1))
     cols[:n] = basis[:, None, :]
-    _checked_affine(module, nominal, us[first], dt, n)
     for k in range(first, len(ys)):
         on = k >= onset_of  # the integration interval [k dt, (k+1) dt] starts at or after the onset
         if drifts:  # the parameter at the interval's start and its slope
@@ -274,10 +278,10 @@ def report(results: dict, by_data: dict) -> None:
     print("| model | kind | noise | runs | Bayes right | mean P(truth) | decisive | bgc GPF right (Bayes on its runs) "
           "| bgc APF right (Bayes on its runs) | both right / only Bayes / only bgc (GPF) |")
     print("|---|---|---|---|---|---|---|---|---|---|")
+    pct = (lambda a, b: f"{100 * a / b:.0f} %" if b else "-")
     for (group, kind, noise), s in sorted(cells.items(), key=lambda kv: (kv[0][0], kv[0][1] == "all", kv[0][1],
                                                                          kv[0][2] == "all", kv[0][2])):
         n = s["runs"]
-        pct = (lambda a, b: f"{100 * a / b:.0f} %" if b else "-")
         print(f"| {group} | {kind} | {noise} | {n:.0f} | {pct(s['bayes'], n)} | {s['p_truth'] / n:.2f} | "
               f"{pct(s['decisive'], n)} | {pct(s['gpf_right'], s['gpf_n'])} ({pct(s['gpf_bayes'], s['gpf_n'])}) | "
               f"{pct(s['apf_right'], s['apf_n'])} ({pct(s['apf_bayes'], s['apf_n'])}) | "
