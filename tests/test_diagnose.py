@@ -240,3 +240,43 @@ def test_a_hypothesis_is_seeded_by_its_name_not_by_its_rank():
     assert hypothesis_seed(3, "R_pipe_incipient", 160) == [3, 1, zlib.crc32(b"R_pipe_incipient"), 160]
     seeds = {tuple(hypothesis_seed(s, n, o)) for s in (0, 1) for n in ("R1_abrupt", "R2_abrupt") for o in (5, 6)}
     assert len(seeds) == 8
+
+
+def test_a_drifts_onsets_are_every_4_samples_near_the_alarm_and_coarser_further_back():
+    """drift_onsets(100, 90, 4, 100): back from the alarm at 100 every 4
+    samples while 1/16 of the distance is at most 4 (distances 0, 4, ..., 80),
+    then 1/16 of the distance (80 -> 85 -> 90 -> 95 -> 100, each step
+    int(d / 16) = 5, 5, 5, 5), down to sample 0; the change point 90 as well."""
+    from bgc.runtime.diagnose import drift_onsets
+
+    expected = sorted({100 - d for d in range(0, 81, 4)} | {100 - d for d in (85, 90, 95, 100)} | {90})
+    assert drift_onsets(100, 90, 4, 100) == expected
+    assert drift_onsets(100, 90, 4, 64) == sorted({100 - d for d in range(0, 65, 4)} | {90})
+    assert min(drift_onsets(30, 28, 4, 256)) == 2  # never before the first sample: 30 - 28
+
+
+def test_each_onset_weighs_the_span_of_samples_it_stands_for():
+    """The onset prior is uniform in time: consecutive samples weigh 1 each,
+    a grid 4 apart 4 each, and an uneven grid the span between the midpoints
+    to its neighbours (0, 4, 6: edges -2, 2, 5, 7)."""
+    from bgc.runtime.diagnose import onset_widths
+
+    assert onset_widths([5, 6, 7]).tolist() == [1.0, 1.0, 1.0]
+    assert onset_widths([10, 14, 18]).tolist() == [4.0, 4.0, 4.0]
+    assert onset_widths([0, 4, 6]).tolist() == [4.0, 3.0, 2.0]
+    assert onset_widths([7]).tolist() == [1.0]
+
+
+@pytest.mark.slow
+def test_a_drift_found_long_after_it_began_gets_its_onset_grid_extended_back():
+    """R3 drifting from t = 5.3 (sample 106) in the circuit, detected more
+    than 64 samples later (a drift of the sweep, bgc's seed 473362393): the
+    first onset grid (64 samples back from the alarm) misses the onset, the
+    onset posterior piles up at its earliest onset, and the grid is extended
+    back; the drift is isolated with its onset within 12 samples."""
+    d = run("circuit", "R3:incipient:0.0308906@5.3", seed=473362393)
+    assert d.detection.step - 106 > 64
+    assert d.candidates[0] == "R3_incipient"
+    h = d.best
+    assert min(h.onsets) < d.detection.step - 64
+    assert abs(h.start - 106) <= 12, h.start

@@ -57,6 +57,7 @@ def report_data(r) -> dict[str, Any]:
         out["hypotheses"].append({
             "model": h.name, "parameter": h.parameter, "kind": h.kind, "signatures": list(h.signatures),
             "onset": _num(_t(d, h.start)), "posterior": _num(h.posterior), "log_evidence": _num(h.log_evidence),
+            "static_log_evidence": _num(h.static_log_evidence),
             "dropped": None if h.dropped is None else {"time": _num(_t(d, h.dropped)), "why": h.reason},
             "estimate": {"magnitude": e.magnitude, "value": _num(e.value), "std": _num(e.std),
                          "interval": [_num(e.low), _num(e.high)], "level": e.level,

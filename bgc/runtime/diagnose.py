@@ -35,21 +35,28 @@ with the onset, not the detection time, as the hand-over:
 6. **Weigh** the hypotheses by the probability the data give each: the
    product of each filter's one-step predictive densities (their Gaussian
    approximation, mean and std of the predicted measurement), over a common
-   span (the nominal filter's densities before a later onset), averaged over
-   the onsets tried (a stopped onset counts zero), times the candidate's
-   prior. A survivor less probable
+   span (the nominal filter's densities before a later onset), summed over
+   the onsets tried, each weighed by the samples it stands for (a stopped
+   onset counts zero), times the candidate's prior. A survivor less probable
    than the best by a Bayes factor above ``bayes_factor`` is dropped too. The
    survivors are the diagnosis; when several survive, they form an ambiguity
    group, ranked by probability, each with its estimate.
-7. **Refine** (``refine``, off by default): each survivor's magnitude by
+7. **Rank** (``rank``, off by default): when several survive, weigh them
+   anew by the evidence of their models with the magnitude held static
+   (integrated over a grid of magnitudes), and drop those the Bayes factor
+   rules out.
+8. **Refine** (``refine``, off by default): each survivor's magnitude by
    marginal likelihood on a grid (:mod:`bgc.runtime.identify`).
 
 The onset is a parameter too: each hypothesis is tried from the detector's
 change point and, for a drift, from a grid of earlier steps (``spacing``
-apart, back to ``history`` steps before the alarm; a step change is tried
-from the ``near`` samples before the change point to 2 after it), and the
-onsets are weighed like the hypotheses; a slow drift is detected long after
-it began, and starting its filter late biases the slope.
+apart, back to ``search`` steps before the alarm, and coarser further back;
+the grid is extended back by ``search`` steps at a time, up to ``history``,
+while the drift's onset posterior piles up at its earliest onset; a step
+change is tried from the ``near`` samples before the change point to 2 after
+it), and the onsets are weighed like the hypotheses, each by the span of
+time it stands for (its prior: uniform in time); a slow drift is detected
+long after it began, and starting its filter late biases the slope.
 
 **Identification.** The fault magnitude (a bias for an abrupt fault, a slope
 for an incipient one) is a state of the fault model, with a small random walk
@@ -96,9 +103,12 @@ class DiagnosisOptions:
     """``false_alarm``: the detector's probability of any alarm in a
     fault-free run; ``rejection``: the probability of dropping the true
     hypothesis over the run; ``windows``: the Z-tests' window lengths;
-    ``history``: how far before the detection the onset is looked for (and
-    the nominal clouds kept); ``spacing``: steps between the onsets a drift is
-    tried from (the detector's estimate is always one); ``near``: samples
+    ``search``: how far before the detection a drift's onset is looked for
+    first, and by how much further back each time its onset posterior piles
+    up at the earliest onset tried, up to ``history`` (the nominal clouds are
+    kept that far back); ``spacing``: steps between the onsets a drift is
+    tried from near the alarm (further back, 1/16 of the distance to it; the
+    detector's estimate is always one); ``near``: samples
     before the detector's change point a step change is tried from; ``symbol_steps``: open-loop
     steps read for the symbols after the detection (a slope needs samples
     after the magnitude is seen); ``interval``: probability of the reported interval;
@@ -108,7 +118,11 @@ class DiagnosisOptions:
     ``bayes_factor``: a surviving hypothesis this many times less probable
     than the best is dropped (100: "decisive" on Jeffreys' scale);
     ``workers``: parallel processes for the hypothesis filters (1: in this
-    process). ``refine``: replace each surviving hypothesis's estimate by the
+    process). ``rank``: weigh the survivors anew by the evidence of their
+    models with the magnitude held static (on the grid ``rank_grid``; see
+    :func:`_ranked`): off by default, it costs about as much as the filters
+    and helps on some plants only (docs/diagnosis.md, section 5).
+    ``refine``: replace each surviving hypothesis's estimate by the
     grid posterior of :mod:`bgc.runtime.identify` (``grid``): about three times
     slower on the RO drift, and since the estimate averages over the onsets only
     a little more accurate there (docs/results.md, section 3)."""
@@ -119,7 +133,8 @@ class DiagnosisOptions:
     false_alarm: float = 0.01
     rejection: float = 0.001
     windows: tuple[int, ...] = (1, 8, 32)
-    history: int = 64
+    history: int = 256
+    search: int = 64
     spacing: int = 4
     near: int = 4
     symbol_steps: int = 32
@@ -127,8 +142,10 @@ class DiagnosisOptions:
     bayes_factor: float = 100.0
     shrinkage: float = 0.98
     workers: int = 2
+    rank: bool = False
     refine: bool = False
     grid: GridOptions = GridOptions()
+    rank_grid: GridOptions = GridOptions(points=11)
 
 
 @dataclass(frozen=True, slots=True)
@@ -191,6 +208,7 @@ class Hypothesis:
     posterior: float
     estimate: Estimate
     seconds: float
+    static_log_evidence: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -301,12 +319,13 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         return Diagnosis(verdict="no fault", detection=None, onset=None, symbols=(), refuted=(), hypotheses=(),
                          candidates=(), seconds=time.perf_counter() - started, **common)
     notes = []
-    # onsets tried: for a drift, the detector's estimate and a grid back to `history`
-    # steps before the alarm; for a step change (its change point is sharp), the
+    # onsets tried: for a drift, the detector's estimate and a grid back to `search` steps
+    # before the alarm (extended below); for a step change (its change point is sharp), the
     # samples around the detector's estimate
-    grid = {detection.onset, *range(detection.step, max(0, detection.step - options.history) - 1, -options.spacing)}
+    reach = drift_onsets(detection.step, detection.onset, options.spacing, options.history)
+    grid = [k for k in reach if k >= detection.step - options.search or k == detection.onset]
     near = {k for k in range(detection.onset - options.near, detection.onset + 3) if 0 <= k <= detection.step}
-    onsets = {True: sorted(grid), False: sorted(near)}
+    onsets = {True: grid, False: sorted(near)}
     # 3. qualitative isolation on the open-loop nominal prediction from the detector's onset
     say("reading the symbols of the deviating sensors")
     onset = detection.onset
@@ -325,25 +344,35 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     # 4. every fault-model filter from every onset tried: one job per hypothesis, in parallel
     starts_of = {name: onsets[fault_kind(package.MODELS[name].FAULT["kind"]).drifts] for name in names}
     nominal_density = _log_density(z, y_std)
-    jobs = []
-    for name in names:
-        f = min(starts_of[name])
-        rel = [s - f for s in starts_of[name]]
-        jobs.append((name, package.__name__, options.method, options.particles,
-                     {s - f: hypothesis_seed(options.seed, name, s) for s in starts_of[name]},
-                     {s - f: _cloud(clouds, s) for s in starts_of[name]}, ys[f:], us[f:], rel, options.interval,
-                     options.shrinkage, {s - f: DetectorOptions(options.rejection, options.windows, T - s)
-                                         for s in starts_of[name]}, outputs, nominal_density[f:]))
-    first = min(min(s) for s in onsets.values())
     say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from "
         f"{sum(len(starts_of[n]) for n in names)} onsets and hypotheses "
-        f"(t = {run.time[first]:g} to {run.time[detection.step]:g})")
-    results = {}
-    for name, res in zip(names, _run_all(jobs, options.workers)):
-        f = min(starts_of[name])
-        for rel, o in res.items():
-            o["evidence"] += float(nominal_density[first:f].sum())  # the common span starts at `first`
-            results[(name, T - (rel + f))] = o
+        f"(t = {run.time[min(min(s) for s in onsets.values())]:g} to {run.time[detection.step]:g})")
+    results: dict[tuple[str, int], dict] = {}  # (name, onset) -> its filter's output, evidence over [from, T)
+    pending = dict(starts_of)
+    while pending:
+        jobs = [_hypothesis_job(name, starts, package, clouds, ys, us, nominal_density, outputs, options)
+                for name, starts in pending.items()]
+        for name, res in zip(pending, _run_all(jobs, options.workers)):
+            f = min(pending[name])
+            for rel, o in res.items():
+                o["from"] = f
+                results[(name, rel + f)] = o
+        # a drift whose onsets' posterior piles up at the earliest one tried began earlier:
+        # its grid is extended back by `search` steps (up to `history` before the alarm)
+        pending = {}
+        for name in names:
+            starts = starts_of[name]
+            more = [k for k in reach if starts[0] - options.search <= k < starts[0]]
+            if fault_kind(package.MODELS[name].FAULT["kind"]).drifts and more:
+                w = _onset_posterior(starts, [results[(name, s)] for s in starts], nominal_density)
+                if w is not None and w[:EDGE].sum() >= EXTEND:
+                    pending[name] = more
+                    starts_of[name] = sorted(more + starts)
+        if pending:
+            say(f"looking for earlier onsets of {', '.join(pending)}")
+    first = min(min(s) for s in starts_of.values())
+    for o in results.values():  # the common span starts at `first`
+        o["evidence"] += float(nominal_density[first:o["from"]].sum())
     # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
     hyps = []
     for name in names:
@@ -351,30 +380,30 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         starts = starts_of[name]
         evidence = []
         for start in starts:  # stopped or pruned onsets count -inf
-            evidence.append(results[(name, T - start)]["evidence"])
+            evidence.append(results[(name, start)]["evidence"])
         evidence = np.array(evidence)
         dropped_at, reason = None, ""
         if np.isfinite(evidence).any():
             start = starts[int(np.argmax(evidence))]
             every = ""
         else:  # every onset's filter was stopped or pruned: dropped when the last one was
-            start = max(starts, key=lambda s: (results[(name, T - s)]["last"] >= 0,
-                                               s + results[(name, T - s)]["last"], results[(name, T - s)]["partial"]))
+            start = max(starts, key=lambda s: (results[(name, s)]["last"] >= 0,
+                                               s + results[(name, s)]["last"], results[(name, s)]["partial"]))
             every = f", from every onset tried ({len(starts)})" if len(starts) > 1 else ""
-        if results[(name, T - start)]["rejected"] is not None:  # the best onset's filter failed its test
-            k, a = results[(name, T - start)]["rejected"]
+        if results[(name, start)]["rejected"] is not None:  # the best onset's filter failed its test
+            k, a = results[(name, start)]["rejected"]
             dropped_at = start + k
             reason = (f"its residual of {a.sensor} over {a.window} sample(s) reached {a.statistic:.1f} "
                       f"(threshold {a.threshold:.1f})" + every)
         elif not np.isfinite(evidence).any():  # pruned onsets only (a filter never started)
-            dropped_at = start + max(results[(name, T - start)]["last"], 0)
+            dropped_at = start + max(results[(name, start)]["last"], 0)
             reason = "another onset of it explained the data decisively better, and that one failed" + every
-        out = results[(name, T - start)]
+        out = results[(name, start)]
         zh = (ys[start:] - out["y_mean"]) / out["y_std"]
         if np.isfinite(evidence).any():
-            onset_weights = np.exp(evidence - evidence.max())
+            onset_weights = onset_widths(starts) * np.exp(evidence - evidence.max())
+            log_evidence = float(evidence.max() + math.log(onset_weights.sum()))
             onset_weights /= onset_weights.sum()
-            log_evidence = float(evidence.max() + math.log(np.mean(np.exp(evidence - evidence.max()))))
         else:
             onset_weights, log_evidence = np.zeros(len(starts)), -math.inf
         hyps.append(dict(name=name, parameter=module.FAULT["parameter"], kind=module.FAULT["kind"],
@@ -384,9 +413,10 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                          x_mean=out["mean"][:, :len(nominal.STATES)], x_std=out["std"][:, :len(nominal.STATES)],
                          magnitude=out["magnitude"],
                          magnitude_band=out["band"], dropped=dropped_at, reason=reason,
-                         log_evidence=log_evidence, seconds=results[(name, T - starts[0])]["seconds"],
+                         log_evidence=log_evidence, seconds=sum({results[(name, s)]["from"]: results[(name, s)]["seconds"]
+                                          for s in starts}.values()),
                          estimate=_estimate(module, out, run, options.interval,
-                                            [(w, results[(name, T - s)]) for w, s in zip(onset_weights, starts)])))
+                                            [(w, results[(name, s)]) for w, s in zip(onset_weights, starts)])))
     weights = np.array([math.log(max(priors.get(h["parameter"], 0.01), 1e-300)) + h["log_evidence"] for h in hyps])
     if np.isfinite(weights).any():
         weights = np.exp(weights - weights.max())
@@ -399,6 +429,11 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
             h["dropped"] = T - 1
             h["reason"] = (f"the data favour another hypothesis by a Bayes factor above {options.bayes_factor:g} "
                            f"(posterior {w:.2g})")
+    grids: dict[str, identify.GridPosterior] = {}
+    if options.rank and sum(h["dropped"] is None for h in hyps) > 1:  # 7. the survivors by their static evidence
+        say(f"weighing {', '.join(h['name'] for h in hyps if h['dropped'] is None)} with their magnitudes held "
+            f"static, on a grid")
+        weights = _ranked(hyps, weights, priors, package, clouds, ys, us, options, grids)
     hypothesis_list = tuple(Hypothesis(posterior=float(w), **h) for h, w in zip(hyps, weights))
     survivors = sorted((h for h in hypothesis_list if h.dropped is None), key=lambda h: -h.posterior)
     if len(survivors) == 1:
@@ -410,15 +445,80 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         verdict, candidates = "unexplained", (last.name,)
     else:
         verdict, candidates = "unexplained", ()
-    if options.refine and verdict in ("isolated", "ambiguous"):  # 7. the survivors' magnitudes on a grid
+    if options.refine and verdict in ("isolated", "ambiguous"):  # 8. the survivors' magnitudes on a grid
         say(f"refining the magnitude of {', '.join(candidates)} on a grid")
-        hypothesis_list = tuple(_refined(h, package, clouds, ys, us, run, options) if h.name in candidates else h
-                                for h in hypothesis_list)
+        reuse = grids if options.rank_grid == options.grid else {}  # the ranking's grids, when as fine
+        hypothesis_list = tuple(_refined(h, reuse.get(h.name), package, clouds, ys, us, options)
+                                if h.name in candidates else h for h in hypothesis_list)
     best_onset = next((h.start for h in hypothesis_list if candidates and h.name == candidates[0]), onset)
     say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
     return Diagnosis(verdict=verdict, detection=detection, onset=best_onset, symbols=seen, refuted=refuted,
                      hypotheses=hypothesis_list, candidates=candidates, seconds=time.perf_counter() - started,
                      notes=tuple(notes), **common)
+
+
+#: A drift's onsets are tried every ``spacing`` samples back from the alarm,
+#: and further back every 1/16 of the distance to the alarm (when larger): the
+#: error of a drift's onset matters relative to how long it ran before the
+#: alarm (a slope fitted over d samples from an onset d/32 off is off by about
+#: 3 %), so a far onset needs a coarser grid only.
+ONSET_GROWTH = 1.0 / 16.0
+
+
+def drift_onsets(step: int, change_point: int, spacing: int, history: int) -> list[int]:
+    """The onsets a drift is tried from: the detector's change point, and
+    from the alarm (``step``) back to ``history`` samples before it (not
+    before the first sample), ``spacing`` apart, or 1/16 of the distance back
+    (:data:`ONSET_GROWTH`) where that is larger."""
+    out, d = {change_point}, 0
+    while step - d >= 0 and d <= history:
+        out.add(step - d)
+        d += max(spacing, int(d * ONSET_GROWTH))
+    return sorted(out)
+
+
+def onset_widths(onsets) -> np.ndarray:
+    """How many samples each onset of a sorted grid stands for: the span
+    between the midpoints to its neighbours (1 for consecutive samples). The
+    onset's prior is uniform in time, so an onset's prior weight is its width:
+    a hypothesis's evidence is the sum over its onsets of width x likelihood,
+    up to a factor (the length of the window the onset may lie in) common to
+    every hypothesis."""
+    s = np.asarray(onsets, dtype=float)
+    if len(s) == 1:
+        return np.ones(1)
+    mid = (s[1:] + s[:-1]) / 2.0
+    edges = np.concatenate([[s[0] - (s[1] - s[0]) / 2.0], mid, [s[-1] + (s[-1] - s[-2]) / 2.0]])
+    return np.diff(edges)
+
+
+#: A drift's onset grid is extended back when the onset posterior puts at
+#: least ``EXTEND`` on its ``EDGE`` earliest onsets.
+EXTEND = 0.05
+EDGE = 2
+
+
+def _hypothesis_job(name: str, starts: list[int], package, clouds: dict, ys, us, nominal_density, outputs,
+                    options: DiagnosisOptions) -> tuple:
+    """The job of :func:`_run_hypothesis` for hypothesis ``name`` from the onsets ``starts``."""
+    T = len(ys)
+    f = min(starts)
+    return (name, package.__name__, options.method, options.particles,
+            {s - f: hypothesis_seed(options.seed, name, s) for s in starts},
+            {s - f: _cloud(clouds, s) for s in starts}, ys[f:], us[f:], [s - f for s in starts], options.interval,
+            options.shrinkage, {s - f: DetectorOptions(options.rejection, options.windows, T - s) for s in starts},
+            outputs, nominal_density[f:])
+
+
+def _onset_posterior(starts: list[int], outs: list[dict], nominal_density) -> np.ndarray | None:
+    """The posterior of a hypothesis's onsets (None: no onset has evidence),
+    the evidences brought to a common span."""
+    first = min(o["from"] for o in outs)
+    e = np.array([o["evidence"] + float(nominal_density[first:o["from"]].sum()) for o in outs])
+    if not np.isfinite(e).any():
+        return None
+    w = onset_widths(starts) * np.exp(e - e.max())
+    return w / w.sum()
 
 
 def hypothesis_seed(seed: int, name: str, onset: int) -> list[int]:
@@ -428,16 +528,74 @@ def hypothesis_seed(seed: int, name: str, onset: int) -> list[int]:
     return [seed, 1, zlib.crc32(name.encode()), onset]
 
 
-def _refined(h: Hypothesis, package, clouds: dict, ys, us, run: Run, options: DiagnosisOptions) -> Hypothesis:
-    """``h`` with its estimate from the grid posterior (:mod:`bgc.runtime.identify`)."""
+def _top_onsets(onsets, posterior, start: int, count: int) -> tuple[int, ...]:
+    """The ``count`` most probable of a hypothesis's onsets (those with a posterior)."""
+    order = np.argsort(posterior)[::-1][:count]
+    return tuple(sorted(onsets[i] for i in order if posterior[i] > 0)) or (start,)
+
+
+def _grid(package, name: str, estimate: Estimate, clouds: dict, ys, us, onsets, options: DiagnosisOptions, seed,
+          first: int | None = None, grid: GridOptions | None = None) -> identify.GridPosterior:
+    """The grid posterior of hypothesis ``name``'s magnitude (:func:`bgc.runtime.identify.refine`) on
+    ``grid`` (default: ``options.grid``)."""
+    return identify.refine(package, name, _cloud(clouds, min(onsets) if first is None else first), ys, us, onsets,
+                           estimate.low, estimate.high, tuple(package.MODELS[name].FAULT_PRIOR), options.interval,
+                           grid or options.grid, seed, parts=max(1, options.workers),
+                           mapper=lambda fn, jobs: _run_all(jobs, options.workers, fn), first=first)
+
+
+def _ranked(hyps: list[dict], weights: np.ndarray, priors: dict[str, float], package, clouds: dict, ys, us,
+            options: DiagnosisOptions, grids: dict) -> np.ndarray:
+    """The survivors' posterior weighed anew by the evidence of their static
+    models: the magnitude held at each value of a grid, uniform on its prior,
+    integrated (:func:`bgc.runtime.identify.log_evidence`); the onsets, each
+    hypothesis's most probable ones, equally likely among all it was tried
+    from (those not on the grid counted through the filters' onset posterior:
+    the grid's sum divided by the share of the onset posterior it covers).
+    Every grid covers the data from the earliest of those onsets, from the
+    same nominal cloud and with the same random numbers before each onset, so
+    the evidences compare like for like. The survivors share the posterior
+    mass they had; one less probable than the best by more than the Bayes
+    factor is dropped. Fills ``grids`` (name -> grid posterior)."""
+    alive = [i for i, h in enumerate(hyps) if h["dropped"] is None]
+    chosen = {i: _top_onsets(hyps[i]["onsets"], hyps[i]["onset_posterior"], hyps[i]["start"],
+                             options.rank_grid.onsets) for i in alive}
+    first = min(min(o) for o in chosen.values())
+    log_w = []
+    for i in alive:
+        h = hyps[i]
+        g = _grid(package, h["name"], h["estimate"], clouds, ys, us, chosen[i], options, [options.seed, 8], first,
+                  options.rank_grid)
+        grids[h["name"]] = g
+        posterior = dict(zip(h["onsets"], h["onset_posterior"]))
+        width = dict(zip(h["onsets"], onset_widths(h["onsets"])))
+        covered = sum(posterior.get(s, 0.0) for s in g.onsets) or 1.0
+        evidence = identify.log_evidence(g, tuple(package.MODELS[h["name"]].FAULT_PRIOR),
+                                         [width[s] for s in g.onsets]) - math.log(covered)
+        h["static_log_evidence"] = evidence
+        log_w.append(math.log(max(priors.get(h["parameter"], 0.01), 1e-300)) + evidence)
+    log_w = np.array(log_w)
+    weights = weights.copy()
+    if np.isfinite(log_w).any():
+        share = np.exp(log_w - log_w.max())
+        weights[alive] = weights[alive].sum() * share / share.sum()
+    top = max(weights[alive])
+    for i in alive:
+        if weights[i] < top / options.bayes_factor:
+            hyps[i]["dropped"] = len(ys) - 1
+            hyps[i]["reason"] = (f"with the magnitudes held static, the data favour another hypothesis by a Bayes "
+                                 f"factor above {options.bayes_factor:g} (posterior {weights[i] / weights.sum():.2g})")
+    return weights
+
+
+def _refined(h: Hypothesis, g: identify.GridPosterior | None, package, clouds: dict, ys, us,
+             options: DiagnosisOptions) -> Hypothesis:
+    """``h`` with its estimate from the grid posterior (:mod:`bgc.runtime.identify`): ``g``, or computed here."""
     module = package.MODELS[h.name]
-    order = np.argsort(h.onset_posterior)[::-1][: options.grid.onsets]
-    onsets = tuple(sorted(h.onsets[i] for i in order if h.onset_posterior[i] > 0)) or (h.start,)
     e = h.estimate
-    g = identify.refine(package, h.name, _cloud(clouds, min(onsets)), ys, us, onsets, e.low, e.high,
-                        tuple(module.FAULT_PRIOR), options.interval, options.grid,
-                        [options.seed, 7, sum(map(ord, h.name))], parts=max(1, options.workers),
-                        mapper=lambda fn, jobs: _run_all(jobs, options.workers, fn))
+    if g is None:
+        onsets = _top_onsets(h.onsets, h.onset_posterior, h.start, options.grid.onsets)
+        g = _grid(package, h.name, e, clouds, ys, us, onsets, options, [options.seed, 7, sum(map(ord, h.name))])
     if fault_kind(h.kind).drifts:  # the parameter at the last step: nominal + slope x time since the onset
         joint = np.exp(g.loglik - np.max(g.loglik))
         joint /= joint.sum()

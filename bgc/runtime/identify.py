@@ -126,16 +126,18 @@ def grid_job(job) -> np.ndarray:
 
 def refine(package: ModuleType, name: str, cloud, ys: np.ndarray, us: np.ndarray, onsets: tuple[int, ...],
            low: float, high: float, prior: tuple[float, float], level: float, options: GridOptions,
-           seed, parts: int = 1, mapper=None) -> GridPosterior:
+           seed, parts: int = 1, mapper=None, first: int | None = None) -> GridPosterior:
     """The grid posterior of the magnitude of fault model ``name`` (a key of
     ``package.MODELS``), from ``onsets`` (steps) and the filter's interval
-    (``low``, ``high``), kept inside the magnitude's ``prior``. The grid is
-    cut into ``parts`` jobs that ``mapper(grid_job, jobs)`` runs (default: here,
-    one after the other)."""
+    (``low``, ``high``), kept inside the magnitude's ``prior``. The
+    likelihoods cover the data from step ``first`` (default: the earliest
+    onset; ``cloud`` is the nominal cloud before it). The grid is cut into
+    ``parts`` jobs that ``mapper(grid_job, jobs)`` runs (default: here, one
+    after the other)."""
     mapper = mapper or (lambda fn, jobs: [fn(j) for j in jobs])
     width = max(high - low, 1e-9 * max(1.0, abs(high)))
     lo, hi = low - options.widen * width, high + options.widen * width
-    first = min(onsets)
+    first = min(onsets) if first is None else first
     for attempt in range(2):
         lo, hi = max(lo, prior[0]), min(hi, prior[1])
         values = np.linspace(lo, hi, options.points)
@@ -157,3 +159,21 @@ def refine(package: ModuleType, name: str, cloud, ys: np.ndarray, us: np.ndarray
     c = np.cumsum(post) - 0.5 * post
     q_low, q_high = np.interp([tail, 1.0 - tail], c, values)
     return GridPosterior(values, tuple(sorted(onsets)), ll, post, mean, std, float(q_low), float(q_high), level)
+
+
+def log_evidence(g: GridPosterior, prior: tuple[float, float], widths=None) -> float:
+    """log of the sum over the onsets of ``g`` of width x p(y | onset, fault
+    model), with the magnitude static and uniform on ``prior``: the grid's
+    likelihoods integrated over the magnitude (the trapezoid rule on the
+    grid, whose span holds the likelihood's mass) and divided by the prior's width;
+    ``widths``: each onset's prior weight (default 1 each). (The grid need not
+    cover the whole prior: where the likelihood is negligible, so is its
+    integral.)"""
+    if len(g.values) > 1:
+        rule = np.full(len(g.values), float(g.values[1] - g.values[0]))
+        rule[[0, -1]] /= 2.0
+    else:
+        rule = np.array([float(prior[1] - prior[0])])
+    w = np.ones(len(g.onsets)) if widths is None else np.asarray(widths, dtype=float)
+    total = float(np.logaddexp.reduce(g.loglik + np.log(np.outer(w, rule)), axis=None))
+    return total - math.log(prior[1] - prior[0])
