@@ -349,14 +349,20 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         f"(t = {run.time[min(min(s) for s in onsets.values())]:g} to {run.time[detection.step]:g})")
     results: dict[tuple[str, int], dict] = {}  # (name, onset) -> its filter's output, evidence over [from, T)
     pending = dict(starts_of)
+    best_of: dict[str, np.ndarray] = {}  # per hypothesis and step, the best running evidence over [0, step]
     while pending:
-        jobs = [_hypothesis_job(name, starts, package, clouds, ys, us, nominal_density, outputs, options)
-                for name, starts in pending.items()]
+        jobs = [_hypothesis_job(name, starts, package, clouds, ys, us, nominal_density, outputs, options,
+                                best_of.get(name)) for name, starts in pending.items()]
         for name, res in zip(pending, _run_all(jobs, options.workers)):
             f = min(pending[name])
             for rel, o in res.items():
                 o["from"] = f
                 results[(name, rel + f)] = o
+            trace = np.full(T, -math.inf)
+            trace[f:] = next(iter(res.values())).pop("trace") + float(nominal_density[:f].sum())
+            best_of[name] = np.maximum(best_of.get(name, trace), trace)
+            for o in res.values():
+                o.pop("trace", None)
         # a drift whose onsets' posterior piles up at the earliest one tried began earlier:
         # its grid is extended back by `search` steps (up to `history` before the alarm)
         pending = {}
@@ -461,7 +467,9 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
 #: and further back every 1/16 of the distance to the alarm (when larger): the
 #: error of a drift's onset matters relative to how long it ran before the
 #: alarm (a slope fitted over d samples from an onset d/32 off is off by about
-#: 3 %), so a far onset needs a coarser grid only.
+#: 3 %), so a far onset needs a coarser grid only. (With 1/8, the circuit's and
+#: the two tanks' drifts of the sweep were diagnosed a quarter faster, but 2
+#: and 3 fewer right: bench/drift_isolation.py.)
 ONSET_GROWTH = 1.0 / 16.0
 
 
@@ -499,15 +507,19 @@ EDGE = 2
 
 
 def _hypothesis_job(name: str, starts: list[int], package, clouds: dict, ys, us, nominal_density, outputs,
-                    options: DiagnosisOptions) -> tuple:
-    """The job of :func:`_run_hypothesis` for hypothesis ``name`` from the onsets ``starts``."""
+                    options: DiagnosisOptions, best: np.ndarray | None = None) -> tuple:
+    """The job of :func:`_run_hypothesis` for hypothesis ``name`` from the
+    onsets ``starts``; ``best``: per step, the best running evidence of its
+    onsets tried before (over the data from step 0), which its new onsets
+    must keep within ``PRUNE`` of as well."""
     T = len(ys)
     f = min(starts)
+    bar = None if best is None else best[f:] - float(nominal_density[:f].sum())
     return (name, package.__name__, options.method, options.particles,
             {s - f: hypothesis_seed(options.seed, name, s) for s in starts},
             {s - f: _cloud(clouds, s) for s in starts}, ys[f:], us[f:], [s - f for s in starts], options.interval,
             options.shrinkage, {s - f: DetectorOptions(options.rejection, options.windows, T - s) for s in starts},
-            outputs, nominal_density[f:])
+            outputs, nominal_density[f:], bar)
 
 
 def _onset_posterior(starts: list[int], outs: list[dict], nominal_density) -> np.ndarray | None:
@@ -679,7 +691,7 @@ def _run_hypothesis(job) -> dict[int, dict]:
     import sys
 
     (name, package_name, method, particles, seeds, clouds, ys, us, starts, level, shrinkage, rejection, outputs,
-     nominal_density) = job
+     nominal_density, bar) = job
     package = sys.modules[package_name]
     module = package.MODELS[name]
     cls = {"gpf": package.filters.GenericParticleFilter, "apf": package.filters.AuxiliaryParticleFilter}[method]
@@ -693,6 +705,7 @@ def _run_hypothesis(job) -> dict[int, dict]:
     evidence = {s: 0.0 for s in starts}
     ess = {s: float(particles) for s in starts}  # of the weights that predict each filter's next step
     live = set(starts)
+    trace = np.full(T, -math.inf)  # per step, the best running evidence of the live onsets
     for s in starts:
         span = T - s
         out[s] = {"y_mean": np.full((span, n_y), np.nan), "y_std": np.full((span, n_y), np.nan),
@@ -736,6 +749,9 @@ def _run_hypothesis(job) -> dict[int, dict]:
                     o["stopped"] = True
                     live.discard(s)
             best = max((evidence[s] for s in live), default=-math.inf)
+            trace[k] = best
+            if bar is not None:  # onsets of this hypothesis tried before
+                best = max(best, float(bar[k]))
             for s in sorted(live):
                 if evidence[s] < best - PRUNE:
                     out[s]["pruned"] = True
@@ -760,6 +776,7 @@ def _run_hypothesis(job) -> dict[int, dict]:
     out_seconds = time.perf_counter() - started
     for o in out.values():
         o["seconds"] = out_seconds
+        o["trace"] = trace
     return out
 
 
