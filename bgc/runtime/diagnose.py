@@ -120,8 +120,9 @@ class DiagnosisOptions:
     ``workers``: parallel processes for the hypothesis filters (1: in this
     process). ``rank``: weigh the survivors anew by the evidence of their
     models with the magnitude held static (on the grid ``rank_grid``; see
-    :func:`_ranked`): off by default, it costs about as much as the filters
-    and helps on some plants only (docs/diagnosis.md, section 5).
+    :func:`_ranked`): off by default; it took 1.1 to 1.7 times as long on
+    the sweep's drifts and was right about as often (docs/diagnosis.md,
+    section 5).
     ``refine``: replace each surviving hypothesis's estimate by the
     grid posterior of :mod:`bgc.runtime.identify` (``grid``): about three times
     slower on the RO drift, and since the estimate averages over the onsets only
@@ -186,7 +187,8 @@ class Hypothesis:
     state estimates (mean, std of the plant's states) and magnitude (mean,
     interval), when it was dropped and why (None: it
     survived), its log evidence (over the onsets) and posterior probability
-    among the hypotheses."""
+    among the hypotheses; ``static_log_evidence``: with ``rank``, the evidence
+    of its model with the magnitude held static (None: not computed)."""
 
     name: str
     parameter: str
@@ -561,9 +563,10 @@ def _ranked(hyps: list[dict], weights: np.ndarray, priors: dict[str, float], pac
     """The survivors' posterior weighed anew by the evidence of their static
     models: the magnitude held at each value of a grid, uniform on its prior,
     integrated (:func:`bgc.runtime.identify.log_evidence`); the onsets, each
-    hypothesis's most probable ones, equally likely among all it was tried
-    from (those not on the grid counted through the filters' onset posterior:
-    the grid's sum divided by the share of the onset posterior it covers).
+    hypothesis's most probable ones, each weighed by the span of samples it
+    stands for (:func:`onset_widths`; those not on the grid counted through
+    the filters' onset posterior: the grid's sum divided by the share of the
+    onset posterior it covers).
     Every grid covers the data from the earliest of those onsets, from the
     same nominal cloud and with the same random numbers before each onset, so
     the evidences compare like for like. The survivors share the posterior
