@@ -349,22 +349,23 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from "
         f"{sum(len(starts_of[n]) for n in names)} onsets and hypotheses "
         f"(t = {run.time[min(min(s) for s in onsets.values())]:g} to {run.time[detection.step]:g})")
-    results: dict[tuple[str, int], dict] = {}  # (name, onset) -> its filter's output, evidence over [from, T)
+    # (name, onset) -> its filter's output; its evidence over the data from step 0 (from `first` below)
+    results: dict[tuple[str, int], dict] = {}
     pending = dict(starts_of)
     best_of: dict[str, np.ndarray] = {}  # per hypothesis and step, the best running evidence over [0, step]
     while pending:
         jobs = [_hypothesis_job(name, starts, package, clouds, ys, us, nominal_density, outputs, options,
                                 best_of.get(name)) for name, starts in pending.items()]
-        for name, res in zip(pending, _run_all(jobs, options.workers)):
+        for name, (res, trace) in zip(pending, _run_all(jobs, options.workers)):
             f = min(pending[name])
+            before = float(nominal_density[:f].sum())  # the nominal observer's densities before the batch
             for rel, o in res.items():
                 o["from"] = f
+                o["evidence"] += before
                 results[(name, rel + f)] = o
-            trace = np.full(T, -math.inf)
-            trace[f:] = next(iter(res.values())).pop("trace") + float(nominal_density[:f].sum())
-            best_of[name] = np.maximum(best_of.get(name, trace), trace)
-            for o in res.values():
-                o.pop("trace", None)
+            full = np.full(T, -math.inf)
+            full[f:] = trace + before
+            best_of[name] = np.maximum(best_of.get(name, full), full)
         # a drift whose onsets' posterior piles up at the earliest one tried began earlier:
         # its grid is extended back by `search` steps (up to `history` before the alarm)
         pending = {}
@@ -372,15 +373,15 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
             starts = starts_of[name]
             more = [k for k in reach if starts[0] - options.search <= k < starts[0]]
             if fault_kind(package.MODELS[name].FAULT["kind"]).drifts and more:
-                w = _onset_posterior(starts, [results[(name, s)] for s in starts], nominal_density)
-                if w is not None and w[:EDGE].sum() >= EXTEND:
+                w, log_evidence = _onset_weights(starts, [results[(name, s)]["evidence"] for s in starts])
+                if math.isfinite(log_evidence) and w[:EDGE].sum() >= EXTEND:
                     pending[name] = more
                     starts_of[name] = sorted(more + starts)
         if pending:
             say(f"looking for earlier onsets of {', '.join(pending)}")
     first = min(min(s) for s in starts_of.values())
     for o in results.values():  # the common span starts at `first`
-        o["evidence"] += float(nominal_density[first:o["from"]].sum())
+        o["evidence"] -= float(nominal_density[:first].sum())
     # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
     hyps = []
     for name in names:
@@ -408,12 +409,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
             reason = "another onset of it explained the data decisively better, and that one failed" + every
         out = results[(name, start)]
         zh = (ys[start:] - out["y_mean"]) / out["y_std"]
-        if np.isfinite(evidence).any():
-            onset_weights = onset_widths(starts) * np.exp(evidence - evidence.max())
-            log_evidence = float(evidence.max() + math.log(onset_weights.sum()))
-            onset_weights /= onset_weights.sum()
-        else:
-            onset_weights, log_evidence = np.zeros(len(starts)), -math.inf
+        onset_weights, log_evidence = _onset_weights(starts, evidence)
         hyps.append(dict(name=name, parameter=module.FAULT["parameter"], kind=module.FAULT["kind"],
                          signatures=tuple(models[name]), start=start, onsets=tuple(starts),
                          onset_posterior=tuple(float(w) for w in onset_weights),
@@ -524,15 +520,16 @@ def _hypothesis_job(name: str, starts: list[int], package, clouds: dict, ys, us,
             outputs, nominal_density[f:], bar)
 
 
-def _onset_posterior(starts: list[int], outs: list[dict], nominal_density) -> np.ndarray | None:
-    """The posterior of a hypothesis's onsets (None: no onset has evidence),
-    the evidences brought to a common span."""
-    first = min(o["from"] for o in outs)
-    e = np.array([o["evidence"] + float(nominal_density[first:o["from"]].sum()) for o in outs])
+def _onset_weights(starts: list[int], evidence) -> tuple[np.ndarray, float]:
+    """A hypothesis's onset posterior (each onset's evidence times its width,
+    normalised; zeros when no onset has evidence) and its log evidence (the
+    log of that sum; -inf when none has), from its onsets' evidences over a
+    common span."""
+    e = np.asarray(evidence, dtype=float)
     if not np.isfinite(e).any():
-        return None
+        return np.zeros(len(starts)), -math.inf
     w = onset_widths(starts) * np.exp(e - e.max())
-    return w / w.sum()
+    return w / w.sum(), float(e.max() + math.log(w.sum()))
 
 
 def hypothesis_seed(seed: int, name: str, onset: int) -> list[int]:
@@ -551,8 +548,9 @@ def _top_onsets(onsets, posterior, start: int, count: int) -> tuple[int, ...]:
 def _grid(package, name: str, estimate: Estimate, clouds: dict, ys, us, onsets, options: DiagnosisOptions, seed,
           first: int | None = None, grid: GridOptions | None = None) -> identify.GridPosterior:
     """The grid posterior of hypothesis ``name``'s magnitude (:func:`bgc.runtime.identify.refine`) on
-    ``grid`` (default: ``options.grid``)."""
-    return identify.refine(package, name, _cloud(clouds, min(onsets) if first is None else first), ys, us, onsets,
+    ``grid`` (default: ``options.grid``), over the data from ``first`` (default: the earliest onset)."""
+    first = min(onsets) if first is None else first
+    return identify.refine(package, name, _cloud(clouds, first), ys, us, onsets,
                            estimate.low, estimate.high, tuple(package.MODELS[name].FAULT_PRIOR), options.interval,
                            grid or options.grid, seed, parts=max(1, options.workers),
                            mapper=lambda fn, jobs: _run_all(jobs, options.workers, fn), first=first)
@@ -683,11 +681,12 @@ FAR = 2.0
 PRUNE = 10.0
 
 
-def _run_hypothesis(job) -> dict[int, dict]:
+def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
     """One hypothesis's filters from every onset, run in lockstep (in a worker
     process): per onset, its arrays, its rejection, and its running log
     evidence over [the hypothesis's first onset, T) (the nominal observer's
-    density before its onset). An onset whose evidence falls ``PRUNE`` behind
+    density before its onset); and per step the best running evidence of the
+    onsets still live (the trace a later batch of onsets is pruned against). An onset whose evidence falls ``PRUNE`` behind
     the best one's is pruned: a started filter stops, a later onset is never
     started. Each filter has its own random numbers: a filter that runs gives
     the same numbers whichever others run beside it."""
@@ -779,8 +778,7 @@ def _run_hypothesis(job) -> dict[int, dict]:
     out_seconds = time.perf_counter() - started
     for o in out.values():
         o["seconds"] = out_seconds
-        o["trace"] = trace
-    return out
+    return out, trace
 
 
 def _predict_together(module, pfs: list, u: np.ndarray) -> None:
