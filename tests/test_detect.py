@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from bgc.runtime.detect import Detector, DetectorOptions, monte_carlo_share
+from bgc.runtime.detect import Detector, DetectorBank, DetectorOptions, monte_carlo_share
 
 
 def normal_quantile(p: float) -> float:
@@ -134,3 +134,29 @@ def test_monte_carlo_share_takes_an_effective_sample_size_per_step():
     np.testing.assert_allclose(a[0], monte_carlo_share(y_std[0], r, 100.0, 1000), rtol=1e-15)
     np.testing.assert_allclose(a[1], monte_carlo_share(y_std[1], r, 10.0, 1000), rtol=1e-15)
     assert a[0, 0] == pytest.approx(0.083905, abs=1e-6)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_detector_bank_gives_each_row_what_its_own_detector_gives(seed):
+    """Rows that start at different steps, with their own thresholds (records
+    of different lengths), residuals with jumps, NaNs and Monte Carlo shares,
+    joining and leaving: every row's alarms (step, sensor, window, statistic,
+    threshold, onset) are those of a Detector fed the same numbers alone."""
+    rng = np.random.default_rng(seed)
+    sensors = ("a", "b", "c")
+    T, starts = 120, [0, 3, 10, 41, 90]
+    options = [DetectorOptions(0.001 * (1 + i), (1, 8, 32), T - s) for i, s in enumerate(starts)]
+    bank = DetectorBank(sensors, starts, options, T)
+    alone = [Detector(sensors, o) for o in options]
+    alarms = 0
+    for k in range(T):
+        rows = [r for r, s in enumerate(starts) if s <= k and not (r == 1 and k > 60)]  # row 1 leaves at 61
+        z = rng.standard_normal((len(rows), 3)) + (3.5 if k > 70 else 0.0) * (rng.random((len(rows), 3)) < 0.3)
+        z[rng.random(z.shape) < 0.05] = np.nan
+        mc = 0.1 * rng.random(z.shape)
+        got = bank.update(k, rows, z, mc)
+        for i, r in enumerate(rows):
+            want = alone[r].update(z[i], mc[i])
+            assert got[i] == want, (k, r)
+            alarms += want is not None
+    assert alarms > 10

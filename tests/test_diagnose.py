@@ -280,3 +280,11 @@ def test_a_drift_found_long_after_it_began_gets_its_onset_grid_extended_back():
     h = d.best
     assert min(h.onsets) < d.detection.step - 64
     assert abs(h.start - 106) <= 12, h.start
+    # each hypothesis's batches of onsets depend on its own results only: on one process (the
+    # batches one after another) the same onsets are tried and give the same numbers
+    one = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R3:incipient:0.0308906@5.3", seed=473362393,
+                       generated=GENERATED, options=DiagnosisOptions(seed=473362393, workers=1)).diagnosis
+    assert [(x.name, x.onsets) for x in one.hypotheses] == [(x.name, x.onsets) for x in d.hypotheses]
+    for x, y in zip(one.hypotheses, d.hypotheses):
+        assert x.log_evidence == y.log_evidence and x.onset_posterior == y.onset_posterior
+        assert np.array_equal(x.magnitude, y.magnitude, equal_nan=True)

@@ -80,7 +80,7 @@ import math
 import multiprocessing
 import time
 import zlib
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from statistics import NormalDist
 from types import ModuleType
@@ -91,7 +91,7 @@ from ..errors import TrackingError
 from ..ir import FaultSignatures
 from ..kinds import fault_kind
 from . import identify
-from .detect import Detection, Detector, DetectorOptions, monte_carlo_share
+from .detect import Detection, Detector, DetectorBank, DetectorOptions, monte_carlo_share
 from .identify import GridOptions
 from .isolate import OpenLoop, Symbol, hypotheses, observed_symbols
 from .runs import Run
@@ -351,34 +351,39 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         f"(t = {run.time[min(min(s) for s in onsets.values())]:g} to {run.time[detection.step]:g})")
     # (name, onset) -> its filter's output; its evidence over the data from step 0 (from `first` below)
     results: dict[tuple[str, int], dict] = {}
-    pending = dict(starts_of)
     best_of: dict[str, np.ndarray] = {}  # per hypothesis and step, the best running evidence over [0, step]
-    while pending:
-        jobs = [_hypothesis_job(name, starts, package, clouds, ys, us, nominal_density, outputs, options,
-                                best_of.get(name)) for name, starts in pending.items()]
-        for name, (res, trace) in zip(pending, _run_all(jobs, options.workers)):
-            f = min(pending[name])
-            before = float(nominal_density[:f].sum())  # the nominal observer's densities before the batch
-            for rel, o in res.items():
-                o["from"] = f
-                o["evidence"] += before
-                results[(name, rel + f)] = o
-            full = np.full(T, -math.inf)
-            full[f:] = trace + before
-            best_of[name] = np.maximum(best_of.get(name, full), full)
+    drifts = {name: fault_kind(package.MODELS[name].FAULT["kind"]).drifts for name in names}
+
+    def job(name: str, starts: list[int]) -> tuple:
+        return _hypothesis_job(name, starts, package, clouds, ys, us, nominal_density, outputs, options,
+                               best_of.get(name))
+
+    def arrived(name: str, starts: list[int], res: dict, trace: np.ndarray) -> list[int]:
+        """Take a batch of hypothesis ``name``'s onsets; the earlier onsets to try next (none: done)."""
+        f = min(starts)
+        before = float(nominal_density[:f].sum())  # the nominal observer's densities before the batch
+        for rel, o in res.items():
+            o["from"] = f
+            o["evidence"] += before
+            results[(name, rel + f)] = o
+        full = np.full(T, -math.inf)
+        full[f:] = trace + before
+        best_of[name] = np.maximum(best_of.get(name, full), full)
         # a drift whose onsets' posterior piles up at the earliest one tried began earlier:
         # its grid is extended back by `search` steps (up to `history` before the alarm)
-        pending = {}
-        for name in names:
-            starts = starts_of[name]
-            more = [k for k in reach if starts[0] - options.search <= k < starts[0]]
-            if fault_kind(package.MODELS[name].FAULT["kind"]).drifts and more:
-                w, log_evidence = _onset_weights(starts, [results[(name, s)]["evidence"] for s in starts])
-                if math.isfinite(log_evidence) and w[:EDGE].sum() >= EXTEND:
-                    pending[name] = more
-                    starts_of[name] = sorted(more + starts)
-        if pending:
-            say(f"looking for earlier onsets of {', '.join(pending)}")
+        tried = starts_of[name]
+        more = [k for k in reach if tried[0] - options.search <= k < tried[0]]
+        if not (drifts[name] and more):
+            return []
+        w, log_evidence = _onset_weights(tried, [results[(name, s)]["evidence"] for s in tried])
+        if not (math.isfinite(log_evidence) and w[:EDGE].sum() >= EXTEND):
+            return []
+        starts_of[name] = sorted(more + tried)
+        say(f"looking for earlier onsets of {name}")
+        return more
+
+    _run_batches({name: starts_of[name] for name in names}, job, arrived, options.workers,
+                 lambda starts: sum(T - s for s in starts))  # filter steps, if none stops
     first = min(min(s) for s in starts_of.values())
     for o in results.values():  # the common span starts at `first`
         o["evidence"] -= float(nominal_density[:first].sum())
@@ -715,6 +720,8 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
                   "mean": np.full((span, n_x), np.nan), "std": np.full((span, n_x), np.nan),
                   "rejected": None, "stopped": False, "pruned": False, "last": -1, "final_std": math.nan,
                   "parameter_value": math.nan}
+    row = {s: r for r, s in enumerate(starts)}
+    bank = DetectorBank(outputs, starts, [rejection[s] for s in starts], T)
     with np.errstate(all="ignore"):
         for k in range(min(starts), T):
             for s in sorted(live):
@@ -726,29 +733,39 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
                     if clouds[s] is not None:
                         x0 = module.augment(clouds[s][0][:, package.filters.systematic_resample(clouds[s][1], rng)],
                                             rng)
-                    filters[s] = (cls(module, particles, rng, x=x0), rng, Detector(outputs, rejection[s]))
+                    filters[s] = (cls(module, particles, rng, x=x0), rng)
             running = [s for s in sorted(live) if k >= s]
             _predict_together(module, [filters[s][0] for s in running], us[k])
-            for s in running:
+            y_mean = np.empty((len(running), n_y))
+            y_std = np.empty((len(running), n_y))
+            before = np.empty((len(running), 1))  # the ESS of the weights that predicted this step
+            for i, s in enumerate(running):
                 o = out[s]
-                pf, rng, check = filters[s]
+                pf, rng = filters[s]
                 r = pf.step(ys[k], us[k], predicted=True)
                 _kernel_shrinkage(pf.x[k_mag], pf.logw, shrinkage, rng)
-                i = k - s
-                o["y_mean"][i], o["y_std"][i] = r.y_mean, r.y_std
-                o["mean"][i], o["std"][i] = r.mean, r.std
-                o["magnitude"][i] = r.mean[k_mag]
-                o["last"] = i
-                zk = (ys[k] - r.y_mean) / r.y_std
-                evidence[s] += float(_log_density(zk[None, :], r.y_std[None, :])[0])
-                alarm = check.update(zk, monte_carlo_share(r.y_std, module.MEASUREMENT_STD, ess[s], particles))
+                j = k - s
+                o["y_mean"][j], o["y_std"][j] = r.y_mean, r.y_std
+                o["mean"][j], o["std"][j] = r.mean, r.std
+                o["magnitude"][j] = r.mean[k_mag]
+                o["last"] = j
+                y_mean[i], y_std[i] = r.y_mean, r.y_std
+                before[i] = ess[s]
                 ess[s] = r.ess
-                if alarm is not None and o["rejected"] is None:
-                    o["rejected"] = (i, alarm)
+            # the filters' densities and consistency tests, all at once
+            zk = (ys[k] - y_mean) / y_std
+            density = _log_density(zk, y_std)
+            alarms = bank.update(k, [row[s] for s in running], zk,
+                                 monte_carlo_share(y_std, module.MEASUREMENT_STD, before, particles))
+            for i, s in enumerate(running):
+                evidence[s] += float(density[i])
+                alarm = alarms[i]
+                if alarm is not None and out[s]["rejected"] is None:
+                    out[s]["rejected"] = (k - s, alarm)
                 if alarm is not None and alarm.statistic > FAR * alarm.threshold:
                     # far off the data: a wrong hypothesis or onset, stopped here (a filter only just
                     # over the threshold may be the right one with a model slightly off the truth)
-                    o["stopped"] = True
+                    out[s]["stopped"] = True
                     live.discard(s)
             best = max((evidence[s] for s in live), default=-math.inf)
             trace[k] = best
@@ -766,7 +783,7 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
         o["partial"] = evidence[s]  # up to where its filter stopped
         if s not in filters or o["last"] < 0:
             continue
-        pf, _, _ = filters[s]
+        pf, _ = filters[s]
         last = o["last"]
         o["band"][last] = _weighted_quantiles(pf.x[k_mag], pf.logw, [tail, 1.0 - tail])
         sd = o["std"][:, k_mag]
@@ -813,8 +830,45 @@ def _kernel_shrinkage(theta: np.ndarray, logw: np.ndarray, a: float, rng) -> Non
     w /= w.sum()
     mean = float(w @ theta)
     std = math.sqrt(max(float(w @ (theta - mean) ** 2), 0.0))
+    move = rng.standard_normal(theta.shape[0])
+    move *= math.sqrt(1.0 - a * a) * std
+    move += (1.0 - a) * mean
     theta *= a
-    theta += (1.0 - a) * mean + math.sqrt(1.0 - a * a) * std * rng.standard_normal(theta.shape[0])
+    theta += move
+
+
+def _run_batches(batches: dict[str, list[int]], job, arrived, workers: int, cost) -> None:
+    """Run each hypothesis's first batch of onsets (``batches``: name ->
+    onsets), and each further batch ``arrived(name, onsets, results, trace)``
+    asks for once the one before it is back, until none is asked for. With
+    ``workers`` > 1 the batches run on that many forked processes, and a
+    hypothesis's next batch starts as soon as its own last one is back and a
+    worker is free, before the first batches still waiting (it lies on the
+    longest chain of work), while other hypotheses' batches still run; the
+    first batches start longest first (``cost(onsets)``: a batch's work). A hypothesis's batches depend on its own results only, so
+    the results do not depend on ``workers``."""
+    order = sorted(batches, key=lambda name: -cost(batches[name]))
+    if workers <= 1 or len(batches) <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+        queue = [(name, batches[name]) for name in order]
+        while queue:
+            name, starts = queue.pop(0)
+            more = arrived(name, starts, *_run_hypothesis(job(name, starts)))
+            if more:
+                queue.append((name, more))
+        return
+    waiting = [(name, batches[name]) for name in order]  # batches not submitted yet, next first
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork")) as pool:
+        running: dict = {}
+        while waiting or running:
+            while waiting and len(running) < workers:  # one batch per worker: a later batch can go first
+                name, starts = waiting.pop(0)
+                running[pool.submit(_run_hypothesis, job(name, starts))] = (name, starts)
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in sorted(done, key=lambda f: running[f][0]):
+                name, starts = running.pop(future)
+                more = arrived(name, starts, *future.result())
+                if more:  # on the longest path: before the first batches still waiting
+                    waiting.insert(0, (name, more))
 
 
 def _run_all(jobs: list, workers: int, fn=None) -> list:
