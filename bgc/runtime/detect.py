@@ -109,14 +109,15 @@ class DetectorOptions:
 class Detection:
     """An alarm: at step ``step`` (index into the run), on ``sensor`` (its
     name) with window ``window`` and statistic ``statistic`` (|S| > threshold);
-    ``onset``: the estimated first faulty step."""
+    ``onset``: the estimated first faulty step (None: not estimated, see
+    :meth:`DetectorBank.update`)."""
 
     step: int
     sensor: str
     window: int
     statistic: float
     threshold: float
-    onset: int
+    onset: int | None
 
 
 class Detector:
@@ -199,11 +200,14 @@ class DetectorBank:
         self._cumsum = np.zeros((len(self.starts), steps + 1, len(sensors)))
         self._mc = np.zeros_like(self._cumsum)
 
-    def update(self, k: int, rows, z: np.ndarray, mc: np.ndarray) -> list[Detection | None]:
+    def update(self, k: int, rows, z: np.ndarray, mc: np.ndarray, locate=None) -> list[Detection | None]:
         """Take step ``k``'s normalised residuals ``z`` and Monte Carlo shares
         ``mc`` (rows x sensors, NaN: not read) of the rows ``rows`` (each at or
         after its start); per row, its alarm (steps counted from the row's
-        start, as its own :class:`Detector` counts them) or None."""
+        start, as its own :class:`Detector` counts them) or None. ``locate``:
+        per row, whether an alarm's onset is estimated (default: every row's;
+        the estimate is a loop over the longest window, and a filter that
+        stays off the data alarms at every step)."""
         rows = np.asarray(rows, dtype=int)
         c, m = self._cumsum, self._mc
         c[rows, k + 1] = c[rows, k] + np.where(np.isfinite(z), z, 0.0)
@@ -225,8 +229,9 @@ class DetectorBank:
                 continue
             w, j = divmod(int(best[i]), len(self.sensors))
             local = int(taken[i]) - 1
+            onset = self._onset(r, k, local) if locate is None or locate[i] else None
             out.append(Detection(local, self.sensors[j], int(self._windows[w]), float(value),
-                                 float(self.thresholds[r]), self._onset(r, k, local)))
+                                 float(self.thresholds[r]), onset))
         return out
 
     def _onset(self, r: int, k: int, local: int) -> int:

@@ -721,6 +721,8 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
                   "rejected": None, "stopped": False, "pruned": False, "last": -1, "final_std": math.nan,
                   "parameter_value": math.nan}
     row = {s: r for r, s in enumerate(starts)}
+    uniform = np.ones(particles)  # the weights after resampling, normalised
+    uniform /= uniform.sum()
     bank = DetectorBank(outputs, starts, [rejection[s] for s in starts], T)
     with np.errstate(all="ignore"):
         for k in range(min(starts), T):
@@ -743,7 +745,7 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
                 o = out[s]
                 pf, rng = filters[s]
                 r = pf.step(ys[k], us[k], predicted=True)
-                _kernel_shrinkage(pf.x[k_mag], pf.logw, shrinkage, rng)
+                _kernel_shrinkage(pf.x[k_mag], pf.logw, shrinkage, rng, uniform if r.resampled else None)
                 j = k - s
                 o["y_mean"][j], o["y_std"][j] = r.y_mean, r.y_std
                 o["mean"][j], o["std"][j] = r.mean, r.std
@@ -756,7 +758,8 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
             zk = (ys[k] - y_mean) / y_std
             density = _log_density(zk, y_std)
             alarms = bank.update(k, [row[s] for s in running], zk,
-                                 monte_carlo_share(y_std, module.MEASUREMENT_STD, before, particles))
+                                 monte_carlo_share(y_std, module.MEASUREMENT_STD, before, particles),
+                                 [out[s]["rejected"] is None for s in running])  # the first alarm's onset only
             for i, s in enumerate(running):
                 evidence[s] += float(density[i])
                 alarm = alarms[i]
@@ -818,18 +821,23 @@ def _predict_together(module, pfs: list, u: np.ndarray) -> None:
         at += n
 
 
-def _kernel_shrinkage(theta: np.ndarray, logw: np.ndarray, a: float, rng) -> None:
+def _kernel_shrinkage(theta: np.ndarray, logw: np.ndarray, a: float, rng, w: np.ndarray | None = None) -> None:
     """Liu and West's (2001) kernel move of a static parameter's particles, in
     place: theta <- a theta + (1 - a) mean + sqrt(1 - a^2) std N(0, 1), which
     keeps the weighted mean and variance and gives particles that resampling
     duplicated distinct values again (so the cloud does not collapse onto a
-    few values of the magnitude)."""
+    few values of the magnitude). ``w``: the normalised weights when the
+    caller has them (after resampling: all equal), else from ``logw``."""
     if a >= 1.0:
         return
-    w = np.exp(logw - logw.max())
-    w /= w.sum()
+    if w is None:
+        w = np.subtract(logw, logw.max())
+        np.exp(w, out=w)
+        w /= w.sum()
     mean = float(w @ theta)
-    std = math.sqrt(max(float(w @ (theta - mean) ** 2), 0.0))
+    d = theta - mean
+    d *= d
+    std = math.sqrt(max(float(w @ d), 0.0))
     move = rng.standard_normal(theta.shape[0])
     move *= math.sqrt(1.0 - a * a) * std
     move += (1.0 - a) * mean
