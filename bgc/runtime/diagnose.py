@@ -853,8 +853,9 @@ def _run_batches(batches: dict[str, list[int]], job, arrived, workers: int, cost
     hypothesis's next batch starts as soon as its own last one is back and a
     worker is free, before the first batches still waiting (it lies on the
     longest chain of work), while other hypotheses' batches still run; the
-    first batches start longest first (``cost(onsets)``: a batch's work). A hypothesis's batches depend on its own results only, so
-    the results do not depend on ``workers``."""
+    first batches start longest first (``cost(onsets)``: a batch's work). A
+    hypothesis's batches depend on its own results only, so the results do
+    not depend on ``workers``."""
     order = sorted(batches, key=lambda name: -cost(batches[name]))
     if workers <= 1 or len(batches) <= 1 or "fork" not in multiprocessing.get_all_start_methods():
         queue = [(name, batches[name]) for name in order]
