@@ -166,15 +166,20 @@ class Detector:
 
     def onset(self, k: int) -> int:
         """GLR change point of a mean shift ending at step k (see the module docstring)."""
-        longest = max(self.options.windows)
-        c = self._cumsum
-        best, at = -1.0, k
-        for t in range(max(0, k - longest + 1), k + 1):
-            seg = c[k + 1] - c[t]
-            score = float(seg @ seg) / (k - t + 1)
-            if score > best:
-                best, at = score, t
-        return at
+        return change_point(self._cumsum, k, max(self.options.windows))
+
+
+def change_point(cumsum: np.ndarray, k: int, longest: int) -> int:
+    """The GLR change point of a mean shift ending at step k (module
+    docstring), from the cumulative sums of the residuals (row i: over steps
+    0 to i - 1), looked for over the last ``longest`` steps."""
+    best, at = -1.0, k
+    for t in range(max(0, k - longest + 1), k + 1):
+        seg = cumsum[k + 1] - cumsum[t]
+        score = float(seg @ seg) / (k - t + 1)
+        if score > best:
+            best, at = score, t
+    return at
 
 
 class DetectorBank:
@@ -193,8 +198,7 @@ class DetectorBank:
         windows = {o.windows for o in options}
         if len(windows) != 1:
             raise ValueError("the rows of a detector bank share their windows")
-        self.windows = tuple(windows.pop())
-        self._windows = np.array(self.windows, dtype=int)
+        self._windows = np.array(windows.pop(), dtype=int)
         self.thresholds = np.array([o.threshold(len(sensors)) for o in options])
         # per row, cumulative sums (index k: over the steps from the row's start to k - 1) of z and of a_k
         self._cumsum = np.zeros((len(self.starts), steps + 1, len(sensors)))
@@ -229,20 +233,9 @@ class DetectorBank:
                 continue
             w, j = divmod(int(best[i]), len(self.sensors))
             local = int(taken[i]) - 1
-            onset = self._onset(r, k, local) if locate is None or locate[i] else None
+            # the row's own cumulative sums start at its start: its Detector's, step for step
+            onset = (change_point(c[r, self.starts[r]:], local, int(self._windows.max()))
+                     if locate is None or locate[i] else None)
             out.append(Detection(local, self.sensors[j], int(self._windows[w]), float(value),
                                  float(self.thresholds[r]), onset))
         return out
-
-    def _onset(self, r: int, k: int, local: int) -> int:
-        """:meth:`Detector.onset` of row ``r`` at step ``k`` (``local`` steps after its start)."""
-        longest = max(self.windows)
-        c = self._cumsum[r]
-        s = int(self.starts[r])
-        best, at = -1.0, local
-        for t in range(max(0, local - longest + 1), local + 1):
-            seg = c[k + 1] - c[s + t]
-            score = float(seg @ seg) / (local - t + 1)
-            if score > best:
-                best, at = score, t
-        return at

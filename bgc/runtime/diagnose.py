@@ -344,7 +344,8 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         models.setdefault(f"{s.parameter}_{s.kind}", []).append(s.name)
     names = [n for n in sorted(models) if n in package.MODELS]
     # 4. every fault-model filter from every onset tried: one job per hypothesis, in parallel
-    starts_of = {name: onsets[fault_kind(package.MODELS[name].FAULT["kind"]).drifts] for name in names}
+    drifts = {name: fault_kind(package.MODELS[name].FAULT["kind"]).drifts for name in names}
+    starts_of = {name: onsets[drifts[name]] for name in names}
     nominal_density = _log_density(z, y_std)
     say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from "
         f"{sum(len(starts_of[n]) for n in names)} onsets and hypotheses "
@@ -352,7 +353,6 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     # (name, onset) -> its filter's output; its evidence over the data from step 0 (from `first` below)
     results: dict[tuple[str, int], dict] = {}
     best_of: dict[str, np.ndarray] = {}  # per hypothesis and step, the best running evidence over [0, step]
-    drifts = {name: fault_kind(package.MODELS[name].FAULT["kind"]).drifts for name in names}
 
     def job(name: str, starts: list[int]) -> tuple:
         return _hypothesis_job(name, starts, package, clouds, ys, us, nominal_density, outputs, options,
