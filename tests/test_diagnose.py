@@ -213,20 +213,83 @@ def test_the_estimate_over_onsets_is_the_weighted_mixture_of_their_clouds():
     assert low == pytest.approx(1.0) and high == pytest.approx(3.0)
 
 
-def test_filters_predicted_together_move_as_if_each_were_predicted_alone():
-    """_predict_together (one integrator call over several filters' particles)
-    leaves each filter's particles where its own predict() would."""
+@pytest.mark.parametrize("method", ["gpf", "apf"])
+@pytest.mark.parametrize("model_name, fault", [("ro", "R_pipe_incipient"), ("two_tank", "R12_abrupt")])
+def test_filters_stepped_in_a_bank_end_each_step_as_if_each_were_stepped_alone(model_name, fault, method):
+    """A FilterBank steps several filters in shared arrays. Each filter must
+    end every step exactly (bit for bit) as its own predict() and
+    step(predicted=True) leave a twin with the same seed: same particles,
+    weights, predicted measurement, moments, ESS and resampling, whichever
+    filters run beside it. The run mixes what a diagnosis meets: filters
+    joining and leaving the bank, particle counts that are not multiples of
+    4, a measurement with one output missing, one with all missing, one far
+    off the data (weights that underflow: the filters recover), then the
+    Liu and West move on the bank's arrays against a lone row's."""
     from bgc.runtime import track
-    from bgc.runtime.diagnose import _predict_together
+    from bgc.runtime.diagnose import _kernel_shrinkage, _shrink_together
+
+    package = track.load_package(ROOT / "generated", model_name)
+    model = package.MODELS[fault]
+    cls = {"gpf": package.filters.GenericParticleFilter, "apf": package.filters.AuxiliaryParticleFilter}[method]
+    rng = np.random.default_rng(5)
+    u = model.inputs(0.0)
+    y0 = model.observe(model.initial_particles(rng, 1), u, model.THETA)[:, 0]
+    n_y = len(y0)
+    n = 301
+    seeds = range(6)
+    banked = {s: cls(model, n, np.random.default_rng(s)) for s in seeds}
+    alone = {s: cls(model, n, np.random.default_rng(s)) for s in seeds}
+    bank = package.filters.FilterBank(model)
+    k_mag = len(model.STATES) - 1
+    recovered = 0
+    with np.errstate(all="ignore"):  # the far measurement overflows
+        for k in range(40):
+            y = y0 * (1.0 + 0.01 * rng.standard_normal(n_y))
+            if k == 7:
+                y[0] = np.nan
+            if k == 11:
+                y[:] = np.nan
+            if k == 15:
+                y = y0 * 1e200  # every weight underflows
+            members = [s for s in seeds if (s + k) % 7 != 0 and not (s == 5 and k > 30)]
+            results = bank.step([banked[s] for s in members], y, u)
+            resampled = [r.resampled for r in results]
+            _shrink_together(bank, [banked[s] for s in members], k_mag, 0.98, resampled)
+            for s, r in zip(members, results):
+                pf = alone[s]
+                model.predict(pf.x, u, pf.theta, model.DT, out=pf.x)
+                want = pf.step(y, u, predicted=True)
+                _kernel_shrinkage(pf.x[k_mag][None], pf.logw[None], 0.98, [pf.rng], np.array([want.resampled]))
+                for field in ("mean", "std", "y_mean", "y_std", "ess", "resampled", "recovered"):
+                    np.testing.assert_array_equal(getattr(r, field), getattr(want, field), err_msg=f"step {k}: {field}")
+                recovered += want.recovered
+            for s in members:
+                np.testing.assert_array_equal(banked[s].x, alone[s].x, err_msg=f"step {k}: particles")
+                np.testing.assert_array_equal(banked[s].logw, alone[s].logw, err_msg=f"step {k}: log-weights")
+    assert recovered > 0  # the far measurement made the filters recover
+    assert sum(pf.recoveries for pf in alone.values()) == sum(pf.recoveries for pf in banked.values())
+
+
+def test_a_bank_of_filters_of_different_sizes_steps_them_one_by_one():
+    """Filters of different particle counts cannot share arrays: the bank
+    predicts each theta's particles in one call and steps each filter alone,
+    with the same numbers as each filter's own step."""
+    from bgc.runtime import track
 
     package = track.load_package(ROOT / "generated", "ro")
     model = package.MODELS["R_pipe_incipient"]
     u = model.inputs(0.0)
     pfs = [package.filters.GenericParticleFilter(model, n, np.random.default_rng(n)) for n in (300, 500, 200)]
-    want = [model.predict(pf.x.copy(), u, model.THETA, model.DT) for pf in pfs]
-    _predict_together(model, pfs, u)
-    for pf, x in zip(pfs, want):
-        np.testing.assert_allclose(pf.x, x, rtol=1e-13, atol=0)
+    twins = [package.filters.GenericParticleFilter(model, n, np.random.default_rng(n)) for n in (300, 500, 200)]
+    y = model.observe(pfs[0].x, u, model.THETA)[:, 0]
+    bank = package.filters.FilterBank(model)
+    results = bank.step(pfs, y, u)
+    assert not bank.packed
+    for pf, twin, r in zip(pfs, twins, results):
+        model.predict(twin.x, u, twin.theta, model.DT, out=twin.x)
+        want = twin.step(y, u, predicted=True)
+        np.testing.assert_allclose(pf.x, twin.x, rtol=1e-13, atol=0)
+        np.testing.assert_allclose(r.y_mean, want.y_mean, rtol=1e-13, atol=0)
 
 
 def test_a_hypothesis_is_seeded_by_its_name_not_by_its_rank():

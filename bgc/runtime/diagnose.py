@@ -721,9 +721,8 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
                   "rejected": None, "stopped": False, "pruned": False, "last": -1, "final_std": math.nan,
                   "parameter_value": math.nan}
     row = {s: r for r, s in enumerate(starts)}
-    uniform = np.ones(particles)  # the weights after resampling, normalised
-    uniform /= uniform.sum()
-    bank = DetectorBank(outputs, starts, [rejection[s] for s in starts], T)
+    bank = package.filters.FilterBank(module)  # the running filters, stepped together
+    tests = DetectorBank(outputs, starts, [rejection[s] for s in starts], T)
     with np.errstate(all="ignore"):
         for k in range(min(starts), T):
             for s in sorted(live):
@@ -737,15 +736,15 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
                                             rng)
                     filters[s] = (cls(module, particles, rng, x=x0), rng)
             running = [s for s in sorted(live) if k >= s]
-            _predict_together(module, [filters[s][0] for s in running], us[k])
+            pfs = [filters[s][0] for s in running]
+            results = bank.step(pfs, ys[k], us[k])
+            _shrink_together(bank, pfs, k_mag, shrinkage, [r.resampled for r in results])
             y_mean = np.empty((len(running), n_y))
             y_std = np.empty((len(running), n_y))
             before = np.empty((len(running), 1))  # the ESS of the weights that predicted this step
             for i, s in enumerate(running):
                 o = out[s]
-                pf, rng = filters[s]
-                r = pf.step(ys[k], us[k], predicted=True)
-                _kernel_shrinkage(pf.x[k_mag], pf.logw, shrinkage, rng, uniform if r.resampled else None)
+                r = results[i]
                 j = k - s
                 o["y_mean"][j], o["y_std"][j] = r.y_mean, r.y_std
                 o["mean"][j], o["std"][j] = r.mean, r.std
@@ -757,7 +756,7 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
             # the filters' densities and consistency tests, all at once
             zk = (ys[k] - y_mean) / y_std
             density = _log_density(zk, y_std)
-            alarms = bank.update(k, [row[s] for s in running], zk,
+            alarms = tests.update(k, [row[s] for s in running], zk,
                                  monte_carlo_share(y_std, module.MEASUREMENT_STD, before, particles),
                                  [out[s]["rejected"] is None for s in running])  # the first alarm's onset only
             for i, s in enumerate(running):
@@ -801,48 +800,51 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
     return out, trace
 
 
-def _predict_together(module, pfs: list, u: np.ndarray) -> None:
-    """``module.predict`` on the particles of several filters of one model
-    (same theta) in one array: one call of the vectorised integrator instead
-    of one per filter, whose cost on 1000 particles is mostly per call. Each
-    filter then adds its own process noise (``step(..., predicted=True)``), so
-    its random numbers are the same whichever filters run beside it."""
-    if not pfs:
+def _shrink_together(bank, pfs: list, row: int, a: float, resampled: list[bool]) -> None:
+    """The kernel move of the magnitude (state ``row``) of each filter of
+    ``pfs`` just stepped by ``bank``: in the bank's arrays when it holds them,
+    else filter by filter."""
+    if a >= 1.0 or not pfs:
         return
-    if len(pfs) == 1:
-        module.predict(pfs[0].x, u, pfs[0].theta, module.DT, out=pfs[0].x)
+    rngs = [pf.rng for pf in pfs]
+    if bank.packed:
+        _kernel_shrinkage(bank.x[row].reshape(len(pfs), -1), bank.logw, a, rngs, np.array(resampled))
         return
-    x = np.concatenate([pf.x for pf in pfs], axis=1)
-    module.predict(x, u, pfs[0].theta, module.DT, out=x)
-    at = 0
-    for pf in pfs:
-        n = pf.x.shape[1]
-        pf.x[...] = x[:, at:at + n]
-        at += n
+    for pf, r in zip(pfs, resampled):
+        _kernel_shrinkage(pf.x[row][None], pf.logw[None], a, [pf.rng], np.array([r]))
 
 
-def _kernel_shrinkage(theta: np.ndarray, logw: np.ndarray, a: float, rng, w: np.ndarray | None = None) -> None:
+def _kernel_shrinkage(theta: np.ndarray, logw: np.ndarray, a: float, rngs: list, uniform: np.ndarray) -> None:
     """Liu and West's (2001) kernel move of a static parameter's particles, in
     place: theta <- a theta + (1 - a) mean + sqrt(1 - a^2) std N(0, 1), which
     keeps the weighted mean and variance and gives particles that resampling
     duplicated distinct values again (so the cloud does not collapse onto a
-    few values of the magnitude). ``w``: the normalised weights when the
-    caller has them (after resampling: all equal), else from ``logw``."""
-    if a >= 1.0:
-        return
-    if w is None:
-        w = np.subtract(logw, logw.max())
-        np.exp(w, out=w)
-        w /= w.sum()
-    mean = float(w @ theta)
-    d = theta - mean
+    few values of the magnitude). One row per filter: ``theta`` and ``logw``
+    (F, N), each filter's generator in ``rngs``; ``uniform`` (F,): the
+    filters whose weights are all equal (just resampled), the others' weights
+    come from ``logw``. Every sum over particles is made per row by the same
+    call as for a lone row, so a filter's numbers do not depend on the others."""
+    w = np.subtract(logw, logw.max(axis=1)[:, None])
+    np.exp(w, out=w)
+    w /= w.sum(axis=1)[:, None]
+    if uniform.any():
+        w[uniform] = 1.0 / w.shape[1]
+    mean = _row_dots(w, theta)
+    d = theta - mean[:, None]
     d *= d
-    std = math.sqrt(max(float(w @ d), 0.0))
-    move = rng.standard_normal(theta.shape[0])
-    move *= math.sqrt(1.0 - a * a) * std
-    move += (1.0 - a) * mean
+    std = np.sqrt(np.maximum(_row_dots(w, d), 0.0))
+    move = np.empty(theta.shape)
+    for f, rng in enumerate(rngs):
+        rng.standard_normal(out=move[f])
+    move *= (math.sqrt(1.0 - a * a) * std)[:, None]
+    move += ((1.0 - a) * mean)[:, None]
     theta *= a
     theta += move
+
+
+def _row_dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(F,): the dot product of each row of a with the same row of b (F, N)."""
+    return np.matmul(a[:, None, :], b[:, :, None])[:, 0, 0]
 
 
 def _run_batches(batches: dict[str, list[int]], job, arrived, workers: int, cost) -> None:

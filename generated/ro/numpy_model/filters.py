@@ -320,3 +320,266 @@ class AuxiliaryParticleFilter(_Filter):
         del counts, w1
         logw = self.model.loglik_observed(y, yhat) + back
         return self._finish(logw, y_mean, y_std, recovered)
+
+
+class FilterBank:
+    """Several filters of one model, class, particle count and theta, each
+    with its own random numbers, stepped together (the hypothesis filters of
+    one fault from several onsets): one call of the integrator, of the
+    observation and of each elementwise operation for all their particles,
+    instead of one per filter; on a few hundred particles a filter step's cost
+    is mostly per call.
+
+    Every filter ends each step exactly as its own :meth:`step` (after
+    ``model.predict`` on its particles) leaves it: it draws the same random
+    numbers from its own generator in the same order, elementwise arithmetic
+    is the same element by element, and every sum over particles is made per
+    filter by the same kind of call on the same memory layout as
+    :meth:`step`'s (a sum over the particles of a block made by BLAS can round
+    differently when the block sits inside a wider array). So a filter's
+    numbers do not depend on which filters run beside it. The particles of
+    the filters live in one array: each filter's ``x``, ``logw`` and ``w``
+    are views of the bank's arrays while it is in the bank.
+
+    Filters of more than two blocks of particles, or of mixed classes or
+    particle counts, are stepped one by one; so is a step in which a filter's
+    weights all underflow (its :meth:`step` recovers)."""
+
+    def __init__(self, model):
+        self.model = model
+        self.filters = []
+        self.packed = False
+        self._gauss = {}
+
+    def step(self, filters, y, u):
+        """Step ``filters`` (a list; the bank re-packs when it changes) with
+        measurement y and input u; their StepResults in the same order."""
+        if not filters:
+            return []
+        if [id(pf) for pf in filters] != [id(pf) for pf in self.filters] or not self.packed:
+            self.filters = list(filters)
+            self._pack()
+        y = np.asarray(y, dtype=float)
+        if not self.packed:
+            return self._one_by_one(y, u)
+        model = self.model
+        model.predict(self.x, u, self.theta, model.DT, out=self.x)
+        if isinstance(self.filters[0], AuxiliaryParticleFilter):
+            if np.isnan(y).all():
+                return self._lone(y, u)
+            return self._apf(y, u)
+        return self._gpf(y, u)
+
+    def _pack(self):
+        """The filters' particles, log-weights and weights in one array each,
+        the filters' own attributes views of them; not packed when the filters
+        cannot be stepped together."""
+        fs = self.filters
+        first = fs[0]
+        self.packed = (all(type(pf) is type(first) and pf.n == first.n and pf.theta == first.theta
+                            and pf._small and pf.threshold == first.threshold for pf in fs))
+        if not self.packed:
+            return
+        n = first.n
+        self.n, self.theta, self.threshold = n, first.theta, first.threshold
+        self.x = np.concatenate([pf.x for pf in fs], axis=1)
+        self.logw = np.stack([pf.logw for pf in fs])
+        self.w = np.stack([pf._weights() for pf in fs])
+        for f, pf in enumerate(fs):
+            self._view(f, pf)
+
+    def _view(self, f, pf):
+        pf.x = self.x[:, f * self.n:(f + 1) * self.n]
+        pf.logw, pf.w = self.logw[f], self.w[f]
+
+    def _one_by_one(self, y, u):
+        """Filters that cannot share arrays: one integrator call for all
+        particles of one theta, then each filter's own step."""
+        groups = {}
+        for pf in self.filters:
+            groups.setdefault(pf.theta, []).append(pf)
+        for theta, pfs in groups.items():
+            x = np.concatenate([pf.x for pf in pfs], axis=1)
+            self.model.predict(x, u, theta, self.model.DT, out=x)
+            at = 0
+            for pf in pfs:
+                pf.x = x[:, at:at + pf.n].copy()
+                at += pf.n
+        return [pf.step(y, u, predicted=True) for pf in self.filters]
+
+    def _lone(self, y, u):
+        """Each filter's own step on its (already predicted) particles; the
+        bank re-packs before its next step."""
+        self.packed = False
+        return [pf.step(y, u, predicted=True) for pf in self.filters]
+
+    def _stacked(self, rows):
+        """The bank's (rows, F * N) array ``rows`` as (F, rows, N) views."""
+        return rows.reshape(rows.shape[0], len(self.filters), self.n).transpose(1, 0, 2)
+
+    def _perturb(self, x):
+        """Each filter's process noise, from its own generator, as
+        ``model.perturb`` draws it (one block of particles)."""
+        buf = np.empty((len(self.filters), x.shape[0], self.n))
+        for f, pf in enumerate(self.filters):
+            pf.rng.standard_normal(out=buf[f])
+        buf *= np.asarray(self.model.PROCESS_STD, dtype=float)[:, None]
+        self._stacked(x)[...] += buf
+
+    def _moments(self, a, w):
+        """Each filter's weighted mean and std of the rows of ``a`` (F, rows, N),
+        as ``_kernel.moments`` makes them: (F, rows) each."""
+        mean = np.matmul(a, w[:, :, None])[:, :, 0]
+        d = np.empty(a.shape)
+        np.subtract(a, mean[:, :, None], out=d)
+        d *= d
+        var = np.zeros(mean.shape)
+        var += np.matmul(d, w[:, :, None])[:, :, 0]
+        return mean, np.sqrt(np.maximum(var, 0.0))
+
+    def _loglik(self, y, yhat, std):
+        """(F, N): each filter's ``_kernel.gaussian_loglik(y, yhat, std)`` of
+        its columns of ``yhat`` (n_y, F * N)."""
+        seen = np.isfinite(y)
+        stacked = self._stacked(yhat)
+        if not seen.all():
+            y, stacked, std = y[seen], stacked[:, seen], std[seen]
+        weight = -0.5 / (std * std)
+        d = np.empty(stacked.shape)  # (F, n_y, N): each filter's block contiguous, as in gaussian_loglik
+        np.subtract(stacked, y[:, None], out=d)
+        d *= d
+        total = np.empty((len(self.filters), self.n))
+        for f in range(len(self.filters)):
+            np.matmul(weight, d[f], out=total[f])
+        total += self.model._kernel.log_normaliser(std)
+        return total
+
+    def _gpf(self, y, u):
+        """GenericParticleFilter.step for every filter."""
+        model = self.model
+        self._perturb(self.x)
+        missing = np.isnan(y).all()
+        std = model.MEASUREMENT_STD
+        count = len(self.filters)
+        # GenericParticleFilter._weigh, for all filters
+        yhat = model.observe(self.x, u, self.theta)
+        stacked = self._stacked(yhat)
+        shift = stacked[:, :, 0]
+        shift = np.where(np.isfinite(shift), shift, 0.0)  # (F, n_y)
+        d = np.empty(stacked.shape)  # (F, n_y, N): each filter's block contiguous, as in _weigh
+        np.subtract(stacked, shift[:, :, None], out=d)
+        s1 = np.zeros(shift.shape)
+        s1 += np.matmul(d, self.w[:, :, None])[:, :, 0]
+        if not missing:
+            seen = np.isfinite(y)
+            key = seen.tobytes()
+            if key not in self._gauss:
+                self._gauss[key] = (None if seen.all() else np.flatnonzero(seen), -0.5 / (std[seen] * std[seen]),
+                                    model._kernel.log_normaliser(std[seen]))
+            rows, weight, constant = self._gauss[key]
+            measured = y if rows is None else y[rows]
+            constants = np.empty(count)
+            cross = np.empty((count, self.n))
+            for f in range(count):
+                r = (shift[f] if rows is None else shift[f][rows]) - measured
+                linear = 2.0 * weight * r
+                constants[f] = constant + float(weight @ (r * r))
+                cross[f] = linear @ (d[f] if rows is None else d[f][rows])
+        d *= d
+        s2 = np.zeros(shift.shape)
+        s2 += np.matmul(d, self.w[:, :, None])[:, :, 0]
+        if not missing:
+            for f in range(count):
+                self.logw[f] += weight @ (d[f] if rows is None else d[f][rows])
+            self.logw += cross
+            self.logw += constants[:, None]
+        var = np.maximum(s2 - s1 * s1, 0.0) + std * std
+        return self._finish(self.logw, shift + s1, np.sqrt(var), np.zeros(count, bool))
+
+    def _apf(self, y, u):
+        """AuxiliaryParticleFilter.step for every filter (y not all NaN)."""
+        model = self.model
+        count, n = len(self.filters), self.n
+        mu = self.x
+        ymu = model.observe(mu, u, self.theta)
+        y_mean, y_spread = self._moments(np.ascontiguousarray(self._stacked(ymu)), self.w)
+        y_std = np.sqrt(y_spread * y_spread + model.PREDICTIVE_STD ** 2)
+        first = self._loglik(y, ymu, model.PREDICTIVE_STD)
+        del ymu
+        broken = np.isnan(first)
+        if broken.any():
+            first[broken & np.isfinite(mu).all(axis=0).reshape(count, n)] = -np.inf
+        stage1 = self.logw + first
+        recovered = ~np.isfinite(stage1.max(axis=1))
+        for f in np.flatnonzero(recovered):  # every first-stage weight underflowed: a plain GPF step
+            first[f] = 0.0
+            stage1[f] = self.logw[f]
+            self.filters[f].recoveries += 1
+        w1 = self._normalised(stage1)[1]
+        counts = self._offspring(w1, np.ones(count, bool))
+        self.x = np.repeat(mu, counts, axis=1)
+        for f, pf in enumerate(self.filters):
+            pf.x = self.x[:, f * n:(f + 1) * n]
+        self._perturb(self.x)
+        yhat = model.observe(self.x, u, self.theta)
+        back = np.repeat(first.reshape(-1), counts).reshape(count, n)
+        np.negative(back, out=back)
+        logw = self._loglik(y, yhat, model.MEASUREMENT_STD)
+        logw += back
+        return self._finish(logw, y_mean, y_std, recovered)
+
+    def _normalised(self, logw):
+        """_normalise of each row of ``logw`` (in place): (logw, w, ess)."""
+        top = logw.max(axis=1)
+        w = np.subtract(logw, top[:, None])
+        np.exp(w, out=w)
+        s = w.sum(axis=1)
+        w /= s[:, None]
+        ess = 1.0 / np.matmul(w[:, None, :], w[:, :, None])[:, 0, 0]
+        logw -= (top + np.log(s))[:, None]
+        return logw, w, ess
+
+    def _offspring(self, w, rows):
+        """Flat (F * N,) offspring counts: each filter of ``rows`` resampled
+        from its weights ``w`` (F, N) as :func:`offspring_counts` does (one
+        uniform from its own generator), the others kept (1 each)."""
+        n = self.n
+        counts = np.ones((len(self.filters), n), dtype=np.intp)
+        picked = np.flatnonzero(rows)
+        if picked.size == 0:
+            return counts.reshape(-1)
+        c = np.cumsum(w[picked], axis=1)
+        c *= n / c[:, -1:]
+        c -= np.array([self.filters[f].rng.random() for f in picked])[:, None]
+        np.floor(c, out=c)
+        np.minimum(c, n - 1, out=c)
+        c[:, -1] = n - 1
+        c[:, 1:] -= c[:, :-1].copy()
+        c[:, 0] += 1.0
+        counts[picked] = c
+        return counts.reshape(-1)
+
+    def _finish(self, logw, y_mean, y_std, recovered):
+        """_Filter._finish for every filter; a step in which some filter's
+        weights are all impossible or not numbers is finished filter by filter."""
+        count, n = len(self.filters), self.n
+        top = logw.max(axis=1)
+        if not np.isfinite(top).all():
+            self.packed = False
+            results = []
+            for f, pf in enumerate(self.filters):
+                pf.logw = logw[f].copy()
+                results.append(pf._finish(pf.logw, y_mean[f], y_std[f], bool(recovered[f])))
+            return results
+        logw, w, ess = self._normalised(logw)
+        resampled = ess < self.threshold
+        if resampled.any():
+            self.x = np.repeat(self.x, self._offspring(w, resampled), axis=1)
+            logw[resampled] = -np.log(n)
+            w[resampled] = 1.0 / n
+        self.logw, self.w = logw, w
+        for f, pf in enumerate(self.filters):
+            self._view(f, pf)
+        mean, std = self._moments(np.ascontiguousarray(self._stacked(self.x)), w)
+        return [StepResult(mean[f], std[f], y_mean[f], y_std[f], float(ess[f]), bool(resampled[f]),
+                           bool(recovered[f])) for f in range(count)]
