@@ -323,3 +323,36 @@ def test_plot_writes_a_png(tmp_path, capsys):
     width, height = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
     assert width >= 300 and height >= 200
     assert f"wrote {png}" in capsys.readouterr().out
+
+
+def test_the_truth_on_python_floats_is_the_truth_on_numpy_scalars(monkeypatch):
+    """The truth simulator evaluates sympy's lambdified equations on Python
+    floats when every power has an integer exponent (float_safe): the same
+    IEEE operations as on NumPy scalars, so the same bits. A run whose
+    equations divide by zero (R_pipe brought to 0) raises on Python floats;
+    the simulator then evaluates on NumPy scalars and stops the run as
+    diverged, as it always did."""
+    from bgc import api
+
+    ro, _ = api._compiled(ROOT / "models" / "ro.yaml")
+    assert sim.float_safe(ro.numerics.equations)
+    x = sympy.Symbol("x")
+    assert not sim.float_safe(type("Equations", (), {"rhs": (x ** sympy.Rational(3, 2),), "output_exprs": ()})())
+
+    def both(fault):
+        runs_ = []
+        for floats in (True, False):
+            monkeypatch.setattr(sim, "float_safe", lambda ssm, floats=floats: floats)
+            try:
+                r = sim.simulate(ro.numerics, sim.SimulationOptions(seed=3, steps=80, fault=fault))
+                runs_.append((r.states, r.measurements))
+            except Exception as e:  # noqa: BLE001 - the error is what is compared
+                runs_.append((type(e), str(e)))
+        return runs_
+
+    with np.errstate(all="ignore"):
+        floats, scalars = both(sim.parse_fault("R_pipe:incipient:0.5@20", ro.numerics))
+        np.testing.assert_array_equal(floats[0], scalars[0])
+        np.testing.assert_array_equal(floats[1], scalars[1])
+        floats, scalars = both(sim.parse_fault("R_pipe:abrupt:-69@10", ro.numerics))
+    assert floats == scalars and "diverged at t = 11" in floats[1]

@@ -238,12 +238,34 @@ def jacobian_at(exprs: list[sympy.Expr], xs: list[sympy.Symbol], point: dict) ->
     return out
 
 
+#: lambdified(): the last few models' functions, by identity (a simulation per
+#: run of a campaign would otherwise lambdify the same equations each time)
+_LAMBDIFIED: list[tuple] = []
+
+
 def lambdified(ssm: StateSpaceModel):
     """(dx/dt, y) of ``ssm`` as NumPy functions of (x, u, theta) lists, by sympy's
     lambdify: an evaluation path independent of bgc's own code generation."""
+    for known, f, g in _LAMBDIFIED:
+        if known is ssm:
+            return f, g
     args = [[sym(x) for x in ssm.states], [sym(u) for u in ssm.inputs], [sym(p) for p in ssm.parameters]]
-    return (sympy.lambdify(args, list(ssm.rhs), modules="numpy", cse=True),
-            sympy.lambdify(args, list(ssm.output_exprs), modules="numpy", cse=True))
+    f = sympy.lambdify(args, list(ssm.rhs), modules="numpy", cse=True)
+    g = sympy.lambdify(args, list(ssm.output_exprs), modules="numpy", cse=True)
+    _LAMBDIFIED.insert(0, (ssm, f, g))
+    del _LAMBDIFIED[8:]
+    return f, g
+
+
+def float_safe(ssm: StateSpaceModel) -> bool:
+    """Whether the lambdified functions of ``ssm`` give the same numbers on
+    Python floats as on NumPy scalars: true when every power has an integer
+    exponent (a negative float to a fractional power is complex in Python,
+    NaN in NumPy). +, -, *, / and integer powers are the same IEEE operations
+    either way, and NumPy functions of a Python float are the same ufuncs; a
+    division by zero or an overflow raises on Python floats instead, which
+    the caller answers by evaluating on NumPy scalars."""
+    return all(p.exp.is_Integer for e in (*ssm.rhs, *ssm.output_exprs) for p in e.atoms(sympy.Pow))
 
 
 def rk4_sample(rhs, x: np.ndarray, t0: float, h: float, substeps: int) -> np.ndarray:

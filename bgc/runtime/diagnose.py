@@ -824,11 +824,14 @@ def _kernel_shrinkage(theta: np.ndarray, logw: np.ndarray, a: float, rngs: list,
     filters whose weights are all equal (just resampled), the others' weights
     come from ``logw``. Every sum over particles is made per row by the same
     call as for a lone row, so a filter's numbers do not depend on the others."""
-    w = np.subtract(logw, logw.max(axis=1)[:, None])
-    np.exp(w, out=w)
-    w /= w.sum(axis=1)[:, None]
-    if uniform.any():
-        w[uniform] = 1.0 / w.shape[1]
+    w = np.full(logw.shape, 1.0 / logw.shape[1])
+    if not uniform.all():
+        weighted = ~uniform
+        v = logw[weighted]
+        v -= v.max(axis=1)[:, None]
+        np.exp(v, out=v)
+        v /= v.sum(axis=1)[:, None]
+        w[weighted] = v
     mean = _row_dots(w, theta)
     d = theta - mean[:, None]
     d *= d
