@@ -23,7 +23,6 @@ explain the deviation (paths of opposite signs reach the sensor).
 from __future__ import annotations
 
 import sys
-from collections import deque
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -276,7 +276,7 @@ def print_targets(results: dict, sizes: dict, n_x: int, missing: dict, agree: bo
     if any(v is None for v in rs):
         print("  GPF >= 2.5x faster than particles at every N -> " + verdict(None, missing.get("particles", "")))
     else:
-        print(f"  GPF >= 2.5x faster than particles at every N: particles/GPF = "
+        print("  GPF >= 2.5x faster than particles at every N: particles/GPF = "
               + ", ".join(f"{v:.2f}" for v in rs) + " -> " + verdict(min(rs) >= 2.5))
     n = 100_000
     traced = results.get(("gpf", n), {}).get("traced_mb")

@@ -708,7 +708,7 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
     k_mag = n_x - 1
     tail = (1.0 - level) / 2.0
     out: dict[int, dict] = {}
-    filters: dict[int, tuple] = {}
+    filters: dict[int, object] = {}  # onset -> its particle filter
     evidence = {s: 0.0 for s in starts}
     ess = {s: float(particles) for s in starts}  # of the weights that predict each filter's next step
     live = set(starts)
@@ -734,9 +734,9 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
                     if clouds[s] is not None:
                         x0 = module.augment(clouds[s][0][:, package.filters.systematic_resample(clouds[s][1], rng)],
                                             rng)
-                    filters[s] = (cls(module, particles, rng, x=x0), rng)
+                    filters[s] = cls(module, particles, rng, x=x0)
             running = [s for s in sorted(live) if k >= s]
-            pfs = [filters[s][0] for s in running]
+            pfs = [filters[s] for s in running]
             results = bank.step(pfs, ys[k], us[k])
             _shrink_together(bank, pfs, k_mag, shrinkage, [r.resampled for r in results])
             y_mean = np.empty((len(running), n_y))
@@ -785,7 +785,7 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
         o["partial"] = evidence[s]  # up to where its filter stopped
         if s not in filters or o["last"] < 0:
             continue
-        pf, _ = filters[s]
+        pf = filters[s]
         last = o["last"]
         o["band"][last] = _weighted_quantiles(pf.x[k_mag], pf.logw, [tail, 1.0 - tail])
         sd = o["std"][:, k_mag]
