@@ -356,10 +356,15 @@ class FilterBank:
         measurement y and input u; their StepResults in the same order."""
         if not filters:
             return []
+        y = np.asarray(y, dtype=float)
+        if len(filters) == 1:  # nothing to share: the filter's own step, without the bank's overhead
+            self.filters, self.packed = list(filters), False
+            pf = filters[0]
+            self.model.predict(pf.x, u, pf.theta, self.model.DT, out=pf.x)
+            return [pf.step(y, u, predicted=True)]
         if [id(pf) for pf in filters] != [id(pf) for pf in self.filters] or not self.packed:
             self.filters = list(filters)
             self._pack()
-        y = np.asarray(y, dtype=float)
         if not self.packed:
             return self._one_by_one(y, u)
         model = self.model
