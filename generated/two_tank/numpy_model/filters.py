@@ -341,9 +341,10 @@ class FilterBank:
     the filters live in one array: each filter's ``x``, ``logw`` and ``w``
     are views of the bank's arrays while it is in the bank.
 
-    Filters of more than two blocks of particles, or of mixed classes or
-    particle counts, are stepped one by one; so is a step in which a filter's
-    weights all underflow (its :meth:`step` recovers)."""
+    A lone filter takes its own step (the bank would only add its
+    overhead). Filters of more than two blocks of particles, or of mixed
+    classes or particle counts, are stepped one by one; so is a step in which
+    a filter's weights all underflow (its :meth:`step` recovers)."""
 
     def __init__(self, model):
         self.model = model
