@@ -350,6 +350,10 @@ def test_the_truth_on_python_floats_is_the_truth_on_numpy_scalars(monkeypatch):
                 runs_.append((type(e), str(e)))
         return runs_
 
+    # what float_safe relies on: an integer power (sympy prints x**2, x**(-1.0)) is the same number on both
+    xs = np.random.default_rng(0).standard_normal(2000) * np.exp(np.random.default_rng(1).standard_normal(2000) * 3)
+    for e in (2, 3, -1.0, -2.0):
+        assert all(np.float64(v) ** e == float(v) ** e for v in xs), e
     with np.errstate(all="ignore"):
         floats, scalars = both(sim.parse_fault("R_pipe:incipient:0.5@20", ro.numerics))
         np.testing.assert_array_equal(floats[0], scalars[0])
