@@ -49,11 +49,11 @@ SHRINKAGE = 0.98
 FIRST, STEPS = 150, 150
 
 
-def filters(package, cls, model, count: int, n: int) -> list:
+def filters(cls, model, count: int, n: int) -> list:
     return [cls(model, n, np.random.default_rng([7, f])) for f in range(count)]
 
 
-def one_by_one(package, model, pfs, ys, us, row: int) -> None:
+def one_by_one(package, model, pfs, ys, us, row: int) -> None:  # package: the signature banked() needs
     """The integrator over every filter's particles in one call, then each
     filter's own step and kernel move."""
     for k in range(len(ys)):
@@ -101,7 +101,7 @@ def main() -> None:
                     for way, fn in (("one by one", one_by_one), ("bank", banked)):
                         seconds = 0.0
                         for _ in range(reps):
-                            pfs = filters(package, cls, model, count, n)
+                            pfs = filters(cls, model, count, n)
                             with np.errstate(all="ignore"):
                                 started = time.process_time()
                                 fn(package, model, pfs, ys, us, row)

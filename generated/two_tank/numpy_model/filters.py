@@ -523,9 +523,7 @@ class FilterBank:
             self.filters[f].recoveries += 1
         w1 = self._normalised(stage1)[1]
         counts = self._offspring(w1, np.ones(count, bool))
-        self.x = np.repeat(mu, counts, axis=1)
-        for f, pf in enumerate(self.filters):
-            pf.x = self.x[:, f * n:(f + 1) * n]
+        self.x = np.repeat(mu, counts, axis=1)  # the filters' views follow in _finish
         self._perturb(self.x)
         yhat = model.observe(self.x, u, self.theta)
         back = np.repeat(first.reshape(-1), counts).reshape(count, n)
@@ -574,6 +572,7 @@ class FilterBank:
             self.packed = False
             results = []
             for f, pf in enumerate(self.filters):
+                self._view(f, pf)  # its particles of this step
                 pf.logw = logw[f].copy()
                 results.append(pf._finish(pf.logw, y_mean[f], y_std[f], bool(recovered[f])))
             return results
