@@ -241,7 +241,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     progress = _Progress()
     try:
         options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed,
-                                   rank=args.rank, refine=args.refine)
+                                   identify=args.identify, rank=args.rank, refine=args.refine)
         r = api.diagnose(args.model, data=args.data, scenario=args.scenario, seed=args.seed, process_noise=process,
                          measurement_noise=measurement, steps=args.steps, generated=args.generated,
                          options=options, progress=progress)
@@ -385,12 +385,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=None, help="with --scenario: samples to simulate")
     p.add_argument("--generated", metavar="DIR",
                    help="use the package bgc compile wrote there (default: generate one for this run)")
+    p.add_argument("--identify", choices=["kalman", "filter"], default="kalman",
+                   help="kalman (default): weigh the hypotheses and size the fault with the magnitude held static, "
+                        "by cubature Kalman filters on a grid of onsets and magnitudes; filter: by the particle "
+                        "filters' own magnitude state (the thesis's method)")
     p.add_argument("--rank", action="store_true",
-                   help="weigh the surviving hypotheses by their evidence with the fault magnitude held static, "
-                        "on a grid (slower; separates slow drifts better on some plants)")
+                   help="with --identify filter: weigh the surviving hypotheses by particle filters with the fault "
+                        "magnitude held static, on a grid")
     p.add_argument("--refine", action="store_true",
-                   help="estimate the fault magnitude by marginal likelihood on a grid "
-                        "(slower; a check of the filter's estimate)")
+                   help="estimate the fault magnitude by the particle filters' marginal likelihood on a grid "
+                        "(slower; a check of the estimate for strongly nonlinear plants)")
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-diagnosis)")
     p.set_defaults(run=cmd_diagnose)
 

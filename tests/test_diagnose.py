@@ -68,7 +68,9 @@ def test_circuit_resistor_fault_at_noise_levels_other_than_the_models():
     d = run("circuit", "R2:abrupt:0.6@5", seed=2, process_noise=0.01, measurement_noise=0.01)
     assert d.candidates[0] == "R2_abrupt" and d.verdict == "isolated"
     e = d.estimate
-    assert abs(e.value - 0.6) < 0.1 * 0.6 and e.low <= 0.6 <= e.high
+    # one run: the truth within 4 of its stds (an honest std fails this once in 16000 runs; the 95 %
+    # interval's coverage over seeds is the test below)
+    assert abs(e.value - 0.6) < 0.1 * 0.6 and abs(e.value - 0.6) < 4 * e.std, e
 
 
 @pytest.mark.slow
@@ -119,7 +121,10 @@ def test_bgc_diagnose_writes_a_report_and_plots(tmp_path):
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"] == "isolated" and report["diagnosis"] == ["R2_abrupt"]
     best = next(h for h in report["hypotheses"] if h["model"] == "R2_abrupt")
-    assert best["dropped"] is None and best["estimate"]["covers_truth"] is True
+    e = best["estimate"]
+    assert best["dropped"] is None and isinstance(e["covers_truth"], bool) and e["method"] == "kalman"
+    assert abs(e["value"] - 0.6) < 4 * e["std"] and e["interval"][0] < e["value"] < e["interval"][1]
+    assert best["filter_estimate"]["std"] > e["std"]  # the particle filters' magnitude with its random walk
     assert all(h["dropped"]["why"] for h in report["hypotheses"] if h["model"] != "R2_abrupt")
     md = (out / "report.md").read_text()
     assert "**Fault isolated: R2_abrupt.**" in md and "## Fault-model filters" in md
@@ -338,18 +343,32 @@ def test_a_drift_found_long_after_it_began_gets_its_onset_grid_extended_back():
     than 64 samples later (a drift of the sweep, bgc's seed 473362393): the
     first onset grid (64 samples back from the alarm) misses the onset, the
     onset posterior piles up at its earliest onset, and the grid is extended
-    back; the drift is isolated with its onset within 12 samples."""
+    back (by the particle filters with ``identify="filter"``, by the Kalman
+    filters of the static posterior by default); the drift is isolated with
+    its onset within 12 samples."""
     d = run("circuit", "R3:incipient:0.0308906@5.3", seed=473362393)
     assert d.detection.step - 106 > 64
     assert d.candidates[0] == "R3_incipient"
     h = d.best
-    assert min(h.onsets) < d.detection.step - 64
+    assert min(h.static.onsets) < d.detection.step - 64
+    assert abs(h.onset - 106) <= 12 and d.onset == h.onset, h.onset
+    one = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R3:incipient:0.0308906@5.3", seed=473362393,
+                       generated=GENERATED, options=DiagnosisOptions(seed=473362393, workers=1)).diagnosis
+    for x, y in zip(one.hypotheses, d.hypotheses):  # the Kalman filters have no random numbers
+        assert (x.static is None) == (y.static is None) and x.estimate == y.estimate
+        assert x.static is None or x.static.onsets == y.static.onsets and x.static.log_evidence == y.static.log_evidence
+    f = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R3:incipient:0.0308906@5.3", seed=473362393,
+                     generated=GENERATED, options=DiagnosisOptions(seed=473362393, identify="filter",
+                                                               spacing=4)).diagnosis
+    h = f.best
+    assert f.candidates[0] == "R3_incipient" and min(h.onsets) < f.detection.step - 64
     assert abs(h.start - 106) <= 12, h.start
     # each hypothesis's batches of onsets depend on its own results only: on one process (the
     # batches one after another) the same onsets are tried and give the same numbers
     one = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R3:incipient:0.0308906@5.3", seed=473362393,
-                       generated=GENERATED, options=DiagnosisOptions(seed=473362393, workers=1)).diagnosis
-    assert [(x.name, x.onsets) for x in one.hypotheses] == [(x.name, x.onsets) for x in d.hypotheses]
-    for x, y in zip(one.hypotheses, d.hypotheses):
+                       generated=GENERATED, options=DiagnosisOptions(seed=473362393, workers=1, identify="filter",
+                                                                 spacing=4)).diagnosis
+    assert [(x.name, x.onsets) for x in one.hypotheses] == [(x.name, x.onsets) for x in f.hypotheses]
+    for x, y in zip(one.hypotheses, f.hypotheses):
         assert x.log_evidence == y.log_evidence and x.onset_posterior == y.onset_posterior
         assert np.array_equal(x.magnitude, y.magnitude, equal_nan=True)

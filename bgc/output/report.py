@@ -33,6 +33,7 @@ def report_data(r) -> dict[str, Any]:
                      "parameter": r.injected.parameter, "kind": r.injected.kind,
                      "magnitude": _num(r.injected.magnitude), "time": _num(r.injected.time)}},
         "settings": {"filter": d.options.method, "particles": d.options.particles, "seed": d.options.seed,
+                     "identify": d.options.identify,
                      "false_alarm_per_run": d.options.false_alarm, "rejection": d.options.rejection,
                      "windows": list(d.options.windows), "bayes_factor": d.options.bayes_factor,
                      "interval": d.options.interval, "threshold": _num(d.threshold),
@@ -56,13 +57,16 @@ def report_data(r) -> dict[str, Any]:
         e = h.estimate
         out["hypotheses"].append({
             "model": h.name, "parameter": h.parameter, "kind": h.kind, "signatures": list(h.signatures),
-            "onset": _num(_t(d, h.start)), "posterior": _num(h.posterior), "log_evidence": _num(h.log_evidence),
-            "static_log_evidence": _num(h.static_log_evidence),
+            "onset": _num(_t(d, h.onset)), "filter_onset": _num(_t(d, h.start)), "posterior": _num(h.posterior),
+            "log_evidence": _num(h.log_evidence), "static_log_evidence": _num(h.static_log_evidence),
             "dropped": None if h.dropped is None else {"time": _num(_t(d, h.dropped)), "why": h.reason},
             "estimate": {"magnitude": e.magnitude, "value": _num(e.value), "std": _num(e.std),
                          "interval": [_num(e.low), _num(e.high)], "level": e.level,
                          "parameter_value": _num(e.parameter_value), "nominal": _num(e.nominal),
-                         "truth": _num(e.truth), "covers_truth": e.covers, "method": e.method}})
+                         "truth": _num(e.truth), "covers_truth": e.covers, "method": e.method},
+            "filter_estimate": None if h.filter_estimate is None else {
+                "value": _num(h.filter_estimate.value), "std": _num(h.filter_estimate.std),
+                "interval": [_num(h.filter_estimate.low), _num(h.filter_estimate.high)]}})
     return out
 
 
@@ -79,8 +83,11 @@ def report_markdown(r) -> str:
     noise = ("the model's noise levels" if r.noise == (None, None) else
              f"relative noise levels process {r.noise[0] if r.noise[0] is not None else 'per model'}, "
              f"measurement {r.noise[1] if r.noise[1] is not None else 'per model'}")
+    how = {"kalman": "magnitudes and hypotheses weighed with the magnitude held static (cubature Kalman filters "
+                     "on a grid of onsets and magnitudes)",
+           "filter": "magnitudes from the particle filters' own magnitude state"}[d.options.identify]
     lines += [f"Filter: {d.options.method.upper()}, {d.options.particles} particles, seed {d.options.seed}; "
-              f"{noise}.", ""]
+              f"{noise}; {how}.", ""]
     verdict = {"no fault": "**No fault detected.**",
                "isolated": f"**Fault isolated: {d.candidates[0] if d.candidates else ''}.**",
                "ambiguous": "**Fault detected; the data cannot separate: " + ", ".join(d.candidates) + ".**",
@@ -115,7 +122,7 @@ def report_markdown(r) -> str:
         for h in sorted(d.hypotheses, key=lambda h: -h.posterior):
             e = h.estimate
             truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
-            lines.append(f"| {h.name} | {_t(d, h.start):g} | {h.posterior:.3g} | {e.magnitude} {e.value:.4g}{truth} | "
+            lines.append(f"| {h.name} | {_t(d, h.onset):g} | {h.posterior:.3g} | {e.magnitude} {e.value:.4g}{truth} | "
                          f"[{e.low:.4g}, {e.high:.4g}] | "
                          f"{'-' if h.dropped is None else f't = {_t(d, h.dropped):g}'} | {printable(h.reason) or '-'} |")
         best = d.best
@@ -132,8 +139,14 @@ def report_markdown(r) -> str:
                              f"{'inside' if e.covers else 'outside'} the interval")
                 lines.append(f"- {name}: {what}: {e.magnitude} {e.value:.4g} +- {e.std:.2g}, "
                              f"{100 * e.level:.0f} % interval [{e.low:.4g}, {e.high:.4g}], {e.parameter} at the "
-                             f"end {e.parameter_value:.4g}, onset t = {_t(d, h.start):g}{truth}"
-                             + (" (grid posterior of the marginal likelihood)" if e.method == "grid" else ""))
+                             f"end {e.parameter_value:.4g}, onset t = {_t(d, h.onset):g}{truth}"
+                             + {"grid": " (grid posterior of the particle filters' marginal likelihood)",
+                                "kalman": " (with the magnitude held static: cubature Kalman filters on a grid)",
+                                "filter": ""}[e.method])
+                f = h.filter_estimate
+                if f is not None:
+                    lines.append(f"  - the particle filters' own estimate (a magnitude with a random walk): "
+                                 f"{f.value:.4g} +- {f.std:.2g}, [{f.low:.4g}, {f.high:.4g}]")
     if d.notes:
         lines += ["", "## Notes", ""] + [f"- {printable(n)}" for n in d.notes]
     lines += ["", f"Diagnosis computed in {d.seconds:.2f} s.", ""]

@@ -32,21 +32,33 @@ with the onset, not the detection time, as the hand-over:
    every onset has been rejected runs on to the end all the same: at low
    noise the right one sometimes is, and its estimate over the whole run is
    still the best there is, reported with the verdict ``unexplained``.)
-6. **Weigh** the hypotheses by the probability the data give each: the
+6. **Weigh and identify with the magnitude held static** (``identify =
+   "kalman"``, the default): each hypothesis its filters keep gets the
+   posterior of its onset and magnitude under the fault model as the thesis
+   states it (a constant bias, or a constant slope, from an onset on), from
+   cubature Kalman filters run over a grid of onsets and magnitudes
+   (:mod:`bgc.runtime.kalman`; exact on plants linear in their states once
+   the fault is fixed, a close approximation on mildly nonlinear ones). Its
+   evidence, the likelihood integrated over the magnitude's prior and the
+   onsets, times the candidate's prior, weighs the hypotheses; its
+   posterior mean and central interval are the estimate. These jobs start as
+   soon as a hypothesis's filters are done. With ``identify = "filter"`` (the
+   thesis's method) the weights are the filters' own evidence instead: the
    product of each filter's one-step predictive densities (their Gaussian
    approximation, mean and std of the predicted measurement), over a common
    span (the nominal filter's densities before a later onset), summed over
    the onsets tried, each weighed by the samples it stands for (a stopped
-   onset counts zero), times the candidate's prior. A survivor less probable
+   onset counts zero), times the candidate's prior; and the estimate is the
+   filters' magnitude state (below). Either way a survivor less probable
    than the best by a Bayes factor above ``bayes_factor`` is dropped too. The
    survivors are the diagnosis; when several survive, they form an ambiguity
    group, ranked by probability, each with its estimate.
-7. **Rank** (``rank``, off by default): when several survive, weigh them
-   anew by the evidence of their models with the magnitude held static
-   (integrated over a grid of magnitudes), and drop those the Bayes factor
-   rules out.
+7. **Rank** (``rank``, with ``identify = "filter"`` only, off by default):
+   when several survive, weigh them anew by the evidence of their models with
+   the magnitude held static from particle filters on a grid, and drop those
+   the Bayes factor rules out.
 8. **Refine** (``refine``, off by default): each survivor's magnitude by
-   marginal likelihood on a grid (:mod:`bgc.runtime.identify`).
+   the particle filters' marginal likelihood on a grid (:mod:`bgc.runtime.identify`).
 
 The onset is a parameter too: each hypothesis is tried from the detector's
 change point and, for a drift, from a grid of earlier steps (``spacing``
@@ -58,8 +70,9 @@ it), and the onsets are weighed like the hypotheses, each by the span of
 time it stands for (its prior: uniform in time); a slow drift is detected
 long after it began, and starting its filter late biases the slope.
 
-**Identification.** The fault magnitude (a bias for an abrupt fault, a slope
-for an incipient one) is a state of the fault model, with a small random walk
+**The filters' identification.** In the fault-model filters the fault
+magnitude (a bias for an abrupt fault, a slope for an incipient one) is a
+state of the fault model, with a small random walk
 (per step std: a fraction of |theta| for a bias, of the prior's width for a
 slope; :mod:`bgc.kinds`). After every step its particles get Liu and West's
 (2001) kernel move with shrinkage ``shrinkage`` (a = 0.98, a discount of
@@ -90,9 +103,10 @@ import numpy as np
 from ..errors import TrackingError
 from ..ir import FaultSignatures
 from ..kinds import fault_kind
-from . import identify
+from . import identify, kalman
 from .detect import Detection, Detector, DetectorBank, DetectorOptions, monte_carlo_share
 from .identify import GridOptions
+from .kalman import EDGE, EXTEND, KalmanOptions, StaticPosterior, onset_widths
 from .isolate import OpenLoop, Symbol, hypotheses, observed_symbols
 from .runs import Run
 from .track import check_particles, run_arrays
@@ -106,9 +120,12 @@ class DiagnosisOptions:
     ``search``: how far before the detection a drift's onset is looked for
     first, and by how much further back each time its onset posterior piles
     up at the earliest onset tried, up to ``history`` (the nominal clouds are
-    kept that far back); ``spacing``: steps between the onsets a drift is
-    tried from near the alarm (further back, 1/16 of the distance to it; the
-    detector's estimate is always one); ``near``: samples
+    kept that far back); ``spacing``: steps between the onsets a drift's
+    particle filters are tried from near the alarm (further back, 1/16 of the
+    distance to it; the detector's estimate is always one): 8, since with
+    ``identify = "kalman"`` the Kalman filters search the onset on their own
+    grid (``kalman.spacing``, 4) and the particle filters only need to follow
+    the data (with ``identify = "filter"``, 4 places the onset better); ``near``: samples
     before the detector's change point a step change is tried from; ``symbol_steps``: open-loop
     steps read for the symbols after the detection (a slope needs samples
     after the magnitude is seen); ``interval``: probability of the reported interval;
@@ -118,7 +135,10 @@ class DiagnosisOptions:
     ``bayes_factor``: a surviving hypothesis this many times less probable
     than the best is dropped (100: "decisive" on Jeffreys' scale);
     ``workers``: parallel processes for the hypothesis filters (1: in this
-    process). ``rank``: weigh the survivors anew by the evidence of their
+    process). ``identify``: ``kalman`` (the hypotheses weighed and the
+    magnitude sized with the magnitude held static, by cubature Kalman filters
+    on a grid: ``kalman`` holds their options) or ``filter`` (by the particle
+    filters' magnitude state and evidence: the thesis's method). ``rank``: weigh the survivors anew by the evidence of their
     models with the magnitude held static (on the grid ``rank_grid``; see
     :func:`_ranked`): off by default; it took 1.1 to 1.7 times as long on
     the sweep's drifts and was right about as often (docs/diagnosis.md,
@@ -136,13 +156,15 @@ class DiagnosisOptions:
     windows: tuple[int, ...] = (1, 8, 32)
     history: int = 256
     search: int = 64
-    spacing: int = 4
+    spacing: int = 8
     near: int = 4
     symbol_steps: int = 32
     interval: float = 0.95
     bayes_factor: float = 100.0
     shrinkage: float = 0.98
     workers: int = 2
+    identify: str = "kalman"
+    kalman: KalmanOptions = KalmanOptions()
     rank: bool = False
     refine: bool = False
     grid: GridOptions = GridOptions()
@@ -211,6 +233,13 @@ class Hypothesis:
     estimate: Estimate
     seconds: float
     static_log_evidence: float | None = None
+    static: StaticPosterior | None = None
+    filter_estimate: Estimate | None = None
+
+    @property
+    def onset(self) -> int:
+        """The most probable onset: the static posterior's when there is one, else the filters'."""
+        return self.static.onset if self.static is not None and math.isfinite(self.static.log_evidence) else self.start
 
 
 @dataclass(frozen=True, slots=True)
@@ -282,6 +311,8 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     check_particles(options.particles, package, "nominal")
     if options.method not in ("gpf", "apf"):
         raise TrackingError(f"unknown filter {options.method!r}", None, "use gpf or apf")
+    if options.identify not in IDENTIFY:
+        raise TrackingError(f"unknown identification {options.identify!r}", None, f"use {' or '.join(IDENTIFY)}")
     ys, us = run_arrays(run, package, "nominal")
     T, n_y = ys.shape
     outputs = tuple(nominal.OUTPUTS)
@@ -328,6 +359,10 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     grid = [k for k in reach if k >= detection.step - options.search or k == detection.onset]
     near = {k for k in range(detection.onset - options.near, detection.onset + 3) if 0 <= k <= detection.step}
     onsets = {True: grid, False: sorted(near)}
+    # the Kalman filters' onsets: a drift's on a grid of their own (they are cheaper than particle filters)
+    kalman_reach = drift_onsets(detection.step, detection.onset, options.kalman.spacing, options.history)
+    kalman_onsets = {True: [k for k in kalman_reach if k >= detection.step - options.search or k == detection.onset],
+                     False: sorted(near)}
     # 3. qualitative isolation on the open-loop nominal prediction from the detector's onset
     say("reading the symbols of the deviating sensors")
     onset = detection.onset
@@ -373,7 +408,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         # its grid is extended back by `search` steps (up to `history` before the alarm)
         tried = starts_of[name]
         more = [k for k in reach if tried[0] - options.search <= k < tried[0]]
-        if not (drifts[name] and more):
+        if not (drifts[name] and more) or options.identify == "kalman":  # the Kalman filters reach back instead
             return []
         w, log_evidence = _onset_weights(tried, [results[(name, s)]["evidence"] for s in tried])
         if not (math.isfinite(log_evidence) and w[:EDGE].sum() >= EXTEND):
@@ -382,20 +417,12 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         say(f"looking for earlier onsets of {name}")
         return more
 
-    _run_batches({name: starts_of[name] for name in names}, job, arrived, options.workers,
-                 lambda starts: sum(T - s for s in starts))  # filter steps, if none stops
-    first = min(min(s) for s in starts_of.values())
-    for o in results.values():  # the common span starts at `first`
-        o["evidence"] -= float(nominal_density[:first].sum())
-    # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
-    hyps = []
-    for name in names:
+    def assemble(name: str) -> dict:
+        """Hypothesis ``name`` from its filters' results: its most probable onset, whether it is
+        dropped and why, its onset posterior, evidence and estimate."""
         module = package.MODELS[name]
         starts = starts_of[name]
-        evidence = []
-        for start in starts:  # stopped or pruned onsets count -inf
-            evidence.append(results[(name, start)]["evidence"])
-        evidence = np.array(evidence)
+        evidence = np.array([results[(name, start)]["evidence"] for start in starts])  # stopped, pruned: -inf
         dropped_at, reason = None, ""
         if np.isfinite(evidence).any():
             start = starts[int(np.argmax(evidence))]
@@ -415,18 +442,67 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         out = results[(name, start)]
         zh = (ys[start:] - out["y_mean"]) / out["y_std"]
         onset_weights, log_evidence = _onset_weights(starts, evidence)
-        hyps.append(dict(name=name, parameter=module.FAULT["parameter"], kind=module.FAULT["kind"],
-                         signatures=tuple(models[name]), start=start, onsets=tuple(starts),
-                         onset_posterior=tuple(float(w) for w in onset_weights),
-                         y_mean=out["y_mean"], y_std=out["y_std"], z=zh,
-                         x_mean=out["mean"][:, :len(nominal.STATES)], x_std=out["std"][:, :len(nominal.STATES)],
-                         magnitude=out["magnitude"],
-                         magnitude_band=out["band"], dropped=dropped_at, reason=reason,
-                         log_evidence=log_evidence, seconds=sum({results[(name, s)]["from"]: results[(name, s)]["seconds"]
-                                          for s in starts}.values()),
-                         estimate=_estimate(module, out, run, options.interval,
-                                            [(w, results[(name, s)]) for w, s in zip(onset_weights, starts)])))
-    weights = np.array([math.log(max(priors.get(h["parameter"], 0.01), 1e-300)) + h["log_evidence"] for h in hyps])
+        return dict(name=name, parameter=module.FAULT["parameter"], kind=module.FAULT["kind"],
+                    signatures=tuple(models[name]), start=start, onsets=tuple(starts),
+                    onset_posterior=tuple(float(w) for w in onset_weights),
+                    y_mean=out["y_mean"], y_std=out["y_std"], z=zh,
+                    x_mean=out["mean"][:, :len(nominal.STATES)], x_std=out["std"][:, :len(nominal.STATES)],
+                    magnitude=out["magnitude"], magnitude_band=out["band"], dropped=dropped_at, reason=reason,
+                    log_evidence=log_evidence,
+                    seconds=sum({results[(name, s)]["from"]: results[(name, s)]["seconds"] for s in starts}.values()),
+                    estimate=_estimate(module, out, run, options.interval,
+                                       [(w, results[(name, s)]) for w, s in zip(onset_weights, starts)]))
+
+    # 6. (identify="kalman") each hypothesis its filters keep, as soon as they are done: its onset and
+    # magnitude with the magnitude held static, by cubature Kalman filters on a grid, from the nominal
+    # cubature Kalman filter's state at each onset (computed while the first filters run)
+    posteriors: dict[str, StaticPosterior] = {}
+    track: list = []
+
+    def idle() -> None:
+        if options.identify == "kalman":
+            track.append(kalman.nominal_track(nominal, ys, us, max(max(s) for s in kalman_onsets.values())))
+
+    def done(name: str):
+        if options.identify != "kalman":
+            return None
+        h = assemble(name)
+        if h["dropped"] is not None:
+            return None
+        tried = kalman_onsets[drifts[name]]
+        earlier = _earlier(kalman_reach, tried[0], options.search) if drifts[name] else ()
+        return _static_job, (package.__name__, name, ys, us, track[0], tried,
+                             (h["estimate"].low, h["estimate"].high), h["start"], options.interval,
+                             options.kalman, earlier)
+
+    def landed(name: str, posterior: StaticPosterior) -> None:
+        posteriors[name] = posterior
+
+    _run_batches({name: starts_of[name] for name in names}, job, arrived, options.workers,
+                 lambda starts: sum(T - s for s in starts), idle, done, landed)  # cost: filter steps, if none stops
+    first = min(min(s) for s in starts_of.values())
+    for o in results.values():  # the common span starts at `first`
+        o["evidence"] -= float(nominal_density[:first].sum())
+    # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
+    hyps = [assemble(name) for name in names]
+    evidence_of = {h["name"]: h["log_evidence"] for h in hyps}  # the filters' (a magnitude with a random walk)
+    static = False
+    if posteriors:  # 6. the survivors weighed with their magnitudes held static
+        if any(math.isfinite(p.log_evidence) for p in posteriors.values()):
+            static = True
+            for h in hyps:
+                p = posteriors.get(h["name"])
+                h["static"] = p
+                h["static_log_evidence"] = None if p is None else p.log_evidence
+                evidence_of[h["name"]] = -math.inf if p is None else p.log_evidence
+                if p is not None and math.isfinite(p.log_evidence):
+                    h["filter_estimate"] = h["estimate"]
+                    h["estimate"] = static_estimate(h["estimate"], p)
+        else:
+            notes.append("the cubature Kalman filters found no finite likelihood: the particle filters' evidence "
+                         "and estimates are reported")
+    weights = np.array([math.log(max(priors.get(h["parameter"], 0.01), 1e-300)) + evidence_of[h["name"]]
+                        for h in hyps])
     if np.isfinite(weights).any():
         weights = np.exp(weights - weights.max())
         weights = weights / weights.sum()
@@ -436,10 +512,11 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     for h, w in zip(hyps, weights):  # 6. decisively less probable than the best: dropped as well
         if h["dropped"] is None and w < top / options.bayes_factor:
             h["dropped"] = T - 1
-            h["reason"] = (f"the data favour another hypothesis by a Bayes factor above {options.bayes_factor:g} "
+            h["reason"] = (("with the magnitudes held static, " if static else "")
+                           + f"the data favour another hypothesis by a Bayes factor above {options.bayes_factor:g} "
                            f"(posterior {w:.2g})")
     grids: dict[str, identify.GridPosterior] = {}
-    if options.rank and sum(h["dropped"] is None for h in hyps) > 1:  # 7. the survivors by their static evidence
+    if options.rank and not static and sum(h["dropped"] is None for h in hyps) > 1:  # 7. the survivors by their static evidence
         say(f"weighing {', '.join(h['name'] for h in hyps if h['dropped'] is None)} with their magnitudes held "
             f"static, on a grid")
         weights = _ranked(hyps, weights, priors, package, clouds, ys, us, options, grids)
@@ -459,11 +536,47 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         reuse = grids if options.rank_grid == options.grid else {}  # the ranking's grids, when as fine
         hypothesis_list = tuple(_refined(h, reuse.get(h.name), package, clouds, ys, us, options)
                                 if h.name in candidates else h for h in hypothesis_list)
-    best_onset = next((h.start for h in hypothesis_list if candidates and h.name == candidates[0]), onset)
+    best_onset = next((h.onset for h in hypothesis_list if candidates and h.name == candidates[0]), onset)
     say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
     return Diagnosis(verdict=verdict, detection=detection, onset=best_onset, symbols=seen, refuted=refuted,
                      hypotheses=hypothesis_list, candidates=candidates, seconds=time.perf_counter() - started,
                      notes=tuple(notes), **common)
+
+
+#: How a hypothesis's magnitude is identified and the hypotheses weighed:
+#: ``kalman``, with the magnitude held static, by cubature Kalman filters on a
+#: grid of onsets and magnitudes (:mod:`bgc.runtime.kalman`); ``filter``, by
+#: the particle filters' own magnitude state and evidence.
+IDENTIFY = ("kalman", "filter")
+
+
+def _earlier(reach: list[int], first: int, search: int) -> tuple[tuple[int, ...], ...]:
+    """The onsets of ``reach`` before ``first``, in batches of ``search``
+    samples, the nearest batch first."""
+    batches, edge = [], first
+    while any(k < edge for k in reach):
+        batch = tuple(k for k in reach if edge - search <= k < edge)
+        if batch:
+            batches.append(batch)
+        edge -= search
+    return tuple(batches)
+
+
+def _static_job(job) -> StaticPosterior:
+    """:func:`bgc.runtime.kalman.static_posterior` of one hypothesis (in a worker process)."""
+    import sys
+
+    package_name, name, ys, us, track, onsets, hint, hint_onset, level, options, earlier = job
+    return kalman.static_posterior(sys.modules[package_name].MODELS[name], ys, us, track, onsets, hint,
+                                   hint_onset, level, options, earlier)
+
+
+def static_estimate(e: Estimate, p: StaticPosterior) -> Estimate:
+    """``e`` with the static posterior's mean, std and interval of the
+    magnitude, and the parameter's value at the last step (nominal plus the
+    posterior mean of its change)."""
+    return dataclasses.replace(e, value=p.mean, std=p.std, low=p.low, high=p.high,
+                               parameter_value=e.nominal + p.change, method="kalman")
 
 
 #: A drift's onsets are tried every ``spacing`` samples back from the alarm,
@@ -486,27 +599,6 @@ def drift_onsets(step: int, change_point: int, spacing: int, history: int) -> li
         out.add(step - d)
         d += max(spacing, int(d * ONSET_GROWTH))
     return sorted(out)
-
-
-def onset_widths(onsets) -> np.ndarray:
-    """How many samples each onset of a sorted grid stands for: the span
-    between the midpoints to its neighbours (1 for consecutive samples). The
-    onset's prior is uniform in time, so an onset's prior weight is its width:
-    a hypothesis's evidence is the sum over its onsets of width x likelihood,
-    up to a factor (the length of the window the onset may lie in) common to
-    every hypothesis."""
-    s = np.asarray(onsets, dtype=float)
-    if len(s) == 1:
-        return np.ones(1)
-    mid = (s[1:] + s[:-1]) / 2.0
-    edges = np.concatenate([[s[0] - (s[1] - s[0]) / 2.0], mid, [s[-1] + (s[-1] - s[-2]) / 2.0]])
-    return np.diff(edges)
-
-
-#: A drift's onset grid is extended back when the onset posterior puts at
-#: least ``EXTEND`` on its ``EDGE`` earliest onsets.
-EXTEND = 0.05
-EDGE = 2
 
 
 def _hypothesis_job(name: str, starts: list[int], package, clouds: dict, ys, us, nominal_density, outputs,
@@ -850,39 +942,60 @@ def _row_dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.matmul(a[:, None, :], b[:, :, None])[:, 0, 0]
 
 
-def _run_batches(batches: dict[str, list[int]], job, arrived, workers: int, cost) -> None:
+def _run_batches(batches: dict[str, list[int]], job, arrived, workers: int, cost, idle=None, done=None,
+                 landed=None) -> None:
     """Run each hypothesis's first batch of onsets (``batches``: name ->
     onsets), and each further batch ``arrived(name, onsets, results, trace)``
-    asks for once the one before it is back, until none is asked for. With
-    ``workers`` > 1 the batches run on that many forked processes, and a
-    hypothesis's next batch starts as soon as its own last one is back and a
-    worker is free, before the first batches still waiting (it lies on the
-    longest chain of work), while other hypotheses' batches still run; the
-    first batches start longest first (``cost(onsets)``: a batch's work). A
-    hypothesis's batches depend on its own results only, so the results do
-    not depend on ``workers``."""
+    asks for once the one before it is back, until none is asked for; then
+    the follow-up job ``done(name)`` gives ((function, argument), or None),
+    whose result goes to ``landed(name, result)``. ``idle()`` runs here once
+    the first batches are out. With ``workers`` > 1 the jobs run on that many
+    forked processes, and a hypothesis's next job starts as soon as its own
+    last one is back and a worker is free, before the first batches still
+    waiting (it lies on the longest chain of work), while other hypotheses'
+    batches still run; the first batches start longest first (``cost(onsets)``:
+    a batch's work). A hypothesis's jobs depend on its own results only, so
+    the results do not depend on ``workers``."""
+    idle = idle or (lambda: None)
+    done = done or (lambda name: None)
     order = sorted(batches, key=lambda name: -cost(batches[name]))
     if workers <= 1 or len(batches) <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+        idle()
         queue = [(name, batches[name]) for name in order]
         while queue:
             name, starts = queue.pop(0)
             more = arrived(name, starts, *_run_hypothesis(job(name, starts)))
             if more:
                 queue.append((name, more))
+                continue
+            follow = done(name)
+            if follow is not None:
+                landed(name, follow[0](follow[1]))
         return
-    waiting = [(name, batches[name]) for name in order]  # batches not submitted yet, next first
+    waiting = [(name, (_run_hypothesis, job(name, batches[name])), batches[name]) for name in order]
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork")) as pool:
         running: dict = {}
+        first = True
         while waiting or running:
-            while waiting and len(running) < workers:  # one batch per worker: a later batch can go first
-                name, starts = waiting.pop(0)
-                running[pool.submit(_run_hypothesis, job(name, starts))] = (name, starts)
-            done, _ = wait(running, return_when=FIRST_COMPLETED)
-            for future in sorted(done, key=lambda f: running[f][0]):
+            while waiting and len(running) < workers:  # one job per worker: a later job can go first
+                name, (fn, arg), starts = waiting.pop(0)
+                running[pool.submit(fn, arg)] = (name, starts)
+            if first:
+                idle()
+                first = False
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in sorted(finished, key=lambda f: running[f][0]):
                 name, starts = running.pop(future)
+                if starts is None:  # a follow-up
+                    landed(name, future.result())
+                    continue
                 more = arrived(name, starts, *future.result())
                 if more:  # on the longest path: before the first batches still waiting
-                    waiting.insert(0, (name, more))
+                    waiting.insert(0, (name, (_run_hypothesis, job(name, more)), more))
+                    continue
+                follow = done(name)
+                if follow is not None:
+                    waiting.insert(0, (name, follow, None))
 
 
 def _run_all(jobs: list, workers: int, fn=None) -> list:

@@ -1,0 +1,556 @@
+"""Static fault posteriors by a bank of cubature Kalman filters.
+
+A fault hypothesis with its onset ``tau`` and magnitude ``c`` (a bias, or a
+slope) held fixed is a state-space model with additive Gaussian noise: the
+generated model's noise-free step (RK4) plus process noise, and its noise-free
+measurement plus measurement noise. The likelihood of the data under it,
+p(y | hypothesis, tau, c), is what the Bayes classifier and the posterior of
+the magnitude need. A particle filter estimates it without bias but with a
+Monte Carlo error that needs thousands of particles per (tau, c) to be small
+(the pseudo-marginal reference of ``bench/magnitude_reference.py``). A Kalman
+filter gives it exactly, with no random numbers, when the plant is linear in
+its states once tau and c are fixed (the circuit and the two tanks are).
+
+The cubature Kalman filter (Arasaratnam and Haykin 2009) moves 2 n points
+``m +- sqrt(n) L e_i`` (``P = L L'``) through the generated ``predict`` and
+``observe``, so it needs no derivatives. On a linear plant its means,
+covariances and predictive densities are exactly the Kalman filter's; on a
+mildly nonlinear one (the RO plant: the conductivity's equation and the
+permeate flow's measurement) they are a close approximation, which the tests
+measure against the particle-filter reference (the posterior means of the
+R_pipe slope and bias agree within the reference's own Monte Carlo error).
+
+One bank runs every cell (tau, c) of a grid at once: arrays of cells x
+points, one call of the model per step for all of them. Before its onset a
+cell is the nominal model (its magnitude is held at 0); all cells start from
+the nominal filter's state at the earliest onset, so every cell's likelihood
+covers the same data, from step 0.
+
+The grid is adaptive in the magnitude. For a drift it is laid out in the
+change the parameter reaches by the end of the run, ``c (T - tau) dt``,
+which the data pin down much better than the slope (an earlier onset with a
+smaller slope reaches the same change): one grid of changes serves every
+onset. It starts on the particle filters' interval, widened; it is moved
+while the posterior leans on an end and narrowed while its spacing is coarse
+against the posterior's std. The evidence of the hypothesis, p(y |
+hypothesis), is the sum over the onsets (each weighed by the span of time it
+stands for: a uniform prior in time) of the likelihood integrated over the
+magnitude's uniform prior (trapezoid rule); it covers the data from step 0,
+so hypotheses compare like for like.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import ModuleType
+
+import numpy as np
+
+LOG_2PI = math.log(2.0 * math.pi)
+
+
+@dataclass(frozen=True, slots=True)
+class KalmanOptions:
+    """``spacing``: samples between a drift's onsets near the alarm (further
+    back, 1/16 of the distance to it); ``first_points``, ``points``:
+    magnitudes on the first pass of the grid
+    and on the others; ``keep``: after a pass, the onsets holding less than
+    this share of the posterior are left out of the next; ``widen``: the first pass
+    spans the hint interval widened by this fraction of its width on each
+    side; ``passes``: at most this many passes. After a pass whose posterior
+    peaks at an end of the grid, the grid reaches its span further that way;
+    after one whose ends hold more than ``edge`` of the peak density, or
+    whose spacing is coarse (the posterior's std under ``resolution``
+    spacings), it spans 4 stds either side of the posterior's mean; else the
+    pass is the last."""
+
+    spacing: int = 4
+    first_points: int = 9
+    points: int = 9
+    keep: float = 1e-4
+    widen: float = 0.5
+    passes: int = 3
+    resolution: float = 0.8
+    edge: float = 1e-3
+
+
+@dataclass(frozen=True, slots=True)
+class NominalTrack:
+    """The nominal model's cubature Kalman filter over a run: before step k,
+    the state's mean ``mean[k]`` and covariance ``cov[k]`` (given the data
+    of steps 0 .. k-1) and ``loglik[k]``, log p(y_0 .. y_(k-1))."""
+
+    mean: np.ndarray
+    cov: np.ndarray
+    loglik: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class StaticPosterior:
+    """The posterior of a hypothesis's onset and magnitude, with the magnitude
+    held static. ``onsets`` (steps) with their prior ``widths``; ``values``
+    (onsets x points): the magnitude of each cell; ``loglik``: log p(y |
+    onset, magnitude) over the whole run; ``log_evidence``: log p(y |
+    hypothesis) (the onset's prior up to the factor common to every
+    hypothesis); the magnitude's posterior ``mean``, ``std`` and central
+    interval (``low``, ``high``) of probability ``level``; ``change``: the
+    posterior mean of the parameter's change at the last step (the bias, or
+    slope x time since the onset); ``onset_posterior`` and the most probable
+    ``onset``; ``passes``: grids computed."""
+
+    name: str
+    onsets: tuple[int, ...]
+    widths: tuple[float, ...]
+    values: np.ndarray
+    loglik: np.ndarray
+    log_evidence: float
+    mean: float
+    std: float
+    low: float
+    high: float
+    level: float
+    change: float
+    onset: int
+    onset_posterior: tuple[float, ...]
+    passes: int
+
+
+@dataclass(frozen=True, slots=True)
+class BankResult:
+    """What :func:`run_bank` gives: per cell, ``loglik`` (C,), the filter's
+    ``mean`` (C, n) and ``cov`` (C, n, n) after the last step, and with
+    ``residuals`` the normalised residuals ``z`` (steps, C, n_y; NaN: not
+    measured) of each step's predicted measurement."""
+
+    loglik: np.ndarray
+    mean: np.ndarray
+    cov: np.ndarray
+    z: np.ndarray | None
+
+
+def _rows(model: ModuleType) -> tuple[list[int], list[int]]:
+    """The physical states' rows and the fault states' rows (a drifting
+    parameter, then the magnitude last) of a generated model."""
+    kinds = getattr(model, "STATE_KINDS", ("physical",) * len(model.STATES))
+    physical = [i for i, k in enumerate(kinds) if k == "physical"]
+    return physical, [i for i, k in enumerate(kinds) if k != "physical"]
+
+
+def cholesky(P: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factors of covariances stacked along the last axis (n,
+    n, C), one column of the factor at a time for all of them at once (the
+    matrices are small and many: NumPy's per-matrix routines cost more per
+    call than the arithmetic). A pivot that rounding made zero or negative is
+    set to a tiny multiple of its diagonal entry (the factor of a matrix
+    made positive definite by that much)."""
+    n = P.shape[0]
+    L = np.zeros(P.shape)
+    for j in range(n):
+        pivot = P[j, j] - np.einsum("kc,kc->c", L[j, :j], L[j, :j])
+        floor = 1e-12 * np.abs(P[j, j]) + 1e-300
+        L[j, j] = np.sqrt(np.maximum(pivot, floor))
+        if j + 1 < n:
+            L[j + 1:, j] = (P[j + 1:, j] - np.einsum("ikc,kc->ic", L[j + 1:, :j], L[j, :j])) / L[j, j]
+    return L
+
+
+def _solve_lower(L: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """L^-1 B for lower triangular L (n, n, C) and B (n, k, C), by forward substitution."""
+    out = np.empty(B.shape)
+    for i in range(L.shape[0]):
+        out[i] = (B[i] - np.einsum("jc,jkc->kc", L[i, :i], out[:i])) / L[i, i]
+    return out
+
+
+class _Filter:
+    """The cubature Kalman filter's arithmetic for a model: one step of a
+    stack of cells, each with its own mean, covariance and fault states (the
+    magnitude last), the cells along the last axis: means (n, C),
+    covariances (n, n, C), fault states (f, C)."""
+
+    def __init__(self, model: ModuleType):
+        self.model = model
+        self.physical, self.extra = _rows(model)
+        n = len(self.physical)
+        self.n, self.n_x = n, len(model.STATES)
+        self.Q = np.asarray(model.PROCESS_STD, dtype=float)[self.physical] ** 2
+        self.R = np.asarray(model.MEASUREMENT_STD, dtype=float) ** 2
+        self.buffer = np.empty((self.n_x, 0))
+
+    def _points(self, m: np.ndarray, P: np.ndarray, fixed: np.ndarray, flat: np.ndarray) -> np.ndarray:
+        """The cubature points m +- sqrt(n) L e_i of N(m, P) per cell (n, 2n,
+        C), also written into ``flat`` (n_x, 2n C) with the cells' fault states."""
+        n, C = self.n, m.shape[1]
+        L = cholesky(P) * math.sqrt(n)
+        S = np.empty((n, 2 * n, C))
+        np.add(m[:, None, :], L, out=S[:, :n])
+        np.subtract(m[:, None, :], L, out=S[:, n:])
+        X = flat.reshape(self.n_x, 2 * n, C)
+        X[self.physical] = S
+        for j, row in enumerate(self.extra):
+            X[row] = fixed[j]
+        return S
+
+    def step(self, y: np.ndarray, u: np.ndarray, m: np.ndarray, P: np.ndarray, fixed: np.ndarray):
+        """One step (predict with input ``u``, then update with ``y``; NaN:
+        not measured) of every cell: log p(y | the past) (C,), mean and
+        covariance after it, normalised residuals (n_y, C); updates ``fixed``
+        (a drifting parameter moves)."""
+        model, n, C = self.model, self.n, m.shape[1]
+        if self.buffer.shape[1] < 2 * n * C:
+            self.buffer = np.empty((self.n_x, 2 * n * C))
+        flat = self.buffer[:, :2 * n * C]
+        self._points(m, P, fixed, flat)
+        model.predict(flat, u, model.THETA, model.DT, out=flat)
+        X = flat.reshape(self.n_x, 2 * n, C)
+        for j, row in enumerate(self.extra[:-1]):  # a drifting parameter: the same in every point of a cell
+            fixed[j] = X[row, 0]
+        Xp = X[self.physical]  # (n, 2n, C)
+        mp = Xp.mean(axis=1)
+        D = Xp - mp[:, None, :]
+        Pp = np.einsum("ipc,jpc->ijc", D, D) / (2 * n)
+        Pp[np.arange(n), np.arange(n)] += self.Q[:, None]
+        seen = np.isfinite(y)
+        z = np.full((len(y), C), np.nan)
+        if not seen.any():
+            return np.zeros(C), mp, Pp, z
+        S = self._points(mp, Pp, fixed, flat)
+        Y = model.observe(flat, u, model.THETA)[seen].reshape(-1, 2 * n, C)  # (n_y, 2n, C)
+        yh = Y.mean(axis=1)
+        DY = Y - yh[:, None, :]
+        DX = S - mp[:, None, :]
+        k = int(seen.sum())
+        Syy = np.einsum("ipc,jpc->ijc", DY, DY) / (2 * n)
+        Syy[np.arange(k), np.arange(k)] += self.R[seen][:, None]
+        Pxy = np.einsum("ipc,jpc->ijc", DX, DY) / (2 * n)  # (n, n_y, C)
+        v = y[seen][:, None] - yh  # (n_y, C)
+        L = cholesky(Syy)
+        a = _solve_lower(L, v[:, None, :])[:, 0]  # L^-1 v
+        B = _solve_lower(L, Pxy.transpose(1, 0, 2))  # L^-1 Pxy' (n_y, n, C)
+        logdet = 2.0 * np.log(L[np.arange(k), np.arange(k)]).sum(axis=0)
+        loglik = -0.5 * ((a * a).sum(axis=0) + logdet + k * LOG_2PI)
+        z[seen] = v / np.sqrt(Syy[np.arange(k), np.arange(k)])
+        m = mp + np.einsum("kic,kc->ic", B, a)  # Pxy Syy^-1 v = (L^-1 Pxy')' (L^-1 v)
+        P = Pp - np.einsum("kic,kjc->ijc", B, B)  # Pxy Syy^-1 Pxy'
+        return loglik, m, 0.5 * (P + P.transpose(1, 0, 2)), z
+
+
+def run_bank(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets, magnitudes,
+             fixed: np.ndarray, residuals: bool = False) -> BankResult:
+    """Cubature Kalman filters of fault model ``model``, one per cell: cell c
+    starts at step ``onsets[c]`` from the nominal filter's state there
+    (``track``), with its fault states ``fixed`` (f,: a drifting parameter's
+    nominal value, the magnitude last, replaced by ``magnitudes[c]``), and
+    runs to the end of ``ys``. Returns each cell's log p(y_0 .. y_(T-1))
+    (the nominal filter's before its onset), its state after the last step
+    and, with ``residuals``, its normalised residuals (NaN before its onset)."""
+    kf = _Filter(model)
+    onsets = np.asarray(onsets, dtype=int)
+    C = len(onsets)
+    order = np.argsort(onsets, kind="stable")
+    starts = onsets[order]
+    state = np.repeat(np.asarray(fixed, dtype=float).reshape(-1, 1), C, axis=1)
+    state[-1] = np.asarray(magnitudes, dtype=float)[order]
+    m = np.empty((kf.n, C))
+    P = np.empty((kf.n, kf.n, C))
+    total = track.loglik[starts].astype(float)
+    T = len(ys)
+    z = np.full((T, ys.shape[1], C), np.nan) if residuals else None
+    live = 0  # cells 0 .. live - 1 have started
+    with np.errstate(all="ignore"):
+        for k in range(int(starts[0]) if C else T, T):
+            joining = int(np.searchsorted(starts, k, side="right"))
+            if joining > live:
+                m[:, live:joining] = track.mean[k][:, None]
+                P[:, :, live:joining] = track.cov[k][:, :, None]
+                live = joining
+            ll, m[:, :live], P[:, :, :live], zk = kf.step(ys[k], us[k], m[:, :live], P[:, :, :live],
+                                                           state[:, :live])
+            total[:live] += ll
+            if z is not None:
+                z[k, :, :live] = zk
+    total[~np.isfinite(total)] = -math.inf
+    back = np.empty(C, dtype=int)
+    back[order] = np.arange(C)
+    return BankResult(total[back], m[:, back].T, P[:, :, back].transpose(2, 0, 1),
+                      None if z is None else z[:, :, back].transpose(0, 2, 1))
+
+
+def nominal_track(model: ModuleType, ys: np.ndarray, us: np.ndarray, stop: int) -> NominalTrack:
+    """The nominal model's cubature Kalman filter from its prior (``X0``,
+    ``X0_STD``) over steps 0 .. ``stop`` - 1: its state before every step up
+    to ``stop`` and the log-likelihood of the data before it."""
+    kf = _Filter(model)
+    n = kf.n
+    means = np.empty((stop + 1, n))
+    covs = np.empty((stop + 1, n, n))
+    logliks = np.zeros(stop + 1)
+    m = np.asarray(model.X0, dtype=float)[kf.physical, None]
+    P = np.diag(np.asarray(model.X0_STD, dtype=float)[kf.physical] ** 2)[:, :, None]
+    means[0], covs[0] = m[:, 0], P[:, :, 0]
+    none = np.zeros((0, 1))
+    with np.errstate(all="ignore"):
+        for k in range(stop):
+            ll, m, P, _ = kf.step(ys[k], us[k], m, P, none)
+            logliks[k + 1] = logliks[k] + ll[0]
+            means[k + 1], covs[k + 1] = m[:, 0], P[:, :, 0]
+    return NominalTrack(means, covs, logliks)
+
+
+def onset_widths(onsets) -> np.ndarray:
+    """How many samples each onset of a sorted grid stands for: the span
+    between the midpoints to its neighbours (1 for consecutive samples). The
+    onset's prior is uniform in time, so an onset's prior weight is its width:
+    a hypothesis's evidence is the sum over its onsets of width x likelihood,
+    up to a factor (the length of the window the onset may lie in) common to
+    every hypothesis."""
+    s = np.asarray(onsets, dtype=float)
+    if len(s) == 1:
+        return np.ones(1)
+    mid = (s[1:] + s[:-1]) / 2.0
+    edges = np.concatenate([[s[0] - (s[1] - s[0]) / 2.0], mid, [s[-1] + (s[-1] - s[-2]) / 2.0]])
+    return np.diff(edges)
+
+
+#: A drift's onsets reach further back (the next batch of ``earlier``) while
+#: the onset posterior puts at least ``EXTEND`` on its ``EDGE`` earliest onsets.
+EXTEND = 0.05
+EDGE = 2
+
+
+@dataclass(frozen=True, slots=True)
+class _Grid:
+    """One pass: per onset (rows) an evenly spaced grid of changes, the
+    cells' magnitudes and log likelihoods, and their posterior masses
+    ``weight`` (trapezoid rule, onset width, the prior's density in the
+    magnitude), scaled by exp(``top``)."""
+
+    changes: np.ndarray
+    magnitudes: np.ndarray
+    loglik: np.ndarray
+    weight: np.ndarray
+    top: float
+
+
+def _grid(model, ys, us, track, onsets, spans, ranges, count, prior, start, cache: dict) -> _Grid:
+    """Row i: ``count`` changes over ``ranges[i]`` (low, high) at onset
+    ``onsets[i]``; ``cache``: rows computed before, by (onset, low, high, count)."""
+    changes = np.array([np.linspace(lo, hi, count) if hi > lo else np.full(count, lo) for lo, hi in ranges])
+    magnitudes = changes / spans[:, None]
+    keys = [(int(o), float(lo), float(hi), count) for o, (lo, hi) in zip(onsets, ranges)]
+    new = [i for i, key in enumerate(keys) if key not in cache]
+    if new:
+        r = run_bank(model, ys, us, track, np.repeat(onsets[new], count), magnitudes[new].ravel(), start)
+        for i, row in zip(new, r.loglik.reshape(len(new), count)):
+            cache[keys[i]] = row
+    inside = (magnitudes >= prior[0]) & (magnitudes <= prior[1])
+    loglik = np.where(inside, np.array([cache[key] for key in keys]), -math.inf)
+    top = float(np.max(loglik))
+    if not math.isfinite(top):
+        return _Grid(changes, magnitudes, loglik, np.zeros(loglik.shape), top)
+    rule = np.repeat(((changes[:, -1] - changes[:, 0]) / max(count - 1, 1))[:, None], count, axis=1)
+    rule[rule <= 0.0] = 1.0
+    if count > 1:
+        rule[:, [0, -1]] /= 2.0
+    widths = onset_widths(onsets)
+    weight = np.exp(loglik - top) * (widths / spans)[:, None] * rule  # d(slope) = d(change) / span
+    return _Grid(changes, magnitudes, loglik, weight, top)
+
+
+def _next_range(changes: np.ndarray, weight: np.ndarray, bounds: tuple[float, float],
+                options: KalmanOptions) -> tuple[float, float] | None:
+    """The range of changes of one onset's next pass from its row of a grid
+    (None: the row is fine); ``bounds``: the changes its prior allows."""
+    lo, hi = float(changes[0]), float(changes[-1])
+    count = len(changes)
+    if count < 3 or not weight.sum() > 0.0:
+        return None
+    density = weight.copy()
+    density[[0, -1]] *= 2.0  # the trapezoid rule's end weights
+    peak = float(density.max())
+    top_at = int(np.argmax(density))
+    vmin, vmax = bounds
+    if top_at == 0 and lo > vmin or top_at == count - 1 and hi < vmax:
+        # the posterior is not located yet: the grid reaches its span further on the side of the peak
+        span = hi - lo
+        return (max(lo - span, vmin), hi) if top_at == 0 else (lo, min(hi + span, vmax))
+    spacing = changes[1] - changes[0]
+    w = density / density.sum()
+    mean = float(w @ changes)
+    sd = math.sqrt(max(float(w @ (changes - mean) ** 2), 0.0))
+    edge = density[0] > options.edge * peak and lo > vmin or density[-1] > options.edge * peak and hi < vmax
+    if not (edge or sd < options.resolution * spacing):
+        return None
+    # an end holds mass, or the grid is coarse against the posterior: 4 stds either side of its mode; on
+    # a coarse grid the std and mode come from the parabola through the log density's top three points
+    # (a posterior on one point has no std of its own)
+    centre = mean
+    l0, l1, l2 = np.log(np.maximum(density[[max(top_at - 1, 0), top_at, min(top_at + 1, count - 1)]],
+                                   1e-300) / peak)
+    bend = l0 - 2.0 * l1 + l2
+    if 0 < top_at < count - 1 and bend < 0.0 and sd < spacing:
+        centre = changes[top_at] + spacing * (l0 - l2) / (2.0 * bend)
+        sd = max(sd, spacing / math.sqrt(-bend))
+    new = (max(centre - 4.0 * sd, vmin), min(centre + 4.0 * sd, vmax))
+    return None if np.allclose(new, (lo, hi), rtol=1e-9, atol=0.0) else new
+
+
+def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets,
+                     hint: tuple[float, float], hint_onset: int, level: float,
+                     options: KalmanOptions = KalmanOptions(), earlier=()) -> StaticPosterior:
+    """The posterior of fault model ``model``'s onset (one of ``onsets``,
+    each weighed by the span of samples it stands for, :func:`onset_widths`)
+    and magnitude (uniform on the model's ``FAULT_PRIOR``), from cubature
+    Kalman filters on a grid adapted to it. ``hint``: an interval of the
+    magnitude where the posterior is expected (the particle filters'
+    interval) when the onset is ``hint_onset``; ``track``: the nominal filter
+    over the run up to the latest onset; ``earlier``: batches of earlier
+    onsets a drift reaches back to, one batch at a time, while its onset
+    posterior piles up at its earliest onsets (``EXTEND`` on the ``EDGE``
+    earliest).
+
+    The first pass lays one grid of ``first_points`` changes over the hint,
+    widened, at every onset; after it each onset's row is laid anew on its
+    own (:func:`_next_range`), up to ``passes`` passes; onsets holding under
+    ``keep`` of the best one's mass are left out of the next pass."""
+    from ..kinds import fault_kind
+
+    T = len(ys)
+    drifts = fault_kind(model.FAULT["kind"]).drifts
+    prior = tuple(float(v) for v in model.FAULT_PRIOR)
+    a, b = prior
+    batches = [sorted(int(o) for o in batch) for batch in earlier] if drifts else []
+
+    def span(o) -> np.ndarray:  # a cell's variable: the parameter's change by the last step (bias, slope x time)
+        o = np.asarray(o, dtype=float)
+        return (T - o) * model.DT if drifts else np.ones(o.shape)
+
+    current = np.asarray(sorted(int(o) for o in onsets))
+    tried = current.tolist()
+    spans = span(current)
+    scale = float((T - hint_onset) * model.DT) if drifts else 1.0
+    lo, hi = sorted((hint[0] * scale, hint[1] * scale))
+    vmin, vmax = float(np.min(a * spans)), float(np.max(b * spans))
+    width = max(hi - lo, 1e-6 * max(abs(lo), abs(hi), vmax - vmin))
+    lo, hi = max(lo - options.widen * width, vmin), min(hi + options.widen * width, vmax)
+    ranges = {int(o): (lo, hi) for o in current}
+    counts = {int(o): options.first_points for o in current}
+    _, extra = _rows(model)
+    start = model.augment(track.mean[int(current[0])][:, None], np.random.default_rng(0))[extra, 0]  # per cell
+    cache: dict = {}
+    passes = 0
+    g = None
+    while True:
+        for _ in range(options.passes):
+            passes += 1
+            spans = span(current)
+            groups = {}  # rows of one point count are one grid
+            for i, o in enumerate(current.tolist()):
+                groups.setdefault(counts[o], []).append(i)
+            parts = {c: _grid(model, ys, us, track, current[rows], spans[rows], [ranges[current[i]] for i in rows],
+                              c, prior, start, cache) for c, rows in groups.items()}
+            g = _merge(current, groups, parts)
+            if not math.isfinite(g.top):
+                break
+            share = np.array([w.sum() for w in g.weight]) / sum(w.sum() for w in g.weight)
+            kept = share >= options.keep * share.max()
+            changed = False
+            for i, o in enumerate(current.tolist()):
+                bounds = (a * spans[i], b * spans[i]) if a * spans[i] <= b * spans[i] else (b * spans[i], a * spans[i])
+                following = _next_range(g.changes[i], g.weight[i], bounds, options) if kept[i] else None
+                if following is not None:
+                    ranges[o], counts[o], changed = following, options.points, True
+            if not changed:
+                break
+            current = current[kept]  # onsets the posterior leaves out are left out
+        if not (batches and g is not None and math.isfinite(g.top)):
+            break
+        share = {o: w.sum() for o, w in zip(current.tolist(), g.weight)}
+        if sum(share.get(o, 0.0) for o in tried[:EDGE]) / sum(share.values()) < EXTEND:
+            break
+        batch = batches.pop(0)  # a drift that began earlier: reach further back, from the earliest onset's grid
+        tried = sorted(set(batch) | set(tried))
+        for o in batch:
+            ranges[o], counts[o] = ranges[int(current[0])], counts[int(current[0])]
+        current = np.asarray(sorted(set(batch) | set(current.tolist())))
+    name = getattr(model, "NAME", "")
+    nan = math.nan
+    if g is None or not math.isfinite(g.top):
+        return StaticPosterior(name, tuple(int(o) for o in current), tuple(float(w) for w in onset_widths(current)),
+                               np.zeros((len(current), 0)), np.zeros((len(current), 0)), -math.inf, nan, nan, nan,
+                               nan, level, nan, int(current[0]), tuple(0.0 for _ in current), passes)
+    widths = onset_widths(current)
+    total = float(sum(w.sum() for w in g.weight))
+    log_evidence = g.top + math.log(total) - math.log(b - a)
+    p = np.concatenate([w for w in g.weight]) / total
+    values = np.concatenate([m for m in g.magnitudes])
+    mean = float(p @ values)
+    std = math.sqrt(max(float(p @ (values - mean) ** 2), 0.0))
+    low, high = _quantiles(g.magnitudes, g.weight, [(1.0 - level) / 2.0, (1.0 + level) / 2.0])
+    change = float(p @ np.concatenate([c for c in g.changes]))
+    onset_posterior = np.array([w.sum() for w in g.weight]) / total
+    return StaticPosterior(name, tuple(int(o) for o in current), tuple(float(w) for w in widths),
+                           g.magnitudes, g.loglik, log_evidence, mean, std, low, high, level, change,
+                           int(current[int(np.argmax(onset_posterior))]), tuple(float(q) for q in onset_posterior),
+                           passes)
+
+
+def _merge(onsets: np.ndarray, groups: dict, parts: dict) -> _Grid:
+    """The grids of ``parts`` (point count -> grid of the rows ``groups[count]``)
+    as one, row i for onset i, on a common scale. Rows may differ in length:
+    the arrays are object arrays of rows then."""
+    top = max(part.top for part in parts.values())
+    rows = [None] * len(onsets)
+    for c, idx in groups.items():
+        part = parts[c]
+        scale = math.exp(part.top - top) if math.isfinite(part.top) else 0.0
+        for k, i in enumerate(idx):
+            rows[i] = (part.changes[k], part.magnitudes[k], part.loglik[k], part.weight[k] * scale)
+    if len({len(r[0]) for r in rows}) == 1:
+        changes, magnitudes, loglik, weight = (np.array([r[j] for r in rows]) for j in range(4))
+    else:
+        changes, magnitudes, loglik, weight = (_ragged([r[j] for r in rows]) for j in range(4))
+    return _Grid(changes, magnitudes, loglik, weight, top)
+
+
+def _ragged(rows: list) -> np.ndarray:
+    out = np.empty(len(rows), dtype=object)
+    for i, r in enumerate(rows):
+        out[i] = r
+    return out
+
+
+def _quantiles(values, weight, qs) -> tuple[float, ...]:
+    """Quantiles of a mixture over onsets (rows) of densities given on each
+    row's evenly spaced grid (``values``; ``weight``: the trapezoid rule's
+    masses). Between two points a row's log density is linear (exact for an
+    exponential tail, close for a Gaussian: a density linear between coarse
+    points would fatten the tails); its cumulative mass is evaluated on one
+    fine common grid, the rows' masses summed and the sum inverted."""
+    fine = np.linspace(min(float(np.min(v)) for v in values), max(float(np.max(v)) for v in values), 4096)
+    total = np.zeros(len(fine))
+    for v, w in zip(values, weight):
+        mass = float(np.sum(w))
+        if len(v) < 2 or not mass > 0.0:
+            continue
+        h = float(v[1] - v[0])
+        d = np.array(w, dtype=float)
+        d[[0, -1]] *= 2.0  # the density at each point, up to the spacing
+        with np.errstate(divide="ignore", invalid="ignore"):
+            logd = np.log(d)
+            step = np.diff(logd)
+            flat = ~np.isfinite(step) | (np.abs(step) < 1e-9)
+            # the mass of each interval under a log-linear density, and the cumulative one
+            part = np.where(flat, (d[:-1] + d[1:]) / 2.0, (d[1:] - d[:-1]) / np.where(flat, 1.0, step))
+            cum = np.concatenate([[0.0], np.cumsum(part)])
+            k = np.clip(np.searchsorted(v, fine, side="right") - 1, 0, len(v) - 2)
+            t = np.clip((fine - v[k]) / h, 0.0, 1.0)
+            inside = np.where(flat[k], t * (d[k] + (d[k + 1] - d[k]) * t / 2.0),
+                              d[k] * np.expm1(np.where(flat[k], 0.0, step[k]) * t) / np.where(flat[k], 1.0, step[k]))
+        row = np.where(fine < v[0], 0.0, np.where(fine > v[-1], cum[-1], cum[k] + inside))
+        total += row * (mass / cum[-1])
+    if not total[-1] > 0.0:
+        mean = float(sum(np.sum(v * w) for v, w in zip(values, weight)) / sum(np.sum(w) for w in weight))
+        return tuple(mean for _ in qs)
+    return tuple(float(q) for q in np.interp(np.asarray(qs) * total[-1], total, fine))

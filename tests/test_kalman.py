@@ -1,0 +1,223 @@
+"""The cubature Kalman filter bank and the static posterior of a fault
+hypothesis (bgc/runtime/kalman.py), against references derived here:
+
+- on the two tanks (linear in their states once the fault is fixed), a
+  Kalman filter written out in matrices, with the RK4 map of the plant's
+  equations derived by hand (the tanks' mass balances), must give the same
+  log-likelihoods and states;
+- the adaptive grid's posterior and evidence against brute-force quadrature
+  on a fine grid of those exact Kalman filters;
+- on the RO plant (mildly nonlinear), the posterior mean of the R_pipe bias
+  against a particle-filter (pseudo-marginal) grid on the same data.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from bgc.runtime import kalman, runs, simulate, track
+from bgc.runtime.kalman import KalmanOptions, cholesky, onset_widths
+
+from conftest import ROOT, compiled
+
+GENERATED = ROOT / "generated"
+
+
+def data(model: str, scenario: str, seed: int):
+    c = compiled(model)
+    result = simulate.simulate(c.numerics, simulate.SimulationOptions(
+        seed=seed, fault=simulate.parse_fault(scenario, c.numerics) if scenario != "none" else None))
+    run = runs.parse_run(simulate.to_csv(result), scenario)
+    package = track.load_package(GENERATED, model)
+    ys, us = track.run_arrays(run, package, "nominal")
+    return package, ys, us
+
+
+def tank_map(R12: float, dt: float = 0.5):
+    """The two tanks' RK4 step (one substep of dt, as generated: SUBSTEPS = 1)
+    derived by hand: C1 dP1/dt = f_in - P1/R10 - (P1 - P2)/R12, C2 dP2/dt =
+    (P1 - P2)/R12 - P2/R20, i.e. dx/dt = A x + b, whose RK4 step is x' = M x + c
+    with M = I + hA + (hA)^2/2 + (hA)^3/6 + (hA)^4/24 and c = h (I + hA/2 +
+    (hA)^2/6 + (hA)^3/24) b. Measurements F10 = P1/R10, F12 = (P1 - P2)/R12,
+    F20 = P2/R20."""
+    C1, C2, R10, R20, f_in = 2.0, 1.5, 4.0, 3.0, 1.0
+    A = np.array([[-1 / (C1 * R10) - 1 / (C1 * R12), 1 / (C1 * R12)],
+                  [1 / (C2 * R12), -1 / (C2 * R12) - 1 / (C2 * R20)]])
+    b = np.array([f_in / C1, 0.0])
+    hA = dt * A
+    I2 = np.eye(2)
+    M = I2 + hA + hA @ hA / 2 + hA @ hA @ hA / 6 + hA @ hA @ hA @ hA / 24
+    c = dt * (I2 + hA / 2 + hA @ hA / 6 + hA @ hA @ hA / 24) @ b
+    H = np.array([[1 / R10, 0.0], [1 / R12, -1 / R12], [0.0, 1 / R20]])
+    return M, c, H
+
+
+def kalman_filter(ys, m, P, maps, Q, R):
+    """The textbook Kalman filter (predict x' = M x + c + w, observe y = H x +
+    v): log p(y_0 .. y_(T-1)), final mean and covariance. ``maps[k]``: (M, c,
+    H) of step k."""
+    total = 0.0
+    for y, (M, c, H) in zip(ys, maps):
+        m = M @ m + c
+        P = M @ P @ M.T + Q
+        S = H @ P @ H.T + R
+        v = y - H @ m
+        total += -0.5 * (v @ np.linalg.solve(S, v) + np.linalg.slogdet(S)[1] + len(y) * math.log(2 * math.pi))
+        K = P @ H.T @ np.linalg.inv(S)
+        m = m + K @ v
+        P = P - K @ S @ K.T
+    return total, m, P
+
+
+def test_cholesky_of_a_stack_along_the_last_axis_is_numpys():
+    rng = np.random.default_rng(0)
+    G = rng.standard_normal((6, 6, 40))
+    P = np.einsum("ikc,jkc->ijc", G, G) + 0.1 * np.eye(6)[:, :, None]
+    L = cholesky(P)
+    assert np.allclose(L.transpose(2, 0, 1), np.linalg.cholesky(P.transpose(2, 0, 1)), rtol=1e-12, atol=1e-12)
+
+
+def test_a_covariance_made_indefinite_by_rounding_still_factors():
+    P = np.array([[1.0, 1.0], [1.0, 1.0 - 1e-17]])[:, :, None]  # singular, the pivot rounds to <= 0
+    L = cholesky(P)
+    assert np.all(np.isfinite(L)) and L[1, 1, 0] > 0
+
+
+def test_the_bank_on_a_linear_plant_is_the_kalman_filter_derived_by_hand():
+    """Cells of R12 stepped from different onsets and biases, each against a
+    Kalman filter in matrices with the hand-derived RK4 map: the nominal model
+    up to the onset, R12 + bias after it."""
+    package, ys, us = data("two_tank", "R12:abrupt:0.8@60", seed=4)
+    nominal, fault = package.MODELS["nominal"], package.MODELS["R12_abrupt"]
+    onsets, biases = [100, 118, 118, 140], [0.5, 0.8, 1.1, 0.8]
+    t = kalman.nominal_track(nominal, ys, us, max(onsets))
+    r = kalman.run_bank(fault, ys, us, t, onsets, biases, np.zeros(1))
+    Q = np.diag(np.asarray(nominal.PROCESS_STD) ** 2)
+    R = np.diag(np.asarray(nominal.MEASUREMENT_STD) ** 2)
+    for i, (onset, bias) in enumerate(zip(onsets, biases)):
+        maps = [tank_map(2.0)] * onset + [tank_map(2.0 + bias)] * (len(ys) - onset)
+        ll, m, P = kalman_filter(ys, np.asarray(nominal.X0[:2]), np.diag(np.asarray(nominal.X0_STD) ** 2), maps, Q, R)
+        assert r.loglik[i] == pytest.approx(ll, rel=1e-10, abs=1e-8)
+        assert np.allclose(r.mean[i], m, rtol=1e-9) and np.allclose(r.cov[i], P, rtol=1e-7, atol=1e-14)
+    # the nominal track is the same filter with R12 at its nominal value
+    ll, m, P = kalman_filter(ys[:100], np.asarray(nominal.X0[:2]), np.diag(np.asarray(nominal.X0_STD) ** 2),
+                             [tank_map(2.0)] * 100, Q, R)
+    assert t.loglik[100] == pytest.approx(ll, rel=1e-10) and np.allclose(t.mean[100], m, rtol=1e-9)
+
+
+def test_unread_sensors_are_left_out_of_the_update():
+    package, ys, us = data("two_tank", "none", seed=2)
+    ys = ys.copy()
+    ys[50:60, 1] = np.nan
+    ys[70] = np.nan
+    nominal = package.MODELS["nominal"]
+    t = kalman.nominal_track(nominal, ys, us, len(ys))
+    Q = np.diag(np.asarray(nominal.PROCESS_STD) ** 2)
+    total, m, P = 0.0, np.asarray(nominal.X0[:2]), np.diag(np.asarray(nominal.X0_STD) ** 2)
+    M, c, H = tank_map(2.0)
+    for y in ys:
+        seen = np.isfinite(y)
+        ll, m, P = kalman_filter([y[seen]], m, P, [(M, c, H[seen])], Q,
+                                 np.diag(np.asarray(nominal.MEASUREMENT_STD)[seen] ** 2))
+        total += ll if seen.any() else 0.0
+    assert t.loglik[-1] == pytest.approx(total, rel=1e-10)
+
+
+def exact_grid(package, name, ys, us, onsets, values):
+    """log p(y | onset, magnitude) by the bank on every cell of a rectangular grid."""
+    t = kalman.nominal_track(package.MODELS["nominal"], ys, us, max(onsets))
+    fault = package.MODELS[name]
+    O, V = np.meshgrid(onsets, values, indexing="ij")
+    fixed = np.zeros(len([k for k in fault.STATE_KINDS if k != "physical"]))
+    if len(fixed) == 2:
+        fixed[0] = dict(zip(fault.PARAMETERS, fault.THETA))[fault.FAULT["parameter"]]
+    return kalman.run_bank(fault, ys, us, t, O.ravel(), V.ravel(), fixed).loglik.reshape(O.shape), t
+
+
+@pytest.mark.parametrize("scenario, name, onsets, values", [
+    ("R12:abrupt:0.8@60", "R12_abrupt", list(range(110, 126)), np.linspace(0.3, 1.5, 1201)),
+    ("R12:incipient:0.01@60", "R12_incipient", list(range(88, 152, 4)), np.linspace(0.002, 0.03, 1401)),
+])
+def test_the_adaptive_grid_integrates_like_a_fine_brute_force_grid(scenario, name, onsets, values):
+    """Posterior mean, std, interval and evidence of the adaptive grid (a few
+    dozen cells, started from a poor hint) against quadrature on a grid of
+    ~20000 cells over the same onsets, with the magnitude uniform on its prior."""
+    package, ys, us = data("two_tank", scenario, seed=7)
+    fault = package.MODELS[name]
+    ll, t = exact_grid(package, name, ys, us, onsets, values)
+    a, b = fault.FAULT_PRIOR
+    w = onset_widths(onsets)[:, None] * np.exp(ll - ll.max())
+    h = values[1] - values[0]
+    post = w.sum(axis=0)
+    evidence = ll.max() + math.log(post.sum() * h) - math.log(b - a)
+    post /= post.sum()
+    mean = post @ values
+    sd = math.sqrt(post @ (values - mean) ** 2)
+    cdf = np.cumsum(post) - post / 2.0  # the mass up to each point of the fine grid
+    low, high = np.interp([0.025, 0.975], cdf, values)
+    assert post[0] < 1e-6 and post[-1] < 1e-6  # the brute-force grid holds the posterior
+    p = kalman.static_posterior(fault, ys, us, t, onsets, (mean + 3 * sd, mean + 9 * sd), onsets[len(onsets) // 2],
+                                0.95)
+    assert p.mean == pytest.approx(mean, abs=0.01 * sd)
+    assert p.std == pytest.approx(sd, rel=0.01)
+    assert p.low == pytest.approx(low, abs=0.05 * sd) and p.high == pytest.approx(high, abs=0.05 * sd)
+    assert p.log_evidence == pytest.approx(evidence, abs=0.01)
+    assert p.values.size < 200
+
+
+def test_a_drift_that_began_before_the_onsets_tried_reaches_back():
+    """A slow drift from t = 20 (step 40) with onsets tried from step 150 on:
+    the onset posterior piles up at the earliest ones, so earlier batches are
+    added until it does not; the onset and the slope are found."""
+    package, ys, us = data("two_tank", "R12:incipient:0.006@20", seed=3)
+    fault = package.MODELS["R12_incipient"]
+    t = kalman.nominal_track(package.MODELS["nominal"], ys, us, 200)
+    tried = list(range(150, 201, 4))
+    earlier = tuple(tuple(range(s, s + 32, 8)) for s in (118, 86, 54, 22))
+    alone = kalman.static_posterior(fault, ys, us, t, tried, (0.005, 0.02), 150, 0.95)
+    far = kalman.static_posterior(fault, ys, us, t, tried, (0.005, 0.02), 150, 0.95, earlier=earlier)
+    assert alone.onset <= 154 and sum(alone.onset_posterior[:2]) > 0.05
+    assert min(far.onsets) < 60 and abs(far.onset - 40) <= 16
+    assert far.low <= 0.006 <= far.high
+    assert far.log_evidence > alone.log_evidence + 5
+
+
+@pytest.mark.slow
+def test_on_the_ro_plant_the_bias_agrees_with_a_particle_filter_reference():
+    """R_pipe 69 -> 100 at t = 165: the cubature filters' posterior mean of the
+    bias against a grid posterior of bootstrap particle filters (2000
+    particles, the pseudo-marginal likelihood) on the same data, within a
+    third of the posterior's std (the reference's own Monte Carlo scatter is
+    about a sixth)."""
+    package, ys, us = data("ro", "R_pipe:abrupt:31@165", seed=102)
+    nominal, fault = package.MODELS["nominal"], package.MODELS["R_pipe_abrupt"]
+    onset, values = 164, np.arange(25.0, 37.01, 0.5)
+    rng = np.random.default_rng(5)
+    n = 2000
+
+    def bootstrap(model, x, ys, us, fix=None):
+        total = 0.0
+        for y, u in zip(ys, us):
+            model.transition(x, u, model.THETA, model.DT, rng, out=x)
+            if fix is not None:
+                x[-1] = fix
+            ll = model.loglik(y, x, u, model.THETA)
+            top = ll.max()
+            w = np.exp(ll - top)
+            total += top + math.log(w.mean())
+            x = x[:, np.minimum(np.searchsorted(np.cumsum(w / w.sum()), (rng.random() + np.arange(n)) / n), n - 1)]
+        return total, x
+
+    _, x = bootstrap(nominal, nominal.initial_particles(rng, n), ys[:onset], us[:onset])
+    ll = []
+    for v in values:
+        xf = fault.augment(x.copy(), rng)
+        xf[-1] = v
+        ll.append(bootstrap(fault, xf, ys[onset:], us[onset:], fix=v)[0])
+    post = np.exp(np.array(ll) - max(ll))
+    post /= post.sum()
+    mean = post @ values
+    t = kalman.nominal_track(nominal, ys, us, onset)
+    p = kalman.static_posterior(fault, ys, us, t, [onset], (26.0, 36.0), onset, 0.95, KalmanOptions())
+    assert abs(p.mean - mean) < p.std / 3, (p.mean, mean, p.std)
