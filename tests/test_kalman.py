@@ -221,3 +221,28 @@ def test_on_the_ro_plant_the_bias_agrees_with_a_particle_filter_reference():
     t = kalman.nominal_track(nominal, ys, us, onset)
     p = kalman.static_posterior(fault, ys, us, t, [onset], (26.0, 36.0), onset, 0.95, KalmanOptions())
     assert abs(p.mean - mean) < p.std / 3, (p.mean, mean, p.std)
+
+
+def test_the_residuals_of_the_most_probable_cell_are_white_for_the_true_model_and_not_for_a_wrong_one():
+    """The consistency test of the static model (bgc.runtime.diagnose._checked)
+    reads the most probable cell's normalised residuals: on the true
+    hypothesis they are N(0, 1) and pass the windowed Z-test; a hypothesis
+    that cannot produce the data (a capacitance step: it does not move the
+    tanks' steady state) leaves a bias that fails it."""
+    from bgc.runtime.detect import Detector, DetectorOptions
+
+    package, ys, us = data("two_tank", "R12:abrupt:0.8@60", seed=11)
+    t = kalman.nominal_track(package.MODELS["nominal"], ys, us, 125)
+    onsets = list(range(114, 125))
+
+    def alarm(name, hint):
+        p = kalman.static_posterior(package.MODELS[name], ys, us, t, onsets, hint, 119, 0.95)
+        z = p.residuals[p.best[0]:]
+        assert np.all(np.isnan(p.residuals[:p.best[0]]))
+        test = Detector(tuple(package.MODELS["nominal"].OUTPUTS), DetectorOptions(0.001, (1, 8, 32), len(z)))
+        return z, next((a for a in map(test.update, z) if a is not None), None)
+
+    z, a = alarm("R12_abrupt", (0.6, 1.0))
+    assert a is None and abs(np.nanmean(z)) < 0.1 and 0.8 < np.nanstd(z) < 1.2
+    _, a = alarm("C1_abrupt", (-1.0, 1.0))
+    assert a is not None

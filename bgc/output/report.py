@@ -64,6 +64,9 @@ def report_data(r) -> dict[str, Any]:
                          "interval": [_num(e.low), _num(e.high)], "level": e.level,
                          "parameter_value": _num(e.parameter_value), "nominal": _num(e.nominal),
                          "truth": _num(e.truth), "covers_truth": e.covers, "method": e.method},
+            "static_consistency_alarm": None if h.static_alarm is None else {
+                "sensor": h.static_alarm.sensor, "window": h.static_alarm.window,
+                "statistic": _num(h.static_alarm.statistic), "threshold": _num(h.static_alarm.threshold)},
             "filter_estimate": None if h.filter_estimate is None else {
                 "value": _num(h.filter_estimate.value), "std": _num(h.filter_estimate.std),
                 "interval": [_num(h.filter_estimate.low), _num(h.filter_estimate.high)]}})

@@ -235,6 +235,7 @@ class Hypothesis:
     static_log_evidence: float | None = None
     static: StaticPosterior | None = None
     filter_estimate: Estimate | None = None
+    static_alarm: Detection | None = None
 
     @property
     def onset(self) -> int:
@@ -536,6 +537,15 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         reuse = grids if options.rank_grid == options.grid else {}  # the ranking's grids, when as fine
         hypothesis_list = tuple(_refined(h, reuse.get(h.name), package, clouds, ys, us, options)
                                 if h.name in candidates else h for h in hypothesis_list)
+    hypothesis_list = tuple(_checked(h, outputs, options) if h.name in candidates and static else h
+                            for h in hypothesis_list)
+    for h in hypothesis_list:
+        if h.static_alarm is not None:
+            a, (start, value) = h.static_alarm, h.static.best
+            notes.append(f"{h.name} with its {h.estimate.magnitude} held at its most probable value {value:.4g} "
+                         f"from t = {run.time[start]:g}: its residual of {a.sensor} over {a.window} sample(s) reached "
+                         f"{a.statistic:.1f} (threshold {a.threshold:.1f}); the fault model as stated, or the "
+                         f"Kalman filters' Gaussian approximation, does not quite hold on these data")
     best_onset = next((h.onset for h in hypothesis_list if candidates and h.name == candidates[0]), onset)
     say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
     return Diagnosis(verdict=verdict, detection=detection, onset=best_onset, symbols=seen, refuted=refuted,
@@ -569,6 +579,23 @@ def _static_job(job) -> StaticPosterior:
     package_name, name, ys, us, track, onsets, hint, hint_onset, level, options, earlier = job
     return kalman.static_posterior(sys.modules[package_name].MODELS[name], ys, us, track, onsets, hint,
                                    hint_onset, level, options, earlier)
+
+
+def _checked(h: Hypothesis, outputs, options: DiagnosisOptions) -> Hypothesis:
+    """``h`` with the consistency test of its static model: the windowed
+    Z-test of section 5 (a probability ``rejection`` of an alarm on the true
+    model over the run) on the normalised residuals of its static
+    posterior's most probable cell, from that cell's onset; its first alarm,
+    or None."""
+    if h.static is None or h.static.residuals is None or h.static.best is None:
+        return h
+    z = h.static.residuals[h.static.best[0]:]
+    test = Detector(outputs, DetectorOptions(options.rejection, options.windows, len(z)))
+    for zk in z:
+        alarm = test.update(zk)
+        if alarm is not None:
+            return dataclasses.replace(h, static_alarm=alarm)
+    return h
 
 
 def static_estimate(e: Estimate, p: StaticPosterior) -> Estimate:

@@ -97,7 +97,10 @@ class StaticPosterior:
     interval (``low``, ``high``) of probability ``level``; ``change``: the
     posterior mean of the parameter's change at the last step (the bias, or
     slope x time since the onset); ``onset_posterior`` and the most probable
-    ``onset``; ``passes``: grids computed."""
+    ``onset``; ``passes``: grids computed; ``best``: the most probable cell
+    (onset, magnitude) and ``residuals`` (steps x outputs): its normalised
+    residuals (NaN before its onset), for a consistency test of the static
+    model."""
 
     name: str
     onsets: tuple[int, ...]
@@ -114,6 +117,8 @@ class StaticPosterior:
     onset: int
     onset_posterior: tuple[float, ...]
     passes: int
+    best: tuple[int, float] | None = None
+    residuals: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -490,10 +495,13 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     low, high = _quantiles(g.magnitudes, g.weight, [(1.0 - level) / 2.0, (1.0 + level) / 2.0])
     change = float(p @ np.concatenate([c for c in g.changes]))
     onset_posterior = np.array([w.sum() for w in g.weight]) / total
+    row = int(np.argmax([np.max(ll) for ll in g.loglik]))  # the most probable cell, and its residuals
+    best = (int(current[row]), float(g.magnitudes[row][int(np.argmax(g.loglik[row]))]))
+    residuals = run_bank(model, ys, us, track, [best[0]], [best[1]], start, residuals=True).z[:, 0]
     return StaticPosterior(name, tuple(int(o) for o in current), tuple(float(w) for w in widths),
                            g.magnitudes, g.loglik, log_evidence, mean, std, low, high, level, change,
                            int(current[int(np.argmax(onset_posterior))]), tuple(float(q) for q in onset_posterior),
-                           passes)
+                           passes, best, residuals)
 
 
 def _merge(onsets: np.ndarray, groups: dict, parts: dict) -> _Grid:
