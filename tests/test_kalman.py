@@ -135,15 +135,18 @@ def exact_grid(package, name, ys, us, onsets, values):
     return kalman.run_bank(fault, ys, us, t, O.ravel(), V.ravel(), fixed).loglik.reshape(O.shape), t
 
 
-@pytest.mark.parametrize("scenario, name, onsets, values", [
-    ("R12:abrupt:0.8@60", "R12_abrupt", list(range(110, 126)), np.linspace(0.3, 1.5, 1201)),
-    ("R12:incipient:0.01@60", "R12_incipient", list(range(88, 152, 4)), np.linspace(0.002, 0.03, 1401)),
+@pytest.mark.parametrize("scenario, name, onsets, values, seed", [
+    ("R12:abrupt:0.8@60", "R12_abrupt", list(range(110, 126)), np.linspace(0.3, 1.5, 1201), 7),
+    ("R12:incipient:0.01@60", "R12_incipient", list(range(88, 152, 4)), np.linspace(0.002, 0.03, 1401), 7),
+    # a wide window of onsets, each with a narrow likelihood in the slope: a first grid coarse against
+    # every onset's peak must not leave out the onsets whose peaks fall between its points
+    ("R10:incipient:0.013333@60", "R10_incipient", list(range(79, 144, 4)), np.linspace(0.006, 0.022, 1601), 0),
 ])
-def test_the_adaptive_grid_integrates_like_a_fine_brute_force_grid(scenario, name, onsets, values):
+def test_the_adaptive_grid_integrates_like_a_fine_brute_force_grid(scenario, name, onsets, values, seed):
     """Posterior mean, std, interval and evidence of the adaptive grid (a few
     dozen cells, started from a poor hint) against quadrature on a grid of
     ~20000 cells over the same onsets, with the magnitude uniform on its prior."""
-    package, ys, us = data("two_tank", scenario, seed=7)
+    package, ys, us = data("two_tank", scenario, seed=seed)
     fault = package.MODELS[name]
     ll, t = exact_grid(package, name, ys, us, onsets, values)
     a, b = fault.FAULT_PRIOR
@@ -163,7 +166,7 @@ def test_the_adaptive_grid_integrates_like_a_fine_brute_force_grid(scenario, nam
     assert p.std == pytest.approx(sd, rel=0.01)
     assert p.low == pytest.approx(low, abs=0.05 * sd) and p.high == pytest.approx(high, abs=0.05 * sd)
     assert p.log_evidence == pytest.approx(evidence, abs=0.01)
-    assert p.values.size < 200
+    assert p.passes <= 3
 
 
 def test_a_drift_that_began_before_the_onsets_tried_reaches_back():

@@ -56,7 +56,8 @@ class KalmanOptions:
     back, 1/16 of the distance to it); ``first_points``, ``points``:
     magnitudes on the first pass of the grid
     and on the others; ``keep``: after a pass, the onsets holding less than
-    this share of the posterior are left out of the next; ``widen``: the first pass
+    this share of the best onset's mass are left out of the next; ``relay``:
+    only onsets holding at least this share of it are laid anew; ``widen``: the first pass
     spans the hint interval widened by this fraction of its width on each
     side; ``passes``: at most this many passes. After a pass whose posterior
     peaks at an end of the grid, the grid reaches its span further that way;
@@ -69,6 +70,7 @@ class KalmanOptions:
     first_points: int = 9
     points: int = 9
     keep: float = 1e-4
+    relay: float = 1e-3
     widen: float = 0.5
     passes: int = 3
     resolution: float = 0.8
@@ -338,19 +340,23 @@ class _Grid:
     top: float
 
 
-def _grid(model, ys, us, track, onsets, spans, ranges, count, prior, start, cache: dict) -> _Grid:
+def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, start, cache: dict) -> _Grid:
     """Row i: ``count`` changes over ``ranges[i]`` (low, high) at onset
-    ``onsets[i]``; ``cache``: rows computed before, by (onset, low, high, count)."""
+    ``onsets[i]``, whose prior weight is ``widths[i]``; ``cache``: rows
+    computed before, by (onset, low, high, count): their log likelihoods and
+    normalised residuals (steps x count x outputs)."""
     changes = np.array([np.linspace(lo, hi, count) if hi > lo else np.full(count, lo) for lo, hi in ranges])
     magnitudes = changes / spans[:, None]
     keys = [(int(o), float(lo), float(hi), count) for o, (lo, hi) in zip(onsets, ranges)]
     new = [i for i, key in enumerate(keys) if key not in cache]
     if new:
-        r = run_bank(model, ys, us, track, np.repeat(onsets[new], count), magnitudes[new].ravel(), start)
-        for i, row in zip(new, r.loglik.reshape(len(new), count)):
-            cache[keys[i]] = row
+        r = run_bank(model, ys, us, track, np.repeat(onsets[new], count), magnitudes[new].ravel(), start,
+                     residuals=True)
+        z = r.z.reshape(len(ys), len(new), count, -1).transpose(1, 0, 2, 3)  # (rows, steps, count, outputs)
+        for i, row, zr in zip(new, r.loglik.reshape(len(new), count), z):
+            cache[keys[i]] = (row, zr)
     inside = (magnitudes >= prior[0]) & (magnitudes <= prior[1])
-    loglik = np.where(inside, np.array([cache[key] for key in keys]), -math.inf)
+    loglik = np.where(inside, np.array([cache[key][0] for key in keys]), -math.inf)
     top = float(np.max(loglik))
     if not math.isfinite(top):
         return _Grid(changes, magnitudes, loglik, np.zeros(loglik.shape), top)
@@ -358,47 +364,58 @@ def _grid(model, ys, us, track, onsets, spans, ranges, count, prior, start, cach
     rule[rule <= 0.0] = 1.0
     if count > 1:
         rule[:, [0, -1]] /= 2.0
-    widths = onset_widths(onsets)
     weight = np.exp(loglik - top) * (widths / spans)[:, None] * rule  # d(slope) = d(change) / span
     return _Grid(changes, magnitudes, loglik, weight, top)
 
 
-def _next_range(changes: np.ndarray, weight: np.ndarray, bounds: tuple[float, float],
-                options: KalmanOptions) -> tuple[float, float] | None:
-    """The range of changes of one onset's next pass from its row of a grid
-    (None: the row is fine); ``bounds``: the changes its prior allows."""
+def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, float],
+                options: KalmanOptions) -> tuple[tuple[float, float] | None, float]:
+    """The range of changes of one onset's next pass from its row of a grid:
+    ``logd``, the log density at its points (-inf outside the prior); None:
+    the row is fine. ``bounds``: the changes its prior allows. On a coarse row
+    the peak may lie between two points, far above them: the parabola through
+    the log density at the three points around the highest one (exact for a
+    Gaussian) places the peak and gives its std. Also the log of the row's
+    mass (the integral of its density over the change), as far as it can be
+    told: the trapezoid rule's on a fine row, the Gaussian's under the
+    parabola on a coarse one, +inf when the peak lies beyond the row."""
     lo, hi = float(changes[0]), float(changes[-1])
     count = len(changes)
-    if count < 3 or not weight.sum() > 0.0:
-        return None
-    density = weight.copy()
-    density[[0, -1]] *= 2.0  # the trapezoid rule's end weights
-    peak = float(density.max())
-    top_at = int(np.argmax(density))
-    vmin, vmax = bounds
-    if top_at == 0 and lo > vmin or top_at == count - 1 and hi < vmax:
-        # the posterior is not located yet: the grid reaches its span further on the side of the peak
-        span = hi - lo
-        return (max(lo - span, vmin), hi) if top_at == 0 else (lo, min(hi + span, vmax))
+    if count < 3 or not np.isfinite(logd).any():
+        return None, float(np.logaddexp.reduce(logd)) if count else -math.inf
+    top = float(np.max(logd))
+    d = np.exp(logd - top)
+    top_at = int(np.argmax(logd))
     spacing = changes[1] - changes[0]
-    w = density / density.sum()
+    vmin, vmax = bounds
+    k = min(max(top_at, 1), count - 2)
+    l0, l1, l2 = logd[k - 1:k + 2] - top
+    bend = l0 - 2.0 * l1 + l2
+    vertex = sd_parabola = None
+    if np.isfinite(bend) and bend < 0.0:
+        vertex = changes[k] + spacing * (l0 - l2) / (2.0 * bend)
+        sd_parabola = spacing / math.sqrt(-bend)
+    at_low, at_high = top_at == 0 and lo > vmin, top_at == count - 1 and hi < vmax
+    if at_low or at_high:  # the peak lies beyond an end: where the parabola puts it, else a span further
+        if vertex is not None and (vertex < lo if at_low else vertex > hi):
+            return (max(vertex - 4.0 * sd_parabola, vmin), min(vertex + 4.0 * sd_parabola, vmax)), math.inf
+        span = hi - lo
+        return ((max(lo - span, vmin), hi) if at_low else (lo, min(hi + span, vmax))), math.inf
+    w = d / d.sum()
     mean = float(w @ changes)
     sd = math.sqrt(max(float(w @ (changes - mean) ** 2), 0.0))
-    edge = density[0] > options.edge * peak and lo > vmin or density[-1] > options.edge * peak and hi < vmax
+    mass = top + math.log(spacing * (d.sum() - (d[0] + d[-1]) / 2.0) or 1e-300)
+    edge = d[0] > options.edge and lo > vmin or d[-1] > options.edge and hi < vmax
     if not (edge or sd < options.resolution * spacing):
-        return None
-    # an end holds mass, or the grid is coarse against the posterior: 4 stds either side of its mode; on
-    # a coarse grid the std and mode come from the parabola through the log density's top three points
-    # (a posterior on one point has no std of its own)
+        return None, mass
+    # an end holds mass, or the grid is coarse against the posterior: 4 stds either side of its mode
     centre = mean
-    l0, l1, l2 = np.log(np.maximum(density[[max(top_at - 1, 0), top_at, min(top_at + 1, count - 1)]],
-                                   1e-300) / peak)
-    bend = l0 - 2.0 * l1 + l2
-    if 0 < top_at < count - 1 and bend < 0.0 and sd < spacing:
-        centre = changes[top_at] + spacing * (l0 - l2) / (2.0 * bend)
-        sd = max(sd, spacing / math.sqrt(-bend))
+    if vertex is not None and sd < spacing:
+        centre, sd = vertex, max(sd, sd_parabola)
+        peak = top + l1 - (l0 - l2) ** 2 / (8.0 * bend)  # the parabola's top
+        mass = max(mass, peak + math.log(sd_parabola * math.sqrt(2.0 * math.pi)))
     new = (max(centre - 4.0 * sd, vmin), min(centre + 4.0 * sd, vmax))
-    return None if np.allclose(new, (lo, hi), rtol=1e-9, atol=0.0) else new
+    return (None if np.allclose(new, (lo, hi), rtol=1e-9, atol=0.0) else new), mass
 
 
 def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets,
@@ -433,6 +450,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
 
     current = np.asarray(sorted(int(o) for o in onsets))
     tried = current.tolist()
+    width_of = dict(zip(tried, onset_widths(tried).tolist()))  # an onset's prior weight: its span in the grid tried
     spans = span(current)
     scale = float((T - hint_onset) * model.DT) if drifts else 1.0
     lo, hi = sorted((hint[0] * scale, hint[1] * scale))
@@ -447,28 +465,37 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     passes = 0
     g = None
     while True:
-        for _ in range(options.passes):
+        for turn in range(options.passes):
             passes += 1
             spans = span(current)
             groups = {}  # rows of one point count are one grid
             for i, o in enumerate(current.tolist()):
                 groups.setdefault(counts[o], []).append(i)
-            parts = {c: _grid(model, ys, us, track, current[rows], spans[rows], [ranges[current[i]] for i in rows],
-                              c, prior, start, cache) for c, rows in groups.items()}
+            widths = np.array([width_of[o] for o in current.tolist()])
+            parts = {c: _grid(model, ys, us, track, current[rows], widths[rows], spans[rows],
+                              [ranges[current[i]] for i in rows], c, prior, start, cache)
+                     for c, rows in groups.items()}
             g = _merge(current, groups, parts)
-            if not math.isfinite(g.top):
+            if not math.isfinite(g.top) or turn == options.passes - 1:
                 break
-            share = np.array([w.sum() for w in g.weight]) / sum(w.sum() for w in g.weight)
-            kept = share >= options.keep * share.max()
-            changed = False
-            for i, o in enumerate(current.tolist()):
-                bounds = (a * spans[i], b * spans[i]) if a * spans[i] <= b * spans[i] else (b * spans[i], a * spans[i])
-                following = _next_range(g.changes[i], g.weight[i], bounds, options) if kept[i] else None
-                if following is not None:
-                    ranges[o], counts[o], changed = following, options.points, True
-            if not changed:
+            following, mass = [], np.empty(len(current))  # log of each onset's mass, as far as its row tells
+            for i in range(len(current)):
+                bounds = tuple(sorted((a * spans[i], b * spans[i])))
+                f, mass[i] = _next_range(g.changes[i], g.loglik[i], bounds, options)
+                following.append(f)
+                mass[i] += math.log(widths[i] / spans[i])
+            told = np.isfinite(mass)
+            best = mass[told].max() if told.any() else math.inf
+            # onsets the posterior leaves out are left out (a coarse row's mass told by its parabola: it
+            # may lie between its points); rows are laid anew only where the posterior's mass is
+            kept = ~told & (mass > 0) | told & (mass >= math.log(options.keep) + best)
+            relaid = [i for i, f in enumerate(following)
+                      if f is not None and kept[i] and not (told[i] and mass[i] < math.log(options.relay) + best)]
+            if not relaid and kept.all():
                 break
-            current = current[kept]  # onsets the posterior leaves out are left out
+            for i in relaid:
+                ranges[int(current[i])], counts[int(current[i])] = following[i], options.points
+            current = current[kept]
         if not (batches and g is not None and math.isfinite(g.top)):
             break
         share = {o: w.sum() for o, w in zip(current.tolist(), g.weight)}
@@ -476,16 +503,17 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
             break
         batch = batches.pop(0)  # a drift that began earlier: reach further back, from the earliest onset's grid
         tried = sorted(set(batch) | set(tried))
+        width_of = dict(zip(tried, onset_widths(tried).tolist()))
         for o in batch:
             ranges[o], counts[o] = ranges[int(current[0])], counts[int(current[0])]
         current = np.asarray(sorted(set(batch) | set(current.tolist())))
     name = getattr(model, "NAME", "")
     nan = math.nan
     if g is None or not math.isfinite(g.top):
-        return StaticPosterior(name, tuple(int(o) for o in current), tuple(float(w) for w in onset_widths(current)),
+        return StaticPosterior(name, tuple(int(o) for o in current), tuple(width_of[int(o)] for o in current),
                                np.zeros((len(current), 0)), np.zeros((len(current), 0)), -math.inf, nan, nan, nan,
                                nan, level, nan, int(current[0]), tuple(0.0 for _ in current), passes)
-    widths = onset_widths(current)
+    widths = [width_of[int(o)] for o in current]
     total = float(sum(w.sum() for w in g.weight))
     log_evidence = g.top + math.log(total) - math.log(b - a)
     p = np.concatenate([w for w in g.weight]) / total
@@ -496,8 +524,11 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     change = float(p @ np.concatenate([c for c in g.changes]))
     onset_posterior = np.array([w.sum() for w in g.weight]) / total
     row = int(np.argmax([np.max(ll) for ll in g.loglik]))  # the most probable cell, and its residuals
-    best = (int(current[row]), float(g.magnitudes[row][int(np.argmax(g.loglik[row]))]))
-    residuals = run_bank(model, ys, us, track, [best[0]], [best[1]], start, residuals=True).z[:, 0]
+    col = int(np.argmax(g.loglik[row]))
+    best = (int(current[row]), float(g.magnitudes[row][col]))
+    changes_row = g.changes[row]
+    key = (best[0], float(changes_row[0]), float(changes_row[-1]), len(changes_row))
+    residuals = cache[key][1][:, col]
     return StaticPosterior(name, tuple(int(o) for o in current), tuple(float(w) for w in widths),
                            g.magnitudes, g.loglik, log_evidence, mean, std, low, high, level, change,
                            int(current[int(np.argmax(onset_posterior))]), tuple(float(q) for q in onset_posterior),
