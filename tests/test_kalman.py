@@ -249,3 +249,21 @@ def test_the_residuals_of_the_most_probable_cell_are_white_for_the_true_model_an
     assert a is None and abs(np.nanmean(z)) < 0.1 and 0.8 < np.nanstd(z) < 1.2
     _, a = alarm("C1_abrupt", (-1.0, 1.0))
     assert a is not None
+
+
+def test_a_hypothesis_whose_likelihood_peaks_outside_its_prior_gets_its_grid_against_the_bound():
+    """R2 may only rise (models/circuit.yaml); data of R1 falling pull R2's
+    drift towards a fall. The grid then stays inside the prior, against its
+    bound 0, and the posterior is finite there (this sweep run once crashed:
+    a grid laid wholly beyond the bound)."""
+    import bgc
+    from bgc.runtime.diagnose import DiagnosisOptions
+
+    d = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R1:incipient:-0.0208821@5.85", seed=2922547472,
+                     generated=GENERATED, options=DiagnosisOptions(seed=2922547472, particles=500, workers=1)).diagnosis
+    assert d.candidates[0] == "R1_incipient"
+    h = next(h for h in d.hypotheses if h.name == "R2_incipient")
+    p = h.static
+    assert p is not None and math.isfinite(p.log_evidence) and p.residuals is not None
+    assert 0.0 <= p.low <= p.mean <= p.high
+    assert all(np.all(np.diff(v) >= 0) and v[0] >= 0.0 for v in p.values)

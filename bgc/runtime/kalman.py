@@ -390,7 +390,8 @@ def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, floa
     vmin, vmax = bounds
     k = min(max(top_at, 1), count - 2)
     l0, l1, l2 = logd[k - 1:k + 2] - top
-    bend = l0 - 2.0 * l1 + l2
+    with np.errstate(invalid="ignore"):
+        bend = l0 - 2.0 * l1 + l2  # NaN where a point lies outside the prior
     vertex = sd_parabola = None
     if np.isfinite(bend) and bend < 0.0:
         vertex = changes[k] + spacing * (l0 - l2) / (2.0 * bend)
@@ -398,7 +399,7 @@ def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, floa
     at_low, at_high = top_at == 0 and lo > vmin, top_at == count - 1 and hi < vmax
     if at_low or at_high:  # the peak lies beyond an end: where the parabola puts it, else a span further
         if vertex is not None and (vertex < lo if at_low else vertex > hi):
-            return (max(vertex - 4.0 * sd_parabola, vmin), min(vertex + 4.0 * sd_parabola, vmax)), math.inf
+            return _inside(vertex - 4.0 * sd_parabola, vertex + 4.0 * sd_parabola, vmin, vmax), math.inf
         span = hi - lo
         return ((max(lo - span, vmin), hi) if at_low else (lo, min(hi + span, vmax))), math.inf
     w = d / d.sum()
@@ -414,8 +415,19 @@ def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, floa
         centre, sd = vertex, max(sd, sd_parabola)
         peak = top + l1 - (l0 - l2) ** 2 / (8.0 * bend)  # the parabola's top
         mass = max(mass, peak + math.log(sd_parabola * math.sqrt(2.0 * math.pi)))
-    new = (max(centre - 4.0 * sd, vmin), min(centre + 4.0 * sd, vmax))
+    new = _inside(centre - 4.0 * sd, centre + 4.0 * sd, vmin, vmax)
     return (None if np.allclose(new, (lo, hi), rtol=1e-9, atol=0.0) else new), mass
+
+
+def _inside(lo: float, hi: float, vmin: float, vmax: float) -> tuple[float, float]:
+    """(lo, hi) cut to the prior's (vmin, vmax); a range beyond a bound (the
+    likelihood peaks outside the prior) keeps its width against that bound."""
+    width = min(hi - lo, vmax - vmin)
+    if hi <= vmin:
+        return vmin, vmin + width
+    if lo >= vmax:
+        return vmax - width, vmax
+    return max(lo, vmin), min(hi, vmax)
 
 
 def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets,
@@ -517,18 +529,13 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     total = float(sum(w.sum() for w in g.weight))
     log_evidence = g.top + math.log(total) - math.log(b - a)
     p = np.concatenate([w for w in g.weight]) / total
-    values = np.concatenate([m for m in g.magnitudes])
-    mean = float(p @ values)
-    std = math.sqrt(max(float(p @ (values - mean) ** 2), 0.0))
-    low, high = _quantiles(g.magnitudes, g.weight, [(1.0 - level) / 2.0, (1.0 + level) / 2.0])
+    mean, std, (low, high) = _distribution(g.magnitudes, g.weight, [(1.0 - level) / 2.0, (1.0 + level) / 2.0])
     change = float(p @ np.concatenate([c for c in g.changes]))
     onset_posterior = np.array([w.sum() for w in g.weight]) / total
     row = int(np.argmax([np.max(ll) for ll in g.loglik]))  # the most probable cell, and its residuals
     col = int(np.argmax(g.loglik[row]))
     best = (int(current[row]), float(g.magnitudes[row][col]))
-    changes_row = g.changes[row]
-    key = (best[0], float(changes_row[0]), float(changes_row[-1]), len(changes_row))
-    residuals = cache[key][1][:, col]
+    residuals = cache[(best[0], *(float(v) for v in ranges[best[0]]), counts[best[0]])][1][:, col]
     return StaticPosterior(name, tuple(int(o) for o in current), tuple(float(w) for w in widths),
                            g.magnitudes, g.loglik, log_evidence, mean, std, low, high, level, change,
                            int(current[int(np.argmax(onset_posterior))]), tuple(float(q) for q in onset_posterior),
@@ -560,13 +567,16 @@ def _ragged(rows: list) -> np.ndarray:
     return out
 
 
-def _quantiles(values, weight, qs) -> tuple[float, ...]:
-    """Quantiles of a mixture over onsets (rows) of densities given on each
-    row's evenly spaced grid (``values``; ``weight``: the trapezoid rule's
-    masses). Between two points a row's log density is linear (exact for an
-    exponential tail, close for a Gaussian: a density linear between coarse
-    points would fatten the tails); its cumulative mass is evaluated on one
-    fine common grid, the rows' masses summed and the sum inverted."""
+def _distribution(values, weight, qs) -> tuple[float, float, tuple[float, ...]]:
+    """Mean, std and quantiles ``qs`` of a mixture over onsets (rows) of
+    densities given on each row's evenly spaced grid (``values``; ``weight``:
+    the trapezoid rule's masses). Between two points a row's log density is
+    linear (exact for an exponential tail, close for a Gaussian: a density
+    linear between coarse points would fatten the tails, and the trapezoid
+    rule misplaces the mean of one that falls by orders of magnitude between
+    two points, as at a bound of the prior); its cumulative mass is evaluated
+    on one fine common grid, the rows' masses summed, and the moments and
+    quantiles read off that sum."""
     fine = np.linspace(min(float(np.min(v)) for v in values), max(float(np.max(v)) for v in values), 4096)
     total = np.zeros(len(fine))
     for v, w in zip(values, weight):
@@ -591,5 +601,9 @@ def _quantiles(values, weight, qs) -> tuple[float, ...]:
         total += row * (mass / cum[-1])
     if not total[-1] > 0.0:
         mean = float(sum(np.sum(v * w) for v, w in zip(values, weight)) / sum(np.sum(w) for w in weight))
-        return tuple(mean for _ in qs)
-    return tuple(float(q) for q in np.interp(np.asarray(qs) * total[-1], total, fine))
+        return mean, 0.0, tuple(mean for _ in qs)
+    cell = np.diff(total) / total[-1]  # the mass between two fine points, at their midpoint
+    mid = (fine[1:] + fine[:-1]) / 2.0
+    mean = float(cell @ mid)
+    std = math.sqrt(max(float(cell @ (mid - mean) ** 2), 0.0))
+    return mean, std, tuple(float(q) for q in np.interp(np.asarray(qs) * total[-1], total, fine))
