@@ -79,9 +79,165 @@ def test_cholesky_of_a_stack_along_the_last_axis_is_numpys():
 
 
 def test_a_covariance_made_indefinite_by_rounding_still_factors():
-    P = np.array([[1.0, 1.0], [1.0, 1.0 - 1e-17]])[:, :, None]  # singular, the pivot rounds to <= 0
+    P = np.array([[1.0, 1.0], [1.0, 1.0 - 1e-15]])[:, :, None]  # the second pivot is -1e-15
     L = cholesky(P)
     assert np.all(np.isfinite(L)) and L[1, 1, 0] > 0
+    assert np.allclose(np.einsum("ikc,jkc->ijc", L, L), P, rtol=0.0, atol=1e-11)  # a nearby matrix's factor
+
+
+# The grid posterior against closed forms: a likelihood known in closed form
+# (a Gaussian in the magnitude, or in a drift's change) stands in for the
+# Kalman filters, so the grid's quadrature, its passes and its handling of
+# the prior's bounds are checked alone. References: the truncated normal's
+# moments, quantiles and mass, in 800-digit arithmetic (mpmath).
+
+def truncated_normal(mu, sd, a, b, level=0.95):
+    """Mean, std, central interval and log of the integral of exp(-(x -
+    mu)^2 / (2 sd^2)) over [a, b], from Phi and its inverse."""
+    mp = pytest.importorskip("mpmath")
+    mp.mp.dps = 800  # a bound 30 stds from the peak leaves a mass of 1e-196 to take differences of
+    mu, sd, a, b = (mp.mpf(v) for v in (mu, sd, a, b))
+    al, be = (a - mu) / sd, (b - mu) / sd
+    Z = mp.ncdf(be) - mp.ncdf(al)
+    pa, pb = mp.npdf(al), mp.npdf(be)
+    mean = mu + sd * (pa - pb) / Z
+    var = sd ** 2 * (1 + (al * pa - be * pb) / Z - ((pa - pb) / Z) ** 2)
+
+    def quantile(q):
+        return mu + sd * mp.sqrt(2) * mp.erfinv(2 * (mp.ncdf(al) + q * Z) - 1)
+
+    return (float(mean), float(mp.sqrt(var)), float(quantile((1 - level) / 2)), float(quantile((1 + level) / 2)),
+            float(mp.log(sd * mp.sqrt(2 * mp.pi) * Z)))
+
+
+def test_the_quadrature_of_a_row_is_exact_for_gaussians_cut_off_or_not_and_for_exponential_tails():
+    # a Gaussian over +-4 stds at spacings from fine to 2 stds, off the points' lattice
+    for spacing in (0.25, 1.0, 2.0):
+        x = np.arange(-4.0, 4.0 + 1e-9, spacing) + 0.3 * spacing
+        _, logm = kalman.row_quadrature(x, -x ** 2 / 2)
+        assert np.log(np.exp(logm).sum()) == pytest.approx(truncated_normal(0, 1, x[0], x[-1])[4], abs=1e-9)
+    # the peak between two points of a coarse row (3 points over 6 stds)
+    x = np.array([-2.0, 1.0, 4.0])
+    _, logm = kalman.row_quadrature(x, -(x - 0.4) ** 2 / 2)
+    assert np.log(np.exp(logm).sum()) == pytest.approx(truncated_normal(0.4, 1, -2, 4)[4], abs=1e-9)
+    # cut off by a bound where the density falls by 20 to 500 nats over one interval
+    for mu in (2.5, 10.0, 51.0):
+        x = np.linspace(1.0, 2.0, 9)
+        nodes, logm = kalman.row_quadrature(x, -(x - mu) ** 2 / (2 * 0.01))
+        ref = truncated_normal(mu, 0.1, 1.0, 2.0)
+        top = logm.max()
+        p = np.exp(logm - top)
+        assert top + np.log(p.sum()) == pytest.approx(ref[4], abs=1e-5)  # rounding of log densities of -1e5
+        assert (p @ nodes) / p.sum() == pytest.approx(ref[0], abs=1e-3 * ref[1])
+    # an exponential tail, 40 nats per interval
+    x = np.linspace(0.0, 1.0, 5)
+    _, logm = kalman.row_quadrature(x, -160.0 * x)
+    assert np.exp(logm).sum() == pytest.approx((1 - math.exp(-160.0)) / 160.0, rel=1e-9)
+    # points outside the prior (-inf) hold no mass, and neither do the intervals reaching them
+    x = np.linspace(-4.0, 4.0, 9)
+    logd = np.where(x <= 1.0, -x ** 2 / 2, -math.inf)
+    _, logm = kalman.row_quadrature(x, logd)
+    assert np.log(np.exp(logm).sum()) == pytest.approx(truncated_normal(0, 1, -4, 1)[4], abs=1e-9)
+
+
+class FakeFault:
+    """A fault model with one physical state and the fault states of its
+    kind, for :func:`kalman.static_posterior` with :func:`kalman.run_bank`
+    replaced by a likelihood in closed form."""
+
+    DT = 0.5
+    NAME = "fake"
+
+    def __init__(self, kind, prior):
+        self.FAULT = {"kind": kind}
+        self.FAULT_PRIOR = prior
+        drifts = kind == "incipient"
+        self.STATES = ("x", "p", "c") if drifts else ("x", "c")
+        self.STATE_KINDS = ("physical", "parameter", "slope") if drifts else ("physical", "magnitude")
+
+    def augment(self, x, rng):
+        return np.zeros((len(self.STATES), x.shape[1]))
+
+
+def synthetic(monkeypatch, loglik):
+    """Replace the Kalman filters by ``loglik(onsets, magnitudes)``."""
+    def run_bank(model, ys, us, track, onsets, magnitudes, fixed, residuals=False):
+        ll = loglik(np.asarray(onsets, dtype=float), np.asarray(magnitudes, dtype=float))
+        return kalman.BankResult(ll, None, None, np.zeros((len(ys), len(ll), 1)))
+    monkeypatch.setattr(kalman, "run_bank", run_bank)
+
+
+def posterior(model, onsets, hint, hint_onset, T=200):
+    track = kalman.NominalTrack(np.zeros((T + 1, 1)), np.zeros((T + 1, 1, 1)), np.zeros(T + 1))
+    return kalman.static_posterior(model, np.zeros((T, 1)), np.zeros((T, 1)), track, onsets, hint, hint_onset, 0.95)
+
+
+@pytest.mark.parametrize("mu, sd, hint", [
+    (1.0, 0.01, (0.8, 1.2)),       # inside, a wide hint
+    (1.0, 0.01, (0.9995, 1.0005)),  # inside, a hint 40 times narrower than the posterior
+    (1.0, 1e-4, (0.5, 1.5)),        # inside, a hint 5000 times wider
+    (1.99, 0.01, (1.8, 1.99)),      # cut off by the bound 2 one std from the peak
+    (2.05, 0.01, (1.8, 1.99)),      # the likelihood peaks 5 stds beyond the bound
+    (2.3, 0.01, (1.8, 1.99)),       # 30 stds beyond: the posterior is an exponential against the bound
+    (2.1, 0.05, (2.1, 2.2)),        # a hint wholly beyond the bound
+])
+def test_the_static_posterior_of_a_bias_is_the_truncated_normal(monkeypatch, mu, sd, hint):
+    synthetic(monkeypatch, lambda o, c: -0.5 * ((c - mu) / sd) ** 2)
+    p = posterior(FakeFault("abrupt", (0.0, 2.0)), [100], hint, 100)
+    mean, std, low, high, log_mass = truncated_normal(mu, sd, 0.0, 2.0)
+    assert p.mean == pytest.approx(mean, abs=0.01 * std)
+    assert p.change == pytest.approx(p.mean, rel=1e-12)  # a bias is its change
+    assert p.std == pytest.approx(std, rel=0.01)
+    assert p.low == pytest.approx(low, abs=0.05 * std) and p.high == pytest.approx(high, abs=0.05 * std)
+    assert p.log_evidence == pytest.approx(log_mass - math.log(2.0), abs=0.01)
+    assert not p.truncated
+
+
+def test_a_drift_at_its_prior_bound_keeps_the_bound_cell_despite_rounding(monkeypatch):
+    """The change c (T - onset) dt divided back by the span can land a hair
+    above the slope's bound: that cell is the bound's, not outside the prior.
+    The likelihood pins the change 2 % beyond what the bound allows."""
+    b, T, dt = 0.05333333333333334, 200, 0.5
+    for onset in (158, 159, 161, 170):
+        span = (T - onset) * dt
+        change, sd = 1.02 * b * span, 0.01 * b * span
+        synthetic(monkeypatch, lambda o, c: -0.5 * ((c * (T - o) * dt - change) / sd) ** 2)
+        p = posterior(FakeFault("incipient", (0.0, b)), [onset], (0.9 * b, 0.99 * b), onset)
+        mean, std, low, high, log_mass = truncated_normal(change / span, sd / span, 0.0, b)
+        assert np.isfinite(p.loglik[0][-1]) and p.values[0][-1] == b
+        assert p.mean == pytest.approx(mean, abs=0.01 * std)
+        assert p.change == pytest.approx(mean * span, abs=0.01 * std * span)
+        assert p.high == pytest.approx(high, abs=0.05 * std)
+        assert p.log_evidence == pytest.approx(log_mass - math.log(b), abs=0.01)
+
+
+def test_onsets_weigh_by_their_spans_and_a_late_onset_beyond_the_first_grid_is_kept(monkeypatch):
+    """Two onsets with the same likelihood in the slope: the first grid, laid
+    in the change of the earlier onset, puts the later onset's cells (half the
+    span, twice the slope) beyond the prior; it is moved inside and weighs as
+    much. The evidence is the mean of the two onsets' (equal widths) times the
+    window's length."""
+    synthetic(monkeypatch, lambda o, c: -0.5 * ((c - 0.0402) / 1e-4) ** 2)
+    p = posterior(FakeFault("incipient", (0.0, 0.04)), [100, 150], (0.035, 0.0399), 100)
+    mean, std, low, high, log_mass = truncated_normal(0.0402, 1e-4, 0.0, 0.04)
+    assert p.onsets == (100, 150) and p.onset_posterior == pytest.approx((0.5, 0.5), abs=0.01)
+    assert p.mean == pytest.approx(mean, abs=0.01 * std)
+    assert p.log_evidence == pytest.approx(log_mass + math.log(100.0) - math.log(0.04), abs=0.01)
+
+
+def test_onsets_far_apart_in_mass_do_not_blur_the_interval(monkeypatch):
+    """A narrow main onset and a far, wide, improbable one: the interval is
+    the main row's (the mixture's quantiles read off each row's own nodes)."""
+    rows = {100: (0.0112359, 1e-7, 0.0), 60: (0.005, 1e-3, -14.0)}  # 0.8 % of the mass at 60
+
+    def loglik(o, c):
+        mu, sd, base = (np.array([rows[int(k)][j] for k in o]) for j in range(3))
+        return base - 0.5 * ((c - mu) / sd) ** 2
+
+    synthetic(monkeypatch, loglik)
+    p = posterior(FakeFault("abrupt", (0.0, 0.1)), [60, 100], (0.004, 0.012), 100)
+    main = truncated_normal(0.0112359, 1e-7, 0.0, 0.1)
+    assert p.high - p.low == pytest.approx(main[3] - main[2], rel=0.05)
 
 
 def test_the_bank_on_a_linear_plant_is_the_kalman_filter_derived_by_hand():

@@ -170,14 +170,15 @@ def diagnosis_estimate(r, fmt: str = "png") -> bytes:
     for ax, h, c in zip(axes, shown, _COLORS * 4):
         t = d.time[h.start:]
         e = h.estimate
-        static = h.filter_estimate is not None  # the estimate is the static posterior's
+        static = h.filter_estimate is not None  # the estimate is the static posterior's (or --refine's grid's)
         ax.plot(t, h.magnitude, "-", lw=1.2, color=c, label="particle filter" if static else "estimate")
         ax.fill_between(t, h.magnitude_band[:, 0], h.magnitude_band[:, 1], color=c, alpha=0.2, lw=0,
                         label=f"{100 * e.level:.0f} % interval" + (" (particle filter)" if static else ""))
         if static:
             span = d.time[h.onset:]
             ax.plot(span, np.full(len(span), e.value), "--", lw=1.4, color="#d62728",
-                    label="static posterior (Kalman filters), from its onset")
+                    label=("static posterior (Kalman filters)" if e.method == "kalman"
+                           else "grid posterior (particle filters)") + ", from its onset")
             ax.fill_between(span, e.low, e.high, color="#d62728", alpha=0.15, lw=0,
                             label=f"its {100 * e.level:.0f} % interval")
         truth = run.parameters.get(h.parameter)

@@ -91,6 +91,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import multiprocessing
+import sys
 import time
 import zlib
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -122,10 +123,11 @@ class DiagnosisOptions:
     up at the earliest onset tried, up to ``history`` (the nominal clouds are
     kept that far back); ``spacing``: steps between the onsets a drift's
     particle filters are tried from near the alarm (further back, 1/16 of the
-    distance to it; the detector's estimate is always one): 8, since with
-    ``identify = "kalman"`` the Kalman filters search the onset on their own
-    grid (``kalman.spacing``, 4) and the particle filters only need to follow
-    the data (with ``identify = "filter"``, 4 places the onset better); ``near``: samples
+    distance to it; the detector's estimate is always one); None: 8 with
+    ``identify = "kalman"`` (the Kalman filters search the onset on their own
+    grid, ``kalman.spacing``, and the particle filters only need to follow
+    the data), 4 with ``identify = "filter"`` (which places the onset better
+    there); ``near``: samples
     before the detector's change point a step change is tried from; ``symbol_steps``: open-loop
     steps read for the symbols after the detection (a slope needs samples
     after the magnitude is seen); ``interval``: probability of the reported interval;
@@ -156,7 +158,7 @@ class DiagnosisOptions:
     windows: tuple[int, ...] = (1, 8, 32)
     history: int = 256
     search: int = 64
-    spacing: int = 8
+    spacing: int | None = None
     near: int = 4
     symbol_steps: int = 32
     interval: float = 0.95
@@ -209,8 +211,13 @@ class Hypothesis:
     state estimates (mean, std of the plant's states) and magnitude (mean,
     interval), when it was dropped and why (None: it
     survived), its log evidence (over the onsets) and posterior probability
-    among the hypotheses; ``static_log_evidence``: with ``rank``, the evidence
-    of its model with the magnitude held static (None: not computed)."""
+    among the hypotheses. With the magnitude held static (``identify =
+    "kalman"``, or ``rank``): ``static_log_evidence``, the evidence of its
+    model with the magnitude held static (None: not computed); ``static``,
+    its static posterior (Kalman filters); ``estimate`` is then the static
+    posterior's and ``filter_estimate`` the particle filters' own;
+    ``static_alarm``: the first alarm of the consistency test on the static
+    posterior's most likely cell (None: it passed, or was not run)."""
 
     name: str
     parameter: str
@@ -356,7 +363,8 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     # onsets tried: for a drift, the detector's estimate and a grid back to `search` steps
     # before the alarm (extended below); for a step change (its change point is sharp), the
     # samples around the detector's estimate
-    reach = drift_onsets(detection.step, detection.onset, options.spacing, options.history)
+    spacing = options.spacing or (8 if options.identify == "kalman" else 4)
+    reach = drift_onsets(detection.step, detection.onset, spacing, options.history)
     grid = [k for k in reach if k >= detection.step - options.search or k == detection.onset]
     near = {k for k in range(detection.onset - options.near, detection.onset + 3) if 0 <= k <= detection.step}
     onsets = {True: grid, False: sorted(near)}
@@ -408,15 +416,15 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         # a drift whose onsets' posterior piles up at the earliest one tried began earlier:
         # its grid is extended back by `search` steps (up to `history` before the alarm)
         tried = starts_of[name]
-        more = [k for k in reach if tried[0] - options.search <= k < tried[0]]
+        more = next(iter(_earlier(reach, tried, options.search)), ())
         if not (drifts[name] and more) or options.identify == "kalman":  # the Kalman filters reach back instead
             return []
         w, log_evidence = _onset_weights(tried, [results[(name, s)]["evidence"] for s in tried])
         if not (math.isfinite(log_evidence) and w[:EDGE].sum() >= EXTEND):
             return []
-        starts_of[name] = sorted(more + tried)
+        starts_of[name] = sorted([*more, *tried])
         say(f"looking for earlier onsets of {name}")
-        return more
+        return list(more)
 
     def assemble(name: str) -> dict:
         """Hypothesis ``name`` from its filters' results: its most probable onset, whether it is
@@ -471,10 +479,10 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         if h["dropped"] is not None:
             return None
         tried = kalman_onsets[drifts[name]]
-        earlier = _earlier(kalman_reach, tried[0], options.search) if drifts[name] else ()
-        return _static_job, (package.__name__, name, ys, us, track[0], tried,
-                             (h["estimate"].low, h["estimate"].high), h["start"], options.interval,
-                             options.kalman, earlier)
+        earlier = _earlier(kalman_reach, tried, options.search) if drifts[name] else ()
+        return _static_job, StaticJob(package.__name__, name, ys, us, track[0], tuple(tried),
+                                      (h["estimate"].low, h["estimate"].high), h["start"], options.interval,
+                                      options.kalman, earlier)
 
     def landed(name: str, posterior: StaticPosterior) -> None:
         posteriors[name] = posterior
@@ -499,6 +507,13 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                 if p is not None and math.isfinite(p.log_evidence):
                     h["filter_estimate"] = h["estimate"]
                     h["estimate"] = static_estimate(h["estimate"], p)
+                    if p.truncated:
+                        notes.append(f"{h['name']}: its magnitude's posterior may reach past the Kalman filters' "
+                                     f"last grid; its evidence and interval may be short")
+                elif p is not None and h["dropped"] is None:
+                    h["dropped"] = T - 1
+                    h["reason"] = ("with its magnitude held static, its cubature Kalman filters found no finite "
+                                   "likelihood at any onset and magnitude of their grid")
         else:
             notes.append("the cubature Kalman filters found no finite likelihood: the particle filters' evidence "
                          "and estimates are reported")
@@ -560,10 +575,20 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
 IDENTIFY = ("kalman", "filter")
 
 
-def _earlier(reach: list[int], first: int, search: int) -> tuple[tuple[int, ...], ...]:
-    """The onsets of ``reach`` before ``first``, in batches of ``search``
-    samples, the nearest batch first."""
-    batches, edge = [], first
+def _earlier(reach: list[int], tried, search: int) -> tuple[tuple[int, ...], ...]:
+    """The onsets of ``reach`` not ``tried`` and before the latest one
+    tried, in batches of ``search`` samples back from the earliest tried
+    (the gap between the tried ones first: the detector's change point may
+    lie far before the others), the nearest batch first.
+
+    >>> _earlier([100, 150, 190, 200, 210, 220], [180, 200, 210, 220], 16)
+    ((190,), (150,), (100,))
+    >>> _earlier([100, 150, 190, 200, 210, 220], [150, 210, 220], 16)
+    ((190, 200), (100,))
+    """
+    tried = sorted(tried)
+    gap = tuple(k for k in reach if tried[0] < k < tried[-1] and k not in tried)
+    batches, edge = [gap] if gap else [], tried[0]
     while any(k < edge for k in reach):
         batch = tuple(k for k in reach if edge - search <= k < edge)
         if batch:
@@ -572,20 +597,36 @@ def _earlier(reach: list[int], first: int, search: int) -> tuple[tuple[int, ...]
     return tuple(batches)
 
 
-def _static_job(job) -> StaticPosterior:
-    """:func:`bgc.runtime.kalman.static_posterior` of one hypothesis (in a worker process)."""
-    import sys
+@dataclass(frozen=True, slots=True)
+class StaticJob:
+    """The arguments of :func:`bgc.runtime.kalman.static_posterior` for one
+    hypothesis: ``package_name``, the generated package (imported in the
+    worker by name), ``name``, its fault model."""
 
-    package_name, name, ys, us, track, onsets, hint, hint_onset, level, options, earlier = job
-    return kalman.static_posterior(sys.modules[package_name].MODELS[name], ys, us, track, onsets, hint,
-                                   hint_onset, level, options, earlier)
+    package_name: str
+    name: str
+    ys: np.ndarray
+    us: np.ndarray
+    track: kalman.NominalTrack
+    onsets: tuple[int, ...]
+    hint: tuple[float, float]
+    hint_onset: int
+    level: float
+    options: KalmanOptions
+    earlier: tuple[tuple[int, ...], ...]
+
+
+def _static_job(job: StaticJob) -> StaticPosterior:
+    """:func:`bgc.runtime.kalman.static_posterior` of one hypothesis (in a worker process)."""
+    return kalman.static_posterior(sys.modules[job.package_name].MODELS[job.name], job.ys, job.us, job.track,
+                                   job.onsets, job.hint, job.hint_onset, job.level, job.options, job.earlier)
 
 
 def _checked(h: Hypothesis, outputs, options: DiagnosisOptions) -> Hypothesis:
     """``h`` with the consistency test of its static model: the windowed
     Z-test of section 5 (a probability ``rejection`` of an alarm on the true
     model over the run) on the normalised residuals of its static
-    posterior's most probable cell, from that cell's onset; its first alarm,
+    posterior's most likely cell, from that cell's onset; its first alarm,
     or None."""
     if h.static is None or h.static.residuals is None or h.static.best is None:
         return h

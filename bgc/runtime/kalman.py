@@ -35,8 +35,10 @@ while the posterior leans on an end and narrowed while its spacing is coarse
 against the posterior's std. The evidence of the hypothesis, p(y |
 hypothesis), is the sum over the onsets (each weighed by the span of time it
 stands for: a uniform prior in time) of the likelihood integrated over the
-magnitude's uniform prior (trapezoid rule); it covers the data from step 0,
-so hypotheses compare like for like.
+magnitude's uniform prior (:func:`row_quadrature`: the log likelihood
+interpolated by parabolas between the grid's points, exact for a Gaussian
+posterior whether or not a bound of the prior cuts it off); it covers the
+data from step 0, so hypotheses compare like for like.
 """
 
 from __future__ import annotations
@@ -46,6 +48,8 @@ from dataclasses import dataclass
 from types import ModuleType
 
 import numpy as np
+
+from ..kinds import fault_kind
 
 LOG_2PI = math.log(2.0 * math.pi)
 
@@ -72,9 +76,14 @@ class KalmanOptions:
     keep: float = 1e-4
     relay: float = 1e-3
     widen: float = 0.5
-    passes: int = 3
+    passes: int = 4
     resolution: float = 0.8
     edge: float = 1e-3
+
+    def __post_init__(self):
+        if self.first_points < 3 or self.points < 3 or self.passes < 1 or self.spacing < 1:
+            raise ValueError("KalmanOptions: a row needs at least 3 points (first_points, points), passes and "
+                             "spacing at least 1")
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,11 +107,15 @@ class StaticPosterior:
     hypothesis); the magnitude's posterior ``mean``, ``std`` and central
     interval (``low``, ``high``) of probability ``level``; ``change``: the
     posterior mean of the parameter's change at the last step (the bias, or
-    slope x time since the onset); ``onset_posterior`` and the most probable
-    ``onset``; ``passes``: grids computed; ``best``: the most probable cell
-    (onset, magnitude) and ``residuals`` (steps x outputs): its normalised
-    residuals (NaN before its onset), for a consistency test of the static
-    model."""
+    slope x time since the onset); ``onset_posterior`` (the mass of each
+    onset of the grid) and the most probable ``onset`` (the largest mass per
+    sample the onset stands for); ``passes``: grids computed; ``best``: the
+    most likely cell (onset, magnitude) and ``residuals`` (steps x outputs):
+    its normalised residuals (NaN before its onset), for a consistency test
+    of the static model; ``truncated``: the posterior may reach past the
+    grid's last pass (a row still holds mass at an end short of a bound of
+    the prior). ``values`` and ``loglik`` are object arrays of rows when the
+    onsets' rows differ in length."""
 
     name: str
     onsets: tuple[int, ...]
@@ -121,6 +134,7 @@ class StaticPosterior:
     passes: int
     best: tuple[int, float] | None = None
     residuals: np.ndarray | None = None
+    truncated: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,9 +162,10 @@ def cholesky(P: np.ndarray) -> np.ndarray:
     """Lower Cholesky factors of covariances stacked along the last axis (n,
     n, C), one column of the factor at a time for all of them at once (the
     matrices are small and many: NumPy's per-matrix routines cost more per
-    call than the arithmetic). A pivot that rounding made zero or negative is
-    set to a tiny multiple of its diagonal entry (the factor of a matrix
-    made positive definite by that much)."""
+    call than the arithmetic). A pivot under 1e-12 of its diagonal entry
+    (zero or negative by rounding, or by a matrix that is not positive
+    definite) is raised to that: the result is then the factor of a nearby
+    positive definite matrix, not of ``P``."""
     n = P.shape[0]
     L = np.zeros(P.shape)
     for j in range(n):
@@ -325,18 +340,77 @@ def onset_widths(onsets) -> np.ndarray:
 EXTEND = 0.05
 EDGE = 2
 
+#: Gauss-Legendre nodes and weights on [0, 1], for each interval of a row
+_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(8)
+_GL_NODES, _GL_WEIGHTS = (_GL_NODES + 1.0) / 2.0, _GL_WEIGHTS / 2.0
+#: the most the log density may change over one Gauss-Legendre panel (8 nodes
+#: integrate exp(-8 t) on [0, 1] to about 1e-10); a steeper interval is split
+_PANEL_RANGE = 8.0
+
+
+def row_quadrature(values: np.ndarray, logd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Quadrature nodes and the log of their masses for a density known by
+    its log ``logd`` at the evenly spaced points ``values`` (-inf: outside
+    the prior).
+
+    Between two points the log density is the mean of the parabolas through
+    the three points on either side (one of them at an end of the row; the
+    line between the two when neither exists), integrated by Gauss-Legendre
+    panels, an interval split into as many as keep the log density's range
+    on each under ``_PANEL_RANGE``. The rule is exact for a Gaussian at any
+    spacing, cut off by a bound of the prior or not, and for an exponential
+    tail (the trapezoid rule, exact for a smooth density that vanishes at
+    both ends, is off by a factor of about half the log density's fall over
+    one interval where a bound cuts a steep density off); a peak that lies
+    between two points is found. An interval with an end outside the prior
+    holds no mass. A row of one point (or of zero width) is a point mass.
+
+    >>> x, logm = row_quadrature(np.linspace(-4.0, 4.0, 9), -np.linspace(-4.0, 4.0, 9) ** 2 / 2)
+    >>> round(float(np.exp(logm).sum()), 6) == round(math.sqrt(2 * math.pi) * math.erf(4 / math.sqrt(2)), 6)
+    True
+    """
+    v = np.asarray(values, dtype=float)
+    lg = np.asarray(logd, dtype=float)
+    if len(v) < 2 or not v[-1] > v[0]:
+        return v[:1].copy(), lg[:1].copy()
+    h = (v[-1] - v[0]) / (len(v) - 1)
+    l0, l1 = lg[:-1, None], lg[1:, None]
+    lm = np.concatenate([[-math.inf], lg[:-2]])[:, None]  # the point before each interval
+    lp = np.concatenate([lg[2:], [-math.inf]])[:, None]  # the point after it
+
+    def interpolant(t: np.ndarray) -> np.ndarray:
+        with np.errstate(invalid="ignore"):
+            left = l0 + (l1 - lm) / 2.0 * t + (l1 - 2.0 * l0 + lm) / 2.0 * t * t
+            right = l0 + (l1 - l0) * t + (lp - 2.0 * l1 + l0) / 2.0 * (t * t - t)
+            line = l0 + (l1 - l0) * t
+            has_left, has_right = np.isfinite(lm), np.isfinite(lp)
+            out = np.where(has_left & has_right, (left + right) / 2.0,
+                           np.where(has_left, left, np.where(has_right, right, line)))
+        return np.where(np.isfinite(l0) & np.isfinite(l1), out, -math.inf)
+
+    probe = interpolant(np.linspace(0.0, 1.0, 9)[None, :])
+    ok = np.isfinite(probe).all(axis=1)
+    spread = float(np.max(np.ptp(probe[ok], axis=1))) if ok.any() else 0.0
+    panels = int(min(max(math.ceil(spread / _PANEL_RANGE), 1), 256))
+    t = ((np.arange(panels)[:, None] + _GL_NODES[None, :]) / panels).ravel()[None, :]
+    w = np.tile(_GL_WEIGHTS / panels, panels)[None, :]
+    with np.errstate(divide="ignore"):
+        logm = interpolant(t) + np.log(w * h)
+    return (v[:-1, None] + h * t).ravel(), logm.ravel()
+
 
 @dataclass(frozen=True, slots=True)
 class _Grid:
     """One pass: per onset (rows) an evenly spaced grid of changes, the
-    cells' magnitudes and log likelihoods, and their posterior masses
-    ``weight`` (trapezoid rule, onset width, the prior's density in the
-    magnitude), scaled by exp(``top``)."""
+    cells' magnitudes and log likelihoods (rows x points; object arrays of
+    rows when the rows differ in length), and each row's posterior mass
+    ``mass`` (its onset's prior weight times the likelihood integrated over
+    the magnitude by :func:`row_quadrature`), scaled by exp(-``top``)."""
 
     changes: np.ndarray
     magnitudes: np.ndarray
     loglik: np.ndarray
-    weight: np.ndarray
+    mass: np.ndarray
     top: float
 
 
@@ -344,9 +418,14 @@ def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, sta
     """Row i: ``count`` changes over ``ranges[i]`` (low, high) at onset
     ``onsets[i]``, whose prior weight is ``widths[i]``; ``cache``: rows
     computed before, by (onset, low, high, count): their log likelihoods and
-    normalised residuals (steps x count x outputs)."""
+    normalised residuals (steps x count x outputs). A magnitude outside the
+    ``prior`` (beyond rounding) has no likelihood."""
+    a, b = prior
     changes = np.array([np.linspace(lo, hi, count) if hi > lo else np.full(count, lo) for lo, hi in ranges])
     magnitudes = changes / spans[:, None]
+    tolerance = 1e-9 * max(abs(a), abs(b), b - a)
+    inside = (magnitudes >= a - tolerance) & (magnitudes <= b + tolerance)
+    magnitudes = np.where(inside, np.clip(magnitudes, a, b), magnitudes)  # a bound reached by rounding is the bound
     keys = [(int(o), float(lo), float(hi), count) for o, (lo, hi) in zip(onsets, ranges)]
     new = [i for i, key in enumerate(keys) if key not in cache]
     if new:
@@ -355,67 +434,80 @@ def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, sta
         z = r.z.reshape(len(ys), len(new), count, -1).transpose(1, 0, 2, 3)  # (rows, steps, count, outputs)
         for i, row, zr in zip(new, r.loglik.reshape(len(new), count), z):
             cache[keys[i]] = (row, zr)
-    inside = (magnitudes >= prior[0]) & (magnitudes <= prior[1])
     loglik = np.where(inside, np.array([cache[key][0] for key in keys]), -math.inf)
     top = float(np.max(loglik))
     if not math.isfinite(top):
-        return _Grid(changes, magnitudes, loglik, np.zeros(loglik.shape), top)
-    rule = np.repeat(((changes[:, -1] - changes[:, 0]) / max(count - 1, 1))[:, None], count, axis=1)
-    rule[rule <= 0.0] = 1.0
-    if count > 1:
-        rule[:, [0, -1]] /= 2.0
-    weight = np.exp(loglik - top) * (widths / spans)[:, None] * rule  # d(slope) = d(change) / span
-    return _Grid(changes, magnitudes, loglik, weight, top)
+        return _Grid(changes, magnitudes, loglik, np.zeros(len(loglik)), top)
+    mass = np.array([w * np.exp(row_quadrature(m, ll - top)[1]).sum()
+                     for w, m, ll in zip(widths, magnitudes, loglik)])
+    return _Grid(changes, magnitudes, loglik, mass, top)
 
 
 def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, float],
                 options: KalmanOptions) -> tuple[tuple[float, float] | None, float]:
     """The range of changes of one onset's next pass from its row of a grid:
     ``logd``, the log density at its points (-inf outside the prior); None:
-    the row is fine. ``bounds``: the changes its prior allows. On a coarse row
-    the peak may lie between two points, far above them: the parabola through
-    the log density at the three points around the highest one (exact for a
-    Gaussian) places the peak and gives its std. Also the log of the row's
-    mass (the integral of its density over the change), as far as it can be
-    told: the trapezoid rule's on a fine row, the Gaussian's under the
-    parabola on a coarse one, +inf when the peak lies beyond the row."""
-    lo, hi = float(changes[0]), float(changes[-1])
-    count = len(changes)
-    if count < 3 or not np.isfinite(logd).any():
-        return None, float(np.logaddexp.reduce(logd)) if count else -math.inf
-    top = float(np.max(logd))
-    d = np.exp(logd - top)
-    top_at = int(np.argmax(logd))
-    spacing = changes[1] - changes[0]
+    the row is fine. ``bounds``: the changes its prior allows. Also the log
+    of the row's mass (:func:`row_quadrature`, which finds a peak between two
+    points of a coarse row), +inf when the peak lies beyond the row.
+
+    A row wholly outside the prior is moved inside it, its mass unknown (+inf).
+    A row whose highest point is its first or last inside the prior, short of
+    a bound, reaches further that way (to where the parabola through its
+    three points nearest the end puts the peak, else a span further). A row
+    whose end short of a bound holds more than ``edge`` of the peak density
+    is laid over 4 stds either side of the peak (the parabola's vertex and
+    std when it is concave: exact for a Gaussian however narrow the row,
+    else 4 times wider); a coarse one (std under ``resolution`` spacings)
+    over 4 stds either side of its mean, or, pressed against a bound, over 10
+    stds from the bound (an exponential's density falls to 5e-5 there, a
+    half-Gaussian's to 1e-7)."""
+    finite = np.flatnonzero(np.isfinite(logd))
     vmin, vmax = bounds
-    k = min(max(top_at, 1), count - 2)
-    l0, l1, l2 = logd[k - 1:k + 2] - top
-    with np.errstate(invalid="ignore"):
-        bend = l0 - 2.0 * l1 + l2  # NaN where a point lies outside the prior
+    tolerance = 1e-9 * max(abs(vmin), abs(vmax), vmax - vmin)
+    if len(finite) == 0:  # wholly beyond a bound (a late onset's share of a common first grid): moved inside
+        lo, hi = float(changes[0]), float(changes[-1])
+        outside = hi < vmin - tolerance or lo > vmax + tolerance
+        return (_inside(lo, hi, vmin, vmax), math.inf) if outside else (None, -math.inf)
+    first, last = int(finite[0]), int(finite[-1])
+    lo, hi = float(changes[first]), float(changes[last])
+    open_low, open_high = lo > vmin + tolerance, hi < vmax - tolerance  # ends short of a bound
+    top_at = int(np.argmax(logd))
+    spacing = float(changes[1] - changes[0]) if len(changes) > 1 else 0.0
     vertex = sd_parabola = None
-    if np.isfinite(bend) and bend < 0.0:
-        vertex = changes[k] + spacing * (l0 - l2) / (2.0 * bend)
-        sd_parabola = spacing / math.sqrt(-bend)
-    at_low, at_high = top_at == 0 and lo > vmin, top_at == count - 1 and hi < vmax
-    if at_low or at_high:  # the peak lies beyond an end: where the parabola puts it, else a span further
+    if last - first >= 2:  # the parabola through the three points around the highest
+        k = min(max(top_at, first + 1), last - 1)
+        l0, l1, l2 = logd[k - 1:k + 2] - logd[top_at]
+        bend = l0 - 2.0 * l1 + l2
+        if bend < 0.0:
+            vertex = float(changes[k] + spacing * (l0 - l2) / (2.0 * bend))
+            sd_parabola = spacing / math.sqrt(-bend)
+    at_low, at_high = top_at == first and open_low, top_at == last and open_high
+    if at_low or at_high:  # the peak lies beyond an end
         if vertex is not None and (vertex < lo if at_low else vertex > hi):
             return _inside(vertex - 4.0 * sd_parabola, vertex + 4.0 * sd_parabola, vmin, vmax), math.inf
-        span = hi - lo
+        span = max(hi - lo, spacing)
         return ((max(lo - span, vmin), hi) if at_low else (lo, min(hi + span, vmax))), math.inf
-    w = d / d.sum()
-    mean = float(w @ changes)
-    sd = math.sqrt(max(float(w @ (changes - mean) ** 2), 0.0))
-    mass = top + math.log(spacing * (d.sum() - (d[0] + d[-1]) / 2.0) or 1e-300)
-    edge = d[0] > options.edge and lo > vmin or d[-1] > options.edge and hi < vmax
-    if not (edge or sd < options.resolution * spacing):
+    x, logm = row_quadrature(changes, logd)
+    peak = float(np.max(logm))
+    m = np.exp(logm - peak)
+    mass = peak + math.log(m.sum())
+    p = m / m.sum()
+    mean = float(p @ x)
+    sd = math.sqrt(max(float(p @ (x - mean) ** 2), 0.0))
+    d = np.exp(logd - logd[top_at])
+    edge = d[first] > options.edge and open_low or d[last] > options.edge and open_high
+    if edge:  # the density reaches past an end: from the parabola when it tells, else 4 times wider
+        if vertex is not None and lo - (hi - lo) <= vertex <= hi + (hi - lo):
+            mean, sd = vertex, max(sd, sd_parabola)
+        else:
+            sd = max(sd, hi - lo)
+    elif sd >= options.resolution * spacing:
         return None, mass
-    # an end holds mass, or the grid is coarse against the posterior: 4 stds either side of its mode
-    centre = mean
-    if vertex is not None and sd < spacing:
-        centre, sd = vertex, max(sd, sd_parabola)
-        peak = top + l1 - (l0 - l2) ** 2 / (8.0 * bend)  # the parabola's top
-        mass = max(mass, peak + math.log(sd_parabola * math.sqrt(2.0 * math.pi)))
-    new = _inside(centre - 4.0 * sd, centre + 4.0 * sd, vmin, vmax)
+    if top_at in (first, last) and not edge:  # pressed against a bound: a fall like an exponential's, 10 stds
+        new = (max(hi - 10.0 * sd, vmin), hi) if top_at == last else (lo, min(lo + 10.0 * sd, vmax))
+    else:
+        new = _inside(mean - 4.0 * sd, mean + 4.0 * sd, vmin, vmax)
     return (None if np.allclose(new, (lo, hi), rtol=1e-9, atol=0.0) else new), mass
 
 
@@ -445,11 +537,10 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     earliest).
 
     The first pass lays one grid of ``first_points`` changes over the hint,
-    widened, at every onset; after it each onset's row is laid anew on its
-    own (:func:`_next_range`), up to ``passes`` passes; onsets holding under
+    widened (and moved inside the prior when it lies beyond a bound), at
+    every onset; after it each onset's row is laid anew on its own
+    (:func:`_next_range`), up to ``passes`` passes; onsets holding under
     ``keep`` of the best one's mass are left out of the next pass."""
-    from ..kinds import fault_kind
-
     T = len(ys)
     drifts = fault_kind(model.FAULT["kind"]).drifts
     prior = tuple(float(v) for v in model.FAULT_PRIOR)
@@ -468,7 +559,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     lo, hi = sorted((hint[0] * scale, hint[1] * scale))
     vmin, vmax = float(np.min(a * spans)), float(np.max(b * spans))
     width = max(hi - lo, 1e-6 * max(abs(lo), abs(hi), vmax - vmin))
-    lo, hi = max(lo - options.widen * width, vmin), min(hi + options.widen * width, vmax)
+    lo, hi = _inside(lo - options.widen * width, hi + options.widen * width, vmin, vmax)
     ranges = {int(o): (lo, hi) for o in current}
     counts = {int(o): options.first_points for o in current}
     _, extra = _rows(model)
@@ -498,8 +589,8 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
                 mass[i] += math.log(widths[i] / spans[i])
             told = np.isfinite(mass)
             best = mass[told].max() if told.any() else math.inf
-            # onsets the posterior leaves out are left out (a coarse row's mass told by its parabola: it
-            # may lie between its points); rows are laid anew only where the posterior's mass is
+            # onsets the posterior leaves out are left out (a coarse row's mass as its quadrature tells: a
+            # peak may lie between its points); rows are laid anew only where the posterior's mass is
             kept = ~told & (mass > 0) | told & (mass >= math.log(options.keep) + best)
             relaid = [i for i, f in enumerate(following)
                       if f is not None and kept[i] and not (told[i] and mass[i] < math.log(options.relay) + best)]
@@ -510,7 +601,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
             current = current[kept]
         if not (batches and g is not None and math.isfinite(g.top)):
             break
-        share = {o: w.sum() for o, w in zip(current.tolist(), g.weight)}
+        share = dict(zip(current.tolist(), g.mass))
         if sum(share.get(o, 0.0) for o in tried[:EDGE]) / sum(share.values()) < EXTEND:
             break
         batch = batches.pop(0)  # a drift that began earlier: reach further back, from the earliest onset's grid
@@ -520,26 +611,59 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
             ranges[o], counts[o] = ranges[int(current[0])], counts[int(current[0])]
         current = np.asarray(sorted(set(batch) | set(current.tolist())))
     name = getattr(model, "NAME", "")
-    nan = math.nan
-    if g is None or not math.isfinite(g.top):
-        return StaticPosterior(name, tuple(int(o) for o in current), tuple(width_of[int(o)] for o in current),
-                               np.zeros((len(current), 0)), np.zeros((len(current), 0)), -math.inf, nan, nan, nan,
-                               nan, level, nan, int(current[0]), tuple(0.0 for _ in current), passes)
     widths = [width_of[int(o)] for o in current]
-    total = float(sum(w.sum() for w in g.weight))
+    if g is None or not math.isfinite(g.top):
+        nan = math.nan
+        return StaticPosterior(name, tuple(int(o) for o in current), tuple(widths), np.zeros((len(current), 0)),
+                               np.zeros((len(current), 0)), -math.inf, nan, nan, nan, nan, level, nan,
+                               int(current[0]), tuple(0.0 for _ in current), passes)
+    spans = span(current)
+    nodes, changes, logm, rows = [], [], [], []
+    for i, (m, ll) in enumerate(zip(g.magnitudes, g.loglik)):
+        x, lm = row_quadrature(m, ll - g.top)
+        nodes.append(x)
+        changes.append(x * spans[i])
+        logm.append(lm + math.log(widths[i]))
+        rows.append(np.full(len(x), i))
+    x, c, row_of = np.concatenate(nodes), np.concatenate(changes), np.concatenate(rows)
+    mass = np.exp(np.concatenate(logm))
+    total = float(mass.sum())
     log_evidence = g.top + math.log(total) - math.log(b - a)
-    p = np.concatenate([w for w in g.weight]) / total
-    mean, std, (low, high) = _distribution(g.magnitudes, g.weight, [(1.0 - level) / 2.0, (1.0 + level) / 2.0])
-    change = float(p @ np.concatenate([c for c in g.changes]))
-    onset_posterior = np.array([w.sum() for w in g.weight]) / total
-    row = int(np.argmax([np.max(ll) for ll in g.loglik]))  # the most probable cell, and its residuals
+    p = mass / total
+    mean = float(p @ x)
+    std = math.sqrt(max(float(p @ (x - mean) ** 2), 0.0))
+    order = np.argsort(x, kind="stable")
+    cdf = np.cumsum(p[order]) - p[order] / 2.0
+    low, high = (float(q) for q in np.interp([(1.0 - level) / 2.0, (1.0 + level) / 2.0], cdf, x[order]))
+    onset_posterior = np.bincount(row_of, weights=p, minlength=len(current))
+    row = int(np.argmax([np.max(ll) for ll in g.loglik]))  # the most likely cell, and its residuals
     col = int(np.argmax(g.loglik[row]))
     best = (int(current[row]), float(g.magnitudes[row][col]))
     residuals = cache[(best[0], *(float(v) for v in ranges[best[0]]), counts[best[0]])][1][:, col]
     return StaticPosterior(name, tuple(int(o) for o in current), tuple(float(w) for w in widths),
-                           g.magnitudes, g.loglik, log_evidence, mean, std, low, high, level, change,
-                           int(current[int(np.argmax(onset_posterior))]), tuple(float(q) for q in onset_posterior),
-                           passes, best, residuals)
+                           g.magnitudes, g.loglik, log_evidence, mean, std, low, high, level, float(p @ c),
+                           int(current[int(np.argmax(onset_posterior / np.asarray(widths)))]),
+                           tuple(float(q) for q in onset_posterior), passes, best, residuals,
+                           _truncated(g, prior, options))
+
+
+def _truncated(g: _Grid, prior: tuple[float, float], options: KalmanOptions) -> bool:
+    """Whether a row holding at least ``relay`` of the posterior's mass still
+    has its highest point, or more than ``edge`` of it, at an end short of a
+    bound of the prior after the last pass: its posterior may reach past the
+    grid."""
+    a, b = prior
+    tolerance = 1e-9 * max(abs(a), abs(b), b - a)
+    share = g.mass / g.mass.sum()
+    for m, ll, s in zip(g.magnitudes, g.loglik, share):
+        finite = np.flatnonzero(np.isfinite(ll))
+        if s < options.relay or len(finite) < 2:
+            continue
+        d = np.exp(ll - np.max(ll))
+        first, last = int(finite[0]), int(finite[-1])
+        if d[first] > options.edge and m[first] > a + tolerance or d[last] > options.edge and m[last] < b - tolerance:
+            return True
+    return False
 
 
 def _merge(onsets: np.ndarray, groups: dict, parts: dict) -> _Grid:
@@ -552,58 +676,18 @@ def _merge(onsets: np.ndarray, groups: dict, parts: dict) -> _Grid:
         part = parts[c]
         scale = math.exp(part.top - top) if math.isfinite(part.top) else 0.0
         for k, i in enumerate(idx):
-            rows[i] = (part.changes[k], part.magnitudes[k], part.loglik[k], part.weight[k] * scale)
+            rows[i] = (part.changes[k], part.magnitudes[k], part.loglik[k], part.mass[k] * scale)
+    mass = np.array([r[3] for r in rows])
     if len({len(r[0]) for r in rows}) == 1:
-        changes, magnitudes, loglik, weight = (np.array([r[j] for r in rows]) for j in range(4))
+        changes, magnitudes, loglik = (np.array([r[j] for r in rows]) for j in range(3))
     else:
-        changes, magnitudes, loglik, weight = (_ragged([r[j] for r in rows]) for j in range(4))
-    return _Grid(changes, magnitudes, loglik, weight, top)
+        changes, magnitudes, loglik = (_ragged([r[j] for r in rows]) for j in range(3))
+    return _Grid(changes, magnitudes, loglik, mass, top)
 
 
 def _ragged(rows: list) -> np.ndarray:
+    """An object array of the arrays ``rows`` (NumPy would broadcast rows of one length into 2-D)."""
     out = np.empty(len(rows), dtype=object)
     for i, r in enumerate(rows):
         out[i] = r
     return out
-
-
-def _distribution(values, weight, qs) -> tuple[float, float, tuple[float, ...]]:
-    """Mean, std and quantiles ``qs`` of a mixture over onsets (rows) of
-    densities given on each row's evenly spaced grid (``values``; ``weight``:
-    the trapezoid rule's masses). Between two points a row's log density is
-    linear (exact for an exponential tail, close for a Gaussian: a density
-    linear between coarse points would fatten the tails, and the trapezoid
-    rule misplaces the mean of one that falls by orders of magnitude between
-    two points, as at a bound of the prior); its cumulative mass is evaluated
-    on one fine common grid, the rows' masses summed, and the moments and
-    quantiles read off that sum."""
-    fine = np.linspace(min(float(np.min(v)) for v in values), max(float(np.max(v)) for v in values), 4096)
-    total = np.zeros(len(fine))
-    for v, w in zip(values, weight):
-        mass = float(np.sum(w))
-        if len(v) < 2 or not mass > 0.0:
-            continue
-        h = float(v[1] - v[0])
-        d = np.array(w, dtype=float)
-        d[[0, -1]] *= 2.0  # the density at each point, up to the spacing
-        with np.errstate(divide="ignore", invalid="ignore"):
-            logd = np.log(d)
-            step = np.diff(logd)
-            flat = ~np.isfinite(step) | (np.abs(step) < 1e-9)
-            # the mass of each interval under a log-linear density, and the cumulative one
-            part = np.where(flat, (d[:-1] + d[1:]) / 2.0, (d[1:] - d[:-1]) / np.where(flat, 1.0, step))
-            cum = np.concatenate([[0.0], np.cumsum(part)])
-            k = np.clip(np.searchsorted(v, fine, side="right") - 1, 0, len(v) - 2)
-            t = np.clip((fine - v[k]) / h, 0.0, 1.0)
-            inside = np.where(flat[k], t * (d[k] + (d[k + 1] - d[k]) * t / 2.0),
-                              d[k] * np.expm1(np.where(flat[k], 0.0, step[k]) * t) / np.where(flat[k], 1.0, step[k]))
-        row = np.where(fine < v[0], 0.0, np.where(fine > v[-1], cum[-1], cum[k] + inside))
-        total += row * (mass / cum[-1])
-    if not total[-1] > 0.0:
-        mean = float(sum(np.sum(v * w) for v, w in zip(values, weight)) / sum(np.sum(w) for w in weight))
-        return mean, 0.0, tuple(mean for _ in qs)
-    cell = np.diff(total) / total[-1]  # the mass between two fine points, at their midpoint
-    mid = (fine[1:] + fine[:-1]) / 2.0
-    mean = float(cell @ mid)
-    std = math.sqrt(max(float(cell @ (mid - mean) ** 2), 0.0))
-    return mean, std, tuple(float(q) for q in np.interp(np.asarray(qs) * total[-1], total, fine))
