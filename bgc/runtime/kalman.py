@@ -423,7 +423,7 @@ def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, sta
     a, b = prior
     changes = np.array([np.linspace(lo, hi, count) if hi > lo else np.full(count, lo) for lo, hi in ranges])
     magnitudes = changes / spans[:, None]
-    tolerance = 1e-9 * max(abs(a), abs(b), b - a)
+    tolerance = _rounding(a, b)
     inside = (magnitudes >= a - tolerance) & (magnitudes <= b + tolerance)
     magnitudes = np.where(inside, np.clip(magnitudes, a, b), magnitudes)  # a bound reached by rounding is the bound
     keys = [(int(o), float(lo), float(hi), count) for o, (lo, hi) in zip(onsets, ranges)]
@@ -462,16 +462,14 @@ def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, floa
     over 4 stds either side of its mean, or, pressed against a bound, over 10
     stds from the bound (an exponential's density falls to 5e-5 there, a
     half-Gaussian's to 1e-7)."""
-    finite = np.flatnonzero(np.isfinite(logd))
     vmin, vmax = bounds
-    tolerance = 1e-9 * max(abs(vmin), abs(vmax), vmax - vmin)
-    if len(finite) == 0:  # wholly beyond a bound (a late onset's share of a common first grid): moved inside
+    if not np.isfinite(logd).any():  # wholly beyond a bound (a late onset's share of a common first grid): moved inside
         lo, hi = float(changes[0]), float(changes[-1])
+        tolerance = _rounding(vmin, vmax)
         outside = hi < vmin - tolerance or lo > vmax + tolerance
         return (_inside(lo, hi, vmin, vmax), math.inf) if outside else (None, -math.inf)
-    first, last = int(finite[0]), int(finite[-1])
+    first, last, open_low, open_high = _ends(changes, logd, bounds)
     lo, hi = float(changes[first]), float(changes[last])
-    open_low, open_high = lo > vmin + tolerance, hi < vmax - tolerance  # ends short of a bound
     top_at = int(np.argmax(logd))
     spacing = float(changes[1] - changes[0]) if len(changes) > 1 else 0.0
     vertex = sd_parabola = None
@@ -495,8 +493,7 @@ def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, floa
     p = m / m.sum()
     mean = float(p @ x)
     sd = math.sqrt(max(float(p @ (x - mean) ** 2), 0.0))
-    d = np.exp(logd - logd[top_at])
-    edge = d[first] > options.edge and open_low or d[last] > options.edge and open_high
+    edge = _holds_mass(logd, first, last, open_low, open_high, options.edge)
     if edge:  # the density reaches past an end: from the parabola when it tells, else 4 times wider
         if vertex is not None and lo - (hi - lo) <= vertex <= hi + (hi - lo):
             mean, sd = vertex, max(sd, sd_parabola)
@@ -652,18 +649,34 @@ def _truncated(g: _Grid, prior: tuple[float, float], options: KalmanOptions) -> 
     has its highest point, or more than ``edge`` of it, at an end short of a
     bound of the prior after the last pass: its posterior may reach past the
     grid."""
-    a, b = prior
-    tolerance = 1e-9 * max(abs(a), abs(b), b - a)
     share = g.mass / g.mass.sum()
-    for m, ll, s in zip(g.magnitudes, g.loglik, share):
-        finite = np.flatnonzero(np.isfinite(ll))
-        if s < options.relay or len(finite) < 2:
-            continue
-        d = np.exp(ll - np.max(ll))
-        first, last = int(finite[0]), int(finite[-1])
-        if d[first] > options.edge and m[first] > a + tolerance or d[last] > options.edge and m[last] < b - tolerance:
-            return True
-    return False
+    return any(_holds_mass(ll, *_ends(m, ll, prior), options.edge)
+               for m, ll, s in zip(g.magnitudes, g.loglik, share)
+               if s >= options.relay and np.isfinite(ll).sum() >= 2)
+
+
+def _rounding(lo: float, hi: float) -> float:
+    """How far a value may lie beyond a bound of (``lo``, ``hi``) by rounding alone."""
+    return 1e-9 * max(abs(lo), abs(hi), hi - lo)
+
+
+def _ends(values: np.ndarray, logd: np.ndarray, bounds: tuple[float, float]) -> tuple[int, int, bool, bool]:
+    """The first and last points of a row inside the prior (finite
+    ``logd``; there is one at least), and whether each lies short of its
+    bound of ``bounds`` (by more than rounding)."""
+    finite = np.flatnonzero(np.isfinite(logd))
+    first, last = int(finite[0]), int(finite[-1])
+    vmin, vmax = bounds
+    tolerance = _rounding(vmin, vmax)
+    return first, last, bool(values[first] > vmin + tolerance), bool(values[last] < vmax - tolerance)
+
+
+def _holds_mass(logd: np.ndarray, first: int, last: int, open_low: bool, open_high: bool, edge: float) -> bool:
+    """Whether an end of a row short of a bound (``open_low``,
+    ``open_high``) holds more than ``edge`` of the row's peak density: the
+    density reaches past the row."""
+    d_first, d_last = np.exp(logd[[first, last]] - np.max(logd))
+    return bool(d_first > edge and open_low or d_last > edge and open_high)
 
 
 def _merge(onsets: np.ndarray, groups: dict, parts: dict) -> _Grid:
