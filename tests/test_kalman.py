@@ -70,19 +70,24 @@ def kalman_filter(ys, m, P, maps, Q, R):
     return total, m, P
 
 
-def test_cholesky_of_a_stack_along_the_last_axis_is_numpys():
+def test_cholesky_of_a_stack_is_numpys():
     rng = np.random.default_rng(0)
-    G = rng.standard_normal((6, 6, 40))
-    P = np.einsum("ikc,jkc->ijc", G, G) + 0.1 * np.eye(6)[:, :, None]
+    G = rng.standard_normal((40, 6, 6))
+    P = G @ G.transpose(0, 2, 1) + 0.1 * np.eye(6)
     L = cholesky(P)
-    assert np.allclose(L.transpose(2, 0, 1), np.linalg.cholesky(P.transpose(2, 0, 1)), rtol=1e-12, atol=1e-12)
+    assert np.allclose(L @ L.transpose(0, 2, 1), P, rtol=1e-12, atol=1e-12)
+    assert np.all(np.triu(L, 1) == 0.0) and np.all(np.diagonal(L, axis1=1, axis2=2) > 0)
 
 
 def test_a_covariance_made_indefinite_by_rounding_still_factors():
-    P = np.array([[1.0, 1.0], [1.0, 1.0 - 1e-15]])[:, :, None]  # the second pivot is -1e-15
-    L = cholesky(P)
-    assert np.all(np.isfinite(L)) and L[1, 1, 0] > 0
-    assert np.allclose(np.einsum("ikc,jkc->ijc", L, L), P, rtol=0.0, atol=1e-11)  # a nearby matrix's factor
+    good = np.array([[4.0, 2.0], [2.0, 3.0]])  # L = [[2, 0], [1, sqrt(2)]]
+    bad = np.array([[1.0, 1.0], [1.0, 1.0 - 1e-15]])  # the second pivot is -1e-15: LAPACK refuses it
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.cholesky(bad)
+    L = cholesky(np.stack([good, bad]))
+    assert np.all(np.isfinite(L)) and L[1, 1, 1] > 0
+    assert np.allclose(L[0], [[2.0, 0.0], [1.0, math.sqrt(2.0)]], rtol=0.0, atol=1e-15)  # the stack's others exact
+    assert np.allclose(L[1] @ L[1].T, bad, rtol=0.0, atol=1e-11)  # a nearby matrix's factor
 
 
 # The grid posterior against closed forms: a likelihood known in closed form

@@ -1018,11 +1018,12 @@ def _run_batches(batches: dict[str, list[int]], job, arrived, workers: int, cost
     the follow-up job ``done(name)`` gives ((function, argument), or None),
     whose result goes to ``landed(name, result)``. ``idle()`` runs here once
     the first batches are out. With ``workers`` > 1 the jobs run on that many
-    forked processes, and a hypothesis's next job starts as soon as its own
-    last one is back and a worker is free, before the first batches still
+    forked processes, and a hypothesis's next batch starts as soon as its
+    own last one is back and a worker is free, before the first batches still
     waiting (it lies on the longest chain of work), while other hypotheses'
     batches still run; the first batches start longest first (``cost(onsets)``:
-    a batch's work). A hypothesis's jobs depend on its own results only, so
+    a batch's work); a follow-up waits behind every first batch (a first
+    batch may lead to a follow-up of its own: the chains of work end together). A hypothesis's jobs depend on its own results only, so
     the results do not depend on ``workers``."""
     idle = idle or (lambda: None)
     done = done or (lambda name: None)
@@ -1062,8 +1063,8 @@ def _run_batches(batches: dict[str, list[int]], job, arrived, workers: int, cost
                     waiting.insert(0, (name, (_run_hypothesis, job(name, more)), more))
                     continue
                 follow = done(name)
-                if follow is not None:
-                    waiting.insert(0, (name, follow, None))
+                if follow is not None:  # after the first batches still waiting: they may lead to follow-ups
+                    waiting.append((name, follow, None))
 
 
 def _run_all(jobs: list, workers: int, fn=None) -> list:

@@ -159,103 +159,119 @@ def _rows(model: ModuleType) -> tuple[list[int], list[int]]:
 
 
 def cholesky(P: np.ndarray) -> np.ndarray:
-    """Lower Cholesky factors of covariances stacked along the last axis (n,
-    n, C), one column of the factor at a time for all of them at once (the
-    matrices are small and many: NumPy's per-matrix routines cost more per
-    call than the arithmetic). A pivot under 1e-12 of its diagonal entry
-    (zero or negative by rounding, or by a matrix that is not positive
-    definite) is raised to that: the result is then the factor of a nearby
-    positive definite matrix, not of ``P``."""
-    n = P.shape[0]
+    """Lower Cholesky factors of a stack of covariances (..., n, n), by
+    NumPy's batched LAPACK call. When a matrix of the stack is not positive
+    definite (a pivot zero or negative by rounding, or a matrix that is not
+    one), the stack is factored one column at a time for all matrices at once
+    instead, each pivot under 1e-12 of its diagonal entry raised to that: the
+    result is then the factor of a nearby positive definite matrix, not of
+    ``P``."""
+    try:
+        return np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        pass
+    n = P.shape[-1]
     L = np.zeros(P.shape)
     for j in range(n):
-        pivot = P[j, j] - np.einsum("kc,kc->c", L[j, :j], L[j, :j])
-        floor = 1e-12 * np.abs(P[j, j]) + 1e-300
-        L[j, j] = np.sqrt(np.maximum(pivot, floor))
+        row = L[..., j, :j]
+        pivot = P[..., j, j] - np.einsum("...k,...k->...", row, row)
+        floor = 1e-12 * np.abs(P[..., j, j]) + 1e-300
+        L[..., j, j] = np.sqrt(np.maximum(pivot, floor))
         if j + 1 < n:
-            L[j + 1:, j] = (P[j + 1:, j] - np.einsum("ikc,kc->ic", L[j + 1:, :j], L[j, :j])) / L[j, j]
+            L[..., j + 1:, j] = ((P[..., j + 1:, j] - np.einsum("...ik,...k->...i", L[..., j + 1:, :j], row))
+                                 / L[..., j, j][..., None])
     return L
-
-
-def _solve_lower(L: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """L^-1 B for lower triangular L (n, n, C) and B (n, k, C), by forward substitution."""
-    out = np.empty(B.shape)
-    for i in range(L.shape[0]):
-        out[i] = (B[i] - np.einsum("jc,jkc->kc", L[i, :i], out[:i])) / L[i, i]
-    return out
 
 
 class _Filter:
     """The cubature Kalman filter's arithmetic for a model: one step of a
     stack of cells, each with its own mean, covariance and fault states (the
-    magnitude last), the cells along the last axis: means (n, C),
-    covariances (n, n, C), fault states (f, C)."""
+    magnitude last), the cells along the first axis: means (C, n),
+    covariances (C, n, n), fault states (f, C). The model sees the points of
+    all cells at once, as columns (n_x, C 2n), cell by cell."""
 
     def __init__(self, model: ModuleType):
         self.model = model
         self.physical, self.extra = _rows(model)
         n = len(self.physical)
         self.n, self.n_x = n, len(model.STATES)
-        self.Q = np.asarray(model.PROCESS_STD, dtype=float)[self.physical] ** 2
+        self.prefix = self.physical == list(range(n))  # the physical states are the first rows
+        self.Q = np.diag(np.asarray(model.PROCESS_STD, dtype=float)[self.physical] ** 2)
         self.R = np.asarray(model.MEASUREMENT_STD, dtype=float) ** 2
         self.buffer = np.empty((self.n_x, 0))
 
     def _points(self, m: np.ndarray, P: np.ndarray, fixed: np.ndarray, flat: np.ndarray) -> np.ndarray:
-        """The cubature points m +- sqrt(n) L e_i of N(m, P) per cell (n, 2n,
-        C), also written into ``flat`` (n_x, 2n C) with the cells' fault states."""
-        n, C = self.n, m.shape[1]
-        L = cholesky(P) * math.sqrt(n)
-        S = np.empty((n, 2 * n, C))
-        np.add(m[:, None, :], L, out=S[:, :n])
-        np.subtract(m[:, None, :], L, out=S[:, n:])
-        X = flat.reshape(self.n_x, 2 * n, C)
-        X[self.physical] = S
+        """The cubature points m +- sqrt(n) L e_i of N(m, P) per cell (C, n,
+        2n), also written into ``flat`` (n_x, C 2n) with the cells' fault states."""
+        n, C = self.n, m.shape[0]
+        L = cholesky(P)
+        L *= math.sqrt(n)
+        S = np.empty((C, n, 2 * n))
+        np.add(m[:, :, None], L, out=S[:, :, :n])
+        np.subtract(m[:, :, None], L, out=S[:, :, n:])
+        X = flat.reshape(self.n_x, C, 2 * n)
+        if self.prefix:
+            X[:n] = S.transpose(1, 0, 2)
+        else:
+            X[self.physical] = S.transpose(1, 0, 2)
         for j, row in enumerate(self.extra):
-            X[row] = fixed[j]
+            X[row] = fixed[j][:, None]
         return S
+
+    def _physical(self, X: np.ndarray) -> np.ndarray:
+        """The physical rows of the points ``X`` (n_x, C, 2n) as (C, n, 2n)."""
+        rows = X[:self.n] if self.prefix else X[self.physical]
+        return rows.transpose(1, 0, 2)
 
     def step(self, y: np.ndarray, u: np.ndarray, m: np.ndarray, P: np.ndarray, fixed: np.ndarray):
         """One step (predict with input ``u``, then update with ``y``; NaN:
-        not measured) of every cell: log p(y | the past) (C,), mean and
-        covariance after it, normalised residuals (n_y, C); updates ``fixed``
-        (a drifting parameter moves)."""
-        model, n, C = self.model, self.n, m.shape[1]
+        not measured) of every cell: log p(y | the past) (C,), mean (C, n)
+        and covariance (C, n, n) after it, normalised residuals (C, n_y);
+        updates ``fixed`` (a drifting parameter moves)."""
+        model, n, C = self.model, self.n, m.shape[0]
         if self.buffer.shape[1] < 2 * n * C:
             self.buffer = np.empty((self.n_x, 2 * n * C))
         flat = self.buffer[:, :2 * n * C]
         self._points(m, P, fixed, flat)
         model.predict(flat, u, model.THETA, model.DT, out=flat)
-        X = flat.reshape(self.n_x, 2 * n, C)
+        X = flat.reshape(self.n_x, C, 2 * n)
         for j, row in enumerate(self.extra[:-1]):  # a drifting parameter: the same in every point of a cell
-            fixed[j] = X[row, 0]
-        Xp = X[self.physical]  # (n, 2n, C)
-        mp = Xp.mean(axis=1)
-        D = Xp - mp[:, None, :]
-        Pp = np.einsum("ipc,jpc->ijc", D, D) / (2 * n)
-        Pp[np.arange(n), np.arange(n)] += self.Q[:, None]
+            fixed[j] = X[row, :, 0]
+        Xp = self._physical(X)  # (C, n, 2n)
+        mp = Xp.mean(axis=2)
+        D = Xp - mp[:, :, None]
+        Pp = np.matmul(D, D.transpose(0, 2, 1))
+        Pp /= 2 * n
+        Pp += self.Q
         seen = np.isfinite(y)
-        z = np.full((len(y), C), np.nan)
+        z = np.full((C, len(y)), np.nan)
         if not seen.any():
             return np.zeros(C), mp, Pp, z
         S = self._points(mp, Pp, fixed, flat)
-        Y = model.observe(flat, u, model.THETA)[seen].reshape(-1, 2 * n, C)  # (n_y, 2n, C)
-        yh = Y.mean(axis=1)
-        DY = Y - yh[:, None, :]
-        DX = S - mp[:, None, :]
+        Y = model.observe(flat, u, model.THETA)[seen].reshape(-1, C, 2 * n).transpose(1, 0, 2)  # (C, k, 2n)
+        yh = Y.mean(axis=2)
+        DY = Y - yh[:, :, None]
+        S -= mp[:, :, None]  # the points' deviations
         k = int(seen.sum())
-        Syy = np.einsum("ipc,jpc->ijc", DY, DY) / (2 * n)
-        Syy[np.arange(k), np.arange(k)] += self.R[seen][:, None]
-        Pxy = np.einsum("ipc,jpc->ijc", DX, DY) / (2 * n)  # (n, n_y, C)
-        v = y[seen][:, None] - yh  # (n_y, C)
+        DYt = DY.transpose(0, 2, 1)
+        Syy = np.matmul(DY, DYt)
+        Syy /= 2 * n
+        Syy += np.diag(self.R[seen])
+        Pxy = np.matmul(S, DYt)  # (C, n, k)
+        Pxy /= 2 * n
+        v = y[seen] - yh  # (C, k)
         L = cholesky(Syy)
-        a = _solve_lower(L, v[:, None, :])[:, 0]  # L^-1 v
-        B = _solve_lower(L, Pxy.transpose(1, 0, 2))  # L^-1 Pxy' (n_y, n, C)
-        logdet = 2.0 * np.log(L[np.arange(k), np.arange(k)]).sum(axis=0)
-        loglik = -0.5 * ((a * a).sum(axis=0) + logdet + k * LOG_2PI)
-        z[seen] = v / np.sqrt(Syy[np.arange(k), np.arange(k)])
-        m = mp + np.einsum("kic,kc->ic", B, a)  # Pxy Syy^-1 v = (L^-1 Pxy')' (L^-1 v)
-        P = Pp - np.einsum("kic,kjc->ijc", B, B)  # Pxy Syy^-1 Pxy'
-        return loglik, m, 0.5 * (P + P.transpose(1, 0, 2)), z
+        # L^-1 [v, Pxy']: a (C, k) and B (C, k, n)
+        rhs = np.concatenate([v[:, :, None], Pxy.transpose(0, 2, 1)], axis=2)
+        solved = np.linalg.solve(L, rhs)
+        a, B = solved[:, :, 0], solved[:, :, 1:]
+        logdet = 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+        loglik = -0.5 * ((a * a).sum(axis=1) + logdet + k * LOG_2PI)
+        z[:, seen] = v / np.sqrt(np.diagonal(Syy, axis1=1, axis2=2))
+        Bt = B.transpose(0, 2, 1)
+        m = mp + np.matmul(Bt, a[:, :, None])[:, :, 0]  # Pxy Syy^-1 v = (L^-1 Pxy')' (L^-1 v)
+        P = Pp - np.matmul(Bt, B)  # Pxy Syy^-1 Pxy'
+        return loglik, m, 0.5 * (P + P.transpose(0, 2, 1)), z
 
 
 def run_bank(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets, magnitudes,
@@ -274,29 +290,27 @@ def run_bank(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTr
     starts = onsets[order]
     state = np.repeat(np.asarray(fixed, dtype=float).reshape(-1, 1), C, axis=1)
     state[-1] = np.asarray(magnitudes, dtype=float)[order]
-    m = np.empty((kf.n, C))
-    P = np.empty((kf.n, kf.n, C))
+    m = np.empty((C, kf.n))
+    P = np.empty((C, kf.n, kf.n))
     total = track.loglik[starts].astype(float)
     T = len(ys)
-    z = np.full((T, ys.shape[1], C), np.nan) if residuals else None
+    z = np.full((T, C, ys.shape[1]), np.nan) if residuals else None
     live = 0  # cells 0 .. live - 1 have started
     with np.errstate(all="ignore"):
         for k in range(int(starts[0]) if C else T, T):
             joining = int(np.searchsorted(starts, k, side="right"))
             if joining > live:
-                m[:, live:joining] = track.mean[k][:, None]
-                P[:, :, live:joining] = track.cov[k][:, :, None]
+                m[live:joining] = track.mean[k]
+                P[live:joining] = track.cov[k]
                 live = joining
-            ll, m[:, :live], P[:, :, :live], zk = kf.step(ys[k], us[k], m[:, :live], P[:, :, :live],
-                                                           state[:, :live])
+            ll, m[:live], P[:live], zk = kf.step(ys[k], us[k], m[:live], P[:live], state[:, :live])
             total[:live] += ll
             if z is not None:
-                z[k, :, :live] = zk
+                z[k, :live] = zk
     total[~np.isfinite(total)] = -math.inf
     back = np.empty(C, dtype=int)
     back[order] = np.arange(C)
-    return BankResult(total[back], m[:, back].T, P[:, :, back].transpose(2, 0, 1),
-                      None if z is None else z[:, :, back].transpose(0, 2, 1))
+    return BankResult(total[back], m[back], P[back], None if z is None else z[:, back])
 
 
 def nominal_track(model: ModuleType, ys: np.ndarray, us: np.ndarray, stop: int) -> NominalTrack:
@@ -308,15 +322,15 @@ def nominal_track(model: ModuleType, ys: np.ndarray, us: np.ndarray, stop: int) 
     means = np.empty((stop + 1, n))
     covs = np.empty((stop + 1, n, n))
     logliks = np.zeros(stop + 1)
-    m = np.asarray(model.X0, dtype=float)[kf.physical, None]
-    P = np.diag(np.asarray(model.X0_STD, dtype=float)[kf.physical] ** 2)[:, :, None]
-    means[0], covs[0] = m[:, 0], P[:, :, 0]
+    m = np.asarray(model.X0, dtype=float)[None, kf.physical]
+    P = np.diag(np.asarray(model.X0_STD, dtype=float)[kf.physical] ** 2)[None]
+    means[0], covs[0] = m[0], P[0]
     none = np.zeros((0, 1))
     with np.errstate(all="ignore"):
         for k in range(stop):
             ll, m, P, _ = kf.step(ys[k], us[k], m, P, none)
             logliks[k + 1] = logliks[k] + ll[0]
-            means[k + 1], covs[k + 1] = m[:, 0], P[:, :, 0]
+            means[k + 1], covs[k + 1] = m[0], P[0]
     return NominalTrack(means, covs, logliks)
 
 
