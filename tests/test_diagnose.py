@@ -373,3 +373,36 @@ def test_a_drift_found_long_after_it_began_gets_its_onset_grid_extended_back():
     for x, y in zip(one.hypotheses, f.hypotheses):
         assert x.log_evidence == y.log_evidence and x.onset_posterior == y.onset_posterior
         assert np.array_equal(x.magnitude, y.magnitude, equal_nan=True)
+
+
+TEST_MODELS = ROOT / "tests" / "data" / "models"
+
+
+@pytest.mark.slow
+def test_a_parameter_seen_directly_by_a_sensor_changed_at_a_sample_is_isolated():
+    """The DC motor's e4 = k w: k changed at t = 150 moves the sample of that
+    instant (the states have not moved yet), so the alarm comes on it and the
+    filters' onset (the first step whose dynamics are faulty) is the sample
+    after it. That onset must be tried, and the filter from the alarm's sample
+    (whose magnitude settles on half the change to fit it, then fails its
+    test) must not prune it before it starts. Both failed before: the verdict
+    was 'unexplained' in every such run of a campaign."""
+    d = bgc.diagnose(TEST_MODELS / "dc_motor.yaml", scenario="k:abrupt:0.03@150", seed=3,
+                     options=DiagnosisOptions(seed=3, workers=1)).diagnosis
+    assert d.time_of(d.detection.step) == 150
+    assert d.verdict == "isolated" and d.candidates == ("k_abrupt",)
+    h = d.best
+    assert max(h.onsets) == d.detection.step + 1  # the sample after the alarm was tried
+    e = d.estimate
+    assert e.low <= 0.03 <= e.high and abs(e.value - 0.03) < 0.1 * 0.03
+
+
+@pytest.mark.slow
+def test_a_hypothesis_whose_earliest_filters_all_stop_before_the_next_onset_starts():
+    """A campaign run that raised (``cannot reshape array of size 0``): every
+    filter started had stopped while the hypothesis's later onsets had not
+    started, so a step had no filter to run."""
+    d = bgc.diagnose(TEST_MODELS / "dc_motor.yaml", scenario="R_a:incipient:0.00113856@170", seed=505876183,
+                     process_noise=0.005, measurement_noise=0.01,
+                     options=DiagnosisOptions(method="gpf", particles=500, seed=505876183, workers=1)).diagnosis
+    assert d.detection is not None and "R_a_incipient" in d.candidates

@@ -66,7 +66,9 @@ apart, back to ``search`` steps before the alarm, and coarser further back;
 the grid is extended back by ``search`` steps at a time, up to ``history``,
 while the drift's onset posterior piles up at its earliest onset; a step
 change is tried from the ``near`` samples before the change point to 2 after
-it), and the onsets are weighed like the hypotheses, each by the span of
+it, and no later than the sample after the alarm: a parameter that enters a
+measurement directly and changes at a sample's instant moves that sample,
+while the states move from the next step on, the filters' onset), and the onsets are weighed like the hypotheses, each by the span of
 time it stands for (its prior: uniform in time); a slow drift is detected
 long after it began, and starting its filter late biases the slope.
 
@@ -366,7 +368,11 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     spacing = options.spacing or (8 if options.identify == "kalman" else 4)
     reach = drift_onsets(detection.step, detection.onset, spacing, options.history)
     grid = [k for k in reach if k >= detection.step - options.search or k == detection.onset]
-    near = {k for k in range(detection.onset - options.near, detection.onset + 3) if 0 <= k <= detection.step}
+    # (up to the sample after the alarm: a parameter that enters a measurement directly, changed at a
+    # sample's instant, moves that sample but not yet the states; the filters' onset is the first step
+    # whose dynamics are faulty, the one after)
+    near = {k for k in range(detection.onset - options.near, detection.onset + 3)
+            if 0 <= k <= detection.step + 1 and k < T}
     onsets = {True: grid, False: sorted(near)}
     # the Kalman filters' onsets: a drift's on a grid of their own (they are cheaper than particle filters)
     kalman_reach = drift_onsets(detection.step, detection.onset, options.kalman.spacing, options.history)
@@ -851,9 +857,11 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
     process): per onset, its arrays, its rejection, and its running log
     evidence over [the hypothesis's first onset, T) (the nominal observer's
     density before its onset); and per step the best running evidence of the
-    onsets still live (the trace a later batch of onsets is pruned against). An onset whose evidence falls ``PRUNE`` behind
-    the best one's is pruned: a started filter stops, a later onset is never
-    started. Each filter has its own random numbers: a filter that runs gives
+    onsets still live whose filters pass their tests (the trace a later batch
+    of onsets is pruned against). A started filter whose evidence falls
+    ``PRUNE`` behind that best is pruned (it stops); an onset is not pruned
+    before its filter starts, and a filter that failed its consistency test
+    prunes no other. Each filter has its own random numbers: a filter that runs gives
     the same numbers whichever others run beside it."""
     import sys
 
@@ -896,45 +904,49 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
                                             rng)
                     filters[s] = cls(module, particles, rng, x=x0)
             running = [s for s in sorted(live) if k >= s]
-            pfs = [filters[s] for s in running]
-            results = bank.step(pfs, ys[k], us[k])
-            _shrink_together(bank, pfs, k_mag, shrinkage, [r.resampled for r in results])
-            y_mean = np.empty((len(running), n_y))
-            y_std = np.empty((len(running), n_y))
-            before = np.empty((len(running), 1))  # the ESS of the weights that predicted this step
-            for i, s in enumerate(running):
-                o = out[s]
-                r = results[i]
-                j = k - s
-                o["y_mean"][j], o["y_std"][j] = r.y_mean, r.y_std
-                o["mean"][j], o["std"][j] = r.mean, r.std
-                o["magnitude"][j] = r.mean[k_mag]
-                o["last"] = j
-                y_mean[i], y_std[i] = r.y_mean, r.y_std
-                before[i] = ess[s]
-                ess[s] = r.ess
-            # the filters' densities and consistency tests, all at once
-            zk = (ys[k] - y_mean) / y_std
-            density = _log_density(zk, y_std)
-            alarms = tests.update(k, [row[s] for s in running], zk,
-                                 monte_carlo_share(y_std, module.MEASUREMENT_STD, before, particles),
-                                 [out[s]["rejected"] is None for s in running])  # the first alarm's onset only
-            for i, s in enumerate(running):
-                evidence[s] += float(density[i])
-                alarm = alarms[i]
-                if alarm is not None and out[s]["rejected"] is None:
-                    out[s]["rejected"] = (k - s, alarm)
-                if alarm is not None and alarm.statistic > FAR * alarm.threshold:
-                    # far off the data: a wrong hypothesis or onset, stopped here (a filter only just
-                    # over the threshold may be the right one with a model slightly off the truth)
-                    out[s]["stopped"] = True
-                    live.discard(s)
-            best = max((evidence[s] for s in live), default=-math.inf)
+            if running:  # else every filter left has a later onset (the earlier ones stopped or pruned)
+                pfs = [filters[s] for s in running]
+                results = bank.step(pfs, ys[k], us[k])
+                _shrink_together(bank, pfs, k_mag, shrinkage, [r.resampled for r in results])
+                y_mean = np.empty((len(running), n_y))
+                y_std = np.empty((len(running), n_y))
+                before = np.empty((len(running), 1))  # the ESS of the weights that predicted this step
+                for i, s in enumerate(running):
+                    o = out[s]
+                    r = results[i]
+                    j = k - s
+                    o["y_mean"][j], o["y_std"][j] = r.y_mean, r.y_std
+                    o["mean"][j], o["std"][j] = r.mean, r.std
+                    o["magnitude"][j] = r.mean[k_mag]
+                    o["last"] = j
+                    y_mean[i], y_std[i] = r.y_mean, r.y_std
+                    before[i] = ess[s]
+                    ess[s] = r.ess
+                # the filters' densities and consistency tests, all at once
+                zk = (ys[k] - y_mean) / y_std
+                density = _log_density(zk, y_std)
+                alarms = tests.update(k, [row[s] for s in running], zk,
+                                     monte_carlo_share(y_std, module.MEASUREMENT_STD, before, particles),
+                                     [out[s]["rejected"] is None for s in running])  # the first alarm's onset only
+                for i, s in enumerate(running):
+                    evidence[s] += float(density[i])
+                    alarm = alarms[i]
+                    if alarm is not None and out[s]["rejected"] is None:
+                        out[s]["rejected"] = (k - s, alarm)
+                    if alarm is not None and alarm.statistic > FAR * alarm.threshold:
+                        # far off the data: a wrong hypothesis or onset, stopped here (a filter only just
+                        # over the threshold may be the right one with a model slightly off the truth)
+                        out[s]["stopped"] = True
+                        live.discard(s)
+            # the bar: the best onset still live whose filter passes its test (one that failed it
+            # explains nothing, however well it did so far); an onset not started yet is not pruned
+            # (its fault has not been tried on the data)
+            best = max((evidence[s] for s in live if out[s]["rejected"] is None), default=-math.inf)
             trace[k] = best
             if bar is not None:  # onsets of this hypothesis tried before
                 best = max(best, float(bar[k]))
             for s in sorted(live):
-                if evidence[s] < best - PRUNE:
+                if k >= s and evidence[s] < best - PRUNE:
                     out[s]["pruned"] = True
                     live.discard(s)
             if not live:
