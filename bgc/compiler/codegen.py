@@ -23,7 +23,7 @@ import sympy
 
 from ..ir import DbnModel, GeneratedPackage, Numerics, Signal, sym
 from ..kinds import fault_kind
-from .numerics import H_LAMBDA
+from .numerics import ACCURACY, H_LAMBDA
 from .printing import cse_block, escape, print_expr, print_number, split_linear
 
 def module_name(dbn_name: str) -> str:
@@ -204,7 +204,8 @@ def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
                                     f"{print_number(z.imag, 'an eigenvalue', where)})" for z in eig),
         "method_note": (f"RK4, {num.substeps} substep(s) per sample of {model.settings.dt:g}: largest "
                         f"|eigenvalue| of the nominal linearisation {max(abs(z) for z in num.eigenvalues):.4g}, "
-                        f"|lambda| h <= {H_LAMBDA:g}."),
+                        f"|lambda| h <= {H_LAMBDA:g}; the noise-free nominal run within {ACCURACY:g} measurement "
+                        f"std of one twice as fine."),
         "x0": _floats(x0, "an initial value", where), "x0_std": _floats(x0_std, "an initial std", where),
         "process_std": _floats(proc, "a process-noise std", where),
         "measurement_std": _floats(noise.measurement, "a measurement-noise std", where),

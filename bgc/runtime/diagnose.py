@@ -859,9 +859,9 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
     density before its onset); and per step the best running evidence of the
     onsets still live whose filters pass their tests (the trace a later batch
     of onsets is pruned against). A started filter whose evidence falls
-    ``PRUNE`` behind that best is pruned (it stops); an onset is not pruned
-    before its filter starts, and a filter that failed its consistency test
-    prunes no other. Each filter has its own random numbers: a filter that runs gives
+    ``PRUNE`` behind that best is pruned (it stops); a filter that failed
+    its consistency test prunes none that passes it, only others that failed
+    too; an onset is not pruned before its filter starts. Each filter has its own random numbers: a filter that runs gives
     the same numbers whichever others run beside it."""
     import sys
 
@@ -938,15 +938,17 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
                         # over the threshold may be the right one with a model slightly off the truth)
                         out[s]["stopped"] = True
                         live.discard(s)
-            # the bar: the best onset still live whose filter passes its test (one that failed it
-            # explains nothing, however well it did so far); an onset not started yet is not pruned
-            # (its fault has not been tried on the data)
+            # the bar of a filter that passes its test: the best live onset whose filter passes it too
+            # (one that failed explains nothing, however well it did so far); of a filter that failed
+            # it, the best live onset; an onset not started yet is not pruned (its fault has not been
+            # tried on the data)
             best = max((evidence[s] for s in live if out[s]["rejected"] is None), default=-math.inf)
             trace[k] = best
             if bar is not None:  # onsets of this hypothesis tried before
                 best = max(best, float(bar[k]))
+            worst = max(best, max((evidence[s] for s in live), default=-math.inf))
             for s in sorted(live):
-                if k >= s and evidence[s] < best - PRUNE:
+                if k >= s and evidence[s] < (best if out[s]["rejected"] is None else worst) - PRUNE:
                     out[s]["pruned"] = True
                     live.discard(s)
             if not live:

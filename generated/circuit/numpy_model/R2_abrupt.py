@@ -7,7 +7,7 @@ States x (4, particles along axis 1): e4, e8, f10, delta_R2
 Inputs u: V
 Measurements y: e11, f2, f6
 Fault: abrupt change of parameter R2 (R2 + delta_R2, delta_R2 persistent).
-Integration: RK4, 1 substep(s) per sample of 0.05: largest |eigenvalue| of the nominal linearisation 3.113, |lambda| h <= 1.5.
+Integration: RK4, 1 substep(s) per sample of 0.05: largest |eigenvalue| of the nominal linearisation 3.113, |lambda| h <= 1.5; the noise-free nominal run within 0.1 measurement std of one twice as fine.
 Noise: process std per step and state, measurement std per output (absolute
 values, computed by bgc from the model's relative noise levels).
 """

@@ -7,7 +7,7 @@ States x (6, particles along axis 1): f3, e6, e13, f22, e27, delta_R_fp
 Inputs u: tau_fp, tau_rp
 Measurements y: F_back, F_loop, F_perm, P_memb
 Fault: abrupt change of parameter R_fp (R_fp + delta_R_fp, delta_R_fp persistent).
-Integration: RK4, 2 substep(s) per sample of 1: largest |eigenvalue| of the nominal linearisation 2.584, |lambda| h <= 1.5.
+Integration: RK4, 2 substep(s) per sample of 1: largest |eigenvalue| of the nominal linearisation 2.584, |lambda| h <= 1.5; the noise-free nominal run within 0.1 measurement std of one twice as fine.
 Noise: process std per step and state, measurement std per output (absolute
 values, computed by bgc from the model's relative noise levels).
 """

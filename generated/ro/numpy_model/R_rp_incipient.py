@@ -7,7 +7,7 @@ States x (7, particles along axis 1): f3, e6, e13, f22, e27, R_rp, delta_R_rp
 Inputs u: tau_fp, tau_rp
 Measurements y: F_back, F_loop, F_perm, P_memb
 Fault: incipient change of parameter R_rp (R_rp(t+dt) = R_rp(t) + delta_R_rp * dt, delta_R_rp persistent).
-Integration: RK4, 2 substep(s) per sample of 1: largest |eigenvalue| of the nominal linearisation 2.584, |lambda| h <= 1.5.
+Integration: RK4, 2 substep(s) per sample of 1: largest |eigenvalue| of the nominal linearisation 2.584, |lambda| h <= 1.5; the noise-free nominal run within 0.1 measurement std of one twice as fine.
 Noise: process std per step and state, measurement std per output (absolute
 values, computed by bgc from the model's relative noise levels).
 """

@@ -7,7 +7,7 @@ States x (3, particles along axis 1): e2, e7, delta_R10
 Inputs u: f_in
 Measurements y: F10, F12, F20
 Fault: abrupt change of parameter R10 (R10 + delta_R10, delta_R10 persistent).
-Integration: RK4, 1 substep(s) per sample of 0.5: largest |eigenvalue| of the nominal linearisation 0.7677, |lambda| h <= 1.5.
+Integration: RK4, 1 substep(s) per sample of 0.5: largest |eigenvalue| of the nominal linearisation 0.7677, |lambda| h <= 1.5; the noise-free nominal run within 0.1 measurement std of one twice as fine.
 Noise: process std per step and state, measurement std per output (absolute
 values, computed by bgc from the model's relative noise levels).
 """

@@ -6,7 +6,7 @@ Two coupled tanks with an inflow (thesis Fig. III.1)
 States x (2, particles along axis 1): e2, e7
 Inputs u: f_in
 Measurements y: F10, F12, F20
-Integration: RK4, 1 substep(s) per sample of 0.5: largest |eigenvalue| of the nominal linearisation 0.7677, |lambda| h <= 1.5.
+Integration: RK4, 1 substep(s) per sample of 0.5: largest |eigenvalue| of the nominal linearisation 0.7677, |lambda| h <= 1.5; the noise-free nominal run within 0.1 measurement std of one twice as fine.
 Noise: process std per step and state, measurement std per output (absolute
 values, computed by bgc from the model's relative noise levels).
 """
