@@ -181,11 +181,14 @@ def posterior(model, onsets, hint, hint_onset, T=200):
     (1.0, 0.01, (0.8, 1.2)),       # inside, a wide hint
     (1.0, 0.01, (0.9995, 1.0005)),  # inside, a hint 40 times narrower than the posterior
     (1.0, 1e-4, (0.5, 1.5)),        # inside, a hint 5000 times wider
+    (1.125, 0.0025, (0.5, 1.5)),    # halfway between two points of the first grid, 50 stds from each:
+    #                                 the interpolated peak lies 1250 above the grid's highest point
     (1.99, 0.01, (1.8, 1.99)),      # cut off by the bound 2 one std from the peak
     (2.05, 0.01, (1.8, 1.99)),      # the likelihood peaks 5 stds beyond the bound
     (2.3, 0.01, (1.8, 1.99)),       # 30 stds beyond: the posterior is an exponential against the bound
     (2.1, 0.05, (2.1, 2.2)),        # a hint wholly beyond the bound
 ])
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # an overflow once leaked to the terminal (inf masses)
 def test_the_static_posterior_of_a_bias_is_the_truncated_normal(monkeypatch, mu, sd, hint):
     synthetic(monkeypatch, lambda o, c: -0.5 * ((c - mu) / sd) ** 2)
     p = posterior(FakeFault("abrupt", (0.0, 2.0)), [100], hint, 100)

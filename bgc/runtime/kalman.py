@@ -354,6 +354,9 @@ def onset_widths(onsets) -> np.ndarray:
 EXTEND = 0.05
 EDGE = 2
 
+#: exp of a log mass above this is taken relative to the largest (exp overflows past 709)
+_SAFE_EXP = 300.0
+
 #: Gauss-Legendre nodes and weights on [0, 1], for each interval of a row
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(8)
 _GL_NODES, _GL_WEIGHTS = (_GL_NODES + 1.0) / 2.0, _GL_WEIGHTS / 2.0
@@ -452,9 +455,13 @@ def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, sta
     top = float(np.max(loglik))
     if not math.isfinite(top):
         return _Grid(changes, magnitudes, loglik, np.zeros(len(loglik)), top)
-    mass = np.array([w * np.exp(row_quadrature(m, ll - top)[1]).sum()
-                     for w, m, ll in zip(widths, magnitudes, loglik)])
-    return _Grid(changes, magnitudes, loglik, mass, top)
+    logm = [row_quadrature(m, ll - top)[1] for m, ll in zip(magnitudes, loglik)]
+    # the interpolant may rise far above the highest point of a row too coarse for its peak:
+    # the masses are then scaled down with ``top`` raised, so that none overflows
+    peak = max((float(np.max(q)) for q in logm if np.isfinite(q).any()), default=0.0)
+    shift = peak if peak > _SAFE_EXP else 0.0
+    mass = np.array([w * np.exp(q - shift).sum() for w, q in zip(widths, logm)])
+    return _Grid(changes, magnitudes, loglik, mass, top + shift)
 
 
 def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, float],
@@ -637,9 +644,11 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
         logm.append(lm + math.log(widths[i]))
         rows.append(np.full(len(x), i))
     x, c, row_of = np.concatenate(nodes), np.concatenate(changes), np.concatenate(rows)
-    mass = np.exp(np.concatenate(logm))
+    every = np.concatenate(logm)
+    shift = max(float(np.max(every)) - _SAFE_EXP, 0.0)  # no overflow (see _grid)
+    mass = np.exp(every - shift)
     total = float(mass.sum())
-    log_evidence = g.top + math.log(total) - math.log(b - a)
+    log_evidence = g.top + shift + math.log(total) - math.log(b - a)
     p = mass / total
     mean = float(p @ x)
     std = math.sqrt(max(float(p @ (x - mean) ** 2), 0.0))
