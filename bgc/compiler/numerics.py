@@ -297,25 +297,30 @@ def rk4_sample(rhs, x: np.ndarray, t0: float, h: float, substeps: int) -> np.nda
     return x
 
 
-def _nominal_outputs(ssm: StateSpaceModel, substeps: int) -> np.ndarray:
-    """y(t_k) over the noise-free nominal run (RK4 with ``substeps`` substeps
-    per sample, the model's inputs held over each sample as the filters hold
-    them, at most MAX_NOMINAL_RUN samples), one row per sample; the rows stop
-    where the run leaves the finite numbers."""
+def _nominal_run(ssm: StateSpaceModel, substeps: int):
+    """(x, y) at each sample of the noise-free nominal run (RK4 with
+    ``substeps`` substeps per sample, the model's inputs held over each
+    sample as the filters hold them, at most MAX_NOMINAL_RUN samples of the
+    horizon); it stops where the run leaves the finite numbers."""
     model = ssm.model
     f, g = lambdified(ssm)
     theta = list(ssm.parameter_values)
     dt = model.settings.dt
     x = np.array(ssm.initial, dtype=float)
-    rows = []
-    with np.errstate(all="ignore"):
-        for k in range(min(model.settings.steps, MAX_NOMINAL_RUN)):
-            u = [i.signal.at(k * dt) for i in model.inputs]
+    for k in range(min(model.settings.steps, MAX_NOMINAL_RUN)):
+        u = [i.signal.at(k * dt) for i in model.inputs]
+        with np.errstate(all="ignore"):
             x = rk4_sample(lambda x, t, t_sub: np.array(f(list(x), u, theta), dtype=float),  # noqa: B023
                            x, k * dt, dt / substeps, substeps)
             if not np.all(np.isfinite(x)):
-                break
-            rows.append(np.array(g(list(x), u, theta), dtype=float))
+                return
+            y = np.array(g(list(x), u, theta), dtype=float) if ssm.output_exprs else np.zeros(0)
+        yield x, y
+
+
+def _nominal_outputs(ssm: StateSpaceModel, substeps: int) -> np.ndarray:
+    """y(t_k) over the noise-free nominal run (:func:`_nominal_run`), one row per sample."""
+    rows = [y for _, y in _nominal_run(ssm, substeps)]
     return np.array(rows).reshape(len(rows), len(ssm.output_exprs))
 
 
@@ -342,25 +347,14 @@ def _accurate_substeps(ssm: StateSpaceModel, substeps: int, sigma: list[float]) 
 
 
 def _nominal_magnitudes(ssm: StateSpaceModel, substeps: int) -> tuple[list[float], list[float]]:
-    """max |x_i(t)| and max |y_j(t)| over the noise-free nominal run (RK4 with
-    ``substeps`` substeps per sample, the model's inputs, at most
-    MAX_NOMINAL_RUN samples of the horizon); 0 where a signal stays 0 or the
-    run leaves the finite numbers."""
-    model = ssm.model
-    f, g = lambdified(ssm)
-    theta = list(ssm.parameter_values)
-    dt = model.settings.dt
-    x = np.array(ssm.initial, dtype=float)
-    x_max = np.abs(x)
+    """max |x_i(t)| and max |y_j(t)| over the noise-free nominal run
+    (:func:`_nominal_run`); 0 where a signal stays 0 or the run leaves the
+    finite numbers."""
+    x_max = np.abs(np.array(ssm.initial, dtype=float))
     y_max = np.zeros(len(ssm.output_exprs))
-    with np.errstate(all="ignore"):
-        for k in range(min(model.settings.steps, MAX_NOMINAL_RUN)):
-            u = [i.signal.at(k * dt) for i in model.inputs]
-            x = rk4_sample(lambda x, t, t_sub: np.array(f(list(x), u, theta), dtype=float),  # noqa: B023
-                           x, k * dt, dt / substeps, substeps)
-            if not np.all(np.isfinite(x)):
-                break
-            x_max = np.maximum(x_max, np.abs(x))
-            y = np.abs(np.array(g(list(x), u, theta), dtype=float)) if len(y_max) else y_max
+    for x, y in _nominal_run(ssm, substeps):
+        x_max = np.maximum(x_max, np.abs(x))
+        with np.errstate(invalid="ignore"):
+            y = np.abs(y)
             y_max = np.where(np.isfinite(y), np.maximum(y_max, y), y_max)
     return [float(v) for v in x_max], [float(v) for v in y_max]
