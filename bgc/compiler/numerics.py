@@ -107,12 +107,13 @@ def derive(dbns: DbnModel) -> Numerics:
     horizon = settings.steps * dt
     x_scale = [abs(v) for v in ssm.initial]
     y_scale = [abs(v) for v in y0]
+    first = list(_nominal_run(ssm, substeps))  # sizes signals that start at 0, and the accuracy rule's start
     if not all(x_scale) or not all(y_scale):  # a signal that starts at 0: its size over the nominal run
-        x_max, y_max = _nominal_magnitudes(ssm, substeps)
+        x_max, y_max = _nominal_magnitudes(ssm, first)
         x_scale = [v or m or 1.0 for v, m in zip(x_scale, x_max)]
         y_scale = [v or m or 1.0 for v, m in zip(y_scale, y_max)]
     sigma = [m.noise * v for m, v in zip(model.measurements, y_scale)]
-    substeps = _accurate_substeps(ssm, substeps, sigma)
+    substeps = _accurate_substeps(ssm, substeps, sigma, _outputs(ssm, first))
     own_levels = {el.name: el.noise for el in model.elements if element_kind(el.kind).role == "storage"}
     factor = []
     for i in range(len(xs)):
@@ -318,22 +319,21 @@ def _nominal_run(ssm: StateSpaceModel, substeps: int):
         yield x, y
 
 
-def _nominal_outputs(ssm: StateSpaceModel, substeps: int) -> np.ndarray:
-    """y(t_k) over the noise-free nominal run (:func:`_nominal_run`), one row per sample."""
-    rows = [y for _, y in _nominal_run(ssm, substeps)]
-    return np.array(rows).reshape(len(rows), len(ssm.output_exprs))
+def _outputs(ssm: StateSpaceModel, run: list) -> np.ndarray:
+    """y(t_k) of a run of :func:`_nominal_run`, one row per sample."""
+    return np.array([y for _, y in run]).reshape(len(run), len(ssm.output_exprs))
 
 
-def _accurate_substeps(ssm: StateSpaceModel, substeps: int, sigma: list[float]) -> int:
-    """``substeps`` doubled until the nominal run's outputs change by at most
-    ``ACCURACY`` x ``sigma`` (each output's measurement std; an output with
-    none is not looked at) when they are doubled again (up to MAX_SUBSTEPS)."""
+def _accurate_substeps(ssm: StateSpaceModel, substeps: int, sigma: list[float], y: np.ndarray) -> int:
+    """``substeps`` doubled until the nominal run's outputs (``y``: at
+    ``substeps``) change by at most ``ACCURACY`` x ``sigma`` (each output's
+    measurement std; an output with none is not looked at) when they are
+    doubled again (up to MAX_SUBSTEPS)."""
     scale = np.array([1.0 / s if s > 0 and math.isfinite(s) else 0.0 for s in sigma])
     if not scale.any():
         return substeps
-    y = _nominal_outputs(ssm, substeps)
     while 2 * substeps <= MAX_SUBSTEPS:
-        finer = _nominal_outputs(ssm, 2 * substeps)
+        finer = _outputs(ssm, list(_nominal_run(ssm, 2 * substeps)))
         n = min(len(y), len(finer))
         if n == 0:
             break
@@ -346,13 +346,12 @@ def _accurate_substeps(ssm: StateSpaceModel, substeps: int, sigma: list[float]) 
     return substeps
 
 
-def _nominal_magnitudes(ssm: StateSpaceModel, substeps: int) -> tuple[list[float], list[float]]:
-    """max |x_i(t)| and max |y_j(t)| over the noise-free nominal run
-    (:func:`_nominal_run`); 0 where a signal stays 0 or the run leaves the
-    finite numbers."""
+def _nominal_magnitudes(ssm: StateSpaceModel, run: list) -> tuple[list[float], list[float]]:
+    """max |x_i(t)| and max |y_j(t)| over a run of :func:`_nominal_run`; 0
+    where a signal stays 0 or the run leaves the finite numbers."""
     x_max = np.abs(np.array(ssm.initial, dtype=float))
     y_max = np.zeros(len(ssm.output_exprs))
-    for x, y in _nominal_run(ssm, substeps):
+    for x, y in run:
         x_max = np.maximum(x_max, np.abs(x))
         with np.errstate(invalid="ignore"):
             y = np.abs(y)

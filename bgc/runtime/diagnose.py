@@ -68,9 +68,10 @@ while the drift's onset posterior piles up at its earliest onset; a step
 change is tried from the ``near`` samples before the change point to 2 after
 it, and no later than the sample after the alarm: a parameter that enters a
 measurement directly and changes at a sample's instant moves that sample,
-while the states move from the next step on, the filters' onset), and the onsets are weighed like the hypotheses, each by the span of
-time it stands for (its prior: uniform in time); a slow drift is detected
-long after it began, and starting its filter late biases the slope.
+while the states move from the next step on, the filters' onset), and the
+onsets are weighed like the hypotheses, each by the span of time it stands
+for (its prior: uniform in time); a slow drift is detected long after it
+began, and starting its filter late biases the slope.
 
 **The filters' identification.** In the fault-model filters the fault
 magnitude (a bias for an abrupt fault, a slope for an incipient one) is a
@@ -861,8 +862,9 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
     of onsets is pruned against). A started filter whose evidence falls
     ``PRUNE`` behind that best is pruned (it stops); a filter that failed
     its consistency test prunes none that passes it, only others that failed
-    too; an onset is not pruned before its filter starts. Each filter has its own random numbers: a filter that runs gives
-    the same numbers whichever others run beside it."""
+    too; an onset is not pruned before its filter starts. Each filter has
+    its own random numbers: a filter that runs gives the same numbers
+    whichever others run beside it."""
     import sys
 
     (name, package_name, method, particles, seeds, clouds, ys, us, starts, level, shrinkage, rejection, outputs,
@@ -946,9 +948,9 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
             trace[k] = best
             if bar is not None:  # onsets of this hypothesis tried before
                 best = max(best, float(bar[k]))
-            worst = max(best, max((evidence[s] for s in live), default=-math.inf))
+            best_any = max(best, max((evidence[s] for s in live), default=-math.inf))
             for s in sorted(live):
-                if k >= s and evidence[s] < (best if out[s]["rejected"] is None else worst) - PRUNE:
+                if k >= s and evidence[s] < (best if out[s]["rejected"] is None else best_any) - PRUNE:
                     out[s]["pruned"] = True
                     live.discard(s)
             if not live:
@@ -1037,8 +1039,9 @@ def _run_batches(batches: dict[str, list[int]], job, arrived, workers: int, cost
     waiting (it lies on the longest chain of work), while other hypotheses'
     batches still run; the first batches start longest first (``cost(onsets)``:
     a batch's work); a follow-up waits behind every first batch (a first
-    batch may lead to a follow-up of its own: the chains of work end together). A hypothesis's jobs depend on its own results only, so
-    the results do not depend on ``workers``."""
+    batch may lead to a follow-up of its own: the chains of work end
+    together). A hypothesis's jobs depend on its own results only, so the
+    results do not depend on ``workers``."""
     idle = idle or (lambda: None)
     done = done or (lambda name: None)
     order = sorted(batches, key=lambda name: -cost(batches[name]))

@@ -195,7 +195,8 @@ class _Filter:
         self.physical, self.extra = _rows(model)
         n = len(self.physical)
         self.n, self.n_x = n, len(model.STATES)
-        self.prefix = self.physical == list(range(n))  # the physical states are the first rows
+        # the physical rows of the points: a slice (a view) when they come first, as generated
+        self.rows = slice(0, n) if self.physical == list(range(n)) else self.physical
         self.Q = np.diag(np.asarray(model.PROCESS_STD, dtype=float)[self.physical] ** 2)
         self.R = np.asarray(model.MEASUREMENT_STD, dtype=float) ** 2
         self.buffer = np.empty((self.n_x, 0))
@@ -210,18 +211,14 @@ class _Filter:
         np.add(m[:, :, None], L, out=S[:, :, :n])
         np.subtract(m[:, :, None], L, out=S[:, :, n:])
         X = flat.reshape(self.n_x, C, 2 * n)
-        if self.prefix:
-            X[:n] = S.transpose(1, 0, 2)
-        else:
-            X[self.physical] = S.transpose(1, 0, 2)
+        X[self.rows] = S.transpose(1, 0, 2)
         for j, row in enumerate(self.extra):
             X[row] = fixed[j][:, None]
         return S
 
     def _physical(self, X: np.ndarray) -> np.ndarray:
         """The physical rows of the points ``X`` (n_x, C, 2n) as (C, n, 2n)."""
-        rows = X[:self.n] if self.prefix else X[self.physical]
-        return rows.transpose(1, 0, 2)
+        return X[self.rows].transpose(1, 0, 2)
 
     def step(self, y: np.ndarray, u: np.ndarray, m: np.ndarray, P: np.ndarray, fixed: np.ndarray):
         """One step (predict with input ``u``, then update with ``y``; NaN:
@@ -357,6 +354,12 @@ EDGE = 2
 #: exp of a log mass above this is taken relative to the largest (exp overflows past 709)
 _SAFE_EXP = 300.0
 
+
+def _overflow_shift(peak: float) -> float:
+    """What to subtract from log masses whose largest is ``peak`` before exp:
+    0, unless ``peak`` exceeds ``_SAFE_EXP``."""
+    return peak if peak > _SAFE_EXP else 0.0
+
 #: Gauss-Legendre nodes and weights on [0, 1], for each interval of a row
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(8)
 _GL_NODES, _GL_WEIGHTS = (_GL_NODES + 1.0) / 2.0, _GL_WEIGHTS / 2.0
@@ -458,8 +461,7 @@ def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, sta
     logm = [row_quadrature(m, ll - top)[1] for m, ll in zip(magnitudes, loglik)]
     # the interpolant may rise far above the highest point of a row too coarse for its peak:
     # the masses are then scaled down with ``top`` raised, so that none overflows
-    peak = max((float(np.max(q)) for q in logm if np.isfinite(q).any()), default=0.0)
-    shift = peak if peak > _SAFE_EXP else 0.0
+    shift = _overflow_shift(max((float(np.max(q)) for q in logm if np.isfinite(q).any()), default=0.0))
     mass = np.array([w * np.exp(q - shift).sum() for w, q in zip(widths, logm)])
     return _Grid(changes, magnitudes, loglik, mass, top + shift)
 
@@ -645,7 +647,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
         rows.append(np.full(len(x), i))
     x, c, row_of = np.concatenate(nodes), np.concatenate(changes), np.concatenate(rows)
     every = np.concatenate(logm)
-    shift = max(float(np.max(every)) - _SAFE_EXP, 0.0)  # no overflow (see _grid)
+    shift = _overflow_shift(float(np.max(every)))  # see _grid
     mass = np.exp(every - shift)
     total = float(mass.sum())
     log_evidence = g.top + shift + math.log(total) - math.log(b - a)
