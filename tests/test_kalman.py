@@ -251,7 +251,9 @@ def test_onsets_far_apart_in_mass_do_not_blur_the_interval(monkeypatch):
 def test_the_bank_on_a_linear_plant_is_the_kalman_filter_derived_by_hand():
     """Cells of R12 stepped from different onsets and biases, each against a
     Kalman filter in matrices with the hand-derived RK4 map: the nominal model
-    up to the onset, R12 + bias after it."""
+    up to the onset, R12 + bias after it. R12 changes at the instant of the
+    onset sample (the thesis's DBN, the simulator): the transition into that
+    sample is nominal, its measurement F12 = (P1 - P2) / R12 sees the bias."""
     package, ys, us = data("two_tank", "R12:abrupt:0.8@60", seed=4)
     nominal, fault = package.MODELS["nominal"], package.MODELS["R12_abrupt"]
     onsets, biases = [100, 118, 118, 140], [0.5, 0.8, 1.1, 0.8]
@@ -260,7 +262,8 @@ def test_the_bank_on_a_linear_plant_is_the_kalman_filter_derived_by_hand():
     Q = np.diag(np.asarray(nominal.PROCESS_STD) ** 2)
     R = np.diag(np.asarray(nominal.MEASUREMENT_STD) ** 2)
     for i, (onset, bias) in enumerate(zip(onsets, biases)):
-        maps = [tank_map(2.0)] * onset + [tank_map(2.0 + bias)] * (len(ys) - onset)
+        at_onset = tank_map(2.0)[:2] + tank_map(2.0 + bias)[2:]
+        maps = [tank_map(2.0)] * onset + [at_onset] + [tank_map(2.0 + bias)] * (len(ys) - onset - 1)
         ll, m, P = kalman_filter(ys, np.asarray(nominal.X0[:2]), np.diag(np.asarray(nominal.X0_STD) ** 2), maps, Q, R)
         assert r.loglik[i] == pytest.approx(ll, rel=1e-10, abs=1e-8)
         assert np.allclose(r.mean[i], m, rtol=1e-9) and np.allclose(r.cov[i], P, rtol=1e-7, atol=1e-14)
@@ -431,3 +434,25 @@ def test_a_hypothesis_whose_likelihood_peaks_outside_its_prior_gets_its_grid_aga
     assert p is not None and math.isfinite(p.log_evidence) and p.residuals is not None
     assert 0.0 <= p.low <= p.mean <= p.high
     assert all(np.all(np.diff(v) >= 0) and v[0] >= 0.0 for v in p.values)
+
+
+def test_a_cell_of_a_parameter_no_sensor_sees_is_the_nominal_filter_up_to_its_onset_sample():
+    """A fault with onset k changes the parameter at the instant of sample k:
+    the transition into sample k is nominal. The orifice tanks' outlet pipe
+    R20 enters no measurement (F_orifice = cd sqrt(P1 - P2), P2), so a cell
+    of any bias whose onset is k explains y_0 .. y_k exactly as the nominal
+    filter does (before: its transition into k had the bias)."""
+    from bgc import api
+
+    c, folder = api._compiled(ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml")
+    package = track.load_package(folder, "orifice_tanks")
+    result = simulate.simulate(c.numerics, simulate.SimulationOptions(seed=3, steps=60))
+    ys, us = track.run_arrays(runs.parse_run(simulate.to_csv(result), "none"), package, "nominal")
+    nominal, fault = package.MODELS["nominal"], package.MODELS["R20_abrupt"]
+    t = kalman.nominal_track(nominal, ys, us, 41)
+    for k in (30, 40):
+        r = kalman.run_bank(fault, ys[:k + 1], us, t, [k, k, k - 1], [0.9, -0.9, 0.9], np.zeros(1))
+        assert r.loglik[0] == pytest.approx(t.loglik[k + 1], rel=1e-12)
+        assert r.loglik[1] == pytest.approx(t.loglik[k + 1], rel=1e-12)
+        assert abs(r.loglik[2] - t.loglik[k + 1]) > 1e-6  # from k - 1 on, the transition into k has the bias
+        np.testing.assert_allclose(r.mean[0], t.mean[k + 1], rtol=1e-12)

@@ -92,3 +92,29 @@ def test_cli_filter_prints_the_estimate_and_refuses_bad_options(tmp_path):
         r = subprocess.run([sys.executable, "-m", "bgc", "filter", "models/circuit.yaml", str(csv), *bad],
                            cwd=ROOT, capture_output=True, text=True)
         assert r.returncode == 1 and "Traceback" not in r.stderr and r.stderr.count("\n") == 1, r.stderr
+
+
+@pytest.mark.parametrize("name, magnitude", [("cd_abrupt", 0.3), ("cd_incipient", 0.002)])
+def test_the_transition_into_an_onset_sample_is_nominal_and_keeps_the_magnitude(name, magnitude):
+    """A fault with onset k changes the parameter at the instant of sample k
+    (the thesis's DBN: the parameter of slice k enters y_k and the transition
+    out of k): the fault filter's particles make the nominal transition into
+    sample k, and keep their magnitude (a bias, a slope) for the next ones;
+    a drifting parameter's own state stays nominal."""
+    from bgc import api
+
+    _, folder = api._compiled(ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml")
+    package = runtime.load_package(folder, "orifice_tanks")
+    nominal, fault = package.MODELS["nominal"], package.MODELS[name]
+    rng = np.random.default_rng(8)
+    physical = nominal.X0[:, None] * (1.0 + 0.1 * rng.standard_normal((len(nominal.STATES), 5)))
+    x = fault.augment(physical.copy(), rng)
+    x[-1] = magnitude
+    before = x.copy()
+    u = nominal.inputs(0.0)
+    runtime.onset_transition(fault, x, u, fault.THETA)
+    want = nominal.predict(physical.copy(), u, nominal.THETA, nominal.DT)
+    np.testing.assert_allclose(x[:len(nominal.STATES)], want, rtol=1e-13)
+    np.testing.assert_array_equal(x[len(nominal.STATES):], before[len(nominal.STATES):])
+    moved = fault.predict(before.copy(), u, fault.THETA, fault.DT)  # with the fault in: not the same
+    assert np.abs(moved[:len(nominal.STATES)] - want).max() > 1e-4

@@ -113,7 +113,7 @@ from .identify import GridOptions
 from .kalman import EDGE, EXTEND, KalmanOptions, StaticPosterior, onset_widths
 from .isolate import OpenLoop, Symbol, hypotheses, observed_symbols
 from .runs import Run
-from .track import check_particles, run_arrays
+from .track import check_particles, onset_transition, run_arrays
 
 
 @dataclass(frozen=True, slots=True)
@@ -907,9 +907,14 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
                     filters[s] = cls(module, particles, rng, x=x0)
             running = [s for s in sorted(live) if k >= s]
             if running:  # else every filter left has a later onset (the earlier ones stopped or pruned)
-                pfs = [filters[s] for s in running]
+                pfs = [filters[s] for s in running if s < k]
                 results = bank.step(pfs, ys[k], us[k])
                 _shrink_together(bank, pfs, k_mag, shrinkage, [r.resampled for r in results])
+                if running[-1] == k:  # a filter at its onset sample: the transition into it is nominal
+                    pf = filters[k]
+                    onset_transition(module, pf.x, us[k], pf.theta)
+                    results.append(pf.step(ys[k], us[k], predicted=True))
+                    _shrink_together(None, [pf], k_mag, shrinkage, [results[-1].resampled])
                 y_mean = np.empty((len(running), n_y))
                 y_std = np.empty((len(running), n_y))
                 before = np.empty((len(running), 1))  # the ESS of the weights that predicted this step
@@ -979,11 +984,11 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
 def _shrink_together(bank, pfs: list, row: int, a: float, resampled: list[bool]) -> None:
     """The kernel move of the magnitude (state ``row``) of each filter of
     ``pfs`` just stepped by ``bank``: in the bank's arrays when it holds them,
-    else filter by filter."""
+    else (or with no bank) filter by filter."""
     if a >= 1.0 or not pfs:
         return
     rngs = [pf.rng for pf in pfs]
-    if bank.packed:
+    if bank is not None and bank.packed:
         _kernel_shrinkage(bank.x[row].reshape(len(pfs), -1), bank.logw, a, rngs, np.array(resampled))
         return
     for pf, r in zip(pfs, resampled):

@@ -109,7 +109,7 @@ def loglik_grid(package: ModuleType, name: str, cloud, ys: np.ndarray, us: np.nd
         for j, value in enumerate(values):
             crn = np.random.default_rng([*seed, 1 + i])  # the same random numbers for every value
             xf = model.augment(x.copy(), crn)
-            xf[row] = value
+            xf[row] = 0.0  # the transition into the onset sample is nominal; _bootstrap sets the value after it
             part, _ = _bootstrap(package, model, xf, ys[onset:], us[onset:], crn, fixed=(row, float(value)))
             out[i, j] = before + part
     return out

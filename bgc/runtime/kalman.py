@@ -220,18 +220,23 @@ class _Filter:
         """The physical rows of the points ``X`` (n_x, C, 2n) as (C, n, 2n)."""
         return X[self.rows].transpose(1, 0, 2)
 
-    def step(self, y: np.ndarray, u: np.ndarray, m: np.ndarray, P: np.ndarray, fixed: np.ndarray):
+    def step(self, y: np.ndarray, u: np.ndarray, m: np.ndarray, P: np.ndarray, fixed: np.ndarray,
+             onset: slice = slice(0, 0)):
         """One step (predict with input ``u``, then update with ``y``; NaN:
         not measured) of every cell: log p(y | the past) (C,), mean (C, n)
         and covariance (C, n, n) after it, normalised residuals (C, n_y);
-        updates ``fixed`` (a drifting parameter moves)."""
+        updates ``fixed`` (a drifting parameter moves). The cells ``onset``
+        are at their onset sample: their transition is nominal (magnitude
+        zero), their update sees the fault (``track.onset_transition``)."""
         model, n, C = self.model, self.n, m.shape[0]
         if self.buffer.shape[1] < 2 * n * C:
             self.buffer = np.empty((self.n_x, 2 * n * C))
         flat = self.buffer[:, :2 * n * C]
         self._points(m, P, fixed, flat)
-        model.predict(flat, u, model.THETA, model.DT, out=flat)
         X = flat.reshape(self.n_x, C, 2 * n)
+        if self.extra:
+            X[self.extra[-1], onset] = 0.0
+        model.predict(flat, u, model.THETA, model.DT, out=flat)
         for j, row in enumerate(self.extra[:-1]):  # a drifting parameter: the same in every point of a cell
             fixed[j] = X[row, :, 0]
         Xp = self._physical(X)  # (C, n, 2n)
@@ -296,11 +301,12 @@ def run_bank(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTr
     with np.errstate(all="ignore"):
         for k in range(int(starts[0]) if C else T, T):
             joining = int(np.searchsorted(starts, k, side="right"))
+            onset = slice(live, joining)  # the cells whose onset is this step
             if joining > live:
                 m[live:joining] = track.mean[k]
                 P[live:joining] = track.cov[k]
                 live = joining
-            ll, m[:live], P[:live], zk = kf.step(ys[k], us[k], m[:live], P[:live], state[:, :live])
+            ll, m[:live], P[:live], zk = kf.step(ys[k], us[k], m[:live], P[:live], state[:, :live], onset)
             total[:live] += ll
             if z is not None:
                 z[k, :live] = zk

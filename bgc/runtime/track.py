@@ -156,6 +156,26 @@ def fault_estimate(result: TrackResult, package: ModuleType, run: Run) -> FaultE
     return FaultEstimate(p, kind.name, what, value, std, float(result.time[-1]), true_value)
 
 
+def onset_transition(model: ModuleType, x: np.ndarray, u: np.ndarray, theta) -> np.ndarray:
+    """The noise-free transition into a fault's onset sample, in place on a
+    fault model's particles ``x``: the dynamics that lead to the sample are
+    nominal, the sample sees the fault. A fault with onset k changes the
+    parameter at the instant of sample k: as in the thesis's DBN (the
+    parameter of time slice k enters y_k and the transition out of slice k)
+    and in the simulator, y_k sees the new value and the states move from
+    step k on. So the magnitude state (the last: a bias, or a drift's slope)
+    is held at zero for this one transition, then restored; a drifting
+    parameter's own state stays at its nominal value. The filter's step then
+    adds the process noise and weighs the particles with the fault in
+    (``step(y, u, predicted=True)``)."""
+    row = len(model.STATES) - 1
+    magnitude = x[row].copy()
+    x[row] = 0.0
+    model.predict(x, u, theta, model.DT, out=x)
+    x[row] = magnitude
+    return x
+
+
 def run_arrays(run: Run, package: ModuleType, model_name: str) -> tuple[np.ndarray, np.ndarray]:
     """(ys, us) arrays of a recorded run in the model's output and input order."""
     model = package.MODELS[model_name]
@@ -261,6 +281,12 @@ def track(run: Run, package: ModuleType, model_name: str = "nominal", method: st
         x0 = model.augment(pf0.x[:, package.filters.systematic_resample(pf0.logw, rng)], rng)
     if split < T:
         pf = cls(model, particles, rng, x=x0)
+        if x0 is not None:  # handed over at the fault's onset: its sample sees the fault, the transition is nominal
+            onset_transition(model, pf.x, us[split], pf.theta)
+            r = pf.step(ys[split], us[split], predicted=True)
+            mean[split], std[split], y_mean[split], y_std[split] = r.mean, r.std, r.y_mean, r.y_std
+            ess[split], resampled[split] = r.ess, r.resampled
+            split += 1
         out = pf.run(ys[split:], us[split:])
         mean[split:], std[split:] = out.mean, out.std
         y_mean[split:], y_std[split:], ess[split:] = out.y_mean, out.y_std, out.ess

@@ -35,7 +35,8 @@ PROCESS_STD = np.array([0.1232375754386624, 0.01677050983124842, 0.0335410196624
 MEASUREMENT_STD = np.array([0.05, 0.05, 0.05])
 #: Std of the one-step predictive of y given the noise-free prediction: measurement
 #: noise plus the process noise seen through the outputs (sqrt(R + diag(H Q H')),
-#: H at X0); used by the auxiliary particle filter's first stage.
+#: H at X0); the auxiliary particle filter uses :func:`predictive_std`, its value
+#: where the plant runs, and this where that is not a number.
 PREDICTIVE_STD = np.array([0.06020797289396148, 0.1329943607827039, 0.07979465834252317])
 FAULT = {'parameter': 'R3', 'kind': 'incipient', 'magnitude': 'slope'}
 #: Uniform prior of the fault magnitude: slope delta_R3 (per unit time) on [-0.0533333, 0.266667].
@@ -139,6 +140,13 @@ def loglik_observed(y, yhat):
 def loglik_predictive(y, x, u, theta):
     """Approximate log p(y | noise-free prediction x), with PREDICTIVE_STD."""
     return _kernel.gaussian_loglik(y, observe(x, u, theta), PREDICTIVE_STD)
+
+
+def predictive_std(m, u, theta):
+    """Std of the one-step predictive of y around the states m (n_x, F), one
+    column per filter: (F, n_y) (``_kernel.predictive_std``: measurement noise
+    plus the process noise seen through the outputs at m)."""
+    return _kernel.predictive_std(observe, m, u, theta, PROCESS_STD, MEASUREMENT_STD, PREDICTIVE_STD)
 
 
 def initial_particles(rng, n):

@@ -35,7 +35,8 @@ PROCESS_STD = np.array([0.4196718, 0.0019066642660331957, 4.777001768693411, 14.
 MEASUREMENT_STD = np.array([0.03310130963636364, 0.3128824910144928, 0.2797811538461539, 7.27431])
 #: Std of the one-step predictive of y given the noise-free prediction: measurement
 #: noise plus the process noise seen through the outputs (sqrt(R + diag(H Q H')),
-#: H at X0); used by the auxiliary particle filter's first stage.
+#: H at X0); the auxiliary particle filter uses :func:`predictive_std`, its value
+#: where the plant runs, and this where that is not a number.
 PREDICTIVE_STD = np.array([0.03958761331552928, 0.3844347212165026, 0.3347278293094676, 8.70260489015789])
 FAULT = {'parameter': 'R_rp', 'kind': 'incipient', 'magnitude': 'slope'}
 #: Uniform prior of the fault magnitude: slope delta_R_rp (per unit time) on [0, 0.00133333].
@@ -166,6 +167,13 @@ def loglik_observed(y, yhat):
 def loglik_predictive(y, x, u, theta):
     """Approximate log p(y | noise-free prediction x), with PREDICTIVE_STD."""
     return _kernel.gaussian_loglik(y, observe(x, u, theta), PREDICTIVE_STD)
+
+
+def predictive_std(m, u, theta):
+    """Std of the one-step predictive of y around the states m (n_x, F), one
+    column per filter: (F, n_y) (``_kernel.predictive_std``: measurement noise
+    plus the process noise seen through the outputs at m)."""
+    return _kernel.predictive_std(observe, m, u, theta, PROCESS_STD, MEASUREMENT_STD, PREDICTIVE_STD)
 
 
 def initial_particles(rng, n):

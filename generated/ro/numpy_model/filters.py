@@ -273,8 +273,9 @@ class AuxiliaryParticleFilter(_Filter):
     """Thesis Algorithm 2: choose ancestors by w_k-1 * p(y_k | mu_k), propagate,
     weight by p(y_k | x_k) / p(y_k | mu_k).
 
-    p(y_k | mu_k) is the model's predictive likelihood (``loglik_predictive``:
-    measurement noise plus the process noise seen through the outputs), which
+    p(y_k | mu_k) is a Gaussian of the model's ``predictive_std`` around the
+    cloud's weighted mean (measurement noise plus the process noise seen
+    through the outputs where the plant runs now), which
     keeps the second-stage weights from being heavy-tailed when the process
     noise is not small against the measurement noise (Pitt and Shephard, 1999).
     The noise-free prediction mu is computed once: the new particles are
@@ -292,14 +293,17 @@ class AuxiliaryParticleFilter(_Filter):
             return self._finish(self.logw, y_mean, y_std, False)
         # The predicted measurement (before y is used) from the cloud before the
         # selection: the weighted mean and spread of the noise-free predictions,
-        # plus PREDICTIVE_STD (measurement noise and the process noise seen
-        # through the outputs). The selected particles re-weighted by
-        # 1 / p(y | mu) give the same in expectation, but with a large variance
-        # when y is far out: the selection has moved them towards it.
+        # plus the predictive std (measurement noise and the process noise seen
+        # through the outputs around the cloud's mean). The selected particles
+        # re-weighted by 1 / p(y | mu) give the same in expectation, but with a
+        # large variance when y is far out: the selection has moved them towards it.
         ymu = self.model.observe(mu, u, self.theta)
-        y_mean, y_spread = self.model._kernel.moments(ymu, self._weights())
-        y_std = np.sqrt(y_spread * y_spread + self.model.PREDICTIVE_STD ** 2)
-        first = self.model._kernel.gaussian_loglik(y, ymu, self.model.PREDICTIVE_STD)  # loglik_predictive
+        w = self._weights()
+        y_mean, y_spread = self.model._kernel.moments(ymu, w)
+        centre = np.ascontiguousarray(mu) @ w
+        predictive = self.model.predictive_std(centre[:, None], u, self.theta)[0]
+        y_std = np.sqrt(y_spread * y_spread + predictive ** 2)
+        first = self.model._kernel.gaussian_loglik(y, ymu, predictive)
         del ymu
         broken = np.isnan(first)
         if broken.any():  # a finite particle whose prediction is not a number is impossible
@@ -444,20 +448,22 @@ class FilterBank:
         return mean, np.sqrt(np.maximum(var, 0.0))
 
     def _loglik(self, y, yhat, std):
-        """(F, N): each filter's ``_kernel.gaussian_loglik(y, yhat, std)`` of
-        its columns of ``yhat`` (n_y, F * N)."""
+        """(F, N): each filter's ``_kernel.gaussian_loglik(y, yhat, std[f])``
+        of its columns of ``yhat`` (n_y, F * N); ``std`` (F, n_y), or (n_y,)
+        for all filters."""
         seen = np.isfinite(y)
         stacked = self._stacked(yhat)
+        std = np.broadcast_to(np.asarray(std, dtype=float), (len(self.filters), len(y)))
         if not seen.all():
-            y, stacked, std = y[seen], stacked[:, seen], std[seen]
+            y, stacked, std = y[seen], stacked[:, seen], std[:, seen]
         weight = -0.5 / (std * std)
         d = np.empty(stacked.shape)  # (F, n_y, N): each filter's block contiguous, as in gaussian_loglik
         np.subtract(stacked, y[:, None], out=d)
         d *= d
         total = np.empty((len(self.filters), self.n))
         for f in range(len(self.filters)):
-            np.matmul(weight, d[f], out=total[f])
-        total += self.model._kernel.log_normaliser(std)
+            np.matmul(weight[f], d[f], out=total[f])
+            total[f] += self.model._kernel.log_normaliser(std[f])
         return total
 
     def _gpf(self, y, u):
@@ -509,8 +515,10 @@ class FilterBank:
         mu = self.x
         ymu = model.observe(mu, u, self.theta)
         y_mean, y_spread = self._moments(np.ascontiguousarray(self._stacked(ymu)), self.w)
-        y_std = np.sqrt(y_spread * y_spread + model.PREDICTIVE_STD ** 2)
-        first = self._loglik(y, ymu, model.PREDICTIVE_STD)
+        centre = np.matmul(np.ascontiguousarray(self._stacked(mu)), self.w[:, :, None])[:, :, 0]
+        predictive = model.predictive_std(np.ascontiguousarray(centre.T), u, self.theta)
+        y_std = np.sqrt(y_spread * y_spread + predictive ** 2)
+        first = self._loglik(y, ymu, predictive)
         del ymu
         broken = np.isnan(first)
         if broken.any():

@@ -131,6 +131,36 @@ def gaussian_loglik(y, yhat, std):
     return total
 
 
+def predictive_std(observe, m, u, theta, process_std, measurement_std, fallback):
+    """Std of the one-step predictive of y given noise-free predictions around
+    the states ``m`` (n_x, F), one column per filter: the measurement noise
+    plus the process noise seen through the outputs,
+
+        sqrt(r_j^2 + sum_i ((h_j(m + q_i e_i) - h_j(m - q_i e_i)) / 2)^2),
+
+    q_i the process std of state i: central differences over one std, the
+    exact diag(H Q H') when h is linear, and the output's own slope where the
+    plant runs now (a Jacobian at X0 misses the noise a product of states
+    passes on when X0 is at rest). (F, n_y); ``fallback`` where that is not
+    a number."""
+    n_x, count = m.shape
+    q = np.asarray(process_std, dtype=float)[:, None]
+    x = np.repeat(m[:, :, None], 2 * n_x, axis=2)  # (n_x, F, 2 n_x): + q_i e_i, then - q_i e_i
+    i = np.arange(n_x)
+    x[i, :, i] += q
+    x[i, :, n_x + i] -= q
+    y = observe(x.reshape(n_x, count * 2 * n_x), u, theta).reshape(-1, count, 2, n_x)
+    half = y[:, :, 0] - y[:, :, 1]
+    half *= 0.5
+    half *= half
+    r = np.asarray(measurement_std, dtype=float)
+    std = np.sqrt(half.sum(axis=2) + (r * r)[:, None]).T
+    bad = ~np.isfinite(std)
+    if bad.any():
+        std[bad] = np.broadcast_to(np.asarray(fallback, dtype=float), std.shape)[bad]
+    return std
+
+
 def log_normaliser(std):
     """log of the normalising constant of independent Gaussians of these stds:
     -n/2 log(2 pi) - sum(log std)."""
