@@ -317,13 +317,17 @@ def test_a_drifts_onsets_are_every_4_samples_near_the_alarm_and_coarser_further_
     """drift_onsets(100, 90, 4, 100): back from the alarm at 100 every 4
     samples while 1/16 of the distance is at most 4 (distances 0, 4, ..., 80),
     then 1/16 of the distance, rounded down (80 +5 -> 85 +5 -> 90 +5 -> 95 +5
-    -> 100), down to sample 0; the change point 90 as well. With a history of
-    64 the grid stops at 64."""
+    -> 100), down to sample 0; the change point 90 as well, and the sample
+    before it, 89 (the first deviating sample of a fault that acts through
+    the dynamics is the one after its onset). With a history of 64 the grid
+    stops at 64."""
     from bgc.runtime.diagnose import drift_onsets
 
-    assert drift_onsets(100, 90, 4, 100) == sorted({100 - d for d in (*range(0, 81, 4), 85, 90, 95, 100)} | {90})
-    assert drift_onsets(100, 90, 4, 64) == sorted({100 - d for d in range(0, 65, 4)} | {90})
+    assert drift_onsets(100, 90, 4, 100) == sorted({100 - d for d in (*range(0, 81, 4), 85, 90, 95, 100)}
+                                                   | {89, 90})
+    assert drift_onsets(100, 90, 4, 64) == sorted({100 - d for d in range(0, 65, 4)} | {89, 90})
     assert min(drift_onsets(30, 28, 4, 256)) == 2  # never before the first sample: 30 - 28
+    assert drift_onsets(5, 0, 4, 256) == [0, 1, 5]  # a change point at the first sample: nothing before it
 
 
 def test_each_onset_weighs_the_span_of_samples_it_stands_for():

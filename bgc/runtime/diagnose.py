@@ -16,7 +16,10 @@ with the onset, not the detection time, as the hand-over:
    kind), the generated fault-model filter starts at the onset from the
    nominal cloud of that time, lifted into the fault model with the fault
    magnitude drawn from its prior, and runs to the end of the data, estimating
-   the magnitude jointly with the state. One hypothesis's filters run in
+   the magnitude jointly with the state. The fault changes the parameter at
+   the instant of the onset sample (the thesis's DBN, the simulator): the
+   transition into that sample is nominal, the sample sees the fault
+   (:func:`~bgc.runtime.track.onset_transition`). One hypothesis's filters run in
    lockstep over its onsets (an onset whose running evidence falls ``PRUNE``
    behind the best one's is pruned); the hypotheses run in parallel
    processes.
@@ -66,9 +69,7 @@ apart, back to ``search`` steps before the alarm, and coarser further back;
 the grid is extended back by ``search`` steps at a time, up to ``history``,
 while the drift's onset posterior piles up at its earliest onset; a step
 change is tried from the ``near`` samples before the change point to 2 after
-it, and no later than the sample after the alarm: a parameter that enters a
-measurement directly and changes at a sample's instant moves that sample,
-while the states move from the next step on, the filters' onset), and the
+it, and no later than the sample after the alarm), and the
 onsets are weighed like the hypotheses, each by the span of time it stands
 for (its prior: uniform in time); a slow drift is detected long after it
 began, and starting its filter late biases the slope.
@@ -368,16 +369,14 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     # samples around the detector's estimate
     spacing = options.spacing or (8 if options.identify == "kalman" else 4)
     reach = drift_onsets(detection.step, detection.onset, spacing, options.history)
-    grid = [k for k in reach if k >= detection.step - options.search or k == detection.onset]
-    # (up to the sample after the alarm: a parameter that enters a measurement directly, changed at a
-    # sample's instant, moves that sample but not yet the states; the filters' onset is the first step
-    # whose dynamics are faulty, the one after)
+    grid = [k for k in reach if k >= detection.step - options.search or detection.onset - 1 <= k <= detection.onset]
     near = {k for k in range(detection.onset - options.near, detection.onset + 3)
             if 0 <= k <= detection.step + 1 and k < T}
     onsets = {True: grid, False: sorted(near)}
     # the Kalman filters' onsets: a drift's on a grid of their own (they are cheaper than particle filters)
     kalman_reach = drift_onsets(detection.step, detection.onset, options.kalman.spacing, options.history)
-    kalman_onsets = {True: [k for k in kalman_reach if k >= detection.step - options.search or k == detection.onset],
+    kalman_onsets = {True: [k for k in kalman_reach
+                           if k >= detection.step - options.search or detection.onset - 1 <= k <= detection.onset],
                      False: sorted(near)}
     # 3. qualitative isolation on the open-loop nominal prediction from the detector's onset
     say("reading the symbols of the deviating sensors")
@@ -665,11 +664,14 @@ ONSET_GROWTH = 1.0 / 16.0
 
 
 def drift_onsets(step: int, change_point: int, spacing: int, history: int) -> list[int]:
-    """The onsets a drift is tried from: the detector's change point, and
-    from the alarm (``step``) back to ``history`` samples before it (not
-    before the first sample), ``spacing`` apart, or 1/16 of the distance back
+    """The onsets a drift is tried from: the detector's change point and the
+    sample before it (the change point is the first sample that deviates; a
+    fault that acts through the dynamics began a sample earlier: the
+    transition out of its onset sample moves the next one), and from the
+    alarm (``step``) back to ``history`` samples before it (not before the
+    first sample), ``spacing`` apart, or 1/16 of the distance back
     (:data:`ONSET_GROWTH`) where that is larger."""
-    out, d = {change_point}, 0
+    out, d = {change_point} | ({change_point - 1} if change_point > 0 else set()), 0
     while step - d >= 0 and d <= history:
         out.add(step - d)
         d += max(spacing, int(d * ONSET_GROWTH))

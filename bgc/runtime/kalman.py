@@ -22,9 +22,11 @@ R_pipe slope and bias agree within the reference's own Monte Carlo error).
 
 One bank runs every cell (tau, c) of a grid at once: arrays of cells x
 points, one call of the model per step for all of them. Before its onset a
-cell is the nominal model (its magnitude is held at 0); all cells start from
-the nominal filter's state at the earliest onset, so every cell's likelihood
-covers the same data, from step 0.
+cell is the nominal model (its magnitude is held at 0, and so it is for the
+transition into the onset sample: the fault changes the parameter at that
+sample's instant, which sees it, ``track.onset_transition``); all cells
+start from the nominal filter's state at the earliest onset, so every cell's
+likelihood covers the same data, from step 0.
 
 The grid is adaptive in the magnitude. For a drift it is laid out in the
 change the parameter reaches by the end of the run, ``c (T - tau) dt``,
