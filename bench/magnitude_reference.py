@@ -101,8 +101,9 @@ def reference(package, fault_model: str, run, taus, slopes, n: int, seed: int) -
         done = tau
         for j, c in enumerate(slopes):
             xf = fault.augment(x.copy(), rng)
-            xf[row] = c
-            # held at c: the drift (the generated model advances R_pipe by c per step from the onset), or the bias
+            # the fault changes R_pipe at the onset sample's instant: the transition into it is nominal (0),
+            # then the state is held at c: the drift (R_pipe advances by c per step from the onset), or the bias
+            xf[row] = 0.0
             part, _ = bootstrap(fault, xf, ys[tau:], us[tau:], rng, fix=(row, c))
             out[i, j] = ll0 + part
     return out

@@ -478,28 +478,52 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
         if options.identify == "kalman":
             track.append(kalman.nominal_track(nominal, ys, us, max(max(s) for s in kalman_onsets.values())))
 
+    def static_job(name: str, h: dict) -> StaticJob:
+        tried = kalman_onsets[drifts[name]]
+        earlier = _earlier(kalman_reach, tried, options.search) if drifts[name] else ()
+        return StaticJob(package.__name__, name, ys, us, track[0], tuple(tried),
+                         (h["estimate"].low, h["estimate"].high), h["start"], options.interval, options.kalman,
+                         earlier)
+
     def done(name: str):
         if options.identify != "kalman":
             return None
         h = assemble(name)
         if h["dropped"] is not None:
             return None
-        tried = kalman_onsets[drifts[name]]
-        earlier = _earlier(kalman_reach, tried, options.search) if drifts[name] else ()
-        return _static_job, StaticJob(package.__name__, name, ys, us, track[0], tuple(tried),
-                                      (h["estimate"].low, h["estimate"].high), h["start"], options.interval,
-                                      options.kalman, earlier)
+        return _static_job, static_job(name, h)
 
     def landed(name: str, posterior: StaticPosterior) -> None:
         posteriors[name] = posterior
 
     _run_batches({name: starts_of[name] for name in names}, job, arrived, options.workers,
                  lambda starts: sum(T - s for s in starts), idle, done, landed)  # cost: filter steps, if none stops
+    revived = []
+    if options.identify == "kalman" and not posteriors:
+        # none passed its particle filters' test: each whose most probable onset's filter still ran to the
+        # end (only just off the data: a drift's filters start on a coarser grid of onsets than its Kalman
+        # filters') is tested as its fault model states it, the magnitude held static
+        if not track:
+            idle()
+        for name in names:
+            h = assemble(name)
+            if not math.isfinite(results[(name, h["start"])]["evidence"]):
+                continue
+            say(f"testing {name} with its magnitude held static")
+            p = _static_job(static_job(name, h))
+            if math.isfinite(p.log_evidence) and _static_alarm(p, outputs, options) is None:
+                posteriors[name] = p
+                revived.append(name)
     first = min(min(s) for s in starts_of.values())
     for o in results.values():  # the common span starts at `first`
         o["evidence"] -= float(nominal_density[:first].sum())
     # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
     hyps = [assemble(name) for name in names]
+    for h in hyps:
+        if h["name"] in revived:
+            notes.append(f"{h['name']}: its particle filters failed their test ({h['reason']}, at "
+                         f"t = {run.time[h['dropped']]:g}), its fault model with the magnitude held static passes it")
+            h["dropped"], h["reason"] = None, ""
     evidence_of = {h["name"]: h["log_evidence"] for h in hyps}  # the filters' (a magnitude with a random walk)
     static = False
     if posteriors:  # 6. the survivors weighed with their magnitudes held static
@@ -634,15 +658,23 @@ def _checked(h: Hypothesis, outputs, options: DiagnosisOptions) -> Hypothesis:
     model over the run) on the normalised residuals of its static
     posterior's most likely cell, from that cell's onset; its first alarm,
     or None."""
-    if h.static is None or h.static.residuals is None or h.static.best is None:
-        return h
-    z = h.static.residuals[h.static.best[0]:]
+    alarm = None if h.static is None else _static_alarm(h.static, outputs, options)
+    return h if alarm is None else dataclasses.replace(h, static_alarm=alarm)
+
+
+def _static_alarm(p: StaticPosterior, outputs, options: DiagnosisOptions) -> Detection | None:
+    """The first alarm of the windowed Z-test of section 5 on the normalised
+    residuals of static posterior ``p``'s most likely cell, from that cell's
+    onset (None: it passes, or ``p`` has no such cell)."""
+    if p.residuals is None or p.best is None:
+        return None
+    z = p.residuals[p.best[0]:]
     test = Detector(outputs, DetectorOptions(options.rejection, options.windows, len(z)))
     for zk in z:
         alarm = test.update(zk)
         if alarm is not None:
-            return dataclasses.replace(h, static_alarm=alarm)
-    return h
+            return alarm
+    return None
 
 
 def static_estimate(e: Estimate, p: StaticPosterior) -> Estimate:
