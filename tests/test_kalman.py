@@ -224,11 +224,17 @@ def test_onsets_weigh_by_their_spans_and_a_late_onset_beyond_the_first_grid_is_k
     in the change of the earlier onset, puts the later onset's cells (half the
     span, twice the slope) beyond the prior; it is moved inside and weighs as
     much. The evidence is the mean of the two onsets' (equal widths) times the
-    window's length."""
+    window's length. The onset is then refined sample by sample between them
+    (every sample as likely): the window, 75 to 175, is kept, so each inner
+    sample weighs 1 %, the two ends a quarter each (25.5 samples: from 75
+    to 100.5, from 149.5 to 175), and the evidence is the same."""
     synthetic(monkeypatch, lambda o, c: -0.5 * ((c - 0.0402) / 1e-4) ** 2)
     p = posterior(FakeFault("incipient", (0.0, 0.04)), [100, 150], (0.035, 0.0399), 100)
     mean, std, low, high, log_mass = truncated_normal(0.0402, 1e-4, 0.0, 0.04)
-    assert p.onsets == (100, 150) and p.onset_posterior == pytest.approx((0.5, 0.5), abs=0.01)
+    assert p.onsets == tuple(range(100, 151))
+    want = np.full(51, 0.01)
+    want[[0, -1]] = 0.255
+    assert p.onset_posterior == pytest.approx(want, abs=1e-3)
     assert p.mean == pytest.approx(mean, abs=0.01 * std)
     assert p.log_evidence == pytest.approx(log_mass + math.log(100.0) - math.log(0.04), abs=0.01)
 
@@ -312,12 +318,19 @@ def exact_grid(package, name, ys, us, onsets, values):
 def test_the_adaptive_grid_integrates_like_a_fine_brute_force_grid(scenario, name, onsets, values, seed):
     """Posterior mean, std, interval and evidence of the adaptive grid (a few
     dozen cells, started from a poor hint) against quadrature on a grid of
-    ~20000 cells over the same onsets, with the magnitude uniform on its prior."""
+    ~20000 cells over the same onsets with the same weights (a drift's onsets
+    are refined sample by sample where its posterior is: the onsets the
+    adaptive grid ends with), with the magnitude uniform on its prior."""
     package, ys, us = data("two_tank", scenario, seed=seed)
     fault = package.MODELS[name]
-    ll, t = exact_grid(package, name, ys, us, onsets, values)
+    t = kalman.nominal_track(package.MODELS["nominal"], ys, us, max(onsets))
+    truth = float(scenario.split(":")[2].split("@")[0])
+    p = kalman.static_posterior(fault, ys, us, t, onsets, (1.3 * truth, 1.9 * truth), onsets[len(onsets) // 2], 0.95)
+    assert p.onsets[0] >= onsets[0] and p.onsets[-1] <= onsets[-1]
+    assert sum(p.widths) <= onset_widths(onsets).sum() + 1e-9  # the window kept (less the onsets left out)
+    ll, _ = exact_grid(package, name, ys, us, list(p.onsets), values)
     a, b = fault.FAULT_PRIOR
-    w = onset_widths(onsets)[:, None] * np.exp(ll - ll.max())
+    w = np.asarray(p.widths)[:, None] * np.exp(ll - ll.max())
     h = values[1] - values[0]
     post = w.sum(axis=0)
     evidence = ll.max() + math.log(post.sum() * h) - math.log(b - a)
@@ -327,13 +340,11 @@ def test_the_adaptive_grid_integrates_like_a_fine_brute_force_grid(scenario, nam
     cdf = np.cumsum(post) - post / 2.0  # the mass up to each point of the fine grid
     low, high = np.interp([0.025, 0.975], cdf, values)
     assert post[0] < 1e-6 and post[-1] < 1e-6  # the brute-force grid holds the posterior
-    p = kalman.static_posterior(fault, ys, us, t, onsets, (mean + 3 * sd, mean + 9 * sd), onsets[len(onsets) // 2],
-                                0.95)
     assert p.mean == pytest.approx(mean, abs=0.01 * sd)
     assert p.std == pytest.approx(sd, rel=0.01)
     assert p.low == pytest.approx(low, abs=0.05 * sd) and p.high == pytest.approx(high, abs=0.05 * sd)
     assert p.log_evidence == pytest.approx(evidence, abs=0.01)
-    assert p.passes <= 3
+    assert p.passes <= (6 if "incipient" in name else 3)  # a drift: and a round of the onset's refinement
 
 
 def test_a_drift_that_began_before_the_onsets_tried_reaches_back():

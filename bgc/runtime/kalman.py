@@ -339,19 +339,29 @@ def nominal_track(model: ModuleType, ys: np.ndarray, us: np.ndarray, stop: int) 
     return NominalTrack(means, covs, logliks)
 
 
-def onset_widths(onsets) -> np.ndarray:
+def onset_widths(onsets, ends: tuple[float, float] | None = None) -> np.ndarray:
     """How many samples each onset of a sorted grid stands for: the span
     between the midpoints to its neighbours (1 for consecutive samples). The
     onset's prior is uniform in time, so an onset's prior weight is its width:
     a hypothesis's evidence is the sum over its onsets of width x likelihood,
     up to a factor (the length of the window the onset may lie in) common to
-    every hypothesis."""
+    every hypothesis. The first and last onsets reach half a spacing beyond
+    themselves, or to ``ends`` when given (a grid refined inside keeps the
+    window of the grid it refines: :func:`grid_ends`)."""
+    s = np.asarray(onsets, dtype=float)
+    if len(s) == 1 and ends is None:
+        return np.ones(1)
+    lo, hi = grid_ends(s) if ends is None else ends
+    return np.diff(np.concatenate([[lo], (s[1:] + s[:-1]) / 2.0, [hi]]))
+
+
+def grid_ends(onsets) -> tuple[float, float]:
+    """Where the window of a sorted grid of onsets starts and ends: half a
+    spacing beyond its first and last onsets (half a sample for one onset)."""
     s = np.asarray(onsets, dtype=float)
     if len(s) == 1:
-        return np.ones(1)
-    mid = (s[1:] + s[:-1]) / 2.0
-    edges = np.concatenate([[s[0] - (s[1] - s[0]) / 2.0], mid, [s[-1] + (s[-1] - s[-2]) / 2.0]])
-    return np.diff(edges)
+        return float(s[0]) - 0.5, float(s[0]) + 0.5
+    return float(s[0] - (s[1] - s[0]) / 2.0), float(s[-1] + (s[-1] - s[-2]) / 2.0)
 
 
 #: A drift's onsets reach further back (the next batch of ``earlier``) while
@@ -550,6 +560,10 @@ def _inside(lo: float, hi: float, vmin: float, vmax: float) -> tuple[float, floa
     return max(lo, vmin), min(hi, vmax)
 
 
+#: At most this many rounds of a drift's onset refinement (:func:`static_posterior`).
+REFINE_ROUNDS = 6
+
+
 def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets,
                      hint: tuple[float, float], hint_onset: int, level: float,
                      options: KalmanOptions = KalmanOptions(), earlier=()) -> StaticPosterior:
@@ -595,6 +609,8 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     cache: dict = {}
     passes = 0
     g = None
+    rounds = 0 if drifts else REFINE_ROUNDS  # of the onset's refinement, below
+    ends = None  # the window of the onsets' grid before it was refined
     while True:
         for turn in range(options.passes):
             passes += 1
@@ -627,14 +643,35 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
             for i in relaid:
                 ranges[int(current[i])], counts[int(current[i])] = following[i], options.points
             current = current[kept]
-        if not (batches and g is not None and math.isfinite(g.top)):
+        if g is None or not math.isfinite(g.top):
             break
         share = dict(zip(current.tolist(), g.mass))
-        if sum(share.get(o, 0.0) for o in tried[:EDGE]) / sum(share.values()) < EXTEND:
-            break
+        if not (batches and sum(share.get(o, 0.0) for o in tried[:EDGE]) / sum(share.values()) >= EXTEND):
+            # a drift's slope given its onset is much sharper than the onset grid: every sample from the
+            # most probable onset's neighbour before it in the grid tried to the one after it is tried too
+            # (those left out by an earlier pass as well), so the onset is marginalised sample by sample
+            # where the posterior is (it is a whole number of samples); again while the most probable
+            # onset moves to an end of what was tried
+            best = max(share, key=lambda o: share[o] / width_of[o])
+            before = [o for o in tried if o < best]
+            after = [o for o in tried if o > best]
+            fill = [o for o in range(before[-1] if before else best, (after[0] if after else best) + 1)
+                    if o not in share]
+            if rounds >= REFINE_ROUNDS or not fill:
+                break
+            rounds += 1
+            if ends is None:  # the refined grid keeps the window of the grid it refines (the evidence's factor)
+                ends = grid_ends(tried)
+            tried = sorted(set(fill) | set(tried))
+            width_of = dict(zip(tried, onset_widths(tried, ends).tolist()))
+            for o in fill:
+                ranges[o], counts[o] = ranges[best], counts[best]
+            current = np.asarray(sorted(set(fill) | set(current.tolist())))
+            continue
         batch = batches.pop(0)  # a drift that began earlier: reach further back, from the earliest onset's grid
         tried = sorted(set(batch) | set(tried))
         width_of = dict(zip(tried, onset_widths(tried).tolist()))
+        ends = None
         for o in batch:
             ranges[o], counts[o] = ranges[int(current[0])], counts[int(current[0])]
         current = np.asarray(sorted(set(batch) | set(current.tolist())))
