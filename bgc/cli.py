@@ -366,7 +366,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--particles", type=int, default=200)
     p.add_argument("--seed", type=_seed, default=0, help="random seed, an integer >= 0")
     p.add_argument("--start", type=float, metavar="T",
-                   help="with --fault: track the nominal model until T, then the fault model, its fault from the sample at T")
+                   help="with --fault: track the nominal model until T, then the fault model (its fault from the "
+                        "sample at T)")
     p.add_argument("--generated", default="generated", metavar="DIR",
                    help="where bgc compile wrote the package (its -o DIR; default: generated)")
     p.add_argument("--plot", metavar="FILE.png")

@@ -498,32 +498,28 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
 
     _run_batches({name: starts_of[name] for name in names}, job, arrived, options.workers,
                  lambda starts: sum(T - s for s in starts), idle, done, landed)  # cost: filter steps, if none stops
-    revived = []
+    first = min(min(s) for s in starts_of.values())
+    for o in results.values():  # the common span starts at `first`
+        o["evidence"] -= float(nominal_density[:first].sum())
+    # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
+    hyps = [assemble(name) for name in names]
     if options.identify == "kalman" and not posteriors:
         # none passed its particle filters' test: each whose most probable onset's filter still ran to the
         # end (only just off the data: a drift's filters start on a coarser grid of onsets than its Kalman
         # filters') is tested as its fault model states it, the magnitude held static
         if not track:
             idle()
-        for name in names:
-            h = assemble(name)
-            if not math.isfinite(results[(name, h["start"])]["evidence"]):
+        for h in hyps:
+            if not math.isfinite(results[(h["name"], h["start"])]["evidence"]):
                 continue
-            say(f"testing {name} with its magnitude held static")
-            p = _static_job(static_job(name, h))
+            say(f"testing {h['name']} with its magnitude held static")
+            p = _static_job(static_job(h["name"], h))
             if math.isfinite(p.log_evidence) and _static_alarm(p, outputs, options) is None:
-                posteriors[name] = p
-                revived.append(name)
-    first = min(min(s) for s in starts_of.values())
-    for o in results.values():  # the common span starts at `first`
-        o["evidence"] -= float(nominal_density[:first].sum())
-    # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
-    hyps = [assemble(name) for name in names]
-    for h in hyps:
-        if h["name"] in revived:
-            notes.append(f"{h['name']}: its particle filters failed their test ({h['reason']}, at "
-                         f"t = {run.time[h['dropped']]:g}), its fault model with the magnitude held static passes it")
-            h["dropped"], h["reason"] = None, ""
+                posteriors[h["name"]] = p
+                notes.append(f"{h['name']}: its particle filters failed their test ({h['reason']}, at "
+                             f"t = {run.time[h['dropped']]:g}), its fault model with the magnitude held static "
+                             f"passes it")
+                h["dropped"], h["reason"] = None, ""
     evidence_of = {h["name"]: h["log_evidence"] for h in hyps}  # the filters' (a magnitude with a random walk)
     static = False
     if posteriors:  # 6. the survivors weighed with their magnitudes held static
@@ -703,7 +699,7 @@ def drift_onsets(step: int, change_point: int, spacing: int, history: int) -> li
     alarm (``step``) back to ``history`` samples before it (not before the
     first sample), ``spacing`` apart, or 1/16 of the distance back
     (:data:`ONSET_GROWTH`) where that is larger."""
-    out, d = {change_point} | ({change_point - 1} if change_point > 0 else set()), 0
+    out, d = {change_point, max(change_point - 1, 0)}, 0
     while step - d >= 0 and d <= history:
         out.add(step - d)
         d += max(spacing, int(d * ONSET_GROWTH))

@@ -349,8 +349,6 @@ def onset_widths(onsets, ends: tuple[float, float] | None = None) -> np.ndarray:
     themselves, or to ``ends`` when given (a grid refined inside keeps the
     window of the grid it refines: :func:`grid_ends`)."""
     s = np.asarray(onsets, dtype=float)
-    if len(s) == 1 and ends is None:
-        return np.ones(1)
     lo, hi = grid_ends(s) if ends is None else ends
     return np.diff(np.concatenate([[lo], (s[1:] + s[:-1]) / 2.0, [hi]]))
 
@@ -609,7 +607,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     cache: dict = {}
     passes = 0
     g = None
-    rounds = 0 if drifts else REFINE_ROUNDS  # of the onset's refinement, below
+    rounds = 0  # of a drift's onset refinement, below
     ends = None  # the window of the onsets' grid before it was refined
     while True:
         for turn in range(options.passes):
@@ -652,12 +650,14 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
             # (those left out by an earlier pass as well), so the onset is marginalised sample by sample
             # where the posterior is (it is a whole number of samples); again while the most probable
             # onset moves to an end of what was tried
+            if not drifts or rounds == REFINE_ROUNDS:
+                break
             best = max(share, key=lambda o: share[o] / width_of[o])
             before = [o for o in tried if o < best]
             after = [o for o in tried if o > best]
             fill = [o for o in range(before[-1] if before else best, (after[0] if after else best) + 1)
                     if o not in share]
-            if rounds >= REFINE_ROUNDS or not fill:
+            if not fill:
                 break
             rounds += 1
             if ends is None:  # the refined grid keeps the window of the grid it refines (the evidence's factor)
