@@ -26,10 +26,14 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from . import pipeline
 from .compiler.load import MAX_BYTES
 from .errors import SimulationError
 from .ir import NoiseLevels
+from .kinds import DIRECTIONS, fault_kind
+from .runtime import distinguish as distinction
 from .runtime import runs, simulate, track
 from .runtime.diagnose import Diagnosis, DiagnosisOptions
 from .runtime.diagnose import diagnose as run_diagnosis
@@ -161,3 +165,92 @@ def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> Diagn
     result = run_diagnosis(run, package, c.signatures, priors, opts, say)
     return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,
                            result)
+
+
+@dataclass(frozen=True, slots=True)
+class DistinguishabilityReport:
+    """What the data of a model's scenarios are predicted to tell apart
+    (:mod:`bgc.runtime.distinguish`): one :class:`Distinction` per scenario,
+    over ``steps`` samples at the relative noise levels ``noise`` (None: the
+    model's); ``scenario`` when one was asked for, else every fault
+    candidate, kind and direction at a relative ``change`` of its parameter
+    (a drift reaches it at the end of the run) from the fraction ``at`` of
+    the run."""
+
+    model: str
+    source: str
+    steps: int
+    dt: float
+    noise: tuple[float | None, float | None]
+    scenario: str | None
+    change: float | None
+    at: float | None
+    distinctions: tuple[distinction.Distinction, ...]
+
+
+def distinguishability(model: str | Path, scenario: str | None = None, *, change: float = 0.3, at: float = 0.5,
+                       process_noise: float | None = None, measurement_noise: float | None = None,
+                       steps: int | None = None, level: float = distinction.LEVEL) -> DistinguishabilityReport:
+    """Predict which fault hypotheses the data of ``scenario``
+    (``PARAM:KIND:MAGNITUDE@TIME``) of ``model`` can tell apart, at the given
+    relative noise levels (default: the model's), before any data are seen;
+    without a scenario, for every fault candidate, kind and direction at a
+    relative ``change`` from the fraction ``at`` of the run."""
+    c, private = _compiled(model)
+    num = c.numerics
+    if steps is not None:
+        simulate.check_steps(steps, num, "--steps")
+    T = steps or c.model.settings.steps
+    dt = c.model.settings.dt
+    if scenario is None and not (0.0 < change and 0.0 < at < 1.0):
+        raise SimulationError(f"change {change:g} at {at:g} of the run", None,
+                              "give a change above 0 and a fraction of the run between 0 and 1")
+    levels = num.noise_at(process_noise, measurement_noise)
+    custom = levels if (process_noise, measurement_noise) != (None, None) else None
+    with _LOCK:
+        package = track.load_package(private, c.model.name, str(model), custom)
+        families = _families(package, T)
+    priors = {f.parameter: f.prior for f in c.model.faults}
+    times = dt * np.arange(1, T + 1)
+    if scenario is not None:
+        if scenario.strip().lower() == "none":
+            raise SimulationError("a fault-free scenario has no fault to tell apart", None,
+                                  "give a fault, e.g. R_pipe:incipient:0.5@165, or no scenario for every candidate")
+        inj = simulate.parse_fault(scenario, num)
+        if f"{inj.parameter}_{inj.kind}" not in package.MODELS:
+            raise SimulationError(f"{inj.parameter}:{inj.kind} is not a fault candidate of {c.model.name}", None,
+                                  "candidates: " + ", ".join(f"{f.parameter}:{f.kind}" for f in num.faults))
+        if not 0 < inj.time <= times[-1]:
+            raise SimulationError(f"onset {inj.time:g} is outside the run (0 to {times[-1]:g})", None,
+                                  "choose an onset inside the run, or more --steps")
+        injected = [inj]
+    else:
+        injected = []
+        for f in num.faults:
+            for sign in DIRECTIONS[next(x.direction for x in c.model.faults if x.parameter == f.parameter)]:
+                size = sign * change * abs(f.nominal)
+                drifts = fault_kind(f.kind).drifts
+                injected.append(simulate.FaultInjection(f.parameter, f.kind, size / (T * dt) if drifts else size,
+                                                        float(times[int(at * T)])))
+    out = []
+    for inj in injected:
+        onset = int(np.searchsorted(times, inj.time - 1e-9 * max(1.0, abs(inj.time))))
+        out.append(distinction.distinguish(families, f"{inj.parameter}_{inj.kind}", inj.magnitude, onset, priors,
+                                           level))
+    return DistinguishabilityReport(c.model.name, c.model.display_source, T, dt, (process_noise, measurement_noise),
+                                    scenario, None if scenario else change, None if scenario else at, tuple(out))
+
+
+#: Prepared families by package (its module name tells the noise levels) and
+#: run length; the latest few are kept (a campaign worker meets a few models).
+_FAMILIES: dict[tuple[str, str, int], distinction.Families] = {}
+_FAMILIES_KEPT = 4
+
+
+def _families(package, steps: int) -> distinction.Families:
+    key = (package.__name__, str(getattr(package, "__file__", "")), steps)
+    if key not in _FAMILIES:
+        if len(_FAMILIES) >= _FAMILIES_KEPT:
+            _FAMILIES.pop(next(iter(_FAMILIES)))
+        _FAMILIES[key] = distinction.prepare(package, distinction.scenario_inputs(package, steps))
+    return _FAMILIES[key]

@@ -49,12 +49,13 @@ COLUMNS = (
     "particles", "noise", "process_noise", "measurement_noise", "seed", "steps", "status", "failure", "rt",
     "mse", "nmse", "mse_states", "ct", "detected", "detection_time", "delay", "false_alarm", "verdict",
     "diagnosed", "candidates", "right", "in_candidates", "estimate", "low", "high", "est_error", "parameter",
-    "parameter_truth", "param_error", "covers", "refine",
+    "parameter_truth", "param_error", "covers", "refine", "separable", "rivals", "separation",
 )
 _INT = {"index", "particles", "seed", "steps"}
-_BOOL = {"ambiguous", "detected", "false_alarm", "right", "in_candidates", "covers", "refine"}
+_BOOL = {"ambiguous", "detected", "false_alarm", "right", "in_candidates", "covers", "refine", "separable"}
 _FLOAT = {"magnitude", "onset", "process_noise", "measurement_noise", "rt", "mse", "nmse", "ct", "detection_time",
-          "delay", "estimate", "low", "high", "est_error", "parameter", "parameter_truth", "param_error"}
+          "delay", "estimate", "low", "high", "est_error", "parameter", "parameter_truth", "param_error",
+          "separation"}
 RUNS = "runs.csv"
 
 
@@ -471,11 +472,30 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         if m.right and best is not None and spec.parameter_truth is not None:
             row["parameter"] = best.estimate.parameter_value
             row["param_error"] = abs(best.estimate.parameter_value - spec.parameter_truth) / abs(spec.parameter_truth)
+        if spec.fault is not None:
+            row.update(_separation(spec))
     except BgcError as exc:
         row.update(status="failed", failure=exc.line())
     except Exception as exc:  # noqa: BLE001 - a campaign records a failing run and goes on
         row.update(status="failed", failure=printable(f"{type(exc).__name__}: {exc}")[:500])
     return row
+
+
+def _separation(spec: RunSpec) -> dict[str, Any]:
+    """What the data of the run's scenario are predicted to separate
+    (:func:`bgc.api.distinguishability`): ``separable`` (no rival in the
+    predicted ambiguity group), ``rivals`` (those in it) and ``separation``
+    (the smallest probability that the data name the truth over a rival);
+    empty when the prediction fails (the diagnosis's row stands)."""
+    from . import api
+
+    try:
+        d = api.distinguishability(_model_file(spec), spec.scenario, process_noise=spec.process_noise,
+                                   measurement_noise=spec.measurement_noise, steps=spec.steps).distinctions[0]
+    except BgcError:
+        return {}
+    return {"separable": d.separable, "rivals": " ".join(d.group) or None,
+            "separation": min((r.probability for r in d.rivals), default=1.0)}
 
 
 # ------------------------------------------------------------------ rows

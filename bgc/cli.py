@@ -274,6 +274,27 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_distinguish(args: argparse.Namespace) -> int:
+    from . import api
+    from .output import artifacts, plots, render
+
+    process, measurement = _parse_noise(args.noise)
+    r = api.distinguishability(args.model, args.scenario, change=args.change, at=args.at, process_noise=process,
+                               measurement_noise=measurement, steps=args.steps)
+    text = render.to_json(render.distinguishability_json(r)) if args.format == "json" else \
+        render.distinguishability_text(r)
+    if args.output:
+        artifacts.write_file(Path(args.output), artifacts.mark_text(text, args.format, r.source))
+        print(f"wrote {printable(args.output)}")
+    else:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    if args.plot:
+        artifacts.write_file(Path(args.plot), plots.distinguishability_figure(r, "png"))
+        print(f"wrote {printable(args.plot)}")
+    return 0
+
+
 def cmd_experiment(args: argparse.Namespace) -> int:
     from . import campaign
     from .output import tables
@@ -399,6 +420,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-diagnosis)")
     p.set_defaults(run=cmd_diagnose)
 
+    p = sub.add_parser("distinguish", help="predict which faults the data of a scenario can tell apart (before "
+                       "any data: noise, size, onset and kind of the fault)")
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--scenario", metavar="PARAM:KIND:MAGNITUDE@TIME",
+                   help="one fault, e.g. R_pipe:incipient:0.5@165 (default: every candidate, kind and direction)")
+    p.add_argument("--change", type=_fraction_above_zero, default=0.3,
+                   help="without --scenario: the relative change of each parameter (a drift reaches it at the end "
+                        "of the run; default 0.3)")
+    p.add_argument("--at", type=_fraction_above_zero, default=0.5,
+                   help="without --scenario: the onset, as a fraction of the run (default 0.5)")
+    p.add_argument("--noise", metavar="process=Q,measurement=R", help="relative noise levels (default: the model's)")
+    p.add_argument("--steps", type=int, default=None, help="samples of the run (default: the model's)")
+    p.add_argument("--format", choices=["text", "json"], default="text")
+    p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of printing")
+    p.add_argument("--plot", metavar="FILE.png", help="also draw the probabilities as a heat map")
+    p.set_defaults(run=cmd_distinguish)
+
     p = sub.add_parser("experiment", help="run a campaign of diagnoses (grid or randomised) and write its tables")
     p.add_argument("config", metavar="CONFIG.yaml")
     p.add_argument("-o", "--output", metavar="DIR", help="results folder (default: out/CAMPAIGN); an interrupted "
@@ -425,6 +463,19 @@ def _at_least(low: int, message: str):
 
 
 _positive = _at_least(1, "{value}: give an integer >= 1")
+
+
+def _fraction_above_zero(text: str) -> float:
+    """An argparse type: a finite number above 0."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text}: give a number above 0")
+    return value
 #: --seed: NumPy's generators take no negative seed.
 _seed = _at_least(0, "{value} is negative: give an integer >= 0")
 

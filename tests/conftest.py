@@ -4,6 +4,7 @@ import os
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
 from hypothesis import HealthCheck, settings
 
 settings.register_profile("ci", derandomize=True, max_examples=200, deadline=None,
@@ -32,3 +33,22 @@ def compiled(name: str):
     from bgc.pipeline import compile_model
 
     return compile_model(ALL_MODELS[name])
+
+
+def tank_map(R12: float, dt: float = 0.5, R10: float = 4.0, R20: float = 3.0):
+    """The two tanks' RK4 step (one substep of dt, as generated: SUBSTEPS = 1)
+    derived by hand: C1 dP1/dt = f_in - P1/R10 - (P1 - P2)/R12, C2 dP2/dt =
+    (P1 - P2)/R12 - P2/R20, i.e. dx/dt = A x + b, whose RK4 step is x' = M x + c
+    with M = I + hA + (hA)^2/2 + (hA)^3/6 + (hA)^4/24 and c = h (I + hA/2 +
+    (hA)^2/6 + (hA)^3/24) b. Measurements F10 = P1/R10, F12 = (P1 - P2)/R12,
+    F20 = P2/R20."""
+    C1, C2, f_in = 2.0, 1.5, 1.0
+    A = np.array([[-1 / (C1 * R10) - 1 / (C1 * R12), 1 / (C1 * R12)],
+                  [1 / (C2 * R12), -1 / (C2 * R12) - 1 / (C2 * R20)]])
+    b = np.array([f_in / C1, 0.0])
+    hA = dt * A
+    I2 = np.eye(2)
+    M = I2 + hA + hA @ hA / 2 + hA @ hA @ hA / 6 + hA @ hA @ hA @ hA / 24
+    c = dt * (I2 + hA / 2 + hA @ hA / 6 + hA @ hA @ hA / 24) @ b
+    H = np.array([[1 / R10, 0.0], [1 / R12, -1 / R12], [0.0, 1 / R20]])
+    return M, c, H

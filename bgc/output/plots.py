@@ -290,3 +290,32 @@ def campaign_figures(rows) -> dict[str, bytes]:
         ax.set_title(f"isolation: {Path(model).stem}", fontsize=9)
         out[f"confusion_{Path(model).stem}.png"] = _save(plt, fig, "png")
     return out
+
+
+def distinguishability_figure(r, fmt: str = "png") -> bytes:
+    """A heat map of :class:`bgc.api.DistinguishabilityReport`: per fault
+    (rows) and rival fault model (columns), the probability that the data name
+    the fault over the rival; a cell under the level is outlined."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [d.label for d in r.distinctions]
+    cols = sorted({x.name for d in r.distinctions for x in d.rivals})
+    m = np.full((len(rows), len(cols)), np.nan)
+    for i, d in enumerate(r.distinctions):
+        for x in d.rivals:
+            m[i, cols.index(x.name)] = x.probability
+    fig, ax = plt.subplots(figsize=(max(4.0, 0.45 * len(cols) + 3), max(2.5, 0.35 * len(rows) + 2)))
+    ax.imshow(m, cmap="RdYlGn", vmin=0.5, vmax=1.0, aspect="auto")
+    for i, d in enumerate(r.distinctions):
+        for j in range(len(cols)):
+            if np.isfinite(m[i, j]) and m[i, j] < d.level:
+                ax.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize=6)
+    ax.set_xticks(range(len(cols)), cols, rotation=60, ha="right", fontsize=7)
+    ax.set_yticks(range(len(rows)), rows, fontsize=7)
+    ax.set_xlabel("rival fault model", fontsize=8)
+    ax.set_ylabel("true fault", fontsize=8)
+    ax.set_title(f"{r.model}: P(the data name the truth over the rival); numbers: under the level", fontsize=8)
+    return _save(plt, fig, fmt)

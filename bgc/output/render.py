@@ -300,3 +300,63 @@ def check_summary(ssm: StateSpaceModel) -> str:
         lines.append(f"  notes: {len(notes)}")
         lines.extend(f"    note: {d.message}" for d in notes)
     return "\n".join(printable(line) for line in lines)
+
+
+# ----------------------------------------------------------- distinguishability
+def _noise_text(noise) -> str:
+    process, measurement = noise
+    if process is None and measurement is None:
+        return "the model's noise"
+    return ", ".join(f"{name} noise {v:g}" for name, v in (("process", process), ("measurement", measurement))
+                     if v is not None)
+
+
+def distinguishability_text(r) -> str:
+    """:class:`bgc.api.DistinguishabilityReport` as text: for one scenario, a
+    table of its rivals; for every candidate, each one's predicted ambiguity
+    group."""
+    lines = [f"# distinguishability of {r.model} at {_noise_text(r.noise)}, {r.steps} samples "
+             "(Eriksson, Frisk and Krysander 2013; docs/diagnosis.md section 7)",
+             "# E: expected log Bayes factor of the truth against a rival, over the data sets the noise can produce; "
+             "sd: its spread",
+             "# P: probability that the data, with the priors, name the truth over the rival; "
+             f"a rival with P < {r.distinctions[0].level if r.distinctions else 0.95:g} is in the predicted "
+             "ambiguity group"]
+    if r.scenario is not None:
+        d = r.distinctions[0]
+        lines.append(f"truth: {r.scenario} ({d.truth}, from sample {d.onset})")
+        lines.append(f"divergence from no fault: {d.divergence:.4g} (P of telling it from no fault "
+                     f"{d.detectability:.3f})")
+        width = max([len(x.name) for x in d.rivals] + [5])
+        lines.append(f"{'rival':<{width}}  {'E':>10}  {'sd':>9}  {'P':>6}  best fit (magnitude from t)")
+        for x in d.rivals:
+            fit = f"{x.magnitude:.4g} from t = {(x.onset + 1) * r.dt:g}" if x.magnitude != 0 else "no fault"
+            lines.append(f"{x.name:<{width}}  {x.expected:>10.4g}  {x.std:>9.3g}  {x.probability:>6.3f}  {fit}")
+        lines.append("predicted ambiguity group: " + (", ".join(d.group) or "none"))
+        return "\n".join(lines) + "\n"
+    lines.append(f"# each fault: a change of {100 * r.change:g} % of its parameter (a drift reaches it at the end "
+                 f"of the run) from t = {(r.distinctions[0].onset + 1) * r.dt if r.distinctions else 0:g}")
+    width = max([len(d.label) for d in r.distinctions] + [5])
+    lines.append(f"{'fault':<{width}}  {'divergence':>10}  predicted ambiguity group (P)")
+    for d in r.distinctions:
+        if d.detectability < d.level:
+            group = "not told from no fault (P " + f"{d.detectability:.2f})"
+        else:
+            group = ", ".join(f"{x.name} ({x.probability:.2f})" for x in d.rivals if x.probability < d.level) or "none"
+        lines.append(f"{d.label:<{width}}  {d.divergence:>10.4g}  {group}")
+    return "\n".join(lines) + "\n"
+
+
+def distinguishability_json(r) -> dict:
+    return {
+        "model": r.model, "steps": r.steps, "dt": r.dt,
+        "noise": {"process": r.noise[0], "measurement": r.noise[1]},
+        "scenario": r.scenario, "change": r.change, "at": r.at,
+        "faults": [{
+            "fault": d.label, "model": d.truth, "magnitude": d.magnitude, "onset_sample": d.onset,
+            "divergence": d.divergence, "detectability": d.detectability, "misfit": d.misfit, "level": d.level,
+            "group": list(d.group),
+            "rivals": [{"model": x.name, "expected": x.expected, "std": x.std, "probability": x.probability,
+                        "onset_sample": x.onset, "magnitude": x.magnitude} for x in d.rivals],
+        } for d in r.distinctions],
+    }

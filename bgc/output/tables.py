@@ -118,7 +118,9 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
     alarm before the onset is a false alarm): the most probable
     hypothesis is right, the truth is among the survivors, the verdict is
     'isolated' and right, and the same outside the ambiguity groups the
-    signatures predict."""
+    signatures predict, and outside those and the groups the data of the
+    scenario are predicted not to separate (the row's ``separable``,
+    :mod:`bgc.runtime.distinguish`; rows without it are not counted there)."""
     def key(r):
         return r["group"], r["filter"], r["noise"], f"{r['particles']}" + (" +grid" if r.get("refine") else "")
 
@@ -131,6 +133,7 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
         faulty = [r for r in ok if r.get("fault")]
         seen = [r for r in faulty if r["delay"] is not None]  # detected at or after the onset
         plain = [r for r in seen if not r.get("ambiguous")]
+        separated = [r for r in plain if r.get("separable")]
         isolated = [r for r in seen if r["verdict"] == "isolated"]
         out.append({
             "group": g, "filter": f, "noise": noise, "particles": n, "runs": len(mine),
@@ -143,6 +146,7 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
             "in_candidates": sum(bool(r["in_candidates"]) for r in seen),
             "isolated": len(isolated), "isolated_right": sum(bool(r["right"]) for r in isolated),
             "right_outside_ambiguity": sum(bool(r["right"]) for r in plain), "outside_ambiguity": len(plain),
+            "right_separable": sum(bool(r["right"]) for r in separated), "separable": len(separated),
             "est_error": cell(faulty, "est_error"), "covers": cell(faulty, "covers"),
             "delay": cell(faulty, "delay"), "rt": cell(ok, "rt"),
         })
@@ -164,7 +168,8 @@ def _frac(k: int, n: int) -> str:
 def summary_markdown(rows: list[dict]) -> str:
     head = ["group", "filter", "noise", "N", "runs", "failed", "false alarms", "detected",
             "right (of detected)", "right component", "truth among survivors", "right when isolated",
-            "right outside predicted ambiguity groups", "error % mean (sd)", "95 % covers", "delay", "RT s"]
+            "right outside predicted ambiguity groups", "right where the data separate it (predicted)",
+            "error % mean (sd)", "95 % covers", "delay", "RT s"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for s in summary_rows(rows):
         lines.append("| " + " | ".join([
@@ -173,7 +178,7 @@ def summary_markdown(rows: list[dict]) -> str:
                                   f"{s['early_alarms']} before the onset" if s["faulty"] else "") if x) or "–",
             _frac(s["detected"], s["faulty"]), _frac(s["right"], s["detected"]),
             _frac(s["right_parameter"], s["detected"]), _frac(s["in_candidates"], s["detected"]), _frac(s["isolated_right"], s["isolated"]),
-            _frac(s["right_outside_ambiguity"], s["outside_ambiguity"]),
+            _frac(s["right_outside_ambiguity"], s["outside_ambiguity"]), _frac(s["right_separable"], s["separable"]),
             format_cell(s["est_error"], "est_error"), format_cell(s["covers"], "covers"),
             format_cell(s["delay"], "delay"), format_cell(s["rt"], "rt")]) + " |")
     return "\n".join(lines) + "\n"

@@ -111,7 +111,10 @@ def perturb(x, std, rng):
 
 def gaussian_loglik(y, yhat, std):
     """sum_j log N(y_j; yhat_j, std_j^2) for every particle (column of yhat),
-    one block of particles at a time; NaN entries of y are not used."""
+    one block of particles at a time; NaN entries of y are not used. The terms
+    are added output by output, in order, with elementwise operations: every
+    column's sum is the same whatever the array's layout (a BLAS product may
+    add them in another order for another layout or CPU)."""
     y = np.asarray(y, dtype=float)
     std = np.asarray(std, dtype=float)
     seen = np.isfinite(y)
@@ -126,7 +129,11 @@ def gaussian_loglik(y, yhat, std):
         d = block_views("loglik", 1, n_y, stop - start)[0]
         np.subtract(yhat[:, start:stop], column, out=d)
         d *= d
-        np.matmul(weight, d, out=total[start:stop])
+        block = total[start:stop]
+        block[:] = 0.0
+        for j in range(n_y):
+            d[j] *= weight[j]
+            block += d[j]
     total += log_normaliser(std)
     return total
 

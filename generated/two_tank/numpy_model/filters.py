@@ -460,9 +460,11 @@ class FilterBank:
         d = np.empty(stacked.shape)  # (F, n_y, N): each filter's block contiguous, as in gaussian_loglik
         np.subtract(stacked, y[:, None], out=d)
         d *= d
-        total = np.empty((len(self.filters), self.n))
+        total = np.zeros((len(self.filters), self.n))
+        for j in range(d.shape[1]):  # output by output, in order, as gaussian_loglik adds them
+            d[:, j] *= weight[:, j, None]
+            total += d[:, j]
         for f in range(len(self.filters)):
-            np.matmul(weight[f], d[f], out=total[f])
             total[f] += self.model._kernel.log_normaliser(std[f])
         return total
 

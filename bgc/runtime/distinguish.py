@@ -1,0 +1,543 @@
+"""Which faults the data of a scenario can tell apart, predicted from the model.
+
+TRANSCEND's signatures (``bgc show signatures``) say which faults the
+qualitative symbols of the residuals cannot separate. Whether the *data* can
+separate two faults depends on more: the noise, the size of the fault, how long
+it acts, and its kind. A slow drift of one resistor may move the sensors along
+almost the same direction as a slow drift of another for a hundred samples,
+with the difference under the noise, although their signatures differ in a
+second-order symbol that such a drift hardly shows.
+
+This module predicts that difference before any data are seen. It is the
+distinguishability of Eriksson, Frisk and Krysander (2013, "A method for
+quantitative fault diagnosability analysis of stochastic linear descriptor
+models", Automatica 49(6)): the Kullback-Leibler divergence between the
+distributions of the measurements under two faults, the second's magnitude
+and onset chosen to make it smallest. For Gaussian measurement sequences with
+a common covariance, what a Bayes classifier weighs, the log Bayes factor
+``B`` of the true fault ``i`` against a rival ``j``, is itself Gaussian over
+the data sets the noise can produce, with
+
+* mean ``E = D(i, j) - D(i, i)``: the divergence of the truth from the rival's
+  best fit, less that from the truth's own best fit within the same
+  (linearised) family of responses, so that the family's approximation error
+  cancels;
+* variance ``V = 2 D(a, b)``: twice the divergence between the two best fits.
+
+The diagnoser, which also weighs the faults' prior probabilities, names the
+truth over ``j`` when ``B > log(prior_j / prior_i)``, which happens with
+probability ``Phi((E - log(prior_j / prior_i)) / sqrt(V))``. The rivals for
+which that probability is under ``level`` (default 0.95) are the scenario's
+**predicted ambiguity group**: faults the data are not expected to separate
+from the truth.
+
+How the divergences are computed
+--------------------------------
+* The noise-free nominal run of the generated model from ``X0`` under the run's
+  inputs; its linearisation along the run: ``F_k`` (the step into sample k,
+  with respect to the state before it) and ``H_k`` (the measurements at sample
+  k), by central differences of the generated ``predict`` and ``observe``.
+* The whitening operator ``W`` of the nominal model: the innovations of its
+  time-varying Kalman filter (process and measurement stds of the package,
+  the initial spread ``X0_STD``), each divided by the Cholesky factor of its
+  covariance. For measurement sequences with mean ``mu`` and the nominal
+  model's covariance ``Sigma``, ``||W (y - mu)||^2 = (y - mu)' Sigma^-1 (y - mu)``,
+  so a divergence is half a squared norm of whitened deviations.
+* Each fault model's response to a unit magnitude from every onset ``tau``:
+  its state augmented with the fault states, linearised at the nominal run
+  (the fault states at their nominal values), started at sample ``tau`` with
+  the magnitude at 1 (the onset convention of ``track.onset_transition``: the
+  sample sees the fault, the states move after it). Whitened, these columns
+  span the family of the fault's mean deviations; the best fit of a target is
+  a least-squares projection per onset, with the magnitude kept inside the
+  bounds of its prior.
+* The truth's deviation from the nominal run, by the fault model itself
+  (nonlinear), at its magnitude and onset.
+
+Approximations, stated: the covariance of the measurements is the nominal
+model's under every hypothesis (a fault that changes a time constant also
+changes the noise's colour; the divergence leaves that out); the rivals'
+families are linearised (their fit is judged against the truth's own
+linearised family, so a shared error cancels; a bound of a prior is applied to
+the linearised response, which maps it only roughly); the Bayes factor's Occam
+terms (the prior widths of the magnitudes and onsets) are left out.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import ModuleType
+
+import numpy as np
+
+from ..errors import TrackingError
+
+#: A rival is in the predicted ambiguity group when the data, with the priors,
+#: are expected to name the truth over it with a probability under this.
+LEVEL = 0.95
+#: Most onsets per family: a longer run takes every k-th sample as an onset.
+MAX_ONSETS = 400
+
+
+@dataclass(frozen=True, slots=True)
+class Whitening:
+    """The nominal model's Kalman filter along its noise-free run, as a linear
+    operator on measurement deviations: per step ``F`` (n, n), ``H`` (n_y, n),
+    gain ``K`` (n, n_y) and ``Linv`` (n_y, n_y), the inverse Cholesky factor of
+    the innovations' covariance."""
+
+    F: np.ndarray
+    H: np.ndarray
+    K: np.ndarray
+    Linv: np.ndarray
+
+    def apply(self, d: np.ndarray) -> np.ndarray:
+        """Whitened innovations (T, n_y, M) of deviations ``d`` (T, n_y, M)
+        from the nominal run's measurements."""
+        T, n_y, M = d.shape
+        x = np.zeros((self.F.shape[1], M))
+        out = np.empty_like(d, dtype=float)
+        for k in range(T):
+            x = self.F[k] @ x
+            e = d[k] - self.H[k] @ x
+            x += self.K[k] @ e
+            out[k] = self.Linv[k] @ e
+        return out
+
+
+@dataclass(frozen=True, slots=True)
+class Families:
+    """What a package and a run's inputs give once, for every scenario on
+    them: the nominal run (``x_before[k]``: the state before the step into
+    sample k; ``x_after[k]``: after it; ``y``: its measurements), the
+    whitening operator, and per fault model (``names``) its whitened unit
+    responses (T n_y, onsets) from each of ``onsets`` and the bounds of its
+    magnitude's prior (``bounds``)."""
+
+    package: ModuleType
+    us: np.ndarray
+    x_before: np.ndarray
+    x_after: np.ndarray
+    y: np.ndarray
+    whitening: Whitening
+    onsets: np.ndarray
+    names: tuple[str, ...]
+    responses: tuple[np.ndarray, ...]
+    bounds: tuple[tuple[float, float], ...]
+
+    def response(self, name: str) -> np.ndarray:
+        return self.responses[self.names.index(name)]
+
+
+@dataclass(frozen=True, slots=True)
+class Rival:
+    """A rival fault model against the truth: ``expected`` and ``std`` of the
+    log Bayes factor of the truth against it over the data sets the noise can
+    produce; ``probability`` that the data, with the priors, name the truth
+    over it; its best fit to the truth's deviation: ``onset`` (a sample) and
+    ``magnitude`` (linearised)."""
+
+    name: str
+    expected: float
+    std: float
+    probability: float
+    onset: int
+    magnitude: float
+
+
+@dataclass(frozen=True, slots=True)
+class Distinction:
+    """What the data of one scenario are predicted to tell: the true fault
+    model ``truth`` with its ``magnitude`` from sample ``onset``;
+    ``divergence``: its Kullback-Leibler divergence from the nominal model
+    (its detectability: 0 when no sensor sees it); ``misfit``: that from its
+    own linearised family's best fit (the linearisation's error); the
+    ``rivals``, least separable first; ``level``: the probability under which
+    a rival is in the predicted ambiguity group."""
+
+    truth: str
+    magnitude: float
+    onset: int
+    divergence: float
+    misfit: float
+    rivals: tuple[Rival, ...]
+    level: float = LEVEL
+
+    @property
+    def group(self) -> tuple[str, ...]:
+        """The rivals the data are not expected to separate from the truth."""
+        return tuple(r.name for r in self.rivals if r.probability < self.level)
+
+    @property
+    def separable(self) -> bool:
+        return not self.group
+
+    @property
+    def detectability(self) -> float:
+        """The probability that the data favour the fault over no fault (the
+        rule of the rivals, with equal priors: the log Bayes factor has mean
+        ``divergence`` and variance twice that)."""
+        return _normal_above(self.divergence, math.sqrt(2.0 * self.divergence))
+
+    @property
+    def label(self) -> str:
+        """``PARAM+:kind`` or ``PARAM-:kind``, as the signatures name a fault."""
+        parameter, kind = self.truth.rsplit("_", 1)
+        return f"{parameter}{'+' if self.magnitude >= 0 else '-'}:{kind}"
+
+
+def scenario_inputs(package: ModuleType, steps: int) -> np.ndarray:
+    """The model's default inputs over ``steps`` samples: sample k's step
+    holds the input at k dt (as the simulator does)."""
+    nominal = package.MODELS["nominal"]
+    return np.array([nominal.inputs(k * nominal.DT) for k in range(steps)], dtype=float).reshape(steps, -1)
+
+
+def prepare(package: ModuleType, us: np.ndarray) -> Families:
+    """The nominal run, its whitening and every fault model's whitened unit
+    responses, for the inputs ``us`` (T, n_u) of a run."""
+    nominal = package.MODELS["nominal"]
+    us = np.asarray(us, dtype=float).reshape(len(us), -1)
+    T = len(us)
+    theta = np.asarray(nominal.THETA, dtype=float)
+    x = np.asarray(nominal.X0, dtype=float).reshape(-1, 1).copy()
+    n = x.shape[0]
+    x_before, x_after = np.empty((T, n)), np.empty((T, n))
+    y = np.empty((T, len(nominal.OUTPUTS)))
+    with np.errstate(all="ignore"):
+        for k in range(T):
+            x_before[k] = x[:, 0]
+            x = nominal.predict(x, us[k], theta, nominal.DT)
+            x_after[k] = x[:, 0]
+            y[k] = nominal.observe(x, us[k], theta)[:, 0]
+    if not (np.all(np.isfinite(x_after)) and np.all(np.isfinite(y))):
+        raise TrackingError(f"the noise-free nominal run of {nominal.MODEL} is not finite", None,
+                            "check the model's values and inputs")
+    scale = _scales(nominal, x_before)
+    F = _jacobian(lambda X, u: nominal.predict(X, u, theta, nominal.DT), x_before, range(n), scale, us)
+    H = _jacobian(lambda X, u: nominal.observe(X, u, theta), x_after, range(n), scale, us)
+    whitening = _whitening(nominal, F, H)
+    stride = max(1, math.ceil(T / MAX_ONSETS))
+    onsets = np.arange(0, T, stride)
+    names, responses, bounds = [], [], []
+    for name in sorted(package.MODELS):
+        if name == "nominal":
+            continue
+        model = package.MODELS[name]
+        G = _unit_responses(model, F, H, x_before, x_after, us, onsets)
+        responses.append(whitening.apply(G).reshape(T * H.shape[1], len(onsets)))
+        names.append(name)
+        lo, hi = (float(b) for b in model.FAULT_PRIOR)
+        bounds.append((lo, hi))
+    return Families(package, us, x_before, x_after, y, whitening, onsets, tuple(names), tuple(responses),
+                    tuple(bounds))
+
+
+def deviations(families: Families, name: str, magnitudes, onsets) -> np.ndarray:
+    """The noise-free deviations (T, n_y, M) of fault model ``name``'s
+    measurements from the nominal run's, column m with ``magnitudes[m]``
+    from sample ``onsets[m]`` (zero before it), by the fault model itself.
+    Every column runs from the earliest onset; until its own, its magnitude
+    is zero, which is the nominal model."""
+    model = families.package.MODELS[name]
+    T, n = families.x_after.shape
+    magnitudes = np.asarray(magnitudes, dtype=float).ravel()
+    onsets = np.asarray(onsets, dtype=int).ravel()
+    d = np.zeros((T, families.y.shape[1], len(onsets)))
+    first = int(onsets.min()) if len(onsets) else T
+    if first >= T:
+        return d
+    theta = np.asarray(model.THETA, dtype=float)
+    z = np.repeat(np.concatenate([families.x_after[first], np.asarray(model.X0, dtype=float)[n:]])[:, None],
+                  len(onsets), axis=1)
+    z[-1] = 0.0
+    with np.errstate(all="ignore"):
+        for k in range(first, T):
+            if k > first:
+                z = model.predict(z, families.us[k], theta, model.DT)
+            starting = onsets == k
+            z[-1, starting] = magnitudes[starting]  # the transition into the onset sample was nominal
+            d[k] = model.observe(z, families.us[k], theta) - families.y[k][:, None]
+    d *= (np.arange(T)[:, None] >= onsets[None, :])[:, None, :]  # before its onset a column is the nominal run
+    return d
+
+
+def distinguish(families: Families, name: str, magnitude: float, onset: int, priors: dict[str, float],
+                level: float = LEVEL) -> Distinction:
+    """Predicted distinguishability of fault model ``name`` (its ``magnitude``
+    from sample ``onset``) from every other fault model of the package;
+    ``priors``: each fault parameter's prior probability (the model's).
+
+    Every rival is fitted to the truth's deviation within its linearised
+    family; a rival whose linearised fit leaves the truth's name less than
+    ``SURE`` likely is fitted again by its fault model itself, on a grid of
+    onsets and magnitudes around the linearised fit (two rounds, the second
+    finer): its divergence is then measured exactly, against the truth's own
+    exact fit (the truth itself, divergence 0). (Not when even no fault,
+    the divergence's upper bound, would leave the rival in the group.)"""
+    package = families.package
+    if name not in families.names:
+        raise TrackingError(f"no fault model {name!r}", None, "pick one of: " + ", ".join(families.names))
+    d = deviations(families, name, [magnitude], [onset])
+    if not np.all(np.isfinite(d)):
+        raise TrackingError(f"the noise-free run of {name} with magnitude {magnitude:g} is not finite", None,
+                            "choose a smaller magnitude")
+    w = families.whitening.apply(d).ravel()
+    ww = float(w @ w)
+    fits = {other: _fit(w, ww, families.response(other), families.bounds[i])
+            for i, other in enumerate(families.names)}
+    own_r, own_col, own_c = fits[name]
+    own = own_c * families.response(name)[:, own_col]
+    prior_of = {m: float(priors.get(package.MODELS[m].FAULT["parameter"], 0.01)) for m in families.names}
+    seen = _normal_above(0.5 * ww, math.sqrt(ww))  # the mean's divergence from no fault: can it be detected
+    truth = None
+    rivals = []
+    for other in families.names:
+        if other == name:
+            continue
+        r, col, c = fits[other]
+        expected = r - own_r
+        std = float(np.linalg.norm(own - c * families.response(other)[:, col]))
+        threshold = math.log(max(prior_of[other], 1e-300) / max(prior_of[name], 1e-300))
+        probability = _normal_above(expected - threshold, std)
+        fit_onset, fit_magnitude = int(families.onsets[col]), c
+        if SURE > probability and seen >= level:
+            exact, fit_onset, fit_magnitude = (_exact_fit(families, other, w, fit_onset, c) if c != 0.0
+                                               else (0.5 * ww, fit_onset, 0.0))
+            if not exact < 0.5 * ww:  # no magnitude fits better than no fault
+                fit_magnitude = 0.0
+            truth = truth or path(families, name, magnitude, onset)
+            expected = divergence(families, truth, path(families, other, fit_magnitude, fit_onset))
+            std = math.sqrt(2.0 * expected)
+            probability = _normal_above(expected - threshold, std)
+        rivals.append(Rival(other, expected, std, probability, fit_onset, fit_magnitude))
+    rivals.sort(key=lambda r: (r.probability, r.expected, r.name))
+    return Distinction(name, float(magnitude), int(onset), 0.5 * ww, own_r, tuple(rivals), level)
+
+
+@dataclass(frozen=True, slots=True)
+class Path:
+    """A fault model's noise-free run with its magnitude from an onset: its
+    states before and after each step (``before``, ``after``: (T, n_z), the
+    fault states last), its measurements ``y`` and its Kalman filter
+    (``whitening``), linearised along the run."""
+
+    name: str
+    before: np.ndarray
+    after: np.ndarray
+    y: np.ndarray
+    whitening: Whitening
+
+
+def path(families: Families, name: str, magnitude: float, onset: int) -> Path:
+    """Fault model ``name``'s noise-free run with ``magnitude`` from sample
+    ``onset`` (the nominal run before it) and its linearisation."""
+    model = families.package.MODELS[name]
+    T, n = families.x_after.shape
+    theta = np.asarray(model.THETA, dtype=float)
+    fixed = np.asarray(model.X0, dtype=float)[n:]
+    before = np.hstack([families.x_before, np.tile(fixed, (T, 1))])
+    after = np.hstack([families.x_after, np.tile(fixed, (T, 1))])
+    y = families.y.copy()
+    if onset < T:
+        z = after[onset].copy().reshape(-1, 1)
+        z[-1] = magnitude
+        with np.errstate(all="ignore"):
+            for k in range(onset, T):
+                if k > onset:
+                    before[k] = z[:, 0]
+                    z = model.predict(z, families.us[k], theta, model.DT)
+                after[k] = z[:, 0]
+                y[k] = model.observe(z, families.us[k], theta)[:, 0]
+    scale = _scales(model, families.x_before)
+    F = _jacobian(lambda X, u: model.predict(X, u, theta, model.DT)[:n], before, range(n), scale, families.us)
+    H = _jacobian(lambda X, u: model.observe(X, u, theta), after, range(n), scale, families.us)
+    return Path(name, before, after, y, _whitening(model, F, H))
+
+
+def divergence(families: Families, a: Path, b: Path) -> float:
+    """The Kullback-Leibler divergence KL(a || b) of the measurements' Gaussian
+    distributions under two linearised runs, each with its own mean and its
+    own covariance (the difference in the noise's colour counts too): the sum
+    over steps of 1/2 [tr(S_b^-1 E_a[e e']) + log det S_b - n_y - log det S_a],
+    e the innovations of b's Kalman filter on data from a (a deterministic
+    part: b's filter on the means' difference; a random part: the joint
+    second moments of a's state and b's estimate, propagated exactly)."""
+    model = families.package.MODELS["nominal"]
+    Wa, Wb = a.whitening, b.whitening
+    T, n_y, n = Wa.H.shape
+    Q = np.diag(np.asarray(model.PROCESS_STD, dtype=float)[:n] ** 2)
+    R = np.diag(np.asarray(model.MEASUREMENT_STD, dtype=float) ** 2)
+    mean = np.zeros(n)  # b's estimate of the deviation a's mean makes from b's
+    Z = np.zeros((2 * n, 2 * n))  # (a's state about its mean, b's estimate of it)
+    Z[:n, :n] = np.diag(np.asarray(model.X0_STD, dtype=float)[:n] ** 2)
+    total = 0.0
+    for k in range(T):
+        A = np.zeros((2 * n, 2 * n))
+        A[:n, :n], A[n:, n:] = Wa.F[k], Wb.F[k]
+        Z = A @ Z @ A.T
+        Z[:n, :n] += Q
+        C = np.hstack([Wa.H[k], -Wb.H[k]])
+        mean = Wb.F[k] @ mean
+        e_mean = (a.y[k] - b.y[k]) - Wb.H[k] @ mean
+        E = C @ Z @ C.T + R + np.outer(e_mean, e_mean)
+        Lb, La = Wb.Linv[k], Wa.Linv[k]  # S^-1 = Linv' Linv; log det S = -2 log det Linv
+        total += 0.5 * (float(np.trace(Lb @ E @ Lb.T)) - n_y - 2.0 * float(np.log(np.diagonal(Lb)).sum())
+                        + 2.0 * float(np.log(np.diagonal(La)).sum()))
+        G = np.vstack([np.zeros((n, n_y)), Wb.K[k]])
+        J = np.eye(2 * n) + G @ C
+        Z = J @ Z @ J.T + G @ R @ G.T
+        mean = mean + Wb.K[k] @ e_mean
+    return max(total, 0.0)
+
+
+#: A rival whose linearised fit leaves the truth's name at least this likely
+#: is not fitted again by its fault model itself.
+SURE = 0.9999
+#: The exact fit's grid around the linearised fit: onsets (in steps of the
+#: families' onset spacing) and magnitudes (factors of the linearised one).
+_ONSET_OFFSETS = (-8, -4, -2, -1, 0, 1, 2, 4, 8)
+_FACTORS = np.linspace(0.5, 1.5, 11)
+
+
+def _exact_fit(families: Families, name: str, w: np.ndarray, onset: int, magnitude: float) -> tuple[float, int, float]:
+    """The smallest divergence of whitened target ``w`` from fault model
+    ``name``'s own noise-free runs, on a grid of onsets and magnitudes around
+    (``onset``, ``magnitude``) (within the magnitude's prior and the run):
+    (divergence, onset, magnitude). The magnitude is then the vertex of the
+    parabola through the best one and its neighbours at the best onset
+    (the divergence is the grid's best: the vertex's is at most that)."""
+    T = families.x_after.shape[0]
+    stride = int(families.onsets[1] - families.onsets[0]) if len(families.onsets) > 1 else 1
+    lo, hi = families.bounds[families.names.index(name)]
+    taus = sorted({min(max(onset + o * stride, 0), T - 1) for o in _ONSET_OFFSETS})
+    mags = np.unique(np.clip(magnitude * _FACTORS, lo, hi))
+    grid_t, grid_m = np.meshgrid(taus, mags, indexing="ij")
+    dev = deviations(families, name, grid_m.ravel(), grid_t.ravel())
+    wz = families.whitening.apply(dev).reshape(-1, dev.shape[2])
+    r = (0.5 * ((wz - w[:, None]) ** 2).sum(axis=0)).reshape(grid_t.shape)
+    r[~np.isfinite(r)] = math.inf
+    t, i = np.unravel_index(int(np.argmin(r)), r.shape)
+    best = (float(r[t, i]), int(taus[t]), float(mags[i]))
+    if 0 < i < len(mags) - 1 and np.all(np.isfinite(r[t, i - 1:i + 2])):
+        (m0, m1, m2), (r0, r1, r2) = mags[i - 1:i + 2], r[t, i - 1:i + 2]
+        denominator = (m1 - m0) * (r1 - r2) - (m1 - m2) * (r1 - r0)
+        if denominator != 0.0:
+            vertex = m1 - 0.5 * ((m1 - m0) ** 2 * (r1 - r2) - (m1 - m2) ** 2 * (r1 - r0)) / denominator
+            best = (best[0], best[1], float(np.clip(vertex, m0, m2)))
+    return best
+
+
+def _fit(w: np.ndarray, ww: float, G: np.ndarray, bounds: tuple[float, float]) -> tuple[float, int, float]:
+    """The best fit of whitened target ``w`` by ``c G[:, j]`` over the columns
+    j and the magnitudes c within ``bounds``: (half the squared residual, j,
+    c). Per column the unconstrained least-squares c is clipped to the
+    bounds, which is the constrained optimum of a one-dimensional quadratic."""
+    gg = np.einsum("ij,ij->j", G, G)
+    wg = w @ G
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = np.where(gg > 0, wg / gg, 0.0)
+    c = np.clip(c, bounds[0], bounds[1])
+    r = 0.5 * (ww - 2.0 * c * wg + c * c * gg)
+    j = int(np.argmin(r))
+    return max(float(r[j]), 0.0), j, float(c[j])
+
+
+def _normal_above(mean: float, std: float) -> float:
+    """P(X > 0) for X ~ N(mean, std^2); a point mass when ``std`` is 0."""
+    if std <= 0.0:
+        return 1.0 if mean > 0 else (0.0 if mean < 0 else 0.5)
+    return 0.5 * math.erfc(-mean / (std * math.sqrt(2.0)))
+
+
+def _scales(model: ModuleType, points: np.ndarray) -> np.ndarray:
+    """Central-difference steps per physical state: 1e-6 of the state's size
+    (its largest value on the run, its initial spread or its process std)."""
+    size = np.maximum.reduce([np.abs(points).max(axis=0), np.asarray(model.X0_STD, dtype=float)[: points.shape[1]],
+                              np.asarray(model.PROCESS_STD, dtype=float)[: points.shape[1]]])
+    return 1e-6 * np.where(size > 0, size, 1.0)
+
+
+def _jacobian(fn, points: np.ndarray, rows, steps: np.ndarray, us: np.ndarray) -> np.ndarray:
+    """Central differences (T, n_out, len(rows)) of ``fn(X, u)`` ((n_s, M) ->
+    (n_out, M)) at ``points`` (T, n_s) with respect to the state ``rows``
+    (steps ``steps`` per row), the input of point k being ``us[k]``; one call
+    of ``fn`` per distinct input."""
+    rows = list(rows)
+    T, n_s = points.shape
+    r = len(rows)
+    out = None
+    _, first, inverse = np.unique(us, axis=0, return_index=True, return_inverse=True)
+    inverse = np.asarray(inverse).reshape(-1)
+    for g, at in enumerate(first):
+        ks = np.flatnonzero(inverse == g)
+        X = np.repeat(points[ks].T[:, :, None], 2 * r, axis=2)  # (n_s, |ks|, 2r)
+        for i, row in enumerate(rows):
+            X[row, :, i] += steps[i]
+            X[row, :, r + i] -= steps[i]
+        with np.errstate(all="ignore"):
+            Y = np.asarray(fn(X.reshape(n_s, -1), us[at]), dtype=float).reshape(-1, len(ks), 2 * r)
+        if out is None:
+            out = np.empty((T, Y.shape[0], r))
+        out[ks] = ((Y[:, :, :r] - Y[:, :, r:]) / (2.0 * np.asarray(steps)[None, None, :])).transpose(1, 0, 2)
+    return out
+
+
+def _whitening(model: ModuleType, F: np.ndarray, H: np.ndarray) -> Whitening:
+    """The nominal Kalman filter's gains and innovation factors along the run."""
+    T, n_y, n = H.shape
+    Q = np.diag(np.asarray(model.PROCESS_STD, dtype=float)[:n] ** 2)
+    R = np.diag(np.asarray(model.MEASUREMENT_STD, dtype=float) ** 2)
+    P = np.diag(np.asarray(model.X0_STD, dtype=float)[:n] ** 2)
+    K = np.empty((T, n, n_y))
+    Linv = np.empty((T, n_y, n_y))
+    eye = np.eye(n)
+    for k in range(T):
+        P = F[k] @ P @ F[k].T + Q
+        S = H[k] @ P @ H[k].T + R
+        try:
+            L = np.linalg.cholesky(0.5 * (S + S.T))
+        except np.linalg.LinAlgError:
+            raise TrackingError(f"{model.MODEL}: the measurements' predicted covariance is singular at step {k}",
+                                None, "give every sensor a measurement noise above 0") from None
+        Linv[k] = np.linalg.inv(L)
+        gain = P @ H[k].T @ Linv[k].T @ Linv[k]
+        A = eye - gain @ H[k]
+        P = A @ P @ A.T + gain @ R @ gain.T  # Joseph form: stays symmetric and positive
+        K[k] = gain
+    return Whitening(F, H, K, Linv)
+
+
+def _unit_responses(model: ModuleType, F: np.ndarray, H: np.ndarray, x_before: np.ndarray, x_after: np.ndarray,
+                    us: np.ndarray, onsets: np.ndarray) -> np.ndarray:
+    """Fault model ``model``'s linearised measurement deviations (T, n_y,
+    onsets) for a unit magnitude from each onset: its fault states (a
+    drifting parameter, the magnitude last) at their nominal values, the
+    magnitude 1 at the onset sample."""
+    T, n = x_before.shape
+    theta = np.asarray(model.THETA, dtype=float)
+    fixed = np.asarray(model.X0, dtype=float)[n:]
+    nf = len(fixed)
+    prior = np.abs(np.asarray(model.FAULT_PRIOR, dtype=float))
+    steps = np.array([1e-6 * max(abs(v), 1e-12) for v in fixed[:-1]] + [1e-6 * max(prior.max(), 1e-12)])
+    before = np.hstack([x_before, np.tile(fixed, (T, 1))])
+    after = np.hstack([x_after, np.tile(fixed, (T, 1))])
+    rows = range(n, n + nf)
+    Fz_f = _jacobian(lambda X, u: model.predict(X, u, theta, model.DT), before, rows, steps, us)  # (T, n+nf, nf)
+    Hz_f = _jacobian(lambda X, u: model.observe(X, u, theta), after, rows, steps, us)  # (T, n_y, nf)
+    n_y = H.shape[1]
+    D = np.zeros((n + nf, len(onsets)))
+    G = np.zeros((T, n_y, len(onsets)))
+    where = {int(t): j for j, t in enumerate(onsets)}
+    for k in range(T):
+        physical = F[k] @ D[:n] + Fz_f[k, :n] @ D[n:]
+        D[n:] = Fz_f[k, n:] @ D[n:]
+        D[:n] = physical
+        j = where.get(k)
+        if j is not None:  # the onset sample: the states so far are nominal, the magnitude is 1
+            D[:, j] = 0.0
+            D[-1, j] = 1.0
+        G[k] = H[k] @ D[:n] + Hz_f[k] @ D[n:]
+    return G
+

@@ -1,0 +1,187 @@
+"""Predicted distinguishability (bgc/runtime/distinguish.py), against
+references derived here on the two tanks, whose RK4 map is derived by hand
+(``conftest.tank_map``):
+
+- the whitening operator is the inverse square root of the stacked
+  measurements' covariance, built densely from the hand-derived map;
+- a fault model's noise-free deviation and its linearised unit response are
+  those of the hand-derived map with the parameter changed;
+- over data sets drawn from the truth, the exact log Bayes factor of the truth
+  against the rival's predicted best fit (dense Gaussian likelihoods of both
+  hand-derived models) has the predicted mean and spread;
+- two parameters that enter the model only as their sum are predicted
+  inseparable, the priors deciding.
+"""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from bgc import api, cli
+from bgc.runtime import distinguish, track
+
+from conftest import ROOT, TEST_MODELS, compiled, tank_map
+
+TWO_TANK = ROOT / "models" / "two_tank.yaml"
+PIPES = TEST_MODELS / "series_pipes.yaml"
+
+
+def two_tank(steps: int):
+    package = track.load_package(ROOT / "generated", "two_tank")
+    return package, distinguish.prepare(package, distinguish.scenario_inputs(package, steps))
+
+
+def stacked(maps, x0, P0, Q, R):
+    """Mean (T n_y,) and covariance of the stacked measurements of x_k = M_k
+    x_(k-1) + c_k + w_k, y_k = H_k x_k + v_k, x_(-1) ~ N(x0, P0), built
+    densely (``maps[k]`` = (M, c, H) of step k)."""
+    T, n_y = len(maps), maps[0][2].shape[0]
+    mean = np.empty((T, n_y))
+    covs = []  # Cov(x_k)
+    x, C = np.asarray(x0, dtype=float), P0
+    for M, c, H in maps:
+        x = M @ x + c
+        C = M @ C @ M.T + Q
+        mean[len(covs)] = H @ x
+        covs.append(C)
+    S = np.zeros((T * n_y, T * n_y))
+    for j in range(T):
+        X = covs[j]  # Cov(x_k, x_j), k = j, j+1, ...
+        for k in range(j, T):
+            if k > j:
+                X = maps[k][0] @ X
+            block = maps[k][2] @ X @ maps[j][2].T
+            S[k * n_y:(k + 1) * n_y, j * n_y:(j + 1) * n_y] = block
+            S[j * n_y:(j + 1) * n_y, k * n_y:(k + 1) * n_y] = block.T
+    S += np.kron(np.eye(T), R)
+    return mean.ravel(), S
+
+
+def noise(package):
+    m = package.MODELS["nominal"]
+    return (np.diag(np.asarray(m.X0_STD) ** 2), np.diag(np.asarray(m.PROCESS_STD) ** 2),
+            np.diag(np.asarray(m.MEASUREMENT_STD) ** 2))
+
+
+def fault_maps(T: int, onset: int, **changed):
+    """The two tanks' maps of each step with parameters ``changed`` from sample
+    ``onset``: the step into it is nominal, its measurement sees the fault."""
+    nominal, faulty = tank_map(2.0), tank_map(**({"R12": 2.0} | changed))
+    return [nominal] * onset + [nominal[:2] + faulty[2:]] + [faulty] * (T - onset - 1)
+
+
+def test_the_whitening_is_the_inverse_square_root_of_the_measurements_covariance():
+    T = 40
+    package, fam = two_tank(T)
+    P0, Q, R = noise(package)
+    _, S = stacked([tank_map(2.0)] * T, package.MODELS["nominal"].X0, P0, Q, R)
+    d = np.random.default_rng(0).standard_normal((T, 3, 4)) * np.sqrt(np.diag(R))[None, :, None]
+    w = fam.whitening.apply(d)
+    for m in range(d.shape[2]):
+        dm = d[:, :, m].ravel()
+        assert float((w[:, :, m] ** 2).sum()) == pytest.approx(float(dm @ np.linalg.solve(S, dm)), rel=1e-8)
+
+
+def test_a_faults_deviation_and_its_unit_response_are_the_hand_derived_maps():
+    T, onset, bias = 60, 17, 0.5
+    package, fam = two_tank(T)
+    x0 = np.asarray(package.MODELS["nominal"].X0, dtype=float)
+
+    def run(maps):
+        x, out = x0, []
+        for M, c, H in maps:
+            x = M @ x + c
+            out.append(H @ x)
+        return np.array(out)
+
+    nominal = run([tank_map(2.0)] * T)
+    exact = run(fault_maps(T, onset, R12=2.0 + bias)) - nominal
+    assert np.allclose(distinguish.deviations(fam, "R12_abrupt", [bias], [onset])[:, :, 0], exact, rtol=0,
+                       atol=1e-10)
+    # the linearised unit response: the derivative of the deviation in the bias at 0, here by differences
+    h = 1e-6
+    slope = (run(fault_maps(T, onset, R12=2.0 + h)) - run(fault_maps(T, onset, R12=2.0 - h))) / (2 * h)
+    column = list(fam.onsets).index(onset)
+    expected = fam.whitening.apply(slope[:, :, None]).ravel()
+    assert np.allclose(fam.response("R12_abrupt")[:, column], expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max())
+
+
+def test_the_bayes_factor_over_data_sets_has_the_predicted_mean_and_spread():
+    """The truth, R12 up by 0.6 from sample 135, against R10's best fit (a
+    decrease): 400 data sets drawn from the truth's Gaussian model, the log
+    Bayes factor of the truth's model against the rival's at its predicted
+    fit, each an exact Gaussian log density of the hand-derived maps. Half
+    of the expected factor comes from the two models' different covariances
+    (the sensors' noise is coloured by the parameters): a prediction from the
+    means alone (12.2) would be half the truth (21)."""
+    T = 300
+    package, fam = two_tank(T)
+    priors = {f.parameter: f.prior for f in compiled("two_tank").model.faults}
+    d = distinguish.distinguish(fam, "R12_abrupt", 0.6, 135, priors)
+    rival = next(r for r in d.rivals if r.name == "R10_abrupt")
+    assert 3.0 < rival.expected < 100.0  # a case where the data decide, but not overwhelmingly
+    P0, Q, R = noise(package)
+    x0 = package.MODELS["nominal"].X0
+    mean_a, S_a = stacked(fault_maps(T, 135, R12=2.6), x0, P0, Q, R)
+    mean_b, S_b = stacked(fault_maps(T, rival.onset, R10=4.0 + rival.magnitude), x0, P0, Q, R)
+    L_a, L_b = np.linalg.cholesky(S_a), np.linalg.cholesky(S_b)
+    draws = mean_a[:, None] + L_a @ np.random.default_rng(1).standard_normal((len(mean_a), 400))
+
+    def logpdf(y, mean, L):
+        z = np.linalg.solve(L, y - mean[:, None])
+        return -0.5 * (z * z).sum(axis=0) - np.log(np.diagonal(L)).sum()
+
+    llr = logpdf(draws, mean_a, L_a) - logpdf(draws, mean_b, L_b)
+    assert abs(llr.mean() - rival.expected) < 3 * llr.std() / math.sqrt(400) + 0.03 * rival.expected
+    assert llr.std() == pytest.approx(rival.std, rel=0.2)
+    threshold = math.log(priors["R10"] / priors["R12"])
+    assert float(np.mean(llr > threshold)) == pytest.approx(rival.probability, abs=0.05)
+
+
+def test_two_parameters_that_enter_as_their_sum_are_predicted_inseparable():
+    package = track.load_package(api._compiled(PIPES)[1], "series_pipes")
+    fam = distinguish.prepare(package, distinguish.scenario_inputs(package, 120))
+    equal = {"R1": 0.02, "R2": 0.02, "R3": 0.01}
+    d = distinguish.distinguish(fam, "R1_abrupt", 0.3, 60, equal)
+    r2 = next(r for r in d.rivals if r.name == "R2_abrupt")
+    assert d.divergence > 20 and abs(r2.expected) < 1e-5 * d.divergence and r2.magnitude == pytest.approx(0.3, rel=1e-3)
+    assert r2.probability == pytest.approx(0.5, abs=1e-3) and "R2_abrupt" in d.group
+    assert next(r for r in d.rivals if r.name == "R3_abrupt").probability > 0.999
+    # the priors decide between them: the data say nothing
+    assert next(r for r in distinguish.distinguish(fam, "R1_abrupt", 0.3, 60, equal | {"R2": 0.2}).rivals
+                if r.name == "R2_abrupt").probability < 1e-3
+    assert next(r for r in distinguish.distinguish(fam, "R1_abrupt", 0.3, 60, equal | {"R1": 0.2}).rivals
+                if r.name == "R2_abrupt").probability > 0.999
+
+
+def test_a_capacitor_at_steady_state_is_told_from_no_fault_by_nothing():
+    package, fam = two_tank(300)
+    d = distinguish.distinguish(fam, "C1_abrupt", 0.6, 150, {})
+    assert d.divergence < 1e-12 and d.detectability == pytest.approx(0.5)
+
+
+def test_cli_prints_a_scenarios_rivals_and_every_candidates_group(capsys, tmp_path):
+    assert cli.main(["distinguish", str(PIPES), "--scenario", "R1:abrupt:0.3@30.5"]) == 0
+    out = capsys.readouterr().out
+    assert "truth: R1:abrupt:0.3@30.5 (R1_abrupt, from sample 60)" in out
+    assert "predicted ambiguity group: R2_abrupt" in out
+    assert cli.main(["distinguish", str(PIPES), "--format", "json", "-o", str(tmp_path / "d.json"),
+                     "--plot", str(tmp_path / "d.png")]) == 0
+    data = json.loads("\n".join(ln for ln in (tmp_path / "d.json").read_text().splitlines()
+                                if not ln.startswith("//")))
+    groups = {f["fault"]: f["group"] for f in data["faults"]}
+    assert groups["R1+:abrupt"][0] == "R2_abrupt" and groups["R3+:abrupt"] == []
+    assert (tmp_path / "d.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("scenario, message", [
+    ("C:abrupt:0.1@10", "C:abrupt is not a fault candidate of series_pipes"),
+    ("R1:abrupt:0.1@100", "onset 100 is outside the run"),
+    ("none", "a fault-free scenario has no fault to tell apart"),
+])
+def test_cli_refuses_a_scenario_it_cannot_predict(capsys, scenario, message):
+    assert cli.main(["distinguish", str(PIPES), "--scenario", scenario]) == 1
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
