@@ -269,8 +269,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
         print(f"  {e.magnitude} of {e.parameter}: {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}] "
               f"({100 * e.level:.0f} %){truth}")
+    for note in d.notes:
+        print(f"  note: {printable(note)}")
     print(f"wrote {printable(str(out))}/: report.md, report.json, {len(files) - 3} more files "
-          f"({d.seconds:.1f} s)")
+          f"(diagnosis {d.seconds:.1f} s)")
     return 0
 
 
@@ -383,7 +385,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", metavar="MODEL")
     p.add_argument("run_csv", metavar="RUN.csv", help="a CSV written by bgc simulate")
     p.add_argument("--fault", metavar="PARAM:KIND", help="track with this fault model (default: nominal)")
-    p.add_argument("--method", choices=["gpf", "apf", "both"], default="both")
+    p.add_argument("--method", choices=["gpf", "apf", "opf", "both"], default="both",
+                   help="gpf, apf, opf (the locally optimal proposal) or both (gpf and apf)")
     p.add_argument("--particles", type=int, default=200)
     p.add_argument("--seed", type=_seed, default=0, help="random seed, an integer >= 0")
     p.add_argument("--start", type=float, metavar="T",
@@ -398,12 +401,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", metavar="MODEL")
     p.add_argument("--data", metavar="RUN.csv", help="a recorded run (a CSV as bgc simulate writes)")
     p.add_argument("--scenario", metavar="PARAM:KIND:MAGNITUDE@TIME",
-                   help="simulate this fault (or 'none'), then diagnose, e.g. R_pipe:incipient:0.5@165")
-    p.add_argument("--filter", choices=["gpf", "apf"], default="gpf")
+                   help="simulate this fault (or 'none'), then diagnose, e.g. R_pipe:incipient:0.5@165; MAGNITUDE "
+                        "is an abrupt fault's bias (in the parameter's units) or an incipient fault's slope (per "
+                        "unit of time)")
+    p.add_argument("--filter", choices=["gpf", "apf", "opf"], default="gpf",
+                   help="gpf (the thesis's generic filter), apf (auxiliary) or opf (the locally optimal proposal: "
+                        "for sensors sharp against the process noise, where the others degenerate)")
     p.add_argument("--particles", type=int, default=1000)
     p.add_argument("--seed", type=_seed, default=0, help="random seed, an integer >= 0")
     p.add_argument("--noise", metavar="process=Q,measurement=R",
-                   help="relative noise levels of the data (and of a simulated scenario); default: the model's")
+                   help="relative noise levels of the data (and of a simulated scenario); default: the model's. "
+                        "measurement=R replaces every sensor's own level; process=Q scales the states' levels")
     p.add_argument("--steps", type=int, default=None, help="with --scenario: samples to simulate")
     p.add_argument("--generated", metavar="DIR",
                    help="use the package bgc compile wrote there (default: generate one for this run)")

@@ -51,6 +51,7 @@ MODEL = PKG.nominal
 FILTERS = PKG.filters
 GPF = FILTERS.GenericParticleFilter
 APF = FILTERS.AuxiliaryParticleFilter
+OPF = FILTERS.OptimalProposalParticleFilter
 U = MODEL.inputs(0.0)
 
 
@@ -129,7 +130,7 @@ def runs():
     ys, us = simulate()
     kf = kalman(ys)
     result = {}
-    for cls, seed in ((GPF, 1), (APF, 2)):
+    for cls, seed in ((GPF, 1), (APF, 2), (OPF, 3)):
         result[cls.__name__] = cls(MODEL, N_PARTICLES, np.random.default_rng(seed)).run(ys, us)
     return ys, kf, result
 
@@ -141,7 +142,8 @@ def test_kalman_oracle_is_consistent_with_its_data():
     assert abs(z.mean()) < 4 / math.sqrt(z.size) and abs(z.std() - 1) < 4 / math.sqrt(2 * z.size)
 
 
-@pytest.mark.parametrize("name", ["GenericParticleFilter", "AuxiliaryParticleFilter"])
+@pytest.mark.parametrize("name", ["GenericParticleFilter", "AuxiliaryParticleFilter",
+                                  "OptimalProposalParticleFilter"])
 def test_particle_filter_agrees_with_the_kalman_filter(name):
     ys, kf, result = runs()
     out = result[name]
@@ -164,7 +166,8 @@ def test_particle_filter_agrees_with_the_kalman_filter(name):
     assert np.max(np.mean(np.abs(out.mean - wrong["mean"]) / s, axis=0)) > TOLERANCE
 
 
-@pytest.mark.parametrize("name", ["GenericParticleFilter", "AuxiliaryParticleFilter"])
+@pytest.mark.parametrize("name", ["GenericParticleFilter", "AuxiliaryParticleFilter",
+                                  "OptimalProposalParticleFilter"])
 def test_predicted_measurement_is_the_one_step_prediction(name):
     """y_mean / y_std are p(y_k | y_1:k-1), before y_k is used: the Kalman innovation mean and std."""
     ys, kf, result = runs()
@@ -190,7 +193,7 @@ def y_at_x0():
     return MODEL.observe(MODEL.X0[:, None], U, MODEL.THETA)[:, 0]
 
 
-@pytest.mark.parametrize("cls", [GPF, APF], ids=["GPF", "APF"])
+@pytest.mark.parametrize("cls", [GPF, APF, OPF], ids=["GPF", "APF", "OPF"])
 def test_far_outlier_keeps_the_estimate_finite(cls):
     """1e6 sigma: every p(y|x) underflows as a number (log p ~ -5e11), though not as a log-weight,
     so the filter need not reset; whatever it does, it returns finite numbers and goes on."""
@@ -203,7 +206,7 @@ def test_far_outlier_keeps_the_estimate_finite(cls):
     assert np.all(np.isfinite(r.mean)) and np.all(np.isfinite(r.std))
 
 
-@pytest.mark.parametrize("cls", [GPF, APF], ids=["GPF", "APF"])
+@pytest.mark.parametrize("cls", [GPF, APF, OPF], ids=["GPF", "APF", "OPF"])
 def test_all_weights_underflowing_is_recovered(cls):
     """A measurement so far off that every log-likelihood is -inf: weights reset, no NaN."""
     f = cls(MODEL, 1000, np.random.default_rng(0))
@@ -217,7 +220,7 @@ def test_all_weights_underflowing_is_recovered(cls):
     assert not r.recovered and np.all(np.isfinite(r.mean))
 
 
-@pytest.mark.parametrize("cls", [GPF, APF], ids=["GPF", "APF"])
+@pytest.mark.parametrize("cls", [GPF, APF, OPF], ids=["GPF", "APF", "OPF"])
 @pytest.mark.parametrize("broken", ["some", "all"])
 def test_nan_particles_are_recovered(cls, broken):
     f = cls(MODEL, 1000, np.random.default_rng(0))
@@ -235,7 +238,7 @@ def test_nan_particles_are_recovered(cls, broken):
 
 
 @pytest.mark.parametrize("case", ["underflow", "nan"])
-@pytest.mark.parametrize("cls", [GPF, APF], ids=["GPF", "APF"])
+@pytest.mark.parametrize("cls", [GPF, APF, OPF], ids=["GPF", "APF", "OPF"])
 def test_one_bad_step_counts_one_recovery(cls, case):
     f = cls(MODEL, 1000, np.random.default_rng(0))
     y = y_at_x0()
@@ -250,7 +253,7 @@ def test_one_bad_step_counts_one_recovery(cls, case):
 
 
 # ------------------------------------------------------- missing measurements
-@pytest.mark.parametrize("cls", [GPF, APF], ids=["GPF", "APF"])
+@pytest.mark.parametrize("cls", [GPF, APF, OPF], ids=["GPF", "APF", "OPF"])
 def test_missing_measurement_skips_the_update(cls):
     f = cls(MODEL, 2000, np.random.default_rng(4), threshold=0.0)  # never resample after the update
     ys, us = simulate(3, seed=5)
@@ -304,7 +307,7 @@ def test_gpf_update_ignores_a_broken_output_that_is_not_measured():
     assert r.ess == pytest.approx(ess, rel=1e-10)
 
 
-@pytest.mark.parametrize("cls", [GPF, APF], ids=["GPF", "APF"])
+@pytest.mark.parametrize("cls", [GPF, APF, OPF], ids=["GPF", "APF", "OPF"])
 def test_a_particle_whose_likelihood_is_nan_gets_no_weight(cls):
     """A particle whose prediction of a measured output is NaN (its state finite)
     is impossible, not a reason to throw the step's measurement away."""
@@ -319,7 +322,7 @@ def test_a_particle_whose_likelihood_is_nan_gets_no_weight(cls):
     assert r.ess < 0.99 * 1000 and np.all(np.isfinite(r.mean))
 
 
-@pytest.mark.parametrize("cls", [GPF, APF], ids=["GPF", "APF"])
+@pytest.mark.parametrize("cls", [GPF, APF, OPF], ids=["GPF", "APF", "OPF"])
 def test_predicted_measurement_does_not_depend_on_how_far_y_is(cls):
     """The predicted measurement is a moment of the particles before the update
     (for the APF: before its first-stage selection, which y steers): an outlier
@@ -494,7 +497,7 @@ def test_normalise_gives_weights_summing_to_one_and_the_ess(offset):
 
 
 # ------------------------------------------------------------ step == run
-@pytest.mark.parametrize("cls", [GPF, APF], ids=["GPF", "APF"])
+@pytest.mark.parametrize("cls", [GPF, APF, OPF], ids=["GPF", "APF", "OPF"])
 def test_stepping_equals_run(cls):
     ys, us = simulate(30, seed=11)
     ys[7] = np.nan
@@ -509,7 +512,7 @@ def test_stepping_equals_run(cls):
     assert np.array_equal(a.x, b.x) and np.array_equal(a.logw, b.logw)
 
 
-@pytest.mark.parametrize("cls", [GPF, APF], ids=["GPF", "APF"])
+@pytest.mark.parametrize("cls", [GPF, APF, OPF], ids=["GPF", "APF", "OPF"])
 def test_a_step_on_particles_predicted_outside_is_the_same_step(cls):
     """step(predicted=True) after model.predict is step(): the same particles,
     weights and predicted measurement (the caller only moved the integration)."""

@@ -118,3 +118,15 @@ def test_the_transition_into_an_onset_sample_is_nominal_and_keeps_the_magnitude(
     np.testing.assert_array_equal(x[len(nominal.STATES):], before[len(nominal.STATES):])
     moved = fault.predict(before.copy(), u, fault.THETA, fault.DT)  # with the fault in: not the same
     assert np.abs(moved[:len(nominal.STATES)] - want).max() > 1e-4
+
+
+def test_a_models_own_package_folder_given_as_the_root_is_named_with_its_parent(tmp_path, capsys):
+    """--generated generated/ro (one model's folder) instead of generated/:
+    the fix names the folder to give, not a compile that would nest it."""
+    from bgc import cli
+
+    code = cli.main(["diagnose", str(ROOT / "models" / "ro.yaml"), "--scenario", "none", "--generated",
+                     str(ROOT / "generated" / "ro"), "-o", str(tmp_path / "d")])
+    err = capsys.readouterr().err
+    assert code == 1 and "is the folder of one model's package" in err
+    assert f"point --generated at the folder bgc compile -o wrote: {ROOT / 'generated'}" in err

@@ -233,7 +233,7 @@ def campaign_figures(rows) -> dict[str, bytes]:
     from .tables import confusion
 
     rows = list(rows)
-    filters = [f for f in ("gpf", "apf") if any(r["filter"] == f for r in rows)]
+    filters = [f for f in ("gpf", "apf", "opf") if any(r["filter"] == f for r in rows)]
     out: dict[str, bytes] = {}
     plt, fig, axes = _grid(2)
     for ax, metric, title in ((axes[0], "est_error", "fault-magnitude error (%)"), (axes[1], "ct", "time to convergence")):

@@ -114,7 +114,7 @@ from .identify import GridOptions
 from .kalman import EDGE, EXTEND, KalmanOptions, StaticPosterior, onset_widths
 from .isolate import OpenLoop, Symbol, hypotheses, observed_symbols
 from .runs import Run
-from .track import check_particles, onset_transition, run_arrays
+from .track import FILTER_CLASSES, check_particles, filter_class, onset_transition, run_arrays
 
 
 @dataclass(frozen=True, slots=True)
@@ -310,25 +310,29 @@ class Diagnosis:
 
 
 def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors: dict[str, float],
-             options: DiagnosisOptions = DiagnosisOptions(), progress=None) -> Diagnosis:
+             options: DiagnosisOptions = DiagnosisOptions(), progress=None, every: bool = False) -> Diagnosis:
     """Diagnose a recorded run with a generated package and the model's signatures.
 
     ``priors``: each fault candidate's prior probability (the model's
     ``faults: ... prior``); ``progress(text)``, when given, is told what is
-    being done.
+    being done. ``every``: try every fault model, those the symbols rule out
+    too. When none of the hypotheses the symbols keep explains the data
+    ("unexplained") and they ruled some fault model out, the diagnosis is
+    made again that way: the symbols are a filter read off a few samples
+    against signatures of a plant at steady state (a fast transient can
+    settle before the slope is read), not the decision.
     """
     started = time.perf_counter()
     say = progress or (lambda text: None)
     nominal = package.MODELS["nominal"]
     check_particles(options.particles, package, "nominal")
-    if options.method not in ("gpf", "apf"):
-        raise TrackingError(f"unknown filter {options.method!r}", None, "use gpf or apf")
+    filter_class(package, options.method)  # a known filter
     if options.identify not in IDENTIFY:
         raise TrackingError(f"unknown identification {options.identify!r}", None, f"use {' or '.join(IDENTIFY)}")
     ys, us = run_arrays(run, package, "nominal")
     T, n_y = ys.shape
     outputs = tuple(nominal.OUTPUTS)
-    cls = {"gpf": package.filters.GenericParticleFilter, "apf": package.filters.AuxiliaryParticleFilter}
+    cls = {method: filter_class(package, method) for method in FILTER_CLASSES}
     rng = np.random.default_rng([options.seed, 0])
     pf = cls[options.method](nominal, options.particles, rng)
     detector = Detector(outputs, DetectorOptions(options.false_alarm, options.windows, T))
@@ -340,6 +344,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     x_std = np.full((T, len(nominal.STATES)), np.nan)
     detection = None
     ess = float(options.particles)  # of the weights that predict the next step
+    ess_sum = 0.0
     say("tracking the nominal model")
     with np.errstate(all="ignore"):
         for k in range(T):
@@ -355,15 +360,23 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                 if detection is not None:
                     say(f"fault detected at t = {run.time[k]:g} on {detection.sensor}")
             ess = r.ess
+            ess_sum += r.ess
     statistics = np.array(detector.statistics + [np.full(n_y, np.nan)] * (T - len(detector.statistics)))
     common = dict(model=nominal.MODEL, time=run.time, outputs=outputs, states=tuple(nominal.STATES),
                   nominal_y_mean=y_mean, nominal_y_std=y_std, nominal_z=z, nominal_x_mean=x_mean,
                   nominal_x_std=x_std, statistics=statistics, threshold=detector.threshold,
                   options=options)
+    notes = []
+    mean_ess = ess_sum / max(T, 1)
+    if mean_ess < DEGENERATE * options.particles:
+        notes.append(f"the nominal observer's particle filter degenerates (mean effective sample size "
+                     f"{mean_ess:.0f} of {options.particles}): a sensor is sharp against the spread the process "
+                     f"noise gives the prediction, and its residuals may alarm without a fault; "
+                     + ("use more particles" if options.method == "opf" else
+                        "use --filter opf (the locally optimal proposal), or more particles"))
     if detection is None:
         return Diagnosis(verdict="no fault", detection=None, onset=None, symbols=(), refuted=(), hypotheses=(),
-                         candidates=(), seconds=time.perf_counter() - started, **common)
-    notes = []
+                         candidates=(), seconds=time.perf_counter() - started, notes=tuple(notes), **common)
     # onsets tried: for a drift, the detector's estimate and a grid back to `search` steps
     # before the alarm (extended below); for a step change (its change point is sharp), the
     # samples around the detector's estimate
@@ -385,7 +398,11 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     seen = observed_symbols(_open_loop(package, cls[options.method], nominal, _cloud(clouds, onset), ys, us, onset, steps,
                                        options), outputs, options.windows)
     keep, dropped = hypotheses(signatures, seen)
-    if not keep:
+    if every and dropped:
+        notes.append("no hypothesis the symbols kept explains the data: the fault models they ruled out are "
+                     "tried as well")
+        keep = list(signatures.signatures)
+    elif not keep:
         notes.append("no fault signature agrees with the observed symbols: every fault model is tried")
         keep = list(signatures.signatures)
     refuted = tuple((s.name, why) for s, why in dropped)
@@ -587,12 +604,21 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                          f"from t = {run.time[start]:g}: its residual of {a.sensor} over {a.window} sample(s) reached "
                          f"{a.statistic:.1f} (threshold {a.threshold:.1f}); the fault model as stated, or the "
                          f"Kalman filters' Gaussian approximation, does not quite hold on these data")
+    untried = {f"{sig.parameter}_{sig.kind}" for sig, _ in dropped} - set(models)
+    if verdict == "unexplained" and not every and untried & set(package.MODELS):
+        say("no hypothesis the symbols kept explains the data: trying those they ruled out")
+        again = diagnose(run, package, signatures, priors, options, progress, every=True)
+        return dataclasses.replace(again, seconds=time.perf_counter() - started)
     best_onset = next((h.onset for h in hypothesis_list if candidates and h.name == candidates[0]), onset)
     say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
     return Diagnosis(verdict=verdict, detection=detection, onset=best_onset, symbols=seen, refuted=refuted,
                      hypotheses=hypothesis_list, candidates=candidates, seconds=time.perf_counter() - started,
                      notes=tuple(notes), **common)
 
+
+#: The nominal observer degenerates when its mean effective sample size is
+#: under this share of its particles (a diagnosis note says so).
+DEGENERATE = 0.05
 
 #: How a hypothesis's magnitude is identified and the hypotheses weighed:
 #: ``kalman``, with the magnitude held static, by cubature Kalman filters on a
@@ -901,7 +927,7 @@ def _run_hypothesis(job) -> tuple[dict[int, dict], np.ndarray]:
      nominal_density, bar) = job
     package = sys.modules[package_name]
     module = package.MODELS[name]
-    cls = {"gpf": package.filters.GenericParticleFilter, "apf": package.filters.AuxiliaryParticleFilter}[method]
+    cls = filter_class(package, method)
     started = time.perf_counter()
     T = len(ys)  # steps from the first onset
     n_y, n_x = ys.shape[1], len(module.STATES)

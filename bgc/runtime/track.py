@@ -45,6 +45,10 @@ def load_package(generated_dir: str | Path, model: str, source: str | None = Non
     root = Path(generated_dir) / model / PACKAGE
     init = root / "__init__.py"
     if not init.exists():
+        if (Path(generated_dir) / PACKAGE / "__init__.py").exists():  # the model's own folder, not the root
+            raise TrackingError(
+                f"{printable(str(generated_dir))} is the folder of one model's package", None,
+                f"point --generated at the folder bgc compile -o wrote: {printable(str(Path(generated_dir).parent))}")
         out = "" if Path(generated_dir) == Path("generated") else f" -o {printable(str(generated_dir))}"
         raise TrackingError(
             f"no generated package at {printable(str(root))}", None,
@@ -176,6 +180,18 @@ def onset_transition(model: ModuleType, x: np.ndarray, u: np.ndarray, theta) -> 
     return x
 
 
+#: The particle filters a generated package holds, by their short names.
+FILTER_CLASSES = {"gpf": "GenericParticleFilter", "apf": "AuxiliaryParticleFilter",
+                  "opf": "OptimalProposalParticleFilter"}
+
+
+def filter_class(package: ModuleType, method: str):
+    """The generated particle filter class of ``method`` (gpf, apf or opf)."""
+    if method not in FILTER_CLASSES:
+        raise TrackingError(f"unknown filter {method!r}", None, "use " + ", ".join(FILTER_CLASSES))
+    return getattr(package.filters, FILTER_CLASSES[method])
+
+
 def run_arrays(run: Run, package: ModuleType, model_name: str) -> tuple[np.ndarray, np.ndarray]:
     """(ys, us) arrays of a recorded run in the model's output and input order."""
     model = package.MODELS[model_name]
@@ -252,7 +268,7 @@ def track(run: Run, package: ModuleType, model_name: str = "nominal", method: st
                             "choose one of: " + ", ".join(package.MODELS))
     check_particles(particles, package, model_name)
     model = package.MODELS[model_name]
-    cls = {"gpf": package.filters.GenericParticleFilter, "apf": package.filters.AuxiliaryParticleFilter}[method]
+    cls = filter_class(package, method)
     ys, us = run_arrays(run, package, model_name)
     rng = np.random.default_rng(seed)
     split = 0

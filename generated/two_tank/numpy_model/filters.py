@@ -8,7 +8,10 @@ the model modules; the filters below read like the thesis's algorithms:
   effective sample size, systematic resampling when N_eff < N_T);
 * :class:`AuxiliaryParticleFilter`: Algorithm 2 (Pitt and Shephard, 1999):
   first-stage weights from p(y | mu) with mu the noise-free prediction,
-  second-stage weights p(y | x) / p(y | mu).
+  second-stage weights p(y | x) / p(y | mu);
+* :class:`OptimalProposalParticleFilter`: not in the thesis; the locally
+  optimal proposal (Doucet, Godsill and Andrieu, 2000), for plants whose
+  sensors are sharp against the spread of the prediction.
 
 Weights are kept as log-weights. When every weight underflows (or particles
 diverge to NaN) the filter resets the weights (and replaces the broken
@@ -326,6 +329,105 @@ class AuxiliaryParticleFilter(_Filter):
         return self._finish(logw, y_mean, y_std, recovered)
 
 
+class OptimalProposalParticleFilter(_Filter):
+    """The locally optimal proposal (Doucet, Godsill and Andrieu, 2000,
+    section II.D): each particle moves from its noise-free prediction mu
+    towards y, drawn from p(x_k | x_k-1, y_k) with the measurement linearised
+    around mu, and is weighted by the exact importance ratio
+    p(y | x) p(x | mu) / q(x), so the filter stays consistent when the
+    linearisation is not exact.
+
+    When a sensor is sharp against the spread the process noise gives the
+    prediction (a stiff coupling measured precisely), the prior proposal of
+    :class:`GenericParticleFilter` puts almost every particle where the
+    likelihood is nil: its effective sample size collapses and the cloud
+    loses the state. This proposal keeps the particles where the measurement
+    says they are.
+
+    In the process noise's own units z (x = mu + q z, q = ``PROCESS_STD``)
+    the prior is N(0, I); the measurement is linearised by central
+    differences over one process std, A = (h(mu + q_j e_j) - h(mu - q_j e_j)) / 2
+    column by column, S = A A' + R, K = A' S^-1. The proposal N(K (y - h(mu)),
+    I - K A) is sampled without a factorisation, z = e + K (y - h(mu) - A e - v)
+    with e ~ N(0, I), v ~ N(0, R) (exact for a linear measurement); its
+    density needs only S (the precision is I + A' R^-1 A, whose determinant
+    is det S / det R).
+    """
+
+    def step(self, y, u, dt=None, predicted=False):
+        """As :meth:`GenericParticleFilter.step`."""
+        model = self.model
+        dt = model.DT if dt is None else dt
+        y = np.asarray(y, dtype=float)
+        mu = self.x if predicted else model.predict(self.x, u, self.theta, dt, out=self.x)
+        if np.isnan(y).all():
+            model.perturb(mu, self.rng)
+            y_mean, y_std = self._predicted_measurement(model.observe(mu, u, self.theta))
+            return self._finish(self.logw, y_mean, y_std, False)
+        seen = np.isfinite(y)
+        q = np.asarray(model.PROCESS_STD, dtype=float)
+        r = np.asarray(model.MEASUREMENT_STD, dtype=float)
+        n_x, n = mu.shape
+        moved = np.flatnonzero(q > 0)
+        m = len(moved)
+        # the measurements and their sensitivities in one call: mu, then mu +- q_j e_j
+        probes = np.repeat(mu[:, None, :], 1 + 2 * m, axis=1)
+        for i, j in enumerate(moved):
+            probes[j, 1 + i] += q[j]
+            probes[j, 1 + m + i] -= q[j]
+        with np.errstate(all="ignore"):
+            h = model.observe(probes.reshape(n_x, -1), u, self.theta).reshape(len(r), 1 + 2 * m, n)
+        del probes
+        h0 = np.ascontiguousarray(h[:, 0])  # (n_y, N)
+        A = np.zeros((n, len(r), n_x))  # per particle: the measurements' change per process std of each state
+        A[:, :, moved] = ((h[:, 1:1 + m] - h[:, 1 + m:]) / 2.0).transpose(2, 0, 1)
+        del h
+        # the predicted measurement (before y is used): the cloud's spread of h(mu), plus the process
+        # noise seen through the outputs, plus the measurement noise
+        w = self._weights()
+        y_mean, y_spread = model._kernel.moments(h0, w)
+        seen_noise = np.einsum("nij,nij->in", A, A) @ w
+        y_std = np.sqrt(y_spread * y_spread + seen_noise + r * r)
+        A, h0, r = A[:, seen], h0[seen], r[seen]
+        S = A @ A.transpose(0, 2, 1)
+        S[:, np.arange(len(r)), np.arange(len(r))] += r * r
+        innovation = (y[seen][:, None] - h0).T  # (N, n_s)
+        e = self.rng.standard_normal((n, n_x))
+        v = self.rng.standard_normal((n, len(r))) * r
+        with np.errstate(all="ignore"):
+            target = innovation - np.einsum("nij,nj->ni", A, e) - v
+        # a particle whose prediction is not finite (it diverged) moves by its prior alone and gets no
+        # weight; the factorisation below needs finite matrices
+        broken = ~(np.isfinite(S).all(axis=(1, 2)) & np.isfinite(target).all(axis=1))
+        if broken.any():
+            S[broken] = np.diag(r * r)
+            A[broken] = 0.0
+            innovation[broken] = 0.0
+            target[broken] = 0.0
+        with np.errstate(all="ignore"):
+            L = np.linalg.cholesky(S)
+            solved = np.linalg.solve(S, np.stack([innovation, target], axis=2))  # S^-1 [innovation, target]
+            mean = np.einsum("nji,nj->ni", A, solved[:, :, 0])  # K (y - h(mu))
+            z = e + np.einsum("nji,nj->ni", A, solved[:, :, 1])
+            d = z - mean
+            Ad = np.einsum("nij,nj->ni", A, d)
+            # log q(z) - log N(z; 0, I), the 2 pi terms cancelling
+            log_ratio = (-0.5 * ((d * d).sum(axis=1) + (Ad * Ad / (r * r)).sum(axis=1))
+                         + np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1) - np.log(r).sum()
+                         + 0.5 * (z * z).sum(axis=1))
+        x = mu + q[:, None] * z.T
+        with np.errstate(all="ignore"):
+            logw = self.logw + model.loglik_observed(y, model.observe(x, u, self.theta)) - log_ratio
+        logw[broken] = -np.inf  # a finite particle whose prediction is not a number is impossible;
+        logw[~np.isfinite(x).all(axis=0)] = np.nan  # one that diverged is recovered (_finish)
+        if not np.isfinite(logw).any() and np.isfinite(mu).all():  # y far beyond every particle: the prior's step,
+            x = mu + q[:, None] * e.T  # as the generic filter takes it (its weights then say what happened)
+            with np.errstate(all="ignore"):
+                logw = self.logw + model.loglik_observed(y, model.observe(x, u, self.theta))
+        self.x = x
+        return self._finish(logw, y_mean, y_std, False)
+
+
 class FilterBank:
     """Several filters of one model, class, particle count and theta, each
     with its own random numbers, stepped together (the hypothesis filters of
@@ -346,9 +448,11 @@ class FilterBank:
     are views of the bank's arrays while it is in the bank.
 
     A lone filter takes its own step (the bank would only add its
-    overhead). Filters of more than two blocks of particles, or of mixed
-    classes or particle counts, are stepped one by one; so is a step in which
-    a filter's weights all underflow (its :meth:`step` recovers)."""
+    overhead). Filters of more than two blocks of particles, of mixed
+    classes or particle counts, or with the optimal proposal (its arithmetic
+    is per particle already) are stepped one by one after one integrator
+    call; so is a step in which a filter's weights all underflow (its
+    :meth:`step` recovers)."""
 
     def __init__(self, model):
         self.model = model
@@ -386,8 +490,9 @@ class FilterBank:
         cannot be stepped together."""
         fs = self.filters
         first = fs[0]
-        self.packed = (all(type(pf) is type(first) and pf.n == first.n and pf.theta == first.theta
-                            and pf._small and pf.threshold == first.threshold for pf in fs))
+        self.packed = (not isinstance(first, OptimalProposalParticleFilter)
+                       and all(type(pf) is type(first) and pf.n == first.n and pf.theta == first.theta
+                               and pf._small and pf.threshold == first.threshold for pf in fs))
         if not self.packed:
             return
         n = first.n
