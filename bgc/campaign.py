@@ -456,7 +456,7 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     row.update(spec.identity())
     try:
         options = DiagnosisOptions(method=spec.filter, particles=spec.particles, seed=spec.seed, workers=1,
-                                   refine=spec.refine)
+                                   refine=spec.refine, switch=False)  # a campaign measures the filter it names
         report = api.diagnose(_model_file(spec), scenario=spec.scenario, seed=spec.seed,
                               process_noise=spec.process_noise, measurement_noise=spec.measurement_noise,
                               steps=spec.steps, options=options)

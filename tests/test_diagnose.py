@@ -507,7 +507,9 @@ def test_a_sensor_sharp_against_the_process_noise_degenerates_the_generic_filter
     torque is measured to 0.17 N m while one step of process noise moves the
     predicted torque by about 2 N m (the damper sees the speeds' noise). The
     generic filter's cloud collapses (mean ESS a few of 500) and it alarms
-    without a fault; the diagnosis says why and what to use. The locally
+    without a fault; the diagnosis says why and switches to the locally
+    optimal proposal by itself (unless told not to: then it says what to
+    use). The locally
     optimal proposal keeps a third of its particles and unit-variance
     residuals (2000 particles: at 1000, one run in three lost the track)."""
     from bgc import api
@@ -515,8 +517,12 @@ def test_a_sensor_sharp_against_the_process_noise_degenerates_the_generic_filter
 
     model = TEST_MODELS / "drivetrain.yaml"
     d = bgc.diagnose(model, scenario="none", seed=1,
-                     options=DiagnosisOptions(particles=500, seed=1, workers=1)).diagnosis
-    assert any("particle filter degenerates" in n and "--filter opf" in n for n in d.notes)
+                     options=DiagnosisOptions(particles=500, seed=1, workers=1, switch=False)).diagnosis
+    assert any("particle filter (gpf) degenerates" in n and "--filter opf" in n for n in d.notes)
+    # by default the diagnosis switches to the locally optimal proposal by itself, and says so
+    d = bgc.diagnose(model, scenario="none", seed=2, options=DiagnosisOptions(seed=2, workers=1)).diagnosis
+    assert d.options.method == "opf" and d.verdict == "no fault"
+    assert any("diagnosed with the locally optimal proposal (opf) instead" in n for n in d.notes)
     c, private = api._compiled(model)
     package = track.load_package(private, "drivetrain")
     for seed in (1, 2):

@@ -152,7 +152,11 @@ class DiagnosisOptions:
     ``refine``: replace each surviving hypothesis's estimate by the
     grid posterior of :mod:`bgc.runtime.identify` (``grid``): about three times
     slower on the RO drift, and since the estimate averages over the onsets only
-    a little more accurate there (docs/results.md, section 3)."""
+    a little more accurate there (docs/results.md, section 3).
+    ``switch``: when the nominal observer of a generic or auxiliary filter
+    degenerates (its mean effective sample size under ``DEGENERATE`` of its
+    particles), diagnose again with the locally optimal proposal (``opf``),
+    with a note (a campaign comparing filters turns it off)."""
 
     method: str = "gpf"
     particles: int = 1000
@@ -175,6 +179,7 @@ class DiagnosisOptions:
     refine: bool = False
     grid: GridOptions = GridOptions()
     rank_grid: GridOptions = GridOptions(points=11)
+    switch: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -369,11 +374,18 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     notes = []
     mean_ess = ess_sum / max(T, 1)
     if mean_ess < DEGENERATE * options.particles:
-        notes.append(f"the nominal observer's particle filter degenerates (mean effective sample size "
-                     f"{mean_ess:.0f} of {options.particles}): a sensor is sharp against the spread the process "
-                     f"noise gives the prediction, and its residuals may alarm without a fault; "
-                     + ("use more particles" if options.method == "opf" else
-                        "use --filter opf (the locally optimal proposal), or more particles"))
+        degenerate = (f"the nominal observer's particle filter ({options.method}) degenerates (mean effective "
+                      f"sample size {mean_ess:.0f} of {options.particles}): a sensor is sharp against the spread "
+                      f"the process noise gives the prediction, and its residuals may alarm without a fault")
+        if options.method != "opf" and options.switch:
+            say("the particle filter degenerates: diagnosing again with the locally optimal proposal")
+            again = diagnose(run, package, signatures, priors, dataclasses.replace(options, method="opf"),
+                             progress, every)
+            return dataclasses.replace(again, notes=(degenerate + "; diagnosed with the locally optimal "
+                                                     "proposal (opf) instead",) + again.notes,
+                                       seconds=time.perf_counter() - started)
+        notes.append(degenerate + "; " + ("use more particles" if options.method == "opf" else
+                                          "use --filter opf (the locally optimal proposal), or more particles"))
     if detection is None:
         return Diagnosis(verdict="no fault", detection=None, onset=None, symbols=(), refuted=(), hypotheses=(),
                          candidates=(), seconds=time.perf_counter() - started, notes=tuple(notes), **common)
