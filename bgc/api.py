@@ -77,6 +77,7 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
         raise SimulationError("give either data or a scenario", None,
                               "e.g. --data run.csv or --scenario R_pipe:incipient:0.5@165")
     say = progress or (lambda text: None)
+    _check_measurement_noise(measurement_noise)
     say("compiling the model")
     c, private = _compiled(model)
     opts = options or DiagnosisOptions(method=method, particles=particles, seed=seed)
@@ -102,6 +103,12 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
         package = track.load_package(generated if generated is not None else private, c.model.name, str(model),
                                      custom)
     return _run(c, run, package, scenario, injected, (process_noise, measurement_noise), levels, opts, say)
+
+
+def _check_measurement_noise(level: float | None) -> None:
+    if level is not None and not level > 0:
+        raise SimulationError(f"measurement noise level {level:g}: a noiseless sensor makes the filters' likelihood "
+                              "degenerate", None, "give a measurement level above 0, e.g. 0.02")
 
 
 #: The compile cache, the private folders and the package imports are shared
@@ -196,15 +203,19 @@ def distinguishability(model: str | Path, scenario: str | None = None, *, change
     relative noise levels (default: the model's), before any data are seen;
     without a scenario, for every fault candidate, kind and direction at a
     relative ``change`` from the fraction ``at`` of the run."""
+    _check_measurement_noise(measurement_noise)
     c, private = _compiled(model)
     num = c.numerics
     if steps is not None:
         simulate.check_steps(steps, num, "--steps")
     T = steps or c.model.settings.steps
     dt = c.model.settings.dt
-    if scenario is None and not (0.0 < change and 0.0 < at < 1.0):
+    if scenario is None and not (0.0 < change and 0.0 < at and int(at * T) < T - 1):
         raise SimulationError(f"change {change:g} at {at:g} of the run", None,
-                              "give a change above 0 and a fraction of the run between 0 and 1")
+                              "give a change above 0 and an onset inside the run, a fraction between 0 and 1")
+    if not num.faults:
+        raise SimulationError(f"{c.model.name} declares no fault candidates", None,
+                              "list the faults to tell apart under 'faults' in the model file")
     levels = num.noise_at(process_noise, measurement_noise)
     custom = levels if (process_noise, measurement_noise) != (None, None) else None
     with _LOCK:
@@ -227,11 +238,13 @@ def distinguishability(model: str | Path, scenario: str | None = None, *, change
     else:
         injected = []
         for f in num.faults:
+            onset = int(at * T)
             for sign in DIRECTIONS[next(x.direction for x in c.model.faults if x.parameter == f.parameter)]:
                 size = sign * change * abs(f.nominal)
-                drifts = fault_kind(f.kind).drifts
-                injected.append(simulate.FaultInjection(f.parameter, f.kind, size / (T * dt) if drifts else size,
-                                                        float(times[int(at * T)])))
+                drifts = fault_kind(f.kind).drifts  # a drift reaches the change at the last sample
+                injected.append(simulate.FaultInjection(f.parameter, f.kind,
+                                                        size / ((T - 1 - onset) * dt) if drifts else size,
+                                                        float(times[onset])))
     out = []
     for inj in injected:
         onset = int(np.searchsorted(times, inj.time - 1e-9 * max(1.0, abs(inj.time))))

@@ -162,6 +162,9 @@ def _parse_noise(text: str | None) -> tuple[float | None, float | None]:
         if not math.isfinite(values[key]) or values[key] < 0 or values[key] > 1e6:
             raise BgcError(f"--noise: {key} level must be a finite number >= 0 and at most 1e6", None,
                            "noise levels are fractions of the signal, e.g. 0.02")
+        if key == "measurement" and values[key] == 0:
+            raise BgcError("--noise: measurement level 0 makes the filters' likelihood degenerate", None,
+                           "give a measurement level above 0, e.g. 0.02 (as a model's sensor noise)")
     return values["process"], values["measurement"]
 
 
@@ -433,10 +436,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", metavar="MODEL")
     p.add_argument("--scenario", metavar="PARAM:KIND:MAGNITUDE@TIME",
                    help="one fault, e.g. R_pipe:incipient:0.5@165 (default: every candidate, kind and direction)")
-    p.add_argument("--change", type=_fraction_above_zero, default=0.3,
+    p.add_argument("--change", type=_above_zero, default=0.3,
                    help="without --scenario: the relative change of each parameter (a drift reaches it at the end "
                         "of the run; default 0.3)")
-    p.add_argument("--at", type=_fraction_above_zero, default=0.5,
+    p.add_argument("--at", type=_above_zero, default=0.5,
                    help="without --scenario: the onset, as a fraction of the run (default 0.5)")
     p.add_argument("--noise", metavar="process=Q,measurement=R", help="relative noise levels (default: the model's)")
     p.add_argument("--steps", type=int, default=None, help="samples of the run (default: the model's)")
@@ -471,9 +474,11 @@ def _at_least(low: int, message: str):
 
 
 _positive = _at_least(1, "{value}: give an integer >= 1")
+#: --seed: NumPy's generators take no negative seed.
+_seed = _at_least(0, "{value} is negative: give an integer >= 0")
 
 
-def _fraction_above_zero(text: str) -> float:
+def _above_zero(text: str) -> float:
     """An argparse type: a finite number above 0."""
     import math
 
@@ -484,8 +489,6 @@ def _fraction_above_zero(text: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"{text}: give a number above 0")
     return value
-#: --seed: NumPy's generators take no negative seed.
-_seed = _at_least(0, "{value} is negative: give an integer >= 0")
 
 
 def _quiet_stdout() -> None:

@@ -543,3 +543,14 @@ def test_a_diagnosis_runs_on_the_locally_optimal_proposal_too():
                      options=DiagnosisOptions(method="opf", particles=500, seed=4, workers=1)).diagnosis
     assert d.verdict == "isolated" and d.candidates == ("R2_abrupt",)
     assert d.estimate.low <= 0.6 <= d.estimate.high and not d.notes
+
+
+def test_a_fault_that_degenerates_the_observer_after_it_does_not_switch_the_filter():
+    """The nominal filter degenerates after a large fault (the fault is what
+    the data show): only the steps before the alarm say whether the filter
+    itself is degenerate. R2 tripled from t = 1 left the circuit's nominal GPF
+    14 of 1000 particles on average over the run."""
+    d = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R2:abrupt:2@1", seed=1,
+                     options=DiagnosisOptions(seed=1, workers=1)).diagnosis
+    assert d.options.method == "gpf" and not any("degenerates" in n for n in d.notes)
+    assert d.candidates[0] == "R2_abrupt"

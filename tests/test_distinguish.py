@@ -185,3 +185,22 @@ def test_cli_refuses_a_scenario_it_cannot_predict(capsys, scenario, message):
     assert cli.main(["distinguish", str(PIPES), "--scenario", scenario]) == 1
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_every_candidate_reaches_the_change_asked_for_a_drift_at_the_last_sample():
+    r = api.distinguishability(TWO_TANK, change=0.3, at=0.5)
+    nominal = {f.parameter: f.nominal for f in compiled("two_tank").numerics.faults}
+    for d in r.distinctions:
+        parameter, kind = d.truth.rsplit("_", 1)
+        size = d.magnitude * (r.steps - 1 - d.onset) * r.dt if kind == "incipient" else d.magnitude
+        assert abs(size) == pytest.approx(0.3 * abs(nominal[parameter]))
+    assert d.onset == 150
+
+
+def test_a_noiseless_sensor_is_refused_before_any_work(capsys):
+    assert cli.main(["distinguish", str(PIPES), "--noise", "measurement=0"]) == 1
+    assert cli.main(["diagnose", str(PIPES), "--scenario", "none", "--noise", "measurement=0"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("measurement level 0 makes the filters' likelihood degenerate") == 2 and "Traceback" not in err
+    with pytest.raises(Exception, match="a noiseless sensor"):
+        api.distinguishability(PIPES, measurement_noise=0.0)

@@ -114,7 +114,7 @@ from .identify import GridOptions
 from .kalman import EDGE, EXTEND, KalmanOptions, StaticPosterior, onset_widths
 from .isolate import OpenLoop, Symbol, hypotheses, observed_symbols
 from .runs import Run
-from .track import FILTER_CLASSES, check_particles, filter_class, onset_transition, run_arrays
+from .track import check_particles, filter_class, onset_transition, run_arrays
 
 
 @dataclass(frozen=True, slots=True)
@@ -154,8 +154,9 @@ class DiagnosisOptions:
     slower on the RO drift, and since the estimate averages over the onsets only
     a little more accurate there (docs/results.md, section 3).
     ``switch``: when the nominal observer of a generic or auxiliary filter
-    degenerates (its mean effective sample size under ``DEGENERATE`` of its
-    particles), diagnose again with the locally optimal proposal (``opf``),
+    degenerates (its mean effective sample size before the alarm under
+    ``DEGENERATE`` of its particles, a step it had to recover counting 0),
+    diagnose again with the locally optimal proposal (``opf``),
     with a note (a campaign comparing filters turns it off)."""
 
     method: str = "gpf"
@@ -331,15 +332,14 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     say = progress or (lambda text: None)
     nominal = package.MODELS["nominal"]
     check_particles(options.particles, package, "nominal")
-    filter_class(package, options.method)  # a known filter
+    pf_class = filter_class(package, options.method)
     if options.identify not in IDENTIFY:
         raise TrackingError(f"unknown identification {options.identify!r}", None, f"use {' or '.join(IDENTIFY)}")
     ys, us = run_arrays(run, package, "nominal")
     T, n_y = ys.shape
     outputs = tuple(nominal.OUTPUTS)
-    cls = {method: filter_class(package, method) for method in FILTER_CLASSES}
     rng = np.random.default_rng([options.seed, 0])
-    pf = cls[options.method](nominal, options.particles, rng)
+    pf = pf_class(nominal, options.particles, rng)
     detector = Detector(outputs, DetectorOptions(options.false_alarm, options.windows, T))
     clouds: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # step -> cloud after that step
     y_mean = np.full((T, n_y), np.nan)
@@ -349,7 +349,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     x_std = np.full((T, len(nominal.STATES)), np.nan)
     detection = None
     ess = float(options.particles)  # of the weights that predict the next step
-    ess_sum = 0.0
+    ess_sum, ess_steps = 0.0, 0
     say("tracking the nominal model")
     with np.errstate(all="ignore"):
         for k in range(T):
@@ -365,14 +365,16 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                 if detection is not None:
                     say(f"fault detected at t = {run.time[k]:g} on {detection.sensor}")
             ess = r.ess
-            ess_sum += r.ess
+            if detection is None or k < detection.step:  # before the alarm: a fault degenerates it too
+                ess_sum += 0.0 if r.recovered else r.ess
+                ess_steps += 1
     statistics = np.array(detector.statistics + [np.full(n_y, np.nan)] * (T - len(detector.statistics)))
     common = dict(model=nominal.MODEL, time=run.time, outputs=outputs, states=tuple(nominal.STATES),
                   nominal_y_mean=y_mean, nominal_y_std=y_std, nominal_z=z, nominal_x_mean=x_mean,
                   nominal_x_std=x_std, statistics=statistics, threshold=detector.threshold,
                   options=options)
     notes = []
-    mean_ess = ess_sum / max(T, 1)
+    mean_ess = ess_sum / max(ess_steps, 1)
     if mean_ess < DEGENERATE * options.particles:
         degenerate = (f"the nominal observer's particle filter ({options.method}) degenerates (mean effective "
                       f"sample size {mean_ess:.0f} of {options.particles}): a sensor is sharp against the spread "
@@ -407,7 +409,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     say("reading the symbols of the deviating sensors")
     onset = detection.onset
     steps = min(T - onset, detection.step - onset + 1 + options.symbol_steps)
-    seen = observed_symbols(_open_loop(package, cls[options.method], nominal, _cloud(clouds, onset), ys, us, onset, steps,
+    seen = observed_symbols(_open_loop(package, pf_class, nominal, _cloud(clouds, onset), ys, us, onset, steps,
                                        options), outputs, options.windows)
     keep, dropped = hypotheses(signatures, seen)
     if every and dropped:
@@ -619,7 +621,8 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     untried = {f"{sig.parameter}_{sig.kind}" for sig, _ in dropped} - set(models)
     if verdict == "unexplained" and not every and untried & set(package.MODELS):
         say("no hypothesis the symbols kept explains the data: trying those they ruled out")
-        again = diagnose(run, package, signatures, priors, options, progress, every=True)
+        again = diagnose(run, package, signatures, priors, dataclasses.replace(options, switch=False), progress,
+                         every=True)
         return dataclasses.replace(again, seconds=time.perf_counter() - started)
     best_onset = next((h.onset for h in hypothesis_list if candidates and h.name == candidates[0]), onset)
     say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
@@ -628,8 +631,9 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                      notes=tuple(notes), **common)
 
 
-#: The nominal observer degenerates when its mean effective sample size is
-#: under this share of its particles (a diagnosis note says so).
+#: The nominal observer degenerates when its mean effective sample size
+#: before the alarm is under this share of its particles (a diagnosis note
+#: says so).
 DEGENERATE = 0.05
 
 #: How a hypothesis's magnitude is identified and the hypotheses weighed:

@@ -272,10 +272,13 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
     Every rival is fitted to the truth's deviation within its linearised
     family; a rival whose linearised fit leaves the truth's name less than
     ``SURE`` likely is fitted again by its fault model itself, on a grid of
-    onsets and magnitudes around the linearised fit (two rounds, the second
-    finer): its divergence is then measured exactly, against the truth's own
-    exact fit (the truth itself, divergence 0). (Not when even no fault,
-    the divergence's upper bound, would leave the rival in the group.)"""
+    onsets and magnitudes around the linearised fit and then at the vertex
+    of a parabola in the magnitude (:func:`_exact_fit`); the divergence of the
+    truth from that fit is then computed with both runs' own means and
+    covariances (:func:`divergence`), against the truth's own exact fit (the
+    truth itself, divergence 0). Not when the truth's mean is not expected to
+    be told from no fault (the detector would not see it), nor when the
+    rival's run does not stay finite (the linearised fit stands)."""
     package = families.package
     if name not in families.names:
         raise TrackingError(f"no fault model {name!r}", None, "pick one of: " + ", ".join(families.names))
@@ -308,16 +311,18 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
             if not exact < 0.5 * ww:  # no magnitude fits better than no fault
                 fit_magnitude = 0.0
             truth = truth or path(families, name, magnitude, onset)
-            expected = divergence(families, truth, path(families, other, fit_magnitude, fit_onset))
-            std = math.sqrt(2.0 * expected)
-            probability = _normal_above(expected - threshold, std)
+            fitted = path(families, other, fit_magnitude, fit_onset)
+            exact = math.nan if truth is None or fitted is None else divergence(families, truth, fitted)
+            if math.isfinite(exact):  # else (the rival's run diverges) the linearised fit stands
+                expected, std = exact, math.sqrt(2.0 * exact)
+                probability = _normal_above(expected - threshold, std)
         rivals.append(Rival(other, expected, std, probability, fit_onset, fit_magnitude))
     rivals.sort(key=lambda r: (r.probability, r.expected, r.name))
     return Distinction(name, float(magnitude), int(onset), 0.5 * ww, own_r, tuple(rivals), level)
 
 
 @dataclass(frozen=True, slots=True)
-class Path:
+class FaultRun:
     """A fault model's noise-free run with its magnitude from an onset: its
     states before and after each step (``before``, ``after``: (T, n_z), the
     fault states last), its measurements ``y`` and its Kalman filter
@@ -330,9 +335,10 @@ class Path:
     whitening: Whitening
 
 
-def path(families: Families, name: str, magnitude: float, onset: int) -> Path:
+def path(families: Families, name: str, magnitude: float, onset: int) -> FaultRun | None:
     """Fault model ``name``'s noise-free run with ``magnitude`` from sample
-    ``onset`` (the nominal run before it) and its linearisation."""
+    ``onset`` (the nominal run before it) and its linearisation; None when
+    the run does not stay finite."""
     model = families.package.MODELS[name]
     T, n = families.x_after.shape
     theta = np.asarray(model.THETA, dtype=float)
@@ -350,13 +356,15 @@ def path(families: Families, name: str, magnitude: float, onset: int) -> Path:
                     z = model.predict(z, families.us[k], theta, model.DT)
                 after[k] = z[:, 0]
                 y[k] = model.observe(z, families.us[k], theta)[:, 0]
+    if not (np.isfinite(y).all() and np.isfinite(after).all()):
+        return None
     scale = _scales(model, families.x_before)
     F = _jacobian(lambda X, u: model.predict(X, u, theta, model.DT)[:n], before, range(n), scale, families.us)
     H = _jacobian(lambda X, u: model.observe(X, u, theta), after, range(n), scale, families.us)
-    return Path(name, before, after, y, _whitening(model, F, H))
+    return FaultRun(name, before, after, y, _whitening(model, F, H))
 
 
-def divergence(families: Families, a: Path, b: Path) -> float:
+def divergence(families: Families, a: FaultRun, b: FaultRun) -> float:
     """The Kullback-Leibler divergence KL(a || b) of the measurements' Gaussian
     distributions under two linearised runs, each with its own mean and its
     own covariance (the difference in the noise's colour counts too): the sum
@@ -389,7 +397,7 @@ def divergence(families: Families, a: Path, b: Path) -> float:
         J = np.eye(2 * n) + G @ C
         Z = J @ Z @ J.T + G @ R @ G.T
         mean = mean + Wb.K[k] @ e_mean
-    return max(total, 0.0)
+    return max(total, 0.0) if math.isfinite(total) else math.nan
 
 
 #: A rival whose linearised fit leaves the truth's name at least this likely
@@ -499,8 +507,9 @@ def _whitening(model: ModuleType, F: np.ndarray, H: np.ndarray) -> Whitening:
         try:
             L = np.linalg.cholesky(0.5 * (S + S.T))
         except np.linalg.LinAlgError:
-            raise TrackingError(f"{model.MODEL}: the measurements' predicted covariance is singular at step {k}",
-                                None, "give every sensor a measurement noise above 0") from None
+            raise TrackingError(f"{model.MODEL}: the measurements' predicted covariance is singular or not finite "
+                                f"at step {k}", None, "give every sensor a measurement noise above 0, and check the "
+                                "model's values") from None
         Linv[k] = np.linalg.inv(L)
         gain = P @ H[k].T @ Linv[k].T @ Linv[k]
         A = eye - gain @ H[k]
