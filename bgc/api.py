@@ -34,7 +34,7 @@ from .errors import SimulationError
 from .ir import NoiseLevels
 from .kinds import DIRECTIONS, fault_kind
 from .runtime import distinguish as distinction
-from .runtime import runs, simulate, track
+from .runtime import metrics, runs, simulate, track
 from .runtime.diagnose import Diagnosis, DiagnosisOptions
 from .runtime.diagnose import diagnose as run_diagnosis
 
@@ -247,7 +247,7 @@ def distinguishability(model: str | Path, scenario: str | None = None, *, change
                                                         float(times[onset])))
     out = []
     for inj in injected:
-        onset = int(np.searchsorted(times, inj.time - 1e-9 * max(1.0, abs(inj.time))))
+        onset = metrics.sample_at(times, inj.time)
         out.append(distinction.distinguish(families, f"{inj.parameter}_{inj.kind}", inj.magnitude, onset, priors,
                                            level))
     return DistinguishabilityReport(c.model.name, c.model.display_source, T, dt, (process_noise, measurement_noise),

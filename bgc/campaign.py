@@ -19,6 +19,7 @@ the same rows on one process, on many, or on a cluster (run times aside).
 from __future__ import annotations
 
 import csv
+import functools
 import hashlib
 import io
 import json
@@ -486,16 +487,25 @@ def _separation(spec: RunSpec) -> dict[str, Any]:
     (:func:`bgc.api.distinguishability`): ``separable`` (no rival in the
     predicted ambiguity group), ``rivals`` (those in it) and ``separation``
     (the smallest probability that the data name the truth over a rival);
-    empty when the prediction fails (the diagnosis's row stands)."""
+    empty when the prediction fails (the diagnosis's row stands). It depends
+    on the scenario, noise levels and length only, not on the filter or the
+    seed: a process computes it once per scenario."""
+    return dict(_prediction(_model_file(spec), spec.scenario, spec.process_noise, spec.measurement_noise,
+                            spec.steps))
+
+
+@functools.lru_cache(maxsize=64)
+def _prediction(model_file: str, scenario: str, process_noise: float | None, measurement_noise: float | None,
+                steps: int | None) -> tuple[tuple[str, Any], ...]:
     from . import api
 
     try:
-        d = api.distinguishability(_model_file(spec), spec.scenario, process_noise=spec.process_noise,
-                                   measurement_noise=spec.measurement_noise, steps=spec.steps).distinctions[0]
+        d = api.distinguishability(model_file, scenario, process_noise=process_noise,
+                                   measurement_noise=measurement_noise, steps=steps).distinctions[0]
     except Exception:  # noqa: BLE001 - the prediction is an extra: the diagnosis's row stands without it
-        return {}
-    return {"separable": d.separable, "rivals": " ".join(d.group) or None,
-            "separation": min((r.probability for r in d.rivals), default=1.0)}
+        return ()
+    return (("separable", d.separable), ("rivals", " ".join(d.group) or None),
+            ("separation", min((r.probability for r in d.rivals), default=1.0)))
 
 
 # ------------------------------------------------------------------ rows

@@ -237,30 +237,45 @@ def prepare(package: ModuleType, us: np.ndarray) -> Families:
 def deviations(families: Families, name: str, magnitudes, onsets) -> np.ndarray:
     """The noise-free deviations (T, n_y, M) of fault model ``name``'s
     measurements from the nominal run's, column m with ``magnitudes[m]``
-    from sample ``onsets[m]`` (zero before it), by the fault model itself.
+    from sample ``onsets[m]`` (zero before it), by the fault model itself."""
+    return _fault_runs(families, name, magnitudes, onsets)[2] - families.y[:, :, None]
+
+
+def _fault_runs(families: Families, name: str, magnitudes, onsets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fault model ``name``'s noise-free runs, column m with ``magnitudes[m]``
+    from sample ``onsets[m]``: its states before and after each step (T, n_z,
+    M) and its measurements (T, n_y, M); before its onset a column is the
+    nominal run (its fault states nominal). The transition into an onset
+    sample is nominal, the sample sees the fault (``track.onset_transition``).
     Every column runs from the earliest onset; until its own, its magnitude
     is zero, which is the nominal model."""
     model = families.package.MODELS[name]
     T, n = families.x_after.shape
     magnitudes = np.asarray(magnitudes, dtype=float).ravel()
     onsets = np.asarray(onsets, dtype=int).ravel()
-    d = np.zeros((T, families.y.shape[1], len(onsets)))
-    first = int(onsets.min()) if len(onsets) else T
+    M = len(onsets)
+    fixed = np.tile(np.asarray(model.X0, dtype=float)[n:], (T, 1))
+    before = np.repeat(np.hstack([families.x_before, fixed])[:, :, None], M, axis=2)
+    after = np.repeat(np.hstack([families.x_after, fixed])[:, :, None], M, axis=2)
+    y = np.repeat(families.y[:, :, None], M, axis=2)
+    first = int(onsets.min()) if M else T
     if first >= T:
-        return d
+        return before, after, y
     theta = np.asarray(model.THETA, dtype=float)
-    z = np.repeat(np.concatenate([families.x_after[first], np.asarray(model.X0, dtype=float)[n:]])[:, None],
-                  len(onsets), axis=1)
+    z = after[first].copy()
     z[-1] = 0.0
     with np.errstate(all="ignore"):
         for k in range(first, T):
             if k > first:
+                moved = onsets < k  # past their onset: the states before this step are the fault model's
+                before[k][:, moved] = z[:, moved]
                 z = model.predict(z, families.us[k], theta, model.DT)
             starting = onsets == k
-            z[-1, starting] = magnitudes[starting]  # the transition into the onset sample was nominal
-            d[k] = model.observe(z, families.us[k], theta) - families.y[k][:, None]
-    d *= (np.arange(T)[:, None] >= onsets[None, :])[:, None, :]  # before its onset a column is the nominal run
-    return d
+            z[-1, starting] = magnitudes[starting]
+            seen = onsets <= k
+            after[k][:, seen] = z[:, seen]
+            y[k][:, seen] = model.observe(z, families.us[k], theta)[:, seen]
+    return before, after, y
 
 
 def distinguish(families: Families, name: str, magnitude: float, onset: int, priors: dict[str, float],
@@ -324,13 +339,9 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
 @dataclass(frozen=True, slots=True)
 class FaultRun:
     """A fault model's noise-free run with its magnitude from an onset: its
-    states before and after each step (``before``, ``after``: (T, n_z), the
-    fault states last), its measurements ``y`` and its Kalman filter
-    (``whitening``), linearised along the run."""
+    measurements ``y`` and its Kalman filter (``whitening``), linearised
+    along the run."""
 
-    name: str
-    before: np.ndarray
-    after: np.ndarray
     y: np.ndarray
     whitening: Whitening
 
@@ -340,28 +351,15 @@ def path(families: Families, name: str, magnitude: float, onset: int) -> FaultRu
     ``onset`` (the nominal run before it) and its linearisation; None when
     the run does not stay finite."""
     model = families.package.MODELS[name]
-    T, n = families.x_after.shape
+    n = families.x_after.shape[1]
     theta = np.asarray(model.THETA, dtype=float)
-    fixed = np.asarray(model.X0, dtype=float)[n:]
-    before = np.hstack([families.x_before, np.tile(fixed, (T, 1))])
-    after = np.hstack([families.x_after, np.tile(fixed, (T, 1))])
-    y = families.y.copy()
-    if onset < T:
-        z = after[onset].copy().reshape(-1, 1)
-        z[-1] = magnitude
-        with np.errstate(all="ignore"):
-            for k in range(onset, T):
-                if k > onset:
-                    before[k] = z[:, 0]
-                    z = model.predict(z, families.us[k], theta, model.DT)
-                after[k] = z[:, 0]
-                y[k] = model.observe(z, families.us[k], theta)[:, 0]
+    before, after, y = (a[:, :, 0] for a in _fault_runs(families, name, [magnitude], [onset]))
     if not (np.isfinite(y).all() and np.isfinite(after).all()):
         return None
     scale = _scales(model, families.x_before)
     F = _jacobian(lambda X, u: model.predict(X, u, theta, model.DT)[:n], before, range(n), scale, families.us)
     H = _jacobian(lambda X, u: model.observe(X, u, theta), after, range(n), scale, families.us)
-    return FaultRun(name, before, after, y, _whitening(model, F, H))
+    return FaultRun(y, _whitening(model, F, H))
 
 
 def divergence(families: Families, a: FaultRun, b: FaultRun) -> float:
@@ -372,14 +370,12 @@ def divergence(families: Families, a: FaultRun, b: FaultRun) -> float:
     e the innovations of b's Kalman filter on data from a (a deterministic
     part: b's filter on the means' difference; a random part: the joint
     second moments of a's state and b's estimate, propagated exactly)."""
-    model = families.package.MODELS["nominal"]
     Wa, Wb = a.whitening, b.whitening
     T, n_y, n = Wa.H.shape
-    Q = np.diag(np.asarray(model.PROCESS_STD, dtype=float)[:n] ** 2)
-    R = np.diag(np.asarray(model.MEASUREMENT_STD, dtype=float) ** 2)
+    P0, Q, R = _noise(families.package.MODELS["nominal"], n)
     mean = np.zeros(n)  # b's estimate of the deviation a's mean makes from b's
     Z = np.zeros((2 * n, 2 * n))  # (a's state about its mean, b's estimate of it)
-    Z[:n, :n] = np.diag(np.asarray(model.X0_STD, dtype=float)[:n] ** 2)
+    Z[:n, :n] = P0
     total = 0.0
     for k in range(T):
         A = np.zeros((2 * n, 2 * n))
@@ -492,12 +488,18 @@ def _jacobian(fn, points: np.ndarray, rows, steps: np.ndarray, us: np.ndarray) -
     return out
 
 
+def _noise(model: ModuleType, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The covariances of a model's first ``n`` (physical) states' initial
+    spread and process noise, and of its measurement noise."""
+    return (np.diag(np.asarray(model.X0_STD, dtype=float)[:n] ** 2),
+            np.diag(np.asarray(model.PROCESS_STD, dtype=float)[:n] ** 2),
+            np.diag(np.asarray(model.MEASUREMENT_STD, dtype=float) ** 2))
+
+
 def _whitening(model: ModuleType, F: np.ndarray, H: np.ndarray) -> Whitening:
     """The nominal Kalman filter's gains and innovation factors along the run."""
     T, n_y, n = H.shape
-    Q = np.diag(np.asarray(model.PROCESS_STD, dtype=float)[:n] ** 2)
-    R = np.diag(np.asarray(model.MEASUREMENT_STD, dtype=float) ** 2)
-    P = np.diag(np.asarray(model.X0_STD, dtype=float)[:n] ** 2)
+    P, Q, R = _noise(model, n)
     K = np.empty((T, n, n_y))
     Linv = np.empty((T, n_y, n_y))
     eye = np.eye(n)
