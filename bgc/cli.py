@@ -407,9 +407,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="simulate this fault (or 'none'), then diagnose, e.g. R_pipe:incipient:0.5@165; MAGNITUDE "
                         "is an abrupt fault's bias (in the parameter's units) or an incipient fault's slope (per "
                         "unit of time)")
-    p.add_argument("--filter", choices=["gpf", "apf", "opf"], default="gpf",
-                   help="gpf (the thesis's generic filter), apf (auxiliary) or opf (the locally optimal proposal: "
-                        "for sensors sharp against the process noise, where the others degenerate)")
+    p.add_argument("--filter", choices=["gpf", "apf", "opf", "ckf"], default="gpf",
+                   help="gpf (the thesis's generic filter), apf (auxiliary), opf (the locally optimal proposal) or "
+                        "ckf (cubature Kalman filters alone, no particles: exact on plants linear in their states, "
+                        "for sensors sharp against the process noise, where particle filters degenerate)")
     p.add_argument("--particles", type=int, default=1000)
     p.add_argument("--seed", type=_seed, default=0, help="random seed, an integer >= 0")
     p.add_argument("--noise", metavar="process=Q,measurement=R",

@@ -182,10 +182,9 @@ def diagnosis_estimate(r, fmt: str = "png") -> bytes:
             ax.fill_between(span, e.low, e.high, color="#d62728", alpha=0.15, lw=0,
                             label=f"its {100 * e.level:.0f} % interval")
         truth = run.parameters.get(h.parameter)
-        if truth is not None and fault_kind(h.kind).drifts:
-            ax.plot(run.time, np.gradient(truth, run.time), "-", lw=1.0, color="#202020", label="truth")
-        elif truth is not None:
-            ax.plot(run.time, truth - e.nominal, "-", lw=1.0, color="#202020", label="truth")
+        if truth is not None and e.truth is not None:  # the run's fault is of this hypothesis's kind
+            truth = np.gradient(truth, run.time) if fault_kind(h.kind).drifts else truth - e.nominal
+            ax.plot(run.time, truth, "-", lw=1.0, color="#202020", label="truth")
         _marks(ax, d)
         ax.set_ylabel(f"{e.magnitude} of {h.parameter}")
         ax.legend(loc="best", fontsize=7)
@@ -233,7 +232,7 @@ def campaign_figures(rows) -> dict[str, bytes]:
     from .tables import confusion
 
     rows = list(rows)
-    filters = [f for f in ("gpf", "apf", "opf") if any(r["filter"] == f for r in rows)]
+    filters = [f for f in ("gpf", "apf", "opf", "ckf") if any(r["filter"] == f for r in rows)]
     out: dict[str, bytes] = {}
     plt, fig, axes = _grid(2)
     for ax, metric, title in ((axes[0], "est_error", "fault-magnitude error (%)"), (axes[1], "ct", "time to convergence")):

@@ -89,8 +89,12 @@ def report_markdown(r) -> str:
     how = {"kalman": "magnitudes and hypotheses weighed with the magnitude held static (cubature Kalman filters "
                      "on a grid of onsets and magnitudes)",
            "filter": "magnitudes from the particle filters' own magnitude state"}[d.options.identify]
-    lines += [f"Filter: {d.options.method.upper()}, {d.options.particles} particles, seed {d.options.seed}; "
-              f"{noise}; {how}.", ""]
+    if d.options.method == "ckf":
+        lines += [f"Filter: CKF (cubature Kalman filters: the nominal observer, and every hypothesis with its "
+                  f"magnitude held static on a grid of onsets and magnitudes); {noise}.", ""]
+    else:
+        lines += [f"Filter: {d.options.method.upper()}, {d.options.particles} particles, seed {d.options.seed}; "
+                  f"{noise}; {how}.", ""]
     verdict = {"no fault": "**No fault detected.**",
                "isolated": f"**Fault isolated: {d.candidates[0] if d.candidates else ''}.**",
                "ambiguous": "**Fault detected; the data cannot separate: " + ", ".join(d.candidates) + ".**",

@@ -87,7 +87,7 @@ def table_markdown(spec, rows: list[dict]) -> str:
     """One table of the campaign file: a line per row label, for each filter
     the metrics as mean (sd) over the runs, published numbers in brackets."""
     chosen, labels, by = table_groups(spec, rows)
-    filters = [f for f in ("gpf", "apf", "opf") if any(r["filter"] == f for r in chosen)]
+    filters = [f for f in ("gpf", "apf", "opf", "ckf") if any(r["filter"] == f for r in chosen)]
     head = [spec.rows] + [f"{f.upper()} {HEAD[m]}" for f in filters for m in spec.metrics]
     lines = [f"### {spec.title}", ""]
     if spec.reference is not None:
@@ -236,7 +236,7 @@ def campaign_json(c, rows: tuple[dict, ...]) -> str:
         _, labels, by = table_groups(spec, rows)
         cells = []
         for label in labels:
-            for f in ("gpf", "apf", "opf"):
+            for f in ("gpf", "apf", "opf", "ckf"):
                 mine = by.get((label, f))
                 if not mine:
                     continue

@@ -153,11 +153,16 @@ class DiagnosisOptions:
     grid posterior of :mod:`bgc.runtime.identify` (``grid``): about three times
     slower on the RO drift, and since the estimate averages over the onsets only
     a little more accurate there (docs/results.md, section 3).
-    ``switch``: when the nominal observer of a generic or auxiliary filter
-    degenerates (its mean effective sample size before the alarm under
-    ``DEGENERATE`` of its particles, a step it had to recover counting 0),
-    diagnose again with the locally optimal proposal (``opf``),
-    with a note (a campaign comparing filters turns it off)."""
+    ``switch``: when the nominal observer of a particle filter degenerates
+    (its mean effective sample size before the alarm under ``DEGENERATE`` of
+    its particles, a step it had to recover counting 0), diagnose again with
+    cubature Kalman filters alone (``method`` ``ckf``), with a note (a
+    campaign comparing filters turns it off). ``method``: ``gpf``, ``apf``,
+    ``opf`` (particle filters, section 4 of the module docstring) or ``ckf``
+    (no particles: the nominal observer is the cubature Kalman filter, and
+    every hypothesis the symbols keep goes to the static posterior of step 6
+    directly, its consistency test dropping those that fail;
+    ``particles`` then only sizes the open-loop cloud of the symbols)."""
 
     method: str = "gpf"
     particles: int = 1000
@@ -332,14 +337,19 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     say = progress or (lambda text: None)
     nominal = package.MODELS["nominal"]
     check_particles(options.particles, package, "nominal")
-    pf_class = filter_class(package, options.method)
+    ckf = options.method == KALMAN_METHOD
+    pf_class = filter_class(package, "gpf" if ckf else options.method)  # ckf: the open-loop cloud's filter
     if options.identify not in IDENTIFY:
         raise TrackingError(f"unknown identification {options.identify!r}", None, f"use {' or '.join(IDENTIFY)}")
+    if ckf and (options.refine or options.rank):
+        raise TrackingError("--refine and --rank weigh particle filters on a grid", None,
+                            "use them with --filter gpf, apf or opf; ckf computes the static posterior already")
     ys, us = run_arrays(run, package, "nominal")
     T, n_y = ys.shape
     outputs = tuple(nominal.OUTPUTS)
     rng = np.random.default_rng([options.seed, 0])
-    pf = pf_class(nominal, options.particles, rng)
+    pf = None if ckf else pf_class(nominal, options.particles, rng)
+    observer = kalman.nominal_track(nominal, ys, us, T) if ckf else None
     detector = Detector(outputs, DetectorOptions(options.false_alarm, options.windows, T))
     clouds: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # step -> cloud after that step
     y_mean = np.full((T, n_y), np.nan)
@@ -353,6 +363,14 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     say("tracking the nominal model")
     with np.errstate(all="ignore"):
         for k in range(T):
+            if ckf:  # the cubature Kalman filter has run: its predictions are exact, no Monte Carlo allowance
+                y_mean[k], y_std[k], z[k] = observer.y_mean[k], observer.y_std[k], observer.z[k]
+                x_mean[k], x_std[k] = observer.x_mean[k], observer.x_std[k]
+                if detection is None:
+                    detection = detector.update(z[k])
+                    if detection is not None:
+                        say(f"fault detected at t = {run.time[k]:g} on {detection.sensor}")
+                continue
             r = pf.step(ys[k], us[k])
             y_mean[k], y_std[k] = r.y_mean, r.y_std
             x_mean[k], x_std[k] = r.mean, r.std
@@ -375,19 +393,19 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                   options=options)
     notes = []
     mean_ess = ess_sum / max(ess_steps, 1)
-    if mean_ess < DEGENERATE * options.particles:
+    if not ckf and mean_ess < DEGENERATE * options.particles:
         degenerate = (f"the nominal observer's particle filter ({options.method}) degenerates (mean effective "
                       f"sample size {mean_ess:.0f} of {options.particles}): a sensor is sharp against the spread "
                       f"the process noise gives the prediction, and its residuals may alarm without a fault")
-        if options.method != "opf" and options.switch:
-            say("the particle filter degenerates: diagnosing again with the locally optimal proposal")
-            again = diagnose(run, package, signatures, priors, dataclasses.replace(options, method="opf"),
-                             progress, every)
-            return dataclasses.replace(again, notes=(degenerate + "; diagnosed with the locally optimal "
-                                                     "proposal (opf) instead",) + again.notes,
+        if options.switch:
+            say("the particle filter degenerates: diagnosing again with cubature Kalman filters")
+            again = diagnose(run, package, signatures, priors,
+                             dataclasses.replace(options, method=KALMAN_METHOD, rank=False, refine=False), progress,
+                             every)
+            return dataclasses.replace(again, notes=(degenerate + "; diagnosed with cubature Kalman filters "
+                                                     "(ckf) instead",) + again.notes,
                                        seconds=time.perf_counter() - started)
-        notes.append(degenerate + "; " + ("use more particles" if options.method == "opf" else
-                                          "use --filter opf (the locally optimal proposal), or more particles"))
+        notes.append(degenerate + "; use --filter ckf (cubature Kalman filters), or more particles")
     if detection is None:
         return Diagnosis(verdict="no fault", detection=None, onset=None, symbols=(), refuted=(), hypotheses=(),
                          candidates=(), seconds=time.perf_counter() - started, notes=tuple(notes), **common)
@@ -409,8 +427,9 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     say("reading the symbols of the deviating sensors")
     onset = detection.onset
     steps = min(T - onset, detection.step - onset + 1 + options.symbol_steps)
-    seen = observed_symbols(_open_loop(package, pf_class, nominal, _cloud(clouds, onset), ys, us, onset, steps,
-                                       options), outputs, options.windows)
+    cloud = _gaussian_cloud(observer, onset, options) if ckf else _cloud(clouds, onset)
+    seen = observed_symbols(_open_loop(package, pf_class, nominal, cloud, ys, us, onset, steps, options), outputs,
+                            options.windows)
     keep, dropped = hypotheses(signatures, seen)
     if every and dropped:
         notes.append("no hypothesis the symbols kept explains the data: the fault models they ruled out are "
@@ -424,133 +443,137 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     for s in keep:
         models.setdefault(f"{s.parameter}_{s.kind}", []).append(s.name)
     names = [n for n in sorted(models) if n in package.MODELS]
-    # 4. every fault-model filter from every onset tried: one job per hypothesis, in parallel
     drifts = {name: fault_kind(package.MODELS[name].FAULT["kind"]).drifts for name in names}
-    starts_of = {name: onsets[drifts[name]] for name in names}
-    nominal_density = _log_density(z, y_std)
-    say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from "
-        f"{sum(len(starts_of[n]) for n in names)} onsets and hypotheses "
-        f"(t = {run.time[min(min(s) for s in onsets.values())]:g} to {run.time[detection.step]:g})")
-    # (name, onset) -> its filter's output; its evidence over the data from step 0 (from `first` below)
-    results: dict[tuple[str, int], dict] = {}
-    best_of: dict[str, np.ndarray] = {}  # per hypothesis and step, the best running evidence over [0, step]
+    if ckf:  # 4-6. every hypothesis with its magnitude held static, by cubature Kalman filters alone
+        hyps, posteriors = _kalman_hypotheses(names, models, package, run, ys, us, observer, kalman_onsets,
+                                              kalman_reach, drifts, options, say)
+    else:
+        # 4. every fault-model filter from every onset tried: one job per hypothesis, in parallel
+        starts_of = {name: onsets[drifts[name]] for name in names}
+        nominal_density = _log_density(z, y_std)
+        say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from "
+            f"{sum(len(starts_of[n]) for n in names)} onsets and hypotheses "
+            f"(t = {run.time[min(min(s) for s in onsets.values())]:g} to {run.time[detection.step]:g})")
+        # (name, onset) -> its filter's output; its evidence over the data from step 0 (from `first` below)
+        results: dict[tuple[str, int], dict] = {}
+        best_of: dict[str, np.ndarray] = {}  # per hypothesis and step, the best running evidence over [0, step]
 
-    def job(name: str, starts: list[int]) -> tuple:
-        return _hypothesis_job(name, starts, package, clouds, ys, us, nominal_density, outputs, options,
-                               best_of.get(name))
+        def job(name: str, starts: list[int]) -> tuple:
+            return _hypothesis_job(name, starts, package, clouds, ys, us, nominal_density, outputs, options,
+                                   best_of.get(name))
 
-    def arrived(name: str, starts: list[int], res: dict, trace: np.ndarray) -> list[int]:
-        """Take a batch of hypothesis ``name``'s onsets; the earlier onsets to try next (none: done)."""
-        f = min(starts)
-        before = float(nominal_density[:f].sum())  # the nominal observer's densities before the batch
-        for rel, o in res.items():
-            o["from"] = f
-            o["evidence"] += before
-            results[(name, rel + f)] = o
-        full = np.full(T, -math.inf)
-        full[f:] = trace + before
-        best_of[name] = np.maximum(best_of.get(name, full), full)
-        # a drift whose onsets' posterior piles up at the earliest one tried began earlier:
-        # its grid is extended back by `search` steps (up to `history` before the alarm)
-        tried = starts_of[name]
-        more = next(iter(_earlier(reach, tried, options.search)), ())
-        if not (drifts[name] and more) or options.identify == "kalman":  # the Kalman filters reach back instead
-            return []
-        w, log_evidence = _onset_weights(tried, [results[(name, s)]["evidence"] for s in tried])
-        if not (math.isfinite(log_evidence) and w[:EDGE].sum() >= EXTEND):
-            return []
-        starts_of[name] = sorted([*more, *tried])
-        say(f"looking for earlier onsets of {name}")
-        return list(more)
+        def arrived(name: str, starts: list[int], res: dict, trace: np.ndarray) -> list[int]:
+            """Take a batch of hypothesis ``name``'s onsets; the earlier onsets to try next (none: done)."""
+            f = min(starts)
+            before = float(nominal_density[:f].sum())  # the nominal observer's densities before the batch
+            for rel, o in res.items():
+                o["from"] = f
+                o["evidence"] += before
+                results[(name, rel + f)] = o
+            full = np.full(T, -math.inf)
+            full[f:] = trace + before
+            best_of[name] = np.maximum(best_of.get(name, full), full)
+            # a drift whose onsets' posterior piles up at the earliest one tried began earlier:
+            # its grid is extended back by `search` steps (up to `history` before the alarm)
+            tried = starts_of[name]
+            more = next(iter(_earlier(reach, tried, options.search)), ())
+            if not (drifts[name] and more) or options.identify == "kalman":  # the Kalman filters reach back instead
+                return []
+            w, log_evidence = _onset_weights(tried, [results[(name, s)]["evidence"] for s in tried])
+            if not (math.isfinite(log_evidence) and w[:EDGE].sum() >= EXTEND):
+                return []
+            starts_of[name] = sorted([*more, *tried])
+            say(f"looking for earlier onsets of {name}")
+            return list(more)
 
-    def assemble(name: str) -> dict:
-        """Hypothesis ``name`` from its filters' results: its most probable onset, whether it is
-        dropped and why, its onset posterior, evidence and estimate."""
-        module = package.MODELS[name]
-        starts = starts_of[name]
-        evidence = np.array([results[(name, start)]["evidence"] for start in starts])  # stopped, pruned: -inf
-        dropped_at, reason = None, ""
-        if np.isfinite(evidence).any():
-            start = starts[int(np.argmax(evidence))]
-            every = ""
-        else:  # every onset's filter was stopped or pruned: dropped when the last one was
-            start = max(starts, key=lambda s: (results[(name, s)]["last"] >= 0,
-                                               s + results[(name, s)]["last"], results[(name, s)]["partial"]))
-            every = f", from every onset tried ({len(starts)})" if len(starts) > 1 else ""
-        if results[(name, start)]["rejected"] is not None:  # the best onset's filter failed its test
-            k, a = results[(name, start)]["rejected"]
-            dropped_at = start + k
-            reason = (f"its residual of {a.sensor} over {a.window} sample(s) reached {a.statistic:.1f} "
-                      f"(threshold {a.threshold:.1f})" + every)
-        elif not np.isfinite(evidence).any():  # pruned onsets only (a filter never started)
-            dropped_at = start + max(results[(name, start)]["last"], 0)
-            reason = "another onset of it explained the data decisively better, and that one failed" + every
-        out = results[(name, start)]
-        zh = (ys[start:] - out["y_mean"]) / out["y_std"]
-        onset_weights, log_evidence = _onset_weights(starts, evidence)
-        return dict(name=name, parameter=module.FAULT["parameter"], kind=module.FAULT["kind"],
-                    signatures=tuple(models[name]), start=start, onsets=tuple(starts),
-                    onset_posterior=tuple(float(w) for w in onset_weights),
-                    y_mean=out["y_mean"], y_std=out["y_std"], z=zh,
-                    x_mean=out["mean"][:, :len(nominal.STATES)], x_std=out["std"][:, :len(nominal.STATES)],
-                    magnitude=out["magnitude"], magnitude_band=out["band"], dropped=dropped_at, reason=reason,
-                    log_evidence=log_evidence,
-                    seconds=sum({results[(name, s)]["from"]: results[(name, s)]["seconds"] for s in starts}.values()),
-                    estimate=_estimate(module, out, run, options.interval,
-                                       [(w, results[(name, s)]) for w, s in zip(onset_weights, starts)]))
+        def assemble(name: str) -> dict:
+            """Hypothesis ``name`` from its filters' results: its most probable onset, whether it is
+            dropped and why, its onset posterior, evidence and estimate."""
+            module = package.MODELS[name]
+            starts = starts_of[name]
+            evidence = np.array([results[(name, start)]["evidence"] for start in starts])  # stopped, pruned: -inf
+            dropped_at, reason = None, ""
+            if np.isfinite(evidence).any():
+                start = starts[int(np.argmax(evidence))]
+                every = ""
+            else:  # every onset's filter was stopped or pruned: dropped when the last one was
+                start = max(starts, key=lambda s: (results[(name, s)]["last"] >= 0,
+                                                   s + results[(name, s)]["last"], results[(name, s)]["partial"]))
+                every = f", from every onset tried ({len(starts)})" if len(starts) > 1 else ""
+            if results[(name, start)]["rejected"] is not None:  # the best onset's filter failed its test
+                k, a = results[(name, start)]["rejected"]
+                dropped_at = start + k
+                reason = (f"its residual of {a.sensor} over {a.window} sample(s) reached {a.statistic:.1f} "
+                          f"(threshold {a.threshold:.1f})" + every)
+            elif not np.isfinite(evidence).any():  # pruned onsets only (a filter never started)
+                dropped_at = start + max(results[(name, start)]["last"], 0)
+                reason = "another onset of it explained the data decisively better, and that one failed" + every
+            out = results[(name, start)]
+            zh = (ys[start:] - out["y_mean"]) / out["y_std"]
+            onset_weights, log_evidence = _onset_weights(starts, evidence)
+            return dict(name=name, parameter=module.FAULT["parameter"], kind=module.FAULT["kind"],
+                        signatures=tuple(models[name]), start=start, onsets=tuple(starts),
+                        onset_posterior=tuple(float(w) for w in onset_weights),
+                        y_mean=out["y_mean"], y_std=out["y_std"], z=zh,
+                        x_mean=out["mean"][:, :len(nominal.STATES)], x_std=out["std"][:, :len(nominal.STATES)],
+                        magnitude=out["magnitude"], magnitude_band=out["band"], dropped=dropped_at, reason=reason,
+                        log_evidence=log_evidence,
+                        seconds=sum({results[(name, s)]["from"]: results[(name, s)]["seconds"] for s in starts}.values()),
+                        estimate=_estimate(module, out, run, options.interval,
+                                           [(w, results[(name, s)]) for w, s in zip(onset_weights, starts)]))
 
-    # 6. (identify="kalman") each hypothesis its filters keep, as soon as they are done: its onset and
-    # magnitude with the magnitude held static, by cubature Kalman filters on a grid, from the nominal
-    # cubature Kalman filter's state at each onset (computed while the first filters run)
-    posteriors: dict[str, StaticPosterior] = {}
-    track: list = []
+        # 6. (identify="kalman") each hypothesis its filters keep, as soon as they are done: its onset and
+        # magnitude with the magnitude held static, by cubature Kalman filters on a grid, from the nominal
+        # cubature Kalman filter's state at each onset (computed while the first filters run)
+        posteriors: dict[str, StaticPosterior] = {}
+        track: list = []
 
-    def idle() -> None:
-        if options.identify == "kalman":
-            track.append(kalman.nominal_track(nominal, ys, us, max(max(s) for s in kalman_onsets.values())))
+        def idle() -> None:
+            if options.identify == "kalman":
+                track.append(kalman.nominal_track(nominal, ys, us, max(max(s) for s in kalman_onsets.values())))
 
-    def static_job(name: str, h: dict) -> StaticJob:
-        tried = kalman_onsets[drifts[name]]
-        earlier = _earlier(kalman_reach, tried, options.search) if drifts[name] else ()
-        return StaticJob(package.__name__, name, ys, us, track[0], tuple(tried),
-                         (h["estimate"].low, h["estimate"].high), h["start"], options.interval, options.kalman,
-                         earlier)
+        def static_job(name: str, h: dict) -> StaticJob:
+            tried = kalman_onsets[drifts[name]]
+            earlier = _earlier(kalman_reach, tried, options.search) if drifts[name] else ()
+            return StaticJob(package.__name__, name, ys, us, track[0], tuple(tried),
+                             (h["estimate"].low, h["estimate"].high), h["start"], options.interval, options.kalman,
+                             earlier)
 
-    def done(name: str):
-        if options.identify != "kalman":
-            return None
-        h = assemble(name)
-        if h["dropped"] is not None:
-            return None
-        return _static_job, static_job(name, h)
+        def done(name: str):
+            if options.identify != "kalman":
+                return None
+            h = assemble(name)
+            if h["dropped"] is not None:
+                return None
+            return _static_job, static_job(name, h)
 
-    def landed(name: str, posterior: StaticPosterior) -> None:
-        posteriors[name] = posterior
+        def landed(name: str, posterior: StaticPosterior) -> None:
+            posteriors[name] = posterior
 
-    _run_batches({name: starts_of[name] for name in names}, job, arrived, options.workers,
-                 lambda starts: sum(T - s for s in starts), idle, done, landed)  # cost: filter steps, if none stops
-    first = min(min(s) for s in starts_of.values())
-    for o in results.values():  # the common span starts at `first`
-        o["evidence"] -= float(nominal_density[:first].sum())
-    # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
-    hyps = [assemble(name) for name in names]
-    if options.identify == "kalman" and not posteriors:
-        # none passed its particle filters' test: each whose most probable onset's filter still ran to the
-        # end (only just off the data: a drift's filters start on a coarser grid of onsets than its Kalman
-        # filters') is tested as its fault model states it, the magnitude held static
-        if not track:
-            idle()
-        for h in hyps:
-            if not math.isfinite(results[(h["name"], h["start"])]["evidence"]):
-                continue
-            say(f"testing {h['name']} with its magnitude held static")
-            p = _static_job(static_job(h["name"], h))
-            if math.isfinite(p.log_evidence) and _static_alarm(p, outputs, options) is None:
-                posteriors[h["name"]] = p
-                notes.append(f"{h['name']}: its particle filters failed their test ({h['reason']}, at "
-                             f"t = {run.time[h['dropped']]:g}), its fault model with the magnitude held static "
-                             f"passes it")
-                h["dropped"], h["reason"] = None, ""
+        _run_batches({name: starts_of[name] for name in names}, job, arrived, options.workers,
+                     lambda starts: sum(T - s for s in starts), idle, done, landed)  # cost: filter steps, if none stops
+        first = min(min(s) for s in starts_of.values())
+        for o in results.values():  # the common span starts at `first`
+            o["evidence"] -= float(nominal_density[:first].sum())
+        # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
+        hyps = [assemble(name) for name in names]
+        if options.identify == "kalman" and not posteriors:
+            # none passed its particle filters' test: each whose most probable onset's filter still ran to the
+            # end (only just off the data: a drift's filters start on a coarser grid of onsets than its Kalman
+            # filters') is tested as its fault model states it, the magnitude held static
+            if not track:
+                idle()
+            for h in hyps:
+                if not math.isfinite(results[(h["name"], h["start"])]["evidence"]):
+                    continue
+                say(f"testing {h['name']} with its magnitude held static")
+                p = _static_job(static_job(h["name"], h))
+                if math.isfinite(p.log_evidence) and _static_alarm(p, outputs, options) is None:
+                    posteriors[h["name"]] = p
+                    notes.append(f"{h['name']}: its particle filters failed their test ({h['reason']}, at "
+                                 f"t = {run.time[h['dropped']]:g}), its fault model with the magnitude held static "
+                                 f"passes it")
+                    h["dropped"], h["reason"] = None, ""
     evidence_of = {h["name"]: h["log_evidence"] for h in hyps}  # the filters' (a magnitude with a random walk)
     static = False
     if posteriors:  # 6. the survivors weighed with their magnitudes held static
@@ -562,7 +585,8 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                 h["static_log_evidence"] = None if p is None else p.log_evidence
                 evidence_of[h["name"]] = -math.inf if p is None else p.log_evidence
                 if p is not None and math.isfinite(p.log_evidence):
-                    h["filter_estimate"] = h["estimate"]
+                    if not ckf:  # the particle filters' own estimate, beside the static one
+                        h["filter_estimate"] = h["estimate"]
                     h["estimate"] = static_estimate(h["estimate"], p)
                     if p.truncated:
                         notes.append(f"{h['name']}: its magnitude's posterior may reach past the Kalman filters' "
@@ -571,9 +595,13 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                     h["dropped"] = T - 1
                     h["reason"] = ("with its magnitude held static, its cubature Kalman filters found no finite "
                                    "likelihood at any onset and magnitude of their grid")
-        else:
+        elif not ckf:
             notes.append("the cubature Kalman filters found no finite likelihood: the particle filters' evidence "
                          "and estimates are reported")
+        else:
+            notes.append("the cubature Kalman filters found no finite likelihood for any hypothesis")
+    if ckf:  # a hypothesis its consistency test dropped weighs nothing, as one its particle filters drop
+        evidence_of.update({h["name"]: -math.inf for h in hyps if h["dropped"] is not None})
     weights = np.array([math.log(max(priors.get(h["parameter"], 0.01), 1e-300)) + evidence_of[h["name"]]
                         for h in hyps])
     if np.isfinite(weights).any():
@@ -682,12 +710,111 @@ class StaticJob:
     level: float
     options: KalmanOptions
     earlier: tuple[tuple[int, ...], ...]
+    record: bool = False
+    refine: bool | None = None
+    far: tuple | None = None  # (outputs, rejection, windows) of :func:`_far_off`
+
+
+def _far_off(outputs: tuple[str, ...], rejection: float, windows: tuple[int, ...]):
+    """The consistency test of section 5 at ``FAR`` times its threshold, as a
+    predicate of a filter's normalised residuals (steps x outputs): True when
+    they are far off the data."""
+    def far(z: np.ndarray) -> bool:
+        test = Detector(outputs, DetectorOptions(rejection, windows, len(z)))
+        test.threshold *= FAR
+        return any(test.update(zk) is not None for zk in z)
+    return far
 
 
 def _static_job(job: StaticJob) -> StaticPosterior:
-    """:func:`bgc.runtime.kalman.static_posterior` of one hypothesis (in a worker process)."""
-    return kalman.static_posterior(sys.modules[job.package_name].MODELS[job.name], job.ys, job.us, job.track,
-                                   job.onsets, job.hint, job.hint_onset, job.level, job.options, job.earlier)
+    """:func:`bgc.runtime.kalman.static_posterior` of one hypothesis (in a
+    worker process); with ``record``, its most probable onset's filter too
+    (:func:`bgc.runtime.kalman.record_path`); ``seconds``: its time."""
+    started = time.perf_counter()
+    model = sys.modules[job.package_name].MODELS[job.name]
+    far = None if job.far is None else _far_off(*job.far)
+    p = kalman.static_posterior(model, job.ys, job.us, job.track, job.onsets, job.hint, job.hint_onset, job.level,
+                                job.options, job.earlier, job.refine, far)
+    if job.record:
+        p = kalman.record_path(model, job.ys, job.us, job.track, p)
+    return dataclasses.replace(p, seconds=time.perf_counter() - started)
+
+
+#: The diagnosis method with cubature Kalman filters alone (``--filter ckf``).
+KALMAN_METHOD = "ckf"
+
+
+def _gaussian_cloud(observer: kalman.NominalTrack, onset: int, options: DiagnosisOptions):
+    """A cloud of ``options.particles`` equally weighted draws from the
+    nominal cubature Kalman filter's state before step ``onset`` (its
+    Gaussian), for the open-loop run of the symbols."""
+    rng = np.random.default_rng([options.seed, 9997])
+    L = kalman.cholesky(observer.cov[onset][None])[0]
+    x = observer.mean[onset][:, None] + L @ rng.standard_normal((len(observer.mean[onset]), options.particles))
+    return x, np.zeros(options.particles)
+
+
+def _kalman_hypotheses(names: list[str], models: dict, package, run: Run, ys, us, observer: kalman.NominalTrack,
+                       onsets: dict, reach: list[int], drifts: dict, options: DiagnosisOptions,
+                       say) -> tuple[list[dict], dict[str, StaticPosterior]]:
+    """``--filter ckf``: each hypothesis's static posterior (:mod:`bgc.runtime.kalman`)
+    over its onsets (``onsets[drifts]``; a drift reaching back over
+    ``reach``) with its magnitude's whole prior as the first grid's span,
+    the jobs on ``options.workers`` processes; then each as the dict
+    :func:`diagnose` assembles: its most probable onset's filter (posterior
+    mean magnitude) gives the predicted measurements and state estimates, the
+    sequential posterior the magnitude over time, and the consistency test
+    of the most likely cell (section 5's windowed Z-test) drops it."""
+    T = len(ys)
+    say(f"weighing {len(names)} fault hypotheses ({', '.join(names)}) with cubature Kalman filters over their "
+        f"onsets and magnitudes")
+    outputs = tuple(package.MODELS["nominal"].OUTPUTS)
+    jobs = []
+    for name in names:
+        module = package.MODELS[name]
+        # a step change too reaches back over the drifts' grid of onsets while its onset posterior piles up
+        # at its earliest onset: a plant that answers slowly shows a step long after it
+        tried = onsets[drifts[name]]
+        earlier = _earlier(reach, tried, options.search)
+        a, b = (float(v) for v in module.FAULT_PRIOR)
+        jobs.append(StaticJob(package.__name__, name, ys, us, observer, tuple(tried), (a, b), min(tried),
+                              options.interval, options.kalman, earlier, record=True, refine=True,
+                              far=(outputs, options.rejection, options.windows)))
+    posteriors = dict(zip(names, _run_all(jobs, options.workers, _static_job)))
+    q = NormalDist().inv_cdf((1.0 + options.interval) / 2.0)
+    n = len(package.MODELS["nominal"].STATES)
+    hyps = []
+    for name in names:
+        module, p = package.MODELS[name], posteriors[name]
+        parameter, kind_name = module.FAULT["parameter"], module.FAULT["kind"]
+        nominal, truth = _truth(module, run)
+        nan = math.nan
+        estimate = Estimate(parameter, kind_name, fault_kind(kind_name).magnitude, nan, nan, nan, nan,
+                            options.interval, nan, nominal, truth, method="kalman")
+        h = dict(name=name, parameter=parameter, kind=kind_name, signatures=tuple(models[name]),
+                 onsets=p.onsets, onset_posterior=p.onset_posterior, log_evidence=p.log_evidence,
+                 seconds=p.seconds, estimate=estimate, dropped=None, reason="")
+        if p.path is None:  # no finite likelihood: nothing to show
+            start = max(p.onsets)
+            empty = np.full((T - start, len(outputs)), np.nan)
+            h.update(start=start, y_mean=empty, y_std=empty, z=empty, x_mean=np.full((T - start, n), nan),
+                     x_std=np.full((T - start, n), nan), magnitude=np.full(T - start, nan),
+                     magnitude_band=np.full((T - start, 2), nan))
+        else:
+            start, path = p.onset, p.path
+            y_mean, y_std = path.y_mean[start:, 0], path.y_std[start:, 0]
+            mean, std = p.trace[start:, 0], p.trace[start:, 1]
+            h.update(start=start, y_mean=y_mean, y_std=y_std, z=(ys[start:] - y_mean) / y_std,
+                     x_mean=path.x_mean[start:, 0, :n], x_std=path.x_std[start:, 0, :n], magnitude=mean,
+                     magnitude_band=np.column_stack([mean - q * std, mean + q * std]))
+            alarm = _static_alarm(p, outputs, options)
+            if alarm is not None:
+                h["dropped"] = p.best[0] + alarm.step
+                h["reason"] = (f"with its {estimate.magnitude} held at its most probable value {p.best[1]:.4g} from "
+                               f"t = {run.time[p.best[0]]:g}, its residual of {alarm.sensor} over {alarm.window} "
+                               f"sample(s) reached {alarm.statistic:.1f} (threshold {alarm.threshold:.1f})")
+        hyps.append(h)
+    return hyps, posteriors
 
 
 def _checked(h: Hypothesis, outputs, options: DiagnosisOptions) -> Hypothesis:
@@ -1188,6 +1315,22 @@ def onset_mixture(parts, level: float) -> tuple[float, float, float, float]:
     return mean, std, float(low), float(high)
 
 
+def _truth(module, run: Run) -> tuple[float, float | None]:
+    """The nominal value of fault model ``module``'s parameter and, when the
+    run records it, its true magnitude (None when the run's fault is not of
+    this model's kind: a parameter still moving at the end drifts, one that
+    stopped stepped)."""
+    p = module.FAULT["parameter"]
+    kind = fault_kind(module.FAULT["kind"])
+    nominal = dict(zip(module.PARAMETERS, module.THETA))[p]
+    recorded = run.parameters.get(p)
+    if recorded is None or len(recorded) < 2 or bool(recorded[-1] != recorded[-2]) != kind.drifts:
+        return nominal, None
+    if kind.drifts:
+        return nominal, float((recorded[-1] - recorded[-2]) / (run.time[-1] - run.time[-2]))
+    return nominal, float(recorded[-1] - nominal)
+
+
 def _estimate(module, out: dict, run: Run, level: float, onsets=()) -> Estimate:
     """The magnitude's estimate: averaged over the onsets tried, each weighed
     by its posterior probability (``onsets``: (weight, filter output) pairs;
@@ -1195,16 +1338,7 @@ def _estimate(module, out: dict, run: Run, level: float, onsets=()) -> Estimate:
     when no onset has a weight (a dropped hypothesis), its filter ``out``'s."""
     p, kind_name = module.FAULT["parameter"], module.FAULT["kind"]
     kind = fault_kind(kind_name)
-    nominal = dict(zip(module.PARAMETERS, module.THETA))[p]
-    truth = None
-    recorded = run.parameters.get(p)
-    # the run's truth is this hypothesis's only if it is of the same kind: a
-    # parameter still moving at the end drifts, one that stopped stepped
-    if recorded is not None and len(recorded) > 1 and bool(recorded[-1] != recorded[-2]) == kind.drifts:
-        if kind.drifts:
-            truth = float((recorded[-1] - recorded[-2]) / (run.time[-1] - run.time[-2]))
-        else:
-            truth = float(recorded[-1] - nominal)
+    nominal, truth = _truth(module, run)
     mixture = [(w, o) for w, o in onsets if w > 0 and "final" in o]
     if mixture:
         value, std, low, high = onset_mixture([(w, *o["final"]) for w, o in mixture], level)

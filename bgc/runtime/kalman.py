@@ -45,6 +45,7 @@ data from step 0, so hypotheses compare like for like.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from types import ModuleType
@@ -92,11 +93,20 @@ class KalmanOptions:
 class NominalTrack:
     """The nominal model's cubature Kalman filter over a run: before step k,
     the state's mean ``mean[k]`` and covariance ``cov[k]`` (given the data
-    of steps 0 .. k-1) and ``loglik[k]``, log p(y_0 .. y_(k-1))."""
+    of steps 0 .. k-1) and ``loglik[k]``, log p(y_0 .. y_(k-1)); and, as an
+    observer, at each step k it took, its predicted measurement's mean
+    ``y_mean[k]`` and std ``y_std[k]`` (before it saw y_k) and the
+    normalised residuals ``z[k]`` (NaN: not read), and the state's mean and
+    std after the step (``x_mean[k]``, ``x_std[k]``)."""
 
     mean: np.ndarray
     cov: np.ndarray
     loglik: np.ndarray
+    y_mean: np.ndarray | None = None
+    y_std: np.ndarray | None = None
+    z: np.ndarray | None = None
+    x_mean: np.ndarray | None = None
+    x_std: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -116,8 +126,14 @@ class StaticPosterior:
     its normalised residuals (NaN before its onset), for a consistency test
     of the static model; ``truncated``: the posterior may reach past the
     grid's last pass (a row still holds mass at an end short of a bound of
-    the prior). ``values`` and ``loglik`` are object arrays of rows when the
-    onsets' rows differ in length."""
+    the prior); ``trace`` (steps x 2): the magnitude's posterior mean and
+    std given the data up to each step, over the last pass's cells (point
+    masses: a picture of how the data narrowed it down, limited to the span
+    of the final grid); ``path``: when asked for (:func:`record_path`), one
+    filter's run at the most probable onset with the posterior mean
+    magnitude; ``seconds``: the time it took (set by its caller). ``values``
+    and ``loglik`` are object arrays of rows when the onsets' rows differ in
+    length."""
 
     name: str
     onsets: tuple[int, ...]
@@ -137,6 +153,9 @@ class StaticPosterior:
     best: tuple[int, float] | None = None
     residuals: np.ndarray | None = None
     truncated: bool = False
+    trace: np.ndarray | None = None
+    path: "BankResult | None" = None
+    seconds: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,12 +163,22 @@ class BankResult:
     """What :func:`run_bank` gives: per cell, ``loglik`` (C,), the filter's
     ``mean`` (C, n) and ``cov`` (C, n, n) after the last step, and with
     ``residuals`` the normalised residuals ``z`` (steps, C, n_y; NaN: not
-    measured) of each step's predicted measurement."""
+    measured) of each step's predicted measurement and each step's log
+    predictive density ``increments`` (steps, C; 0 before the cell's onset,
+    where the nominal filter's count); with ``record``, each step's
+    predicted measurement mean and std ``y_mean``, ``y_std`` (steps, C, n_y)
+    and the state's mean and std after it ``x_mean``, ``x_std`` (steps, C,
+    n; NaN before the cell's onset)."""
 
     loglik: np.ndarray
     mean: np.ndarray
     cov: np.ndarray
     z: np.ndarray | None
+    increments: np.ndarray | None = None
+    y_mean: np.ndarray | None = None
+    y_std: np.ndarray | None = None
+    x_mean: np.ndarray | None = None
+    x_std: np.ndarray | None = None
 
 
 def _rows(model: ModuleType) -> tuple[list[int], list[int]]:
@@ -202,91 +231,154 @@ class _Filter:
         self.Q = np.diag(np.asarray(model.PROCESS_STD, dtype=float)[self.physical] ** 2)
         self.R = np.asarray(model.MEASUREMENT_STD, dtype=float) ** 2
         self.buffer = np.empty((self.n_x, 0))
+        self.root, self.inverse, self.scale = math.sqrt(n), 1.0 / (2 * n), math.sqrt(1.0 / (2 * n))
+        self._seen: dict = {}
 
-    def _points(self, m: np.ndarray, P: np.ndarray, fixed: np.ndarray, flat: np.ndarray) -> np.ndarray:
-        """The cubature points m +- sqrt(n) L e_i of N(m, P) per cell (C, n,
-        2n), also written into ``flat`` (n_x, C 2n) with the cells' fault states."""
-        n, C = self.n, m.shape[0]
+    def _points(self, m: np.ndarray, P: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """Write the cubature points m +- sqrt(n) L e_i of N(m, P) of every
+        cell into the physical rows of ``X`` (n_x, C, 2n); return sqrt(n) L
+        (C, n, n)."""
+        n = self.n
         L = cholesky(P)
-        L *= math.sqrt(n)
-        S = np.empty((C, n, 2 * n))
-        np.add(m[:, :, None], L, out=S[:, :, :n])
-        np.subtract(m[:, :, None], L, out=S[:, :, n:])
-        X = flat.reshape(self.n_x, C, 2 * n)
-        X[self.rows] = S.transpose(1, 0, 2)
-        for j, row in enumerate(self.extra):
-            X[row] = fixed[j][:, None]
-        return S
+        L *= self.root
+        Lt = L.transpose(1, 0, 2)  # (n, C, n): state, cell, point
+        if isinstance(self.rows, slice):  # a view: written in place
+            physical = X[self.rows]
+            np.add(m.T[:, :, None], Lt, out=physical[:, :, :n])
+            np.subtract(m.T[:, :, None], Lt, out=physical[:, :, n:])
+        else:
+            X[self.rows] = np.concatenate([m.T[:, :, None] + Lt, m.T[:, :, None] - Lt], axis=2)
+        return L
 
     def _physical(self, X: np.ndarray) -> np.ndarray:
         """The physical rows of the points ``X`` (n_x, C, 2n) as (C, n, 2n)."""
         return X[self.rows].transpose(1, 0, 2)
 
+    def _noise(self, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The measurement noise covariance of the sensors read (a diagonal
+        matrix) and the indices of those sensors, per pattern ``seen``."""
+        key = seen.tobytes()
+        hit = self._seen.get(key)
+        if hit is None:
+            hit = self._seen[key] = (np.diag(self.R[seen]), np.flatnonzero(seen))
+        return hit
+
     def step(self, y: np.ndarray, u: np.ndarray, m: np.ndarray, P: np.ndarray, fixed: np.ndarray,
              onset: slice = slice(0, 0)):
         """One step (predict with input ``u``, then update with ``y``; NaN:
         not measured) of every cell: log p(y | the past) (C,), mean (C, n)
-        and covariance (C, n, n) after it, normalised residuals (C, n_y);
+        and covariance (C, n, n) after it, normalised residuals (C, n_y),
+        and the predicted measurement's mean and std (C, n_y; NaN: not read);
         updates ``fixed`` (a drifting parameter moves). The cells ``onset``
         are at their onset sample: their transition is nominal (magnitude
-        zero), their update sees the fault (``track.onset_transition``)."""
+        zero), their update sees the fault (``track.onset_transition``).
+
+        The deviations of the update's points from their mean are +-sqrt(n) L,
+        so the cross covariance is L (DY+ - DY-)' / 2n, DY+- the measurement
+        deviations of the + and - points; the gain and the log density come
+        from the Cholesky factor of the innovation covariance by forward
+        substitution (:func:`lower_solve`)."""
         model, n, C = self.model, self.n, m.shape[0]
         if self.buffer.shape[1] < 2 * n * C:
             self.buffer = np.empty((self.n_x, 2 * n * C))
         flat = self.buffer[:, :2 * n * C]
-        self._points(m, P, fixed, flat)
         X = flat.reshape(self.n_x, C, 2 * n)
+        self._points(m, P, X)
+        for j, row in enumerate(self.extra):
+            X[row] = fixed[j][:, None]
         if self.extra:
             X[self.extra[-1], onset] = 0.0
         model.predict(flat, u, model.THETA, model.DT, out=flat)
         for j, row in enumerate(self.extra[:-1]):  # a drifting parameter: the same in every point of a cell
             fixed[j] = X[row, :, 0]
         Xp = self._physical(X)  # (C, n, 2n)
-        mp = Xp.mean(axis=2)
+        mp = np.add.reduce(Xp, axis=2)
+        mp *= self.inverse
         D = Xp - mp[:, :, None]
+        D *= self.scale  # sqrt(1 / 2n): D D' is the points' covariance
         Pp = np.matmul(D, D.transpose(0, 2, 1))
-        Pp /= 2 * n
         Pp += self.Q
         seen = np.isfinite(y)
-        z = np.full((C, len(y)), np.nan)
-        if not seen.any():
-            return np.zeros(C), mp, Pp, z
-        S = self._points(mp, Pp, fixed, flat)
-        Y = model.observe(flat, u, model.THETA)[seen].reshape(-1, C, 2 * n).transpose(1, 0, 2)  # (C, k, 2n)
-        yh = Y.mean(axis=2)
-        DY = Y - yh[:, :, None]
-        S -= mp[:, :, None]  # the points' deviations
-        k = int(seen.sum())
-        DYt = DY.transpose(0, 2, 1)
-        Syy = np.matmul(DY, DYt)
-        Syy /= 2 * n
-        Syy += np.diag(self.R[seen])
-        Pxy = np.matmul(S, DYt)  # (C, n, k)
-        Pxy /= 2 * n
-        v = y[seen] - yh  # (C, k)
-        L = cholesky(Syy)
-        # L^-1 [v, Pxy']: a (C, k) and B (C, k, n)
-        rhs = np.concatenate([v[:, :, None], Pxy.transpose(0, 2, 1)], axis=2)
-        solved = np.linalg.solve(L, rhs)
+        every = bool(seen.all())
+        if not every and not seen.any():
+            nan = np.full((C, len(y)), np.nan)
+            return np.zeros(C), mp, Pp, nan, nan, nan
+        L = self._points(mp, Pp, X)
+        if self.extra and onset.stop > onset.start:  # the onset cells see their fault from this sample on
+            X[self.extra[-1], onset] = fixed[-1][onset][:, None]
+        R, rows = self._noise(seen)
+        Y = model.observe(flat, u, model.THETA)
+        if not every:
+            Y = Y[rows]
+        Y = Y.reshape(-1, C, 2 * n)  # (k, C, 2n)
+        yh = np.add.reduce(Y, axis=2)
+        yh *= self.inverse
+        DY = (Y - yh[:, :, None]).transpose(1, 0, 2)  # (C, k, 2n)
+        yh = yh.T  # (C, k)
+        Syy = np.matmul(DY, DY.transpose(0, 2, 1))
+        Syy *= self.inverse
+        Syy += R
+        # [v | Pxy'] (C, k, 1 + n), Pxy' = (DY+ - DY-) L' / 2n
+        rhs = np.empty((C, len(rows), 1 + n))
+        np.subtract(y[rows], yh, out=rhs[:, :, 0])
+        np.matmul(np.subtract(DY[:, :, :n], DY[:, :, n:]), L.transpose(0, 2, 1), out=rhs[:, :, 1:])
+        rhs[:, :, 1:] *= self.inverse
+        Ly = cholesky(Syy)
+        solved = lower_solve(Ly, rhs)  # L^-1 [v | Pxy']: a (C, k) and B (C, k, n)
         a, B = solved[:, :, 0], solved[:, :, 1:]
-        logdet = 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
-        loglik = -0.5 * ((a * a).sum(axis=1) + logdet + k * LOG_2PI)
-        z[:, seen] = v / np.sqrt(np.diagonal(Syy, axis1=1, axis2=2))
+        diagonal = np.diagonal(Ly, axis1=1, axis2=2)
+        loglik = np.einsum("ck,ck->c", a, a)
+        loglik += 2.0 * np.log(diagonal).sum(axis=1)
+        loglik += len(rows) * LOG_2PI
+        loglik *= -0.5
+        sd = np.sqrt(np.diagonal(Syy, axis1=1, axis2=2))
+        zk = rhs[:, :, 0] / sd
+        if not every:
+            full = [np.full((C, len(y)), np.nan) for _ in range(3)]
+            for out, part in zip(full, (zk, yh, sd)):
+                out[:, rows] = part
+            zk, yh, sd = full
         Bt = B.transpose(0, 2, 1)
         m = mp + np.matmul(Bt, a[:, :, None])[:, :, 0]  # Pxy Syy^-1 v = (L^-1 Pxy')' (L^-1 v)
-        P = Pp - np.matmul(Bt, B)  # Pxy Syy^-1 Pxy'
-        return loglik, m, 0.5 * (P + P.transpose(0, 2, 1)), z
+        P = np.matmul(Bt, B)  # Pxy Syy^-1 Pxy'
+        np.subtract(Pp, P, out=P)
+        P += P.transpose(0, 2, 1)  # symmetric against rounding
+        P *= 0.5
+        return loglik, m, P, zk, yh, sd
+
+
+def lower_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """L^-1 b for a stack of lower triangular ``L`` (C, k, k) and right-hand
+    sides ``b`` (C, k, r), by forward substitution: k rows of a few array
+    operations each, where a batched LAPACK solve of small systems spends
+    most of its time per call.
+
+    >>> L = np.array([[[2.0, 0.0], [1.0, 4.0]]]); b = np.array([[[2.0], [9.0]]])
+    >>> lower_solve(L, b)[0, :, 0].tolist()
+    [1.0, 2.0]
+    """
+    k = L.shape[-1]
+    x = np.empty(b.shape)
+    for i in range(k):
+        if i:
+            np.subtract(b[:, i], np.matmul(L[:, i, None, :i], x[:, :i])[:, 0], out=x[:, i])
+        else:
+            x[:, 0] = b[:, 0]
+        x[:, i] /= L[:, i, i, None]
+    return x
 
 
 def run_bank(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets, magnitudes,
-             fixed: np.ndarray, residuals: bool = False) -> BankResult:
+             fixed: np.ndarray, residuals: bool = False, record: bool = False) -> BankResult:
     """Cubature Kalman filters of fault model ``model``, one per cell: cell c
     starts at step ``onsets[c]`` from the nominal filter's state there
     (``track``), with its fault states ``fixed`` (f,: a drifting parameter's
     nominal value, the magnitude last, replaced by ``magnitudes[c]``), and
     runs to the end of ``ys``. Returns each cell's log p(y_0 .. y_(T-1))
     (the nominal filter's before its onset), its state after the last step
-    and, with ``residuals``, its normalised residuals (NaN before its onset)."""
+    and, with ``residuals``, its normalised residuals and log predictive
+    densities (NaN and 0 before its onset); with ``record``, its predicted
+    measurements and state estimates at every step (:class:`BankResult`)."""
     kf = _Filter(model)
     onsets = np.asarray(onsets, dtype=int)
     C = len(onsets)
@@ -297,8 +389,11 @@ def run_bank(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTr
     m = np.empty((C, kf.n))
     P = np.empty((C, kf.n, kf.n))
     total = track.loglik[starts].astype(float)
-    T = len(ys)
-    z = np.full((T, C, ys.shape[1]), np.nan) if residuals else None
+    T, n_y = ys.shape
+    z = np.full((T, C, n_y), np.nan) if residuals else None
+    increments = np.zeros((T, C)) if residuals else None
+    kept = {name: np.full((T, C, size), np.nan) for name, size in
+            (("y_mean", n_y), ("y_std", n_y), ("x_mean", kf.n), ("x_std", kf.n))} if record else {}
     live = 0  # cells 0 .. live - 1 have started
     with np.errstate(all="ignore"):
         for k in range(int(starts[0]) if C else T, T):
@@ -308,35 +403,50 @@ def run_bank(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTr
                 m[live:joining] = track.mean[k]
                 P[live:joining] = track.cov[k]
                 live = joining
-            ll, m[:live], P[:live], zk = kf.step(ys[k], us[k], m[:live], P[:live], state[:, :live], onset)
+            ll, m[:live], P[:live], zk, y_mean, y_std = kf.step(ys[k], us[k], m[:live], P[:live], state[:, :live],
+                                                                onset)
             total[:live] += ll
-            if z is not None:
+            if residuals:
                 z[k, :live] = zk
+                increments[k, :live] = ll
+            if record:
+                kept["y_mean"][k, :live], kept["y_std"][k, :live] = y_mean, y_std
+                kept["x_mean"][k, :live] = m[:live]
+                kept["x_std"][k, :live] = np.sqrt(np.maximum(np.diagonal(P[:live], axis1=1, axis2=2), 0.0))
     total[~np.isfinite(total)] = -math.inf
     back = np.empty(C, dtype=int)
     back[order] = np.arange(C)
-    return BankResult(total[back], m[back], P[back], None if z is None else z[:, back])
+    return BankResult(total[back], m[back], P[back], None if z is None else z[:, back],
+                      None if increments is None else increments[:, back],
+                      **{name: a[:, back] for name, a in kept.items()})
 
 
 def nominal_track(model: ModuleType, ys: np.ndarray, us: np.ndarray, stop: int) -> NominalTrack:
     """The nominal model's cubature Kalman filter from its prior (``X0``,
     ``X0_STD``) over steps 0 .. ``stop`` - 1: its state before every step up
-    to ``stop`` and the log-likelihood of the data before it."""
+    to ``stop``, the log-likelihood of the data before it, and what it
+    predicted and estimated at every step it took (:class:`NominalTrack`):
+    with ``stop`` the run's length, the nominal observer of ``--filter ckf``
+    (exact on a plant linear in its states)."""
     kf = _Filter(model)
-    n = kf.n
+    n, n_y = kf.n, ys.shape[1]
     means = np.empty((stop + 1, n))
     covs = np.empty((stop + 1, n, n))
     logliks = np.zeros(stop + 1)
+    y_mean, y_std, z = (np.full((stop, n_y), np.nan) for _ in range(3))
+    x_mean, x_std = np.empty((stop, n)), np.empty((stop, n))
     m = np.asarray(model.X0, dtype=float)[None, kf.physical]
     P = np.diag(np.asarray(model.X0_STD, dtype=float)[kf.physical] ** 2)[None]
     means[0], covs[0] = m[0], P[0]
     none = np.zeros((0, 1))
     with np.errstate(all="ignore"):
         for k in range(stop):
-            ll, m, P, _ = kf.step(ys[k], us[k], m, P, none)
+            ll, m, P, zk, ym, sd = kf.step(ys[k], us[k], m, P, none)
             logliks[k + 1] = logliks[k] + ll[0]
             means[k + 1], covs[k + 1] = m[0], P[0]
-    return NominalTrack(means, covs, logliks)
+            y_mean[k], y_std[k], z[k] = ym[0], sd[0], zk[0]
+            x_mean[k], x_std[k] = m[0], np.sqrt(np.maximum(np.diagonal(P[0]), 0.0))
+    return NominalTrack(means, covs, logliks, y_mean, y_std, z, x_mean, x_std)
 
 
 def onset_widths(onsets, ends: tuple[float, float] | None = None) -> np.ndarray:
@@ -453,8 +563,9 @@ class _Grid:
 def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, start, cache: dict) -> _Grid:
     """Row i: ``count`` changes over ``ranges[i]`` (low, high) at onset
     ``onsets[i]``, whose prior weight is ``widths[i]``; ``cache``: rows
-    computed before, by (onset, low, high, count): their log likelihoods and
-    normalised residuals (steps x count x outputs). A magnitude outside the
+    computed before, by (onset, low, high, count): their log likelihoods,
+    normalised residuals (steps x count x outputs) and log predictive
+    densities (steps x count). A magnitude outside the
     ``prior`` (beyond rounding) has no likelihood."""
     a, b = prior
     changes = np.array([np.linspace(lo, hi, count) if hi > lo else np.full(count, lo) for lo, hi in ranges])
@@ -468,8 +579,10 @@ def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, sta
         r = run_bank(model, ys, us, track, np.repeat(onsets[new], count), magnitudes[new].ravel(), start,
                      residuals=True)
         z = r.z.reshape(len(ys), len(new), count, -1).transpose(1, 0, 2, 3)  # (rows, steps, count, outputs)
-        for i, row, zr in zip(new, r.loglik.reshape(len(new), count), z):
-            cache[keys[i]] = (row, zr)
+        increments = (np.zeros((len(new), len(ys), count)) if r.increments is None
+                      else r.increments.reshape(len(ys), len(new), count).transpose(1, 0, 2))
+        for i, row, zr, inc in zip(new, r.loglik.reshape(len(new), count), z, increments):
+            cache[keys[i]] = (row, zr, inc)
     loglik = np.where(inside, np.array([cache[key][0] for key in keys]), -math.inf)
     top = float(np.max(loglik))
     if not math.isfinite(top):
@@ -564,7 +677,8 @@ REFINE_ROUNDS = 6
 
 def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets,
                      hint: tuple[float, float], hint_onset: int, level: float,
-                     options: KalmanOptions = KalmanOptions(), earlier=()) -> StaticPosterior:
+                     options: KalmanOptions = KalmanOptions(), earlier=(), refine: bool | None = None,
+                     far=None) -> StaticPosterior:
     """The posterior of fault model ``model``'s onset (one of ``onsets``,
     each weighed by the span of samples it stands for, :func:`onset_widths`)
     and magnitude (uniform on the model's ``FAULT_PRIOR``), from cubature
@@ -572,9 +686,14 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     magnitude where the posterior is expected (the particle filters'
     interval) when the onset is ``hint_onset``; ``track``: the nominal filter
     over the run up to the latest onset; ``earlier``: batches of earlier
-    onsets a drift reaches back to, one batch at a time, while its onset
+    onsets the fault reaches back to, one batch at a time, while its onset
     posterior piles up at its earliest onsets (``EXTEND`` on the ``EDGE``
-    earliest).
+    earliest); ``refine``: whether the onset is refined sample by sample
+    around the most probable one (below; None: for a drift only); ``far``:
+    a test of the most likely cell's normalised residuals (steps x outputs,
+    from its onset) after each pass: when it says the cell is far off the
+    data, the model is (its best fit fails, the grid only refines it) and no
+    further pass is made (``StaticPosterior.passes`` tells how many were).
 
     The first pass lays one grid of ``first_points`` changes over the hint,
     widened (and moved inside the prior when it lies beyond a bound), at
@@ -585,7 +704,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     drifts = fault_kind(model.FAULT["kind"]).drifts
     prior = tuple(float(v) for v in model.FAULT_PRIOR)
     a, b = prior
-    batches = [sorted(int(o) for o in batch) for batch in earlier] if drifts else []
+    batches = [sorted(int(o) for o in batch) for batch in earlier]
 
     def span(o) -> np.ndarray:  # a cell's variable: the parameter's change by the last step (bias, slope x time)
         o = np.asarray(o, dtype=float)
@@ -602,13 +721,13 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     lo, hi = _inside(lo - options.widen * width, hi + options.widen * width, vmin, vmax)
     ranges = {int(o): (lo, hi) for o in current}
     counts = {int(o): options.first_points for o in current}
-    _, extra = _rows(model)
-    start = model.augment(track.mean[int(current[0])][:, None], np.random.default_rng(0))[extra, 0]  # per cell
+    start = fault_start(model, track, int(current[0]))
     cache: dict = {}
     passes = 0
     g = None
     rounds = 0  # of a drift's onset refinement, below
     ends = None  # the window of the onsets' grid before it was refined
+    given_up = False  # the best fit is far off the data (``far``): no further pass
     while True:
         for turn in range(options.passes):
             passes += 1
@@ -623,6 +742,13 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
             g = _merge(current, groups, parts)
             if not math.isfinite(g.top) or turn == options.passes - 1:
                 break
+            if far is not None:
+                row = int(np.argmax([np.max(ll) for ll in g.loglik]))
+                o = int(current[row])
+                key = (o, *(float(v) for v in ranges[o]), counts[o])
+                if far(cache[key][1][o:, int(np.argmax(g.loglik[row]))]):
+                    given_up = True
+                    break
             following, mass = [], np.empty(len(current))  # log of each onset's mass, as far as its row tells
             for i in range(len(current)):
                 bounds = tuple(sorted((a * spans[i], b * spans[i])))
@@ -641,22 +767,22 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
             for i in relaid:
                 ranges[int(current[i])], counts[int(current[i])] = following[i], options.points
             current = current[kept]
-        if g is None or not math.isfinite(g.top):
+        if g is None or not math.isfinite(g.top) or given_up:
             break
         share = dict(zip(current.tolist(), g.mass))
         if not (batches and sum(share.get(o, 0.0) for o in tried[:EDGE]) / sum(share.values()) >= EXTEND):
-            # a drift's slope given its onset is much sharper than the onset grid: every sample from the
-            # most probable onset's neighbour before it in the grid tried to the one after it is tried too
-            # (those left out by an earlier pass as well), so the onset is marginalised sample by sample
-            # where the posterior is (it is a whole number of samples); again while the most probable
-            # onset moves to an end of what was tried
-            if not drifts or rounds == REFINE_ROUNDS:
+            # a fault's magnitude given its onset is much sharper than the onset grid: every sample from
+            # the most probable onset's neighbour before it in the grid tried to the one after it is tried
+            # too (for a drift, those left out by an earlier pass as well), so the onset is marginalised
+            # sample by sample where the posterior is (it is a whole number of samples); again while the
+            # most probable onset moves to an end of what was tried
+            if not (drifts if refine is None else refine) or rounds == REFINE_ROUNDS:
                 break
             best = max(share, key=lambda o: share[o] / width_of[o])
             before = [o for o in tried if o < best]
             after = [o for o in tried if o > best]
             fill = [o for o in range(before[-1] if before else best, (after[0] if after else best) + 1)
-                    if o not in share]
+                    if o not in (share if drifts else tried)]
             if not fill:
                 break
             rounds += 1
@@ -706,12 +832,60 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     row = int(np.argmax([np.max(ll) for ll in g.loglik]))  # the most likely cell, and its residuals
     col = int(np.argmax(g.loglik[row]))
     best = (int(current[row]), float(g.magnitudes[row][col]))
-    residuals = cache[(best[0], *(float(v) for v in ranges[best[0]]), counts[best[0]])][1][:, col]
+    key = {int(o): (int(o), *(float(v) for v in ranges[int(o)]), counts[int(o)]) for o in current}
+    residuals = cache[key[best[0]]][1][:, col]
+    trace = _trace(track, current, widths, g, [cache[key[int(o)]][2] for o in current])
     return StaticPosterior(name, tuple(int(o) for o in current), tuple(float(w) for w in widths),
                            g.magnitudes, g.loglik, log_evidence, mean, std, low, high, level, float(p @ c),
                            int(current[int(np.argmax(onset_posterior / np.asarray(widths)))]),
                            tuple(float(q) for q in onset_posterior), passes, best, residuals,
-                           _truncated(g, prior, options))
+                           _truncated(g, prior, options), trace)
+
+
+def fault_start(model: ModuleType, track: NominalTrack, onset: int) -> np.ndarray:
+    """The fault states a cell of ``model`` starts with (a drifting
+    parameter's nominal value; the magnitude, last, is the cell's own)."""
+    _, extra = _rows(model)
+    return model.augment(track.mean[onset][:, None], np.random.default_rng(0))[extra, 0]
+
+
+def _trace(track: NominalTrack, onsets, widths, g: _Grid, increments: list) -> np.ndarray:
+    """(steps x 2): the magnitude's posterior mean and std given the data up
+    to each step, over the cells of grid ``g`` (row i at ``onsets[i]``, its
+    prior weight ``widths[i]``, its cells' log predictive densities
+    ``increments[i]``, steps x cells), each cell a point mass of its row's
+    spacing: before a cell's onset its likelihood is the nominal filter's."""
+    T = len(increments[0])
+    logs, values, weights = [], [], []
+    for o, w, m, ll, inc in zip(onsets, widths, g.magnitudes, g.loglik, increments):
+        o = int(o)
+        m = np.asarray(m, dtype=float)
+        spacing = float(abs(m[-1] - m[0]) / (len(m) - 1)) if len(m) > 1 and m[-1] != m[0] else 1.0
+        cum = np.empty((T, len(m)))
+        cum[:o] = track.loglik[1:o + 1, None]
+        cum[o:] = track.loglik[o] + np.cumsum(inc[o:], axis=0)
+        cum[:, ~np.isfinite(np.asarray(ll, dtype=float))] = -math.inf  # outside the prior
+        logs.append(cum)
+        values.append(m)
+        weights.append(np.full(len(m), w * spacing))
+    L, v, w = np.concatenate(logs, axis=1), np.concatenate(values), np.concatenate(weights)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p = np.exp(L - np.max(L, axis=1, keepdims=True)) * w
+        p /= p.sum(axis=1, keepdims=True)
+        mean = p @ v
+        std = np.sqrt(np.maximum(p @ (v * v) - mean * mean, 0.0))
+    return np.column_stack([mean, std])
+
+
+def record_path(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack,
+                p: StaticPosterior) -> StaticPosterior:
+    """``p`` with its ``path``: the filter of its most probable onset with
+    its posterior mean magnitude, its predictions and estimates recorded."""
+    if not math.isfinite(p.log_evidence):
+        return p
+    r = run_bank(model, ys, us, track, [p.onset], [p.mean], fault_start(model, track, p.onset), residuals=True,
+                 record=True)
+    return dataclasses.replace(p, path=r)
 
 
 def _truncated(g: _Grid, prior: tuple[float, float], options: KalmanOptions) -> bool:
