@@ -153,6 +153,9 @@ def test_the_shipped_campaigns_load():
     plants = campaign.load_campaign(ROOT / "experiments" / "test_plants.yaml")  # 3 plants x (30 + 20) x 2 x 2
     assert len(plants.specs) == 3 * (30 + 20) * 2 * 2
     assert {s.model_name for s in plants.specs} == {"dc_motor", "orifice_tanks", "mass_spring_damper"}
+    sharp = campaign.load_campaign(ROOT / "experiments" / "sharp_sensor.yaml")  # 30 draws, 3 filters x 20 fault-free
+    assert len(sharp.specs) == 30 + 3 * 20 and {s.model_name for s in sharp.specs} == {"drivetrain"}
+    assert {s.filter for s in sharp.specs if s.fault} == {"ckf"}
 
 
 # ------------------------------------------------------------------ running
