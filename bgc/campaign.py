@@ -50,13 +50,13 @@ COLUMNS = (
     "particles", "noise", "process_noise", "measurement_noise", "seed", "steps", "status", "failure", "rt",
     "mse", "nmse", "mse_states", "ct", "detected", "detection_time", "delay", "false_alarm", "verdict",
     "diagnosed", "candidates", "right", "in_candidates", "estimate", "low", "high", "est_error", "parameter",
-    "parameter_truth", "param_error", "covers", "refine", "separable", "rivals", "separation",
+    "parameter_truth", "param_error", "covers", "refine", "separable", "rivals", "separation", "detectability",
 )
 _INT = {"index", "particles", "seed", "steps"}
 _BOOL = {"ambiguous", "detected", "false_alarm", "right", "in_candidates", "covers", "refine", "separable"}
 _FLOAT = {"magnitude", "onset", "process_noise", "measurement_noise", "rt", "mse", "nmse", "ct", "detection_time",
           "delay", "estimate", "low", "high", "est_error", "parameter", "parameter_truth", "param_error",
-          "separation"}
+          "separation", "detectability"}
 RUNS = "runs.csv"
 
 
@@ -485,8 +485,10 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
 def _separation(spec: RunSpec) -> dict[str, Any]:
     """What the data of the run's scenario are predicted to separate
     (:func:`bgc.api.distinguishability`): ``separable`` (no rival in the
-    predicted ambiguity group), ``rivals`` (those in it) and ``separation``
-    (the smallest probability that the data name the truth over a rival);
+    predicted ambiguity group), ``rivals`` (those in it), ``separation``
+    (the smallest probability that the data name the truth over a rival) and
+    ``detectability`` (the probability that they favour the fault over no
+    fault, were its onset and magnitude known: what an ideal detector sees);
     empty when the prediction fails (the diagnosis's row stands). It depends
     on the scenario, noise levels and length only, not on the filter or the
     seed: a process computes it once per scenario."""
@@ -505,7 +507,8 @@ def _prediction(model_file: str, scenario: str, process_noise: float | None, mea
     except Exception:  # noqa: BLE001 - the prediction is an extra: the diagnosis's row stands without it
         return ()
     return (("separable", d.separable), ("rivals", " ".join(d.group) or None),
-            ("separation", min((r.probability for r in d.rivals), default=1.0)))
+            ("separation", min((r.probability for r in d.rivals), default=1.0)),
+            ("detectability", d.detectability))
 
 
 # ------------------------------------------------------------------ rows

@@ -193,8 +193,9 @@ def test_a_local_campaign_writes_rows_tables_and_plots(local_run):
             assert row["est_error"] == pytest.approx(abs(row["estimate"] - 0.6) / 0.6)
             # a step of R2 by 0.6 (+30 %) is predicted separable from every rival (bgc distinguish)
             assert row["separable"] is True and row["rivals"] is None and row["separation"] >= 0.95
+            assert row["detectability"] >= 0.95  # and seen: it was detected
         if row["fault"] is None:
-            assert row["separable"] is None and row["separation"] is None
+            assert row["separable"] is None and row["separation"] is None and row["detectability"] is None
     text = (out / "tables.md").read_text()
     assert "### grid" in text and "[5]" in text and "## Isolation confusion matrix" in text
     assert (out / "plots" / "distributions.png").read_bytes()[:4] == b"\x89PNG"
@@ -270,6 +271,20 @@ def test_isolation_is_counted_outside_the_qualitative_and_the_predicted_ambiguit
     assert (s["right_outside_ambiguity"], s["outside_ambiguity"]) == (2, 3)
     assert (s["right_separable"], s["separable"]) == (1, 1)
     assert "right where the data separate it (predicted)" in tables.summary_markdown(rows)
+
+
+def test_detection_is_counted_where_the_data_are_predicted_to_show_the_fault():
+    def row(detectability, delay):
+        return {"status": "ok", "group": "g", "filter": "gpf", "noise": "model", "particles": 100, "fault": "R1",
+                "kind": "abrupt", "delay": delay, "right": delay is not None, "ambiguous": False,
+                "separable": True, "verdict": "isolated", "in_candidates": True, "false_alarm": False,
+                "diagnosed": "R1_abrupt", "detectability": detectability}
+    # shown: 0.99 (detected), 0.95 (missed); not shown: 0.9 (detected, counted only among all), None (no prediction)
+    rows = [row(0.99, 3.0), row(0.95, None), row(0.9, 1.0), row(None, None)]
+    s = tables.summary_rows(rows)[0]
+    assert (s["detected"], s["faulty"]) == (2, 4)
+    assert (s["detected_shown"], s["shown"]) == (1, 2)
+    assert "| 1/2 (50.0 %) |" in tables.summary_markdown(rows)
 
 
 def test_the_confusion_matrix_counts_truth_against_diagnosis():

@@ -111,6 +111,12 @@ def table_markdown(spec, rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: A faulty run's data are predicted to show its fault when an ideal test
+#: would favour it over no fault with at least this probability (the level of
+#: bgc distinguish's ambiguity groups).
+SHOWN = 0.95
+
+
 def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
     """Per group, filter, noise level and particle count: how the runs went.
     Isolation is counted among the faulty runs whose fault was detected at or
@@ -120,7 +126,11 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
     'isolated' and right, and the same outside the ambiguity groups the
     signatures predict, and outside those and the groups the data of the
     scenario are predicted not to separate (the row's ``separable``,
-    :mod:`bgc.runtime.distinguish`; rows without it are not counted there)."""
+    :mod:`bgc.runtime.distinguish`; rows without it are not counted there).
+    Detection is also counted among the faulty runs whose data are predicted
+    to show the fault (``detectability`` at least ``SHOWN``: an ideal test
+    that knew the fault's onset and magnitude would favour it over no fault
+    with that probability), the detector's power against that bound."""
     def key(r):
         return r["group"], r["filter"], r["noise"], f"{r['particles']}" + (" +grid" if r.get("refine") else "")
 
@@ -134,6 +144,7 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
         seen = [r for r in faulty if r["delay"] is not None]  # detected at or after the onset
         plain = [r for r in seen if not r.get("ambiguous")]
         separated = [r for r in plain if r.get("separable")]
+        shown = [r for r in faulty if (r.get("detectability") or 0.0) >= SHOWN]
         isolated = [r for r in seen if r["verdict"] == "isolated"]
         out.append({
             "group": g, "filter": f, "noise": noise, "particles": n, "runs": len(mine),
@@ -141,6 +152,7 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
             "false_alarms": sum(bool(r["false_alarm"]) for r in free),
             "early_alarms": sum(bool(r["false_alarm"]) for r in faulty),
             "faulty": len(faulty), "detected": len(seen),
+            "shown": len(shown), "detected_shown": sum(r["delay"] is not None for r in shown),
             "right": sum(bool(r["right"]) for r in seen),
             "right_parameter": sum(right_parameter(r) for r in seen),
             "in_candidates": sum(bool(r["in_candidates"]) for r in seen),
@@ -167,6 +179,7 @@ def _frac(k: int, n: int) -> str:
 
 def summary_markdown(rows: list[dict]) -> str:
     head = ["group", "filter", "noise", "N", "runs", "failed", "false alarms", "detected",
+            "detected where the data show it (predicted)",
             "right (of detected)", "right component", "truth among survivors", "right when isolated",
             "right outside predicted ambiguity groups", "right where the data separate it (predicted)",
             "error % mean (sd)", "95 % covers", "delay", "RT s"]
@@ -176,7 +189,8 @@ def summary_markdown(rows: list[dict]) -> str:
             s["group"], s["filter"], s["noise"], str(s["particles"]), str(s["runs"]), str(s["failed"]),
             "; ".join(x for x in (_frac(s["false_alarms"], s["fault_free"]) if s["fault_free"] else "",
                                   f"{s['early_alarms']} before the onset" if s["faulty"] else "") if x) or "–",
-            _frac(s["detected"], s["faulty"]), _frac(s["right"], s["detected"]),
+            _frac(s["detected"], s["faulty"]), _frac(s["detected_shown"], s["shown"]),
+            _frac(s["right"], s["detected"]),
             _frac(s["right_parameter"], s["detected"]), _frac(s["in_candidates"], s["detected"]), _frac(s["isolated_right"], s["isolated"]),
             _frac(s["right_outside_ambiguity"], s["outside_ambiguity"]), _frac(s["right_separable"], s["separable"]),
             format_cell(s["est_error"], "est_error"), format_cell(s["covers"], "covers"),
