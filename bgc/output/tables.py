@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from typing import Any, Iterable
 
+from ..runtime.distinguish import LEVEL
 from . import render
 
 #: Metrics shown as a percentage of the runs where they are defined.
@@ -111,12 +112,6 @@ def table_markdown(spec, rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-#: A faulty run's data are predicted to show its fault when an ideal test
-#: would favour it over no fault with at least this probability (the level of
-#: bgc distinguish's ambiguity groups).
-SHOWN = 0.95
-
-
 def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
     """Per group, filter, noise level and particle count: how the runs went.
     Isolation is counted among the faulty runs whose fault was detected at or
@@ -128,9 +123,10 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
     scenario are predicted not to separate (the row's ``separable``,
     :mod:`bgc.runtime.distinguish`; rows without it are not counted there).
     Detection is also counted among the faulty runs whose data are predicted
-    to show the fault (``detectability`` at least ``SHOWN``: an ideal test
-    that knew the fault's onset and magnitude would favour it over no fault
-    with that probability), the detector's power against that bound."""
+    to show the fault (``detectability`` at least ``distinguish.LEVEL``: an
+    ideal test that knew the fault's onset and magnitude would favour it over
+    no fault with that probability), the detector's power against that
+    bound."""
     def key(r):
         return r["group"], r["filter"], r["noise"], f"{r['particles']}" + (" +grid" if r.get("refine") else "")
 
@@ -144,7 +140,7 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
         seen = [r for r in faulty if r["delay"] is not None]  # detected at or after the onset
         plain = [r for r in seen if not r.get("ambiguous")]
         separated = [r for r in plain if r.get("separable")]
-        shown = [r for r in faulty if (r.get("detectability") or 0.0) >= SHOWN]
+        shown = [r for r in faulty if (r.get("detectability") or 0.0) >= LEVEL]
         isolated = [r for r in seen if r["verdict"] == "isolated"]
         out.append({
             "group": g, "filter": f, "noise": noise, "particles": n, "runs": len(mine),

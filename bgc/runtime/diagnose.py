@@ -720,9 +720,7 @@ def _far_off(outputs: tuple[str, ...], rejection: float, windows: tuple[int, ...
     predicate of a filter's normalised residuals (steps x outputs): True when
     they are far off the data."""
     def far(z: np.ndarray) -> bool:
-        test = Detector(outputs, DetectorOptions(rejection, windows, len(z)))
-        test.threshold *= FAR
-        return any(test.update(zk) is not None for zk in z)
+        return _first_alarm(z, outputs, rejection, windows, FAR) is not None
     return far
 
 
@@ -833,8 +831,16 @@ def _static_alarm(p: StaticPosterior, outputs, options: DiagnosisOptions) -> Det
     onset (None: it passes, or ``p`` has no such cell)."""
     if p.residuals is None or p.best is None:
         return None
-    z = p.residuals[p.best[0]:]
-    test = Detector(outputs, DetectorOptions(options.rejection, options.windows, len(z)))
+    return _first_alarm(p.residuals[p.best[0]:], outputs, options.rejection, options.windows)
+
+
+def _first_alarm(z: np.ndarray, outputs: tuple[str, ...], rejection: float, windows: tuple[int, ...],
+                 scale: float = 1.0) -> Detection | None:
+    """The first alarm of the windowed Z-test of section 5 (probability
+    ``rejection`` over the steps of ``z``, its threshold times ``scale``) on
+    the normalised residuals ``z`` (steps x outputs); None: they pass."""
+    test = Detector(outputs, DetectorOptions(rejection, windows, len(z)))
+    test.threshold *= scale
     for zk in z:
         alarm = test.update(zk)
         if alarm is not None:

@@ -560,6 +560,11 @@ class _Grid:
     top: float
 
 
+def _row_key(onset, changes: tuple[float, float], count: int) -> tuple:
+    """The key of a grid row in the cache of :func:`_grid`: (onset, low, high, count)."""
+    return int(onset), float(changes[0]), float(changes[1]), int(count)
+
+
 def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, start, cache: dict) -> _Grid:
     """Row i: ``count`` changes over ``ranges[i]`` (low, high) at onset
     ``onsets[i]``, whose prior weight is ``widths[i]``; ``cache``: rows
@@ -573,7 +578,7 @@ def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, sta
     tolerance = _rounding(a, b)
     inside = (magnitudes >= a - tolerance) & (magnitudes <= b + tolerance)
     magnitudes = np.where(inside, np.clip(magnitudes, a, b), magnitudes)  # a bound reached by rounding is the bound
-    keys = [(int(o), float(lo), float(hi), count) for o, (lo, hi) in zip(onsets, ranges)]
+    keys = [_row_key(o, r, count) for o, r in zip(onsets, ranges)]
     new = [i for i, key in enumerate(keys) if key not in cache]
     if new:
         r = run_bank(model, ys, us, track, np.repeat(onsets[new], count), magnitudes[new].ravel(), start,
@@ -745,7 +750,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
             if far is not None:
                 row = int(np.argmax([np.max(ll) for ll in g.loglik]))
                 o = int(current[row])
-                key = (o, *(float(v) for v in ranges[o]), counts[o])
+                key = _row_key(o, ranges[o], counts[o])
                 if far(cache[key][1][o:, int(np.argmax(g.loglik[row]))]):
                     given_up = True
                     break
@@ -832,7 +837,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     row = int(np.argmax([np.max(ll) for ll in g.loglik]))  # the most likely cell, and its residuals
     col = int(np.argmax(g.loglik[row]))
     best = (int(current[row]), float(g.magnitudes[row][col]))
-    key = {int(o): (int(o), *(float(v) for v in ranges[int(o)]), counts[int(o)]) for o in current}
+    key = {int(o): _row_key(o, ranges[int(o)], counts[int(o)]) for o in current}
     residuals = cache[key[best[0]]][1][:, col]
     trace = _trace(track, current, widths, g, [cache[key[int(o)]][2] for o in current])
     return StaticPosterior(name, tuple(int(o) for o in current), tuple(float(w) for w in widths),
