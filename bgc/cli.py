@@ -259,7 +259,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         from .runtime import runs
 
         files["run.csv"] = runs.run_csv(r.run)
-    files["manifest.json"] = artifacts.manifest(files, model=r.model)
+    files["manifest.json"] = artifacts.manifest(files, "diagnose", model=r.model)
     out = Path(args.output or f"{r.model}-diagnosis")
     artifacts.write_folder(out, files)
     d = r.diagnosis

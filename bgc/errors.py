@@ -131,5 +131,20 @@ class ExperimentError(BgcError):
     folder, its Dask scheduler)."""
 
 
+class ArgumentError(BgcError):
+    """A public function of bgc's Python API was called with an argument it
+    cannot take (the API's counterpart of a refused command-line option)."""
+
+
+class ArgumentTypeError(ArgumentError, TypeError):
+    """An argument of the wrong type (``bgc.diagnose(5)``); also a
+    :class:`TypeError`, as Python's convention has it."""
+
+
+class ArgumentValueError(ArgumentError, ValueError):
+    """An argument of the right type with a value out of range
+    (``particles=0``, ``seed=-1``); also a :class:`ValueError`."""
+
+
 class InternalError(Exception):
     """A bug in bgc: reported with its traceback."""

@@ -68,7 +68,8 @@ def generated_files(c: Compiled) -> dict[str, str]:
 
 
 def pictures(c: Compiled, engine: str = "auto") -> dict[str, bytes]:
-    """The SVG pictures of ``generated/<model>/`` (TCG and every DBN)."""
-    from .output import draw
+    """The SVG pictures of ``generated/<model>/`` (TCG and every DBN), each
+    sealed (the folder's manifest lists them without a hash)."""
+    from .output import artifacts, draw
 
-    return draw.pictures(c.dbn, engine)
+    return {name: artifacts.seal(data) for name, data in draw.pictures(c.dbn, engine).items()}

@@ -68,7 +68,7 @@ def test_same_model_same_bytes_twice_and_independent_of_file_order(tmp_path):
 
 def test_diff_reports_a_changed_file(tmp_path):
     files = {"a.txt": "one\ntwo\n"}
-    artifacts.write_folder(tmp_path, files)
+    artifacts.write_folder(tmp_path, {**files, "manifest.json": artifacts.manifest(files, "compile")})
     assert artifacts.diff(tmp_path, files) == []
     out = artifacts.diff(tmp_path, {"a.txt": "one\nthree\n"})
     assert out and "-two" in out[0] and "+three" in out[0]
