@@ -14,6 +14,16 @@ tables (:mod:`bgc.output.tables`) and plots at the end.
 
 Every run is independent and seeded by its spec, so the same campaign gives
 the same rows on one process, on many, or on a cluster (run times aside).
+
+A campaign never runs away: its runs are counted before anything is expanded
+(at most :data:`MAX_RUNS` unless the caller raises the limit), it starts no
+more local processes than the runs to do, the cores (:data:`WORKERS_PER_CORE`
+each) and the memory hold, its workers end when the campaign's process dies,
+and a Dask scheduler that refuses the connection fails at once, one that
+does not answer after a timeout (:data:`CONNECT_TIMEOUT` by default). It
+never loses a row: ``runs.csv`` is read
+line by line, every intact row is kept, and a line it cannot read is set
+aside in a new ``runs.unread-N.csv`` beside it.
 """
 
 from __future__ import annotations
@@ -26,6 +36,8 @@ import json
 import math
 import multiprocessing
 import os
+import signal
+import socket
 import sys
 import threading
 import time
@@ -33,14 +45,15 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import jsonschema
 import numpy as np
 
 from . import pipeline
 from .compiler import load
-from .errors import BgcError, ExperimentError, ErrorGroup, printable
+from .errors import (ArgumentTypeError, ArgumentValueError, BgcError, ErrorGroup, ExperimentError, OutputError,
+                     printable)
 from .kinds import DIRECTIONS, FAULT_KINDS, fault_kind
 from .output.tables import row_label
 
@@ -57,7 +70,23 @@ _BOOL = {"ambiguous", "detected", "false_alarm", "right", "in_candidates", "cove
 _FLOAT = {"magnitude", "onset", "process_noise", "measurement_noise", "rt", "mse", "nmse", "ct", "detection_time",
           "delay", "estimate", "low", "high", "est_error", "parameter", "parameter_truth", "param_error",
           "separation", "detectability"}
+#: Free-text columns: written on one line, neutralised against spreadsheet formulas (:func:`format_cell`).
+_TEXT = frozenset(COLUMNS) - _INT - _BOOL - _FLOAT
 RUNS = "runs.csv"
+#: Lines of ``runs.csv`` that cannot be read are set aside in ``runs.unread-N.csv`` (N: the first free number).
+UNREAD = "runs.unread-{n}.csv"
+#: A text cell starting with one of these is a formula to a spreadsheet: ``runs.csv`` writes it after a
+#: ``'`` (OWASP's rule against CSV injection), and so a text starting with ``'`` itself, to read back exactly.
+_FORMULA = ("=", "+", "-", "@", "\t", "\r", "'")
+#: The runs a campaign may plan unless the caller raises the limit (``load_campaign(max_runs=)``,
+#: ``bgc experiment --max-runs``): counted before anything is expanded.
+MAX_RUNS = 100_000
+#: Local worker processes per core, at most: ``run_campaign`` refuses more.
+WORKERS_PER_CORE = 4
+#: The memory a local worker is assumed to need: fewer workers start when the available memory holds fewer.
+WORKER_MEMORY = 256 * 2**20
+#: Seconds to wait for a Dask scheduler (the TCP connection, then its handshake); ``--connect-timeout``.
+CONNECT_TIMEOUT = 10.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,7 +171,43 @@ class Campaign:
 
 
 @dataclass(frozen=True, slots=True)
+class CampaignStart:
+    """What :func:`run_campaign` is about to do, once it has read its folder
+    (given to its ``on_start`` before the first run starts).
+
+    Attributes
+    ----------
+    total, todo, reused
+        The campaign's runs, those to run now, those whose rows it reuses.
+    quarantined, quarantine
+        Lines of ``runs.csv`` that could not be read, and the new file that
+        holds them as they were (None when there were none).
+    workers
+        Local processes to start (0: nothing to run); None on a Dask cluster.
+    requested
+        The ``workers`` asked for (None: the default, one per core).
+    limited_by
+        Why fewer processes start than asked for or than the default:
+        ``"runs"`` (no more than the runs to do) or ``"memory"`` (the
+        available memory, :data:`WORKER_MEMORY` each); None otherwise.
+    """
+
+    total: int
+    todo: int
+    reused: int
+    quarantined: int
+    quarantine: Path | None
+    workers: int | None
+    requested: int | None
+    limited_by: str | None
+
+
+@dataclass(frozen=True, slots=True)
 class CampaignResult:
+    """A finished campaign: its rows in run order and what was done.
+    ``quarantined`` lines of ``runs.csv`` could not be read and are kept in
+    ``quarantine``; ``workers``: the local processes used (None: Dask)."""
+
     campaign: Campaign
     rows: tuple[dict[str, Any], ...]
     ran: int
@@ -150,6 +215,20 @@ class CampaignResult:
     failed: int
     seconds: float
     folder: Path
+    quarantined: int = 0
+    quarantine: Path | None = None
+    workers: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class RunsFile:
+    """What :func:`read_runs` found in a ``runs.csv``: the rows it read, and
+    the lines it could not read (``unread``: their bytes as in the file,
+    ``unread_lines``: how many)."""
+
+    rows: tuple[dict[str, Any], ...]
+    unread: bytes
+    unread_lines: int
 
 
 def schema() -> dict:
@@ -158,16 +237,28 @@ def schema() -> dict:
 
 
 # ------------------------------------------------------------------ loading
-def load_campaign(path: str | Path) -> Campaign:
+def load_campaign(path: str | Path, max_runs: int = MAX_RUNS) -> Campaign:
     """Read, check and expand a campaign file.
+
+    Parameters
+    ----------
+    path
+        The campaign file (YAML).
+    max_runs
+        The most runs it may plan (default :data:`MAX_RUNS`). They are
+        counted from the file, before any model is compiled or any seed,
+        draw or run is expanded.
 
     Raises
     ------
     ErrorGroup, LoadError, ExperimentError
         Located one-line errors: the YAML, the schema, a model (its own
         errors name its file), a scenario, a draw range or a table that does
-        not fit the model.
+        not fit the model, more runs than ``max_runs``.
+    ArgumentTypeError, ArgumentValueError
+        ``max_runs`` is not an integer, or below 1.
     """
+    check_count(max_runs, "max_runs")
     raw = load.load(path)
     data = raw.data
     errors: list[BgcError] = []
@@ -183,6 +274,7 @@ def load_campaign(path: str | Path) -> Campaign:
     defaults = {"steps": None, "filters": ["gpf"], "particles": [1000], "noise": ["model"], "seeds": 1,
                 "refine": [False],
                 **data.get("defaults", {})}
+    _check_size(data["groups"], defaults, raw, max_runs)
     specs: list[RunSpec] = []
     group_names: list[str] = []
     compiled: dict[Path, pipeline.Compiled] = {}
@@ -227,6 +319,53 @@ def load_campaign(path: str | Path) -> Campaign:
         raise ErrorGroup(errors)
     return Campaign(data["campaign"], data.get("description", ""), str(path), raw.sha256, tuple(specs),
                     tuple(tables), tuple(group_names))
+
+
+def check_count(value: Any, name: str) -> int:
+    """``value`` when it is an integer of at least 1 (``max_runs``).
+
+    Raises
+    ------
+    ArgumentTypeError, ArgumentValueError
+        Not an integer (a bool is not one), or below 1.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ArgumentTypeError(f"{name} must be an integer, not {type(value).__name__}", None,
+                                f"give {name}=N with N >= 1")
+    if value < 1:
+        raise ArgumentValueError(f"{name} is {value}", None, "give an integer >= 1")
+    return int(value)
+
+
+def group_size(group: dict, settings: dict) -> int:
+    """The runs a group of a schema-valid campaign file plans, counted
+    without expanding anything: scenarios (or draws) x noise levels x
+    filters x particle counts x refine settings x seeds.
+
+    >>> group_size({"scenarios": ["none", "R1:abrupt:1@2"]}, {"noise": ["model"], "filters": ["gpf", "apf"],
+    ...            "particles": [100, 1000], "refine": [False], "seeds": 10})
+    80
+    """
+    scenarios = len(group["scenarios"]) if "scenarios" in group else group["draws"]["count"]
+    seeds = settings["seeds"]
+    seeds = seeds if isinstance(seeds, int) else len(seeds)
+    return (scenarios * len(settings["noise"]) * len(settings["filters"]) * len(settings["particles"])
+            * len(settings["refine"]) * seeds)
+
+
+def _check_size(groups: list[dict], defaults: dict, raw, max_runs: int) -> None:
+    """Refuse a campaign of more than ``max_runs`` runs, before any is expanded."""
+    sizes = [group_size(g, {k: g.get(k, v) for k, v in defaults.items()}) for g in groups]
+    total = sum(sizes)
+    if total <= max_runs:
+        return
+    big = max(range(len(sizes)), key=sizes.__getitem__)
+    name = printable(str(groups[big].get("name")))
+    raise ExperimentError(
+        f"the campaign plans {total:,} runs, more than the limit of {max_runs:,} (group '{name}' alone: "
+        f"{sizes[big]:,} = scenarios x noise levels x filters x particle counts x refine settings x seeds)",
+        raw.loc("groups", big), "make the grid smaller, or raise the limit: bgc experiment --max-runs N, "
+        "load_campaign(path, max_runs=N)")
 
 
 def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: dict, where: tuple, raw,
@@ -513,6 +652,8 @@ def _prediction(model_file: str, scenario: str, process_noise: float | None, mea
 
 # ------------------------------------------------------------------ rows
 def format_value(value: Any) -> str:
+    """A value as ``runs.csv`` writes it (before :func:`format_cell`'s guard
+    of text cells): a number as its shortest repr, a bool as true/false."""
     if value is None:
         return ""
     if isinstance(value, (bool, np.bool_)):
@@ -524,7 +665,36 @@ def format_value(value: Any) -> str:
     return str(value)
 
 
+def format_cell(column: str, value: Any) -> str:
+    """The cell of ``column`` in ``runs.csv``. A text cell is one line
+    (:func:`bgc.errors.printable`), so each row is one line of the file, and
+    one that starts with ``= + - @``, a tab or a carriage return (a formula
+    to a spreadsheet: OWASP's CSV-injection rule) is written after a ``'``,
+    as is one that starts with ``'`` itself, so that :func:`parse_value`
+    reads every one back exactly. Numeric cells are never touched (they may
+    be negative).
+
+    >>> format_cell("model", "=cmd|' -C calc'!A0.yaml"), format_cell("magnitude", -0.5)
+    ("'=cmd|' -C calc'!A0.yaml", '-0.5')
+    >>> parse_value("model", format_cell("model", "'quoted")), parse_value("model", format_cell("model", "-x"))
+    ("'quoted", '-x')
+    """
+    text = format_value(value)
+    if column in _TEXT:
+        text = printable(text)
+        if text.startswith(_FORMULA):
+            text = "'" + text
+    return text
+
+
 def parse_value(column: str, text: str) -> Any:
+    """A cell of ``runs.csv`` read back (:func:`format_cell` in reverse).
+
+    Raises
+    ------
+    ValueError
+        The cell is not a value of its column.
+    """
     if text == "":
         return None
     if column in _INT:
@@ -532,62 +702,198 @@ def parse_value(column: str, text: str) -> Any:
     if column in _FLOAT:
         return float(text)
     if column in _BOOL:
-        if text not in ("true", "false"):
+        low = text.lower()  # a spreadsheet saves TRUE and FALSE
+        if low not in ("true", "false"):
             raise ValueError(text)
-        return text == "true"
-    return text
+        return low == "true"
+    return text[1:] if text.startswith("'") else text
 
 
 def csv_header(c: Campaign) -> str:
     from .output.artifacts import MARK
 
     buf = io.StringIO()
-    buf.write(f"# {MARK} experiment from {printable(c.source)}: campaign {c.name}, one row per run\n")
+    buf.write(f"# {MARK} experiment from {printable(c.source)}: campaign {printable(c.name)}, one row per run\n")
     csv.writer(buf, lineterminator="\n").writerow(COLUMNS)
     return buf.getvalue()
 
 
 def csv_row(row: dict[str, Any]) -> str:
+    """One line of ``runs.csv`` (every cell on one line: :func:`format_cell`)."""
     buf = io.StringIO()
-    csv.writer(buf, lineterminator="\n").writerow([format_value(row.get(k)) for k in COLUMNS])
+    csv.writer(buf, lineterminator="\n").writerow([format_cell(k, row.get(k)) for k in COLUMNS])
     return buf.getvalue()
 
 
-def read_rows(path: Path) -> list[dict[str, Any]]:
-    """The rows of a ``runs.csv`` bgc wrote; a last line cut short by an
-    interruption, or any line that does not parse, is skipped (it is run again)."""
-    out = []
+def read_runs(path: Path) -> RunsFile:
+    """The rows of a ``runs.csv`` bgc wrote, read line by line (bgc writes a
+    row per line), and the lines that cannot be read.
+
+    Every intact row is read, whatever surrounds it. A line is unread when
+    it is not UTF-8, does not parse as one CSV record of the header's
+    columns (an unclosed quote, a cell over the csv module's field limit),
+    holds a value its column cannot take, or has no newline at its end (the
+    last line of a campaign interrupted while writing it). A byte-order mark
+    at the start, Windows line ends, ``TRUE``/``FALSE`` and blank lines (a
+    spreadsheet's save) are read. When the header is not a header of
+    ``runs.csv`` (of this bgc or of one with fewer columns), no line can be
+    read and every line is unread. A missing file has no rows.
+    """
+    from .output.artifacts import MARK
+
+    rows: list[dict[str, Any]] = []
+    unread: list[bytes] = []
+    header: tuple[str, ...] | None = None
     try:
-        text = path.read_text(encoding="utf-8", errors="replace")
+        f = open(path, "rb")
     except OSError:
-        return out
-    # a line without its newline was cut by an interruption: run again
-    lines = [ln for ln in text.splitlines(keepends=True) if not ln.startswith("#") and ln.endswith("\n")]
-    if not lines:
-        return out
-    reader = csv.reader(lines)
-    header = tuple(next(reader, None) or ())
-    if not header or COLUMNS[: len(header)] != header:  # a file of this version, or of one with fewer columns
-        return out
-    for values in reader:
-        if len(values) != len(header):
+        return RunsFile((), b"", 0)
+    with f:
+        for number, raw in enumerate(f):
+            data = raw[3:] if number == 0 and raw.startswith(b"\xef\xbb\xbf") else raw
+            try:
+                text = data.decode("utf-8")
+            except UnicodeDecodeError:
+                unread.append(raw)
+                continue
+            if not text.strip():
+                continue  # a blank line holds nothing
+            if not text.endswith("\n"):  # cut short by an interruption
+                unread.append(raw)
+                continue
+            body = text[:-1].removesuffix("\r")
+            try:
+                records = list(csv.reader([body], strict=True))
+            except csv.Error:  # an unclosed quote, a cell over the field limit, ...
+                unread.append(raw)
+                continue
+            if len(records) != 1:
+                unread.append(raw)
+                continue
+            values = records[0]
+            if header is None:
+                if values and values[0].startswith("#") and MARK in body:  # bgc's comment line
+                    continue
+                if values and tuple(values) == COLUMNS[:len(values)] and "status" in values:
+                    header = tuple(values)
+                else:
+                    unread.append(raw)
+                continue
+            if len(values) != len(header):
+                unread.append(raw)
+                continue
+            try:
+                row = dict.fromkeys(COLUMNS)
+                row.update({k: parse_value(k, v) for k, v in zip(header, values)})
+            except ValueError:
+                unread.append(raw)
+                continue
+            row["refine"] = bool(row["refine"])
+            rows.append(row)
+    return RunsFile(tuple(rows), b"".join(unread), len(unread))
+
+
+def read_rows(path: Path) -> list[dict[str, Any]]:
+    """The rows of a ``runs.csv`` (:func:`read_runs`, without its unread lines)."""
+    return list(read_runs(path).rows)
+
+
+def _set_aside(folder: Path, data: bytes) -> Path:
+    """Write the unread lines of ``runs.csv`` into a new file beside it
+    (:data:`UNREAD`, the first free number): bgc never overwrites it."""
+    from .output import artifacts
+
+    for n in range(1, 100_000):
+        path = folder / UNREAD.format(n=n)
+        if path.exists() or path.is_symlink():
             continue
         try:
-            row = dict.fromkeys(COLUMNS)
-            row.update({k: parse_value(k, v) for k, v in zip(header, values)})
-            row["refine"] = bool(row["refine"])
-            out.append(row)
-        except ValueError:
+            return artifacts.write_new(path, data)
+        except OutputError:  # made meanwhile by another process: the next number
             continue
-    return out
+    raise ExperimentError(f"{printable(str(folder))} holds too many {UNREAD.format(n='N')} files", None,
+                          "move them away, then run the campaign again")
 
 
 # ------------------------------------------------------------------ running
+def cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system
+    tells it, else every core)."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def worker_limit() -> int:
+    """The most local worker processes a campaign may ask for:
+    :data:`WORKERS_PER_CORE` per core."""
+    return WORKERS_PER_CORE * cores()
+
+
+def check_workers(workers: Any, name: str = "workers") -> int | None:
+    """``workers`` when it is None (one per core) or an integer from 1 to
+    :func:`worker_limit`; ``name`` is how the caller calls it in messages.
+
+    Raises
+    ------
+    ArgumentTypeError, ArgumentValueError
+        Not an integer (a bool is not one), below 1, or above the limit.
+    """
+    if workers is None:
+        return None
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)):
+        raise ArgumentTypeError(f"{name} must be an integer or None, not {type(workers).__name__}", None,
+                                "give a number of local processes, e.g. 4")
+    limit = worker_limit()
+    if workers < 1:
+        raise ArgumentValueError(f"{name} is {workers}", None, f"give 1 to {limit} local processes")
+    if workers > limit:
+        raise ArgumentValueError(
+            f"{name} {workers} is more than the limit of {limit} local processes ({WORKERS_PER_CORE} per core, "
+            f"{cores()} cores)", None, f"give at most {limit}, or run on a Dask cluster with --scheduler")
+    return int(workers)
+
+
+def _available_memory() -> int | None:
+    """Bytes of memory available to new processes (Linux: MemAvailable), or None when unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def local_workers(requested: int | None, todo: int) -> tuple[int, str | None]:
+    """How many local processes to start for ``todo`` runs when
+    ``requested`` (None: one per core) were asked for, and why fewer
+    (``"runs"``, ``"memory"``, or None): never more than the runs to do, nor
+    than the available memory holds at :data:`WORKER_MEMORY` each (at least
+    one)."""
+    if todo <= 0:
+        return 0, None
+    n = requested or cores()
+    why = None
+    if n > todo:
+        n, why = todo, "runs"
+    memory = _available_memory()
+    if memory is not None and n > max(memory // WORKER_MEMORY, 1):
+        n, why = max(memory // WORKER_MEMORY, 1), "memory"
+    return n, why
+
+
 def _local(specs: list[RunSpec], workers: int) -> Iterator[tuple[RunSpec, dict]]:
     # fork where there is one: workers inherit the loaded modules and run from a
     # notebook or a script without a __main__ guard (spawn re-imports __main__)
     method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method)) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method),
+                             initializer=_worker_start, initargs=(os.getpid(),)) as pool:
         futures = {pool.submit(run_one, s): s for s in specs}
         try:
             for f in as_completed(futures):
@@ -598,17 +904,181 @@ def _local(specs: list[RunSpec], workers: int) -> Iterator[tuple[RunSpec, dict]]
                 f.cancel()
 
 
-def _dask(specs: list[RunSpec], address: str) -> Iterator[tuple[RunSpec, dict]]:
+#: prctl(2)'s option that has the kernel signal a process when its parent dies (Linux).
+_PR_SET_PDEATHSIG = 1
+
+
+def _worker_start(parent: int) -> None:
+    """The initializer of a local worker process: it ends when the campaign's
+    process ends, however that ends (a SIGKILL too), instead of waiting for
+    work forever. On Linux the kernel sends it SIGTERM when its parent dies
+    (``prctl(PR_SET_PDEATHSIG)``); everywhere a daemon thread looks at its
+    parent every 0.5 s. Either way it removes its private folders and exits."""
+    signal.signal(signal.SIGTERM, _orphaned)
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        except (OSError, AttributeError):  # no libc to call: the thread alone
+            pass
+    if os.getppid() != parent:  # the parent died before the signal was asked for
+        _orphaned()
+    threading.Thread(target=_watch_parent, args=(parent,), name="bgc-watch-parent", daemon=True).start()
+
+
+def _watch_parent(parent: int) -> None:
+    while True:
+        time.sleep(0.5)
+        if os.getppid() != parent:  # re-parented: the campaign's process has died
+            _orphaned()
+
+
+def _orphaned(*_signal: Any) -> None:
+    """End this worker now: its folders removed (the finalizers of
+    :func:`bgc.api.private_folder`; a worker skips atexit), no clean-up of
+    the pool it served (its parent has gone)."""
+    try:
+        from multiprocessing import util
+
+        util._run_finalizers(0)  # noqa: SLF001 - what multiprocessing runs at a worker's normal end
+    except Exception:  # noqa: BLE001 - best effort: the exit below is what matters
+        pass
+    finally:
+        os._exit(1)
+
+
+def scheduler_endpoint(address: str) -> tuple[str, int] | None:
+    """(host, port) of a Dask scheduler address reached over TCP
+    (``tcp://``, ``tls://`` or a bare ``host:port``), None for another
+    transport (``inproc://``, ``ucx://``, ...).
+
+    >>> scheduler_endpoint("tcp://10.0.0.5:8786"), scheduler_endpoint("[::1]:9000"), scheduler_endpoint("ucx://h:1")
+    (('10.0.0.5', 8786), ('::1', 9000), None)
+
+    Raises
+    ------
+    ExperimentError
+        The address has no host or no port, or its port is not a number
+        from 1 to 65535.
+    """
+    scheme, sep, rest = address.partition("://")
+    if not sep:
+        scheme, rest = "tcp", address
+    if scheme.lower() not in ("tcp", "tls"):
+        return None
+    rest = rest.split("/", 1)[0]
+    if rest.startswith("["):  # [IPv6]:port
+        host, _, tail = rest[1:].partition("]")
+        port_text = tail[1:] if tail.startswith(":") else ""
+    elif rest.count(":") == 1:
+        host, port_text = rest.split(":")
+    else:
+        host, port_text = rest, ""
+    fix = "give tcp://HOST:PORT, e.g. tcp://10.0.0.5:8786 (a scheduler listens on port 8786 unless told otherwise)"
+    if not host:
+        raise ExperimentError(f"scheduler address {printable(address)} names no host", None, fix)
+    if not port_text:
+        raise ExperimentError(f"scheduler address {printable(address)} names no port", None, fix)
+    if not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
+        raise ExperimentError(f"scheduler address {printable(address)}: port '{printable(port_text)}' is not a "
+                              "number from 1 to 65535", None, fix)
+    return host, int(port_text)
+
+
+def check_scheduler(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
+    """Fail fast when no Dask scheduler answers at ``address``: one TCP
+    connection to its host and port (a refused connection fails at once;
+    Dask's client would retry it for its whole timeout), then Dask's
+    handshake (a server that takes the connection but never answers holds
+    Dask's client forever, one that answers something else can crash it),
+    each within ``timeout`` seconds. Addresses of other transports than
+    TCP and TLS are left to Dask.
+
+    Raises
+    ------
+    ExperimentError
+        The address is malformed, the host is unknown, refuses the
+        connection, does not answer in time or is no Dask scheduler.
+    """
+    endpoint = scheduler_endpoint(address)
+    if endpoint is None:
+        return
+    _tcp_probe(address, endpoint, timeout)
+    _handshake_probe(address, timeout)
+
+
+def _tcp_probe(address: str, endpoint: tuple[str, int], timeout: float) -> None:
+    host, port = endpoint
+    where = f"the Dask scheduler at {printable(address)}"
+    start = "start one (dask scheduler; dask worker ADDRESS) or check the address and port"
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            return
+    except ConnectionRefusedError:
+        raise ExperimentError(f"cannot reach {where}: connection refused (nothing listens at port {port})", None,
+                              start) from None
+    except socket.gaierror as exc:
+        raise ExperimentError(f"cannot reach {where}: unknown host '{printable(host)}' ({printable(str(exc))})",
+                              None, "check the host name") from None
+    except (TimeoutError, socket.timeout):
+        raise ExperimentError(f"cannot reach {where}: no answer within {timeout:g} s", None,
+                              "check the address, the network and firewalls, or wait longer with "
+                              "--connect-timeout SECONDS") from None
+    except OSError as exc:
+        raise ExperimentError(f"cannot reach {where}: {printable(exc.strerror or str(exc))}", None, start) from None
+
+
+def _handshake_probe(address: str, timeout: float) -> None:
+    """Dask's handshake with the scheduler, given up after ``timeout``
+    seconds (in a thread of its own: the caller may be inside an event loop,
+    as in a notebook)."""
+    import asyncio
+
+    from distributed.comm import connect
+    from distributed.security import Security
+
+    failure: list[BaseException] = []
+
+    async def probe() -> None:
+        comm = await asyncio.wait_for(connect(address, timeout=timeout, **Security().get_connection_args("client")),
+                                      timeout)
+        await comm.close()
+
+    def run() -> None:
+        try:
+            asyncio.run(probe())
+        except BaseException as exc:  # noqa: BLE001 - any failure means no scheduler: said below
+            failure.append(exc)
+
+    thread = threading.Thread(target=run, name="bgc-scheduler-probe", daemon=True)
+    thread.start()
+    thread.join(timeout + 5.0)
+    where = f"the Dask scheduler at {printable(address)}"
+    if thread.is_alive() or (failure and isinstance(failure[0], (TimeoutError, asyncio.TimeoutError))):
+        raise ExperimentError(f"cannot reach {where}: the server takes the connection but does not answer within "
+                              f"{timeout:g} s", None, "check that it is the address dask scheduler prints, or wait "
+                              "longer with --connect-timeout SECONDS")
+    if failure:
+        exc = failure[0]
+        said = "not Dask's protocol" if isinstance(exc, MemoryError) else f"{type(exc).__name__}: {exc}"
+        raise ExperimentError(f"cannot reach {where}: {printable(said)[:300]}", None,
+                              "check that it is the address dask scheduler prints")
+
+
+def _dask(specs: list[RunSpec], address: str, timeout: float) -> Iterator[tuple[RunSpec, dict]]:
     try:
         from distributed import Client
         from distributed import as_completed as dask_completed
     except ImportError:  # pragma: no cover - a dependency of bgc
         raise ExperimentError("--scheduler needs dask.distributed", None, "pip install 'dask[distributed]'") from None
+    check_scheduler(address, timeout)
     try:
-        client = Client(address, timeout=30)
-    except (OSError, TimeoutError, ValueError) as exc:
-        raise ExperimentError(f"cannot reach the Dask scheduler at {printable(address)}: {exc}", None,
-                              "start one (dask scheduler; dask worker ADDRESS) or check the address") from None
+        client = Client(address, timeout=timeout)
+    except Exception as exc:  # noqa: BLE001 - whatever Dask raises, the scheduler is out of reach
+        raise ExperimentError(f"cannot reach the Dask scheduler at {printable(address)}: {printable(str(exc))}",
+                              None, "start one (dask scheduler; dask worker ADDRESS), check the address, or wait "
+                              "longer with --connect-timeout SECONDS") from None
     try:
         futures = client.map(run_one, specs, key=[f"bgc-run-{s.id}-{s.index}" for s in specs], pure=False)
         by_key = {f.key: s for f, s in zip(futures, specs)}
@@ -633,17 +1103,87 @@ def _result(future, spec: RunSpec) -> dict[str, Any]:
         return row
 
 
-def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, workers: int | None = None,
-                 progress: bool | None = None, outputs: bool = True) -> CampaignResult:
-    """Run the campaign's runs not yet in ``out/runs.csv`` (a failed one is run
-    again) on ``workers`` local processes (default: every core) or on the
-    Dask cluster at ``scheduler``; append each row as it completes, then write
-    the tables and plots (``outputs``).
+def check_timeout(value: Any, name: str = "connect_timeout") -> float:
+    """``value`` as seconds when it is a finite number above 0.
 
-    ``progress``: a progress bar on stderr (None: when stderr is a terminal).
+    Raises
+    ------
+    ArgumentTypeError, ArgumentValueError
+        Not a number (a bool is not one), or not finite and above 0.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ArgumentTypeError(f"{name} must be a number of seconds, not {type(value).__name__}", None,
+                                f"give {name}={CONNECT_TIMEOUT:g}")
+    if not (math.isfinite(value) and value > 0):
+        raise ArgumentValueError(f"{name} is {value}", None, "give a finite number of seconds above 0")
+    return float(value)
+
+
+def _check_arguments(c: Any, out: Any, scheduler: Any, progress: Any, outputs: Any, on_start: Any) -> None:
+    if not isinstance(c, Campaign):
+        raise ArgumentTypeError(f"the campaign must be a Campaign, not {type(c).__name__}", None,
+                                "read it with bgc.campaign.load_campaign(path)")
+    if not isinstance(out, (str, os.PathLike)) or not str(out):
+        raise ArgumentTypeError(f"out must be a folder path, not {type(out).__name__}", None,
+                                "give a str or pathlib.Path")
+    if scheduler is not None and (not isinstance(scheduler, str) or not scheduler.strip()):
+        raise ArgumentTypeError(f"scheduler must be an address (str) or None, not {type(scheduler).__name__}",
+                                None, "e.g. scheduler='tcp://10.0.0.5:8786'")
+    if progress is not None and not isinstance(progress, (bool, np.bool_)):
+        raise ArgumentTypeError(f"progress must be True, False or None, not {type(progress).__name__}", None,
+                                "None: a progress bar when stderr is a terminal")
+    if not isinstance(outputs, (bool, np.bool_)):
+        raise ArgumentTypeError(f"outputs must be True or False, not {type(outputs).__name__}", None,
+                                "True: write the tables and plots at the end")
+    if on_start is not None and not callable(on_start):
+        raise ArgumentTypeError(f"on_start must be callable or None, not {type(on_start).__name__}", None,
+                                "give a function of one CampaignStart")
+
+
+def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, workers: int | None = None,
+                 progress: bool | None = None, outputs: bool = True, connect_timeout: float = CONNECT_TIMEOUT,
+                 on_start: Callable[[CampaignStart], None] | None = None) -> CampaignResult:
+    """Run the campaign's runs not yet in ``out/runs.csv`` (a failed one is run
+    again), append each row as it completes, then write the tables and plots.
+
+    Parameters
+    ----------
+    c
+        The campaign (:func:`load_campaign`).
+    out
+        Its folder: empty, or one this campaign wrote before (it resumes).
+        The lines of its ``runs.csv`` that cannot be read are kept in a new
+        ``runs.unread-N.csv`` (:func:`read_runs`).
+    scheduler
+        A Dask distributed scheduler's address; None: local processes.
+    workers
+        Local processes (None: one per core), at most :func:`worker_limit`;
+        no more start than the runs to do or the memory holds
+        (:func:`local_workers`). Not used with ``scheduler``.
+    progress
+        A progress bar on stderr (None: when stderr is a terminal).
+    outputs
+        Write ``tables.md``, ``summary.json`` and the plots at the end.
+    connect_timeout
+        Seconds to wait for the scheduler (:func:`check_scheduler`, then
+        Dask's handshake).
+    on_start
+        Called with a :class:`CampaignStart` once the folder is read, before
+        the first run.
+
+    Raises
+    ------
+    ArgumentTypeError, ArgumentValueError
+        An argument of the wrong type or out of range.
+    ExperimentError, OutputError
+        The folder holds another campaign or files bgc did not write; the
+        scheduler cannot be reached.
     """
     from .output import artifacts
 
+    _check_arguments(c, out, scheduler, progress, outputs, on_start)
+    workers = check_workers(workers)
+    connect_timeout = check_timeout(connect_timeout)
     started = time.perf_counter()
     folder = Path(out)
     previous = artifacts.read_manifest(folder) if folder.is_dir() else None
@@ -653,32 +1193,44 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
         raise ExperimentError(f"{printable(str(folder))} holds {what}", None, "choose another -o folder")
     ids = {s.id for s in c.specs}
     done = {}
+    quarantine = None
+    unread = 0
     if previous is not None:
-        for row in read_rows(folder / RUNS):
-            if row["status"] == "ok" and row["id"] in ids:
+        found = read_runs(folder / RUNS)
+        if found.unread_lines:  # set aside before runs.csv is written again
+            quarantine = _set_aside(folder, found.unread)
+            unread = found.unread_lines
+        for row in found.rows:
+            if row["status"] == "ok" and row["id"] in ids and row["id"] not in done:
                 done[row["id"]] = row
     todo = [s for s in c.specs if s.id not in done]
     rows_text = csv_header(c) + "".join(csv_row(r) for r in sorted(done.values(), key=lambda r: r["index"]))
     artifacts.write_folder(folder, {RUNS: rows_text, artifacts.MANIFEST: artifacts.manifest(
-        {RUNS: rows_text}, campaign=c.name, source=c.source)})
+        {RUNS: rows_text}, "experiment", growing=(RUNS,), campaign=c.name, source=c.source)},
+        adopt=(RUNS,) if previous is not None else ())
+    n_workers, why = (None, None) if scheduler else local_workers(workers, len(todo))
+    if on_start is not None:
+        on_start(CampaignStart(len(c.specs), len(todo), len(done), unread, quarantine, n_workers, workers, why))
     by_id = {s.id: s for s in c.specs}
     rows = {k: {**v, **by_id[k].identity()} for k, v in done.items()}  # where it sits now, its model's path now
     failed = 0
     if todo:
-        show = sys.stderr.isatty() if progress is None else progress
+        show = sys.stderr.isatty() if progress is None else bool(progress)
         bar = _bar(len(c.specs), len(done), c.name, show)
-        source = _dask(todo, scheduler) if scheduler else _local(todo, workers or os.cpu_count() or 1)
+        source = _dask(todo, scheduler, connect_timeout) if scheduler else _local(todo, n_workers)
         try:
-            for spec, row in source:
-                rows[spec.id] = row
-                artifacts.append_text(folder / RUNS, csv_row(row))
-                failed += row["status"] != "ok"
-                bar.update(1)
-                bar.set_postfix(failed=failed, refresh=False)
+            with artifacts.GrowingFile(folder / RUNS) as runs_file:
+                for spec, row in source:
+                    rows[spec.id] = row
+                    runs_file.append(csv_row(row))
+                    failed += row["status"] != "ok"
+                    bar.update(1)
+                    bar.set_postfix(failed=failed, refresh=False)
         finally:
             bar.close()
     ordered = tuple(sorted(rows.values(), key=lambda r: r["index"]))
-    result = CampaignResult(c, ordered, len(todo), len(done), failed, time.perf_counter() - started, folder)
+    result = CampaignResult(c, ordered, len(todo), len(done), failed, time.perf_counter() - started, folder,
+                            unread, quarantine, n_workers)
     if outputs:
         write_outputs(result)
     return result
@@ -702,9 +1254,11 @@ def write_outputs(result: CampaignResult) -> list[Path]:
     files["summary.json"] = tables.campaign_json(c, result.rows)
     for name, data in plots.campaign_figures(result.rows).items():
         files[f"plots/{name}"] = data
-    files[artifacts.MANIFEST] = artifacts.manifest(files, campaign=c.name, source=c.source)
+    files[artifacts.MANIFEST] = artifacts.manifest(files, "experiment", campaign=c.name, source=c.source)
     return artifacts.write_folder(result.folder, files)
 
 
-__all__ = ["COLUMNS", "Campaign", "CampaignResult", "RunSpec", "load_campaign", "run_campaign", "run_one",
-           "read_rows", "write_outputs", "schema"]
+__all__ = ["COLUMNS", "CONNECT_TIMEOUT", "MAX_RUNS", "WORKERS_PER_CORE", "Campaign", "CampaignResult",
+           "CampaignStart", "RunSpec", "RunsFile", "check_scheduler", "check_workers", "load_campaign",
+           "local_workers", "read_rows", "read_runs", "run_campaign", "run_one", "schema", "worker_limit",
+           "write_outputs"]

@@ -304,22 +304,49 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     from . import campaign
     from .output import tables
 
-    c = campaign.load_campaign(args.config)
+    # what can be refused without the models: before they compile
+    campaign.check_workers(args.workers, "--workers")
+    if args.scheduler:
+        campaign.check_scheduler(args.scheduler, args.connect_timeout)
+        if args.workers is not None:
+            print("bgc: --workers is for local processes: the Dask cluster's own workers run the campaign",
+                  file=sys.stderr)
+    c = campaign.load_campaign(args.config, max_runs=args.max_runs)
     out = Path(args.output or Path("out") / c.name)
-    workers = args.workers
-    where = f"the Dask cluster at {printable(args.scheduler)}" if args.scheduler else \
-        f"{workers or os.cpu_count() or 1} local processes"
-    print(f"campaign {c.name}: {len(c.specs)} runs on {where}, results in {printable(str(out))}/", file=sys.stderr)
+    folder = printable(str(out))
+
+    def started(s: campaign.CampaignStart) -> None:
+        if s.quarantined:
+            print(f"bgc: {s.quarantined} line{'s' if s.quarantined > 1 else ''} of {folder}/{campaign.RUNS} could "
+                  f"not be read: kept as they were in {printable(str(s.quarantine))} (a run among them runs again)",
+                  file=sys.stderr)
+        if s.workers is not None and s.limited_by == "memory":
+            print(f"bgc: starting {s.workers} local processes: the available memory holds no more at "
+                  f"{campaign.WORKER_MEMORY // 2**20} MiB each", file=sys.stderr)
+        elif s.workers is not None and s.limited_by == "runs" and s.requested is not None:
+            print(f"bgc: --workers {s.requested}: starting {s.workers} local process{'es' if s.workers > 1 else ''}"
+                  f", one per run to do", file=sys.stderr)
+        where = (f"the Dask cluster at {printable(args.scheduler)}" if s.workers is None else
+                 f"{s.workers} local process{'es' if s.workers != 1 else ''}")
+        plan = f"{s.total} runs" if not s.reused else f"{s.total} runs ({s.reused} done before, {s.todo} to run)"
+        if s.todo:
+            print(f"campaign {c.name}: {plan} on {where}, results in {folder}/", file=sys.stderr)
+        else:
+            print(f"campaign {c.name}: {plan}: every run done before, results in {folder}/", file=sys.stderr)
+
     try:
-        r = campaign.run_campaign(c, out, scheduler=args.scheduler, workers=workers,
-                                  progress=None if not args.no_progress else False)
+        r = campaign.run_campaign(c, out, scheduler=args.scheduler, workers=args.workers,
+                                  progress=None if not args.no_progress else False,
+                                  connect_timeout=args.connect_timeout, on_start=started)
     except KeyboardInterrupt:
-        print(f"bgc: interrupted; finished runs are in {printable(str(out / campaign.RUNS))}: run the same command "
+        print(f"bgc: interrupted; finished runs are in {folder}/{campaign.RUNS}: run the same command "
               "to resume", file=sys.stderr)
         return 130
     print(tables.summary_markdown(list(r.rows)), end="")
+    kept = (f"; {r.quarantined} unreadable line{'s' if r.quarantined > 1 else ''} of {campaign.RUNS} kept in "
+            f"{printable(str(r.quarantine))}" if r.quarantined else "")
     print(f"{c.name}: {r.ran} runs done, {r.reused} reused from an earlier run, {r.failed} failed "
-          f"({r.seconds:.1f} s); tables in {printable(str(out))}/tables.md, plots in {printable(str(out))}/plots/")
+          f"({r.seconds:.1f} s); tables in {folder}/tables.md, plots in {folder}/plots/{kept}")
     return 1 if r.failed and r.failed == r.ran and r.ran else 0
 
 
@@ -455,7 +482,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "campaign resumes from it")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run on this Dask distributed scheduler "
                    "(e.g. tcp://10.0.0.5:8786) instead of local processes")
-    p.add_argument("--workers", type=_positive, default=None, help="local processes (default: every core)")
+    p.add_argument("--workers", type=_positive, default=None,
+                   help="local processes (default: one per core; at most 4 per core, and never more than the runs "
+                        "to do)")
+    p.add_argument("--max-runs", type=_positive, default=100_000, metavar="N",
+                   help="refuse a campaign of more than N runs (default 100000), counted before any is expanded")
+    p.add_argument("--connect-timeout", type=_above_zero, default=10.0, metavar="SECONDS",
+                   help="with --scheduler: seconds to wait for the scheduler to answer (default 10; a refused "
+                        "connection fails at once)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(run=cmd_experiment)
     return parser

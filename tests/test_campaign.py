@@ -8,6 +8,7 @@ import math
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
@@ -212,6 +213,9 @@ def test_an_interrupted_campaign_resumes_without_redoing_finished_runs(local_run
     (out / "runs.csv").write_text("".join(lines[:8]) + lines[8].rstrip("\n")[:-2])
     again = campaign.run_campaign(c, out, workers=2, progress=False)
     assert (again.reused, again.ran) == (6, 4)
+    # the cut line is not lost: it is set aside as it was, and its run done again
+    assert again.quarantined == 1 and again.quarantine == out / "runs.unread-1.csv"
+    assert again.quarantine.read_text() == lines[8].rstrip("\n")[:-2]
     assert without_time(again.rows) == without_time(first.rows)
 
 
@@ -245,9 +249,12 @@ def test_the_campaign_folder_is_bgc_s_own(local_run, tmp_path):
 
 def test_an_unreachable_scheduler_is_one_line(tmp_path):
     config = write(tmp_path, SMALL)
+    started = time.perf_counter()
     r = subprocess.run([sys.executable, "-m", "bgc", "experiment", str(config), "-o", str(tmp_path / "o"),
                         "--scheduler", "tcp://127.0.0.1:9"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and "Traceback" not in r.stderr and "Dask scheduler" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert time.perf_counter() - started < 5  # refused: no retries for Dask's 30 s timeout
 
 
 # ------------------------------------------------------------------ tables and metrics

@@ -551,10 +551,13 @@ def write_new(path: Path, content: str | bytes) -> Path:
     return path
 
 
-def append_text(path: Path, text: str) -> None:
-    """Append ``text`` to a growing file of a folder bgc wrote (a campaign's
-    ``runs.csv`` grows a row per finished run), flushed to disk so that an
-    interrupted campaign keeps every finished row.
+class GrowingFile:
+    """A growing file of a folder bgc wrote (a campaign's ``runs.csv`` grows
+    a row per finished run), open for appending: each :meth:`append` is
+    flushed to disk, so an interrupted campaign keeps every finished row.
+    The file's start is checked against the manifest when it is opened, and
+    again only when something else changed the file in between (its size or
+    identity is not what the last append left).
 
     Raises
     ------
@@ -562,16 +565,52 @@ def append_text(path: Path, text: str) -> None:
         The folder's manifest does not list the file as growing, or its
         start is no longer what bgc wrote.
     """
-    path = Path(path)
-    m = read_manifest(path.parent)
-    if (m is None or path.name not in (m.get("growing") or {})
-            or _listed_state(path.parent, m, path.name) != "intact"):
-        raise OutputError(f"{printable(str(path))} is not a file bgc is growing", None,
-                          "choose another output folder")
-    with open(path, "a", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self._check()
+        self._file = open(self.path, "ab")
+        self._seen = self._identity()
+
+    def _check(self) -> None:
+        m = read_manifest(self.path.parent)
+        if (m is None or not isinstance(m.get("growing"), Mapping) or self.path.name not in m["growing"]
+                or _listed_state(self.path.parent, m, self.path.name) != "intact"):
+            raise OutputError(f"{printable(str(self.path))} is not a file bgc is growing", None,
+                              "choose another output folder")
+
+    def _identity(self) -> tuple[int, int, int]:
+        st = os.stat(self.path)
+        return st.st_dev, st.st_ino, st.st_size
+
+    def append(self, text: str) -> None:
+        try:
+            now = self._identity()
+        except OSError:
+            now = None
+        if now != self._seen:  # another program wrote or replaced it meanwhile
+            self._check()
+            self._file.close()
+            self._file = open(self.path, "ab")
+        self._file.write(text.encode("utf-8"))
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._seen = self._identity()
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> "GrowingFile":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def append_text(path: Path, text: str) -> None:
+    """Append ``text`` to a growing file of a folder bgc wrote (:class:`GrowingFile`)."""
+    with GrowingFile(path) as f:
+        f.append(text)
 
 
 def diff(directory: Path, files: Mapping[str, str]) -> list[str]:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import printable
 from ..kinds import fault_kind
 from .artifacts import mark_picture
 
@@ -264,6 +265,7 @@ def campaign_figures(rows) -> dict[str, bytes]:
             ax.grid(True, alpha=0.3)
             ax.legend(fontsize=7)
         out[f"accuracy_by_{axis}.png"] = _save(plt, fig, "png")
+    names: set[str] = set()
     for model in dict.fromkeys(r["model"] for r in rows):
         truths, saids, counts = confusion(rows, model)
         if not truths:
@@ -286,9 +288,32 @@ def campaign_figures(rows) -> dict[str, bytes]:
         ax.set_yticks(range(len(truths)), truths, fontsize=7)
         ax.set_xlabel("diagnosed", fontsize=8)
         ax.set_ylabel("injected", fontsize=8)
-        ax.set_title(f"isolation: {Path(model).stem}", fontsize=9)
-        out[f"confusion_{Path(model).stem}.png"] = _save(plt, fig, "png")
+        stem = Path(model).stem
+        ax.set_title(f"isolation: {_literal(stem)}", fontsize=9)
+        out[_unique(f"confusion_{_file_stem(stem)}", ".png", names)] = _save(plt, fig, "png")
     return out
+
+
+def _literal(text: str) -> str:
+    """Text from outside (a file's name) as matplotlib shows it literally: a
+    ``$`` would start mathematics (and an unbalanced one fail to draw)."""
+    return printable(text).replace("$", r"\$")
+
+
+def _file_stem(text: str) -> str:
+    """A file name's stem from outside, as letters, digits, ``_ . -`` only."""
+    return "".join(ch if ch.isascii() and (ch.isalnum() or ch in "_.-") else "_" for ch in text)[:80] or "model"
+
+
+def _unique(stem: str, suffix: str, taken: set[str]) -> str:
+    """``stem + suffix``, or with ``-2``, ``-3``... when taken (two models'
+    files with the same stem)."""
+    name, n = stem + suffix, 1
+    while name in taken:
+        n += 1
+        name = f"{stem}-{n}{suffix}"
+    taken.add(name)
+    return name
 
 
 def distinguishability_figure(r, fmt: str = "png") -> bytes:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from ..errors import printable
+from .markdown import escape
 
 
 def _t(d, step: int | None) -> float | None:
@@ -77,9 +77,9 @@ def report_markdown(r) -> str:
     """The report for people: ``report.md``."""
     d = r.diagnosis
     det = d.detection
-    lines = [f"# Diagnosis of {printable(r.model)} (`{printable(r.source)}`)", ""]
+    lines = [f"# Diagnosis of {escape(r.model)} ({escape(r.source)})", ""]
     if r.scenario:
-        lines.append(f"Data: simulated scenario `{printable(r.scenario)}`, {len(d.time)} samples "
+        lines.append(f"Data: simulated scenario {escape(r.scenario)}, {len(d.time)} samples "
                      f"(t = {d.time[0]:g} to {d.time[-1]:g}).")
     else:
         lines.append(f"Data: {len(d.time)} samples (t = {d.time[0]:g} to {d.time[-1]:g}).")
@@ -122,7 +122,7 @@ def report_markdown(r) -> str:
             lines.append("No sensor deviated significantly from the open-loop nominal prediction.")
         if d.refuted:
             lines += ["", "Ruled out by their signatures:", ""]
-            lines += [f"- {n}: {printable(why)}" for n, why in d.refuted]
+            lines += [f"- {escape(n)}: {escape(why)}" for n, why in d.refuted]
         lines += ["", "## Fault-model filters", "",
                   "| hypothesis | onset | posterior | estimate | interval | dropped | why |",
                   "|---|---|---|---|---|---|---|"]
@@ -131,7 +131,7 @@ def report_markdown(r) -> str:
             truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
             lines.append(f"| {h.name} | {_t(d, h.onset):g} | {h.posterior:.3g} | {e.magnitude} {e.value:.4g}{truth} | "
                          f"[{e.low:.4g}, {e.high:.4g}] | "
-                         f"{'-' if h.dropped is None else f't = {_t(d, h.dropped):g}'} | {printable(h.reason) or '-'} |")
+                         f"{'-' if h.dropped is None else f't = {_t(d, h.dropped):g}'} | {escape(h.reason) or '-'} |")
         best = d.best
         if best is not None and d.verdict in ("isolated", "ambiguous"):
             lines += ["", "## Identification", ""]
@@ -155,6 +155,6 @@ def report_markdown(r) -> str:
                     lines.append(f"  - the particle filters' own estimate (a magnitude with a random walk): "
                                  f"{f.value:.4g} +- {f.std:.2g}, [{f.low:.4g}, {f.high:.4g}]")
     if d.notes:
-        lines += ["", "## Notes", ""] + [f"- {printable(n)}" for n in d.notes]
+        lines += ["", "## Notes", ""] + [f"- {escape(n)}" for n in d.notes]
     lines += ["", f"Diagnosis computed in {d.seconds:.2f} s.", ""]
     return "\n".join(lines)

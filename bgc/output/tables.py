@@ -3,6 +3,12 @@ Tables IV.2 to IV.4, with published numbers beside ours), a summary per group,
 filter, noise level and particle count, and an isolation confusion matrix per
 model. Rows are the dicts of :mod:`bgc.campaign` (``runs.csv``).
 
+Every free-text value that reaches ``tables.md`` (the campaign's name and
+description, table titles, sources, scenarios, model paths, group and noise
+names, failure messages) passes through :func:`bgc.output.markdown.escape`:
+one line, and no Markdown of its own (a heading, a table cell's bound, a
+link, HTML, emphasis).
+
 >>> rows = [{"filter": "gpf", "status": "ok", "scenario": "none", "rt": 1.0, "right": None},
 ...         {"filter": "gpf", "status": "ok", "scenario": "none", "rt": 3.0, "right": None}]
 >>> cell(rows, "rt")
@@ -16,6 +22,8 @@ from typing import Any, Iterable
 
 from ..runtime.distinguish import LEVEL
 from . import render
+from .markdown import comment as _comment
+from .markdown import escape
 
 #: Metrics shown as a percentage of the runs where they are defined.
 RATES = ("detected", "false_alarm", "right", "covers")
@@ -89,13 +97,13 @@ def table_markdown(spec, rows: list[dict]) -> str:
     the metrics as mean (sd) over the runs, published numbers in brackets."""
     chosen, labels, by = table_groups(spec, rows)
     filters = [f for f in ("gpf", "apf", "opf", "ckf") if any(r["filter"] == f for r in chosen)]
-    head = [spec.rows] + [f"{f.upper()} {HEAD[m]}" for f in filters for m in spec.metrics]
-    lines = [f"### {spec.title}", ""]
+    head = [escape(spec.rows)] + [f"{f.upper()} {HEAD[m]}" for f in filters for m in spec.metrics]
+    lines = [f"### {escape(spec.title)}", ""]
     if spec.reference is not None:
-        lines += [f"Ours: mean (sd) over the runs; in brackets: {spec.reference.source}.", ""]
+        lines += [f"Ours: mean (sd) over the runs; in brackets: {escape(spec.reference.source)}.", ""]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for label in labels:
-        out = [label]
+        out = [escape(label)]
         for f in filters:
             mine = by.get((label, f), [])
             ref = spec.reference.values.get((label, f), {}) if spec.reference else {}
@@ -182,7 +190,8 @@ def summary_markdown(rows: list[dict]) -> str:
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for s in summary_rows(rows):
         lines.append("| " + " | ".join([
-            s["group"], s["filter"], s["noise"], str(s["particles"]), str(s["runs"]), str(s["failed"]),
+            escape(s["group"]), escape(s["filter"]), escape(s["noise"]), escape(s["particles"]), str(s["runs"]),
+            str(s["failed"]),
             "; ".join(x for x in (_frac(s["false_alarms"], s["fault_free"]) if s["fault_free"] else "",
                                   f"{s['early_alarms']} before the onset" if s["faulty"] else "") if x) or "–",
             _frac(s["detected"], s["faulty"]), _frac(s["detected_shown"], s["shown"]),
@@ -210,9 +219,10 @@ def confusion(rows: list[dict], model: str) -> tuple[list[str], list[str], dict[
 
 def confusion_markdown(rows: list[dict], model: str) -> str:
     truths, saids, counts = confusion(rows, model)
-    lines = ["| truth \\ diagnosed | " + " | ".join(saids) + " |", "|" + "---|" * (len(saids) + 1)]
+    lines = ["| truth \\ diagnosed | " + " | ".join(escape(s) for s in saids) + " |",
+             "|" + "---|" * (len(saids) + 1)]
     for t in truths:
-        lines.append(f"| {t} | " + " | ".join(str(counts.get((t, s), "")) for s in saids) + " |")
+        lines.append(f"| {escape(t)} | " + " | ".join(str(counts.get((t, s), "")) for s in saids) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -221,20 +231,21 @@ def campaign_markdown(c, rows: tuple[dict, ...]) -> str:
     from .artifacts import MARK
 
     rows = list(rows)
-    out = [f"<!-- {MARK} experiment from {c.source} -->", f"# Campaign {c.name}", ""]
-    if c.description:
-        out += [c.description.strip(), ""]
+    out = [f"<!-- {MARK} experiment from {_comment(c.source)} -->", f"# Campaign {escape(c.name)}", ""]
+    if c.description and c.description.strip():
+        out += [escape(c.description, prose=True), ""]
     out += [f"{len(rows)} runs ({sum(r['status'] != 'ok' for r in rows)} failed). Metrics are defined in "
             "docs/experiments.md.", ""]
     for spec in c.tables:
         out += [table_markdown(spec, rows), ""]
     out += ["## Summary", "", summary_markdown(rows), ""]
     for model in dict.fromkeys(r["model"] for r in rows):
-        out += [f"## Isolation confusion matrix: {model}", "", confusion_markdown(rows, model), ""]
+        out += [f"## Isolation confusion matrix: {escape(model)}", "", confusion_markdown(rows, model), ""]
     failed = [r for r in rows if r["status"] != "ok"]
     if failed:
-        out += ["## Failed runs", ""] + [f"- run {r['index']} ({r['scenario']}, {r['filter']}, seed {r['seed']}): "
-                                         f"{r['failure']}" for r in failed[:50]] + [""]
+        out += ["## Failed runs", ""] + [
+            f"- run {escape(r['index'])} ({escape(r['scenario'])}, {escape(r['filter'])}, seed {escape(r['seed'])}): "
+            f"{escape(r['failure'])}" for r in failed[:50]] + [""]
     return "\n".join(out).rstrip() + "\n"
 
 
