@@ -36,10 +36,16 @@ logw, ancestors, ess
 __version__ = "0.1.0"
 
 
+#: The names of :mod:`bgc.api` that ``bgc`` gives (imported on first use).
+API = ("diagnose", "DiagnosisReport", "distinguishability", "DistinguishabilityReport")
+
+
 def __getattr__(name: str):
-    """``bgc.diagnose`` and ``bgc.DiagnosisReport`` (:mod:`bgc.api`), imported
-    on first use so that ``import bgc`` stays light."""
-    if name in ("diagnose", "DiagnosisReport"):
+    """``bgc.diagnose``, ``bgc.distinguishability`` and their reports
+    (:mod:`bgc.api`), imported on first use so that ``import bgc`` stays
+    light. Each checks its arguments (:class:`bgc.errors.ArgumentTypeError`,
+    :class:`bgc.errors.ArgumentValueError`)."""
+    if name in API:
         from . import api
 
         return getattr(api, name)

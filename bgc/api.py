@@ -13,12 +13,27 @@ private folder, or uses the one ``generated`` points at), reads the run (or
 simulates ``scenario`` with the truth simulator), and runs
 :func:`bgc.runtime.diagnose.diagnose`. :mod:`bgc.output.report` turns the
 result into ``report.json``, ``report.md`` and plots.
+
+Every public function checks its arguments before any work, as the command
+line does, with the same ranges: a wrong type is an
+:class:`~bgc.errors.ArgumentTypeError` (also a :class:`TypeError`), a value
+out of range an :class:`~bgc.errors.ArgumentValueError` (also a
+:class:`ValueError`), each one line naming the function and the argument;
+problems of the data (a run file, a :class:`~bgc.runtime.runs.Run`) are the
+runtime's :class:`~bgc.errors.DataError`, naming the run's ``source``.
+
+>>> bgc.diagnose("models/circuit.yaml", scenario="none", seed=-1)
+Traceback (most recent call last):
+...
+bgc.errors.ArgumentValueError: bgc.diagnose: seed=-1 is negative (give an integer >= 0, e.g. seed=0)
 """
 
 from __future__ import annotations
 
 import atexit
 import hashlib
+import math
+import numbers
 import os
 import shutil
 import tempfile
@@ -30,13 +45,18 @@ import numpy as np
 
 from . import pipeline
 from .compiler.load import MAX_BYTES
-from .errors import SimulationError
-from .ir import NoiseLevels
+from .errors import ArgumentTypeError, ArgumentValueError, SimulationError, TrackingError, printable
+from .ir import NoiseLevels, Numerics
 from .kinds import DIRECTIONS, fault_kind
 from .runtime import distinguish as distinction
-from .runtime import metrics, runs, simulate, track
-from .runtime.diagnose import Diagnosis, DiagnosisOptions
+from .runtime import identify, kalman, metrics, runs, simulate, track
+from .runtime.diagnose import IDENTIFY, KALMAN_METHOD, PATHS, Diagnosis, DiagnosisOptions
 from .runtime.diagnose import diagnose as run_diagnosis
+
+#: The filters of a diagnosis (``bgc diagnose --filter``).
+METHODS = (*track.FILTER_CLASSES, KALMAN_METHOD)
+#: The largest relative noise level (``bgc ... --noise``).
+MAX_NOISE = 1e6
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,37 +86,111 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
     simulated ``scenario`` (``PARAM:KIND:MAGNITUDE@TIME``, or ``none`` for a
     fault-free run) of ``model``.
 
-    ``process_noise`` and ``measurement_noise`` are relative levels (fractions
-    of the signal): a scenario is simulated with them, and the filters assume
-    them (default: the model's). ``seed`` seeds the simulation of a scenario
-    and, unless ``options`` is given, the filters; ``options`` overrides
-    ``method``, ``particles`` and the filters' seed. ``progress(text)`` is
-    told what is being done.
+    Parameters
+    ----------
+    model : str or os.PathLike
+        The model file (YAML).
+    data : str, os.PathLike or Run, optional
+        A recorded run: a CSV as ``bgc simulate`` writes, or a
+        :class:`~bgc.runtime.runs.Run` (checked as a file's would be, by
+        :func:`bgc.runtime.runs.check_run`). Either ``data`` or ``scenario``.
+    scenario : str, optional
+        A fault to simulate, its onset inside the run (0 < TIME < the last
+        sample's time), or ``none``.
+    method : {"gpf", "apf", "opf", "ckf"}
+        The filter (``bgc diagnose --filter``).
+    particles : int
+        Particles of each filter, at least 1.
+    seed : int
+        Seeds the simulation of a scenario and, unless ``options`` is given,
+        the filters; an integer >= 0.
+    process_noise, measurement_noise : float, optional
+        Relative noise levels (fractions of the signal), at most 1e6: a
+        scenario is simulated with them, and the filters assume them
+        (default: the model's). The process level may be 0, the measurement
+        level must be above 0.
+    steps : int, optional
+        With a scenario: the samples to simulate (default: the model's),
+        within what the diagnosis may take (:func:`check_diagnosis_steps`).
+    generated : str or os.PathLike, optional
+        The folder ``bgc compile -o`` wrote the package to (default: a
+        private one generated for this call).
+    options : DiagnosisOptions, optional
+        Overrides ``method``, ``particles`` and the filters' seed.
+    progress : callable, optional
+        ``progress(text)`` is told what is being done.
+
+    Returns
+    -------
+    DiagnosisReport
+
+    Raises
+    ------
+    ArgumentTypeError
+        An argument of the wrong type (``particles=100.5``, ``scenario=5``,
+        ``options={}``; a bool is not an integer here).
+    ArgumentValueError
+        An argument out of range (``seed=-1``, ``process_noise=-1.0``), both
+        or neither of ``data`` and ``scenario``, ``steps`` with ``data``.
+    DataError
+        The run cannot be read, is not of this model or is malformed (named
+        by its file and line, or its ``source``).
+    SimulationError
+        A malformed scenario, or its onset outside the run.
+    TrackingError
+        A request beyond the memory (too many steps or particles).
+    BgcError
+        The model's own errors (load, validation, ...).
     """
+    func = "bgc.diagnose"
+    _path(func, "model", model)
+    if data is not None and not isinstance(data, (str, os.PathLike, runs.Run)):
+        raise ArgumentTypeError(f"{func}: data={_shown(data)} is not a path or a Run", None,
+                                "give a run file's path or a bgc.runtime.runs.Run")
+    _text(func, "scenario", scenario, optional=True)
     if (data is None) == (scenario is None):
-        raise SimulationError("give either data or a scenario", None,
-                              "e.g. --data run.csv or --scenario R_pipe:incipient:0.5@165")
+        both = "both" if data is not None else "neither"
+        raise ArgumentValueError(f"{func}: give either data or a scenario, not {both}", None,
+                                 "e.g. data='run.csv' or scenario='R_pipe:incipient:0.5@165'")
+    _choice(func, "method", method, METHODS)
+    _integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
+    _integer(func, "seed", seed, 0, "is negative", "seed=0")
+    _noise(func, process_noise, measurement_noise)
+    if steps is not None:
+        _integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
+        if data is not None:
+            raise ArgumentValueError(f"{func}: steps={steps} with data: a recorded run has its own length", None,
+                                     "give steps with a scenario only")
+    _path(func, "generated", generated, optional=True)
+    if options is not None:
+        check_options(options, func)
+    _callable(func, "progress", progress)
     say = progress or (lambda text: None)
-    _check_measurement_noise(measurement_noise)
     say("compiling the model")
     c, private = _compiled(model)
     opts = options or DiagnosisOptions(method=method, particles=particles, seed=seed)
     injected = None
     if scenario is not None:
+        T = steps or c.model.settings.steps
+        where = "--steps" if steps is not None else f"{printable(c.model.source)}: simulation.steps"
+        simulate.check_steps(T, c.numerics, where)
         if scenario.strip().lower() != "none":
             injected = simulate.parse_fault(scenario, c.numerics)
-        if steps is not None:
-            simulate.check_steps(steps, c.numerics, "--steps")
+            last = T * c.model.settings.dt
+            if not 0 < injected.time < last:
+                raise SimulationError(f"scenario {printable(scenario.strip())}: onset {injected.time:g} is outside the "
+                                      f"run (0 to {last:g})", None, "choose an onset inside the run, or more --steps")
+        check_diagnosis_steps(T, c.numerics, opts.particles, opts.method, where, opts.history)
         say("simulating the scenario")
         result = simulate.simulate(c.numerics, simulate.SimulationOptions(
             steps=steps, process_noise=process_noise, measurement_noise=measurement_noise, seed=seed,
             fault=injected))
-        run = runs.parse_run(simulate.to_csv(result), f"scenario {scenario}")
-    elif isinstance(data, runs.Run):
-        run = data
+        run = runs.parse_run(simulate.to_csv(result), f"scenario {scenario.strip()}")
     else:
-        run = runs.read_run(data)
-        track.check_run_of(run, c.model.name, str(data))
+        run = runs.check_run(data) if isinstance(data, runs.Run) else runs.read_run(data)
+        track.check_run_of(run, c.model.name)
+        check_diagnosis_steps(len(run.time), c.numerics, opts.particles, opts.method,
+                              f"{printable(run.source)}: {len(run.time)} samples", opts.history)
     levels = c.numerics.noise_at(process_noise, measurement_noise)
     custom = levels if (process_noise, measurement_noise) != (None, None) else None
     with _LOCK:  # another thread must not see a package half imported
@@ -105,10 +199,216 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
     return _run(c, run, package, scenario, injected, (process_noise, measurement_noise), levels, opts, say)
 
 
-def _check_measurement_noise(level: float | None) -> None:
-    if level is not None and not level > 0:
-        raise SimulationError(f"measurement noise level {level:g}: a noiseless sensor makes the filters' likelihood "
-                              "degenerate", None, "give a measurement level above 0, e.g. 0.02")
+#: Memory a diagnosis may take by the rule of :func:`diagnosis_memory`.
+MAX_DIAGNOSIS_BYTES = 4_000_000_000
+#: The rule's rows per fault model and step (see :func:`diagnosis_memory`).
+_HYPOTHESIS_ROWS = 128
+#: The rule's particle filters alive at once (a hypothesis's onsets, in lockstep).
+_FILTERS_ALIVE = 64
+
+
+def diagnosis_memory(steps: int, num: Numerics, particles: int = 1000, method: str = "gpf",
+                     history: int = DiagnosisOptions().history) -> tuple[int, int]:
+    """The memory a diagnosis of ``steps`` samples may take, by a rule that
+    bounds what tracemalloc measured: (bytes that do not grow with the run,
+    bytes per step).
+
+    Measured peaks (the circuit and the RO plant, 400 and 1600 steps, an
+    abrupt fault and a drift at 15 % of the run, gpf with 200 and 1000
+    particles, ckf, one process) grew by 9 to 62 kB a step: the nominal
+    observer's histories, the open-loop particle paths the symbols are read
+    from (up to ``PATHS`` particles, over the steps from the onset to the
+    alarm), and per fault model its filters' estimates from each onset tried
+    and the Kalman grid's residuals (steps x cells x sensors). The rule
+    counts, in 8-byte numbers per step: the run and the nominal histories
+    (6 n_y + 2 n_x + n_u + 4), three copies of the open-loop paths (3 n_y
+    min(particles, PATHS)), and per fault model ``_HYPOTHESIS_ROWS`` (128)
+    rows of n_x + n_y + 4 numbers, with 150 bytes of Python objects: 2.2 to
+    20 times the growth measured (closest: the circuit's drift with 200
+    particles, where every fault model was tried: 62 kB measured, 138 kB by
+    the rule; farthest: the RO plant's abrupt fault, two hypotheses: 9 kB
+    measured, 179 kB by the rule), since every fault model may be tried.
+    What does not grow with the run, for particle filters: the nominal
+    clouds kept ``history`` steps back for the hand-over, and
+    ``_FILTERS_ALIVE`` (64) filters of the hypotheses, each of particles x
+    (n_x + 3) numbers (the circuit with 20,000 particles over 400 steps:
+    167 MB measured, 390 MB by the rule).
+
+    Raises
+    ------
+    ArgumentTypeError, ArgumentValueError
+        An argument of the wrong type or out of range.
+    """
+    func = "bgc.api.diagnosis_memory"
+    _integer(func, "steps", steps, 1, "give at least 1", "steps=300")
+    if not isinstance(num, Numerics):
+        raise ArgumentTypeError(f"{func}: num={_shown(num)} is not a Numerics", None,
+                                "give the compiled model's numerics (pipeline.compile_model(path).numerics)")
+    _integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
+    _choice(func, "method", method, METHODS)
+    _integer(func, "history", history, 1, "give at least 1", "history=256")
+    ssm = num.equations
+    n, n_y, n_u, n_f = len(ssm.states), len(ssm.outputs), len(ssm.inputs), len(num.faults)
+    per_step = 8 * (6 * n_y + 2 * n + n_u + 4 + 3 * n_y * min(particles, PATHS)
+                    + n_f * _HYPOTHESIS_ROWS * (n + n_y + 4)) + 150
+    fixed = 0 if method == KALMAN_METHOD else 8 * particles * ((n + 1) * (history + 1) + (n + 3) * _FILTERS_ALIVE)
+    return fixed, per_step
+
+
+def check_diagnosis_steps(steps: int, num: Numerics, particles: int = 1000, method: str = "gpf",
+                          where: str = "--steps", history: int = DiagnosisOptions().history) -> None:
+    """Refuse, before any work, a diagnosis of ``steps`` samples with
+    ``particles`` particles and the filter ``method`` whose memory, by the
+    rule of :func:`diagnosis_memory`, would pass ``MAX_DIAGNOSIS_BYTES``
+    (4 GB): a :class:`~bgc.errors.TrackingError` giving the most steps (or
+    particles) this model allows. ``where`` names the request (``--steps``,
+    a run file). A campaign calls it for each group's steps with its most
+    particles and each filter.
+
+    Raises
+    ------
+    TrackingError
+        The request is beyond the memory.
+    ArgumentTypeError, ArgumentValueError
+        An argument of the wrong type or out of range (:func:`diagnosis_memory`).
+    """
+    _text("bgc.api.check_diagnosis_steps", "where", where)
+    fixed, per_step = diagnosis_memory(steps, num, particles, method, history)
+    name = num.equations.model.name
+    if fixed > MAX_DIAGNOSIS_BYTES:
+        unit = fixed // particles
+        raise TrackingError(f"{particles} particles: a diagnosis of {name} keeps {history + 1} clouds of them, "
+                            f"about {fixed / 1e9:.3g} GB", None,
+                            f"use at most {MAX_DIAGNOSIS_BYTES // 2 // unit} particles for this model")
+    need = fixed + steps * per_step
+    if need > MAX_DIAGNOSIS_BYTES:
+        most = (MAX_DIAGNOSIS_BYTES - fixed) // per_step
+        raise TrackingError(f"{where}: a diagnosis of {steps} steps of {name} may take about {need / 1e9:.3g} GB "
+                            f"(at most {most} steps for this model with {method}"
+                            f"{'' if method == KALMAN_METHOD else f' and {particles} particles'})", None,
+                            "diagnose a shorter run")
+
+
+def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose") -> None:
+    """Refuse options a diagnosis cannot take, as :func:`diagnose` does its
+    arguments (``func`` names the function in the message).
+
+    Raises
+    ------
+    ArgumentTypeError, ArgumentValueError
+        A field of the wrong type or out of range.
+    """
+    if not isinstance(options, DiagnosisOptions):
+        raise ArgumentTypeError(f"{func}: options={_shown(options)} is not a DiagnosisOptions", None,
+                                "give bgc.runtime.diagnose.DiagnosisOptions(...) or None")
+    o = "options."
+    _choice(func, o + "method", options.method, METHODS)
+    _integer(func, o + "particles", options.particles, None, "", "particles=1000")
+    if options.particles < 1:  # bgc diagnose hands --particles over in the options: the runtime's words
+        raise ArgumentValueError(f"--particles {options.particles}: at least 1 particle is needed", None,
+                                 "e.g. --particles 200, or DiagnosisOptions(particles=200)")
+    _integer(func, o + "seed", options.seed, 0, "is negative", "seed=0")
+    for name in ("false_alarm", "rejection", "interval"):
+        _real(func, o + name, getattr(options, name), 0.0, 1.0, "a probability strictly between 0 and 1")
+    _real(func, o + "shrinkage", options.shrinkage, 0.0, 1.0, "a number between 0 and 1", high_ok=True)
+    _real(func, o + "bayes_factor", options.bayes_factor, 1.0, math.inf, "a number >= 1", low_ok=True)
+    windows = options.windows
+    if not isinstance(windows, tuple) or not windows:
+        raise ArgumentTypeError(f"{func}: options.windows={_shown(windows)} is not a non-empty tuple of integers",
+                                None, "e.g. windows=(1, 8, 32)")
+    for w in windows:
+        _integer(func, o + "windows", w, 1, "a window holds at least 1 sample", "windows=(1, 8, 32)")
+    for name in ("history", "search", "symbol_steps", "workers"):
+        _integer(func, o + name, getattr(options, name), 1, "give at least 1", f"{name}=1")
+    _integer(func, o + "near", options.near, 0, "is negative", "near=4")
+    if options.spacing is not None:
+        _integer(func, o + "spacing", options.spacing, 1, "give at least 1", "spacing=4")
+    _choice(func, o + "identify", options.identify, IDENTIFY)
+    for name in ("rank", "refine", "switch"):
+        if not isinstance(getattr(options, name), bool):
+            raise ArgumentTypeError(f"{func}: options.{name}={_shown(getattr(options, name))} is not True or False",
+                                    None, f"give {name}=True or {name}=False")
+    for name, kind in (("kalman", kalman.KalmanOptions), ("grid", identify.GridOptions),
+                       ("rank_grid", identify.GridOptions)):
+        if not isinstance(getattr(options, name), kind):
+            raise ArgumentTypeError(f"{func}: options.{name}={_shown(getattr(options, name))} is not a "
+                                    f"{kind.__name__}", None, f"give {kind.__name__}(...)")
+
+
+def _shown(value) -> str:
+    """A value as an argument is shown in a message: its repr, shortened."""
+    try:
+        text = repr(value)
+    except Exception:  # noqa: BLE001 - any repr of a caller's object may fail; the type still says it
+        text = f"<{type(value).__name__}>"
+    return printable(text if len(text) <= 40 else text[:37] + "...")
+
+
+def _integer(func: str, name: str, value, low: int | None, below: str, example: str) -> None:
+    """An integer (a bool is not one here) >= ``low`` (None: any); ``below`` says what a smaller one is."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not an integer", None,
+                                f"give an integer{'' if low is None else f' >= {low}'}, e.g. {example}")
+    if low is not None and value < low:
+        raise ArgumentValueError(f"{func}: {name}={int(value)} {below}" if below.startswith("is ")
+                                 else f"{func}: {name}={int(value)}: {below}", None,
+                                 f"give an integer >= {low}, e.g. {example}")
+
+
+def _real(func: str, name: str, value, low: float, high: float, what: str, low_ok: bool = False,
+          high_ok: bool = False) -> None:
+    """A finite real number (not a bool) between ``low`` and ``high`` (each included when ``*_ok``)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not a number", None, f"give {what}")
+    v = float(value)
+    if not (math.isfinite(v) and (low <= v if low_ok else low < v) and (v <= high if high_ok else v < high)):
+        raise ArgumentValueError(f"{func}: {name}={v:g} is out of range", None, f"give {what}")
+
+
+def _noise(func: str, process: float | None, measurement: float | None) -> None:
+    """Relative noise levels as ``--noise`` takes them: finite, >= 0, at most
+    ``MAX_NOISE``; the measurement level above 0."""
+    for name, value in (("process_noise", process), ("measurement_noise", measurement)):
+        if value is None:
+            continue
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+            raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not a number", None,
+                                    "noise levels are fractions of the signal, e.g. 0.02")
+        if not (math.isfinite(value) and 0 <= value <= MAX_NOISE):
+            raise ArgumentValueError(f"{func}: {name}={float(value):g}: a level must be a finite number >= 0 and at "
+                                     "most 1e6", None, "noise levels are fractions of the signal, e.g. 0.02")
+    if measurement is not None and measurement == 0:
+        raise ArgumentValueError(f"{func}: measurement_noise=0: a noiseless sensor makes the filters' likelihood "
+                                 "degenerate", None, "give a measurement level above 0, e.g. 0.02")
+
+
+def _path(func: str, name: str, value, optional: bool = False) -> None:
+    if value is None and optional:
+        return
+    if not isinstance(value, (str, os.PathLike)):
+        raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not a path", None,
+                                "give a str or a pathlib.Path")
+
+
+def _text(func: str, name: str, value, optional: bool = False) -> None:
+    if value is None and optional:
+        return
+    if not isinstance(value, str):
+        raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not a string", None,
+                                "e.g. 'R_pipe:incipient:0.5@165'" if name == "scenario" else "give a str")
+
+
+def _choice(func: str, name: str, value, choices: tuple[str, ...]) -> None:
+    if not isinstance(value, str) or value not in choices:
+        error = ArgumentValueError if isinstance(value, str) else ArgumentTypeError
+        raise error(f"{func}: {name}={_shown(value)} is not one of {', '.join(choices)}", None,
+                    f"give e.g. {name.rpartition('.')[2]}={choices[0]!r}")
+
+
+def _callable(func: str, name: str, value) -> None:
+    if value is not None and not callable(value):
+        raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not callable", None,
+                                "give a function of one str, or None")
 
 
 #: The compile cache, the private folders and the package imports are shared
@@ -125,8 +425,16 @@ _FOLDERS: dict[int, str] = {}  # process id -> its private folder (a forked work
 def private_folder(prefix: str) -> str:
     """A new temporary folder of this process, removed when it exits: at
     interpreter exit, or at the end of a multiprocessing worker (which skips
-    atexit handlers)."""
+    atexit handlers).
+
+    Raises
+    ------
+    ArgumentTypeError
+        ``prefix`` is not a string.
+    """
     from multiprocessing import util
+
+    _text("bgc.api.private_folder", "prefix", prefix)
 
     folder = tempfile.mkdtemp(prefix=prefix)
     atexit.register(shutil.rmtree, folder, True)
@@ -197,38 +505,86 @@ class DistinguishabilityReport:
 
 def distinguishability(model: str | Path, scenario: str | None = None, *, change: float = 0.3, at: float = 0.5,
                        process_noise: float | None = None, measurement_noise: float | None = None,
-                       steps: int | None = None, level: float = distinction.LEVEL) -> DistinguishabilityReport:
+                       steps: int | None = None, level: float = distinction.LEVEL,
+                       progress=None) -> DistinguishabilityReport:
     """Predict which fault hypotheses the data of ``scenario``
     (``PARAM:KIND:MAGNITUDE@TIME``) of ``model`` can tell apart, at the given
     relative noise levels (default: the model's), before any data are seen;
     without a scenario, for every fault candidate, kind and direction at a
-    relative ``change`` from the fraction ``at`` of the run."""
-    _check_measurement_noise(measurement_noise)
+    relative ``change`` from the fraction ``at`` of the run.
+
+    Parameters
+    ----------
+    model : str or os.PathLike
+        The model file (YAML).
+    scenario : str, optional
+        One fault, its onset inside the run (0 < TIME <= the last sample's).
+    change : float
+        Without a scenario: the relative change of each parameter, above 0.
+    at : float
+        Without a scenario: the onset as a fraction of the run, between 0
+        and 1 (and before the last two samples).
+    process_noise, measurement_noise : float, optional
+        Relative noise levels, as for :func:`diagnose`.
+    steps : int, optional
+        Samples of the run (default: the model's), within what a prediction
+        may take (:func:`bgc.runtime.distinguish.check_steps`, 2 GB).
+    level : float
+        The probability under which a rival is in the predicted ambiguity
+        group, between 0 and 1.
+    progress : callable, optional
+        ``progress(text)`` is told what is being done (preparing the
+        families, fault model i of n, scenario i of n).
+
+    Returns
+    -------
+    DistinguishabilityReport
+
+    Raises
+    ------
+    ArgumentTypeError
+        An argument of the wrong type.
+    ArgumentValueError
+        An argument out of range.
+    SimulationError
+        A malformed scenario, not a fault candidate, its onset outside the
+        run; ``at`` too late in the run; a model without fault candidates.
+    TrackingError
+        A run too long for the memory (the message gives the most steps).
+    """
+    func = "bgc.distinguishability"
+    _path(func, "model", model)
+    _text(func, "scenario", scenario, optional=True)
+    _real(func, "change", change, 0.0, math.inf, "a relative change above 0, e.g. change=0.3")
+    _real(func, "at", at, 0.0, 1.0, "a fraction of the run between 0 and 1, e.g. at=0.5")
+    _noise(func, process_noise, measurement_noise)
+    if steps is not None:
+        _integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
+    _real(func, "level", level, 0.0, 1.0, "a probability between 0 and 1, e.g. level=0.95")
+    _callable(func, "progress", progress)
+    say = progress or (lambda text: None)
+    say("compiling the model")
     c, private = _compiled(model)
     num = c.numerics
     if steps is not None:
         simulate.check_steps(steps, num, "--steps")
     T = steps or c.model.settings.steps
     dt = c.model.settings.dt
-    if scenario is None and not (0.0 < change and 0.0 < at and int(at * T) < T - 1):
+    where = "--steps" if steps is not None else f"{printable(c.model.source)}: simulation.steps"
+    distinction.check_steps(T, num, where)
+    if scenario is None and not int(at * T) < T - 1:
         raise SimulationError(f"change {change:g} at {at:g} of the run", None,
                               "give a change above 0 and an onset inside the run, a fraction between 0 and 1")
     if not num.faults:
         raise SimulationError(f"{c.model.name} declares no fault candidates", None,
                               "list the faults to tell apart under 'faults' in the model file")
-    levels = num.noise_at(process_noise, measurement_noise)
-    custom = levels if (process_noise, measurement_noise) != (None, None) else None
-    with _LOCK:
-        package = track.load_package(private, c.model.name, str(model), custom)
-        families = _families(package, T)
-    priors = {f.parameter: f.prior for f in c.model.faults}
     times = dt * np.arange(1, T + 1)
     if scenario is not None:
         if scenario.strip().lower() == "none":
             raise SimulationError("a fault-free scenario has no fault to tell apart", None,
                                   "give a fault, e.g. R_pipe:incipient:0.5@165, or no scenario for every candidate")
         inj = simulate.parse_fault(scenario, num)
-        if f"{inj.parameter}_{inj.kind}" not in package.MODELS:
+        if all(f.name != f"{inj.parameter}:{inj.kind}" for f in num.faults):
             raise SimulationError(f"{inj.parameter}:{inj.kind} is not a fault candidate of {c.model.name}", None,
                                   "candidates: " + ", ".join(f"{f.parameter}:{f.kind}" for f in num.faults))
         if not 0 < inj.time <= times[-1]:
@@ -245,8 +601,17 @@ def distinguishability(model: str | Path, scenario: str | None = None, *, change
                 injected.append(simulate.FaultInjection(f.parameter, f.kind,
                                                         size / ((T - 1 - onset) * dt) if drifts else size,
                                                         float(times[onset])))
+    levels = num.noise_at(process_noise, measurement_noise)
+    custom = levels if (process_noise, measurement_noise) != (None, None) else None
+    need = distinction.memory(T, *(len(x) for x in (num.equations.states, num.equations.outputs,
+                                                     num.equations.inputs, num.faults)))
+    with _LOCK:
+        package = track.load_package(private, c.model.name, str(model), custom)
+        families = _families(package, T, need, say)
+    priors = {f.parameter: f.prior for f in c.model.faults}
     out = []
-    for inj in injected:
+    for i, inj in enumerate(injected, start=1):
+        say(f"scenario {i} of {len(injected)}: {inj.parameter}:{inj.kind}:{inj.magnitude:.4g}@{inj.time:g}")
         onset = metrics.sample_at(times, inj.time)
         out.append(distinction.distinguish(families, f"{inj.parameter}_{inj.kind}", inj.magnitude, onset, priors,
                                            level))
@@ -255,15 +620,28 @@ def distinguishability(model: str | Path, scenario: str | None = None, *, change
 
 
 #: Prepared families by package (its module name tells the noise levels) and
-#: run length; the latest few are kept (a campaign worker meets a few models).
+#: run length; the latest few are kept (a campaign worker meets a few models),
+#: as many as fit, with the next one, in ``distinguish.MAX_BYTES``.
 _FAMILIES: dict[tuple[str, str, int], distinction.Families] = {}
 _FAMILIES_KEPT = 4
 
 
-def _families(package, steps: int) -> distinction.Families:
+def _families(package, steps: int, need: int = 0, progress=None) -> distinction.Families:
+    """The families of ``package`` over ``steps`` samples, prepared once;
+    ``need``: the bytes a new preparation is expected to take (older
+    families are let go until it fits)."""
     key = (package.__name__, str(getattr(package, "__file__", "")), steps)
     if key not in _FAMILIES:
-        if len(_FAMILIES) >= _FAMILIES_KEPT:
+        while _FAMILIES and (len(_FAMILIES) >= _FAMILIES_KEPT
+                             or sum(map(_nbytes, _FAMILIES.values())) + need > distinction.MAX_BYTES):
             _FAMILIES.pop(next(iter(_FAMILIES)))
-        _FAMILIES[key] = distinction.prepare(package, distinction.scenario_inputs(package, steps))
+        _FAMILIES[key] = distinction.prepare(package, distinction.scenario_inputs(package, steps), progress)
     return _FAMILIES[key]
+
+
+def _nbytes(families: distinction.Families) -> int:
+    """The bytes of a family's arrays."""
+    w = families.whitening
+    arrays = (families.us, families.x_before, families.x_after, families.y, w.F, w.H, w.K, w.Linv,
+              *families.responses)
+    return sum(a.nbytes for a in arrays)

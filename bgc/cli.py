@@ -240,6 +240,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if (args.data is None) == (args.scenario is None):
         raise BgcError("give --data RUN.csv or --scenario PARAM:KIND:MAGNITUDE@TIME", None,
                        "e.g. --scenario R_pipe:incipient:0.5@165, or --scenario none for a fault-free run")
+    if args.data is not None and args.steps is not None:
+        raise BgcError("--steps applies to --scenario: a recorded run has its own length", None,
+                       "drop --steps, or simulate a scenario")
     process, measurement = _parse_noise(args.noise)
     progress = _Progress()
     try:
@@ -284,8 +287,13 @@ def cmd_distinguish(args: argparse.Namespace) -> int:
     from .output import artifacts, plots, render
 
     process, measurement = _parse_noise(args.noise)
-    r = api.distinguishability(args.model, args.scenario, change=args.change, at=args.at, process_noise=process,
-                               measurement_noise=measurement, steps=args.steps)
+    progress = _Progress("distinguish")
+    try:
+        r = api.distinguishability(args.model, args.scenario, change=args.change, at=args.at,
+                                   process_noise=process, measurement_noise=measurement, steps=args.steps,
+                                   progress=progress)
+    finally:
+        progress.close()
     text = render.to_json(render.distinguishability_json(r)) if args.format == "json" else \
         render.distinguishability_text(r)
     if args.output:
@@ -351,17 +359,19 @@ def cmd_experiment(args: argparse.Namespace) -> int:
 
 
 class _Progress:
-    """One line on stderr saying what is being done, rewritten in place, on a
-    terminal (stderr then holds only errors when it is a file or a pipe)."""
+    """One line on stderr saying what ``bgc COMMAND`` is doing, rewritten in
+    place, on a terminal (stderr then holds only errors when it is a file or
+    a pipe)."""
 
-    def __init__(self):
+    def __init__(self, command: str = "diagnose"):
+        self.command = command
         self.tty = sys.stderr.isatty()
         self.width = 0
 
     def __call__(self, text: str) -> None:
         if not self.tty:
             return
-        line = printable(f"bgc diagnose: {text}")
+        line = printable(f"bgc {self.command}: {text}")
         sys.stderr.write("\r" + line.ljust(self.width))
         sys.stderr.flush()
         self.width = len(line)
@@ -470,7 +480,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--at", type=_above_zero, default=0.5,
                    help="without --scenario: the onset, as a fraction of the run (default 0.5)")
     p.add_argument("--noise", metavar="process=Q,measurement=R", help="relative noise levels (default: the model's)")
-    p.add_argument("--steps", type=int, default=None, help="samples of the run (default: the model's)")
+    p.add_argument("--steps", type=_positive, default=None, help="samples of the run (default: the model's; at most "
+                   "what the prediction's memory allows, 2 GB: bgc says how many)")
     p.add_argument("--format", choices=["text", "json"], default="text")
     p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of printing")
     p.add_argument("--plot", metavar="FILE.png", help="also draw the probabilities as a heat map")
@@ -547,8 +558,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BgcError as exc:
         _report(exc)
         return 1
-    except MemoryError:
-        print("bgc: out of memory (use fewer particles, steps or a smaller model)", file=sys.stderr)
+    except MemoryError:  # named: the command and its input files (the model, the run)
+        named = [str(f) for f in getattr(args, "models", None) or []]
+        named += [str(getattr(args, key)) for key in ("model", "config", "run_csv") if getattr(args, key, None)]
+        named += [f"--data {args.data}"] if getattr(args, "data", None) else []
+        on = f" on {', '.join(named)}" if named else ""
+        print(printable(f"bgc {args.command}: out of memory{on} (use fewer particles, steps or a smaller model)"),
+              file=sys.stderr)
         return 1
     except OSError as exc:  # e.g. a full disk or no permission while writing an output
         where = f"{printable(str(exc.filename))}: " if exc.filename else ""

@@ -216,7 +216,7 @@ def test_requests_beyond_the_limits_are_refused_before_any_work(tmp_path):
     (b"time,y:e3\n1.0,2.0\n2.0,\xff\n", "{csv}:3: not UTF-8 text (byte 22 is 0xff)"),  # 10 + 8 + 4 bytes before
     (b"time,y:e3\n1.0," + b"9" * 50_000_000 + b"\n", "{csv}:2: line is 50000004 characters long"),
     (b"time,y:e3\n", "{csv}: the run has no data rows, only column names"),
-    (b"time,y:other\n1.0,2.0\n", "the run has no column y:e3"),
+    (b"time,y:other\n1.0,2.0\n", "{csv}: the run has no column y:e3"),
 ])
 def test_filter_on_a_broken_run_file_is_one_located_line(tmp_path, content, message):
     model = tmp_path / "rc.yaml"

@@ -156,7 +156,7 @@ def test_bgc_diagnose_bad_input_is_one_located_line(tmp_path):
     cut = tmp_path / "cut.csv"
     cut.write_text("time,y:f2\n1.0,2.5\n2.0,2.5\n")
     assert one_line(bgc_cli("diagnose", "models/circuit.yaml", "--data", str(cut))) == (
-        "the run has no column y:e11 (record it with bgc simulate for the same model)")
+        f"{cut}: the run has no column y:e11 (record it with bgc simulate for the same model)")
     assert one_line(bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "none", "--particles", "0")).startswith(
         "--particles 0: at least 1 particle is needed")
 

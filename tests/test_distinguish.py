@@ -204,3 +204,67 @@ def test_a_noiseless_sensor_is_refused_before_any_work(capsys):
     assert err.count("measurement level 0 makes the filters' likelihood degenerate") == 2 and "Traceback" not in err
     with pytest.raises(Exception, match="a noiseless sensor"):
         api.distinguishability(PIPES, measurement_noise=0.0)
+
+
+# ------------------------------------------------------------ memory and progress
+def test_the_memory_estimate_bounds_the_peak_closely():
+    """distinguish.memory against tracemalloc's peak of a whole prediction
+    (every candidate, 400 samples: MAX_ONSETS onsets), fresh families: at or
+    above the peak, by at most 15 %."""
+    import tracemalloc
+
+    num = compiled("two_tank").numerics
+    T = distinguish.MAX_ONSETS
+    api._FAMILIES.clear()
+    tracemalloc.start()
+    try:
+        api.distinguishability(TWO_TANK, steps=T)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    estimate = distinguish.memory(T, *distinguish._sizes(num))
+    assert peak <= estimate <= 1.15 * peak, (peak, estimate)
+
+
+def test_a_run_too_long_for_the_memory_is_refused_at_once_with_the_most_steps(capsys):
+    """The issue: --steps 1000000 (and 1e7) ran without limit (2 GB in 30 s)."""
+    import time
+
+    num = compiled("two_tank").numerics
+    most = distinguish.most_steps(num)
+    assert distinguish.memory(most, *distinguish._sizes(num)) <= distinguish.MAX_BYTES
+    assert distinguish.memory(most + 1, *distinguish._sizes(num)) > distinguish.MAX_BYTES
+    distinguish.check_steps(most, num, "--steps")
+    for steps in (most + 1, 1_000_000, 10_000_000):
+        started = time.perf_counter()
+        assert cli.main(["distinguish", str(TWO_TANK), "--steps", str(steps)]) == 1
+        err = capsys.readouterr().err
+        assert err == (f"--steps: {steps} steps: bgc distinguish would take about "
+                       f"{distinguish.memory(steps, *distinguish._sizes(num)) / 1e9:.3g} GB for two_tank (at most "
+                       f"{most} steps for this model) (give fewer steps, e.g. --steps 300)\n"), err
+        assert time.perf_counter() - started < 10
+
+
+def test_progress_says_what_is_being_done():
+    said = []
+    api._FAMILIES.clear()
+    r = api.distinguishability(TWO_TANK, steps=30, progress=said.append)
+    faults = len(compiled("two_tank").numerics.faults)
+    assert said[0] == "compiling the model"
+    assert "preparing the families: the nominal run and its Kalman filter" in said
+    assert [s for s in said if "fault model" in s][-1].startswith(f"preparing the families: fault model {faults} of "
+                                                                  f"{faults} (")
+    assert said[-1].startswith(f"scenario {len(r.distinctions)} of {len(r.distinctions)}: ")
+
+
+def test_prepared_families_are_let_go_to_fit_the_memory(monkeypatch):
+    """The cache of prepared families holds, with the next one, at most
+    distinguish.MAX_BYTES."""
+    api._FAMILIES.clear()
+    api.distinguishability(TWO_TANK, steps=30)
+    api.distinguishability(TWO_TANK, steps=31)
+    assert len(api._FAMILIES) == 2
+    monkeypatch.setattr(distinguish, "MAX_BYTES", distinguish.memory(32, *distinguish._sizes(
+        compiled("two_tank").numerics)))
+    api.distinguishability(TWO_TANK, steps=32)
+    assert [key[2] for key in api._FAMILIES] == [32]

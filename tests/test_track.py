@@ -130,3 +130,20 @@ def test_a_models_own_package_folder_given_as_the_root_is_named_with_its_parent(
     err = capsys.readouterr().err
     assert code == 1 and "is the folder of one model's package" in err
     assert f"point --generated at the folder bgc compile -o wrote: {ROOT / 'generated'}" in err
+
+
+def test_data_messages_name_the_run_by_its_source(ro):
+    """A run's messages name where it comes from: its file, a scenario, or a
+    Run built in Python."""
+    from bgc.errors import DataError
+
+    run = runs.parse_run("# model ro: 2 steps\ntime,y:F_loop\n1,2\n2,3\n", "lab/ro run.csv")
+    with pytest.raises(DataError, match=r"^lab/ro run.csv: the run has no column y:"):
+        runtime.run_arrays(run, ro, "nominal")
+    with pytest.raises(DataError, match=r"^lab/ro run.csv is a run of model 'ro', not of 'circuit'"):
+        runtime.check_run_of(run, "circuit")
+    python = runs.Run(run.time, {}, {}, {}, {}, ("model ro: x",))
+    with pytest.raises(DataError, match=r"^<Run from Python> is a run of model 'ro'"):
+        runtime.check_run_of(python, "circuit")
+    with pytest.raises(DataError, match=r"^given.csv is a run of model 'ro'"):
+        runtime.check_run_of(python, "circuit", "given.csv")

@@ -391,7 +391,9 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
                   nominal_y_mean=y_mean, nominal_y_std=y_std, nominal_z=z, nominal_x_mean=x_mean,
                   nominal_x_std=x_std, statistics=statistics, threshold=detector.threshold,
                   options=options)
-    notes = []
+    # a sensor never read (its column empty or nan throughout) tells nothing: the diagnosis says so
+    notes = [f"sensor y:{y} has no sample in the run ({run.source}): every value of its column is empty or nan, "
+             "so nothing is diagnosed from it" for j, y in enumerate(outputs) if not np.isfinite(ys[:, j]).any()]
     mean_ess = ess_sum / max(ess_steps, 1)
     if not ckf and mean_ess < DEGENERATE * options.particles:
         degenerate = (f"the nominal observer's particle filter ({options.method}) degenerates (mean effective "

@@ -72,12 +72,18 @@ from types import ModuleType
 import numpy as np
 
 from ..errors import TrackingError
+from ..ir import Numerics
 
 #: A rival is in the predicted ambiguity group when the data, with the priors,
 #: are expected to name the truth over it with a probability under this.
 LEVEL = 0.95
 #: Most onsets per family: a longer run takes every k-th sample as an onset.
 MAX_ONSETS = 400
+#: Memory the arrays of one prediction may take (:func:`memory`); a longer run
+#: is refused before any work (:func:`check_steps`).
+MAX_BYTES = 2_000_000_000
+#: The longest run bgc simulates (:data:`bgc.runtime.simulate.MAX_STEPS`).
+_MOST_STEPS = 10_000_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -187,6 +193,70 @@ class Distinction:
         return f"{parameter}{'+' if self.magnitude >= 0 else '-'}:{kind}"
 
 
+def memory(steps: int, states: int, outputs: int, inputs: int, fault_models: int) -> int:
+    """The bytes the largest arrays of a prediction over ``steps`` samples
+    take at once, for a model of ``states`` states, ``outputs`` sensors,
+    ``inputs`` inputs and ``fault_models`` fault models (each with up to 2
+    fault states), counted per sample in 8-byte numbers: the nominal run
+    (inputs, states before and after each step, measurements); the
+    Jacobians ``F`` (n x n) and ``H`` (n_y x n), the gains ``K`` and the
+    whitening ``Linv``; the central differences' scratch (the displaced
+    states and their images, 4 n_z^2); every fault model's whitened unit
+    responses (n_y x onsets, kept for every scenario; the onsets counted
+    as ``min(steps, MAX_ONSETS)``, an upper bound of what :func:`prepare`
+    takes, so that the estimate grows with the steps), with either one
+    fault model's unwhitened responses being whitened or the exact fit's
+    grid (its runs' states before and after each step, measurements and
+    whitened deviations, 99 columns); and two linearised fault runs (their
+    own F, H, K, Linv). On the shipped models this is 2 to 10 % above the
+    peak tracemalloc measures when the onsets are close to ``MAX_ONSETS``
+    (the circuit: 132 kB a sample, measured 127 kB at 800 and 1600 samples
+    and 120 kB at 3000; the RO plant: 178 kB, measured 172 and 162 kB at
+    800 and 3000), up to about twice it just past a multiple of
+    ``MAX_ONSETS`` (the two tanks at 450 samples, 225 onsets: 1.7 times)."""
+    n, n_y, n_u, n_f = states, outputs, inputs, fault_models
+    n_z = n + 2
+    onsets = min(steps, MAX_ONSETS)  # prepare takes every k-th sample: between half this and this many
+    grid = len(_ONSET_OFFSETS) * len(_FACTORS)
+    per_step = (n_u + 3 * n + n_y                              # the nominal run
+                + n * n + 2 * n * n_y + n_y * n_y              # F, H, K, Linv
+                + 4 * n_z * n_z                                # central differences
+                + n_f * n_y * onsets                           # the whitened unit responses
+                + max(n_y * onsets, grid * (2 * n_z + 3 * n_y))  # one family being whitened, or the exact fit
+                + 2 * (n_z * n + 2 * n * n_y + n_y * n_y + n_y))  # two linearised fault runs
+    return 8 * steps * per_step
+
+
+def most_steps(num: Numerics) -> int:
+    """The longest run whose prediction stays within ``MAX_BYTES``."""
+    size = _sizes(num)
+    lo, hi = 0, _MOST_STEPS
+    while lo < hi:  # memory grows with the steps
+        mid = (lo + hi + 1) // 2
+        if memory(mid, *size) <= MAX_BYTES:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
+
+
+def check_steps(steps: int, num: Numerics, where: str) -> None:
+    """Refuse, before any work, a prediction over ``steps`` samples whose
+    arrays would take more than ``MAX_BYTES`` (:func:`memory`); ``where``
+    names the request (``--steps``, or the model's ``simulation.steps``)."""
+    need = memory(steps, *_sizes(num))
+    if need > MAX_BYTES:
+        most = most_steps(num)
+        raise TrackingError(f"{where}: {steps} steps: bgc distinguish would take about {need / 1e9:.3g} GB for "
+                            f"{num.equations.model.name} (at most {most} steps for this model)", None,
+                            f"give fewer steps, e.g. --steps {min(most, 300)}")
+
+
+def _sizes(num: Numerics) -> tuple[int, int, int, int]:
+    ssm = num.equations
+    return len(ssm.states), len(ssm.outputs), len(ssm.inputs), len(num.faults)
+
+
 def scenario_inputs(package: ModuleType, steps: int) -> np.ndarray:
     """The model's default inputs over ``steps`` samples: sample k's step
     holds the input at k dt (as the simulator does)."""
@@ -194,9 +264,12 @@ def scenario_inputs(package: ModuleType, steps: int) -> np.ndarray:
     return np.array([nominal.inputs(k * nominal.DT) for k in range(steps)], dtype=float).reshape(steps, -1)
 
 
-def prepare(package: ModuleType, us: np.ndarray) -> Families:
+def prepare(package: ModuleType, us: np.ndarray, progress=None) -> Families:
     """The nominal run, its whitening and every fault model's whitened unit
-    responses, for the inputs ``us`` (T, n_u) of a run."""
+    responses, for the inputs ``us`` (T, n_u) of a run; ``progress(text)``,
+    when given, is told what is being done."""
+    say = progress or (lambda text: None)
+    say("preparing the families: the nominal run and its Kalman filter")
     nominal = package.MODELS["nominal"]
     us = np.asarray(us, dtype=float).reshape(len(us), -1)
     T = len(us)
@@ -221,9 +294,9 @@ def prepare(package: ModuleType, us: np.ndarray) -> Families:
     stride = max(1, math.ceil(T / MAX_ONSETS))
     onsets = np.arange(0, T, stride)
     names, responses, bounds = [], [], []
-    for name in sorted(package.MODELS):
-        if name == "nominal":
-            continue
+    faulty = [name for name in sorted(package.MODELS) if name != "nominal"]
+    for i, name in enumerate(faulty, start=1):
+        say(f"preparing the families: fault model {i} of {len(faulty)} ({name})")
         model = package.MODELS[name]
         G = _unit_responses(model, F, H, x_before, x_after, us, onsets)
         responses.append(whitening.apply(G).reshape(T * H.shape[1], len(onsets)))

@@ -52,6 +52,7 @@ from types import ModuleType
 
 import numpy as np
 
+from ..errors import ArgumentValueError
 from ..kinds import fault_kind
 
 LOG_2PI = math.log(2.0 * math.pi)
@@ -85,8 +86,8 @@ class KalmanOptions:
 
     def __post_init__(self):
         if self.first_points < 3 or self.points < 3 or self.passes < 1 or self.spacing < 1:
-            raise ValueError("KalmanOptions: a row needs at least 3 points (first_points, points), passes and "
-                             "spacing at least 1")
+            raise ArgumentValueError("KalmanOptions: a row needs at least 3 points (first_points, points), passes "
+                                     "and spacing at least 1", None, "e.g. KalmanOptions(points=9)")
 
 
 @dataclass(frozen=True, slots=True)

@@ -197,7 +197,7 @@ def run_arrays(run: Run, package: ModuleType, model_name: str) -> tuple[np.ndarr
     model = package.MODELS[model_name]
     missing = [y for y in model.OUTPUTS if y not in run.measurements]
     if missing:
-        raise DataError(f"the run has no column y:{printable(missing[0])}", None,
+        raise DataError(f"{printable(run.source)}: the run has no column y:{printable(missing[0])}", None,
                         "record it with bgc simulate for the same model")
     ys = np.column_stack([run.measurements[y] for y in model.OUTPUTS])
     if model.INPUTS:
@@ -223,8 +223,10 @@ def check_particles(particles: int, package: ModuleType, model_name: str) -> Non
                             f"use at most {most} particles for this model")
 
 
-def check_run_of(run: Run, model: str, where: str) -> None:
-    """Refuse a run whose header says another model made it (``where``: the run's file)."""
+def check_run_of(run: Run, model: str, where: str | None = None) -> None:
+    """Refuse a run whose header says another model made it (``where``: the
+    run's file; by default its ``source``)."""
+    where = run.source if where is None else where
     recorded = run.model
     if recorded is not None and recorded != model:
         raise DataError(f"{printable(where)} is a run of model {printable(repr(recorded))}, not of {model!r}", None,
@@ -247,7 +249,8 @@ def check_request(run: Run, package: ModuleType, model_name: str, particles: int
     if start is not None and package.MODELS[model_name].FAULT is None:
         raise TrackingError("--start hands over to a fault model", None, "give --fault PARAM:KIND with --start")
     if start is not None and not (run.time[0] <= start <= run.time[-1]):
-        raise TrackingError(f"--start {start:g} is outside the run ({run.time[0]:g} to {run.time[-1]:g})", None,
+        raise TrackingError(f"--start {start:g} is outside the run ({run.time[0]:g} to {run.time[-1]:g}) of "
+                            f"{printable(run.source)}", None,
                             "hand over at a time inside the run")
     check_particles(particles, package, model_name)
     run_arrays(run, package, model_name)

@@ -1,0 +1,327 @@
+"""The Python API (bgc/api.py): every public function checks its arguments
+as the command line does, before any work, with one-line errors that are
+also TypeError / ValueError; a Run from Python goes through a file's checks;
+a scenario's onset must lie inside the run; a sensor never read is named in
+a note; requests beyond the memory are refused with the most steps allowed."""
+
+import io
+import sys
+import time
+import tracemalloc
+
+import numpy as np
+import pytest
+
+import bgc
+from bgc import api, cli
+from bgc.errors import (ArgumentTypeError, ArgumentValueError, BgcError, DataError, SimulationError,
+                        TrackingError)
+from bgc.runtime import runs, simulate
+from bgc.runtime.diagnose import DiagnosisOptions
+
+from conftest import ROOT, compiled
+
+CIRCUIT = ROOT / "models" / "circuit.yaml"
+TWO_TANK = ROOT / "models" / "two_tank.yaml"
+GENERATED = ROOT / "generated"
+
+
+def refused(call, kind, start: str) -> str:
+    """The one-line message ``call()`` raises (of class ``kind``), checked to start with ``start``."""
+    started = time.perf_counter()
+    with pytest.raises(kind) as info:
+        call()
+    line = info.value.line()
+    assert line.startswith(start), line
+    assert "\n" not in line and time.perf_counter() - started < 10  # before any work
+    return line
+
+
+# ------------------------------------------------------------ bgc.diagnose: types and ranges
+@pytest.mark.parametrize("kwargs, kind, start", [
+    (dict(model=5, data="run.csv"), ArgumentTypeError, "bgc.diagnose: model=5 is not a path"),
+    (dict(scenario=5), ArgumentTypeError, "bgc.diagnose: scenario=5 is not a string"),
+    (dict(scenario="none", seed=-1), ArgumentValueError, "bgc.diagnose: seed=-1 is negative"),
+    (dict(scenario="none", seed=True), ArgumentTypeError, "bgc.diagnose: seed=True is not an integer"),
+    (dict(scenario="none", seed=1.0), ArgumentTypeError, "bgc.diagnose: seed=1.0 is not an integer"),
+    (dict(scenario="none", particles=None), ArgumentTypeError, "bgc.diagnose: particles=None is not an integer"),
+    (dict(scenario="none", particles=100.5), ArgumentTypeError, "bgc.diagnose: particles=100.5 is not an integer"),
+    (dict(scenario="none", particles=True), ArgumentTypeError, "bgc.diagnose: particles=True is not an integer"),
+    (dict(scenario="none", particles=np.bool_(True)), ArgumentTypeError, "bgc.diagnose: particles=np.True_"),
+    (dict(scenario="none", particles="200"), ArgumentTypeError, "bgc.diagnose: particles='200' is not an integer"),
+    (dict(scenario="none", particles=0), ArgumentValueError,
+     "bgc.diagnose: particles=0: at least 1 particle is needed"),
+    (dict(scenario="none", process_noise=-1.0), ArgumentValueError,
+     "bgc.diagnose: process_noise=-1: a level must be a finite number >= 0 and at most 1e6"),
+    (dict(scenario="none", process_noise=float("inf")), ArgumentValueError, "bgc.diagnose: process_noise=inf"),
+    (dict(scenario="none", process_noise=2e6), ArgumentValueError, "bgc.diagnose: process_noise=2e+06"),
+    (dict(scenario="none", process_noise="0.1"), ArgumentTypeError, "bgc.diagnose: process_noise='0.1' is not"),
+    (dict(scenario="none", measurement_noise=0.0), ArgumentValueError,
+     "bgc.diagnose: measurement_noise=0: a noiseless sensor makes the filters' likelihood degenerate"),
+    (dict(scenario="none", measurement_noise=float("nan")), ArgumentValueError, "bgc.diagnose: measurement_noise=nan"),
+    (dict(scenario="none", method="pf"), ArgumentValueError, "bgc.diagnose: method='pf' is not one of gpf, apf"),
+    (dict(scenario="none", method=1), ArgumentTypeError, "bgc.diagnose: method=1 is not one of"),
+    (dict(scenario="none", steps=0), ArgumentValueError, "bgc.diagnose: steps=0: simulate at least 1 step"),
+    (dict(scenario="none", steps=30.0), ArgumentTypeError, "bgc.diagnose: steps=30.0 is not an integer"),
+    (dict(data="run.csv", steps=30), ArgumentValueError, "bgc.diagnose: steps=30 with data"),
+    (dict(), ArgumentValueError, "bgc.diagnose: give either data or a scenario, not neither"),
+    (dict(data="run.csv", scenario="none"), ArgumentValueError,
+     "bgc.diagnose: give either data or a scenario, not both"),
+    (dict(data=5), ArgumentTypeError, "bgc.diagnose: data=5 is not a path or a Run"),
+    (dict(data=np.zeros((3, 2))), ArgumentTypeError, "bgc.diagnose: data=array("),
+    (dict(scenario="none", generated=3), ArgumentTypeError, "bgc.diagnose: generated=3 is not a path"),
+    (dict(scenario="none", options={}), ArgumentTypeError, "bgc.diagnose: options={} is not a DiagnosisOptions"),
+    (dict(scenario="none", progress="yes"), ArgumentTypeError, "bgc.diagnose: progress='yes' is not callable"),
+    (dict(scenario="none", options=DiagnosisOptions(particles=100.5)), ArgumentTypeError,
+     "bgc.diagnose: options.particles=100.5 is not an integer"),
+    (dict(scenario="none", options=DiagnosisOptions(particles=0)), ArgumentValueError,
+     "--particles 0: at least 1 particle is needed"),  # bgc diagnose --particles 0: the command line's words
+    (dict(scenario="none", options=DiagnosisOptions(seed=-3)), ArgumentValueError,
+     "bgc.diagnose: options.seed=-3 is negative"),
+    (dict(scenario="none", options=DiagnosisOptions(method="kf")), ArgumentValueError,
+     "bgc.diagnose: options.method='kf' is not one of"),
+    (dict(scenario="none", options=DiagnosisOptions(identify="both")), ArgumentValueError,
+     "bgc.diagnose: options.identify='both' is not one of kalman, filter"),
+    (dict(scenario="none", options=DiagnosisOptions(windows=[1, 8])), ArgumentTypeError,
+     "bgc.diagnose: options.windows=[1, 8] is not a non-empty tuple"),
+    (dict(scenario="none", options=DiagnosisOptions(windows=(1, 0))), ArgumentValueError,
+     "bgc.diagnose: options.windows=0: a window holds at least 1 sample"),
+    (dict(scenario="none", options=DiagnosisOptions(false_alarm=1.0)), ArgumentValueError,
+     "bgc.diagnose: options.false_alarm=1 is out of range"),
+    (dict(scenario="none", options=DiagnosisOptions(workers=0)), ArgumentValueError,
+     "bgc.diagnose: options.workers=0: give at least 1"),
+    (dict(scenario="none", options=DiagnosisOptions(refine=1)), ArgumentTypeError,
+     "bgc.diagnose: options.refine=1 is not True or False"),
+    (dict(scenario="none", options=DiagnosisOptions(kalman=None)), ArgumentTypeError,
+     "bgc.diagnose: options.kalman=None is not a KalmanOptions"),
+])
+def test_diagnose_refuses_bad_arguments_before_any_work(kwargs, kind, start):
+    model = kwargs.pop("model", CIRCUIT)
+    refused(lambda: bgc.diagnose(model, **kwargs), kind, start)
+    assert issubclass(kind, TypeError if kind is ArgumentTypeError else ValueError)
+
+
+def test_the_issue_cases_raise_what_python_expects():
+    """bgc.diagnose(5, data=...) was a TypeError from deep inside, scenario=5
+    an AttributeError, seed=-1 NumPy's ValueError, options={} an
+    AttributeError; now each is the API's own error, still catchable as
+    TypeError or ValueError, and a BgcError for the CLI's one line."""
+    for call, base in ((lambda: bgc.diagnose(5, data="run.csv"), TypeError),
+                       (lambda: bgc.diagnose(CIRCUIT, scenario=5), TypeError),
+                       (lambda: bgc.diagnose(CIRCUIT, scenario="none", seed=-1), ValueError),
+                       (lambda: bgc.diagnose(CIRCUIT, scenario="none", options={}), TypeError),
+                       (lambda: bgc.diagnose(CIRCUIT, scenario="none", particles=100.5), TypeError),
+                       (lambda: bgc.diagnose(CIRCUIT, scenario="none", process_noise=-1.0), ValueError)):
+        with pytest.raises(base) as info:
+            call()
+        assert isinstance(info.value, BgcError)
+
+
+def test_numpy_integers_are_integers():
+    r = bgc.diagnose(TWO_TANK, scenario="none", steps=np.int64(40), particles=np.int32(100), seed=np.uint8(1),
+                     generated=GENERATED, options=None)
+    assert r.diagnosis.verdict == "no fault" and len(r.run.time) == 40 and r.run.source == "scenario none"
+
+
+# ------------------------------------------------------------ a scenario's onset inside the run
+@pytest.mark.parametrize("scenario", ["R2:abrupt:0.5@100", "R2:abrupt:0.5@2", "R2:abrupt:0.5@0",
+                                      "R2:abrupt:0.5@1e300", "R2:incipient:0.1@2.5"])
+def test_an_onset_outside_the_run_is_refused(scenario):
+    """The issue's case (onset 100, run to t = 4 said 'no fault'), the last
+    sample's time (a fault seen by no sample after it), 0, far away."""
+    refused(lambda: bgc.diagnose(CIRCUIT, scenario=scenario, steps=40, generated=GENERATED), SimulationError,
+            f"scenario {scenario}: onset")
+
+
+def test_an_onset_inside_the_run_is_diagnosed():
+    r = bgc.diagnose(CIRCUIT, scenario="R2:abrupt:0.6@1.5", steps=40, seed=1, generated=GENERATED,
+                     options=DiagnosisOptions(particles=200, workers=1))
+    assert r.injected.time == 1.5 and r.run.source == "scenario R2:abrupt:0.6@1.5"
+
+
+# ------------------------------------------------------------ a Run from Python, files and sources
+def circuit_run(steps: int = 60, seed: int = 1) -> runs.Run:
+    num = compiled("circuit").numerics
+    result = simulate.simulate(num, simulate.SimulationOptions(steps=steps, seed=seed))
+    return runs.parse_run(simulate.to_csv(result), "circuit.csv")
+
+
+def replace(run: runs.Run, **change) -> runs.Run:
+    fields = {f: getattr(run, f) for f in runs.Run.__slots__}
+    fields.update(change)
+    return runs.Run(**fields)
+
+
+@pytest.mark.parametrize("change, start", [
+    (dict(time=np.array([])), "<Run from Python>: the run has no data rows"),
+    (dict(time=np.r_[0.05, np.nan, np.arange(3, 61) * 0.05]), "<Run from Python>, index 1: time nan"),
+    (dict(time=np.r_[0.1, 0.05, np.arange(3, 61) * 0.05]), "<Run from Python>, index 1: time 0.05 does not increase"),
+    (dict(time=np.r_[0.05, 0.05, np.arange(3, 61) * 0.05]), "<Run from Python>, index 1: time 0.05 does not"),
+    (dict(header=("model ro: 60 steps",)), "<Run from Python> is a run of model 'ro', not of 'circuit'"),
+    (dict(measurements={"e11": np.ones((60, 1))}), "<Run from Python>: column y:e11 has shape (60, 1)"),
+    (dict(measurements={"e11": np.ones(59)}), "<Run from Python>: column y:e11 has 59 values, the time 60"),
+    (dict(measurements={"e11": np.array(["1.0"] * 60)}), "<Run from Python>: column y:e11 holds <U3 values"),
+    (dict(measurements={"e11": np.full(60, np.inf)}), "<Run from Python>, index 0: inf in column y:e11"),
+    (dict(measurements={"e11": np.ones(60)}), "<Run from Python>: the run has no column y:f2"),
+    (dict(source="bench 4", measurements={"e11": np.ones(60)}), "bench 4: the run has no column y:f2"),
+])
+def test_a_run_from_python_goes_through_the_checks_of_a_csv(change, start):
+    run = replace(circuit_run(), **{"source": runs.PYTHON_SOURCE, "header": (), **change})
+    refused(lambda: bgc.diagnose(CIRCUIT, data=run, generated=GENERATED), DataError, start)
+
+
+def test_data_messages_name_the_file_and_line(tmp_path):
+    """The issue's second half: a run without a sensor's column, and infinite
+    samples, named by their file (and line)."""
+    path = tmp_path / "run.csv"
+    text = runs.run_csv(circuit_run())
+    path.write_text(text.replace("y:f2", "y:f9"))
+    refused(lambda: bgc.diagnose(CIRCUIT, data=path, generated=GENERATED), DataError,
+            f"{path}: the run has no column y:f2")
+    lines = text.splitlines(keepends=True)
+    first = next(i for i, line in enumerate(lines) if line.startswith("time,"))
+    column = lines[first].rstrip().split(",").index("y:f2")
+    for i in range(first + 1, len(lines)):  # the issue's case: -inf in every y:f2
+        cells = lines[i].rstrip("\n").split(",")
+        cells[column] = "-inf"
+        lines[i] = ",".join(cells) + "\n"
+    path.write_text("".join(lines))
+    refused(lambda: bgc.diagnose(CIRCUIT, data=path, generated=GENERATED), DataError,
+            f"{path}:{first + 2}: -inf in column y:f2 is not a finite number")
+
+
+def test_a_sensor_never_read_is_named_in_a_note():
+    run = circuit_run(80)
+    blind = replace(run, measurements={**run.measurements, "f2": np.full(80, np.nan)}, source="bench.csv")
+    d = bgc.diagnose(CIRCUIT, data=blind, generated=GENERATED, options=DiagnosisOptions(particles=200, workers=1))
+    notes = [n for n in d.diagnosis.notes if "has no sample" in n]
+    assert notes == ["sensor y:f2 has no sample in the run (bench.csv): every value of its column is empty or nan, "
+                     "so nothing is diagnosed from it"], d.diagnosis.notes
+    seen = bgc.diagnose(CIRCUIT, data=run, generated=GENERATED, options=DiagnosisOptions(particles=200, workers=1))
+    assert not any("has no sample" in n for n in seen.diagnosis.notes)
+
+
+# ------------------------------------------------------------ memory: the diagnosis step limit
+def test_a_diagnosis_beyond_the_memory_is_refused_with_the_most_steps():
+    num = compiled("circuit").numerics
+    line = refused(lambda: bgc.diagnose(CIRCUIT, scenario="none", steps=10_000_000, generated=GENERATED),
+                   TrackingError, "--steps: a diagnosis of 10000000 steps of circuit may take about")
+    most = int(line.split("at most ")[1].split()[0])
+    api.check_diagnosis_steps(most, num, 1000, "gpf")
+    with pytest.raises(TrackingError):
+        api.check_diagnosis_steps(most + 1, num, 1000, "gpf")
+    fixed, per_step = api.diagnosis_memory(most, num, 1000, "gpf")
+    assert fixed + most * per_step <= api.MAX_DIAGNOSIS_BYTES < fixed + (most + 1) * per_step
+    # ckf keeps no particle clouds: it may diagnose longer runs; more particles, shorter ones
+    assert api.diagnosis_memory(1, num, 1000, "ckf")[0] == 0
+    assert api.diagnosis_memory(1, num, 4000, "gpf")[1] > per_step
+    refused(lambda: bgc.diagnose(CIRCUIT, scenario="none", particles=10_000_000, generated=GENERATED), TrackingError,
+            "10000000 particles: a diagnosis of circuit keeps 257 clouds of them")
+
+
+def test_a_long_recorded_run_is_refused_by_the_same_rule(monkeypatch):
+    monkeypatch.setattr(api, "MAX_DIAGNOSIS_BYTES", 20_000_000)
+    refused(lambda: bgc.diagnose(CIRCUIT, data=circuit_run(200), generated=GENERATED), TrackingError,
+            "circuit.csv: 200 samples: a diagnosis of 200 steps of circuit may take about")
+
+
+def test_the_rule_bounds_the_memory_a_diagnosis_takes():
+    """tracemalloc's peak of a diagnosis (one process, a drift found and
+    sized) stays under the rule's bound."""
+    run = runs.parse_run(simulate.to_csv(simulate.simulate(compiled("circuit").numerics, simulate.SimulationOptions(
+        steps=200, seed=2, fault=simulate.parse_fault("R2:abrupt:0.6@3", compiled("circuit").numerics)))), "r")
+    options = DiagnosisOptions(particles=300, workers=1)
+    bgc.diagnose(CIRCUIT, data=run, generated=GENERATED, options=options)  # compiled, imported: not counted
+    tracemalloc.start()
+    try:
+        d = bgc.diagnose(CIRCUIT, data=run, generated=GENERATED, options=options).diagnosis
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    fixed, per_step = api.diagnosis_memory(200, compiled("circuit").numerics, 300, "gpf")
+    assert d.verdict != "no fault" and peak < fixed + 200 * per_step, (peak, fixed, per_step)
+
+
+# ------------------------------------------------------------ bgc.distinguishability
+@pytest.mark.parametrize("kwargs, kind, start", [
+    (dict(model=None), ArgumentTypeError, "bgc.distinguishability: model=None is not a path"),
+    (dict(scenario=3.5), ArgumentTypeError, "bgc.distinguishability: scenario=3.5 is not a string"),
+    (dict(change=0), ArgumentValueError, "bgc.distinguishability: change=0 is out of range"),
+    (dict(change=True), ArgumentTypeError, "bgc.distinguishability: change=True is not a number"),
+    (dict(at=1.0), ArgumentValueError, "bgc.distinguishability: at=1 is out of range"),
+    (dict(at=1e308), ArgumentValueError, "bgc.distinguishability: at=1e+308 is out of range"),  # an OverflowError
+    (dict(at=float("nan")), ArgumentValueError, "bgc.distinguishability: at=nan is out of range"),
+    (dict(level=0.0), ArgumentValueError, "bgc.distinguishability: level=0 is out of range"),
+    (dict(steps=-4), ArgumentValueError, "bgc.distinguishability: steps=-4: simulate at least 1 step"),
+    (dict(steps=False), ArgumentTypeError, "bgc.distinguishability: steps=False is not an integer"),
+    (dict(process_noise=-0.1), ArgumentValueError, "bgc.distinguishability: process_noise=-0.1"),
+    (dict(measurement_noise=0), ArgumentValueError, "bgc.distinguishability: measurement_noise=0: a noiseless"),
+    (dict(progress=1), ArgumentTypeError, "bgc.distinguishability: progress=1 is not callable"),
+    (dict(steps=1_000_000), TrackingError, "--steps: 1000000 steps: bgc distinguish would take about"),
+    (dict(steps=10_000_000), TrackingError, "--steps: 10000000 steps: bgc distinguish would take about"),
+    (dict(scenario="R2:abrupt:0.5@1e9"), SimulationError, "onset 1e+09 is outside the run"),
+])
+def test_distinguishability_refuses_bad_arguments_before_any_work(kwargs, kind, start):
+    model = kwargs.pop("model", CIRCUIT)
+    refused(lambda: bgc.distinguishability(model, **kwargs), kind, start)
+
+
+def test_private_folder_takes_a_prefix_string():
+    refused(lambda: api.private_folder(5), ArgumentTypeError, "bgc.api.private_folder: prefix=5 is not a string")
+
+
+def test_bgc_gives_the_api_functions():
+    assert bgc.distinguishability is api.distinguishability and bgc.DistinguishabilityReport is \
+        api.DistinguishabilityReport
+    with pytest.raises(AttributeError):
+        bgc.no_such_function  # noqa: B018
+
+
+# ------------------------------------------------------------ the command line
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_bgc_distinguish_reports_progress_on_a_terminal(monkeypatch, capsys):
+    err = _Terminal()
+    monkeypatch.setattr(sys, "stderr", err)
+    assert cli.main(["distinguish", str(TWO_TANK), "--steps", "40", "--change", "0.5"]) == 0
+    text = err.getvalue()
+    assert "\rbgc distinguish: preparing the families: the nominal run" in text
+    assert "bgc distinguish: preparing the families: fault model 1 of 8 (" in text
+    assert "bgc distinguish: scenario 12 of 12: " in text
+    assert text.endswith("\r")  # the line is cleared at the end
+    assert "R10" in capsys.readouterr().out
+
+
+def test_out_of_memory_names_the_command_and_its_files(monkeypatch, capsys):
+    def exhausted(*args, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr(api, "diagnose", exhausted)
+    monkeypatch.setattr(api, "distinguishability", exhausted)
+    assert cli.main(["diagnose", str(CIRCUIT), "--data", "lab/run 7.csv"]) == 1
+    assert capsys.readouterr().err == (f"bgc diagnose: out of memory on {CIRCUIT}, --data lab/run 7.csv (use "
+                                       "fewer particles, steps or a smaller model)\n")
+    assert cli.main(["distinguish", str(CIRCUIT), "--steps", "20"]) == 1
+    assert capsys.readouterr().err.startswith(f"bgc distinguish: out of memory on {CIRCUIT} (")
+
+
+def test_bgc_distinguish_steps_must_be_positive(capsys):
+    with pytest.raises(SystemExit) as info:
+        cli.main(["distinguish", str(CIRCUIT), "--steps", "0"])
+    assert info.value.code == 2 and "0: give an integer >= 1" in capsys.readouterr().err
+
+
+def test_the_step_limit_a_campaign_calls_checks_its_arguments_too():
+    num = compiled("circuit").numerics
+    refused(lambda: api.check_diagnosis_steps(0, num), ArgumentValueError, "bgc.api.diagnosis_memory: steps=0")
+    refused(lambda: api.check_diagnosis_steps(300, "circuit"), ArgumentTypeError,
+            "bgc.api.diagnosis_memory: num='circuit' is not a Numerics")
+    refused(lambda: api.check_diagnosis_steps(300, num, 1000, "pf"), ArgumentValueError,
+            "bgc.api.diagnosis_memory: method='pf' is not one of")
+    refused(lambda: api.check_diagnosis_steps(300, num, True), ArgumentTypeError,
+            "bgc.api.diagnosis_memory: particles=True is not an integer")
+    refused(lambda: api.check_diagnosis_steps(10**7, num, 1000, "ckf", "steps"), TrackingError,
+            "steps: a diagnosis of 10000000 steps of circuit may take about")
