@@ -247,6 +247,7 @@ def diagnosis_memory(steps: int, num: Numerics, particles: int = 1000, method: s
     _integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
     _choice(func, "method", method, METHODS)
     _integer(func, "history", history, 1, "give at least 1", "history=256")
+    steps, particles, history = int(steps), int(particles), int(history)  # NumPy integers would wrap around
     ssm = num.equations
     n, n_y, n_u, n_f = len(ssm.states), len(ssm.outputs), len(ssm.inputs), len(num.faults)
     per_step = 8 * (6 * n_y + 2 * n + n_u + 4 + 3 * n_y * min(particles, PATHS)
@@ -276,7 +277,7 @@ def check_diagnosis_steps(steps: int, num: Numerics, particles: int = 1000, meth
     fixed, per_step = diagnosis_memory(steps, num, particles, method, history)
     name = num.equations.model.name
     if fixed > MAX_DIAGNOSIS_BYTES:
-        unit = fixed // particles
+        unit = fixed // int(particles)
         raise TrackingError(f"{particles} particles: a diagnosis of {name} keeps {history + 1} clouds of them, "
                             f"about {fixed / 1e9:.3g} GB", None,
                             f"use at most {MAX_DIAGNOSIS_BYTES // 2 // unit} particles for this model")
@@ -360,7 +361,10 @@ def _real(func: str, name: str, value, low: float, high: float, what: str, low_o
     """A finite real number (not a bool) between ``low`` and ``high`` (each included when ``*_ok``)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not a number", None, f"give {what}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # an integer beyond the floats (10**400)
+        v = math.inf
     if not (math.isfinite(v) and (low <= v if low_ok else low < v) and (v <= high if high_ok else v < high)):
         raise ArgumentValueError(f"{func}: {name}={v:g} is out of range", None, f"give {what}")
 
@@ -374,9 +378,13 @@ def _noise(func: str, process: float | None, measurement: float | None) -> None:
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
             raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not a number", None,
                                     "noise levels are fractions of the signal, e.g. 0.02")
-        if not (math.isfinite(value) and 0 <= value <= MAX_NOISE):
-            raise ArgumentValueError(f"{func}: {name}={float(value):g}: a level must be a finite number >= 0 and at "
-                                     "most 1e6", None, "noise levels are fractions of the signal, e.g. 0.02")
+        try:
+            level = float(value)
+        except OverflowError:  # an integer beyond the floats (10**400)
+            level = math.inf if value > 0 else -math.inf
+        if not (math.isfinite(level) and 0 <= level <= MAX_NOISE):
+            raise ArgumentValueError(f"{func}: {name}={level:g}: a level must be a finite number >= 0 and at most 1e6",
+                                     None, "noise levels are fractions of the signal, e.g. 0.02")
     if measurement is not None and measurement == 0:
         raise ArgumentValueError(f"{func}: measurement_noise=0: a noiseless sensor makes the filters' likelihood "
                                  "degenerate", None, "give a measurement level above 0, e.g. 0.02")

@@ -52,6 +52,7 @@ import numpy as np
 
 from . import pipeline
 from .compiler import load
+from .compiler.validate import strict_validator
 from .errors import (ArgumentTypeError, ArgumentValueError, BgcError, ErrorGroup, ExperimentError, OutputError,
                      printable)
 from .kinds import DIRECTIONS, FAULT_KINDS, fault_kind
@@ -266,7 +267,7 @@ def load_campaign(path: str | Path, max_runs: int = MAX_RUNS) -> Campaign:
     errors: list[BgcError] = []
     if not isinstance(data, dict):
         raise ExperimentError("a campaign must be a mapping", raw.loc(), "start with 'campaign:' and 'groups:'")
-    for err in jsonschema.Draft202012Validator(schema()).iter_errors(data):
+    for err in strict_validator(schema(), finite=True).iter_errors(data):
         p = tuple(err.absolute_path)
         what, fix = _schema_message(err, p)
         errors.append(ExperimentError(what, raw.loc(*p), fix))
@@ -1119,9 +1120,14 @@ def check_timeout(value: Any, name: str = "connect_timeout") -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ArgumentTypeError(f"{name} must be a number of seconds, not {type(value).__name__}", None,
                                 f"give {name}={CONNECT_TIMEOUT:g}")
-    if not (math.isfinite(value) and value > 0):
-        raise ArgumentValueError(f"{name} is {value}", None, "give a finite number of seconds above 0")
-    return float(value)
+    try:
+        seconds = float(value)
+    except OverflowError:  # an integer beyond the floats (10**400)
+        seconds = math.inf
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise ArgumentValueError(f"{name} is {printable(str(value))[:40]}", None,
+                                 "give a finite number of seconds above 0")
+    return seconds
 
 
 def _check_arguments(c: Any, out: Any, scheduler: Any, progress: Any, outputs: Any, on_start: Any) -> None:
@@ -1200,8 +1206,16 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
     done = {}
     quarantine = None
     unread = 0
+    # what the end writes is checked now, before any run (a tables.md the user edited, a link in plots/)
+    outputs_now = {RUNS, "tables.md", "summary.json"} | {p for p in (previous or {}).get("files", {})
+                                                          if isinstance(p, str) and p.startswith("plots/")}
+    artifacts.check_folder(folder, outputs_now, "experiment", adopt=(RUNS,))
     if previous is not None:
-        found = read_runs(folder / RUNS)
+        runs_path = folder / RUNS
+        if runs_path.exists() and (runs_path.is_symlink() or not runs_path.is_file()):
+            raise ExperimentError(f"{printable(str(runs_path))} is not a regular file bgc wrote", None,
+                                  "move it away, or choose another -o folder")
+        found = read_runs(runs_path)
         if found.unread_lines:  # set aside before runs.csv is written again
             quarantine = _set_aside(folder, found.unread)
             unread = found.unread_lines

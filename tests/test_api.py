@@ -325,3 +325,11 @@ def test_the_step_limit_a_campaign_calls_checks_its_arguments_too():
             "bgc.api.diagnosis_memory: particles=True is not an integer")
     refused(lambda: api.check_diagnosis_steps(10**7, num, 1000, "ckf", "steps"), TrackingError,
             "steps: a diagnosis of 10000000 steps of circuit may take about")
+
+
+@pytest.mark.parametrize("kw", [{"process_noise": 10**400}, {"measurement_noise": -10**400},
+                                {"particles": np.int64(2**62)}, {"particles": np.uint64(2**63)}])
+def test_numbers_beyond_the_floats_or_the_machine_integers_are_bgc_errors(kw):
+    with pytest.raises(BgcError) as info:
+        bgc.diagnose(CIRCUIT, scenario="none", steps=30, **kw)
+    assert "\n" not in info.value.line()

@@ -662,3 +662,46 @@ def test_the_workers_of_a_killed_campaign_end_with_it(tmp_path):
         for w in workers:
             if _alive(w):
                 os.kill(w, signal.SIGKILL)
+
+
+# ------------------------------------------------------------------ found by the review of this issue
+@pytest.mark.parametrize("line, words", [
+    ("  seeds: 3.0", "integer"), ("  seeds: 1.0e+5", "integer"), ("  particles: [50.0]", "integer"),
+    ("  noise: [{name: x, process: .nan, measurement: 0.02}]", "number"),
+    ("  noise: [{name: x, process: 0.01, measurement: .inf}]", "number"),
+])
+def test_integral_floats_and_non_finite_numbers_are_located_schema_errors(tmp_path, line, words):
+    text = TINY.format(model=CIRCUIT).replace("  particles: [50]", line if "particles" in line else
+                                               "  particles: [50]\n" + line)
+    r = bgc("experiment", str(write(tmp_path, text)), "-o", str(tmp_path / "out"))
+    error = one_line_error(r)
+    assert error.startswith(f"{tmp_path / 'c.yaml'}:") and words in error, error
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_runs_csv_that_is_a_fifo_or_a_folder_is_refused_at_once(tiny, tmp_path):
+    out = copy_of(tiny, tmp_path)
+    (out / "runs.csv").unlink()
+    os.mkfifo(out / "runs.csv")
+    before = sorted(p.name for p in out.iterdir())
+    start = time.monotonic()
+    error = one_line_error(bgc("experiment", str(tiny[0].source), "-o", str(out), timeout=30))
+    assert time.monotonic() - start < 20 and "runs.csv" in error
+    assert sorted(p.name for p in out.iterdir()) == before
+    (out / "runs.csv").unlink()
+    (out / "runs.csv").mkdir()
+    one_line_error(bgc("experiment", str(tiny[0].source), "-o", str(out), timeout=30))
+    assert sorted(p.name for p in out.iterdir()) == before
+
+
+def test_an_edited_table_stops_a_resumed_campaign_before_any_run(tiny, tmp_path):
+    out = copy_of(tiny, tmp_path)
+    (out / "tables.md").write_text((out / "tables.md").read_text() + "my remark\n")
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    bigger = write(tmp_path, Path(tiny[0].source).read_text().replace("particles: [50]", "particles: [50]\n  seeds: 3"))
+    start = time.monotonic()
+    error = one_line_error(bgc("experiment", str(bigger), "-o", str(out)))
+    assert error == f"{out / 'tables.md'} was changed after bgc wrote it (move it away to keep it, or choose another " \
+                    "output folder with -o)"
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert time.monotonic() - start < 30

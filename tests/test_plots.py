@@ -14,3 +14,16 @@ def test_campaign_plots_draw_any_model_file_name_and_keep_one_per_model():
     assert confusion == ["confusion_100___alpha_____.png", "confusion__x-2.png", "confusion__x.png",
                          "confusion_e_.png"]
     assert all(data.startswith(b"\x89PNG") for data in out.values())
+
+
+def test_a_run_with_a_measurement_at_the_edge_of_the_floats_is_drawn():
+    import numpy as np
+
+    from bgc.runtime.simulate import SimulationResult
+
+    t = np.arange(1.0, 11.0)
+    y = np.ones((10, 1))
+    y[4, 0] = -1e308
+    r = SimulationResult("m", "m.yaml", t, (), np.zeros((10, 0)), ("e3",), y, np.ones((10, 1)), ("q2",),
+                         np.ones((10, 1)), None, None, ())
+    assert plots.simulation_figure(r, "png").startswith(b"\x89PNG")

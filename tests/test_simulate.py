@@ -360,3 +360,15 @@ def test_the_truth_on_python_floats_is_the_truth_on_numpy_scalars(monkeypatch):
         np.testing.assert_array_equal(floats[1], scalars[1])
         floats, scalars = both(sim.parse_fault("R_pipe:abrupt:-69@10", ro.numerics))
     assert floats == scalars and "diverged at t = 11" in floats[1]
+
+
+def test_simulate_refuses_an_onset_outside_the_run(tmp_path):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "bgc", "simulate", "models/circuit.yaml", "--fault", "R1:abrupt:0.5@100",
+                        "--steps", "30", "-o", str(tmp_path / "f.csv")], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 1 and "Traceback" not in r.stderr
+    assert r.stderr.strip() == "--fault R1:abrupt: onset 100 is outside the run (0 to 1.5) (choose an onset inside " \
+                               "the run, or more --steps)"
+    assert not (tmp_path / "f.csv").exists()

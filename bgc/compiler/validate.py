@@ -64,6 +64,33 @@ def validate(raw: RawModel) -> BondGraph:
     return _Validator(raw).run()
 
 
+
+def _integer(checker, value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _finite_number(checker, value) -> bool:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    return isinstance(value, int) or math.isfinite(value)
+
+
+def strict_validator(data_schema: dict, finite: bool = False) -> jsonschema.protocols.Validator:
+    """A JSON Schema (2020-12) validator for data read from YAML, stricter
+    than the standard's types: an ``integer`` is an integer as written
+    (``3.0`` is a number, not an integer: it would reach ``range()`` or a
+    seed), and with ``finite`` a ``number`` is finite (``.nan`` and ``.inf``
+    pass every bound otherwise).
+
+    >>> strict_validator({"type": "integer"}).is_valid(3.0), strict_validator({"type": "number"}, True).is_valid(float("nan"))
+    (False, False)
+    """
+    checker = jsonschema.Draft202012Validator.TYPE_CHECKER.redefine("integer", _integer)
+    if finite:
+        checker = checker.redefine("number", _finite_number)
+    cls = jsonschema.validators.extend(jsonschema.Draft202012Validator, type_checker=checker)
+    return cls(data_schema)
+
 class _Validator:
     def __init__(self, raw: RawModel):
         self.raw = raw
@@ -103,7 +130,7 @@ class _Validator:
         return model
 
     def check_schema(self, data: dict) -> None:
-        validator = jsonschema.Draft202012Validator(schema())
+        validator = strict_validator(schema())
         # .inf, .nan, 1.0e+400 and integers beyond the float range pass "type: number" (and
         # .nan every bound): they are refused here, at each number of the model.
         non_finite = dict(_non_finite(data))

@@ -36,7 +36,9 @@ import hashlib
 import json
 import os
 import re
+import stat
 import tempfile
+import threading
 import zlib
 from pathlib import Path
 from typing import Iterable, Mapping
@@ -171,11 +173,18 @@ def manifest_command(m: Mapping) -> str:
 
 
 def _inside(directory: Path, rel: str) -> Path | None:
-    """``directory / rel`` when rel is a plain relative path inside it (a
-    manifest is a file on disk: it must not name ``../x`` or ``/etc/x``)."""
+    """``directory / rel`` when rel is a plain relative path inside it and
+    none of its folders on the way is a link or not a folder (a manifest is a
+    file on disk: it must not name ``../x``, ``/etc/x`` or ``link/x`` with
+    ``link`` pointing elsewhere)."""
     p = Path(rel)
-    if p.is_absolute() or ".." in p.parts or not p.parts:
+    if p.is_absolute() or ".." in p.parts or not p.parts or "" in p.parts:
         return None
+    here = directory
+    for part in p.parts[:-1]:
+        here = here / part
+        if here.is_symlink() or (here.exists() and not here.is_dir()):
+            return None
     return directory / p
 
 
@@ -230,6 +239,50 @@ def _listed(m: Mapping) -> set[str]:
     return out
 
 
+def check_folder(directory: Path, names: Iterable[str], command: str, *, adopt: Iterable[str] = ()) -> Mapping:
+    """Whether ``command`` may write the files ``names`` (relative paths)
+    into ``directory``, before any work is done (:func:`write_folder` checks
+    the same again when it writes); its present manifest ({} when the folder
+    is empty or absent).
+
+    Raises
+    ------
+    OutputError
+        As :func:`write_folder`.
+    """
+    directory = Path(directory)
+    where = printable(str(directory))
+    if directory.is_symlink() or (directory.exists() and not directory.is_dir()):
+        raise OutputError(f"{where} is a file or a link, not a folder", None, "choose another output folder with -o")
+    previous: Mapping = {}
+    if directory.is_dir() and any(directory.iterdir()):
+        found = read_manifest(directory)
+        if found is None:
+            raise OutputError(f"{where} is not empty and holds no bgc {MANIFEST}", None,
+                              "bgc writes only into an empty folder or one it wrote before: choose another -o")
+        theirs = manifest_command(found)
+        if theirs != command:
+            raise OutputError(f"{where} holds the output of bgc {printable(theirs)}, not of bgc {command}", None,
+                              "choose another output folder with -o")
+        previous = found
+    listed = _listed(previous) if previous else set()
+    adopt = set(adopt)
+    for rel in sorted(set(names)):
+        path = _inside(directory, rel)
+        if path is None:
+            raise OutputError(f"refusing to write {printable(rel)}: it lies outside {where} or behind a link or a "
+                              "file in it", None, "move the link or file away, or choose another output folder with -o")
+        if not (path.exists() or path.is_symlink()):
+            continue
+        if rel not in listed:
+            raise OutputError(f"{printable(str(path))} exists and bgc did not write it", None,
+                              "move it away or choose another output folder with -o")
+        if rel not in adopt and _listed_state(directory, previous, rel) != "intact":
+            raise OutputError(f"{printable(str(path))} was changed after bgc wrote it", None,
+                              "move it away to keep it, or choose another output folder with -o")
+    return previous
+
+
 def write_folder(directory: Path, files: Mapping[str, str | bytes], *, adopt: Iterable[str] = ()) -> list[Path]:
     """Write ``files`` (relative path -> content; ``manifest.json`` among
     them, from :func:`manifest`) under ``directory``.
@@ -251,34 +304,8 @@ def write_folder(directory: Path, files: Mapping[str, str | bytes], *, adopt: It
     if MANIFEST not in files:
         raise InternalError(f"write_folder without a {MANIFEST}")
     command = manifest_command(json.loads(files[MANIFEST]))
-    where = printable(str(directory))
-    if directory.is_symlink() or (directory.exists() and not directory.is_dir()):
-        raise OutputError(f"{where} is a file, not a folder", None, "choose another output folder with -o")
-    previous: Mapping = {}
-    if directory.is_dir() and any(directory.iterdir()):
-        found = read_manifest(directory)
-        if found is None:
-            raise OutputError(f"{where} is not empty and holds no bgc {MANIFEST}", None,
-                              "bgc writes only into an empty folder or one it wrote before: choose another -o")
-        theirs = manifest_command(found)
-        if theirs != command:
-            raise OutputError(f"{where} holds the output of bgc {printable(theirs)}, not of bgc {command}", None,
-                              "choose another output folder with -o")
-        previous = found
+    previous = check_folder(directory, files, command, adopt=adopt)
     listed = _listed(previous) if previous else set()
-    adopt = set(adopt)
-    for rel in sorted(files):
-        path = _inside(directory, rel)
-        if path is None:
-            raise OutputError(f"refusing to write outside {where}: {printable(rel)}")
-        if not (path.exists() or path.is_symlink()):
-            continue
-        if rel not in listed:
-            raise OutputError(f"{printable(str(path))} exists and bgc did not write it", None,
-                              "move it away or choose another output folder with -o")
-        if rel not in adopt and _listed_state(directory, previous, rel) != "intact":
-            raise OutputError(f"{printable(str(path))} was changed after bgc wrote it", None,
-                              "move it away to keep it, or choose another output folder with -o")
     new_listed = set(files) | _listed(json.loads(files[MANIFEST]))
     for rel in sorted(listed - new_listed, reverse=True):
         path = _inside(directory, rel)
@@ -302,9 +329,16 @@ def write_folder(directory: Path, files: Mapping[str, str | bytes], *, adopt: It
 
 def _write_bytes(path: Path, data: bytes) -> None:
     """Write through a new temporary file beside ``path`` and rename: a
-    reader never sees half a file, and no other file is touched."""
+    reader never sees half a file, and no other file is touched. The file
+    gets the mode a plain write would give it (the one it had, or what the
+    umask leaves of 0666), not the temporary file's 0600."""
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:40]}.", suffix=".bgc-tmp", dir=path.parent)
     try:
+        try:
+            mode = stat.S_IMODE(os.stat(path, follow_symlinks=False).st_mode)
+        except OSError:
+            mode = 0o666 & ~_umask()
+        os.fchmod(fd, mode)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         os.replace(tmp, path)
@@ -314,6 +348,17 @@ def _write_bytes(path: Path, data: bytes) -> None:
         except OSError:
             pass
         raise
+
+
+_UMASK_LOCK = threading.Lock()
+
+
+def _umask() -> int:
+    """The process's umask (read by setting it and setting it back)."""
+    with _UMASK_LOCK:
+        mask = os.umask(0o022)
+        os.umask(mask)
+    return mask
 
 
 # ------------------------------------------------------------------ seals

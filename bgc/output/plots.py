@@ -22,8 +22,19 @@ def _figure(rows: int, width: float = 9.0, height_per_row: float = 1.7):
     return plt, fig, axes[:, 0]
 
 
+#: Axis limits are kept within this magnitude: matplotlib cannot lay out an
+#: axis whose span overflows (a measurement of 1e308 in a run).
+_AXIS_LIMIT = 1e300
+
+
 def _save(plt, fig, fmt: str) -> bytes:
     buf = io.BytesIO()
+    for ax in fig.axes:
+        for get, set_ in ((ax.get_xlim, ax.set_xlim), (ax.get_ylim, ax.set_ylim)):
+            lo, hi = get()
+            if not (np.isfinite(lo) and np.isfinite(hi) and max(abs(lo), abs(hi)) <= _AXIS_LIMIT):
+                set_(float(np.clip(np.nan_to_num(lo), -_AXIS_LIMIT, _AXIS_LIMIT)),
+                     float(np.clip(np.nan_to_num(hi), -_AXIS_LIMIT, _AXIS_LIMIT)))
     fig.tight_layout()
     fig.savefig(buf, format=fmt, dpi=100, metadata={"Software": None} if fmt == "png" else {"Date": None})
     plt.close(fig)

@@ -129,12 +129,15 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
     steps = options.steps or model.settings.steps
     check_steps(steps, num, "--steps" if options.steps else f"{model.source}: simulation.steps")
     dt = model.settings.dt
+    fault = options.fault
+    if fault is not None and not 0 <= fault.time < steps * dt:  # a fault from the start is a plant as it came
+        raise SimulationError(f"--fault {fault.parameter}:{fault.kind}: onset {fault.time:g} is outside the run (0 to "
+                              f"{steps * dt:g})", None, "choose an onset inside the run, or more --steps")
     noise = num.noise_at(options.process_noise, options.measurement_noise)
     substeps = num.substeps * TRUTH_REFINEMENT
     h = dt / substeps
     f, g = lambdified(ssm)
     theta0 = np.array(ssm.parameter_values, dtype=float)
-    fault = options.fault
     index = ssm.parameters.index(fault.parameter) if fault else None
     steps_at_substeps = fault is not None and not fault_kind(fault.kind).drifts
 

@@ -216,7 +216,7 @@ def check_particles(particles: int, package: ModuleType, model_name: str) -> Non
     n_x = len(package.MODELS[model_name].STATES)
     if particles < 1:
         raise TrackingError(f"--particles {particles}: at least 1 particle is needed", None, "e.g. --particles 200")
-    need = particles * (_ROWS_ALIVE * n_x + 3) * 8
+    need = int(particles) * (_ROWS_ALIVE * n_x + 3) * 8
     if need > MAX_FILTER_BYTES:
         most = MAX_FILTER_BYTES // ((_ROWS_ALIVE * n_x + 3) * 8)
         raise TrackingError(f"--particles {particles} would take about {need / 1e9:.3g} GB", None,
