@@ -33,7 +33,6 @@ from __future__ import annotations
 import atexit
 import hashlib
 import math
-import numbers
 import os
 import shutil
 import tempfile
@@ -43,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import pipeline
+from . import arguments, pipeline
 from .compiler.load import MAX_BYTES
 from .errors import ArgumentTypeError, ArgumentValueError, SimulationError, TrackingError, printable
 from .ir import NoiseLevels, Numerics
@@ -55,8 +54,6 @@ from .runtime.diagnose import diagnose as run_diagnosis
 
 #: The filters of a diagnosis (``bgc diagnose --filter``).
 METHODS = (*track.FILTER_CLASSES, KALMAN_METHOD)
-#: The largest relative noise level (``bgc ... --noise``).
-MAX_NOISE = 1e6
 
 
 @dataclass(frozen=True, slots=True)
@@ -143,28 +140,28 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
         The model's own errors (load, validation, ...).
     """
     func = "bgc.diagnose"
-    _path(func, "model", model)
+    arguments.path(func, "model", model)
     if data is not None and not isinstance(data, (str, os.PathLike, runs.Run)):
-        raise ArgumentTypeError(f"{func}: data={_shown(data)} is not a path or a Run", None,
+        raise ArgumentTypeError(f"{func}: data={arguments.shown(data)} is not a path or a Run", None,
                                 "give a run file's path or a bgc.runtime.runs.Run")
-    _text(func, "scenario", scenario, optional=True)
+    arguments.text(func, "scenario", scenario, optional=True)
     if (data is None) == (scenario is None):
         both = "both" if data is not None else "neither"
         raise ArgumentValueError(f"{func}: give either data or a scenario, not {both}", None,
                                  "e.g. data='run.csv' or scenario='R_pipe:incipient:0.5@165'")
-    _choice(func, "method", method, METHODS)
-    _integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
-    _integer(func, "seed", seed, 0, "is negative", "seed=0")
-    _noise(func, process_noise, measurement_noise)
+    arguments.choice(func, "method", method, METHODS)
+    arguments.integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
+    arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
+    arguments.noise_levels(func, process_noise, measurement_noise)
     if steps is not None:
-        _integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
+        arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
         if data is not None:
             raise ArgumentValueError(f"{func}: steps={steps} with data: a recorded run has its own length", None,
                                      "give steps with a scenario only")
-    _path(func, "generated", generated, optional=True)
+    arguments.path(func, "generated", generated, optional=True)
     if options is not None:
         check_options(options, func)
-    _callable(func, "progress", progress)
+    arguments.callable_or_none(func, "progress", progress)
     say = progress or (lambda text: None)
     say("compiling the model")
     c, private = _compiled(model)
@@ -240,13 +237,13 @@ def diagnosis_memory(steps: int, num: Numerics, particles: int = 1000, method: s
         An argument of the wrong type or out of range.
     """
     func = "bgc.api.diagnosis_memory"
-    _integer(func, "steps", steps, 1, "give at least 1", "steps=300")
+    arguments.integer(func, "steps", steps, 1, "give at least 1", "steps=300")
     if not isinstance(num, Numerics):
-        raise ArgumentTypeError(f"{func}: num={_shown(num)} is not a Numerics", None,
+        raise ArgumentTypeError(f"{func}: num={arguments.shown(num)} is not a Numerics", None,
                                 "give the compiled model's numerics (pipeline.compile_model(path).numerics)")
-    _integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
-    _choice(func, "method", method, METHODS)
-    _integer(func, "history", history, 1, "give at least 1", "history=256")
+    arguments.integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
+    arguments.choice(func, "method", method, METHODS)
+    arguments.integer(func, "history", history, 1, "give at least 1", "history=256")
     steps, particles, history = int(steps), int(particles), int(history)  # NumPy integers would wrap around
     ssm = num.equations
     n, n_y, n_u, n_f = len(ssm.states), len(ssm.outputs), len(ssm.inputs), len(num.faults)
@@ -273,7 +270,7 @@ def check_diagnosis_steps(steps: int, num: Numerics, particles: int = 1000, meth
     ArgumentTypeError, ArgumentValueError
         An argument of the wrong type or out of range (:func:`diagnosis_memory`).
     """
-    _text("bgc.api.check_diagnosis_steps", "where", where)
+    arguments.text("bgc.api.check_diagnosis_steps", "where", where)
     fixed, per_step = diagnosis_memory(steps, num, particles, method, history)
     name = num.equations.model.name
     if fixed > MAX_DIAGNOSIS_BYTES:
@@ -300,123 +297,42 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose") -> None
         A field of the wrong type or out of range.
     """
     if not isinstance(options, DiagnosisOptions):
-        raise ArgumentTypeError(f"{func}: options={_shown(options)} is not a DiagnosisOptions", None,
+        raise ArgumentTypeError(f"{func}: options={arguments.shown(options)} is not a DiagnosisOptions", None,
                                 "give bgc.runtime.diagnose.DiagnosisOptions(...) or None")
     o = "options."
-    _choice(func, o + "method", options.method, METHODS)
-    _integer(func, o + "particles", options.particles, None, "", "particles=1000")
+    arguments.choice(func, o + "method", options.method, METHODS)
+    arguments.integer(func, o + "particles", options.particles, None, "", "particles=1000")
     if options.particles < 1:  # bgc diagnose hands --particles over in the options: the runtime's words
         raise ArgumentValueError(f"--particles {options.particles}: at least 1 particle is needed", None,
                                  "e.g. --particles 200, or DiagnosisOptions(particles=200)")
-    _integer(func, o + "seed", options.seed, 0, "is negative", "seed=0")
+    arguments.integer(func, o + "seed", options.seed, 0, "is negative", "seed=0")
     for name in ("false_alarm", "rejection", "interval"):
-        _real(func, o + name, getattr(options, name), 0.0, 1.0, "a probability strictly between 0 and 1")
-    _real(func, o + "shrinkage", options.shrinkage, 0.0, 1.0, "a number between 0 and 1", high_ok=True)
-    _real(func, o + "bayes_factor", options.bayes_factor, 1.0, math.inf, "a number >= 1", low_ok=True)
+        arguments.real(func, o + name, getattr(options, name), 0.0, 1.0, "a probability strictly between 0 and 1")
+    arguments.real(func, o + "shrinkage", options.shrinkage, 0.0, 1.0, "a number between 0 and 1", high_ok=True)
+    arguments.real(func, o + "bayes_factor", options.bayes_factor, 1.0, math.inf, "a number >= 1", low_ok=True)
     windows = options.windows
     if not isinstance(windows, tuple) or not windows:
-        raise ArgumentTypeError(f"{func}: options.windows={_shown(windows)} is not a non-empty tuple of integers",
+        raise ArgumentTypeError(f"{func}: options.windows={arguments.shown(windows)} is not a non-empty tuple of "
+                                "integers",
                                 None, "e.g. windows=(1, 8, 32)")
     for w in windows:
-        _integer(func, o + "windows", w, 1, "a window holds at least 1 sample", "windows=(1, 8, 32)")
+        arguments.integer(func, o + "windows", w, 1, "a window holds at least 1 sample", "windows=(1, 8, 32)")
     for name in ("history", "search", "symbol_steps", "workers"):
-        _integer(func, o + name, getattr(options, name), 1, "give at least 1", f"{name}=1")
-    _integer(func, o + "near", options.near, 0, "is negative", "near=4")
+        arguments.integer(func, o + name, getattr(options, name), 1, "give at least 1", f"{name}=1")
+    arguments.integer(func, o + "near", options.near, 0, "is negative", "near=4")
     if options.spacing is not None:
-        _integer(func, o + "spacing", options.spacing, 1, "give at least 1", "spacing=4")
-    _choice(func, o + "identify", options.identify, IDENTIFY)
+        arguments.integer(func, o + "spacing", options.spacing, 1, "give at least 1", "spacing=4")
+    arguments.choice(func, o + "identify", options.identify, IDENTIFY)
     for name in ("rank", "refine", "switch"):
         if not isinstance(getattr(options, name), bool):
-            raise ArgumentTypeError(f"{func}: options.{name}={_shown(getattr(options, name))} is not True or False",
+            raise ArgumentTypeError(f"{func}: options.{name}={arguments.shown(getattr(options, name))} is not True "
+                                    "or False",
                                     None, f"give {name}=True or {name}=False")
     for name, kind in (("kalman", kalman.KalmanOptions), ("grid", identify.GridOptions),
                        ("rank_grid", identify.GridOptions)):
         if not isinstance(getattr(options, name), kind):
-            raise ArgumentTypeError(f"{func}: options.{name}={_shown(getattr(options, name))} is not a "
+            raise ArgumentTypeError(f"{func}: options.{name}={arguments.shown(getattr(options, name))} is not a "
                                     f"{kind.__name__}", None, f"give {kind.__name__}(...)")
-
-
-def _shown(value) -> str:
-    """A value as an argument is shown in a message: its repr, shortened."""
-    try:
-        text = repr(value)
-    except Exception:  # noqa: BLE001 - any repr of a caller's object may fail; the type still says it
-        text = f"<{type(value).__name__}>"
-    return printable(text if len(text) <= 40 else text[:37] + "...")
-
-
-def _integer(func: str, name: str, value, low: int | None, below: str, example: str) -> None:
-    """An integer (a bool is not one here) >= ``low`` (None: any); ``below`` says what a smaller one is."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-        raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not an integer", None,
-                                f"give an integer{'' if low is None else f' >= {low}'}, e.g. {example}")
-    if low is not None and value < low:
-        raise ArgumentValueError(f"{func}: {name}={int(value)} {below}" if below.startswith("is ")
-                                 else f"{func}: {name}={int(value)}: {below}", None,
-                                 f"give an integer >= {low}, e.g. {example}")
-
-
-def _real(func: str, name: str, value, low: float, high: float, what: str, low_ok: bool = False,
-          high_ok: bool = False) -> None:
-    """A finite real number (not a bool) between ``low`` and ``high`` (each included when ``*_ok``)."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not a number", None, f"give {what}")
-    try:
-        v = float(value)
-    except OverflowError:  # an integer beyond the floats (10**400)
-        v = math.inf
-    if not (math.isfinite(v) and (low <= v if low_ok else low < v) and (v <= high if high_ok else v < high)):
-        raise ArgumentValueError(f"{func}: {name}={v:g} is out of range", None, f"give {what}")
-
-
-def _noise(func: str, process: float | None, measurement: float | None) -> None:
-    """Relative noise levels as ``--noise`` takes them: finite, >= 0, at most
-    ``MAX_NOISE``; the measurement level above 0."""
-    for name, value in (("process_noise", process), ("measurement_noise", measurement)):
-        if value is None:
-            continue
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-            raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not a number", None,
-                                    "noise levels are fractions of the signal, e.g. 0.02")
-        try:
-            level = float(value)
-        except OverflowError:  # an integer beyond the floats (10**400)
-            level = math.inf if value > 0 else -math.inf
-        if not (math.isfinite(level) and 0 <= level <= MAX_NOISE):
-            raise ArgumentValueError(f"{func}: {name}={level:g}: a level must be a finite number >= 0 and at most 1e6",
-                                     None, "noise levels are fractions of the signal, e.g. 0.02")
-    if measurement is not None and measurement == 0:
-        raise ArgumentValueError(f"{func}: measurement_noise=0: a noiseless sensor makes the filters' likelihood "
-                                 "degenerate", None, "give a measurement level above 0, e.g. 0.02")
-
-
-def _path(func: str, name: str, value, optional: bool = False) -> None:
-    if value is None and optional:
-        return
-    if not isinstance(value, (str, os.PathLike)):
-        raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not a path", None,
-                                "give a str or a pathlib.Path")
-
-
-def _text(func: str, name: str, value, optional: bool = False) -> None:
-    if value is None and optional:
-        return
-    if not isinstance(value, str):
-        raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not a string", None,
-                                "e.g. 'R_pipe:incipient:0.5@165'" if name == "scenario" else "give a str")
-
-
-def _choice(func: str, name: str, value, choices: tuple[str, ...]) -> None:
-    if not isinstance(value, str) or value not in choices:
-        error = ArgumentValueError if isinstance(value, str) else ArgumentTypeError
-        raise error(f"{func}: {name}={_shown(value)} is not one of {', '.join(choices)}", None,
-                    f"give e.g. {name.rpartition('.')[2]}={choices[0]!r}")
-
-
-def _callable(func: str, name: str, value) -> None:
-    if value is not None and not callable(value):
-        raise ArgumentTypeError(f"{func}: {name}={_shown(value)} is not callable", None,
-                                "give a function of one str, or None")
 
 
 #: The compile cache, the private folders and the package imports are shared
@@ -442,7 +358,7 @@ def private_folder(prefix: str) -> str:
     """
     from multiprocessing import util
 
-    _text("bgc.api.private_folder", "prefix", prefix)
+    arguments.text("bgc.api.private_folder", "prefix", prefix)
 
     folder = tempfile.mkdtemp(prefix=prefix)
     atexit.register(shutil.rmtree, folder, True)
@@ -561,15 +477,15 @@ def distinguishability(model: str | Path, scenario: str | None = None, *, change
         A run too long for the memory (the message gives the most steps).
     """
     func = "bgc.distinguishability"
-    _path(func, "model", model)
-    _text(func, "scenario", scenario, optional=True)
-    _real(func, "change", change, 0.0, math.inf, "a relative change above 0, e.g. change=0.3")
-    _real(func, "at", at, 0.0, 1.0, "a fraction of the run between 0 and 1, e.g. at=0.5")
-    _noise(func, process_noise, measurement_noise)
+    arguments.path(func, "model", model)
+    arguments.text(func, "scenario", scenario, optional=True)
+    arguments.real(func, "change", change, 0.0, math.inf, "a relative change above 0, e.g. change=0.3")
+    arguments.real(func, "at", at, 0.0, 1.0, "a fraction of the run between 0 and 1, e.g. at=0.5")
+    arguments.noise_levels(func, process_noise, measurement_noise)
     if steps is not None:
-        _integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
-    _real(func, "level", level, 0.0, 1.0, "a probability between 0 and 1, e.g. level=0.95")
-    _callable(func, "progress", progress)
+        arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
+    arguments.real(func, "level", level, 0.0, 1.0, "a probability between 0 and 1, e.g. level=0.95")
+    arguments.callable_or_none(func, "progress", progress)
     say = progress or (lambda text: None)
     say("compiling the model")
     c, private = _compiled(model)

@@ -50,7 +50,7 @@ from typing import Any, Callable, Iterator
 import jsonschema
 import numpy as np
 
-from . import pipeline
+from . import arguments, pipeline
 from .compiler import load
 from .compiler.validate import strict_validator
 from .errors import (ArgumentTypeError, ArgumentValueError, BgcError, ErrorGroup, ExperimentError, OutputError,
@@ -74,6 +74,8 @@ _FLOAT = {"magnitude", "onset", "process_noise", "measurement_noise", "rt", "mse
 #: Free-text columns: written on one line, neutralised against spreadsheet formulas (:func:`format_cell`).
 _TEXT = frozenset(COLUMNS) - _INT - _BOOL - _FLOAT
 RUNS = "runs.csv"
+#: What the end of a campaign writes beside ``runs.csv`` (:func:`write_outputs`).
+TABLES, SUMMARY, PLOTS = "tables.md", "summary.json", "plots/"
 #: Lines of ``runs.csv`` that cannot be read are set aside in ``runs.unread-N.csv`` (N: the first free number).
 UNREAD = "runs.unread-{n}.csv"
 #: A text cell starting with one of these is a formula to a spreadsheet: ``runs.csv`` writes it after a
@@ -332,7 +334,7 @@ def check_count(value: Any, name: str) -> int:
     ArgumentTypeError, ArgumentValueError
         Not an integer (a bool is not one), or below 1.
     """
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+    if not arguments.is_integer(value):
         raise ArgumentTypeError(f"{name} must be an integer, not {type(value).__name__}", None,
                                 f"give {name}=N with N >= 1")
     if value < 1:
@@ -848,7 +850,7 @@ def check_workers(workers: Any, name: str = "workers") -> int | None:
     """
     if workers is None:
         return None
-    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)):
+    if not arguments.is_integer(workers):
         raise ArgumentTypeError(f"{name} must be an integer or None, not {type(workers).__name__}", None,
                                 "give a number of local processes, e.g. 4")
     limit = worker_limit()
@@ -1117,13 +1119,10 @@ def check_timeout(value: Any, name: str = "connect_timeout") -> float:
     ArgumentTypeError, ArgumentValueError
         Not a number (a bool is not one), or not finite and above 0.
     """
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+    if not arguments.is_real(value):
         raise ArgumentTypeError(f"{name} must be a number of seconds, not {type(value).__name__}", None,
                                 f"give {name}={CONNECT_TIMEOUT:g}")
-    try:
-        seconds = float(value)
-    except OverflowError:  # an integer beyond the floats (10**400)
-        seconds = math.inf
+    seconds = arguments.as_float(value)
     if not (math.isfinite(seconds) and seconds > 0):
         raise ArgumentValueError(f"{name} is {printable(str(value))[:40]}", None,
                                  "give a finite number of seconds above 0")
@@ -1202,26 +1201,11 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
         what = (f"campaign '{printable(str(previous.get('campaign')))}'" if previous.get("campaign")
                 else "another bgc output (not a campaign)")
         raise ExperimentError(f"{printable(str(folder))} holds {what}", None, "choose another -o folder")
-    ids = {s.id for s in c.specs}
-    done = {}
-    quarantine = None
-    unread = 0
     # what the end writes is checked now, before any run (a tables.md the user edited, a link in plots/)
-    outputs_now = {RUNS, "tables.md", "summary.json"} | {p for p in (previous or {}).get("files", {})
-                                                          if isinstance(p, str) and p.startswith("plots/")}
+    outputs_now = {RUNS, TABLES, SUMMARY} | {p for p in (previous or {}).get("files", {})
+                                             if isinstance(p, str) and p.startswith(PLOTS)}
     artifacts.check_folder(folder, outputs_now, "experiment", adopt=(RUNS,))
-    if previous is not None:
-        runs_path = folder / RUNS
-        if runs_path.exists() and (runs_path.is_symlink() or not runs_path.is_file()):
-            raise ExperimentError(f"{printable(str(runs_path))} is not a regular file bgc wrote", None,
-                                  "move it away, or choose another -o folder")
-        found = read_runs(runs_path)
-        if found.unread_lines:  # set aside before runs.csv is written again
-            quarantine = _set_aside(folder, found.unread)
-            unread = found.unread_lines
-        for row in found.rows:
-            if row["status"] == "ok" and row["id"] in ids and row["id"] not in done:
-                done[row["id"]] = row
+    done, quarantine, unread = _finished(c, folder) if previous is not None else ({}, None, 0)
     todo = [s for s in c.specs if s.id not in done]
     rows_text = csv_header(c) + "".join(csv_row(r) for r in sorted(done.values(), key=lambda r: r["index"]))
     artifacts.write_folder(folder, {RUNS: rows_text, artifacts.MANIFEST: artifacts.manifest(
@@ -1255,6 +1239,25 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
     return result
 
 
+def _finished(c: Campaign, folder: Path) -> tuple[dict[str, dict[str, Any]], Path | None, int]:
+    """The rows of the campaign's runs that finished in its folder before, by
+    run id (the first of each), and the lines of its ``runs.csv`` that cannot
+    be read: set aside in a new file (its path and their count) before the
+    file is written again."""
+    runs_path = folder / RUNS
+    if runs_path.exists() and (runs_path.is_symlink() or not runs_path.is_file()):
+        raise ExperimentError(f"{printable(str(runs_path))} is not a regular file bgc wrote", None,
+                              "move it away, or choose another -o folder")
+    found = read_runs(runs_path)
+    quarantine = _set_aside(folder, found.unread) if found.unread_lines else None
+    ids = {s.id for s in c.specs}
+    done: dict[str, dict[str, Any]] = {}
+    for row in found.rows:
+        if row["status"] == "ok" and row["id"] in ids and row["id"] not in done:
+            done[row["id"]] = row
+    return done, quarantine, found.unread_lines
+
+
 def _bar(total: int, initial: int, name: str, show: bool):
     from tqdm import tqdm
 
@@ -1269,10 +1272,10 @@ def write_outputs(result: CampaignResult) -> list[Path]:
 
     c = result.campaign
     files: dict[str, str | bytes] = {RUNS: csv_header(c) + "".join(csv_row(r) for r in result.rows)}
-    files["tables.md"] = tables.campaign_markdown(c, result.rows)
-    files["summary.json"] = tables.campaign_json(c, result.rows)
+    files[TABLES] = tables.campaign_markdown(c, result.rows)
+    files[SUMMARY] = tables.campaign_json(c, result.rows)
     for name, data in plots.campaign_figures(result.rows).items():
-        files[f"plots/{name}"] = data
+        files[PLOTS + name] = data
     files[artifacts.MANIFEST] = artifacts.manifest(files, "experiment", campaign=c.name, source=c.source)
     return artifacts.write_folder(result.folder, files)
 

@@ -1,6 +1,7 @@
 """Shared test set-up: hypothesis profiles (``ci`` is derandomized)."""
 
 import os
+import tracemalloc
 from functools import lru_cache
 from pathlib import Path
 
@@ -52,3 +53,12 @@ def tank_map(R12: float, dt: float = 0.5, R10: float = 4.0, R20: float = 3.0):
     c = dt * (I2 + hA / 2 + hA @ hA / 6 + hA @ hA @ hA / 24) @ b
     H = np.array([[1 / R10, 0.0], [1 / R12, -1 / R12], [0.0, 1 / R20]])
     return M, c, H
+
+
+def peak_memory(fn):
+    """(fn(), the peak of the memory tracemalloc saw allocated while it ran)."""
+    tracemalloc.start()
+    try:
+        return fn(), tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()

@@ -7,7 +7,6 @@ a note; requests beyond the memory are refused with the most steps allowed."""
 import io
 import sys
 import time
-import tracemalloc
 
 import numpy as np
 import pytest
@@ -19,7 +18,7 @@ from bgc.errors import (ArgumentTypeError, ArgumentValueError, BgcError, DataErr
 from bgc.runtime import runs, simulate
 from bgc.runtime.diagnose import DiagnosisOptions
 
-from conftest import ROOT, compiled
+from conftest import ROOT, compiled, peak_memory
 
 CIRCUIT = ROOT / "models" / "circuit.yaml"
 TWO_TANK = ROOT / "models" / "two_tank.yaml"
@@ -232,12 +231,7 @@ def test_the_rule_bounds_the_memory_a_diagnosis_takes():
         steps=200, seed=2, fault=simulate.parse_fault("R2:abrupt:0.6@3", compiled("circuit").numerics)))), "r")
     options = DiagnosisOptions(particles=300, workers=1)
     bgc.diagnose(CIRCUIT, data=run, generated=GENERATED, options=options)  # compiled, imported: not counted
-    tracemalloc.start()
-    try:
-        d = bgc.diagnose(CIRCUIT, data=run, generated=GENERATED, options=options).diagnosis
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    d, peak = peak_memory(lambda: bgc.diagnose(CIRCUIT, data=run, generated=GENERATED, options=options).diagnosis)
     fixed, per_step = api.diagnosis_memory(200, compiled("circuit").numerics, 300, "gpf")
     assert d.verdict != "no fault" and peak < fixed + 200 * per_step, (peak, fixed, per_step)
 

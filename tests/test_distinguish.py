@@ -22,7 +22,7 @@ import pytest
 from bgc import api, cli
 from bgc.runtime import distinguish, track
 
-from conftest import ROOT, TEST_MODELS, compiled, tank_map
+from conftest import ROOT, TEST_MODELS, compiled, peak_memory, tank_map
 
 TWO_TANK = ROOT / "models" / "two_tank.yaml"
 PIPES = TEST_MODELS / "series_pipes.yaml"
@@ -211,17 +211,11 @@ def test_the_memory_estimate_bounds_the_peak_closely():
     """distinguish.memory against tracemalloc's peak of a whole prediction
     (every candidate, 400 samples: MAX_ONSETS onsets), fresh families: at or
     above the peak, by at most 15 %."""
-    import tracemalloc
-
+    
     num = compiled("two_tank").numerics
     T = distinguish.MAX_ONSETS
     api._FAMILIES.clear()
-    tracemalloc.start()
-    try:
-        api.distinguishability(TWO_TANK, steps=T)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    _, peak = peak_memory(lambda: api.distinguishability(TWO_TANK, steps=T))
     estimate = distinguish.memory(T, *distinguish._sizes(num))
     assert peak <= estimate <= 1.15 * peak, (peak, estimate)
 

@@ -4,13 +4,14 @@ infinite numbers), the memory it takes, and the one check a run from a file
 and a run built in Python both go through (``check_run``)."""
 
 import os
-import tracemalloc
 
 import numpy as np
 import pytest
 
 from bgc.errors import DataError
 from bgc.runtime import runs
+
+from conftest import peak_memory
 
 HEAD = "# model rc: 3 steps\n"
 BODY = "time,u:V,y:e3,x:q\n0.5,1,2.5,0.1\n1.0,1,2.25,0.2\n1.5,1,,0.3\n"
@@ -98,12 +99,7 @@ def test_hostile_floods_are_refused_at_once_and_in_little_memory(tmp_path):
         with open(path, "w") as f:
             f.write(flood * (20_000_000 // len(flood)))
             f.write(BODY)
-        tracemalloc.start()
-        try:
-            line = file_error(path)
-            peak = tracemalloc.get_traced_memory()[1]
-        finally:
-            tracemalloc.stop()
+        line, peak = peak_memory(lambda: file_error(path))
         assert "more than" in line and peak < 2_000_000, (line, peak)
 
 
@@ -113,12 +109,7 @@ def test_an_endless_line_is_counted_not_kept(tmp_path):
         f.write("time,y:e3\n1.0,")
         f.write("9" * 30_000_000)
         f.write("\n2.0,1\n")
-    tracemalloc.start()
-    try:
-        line = file_error(path)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    line, peak = peak_memory(lambda: file_error(path))
     assert line.startswith(f"{path}:2: line is 30000004 characters long"), line
     assert peak < 8 * runs.MAX_LINE < 30_000_000, peak  # blocks of MAX_LINE, never the whole line
     # a long comment line too, and the count is in characters (2 bytes each here)
@@ -141,12 +132,7 @@ def test_reading_a_large_run_takes_memory_near_its_numbers(tmp_path):
             f.write(f"{0.05 * (k + 1)!r},1.2345678901234567,2.5,-3.25e-05,4.0,5.5\n")
     size = os.path.getsize(path)
     numbers = rows * (cols + 1) * 8  # the columns and each row's line number
-    tracemalloc.start()
-    try:
-        run = runs.read_run(path)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
+    run, peak = peak_memory(lambda: runs.read_run(path))
     assert len(run.time) == rows and run.measurements["s0"][-1] == 1.2345678901234567
     # the numbers (growing in place) and little else: the text of the file (as large) is never held whole
     assert peak < 1.6 * numbers and peak < 1.6 * size, (peak, numbers, size)

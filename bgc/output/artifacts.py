@@ -204,16 +204,16 @@ def _listed_state(directory: Path, m: Mapping, rel: str) -> str:
         return "intact" if ownership(path) == "bgc" or _unsealed_mark(path) else "changed"
     growing = m.get("growing", {})
     size = growing.get(rel) if isinstance(growing, Mapping) else None
+    if not (isinstance(size, int) and not isinstance(size, bool) and size >= 0):
+        size = None  # the whole file
     with open(path, "rb") as f:
-        if isinstance(size, int) and not isinstance(size, bool) and size >= 0:
-            h = _hash_stream(f, size)
-            return "intact" if h == digest else "changed"
-        return "intact" if _hash_stream(f) == digest else "changed"
+        return "intact" if _hash_stream(f, size) == digest else "changed"
 
 
-def _hash_stream(f, limit: int | None = None) -> str | None:
-    """SHA-256 of a file's bytes (its first ``limit`` bytes; None when it is shorter)."""
-    h = hashlib.sha256()
+def _hash_stream(f, limit: int | None = None, prefix: bytes = b"") -> str | None:
+    """SHA-256 of ``prefix`` followed by a file's bytes from where it stands
+    (its next ``limit`` bytes; None when it is shorter)."""
+    h = hashlib.sha256(prefix)
     left = limit
     while left is None or left > 0:
         chunk = f.read(1 << 20 if left is None else min(1 << 20, left))
@@ -384,6 +384,15 @@ _PNG_MARK = b"Software\x00bgc"
 _PNG_SEAL = b"bgc-sha256\x00"
 
 
+def _png_marked(data: bytes, more: int = 0) -> list[tuple[int, bytes, bytes]] | None:
+    """A PNG's header chunk, bgc's mark chunk after it and ``more`` chunks
+    after that, or None when the bytes are not a PNG marked so."""
+    if not data.startswith(_PNG):
+        return None
+    chunks = _png_chunks_at(data, 8, 2 + more)
+    return chunks if chunks and chunks[0][1] == b"IHDR" and chunks[1][1:] == (b"tEXt", _PNG_MARK) else None
+
+
 def _mark_line(lines: list[str]) -> int | None:
     """The index of the mark line among a text's first lines (without their
     newlines): the first line's header comment; after an XML declaration, an
@@ -410,11 +419,11 @@ def seal(data: str | bytes) -> bytes:
     raw = _bytes(data)
     digest = _sha256(raw)
     if raw.startswith(_PNG):
-        chunks = _png_chunks_at(raw, 8, 2)
-        if chunks and chunks[0][1] == b"IHDR" and chunks[1][1:] == (b"tEXt", _PNG_MARK):
-            end = chunks[1][0] + 12 + len(_PNG_MARK)
-            return raw[:end] + _png_chunk(b"tEXt", _PNG_SEAL + digest.encode("ascii")) + raw[end:]
-        raise InternalError("a PNG without bgc's mark after its header chunk")
+        chunks = _png_marked(raw)
+        if chunks is None:
+            raise InternalError("a PNG without bgc's mark after its header chunk")
+        end = chunks[1][0] + 12 + len(_PNG_MARK)
+        return raw[:end] + _png_chunk(b"tEXt", _PNG_SEAL + digest.encode("ascii")) + raw[end:]
     head = raw[:_HEAD].decode("utf-8", errors="replace").split("\n")[:3]
     i = _mark_line(head)
     if i is None or (i + 1 >= len(head) and not raw.endswith(b"\n")) or _is_sealed_line(head, i):
@@ -451,12 +460,10 @@ def ownership(path: Path) -> str:
                 return "other"
             digest, prefix, skip = found
             f.seek(skip)
-            h = hashlib.sha256(prefix)
-            while chunk := f.read(1 << 20):
-                h.update(chunk)
+            unsealed = _hash_stream(f, prefix=prefix)
     except OSError:
         return "other"
-    return "bgc" if h.hexdigest() == digest else "changed"
+    return "bgc" if unsealed == digest else "changed"
 
 
 def _unseal_head(head: bytes) -> tuple[str, bytes, int] | None:
@@ -464,9 +471,8 @@ def _unseal_head(head: bytes) -> tuple[str, bytes, int] | None:
     before offset ``skip``, ``skip``); the hash of the file without its seal
     is that of those bytes followed by the file from ``skip``."""
     if head.startswith(_PNG):
-        chunks = _png_chunks_at(head, 8, 3)
-        if not (chunks and chunks[0][1] == b"IHDR" and chunks[1][1:] == (b"tEXt", _PNG_MARK)
-                and chunks[2][1] == b"tEXt" and chunks[2][2].startswith(_PNG_SEAL)):
+        chunks = _png_marked(head, 1)
+        if not (chunks and chunks[2][1] == b"tEXt" and chunks[2][2].startswith(_PNG_SEAL)):
             return None
         digest = chunks[2][2][len(_PNG_SEAL):].decode("ascii", errors="replace")
         if not _HEX.fullmatch(digest):
@@ -508,15 +514,9 @@ def _unsealed_mark(path: Path) -> bool:
     except OSError:
         return False
     if head.startswith(_PNG):
-        chunks = _png_chunks_at(head, 8, 2)
-        return bool(chunks and chunks[0][1] == b"IHDR" and chunks[1][1:] == (b"tEXt", _PNG_MARK))
+        return _png_marked(head) is not None
     lines = head.decode("utf-8", errors="replace").split("\n")[:3]
     return len(lines) > 1 and _mark_line(lines) is not None
-
-
-def written_by_bgc(path: Path) -> bool:
-    """Whether an existing file is bgc's own (:func:`ownership`)."""
-    return ownership(path) == "bgc"
 
 
 def mark_text(text: str, fmt: str, source: str) -> str:
@@ -650,12 +650,6 @@ class GrowingFile:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def append_text(path: Path, text: str) -> None:
-    """Append ``text`` to a growing file of a folder bgc wrote (:class:`GrowingFile`)."""
-    with GrowingFile(path) as f:
-        f.append(text)
 
 
 def diff(directory: Path, files: Mapping[str, str]) -> list[str]:

@@ -73,6 +73,7 @@ import numpy as np
 
 from ..errors import TrackingError
 from ..ir import Numerics
+from .simulate import MAX_STEPS
 
 #: A rival is in the predicted ambiguity group when the data, with the priors,
 #: are expected to name the truth over it with a probability under this.
@@ -82,8 +83,6 @@ MAX_ONSETS = 400
 #: Memory the arrays of one prediction may take (:func:`memory`); a longer run
 #: is refused before any work (:func:`check_steps`).
 MAX_BYTES = 2_000_000_000
-#: The longest run bgc simulates (:data:`bgc.runtime.simulate.MAX_STEPS`).
-_MOST_STEPS = 10_000_000
 
 
 @dataclass(frozen=True, slots=True)
@@ -230,7 +229,7 @@ def memory(steps: int, states: int, outputs: int, inputs: int, fault_models: int
 def most_steps(num: Numerics) -> int:
     """The longest run whose prediction stays within ``MAX_BYTES``."""
     size = _sizes(num)
-    lo, hi = 0, _MOST_STEPS
+    lo, hi = 0, MAX_STEPS  # no run is longer than bgc simulates
     while lo < hi:  # memory grows with the steps
         mid = (lo + hi + 1) // 2
         if memory(mid, *size) <= MAX_BYTES:
