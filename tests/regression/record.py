@@ -1,0 +1,279 @@
+"""Record the regression corpus of diagnoses: tests/regression/runs/*.csv and cases.json.
+
+Run with the code of commit 5cca73a: PYTHONPATH=<checkout> python tests/regression/record.py
+
+e.g. from a pristine worktree of that commit (so edits in progress elsewhere
+never reach the recording):
+
+    git worktree add /tmp/base 5cca73a
+    cp -r tests/regression /tmp/base/tests/
+    cd /tmp/base && PYTHONPATH=/tmp/base MPLBACKEND=Agg python tests/regression/record.py
+    cp /tmp/base/tests/regression/cases.json /tmp/base/tests/regression/runs/*.csv <here>/tests/regression/...
+
+What it does, for every case of ``CASES`` below: simulates the run with the
+checkout's simulator (``bgc.runtime.simulate``, as ``bgc simulate`` does) and
+writes it to ``runs/<name>.csv``; then diagnoses that file through the public
+API, ``bgc.api.diagnose(model, data=<run file>, options=..., process_noise=...,
+measurement_noise=...)``, exactly as tests/test_regression.py does, and
+writes what the diagnosis found to ``cases.json``. Every float is stored as
+the string of its ``repr`` (full precision; ``nan`` and ``inf`` too), read
+back with ``float()``.
+
+The diagnosis runs in the checkout's root (the working directory is set to
+it), so run files and models are named relative to it, as in the test.
+``--only NAME ...`` re-records only those cases (the others are kept as they
+are in cases.json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent.parent
+RUNS = HERE / "runs"
+CASES_FILE = HERE / "cases.json"
+#: The commit whose code made the corpus.
+BASE_COMMIT = "5cca73a"
+
+CIRCUIT = "models/circuit.yaml"
+TWO_TANK = "models/two_tank.yaml"
+RO = "models/ro.yaml"
+DC_MOTOR = "tests/data/models/dc_motor.yaml"
+ORIFICE = "tests/data/models/orifice_tanks.yaml"
+MSD = "tests/data/models/mass_spring_damper.yaml"
+DRIVETRAIN = "tests/data/models/drivetrain.yaml"
+
+#: The options every case states (the defaults of this script; a case may
+#: override any of them). The test builds DiagnosisOptions from these fields.
+DEFAULT_OPTIONS = {"method": "gpf", "particles": 200, "workers": 1, "identify": "kalman",
+                   "switch": True, "rank": False, "refine": False}
+
+
+def case(name, model, fault, steps, seed, scenario, process_noise=None, measurement_noise=None, **options):
+    """A case: the run (``fault`` PARAM:KIND:MAGNITUDE@TIME or None for a
+    fault-free run, ``steps``, the simulation's ``seed``, relative noise
+    levels: None the model's; the diagnosis assumes the same levels) and the
+    diagnosis options (``seed`` seeds the filters too)."""
+    return {"name": name, "model": model, "scenario": scenario,
+            "simulation": {"fault": fault, "steps": steps, "seed": seed,
+                           "process_noise": process_noise, "measurement_noise": measurement_noise},
+            "options": {**DEFAULT_OPTIONS, "seed": seed, **options}}
+
+
+CASES = [
+    # --- the circuit (dt = 0.05 s: a fault at t = 5 s is step 100)
+    case("circuit_R1_step_up_gpf", CIRCUIT, "R1:abrupt:0.3@5", 200, 1, "abrupt increase"),
+    case("circuit_R1_step_up_apf", CIRCUIT, "R1:abrupt:0.3@5", 200, 2, "abrupt increase", method="apf"),
+    case("circuit_R2_step_up_opf", CIRCUIT, "R2:abrupt:0.6@5", 200, 4, "abrupt increase", method="opf"),
+    case("circuit_R3_step_down_ckf", CIRCUIT, "R3:abrupt:-0.3@5", 200, 3, "abrupt decrease", method="ckf"),
+    case("circuit_R2_drift_up_gpf", CIRCUIT, "R2:incipient:0.1@3", 200, 1, "drift up"),
+    case("circuit_R2_drift_up_filter_gpf", CIRCUIT, "R2:incipient:0.1@3", 200, 7, "drift up, identify=filter",
+         identify="filter"),
+    case("circuit_R3_step_up_filter_apf", CIRCUIT, "R3:abrupt:0.4@5", 200, 8, "abrupt increase, identify=filter",
+         method="apf", identify="filter"),
+    case("circuit_R1_step_down_low_noise_gpf", CIRCUIT, "R1:abrupt:-0.3@5", 200, 5,
+         "abrupt decrease, noise process 0.01 / measurement 0.01 (model: 0.03 / 0.02)",
+         process_noise=0.01, measurement_noise=0.01),
+    case("circuit_none_opf", CIRCUIT, None, 200, 1, "fault-free", method="opf"),
+    case("circuit_C1_small_step_down_gpf", CIRCUIT, "C1:abrupt:-0.25@5", 200, 16,
+         "abrupt decrease too small to alarm"),
+    # --- two tanks (dt = 0.5 s: t = 50 s is step 100)
+    case("two_tank_R10_step_up_gpf", TWO_TANK, "R10:abrupt:1.0@50", 200, 1, "abrupt increase"),
+    case("two_tank_R10_step_down_high_process_noise_opf", TWO_TANK, "R10:abrupt:-1.0@50", 200, 9,
+         "abrupt decrease, process noise 0.05 (model: 0.03)", method="opf", process_noise=0.05),
+    case("two_tank_R12_drift_up_apf", TWO_TANK, "R12:incipient:0.02@30", 200, 2, "drift up", method="apf"),
+    case("two_tank_R20_drift_up_gpf_workers2", TWO_TANK, "R20:incipient:0.03@30", 200, 11, "drift up, 2 workers",
+         workers=2),
+    case("two_tank_R20_step_up_every_fallback_gpf", TWO_TANK, "R20:abrupt:1.02018@48", 200, 2743265757,
+         "abrupt increase the symbols rule out: unexplained, diagnosed again with every fault model",
+         particles=300),
+    case("two_tank_R10_drift_down_ckf", TWO_TANK, "R10:incipient:-0.02@40", 200, 18, "drift down", method="ckf"),
+    case("two_tank_none_ckf", TWO_TANK, None, 200, 3, "fault-free", method="ckf"),
+    case("two_tank_R12_step_up_apf", TWO_TANK, "R12:abrupt:0.8@50", 200, 17, "abrupt increase", method="apf"),
+    # --- the RO plant (dt = 1 s)
+    case("ro_R_pipe_step_up_gpf", RO, "R_pipe:abrupt:31@120", 200, 1, "abrupt increase"),
+    case("ro_R_pipe_drift_up_ckf", RO, "R_pipe:incipient:0.5@100", 250, 2, "drift up", method="ckf"),
+    case("ro_R_pipe_drift_up_gpf", RO, "R_pipe:incipient:0.5@100", 250, 2, "drift up"),
+    case("ro_R_memb_step_up_apf", RO, "R_memb:abrupt:10@120", 200, 12, "abrupt increase", method="apf"),
+    case("ro_R_brine_drift_up_low_noise_every_fallback_gpf", RO, "R_brine:incipient:1.0@80", 200, 14,
+         "drift up, noise process 0.02 / measurement 0.01: unexplained, diagnosed again with every fault model",
+         process_noise=0.02, measurement_noise=0.01),
+    case("ro_none_gpf", RO, None, 200, 3, "fault-free"),
+    # --- the DC motor (dt = 1 s)
+    case("dc_motor_R_a_step_up_gpf", DC_MOTOR, "R_a:abrupt:0.5@100", 200, 1, "abrupt increase"),
+    case("dc_motor_b_drift_up_apf", DC_MOTOR, "b:incipient:0.001@60", 200, 2, "drift up", method="apf"),
+    case("dc_motor_k_step_down_gpf", DC_MOTOR, "k:abrupt:-0.03@100", 200, 3, "abrupt decrease"),
+    case("dc_motor_k_step_up_every_fallback_ckf", DC_MOTOR, "k:abrupt:0.02@100", 200, 5,
+         "abrupt increase: unexplained, diagnosed again with every fault model", method="ckf"),
+    case("dc_motor_R_a_drift_up_opf", DC_MOTOR, "R_a:incipient:0.01@60", 200, 21, "drift up", method="opf"),
+    case("dc_motor_none_high_measurement_noise_gpf", DC_MOTOR, None, 200, 1,
+         "fault-free, measurement noise 0.05 (model: 0.02)", measurement_noise=0.05),
+    # --- the orifice tanks (dt = 1 s)
+    case("orifice_R20_step_up_opf", ORIFICE, "R20:abrupt:1.0@100", 200, 3, "abrupt increase", method="opf"),
+    case("orifice_none_gpf", ORIFICE, None, 200, 1, "fault-free (a false alarm)"),
+    # --- the mass-spring-damper (dt = 1 s)
+    case("msd_k_s_step_down_apf", MSD, "k_s:abrupt:-3@100", 200, 3, "abrupt decrease", method="apf"),
+    case("msd_k_s_step_up_opf", MSD, "k_s:abrupt:2@100", 200, 22, "abrupt increase", method="opf"),
+    case("msd_c_drift_up_ckf", MSD, "c:incipient:0.01@50", 200, 4, "drift up", method="ckf"),
+    case("msd_c_step_up_gpf", MSD, "c:abrupt:0.5@100", 200, 2, "abrupt increase the data do not show"),
+    case("msd_none_gpf", MSD, None, 200, 1, "fault-free"),
+    # --- the drivetrain (dt = 0.05 s): its torque sensor is sharp, a particle observer degenerates
+    case("drivetrain_none_switch_gpf", DRIVETRAIN, None, 300, 2,
+         "fault-free: gpf degenerates, diagnosed with ckf", particles=300),
+    case("drivetrain_g_m_step_down_switch_gpf", DRIVETRAIN, "g_m:abrupt:-0.3@4", 200, 1,
+         "abrupt decrease: gpf degenerates, diagnosed with ckf"),
+    case("drivetrain_b2_step_up_switch_and_every_fallback_apf", DRIVETRAIN, "b2:abrupt:0.5@5", 200, 3,
+         "abrupt increase: apf degenerates, diagnosed with ckf, unexplained, diagnosed again with every fault model",
+         method="apf"),
+    case("drivetrain_none_no_switch_gpf", DRIVETRAIN, None, 200, 1,
+         "fault-free, switch=False: gpf degenerates (a note) and alarms", particles=300, switch=False),
+    case("drivetrain_b1_drift_up_opf", DRIVETRAIN, "b1:incipient:0.01@3", 200, 4, "drift up", method="opf"),
+]
+
+#: The kinds of note a diagnosis writes, by a phrase each holds.
+NOTE_KINDS = {
+    "degenerates": "degenerates",
+    "every": "no hypothesis the symbols kept explains the data",
+    "grid edge": "posterior may reach past",
+    "static alarm": "held at its most probable value",
+    "no sample": "has no sample in the run",
+}
+
+
+def note_kind(note: str) -> str:
+    return next((kind for kind, phrase in NOTE_KINDS.items() if phrase in note), "other")
+
+
+def f(x) -> str | None:
+    """A float as the string of its repr (None stays None)."""
+    return None if x is None else repr(float(x))
+
+
+def options_for(c):
+    from bgc.runtime.diagnose import DiagnosisOptions
+
+    o = c["options"]
+    return DiagnosisOptions(method=o["method"], particles=o["particles"], seed=o["seed"], workers=o["workers"],
+                            identify=o["identify"], switch=o["switch"], rank=o["rank"], refine=o["refine"])
+
+
+def simulate_run(c) -> str:
+    from bgc import api
+    from bgc.runtime import simulate
+
+    s = c["simulation"]
+    compiled, _ = api._compiled(c["model"])
+    fault = simulate.parse_fault(s["fault"], compiled.numerics) if s["fault"] else None
+    result = simulate.simulate(compiled.numerics, simulate.SimulationOptions(
+        steps=s["steps"], process_noise=s["process_noise"], measurement_noise=s["measurement_noise"],
+        seed=s["seed"], fault=fault))
+    return simulate.to_csv(result)
+
+
+def expected(d) -> dict:
+    """What the diagnosis ``d`` found, as cases.json stores it."""
+    det = d.detection
+    return {
+        "verdict": d.verdict,
+        "candidates": list(d.candidates),
+        "method": d.options.method,  # ckf when the particle observer degenerated and the diagnosis switched
+        "detection": None if det is None else {"step": det.step, "sensor": det.sensor, "window": det.window,
+                                               "change_point": det.onset, "statistic": f(det.statistic)},
+        "onset": d.onset,
+        "symbols": [f"{s.sensor}/{s.sign}/{s.slope}" for s in d.symbols],
+        "refuted": [signature for signature, _ in d.refuted],  # the signatures the symbols ruled out
+        "notes": len(d.notes),
+        "note_kinds": [note_kind(n) for n in d.notes],
+        "note_texts": list(d.notes),  # for the reader: the test checks the kinds and the count only
+        "hypotheses": [{
+            "name": h.name,
+            "dropped": h.dropped,
+            "reason": h.reason,
+            "start": h.start,
+            "onset": h.onset,
+            "posterior": f(h.posterior),
+            "log_evidence": f(h.log_evidence),
+            "estimate": {"magnitude": h.estimate.magnitude, "value": f(h.estimate.value),
+                         "std": f(h.estimate.std), "low": f(h.estimate.low), "high": f(h.estimate.high),
+                         "parameter_value": f(h.estimate.parameter_value)},
+        } for h in d.hypotheses],
+    }
+
+
+def git(*args) -> str:
+    try:
+        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return ""
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--only", nargs="+", metavar="NAME", help="re-record only these cases")
+    args = parser.parse_args(argv)
+    os.chdir(ROOT)
+    sys.path.insert(0, str(ROOT))
+    import bgc
+    from bgc import api
+
+    where = Path(bgc.__file__).resolve().parent
+    if where != ROOT / "bgc":
+        print(f"bgc is imported from {where}, not from this checkout ({ROOT}): set PYTHONPATH={ROOT}",
+              file=sys.stderr)
+        return 2
+    head = git("rev-parse", "HEAD")
+    if not head.startswith(BASE_COMMIT) or git("status", "--porcelain", "--", "bgc", "models", "tests/data"):
+        print(f"warning: the checkout is at {head or '?'} (or its bgc/ or models are edited), "
+              f"not at {BASE_COMMIT}: the corpus is meant to be recorded with that commit's code", file=sys.stderr)
+    names = [c["name"] for c in CASES]
+    assert len(set(names)) == len(names), "case names must be unique"
+    old = {}
+    if args.only:
+        unknown = set(args.only) - set(names)
+        if unknown:
+            parser.error(f"unknown case(s): {', '.join(sorted(unknown))}")
+        old = {c["name"]: c for c in json.loads(CASES_FILE.read_text())["cases"]}
+    RUNS.mkdir(exist_ok=True)
+    out, total = [], 0.0
+    for c in CASES:
+        if args.only and c["name"] not in args.only:
+            out.append(old[c["name"]])
+            continue
+        run = RUNS / f"{c['name']}.csv"
+        run.write_text(simulate_run(c), encoding="utf-8")
+        rel = run.relative_to(ROOT).as_posix()
+        s = c["simulation"]
+        started = time.perf_counter()
+        report = api.diagnose(c["model"], data=rel, options=options_for(c), process_noise=s["process_noise"],
+                              measurement_noise=s["measurement_noise"])
+        seconds = time.perf_counter() - started
+        total += seconds
+        d = report.diagnosis
+        entry = {**c, "run": rel, "expected": expected(d)}
+        out.append(entry)
+        e = entry["expected"]
+        print(f"{c['name']:55s} {e['method']:3s} {d.verdict:11s} {','.join(d.candidates):40s} "
+              f"det={e['detection'] and e['detection']['step']} onset={d.onset} notes={e['note_kinds']} "
+              f"{seconds:.1f} s", flush=True)
+    corpus = {
+        "about": "Diagnoses recorded with the code of commit " + BASE_COMMIT + " by tests/regression/record.py; "
+                 "checked by tests/test_regression.py. Floats are the strings of their repr.",
+        "recorded_with": head,
+        "cases": out,
+    }
+    CASES_FILE.write_text(json.dumps(corpus, indent=1) + "\n", encoding="utf-8")
+    print(f"{len(out)} cases written to {CASES_FILE} ({total:.1f} s of diagnosis)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

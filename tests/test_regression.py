@@ -1,0 +1,136 @@
+"""Regression corpus: diagnoses recorded with the code of commit 5cca73a.
+
+What it is for: a refactor of the diagnosis runtime (bgc/runtime/diagnose.py
+and what it calls) must not change the diagnoses. Each case of
+tests/regression/cases.json is a run file (tests/regression/runs/*.csv, made
+by that commit's simulator) of one of the plants (models/*.yaml and
+tests/data/models/*.yaml), diagnosed with given options through the public
+API, ``bgc.api.diagnose(model, data=run, options=...)``; the test diagnoses it
+again and checks that the verdict, the candidates, the filter that made the
+diagnosis (ckf after the particle observer degenerated), the detection, the
+onset, the symbols, the signatures they ruled out and the kinds of note are
+the same, and every hypothesis's dropped step, onset, posterior, log evidence
+and estimate (value, std, interval, parameter value) the same to a relative
+1e-9.
+
+The corpus covers the filters gpf, apf, opf and ckf; abrupt faults up and
+down, drifts and fault-free runs; noise levels other than the model's;
+``identify="filter"``; two workers; and both fallbacks of ``diagnose``: the
+particle observer degenerates and the diagnosis switches to ckf (the
+drivetrain), and an unexplained verdict with fault models the symbols ruled
+out, diagnosed again with every fault model (``every=True``). Verdicts:
+isolated, ambiguous, unexplained and no fault.
+
+How it was recorded: ``tests/regression/record.py``, run with the code of
+commit 5cca73a (a pristine worktree of it: ``PYTHONPATH=<checkout> python
+tests/regression/record.py``); it simulates the runs and writes cases.json.
+Floats are stored as the strings of their repr. A change that is meant to
+change diagnoses re-records the corpus with that script (and says why).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from bgc import api
+from bgc.runtime.diagnose import DiagnosisOptions
+
+pytestmark = pytest.mark.slow
+
+ROOT = Path(__file__).resolve().parent.parent
+CORPUS = ROOT / "tests" / "regression" / "cases.json"
+CASES = json.loads(CORPUS.read_text(encoding="utf-8"))["cases"]
+
+
+def options_for(case: dict) -> DiagnosisOptions:
+    """The diagnosis options of a case (the one place they are built)."""
+    o = case["options"]
+    return DiagnosisOptions(method=o["method"], particles=o["particles"], seed=o["seed"], workers=o["workers"],
+                            identify=o["identify"], switch=o["switch"], rank=o["rank"], refine=o["refine"])
+
+
+#: The kinds of note a diagnosis writes, by a phrase each holds (as record.py classifies them).
+NOTE_KINDS = {
+    "degenerates": "degenerates",
+    "every": "no hypothesis the symbols kept explains the data",
+    "grid edge": "posterior may reach past",
+    "static alarm": "held at its most probable value",
+    "no sample": "has no sample in the run",
+}
+
+
+def note_kind(note: str) -> str:
+    return next((kind for kind, phrase in NOTE_KINDS.items() if phrase in note), "other")
+
+
+def same(actual: float, recorded: str | None) -> bool:
+    """``actual`` equals the recorded repr to a relative 1e-9 (nan equals nan,
+    an infinity itself only)."""
+    if recorded is None:
+        return actual is None
+    want = float(recorded)
+    actual = float(actual)
+    if math.isnan(want) or math.isnan(actual):
+        return math.isnan(want) and math.isnan(actual)
+    if math.isinf(want) or math.isinf(actual):
+        return want == actual
+    return math.isclose(actual, want, rel_tol=1e-9, abs_tol=1e-12)
+
+
+def test_the_corpus_is_as_the_brief_says():
+    """At least 32 cases, each with its own run file, every filter several
+    times, both fallbacks and every verdict present."""
+    assert len(CASES) >= 32 and len({c["name"] for c in CASES}) == len(CASES)
+    assert all((ROOT / c["run"]).is_file() for c in CASES)
+    methods = [c["options"]["method"] for c in CASES]
+    assert all(methods.count(m) >= 3 for m in ("gpf", "apf", "opf", "ckf"))
+    verdicts = {c["expected"]["verdict"] for c in CASES}
+    assert verdicts == {"isolated", "ambiguous", "unexplained", "no fault"}
+    kinds = [set(c["expected"]["note_kinds"]) for c in CASES]
+    assert any("degenerates" in k and c["expected"]["method"] == "ckf" != c["options"]["method"]
+               for k, c in zip(kinds, CASES))
+    assert any("every" in k for k in kinds)
+    assert any(c["options"]["identify"] == "filter" for c in CASES)
+    assert any(c["options"]["workers"] > 1 for c in CASES)
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c["name"] for c in CASES])
+def test_a_refactor_does_not_change_the_diagnosis(case):
+    sim = case["simulation"]
+    d = api.diagnose(ROOT / case["model"], data=ROOT / case["run"], options=options_for(case),
+                     process_noise=sim["process_noise"], measurement_noise=sim["measurement_noise"]).diagnosis
+    e = case["expected"]
+    assert d.verdict == e["verdict"]
+    assert list(d.candidates) == e["candidates"]
+    assert d.options.method == e["method"], "the filter that made the diagnosis (ckf after a switch)"
+    if e["detection"] is None:
+        assert d.detection is None
+    else:
+        det, want = d.detection, e["detection"]
+        assert det is not None
+        assert (det.step, det.sensor, det.window, det.onset) == (want["step"], want["sensor"], want["window"],
+                                                                 want["change_point"])
+        assert same(det.statistic, want["statistic"]), (det.statistic, want["statistic"])
+    assert d.onset == e["onset"]
+    assert [f"{s.sensor}/{s.sign}/{s.slope}" for s in d.symbols] == e["symbols"]
+    assert [signature for signature, _ in d.refuted] == e["refuted"]
+    assert len(d.notes) == e["notes"]
+    assert [note_kind(n) for n in d.notes] == e["note_kinds"], d.notes
+    assert [h.name for h in d.hypotheses] == [h["name"] for h in e["hypotheses"]]
+    wrong = []
+    for h, want in zip(d.hypotheses, e["hypotheses"]):
+        if (h.dropped, h.start, h.onset, h.estimate.magnitude) != (want["dropped"], want["start"], want["onset"],
+                                                                   want["estimate"]["magnitude"]):
+            wrong.append(f"{h.name}: dropped/start/onset/magnitude {(h.dropped, h.start, h.onset, h.estimate.magnitude)}"
+                         f" != {(want['dropped'], want['start'], want['onset'], want['estimate']['magnitude'])}")
+        numbers = {"posterior": h.posterior, "log_evidence": h.log_evidence,
+                   **{k: getattr(h.estimate, k) for k in ("value", "std", "low", "high", "parameter_value")}}
+        recorded = {"posterior": want["posterior"], "log_evidence": want["log_evidence"], **{
+            k: want["estimate"][k] for k in ("value", "std", "low", "high", "parameter_value")}}
+        wrong += [f"{h.name}: {k} {numbers[k]!r} != recorded {recorded[k]}" for k in numbers
+                  if not same(numbers[k], recorded[k])]
+    assert not wrong, "\n".join(wrong)
