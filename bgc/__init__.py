@@ -37,11 +37,12 @@ __version__ = "0.1.0"
 
 
 #: The names of :mod:`bgc.api` that ``bgc`` gives (imported on first use).
-API = ("diagnose", "DiagnosisReport", "distinguishability", "DistinguishabilityReport")
+API = ("open", "Session", "diagnose", "DiagnosisReport", "distinguishability", "DistinguishabilityReport")
 
 
 def __getattr__(name: str):
-    """``bgc.diagnose``, ``bgc.distinguishability`` and their reports
+    """``bgc.open`` (a :class:`~bgc.api.Session`: a compiled model and its
+    online diagnosers), ``bgc.diagnose``, ``bgc.distinguishability`` and their reports
     (:mod:`bgc.api`), imported on first use so that ``import bgc`` stays
     light. Each checks its arguments (:class:`bgc.errors.ArgumentTypeError`,
     :class:`bgc.errors.ArgumentValueError`)."""

@@ -31,6 +31,8 @@ bgc.errors.ArgumentValueError: bgc.diagnose: seed=-1 is negative (give an intege
 from __future__ import annotations
 
 import atexit
+import builtins
+import dataclasses
 import hashlib
 import math
 import os
@@ -51,6 +53,8 @@ from .runtime import distinguish as distinction
 from .runtime import identify, kalman, metrics, runs, simulate, track
 from .runtime.diagnose import IDENTIFY, KALMAN_METHOD, PATHS, Diagnosis, DiagnosisOptions
 from .runtime.diagnose import diagnose as run_diagnosis
+from .runtime.diagnose import horizon_steps
+from .runtime.diagnoser import Diagnoser
 
 #: The filters of a diagnosis (``bgc diagnose --filter``).
 METHODS = (*track.FILTER_CLASSES, KALMAN_METHOD)
@@ -194,6 +198,88 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
         package = track.load_package(generated if generated is not None else private, c.model.name, str(model),
                                      custom)
     return _run(c, run, package, scenario, injected, (process_noise, measurement_noise), levels, opts, say)
+
+
+class Session:
+    """A compiled model and its generated package, ready to diagnose: made
+    by :func:`open`. ``model``: the model file; ``noise``: the relative
+    (process, measurement) noise levels the filters assume (None: the
+    model's).
+
+    >>> import bgc
+    >>> session = bgc.open("models/circuit.yaml")
+    >>> d = session.diagnoser(particles=200)
+    >>> belief = d.step(1.0, y=[0.0, 0.0, 0.0])
+    >>> belief.phase
+    'watching'
+    """
+
+    def __init__(self, model: str | Path, process_noise: float | None = None,
+                 measurement_noise: float | None = None, generated: str | Path | None = None):
+        func = "bgc.open"
+        arguments.path(func, "model", model)
+        arguments.noise_levels(func, process_noise, measurement_noise)
+        arguments.path(func, "generated", generated, optional=True)
+        self.model = str(model)
+        self.noise = (process_noise, measurement_noise)
+        self.compiled, private = _compiled(model)
+        c = self.compiled
+        levels = c.numerics.noise_at(process_noise, measurement_noise)
+        self.levels = levels
+        custom = levels if (process_noise, measurement_noise) != (None, None) else None
+        with _LOCK:
+            self.package = track.load_package(generated if generated is not None else private, c.model.name,
+                                              str(model), custom)
+        self.priors = {f.parameter: f.prior for f in c.model.faults}
+
+    @property
+    def name(self) -> str:
+        return self.compiled.model.name
+
+    def options(self, options: DiagnosisOptions | None = None, *, method: str = "gpf", particles: int = 1000,
+                seed: int = 0, func: str = "bgc.Session.diagnoser") -> DiagnosisOptions:
+        """``options`` (checked; default: built from ``method``, ``particles``
+        and ``seed``) with the detector's horizon filled in (the model's run
+        length when None)."""
+        if options is None:
+            arguments.choice(func, "method", method, METHODS)
+            arguments.integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
+            arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
+            options = DiagnosisOptions(method=method, particles=particles, seed=seed)
+        check_options(options, func)
+        return with_horizon(options, self.compiled.model.settings)
+
+    def diagnoser(self, options: DiagnosisOptions | None = None, *, method: str = "gpf", particles: int = 1000,
+                  seed: int = 0, inputs=None, sensors=None, source: str = "<stream>", progress=None) -> Diagnoser:
+        """An online :class:`~bgc.runtime.diagnoser.Diagnoser` of this model:
+        ``step(t, u, y)`` per sample, ``finish()`` at the end. ``inputs``,
+        ``sensors``: the input and sensor names the data have (default: all
+        of the model's); ``source``: the data's name in messages."""
+        func = "bgc.Session.diagnoser"
+        opts = self.options(options, method=method, particles=particles, seed=seed, func=func)
+        arguments.text(func, "source", source)
+        arguments.callable_or_none(func, "progress", progress)
+        nominal = self.package.MODELS["nominal"]
+        return Diagnoser(self.package, self.compiled.signatures, self.priors, opts,
+                         horizon_steps(opts.horizon, nominal.DT, 0), inputs=inputs, sensors=sensors, source=source,
+                         progress=progress)
+
+    def report(self, run: runs.Run, diagnosis: Diagnosis, scenario: str | None = None,
+               injected=None) -> DiagnosisReport:
+        """A :class:`DiagnosisReport` of ``diagnosis`` made on ``run``."""
+        return DiagnosisReport(self.name, self.compiled.model.display_source, run, scenario, injected, self.noise,
+                               self.levels, diagnosis.options, diagnosis)
+
+
+def open(model: str | Path, *, process_noise: float | None = None, measurement_noise: float | None = None,
+         generated: str | Path | None = None) -> Session:
+    """Compile ``model`` (once per file content and process) and load its
+    generated package: a :class:`Session` whose :meth:`Session.diagnoser`
+    diagnoses a stream one sample at a time. ``process_noise``,
+    ``measurement_noise``: the relative noise levels the filters assume
+    (default: the model's); ``generated``: the folder ``bgc compile -o``
+    wrote (default: a private one)."""
+    return Session(model, process_noise, measurement_noise, generated)
 
 
 #: Memory a diagnosis may take by the rule of :func:`diagnosis_memory`.
@@ -375,7 +461,7 @@ def _compile_once(model: str | Path) -> tuple[pipeline.Compiled, str]:
     digest = ""  # not a regular file: compile_model says what is wrong with the path
     try:
         if Path(model).is_file():
-            with open(model, "rb") as f:
+            with builtins.open(model, "rb") as f:
                 digest = hashlib.sha256(f.read(MAX_BYTES + 1)).hexdigest()
     except OSError:
         pass
@@ -400,10 +486,19 @@ def _compile_once(model: str | Path) -> tuple[pipeline.Compiled, str]:
 
 def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> DiagnosisReport:
     track.check_request(run, package, "nominal", opts.particles, None)
+    opts = with_horizon(opts, c.model.settings)
     priors = {f.parameter: f.prior for f in c.model.faults}
     result = run_diagnosis(run, package, c.signatures, priors, opts, say)
     return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,
                            result)
+
+
+def with_horizon(options: DiagnosisOptions, settings) -> DiagnosisOptions:
+    """``options`` with the detector's horizon filled in when None: the
+    model's declared run length (``simulation.steps`` x ``dt``)."""
+    if options.horizon is not None:
+        return options
+    return dataclasses.replace(options, horizon=settings.steps * settings.dt)
 
 
 @dataclass(frozen=True, slots=True)

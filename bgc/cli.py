@@ -234,7 +234,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     import json
 
     from . import api
-    from .output import artifacts, plots, report
+    from .output import artifacts, events, plots, report
     from .runtime.diagnose import DiagnosisOptions
 
     if (args.data is None) == (args.scenario is None):
@@ -275,8 +275,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
         print(f"  {e.magnitude} of {e.parameter}: {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}] "
               f"({100 * e.level:.0f} %){truth}")
-    for note in d.notes:
-        print(f"  note: {printable(note)}")
+    for e in d.events:
+        if isinstance(e, events.NOTABLE):
+            print(f"  note: {printable(events.sentence(e, d.time_of))}")
     print(f"wrote {printable(str(out))}/: report.md, report.json, {len(files) - 3} more files "
           f"(diagnosis {d.seconds:.1f} s)")
     return 0

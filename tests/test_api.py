@@ -15,7 +15,8 @@ import bgc
 from bgc import api, cli
 from bgc.errors import (ArgumentTypeError, ArgumentValueError, BgcError, DataError, SimulationError,
                         TrackingError)
-from bgc.runtime import runs, simulate
+from bgc.output.events import sentence
+from bgc.runtime import events, runs, simulate
 from bgc.runtime.diagnose import DiagnosisOptions
 
 from conftest import ROOT, compiled, peak_memory
@@ -189,15 +190,15 @@ def test_data_messages_name_the_file_and_line(tmp_path):
             f"{path}:{first + 2}: -inf in column y:f2 is not a finite number")
 
 
-def test_a_sensor_never_read_is_named_in_a_note():
+def test_a_sensor_never_read_is_named_in_an_event():
     run = circuit_run(80)
     blind = replace(run, measurements={**run.measurements, "f2": np.full(80, np.nan)}, source="bench.csv")
     d = bgc.diagnose(CIRCUIT, data=blind, generated=GENERATED, options=DiagnosisOptions(particles=200, workers=1))
-    notes = [n for n in d.diagnosis.notes if "has no sample" in n]
-    assert notes == ["sensor y:f2 has no sample in the run (bench.csv): every value of its column is empty or nan, "
-                     "so nothing is diagnosed from it"], d.diagnosis.notes
+    silent = [e for e in d.diagnosis.events if isinstance(e, events.SensorSilent)]
+    assert silent == [events.SensorSilent("f2")], d.diagnosis.events
+    assert "sensor y:f2 has no sample in the run" in sentence(silent[0], d.diagnosis.time_of)
     seen = bgc.diagnose(CIRCUIT, data=run, generated=GENERATED, options=DiagnosisOptions(particles=200, workers=1))
-    assert not any("has no sample" in n for n in seen.diagnosis.notes)
+    assert not any(isinstance(e, events.SensorSilent) for e in seen.diagnosis.events)
 
 
 # ------------------------------------------------------------ memory: the diagnosis step limit

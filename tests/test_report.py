@@ -20,7 +20,7 @@ def test_a_hostile_model_path_cannot_forge_markdown(tmp_path):
     first = text.splitlines()[0]
     assert first.startswith("# Diagnosis of circuit (")
     headings = [line for line in text.splitlines() if line.startswith("#")]
-    assert headings[1:] == ["## Verdict"]  # the forged heading stays inside the first line
+    assert headings[1:] == ["## Verdict", "## Data", "## Events"]  # the forged heading stays inside the first line
     body = first[len("# Diagnosis of circuit ("):-1]
     # every markup character of the path is escaped: none stands without its backslash
     for ch in "|[]<>*`#":

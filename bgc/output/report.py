@@ -6,7 +6,32 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from . import events
 from .markdown import escape
+
+
+def _when(d, e) -> str:
+    step = getattr(e, "step", None)
+    return "" if step is None else f"t = {d.time_of(step):g}: "
+
+
+def _data_lines(d) -> list[str]:
+    """The report's lines on how the data met the model: per input, where it came from; the sensors used."""
+    if d.data is None:
+        return []
+    s = d.data
+    lines = ["", "## Data", ""]
+    holds = dict(s.holds)
+    for u, src in s.inputs:
+        held = f", {holds[u]} hole(s) held at the last value" if holds.get(u) else ""
+        lines.append(f"- input u:{escape(u)}: from the " + ("data" if src == "data" else "model's declared input")
+                     + held)
+    lines.append(f"- sensors used: {', '.join(escape(y) for y in s.sensors)}"
+                 + (f"; missing from the data: {', '.join(escape(y) for y in s.missing)}" if s.missing else ""))
+    if s.unsampled or s.skipped:
+        lines.append(f"- time grid dt = {s.dt:g}: {s.unsampled} step(s) without a sample ({s.gaps} gap(s) beyond "
+                     f"the limit), {s.skipped} sample(s) skipped on a step already taken")
+    return lines
 
 
 def _t(d, step: int | None) -> float | None:
@@ -50,7 +75,12 @@ def report_data(r) -> dict[str, Any]:
         "refuted_by_signatures": [{"fault": n, "why": why} for n, why in d.refuted],
         "hypotheses": [],
         "diagnosis": list(d.candidates),
-        "notes": list(d.notes),
+        "events": [events.record(e, d.time_of) for e in d.events],
+        "data_semantics": None if d.data is None else {
+            "inputs": [{"input": u, "from": src, "holds": dict(d.data.holds).get(u, 0)} for u, src in d.data.inputs],
+            "sensors": list(d.data.sensors), "sensors_missing": list(d.data.missing),
+            "samples_skipped": d.data.skipped, "steps_without_sample": d.data.unsampled, "gaps": d.data.gaps,
+            "dt": d.data.dt},
         "seconds": _num(d.seconds),
     }
     for h in d.hypotheses:
@@ -154,7 +184,8 @@ def report_markdown(r) -> str:
                 if f is not None:
                     lines.append(f"  - the particle filters' own estimate (a magnitude with a random walk): "
                                  f"{f.value:.4g} +- {f.std:.2g}, [{f.low:.4g}, {f.high:.4g}]")
-    if d.notes:
-        lines += ["", "## Notes", ""] + [f"- {escape(n)}" for n in d.notes]
+    lines += _data_lines(d)
+    if d.events:
+        lines += ["", "## Events", ""] + [f"- {_when(d, e)}{escape(events.sentence(e, d.time_of))}" for e in d.events]
     lines += ["", f"Diagnosis computed in {d.seconds:.2f} s.", ""]
     return "\n".join(lines)

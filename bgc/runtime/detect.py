@@ -187,7 +187,7 @@ class DetectorBank:
     (one hypothesis's filters from its onsets, :mod:`bgc.runtime.diagnose`),
     computed for all of them at once: row ``r`` is a :class:`Detector` with
     ``options[r]`` that starts at step ``starts[r]`` of a record of ``steps``
-    steps. Each row gives the same statistics and alarms as that detector
+    steps (room is made as the steps come). Each row gives the same statistics and alarms as that detector
     would (the same arithmetic, element by element); one NumPy call serves all
     rows instead of one per filter, which on a few hundred particles is most
     of a filter step's cost."""
@@ -213,6 +213,10 @@ class DetectorBank:
         the estimate is a loop over the longest window, and a filter that
         stays off the data alarms at every step)."""
         rows = np.asarray(rows, dtype=int)
+        if k + 1 >= self._cumsum.shape[1]:  # longer than announced: room for as many steps again, and more
+            grow = np.zeros((len(self.starts), max(self._cumsum.shape[1], 64), len(self.sensors)))
+            self._cumsum = np.concatenate([self._cumsum, grow], axis=1)
+            self._mc = np.concatenate([self._mc, grow], axis=1)
         c, m = self._cumsum, self._mc
         c[rows, k + 1] = c[rows, k] + np.where(np.isfinite(z), z, 0.0)
         m[rows, k + 1] = m[rows, k] + np.where(np.isfinite(mc), mc, 0.0)

@@ -422,6 +422,53 @@ def run_bank(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTr
                       **{name: a[:, back] for name, a in kept.items()})
 
 
+class NominalKalman:
+    """The nominal model's cubature Kalman filter from its prior (``X0``,
+    ``X0_STD``), one step at a time (:meth:`step`); :meth:`track` gives what
+    it did so far as a :class:`NominalTrack`."""
+
+    def __init__(self, model: ModuleType, outputs: int):
+        self.kf = kf = _Filter(model)
+        self.m = np.asarray(model.X0, dtype=float)[None, kf.physical]
+        self.P = np.diag(np.asarray(model.X0_STD, dtype=float)[kf.physical] ** 2)[None]
+        self.means, self.covs, self.logliks = [self.m[0]], [self.P[0]], [0.0]
+        self.y_mean: list = []
+        self.y_std: list = []
+        self.z: list = []
+        self.x_mean: list = []
+        self.x_std: list = []
+        self.n_y = outputs
+        self._none = np.zeros((0, 1))
+
+    def step(self, y: np.ndarray, u: np.ndarray) -> None:
+        """Take a step: measurements ``y`` (NaN: not read), inputs ``u``."""
+        with np.errstate(all="ignore"):
+            ll, m, P, zk, ym, sd = self.kf.step(y, u, self.m, self.P, self._none)
+            self.m, self.P = m, P
+            self.logliks.append(self.logliks[-1] + ll[0])
+            self.means.append(m[0])
+            self.covs.append(P[0])
+            self.y_mean.append(ym[0])
+            self.y_std.append(sd[0])
+            self.z.append(zk[0])
+            self.x_mean.append(m[0])
+            self.x_std.append(np.sqrt(np.maximum(np.diagonal(P[0]), 0.0)))
+
+    def track(self, stop: int | None = None) -> NominalTrack:
+        """Its states before steps 0 .. ``stop`` (default: every step taken)
+        and what it predicted and estimated at steps 0 .. ``stop`` - 1."""
+        stop = len(self.y_mean) if stop is None else stop
+        n_y = self.n_y
+
+        def rows(values: list, width: int) -> np.ndarray:
+            return np.array(values[:stop], dtype=float).reshape(stop, width)
+
+        n = self.kf.n
+        return NominalTrack(np.array(self.means[:stop + 1]), np.array(self.covs[:stop + 1]),
+                            np.array(self.logliks[:stop + 1]), rows(self.y_mean, n_y), rows(self.y_std, n_y),
+                            rows(self.z, n_y), rows(self.x_mean, n), rows(self.x_std, n))
+
+
 def nominal_track(model: ModuleType, ys: np.ndarray, us: np.ndarray, stop: int) -> NominalTrack:
     """The nominal model's cubature Kalman filter from its prior (``X0``,
     ``X0_STD``) over steps 0 .. ``stop`` - 1: its state before every step up
@@ -429,25 +476,10 @@ def nominal_track(model: ModuleType, ys: np.ndarray, us: np.ndarray, stop: int) 
     predicted and estimated at every step it took (:class:`NominalTrack`):
     with ``stop`` the run's length, the nominal observer of ``--filter ckf``
     (exact on a plant linear in its states)."""
-    kf = _Filter(model)
-    n, n_y = kf.n, ys.shape[1]
-    means = np.empty((stop + 1, n))
-    covs = np.empty((stop + 1, n, n))
-    logliks = np.zeros(stop + 1)
-    y_mean, y_std, z = (np.full((stop, n_y), np.nan) for _ in range(3))
-    x_mean, x_std = np.empty((stop, n)), np.empty((stop, n))
-    m = np.asarray(model.X0, dtype=float)[None, kf.physical]
-    P = np.diag(np.asarray(model.X0_STD, dtype=float)[kf.physical] ** 2)[None]
-    means[0], covs[0] = m[0], P[0]
-    none = np.zeros((0, 1))
-    with np.errstate(all="ignore"):
-        for k in range(stop):
-            ll, m, P, zk, ym, sd = kf.step(ys[k], us[k], m, P, none)
-            logliks[k + 1] = logliks[k] + ll[0]
-            means[k + 1], covs[k + 1] = m[0], P[0]
-            y_mean[k], y_std[k], z[k] = ym[0], sd[0], zk[0]
-            x_mean[k], x_std[k] = m[0], np.sqrt(np.maximum(np.diagonal(P[0]), 0.0))
-    return NominalTrack(means, covs, logliks, y_mean, y_std, z, x_mean, x_std)
+    kf = NominalKalman(model, ys.shape[1])
+    for k in range(stop):
+        kf.step(ys[k], us[k])
+    return kf.track(stop)
 
 
 def onset_widths(onsets, ends: tuple[float, float] | None = None) -> np.ndarray:

@@ -1,0 +1,104 @@
+"""Events (:mod:`bgc.runtime.events`) as sentences and as plain data: the one
+place they are put into words (the report, ``bgc diagnose``'s and ``bgc
+monitor``'s lines)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from ..runtime import events as ev
+
+
+def _t(time_of, step) -> str:
+    t = time_of(step)
+    return "" if t is None else f"{t:g}"
+
+
+def sentence(e, time_of) -> str:
+    """Event ``e`` in words; ``time_of(step)``: the time of a step (None: none)."""
+    t = lambda step: _t(time_of, step)  # noqa: E731
+    match e:
+        case ev.SensorMissing(sensor=s):
+            return f"the data have no column y:{s}: diagnosed with the other sensors"
+        case ev.SensorSilent(sensor=s):
+            return f"sensor y:{s} has no sample in the run: every value of its column is empty or nan, so nothing " \
+                   "is diagnosed from it"
+        case ev.InputFromModel(input=u, reason="absent"):
+            return f"the data have no column u:{u}: the model's declared input is used"
+        case ev.InputFromModel(input=u):
+            return f"input u:{u} has no value yet: the model's declared input is used until its first value"
+        case ev.InputHeld(input=u, step=k, value=v):
+            return f"input u:{u} is empty at t = {t(k)}: its last value {v:g} is held until a value arrives"
+        case ev.Gap(step=k, steps=n):
+            return f"no sample for {n} steps from t = {t(k)} to t = {t(k + n - 1)}: the filters predict across the gap"
+        case ev.SampleSkipped(step=k, line=line, time=when):
+            where = f" (line {line})" if line is not None else ""
+            return (f"the sample at t = {when:g}{where} falls on a step of the model's grid a sample already took "
+                    f"(t = {t(k)}): skipped; give the model a dt no longer than the sampling interval to use every one")
+        case ev.Alarmed(step=k, sensor=s, window=w, statistic=z, threshold=c, onset=o):
+            return (f"alarm at t = {t(k)} on {s}: its residual over {w} sample(s) reached {z:.1f} (threshold "
+                    f"{c:.1f}); estimated onset t = {t(o)}")
+        case ev.Degenerate(method=m, ess=e_, particles=n, switched=sw):
+            tail = "; diagnosed with cubature Kalman filters (ckf) instead" if sw else \
+                "; use --filter ckf (cubature Kalman filters), or more particles"
+            return (f"the nominal observer's particle filter ({m}) degenerates (mean effective sample size {e_:.0f} "
+                    f"of {n}): a sensor is sharp against the spread the process noise gives the prediction, and its "
+                    f"residuals may alarm without a fault" + tail)
+        case ev.Switched(to=to):
+            return f"diagnosing again with {to}: every step replayed"
+        case ev.Isolated(step=k, onset=o, kept=kept, refuted=refuted):
+            return (f"isolation at t = {t(k)} from the symbols read from t = {t(o)}: kept "
+                    f"{', '.join(kept) or 'none'}; ruled out {len(refuted)} signature(s)")
+        case ev.AllTried(why="unexplained"):
+            return ("no hypothesis the symbols kept explains the data: the fault models they ruled out are tried "
+                    "as well")
+        case ev.AllTried():
+            return "no fault signature agrees with the observed symbols: every fault model is tried"
+        case ev.Started(step=k, hypothesis=h, onsets=onsets):
+            return f"tracking {h} from {len(onsets)} onset(s), t = {t(min(onsets))} to {t(max(onsets))}"
+        case ev.Dropped(step=k, hypothesis=h, reason=r, detail=detail):
+            return f"{h} dropped at t = {t(k)} ({r}): {detail}"
+        case ev.Rescued(hypothesis=h, reason=r, step=k):
+            return (f"{h}: its particle filters failed their test ({r}, at t = {t(k)}), its fault model with the "
+                    f"magnitude held static passes it")
+        case ev.Truncated(hypothesis=h):
+            return (f"{h}: its magnitude's posterior may reach past the Kalman filters' last grid; its evidence and "
+                    f"interval may be short")
+        case ev.NoLikelihood(fallback=True):
+            return ("the cubature Kalman filters found no finite likelihood: the particle filters' evidence and "
+                    "estimates are reported")
+        case ev.NoLikelihood():
+            return "the cubature Kalman filters found no finite likelihood for any hypothesis"
+        case ev.Misfit(hypothesis=h, magnitude=m, value=v, start=s, sensor=y, window=w, statistic=z, threshold=c):
+            return (f"{h} with its {m} held at its most probable value {v:.4g} from t = {t(s)}: its residual of {y} "
+                    f"over {w} sample(s) reached {z:.1f} (threshold {c:.1f}); the fault model as stated, or the "
+                    f"Kalman filters' Gaussian approximation, does not quite hold on these data")
+        case ev.Checkpoint(step=k, verdict=v, candidates=c):
+            return f"checkpoint at t = {t(k)}: {v}" + (f": {', '.join(c)}" if c else "")
+        case ev.Decided(step=k, verdict=v, candidates=c):
+            return f"decided at t = {t(k)}: {v}" + (f": {', '.join(c)}" if c else "")
+    return type(e).__name__
+
+
+def record(e, time_of) -> dict:
+    """Event ``e`` as plain data: its type, time, fields and sentence."""
+    out = {"event": type(e).__name__, "time": None}
+    step = getattr(e, "step", None)
+    if step is not None:
+        t = time_of(step)
+        out["time"] = None if t is None or not math.isfinite(t) else float(f"{t:.6g}")
+    for f in dataclasses.fields(e):
+        v = getattr(e, f.name)
+        if isinstance(v, float):
+            v = float(f"{v:.6g}") if math.isfinite(v) else None
+        elif isinstance(v, tuple):
+            v = [list(x) if isinstance(x, tuple) else x for x in v]
+        out[f.name] = v
+    out["text"] = sentence(e, time_of)
+    return out
+
+
+#: Events the command line prints after a diagnosis (the others are in the report).
+NOTABLE = (ev.SensorMissing, ev.SensorSilent, ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped,
+           ev.Degenerate, ev.AllTried, ev.Rescued, ev.Truncated, ev.NoLikelihood, ev.Misfit)

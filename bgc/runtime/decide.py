@@ -1,0 +1,307 @@
+"""The end of a diagnosis (steps 4 to 8 of :mod:`bgc.runtime.diagnose`):
+the hypotheses' filters over the record, their static posteriors, the
+weighing, ranking, refining, and the verdict, from a
+:class:`~bgc.runtime.diagnoser.Diagnoser`'s record."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from . import events as ev
+from . import kalman
+from .hypothesis import log_density
+from .kalman import EDGE, EXTEND, StaticPosterior
+from .runs import Run
+from .values import Diagnosis, Hypothesis
+from . import weigh
+
+
+def decide(d, truth: Run | None) -> Diagnosis:
+    """The diagnosis of diagnoser ``d``'s record (``truth``: the run, when it
+    records the true fault)."""
+    a = d.arrays()
+    T = len(a["time"])
+    statistics = np.array(d.detector.statistics + [np.full(len(d.detector.sensors), np.nan)]
+                          * (T - len(d.detector.statistics)))
+    if len(d.detector.sensors) < len(d.outputs):  # sensors the data lack: no statistic
+        full = np.full((T, len(d.outputs)), np.nan)
+        full[:, d._present] = statistics.reshape(T, -1)
+        statistics = full
+    common = dict(model=d.nominal.MODEL, time=a["time"], outputs=d.outputs, states=tuple(d.nominal.STATES),
+                  nominal_y_mean=a["y_mean"], nominal_y_std=a["y_std"], nominal_z=a["z"],
+                  nominal_x_mean=a["x_mean"], nominal_x_std=a["x_std"], statistics=statistics,
+                  threshold=d.detector.threshold, options=d.options, data=d.sampler.summary())
+    # a sensor never read (its column empty or nan throughout) tells nothing: the diagnosis says so
+    silent = [ev.SensorSilent(y) for j, y in enumerate(d.outputs)
+              if y in d.sampler.present and not np.isfinite(a["ys"][:, j]).any()]
+    if d.detection is None:
+        events = list(d.events) + silent + [ev.Decided(T - 1, "no fault", ())]
+        return Diagnosis(verdict="no fault", detection=None, onset=None, symbols=(), refuted=(), hypotheses=(),
+                         candidates=(), seconds=time.perf_counter() - d.started, events=_ordered(events), **common)
+    if d.isolation is None:  # the data ended before the symbols' samples were in
+        d._isolate()
+    iso = d.isolation
+    events = list(d.events) + silent
+    observer = d.kf.track() if d.ckf else None
+    hyps, posteriors, whys = _hypotheses(d, a, iso, observer, truth, events)
+    return _weigh(d, a, iso, hyps, posteriors, whys, events, common)
+
+
+def _hypotheses(d, a: dict, iso, observer, truth, events: list):
+    """Steps 4 to 6: each hypothesis's filters, or (ckf) its static posterior
+    alone; (hypothesis dicts, static posteriors, drop reasons by name)."""
+    o, ys, us, T = d.options, a["ys"], a["us"], len(a["time"])
+    whys: dict[str, str] = {}
+    if d.ckf:  # 4-6. every hypothesis with its magnitude held static, by cubature Kalman filters alone
+        hyps, posteriors = weigh._kalman_hypotheses(iso.names, iso.models, d.package, truth, a["time"], ys, us,
+                                                    observer, iso.kalman_onsets, iso.kalman_reach, iso.drifts, o,
+                                                    d.say)
+        for h in hyps:
+            if "why" in h:
+                whys[h["name"]] = h.pop("why")
+        return hyps, posteriors, whys
+    package, names, drifts = d.package, iso.names, iso.drifts
+    starts_of = {name: list(iso.starts_of[name]) for name in names}
+    nominal_density = log_density(a["z"], a["y_std"])
+    nominal = d.nominal
+    d.say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from "
+          f"{sum(len(starts_of[n]) for n in names)} onsets and hypotheses "
+          f"(t = {a['time'][min((min(s) for s in starts_of.values()), default=iso.onset)]:g} to "
+          f"{a['time'][d.detection.step]:g})")
+    # (name, onset) -> its filter's output; its evidence over the data from step 0 (from `first` below)
+    results: dict[tuple[str, int], dict] = {}
+    best_of: dict[str, np.ndarray] = {}  # per hypothesis and step, the best running evidence over [0, step]
+
+    def job(name: str, starts: list[int]) -> tuple:
+        return weigh.hypothesis_job(name, starts, package, d.clouds, ys, us, nominal_density, d.outputs, o,
+                                    d.horizon, best_of.get(name))
+
+    def arrived(name: str, starts: list[int], res: dict, trace: np.ndarray) -> list[int]:
+        """Take a batch of hypothesis ``name``'s onsets; the earlier onsets to try next (none: done)."""
+        f = min(starts)
+        before = float(nominal_density[:f].sum())  # the nominal observer's densities before the batch
+        for rel, out in res.items():
+            out["from"] = f
+            out["evidence"] += before
+            results[(name, rel + f)] = out
+        full = np.full(T, -math.inf)
+        full[f:] = trace + before
+        best_of[name] = np.maximum(best_of.get(name, full), full)
+        # a drift whose onsets' posterior piles up at the earliest one tried began earlier:
+        # its grid is extended back by `search` steps (up to `history` before the alarm)
+        tried = starts_of[name]
+        more = next(iter(weigh._earlier(iso.reach, tried, o.search)), ())
+        if not (drifts[name] and more) or o.identify == "kalman":  # the Kalman filters reach back instead
+            return []
+        w, log_evidence = weigh._onset_weights(tried, [results[(name, s)]["evidence"] for s in tried])
+        if not (math.isfinite(log_evidence) and w[:EDGE].sum() >= EXTEND):
+            return []
+        starts_of[name] = sorted([*more, *tried])
+        d.say(f"looking for earlier onsets of {name}")
+        return list(more)
+
+    def assemble(name: str) -> dict:
+        return _assemble(name, d, a, iso, starts_of[name], results, truth, whys)
+
+    # 6. (identify="kalman") each hypothesis its filters keep, as soon as they are done: its onset and
+    # magnitude with the magnitude held static, by cubature Kalman filters on a grid, from the nominal
+    # cubature Kalman filter's state at each onset (computed while the first filters run)
+    posteriors: dict[str, StaticPosterior] = {}
+    track: list = []
+
+    def idle() -> None:
+        if o.identify == "kalman" and not track:
+            track.append(kalman.nominal_track(nominal, ys, us, max(max(s) for s in iso.kalman_onsets.values())))
+
+    def static_job(name: str, h: dict) -> weigh.StaticJob:
+        tried = iso.kalman_onsets[drifts[name]]
+        earlier = weigh._earlier(iso.kalman_reach, tried, o.search) if drifts[name] else ()
+        return weigh.StaticJob(package.__name__, name, ys, us, track[0], tuple(tried),
+                               (h["estimate"].low, h["estimate"].high), h["start"], o.interval, o.kalman, earlier)
+
+    def done(name: str):
+        if o.identify != "kalman":
+            return None
+        h = assemble(name)
+        if h["dropped"] is not None:
+            return None
+        return weigh._static_job, static_job(name, h)
+
+    def landed(name: str, posterior: StaticPosterior) -> None:
+        posteriors[name] = posterior
+
+    batches = {name: starts_of[name] for name in names}
+    if d.trackers:  # tracked online: their first batches are done
+        idle()
+        follow = {}
+        for name in names:
+            tracker = d.trackers[name]
+            more = arrived(name, starts_of[name], *tracker.result(T - tracker.job.first))
+            if more:
+                follow[name] = more
+            else:
+                step = done(name)
+                if step is not None:
+                    landed(name, step[0](step[1]))
+        batches = follow
+    if batches:
+        weigh._run_batches(batches, job, arrived, o.workers, lambda starts: sum(T - s for s in starts), idle, done,
+                           landed)  # cost: filter steps, if none stops
+    first = min(min(s) for s in starts_of.values())
+    for out in results.values():  # the common span starts at `first`
+        out["evidence"] -= float(nominal_density[:first].sum())
+    # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
+    hyps = [assemble(name) for name in names]
+    if o.identify == "kalman" and not posteriors:
+        # none passed its particle filters' test: each whose most probable onset's filter still ran to the
+        # end (only just off the data: a drift's filters start on a coarser grid of onsets than its Kalman
+        # filters') is tested as its fault model states it, the magnitude held static
+        idle()
+        for h in hyps:
+            if not math.isfinite(results[(h["name"], h["start"])]["evidence"]):
+                continue
+            d.say(f"testing {h['name']} with its magnitude held static")
+            p = weigh._static_job(static_job(h["name"], h))
+            if math.isfinite(p.log_evidence) and weigh._static_alarm(p, d.outputs, o) is None:
+                posteriors[h["name"]] = p
+                events.append(ev.Rescued(h["name"], h["reason"], h["dropped"]))
+                h["dropped"], h["reason"] = None, ""
+                whys.pop(h["name"], None)
+    return hyps, posteriors, whys
+
+
+def _assemble(name: str, d, a: dict, iso, starts: list[int], results: dict, truth, whys: dict) -> dict:
+    """Hypothesis ``name`` from its filters' results: its most probable onset, whether it is
+    dropped and why, its onset posterior, evidence and estimate."""
+    module = d.package.MODELS[name]
+    evidence = np.array([results[(name, start)]["evidence"] for start in starts])  # stopped, pruned: -inf
+    dropped_at, reason = None, ""
+    if np.isfinite(evidence).any():
+        start = starts[int(np.argmax(evidence))]
+        every = ""
+    else:  # every onset's filter was stopped or pruned: dropped when the last one was
+        start = max(starts, key=lambda s: (results[(name, s)]["last"] >= 0,
+                                           s + results[(name, s)]["last"], results[(name, s)]["partial"]))
+        every = f", from every onset tried ({len(starts)})" if len(starts) > 1 else ""
+    if results[(name, start)]["rejected"] is not None:  # the best onset's filter failed its test
+        k, alarm = results[(name, start)]["rejected"]
+        dropped_at = start + k
+        reason = (f"its residual of {alarm.sensor} over {alarm.window} sample(s) reached {alarm.statistic:.1f} "
+                  f"(threshold {alarm.threshold:.1f})" + every)
+        whys[name] = "inconsistent"
+    elif not np.isfinite(evidence).any():  # pruned onsets only (a filter never started)
+        dropped_at = start + max(results[(name, start)]["last"], 0)
+        reason = "another onset of it explained the data decisively better, and that one failed" + every
+        whys[name] = "pruned"
+    out = results[(name, start)]
+    zh = (a["ys"][start:] - out["y_mean"]) / out["y_std"]
+    onset_weights, log_evidence = weigh._onset_weights(starts, evidence)
+    n = len(d.nominal.STATES)
+    return dict(name=name, parameter=module.FAULT["parameter"], kind=module.FAULT["kind"],
+                signatures=tuple(iso.models[name]), start=start, onsets=tuple(starts),
+                onset_posterior=tuple(float(w) for w in onset_weights),
+                y_mean=out["y_mean"], y_std=out["y_std"], z=zh, x_mean=out["mean"][:, :n], x_std=out["std"][:, :n],
+                magnitude=out["magnitude"], magnitude_band=out["band"], dropped=dropped_at, reason=reason,
+                log_evidence=log_evidence,
+                seconds=sum({results[(name, s)]["from"]: results[(name, s)]["seconds"] for s in starts}.values()),
+                estimate=weigh._estimate(module, out, truth, d.options.interval,
+                                         [(w, results[(name, s)]) for w, s in zip(onset_weights, starts)]))
+
+
+def _weigh(d, a: dict, iso, hyps: list[dict], posteriors: dict, whys: dict, events: list, common: dict) -> Diagnosis:
+    """Steps 6 to 8: the hypotheses weighed (with their magnitudes held
+    static where their static posteriors are), dropped by the Bayes factor,
+    ranked and refined; the verdict."""
+    o, T, ys, us = d.options, len(a["time"]), a["ys"], a["us"]
+    evidence_of = {h["name"]: h["log_evidence"] for h in hyps}  # the filters' (a magnitude with a random walk)
+    static = False
+    if posteriors:  # 6. the survivors weighed with their magnitudes held static
+        if any(math.isfinite(p.log_evidence) for p in posteriors.values()):
+            static = True
+            for h in hyps:
+                p = posteriors.get(h["name"])
+                h["static"] = p
+                h["static_log_evidence"] = None if p is None else p.log_evidence
+                evidence_of[h["name"]] = -math.inf if p is None else p.log_evidence
+                if p is not None and math.isfinite(p.log_evidence):
+                    if not d.ckf:  # the particle filters' own estimate, beside the static one
+                        h["filter_estimate"] = h["estimate"]
+                    h["estimate"] = weigh.static_estimate(h["estimate"], p)
+                    if p.truncated:
+                        events.append(ev.Truncated(h["name"]))
+                elif p is not None and h["dropped"] is None:
+                    h["dropped"] = T - 1
+                    whys[h["name"]] = "no-likelihood"
+                    h["reason"] = ("with its magnitude held static, its cubature Kalman filters found no finite "
+                                   "likelihood at any onset and magnitude of their grid")
+        else:
+            events.append(ev.NoLikelihood(not d.ckf))
+    if d.ckf:  # a hypothesis its consistency test dropped weighs nothing, as one its particle filters drop
+        evidence_of.update({h["name"]: -math.inf for h in hyps if h["dropped"] is not None})
+    weights = np.array([math.log(max(d.priors.get(h["parameter"], 0.01), 1e-300)) + evidence_of[h["name"]]
+                        for h in hyps])
+    if np.isfinite(weights).any():
+        weights = np.exp(weights - weights.max())
+        weights = weights / weights.sum()
+    else:  # none survives (or none was tried)
+        weights = np.zeros(len(hyps))
+    top = max(weights) if len(weights) else 0.0
+    for h, w in zip(hyps, weights):  # 6. decisively less probable than the best: dropped as well
+        if h["dropped"] is None and w < top / o.bayes_factor:
+            h["dropped"] = T - 1
+            whys[h["name"]] = "bayes-factor"
+            h["reason"] = (("with the magnitudes held static, " if static else "")
+                           + f"the data favour another hypothesis by a Bayes factor above {o.bayes_factor:g} "
+                           f"(posterior {w:.2g})")
+    grids: dict = {}
+    if o.rank and not static and sum(h["dropped"] is None for h in hyps) > 1:  # 7. by their static evidence
+        d.say(f"weighing {', '.join(h['name'] for h in hyps if h['dropped'] is None)} with their magnitudes held "
+              f"static, on a grid")
+        alive = {h["name"] for h in hyps if h["dropped"] is None}
+        weights = weigh._ranked(hyps, weights, d.priors, d.package, d.clouds, ys, us, o, grids)
+        whys.update({h["name"]: "bayes-factor" for h in hyps if h["name"] in alive and h["dropped"] is not None})
+    hypothesis_list = tuple(Hypothesis(posterior=float(w), **h) for h, w in zip(hyps, weights))
+    survivors = sorted((h for h in hypothesis_list if h.dropped is None), key=lambda h: -h.posterior)
+    if len(survivors) == 1:
+        verdict, candidates = "isolated", (survivors[0].name,)
+    elif survivors:
+        verdict, candidates = "ambiguous", tuple(h.name for h in survivors)
+    elif hypothesis_list:
+        last = max(hypothesis_list, key=lambda h: (h.dropped, h.posterior))
+        verdict, candidates = "unexplained", (last.name,)
+    else:
+        verdict, candidates = "unexplained", ()
+    if o.refine and verdict in ("isolated", "ambiguous"):  # 8. the survivors' magnitudes on a grid
+        d.say(f"refining the magnitude of {', '.join(candidates)} on a grid")
+        reuse = grids if o.rank_grid == o.grid else {}  # the ranking's grids, when as fine
+        hypothesis_list = tuple(weigh._refined(h, reuse.get(h.name), d.package, d.clouds, ys, us, o)
+                                if h.name in candidates else h for h in hypothesis_list)
+    hypothesis_list = tuple(weigh._checked(h, d.outputs, o) if h.name in candidates and static else h
+                            for h in hypothesis_list)
+    for h in hypothesis_list:
+        if h.static_alarm is not None:
+            alarm, (start, value) = h.static_alarm, h.static.best
+            events.append(ev.Misfit(h.name, h.estimate.magnitude, value, start, alarm.sensor, alarm.window,
+                                    alarm.statistic, alarm.threshold))
+        if h.dropped is not None:
+            events.append(ev.Dropped(h.dropped, h.name, whys.get(h.name, "inconsistent"), h.reason))
+    best_onset = next((h.onset for h in hypothesis_list if candidates and h.name == candidates[0]), iso.onset)
+    d.say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
+    events.append(ev.Decided(T - 1, verdict, candidates))
+    final = [e for e in events if not (isinstance(e, ev.Dropped) and e.detail == STOPPED)]  # given anew above
+    return Diagnosis(verdict=verdict, detection=d.detection, onset=best_onset, symbols=iso.symbols,
+                     refuted=iso.refuted, hypotheses=hypothesis_list, candidates=candidates,
+                     seconds=time.perf_counter() - d.started, events=_ordered(final), **common)
+
+
+#: The detail of the Dropped event the online tracking gives when every filter of a hypothesis stopped.
+STOPPED = ("every filter of it stopped: far off the data, or another onset of it explained the data "
+           "decisively better")
+
+
+def _ordered(events: list) -> tuple:
+    """Events in time order (those without a step first), stable."""
+    return tuple(sorted(events, key=lambda e: -1 if e.step is None else e.step))

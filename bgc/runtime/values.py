@@ -1,0 +1,276 @@
+"""The values the diagnosis hands over, as frozen dataclasses: its options,
+each hypothesis's estimate and record, the diagnosis, and (online) the belief
+after each sample (:class:`Belief`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .detect import Detection
+from .identify import GridOptions
+from .isolate import Symbol
+from .data import DataSummary
+from .kalman import KalmanOptions, StaticPosterior
+
+
+@dataclass(frozen=True, slots=True)
+class DiagnosisOptions:
+    """``false_alarm``: the detector's probability of any alarm in a
+    fault-free run; ``rejection``: the probability of dropping the true
+    hypothesis over the run; ``windows``: the Z-tests' window lengths;
+    ``search``: how far before the detection a drift's onset is looked for
+    first, and by how much further back each time its onset posterior piles
+    up at the earliest onset tried, up to ``history`` (the nominal clouds are
+    kept that far back); ``spacing``: steps between the onsets a drift's
+    particle filters are tried from near the alarm (further back, 1/16 of the
+    distance to it; the detector's estimate is always one); None: 8 with
+    ``identify = "kalman"`` (the Kalman filters search the onset on their own
+    grid, ``kalman.spacing``, and the particle filters only need to follow
+    the data), 4 with ``identify = "filter"`` (which places the onset better
+    there); ``near``: samples
+    before the detector's change point a step change is tried from; ``symbol_steps``: open-loop
+    steps read for the symbols after the detection (a slope needs samples
+    after the magnitude is seen); ``interval``: probability of the reported interval;
+    ``particles``: 1000 by default: with 200, the RO plant's fault magnitude
+    scatters about twice as far as the filter's own interval says (Monte
+    Carlo error), with 1000 the intervals cover (measured in docs/diagnosis.md).
+    ``bayes_factor``: a surviving hypothesis this many times less probable
+    than the best is dropped (100: "decisive" on Jeffreys' scale);
+    ``workers``: parallel processes for the hypothesis filters (1: in this
+    process). ``identify``: ``kalman`` (the hypotheses weighed and the
+    magnitude sized with the magnitude held static, by cubature Kalman filters
+    on a grid: ``kalman`` holds their options) or ``filter`` (by the particle
+    filters' magnitude state and evidence: the thesis's method). ``rank``: weigh the survivors anew by the evidence of their
+    models with the magnitude held static (on the grid ``rank_grid``; see
+    :func:`_ranked`): off by default; it took 1.1 to 1.7 times as long on
+    the sweep's drifts and was right about as often (docs/diagnosis.md,
+    section 5).
+    ``refine``: replace each surviving hypothesis's estimate by the
+    grid posterior of :mod:`bgc.runtime.identify` (``grid``): about three times
+    slower on the RO drift, and since the estimate averages over the onsets only
+    a little more accurate there (docs/results.md, section 3).
+    ``switch``: when the nominal observer of a particle filter degenerates
+    (its mean effective sample size before the alarm under ``DEGENERATE`` of
+    its particles, a step it had to recover counting 0), diagnose again with
+    cubature Kalman filters alone (``method`` ``ckf``), with a note (a
+    campaign comparing filters turns it off). ``method``: ``gpf``, ``apf``,
+    ``opf`` (particle filters, section 4 of the module docstring) or ``ckf``
+    (no particles: the nominal observer is the cubature Kalman filter, and
+    every hypothesis the symbols keep goes to the static posterior of step 6
+    directly, its consistency test dropping those that fail;
+    ``particles`` then only sizes the open-loop cloud of the symbols).
+    ``horizon``: the monitoring horizon in the model's time unit, over which
+    ``false_alarm`` is spent (and ``rejection``, over what remains of the
+    horizon after a hypothesis's onset): the same detector for a file of any
+    length and for a stream. None: the model's declared run length
+    (``simulation.steps`` x ``dt``), filled in by :func:`bgc.open` and
+    :func:`bgc.diagnose`. ``gap``: missing samples in a row longer than this
+    (time units; None: :data:`bgc.runtime.data.GAP_STEPS` steps) are a
+    :class:`~bgc.runtime.events.Gap` event."""
+
+    method: str = "gpf"
+    particles: int = 1000
+    seed: int = 0
+    false_alarm: float = 0.01
+    rejection: float = 0.001
+    windows: tuple[int, ...] = (1, 8, 32)
+    history: int = 256
+    search: int = 64
+    spacing: int | None = None
+    near: int = 4
+    symbol_steps: int = 32
+    interval: float = 0.95
+    bayes_factor: float = 100.0
+    shrinkage: float = 0.98
+    workers: int = 2
+    identify: str = "kalman"
+    kalman: KalmanOptions = KalmanOptions()
+    rank: bool = False
+    refine: bool = False
+    grid: GridOptions = GridOptions()
+    rank_grid: GridOptions = GridOptions(points=11)
+    switch: bool = True
+    horizon: float | None = None
+    gap: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """The fault magnitude at the end of the run: ``magnitude`` names it (bias
+    or slope), ``value`` its mean, ``low`` and ``high`` the interval of
+    probability ``level``; ``parameter_value``: the faulty parameter's value
+    (nominal + bias, or at the last step for a drift); ``truth`` when the
+    run records it."""
+
+    parameter: str
+    kind: str
+    magnitude: str
+    value: float
+    std: float
+    low: float
+    high: float
+    level: float
+    parameter_value: float
+    nominal: float
+    truth: float | None = None
+    method: str = "filter"
+
+    @property
+    def covers(self) -> bool | None:
+        return None if self.truth is None else bool(self.low <= self.truth <= self.high)
+
+    @property
+    def relative_error(self) -> float | None:
+        return None if self.truth is None else abs(self.value - self.truth) / abs(self.truth or 1.0)
+
+
+@dataclass(frozen=True, slots=True)
+class Hypothesis:
+    """One fault model: its filters from every onset tried (``onsets``, with
+    their posterior probabilities), and from the most probable one
+    (``start``) its per-step predicted measurements, normalised residuals,
+    state estimates (mean, std of the plant's states) and magnitude (mean,
+    interval), when it was dropped and why (None: it
+    survived), its log evidence (over the onsets) and posterior probability
+    among the hypotheses. With the magnitude held static (``identify =
+    "kalman"``, or ``rank``): ``static_log_evidence``, the evidence of its
+    model with the magnitude held static (None: not computed); ``static``,
+    its static posterior (Kalman filters); ``estimate`` is then the static
+    posterior's and ``filter_estimate`` the particle filters' own;
+    ``static_alarm``: the first alarm of the consistency test on the static
+    posterior's most likely cell (None: it passed, or was not run)."""
+
+    name: str
+    parameter: str
+    kind: str
+    signatures: tuple[str, ...]
+    start: int
+    onsets: tuple[int, ...]
+    onset_posterior: tuple[float, ...]
+    y_mean: np.ndarray
+    y_std: np.ndarray
+    z: np.ndarray
+    x_mean: np.ndarray
+    x_std: np.ndarray
+    magnitude: np.ndarray
+    magnitude_band: np.ndarray
+    dropped: int | None
+    reason: str
+    log_evidence: float
+    posterior: float
+    estimate: Estimate
+    seconds: float
+    static_log_evidence: float | None = None
+    static: StaticPosterior | None = None
+    filter_estimate: Estimate | None = None
+    static_alarm: Detection | None = None
+
+    @property
+    def onset(self) -> int:
+        """The most probable onset: the static posterior's when there is one, else the filters'."""
+        return self.static.onset if self.static is not None and math.isfinite(self.static.log_evidence) else self.start
+
+
+@dataclass(frozen=True, slots=True)
+class Diagnosis:
+    """What :func:`diagnose` found. ``verdict``: ``no fault``, ``isolated``
+    (one hypothesis survives), ``ambiguous`` (several do: ``candidates``, best
+    first) or ``unexplained`` (none does; ``candidates`` then holds the one
+    that lasted longest). Steps are steps of the model's time grid
+    (``time[step]``: one per sample, and one per step the data have no
+    sample for, :mod:`bgc.runtime.data`); ``nominal_x_mean`` and
+    ``nominal_x_std`` are the nominal observer's state estimates (steps x
+    ``states``). ``events``: what happened, in time order
+    (:mod:`bgc.runtime.events`); ``data``: how the data met the model (per
+    input, data or model; sensors present; samples skipped; gaps)."""
+
+    model: str
+    time: np.ndarray
+    outputs: tuple[str, ...]
+    states: tuple[str, ...]
+    verdict: str
+    detection: Detection | None
+    onset: int | None
+    symbols: tuple[Symbol, ...]
+    refuted: tuple[tuple[str, str], ...]
+    hypotheses: tuple[Hypothesis, ...]
+    candidates: tuple[str, ...]
+    nominal_y_mean: np.ndarray
+    nominal_y_std: np.ndarray
+    nominal_z: np.ndarray
+    nominal_x_mean: np.ndarray
+    nominal_x_std: np.ndarray
+    statistics: np.ndarray
+    threshold: float
+    options: DiagnosisOptions
+    seconds: float
+    events: tuple = field(default=())
+    data: DataSummary | None = None
+
+    @property
+    def best(self) -> Hypothesis | None:
+        if not self.candidates:
+            return None
+        return next(h for h in self.hypotheses if h.name == self.candidates[0])
+
+    @property
+    def estimate(self) -> Estimate | None:
+        return self.best.estimate if self.best is not None else None
+
+    def time_of(self, step: int | None) -> float | None:
+        return None if step is None else float(self.time[step])
+
+    def state_estimate(self) -> tuple[np.ndarray, np.ndarray]:
+        """The state estimate (mean, std; steps x ``states``) the diagnosis
+        stands for: the nominal observer's, then from its onset on the
+        filter of the diagnosed hypothesis (``candidates[0]``)."""
+        mean, std = self.nominal_x_mean.copy(), self.nominal_x_std.copy()
+        best = self.best
+        if best is not None:
+            mean[best.start:], std[best.start:] = best.x_mean, best.x_std
+        return mean, std
+
+
+
+#: The diagnoser's phases, in loop order: the nominal observer watches the
+#: data (no alarm yet); after an alarm it waits for the samples the symbols
+#: read (isolating); the hypotheses' filters follow the data (tracking); the
+#: diagnosis is made (decided).
+PHASES = ("watching", "isolating", "tracking", "decided")
+
+
+@dataclass(frozen=True, slots=True)
+class Live:
+    """A hypothesis being tracked: its posterior among those tracked (from
+    the filters' running evidence and the priors), its most probable onset
+    (step) and that filter's running estimate of the magnitude (mean, with
+    the central interval of the diagnosis's level; NaN before it starts)."""
+
+    name: str
+    posterior: float
+    onset: int
+    value: float
+    low: float
+    high: float
+    rejected: bool
+
+
+@dataclass(frozen=True, slots=True)
+class Belief:
+    """What the diagnoser believes after a sample: at ``step`` (time
+    ``time``), the ``phase`` (:data:`PHASES`), the ``alarm`` (None before
+    one), the hypotheses tracked (best first; empty before tracking, or while
+    the batch diagnosis leaves the tracking to :meth:`finish`), and the
+    events of this step. ``verdict`` and ``candidates``: once decided."""
+
+    step: int
+    time: float
+    phase: str
+    alarm: Detection | None
+    hypotheses: tuple[Live, ...]
+    events: tuple
+    verdict: str | None = None
+    candidates: tuple[str, ...] = ()
