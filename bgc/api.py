@@ -282,6 +282,9 @@ def open(model: str | Path, *, process_noise: float | None = None, measurement_n
     return Session(model, process_noise, measurement_noise, generated)
 
 
+#: The longest detector horizon or gap limit (time units) the options take.
+MAX_TIME = 1e12
+
 #: Memory a diagnosis may take by the rule of :func:`diagnosis_memory`.
 MAX_DIAGNOSIS_BYTES = 4_000_000_000
 #: The rule's rows per fault model and step (see :func:`diagnosis_memory`).
@@ -409,6 +412,10 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose") -> None
     if options.spacing is not None:
         arguments.integer(func, o + "spacing", options.spacing, 1, "give at least 1", "spacing=4")
     arguments.choice(func, o + "identify", options.identify, IDENTIFY)
+    for name in ("horizon", "gap"):
+        if getattr(options, name) is not None:
+            arguments.real(func, o + name, getattr(options, name), 0.0, MAX_TIME, "a time above 0 (the model's "
+                           "time unit), at most 1e12", high_ok=True)
     for name in ("rank", "refine", "switch"):
         if not isinstance(getattr(options, name), bool):
             raise ArgumentTypeError(f"{func}: options.{name}={arguments.shown(getattr(options, name))} is not True "
@@ -485,7 +492,7 @@ def _compile_once(model: str | Path) -> tuple[pipeline.Compiled, str]:
 
 
 def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> DiagnosisReport:
-    track.check_request(run, package, "nominal", opts.particles, None)
+    track.check_request(run, package, "nominal", opts.particles, None, columns=False)
     opts = with_horizon(opts, c.model.settings)
     priors = {f.parameter: f.prior for f in c.model.faults}
     result = run_diagnosis(run, package, c.signatures, priors, opts, say)

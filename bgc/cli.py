@@ -231,10 +231,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
-    import json
-
     from . import api
-    from .output import artifacts, events, plots, report
     from .runtime.diagnose import DiagnosisOptions
 
     if (args.data is None) == (args.scenario is None):
@@ -247,23 +244,36 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     progress = _Progress()
     try:
         options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed,
-                                   identify=args.identify, rank=args.rank, refine=args.refine)
+                                   identify=args.identify, rank=args.rank, refine=args.refine,
+                                   horizon=args.horizon, gap=args.gap)
         r = api.diagnose(args.model, data=args.data, scenario=args.scenario, seed=args.seed, process_noise=process,
                          measurement_noise=measurement, steps=args.steps, generated=args.generated,
                          options=options, progress=progress)
     finally:
         progress.close()
+    _write_report(r, args.output or f"{r.model}-diagnosis", "diagnose", args.scenario is not None)
+    return 0
+
+
+def _write_report(r, output: str, command: str, with_run: bool) -> Path:
+    """Write diagnosis report ``r`` into folder ``output`` (report.json,
+    report.md, plots, the run when simulated), print its verdict, estimate
+    and notable events, and return the folder."""
+    import json
+
+    from .output import artifacts, events, plots, report
+
     files: dict[str, str | bytes] = {
         "report.json": json.dumps(report.report_data(r), indent=2, sort_keys=True) + "\n",
         "report.md": report.report_markdown(r),
     }
     files.update(plots.diagnosis_figures(r))
-    if args.scenario is not None:
+    if with_run:
         from .runtime import runs
 
         files["run.csv"] = runs.run_csv(r.run)
-    files["manifest.json"] = artifacts.manifest(files, "diagnose", model=r.model)
-    out = Path(args.output or f"{r.model}-diagnosis")
+    files["manifest.json"] = artifacts.manifest(files, command, model=r.model)
+    out = Path(output)
     artifacts.write_folder(out, files)
     d = r.diagnosis
     print(f"{r.model}: {d.verdict}" + (f": {', '.join(d.candidates)}" if d.candidates else ""))
@@ -275,11 +285,38 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
         print(f"  {e.magnitude} of {e.parameter}: {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}] "
               f"({100 * e.level:.0f} %){truth}")
-    for e in d.events:
-        if isinstance(e, events.NOTABLE):
-            print(f"  note: {printable(events.sentence(e, d.time_of))}")
+    if command == "diagnose":
+        for e in d.events:
+            if isinstance(e, events.NOTABLE):
+                print(f"  note: {printable(events.sentence(e, d.time_of))}")
     print(f"wrote {printable(str(out))}/: report.md, report.json, {len(files) - 3} more files "
           f"(diagnosis {d.seconds:.1f} s)")
+    return out
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    from . import monitor
+    from .runtime.diagnose import DiagnosisOptions
+
+    process, measurement = _parse_noise(args.noise)
+    options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed, horizon=args.horizon,
+                               gap=args.gap)
+    if args.data == "-":
+        stream, name = sys.stdin.buffer, "<stdin>"
+    else:
+        try:
+            f = open(args.data, "rb")
+        except OSError as exc:
+            raise BgcError(f"{printable(args.data)}: {printable(exc.strerror or str(exc))}", None,
+                           "give a run file, or - for standard input") from None
+        stream, name = (monitor.Follow(f, args.idle) if args.follow else f), args.data
+
+    def say(line: str) -> None:
+        print(line, flush=True)
+
+    r = monitor.monitor(args.model, stream, name, options, process_noise=process, measurement_noise=measurement,
+                        generated=args.generated, say=say, checkpoint=args.checkpoint)
+    _write_report(r, args.output or f"{r.model}-monitor", "monitor", False)
     return 0
 
 
@@ -467,8 +504,40 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--refine", action="store_true",
                    help="estimate the fault magnitude by the particle filters' marginal likelihood on a grid "
                         "(slower; a check of the estimate for strongly nonlinear plants)")
+    p.add_argument("--horizon", type=float, default=None, metavar="TIME",
+                   help="the detector's false-alarm rate is per this much time (default: the model's run length, "
+                        "simulation.steps x dt)")
+    p.add_argument("--gap", type=float, default=None, metavar="TIME",
+                   help="missing samples longer than this are reported as a gap (default: 10 steps of dt)")
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-diagnosis)")
     p.set_defaults(run=cmd_diagnose)
+
+    p = sub.add_parser("monitor", help="diagnose a run as its rows arrive (a file being appended to, or - for "
+                                       "standard input): events as they happen, the report at the end")
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--data", metavar="RUN.csv|-", required=True,
+                   help="the run's CSV (as bgc simulate writes): a file, or - for standard input")
+    p.add_argument("--follow", action="store_true",
+                   help="keep reading the file as another program appends to it (until Ctrl-C, or --idle)")
+    p.add_argument("--idle", type=float, default=None, metavar="SECONDS",
+                   help="with --follow: end the input after this many seconds without a new row")
+    p.add_argument("--filter", choices=["gpf", "apf", "opf", "ckf"], default="gpf",
+                   help="the nominal observer and hypothesis filters, as for bgc diagnose")
+    p.add_argument("--particles", type=int, default=1000)
+    p.add_argument("--seed", type=_seed, default=0, help="random seed, an integer >= 0")
+    p.add_argument("--noise", metavar="process=Q,measurement=R",
+                   help="relative noise levels the filters assume; default: the model's")
+    p.add_argument("--horizon", type=float, default=None, metavar="TIME",
+                   help="the detector's false-alarm rate is per this much time (default: the model's run length, "
+                        "simulation.steps x dt)")
+    p.add_argument("--gap", type=float, default=None, metavar="TIME",
+                   help="missing samples longer than this are reported as a gap (default: 10 steps of dt)")
+    p.add_argument("--checkpoint", type=float, default=None, metavar="TIME",
+                   help="while tracking hypotheses, diagnose the data so far every TIME (default: only at the end)")
+    p.add_argument("--generated", metavar="DIR",
+                   help="use the package bgc compile wrote there (default: generate one)")
+    p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-monitor)")
+    p.set_defaults(run=cmd_monitor)
 
     p = sub.add_parser("distinguish", help="predict which faults the data of a scenario can tell apart (before "
                        "any data: noise, size, onset and kind of the fault)")

@@ -16,7 +16,9 @@ def _t(time_of, step) -> str:
 
 
 def sentence(e, time_of) -> str:
-    """Event ``e`` in words; ``time_of(step)``: the time of a step (None: none)."""
+    """Event ``e`` in words; ``time_of(step)``: the time of a step (None:
+    none). The event's own time is not in the sentence: the report and the
+    monitor put it in front."""
     t = lambda step: _t(time_of, step)  # noqa: E731
     match e:
         case ev.SensorMissing(sensor=s):
@@ -29,7 +31,7 @@ def sentence(e, time_of) -> str:
         case ev.InputFromModel(input=u):
             return f"input u:{u} has no value yet: the model's declared input is used until its first value"
         case ev.InputHeld(input=u, step=k, value=v):
-            return f"input u:{u} is empty at t = {t(k)}: its last value {v:g} is held until a value arrives"
+            return f"input u:{u} is empty: its last value {v:g} is held until a value arrives"
         case ev.Gap(step=k, steps=n):
             return f"no sample for {n} steps from t = {t(k)} to t = {t(k + n - 1)}: the filters predict across the gap"
         case ev.SampleSkipped(step=k, line=line, time=when):
@@ -37,7 +39,7 @@ def sentence(e, time_of) -> str:
             return (f"the sample at t = {when:g}{where} falls on a step of the model's grid a sample already took "
                     f"(t = {t(k)}): skipped; give the model a dt no longer than the sampling interval to use every one")
         case ev.Alarmed(step=k, sensor=s, window=w, statistic=z, threshold=c, onset=o):
-            return (f"alarm at t = {t(k)} on {s}: its residual over {w} sample(s) reached {z:.1f} (threshold "
+            return (f"alarm on {s}: its residual over {w} sample(s) reached {z:.1f} (threshold "
                     f"{c:.1f}); estimated onset t = {t(o)}")
         case ev.Degenerate(method=m, ess=e_, particles=n, switched=sw):
             tail = "; diagnosed with cubature Kalman filters (ckf) instead" if sw else \
@@ -48,7 +50,7 @@ def sentence(e, time_of) -> str:
         case ev.Switched(to=to):
             return f"diagnosing again with {to}: every step replayed"
         case ev.Isolated(step=k, onset=o, kept=kept, refuted=refuted):
-            return (f"isolation at t = {t(k)} from the symbols read from t = {t(o)}: kept "
+            return (f"isolation from the symbols read from t = {t(o)}: kept "
                     f"{', '.join(kept) or 'none'}; ruled out {len(refuted)} signature(s)")
         case ev.AllTried(why="unexplained"):
             return ("no hypothesis the symbols kept explains the data: the fault models they ruled out are tried "
@@ -58,7 +60,7 @@ def sentence(e, time_of) -> str:
         case ev.Started(step=k, hypothesis=h, onsets=onsets):
             return f"tracking {h} from {len(onsets)} onset(s), t = {t(min(onsets))} to {t(max(onsets))}"
         case ev.Dropped(step=k, hypothesis=h, reason=r, detail=detail):
-            return f"{h} dropped at t = {t(k)} ({r}): {detail}"
+            return f"{h} dropped ({r}): {detail}"
         case ev.Rescued(hypothesis=h, reason=r, step=k):
             return (f"{h}: its particle filters failed their test ({r}, at t = {t(k)}), its fault model with the "
                     f"magnitude held static passes it")
@@ -75,9 +77,9 @@ def sentence(e, time_of) -> str:
                     f"over {w} sample(s) reached {z:.1f} (threshold {c:.1f}); the fault model as stated, or the "
                     f"Kalman filters' Gaussian approximation, does not quite hold on these data")
         case ev.Checkpoint(step=k, verdict=v, candidates=c):
-            return f"checkpoint at t = {t(k)}: {v}" + (f": {', '.join(c)}" if c else "")
+            return f"checkpoint: {v}" + (f": {', '.join(c)}" if c else "")
         case ev.Decided(step=k, verdict=v, candidates=c):
-            return f"decided at t = {t(k)}: {v}" + (f": {', '.join(c)}" if c else "")
+            return f"decided: {v}" + (f": {', '.join(c)}" if c else "")
     return type(e).__name__
 
 

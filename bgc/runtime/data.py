@@ -201,14 +201,11 @@ class DataSummary:
     dt: float
 
 
-def samples(run: Run, model: ModuleType, gap: float | None = None) -> Iterator[Sample]:
-    """The samples of a recorded run on the model's grid (a :class:`Sampler`
-    fed its rows; the run is checked already, :func:`bgc.runtime.runs.check_run`)."""
-    sampler = Sampler(model, run.inputs, run.measurements, run.source, gap)
-    names_u = [u for u in sampler.data_inputs]
-    names_y = list(sampler.present)
-    cols_u = [np.asarray(run.inputs[u], dtype=float) for u in names_u]
-    cols_y = [np.asarray(run.measurements[y], dtype=float) for y in names_y]
+def samples(run: Run, sampler: Sampler) -> Iterator[Sample]:
+    """The samples of a recorded run on the model's grid: its rows fed to
+    ``sampler`` (a :class:`Sampler` of the run's columns; the run is checked
+    already, :func:`bgc.runtime.runs.check_run`)."""
+    cols_u = [(u, np.asarray(run.inputs[u], dtype=float)) for u in sampler.data_inputs]
+    cols_y = [(y, np.asarray(run.measurements[y], dtype=float)) for y in sampler.present]
     for i, t in enumerate(np.asarray(run.time, dtype=float)):
-        yield from sampler.push(float(t), {u: c[i] for u, c in zip(names_u, cols_u)},
-                                {y: c[i] for y, c in zip(names_y, cols_y)})
+        yield from sampler.push(float(t), {u: c[i] for u, c in cols_u}, {y: c[i] for y, c in cols_y})

@@ -124,11 +124,11 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     record's length (:func:`bgc.diagnose` fills in the model's run length).
     """
     nominal = package.MODELS["nominal"]
-    grid = list(samples(run, nominal, options.gap))
-    d = Diagnoser(package, signatures, priors, options, horizon_steps(options.horizon, nominal.DT, len(grid)),
+    steps = int(round((float(run.time[-1]) - float(run.time[0])) / nominal.DT)) + 1  # the grid's, for the horizon
+    d = Diagnoser(package, signatures, priors, options, horizon_steps(options.horizon, nominal.DT, steps),
                   inputs=run.inputs, sensors=run.measurements, source=run.source, lazy=True, every=every,
                   progress=progress)
-    for s in grid:
+    for s in samples(run, d.sampler):
         d.take(s)
     return d.finish(run)
 

@@ -282,6 +282,10 @@ class Diagnoser:
             tracker = self.trackers[name] = HypothesisTracker(job)
             for k in range(job.first, len(self.samples)):  # catch up on the samples kept
                 tracker.step(ys[k], us[k], density[k])
+                if tracker.done:
+                    self.reported.add(name)
+                    self.events.append(ev.Dropped(k, name, "inconsistent", STOPPED))
+                    break
 
     def _track(self, s: Sample) -> None:
         for name, tracker in self.trackers.items():

@@ -231,11 +231,47 @@ class _Lines:
         return DataError(f"{self.name}:{self.number}: {what}", None, fix)
 
 
-def _parse(stream: IO, name: str) -> Run:
-    """A run from the lines of ``stream`` (one csv reader over them, the rows
-    into growing arrays), checked by :func:`check_run`."""
-    lines = _Lines(stream, name)
-    reader = csv.reader(lines)
+class RowReader:
+    """The rows of a run as they arrive on ``stream`` (a file another
+    program appends to, a pipe): the column names are read and checked
+    first (``columns``; ``header``: the ``#`` lines before them), then each
+    iteration gives one row's numbers (empty or nan: NaN) and its line
+    number; a malformed row is a :class:`~bgc.errors.DataError` naming the
+    line. Whether the times increase is the reader's caller's to check (the
+    diagnoser's :class:`~bgc.runtime.data.Sampler`)."""
+
+    def __init__(self, stream: IO, name: str):
+        self.name = name
+        self.lines = _Lines(stream, name)
+        self.reader = csv.reader(self.lines)
+        self.columns = _columns(self.reader, self.lines, name)
+        self.header = tuple(self.lines.header)
+
+    def __iter__(self):
+        width, lines = len(self.columns), self.lines
+        while True:
+            fields = _next(self.reader, lines)
+            if fields is None:
+                return
+            if len(fields) != width:
+                raise lines.error(f"{len(fields)} fields, expected {width}", "give every row one value per column")
+            if lines.length > MAX_FIELD:
+                _fields(fields, lines)
+            values = [_number(v, c, lines) for v, c in zip(fields, self.columns)]
+            for v, c in zip(values, self.columns):
+                if math.isinf(v):
+                    raise lines.error(f"{v} in column {printable(c)} is not a finite number",
+                                      "write finite numbers (empty or nan: not measured)")
+            yield values, lines.number
+
+    @property
+    def model(self) -> str | None:
+        """The model the header says made the run (``model NAME: ...``), if any."""
+        return Run(np.zeros(0), {}, {}, {}, {}, self.header).model
+
+
+def _columns(reader, lines: _Lines, name: str) -> list[str]:
+    """The column names, checked: ``time`` first, each once, each prefixed."""
     cols = _next(reader, lines)
     if cols is None:
         raise DataError(f"{name}: no data", None, "write it with bgc simulate")
@@ -258,6 +294,15 @@ def _parse(stream: IO, name: str) -> Run:
         if c != "time" and not (colon and prefix in PREFIXES and rest):
             raise DataError(f"{name}:{first_line}: column {printable(repr(c))} is not time, u:NAME, y:NAME, x:NAME "
                             "or theta:NAME", None, "name the columns as bgc simulate does")
+    return cols
+
+
+def _parse(stream: IO, name: str) -> Run:
+    """A run from the lines of ``stream`` (one csv reader over them, the rows
+    into growing arrays), checked by :func:`check_run`."""
+    lines = _Lines(stream, name)
+    reader = csv.reader(lines)
+    cols = _columns(reader, lines, name)
     width = len(cols)
     most = MAX_VALUES // (width + 1)  # the rows' numbers and their line numbers
     rows = max(1, _BLOCK // width)  # a block's rows

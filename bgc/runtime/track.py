@@ -233,10 +233,12 @@ def check_run_of(run: Run, model: str, where: str | None = None) -> None:
                         "filter it with the model the run was made with")
 
 
-def check_request(run: Run, package: ModuleType, model_name: str, particles: int, start: float | None) -> None:
+def check_request(run: Run, package: ModuleType, model_name: str, particles: int, start: float | None,
+                  columns: bool = True) -> None:
     """Refuse a filter request that cannot run, before any work: a model the
     package lacks, no sensors, a hand-over without a fault model or outside
-    the run, too many particles, a run without the model's measurements.
+    the run, too many particles, and (``columns``) a run without the model's
+    measurements (a diagnosis takes one: it uses the sensors present).
     Whether the run is of this model at all is :func:`check_run_of`, which
     callers ask first."""
     name = package.MODELS["nominal"].MODEL
@@ -253,7 +255,8 @@ def check_request(run: Run, package: ModuleType, model_name: str, particles: int
                             f"{printable(run.source)}", None,
                             "hand over at a time inside the run")
     check_particles(particles, package, model_name)
-    run_arrays(run, package, model_name)
+    if columns:
+        run_arrays(run, package, model_name)
 
 
 @np.errstate(all="ignore")  # particles outside a law's domain are weighted out and counted

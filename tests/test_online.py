@@ -1,0 +1,281 @@
+"""The online diagnoser and real plant data: one sample in, a belief out; the
+batch diagnosis is the loop over it; time stamps with gaps, inputs with holes,
+a sensor missing, a detector per horizon, bad time stamps; ``bgc monitor``
+through a real pipe."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import bgc
+from bgc import api
+from bgc.errors import DataError
+from bgc.runtime import events, runs, simulate
+from bgc.runtime.detect import DetectorOptions
+from bgc.runtime.diagnose import DiagnosisOptions
+
+ROOT = Path(__file__).resolve().parents[1]
+CIRCUIT = ROOT / "models" / "circuit.yaml"
+OPTIONS = DiagnosisOptions(particles=300, seed=1, workers=1)
+
+
+def simulated(model: Path, fault: str | None = None, steps: int | None = None, seed: int = 1) -> runs.Run:
+    num = api._compiled(model)[0].numerics
+    injected = None if fault is None else simulate.parse_fault(fault, num)
+    result = simulate.simulate(num, simulate.SimulationOptions(steps=steps, seed=seed, fault=injected))
+    return runs.parse_run(simulate.to_csv(result), f"{model.stem}.csv")
+
+
+def rows_of(run: runs.Run, keep) -> runs.Run:
+    """The run with only the rows ``keep`` (a boolean mask or indices)."""
+    return runs.Run(run.time[keep], {k: v[keep] for k, v in run.inputs.items()},
+                    {k: v[keep] for k, v in run.measurements.items()}, {k: v[keep] for k, v in run.states.items()},
+                    {k: v[keep] for k, v in run.parameters.items()}, run.header, run.source)
+
+
+def with_columns(run: runs.Run, **change) -> runs.Run:
+    fields = {f: getattr(run, f) for f in runs.Run.__slots__}
+    fields.update(change)
+    return runs.Run(**fields)
+
+
+def kinds(d) -> list[str]:
+    return [type(e).__name__ for e in d.events]
+
+
+def test_stepping_the_diagnoser_sample_by_sample_gives_the_batch_diagnosis():
+    """The online loop (trackers stepped as samples arrive) and the batch
+    one (the same loop, the hypotheses' filters run at the end) give the
+    same diagnosis: each filter has its own random numbers and one loop body."""
+    run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
+    batch = bgc.diagnose(CIRCUIT, data=run, options=OPTIONS).diagnosis
+    d = bgc.open(CIRCUIT).diagnoser(OPTIONS)
+    phases = []
+    for i, t in enumerate(run.time):
+        belief = d.step(float(t), {u: c[i] for u, c in run.inputs.items()},
+                        [run.measurements[y][i] for y in ("e11", "f2", "f6")])
+        phases.append(belief.phase)
+    online = d.finish(run)
+    assert (online.verdict, online.candidates, online.onset) == (batch.verdict, batch.candidates, batch.onset)
+    assert online.verdict == "isolated" and online.candidates == ("R2_abrupt",)
+    for h, g in zip(online.hypotheses, batch.hypotheses):
+        assert (h.name, h.dropped) == (g.name, g.dropped)
+        for f in ("value", "low", "high"):
+            assert math.isclose(getattr(h.estimate, f), getattr(g.estimate, f), rel_tol=1e-9) or \
+                (math.isnan(getattr(h.estimate, f)) and math.isnan(getattr(g.estimate, f)))
+    # the phases in loop order, each reached
+    firsts = [phases.index(p) for p in ("watching", "isolating", "tracking")]
+    assert firsts == sorted(firsts) and phases[-1] == "tracking"
+    alarm = next(e for e in online.events if isinstance(e, events.Alarmed))
+    assert alarm.step == online.detection.step and phases[alarm.step] == "isolating"
+    assert phases[alarm.step - 1] == "watching"
+    assert isinstance(online.events[-1], events.Decided) and online.events[-1].candidates == ("R2_abrupt",)
+
+
+def test_a_belief_while_tracking_names_the_live_hypotheses_with_a_running_estimate():
+    run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
+    d = bgc.open(CIRCUIT).diagnoser(OPTIONS)
+    for i, t in enumerate(run.time):
+        belief = d.step(float(t), None, [run.measurements[y][i] for y in ("e11", "f2", "f6")])
+    assert belief.phase == "tracking"
+    assert belief.hypotheses[0].name == "R2_abrupt" and belief.hypotheses[0].posterior > 0.5
+    best = belief.hypotheses[0]
+    assert best.low <= 0.6 <= best.high and abs(best.value - 0.6) < 0.1
+    assert abs(sum(h.posterior for h in belief.hypotheses) - 1.0) < 1e-9
+
+
+def test_a_healthy_run_with_a_logging_gap_is_healthy_and_the_gap_is_an_event():
+    """Rows of t = 5.2 to 7 removed from a fault-free circuit run: the grid
+    keeps its steps (measurements missing there), the filters predict across
+    the gap, and no alarm is raised. (Before: every row was one dt, the gap
+    shifted the time, and the detector alarmed.)"""
+    run = simulated(CIRCUIT)
+    keep = ~((run.time > 5.15) & (run.time < 7.05))
+    d = bgc.diagnose(CIRCUIT, data=rows_of(run, keep), options=OPTIONS).diagnosis
+    assert d.verdict == "no fault"
+    assert len(d.time) == len(run.time) and np.allclose(d.time, run.time)
+    gaps = [e for e in d.events if isinstance(e, events.Gap)]
+    assert len(gaps) == 1 and d.time_of(gaps[0].step) == pytest.approx(5.2) and gaps[0].steps == (~keep).sum()
+    assert d.data.unsampled == (~keep).sum() and d.data.gaps == 1
+    assert np.isnan(d.nominal_z[gaps[0].step:gaps[0].step + gaps[0].steps]).all()
+
+
+def test_every_fifth_row_dropped_keeps_the_time_and_the_diagnosis():
+    run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
+    keep = np.arange(len(run.time)) % 5 != 4
+    keep[-1] = True  # the grid ends at the last sample
+    d = bgc.diagnose(CIRCUIT, data=rows_of(run, keep), options=OPTIONS).diagnosis
+    assert len(d.time) == len(run.time) and d.data.unsampled == (~keep).sum()
+    assert not any(isinstance(e, events.Gap) for e in d.events)  # one step at a time: under the gap limit
+    assert d.verdict == "isolated" and d.candidates == ("R2_abrupt",)
+    assert d.time_of(d.onset) == pytest.approx(5.0, abs=0.1)
+    assert d.estimate.low <= 0.6 <= d.estimate.high
+
+
+def test_a_gap_limit_in_time_units_and_samples_on_a_taken_step():
+    run = simulated(CIRCUIT, steps=100)
+    keep = ~((run.time > 2.0) & (run.time < 2.3))  # 5 steps missing
+    options = DiagnosisOptions(particles=200, seed=1, workers=1, gap=0.2)
+    d = bgc.diagnose(CIRCUIT, data=rows_of(run, keep), options=options).diagnosis
+    assert [e.steps for e in d.events if isinstance(e, events.Gap)] == [5]
+    # a second sample on a step already taken (jittered logging faster than dt) is skipped, once said
+    jitter = with_columns(run, time=run.time + np.where(np.arange(len(run.time)) == 10, 0.0, 0.0))
+    times = np.insert(jitter.time, 11, jitter.time[10] + 0.01)
+    dense = runs.Run(times, {k: np.insert(v, 11, v[10]) for k, v in run.inputs.items()},
+                     {k: np.insert(v, 11, v[10]) for k, v in run.measurements.items()}, {}, {}, run.header,
+                     "dense.csv")
+    d = bgc.diagnose(CIRCUIT, data=dense, options=DiagnosisOptions(particles=200, seed=1, workers=1)).diagnosis
+    assert d.data.skipped == 1 and len(d.time) == len(run.time)
+    assert [type(e) for e in d.events].count(events.SampleSkipped) == 1
+
+
+def ramp_run() -> runs.Run:
+    """A fault-free circuit run whose recorded source voltage ramps from 10 V
+    to 13 V (a model variant that declares the ramp made it): the
+    circuit's own model declares a constant 10 V."""
+    text = CIRCUIT.read_text().replace("V: {signal: constant, value: 10.0,",
+                                       "V: {signal: ramp, value: 10.0, slope: 0.2, start: 0.0,")
+    assert "signal: ramp" in text
+    variant = Path(os.environ.get("TMPDIR", "/tmp")) / f"bgc-ramp-{os.getpid()}" / "circuit.yaml"
+    variant.parent.mkdir(exist_ok=True)
+    variant.write_text(text)
+    return simulated(variant, seed=3)
+
+
+def test_a_recorded_input_is_used_and_a_blank_cell_holds_the_last_value():
+    """The data's u:V (a ramp) is used, not the model's declared constant;
+    one blank cell holds the last value with an event (before: the whole
+    recorded input was dropped for the model's, with a false alarm); with
+    no u:V column at all the model's input is used, and the report says so."""
+    run = ramp_run()
+    assert run.inputs["V"][-1] > 12.5
+    d = bgc.diagnose(CIRCUIT, data=run, options=OPTIONS).diagnosis
+    assert d.verdict == "no fault" and d.data.inputs == (("V", "data"),)
+    holed = run.inputs["V"].copy()
+    holed[150] = np.nan
+    d = bgc.diagnose(CIRCUIT, data=with_columns(run, inputs={"V": holed}), options=OPTIONS).diagnosis
+    assert d.verdict == "no fault"
+    held = [e for e in d.events if isinstance(e, events.InputHeld)]
+    assert held == [events.InputHeld("V", 150, float(run.inputs["V"][149]))]
+    assert d.data.holds == (("V", 1),)
+    r = bgc.diagnose(CIRCUIT, data=with_columns(run, inputs={}), options=OPTIONS)
+    assert r.diagnosis.data.inputs == (("V", "model"),)
+    assert events.InputFromModel("V", "absent") in r.diagnosis.events
+    from bgc.output import report
+    assert "input u:V: from the model's declared input" in report.report_markdown(r)
+    assert r.diagnosis.verdict != "no fault"  # the model's 10 V is not what the plant got
+
+
+def test_a_sensor_column_missing_from_the_data_is_diagnosed_with_the_others():
+    run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
+    without = with_columns(run, measurements={k: v for k, v in run.measurements.items() if k != "f6"})
+    d = bgc.diagnose(CIRCUIT, data=without, options=OPTIONS).diagnosis
+    assert events.SensorMissing("f6") in d.events and d.data.missing == ("f6",)
+    assert d.detection is not None and d.detection.sensor != "f6"
+    assert "R2_abrupt" in d.candidates
+    assert np.isnan(d.statistics[:, 2]).all()
+    # the detector counts the sensors present only: two sensors, not three
+    assert d.threshold == pytest.approx(DetectorOptions(0.01, (1, 8, 32), 300).threshold(2))
+    nothing = with_columns(run, measurements={})
+    with pytest.raises(DataError, match="none of the model's sensors"):
+        bgc.diagnose(CIRCUIT, data=nothing, options=OPTIONS)
+
+
+def test_the_detector_is_the_same_for_a_short_and_a_long_file_and_a_stream():
+    """The false-alarm rate is per horizon (default: the model's declared
+    run length, 300 steps of 0.05), not per file: a 100-row and a 600-row
+    file, and a stream, get the same threshold."""
+    short = bgc.diagnose(CIRCUIT, data=simulated(CIRCUIT, steps=100), options=OPTIONS).diagnosis
+    long = bgc.diagnose(CIRCUIT, data=simulated(CIRCUIT, steps=600), options=OPTIONS).diagnosis
+    stream = bgc.open(CIRCUIT).diagnoser(OPTIONS)
+    expected = DetectorOptions(0.01, (1, 8, 32), 300).threshold(3)
+    assert short.threshold == long.threshold == stream.detector.threshold == pytest.approx(expected)
+    assert short.options.horizon == pytest.approx(15.0)
+    wider = bgc.diagnose(CIRCUIT, data=simulated(CIRCUIT, steps=100),
+                         options=DiagnosisOptions(particles=300, seed=1, workers=1, horizon=150.0)).diagnosis
+    assert wider.threshold == pytest.approx(DetectorOptions(0.01, (1, 8, 32), 3000).threshold(3))
+
+
+@pytest.mark.parametrize("times, line, what", [
+    ("0.05\n0.1\n0.08\n", 5, "time 0.08 does not increase"),
+    ("0.05\n0.1\n0.1\n", 5, "time 0.1 does not increase"),
+    ("0.05\nnan\n0.15\n", 4, "time nan is not a finite number"),
+])
+def test_bad_time_stamps_are_located_errors_in_a_file_and_in_a_stream(tmp_path, times, line, what):
+    rows = "".join(f"{t},10.0,2.4,2.4,2.4\n" for t in times.split())
+    text = "# model circuit: a hand-made log\ntime,u:V,y:e11,y:f2,y:f6\n" + rows
+    path = tmp_path / "log.csv"
+    path.write_text(text)
+    with pytest.raises(DataError) as err:
+        bgc.diagnose(CIRCUIT, data=path, options=OPTIONS)
+    assert f"{path}:{line}" in str(err.value) and "time" in str(err.value)
+    p = subprocess.run([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", "-", "--particles", "50",
+                        "-o", str(tmp_path / "mon")], input=text, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 1 and "Traceback" not in p.stderr
+    assert f"<stdin>:{line}: {what}" in p.stderr, p.stderr
+
+
+def test_bgc_monitor_prints_events_from_a_pipe_before_the_input_ends(tmp_path):
+    """Rows through a real pipe with a pause after the fault: the alarm line
+    comes out while the input is still open; at the end the report is
+    written as bgc diagnose writes it."""
+    run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
+    lines = runs.run_csv(run).splitlines(keepends=True)
+    head = next(i for i, line in enumerate(lines) if line.startswith("time,"))
+    fault_row = head + 1 + int(np.searchsorted(run.time, 7.0))
+    out = tmp_path / "mon"
+    env = dict(os.environ, MPLBACKEND="Agg")
+    p = subprocess.Popen([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", "-", "--particles", "300",
+                          "--seed", "1", "-o", str(out)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, bufsize=1, env=env)
+    try:
+        p.stdin.write("".join(lines[:fault_row]))
+        p.stdin.flush()
+        seen = []
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:  # the input stays open: the events must come now
+            line = p.stdout.readline()
+            assert line, p.stderr.read()
+            seen.append(line)
+            if "isolation from the symbols" in line:
+                break
+        assert any(line.startswith("t = 5: alarm on") for line in seen), seen
+        assert p.poll() is None  # still waiting for input
+        rest, err = p.communicate("".join(lines[fault_row:]), timeout=300)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0, err
+    assert "decided: isolated: R2_abrupt" in rest and "circuit: isolated: R2_abrupt" in rest
+    assert (out / "report.md").is_file() and '"command": "monitor"' in (out / "manifest.json").read_text()
+
+
+def test_bgc_monitor_follows_a_file_another_program_appends_to(tmp_path):
+    run = simulated(CIRCUIT, steps=120)
+    lines = runs.run_csv(run).splitlines(keepends=True)
+    path = tmp_path / "live.csv"
+    path.write_text("".join(lines[:40]))
+    p = subprocess.Popen([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", str(path), "--follow",
+                          "--idle", "2", "--particles", "100", "-o", str(tmp_path / "mon")],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         env=dict(os.environ, MPLBACKEND="Agg"))
+    time.sleep(1.0)
+    with open(path, "a") as f:
+        for line in lines[40:]:
+            f.write(line[:10])  # half a line first: the reader waits for the rest
+            f.flush()
+            f.write(line[10:])
+            f.flush()
+    out, err = p.communicate(timeout=300)
+    assert p.returncode == 0, err
+    assert "decided: no fault" in out
+    report = (tmp_path / "mon" / "report.json").read_text()
+    assert '"steps": 120' in report
