@@ -6,6 +6,18 @@ STAMP := $(VENV)/.bgc-installed
 
 .PHONY: demo test clean
 
+# Print a CSV's lines one at a time, a pause between rows: a plant's logger, for the monitor.
+define REPLAY
+import sys, time
+pause = float(sys.argv[2])
+for line in open(sys.argv[1]):
+    sys.stdout.write(line)
+    sys.stdout.flush()
+    if line[:1].isdigit():
+        time.sleep(pause)
+endef
+export REPLAY
+
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[test]'
@@ -20,7 +32,9 @@ demo: $(STAMP)
 	$(BIN)/bgc filter models/ro.yaml out/ro-run.csv --generated out/generated --plot out/ro-nominal-filter.png
 	$(BIN)/bgc filter models/ro.yaml out/ro-run.csv --generated out/generated --fault R_pipe:incipient --start 167 --plot out/ro-R_pipe-incipient-filter.png
 	$(BIN)/bgc diagnose models/ro.yaml --data out/ro-run.csv --noise process=0.03,measurement=0.02 --generated out/generated -o out/diagnosis
-	@echo "demo: pictures and data in out/; the diagnosis report is out/diagnosis/report.md (plots beside it)"
+	@echo "demo: the same run as a stream, row by row through a pipe, into bgc monitor (events as they arrive):"
+	$(BIN)/python -c "$$REPLAY" out/ro-run.csv 0.01 | $(BIN)/bgc monitor models/ro.yaml --data - --noise process=0.03,measurement=0.02 --generated out/generated -o out/monitor
+	@echo "demo: pictures and data in out/; the diagnosis report is out/diagnosis/report.md (plots beside it), the monitor's out/monitor/report.md"
 
 test: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m pytest

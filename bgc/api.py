@@ -190,8 +190,10 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
     else:
         run = runs.check_run(data) if isinstance(data, runs.Run) else runs.read_run(data)
         track.check_run_of(run, c.model.name)
-        check_diagnosis_steps(len(run.time), c.numerics, opts.particles, opts.method,
-                              f"{printable(run.source)}: {len(run.time)} samples", opts.history)
+        grid = grid_steps(run, c.model.settings.dt)  # the model's time grid: a gap's steps count too
+        check_diagnosis_steps(grid, c.numerics, opts.particles, opts.method,
+                              f"{printable(run.source)}: {len(run.time)} samples"
+                              + (f" over {grid} steps of dt" if grid != len(run.time) else ""), opts.history)
     levels = c.numerics.noise_at(process_noise, measurement_noise)
     custom = levels if (process_noise, measurement_noise) != (None, None) else None
     with _LOCK:  # another thread must not see a package half imported
@@ -262,7 +264,7 @@ class Session:
         nominal = self.package.MODELS["nominal"]
         return Diagnoser(self.package, self.compiled.signatures, self.priors, opts,
                          horizon_steps(opts.horizon, nominal.DT, 0), inputs=inputs, sensors=sensors, source=source,
-                         progress=progress)
+                         progress=progress, most=most_steps(self.compiled.numerics, opts))
 
     def report(self, run: runs.Run, diagnosis: Diagnosis, scenario: str | None = None,
                injected=None) -> DiagnosisReport:
@@ -498,6 +500,19 @@ def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> Diagn
     result = run_diagnosis(run, package, c.signatures, priors, opts, say)
     return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,
                            result)
+
+
+def grid_steps(run: runs.Run, dt: float) -> int:
+    """The steps of the model's time grid a run covers (its rows, and the steps between them)."""
+    t = np.asarray(run.time, dtype=float)
+    return int(round((t[-1] - t[0]) / dt)) + 1 if len(t) else 0
+
+
+def most_steps(num: Numerics, options: DiagnosisOptions) -> int:
+    """The most steps a diagnosis of ``options`` may hold by the rule of
+    :func:`check_diagnosis_steps` (a stream is stopped there)."""
+    fixed, per_step = diagnosis_memory(1, num, options.particles, options.method, options.history)
+    return max(int((MAX_DIAGNOSIS_BYTES - fixed) // max(per_step, 1)), 1)
 
 
 def with_horizon(options: DiagnosisOptions, settings) -> DiagnosisOptions:

@@ -156,9 +156,10 @@ def test_bgc_diagnose_bad_input_is_one_located_line(tmp_path):
     assert one_line(bgc_cli("diagnose", "models/circuit.yaml", "--data", str(other))).startswith(
         f"{other} is a run of model 'ro', not of 'circuit'")
     cut = tmp_path / "cut.csv"
-    cut.write_text("time,y:f2\n1.0,2.5\n2.0,2.5\n")
+    cut.write_text("time,y:q9\n1.0,2.5\n2.0,2.5\n")
     assert one_line(bgc_cli("diagnose", "models/circuit.yaml", "--data", str(cut))) == (
-        f"{cut}: the run has no column y:e11 (record it with bgc simulate for the same model)")
+        f"{cut}: the data have none of the model's sensors (y:e11, y:f2, y:f6) (record at least one of them as a "
+        "y:NAME column)")
     assert one_line(bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "none", "--particles", "0")).startswith(
         "--particles 0: at least 1 particle is needed")
 

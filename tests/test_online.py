@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import bgc
+import bgc.errors
 from bgc import api
 from bgc.errors import DataError
 from bgc.runtime import events, runs, simulate
@@ -135,6 +136,22 @@ def test_a_gap_limit_in_time_units_and_samples_on_a_taken_step():
     d = bgc.diagnose(CIRCUIT, data=dense, options=DiagnosisOptions(particles=200, seed=1, workers=1)).diagnosis
     assert d.data.skipped == 1 and len(d.time) == len(run.time)
     assert [type(e) for e in d.events].count(events.SampleSkipped) == 1
+
+
+def test_a_clock_that_jumps_is_refused_not_predicted_across_for_hours():
+    """A file whose time jumps by 9e6 s: the grid it asks for is beyond the
+    diagnosis's memory, refused before any work; in a stream, the row that
+    jumps is refused with its line."""
+    run = simulated(CIRCUIT, steps=40)
+    jumped = with_columns(run, time=np.where(np.arange(40) < 20, run.time, run.time + 9e6))
+    with pytest.raises(bgc.errors.TrackingError, match=r"circuit.csv: 40 samples over 180000040 steps of dt"):
+        bgc.diagnose(CIRCUIT, data=jumped, options=OPTIONS)
+    d = bgc.open(CIRCUIT).diagnoser(OPTIONS, source="log.csv")
+    for i in range(20):
+        d.step(float(jumped.time[i]), None, [jumped.measurements[y][i] for y in ("e11", "f2", "f6")], line=i + 3)
+    with pytest.raises(DataError, match=r"log.csv:23: time 9e\+06 is 180000000 steps of dt = 0.05 after the "
+                                        r"sample before it, more than 100000"):
+        d.step(float(jumped.time[20]), None, [jumped.measurements[y][20] for y in ("e11", "f2", "f6")], line=23)
 
 
 def ramp_run() -> runs.Run:

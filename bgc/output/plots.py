@@ -73,7 +73,8 @@ def tracking_figure(run, results, fmt: str = "png") -> bytes:
     colors = ["#2060c0", "#20a040", "#c08020", "#8040c0"]
     for j, name in enumerate(names_y):
         ax = axes[j]
-        ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
+        if name in run.measurements:  # a sensor the data lack: its prediction only
+            ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
         for r, c in zip(results, colors):
             ax.plot(r.time, r.y_mean[:, j], "-", lw=1.0, color=c, label=f"{r.method.upper()} {r.model}")
             ax.fill_between(r.time, r.y_mean[:, j] - 2 * r.y_std[:, j], r.y_mean[:, j] + 2 * r.y_std[:, j],
@@ -120,7 +121,8 @@ def diagnosis_measurements(r, fmt: str = "png") -> bytes:
     plt, fig, axes = _figure(len(d.outputs))
     for j, name in enumerate(d.outputs):
         ax = axes[j]
-        ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
+        if name in run.measurements:  # a sensor the data lack: its prediction only
+            ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
         ax.plot(d.time, d.nominal_y_mean[:, j], "-", lw=1.0, color="#2060c0", label="nominal observer")
         ax.fill_between(d.time, d.nominal_y_mean[:, j] - 2 * d.nominal_y_std[:, j],
                         d.nominal_y_mean[:, j] + 2 * d.nominal_y_std[:, j], color="#2060c0", alpha=0.15, lw=0)
@@ -145,7 +147,8 @@ def diagnosis_residuals(r, fmt: str = "png") -> bytes:
         _marks(ax, d)
         ax.set_ylabel(name)
     axes[0].legend(loc="best", fontsize=7)
-    axes[0].set_title(f"{d.model}: detection (false-alarm probability {d.options.false_alarm:g} per run)")
+    per = "run" if d.options.horizon is None else f"{d.options.horizon:g} time units"
+    axes[0].set_title(f"{d.model}: detection (false-alarm probability {d.options.false_alarm:g} per {per})")
     axes[-1].set_xlabel("time")
     return _save(plt, fig, fmt)
 
@@ -157,7 +160,8 @@ def diagnosis_hypotheses(r, fmt: str = "png") -> bytes:
     plt, fig, axes = _figure(len(d.outputs))
     for j, name in enumerate(d.outputs):
         ax = axes[j]
-        ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
+        if name in run.measurements:  # a sensor the data lack: its prediction only
+            ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
         for h, c in zip(sorted(d.hypotheses, key=lambda h: -h.posterior), _COLORS * 4):
             t = d.time[h.start:]
             style = "-" if h.dropped is None else ":"

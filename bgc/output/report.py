@@ -44,6 +44,11 @@ def _num(v: float | None) -> float | None:
     return float(f"{v:.6g}")
 
 
+def _drop_reason(d, name: str) -> str | None:
+    """The code of the Dropped event of hypothesis ``name`` (bgc.runtime.events.DROP_REASONS)."""
+    return next((e.reason for e in d.events if type(e).__name__ == "Dropped" and e.hypothesis == name), None)
+
+
 def report_data(r) -> dict[str, Any]:
     """The report as plain data (what ``report.json`` holds)."""
     d = r.diagnosis
@@ -59,7 +64,8 @@ def report_data(r) -> dict[str, Any]:
                      "magnitude": _num(r.injected.magnitude), "time": _num(r.injected.time)}},
         "settings": {"filter": d.options.method, "particles": d.options.particles, "seed": d.options.seed,
                      "identify": d.options.identify,
-                     "false_alarm_per_run": d.options.false_alarm, "rejection": d.options.rejection,
+                     "false_alarm_per_horizon": d.options.false_alarm, "rejection": d.options.rejection,
+                     "horizon": _num(d.options.horizon) if d.options.horizon is not None else None,
                      "windows": list(d.options.windows), "bayes_factor": d.options.bayes_factor,
                      "interval": d.options.interval, "threshold": _num(d.threshold),
                      "process_noise": r.noise[0], "measurement_noise": r.noise[1]},
@@ -89,7 +95,8 @@ def report_data(r) -> dict[str, Any]:
             "model": h.name, "parameter": h.parameter, "kind": h.kind, "signatures": list(h.signatures),
             "onset": _num(_t(d, h.onset)), "filter_onset": _num(_t(d, h.start)), "posterior": _num(h.posterior),
             "log_evidence": _num(h.log_evidence), "static_log_evidence": _num(h.static_log_evidence),
-            "dropped": None if h.dropped is None else {"time": _num(_t(d, h.dropped)), "why": h.reason},
+            "dropped": None if h.dropped is None else {"time": _num(_t(d, h.dropped)), "why": h.reason,
+                                                       "reason": _drop_reason(d, h.name)},
             "estimate": {"magnitude": e.magnitude, "value": _num(e.value), "std": _num(e.std),
                          "interval": [_num(e.low), _num(e.high)], "level": e.level,
                          "parameter_value": _num(e.parameter_value), "nominal": _num(e.nominal),

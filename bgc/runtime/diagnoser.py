@@ -96,7 +96,7 @@ class Diagnoser:
 
     def __init__(self, package: ModuleType, signatures: FaultSignatures, priors: dict[str, float],
                  options: DiagnosisOptions, horizon: int, *, inputs=None, sensors=None, source: str = "<stream>",
-                 lazy: bool = False, every: bool = False, progress=None):
+                 lazy: bool = False, every: bool = False, progress=None, most: int | None = None):
         self.started = time.perf_counter()
         self.package, self.signatures, self.priors = package, signatures, priors
         self.options, self.horizon, self.lazy, self.every = options, max(int(horizon), 1), lazy, every
@@ -114,6 +114,7 @@ class Diagnoser:
         self.sampler = Sampler(nominal, nominal.INPUTS if inputs is None else inputs,
                                nominal.OUTPUTS if sensors is None else sensors, source, options.gap)
         self.source = source
+        self.most = most
         rng = np.random.default_rng([options.seed, 0])
         self.pf = None if ckf else self.pf_class(nominal, options.particles, rng)
         self.kf = kalman.NominalKalman(nominal, len(self.outputs)) if ckf else None
@@ -163,6 +164,10 @@ class Diagnoser:
 
     def take(self, s: Sample) -> Belief:
         """Take one step of the grid (a :class:`~bgc.runtime.data.Sample`)."""
+        if self.most is not None and len(self.samples) >= self.most:
+            raise TrackingError(f"{self.source}: the stream reached {self.most} steps of the model's grid, the most "
+                                "a diagnosis of this model and these options may hold in memory (4 GB)", None,
+                                "finish this diagnoser (and start another) at a shorter horizon")
         if self.inner is not None:
             self.samples.append(s)
             return self.inner.take(s)
