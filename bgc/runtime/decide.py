@@ -16,7 +16,12 @@ from .hypothesis import log_density
 from .kalman import EDGE, EXTEND, StaticPosterior
 from .runs import Run
 from .values import Diagnosis, Hypothesis
-from . import weigh
+from .estimate import estimate_of
+from .hypothesis import hypothesis_job
+from .onsets import earlier_onsets, onset_weights
+from .parallel import run_batches
+from .rank import ranked, refined
+from .static import StaticJob, checked, kalman_hypotheses, run_static, static_alarm, static_estimate
 
 
 def decide(d, truth: Run | None) -> Diagnosis:
@@ -56,7 +61,7 @@ def _hypotheses(d, a: dict, iso, observer, truth, events: list):
     o, ys, us, T = d.options, a["ys"], a["us"], len(a["time"])
     whys: dict[str, str] = {}
     if d.ckf:  # 4-6. every hypothesis with its magnitude held static, by cubature Kalman filters alone
-        hyps, posteriors = weigh._kalman_hypotheses(iso.names, iso.models, d.package, truth, a["time"], ys, us,
+        hyps, posteriors = kalman_hypotheses(iso.names, iso.models, d.package, truth, a["time"], ys, us,
                                                     observer, iso.kalman_onsets, iso.kalman_reach, iso.drifts, o,
                                                     d.say)
         for h in hyps:
@@ -76,7 +81,7 @@ def _hypotheses(d, a: dict, iso, observer, truth, events: list):
     best_of: dict[str, np.ndarray] = {}  # per hypothesis and step, the best running evidence over [0, step]
 
     def job(name: str, starts: list[int]) -> tuple:
-        return weigh.hypothesis_job(name, starts, package, d.clouds, ys, us, nominal_density, d.outputs, o,
+        return hypothesis_job(name, starts, package, d.clouds, ys, us, nominal_density, d.outputs, o,
                                     d.horizon, best_of.get(name))
 
     def arrived(name: str, starts: list[int], res: dict, trace: np.ndarray) -> list[int]:
@@ -93,10 +98,10 @@ def _hypotheses(d, a: dict, iso, observer, truth, events: list):
         # a drift whose onsets' posterior piles up at the earliest one tried began earlier:
         # its grid is extended back by `search` steps (up to `history` before the alarm)
         tried = starts_of[name]
-        more = next(iter(weigh._earlier(iso.reach, tried, o.search)), ())
+        more = next(iter(earlier_onsets(iso.reach, tried, o.search)), ())
         if not (drifts[name] and more) or o.identify == "kalman":  # the Kalman filters reach back instead
             return []
-        w, log_evidence = weigh._onset_weights(tried, [results[(name, s)]["evidence"] for s in tried])
+        w, log_evidence = onset_weights(tried, [results[(name, s)]["evidence"] for s in tried])
         if not (math.isfinite(log_evidence) and w[:EDGE].sum() >= EXTEND):
             return []
         starts_of[name] = sorted([*more, *tried])
@@ -116,10 +121,10 @@ def _hypotheses(d, a: dict, iso, observer, truth, events: list):
         if o.identify == "kalman" and not track:
             track.append(kalman.nominal_track(nominal, ys, us, max(max(s) for s in iso.kalman_onsets.values())))
 
-    def static_job(name: str, h: dict) -> weigh.StaticJob:
+    def static_job(name: str, h: dict) -> StaticJob:
         tried = iso.kalman_onsets[drifts[name]]
-        earlier = weigh._earlier(iso.kalman_reach, tried, o.search) if drifts[name] else ()
-        return weigh.StaticJob(package.__name__, name, ys, us, track[0], tuple(tried),
+        earlier = earlier_onsets(iso.kalman_reach, tried, o.search) if drifts[name] else ()
+        return StaticJob(package.__name__, name, ys, us, track[0], tuple(tried),
                                (h["estimate"].low, h["estimate"].high), h["start"], o.interval, o.kalman, earlier)
 
     def done(name: str):
@@ -128,7 +133,7 @@ def _hypotheses(d, a: dict, iso, observer, truth, events: list):
         h = assemble(name)
         if h["dropped"] is not None:
             return None
-        return weigh._static_job, static_job(name, h)
+        return run_static, static_job(name, h)
 
     def landed(name: str, posterior: StaticPosterior) -> None:
         posteriors[name] = posterior
@@ -148,7 +153,7 @@ def _hypotheses(d, a: dict, iso, observer, truth, events: list):
                     landed(name, step[0](step[1]))
         batches = follow
     if batches:
-        weigh._run_batches(batches, job, arrived, o.workers, lambda starts: sum(T - s for s in starts), idle, done,
+        run_batches(batches, job, arrived, o.workers, lambda starts: sum(T - s for s in starts), idle, done,
                            landed)  # cost: filter steps, if none stops
     first = min(min(s) for s in starts_of.values())
     for out in results.values():  # the common span starts at `first`
@@ -164,8 +169,8 @@ def _hypotheses(d, a: dict, iso, observer, truth, events: list):
             if not math.isfinite(results[(h["name"], h["start"])]["evidence"]):
                 continue
             d.say(f"testing {h['name']} with its magnitude held static")
-            p = weigh._static_job(static_job(h["name"], h))
-            if math.isfinite(p.log_evidence) and weigh._static_alarm(p, d.outputs, o) is None:
+            p = run_static(static_job(h["name"], h))
+            if math.isfinite(p.log_evidence) and static_alarm(p, d.outputs, o) is None:
                 posteriors[h["name"]] = p
                 events.append(ev.Rescued(h["name"], h["reason"], h["dropped"]))
                 h["dropped"], h["reason"] = None, ""
@@ -198,17 +203,17 @@ def _assemble(name: str, d, a: dict, iso, starts: list[int], results: dict, trut
         whys[name] = "pruned"
     out = results[(name, start)]
     zh = (a["ys"][start:] - out["y_mean"]) / out["y_std"]
-    onset_weights, log_evidence = weigh._onset_weights(starts, evidence)
+    weights, log_evidence = onset_weights(starts, evidence)
     n = len(d.nominal.STATES)
     return dict(name=name, parameter=module.FAULT["parameter"], kind=module.FAULT["kind"],
                 signatures=tuple(iso.models[name]), start=start, onsets=tuple(starts),
-                onset_posterior=tuple(float(w) for w in onset_weights),
+                onset_posterior=tuple(float(w) for w in weights),
                 y_mean=out["y_mean"], y_std=out["y_std"], z=zh, x_mean=out["mean"][:, :n], x_std=out["std"][:, :n],
                 magnitude=out["magnitude"], magnitude_band=out["band"], dropped=dropped_at, reason=reason,
                 log_evidence=log_evidence,
                 seconds=sum({results[(name, s)]["from"]: results[(name, s)]["seconds"] for s in starts}.values()),
-                estimate=weigh._estimate(module, out, truth, d.options.interval,
-                                         [(w, results[(name, s)]) for w, s in zip(onset_weights, starts)]))
+                estimate=estimate_of(module, out, truth, d.options.interval,
+                                         [(w, results[(name, s)]) for w, s in zip(weights, starts)]))
 
 
 def _weigh(d, a: dict, iso, hyps: list[dict], posteriors: dict, whys: dict, events: list, common: dict) -> Diagnosis:
@@ -229,7 +234,7 @@ def _weigh(d, a: dict, iso, hyps: list[dict], posteriors: dict, whys: dict, even
                 if p is not None and math.isfinite(p.log_evidence):
                     if not d.ckf:  # the particle filters' own estimate, beside the static one
                         h["filter_estimate"] = h["estimate"]
-                    h["estimate"] = weigh.static_estimate(h["estimate"], p)
+                    h["estimate"] = static_estimate(h["estimate"], p)
                     if p.truncated:
                         events.append(ev.Truncated(h["name"]))
                 elif p is not None and h["dropped"] is None:
@@ -261,7 +266,7 @@ def _weigh(d, a: dict, iso, hyps: list[dict], posteriors: dict, whys: dict, even
         d.say(f"weighing {', '.join(h['name'] for h in hyps if h['dropped'] is None)} with their magnitudes held "
               f"static, on a grid")
         alive = {h["name"] for h in hyps if h["dropped"] is None}
-        weights = weigh._ranked(hyps, weights, d.priors, d.package, d.clouds, ys, us, o, grids)
+        weights = ranked(hyps, weights, d.priors, d.package, d.clouds, ys, us, o, grids)
         whys.update({h["name"]: "bayes-factor" for h in hyps if h["name"] in alive and h["dropped"] is not None})
     hypothesis_list = tuple(Hypothesis(posterior=float(w), **h) for h, w in zip(hyps, weights))
     survivors = sorted((h for h in hypothesis_list if h.dropped is None), key=lambda h: -h.posterior)
@@ -277,9 +282,9 @@ def _weigh(d, a: dict, iso, hyps: list[dict], posteriors: dict, whys: dict, even
     if o.refine and verdict in ("isolated", "ambiguous"):  # 8. the survivors' magnitudes on a grid
         d.say(f"refining the magnitude of {', '.join(candidates)} on a grid")
         reuse = grids if o.rank_grid == o.grid else {}  # the ranking's grids, when as fine
-        hypothesis_list = tuple(weigh._refined(h, reuse.get(h.name), d.package, d.clouds, ys, us, o)
+        hypothesis_list = tuple(refined(h, reuse.get(h.name), d.package, d.clouds, ys, us, o)
                                 if h.name in candidates else h for h in hypothesis_list)
-    hypothesis_list = tuple(weigh._checked(h, d.outputs, o) if h.name in candidates and static else h
+    hypothesis_list = tuple(checked(h, d.outputs, o) if h.name in candidates and static else h
                             for h in hypothesis_list)
     for h in hypothesis_list:
         if h.static_alarm is not None:

@@ -97,16 +97,14 @@ from types import ModuleType
 
 from ..ir import FaultSignatures
 from .data import samples
-from .diagnoser import DEGENERATE, IDENTIFY, KALMAN_METHOD, Diagnoser
-from .hypothesis import FAR, PRUNE, kernel_shrinkage as _kernel_shrinkage, _shrink_together
-from .kalman import onset_widths
+from .diagnoser import IDENTIFY, KALMAN_METHOD, Diagnoser
+from .openloop import PATHS
 from .runs import Run
 from .values import Belief, Diagnosis, DiagnosisOptions, Estimate, Hypothesis, Live
-from .weigh import PATHS, _checked, drift_onsets, hypothesis_seed, onset_mixture
 
+#: What the batch diagnosis's callers take from here (the values and the method's names).
 __all__ = ["diagnose", "horizon_steps", "Belief", "Diagnosis", "DiagnosisOptions", "Estimate", "Hypothesis", "Live",
-           "DEGENERATE", "IDENTIFY", "KALMAN_METHOD", "FAR", "PRUNE", "PATHS", "drift_onsets", "hypothesis_seed",
-           "onset_mixture", "onset_widths"]
+           "IDENTIFY", "KALMAN_METHOD", "PATHS"]
 
 
 def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors: dict[str, float],

@@ -60,8 +60,11 @@ from .isolate import observed_symbols
 from .runs import Run
 from .track import check_particles, filter_class
 from .values import Belief, Diagnosis, DiagnosisOptions, Live
-from . import weigh
 from .decide import STOPPED, decide
+from .hypothesis import track_job
+from .onsets import drift_onsets
+from .openloop import cloud_before, gaussian_cloud, open_loop
+from .values import Isolation
 
 #: The nominal observer degenerates when its mean effective sample size
 #: before the alarm is under this share of its particles (an event says so).
@@ -136,7 +139,7 @@ class Diagnoser:
         self.phase = "watching"
         self.events: list = []
         self.inner: Diagnoser | None = None  # the diagnoser the record was handed to (a switch of filter)
-        self.isolation: weigh.Isolation | None = None
+        self.isolation: Isolation | None = None
         self.trackers: dict[str, HypothesisTracker] = {}
         self.reported: set[str] = set()  # hypotheses whose Dropped event is out
         self.density: list[float] = []  # the nominal observer's log density per step (eager tracking)
@@ -282,7 +285,7 @@ class Diagnoser:
             return
         density = np.array(self.density)
         for name in iso.names:
-            job = weigh.track_job(name, iso.starts_of[name], self.package, self.clouds, self.options, self.outputs,
+            job = track_job(name, iso.starts_of[name], self.package, self.clouds, self.options, self.outputs,
                                   self.horizon)
             tracker = self.trackers[name] = HypothesisTracker(job)
             for k in range(job.first, len(self.samples)):  # catch up on the samples kept
@@ -391,24 +394,24 @@ class Diagnoser:
                     x_mean=rows(self.x_mean, n_x), x_std=rows(self.x_std, n_x))
 
 
-def isolate(d: Diagnoser, ys: np.ndarray, us: np.ndarray, observer) -> weigh.Isolation:
+def isolate(d: Diagnoser, ys: np.ndarray, us: np.ndarray, observer) -> Isolation:
     """Step 3 of the method on diagnoser ``d``'s record: the onsets each
     hypothesis is tried from, the symbols read on the open-loop nominal
     prediction from the detector's onset, and the fault models they keep."""
     o, detection, T = d.options, d.detection, len(ys)
     spacing = o.spacing or (8 if o.identify == "kalman" else 4)
-    reach = weigh.drift_onsets(detection.step, detection.onset, spacing, o.history)
+    reach = drift_onsets(detection.step, detection.onset, spacing, o.history)
     grid = [k for k in reach if k >= detection.step - o.search or detection.onset - 1 <= k <= detection.onset]
     near = {k for k in range(detection.onset - o.near, detection.onset + 3) if 0 <= k <= detection.step + 1 and k < T}
-    kalman_reach = weigh.drift_onsets(detection.step, detection.onset, o.kalman.spacing, o.history)
+    kalman_reach = drift_onsets(detection.step, detection.onset, o.kalman.spacing, o.history)
     kalman_onsets = {True: [k for k in kalman_reach
                             if k >= detection.step - o.search or detection.onset - 1 <= k <= detection.onset],
                      False: sorted(near)}
     d.say("reading the symbols of the deviating sensors")
     onset = detection.onset
     steps = min(T - onset, detection.step - onset + 1 + o.symbol_steps)
-    cloud = weigh._gaussian_cloud(observer, onset, o) if d.ckf else weigh._cloud(d.clouds, onset)
-    seen = observed_symbols(weigh._open_loop(d.package, d.pf_class, d.nominal, cloud, ys, us, onset, steps, o),
+    cloud = gaussian_cloud(observer, onset, o) if d.ckf else cloud_before(d.clouds, onset)
+    seen = observed_symbols(open_loop(d.package, d.pf_class, d.nominal, cloud, ys, us, onset, steps, o),
                             d.outputs, o.windows)
     keep, dropped = signature_hypotheses(d.signatures, seen)
     events = []
@@ -424,7 +427,7 @@ def isolate(d: Diagnoser, ys: np.ndarray, us: np.ndarray, observer) -> weigh.Iso
     names = [n for n in sorted(models) if n in d.package.MODELS]
     drifts = {name: fault_kind(d.package.MODELS[name].FAULT["kind"]).drifts for name in names}
     onsets = {True: grid, False: sorted(near)}
-    return weigh.Isolation(onset, seen, tuple((s.name, why) for s, why in dropped),
+    return Isolation(onset, seen, tuple((s.name, why) for s, why in dropped),
                            tuple(f"{s.parameter}_{s.kind}" for s, _ in dropped), models, names, drifts,
                            {name: onsets[drifts[name]] for name in names}, reach, kalman_onsets, kalman_reach,
                            tuple(events))

@@ -35,6 +35,9 @@ import numpy as np
 
 from .detect import DetectorBank, DetectorOptions, monte_carlo_share
 from .track import filter_class, onset_transition
+from .onsets import hypothesis_seed
+from .openloop import cloud_before
+from .values import DiagnosisOptions
 
 #: A hypothesis filter whose consistency statistic exceeds this many times the
 #: threshold is stopped (its onset is out of the evidence).
@@ -320,3 +323,29 @@ def kernel_shrinkage(theta: np.ndarray, logw: np.ndarray, a: float, rngs: list, 
 def _row_dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(F,): the dot product of each row of a with the same row of b (F, N)."""
     return np.matmul(a[:, None, :], b[:, :, None])[:, 0, 0]
+
+
+def hypothesis_job(name: str, starts: list[int], package, clouds: dict, ys, us, nominal_density, outputs,
+                   options: DiagnosisOptions, horizon: int, best: np.ndarray | None = None) -> tuple:
+    """The arguments of :func:`~bgc.runtime.hypothesis.run_job` for
+    hypothesis ``name`` from the onsets ``starts`` over the record ``ys``,
+    ``us`` (the whole of it); ``best``: per step, the best running evidence
+    of its onsets tried before (over the data from step 0), which its new
+    onsets must keep within ``PRUNE`` of as well."""
+    f = min(starts)
+    return (track_job(name, starts, package, clouds, options, outputs, horizon,
+                      None if best is None else best[f:] - float(nominal_density[:f].sum())),
+            ys[f:], us[f:], nominal_density[f:])
+
+
+def track_job(name: str, starts, package, clouds: dict, options: DiagnosisOptions, outputs, horizon: int,
+              bar: np.ndarray | None = None) -> TrackJob:
+    """Hypothesis ``name``'s :class:`~bgc.runtime.hypothesis.TrackJob` from
+    the onsets ``starts`` (steps of the record; the job counts them from the
+    earliest), with the nominal clouds before them."""
+    f = min(starts)
+    return TrackJob(name, package.__name__, options.method, options.particles, f, tuple(s - f for s in starts),
+                    {s - f: hypothesis_seed(options.seed, name, s) for s in starts},
+                    {s - f: cloud_before(clouds, s) for s in starts},
+                    {s - f: rejection_options(options.rejection, options.windows, horizon, s) for s in starts},
+                    options.interval, options.shrinkage, tuple(outputs), bar)

@@ -274,3 +274,28 @@ class Belief:
     events: tuple
     verdict: str | None = None
     candidates: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class Isolation:
+    """What the qualitative isolation found (step 3): the ``onset`` the
+    symbols were read from, the ``symbols``, the signatures they ``refuted``
+    ((name, why)) and the fault models of those (``ruled_out``), the
+    signatures kept per fault model (``models``), the fault models tried
+    (``names``) and whether each drifts, each one's onsets for the particle
+    filters (``starts_of``; a drift's reach back over ``reach``) and for the
+    Kalman filters (``kalman_onsets`` by drift, over ``kalman_reach``), and
+    the events of the isolation."""
+
+    onset: int
+    symbols: tuple
+    refuted: tuple[tuple[str, str], ...]
+    ruled_out: tuple[str, ...]
+    models: dict
+    names: list
+    drifts: dict
+    starts_of: dict
+    reach: list
+    kalman_onsets: dict
+    kalman_reach: list
+    events: tuple = ()
