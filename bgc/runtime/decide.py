@@ -58,124 +58,144 @@ def decide(d, truth: Run | None) -> Diagnosis:
 def _hypotheses(d, a: dict, iso, observer, truth, events: list):
     """Steps 4 to 6: each hypothesis's filters, or (ckf) its static posterior
     alone; (hypothesis dicts, static posteriors, drop reasons by name)."""
-    o, ys, us, T = d.options, a["ys"], a["us"], len(a["time"])
-    whys: dict[str, str] = {}
     if d.ckf:  # 4-6. every hypothesis with its magnitude held static, by cubature Kalman filters alone
-        hyps, posteriors = kalman_hypotheses(iso.names, iso.models, d.package, truth, a["time"], ys, us,
-                                                    observer, iso.kalman_onsets, iso.kalman_reach, iso.drifts, o,
-                                                    d.say)
-        for h in hyps:
-            if "why" in h:
-                whys[h["name"]] = h.pop("why")
-        return hyps, posteriors, whys
-    package, names, drifts = d.package, iso.names, iso.drifts
-    starts_of = {name: list(iso.starts_of[name]) for name in names}
-    nominal_density = log_density(a["z"], a["y_std"])
-    nominal = d.nominal
-    d.say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from "
-          f"{sum(len(starts_of[n]) for n in names)} onsets and hypotheses "
-          f"(t = {a['time'][min((min(s) for s in starts_of.values()), default=iso.onset)]:g} to "
-          f"{a['time'][d.detection.step]:g})")
-    # (name, onset) -> its filter's output; its evidence over the data from step 0 (from `first` below)
-    results: dict[tuple[str, int], dict] = {}
-    best_of: dict[str, np.ndarray] = {}  # per hypothesis and step, the best running evidence over [0, step]
+        hyps, posteriors = kalman_hypotheses(iso.names, iso.models, d.package, truth, a["time"], a["ys"], a["us"],
+                                             observer, iso.kalman_onsets, iso.kalman_reach, iso.drifts, d.options,
+                                             d.say)
+        return hyps, posteriors, {h["name"]: h.pop("why") for h in hyps if "why" in h}
+    work = _Tracking(d, a, iso, truth)
+    hyps = work.run()
+    if d.options.identify == "kalman" and not work.posteriors:
+        work.rescue(hyps, events)
+    return hyps, work.posteriors, work.whys
 
-    def job(name: str, starts: list[int]) -> tuple:
-        return hypothesis_job(name, starts, package, d.clouds, ys, us, nominal_density, d.outputs, o,
-                                    d.horizon, best_of.get(name))
 
-    def arrived(name: str, starts: list[int], res: dict, trace: np.ndarray) -> list[int]:
+class _Tracking:
+    """Steps 4 to 6 with particle filters: every hypothesis's filters over
+    the record (those the diagnoser tracked online are done; the others, and
+    a drift's earlier onsets, run on ``workers`` processes), each one's
+    evidence over a common span, and (``identify = "kalman"``) the static
+    posterior of each one its filters keep."""
+
+    def __init__(self, d, a: dict, iso, truth):
+        self.d, self.a, self.iso, self.truth, self.o = d, a, iso, truth, d.options
+        self.T = len(a["time"])
+        self.starts_of = {name: list(iso.starts_of[name]) for name in iso.names}
+        self.density = log_density(a["z"], a["y_std"])  # the nominal observer's, per step
+        self.results: dict[tuple[str, int], dict] = {}  # (name, onset) -> its filter's output
+        self.best_of: dict[str, np.ndarray] = {}  # per hypothesis and step, the best running evidence over [0, step]
+        self.posteriors: dict[str, StaticPosterior] = {}
+        self.track: list = []  # the nominal cubature Kalman filter's states, once computed
+        self.whys: dict[str, str] = {}
+
+    def run(self) -> list[dict]:
+        d, a, T = self.d, self.a, self.T
+        names = self.iso.names
+        d.say(f"tracking {len(names)} fault hypotheses ({', '.join(names)}) from "
+              f"{sum(len(self.starts_of[n]) for n in names)} onsets and hypotheses "
+              f"(t = {a['time'][min((min(s) for s in self.starts_of.values()), default=self.iso.onset)]:g} to "
+              f"{a['time'][d.detection.step]:g})")
+        batches = {name: self.starts_of[name] for name in names}
+        if d.trackers:  # tracked online: their first batches are done
+            batches = self._tracked()
+        if batches:
+            run_batches(batches, self.job, self.arrived, self.o.workers, lambda starts: sum(T - s for s in starts),
+                        self.idle, self.done, self.landed)  # cost: filter steps, if none stops
+        first = min(min(s) for s in self.starts_of.values())
+        for out in self.results.values():  # the common span starts at `first`
+            out["evidence"] -= float(self.density[:first].sum())
+        # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
+        return [self.assemble(name) for name in names]
+
+    def _tracked(self) -> dict[str, list[int]]:
+        """The online trackers' results taken; the further batches they ask for."""
+        self.idle()
+        follow = {}
+        for name in self.iso.names:
+            tracker = self.d.trackers[name]
+            more = self.arrived(name, self.starts_of[name], *tracker.result(self.T - tracker.job.first))
+            if more:
+                follow[name] = more
+                continue
+            step = self.done(name)
+            if step is not None:
+                self.landed(name, step[0](step[1]))
+        return follow
+
+    def job(self, name: str, starts: list[int]) -> tuple:
+        return hypothesis_job(name, starts, self.d.package, self.d.clouds, self.a["ys"], self.a["us"], self.density,
+                              self.d.outputs, self.o, self.d.horizon, self.best_of.get(name))
+
+    def arrived(self, name: str, starts: list[int], res: dict, trace: np.ndarray) -> list[int]:
         """Take a batch of hypothesis ``name``'s onsets; the earlier onsets to try next (none: done)."""
         f = min(starts)
-        before = float(nominal_density[:f].sum())  # the nominal observer's densities before the batch
+        before = float(self.density[:f].sum())  # the nominal observer's densities before the batch
         for rel, out in res.items():
             out["from"] = f
             out["evidence"] += before
-            results[(name, rel + f)] = out
-        full = np.full(T, -math.inf)
+            self.results[(name, rel + f)] = out
+        full = np.full(self.T, -math.inf)
         full[f:] = trace + before
-        best_of[name] = np.maximum(best_of.get(name, full), full)
+        self.best_of[name] = np.maximum(self.best_of.get(name, full), full)
         # a drift whose onsets' posterior piles up at the earliest one tried began earlier:
         # its grid is extended back by `search` steps (up to `history` before the alarm)
-        tried = starts_of[name]
-        more = next(iter(earlier_onsets(iso.reach, tried, o.search)), ())
-        if not (drifts[name] and more) or o.identify == "kalman":  # the Kalman filters reach back instead
+        tried = self.starts_of[name]
+        more = next(iter(earlier_onsets(self.iso.reach, tried, self.o.search)), ())
+        if not (self.iso.drifts[name] and more) or self.o.identify == "kalman":  # the Kalman filters reach back
             return []
-        w, log_evidence = onset_weights(tried, [results[(name, s)]["evidence"] for s in tried])
+        w, log_evidence = onset_weights(tried, [self.results[(name, s)]["evidence"] for s in tried])
         if not (math.isfinite(log_evidence) and w[:EDGE].sum() >= EXTEND):
             return []
-        starts_of[name] = sorted([*more, *tried])
-        d.say(f"looking for earlier onsets of {name}")
+        self.starts_of[name] = sorted([*more, *tried])
+        self.d.say(f"looking for earlier onsets of {name}")
         return list(more)
 
-    def assemble(name: str) -> dict:
-        return _assemble(name, d, a, iso, starts_of[name], results, truth, whys)
+    def assemble(self, name: str) -> dict:
+        return _assemble(name, self.d, self.a, self.iso, self.starts_of[name], self.results, self.truth, self.whys)
 
     # 6. (identify="kalman") each hypothesis its filters keep, as soon as they are done: its onset and
     # magnitude with the magnitude held static, by cubature Kalman filters on a grid, from the nominal
     # cubature Kalman filter's state at each onset (computed while the first filters run)
-    posteriors: dict[str, StaticPosterior] = {}
-    track: list = []
 
-    def idle() -> None:
-        if o.identify == "kalman" and not track:
-            track.append(kalman.nominal_track(nominal, ys, us, max(max(s) for s in iso.kalman_onsets.values())))
+    def idle(self) -> None:
+        if self.o.identify == "kalman" and not self.track:
+            stop = max(max(s) for s in self.iso.kalman_onsets.values())
+            self.track.append(kalman.nominal_track(self.d.nominal, self.a["ys"], self.a["us"], stop))
 
-    def static_job(name: str, h: dict) -> StaticJob:
-        tried = iso.kalman_onsets[drifts[name]]
-        earlier = earlier_onsets(iso.kalman_reach, tried, o.search) if drifts[name] else ()
-        return StaticJob(package.__name__, name, ys, us, track[0], tuple(tried),
-                               (h["estimate"].low, h["estimate"].high), h["start"], o.interval, o.kalman, earlier)
+    def static_job(self, name: str, h: dict) -> StaticJob:
+        drifts = self.iso.drifts[name]
+        tried = self.iso.kalman_onsets[drifts]
+        earlier = earlier_onsets(self.iso.kalman_reach, tried, self.o.search) if drifts else ()
+        return StaticJob(self.d.package.__name__, name, self.a["ys"], self.a["us"], self.track[0], tuple(tried),
+                         (h["estimate"].low, h["estimate"].high), h["start"], self.o.interval, self.o.kalman, earlier)
 
-    def done(name: str):
-        if o.identify != "kalman":
+    def done(self, name: str):
+        if self.o.identify != "kalman":
             return None
-        h = assemble(name)
+        h = self.assemble(name)
         if h["dropped"] is not None:
             return None
-        return run_static, static_job(name, h)
+        return run_static, self.static_job(name, h)
 
-    def landed(name: str, posterior: StaticPosterior) -> None:
-        posteriors[name] = posterior
+    def landed(self, name: str, posterior: StaticPosterior) -> None:
+        self.posteriors[name] = posterior
 
-    batches = {name: starts_of[name] for name in names}
-    if d.trackers:  # tracked online: their first batches are done
-        idle()
-        follow = {}
-        for name in names:
-            tracker = d.trackers[name]
-            more = arrived(name, starts_of[name], *tracker.result(T - tracker.job.first))
-            if more:
-                follow[name] = more
-            else:
-                step = done(name)
-                if step is not None:
-                    landed(name, step[0](step[1]))
-        batches = follow
-    if batches:
-        run_batches(batches, job, arrived, o.workers, lambda starts: sum(T - s for s in starts), idle, done,
-                           landed)  # cost: filter steps, if none stops
-    first = min(min(s) for s in starts_of.values())
-    for out in results.values():  # the common span starts at `first`
-        out["evidence"] -= float(nominal_density[:first].sum())
-    # 5. evidence over a common span (the nominal filter's before each onset), consistency, estimates
-    hyps = [assemble(name) for name in names]
-    if o.identify == "kalman" and not posteriors:
-        # none passed its particle filters' test: each whose most probable onset's filter still ran to the
-        # end (only just off the data: a drift's filters start on a coarser grid of onsets than its Kalman
-        # filters') is tested as its fault model states it, the magnitude held static
-        idle()
+    def rescue(self, hyps: list[dict], events: list) -> None:
+        """None passed its particle filters' test: each whose most probable
+        onset's filter still ran to the end (only just off the data: a drift's
+        filters start on a coarser grid of onsets than its Kalman filters') is
+        tested as its fault model states it, the magnitude held static."""
+        self.idle()
         for h in hyps:
-            if not math.isfinite(results[(h["name"], h["start"])]["evidence"]):
+            if not math.isfinite(self.results[(h["name"], h["start"])]["evidence"]):
                 continue
-            d.say(f"testing {h['name']} with its magnitude held static")
-            p = run_static(static_job(h["name"], h))
-            if math.isfinite(p.log_evidence) and static_alarm(p, d.outputs, o) is None:
-                posteriors[h["name"]] = p
+            self.d.say(f"testing {h['name']} with its magnitude held static")
+            p = run_static(self.static_job(h["name"], h))
+            if math.isfinite(p.log_evidence) and static_alarm(p, self.d.outputs, self.o) is None:
+                self.posteriors[h["name"]] = p
                 events.append(ev.Rescued(h["name"], h["reason"], h["dropped"]))
                 h["dropped"], h["reason"] = None, ""
-                whys.pop(h["name"], None)
-    return hyps, posteriors, whys
+                self.whys.pop(h["name"], None)
 
 
 def _assemble(name: str, d, a: dict, iso, starts: list[int], results: dict, truth, whys: dict) -> dict:
@@ -220,69 +240,22 @@ def _weigh(d, a: dict, iso, hyps: list[dict], posteriors: dict, whys: dict, even
     """Steps 6 to 8: the hypotheses weighed (with their magnitudes held
     static where their static posteriors are), dropped by the Bayes factor,
     ranked and refined; the verdict."""
-    o, T, ys, us = d.options, len(a["time"]), a["ys"], a["us"]
-    evidence_of = {h["name"]: h["log_evidence"] for h in hyps}  # the filters' (a magnitude with a random walk)
-    static = False
-    if posteriors:  # 6. the survivors weighed with their magnitudes held static
-        if any(math.isfinite(p.log_evidence) for p in posteriors.values()):
-            static = True
-            for h in hyps:
-                p = posteriors.get(h["name"])
-                h["static"] = p
-                h["static_log_evidence"] = None if p is None else p.log_evidence
-                evidence_of[h["name"]] = -math.inf if p is None else p.log_evidence
-                if p is not None and math.isfinite(p.log_evidence):
-                    if not d.ckf:  # the particle filters' own estimate, beside the static one
-                        h["filter_estimate"] = h["estimate"]
-                    h["estimate"] = static_estimate(h["estimate"], p)
-                    if p.truncated:
-                        events.append(ev.Truncated(h["name"]))
-                elif p is not None and h["dropped"] is None:
-                    h["dropped"] = T - 1
-                    whys[h["name"]] = "no-likelihood"
-                    h["reason"] = ("with its magnitude held static, its cubature Kalman filters found no finite "
-                                   "likelihood at any onset and magnitude of their grid")
-        else:
-            events.append(ev.NoLikelihood(not d.ckf))
-    if d.ckf:  # a hypothesis its consistency test dropped weighs nothing, as one its particle filters drop
-        evidence_of.update({h["name"]: -math.inf for h in hyps if h["dropped"] is not None})
-    weights = np.array([math.log(max(d.priors.get(h["parameter"], 0.01), 1e-300)) + evidence_of[h["name"]]
-                        for h in hyps])
-    if np.isfinite(weights).any():
-        weights = np.exp(weights - weights.max())
-        weights = weights / weights.sum()
-    else:  # none survives (or none was tried)
-        weights = np.zeros(len(hyps))
-    top = max(weights) if len(weights) else 0.0
-    for h, w in zip(hyps, weights):  # 6. decisively less probable than the best: dropped as well
-        if h["dropped"] is None and w < top / o.bayes_factor:
-            h["dropped"] = T - 1
-            whys[h["name"]] = "bayes-factor"
-            h["reason"] = (("with the magnitudes held static, " if static else "")
-                           + f"the data favour another hypothesis by a Bayes factor above {o.bayes_factor:g} "
-                           f"(posterior {w:.2g})")
+    o, T = d.options, len(a["time"])
+    evidence_of, static = _static_evidence(d, hyps, posteriors, whys, events, T)
+    weights = _posterior(d, hyps, evidence_of, whys, static, T)
     grids: dict = {}
     if o.rank and not static and sum(h["dropped"] is None for h in hyps) > 1:  # 7. by their static evidence
         d.say(f"weighing {', '.join(h['name'] for h in hyps if h['dropped'] is None)} with their magnitudes held "
               f"static, on a grid")
         alive = {h["name"] for h in hyps if h["dropped"] is None}
-        weights = ranked(hyps, weights, d.priors, d.package, d.clouds, ys, us, o, grids)
+        weights = ranked(hyps, weights, d.priors, d.package, d.clouds, a["ys"], a["us"], o, grids)
         whys.update({h["name"]: "bayes-factor" for h in hyps if h["name"] in alive and h["dropped"] is not None})
     hypothesis_list = tuple(Hypothesis(posterior=float(w), **h) for h, w in zip(hyps, weights))
-    survivors = sorted((h for h in hypothesis_list if h.dropped is None), key=lambda h: -h.posterior)
-    if len(survivors) == 1:
-        verdict, candidates = "isolated", (survivors[0].name,)
-    elif survivors:
-        verdict, candidates = "ambiguous", tuple(h.name for h in survivors)
-    elif hypothesis_list:
-        last = max(hypothesis_list, key=lambda h: (h.dropped, h.posterior))
-        verdict, candidates = "unexplained", (last.name,)
-    else:
-        verdict, candidates = "unexplained", ()
+    verdict, candidates = _verdict(hypothesis_list)
     if o.refine and verdict in ("isolated", "ambiguous"):  # 8. the survivors' magnitudes on a grid
         d.say(f"refining the magnitude of {', '.join(candidates)} on a grid")
         reuse = grids if o.rank_grid == o.grid else {}  # the ranking's grids, when as fine
-        hypothesis_list = tuple(refined(h, reuse.get(h.name), d.package, d.clouds, ys, us, o)
+        hypothesis_list = tuple(refined(h, reuse.get(h.name), d.package, d.clouds, a["ys"], a["us"], o)
                                 if h.name in candidates else h for h in hypothesis_list)
     hypothesis_list = tuple(checked(h, d.outputs, o) if h.name in candidates and static else h
                             for h in hypothesis_list)
@@ -300,6 +273,74 @@ def _weigh(d, a: dict, iso, hyps: list[dict], posteriors: dict, whys: dict, even
     return Diagnosis(verdict=verdict, detection=d.detection, onset=best_onset, symbols=iso.symbols,
                      refuted=iso.refuted, hypotheses=hypothesis_list, candidates=candidates,
                      seconds=time.perf_counter() - d.started, events=_ordered(final), **common)
+
+
+def _static_evidence(d, hyps: list[dict], posteriors: dict, whys: dict, events: list,
+                     T: int) -> tuple[dict[str, float], bool]:
+    """Step 6: each hypothesis's log evidence, with its magnitude held static
+    where its static posterior has one (its estimate then the static one);
+    and whether the static posteriors weigh the hypotheses."""
+    evidence_of = {h["name"]: h["log_evidence"] for h in hyps}  # the filters' (a magnitude with a random walk)
+    static = False
+    if posteriors and not any(math.isfinite(p.log_evidence) for p in posteriors.values()):
+        events.append(ev.NoLikelihood(not d.ckf))
+    elif posteriors:  # the survivors weighed with their magnitudes held static
+        static = True
+        for h in hyps:
+            p = posteriors.get(h["name"])
+            h["static"] = p
+            h["static_log_evidence"] = None if p is None else p.log_evidence
+            evidence_of[h["name"]] = -math.inf if p is None else p.log_evidence
+            if p is not None and math.isfinite(p.log_evidence):
+                if not d.ckf:  # the particle filters' own estimate, beside the static one
+                    h["filter_estimate"] = h["estimate"]
+                h["estimate"] = static_estimate(h["estimate"], p)
+                if p.truncated:
+                    events.append(ev.Truncated(h["name"]))
+            elif p is not None and h["dropped"] is None:
+                h["dropped"] = T - 1
+                whys[h["name"]] = "no-likelihood"
+                h["reason"] = ("with its magnitude held static, its cubature Kalman filters found no finite "
+                               "likelihood at any onset and magnitude of their grid")
+    if d.ckf:  # a hypothesis its consistency test dropped weighs nothing, as one its particle filters drop
+        evidence_of.update({h["name"]: -math.inf for h in hyps if h["dropped"] is not None})
+    return evidence_of, static
+
+
+def _posterior(d, hyps: list[dict], evidence_of: dict, whys: dict, static: bool, T: int) -> np.ndarray:
+    """The hypotheses' posterior (evidence times prior, normalised); a
+    survivor decisively less probable than the best (the Bayes factor) is
+    dropped."""
+    o = d.options
+    weights = np.array([math.log(max(d.priors.get(h["parameter"], 0.01), 1e-300)) + evidence_of[h["name"]]
+                        for h in hyps])
+    if np.isfinite(weights).any():
+        weights = np.exp(weights - weights.max())
+        weights = weights / weights.sum()
+    else:  # none survives (or none was tried)
+        weights = np.zeros(len(hyps))
+    top = max(weights) if len(weights) else 0.0
+    for h, w in zip(hyps, weights):
+        if h["dropped"] is None and w < top / o.bayes_factor:
+            h["dropped"] = T - 1
+            whys[h["name"]] = "bayes-factor"
+            h["reason"] = (("with the magnitudes held static, " if static else "")
+                           + f"the data favour another hypothesis by a Bayes factor above {o.bayes_factor:g} "
+                           f"(posterior {w:.2g})")
+    return weights
+
+
+def _verdict(hypotheses: tuple[Hypothesis, ...]) -> tuple[str, tuple[str, ...]]:
+    """isolated (one survivor), ambiguous (several, best first), or
+    unexplained (none: the one that lasted longest)."""
+    survivors = sorted((h for h in hypotheses if h.dropped is None), key=lambda h: -h.posterior)
+    if len(survivors) == 1:
+        return "isolated", (survivors[0].name,)
+    if survivors:
+        return "ambiguous", tuple(h.name for h in survivors)
+    if hypotheses:
+        return "unexplained", (max(hypotheses, key=lambda h: (h.dropped, h.posterior)).name,)
+    return "unexplained", ()
 
 
 #: The detail of the Dropped event the online tracking gives when every filter of a hypothesis stopped.
