@@ -296,3 +296,13 @@ def test_bgc_monitor_follows_a_file_another_program_appends_to(tmp_path):
     assert "decided: no fault" in out
     report = (tmp_path / "mon" / "report.json").read_text()
     assert '"steps": 120' in report
+
+
+def test_every_option_belongs_to_one_stage_of_the_loop():
+    import dataclasses
+
+    from bgc.runtime.values import STAGES
+
+    grouped = [name for names in STAGES.values() for name in names]
+    assert sorted(grouped) == sorted(f.name for f in dataclasses.fields(DiagnosisOptions))
+    assert len(grouped) == len(set(grouped))

@@ -18,58 +18,65 @@ from .kalman import KalmanOptions, StaticPosterior
 
 @dataclass(frozen=True, slots=True)
 class DiagnosisOptions:
-    """``false_alarm``: the detector's probability of any alarm in a
-    fault-free run; ``rejection``: the probability of dropping the true
-    hypothesis over the run; ``windows``: the Z-tests' window lengths;
-    ``search``: how far before the detection a drift's onset is looked for
+    """The diagnosis's options, stage by stage (:data:`STAGES`; the loop of
+    :mod:`bgc.runtime.diagnoser`).
+
+    **Filters** (the nominal observer and the hypotheses' filters):
+    ``method``: ``gpf``, ``apf``, ``opf`` (particle filters) or ``ckf`` (no
+    particles: the nominal observer is the cubature Kalman filter, and every
+    hypothesis the symbols keep goes to the static posterior directly, its
+    consistency test dropping those that fail; ``particles`` then only sizes
+    the open-loop cloud of the symbols); ``particles``: 1000 by default (with
+    200, the RO plant's fault magnitude scatters about twice as far as the
+    filter's own interval says); ``seed``; ``shrinkage``: Liu and West's
+    kernel shrinkage of the magnitude's particles; ``switch``: when the
+    nominal particle observer degenerates (its mean effective sample size
+    before the alarm under ``DEGENERATE`` of its particles), diagnose with
+    ``ckf`` instead (a ``Switched`` event; a campaign comparing filters turns
+    it off); ``workers``: processes for the hypotheses' filters in a batch
+    diagnosis (1: in this process).
+
+    **Data** (:mod:`bgc.runtime.data`): ``gap``: missing samples in a row
+    longer than this (time units; None: ``GAP_STEPS`` steps) are a ``Gap``
+    event.
+
+    **Detection** (:mod:`bgc.runtime.detect`): ``false_alarm``: the
+    probability of any alarm over a fault-free ``horizon``; ``horizon``: the
+    monitoring horizon in the model's time unit (None: the model's declared
+    run length, ``simulation.steps`` x ``dt``, filled in by :func:`bgc.open`
+    and :func:`bgc.diagnose`; the record's length for the runtime's own
+    :func:`~bgc.runtime.diagnose.diagnose`): the same detector for a file of
+    any length and for a stream; ``windows``: the Z-tests' window lengths.
+
+    **Isolation** (:mod:`bgc.runtime.isolate`, :mod:`bgc.runtime.onsets`):
+    ``symbol_steps``: open-loop steps read for the symbols after the alarm
+    (a slope needs samples after the magnitude is seen); ``history``: how far
+    back the nominal clouds are kept (and a drift's onset is looked for);
+    ``search``: how far before the alarm a drift's onset is looked for
     first, and by how much further back each time its onset posterior piles
-    up at the earliest onset tried, up to ``history`` (the nominal clouds are
-    kept that far back); ``spacing``: steps between the onsets a drift's
-    particle filters are tried from near the alarm (further back, 1/16 of the
-    distance to it; the detector's estimate is always one); None: 8 with
-    ``identify = "kalman"`` (the Kalman filters search the onset on their own
-    grid, ``kalman.spacing``, and the particle filters only need to follow
-    the data), 4 with ``identify = "filter"`` (which places the onset better
-    there); ``near``: samples
-    before the detector's change point a step change is tried from; ``symbol_steps``: open-loop
-    steps read for the symbols after the detection (a slope needs samples
-    after the magnitude is seen); ``interval``: probability of the reported interval;
-    ``particles``: 1000 by default: with 200, the RO plant's fault magnitude
-    scatters about twice as far as the filter's own interval says (Monte
-    Carlo error), with 1000 the intervals cover (measured in docs/diagnosis.md).
-    ``bayes_factor``: a surviving hypothesis this many times less probable
-    than the best is dropped (100: "decisive" on Jeffreys' scale);
-    ``workers``: parallel processes for the hypothesis filters (1: in this
-    process). ``identify``: ``kalman`` (the hypotheses weighed and the
-    magnitude sized with the magnitude held static, by cubature Kalman filters
-    on a grid: ``kalman`` holds their options) or ``filter`` (by the particle
-    filters' magnitude state and evidence: the thesis's method). ``rank``: weigh the survivors anew by the evidence of their
-    models with the magnitude held static (on the grid ``rank_grid``; see
-    :func:`_ranked`): off by default; it took 1.1 to 1.7 times as long on
-    the sweep's drifts and was right about as often (docs/diagnosis.md,
-    section 5).
-    ``refine``: replace each surviving hypothesis's estimate by the
-    grid posterior of :mod:`bgc.runtime.identify` (``grid``): about three times
-    slower on the RO drift, and since the estimate averages over the onsets only
-    a little more accurate there (docs/results.md, section 3).
-    ``switch``: when the nominal observer of a particle filter degenerates
-    (its mean effective sample size before the alarm under ``DEGENERATE`` of
-    its particles, a step it had to recover counting 0), diagnose again with
-    cubature Kalman filters alone (``method`` ``ckf``), with a note (a
-    campaign comparing filters turns it off). ``method``: ``gpf``, ``apf``,
-    ``opf`` (particle filters, section 4 of the module docstring) or ``ckf``
-    (no particles: the nominal observer is the cubature Kalman filter, and
-    every hypothesis the symbols keep goes to the static posterior of step 6
-    directly, its consistency test dropping those that fail;
-    ``particles`` then only sizes the open-loop cloud of the symbols).
-    ``horizon``: the monitoring horizon in the model's time unit, over which
-    ``false_alarm`` is spent (and ``rejection``, over what remains of the
-    horizon after a hypothesis's onset): the same detector for a file of any
-    length and for a stream. None: the model's declared run length
-    (``simulation.steps`` x ``dt``), filled in by :func:`bgc.open` and
-    :func:`bgc.diagnose`. ``gap``: missing samples in a row longer than this
-    (time units; None: :data:`bgc.runtime.data.GAP_STEPS` steps) are a
-    :class:`~bgc.runtime.events.Gap` event."""
+    up at the earliest onset tried; ``spacing``: steps between the onsets a
+    drift's particle filters are tried from near the alarm (further back,
+    1/16 of the distance to it; None: 8 with ``identify = "kalman"``, 4 with
+    ``"filter"``); ``near``: samples before the detector's change point a
+    step change is tried from.
+
+    **Tracking** (:mod:`bgc.runtime.hypothesis`): ``rejection``: the
+    probability of dropping the true hypothesis over what remains of the
+    horizon after its onset.
+
+    **Weighing** (:mod:`bgc.runtime.decide`, :mod:`bgc.runtime.static`,
+    :mod:`bgc.runtime.rank`): ``identify``: ``kalman`` (the hypotheses
+    weighed and the magnitude sized with the magnitude held static, by
+    cubature Kalman filters on a grid: ``kalman`` holds their options) or
+    ``filter`` (by the particle filters' magnitude state and evidence: the
+    thesis's method); ``bayes_factor``: a survivor this many times less
+    probable than the best is dropped (100: "decisive" on Jeffreys' scale);
+    ``interval``: the probability of the reported interval; ``rank``: weigh
+    the survivors anew by the evidence of their models with the magnitude
+    held static on a particle-filter grid ``rank_grid`` (``identify =
+    "filter"`` only; off by default); ``refine``: each survivor's estimate
+    from the particle filters' marginal likelihood on ``grid`` (about three
+    times slower; off by default)."""
 
     method: str = "gpf"
     particles: int = 1000
@@ -95,6 +102,17 @@ class DiagnosisOptions:
     switch: bool = True
     horizon: float | None = None
     gap: float | None = None
+
+
+#: The options of each stage of the loop (every field of DiagnosisOptions in one).
+STAGES = {
+    "filters": ("method", "particles", "seed", "shrinkage", "switch", "workers"),
+    "data": ("gap",),
+    "detection": ("false_alarm", "horizon", "windows"),
+    "isolation": ("symbol_steps", "history", "search", "spacing", "near"),
+    "tracking": ("rejection",),
+    "weighing": ("identify", "kalman", "bayes_factor", "interval", "rank", "rank_grid", "refine", "grid"),
+}
 
 
 @dataclass(frozen=True, slots=True)
