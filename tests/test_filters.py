@@ -27,6 +27,9 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
+from bgc.runtime.filters import Filter
+from bgc.runtime.kalman import CubatureKalmanFilter
+
 from conftest import ROOT
 
 N_PARTICLES = 5000
@@ -97,13 +100,15 @@ def kalman(ys, measurement_std=None):
     q = np.diag(MODEL.PROCESS_STD ** 2)
     r = np.diag((MODEL.MEASUREMENT_STD if measurement_std is None else measurement_std) ** 2)
     m, p = MODEL.X0.copy(), np.diag(MODEL.X0_STD ** 2)
-    out = {"mean": [], "cov": [], "gain_map": [], "y_mean": [], "y_std": []}
+    out = {"mean": [], "cov": [], "gain_map": [], "y_mean": [], "y_std": [], "loglik": []}
     for y in ys:
         m, p = a @ m + b, a @ p @ a.T + q
         s = h @ p @ h.T + r
         k = np.linalg.solve(s, h @ p).T
         out["y_mean"].append(h @ m + c)
         out["y_std"].append(np.sqrt(np.diag(s)))
+        v = y - h @ m - c
+        out["loglik"].append(-0.5 * (v @ np.linalg.solve(s, v) + np.linalg.slogdet(2 * np.pi * s)[1]))
         m = m + k @ (y - h @ m - c)
         p = (np.eye(3) - k @ h) @ p
         p = 0.5 * (p + p.T)
@@ -527,3 +532,49 @@ def test_a_step_on_particles_predicted_outside_is_the_same_step(cls):
         np.testing.assert_array_equal(a.logw, b.logw)
         np.testing.assert_array_equal(ra.y_mean, rb.y_mean)
         np.testing.assert_array_equal(ra.y_std, rb.y_std)
+
+
+# ------------------------------------------------------------ one protocol
+@pytest.mark.parametrize("cls", [GPF, APF, OPF, CubatureKalmanFilter], ids=["GPF", "APF", "OPF", "CKF"])
+def test_every_filter_meets_the_protocol_and_steps_one_sample(cls):
+    """Built alike (model, particles, rng), stepped alike: one sample in, a
+    StepResult out (state (n_x,), predicted measurement (n_y,)); run() is the
+    same steps in order."""
+    ys, us = simulate(5, seed=4)
+    f = cls(MODEL, 300, np.random.default_rng(5))
+    assert isinstance(f, Filter) and f.model is MODEL and f.recoveries == 0
+    r = f.step(ys[0], us[0])
+    assert type(r).__name__ == "StepResult"
+    assert r.mean.shape == r.std.shape == (3,) and r.y_mean.shape == r.y_std.shape == (3,)
+    assert np.isfinite(r.mean).all() and r.ess > 0 and not r.recovered
+    out = cls(MODEL, 300, np.random.default_rng(5)).run(ys[:1], us[:1])
+    np.testing.assert_array_equal(out.mean[0], r.mean)
+    np.testing.assert_array_equal(out.y_std[0], r.y_std)
+
+
+def test_the_cubature_kalman_filter_is_the_exact_kalman_filter_on_the_linear_circuit():
+    """On an affine plant the cubature rule is exact: the CKF's means, stds,
+    predicted measurements and log predictive densities are the oracle's
+    (to rounding); it has no particles (ESS inf) and never resamples."""
+    ys, kf, _ = runs()
+    f = CubatureKalmanFilter(MODEL, N_PARTICLES, np.random.default_rng(0))
+    steps = [f.step(y, U) for y in ys]
+    for key in ("mean", "std", "y_mean", "y_std"):
+        np.testing.assert_allclose(np.array([getattr(s, key) for s in steps]), kf[key], rtol=1e-9, err_msg=key)
+    np.testing.assert_allclose([s.loglik for s in steps], kf["loglik"], rtol=1e-9)
+    np.testing.assert_allclose(f.cov, kf["cov"][-1], rtol=1e-9, atol=1e-12 * np.abs(kf["cov"][-1]).max())
+    assert all(s.ess == math.inf and not s.resampled and not s.recovered for s in steps)
+    # the comparison has power: against the oracle with twice the measurement noise it fails
+    wrong = kalman(ys, 2.0 * MODEL.MEASUREMENT_STD)
+    assert not np.allclose(np.array([s.mean for s in steps]), wrong["mean"], rtol=1e-3)
+
+
+def test_the_cubature_kalman_filter_predicts_over_the_interval_it_is_given():
+    """dt: a step without measurements moves the mean by the model's own
+    (affine) step over dt, and adds nothing to the log-likelihood."""
+    f = CubatureKalmanFilter(MODEL)
+    f.mean = m = MODEL.X0 * np.array([1.3, 0.6, 1.1])  # off the equilibrium X0, so the state moves
+    r = f.step(np.full(3, np.nan), U, dt=MODEL.DT / 2)
+    np.testing.assert_allclose(r.mean, MODEL.predict(m[:, None], U, MODEL.THETA, MODEL.DT / 2)[:, 0], rtol=1e-12)
+    assert r.loglik == 0.0 and np.isnan(r.y_mean).all()
+    assert not np.allclose(r.mean, MODEL.predict(m[:, None], U, MODEL.THETA, MODEL.DT)[:, 0], rtol=1e-6)

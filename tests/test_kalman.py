@@ -278,6 +278,50 @@ def test_unread_sensors_are_left_out_of_the_update():
     assert t.loglik[-1] == pytest.approx(total, rel=1e-10)
 
 
+@pytest.mark.parametrize("dt", [0.5, 0.25])
+def test_the_protocol_filter_holds_a_fault_and_steps_over_its_interval_as_derived_by_hand(dt):
+    """CubatureKalmanFilter (the filter protocol's step) of R12_abrupt with
+    the bias held at 0.8 from the start, some sensors unread, over an
+    interval dt: the textbook Kalman filter with the hand-derived RK4 map of
+    R12 = 2.8 over dt. Its state holds the bias (std 0)."""
+    package, ys, us = data("two_tank", "R12:abrupt:0.8@0", seed=4)
+    ys = ys[:80].copy()
+    ys[20:30, 1] = np.nan
+    ys[40] = np.nan
+    fault = package.MODELS["R12_abrupt"]
+    f = kalman.CubatureKalmanFilter(fault, 100, np.random.default_rng(0), fixed=np.array([0.8]))
+    steps = [f.step(y, u, dt) for y, u in zip(ys, us)]
+    Q = np.diag(np.asarray(fault.PROCESS_STD[:2]) ** 2)
+    total, m, P = 0.0, np.asarray(fault.X0[:2]), np.diag(np.asarray(fault.X0_STD[:2]) ** 2)
+    M, c, H = tank_map(2.8, dt)
+    for y, s in zip(ys, steps):
+        seen = np.isfinite(y)
+        ll, m, P = kalman_filter([y[seen]], m, P, [(M, c, H[seen])], Q,
+                                 np.diag(np.asarray(fault.MEASUREMENT_STD)[seen] ** 2))
+        ll = ll if seen.any() else 0.0
+        total += ll
+        assert s.loglik == pytest.approx(ll, rel=1e-10, abs=1e-10)
+        np.testing.assert_allclose(s.mean[:2], m, rtol=1e-9)
+        np.testing.assert_allclose(s.std[:2], np.sqrt(np.diag(P)), rtol=1e-7)
+        assert s.mean[2] == 0.8 and s.std[2] == 0.0
+    assert np.allclose(f.cov, P, rtol=1e-7, atol=1e-14)
+
+
+def test_the_protocol_filter_from_the_prior_is_the_nominal_observer_bit_for_bit():
+    """The diagnosis's ckf observer (NominalKalman) and the protocol's filter
+    are one arithmetic: the same numbers to the last bit."""
+    package, ys, us = data("ro", "R_pipe:abrupt:31@165", seed=1)
+    ys = ys[:200].copy()
+    ys[30, 0] = np.nan
+    ys[31] = np.nan
+    nominal = package.MODELS["nominal"]
+    t = kalman.nominal_track(nominal, ys, us, len(ys))
+    out = kalman.CubatureKalmanFilter(nominal).run(ys, us)
+    for key in ("y_mean", "y_std", "x_mean", "x_std"):
+        got = out.mean if key == "x_mean" else out.std if key == "x_std" else getattr(out, key)
+        assert got.tobytes() == getattr(t, key).tobytes(), key
+
+
 def exact_grid(package, name, ys, us, onsets, values):
     """log p(y | onset, magnitude) by the bank on every cell of a rectangular grid."""
     t = kalman.nominal_track(package.MODELS["nominal"], ys, us, max(onsets))
@@ -386,7 +430,7 @@ def test_on_the_ro_plant_the_bias_agrees_with_a_particle_filter_reference():
 
 
 def test_the_residuals_of_the_most_probable_cell_are_white_for_the_true_model_and_not_for_a_wrong_one():
-    """The consistency test of the static model (bgc.runtime.diagnose._checked)
+    """The consistency test of the static model (bgc.runtime.static.checked)
     reads the most probable cell's normalised residuals: on the true
     hypothesis they are N(0, 1) and pass the windowed Z-test; a hypothesis
     that cannot produce the data (a capacitance step: it does not move the

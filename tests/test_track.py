@@ -57,6 +57,29 @@ def test_ro_nominal_filter_is_consistent_without_fault_and_not_after_one(ro):
     assert np.mean(z[166:175, loop] ** 2) > 10 * np.mean(quiet[20:, loop] ** 2)
 
 
+def test_every_registered_filter_tracks_the_nominal_model_through_the_one_protocol(ro):
+    """The registry names each filter once; track() builds and runs any of
+    them alike: the ckf, as the particle filters, has white normalised
+    residuals without a fault. A hand-over needs a particle cloud: ckf with
+    start is refused."""
+    from bgc.errors import TrackingError
+    from bgc.runtime.filters import Filter
+    from bgc.runtime.kalman import CubatureKalmanFilter
+
+    assert runtime.filter_class(ro, "ckf") is CubatureKalmanFilter
+    run = run_of("ro", None, seed=3)
+    for method in runtime.FILTER_CLASSES:
+        assert isinstance(runtime.filter_class(ro, method)(ro.nominal, 20, np.random.default_rng(0)), Filter)
+    r = runtime.track(run, ro, "nominal", "ckf", 200, 0)
+    z = normalised_residuals(r, run)
+    assert np.all(np.abs(np.mean(z[20:] ** 2, axis=0) - 1.0) < 0.5), np.mean(z[20:] ** 2, axis=0)
+    assert np.isinf(r.ess).all() and r.recoveries == 0
+    with pytest.raises(TrackingError, match="ckf has none"):
+        runtime.track(run, ro, "R_pipe_abrupt", "ckf", 200, 0, start=167)
+    with pytest.raises(TrackingError, match="unknown filter 'kf'.*gpf, apf, opf, ckf"):
+        runtime.filter_class(ro, "kf")
+
+
 def test_the_true_fault_model_explains_the_data_better_than_a_wrong_one(ro):
     """Thesis Fig. IV.6: after the hand-over, the filter on the true fault model
     (R_pipe incipient) predicts the measurements better than the one on a wrong

@@ -54,6 +54,7 @@ import numpy as np
 
 from ..errors import ArgumentValueError
 from ..kinds import fault_kind
+from .filters.particle import FilterRun, StepResult, run_filter
 
 LOG_2PI = math.log(2.0 * math.pi)
 
@@ -265,9 +266,9 @@ class _Filter:
         return hit
 
     def step(self, y: np.ndarray, u: np.ndarray, m: np.ndarray, P: np.ndarray, fixed: np.ndarray,
-             onset: slice = slice(0, 0)):
-        """One step (predict with input ``u``, then update with ``y``; NaN:
-        not measured) of every cell: log p(y | the past) (C,), mean (C, n)
+             onset: slice = slice(0, 0), dt: float | None = None):
+        """One step (predict over ``dt``, default the model's ``DT``, with
+        input ``u``, then update with ``y``; NaN: not measured) of every cell: log p(y | the past) (C,), mean (C, n)
         and covariance (C, n, n) after it, normalised residuals (C, n_y),
         and the predicted measurement's mean and std (C, n_y; NaN: not read);
         updates ``fixed`` (a drifting parameter moves). The cells ``onset``
@@ -289,7 +290,7 @@ class _Filter:
             X[row] = fixed[j][:, None]
         if self.extra:
             X[self.extra[-1], onset] = 0.0
-        model.predict(flat, u, model.THETA, model.DT, out=flat)
+        model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
         for j, row in enumerate(self.extra[:-1]):  # a drifting parameter: the same in every point of a cell
             fixed[j] = X[row, :, 0]
         Xp = self._physical(X)  # (C, n, 2n)
@@ -467,6 +468,67 @@ class NominalKalman:
         return NominalTrack(np.array(self.means[:stop + 1]), np.array(self.covs[:stop + 1]),
                             np.array(self.logliks[:stop + 1]), rows(self.y_mean, n_y), rows(self.y_std, n_y),
                             rows(self.z, n_y), rows(self.x_mean, n), rows(self.x_std, n))
+
+
+class CubatureKalmanFilter:
+    """The cubature Kalman filter of one generated model behind the filter
+    protocol (:class:`bgc.runtime.filters.Filter`): ``step(y, u, dt)`` takes
+    one sample and gives a :class:`~bgc.runtime.filters.particle.StepResult`
+    as the particle filters do, from a Gaussian over the model's physical
+    states (``mean`` (n,), ``cov`` (n, n)) instead of a cloud. Its ``ess``
+    is inf (no particles), it never resamples or recovers, and its
+    ``loglik`` is the step's exact log predictive density (0 when no sensor
+    was read). The predicted measurement of a sensor not read is NaN: the
+    update leaves that sensor out.
+
+    The arithmetic is the banks' (one cell of :func:`run_bank`), so from
+    the model's prior its steps are :class:`NominalKalman`'s. A fault
+    model's fault states (a drifting parameter, then the magnitude) are not
+    estimated: they are held at ``fixed`` (default: their values in ``X0``,
+    or the particles' mean), with std 0, as in a cell of the static
+    posterior (a drifting parameter moves at its held slope).
+
+    Built as the registry builds every filter, ``CubatureKalmanFilter(model,
+    particles, rng, x=None)``: it has no particles and draws no random
+    numbers, so ``particles`` and ``rng`` are only kept. From the model's
+    prior (``X0``, ``X0_STD``), or from particles ``x`` (n_x, N): their mean
+    and covariance."""
+
+    def __init__(self, model: ModuleType, particles: int | None = None, rng: np.random.Generator | None = None,
+                 x: np.ndarray | None = None, fixed: np.ndarray | None = None):
+        self.model, self.particles, self.rng = model, particles, rng
+        self.kf = kf = _Filter(model)
+        if x is None:
+            start = np.asarray(model.X0, dtype=float)
+            self.mean = start[kf.physical]
+            self.cov = np.diag(np.asarray(model.X0_STD, dtype=float)[kf.physical] ** 2)
+        else:
+            x = np.asarray(x, dtype=float)
+            start = x.mean(axis=1)
+            self.mean = start[kf.physical]
+            self.cov = np.atleast_2d(np.cov(x[kf.physical]))
+        held = start[kf.extra] if fixed is None else np.asarray(fixed, dtype=float)
+        self.fixed = held.reshape(len(kf.extra), 1)  # (f, 1): one cell
+        self.recoveries = 0
+
+    def step(self, y: np.ndarray, u: np.ndarray, dt: float | None = None) -> StepResult:
+        """One sample: predict over ``dt`` (default ``DT``) with inputs ``u``,
+        then update with ``y`` (NaN: not read)."""
+        kf = self.kf
+        with np.errstate(all="ignore"):
+            ll, m, P, _, y_mean, y_std = kf.step(np.asarray(y, dtype=float), u, self.mean[None], self.cov[None],
+                                                 self.fixed, dt=dt)
+            self.mean, self.cov = m[0], P[0]
+            mean = np.empty(kf.n_x)
+            std = np.zeros(kf.n_x)
+            mean[kf.physical] = self.mean
+            mean[kf.extra] = self.fixed[:, 0]
+            std[kf.physical] = np.sqrt(np.maximum(np.diagonal(self.cov), 0.0))
+        return StepResult(mean, std, y_mean[0], y_std[0], math.inf, False, False, float(ll[0]))
+
+    def run(self, ys: np.ndarray, us: np.ndarray, dt: float | None = None) -> FilterRun:
+        """:meth:`step` over a record: ys (T, n_y), us (T, n_u)."""
+        return run_filter(self, ys, us, dt)
 
 
 def nominal_track(model: ModuleType, ys: np.ndarray, us: np.ndarray, stop: int) -> NominalTrack:

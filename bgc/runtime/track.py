@@ -22,7 +22,9 @@ import numpy as np
 from ..errors import DataError, TrackingError, printable
 from ..ir import PACKAGE, NoiseLevels
 from ..kinds import fault_kind
+from . import kalman
 from .runs import Run
+
 #: Memory the particle arrays of one filter may take (several state-sized
 #: arrays of N particles live at once: the particles, the RK4 stages, weights).
 MAX_FILTER_BYTES = 4_000_000_000
@@ -180,16 +182,22 @@ def onset_transition(model: ModuleType, x: np.ndarray, u: np.ndarray, theta) -> 
     return x
 
 
-#: The particle filters a generated package holds, by their short names.
+#: The filters by their short names, one entry each; every one meets the
+#: filter protocol (:class:`bgc.runtime.filters.Filter`). A particle filter
+#: is named by its class in a generated package's ``filters`` module (every
+#: package has its copy of ``bgc/runtime/filters/particle.py``), a filter of
+#: bgc's runtime by its class.
 FILTER_CLASSES = {"gpf": "GenericParticleFilter", "apf": "AuxiliaryParticleFilter",
-                  "opf": "OptimalProposalParticleFilter"}
+                  "opf": "OptimalProposalParticleFilter", "ckf": kalman.CubatureKalmanFilter}
 
 
 def filter_class(package: ModuleType, method: str):
-    """The generated particle filter class of ``method`` (gpf, apf or opf)."""
+    """The filter class of ``method`` (gpf, apf, opf or ckf), a particle
+    filter's from ``package``; built as ``cls(model, particles, rng, x=None)``."""
     if method not in FILTER_CLASSES:
         raise TrackingError(f"unknown filter {method!r}", None, "use " + ", ".join(FILTER_CLASSES))
-    return getattr(package.filters, FILTER_CLASSES[method])
+    cls = FILTER_CLASSES[method]
+    return getattr(package.filters, cls) if isinstance(cls, str) else cls
 
 
 def run_arrays(run: Run, package: ModuleType, model_name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -262,7 +270,7 @@ def check_request(run: Run, package: ModuleType, model_name: str, particles: int
 @np.errstate(all="ignore")  # particles outside a law's domain are weighted out and counted
 def track(run: Run, package: ModuleType, model_name: str = "nominal", method: str = "gpf",
           particles: int = 200, seed: int = 0, start: float | None = None) -> TrackResult:
-    """Run the generated GPF or APF of ``model_name`` over the run.
+    """Run the filter ``method`` (:data:`FILTER_CLASSES`) of ``model_name`` over the run.
 
     With ``start`` (a fault model only), the nominal model is tracked up to
     ``start`` and its particles are then lifted into the fault model with a fresh
@@ -275,6 +283,9 @@ def track(run: Run, package: ModuleType, model_name: str = "nominal", method: st
     check_particles(particles, package, model_name)
     model = package.MODELS[model_name]
     cls = filter_class(package, method)
+    if start is not None and cls is kalman.CubatureKalmanFilter:
+        raise TrackingError("--start hands a particle cloud over to a fault model; ckf has none", None,
+                            "use --method gpf, apf or opf with --start")
     ys, us = run_arrays(run, package, model_name)
     rng = np.random.default_rng(seed)
     split = 0
