@@ -57,7 +57,7 @@ from .runtime.diagnose import horizon_steps
 from .runtime.diagnoser import Diagnoser
 
 #: The filters of a diagnosis (``bgc diagnose --filter``).
-METHODS = (*track.FILTER_CLASSES, KALMAN_METHOD)
+METHODS = tuple(track.FILTER_CLASSES)
 
 
 @dataclass(frozen=True, slots=True)
@@ -638,10 +638,8 @@ def distinguishability(model: str | Path, scenario: str | None = None, *, change
             onset = int(at * T)
             for sign in DIRECTIONS[next(x.direction for x in c.model.faults if x.parameter == f.parameter)]:
                 size = sign * change * abs(f.nominal)
-                drifts = fault_kind(f.kind).drifts  # a drift reaches the change at the last sample
-                injected.append(simulate.FaultInjection(f.parameter, f.kind,
-                                                        size / ((T - 1 - onset) * dt) if drifts else size,
-                                                        float(times[onset])))
+                magnitude = fault_kind(f.kind).magnitude_for(size, (T - 1 - onset) * dt)  # reached at the end
+                injected.append(simulate.FaultInjection(f.parameter, f.kind, magnitude, float(times[onset])))
     levels = num.noise_at(process_noise, measurement_noise)
     custom = levels if (process_noise, measurement_noise) != (None, None) else None
     need = distinction.memory(T, *(len(x) for x in (num.equations.states, num.equations.outputs,

@@ -448,7 +448,7 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
             onset = min(max(round(float(rng.uniform(o_lo, o_hi)) * steps), 1), steps - 1) * dt  # a sample inside
             nominal = prior[(p, k)].nominal
             size = sign * change * abs(nominal)
-            magnitude = size / duration if fault_kind(k).drifts else size  # a drift: that change per run length
+            magnitude = fault_kind(k).magnitude_for(size, duration)  # a drift: that change per run length
             b_lo, b_hi = prior[(p, k)].prior
             if not b_lo <= magnitude <= b_hi:
                 raise ExperimentError(f"a draw of {p}:{k} with change {sign * change:.3g} lies outside the prior of "

@@ -15,6 +15,12 @@ Examples
 15.0
 >>> fault_kind("abrupt").prior_bounds("increase", 69.0, horizon=300.0)
 (0.0, 69.0)
+>>> fault_kind("incipient").truth([0.0, 1.0, 2.0], [10.0, 10.5, 11.0], 10.0)  # the last step's slope
+0.5
+>>> fault_kind("abrupt").truth([0.0, 1.0, 2.0], [10.0, 10.5, 11.0], 10.0) is None  # still moving: no step
+True
+>>> fault_kind("incipient").change(0.5, 4.0), fault_kind("incipient").magnitude_for(2.0, 4.0)
+(2.0, 0.5)
 >>> element_kind("Q")
 Traceback (most recent call last):
 ...
@@ -105,6 +111,12 @@ DIRECTIONS: Mapping[str, tuple[int, ...]] = {"increase": (1,), "decrease": (-1,)
 class FaultKind:
     """How a fault kind enters the model, its prior and its injection.
 
+    Declared here once, and read by the simulator, the filters, the
+    estimates, the plots and the campaigns: the magnitude and its prior, how
+    the parameter changes from the onset (:meth:`value`, :meth:`change`; the
+    onset sample sees the fault, the transition into it is nominal), and how
+    the truth is read from a run (:meth:`truth`, :meth:`truth_series`).
+
     ``magnitude`` names the fault state ``delta_P`` estimates: a ``bias`` b
     (abrupt, thesis eq. II.1: ``P(t) = P + b`` from the onset) or a ``slope`` c
     per unit time (incipient, eq. II.2: ``P(t) = P + c (t - t_f)``). With
@@ -132,6 +144,36 @@ class FaultKind:
         if self.drifts:
             return nominal + magnitude * (t - onset) if t > onset else nominal
         return nominal + magnitude if t >= onset else nominal
+
+    def change(self, magnitude, span):
+        """The parameter's change a magnitude makes over ``span`` time units
+        after the onset: a bias its own, a slope times the span (arrays
+        broadcast)."""
+        return magnitude * span if self.drifts else magnitude
+
+    def magnitude_for(self, change: float, span: float) -> float:
+        """The magnitude that changes the parameter by ``change`` over ``span``
+        time units after the onset (the inverse of :meth:`change`)."""
+        return change / span if self.drifts else change
+
+    def truth(self, time, recorded, nominal: float) -> float | None:
+        """The true magnitude from a run's recorded parameter (``recorded``
+        at ``time``): a bias, the last value less the nominal; a slope, the
+        last step's change per unit time. None when the recorded parameter is
+        not of this kind (one still moving at the end drifts, one that stopped
+        stepped) or too short to tell."""
+        if recorded is None or len(recorded) < 2 or bool(recorded[-1] != recorded[-2]) != self.drifts:
+            return None
+        if self.drifts:
+            return float((recorded[-1] - recorded[-2]) / (time[-1] - time[-2]))
+        return float(recorded[-1] - nominal)
+
+    def truth_series(self, time, recorded, nominal: float):
+        """The true magnitude at each sample, as the estimate's plot draws it:
+        a bias, the parameter less its nominal; a slope, its rate of change."""
+        import numpy as np
+
+        return np.gradient(recorded, time) if self.drifts else recorded - nominal
 
     def prior_bounds(self, direction: str, nominal: float, horizon: float) -> tuple[float, float]:
         """(low, high) of the uniform prior of the magnitude."""

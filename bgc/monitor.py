@@ -72,10 +72,8 @@ def monitor(model: str, stream: IO, name: str, options: DiagnosisOptions, *, pro
     for j, c in enumerate(columns[1:], start=1):
         prefix, _, rest = c.partition(":")
         groups[prefix].append((j, rest))
-    nominal = session.package.MODELS["nominal"]
-    sensors = [y for _, y in groups["y"] if y in nominal.OUTPUTS]
-    d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors, source=name,
-                          progress=progress)
+    d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=[y for _, y in groups["y"]],
+                          source=name, progress=progress)
     rows: list[list[float]] = []
     last_check = None
 

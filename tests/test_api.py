@@ -162,8 +162,8 @@ def replace(run: runs.Run, **change) -> runs.Run:
     (dict(measurements={"e11": np.ones(59)}), "<Run from Python>: column y:e11 has 59 values, the time 60"),
     (dict(measurements={"e11": np.array(["1.0"] * 60)}), "<Run from Python>: column y:e11 holds <U3 values"),
     (dict(measurements={"e11": np.full(60, np.inf)}), "<Run from Python>, index 0: inf in column y:e11"),
-    (dict(measurements={"e11": np.ones(60)}), "<Run from Python>: the run has no column y:f2"),
-    (dict(source="bench 4", measurements={"e11": np.ones(60)}), "bench 4: the run has no column y:f2"),
+    (dict(measurements={"q9": np.ones(60)}), "<Run from Python>: the data have none of the model's sensors"),
+    (dict(source="bench 4", measurements={}), "bench 4: the data have none of the model's sensors"),
 ])
 def test_a_run_from_python_goes_through_the_checks_of_a_csv(change, start):
     run = replace(circuit_run(), **{"source": runs.PYTHON_SOURCE, "header": (), **change})
@@ -175,9 +175,9 @@ def test_data_messages_name_the_file_and_line(tmp_path):
     samples, named by their file (and line)."""
     path = tmp_path / "run.csv"
     text = runs.run_csv(circuit_run())
-    path.write_text(text.replace("y:f2", "y:f9"))
-    refused(lambda: bgc.diagnose(CIRCUIT, data=path, generated=GENERATED), DataError,
-            f"{path}: the run has no column y:f2")
+    path.write_text(text.replace("y:f2", "y:f9"))  # a sensor the model lacks, one it has missing: both said
+    d = bgc.diagnose(CIRCUIT, data=path, generated=GENERATED, options=DiagnosisOptions(particles=100, workers=1))
+    assert {events.SensorMissing("f2"), events.ColumnIgnored("y:f9")} <= set(d.diagnosis.events)
     lines = text.splitlines(keepends=True)
     first = next(i for i, line in enumerate(lines) if line.startswith("time,"))
     column = lines[first].rstrip().split(",").index("y:f2")

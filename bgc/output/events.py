@@ -23,6 +23,8 @@ def sentence(e, time_of) -> str:
     match e:
         case ev.SensorMissing(sensor=s):
             return f"the data have no column y:{s}: diagnosed with the other sensors"
+        case ev.ColumnIgnored(column=c):
+            return f"the data's column {c} is no sensor or input of the model: not used"
         case ev.SensorSilent(sensor=s):
             return f"sensor y:{s} has no sample in the run: every value of its column is empty or nan, so nothing " \
                    "is diagnosed from it"
@@ -102,5 +104,5 @@ def record(e, time_of) -> dict:
 
 
 #: Events the command line prints after a diagnosis (the others are in the report).
-NOTABLE = (ev.SensorMissing, ev.SensorSilent, ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped,
+NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped,
            ev.Degenerate, ev.AllTried, ev.Rescued, ev.Truncated, ev.NoLikelihood, ev.Misfit)

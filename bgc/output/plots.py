@@ -86,7 +86,7 @@ def tracking_figure(run, results, fmt: str = "png") -> bytes:
         if truth is None and first.fault and name == f"delta_{first.fault['parameter']}" \
                 and first.fault["parameter"] in run.parameters:  # the magnitude: a bias, or a slope
             p = run.parameters[first.fault["parameter"]]
-            truth = np.gradient(p, run.time) if fault_kind(first.fault["kind"]).drifts else p - p[0]
+            truth = fault_kind(first.fault["kind"]).truth_series(run.time, p, p[0])
         if truth is not None:
             ax.plot(run.time, truth, "-", lw=1.0, color="#202020", label="true")
         for r, c in zip(results, colors):
@@ -199,7 +199,7 @@ def diagnosis_estimate(r, fmt: str = "png") -> bytes:
                             label=f"its {100 * e.level:.0f} % interval")
         truth = run.parameters.get(h.parameter)
         if truth is not None and e.truth is not None:  # the run's fault is of this hypothesis's kind
-            truth = np.gradient(truth, run.time) if fault_kind(h.kind).drifts else truth - e.nominal
+            truth = fault_kind(h.kind).truth_series(run.time, truth, e.nominal)
             ax.plot(run.time, truth, "-", lw=1.0, color="#202020", label="truth")
         _marks(ax, d)
         ax.set_ylabel(f"{e.magnitude} of {h.parameter}")

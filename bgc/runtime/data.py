@@ -25,7 +25,8 @@ events (:mod:`bgc.runtime.events`):
 - **Sensors.** A model output the data have no ``y:NAME`` column for is
   missing at every step (:class:`~bgc.runtime.events.SensorMissing`): the
   diagnosis uses the sensors present. With none present the data are
-  refused.
+  refused. A ``y:`` or ``u:`` column the model has no sensor or input of is
+  not used (:class:`~bgc.runtime.events.ColumnIgnored`).
 """
 
 from __future__ import annotations
@@ -79,6 +80,8 @@ class Sampler:
         self.source = source
         self.data_inputs = tuple(u for u in model.INPUTS if u in set(inputs))
         self.present = tuple(y for y in model.OUTPUTS if y in set(sensors))
+        self.ignored = tuple([f"u:{u}" for u in inputs if u not in model.INPUTS]
+                             + [f"y:{y}" for y in sensors if y not in model.OUTPUTS])
         if not self.present:
             raise DataError(f"{printable(source)}: the data have none of the model's sensors "
                             f"({', '.join('y:' + printable(y) for y in model.OUTPUTS)})", None,
@@ -99,6 +102,7 @@ class Sampler:
     def start_events(self) -> tuple:
         """The events that hold for the whole run (absent columns)."""
         missing = tuple(ev.SensorMissing(y) for y in self.model.OUTPUTS if y not in self.present)
+        missing += tuple(ev.ColumnIgnored(c) for c in self.ignored)
         absent = tuple(ev.InputFromModel(u, "absent") for u in self.model.INPUTS if u not in self.data_inputs)
         return missing + absent
 

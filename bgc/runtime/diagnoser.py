@@ -81,7 +81,7 @@ IDENTIFY = ("kalman", "filter")
 
 
 #: The events of the data reader: a diagnoser that replays the record keeps them.
-DATA_EVENTS = (ev.SensorMissing, ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped)
+DATA_EVENTS = (ev.SensorMissing, ev.ColumnIgnored, ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped)
 
 
 class Diagnoser:

@@ -40,12 +40,9 @@ def truth_of(module, run: Run | None) -> tuple[float, float | None]:
     p = module.FAULT["parameter"]
     kind = fault_kind(module.FAULT["kind"])
     nominal = dict(zip(module.PARAMETERS, module.THETA))[p]
-    recorded = None if run is None else run.parameters.get(p)
-    if recorded is None or len(recorded) < 2 or bool(recorded[-1] != recorded[-2]) != kind.drifts:
+    if run is None:
         return nominal, None
-    if kind.drifts:
-        return nominal, float((recorded[-1] - recorded[-2]) / (run.time[-1] - run.time[-2]))
-    return nominal, float(recorded[-1] - nominal)
+    return nominal, kind.truth(run.time, run.parameters.get(p), nominal)
 
 
 def estimate_of(module, out: dict, run: Run | None, level: float, onsets=()) -> Estimate:

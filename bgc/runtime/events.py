@@ -9,7 +9,7 @@ monitor's lines); tests assert on their fields. ``step`` is a step of the
 model's time grid (the diagnosis's ``time[step]`` is its time); ``None``
 where the event has no instant (it holds for the whole run).
 
-In loop order: the data (:class:`SensorMissing`, :class:`SensorSilent`,
+In loop order: the data (:class:`SensorMissing`, :class:`ColumnIgnored`, :class:`SensorSilent`,
 :class:`InputFromModel`, :class:`InputHeld`, :class:`Gap`,
 :class:`SampleSkipped`), detection (:class:`Alarmed`, :class:`Degenerate`,
 :class:`Switched`), isolation (:class:`Isolated`, :class:`AllTried`),
@@ -29,6 +29,16 @@ class SensorMissing:
     without (its fault signatures and detection use the other sensors)."""
 
     sensor: str
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ColumnIgnored:
+    """The data's column ``column`` (``y:NAME`` or ``u:NAME``) is no sensor
+    or input of the model: it is not used (a misspelt name, or a signal the
+    model does not have)."""
+
+    column: str
     step: int | None = None
 
 
@@ -242,6 +252,6 @@ class Decided:
     candidates: tuple[str, ...]
 
 
-Event = (SensorMissing | SensorSilent | InputFromModel | InputHeld | Gap | SampleSkipped | Alarmed | Degenerate
+Event = (SensorMissing | ColumnIgnored | SensorSilent | InputFromModel | InputHeld | Gap | SampleSkipped | Alarmed | Degenerate
          | Switched | Isolated | AllTried | Started | Dropped | Rescued | Truncated | NoLikelihood | Misfit
          | Checkpoint | Decided)

@@ -801,20 +801,21 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     (:func:`_next_range`), up to ``passes`` passes; onsets holding under
     ``keep`` of the best one's mass are left out of the next pass."""
     T = len(ys)
-    drifts = fault_kind(model.FAULT["kind"]).drifts
+    kind = fault_kind(model.FAULT["kind"])
+    drifts = kind.drifts
     prior = tuple(float(v) for v in model.FAULT_PRIOR)
     a, b = prior
     batches = [sorted(int(o) for o in batch) for batch in earlier]
 
     def span(o) -> np.ndarray:  # a cell's variable: the parameter's change by the last step (bias, slope x time)
         o = np.asarray(o, dtype=float)
-        return (T - o) * model.DT if drifts else np.ones(o.shape)
+        return kind.change(np.ones(o.shape), (T - o) * model.DT)
 
     current = np.asarray(sorted(int(o) for o in onsets))
     tried = current.tolist()
     width_of = dict(zip(tried, onset_widths(tried).tolist()))  # an onset's prior weight: its span in the grid tried
     spans = span(current)
-    scale = float((T - hint_onset) * model.DT) if drifts else 1.0
+    scale = float(kind.change(1.0, (T - hint_onset) * model.DT))
     lo, hi = sorted((hint[0] * scale, hint[1] * scale))
     vmin, vmax = float(np.min(a * spans)), float(np.max(b * spans))
     width = max(hi - lo, 1e-6 * max(abs(lo), abs(hi), vmax - vmin))

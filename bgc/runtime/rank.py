@@ -83,13 +83,14 @@ def refined(h: Hypothesis, g: identify.GridPosterior | None, package, clouds: di
     if g is None:
         onsets = top_onsets(h.onsets, h.onset_posterior, h.start, options.grid.onsets)
         g = grid_posterior(package, h.name, e, clouds, ys, us, onsets, options, [options.seed, 7, sum(map(ord, h.name))])
-    if fault_kind(h.kind).drifts:  # the parameter at the last step: nominal + slope x time since the onset
+    kind = fault_kind(h.kind)
+    if kind.drifts:  # the parameter at the last step: nominal + its change since the onset
         joint = np.exp(g.loglik - np.max(g.loglik))
         joint /= joint.sum()
         spans = np.array([(len(ys) - t) * module.DT for t in g.onsets])
-        value = float(e.nominal + np.sum(joint * np.outer(spans, g.values)))
+        value = float(e.nominal + np.sum(joint * kind.change(g.values[None, :], spans[:, None])))
     else:
-        value = e.nominal + g.mean
+        value = e.nominal + kind.change(g.mean, 0.0)
     estimate = dataclasses.replace(e, value=g.mean, std=g.std, low=g.low, high=g.high, parameter_value=value,
                                    method="grid")
     return dataclasses.replace(h, estimate=estimate)
