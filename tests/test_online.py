@@ -306,3 +306,32 @@ def test_every_option_belongs_to_one_stage_of_the_loop():
     grouped = [name for names in STAGES.values() for name in names]
     assert sorted(grouped) == sorted(f.name for f in dataclasses.fields(DiagnosisOptions))
     assert len(grouped) == len(set(grouped))
+
+
+def test_ctrl_c_on_bgc_monitor_writes_the_report_of_the_data_so_far(tmp_path):
+    import signal
+
+    run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
+    lines = runs.run_csv(run).splitlines(keepends=True)
+    head = next(i for i, line in enumerate(lines) if line.startswith("time,"))
+    out = tmp_path / "mon"
+    p = subprocess.Popen([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", "-", "--particles", "200",
+                          "-o", str(out)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True, bufsize=1, env=dict(os.environ, MPLBACKEND="Agg"))
+    try:
+        p.stdin.write("".join(lines[:head + 1 + int(np.searchsorted(run.time, 8.0))]))
+        p.stdin.flush()
+        while "isolation from the symbols" not in (line := p.stdout.readline()):
+            assert line, p.stderr.read()
+        p.send_signal(signal.SIGINT)  # the stream is still open
+        rest, err = p.communicate(timeout=300)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0, err
+    assert "interrupted: finishing the diagnosis of the data so far" in rest
+    assert "circuit: isolated: R2_abrupt" in rest and "Traceback" not in err
+    import json
+
+    data = json.loads((out / "report.json").read_text())["data"]
+    assert 6.6 <= data["t_last"] <= 8.0  # the rows taken before the interrupt
