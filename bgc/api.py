@@ -211,9 +211,9 @@ class Session:
     >>> import bgc
     >>> session = bgc.open("models/circuit.yaml")
     >>> d = session.diagnoser(particles=200)
-    >>> belief = d.step(1.0, y=[0.0, 0.0, 0.0])
-    >>> belief.phase
-    'watching'
+    >>> belief = d.step(0.05, y={"e11": 2.45, "f2": 2.49, "f6": 2.47})  # no u: the model's input
+    >>> belief.phase, belief.alarm, belief.events
+    ('watching', None, (InputFromModel(input='V', reason='absent', step=None),))
     """
 
     def __init__(self, model: str | Path, process_noise: float | None = None,
@@ -256,7 +256,8 @@ class Session:
         """An online :class:`~bgc.runtime.diagnoser.Diagnoser` of this model:
         ``step(t, u, y)`` per sample, ``finish()`` at the end. ``inputs``,
         ``sensors``: the input and sensor names the data have (default: all
-        of the model's); ``source``: the data's name in messages."""
+        of the model's sensors, and the inputs the first ``step`` gives);
+        ``source``: the data's name in messages."""
         func = "bgc.Session.diagnoser"
         opts = self.options(options, method=method, particles=particles, seed=seed, func=func)
         arguments.text(func, "source", source)

@@ -91,7 +91,9 @@ class Diagnoser:
     model's fault signatures and each fault candidate's prior;
     ``horizon``: the detector's horizon in steps (``options.horizon`` in
     steps of the model's ``dt``); ``inputs``, ``sensors``: the input and
-    sensor names the data have columns for (default: all of the model's);
+    sensor names the data have columns for (default: the sensors, all of the
+    model's; the inputs, those the first row of :meth:`step` gives, none
+    when it gives ``u=None``);
     ``source``: the data's name in messages; ``lazy``: leave the hypotheses'
     tracking to :meth:`finish` (a batch diagnosis: the record is complete and
     the hypotheses run in parallel there); ``every``: try every fault model,
@@ -118,6 +120,7 @@ class Diagnoser:
                                nominal.OUTPUTS if sensors is None else sensors, source, options.gap)
         self.source = source
         self.most = most
+        self._infer_inputs = inputs is None
         rng = np.random.default_rng([options.seed, 0])
         self.pf = None if ckf else self.pf_class(nominal, options.particles, rng)
         self.kf = kalman.NominalKalman(nominal, len(self.outputs)) if ckf else None
@@ -154,7 +157,11 @@ class Diagnoser:
         inputs); ``line``: its line in the data, for messages. Returns the
         belief after the last step the row gives (a row may give several:
         the steps of a gap before it; none: a row on a step already taken)."""
-        rows = self.sampler.push(float(t), _named(u, self.nominal.INPUTS), _named(y, self.outputs), line)
+        u = _named(u, self.nominal.INPUTS)
+        if self._infer_inputs:  # the first row says which inputs the data give
+            self._infer_inputs = False
+            self.sampler.data_inputs = tuple(name for name in self.nominal.INPUTS if name in u)
+        rows = self.sampler.push(float(t), u, _named(y, self.outputs), line)
         belief = None
         collected: list = []
         for s in rows:
