@@ -11,6 +11,8 @@ and the same report as ``bgc diagnose``'s is made.
 
 from __future__ import annotations
 
+import signal
+import threading
 import time
 from typing import IO, Callable
 
@@ -86,13 +88,15 @@ def monitor(model: str, stream: IO, name: str, options: DiagnosisOptions, *, pro
     def time_of(step):
         return None if step is None or step >= len(d.samples) else d.samples[step].t
 
+    guard = _Guard()
     try:
         for values, line in reader:
             t = values[0]
             u = {name_: values[j] for j, name_ in groups["u"]}
             y = {name_: values[j] for j, name_ in groups["y"]}
-            belief = d.step(t, u, y, line)
-            rows.append(values)
+            with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
+                belief = d.step(t, u, y, line)
+                rows.append(values)
             tell(belief.events, time_of)
             if checkpoint is not None and belief.phase == "tracking":
                 if last_check is None:
@@ -103,12 +107,48 @@ def monitor(model: str, stream: IO, name: str, options: DiagnosisOptions, *, pro
                     tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)], time_of)
     except KeyboardInterrupt:
         say("interrupted: finishing the diagnosis of the data so far")
+    finally:
+        guard.close()
     if not rows:
         raise DataError(f"{printable(name)}: no data row arrived", None, "give at least one row after the column names")
     run = _run(columns, rows, reader.header, name)
     diagnosis = d.finish(run)
     tell([e for e in diagnosis.events if isinstance(e, ev.Decided)], diagnosis.time_of)
     return session.report(run, diagnosis)
+
+
+class _Guard:
+    """Ctrl-C (SIGINT) while a step runs is held until the step ends, then
+    raised as KeyboardInterrupt; between steps (waiting for a row) it is
+    raised at once. Only in the main thread (where Python delivers signals)."""
+
+    def __init__(self):
+        self.inside = False
+        self.pending = False
+        self.previous = None
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGINT, self._handle)
+
+    def _handle(self, signum, frame) -> None:
+        if self.inside:
+            self.pending = True
+            return
+        raise KeyboardInterrupt
+
+    def __enter__(self):
+        self.inside = True
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.inside = False
+        if self.pending and exc[0] is None:
+            self.pending = False
+            raise KeyboardInterrupt
+
+    def close(self) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+            self.previous = None
 
 
 def _run(columns: list[str], rows: list[list[float]], header, name: str) -> runs.Run:
