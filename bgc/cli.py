@@ -420,6 +420,15 @@ class _Progress:
             sys.stderr.flush()
 
 
+def _add_data_options(p: argparse.ArgumentParser) -> None:
+    """The options of real data, shared by bgc diagnose and bgc monitor."""
+    p.add_argument("--horizon", type=float, default=None, metavar="TIME",
+                   help="the detector's false-alarm rate is per this much time (default: the model's run length, "
+                        "simulation.steps x dt)")
+    p.add_argument("--gap", type=float, default=None, metavar="TIME",
+                   help="missing samples longer than this are reported as a gap (default: 10 steps of dt)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bgc", description="Bond-graph model compiler for model-based fault diagnosis.")
@@ -504,11 +513,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--refine", action="store_true",
                    help="estimate the fault magnitude by the particle filters' marginal likelihood on a grid "
                         "(slower; a check of the estimate for strongly nonlinear plants)")
-    p.add_argument("--horizon", type=float, default=None, metavar="TIME",
-                   help="the detector's false-alarm rate is per this much time (default: the model's run length, "
-                        "simulation.steps x dt)")
-    p.add_argument("--gap", type=float, default=None, metavar="TIME",
-                   help="missing samples longer than this are reported as a gap (default: 10 steps of dt)")
+    _add_data_options(p)
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-diagnosis)")
     p.set_defaults(run=cmd_diagnose)
 
@@ -527,11 +532,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_seed, default=0, help="random seed, an integer >= 0")
     p.add_argument("--noise", metavar="process=Q,measurement=R",
                    help="relative noise levels the filters assume; default: the model's")
-    p.add_argument("--horizon", type=float, default=None, metavar="TIME",
-                   help="the detector's false-alarm rate is per this much time (default: the model's run length, "
-                        "simulation.steps x dt)")
-    p.add_argument("--gap", type=float, default=None, metavar="TIME",
-                   help="missing samples longer than this are reported as a gap (default: 10 steps of dt)")
+    _add_data_options(p)
     p.add_argument("--checkpoint", type=float, default=None, metavar="TIME",
                    help="while tracking hypotheses, diagnose the data so far every TIME (default: only at the end)")
     p.add_argument("--generated", metavar="DIR",

@@ -12,6 +12,12 @@ from ..kinds import fault_kind
 from .artifacts import mark_picture
 
 
+
+def _measured(ax, run, name: str) -> None:
+    """Sensor ``name``'s samples as crosses (none for a sensor the data lack)."""
+    if name in run.measurements:
+        ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
+
 def _figure(rows: int, width: float = 9.0, height_per_row: float = 1.7):
     import matplotlib
 
@@ -73,8 +79,7 @@ def tracking_figure(run, results, fmt: str = "png") -> bytes:
     colors = ["#2060c0", "#20a040", "#c08020", "#8040c0"]
     for j, name in enumerate(names_y):
         ax = axes[j]
-        if name in run.measurements:  # a sensor the data lack: its prediction only
-            ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
+        _measured(ax, run, name)
         for r, c in zip(results, colors):
             ax.plot(r.time, r.y_mean[:, j], "-", lw=1.0, color=c, label=f"{r.method.upper()} {r.model}")
             ax.fill_between(r.time, r.y_mean[:, j] - 2 * r.y_std[:, j], r.y_mean[:, j] + 2 * r.y_std[:, j],
@@ -121,8 +126,7 @@ def diagnosis_measurements(r, fmt: str = "png") -> bytes:
     plt, fig, axes = _figure(len(d.outputs))
     for j, name in enumerate(d.outputs):
         ax = axes[j]
-        if name in run.measurements:  # a sensor the data lack: its prediction only
-            ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
+        _measured(ax, run, name)
         ax.plot(d.time, d.nominal_y_mean[:, j], "-", lw=1.0, color="#2060c0", label="nominal observer")
         ax.fill_between(d.time, d.nominal_y_mean[:, j] - 2 * d.nominal_y_std[:, j],
                         d.nominal_y_mean[:, j] + 2 * d.nominal_y_std[:, j], color="#2060c0", alpha=0.15, lw=0)
@@ -160,8 +164,7 @@ def diagnosis_hypotheses(r, fmt: str = "png") -> bytes:
     plt, fig, axes = _figure(len(d.outputs))
     for j, name in enumerate(d.outputs):
         ax = axes[j]
-        if name in run.measurements:  # a sensor the data lack: its prediction only
-            ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
+        _measured(ax, run, name)
         for h, c in zip(sorted(d.hypotheses, key=lambda h: -h.posterior), _COLORS * 4):
             t = d.time[h.start:]
             style = "-" if h.dropped is None else ":"
