@@ -9,6 +9,7 @@ traceback), 2 usage errors (argparse's convention). A closed pipe (``bgc show
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -240,6 +241,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if args.data is not None and args.steps is not None:
         raise BgcError("--steps applies to --scenario: a recorded run has its own length", None,
                        "drop --steps, or simulate a scenario")
+    _check_times(args, ("horizon", "gap"))
+    _refuse_input_in_output(args.data, Path(args.output) if args.output else None)
     process, measurement = _parse_noise(args.noise)
     progress = _Progress()
     try:
@@ -295,29 +298,87 @@ def _write_report(r, output: str, command: str, with_run: bool) -> Path:
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
-    from . import monitor
+    from . import api, monitor
+    from .output import artifacts
     from .runtime.diagnose import DiagnosisOptions
 
+    _check_times(args, ("horizon", "gap", "checkpoint"))
+    if args.idle is not None and not (math.isfinite(args.idle) and args.idle >= 0):
+        raise BgcError(f"--idle {args.idle:g}: give the seconds to wait for a new row, a number >= 0", None,
+                       "e.g. --idle 60")
+    if args.idle is not None and not args.follow:
+        raise BgcError("--idle applies to --follow", None, "add --follow, or drop --idle")
+    if args.follow and args.data == "-":
+        raise BgcError("--follow applies to a file: standard input ends when its writer closes it", None,
+                       "drop --follow, or give the file")
     process, measurement = _parse_noise(args.noise)
     options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed, horizon=args.horizon,
                                gap=args.gap)
+    session = api.open(args.model, process_noise=process, measurement_noise=measurement, generated=args.generated)
+    out = Path(args.output or f"{session.name}-monitor")
+    _refuse_input_in_output(args.data, out)
+    artifacts.check_folder(out, ("report.md", "report.json", "manifest.json"), "monitor")  # before the stream
     if args.data == "-":
         stream, name = sys.stdin.buffer, "<stdin>"
     else:
+        stream, name = _open_stream(args.data), args.data
+        if args.follow:
+            stream = monitor.Follow(stream, args.idle, path=args.data)
+    quiet = []
+
+    def say(line: str) -> None:  # a reader that went away (| head) stops the printing, not the diagnosis
+        if quiet:
+            return
         try:
-            f = open(args.data, "rb")
-        except OSError as exc:
-            raise BgcError(f"{printable(args.data)}: {printable(exc.strerror or str(exc))}", None,
-                           "give a run file, or - for standard input") from None
-        stream, name = (monitor.Follow(f, args.idle) if args.follow else f), args.data
+            print(line, flush=True)
+        except BrokenPipeError:
+            quiet.append(True)
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
-    def say(line: str) -> None:
-        print(line, flush=True)
-
-    r = monitor.monitor(args.model, stream, name, options, process_noise=process, measurement_noise=measurement,
-                        generated=args.generated, say=say, checkpoint=args.checkpoint)
-    _write_report(r, args.output or f"{r.model}-monitor", "monitor", False)
+    r, failure = monitor.monitor(session, stream, name, options, say=say, checkpoint=args.checkpoint)
+    if quiet:
+        sys.stdout = open(os.devnull, "w")
+    _write_report(r, str(out), "monitor", False)
+    if failure is not None:
+        raise failure
     return 0
+
+
+def _check_times(args: argparse.Namespace, names) -> None:
+    """Refuse --horizon, --gap, --checkpoint that are not times above 0, naming the flag."""
+    for name in names:
+        value = getattr(args, name, None)
+        if value is not None and not (math.isfinite(value) and 0 < value <= 1e12):
+            raise BgcError(f"--{name} {value:g}: give a time above 0 in the model's time unit", None,
+                           f"e.g. --{name} 300")
+
+
+def _refuse_input_in_output(data: str | None, out: Path | None) -> None:
+    """Refuse a data file inside the folder the command writes: it may hold a file of the same name."""
+    if data is None or data == "-" or out is None:
+        return
+    try:
+        inside = Path(data).resolve().parent == out.resolve()
+    except OSError:
+        return
+    if inside:
+        raise BgcError(f"--data {printable(data)} is in the output folder {printable(str(out))}, which this command "
+                       "rewrites", None, "copy the run elsewhere first, or write the report to another folder (-o)")
+
+
+def _open_stream(path: str):
+    """A run file or a named pipe, opened for reading (not a device that never ends)."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+        if not (stat.S_ISREG(mode) or stat.S_ISFIFO(mode)):
+            raise BgcError(f"{printable(path)} is not a regular file or a pipe", None,
+                           "give a run file, a named pipe, or - for standard input")
+        return open(path, "rb")
+    except OSError as exc:
+        raise BgcError(f"{printable(path)}: {printable(exc.strerror or str(exc))}", None,
+                       "give a run file, or - for standard input") from None
 
 
 def cmd_distinguish(args: argparse.Namespace) -> int:

@@ -11,6 +11,7 @@ and the same report as ``bgc diagnose``'s is made.
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 import time
@@ -19,7 +20,7 @@ from typing import IO, Callable
 import numpy as np
 
 from . import api
-from .errors import DataError, printable
+from .errors import BgcError, DataError, printable
 from .runtime import events as ev
 from .runtime import runs, track
 from .runtime.diagnose import DiagnosisOptions
@@ -29,11 +30,16 @@ class Follow:
     """A file read as another program appends to it: :meth:`readline` waits
     for a whole line (polling every ``poll`` seconds) and ends the input
     (returns ``""``) after ``idle`` seconds without a new byte (None: never;
-    Ctrl-C ends it then)."""
+    Ctrl-C ends it then). A last line without its end of line is not read
+    (``unfinished`` keeps it: a logger stopped mid-line). A file truncated or
+    replaced (rotated) while it is followed ends the input with an error:
+    its rows no longer follow the ones read."""
 
-    def __init__(self, stream: IO[bytes], idle: float | None = None, poll: float = 0.1):
-        self.stream, self.idle, self.poll = stream, idle, poll
+    def __init__(self, stream: IO[bytes], idle: float | None = None, poll: float = 0.1, path: str | None = None):
+        self.stream, self.idle, self.poll, self.path = stream, idle, poll, path
         self.pending = b""
+        self.unfinished = b""
+        self.inode = os.fstat(stream.fileno()).st_ino
 
     def readline(self, limit: int = -1) -> bytes:
         waited = 0.0
@@ -46,27 +52,42 @@ class Follow:
                     line, self.pending = self.pending, b""
                     return line
                 continue
+            self._check()
             if self.idle is not None and waited >= self.idle:
-                line, self.pending = self.pending, b""
-                return line
+                self.unfinished, self.pending = self.pending, b""
+                return b""
             time.sleep(self.poll)
             waited += self.poll
 
+    def _check(self) -> None:
+        """Refuse a followed file that shrank or was replaced."""
+        name = printable(self.path or "the followed file")
+        if os.fstat(self.stream.fileno()).st_size < self.stream.tell():
+            raise DataError(f"{name} was truncated while it was followed: the rows read so far are diagnosed", None,
+                            "follow the new data with another bgc monitor")
+        try:
+            replaced = self.path is not None and os.stat(self.path).st_ino != self.inode
+        except OSError:
+            replaced = True
+        if replaced:
+            raise DataError(f"{name} was replaced (or removed) while it was followed: the rows read so far are "
+                            "diagnosed", None, "follow the new file with another bgc monitor")
 
-def monitor(model: str, stream: IO, name: str, options: DiagnosisOptions, *, process_noise: float | None = None,
-            measurement_noise: float | None = None, generated: str | None = None,
+
+def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptions, *,
             say: Callable[[str], None] = print, checkpoint: float | None = None,
-            progress=None) -> api.DiagnosisReport:
+            progress=None) -> tuple[api.DiagnosisReport, BgcError | None]:
     """Diagnose the rows of ``stream`` (named ``name`` in messages) as they
-    arrive; ``say(line)`` gets each event as a line with its time, as it
-    happens; ``checkpoint``: while hypotheses are tracked, a diagnosis of
-    the data so far every this many time units (a
-    :class:`~bgc.runtime.events.Checkpoint` event; as costly as a batch
-    diagnosis of the record). Returns the report of the final diagnosis."""
-    from .output.events import sentence
+    arrive, with the model of ``session`` (:func:`bgc.open`); ``say(line)``
+    gets each event as a line with its time, as it happens; ``checkpoint``:
+    while hypotheses are tracked, a diagnosis of the data so far every this
+    many time units (a :class:`~bgc.runtime.events.Checkpoint` event; as
+    costly as a batch diagnosis of the record). Returns the report of the
+    final diagnosis and the error that ended the stream early (None: it
+    ended, or Ctrl-C): a malformed row, a followed file rotated, the memory
+    rule; the rows before it are diagnosed all the same."""
+    from .output.events import sentence, time_text
 
-    session = api.open(model, process_noise=process_noise, measurement_noise=measurement_noise,
-                       generated=generated)
     reader = runs.RowReader(stream, name)
     track.check_run_of(runs.Run(np.zeros(0), {}, {}, {}, {}, reader.header), session.name, name)
     columns = reader.columns
@@ -78,17 +99,20 @@ def monitor(model: str, stream: IO, name: str, options: DiagnosisOptions, *, pro
                           source=name, progress=progress)
     rows: list[list[float]] = []
     last_check = None
+    told: set = set()
 
     def tell(belief_events, time_of) -> None:
         for e in belief_events:
+            told.add(e)
             step = getattr(e, "step", None)
-            when = "" if step is None else f"t = {time_of(step):g}: "
+            when = "" if step is None else f"t = {time_text(time_of(step))}: "
             say(f"{when}{printable(sentence(e, time_of))}")
 
     def time_of(step):
-        return None if step is None or step >= len(d.samples) else d.samples[step].t
+        return d.samples[step].t
 
     guard = _Guard()
+    failure = None
     try:
         for values, line in reader:
             t = values[0]
@@ -107,14 +131,23 @@ def monitor(model: str, stream: IO, name: str, options: DiagnosisOptions, *, pro
                     tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)], time_of)
     except KeyboardInterrupt:
         say("interrupted: finishing the diagnosis of the data so far")
+    except BgcError as exc:  # a bad row, a followed file rotated, the memory rule: the rows so far are diagnosed
+        if not rows:
+            raise
+        failure = exc
+        say(f"stopped: {printable(str(exc))}")
     finally:
         guard.close()
+    if getattr(stream, "unfinished", b""):
+        say(f"the input ended in the middle of a line ({len(stream.unfinished)} bytes without an end of line): "
+            "that line is not read")
     if not rows:
         raise DataError(f"{printable(name)}: no data row arrived", None, "give at least one row after the column names")
     run = _run(columns, rows, reader.header, name)
     diagnosis = d.finish(run)
-    tell([e for e in diagnosis.events if isinstance(e, ev.Decided)], diagnosis.time_of)
-    return session.report(run, diagnosis)
+    tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))],
+         diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
+    return session.report(run, diagnosis), failure
 
 
 class _Guard:

@@ -149,7 +149,7 @@ def test_a_clock_that_jumps_is_refused_not_predicted_across_for_hours():
     d = bgc.open(CIRCUIT).diagnoser(OPTIONS, source="log.csv")
     for i in range(20):
         d.step(float(jumped.time[i]), None, [jumped.measurements[y][i] for y in ("e11", "f2", "f6")], line=i + 3)
-    with pytest.raises(DataError, match=r"log.csv:23: time 9e\+06 is 180000000 steps of dt = 0.05 after the "
+    with pytest.raises(DataError, match=r"log.csv:23: time 9000001.05 is 180000000 steps of dt = 0.05 after the "
                                         r"sample before it, more than 100000"):
         d.step(float(jumped.time[20]), None, [jumped.measurements[y][20] for y in ("e11", "f2", "f6")], line=23)
 
@@ -335,3 +335,114 @@ def test_ctrl_c_on_bgc_monitor_writes_the_report_of_the_data_so_far(tmp_path):
 
     data = json.loads((out / "report.json").read_text())["data"]
     assert 6.6 <= data["t_last"] <= 8.0  # the rows taken before the interrupt
+
+
+# -- what a hostile review found (each was a silent wrong answer, a traceback or a lost report) --------------
+
+
+def test_a_misspelt_or_bad_value_from_python_is_an_error_not_a_silent_no_fault():
+    d = bgc.open(CIRCUIT).diagnoser(OPTIONS)
+    with pytest.raises(bgc.errors.ArgumentValueError, match=r"y has 'E11', not one of the model's sensors"):
+        d.step(0.05, None, {"E11": 2.4, "f2": 2.4, "f6": 2.4})
+    with pytest.raises(bgc.errors.ArgumentValueError, match=r"y\[e11\]=inf is not a finite number"):
+        d.step(0.05, None, {"e11": math.inf})
+    with pytest.raises(bgc.errors.ArgumentValueError, match=r"y\[e11\]='x' is not a finite number"):
+        d.step(0.05, None, {"e11": "x"})
+    for t in ("0.05", True, None, 1j):
+        with pytest.raises(bgc.errors.ArgumentTypeError, match="is not a number"):
+            d.step(t, None, [2.4, 2.4, 2.4])
+    with pytest.raises(bgc.errors.ArgumentValueError, match="has 2 values"):
+        d.step(0.05, None, [2.4, 2.4])
+    assert d.step(0.05, {"V": 10.0}, [2.45, 2.49, 2.47]).phase == "watching"  # none of the above left a trace
+
+
+def test_a_refused_row_leaves_the_stream_as_it_was_and_a_finished_diagnoser_takes_no_more():
+    d = bgc.open(CIRCUIT).diagnoser(OPTIONS, source="log")
+    d.step(0.05, None, [2.45, 2.49, 2.47])
+    with pytest.raises(DataError, match="more than 100000"):
+        d.step(1e6, None, [2.45, 2.49, 2.47])
+    d.step(0.1, None, [2.45, 2.49, 2.47])  # the refused jump is not the last time
+    d.finish()
+    with pytest.raises(bgc.errors.TrackingError, match="this diagnoser has finished"):
+        d.step(0.15, None, [2.45, 2.49, 2.47])
+
+
+def test_an_alarm_on_the_first_sample_is_not_called_a_degenerate_filter():
+    run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
+    first = dict(run.measurements)
+    first["f6"] = first["f6"].copy()
+    first["f6"][0] += 1.0  # far off on the first row
+    d = bgc.diagnose(CIRCUIT, data=with_columns(run, measurements=first), options=OPTIONS).diagnosis
+    assert d.detection is not None and d.detection.step == 0
+    assert not any(isinstance(e, (events.Degenerate, events.Switched)) for e in d.events)
+
+
+def test_after_a_switch_of_filter_the_report_still_says_how_the_data_met_the_model():
+    model = ROOT / "tests" / "data" / "models" / "drivetrain.yaml"
+    run = simulated(model, "g_m:abrupt:-0.3@4", steps=200, seed=1)
+    keep = ~((np.arange(200) > 150) & (np.arange(200) % 10 == 5))  # rows missing after the switch
+    d = bgc.diagnose(model, data=rows_of(run, keep), options=DiagnosisOptions(particles=200, seed=1,
+                                                                              workers=1)).diagnosis
+    assert any(isinstance(e, events.Switched) for e in d.events)
+    assert d.data.unsampled == (~keep).sum()
+
+
+def monitor_cli(*args, stdin=None, timeout=300):
+    return subprocess.run([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), *args], input=stdin,
+                          capture_output=True, text=True, timeout=timeout, env=dict(os.environ, MPLBACKEND="Agg"))
+
+
+def test_bgc_monitor_refuses_bad_options_and_outputs_before_reading_the_stream(tmp_path):
+    for args, message in ((["--checkpoint", "0"], "--checkpoint 0: give a time above 0"),
+                          (["--horizon", "nan"], "--horizon nan: give a time above 0"),
+                          (["--idle", "5"], "--idle applies to --follow"),
+                          (["--follow"], "--follow applies to a file"),
+                          (["--follow", "--idle", "-1"], "--idle -1: give the seconds")):
+        p = monitor_cli("--data", "-", *args, stdin="")
+        assert p.returncode == 1 and p.stderr.startswith(message) and "Traceback" not in p.stderr, p.stderr
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "report.md").write_text("my notes\n")
+    p = monitor_cli("--data", "-", "-o", str(foreign), stdin="time,y:e11\n")
+    assert p.returncode == 1 and "holds no bgc manifest.json" in p.stderr
+    assert (foreign / "report.md").read_text() == "my notes\n"
+    p = monitor_cli("--data", "/dev/zero", stdin="")
+    assert p.returncode == 1 and "/dev/zero is not a regular file or a pipe" in p.stderr
+    run_file = tmp_path / "out" / "run.csv"
+    run_file.parent.mkdir()
+    run_file.write_text(runs.run_csv(simulated(CIRCUIT, steps=20)))
+    p = monitor_cli("--data", str(run_file), "-o", str(run_file.parent))
+    assert p.returncode == 1 and "is in the output folder" in p.stderr and run_file.exists()
+
+
+def test_a_bad_row_mid_stream_ends_the_stream_with_the_report_of_the_rows_before_it(tmp_path):
+    text = runs.run_csv(simulated(CIRCUIT, "R2:abrupt:0.6@5"))
+    lines = text.splitlines(keepends=True)
+    head = next(i for i, line in enumerate(lines) if line.startswith("time,"))
+    bad = head + 1 + 200
+    lines[bad] = lines[bad].replace(",", ",x", 1)
+    p = monitor_cli("--data", "-", "--particles", "200", "-o", str(tmp_path / "mon"), stdin="".join(lines))
+    assert p.returncode == 1 and "Traceback" not in p.stderr
+    assert f"<stdin>:{bad + 1}:" in p.stderr and "is not a number" in p.stderr
+    assert "circuit: isolated: R2_abrupt" in p.stdout
+    assert '"t_last": 10' in (tmp_path / "mon" / "report.json").read_text()
+
+
+def test_a_followed_file_that_is_truncated_ends_the_stream_and_an_unfinished_last_line_is_not_read(tmp_path):
+    lines = runs.run_csv(simulated(CIRCUIT, steps=120)).splitlines(keepends=True)
+    path = tmp_path / "live.csv"
+    path.write_text("".join(lines[:80]) + lines[80][:8])  # the logger stopped mid-line
+    p = monitor_cli("--data", str(path), "--follow", "--idle", "1", "--particles", "50", "-o", str(tmp_path / "a"))
+    assert p.returncode == 0, p.stderr
+    assert "the input ended in the middle of a line" in p.stdout
+    report = (tmp_path / "a" / "report.json").read_text()
+    assert f'"steps": {80 - 6}' in report  # the header's 6 lines aside, the 74 whole rows
+    path.write_text("".join(lines[:60]))
+    proc = subprocess.Popen([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", str(path), "--follow",
+                             "--idle", "5", "--particles", "50", "-o", str(tmp_path / "b")], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=dict(os.environ, MPLBACKEND="Agg"))
+    time.sleep(2.0)
+    path.write_text("".join(lines[:10]))  # truncated and rewritten, as a logger that restarts
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 1 and "was truncated while it was followed" in err, err
+    assert (tmp_path / "b" / "report.md").is_file()

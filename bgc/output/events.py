@@ -10,9 +10,15 @@ import math
 from ..runtime import events as ev
 
 
+def time_text(t) -> str:
+    """A time as the report and the monitor print it: 12 significant digits
+    (a logger's Unix time keeps its fraction of a second)."""
+    return f"{t:.12g}"
+
+
 def _t(time_of, step) -> str:
     t = time_of(step)
-    return "" if t is None else f"{t:g}"
+    return "" if t is None else time_text(t)
 
 
 def sentence(e, time_of) -> str:
@@ -38,7 +44,7 @@ def sentence(e, time_of) -> str:
             return f"no sample for {n} steps from t = {t(k)} to t = {t(k + n - 1)}: the filters predict across the gap"
         case ev.SampleSkipped(step=k, line=line, time=when):
             where = f" (line {line})" if line is not None else ""
-            return (f"the sample at t = {when:g}{where} falls on a step of the model's grid a sample already took "
+            return (f"the sample at t = {time_text(when)}{where} falls on a step of the model's grid a sample already took "
                     f"(t = {t(k)}): skipped; give the model a dt no longer than the sampling interval to use every one")
         case ev.Alarmed(step=k, sensor=s, window=w, statistic=z, threshold=c, onset=o):
             return (f"alarm on {s}: its residual over {w} sample(s) reached {z:.1f} (threshold "
@@ -91,7 +97,7 @@ def record(e, time_of) -> dict:
     step = getattr(e, "step", None)
     if step is not None:
         t = time_of(step)
-        out["time"] = None if t is None or not math.isfinite(t) else float(f"{t:.6g}")
+        out["time"] = None if t is None or not math.isfinite(t) else float(time_text(t))
     for f in dataclasses.fields(e):
         v = getattr(e, f.name)
         if isinstance(v, float):

@@ -12,7 +12,12 @@ from .markdown import escape
 
 def _when(d, e) -> str:
     step = getattr(e, "step", None)
-    return "" if step is None else f"t = {d.time_of(step):g}: "
+    return "" if step is None else f"t = {_tt(d, step)}: "
+
+
+def _per(d) -> str:
+    """What the false-alarm probability is per: the horizon (time units), or the run."""
+    return "run" if d.options.horizon is None else f"horizon of {d.options.horizon:g} time units"
 
 
 def _data_lines(d) -> list[str]:
@@ -38,6 +43,16 @@ def _t(d, step: int | None) -> float | None:
     return d.time_of(step)
 
 
+def _tt(d, step: int | None) -> str:
+    """A step's time as the report prints it (12 significant digits)."""
+    return events.time_text(d.time_of(step))
+
+
+def _time(v: float | None) -> float | None:
+    """A time in report.json: 12 significant digits (a Unix time keeps its fraction of a second)."""
+    return None if v is None or not math.isfinite(v) else float(events.time_text(v))
+
+
 def _num(v: float | None) -> float | None:
     if v is None or not math.isfinite(v):
         return None
@@ -57,8 +72,8 @@ def report_data(r) -> dict[str, Any]:
         "generated_by": "bgc",
         "model": r.model,
         "source": r.source,
-        "data": {"scenario": r.scenario, "steps": int(len(d.time)), "t_first": _num(float(d.time[0])),
-                 "t_last": _num(float(d.time[-1])),
+        "data": {"scenario": r.scenario, "steps": int(len(d.time)), "t_first": _time(float(d.time[0])),
+                 "t_last": _time(float(d.time[-1])),
                  "injected": None if r.injected is None else {
                      "parameter": r.injected.parameter, "kind": r.injected.kind,
                      "magnitude": _num(r.injected.magnitude), "time": _num(r.injected.time)}},
@@ -71,11 +86,11 @@ def report_data(r) -> dict[str, Any]:
                      "process_noise": r.noise[0], "measurement_noise": r.noise[1]},
         "verdict": d.verdict,
         "detection": None if det is None else {
-            "time": _num(_t(d, det.step)), "sensor": det.sensor, "window": det.window,
+            "time": _time(_t(d, det.step)), "sensor": det.sensor, "window": det.window,
             "statistic": _num(det.statistic), "threshold": _num(det.threshold),
-            "onset_change_point": _num(_t(d, det.onset))},
-        "onset": _num(_t(d, d.onset)),
-        "symbols": [{"sensor": s.sensor, "sign": s.sign, "time": _num(_t(d, s.step)), "window": s.window,
+            "onset_change_point": _time(_t(d, det.onset))},
+        "onset": _time(_t(d, d.onset)),
+        "symbols": [{"sensor": s.sensor, "sign": s.sign, "time": _time(_t(d, s.step)), "window": s.window,
                      "statistic": _num(s.statistic), "slope": s.slope or None,
                      "slope_statistic": _num(s.slope_statistic)} for s in d.symbols],
         "refuted_by_signatures": [{"fault": n, "why": why} for n, why in d.refuted],
@@ -93,9 +108,9 @@ def report_data(r) -> dict[str, Any]:
         e = h.estimate
         out["hypotheses"].append({
             "model": h.name, "parameter": h.parameter, "kind": h.kind, "signatures": list(h.signatures),
-            "onset": _num(_t(d, h.onset)), "filter_onset": _num(_t(d, h.start)), "posterior": _num(h.posterior),
+            "onset": _time(_t(d, h.onset)), "filter_onset": _time(_t(d, h.start)), "posterior": _num(h.posterior),
             "log_evidence": _num(h.log_evidence), "static_log_evidence": _num(h.static_log_evidence),
-            "dropped": None if h.dropped is None else {"time": _num(_t(d, h.dropped)), "why": h.reason,
+            "dropped": None if h.dropped is None else {"time": _time(_t(d, h.dropped)), "why": h.reason,
                                                        "reason": _drop_reason(d, h.name)},
             "estimate": {"magnitude": e.magnitude, "value": _num(e.value), "std": _num(e.std),
                          "interval": [_num(e.low), _num(e.high)], "level": e.level,
@@ -115,11 +130,14 @@ def report_markdown(r) -> str:
     d = r.diagnosis
     det = d.detection
     lines = [f"# Diagnosis of {escape(r.model)} ({escape(r.source)})", ""]
+    span = f"t = {_tt(d, 0)} to {_tt(d, len(d.time) - 1)}"
+    rows = len(r.run.time)
+    count = (f"{rows} samples" if rows == len(d.time) else
+             f"{rows} samples on {len(d.time)} steps of the model's time grid")
     if r.scenario:
-        lines.append(f"Data: simulated scenario {escape(r.scenario)}, {len(d.time)} samples "
-                     f"(t = {d.time[0]:g} to {d.time[-1]:g}).")
+        lines.append(f"Data: simulated scenario {escape(r.scenario)}, {count} ({span}).")
     else:
-        lines.append(f"Data: {len(d.time)} samples (t = {d.time[0]:g} to {d.time[-1]:g}).")
+        lines.append(f"Data: {count} ({span}).")
     noise = ("the model's noise levels" if r.noise == (None, None) else
              f"relative noise levels process {r.noise[0] if r.noise[0] is not None else 'per model'}, "
              f"measurement {r.noise[1] if r.noise[1] is not None else 'per model'}")
@@ -141,19 +159,19 @@ def report_markdown(r) -> str:
     lines += ["## Verdict", "", verdict, ""]
     if det is None:
         lines += [f"No window of the nominal observer's normalised residuals passed the threshold "
-                  f"{d.threshold:.2f} (a false-alarm probability of {d.options.false_alarm:g} per run, "
+                  f"{d.threshold:.2f} (a false-alarm probability of {d.options.false_alarm:g} per {_per(d)}, "
                   f"windows {', '.join(map(str, d.options.windows))} samples).", ""]
     else:
         lines += ["## Detection", "",
-                  f"- alarm at t = {_t(d, det.step):g}: sensor {det.sensor}, window of {det.window} sample(s), "
+                  f"- alarm at t = {_tt(d, det.step)}: sensor {det.sensor}, window of {det.window} sample(s), "
                   f"|Z| = {det.statistic:.2f} > {det.threshold:.2f} (false-alarm probability "
-                  f"{d.options.false_alarm:g} per run)",
-                  f"- change point of the residuals: t = {_t(d, det.onset):g}; onset of the diagnosis: "
-                  f"t = {_t(d, d.onset):g}", ""]
+                  f"{d.options.false_alarm:g} per {_per(d)})",
+                  f"- change point of the residuals: t = {_tt(d, det.onset)}; onset of the diagnosis: "
+                  f"t = {_tt(d, d.onset)}", ""]
         lines += ["## Qualitative isolation (TRANSCEND signatures)", ""]
         if d.symbols:
             lines.append("Observed deviations: " + "; ".join(
-                f"{s.sensor} {s.sign} at t = {_t(d, s.step):g} ({s.window}-sample window, Z {s.statistic:.1f}), "
+                f"{s.sensor} {s.sign} at t = {_tt(d, s.step)} ({s.window}-sample window, Z {s.statistic:.1f}), "
                 f"slope {s.slope or 'not significant'} (Z {s.slope_statistic:.1f})" for s in d.symbols) + ".")
         else:
             lines.append("No sensor deviated significantly from the open-loop nominal prediction.")
@@ -166,9 +184,9 @@ def report_markdown(r) -> str:
         for h in sorted(d.hypotheses, key=lambda h: -h.posterior):
             e = h.estimate
             truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
-            lines.append(f"| {h.name} | {_t(d, h.onset):g} | {h.posterior:.3g} | {e.magnitude} {e.value:.4g}{truth} | "
+            lines.append(f"| {h.name} | {_tt(d, h.onset)} | {h.posterior:.3g} | {e.magnitude} {e.value:.4g}{truth} | "
                          f"[{e.low:.4g}, {e.high:.4g}] | "
-                         f"{'-' if h.dropped is None else f't = {_t(d, h.dropped):g}'} | {escape(h.reason) or '-'} |")
+                         f"{'-' if h.dropped is None else f't = {_tt(d, h.dropped)}'} | {escape(h.reason) or '-'} |")
         best = d.best
         if best is not None and d.verdict in ("isolated", "ambiguous"):
             lines += ["", "## Identification", ""]
@@ -183,7 +201,7 @@ def report_markdown(r) -> str:
                              f"{'inside' if e.covers else 'outside'} the interval")
                 lines.append(f"- {name}: {what}: {e.magnitude} {e.value:.4g} +- {e.std:.2g}, "
                              f"{100 * e.level:.0f} % interval [{e.low:.4g}, {e.high:.4g}], {e.parameter} at the "
-                             f"end {e.parameter_value:.4g}, onset t = {_t(d, h.onset):g}{truth}"
+                             f"end {e.parameter_value:.4g}, onset t = {_tt(d, h.onset)}{truth}"
                              + {"grid": " (grid posterior of the particle filters' marginal likelihood)",
                                 "kalman": " (with the magnitude held static: cubature Kalman filters on a grid)",
                                 "filter": ""}[e.method])

@@ -114,22 +114,23 @@ class Sampler:
         if not math.isfinite(t):
             raise DataError(f"{where}: time {t!r} is not a finite number", None, "give every row its time")
         if t <= self.last_t:
-            raise DataError(f"{where}: time {t:g} does not increase (the row before has {self.last_t:g})", None,
+            raise DataError(f"{where}: time {t:.12g} does not increase (the row before has {self.last_t:.12g})", None,
                             "sort the rows by time, one row per sample")
-        self.last_t = t
-        if self.t0 is None:
-            self.t0 = t
-        k = int(round((t - self.t0) / self.dt))
+        t0 = t if self.t0 is None else self.t0
+        k = int(round((t - t0) / self.dt))
         if k <= self.k:  # the step is taken: the first sample of a step is used
+            self.last_t = t
             self.skipped += 1
             if self.skipped == 1:
                 self._pending.append(ev.SampleSkipped(k, line, t))
             return []
         missing = k - self.k - 1
         if missing > MAX_GAP_STEPS:
-            raise DataError(f"{where}: time {t:g} is {missing} steps of dt = {self.dt:g} after the sample "
+            many = f"{missing}" if missing < 1e15 else f"{float(missing):.3g}"
+            raise DataError(f"{where}: time {t:.12g} is {many} steps of dt = {self.dt:g} after the sample "
                             f"before it, more than {MAX_GAP_STEPS}", None,
                             "check the time column (a clock that jumped?), or split the data at the gap")
+        self.last_t, self.t0 = t, t0  # the row is taken: a refused one leaves the sampler as it was
         out = []
         first = self.k + 1
         if missing > self.gap_steps:

@@ -43,11 +43,13 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Mapping
 from types import ModuleType
 
 import numpy as np
 
-from ..errors import TrackingError
+from ..arguments import as_float, is_real, shown
+from ..errors import ArgumentTypeError, ArgumentValueError, TrackingError
 from ..ir import FaultSignatures
 from ..kinds import fault_kind
 from . import events as ev
@@ -121,6 +123,8 @@ class Diagnoser:
         self.source = source
         self.most = most
         self._infer_inputs = inputs is None
+        self.finished = False
+        self.busy = 0.0  # seconds spent in steps (not waiting for data)
         rng = np.random.default_rng([options.seed, 0])
         self.pf = None if ckf else self.pf_class(nominal, options.particles, rng)
         self.kf = kalman.NominalKalman(nominal, len(self.outputs)) if ckf else None
@@ -157,27 +161,36 @@ class Diagnoser:
         inputs); ``line``: its line in the data, for messages. Returns the
         belief after the last step the row gives (a row may give several:
         the steps of a gap before it; none: a row on a step already taken)."""
-        u = _named(u, self.nominal.INPUTS)
+        if self.finished:
+            raise TrackingError(f"{self.source}: this diagnoser has finished", None,
+                                "open another with session.diagnoser() for more data")
+        started = time.perf_counter()
+        t = _time(t, line)
+        u = _named(u, self.nominal.INPUTS, "u", line)
+        y = _named(y, self.outputs, "y", line)
         if self._infer_inputs:  # the first row says which inputs the data give
             self._infer_inputs = False
             self.sampler.data_inputs = tuple(name for name in self.nominal.INPUTS if name in u)
-        rows = self.sampler.push(float(t), u, _named(y, self.outputs), line)
+        rows = self.sampler.push(t, u, y, line)
         belief = None
         collected: list = []
         for s in rows:
             belief = self.take(s)
             collected += belief.events
-        if belief is None:
-            k = len(self.samples) - 1
-            return Belief(k, float(t), self.phase, self.detection, (), ())
+        self.busy += time.perf_counter() - started
+        if belief is None:  # a row on a step already taken: the belief stands
+            return self.belief(len(self.events))
         return dataclasses.replace(belief, events=tuple(collected))
 
     def take(self, s: Sample) -> Belief:
         """Take one step of the grid (a :class:`~bgc.runtime.data.Sample`)."""
         if self.most is not None and len(self.samples) >= self.most:
-            raise TrackingError(f"{self.source}: the stream reached {self.most} steps of the model's grid, the most "
-                                "a diagnosis of this model and these options may hold in memory (4 GB)", None,
-                                "finish this diagnoser (and start another) at a shorter horizon")
+            where = self.source if s.line is None else f"{self.source}:{s.line}"
+            raise TrackingError(f"{where}: the stream reached {self.most} steps of the model's grid (t = {s.t:.12g}), "
+                                "the most a diagnosis of this model with these options holds in memory (4 GB by "
+                                "bgc.api.diagnosis_memory's rule)", None,
+                                "finish this diagnoser and start another for the rest of the stream, or use fewer "
+                                "particles")
         if self.inner is not None:
             self.samples.append(s)
             return self.inner.take(s)
@@ -187,7 +200,8 @@ class Diagnoser:
         self._observe(s)
         if self.inner is not None:  # the observer degenerated at this alarm: the record went to a ckf diagnoser
             inner = self.inner.belief()
-            return dataclasses.replace(inner, events=tuple(self.events[mark:]) + inner.events)
+            mine = tuple(e for e in self.events[mark:] if not isinstance(e, ev.Alarmed))  # the ckf's alarm stands
+            return dataclasses.replace(inner, events=mine + inner.events)
         if self.phase == "isolating" and s.k >= self.detection.step + self.options.symbol_steps:
             self._isolate()
         elif self.phase == "tracking" and not self.lazy:
@@ -247,15 +261,18 @@ class Diagnoser:
         the run): an event, and with ``switch`` the record handed to a
         cubature Kalman diagnoser (True)."""
         o = self.options
-        mean_ess = self.ess_sum / max(self.ess_steps, 1)
+        if not self.ess_steps:  # an alarm on the first sample: nothing says the filter degenerates
+            return False
+        mean_ess = self.ess_sum / self.ess_steps
         if mean_ess >= DEGENERATE * o.particles:
             return False
+        step = self.samples[-1].k
         if not o.switch:
-            self.events.append(ev.Degenerate(o.method, mean_ess, o.particles, False))
+            self.events.append(ev.Degenerate(o.method, mean_ess, o.particles, False, step))
             return False
         self.say("the particle filter degenerates: diagnosing again with cubature Kalman filters")
-        self.events += [ev.Degenerate(o.method, mean_ess, o.particles, True),
-                        ev.Switched(KALMAN_METHOD, "degenerate", self.samples[-1].k)]
+        self.events += [ev.Degenerate(o.method, mean_ess, o.particles, True, step),
+                        ev.Switched(KALMAN_METHOD, "degenerate", step)]
         self.inner = self.replay(dataclasses.replace(o, method=KALMAN_METHOD, rank=False, refine=False), self.every)
         return True
 
@@ -264,6 +281,7 @@ class Diagnoser:
         d = Diagnoser(self.package, self.signatures, self.priors, options, self.horizon,
                       inputs=self.sampler.data_inputs, sensors=self.sampler.present, source=self.source,
                       lazy=self.lazy, every=every, progress=self.say)
+        d.sampler = self.sampler  # the data were read once: their summary is this one's
         for s in self.samples:
             d.take(dataclasses.replace(s, events=()))
         return d
@@ -353,6 +371,9 @@ class Diagnoser:
     def finish(self, truth: Run | None = None) -> Diagnosis:
         """The diagnosis of the record (the stream ends here); ``truth``: the
         run, when it records the true fault (its parameter columns)."""
+        if not self.finished:  # the diagnosis's seconds: its steps' and its end's, not the waits for data
+            self.finished = True
+            self.started = time.perf_counter() - self.busy
         if self.inner is not None:
             d = self.inner.finish(truth)
             mine = [e for e in self.events if isinstance(e, (ev.Degenerate, ev.Switched) + DATA_EVENTS)]
@@ -423,10 +444,10 @@ def isolate(d: Diagnoser, ys: np.ndarray, us: np.ndarray, observer) -> Isolation
     keep, dropped = signature_hypotheses(d.signatures, seen)
     events = []
     if d.every and dropped:
-        events.append(ev.AllTried("unexplained"))
+        events.append(ev.AllTried("unexplained", T - 1))
         keep = list(d.signatures.signatures)
     elif not keep:
-        events.append(ev.AllTried("no-signature"))
+        events.append(ev.AllTried("no-signature", T - 1))
         keep = list(d.signatures.signatures)
     models: dict[str, list[str]] = {}
     for s in keep:
@@ -440,17 +461,46 @@ def isolate(d: Diagnoser, ys: np.ndarray, us: np.ndarray, observer) -> Isolation
                            tuple(events))
 
 
-def _named(values, names) -> dict[str, float]:
-    """A row's cells by name: from a mapping, or a sequence in ``names``' order (None: none)."""
+def _time(t, line) -> float:
+    """A row's time: a real number (NaN and the rest are the sampler's to refuse, with the line)."""
+    if not is_real(t):
+        where = "" if line is None else f" (line {line})"
+        raise ArgumentTypeError(f"Diagnoser.step: t={shown(t)}{where} is not a number", None,
+                                "give the row's time as a float")
+    return as_float(t)
+
+
+def _named(values, names, what: str, line) -> dict[str, float]:
+    """A row's cells by name: from a mapping (each key one of ``names``), or
+    a sequence in ``names``' order (None: none); each a real number or NaN
+    (not read), never infinite."""
+    where = "" if line is None else f" (line {line})"
     if values is None:
         return {}
-    if isinstance(values, dict):
-        return {str(k): float(v) for k, v in values.items()}
-    a = np.asarray(values, dtype=float).reshape(-1)
-    if len(a) != len(names):
-        raise TrackingError(f"a row of {len(a)} values for {len(names)} names ({', '.join(names)})", None,
-                            "give one value per name, in the model's order, or a mapping by name")
-    return dict(zip(names, (float(v) for v in a)))
+    if isinstance(values, Mapping):
+        unknown = [k for k in values if k not in names]
+        if unknown:
+            raise ArgumentValueError(f"Diagnoser.step: {what} has {shown(unknown[0])}{where}, not one of the model's "
+                                     f"{'inputs' if what == 'u' else 'sensors'} ({', '.join(names) or 'none'})", None,
+                                     "use the model's names (bgc show equations MODEL lists them)")
+        pairs = list(values.items())
+    else:
+        if isinstance(values, (str, bytes)) or not hasattr(values, "__len__"):
+            raise ArgumentTypeError(f"Diagnoser.step: {what}={shown(values)}{where} is not a mapping or a sequence",
+                                    None, "give a dict by name, or one value per name in the model's order")
+        cells = list(np.asarray(values, dtype=object).reshape(-1)) if len(values) else []
+        if len(cells) != len(names):
+            raise ArgumentValueError(f"Diagnoser.step: {what} has {len(cells)} values{where} for {len(names)} names "
+                                     f"({', '.join(names)})", None,
+                                     "give one value per name, in the model's order, or a mapping by name")
+        pairs = list(zip(names, cells))
+    out = {}
+    for name, v in pairs:
+        if not is_real(v) or math.isinf(as_float(v)):
+            raise ArgumentValueError(f"Diagnoser.step: {what}[{name}]={shown(v)}{where} is not a finite number", None,
+                                     "give a float, or NaN for a value not read")
+        out[str(name)] = as_float(v)
+    return out
 
 
 def _ordered(events: list) -> list:

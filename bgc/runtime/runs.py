@@ -223,7 +223,7 @@ class _Lines:
             if ends:
                 block = block[:-1]
             count += len(decoder.decode(block)) if decoder else len(block)
-            if ends:
+            if ends or count > MAX_RUN_BYTES:  # a stream without an end of line ends the count too
                 break
         return count
 
@@ -318,6 +318,8 @@ def _parse(stream: IO, name: str) -> Run:
             if lines.length > MAX_FIELD:
                 _fields(fields, lines)
             try:
+                if "_" in "".join(fields):  # float() reads 1_0 as 10: a number of Python's, not of a run file
+                    raise ValueError
                 block.append([float(v) for v in fields])
             except ValueError:
                 block.append([_number(v, c, lines) for v, c in zip(fields, cols)])
@@ -383,6 +385,8 @@ def _number(text: str, column: str, lines: _Lines) -> float:
     if not text.strip():
         return math.nan
     try:
+        if "_" in text:
+            raise ValueError
         return float(text)
     except ValueError:
         raise lines.error(f"{printable(repr(text[:40]))} in column {printable(column)} is not a number",
