@@ -145,7 +145,9 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
         raise DataError(f"{printable(name)}: no data row arrived", None, "give at least one row after the column names")
     run = _run(columns, rows, reader.header, name)
     diagnosis = d.finish(run)
-    tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))],
+    gone = {e.hypothesis for e in told if isinstance(e, ev.Dropped)}  # dropped online: said already
+    tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))
+          and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
          diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
     return session.report(run, diagnosis), failure
 
