@@ -31,9 +31,7 @@ bgc.errors.ArgumentValueError: bgc.diagnose: seed=-1 is negative (give an intege
 from __future__ import annotations
 
 import atexit
-import builtins
 import dataclasses
-import hashlib
 import math
 import os
 import shutil
@@ -45,7 +43,6 @@ from pathlib import Path
 import numpy as np
 
 from . import arguments, pipeline
-from .compiler.load import MAX_BYTES
 from .errors import ArgumentTypeError, ArgumentValueError, SimulationError, TrackingError, printable
 from .ir import NoiseLevels, Numerics
 from .kinds import DIRECTIONS, fault_kind
@@ -78,7 +75,7 @@ class DiagnosisReport:
     diagnosis: Diagnosis
 
 
-def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scenario: str | None = None, *,
+def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = None, scenario: str | None = None, *,
              method: str = "gpf", particles: int = 1000, seed: int = 0,
              process_noise: float | None = None, measurement_noise: float | None = None,
              steps: int | None = None, generated: str | Path | None = None,
@@ -89,8 +86,11 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
 
     Parameters
     ----------
-    model : str or os.PathLike
-        The model file (YAML).
+    model : str, os.PathLike or Session
+        The model file (YAML), or a :class:`Session` of it (:func:`open`:
+        compiled once for many diagnoses; its noise levels then apply, and
+        ``process_noise``, ``measurement_noise`` and ``generated`` must be
+        left out or be the session's).
     data : str, os.PathLike or Run, optional
         A recorded run: a CSV as ``bgc simulate`` writes, or a
         :class:`~bgc.runtime.runs.Run` (checked as a file's would be, by
@@ -144,7 +144,8 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
         The model's own errors (load, validation, ...).
     """
     func = "bgc.diagnose"
-    arguments.path(func, "model", model)
+    if not isinstance(model, Session):
+        arguments.path(func, "model", model)
     if data is not None and not isinstance(data, (str, os.PathLike, runs.Run)):
         raise ArgumentTypeError(f"{func}: data={arguments.shown(data)} is not a path or a Run", None,
                                 "give a run file's path or a bgc.runtime.runs.Run")
@@ -167,8 +168,8 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
         check_options(options, func)
     arguments.callable_or_none(func, "progress", progress)
     say = progress or (lambda text: None)
-    say("compiling the model")
-    c, private = _compiled(model)
+    session = _session_of(func, model, process_noise, measurement_noise, generated, say)
+    c = session.compiled
     opts = options or DiagnosisOptions(method=method, particles=particles, seed=seed)
     injected = None
     if scenario is not None:
@@ -194,19 +195,29 @@ def diagnose(model: str | Path, data: str | Path | runs.Run | None = None, scena
         check_diagnosis_steps(grid, c.numerics, opts.particles, opts.method,
                               f"{printable(run.source)}: {len(run.time)} samples"
                               + (f" over {grid} steps of dt" if grid != len(run.time) else ""), opts.history)
-    levels = c.numerics.noise_at(process_noise, measurement_noise)
-    custom = levels if (process_noise, measurement_noise) != (None, None) else None
-    with _LOCK:  # another thread must not see a package half imported
-        package = track.load_package(generated if generated is not None else private, c.model.name, str(model),
-                                     custom)
-    return _run(c, run, package, scenario, injected, (process_noise, measurement_noise), levels, opts, say)
+    return _run(c, run, session.package, scenario, injected, session.noise, session.levels, opts, say)
+
+
+def _session_of(func: str, model, process_noise, measurement_noise, generated, say) -> Session:
+    """``model`` when it is a :class:`Session` (whose noise levels and
+    package apply: other ones are refused), else a new session of the file."""
+    if not isinstance(model, Session):
+        say("compiling the model")
+        return Session(model, process_noise, measurement_noise, generated)
+    if (process_noise, measurement_noise) not in ((None, None), model.noise) or generated is not None:
+        raise ArgumentValueError(f"{func}: noise levels or generated= with a Session: the session's apply", None,
+                                 "open a session with them: bgc.open(model, process_noise=..., ...)")
+    return model
 
 
 class Session:
     """A compiled model and its generated package, ready to diagnose: made
     by :func:`open`. ``model``: the model file; ``noise``: the relative
     (process, measurement) noise levels the filters assume (None: the
-    model's).
+    model's). A session holds its own compilation and package (in a private
+    folder removed at exit); nothing is cached between sessions: diagnose
+    many runs of one model through one session (``bgc.diagnose(session,
+    data=...)``, :meth:`diagnoser`).
 
     >>> import bgc
     >>> session = bgc.open("models/circuit.yaml")
@@ -224,13 +235,13 @@ class Session:
         arguments.path(func, "generated", generated, optional=True)
         self.model = str(model)
         self.noise = (process_noise, measurement_noise)
-        self.compiled, private = _compiled(model)
+        self.compiled, self.folder = _compiled(model)  # this session's own compilation and package folder
         c = self.compiled
         levels = c.numerics.noise_at(process_noise, measurement_noise)
         self.levels = levels
         custom = levels if (process_noise, measurement_noise) != (None, None) else None
-        with _LOCK:
-            self.package = track.load_package(generated if generated is not None else private, c.model.name,
+        with _LOCK:  # another thread must not see a package half imported
+            self.package = track.load_package(generated if generated is not None else self.folder, c.model.name,
                                               str(model), custom)
         self.priors = {f.parameter: f.prior for f in c.model.faults}
 
@@ -276,9 +287,11 @@ class Session:
 
 def open(model: str | Path, *, process_noise: float | None = None, measurement_noise: float | None = None,
          generated: str | Path | None = None) -> Session:
-    """Compile ``model`` (once per file content and process) and load its
-    generated package: a :class:`Session` whose :meth:`Session.diagnoser`
-    diagnoses a stream one sample at a time. ``process_noise``,
+    """Compile ``model`` and load its generated package: a :class:`Session`
+    whose :meth:`Session.diagnoser` diagnoses a stream one sample at a time,
+    and which :func:`diagnose` and :func:`distinguishability` take in place of
+    the model file (compiled once for many runs; nothing is cached between
+    sessions). ``process_noise``,
     ``measurement_noise``: the relative noise levels the filters assume
     (default: the model's); ``generated``: the folder ``bgc compile -o``
     wrote (default: a private one)."""
@@ -434,12 +447,6 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose") -> None
 #: The compile cache, the private folders and the package imports are shared
 #: by the threads of a process (a Dask worker runs several tasks at once).
 _LOCK = threading.RLock()
-#: Compilations of this process by the model file's path and content, each
-#: with the private folder its package was written to (removed at exit): a
-#: notebook or a campaign worker diagnosing one model many times compiles it
-#: and imports its package once.
-_COMPILED: dict[tuple[str, str], tuple[pipeline.Compiled, str]] = {}
-_FOLDERS: dict[int, str] = {}  # process id -> its private folder (a forked worker makes its own)
 
 
 def private_folder(prefix: str) -> str:
@@ -463,35 +470,16 @@ def private_folder(prefix: str) -> str:
 
 
 def _compiled(model: str | Path) -> tuple[pipeline.Compiled, str]:
-    with _LOCK:
-        return _compile_once(model)
-
-
-def _compile_once(model: str | Path) -> tuple[pipeline.Compiled, str]:
-    digest = ""  # not a regular file: compile_model says what is wrong with the path
-    try:
-        if Path(model).is_file():
-            with builtins.open(model, "rb") as f:
-                digest = hashlib.sha256(f.read(MAX_BYTES + 1)).hexdigest()
-    except OSError:
-        pass
-    key = (str(model), digest)
-    pid = os.getpid()
-    if pid not in _FOLDERS:  # first use in this process: a forked child must not share its parent's folder
-        _COMPILED.clear()
-        _FOLDERS[pid] = private_folder("bgc-")
-    if digest and key in _COMPILED:
-        return _COMPILED[key]
+    """Compile ``model`` and write its generated package into a new private
+    folder of this process: (the compiled model, the folder). Nothing is
+    kept between calls: a :class:`Session` holds what one model needs."""
     c = pipeline.compile_model(model)
-    folder = Path(_FOLDERS[pid]) / c.raw.sha256[:16]
-    root = folder / c.model.name / "numpy_model"
-    if not root.exists():
-        root.mkdir(parents=True)
-        for rel, text in c.package.files:
-            (root / rel).write_text(text, encoding="utf-8")
-    if digest:
-        _COMPILED[key] = (c, str(folder))
-    return c, str(folder)
+    folder = private_folder("bgc-")
+    root = Path(folder) / c.model.name / "numpy_model"
+    root.mkdir(parents=True)
+    for rel, text in c.package.files:
+        (root / rel).write_text(text, encoding="utf-8")
+    return c, folder
 
 
 def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> DiagnosisReport:
@@ -545,7 +533,8 @@ class DistinguishabilityReport:
     distinctions: tuple[distinction.Distinction, ...]
 
 
-def distinguishability(model: str | Path, scenario: str | None = None, *, change: float = 0.3, at: float = 0.5,
+def distinguishability(model: str | Path | Session, scenario: str | None = None, *, change: float = 0.3,
+                       at: float = 0.5,
                        process_noise: float | None = None, measurement_noise: float | None = None,
                        steps: int | None = None, level: float = distinction.LEVEL,
                        progress=None) -> DistinguishabilityReport:
@@ -595,7 +584,8 @@ def distinguishability(model: str | Path, scenario: str | None = None, *, change
         A run too long for the memory (the message gives the most steps).
     """
     func = "bgc.distinguishability"
-    arguments.path(func, "model", model)
+    if not isinstance(model, Session):  # a session: its compilation (the noise levels are this call's)
+        arguments.path(func, "model", model)
     arguments.text(func, "scenario", scenario, optional=True)
     arguments.real(func, "change", change, 0.0, math.inf, "a relative change above 0, e.g. change=0.3")
     arguments.real(func, "at", at, 0.0, 1.0, "a fraction of the run between 0 and 1, e.g. at=0.5")
@@ -605,8 +595,11 @@ def distinguishability(model: str | Path, scenario: str | None = None, *, change
     arguments.real(func, "level", level, 0.0, 1.0, "a probability between 0 and 1, e.g. level=0.95")
     arguments.callable_or_none(func, "progress", progress)
     say = progress or (lambda text: None)
-    say("compiling the model")
-    c, private = _compiled(model)
+    if isinstance(model, Session):
+        c, private = model.compiled, model.folder
+    else:
+        say("compiling the model")
+        c, private = _compiled(model)
     num = c.numerics
     if steps is not None:
         simulate.check_steps(steps, num, "--steps")

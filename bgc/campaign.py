@@ -574,6 +574,23 @@ def _model_file(spec: RunSpec) -> str:
 
 _MODEL_LOCK = threading.Lock()
 
+#: This worker's sessions (bgc.open) by process, model file and noise levels: a campaign worker diagnoses
+#: many runs of a few models, each compiled once (the runner's state, outside the diagnosis).
+_SESSIONS: dict[tuple, Any] = {}
+
+
+def _session(spec: RunSpec, process_noise: float | None, measurement_noise: float | None):
+    """The session of the run's model at these noise levels in this process, opened once."""
+    from . import api
+
+    key = (os.getpid(), _model_file(spec), process_noise, measurement_noise)
+    with _MODEL_LOCK:
+        if key not in _SESSIONS:
+            if any(k[0] != key[0] for k in _SESSIONS):  # a forked worker: its parent's sessions are not its own
+                _SESSIONS.clear()
+            _SESSIONS[key] = api.open(key[1], process_noise=process_noise, measurement_noise=measurement_noise)
+        return _SESSIONS[key]
+
 
 def _write_model(spec: RunSpec, private_folder) -> str:
     pid = os.getpid()
@@ -605,9 +622,8 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     try:
         options = DiagnosisOptions(method=spec.filter, particles=spec.particles, seed=spec.seed, workers=1,
                                    refine=spec.refine, switch=False)  # a campaign measures the filter it names
-        report = api.diagnose(_model_file(spec), scenario=spec.scenario, seed=spec.seed,
-                              process_noise=spec.process_noise, measurement_noise=spec.measurement_noise,
-                              steps=spec.steps, options=options)
+        report = api.diagnose(_session(spec, spec.process_noise, spec.measurement_noise), scenario=spec.scenario,
+                              seed=spec.seed, steps=spec.steps, options=options)
         d = report.diagnosis
         m = metrics.measure(d, report.run, metrics.Truth(spec.fault, spec.kind, spec.magnitude, spec.onset))
         best = d.best
@@ -649,7 +665,8 @@ def _prediction(model_file: str, scenario: str, process_noise: float | None, mea
     from . import api
 
     try:
-        d = api.distinguishability(model_file, scenario, process_noise=process_noise,
+        compiled = next((v for k, v in _SESSIONS.items() if k[:2] == (os.getpid(), model_file)), model_file)
+        d = api.distinguishability(compiled, scenario, process_noise=process_noise,  # the run's session: compiled
                                    measurement_noise=measurement_noise, steps=steps).distinctions[0]
     except Exception:  # noqa: BLE001 - the prediction is an extra: the diagnosis's row stands without it
         return ()

@@ -446,3 +446,22 @@ def test_a_followed_file_that_is_truncated_ends_the_stream_and_an_unfinished_las
     out, err = proc.communicate(timeout=300)
     assert proc.returncode == 1 and "was truncated while it was followed" in err, err
     assert (tmp_path / "b" / "report.md").is_file()
+
+
+def test_a_session_is_compiled_once_for_many_diagnoses_and_owns_its_package(tmp_path):
+    """No compile cache between calls: a session holds its model's
+    compilation and package, bgc.diagnose takes it for many runs, and two
+    sessions of one model name (two texts) keep their own packages."""
+    session = bgc.open(CIRCUIT)
+    runs_ = [simulated(CIRCUIT, steps=60, seed=s) for s in (1, 2)]
+    verdicts = [bgc.diagnose(session, data=r, options=DiagnosisOptions(particles=100, workers=1)).diagnosis.verdict
+                for r in runs_]
+    assert verdicts == ["no fault", "no fault"]
+    with pytest.raises(bgc.errors.ArgumentValueError, match="with a Session: the session's apply"):
+        bgc.diagnose(session, data=runs_[0], process_noise=0.5)
+    variant = tmp_path / "circuit.yaml"
+    variant.write_text(CIRCUIT.read_text().replace("value: 10.0", "value: 12.0"))
+    other = bgc.open(variant)
+    assert other.package.__name__ != session.package.__name__
+    assert session.package.MODELS["nominal"].inputs(0.0)[0] == 10.0
+    assert other.package.MODELS["nominal"].inputs(0.0)[0] == 12.0

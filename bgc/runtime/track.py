@@ -35,7 +35,7 @@ _ROWS_ALIVE = 3
 
 def load_package(generated_dir: str | Path, model: str, source: str | None = None,
                  noise: NoiseLevels | None = None) -> ModuleType:
-    """Import ``<generated_dir>/<model>/numpy_model`` as ``bgc_generated_<model>``
+    """Import ``<generated_dir>/<model>/numpy_model`` as ``bgc_generated_<model>_<folder hash>``
     (``source``: the model file, for the hint when the package is missing).
 
     With ``noise`` (absolute stds, e.g. :meth:`bgc.ir.Numerics.noise_at` of
@@ -56,7 +56,8 @@ def load_package(generated_dir: str | Path, model: str, source: str | None = Non
             f"no generated package at {printable(str(root))}", None,
             f"run: bgc compile {printable(source or 'MODEL.yaml')}{out}, or point --generated at the folder "
             "bgc compile -o wrote")
-    name = f"bgc_generated_{model}"
+    # one name per folder: two sessions of a model (another folder, another text) never share a module
+    name = f"bgc_generated_{model}_{hashlib.sha256(str(root.resolve()).encode()).hexdigest()[:12]}"
     if noise is not None:
         key = hashlib.sha256(repr((noise.process, noise.measurement, noise.predictive)).encode()).hexdigest()[:16]
         name = f"{name}_noise_{key}"
