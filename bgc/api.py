@@ -50,6 +50,7 @@ from .runtime import distinguish as distinction
 from .runtime import identify, kalman, metrics, runs, simulate, track
 from .runtime.diagnose import IDENTIFY, KALMAN_METHOD, PATHS, Diagnosis, DiagnosisOptions
 from .runtime.diagnose import diagnose as run_diagnosis
+from .runtime.data import grid_steps
 from .runtime.diagnose import horizon_steps
 from .runtime.diagnoser import Diagnoser
 
@@ -169,33 +170,49 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     arguments.callable_or_none(func, "progress", progress)
     say = progress or (lambda text: None)
     session = _session_of(func, model, process_noise, measurement_noise, generated, say)
-    c = session.compiled
     opts = options or DiagnosisOptions(method=method, particles=particles, seed=seed)
-    injected = None
     if scenario is not None:
-        T = steps or c.model.settings.steps
-        where = "--steps" if steps is not None else f"{printable(c.model.source)}: simulation.steps"
-        simulate.check_steps(T, c.numerics, where)
-        if scenario.strip().lower() != "none":
-            injected = simulate.parse_fault(scenario, c.numerics)
-            last = T * c.model.settings.dt
-            if not 0 < injected.time < last:
-                raise SimulationError(f"scenario {printable(scenario.strip())}: onset {injected.time:g} is outside the "
-                                      f"run (0 to {last:g})", None, "choose an onset inside the run, or more --steps")
-        check_diagnosis_steps(T, c.numerics, opts.particles, opts.method, where, opts.history)
-        say("simulating the scenario")
-        result = simulate.simulate(c.numerics, simulate.SimulationOptions(
-            steps=steps, process_noise=process_noise, measurement_noise=measurement_noise, seed=seed,
-            fault=injected))
-        run = runs.parse_run(simulate.to_csv(result), f"scenario {scenario.strip()}")
+        run, injected = _scenario_run(session, scenario, steps, seed, opts, say)
     else:
-        run = runs.check_run(data) if isinstance(data, runs.Run) else runs.read_run(data)
-        track.check_run_of(run, c.model.name)
-        grid = grid_steps(run, c.model.settings.dt)  # the model's time grid: a gap's steps count too
-        check_diagnosis_steps(grid, c.numerics, opts.particles, opts.method,
-                              f"{printable(run.source)}: {len(run.time)} samples"
-                              + (f" over {grid} steps of dt" if grid != len(run.time) else ""), opts.history)
-    return _run(c, run, session.package, scenario, injected, session.noise, session.levels, opts, say)
+        run, injected = _recorded_run(session, data, opts), None
+    return _run(session.compiled, run, session.package, scenario, injected, session.noise, session.levels, opts,
+                say)
+
+
+def _scenario_run(session: Session, scenario: str, steps: int | None, seed: int, opts: DiagnosisOptions,
+                  say) -> tuple[runs.Run, simulate.FaultInjection | None]:
+    """The run of a simulated scenario at the session's noise levels, checked
+    (its onset inside the run, its length within the diagnosis's memory)."""
+    c = session.compiled
+    T = steps or c.model.settings.steps
+    where = "--steps" if steps is not None else f"{printable(c.model.source)}: simulation.steps"
+    simulate.check_steps(T, c.numerics, where)
+    injected = None
+    if scenario.strip().lower() != "none":
+        injected = simulate.parse_fault(scenario, c.numerics)
+        last = T * c.model.settings.dt
+        if not 0 < injected.time < last:
+            raise SimulationError(f"scenario {printable(scenario.strip())}: onset {injected.time:g} is outside the "
+                                  f"run (0 to {last:g})", None, "choose an onset inside the run, or more --steps")
+    check_diagnosis_steps(T, c.numerics, opts.particles, opts.method, where, opts.history)
+    say("simulating the scenario")
+    process_noise, measurement_noise = session.noise
+    result = simulate.simulate(c.numerics, simulate.SimulationOptions(
+        steps=steps, process_noise=process_noise, measurement_noise=measurement_noise, seed=seed, fault=injected))
+    return runs.parse_run(simulate.to_csv(result), f"scenario {scenario.strip()}"), injected
+
+
+def _recorded_run(session: Session, data, opts: DiagnosisOptions) -> runs.Run:
+    """A recorded run (a file or a Run), checked: of this model, its grid
+    within the diagnosis's memory."""
+    c = session.compiled
+    run = runs.check_run(data) if isinstance(data, runs.Run) else runs.read_run(data)
+    track.check_run_of(run, c.model.name)
+    grid = grid_steps(run.time, c.model.settings.dt)  # the model's time grid: a gap's steps count too
+    check_diagnosis_steps(grid, c.numerics, opts.particles, opts.method,
+                          f"{printable(run.source)}: {len(run.time)} samples"
+                          + (f" over {grid} steps of dt" if grid != len(run.time) else ""), opts.history)
+    return run
 
 
 def _session_of(func: str, model, process_noise, measurement_noise, generated, say) -> Session:
@@ -489,12 +506,6 @@ def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> Diagn
     result = run_diagnosis(run, package, c.signatures, priors, opts, say)
     return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,
                            result)
-
-
-def grid_steps(run: runs.Run, dt: float) -> int:
-    """The steps of the model's time grid a run covers (its rows, and the steps between them)."""
-    t = np.asarray(run.time, dtype=float)
-    return int(round((t[-1] - t[0]) / dt)) + 1 if len(t) else 0
 
 
 def most_steps(num: Numerics, options: DiagnosisOptions) -> int:

@@ -143,7 +143,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
             "that line is not read")
     if not rows:
         raise DataError(f"{printable(name)}: no data row arrived", None, "give at least one row after the column names")
-    run = _run(columns, rows, reader.header, name)
+    run = runs.run_of(columns, np.array(rows, dtype=float).reshape(len(rows), len(columns)), reader.header, name)
     diagnosis = d.finish(run)
     gone = {e.hypothesis for e in told if isinstance(e, ev.Dropped)}  # dropped online: said already
     tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))
@@ -184,14 +184,3 @@ class _Guard:
         if self.previous is not None:
             signal.signal(signal.SIGINT, self.previous)
             self.previous = None
-
-
-def _run(columns: list[str], rows: list[list[float]], header, name: str) -> runs.Run:
-    """The rows received as a :class:`~bgc.runtime.runs.Run` (for the report's plots and the truth)."""
-    data = np.array(rows, dtype=float).reshape(len(rows), len(columns))
-    groups: dict[str, dict[str, np.ndarray]] = {p: {} for p in runs.PREFIXES}
-    for j, c in enumerate(columns[1:], start=1):
-        prefix, _, rest = c.partition(":")
-        groups[prefix][rest] = data[:, j]
-    return runs.Run(data[:, 0], groups["u"], groups["y"], groups["x"], groups["theta"], tuple(header), name)
-

@@ -465,3 +465,17 @@ def test_a_session_is_compiled_once_for_many_diagnoses_and_owns_its_package(tmp_
     assert other.package.__name__ != session.package.__name__
     assert session.package.MODELS["nominal"].inputs(0.0)[0] == 10.0
     assert other.package.MODELS["nominal"].inputs(0.0)[0] == 12.0
+
+
+def test_a_batch_diagnosis_counts_its_steps_in_its_seconds_and_a_session_simulates_at_its_noise():
+    """The seconds are the steps' and the end's (the loop's steps run
+    through take(), which a batch calls directly); a scenario diagnosed
+    through a session is simulated at the session's noise levels."""
+    run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
+    started = time.perf_counter()
+    d = bgc.diagnose(CIRCUIT, data=run, options=OPTIONS).diagnosis
+    wall = time.perf_counter() - started
+    assert 0.5 * wall <= d.seconds <= wall
+    noisy = bgc.open(CIRCUIT, process_noise=0.05, measurement_noise=0.04)
+    r = bgc.diagnose(noisy, scenario="none", steps=40, options=DiagnosisOptions(particles=50, workers=1))
+    assert any(h.startswith("noise: process 0.05, measurement 0.04") for h in r.run.header), r.run.header

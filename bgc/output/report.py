@@ -125,10 +125,9 @@ def report_data(r) -> dict[str, Any]:
     return out
 
 
-def report_markdown(r) -> str:
-    """The report for people: ``report.md``."""
+def _heading(r) -> list[str]:
+    """The report's first lines: the model, the data (samples on the grid's steps), the filter and noise."""
     d = r.diagnosis
-    det = d.detection
     lines = [f"# Diagnosis of {escape(r.model)} ({escape(r.source)})", ""]
     span = f"t = {_tt(d, 0)} to {_tt(d, len(d.time) - 1)}"
     rows = len(r.run.time)
@@ -150,6 +149,14 @@ def report_markdown(r) -> str:
     else:
         lines += [f"Filter: {d.options.method.upper()}, {d.options.particles} particles, seed {d.options.seed}; "
                   f"{noise}; {how}.", ""]
+    return lines
+
+
+def report_markdown(r) -> str:
+    """The report for people: ``report.md``."""
+    d = r.diagnosis
+    det = d.detection
+    lines = _heading(r)
     verdict = {"no fault": "**No fault detected.**",
                "isolated": f"**Fault isolated: {d.candidates[0] if d.candidates else ''}.**",
                "ambiguous": "**Fault detected; the data cannot separate: " + ", ".join(d.candidates) + ".**",

@@ -206,6 +206,13 @@ class DataSummary:
     dt: float
 
 
+def grid_steps(time, dt: float) -> int:
+    """The steps of the model's time grid (of ``dt``) that samples at ``time``
+    (increasing) cover: the first to the last, the steps between them too."""
+    t = np.asarray(time, dtype=float)
+    return int(round((t[-1] - t[0]) / dt)) + 1 if len(t) else 0
+
+
 def samples(run: Run, sampler: Sampler) -> Iterator[Sample]:
     """The samples of a recorded run on the model's grid: its rows fed to
     ``sampler`` (a :class:`Sampler` of the run's columns; the run is checked

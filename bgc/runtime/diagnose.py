@@ -96,7 +96,7 @@ import math
 from types import ModuleType
 
 from ..ir import FaultSignatures
-from .data import samples
+from .data import grid_steps, samples
 from .diagnoser import IDENTIFY, KALMAN_METHOD, Diagnoser
 from .openloop import PATHS
 from .runs import Run
@@ -122,7 +122,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     record's length (:func:`bgc.diagnose` fills in the model's run length).
     """
     nominal = package.MODELS["nominal"]
-    steps = int(round((float(run.time[-1]) - float(run.time[0])) / nominal.DT)) + 1  # the grid's, for the horizon
+    steps = grid_steps(run.time, nominal.DT)  # the record's length on the grid, for a horizon of None
     d = Diagnoser(package, signatures, priors, options, horizon_steps(options.horizon, nominal.DT, steps),
                   inputs=run.inputs, sensors=run.measurements, source=run.source, lazy=True, every=every,
                   progress=progress)

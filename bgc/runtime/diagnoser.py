@@ -62,7 +62,7 @@ from .isolate import observed_symbols
 from .runs import Run
 from .track import check_particles, filter_class
 from .values import Belief, Diagnosis, DiagnosisOptions, Live
-from .decide import STOPPED, decide
+from .decide import STOPPED, _ordered, decide
 from .hypothesis import track_job
 from .onsets import drift_onsets
 from .openloop import cloud_before, gaussian_cloud, open_loop
@@ -80,10 +80,6 @@ KALMAN_METHOD = "ckf"
 #: grid of onsets and magnitudes (:mod:`bgc.runtime.kalman`); ``filter``, by
 #: the particle filters' own magnitude state and evidence.
 IDENTIFY = ("kalman", "filter")
-
-
-#: The events of the data reader: a diagnoser that replays the record keeps them.
-DATA_EVENTS = (ev.SensorMissing, ev.ColumnIgnored, ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped)
 
 
 class Diagnoser:
@@ -138,7 +134,6 @@ class Diagnoser:
         self.z: list = []
         self.x_mean: list = []
         self.x_std: list = []
-        self.statistics: list = []
         self.clouds: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # step -> nominal cloud after it
         self.ess = float(options.particles)  # of the weights that predict the next step
         self.ess_sum, self.ess_steps = 0.0, 0
@@ -148,6 +143,7 @@ class Diagnoser:
         self.inner: Diagnoser | None = None  # the diagnoser the record was handed to (a switch of filter)
         self.isolation: Isolation | None = None
         self.trackers: dict[str, HypothesisTracker] = {}
+        self._before: dict[str, float] = {}  # per tracker, the nominal log density before its first onset
         self.reported: set[str] = set()  # hypotheses whose Dropped event is out
         self.density: list[float] = []  # the nominal observer's log density per step (eager tracking)
         self.say("tracking the nominal model")
@@ -164,7 +160,6 @@ class Diagnoser:
         if self.finished:
             raise TrackingError(f"{self.source}: this diagnoser has finished", None,
                                 "open another with session.diagnoser() for more data")
-        started = time.perf_counter()
         t = _time(t, line)
         u = _named(u, self.nominal.INPUTS, "u", line)
         y = _named(y, self.outputs, "y", line)
@@ -177,13 +172,19 @@ class Diagnoser:
         for s in rows:
             belief = self.take(s)
             collected += belief.events
-        self.busy += time.perf_counter() - started
         if belief is None:  # a row on a step already taken: the belief stands
             return self.belief(len(self.events))
         return dataclasses.replace(belief, events=tuple(collected))
 
     def take(self, s: Sample) -> Belief:
         """Take one step of the grid (a :class:`~bgc.runtime.data.Sample`)."""
+        started = time.perf_counter()
+        try:
+            return self._take(s)
+        finally:
+            self.busy += time.perf_counter() - started
+
+    def _take(self, s: Sample) -> Belief:
         if self.most is not None and len(self.samples) >= self.most:
             where = self.source if s.line is None else f"{self.source}:{s.line}"
             raise TrackingError(f"{where}: the stream reached {self.most} steps of the model's grid (t = {s.t:.12g}), "
@@ -201,7 +202,8 @@ class Diagnoser:
         if self.inner is not None:  # the observer degenerated at this alarm: the record went to a ckf diagnoser
             inner = self.inner.belief()
             mine = tuple(e for e in self.events[mark:] if not isinstance(e, ev.Alarmed))  # the ckf's alarm stands
-            return dataclasses.replace(inner, events=mine + inner.events)
+            told = {e for sample in self.samples for e in sample.events}  # the data's, said as they came
+            return dataclasses.replace(inner, events=mine + tuple(e for e in inner.events if e not in told))
         if self.phase == "isolating" and s.k >= self.detection.step + self.options.symbol_steps:
             self._isolate()
         elif self.phase == "tracking" and not self.lazy:
@@ -214,7 +216,7 @@ class Diagnoser:
         if self.ckf:
             self.kf.step(s.y, s.u)
             ym, sd, zk = self.kf.y_mean[-1], self.kf.y_std[-1], self.kf.z[-1]
-            xm, xs = self.kf.x_mean[-1], self.kf.x_std[-1]
+            xm, xs = self.kf.means[-1], self.kf.x_std[-1]  # the state after the step
             mc = None
         else:
             with np.errstate(all="ignore"):
@@ -276,14 +278,15 @@ class Diagnoser:
         self.inner = self.replay(dataclasses.replace(o, method=KALMAN_METHOD, rank=False, refine=False), self.every)
         return True
 
-    def replay(self, options: DiagnosisOptions, every: bool) -> Diagnoser:
-        """A diagnoser with ``options`` that has taken every step of this one's record."""
+    def replay(self, options: DiagnosisOptions, every: bool, lazy: bool | None = None) -> Diagnoser:
+        """A diagnoser with ``options`` that has taken every step of this one's
+        record, its data events with them (``lazy``: None, this one's)."""
         d = Diagnoser(self.package, self.signatures, self.priors, options, self.horizon,
                       inputs=self.sampler.data_inputs, sensors=self.sampler.present, source=self.source,
-                      lazy=self.lazy, every=every, progress=self.say)
+                      lazy=self.lazy if lazy is None else lazy, every=every, progress=self.say)
         d.sampler = self.sampler  # the data were read once: their summary is this one's
         for s in self.samples:
-            d.take(dataclasses.replace(s, events=()))
+            d.take(s)
         return d
 
     # -- isolation and tracking -----------------------------------------------------------------------------
@@ -313,6 +316,7 @@ class Diagnoser:
             job = track_job(name, iso.starts_of[name], self.package, self.clouds, self.options, self.outputs,
                                   self.horizon)
             tracker = self.trackers[name] = HypothesisTracker(job)
+            self._before[name] = float(density[:job.first].sum())  # the nominal density before its first onset
             for k in range(job.first, len(self.samples)):  # catch up on the samples kept
                 tracker.step(ys[k], us[k], density[k])
                 if tracker.done:
@@ -344,7 +348,7 @@ class Diagnoser:
         tail = (1.0 - self.options.interval) / 2.0
         rows = []
         for name, tracker in self.trackers.items():
-            before = float(sum(self.density[:tracker.job.first]))
+            before = self._before[name]
             evidence = {s: e for s, e in tracker.evidence.items() if s in tracker.live}
             if not evidence:
                 rows.append((name, -math.inf, tracker.job.first, math.nan, math.nan, math.nan, True))
@@ -374,10 +378,10 @@ class Diagnoser:
         if not self.finished:  # the diagnosis's seconds: its steps' and its end's, not the waits for data
             self.finished = True
             self.started = time.perf_counter() - self.busy
-        if self.inner is not None:
+        if self.inner is not None:  # it took every sample, with its data events
             d = self.inner.finish(truth)
-            mine = [e for e in self.events if isinstance(e, (ev.Degenerate, ev.Switched) + DATA_EVENTS)]
-            return dataclasses.replace(d, events=tuple(_ordered(mine + list(d.events))),
+            mine = [e for e in self.events if isinstance(e, (ev.Degenerate, ev.Switched))]
+            return dataclasses.replace(d, events=_ordered(mine + list(d.events)),
                                        seconds=time.perf_counter() - self.started)
         if not self.samples:
             raise TrackingError(f"{self.source}: no sample to diagnose", None, "give at least one row of data")
@@ -386,18 +390,14 @@ class Diagnoser:
         diagnosis = decide(self, truth)
         if self._retry(diagnosis):
             again = self.replay(dataclasses.replace(self.options, switch=False), True).finish(truth)
-            mine = [e for e in self.events if isinstance(e, DATA_EVENTS)]
-            return dataclasses.replace(again, events=tuple(_ordered(mine + list(again.events))),
-                                       seconds=time.perf_counter() - self.started)
+            return dataclasses.replace(again, seconds=time.perf_counter() - self.started)
         return diagnosis
 
     def checkpoint(self) -> Diagnosis:
         """The diagnosis of the data so far, the stream going on: the
         :meth:`finish` of a copy of this diagnoser's record (as costly as a
         batch diagnosis of it)."""
-        d = self.replay(self.options, self.every)
-        d.lazy = True
-        return d.finish()
+        return self.replay(self.options, self.every, lazy=True).finish()
 
     def _retry(self, d: Diagnosis) -> bool:
         """Whether an unexplained verdict is to be made again with every fault model."""
@@ -428,13 +428,13 @@ def isolate(d: Diagnoser, ys: np.ndarray, us: np.ndarray, observer) -> Isolation
     prediction from the detector's onset, and the fault models they keep."""
     o, detection, T = d.options, d.detection, len(ys)
     spacing = o.spacing or (8 if o.identify == "kalman" else 4)
+    def first_tried(reach: list[int]) -> list[int]:  # a drift's onsets near the alarm, and the change point
+        return [k for k in reach if k >= detection.step - o.search or detection.onset - 1 <= k <= detection.onset]
+
     reach = drift_onsets(detection.step, detection.onset, spacing, o.history)
-    grid = [k for k in reach if k >= detection.step - o.search or detection.onset - 1 <= k <= detection.onset]
     near = {k for k in range(detection.onset - o.near, detection.onset + 3) if 0 <= k <= detection.step + 1 and k < T}
     kalman_reach = drift_onsets(detection.step, detection.onset, o.kalman.spacing, o.history)
-    kalman_onsets = {True: [k for k in kalman_reach
-                            if k >= detection.step - o.search or detection.onset - 1 <= k <= detection.onset],
-                     False: sorted(near)}
+    kalman_onsets = {True: first_tried(kalman_reach), False: sorted(near)}
     d.say("reading the symbols of the deviating sensors")
     onset = detection.onset
     steps = min(T - onset, detection.step - onset + 1 + o.symbol_steps)
@@ -454,7 +454,7 @@ def isolate(d: Diagnoser, ys: np.ndarray, us: np.ndarray, observer) -> Isolation
         models.setdefault(f"{s.parameter}_{s.kind}", []).append(s.name)
     names = [n for n in sorted(models) if n in d.package.MODELS]
     drifts = {name: fault_kind(d.package.MODELS[name].FAULT["kind"]).drifts for name in names}
-    onsets = {True: grid, False: sorted(near)}
+    onsets = {True: first_tried(reach), False: sorted(near)}
     return Isolation(onset, seen, tuple((s.name, why) for s, why in dropped),
                            tuple(f"{s.parameter}_{s.kind}" for s, _ in dropped), models, names, drifts,
                            {name: onsets[drifts[name]] for name in names}, reach, kalman_onsets, kalman_reach,
@@ -501,8 +501,3 @@ def _named(values, names, what: str, line) -> dict[str, float]:
                                      "give a float, or NaN for a value not read")
         out[str(name)] = as_float(v)
     return out
-
-
-def _ordered(events: list) -> list:
-    """Events in time order (those without a step first), stable."""
-    return sorted(events, key=lambda e: -1 if e.step is None else e.step)

@@ -436,7 +436,6 @@ class NominalKalman:
         self.y_mean: list = []
         self.y_std: list = []
         self.z: list = []
-        self.x_mean: list = []
         self.x_std: list = []
         self.n_y = outputs
         self._none = np.zeros((0, 1))
@@ -452,7 +451,6 @@ class NominalKalman:
             self.y_mean.append(ym[0])
             self.y_std.append(sd[0])
             self.z.append(zk[0])
-            self.x_mean.append(m[0])
             self.x_std.append(np.sqrt(np.maximum(np.diagonal(P[0]), 0.0)))
 
     def track(self, stop: int | None = None) -> NominalTrack:
@@ -467,7 +465,7 @@ class NominalKalman:
         n = self.kf.n
         return NominalTrack(np.array(self.means[:stop + 1]), np.array(self.covs[:stop + 1]),
                             np.array(self.logliks[:stop + 1]), rows(self.y_mean, n_y), rows(self.y_std, n_y),
-                            rows(self.z, n_y), rows(self.x_mean, n), rows(self.x_std, n))
+                            rows(self.z, n_y), rows(self.means[1:], n), rows(self.x_std, n))
 
 
 class CubatureKalmanFilter:

@@ -333,12 +333,17 @@ def _parse(stream: IO, name: str) -> Run:
         raise DataError(f"{name}: the run has no data rows, only column names", None, "record at least one sample")
     data.resize((n, width), refcheck=False)
     numbers.resize(n, refcheck=False)
+    return check_run(run_of(cols, data, tuple(lines.header), name), numbers)
+
+
+def run_of(columns: list[str], data: np.ndarray, header: tuple[str, ...], name: str) -> Run:
+    """The run of a table whose columns (``time`` first, then prefixed
+    names) are those of ``data`` (rows x columns)."""
     groups: dict[str, dict[str, np.ndarray]] = {p: {} for p in PREFIXES}
-    for j, c in enumerate(cols[1:], start=1):
+    for j, c in enumerate(columns[1:], start=1):
         prefix, _, rest = c.partition(":")
         groups[prefix][rest] = data[:, j]
-    run = Run(data[:, 0], groups["u"], groups["y"], groups["x"], groups["theta"], tuple(lines.header), name)
-    return check_run(run, numbers)
+    return Run(data[:, 0], groups["u"], groups["y"], groups["x"], groups["theta"], header, name)
 
 
 def _store(data: np.ndarray, numbers: np.ndarray, n: int, block: list, at: list, most: int,
