@@ -82,7 +82,7 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
              steps: int | None = None, generated: str | Path | None = None,
              options: DiagnosisOptions | None = None, progress=None) -> DiagnosisReport:
     """Diagnose ``data`` (a run file or a :class:`~bgc.runtime.runs.Run`) or a
-    simulated ``scenario`` (``PARAM:KIND:MAGNITUDE@TIME``, or ``none`` for a
+    simulated ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, or ``none`` for a
     fault-free run) of ``model``.
 
     Parameters
@@ -550,7 +550,7 @@ def distinguishability(model: str | Path | Session, scenario: str | None = None,
                        steps: int | None = None, level: float = distinction.LEVEL,
                        progress=None) -> DistinguishabilityReport:
     """Predict which fault hypotheses the data of ``scenario``
-    (``PARAM:KIND:MAGNITUDE@TIME``) of ``model`` can tell apart, at the given
+    (``NAME:KIND:MAGNITUDE@TIME``) of ``model`` can tell apart, at the given
     relative noise levels (default: the model's), before any data are seen;
     without a scenario, for every fault candidate, kind and direction at a
     relative ``change`` from the fraction ``at`` of the run.

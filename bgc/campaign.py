@@ -2,7 +2,7 @@
 
 A campaign file (YAML, ``schemas/campaign.schema.json``, documented in
 ``docs/experiments.md``) lists groups of runs: a model, scenarios (a grid of
-``PARAM:KIND:MAGNITUDE@TIME`` and ``none``) or randomised fault draws, times
+``NAME:KIND:MAGNITUDE@TIME`` and ``none``) or randomised fault draws, times
 filters, particle counts, noise levels and seeds. :func:`load_campaign` reads
 and checks it (located one-line errors, like a model) and expands it into
 :class:`RunSpec` s; :func:`run_one` simulates one scenario, diagnoses it with

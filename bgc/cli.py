@@ -178,6 +178,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     fault = sim.parse_fault(args.fault, c.numerics) if args.fault else None
     if args.steps is not None:
         sim.check_steps(args.steps, c.numerics, "--steps")
+    unexpected = sim.outside_prior(fault, c.numerics) if fault else None
+    if unexpected:
+        print(f"warning: {unexpected}", file=sys.stderr)
     options = sim.SimulationOptions(steps=args.steps, process_noise=process, measurement_noise=measurement,
                                     seed=args.seed, fault=fault)
     start = time.perf_counter()
@@ -236,7 +239,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from .runtime.diagnose import DiagnosisOptions
 
     if (args.data is None) == (args.scenario is None):
-        raise BgcError("give --data RUN.csv or --scenario PARAM:KIND:MAGNITUDE@TIME", None,
+        raise BgcError("give --data RUN.csv or --scenario NAME:KIND:MAGNITUDE@TIME", None,
                        "e.g. --scenario R_pipe:incipient:0.5@165, or --scenario none for a fault-free run")
     if args.data is not None and args.steps is not None:
         raise BgcError("--steps applies to --scenario: a recorded run has its own length", None,
@@ -521,8 +524,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="simulate the plant (truth) with noise and an injected fault, to CSV")
     p.add_argument("model", metavar="MODEL")
     p.add_argument("--steps", type=int, default=None, help="number of samples (default: the model's)")
-    p.add_argument("--fault", metavar="PARAM:KIND:MAGNITUDE@TIME",
-                   help="inject a fault, e.g. R_pipe:incipient:0.5@165 (slope per unit time) or R_pipe:abrupt:31@165 (bias)")
+    p.add_argument("--fault", metavar="NAME:KIND:MAGNITUDE@TIME",
+                   help="inject a fault, e.g. R_pipe:incipient:0.5@165 (slope per unit time), R_pipe:abrupt:31@165 "
+                        "(bias), a sensor's P_memb:bias:0.3@100 or an actuator's u_pump:gain:-0.2@100")
     p.add_argument("--noise", metavar="process=Q,measurement=R", help="noise levels as fractions of the signal")
     p.add_argument("--seed", type=_seed, default=0, help="random seed, an integer >= 0")
     p.add_argument("-o", "--output", metavar="FILE.csv")
@@ -548,7 +552,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("diagnose", help="detect, isolate and identify a fault in a run (report and plots)")
     p.add_argument("model", metavar="MODEL")
     p.add_argument("--data", metavar="RUN.csv", help="a recorded run (a CSV as bgc simulate writes)")
-    p.add_argument("--scenario", metavar="PARAM:KIND:MAGNITUDE@TIME",
+    p.add_argument("--scenario", metavar="NAME:KIND:MAGNITUDE@TIME",
                    help="simulate this fault (or 'none'), then diagnose, e.g. R_pipe:incipient:0.5@165; MAGNITUDE "
                         "is an abrupt fault's bias (in the parameter's units) or an incipient fault's slope (per "
                         "unit of time)")
@@ -604,7 +608,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("distinguish", help="predict which faults the data of a scenario can tell apart (before "
                        "any data: noise, size, onset and kind of the fault)")
     p.add_argument("model", metavar="MODEL")
-    p.add_argument("--scenario", metavar="PARAM:KIND:MAGNITUDE@TIME",
+    p.add_argument("--scenario", metavar="NAME:KIND:MAGNITUDE@TIME",
                    help="one fault, e.g. R_pipe:incipient:0.5@165 (default: every candidate, kind and direction)")
     p.add_argument("--change", type=_above_zero, default=0.3,
                    help="without --scenario: the relative change of each parameter (a drift reaches it at the end "

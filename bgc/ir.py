@@ -178,13 +178,31 @@ class Measurement:
 
 @dataclass(frozen=True, slots=True)
 class FaultCandidate:
-    """A parameter that may fail, the fault kinds considered and a prior."""
+    """Something that may fail, the fault kinds considered and their priors.
+
+    ``subject``: what the model file names (a parameter, a measurement or an
+    input); ``target``: which of the three (``parameter``, ``sensor``,
+    ``actuator``); ``parameter``: the symbol of the equations the fault
+    changes (the parameter itself, or the one the compiler adds for a sensor
+    or actuator: :meth:`bgc.kinds.FaultKind.parameter_of`). ``prior``: the
+    probability of the fault before any data. ``size`` and ``rate``: the
+    model's own bounds of a step's size and a drift's rate, in units of the
+    fault's scale (None: the kind's default)."""
 
     parameter: str
     kinds: tuple[str, ...]
     direction: str
     prior: float
     loc: SourceLoc
+    target: str = "parameter"
+    subject: str = ""
+    size: tuple[float, float] | None = None
+    rate: tuple[float, float] | None = None
+
+    @property
+    def name(self) -> str:
+        """What the fault strikes, as the model file names it."""
+        return self.subject or self.parameter
 
 
 @dataclass(frozen=True, slots=True)
@@ -455,7 +473,9 @@ class NoiseLevels:
 class FaultNumerics:
     """The numbers of one fault model (``name``: its DBN, ``PARAM:KIND``): the
     nominal value of the parameter, the uniform prior of the fault magnitude and
-    the per-step random-walk std (``jitter``) of the magnitude state."""
+    the per-step random-walk std (``jitter``) of the magnitude state;
+    ``scale``: the size its prior is written in units of
+    (:func:`bgc.compiler.numerics.fault_scale`)."""
 
     name: str
     parameter: str
@@ -463,6 +483,7 @@ class FaultNumerics:
     nominal: float
     prior: tuple[float, float]
     jitter: float
+    scale: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -15,6 +15,12 @@ Examples
 15.0
 >>> fault_kind("abrupt").prior_bounds("increase", 69.0, horizon=300.0)
 (0.0, 69.0)
+>>> fault_kind("incipient").prior_bounds("decrease", 10.0, horizon=100.0, widen=2.0)  # stays above -95 %
+(-0.095, 0.0)
+>>> fault_kind("bias").prior_bounds("both", 2.0, horizon=100.0, declared=(-0.1, 0.3))
+(-0.2, 0.6)
+>>> fault_kind("drift").parameter_of("P_memb"), fault_kind("gain").parameter_of("V")
+('P_memb_offset', 'V_gain')
 >>> fault_kind("incipient").truth([0.0, 1.0, 2.0], [10.0, 10.5, 11.0], 10.0)  # the last step's slope
 0.5
 >>> fault_kind("abrupt").truth([0.0, 1.0, 2.0], [10.0, 10.5, 11.0], 10.0) is None  # still moving: no step
@@ -107,28 +113,47 @@ def element_kind(name: str) -> ElementKind:
 DIRECTIONS: Mapping[str, tuple[int, ...]] = {"increase": (1,), "decrease": (-1,), "both": (1, -1)}
 
 
+#: What a fault kind may strike: a model parameter, a sensor (a measurement) or an actuator (an input).
+TARGETS = ("parameter", "sensor", "actuator")
+#: The lowest a parameter's prior may take it, as a fraction of its nominal below it: a widened
+#: prior (``--prior-scale``, the YAML's ``size``) keeps a decreasing parameter positive.
+LOWEST = -0.95
+
+
 @dataclass(frozen=True, slots=True)
 class FaultKind:
     """How a fault kind enters the model, its prior and its injection.
 
-    Declared here once, and read by the simulator, the filters, the
-    estimates, the plots and the campaigns: the magnitude and its prior, how
-    the parameter changes from the onset (:meth:`value`, :meth:`change`; the
+    Declared here once, and read by the validator, the equations, the
+    simulator, the filters, the estimates, the plots and the campaigns: what
+    it may strike (``targets``), the magnitude and its prior, how the faulty
+    quantity changes from the onset (:meth:`value`, :meth:`change`; the
     onset sample sees the fault, the transition into it is nominal), and how
     the truth is read from a run (:meth:`truth`, :meth:`truth_series`).
 
+    A fault is always a change of one symbol of the equations, the fault's
+    *parameter*: a model parameter itself (``abrupt``, ``incipient``), or one
+    the compiler adds for a sensor or an actuator fault (``suffix``): a
+    sensor's offset ``<sensor>_offset`` (nominal 0) added to its reading; an
+    input's offset ``<input>_offset`` (nominal 0) added to what the actuator
+    delivers, or its gain ``<input>_gain`` (nominal 1) multiplying it. The
+    recorded input stays the command; the plant sees ``gain * u + offset``.
+
     ``magnitude`` names the fault state ``delta_P`` estimates: a ``bias`` b
-    (abrupt, thesis eq. II.1: ``P(t) = P + b`` from the onset) or a ``slope`` c
-    per unit time (incipient, eq. II.2: ``P(t) = P + c (t - t_f)``). With
+    (a step, thesis eq. II.1: ``P(t) = P + b`` from the onset) or a ``slope``
+    c per unit time (a drift, eq. II.2: ``P(t) = P + c (t - t_f)``). With
     ``drifts`` the parameter itself becomes a state that drifts at the slope
     (``P(t+dt) = P(t) + c dt``); otherwise ``P`` is replaced by ``P + b``.
 
-    ``prior``: per direction, the bounds of the uniform prior of the magnitude
-    in units of |P| (a bias) or of |P| / horizon (a slope, so that the change
-    over the horizon stays in those bounds). ``jitter``: the per-step
-    random-walk std of the magnitude state that keeps the particle cloud from
-    collapsing, as a fraction of ``jitter_scale`` (``parameter``: |P|;
-    ``prior``: the prior's width).
+    ``prior``: per direction, the default bounds of the uniform prior of the
+    magnitude, in units of the fault's *scale* (a parameter's |nominal|, a
+    sensor's nominal reading, an input's nominal value, 1 for a gain), and
+    for a drift per monitoring horizon (so that the change over the horizon
+    stays in those bounds). A model may declare its own bounds (``size`` for
+    a step, ``rate`` per unit time for a drift: :meth:`prior_bounds`).
+    ``jitter``: the per-step random-walk std of the magnitude state that
+    keeps the particle cloud from collapsing, as a fraction of
+    ``jitter_scale`` (``parameter``: the scale; ``prior``: the prior's width).
     """
 
     name: str
@@ -138,6 +163,9 @@ class FaultKind:
     jitter: float
     jitter_scale: str
     description: str
+    targets: tuple[str, ...] = ("parameter",)
+    suffix: str | None = None
+    nominal: float = 0.0
 
     def value(self, nominal: float, magnitude: float, onset: float, t: float) -> float:
         """The faulty parameter at time t (a step at the onset, or a ramp from it)."""
@@ -175,17 +203,34 @@ class FaultKind:
 
         return np.gradient(recorded, time) if self.drifts else recorded - nominal
 
-    def prior_bounds(self, direction: str, nominal: float, horizon: float) -> tuple[float, float]:
-        """(low, high) of the uniform prior of the magnitude."""
-        lo, hi = self.prior[direction]
-        scale = abs(nominal) or 1.0
-        if self.drifts:
-            scale /= horizon
-        return lo * scale, hi * scale
+    def parameter_of(self, subject: str) -> str:
+        """The symbol this kind changes when it strikes ``subject``: the
+        parameter itself, or the sensor's or input's added one."""
+        return subject if self.suffix is None else f"{subject}_{self.suffix}"
 
-    def jitter_std(self, nominal: float, bounds: tuple[float, float]) -> float:
+    def prior_bounds(self, direction: str, scale: float, horizon: float,
+                     declared: tuple[float, float] | None = None, widen: float = 1.0) -> tuple[float, float]:
+        """(low, high) of the uniform prior of the magnitude: the model's
+        ``declared`` bounds (a step's size in units of ``scale``, a drift's
+        rate in units of ``scale`` per unit time), else the kind's default
+        for the direction; both times ``widen`` (``--prior-scale``). A
+        parameter's prior never takes it below ``LOWEST`` of its nominal
+        (over the horizon, for a drift)."""
+        scale = abs(scale) or 1.0
+        if declared is not None:
+            lo, hi = declared
+            per = 1.0
+        else:
+            lo, hi = self.prior[direction]
+            per = horizon if self.drifts else 1.0
+        lo, hi = lo * widen, hi * widen
+        if "parameter" in self.targets:
+            lo = max(lo, LOWEST / (horizon if self.drifts else 1.0) * per)
+        return lo * scale / per, hi * scale / per
+
+    def jitter_std(self, scale: float, bounds: tuple[float, float]) -> float:
         """Per-step random-walk std of the magnitude state."""
-        base = (abs(nominal) or 1.0) if self.jitter_scale == "parameter" else bounds[1] - bounds[0]
+        base = (abs(scale) or 1.0) if self.jitter_scale == "parameter" else bounds[1] - bounds[0]
         return self.jitter * base
 
 
@@ -200,6 +245,22 @@ FAULT_KINDS: Mapping[str, FaultKind] = {
         # (a decreasing parameter stays positive)
         {"increase": (0.0, 4.0), "decrease": (-0.8, 0.0), "both": (-0.8, 4.0)},
         0.01, "prior", "a drift P + c (t - t_f) from the onset (thesis eq. II.2)"),
+    "bias": FaultKind(
+        "bias", "bias", False,
+        {"increase": (0.0, 0.5), "decrease": (-0.5, 0.0), "both": (-0.5, 0.5)},
+        0.004, "parameter", "an offset b added from the onset: a sensor reads y + b, an actuator delivers u + b",
+        ("sensor", "actuator"), "offset", 0.0),
+    "drift": FaultKind(
+        "drift", "slope", True,
+        # offsets that reach up to half the scale over the horizon
+        {"increase": (0.0, 0.5), "decrease": (-0.5, 0.0), "both": (-0.5, 0.5)},
+        0.01, "prior", "an offset growing at c per unit time from the onset: a sensor reads y + c (t - t_f)",
+        ("sensor", "actuator"), "offset", 0.0),
+    "gain": FaultKind(
+        "gain", "bias", False,
+        {"increase": (0.0, 1.0), "decrease": (-0.5, 0.0), "both": (-0.5, 1.0)},
+        0.004, "parameter", "a gain change from the onset: the actuator delivers (1 + g) u",
+        ("actuator",), "gain", 1.0),
 }
 
 

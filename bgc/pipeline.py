@@ -40,8 +40,9 @@ class Compiled:
     package: GeneratedPackage
 
 
-def compile_model(path: str | Path) -> Compiled:
-    """Run every stage, from the model file to the generated package (in memory)."""
+def compile_model(path: str | Path, prior_scale: float = 1.0) -> Compiled:
+    """Run every stage, from the model file to the generated package (in
+    memory); ``prior_scale`` widens every fault's prior (``--prior-scale``)."""
     raw = load.load(path)                        # path -> RawModel
     model = validate.validate(raw)               # RawModel -> BondGraph
     causal = causality.assign(model)             # BondGraph -> CausalBondGraph
@@ -49,7 +50,7 @@ def compile_model(path: str | Path) -> Compiled:
     ssm = equations.derive(graph)                # TemporalCausalGraph -> StateSpaceModel
     sigs = signatures.derive(ssm)                # StateSpaceModel -> FaultSignatures
     dbns = dbn.build(ssm)                        # StateSpaceModel -> DbnModel
-    num = numerics.derive(dbns)                  # DbnModel -> Numerics
+    num = numerics.derive(dbns, prior_scale)     # DbnModel -> Numerics
     package = codegen.generate(dbns, num)        # DbnModel, Numerics -> GeneratedPackage
     return Compiled(raw, model, causal, graph, ssm, sigs, dbns, num, package)
 

@@ -148,9 +148,9 @@ def one_line(r) -> str:
 
 def test_bgc_diagnose_bad_input_is_one_located_line(tmp_path):
     assert one_line(bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "Q9:abrupt:1@5")).startswith(
-        "--fault: 'Q9' is not a parameter of circuit")
+        "--fault: 'Q9' is no parameter, measurement or input of circuit")
     assert one_line(bgc_cli("diagnose", "models/circuit.yaml")).startswith(
-        "give --data RUN.csv or --scenario PARAM:KIND:MAGNITUDE@TIME")
+        "give --data RUN.csv or --scenario NAME:KIND:MAGNITUDE@TIME")
     other = tmp_path / "ro.csv"
     assert bgc_cli("simulate", "models/ro.yaml", "--steps", "5", "-o", str(other)).returncode == 0
     assert one_line(bgc_cli("diagnose", "models/circuit.yaml", "--data", str(other))).startswith(

@@ -282,8 +282,8 @@ def test_same_seed_same_csv_bytes(tmp_path):
 
 
 ERRORS = [
-    (["--fault", "R2-abrupt-1"], "is not PARAM:KIND:MAGNITUDE@TIME"),
-    (["--fault", "Q9:abrupt:1@1"], "'Q9' is not a parameter of circuit"),
+    (["--fault", "R2-abrupt-1"], "is not NAME:KIND:MAGNITUDE@TIME"),
+    (["--fault", "Q9:abrupt:1@1"], "'Q9' is no parameter, measurement or input of circuit"),
     (["--fault", "R2:sudden:1@1"], "unknown kind 'sudden'"),
     (["--fault", "R2:abrupt:1..2@1"], "must be numbers"),
     (["--noise", "foo=1"], "unknown key 'foo'"),
@@ -310,7 +310,7 @@ def test_cli_error_in_a_real_process_has_no_traceback(tmp_path):
     r = subprocess.run([sys.executable, "-m", "bgc", "simulate", "models/circuit.yaml", "--fault", "R2:abrupt",
                         "-o", str(tmp_path / "x.csv")], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert r.returncode == 1
-    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr and "PARAM:KIND:MAGNITUDE@TIME" in r.stderr
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr and "NAME:KIND:MAGNITUDE@TIME" in r.stderr
     assert not (tmp_path / "x.csv").exists()
 
 

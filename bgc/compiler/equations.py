@@ -26,6 +26,7 @@ from sympy.solvers.solveset import NonlinearError
 
 from ..errors import EquationError
 from ..ir import StateSpaceModel, TemporalCausalGraph, sym, var_key
+from ..kinds import fault_kind
 
 
 def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
@@ -70,14 +71,16 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
         outputs.append(_substitute(m.expr, resolved))
     storage = {s.state: s.element for s in tcg.causal.states}
     initial = tuple(model.element(storage[x]).initial or 0.0 for x in states)
-    bond_vars = tuple(sorted(((v, resolved[sym(v)]) for v in variables), key=lambda p: var_key(p[0])))
+    bond_vars = [(v, resolved[sym(v)]) for v in variables]
+    added, rhs, outputs, bond_vars = _fault_symbols(model, rhs, outputs, bond_vars)
+    bond_vars = tuple(sorted(bond_vars, key=lambda p: var_key(p[0])))
     return StateSpaceModel(
         tcg=tcg,
         states=states,
         state_elements=tuple(storage[x] for x in states),
         inputs=tuple(i.name for i in model.inputs),
-        parameters=tuple(p.name for p in model.parameters),
-        parameter_values=tuple(p.value for p in model.parameters),
+        parameters=tuple(p.name for p in model.parameters) + tuple(name for name, _ in added),
+        parameter_values=tuple(p.value for p in model.parameters) + tuple(value for _, value in added),
         outputs=tuple(m.name for m in model.measurements),
         rhs=rhs,
         output_exprs=tuple(outputs),
@@ -85,6 +88,30 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
         initial=initial,
         loops=tuple(loops),
     )
+
+
+def _fault_symbols(model, rhs, outputs, bond_vars):
+    """Add the symbols of the model's sensor and actuator faults (sorted by
+    name, after the model's parameters, each at its nominal value): a sensor's
+    offset is added to its reading; an input ``u`` with an offset or a gain
+    becomes ``gain * u + offset`` wherever the plant sees it (the recorded
+    input stays the command). Nothing changes for a model without them."""
+    added = sorted({(f.parameter, fault_kind(f.kinds[0]).nominal) for f in model.faults if f.target != "parameter"})
+    if not added:
+        return (), rhs, outputs, bond_vars
+    names = {name for name, _ in added}
+    delivered = {}
+    for i in model.inputs:
+        gain, offset = f"{i.name}_gain", f"{i.name}_offset"
+        if gain in names or offset in names:
+            u = sym(i.name)
+            delivered[u] = (sym(gain) * u if gain in names else u) + (sym(offset) if offset in names else 0)
+    rhs = tuple(e.xreplace(delivered) for e in rhs)
+    outputs = [e.xreplace(delivered) for e in outputs]
+    bond_vars = [(v, e.xreplace(delivered)) for v, e in bond_vars]
+    offsets = {f.subject: sym(f.parameter) for f in model.faults if f.target == "sensor"}
+    outputs = [e + offsets[m.name] if m.name in offsets else e for m, e in zip(model.measurements, outputs)]
+    return tuple(added), rhs, outputs, bond_vars
 
 
 def _substitute(expr: sympy.Expr, resolved: dict[sympy.Symbol, sympy.Expr]) -> sympy.Expr:

@@ -64,9 +64,10 @@ MAX_NOMINAL_RUN = 20_000
 ACCURACY = 0.1
 
 
-def derive(dbns: DbnModel) -> Numerics:
+def derive(dbns: DbnModel, prior_scale: float = 1.0) -> Numerics:
     """Eigenvalues, substeps, noise levels and fault priors at the nominal
-    operating point.
+    operating point; ``prior_scale`` widens every fault's prior by that
+    factor (``--prior-scale``).
 
     Raises
     ------
@@ -126,15 +127,31 @@ def derive(dbns: DbnModel) -> Numerics:
     theta = dict(zip(ssm.parameters, ssm.parameter_values))
     for d in dbns.faulty:
         kind = fault_kind(d.kind)
-        value = theta[d.parameter]
-        prior = kind.prior_bounds(candidates[d.parameter].direction, value, horizon)
-        faults.append(FaultNumerics(d.name, d.parameter, d.kind, value, prior, kind.jitter_std(value, prior)))
+        c = candidates[d.parameter]
+        scale = fault_scale(c, theta[d.parameter], model, y_scale, u0)
+        prior = kind.prior_bounds(c.direction, scale, horizon, c.rate if kind.drifts else c.size, prior_scale)
+        faults.append(FaultNumerics(d.name, d.parameter, d.kind, theta[d.parameter], prior,
+                                    kind.jitter_std(scale, prior), scale))
     num = Numerics(dbns, tuple(complex(z) for z in eig), substeps, u0, y0, tuple(float(v) for v in np.diag(j)),
                    tuple(tuple(float(v) for v in row) for row in h), tuple(float(v) for v in x_scale),
                    tuple(float(v) for v in y_scale), tuple(factor), tuple(own_levels.get(el) for el in ssm.state_elements),
                    tuple(faults))
     _check_finite(num)
     return num
+
+
+def fault_scale(c, nominal: float, model, y_scale, u0) -> float:
+    """The size a fault's prior is written in units of: a parameter's
+    |nominal|, a sensor's nominal reading (its size over the nominal run when
+    it reads 0 at the start), an input's |value at t = 0| (else its largest
+    value, else 1), 1 for a gain."""
+    if c.target == "sensor":
+        return float(y_scale[[m.name for m in model.measurements].index(c.subject)])
+    if c.target == "actuator" and fault_kind(c.kinds[0]).suffix == "offset":
+        i = [x.name for x in model.inputs].index(c.subject)
+        signal = model.inputs[i].signal
+        return abs(u0[i]) or max(abs(signal.value), abs(signal.final or 0.0)) or 1.0
+    return abs(nominal) or 1.0
 
 
 def _check_finite(num: Numerics) -> None:

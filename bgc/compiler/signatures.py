@@ -67,9 +67,15 @@ def derive(ssm: StateSpaceModel) -> FaultSignatures:
     signatures = []
     for fault in model.faults:
         for kind in fault.kinds:
+            shift = int(fault_kind(kind).drifts)
             for direction in DIRECTIONS[fault.direction]:
-                dev = _propagate(g, order, fault.parameter, direction, int(fault_kind(kind).drifts), depth)
-                symbols = tuple(tuple(dev[measured[m]]) for m in ssm.outputs)
+                if fault.target == "sensor":  # its own reading, and nothing else
+                    symbols = tuple(_own(direction, shift, depth) if m == fault.subject else ("0",) * (depth + 1)
+                                    for m in ssm.outputs)
+                else:
+                    effects = _actuator_effects(g, model, fault, kind) if fault.target == "actuator" else None
+                    dev = _propagate(g, order, fault.parameter, direction, shift, depth, effects)
+                    symbols = tuple(tuple(dev[measured[m]]) for m in ssm.outputs)
                 signatures.append(Signature(fault.parameter, direction, kind, symbols, _first(ssm.outputs, symbols)))
     full = {s.name: (s.symbols, s.first) for s in signatures}
     groups = _groups(full)
@@ -120,13 +126,44 @@ def qmul(sign: int | None, a: str) -> str:
     return a if sign > 0 else {"+": "-", "-": "+"}[a]
 
 
+def _own(direction: int, shift: int, depth: int) -> tuple[str, ...]:
+    """A sensor fault's symbols at its own measurement: the offset's sign at
+    order 0 (a bias jumps) or 1 (a drift bends)."""
+    out = ["0"] * (depth + 1)
+    if shift <= depth:
+        out[shift] = "+" if direction > 0 else "-"
+    return tuple(out)
+
+
+def _actuator_effects(g: nx.DiGraph, model, fault, kind: str) -> dict[str, int | None]:
+    """Where an actuator fault enters the TCG: the sources that impose its
+    input, with the sign of what they impose when the input's offset (or
+    gain) increases, at the nominal parameters and inputs (None when that
+    sign depends on the plant's variables or is not a number)."""
+    u = sym(fault.subject)
+    point = {sym(p.name): sympy.Float(p.value) for p in model.parameters}
+    point.update({sym(i.name): sympy.Float(i.signal.at(0.0)) for i in model.inputs})
+    out: dict[str, int | None] = {}
+    for n, d in g.nodes(data=True):
+        if fault.subject not in d.get("inputs", ()):
+            continue
+        slope = sympy.diff(d["definition"], u)
+        if fault_kind(kind).suffix == "gain":
+            slope = slope * u
+        value = sympy.sympify(slope.xreplace(point))
+        out[n] = int(sympy.sign(value)) if value.is_number and value.is_finite and value.is_real else None
+    return out
+
+
 def _propagate(g: nx.DiGraph, order: list[list[str]], parameter: str, direction: int, shift: int,
-               depth: int) -> dict[str, list[str]]:
-    """Symbols of every node at orders 0..depth for one fault."""
+               depth: int, effects: dict[str, int | None] | None = None) -> dict[str, list[str]]:
+    """Symbols of every node at orders 0..depth for one fault; ``effects``:
+    where it enters (node -> sign), when not at the nodes that hold the
+    parameter."""
     dev = {n: ["0"] * (depth + 1) for n in g.nodes}
     seeds: dict[tuple[str, int], str] = {}
     for n, d in g.nodes(data=True):
-        effect = dict(d.get("effects", ())).get(parameter, 0)
+        effect = dict(d.get("effects", ())).get(parameter, 0) if effects is None else effects.get(n, 0)
         if effect == 0:
             continue
         k = shift + (1 if d["role"] == "state" else 0)

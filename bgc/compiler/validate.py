@@ -27,7 +27,7 @@ import sympy
 
 from . import expressions, load
 from ..errors import BgcError, ErrorGroup, ExpressionError, ValidationError
-from ..kinds import ELEMENT_KINDS, element_kind
+from ..kinds import ELEMENT_KINDS, FAULT_KINDS, element_kind, fault_kind
 from ..ir import (
     Bond, BondGraph, Element,
     FaultCandidate, Input, Law, Measurement, Parameter, RawModel, Settings, Signal, effort, flow, sym,
@@ -181,7 +181,8 @@ class _Validator:
         settings = self.settings(_section(data, "simulation"))
         measurements = self.measurements(_section(data, "measurements"), pnames | inames | variables,
                                          variables, pnames | inames, settings.measurement_noise)
-        faults = self.faults(_section(data, "faults"), pnames)
+        faults = self.faults(_section(data, "faults"), pnames, measurements, inames,
+                             pnames | inames | {str(m) for m in _section(data, "measurements")})
         return BondGraph(
             name=data["name"],
             description=str(data.get("description", "")),
@@ -463,23 +464,73 @@ class _Validator:
                                    spec.get("description"), self.raw.key_loc(*path)))
         return tuple(out)
 
-    def faults(self, raw: dict, pnames: set[str]) -> tuple[FaultCandidate, ...]:
+    def faults(self, raw: dict, pnames: set[str], measurements: tuple[Measurement, ...],
+               inames: set[str], taken: set[str]) -> tuple[FaultCandidate, ...]:
+        """The fault candidates: each entry names a parameter, a measurement
+        (a sensor fault) or an input (an actuator fault), and expands into
+        one candidate per symbol its kinds change (an input's ``bias`` and
+        ``gain`` change two)."""
+        targets = {**{n: "actuator" for n in inames}, **{m.name: "sensor" for m in measurements},
+                   **{n: "parameter" for n in pnames}}
         out = []
         for name in sorted(raw):
             path = ("faults", name)
             if self.bad(path):
                 continue
-            if name not in pnames:
-                close = _closest(name, pnames)
-                self.error(f"fault names unknown parameter '{name}'", path,
-                           f"did you mean '{close}'?" if close else "faults are on declared parameters", key=True)
+            target = targets.get(name)
+            if target is None:
+                close = _closest(name, set(targets))
+                self.error(f"fault names '{name}', which is no parameter, measurement or input", path,
+                           f"did you mean '{close}'?" if close else
+                           "a fault is on a declared parameter, a measurement (a sensor) or an input (an actuator)",
+                           key=True)
                 continue
             spec = raw[name]
             if not isinstance(spec, dict):
                 spec = {"kinds": spec}
-            out.append(FaultCandidate(name, tuple(sorted(spec["kinds"])), spec.get("direction", "both"),
-                                      float(spec.get("prior", 0.01)), self.raw.key_loc(*path)))
+            wrong = [k for k in spec["kinds"] if target not in fault_kind(k).targets]
+            if wrong:
+                valid = ", ".join(k for k, fk in FAULT_KINDS.items() if target in fk.targets)
+                self.error(f"fault kind '{wrong[0]}' does not apply to {target} {name}", path + ("kinds",),
+                           f"a {target} takes: {valid}")
+                continue
+            size, rate = (self._range(spec, key, path) for key in ("size", "rate"))
+            direction = spec.get("direction") or _direction_of(size, rate)
+            if not self._agrees(direction, size, rate, path):
+                continue
+            by: dict[str, list[str]] = {}
+            for k in sorted(spec["kinds"]):
+                by.setdefault(fault_kind(k).parameter_of(name), []).append(k)
+            for parameter, kinds in sorted(by.items()):
+                if parameter != name and parameter in taken:
+                    self.error(f"'{parameter}' is already declared, and the {target} fault of {name} needs the name",
+                               path, f"rename the parameter, input or measurement called {parameter}", key=True)
+                    continue
+                out.append(FaultCandidate(parameter, tuple(kinds), direction, float(spec.get("prior", 0.01)),
+                                          self.raw.key_loc(*path), target, name, size, rate))
         return tuple(out)
+
+    def _range(self, spec: dict, key: str, path: tuple) -> tuple[float, float] | None:
+        if key not in spec:
+            return None
+        lo, hi = (float(v) for v in spec[key])
+        if not lo < hi:
+            self.error(f"{_where(path + (key,))} is [{lo:g}, {hi:g}]: its low bound is not below its high bound",
+                       path + (key,), "write [low, high] with low < high, e.g. [0, 1.0] for up to +100 %")
+            return None
+        return lo, hi
+
+    def _agrees(self, direction: str, size, rate, path: tuple) -> bool:
+        """The declared bounds allow the direction's sign of change."""
+        for key, bounds in (("size", size), ("rate", rate)):
+            if bounds is None:
+                continue
+            if (direction == "increase" and bounds[0] < 0) or (direction == "decrease" and bounds[1] > 0):
+                self.error(f"{_where(path + (key,))} [{bounds[0]:g}, {bounds[1]:g}] allows changes against the "
+                           f"fault's direction ({direction})", path + (key,),
+                           "make the bounds agree with 'direction', or drop 'direction' (it follows the bounds)")
+                return False
+        return True
 
     def settings(self, raw: dict) -> Settings:
         section = ("simulation",) if "simulation" in self.raw.data else ("name",)
@@ -492,6 +543,16 @@ class _Validator:
                         process_noise=float(raw.get("process_noise", base.process_noise)),
                         measurement_noise=float(raw.get("measurement_noise", base.measurement_noise)),
                         locations=tuple(places))
+
+
+def _direction_of(size, rate) -> str:
+    """The direction the declared bounds imply (``both`` when none are declared)."""
+    bounds = [b for b in (size, rate) if b is not None]
+    if bounds and all(lo >= 0 for lo, _ in bounds):
+        return "increase"
+    if bounds and all(hi <= 0 for _, hi in bounds):
+        return "decrease"
+    return "both"
 
 
 def _section(data: dict, key: str) -> dict:
@@ -573,6 +634,8 @@ def _schema_message(err: jsonschema.ValidationError, path: tuple) -> tuple[str, 
         options = err.schema.get("items", {}).get("enum")
         if options:  # fault kinds
             return (f"{where} is empty", "list at least one of: " + ", ".join(options), False)
+        if path[-1:] in (("size",), ("rate",)):
+            return (f"{where} must list two numbers [low, high]", "write [low, high], e.g. [0, 1.0]", False)
         return (f"{where} must list exactly two elements [from, to]", "write [tail, head]", False)
     if v == "uniqueItems":
         items = [json.dumps(i) if not isinstance(i, str) else i for i in err.instance]

@@ -42,18 +42,25 @@ MAX_BYTES = 2_000_000_000
 @dataclass(frozen=True, slots=True)
 class FaultInjection:
     """``magnitude``: what the fault kind's ``magnitude`` names (a bias b for
-    an abrupt fault, a slope c per unit time for an incipient one)."""
+    an abrupt fault, a slope c per unit time for an incipient one).
+    ``parameter``: the symbol the fault changes (a model parameter, or
+    ``<sensor>_offset``, ``<input>_offset``, ``<input>_gain``: see
+    :meth:`bgc.kinds.FaultKind.parameter_of`); ``target`` and ``subject``:
+    what it strikes, as the model names it."""
 
     parameter: str
     kind: str
     magnitude: float
     time: float
+    target: str = "parameter"
+    subject: str = ""
 
     def value(self, nominal: float, t: float) -> float:
         return fault_kind(self.kind).value(nominal, self.magnitude, self.time, t)
 
     def describe(self) -> str:
-        return f"{self.parameter} {self.kind}, {fault_kind(self.kind).magnitude} {self.magnitude:g} from t = {self.time:g}"
+        return (f"{self.target + ' ' if self.target != 'parameter' else ''}{self.subject or self.parameter} "
+                f"{self.kind}, {fault_kind(self.kind).magnitude} {self.magnitude:g} from t = {self.time:g}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,20 +93,33 @@ _FAULT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([a-z]+):([-+0-9.eE]+)@([0-9.eE+
 
 
 def parse_fault(text: str, num: Numerics) -> FaultInjection:
-    """``PARAM:KIND:MAGNITUDE@TIME``, e.g. ``R_pipe:incipient:0.5@165``."""
+    """``NAME:KIND:MAGNITUDE@TIME``: NAME a parameter (``R_pipe:incipient:0.5@165``),
+    a measurement (a sensor fault, ``P_memb:bias:0.3@100``) or an input (an
+    actuator fault, ``u_pump:gain:-0.2@100``). The model need not list the
+    fault among its candidates: a plant may fail in ways its model does not
+    foresee."""
     ssm = num.equations
+    model = ssm.model
     m = _FAULT.match(text.strip())
     if not m:
-        raise SimulationError(f"--fault {text!r} is not PARAM:KIND:MAGNITUDE@TIME", None,
-                              "e.g. R_pipe:incipient:0.5@165 or R_pipe:abrupt:31@165")
+        raise SimulationError(f"--fault {text!r} is not NAME:KIND:MAGNITUDE@TIME", None,
+                              "e.g. R_pipe:incipient:0.5@165, R_pipe:abrupt:31@165 or P_memb:bias:0.3@100")
     name, kind, mag, time = m.groups()
-    if name not in ssm.parameters:
-        raise SimulationError(f"--fault: '{name}' is not a parameter of {ssm.model.name}", None,
-                              "parameters: " + ", ".join(ssm.parameters))
-    if kind not in FAULT_KINDS:
-        raise SimulationError(f"--fault: unknown kind '{kind}'", None, "kinds: " + ", ".join(FAULT_KINDS))
+    targets = {**{i: "actuator" for i in ssm.inputs}, **{y: "sensor" for y in ssm.outputs},
+               **{p.name: "parameter" for p in model.parameters}}
+    if name not in targets:
+        raise SimulationError(f"--fault: '{name}' is no parameter, measurement or input of {model.name}", None,
+                              "parameters: " + ", ".join(p.name for p in model.parameters)
+                              + "; measurements: " + ", ".join(ssm.outputs)
+                              + ("; inputs: " + ", ".join(ssm.inputs) if ssm.inputs else ""))
+    target = targets[name]
+    if kind not in FAULT_KINDS or target not in FAULT_KINDS[kind].targets:
+        valid = ", ".join(k for k, fk in FAULT_KINDS.items() if target in fk.targets)
+        raise SimulationError(f"--fault: {'unknown kind' if kind not in FAULT_KINDS else 'kind'} '{kind}'"
+                              f"{'' if kind not in FAULT_KINDS else f' does not apply to {target} {name}'}", None,
+                              f"a {target} takes: {valid}")
     try:
-        injection = FaultInjection(name, kind, float(mag), float(time))
+        injection = FaultInjection(fault_kind(kind).parameter_of(name), kind, float(mag), float(time), target, name)
     except ValueError:
         raise SimulationError(f"--fault {text!r}: magnitude and time must be numbers", None,
                               "e.g. R_pipe:abrupt:31@165") from None
@@ -107,6 +127,25 @@ def parse_fault(text: str, num: Numerics) -> FaultInjection:
         raise SimulationError(f"--fault {text!r}: magnitude and time must be finite numbers", None,
                               "e.g. R_pipe:abrupt:31@165")
     return injection
+
+
+def outside_prior(injection: FaultInjection, num: Numerics) -> str | None:
+    """Why the model's diagnoser would not expect this fault: not among its
+    candidates, or a magnitude outside the candidate's prior; None when it
+    would."""
+    name = f"{injection.parameter}:{injection.kind}"
+    try:
+        f = num.fault(name)
+    except KeyError:
+        return (f"the model lists no fault {injection.subject or injection.parameter}:{injection.kind} "
+                f"among its candidates: its diagnoser should find it unexplained")
+    lo, hi = f.prior
+    if lo <= injection.magnitude <= hi:
+        return None
+    what = fault_kind(injection.kind).magnitude + (" per unit time" if fault_kind(injection.kind).drifts else "")
+    return (f"{what} {injection.magnitude:g} is outside the prior of {name} in the model ({lo:.4g} to {hi:.4g}): "
+            "its diagnoser may size it wrong (widen it with the fault's 'size' or 'rate' in the model, "
+            "or --prior-scale)")
 
 
 def check_steps(steps: int, num: Numerics, where: str) -> None:
@@ -138,19 +177,37 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
     h = dt / substeps
     f, g = lambdified(ssm)
     theta0 = np.array(ssm.parameter_values, dtype=float)
-    index = ssm.parameters.index(fault.parameter) if fault else None
+    target = fault.target if fault else None
+    index = ssm.parameters.index(fault.parameter) if target == "parameter" else None
+    column = ssm.inputs.index(fault.subject) if target == "actuator" else (
+        ssm.outputs.index(fault.subject) if target == "sensor" else None)
+    nominal = fault_kind(fault.kind).nominal if fault and target != "parameter" else (
+        theta0[index] if fault else None)
     steps_at_substeps = fault is not None and not fault_kind(fault.kind).drifts
 
+    def when(t: float, interval_start: float | None) -> float:
+        """A step change takes effect at the start of an integration substep
+        (``interval_start``), so no substep straddles the discontinuity; a
+        drift is continuous and evaluated at t."""
+        return interval_start if (steps_at_substeps and interval_start is not None) else t
+
     def theta_at(t: float, interval_start: float | None = None) -> np.ndarray:
-        """Parameters at time t. A step change takes effect at the start of an
-        integration substep (``interval_start``), so no substep straddles the
-        discontinuity; a drift is continuous and evaluated at t."""
-        if fault is None:
+        """Parameters at time t."""
+        if target != "parameter":
             return theta0
         th = theta0.copy()
-        when = interval_start if (steps_at_substeps and interval_start is not None) else t
-        th[index] = fault.value(theta0[index], when)
+        th[index] = fault.value(theta0[index], when(t, interval_start))
         return th
+
+    def delivered(u: np.ndarray, t: float, interval_start: float | None = None) -> np.ndarray:
+        """What the actuators deliver for the command u: an actuator fault's
+        gain times it plus its offset; the command is what the run records."""
+        if target != "actuator":
+            return u
+        v = u.copy()
+        level = fault.value(nominal, when(t, interval_start))
+        v[column] = level * u[column] if fault_kind(fault.kind).suffix == "gain" else u[column] + level
+        return v
 
     floats = float_safe(ssm)
 
@@ -167,7 +224,7 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
         return np.array(fn(x, u, theta), dtype=float)
 
     def rhs(x, u, t, t_sub):
-        return evaluate(f, x, u, theta_at(t, t_sub))
+        return evaluate(f, x, delivered(u, t, t_sub), theta_at(t, t_sub))
 
     rng = np.random.default_rng(options.seed)
     x = np.array(ssm.initial, dtype=float)
@@ -190,9 +247,11 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
         tk = times[k]
         states[k] = x
         inputs[k] = u
-        clean[k] = evaluate(g, x, u, theta_at(tk))
+        clean[k] = evaluate(g, x, delivered(u, tk), theta_at(tk))
         if fault:
-            param[k] = theta_at(tk)[index]
+            param[k] = fault.value(nominal, tk)
+        if target == "sensor":
+            clean[k, column] += param[k]
     noisy = clean + meas * rng.standard_normal(clean.shape)
     src = model.display_source
     settings = model.settings
@@ -205,7 +264,8 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
         f"measurement {options.measurement_noise if options.measurement_noise is not None else 'per model'} "
         f"(fractions of the signal); seed {options.seed}",
         "columns: time; u:* inputs held over the step ending at time; y:* noisy measurements; "
-        "x:* true states; theta:* true value of the faulty parameter",
+        "x:* true states; theta:* true value of the faulty parameter (a sensor's or input's offset, "
+        "an input's gain)",
     )
     return SimulationResult(model.name, src, times, tuple(ssm.inputs), inputs, tuple(ssm.outputs), noisy, clean,
                             tuple(ssm.states), states, fault, param, header)
