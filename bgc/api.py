@@ -80,7 +80,8 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
              method: str = "gpf", particles: int = 1000, seed: int = 0,
              process_noise: float | None = None, measurement_noise: float | None = None,
              steps: int | None = None, generated: str | Path | None = None,
-             options: DiagnosisOptions | None = None, progress=None) -> DiagnosisReport:
+             options: DiagnosisOptions | None = None, progress=None,
+             prior_scale: float | None = None) -> DiagnosisReport:
     """Diagnose ``data`` (a run file or a :class:`~bgc.runtime.runs.Run`) or a
     simulated ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, or ``none`` for a
     fault-free run) of ``model``.
@@ -121,6 +122,9 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         Overrides ``method``, ``particles`` and the filters' seed.
     progress : callable, optional
         ``progress(text)`` is told what is being done.
+    prior_scale : float, optional
+        Widens every fault's prior of its magnitude by this factor
+        (``--prior-scale``; default 1: the model's priors).
 
     Returns
     -------
@@ -169,7 +173,7 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         check_options(options, func)
     arguments.callable_or_none(func, "progress", progress)
     say = progress or (lambda text: None)
-    session = _session_of(func, model, process_noise, measurement_noise, generated, say)
+    session = _session_of(func, model, process_noise, measurement_noise, generated, say, prior_scale)
     opts = options or DiagnosisOptions(method=method, particles=particles, seed=seed)
     if scenario is not None:
         run, injected = _scenario_run(session, scenario, steps, seed, opts, say)
@@ -215,15 +219,19 @@ def _recorded_run(session: Session, data, opts: DiagnosisOptions) -> runs.Run:
     return run
 
 
-def _session_of(func: str, model, process_noise, measurement_noise, generated, say) -> Session:
-    """``model`` when it is a :class:`Session` (whose noise levels and
-    package apply: other ones are refused), else a new session of the file."""
+def _session_of(func: str, model, process_noise, measurement_noise, generated, say,
+                prior_scale: float | None = None) -> Session:
+    """``model`` when it is a :class:`Session` (whose noise levels, prior
+    scale and package apply: other ones are refused), else a new session of
+    the file."""
     if not isinstance(model, Session):
         say("compiling the model")
-        return Session(model, process_noise, measurement_noise, generated)
-    if (process_noise, measurement_noise) not in ((None, None), model.noise) or generated is not None:
-        raise ArgumentValueError(f"{func}: noise levels or generated= with a Session: the session's apply", None,
-                                 "open a session with them: bgc.open(model, process_noise=..., ...)")
+        return Session(model, process_noise, measurement_noise, generated,
+                       1.0 if prior_scale is None else prior_scale)
+    if (process_noise, measurement_noise) not in ((None, None), model.noise) or generated is not None \
+            or prior_scale not in (None, model.prior_scale):
+        raise ArgumentValueError(f"{func}: noise levels, prior_scale or generated= with a Session: the session's "
+                                 "apply", None, "open a session with them: bgc.open(model, process_noise=..., ...)")
     return model
 
 
@@ -245,14 +253,23 @@ class Session:
     """
 
     def __init__(self, model: str | Path, process_noise: float | None = None,
-                 measurement_noise: float | None = None, generated: str | Path | None = None):
+                 measurement_noise: float | None = None, generated: str | Path | None = None,
+                 prior_scale: float = 1.0):
         func = "bgc.open"
         arguments.path(func, "model", model)
         arguments.noise_levels(func, process_noise, measurement_noise)
         arguments.path(func, "generated", generated, optional=True)
+        arguments.real(func, "prior_scale", prior_scale, 0.0, MAX_PRIOR_SCALE,
+                       f"a factor above 0 and below {MAX_PRIOR_SCALE:g}, e.g. prior_scale=2")
+        if generated is not None and prior_scale != 1.0:
+            raise ArgumentValueError(f"{func}: prior_scale={prior_scale:g} with generated=: that package carries the "
+                                     "priors it was compiled with", None,
+                                     "drop generated= (a package is generated with the widened priors), or the "
+                                     "prior scale")
         self.model = str(model)
         self.noise = (process_noise, measurement_noise)
-        self.compiled, self.folder = _compiled(model)  # this session's own compilation and package folder
+        self.prior_scale = float(prior_scale)
+        self.compiled, self.folder = _compiled(model, self.prior_scale)  # this session's own compilation and folder
         c = self.compiled
         levels = c.numerics.noise_at(process_noise, measurement_noise)
         self.levels = levels
@@ -303,7 +320,7 @@ class Session:
 
 
 def open(model: str | Path, *, process_noise: float | None = None, measurement_noise: float | None = None,
-         generated: str | Path | None = None) -> Session:
+         generated: str | Path | None = None, prior_scale: float = 1.0) -> Session:
     """Compile ``model`` and load its generated package: a :class:`Session`
     whose :meth:`Session.diagnoser` diagnoses a stream one sample at a time,
     and which :func:`diagnose` and :func:`distinguishability` take in place of
@@ -311,12 +328,15 @@ def open(model: str | Path, *, process_noise: float | None = None, measurement_n
     sessions). ``process_noise``,
     ``measurement_noise``: the relative noise levels the filters assume
     (default: the model's); ``generated``: the folder ``bgc compile -o``
-    wrote (default: a private one)."""
-    return Session(model, process_noise, measurement_noise, generated)
+    wrote (default: a private one); ``prior_scale``: widens every fault's
+    prior of its magnitude by that factor (``--prior-scale``)."""
+    return Session(model, process_noise, measurement_noise, generated, prior_scale)
 
 
 #: The longest detector horizon or gap limit (time units) the options take.
 MAX_TIME = 1e12
+#: The most a prior may be widened (``prior_scale``).
+MAX_PRIOR_SCALE = 1e6
 
 #: Memory a diagnosis may take by the rule of :func:`diagnosis_memory`.
 MAX_DIAGNOSIS_BYTES = 4_000_000_000
@@ -486,11 +506,12 @@ def private_folder(prefix: str) -> str:
     return folder
 
 
-def _compiled(model: str | Path) -> tuple[pipeline.Compiled, str]:
-    """Compile ``model`` and write its generated package into a new private
-    folder of this process: (the compiled model, the folder). Nothing is
-    kept between calls: a :class:`Session` holds what one model needs."""
-    c = pipeline.compile_model(model)
+def _compiled(model: str | Path, prior_scale: float = 1.0) -> tuple[pipeline.Compiled, str]:
+    """Compile ``model`` (its priors widened by ``prior_scale``) and write
+    its generated package into a new private folder of this process: (the
+    compiled model, the folder). Nothing is kept between calls: a
+    :class:`Session` holds what one model needs."""
+    c = pipeline.compile_model(model, prior_scale)
     folder = private_folder("bgc-")
     root = Path(folder) / c.model.name / "numpy_model"
     root.mkdir(parents=True)

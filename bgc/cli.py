@@ -173,7 +173,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .output import artifacts
     from .runtime import simulate as sim
 
-    c = pipeline.compile_model(args.model)
+    c = pipeline.compile_model(args.model, args.prior_scale)
     process, measurement = _parse_noise(args.noise)
     fault = sim.parse_fault(args.fault, c.numerics) if args.fault else None
     if args.steps is not None:
@@ -254,7 +254,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                                    horizon=args.horizon, gap=args.gap)
         r = api.diagnose(args.model, data=args.data, scenario=args.scenario, seed=args.seed, process_noise=process,
                          measurement_noise=measurement, steps=args.steps, generated=args.generated,
-                         options=options, progress=progress)
+                         options=options, progress=progress, prior_scale=args.prior_scale)
     finally:
         progress.close()
     _write_report(r, args.output or f"{r.model}-diagnosis", "diagnose", args.scenario is not None)
@@ -286,11 +286,14 @@ def _write_report(r, output: str, command: str, with_run: bool) -> Path:
     if d.detection is not None:
         print(f"  detected at t = {d.time_of(d.detection.step):g} ({d.detection.sensor}), "
               f"onset t = {d.time_of(d.onset):g}")
+    for line in report.plain_words(d):
+        print(f"  {printable(line)}")
     e = d.estimate
     if e is not None and d.verdict != "no fault":
         truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
+        edge = {"high": ", at the upper bound of its prior", "low": ", at the lower bound of its prior"}
         print(f"  {e.magnitude} of {e.parameter}: {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}] "
-              f"({100 * e.level:.0f} %){truth}")
+              f"({100 * e.level:.0f} %{edge.get(e.bound, '')}){truth}")
     if command == "diagnose":
         for e in d.events:
             if isinstance(e, events.NOTABLE):
@@ -317,7 +320,8 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     process, measurement = _parse_noise(args.noise)
     options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed, horizon=args.horizon,
                                gap=args.gap)
-    session = api.open(args.model, process_noise=process, measurement_noise=measurement, generated=args.generated)
+    session = api.open(args.model, process_noise=process, measurement_noise=measurement, generated=args.generated,
+                       prior_scale=args.prior_scale)
     out = Path(args.output or f"{session.name}-monitor")
     _refuse_input_in_output(args.data, out)
     artifacts.check_folder(out, ("report.md", "report.json", "manifest.json"), "monitor")  # before the stream
@@ -484,6 +488,12 @@ class _Progress:
             sys.stderr.flush()
 
 
+def _add_prior_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--prior-scale", type=_above_zero, default=1.0, metavar="K",
+                   help="widen every fault's prior of its size (and drift rate) by K (default 1: the model's; a "
+                        "fault's own 'size' and 'rate' in the model set it per fault)")
+
+
 def _add_data_options(p: argparse.ArgumentParser) -> None:
     """The options of real data, shared by bgc diagnose and bgc monitor."""
     p.add_argument("--horizon", type=float, default=None, metavar="TIME",
@@ -531,6 +541,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_seed, default=0, help="random seed, an integer >= 0")
     p.add_argument("-o", "--output", metavar="FILE.csv")
     p.add_argument("--plot", metavar="FILE.png", help="also plot measurements and states")
+    _add_prior_option(p)
     p.set_defaults(run=cmd_simulate)
 
     p = sub.add_parser("filter", help="run a generated particle filter (GPF/APF) over a recorded run")
@@ -579,6 +590,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="estimate the fault magnitude by the particle filters' marginal likelihood on a grid "
                         "(slower; a check of the estimate for strongly nonlinear plants)")
     _add_data_options(p)
+    _add_prior_option(p)
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-diagnosis)")
     p.set_defaults(run=cmd_diagnose)
 
@@ -602,6 +614,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="while tracking hypotheses, diagnose the data so far every TIME (default: only at the end)")
     p.add_argument("--generated", metavar="DIR",
                    help="use the package bgc compile wrote there (default: generate one)")
+    _add_prior_option(p)
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-monitor)")
     p.set_defaults(run=cmd_monitor)
 

@@ -127,6 +127,19 @@ def _used(exprs) -> set[str]:
     return {s.name for e in exprs for s in e.free_symbols}
 
 
+def _fault_dict(model, d) -> dict:
+    """What the generated FAULT says of its fault: the parameter it changes,
+    the kind and its magnitude, what it strikes (``target``: parameter,
+    sensor or actuator; ``subject``: its name in the model) and the
+    subject's unit (model text: only ever a repr'd literal in the code)."""
+    c = next(f for f in model.faults if f.parameter == d.parameter)
+    declared = {**{p.name: p.unit for p in model.parameters}, **{m.name: m.unit for m in model.measurements},
+                **{i.name: i.unit for i in model.inputs}}
+    unit = None if fault_kind(d.kind).suffix == "gain" else declared.get(c.name)
+    return {"parameter": d.parameter, "kind": d.kind, "magnitude": fault_kind(d.kind).magnitude,
+            "target": c.target, "subject": c.name, "unit": unit}
+
+
 def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
     """What model.py.j2 lays out for the DBN ``d``: strings only."""
     ssm = dbns.equations
@@ -231,8 +244,7 @@ def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
         "measurement_std": _floats(noise.measurement, "a measurement-noise std", where),
         "predictive_std": _floats(noise.predictive, "a predictive std", where),
         "fault": fault_ctx,
-        "fault_dict": (repr({"parameter": d.parameter, "kind": d.kind, "magnitude": fault_kind(d.kind).magnitude})
-                       if d.parameter else "None"),
+        "fault_dict": repr(_fault_dict(model, d)) if d.parameter else "None",
         "input_exprs": [input_code(i.signal, where) for i in model.inputs],
         "unpack": _unpack(order, sources, _used(exprs)), "rhs_cse": rhs_lines, "rhs_assign": rhs_assign,
         "linear_rows": linear_rows, "linear_b": linear_b,

@@ -75,6 +75,13 @@ def sentence(e, time_of) -> str:
         case ev.Truncated(hypothesis=h):
             return (f"{h}: its magnitude's posterior may reach past the Kalman filters' last grid; its evidence and "
                     f"interval may be short")
+        case ev.AtPriorBound(hypothesis=h, bound=b, value=v) if b == 0:
+            return (f"{h}: its magnitude ({v:.4g}) presses against 0, the edge of its prior: the data ask for a "
+                    f"change in a direction the model does not list for it")
+        case ev.AtPriorBound(hypothesis=h, side=side, bound=b, value=v):
+            return (f"{h}: its magnitude ({v:.4g}) presses against the {'upper' if side == 'high' else 'lower'} "
+                    f"bound of its prior ({b:.4g}): the fault may be larger than the model's prior allows (widen "
+                    f"it with the fault's 'size' or 'rate' in the model, or --prior-scale)")
         case ev.NoLikelihood(fallback=True):
             return ("the cubature Kalman filters found no finite likelihood: the particle filters' evidence and "
                     "estimates are reported")
@@ -111,4 +118,50 @@ def record(e, time_of) -> dict:
 
 #: Events the command line prints after a diagnosis (the others are in the report).
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped,
-           ev.Degenerate, ev.AllTried, ev.Rescued, ev.Truncated, ev.NoLikelihood, ev.Misfit)
+           ev.Degenerate, ev.AllTried, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit)
+
+
+def fault_sentence(e, since) -> str:
+    """What a fault estimate ``e`` (:class:`~bgc.runtime.values.Estimate`)
+    says in plain words: which kind of thing failed (a sensor, an actuator,
+    a part of the plant), how and how much, ``since`` the onset's time
+    (None: not known). A magnitude that presses against its prior's bound
+    says "or more".
+
+    >>> from bgc.runtime.values import Estimate
+    >>> e = Estimate("P_offset", "bias", "bias", 3.1, 0.1, 2.9, 3.3, 0.95, 3.1, 0.0,
+    ...              target="sensor", subject="P", unit="bar")
+    >>> fault_sentence(e, 140.0)
+    'sensor P reads 3.1 bar high since t = 140'
+    >>> e = Estimate("R", "abrupt", "bias", 2.0, 0.1, 1.9, 2.0, 0.95, 4.0, 2.0, bound="high", subject="R", unit="ohm")
+    >>> print(fault_sentence(e, None))
+    parameter R rose by 2 ohm (+100 %), or more: the model's prior ends there
+    """
+    v = e.value
+    if not math.isfinite(v):
+        return f"{e.target} {e.subject or e.parameter}: {e.kind} of unknown size"
+    size = f"{abs(v):.4g}" + (f" {e.unit}" if e.unit else "")
+    rate = f"{size} per unit time"
+    up = v >= 0
+    name = e.subject or e.parameter
+    match (e.target, e.kind):
+        case ("sensor", "bias"):
+            text = f"sensor {name} reads {size} {'high' if up else 'low'}"
+        case ("sensor", "drift"):
+            text = f"sensor {name}'s reading drifts {'up' if up else 'down'} by {rate}"
+        case ("actuator", "gain"):
+            text = f"actuator {name} delivers {100 * abs(v):.3g} % {'more' if up else 'less'} than commanded"
+        case ("actuator", "bias"):
+            text = f"actuator {name} delivers {size} {'more' if up else 'less'} than commanded"
+        case ("actuator", "drift"):
+            text = f"actuator {name}'s output drifts {'up' if up else 'down'} by {rate} from the command"
+        case (_, "incipient"):
+            text = f"parameter {name} drifts {'up' if up else 'down'} by {rate}"
+        case _:
+            percent = f" ({100 * v / abs(e.nominal):+.3g} %)" if e.nominal else ""
+            text = f"parameter {name} {'rose' if up else 'fell'} by {size}{percent}"
+    if since is not None and math.isfinite(since):
+        text += f" since t = {time_text(since)}"
+    if e.bound is not None:
+        text += ", or more: the model's prior ends there"
+    return text

@@ -96,6 +96,7 @@ def report_data(r) -> dict[str, Any]:
         "refuted_by_signatures": [{"fault": n, "why": why} for n, why in d.refuted],
         "hypotheses": [],
         "diagnosis": list(d.candidates),
+        "in_words": plain_words(d),
         "events": [events.record(e, d.time_of) for e in d.events],
         "data_semantics": None if d.data is None else {
             "inputs": [{"input": u, "from": src, "holds": dict(d.data.holds).get(u, 0)} for u, src in d.data.inputs],
@@ -115,7 +116,9 @@ def report_data(r) -> dict[str, Any]:
             "estimate": {"magnitude": e.magnitude, "value": _num(e.value), "std": _num(e.std),
                          "interval": [_num(e.low), _num(e.high)], "level": e.level,
                          "parameter_value": _num(e.parameter_value), "nominal": _num(e.nominal),
-                         "truth": _num(e.truth), "covers_truth": e.covers, "method": e.method},
+                         "truth": _num(e.truth), "covers_truth": e.covers, "method": e.method,
+                         "at_prior_bound": e.bound},
+            "target": e.target, "subject": e.subject or e.parameter, "unit": e.unit,
             "static_consistency_alarm": None if h.static_alarm is None else {
                 "sensor": h.static_alarm.sensor, "window": h.static_alarm.window,
                 "statistic": _num(h.static_alarm.statistic), "threshold": _num(h.static_alarm.threshold)},
@@ -123,6 +126,22 @@ def report_data(r) -> dict[str, Any]:
                 "value": _num(h.filter_estimate.value), "std": _num(h.filter_estimate.std),
                 "interval": [_num(h.filter_estimate.low), _num(h.filter_estimate.high)]}})
     return out
+
+
+def plain_words(d) -> list[str]:
+    """The verdict's faults in plain words (:func:`~bgc.output.events.fault_sentence`):
+    the one isolated, each of an ambiguity group ("either ... or ..."), or
+    the one that lasted longest of an unexplained verdict (which does not
+    explain the data)."""
+    if d.verdict == "no fault" or not d.candidates:
+        return []
+    by = {h.name: h for h in d.hypotheses}
+    words = [events.fault_sentence(by[n].estimate, d.time_of(by[n].onset)) for n in d.candidates if n in by]
+    if d.verdict == "ambiguous":
+        return [("either " if i == 0 else "or ") + w for i, w in enumerate(words)]
+    if d.verdict == "unexplained":
+        return [f"closest, but not explaining the data: {w}" for w in words]
+    return words
 
 
 def _heading(r) -> list[str]:
@@ -164,6 +183,7 @@ def report_markdown(r) -> str:
                               + (f" (the one that lasted longest: {d.candidates[0]})" if d.candidates else "")
                               + ".**"}[d.verdict]
     lines += ["## Verdict", "", verdict, ""]
+    lines += [f"- {escape(line)}" for line in plain_words(d)] + ([""] if plain_words(d) else [])
     if det is None:
         lines += [f"No window of the nominal observer's normalised residuals passed the threshold "
                   f"{d.threshold:.2f} (a false-alarm probability of {d.options.false_alarm:g} per {_per(d)}, "

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -16,7 +17,7 @@ from .hypothesis import log_density
 from .kalman import EDGE, EXTEND, StaticPosterior
 from .runs import Run
 from .values import Diagnosis, Hypothesis
-from .estimate import estimate_of
+from .estimate import estimate_of, pressed
 from .hypothesis import hypothesis_job
 from .onsets import earlier_onsets, onset_weights
 from .parallel import run_batches
@@ -259,6 +260,10 @@ def _weigh(d, a: dict, iso, hyps: list[dict], posteriors: dict, whys: dict, even
                                 if h.name in candidates else h for h in hypothesis_list)
     hypothesis_list = tuple(checked(h, d.outputs, o) if h.name in candidates and static else h
                             for h in hypothesis_list)
+    hypothesis_list = _at_bounds(d, hypothesis_list, T, whys, events, lambda h: h.dropped is None)
+    verdict, candidates = _verdict(hypothesis_list)
+    if verdict == "unexplained":  # the one that lasted longest says so too
+        hypothesis_list = _at_bounds(d, hypothesis_list, T, whys, events, lambda h: h.name in candidates)
     for h in hypothesis_list:
         if h.static_alarm is not None:
             alarm, (start, value) = h.static_alarm, h.static.best
@@ -273,6 +278,32 @@ def _weigh(d, a: dict, iso, hyps: list[dict], posteriors: dict, whys: dict, even
     return Diagnosis(verdict=verdict, detection=d.detection, onset=best_onset, symbols=iso.symbols,
                      refuted=iso.refuted, hypotheses=hypothesis_list, candidates=candidates,
                      seconds=time.perf_counter() - d.started, events=_ordered(final), **common)
+
+
+def _at_bounds(d, hypotheses: tuple[Hypothesis, ...], T: int, whys: dict, events: list,
+               which) -> tuple[Hypothesis, ...]:
+    """The hypotheses ``which`` picks whose magnitude presses against a
+    bound of its prior (:func:`~bgc.runtime.estimate.pressed`) say so (an
+    event; the estimate's ``bound``). A survivor pressed against 0, its
+    prior's edge of no change, is dropped: the data ask for a change its
+    model does not allow (a fault in a direction the model does not list),
+    and an alarm it sizes as nothing is not explained by it."""
+    out = []
+    for h in hypotheses:
+        if which(h) and h.estimate.bound is None:
+            prior = tuple(float(v) for v in d.package.MODELS[h.name].FAULT_PRIOR)
+            side = pressed(h.estimate, prior)
+            if side is not None:
+                bound = prior[0 if side == "low" else 1]
+                events.append(ev.AtPriorBound(h.name, side, bound, h.estimate.value, T - 1))
+                h = replace(h, estimate=replace(h.estimate, bound=side))
+                if bound == 0 and h.dropped is None:
+                    whys[h.name] = "wrong-direction"
+                    h = replace(h, dropped=T - 1, reason=(
+                        f"its magnitude presses against 0, the edge of its prior: the data ask for a change in a "
+                        f"direction its model does not list"))
+        out.append(h)
+    return tuple(out)
 
 
 def _static_evidence(d, hyps: list[dict], posteriors: dict, whys: dict, events: list,

@@ -58,8 +58,46 @@ def estimate_of(module, out: dict, run: Run | None, level: float, onsets=()) -> 
         value, std, low, high = onset_mixture([(w, *o["final"]) for w, o in mixture], level)
         total = float(sum(w for w, _ in mixture))
         parameter_value = float(sum(w * o["parameter_value"] for w, o in mixture) / total)
-        return Estimate(p, kind_name, kind.magnitude, value, std, low, high, level, parameter_value, nominal, truth)
+        return Estimate(p, kind_name, kind.magnitude, value, std, low, high, level, parameter_value, nominal, truth,
+                        **struck(module))
     last = out["last"]
     return Estimate(p, kind_name, kind.magnitude, float(out["magnitude"][last]), out["final_std"],
                     float(out["band"][last, 0]), float(out["band"][last, 1]), level, out["parameter_value"],
-                    nominal, truth)
+                    nominal, truth, **struck(module))
+
+
+def struck(module) -> dict:
+    """What fault model ``module``'s fault strikes, for its :class:`Estimate`
+    (``target``, ``subject``, ``unit``; a package generated before sensor
+    and actuator faults existed strikes its parameter)."""
+    fault = module.FAULT
+    return {"target": fault.get("target", "parameter"), "subject": fault.get("subject", fault["parameter"]),
+            "unit": fault.get("unit")}
+
+
+#: How near a prior's bound an interval's end must come, as a fraction of the prior's width, to press on it.
+NEAR_BOUND = 0.02
+
+
+def pressed(estimate: Estimate, prior: tuple[float, float]) -> str | None:
+    """``high`` or ``low`` when the estimate presses against that bound of
+    the prior: its interval narrower than half the prior and reaching within
+    ``NEAR_BOUND`` of its width of the bound (or past it: a random walk may
+    carry particles beyond); None otherwise, or for an estimate without a
+    number.
+
+    >>> e = Estimate("R", "abrupt", "bias", 0.99, 0.005, 0.98, 1.0, 0.95, 1.99, 1.0)
+    >>> pressed(e, (0.0, 1.0)), pressed(e, (0.0, 2.0))
+    ('high', None)
+    """
+    lo, hi = prior
+    width = hi - lo
+    if not (math.isfinite(estimate.low) and math.isfinite(estimate.high) and width > 0):
+        return None
+    if estimate.high - estimate.low >= 0.5 * width:
+        return None
+    if estimate.high >= hi - NEAR_BOUND * width:
+        return "high"
+    if estimate.low <= lo + NEAR_BOUND * width:
+        return "low"
+    return None

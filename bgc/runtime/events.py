@@ -14,7 +14,7 @@ In loop order: the data (:class:`SensorMissing`, :class:`ColumnIgnored`, :class:
 :class:`SampleSkipped`), detection (:class:`Alarmed`, :class:`Degenerate`,
 :class:`Switched`), isolation (:class:`Isolated`, :class:`AllTried`),
 tracking (:class:`Started`, :class:`Dropped`, :class:`Rescued`), weighing
-(:class:`Truncated`, :class:`NoLikelihood`, :class:`Misfit`), and the end
+(:class:`Truncated`, :class:`AtPriorBound`, :class:`NoLikelihood`, :class:`Misfit`), and the end
 (:class:`Checkpoint`, :class:`Decided`).
 """
 
@@ -183,7 +183,7 @@ class Dropped:
 #: Bayes factor (``bayes-factor``); with its magnitude held static, no finite
 #: likelihood (``no-likelihood``) or its residuals failed the test
 #: (``static-test``).
-DROP_REASONS = ("inconsistent", "pruned", "bayes-factor", "no-likelihood", "static-test")
+DROP_REASONS = ("inconsistent", "pruned", "bayes-factor", "no-likelihood", "static-test", "wrong-direction")
 
 
 @dataclass(frozen=True, slots=True)
@@ -203,6 +203,21 @@ class Truncated:
     Kalman filters' last grid: its evidence and interval may be short."""
 
     hypothesis: str
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class AtPriorBound:
+    """Hypothesis ``hypothesis``'s magnitude presses against ``side``
+    (``low`` or ``high``) of its prior, at ``bound``: its interval is the
+    prior's edge, not the data's. At the bound of no change (``bound`` 0)
+    the data ask for a change in a direction the model does not list; at
+    the other, the fault may be larger than the prior allows."""
+
+    hypothesis: str
+    side: str
+    bound: float
+    value: float
     step: int | None = None
 
 

@@ -23,7 +23,7 @@ from .hypothesis import FAR
 from .kalman import KalmanOptions, StaticPosterior
 from .runs import Run
 from .values import DiagnosisOptions, Estimate, Hypothesis
-from .estimate import truth_of
+from .estimate import struck, truth_of
 from .onsets import earlier_onsets
 from .parallel import run_all
 
@@ -110,7 +110,7 @@ def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, 
         nominal, truth = truth_of(module, run)
         nan = math.nan
         estimate = Estimate(parameter, kind_name, fault_kind(kind_name).magnitude, nan, nan, nan, nan,
-                            options.interval, nan, nominal, truth, method="kalman")
+                            options.interval, nan, nominal, truth, method="kalman", **struck(module))
         h = dict(name=name, parameter=parameter, kind=kind_name, signatures=tuple(models[name]),
                  onsets=p.onsets, onset_posterior=p.onset_posterior, log_evidence=p.log_evidence,
                  seconds=p.seconds, estimate=estimate, dropped=None, reason="")

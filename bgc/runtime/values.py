@@ -135,6 +135,14 @@ class Estimate:
     nominal: float
     truth: float | None = None
     method: str = "filter"
+    #: ``low`` or ``high`` when the interval presses against that bound of the prior
+    #: (:func:`bgc.runtime.estimate.pressed`): the bound, not the data, limits it.
+    bound: str | None = None
+    #: What the fault strikes (``parameter``, ``sensor``, ``actuator``), its name in the
+    #: model, and its unit (None: none declared, or a gain).
+    target: str = "parameter"
+    subject: str = ""
+    unit: str | None = None
 
     @property
     def covers(self) -> bool | None:

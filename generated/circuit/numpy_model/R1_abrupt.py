@@ -38,7 +38,7 @@ MEASUREMENT_STD = np.array([0.05, 0.05, 0.05])
 #: H at X0); the auxiliary particle filter uses :func:`predictive_std`, its value
 #: where the plant runs, and this where that is not a number.
 PREDICTIVE_STD = np.array([0.06020797289396148, 0.1329943607827039, 0.07979465834252317])
-FAULT = {'parameter': 'R1', 'kind': 'abrupt', 'magnitude': 'bias'}
+FAULT = {'parameter': 'R1', 'kind': 'abrupt', 'magnitude': 'bias', 'target': 'parameter', 'subject': 'R1', 'unit': 'ohm'}
 #: Uniform prior of the fault magnitude: bias delta_R1 on [-0.5, 1].
 FAULT_PRIOR = (-0.5, 1.0)
 

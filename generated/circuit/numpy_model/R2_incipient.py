@@ -38,7 +38,7 @@ MEASUREMENT_STD = np.array([0.05, 0.05, 0.05])
 #: H at X0); the auxiliary particle filter uses :func:`predictive_std`, its value
 #: where the plant runs, and this where that is not a number.
 PREDICTIVE_STD = np.array([0.06020797289396148, 0.1329943607827039, 0.07979465834252317])
-FAULT = {'parameter': 'R2', 'kind': 'incipient', 'magnitude': 'slope'}
+FAULT = {'parameter': 'R2', 'kind': 'incipient', 'magnitude': 'slope', 'target': 'parameter', 'subject': 'R2', 'unit': 'ohm'}
 #: Uniform prior of the fault magnitude: slope delta_R2 (per unit time) on [0, 0.533333].
 FAULT_PRIOR = (0.0, 0.5333333333333333)
 

@@ -38,7 +38,7 @@ MEASUREMENT_STD = np.array([0.03310130963636364, 0.3128824910144928, 0.279781153
 #: H at X0); the auxiliary particle filter uses :func:`predictive_std`, its value
 #: where the plant runs, and this where that is not a number.
 PREDICTIVE_STD = np.array([0.03958761331552928, 0.3844347212165026, 0.3347278293094676, 8.70260489015789])
-FAULT = {'parameter': 'C_res', 'kind': 'abrupt', 'magnitude': 'bias'}
+FAULT = {'parameter': 'C_res', 'kind': 'abrupt', 'magnitude': 'bias', 'target': 'parameter', 'subject': 'C_res', 'unit': None}
 #: Uniform prior of the fault magnitude: bias delta_C_res on [-0.75, 0].
 FAULT_PRIOR = (-0.75, 0.0)
 

@@ -38,7 +38,7 @@ MEASUREMENT_STD = np.array([0.011111111, 0.008888889, 0.008888888666666667])
 #: H at X0); the auxiliary particle filter uses :func:`predictive_std`, its value
 #: where the plant runs, and this where that is not a number.
 PREDICTIVE_STD = np.array([0.015087194975795014, 0.02679367867797861, 0.013333333])
-FAULT = {'parameter': 'C1', 'kind': 'abrupt', 'magnitude': 'bias'}
+FAULT = {'parameter': 'C1', 'kind': 'abrupt', 'magnitude': 'bias', 'target': 'parameter', 'subject': 'C1', 'unit': 'm^3/Pa'}
 #: Uniform prior of the fault magnitude: bias delta_C1 on [-1, 2].
 FAULT_PRIOR = (-1.0, 2.0)
 

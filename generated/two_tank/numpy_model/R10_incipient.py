@@ -38,7 +38,7 @@ MEASUREMENT_STD = np.array([0.011111111, 0.008888889, 0.008888888666666667])
 #: H at X0); the auxiliary particle filter uses :func:`predictive_std`, its value
 #: where the plant runs, and this where that is not a number.
 PREDICTIVE_STD = np.array([0.015087194975795014, 0.02679367867797861, 0.013333333])
-FAULT = {'parameter': 'R10', 'kind': 'incipient', 'magnitude': 'slope'}
+FAULT = {'parameter': 'R10', 'kind': 'incipient', 'magnitude': 'slope', 'target': 'parameter', 'subject': 'R10', 'unit': 'Pa*s/m^3'}
 #: Uniform prior of the fault magnitude: slope delta_R10 (per unit time) on [-0.0213333, 0.106667].
 FAULT_PRIOR = (-0.02133333333333334, 0.10666666666666667)
 

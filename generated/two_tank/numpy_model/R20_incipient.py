@@ -38,7 +38,7 @@ MEASUREMENT_STD = np.array([0.011111111, 0.008888889, 0.008888888666666667])
 #: H at X0); the auxiliary particle filter uses :func:`predictive_std`, its value
 #: where the plant runs, and this where that is not a number.
 PREDICTIVE_STD = np.array([0.015087194975795014, 0.02679367867797861, 0.013333333])
-FAULT = {'parameter': 'R20', 'kind': 'incipient', 'magnitude': 'slope'}
+FAULT = {'parameter': 'R20', 'kind': 'incipient', 'magnitude': 'slope', 'target': 'parameter', 'subject': 'R20', 'unit': 'Pa*s/m^3'}
 #: Uniform prior of the fault magnitude: slope delta_R20 (per unit time) on [0, 0.08].
 FAULT_PRIOR = (0.0, 0.08)
 
