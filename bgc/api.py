@@ -563,6 +563,8 @@ class DistinguishabilityReport:
     change: float | None
     at: float | None
     distinctions: tuple[distinction.Distinction, ...]
+    #: Why the model's diagnoser would not expect the scenario's fault (outside its prior), or None.
+    warning: str | None = None
 
 
 def distinguishability(model: str | Path | Session, scenario: str | None = None, *, change: float = 0.3,
@@ -652,7 +654,9 @@ def distinguishability(model: str | Path | Session, scenario: str | None = None,
                                   "give a fault, e.g. R_pipe:incipient:0.5@165, or no scenario for every candidate")
         inj = simulate.parse_fault(scenario, num)
         if all(f.name != f"{inj.parameter}:{inj.kind}" for f in num.faults):
-            raise SimulationError(f"{inj.parameter}:{inj.kind} is not a fault candidate of {c.model.name}", None,
+            raise SimulationError(f"{inj.subject or inj.parameter}:{inj.kind} is not a fault candidate of "
+                                  f"{c.model.name}: no fault model to tell apart from the others (its diagnosis "
+                                  "should end unexplained)", None,
                                   "candidates: " + ", ".join(f"{f.parameter}:{f.kind}" for f in num.faults))
         if not 0 < inj.time <= times[-1]:
             raise SimulationError(f"onset {inj.time:g} is outside the run (0 to {times[-1]:g})", None,
@@ -662,9 +666,13 @@ def distinguishability(model: str | Path | Session, scenario: str | None = None,
         injected = []
         for f in num.faults:
             onset = int(at * T)
-            for sign in DIRECTIONS[next(x.direction for x in c.model.faults if x.parameter == f.parameter)]:
-                size = sign * change * abs(f.nominal)
-                magnitude = fault_kind(f.kind).magnitude_for(size, (T - 1 - onset) * dt)  # reached at the end
+            candidate = next(x for x in c.model.faults if x.parameter == f.parameter)
+            kind = fault_kind(f.kind)
+            for sign in (1,) if kind.replaces else DIRECTIONS[candidate.direction]:
+                size = sign * change * f.scale  # a parameter's |nominal|, a sensor's reading, ...
+                magnitude = kind.magnitude_for(size, (T - 1 - onset) * dt)  # reached at the end
+                if kind.replaces:  # a stuck reading: that far off its nominal reading
+                    magnitude += num.y0[list(num.equations.outputs).index(candidate.subject)]
                 injected.append(simulate.FaultInjection(f.parameter, f.kind, magnitude, float(times[onset])))
     levels = num.noise_at(process_noise, measurement_noise)
     custom = levels if (process_noise, measurement_noise) != (None, None) else None
@@ -680,8 +688,10 @@ def distinguishability(model: str | Path | Session, scenario: str | None = None,
         onset = metrics.sample_at(times, inj.time)
         out.append(distinction.distinguish(families, f"{inj.parameter}_{inj.kind}", inj.magnitude, onset, priors,
                                            level))
+    warning = simulate.outside_prior(injected[0], num) if scenario is not None else None
     return DistinguishabilityReport(c.model.name, c.model.display_source, T, dt, (process_noise, measurement_noise),
-                                    scenario, None if scenario else change, None if scenario else at, tuple(out))
+                                    scenario, None if scenario else change, None if scenario else at, tuple(out),
+                                    warning)
 
 
 #: Prepared families by package (its module name tells the noise levels) and

@@ -65,9 +65,11 @@ COLUMNS = (
     "mse", "nmse", "mse_states", "ct", "detected", "detection_time", "delay", "false_alarm", "verdict",
     "diagnosed", "candidates", "right", "in_candidates", "estimate", "low", "high", "est_error", "parameter",
     "parameter_truth", "param_error", "covers", "refine", "separable", "rivals", "separation", "detectability",
+    "target", "diagnosed_target", "expected",
 )
 _INT = {"index", "particles", "seed", "steps"}
-_BOOL = {"ambiguous", "detected", "false_alarm", "right", "in_candidates", "covers", "refine", "separable"}
+_BOOL = {"ambiguous", "detected", "false_alarm", "right", "in_candidates", "covers", "refine", "separable",
+         "expected"}
 _FLOAT = {"magnitude", "onset", "process_noise", "measurement_noise", "rt", "mse", "nmse", "ct", "detection_time",
           "delay", "estimate", "low", "high", "est_error", "parameter", "parameter_truth", "param_error",
           "separation", "detectability"}
@@ -409,11 +411,7 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
             except BgcError as exc:
                 raise ExperimentError(exc.what.replace("--fault", "scenario"), raw.loc(*where, "scenarios", i),
                                       exc.fix) from None
-            if inj.parameter not in candidates or inj.kind not in candidates[inj.parameter].kinds:
-                raise ExperimentError(f"scenario '{text}': {inj.parameter}:{inj.kind} is not a fault candidate of "
-                                      f"{c.model.name}", raw.loc(*where, "scenarios", i),
-                                      "candidates: " + ", ".join(f"{f.parameter}:{k}" for f in c.model.faults
-                                                                 for k in f.kinds))
+            # a fault the model does not list is a scenario too: its verdict should be "unexplained"
             if not 0 < inj.time < duration:
                 raise ExperimentError(f"scenario '{text}': onset {inj.time:g} is outside the run (0 to {duration:g})",
                                       raw.loc(*where, "scenarios", i), "choose an onset inside the run")
@@ -429,11 +427,17 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
         if not 0 < o_lo <= o_hi < 1:
             raise ExperimentError(f"onset range [{o_lo}, {o_hi}] is not inside the run", raw.loc(*dwhere, "onset"),
                                   "give fractions of the run, 0 < low <= high < 1, e.g. [0.3, 0.6]")
-        faults = draws.get("faults", sorted(candidates))
-        for i, name in enumerate(faults):
-            if name not in candidates:
+        named: dict[str, list[str]] = {}  # a candidate's name in the model (a sensor: F12), or its symbol (F12_offset)
+        for f in c.model.faults:
+            named.setdefault(f.name, []).append(f.parameter)
+            named.setdefault(f.parameter, [f.parameter])
+        faults = []
+        for i, name in enumerate(draws.get("faults", sorted(candidates))):
+            if name not in named:
                 raise ExperimentError(f"'{name}' is not a fault candidate of {c.model.name}",
-                                      raw.loc(*dwhere, "faults", i), "candidates: " + ", ".join(sorted(candidates)))
+                                      raw.loc(*dwhere, "faults", i),
+                                      "candidates: " + ", ".join(sorted({f.name for f in c.model.faults})))
+            faults += [p for p in named[name] if p not in faults]
         kinds = draws.get("kinds", list(FAULT_KINDS))
         pool = [(p, k) for p in faults for k in candidates[p].kinds if k in kinds]
         if not pool:
@@ -446,15 +450,16 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
             sign = int(rng.choice(DIRECTIONS[candidates[p].direction]))
             change = float(rng.uniform(lo, hi))
             onset = min(max(round(float(rng.uniform(o_lo, o_hi)) * steps), 1), steps - 1) * dt  # a sample inside
-            nominal = prior[(p, k)].nominal
-            size = sign * change * abs(nominal)
+            size = sign * change * prior[(p, k)].scale  # of a parameter's |nominal|, a sensor's reading, ...
             magnitude = fault_kind(k).magnitude_for(size, duration)  # a drift: that change per run length
+            if fault_kind(k).replaces:  # a stuck reading: that far off the sensor's nominal reading
+                magnitude += num.y0[list(num.equations.outputs).index(candidates[p].name)]
             b_lo, b_hi = prior[(p, k)].prior
             if not b_lo <= magnitude <= b_hi:
                 raise ExperimentError(f"a draw of {p}:{k} with change {sign * change:.3g} lies outside the prior of "
                                       f"its fault model ({b_lo:.4g} to {b_hi:.4g})", raw.loc(*dwhere, "change"),
                                       "draw smaller changes (the filters cannot estimate what their prior excludes)")
-            text = f"{p}:{k}:{magnitude:.6g}@{onset:.12g}"
+            text = f"{candidates[p].name}:{k}:{magnitude:.6g}@{onset:.12g}"
             inj = simulate.parse_fault(text, num)
             run_seeds = [int(np.random.SeedSequence([campaign_seed, g_index, j, s]).generate_state(1)[0])
                          for s in seeds]
@@ -464,7 +469,7 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
     for scenario, inj, run_seeds in scenarios:
         truth_value = None
         if inj is not None:
-            truth_value = inj.value(float(_nominal(c, inj.parameter)), duration)
+            truth_value = inj.value(float(_nominal(c, inj)), duration)
         for noise, process, measurement in noises:
             for method in settings["filters"]:
                 for particles, refine in [(p, r) for p in settings["particles"] for r in settings["refine"]]:
@@ -478,11 +483,14 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
     return out
 
 
-def _nominal(c: pipeline.Compiled, parameter: str) -> float:
-    for f in c.numerics.faults:
-        if f.parameter == parameter:
-            return f.nominal
-    raise KeyError(parameter)
+def _nominal(c: pipeline.Compiled, inj: simulate.FaultInjection) -> float:
+    """The nominal value of what the injected fault changes: the parameter's,
+    or a sensor's or actuator's fault symbol's (also when the model does not
+    list the fault)."""
+    values = dict(zip(c.equations.parameters, c.equations.parameter_values))
+    if inj.parameter in values:
+        return values[inj.parameter]
+    return fault_kind(inj.kind).nominal
 
 
 def _display(path: Path) -> str:
@@ -614,7 +622,7 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     ``failure``, and the campaign goes on.
     """
     from . import api
-    from .runtime import metrics
+    from .runtime import metrics, simulate
     from .runtime.diagnose import DiagnosisOptions
 
     row: dict[str, Any] = dict.fromkeys(COLUMNS)
@@ -622,8 +630,8 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     try:
         options = DiagnosisOptions(method=spec.filter, particles=spec.particles, seed=spec.seed, workers=1,
                                    refine=spec.refine, switch=False)  # a campaign measures the filter it names
-        report = api.diagnose(_session(spec, spec.process_noise, spec.measurement_noise), scenario=spec.scenario,
-                              seed=spec.seed, steps=spec.steps, options=options)
+        session = _session(spec, spec.process_noise, spec.measurement_noise)
+        report = api.diagnose(session, scenario=spec.scenario, seed=spec.seed, steps=spec.steps, options=options)
         d = report.diagnosis
         m = metrics.measure(d, report.run, metrics.Truth(spec.fault, spec.kind, spec.magnitude, spec.onset))
         best = d.best
@@ -633,6 +641,12 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
             detection_time=m.detection_time, delay=m.delay, false_alarm=m.false_alarm, verdict=m.verdict,
             diagnosed=m.diagnosed, candidates=" ".join(d.candidates) or None, right=m.right, in_candidates=m.in_candidates,
             estimate=m.estimate, low=m.low, high=m.high, est_error=m.error, covers=m.covers)
+        injected = report.injected
+        if injected is not None:
+            row.update(target=injected.target,
+                       expected=simulate.outside_prior(injected, session.compiled.numerics) is None)
+        if m.diagnosed != "none" and best is not None:
+            row["diagnosed_target"] = best.estimate.target
         if m.right and best is not None and spec.parameter_truth is not None:
             row["parameter"] = best.estimate.parameter_value
             row["param_error"] = abs(best.estimate.parameter_value - spec.parameter_truth) / abs(spec.parameter_truth)

@@ -40,7 +40,7 @@ def cmd_check(args: argparse.Namespace) -> int:
             _report(exc)
             status = 1
             continue
-        print(render.check_summary(c.equations))
+        print(render.check_summary(c.equations, c.numerics))
     return status
 
 
@@ -112,7 +112,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         ("equations", "text"): lambda: render.equations_text(c.equations),
         ("equations", "json"): lambda: render.to_json(render.equations_json(c.equations)),
         ("equations", "latex"): lambda: render.equations_latex(c.equations),
-        ("signatures", "text"): lambda: render.signatures_text(c.signatures),
+        ("signatures", "text"): lambda: render.signatures_text(c.signatures, c.numerics),
         ("signatures", "json"): lambda: render.to_json(render.signatures_json(c.signatures)),
         ("dbn", "text"): lambda: render.dbn_text(d),
         ("dbn", "json"): lambda: render.to_json(render.dbn_json(d)),
@@ -525,7 +525,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("show", help="print or render one stage of a model")
     p.add_argument("stage", choices=["causality", "tcg", "equations", "signatures", "dbn"])
     p.add_argument("model", metavar="MODEL")
-    p.add_argument("--fault", metavar="PARAM:KIND", help="with dbn: the faulty DBN, e.g. R_pipe:incipient")
+    p.add_argument("--fault", metavar="PARAM:KIND",
+                   help="with dbn: the faulty DBN, e.g. R_pipe:incipient, or a sensor's P_memb:bias")
     p.add_argument("--format", default="text", choices=["text", "json", "dot", "latex", "svg", "png"])
     p.add_argument("-o", "--output", metavar="FILE", help="write to FILE (pictures default to MODEL-STAGE.FMT)")
     p.add_argument("--engine", choices=["auto", "graphviz", "matplotlib"], default="auto")

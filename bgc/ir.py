@@ -406,7 +406,12 @@ class DbnModel:
     faulty: tuple[Dbn, ...]
 
     def get(self, name: str) -> Dbn:
-        """The DBN called ``nominal`` or ``PARAM:KIND``."""
+        """The DBN called ``nominal`` or ``PARAM:KIND`` (a sensor's or
+        actuator's fault also by its name in the model: ``F12:bias`` for
+        ``F12_offset:bias``)."""
+        for f in self.equations.model.faults:
+            if name in {f"{f.name}:{k}" for k in f.kinds} and f.name != f.parameter:
+                name = f"{f.parameter}:{name.rsplit(':', 1)[1]}"
         for d in (self.nominal, *self.faulty):
             if d.name == name:
                 return d

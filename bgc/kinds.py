@@ -166,6 +166,9 @@ class FaultKind:
     targets: tuple[str, ...] = ("parameter",)
     suffix: str | None = None
     nominal: float = 0.0
+    #: The fault's parameter replaces the sensor's reading instead of adding to it (a stuck
+    #: sensor reads its value, whatever the plant does); its prior is centred on the nominal reading.
+    replaces: bool = False
 
     def value(self, nominal: float, magnitude: float, onset: float, t: float) -> float:
         """The faulty parameter at time t (a step at the onset, or a ramp from it)."""
@@ -256,12 +259,25 @@ FAULT_KINDS: Mapping[str, FaultKind] = {
         {"increase": (0.0, 0.5), "decrease": (-0.5, 0.0), "both": (-0.5, 0.5)},
         0.01, "prior", "an offset growing at c per unit time from the onset: a sensor reads y + c (t - t_f)",
         ("sensor", "actuator"), "offset", 0.0),
+    "stuck": FaultKind(
+        "stuck", "value", False,
+        # a reading from half its scale below 0 to two and a half times its nominal
+        # reading: a dead sensor (0) and a frozen one (near its reading) both inside
+        {"increase": (0.0, 1.5), "decrease": (-1.5, 0.0), "both": (-1.5, 1.5)},
+        0.002, "parameter", "the reading stays at a value v from the onset, whatever the plant does (a frozen "
+        "or dead sensor)", ("sensor",), "stuck", 0.0, True),
     "gain": FaultKind(
         "gain", "bias", False,
         {"increase": (0.0, 1.0), "decrease": (-0.5, 0.0), "both": (-0.5, 1.0)},
         0.004, "parameter", "a gain change from the onset: the actuator delivers (1 + g) u",
         ("actuator",), "gain", 1.0),
 }
+
+
+def kinds_for(target: str) -> str:
+    """What a target takes, for messages: ``a sensor takes: bias, drift, stuck``."""
+    valid = ", ".join(k for k, fk in FAULT_KINDS.items() if target in fk.targets)
+    return f"{'an' if target[0] in 'aeiou' else 'a'} {target} takes: {valid}"
 
 
 def fault_kind(name: str) -> FaultKind:

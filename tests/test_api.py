@@ -284,8 +284,10 @@ def test_bgc_distinguish_reports_progress_on_a_terminal(monkeypatch, capsys):
     assert cli.main(["distinguish", str(TWO_TANK), "--steps", "40", "--change", "0.5"]) == 0
     text = err.getvalue()
     assert "\rbgc distinguish: preparing the families: the nominal run" in text
-    assert "bgc distinguish: preparing the families: fault model 1 of 8 (" in text
-    assert "bgc distinguish: scenario 12 of 12: " in text
+    # models/two_tank.yaml: 8 parameter fault models, 3 sensors x (bias, drift), the inflow's bias: 15;
+    # scenarios, one per direction: 12 of the parameters', 12 of the sensors', 2 of the inflow's
+    assert "bgc distinguish: preparing the families: fault model 1 of 15 (" in text
+    assert "bgc distinguish: scenario 26 of 26: " in text
     assert text.endswith("\r")  # the line is cleared at the end
     assert "R10" in capsys.readouterr().out
 

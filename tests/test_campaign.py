@@ -37,7 +37,7 @@ groups:
     scenarios: [none, "R2:abrupt:0.6@1.5"]
   - name: draws
     model: {TWO_TANK}
-    draws: {{count: 2, change: [0.3, 0.5], onset: [0.3, 0.4]}}
+    draws: {{count: 2, change: [0.3, 0.5], onset: [0.3, 0.4], kinds: [abrupt, incipient]}}
     filters: [gpf]
     seeds: 1
 tables:
@@ -76,6 +76,26 @@ def test_the_grid_expands_into_every_combination_in_order(tmp_path):
     assert (r2.kind, r2.magnitude, r2.onset, r2.parameter_truth) == ("abrupt", 0.6, 1.5, 2.6)
 
 
+def test_draws_of_sensor_faults_are_in_units_of_the_reading(tmp_path):
+    """F12 of the two tanks reads (e2 - e7)/R12 = (20/9 - 4/3)/2 = 4/9 at the
+    operating point: a bias of change c is c * 4/9, a drift's slope reaches
+    it over the run (300 x 0.5 = 150); the scenario names the sensor."""
+    text = f"""\
+    campaign: s
+    seed: 3
+    groups:
+      - name: g
+        model: {TWO_TANK}
+        draws: {{count: 20, change: [0.2, 0.4], onset: [0.3, 0.6], faults: [F12]}}
+    """
+    c = campaign.load_campaign(write(tmp_path, text))
+    assert {s.fault for s in c.specs} == {"F12_offset"} and {s.kind for s in c.specs} <= {"bias", "drift"}
+    for s in c.specs:
+        assert s.scenario.startswith("F12:")
+        change = abs(s.magnitude) / (4 / 9) * (150.0 if s.kind == "drift" else 1.0)
+        assert 0.2 - 1e-4 <= change <= 0.4 + 1e-4, s.scenario
+
+
 def test_draws_are_reproducible_and_respect_ranges_and_declared_directions(tmp_path):
     text = f"""\
     campaign: d
@@ -83,7 +103,7 @@ def test_draws_are_reproducible_and_respect_ranges_and_declared_directions(tmp_p
     groups:
       - name: g
         model: {CIRCUIT}
-        draws: {{count: 60, change: [0.2, 0.5], onset: [0.3, 0.6]}}
+        draws: {{count: 60, change: [0.2, 0.5], onset: [0.3, 0.6], kinds: [abrupt, incipient]}}
     """
     a = campaign.load_campaign(write(tmp_path, text))
     b = campaign.load_campaign(write(tmp_path, text, "again.yaml"))

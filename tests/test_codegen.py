@@ -265,10 +265,9 @@ def _fault_layout(mod, ssm):
     p, kind = mod.FAULT["parameter"], mod.FAULT["kind"]
     n = len(ssm.states)
     assert mod.STATES[:n] == ssm.states
-    if kind == "abrupt":
+    if not fault_kind(kind).drifts:
         assert mod.STATES[n:] == (f"delta_{p}",) and mod.STATE_KINDS[n:] == ("bias",)
     else:
-        assert kind == "incipient"
         assert mod.STATES[n:] == (p, f"delta_{p}") and mod.STATE_KINDS[n:] == ("parameter", "slope")
     return p, kind, n, ssm.parameters.index(p)
 
@@ -281,14 +280,14 @@ def test_fault_module_at_its_neutral_value_is_the_nominal_model(model, name):
     for _ in range(3):
         xp, u, theta = random_point(mod, ssm, rng)
         N = xp.shape[1]
-        if kind == "abrupt":
+        if not fault_kind(kind).drifts:
             x = np.vstack([xp, np.zeros((1, N))])
         else:  # parameter state = the parameter's value, any slope
-            x = np.vstack([xp, np.full((1, N), theta[j]), rng.uniform(-1.0, 1.0, (1, N)) * abs(theta[j])])
+            x = np.vstack([xp, np.full((1, N), theta[j]), rng.uniform(-1.0, 1.0, (1, N)) * (abs(theta[j]) or 1.0)])
         dx = mod.derivative(x, u, tuple(theta))
         assert_close(dx[:n], ref.rhs(xp, u, theta), "physical part of the derivative")
         assert_close(mod.observe(x, u, tuple(theta)), ref.out(xp, u, theta), "observe")
-        if kind == "abrupt":
+        if not fault_kind(kind).drifts:
             np.testing.assert_array_equal(dx[n], 0.0)
         else:
             np.testing.assert_array_equal(dx[n], x[n + 1])  # d theta / dt = slope
@@ -304,21 +303,27 @@ def test_fault_module_with_a_fault_replaces_the_parameter(model, name):
     for _ in range(3):
         xp, u, theta = random_point(mod, ssm, rng)
         N = xp.shape[1]
-        change = rng.uniform(-0.4, 0.4, N) * abs(theta[j])  # per particle, both signs
+        change = rng.uniform(-0.4, 0.4, N) * (abs(theta[j]) or 1.0)  # per particle, both signs (an offset's is 0)
         faulty = [np.full(N, v) for v in theta]
         faulty[j] = theta[j] + change
-        if kind == "abrupt":
+        if not fault_kind(kind).drifts:
             x = np.vstack([xp, change[None]])
         else:
             x = np.vstack([xp, faulty[j][None], rng.uniform(-1.0, 1.0, (1, N))])
         assert_close(mod.derivative(x, u, tuple(theta))[:n], ref.rhs(xp, u, faulty), "derivative with the fault")
         assert_close(mod.observe(x, u, tuple(theta)), ref.out(xp, u, faulty), "observe with the fault")
         np.testing.assert_allclose(mod.parameter_value(x, theta), faulty[j], rtol=1e-15)
-        # And it really differs from the nominal wherever the parameter acts.
+        # And it really differs from the nominal wherever the parameter acts (a
+        # sensor's offset acts on its reading only).
         nominal = ref.rhs(xp, u, theta)
         acts = [i for i, e in enumerate(ssm.rhs) if sym(p) in e.free_symbols]
-        assert acts, f"{p} appears in no state equation"
-        assert not np.allclose(mod.derivative(x, u, tuple(theta))[acts], nominal[acts], rtol=1e-6, atol=0)
+        seen = [i for i, e in enumerate(ssm.output_exprs) if sym(p) in e.free_symbols]
+        assert acts or seen, f"{p} appears in no equation"
+        if acts:
+            assert not np.allclose(mod.derivative(x, u, tuple(theta))[acts], nominal[acts], rtol=1e-6, atol=0)
+        if seen:
+            reading = ref.out(xp, u, theta)[seen]
+            assert not np.allclose(mod.observe(x, u, tuple(theta))[seen], reading, rtol=1e-6, atol=0)
 
 
 @pytest.mark.parametrize("model,name", FAULT_MODULES)
@@ -331,7 +336,7 @@ def test_augment_lifts_nominal_particles_to_the_neutral_fault_state(model, name)
     magnitude = x[-1]
     lo, hi = mod.FAULT_PRIOR
     assert lo < hi and np.all((magnitude >= lo) & (magnitude <= hi)) and np.ptp(magnitude) > 0.5 * (hi - lo)
-    if kind == "incipient":
+    if fault_kind(kind).drifts:
         np.testing.assert_array_equal(x[n], ssm.parameter_values[j])
 
 
@@ -509,13 +514,13 @@ def test_model_names_do_not_collide_with_names_the_generated_code_uses(tmp_path,
         else:
             p, kind, n, j = _fault_layout(mod, ssm)
             faulty = [np.full(N, v) for v in theta]
-            faulty[j] = theta[j] * (1.0 + rng.uniform(-0.3, 0.3, N))
-            extra = [faulty[j] - theta[j]] if kind == "abrupt" else [faulty[j], rng.uniform(-1.0, 1.0, N)]
+            faulty[j] = theta[j] + (abs(theta[j]) or 1.0) * rng.uniform(-0.3, 0.3, N)
+            extra = [faulty[j] - theta[j]] if not fault_kind(kind).drifts else [faulty[j], rng.uniform(-1.0, 1.0, N)]
             x = np.vstack([xp, *extra])
         assert_close(mod.observe(x, u, tuple(theta)), ref.out(xp, u, faulty), f"{name}: observe")
         dx = mod.derivative(x, u, tuple(theta))
         assert_close(dx[:len(ssm.states)], ref.rhs(xp, u, faulty), f"{name}: derivative")
-        if mod.FAULT is not None and mod.FAULT["kind"] == "incipient":
+        if mod.FAULT is not None and fault_kind(mod.FAULT["kind"]).drifts:
             np.testing.assert_array_equal(dx[-2], x[-1], err_msg=f"{name}: d{mod.FAULT['parameter']}/dt = slope")
 
 

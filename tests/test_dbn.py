@@ -175,6 +175,8 @@ def test_circuit_incipient_c1_dbn():
 def test_circuit_has_one_faulty_dbn_per_candidate_and_kind():
     model = compiled("circuit").dbn
     expected = {f"{p}:{k}" for p in ("R1", "R2", "R3", "C1", "C2", "L") for k in ("abrupt", "incipient")}
+    # models/circuit.yaml's sensor faults (f2, f6, e11: bias, drift) and the source's bias
+    expected |= {f"{y}_offset:{k}" for y in ("f2", "f6", "e11") for k in ("bias", "drift")} | {"V_offset:bias"}
     assert {d.name for d in model.faulty} == expected
 
 
@@ -184,7 +186,7 @@ def test_fault_arcs_reach_exactly_the_equations_containing_the_parameter(name):
     ssm = c.equations
     for d in c.dbn.faulty:
         p = sympy.Symbol(d.parameter)
-        carrier = f"delta_{d.parameter}" if d.kind == "abrupt" else d.parameter
+        carrier = d.parameter if d.kind in ("incipient", "drift") else f"delta_{d.parameter}"
         expected = {(f"{carrier}@t", f"{x}@t+1") for x, rhs in zip(ssm.states, ssm.rhs) if p in rhs.free_symbols}
         expected |= {(f"{carrier}@{s}", f"{y}@{s}") for y, e in zip(ssm.outputs, ssm.output_exprs)
                      if p in e.free_symbols for s in ("t", "t+1")}

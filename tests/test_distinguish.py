@@ -19,6 +19,8 @@ import math
 import numpy as np
 import pytest
 
+from bgc.kinds import fault_kind
+
 from bgc import api, cli
 from bgc.runtime import distinguish, track
 
@@ -189,11 +191,14 @@ def test_cli_refuses_a_scenario_it_cannot_predict(capsys, scenario, message):
 
 def test_every_candidate_reaches_the_change_asked_for_a_drift_at_the_last_sample():
     r = api.distinguishability(TWO_TANK, change=0.3, at=0.5)
-    nominal = {f.parameter: f.nominal for f in compiled("two_tank").numerics.faults}
+    # a change of 30 % of each fault's scale: a parameter's |nominal|, a sensor's nominal reading
+    # (F10 = e2/R10 = (20/9)/4 = 5/9, F12 = (20/9 - 4/3)/2 = 4/9, F20 = (4/3)/3 = 4/9), the inflow's 1
+    scale = {"C1": 2.0, "C2": 1.5, "R10": 4.0, "R12": 2.0, "R20": 3.0,
+             "F10_offset": 5 / 9, "F12_offset": 4 / 9, "F20_offset": 4 / 9, "f_in_offset": 1.0}
     for d in r.distinctions:
         parameter, kind = d.truth.rsplit("_", 1)
-        size = d.magnitude * (r.steps - 1 - d.onset) * r.dt if kind == "incipient" else d.magnitude
-        assert abs(size) == pytest.approx(0.3 * abs(nominal[parameter]))
+        size = d.magnitude * (r.steps - 1 - d.onset) * r.dt if fault_kind(kind).drifts else d.magnitude
+        assert abs(size) == pytest.approx(0.3 * scale[parameter], rel=1e-6)
     assert d.onset == 150
 
 

@@ -77,14 +77,17 @@ def test_circuit_equations_by_hand():
     the R2 current minus the inductor current f10; the inductor sees e8 minus the
     drop R3*f10."""
     e4, e8, f10, V, R1, R2, R3, C1, C2, L = map(S, "e4 e8 f10 V R1 R2 R3 C1 C2 L".split())
-    i1 = (V - e4) / R1
+    # models/circuit.yaml's sensor and actuator faults: the source delivers V + V_offset,
+    # each sensor reads its variable plus its offset
+    V_offset, f2_offset, f6_offset, e11_offset = map(S, "V_offset f2_offset f6_offset e11_offset".split())
+    i1 = (V + V_offset - e4) / R1
     i2 = (e4 - e8) / R2
     states = {
         "e4": (i1 - i2) / C1,
         "e8": (i2 - f10) / C2,
         "f10": (e8 - R3 * f10) / L,
     }
-    outputs = {"f2": i1, "f6": i2, "e11": R3 * f10}
+    outputs = {"f2": i1 + f2_offset, "f6": i2 + f6_offset, "e11": R3 * f10 + e11_offset}
     c = circuit()
     assert c.equations.states == ("e4", "e8", "f10")
     assert c.equations.inputs == ("V",)
@@ -102,9 +105,12 @@ def test_two_tank_equations_by_hand():
     """Mass balances with linear pipes: C1*dP1/dt = f_in - P1/R10 - (P1 - P2)/R12,
     C2*dP2/dt = (P1 - P2)/R12 - P2/R20, with P1 = e2, P2 = e7."""
     e2, e7, f_in, C1, C2, R10, R12, R20 = map(S, "e2 e7 f_in C1 C2 R10 R12 R20".split())
+    # models/two_tank.yaml's sensor and actuator faults: the inflow delivers f_in + f_in_offset,
+    # each sensor reads its flow plus its offset
+    f_in_offset, o10, o12, o20 = map(S, "f_in_offset F10_offset F12_offset F20_offset".split())
     F10, F12, F20 = e2 / R10, (e2 - e7) / R12, e7 / R20
-    states = {"e2": (f_in - F10 - F12) / C1, "e7": (F12 - F20) / C2}
-    outputs = {"F10": F10, "F12": F12, "F20": F20}
+    states = {"e2": (f_in + f_in_offset - F10 - F12) / C1, "e7": (F12 - F20) / C2}
+    outputs = {"F10": F10 + o10, "F12": F12 + o12, "F20": F20 + o20}
     c = two_tank()
     assert c.equations.states == ("e2", "e7")
     assert_equations(c, states, outputs)
@@ -271,12 +277,12 @@ def test_ro_conductivity_state_equation():
 def test_ro_measurement_equations_by_hand():
     """P_memb = e13; F_perm = e13/MR_memb; F_loop = f10 = q_pipe, the pipe flow
     (pump boost plus reservoir pressure minus membrane pressure, over R_pipe);
-    F_back = f18 = (e13 - e6)/R_brine."""
-    outputs = {
-        "P_memb": e13,
-        "F_perm": e13 / MR_SCALED,
-        "F_loop": q_pipe,
-        "F_back": (e13 - e6) / R_brine,
+    F_back = f18 = (e13 - e6)/R_brine; each sensor adds its offset."""
+    outputs = {  # each plus its sensor's offset (models/ro.yaml's sensor faults)
+        "P_memb": e13 + S("P_memb_offset"),
+        "F_perm": e13 / MR_SCALED + S("F_perm_offset"),
+        "F_loop": q_pipe + S("F_loop_offset"),
+        "F_back": (e13 - e6) / R_brine + S("F_back_offset"),
     }
     got = output_equations(ro())
     assert set(got) == set(outputs)

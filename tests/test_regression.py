@@ -3,7 +3,8 @@
 What it is for: a refactor of the diagnosis runtime (bgc/runtime/diagnose.py
 and what it calls) must not change the diagnoses. Each case of
 tests/regression/cases.json is a run file (tests/regression/runs/*.csv, made
-by that commit's simulator) of one of the plants (models/*.yaml and
+by that commit's simulator) of one of the plants (the shipped models as they were before
+sensor faults, tests/regression/models/*.yaml, and
 tests/data/models/*.yaml), diagnosed with given options through the public
 API, ``bgc.api.diagnose(model, data=run, options=...)``; the test diagnoses it
 again and checks that the verdict, the candidates, the filter that made the

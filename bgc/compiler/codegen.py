@@ -26,6 +26,7 @@ import sympy
 
 from ..ir import DbnModel, GeneratedPackage, Numerics, Signal, sym
 from ..kinds import fault_kind
+from .dbn import fault_outputs
 from .numerics import ACCURACY, H_LAMBDA
 from .printing import cse_block, escape, print_expr, print_number, split_linear
 
@@ -221,7 +222,8 @@ def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
     linear_rows = [", ".join(print_expr(splits[i][0].get(j, sympy.Integer(0))) for j in cols) for i in rows]
     linear_b = ", ".join(print_expr(e) for e in b_exprs)
     has_b = any(e != 0 for e in b_exprs)
-    out_lines, out_out = cse_block(list(ssm.output_exprs), arrays=arrays)
+    outputs = list(ssm.output_exprs if d.parameter is None else fault_outputs(ssm, d.parameter, d.kind))
+    out_lines, out_out = cse_block(outputs, arrays=arrays)
     title = (f"Nominal model of {model.name}." if d.parameter is None
              else f"Model of {model.name} with an {d.kind} fault of {d.parameter}.")
     eig = [complex(round(z.real, 10), round(z.imag, 10)) for z in num.eigenvalues]
@@ -252,6 +254,6 @@ def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
         "has_linear": bool(nz), "has_b": has_b, "linear_note": (
             f"rows {rows.start}..{rows.stop - 1}, columns {cols.start}..{cols.stop - 1}" if nz else ""),
         "x_cols": "x" + _slice(cols, len(states)), "dx_rows": "_dx" + _slice(rows, len(states)),
-        "unpack_out": _unpack(order, sources, _used(ssm.output_exprs)), "out_cse": out_lines,
+        "unpack_out": _unpack(order, sources, _used(outputs)), "out_cse": out_lines,
         "out_assign": [f"_y[{i}] = {e}" for i, e in enumerate(out_out)],
     }

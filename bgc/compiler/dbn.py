@@ -19,6 +19,11 @@ One faulty DBN per fault candidate and kind (thesis Fig. III.2 b, c; Fig. IV.5):
 * incipient fault: ``P`` itself becomes a random variable with a persistent drift
   ``delta_P``: ``P(t+1) = P(t) + delta_P(t)``, and ``P`` replaces every
   occurrence of the nominal parameter.
+* sensor and actuator faults are faults of the symbol the compiler adds
+  (``<sensor>_offset``, ``<input>_offset``, ``<input>_gain``), as above; a
+  stuck sensor's value ``<sensor>_stuck`` replaces the sensor's reading: the
+  measurement node loses its parents in the plant and has the fault node
+  alone (section III.3's measurement fault, with the reading cut off).
 
 A discrete fault-indicator node ``D_P`` (persistent) is the parent of the fault
 node, as in the thesis's Fig. III.1.
@@ -51,6 +56,16 @@ def build(ssm: StateSpaceModel) -> DbnModel:
         for kind in fault.kinds:
             faulty.append(_faulty(ssm, nominal, fault.parameter, kind))
     return DbnModel(ssm, Dbn("nominal", None, None, nx.freeze(nominal)), tuple(faulty))
+
+
+def fault_outputs(ssm: StateSpaceModel, parameter: str, kind: str) -> tuple:
+    """The measurement equations of a fault model: the nominal ones, except
+    that a kind that ``replaces`` the reading (a stuck sensor) reads its
+    parameter instead (the fault's subject is the measurement)."""
+    if not fault_kind(kind).replaces:
+        return ssm.output_exprs
+    subject = next(f.subject for f in ssm.model.faults if f.parameter == parameter)
+    return tuple(sym(parameter) if y == subject else e for y, e in zip(ssm.outputs, ssm.output_exprs))
 
 
 def _nominal(ssm: StateSpaceModel) -> nx.DiGraph:
@@ -111,8 +126,11 @@ def _faulty(ssm: StateSpaceModel, nominal: nx.DiGraph, parameter: str, kind: str
     for x, rhs in zip(ssm.states, ssm.rhs):
         if p in rhs.free_symbols:
             g.add_edge(node(carrier, 0), node(x, 1), arc="fault")
-    for y, expr in zip(ssm.outputs, ssm.output_exprs):
+    for y, expr in zip(ssm.outputs, fault_outputs(ssm, parameter, kind)):
         if p in expr.free_symbols:
             for k in (0, 1):
-                g.add_edge(node(carrier, k), node(measurement_id(y, ssm.states), k), arc="fault")
+                m = node(measurement_id(y, ssm.states), k)
+                if fault_kind(kind).replaces:  # the reading no longer depends on the plant
+                    g.remove_edges_from([(u, m) for u in list(g.predecessors(m))])
+                g.add_edge(node(carrier, k), m, arc="fault")
     return Dbn(f"{parameter}:{kind}", parameter, kind, nx.freeze(g))

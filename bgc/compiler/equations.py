@@ -95,7 +95,9 @@ def _fault_symbols(model, rhs, outputs, bond_vars):
     name, after the model's parameters, each at its nominal value): a sensor's
     offset is added to its reading; an input ``u`` with an offset or a gain
     becomes ``gain * u + offset`` wherever the plant sees it (the recorded
-    input stays the command). Nothing changes for a model without them."""
+    input stays the command); a stuck sensor's value enters no equation here
+    (its fault model replaces the reading by it: codegen, dbn). Nothing
+    changes for a model without them."""
     added = sorted({(f.parameter, fault_kind(f.kinds[0]).nominal) for f in model.faults if f.target != "parameter"})
     if not added:
         return (), rhs, outputs, bond_vars
@@ -109,7 +111,8 @@ def _fault_symbols(model, rhs, outputs, bond_vars):
     rhs = tuple(e.xreplace(delivered) for e in rhs)
     outputs = [e.xreplace(delivered) for e in outputs]
     bond_vars = [(v, e.xreplace(delivered)) for v, e in bond_vars]
-    offsets = {f.subject: sym(f.parameter) for f in model.faults if f.target == "sensor"}
+    offsets = {f.subject: sym(f.parameter) for f in model.faults
+               if f.target == "sensor" and fault_kind(f.kinds[0]).suffix == "offset"}
     outputs = [e + offsets[m.name] if m.name in offsets else e for m, e in zip(model.measurements, outputs)]
     return tuple(added), rhs, outputs, bond_vars
 

@@ -130,6 +130,9 @@ def derive(dbns: DbnModel, prior_scale: float = 1.0) -> Numerics:
         c = candidates[d.parameter]
         scale = fault_scale(c, theta[d.parameter], model, y_scale, u0)
         prior = kind.prior_bounds(c.direction, scale, horizon, c.rate if kind.drifts else c.size, prior_scale)
+        if kind.replaces:  # a value the reading takes: around the nominal reading
+            centre = y0[[m.name for m in model.measurements].index(c.subject)]
+            prior = (centre + prior[0], centre + prior[1])
         faults.append(FaultNumerics(d.name, d.parameter, d.kind, theta[d.parameter], prior,
                                     kind.jitter_std(scale, prior), scale))
     num = Numerics(dbns, tuple(complex(z) for z in eig), substeps, u0, y0, tuple(float(v) for v in np.diag(j)),

@@ -68,10 +68,12 @@ def derive(ssm: StateSpaceModel) -> FaultSignatures:
     for fault in model.faults:
         for kind in fault.kinds:
             shift = int(fault_kind(kind).drifts)
-            for direction in DIRECTIONS[fault.direction]:
+            for direction in (1,) if fault_kind(kind).replaces else DIRECTIONS[fault.direction]:
                 if fault.target == "sensor":  # its own reading, and nothing else
-                    symbols = tuple(_own(direction, shift, depth) if m == fault.subject else ("0",) * (depth + 1)
-                                    for m in ssm.outputs)
+                    own = _own(direction, shift, depth)
+                    if fault_kind(kind).replaces:  # a stuck reading: off the plant either way, or not at all
+                        own = ("?",) + ("0",) * depth
+                    symbols = tuple(own if m == fault.subject else ("0",) * (depth + 1) for m in ssm.outputs)
                 else:
                     effects = _actuator_effects(g, model, fault, kind) if fault.target == "actuator" else None
                     dev = _propagate(g, order, fault.parameter, direction, shift, depth, effects)

@@ -27,7 +27,7 @@ import sympy
 
 from . import expressions, load
 from ..errors import BgcError, ErrorGroup, ExpressionError, ValidationError
-from ..kinds import ELEMENT_KINDS, FAULT_KINDS, element_kind, fault_kind
+from ..kinds import ELEMENT_KINDS, element_kind, fault_kind, kinds_for
 from ..ir import (
     Bond, BondGraph, Element,
     FaultCandidate, Input, Law, Measurement, Parameter, RawModel, Settings, Signal, effort, flow, sym,
@@ -490,9 +490,8 @@ class _Validator:
                 spec = {"kinds": spec}
             wrong = [k for k in spec["kinds"] if target not in fault_kind(k).targets]
             if wrong:
-                valid = ", ".join(k for k, fk in FAULT_KINDS.items() if target in fk.targets)
                 self.error(f"fault kind '{wrong[0]}' does not apply to {target} {name}", path + ("kinds",),
-                           f"a {target} takes: {valid}")
+                           kinds_for(target))
                 continue
             size, rate = (self._range(spec, key, path) for key in ("size", "rate"))
             direction = spec.get("direction") or _direction_of(size, rate)

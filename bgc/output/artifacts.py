@@ -94,7 +94,7 @@ def folder_files(dbns: DbnModel, signatures: FaultSignatures, package: Generated
         "equations.txt": header("#", src) + render.equations_text(ssm),
         "equations.tex": header("%", src) + render.equations_latex(ssm),
         "equations.json": render.to_json(render.equations_json(ssm)),
-        "signatures.txt": header("#", src) + render.signatures_text(signatures),
+        "signatures.txt": header("#", src) + render.signatures_text(signatures, package.numerics),
         "signatures.json": render.to_json(render.signatures_json(signatures)),
     }
     for d in (dbns.nominal, *dbns.faulty):

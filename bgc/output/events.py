@@ -147,6 +147,8 @@ def fault_sentence(e, since) -> str:
     match (e.target, e.kind):
         case ("sensor", "bias"):
             text = f"sensor {name} reads {size} {'high' if up else 'low'}"
+        case ("sensor", "stuck"):
+            text = f"sensor {name} is stuck at {v:.4g}" + (f" {e.unit}" if e.unit else "")
         case ("sensor", "drift"):
             text = f"sensor {name}'s reading drifts {'up' if up else 'down'} by {rate}"
         case ("actuator", "gain"):

@@ -12,7 +12,7 @@ from typing import Any
 import sympy
 
 from ..errors import printable
-from ..ir import CausalBondGraph, Dbn, FaultSignatures, StateSpaceModel, TemporalCausalGraph, var_key
+from ..ir import CausalBondGraph, Dbn, FaultSignatures, Numerics, StateSpaceModel, TemporalCausalGraph, var_key
 from ..kinds import ELEMENT_KINDS, FAULT_KINDS, ROLES
 
 
@@ -169,8 +169,38 @@ def equations_json(ssm: StateSpaceModel) -> dict:
 
 
 # ------------------------------------------------------------------ signatures
-def signatures_text(s: FaultSignatures) -> str:
-    """The signature table: one row per fault, symbols at orders 0..n per measurement."""
+def prior_rows(num: Numerics) -> list[str]:
+    """Each fault model's prior of its magnitude, in the model's units and
+    as a fraction of the fault's scale (a drift's over the horizon too):
+    what ``bgc check`` and ``bgc show signatures`` print."""
+    model = num.equations.model
+    units = {**{p.name: p.unit for p in model.parameters}, **{m.name: m.unit for m in model.measurements},
+             **{i.name: i.unit for i in model.inputs}}
+    horizon = model.settings.steps * model.settings.dt
+    by = {c.parameter: c for c in model.faults}
+    rows = []
+    for f in num.faults:
+        c = by[f.parameter]
+        kind = FAULT_KINDS[f.kind]
+        unit = "" if kind.suffix == "gain" else (units.get(c.name) or "")
+        lo, hi = f.prior
+        per = " per unit time" if kind.drifts else ""
+        scale = {"parameter": f"|{c.name}| = {f.scale:.4g}", "sensor": f"{c.name}'s nominal reading {f.scale:.4g}",
+                 "actuator": f"{c.name}'s nominal value {f.scale:.4g}" if kind.suffix != "gain" else "gain 1"}
+        relative = f"{100 * lo / f.scale:+.3g} % to {100 * hi / f.scale:+.3g} %{per}"
+        if kind.drifts:
+            relative += f" ({100 * lo * horizon / f.scale:+.3g} % to {100 * hi * horizon / f.scale:+.3g} % over the " \
+                        f"horizon {horizon:g})"
+        declared = c.rate if kind.drifts else c.size
+        source = "declared" if declared is not None else "default"
+        rows.append(f"{c.target} {c.name} {f.kind}: {kind.magnitude} {lo:.4g} to {hi:.4g}"
+                    f"{(' ' + unit) if unit else ''}{per}, {relative} of {scale[c.target]} ({source})")
+    return rows
+
+
+def signatures_text(s: FaultSignatures, num: Numerics | None = None) -> str:
+    """The signature table: one row per fault, symbols at orders 0..n per
+    measurement; with ``num``, each fault's prior of its magnitude."""
     shown = max(s.orders, 1) + 1
     model = s.equations.model.name
     width = max([len(m) for m in s.measurements] + [shown])
@@ -189,6 +219,9 @@ def signatures_text(s: FaultSignatures) -> str:
     lines.append("parameters that enter the model as one combination: "
                  + ("; ".join(", ".join(grp) for grp in s.structural) if s.structural else "none"))
     lines.append("undetectable with these sensors: " + (", ".join(s.undetectable) or "none"))
+    if num is not None and num.faults:
+        lines.append("priors of the fault magnitudes (uniform; 'size' and 'rate' in the model declare them):")
+        lines.extend(f"  {printable(row)}" for row in prior_rows(num))
     return "\n".join(lines) + "\n"
 
 
@@ -262,7 +295,7 @@ def dbn_dot(d: Dbn) -> str:
 
 
 # ---------------------------------------------------------------- bgc check
-def check_summary(ssm: StateSpaceModel) -> str:
+def check_summary(ssm: StateSpaceModel, num: Numerics | None = None) -> str:
     """What ``bgc check`` prints for a model that compiles: elements, states,
     causality findings, algebraic loops (each with the resistors that close
     it), inputs, measurements, fault candidates. Model text is printed
@@ -290,8 +323,11 @@ def check_summary(ssm: StateSpaceModel) -> str:
     lines.append(f"  inputs: {', '.join(i.name for i in m.inputs) or 'none'}")
     measured = [y.name if y.text == y.name else f"{y.name} = {y.text}" for y in m.measurements]
     lines.append("  measurements: " + (", ".join(measured) or "none"))
-    faults = [f"{f.parameter} ({'/'.join(f.kinds)})" for f in m.faults]
+    faults = [f"{f.name} ({'/'.join(f.kinds)})" for f in m.faults]
     lines.append("  fault candidates: " + (", ".join(faults) or "none"))
+    if num is not None and num.faults:
+        lines.append("  priors of the fault magnitudes:")
+        lines.extend(f"    {printable(row)}" for row in prior_rows(num))
     warnings = [d for d in cbg.diagnostics if d.severity == "warning"]
     notes = [d for d in cbg.diagnostics if d.severity != "warning"]
     lines.append(f"  warnings: {len(warnings) or 'none'}")
@@ -324,7 +360,9 @@ def distinguishability_text(r) -> str:
              "ambiguity group"]
     if r.scenario is not None:
         d = r.distinctions[0]
-        lines.append(f"truth: {r.scenario} ({d.truth}, from sample {d.onset})")
+        lines.append(f"truth: {printable(r.scenario)} ({d.truth}, from sample {d.onset})")
+        if getattr(r, "warning", None):
+            lines.append(f"warning: {printable(r.warning)}")
         lines.append(f"divergence from no fault: {d.divergence:.4g} (P of telling it from no fault "
                      f"{d.detectability:.3f})")
         width = max([len(x.name) for x in d.rivals] + [5])
@@ -334,7 +372,8 @@ def distinguishability_text(r) -> str:
             lines.append(f"{x.name:<{width}}  {x.expected:>10.4g}  {x.std:>9.3g}  {x.probability:>6.3f}  {fit}")
         lines.append("predicted ambiguity group: " + (", ".join(d.group) or "none"))
         return "\n".join(lines) + "\n"
-    lines.append(f"# each fault: a change of {100 * r.change:g} % of its parameter (a drift reaches it at the end "
+    lines.append(f"# each fault: a change of {100 * r.change:g} % of its scale (a parameter's value, a sensor's "
+                 "reading, an input's value; a drift reaches it at the end "
                  f"of the run) from t = {(r.distinctions[0].onset + 1) * r.dt if r.distinctions else 0:g}")
     width = max([len(d.label) for d in r.distinctions] + [5])
     lines.append(f"{'fault':<{width}}  {'divergence':>10}  predicted ambiguity group (P)")
@@ -351,7 +390,7 @@ def distinguishability_json(r) -> dict:
     return {
         "model": r.model, "steps": r.steps, "dt": r.dt,
         "noise": {"process": r.noise[0], "measurement": r.noise[1]},
-        "scenario": r.scenario, "change": r.change, "at": r.at,
+        "scenario": r.scenario, "change": r.change, "at": r.at, "warning": getattr(r, "warning", None),
         "faults": [{
             "fault": d.label, "model": d.truth, "magnitude": d.magnitude, "onset_sample": d.onset,
             "divergence": d.divergence, "detectability": d.detectability, "misfit": d.misfit, "level": d.level,

@@ -226,6 +226,50 @@ def confusion_markdown(rows: list[dict], model: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _verdict_right(r: dict) -> bool:
+    """Whether a run's verdict told the truth: ``isolated``, the fault it
+    names is the injected one; ``ambiguous``, the injected one is in the
+    group; ``unexplained``, the injected fault is not one the model expects
+    (not among its candidates, or outside the candidate's prior: ``expected``
+    false); ``no fault``, none was injected."""
+    truth = f"{r['fault']}_{r['kind']}" if r.get("fault") else None
+    verdict = r["verdict"]
+    if verdict == "isolated":
+        return truth is not None and r.get("diagnosed") == truth
+    if verdict == "ambiguous":
+        return truth is not None and truth in (r.get("candidates") or "").split()
+    if verdict == "unexplained":
+        return truth is not None and r.get("expected") is False
+    return truth is None
+
+
+#: The verdicts, in the order the reliability table lists them.
+VERDICTS = ("isolated", "ambiguous", "unexplained", "no fault")
+
+
+def reliability_rows(rows: list[dict]) -> list[dict[str, Any]]:
+    """For each verdict: how many runs had it and how often it told the truth
+    (:func:`_verdict_right`); and, among runs with a fault detected at or after
+    its onset and a fault named, how often the named fault was of the right
+    class (``parameter``, ``sensor``, ``actuator``)."""
+    ok = _ok(rows)
+    out = []
+    for v in VERDICTS:
+        mine = [r for r in ok if r["verdict"] == v]
+        out.append({"verdict": v, "runs": len(mine), "right": sum(_verdict_right(r) for r in mine)})
+    named = [r for r in ok if r.get("fault") and r.get("delay") is not None and r.get("diagnosed_target")]
+    out.append({"verdict": "fault class (named fault)", "runs": len(named),
+                "right": sum(r["diagnosed_target"] == r.get("target") for r in named)})
+    return out
+
+
+def reliability_markdown(rows: list[dict]) -> str:
+    lines = ["| verdict | runs | told the truth |", "|---|---|---|"]
+    for s in reliability_rows(rows):
+        lines.append(f"| {escape(s['verdict'])} | {s['runs']} | {_frac(s['right'], s['runs'])} |")
+    return "\n".join(lines) + "\n"
+
+
 def campaign_markdown(c, rows: tuple[dict, ...]) -> str:
     """``tables.md``: the campaign's tables, the summary and the confusion matrices."""
     from .artifacts import MARK
@@ -239,6 +283,12 @@ def campaign_markdown(c, rows: tuple[dict, ...]) -> str:
     for spec in c.tables:
         out += [table_markdown(spec, rows), ""]
     out += ["## Summary", "", summary_markdown(rows), ""]
+    out += ["## Reliability of the verdicts", "",
+            "How often each verdict told the truth: isolated, the fault named is the one injected; ambiguous, it "
+            "is in the group; unexplained, the injected fault is not one the model expects (not a candidate, or "
+            "outside its prior); no fault, none was injected (a fault the detector missed counts against it). "
+            "The last row: among detected faults, the named fault's class (parameter, sensor, actuator).", "",
+            reliability_markdown(rows), ""]
     for model in dict.fromkeys(r["model"] for r in rows):
         out += [f"## Isolation confusion matrix: {escape(model)}", "", confusion_markdown(rows, model), ""]
     failed = [r for r in rows if r["status"] != "ok"]
@@ -272,4 +322,4 @@ def campaign_json(c, rows: tuple[dict, ...]) -> str:
         summary.append({k: ({"mean": v[0], "sd": v[1], "n": v[2]} if isinstance(v, tuple) else v)
                         for k, v in s.items()})
     return render.to_json({"generated_by": "bgc", "campaign": c.name, "source": c.source, "runs": len(rows),
-                           "tables": tables, "summary": summary})
+                           "tables": tables, "summary": summary, "reliability": reliability_rows(rows)})

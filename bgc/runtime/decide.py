@@ -11,6 +11,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..kinds import fault_kind
 from . import events as ev
 from . import kalman
 from .hypothesis import log_density
@@ -22,7 +23,8 @@ from .hypothesis import hypothesis_job
 from .onsets import earlier_onsets, onset_weights
 from .parallel import run_batches
 from .rank import ranked, refined
-from .static import StaticJob, checked, kalman_hypotheses, run_static, static_alarm, static_estimate
+from .static import (StaticJob, checked, kalman_hypotheses, misfit_reason, run_static, static_alarm,
+                     static_estimate)
 
 
 def decide(d, truth: Run | None) -> Diagnosis:
@@ -260,6 +262,7 @@ def _weigh(d, a: dict, iso, hyps: list[dict], posteriors: dict, whys: dict, even
                                 if h.name in candidates else h for h in hypothesis_list)
     hypothesis_list = tuple(checked(h, d.outputs, o) if h.name in candidates and static else h
                             for h in hypothesis_list)
+    hypothesis_list = _misfits(hypothesis_list, lambda k: float(a["time"][k]), whys)
     hypothesis_list = _at_bounds(d, hypothesis_list, T, whys, events, lambda h: h.dropped is None)
     verdict, candidates = _verdict(hypothesis_list)
     if verdict == "unexplained":  # the one that lasted longest says so too
@@ -280,6 +283,27 @@ def _weigh(d, a: dict, iso, hyps: list[dict], posteriors: dict, whys: dict, even
                      seconds=time.perf_counter() - d.started, events=_ordered(final), **common)
 
 
+def _misfits(hypotheses: tuple[Hypothesis, ...], time_of, whys: dict) -> tuple[Hypothesis, ...]:
+    """The goodness-of-fit test of a survivor: its fault model with the
+    magnitude held at its most probable value from its most probable onset
+    (the static posterior's best cell) must pass the consistency test of the
+    hypothesis filters (section 5: the windowed Z-test of its normalised
+    residuals, a probability ``rejection`` of an alarm on the true model).
+    A survivor that fails it is dropped (``static-test``): it does not
+    explain the data, and a fault the model does not list ends "unexplained"
+    instead of named as the candidate that mimics it best. (Its Misfit
+    event says by how much.)"""
+    out = []
+    for h in hypotheses:
+        if h.static_alarm is not None and h.dropped is None:
+            alarm, (start, value) = h.static_alarm, h.static.best
+            whys[h.name] = "static-test"
+            h = replace(h, dropped=start + alarm.step,
+                        reason=misfit_reason(h.estimate.magnitude, value, time_of(start), alarm))
+        out.append(h)
+    return tuple(out)
+
+
 def _at_bounds(d, hypotheses: tuple[Hypothesis, ...], T: int, whys: dict, events: list,
                which) -> tuple[Hypothesis, ...]:
     """The hypotheses ``which`` picks whose magnitude presses against a
@@ -297,7 +321,7 @@ def _at_bounds(d, hypotheses: tuple[Hypothesis, ...], T: int, whys: dict, events
                 bound = prior[0 if side == "low" else 1]
                 events.append(ev.AtPriorBound(h.name, side, bound, h.estimate.value, T - 1))
                 h = replace(h, estimate=replace(h.estimate, bound=side))
-                if bound == 0 and h.dropped is None:
+                if bound == 0 and h.dropped is None and not fault_kind(h.kind).replaces:
                     whys[h.name] = "wrong-direction"
                     h = replace(h, dropped=T - 1, reason=(
                         f"its magnitude presses against 0, the edge of its prior: the data ask for a change in a "

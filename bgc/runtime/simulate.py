@@ -29,7 +29,7 @@ import numpy as np
 from ..compiler.numerics import float_safe, lambdified, rk4_sample
 from ..errors import SimulationError
 from ..ir import Numerics
-from ..kinds import FAULT_KINDS, fault_kind
+from ..kinds import FAULT_KINDS, fault_kind, kinds_for
 from .runs import to_csv as _csv_text
 
 TRUTH_REFINEMENT = 8
@@ -94,8 +94,8 @@ _FAULT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([a-z]+):([-+0-9.eE]+)@([0-9.eE+
 
 def parse_fault(text: str, num: Numerics) -> FaultInjection:
     """``NAME:KIND:MAGNITUDE@TIME``: NAME a parameter (``R_pipe:incipient:0.5@165``),
-    a measurement (a sensor fault, ``P_memb:bias:0.3@100``) or an input (an
-    actuator fault, ``u_pump:gain:-0.2@100``). The model need not list the
+    a measurement (a sensor fault, ``P_memb:bias:0.3@100``; ``P_memb:stuck:0@100``
+    reads 0 from t = 100) or an input (an actuator fault, ``u_pump:gain:-0.2@100``). The model need not list the
     fault among its candidates: a plant may fail in ways its model does not
     foresee."""
     ssm = num.equations
@@ -114,10 +114,9 @@ def parse_fault(text: str, num: Numerics) -> FaultInjection:
                               + ("; inputs: " + ", ".join(ssm.inputs) if ssm.inputs else ""))
     target = targets[name]
     if kind not in FAULT_KINDS or target not in FAULT_KINDS[kind].targets:
-        valid = ", ".join(k for k, fk in FAULT_KINDS.items() if target in fk.targets)
         raise SimulationError(f"--fault: {'unknown kind' if kind not in FAULT_KINDS else 'kind'} '{kind}'"
                               f"{'' if kind not in FAULT_KINDS else f' does not apply to {target} {name}'}", None,
-                              f"a {target} takes: {valid}")
+                              kinds_for(target))
     try:
         injection = FaultInjection(fault_kind(kind).parameter_of(name), kind, float(mag), float(time), target, name)
     except ValueError:
@@ -250,9 +249,12 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
         clean[k] = evaluate(g, x, delivered(u, tk), theta_at(tk))
         if fault:
             param[k] = fault.value(nominal, tk)
-        if target == "sensor":
+        if target == "sensor" and not fault_kind(fault.kind).replaces:
             clean[k, column] += param[k]
     noisy = clean + meas * rng.standard_normal(clean.shape)
+    if target == "sensor" and fault_kind(fault.kind).replaces:  # a stuck sensor reads its value, noise and all
+        stuck = times >= fault.time
+        clean[stuck, column] = noisy[stuck, column] = fault.magnitude
     src = model.display_source
     settings = model.settings
     header = (

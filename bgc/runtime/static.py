@@ -131,11 +131,16 @@ def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, 
             if alarm is not None:
                 h["dropped"] = p.best[0] + alarm.step
                 h["why"] = "static-test"
-                h["reason"] = (f"with its {estimate.magnitude} held at its most probable value {p.best[1]:.4g} from "
-                               f"t = {times[p.best[0]]:g}, its residual of {alarm.sensor} over {alarm.window} "
-                               f"sample(s) reached {alarm.statistic:.1f} (threshold {alarm.threshold:.1f})")
+                h["reason"] = misfit_reason(estimate.magnitude, p.best[1], times[p.best[0]], alarm)
         hyps.append(h)
     return hyps, posteriors
+
+
+def misfit_reason(magnitude: str, value: float, start: float, alarm: Detection) -> str:
+    """Why a fault model with its magnitude held static fails the consistency test."""
+    return (f"with its {magnitude} held at its most probable value {value:.4g} from t = {start:g}, its residual "
+            f"of {alarm.sensor} over {alarm.window} sample(s) reached {alarm.statistic:.1f} (threshold "
+            f"{alarm.threshold:.1f})")
 
 
 def checked(h: Hypothesis, outputs, options: DiagnosisOptions) -> Hypothesis:

@@ -44,9 +44,9 @@ CASES_FILE = HERE / "cases.json"
 #: The commit whose code made the corpus.
 BASE_COMMIT = "5cca73a"
 
-CIRCUIT = "models/circuit.yaml"
-TWO_TANK = "models/two_tank.yaml"
-RO = "models/ro.yaml"
+CIRCUIT = "tests/regression/models/circuit.yaml"  # the shipped models as they were: parameter faults only
+TWO_TANK = "tests/regression/models/two_tank.yaml"
+RO = "tests/regression/models/ro.yaml"
 DC_MOTOR = "tests/data/models/dc_motor.yaml"
 ORIFICE = "tests/data/models/orifice_tanks.yaml"
 MSD = "tests/data/models/mass_spring_damper.yaml"

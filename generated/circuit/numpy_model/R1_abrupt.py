@@ -22,9 +22,9 @@ STATES = ('e4', 'e8', 'f10', 'delta_R1')
 STATE_KINDS = ('physical', 'physical', 'physical', 'bias')
 INPUTS = ('V',)
 OUTPUTS = ('e11', 'f2', 'f6')
-PARAMETERS = ('C1', 'C2', 'L', 'R1', 'R2', 'R3')
+PARAMETERS = ('C1', 'C2', 'L', 'R1', 'R2', 'R3', 'V_offset', 'e11_offset', 'f2_offset', 'f6_offset')
 #: Nominal parameter values, in the order of PARAMETERS.
-THETA = (0.5, 1.0, 0.5, 1.0, 2.0, 1.0)
+THETA = (0.5, 1.0, 0.5, 1.0, 2.0, 1.0, 0.0, 0.0, 0.0, 0.0)
 DT = 0.05
 SUBSTEPS = 1
 #: Eigenvalues of the nominal linearisation at X0 (real, imaginary), for the stability check.
@@ -85,8 +85,9 @@ def derivative(x, u, theta, out=None, linear=None):
     V = u[0]
     C1 = theta[0]
     R1 = theta[3] + x[3]
+    V_offset = theta[6]
     np.matmul(_A, x[0:3], out=_dx[0:3])
-    _dx[0] += (1/C1)*(V - e4)/R1
+    _dx[0] += (1/C1)*(V + V_offset - e4)/R1
     _dx[3] = 0.0
     return _dx
 
@@ -119,9 +120,13 @@ def observe(x, u, theta, out=None):
     R1 = theta[3] + x[3]
     R2 = theta[4]
     R3 = theta[5]
-    _y[0] = (R3)*f10
-    _y[1] = (V - e4)/R1
-    _y[2] = (1/R2)*(e4 - e8)
+    V_offset = theta[6]
+    e11_offset = theta[7]
+    f2_offset = theta[8]
+    f6_offset = theta[9]
+    _y[0] = e11_offset + (R3)*f10
+    _y[1] = f2_offset + (V + V_offset - e4)/R1
+    _y[2] = f6_offset + (1/R2)*(e4 - e8)
     return _y
 
 

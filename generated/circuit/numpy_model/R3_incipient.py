@@ -22,9 +22,9 @@ STATES = ('e4', 'e8', 'f10', 'R3', 'delta_R3')
 STATE_KINDS = ('physical', 'physical', 'physical', 'parameter', 'slope')
 INPUTS = ('V',)
 OUTPUTS = ('e11', 'f2', 'f6')
-PARAMETERS = ('C1', 'C2', 'L', 'R1', 'R2', 'R3')
+PARAMETERS = ('C1', 'C2', 'L', 'R1', 'R2', 'R3', 'V_offset', 'e11_offset', 'f2_offset', 'f6_offset')
 #: Nominal parameter values, in the order of PARAMETERS.
-THETA = (0.5, 1.0, 0.5, 1.0, 2.0, 1.0)
+THETA = (0.5, 1.0, 0.5, 1.0, 2.0, 1.0, 0.0, 0.0, 0.0, 0.0)
 DT = 0.05
 SUBSTEPS = 1
 #: Eigenvalues of the nominal linearisation at X0 (real, imaginary), for the stability check.
@@ -64,13 +64,14 @@ def _linear(u, theta):
         L = theta[2]
         R1 = theta[3]
         R2 = theta[4]
+        V_offset = theta[6]
         _A = np.array([
             [-1/(C1*R2) - 1/(C1*R1), 1/(C1*R2), 0, 0, 0],
             [1/(C2*R2), -1/(C2*R2), -1/C2, 0, 0],
             [0, 1/L, 0, 0, 0],
             [0, 0, 0, 0, 1],
         ], dtype=float)
-        _b = np.array([V/(C1*R1), 0, 0, 0], dtype=float)[:, None]
+        _b = np.array([V/(C1*R1) + V_offset/(C1*R1), 0, 0, 0], dtype=float)[:, None]
         if len(_LINEAR) > 256:
             _LINEAR.clear()
         _LINEAR[_key] = _hit = (_A, _b)
@@ -121,9 +122,13 @@ def observe(x, u, theta, out=None):
     V = u[0]
     R1 = theta[3]
     R2 = theta[4]
-    _y[0] = R3*f10
-    _y[1] = (1/R1)*(V - e4)
-    _y[2] = (1/R2)*(e4 - e8)
+    V_offset = theta[6]
+    e11_offset = theta[7]
+    f2_offset = theta[8]
+    f6_offset = theta[9]
+    _y[0] = e11_offset + R3*f10
+    _y[1] = (-1/R1)*(-R1*f2_offset - V - V_offset + e4)
+    _y[2] = f6_offset + (1/R2)*(e4 - e8)
     return _y
 
 

@@ -22,6 +22,13 @@ from . import R2_abrupt
 from . import R2_incipient
 from . import R3_abrupt
 from . import R3_incipient
+from . import V_offset_bias
+from . import e11_offset_bias
+from . import e11_offset_drift
+from . import f2_offset_bias
+from . import f2_offset_drift
+from . import f6_offset_bias
+from . import f6_offset_drift
 
 MODELS = {
     "nominal": nominal,
@@ -37,6 +44,13 @@ MODELS = {
     "R2_incipient": R2_incipient,
     "R3_abrupt": R3_abrupt,
     "R3_incipient": R3_incipient,
+    "V_offset_bias": V_offset_bias,
+    "e11_offset_bias": e11_offset_bias,
+    "e11_offset_drift": e11_offset_drift,
+    "f2_offset_bias": f2_offset_bias,
+    "f2_offset_drift": f2_offset_drift,
+    "f6_offset_bias": f6_offset_bias,
+    "f6_offset_drift": f6_offset_drift,
 }
 
-__all__ = ["MODELS", "filters", "_kernel", "nominal", "C1_abrupt", "C1_incipient", "C2_abrupt", "C2_incipient", "L_abrupt", "L_incipient", "R1_abrupt", "R1_incipient", "R2_abrupt", "R2_incipient", "R3_abrupt", "R3_incipient"]
+__all__ = ["MODELS", "filters", "_kernel", "nominal", "C1_abrupt", "C1_incipient", "C2_abrupt", "C2_incipient", "L_abrupt", "L_incipient", "R1_abrupt", "R1_incipient", "R2_abrupt", "R2_incipient", "R3_abrupt", "R3_incipient", "V_offset_bias", "e11_offset_bias", "e11_offset_drift", "f2_offset_bias", "f2_offset_drift", "f6_offset_bias", "f6_offset_drift"]

@@ -22,9 +22,9 @@ STATES = ('e2', 'e7', 'delta_C1')
 STATE_KINDS = ('physical', 'physical', 'bias')
 INPUTS = ('f_in',)
 OUTPUTS = ('F10', 'F12', 'F20')
-PARAMETERS = ('C1', 'C2', 'R10', 'R12', 'R20')
+PARAMETERS = ('C1', 'C2', 'R10', 'R12', 'R20', 'F10_offset', 'F12_offset', 'F20_offset', 'f_in_offset')
 #: Nominal parameter values, in the order of PARAMETERS.
-THETA = (2.0, 1.5, 4.0, 2.0, 3.0)
+THETA = (2.0, 1.5, 4.0, 2.0, 3.0, 0.0, 0.0, 0.0, 0.0)
 DT = 0.5
 SUBSTEPS = 1
 #: Eigenvalues of the nominal linearisation at X0 (real, imaginary), for the stability check.
@@ -83,8 +83,9 @@ def derivative(x, u, theta, out=None, linear=None):
     C1 = theta[0] + x[2]
     R10 = theta[2]
     R12 = theta[3]
+    f_in_offset = theta[8]
     np.matmul(_A, x[0:2], out=_dx[1:2])
-    _dx[0] = (f_in + (-1/R12)*(e2 - e7) + (-1/R10)*e2)/C1
+    _dx[0] = (f_in + f_in_offset + (-1/R12)*(e2 - e7) + (-1/R10)*e2)/C1
     _dx[2] = 0.0
     return _dx
 
@@ -115,9 +116,12 @@ def observe(x, u, theta, out=None):
     R10 = theta[2]
     R12 = theta[3]
     R20 = theta[4]
-    _y[0] = (1/R10)*e2
-    _y[1] = (1/R12)*(e2 - e7)
-    _y[2] = (1/R20)*e7
+    F10_offset = theta[5]
+    F12_offset = theta[6]
+    F20_offset = theta[7]
+    _y[0] = F10_offset + (1/R10)*e2
+    _y[1] = F12_offset + (1/R12)*(e2 - e7)
+    _y[2] = F20_offset + (1/R20)*e7
     return _y
 
 

@@ -22,9 +22,9 @@ STATES = ('e2', 'e7', 'delta_C2')
 STATE_KINDS = ('physical', 'physical', 'bias')
 INPUTS = ('f_in',)
 OUTPUTS = ('F10', 'F12', 'F20')
-PARAMETERS = ('C1', 'C2', 'R10', 'R12', 'R20')
+PARAMETERS = ('C1', 'C2', 'R10', 'R12', 'R20', 'F10_offset', 'F12_offset', 'F20_offset', 'f_in_offset')
 #: Nominal parameter values, in the order of PARAMETERS.
-THETA = (2.0, 1.5, 4.0, 2.0, 3.0)
+THETA = (2.0, 1.5, 4.0, 2.0, 3.0, 0.0, 0.0, 0.0, 0.0)
 DT = 0.5
 SUBSTEPS = 1
 #: Eigenvalues of the nominal linearisation at X0 (real, imaginary), for the stability check.
@@ -62,10 +62,11 @@ def _linear(u, theta):
         C1 = theta[0]
         R10 = theta[2]
         R12 = theta[3]
+        f_in_offset = theta[8]
         _A = np.array([
             [-1/(C1*R12) - 1/(C1*R10), 1/(C1*R12)],
         ], dtype=float)
-        _b = np.array([f_in/C1], dtype=float)[:, None]
+        _b = np.array([f_in/C1 + f_in_offset/C1], dtype=float)[:, None]
         if len(_LINEAR) > 256:
             _LINEAR.clear()
         _LINEAR[_key] = _hit = (_A, _b)
@@ -116,9 +117,12 @@ def observe(x, u, theta, out=None):
     R10 = theta[2]
     R12 = theta[3]
     R20 = theta[4]
-    _y[0] = (1/R10)*e2
-    _y[1] = (1/R12)*(e2 - e7)
-    _y[2] = (1/R20)*e7
+    F10_offset = theta[5]
+    F12_offset = theta[6]
+    F20_offset = theta[7]
+    _y[0] = F10_offset + (1/R10)*e2
+    _y[1] = F12_offset + (1/R12)*(e2 - e7)
+    _y[2] = F20_offset + (1/R20)*e7
     return _y
 
 

@@ -12,23 +12,37 @@ from . import _kernel, filters
 from . import nominal
 from . import C1_abrupt
 from . import C2_abrupt
+from . import F10_offset_bias
+from . import F10_offset_drift
+from . import F12_offset_bias
+from . import F12_offset_drift
+from . import F20_offset_bias
+from . import F20_offset_drift
 from . import R10_abrupt
 from . import R10_incipient
 from . import R12_abrupt
 from . import R12_incipient
 from . import R20_abrupt
 from . import R20_incipient
+from . import f_in_offset_bias
 
 MODELS = {
     "nominal": nominal,
     "C1_abrupt": C1_abrupt,
     "C2_abrupt": C2_abrupt,
+    "F10_offset_bias": F10_offset_bias,
+    "F10_offset_drift": F10_offset_drift,
+    "F12_offset_bias": F12_offset_bias,
+    "F12_offset_drift": F12_offset_drift,
+    "F20_offset_bias": F20_offset_bias,
+    "F20_offset_drift": F20_offset_drift,
     "R10_abrupt": R10_abrupt,
     "R10_incipient": R10_incipient,
     "R12_abrupt": R12_abrupt,
     "R12_incipient": R12_incipient,
     "R20_abrupt": R20_abrupt,
     "R20_incipient": R20_incipient,
+    "f_in_offset_bias": f_in_offset_bias,
 }
 
-__all__ = ["MODELS", "filters", "_kernel", "nominal", "C1_abrupt", "C2_abrupt", "R10_abrupt", "R10_incipient", "R12_abrupt", "R12_incipient", "R20_abrupt", "R20_incipient"]
+__all__ = ["MODELS", "filters", "_kernel", "nominal", "C1_abrupt", "C2_abrupt", "F10_offset_bias", "F10_offset_drift", "F12_offset_bias", "F12_offset_drift", "F20_offset_bias", "F20_offset_drift", "R10_abrupt", "R10_incipient", "R12_abrupt", "R12_incipient", "R20_abrupt", "R20_incipient", "f_in_offset_bias"]
