@@ -207,7 +207,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
     run = runs.read_run(args.run_csv)
     track.check_run_of(run, c.model.name, args.run_csv)
     package = track.load_package(args.generated, c.model.name, args.model)
-    name = args.fault.replace(":", "_") if args.fault else "nominal"
+    name = _fault_model(c, args.fault) if args.fault else "nominal"
     track.check_request(run, package, name, args.particles, args.start)
     results = []
     for method in (["gpf", "apf"] if args.method == "both" else [args.method]):
@@ -232,6 +232,16 @@ def cmd_filter(args: argparse.Namespace) -> int:
         artifacts.write_file(Path(args.plot), plots.tracking_figure(run, results, "png"))
         print(f"wrote {printable(args.plot)}")
     return 0
+
+
+def _fault_model(c, fault: str) -> str:
+    """The generated module of ``PARAM:KIND`` (a sensor's or actuator's fault
+    also by its name in the model, ``F12:bias``); an unknown one as written
+    (the package's check names the valid ones)."""
+    try:
+        return c.dbn.get(fault).name.replace(":", "_")
+    except KeyError:
+        return fault.replace(":", "_")
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
@@ -314,6 +324,9 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                        "e.g. --idle 60")
     if args.idle is not None and not args.follow:
         raise BgcError("--idle applies to --follow", None, "add --follow, or drop --idle")
+    if args.exclude_faulty_sensor and args.checkpoint is None:
+        raise BgcError("--exclude-faulty-sensor acts at checkpoints: a sensor fault is isolated there", None,
+                       "add --checkpoint TIME, e.g. --checkpoint 10")
     if args.follow and args.data == "-":
         raise BgcError("--follow applies to a file: standard input ends when its writer closes it", None,
                        "drop --follow, or give the file")
@@ -342,7 +355,8 @@ def cmd_monitor(args: argparse.Namespace) -> int:
             quiet.append(True)
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
-    r, failure = monitor.monitor(session, stream, name, options, say=say, checkpoint=args.checkpoint)
+    r, failure = monitor.monitor(session, stream, name, options, say=say, checkpoint=args.checkpoint,
+                                 exclude_faulty=args.exclude_faulty_sensor)
     if quiet:
         sys.stdout = open(os.devnull, "w")
     _write_report(r, str(out), "monitor", False)
@@ -611,6 +625,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", metavar="process=Q,measurement=R",
                    help="relative noise levels the filters assume; default: the model's")
     _add_data_options(p)
+    p.add_argument("--exclude-faulty-sensor", action="store_true",
+                   help="with --checkpoint: when a checkpoint isolates a sensor fault, take that sensor out of the "
+                        "nominal observer and go on watching with the others (an event says so)")
     p.add_argument("--checkpoint", type=float, default=None, metavar="TIME",
                    help="while tracking hypotheses, diagnose the data so far every TIME (default: only at the end)")
     p.add_argument("--generated", metavar="DIR",

@@ -11,6 +11,7 @@ and the same report as ``bgc diagnose``'s is made.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import threading
@@ -76,7 +77,7 @@ class Follow:
 
 def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptions, *,
             say: Callable[[str], None] = print, checkpoint: float | None = None,
-            progress=None) -> tuple[api.DiagnosisReport, BgcError | None]:
+            progress=None, exclude_faulty: bool = False) -> tuple[api.DiagnosisReport, BgcError | None]:
     """Diagnose the rows of ``stream`` (named ``name`` in messages) as they
     arrive, with the model of ``session`` (:func:`bgc.open`); ``say(line)``
     gets each event as a line with its time, as it happens; ``checkpoint``:
@@ -85,8 +86,16 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     costly as a batch diagnosis of the record). Returns the report of the
     final diagnosis and the error that ended the stream early (None: it
     ended, or Ctrl-C): a malformed row, a followed file rotated, the memory
-    rule; the rows before it are diagnosed all the same."""
-    from .output.events import sentence, time_text
+    rule; the rows before it are diagnosed all the same.
+
+    ``exclude_faulty`` (with ``checkpoint``): when a checkpoint isolates a
+    sensor fault, that sensor is taken out of the nominal observer (a
+    :class:`~bgc.runtime.events.SensorExcluded` event) and a new diagnoser
+    watches the rows from the next one on with the other sensors (its
+    observer starts again from the model's initial state: a sensor fault
+    leaves the plant where it was); the report is that diagnoser's, its
+    events led by the exclusions."""
+    from .output.events import fault_sentence, sentence, time_text
 
     reader = runs.RowReader(stream, name)
     track.check_run_of(runs.Run(np.zeros(0), {}, {}, {}, {}, reader.header), session.name, name)
@@ -95,15 +104,19 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     for j, c in enumerate(columns[1:], start=1):
         prefix, _, rest = c.partition(":")
         groups[prefix].append((j, rest))
-    d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=[y for _, y in groups["y"]],
-                          source=name, progress=progress)
+    sensors = [y for _, y in groups["y"]]
+    d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors, source=name,
+                          progress=progress)
     rows: list[list[float]] = []
     last_check = None
     told: set = set()
+    excluded: list[ev.SensorExcluded] = []
 
     def tell(belief_events, time_of) -> None:
         for e in belief_events:
             told.add(e)
+            if isinstance(e, ev.SensorMissing) and e.sensor in {x.sensor for x in excluded}:
+                continue  # taken out by the monitor, not missing from the data: said by its SensorExcluded
             step = getattr(e, "step", None)
             when = "" if step is None else f"t = {time_text(time_of(step))}: "
             say(f"{when}{printable(sentence(e, time_of))}")
@@ -129,6 +142,15 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
                     last_check = belief.time
                     c = d.checkpoint()
                     tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)], time_of)
+                    faulty = _faulty_sensor(c, sensors) if exclude_faulty else None
+                    if faulty is not None:
+                        out = ev.SensorExcluded(faulty, fault_sentence(c.estimate, c.time_of(c.onset)), belief.time)
+                        excluded.append(out)
+                        tell([out], time_of)
+                        sensors = [y for y in sensors if y != faulty]
+                        d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors,
+                                              source=name, progress=progress)
+                        rows, last_check = [], None
     except KeyboardInterrupt:
         say("interrupted: finishing the diagnosis of the data so far")
     except BgcError as exc:  # a bad row, a followed file rotated, the memory rule: the rows so far are diagnosed
@@ -142,14 +164,33 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
         say(f"the input ended in the middle of a line ({len(stream.unfinished)} bytes without an end of line): "
             "that line is not read")
     if not rows:
+        if excluded:
+            raise DataError(f"{printable(name)}: no data row arrived after sensor {excluded[-1].sensor} was taken "
+                            "out of the nominal observer", None, "let more rows arrive, or drop --exclude-faulty-sensor")
         raise DataError(f"{printable(name)}: no data row arrived", None, "give at least one row after the column names")
     run = runs.run_of(columns, np.array(rows, dtype=float).reshape(len(rows), len(columns)), reader.header, name)
     diagnosis = d.finish(run)
+    if excluded:
+        out = {x.sensor for x in excluded}  # taken out by the monitor, not missing from the data
+        data = diagnosis.data and dataclasses.replace(diagnosis.data,
+                                                      missing=tuple(m for m in diagnosis.data.missing if m not in out))
+        diagnosis = dataclasses.replace(diagnosis, data=data, events=tuple(excluded) + tuple(
+            e for e in diagnosis.events if not (isinstance(e, ev.SensorMissing) and e.sensor in out)))
+        told.update(excluded)
     gone = {e.hypothesis for e in told if isinstance(e, ev.Dropped)}  # dropped online: said already
     tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))
           and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
          diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
     return session.report(run, diagnosis), failure
+
+
+def _faulty_sensor(c, sensors: list[str]) -> str | None:
+    """The sensor a checkpoint's diagnosis ``c`` isolated a fault of, when
+    another sensor is left to watch with; else None."""
+    e = c.estimate
+    if c.verdict != "isolated" or e is None or e.target != "sensor" or len(sensors) < 2:
+        return None
+    return e.subject if e.subject in sensors else None
 
 
 class _Guard:

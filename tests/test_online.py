@@ -480,3 +480,35 @@ def test_a_batch_diagnosis_counts_its_steps_in_its_seconds_and_a_session_simulat
     noisy = bgc.open(CIRCUIT, process_noise=0.05, measurement_noise=0.04)
     r = bgc.diagnose(noisy, scenario="none", steps=40, options=DiagnosisOptions(particles=50, workers=1))
     assert any(h.startswith("noise: process 0.05, measurement 0.04") for h in r.run.header), r.run.header
+
+
+def test_a_faulty_sensor_is_taken_out_and_monitoring_goes_on_through_a_pipe(tmp_path):
+    """The two tanks: F12 reads 0.05 high from t = 60 (added to the recorded
+    reading), and R10 steps up by 1.5 at t = 120. With --exclude-faulty-sensor
+    a checkpoint isolates F12's bias, takes F12 out of the nominal observer,
+    and the monitor, watching F10 and F20, finds the step of R10."""
+    tanks = ROOT / "models" / "two_tank.yaml"
+    run = simulated(tanks, "R10:abrupt:1.5@120", seed=2)
+    biased = dict(run.measurements)
+    biased["F12"] = np.where(run.time >= 60, run.measurements["F12"] + 0.05, run.measurements["F12"])
+    text = runs.run_csv(runs.Run(run.time, run.inputs, biased, {}, {}, run.header, run.source))
+    out = tmp_path / "mon"
+    p = subprocess.run([sys.executable, "-m", "bgc", "monitor", str(tanks), "--data", "-", "--checkpoint", "10",
+                        "--exclude-faulty-sensor", "--particles", "500", "-o", str(out)], input=text,
+                       capture_output=True, text=True, timeout=600, env=dict(os.environ, MPLBACKEND="Agg"))
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    taken = next(i for i, line in enumerate(lines) if line.startswith("sensor F12 taken out of the nominal observer"))
+    assert "(sensor F12 reads " in lines[taken] and " high since t = " in lines[taken]
+    assert any(line.startswith("t = 120: alarm on F10") for line in lines[taken:]), lines[taken:]
+    assert "two_tank: isolated: R10_abrupt" in p.stdout and "no column y:F12" not in p.stdout
+    import json
+
+    report = json.loads((out / "report.json").read_text())
+    assert report["events"][0]["event"] == "SensorExcluded" and report["events"][0]["sensor"] == "F12"
+    assert report["data_semantics"]["sensors"] == ["F10", "F20"] and report["data_semantics"]["sensors_missing"] == []
+
+
+def test_exclude_faulty_sensor_needs_checkpoints():
+    p = monitor_cli("--data", "-", "--exclude-faulty-sensor", stdin="")
+    assert p.returncode == 1 and "--exclude-faulty-sensor acts at checkpoints" in p.stderr

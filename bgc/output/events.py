@@ -91,6 +91,9 @@ def sentence(e, time_of) -> str:
             return (f"{h} with its {m} held at its most probable value {v:.4g} from t = {t(s)}: its residual of {y} "
                     f"over {w} sample(s) reached {z:.1f} (threshold {c:.1f}); the fault model as stated, or the "
                     f"Kalman filters' Gaussian approximation, does not quite hold on these data")
+        case ev.SensorExcluded(sensor=y, finding=f, time=when):
+            return (f"sensor {y} taken out of the nominal observer from t = {time_text(when)} ({f}): monitoring "
+                    f"goes on with the other sensors")
         case ev.Checkpoint(step=k, verdict=v, candidates=c):
             return f"checkpoint: {v}" + (f": {', '.join(c)}" if c else "")
         case ev.Decided(step=k, verdict=v, candidates=c):
@@ -118,7 +121,8 @@ def record(e, time_of) -> dict:
 
 #: Events the command line prints after a diagnosis (the others are in the report).
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped,
-           ev.Degenerate, ev.AllTried, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit)
+           ev.Degenerate, ev.AllTried, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit,
+           ev.SensorExcluded)
 
 
 def fault_sentence(e, since) -> str:

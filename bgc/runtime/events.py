@@ -15,7 +15,7 @@ In loop order: the data (:class:`SensorMissing`, :class:`ColumnIgnored`, :class:
 :class:`Switched`), isolation (:class:`Isolated`, :class:`AllTried`),
 tracking (:class:`Started`, :class:`Dropped`, :class:`Rescued`), weighing
 (:class:`Truncated`, :class:`AtPriorBound`, :class:`NoLikelihood`, :class:`Misfit`), and the end
-(:class:`Checkpoint`, :class:`Decided`).
+(:class:`SensorExcluded`, :class:`Checkpoint`, :class:`Decided`).
 """
 
 from __future__ import annotations
@@ -246,6 +246,19 @@ class Misfit:
     window: int
     statistic: float
     threshold: float
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class SensorExcluded:
+    """Sensor ``sensor``'s fault was isolated (``finding``, in words, at a
+    checkpoint at time ``time``): the monitor took it out of the nominal
+    observer and goes on watching with the other sensors (``bgc monitor
+    --exclude-faulty-sensor``); the diagnosis after it starts there."""
+
+    sensor: str
+    finding: str
+    time: float
     step: int | None = None
 
 
