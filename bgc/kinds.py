@@ -113,8 +113,6 @@ def element_kind(name: str) -> ElementKind:
 DIRECTIONS: Mapping[str, tuple[int, ...]] = {"increase": (1,), "decrease": (-1,), "both": (1, -1)}
 
 
-#: What a fault kind may strike: a model parameter, a sensor (a measurement) or an actuator (an input).
-TARGETS = ("parameter", "sensor", "actuator")
 #: The lowest a parameter's prior may take it, as a fraction of its nominal below it: a widened
 #: prior (``--prior-scale``, the YAML's ``size``) keeps a decreasing parameter positive.
 LOWEST = -0.95

@@ -192,15 +192,17 @@ def _check_finite(num: Numerics) -> None:
             raise EquationError(f"input {i.name} is {v!r} at t = 0", i.loc, "rescale the input")
     horizon = settings.steps * settings.dt
     for f in num.faults:
-        loc = next(c.loc for c in model.faults if c.parameter == f.parameter)
+        c = next(c for c in model.faults if c.parameter == f.parameter)
         magnitude = fault_kind(f.kind).magnitude
-        scale = (f"|{f.parameter}| / horizon, the horizon being steps x dt = {horizon:g}"
-                 if fault_kind(f.kind).drifts else f"|{f.parameter}|")
+        scale = (f"its scale {f.scale:g} / horizon, the horizon being steps x dt = {horizon:g}"
+                 if fault_kind(f.kind).drifts else f"its scale {f.scale:g}")
         if not (all(math.isfinite(v) for v in f.prior) and math.isfinite(f.jitter)) or f.prior[0] == f.prior[1]:
+            what = {"parameter": f"give {c.name} a nominal value of moderate magnitude",
+                    "sensor": f"rescale the model so that {c.name} reads a value of moderate magnitude",
+                    "actuator": f"give input {c.name} a value of moderate magnitude"}[c.target]
             raise EquationError(f"fault {f.name}: the prior of its {magnitude} ({f.prior[0]:g} to {f.prior[1]:g}, "
-                                f"in units of {scale}) is not a finite, non-empty range", loc,
-                                f"give {f.parameter} a nominal value of moderate magnitude"
-                                + (" and the run a longer horizon" if fault_kind(f.kind).drifts else ""))
+                                f"in units of {scale}) is not a finite, non-empty range", c.loc,
+                                what + (" and the run a longer horizon" if fault_kind(f.kind).drifts else ""))
 
 
 class _NoDerivative(Exception):
