@@ -647,7 +647,7 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
                        expected=simulate.outside_prior(injected, session.compiled.numerics) is None)
         if m.diagnosed != "none" and best is not None:
             row["diagnosed_target"] = best.estimate.target
-        if m.right and best is not None and spec.parameter_truth is not None:
+        if m.right and best is not None and spec.parameter_truth:  # relative: none for a truth of 0
             row["parameter"] = best.estimate.parameter_value
             row["param_error"] = abs(best.estimate.parameter_value - spec.parameter_truth) / abs(spec.parameter_truth)
         if spec.fault is not None:

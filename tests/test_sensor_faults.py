@@ -292,8 +292,13 @@ def test_a_dead_sensor_is_named_stuck_at_zero(stuck_model):
     run = sim.simulate(num, sim.SimulationOptions(seed=1, fault=sim.parse_fault("F12:stuck:0@60", num)))
     after = run.time >= 60
     assert np.all(run.measurements[after, 1] == 0.0) and np.all(run.measurements[~after, 1] != 0.0)
-    d = bgc.diagnose(stuck_model, scenario="F12:stuck:0@60", seed=1, particles=500).diagnosis
+    r = bgc.diagnose(stuck_model, scenario="F12:stuck:0@60", seed=1, particles=500)
+    d = r.diagnosis
     assert d.verdict == "isolated" and d.candidates == ("F12_stuck_stuck",)
+    from bgc.runtime import metrics
+
+    m = metrics.measure(d, r.run, metrics.Truth("F12_stuck", "stuck", 0.0, 60.0))
+    assert m.right and m.covers and m.error is None  # no relative error of a truth of 0 (it divided by zero)
     from bgc.output import report
 
     assert report.plain_words(d)[0].startswith("sensor F12 is stuck at ")

@@ -323,7 +323,10 @@ def check_summary(ssm: StateSpaceModel, num: Numerics | None = None) -> str:
     lines.append(f"  inputs: {', '.join(i.name for i in m.inputs) or 'none'}")
     measured = [y.name if y.text == y.name else f"{y.name} = {y.text}" for y in m.measurements]
     lines.append("  measurements: " + (", ".join(measured) or "none"))
-    faults = [f"{f.name} ({'/'.join(f.kinds)})" for f in m.faults]
+    kinds: dict[str, list[str]] = {}
+    for f in m.faults:  # a sensor's or input's faults may change two symbols: one entry per name
+        kinds.setdefault(f.name, []).extend(f.kinds)
+    faults = [f"{name} ({'/'.join(k)})" for name, k in kinds.items()]
     lines.append("  fault candidates: " + (", ".join(faults) or "none"))
     if num is not None and num.faults:
         lines.append("  priors of the fault magnitudes:")

@@ -154,7 +154,8 @@ def measure(d: Diagnosis, run: Run, truth: Truth) -> RunMetrics:
         if right:
             e = d.estimate
             estimate, low, high = e.value, e.low, e.high
-            error = abs(e.value - truth.magnitude) / abs(truth.magnitude)
+            # relative to the truth; none for a truth of 0 (a sensor stuck at 0): the interval says then
+            error = abs(e.value - truth.magnitude) / abs(truth.magnitude) if truth.magnitude else None
             covers = bool(low <= truth.magnitude <= high)
     return RunMetrics(mse, nmse, None if ct_step is None else float(run.time[ct_step]), detected, t_alarm, delay,
                       bool(false_alarm), d.verdict, diagnosed, right, in_candidates, estimate, low, high, error,
