@@ -89,8 +89,9 @@ def sentence(e, time_of) -> str:
             return "the cubature Kalman filters found no finite likelihood for any hypothesis"
         case ev.Misfit(hypothesis=h, magnitude=m, value=v, start=s, sensor=y, window=w, statistic=z, threshold=c):
             return (f"{h} with its {m} held at its most probable value {v:.4g} from t = {t(s)}: its residual of {y} "
-                    f"over {w} sample(s) reached {z:.1f} (threshold {c:.1f}); the fault model as stated, or the "
-                    f"Kalman filters' Gaussian approximation, does not quite hold on these data")
+                    f"over {w} sample(s) reached {z:.1f} (threshold {c:.1f}); the fault model as stated (or the "
+                    f"Kalman filters' Gaussian approximation) does not explain these data: it fails the "
+                    f"goodness-of-fit test")
         case ev.SensorExcluded(sensor=y, finding=f, time=when):
             return (f"sensor {y} taken out of the nominal observer from t = {time_text(when)} ({f}): monitoring "
                     f"goes on with the other sensors")
