@@ -667,12 +667,8 @@ def distinguishability(model: str | Path | Session, scenario: str | None = None,
         for f in num.faults:
             onset = int(at * T)
             candidate = next(x for x in c.model.faults if x.parameter == f.parameter)
-            kind = fault_kind(f.kind)
-            for sign in (1,) if kind.replaces else DIRECTIONS[candidate.direction]:
-                size = sign * change * f.scale  # a parameter's |nominal|, a sensor's reading, ...
-                magnitude = kind.magnitude_for(size, (T - 1 - onset) * dt)  # reached at the end
-                if kind.replaces:  # a stuck reading: that far off its nominal reading
-                    magnitude += num.y0[list(num.equations.outputs).index(candidate.subject)]
+            for sign in (1,) if fault_kind(f.kind).replaces else DIRECTIONS[candidate.direction]:
+                magnitude = simulate.change_magnitude(num, f.name, sign * change, (T - 1 - onset) * dt)  # at the end
                 injected.append(simulate.FaultInjection(f.parameter, f.kind, magnitude, float(times[onset])))
     levels = num.noise_at(process_noise, measurement_noise)
     custom = levels if (process_noise, measurement_noise) != (None, None) else None

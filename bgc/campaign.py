@@ -450,10 +450,7 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
             sign = int(rng.choice(DIRECTIONS[candidates[p].direction]))
             change = float(rng.uniform(lo, hi))
             onset = min(max(round(float(rng.uniform(o_lo, o_hi)) * steps), 1), steps - 1) * dt  # a sample inside
-            size = sign * change * prior[(p, k)].scale  # of a parameter's |nominal|, a sensor's reading, ...
-            magnitude = fault_kind(k).magnitude_for(size, duration)  # a drift: that change per run length
-            if fault_kind(k).replaces:  # a stuck reading: that far off the sensor's nominal reading
-                magnitude += num.y0[list(num.equations.outputs).index(candidates[p].name)]
+            magnitude = simulate.change_magnitude(num, f"{p}:{k}", sign * change, duration)  # a drift: per run
             b_lo, b_hi = prior[(p, k)].prior
             if not b_lo <= magnitude <= b_hi:
                 raise ExperimentError(f"a draw of {p}:{k} with change {sign * change:.3g} lies outside the prior of "

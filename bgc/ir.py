@@ -260,6 +260,13 @@ class BondGraph:
     def parameter_values(self) -> dict[str, float]:
         return {p.name: p.value for p in self.parameters}
 
+    def unit(self, name: str) -> str | None:
+        """The declared unit of a parameter, measurement or input (None: none)."""
+        for x in (*self.parameters, *self.measurements, *self.inputs):
+            if x.name == name:
+                return x.unit
+        return None
+
     @property
     def display_source(self) -> str:
         """The model path as written into generated files: ``models/<file>`` for

@@ -111,11 +111,12 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     last_check = None
     told: set = set()
     excluded: list[ev.SensorExcluded] = []
+    taken_out: set[str] = set()
 
     def tell(belief_events, time_of) -> None:
         for e in belief_events:
             told.add(e)
-            if isinstance(e, ev.SensorMissing) and e.sensor in {x.sensor for x in excluded}:
+            if isinstance(e, ev.SensorMissing) and e.sensor in taken_out:
                 continue  # taken out by the monitor, not missing from the data: said by its SensorExcluded
             step = getattr(e, "step", None)
             when = "" if step is None else f"t = {time_text(time_of(step))}: "
@@ -146,6 +147,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
                     if faulty is not None:
                         out = ev.SensorExcluded(faulty, fault_sentence(c.estimate, c.time_of(c.onset)), belief.time)
                         excluded.append(out)
+                        taken_out.add(faulty)
                         tell([out], time_of)
                         sensors = [y for y in sensors if y != faulty]
                         d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors,
@@ -171,17 +173,23 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     run = runs.run_of(columns, np.array(rows, dtype=float).reshape(len(rows), len(columns)), reader.header, name)
     diagnosis = d.finish(run)
     if excluded:
-        out = {x.sensor for x in excluded}  # taken out by the monitor, not missing from the data
-        data = diagnosis.data and dataclasses.replace(diagnosis.data,
-                                                      missing=tuple(m for m in diagnosis.data.missing if m not in out))
-        diagnosis = dataclasses.replace(diagnosis, data=data, events=tuple(excluded) + tuple(
-            e for e in diagnosis.events if not (isinstance(e, ev.SensorMissing) and e.sensor in out)))
+        diagnosis = _with_exclusions(diagnosis, excluded, taken_out)
         told.update(excluded)
     gone = {e.hypothesis for e in told if isinstance(e, ev.Dropped)}  # dropped online: said already
     tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))
           and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
          diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
     return session.report(run, diagnosis), failure
+
+
+def _with_exclusions(diagnosis, excluded: list, taken_out: set[str]):
+    """The last diagnoser's diagnosis with the monitor's exclusions: its
+    events led by them, and the sensors taken out not said missing from the
+    data (they were in it)."""
+    data = diagnosis.data and dataclasses.replace(
+        diagnosis.data, missing=tuple(m for m in diagnosis.data.missing if m not in taken_out))
+    events = tuple(e for e in diagnosis.events if not (isinstance(e, ev.SensorMissing) and e.sensor in taken_out))
+    return dataclasses.replace(diagnosis, data=data, events=tuple(excluded) + events)
 
 
 def _faulty_sensor(c, sensors: list[str]) -> str | None:

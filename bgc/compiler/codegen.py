@@ -134,9 +134,7 @@ def _fault_dict(model, d) -> dict:
     sensor or actuator; ``subject``: its name in the model) and the
     subject's unit (model text: only ever a repr'd literal in the code)."""
     c = next(f for f in model.faults if f.parameter == d.parameter)
-    declared = {**{p.name: p.unit for p in model.parameters}, **{m.name: m.unit for m in model.measurements},
-                **{i.name: i.unit for i in model.inputs}}
-    unit = None if fault_kind(d.kind).suffix == "gain" else declared.get(c.name)
+    unit = None if fault_kind(d.kind).suffix == "gain" else model.unit(c.name)
     return {"parameter": d.parameter, "kind": d.kind, "magnitude": fault_kind(d.kind).magnitude,
             "target": c.target, "subject": c.name, "unit": unit}
 

@@ -174,15 +174,13 @@ def prior_rows(num: Numerics) -> list[str]:
     as a fraction of the fault's scale (a drift's over the horizon too):
     what ``bgc check`` and ``bgc show signatures`` print."""
     model = num.equations.model
-    units = {**{p.name: p.unit for p in model.parameters}, **{m.name: m.unit for m in model.measurements},
-             **{i.name: i.unit for i in model.inputs}}
     horizon = model.settings.steps * model.settings.dt
     by = {c.parameter: c for c in model.faults}
     rows = []
     for f in num.faults:
         c = by[f.parameter]
         kind = FAULT_KINDS[f.kind]
-        unit = "" if kind.suffix == "gain" else (units.get(c.name) or "")
+        unit = "" if kind.suffix == "gain" else (model.unit(c.name) or "")
         lo, hi = f.prior
         per = " per unit time" if kind.drifts else ""
         scale = {"parameter": f"|{c.name}| = {f.scale:.4g}", "sensor": f"{c.name}'s nominal reading {f.scale:.4g}",

@@ -183,7 +183,8 @@ def report_markdown(r) -> str:
                               + (f" (the one that lasted longest: {d.candidates[0]})" if d.candidates else "")
                               + ".**"}[d.verdict]
     lines += ["## Verdict", "", verdict, ""]
-    lines += [f"- {escape(line)}" for line in plain_words(d)] + ([""] if plain_words(d) else [])
+    words = plain_words(d)
+    lines += [f"- {escape(line)}" for line in words] + ([""] if words else [])
     if det is None:
         lines += [f"No window of the nominal observer's normalised residuals passed the threshold "
                   f"{d.threshold:.2f} (a false-alarm probability of {d.options.false_alarm:g} per {_per(d)}, "

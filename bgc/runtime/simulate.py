@@ -128,6 +128,21 @@ def parse_fault(text: str, num: Numerics) -> FaultInjection:
     return injection
 
 
+def change_magnitude(num: Numerics, fault: str, change: float, span: float) -> float:
+    """The magnitude of fault model ``fault`` (``PARAM:KIND``) that changes
+    what it strikes by ``change`` (signed) times its scale (a parameter's
+    |nominal|, a sensor's nominal reading, ...), a drift over ``span`` time
+    units after the onset; a stuck reading that far off the sensor's nominal
+    reading."""
+    f = num.fault(fault)
+    kind = fault_kind(f.kind)
+    magnitude = kind.magnitude_for(change * f.scale, span)
+    if kind.replaces:
+        subject = next(c.subject for c in num.equations.model.faults if c.parameter == f.parameter)
+        magnitude += num.y0[num.equations.outputs.index(subject)]
+    return magnitude
+
+
 def outside_prior(injection: FaultInjection, num: Numerics) -> str | None:
     """Why the model's diagnoser would not expect this fault: not among its
     candidates, or a magnitude outside the candidate's prior; None when it
@@ -176,13 +191,16 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
     h = dt / substeps
     f, g = lambdified(ssm)
     theta0 = np.array(ssm.parameter_values, dtype=float)
-    target = fault.target if fault else None
-    index = ssm.parameters.index(fault.parameter) if target == "parameter" else None
-    column = ssm.inputs.index(fault.subject) if target == "actuator" else (
-        ssm.outputs.index(fault.subject) if target == "sensor" else None)
-    nominal = fault_kind(fault.kind).nominal if fault and target != "parameter" else (
-        theta0[index] if fault else None)
-    steps_at_substeps = fault is not None and not fault_kind(fault.kind).drifts
+    target = index = column = nominal = kind = None
+    if fault is not None:  # what it changes: a parameter (index), an input or a sensor's reading (column)
+        target, kind = fault.target, fault_kind(fault.kind)
+        if target == "parameter":
+            index = ssm.parameters.index(fault.parameter)
+            nominal = theta0[index]
+        else:
+            column = (ssm.inputs if target == "actuator" else ssm.outputs).index(fault.subject)
+            nominal = kind.nominal
+    steps_at_substeps = fault is not None and not kind.drifts
 
     def when(t: float, interval_start: float | None) -> float:
         """A step change takes effect at the start of an integration substep
@@ -205,7 +223,7 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
             return u
         v = u.copy()
         level = fault.value(nominal, when(t, interval_start))
-        v[column] = level * u[column] if fault_kind(fault.kind).suffix == "gain" else u[column] + level
+        v[column] = level * u[column] if kind.suffix == "gain" else u[column] + level
         return v
 
     floats = float_safe(ssm)
@@ -249,10 +267,10 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
         clean[k] = evaluate(g, x, delivered(u, tk), theta_at(tk))
         if fault:
             param[k] = fault.value(nominal, tk)
-        if target == "sensor" and not fault_kind(fault.kind).replaces:
-            clean[k, column] += param[k]
+    if target == "sensor" and not kind.replaces:  # the sensor's offset on its reading
+        clean[:, column] += param
     noisy = clean + meas * rng.standard_normal(clean.shape)
-    if target == "sensor" and fault_kind(fault.kind).replaces:  # a stuck sensor reads its value, noise and all
+    if target == "sensor" and kind.replaces:  # a stuck sensor reads its value, noise and all
         stuck = times >= fault.time
         clean[stuck, column] = noisy[stuck, column] = fault.magnitude
     src = model.display_source
