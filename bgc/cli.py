@@ -261,7 +261,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     try:
         options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed,
                                    identify=args.identify, rank=args.rank, refine=args.refine,
-                                   horizon=args.horizon, gap=args.gap)
+                                   horizon=args.horizon, gap=args.gap, recheck=args.recheck)
         r = api.diagnose(args.model, data=args.data, scenario=args.scenario, seed=args.seed, process_noise=process,
                          measurement_noise=measurement, steps=args.steps, generated=args.generated,
                          options=options, progress=progress, prior_scale=args.prior_scale)
@@ -332,7 +332,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                        "drop --follow, or give the file")
     process, measurement = _parse_noise(args.noise)
     options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed, horizon=args.horizon,
-                               gap=args.gap)
+                               gap=args.gap, recheck=args.recheck)
     session = api.open(args.model, process_noise=process, measurement_noise=measurement, generated=args.generated,
                        prior_scale=args.prior_scale)
     out = Path(args.output or f"{session.name}-monitor")
@@ -515,6 +515,9 @@ def _add_data_options(p: argparse.ArgumentParser) -> None:
                         "simulation.steps x dt)")
     p.add_argument("--gap", type=float, default=None, metavar="TIME",
                    help="missing samples longer than this are reported as a gap (default: 10 steps of dt)")
+    p.add_argument("--no-recheck", dest="recheck", action="store_false",
+                   help="do not weigh the fault models the symbols ruled out before a verdict (faster; trusts the "
+                        "symbols, as the thesis does)")
 
 
 def build_parser() -> argparse.ArgumentParser:

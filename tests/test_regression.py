@@ -1,4 +1,4 @@
-"""Regression corpus: diagnoses recorded with the code of commit 5cca73a.
+"""Regression corpus: diagnoses recorded with the code of commit 5cca73a, re-recorded with step 6b.
 
 What it is for: a refactor of the diagnosis runtime (bgc/runtime/diagnose.py
 and what it calls) must not change the diagnoses. Each case of
@@ -22,11 +22,14 @@ drivetrain), and an unexplained verdict with fault models the symbols ruled
 out, diagnosed again with every fault model (``every=True``). Verdicts:
 isolated, ambiguous, unexplained and no fault.
 
-How it was recorded: ``tests/regression/record.py``, run with the code of
-commit 5cca73a (a pristine worktree of it: ``PYTHONPATH=<checkout> python
+How it was recorded: ``tests/regression/record.py``, first run with the code
+of commit 5cca73a (a pristine worktree of it: ``PYTHONPATH=<checkout> python
 tests/regression/record.py``); it simulates the runs and writes cases.json.
 Floats are stored as the strings of their repr. A change that is meant to
-change diagnoses re-records the corpus with that script (and says why).
+change diagnoses re-records the corpus with that script (``--keep-runs``:
+the same run files) and says why; record.py's docstring lists the
+re-recordings (the weighing of the fault models the symbols ruled out, step
+6b, changed the hypotheses of 18 cases and the verdicts of two).
 """
 
 from __future__ import annotations

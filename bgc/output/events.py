@@ -82,6 +82,12 @@ def sentence(e, time_of) -> str:
             return (f"{h}: its magnitude ({v:.4g}) presses against the {'upper' if side == 'high' else 'lower'} "
                     f"bound of its prior ({b:.4g}): the fault may be larger than the model's prior allows (widen "
                     f"it with the fault's 'size' or 'rate' in the model, or --prior-scale)")
+        case ev.Overruled(hypothesis=h, why=w):
+            return (f"{h}: ruled out by the symbols ({w}), but with its magnitude held static it explains the data "
+                    f"as well as the others: a candidate all the same")
+        case ev.Uncertain(candidates=c, mass=m, level=lv, kept=k, posteriors=p):
+            return (f"{', '.join(c)} hold(s) a posterior of {m:.3g} only, under the {lv:g} a verdict promises: "
+                    f"{', '.join(f'{n} ({q:.2g})' for n, q in zip(k, p))} kept as candidates too")
         case ev.NoLikelihood(fallback=True):
             return ("the cubature Kalman filters found no finite likelihood: the particle filters' evidence and "
                     "estimates are reported")
@@ -123,7 +129,7 @@ def record(e, time_of) -> dict:
 #: Events the command line prints after a diagnosis (the others are in the report).
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped,
            ev.Degenerate, ev.AllTried, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit,
-           ev.SensorExcluded)
+           ev.SensorExcluded, ev.Overruled, ev.Uncertain)
 
 
 def fault_sentence(e, since) -> str:

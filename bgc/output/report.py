@@ -82,6 +82,7 @@ def report_data(r) -> dict[str, Any]:
                      "false_alarm_per_horizon": d.options.false_alarm, "rejection": d.options.rejection,
                      "horizon": _num(d.options.horizon) if d.options.horizon is not None else None,
                      "windows": list(d.options.windows), "bayes_factor": d.options.bayes_factor,
+                     "isolation_level": d.options.isolation_level, "recheck": d.options.recheck,
                      "interval": d.options.interval, "threshold": _num(d.threshold),
                      "process_noise": r.noise[0], "measurement_noise": r.noise[1]},
         "verdict": d.verdict,
@@ -119,6 +120,7 @@ def report_data(r) -> dict[str, Any]:
                          "truth": _num(e.truth), "covers_truth": e.covers, "method": e.method,
                          "at_prior_bound": e.bound},
             "target": e.target, "subject": e.subject or e.parameter, "unit": e.unit,
+            "ruled_out_by_symbols": h.ruled_out or None,
             "static_consistency_alarm": None if h.static_alarm is None else {
                 "sensor": h.static_alarm.sensor, "window": h.static_alarm.window,
                 "statistic": _num(h.static_alarm.statistic), "threshold": _num(h.static_alarm.threshold)},

@@ -55,7 +55,46 @@ def decide(d, truth: Run | None) -> Diagnosis:
     events = list(d.events) + silent
     observer = d.kf.track() if d.ckf else None
     hyps, posteriors, whys = _hypotheses(d, a, iso, observer, truth, events)
+    _recheck(d, a, iso, observer, truth, hyps, posteriors, whys, events)
     return _weigh(d, a, iso, hyps, posteriors, whys, events, common)
+
+
+def _recheck(d, a: dict, iso, observer, truth, hyps: list[dict], posteriors: dict, whys: dict,
+             events: list) -> None:
+    """Step 6b: the fault models the symbols ruled out, weighed too before a
+    verdict names a fault (``DiagnosisOptions.recheck``; ``identify =
+    "kalman"``, while a hypothesis the symbols kept survives its filters):
+    each one's static posterior over its onsets and its whole prior (as
+    ``--filter ckf`` weighs every hypothesis), added to ``hyps`` and
+    ``posteriors`` (so that its evidence counts in the posterior, and its
+    consistency test and the Bayes factor can drop it). The symbols are read
+    on a short open-loop window after a late alarm, and a slope or a
+    higher-order symbol can mislead where the fault began long before it (a
+    slow drift at high noise): a fault model they ruled out that explains
+    the data within the Bayes factor is then a candidate (an ``Overruled``
+    event), rather than a verdict resting on the symbols alone."""
+    o = d.options
+    untried = sorted({n for n in iso.ruled_out if n in d.package.MODELS} - set(iso.names))
+    if not (o.recheck and o.identify == "kalman" and untried and any(h["dropped"] is None for h in hyps)
+            and any(math.isfinite(p.log_evidence) for p in posteriors.values())):
+        return
+    if observer is None:  # the particle filters' diagnosis: the nominal Kalman filter up to the latest onset
+        observer = kalman.nominal_track(d.nominal, a["ys"], a["us"], max(max(s) for s in iso.kalman_onsets.values()))
+    models: dict[str, list[str]] = {}
+    why_of: dict[str, str] = {}
+    for (signature, why), name in zip(iso.refuted, iso.ruled_out):
+        models.setdefault(name, []).append(signature)
+        why_of.setdefault(name, f"{signature}: {why}")
+    drifts = {name: fault_kind(d.package.MODELS[name].FAULT["kind"]).drifts for name in untried}
+    d.say(f"weighing the {len(untried)} fault models the symbols ruled out too")
+    more, static = kalman_hypotheses(untried, models, d.package, truth, a["time"], a["ys"], a["us"], observer,
+                                     iso.kalman_onsets, iso.kalman_reach, drifts, o, d.say)
+    for h in more:
+        if "why" in h:
+            whys[h["name"]] = h.pop("why")
+        h["ruled_out"] = why_of[h["name"]]
+    hyps.extend(more)
+    posteriors.update(static)
 
 
 def _hypotheses(d, a: dict, iso, observer, truth, events: list):
@@ -168,7 +207,7 @@ class _Tracking:
     def static_job(self, name: str, h: dict) -> StaticJob:
         drifts = self.iso.drifts[name]
         tried = self.iso.kalman_onsets[drifts]
-        earlier = earlier_onsets(self.iso.kalman_reach, tried, self.o.search) if drifts else ()
+        earlier = earlier_onsets(self.iso.kalman_reach, tried, self.o.search)
         return StaticJob(self.d.package.__name__, name, self.a["ys"], self.a["us"], self.track[0], tuple(tried),
                          (h["estimate"].low, h["estimate"].high), h["start"], self.o.interval, self.o.kalman, earlier)
 
@@ -264,10 +303,15 @@ def _weigh(d, a: dict, iso, hyps: list[dict], posteriors: dict, whys: dict, even
                             for h in hypothesis_list)
     hypothesis_list = _misfits(hypothesis_list, lambda k: float(a["time"][k]), whys)
     hypothesis_list = _at_bounds(d, hypothesis_list, T, whys, events, lambda h: h.dropped is None)
+    hypothesis_list = _credible(hypothesis_list, o.isolation_level, whys, events, T)
     verdict, candidates = _verdict(hypothesis_list)
     if verdict == "unexplained":  # the one that lasted longest says so too
         hypothesis_list = _at_bounds(d, hypothesis_list, T, whys, events, lambda h: h.name in candidates)
     for h in hypothesis_list:
+        if h.ruled_out and h.name in candidates and verdict != "unexplained":
+            events.append(ev.Overruled(h.name, h.ruled_out, T - 1))
+            if h.static is not None and h.static.truncated:
+                events.append(ev.Truncated(h.name))
         if h.static_alarm is not None:
             alarm, (start, value) = h.static_alarm, h.static.best
             events.append(ev.Misfit(h.name, h.estimate.magnitude, value, start, alarm.sensor, alarm.window,
@@ -324,10 +368,43 @@ def _at_bounds(d, hypotheses: tuple[Hypothesis, ...], T: int, whys: dict, events
                 if bound == 0 and h.dropped is None and not fault_kind(h.kind).replaces:
                     whys[h.name] = "wrong-direction"
                     h = replace(h, dropped=T - 1, reason=(
-                        f"its magnitude presses against 0, the edge of its prior: the data ask for a change in a "
-                        f"direction its model does not list"))
+                        "its magnitude presses against 0, the edge of its prior: the data ask for a change in a "
+                        "direction its model does not list"))
         out.append(h)
     return tuple(out)
+
+
+def _credible(hypotheses: tuple[Hypothesis, ...], level: float, whys: dict, events: list,
+              T: int) -> tuple[Hypothesis, ...]:
+    """The candidates of a verdict hold a posterior of at least ``level``
+    together (a credible set): the survivors' posterior, relative to that
+    of the hypotheses still in the running (the survivors and those the
+    Bayes factor dropped; a hypothesis that fails a test of its fit is out
+    of it), is at least ``level``, or the most probable of those the Bayes
+    factor dropped are kept as candidates too until it is (an ``Uncertain``
+    event). Many rivals each just under the Bayes factor can together hold
+    more than 1 - ``level``: then "isolated" would promise more than the
+    posterior does."""
+    survivors = [h for h in hypotheses if h.dropped is None]
+    outvoted = sorted((h for h in hypotheses if h.dropped is not None and whys.get(h.name) == "bayes-factor"),
+                      key=lambda h: -h.posterior)
+    mass = sum(h.posterior for h in survivors)
+    total = mass + sum(h.posterior for h in outvoted)
+    if not survivors or total <= 0 or mass >= level * total:
+        return hypotheses
+    kept = []
+    for h in outvoted:
+        if mass >= level * total:
+            break
+        kept.append(h)
+        mass += h.posterior
+    events.append(ev.Uncertain(tuple(h.name for h in sorted(survivors, key=lambda h: -h.posterior)),
+                               (mass - sum(h.posterior for h in kept)) / total, level,
+                               tuple(h.name for h in kept), tuple(h.posterior / total for h in kept), T - 1))
+    names = {h.name for h in kept}
+    for name in names:
+        whys.pop(name, None)
+    return tuple(replace(h, dropped=None, reason="") if h.name in names else h for h in hypotheses)
 
 
 def _static_evidence(d, hyps: list[dict], posteriors: dict, whys: dict, events: list,
@@ -350,15 +427,17 @@ def _static_evidence(d, hyps: list[dict], posteriors: dict, whys: dict, events: 
                 if not d.ckf:  # the particle filters' own estimate, beside the static one
                     h["filter_estimate"] = h["estimate"]
                 h["estimate"] = static_estimate(h["estimate"], p)
-                if p.truncated:
+                if p.truncated and not h.get("ruled_out"):  # step 6b's: said only of a candidate (_weigh)
                     events.append(ev.Truncated(h["name"]))
             elif p is not None and h["dropped"] is None:
                 h["dropped"] = T - 1
                 whys[h["name"]] = "no-likelihood"
                 h["reason"] = ("with its magnitude held static, its cubature Kalman filters found no finite "
                                "likelihood at any onset and magnitude of their grid")
-    if d.ckf:  # a hypothesis its consistency test dropped weighs nothing, as one its particle filters drop
-        evidence_of.update({h["name"]: -math.inf for h in hyps if h["dropped"] is not None})
+    # a hypothesis its static consistency test dropped (with --filter ckf, or weighed at step 6b) weighs
+    # nothing, as one its particle filters drop
+    evidence_of.update({h["name"]: -math.inf for h in hyps
+                        if h["dropped"] is not None and (d.ckf or h.get("ruled_out"))})
     return evidence_of, static
 
 

@@ -400,10 +400,13 @@ class Diagnoser:
         return self.replay(self.options, self.every, lazy=True).finish()
 
     def _retry(self, d: Diagnosis) -> bool:
-        """Whether an unexplained verdict is to be made again with every fault model."""
+        """Whether an unexplained verdict is to be made again with every fault
+        model: some the symbols ruled out were not weighed (step 6b did not
+        run: no hypothesis the symbols kept survived its filters)."""
         if d.verdict != "unexplained" or self.every or self.isolation is None:
             return False
-        untried = {name for name in self.isolation.ruled_out} - set(self.isolation.names)
+        weighed = set(self.isolation.names) | {h.name for h in d.hypotheses}  # step 6b weighs those ruled out
+        untried = set(self.isolation.ruled_out) - weighed
         if untried & set(self.package.MODELS):
             self.say("no hypothesis the symbols kept explains the data: trying those they ruled out")
             return True

@@ -250,6 +250,33 @@ class Misfit:
 
 
 @dataclass(frozen=True, slots=True)
+class Overruled:
+    """Hypothesis ``hypothesis`` was ruled out by the symbols (``why``: the
+    signature and the symbol), but with its magnitude held static it
+    explains the data as well as the others (within the Bayes factor, and
+    its consistency test passes): it is a candidate all the same."""
+
+    hypothesis: str
+    why: str
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Uncertain:
+    """The survivors of the Bayes factor (``candidates``) hold a posterior
+    of ``mass`` only, under the ``level`` a verdict promises
+    (``DiagnosisOptions.isolation_level``): the most probable hypotheses it
+    had dropped, ``kept`` (posteriors ``posteriors``), are candidates too."""
+
+    candidates: tuple[str, ...]
+    mass: float
+    level: float
+    kept: tuple[str, ...]
+    posteriors: tuple[float, ...]
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class SensorExcluded:
     """Sensor ``sensor``'s fault was isolated (``finding``, in words, at a
     checkpoint at time ``time``): the monitor took it out of the nominal
@@ -282,4 +309,5 @@ class Decided:
 
 Event = (SensorMissing | ColumnIgnored | SensorSilent | InputFromModel | InputHeld | Gap | SampleSkipped | Alarmed | Degenerate
          | Switched | Isolated | AllTried | Started | Dropped | Rescued | Truncated | NoLikelihood | Misfit
+         | AtPriorBound | Overruled | Uncertain | SensorExcluded
          | Checkpoint | Decided)

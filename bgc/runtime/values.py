@@ -71,6 +71,15 @@ class DiagnosisOptions:
     ``filter`` (by the particle filters' magnitude state and evidence: the
     thesis's method); ``bayes_factor``: a survivor this many times less
     probable than the best is dropped (100: "decisive" on Jeffreys' scale);
+    ``isolation_level``: the posterior the candidates of a verdict must
+    hold together (0.95): where the survivors of the Bayes factor hold less,
+    the most probable of the hypotheses it dropped are kept as candidates
+    too, until they do (an ``Uncertain`` event), so that "isolated" names a
+    fault with at least this posterior; ``recheck``: the fault models the
+    symbols ruled out are weighed too, by their static posteriors (``identify
+    = "kalman"``), and one that explains the data is a candidate all the
+    same (an ``Overruled`` event): symbols read after a late alarm can
+    mislead;
     ``interval``: the probability of the reported interval; ``rank``: weigh
     the survivors anew by the evidence of their models with the magnitude
     held static on a particle-filter grid ``rank_grid`` (``identify =
@@ -91,6 +100,8 @@ class DiagnosisOptions:
     symbol_steps: int = 32
     interval: float = 0.95
     bayes_factor: float = 100.0
+    isolation_level: float = 0.95
+    recheck: bool = True
     shrinkage: float = 0.98
     workers: int = 2
     identify: str = "kalman"
@@ -111,7 +122,7 @@ STAGES = {
     "detection": ("false_alarm", "horizon", "windows"),
     "isolation": ("symbol_steps", "history", "search", "spacing", "near"),
     "tracking": ("rejection",),
-    "weighing": ("identify", "kalman", "bayes_factor", "interval", "rank", "rank_grid", "refine", "grid"),
+    "weighing": ("identify", "kalman", "bayes_factor", "isolation_level", "recheck", "interval", "rank", "rank_grid", "refine", "grid"),
 }
 
 
@@ -167,7 +178,10 @@ class Hypothesis:
     its static posterior (Kalman filters); ``estimate`` is then the static
     posterior's and ``filter_estimate`` the particle filters' own;
     ``static_alarm``: the first alarm of the consistency test on the static
-    posterior's most likely cell (None: it passed, or was not run)."""
+    posterior's most likely cell (None: it passed, or was not run).
+    ``ruled_out``: the signature and symbol that ruled it out ("" when the
+    symbols kept it); it was weighed by its static posterior alone (step 6b,
+    ``recheck``)."""
 
     name: str
     parameter: str
@@ -193,6 +207,7 @@ class Hypothesis:
     static: StaticPosterior | None = None
     filter_estimate: Estimate | None = None
     static_alarm: Detection | None = None
+    ruled_out: str = ""
 
     @property
     def onset(self) -> int:

@@ -1,0 +1,106 @@
+"""What step 6b costs and what it changes: every diagnosis of the regression
+corpus with ``recheck`` off and on, side by side in one run.
+
+    .venv/bin/python bench/recheck_cost.py [--repeat 1] [--cases SUBSTR]
+
+Step 6b (``DiagnosisOptions.recheck``, docs/diagnosis.md section 6) weighs the
+fault models the symbols ruled out by their static posteriors before a
+verdict. The cases: tests/regression/cases.json (seven plants, the four
+filters, faults and fault-free runs), diagnosed as tests/test_regression.py
+does, in this process; each case's two diagnoses alternate in order (off then
+on, then on then off) so that drift of the machine's load falls on both
+alike, after one untimed diagnosis per plant (imports, compilation). A
+diagnosis is timed by the process's CPU seconds (``time.process_time``; the
+corpus's two-worker case counts its own process only) and wall-clock seconds;
+with ``--repeat K`` a case's time is the median of its K.
+
+Prints per plant the seconds off and on and the ratio on / off, then each case
+whose verdict or candidates differ, with the injected fault (the case's
+simulation) to judge which is right.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(1, str(ROOT / "tests"))
+
+
+def diagnose(case: dict, recheck: bool):
+    """(CPU seconds, wall seconds, diagnosis) of one case with ``recheck``."""
+    from bgc import api
+    from test_regression import options_for
+
+    sim = case["simulation"]
+    options = dataclasses.replace(options_for(case), recheck=recheck)
+    cpu, wall = time.process_time(), time.perf_counter()
+    d = api.diagnose(ROOT / case["model"], data=ROOT / case["run"], options=options,
+                     process_noise=sim["process_noise"], measurement_noise=sim["measurement_noise"]).diagnosis
+    return time.process_time() - cpu, time.perf_counter() - wall, d
+
+
+def plant(case: dict) -> str:
+    return Path(case["model"]).stem
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--repeat", type=int, default=1, help="diagnoses per case and side (the median is kept)")
+    parser.add_argument("--cases", default="", help="only the cases whose name contains this")
+    args = parser.parse_args(argv)
+    cases = [c for c in json.loads((ROOT / "tests/regression/cases.json").read_text())["cases"]
+             if args.cases in c["name"]]
+    warm = {}
+    for c in cases:
+        warm.setdefault(plant(c), c)
+    for c in warm.values():  # imports and compilation, untimed
+        diagnose(c, False)
+    times = {c["name"]: {False: [], True: []} for c in cases}
+    verdicts = {}
+    for r in range(args.repeat):
+        for i, c in enumerate(cases):
+            for recheck in ((False, True) if (i + r) % 2 == 0 else (True, False)):
+                cpu, wall, d = diagnose(c, recheck)
+                times[c["name"]][recheck].append((cpu, wall))
+                verdicts[(c["name"], recheck)] = (d.verdict, d.candidates)
+            print(f"  {c['name']}", file=sys.stderr, flush=True)
+    rows: dict[str, dict] = {}
+    for c in cases:
+        row = rows.setdefault(plant(c), {"cases": 0, False: [0.0, 0.0], True: [0.0, 0.0]})
+        row["cases"] += 1
+        for side in (False, True):
+            cpu = statistics.median(t[0] for t in times[c["name"]][side])
+            wall = statistics.median(t[1] for t in times[c["name"]][side])
+            row[side][0] += cpu
+            row[side][1] += wall
+    print("| plant | cases | CPU s, recheck off | CPU s, on | ratio on/off | wall s, off | wall s, on |")
+    print("|---|---|---|---|---|---|---|")
+    total = {False: [0.0, 0.0], True: [0.0, 0.0]}
+    for name, row in rows.items():
+        print(f"| {name} | {row['cases']} | {row[False][0]:.2f} | {row[True][0]:.2f} | "
+              f"{row[True][0] / row[False][0]:.2f} | {row[False][1]:.2f} | {row[True][1]:.2f} |")
+        for side in (False, True):
+            total[side][0] += row[side][0]
+            total[side][1] += row[side][1]
+    print(f"| all | {len(cases)} | {total[False][0]:.2f} | {total[True][0]:.2f} | "
+          f"{total[True][0] / total[False][0]:.2f} | {total[False][1]:.2f} | {total[True][1]:.2f} |")
+    print()
+    changed = [c for c in cases if verdicts[(c["name"], False)] != verdicts[(c["name"], True)]]
+    print(f"verdicts that differ: {len(changed)} of {len(cases)}")
+    for c in changed:
+        off, on = verdicts[(c["name"], False)], verdicts[(c["name"], True)]
+        print(f"  {c['name']} (injected: {c['simulation']['fault'] or 'none'}): "
+              f"off {off[0]} {', '.join(off[1])}; on {on[0]} {', '.join(on[1])}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,101 @@
+"""What a verdict promises: its candidates hold a posterior of at least
+``isolation_level`` together, and a fault model the symbols ruled out is
+weighed before a verdict names another (step 6b, ``recheck``).
+
+The level rule is checked on hypotheses built by hand (the posteriors are
+the test's own numbers, the expected groups summed by hand); the recheck on
+a run where the symbols mislead: the two tanks at 3 % process / 10 %
+measurement noise, R12 drifting at 0.01 per unit time from t = 75 (seed 6 of
+experiments/step_or_drift.yaml). The drift is so slow that the detector
+alarms at t = 273 of 300; the symbols, read on the open-loop prediction from
+a change point far after the true onset, see F20's slope rise, which rules
+out R12's drift (its signature predicts it falling) and leaves R20's step
+alone. Without step 6b that run was "isolated: R20_abrupt", a fault that
+was not there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import bgc
+from bgc.runtime import decide
+from bgc.runtime.diagnose import DiagnosisOptions
+from bgc.runtime import events as ev
+from bgc.runtime.values import Estimate, Hypothesis
+
+
+def hypothesis(name: str, posterior: float, dropped: int | None = None) -> Hypothesis:
+    e = Estimate("P", "abrupt", "bias", 0.0, 0.0, 0.0, 0.0, 0.95, 1.0, 1.0, None)
+    empty = np.zeros((0, 1))
+    return Hypothesis(name=name, parameter="P", kind="abrupt", signatures=(), start=0, onsets=(0,),
+                      onset_posterior=(1.0,), y_mean=empty, y_std=empty, z=empty, x_mean=empty, x_std=empty,
+                      magnitude=np.zeros(0), magnitude_band=np.zeros((0, 2)), dropped=dropped, reason="",
+                      log_evidence=0.0, posterior=posterior, estimate=e, seconds=0.0)
+
+
+def test_a_lone_survivor_under_the_level_keeps_the_most_probable_outvoted_rivals():
+    """A at 0.90 survives; B, C, D (0.05, 0.03, 0.02) were dropped by the
+    Bayes factor. A alone holds 0.90 < 0.95 of the 1.00 in the running;
+    A + B hold 0.95: B is kept, C and D stay dropped. E, dropped by its
+    consistency test, is out of the running whatever its posterior."""
+    hs = (hypothesis("A", 0.90), hypothesis("B", 0.05, 9), hypothesis("C", 0.03, 9),
+          hypothesis("D", 0.02, 9), hypothesis("E", 0.5, 3))
+    whys = {"B": "bayes-factor", "C": "bayes-factor", "D": "bayes-factor", "E": "inconsistent"}
+    events: list = []
+    out = decide._credible(hs, 0.95, whys, events, 10)
+    assert [h.name for h in out if h.dropped is None] == ["A", "B"]
+    assert decide._verdict(out) == ("ambiguous", ("A", "B"))
+    (e,) = events
+    assert isinstance(e, ev.Uncertain)
+    assert e.candidates == ("A",) and e.kept == ("B",)
+    assert e.mass == pytest.approx(0.90) and e.posteriors == pytest.approx((0.05,))
+    assert "B" not in whys and whys["C"] == "bayes-factor"
+
+
+def test_survivors_at_the_level_are_left_as_they_are():
+    """A at 0.96 of the running 1.00: isolated, no event; a level of 0.99
+    keeps B (0.96 + 0.03 = 0.99), not C."""
+    hs = (hypothesis("A", 0.96), hypothesis("B", 0.03, 9), hypothesis("C", 0.01, 9))
+    whys = {"B": "bayes-factor", "C": "bayes-factor"}
+    events: list = []
+    assert decide._credible(hs, 0.95, dict(whys), events, 10) == hs and not events
+    out = decide._credible(hs, 0.99, dict(whys), events, 10)
+    assert decide._verdict(out) == ("ambiguous", ("A", "B"))
+
+
+def test_many_rivals_each_under_the_bayes_factor_make_a_verdict_ambiguous():
+    """20 rivals at 1/150 of the best each pass the Bayes factor of 100 one
+    by one, but together hold 20/170 = 0.118: the best alone is 0.882."""
+    best = 1.0 / (1.0 + 20 / 150)
+    hs = (hypothesis("A", best),) + tuple(hypothesis(f"R{i:02d}", best / 150, 9) for i in range(20))
+    whys = {h.name: "bayes-factor" for h in hs[1:]}
+    out = decide._credible(hs, 0.95, whys, [], 10)
+    kept = [h.name for h in out if h.dropped is None]
+    # the best plus k rivals reach 0.95 when (1 + k/150) / (1 + 20/150) >= 0.95: k >= 11.5
+    assert len(kept) == 1 + 12
+
+
+@pytest.fixture(scope="module")
+def noisy_tanks():
+    return bgc.open("models/two_tank.yaml", process_noise=0.03, measurement_noise=0.1)
+
+
+def test_a_fault_model_the_symbols_ruled_out_is_weighed_before_another_is_named(noisy_tanks):
+    options = DiagnosisOptions(method="gpf", particles=500, seed=6, workers=1, switch=False)
+    d = bgc.diagnose(noisy_tanks, scenario="R12:incipient:0.01@75", seed=6, options=options).diagnosis
+    ruled_out = {h.name for h in d.hypotheses if h.ruled_out}
+    assert "R12_incipient" in ruled_out, "the symbols rule the truth out on this run"
+    assert d.verdict == "ambiguous" and "R12_incipient" in d.candidates
+    overruled = {e.hypothesis for e in d.events if isinstance(e, ev.Overruled)}
+    assert "R12_incipient" in overruled
+    truth = next(h for h in d.hypotheses if h.name == "R12_incipient")
+    assert truth.estimate.low <= 0.01 <= truth.estimate.high
+    # without step 6b the symbols alone decide: a step of R20, which is not there
+    alone = replace(options, recheck=False)
+    d0 = bgc.diagnose(noisy_tanks, scenario="R12:incipient:0.01@75", seed=6, options=alone).diagnosis
+    assert (d0.verdict, d0.candidates) == ("isolated", ("R20_abrupt",))
+    assert not any(h.ruled_out for h in d0.hypotheses)
