@@ -364,3 +364,24 @@ def test_distinguish_weighs_a_noise_rival_against_a_mean_shift(session):
     assert rival.std == pytest.approx(math.sqrt(2.0 * rival.expected))
     table = bgc.distinguishability(session, steps=300)
     assert {"F12_noise+:noise", "F12_noise-:noise"} <= {x.label for x in table.distinctions}
+
+
+# ------------------------------------------------------------------ campaigns
+def test_campaign_draws_of_a_noise_fault_are_its_factor_less_one(tmp_path):
+    """A noise fault's scale is 1 (a factor): a draw of change c is b = +-c,
+    the sensor's noise std times 1 +- c (F12 declares no direction: both
+    signs), named by the sensor, with the truth F12_noise = 1 +- c. (A
+    campaign's change is at most 1: a larger burst is a scenario.)"""
+    from bgc import campaign
+
+    text = (f"campaign: s\nseed: 5\ngroups:\n  - name: g\n    model: {PLANT}\n"
+            "    draws: {count: 30, change: [0.5, 0.9], onset: [0.3, 0.6], kinds: [noise]}\n")
+    path = tmp_path / "c.yaml"
+    path.write_text(text)
+    specs = campaign.load_campaign(path).specs
+    assert len(specs) == 30 and {(s.fault, s.kind) for s in specs} == {("F12_noise", "noise")}
+    assert {s.magnitude > 0 for s in specs} == {True, False}
+    for s in specs:
+        assert s.scenario.startswith("F12:noise:")
+        assert 0.5 - 1e-6 <= abs(s.magnitude) <= 0.9 + 1e-6
+        assert s.parameter_truth == pytest.approx(1.0 + s.magnitude)

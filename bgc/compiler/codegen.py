@@ -26,7 +26,7 @@ import sympy
 
 from ..ir import DbnModel, GeneratedPackage, Numerics, Signal, sym
 from ..kinds import NOISE_FLOOR, fault_kind
-from .dbn import fault_outputs
+from .dbn import fault_outputs, noisy_sensor
 from .numerics import ACCURACY, H_LAMBDA
 from .printing import cse_block, escape, print_expr, print_number, split_linear
 
@@ -188,7 +188,7 @@ def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
         lo, hi = fn.prior
         noisy = None
         if kind.noise:  # the sensor whose noise std the magnitude scales
-            subject = next(f.subject for f in model.faults if f.parameter == p)
+            subject = noisy_sensor(ssm, p, d.kind)
             note = f"{p} + {delta} multiplies {subject}'s noise std, {delta} persistent"
             noisy = {"row": list(ssm.outputs).index(subject), "sensor": subject,
                      "nominal": print_number(kind.nominal, "a noise factor", where),

@@ -72,10 +72,10 @@ def fault_outputs(ssm: StateSpaceModel, parameter: str, kind: str) -> tuple:
     return tuple(sym(parameter) if y == subject else e for y, e in zip(ssm.outputs, ssm.output_exprs))
 
 
-def _noisy_sensor(ssm: StateSpaceModel, parameter: str, kind: str) -> str | None:
-    """The sensor whose noise a noise fault scales (its parameter enters no
-    equation, so no expression names the measurement it strikes); None for
-    any other kind."""
+def noisy_sensor(ssm: StateSpaceModel, parameter: str, kind: str) -> str | None:
+    """The sensor whose noise std a noise fault of ``parameter`` scales (its
+    parameter enters no equation, so no expression names the measurement it
+    strikes); None for any other kind."""
     if not fault_kind(kind).noise:
         return None
     return next(f.subject for f in ssm.model.faults if f.parameter == parameter)
@@ -139,7 +139,7 @@ def _faulty(ssm: StateSpaceModel, nominal: nx.DiGraph, parameter: str, kind: str
     for x, rhs in zip(ssm.states, ssm.rhs):
         if p in rhs.free_symbols:
             g.add_edge(node(carrier, 0), node(x, 1), arc="fault")
-    noisy = _noisy_sensor(ssm, parameter, kind)
+    noisy = noisy_sensor(ssm, parameter, kind)
     for y, expr in zip(ssm.outputs, fault_outputs(ssm, parameter, kind)):
         if p in expr.free_symbols or y == noisy:
             for k in (0, 1):
