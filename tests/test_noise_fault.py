@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 import bgc
-from bgc.kinds import LOWEST, NOISE_FLOOR, fault_kind
+from bgc.kinds import LOWEST, NOISE_FLOOR, fault_kind, kinds_for
 from bgc.output import report
 from bgc.output.events import fault_sentence
 from bgc.pipeline import compile_model
@@ -102,6 +102,21 @@ def test_the_model_declares_the_prior_and_check_prints_it(tmp_path, entry, expec
     row = f"sensor F12 noise: bias {lo:.4g} to {hi:.4g}, "
     assert row in render.check_summary(c.equations, c.numerics)
     assert row in render.signatures_text(c.signatures, c.numerics)
+
+
+def test_noise_is_a_sensor_fault_only(tmp_path, session):
+    from bgc.errors import BgcError
+
+    path = tmp_path / "two_tank_sensors.yaml"
+    path.write_text(PLANT.read_text().replace("  f_in: {kinds: [bias, gain], prior: 0.02}",
+                                              "  f_in: {kinds: [noise], prior: 0.02}"))
+    with pytest.raises(BgcError) as info:
+        compile_model(path)
+    assert "fault kind 'noise' does not apply to actuator f_in" in str(info.value)
+    assert "a sensor takes: bias, drift, stuck, noise" in kinds_for("sensor")
+    with pytest.raises(BgcError) as info:
+        sim.parse_fault("R12:noise:4@60", session.compiled.numerics)
+    assert "kind 'noise' does not apply to parameter R12" in str(info.value)
 
 
 # -------------------------------------------------------- signature and DBN
@@ -213,11 +228,11 @@ def test_every_filter_tracks_data_with_five_times_the_noise_on_f12(session, modu
         r = pf.step(y, u)
     assert np.all(np.isfinite(r.mean)) and 4.0 <= 1.0 + r.mean[2] <= 7.0
     assert r.y_std[1] >= 4.0 * SIGMA[1]
-    a, b = (kind(module, 300, np.random.default_rng(s)) for s in (7, 8))
+    banked = [kind(module, 300, np.random.default_rng(s)) for s in (7, 8)]
     alone = [kind(module, 300, np.random.default_rng(s)) for s in (7, 8)]
     bank = filters.FilterBank(module)
     for y, u in zip(run.measurements[:20], run.inputs[:20]):
-        together = bank.step([a, b], y, u)
+        together = bank.step(banked, y, u)
         own = []
         for pf in alone:
             module.predict(pf.x, u, pf.theta, module.DT, out=pf.x)
