@@ -186,6 +186,15 @@ class FaultKind:
     noise: bool = False
 
     @property
+    def searched_back(self) -> bool:
+        """Its onset is looked for far back from the alarm, on a drift's
+        grid of onsets, not only around the detector's change point, which
+        does not mark it: a drift grows from nothing, and a burst of noise
+        moves no mean (the detector, a test of the residuals' mean, sees it
+        late)."""
+        return self.drifts or self.noise
+
+    @property
     def factor(self) -> bool:
         """The fault's parameter is a factor (nominal 1: a gain, a noise
         std's multiplier): its magnitude has no unit and is written in units

@@ -301,11 +301,15 @@ def test_a_simulated_burst_multiplies_the_sensors_noise_from_the_onset(session):
 
 
 # ------------------------------------------------------------------ diagnosis
-def test_a_burst_of_noise_on_f12_is_named_and_sized(session):
+def test_a_burst_of_noise_on_f12_is_named_sized_and_dated(session):
+    """Named, its interval covering b = 4, and its onset found near t = 60
+    although the detector (a test of the residuals' mean) alarms much later:
+    a noise fault's onsets are searched back from the alarm as a drift's."""
     r = bgc.diagnose(session, scenario="F12:noise:4@60", seed=1, particles=500)
     d = r.diagnosis
     assert d.verdict == "isolated" and d.candidates == (NAME,)
     assert d.estimate.low <= 4.0 <= d.estimate.high
+    assert r.run.time[d.detection.step] > 75.0 and abs(r.run.time[d.best.onset] - 60.0) <= 5.0
     m = metrics.measure(d, r.run, metrics.Truth("F12_noise", "noise", 4.0, 60.0))
     assert m.right and m.covers
     words = report.plain_words(d)[0]
