@@ -393,7 +393,7 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
     if name not in families.names:
         raise TrackingError(f"no fault model {name!r}", None, "pick one of: " + ", ".join(families.names))
     prior_of = {m: float(priors.get(package.MODELS[m].FAULT["parameter"], 0.01)) for m in families.names}
-    if noisy_sensor(package.MODELS[name]) is not None:
+    if noisy_row(package.MODELS[name]) is not None:
         return _distinguish_noise(families, name, magnitude, onset, prior_of, level)
     d = deviations(families, name, [magnitude], [onset])
     if not np.all(np.isfinite(d)):
@@ -406,7 +406,7 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
     own_r, own_col, own_c = fits[name]
     own = own_c * families.response(name)[:, own_col]
     for other in families.names:  # a noise rival: its sensor's share of the deviation by a wider noise
-        if noisy_sensor(package.MODELS[other]) is not None:
+        if noisy_row(package.MODELS[other]) is not None:
             fits[other] = _noise_fit(families, w, ww, other)
     seen = _normal_above(0.5 * ww, math.sqrt(ww))  # the mean's divergence from no fault: can it be detected
     truth = None
@@ -415,7 +415,7 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
         if other == name:
             continue
         r, col, c = fits[other]
-        noise_rival = noisy_sensor(package.MODELS[other]) is not None
+        noise_rival = noisy_row(package.MODELS[other]) is not None
         if noise_rival:  # its fit is not linearised: its divergence from the truth itself, as an exact fit's
             expected, std = r, math.sqrt(2.0 * r)
         else:
@@ -440,7 +440,7 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
     return Distinction(name, float(magnitude), int(onset), 0.5 * ww, own_r, tuple(rivals), level)
 
 
-def noisy_sensor(model: ModuleType) -> int | None:
+def noisy_row(model: ModuleType) -> int | None:
     """The row of the sensor whose noise std a noise fault's model scales
     (its ``FAULT``'s subject), None for any other model."""
     fault = getattr(model, "FAULT", None)
@@ -453,7 +453,7 @@ def _noise_ratios(families: Families, model: ModuleType, magnitude: float) -> np
     """delta_k (T,): by how much a noise fault of ``magnitude`` widens the
     variance of the nominal filter's whitened innovation along its sensor,
     ``(k^2 - 1) R_j (S_k^-1)_jj`` with ``S_k^-1 = Linv_k' Linv_k``."""
-    j = noisy_sensor(model)
+    j = noisy_row(model)
     k = fault_kind(model.FAULT["kind"]).noise_factor(magnitude)
     r = float(np.asarray(families.package.MODELS["nominal"].MEASUREMENT_STD, dtype=float)[j]) ** 2
     precision = np.einsum("kij,kij->k", families.whitening.Linv[:, :, j:j + 1], families.whitening.Linv[:, :, j:j + 1])
@@ -494,7 +494,7 @@ def _noise_fit(families: Families, w: np.ndarray, ww: float, name: str) -> tuple
     (KL of N(m_k, s_k) from N(0, s_k + (k^2 - 1) R_j)), smallest over the
     onsets of the families and 41 magnitudes across the prior."""
     model = families.package.MODELS[name]
-    j = noisy_sensor(model)
+    j = noisy_row(model)
     Linv = families.whitening.Linv
     T, n_y, _ = Linv.shape
     L = np.linalg.inv(Linv)  # the innovations' Cholesky factors
