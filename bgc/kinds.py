@@ -27,6 +27,11 @@ Examples
 True
 >>> fault_kind("incipient").change(0.5, 4.0), fault_kind("incipient").magnitude_for(2.0, 4.0)
 (2.0, 0.5)
+>>> noise = fault_kind("noise")
+>>> noise.parameter_of("F12"), noise.noise_factor(4.0), noise.noise_factor(-1.0)  # five times; floored
+('F12_noise', 5.0, 0.001)
+>>> noise.prior_bounds("increase", 1.0, horizon=100.0), noise.prior_bounds("decrease", 1.0, 100.0, widen=2.0)
+((0.0, 9.0), (-0.95, 0.0))
 >>> element_kind("Q")
 Traceback (most recent call last):
 ...
@@ -117,6 +122,10 @@ DIRECTIONS: Mapping[str, tuple[int, ...]] = {"increase": (1,), "decrease": (-1,)
 #: prior (``--prior-scale``, the YAML's ``size``) keeps a decreasing parameter positive.
 LOWEST = -0.95
 
+#: The smallest factor a noise fault multiplies its sensor's noise std by (a magnitude
+#: of -1 or below would leave the sensor without noise, or with a negative std).
+NOISE_FLOOR = 1e-3
+
 
 @dataclass(frozen=True, slots=True)
 class FaultKind:
@@ -136,6 +145,8 @@ class FaultKind:
     input's offset ``<input>_offset`` (nominal 0) added to what the actuator
     delivers, or its gain ``<input>_gain`` (nominal 1) multiplying it. The
     recorded input stays the command; the plant sees ``gain * u + offset``.
+    A sensor's noise factor ``<sensor>_noise`` (nominal 1) multiplies the
+    std of its measurement noise and enters no equation (``noise``).
 
     ``magnitude`` names the fault state ``delta_P`` estimates: a ``bias`` b
     (a step, thesis eq. II.1: ``P(t) = P + b`` from the onset) or a ``slope``
@@ -167,6 +178,38 @@ class FaultKind:
     #: The fault's parameter replaces the sensor's reading instead of adding to it (a stuck
     #: sensor reads its value, whatever the plant does); its prior is centred on the nominal reading.
     replaces: bool = False
+    #: The fault's parameter multiplies the sensor's measurement-noise std (the thesis's
+    #: measurement node M_i, whose variance grows when its fault node E_i is true, section
+    #: III.3): it enters no equation and moves no mean. Its fault model's ``measurement_std``
+    #: is ``noise_factor`` times the sensor's; its DBN's fault node is the parent of the
+    #: measurement alone; its signature is '?' at every order on its sensor.
+    noise: bool = False
+
+    @property
+    def searched_back(self) -> bool:
+        """Its onset is looked for far back from the alarm, on a drift's
+        grid of onsets, not only around the detector's change point, which
+        does not mark it: a drift grows from nothing, and a burst of noise
+        moves no mean (the detector, a test of the residuals' mean, sees it
+        late)."""
+        return self.drifts or self.noise
+
+    @property
+    def factor(self) -> bool:
+        """The fault's parameter is a factor (nominal 1: a gain, a noise
+        std's multiplier): its magnitude has no unit and is written in units
+        of 1, whatever the size of what it multiplies."""
+        return self.nominal == 1.0
+
+    def noise_factor(self, magnitude):
+        """What a noise fault of this magnitude multiplies its sensor's
+        noise std by: |1 + b|, never under NOISE_FLOOR (a sensor without
+        noise would make any residual infinitely unlikely); arrays
+        broadcast."""
+        import numpy as np
+
+        factor = np.maximum(np.abs(self.nominal + np.asarray(magnitude, dtype=float)), NOISE_FLOOR)
+        return float(factor) if factor.ndim == 0 else factor
 
     def value(self, nominal: float, magnitude: float, onset: float, t: float) -> float:
         """The faulty parameter at time t (a step at the onset, or a ramp from it)."""
@@ -225,7 +268,7 @@ class FaultKind:
             lo, hi = self.prior[direction]
             per = horizon if self.drifts else 1.0
         lo, hi = lo * widen, hi * widen
-        if "parameter" in self.targets:
+        if "parameter" in self.targets or self.noise:  # a noise std's factor stays positive too
             lo = max(lo, LOWEST / (horizon if self.drifts else 1.0) * per)
         return lo * scale / per, hi * scale / per
 
@@ -264,6 +307,14 @@ FAULT_KINDS: Mapping[str, FaultKind] = {
         {"increase": (0.0, 1.5), "decrease": (-1.5, 0.0), "both": (-1.5, 1.5)},
         0.002, "parameter", "the reading stays at a value v from the onset, whatever the plant does (a frozen "
         "or dead sensor)", ("sensor",), "stuck", 0.0, True),
+    "noise": FaultKind(
+        "noise", "bias", False,
+        # the sensor's noise std times 1 + b: up to ten times it; a quieter sensor (a
+        # decrease) down to a tenth of it; a decrease's bound, widened, stays above -95 %
+        {"increase": (0.0, 9.0), "decrease": (-0.9, 0.0), "both": (-0.9, 9.0)},
+        0.004, "parameter", "a burst of measurement noise from the onset: the sensor's noise std becomes "
+        "(1 + b) times its own (the thesis's measurement node M_i, section III.3)",
+        ("sensor",), "noise", 1.0, noise=True),
     "gain": FaultKind(
         "gain", "bias", False,
         {"increase": (0.0, 1.0), "decrease": (-0.5, 0.0), "both": (-0.5, 1.0)},
@@ -273,7 +324,7 @@ FAULT_KINDS: Mapping[str, FaultKind] = {
 
 
 def kinds_for(target: str) -> str:
-    """What a target takes, for messages: ``a sensor takes: bias, drift, stuck``."""
+    """What a target takes, for messages: ``a sensor takes: bias, drift, stuck, noise``."""
     valid = ", ".join(k for k, fk in FAULT_KINDS.items() if target in fk.targets)
     return f"{'an' if target[0] in 'aeiou' else 'a'} {target} takes: {valid}"
 

@@ -128,7 +128,7 @@ def test_an_inflow_bias_from_the_start_is_the_plant_fed_that_much_more(tmp_path,
 
 
 @pytest.mark.parametrize("faults, message", [
-    ("F12: [abrupt]", "fault kind 'abrupt' does not apply to sensor F12 (a sensor takes: bias, drift, stuck)"),
+    ("F12: [abrupt]", "fault kind 'abrupt' does not apply to sensor F12 (a sensor takes: bias, drift, stuck, noise)"),
     ("f_in: [gain, stuck]", "fault kind 'stuck' does not apply to actuator f_in (an actuator takes: bias, drift, gain)"),
     ("f_in: [gain, sudden]", "'sudden' is not valid"),
     ("R12: [bias]", "fault kind 'bias' does not apply to parameter R12"),

@@ -25,8 +25,8 @@ from importlib import resources
 import sympy
 
 from ..ir import DbnModel, GeneratedPackage, Numerics, Signal, sym
-from ..kinds import fault_kind
-from .dbn import fault_outputs
+from ..kinds import NOISE_FLOOR, fault_kind
+from .dbn import fault_outputs, noisy_sensor
 from .numerics import ACCURACY, H_LAMBDA
 from .printing import cse_block, escape, print_expr, print_number, split_linear
 
@@ -134,7 +134,7 @@ def _fault_dict(model, d) -> dict:
     sensor or actuator; ``subject``: its name in the model) and the
     subject's unit (model text: only ever a repr'd literal in the code)."""
     c = next(f for f in model.faults if f.parameter == d.parameter)
-    unit = None if fault_kind(d.kind).suffix == "gain" else model.unit(c.name)
+    unit = None if fault_kind(d.kind).factor else model.unit(c.name)
     return {"parameter": d.parameter, "kind": d.kind, "magnitude": fault_kind(d.kind).magnitude,
             "target": c.target, "subject": c.name, "unit": unit}
 
@@ -186,13 +186,20 @@ def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
             note = f"{p} + {delta}, {delta} persistent"
             value = f"theta[{theta_index}] + x[{n_physical}]"
         lo, hi = fn.prior
+        noisy = None
+        if kind.noise:  # the sensor whose noise std the magnitude scales
+            subject = noisy_sensor(ssm, p, d.kind)
+            note = f"{p} + {delta} multiplies {subject}'s noise std, {delta} persistent"
+            noisy = {"row": list(ssm.outputs).index(subject), "sensor": subject,
+                     "nominal": print_number(kind.nominal, "a noise factor", where),
+                     "floor": print_number(NOISE_FLOOR, "a noise factor", where)}
         fault_ctx = {
             "parameter": p, "kind": d.kind, "note": note,
             "prior_note": f"{kind.magnitude} {delta}{' (per unit time)' if kind.drifts else ''} on [{lo:g}, {hi:g}]",
             "prior_low": print_number(lo, "a prior bound", where), "prior_high": print_number(hi, "a prior bound", where),
             "magnitude_index": len(states) - 1, "n_physical": n_physical,
             "lift": ([f"x[{n_physical}] = THETA[{theta_index}]"] if kind.drifts else []),
-            "value": value,
+            "value": value, "noise": noisy,
         }
     order = states + list(ssm.inputs) + list(ssm.parameters)
     order = list(dict.fromkeys(order))

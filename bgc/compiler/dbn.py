@@ -23,7 +23,11 @@ One faulty DBN per fault candidate and kind (thesis Fig. III.2 b, c; Fig. IV.5):
   (``<sensor>_offset``, ``<input>_offset``, ``<input>_gain``), as above; a
   stuck sensor's value ``<sensor>_stuck`` replaces the sensor's reading: the
   measurement node loses its parents in the plant and has the fault node
-  alone (section III.3's measurement fault, with the reading cut off).
+  alone (section III.3's measurement fault, with the reading cut off); a
+  noise fault's factor ``<sensor>_noise`` scales the std of the sensor's
+  noise: its node is a parent of the measurement node only, which keeps its
+  parents in the plant (section III.3's E_i -> M_i arc: M_i's variance is
+  small while E_i is false, much larger once it is true).
 
 A discrete fault-indicator node ``D_P`` (persistent) is the parent of the fault
 node, as in the thesis's Fig. III.1.
@@ -66,6 +70,15 @@ def fault_outputs(ssm: StateSpaceModel, parameter: str, kind: str) -> tuple:
         return ssm.output_exprs
     subject = next(f.subject for f in ssm.model.faults if f.parameter == parameter)
     return tuple(sym(parameter) if y == subject else e for y, e in zip(ssm.outputs, ssm.output_exprs))
+
+
+def noisy_sensor(ssm: StateSpaceModel, parameter: str, kind: str) -> str | None:
+    """The sensor whose noise std a noise fault of ``parameter`` scales (its
+    parameter enters no equation, so no expression names the measurement it
+    strikes); None for any other kind."""
+    if not fault_kind(kind).noise:
+        return None
+    return next(f.subject for f in ssm.model.faults if f.parameter == parameter)
 
 
 def _nominal(ssm: StateSpaceModel) -> nx.DiGraph:
@@ -126,8 +139,9 @@ def _faulty(ssm: StateSpaceModel, nominal: nx.DiGraph, parameter: str, kind: str
     for x, rhs in zip(ssm.states, ssm.rhs):
         if p in rhs.free_symbols:
             g.add_edge(node(carrier, 0), node(x, 1), arc="fault")
+    noisy = noisy_sensor(ssm, parameter, kind)
     for y, expr in zip(ssm.outputs, fault_outputs(ssm, parameter, kind)):
-        if p in expr.free_symbols:
+        if p in expr.free_symbols or y == noisy:
             for k in (0, 1):
                 m = node(measurement_id(y, ssm.states), k)
                 if fault_kind(kind).replaces:  # the reading no longer depends on the plant

@@ -96,8 +96,10 @@ def _fault_symbols(model, rhs, outputs, bond_vars):
     offset is added to its reading; an input ``u`` with an offset or a gain
     becomes ``gain * u + offset`` wherever the plant sees it (the recorded
     input stays the command); a stuck sensor's value enters no equation here
-    (its fault model replaces the reading by it: codegen, dbn). Nothing
-    changes for a model without them."""
+    (its fault model replaces the reading by it: codegen, dbn), nor does a
+    noise fault's factor (it scales the sensor's noise std, not its reading:
+    the fault model's ``measurement_std``). Nothing changes for a model
+    without them."""
     added = sorted({(f.parameter, fault_kind(f.kinds[0]).nominal) for f in model.faults if f.target != "parameter"})
     if not added:
         return (), rhs, outputs, bond_vars

@@ -147,7 +147,9 @@ def fault_scale(c, nominal: float, model, y_scale, u0) -> float:
     """The size a fault's prior is written in units of: a parameter's
     |nominal|, a sensor's nominal reading (its size over the nominal run when
     it reads 0 at the start), an input's |value at t = 0| (else its largest
-    value, else 1), 1 for a gain."""
+    value, else 1), 1 for a factor (a gain, a noise std's multiplier)."""
+    if fault_kind(c.kinds[0]).factor:
+        return 1.0
     if c.target == "sensor":
         return float(y_scale[[m.name for m in model.measurements].index(c.subject)])
     if c.target == "actuator" and fault_kind(c.kinds[0]).suffix == "offset":

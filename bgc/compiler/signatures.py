@@ -22,6 +22,11 @@ operating point (a capacitor's current at rest) counts as positive, so a
 capacitance or inertance fault has the signature it shows once the plant
 moves (at rest it changes nothing).
 
+A sensor fault deviates its own measurement and nothing else: an offset as
+its sign says (a drift one order up), a stuck reading ``?`` at order 0 (off
+the plant either way, or not at all), a noise burst ``?`` at every order (it
+moves no mean: any symbol its residual shows is consistent with it).
+
 The signature of a fault at a measurement is its symbols at orders 0, 1, ...:
 ``+``, ``-``, ``0``, ``?``. TRANSCEND's (magnitude, slope) pair is orders 0
 and 1 for an abrupt fault; the first non-zero order says how soon the
@@ -68,11 +73,14 @@ def derive(ssm: StateSpaceModel) -> FaultSignatures:
     for fault in model.faults:
         for kind in fault.kinds:
             shift = int(fault_kind(kind).drifts)
-            for direction in (1,) if fault_kind(kind).replaces else DIRECTIONS[fault.direction]:
+            for direction in (1,) if fault_kind(kind).replaces or fault_kind(kind).noise \
+                    else DIRECTIONS[fault.direction]:
                 if fault.target == "sensor":  # its own reading, and nothing else
                     own = _own(direction, shift, depth)
                     if fault_kind(kind).replaces:  # a stuck reading: off the plant either way, or not at all
                         own = ("?",) + ("0",) * depth
+                    if fault_kind(kind).noise:  # a noise burst moves no mean: any symbol, at every order
+                        own = ("?",) * (depth + 1)
                     symbols = tuple(own if m == fault.subject else ("0",) * (depth + 1) for m in ssm.outputs)
                 else:
                     effects = _actuator_effects(g, model, fault, kind) if fault.target == "actuator" else None

@@ -147,7 +147,12 @@ def fault_sentence(e, since) -> str:
     >>> e = Estimate("R", "abrupt", "bias", 2.0, 0.1, 1.9, 2.0, 0.95, 4.0, 2.0, bound="high", subject="R", unit="ohm")
     >>> print(fault_sentence(e, None))
     parameter R rose by 2 ohm (+100 %), or more: the model's prior ends there
+    >>> e = Estimate("F12_noise", "noise", "bias", 4.0, 0.3, 3.4, 4.6, 0.95, 5.0, 1.0, target="sensor", subject="F12")
+    >>> fault_sentence(e, 60.0)
+    "sensor F12's noise is 5 times its own since t = 60"
     """
+    from ..kinds import fault_kind
+
     v = e.value
     if not math.isfinite(v):
         return f"{e.target} {e.subject or e.parameter}: {e.kind} of unknown size"
@@ -162,6 +167,8 @@ def fault_sentence(e, since) -> str:
             text = f"sensor {name} is stuck at {v:.4g}" + (f" {e.unit}" if e.unit else "")
         case ("sensor", "drift"):
             text = f"sensor {name}'s reading drifts {'up' if up else 'down'} by {rate}"
+        case ("sensor", "noise"):
+            text = f"sensor {name}'s noise is {fault_kind(e.kind).noise_factor(v):.3g} times its own"
         case ("actuator", "gain"):
             text = f"actuator {name} delivers {100 * abs(v):.3g} % {'more' if up else 'less'} than commanded"
         case ("actuator", "bias"):

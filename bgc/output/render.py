@@ -180,10 +180,12 @@ def prior_rows(num: Numerics) -> list[str]:
     for f in num.faults:
         c = by[f.parameter]
         kind = FAULT_KINDS[f.kind]
-        unit = "" if kind.suffix == "gain" else (model.unit(c.name) or "")
+        unit = "" if kind.factor else (model.unit(c.name) or "")
         lo, hi = f.prior
         per = " per unit time" if kind.drifts else ""
-        scale = {"parameter": f"|{c.name}| = {f.scale:.4g}", "sensor": f"{c.name}'s nominal reading {f.scale:.4g}",
+        scale = {"parameter": f"|{c.name}| = {f.scale:.4g}",
+                 "sensor": f"{c.name}'s nominal reading {f.scale:.4g}" if not kind.noise else
+                 f"{c.name}'s noise std (its factor 1; 1 + b times it)",
                  "actuator": f"{c.name}'s nominal value {f.scale:.4g}" if kind.suffix != "gain" else "gain 1"}
         relative = f"{100 * lo / f.scale:+.3g} % to {100 * hi / f.scale:+.3g} %{per}"
         if kind.drifts:

@@ -456,7 +456,8 @@ def isolate(d: Diagnoser, ys: np.ndarray, us: np.ndarray, observer) -> Isolation
     for s in keep:
         models.setdefault(f"{s.parameter}_{s.kind}", []).append(s.name)
     names = [n for n in sorted(models) if n in d.package.MODELS]
-    drifts = {name: fault_kind(d.package.MODELS[name].FAULT["kind"]).drifts for name in names}
+    # whether each is tried from a drift's onsets back from the alarm (a drift, a burst of noise)
+    drifts = {name: fault_kind(d.package.MODELS[name].FAULT["kind"]).searched_back for name in names}
     onsets = {True: first_tried(reach), False: sorted(near)}
     return Isolation(onset, seen, tuple((s.name, why) for s, why in dropped),
                            tuple(f"{s.parameter}_{s.kind}" for s, _ in dropped), models, names, drifts,

@@ -61,6 +61,28 @@ families are linearised (their fit is judged against the truth's own
 linearised family, so a shared error cancels; a bound of a prior is applied to
 the linearised response, which maps it only roughly); the Bayes factor's Occam
 terms (the prior widths of the magnitudes and onsets) are left out.
+
+Noise faults
+------------
+A noise fault (``bgc.kinds``: a burst of measurement noise, the sensor's
+noise std times ``k = 1 + b``) moves no mean, so the common-covariance
+account above does not see it; it is predicted from the change of the
+covariance instead (:func:`noise_divergence`). The nominal Kalman filter's
+innovations keep their mean and their covariance ``S_k`` grows by
+``(k^2 - 1) R_j`` on the sensor's entry; on the sensor's whitened
+direction that is a variance ratio ``1 + delta_k``, ``delta_k = (k^2 - 1)
+R_j (S_k^-1)_jj``, and the divergence from no fault is the sum over the
+samples from the onset of ``(delta_k - log(1 + delta_k)) / 2`` (the
+``(k^2 - 1 - log k^2) / 2`` per sample of a sensor whose innovation is its
+noise alone, ``R_j = S_k``). Stated approximations: the innovations are
+taken as independent from sample to sample (the burst also leaks into the
+filter's state estimates, which correlates them) and the rivals of a noise
+fault fit its unchanged mean best with no change of their own: each is as
+far from the truth as no fault is (expected log Bayes factor the
+divergence, variance twice it). A noise fault as the rival of a fault that
+moves the mean explains the share of the deviation on its own sensor by a
+wider noise (its best factor and onset on a grid), and nothing of the
+other sensors' (:func:`_noise_fit`).
 """
 
 from __future__ import annotations
@@ -73,6 +95,7 @@ import numpy as np
 
 from ..errors import TrackingError
 from ..ir import Numerics
+from ..kinds import fault_kind
 from .simulate import MAX_STEPS
 
 #: A rival is in the predicted ambiguity group when the data, with the priors,
@@ -369,6 +392,9 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
     package = families.package
     if name not in families.names:
         raise TrackingError(f"no fault model {name!r}", None, "pick one of: " + ", ".join(families.names))
+    prior_of = {m: float(priors.get(package.MODELS[m].FAULT["parameter"], 0.01)) for m in families.names}
+    if noisy_row(package.MODELS[name]) is not None:
+        return _distinguish_noise(families, name, magnitude, onset, prior_of, level)
     d = deviations(families, name, [magnitude], [onset])
     if not np.all(np.isfinite(d)):
         raise TrackingError(f"the noise-free run of {name} with magnitude {magnitude:g} is not finite", None,
@@ -379,7 +405,9 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
             for i, other in enumerate(families.names)}
     own_r, own_col, own_c = fits[name]
     own = own_c * families.response(name)[:, own_col]
-    prior_of = {m: float(priors.get(package.MODELS[m].FAULT["parameter"], 0.01)) for m in families.names}
+    for other in families.names:  # a noise rival: its sensor's share of the deviation by a wider noise
+        if noisy_row(package.MODELS[other]) is not None:
+            fits[other] = _noise_fit(families, w, ww, other)
     seen = _normal_above(0.5 * ww, math.sqrt(ww))  # the mean's divergence from no fault: can it be detected
     truth = None
     rivals = []
@@ -387,12 +415,16 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
         if other == name:
             continue
         r, col, c = fits[other]
-        expected = r - own_r
-        std = float(np.linalg.norm(own - c * families.response(other)[:, col]))
+        noise_rival = noisy_row(package.MODELS[other]) is not None
+        if noise_rival:  # its fit is not linearised: its divergence from the truth itself, as an exact fit's
+            expected, std = r, math.sqrt(2.0 * r)
+        else:
+            expected = r - own_r
+            std = float(np.linalg.norm(own - c * families.response(other)[:, col]))
         threshold = math.log(max(prior_of[other], 1e-300) / max(prior_of[name], 1e-300))
         probability = _normal_above(expected - threshold, std)
         fit_onset, fit_magnitude = int(families.onsets[col]), c
-        if SURE > probability and seen >= level:
+        if SURE > probability and seen >= level and not noise_rival:
             exact, fit_onset, fit_magnitude = (_exact_fit(families, other, w, fit_onset, c) if c != 0.0
                                                else (0.5 * ww, fit_onset, 0.0))
             if not exact < 0.5 * ww:  # no magnitude fits better than no fault
@@ -406,6 +438,78 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
         rivals.append(Rival(other, expected, std, probability, fit_onset, fit_magnitude))
     rivals.sort(key=lambda r: (r.probability, r.expected, r.name))
     return Distinction(name, float(magnitude), int(onset), 0.5 * ww, own_r, tuple(rivals), level)
+
+
+def noisy_row(model: ModuleType) -> int | None:
+    """The row of the sensor whose noise std a noise fault's model scales
+    (its ``FAULT``'s subject), None for any other model."""
+    fault = getattr(model, "FAULT", None)
+    if not fault or not fault_kind(fault["kind"]).noise:
+        return None
+    return list(model.OUTPUTS).index(fault["subject"])
+
+
+def _noise_ratios(families: Families, model: ModuleType, magnitude: float) -> np.ndarray:
+    """delta_k (T,): by how much a noise fault of ``magnitude`` widens the
+    variance of the nominal filter's whitened innovation along its sensor,
+    ``(k^2 - 1) R_j (S_k^-1)_jj`` with ``S_k^-1 = Linv_k' Linv_k``."""
+    j = noisy_row(model)
+    k = fault_kind(model.FAULT["kind"]).noise_factor(magnitude)
+    r = float(np.asarray(families.package.MODELS["nominal"].MEASUREMENT_STD, dtype=float)[j]) ** 2
+    precision = np.einsum("kij,kij->k", families.whitening.Linv[:, :, j:j + 1], families.whitening.Linv[:, :, j:j + 1])
+    return (k * k - 1.0) * r * precision
+
+
+def noise_divergence(families: Families, name: str, magnitude: float, onset: int) -> float:
+    """The Kullback-Leibler divergence of noise fault ``name`` (its
+    ``magnitude`` from sample ``onset``) from no fault: the sum over the
+    samples from the onset of (delta_k - log(1 + delta_k)) / 2 (module
+    docstring, "Noise faults")."""
+    delta = _noise_ratios(families, families.package.MODELS[name], magnitude)[onset:]
+    return float(0.5 * np.sum(delta - np.log1p(delta)))
+
+
+def _distinguish_noise(families: Families, name: str, magnitude: float, onset: int, prior_of: dict[str, float],
+                       level: float) -> Distinction:
+    """:func:`distinguish` for a noise fault as the truth: its divergence
+    from no fault (:func:`noise_divergence`), and every rival as far from it
+    as no fault is (it fits the truth's unchanged mean best with no change)."""
+    D = noise_divergence(families, name, magnitude, onset)
+    std = math.sqrt(2.0 * D)
+    rivals = []
+    for other in families.names:
+        if other != name:
+            threshold = math.log(max(prior_of[other], 1e-300) / max(prior_of[name], 1e-300))
+            rivals.append(Rival(other, D, std, _normal_above(D - threshold, std), int(onset), 0.0))
+    rivals.sort(key=lambda r: (r.probability, r.expected, r.name))
+    return Distinction(name, float(magnitude), int(onset), D, 0.0, tuple(rivals), level)
+
+
+def _noise_fit(families: Families, w: np.ndarray, ww: float, name: str) -> tuple[float, int, float]:
+    """The best fit of a mean deviation (whitened ``w``, ``ww`` = w'w) by
+    noise fault ``name``: (divergence, onset column, magnitude). Its
+    sensor's innovation (mean ``m_k``, nominal variance ``s_k``) is
+    explained by a variance ``s_k + (k^2 - 1) R_j`` from the onset, the rest
+    of the deviation not at all: ww / 2 less sum m_k^2 / (2 s_k) plus sum
+    (KL of N(m_k, s_k) from N(0, s_k + (k^2 - 1) R_j)), smallest over the
+    onsets of the families and 41 magnitudes across the prior."""
+    model = families.package.MODELS[name]
+    j = noisy_row(model)
+    Linv = families.whitening.Linv
+    T, n_y, _ = Linv.shape
+    L = np.linalg.inv(Linv)  # the innovations' Cholesky factors
+    m = np.einsum("ki,ki->k", L[:, j, :], w.reshape(T, n_y))  # the sensor's mean innovation
+    s = np.einsum("ki,ki->k", L[:, j, :], L[:, j, :])
+    lo, hi = families.bounds[families.names.index(name)]
+    magnitudes = np.unique(np.concatenate([np.linspace(lo, hi, 41), [0.0]]))
+    r = float(np.asarray(families.package.MODELS["nominal"].MEASUREMENT_STD, dtype=float)[j]) ** 2
+    k = fault_kind(model.FAULT["kind"]).noise_factor(magnitudes)
+    wide = s[:, None] + (k * k - 1.0)[None, :] * r  # (T, magnitudes)
+    gain = 0.5 * ((s + m * m)[:, None] / wide - 1.0 + np.log(wide / s[:, None])) - (0.5 * m * m / s)[:, None]
+    after = np.cumsum(gain[::-1], axis=0)[::-1]  # from each sample to the end
+    total = 0.5 * ww + after[families.onsets]  # (onsets, magnitudes)
+    col, i = np.unravel_index(int(np.argmin(total)), total.shape)
+    return max(float(total[col, i]), 0.0), int(col), float(magnitudes[i])
 
 
 @dataclass(frozen=True, slots=True)

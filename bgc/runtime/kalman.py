@@ -221,7 +221,10 @@ class _Filter:
     stack of cells, each with its own mean, covariance and fault states (the
     magnitude last), the cells along the first axis: means (C, n),
     covariances (C, n, n), fault states (f, C). The model sees the points of
-    all cells at once, as columns (n_x, C 2n), cell by cell."""
+    all cells at once, as columns (n_x, C 2n), cell by cell. The measurement
+    noise covariance R is the model's MEASUREMENT_STD squared, or, for a
+    model whose ``measurement_std`` depends on its fault states (a noise
+    fault: ``varies``), each cell's own (:meth:`_cell_noise`)."""
 
     def __init__(self, model: ModuleType):
         self.model = model
@@ -232,6 +235,7 @@ class _Filter:
         self.rows = slice(0, n) if self.physical == list(range(n)) else self.physical
         self.Q = np.diag(np.asarray(model.PROCESS_STD, dtype=float)[self.physical] ** 2)
         self.R = np.asarray(model.MEASUREMENT_STD, dtype=float) ** 2
+        self.varies = np.ndim(model.measurement_std(np.zeros((self.n_x, 1)))) == 2
         self.buffer = np.empty((self.n_x, 0))
         self.root, self.inverse, self.scale = math.sqrt(n), 1.0 / (2 * n), math.sqrt(1.0 / (2 * n))
         self._seen: dict = {}
@@ -264,6 +268,17 @@ class _Filter:
         if hit is None:
             hit = self._seen[key] = (np.diag(self.R[seen]), np.flatnonzero(seen))
         return hit
+
+    def _cell_noise(self, m: np.ndarray, fixed: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Each cell's measurement noise variances of the sensors ``rows``
+        (C, k): the model's ``measurement_std`` at the cell's mean ``m`` (C,
+        n) and fault states ``fixed`` (f, C), squared (a noise fault: R with
+        its sensor's entry times (1 + b)^2)."""
+        x = np.zeros((self.n_x, m.shape[0]))
+        x[self.physical] = m.T
+        x[self.extra] = fixed
+        std = self.model.measurement_std(x)[rows].T
+        return std * std
 
     def step(self, y: np.ndarray, u: np.ndarray, m: np.ndarray, P: np.ndarray, fixed: np.ndarray,
              onset: slice = slice(0, 0), dt: float | None = None):
@@ -319,7 +334,11 @@ class _Filter:
         yh = yh.T  # (C, k)
         Syy = np.matmul(DY, DY.transpose(0, 2, 1))
         Syy *= self.inverse
-        Syy += R
+        if self.varies:  # each cell its own R
+            diagonal = np.arange(len(rows))
+            Syy[:, diagonal, diagonal] += self._cell_noise(mp, fixed, rows)
+        else:
+            Syy += R
         # [v | Pxy'] (C, k, 1 + n), Pxy' = (DY+ - DY-) L' / 2n
         rhs = np.empty((C, len(rows), 1 + n))
         np.subtract(y[rows], yh, out=rhs[:, :, 0])

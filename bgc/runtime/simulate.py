@@ -95,7 +95,8 @@ _FAULT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([a-z]+):([-+0-9.eE]+)@([0-9.eE+
 def parse_fault(text: str, num: Numerics) -> FaultInjection:
     """``NAME:KIND:MAGNITUDE@TIME``: NAME a parameter (``R_pipe:incipient:0.5@165``),
     a measurement (a sensor fault, ``P_memb:bias:0.3@100``; ``P_memb:stuck:0@100``
-    reads 0 from t = 100) or an input (an actuator fault, ``u_pump:gain:-0.2@100``). The model need not list the
+    reads 0 from t = 100; ``P_memb:noise:4@100`` has five times its noise from
+    t = 100) or an input (an actuator fault, ``u_pump:gain:-0.2@100``). The model need not list the
     fault among its candidates: a plant may fail in ways its model does not
     foresee."""
     ssm = num.equations
@@ -267,9 +268,12 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
         clean[k] = evaluate(g, x, delivered(u, tk), theta_at(tk))
         if fault:
             param[k] = fault.value(nominal, tk)
-    if target == "sensor" and not kind.replaces:  # the sensor's offset on its reading
+    if target == "sensor" and not kind.replaces and not kind.noise:  # the sensor's offset on its reading
         clean[:, column] += param
-    noisy = clean + meas * rng.standard_normal(clean.shape)
+    draws = rng.standard_normal(clean.shape)
+    if target == "sensor" and kind.noise:  # a noise burst: the sensor's noise std times its factor
+        draws[:, column] *= kind.noise_factor(param - nominal)
+    noisy = clean + meas * draws
     if target == "sensor" and kind.replaces:  # a stuck sensor reads its value, noise and all
         stuck = times >= fault.time
         clean[stuck, column] = noisy[stuck, column] = fault.magnitude
@@ -285,7 +289,7 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
         f"(fractions of the signal); seed {options.seed}",
         "columns: time; u:* inputs held over the step ending at time; y:* noisy measurements; "
         "x:* true states; theta:* true value of the faulty parameter (a sensor's or input's offset, "
-        "an input's gain)",
+        "an input's gain, a sensor's noise factor)",
     )
     return SimulationResult(model.name, src, times, tuple(ssm.inputs), inputs, tuple(ssm.outputs), noisy, clean,
                             tuple(ssm.states), states, fault, param, header)

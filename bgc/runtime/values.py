@@ -323,7 +323,8 @@ class Isolation:
     symbols were read from, the ``symbols``, the signatures they ``refuted``
     ((name, why)) and the fault models of those (``ruled_out``), the
     signatures kept per fault model (``models``), the fault models tried
-    (``names``) and whether each drifts, each one's onsets for the particle
+    (``names``) and whether each is tried from a drift's onsets (``drifts``:
+    a drift, or a burst of noise, :attr:`bgc.kinds.FaultKind.searched_back`), each one's onsets for the particle
     filters (``starts_of``; a drift's reach back over ``reach``) and for the
     Kalman filters (``kalman_onsets`` by drift, over ``kalman_reach``), and
     the events of the isolation."""

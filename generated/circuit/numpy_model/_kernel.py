@@ -118,12 +118,16 @@ def gaussian_loglik(y, yhat, std):
     one block of particles at a time; NaN entries of y are not used. The terms
     are added output by output, in order, with elementwise operations: every
     column's sum is the same whatever the array's layout (a BLAS product may
-    add them in another order for another layout or CPU)."""
+    add them in another order for another layout or CPU). ``std``: (n_y,),
+    or (n_y, N), a std per particle (a noise fault's model:
+    :func:`gaussian_loglik_each`)."""
     y = np.asarray(y, dtype=float)
     std = np.asarray(std, dtype=float)
     seen = np.isfinite(y)
     if not seen.all():
         y, yhat, std = y[seen], yhat[seen], std[seen]
+    if std.ndim == 2:
+        return gaussian_loglik_each(y, yhat, std)
     n_y, n = yhat.shape
     weight = -0.5 / (std * std)
     total = np.empty(n)
@@ -142,6 +146,21 @@ def gaussian_loglik(y, yhat, std):
     return total
 
 
+def gaussian_loglik_each(y, yhat, std):
+    """gaussian_loglik with a std per particle, ``std`` (n_y, N) (every
+    entry of y used): sum_j -(y_j - yhat_j)^2 / (2 std_j^2) - log std_j -
+    log(2 pi) / 2, added output by output, in order."""
+    n_y, n = yhat.shape
+    total = np.full(n, -0.5 * n_y * np.log(2.0 * np.pi))
+    for j in range(n_y):
+        d = (yhat[j] - y[j]) / std[j]
+        d *= d
+        d *= -0.5
+        total += d
+        total -= np.log(std[j])
+    return total
+
+
 def predictive_std(observe, m, u, theta, process_std, measurement_std, fallback):
     """Std of the one-step predictive of y given noise-free predictions around
     the states ``m`` (n_x, F), one column per filter: the measurement noise
@@ -152,8 +171,9 @@ def predictive_std(observe, m, u, theta, process_std, measurement_std, fallback)
     q_i the process std of state i: central differences over one std, the
     exact diag(H Q H') when h is linear, and the output's own slope where the
     plant runs now (a Jacobian at X0 misses the noise a product of states
-    passes on when X0 is at rest). (F, n_y); ``fallback`` where that is not
-    a number."""
+    passes on when X0 is at rest). ``measurement_std``: (n_y,), or (n_y, F)
+    one per column of m (a noise fault's model). (F, n_y); ``fallback``
+    where that is not a number."""
     n_x, count = m.shape
     q = np.asarray(process_std, dtype=float)[:, None]
     x = np.repeat(m[:, :, None], 2 * n_x, axis=2)  # (n_x, F, 2 n_x): + q_i e_i, then - q_i e_i
@@ -165,7 +185,8 @@ def predictive_std(observe, m, u, theta, process_std, measurement_std, fallback)
     half *= 0.5
     half *= half
     r = np.asarray(measurement_std, dtype=float)
-    std = np.sqrt(half.sum(axis=2) + (r * r)[:, None]).T
+    noise = r * r if r.ndim == 2 else (r * r)[:, None]
+    std = np.sqrt(half.sum(axis=2) + noise).T
     bad = ~np.isfinite(std)
     if bad.any():
         std[bad] = np.broadcast_to(np.asarray(fallback, dtype=float), std.shape)[bad]

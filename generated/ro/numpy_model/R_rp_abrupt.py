@@ -156,14 +156,21 @@ def observe(x, u, theta, out=None):
     return _y
 
 
+def measurement_std(x):
+    """Std of the measurement noise for every particle (column of x):
+    MEASUREMENT_STD (n_y,), the same for every particle."""
+    return MEASUREMENT_STD
+
+
 def loglik(y, x, u, theta):
     """log p(y | x) for every particle (Gaussian measurement noise); NaN in y: not measured."""
-    return _kernel.gaussian_loglik(y, observe(x, u, theta), MEASUREMENT_STD)
+    return _kernel.gaussian_loglik(y, observe(x, u, theta), measurement_std(x))
 
 
-def loglik_observed(y, yhat):
-    """log p(y | x) from the particles' noise-free measurements yhat = observe(x, ...)."""
-    return _kernel.gaussian_loglik(y, yhat, MEASUREMENT_STD)
+def loglik_observed(y, yhat, std=None):
+    """log p(y | x) from the particles' noise-free measurements yhat = observe(x, ...)
+    and their measurement noise std = measurement_std(x) (default MEASUREMENT_STD)."""
+    return _kernel.gaussian_loglik(y, yhat, MEASUREMENT_STD if std is None else std)
 
 
 def loglik_predictive(y, x, u, theta):
@@ -175,7 +182,7 @@ def predictive_std(m, u, theta):
     """Std of the one-step predictive of y around the states m (n_x, F), one
     column per filter: (F, n_y) (``_kernel.predictive_std``: measurement noise
     plus the process noise seen through the outputs at m)."""
-    return _kernel.predictive_std(observe, m, u, theta, PROCESS_STD, MEASUREMENT_STD, PREDICTIVE_STD)
+    return _kernel.predictive_std(observe, m, u, theta, PROCESS_STD, measurement_std(m), PREDICTIVE_STD)
 
 
 def initial_particles(rng, n):

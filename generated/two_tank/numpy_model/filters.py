@@ -77,6 +77,15 @@ def offspring_counts(w, rng, overwrite=False, chunk=8192):
     return counts
 
 
+def noise_variance(model, x, w):
+    """The measurement noise's variance (n_y,) over the weighted particles
+    ``x`` (weights ``w``): MEASUREMENT_STD squared, or for a model whose noise
+    std differs from particle to particle (a noise fault: its
+    ``measurement_std(x)`` is (n_y, N)) its weighted mean."""
+    r = model.measurement_std(x)
+    return r ** 2 if r.ndim == 1 else (r * r) @ w
+
+
 def normalise(logw):
     """Normalised log-weights (``logw`` is overwritten) and the effective sample
     size 1 / sum(w^2)."""
@@ -212,12 +221,13 @@ class _Filter:
             x[j] = np.repeat(x[j], counts)
         return x
 
-    def _predicted_measurement(self, yhat, logw=None):
+    def _predicted_measurement(self, yhat, x, logw=None):
         """Weighted mean and std of y over the particles' noise-free measurements
-        ``yhat`` (weights: the filter's, or ``logw``), measurement noise included."""
+        ``yhat`` of particles ``x`` (weights: the filter's, or ``logw``),
+        measurement noise included."""
         w = self._weights() if logw is None else _exp_normalised(logw)[0]
         mean, std = self.model._kernel.moments(yhat, w)
-        return mean, np.sqrt(std ** 2 + self.model.MEASUREMENT_STD ** 2)
+        return mean, np.sqrt(std ** 2 + noise_variance(self.model, x, w))
 
     def run(self, ys, us, dt=None):
         """Filter a whole record: ys (T, n_y), us (T, n_u). Returns a FilterRun."""
@@ -252,10 +262,14 @@ class GenericParticleFilter(_Filter):
         far y is): with d = yhat - K and r = K - y, the predicted measurement
         has mean K + E[d] and variance E[d^2] - E[d]^2, and over the measured
         outputs sum_j (yhat_j - y_j)^2 / std_j^2 = sum_j (d_j^2 + 2 r_j d_j + r_j^2) / std_j^2.
+        A model whose noise std differs from particle to particle (a noise
+        fault) is weighed by :meth:`_weigh_each`.
         """
         model, kernel = self.model, self.model._kernel
+        std = model.measurement_std(self.x)
+        if std.ndim == 2:
+            return self._weigh_each(y, u, std)
         w = self._weights()
-        std = model.MEASUREMENT_STD
         n_y = len(std)
         if y is not None:
             seen = np.isfinite(y)
@@ -295,6 +309,20 @@ class GenericParticleFilter(_Filter):
         var = np.maximum(s2 - s1 * s1, 0.0) + std * std
         return shift + s1, np.sqrt(var)
 
+    def _weigh_each(self, y, u, std):
+        """:meth:`_weigh` for measurement noise of a std per particle, ``std``
+        (n_y, N): log N(y; yhat, std^2) per particle, and the predicted
+        measurement's variance the spread of yhat plus the particles' mean
+        noise variance (weights before the update)."""
+        model = self.model
+        w = self._weights()
+        yhat = model.observe(self.x, u, self.theta)
+        mean, spread = model._kernel.moments(yhat, w)
+        if y is not None:
+            self.logw += model._kernel.gaussian_loglik(y, yhat, std)
+        return mean, np.sqrt(spread * spread + (std * std) @ w)
+
+
 class AuxiliaryParticleFilter(_Filter):
     """Thesis Algorithm 2: choose ancestors by w_k-1 * p(y_k | mu_k), propagate,
     weight by p(y_k | x_k) / p(y_k | mu_k).
@@ -315,7 +343,7 @@ class AuxiliaryParticleFilter(_Filter):
         mu = self.x if predicted else self.model.predict(self.x, u, self.theta, dt, out=self.x)
         if np.isnan(y).all():
             self.model.perturb(mu, self.rng)
-            y_mean, y_std = self._predicted_measurement(self.model.observe(mu, u, self.theta))
+            y_mean, y_std = self._predicted_measurement(self.model.observe(mu, u, self.theta), mu)
             return self._finish(self.logw, y_mean, y_std, False)
         # The predicted measurement (before y is used) from the cloud before the
         # selection: the weighted mean and spread of the noise-free predictions,
@@ -348,7 +376,7 @@ class AuxiliaryParticleFilter(_Filter):
         back = np.repeat(first, counts)
         np.negative(back, out=back)
         del counts, w1
-        logw = self.model.loglik_observed(y, yhat) + back
+        logw = self.model.loglik_observed(y, yhat, self.model.measurement_std(self.x)) + back
         return self._finish(logw, y_mean, y_std, recovered)
 
 
@@ -374,7 +402,8 @@ class OptimalProposalParticleFilter(_Filter):
     I - K A) is sampled without a factorisation, z = e + K (y - h(mu) - A e - v)
     with e ~ N(0, I), v ~ N(0, R) (exact for a linear measurement); its
     density needs only S (the precision is I + A' R^-1 A, whose determinant
-    is det S / det R).
+    is det S / det R). A model whose noise std differs from particle to
+    particle (a noise fault) has its own R per particle, at its prediction.
     """
 
     def step(self, y, u, dt=None, predicted=False):
@@ -385,11 +414,12 @@ class OptimalProposalParticleFilter(_Filter):
         mu = self.x if predicted else model.predict(self.x, u, self.theta, dt, out=self.x)
         if np.isnan(y).all():
             model.perturb(mu, self.rng)
-            y_mean, y_std = self._predicted_measurement(model.observe(mu, u, self.theta))
+            y_mean, y_std = self._predicted_measurement(model.observe(mu, u, self.theta), mu)
             return self._finish(self.logw, y_mean, y_std, False)
         seen = np.isfinite(y)
         q = np.asarray(model.PROCESS_STD, dtype=float)
-        r = np.asarray(model.MEASUREMENT_STD, dtype=float)
+        r = np.asarray(model.measurement_std(mu), dtype=float)  # (n_y,), or (n_y, N): one per particle
+        n_y = r.shape[0]
         n_x, n = mu.shape
         moved = np.flatnonzero(q > 0)
         m = len(moved)
@@ -399,10 +429,10 @@ class OptimalProposalParticleFilter(_Filter):
             probes[j, 1 + i] += q[j]
             probes[j, 1 + m + i] -= q[j]
         with np.errstate(all="ignore"):
-            h = model.observe(probes.reshape(n_x, -1), u, self.theta).reshape(len(r), 1 + 2 * m, n)
+            h = model.observe(probes.reshape(n_x, -1), u, self.theta).reshape(n_y, 1 + 2 * m, n)
         del probes
         h0 = np.ascontiguousarray(h[:, 0])  # (n_y, N)
-        A = np.zeros((n, len(r), n_x))  # per particle: the measurements' change per process std of each state
+        A = np.zeros((n, n_y, n_x))  # per particle: the measurements' change per process std of each state
         A[:, :, moved] = ((h[:, 1:1 + m] - h[:, 1 + m:]) / 2.0).transpose(2, 0, 1)
         del h
         # the predicted measurement (before y is used): the cloud's spread of h(mu), plus the process
@@ -410,20 +440,24 @@ class OptimalProposalParticleFilter(_Filter):
         w = self._weights()
         y_mean, y_spread = model._kernel.moments(h0, w)
         seen_noise = np.einsum("nij,nij->in", A, A) @ w
-        y_std = np.sqrt(y_spread * y_spread + seen_noise + r * r)
+        y_std = np.sqrt(y_spread * y_spread + seen_noise + (r * r if r.ndim == 1 else (r * r) @ w))
         A, h0, r = A[:, seen], h0[seen], r[seen]
+        r = r if r.ndim == 1 else r.T  # (n_s,), or (N, n_s): broadcasts against a particle's row
+        n_s = r.shape[-1]
         S = A @ A.transpose(0, 2, 1)
-        S[:, np.arange(len(r)), np.arange(len(r))] += r * r
+        S[:, np.arange(n_s), np.arange(n_s)] += r * r
         innovation = (y[seen][:, None] - h0).T  # (N, n_s)
         e = self.rng.standard_normal((n, n_x))
-        v = self.rng.standard_normal((n, len(r))) * r
+        v = self.rng.standard_normal((n, n_s)) * r
         with np.errstate(all="ignore"):
             target = innovation - np.einsum("nij,nj->ni", A, e) - v
         # a particle whose prediction is not finite (it diverged) moves by its prior alone and gets no
         # weight; the factorisation below needs finite matrices
         broken = ~(np.isfinite(S).all(axis=(1, 2)) & np.isfinite(target).all(axis=1))
         if broken.any():
-            S[broken] = np.diag(r * r)
+            S[broken] = 0.0  # R alone, each particle its own
+            diagonal = np.arange(n_s)
+            S[np.flatnonzero(broken)[:, None], diagonal, diagonal] = np.broadcast_to(r * r, (n, n_s))[broken]
             A[broken] = 0.0
             innovation[broken] = 0.0
             target[broken] = 0.0
@@ -436,17 +470,18 @@ class OptimalProposalParticleFilter(_Filter):
             Ad = np.einsum("nij,nj->ni", A, d)
             # log q(z) - log N(z; 0, I), the 2 pi terms cancelling
             log_ratio = (-0.5 * ((d * d).sum(axis=1) + (Ad * Ad / (r * r)).sum(axis=1))
-                         + np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1) - np.log(r).sum()
+                         + np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1) - np.log(r).sum(axis=-1)
                          + 0.5 * (z * z).sum(axis=1))
         x = mu + q[:, None] * z.T
         with np.errstate(all="ignore"):
-            logw = self.logw + model.loglik_observed(y, model.observe(x, u, self.theta)) - log_ratio
+            logw = (self.logw + model.loglik_observed(y, model.observe(x, u, self.theta), model.measurement_std(x))
+                    - log_ratio)
         logw[broken] = -np.inf  # a finite particle whose prediction is not a number is impossible;
         logw[~np.isfinite(x).all(axis=0)] = np.nan  # one that diverged is recovered (_finish)
         if not np.isfinite(logw).any() and np.isfinite(mu).all():  # y far beyond every particle: the prior's step,
             x = mu + q[:, None] * e.T  # as the generic filter takes it (its weights then say what happened)
             with np.errstate(all="ignore"):
-                logw = self.logw + model.loglik_observed(y, model.observe(x, u, self.theta))
+                logw = self.logw + model.loglik_observed(y, model.observe(x, u, self.theta), model.measurement_std(x))
         self.x = x
         return self._finish(logw, y_mean, y_std, False)
 
@@ -472,10 +507,11 @@ class FilterBank:
 
     A lone filter takes its own step (the bank would only add its
     overhead). Filters of more than two blocks of particles, of mixed
-    classes or particle counts, or with the optimal proposal (its arithmetic
-    is per particle already) are stepped one by one after one integrator
-    call; so is a step in which a filter's weights all underflow (its
-    :meth:`step` recovers)."""
+    classes or particle counts, with the optimal proposal (its arithmetic
+    is per particle already) or of a model whose noise std differs from
+    particle to particle (a noise fault: its own weighing) are stepped one
+    by one after one integrator call; so is a step in which a filter's
+    weights all underflow (its :meth:`step` recovers)."""
 
     def __init__(self, model):
         self.model = model
@@ -514,6 +550,7 @@ class FilterBank:
         fs = self.filters
         first = fs[0]
         self.packed = (not isinstance(first, OptimalProposalParticleFilter)
+                       and np.ndim(self.model.measurement_std(first.x)) == 1
                        and all(type(pf) is type(first) and pf.n == first.n and pf.theta == first.theta
                                and pf._small and pf.threshold == first.threshold for pf in fs))
         if not self.packed:
