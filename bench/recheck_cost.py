@@ -1,7 +1,7 @@
 """What step 6b costs and what it changes: every diagnosis of the regression
 corpus with ``recheck`` off and on, side by side in one run.
 
-    .venv/bin/python bench/recheck_cost.py [--repeat 1] [--cases SUBSTR]
+    .venv/bin/python bench/recheck_cost.py [--repeat 1] [--cases SUBSTR] [--shipped SEEDS]
 
 Step 6b (``DiagnosisOptions.recheck``, docs/diagnosis.md section 6) weighs the
 fault models the symbols ruled out by their static posteriors before a
@@ -13,6 +13,13 @@ alike, after one untimed diagnosis per plant (imports, compilation). A
 diagnosis is timed by the process's CPU seconds (``time.process_time``; the
 corpus's two-worker case counts its own process only) and wall-clock seconds;
 with ``--repeat K`` a case's time is the median of its K.
+
+The corpus's models are the shipped ones before they declared sensor faults
+(tests/regression/models) and test plants: few fault models for the symbols
+to rule out. ``--shipped K`` adds the shipped models as they are (the RO
+plant's 20 fault models, the circuit's 16, the two tanks' 16): each of
+``SHIPPED`` scenarios simulated with seeds 0 .. K-1 and diagnosed (gpf, 1000
+particles, one process) with recheck off and on, alternating in the same way.
 
 Prints per plant the seconds off and on and the ratio on / off, then each case
 whose verdict or candidates differ, with the injected fault (the case's
@@ -47,28 +54,55 @@ def diagnose(case: dict, recheck: bool):
     return time.process_time() - cpu, time.perf_counter() - wall, d
 
 
+#: The shipped models' scenarios of ``--shipped``: a parameter's step and drift and a sensor's bias each.
+SHIPPED = {
+    "models/ro.yaml": ("R_pipe:abrupt:31@165", "R_pipe:incipient:0.5@165", "P_memb:bias:72.7@150"),
+    "models/circuit.yaml": ("R2:abrupt:0.6@5", "R2:incipient:0.06@5", "f2:bias:0.5@7.5"),
+    "models/two_tank.yaml": ("R12:abrupt:0.8@75", "R12:incipient:0.005@75", "F12:bias:0.0889@75"),
+}
+
+
+def shipped(model: str, scenario: str, seed: int, recheck: bool):
+    """(CPU seconds, wall seconds, diagnosis) of a shipped model's scenario with ``recheck``."""
+    from bgc import api
+    from bgc.runtime.diagnose import DiagnosisOptions
+
+    options = DiagnosisOptions(method="gpf", particles=1000, seed=seed, workers=1, recheck=recheck)
+    cpu, wall = time.process_time(), time.perf_counter()
+    d = api.diagnose(ROOT / model, scenario=scenario, seed=seed, options=options).diagnosis
+    return time.process_time() - cpu, time.perf_counter() - wall, d
+
+
+def run(case: dict, recheck: bool):
+    return shipped(*case["shipped"], recheck) if "shipped" in case else diagnose(case, recheck)
+
+
 def plant(case: dict) -> str:
-    return Path(case["model"]).stem
+    return ("shipped " if "shipped" in case else "") + Path(case["model"]).stem
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeat", type=int, default=1, help="diagnoses per case and side (the median is kept)")
     parser.add_argument("--cases", default="", help="only the cases whose name contains this")
+    parser.add_argument("--shipped", type=int, default=0, metavar="SEEDS",
+                        help="also the shipped models' scenarios, with this many seeds each")
     args = parser.parse_args(argv)
     cases = [c for c in json.loads((ROOT / "tests/regression/cases.json").read_text())["cases"]
              if args.cases in c["name"]]
+    cases += [{"name": f"shipped {Path(m).stem} {sc} seed {k}", "shipped": (m, sc, k), "model": m,
+               "simulation": {"fault": sc}} for m, scs in SHIPPED.items() for sc in scs for k in range(args.shipped)]
     warm = {}
     for c in cases:
         warm.setdefault(plant(c), c)
     for c in warm.values():  # imports and compilation, untimed
-        diagnose(c, False)
+        run(c, False)
     times = {c["name"]: {False: [], True: []} for c in cases}
     verdicts = {}
     for r in range(args.repeat):
         for i, c in enumerate(cases):
             for recheck in ((False, True) if (i + r) % 2 == 0 else (True, False)):
-                cpu, wall, d = diagnose(c, recheck)
+                cpu, wall, d = run(c, recheck)
                 times[c["name"]][recheck].append((cpu, wall))
                 verdicts[(c["name"], recheck)] = (d.verdict, d.candidates)
             print(f"  {c['name']}", file=sys.stderr, flush=True)
