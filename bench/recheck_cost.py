@@ -48,9 +48,14 @@ def diagnose(case: dict, recheck: bool):
 
     sim = case["simulation"]
     options = dataclasses.replace(options_for(case), recheck=recheck)
+    return timed(lambda: api.diagnose(ROOT / case["model"], data=ROOT / case["run"], options=options,
+                                      process_noise=sim["process_noise"], measurement_noise=sim["measurement_noise"]))
+
+
+def timed(run):
+    """(CPU seconds, wall seconds, diagnosis) of ``run()``, a report."""
     cpu, wall = time.process_time(), time.perf_counter()
-    d = api.diagnose(ROOT / case["model"], data=ROOT / case["run"], options=options,
-                     process_noise=sim["process_noise"], measurement_noise=sim["measurement_noise"]).diagnosis
+    d = run().diagnosis
     return time.process_time() - cpu, time.perf_counter() - wall, d
 
 
@@ -68,9 +73,7 @@ def shipped(model: str, scenario: str, seed: int, recheck: bool):
     from bgc.runtime.diagnose import DiagnosisOptions
 
     options = DiagnosisOptions(method="gpf", particles=1000, seed=seed, workers=1, recheck=recheck)
-    cpu, wall = time.process_time(), time.perf_counter()
-    d = api.diagnose(ROOT / model, scenario=scenario, seed=seed, options=options).diagnosis
-    return time.process_time() - cpu, time.perf_counter() - wall, d
+    return timed(lambda: api.diagnose(ROOT / model, scenario=scenario, seed=seed, options=options))
 
 
 def run(case: dict, recheck: bool):

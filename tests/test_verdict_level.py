@@ -62,7 +62,7 @@ def test_survivors_at_the_level_are_left_as_they_are():
     hs = (hypothesis("A", 0.96), hypothesis("B", 0.03, 9), hypothesis("C", 0.01, 9))
     whys = {"B": "bayes-factor", "C": "bayes-factor"}
     events: list = []
-    assert decide._credible(hs, 0.95, dict(whys), events, 10) == hs and not events
+    assert decide._credible(hs, 0.95, dict(whys), events, 10) is hs and not events
     out = decide._credible(hs, 0.99, dict(whys), events, 10)
     assert decide._verdict(out) == ("ambiguous", ("A", "B"))
 

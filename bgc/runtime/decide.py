@@ -54,7 +54,7 @@ def decide(d, truth: Run | None) -> Diagnosis:
     iso = d.isolation
     events = list(d.events) + silent
     observer = d.kf.track() if d.ckf else None
-    hyps, posteriors, whys = _hypotheses(d, a, iso, observer, truth, events)
+    hyps, posteriors, whys, observer = _hypotheses(d, a, iso, observer, truth, events)
     _recheck(d, a, iso, observer, truth, hyps, posteriors, whys, events)
     return _weigh(d, a, iso, hyps, posteriors, whys, events, common)
 
@@ -74,12 +74,12 @@ def _recheck(d, a: dict, iso, observer, truth, hyps: list[dict], posteriors: dic
     the data within the Bayes factor is then a candidate (an ``Overruled``
     event), rather than a verdict resting on the symbols alone."""
     o = d.options
-    untried = sorted({n for n in iso.ruled_out if n in d.package.MODELS} - set(iso.names))
+    untried = iso.untried(d.package)
     if not (o.recheck and o.identify == "kalman" and untried and any(h["dropped"] is None for h in hyps)
             and any(math.isfinite(p.log_evidence) for p in posteriors.values())):
         return
-    if observer is None:  # the particle filters' diagnosis: the nominal Kalman filter up to the latest onset
-        observer = kalman.nominal_track(d.nominal, a["ys"], a["us"], max(max(s) for s in iso.kalman_onsets.values()))
+    if observer is None:  # the particle filters' diagnosis, none of whose hypotheses reached a static posterior
+        observer = _nominal_track(d, a, iso)
     models: dict[str, list[str]] = {}
     why_of: dict[str, str] = {}
     for (signature, why), name in zip(iso.refuted, iso.ruled_out):
@@ -99,17 +99,24 @@ def _recheck(d, a: dict, iso, observer, truth, hyps: list[dict], posteriors: dic
 
 def _hypotheses(d, a: dict, iso, observer, truth, events: list):
     """Steps 4 to 6: each hypothesis's filters, or (ckf) its static posterior
-    alone; (hypothesis dicts, static posteriors, drop reasons by name)."""
+    alone; (hypothesis dicts, static posteriors, drop reasons by name, the
+    nominal cubature Kalman filter's track when one was computed)."""
     if d.ckf:  # 4-6. every hypothesis with its magnitude held static, by cubature Kalman filters alone
         hyps, posteriors = kalman_hypotheses(iso.names, iso.models, d.package, truth, a["time"], a["ys"], a["us"],
                                              observer, iso.kalman_onsets, iso.kalman_reach, iso.drifts, d.options,
                                              d.say)
-        return hyps, posteriors, {h["name"]: h.pop("why") for h in hyps if "why" in h}
+        return hyps, posteriors, {h["name"]: h.pop("why") for h in hyps if "why" in h}, observer
     work = _Tracking(d, a, iso, truth)
     hyps = work.run()
     if d.options.identify == "kalman" and not work.posteriors:
         work.rescue(hyps, events)
-    return hyps, work.posteriors, work.whys
+    return hyps, work.posteriors, work.whys, (work.track[0] if work.track else None)
+
+
+def _nominal_track(d, a: dict, iso) -> kalman.NominalTrack:
+    """The nominal cubature Kalman filter over the record up to the latest
+    onset a static posterior starts from (the particle filters' diagnosis)."""
+    return kalman.nominal_track(d.nominal, a["ys"], a["us"], max(max(s) for s in iso.kalman_onsets.values()))
 
 
 class _Tracking:
@@ -201,8 +208,7 @@ class _Tracking:
 
     def idle(self) -> None:
         if self.o.identify == "kalman" and not self.track:
-            stop = max(max(s) for s in self.iso.kalman_onsets.values())
-            self.track.append(kalman.nominal_track(self.d.nominal, self.a["ys"], self.a["us"], stop))
+            self.track.append(_nominal_track(self.d, self.a, self.iso))
 
     def static_job(self, name: str, h: dict) -> StaticJob:
         drifts = self.iso.drifts[name]
@@ -392,14 +398,13 @@ def _credible(hypotheses: tuple[Hypothesis, ...], level: float, whys: dict, even
     total = mass + sum(h.posterior for h in outvoted)
     if not survivors or total <= 0 or mass >= level * total:
         return hypotheses
-    kept = []
+    alone, kept = mass / total, []
     for h in outvoted:
         if mass >= level * total:
             break
         kept.append(h)
         mass += h.posterior
-    events.append(ev.Uncertain(tuple(h.name for h in sorted(survivors, key=lambda h: -h.posterior)),
-                               (mass - sum(h.posterior for h in kept)) / total, level,
+    events.append(ev.Uncertain(tuple(h.name for h in sorted(survivors, key=lambda h: -h.posterior)), alone, level,
                                tuple(h.name for h in kept), tuple(h.posterior / total for h in kept), T - 1))
     names = {h.name for h in kept}
     for name in names:

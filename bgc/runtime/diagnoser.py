@@ -405,9 +405,8 @@ class Diagnoser:
         run: no hypothesis the symbols kept survived its filters)."""
         if d.verdict != "unexplained" or self.every or self.isolation is None:
             return False
-        weighed = set(self.isolation.names) | {h.name for h in d.hypotheses}  # step 6b weighs those ruled out
-        untried = set(self.isolation.ruled_out) - weighed
-        if untried & set(self.package.MODELS):
+        untried = set(self.isolation.untried(self.package)) - {h.name for h in d.hypotheses}  # step 6b's weighed
+        if untried:
             self.say("no hypothesis the symbols kept explains the data: trying those they ruled out")
             return True
         return False

@@ -421,7 +421,7 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
         else:
             expected = r - own_r
             std = float(np.linalg.norm(own - c * families.response(other)[:, col]))
-        threshold = math.log(max(prior_of[other], 1e-300) / max(prior_of[name], 1e-300))
+        threshold = _threshold(prior_of, other, name)
         probability = _normal_above(expected - threshold, std)
         fit_onset, fit_magnitude = int(families.onsets[col]), c
         if SURE > probability and seen >= level and not noise_rival:
@@ -449,13 +449,25 @@ def noisy_row(model: ModuleType) -> int | None:
     return list(model.OUTPUTS).index(fault["subject"])
 
 
+def _noise_variance(families: Families, j: int) -> float:
+    """Sensor ``j``'s nominal measurement noise variance R_j."""
+    return float(np.asarray(families.package.MODELS["nominal"].MEASUREMENT_STD, dtype=float)[j]) ** 2
+
+
+def _threshold(prior_of: dict[str, float], rival: str, truth: str) -> float:
+    """The log Bayes factor of ``truth`` against ``rival`` above which the
+    diagnoser, weighing their priors, names the truth: log(prior_rival /
+    prior_truth)."""
+    return math.log(max(prior_of[rival], 1e-300) / max(prior_of[truth], 1e-300))
+
+
 def _noise_ratios(families: Families, model: ModuleType, magnitude: float) -> np.ndarray:
     """delta_k (T,): by how much a noise fault of ``magnitude`` widens the
     variance of the nominal filter's whitened innovation along its sensor,
     ``(k^2 - 1) R_j (S_k^-1)_jj`` with ``S_k^-1 = Linv_k' Linv_k``."""
     j = noisy_row(model)
     k = fault_kind(model.FAULT["kind"]).noise_factor(magnitude)
-    r = float(np.asarray(families.package.MODELS["nominal"].MEASUREMENT_STD, dtype=float)[j]) ** 2
+    r = _noise_variance(families, j)
     precision = np.einsum("kij,kij->k", families.whitening.Linv[:, :, j:j + 1], families.whitening.Linv[:, :, j:j + 1])
     return (k * k - 1.0) * r * precision
 
@@ -479,7 +491,7 @@ def _distinguish_noise(families: Families, name: str, magnitude: float, onset: i
     rivals = []
     for other in families.names:
         if other != name:
-            threshold = math.log(max(prior_of[other], 1e-300) / max(prior_of[name], 1e-300))
+            threshold = _threshold(prior_of, other, name)
             rivals.append(Rival(other, D, std, _normal_above(D - threshold, std), int(onset), 0.0))
     rivals.sort(key=lambda r: (r.probability, r.expected, r.name))
     return Distinction(name, float(magnitude), int(onset), D, 0.0, tuple(rivals), level)
@@ -502,7 +514,7 @@ def _noise_fit(families: Families, w: np.ndarray, ww: float, name: str) -> tuple
     s = np.einsum("ki,ki->k", L[:, j, :], L[:, j, :])
     lo, hi = families.bounds[families.names.index(name)]
     magnitudes = np.unique(np.concatenate([np.linspace(lo, hi, 41), [0.0]]))
-    r = float(np.asarray(families.package.MODELS["nominal"].MEASUREMENT_STD, dtype=float)[j]) ** 2
+    r = _noise_variance(families, j)
     k = fault_kind(model.FAULT["kind"]).noise_factor(magnitudes)
     wide = s[:, None] + (k * k - 1.0)[None, :] * r  # (T, magnitudes)
     gain = 0.5 * ((s + m * m)[:, None] / wide - 1.0 + np.log(wide / s[:, None])) - (0.5 * m * m / s)[:, None]

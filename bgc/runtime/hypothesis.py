@@ -33,6 +33,7 @@ from statistics import NormalDist
 
 import numpy as np
 
+from ..kinds import fault_kind
 from .detect import DetectorBank, DetectorOptions, monte_carlo_share
 from .track import filter_class, onset_transition
 from .onsets import hypothesis_seed
@@ -175,8 +176,7 @@ class HypothesisTracker:
         zk = (y - y_mean) / y_std
         density = log_density(zk, y_std)
         alarms = self.tests.update(k, [self.row[s] for s in running], zk,
-                                   monte_carlo_share(y_std, _noise_std(module, [r.mean for r in results]), before,
-                                                     job.particles),
+                                   monte_carlo_share(y_std, _noise_std(module, results), before, job.particles),
                                    [out[s]["rejected"] is None for s in running])  # the first alarm's onset only
         for i, s in enumerate(running):
             self.evidence[s] += float(density[i])
@@ -260,13 +260,14 @@ def _padded(rows: list, span: int, width: int | None) -> np.ndarray:
     return a
 
 
-def _noise_std(module, means: list) -> np.ndarray:
+def _noise_std(module, results: list) -> np.ndarray:
     """The measurement noise std in each running filter's predicted
     measurement, for its Monte Carlo share: MEASUREMENT_STD (n_y,), or for a
-    model whose noise std depends on its state (a noise fault) its
-    ``measurement_std`` at each filter's mean state (F, n_y)."""
-    std = module.measurement_std(np.array(means).T)
-    return std if np.ndim(std) == 1 else std.T
+    noise fault's model its ``measurement_std`` at each filter's mean state
+    (F, n_y) (only then are the means gathered: this runs every step)."""
+    if not fault_kind(module.FAULT["kind"]).noise:
+        return module.MEASUREMENT_STD
+    return module.measurement_std(np.array([r.mean for r in results]).T).T
 
 
 def log_density(z: np.ndarray, std: np.ndarray) -> np.ndarray:

@@ -341,3 +341,8 @@ class Isolation:
     kalman_onsets: dict
     kalman_reach: list
     events: tuple = ()
+
+    def untried(self, package) -> list[str]:
+        """The fault models of ``package`` the symbols ruled out and that
+        are not tried (sorted)."""
+        return sorted({n for n in self.ruled_out if n in package.MODELS} - set(self.names))

@@ -77,12 +77,12 @@ def offspring_counts(w, rng, overwrite=False, chunk=8192):
     return counts
 
 
-def noise_variance(model, x, w):
-    """The measurement noise's variance (n_y,) over the weighted particles
-    ``x`` (weights ``w``): MEASUREMENT_STD squared, or for a model whose noise
-    std differs from particle to particle (a noise fault: its
-    ``measurement_std(x)`` is (n_y, N)) its weighted mean."""
-    r = model.measurement_std(x)
+def noise_variance(r, w):
+    """The measurement noise's variance (n_y,) over weighted particles
+    (weights ``w``) from their noise std ``r``, a model's
+    ``measurement_std(x)``: MEASUREMENT_STD (n_y,) squared, or for a model
+    whose noise std differs from particle to particle (a noise fault: (n_y,
+    N)) its weighted mean."""
     return r ** 2 if r.ndim == 1 else (r * r) @ w
 
 
@@ -227,7 +227,7 @@ class _Filter:
         measurement noise included."""
         w = self._weights() if logw is None else _exp_normalised(logw)[0]
         mean, std = self.model._kernel.moments(yhat, w)
-        return mean, np.sqrt(std ** 2 + noise_variance(self.model, x, w))
+        return mean, np.sqrt(std ** 2 + noise_variance(self.model.measurement_std(x), w))
 
     def run(self, ys, us, dt=None):
         """Filter a whole record: ys (T, n_y), us (T, n_u). Returns a FilterRun."""
@@ -320,7 +320,7 @@ class GenericParticleFilter(_Filter):
         mean, spread = model._kernel.moments(yhat, w)
         if y is not None:
             self.logw += model._kernel.gaussian_loglik(y, yhat, std)
-        return mean, np.sqrt(spread * spread + (std * std) @ w)
+        return mean, np.sqrt(spread * spread + noise_variance(std, w))
 
 
 class AuxiliaryParticleFilter(_Filter):
@@ -440,7 +440,7 @@ class OptimalProposalParticleFilter(_Filter):
         w = self._weights()
         y_mean, y_spread = model._kernel.moments(h0, w)
         seen_noise = np.einsum("nij,nij->in", A, A) @ w
-        y_std = np.sqrt(y_spread * y_spread + seen_noise + (r * r if r.ndim == 1 else (r * r) @ w))
+        y_std = np.sqrt(y_spread * y_spread + seen_noise + noise_variance(r, w))
         A, h0, r = A[:, seen], h0[seen], r[seen]
         r = r if r.ndim == 1 else r.T  # (n_s,), or (N, n_s): broadcasts against a particle's row
         n_s = r.shape[-1]
