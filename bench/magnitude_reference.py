@@ -1,8 +1,9 @@
-"""How well can the magnitude of the RO plant's R_pipe fault (the slope of its
-drift, or the bias of its step) be known from the data? bgc's estimate against
+"""How well can the magnitude of an RO fault (the slope of R_pipe's drift, the
+bias of its step, P_memb's sensor bias or drift) be known from the data? bgc's estimate against
 an exact-in-the-limit reference on the same data.
 
-    .venv/bin/python bench/magnitude_reference.py [--kind incipient|abrupt] [--seeds 5] [--first-seed 100]
+    .venv/bin/python bench/magnitude_reference.py [--kind incipient|abrupt|sensor-bias|sensor-drift] [--seeds 5]
+                                                  [--first-seed 100]
                                                   [--particles 1000] [--method gpf|apf] [--ref-particles 2000]
 
 The RO plant is not linear in its states, so the reference is a grid posterior
@@ -17,6 +18,11 @@ tau of p(y | tau, c). Its mean and std are what the data allow; bgc's estimate
 run by run, and so is bgc's optional refinement (``--refine``:
 :mod:`bgc.runtime.identify`, the same idea on a small grid around the
 filter's interval).
+
+The sensor faults (``--kind sensor-bias|sensor-drift``, P_memb's) enter the
+same way: the fault model's augmented state is the sensor's offset (and its
+slope), held at the grid's value, so the bootstrap filters weigh the readings
+against h(x) plus that offset.
 
 The reference filter is written here (a plain bootstrap filter with
 systematic resampling on the generated model's ``transition`` and
@@ -48,11 +54,20 @@ from bgc.runtime import track  # noqa: E402
 from bgc.runtime.diagnose import DiagnosisOptions  # noqa: E402
 
 ONSET = 165.0
-#: kind -> (fault model, true magnitude, reference grid of onsets (steps; dt = 1, run time t = step + 1), of
-#: magnitudes): a drift's onset and slope trade off (a wide onset grid); a step's onset is sharp.
+#: kind -> (what fails, its fault kind, fault model, true magnitude, reference grid of onsets (steps; dt = 1,
+#: run time t = step + 1), of magnitudes): a drift's onset and slope trade off (a wide onset grid); a step's
+#: onset is sharp. The sensor faults are P_memb's: a bias of 3 measurement stds (21.82, the campaign
+#: experiments/sensor_faults.yaml's detection-delay case, whose onset is less sharp than a large step's),
+#: and a drift of 0.3 per unit time (40.5 by the end of the run, 5.6 stds).
 KINDS = {
-    "incipient": ("R_pipe_incipient", 0.5, list(range(145, 186, 3)), np.round(np.arange(0.30, 0.701, 0.02), 4)),
-    "abrupt": ("R_pipe_abrupt", 31.0, list(range(162, 169)), np.round(np.arange(25.0, 37.01, 0.25), 4)),
+    "incipient": ("R_pipe", "incipient", "R_pipe_incipient", 0.5, list(range(145, 186, 3)),
+                  np.round(np.arange(0.30, 0.701, 0.02), 4)),
+    "abrupt": ("R_pipe", "abrupt", "R_pipe_abrupt", 31.0, list(range(162, 169)),
+               np.round(np.arange(25.0, 37.01, 0.25), 4)),
+    "sensor-bias": ("P_memb", "bias", "P_memb_offset_bias", 21.82, list(range(158, 172, 1)),
+                    np.round(np.arange(17.0, 26.61, 0.3), 4)),
+    "sensor-drift": ("P_memb", "drift", "P_memb_offset_drift", 0.3, list(range(145, 186, 3)),
+                     np.round(np.arange(0.15, 0.451, 0.01), 4)),
 }
 
 
@@ -119,10 +134,10 @@ def main() -> None:
     ap.add_argument("--ref-particles", type=int, default=2000)
     args = ap.parse_args()
     package = track.load_package(ROOT / "generated", "ro", "models/ro.yaml")
-    name, truth, taus, values = KINDS[args.kind]
-    what, whats = ("slope", "slopes") if args.kind == "incipient" else ("bias", "biases")
-    scenario = f"R_pipe:{args.kind}:{truth:g}@{ONSET:g}"
-    print(f"{scenario} (R_pipe {args.kind}, {what} {truth:g} from t = {ONSET:g}); reference grid: onsets "
+    subject, kind, name, truth, taus, values = KINDS[args.kind]
+    what, whats = ("slope", "slopes") if kind in ("incipient", "drift") else ("bias", "biases")
+    scenario = f"{subject}:{kind}:{truth:g}@{ONSET:g}"
+    print(f"{scenario} ({subject} {kind}, {what} {truth:g} from t = {ONSET:g}); reference grid: onsets "
           f"{taus[0]}..{taus[-1]} step {taus[1] - taus[0]}, {whats} {values[0]:g}..{values[-1]:g} step "
           f"{values[1] - values[0]:g}, {args.ref_particles} particles per filter\n")
     print("| seed | bgc estimate | bgc 95 % interval | bgc error % | bgc --refine | its interval | its error % | "
