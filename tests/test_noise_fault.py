@@ -298,6 +298,10 @@ def test_a_simulated_burst_multiplies_the_sensors_noise_from_the_onset(session):
     assert after_std / before_std == pytest.approx(5.0, rel=0.1)
     np.testing.assert_array_equal(run.parameter, np.where(after, 5.0, 1.0))
     assert "theta:F12_noise" in sim.to_csv(run)
+    # what bgc simulate prints: the std's factor 1 + 4, not a "bias"
+    assert fault.describe() == "sensor F12 noise, std 5 times its own (magnitude 4) from t = 250"
+    assert sim.parse_fault("F12:noise:-0.5@250", num).describe() == \
+        "sensor F12 noise, std 0.5 times its own (magnitude -0.5) from t = 250"
 
 
 # ------------------------------------------------------------------ diagnosis

@@ -59,8 +59,11 @@ class FaultInjection:
         return fault_kind(self.kind).value(nominal, self.magnitude, self.time, t)
 
     def describe(self) -> str:
+        kind = fault_kind(self.kind)
+        size = (f"std {kind.noise_factor(self.magnitude):g} times its own (magnitude {self.magnitude:g})"
+                if kind.noise else f"{kind.magnitude} {self.magnitude:g}")
         return (f"{self.target + ' ' if self.target != 'parameter' else ''}{self.subject or self.parameter} "
-                f"{self.kind}, {fault_kind(self.kind).magnitude} {self.magnitude:g} from t = {self.time:g}")
+                f"{self.kind}, {size} from t = {self.time:g}")
 
 
 @dataclass(frozen=True, slots=True)
