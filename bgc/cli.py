@@ -305,9 +305,8 @@ def _write_report(r, output: str, command: str, with_run: bool) -> Path:
         print(f"  {e.magnitude} of {e.parameter}: {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}] "
               f"({100 * e.level:.0f} %{edge.get(e.bound, '')}){truth}")
     if command == "diagnose":
-        for e in d.events:
-            if isinstance(e, events.NOTABLE):
-                print(f"  note: {printable(events.sentence(e, d.time_of))}")
+        for line in events.notes(d.events, d.time_of):
+            print(f"  note: {printable(line)}")
     print(f"wrote {printable(str(out))}/: report.md, report.json, {len(files) - 3} more files "
           f"(diagnosis {d.seconds:.1f} s)")
     return out

@@ -99,3 +99,18 @@ def test_a_fault_model_the_symbols_ruled_out_is_weighed_before_another_is_named(
     d0 = bgc.diagnose(noisy_tanks, scenario="R12:incipient:0.01@75", seed=6, options=alone).diagnosis
     assert (d0.verdict, d0.candidates) == ("isolated", ("R20_abrupt",))
     assert not any(h.ruled_out for h in d0.hypotheses)
+
+
+def test_the_command_line_says_the_overruled_hypotheses_in_one_note():
+    """Two or more fault models overruled: one sentence naming them, where
+    the first stood; the other notable events keep their own sentences and
+    order; events the command line does not print (Started) are left out."""
+    from bgc.output.events import notes, sentence
+
+    time_of = lambda step: float(step)  # noqa: E731
+    gap = ev.Gap(step=3, steps=12)
+    a, b = ev.Overruled("R12_incipient", "F20: +", 9), ev.Overruled("R20_abrupt", "F12: -", 9)
+    lines = notes([ev.Started(1, "R10_abrupt", (1, 2)), a, gap, b], time_of)
+    assert len(lines) == 2 and lines[1] == sentence(gap, time_of)
+    assert lines[0].startswith("R12_incipient, R20_abrupt: ruled out by the symbols")
+    assert notes([gap, a], time_of) == [sentence(gap, time_of), sentence(a, time_of)]

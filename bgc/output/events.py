@@ -132,6 +132,27 @@ NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.InputFromMode
            ev.SensorExcluded, ev.Overruled, ev.Uncertain)
 
 
+def notes(events, time_of) -> list[str]:
+    """The :data:`NOTABLE` events among ``events`` in words, for the command
+    line: two or more :class:`~bgc.runtime.events.Overruled` are one
+    sentence naming them all, in the place of the first (the report keeps
+    one sentence each, with the symbol that ruled each out)."""
+    overruled = [e.hypothesis for e in events if isinstance(e, ev.Overruled)]
+    out, said = [], False
+    for e in events:
+        if not isinstance(e, NOTABLE):
+            continue
+        if isinstance(e, ev.Overruled) and len(overruled) > 1:
+            if not said:
+                out.append(f"{', '.join(overruled)}: ruled out by the symbols, but with their magnitudes held static "
+                           f"they explain the data as well as the others: candidates all the same (the report says "
+                           f"which symbol ruled out each)")
+                said = True
+            continue
+        out.append(sentence(e, time_of))
+    return out
+
+
 def fault_sentence(e, since) -> str:
     """What a fault estimate ``e`` (:class:`~bgc.runtime.values.Estimate`)
     says in plain words: which kind of thing failed (a sensor, an actuator,
