@@ -110,6 +110,37 @@ def test_a_faults_deviation_and_its_unit_response_are_the_hand_derived_maps():
     assert np.allclose(fam.response("R12_abrupt")[:, column], expected, rtol=1e-6, atol=1e-6 * np.abs(expected).max())
 
 
+def test_a_sensor_drifts_unit_response_is_the_time_since_its_onset_on_its_own_reading():
+    """F12's drift (the offset grows by the slope times dt per step, from 0 at
+    the onset sample) moves F12's reading by m dt per unit slope m samples
+    after its onset, and no other reading: the linearised unit response,
+    unwhitened, is that ramp. (A central difference of 1e-6 of the offset's
+    nominal 0 once lost the step in the reading and made it 0.)"""
+    T, onset = 60, 17
+    package, fam = two_tank(T)
+    dt = package.MODELS["nominal"].DT
+    column = list(fam.onsets).index(onset)
+    ramp = np.zeros((T, 3))
+    ramp[onset:, 1] = (np.arange(onset, T) - onset) * dt  # outputs F10, F12, F20
+    expected = fam.whitening.apply(ramp[:, :, None]).ravel()
+    assert np.abs(expected).max() > 0
+    assert np.allclose(fam.response("F12_offset_drift")[:, column], expected, rtol=1e-6,
+                       atol=1e-6 * np.abs(expected).max())
+
+
+def test_a_sensor_drift_rival_is_fitted_not_taken_for_no_fault():
+    """Truth: F12's bias, +0.05 from sample 20 of 120. A drift of F12 fits
+    part of that step (a ramp through it, rising), so it is a rival with a
+    positive slope that diverges from the truth less than no fault does
+    (before the fix, every sensor drift rival came out as "no fault", its
+    magnitude 0 and its divergence the truth's from no fault)."""
+    package, fam = two_tank(120)
+    d = distinguish.distinguish(fam, "F12_offset_bias", 0.05, 20, {})
+    assert d.misfit < 1e-9 * d.divergence
+    drift = next(r for r in d.rivals if r.name == "F12_offset_drift")
+    assert drift.magnitude > 0 and 0 < drift.expected < 0.9 * d.divergence
+
+
 def test_the_bayes_factor_over_data_sets_has_the_predicted_mean_and_spread():
     """The truth, R12 up by 0.6 from sample 135, against R10's best fit (a
     decrease): 400 data sets drawn from the truth's Gaussian model, the log

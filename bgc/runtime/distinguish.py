@@ -719,7 +719,12 @@ def _unit_responses(model: ModuleType, F: np.ndarray, H: np.ndarray, x_before: n
     fixed = np.asarray(model.X0, dtype=float)[n:]
     nf = len(fixed)
     prior = np.abs(np.asarray(model.FAULT_PRIOR, dtype=float))
-    steps = np.array([1e-6 * max(abs(v), 1e-12) for v in fixed[:-1]] + [1e-6 * max(prior.max(), 1e-12)])
+    # central-difference steps: 1e-6 of each fault state's size. A drifting state whose nominal value is 0 (a
+    # sensor's or an actuator's offset) takes the size of what the drift can reach over the run: a step of 1e-6
+    # of nothing would be lost in the reading it is added to, and the drift's response would come out 0
+    reach = float(prior.max()) * T * float(model.DT)
+    steps = np.array([1e-6 * max(abs(v) if v != 0 else reach, 1e-12) for v in fixed[:-1]] +
+                     [1e-6 * max(prior.max(), 1e-12)])
     before = np.hstack([x_before, np.tile(fixed, (T, 1))])
     after = np.hstack([x_after, np.tile(fixed, (T, 1))])
     rows = range(n, n + nf)
