@@ -1,0 +1,77 @@
+"""Recompute the prediction columns of a finished campaign's ``runs.csv``
+with the code of this checkout, and leave every other column as the
+campaign wrote it.
+
+    .venv/bin/python experiments/repredict.py CONFIG.yaml DIR
+    .venv/bin/bgc experiment CONFIG.yaml -o DIR      # rewrites the tables: every run is reused
+
+The prediction columns (``separable``, ``rivals``, ``separation``,
+``detectability``) are what ``bgc distinguish`` predicts of a run's scenario
+(:func:`bgc.campaign._separation`). They depend on the model, the scenario,
+the noise levels and the run's length only; the diagnosis never reads them.
+When a fix to ``bgc distinguish`` leaves the diagnosis unchanged (commit
+21e3e08: a sensor's or an actuator's drift as a rival had been taken for no
+fault), this gives the rows a campaign run at this checkout would give,
+without running the diagnoses again.
+
+The old file is kept beside the new one as ``runs.csv.before-repredict``
+(a new file: the script refuses if it exists). The script only rewrites a
+``runs.csv`` bgc wrote (its first line carries bgc's mark).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from tqdm import tqdm
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from bgc import campaign  # noqa: E402
+from bgc.output.artifacts import MARK  # noqa: E402
+
+COLUMNS = ("separable", "rivals", "separation", "detectability")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("config", type=Path)
+    ap.add_argument("folder", type=Path)
+    args = ap.parse_args()
+    runs = args.folder / "runs.csv"
+    kept = args.folder / "runs.csv.before-repredict"
+    with open(runs, encoding="utf-8") as f:
+        if MARK not in f.readline():
+            print(f"{runs}: not a runs.csv bgc wrote (no '{MARK}' on its first line): left alone", file=sys.stderr)
+            return 1
+    if kept.exists():
+        print(f"{kept} exists: move it away first (this script never overwrites it)", file=sys.stderr)
+        return 1
+    c = campaign.load_campaign(args.config)
+    specs = {s.id: s for s in c.specs}
+    rows = campaign.read_rows(runs)
+    changed = 0
+    todo = [(row, specs[row["id"]]) for row in rows if row["id"] in specs and specs[row["id"]].fault is not None]
+    # by model and noise levels: each is compiled, and its families prepared, once (as in a campaign's worker)
+    todo.sort(key=lambda rs: (rs[1].model_name, rs[1].noise))
+    for row, spec in tqdm(todo, desc="predictions", unit="run"):
+        campaign._session(spec, spec.process_noise, spec.measurement_noise)  # its compiled model, for the prediction
+        new = dict.fromkeys(COLUMNS) | campaign._separation(spec)
+        if any(new[k] != row[k] for k in COLUMNS):
+            changed += 1
+        row.update(new)
+    data = campaign.csv_header(c) + "".join(campaign.csv_row(r) for r in rows)
+    os.link(runs, kept)  # the old rows stay under the new name
+    tmp = runs.with_name("runs.csv.repredict-tmp")
+    tmp.write_text(data, encoding="utf-8")
+    os.replace(tmp, runs)
+    print(f"{runs}: {len(rows)} rows, the predictions of {changed} changed; the old file is {kept}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
