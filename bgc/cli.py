@@ -517,7 +517,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             print(printable(f"  {e.name}: not identifiable, kept at {e.start_level:.6g} ({e.why})"))
             continue
         std = f" (std {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}])" if e.kind == "measurement_noise" else ""
-        bound = ", at the end of the range searched" if e.at_bound else ""
+        bound = ""
+        if e.at_bound:
+            bound = ", the data show none" if e.value == 0 else ", at the end of the range searched"
         print(printable(f"  {e.name}: {e.level:.6g} in [{e.level_low:.6g}, {e.level_high:.6g}] (95 %){std}, "
                         f"was {e.start_level:.6g}{bound}"))
     for i in cal.innovations:

@@ -78,6 +78,20 @@ def test_rc_noise_variance_is_the_mean_squared_residual(rc, seed):
     assert r.calibration.loglik == pytest.approx(-0.5 * T * (math.log(2 * math.pi * expected) + 1), rel=1e-9)
 
 
+def test_rc_process_noise_the_data_do_not_show_is_zero(rc):
+    """Asked for the process level too, on data without process noise: its
+    likelihood is highest at 0, so it is 0 with a one-sided interval, and
+    the sensor's noise is the closed form again (the trajectory is then
+    known exactly)."""
+    run, clean = rc_run(rc, 0.05, 200, 1)
+    r = rc.calibrate(run)  # noise: the sensor's and the process level
+    p = r.calibration.estimate("process noise")
+    assert p.value == 0 and p.low == 0 and p.at_bound and 0 < p.high < 0.05
+    e = r.calibration.estimate("noise e1")
+    assert e.value ** 2 == pytest.approx(float(np.mean((run.measurements["e1"] - clean) ** 2)), rel=1e-6)
+    assert "process_noise: 0.0\n" in r.text and "the data show none" in r.text
+
+
 def test_rc_product_of_parameters_is_not_identifiable(rc):
     """R and C enter the drain only as R C: each alone is named as not
     identifiable and keeps the model's value, and the noise is estimated

@@ -96,7 +96,10 @@ def _comment(e: Estimate, what: str, data: str, std: str | None) -> str:
         return f"# bgc calibrate: {what} kept at the model's {e.start_level:.6g}: the data ({data}) cannot " \
                f"identify it: {e.why}"
     extra = f", std {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}]" if std else ""
-    bound = "; at the end of the range searched" if e.at_bound else ""
+    bound = ""
+    if e.at_bound:
+        bound = "; the data show none (the likelihood is highest at 0)" if e.value == 0 else \
+            "; at the end of the range searched"
     return (f"# bgc calibrate: {what} {e.level:.6g} in [{e.level_low:.6g}, {e.level_high:.6g}] (95 %){extra} "
             f"from {data} (was {e.start_level:.6g}){bound}")
 

@@ -86,6 +86,11 @@ MAX_SPAN = 100.0
 FLAT = 1e-9
 #: The 95 % point of the standard normal.
 Z95 = 1.959963984540054
+#: A process level that falls this far (a logarithm: 1000 times) below its start is taken as 0.
+ZERO_FALL = math.log(1e3)
+#: The fall of the log-likelihood that ends the interval of a level estimated at 0 (the chi-square
+#: quantile of 0.90 with one degree of freedom, halved: a one-sided 95 % bound at the boundary).
+ZERO_DROP = 2.705543454095404 / 2
 #: How far (in the optimiser's coordinates) an estimate may move from its start.
 REACH = 15.0
 
@@ -237,17 +242,20 @@ def record_of(run: Run, model: ModuleType) -> Record:
 class _Likelihood:
     """The log-likelihood of the records as a function of the optimiser's
     coordinates ``z``: the sensors' log stds, the log process level, then
-    the parameters (log |value|, or the value when the model's is 0)."""
+    the parameters (log |value|, or the value when the model's is 0).
+    ``level``: the process level when it is held at another value than the
+    model's (0: the data show none)."""
 
     def __init__(self, model: ModuleType, numerics: Numerics, records: Sequence[Record],
-                 sensors: Sequence[str], process: bool, parameters: Sequence[str]):
+                 sensors: Sequence[str], process: bool, parameters: Sequence[str], level: float | None = None):
         self.model, self.numerics, self.records = model, numerics, tuple(records)
         self.sensor_rows = [list(model.OUTPUTS).index(s) for s in sensors]
         self.process = process
         self.param_rows = [list(model.PARAMETERS).index(p) for p in parameters]
         self.theta0 = np.asarray(model.THETA, dtype=float)
         self.sigma0 = np.asarray(model.MEASUREMENT_STD, dtype=float)
-        self.level0 = float(numerics.equations.model.settings.process_noise)
+        self.fixed_level = level  # a process level held (None: the model's)
+        self.level0 = float(numerics.equations.model.settings.process_noise if level is None else level)
         self.signs = [float(np.sign(self.theta0[i])) for i in self.param_rows]  # 0: linear coordinate
         self.physical = [i for i, k in enumerate(getattr(model, "STATE_KINDS", ("physical",) * len(model.STATES)))
                          if k == "physical"]
@@ -304,7 +312,7 @@ class _Likelihood:
         sigma, level, theta = self.values(z)
         ns = types.ModuleType(self.model.__name__)
         ns.__dict__.update(vars(self.model))
-        process = np.array(self.numerics.noise_at(level if self.process else None).process, dtype=float)
+        process = np.array(self.numerics.noise_at(level if self.process else self.fixed_level).process, dtype=float)
         if self.param_rows:
             process = process * self._factors(theta) / self.factor0
         std = np.asarray(self.model.PROCESS_STD, dtype=float).copy()
@@ -507,10 +515,13 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
     held: dict[str, str] = {s: "no sample of it in the data" for s in silent}
     settings = numerics.equations.model.settings
     y_scale = np.asarray(numerics.y_scale, dtype=float)
+    zero = False  # the process level's likelihood is highest at 0: held there
+    evaluations = 0
     while True:
         free_params = [p for p in parameters if p not in held]
-        lik = _Likelihood(model, numerics, records, [s for s in asked if f"noise {s}" not in held],
-                          process and "process noise" not in held, free_params)
+        free_sensors = [s for s in asked if f"noise {s}" not in held]
+        free_process = process and "process noise" not in held and not zero
+        lik = _Likelihood(model, numerics, records, free_sensors, free_process, free_params, 0.0 if zero else None)
         z0 = lik.start()
         start_loglik = lik(z0)
         if not math.isfinite(start_loglik):
@@ -518,7 +529,11 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
                                    " is not finite at its own values", None,
                                    "check that the data are of this model and its units")
         z, best, H, converged, message = _fit(lik, z0)
-        names = [f"noise {s}" for s in asked if f"noise {s}" not in held]
+        evaluations += lik.evaluations
+        if free_process and z[len(free_sensors)] < z0[len(free_sensors)] - ZERO_FALL:
+            zero = True
+            continue
+        names = [f"noise {s}" for s in free_sensors]
         names += ["process noise"] if lik.process else []
         names += free_params
         logs = [True] * (len(names) - len(free_params)) + [bool(s) for s in lik.signs]
@@ -526,6 +541,8 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
         if not why:
             break
         held.update(why)
+    if zero:
+        start_loglik = _Likelihood(model, numerics, records, [], False, [])(np.zeros(0))
     sigma, level, theta = lik.values(z)
     cov = np.linalg.inv(H) if len(z) else np.zeros((0, 0))
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -547,7 +564,11 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
         k += 1
     if process:
         q0 = float(settings.process_noise)
-        if "process noise" in held:
+        if zero:
+            upper = _zero_upper(model, numerics, records, free_sensors, free_params, z, best)
+            estimates.append(Estimate("process_noise", "process", 0.0, 0.0, upper, 0.0, 0.0, upper, q0, q0,
+                                      at_bound=True))
+        elif "process noise" in held:
             estimates.append(Estimate("process_noise", "process", q0, math.nan, math.nan, q0, math.nan, math.nan,
                                       q0, q0, False, held["process noise"]))
         else:
@@ -571,7 +592,30 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
     return Calibration(tuple(estimates), float(best), float(start_loglik), tuple(names),
                        tuple(tuple(float(c) for c in row) for row in corr), innovations(filters, outputs),
                        _sources(records), sum(int(np.isfinite(r.ys).any(axis=1).sum()) for r in records),
-                       converged, message, lik.evaluations, time.perf_counter() - start_time)
+                       converged, message, evaluations, time.perf_counter() - start_time)
+
+
+def _zero_upper(model: ModuleType, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
+                parameters: Sequence[str], z: np.ndarray, best: float) -> float:
+    """The upper end of the process level's 95 % interval when its
+    likelihood is highest at 0 (the other estimates ``z`` held): the level
+    where the log-likelihood has fallen by ``ZERO_DROP`` from ``best`` (a
+    one-sided bound at the edge of the parameter space, Self and Liang
+    1987); NaN when it does not fall that far below ``MAX_SPAN`` times the
+    model's level."""
+    from scipy.optimize import brentq
+
+    lik = _Likelihood(model, numerics, records, sensors, True, parameters)
+    k = len(sensors)
+    start = float(lik.start()[k])
+
+    def drop(log_level: float) -> float:
+        return lik(np.concatenate([z[:k], [log_level], z[k:]])) - (best - ZERO_DROP)
+
+    low, high = start - 3 * ZERO_FALL, start + math.log(MAX_SPAN)
+    if not (drop(low) > 0 > drop(high)):
+        return math.nan
+    return float(math.exp(brentq(drop, low, high, xtol=1e-6)))
 
 
 def _at_bound(z: float, start: float) -> bool:
