@@ -78,6 +78,27 @@ def test_rc_noise_variance_is_the_mean_squared_residual(rc, seed):
     assert r.calibration.loglik == pytest.approx(-0.5 * T * (math.log(2 * math.pi * expected) + 1), rel=1e-9)
 
 
+def test_rc_several_recordings_with_gaps_and_missing_cells(rc):
+    """Two recordings, one with a gap of 10 rows and empty cells: the data
+    meet the model's time grid as in a diagnosis (the filter predicts across
+    the gap, a cell not read adds no term), so the maximum is the mean
+    squared residual over the samples read, the trajectory taken at each
+    sample's step of the grid."""
+    first, clean1 = rc_run(rc, 0.05, 150, 8)
+    second, clean2 = rc_run(rc, 0.05, 120, 9)
+    keep = np.ones(120, dtype=bool)
+    keep[40:50] = False  # a gap
+    y2 = second.measurements["e1"].copy()
+    y2[[5, 70, 71]] = np.nan  # cells not read
+    second = runs.Run(second.time[keep], {}, {"e1": y2[keep]}, {}, {}, second.header, "rc2.csv")
+    r = rc.calibrate([first, second], "measurement_noise")
+    residuals = np.concatenate([first.measurements["e1"] - clean1, (y2 - clean2)[keep]])
+    expected = float(np.nanmean(residuals ** 2))
+    assert r.calibration.samples == 150 + 110 - 3
+    assert r.calibration.estimate("noise e1").value ** 2 == pytest.approx(expected, rel=1e-6)
+    assert r.calibration.sources == ("rc.csv", "rc2.csv") and "from rc.csv, rc2.csv" in r.text
+
+
 def test_rc_process_noise_the_data_do_not_show_is_zero(rc):
     """Asked for the process level too, on data without process noise: its
     likelihood is highest at 0, so it is 0 with a one-sided interval, and
