@@ -91,6 +91,10 @@ ZERO_FALL = math.log(1e3)
 #: The fall of the log-likelihood that ends the interval of a level estimated at 0 (the chi-square
 #: quantile of 0.90 with one degree of freedom, halved: a one-sided 95 % bound at the boundary).
 ZERO_DROP = 2.705543454095404 / 2
+#: The length of the optimiser's first step (its objective is scaled to that gradient at the start).
+FIRST_STEP = 0.1
+#: Starts of the optimiser from where it stopped, when that is not a maximum.
+RESTARTS = 2
 #: How far (in the optimiser's coordinates) an estimate may move from its start.
 REACH = 15.0
 
@@ -382,39 +386,73 @@ def _steps(z: np.ndarray) -> np.ndarray:
 
 def _fit(lik: _Likelihood, z0: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, bool, str]:
     """The maximum of ``lik`` from ``z0``: (z, log-likelihood, Hessian of the
-    negative log-likelihood there, converged, the optimiser's message)."""
+    negative log-likelihood there, converged, the optimiser's message).
+
+    L-BFGS-B's first step is the whole gradient: the objective is scaled so
+    that its gradient at the start has the length ``FIRST_STEP`` (a model far
+    off the data has a steep likelihood, and a first step of several units of
+    a logarithm leaves the region where the filter's likelihood is finite).
+    Where the optimiser stops short of a maximum (the Hessian not positive
+    definite, a gradient not small), it is started again from there, up to
+    ``RESTARTS`` times."""
     from scipy.optimize import minimize
 
     if len(z0) == 0:
         return z0, lik(z0), np.zeros((0, 0)), True, "nothing to estimate"
-    scale = max(1.0, abs(lik(z0)))
-
-    def objective(z):
-        v = lik(z)
-        return -v / scale if math.isfinite(v) else 1e30
-
-    bounds = [(v - REACH, v + REACH) for v in z0]
-    res = minimize(objective, z0, method="L-BFGS-B", bounds=bounds,
-                   options={"maxiter": 500, "ftol": 1e-11, "gtol": 1e-8, "maxfun": 20000})
-    z, best = np.asarray(res.x, dtype=float), -float(res.fun) * scale
     neg = lambda v: -lik(v)  # noqa: E731 - the negative log-likelihood, for the differences
-    g, H = _hessian(neg, z, _steps(z), -best)
-    for _ in range(3):  # Newton steps (the Hessian kept): the optimiser stops on a relative change of the objective
-        try:
-            step = -np.linalg.solve(H, g)
-        except np.linalg.LinAlgError:
-            break
-        if not np.all(np.isfinite(step)) or np.max(np.abs(step)) > 1.0 or np.any(np.linalg.eigvalsh(H) <= 0):
-            break
-        trial = z + step
-        value = lik(trial)
-        if not (math.isfinite(value) and value >= best):
-            break
-        z, best = trial, value
-        if np.max(np.abs(step)) < 1e-10:
-            break
+    bounds = [(v - REACH, v + REACH) for v in z0]
+    z = z0
+    for _ in range(RESTARTS + 1):
         g = _gradient(neg, z, _steps(z))
-    return z, best, H, bool(res.success), str(res.message)
+        scale = max(float(np.linalg.norm(g)) / FIRST_STEP, 1e-300) if np.all(np.isfinite(g)) else 1.0
+        high = abs(lik(z)) / scale + 1e6  # what a non-finite likelihood costs: above any value seen from here
+
+        def objective(v, scale=scale, high=high):
+            value = lik(v)
+            return -value / scale if math.isfinite(value) else high
+
+        res = minimize(objective, z, method="L-BFGS-B", bounds=bounds,
+                       options={"maxiter": 1000, "ftol": 1e-12, "gtol": 1e-9, "maxfun": 20000})
+        z, best = np.asarray(res.x, dtype=float), lik(np.asarray(res.x, dtype=float))
+        g, H = _hessian(neg, z, _steps(z), -best)
+        for _ in range(3):  # Newton steps (the Hessian kept): the optimiser stops on a relative change
+            try:
+                step = -np.linalg.solve(H, g)
+            except np.linalg.LinAlgError:
+                break
+            if not np.all(np.isfinite(step)) or np.max(np.abs(step)) > 1.0 or np.any(np.linalg.eigvalsh(H) <= 0):
+                break
+            trial = z + step
+            value = lik(trial)
+            if not (math.isfinite(value) and value >= best):
+                break
+            z, best = trial, value
+            if np.max(np.abs(step)) < 1e-10:
+                break
+            g = _gradient(neg, z, _steps(z))
+        inside = np.array([lo + 1e-7 < v < hi - 1e-7 for v, (lo, hi) in zip(z, bounds)])
+        if _at_maximum(g[inside], H[np.ix_(inside, inside)]):
+            return z, best, H, bool(res.success), str(res.message)
+    return z, best, H, False, f"no maximum reached after {RESTARTS + 1} starts ({res.message})"
+
+
+def _at_maximum(g: np.ndarray, H: np.ndarray) -> bool:
+    """Whether the negative log-likelihood's gradient ``g`` and Hessian ``H``
+    (over the coordinates not at an end of their range) say a minimum: no
+    direction of negative curvature beyond rounding, and a Newton step
+    (where the curvature is positive) under 0.01 of a unit of the
+    coordinates."""
+    if len(g) == 0:
+        return True
+    if not (np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
+        return False
+    w, V = np.linalg.eigh(H)
+    top = max(float(np.max(np.abs(w))), 1e-300)
+    if np.any(w < -1e-6 * top):
+        return False
+    along = V.T @ g
+    curved = w > FLAT * top
+    return bool(np.all(np.abs(along[curved] / w[curved]) < 1e-2))
 
 
 def _unidentifiable(names: Sequence[str], z: np.ndarray, H: np.ndarray, logs: Sequence[bool]) -> dict[str, str]:
@@ -533,6 +571,11 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
         if free_process and z[len(free_sensors)] < z0[len(free_sensors)] - ZERO_FALL:
             zero = True
             continue
+        if not converged and message.startswith("no maximum"):
+            raise CalibrationError(f"the likelihood of {', '.join(map(printable, _sources(records)))} has no "
+                                   f"maximum the optimiser could find ({message})", None,
+                                   "estimate fewer quantities (--estimate), or start from closer values in the "
+                                   "model file")
         names = [f"noise {s}" for s in free_sensors]
         names += ["process noise"] if lik.process else []
         names += free_params
