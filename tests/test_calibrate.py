@@ -333,6 +333,22 @@ def test_data_of_another_model_is_refused(rc, tanks):
 
 
 # ------------------------------------------------------------------- innovations
+def test_innovations_tell_a_model_that_misses_the_plant(rc, tmp_path):
+    """The innovations of the calibrated model: white on data of the model's
+    own plant; correlated (a tiny Ljung-Box p-value) and off 0 when the
+    model's time constant is 1.5 times the plant's and only the noise is
+    calibrated."""
+    run, _ = rc_run(rc, 0.01, 200, 10)
+    fits = rc.calibrate(run, "measurement_noise").calibration.innovations[0]
+    assert fits.sensor == "e1" and fits.samples == 200 and fits.lags == 20
+    assert fits.p_value > 1e-3 and abs(fits.mean) < 4 / math.sqrt(200)
+    slow = tmp_path / "rc_slow.yaml"
+    slow.write_text(RC.read_text(encoding="utf-8").replace("R: 2.0 ", "R: 3.0 "), encoding="utf-8")
+    misses = bgc.open(slow).calibrate(run, "measurement_noise").calibration.innovations[0]
+    # the model drains slower: it predicts high, the innovations (data minus prediction) are negative
+    assert misses.p_value < 1e-6 and misses.mean < -4 / math.sqrt(200)
+
+
 def test_ljung_box_against_its_formula_and_its_power():
     """Q = n (n + 2) sum_k r_k^2 / (n - k) (computed here with np.correlate);
     white noise passes, an AR(1) of coefficient 0.5 fails."""
