@@ -263,6 +263,14 @@ def test_text_edit_without_a_simulation_section():
     assert "from a.csv, b.csv (recorded 2026-11-26) (was 0.03)" in out
 
 
+def test_a_value_given_through_an_alias_is_refused():
+    text = "name: m\nparameters:\n  R: &r 1.0\n  C: *r\n"
+    e = cal.Estimate("parameter", "C", 2.0, 1.9, 2.1, 2.0, 1.9, 2.1, 1.0, 1.0)
+    c = cal.Calibration((e,), 0.0, 0.0, (), (), (), ("a.csv",), 10, True, "", 1, 0.1)
+    with pytest.raises(CalibrationError, match="parameters.C is written through a YAML alias"):
+        calibrated_text(text, "m.yaml", c, {})
+
+
 def test_writes_a_new_file_and_never_one_bgc_did_not_write(rc, tmp_path):
     model = tmp_path / "rc.yaml"
     original = RC.read_bytes()

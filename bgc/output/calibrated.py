@@ -31,7 +31,7 @@ from typing import Sequence
 
 import yaml
 
-from ..errors import InternalError, printable
+from ..errors import CalibrationError, InternalError, printable
 from ..output.artifacts import MARK
 from ..runtime.calibrate import Calibration, Estimate
 
@@ -114,12 +114,30 @@ def _entry(node: yaml.Node | None, key: str) -> tuple[yaml.Node, yaml.Node] | No
     return None
 
 
+def _shared(root: yaml.Node) -> set[int]:
+    """The nodes a YAML alias reaches as well (the same node object at more than one place)."""
+    seen: dict[int, int] = {}
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        seen[id(node)] = seen.get(id(node), 0) + 1
+        if seen[id(node)] > 1:
+            continue
+        if isinstance(node, yaml.MappingNode):
+            for k, v in node.value:
+                stack += [k, v]
+        elif isinstance(node, yaml.SequenceNode):
+            stack += list(node.value)
+    return {i for i, n in seen.items() if n > 1}
+
+
 def _edit(text: str, changes: Sequence[_Change]) -> str:
     """``text`` with every change made: a value replaced in place, or a key
     added to its mapping (a flow mapping gets ``, key: value`` before its
     ``}``, a block mapping a new line at its keys' indentation, an empty
     entry ``{key: value}``); each change's comment on a line above it."""
     root = yaml.compose(text, Loader=yaml.SafeLoader)
+    shared = _shared(root)
     spans: list[tuple[int, int, str]] = []  # (start, end, replacement) within one line
     above: dict[int, list[str]] = {}  # original line -> comments to put above it
     after: dict[int, list[tuple[str, str]]] = {}  # original line -> new lines (indented text, comment) after it
@@ -140,6 +158,10 @@ def _edit(text: str, changes: Sequence[_Change]) -> str:
                 node = value[1]
             line = node.start_mark.line
             above.setdefault(line, []).append(ch.comment)
+            if ch.text is not None and id(node) in shared:
+                raise CalibrationError(f"{'.'.join(ch.path)} is written through a YAML alias (*name): replacing it "
+                                       "would change every value the anchor gives", None,
+                                       "write the value in place of the alias, then calibrate")
             if ch.text is not None:
                 spans.append((node.start_mark.index, node.end_mark.index, ch.text))
             continue
