@@ -384,7 +384,7 @@ def _steps(z: np.ndarray) -> np.ndarray:
     return 1e-4 * np.maximum(1.0, np.abs(z))
 
 
-def _fit(lik: _Likelihood, z0: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, bool, str]:
+def _fit(lik: _Likelihood, z0: np.ndarray, stop=None) -> tuple[np.ndarray, float, np.ndarray, bool, str]:
     """The maximum of ``lik`` from ``z0``: (z, log-likelihood, Hessian of the
     negative log-likelihood there, converged, the optimiser's message).
 
@@ -394,7 +394,8 @@ def _fit(lik: _Likelihood, z0: np.ndarray) -> tuple[np.ndarray, float, np.ndarra
     a logarithm leaves the region where the filter's likelihood is finite).
     Where the optimiser stops short of a maximum (the Hessian not positive
     definite, a gradient not small), it is started again from there, up to
-    ``RESTARTS`` times."""
+    ``RESTARTS`` times, unless ``stop(z)`` says the caller takes it from
+    there (a level that heads for 0)."""
     from scipy.optimize import minimize
 
     if len(z0) == 0:
@@ -411,7 +412,11 @@ def _fit(lik: _Likelihood, z0: np.ndarray) -> tuple[np.ndarray, float, np.ndarra
             value = lik(v)
             return -value / scale if math.isfinite(value) else high
 
-        res = minimize(objective, z, method="L-BFGS-B", bounds=bounds,
+        def enough(intermediate_result):  # the caller takes it from there (SciPy >= 1.11 stops on StopIteration)
+            if stop is not None and stop(intermediate_result.x):
+                raise StopIteration
+
+        res = minimize(objective, z, method="L-BFGS-B", bounds=bounds, callback=enough,
                        options={"maxiter": 1000, "ftol": 1e-12, "gtol": 1e-9, "maxfun": 20000})
         z, best = np.asarray(res.x, dtype=float), lik(np.asarray(res.x, dtype=float))
         g, H = _hessian(neg, z, _steps(z), -best)
@@ -431,7 +436,7 @@ def _fit(lik: _Likelihood, z0: np.ndarray) -> tuple[np.ndarray, float, np.ndarra
                 break
             g = _gradient(neg, z, _steps(z))
         inside = np.array([lo + 1e-7 < v < hi - 1e-7 for v, (lo, hi) in zip(z, bounds)])
-        if _at_maximum(g[inside], H[np.ix_(inside, inside)]):
+        if _at_maximum(g[inside], H[np.ix_(inside, inside)]) or (stop is not None and stop(z)):
             return z, best, H, bool(res.success), str(res.message)
     return z, best, H, False, f"no maximum reached after {RESTARTS + 1} starts ({res.message})"
 
@@ -455,7 +460,7 @@ def _at_maximum(g: np.ndarray, H: np.ndarray) -> bool:
     return bool(np.all(np.abs(along[curved] / w[curved]) < 1e-2))
 
 
-def _unidentifiable(names: Sequence[str], z: np.ndarray, H: np.ndarray, logs: Sequence[bool]) -> dict[str, str]:
+def _unidentifiable(names: Sequence[str], H: np.ndarray, logs: Sequence[bool]) -> dict[str, str]:
     """The estimates the data cannot tell, each with why: on a flat or
     negative direction of the Hessian ``H``, correlated above
     ``MAX_CORRELATION`` with another, or an interval spanning more than a
@@ -554,21 +559,26 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
     settings = numerics.equations.model.settings
     y_scale = np.asarray(numerics.y_scale, dtype=float)
     zero = False  # the process level's likelihood is highest at 0: held there
-    evaluations = 0
+    start_loglik = _Likelihood(model, numerics, records, [], False, [])(np.zeros(0))  # at the model's values
+    evaluations = 1
     while True:
         free_params = [p for p in parameters if p not in held]
         free_sensors = [s for s in asked if f"noise {s}" not in held]
         free_process = process and "process noise" not in held and not zero
         lik = _Likelihood(model, numerics, records, free_sensors, free_process, free_params, 0.0 if zero else None)
         z0 = lik.start()
-        start_loglik = lik(z0)
-        if not math.isfinite(start_loglik):
+        if not math.isfinite(lik(z0)):
             raise CalibrationError(f"the model's likelihood of the data ({', '.join(map(printable, _sources(records)))})"
                                    " is not finite at its own values", None,
                                    "check that the data are of this model and its units")
-        z, best, H, converged, message = _fit(lik, z0)
+        k = len(free_sensors)  # the process level's coordinate
+
+        def heads_for_zero(z, k=k, z0=z0, free=free_process):
+            return bool(free and z[k] < z0[k] - ZERO_FALL)
+
+        z, best, H, converged, message = _fit(lik, z0, heads_for_zero)
         evaluations += lik.evaluations
-        if free_process and z[len(free_sensors)] < z0[len(free_sensors)] - ZERO_FALL:
+        if heads_for_zero(z):
             zero = True
             continue
         if not converged and message.startswith("no maximum"):
@@ -580,12 +590,10 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
         names += ["process noise"] if lik.process else []
         names += free_params
         logs = [True] * (len(names) - len(free_params)) + [bool(s) for s in lik.signs]
-        why = _unidentifiable(names, z, H, logs)
+        why = _unidentifiable(names, H, logs)
         if not why:
             break
         held.update(why)
-    if zero:
-        start_loglik = _Likelihood(model, numerics, records, [], False, [])(np.zeros(0))
     sigma, level, theta = lik.values(z)
     cov = np.linalg.inv(H) if len(z) else np.zeros((0, 0))
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
