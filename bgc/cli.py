@@ -525,6 +525,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     for i in cal.innovations:
         print(printable(f"  innovations of {i.sensor}: mean {i.mean:+.3f}, variance {i.variance:.3f}, Ljung-Box "
                         f"p = {i.p_value:.3g} ({i.lags} lags)"))
+    print(printable(f"  {cal.verdict}"))
     return 0
 
 

@@ -76,6 +76,8 @@ from .runs import Run
 
 #: The ``--estimate`` words that name noise (a parameter's name names itself).
 NOISE_WORDS = ("noise", "measurement_noise", "process_noise")
+#: The probability of a finding (:attr:`Calibration.findings`) when the model fits, over all sensors and tests.
+FIT_LEVEL = 0.01
 #: The start of the process level when the model declares none (0 has no logarithm).
 PROCESS_START = 0.01
 #: Largest |correlation| between two estimates for both to be identifiable.
@@ -182,6 +184,38 @@ class Calibration:
     message: str
     evaluations: int
     seconds: float
+
+    @property
+    def findings(self) -> tuple[str, ...]:
+        """What the innovations say is wrong with the calibrated model, one
+        sentence per sensor that fails a test at ``FIT_LEVEL`` (over every
+        sensor and test: Bonferroni): residuals correlated (Ljung-Box), off
+        0 (their mean, against its standard error 1 / sqrt(n)) or of another
+        variance than 1 (against its standard error sqrt(2 / n)); empty when
+        the model explains the data."""
+        out = []
+        if not self.innovations:
+            return ()
+        alpha = FIT_LEVEL / (3 * len(self.innovations))
+        from scipy.stats import norm
+
+        cut = float(norm.isf(alpha / 2))
+        for i in self.innovations:
+            if i.p_value < alpha:
+                out.append(f"sensor {i.sensor}'s residuals are correlated (Ljung-Box p = {i.p_value:.2g}): the model "
+                           "misses a dynamic")
+            elif abs(i.mean) * math.sqrt(i.samples) > cut:
+                out.append(f"sensor {i.sensor}'s residuals average {i.mean:+.3g} stds, not 0: the model misses an "
+                           "offset or a slow change of that reading")
+            elif abs(i.variance - 1) / math.sqrt(2 / i.samples) > cut:
+                out.append(f"sensor {i.sensor}'s residuals have variance {i.variance:.3g}, not 1: the model's "
+                           "noise does not fit that reading")
+        return tuple(out)
+
+    @property
+    def verdict(self) -> str:
+        """One line: "the model explains this data", or its findings."""
+        return "; ".join(self.findings) or "the model explains this data"
 
     def estimate(self, name: str) -> Estimate:
         """The estimate called ``name`` (``noise F10``, ``process noise``, a parameter)."""
