@@ -202,8 +202,9 @@ class Calibration:
         cut = float(norm.isf(alpha / 2))
         for i in self.innovations:
             if i.p_value < alpha:
-                out.append(f"sensor {i.sensor}'s residuals are correlated (Ljung-Box p = {i.p_value:.2g}): the model "
-                           "misses a dynamic")
+                p = f"p = {i.p_value:.2g}" if i.p_value > 0 else "p < 1e-300"
+                out.append(f"sensor {i.sensor}'s residuals are correlated (Ljung-Box {p}): the model misses a "
+                           "dynamic")
             elif abs(i.mean) * math.sqrt(i.samples) > cut:
                 out.append(f"sensor {i.sensor}'s residuals average {i.mean:+.3g} stds, not 0: the model misses an "
                            "offset or a slow change of that reading")
