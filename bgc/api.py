@@ -406,18 +406,45 @@ class CalibrationReport:
             not write it (or it changed since).
         """
         arguments.path("bgc.CalibrationReport.write", "path", path)
-        out = Path(path)
-        for other, what in [(self.model, "the model file")] + [(s, "a data file") for s in self.calibration.sources]:
-            try:
-                same = out.exists() and Path(other).exists() and out.samefile(other)
-            except OSError:
-                same = False
-            if same:
-                raise OutputError(f"{printable(str(out))} is {what}: a calibration never replaces it", None,
-                                  "write the calibrated model to a new file, e.g. -o calibrated.yaml")
+        check_calibration_output(path, self.model, self.calibration.sources)
         from .output import artifacts
 
-        return artifacts.write_file(out, self.text)
+        return artifacts.write_file(Path(path), self.text)
+
+
+def check_calibration_output(path: str | Path, model: str | Path, data=()) -> None:
+    """Refuse, before any work, a calibrated model's path that is the model
+    file, one of the ``data`` files, a folder, or an existing file bgc did
+    not write (or that changed since): what :meth:`CalibrationReport.write`
+    would refuse.
+
+    Raises
+    ------
+    OutputError
+        The path cannot take the calibrated model.
+    """
+    from .output import artifacts
+
+    out = Path(path)
+    where = printable(str(out))
+    for other, what in [(model, "the model file")] + [(d, "a data file") for d in data]:
+        try:
+            same = out.exists() and Path(other).exists() and out.samefile(other)
+        except (OSError, TypeError):
+            same = False
+        if same:
+            raise OutputError(f"{where} is {what}: a calibration never replaces it", None,
+                              "write the calibrated model to a new file, e.g. -o calibrated.yaml")
+    if out.is_dir() and not out.is_symlink():
+        raise OutputError(f"{where} is a folder", None, "give a file path for the calibrated model")
+    if out.exists() or out.is_symlink():
+        owner = artifacts.ownership(out)
+        if owner == "changed":
+            raise OutputError(f"{where} was changed after bgc wrote it", None,
+                              "move it away to keep it, or choose another output path")
+        if owner != "bgc":
+            raise OutputError(f"{where} exists and bgc did not write it", None,
+                              "choose another output path, or move the file away")
 
 
 def _model_text(path: str, c: pipeline.Compiled) -> str:

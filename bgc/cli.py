@@ -504,7 +504,10 @@ class _Progress:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     import bgc
 
+    from .api import check_calibration_output
+
     out = Path(args.output)
+    check_calibration_output(out, args.model, args.data)  # before any work
     start = time.perf_counter()
     session = bgc.open(args.model)
     report = session.calibrate(list(args.data), args.estimate)

@@ -271,7 +271,7 @@ def test_a_value_given_through_an_alias_is_refused():
         calibrated_text(text, "m.yaml", c, {})
 
 
-def test_writes_a_new_file_and_never_one_bgc_did_not_write(rc, tmp_path):
+def test_writes_a_new_file_and_never_one_bgc_did_not_write(rc, tmp_path, monkeypatch, capsys):
     model = tmp_path / "rc.yaml"
     original = RC.read_bytes()
     model.write_bytes(original)
@@ -295,10 +295,18 @@ def test_writes_a_new_file_and_never_one_bgc_did_not_write(rc, tmp_path):
     out.write_text(out.read_text(encoding="utf-8") + "# mine now\n", encoding="utf-8")
     with pytest.raises(OutputError, match="changed after bgc wrote it"):
         report.write(out)
-    # the command line: the same refusal, one line, exit 1, and the model untouched
-    status = cli.main(["calibrate", str(model), "--data", str(data), "--estimate", "measurement_noise",
-                       "-o", str(theirs)])
-    assert status == 1 and theirs.read_text(encoding="utf-8") == "name: theirs\n"
+    # the command line: the same refusal, one line, exit 1, before any work, and the model untouched
+    def no_work(*args, **kwargs):
+        raise AssertionError("calibrated before the output was checked")
+
+    monkeypatch.setattr(bgc.api.Session, "calibrate", no_work)
+    for path, message in ((theirs, "exists and bgc did not write it"), (model, "is the model file"),
+                          (data, "is a data file"), (tmp_path, "is a folder")):
+        status = cli.main(["calibrate", str(model), "--data", str(data), "--estimate", "measurement_noise",
+                           "-o", str(path)])
+        err = capsys.readouterr().err
+        assert status == 1 and err.count("\n") == 1 and message in err, err
+    assert theirs.read_text(encoding="utf-8") == "name: theirs\n"
     assert model.read_bytes() == original
 
 
@@ -318,7 +326,8 @@ def test_cli_writes_the_calibrated_model(rc, tmp_path, capsys):
 
 @pytest.mark.parametrize("estimate, named", [
     ("noise,R9", "--estimate R9: not a parameter of rc_drain"),
-    ("noise,,R", "--estimate noise,,R: an empty name"),
+    ("noise,,R", "--estimate 'noise,,R': an empty name"),
+    ("", "--estimate '': an empty name"),
     ("R,R", "--estimate R: named twice"),
     ("e1", "--estimate e1: not a parameter of rc_drain"),
 ])

@@ -241,7 +241,7 @@ def targets(words: str | Sequence[str], model: ModuleType, parameters: Sequence[
     """
     items = [w.strip() for w in (words.split(",") if isinstance(words, str) else words)]
     if not items or any(not w for w in items):
-        raise CalibrationError(f"{where} {printable(','.join(items))!s}: an empty name", None,
+        raise CalibrationError(f"{where} {printable(repr(','.join(items)))}: an empty name", None,
                                "e.g. --estimate noise,R1 (names separated by commas)")
     sensors: tuple[str, ...] = ()
     process = False
