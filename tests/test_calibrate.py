@@ -113,6 +113,23 @@ def test_rc_process_noise_the_data_do_not_show_is_zero(rc):
     assert "process_noise: 0.0\n" in r.text and "the data show none" in r.text
 
 
+def test_rc_sensor_noise_swamped_by_process_noise_is_named(tmp_path):
+    """A sensor whose noise (0.0005) is tiny beside the process noise it
+    reads (a std of about 0.05): its likelihood is flat toward 0, so it is
+    named as not identifiable (not an error, not a spurious estimate), and
+    the process level is estimated with it held."""
+    text = RC.read_text(encoding="utf-8").replace("process_noise: 0", "process_noise: 0.05")
+    path = tmp_path / "rc_noisy_plant.yaml"
+    path.write_text(text.replace("e1: {noise: 0.02}", "e1: {noise: 0.0005}"), encoding="utf-8")
+    session = bgc.open(path)
+    result = simulate.simulate(session.compiled.numerics, simulate.SimulationOptions(steps=300, seed=6))
+    c = session.calibrate(runs.parse_run(simulate.to_csv(result), "r.csv")).calibration
+    e = c.estimate("noise e1")
+    assert not e.identifiable and e.why.startswith("the likelihood is nearly flat") and e.level == 0.0005
+    p = c.estimate("process noise")
+    assert p.identifiable and p.low < 0.05 < p.high
+
+
 def test_rc_product_of_parameters_is_not_identifiable(rc):
     """R and C enter the drain only as R C: each alone is named as not
     identifiable and keeps the model's value, and the noise is estimated
