@@ -48,7 +48,10 @@ direction it takes part in, when its correlation with another estimate is
 above 0.99 in magnitude (parameters that enter only as a product), or when
 its interval spans more than a factor of 100 (a flat likelihood): it is
 named, keeps the model's value, and the others are estimated again with it
-held there.
+held there. A process level whose likelihood is highest at 0 (it falls
+1000 times below its start) is 0, with a one-sided bound (Self and Liang
+1987). Where the optimiser stops short of a maximum it is started again from
+there; where none is found, a :class:`~bgc.errors.CalibrationError` says so.
 
 **The innovations** of the calibrated model on the data (the normalised
 residuals of the nominal filter, which are white N(0, 1) when the model
