@@ -330,7 +330,8 @@ class Session:
         Raises
         ------
         ArgumentTypeError, ArgumentValueError
-            ``data`` or ``estimate`` of the wrong type, or no data.
+            ``data`` or ``estimate`` of the wrong type, no data, or a session
+            opened with other noise levels than the model file's.
         CalibrationError
             An unknown name to estimate; a likelihood that is not finite at
             the model's values.
@@ -338,6 +339,9 @@ class Session:
             A run that cannot be read or is not of this model.
         """
         func = "bgc.Session.calibrate"
+        if self.noise != (None, None):
+            raise ArgumentValueError(f"{func}: a session opened with noise levels calibrates from the model file's "
+                                     "own", None, "open the session without them: bgc.open(model)")
         items = list(data) if isinstance(data, (list, tuple)) else [data]
         if not items:
             raise ArgumentValueError(f"{func}: data=[] holds no recording", None, "give a run file or a list of them")

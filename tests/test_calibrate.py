@@ -14,7 +14,7 @@ import yaml
 import bgc
 from bgc import cli
 from bgc.compiler import load, validate
-from bgc.errors import CalibrationError, DataError, OutputError
+from bgc.errors import ArgumentTypeError, ArgumentValueError, CalibrationError, DataError, OutputError
 from bgc.output.calibrated import calibrated_text, number
 from bgc.pipeline import compile_model
 from bgc.runtime import calibrate as cal
@@ -359,6 +359,16 @@ def test_bad_estimate_is_one_line(rc, tmp_path, capsys, estimate, named):
     assert not out.exists()
     with pytest.raises(CalibrationError):
         rc.calibrate(run, estimate)
+
+
+def test_arguments_are_checked(rc):
+    run, _ = rc_run(rc, 0.05, 20, 1)
+    with pytest.raises(ArgumentValueError, match="a session opened with noise levels"):
+        bgc.open(RC, measurement_noise=0.05).calibrate(run)
+    with pytest.raises(ArgumentValueError, match="data=\\[\\] holds no recording"):
+        rc.calibrate([])
+    with pytest.raises(ArgumentTypeError, match="data=5 is not a path or a Run"):
+        rc.calibrate(5)
 
 
 def test_data_of_another_model_is_refused(rc, tanks):
