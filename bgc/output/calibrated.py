@@ -63,7 +63,7 @@ def calibrated_text(text: str, source: str, cal: Calibration, element_levels: di
     the storage elements that declare their own process ``noise``, with it;
     ``dates``: the dates the data's headers give."""
     data = ", ".join(printable(s) for s in cal.sources)
-    when = f" (recorded {', '.join(dates)})" if dates else ""
+    when = f" (recorded {', '.join(printable(d) for d in dates)})" if dates else ""
     changes: list[_Change] = []
     for e in cal.estimates:
         if e.kind == "measurement_noise":
