@@ -37,7 +37,8 @@ __version__ = "0.1.0"
 
 
 #: The names of :mod:`bgc.api` that ``bgc`` gives (imported on first use).
-API = ("open", "Session", "diagnose", "DiagnosisReport", "distinguishability", "DistinguishabilityReport")
+API = ("open", "Session", "diagnose", "DiagnosisReport", "distinguishability", "DistinguishabilityReport",
+       "CalibrationReport")
 
 
 def __getattr__(name: str):

@@ -43,10 +43,14 @@ from pathlib import Path
 import numpy as np
 
 from . import arguments, pipeline
-from .errors import ArgumentTypeError, ArgumentValueError, SimulationError, TrackingError, printable
+from .errors import (
+    ArgumentTypeError, ArgumentValueError, CalibrationError, OutputError, SimulationError, TrackingError, printable,
+)
 from .ir import NoiseLevels, Numerics
 from .kinds import DIRECTIONS, fault_kind
 from .runtime import distinguish as distinction
+from .output import calibrated
+from .runtime import calibrate as calibration
 from .runtime import identify, kalman, metrics, runs, simulate, track
 from .runtime.diagnose import IDENTIFY, KALMAN_METHOD, PATHS, Diagnosis, DiagnosisOptions
 from .runtime.diagnose import diagnose as run_diagnosis
@@ -312,11 +316,177 @@ class Session:
                          horizon_steps(opts.horizon, nominal.DT, 0), inputs=inputs, sensors=sensors, source=source,
                          progress=progress, most=most_steps(self.compiled.numerics, opts))
 
+    def calibrate(self, data, estimate: str | tuple[str, ...] = "noise", *, progress=None) -> CalibrationReport:
+        """Maximum-likelihood estimates, from healthy recordings ``data`` (a
+        run file, a :class:`~bgc.runtime.runs.Run`, or a list or tuple of
+        them), of what ``estimate`` names: ``noise`` (every sensor's
+        measurement noise and the process-noise level, the default),
+        ``measurement_noise``, ``process_noise`` and parameters of the model
+        file, as a comma-separated text or a tuple of names
+        (:mod:`bgc.runtime.calibrate`). The :class:`CalibrationReport` holds
+        the estimates with their 95 % intervals and the calibrated model's
+        text; :meth:`CalibrationReport.write` writes it.
+
+        Raises
+        ------
+        ArgumentTypeError, ArgumentValueError
+            ``data`` or ``estimate`` of the wrong type, no data, or a session
+            opened with other noise levels than the model file's.
+        CalibrationError
+            An unknown name to estimate; a likelihood that is not finite at
+            the model's values.
+        DataError
+            A run that cannot be read or is not of this model.
+        """
+        func = "bgc.Session.calibrate"
+        if self.noise != (None, None):
+            raise ArgumentValueError(f"{func}: a session opened with noise levels calibrates from the model file's "
+                                     "own", None, "open the session without them: bgc.open(model)")
+        items = list(data) if isinstance(data, (list, tuple)) else [data]
+        if not items:
+            raise ArgumentValueError(f"{func}: data=[] holds no recording", None, "give a run file or a list of them")
+        for item in items:
+            if not isinstance(item, (str, os.PathLike, runs.Run)):
+                raise ArgumentTypeError(f"{func}: data={arguments.shown(item)} is not a path or a Run", None,
+                                        "give a run file's path, a bgc.runtime.runs.Run, or a list of them")
+        if isinstance(estimate, tuple):
+            for word in estimate:
+                arguments.text(func, "estimate", word)
+        else:
+            arguments.text(func, "estimate", estimate)
+        arguments.callable_or_none(func, "progress", progress)
+        say = progress or (lambda text: None)
+        c = self.compiled
+        nominal = self.package.MODELS["nominal"]
+        sensors, process, parameters = calibration.targets(estimate, nominal, [p.name for p in c.model.parameters],
+                                                           "--estimate" if isinstance(estimate, str) else "estimate")
+        records, dates = [], []
+        for item in items:
+            run = runs.check_run(item) if isinstance(item, runs.Run) else runs.read_run(item)
+            track.check_run_of(run, c.model.name)
+            records.append(calibration.record_of(run, nominal))
+            dates += [h.split(":", 1)[1].strip() for h in run.header
+                      if h.lower().startswith(("date:", "recorded:")) and h.split(":", 1)[1].strip()]
+        say(f"calibrating on {len(records)} recording(s)")
+        result = calibration.calibrate(nominal, c.numerics, records, sensors, process, parameters)
+        original = _model_text(self.model, c)
+        own = {el.name: el.noise for el in c.model.elements if el.noise is not None}
+        text = calibrated.calibrated_text(original, c.model.display_source, result, own, tuple(dates))
+        _check_calibrated(text, result, c)
+        return CalibrationReport(self.model, self.name, tuple(sensors), process, tuple(parameters), result, text)
+
     def report(self, run: runs.Run, diagnosis: Diagnosis, scenario: str | None = None,
                injected=None) -> DiagnosisReport:
         """A :class:`DiagnosisReport` of ``diagnosis`` made on ``run``."""
         return DiagnosisReport(self.name, self.compiled.model.display_source, run, scenario, injected, self.noise,
                                self.levels, diagnosis.options, diagnosis)
+
+
+@dataclass(frozen=True, slots=True)
+class CalibrationReport:
+    """A calibration (:meth:`Session.calibrate`): the model file, the
+    model's name, the sensors whose noise, whether the process level and
+    which parameters were estimated, the :class:`~bgc.runtime.calibrate.Calibration`
+    (estimates, intervals, innovations) and ``text``, the calibrated model
+    file (the user's text with the estimates in place, comments kept)."""
+
+    model: str
+    name: str
+    sensors: tuple[str, ...]
+    process: bool
+    parameters: tuple[str, ...]
+    calibration: calibration.Calibration
+    text: str
+
+    def write(self, path: str | Path) -> Path:
+        """Write the calibrated model to ``path`` (a new file, or one bgc
+        wrote and nobody changed since: never the model file, a data file
+        or another file bgc did not write).
+
+        Raises
+        ------
+        OutputError
+            ``path`` is the model file or a data file, or exists and bgc did
+            not write it (or it changed since).
+        """
+        arguments.path("bgc.CalibrationReport.write", "path", path)
+        check_calibration_output(path, self.model, self.calibration.sources)
+        from .output import artifacts
+
+        return artifacts.write_file(Path(path), self.text)
+
+
+def check_calibration_output(path: str | Path, model: str | Path, data=()) -> None:
+    """Refuse, before any work, a calibrated model's path that is the model
+    file, one of the ``data`` files, a folder, or an existing file bgc did
+    not write (or that changed since): what :meth:`CalibrationReport.write`
+    would refuse.
+
+    Raises
+    ------
+    OutputError
+        The path cannot take the calibrated model.
+    """
+    from .output import artifacts
+
+    out = Path(path)
+    where = printable(str(out))
+    for other, what in [(model, "the model file")] + [(d, "a data file") for d in data]:
+        try:
+            same = out.exists() and Path(other).exists() and out.samefile(other)
+        except (OSError, TypeError):
+            same = False
+        if same:
+            raise OutputError(f"{where} is {what}: a calibration never replaces it", None,
+                              "write the calibrated model to a new file, e.g. -o calibrated.yaml")
+    if out.is_dir() and not out.is_symlink():
+        raise OutputError(f"{where} is a folder", None, "give a file path for the calibrated model")
+    if out.exists() or out.is_symlink():
+        owner = artifacts.ownership(out)
+        if owner == "changed":
+            raise OutputError(f"{where} was changed after bgc wrote it", None,
+                              "move it away to keep it, or choose another output path")
+        if owner != "bgc":
+            raise OutputError(f"{where} exists and bgc did not write it", None,
+                              "choose another output path, or move the file away")
+
+
+def _model_text(path: str, c: pipeline.Compiled) -> str:
+    """The model file's text, as it was compiled (its hash checked)."""
+    import hashlib
+
+    try:
+        text = Path(path).read_bytes().decode("utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CalibrationError(f"{printable(path)}: cannot read the model file again ({exc})", None,
+                               "check the path") from None
+    if hashlib.sha256(text.encode("utf-8")).hexdigest() != c.raw.sha256:
+        raise CalibrationError(f"{printable(path)} changed since it was compiled", None,
+                               "open the model again (bgc.open) and calibrate")
+    return text
+
+
+def _check_calibrated(text: str, result: calibration.Calibration, c: pipeline.Compiled) -> None:
+    """The calibrated text reads back, by bgc's own reader and validator,
+    with every estimate as written (else a bug: InternalError)."""
+    from .compiler import load, validate
+    from .errors import BgcError, InternalError
+    from .output.calibrated import number
+
+    try:
+        model = validate.validate(load.loads(text, c.model.source))
+    except BgcError as exc:
+        raise InternalError(f"the calibrated model does not read back: {exc.line()}") from None
+    params = {p.name: p.value for p in model.parameters}
+    sensors = {m.name: m.noise for m in model.measurements}
+    for e in result.estimates:
+        if not e.identifiable:
+            continue
+        got = {"measurement_noise": lambda: sensors[e.subject], "process_noise": lambda: model.settings.process_noise,
+               "parameter": lambda: params[e.subject]}[e.kind]()
+        want = float(number(e.level if e.kind != "parameter" else e.value))
+        if got != want:
+            raise InternalError(f"the calibrated model reads {e.name} as {got!r}, not {want!r}")
 
 
 def open(model: str | Path, *, process_noise: float | None = None, measurement_noise: float | None = None,

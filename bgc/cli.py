@@ -501,6 +501,37 @@ class _Progress:
             sys.stderr.flush()
 
 
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    import bgc
+
+    from .api import check_calibration_output
+
+    out = Path(args.output)
+    check_calibration_output(out, args.model, args.data)  # before any work
+    start = time.perf_counter()
+    session = bgc.open(args.model)
+    report = session.calibrate(list(args.data), args.estimate)
+    report.write(out)
+    cal = report.calibration
+    print(f"wrote {printable(str(out))}: {report.name} calibrated on {cal.samples} samples of "
+          f"{', '.join(printable(s) for s in cal.sources)} ({time.perf_counter() - start:.1f} s)")
+    for e in cal.estimates:
+        if not e.identifiable:
+            print(printable(f"  {e.name}: not identifiable, kept at {e.start_level:.6g} ({e.why})"))
+            continue
+        std = f" (std {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}])" if e.kind == "measurement_noise" else ""
+        bound = ""
+        if e.at_bound:
+            bound = ", the data show none" if e.value == 0 else ", at the end of the range searched"
+        print(printable(f"  {e.name}: {e.level:.6g} in [{e.level_low:.6g}, {e.level_high:.6g}] (95 %){std}, "
+                        f"was {e.start_level:.6g}{bound}"))
+    for i in cal.innovations:
+        print(printable(f"  innovations of {i.sensor}: mean {i.mean:+.3f}, variance {i.variance:.3f}, Ljung-Box "
+                        f"p = {i.p_value:.3g} ({i.lags} lags)"))
+    print(printable(f"  {cal.verdict}"))
+    return 0
+
+
 def _add_prior_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--prior-scale", type=_above_zero, default=1.0, metavar="K",
                    help="widen every fault's prior of its size (and drift rate) by K (default 1: the model's; a "
@@ -537,6 +568,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--engine", choices=["auto", "graphviz", "matplotlib"], default="auto",
                    help="picture renderer (auto: Graphviz dot when installed)")
     p.set_defaults(run=cmd_compile)
+
+    p = sub.add_parser("calibrate", help="estimate noise levels and nominal values from healthy recordings, and "
+                                         "write the calibrated model (a new YAML)")
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--data", nargs="+", required=True, metavar="HEALTHY.csv",
+                   help="fault-free recordings of the plant (run files, as bgc simulate writes)")
+    p.add_argument("--estimate", default="noise", metavar="WHAT",
+                   help="what to estimate, separated by commas: noise (every sensor's noise and the process "
+                        "level), measurement_noise, process_noise, parameter names (default: noise)")
+    p.add_argument("-o", "--output", required=True, metavar="CALIBRATED.yaml",
+                   help="the calibrated model: a new file (never the model file, nor a file bgc did not write)")
+    p.set_defaults(run=cmd_calibrate)
 
     p = sub.add_parser("show", help="print or render one stage of a model")
     p.add_argument("stage", choices=["causality", "tcg", "equations", "signatures", "dbn"])

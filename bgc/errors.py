@@ -121,6 +121,11 @@ class TrackingError(RuntimeFailure):
     measurements, a request beyond the memory."""
 
 
+class CalibrationError(RuntimeFailure):
+    """A calibration cannot be made: an unknown name to estimate, no data,
+    a likelihood that is not finite at the model's values."""
+
+
 class OutputError(BgcError):
     """An output cannot be written where asked (bgc does not replace files it
     did not write)."""

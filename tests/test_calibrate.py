@@ -1,0 +1,423 @@
+"""Calibration (bgc/runtime/calibrate.py, bgc/output/calibrated.py, bgc
+calibrate): maximum-likelihood noise levels and parameters from healthy data,
+checked against closed forms on a one-state linear plant, against the truth
+of simulated runs of the two tanks, and the calibrated model file: the
+user's text with only the values changed, never written over a file bgc did
+not write, the original untouched."""
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+
+import bgc
+from bgc import cli
+from bgc.compiler import load, validate
+from bgc.errors import ArgumentTypeError, ArgumentValueError, CalibrationError, DataError, OutputError
+from bgc.output.calibrated import calibrated_text, number
+from bgc.pipeline import compile_model
+from bgc.runtime import calibrate as cal
+from bgc.runtime import runs, simulate
+
+from conftest import MODELS, TEST_MODELS
+
+RC = TEST_MODELS / "rc_drain.yaml"
+TWO_TANK = MODELS / "two_tank.yaml"
+
+
+@pytest.fixture(scope="module")
+def rc():
+    return bgc.open(RC)
+
+
+@pytest.fixture(scope="module")
+def tanks():
+    return bgc.open(TWO_TANK)
+
+
+def rc_run(session, sigma: float, steps: int, seed: int) -> tuple[runs.Run, np.ndarray]:
+    """A run of the RC drain made here, not by bgc: the noise-free trajectory
+    of the filters' own discretisation (RK4, amplification factor
+    1 + z + z^2/2 + z^3/6 + z^4/24 per substep, z = -h / (R C)) from the
+    initial 1.0, sampled from t = dt on (the filter predicts one step before
+    its first sample), plus white noise of std ``sigma``. Returns the run and
+    the noise-free readings."""
+    m = session.package.MODELS["nominal"]
+    R, C = 2.0, 0.5  # the model file's values
+    h = m.DT / m.SUBSTEPS
+    z = -h / (R * C)
+    g = (1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24) ** m.SUBSTEPS
+    clean = 1.0 * g ** np.arange(1, steps + 1)
+    y = clean + sigma * np.random.default_rng(seed).standard_normal(steps)
+    time = m.DT * np.arange(1, steps + 1)
+    run = runs.Run(time, {}, {"e1": y}, {}, {}, ("model rc_drain: made by tests/test_calibrate.py",), "rc.csv")
+    return run, clean
+
+
+# ------------------------------------------------------------------- closed forms on a one-state linear plant
+@pytest.mark.parametrize("seed", [1, 2])
+def test_rc_noise_variance_is_the_mean_squared_residual(rc, seed):
+    """With no process noise (and so an exactly known initial state, X0_STD
+    = 2 x 0), the likelihood of sigma is that of iid N(clean_k, sigma^2): its
+    maximum is the mean squared residual from the noise-free trajectory, and
+    the curvature in log sigma is 2 T, so the 95 % interval is sigma_hat
+    exp(+-1.96 / sqrt(2 T))."""
+    T = 200
+    run, clean = rc_run(rc, 0.05, T, seed)
+    r = rc.calibrate(run, "measurement_noise")
+    e = r.calibration.estimate("noise e1")
+    expected = float(np.mean((run.measurements["e1"] - clean) ** 2))
+    assert e.value ** 2 == pytest.approx(expected, rel=1e-6)
+    assert e.identifiable and not e.at_bound
+    half = 1.959963984540054 / math.sqrt(2 * T)
+    assert e.low == pytest.approx(e.value * math.exp(-half), rel=1e-3)
+    assert e.high == pytest.approx(e.value * math.exp(half), rel=1e-3)
+    assert e.level == pytest.approx(e.value / 1.0, rel=1e-12)  # its reading at X0 is 1.0: the level is the std
+    # the maximum: the likelihood there is that of the iid Gaussian at the mean squared residual
+    assert r.calibration.loglik == pytest.approx(-0.5 * T * (math.log(2 * math.pi * expected) + 1), rel=1e-9)
+
+
+def test_rc_several_recordings_with_gaps_and_missing_cells(rc):
+    """Two recordings, one with a gap of 10 rows and empty cells: the data
+    meet the model's time grid as in a diagnosis (the filter predicts across
+    the gap, a cell not read adds no term), so the maximum is the mean
+    squared residual over the samples read, the trajectory taken at each
+    sample's step of the grid."""
+    first, clean1 = rc_run(rc, 0.05, 150, 8)
+    second, clean2 = rc_run(rc, 0.05, 120, 9)
+    keep = np.ones(120, dtype=bool)
+    keep[40:50] = False  # a gap
+    y2 = second.measurements["e1"].copy()
+    y2[[5, 70, 71]] = np.nan  # cells not read
+    second = runs.Run(second.time[keep], {}, {"e1": y2[keep]}, {}, {}, second.header, "rc2.csv")
+    r = rc.calibrate([first, second], "measurement_noise")
+    residuals = np.concatenate([first.measurements["e1"] - clean1, (y2 - clean2)[keep]])
+    expected = float(np.nanmean(residuals ** 2))
+    assert r.calibration.samples == 150 + 110 - 3
+    assert r.calibration.estimate("noise e1").value ** 2 == pytest.approx(expected, rel=1e-6)
+    assert r.calibration.sources == ("rc.csv", "rc2.csv") and "from rc.csv, rc2.csv" in r.text
+
+
+def test_rc_process_noise_the_data_do_not_show_is_zero(rc):
+    """Asked for the process level too, on data without process noise: its
+    likelihood is highest at 0, so it is 0 with a one-sided interval, and
+    the sensor's noise is the closed form again (the trajectory is then
+    known exactly)."""
+    run, clean = rc_run(rc, 0.05, 200, 1)
+    r = rc.calibrate(run)  # noise: the sensor's and the process level
+    p = r.calibration.estimate("process noise")
+    assert p.value == 0 and p.low == 0 and p.at_bound and 0 < p.high < 0.05
+    e = r.calibration.estimate("noise e1")
+    assert e.value ** 2 == pytest.approx(float(np.mean((run.measurements["e1"] - clean) ** 2)), rel=1e-6)
+    assert "process_noise: 0.0\n" in r.text and "the data show none" in r.text
+
+
+def test_rc_sensor_noise_swamped_by_process_noise_is_named(tmp_path):
+    """A sensor whose noise (0.0005) is tiny beside the process noise it
+    reads (a std of about 0.05): its likelihood is flat toward 0, so it is
+    named as not identifiable (not an error, not a spurious estimate), and
+    the process level is estimated with it held."""
+    text = RC.read_text(encoding="utf-8").replace("process_noise: 0", "process_noise: 0.05")
+    path = tmp_path / "rc_noisy_plant.yaml"
+    path.write_text(text.replace("e1: {noise: 0.02}", "e1: {noise: 0.0005}"), encoding="utf-8")
+    session = bgc.open(path)
+    result = simulate.simulate(session.compiled.numerics, simulate.SimulationOptions(steps=300, seed=6))
+    c = session.calibrate(runs.parse_run(simulate.to_csv(result), "r.csv")).calibration
+    e = c.estimate("noise e1")
+    assert not e.identifiable and e.why.startswith("the likelihood is nearly flat") and e.level == 0.0005
+    p = c.estimate("process noise")
+    assert p.identifiable and p.low < 0.05 < p.high
+
+
+def test_rc_product_of_parameters_is_not_identifiable(rc):
+    """R and C enter the drain only as R C: each alone is named as not
+    identifiable and keeps the model's value, and the noise is estimated
+    with them held there (the closed form again)."""
+    run, clean = rc_run(rc, 0.05, 200, 3)
+    r = rc.calibrate(run, "measurement_noise,R,C")
+    c = r.calibration
+    for name, other in (("R", "C"), ("C", "R")):
+        e = c.estimate(name)
+        assert not e.identifiable and e.value == e.start
+        assert other in e.why, e.why
+    noise = c.estimate("noise e1")
+    assert noise.value ** 2 == pytest.approx(float(np.mean((run.measurements["e1"] - clean) ** 2)), rel=1e-6)
+    # the calibrated text keeps R and C as written, says why, and writes the noise
+    assert "R: 2.0     # resistance" in r.text and "C: 0.5     # capacity" in r.text
+    assert "R kept at the model's 2: the data (rc.csv) cannot identify it" in r.text
+    read = validate.validate(load.loads(r.text, "x.yaml"))
+    assert read.measurements[0].noise == float(number(noise.level))
+
+
+# ------------------------------------------------------------------- the two tanks, simulated at known levels
+def tank_run(session, process: float, measurement: float, steps: int, seed: int) -> runs.Run:
+    result = simulate.simulate(session.compiled.numerics, simulate.SimulationOptions(
+        steps=steps, process_noise=process, measurement_noise=measurement, seed=seed))
+    return runs.parse_run(simulate.to_csv(result), f"tanks-{seed}.csv")
+
+
+def test_two_tank_noise_levels_near_the_truth(tanks):
+    """Data simulated (RK4 with 8 substeps, not the filter's own step) at a
+    process level of 0.01 and a sensor level of 0.03, unlike the model's 0.03
+    and 0.02: each sensor's estimated level is within 5 standard errors of
+    the ideal estimator (a std from T samples of known mean: relative error
+    1 / sqrt(2 T)) of the truth, the process level within 4 standard errors
+    of it (its interval's), and
+    the calibrated file compiles to the estimated absolute stds."""
+    T = 400
+    run = tank_run(tanks, 0.01, 0.03, T, 11)
+    r = tanks.calibrate(run)
+    c = r.calibration
+    tolerance = 5 / math.sqrt(2 * T)
+    for s in ("F10", "F12", "F20"):
+        e = c.estimate(f"noise {s}")
+        assert abs(e.level / 0.03 - 1) < tolerance, (s, e.level)
+    p = c.estimate("process noise")
+    # within 4 of its own standard errors (the interval is +-1.96 of them in log q) and not a vague one
+    sd = math.log(p.high / p.low) / (2 * 1.96)
+    assert abs(math.log(p.value / 0.01)) < 4 * sd and p.high / p.low < 2.5, (p.value, p.low, p.high)
+    assert c.loglik > c.start_loglik
+    for i in c.innovations:  # the calibrated model explains the data: white N(0, 1) innovations
+        assert abs(i.mean) < 4 / math.sqrt(i.samples) and abs(i.variance - 1) < 5 * math.sqrt(2 / i.samples)
+        assert i.p_value > 1e-3
+    # the file: the compiler's absolute stds of the calibrated levels are the estimated ones
+    numerics = compile_from_text(r.text).numerics
+    for j, s in enumerate(("F10", "F12", "F20")):
+        assert numerics.noise.measurement[j] == pytest.approx(c.estimate(f"noise {s}").value, rel=1e-5)
+    assert numerics.equations.model.settings.process_noise == pytest.approx(p.value, rel=1e-5)
+
+
+def compile_from_text(text: str):
+    """The compiled model of a calibrated text (written to a temporary file)."""
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "calibrated.yaml"
+        path.write_text(text, encoding="utf-8")
+        return compile_model(path)
+
+
+def test_two_tank_parameter_interval_covers_the_truth(tanks, tmp_path):
+    """A model whose R12 is 20 % off (2.4, the plant's is 2.0): calibrated on
+    healthy data of the plant, R12's 95 % interval holds the truth and not
+    the model's value."""
+    off = TWO_TANK.read_text(encoding="utf-8").replace("R12: {value: 2.0,", "R12: {value: 2.4,")
+    assert "R12: {value: 2.4," in off
+    path = tmp_path / "two_tank_off.yaml"
+    path.write_text(off, encoding="utf-8")
+    run = tank_run(tanks, None, None, 300, 5)  # the plant at the model's noise levels
+    r = bgc.open(path).calibrate(run, "noise,R12")
+    e = r.calibration.estimate("R12")
+    assert e.identifiable and e.start == 2.4
+    assert e.low < 2.0 < e.high < 2.4, (e.low, e.high)
+    # a model this far off has a steep likelihood at its values: the optimiser still reaches the maximum (its
+    # first step, the whole gradient, once left the region where the likelihood is finite, and the noise was
+    # then held as "flat"), where every estimate is identifiable
+    for x in r.calibration.estimates:
+        assert x.identifiable, (x.name, x.why)
+    assert r.calibration.converged and r.calibration.loglik > r.calibration.start_loglik + 100
+    assert "# bgc calibrate: R12 " in r.text and "(was 2.4)" in r.text
+
+
+# ------------------------------------------------------------------- the calibrated file
+def test_text_edit_keeps_the_layout_and_adds_missing_keys():
+    """Only value tokens change; a measurement without ``noise`` (an empty
+    entry, a flow mapping, a block mapping) gets one, a model without
+    ``simulation.process_noise`` gets it; comments survive; the result reads
+    back with the values written."""
+    text = ("# my plant\n"
+            "name: rc_drain\n"
+            "parameters: {R: 2.0, C: 0.5}   # both\n"
+            "elements:\n"
+            "  C: {kind: C, initial: 1.0, noise: 0.002}\n"
+            "  j: {kind: \"1\"}\n"
+            "  R: {kind: R}\n"
+            "bonds: {1: [j, C], 2: [j, R]}\n"
+            "measurements:\n"
+            "  e1:\n"
+            "  f1: {unit: A}\n"
+            "  f2:\n"
+            "    unit: A   # current\n"
+            "simulation:\n"
+            "  dt: 0.1\n")
+    def est(kind, subject, value, level):
+        return cal.Estimate(kind, subject, value, value * 0.9, value * 1.1, level, level * 0.9, level * 1.1,
+                            1.0, 0.02)
+    estimates = (est("measurement_noise", "e1", 0.03, 0.03), est("measurement_noise", "f1", 0.02, 0.04),
+                 est("measurement_noise", "f2", 0.02, 0.05),
+                 cal.Estimate("process_noise", "process", 0.06, 0.05, 0.07, 0.06, 0.05, 0.07, 0.03, 0.03),
+                 est("parameter", "R", 2.5, 2.5),
+                 cal.Estimate("parameter", "C", 0.5, math.nan, math.nan, 0.5, math.nan, math.nan, 0.5, 0.5, False,
+                              "correlated +0.999 with R"))
+    c = cal.Calibration(estimates, 0.0, -1.0, (), (), (), ("healthy.csv",), 10, True, "", 1, 0.1)
+    out = calibrated_text(text, "plant.yaml", c, {"C": 0.002})
+    assert out.startswith("# generated by bgc calibrate from plant.yaml on healthy.csv\n# my plant\n")
+    assert "parameters: {R: 2.5, C: 0.5}   # both\n" in out
+    assert "  e1: {noise: 0.03}\n" in out
+    assert "  f1: {unit: A, noise: 0.04}\n" in out
+    assert "    unit: A   # current\n" in out and "    noise: 0.05\n" in out
+    assert "  C: {kind: C, initial: 1.0, noise: 0.004}\n" in out  # its own level scaled as the process level
+    assert "simulation: {process_noise: 0.06}" not in out and "  process_noise: 0.06\n" in out
+    assert "C kept at the model's 0.5" in out and "correlated +0.999 with R" in out
+    data = yaml.safe_load(out)
+    assert data["measurements"]["f2"] == {"unit": "A", "noise": 0.05}
+    assert data["parameters"] == {"R": 2.5, "C": 0.5}
+    assert data["elements"]["C"]["noise"] == 0.004
+    # every comment of the original is still there, and every line of it but the changed ones
+    changed = {"parameters: {R: 2.0, C: 0.5}   # both", "  e1:", "  f1: {unit: A}",
+               "  C: {kind: C, initial: 1.0, noise: 0.002}"}
+    assert all(line in out.split("\n") for line in text.split("\n") if line not in changed)
+
+
+def test_text_edit_without_a_simulation_section():
+    text = "name: m\nparameters:\n  R: 1.0\n"
+    e = cal.Estimate("process_noise", "process", 0.01, 0.009, 0.011, 0.01, 0.009, 0.011, 0.03, 0.03)
+    c = cal.Calibration((e,), 0.0, 0.0, (), (), (), ("a.csv", "b.csv"), 10, True, "", 1, 0.1)
+    out = calibrated_text(text, "m.yaml", c, {}, ("2026-11-26",))
+    assert yaml.safe_load(out)["simulation"] == {"process_noise": 0.01}
+    assert "from a.csv, b.csv (recorded 2026-11-26) (was 0.03)" in out
+
+
+def test_a_value_given_through_an_alias_is_refused():
+    text = "name: m\nparameters:\n  R: &r 1.0\n  C: *r\n"
+    e = cal.Estimate("parameter", "C", 2.0, 1.9, 2.1, 2.0, 1.9, 2.1, 1.0, 1.0)
+    c = cal.Calibration((e,), 0.0, 0.0, (), (), (), ("a.csv",), 10, True, "", 1, 0.1)
+    with pytest.raises(CalibrationError, match="parameters.C is written through a YAML alias"):
+        calibrated_text(text, "m.yaml", c, {})
+
+
+def test_writes_a_new_file_and_never_one_bgc_did_not_write(rc, tmp_path, monkeypatch, capsys):
+    model = tmp_path / "rc.yaml"
+    original = RC.read_bytes()
+    model.write_bytes(original)
+    run, _ = rc_run(rc, 0.05, 100, 4)
+    data = tmp_path / "healthy.csv"
+    data.write_text(runs.run_csv(run), encoding="utf-8")
+    theirs = tmp_path / "theirs.yaml"
+    theirs.write_text("name: theirs\n", encoding="utf-8")
+    report = bgc.open(model).calibrate([str(data)], "measurement_noise")
+    for path in (model, data, theirs):
+        before = path.read_bytes()
+        with pytest.raises(OutputError) as info:
+            report.write(path)
+        assert "\n" not in info.value.line()
+        assert path.read_bytes() == before
+    out = tmp_path / "calibrated.yaml"
+    report.write(out)
+    report.write(out)  # bgc's own file, unchanged since: replaced
+    assert model.read_bytes() == original
+    assert bgc.open(out).compiled.model.name == "rc_drain"  # a model like any other
+    out.write_text(out.read_text(encoding="utf-8") + "# mine now\n", encoding="utf-8")
+    with pytest.raises(OutputError, match="changed after bgc wrote it"):
+        report.write(out)
+    # the command line: the same refusal, one line, exit 1, before any work, and the model untouched
+    def no_work(*args, **kwargs):
+        raise AssertionError("calibrated before the output was checked")
+
+    monkeypatch.setattr(bgc.api.Session, "calibrate", no_work)
+    for path, message in ((theirs, "exists and bgc did not write it"), (model, "is the model file"),
+                          (data, "is a data file"), (tmp_path, "is a folder")):
+        status = cli.main(["calibrate", str(model), "--data", str(data), "--estimate", "measurement_noise",
+                           "-o", str(path)])
+        err = capsys.readouterr().err
+        assert status == 1 and err.count("\n") == 1 and message in err, err
+    assert theirs.read_text(encoding="utf-8") == "name: theirs\n"
+    assert model.read_bytes() == original
+
+
+def test_cli_writes_the_calibrated_model(rc, tmp_path, capsys):
+    run, _ = rc_run(rc, 0.05, 100, 6)
+    data = tmp_path / "healthy.csv"
+    data.write_text(runs.run_csv(run), encoding="utf-8")
+    out = tmp_path / "cal.yaml"
+    assert cli.main(["calibrate", str(RC), "--data", str(data), "--estimate", "measurement_noise",
+                     "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert f"wrote {out}" in printed and "noise e1:" in printed and "Ljung-Box" in printed
+    assert printed.rstrip().endswith("the model explains this data")
+    text = out.read_text(encoding="utf-8")
+    assert text.startswith("# generated by bgc calibrate from ") and "  e1: {noise: " in text
+
+
+@pytest.mark.parametrize("estimate, named", [
+    ("noise,R9", "--estimate R9: not a parameter of rc_drain"),
+    ("noise,,R", "--estimate 'noise,,R': an empty name"),
+    ("", "--estimate '': an empty name"),
+    ("R,R", "--estimate R: named twice"),
+    ("e1", "--estimate e1: not a parameter of rc_drain"),
+])
+def test_bad_estimate_is_one_line(rc, tmp_path, capsys, estimate, named):
+    run, _ = rc_run(rc, 0.05, 50, 7)
+    data = tmp_path / "healthy.csv"
+    data.write_text(runs.run_csv(run), encoding="utf-8")
+    out = tmp_path / "cal.yaml"
+    assert cli.main(["calibrate", str(RC), "--data", str(data), "--estimate", estimate, "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(named) and "Traceback" not in err, err
+    assert not out.exists()
+    with pytest.raises(CalibrationError):
+        rc.calibrate(run, estimate)
+
+
+def test_arguments_are_checked(rc):
+    run, _ = rc_run(rc, 0.05, 20, 1)
+    with pytest.raises(ArgumentValueError, match="a session opened with noise levels"):
+        bgc.open(RC, measurement_noise=0.05).calibrate(run)
+    with pytest.raises(ArgumentValueError, match="data=\\[\\] holds no recording"):
+        rc.calibrate([])
+    with pytest.raises(ArgumentTypeError, match="data=5 is not a path or a Run"):
+        rc.calibrate(5)
+
+
+def test_data_of_another_model_is_refused(rc, tanks):
+    run = tank_run(tanks, None, None, 20, 1)
+    with pytest.raises(DataError, match="is a run of model 'two_tank', not of 'rc_drain'"):
+        rc.calibrate(run)
+
+
+# ------------------------------------------------------------------- innovations
+def test_innovations_tell_a_model_that_misses_the_plant(rc, tmp_path):
+    """The innovations of the calibrated model: white on data of the model's
+    own plant; correlated (a tiny Ljung-Box p-value) and off 0 when the
+    model's time constant is 1.5 times the plant's and only the noise is
+    calibrated."""
+    run, _ = rc_run(rc, 0.01, 200, 11)  # (seed 10 draws noise of mean -3.6 standard errors: a finding)
+    fits = rc.calibrate(run, "measurement_noise").calibration.innovations[0]
+    assert fits.sensor == "e1" and fits.samples == 200 and fits.lags == 20
+    assert fits.p_value > 1e-3 and abs(fits.mean) < 4 / math.sqrt(200)
+    assert rc.calibrate(run, "measurement_noise").calibration.verdict == "the model explains this data"
+    slow = tmp_path / "rc_slow.yaml"
+    slow.write_text(RC.read_text(encoding="utf-8").replace("R: 2.0 ", "R: 3.0 "), encoding="utf-8")
+    missed = bgc.open(slow).calibrate(run, "measurement_noise").calibration
+    misses = missed.innovations[0]
+    assert missed.findings == ("sensor e1's residuals are correlated (Ljung-Box p < 1e-300): the model misses a "
+                               "dynamic",)
+    # the model drains slower: it predicts high, the innovations (data minus prediction) are negative
+    assert misses.p_value < 1e-6 and misses.mean < -4 / math.sqrt(200)
+
+
+def test_ljung_box_against_its_formula_and_its_power():
+    """Q = n (n + 2) sum_k r_k^2 / (n - k) (computed here with np.correlate);
+    white noise passes, an AR(1) of coefficient 0.5 fails."""
+    rng = np.random.default_rng(0)
+    white = rng.standard_normal(500)
+    a = white - white.mean()
+    n, h = len(a), 10
+    acf = np.correlate(a, a, "full")[n - 1:] / np.dot(a, a)
+    expected = n * (n + 2) * sum(acf[k] ** 2 / (n - k) for k in range(1, h + 1))
+    q, count = cal.ljung_box([white], h)
+    assert count == n and q == pytest.approx(expected, rel=1e-12)
+    from scipy.stats import chi2
+
+    assert chi2.sf(q, h) > 0.01
+    ar = np.zeros(500)
+    for t in range(1, 500):
+        ar[t] = 0.5 * ar[t - 1] + white[t]
+    assert chi2.sf(cal.ljung_box([ar], h)[0], h) < 1e-10
+    # a missing sample (NaN) breaks only the pairs it is in
+    holed = white.copy()
+    holed[100] = np.nan
+    q_holed, count = cal.ljung_box([holed], h)
+    assert count == n - 1 and abs(q_holed - q) < 0.1 * q
