@@ -294,8 +294,8 @@ def _write_report(r, output: str, command: str, with_run: bool) -> Path:
     d = r.diagnosis
     print(f"{r.model}: {d.verdict}" + (f": {', '.join(d.candidates)}" if d.candidates else ""))
     if d.detection is not None:
-        print(f"  detected at t = {d.time_of(d.detection.step):g} ({d.detection.sensor}), "
-              f"onset t = {d.time_of(d.onset):g}")
+        print(f"  detected at t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}), "
+              f"onset t = {events.time_text(d.time_of(d.onset))}")  # a logger's Unix time in full
     for line in report.plain_words(d):
         print(f"  {printable(line)}")
     e = d.estimate

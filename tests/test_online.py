@@ -512,3 +512,23 @@ def test_a_faulty_sensor_is_taken_out_and_monitoring_goes_on_through_a_pipe(tmp_
 def test_exclude_faulty_sensor_needs_checkpoints():
     p = monitor_cli("--data", "-", "--exclude-faulty-sensor", stdin="")
     assert p.returncode == 1 and "--exclude-faulty-sensor acts at checkpoints" in p.stderr
+
+
+def test_bgc_diagnose_prints_a_loggers_unix_times_in_full(tmp_path, capsys):
+    """A logger's Unix time stamps (1.76e9 s, the plant's own clock): the
+    command line's detection line gives the alarm's and the onset's times
+    to the sample (R2's step at 5 s after the start, at 1763686400 + 5),
+    not rounded to six digits (1.76369e+09)."""
+    from bgc import cli
+
+    start = 1763686400.0
+    run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
+    shifted = with_columns(run, time=run.time + start)
+    data = tmp_path / "logger.csv"
+    data.write_text(runs.run_csv(shifted), encoding="utf-8")
+    assert cli.main(["diagnose", str(CIRCUIT), "--data", str(data), "--particles", "300", "--seed", "1",
+                     "-o", str(tmp_path / "d")]) == 0
+    line = next(l for l in capsys.readouterr().out.splitlines() if "detected at t = " in l)
+    detected, onset = (float(part.split("t = ")[1].split()[0].rstrip(",")) for part in line.split(", onset"))
+    assert "e+09" not in line
+    assert start + 4.5 <= onset <= detected <= start + 7.0, line
