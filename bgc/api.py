@@ -439,16 +439,7 @@ def check_calibration_output(path: str | Path, model: str | Path, data=()) -> No
         if same:
             raise OutputError(f"{where} is {what}: a calibration never replaces it", None,
                               "write the calibrated model to a new file, e.g. -o calibrated.yaml")
-    if out.is_dir() and not out.is_symlink():
-        raise OutputError(f"{where} is a folder", None, "give a file path for the calibrated model")
-    if out.exists() or out.is_symlink():
-        owner = artifacts.ownership(out)
-        if owner == "changed":
-            raise OutputError(f"{where} was changed after bgc wrote it", None,
-                              "move it away to keep it, or choose another output path")
-        if owner != "bgc":
-            raise OutputError(f"{where} exists and bgc did not write it", None,
-                              "choose another output path, or move the file away")
+    artifacts.check_writable(out, "the calibrated model")
 
 
 def _model_text(path: str, c: pipeline.Compiled) -> str:

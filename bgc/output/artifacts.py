@@ -546,6 +546,28 @@ def mark_picture(data: bytes, fmt: str) -> bytes:
     return data
 
 
+def check_writable(path: Path, what: str = "the output") -> None:
+    """Refuse a path :func:`write_file` would refuse: a folder, or an
+    existing file bgc did not write (or that changed since bgc wrote it).
+
+    Raises
+    ------
+    OutputError
+        One line naming the path and the fix.
+    """
+    where = printable(str(path))
+    if path.is_dir() and not path.is_symlink():
+        raise OutputError(f"{where} is a folder", None, f"give a file path for {what}")
+    if path.exists() or path.is_symlink():
+        owner = ownership(path)
+        if owner == "changed":
+            raise OutputError(f"{where} was changed after bgc wrote it", None,
+                              "move it away to keep it, or choose another output path")
+        if owner != "bgc":
+            raise OutputError(f"{where} exists and bgc did not write it", None,
+                              "choose another output path, or move the file away")
+
+
 def write_file(path: Path, content: str | bytes) -> Path:
     """Write one output (``bgc show -o``, ``bgc simulate -o``, a plot), sealed
     (:func:`seal`; ``content`` carries bgc's mark).
@@ -557,18 +579,8 @@ def write_file(path: Path, content: str | bytes) -> Path:
         a folder or a link.
     """
     path = Path(path)
-    where = printable(str(path))
-    if path.is_dir() and not path.is_symlink():
-        raise OutputError(f"{where} is a folder", None, "give a file path for the output")
+    check_writable(path)
     data = seal(content)
-    if path.exists() or path.is_symlink():
-        owner = ownership(path)
-        if owner == "changed":
-            raise OutputError(f"{where} was changed after bgc wrote it", None,
-                              "move it away to keep it, or choose another output path")
-        if owner != "bgc":
-            raise OutputError(f"{where} exists and bgc did not write it", None,
-                              "choose another output path, or move the file away")
     if not path.parent.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
     _write_bytes(path, data)
