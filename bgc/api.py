@@ -657,14 +657,53 @@ def private_folder(prefix: str) -> str:
     ArgumentTypeError
         ``prefix`` is not a string.
     """
+    import secrets
     from multiprocessing import util
 
     arguments.text("bgc.api.private_folder", "prefix", prefix)
 
-    folder = tempfile.mkdtemp(prefix=prefix)
-    atexit.register(shutil.rmtree, folder, True)
-    util.Finalize(None, shutil.rmtree, args=(folder, True), exitpriority=0)
+    base = tempfile.gettempdir()
+    with _FOLDER_LOCK:  # an orphaned campaign worker removes its folders under it (remove_private_folders)
+        for _ in range(100):
+            folder = os.path.join(base, prefix + secrets.token_hex(6))
+            # named before it is made: a worker ended between the two (SIGTERM when its campaign dies)
+            # removes it all the same
+            _FOLDERS.append((os.getpid(), folder))
+            try:
+                os.mkdir(folder, 0o700)  # as tempfile.mkdtemp: a new folder, this user's only
+            except FileExistsError:
+                _FOLDERS.pop()
+                continue
+            break
+        else:
+            raise FileExistsError(f"no free name for a private folder in {base}")
+        atexit.register(shutil.rmtree, folder, True)
+        util.Finalize(None, shutil.rmtree, args=(folder, True), exitpriority=0)
     return folder
+
+
+#: The private folders of this process and of the process it was forked from: (pid, path).
+_FOLDERS: list[tuple[int, str]] = []
+_FOLDER_LOCK = threading.RLock()
+
+
+def _new_folder_lock() -> None:  # a forked child starts with its own lock, free, whoever held its parent's
+    global _FOLDER_LOCK
+    _FOLDER_LOCK = threading.RLock()
+
+
+os.register_at_fork(after_in_child=_new_folder_lock)
+
+
+def remove_private_folders() -> None:
+    """Remove this process's private folders now (a campaign worker whose
+    campaign has died, ending at once: :func:`bgc.campaign._orphaned`).
+    Under the lock :func:`private_folder` takes, so no folder is being made
+    meanwhile; a folder named but not yet made is simply absent."""
+    with _FOLDER_LOCK:
+        for pid, folder in _FOLDERS:
+            if pid == os.getpid():
+                shutil.rmtree(folder, True)
 
 
 def _compiled(model: str | Path, prior_scale: float = 1.0) -> tuple[pipeline.Compiled, str]:

@@ -977,6 +977,9 @@ def _orphaned(*_signal: Any) -> None:
     try:
         from multiprocessing import util
 
+        from .api import remove_private_folders
+
+        remove_private_folders()  # also one made while the signal came, before its finalizer was registered
         util._run_finalizers(0)  # noqa: SLF001 - what multiprocessing runs at a worker's normal end
     except Exception:  # noqa: BLE001 - best effort: the exit below is what matters
         pass

@@ -5,8 +5,10 @@ a scenario's onset must lie inside the run; a sensor never read is named in
 a note; requests beyond the memory are refused with the most steps allowed."""
 
 import io
+import os
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -259,6 +261,24 @@ def test_the_rule_bounds_the_memory_a_diagnosis_takes():
 def test_distinguishability_refuses_bad_arguments_before_any_work(kwargs, kind, start):
     model = kwargs.pop("model", CIRCUIT)
     refused(lambda: bgc.distinguishability(model, **kwargs), kind, start)
+
+
+def test_private_folders_are_this_processs_own_and_removed_on_demand(tmp_path, monkeypatch):
+    """What a campaign worker whose campaign died runs before it ends:
+    its own private folders go (the one being made too: it is named before
+    it is made); a folder listed for another process (the parent a worker
+    was forked from) stays."""
+    monkeypatch.setattr(api, "_FOLDERS", [])
+    monkeypatch.setattr(api.tempfile, "gettempdir", lambda: str(tmp_path))
+    mine = Path(api.private_folder("bgc-test-"))
+    assert mine.is_dir() and mine.parent == tmp_path and (os.stat(mine).st_mode & 0o777) == 0o700
+    (mine / "x.yaml").write_text("x", encoding="utf-8")
+    other = tmp_path / "bgc-parent"
+    other.mkdir()
+    api._FOLDERS.append((os.getpid() + 1, str(other)))
+    api._FOLDERS.append((os.getpid(), str(tmp_path / "bgc-named-not-made")))
+    api.remove_private_folders()
+    assert not mine.exists() and other.is_dir()
 
 
 def test_private_folder_takes_a_prefix_string():
