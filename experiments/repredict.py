@@ -4,6 +4,13 @@ campaign wrote it.
 
     .venv/bin/python experiments/repredict.py CONFIG.yaml DIR
     .venv/bin/bgc experiment CONFIG.yaml -o DIR      # rewrites the tables: every run is reused
+    .venv/bin/python experiments/repredict.py CONFIG.yaml DIR --check 4   # afterwards: rerun 4 changed rows
+
+``--check N`` (once the predictions are recomputed) runs N of the rows whose
+predictions changed again from scratch with this checkout (the changed
+models' first, one per model in turn) and compares them with the file's, every
+column but the run time and the model file's displayed path: the evidence that
+the recomputed file is the one a campaign at this checkout would write.
 
 The prediction columns (``separable``, ``rivals``, ``separation``,
 ``detectability``) are what ``bgc distinguish`` predicts of a run's scenario
@@ -41,9 +48,12 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("config", type=Path)
     ap.add_argument("folder", type=Path)
+    ap.add_argument("--check", type=int, metavar="N", help="rerun N changed rows and compare (after recomputing)")
     args = ap.parse_args()
     runs = args.folder / "runs.csv"
     kept = args.folder / "runs.csv.before-repredict"
+    if args.check is not None:
+        return check(args.config, runs, kept, args.check)
     with open(runs, encoding="utf-8") as f:
         if MARK not in f.readline():
             print(f"{runs}: not a runs.csv bgc wrote (no '{MARK}' on its first line): left alone", file=sys.stderr)
@@ -71,6 +81,30 @@ def main() -> int:
     os.replace(tmp, runs)
     print(f"{runs}: {len(rows)} rows, the predictions of {changed} changed; the old file is {kept}")
     return 0
+
+
+def check(config: Path, runs: Path, kept: Path, count: int) -> int:
+    """Rerun ``count`` rows whose predictions changed and compare them with ``runs``."""
+    c = campaign.load_campaign(config)
+    specs = {s.id: s for s in c.specs}
+    new = {r["id"]: r for r in campaign.read_rows(runs)}
+    old = {r["id"]: r for r in campaign.read_rows(kept)}
+    changed = [i for i in new if i in old and i in specs and any(new[i][k] != old[i][k] for k in COLUMNS)]
+    by_model: dict[str, list[str]] = {}
+    for i in changed:
+        by_model.setdefault(specs[i].model_name, []).append(i)
+    order = [ids[j] for j in range(max(map(len, by_model.values()), default=0)) for ids in by_model.values()
+             if j < len(ids)]
+    differing = 0
+    for i in order[:count]:
+        row = campaign.run_one(specs[i])
+        diff = {k: (row[k], new[i][k]) for k in row if k not in ("rt", "model")
+                and campaign.format_cell(k, row[k]) != campaign.format_cell(k, new[i][k])}
+        differing += bool(diff)
+        print(f"{specs[i].scenario} {specs[i].filter} {specs[i].noise} seed {specs[i].seed}: "
+              + (f"differs: {diff}" if diff else "the same in every column but rt"))
+    print(f"{min(count, len(order))} of {len(changed)} changed rows rerun; {differing} differ")
+    return 1 if differing else 0
 
 
 if __name__ == "__main__":
