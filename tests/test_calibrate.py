@@ -61,8 +61,10 @@ def test_rc_noise_variance_is_the_mean_squared_residual(rc, seed):
     """With no process noise (and so an exactly known initial state, X0_STD
     = 2 x 0), the likelihood of sigma is that of iid N(clean_k, sigma^2): its
     maximum is the mean squared residual from the noise-free trajectory, and
-    the curvature in log sigma is 2 T, so the 95 % interval is sigma_hat
-    exp(+-1.96 / sqrt(2 T))."""
+    the log-likelihood falls from there by T d + T (exp(-2 d) - 1) / 2 at
+    log sigma = log sigma_hat + d, so the 95 % interval's ends are where that
+    fall is chi2(0.95, 1) / 2 (solved here by bisection; near
+    sigma_hat exp(+-1.96 / sqrt(2 T)), the curvature's answer)."""
     T = 200
     run, clean = rc_run(rc, 0.05, T, seed)
     r = rc.calibrate(run, "measurement_noise")
@@ -70,9 +72,16 @@ def test_rc_noise_variance_is_the_mean_squared_residual(rc, seed):
     expected = float(np.mean((run.measurements["e1"] - clean) ** 2))
     assert e.value ** 2 == pytest.approx(expected, rel=1e-6)
     assert e.identifiable and not e.at_bound
+    def end(sign):
+        fall = lambda d: T * d + T * (math.exp(-2 * d) - 1) / 2 - 3.841458820694124 / 2  # noqa: E731
+        a, b = 0.0, sign * 1.0
+        for _ in range(200):
+            a, b = (a, (a + b) / 2) if fall((a + b) / 2) > 0 else ((a + b) / 2, b)
+        return (a + b) / 2
+    assert e.low == pytest.approx(e.value * math.exp(end(-1)), rel=1e-4)
+    assert e.high == pytest.approx(e.value * math.exp(end(1)), rel=1e-4)
     half = 1.959963984540054 / math.sqrt(2 * T)
-    assert e.low == pytest.approx(e.value * math.exp(-half), rel=1e-3)
-    assert e.high == pytest.approx(e.value * math.exp(half), rel=1e-3)
+    assert e.value * math.exp(-half) < e.low and e.value * math.exp(half) < e.high  # the fall is steeper below
     assert e.level == pytest.approx(e.value / 1.0, rel=1e-12)  # its reading at X0 is 1.0: the level is the std
     # the maximum: the likelihood there is that of the iid Gaussian at the mean squared residual
     assert r.calibration.loglik == pytest.approx(-0.5 * T * (math.log(2 * math.pi * expected) + 1), rel=1e-9)

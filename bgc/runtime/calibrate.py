@@ -96,6 +96,11 @@ FLAT_STEP = 1e-6
 Z95 = 1.959963984540054
 #: A process level that falls this far (a logarithm: 1000 times) below its start is taken as 0.
 ZERO_FALL = math.log(1e3)
+#: The fall of the log-likelihood that ends a 95 % interval (the chi-square quantile of 0.95 with one degree
+#: of freedom, halved).
+DROP95 = 3.841458820694124 / 2
+#: How close (relative) the fall at an interval's end comes to ``DROP95``.
+DROP_TOL = 1e-3
 #: The fall of the log-likelihood that ends the interval of a level estimated at 0 (the chi-square
 #: quantile of 0.90 with one degree of freedom, halved: a one-sided 95 % bound at the boundary).
 ZERO_DROP = 2.705543454095404 / 2
@@ -639,7 +644,11 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
     sigma, level, theta = lik.values(z)
     cov = np.linalg.inv(H) if len(z) else np.zeros((0, 0))
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    lo, hi = lik.values(z - Z95 * sd), lik.values(z + Z95 * sd)
+    before = lik.evaluations
+    z_low, z_high = _interval_ends(lik, z, best, cov)
+    evaluations += lik.evaluations - before
+    with np.errstate(over="ignore"):
+        lo, hi = lik.values(z_low), lik.values(z_high)
     estimates = []
     k = 0
     for s in sensors:
@@ -686,6 +695,67 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
                        tuple(tuple(float(c) for c in row) for row in corr), innovations(filters, outputs),
                        _sources(records), sum(int(np.isfinite(r.ys).any(axis=1).sum()) for r in records),
                        converged, message, evaluations, time.perf_counter() - start_time)
+
+
+def _interval_ends(lik: _Likelihood, z: np.ndarray, best: float, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ends of each estimate's 95 % interval in the optimiser's
+    coordinates: where the log-likelihood has fallen by ``DROP95`` from
+    ``best``, walking from the maximum ``z`` along estimate i while the
+    others follow their best values to first order (the direction
+    ``cov[:, i]``, the path of the profile likelihood of a quadratic
+    log-likelihood; Venzon and Moolgavkar 1988 walk the exact profile). On a
+    quadratic log-likelihood these are the curvature's ``z +- 1.96 sd``;
+    where it is not (a std near 0, whose likelihood is flat below and steep
+    above) they follow the likelihood itself. An end the fall does not reach
+    within ``REACH`` is infinite (a std's interval then starts at 0)."""
+    low, high = z.copy(), z.copy()
+    for i in range(len(z)):
+        sd = math.sqrt(max(float(cov[i, i]), 0.0))
+        if not sd > 0:
+            continue
+        d = cov[:, i] / sd  # one sd of estimate i, the others at their conditional best (to first order)
+        for sign, out in ((-1.0, low), (1.0, high)):
+            def fall(t, sign=sign, d=d):
+                value = lik(z + sign * t * d)
+                return best - value if math.isfinite(value) else math.inf
+            out[i] = z[i] + sign * sd * _crossing(fall, REACH / sd)
+    return low, high
+
+
+def _crossing(fall, limit: float) -> float:
+    """The t in (0, ``limit``] where ``fall(t)`` (0 at t = 0, rising)
+    reaches ``DROP95``, within ``DROP_TOL``; infinite when it stays below up
+    to ``limit``. Starts at the curvature's answer ``Z95`` and scales t by
+    the square root of the ratio to ``DROP95`` (exact for a parabola); then
+    Brent's method in the bracket."""
+    from scipy.optimize import brentq
+
+    below, above = 0.0, math.inf
+    t = min(Z95, limit)
+    for _ in range(4):
+        f = fall(t)
+        if abs(f / DROP95 - 1) < DROP_TOL:
+            return t
+        if f < DROP95:
+            below = t
+            if t >= limit:
+                return math.inf
+            t = min(limit, t * min(4.0, max(1.05, math.sqrt(DROP95 / max(f, 1e-12)))))
+        else:
+            above = t
+            t = t * min(0.95, max(0.25, math.sqrt(DROP95 / f))) if math.isfinite(f) else 0.5 * (below + t)
+        if math.isfinite(above):  # keep within the bracket
+            t = min(max(t, below + 0.1 * (above - below)), above - 0.1 * (above - below))
+    while not math.isfinite(above):  # still no end above: go on out, doubling
+        t = min(limit, 2 * below)
+        if fall(t) >= DROP95:
+            above = t
+        elif t >= limit:
+            return math.inf
+        else:
+            below = t
+    g = lambda t: min(fall(t), 1e6) - DROP95  # noqa: E731 - a filter that fails is far beyond the end
+    return float(brentq(g, below, above, rtol=1e-6, xtol=1e-6 * above))
 
 
 def _zero_upper(model: ModuleType, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
