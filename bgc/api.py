@@ -37,8 +37,9 @@ import os
 import shutil
 import tempfile
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 
@@ -373,7 +374,9 @@ class Session:
         own = {el.name: el.noise for el in c.model.elements if el.noise is not None}
         text = calibrated.calibrated_text(original, c.model.display_source, result, own, tuple(dates))
         _check_calibrated(text, result, c)
-        return CalibrationReport(self.model, self.name, tuple(sensors), process, tuple(parameters), result, text)
+        units = {x.name: x.unit for x in (*c.model.parameters, *c.model.measurements, *c.model.inputs)}
+        return CalibrationReport(self.model, self.name, tuple(sensors), process, tuple(parameters), result, text,
+                                 units)
 
     def report(self, run: runs.Run, diagnosis: Diagnosis, scenario: str | None = None,
                injected=None) -> DiagnosisReport:
@@ -397,6 +400,25 @@ class CalibrationReport:
     parameters: tuple[str, ...]
     calibration: calibration.Calibration
     text: str
+    units: Mapping[str, str | None] = field(default_factory=dict)
+
+    def write_report(self, folder: str | Path) -> Path:
+        """Write the calibration report into ``folder`` (report.md,
+        report.json, estimates.png, residuals.png, autocorrelation.png;
+        docs/calibrate.md, "The report"): a new or empty folder, or one a
+        calibration report was written to before and nobody changed since.
+
+        Raises
+        ------
+        OutputError
+            ``folder`` is a file, or holds files bgc did not write.
+        """
+        arguments.path("bgc.CalibrationReport.write_report", "folder", folder)
+        from .output import artifacts, calibration_report
+
+        out = Path(folder)
+        artifacts.write_folder(out, calibration_report.report_files(self))
+        return out
 
     def write(self, path: str | Path) -> Path:
         """Write the calibrated model to ``path`` (a new file, or one bgc

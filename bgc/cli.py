@@ -506,15 +506,24 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     from .api import check_calibration_output
 
+    from .output import artifacts, calibration_report
+
     out = Path(args.output)
+    folder = Path(args.report) if args.report else out.with_name(out.stem + "-report")
     check_calibration_output(out, args.model, args.data)  # before any work
+    for item in args.data:
+        _refuse_input_in_output(item, folder)
+    artifacts.check_folder(folder, (*calibration_report.PICTURES, "report.md", "report.json", "manifest.json"),
+                           "calibrate")
     start = time.perf_counter()
     session = bgc.open(args.model)
     report = session.calibrate(list(args.data), args.estimate)
     report.write(out)
+    report.write_report(folder)
     cal = report.calibration
     print(f"wrote {printable(str(out))}: {report.name} calibrated on {cal.samples} samples of "
-          f"{', '.join(printable(s) for s in cal.sources)} ({time.perf_counter() - start:.1f} s)")
+          f"{', '.join(printable(s) for s in cal.sources)} ({time.perf_counter() - start:.1f} s); report in "
+          f"{printable(str(folder))}")
     for e in cal.estimates:
         if not e.identifiable:
             print(printable(f"  {e.name}: not identifiable, kept at {e.start_level:.6g} ({e.why})"))
@@ -579,6 +588,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "level), measurement_noise, process_noise, parameter names (default: noise)")
     p.add_argument("-o", "--output", required=True, metavar="CALIBRATED.yaml",
                    help="the calibrated model: a new file (never the model file, nor a file bgc did not write)")
+    p.add_argument("--report", default=None, metavar="DIR",
+                   help="the calibration report's folder: report.md, report.json, pictures (default: "
+                        "CALIBRATED-report beside the calibrated model)")
     p.set_defaults(run=cmd_calibrate)
 
     p = sub.add_parser("show", help="print or render one stage of a model")

@@ -115,12 +115,13 @@ REACH = 15.0
 @dataclass(frozen=True, slots=True)
 class Record:
     """One recording on the model's time grid: measurements ``ys`` (T,
-    n_y; NaN: not read) and inputs ``us`` (T, n_u); ``source``: its name
-    (the file)."""
+    n_y; NaN: not read) and inputs ``us`` (T, n_u) at times ``ts`` (T,);
+    ``source``: its name (the file)."""
 
     source: str
     ys: np.ndarray
     us: np.ndarray
+    ts: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -181,7 +182,10 @@ class Calibration:
     order of ``correlated``), the ``innovations`` per sensor, the
     recordings' ``sources`` and ``samples`` (rows read), whether the
     optimiser ``converged`` and its ``message``, the likelihood
-    ``evaluations`` and the ``seconds`` it took."""
+    ``evaluations`` and the ``seconds`` it took; ``residuals``: per
+    recording, the calibrated model's normalised residuals (steps, sensors
+    ``outputs``; NaN: not read), what the innovations sum up, at the
+    recording's ``times`` (steps,)."""
 
     estimates: tuple[Estimate, ...]
     loglik: float
@@ -195,6 +199,9 @@ class Calibration:
     message: str
     evaluations: int
     seconds: float
+    outputs: tuple[str, ...] = ()
+    residuals: tuple[np.ndarray, ...] = ()
+    times: tuple[np.ndarray, ...] = ()
 
     @property
     def findings(self) -> tuple[str, ...]:
@@ -280,13 +287,14 @@ def record_of(run: Run, model: ModuleType) -> Record:
     grid, as a diagnosis reads it (:class:`bgc.runtime.data.Sampler`: gaps
     predicted across, empty input cells held, absent sensors missing)."""
     sampler = data_grid.Sampler(model, tuple(run.inputs), tuple(run.measurements), run.source)
-    ys, us = [], []
+    ys, us, ts = [], [], []
     for s in data_grid.samples(run, sampler):
         ys.append(s.y)
         us.append(s.u)
+        ts.append(s.t)
     n_u = len(model.INPUTS)
     return Record(run.source, np.array(ys, dtype=float).reshape(len(ys), len(model.OUTPUTS)),
-                  np.array(us, dtype=float).reshape(len(us), n_u))
+                  np.array(us, dtype=float).reshape(len(us), n_u), np.array(ts, dtype=float))
 
 
 class _Likelihood:
@@ -694,7 +702,10 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
     return Calibration(tuple(estimates), float(best), float(start_loglik), tuple(names),
                        tuple(tuple(float(c) for c in row) for row in corr), innovations(filters, outputs),
                        _sources(records), sum(int(np.isfinite(r.ys).any(axis=1).sum()) for r in records),
-                       converged, message, evaluations, time.perf_counter() - start_time)
+                       converged, message, evaluations, time.perf_counter() - start_time, tuple(outputs),
+                       tuple(np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in filters),
+                       tuple(np.asarray(r.ts if r.ts is not None else np.arange(len(r.ys)), dtype=float)
+                             for r in records))
 
 
 def _interval_ends(lik: _Likelihood, z: np.ndarray, best: float, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
