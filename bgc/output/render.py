@@ -14,6 +14,7 @@ import sympy
 from ..errors import printable
 from ..ir import CausalBondGraph, Dbn, FaultSignatures, Numerics, StateSpaceModel, TemporalCausalGraph, var_key
 from ..kinds import ELEMENT_KINDS, FAULT_KINDS, ROLES
+from .layout import signal_links
 
 
 def to_json(data: Any) -> str:
@@ -51,6 +52,65 @@ def causality_json(cbg: CausalBondGraph) -> dict:
         "arbitrary": list(cbg.arbitrary),
         "diagnostics": [{"severity": d.severity, "message": d.message, "element": d.element} for d in cbg.diagnostics],
     }
+
+
+# ------------------------------------------------------------------ bond graph
+def bondgraph_text(cbg: CausalBondGraph) -> str:
+    """The causal bond graph as a list: every element with its kind, every
+    bond with the end its half-arrow points at (power goes tail to head) and
+    the end its causal stroke sits at (the element that receives the effort)."""
+    m = cbg.model
+    lines = [f"# bond graph of {m.name}: half arrow at the head (power tail -> head); causal stroke (SCAP) at the "
+             "end that receives the effort"]
+    width = max([len(el.name) for el in m.elements] + [7])
+    lines.append("elements:")
+    for el in m.elements:
+        kind = ELEMENT_KINDS[el.kind]
+        lines.append(f"  {el.name:<{width}} {el.kind:<4} {kind.title}")
+    lines.append("bonds:")
+    for b in m.bonds:
+        c = cbg.causality(b.number)
+        end = "head" if c.flow_by == b.head else "tail"
+        lines.append(f"  {b.number:>4}  {b.tail:>{width}} -> {b.head:<{width}}  stroke at the {end} "
+                     f"({c.flow_by}; effort by {c.effort_by})")
+    links = signal_links(m)
+    if links:
+        lines.append("signal links: " + ", ".join(f"bond {b} -> {el}" for b, el in links))
+    return "\n".join(lines) + "\n"
+
+
+def bondgraph_json(cbg: CausalBondGraph) -> dict:
+    m = cbg.model
+    return {
+        "model": m.name,
+        "elements": [{"name": el.name, "kind": el.kind} for el in m.elements],
+        "bonds": [{"bond": b.number, "tail": b.tail, "head": b.head, "effort_by": cbg.causality(b.number).effort_by,
+                   "stroke_at": cbg.causality(b.number).flow_by} for b in m.bonds],
+        "signal_links": [{"bond": b, "element": el} for b, el in signal_links(m)],
+    }
+
+
+def bondgraph_dot(cbg: CausalBondGraph) -> str:
+    """Graphviz DOT of the causal bond graph: ``lvee`` is the half-arrow at
+    the head, ``tee`` the causal stroke (Graphviz draws the first shape of an
+    arrow name next to the node)."""
+    m = cbg.model
+    lines = [f"graph {_dot_id('bondgraph_' + m.name)} {{", "  layout=neato; overlap=false; splines=true;",
+             '  node [fontname="Helvetica", fontsize=11, shape=plaintext];',
+             '  edge [fontname="Helvetica", fontsize=9, dir=both];']
+    for el in m.elements:
+        lines.append(f"  {_dot_id(el.name)} [label={_dot_id(el.kind + ':' + el.name)}];")
+    for b in m.bonds:
+        at_head = cbg.causality(b.number).flow_by == b.head
+        head, tail = ("teelvee", "none") if at_head else ("lvee", "tee")
+        lines.append(f"  {_dot_id(b.tail)} -- {_dot_id(b.head)} [label={_dot_id(str(b.number))}, "
+                     f"arrowhead={head}, arrowtail={tail}];")
+    for b, el in signal_links(m):
+        bond = m.bond(b)
+        lines.append(f"  {_dot_id(bond.head)} -- {_dot_id(el)} [style=dashed, color=\"#2060c0\", dir=forward, "
+                     f"arrowhead=normal, label={_dot_id('signal of ' + str(b))}];")
+    lines.append("}")
+    return "\n".join(lines) + "\n"
 
 
 # ------------------------------------------------------------------------- TCG
