@@ -26,11 +26,11 @@ from ..ir import CausalBondGraph, Dbn, DbnModel, TemporalCausalGraph, var_key
 from ..kinds import FAULT_KINDS, element_kind
 from .artifacts import dbn_file_stem, mark_picture
 from .layout import bond_graph_layout, boxes_overlap, label, label_size, segment_hits_box, signal_links
-from .render import bondgraph_dot, dbn_dot, dbn_nodes, tcg_dot
+from .render import bondgraph_dot, dbn_dot, dbn_nodes, tcg_dot, tcg_edge_label, tcg_inputs
 
 #: DBN node roles of the fault magnitudes (``fault_bias``, ``fault_slope``).
 _MAGNITUDE_ROLES = tuple(f"fault_{k.magnitude}" for k in FAULT_KINDS.values())
-_ROLE_COLOR = {"state": "#f4c7a1", "input": "#c9e4c5", "measurement": "#a9c8ec", "algebraic": "#ffffff",
+_ROLE_COLOR = {"state": "#f4c7a1", "input": "#c9e4c5", "signal": "#9fd39a", "measurement": "#a9c8ec", "algebraic": "#ffffff",
                "fault_indicator": "#e0e0e0", **{r: "#d6b4e8" for r in _MAGNITUDE_ROLES},
                "fault_parameter": "#e8b4c8"}
 
@@ -66,13 +66,34 @@ def _tcg_picture(tcg: TemporalCausalGraph, fmt: str, engine: str) -> bytes:
     for i, n in enumerate(meas):
         src = min((pos[p][0] for p in g.predecessors(n) if p in pos), default=i)
         pos[n] = (src + 0.5, -1.0 if i % 2 == 0 else -1.5)
-    labels = {(e.source, e.target): e.label for e in tcg.edges}
+    inputs = tcg_inputs(tcg)
+    for u in sorted({u for u, _, _ in inputs}):  # beside the first variable it sets, outside the rows
+        x, y = min((pos[n] for v, n, _ in inputs if v == u), key=lambda p: p[0])
+        pos[u] = (x - 0.35, 1.9) if y > 0.5 else (x - 0.45, -0.8)
+    edges = [(u, n) for u, n, _ in inputs] + [(e.source, e.target) for e in tcg.edges]
+    labels = {(u, n): text for u, n, text in inputs}
+    labels.update({(e.source, e.target): tcg_edge_label(e) for e in tcg.edges})
     temporal = {(e.source, e.target) for e in tcg.edges if e.temporal}
     roles = {n: ("measurement" if d["measured"] else d["role"]) for n, d in g.nodes(data=True)}
+    roles.update({u: "signal" for u, _, _ in inputs})
     width = max(6.0, 1.1 * len(bonds))
-    return _draw(pos, sorted(g.nodes, key=var_key), [(e.source, e.target) for e in tcg.edges], labels, temporal,
-                 roles, {n: n for n in g.nodes}, f"TCG of {tcg.model.name} (red: integrating edges)",
-                 (width, 4.8 if meas else 3.4), fmt)
+    legend = [("node", _ROLE_COLOR[r], text) for r, text in _TCG_ROLES if r in roles.values()]
+    legend.append(("edge", _HIGHLIGHT, "integrating edge (dt/C, dt/I: a state's derivative)"))
+    legend.append(("edge", _EDGE, "algebraic edge; [..]: parameters it involves beyond its label"))
+    nodes = sorted(g.nodes, key=var_key) + sorted({u for u, _, _ in inputs})
+    return _draw(pos, nodes, edges, labels, temporal, roles, {n: n for n in nodes}, f"TCG of {tcg.model.name}",
+                 (width, 5.6 if meas else 4.2), fmt, legend)
+
+
+#: The legends' node entries, in the order they are listed.
+_TCG_ROLES = (("signal", "input (the model's; [..]: an actuator fault's parameter)"),
+              ("input", "source variable (an Se's effort, an Sf's flow)"), ("state", "state (integral causality)"),
+              ("algebraic", "algebraic variable"), ("measurement", "measured variable"))
+_DBN_ROLES = (("input", "input u"), ("state", "state x"), ("measurement", "measurement y"),
+              ("fault_indicator", "fault indicator D (is the fault present)"),
+              *((r, "fault magnitude delta (bias or slope)") for r in _MAGNITUDE_ROLES[:1]),
+              ("fault_parameter", "drifting parameter (incipient fault)"))
+_HIGHLIGHT, _EDGE = "#b03030", "#404040"
 
 
 def dbn_picture(d: Dbn, fmt: str, engine: str = "auto") -> bytes:
@@ -100,9 +121,13 @@ def _dbn_picture(d: Dbn, fmt: str, engine: str) -> bytes:
     temporal = {(a, b) for a, b, k in g.edges(data="arc") if k == "temporal"}
     roles = {n: g.nodes[n]["role"] for n in g.nodes}
     labels_n = {n: g.nodes[n]["variable"] for n in g.nodes}
-    height = max(4.0, 0.8 * max(rows.values()) + 1.5)
+    height = max(4.0, 0.8 * max(rows.values()) + 1.5) + 0.8
+    present = {_MAGNITUDE_ROLES[0] if r in _MAGNITUDE_ROLES else r for r in roles.values()}
+    legend = [("node", _ROLE_COLOR[r], text) for r, text in _DBN_ROLES if r in present]
+    legend.append(("edge", _HIGHLIGHT, "temporal arc: integration from slice t to t+1"))
+    legend.append(("edge", _EDGE, "other arcs: persistence, measurement, fault"))
     return _draw(pos, dbn_nodes(d), sorted(g.edges), {}, temporal, roles, labels_n,
-                 f"DBN '{d.name}': slice t (left), t+1 (right)", (9.0, height), fmt)
+                 f"DBN '{d.name}': slice t (left), t+1 (right)", (9.0, height), fmt, legend)
 
 
 #: Box colours of element roles in the bond graph picture (as the TCG's: sources green, storage orange).
@@ -291,7 +316,10 @@ def _curve(p1, p2, rad: float, shrink: float, n: int = 24):
     return pts, tangent, length
 
 
-def _draw(pos, nodes, edges, edge_labels, highlight, roles, node_labels, title, size, fmt) -> bytes:
+def _draw(pos, nodes, edges, edge_labels, highlight, roles, node_labels, title, size, fmt, legend=()) -> bytes:
+    """Nodes as labelled boxes coloured by role, edges as curved arrows
+    (``highlight`` in red), and ``legend`` entries (``node``/``edge``,
+    colour, text) under the graph."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -308,7 +336,7 @@ def _draw(pos, nodes, edges, edge_labels, highlight, roles, node_labels, title, 
         for a, b in edges:
             rad = 0.18 if (b, a) in edge_set or abs(pos[a][1] - pos[b][1]) < 1e-9 else 0.06
             pts, tan, _ = _curve(pos[a], pos[b], rad, 0.22)
-            color = "#b03030" if (a, b) in highlight else "#404040"
+            color = _HIGHLIGHT if (a, b) in highlight else _EDGE
             lines.append(pts)
             tip = pts[-1]
             normal = np.array([-tan[1], tan[0]])
@@ -331,9 +359,19 @@ def _draw(pos, nodes, edges, edge_labels, highlight, roles, node_labels, title, 
         ax.set_xlim(min(xs) - 0.7, max(xs) + 0.7)
         ax.set_ylim(min(ys) - 0.7, max(ys) + 0.7)
         ax.axis("off")
+        bottom = 0.01
+        if legend:
+            from matplotlib.lines import Line2D
+            from matplotlib.patches import Patch
+
+            handles = [Patch(fc=c, ec="#202020", lw=0.6, label=t) if k == "node" else
+                       Line2D([], [], color=c, lw=1.2, label=t) for k, c, t in legend]
+            bottom = min(0.4, (0.25 + 0.2 * math.ceil(len(handles) / 2)) / size[1])
+            fig.legend(handles=handles, loc="lower center", ncol=2, fontsize=7, frameon=False,
+                       bbox_to_anchor=(0.5, 0.0)).set_gid("legend")
         buf = io.BytesIO()
         meta = {"Date": None, "Creator": None} if fmt == "svg" else {"Software": None}
-        fig.subplots_adjust(left=0.01, right=0.99, top=0.92, bottom=0.01)
+        fig.subplots_adjust(left=0.01, right=0.99, top=0.92, bottom=bottom)
         fig.savefig(buf, format=fmt, metadata=meta, dpi=110)
         plt.close(fig)
     return buf.getvalue()

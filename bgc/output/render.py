@@ -7,6 +7,7 @@ alphabetically), so the same model always gives the same text.
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 import sympy
@@ -162,19 +163,53 @@ def _dot_id(name: str) -> str:
     return '"' + name.replace('"', '\\"') + '"'
 
 
+def tcg_edge_label(e) -> str:
+    """An edge's label in the pictures: the relation's label, then the
+    parameters it involves that the label does not name (a modulated
+    element's, a signal's gain): ``1/MR_memb [K0, K_slope, R_memb]``, so a
+    fault of any of them shows where it enters."""
+    named = set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", e.label))
+    extra = [p for p in e.parameters if p not in named]
+    return f"{e.label} [{', '.join(extra)}]" if extra else e.label
+
+
+def tcg_inputs(tcg: TemporalCausalGraph) -> list[tuple[str, str, str]]:
+    """The model's inputs as the pictures draw them, feeding the TCG: (input,
+    the source variable it sets, label), the label naming the source element
+    and the parameters an actuator fault adds (``<input>_gain``,
+    ``<input>_offset``), sorted."""
+    g = tcg.graph
+    faults: dict[str, list[str]] = {}
+    for f in tcg.model.faults:
+        if f.target == "actuator":
+            faults.setdefault(f.subject, []).append(f.parameter)
+    out = []
+    for n in sorted(g.nodes, key=var_key):
+        for u in g.nodes[n].get("inputs", ()):
+            params = sorted(set(faults.get(u, ())))
+            element = g.nodes[n].get("element") or "source"
+            out.append((u, n, f"{element} [{', '.join(params)}]" if params else element))
+    return sorted(out, key=lambda t: (t[0], var_key(t[1])))
+
+
 def tcg_dot(tcg: TemporalCausalGraph) -> str:
     g = tcg.graph
     lines = [f"digraph {_dot_id('tcg_' + tcg.model.name)} {{", "  rankdir=LR;",
              '  node [fontname="Helvetica", fontsize=11];', '  edge [fontname="Helvetica", fontsize=9];']
+    inputs = tcg_inputs(tcg)
+    for u in sorted({u for u, _, _ in inputs}):
+        lines.append(f'  {_dot_id(u)} [shape=cds, style=filled, fillcolor="#9fd39a"];')
     for n in sorted(g.nodes, key=var_key):
         d = g.nodes[n]
         shape = {"state": "doublecircle", "input": "diamond", "measurement": "box"}.get(d["role"], "circle")
         if d["measured"] and d["role"] != "measurement":
             shape = "box" if d["role"] == "algebraic" else shape
         lines.append(f"  {_dot_id(n)} [shape={shape}];")
+    for u, n, text in inputs:
+        lines.append(f'  {_dot_id(u)} -> {_dot_id(n)} [label={_dot_id(text)}, color="#2e7d32"];')
     for e in tcg.edges:
         style = ', style=bold, color="#b03030"' if e.temporal else ""
-        lines.append(f"  {_dot_id(e.source)} -> {_dot_id(e.target)} [label={_dot_id(e.label)}{style}];")
+        lines.append(f"  {_dot_id(e.source)} -> {_dot_id(e.target)} [label={_dot_id(tcg_edge_label(e))}{style}];")
     lines.append("}")
     return "\n".join(lines) + "\n"
 
