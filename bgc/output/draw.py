@@ -155,7 +155,7 @@ def _bondgraph_picture(cbg: CausalBondGraph, fmt: str, engine: str) -> bytes:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.patches import FancyBboxPatch
+    from matplotlib.patches import FancyArrowPatch, FancyBboxPatch
 
     model = cbg.model
     lay = bond_graph_layout(model)
@@ -186,9 +186,9 @@ def _bondgraph_picture(cbg: CausalBondGraph, fmt: str, engine: str) -> bytes:
             mid = ((pos[b.tail][0] + pos[b.head][0]) / 2, (pos[b.tail][1] + pos[b.head][1]) / 2)
             _, end = _clip((*mid, 0.0, 0.0), boxes[element])
             links.append((mid, end))
-            ax.annotate("", xy=end, xytext=mid, gid=f"signal-{bond}-{element}",
-                        arrowprops={"arrowstyle": "-|>", "linestyle": (0, (3, 2)), "color": "#2060c0",
-                                    "lw": 0.8, "shrinkA": 0, "shrinkB": 0, "mutation_scale": 8})
+            ax.add_patch(FancyArrowPatch(mid, end, arrowstyle="-|>", linestyle=(0, (3, 2)), color="#2060c0",
+                                         lw=0.8, shrinkA=0, shrinkB=0, mutation_scale=8,
+                                         gid=f"signal-{bond}-{element}"))
         number_boxes: list = []
         ends = {b.number: _clip(boxes[b.tail], boxes[b.head]) for b in model.bonds}
         lines = [*links, *ends.values()]
