@@ -169,7 +169,7 @@ def _bondgraph_picture(cbg: CausalBondGraph, fmt: str, engine: str) -> bytes:
     y0 = min(y - h / 2 for _, y, _, h in boxes.values()) - 0.35
     y1 = max(y + h / 2 for _, y, _, h in boxes.values()) + 0.35
     legend_h, title_h = 1.25, 0.4
-    width = max(x1 - x0, 7.2)
+    width = max(x1 - x0, 7.8)
     x0, x1 = (x0 + x1) / 2 - width / 2, (x0 + x1) / 2 + width / 2
     height = (y1 - y0) + legend_h + title_h
     with matplotlib.rc_context(_RC):
