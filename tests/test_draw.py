@@ -197,3 +197,25 @@ def test_bad_input_is_one_line_exit_1(args, says):
     assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and says in lines[0], r.stderr
+
+
+def test_a_model_a_later_stage_refuses_is_still_drawn(tmp_path):
+    """A C on a 0-junction whose effort an Se fixes is in derivative
+    causality (the equations stage refuses it): the picture still comes out,
+    the Se's stroke at the junction, the C's at the C (it receives the
+    effort), with the red-box note in the legend."""
+    model = tmp_path / "deriv.yaml"
+    model.write_text("""name: deriv
+parameters: {R: 1.0, C: 2.0}
+inputs: {V: 1.0}
+elements: {V: {kind: Se}, n: {kind: "0"}, R: {kind: R}, C: {kind: C}}
+bonds: {1: [V, n], 2: [n, R], 3: [n, C]}
+measurements: {f3: {}}
+""")
+    svg = show(tmp_path, "causality", str(model), "--format", "svg")
+    g = groups(svg)
+    at = {n: centre(g[f"label-{n}"]) for n in ("V", "n", "C")}
+    stroke = [((x1 + x2) / 2, (y1 + y2) / 2) for (x1, y1), (x2, y2) in
+              (path_points(g[f"stroke-{b}"]) for b in (1, 3))]
+    assert _nearer(stroke[0], at["n"], at["V"]) and _nearer(stroke[1], at["C"], at["n"])
+    assert "storage element in derivative causality" in " ".join(t for grp in g.values() for t in texts(grp))
