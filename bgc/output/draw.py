@@ -30,7 +30,8 @@ from .render import bondgraph_dot, dbn_dot, dbn_nodes, tcg_dot, tcg_edge_label, 
 
 #: DBN node roles of the fault magnitudes (``fault_bias``, ``fault_slope``).
 _MAGNITUDE_ROLES = tuple(f"fault_{k.magnitude}" for k in FAULT_KINDS.values())
-_ROLE_COLOR = {"state": "#f4c7a1", "input": "#c9e4c5", "signal": "#9fd39a", "measurement": "#a9c8ec", "algebraic": "#ffffff",
+_ROLE_COLOR = {"state": "#f4c7a1", "input": "#c9e4c5", "signal": "#9fd39a", "measurement": "#a9c8ec",
+               "algebraic": "#ffffff",
                "fault_indicator": "#e0e0e0", **{r: "#d6b4e8" for r in _MAGNITUDE_ROLES},
                "fault_parameter": "#e8b4c8"}
 
