@@ -7,6 +7,7 @@ alphabetically), so the same model always gives the same text.
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 import sympy
@@ -14,6 +15,7 @@ import sympy
 from ..errors import printable
 from ..ir import CausalBondGraph, Dbn, FaultSignatures, Numerics, StateSpaceModel, TemporalCausalGraph, var_key
 from ..kinds import ELEMENT_KINDS, FAULT_KINDS, ROLES
+from .layout import signal_links
 
 
 def to_json(data: Any) -> str:
@@ -51,6 +53,65 @@ def causality_json(cbg: CausalBondGraph) -> dict:
         "arbitrary": list(cbg.arbitrary),
         "diagnostics": [{"severity": d.severity, "message": d.message, "element": d.element} for d in cbg.diagnostics],
     }
+
+
+# ------------------------------------------------------------------ bond graph
+def bondgraph_text(cbg: CausalBondGraph) -> str:
+    """The causal bond graph as a list: every element with its kind, every
+    bond with the end its half-arrow points at (power goes tail to head) and
+    the end its causal stroke sits at (the element that receives the effort)."""
+    m = cbg.model
+    lines = [f"# bond graph of {m.name}: half arrow at the head (power tail -> head); causal stroke (SCAP) at the "
+             "end that receives the effort"]
+    width = max([len(el.name) for el in m.elements] + [7])
+    lines.append("elements:")
+    for el in m.elements:
+        kind = ELEMENT_KINDS[el.kind]
+        lines.append(f"  {el.name:<{width}} {el.kind:<4} {kind.title}")
+    lines.append("bonds:")
+    for b in m.bonds:
+        c = cbg.causality(b.number)
+        end = "head" if c.flow_by == b.head else "tail"
+        lines.append(f"  {b.number:>4}  {b.tail:>{width}} -> {b.head:<{width}}  stroke at the {end} "
+                     f"({c.flow_by}; effort by {c.effort_by})")
+    links = signal_links(m)
+    if links:
+        lines.append("signal links: " + ", ".join(f"bond {b} -> {el}" for b, el in links))
+    return "\n".join(lines) + "\n"
+
+
+def bondgraph_json(cbg: CausalBondGraph) -> dict:
+    m = cbg.model
+    return {
+        "model": m.name,
+        "elements": [{"name": el.name, "kind": el.kind} for el in m.elements],
+        "bonds": [{"bond": b.number, "tail": b.tail, "head": b.head, "effort_by": cbg.causality(b.number).effort_by,
+                   "stroke_at": cbg.causality(b.number).flow_by} for b in m.bonds],
+        "signal_links": [{"bond": b, "element": el} for b, el in signal_links(m)],
+    }
+
+
+def bondgraph_dot(cbg: CausalBondGraph) -> str:
+    """Graphviz DOT of the causal bond graph: ``lvee`` is the half-arrow at
+    the head, ``tee`` the causal stroke (Graphviz draws the first shape of an
+    arrow name next to the node)."""
+    m = cbg.model
+    lines = [f"graph {_dot_id('bondgraph_' + m.name)} {{", "  layout=neato; overlap=false; splines=true;",
+             '  node [fontname="Helvetica", fontsize=11, shape=plaintext];',
+             '  edge [fontname="Helvetica", fontsize=9, dir=both];']
+    for el in m.elements:
+        lines.append(f"  {_dot_id(el.name)} [label={_dot_id(el.kind + ':' + el.name)}];")
+    for b in m.bonds:
+        at_head = cbg.causality(b.number).flow_by == b.head
+        head, tail = ("teelvee", "none") if at_head else ("lvee", "tee")
+        lines.append(f"  {_dot_id(b.tail)} -- {_dot_id(b.head)} [label={_dot_id(str(b.number))}, "
+                     f"arrowhead={head}, arrowtail={tail}];")
+    for b, el in signal_links(m):
+        bond = m.bond(b)
+        lines.append(f"  {_dot_id(bond.head)} -- {_dot_id(el)} [style=dashed, color=\"#2060c0\", dir=forward, "
+                     f"arrowhead=normal, label={_dot_id('signal of ' + str(b))}];")
+    lines.append("}")
+    return "\n".join(lines) + "\n"
 
 
 # ------------------------------------------------------------------------- TCG
@@ -102,19 +163,53 @@ def _dot_id(name: str) -> str:
     return '"' + name.replace('"', '\\"') + '"'
 
 
+def tcg_edge_label(e) -> str:
+    """An edge's label in the pictures: the relation's label, then the
+    parameters it involves that the label does not name (a modulated
+    element's, a signal's gain): ``1/MR_memb [K0, K_slope, R_memb]``, so a
+    fault of any of them shows where it enters."""
+    named = set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", e.label))
+    extra = [p for p in e.parameters if p not in named]
+    return f"{e.label} [{', '.join(extra)}]" if extra else e.label
+
+
+def tcg_inputs(tcg: TemporalCausalGraph) -> list[tuple[str, str, str]]:
+    """The model's inputs as the pictures draw them, feeding the TCG: (input,
+    the source variable it sets, label), the label naming the source element
+    and the parameters an actuator fault adds (``<input>_gain``,
+    ``<input>_offset``), sorted."""
+    g = tcg.graph
+    faults: dict[str, list[str]] = {}
+    for f in tcg.model.faults:
+        if f.target == "actuator":
+            faults.setdefault(f.subject, []).append(f.parameter)
+    out = []
+    for n in sorted(g.nodes, key=var_key):
+        for u in g.nodes[n].get("inputs", ()):
+            params = sorted(set(faults.get(u, ())))
+            element = g.nodes[n].get("element") or "source"
+            out.append((u, n, f"{element} [{', '.join(params)}]" if params else element))
+    return sorted(out, key=lambda t: (t[0], var_key(t[1])))
+
+
 def tcg_dot(tcg: TemporalCausalGraph) -> str:
     g = tcg.graph
     lines = [f"digraph {_dot_id('tcg_' + tcg.model.name)} {{", "  rankdir=LR;",
              '  node [fontname="Helvetica", fontsize=11];', '  edge [fontname="Helvetica", fontsize=9];']
+    inputs = tcg_inputs(tcg)
+    for u in sorted({u for u, _, _ in inputs}):
+        lines.append(f'  {_dot_id(u)} [shape=cds, style=filled, fillcolor="#9fd39a"];')
     for n in sorted(g.nodes, key=var_key):
         d = g.nodes[n]
         shape = {"state": "doublecircle", "input": "diamond", "measurement": "box"}.get(d["role"], "circle")
         if d["measured"] and d["role"] != "measurement":
             shape = "box" if d["role"] == "algebraic" else shape
         lines.append(f"  {_dot_id(n)} [shape={shape}];")
+    for u, n, text in inputs:
+        lines.append(f'  {_dot_id(u)} -> {_dot_id(n)} [label={_dot_id(text)}, color="#2e7d32"];')
     for e in tcg.edges:
         style = ', style=bold, color="#b03030"' if e.temporal else ""
-        lines.append(f"  {_dot_id(e.source)} -> {_dot_id(e.target)} [label={_dot_id(e.label)}{style}];")
+        lines.append(f"  {_dot_id(e.source)} -> {_dot_id(e.target)} [label={_dot_id(tcg_edge_label(e))}{style}];")
     lines.append("}")
     return "\n".join(lines) + "\n"
 
