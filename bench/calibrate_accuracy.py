@@ -4,7 +4,8 @@ are the maximum of the exact Kalman likelihood (docs/calibrate.md,
 "Measured").
 
     .venv/bin/python bench/calibrate_accuracy.py PLANT[:PARAMETER] [PLANT[:PARAMETER] ...]
-        [--steps 1000] [--seeds 20] [--offset 1.1] [--workers 2] [--exact]
+        [--steps 1000] [--seeds 20] [--offset 1.1] [--workers 2] [--exact] [--jsonl FILE]
+    .venv/bin/python bench/calibrate_accuracy.py PLANT[:PARAMETER] ... --summary FILE
 
 The issue's campaign (five plants, 20 seeds, 1000 samples, about 40 minutes
 on two cores):
@@ -45,6 +46,7 @@ many intervals cover the truth; and the seconds per calibration.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 import tempfile
@@ -241,20 +243,38 @@ def main() -> None:
     parser.add_argument("--offset", type=float, default=1.1, help="the fitted model's parameter over the plant's")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--exact", action="store_true", help="the exact Kalman reference (linear plants)")
+    parser.add_argument("--jsonl", default=None, metavar="FILE",
+                        help="also append each run's result to FILE as a JSON line (--summary FILE reads them back)")
+    parser.add_argument("--summary", default=None, metavar="FILE",
+                        help="print the tables of the runs in FILE (written by --jsonl) and stop")
     args = parser.parse_args()
+    if args.summary:
+        results: dict[str, list[dict]] = {}
+        for line in Path(args.summary).read_text(encoding="utf-8").splitlines():
+            r = json.loads(line)
+            results.setdefault(r["plant"], []).append(r)
+        for item in args.plants:
+            plant, _, parameter = item.partition(":")
+            if plant in results:
+                report(plant, sorted(results[plant], key=lambda r: r["seed"]), args.steps, args.offset,
+                       parameter or None)
+        return
     print("command: .venv/bin/python " + " ".join(sys.argv), flush=True)
     with tempfile.TemporaryDirectory(prefix="bgc-calibrate-bench-") as folder:
         plans = []
         for item in args.plants:
             plant, _, parameter = item.partition(":")
             plans.append((plant, parameter or None, offset_model(plant, parameter or None, args.offset, folder)))
-        jobs = [(plant, parameter, fit, args.steps, seed, args.exact)
-                for plant, parameter, fit in plans for seed in range(100, 100 + args.seeds)]
+        jobs = [(plant, parameter, fit, args.steps, seed, args.exact)  # seed by seed: a cut run stays balanced
+                for seed in range(100, 100 + args.seeds) for plant, parameter, fit in plans]
         results: dict[str, list[dict]] = {}
         start = time.perf_counter()
         with ProcessPoolExecutor(args.workers) as pool:
             for done, r in enumerate(pool.map(job, jobs), 1):
                 results.setdefault(r["plant"], []).append(r)
+                if args.jsonl:
+                    with open(args.jsonl, "a", encoding="utf-8") as f:
+                        f.write(json.dumps(r, default=float) + "\n")
                 ex = r.get("exact", {})
                 print(f"[{done}/{len(jobs)}] {r['plant']} seed {r['seed']}: "
                       + ", ".join(f"{row['name']} {row['value']:.4g}" + ("" if row["identifiable"] else " (held)")

@@ -369,7 +369,8 @@ class Session:
             dates += [h.split(":", 1)[1].strip() for h in run.header
                       if h.lower().startswith(("date:", "recorded:")) and h.split(":", 1)[1].strip()]
         say(f"calibrating on {len(records)} recording(s)")
-        result = calibration.calibrate(nominal, c.numerics, records, sensors, process, parameters)
+        result = calibration.calibrate(nominal, c.numerics, records, sensors, process, parameters,
+                                       calibration.wants_initial(estimate))
         original = _model_text(self.model, c)
         own = {el.name: el.noise for el in c.model.elements if el.noise is not None}
         text = calibrated.calibrated_text(original, c.model.display_source, result, own, tuple(dates))
@@ -493,7 +494,7 @@ def _check_calibrated(text: str, result: calibration.Calibration, c: pipeline.Co
     params = {p.name: p.value for p in model.parameters}
     sensors = {m.name: m.noise for m in model.measurements}
     for e in result.estimates:
-        if not e.identifiable:
+        if not e.identifiable or e.kind == "initial":  # a recording's start: reported, not written
             continue
         got = {"measurement_noise": lambda: sensors[e.subject], "process_noise": lambda: model.settings.process_noise,
                "parameter": lambda: params[e.subject]}[e.kind]()

@@ -37,11 +37,11 @@ def tanks():
     return bgc.open(TWO_TANK)
 
 
-def rc_run(session, sigma: float, steps: int, seed: int) -> tuple[runs.Run, np.ndarray]:
+def rc_run(session, sigma: float, steps: int, seed: int, start: float = 1.0) -> tuple[runs.Run, np.ndarray]:
     """A run of the RC drain made here, not by bgc: the noise-free trajectory
     of the filters' own discretisation (RK4, amplification factor
-    1 + z + z^2/2 + z^3/6 + z^4/24 per substep, z = -h / (R C)) from the
-    initial 1.0, sampled from t = dt on (the filter predicts one step before
+    1 + z + z^2/2 + z^3/6 + z^4/24 per substep, z = -h / (R C)) from
+    ``start`` (the model's initial value is 1.0), sampled from t = dt on (the filter predicts one step before
     its first sample), plus white noise of std ``sigma``. Returns the run and
     the noise-free readings."""
     m = session.package.MODELS["nominal"]
@@ -49,7 +49,7 @@ def rc_run(session, sigma: float, steps: int, seed: int) -> tuple[runs.Run, np.n
     h = m.DT / m.SUBSTEPS
     z = -h / (R * C)
     g = (1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24) ** m.SUBSTEPS
-    clean = 1.0 * g ** np.arange(1, steps + 1)
+    clean = start * g ** np.arange(1, steps + 1)
     y = clean + sigma * np.random.default_rng(seed).standard_normal(steps)
     time = m.DT * np.arange(1, steps + 1)
     run = runs.Run(time, {}, {"e1": y}, {}, {}, ("model rc_drain: made by tests/test_calibrate.py",), "rc.csv")
@@ -86,6 +86,35 @@ def test_rc_noise_variance_is_the_mean_squared_residual(rc, seed):
     assert e.level == pytest.approx(e.value / 1.0, rel=1e-12)  # its reading at X0 is 1.0: the level is the std
     # the maximum: the likelihood there is that of the iid Gaussian at the mean squared residual
     assert r.calibration.loglik == pytest.approx(-0.5 * T * (math.log(2 * math.pi * expected) + 1), rel=1e-9)
+
+
+def test_rc_initial_state_is_the_least_squares_start(rc):
+    """A recording that starts at 0.8, not at the model's 1.0, with no
+    process noise: the readings are x0 g^k plus white noise, so the
+    maximum-likelihood start is the least-squares x0 = sum y_k g^k / sum
+    g^2k, the noise variance the mean squared residual from x0 g^k, and (the
+    start's and the std's estimates uncorrelated at the maximum: a mean and
+    a variance) the start's interval x0 +- 1.96 sigma / sqrt(sum g^2k). The
+    model file keeps its initial value."""
+    T = 200
+    run, clean = rc_run(rc, 0.05, T, 3, start=0.8)
+    report = rc.calibrate(run, "measurement_noise,initial")
+    c = report.calibration
+    g = clean / 0.8  # g^k, k = 1 .. T
+    y = run.measurements["e1"]
+    x0 = float(y @ g / (g @ g))
+    sigma = math.sqrt(float(np.mean((y - x0 * g) ** 2)))
+    e = c.estimate("initial e1")
+    assert e.kind == "initial" and e.identifiable and e.start == 1.0
+    assert e.value == pytest.approx(x0, rel=1e-6) and abs(e.value - 0.8) < e.high - e.low
+    half = 1.959963984540054 * sigma / math.sqrt(float(g @ g))
+    assert e.low == pytest.approx(x0 - half, rel=1e-4) and e.high == pytest.approx(x0 + half, rel=1e-4)
+    assert c.estimate("noise e1").value == pytest.approx(sigma, rel=1e-6)
+    assert "initial: 1.0" in report.text  # the model's start is kept: the estimate describes the recording
+    # without it, the model's start is taken as known, and its error as noise: the mean squared residual
+    # from 1.0 g^k
+    wrong = rc.calibrate(run, "measurement_noise").calibration.estimate("noise e1").value
+    assert wrong == pytest.approx(math.sqrt(float(np.mean((y - g) ** 2))), rel=1e-6) and wrong > 1.1 * sigma
 
 
 def test_rc_several_recordings_with_gaps_and_missing_cells(rc):

@@ -77,7 +77,7 @@ def calibrated_text(text: str, source: str, cal: Calibration, element_levels: di
                     changes.append(_Change(("elements", name, "noise"), number(own * e.level / e.start),
                                            f"# bgc calibrate: {name}'s own process noise scaled as the process "
                                            f"level ({e.level / e.start:.4g} times; was {own:g})"))
-        else:
+        elif e.kind == "parameter":
             changes.append(_Change(("parameters", e.subject), _written(e, e.value),
                                    _comment(e, e.subject, data + when, None)))
     out = _edit(text, changes)

@@ -38,11 +38,6 @@ def _unit(units: dict[str, str | None], e: Estimate) -> str | None:
     return None
 
 
-def _what(e: Estimate) -> str:
-    return {"measurement_noise": f"std of sensor {e.subject}'s noise", "process_noise": "process-noise level",
-            "parameter": f"parameter {e.subject}"}[e.kind]
-
-
 def report_data(r) -> dict[str, Any]:
     """``report.json``: the calibration as data (NaN and infinity as null)."""
     c: Calibration = r.calibration
@@ -127,7 +122,7 @@ def report_markdown(r) -> str:
 def estimates_figure(r, fmt: str = "png") -> bytes:
     """Each identifiable estimate over the model file's value (log scale), with its 95 % interval."""
     c: Calibration = r.calibration
-    shown = [e for e in c.estimates if e.identifiable]
+    shown = [e for e in c.estimates if e.identifiable and e.kind != "initial"]  # a state may be 0 or negative
     plt, fig, axes = _figure(1, width=8.0, height_per_row=max(2.5, 0.45 * len(shown) + 1.2))
     ax = axes[0]
     for y, e in enumerate(shown):

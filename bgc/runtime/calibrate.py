@@ -39,10 +39,12 @@ file declares one.
 log-likelihood, in the logarithms of the stds, of the process level and of
 the parameters (a parameter whose nominal value is 0 in its own units),
 followed by up to three Newton steps with the numerical Hessian. The
-**interval** of each estimate comes from the curvature of the
-log-likelihood at its maximum: the inverse of the Hessian (central
-differences, in the optimiser's coordinates) is the asymptotic covariance;
-``z +- 1.96 sd`` mapped back (so the interval of a std is asymmetric). An
+**interval** of each estimate ends where the log-likelihood has fallen by
+chi2(0.95, 1) / 2 = 1.92 from its maximum, walking along the estimate while
+the others follow their conditional best to first order (the direction of
+the inverse Hessian's column; :func:`_interval_ends`): on a quadratic
+log-likelihood that is the curvature's ``z +- 1.96 sd``, and where the
+likelihood is lopsided (a std near 0) it follows the likelihood. An
 estimate is **not identifiable** when the Hessian is near singular along a
 direction it takes part in, when its correlation with another estimate is
 above 0.99 in magnitude (parameters that enter only as a product), or when
@@ -79,6 +81,8 @@ from .runs import Run
 
 #: The ``--estimate`` words that name noise (a parameter's name names itself).
 NOISE_WORDS = ("noise", "measurement_noise", "process_noise")
+#: The ``--estimate`` word that asks for each recording's initial state.
+INITIAL_WORD = "initial"
 #: The probability of a finding (:attr:`Calibration.findings`) when the model fits, over all sensors and tests.
 FIT_LEVEL = 0.01
 #: The start of the process level when the model declares none (0 has no logarithm).
@@ -130,7 +134,9 @@ class Estimate:
     sensor; ``value`` its absolute std, ``level`` the model file's relative
     ``noise``), ``process_noise`` (``subject`` ``process``; ``value`` and
     ``level`` the relative level ``simulation.process_noise``) or
-    ``parameter`` (``subject``: its name; ``value``, ``level``: its value).
+    ``parameter`` (``subject``: its name; ``value``, ``level``: its value)
+    or ``initial`` (``subject``: a state, ``STATE of SOURCE`` over several
+    recordings; ``value``, ``level``: its value at the recording's start).
     ``low``, ``high``: the 95 % interval of ``value`` (``level_low``,
     ``level_high`` of ``level``); ``start``: the model's value. Not
     ``identifiable``: ``why`` says why, and ``value`` is the model's."""
@@ -152,8 +158,8 @@ class Estimate:
     @property
     def name(self) -> str:
         """``noise F10``, ``process noise`` or the parameter's name."""
-        return {"measurement_noise": f"noise {self.subject}", "process_noise": "process noise"}.get(
-            self.kind, self.subject)
+        return {"measurement_noise": f"noise {self.subject}", "process_noise": "process noise",
+                "initial": f"initial {self.subject}"}.get(self.kind, self.subject)
 
 
 @dataclass(frozen=True, slots=True)
@@ -250,7 +256,8 @@ def targets(words: str | Sequence[str], model: ModuleType, parameters: Sequence[
     process level, the parameters), from words ``noise`` (every sensor's
     noise and the process level), ``measurement_noise``, ``process_noise``
     and parameter names (of the model file's ``parameters``), separated by
-    commas.
+    commas; the word ``initial`` (each recording's initial state) is read by
+    :func:`wants_initial`.
 
     Raises
     ------
@@ -269,17 +276,22 @@ def targets(words: str | Sequence[str], model: ModuleType, parameters: Sequence[
             sensors = tuple(model.OUTPUTS)
         if w in ("noise", "process_noise"):
             process = True
-        if w in NOISE_WORDS:
+        if w in NOISE_WORDS or w == INITIAL_WORD:
             continue
         if w not in parameters:
             raise CalibrationError(
                 f"{where} {printable(w)}: not a parameter of {model.MODEL}", None,
-                f"give noise, measurement_noise, process_noise or parameters of the model file "
+                f"give noise, measurement_noise, process_noise, initial or parameters of the model file "
                 f"({', '.join(parameters) or 'it declares none'})")
         if w in chosen:
             raise CalibrationError(f"{where} {printable(w)}: named twice", None, "name each parameter once")
         chosen.append(w)
     return sensors, process, tuple(chosen)
+
+
+def wants_initial(words: str | Sequence[str]) -> bool:
+    """Whether ``--estimate`` asks for the recordings' initial states (the word ``initial``)."""
+    return INITIAL_WORD in [w.strip() for w in (words.split(",") if isinstance(words, str) else words)]
 
 
 def record_of(run: Run, model: ModuleType) -> Record:
@@ -299,14 +311,17 @@ def record_of(run: Run, model: ModuleType) -> Record:
 
 class _Likelihood:
     """The log-likelihood of the records as a function of the optimiser's
-    coordinates ``z``: the sensors' log stds, the log process level, then
-    the parameters (log |value|, or the value when the model's is 0).
-    ``level``: the process level when it is held at another value than the
-    model's (0: the data show none)."""
+    coordinates ``z``: the sensors' log stds, the log process level, the
+    parameters (log |value|, or the value when the model's is 0), then the
+    ``initial`` states asked for, pairs (recording, physical state), each as
+    its value over the state's size. ``level``: the process level when it is
+    held at another value than the model's (0: the data show none)."""
 
     def __init__(self, model: ModuleType, numerics: Numerics, records: Sequence[Record],
-                 sensors: Sequence[str], process: bool, parameters: Sequence[str], level: float | None = None):
+                 sensors: Sequence[str], process: bool, parameters: Sequence[str], level: float | None = None,
+                 initial: Sequence[tuple[int, int]] = ()):
         self.model, self.numerics, self.records = model, numerics, tuple(records)
+        self.initial = tuple(initial)
         self.sensor_rows = [list(model.OUTPUTS).index(s) for s in sensors]
         self.process = process
         self.param_rows = [list(model.PARAMETERS).index(p) for p in parameters]
@@ -319,6 +334,9 @@ class _Likelihood:
                          if k == "physical"]
         self.u0 = np.asarray(model.inputs(0.0), dtype=float)
         self.factor0 = self._factors(self.theta0)
+        self.x0 = np.asarray(model.X0, dtype=float)
+        self.x_size = np.array([_state_size(self.x0[i], numerics.x_scale[i] if i < len(numerics.x_scale) else 0.0)
+                                for i in range(len(self.x0))])
         self.evaluations = 0
 
     def start(self) -> np.ndarray:
@@ -328,7 +346,16 @@ class _Likelihood:
             z.append(math.log(self.level0 if self.level0 > 0 else PROCESS_START))
         for i, s in zip(self.param_rows, self.signs):
             z.append(math.log(abs(self.theta0[i])) if s else float(self.theta0[i]))
+        z += [self.x0[i] / self.x_size[i] for _, i in self.initial]
         return np.array(z, dtype=float)
+
+    def starts(self, z: np.ndarray) -> list[np.ndarray]:
+        """Each record's initial state at ``z`` (the model's ``X0`` where not estimated)."""
+        out = [self.x0.copy() for _ in self.records]
+        tail = len(z) - len(self.initial)
+        for v, (r, i) in zip(z[tail:], self.initial):
+            out[r][i] = v * self.x_size[i]
+        return out
 
     def values(self, z: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
         """(measurement stds, process level, THETA) at ``z``."""
@@ -387,7 +414,8 @@ class _Likelihood:
         """The nominal filter run over each record at ``z``."""
         ns = self.module(z)
         out = []
-        for r in self.records:
+        for r, x0 in zip(self.records, self.starts(z)):
+            ns.X0 = x0
             kf = NominalKalman(ns, r.ys.shape[1])
             for k in range(len(r.ys)):
                 kf.step(r.ys[k], r.us[k])
@@ -592,11 +620,13 @@ def innovations(filters: Sequence[NominalKalman], outputs: Sequence[str]) -> tup
 
 
 def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
-              process: bool, parameters: Sequence[str]) -> Calibration:
+              process: bool, parameters: Sequence[str], initial: bool = False) -> Calibration:
     """Maximum-likelihood estimates of the noise of ``sensors``, of the
     process level (``process``) and of ``parameters`` of the nominal model
     ``model`` (its generated module; ``numerics``: its compiled numbers) from
-    the ``records``, with their 95 % intervals (see the module docstring).
+    the ``records``, with their 95 % intervals (see the module docstring);
+    with ``initial``, each record's initial physical state too (estimates
+    ``initial STATE``, or ``initial STATE of SOURCE`` over several records).
 
     Raises
     ------
@@ -616,11 +646,17 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
     zero = False  # the process level's likelihood is highest at 0: held there
     start_loglik = _Likelihood(model, numerics, records, [], False, [])(np.zeros(0))  # at the model's values
     evaluations = 1
+    states = [i for i, k in enumerate(getattr(model, "STATE_KINDS", ("physical",) * len(model.STATES)))
+              if k == "physical"] if initial else []
+    starts = {(r, i): (f"initial {model.STATES[i]}" + (f" of {records[r].source}" if len(records) > 1 else ""))
+              for r in range(len(records)) for i in states}
     while True:
         free_params = [p for p in parameters if p not in held]
         free_sensors = [s for s in asked if f"noise {s}" not in held]
         free_process = process and "process noise" not in held and not zero
-        lik = _Likelihood(model, numerics, records, free_sensors, free_process, free_params, 0.0 if zero else None)
+        free_starts = [pair for pair, name in starts.items() if name not in held]
+        lik = _Likelihood(model, numerics, records, free_sensors, free_process, free_params, 0.0 if zero else None,
+                          free_starts)
         z0 = lik.start()
         if not math.isfinite(lik(z0)):
             raise CalibrationError(f"the model's likelihood of the data ({', '.join(map(printable, _sources(records)))})"
@@ -645,6 +681,8 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
         names += ["process noise"] if lik.process else []
         names += free_params
         logs = [True] * (len(names) - len(free_params)) + [bool(s) for s in lik.signs]
+        names += [starts[pair] for pair in free_starts]
+        logs += [False] * len(free_starts)
         why = _unidentifiable(names, H, logs)
         if not why:
             break
@@ -675,7 +713,7 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
     if process:
         q0 = float(settings.process_noise)
         if zero:
-            upper = _zero_upper(model, numerics, records, free_sensors, free_params, z, best)
+            upper = _zero_upper(model, numerics, records, free_sensors, free_params, z, best, free_starts)
             estimates.append(Estimate("process_noise", "process", 0.0, 0.0, upper, 0.0, 0.0, upper, q0, q0,
                                       at_bound=True))
         elif "process noise" in held:
@@ -696,6 +734,20 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
         v, a, b = float(theta[i]), float(lo[2][i]), float(hi[2][i])
         a, b = min(a, b), max(a, b)
         estimates.append(Estimate("parameter", p, v, a, b, v, a, b, t0, t0, at_bound=_at_bound(z[k], z0[k])))
+        k += 1
+    x0 = np.asarray(model.X0, dtype=float)
+    for pair, name in starts.items():
+        r, i = pair
+        subject = name.removeprefix("initial ")
+        start = float(x0[i])
+        if name in held:
+            estimates.append(Estimate("initial", subject, start, math.nan, math.nan, start, math.nan, math.nan,
+                                      start, start, False, held[name]))
+            continue
+        size = lik.x_size[i]
+        v, a, b = float(z[k] * size), float(z_low[k] * size), float(z_high[k] * size)
+        estimates.append(Estimate("initial", subject, v, a, b, v, a, b, start, start,
+                                  at_bound=_at_bound(z[k], z0[k])))
         k += 1
     corr = cov / np.outer(sd, sd) if len(z) else cov
     filters = lik.filters(z)
@@ -770,7 +822,8 @@ def _crossing(fall, limit: float) -> float:
 
 
 def _zero_upper(model: ModuleType, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
-                parameters: Sequence[str], z: np.ndarray, best: float) -> float:
+                parameters: Sequence[str], z: np.ndarray, best: float, initial: Sequence[tuple[int, int]] = ()
+                ) -> float:
     """The upper end of the process level's 95 % interval when its
     likelihood is highest at 0 (the other estimates ``z`` held): the level
     where the log-likelihood has fallen by ``ZERO_DROP`` from ``best`` (a
@@ -779,7 +832,7 @@ def _zero_upper(model: ModuleType, numerics: Numerics, records: Sequence[Record]
     model's level."""
     from scipy.optimize import brentq
 
-    lik = _Likelihood(model, numerics, records, sensors, True, parameters)
+    lik = _Likelihood(model, numerics, records, sensors, True, parameters, initial=initial)
     k = len(sensors)
     start = float(lik.start()[k])
 
@@ -790,6 +843,13 @@ def _zero_upper(model: ModuleType, numerics: Numerics, records: Sequence[Record]
     if not (drop(low) > 0 > drop(high)):
         return math.nan
     return float(math.exp(brentq(drop, low, high, xtol=1e-6)))
+
+
+def _state_size(x0: float, scale: float) -> float:
+    """The size an initial state is measured in: its model value's magnitude, the compiler's size of the
+    state, or 1, whichever is largest but not 0."""
+    size = max(abs(float(x0)), abs(float(scale)))
+    return size if size > 0 and math.isfinite(size) else 1.0
 
 
 def _at_bound(z: float, start: float) -> bool:
