@@ -589,7 +589,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fault-free recordings of the plant (run files, as bgc simulate writes)")
     p.add_argument("--estimate", default="noise", metavar="WHAT",
                    help="what to estimate, separated by commas: noise (every sensor's noise and the process "
-                        "level), measurement_noise, process_noise, parameter names (default: noise)")
+                        "level), measurement_noise, process_noise, initial (each recording's initial state), "
+                        "parameter names (default: noise)")
     p.add_argument("-o", "--output", required=True, metavar="CALIBRATED.yaml",
                    help="the calibrated model: a new file (never the model file, nor a file bgc did not write)")
     p.add_argument("--report", default=None, metavar="DIR",
