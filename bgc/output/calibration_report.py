@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import printable
-from ..runtime.calibrate import FIT_LEVEL, Calibration, Estimate
+from ..runtime.calibrate import FIT_LEVEL, Calibration, Estimate, autocorrelations
 from .artifacts import manifest
 from .markdown import escape
 from .plots import _figure, _save
@@ -166,21 +166,8 @@ def residuals_figure(r, fmt: str = "png") -> bytes:
 
 def autocorrelation(c: Calibration, j: int, lags: int) -> np.ndarray:
     """The residuals' autocorrelation of sensor column ``j`` at lags 1 ..
-    ``lags`` (pairs within a recording, both read), as the Ljung-Box
-    statistic takes it."""
-    parts = [z[:, j] for z in c.residuals]
-    values = np.concatenate([a[np.isfinite(a)] for a in parts])
-    mean = float(values.mean())
-    denom = float(((values - mean) ** 2).sum())
-    out = np.zeros(lags)
-    for k in range(1, lags + 1):
-        s = 0.0
-        for a in parts:
-            if len(a) > k:
-                prod = (a[:-k] - mean) * (a[k:] - mean)
-                s += float(prod[np.isfinite(prod)].sum())
-        out[k - 1] = s / denom if denom > 0 else 0.0
-    return out
+    ``lags``, as the Ljung-Box statistic takes it (:func:`autocorrelations`)."""
+    return autocorrelations([z[:, j] for z in c.residuals], lags)[0]
 
 
 def autocorrelation_figure(r, fmt: str = "png") -> bytes:

@@ -577,28 +577,38 @@ def _unidentifiable(names: Sequence[str], H: np.ndarray, logs: Sequence[bool]) -
     return why
 
 
-def ljung_box(z: Sequence[np.ndarray], lags: int) -> tuple[float, int]:
-    """The Ljung-Box statistic Q = n (n + 2) sum_k r_k^2 / (n - k) over lags
-    1 .. ``lags`` of the residual series ``z`` (one per recording, NaN: not
-    read; pairs are taken within a recording, both read), with n the samples
-    read: (Q, n)."""
+def autocorrelations(z: Sequence[np.ndarray], lags: int) -> tuple[np.ndarray, int]:
+    """The sample autocorrelation r_k = sum (z_t - m)(z_t+k - m) / sum (z_t
+    - m)^2 at lags 1 .. ``lags`` of the residual series ``z`` (one per
+    recording, NaN: not read; pairs are taken within a recording, both read;
+    ``m`` the mean of every sample read), and ``n`` the samples read: (r, n)
+    (r NaN when fewer than 3)."""
     parts = [np.asarray(a, dtype=float) for a in z]
     values = np.concatenate([a[np.isfinite(a)] for a in parts]) if parts else np.zeros(0)
     n = len(values)
     if n < 3:
-        return math.nan, n
+        return np.full(lags, math.nan), n
     mean = float(values.mean())
     denom = float(((values - mean) ** 2).sum())
-    q = 0.0
+    r = np.zeros(lags)
     for k in range(1, lags + 1):
         s = 0.0
         for a in parts:
             if len(a) > k:
                 prod = (a[:-k] - mean) * (a[k:] - mean)
                 s += float(prod[np.isfinite(prod)].sum())
-        r = s / denom if denom > 0 else 0.0
-        q += r * r / (n - k)
-    return n * (n + 2) * q, n
+        r[k - 1] = s / denom if denom > 0 else 0.0
+    return r, n
+
+
+def ljung_box(z: Sequence[np.ndarray], lags: int) -> tuple[float, int]:
+    """The Ljung-Box statistic Q = n (n + 2) sum_k r_k^2 / (n - k) over lags
+    1 .. ``lags`` of the residual series ``z`` (:func:`autocorrelations`),
+    with n the samples read: (Q, n)."""
+    r, n = autocorrelations(z, lags)
+    if n < 3:
+        return math.nan, n
+    return n * (n + 2) * float(sum(r[k - 1] ** 2 / (n - k) for k in range(1, lags + 1))), n
 
 
 def innovations(filters: Sequence[NominalKalman], outputs: Sequence[str]) -> tuple[Innovations, ...]:
