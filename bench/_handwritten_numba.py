@@ -18,8 +18,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from _handwritten_numpy import (C_k, C_memb, C_res, I_fp, I_rp, K0, K_slope, OUTPUTS, R_brine, R_fp, R_memb,
-                                R_pipe, R_rp, STATES, k_scale, m1, m2)
+from _handwritten_numpy import (C_k, C_memb, C_res, F_back_offset, F_loop_offset, F_perm_offset, I_fp, I_rp, K0,
+                                K_slope, OUTPUTS, P_memb_offset, R_brine, R_fp, R_memb, R_pipe, R_rp, STATES, k_scale,
+                                m1, m2)
 
 N_X = len(STATES)
 N_Y = len(OUTPUTS)
@@ -38,8 +39,8 @@ def derivative(f3, e6, e13, f22, e27, tau_fp, tau_rp):
 
 @njit(inline="always", fastmath=True)
 def observe(e6, e13, f22, e27):
-    return ((e13 - e6) / R_brine, (-e13 + e6 + f22 * m2) / R_pipe,
-            29 * e13 / (R_memb * (29 + (-K0 + e27) / K_slope)), e13)
+    return (F_back_offset + (e13 - e6) / R_brine, F_loop_offset + (-e13 + e6 + f22 * m2) / R_pipe,
+            F_perm_offset + 29 * e13 / (R_memb * (29 + (-K0 + e27) / K_slope)), P_memb_offset + e13)
 
 
 @njit(cache=True, fastmath=True)

@@ -36,9 +36,14 @@ R_rp = 0.1
 k_scale = 3.46
 m1 = 1.0
 m2 = 1.0
+F_back_offset = 0.0  # the sensors' offsets (the bias and drift faults' parameters), 0 in the nominal model
+F_loop_offset = 0.0
+F_perm_offset = 0.0
+P_memb_offset = 0.0
 PARAMETERS = {"C_k": C_k, "C_memb": C_memb, "C_res": C_res, "I_fp": I_fp, "I_rp": I_rp, "K0": K0,
               "K_slope": K_slope, "R_brine": R_brine, "R_fp": R_fp, "R_memb": R_memb, "R_pipe": R_pipe,
-              "R_rp": R_rp, "k_scale": k_scale, "m1": m1, "m2": m2}
+              "R_rp": R_rp, "k_scale": k_scale, "m1": m1, "m2": m2, "F_back_offset": F_back_offset,
+              "F_loop_offset": F_loop_offset, "F_perm_offset": F_perm_offset, "P_memb_offset": P_memb_offset}
 
 
 def derivative(x, u):
@@ -55,11 +60,31 @@ def derivative(x, u):
 
 def observe(x):
     e6, e13, f22, e27 = x[:, 1], x[:, 2], x[:, 3], x[:, 4]
-    F_back = (e13 - e6) / R_brine
-    F_loop = (-e13 + e6 + f22 * m2) / R_pipe
-    F_perm = 29 * e13 / (R_memb * (29 + (-K0 + e27) / K_slope))
-    P_memb = e13
+    F_back = F_back_offset + (e13 - e6) / R_brine
+    F_loop = F_loop_offset + (-e13 + e6 + f22 * m2) / R_pipe
+    F_perm = F_perm_offset + 29 * e13 / (R_memb * (29 + (-K0 + e27) / K_slope))
+    P_memb = P_memb_offset + e13
     return np.stack([F_back, F_loop, F_perm, P_memb], axis=1)
+
+
+def mismatch(nominal, rng, n=1000):
+    """The largest relative difference between this module's equations and the generated
+    ``nominal`` module's (generated/ro/numpy_model/nominal.py) at ``n`` random states around
+    its X0 (10 prior stds) and random inputs (the default ones times 0.5 to 1.5): derivative,
+    observe and one RK4 step. About 1e-15 when the hand-typed equations are the shipped
+    model's; the caller passes the module, so this one does not import the generated code.
+    """
+    if (STATES, OUTPUTS) != (tuple(nominal.STATES), tuple(nominal.OUTPUTS)):
+        return np.inf
+    if dict(zip(nominal.PARAMETERS, nominal.THETA)) != PARAMETERS:
+        return np.inf
+    x = nominal.X0 + 10 * nominal.X0_STD * rng.standard_normal((n, len(STATES)))
+    u = nominal.inputs(0.0) * rng.uniform(0.5, 1.5, 2)
+    theta = nominal.THETA
+    pairs = [(derivative(x, u), nominal.derivative(x.T.copy(), u, theta).T),
+             (observe(x), nominal.observe(x.T.copy(), u, theta).T),
+             (rk4(x, u, nominal.DT, nominal.SUBSTEPS), nominal.predict(x.T.copy(), u, theta, nominal.DT).T)]
+    return max(float(np.max(np.abs(a - b) / np.maximum(np.abs(b), 1e-12 * np.max(np.abs(b), axis=0)))) for a, b in pairs)
 
 
 def rk4(x, u, dt, substeps):

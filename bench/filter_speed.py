@@ -79,9 +79,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from _venvs import VENV_SPECS, ensure_venv, progress  # noqa: E402
+
 BENCH = Path(__file__).resolve().parent
 ROOT = BENCH.parent
-VENVS = BENCH / ".venvs"
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "generated" / "ro"))
 
@@ -92,10 +93,6 @@ QUICK = {200: 3, 1_000: 2, 10_000: 1}
 CHECK_N = 10_000
 COLUMNS = ("gpf", "apf", "numpy", "numba", "particles")
 TITLES = {"gpf": "GPF", "apf": "APF", "numpy": "hand", "numba": "numba", "particles": "particles"}
-VENV_SPECS = {  # name -> (pip requirements, import probe)
-    "numba": (["numba"], "import numba, numpy"),
-    "particles": (["particles", "numpy<2"], "import particles, numpy; assert numpy.__version__ < '2'"),
-}
 
 
 def generated_digest() -> str:
@@ -106,16 +103,18 @@ def generated_digest() -> str:
     return h.hexdigest()[:12]
 
 
-def progress(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
-
-
 def make_data(directory: Path) -> Path:
     """Simulate the RO plant (seed 1, T steps) and write what every column needs to one .npz."""
     from bgc import pipeline
     from bgc.runtime import simulate as sim
     from numpy_model import nominal
 
+    import _handwritten_numpy as hand
+
+    worst = hand.mismatch(nominal, np.random.default_rng(0))
+    if not worst <= 1e-9:
+        raise SystemExit(f"bench/_handwritten_numpy.py's equations differ from generated/ro/numpy_model "
+                         f"(largest relative difference {worst:.3g}): type them in again from generated/ro/equations.txt")
     compiled = pipeline.compile_model(ROOT / "models" / "ro.yaml")
     ssm = compiled.equations
     result = sim.simulate(compiled.numerics, sim.SimulationOptions(steps=T, seed=SEED))
@@ -129,28 +128,6 @@ def make_data(directory: Path) -> Path:
              substeps=nominal.SUBSTEPS, state_names=np.array(nominal.STATES), output_names=np.array(nominal.OUTPUTS),
              parameter_names=np.array(ssm.parameters), parameter_values=np.array(ssm.parameter_values, dtype=float))
     return path
-
-
-def ensure_venv(name: str) -> tuple[str | None, str]:
-    """The python of bench/.venvs/<name>, created and filled with pip when missing; (None, why) on failure."""
-    requirements, probe = VENV_SPECS[name]
-    home = VENVS / name
-    python = home / "bin" / "python"
-    if python.exists() and subprocess.run([str(python), "-c", probe], capture_output=True).returncode == 0:
-        return str(python), "reused"
-    progress(f"creating {home.relative_to(ROOT)}: pip install {' '.join(requirements)} (needs PyPI) ...")
-    steps = [[sys.executable, "-m", "venv", "--clear", str(home)],
-             [str(python), "-m", "pip", "install", "--quiet", "--disable-pip-version-check", *requirements],
-             [str(python), "-c", probe]]
-    for cmd in steps:
-        try:
-            done = subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
-        except (OSError, subprocess.TimeoutExpired) as exc:
-            return None, f"{' '.join(cmd[:4])}: {exc}"
-        if done.returncode != 0:
-            tail = (done.stderr or done.stdout).strip().splitlines()[-3:]
-            return None, f"{' '.join(cmd[:4])} failed: " + " | ".join(tail)
-    return str(python), "created"
 
 
 def run_column(python: str, column: str, data: Path, n: int, memory: bool) -> dict:
