@@ -277,17 +277,20 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 def _write_report(r, output: str, command: str, with_run: bool) -> Path:
     """Write diagnosis report ``r`` into folder ``output`` (report.json,
-    report.md, plots, the run when simulated), print its verdict, estimate
-    and notable events, and return the folder."""
+    report.md, report.html, plots, the run when simulated), print its
+    verdict, estimate and notable events, and return the folder."""
     import json
 
     from .output import artifacts, events, plots, report
 
+    data = report.report_data(r)
+    figures = plots.diagnosis_figures(r)
     files: dict[str, str | bytes] = {
-        "report.json": json.dumps(report.report_data(r), indent=2, sort_keys=True) + "\n",
+        "report.json": json.dumps(data, indent=2, sort_keys=True) + "\n",
         "report.md": report.report_markdown(r),
+        "report.html": report.report_html(r, data, figures),
     }
-    files.update(plots.diagnosis_figures(r))
+    files.update(figures)
     if with_run:
         from .runtime import runs
 
@@ -311,7 +314,7 @@ def _write_report(r, output: str, command: str, with_run: bool) -> Path:
     if command == "diagnose":
         for line in events.notes(d.events, d.time_of):
             print(f"  note: {printable(line)}")
-    print(f"wrote {printable(str(out))}/: report.md, report.json, {len(files) - 3} more files "
+    print(f"wrote {printable(str(out))}/: report.md, report.json, report.html, {len(files) - 4} more files "
           f"(diagnosis {d.seconds:.1f} s)")
     return out
 
@@ -340,7 +343,8 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                        prior_scale=args.prior_scale)
     out = Path(args.output or f"{session.name}-monitor")
     _refuse_input_in_output(args.data, out)
-    artifacts.check_folder(out, ("report.md", "report.json", "manifest.json"), "monitor")  # before the stream
+    artifacts.check_folder(out, ("report.md", "report.json", "report.html", "manifest.json"),
+                           "monitor")  # before the stream
     if args.data == "-":
         stream, name = sys.stdin.buffer, "<stdin>"
     else:
@@ -517,7 +521,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     check_calibration_output(out, args.model, args.data)  # before any work
     for item in args.data:
         _refuse_input_in_output(item, folder)
-    artifacts.check_folder(folder, (*calibration_report.PICTURES, "report.md", "report.json", "manifest.json"),
+    artifacts.check_folder(folder, (*calibration_report.PICTURES, "report.md", "report.json", "report.html",
+                                    "manifest.json"),
                            "calibrate")
     start = time.perf_counter()
     session = bgc.open(args.model)
@@ -594,7 +599,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="CALIBRATED.yaml",
                    help="the calibrated model: a new file (never the model file, nor a file bgc did not write)")
     p.add_argument("--report", default=None, metavar="DIR",
-                   help="the calibration report's folder: report.md, report.json, pictures (default: "
+                   help="the calibration report's folder: report.md, report.json, report.html, pictures (default: "
                         "CALIBRATED-report beside the calibrated model)")
     p.set_defaults(run=cmd_calibrate)
 

@@ -1,13 +1,23 @@
-"""A diagnosis as ``report.json`` and ``report.md``: what was found, when, how
-large, how sure, and what was ruled out and why."""
+"""A diagnosis as ``report.json``, ``report.md`` and ``report.html``: what was
+found, when, how large, how sure, and what was ruled out and why.
+
+The sentences and table cells are made once, as plain text, by the helpers
+here (:func:`heading`, :func:`verdict_text`, :func:`detection_lines`,
+:func:`hypothesis_rows`, ...); text from outside goes through ``quote``:
+:func:`bgc.output.markdown.escape` for Markdown, nothing for the HTML page,
+whose template escapes every value (:mod:`bgc.output.html`)."""
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Callable, Mapping
 
 from . import events
 from .markdown import escape
+
+
+def _same(text: Any) -> str:
+    return str(text)
 
 
 def _when(d, e) -> str:
@@ -20,23 +30,28 @@ def _per(d) -> str:
     return "run" if d.options.horizon is None else f"horizon of {d.options.horizon:g} time units"
 
 
-def _data_lines(d) -> list[str]:
-    """The report's lines on how the data met the model: per input, where it came from; the sensors used."""
+def data_lines(d, quote: Callable[[Any], str] = _same) -> list[str]:
+    """How the data met the model: per input, where it came from; the sensors used (empty: not known)."""
     if d.data is None:
         return []
     s = d.data
-    lines = ["", "## Data", ""]
+    lines = []
     holds = dict(s.holds)
     for u, src in s.inputs:
         held = f", {holds[u]} hole(s) held at the last value" if holds.get(u) else ""
-        lines.append(f"- input u:{escape(u)}: from the " + ("data" if src == "data" else "model's declared input")
+        lines.append(f"input u:{quote(u)}: from the " + ("data" if src == "data" else "model's declared input")
                      + held)
-    lines.append(f"- sensors used: {', '.join(escape(y) for y in s.sensors)}"
-                 + (f"; missing from the data: {', '.join(escape(y) for y in s.missing)}" if s.missing else ""))
+    lines.append(f"sensors used: {', '.join(quote(y) for y in s.sensors)}"
+                 + (f"; missing from the data: {', '.join(quote(y) for y in s.missing)}" if s.missing else ""))
     if s.unsampled or s.skipped:
-        lines.append(f"- time grid dt = {s.dt:g}: {s.unsampled} step(s) without a sample ({s.gaps} gap(s) beyond "
+        lines.append(f"time grid dt = {s.dt:g}: {s.unsampled} step(s) without a sample ({s.gaps} gap(s) beyond "
                      f"the limit), {s.skipped} sample(s) skipped on a step already taken")
     return lines
+
+
+def _data_lines(d) -> list[str]:
+    lines = data_lines(d, escape)
+    return ["", "## Data", ""] + [f"- {line}" for line in lines] if lines else []
 
 
 def _t(d, step: int | None) -> float | None:
@@ -146,18 +161,19 @@ def plain_words(d) -> list[str]:
     return words
 
 
-def _heading(r) -> list[str]:
-    """The report's first lines: the model, the data (samples on the grid's steps), the filter and noise."""
+def heading(r, quote: Callable[[Any], str] = _same) -> tuple[str, str, str]:
+    """The report's title (the model and its file), what the data are
+    (samples on the grid's steps) and how they were filtered (the filter, the noise)."""
     d = r.diagnosis
-    lines = [f"# Diagnosis of {escape(r.model)} ({escape(r.source)})", ""]
+    title = f"Diagnosis of {quote(r.model)} ({quote(r.source)})"
     span = f"t = {_tt(d, 0)} to {_tt(d, len(d.time) - 1)}"
     rows = len(r.run.time)
     count = (f"{rows} samples" if rows == len(d.time) else
              f"{rows} samples on {len(d.time)} steps of the model's time grid")
     if r.scenario:
-        lines.append(f"Data: simulated scenario {escape(r.scenario)}, {count} ({span}).")
+        data = f"Data: simulated scenario {quote(r.scenario)}, {count} ({span})."
     else:
-        lines.append(f"Data: {count} ({span}).")
+        data = f"Data: {count} ({span})."
     noise = ("the model's noise levels" if r.noise == (None, None) else
              f"relative noise levels process {r.noise[0] if r.noise[0] is not None else 'per model'}, "
              f"measurement {r.noise[1] if r.noise[1] is not None else 'per model'}")
@@ -165,12 +181,131 @@ def _heading(r) -> list[str]:
                      "on a grid of onsets and magnitudes)",
            "filter": "magnitudes from the particle filters' own magnitude state"}[d.options.identify]
     if d.options.method == "ckf":
-        lines += [f"Filter: CKF (cubature Kalman filters: the nominal observer, and every hypothesis with its "
-                  f"magnitude held static on a grid of onsets and magnitudes); {noise}.", ""]
+        how = (f"Filter: CKF (cubature Kalman filters: the nominal observer, and every hypothesis with its "
+               f"magnitude held static on a grid of onsets and magnitudes); {noise}.")
     else:
-        lines += [f"Filter: {d.options.method.upper()}, {d.options.particles} particles, seed {d.options.seed}; "
-                  f"{noise}; {how}.", ""]
-    return lines
+        how = (f"Filter: {d.options.method.upper()}, {d.options.particles} particles, seed {d.options.seed}; "
+               f"{noise}; {how}.")
+    return title, data, how
+
+
+def _heading(r) -> list[str]:
+    """The report's first lines: the model, the data (samples on the grid's steps), the filter and noise."""
+    title, data, how = heading(r, escape)
+    return [f"# {title}", "", data, how, ""]
+
+
+def verdict_text(d) -> str:
+    """The verdict as the report's headline: ``'Fault isolated: R2_abrupt.'``."""
+    return {"no fault": "No fault detected.",
+            "isolated": f"Fault isolated: {d.candidates[0] if d.candidates else ''}.",
+            "ambiguous": "Fault detected; the data cannot separate: " + ", ".join(d.candidates) + ".",
+            "unexplained": "Fault detected, but no fault model explains the data"
+                           + (f" (the one that lasted longest: {d.candidates[0]})" if d.candidates else "")
+                           + "."}[d.verdict]
+
+
+def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:
+    """What a verdict means, in one sentence, with the levels the diagnosis
+    used (``settings``: report.json's; :mod:`bgc.runtime.decide`)."""
+    level = f"{100 * settings['isolation_level']:g} %"
+    factor = f"{settings['bayes_factor']:g}"
+    horizon = settings["horizon"]
+    per = "run" if horizon is None else f"horizon of {horizon:g} time units"
+    return {
+        "no fault": (f"no fault: no window of the nominal observer's normalised residuals crossed the detection "
+                     f"threshold, set for a false-alarm probability of {settings['false_alarm_per_horizon']:g} "
+                     f"per {per}."),
+        "isolated": (f"isolated: one fault model explains the data and every other is ruled out (by its "
+                     f"signature, by a failed test of its fit, or by being at least {factor} times less "
+                     f"probable); it holds at least {level} of the posterior."),
+        "ambiguous": (f"ambiguous: a fault was detected and several fault models explain the data: none of them is "
+                      f"ruled out, and only together do they hold {level} of the posterior (the data cannot "
+                      f"separate them)."),
+        "unexplained": ("unexplained: a fault was detected but no fault model explains the data: every one was "
+                        "ruled out by its signature, failed a test of its fit, or was outweighed; the fault lies "
+                        "outside the model's fault candidates or beyond the sizes their priors allow."),
+    }[verdict]
+
+
+def no_detection_text(d) -> str:
+    """Why the verdict is no fault: the threshold no window passed."""
+    return (f"No window of the nominal observer's normalised residuals passed the threshold "
+            f"{d.threshold:.2f} (a false-alarm probability of {d.options.false_alarm:g} per {_per(d)}, "
+            f"windows {', '.join(map(str, d.options.windows))} samples).")
+
+
+def detection_lines(d) -> list[str]:
+    """The alarm, and the change point and onset it led to (empty: no alarm)."""
+    det = d.detection
+    if det is None:
+        return []
+    return [f"alarm at t = {_tt(d, det.step)}: sensor {det.sensor}, window of {det.window} sample(s), "
+            f"|Z| = {det.statistic:.2f} > {det.threshold:.2f} (false-alarm probability "
+            f"{d.options.false_alarm:g} per {_per(d)})",
+            f"change point of the residuals: t = {_tt(d, det.onset)}; onset of the diagnosis: "
+            f"t = {_tt(d, d.onset)}"]
+
+
+#: The columns of :func:`hypothesis_rows`.
+HYPOTHESIS_COLUMNS = ("hypothesis", "onset", "posterior", "estimate", "interval", "dropped", "why")
+
+
+def hypothesis_rows(d) -> list[tuple[str, ...]]:
+    """A row per fault model tried, most probable first (:data:`HYPOTHESIS_COLUMNS`;
+    ``why`` is the model's text, empty when it survived)."""
+    rows = []
+    for h in sorted(d.hypotheses, key=lambda h: -h.posterior):
+        e = h.estimate
+        truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
+        rows.append((h.name, _tt(d, h.onset), f"{h.posterior:.3g}", f"{e.magnitude} {e.value:.4g}{truth}",
+                     f"[{e.low:.4g}, {e.high:.4g}]", "-" if h.dropped is None else f"t = {_tt(d, h.dropped)}",
+                     h.reason))
+    return rows
+
+
+def identification_lines(d) -> list[tuple[str, str | None]]:
+    """Per candidate of an isolated or ambiguous verdict: its estimate with
+    interval (and truth, when known), and the particle filters' own estimate
+    (None: none)."""
+    if d.best is None or d.verdict not in ("isolated", "ambiguous"):
+        return []
+    out = []
+    for name in d.candidates:
+        h = next(x for x in d.hypotheses if x.name == name)
+        e = h.estimate
+        what = (f"{e.parameter} = {e.nominal:g} + bias" if e.magnitude == "bias"
+                else f"slope of {e.parameter} (per unit time)")
+        truth = ""
+        if e.truth is not None:
+            truth = (f"; truth {e.truth:.4g}, error {100 * e.relative_error:.1f} %, "
+                     f"{'inside' if e.covers else 'outside'} the interval")
+        line = (f"{name}: {what}: {e.magnitude} {e.value:.4g} +- {e.std:.2g}, "
+                f"{100 * e.level:.0f} % interval [{e.low:.4g}, {e.high:.4g}], {e.parameter} at the "
+                f"end {e.parameter_value:.4g}, onset t = {_tt(d, h.onset)}{truth}"
+                + {"grid": " (grid posterior of the particle filters' marginal likelihood)",
+                   "kalman": " (with the magnitude held static: cubature Kalman filters on a grid)",
+                   "filter": ""}[e.method])
+        f = h.filter_estimate
+        sub = None if f is None else (f"the particle filters' own estimate (a magnitude with a random walk): "
+                                      f"{f.value:.4g} +- {f.std:.2g}, [{f.low:.4g}, {f.high:.4g}]")
+        out.append((line, sub))
+    return out
+
+
+def symbol_text(d, s) -> str:
+    """An observed deviation (a symbol) in words."""
+    return (f"{s.sensor} {s.sign} at t = {_tt(d, s.step)} ({s.window}-sample window, Z {s.statistic:.1f}), "
+            f"slope {s.slope or 'not significant'} (Z {s.slope_statistic:.1f})")
+
+
+def signature_rows(d) -> list[tuple[str, str, str]]:
+    """The fault signatures against the observed symbols: (signature,
+    ``kept`` or ``ruled out``, why), those the symbols kept first."""
+    refuted = dict(d.refuted)
+    kept = [(sig, "kept", "agrees with every observed symbol")
+            for h in d.hypotheses for sig in h.signatures if sig not in refuted]
+    return list(dict.fromkeys(kept)) + [(n, "ruled out", why) for n, why in d.refuted]
 
 
 def report_markdown(r) -> str:
@@ -178,31 +313,16 @@ def report_markdown(r) -> str:
     d = r.diagnosis
     det = d.detection
     lines = _heading(r)
-    verdict = {"no fault": "**No fault detected.**",
-               "isolated": f"**Fault isolated: {d.candidates[0] if d.candidates else ''}.**",
-               "ambiguous": "**Fault detected; the data cannot separate: " + ", ".join(d.candidates) + ".**",
-               "unexplained": "**Fault detected, but no fault model explains the data"
-                              + (f" (the one that lasted longest: {d.candidates[0]})" if d.candidates else "")
-                              + ".**"}[d.verdict]
-    lines += ["## Verdict", "", verdict, ""]
+    lines += ["## Verdict", "", f"**{verdict_text(d)[:-1]}.**", ""]
     words = plain_words(d)
     lines += [f"- {escape(line)}" for line in words] + ([""] if words else [])
     if det is None:
-        lines += [f"No window of the nominal observer's normalised residuals passed the threshold "
-                  f"{d.threshold:.2f} (a false-alarm probability of {d.options.false_alarm:g} per {_per(d)}, "
-                  f"windows {', '.join(map(str, d.options.windows))} samples).", ""]
+        lines += [no_detection_text(d), ""]
     else:
-        lines += ["## Detection", "",
-                  f"- alarm at t = {_tt(d, det.step)}: sensor {det.sensor}, window of {det.window} sample(s), "
-                  f"|Z| = {det.statistic:.2f} > {det.threshold:.2f} (false-alarm probability "
-                  f"{d.options.false_alarm:g} per {_per(d)})",
-                  f"- change point of the residuals: t = {_tt(d, det.onset)}; onset of the diagnosis: "
-                  f"t = {_tt(d, d.onset)}", ""]
+        lines += ["## Detection", ""] + [f"- {line}" for line in detection_lines(d)] + [""]
         lines += ["## Qualitative isolation (TRANSCEND signatures)", ""]
         if d.symbols:
-            lines.append("Observed deviations: " + "; ".join(
-                f"{s.sensor} {s.sign} at t = {_tt(d, s.step)} ({s.window}-sample window, Z {s.statistic:.1f}), "
-                f"slope {s.slope or 'not significant'} (Z {s.slope_statistic:.1f})" for s in d.symbols) + ".")
+            lines.append("Observed deviations: " + "; ".join(symbol_text(d, s) for s in d.symbols) + ".")
         else:
             lines.append("No sensor deviated significantly from the open-loop nominal prediction.")
         if d.refuted:
@@ -211,36 +331,66 @@ def report_markdown(r) -> str:
         lines += ["", "## Fault-model filters", "",
                   "| hypothesis | onset | posterior | estimate | interval | dropped | why |",
                   "|---|---|---|---|---|---|---|"]
-        for h in sorted(d.hypotheses, key=lambda h: -h.posterior):
-            e = h.estimate
-            truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
-            lines.append(f"| {h.name} | {_tt(d, h.onset)} | {h.posterior:.3g} | {e.magnitude} {e.value:.4g}{truth} | "
-                         f"[{e.low:.4g}, {e.high:.4g}] | "
-                         f"{'-' if h.dropped is None else f't = {_tt(d, h.dropped)}'} | {escape(h.reason) or '-'} |")
-        best = d.best
-        if best is not None and d.verdict in ("isolated", "ambiguous"):
+        for row in hypothesis_rows(d):
+            lines.append("| " + " | ".join(row[:-1]) + f" | {escape(row[-1]) or '-'} |")
+        found = identification_lines(d)
+        if found:
             lines += ["", "## Identification", ""]
-            for name in d.candidates:
-                h = next(x for x in d.hypotheses if x.name == name)
-                e = h.estimate
-                what = (f"{e.parameter} = {e.nominal:g} + bias" if e.magnitude == "bias"
-                        else f"slope of {e.parameter} (per unit time)")
-                truth = ""
-                if e.truth is not None:
-                    truth = (f"; truth {e.truth:.4g}, error {100 * e.relative_error:.1f} %, "
-                             f"{'inside' if e.covers else 'outside'} the interval")
-                lines.append(f"- {name}: {what}: {e.magnitude} {e.value:.4g} +- {e.std:.2g}, "
-                             f"{100 * e.level:.0f} % interval [{e.low:.4g}, {e.high:.4g}], {e.parameter} at the "
-                             f"end {e.parameter_value:.4g}, onset t = {_tt(d, h.onset)}{truth}"
-                             + {"grid": " (grid posterior of the particle filters' marginal likelihood)",
-                                "kalman": " (with the magnitude held static: cubature Kalman filters on a grid)",
-                                "filter": ""}[e.method])
-                f = h.filter_estimate
-                if f is not None:
-                    lines.append(f"  - the particle filters' own estimate (a magnitude with a random walk): "
-                                 f"{f.value:.4g} +- {f.std:.2g}, [{f.low:.4g}, {f.high:.4g}]")
+            for line, sub in found:
+                lines.append(f"- {line}")
+                if sub is not None:
+                    lines.append(f"  - {sub}")
     lines += _data_lines(d)
     if d.events:
         lines += ["", "## Events", ""] + [f"- {_when(d, e)}{escape(events.sentence(e, d.time_of))}" for e in d.events]
     lines += ["", f"Diagnosis computed in {d.seconds:.2f} s.", ""]
     return "\n".join(lines)
+
+
+#: The pictures of a diagnosis (:func:`bgc.output.plots.diagnosis_figures`) and what each shows.
+DETECTION_PICTURES = {
+    "measurements.png": "the measurements and the nominal observer's predictions (band: +-2 std; dashed: onset, "
+                        "red: detection)",
+    "residuals.png": "each sensor's normalised residual and its largest windowed |Z| against the threshold"}
+HYPOTHESIS_PICTURES = {"hypotheses.png": "each fault model's predicted measurements from its onset (dotted: "
+                                         "dropped, X: where)"}
+ESTIMATE_PICTURES = {"estimate.png": "the fault magnitude over time, its interval, and the truth when the run "
+                                     "records it"}
+
+
+def _g(v: float | None, spec: str) -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def report_html(r, data: Mapping[str, Any], pictures: Mapping[str, bytes]) -> str:
+    """The report as one self-contained page, ``report.html``: the verdict in
+    plain words and what it means, then detection, isolation, every fault
+    model, the estimate and the events; from ``data`` (:func:`report_data`)
+    and the same sentences as :func:`report_markdown`, with ``pictures``
+    (:func:`bgc.output.plots.diagnosis_figures`) embedded."""
+    from . import html
+
+    d = r.diagnosis
+    title, data_line, filter_line = heading(r)
+    symbols = html.table(
+        ("sensor", "deviation", "seen at t", "window (samples)", "Z", "slope", "slope Z"),
+        [(s["sensor"], s["sign"], events.time_text(s["time"]) if s["time"] is not None else "-", s["window"],
+          _g(s["statistic"], ".1f"), s["slope"] or "not significant", _g(s["slope_statistic"], ".1f"))
+         for s in data["symbols"]])
+    signatures = signature_rows(d)
+    return html.page(
+        "diagnosis.html.j2", r.source, title=title, data_line=data_line, filter_line=filter_line,
+        verdict=data["verdict"], verdict_class="v-" + data["verdict"].replace(" ", "-"), headline=verdict_text(d),
+        definition=verdict_definition(data["verdict"], data["settings"]), words=data["in_words"],
+        detection=detection_lines(d), no_detection=no_detection_text(d),
+        detection_pictures=html.pictures(pictures, DETECTION_PICTURES),
+        isolation=d.detection is not None, symbols=symbols if symbols.rows else None,
+        signatures=html.table(("signature", "outcome", "why"), signatures) if signatures else None,
+        hypotheses=html.table(HYPOTHESIS_COLUMNS, [(*row[:-1], row[-1] or "-") for row in hypothesis_rows(d)])
+        if d.hypotheses else None,
+        hypothesis_pictures=html.pictures(pictures, HYPOTHESIS_PICTURES),
+        identification=identification_lines(d), estimate_pictures=html.pictures(pictures, ESTIMATE_PICTURES),
+        data_lines=data_lines(d),
+        events=html.table(("t", "event"), [("" if e["time"] is None else events.time_text(e["time"]), e["text"])
+                                           for e in data["events"]]) if data["events"] else None,
+        seconds=f"{d.seconds:.2f}")
