@@ -12,7 +12,7 @@
 private folder, or uses the one ``generated`` points at), reads the run (or
 simulates ``scenario`` with the truth simulator), and runs
 :func:`bgc.runtime.diagnose.diagnose`. :mod:`bgc.output.report` turns the
-result into ``report.json``, ``report.md`` and plots.
+result into ``report.json``, ``report.md``, ``report.html`` and plots.
 
 Every public function checks its arguments before any work, as the command
 line does, with the same ranges: a wrong type is an
@@ -405,7 +405,7 @@ class CalibrationReport:
 
     def write_report(self, folder: str | Path) -> Path:
         """Write the calibration report into ``folder`` (report.md,
-        report.json, estimates.png, residuals.png, autocorrelation.png;
+        report.html, report.json, estimates.png, residuals.png, autocorrelation.png;
         docs/calibrate.md, "The report"): a new or empty folder, or one a
         calibration report was written to before and nobody changed since.
 

@@ -1,5 +1,6 @@
-"""The calibration report (``bgc calibrate --report DIR``): report.md for
-people, report.json for programs, and three pictures: the estimates against
+"""The calibration report (``bgc calibrate --report DIR``): report.md and
+report.html (one self-contained page) for people, report.json for programs,
+and three pictures: the estimates against
 the model file's values with their intervals, the calibrated model's
 normalised residuals over time, and their autocorrelation with the band a
 white series stays in."""
@@ -64,6 +65,61 @@ def _g(v: float) -> str:
     return "-" if v is None or not math.isfinite(v) else f"{v:.6g}"
 
 
+#: What the fit is tested for (the report's paragraph under its verdict).
+FIT_TEXT = ("The calibrated model's normalised residuals (the nominal filter's innovations, each divided by its "
+            "predicted std) are white noise of mean 0 and variance 1 when the model fits. Each sensor is tested "
+            "for a mean off 0, a variance off 1 and correlation over time (Ljung-Box), the tests sharing a "
+            f"false-finding probability of {FIT_LEVEL:g}.")
+INNOVATION_COLUMNS = ("sensor", "samples", "mean", "variance", "Ljung-Box Q", "lags", "p-value")
+#: What the estimates' table holds (the report's paragraph over it; Markdown: ``*model file*``, ``noise`` in code).
+ESTIMATES_TEXT = ("Maximum-likelihood estimates with 95 % intervals (where the log-likelihood has fallen by 1.92 "
+                  "from its maximum). {model_file} is what the file holds: a sensor's relative {noise} level, the "
+                  "process level, a parameter's value; the std of a sensor's noise is in the sensor's unit.")
+ESTIMATE_COLUMNS = ("estimate", "was", "model file", "95 % interval", "std / value", "95 % interval", "note")
+CORRELATION_TEXT = ("From the curvature of the log-likelihood at its maximum; near +-1, the data tell only a "
+                    "combination of the two.")
+#: The pictures and what each shows.
+CAPTIONS = {"residuals.png": "normalised residuals", "autocorrelation.png": "autocorrelation",
+            "estimates.png": "estimates"}
+
+
+def innovation_rows(c: Calibration, quote=str) -> list[tuple[str, ...]]:
+    """Per sensor, the tests of its normalised residuals (:data:`INNOVATION_COLUMNS`)."""
+    return [(quote(i.sensor), str(i.samples), f"{i.mean:+.3f}", f"{i.variance:.3f}", f"{i.ljung_box:.1f}",
+             str(i.lags), f"{i.p_value:.3g}") for i in c.innovations]
+
+
+def estimate_rows(r, quote=str) -> list[tuple[str, ...]]:
+    """Per estimate, the model file's value, the estimate and its intervals (:data:`ESTIMATE_COLUMNS`)."""
+    rows = []
+    for e in r.calibration.estimates:
+        unit = _unit(r.units, e)
+        u = f" {quote(unit)}" if unit else ""
+        if not e.identifiable:
+            rows.append((quote(e.name), _g(e.start_level), "kept", "", "", "",
+                         f"not identifiable: {quote(e.why or '')}"))
+            continue
+        note = ("the data show none" if e.value == 0 else "at the end of the range searched") if e.at_bound else ""
+        rows.append((quote(e.name), _g(e.start_level), _g(e.level), f"[{_g(e.level_low)}, {_g(e.level_high)}]",
+                     f"{_g(e.value)}{u}", f"[{_g(e.low)}, {_g(e.high)}]{u}", note))
+    return rows
+
+
+def likelihood_lines(c: Calibration, quote=str) -> list[str]:
+    """The log-likelihood before and after, and how the optimiser went."""
+    gain = c.loglik - c.start_loglik
+    return [f"log-likelihood of the data at the model file's values: {c.start_loglik:.6g}",
+            f"at the estimates: {c.loglik:.6g} (higher by {gain:.4g}; twice that is the likelihood-ratio "
+            f"statistic of the model file's values, chi-square with {len(c.correlated)} degrees of freedom "
+            "when they are right)",
+            f"optimiser: {'converged' if c.converged else 'did not converge'} ({quote(c.message)}), "
+            f"{c.evaluations} likelihood evaluations, {c.seconds:.1f} s"]
+
+
+def _md_row(cells) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
 def report_markdown(r) -> str:
     """``report.md``: what was estimated, how sure, and whether the model fits."""
     c: Calibration = r.calibration
@@ -72,51 +128,46 @@ def report_markdown(r) -> str:
              f"Model file `{escape(r.model)}`, {c.samples} samples of {sources}. "
              f"The calibrated model is the model file with the estimates below in place.", "",
              "## Does the model fit this data?", "", f"**{escape(c.verdict[0].upper() + c.verdict[1:])}.**", "",
-             "The calibrated model's normalised residuals (the nominal filter's innovations, each divided by its "
-             "predicted std) are white noise of mean 0 and variance 1 when the model fits. Each sensor is tested "
-             "for a mean off 0, a variance off 1 and correlation over time (Ljung-Box), the tests sharing a "
-             f"false-finding probability of {FIT_LEVEL:g}.", "",
-             "| sensor | samples | mean | variance | Ljung-Box Q | lags | p-value |",
-             "|---|---|---|---|---|---|---|"]
-    for i in c.innovations:
-        lines.append(f"| {escape(i.sensor)} | {i.samples} | {i.mean:+.3f} | {i.variance:.3f} | {i.ljung_box:.1f} | "
-                     f"{i.lags} | {i.p_value:.3g} |")
+             FIT_TEXT, "", _md_row(INNOVATION_COLUMNS), "|---|---|---|---|---|---|---|"]
+    lines += [_md_row(row) for row in innovation_rows(c, escape)]
     lines += ["", "![normalised residuals](residuals.png)", "", "![autocorrelation](autocorrelation.png)", "",
-              "## Estimates", "",
-              "Maximum-likelihood estimates with 95 % intervals (where the log-likelihood has fallen by 1.92 from "
-              "its maximum). *model file* is what the file holds: a sensor's relative `noise` level, the process "
-              "level, a parameter's value; the std of a sensor's noise is in the sensor's unit.", "",
-              "| estimate | was | model file | 95 % interval | std / value | 95 % interval | note |",
-              "|---|---|---|---|---|---|---|"]
-    for e in c.estimates:
-        unit = _unit(r.units, e)
-        u = f" {escape(unit)}" if unit else ""
-        if not e.identifiable:
-            lines.append(f"| {escape(e.name)} | {_g(e.start_level)} | kept | | | | not identifiable: "
-                         f"{escape(e.why or '')} |")
-            continue
-        note = ("the data show none" if e.value == 0 else "at the end of the range searched") if e.at_bound else ""
-        lines.append(f"| {escape(e.name)} | {_g(e.start_level)} | {_g(e.level)} | [{_g(e.level_low)}, "
-                     f"{_g(e.level_high)}] | {_g(e.value)}{u} | [{_g(e.low)}, {_g(e.high)}]{u} | {note} |")
+              "## Estimates", "", ESTIMATES_TEXT.format(model_file="*model file*", noise="`noise`"), "",
+              _md_row(ESTIMATE_COLUMNS), "|---|---|---|---|---|---|---|"]
+    lines += [_md_row(row) for row in estimate_rows(r, escape)]
     lines += ["", "![estimates](estimates.png)", ""]
     if len(c.correlated) > 1:
-        lines += ["## Correlation of the estimates", "",
-                  "From the curvature of the log-likelihood at its maximum; near +-1, the data tell only a "
-                  "combination of the two.", "",
+        lines += ["## Correlation of the estimates", "", CORRELATION_TEXT, "",
                   "| | " + " | ".join(escape(n) for n in c.correlated) + " |",
                   "|---|" + "---|" * len(c.correlated)]
         for name, row in zip(c.correlated, c.correlation):
             lines.append(f"| {escape(name)} | " + " | ".join(f"{v:+.3f}" for v in row) + " |")
         lines.append("")
-    gain = c.loglik - c.start_loglik
-    lines += ["## The likelihood", "",
-              f"- log-likelihood of the data at the model file's values: {c.start_loglik:.6g}",
-              f"- at the estimates: {c.loglik:.6g} (higher by {gain:.4g}; twice that is the likelihood-ratio "
-              f"statistic of the model file's values, chi-square with {len(c.correlated)} degrees of freedom "
-              "when they are right)",
-              f"- optimiser: {'converged' if c.converged else 'did not converge'} ({escape(c.message)}), "
-              f"{c.evaluations} likelihood evaluations, {c.seconds:.1f} s", ""]
+    lines += ["## The likelihood", ""] + [f"- {line}" for line in likelihood_lines(c, escape)] + [""]
     return "\n".join(lines)
+
+
+def report_html(r, data: dict[str, Any], pictures: dict[str, bytes]) -> str:
+    """``report.html``: report.md's sections as one self-contained page,
+    from ``data`` (:func:`report_data`) and the same rows, with
+    ``pictures`` embedded (:mod:`bgc.output.html`)."""
+    from . import html
+
+    c: Calibration = r.calibration
+    fits = not data["findings"]
+    return html.page(
+        "calibration.html.j2", r.model, title=f"Calibration of {r.name}", name=r.name, model=r.model,
+        samples=c.samples, sources=", ".join(c.sources),
+        verdict="The model explains this data." if fits else "The model does not explain this data:",
+        verdict_class="v-fits" if fits else "v-findings",
+        findings=data["findings"], fit_text=FIT_TEXT,
+        innovations=html.table(INNOVATION_COLUMNS, innovation_rows(c)),
+        estimates_text=ESTIMATES_TEXT.format(model_file="\u201cmodel file\u201d", noise="noise"),
+        estimates=html.table(ESTIMATE_COLUMNS, estimate_rows(r)),
+        correlation_text=CORRELATION_TEXT,
+        correlation=html.table(("", *c.correlated), [(n, *(f"{v:+.3f}" for v in row))
+                                                     for n, row in zip(c.correlated, c.correlation)])
+        if len(c.correlated) > 1 else None,
+        likelihood=likelihood_lines(c), pictures={p.name: p for p in html.pictures(pictures, CAPTIONS)})
 
 
 def estimates_figure(r, fmt: str = "png") -> bytes:
@@ -192,12 +243,14 @@ def autocorrelation_figure(r, fmt: str = "png") -> bytes:
 
 def report_files(r) -> dict[str, str | bytes]:
     """Every file of the report folder, the manifest last."""
+    data = report_data(r)
+    pictures = {"estimates.png": estimates_figure(r), "residuals.png": residuals_figure(r),
+                "autocorrelation.png": autocorrelation_figure(r)}
     files: dict[str, str | bytes] = {
-        "report.json": json.dumps(report_data(r), indent=2, sort_keys=True) + "\n",
+        "report.json": json.dumps(data, indent=2, sort_keys=True) + "\n",
         "report.md": report_markdown(r),
-        "estimates.png": estimates_figure(r),
-        "residuals.png": residuals_figure(r),
-        "autocorrelation.png": autocorrelation_figure(r),
+        "report.html": report_html(r, data, pictures),
+        **pictures,
     }
     files["manifest.json"] = manifest(files, "calibrate", model=r.name)
     return files
