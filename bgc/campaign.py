@@ -77,7 +77,7 @@ _FLOAT = {"magnitude", "onset", "process_noise", "measurement_noise", "rt", "mse
 _TEXT = frozenset(COLUMNS) - _INT - _BOOL - _FLOAT
 RUNS = "runs.csv"
 #: What the end of a campaign writes beside ``runs.csv`` (:func:`write_outputs`).
-TABLES, SUMMARY, PLOTS = "tables.md", "summary.json", "plots/"
+TABLES, SUMMARY, PLOTS, REPORT = "tables.md", "summary.json", "plots/", "report.html"
 #: Lines of ``runs.csv`` that cannot be read are set aside in ``runs.unread-N.csv`` (N: the first free number).
 UNREAD = "runs.unread-{n}.csv"
 #: A text cell starting with one of these is a formula to a spreadsheet: ``runs.csv`` writes it after a
@@ -1204,7 +1204,7 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
     progress
         A progress bar on stderr (None: when stderr is a terminal).
     outputs
-        Write ``tables.md``, ``summary.json`` and the plots at the end.
+        Write ``tables.md``, ``report.html``, ``summary.json`` and the plots at the end.
     connect_timeout
         Seconds to wait for the scheduler (:func:`check_scheduler`, then
         Dask's handshake).
@@ -1233,7 +1233,7 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
                 else "another bgc output (not a campaign)")
         raise ExperimentError(f"{printable(str(folder))} holds {what}", None, "choose another -o folder")
     # what the end writes is checked now, before any run (a tables.md the user edited, a link in plots/)
-    outputs_now = {RUNS, TABLES, SUMMARY} | {p for p in (previous or {}).get("files", {})
+    outputs_now = {RUNS, TABLES, REPORT, SUMMARY} | {p for p in (previous or {}).get("files", {})
                                              if isinstance(p, str) and p.startswith(PLOTS)}
     artifacts.check_folder(folder, outputs_now, "experiment", adopt=(RUNS,))
     done, quarantine, unread = _finished(c, folder) if previous is not None else ({}, None, 0)
@@ -1298,14 +1298,17 @@ def _bar(total: int, initial: int, name: str, show: bool):
 
 
 def write_outputs(result: CampaignResult) -> list[Path]:
-    """``runs.csv`` (in run order), ``tables.md``, ``summary.json`` and the plots."""
+    """``runs.csv`` (in run order), ``tables.md``, ``report.html`` (the tables and the plots in one
+    self-contained page), ``summary.json`` and the plots."""
     from .output import artifacts, plots, tables
 
     c = result.campaign
     files: dict[str, str | bytes] = {RUNS: csv_header(c) + "".join(csv_row(r) for r in result.rows)}
     files[TABLES] = tables.campaign_markdown(c, result.rows)
     files[SUMMARY] = tables.campaign_json(c, result.rows)
-    for name, data in plots.campaign_figures(result.rows).items():
+    figures = plots.campaign_figures(result.rows)
+    files[REPORT] = tables.campaign_html(c, result.rows, figures)
+    for name, data in figures.items():
         files[PLOTS + name] = data
     files[artifacts.MANIFEST] = artifacts.manifest(files, "experiment", campaign=c.name, source=c.source)
     return artifacts.write_folder(result.folder, files)

@@ -481,7 +481,8 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     kept = (f"; {r.quarantined} unreadable line{'s' if r.quarantined > 1 else ''} of {campaign.RUNS} kept in "
             f"{printable(str(r.quarantine))}" if r.quarantined else "")
     print(f"{c.name}: {r.ran} runs done, {r.reused} reused from an earlier run, {r.failed} failed "
-          f"({r.seconds:.1f} s); tables in {folder}/tables.md, plots in {folder}/plots/{kept}")
+          f"({r.seconds:.1f} s); tables in {folder}/tables.md, the page with tables and plots in "
+          f"{folder}/report.html, plots in {folder}/plots/{kept}")
     return 1 if r.failed and r.failed == r.ran and r.ran else 0
 
 

@@ -92,18 +92,17 @@ def table_groups(spec, rows: list[dict]) -> tuple[list[dict], list[str], dict[tu
     return chosen, labels, by
 
 
-def table_markdown(spec, rows: list[dict]) -> str:
-    """One table of the campaign file: a line per row label, for each filter
-    the metrics as mean (sd) over the runs, published numbers in brackets."""
+def table_cells(spec, rows: list[dict]) -> tuple[list[str], list[list[str]], str]:
+    """One table of the campaign file as plain text: its head, its rows (a
+    row label, then for each filter the metrics as mean (sd) over the runs,
+    published numbers in brackets) and the line under it (runs, failed).
+    The head's first cell and each row's first are text from outside."""
     chosen, labels, by = table_groups(spec, rows)
     filters = [f for f in ("gpf", "apf", "opf", "ckf") if any(r["filter"] == f for r in chosen)]
-    head = [escape(spec.rows)] + [f"{f.upper()} {HEAD[m]}" for f in filters for m in spec.metrics]
-    lines = [f"### {escape(spec.title)}", ""]
-    if spec.reference is not None:
-        lines += [f"Ours: mean (sd) over the runs; in brackets: {escape(spec.reference.source)}.", ""]
-    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    head = [str(spec.rows)] + [f"{f.upper()} {HEAD[m]}" for f in filters for m in spec.metrics]
+    body = []
     for label in labels:
-        out = [escape(label)]
+        out = [str(label)]
         for f in filters:
             mine = by.get((label, f), [])
             ref = spec.reference.values.get((label, f), {}) if spec.reference else {}
@@ -113,10 +112,33 @@ def table_markdown(spec, rows: list[dict]) -> str:
                     mean, sd = ref[m]
                     text += f" [{_fmt(mean)}" + (f" ({_fmt(sd)})" if sd is not None else "") + "]"
                 out.append(text)
-        lines.append("| " + " | ".join(out) + " |")
+        body.append(out)
     n_runs = len(chosen)
     n_failed = sum(r["status"] != "ok" for r in chosen)
-    lines += ["", f"{n_runs} runs" + (f", {n_failed} failed (not counted)" if n_failed else "") + "."]
+    return head, body, f"{n_runs} runs" + (f", {n_failed} failed (not counted)" if n_failed else "") + "."
+
+
+def _md_table(head: list[str], body: list[list[str]], outside: int) -> list[str]:
+    """A Markdown table; the first ``outside`` cells of the head and of each row escaped (text from outside)."""
+    def line(cells):
+        return "| " + " | ".join([escape(c) for c in cells[:outside]] + list(cells[outside:])) + " |"
+
+    return [line(head), "|" + "---|" * len(head)] + [line(row) for row in body]
+
+
+def reference_note(spec) -> str | None:
+    """What the brackets of a table hold (None: it has no published numbers)."""
+    return None if spec.reference is None else f"Ours: mean (sd) over the runs; in brackets: {spec.reference.source}."
+
+
+def table_markdown(spec, rows: list[dict]) -> str:
+    """One table of the campaign file (:func:`table_cells`) in Markdown."""
+    head, body, tail = table_cells(spec, rows)
+    lines = [f"### {escape(spec.title)}", ""]
+    if spec.reference is not None:
+        lines += [f"Ours: mean (sd) over the runs; in brackets: {escape(spec.reference.source)}.", ""]
+    lines += _md_table(head, body, 1)
+    lines += ["", tail]
     return "\n".join(lines) + "\n"
 
 
@@ -181,16 +203,22 @@ def _frac(k: int, n: int) -> str:
     return "–" if n == 0 else f"{k}/{n} ({100 * k / n:.1f} %)"
 
 
-def summary_markdown(rows: list[dict]) -> str:
-    head = ["group", "filter", "noise", "N", "runs", "failed", "false alarms", "detected",
-            "detected where the data show it (predicted)",
-            "right (of detected)", "right component", "truth among survivors", "right when isolated",
-            "right outside predicted ambiguity groups", "right where the data separate it (predicted)",
-            "error % mean (sd)", "95 % covers", "delay", "RT s"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+#: The summary's columns (:func:`summary_cells`).
+SUMMARY_HEAD = ["group", "filter", "noise", "N", "runs", "failed", "false alarms", "detected",
+                "detected where the data show it (predicted)",
+                "right (of detected)", "right component", "truth among survivors", "right when isolated",
+                "right outside predicted ambiguity groups", "right where the data separate it (predicted)",
+                "error % mean (sd)", "95 % covers", "delay", "RT s"]
+
+
+def summary_cells(rows: list[dict]) -> list[list[str]]:
+    """The summary (:func:`summary_rows`) as plain text, a row per group,
+    filter, noise level and particle count (its first four cells are text
+    from outside)."""
+    out = []
     for s in summary_rows(rows):
-        lines.append("| " + " | ".join([
-            escape(s["group"]), escape(s["filter"]), escape(s["noise"]), escape(s["particles"]), str(s["runs"]),
+        out.append([
+            str(s["group"]), str(s["filter"]), str(s["noise"]), str(s["particles"]), str(s["runs"]),
             str(s["failed"]),
             "; ".join(x for x in (_frac(s["false_alarms"], s["fault_free"]) if s["fault_free"] else "",
                                   f"{s['early_alarms']} before the onset" if s["faulty"] else "") if x) or "–",
@@ -199,8 +227,12 @@ def summary_markdown(rows: list[dict]) -> str:
             _frac(s["right_parameter"], s["detected"]), _frac(s["in_candidates"], s["detected"]), _frac(s["isolated_right"], s["isolated"]),
             _frac(s["right_outside_ambiguity"], s["outside_ambiguity"]), _frac(s["right_separable"], s["separable"]),
             format_cell(s["est_error"], "est_error"), format_cell(s["covers"], "covers"),
-            format_cell(s["delay"], "delay"), format_cell(s["rt"], "rt")]) + " |")
-    return "\n".join(lines) + "\n"
+            format_cell(s["delay"], "delay"), format_cell(s["rt"], "rt")])
+    return out
+
+
+def summary_markdown(rows: list[dict]) -> str:
+    return "\n".join(_md_table(SUMMARY_HEAD, summary_cells(rows), 4)) + "\n"
 
 
 def confusion(rows: list[dict], model: str) -> tuple[list[str], list[str], dict[tuple[str, str], int]]:
@@ -217,12 +249,19 @@ def confusion(rows: list[dict], model: str) -> tuple[list[str], list[str], dict[
     return truths, saids, counts
 
 
-def confusion_markdown(rows: list[dict], model: str) -> str:
+def confusion_cells(rows: list[dict], model: str) -> tuple[list[str], list[list[str]]]:
+    """One model's confusion matrix as plain text: the diagnosed labels (the
+    columns), and a row per true label, its counts after it (labels are
+    text from outside)."""
     truths, saids, counts = confusion(rows, model)
+    return saids, [[t] + [str(counts.get((t, s), "")) for s in saids] for t in truths]
+
+
+def confusion_markdown(rows: list[dict], model: str) -> str:
+    saids, body = confusion_cells(rows, model)
     lines = ["| truth \\ diagnosed | " + " | ".join(escape(s) for s in saids) + " |",
              "|" + "---|" * (len(saids) + 1)]
-    for t in truths:
-        lines.append(f"| {escape(t)} | " + " | ".join(str(counts.get((t, s), "")) for s in saids) + " |")
+    lines += ["| " + " | ".join([escape(row[0])] + row[1:]) + " |" for row in body]
     return "\n".join(lines) + "\n"
 
 
@@ -263,11 +302,35 @@ def reliability_rows(rows: list[dict]) -> list[dict[str, Any]]:
     return out
 
 
+RELIABILITY_HEAD = ["verdict", "runs", "told the truth"]
+
+
+def reliability_cells(rows: list[dict]) -> list[list[str]]:
+    """The reliability of the verdicts (:func:`reliability_rows`) as plain text."""
+    return [[s["verdict"], str(s["runs"]), _frac(s["right"], s["runs"])] for s in reliability_rows(rows)]
+
+
 def reliability_markdown(rows: list[dict]) -> str:
-    lines = ["| verdict | runs | told the truth |", "|---|---|---|"]
-    for s in reliability_rows(rows):
-        lines.append(f"| {escape(s['verdict'])} | {s['runs']} | {_frac(s['right'], s['runs'])} |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(_md_table(RELIABILITY_HEAD, reliability_cells(rows), 1)) + "\n"
+
+
+#: What the reliability table says (the paragraph over it).
+RELIABILITY_TEXT = (
+    "How often each verdict told the truth: isolated, the fault named is the one injected; ambiguous, it "
+    "is in the group; unexplained, the injected fault is not one the model expects (not a candidate, or "
+    "outside its prior); no fault, none was injected (a fault the detector missed counts against it). "
+    "The last row: among detected faults, the named fault's class (parameter, sensor, actuator).")
+
+
+def runs_line(rows: list[dict]) -> str:
+    return (f"{len(rows)} runs ({sum(r['status'] != 'ok' for r in rows)} failed). Metrics are defined in "
+            "docs/experiments.md.")
+
+
+def failed_lines(rows: list[dict], quote=str) -> list[str]:
+    """The first 50 failed runs, each with its failure."""
+    return [f"run {quote(r['index'])} ({quote(r['scenario'])}, {quote(r['filter'])}, seed {quote(r['seed'])}): "
+            f"{quote(r['failure'])}" for r in rows if r["status"] != "ok"][:50]
 
 
 def campaign_markdown(c, rows: tuple[dict, ...]) -> str:
@@ -278,25 +341,42 @@ def campaign_markdown(c, rows: tuple[dict, ...]) -> str:
     out = [f"<!-- {MARK} experiment from {_comment(c.source)} -->", f"# Campaign {escape(c.name)}", ""]
     if c.description and c.description.strip():
         out += [escape(c.description, prose=True), ""]
-    out += [f"{len(rows)} runs ({sum(r['status'] != 'ok' for r in rows)} failed). Metrics are defined in "
-            "docs/experiments.md.", ""]
+    out += [runs_line(rows), ""]
     for spec in c.tables:
         out += [table_markdown(spec, rows), ""]
     out += ["## Summary", "", summary_markdown(rows), ""]
-    out += ["## Reliability of the verdicts", "",
-            "How often each verdict told the truth: isolated, the fault named is the one injected; ambiguous, it "
-            "is in the group; unexplained, the injected fault is not one the model expects (not a candidate, or "
-            "outside its prior); no fault, none was injected (a fault the detector missed counts against it). "
-            "The last row: among detected faults, the named fault's class (parameter, sensor, actuator).", "",
-            reliability_markdown(rows), ""]
+    out += ["## Reliability of the verdicts", "", RELIABILITY_TEXT, "", reliability_markdown(rows), ""]
     for model in dict.fromkeys(r["model"] for r in rows):
         out += [f"## Isolation confusion matrix: {escape(model)}", "", confusion_markdown(rows, model), ""]
-    failed = [r for r in rows if r["status"] != "ok"]
+    failed = failed_lines(rows, escape)
     if failed:
-        out += ["## Failed runs", ""] + [
-            f"- run {escape(r['index'])} ({escape(r['scenario'])}, {escape(r['filter'])}, seed {escape(r['seed'])}): "
-            f"{escape(r['failure'])}" for r in failed[:50]] + [""]
+        out += ["## Failed runs", ""] + [f"- {line}" for line in failed] + [""]
     return "\n".join(out).rstrip() + "\n"
+
+
+def campaign_html(c, rows: tuple[dict, ...], pictures: dict[str, bytes]) -> str:
+    """``report.html``: tables.md's tables, summary, reliability and
+    confusion matrices as one self-contained page (:mod:`bgc.output.html`),
+    from the same cells, with the campaign's plots embedded (``pictures``:
+    by file name, :func:`bgc.output.plots.campaign_figures`)."""
+    from . import html
+
+    rows = list(rows)
+    tables = []
+    for spec in c.tables:
+        head, body, tail = table_cells(spec, rows)
+        tables.append({"title": spec.title, "note": reference_note(spec), "table": html.table(head, body),
+                       "tail": tail})
+    confusions = []
+    for model in dict.fromkeys(r["model"] for r in rows):
+        saids, body = confusion_cells(rows, model)
+        confusions.append({"model": model, "table": html.table(["truth \\ diagnosed", *saids], body)})
+    captions = {name: name.removesuffix(".png").replace("_", " ") for name in pictures}
+    return html.page(
+        "campaign.html.j2", c.source, title=f"Campaign {c.name}", description=" ".join((c.description or "").split()),
+        runs=runs_line(rows), tables=tables, summary=html.table(SUMMARY_HEAD, summary_cells(rows)),
+        reliability_text=RELIABILITY_TEXT, reliability=html.table(RELIABILITY_HEAD, reliability_cells(rows)),
+        confusions=confusions, pictures=html.pictures(pictures, captions), failed=failed_lines(rows))
 
 
 def campaign_json(c, rows: tuple[dict, ...]) -> str:
