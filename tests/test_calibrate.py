@@ -382,7 +382,7 @@ def test_cli_writes_the_calibrated_model(rc, tmp_path, capsys):
     folder = tmp_path / "cal-report"
     assert f"report in {folder}" in printed
     assert sorted(p.name for p in folder.iterdir()) == ["autocorrelation.png", "estimates.png", "manifest.json",
-                                                        "report.json", "report.md", "residuals.png"]
+                                                        "report.html", "report.json", "report.md", "residuals.png"]
     data_json = json.loads((folder / "report.json").read_text(encoding="utf-8"))
     written = yaml.safe_load(text)["measurements"]["e1"]["noise"]
     (e,) = data_json["estimates"]

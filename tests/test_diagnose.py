@@ -119,7 +119,7 @@ def test_bgc_diagnose_writes_a_report_and_plots(tmp_path):
     r = bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@5", "--seed", "2", "-o", str(out))
     assert r.returncode == 0, r.stderr
     assert r.stdout.startswith("circuit: isolated: R2_abrupt")
-    assert f"wrote {out}/: report.md, report.json" in r.stdout
+    assert f"wrote {out}/: report.md, report.json, report.html" in r.stdout
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"] == "isolated" and report["diagnosis"] == ["R2_abrupt"]
     best = next(h for h in report["hypotheses"] if h["model"] == "R2_abrupt")
@@ -133,6 +133,7 @@ def test_bgc_diagnose_writes_a_report_and_plots(tmp_path):
     assert "**Fault isolated: R2_abrupt.**" in md and "## Fault-model filters" in md
     for name in ("measurements.png", "residuals.png", "hypotheses.png", "estimate.png"):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "Fault isolated: R2_abrupt." in (out / "report.html").read_text()  # tests/test_html_report.py: the rest
     # the recorded run is beside it, and can be diagnosed again from the file
     again = bgc_cli("diagnose", "models/circuit.yaml", "--data", str(out / "run.csv"), "--seed", "2", "-o",
                     str(tmp_path / "again"))

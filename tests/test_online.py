@@ -273,6 +273,7 @@ def test_bgc_monitor_prints_events_from_a_pipe_before_the_input_ends(tmp_path):
     assert p.returncode == 0, err
     assert "decided: isolated: R2_abrupt" in rest and "circuit: isolated: R2_abrupt" in rest
     assert (out / "report.md").is_file() and '"command": "monitor"' in (out / "manifest.json").read_text()
+    assert "Fault isolated: R2_abrupt." in (out / "report.html").read_text()
 
 
 def test_bgc_monitor_follows_a_file_another_program_appends_to(tmp_path):
