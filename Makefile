@@ -34,7 +34,7 @@ demo: $(STAMP)
 	$(BIN)/bgc diagnose models/ro.yaml --data out/ro-run.csv --noise process=0.03,measurement=0.02 --generated out/generated -o out/diagnosis
 	@echo "demo: the same run as a stream, row by row through a pipe, into bgc monitor (events as they arrive):"
 	$(BIN)/python -c "$$REPLAY" out/ro-run.csv 0.01 | $(BIN)/bgc monitor models/ro.yaml --data - --noise process=0.03,measurement=0.02 --generated out/generated -o out/monitor
-	@echo "demo: pictures and data in out/; the diagnosis report is out/diagnosis/report.md (plots beside it), the monitor's out/monitor/report.md"
+	@echo "demo: pictures and data in out/; the diagnosis report is out/diagnosis/report.md (plots beside it; open out/diagnosis/report.html in a browser: the same in one page), the monitor's out/monitor/report.md and report.html"
 
 test: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m pytest
