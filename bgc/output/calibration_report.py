@@ -15,6 +15,7 @@ import numpy as np
 
 from ..errors import printable
 from ..runtime.calibrate import FIT_LEVEL, Calibration, Estimate, autocorrelations
+from . import html
 from .artifacts import manifest
 from .markdown import escape
 from .plots import _figure, _save
@@ -150,8 +151,6 @@ def report_html(r, data: dict[str, Any], pictures: dict[str, bytes]) -> str:
     """``report.html``: report.md's sections as one self-contained page,
     from ``data`` (:func:`report_data`) and the same rows, with
     ``pictures`` embedded (:mod:`bgc.output.html`)."""
-    from . import html
-
     c: Calibration = r.calibration
     fits = not data["findings"]
     return html.page(

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from typing import Any, Callable, Mapping
 
-from . import events
+from . import events, html
 from .markdown import escape
 
 
@@ -368,8 +368,6 @@ def report_html(r, data: Mapping[str, Any], pictures: Mapping[str, bytes]) -> st
     model, the estimate and the events; from ``data`` (:func:`report_data`)
     and the same sentences as :func:`report_markdown`, with ``pictures``
     (:func:`bgc.output.plots.diagnosis_figures`) embedded."""
-    from . import html
-
     d = r.diagnosis
     title, data_line, filter_line = heading(r)
     symbols = html.table(

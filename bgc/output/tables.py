@@ -21,7 +21,7 @@ import math
 from typing import Any, Iterable
 
 from ..runtime.distinguish import LEVEL
-from . import render
+from . import html, render
 from .markdown import comment as _comment
 from .markdown import escape
 
@@ -359,8 +359,6 @@ def campaign_html(c, rows: tuple[dict, ...], pictures: dict[str, bytes]) -> str:
     confusion matrices as one self-contained page (:mod:`bgc.output.html`),
     from the same cells, with the campaign's plots embedded (``pictures``:
     by file name, :func:`bgc.output.plots.campaign_figures`)."""
-    from . import html
-
     rows = list(rows)
     tables = []
     for spec in c.tables:
