@@ -45,7 +45,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 import jsonschema
 import numpy as np
@@ -57,6 +57,9 @@ from .errors import (ArgumentTypeError, ArgumentValueError, BgcError, ErrorGroup
                      printable)
 from .kinds import DIRECTIONS, FAULT_KINDS, fault_kind
 from .output.tables import row_label
+
+if TYPE_CHECKING:
+    from .runtime import simulate
 
 #: The columns of ``runs.csv``, in order (docs/experiments.md defines each).
 COLUMNS = (
