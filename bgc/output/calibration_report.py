@@ -18,7 +18,7 @@ from ..runtime.calibrate import FIT_LEVEL, Calibration, Estimate, autocorrelatio
 from . import html
 from .artifacts import manifest
 from .markdown import escape
-from .plots import _figure, _save
+from .plots import laid_out, new_figure, picture
 
 #: The pictures of a calibration report.
 PICTURES = ("estimates.png", "residuals.png", "autocorrelation.png")
@@ -173,7 +173,7 @@ def estimates_figure(r, fmt: str = "png") -> bytes:
     """Each identifiable estimate over the model file's value (log scale), with its 95 % interval."""
     c: Calibration = r.calibration
     shown = [e for e in c.estimates if e.identifiable and e.kind != "initial"]  # a state may be 0 or negative
-    plt, fig, axes = _figure(1, width=8.0, height_per_row=max(2.5, 0.45 * len(shown) + 1.2))
+    fig, axes = new_figure(1, width=8.0, height_per_row=max(2.5, 0.45 * len(shown) + 1.2))
     ax = axes[0]
     for y, e in enumerate(shown):
         ref = e.start_level if e.start_level not in (0, None) and math.isfinite(e.start_level) else None
@@ -192,14 +192,14 @@ def estimates_figure(r, fmt: str = "png") -> bytes:
     ax.set_xlabel("estimate / the model file's value")
     ax.set_title(printable(f"{r.name}: calibrated values"))
     ax.legend(loc="best", fontsize=8)
-    return _save(plt, fig, fmt)
+    return picture(laid_out(fig), fmt)
 
 
 def residuals_figure(r, fmt: str = "png") -> bytes:
     """Each sensor's normalised residuals over time, with the band N(0, 1) stays in 95 % of the time."""
     c: Calibration = r.calibration
     sensors = [i.sensor for i in c.innovations]
-    plt, fig, axes = _figure(max(1, len(sensors)))
+    fig, axes = new_figure(max(1, len(sensors)))
     for ax, name in zip(axes, sensors):
         j = c.outputs.index(name)
         for k, (t, z) in enumerate(zip(c.times, c.residuals)):
@@ -211,7 +211,7 @@ def residuals_figure(r, fmt: str = "png") -> bytes:
     axes[0].legend(loc="upper right", fontsize=7)
     axes[0].set_title(printable(f"{r.name}: the calibrated model's normalised residuals"))
     axes[-1].set_xlabel("time (the data's time column)")
-    return _save(plt, fig, fmt)
+    return picture(laid_out(fig), fmt)
 
 
 def autocorrelation(c: Calibration, j: int, lags: int) -> np.ndarray:
@@ -223,7 +223,7 @@ def autocorrelation(c: Calibration, j: int, lags: int) -> np.ndarray:
 def autocorrelation_figure(r, fmt: str = "png") -> bytes:
     """Each sensor's residual autocorrelation, with the band a white series stays in (+-1.96 / sqrt(n))."""
     c: Calibration = r.calibration
-    plt, fig, axes = _figure(max(1, len(c.innovations)))
+    fig, axes = new_figure(max(1, len(c.innovations)))
     for ax, i in zip(axes, c.innovations):
         lags = int(max(1, min(ACF_LAGS, i.samples // 5)))
         rho = autocorrelation(c, c.outputs.index(i.sensor), lags)
@@ -237,7 +237,7 @@ def autocorrelation_figure(r, fmt: str = "png") -> bytes:
     axes[0].legend(loc="upper center", fontsize=7, ncol=2)
     axes[0].set_title(printable(f"{r.name}: autocorrelation of the normalised residuals"))
     axes[-1].set_xlabel("lag (samples)")
-    return _save(plt, fig, fmt)
+    return picture(laid_out(fig), fmt)
 
 
 def report_files(r) -> dict[str, str | bytes]:

@@ -1,9 +1,17 @@
-"""Plots people would rather look at than numbers: runs, residuals, estimates."""
+"""Plots people would rather look at than numbers: runs, residuals, estimates.
+
+A picture is drawn by one function, which returns the laid-out
+:class:`matplotlib.figure.Figure` (:func:`new_figure`, :func:`laid_out`), and
+saved by another (:func:`picture`): a report folder gets the PNG bytes, a
+notebook the live figure (:meth:`bgc.api.DiagnosisReport.figures`). Figures
+are plain matplotlib figures, not pyplot's: no backend is chosen and nothing
+is left open."""
 
 from __future__ import annotations
 
 import io
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -11,6 +19,8 @@ from ..errors import printable
 from ..kinds import fault_kind
 from .artifacts import mark_picture
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 def _measured(ax, run, name: str) -> None:
@@ -18,14 +28,33 @@ def _measured(ax, run, name: str) -> None:
     if name in run.measurements:
         ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
 
-def _figure(rows: int, width: float = 9.0, height_per_row: float = 1.7):
-    import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def new_figure(rows: int, width: float = 9.0, height_per_row: float = 1.7) -> tuple[Figure, np.ndarray]:
+    """A figure of ``rows`` axes one above the other, sharing the time axis:
+    (the figure, its axes). A plain :class:`matplotlib.figure.Figure`, not
+    one of pyplot's: nothing global is touched (no backend chosen, no figure
+    left open), and a notebook shows it only when it is asked to."""
+    from matplotlib.figure import Figure
 
-    fig, axes = plt.subplots(rows, 1, figsize=(width, max(2.5, height_per_row * rows)), sharex=True, squeeze=False)
-    return plt, fig, axes[:, 0]
+    fig = Figure(figsize=(width, max(2.5, height_per_row * rows)))
+    axes = fig.subplots(rows, 1, sharex=True, squeeze=False)
+    return fig, axes[:, 0]
+
+
+def new_grid(cols: int, width: float = 9.0, height: float = 3.2) -> tuple[Figure, np.ndarray]:
+    """A figure of ``cols`` axes side by side: (the figure, its axes)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height))
+    return fig, fig.subplots(1, cols, squeeze=False)[0]
+
+
+def new_axes(width: float, height: float) -> tuple[Figure, object]:
+    """A figure of one axes: (the figure, its axes)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height))
+    return fig, fig.subplots()
 
 
 #: Axis limits are kept within this magnitude: matplotlib cannot lay out an
@@ -33,8 +62,9 @@ def _figure(rows: int, width: float = 9.0, height_per_row: float = 1.7):
 _AXIS_LIMIT = 1e300
 
 
-def _save(plt, fig, fmt: str) -> bytes:
-    buf = io.BytesIO()
+def laid_out(fig: Figure) -> Figure:
+    """``fig`` ready to show or save: its axis limits kept finite and within
+    :data:`_AXIS_LIMIT`, its axes laid out tight."""
     for ax in fig.axes:
         for get, set_ in ((ax.get_xlim, ax.set_xlim), (ax.get_ylim, ax.set_ylim)):
             lo, hi = get()
@@ -42,15 +72,21 @@ def _save(plt, fig, fmt: str) -> bytes:
                 set_(float(np.clip(np.nan_to_num(lo), -_AXIS_LIMIT, _AXIS_LIMIT)),
                      float(np.clip(np.nan_to_num(hi), -_AXIS_LIMIT, _AXIS_LIMIT)))
     fig.tight_layout()
+    return fig
+
+
+def picture(fig: Figure, fmt: str = "png") -> bytes:
+    """The bytes of figure ``fig`` (:func:`laid_out`) as a ``png`` or ``svg``
+    file, with bgc's mark and no date."""
+    buf = io.BytesIO()
     fig.savefig(buf, format=fmt, dpi=100, metadata={"Software": None} if fmt == "png" else {"Date": None})
-    plt.close(fig)
     return mark_picture(buf.getvalue(), fmt)
 
 
 def simulation_figure(r, fmt: str = "png") -> bytes:
     """Measurements (noisy and clean) and, last, the faulty parameter, against time."""
     n = len(r.output_names) + (1 if r.fault else 0)
-    plt, fig, axes = _figure(n)
+    fig, axes = new_figure(n)
     for j, name in enumerate(r.output_names):
         ax = axes[j]
         ax.plot(r.time, r.measurements[:, j], ".", ms=2.5, color="#c03030", label="measured")
@@ -65,7 +101,7 @@ def simulation_figure(r, fmt: str = "png") -> bytes:
     axes[0].legend(loc="best", fontsize=7)
     axes[0].set_title(f"{r.model}: simulated run ({r.fault.describe() if r.fault else 'no fault'})")
     axes[-1].set_xlabel("time")
-    return _save(plt, fig, fmt)
+    return picture(laid_out(fig), fmt)
 
 
 def tracking_figure(run, results, fmt: str = "png") -> bytes:
@@ -75,7 +111,7 @@ def tracking_figure(run, results, fmt: str = "png") -> bytes:
     names_y = first.output_names
     names_x = [n for n in first.state_names]
     n = len(names_y) + len(names_x)
-    plt, fig, axes = _figure(n, height_per_row=1.5)
+    fig, axes = new_figure(n, height_per_row=1.5)
     colors = ["#2060c0", "#20a040", "#c08020", "#8040c0"]
     for j, name in enumerate(names_y):
         ax = axes[j]
@@ -104,7 +140,7 @@ def tracking_figure(run, results, fmt: str = "png") -> bytes:
     axes[0].legend(loc="best", fontsize=7)
     axes[0].set_title(f"{first.model}: filter estimates (bands: +-2 std)")
     axes[-1].set_xlabel("time")
-    return _save(plt, fig, fmt)
+    return picture(laid_out(fig), fmt)
 
 
 # ------------------------------------------------------------------ diagnosis
@@ -119,11 +155,11 @@ def _marks(ax, d) -> None:
         ax.axvline(d.time[d.detection.step], color="#c03030", ls="-", lw=0.9)
 
 
-def diagnosis_measurements(r, fmt: str = "png") -> bytes:
+def diagnosis_measurements(r) -> Figure:
     """Measurements and the nominal observer's predicted measurements (mean +-
     2 std), onset and detection marked (thesis Fig. IV.4)."""
     d, run = r.diagnosis, r.run
-    plt, fig, axes = _figure(len(d.outputs))
+    fig, axes = new_figure(len(d.outputs))
     for j, name in enumerate(d.outputs):
         ax = axes[j]
         _measured(ax, run, name)
@@ -135,14 +171,14 @@ def diagnosis_measurements(r, fmt: str = "png") -> bytes:
     axes[0].legend(loc="best", fontsize=7)
     axes[0].set_title(f"{d.model}: measurements and the nominal observer (dashed: onset, red: detection)")
     axes[-1].set_xlabel("time")
-    return _save(plt, fig, fmt)
+    return laid_out(fig)
 
 
-def diagnosis_residuals(r, fmt: str = "png") -> bytes:
+def diagnosis_residuals(r) -> Figure:
     """Each sensor's normalised residual and its largest windowed |Z|, with the
     detection threshold and mark."""
     d = r.diagnosis
-    plt, fig, axes = _figure(len(d.outputs))
+    fig, axes = new_figure(len(d.outputs))
     for j, name in enumerate(d.outputs):
         ax = axes[j]
         ax.plot(d.time, d.nominal_z[:, j], ".", ms=2.5, color="#808080", label="normalised residual")
@@ -154,14 +190,14 @@ def diagnosis_residuals(r, fmt: str = "png") -> bytes:
     per = "run" if d.options.horizon is None else f"{d.options.horizon:g} time units"
     axes[0].set_title(f"{d.model}: detection (false-alarm probability {d.options.false_alarm:g} per {per})")
     axes[-1].set_xlabel("time")
-    return _save(plt, fig, fmt)
+    return laid_out(fig)
 
 
-def diagnosis_hypotheses(r, fmt: str = "png") -> bytes:
+def diagnosis_hypotheses(r) -> Figure:
     """Each hypothesis's predicted measurements against the data from its
     onset, a cross where it was dropped (thesis Fig. IV.6)."""
     d, run = r.diagnosis, r.run
-    plt, fig, axes = _figure(len(d.outputs))
+    fig, axes = new_figure(len(d.outputs))
     for j, name in enumerate(d.outputs):
         ax = axes[j]
         _measured(ax, run, name)
@@ -177,15 +213,15 @@ def diagnosis_hypotheses(r, fmt: str = "png") -> bytes:
         axes[0].legend(loc="best", fontsize=6)
     axes[0].set_title(f"{d.model}: fault hypotheses' predicted measurements (dotted: dropped, X: where)")
     axes[-1].set_xlabel("time")
-    return _save(plt, fig, fmt)
+    return laid_out(fig)
 
 
-def diagnosis_estimate(r, fmt: str = "png") -> bytes:
+def diagnosis_estimate(r) -> Figure:
     """The fault magnitude of the diagnosed hypotheses over time, its interval
     and the truth when known (thesis Fig. IV.7)."""
     d, run = r.diagnosis, r.run
     shown = [h for h in d.hypotheses if h.name in d.candidates] or list(d.hypotheses[:1])
-    plt, fig, axes = _figure(max(1, len(shown)), height_per_row=2.4)
+    fig, axes = new_figure(max(1, len(shown)), height_per_row=2.4)
     for ax, h, c in zip(axes, shown, _COLORS * 4):
         t = d.time[h.start:]
         e = h.estimate
@@ -209,29 +245,33 @@ def diagnosis_estimate(r, fmt: str = "png") -> bytes:
         ax.legend(loc="best", fontsize=7)
     axes[0].set_title(f"{d.model}: fault magnitude" + (f" ({d.verdict})" if d.hypotheses else ": no fault"))
     axes[-1].set_xlabel("time")
-    return _save(plt, fig, fmt)
+    return laid_out(fig)
+
+
+#: The pictures of a diagnosis by file name, and the function that draws each.
+DIAGNOSIS_PLOTS = {"measurements.png": diagnosis_measurements, "residuals.png": diagnosis_residuals,
+                   "hypotheses.png": diagnosis_hypotheses, "estimate.png": diagnosis_estimate}
+
+
+def diagnosis_plot_names(r) -> tuple[str, ...]:
+    """The pictures diagnosis report ``r`` has: the measurements and the
+    residuals, and the hypotheses and the estimate when a fault model was tried."""
+    names = tuple(DIAGNOSIS_PLOTS)
+    return names if r.diagnosis.hypotheses else names[:2]
+
+
+def diagnosis_plots(r) -> dict[str, Figure]:
+    """Every diagnosis picture as a live :class:`matplotlib.figure.Figure`,
+    by the file name the report folder gives it."""
+    return {name: DIAGNOSIS_PLOTS[name](r) for name in diagnosis_plot_names(r)}
 
 
 def diagnosis_figures(r) -> dict[str, bytes]:
-    """Every diagnosis picture, by file name."""
-    figures = {"measurements.png": diagnosis_measurements(r), "residuals.png": diagnosis_residuals(r)}
-    if r.diagnosis.hypotheses:
-        figures["hypotheses.png"] = diagnosis_hypotheses(r)
-        figures["estimate.png"] = diagnosis_estimate(r)
-    return figures
+    """Every diagnosis picture as PNG bytes, by file name."""
+    return {name: picture(fig) for name, fig in diagnosis_plots(r).items()}
 
 
 # ------------------------------------------------------------------ campaigns
-def _grid(cols: int, width: float = 9.0, height: float = 3.2):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, cols, figsize=(width, height), squeeze=False)
-    return plt, fig, axes[0]
-
-
 def _values(rows, metric, **match) -> list[float]:
     out = []
     for r in rows:
@@ -253,7 +293,7 @@ def campaign_figures(rows) -> dict[str, bytes]:
     rows = list(rows)
     filters = [f for f in ("gpf", "apf", "opf", "ckf") if any(r["filter"] == f for r in rows)]
     out: dict[str, bytes] = {}
-    plt, fig, axes = _grid(2)
+    fig, axes = new_grid(2)
     for ax, metric, title in ((axes[0], "est_error", "fault-magnitude error (%)"), (axes[1], "ct", "time to convergence")):
         data = [[100 * v if metric == "est_error" else v for v in _values(rows, metric, filter=f)] for f in filters]
         if any(data):
@@ -261,12 +301,12 @@ def campaign_figures(rows) -> dict[str, bytes]:
             ax.set_xticks(range(1, len(filters) + 1), [f.upper() for f in filters])
         ax.set_title(title, fontsize=9)
         ax.grid(True, alpha=0.3)
-    out["distributions.png"] = _save(plt, fig, "png")
+    out["distributions.png"] = picture(laid_out(fig), "png")
     for axis, label in (("particles", "particles"), ("noise", "noise level")):
         levels = list(dict.fromkeys(r[axis] for r in rows))
         if len(levels) < 2:
             continue
-        plt, fig, axes = _grid(2)
+        fig, axes = new_grid(2)
         for f in filters:
             err = [np.mean(_values(rows, "est_error", filter=f, **{axis: x}) or [np.nan]) * 100 for x in levels]
             right = [np.mean(_values(rows, "right", filter=f, **{axis: x}) or [np.nan]) * 100 for x in levels]
@@ -282,18 +322,13 @@ def campaign_figures(rows) -> dict[str, bytes]:
                 ax.set_xticks(range(len(levels)), [str(x) for x in levels])
             ax.grid(True, alpha=0.3)
             ax.legend(fontsize=7)
-        out[f"accuracy_by_{axis}.png"] = _save(plt, fig, "png")
+        out[f"accuracy_by_{axis}.png"] = picture(laid_out(fig), "png")
     names: set[str] = set()
     for model in dict.fromkeys(r["model"] for r in rows):
         truths, saids, counts = confusion(rows, model)
         if not truths:
             continue
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(max(4.0, 0.45 * len(saids) + 3), max(3.0, 0.35 * len(truths) + 2)))
+        fig, ax = new_axes(max(4.0, 0.45 * len(saids) + 3), max(3.0, 0.35 * len(truths) + 2))
         m = np.array([[counts.get((t, s), 0) for s in saids] for t in truths], dtype=float)
         share = m / np.maximum(m.sum(axis=1, keepdims=True), 1)
         ax.imshow(share, cmap="Blues", vmin=0, vmax=1, aspect="auto")
@@ -308,7 +343,7 @@ def campaign_figures(rows) -> dict[str, bytes]:
         ax.set_ylabel("injected", fontsize=8)
         stem = Path(model).stem
         ax.set_title(f"isolation: {_literal(stem)}", fontsize=9)
-        out[_unique(f"confusion_{_file_stem(stem)}", ".png", names)] = _save(plt, fig, "png")
+        out[_unique(f"confusion_{_file_stem(stem)}", ".png", names)] = picture(laid_out(fig), "png")
     return out
 
 
@@ -338,18 +373,13 @@ def distinguishability_figure(r, fmt: str = "png") -> bytes:
     """A heat map of :class:`bgc.api.DistinguishabilityReport`: per fault
     (rows) and rival fault model (columns), the probability that the data name
     the fault over the rival; a cell under the level is outlined."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     rows = [d.label for d in r.distinctions]
     cols = sorted({x.name for d in r.distinctions for x in d.rivals})
     m = np.full((len(rows), len(cols)), np.nan)
     for i, d in enumerate(r.distinctions):
         for x in d.rivals:
             m[i, cols.index(x.name)] = x.probability
-    fig, ax = plt.subplots(figsize=(max(4.0, 0.45 * len(cols) + 3), max(2.5, 0.35 * len(rows) + 2)))
+    fig, ax = new_axes(max(4.0, 0.45 * len(cols) + 3), max(2.5, 0.35 * len(rows) + 2))
     ax.imshow(m, cmap="RdYlGn", vmin=0.5, vmax=1.0, aspect="auto")
     for i, d in enumerate(r.distinctions):
         for j in range(len(cols)):
@@ -360,4 +390,4 @@ def distinguishability_figure(r, fmt: str = "png") -> bytes:
     ax.set_xlabel("rival fault model", fontsize=8)
     ax.set_ylabel("true fault", fontsize=8)
     ax.set_title(f"{r.model}: P(the data name the truth over the rival); numbers: under the level", fontsize=8)
-    return _save(plt, fig, fmt)
+    return picture(laid_out(fig), fmt)
