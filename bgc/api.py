@@ -80,6 +80,51 @@ class DiagnosisReport:
     options: DiagnosisOptions
     diagnosis: Diagnosis
 
+    def __repr__(self) -> str:  # the run and the diagnosis hold arrays: the verdict is what a reader wants
+        d = self.diagnosis
+        return (f"<bgc.DiagnosisReport of {self.model}: {d.verdict}"
+                + (f": {', '.join(d.candidates)}" if d.candidates else "") + ">")
+
+    def write(self, folder: str | Path) -> Path:
+        """Write the report folder ``bgc diagnose -o`` writes into ``folder``
+        (report.md, report.json, report.html, the plots, the run when it was
+        simulated, manifest.json): a new or empty folder, or one a diagnosis
+        report was written to before and nobody changed since. Returns the
+        folder.
+
+        Raises
+        ------
+        ArgumentTypeError
+            ``folder`` is not a path.
+        OutputError
+            ``folder`` is a file, or holds files bgc did not write (or that
+            changed since), or another command's report.
+        """
+        arguments.path("bgc.DiagnosisReport.write", "folder", folder)
+        from .output import artifacts, report
+
+        out = Path(folder)
+        artifacts.write_folder(out, report.report_files(self))
+        return out
+
+    def figures(self) -> dict:
+        """The report's plots as live :class:`matplotlib.figure.Figure`
+        objects, by the file name :meth:`write` gives each:
+        ``measurements.png`` and ``residuals.png``, and ``hypotheses.png``
+        and ``estimate.png`` when a fault model was tried. Plain figures,
+        not pyplot's: a notebook shows one when it is the cell's value
+        (``%matplotlib inline``), ``fig.savefig(...)`` saves it."""
+        from .output import plots
+
+        return plots.diagnosis_plots(self)
+
+    def _repr_html_(self) -> str:
+        """A notebook's view: the verdict in words, the detection, the
+        estimate with its interval and its picture (:func:`bgc.output.summary.diagnosis_html`)."""
+        from .output import summary
+
+        return summary.diagnosis_html(self)
+
 
 def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = None, scenario: str | None = None, *,
              method: str = "gpf", particles: int = 1000, seed: int = 0,
@@ -288,6 +333,17 @@ class Session:
     def name(self) -> str:
         return self.compiled.model.name
 
+    def __repr__(self) -> str:
+        return f"<bgc.Session of {self.name} ({printable(self.compiled.model.display_source)})>"
+
+    def _repr_html_(self) -> str:
+        """A notebook's view: the model's name and file, elements, bonds and
+        states, sensors, inputs, parameters and fault candidates
+        (:func:`bgc.output.summary.model_html`)."""
+        from .output import summary
+
+        return summary.model_html(self)
+
     def options(self, options: DiagnosisOptions | None = None, *, method: str = "gpf", particles: int = 1000,
                 seed: int = 0, func: str = "bgc.Session.diagnoser") -> DiagnosisOptions:
         """``options`` (checked; default: built from ``method``, ``particles``
@@ -402,6 +458,13 @@ class CalibrationReport:
     calibration: calibration.Calibration
     text: str
     units: Mapping[str, str | None] = field(default_factory=dict)
+
+    def _repr_html_(self) -> str:
+        """A notebook's view: whether the model fits the data, the estimates
+        with their intervals and their picture (:func:`bgc.output.summary.calibration_html`)."""
+        from .output import summary
+
+        return summary.calibration_html(self)
 
     def write_report(self, folder: str | Path) -> Path:
         """Write the calibration report into ``folder`` (report.md,

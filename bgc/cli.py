@@ -271,31 +271,18 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                          options=options, progress=progress, prior_scale=args.prior_scale)
     finally:
         progress.close()
-    _write_report(r, args.output or f"{r.model}-diagnosis", "diagnose", args.scenario is not None)
+    _write_report(r, args.output or f"{r.model}-diagnosis", "diagnose")
     return 0
 
 
-def _write_report(r, output: str, command: str, with_run: bool) -> Path:
+def _write_report(r, output: str, command: str) -> Path:
     """Write diagnosis report ``r`` into folder ``output`` (report.json,
-    report.md, report.html, plots, the run when simulated), print its
-    verdict, estimate and notable events, and return the folder."""
-    import json
+    report.md, report.html, plots, the run when simulated:
+    :func:`bgc.output.report.report_files`), print its verdict, estimate and
+    notable events, and return the folder."""
+    from .output import artifacts, events, report
 
-    from .output import artifacts, events, plots, report
-
-    data = report.report_data(r)
-    figures = plots.diagnosis_figures(r)
-    files: dict[str, str | bytes] = {
-        "report.json": json.dumps(data, indent=2, sort_keys=True) + "\n",
-        "report.md": report.report_markdown(r),
-        "report.html": report.report_html(r, data, figures),
-    }
-    files.update(figures)
-    if with_run:
-        from .runtime import runs
-
-        files["run.csv"] = runs.run_csv(r.run)
-    files["manifest.json"] = artifacts.manifest(files, command, model=r.model)
+    files = report.report_files(r, command)
     out = Path(output)
     artifacts.write_folder(out, files)
     d = r.diagnosis
@@ -366,7 +353,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                                  exclude_faulty=args.exclude_faulty_sensor)
     if quiet:
         sys.stdout = open(os.devnull, "w")
-    _write_report(r, str(out), "monitor", False)
+    _write_report(r, str(out), "monitor")
     if failure is not None:
         raise failure
     return 0

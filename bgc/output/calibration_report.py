@@ -147,6 +147,11 @@ def report_markdown(r) -> str:
     return "\n".join(lines)
 
 
+def verdict_line(fits: bool) -> str:
+    """The headline of a calibration: whether the model explains the data."""
+    return "The model explains this data." if fits else "The model does not explain this data:"
+
+
 def report_html(r, data: dict[str, Any], pictures: dict[str, bytes]) -> str:
     """``report.html``: report.md's sections as one self-contained page,
     from ``data`` (:func:`report_data`) and the same rows, with
@@ -156,8 +161,7 @@ def report_html(r, data: dict[str, Any], pictures: dict[str, bytes]) -> str:
     return html.page(
         "calibration.html.j2", r.model, title=f"Calibration of {r.name}", name=r.name, model=r.model,
         samples=c.samples, sources=", ".join(c.sources),
-        verdict="The model explains this data." if fits else "The model does not explain this data:",
-        verdict_class="v-fits" if fits else "v-findings",
+        verdict=verdict_line(fits), verdict_class="v-fits" if fits else "v-findings",
         findings=data["findings"], fit_text=FIT_TEXT,
         innovations=html.table(INNOVATION_COLUMNS, innovation_rows(c)),
         estimates_text=ESTIMATES_TEXT.format(model_file="\u201cmodel file\u201d", noise="noise"),

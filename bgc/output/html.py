@@ -14,6 +14,9 @@ Content-Security-Policy forbids any other source, so a browser would refuse
 to fetch or run anything all the same. Its colours are from the Okabe-Ito
 palette (distinguishable with the common colour-vision deficiencies), and
 every colour goes with a word that says the same.
+
+:func:`fragment` lays out the short summaries a notebook shows
+(:mod:`bgc.output.summary`) with the same environment.
 """
 
 from __future__ import annotations
@@ -79,3 +82,10 @@ def page(template: str, source: str, **view) -> str:
     with bgc's mark after its doctype (``source``: what it comes from)."""
     text = _environment().get_template(template).render(**view)
     return mark_text(text, "html", source)
+
+
+def fragment(template: str, **view) -> str:
+    """Template ``template`` laid out with ``view`` as a piece of a page (a
+    notebook's rich output, ``_repr_html_``): no document, no mark, no
+    stylesheet (its styles inline), every value escaped as on a page."""
+    return _environment().get_template(template).render(**view)

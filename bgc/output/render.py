@@ -390,6 +390,23 @@ def dbn_dot(d: Dbn) -> str:
 
 
 # ---------------------------------------------------------------- bgc check
+def element_kinds_text(m) -> str:
+    """How many elements of each kind bond graph ``m`` has, sources first:
+    ``'Sf 1, C 2, R 3, 0 2, 1 1'``."""
+    order = sorted(ELEMENT_KINDS.values(), key=lambda k: (ROLES.index(k.role), k.base, k.modulated))
+    counts = {k.name: sum(el.kind == k.name for el in m.elements) for k in order}
+    return ", ".join(f"{k} {n}" for k, n in counts.items() if n)
+
+
+def fault_candidates_text(m) -> str:
+    """Bond graph ``m``'s fault candidates with their kinds:
+    ``'R10 (abrupt/incipient), F10 (bias/drift)'`` (empty: none)."""
+    kinds: dict[str, list[str]] = {}
+    for f in m.faults:  # a sensor's or input's faults may change two symbols: one entry per name
+        kinds.setdefault(f.name, []).extend(f.kinds)
+    return ", ".join(f"{name} ({'/'.join(k)})" for name, k in kinds.items())
+
+
 def check_summary(ssm: StateSpaceModel, num: Numerics | None = None) -> str:
     """What ``bgc check`` prints for a model that compiles: elements, states,
     causality findings, algebraic loops (each with the resistors that close
@@ -397,11 +414,8 @@ def check_summary(ssm: StateSpaceModel, num: Numerics | None = None) -> str:
     escaped (one line per item, no control characters)."""
     cbg = ssm.tcg.causal
     m = cbg.model
-    order = sorted(ELEMENT_KINDS.values(), key=lambda k: (ROLES.index(k.role), k.base, k.modulated))
-    counts = {k.name: sum(el.kind == k.name for el in m.elements) for k in order}
-    kind_text = ", ".join(f"{k} {n}" for k, n in counts.items() if n)
     lines = [f"{m.source}: ok: {m.name}" + (f" ({m.description})" if m.description else "")]
-    lines.append(f"  elements: {len(m.elements)} ({kind_text})")
+    lines.append(f"  elements: {len(m.elements)} ({element_kinds_text(m)})")
     lines.append(f"  bonds: {len(m.bonds)}")
     states = sorted(cbg.states, key=lambda s: s.bond)
     listed = ", ".join(f"{s.state} ({s.element}, integral)" for s in states)
@@ -418,11 +432,7 @@ def check_summary(ssm: StateSpaceModel, num: Numerics | None = None) -> str:
     lines.append(f"  inputs: {', '.join(i.name for i in m.inputs) or 'none'}")
     measured = [y.name if y.text == y.name else f"{y.name} = {y.text}" for y in m.measurements]
     lines.append("  measurements: " + (", ".join(measured) or "none"))
-    kinds: dict[str, list[str]] = {}
-    for f in m.faults:  # a sensor's or input's faults may change two symbols: one entry per name
-        kinds.setdefault(f.name, []).extend(f.kinds)
-    faults = [f"{name} ({'/'.join(k)})" for name, k in kinds.items()]
-    lines.append("  fault candidates: " + (", ".join(faults) or "none"))
+    lines.append("  fault candidates: " + (fault_candidates_text(m) or "none"))
     if num is not None and num.faults:
         lines.append("  priors of the fault magnitudes:")
         lines.extend(f"    {printable(row)}" for row in prior_rows(num))

@@ -9,10 +9,12 @@ whose template escapes every value (:mod:`bgc.output.html`)."""
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any, Callable, Mapping
 
-from . import events, html
+from . import events, html, plots
+from .artifacts import manifest
 from .markdown import escape
 
 
@@ -392,3 +394,25 @@ def report_html(r, data: Mapping[str, Any], pictures: Mapping[str, bytes]) -> st
         events=html.table(("t", "event"), [("" if e["time"] is None else events.time_text(e["time"]), e["text"])
                                            for e in data["events"]]) if data["events"] else None,
         seconds=f"{d.seconds:.2f}")
+
+
+def report_files(r, command: str = "diagnose") -> dict[str, str | bytes]:
+    """Every file of the report folder of diagnosis report ``r`` (what ``bgc
+    diagnose -o``, ``bgc monitor -o`` and :meth:`bgc.api.DiagnosisReport.write`
+    write): report.json, report.md, report.html, the pictures
+    (:func:`bgc.output.plots.diagnosis_figures`), the run as ``run.csv`` when
+    it was simulated (a scenario), and the manifest of ``command``, last."""
+    from ..runtime import runs
+
+    data = report_data(r)
+    pictures = plots.diagnosis_figures(r)
+    files: dict[str, str | bytes] = {
+        "report.json": json.dumps(data, indent=2, sort_keys=True) + "\n",
+        "report.md": report_markdown(r),
+        "report.html": report_html(r, data, pictures),
+        **pictures,
+    }
+    if r.scenario is not None:
+        files["run.csv"] = runs.run_csv(r.run)
+    files["manifest.json"] = manifest(files, command, model=r.model)
+    return files
