@@ -350,3 +350,194 @@ def test_numbers_beyond_the_floats_or_the_machine_integers_are_bgc_errors(kw):
     with pytest.raises(BgcError) as info:
         bgc.diagnose(CIRCUIT, scenario="none", steps=30, **kw)
     assert "\n" not in info.value.line()
+
+
+# ------------------------------------------------------------------ notebooks: write, figures, _repr_html_
+class Cells:
+    """What a browser makes of an HTML piece: its tags, its text, its table rows (cells as text)."""
+
+    def __init__(self, text: str):
+        from html.parser import HTMLParser
+
+        cells = self
+
+        class Parser(HTMLParser):
+            def handle_starttag(self, tag, attrs):
+                cells.tags.append(tag)
+                cells.attrs += [(tag, k, v) for k, v in attrs]
+                if tag == "tr":
+                    cells.rows.append([])
+                if tag in ("td", "th"):
+                    cells.rows[-1].append("")
+                    cells.inside = True
+
+            def handle_endtag(self, tag):
+                if tag in ("td", "th"):
+                    cells.inside = False
+
+            def handle_data(self, data):
+                cells.text.append(data)
+                if cells.inside:
+                    cells.rows[-1][-1] += data
+
+        self.tags: list[str] = []
+        self.attrs: list[tuple[str, str, str | None]] = []
+        self.text: list[str] = []
+        self.rows: list[list[str]] = []
+        self.inside = False
+        p = Parser(convert_charrefs=True)
+        p.feed(text)
+        p.close()
+
+    @property
+    def words(self) -> str:
+        return " ".join(" ".join(self.text).split())
+
+    def images(self) -> list[bytes]:
+        import base64
+
+        srcs = [v for t, k, v in self.attrs if t == "img" and k == "src"]
+        assert all(s.startswith("data:image/png;base64,") for s in srcs)
+        return [base64.b64decode(s.split(",", 1)[1]) for s in srcs]
+
+
+#: A model file's name with a script, markup and an ampersand (no slash).
+HOSTILE_NAME = "<script>alert(1)<script> & <b>x"
+
+
+def _no_markup(text: str, cells: Cells) -> None:
+    """``text`` holds the hostile name as text only: no script, no bold, no handler."""
+    assert "<script>" not in text and "<b>" not in text
+    assert "&lt;script&gt;alert(1)&lt;script&gt; &amp; &lt;b&gt;x" in text
+    assert "script" not in cells.tags and "b" not in cells.tags
+    assert not [t for t, k, _ in cells.attrs if k.startswith("on")]
+
+
+@pytest.fixture(scope="module")
+def hostile_model(tmp_path_factory):
+    """The circuit, its model file's path hostile."""
+    model = tmp_path_factory.mktemp("nb") / f"{HOSTILE_NAME}.yaml"
+    model.write_bytes((ROOT / "models" / "circuit.yaml").read_bytes())
+    return model
+
+
+@pytest.fixture(scope="module")
+def hostile_report(hostile_model):
+    """The circuit's R2 rising by 0.6 at t = 5; cubature Kalman filters."""
+    return bgc.diagnose(hostile_model, scenario="R2:abrupt:0.6@5", method="ckf", seed=1)
+
+
+def test_a_reports_notebook_view_says_the_verdict_first_and_escapes_the_model_path(hostile_report):
+    r = hostile_report
+    text = r._repr_html_()
+    cells = Cells(text)
+    _no_markup(text, cells)
+    assert HOSTILE_NAME in r.source and f"Diagnosis of circuit ({r.source})" in cells.words
+    d = r.diagnosis
+    assert (d.verdict, d.candidates) == ("isolated", ("R2_abrupt",))
+    words = cells.words
+    # the verdict, then its plain words, the alarm, then the estimate with its interval
+    e = d.estimate
+    assert words.index("Fault isolated: R2_abrupt.") < words.index("alarm at t =") < words.index(
+        f"95 % interval [{e.low:.4g}, {e.high:.4g}]")
+    assert "estimate.png" in words
+    (png,) = cells.images()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert repr(r) == "<bgc.DiagnosisReport of circuit: isolated: R2_abrupt>"
+
+
+def test_figures_are_the_reports_plots_as_live_matplotlib_figures(hostile_report, tmp_path):
+    from matplotlib.figure import Figure
+
+    from bgc.output import plots
+
+    r = hostile_report
+    figures = r.figures()
+    folder = r.write(tmp_path / "report")
+    assert folder == tmp_path / "report"
+    pngs = sorted(p.name for p in folder.glob("*.png"))
+    assert sorted(figures) == pngs == ["estimate.png", "hypotheses.png", "measurements.png", "residuals.png"]
+    for name, fig in figures.items():
+        assert isinstance(fig, Figure) and fig.axes and all(ax.has_data() for ax in fig.axes)
+        assert plots.picture(fig) == (folder / name).read_bytes()  # drawn by the same code the folder's was
+    assert len(figures["measurements.png"].axes) == len(r.diagnosis.outputs)  # a sensor an axes
+    assert figures["estimate.png"].axes[0].get_ylabel() == "bias of R2"
+
+
+def test_write_gives_the_folder_bgc_diagnose_writes_and_refuses_foreign_files(hostile_model, hostile_report, tmp_path,
+                                                                             capsys):
+    import json
+
+    from bgc.errors import OutputError
+
+    r = hostile_report
+    out = tmp_path / "cli"
+    done = cli.main(["diagnose", str(hostile_model), "--scenario",
+                     "R2:abrupt:0.6@5", "--filter", "ckf", "--seed", "1", "-o", str(out)])
+    assert done == 0 and capsys.readouterr().out.startswith("circuit: isolated: R2_abrupt")
+    mine = r.write(tmp_path / "api")
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(p.name for p in mine.iterdir())
+    assert {"report.md", "report.json", "report.html", "manifest.json", "run.csv"} <= set(names)
+    for name in ("run.csv", "estimate.png", "measurements.png"):
+        assert (mine / name).read_bytes() == (out / name).read_bytes(), name
+    md = [(folder / "report.md").read_text(encoding="utf-8").splitlines() for folder in (mine, out)]
+    assert md[0][:-1] == md[1][:-1] and md[0][-1].startswith("Diagnosis computed in")  # but the seconds
+    manifest = json.loads((mine / "manifest.json").read_text(encoding="utf-8"))
+    assert manifest["command"] == "diagnose" and sorted(manifest["files"]) == [n for n in names if n != "manifest.json"]
+    r.write(mine)  # its own folder again: fine
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine\n", encoding="utf-8")
+    with pytest.raises(OutputError):
+        r.write(foreign)
+    assert sorted(p.name for p in foreign.iterdir()) == ["notes.txt"]
+    with pytest.raises(ArgumentTypeError):
+        r.write(3)
+
+
+def test_a_sessions_notebook_view_lists_the_model_and_escapes_its_text(tmp_path):
+    import yaml
+
+    text = (ROOT / "models" / "circuit.yaml").read_text(encoding="utf-8").replace("unit: ohm, description: load",
+                                                                                  "unit: <b>ohm</b>, description: load")
+    model = tmp_path / f"{HOSTILE_NAME}.yaml"
+    model.write_text(text, encoding="utf-8")
+    session = bgc.open(model)
+    html = session._repr_html_()
+    cells = Cells(html)
+    _no_markup(html, cells)
+    assert "&lt;b&gt;ohm&lt;/b&gt;" in html
+    spec = yaml.safe_load(text)
+    words = cells.words
+    assert words.startswith("Model circuit") and spec["description"] in words
+    assert f"{len(spec['elements'])} elements" in words and f"{len(spec['bonds'])} bonds" in words
+    rows = [tuple(r) for r in cells.rows]
+    for name, p in spec["parameters"].items():
+        assert (name, f"{p['value']:g}", p["unit"], p["description"]) in rows
+    for name, y in spec["measurements"].items():
+        assert (name, y.get("expr", name), y.get("unit", "-"), f"{y['noise']:g}") in rows
+    for name, u in spec["inputs"].items():
+        assert (name, f"constant {u['value']:g}", u["unit"]) in rows
+    for name in spec["faults"]:
+        assert name in words.split("Fault candidates", 1)[1]
+    assert "states: e4 (C1), e8 (C2), f10 (L)" in words  # the circuit's states (the model file's comment)
+
+
+def test_a_calibrations_notebook_view_says_its_verdict_and_escapes_the_model_path(tmp_path):
+    from test_calibrate import RC, rc_run
+
+    model = tmp_path / f"{HOSTILE_NAME}.yaml"
+    model.write_bytes(RC.read_bytes())
+    session = bgc.open(model)
+    run, _ = rc_run(session, 0.05, 100, 6)
+    report = session.calibrate(run, "measurement_noise")
+    html = report._repr_html_()
+    cells = Cells(html)
+    _no_markup(html, cells)
+    assert f"Model file {model}" in cells.words
+    assert cells.words.index("The model explains this data.") < cells.words.index("Estimates")
+    (e,) = report.calibration.estimates
+    assert any(row[0] == e.name and row[3] == f"[{e.level_low:.6g}, {e.level_high:.6g}]" for row in cells.rows)
+    (png,) = cells.images()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
