@@ -12,7 +12,11 @@
 private folder, or uses the one ``generated`` points at), reads the run (or
 simulates ``scenario`` with the truth simulator), and runs
 :func:`bgc.runtime.diagnose.diagnose`. :mod:`bgc.output.report` turns the
-result into ``report.json``, ``report.md``, ``report.html`` and plots.
+result into ``report.json``, ``report.md``, ``report.html`` and plots:
+:meth:`DiagnosisReport.write` writes them, :meth:`DiagnosisReport.figures`
+gives the plots as matplotlib figures, and in a notebook a report, a
+:class:`Session` and a :class:`CalibrationReport` show a summary
+(``_repr_html_``; ``docs/examples/diagnose.ipynb``).
 
 Every public function checks its arguments before any work, as the command
 line does, with the same ranges: a wrong type is an
