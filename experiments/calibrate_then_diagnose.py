@@ -40,28 +40,17 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 import bgc
 from bgc.runtime import runs, simulate
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
+from calibrate_accuracy import offset_model  # noqa: E402 - the model file with a parameter off, as the bench makes it
 
 #: The faults injected (parameter, kind, change in units of its nominal value), one per seed in turn; those
 #: the model does not declare are skipped.
 FAULTS = (("R12", "abrupt", 0.4), ("R20", "abrupt", 0.4), ("R10", "abrupt", 0.4), ("R_pipe", "abrupt", 0.4),
           ("R2", "abrupt", 0.4), ("R3", "abrupt", 0.4), ("R1", "abrupt", 0.4))
-
-
-def with_value(path: str, parameter: str, factor: float, folder: str) -> str:
-    """A copy of model file ``path`` with ``parameter`` times ``factor``."""
-    data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    entry = data["parameters"][parameter]
-    if isinstance(entry, dict):
-        entry["value"] = float(entry["value"]) * factor
-    else:
-        data["parameters"][parameter] = float(entry) * factor
-    out = Path(folder) / f"user_{parameter}_x{factor:g}.yaml"
-    out.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
-    return str(out)
 
 
 def plant_run(plant: bgc.Session, steps: int, seed: int, fault: str | None = None) -> runs.Run:
@@ -94,7 +83,7 @@ def job(args: tuple) -> dict:
         true_model = plant
         estimate = "noise"
     else:
-        user_path = with_value(model, parameter, 1.1, folder)
+        user_path = offset_model(model, parameter, 1.1, folder)
         plant = bgc.open(model)
         true_model = plant
         estimate = f"noise,{parameter}"

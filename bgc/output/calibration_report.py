@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import printable
-from ..runtime.calibrate import FIT_LEVEL, Calibration, Estimate, autocorrelations
+from ..runtime.calibrate import FIT_LEVEL, Z95, Calibration, Estimate, autocorrelations
 from . import html
 from .artifacts import manifest
 from .markdown import escape
@@ -24,8 +24,6 @@ from .plots import laid_out, new_figure, picture
 PICTURES = ("estimates.png", "residuals.png", "autocorrelation.png")
 #: Lags shown in the autocorrelation picture (fewer when the data are short).
 ACF_LAGS = 40
-#: The 95 % point of the standard normal.
-Z95 = 1.959963984540054
 
 
 def _num(v: float) -> float | None:
@@ -33,11 +31,8 @@ def _num(v: float) -> float | None:
 
 
 def _unit(units: dict[str, str | None], e: Estimate) -> str | None:
-    if e.kind == "parameter":
-        return units.get(e.subject)
-    if e.kind == "measurement_noise":
-        return units.get(e.subject)  # a sensor's std is in its reading's unit
-    return None
+    """A parameter's unit, or a sensor's (its noise std is in its reading's unit); none for the others."""
+    return units.get(e.subject) if e.kind in ("parameter", "measurement_noise") else None
 
 
 def report_data(r) -> dict[str, Any]:

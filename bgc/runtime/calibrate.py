@@ -745,20 +745,7 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
         a, b = min(a, b), max(a, b)
         estimates.append(Estimate("parameter", p, v, a, b, v, a, b, t0, t0, at_bound=_at_bound(z[k], z0[k])))
         k += 1
-    x0 = np.asarray(model.X0, dtype=float)
-    for pair, name in starts.items():
-        r, i = pair
-        subject = name.removeprefix("initial ")
-        start = float(x0[i])
-        if name in held:
-            estimates.append(Estimate("initial", subject, start, math.nan, math.nan, start, math.nan, math.nan,
-                                      start, start, False, held[name]))
-            continue
-        size = lik.x_size[i]
-        v, a, b = float(z[k] * size), float(z_low[k] * size), float(z_high[k] * size)
-        estimates.append(Estimate("initial", subject, v, a, b, v, a, b, start, start,
-                                  at_bound=_at_bound(z[k], z0[k])))
-        k += 1
+    estimates += _start_estimates(lik, starts, held, z, z0, z_low, z_high, k)
     corr = cov / np.outer(sd, sd) if len(z) else cov
     filters = lik.filters(z)
     return Calibration(tuple(estimates), float(best), float(start_loglik), tuple(names),
@@ -768,6 +755,26 @@ def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], 
                        tuple(np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in filters),
                        tuple(np.asarray(r.ts if r.ts is not None else np.arange(len(r.ys)), dtype=float)
                              for r in records))
+
+
+def _start_estimates(lik: _Likelihood, starts: dict[tuple[int, int], str], held: dict[str, str], z: np.ndarray,
+                     z0: np.ndarray, z_low: np.ndarray, z_high: np.ndarray, k: int) -> list[Estimate]:
+    """The estimates of the recordings' initial states ``starts`` ((record,
+    state) -> name), the free ones from coordinate ``k`` of ``z`` on (in
+    units of each state's size), those ``held`` at the model's ``X0``."""
+    out = []
+    for (_, i), name in starts.items():
+        subject = name.removeprefix("initial ")
+        start = float(lik.x0[i])
+        if name in held:
+            out.append(Estimate("initial", subject, start, math.nan, math.nan, start, math.nan, math.nan, start,
+                                start, False, held[name]))
+            continue
+        size = lik.x_size[i]
+        v, a, b = float(z[k] * size), float(z_low[k] * size), float(z_high[k] * size)
+        out.append(Estimate("initial", subject, v, a, b, v, a, b, start, start, at_bound=_at_bound(z[k], z0[k])))
+        k += 1
+    return out
 
 
 def _interval_ends(lik: _Likelihood, z: np.ndarray, best: float, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
