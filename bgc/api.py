@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import atexit
 import dataclasses
+import hashlib
 import math
 import os
 import shutil
@@ -51,7 +52,7 @@ from . import arguments, pipeline
 from .errors import (
     ArgumentTypeError, ArgumentValueError, CalibrationError, OutputError, SimulationError, TrackingError, printable,
 )
-from .ir import NoiseLevels, Numerics
+from .ir import NUMBA_PACKAGE, PACKAGE, NoiseLevels, Numerics
 from .kinds import DIRECTIONS, fault_kind
 from .runtime import distinguish as distinction
 from .output import calibrated
@@ -135,7 +136,7 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
              process_noise: float | None = None, measurement_noise: float | None = None,
              steps: int | None = None, generated: str | Path | None = None,
              options: DiagnosisOptions | None = None, progress=None,
-             prior_scale: float | None = None) -> DiagnosisReport:
+             prior_scale: float | None = None, backend: str | None = None) -> DiagnosisReport:
     """Diagnose ``data`` (a run file or a :class:`~bgc.runtime.runs.Run`) or a
     simulated ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, or ``none`` for a
     fault-free run) of ``model``.
@@ -179,6 +180,11 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     prior_scale : float, optional
         Widens every fault's prior of its magnitude by this factor
         (``--prior-scale``; default 1: the model's priors).
+    backend : {"numpy", "numba", "auto"}, optional
+        The generated package the filters run on (``--backend``): the NumPy
+        package, or the compiled one (numba, the ``fast`` extra); None or
+        "auto": numba when it is installed (the environment's
+        ``BGC_BACKEND`` first). The diagnosis does not depend on it.
 
     Returns
     -------
@@ -227,7 +233,7 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         check_options(options, func)
     arguments.callable_or_none(func, "progress", progress)
     say = progress or (lambda text: None)
-    session = _session_of(func, model, process_noise, measurement_noise, generated, say, prior_scale)
+    session = _session_of(func, model, process_noise, measurement_noise, generated, say, prior_scale, backend)
     opts = options or DiagnosisOptions(method=method, particles=particles, seed=seed)
     if scenario is not None:
         run, injected = _scenario_run(session, scenario, steps, seed, opts, say)
@@ -274,17 +280,21 @@ def _recorded_run(session: Session, data, opts: DiagnosisOptions) -> runs.Run:
 
 
 def _session_of(func: str, model, process_noise, measurement_noise, generated, say,
-                prior_scale: float | None = None) -> Session:
+                prior_scale: float | None = None, backend: str | None = None) -> Session:
     """``model`` when it is a :class:`Session` (whose noise levels, prior
     scale and package apply: other ones are refused), else a new session of
     the file."""
     if not isinstance(model, Session):
         say("compiling the model")
-        return Session(model, process_noise, measurement_noise, generated,
-                       1.0 if prior_scale is None else prior_scale)
+        session = Session(model, process_noise, measurement_noise, generated,
+                          1.0 if prior_scale is None else prior_scale, backend)
+        note = session.backend_note()
+        if note:
+            say(note)
+        return session
     if (process_noise, measurement_noise) not in ((None, None), model.noise) or generated is not None \
-            or prior_scale not in (None, model.prior_scale):
-        raise ArgumentValueError(f"{func}: noise levels, prior_scale or generated= with a Session: the session's "
+            or prior_scale not in (None, model.prior_scale) or backend not in (None, "auto", model.backend):
+        raise ArgumentValueError(f"{func}: noise levels, prior_scale, backend or generated= with a Session: the session's "
                                  "apply", None, "open a session with them: bgc.open(model, process_noise=..., ...)")
     return model
 
@@ -308,7 +318,7 @@ class Session:
 
     def __init__(self, model: str | Path, process_noise: float | None = None,
                  measurement_noise: float | None = None, generated: str | Path | None = None,
-                 prior_scale: float = 1.0):
+                 prior_scale: float = 1.0, backend: str | None = None):
         func = "bgc.open"
         arguments.path(func, "model", model)
         arguments.noise_levels(func, process_noise, measurement_noise)
@@ -323,19 +333,38 @@ class Session:
         self.model = str(model)
         self.noise = (process_noise, measurement_noise)
         self.prior_scale = float(prior_scale)
+        if backend is not None:
+            arguments.choice(func, "backend", backend, (*track.BACKENDS, "auto"))
+        self.backend = track.resolve_backend(backend)
         self.compiled, self.folder = _compiled(model, self.prior_scale)  # this session's own compilation and folder
         c = self.compiled
         levels = c.numerics.noise_at(process_noise, measurement_noise)
         self.levels = levels
         custom = levels if (process_noise, measurement_noise) != (None, None) else None
+        if generated is None:  # the compiled package from a folder that lasts: numba's disk cache stays valid
+            generated = self.folder if self.backend == "numpy" else _lasting_folder(c)
         with _LOCK:  # another thread must not see a package half imported
-            self.package = track.load_package(generated if generated is not None else self.folder, c.model.name,
-                                              str(model), custom)
+            self.package = track.load_package(generated, c.model.name, str(model), custom, self.backend)
+            #: (seconds, kernels compiled, kernels loaded from numba's disk cache) of this session's warm-up
+            self.warm = track.warm_up(self.package)
         self.priors = {f.parameter: f.prior for f in c.model.faults}
 
     @property
     def name(self) -> str:
         return self.compiled.model.name
+
+    def backend_note(self) -> str | None:
+        """One line on the compiled backend's warm-up (None on the NumPy
+        backend): kernels compiled, or loaded from numba's disk cache, and how long it took."""
+        seconds, compiled, loaded = self.warm
+        if self.backend != "numba":
+            return None
+        if compiled:
+            return (f"numba backend: {compiled} kernels compiled in {seconds:.1f} s (kept in numba's disk cache: "
+                    "later runs load them)")
+        if loaded:
+            return f"numba backend: {loaded} kernels loaded from numba's disk cache in {seconds:.1f} s"
+        return "numba backend: kernels compiled before in this process"
 
     def __repr__(self) -> str:
         return f"<bgc.Session of {self.name} ({printable(self.compiled.model.display_source)})>"
@@ -534,8 +563,6 @@ def check_calibration_output(path: str | Path, model: str | Path, data=()) -> No
 
 def _model_text(path: str, c: pipeline.Compiled) -> str:
     """The model file's text, as it was compiled (its hash checked)."""
-    import hashlib
-
     try:
         text = Path(path).read_bytes().decode("utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -571,7 +598,7 @@ def _check_calibrated(text: str, result: calibration.Calibration, c: pipeline.Co
 
 
 def open(model: str | Path, *, process_noise: float | None = None, measurement_noise: float | None = None,
-         generated: str | Path | None = None, prior_scale: float = 1.0) -> Session:
+         generated: str | Path | None = None, prior_scale: float = 1.0, backend: str | None = None) -> Session:
     """Compile ``model`` and load its generated package: a :class:`Session`
     whose :meth:`Session.diagnoser` diagnoses a stream one sample at a time,
     and which :func:`diagnose` and :func:`distinguishability` take in place of
@@ -580,8 +607,10 @@ def open(model: str | Path, *, process_noise: float | None = None, measurement_n
     ``measurement_noise``: the relative noise levels the filters assume
     (default: the model's); ``generated``: the folder ``bgc compile -o``
     wrote (default: a private one); ``prior_scale``: widens every fault's
-    prior of its magnitude by that factor (``--prior-scale``)."""
-    return Session(model, process_noise, measurement_noise, generated, prior_scale)
+    prior of its magnitude by that factor (``--prior-scale``); ``backend``:
+    'numpy', 'numba' (the compiled package, the ``fast`` extra) or None /
+    'auto' (numba when installed; the environment's ``BGC_BACKEND`` first)."""
+    return Session(model, process_noise, measurement_noise, generated, prior_scale, backend)
 
 
 #: The longest detector horizon or gap limit (time units) the options take.
@@ -803,11 +832,42 @@ def _compiled(model: str | Path, prior_scale: float = 1.0) -> tuple[pipeline.Com
     :class:`Session` holds what one model needs."""
     c = pipeline.compile_model(model, prior_scale)
     folder = private_folder("bgc-")
-    root = Path(folder) / c.model.name / "numpy_model"
+    root = Path(folder) / c.model.name / PACKAGE
     root.mkdir(parents=True)
     for rel, text in c.package.files:
         (root / rel).write_text(text, encoding="utf-8")
     return c, folder
+
+
+def cache_root() -> Path:
+    """bgc's own cache folder: ``BGC_CACHE_DIR``, else ``$XDG_CACHE_HOME/bgc``, else ``~/.cache/bgc``."""
+    if os.environ.get("BGC_CACHE_DIR"):
+        return Path(os.environ["BGC_CACHE_DIR"])
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bgc"
+
+
+def _lasting_folder(c: pipeline.Compiled) -> str:
+    """A folder that holds ``c``'s compiled (numba) package and lasts from
+    run to run, so numba's disk cache beside it stays valid: under
+    :func:`cache_root`, named by the package's digest (the same model text
+    always meets the same folder, another one never). Written once, whole,
+    by renaming a finished private folder into place (processes racing to
+    write it: one wins, the others' copies are dropped)."""
+    digest = hashlib.sha256(repr(c.package.numba_files).encode()).hexdigest()[:20]
+    root = cache_root() / "packages" / f"{c.model.name}-{digest}"
+    if (root / c.model.name / NUMBA_PACKAGE / "__init__.py").exists():
+        return str(root)
+    root.parent.mkdir(parents=True, exist_ok=True)
+    fresh = Path(tempfile.mkdtemp(prefix=f".{root.name}-", dir=root.parent))
+    package = fresh / c.model.name / NUMBA_PACKAGE
+    package.mkdir(parents=True)
+    for rel, text in c.package.numba_files:
+        (package / rel).write_text(text, encoding="utf-8")
+    try:
+        os.rename(fresh, root)
+    except OSError:  # another process put it there first
+        shutil.rmtree(fresh, ignore_errors=True)
+    return str(root)
 
 
 def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> DiagnosisReport:

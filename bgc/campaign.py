@@ -587,16 +587,17 @@ _MODEL_LOCK = threading.Lock()
 _SESSIONS: dict[tuple, Any] = {}
 
 
-def _session(spec: RunSpec, process_noise: float | None, measurement_noise: float | None):
-    """The session of the run's model at these noise levels in this process, opened once."""
+def _session(spec: RunSpec, process_noise: float | None, measurement_noise: float | None, backend: str = "numpy"):
+    """The session of the run's model at these noise levels on ``backend`` in this process, opened once."""
     from . import api
 
-    key = (os.getpid(), _model_file(spec), process_noise, measurement_noise)
+    key = (os.getpid(), _model_file(spec), process_noise, measurement_noise, backend)
     with _MODEL_LOCK:
         if key not in _SESSIONS:
             if any(k[0] != key[0] for k in _SESSIONS):  # a forked worker: its parent's sessions are not its own
                 _SESSIONS.clear()
-            _SESSIONS[key] = api.open(key[1], process_noise=process_noise, measurement_noise=measurement_noise)
+            _SESSIONS[key] = api.open(key[1], process_noise=process_noise, measurement_noise=measurement_noise,
+                                      backend=backend)
         return _SESSIONS[key]
 
 
@@ -614,8 +615,10 @@ def _write_model(spec: RunSpec, private_folder) -> str:
     return _MODEL_FILES[digest]
 
 
-def run_one(spec: RunSpec) -> dict[str, Any]:
-    """Simulate, diagnose and measure one run; a row of ``runs.csv``.
+def run_one(spec: RunSpec, backend: str = "numpy") -> dict[str, Any]:
+    """Simulate, diagnose and measure one run; a row of ``runs.csv``
+    (``backend``: the generated package the filters run on; the row does
+    not depend on it).
 
     It never raises: a run that fails (any exception: a diverging
     simulation, a bug) is a row with ``status`` failed and the error in
@@ -630,7 +633,7 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     try:
         options = DiagnosisOptions(method=spec.filter, particles=spec.particles, seed=spec.seed, workers=1,
                                    refine=spec.refine, switch=False)  # a campaign measures the filter it names
-        session = _session(spec, spec.process_noise, spec.measurement_noise)
+        session = _session(spec, spec.process_noise, spec.measurement_noise, backend)
         report = api.diagnose(session, scenario=spec.scenario, seed=spec.seed, steps=spec.steps, options=options)
         d = report.diagnosis
         m = metrics.measure(d, report.run, metrics.Truth(spec.fault, spec.kind, spec.magnitude, spec.onset))
@@ -927,13 +930,13 @@ def local_workers(requested: int | None, todo: int) -> tuple[int, str | None]:
     return n, why
 
 
-def _local(specs: list[RunSpec], workers: int) -> Iterator[tuple[RunSpec, dict]]:
+def _local(specs: list[RunSpec], workers: int, backend: str = "numpy") -> Iterator[tuple[RunSpec, dict]]:
     # fork where there is one: workers inherit the loaded modules and run from a
     # notebook or a script without a __main__ guard (spawn re-imports __main__)
     method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method),
                              initializer=_worker_start, initargs=(os.getpid(),)) as pool:
-        futures = {pool.submit(run_one, s): s for s in specs}
+        futures = {pool.submit(run_one, s, backend): s for s in specs}
         try:
             for f in as_completed(futures):
                 spec = futures[f]
@@ -1108,7 +1111,8 @@ def _handshake_probe(address: str, timeout: float) -> None:
                               "check that it is the address dask scheduler prints")
 
 
-def _dask(specs: list[RunSpec], address: str, timeout: float) -> Iterator[tuple[RunSpec, dict]]:
+def _dask(specs: list[RunSpec], address: str, timeout: float, backend: str = "numpy"
+          ) -> Iterator[tuple[RunSpec, dict]]:
     try:
         from distributed import Client
         from distributed import as_completed as dask_completed
@@ -1122,7 +1126,8 @@ def _dask(specs: list[RunSpec], address: str, timeout: float) -> Iterator[tuple[
                               None, "start one (dask scheduler; dask worker ADDRESS), check the address, or wait "
                               "longer with --connect-timeout SECONDS") from None
     try:
-        futures = client.map(run_one, specs, key=[f"bgc-run-{s.id}-{s.index}" for s in specs], pure=False)
+        futures = client.map(run_one, specs, backend=backend, key=[f"bgc-run-{s.id}-{s.index}" for s in specs],
+                             pure=False)
         by_key = {f.key: s for f, s in zip(futures, specs)}
         try:
             for f in dask_completed(futures):
@@ -1186,7 +1191,7 @@ def _check_arguments(c: Any, out: Any, scheduler: Any, progress: Any, outputs: A
 
 def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, workers: int | None = None,
                  progress: bool | None = None, outputs: bool = True, connect_timeout: float = CONNECT_TIMEOUT,
-                 on_start: Callable[[CampaignStart], None] | None = None) -> CampaignResult:
+                 on_start: Callable[[CampaignStart], None] | None = None, backend: str = "numpy") -> CampaignResult:
     """Run the campaign's runs not yet in ``out/runs.csv`` (a failed one is run
     again), append each row as it completes, then write the tables and plots.
 
@@ -1211,6 +1216,10 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
     connect_timeout
         Seconds to wait for the scheduler (:func:`check_scheduler`, then
         Dask's handshake).
+    backend
+        The generated package the runs' filters use ('numpy' or 'numba'; a
+        Dask worker needs numba installed for 'numba'); the rows do not
+        depend on it.
     on_start
         Called with a :class:`CampaignStart` once the folder is read, before
         the first run.
@@ -1254,7 +1263,8 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
     if todo:
         show = sys.stderr.isatty() if progress is None else bool(progress)
         bar = _bar(len(c.specs), len(done), c.name, show)
-        source = _dask(todo, scheduler, connect_timeout) if scheduler else _local(todo, n_workers)
+        source = (_dask(todo, scheduler, connect_timeout, backend) if scheduler
+                  else _local(todo, n_workers, backend))
         try:
             with artifacts.GrowingFile(folder / RUNS) as runs_file:
                 for spec, row in source:

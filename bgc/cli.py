@@ -210,7 +210,12 @@ def cmd_filter(args: argparse.Namespace) -> int:
     c = pipeline.compile_model(args.model)
     run = runs.read_run(args.run_csv)
     track.check_run_of(run, c.model.name, args.run_csv)
-    package = track.load_package(args.generated, c.model.name, args.model)
+    backend = track.resolve_backend(args.backend)
+    package = track.load_package(args.generated, c.model.name, args.model, backend=backend)
+    seconds, compiled, _ = track.warm_up(package)
+    if compiled:
+        print(f"numba backend: {compiled} kernels compiled in {seconds:.1f} s (kept in numba's disk cache)",
+              file=sys.stderr)
     name = _fault_model(c, args.fault) if args.fault else "nominal"
     track.check_request(run, package, name, args.particles, args.start)
     results = []
@@ -268,7 +273,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                                    horizon=args.horizon, gap=args.gap, recheck=args.recheck)
         r = api.diagnose(args.model, data=args.data, scenario=args.scenario, seed=args.seed, process_noise=process,
                          measurement_noise=measurement, steps=args.steps, generated=args.generated,
-                         options=options, progress=progress, prior_scale=args.prior_scale)
+                         options=options, progress=progress, prior_scale=args.prior_scale, backend=args.backend)
     finally:
         progress.close()
     _write_report(r, args.output or f"{r.model}-diagnosis", "diagnose")
@@ -327,7 +332,9 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed, horizon=args.horizon,
                                gap=args.gap, recheck=args.recheck)
     session = api.open(args.model, process_noise=process, measurement_noise=measurement, generated=args.generated,
-                       prior_scale=args.prior_scale)
+                       prior_scale=args.prior_scale, backend=args.backend)
+    if session.backend_note():
+        print(f"bgc: {session.backend_note()}", file=sys.stderr)
     out = Path(args.output or f"{session.name}-monitor")
     _refuse_input_in_output(args.data, out)
     artifacts.check_folder(out, ("report.md", "report.json", "report.html", "manifest.json"),
@@ -425,6 +432,9 @@ def cmd_distinguish(args: argparse.Namespace) -> int:
 def cmd_experiment(args: argparse.Namespace) -> int:
     from . import campaign
     from .output import tables
+    from .runtime import track
+
+    backend = track.resolve_backend(args.backend)  # a name for the workers, not 'auto'
 
     # what can be refused without the models: before they compile
     campaign.check_workers(args.workers, "--workers")
@@ -459,7 +469,8 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     try:
         r = campaign.run_campaign(c, out, scheduler=args.scheduler, workers=args.workers,
                                   progress=None if not args.no_progress else False,
-                                  connect_timeout=args.connect_timeout, on_start=started)
+                                  connect_timeout=args.connect_timeout, on_start=started,
+                                  backend=backend)
     except KeyboardInterrupt:
         print(f"bgc: interrupted; finished runs are in {folder}/{campaign.RUNS}: run the same command "
               "to resume", file=sys.stderr)
@@ -513,7 +524,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                                     "manifest.json"),
                            "calibrate")
     start = time.perf_counter()
-    session = bgc.open(args.model)
+    session = bgc.open(args.model, backend=args.backend)
+    if session.backend_note():
+        print(f"bgc: {session.backend_note()}", file=sys.stderr)
     report = session.calibrate(list(args.data), args.estimate)
     report.write(out)
     report.write_report(folder)
@@ -542,6 +555,13 @@ def _add_prior_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--prior-scale", type=_above_zero, default=1.0, metavar="K",
                    help="widen every fault's prior of its size (and drift rate) by K (default 1: the model's; a "
                         "fault's own 'size' and 'rate' in the model set it per fault)")
+
+
+def _add_backend_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--backend", choices=["auto", "numpy", "numba"], default="auto",
+                   help="the generated package the filters run on: numpy, or numba (compiled; pip install "
+                        "'bgc[fast]'); auto (default): numba when installed (BGC_BACKEND first). The result does "
+                        "not depend on it")
 
 
 def _add_data_options(p: argparse.ArgumentParser) -> None:
@@ -589,6 +609,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report", default=None, metavar="DIR",
                    help="the calibration report's folder: report.md, report.json, report.html, pictures (default: "
                         "CALIBRATED-report beside the calibrated model)")
+    _add_backend_option(p)
     p.set_defaults(run=cmd_calibrate)
 
     p = sub.add_parser("show", help="print or render one stage of a model (bondgraph: the causal bond graph "
@@ -630,6 +651,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--generated", default="generated", metavar="DIR",
                    help="where bgc compile wrote the package (its -o DIR; default: generated)")
     p.add_argument("--plot", metavar="FILE.png")
+    _add_backend_option(p)
     p.set_defaults(run=cmd_filter)
 
     p = sub.add_parser("diagnose", help="detect, isolate and identify a fault in a run (report and plots)")
@@ -664,6 +686,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_data_options(p)
     _add_prior_option(p)
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-diagnosis)")
+    _add_backend_option(p)
     p.set_defaults(run=cmd_diagnose)
 
     p = sub.add_parser("monitor", help="diagnose a run as its rows arrive (a file being appended to, or - for "
@@ -691,6 +714,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="use the package bgc compile wrote there (default: generate one)")
     _add_prior_option(p)
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-monitor)")
+    _add_backend_option(p)
     p.set_defaults(run=cmd_monitor)
 
     p = sub.add_parser("distinguish", help="predict which faults the data of a scenario can tell apart (before "
@@ -726,6 +750,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --scheduler: seconds to wait for the scheduler to answer (default 10; a refused "
                         "connection fails at once)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_backend_option(p)
     p.set_defaults(run=cmd_experiment)
     return parser
 

@@ -566,14 +566,21 @@ class Numerics:
 # ------------------------------------------------------------------- codegen
 #: Folder of ``generated/<model>/`` that holds the generated NumPy package.
 PACKAGE = "numpy_model"
+#: Folder of ``generated/<model>/`` that holds the compiled (numba) package.
+NUMBA_PACKAGE = "numba_model"
+#: Backend name -> its package's folder.
+PACKAGES = {"numpy": PACKAGE, "numba": NUMBA_PACKAGE}
 
 
 @dataclass(frozen=True, slots=True)
 class GeneratedPackage:
-    """The generated NumPy package of a model: ``files`` are (path relative to
-    the package, Python source), sorted by path; ``modules`` the model modules
-    (``nominal`` first, then one per fault model)."""
+    """The generated packages of a model: ``files`` are the NumPy package's
+    (path relative to the package, Python source), sorted by path;
+    ``modules`` the model modules (``nominal`` first, then one per fault
+    model); ``numba_files`` the compiled package's files, the same modules
+    with numba kernels."""
 
     numerics: Numerics
     files: tuple[tuple[str, str], ...]
     modules: tuple[str, ...]
+    numba_files: tuple[tuple[str, str], ...] = ()

@@ -12,6 +12,9 @@ settings.register_profile("ci", derandomize=True, max_examples=200, deadline=Non
                           suppress_health_check=[HealthCheck.too_slow])
 settings.register_profile("dev", max_examples=100, deadline=None)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
+# The suite runs on the NumPy backend (a model the tests write afresh would be compiled by numba
+# each time); tests/test_backend.py asks for numba by name, and a run may choose: BGC_BACKEND=numba make test.
+os.environ.setdefault("BGC_BACKEND", "numpy")
 
 ROOT = Path(__file__).resolve().parent.parent
 MODELS = ROOT / "models"

@@ -30,7 +30,8 @@ def test_generated_packages_pass_pyflakes(name):
     from pyflakes.reporter import Reporter
 
     out, err = io.StringIO(), io.StringIO()
-    for path in sorted((ROOT / "generated" / name / "numpy_model").glob("*.py")):
+    for path in sorted([*(ROOT / "generated" / name / "numpy_model").glob("*.py"),
+                        *(ROOT / "generated" / name / "numba_model").glob("*.py")]):
         check(path.read_text(encoding="utf-8"), str(path.relative_to(ROOT)), Reporter(out, err))
     assert out.getvalue() + err.getvalue() == ""
 
@@ -40,7 +41,7 @@ def test_generated_has_no_stray_files_and_pictures_parse(name):
     c = compiled(name)
     expected = set(generated_files(c)) | set(artifacts.picture_names(c.dbn))
     on_disk = {str(p.relative_to(ROOT / "generated" / name)) for p in (ROOT / "generated" / name).rglob("*")
-               if p.is_file()}
+               if p.is_file() and "__pycache__" not in p.parts}  # Python's and numba's caches: not bgc's files
     assert on_disk == expected
     for pic in artifacts.picture_names(c.dbn):
         root = ET.parse(ROOT / "generated" / name / pic).getroot()

@@ -34,6 +34,9 @@ from .printing import cse_block, escape, print_expr, print_number, split_linear
 #: (package file -> source file): model-independent Python that imports
 #: numpy only, valid and tested on its own.
 FIXED_FILES = {"filters.py": "particle.py", "_kernel.py": "kernel.py"}
+#: The fixed files of the compiled (numba) package: the same filters, the
+#: NumPy kernel, and the compiled kernel that takes its place as ``_kernel``.
+NUMBA_FIXED_FILES = {"filters.py": "particle.py", "kernel.py": "kernel.py", "_kernel.py": "numba_kernel.py"}
 
 
 def module_name(dbn_name: str) -> str:
@@ -42,8 +45,10 @@ def module_name(dbn_name: str) -> str:
 
 
 def generate(dbns: DbnModel, num: Numerics) -> GeneratedPackage:
-    """The generated NumPy package: one module per model, the filters, the
-    kernel and ``__init__``.
+    """The generated packages: the NumPy package (one module per model, the
+    filters, the kernel and ``__init__``) and the compiled one (the same
+    modules with numba kernels for the transition and the observation, the
+    compiled kernel beside the NumPy one; ``numba_files``).
 
     Raises
     ------
@@ -56,16 +61,19 @@ def generate(dbns: DbnModel, num: Numerics) -> GeneratedPackage:
     common = {"source": escape(model.display_source), "model": escape(model.name),
               "description": escape(model.description, newlines=True)}
     files: dict[str, str] = {}
+    compiled: dict[str, str] = {}
     modules = []
     for d in (dbns.nominal, *dbns.faulty):
         name = module_name(d.name)
         modules.append(name)
         ctx = _model_context(dbns, num, d)
-        files[f"{name}.py"] = env.get_template("model.py.j2").render(**common, **ctx)
-    for name, source in FIXED_FILES.items():
-        files[name] = _header(common["source"]) + _fixed_text(source)
-    files["__init__.py"] = env.get_template("package_init.py.j2").render(**common, modules=modules)
-    return GeneratedPackage(num, tuple(sorted(files.items())), tuple(modules))
+        files[f"{name}.py"] = env.get_template("model.py.j2").render(**common, **ctx, numba=False)
+        compiled[f"{name}.py"] = env.get_template("model.py.j2").render(**common, **ctx, numba=True)
+    for package, fixed in ((files, FIXED_FILES), (compiled, NUMBA_FIXED_FILES)):
+        for name, source in fixed.items():
+            package[name] = _header(common["source"]) + _fixed_text(source)
+        package["__init__.py"] = env.get_template("package_init.py.j2").render(**common, modules=modules)
+    return GeneratedPackage(num, tuple(sorted(files.items())), tuple(modules), tuple(sorted(compiled.items())))
 
 
 def _header(source: str) -> str:
@@ -259,6 +267,7 @@ def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
         "has_linear": bool(nz), "has_b": has_b, "linear_note": (
             f"rows {rows.start}..{rows.stop - 1}, columns {cols.start}..{cols.stop - 1}" if nz else ""),
         "x_cols": "x" + _slice(cols, len(states)), "dx_rows": "_dx" + _slice(rows, len(states)),
+        "linear_rows_range": (rows.start, rows.stop), "linear_cols_range": (cols.start, cols.stop),
         "unpack_out": _unpack(order, sources, _used(outputs)), "out_cse": out_lines,
         "out_assign": [f"_y[{i}] = {e}" for i, e in enumerate(out_out)],
     }

@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import Iterable, Mapping
 
 from ..errors import InternalError, OutputError, printable
-from ..ir import PACKAGE, DbnModel, FaultSignatures, GeneratedPackage
+from ..ir import NUMBA_PACKAGE, PACKAGE, DbnModel, FaultSignatures, GeneratedPackage
 from . import render
 from .markdown import comment
 
@@ -111,6 +111,8 @@ def folder_files(dbns: DbnModel, signatures: FaultSignatures, package: Generated
         files[f"dbn/{stem}.dot"] = header("//", src) + render.dbn_dot(d)
     for rel, text in package.files:
         files[f"{PACKAGE}/{rel}"] = text
+    for rel, text in package.numba_files:
+        files[f"{NUMBA_PACKAGE}/{rel}"] = text
     files[MANIFEST] = manifest(files, "compile", model=cbg.model.name, source=src,
                                source_sha256=cbg.model.source_sha256, pictures=sorted(picture_names(dbns)))
     return dict(sorted(files.items()))

@@ -1,8 +1,10 @@
-"""Tracking: load a generated NumPy package (``generated/<model>/numpy_model``)
-and run its filters over a recorded run.
+"""Tracking: load a generated package (``generated/<model>/numpy_model``, or
+the compiled ``numba_model``: the backend) and run its filters over a
+recorded run.
 
-The generated package imports only numpy; it is loaded by path under a private
-module name, so several models' packages can be loaded side by side. The
+The NumPy package imports only numpy, the compiled one numpy and numba; a
+package is loaded by path under a private module name, so several models'
+packages can be loaded side by side. The
 runtime knows fault kinds from :mod:`bgc.kinds` and the package's ``FAULT``
 table, never from the compiler.
 """
@@ -20,7 +22,7 @@ from types import ModuleType
 import numpy as np
 
 from ..errors import DataError, TrackingError, printable
-from ..ir import PACKAGE, NoiseLevels
+from ..ir import PACKAGE, PACKAGES, NoiseLevels
 from ..kinds import fault_kind
 from . import kalman
 from .runs import Run
@@ -33,9 +35,66 @@ MAX_FILTER_BYTES = 4_000_000_000
 _ROWS_ALIVE = 3
 
 
+#: The backends, in the order ``--backend`` lists them.
+BACKENDS = tuple(PACKAGES)
+
+
+def numba_installed() -> bool:
+    """Whether numba can be imported (the ``fast`` extra)."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def resolve_backend(backend: str | None) -> str:
+    """The backend to run on: ``backend`` ('numpy' or 'numba'), or for None or
+    'auto' the environment's ``BGC_BACKEND`` when set, else numba when it is
+    installed, else numpy.
+
+    Raises
+    ------
+    TrackingError
+        An unknown backend, or numba asked for and not installed.
+    """
+    import os
+
+    chosen = backend if backend not in (None, "auto") else os.environ.get("BGC_BACKEND") or (
+        "numba" if numba_installed() else "numpy")
+    if chosen not in PACKAGES:
+        raise TrackingError(f"unknown backend {printable(str(chosen))}", None,
+                            "use one of: " + ", ".join(BACKENDS) + " (or auto)")
+    if chosen == "numba" and not numba_installed():
+        raise TrackingError("the numba backend needs numba, which is not installed", None,
+                            "pip install 'bgc[fast]', or use --backend numpy")
+    return chosen
+
+
+def warm_up(package: ModuleType) -> tuple[float, int, int]:
+    """Compile (or load from numba's disk cache) every compiled kernel of a
+    numba package by one call of each model's transition and observation on
+    one particle: (seconds, kernels compiled, kernels loaded from the cache).
+    A NumPy package: (0, 0, 0). Forked workers inherit what is compiled here."""
+    t0 = time.perf_counter()
+    kernels = []
+    for m in package.MODELS.values():
+        if not hasattr(m, "_predict"):
+            return 0.0, 0, 0
+        x = np.array(m.X0, dtype=float)[:, None].copy()
+        u = m.inputs(0.0)
+        m.predict(x, u, m.THETA, m.DT, out=x)
+        m.observe(x, u, m.THETA)
+        kernels += [m._predict, m._observe]  # their per-particle functions are compiled into them
+    kernel = next(iter(package.MODELS.values()))._kernel
+    kernel.moments(np.zeros((1, 1)), np.ones(1))
+    kernel.gaussian_loglik(np.zeros(1), np.zeros((1, 1)), np.ones(1))
+    kernels += [kernel._moments, kernel._loglik]
+    compiled = sum(1 for k in kernels if sum(k.stats.cache_misses.values()))
+    loaded = sum(1 for k in kernels if sum(k.stats.cache_hits.values()))
+    return time.perf_counter() - t0, compiled, loaded
+
+
 def load_package(generated_dir: str | Path, model: str, source: str | None = None,
-                 noise: NoiseLevels | None = None) -> ModuleType:
-    """Import ``<generated_dir>/<model>/numpy_model`` as ``bgc_generated_<model>_<folder hash>``
+                 noise: NoiseLevels | None = None, backend: str = "numpy") -> ModuleType:
+    """Import ``<generated_dir>/<model>/numpy_model`` (``backend`` 'numba':
+    ``numba_model``) as ``bgc_generated_<model>_<folder hash>``
     (``source``: the model file, for the hint when the package is missing).
 
     With ``noise`` (absolute stds, e.g. :meth:`bgc.ir.Numerics.noise_at` of
@@ -44,18 +103,18 @@ def load_package(generated_dir: str | Path, model: str, source: str | None = Non
     fault states keep theirs, and the initial spread ``X0_STD`` stays the
     compiled one): the filters then match data simulated at other noise levels.
     """
-    root = Path(generated_dir) / model / PACKAGE
+    root = Path(generated_dir) / model / PACKAGES[backend]
     init = root / "__init__.py"
     if not init.exists():
-        if (Path(generated_dir) / PACKAGE / "__init__.py").exists():  # the model's own folder, not the root
+        if (Path(generated_dir) / PACKAGES[backend] / "__init__.py").exists():  # the model's own folder, not the root
             raise TrackingError(
                 f"{printable(str(generated_dir))} is the folder of one model's package", None,
                 f"point --generated at the folder bgc compile -o wrote: {printable(str(Path(generated_dir).parent))}")
         out = "" if Path(generated_dir) == Path("generated") else f" -o {printable(str(generated_dir))}"
         raise TrackingError(
             f"no generated package at {printable(str(root))}", None,
-            f"run: bgc compile {printable(source or 'MODEL.yaml')}{out}, or point --generated at the folder "
-            "bgc compile -o wrote")
+            f"run: bgc compile {printable(source or 'MODEL.yaml')}{out} (it writes both backends' packages), or "
+            "point --generated at the folder bgc compile -o wrote")
     # one name per folder: two sessions of a model (another folder, another text) never share a module
     name = f"bgc_generated_{model}_{hashlib.sha256(str(root.resolve()).encode()).hexdigest()[:12]}"
     if noise is not None:

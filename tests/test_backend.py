@@ -1,0 +1,170 @@
+"""The compiled (numba) backend: the same numbers as the NumPy package on
+every shipped model and filter, the choice of backend, and a NumPy-only
+installation that never needs numba."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from bgc.errors import TrackingError
+from bgc.runtime import kalman, simulate, track
+
+from conftest import ROOT, compiled
+
+numba = pytest.importorskip("numba", reason="the fast extra (numba) is not installed: pip install '.[fast]'")
+
+MODELS = ["circuit", "two_tank", "ro"]
+#: Relative difference allowed between the backends (each series scaled by its largest magnitude).
+TOLERANCE = 1e-10
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _cache(tmp_path_factory):
+    """numba's disk cache of packages bgc writes for this module: a folder of the test run."""
+    old = os.environ.get("BGC_CACHE_DIR")
+    os.environ["BGC_CACHE_DIR"] = str(tmp_path_factory.mktemp("bgc-cache"))
+    yield
+    if old is None:
+        del os.environ["BGC_CACHE_DIR"]
+    else:
+        os.environ["BGC_CACHE_DIR"] = old
+
+
+def record(name: str, steps: int = 120):
+    """A faulty run of a shipped model (its first fault candidate, from a third
+    of the run) with a few sensor readings missing: (ys, us)."""
+    c = compiled(name)
+    fault = c.numerics.faults[0]
+    kind = fault.name.split(":")[1]
+    magnitude = simulate.change_magnitude(c.numerics, fault.name, 0.2, steps * c.model.settings.dt / 2)
+    injection = simulate.FaultInjection(fault.parameter, kind, magnitude, steps // 3 * c.model.settings.dt)
+    r = simulate.simulate(c.numerics, simulate.SimulationOptions(steps=steps, seed=3, fault=injection))
+    ys = np.array(r.measurements, dtype=float)
+    ys[10, 0] = np.nan  # one sensor not read
+    ys[20, :] = np.nan  # a sample without any reading
+    return ys, np.array(r.inputs, dtype=float)
+
+
+def difference(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest |a - b| over the series, each column scaled by its largest |a| (NaN where both are)."""
+    a, b = np.asarray(a, float).reshape(len(a), -1), np.asarray(b, float).reshape(len(b), -1)
+    assert np.array_equal(np.isnan(a), np.isnan(b))
+    scale = np.nanmax(np.abs(a), axis=0, initial=0.0)
+    scale[scale == 0] = 1.0
+    return float(np.nanmax(np.abs(a - b) / scale, initial=0.0))
+
+
+def packages(name: str):
+    return (track.load_package(ROOT / "generated", name, backend="numpy"),
+            track.load_package(ROOT / "generated", name, backend="numba"))
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_backends_give_the_same_filter_outputs_on_every_model_and_filter(name):
+    """Every model module of the package, every particle filter (same seed) and
+    the cubature Kalman filter: the compiled package's outputs equal the NumPy
+    package's to 1e-10 (they draw the same random numbers; only the order in
+    which a compiled loop adds terms differs)."""
+    ys, us = record(name)
+    numpy_pkg, numba_pkg = packages(name)
+    assert track.warm_up(numpy_pkg) == (0.0, 0, 0)
+    assert numba_pkg.MODELS.keys() == numpy_pkg.MODELS.keys()
+    worst = {}
+    for module in numpy_pkg.MODELS:
+        for cls in ("GenericParticleFilter", "AuxiliaryParticleFilter", "OptimalProposalParticleFilter"):
+            runs = [getattr(p.filters, cls)(p.MODELS[module], 64, np.random.default_rng(7)).run(ys, us)
+                    for p in (numpy_pkg, numba_pkg)]
+            worst[module, cls] = max(difference(getattr(runs[0], k), getattr(runs[1], k))
+                                     for k in ("mean", "std", "y_mean", "y_std", "ess"))
+            assert np.array_equal(runs[0].resampled, runs[1].resampled)
+        runs = [kalman.CubatureKalmanFilter(p.MODELS[module]) for p in (numpy_pkg, numba_pkg)]
+        steps = [[f.step(ys[k], us[k]) for k in range(len(ys))] for f in runs]
+        worst[module, "ckf"] = max(difference(np.array([getattr(s, k) for s in steps[0]]),
+                                              np.array([getattr(s, k) for s in steps[1]]))
+                                   for k in ("mean", "std", "y_mean", "y_std", "loglik"))
+    bad = {k: v for k, v in worst.items() if not v <= TOLERANCE}
+    assert not bad, bad
+
+
+@pytest.mark.parametrize("name", ["ro"])
+def test_a_bank_of_filters_is_the_same_on_both_backends(name):
+    """Several generic filters of one fault model stepped together (the
+    hypothesis filters' bank) give the same on both backends."""
+    ys, us = record(name)
+    outs = []
+    for p in packages(name):
+        model = p.MODELS[sorted(p.MODELS)[1]]
+        bank = p.filters.FilterBank(model)
+        filters = [p.filters.GenericParticleFilter(model, 64, np.random.default_rng(s)) for s in range(3)]
+        outs.append(np.array([[r.mean for r in bank.step(filters, ys[k], us[k])] for k in range(len(ys))]))
+    assert difference(outs[0].reshape(len(ys), -1), outs[1].reshape(len(ys), -1)) <= TOLERANCE
+
+
+def test_a_diagnosis_does_not_depend_on_the_backend():
+    import bgc
+
+    reports = [bgc.diagnose("models/circuit.yaml", scenario="R2:abrupt:0.6@5", seed=2, particles=200,
+                            backend=b) for b in ("numpy", "numba")]
+    a, b = (r.diagnosis for r in reports)
+    assert (a.verdict, a.candidates, a.onset) == (b.verdict, b.candidates, b.onset)
+    assert a.estimate is not None and b.estimate is not None
+    assert abs(a.estimate.value - b.estimate.value) <= 1e-8 * abs(a.estimate.value)
+
+
+def test_a_second_process_loads_the_compiled_kernels_from_the_disk_cache(tmp_path):
+    """The first session of a model text compiles its kernels, a later
+    process loads them from numba's disk cache (the package lives in a
+    folder of bgc's cache that lasts, named by the package's digest)."""
+    probe = ("import bgc; s = bgc.open('models/circuit.yaml', backend='numba'); "
+             "print(s.package.__file__); print(*s.warm[1:]); print(s.backend_note())")
+    env = {**os.environ, "BGC_CACHE_DIR": str(tmp_path / "cache")}
+    outs = [subprocess.run([sys.executable, "-c", probe], cwd=ROOT, env=env, capture_output=True, text=True,
+                           timeout=600) for _ in range(2)]
+    for out in outs:
+        assert out.returncode == 0, out.stderr
+    (first_file, first, first_note), (again_file, again, again_note) = (o.stdout.splitlines() for o in outs)
+    assert first_file == again_file and first_file.startswith(str(tmp_path / "cache"))
+    compiled_first, _ = map(int, first.split())
+    compiled_again, loaded_again = map(int, again.split())
+    assert compiled_first > 0 and "compiled" in first_note
+    assert compiled_again == 0 and loaded_again == compiled_first and "disk cache" in again_note
+
+
+def test_the_backend_is_chosen_by_name_by_the_environment_or_by_what_is_installed(monkeypatch):
+    assert track.resolve_backend("numpy") == "numpy"
+    assert track.resolve_backend("numba") == "numba"
+    monkeypatch.delenv("BGC_BACKEND", raising=False)
+    assert track.resolve_backend(None) == "numba"
+    monkeypatch.setenv("BGC_BACKEND", "numpy")
+    assert track.resolve_backend("auto") == "numpy"
+    monkeypatch.delenv("BGC_BACKEND")
+    monkeypatch.setattr(track, "numba_installed", lambda: False)
+    assert track.resolve_backend(None) == "numpy"
+    with pytest.raises(TrackingError, match="pip install 'bgc\\[fast\\]'"):
+        track.resolve_backend("numba")
+    with pytest.raises(TrackingError, match="unknown backend"):
+        track.resolve_backend("cuda")
+
+
+def test_without_numba_the_numpy_package_runs_and_numba_is_refused_in_one_line(tmp_path):
+    """An installation without the fast extra: numba cannot be imported (blocked
+    here); ``bgc diagnose`` runs on the NumPy package, ``--backend numba`` is a
+    one-line error naming the extra."""
+    block = "import sys; sys.modules['numba'] = None; from bgc.cli import main; sys.exit(main())"
+    env = {**os.environ, "BGC_BACKEND": ""}
+    ok = subprocess.run([sys.executable, "-c", block, "diagnose", "models/circuit.yaml", "--scenario",
+                         "R2:abrupt:0.6@5", "--particles", "100", "-o", str(tmp_path / "d")],
+                        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert ok.returncode == 0, ok.stderr
+    assert "numba" not in ok.stderr
+    refused = subprocess.run([sys.executable, "-c", block, "diagnose", "models/circuit.yaml", "--scenario",
+                              "R2:abrupt:0.6@5", "--backend", "numba", "-o", str(tmp_path / "e")],
+                             cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert refused.returncode != 0
+    assert "Traceback" not in refused.stderr
+    assert "pip install 'bgc[fast]'" in refused.stderr
+    for path in (ROOT / "generated").glob("*/numpy_model/*.py"):
+        assert "numba" not in path.read_text(encoding="utf-8"), path
