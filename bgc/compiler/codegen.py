@@ -20,6 +20,7 @@ parameter called ``out``, ``linear`` or ``A`` cannot shadow anything.
 
 from __future__ import annotations
 
+import re
 from importlib import resources
 
 import sympy
@@ -36,7 +37,8 @@ from .printing import cse_block, escape, print_expr, print_number, split_linear
 FIXED_FILES = {"filters.py": "particle.py", "_kernel.py": "kernel.py"}
 #: The fixed files of the compiled (numba) package: the same filters, the
 #: NumPy kernel, and the compiled kernel that takes its place as ``_kernel``.
-NUMBA_FIXED_FILES = {"filters.py": "particle.py", "kernel.py": "kernel.py", "_kernel.py": "numba_kernel.py"}
+NUMBA_FIXED_FILES = {"filters.py": "particle.py", "kernel.py": "kernel.py", "_kernel.py": "numba_kernel.py",
+                     "_jit_kernel.py": "_jit_kernel.py"}
 
 
 def module_name(dbn_name: str) -> str:
@@ -69,6 +71,7 @@ def generate(dbns: DbnModel, num: Numerics) -> GeneratedPackage:
         ctx = _model_context(dbns, num, d)
         files[f"{name}.py"] = env.get_template("model.py.j2").render(**common, **ctx, numba=False)
         compiled[f"{name}.py"] = env.get_template("model.py.j2").render(**common, **ctx, numba=True)
+        compiled[f"_jit_{name}.py"] = env.get_template("model_jit.py.j2").render(**common, **ctx)
     for package, fixed in ((files, FIXED_FILES), (compiled, NUMBA_FIXED_FILES)):
         for name, source in fixed.items():
             package[name] = _header(common["source"]) + _fixed_text(source)
@@ -130,6 +133,13 @@ def input_code(signal: Signal, where: str) -> str:
 def _unpack(names: list[str], sources: dict[str, str], used: set[str]) -> list[str]:
     """``name = source`` for the names an expression block uses, in ``names`` order."""
     return [f"{n} = {sources[n]}" for n in names if n in used]
+
+
+def _particle(line: str) -> str:
+    """A line of the NumPy code of rows (``x[3]``, ``_dx[3] += ...``, ``_y[0] = ...``)
+    for one particle ``_i`` of the compiled loop (``x[3, _i]``, ``_dx[3, _i] += ...``):
+    the rows are the only subscripts of x, _dx and _y the generated lines hold."""
+    return re.sub(r"\b(x|_dx|_y)\[(\d+)\]", r"\1[\2, _i]", line)
 
 
 def _used(exprs) -> set[str]:
@@ -268,6 +278,13 @@ def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
             f"rows {rows.start}..{rows.stop - 1}, columns {cols.start}..{cols.stop - 1}" if nz else ""),
         "x_cols": "x" + _slice(cols, len(states)), "dx_rows": "_dx" + _slice(rows, len(states)),
         "linear_rows_range": (rows.start, rows.stop), "linear_cols_range": (cols.start, cols.stop),
+        "jit_unpack": [_particle(line) for line in _unpack(order, sources, _used(exprs))],
+        "jit_linear": [f"_dx[{i}, _i] = " + " + ".join(f"_A[{i - rows.start}, {j - cols.start}] * x[{j}, _i]"
+                                                        for j in cols)
+                       + (f" + _b[{i - rows.start}, 0]" if has_b else "") for i in rows],
+        "jit_rhs_assign": [_particle(line) for line in rhs_assign],
+        "jit_unpack_out": [_particle(line) for line in _unpack(order, sources, _used(outputs))],
+        "jit_out_assign": [_particle(f"_y[{i}] = {e}") for i, e in enumerate(out_out)],
         "unpack_out": _unpack(order, sources, _used(outputs)), "out_cse": out_lines,
         "out_assign": [f"_y[{i}] = {e}" for i, e in enumerate(out_out)],
     }

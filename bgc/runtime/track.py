@@ -75,17 +75,16 @@ def warm_up(package: ModuleType) -> tuple[float, int, int]:
     t0 = time.perf_counter()
     kernels = []
     for m in package.MODELS.values():
-        if not hasattr(m, "_predict"):
+        if not hasattr(m, "_JIT"):
             return 0.0, 0, 0
         x = np.array(m.X0, dtype=float)[:, None].copy()
         u = m.inputs(0.0)
         m.predict(x, u, m.THETA, m.DT, out=x)
         m.observe(x, u, m.THETA)
-        kernels += [m._predict, m._observe]  # their per-particle functions are compiled into them
+        kernels += [m._JIT.predict, m._JIT.observe]  # their per-particle functions are compiled into them
     kernel = next(iter(package.MODELS.values()))._kernel
-    kernel.moments(np.zeros((1, 1)), np.ones(1))
     kernel.gaussian_loglik(np.zeros(1), np.zeros((1, 1)), np.ones(1))
-    kernels += [kernel._moments, kernel._loglik]
+    kernels += [kernel._JIT.loglik]
     compiled = sum(1 for k in kernels if sum(k.stats.cache_misses.values()))
     loaded = sum(1 for k in kernels if sum(k.stats.cache_hits.values()))
     return time.perf_counter() - t0, compiled, loaded

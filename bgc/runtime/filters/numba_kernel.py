@@ -1,6 +1,7 @@
 """Model-independent numerics of the compiled (numba) packages: the NumPy
-kernel's functions, with the loops over particles that a filter step runs
-most often compiled by numba.
+kernel's functions, with the Gaussian log-likelihood compiled by numba (the
+weighted moments stay NumPy's: a long sum is faster in BLAS than in a loop
+that must add in order).
 
 bgc copies this file unchanged into every ``numba_model`` package it
 generates, as ``_kernel.py``, beside a copy of the NumPy kernel as
@@ -11,24 +12,56 @@ the same random numbers in the same order (``perturb`` draws a block of
 particles at a time from the caller's ``np.random.Generator``) and differ in
 rounding only: a compiled loop adds the terms of a sum in its own order.
 
-Every compiled function takes C-contiguous float64 arrays (the wrappers copy
+The compiled functions live in modules of their own (``_jit_kernel.py``
+here, ``_jit_<model>.py`` beside each model module), loaded by
+:func:`load_jit`. Each takes C-contiguous float64 arrays (the wrappers copy
 what is not) and works in place or into an ``out`` array; none reads a
 module-level array (numba would freeze it as a constant), so a package
 instance whose noise levels were changed after import computes with the new
 ones. Compiled code is cached on disk beside the package (``cache=True``):
-the first import of a package compiles, later processes load.
+the first process to call a kernel compiles it, later processes load it.
 """
 
-import numpy as np
-from numba import njit
+import hashlib
+import importlib.util
+import os
+import sys
+import threading
 
-from .kernel import (  # noqa: F401  (the NumPy kernel's functions are this kernel's too)
-    BLOCK, block_views, gaussian_loglik_each, log_normaliser, perturb, predictive_std, rk4, spans,
+import numpy as np
+
+from .kernel import (
+    BLOCK, block_views, gaussian_loglik_each, log_normaliser, moments, perturb, predictive_std, rk4, spans,
 )
 
-#: numba options of every compiled kernel: cached on disk; float division by
-#: zero gives inf or NaN as in NumPy instead of raising.
-JIT = {"cache": True, "error_model": "numpy", "nogil": True}
+#: The kernel's functions: the NumPy kernel's, but the compiled ones defined here.
+__all__ = ["BLOCK", "block_views", "contiguous", "gaussian_loglik", "gaussian_loglik_each", "load_jit",
+           "log_normaliser", "moments", "perturb", "predictive_std", "rk4", "spans"]
+
+_LOCK = threading.Lock()
+
+
+def load_jit(near, file):
+    """The module of compiled kernels ``file`` beside ``near`` (a module's
+    ``__file__``), imported once per process under a name made from its
+    path: numba's disk cache keeps the name of the module a kernel was
+    compiled in, so every instance of a package (another noise level, or
+    the package imported under another name) must use the one module of the
+    file, whose name a later process gives it again."""
+    path = os.path.realpath(os.path.join(os.path.dirname(os.path.abspath(near)), file))
+    name = "bgc_jit_" + hashlib.sha256(path.encode("utf-8")).hexdigest()[:16] + "_" + file[:-3].lstrip("_")
+    with _LOCK:
+        module = sys.modules.get(name)
+        if module is None:
+            spec = importlib.util.spec_from_file_location(name, path)
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+            sys.modules[name] = module
+    return module
+
+
+#: The compiled loops of this kernel (``_jit_kernel.py``, numba).
+_JIT = load_jit(__file__, "_jit_kernel.py")
 
 
 def contiguous(a):
@@ -36,18 +69,6 @@ def contiguous(a):
     if isinstance(a, np.ndarray) and a.dtype == np.float64 and a.flags.c_contiguous:
         return a
     return np.ascontiguousarray(a, dtype=np.float64)
-
-
-@njit(**JIT)
-def _loglik(y, yhat, rows, weight, constant, out):
-    """out[i] = constant + sum_k weight[k] (yhat[rows[k], i] - y[rows[k]])^2."""
-    n = yhat.shape[1]
-    for i in range(n):
-        s = 0.0
-        for k in range(rows.shape[0]):
-            d = yhat[rows[k], i] - y[rows[k]]
-            s += d * d * weight[k]
-        out[i] = s + constant
 
 
 def gaussian_loglik(y, yhat, std):
@@ -62,28 +83,5 @@ def gaussian_loglik(y, yhat, std):
     rows = np.flatnonzero(seen)
     kept = std[rows]
     out = np.empty(yhat.shape[1])
-    _loglik(y, contiguous(yhat), rows, -0.5 / (kept * kept), log_normaliser(kept), out)
+    _JIT.loglik(y, contiguous(yhat), rows, -0.5 / (kept * kept), log_normaliser(kept), out)
     return out
-
-
-@njit(**JIT)
-def _moments(a, w, mean, std):
-    """Weighted mean and std of each row of a (n, N), weights w (N,)."""
-    n, count = a.shape
-    for j in range(n):
-        m = 0.0
-        for i in range(count):
-            m += a[j, i] * w[i]
-        v = 0.0
-        for i in range(count):
-            d = a[j, i] - m
-            v += d * d * w[i]
-        mean[j] = m
-        std[j] = np.sqrt(max(v, 0.0))
-
-
-def moments(a, w):
-    """Weighted mean and std of each row of a (n, N), weights w (N,) summing to 1."""
-    mean, std = np.empty(a.shape[0]), np.empty(a.shape[0])
-    _moments(contiguous(a), contiguous(w), mean, std)
-    return mean, std

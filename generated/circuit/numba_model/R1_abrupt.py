@@ -13,7 +13,6 @@ values, computed by bgc from the model's relative noise levels).
 """
 
 import numpy as np
-from numba import njit
 
 from . import _kernel
 
@@ -93,82 +92,9 @@ def _arrays(u, theta):
     return _hit
 
 
-@njit(**_kernel.JIT)
-def _derivative_at(x, u, theta, _A, _b, _dx):
-    """dx/dt of one particle, x (n_x,), into _dx (n_x,) (compiled)."""
-    e4 = x[0]
-    V = u[0]
-    C1 = theta[0]
-    R1 = theta[3] + x[3]
-    V_offset = theta[6]
-    for _r in range(0, 3):
-        _s = 0.0
-        for _c in range(0, 3):
-            _s += _A[_r - 0, _c - 0] * x[_c]
-        _dx[_r] = _s
-    _dx[0] += (1/C1)*(V + V_offset - e4)/R1
-    _dx[3] = 0.0
-
-
-@njit(**_kernel.JIT)
-def _predict(x, u, theta, _A, _b, dt, substeps):
-    """RK4 over dt in ``substeps`` substeps of every particle (column) of x
-    (n_x, N), in place (compiled; the arithmetic of ``_kernel.rk4``)."""
-    _n_x, _n = x.shape
-    _h = dt / substeps
-    _k1, _k2, _k3, _k4 = np.empty(_n_x), np.empty(_n_x), np.empty(_n_x), np.empty(_n_x)
-    _s, _xb = np.empty(_n_x), np.empty(_n_x)
-    for _i in range(_n):
-        for _j in range(_n_x):
-            _xb[_j] = x[_j, _i]
-        for _ in range(substeps):
-            _derivative_at(_xb, u, theta, _A, _b, _k1)
-            for _j in range(_n_x):
-                _s[_j] = _k1[_j] * (0.5 * _h) + _xb[_j]
-            _derivative_at(_s, u, theta, _A, _b, _k2)
-            for _j in range(_n_x):
-                _s[_j] = _k2[_j] * (0.5 * _h) + _xb[_j]
-            _derivative_at(_s, u, theta, _A, _b, _k3)
-            for _j in range(_n_x):
-                _s[_j] = _k3[_j] * _h + _xb[_j]
-            _derivative_at(_s, u, theta, _A, _b, _k4)
-            for _j in range(_n_x):
-                _xb[_j] += (_h / 6.0) * _k1[_j] + (_h / 3.0) * _k2[_j] + (_h / 3.0) * _k3[_j] + (_h / 6.0) * _k4[_j]
-        for _j in range(_n_x):
-            x[_j, _i] = _xb[_j]
-
-
-@njit(**_kernel.JIT)
-def _observe_at(x, u, theta, _y):
-    """Noise-free measurements of one particle, x (n_x,), into _y (n_y,) (compiled)."""
-    e4 = x[0]
-    e8 = x[1]
-    f10 = x[2]
-    V = u[0]
-    R1 = theta[3] + x[3]
-    R2 = theta[4]
-    R3 = theta[5]
-    V_offset = theta[6]
-    e11_offset = theta[7]
-    f2_offset = theta[8]
-    f6_offset = theta[9]
-    _y[0] = e11_offset + (R3)*f10
-    _y[1] = f2_offset + (V + V_offset - e4)/R1
-    _y[2] = f6_offset + (1/R2)*(e4 - e8)
-
-
-@njit(**_kernel.JIT)
-def _observe(x, u, theta, _y):
-    """Noise-free measurements of every particle (column) of x into _y (n_y, N) (compiled)."""
-    _n_x, _n = x.shape
-    _n_y = _y.shape[0]
-    _xc, _yc = np.empty(_n_x), np.empty(_n_y)
-    for _i in range(_n):
-        for _j in range(_n_x):
-            _xc[_j] = x[_j, _i]
-        _observe_at(_xc, u, theta, _yc)
-        for _j in range(_n_y):
-            _y[_j, _i] = _yc[_j]
+#: The compiled kernels of this model (``_jit_R1_abrupt.py``, imported once per process under a name of
+#: its own path, so numba's disk cache beside it serves every instance of this package).
+_JIT = _kernel.load_jit(__file__, "_jit_R1_abrupt.py")
 
 
 def derivative(x, u, theta, out=None, linear=None):
@@ -197,7 +123,7 @@ def predict(x, u, theta, dt, out=None):
         out[...] = x
     _A, _b, _u, _theta = _arrays(u, theta)
     _x = _kernel.contiguous(out)
-    _predict(_x, _u, _theta, _A, _b, float(dt), SUBSTEPS)
+    _JIT.predict(_x, _u, _theta, _A, _b, float(dt), SUBSTEPS)
     if _x is not out:
         out[...] = _x
     return out
@@ -220,7 +146,7 @@ def observe(x, u, theta, out=None):
     _y = np.empty((3, x.shape[1])) if out is None else out
     _A, _b, _u, _theta = _arrays(u, theta)
     _target = _y if _y.flags.c_contiguous else np.empty(_y.shape)
-    _observe(_kernel.contiguous(x), _u, _theta, _target)
+    _JIT.observe(_kernel.contiguous(x), _u, _theta, _target)
     if _target is not _y:
         _y[...] = _target
     return _y

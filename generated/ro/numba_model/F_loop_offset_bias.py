@@ -13,7 +13,6 @@ values, computed by bgc from the model's relative noise levels).
 """
 
 import numpy as np
-from numba import njit
 
 from . import _kernel
 
@@ -101,97 +100,9 @@ def _arrays(u, theta):
     return _hit
 
 
-@njit(**_kernel.JIT)
-def _derivative_at(x, u, theta, _A, _b, _dx):
-    """dx/dt of one particle, x (n_x,), into _dx (n_x,) (compiled)."""
-    e6 = x[1]
-    e13 = x[2]
-    f22 = x[3]
-    e27 = x[4]
-    C_k = theta[0]
-    C_memb = theta[1]
-    K0 = theta[5]
-    K_slope = theta[6]
-    R_brine = theta[7]
-    R_memb = theta[9]
-    R_pipe = theta[10]
-    k_scale = theta[12]
-    m2 = theta[14]
-    for _r in range(0, 4):
-        _s = 0.0
-        for _c in range(0, 4):
-            _s += _A[_r - 0, _c - 0] * x[_c]
-        _dx[_r] = _s + _b[_r - 0, 0]
-    _c0 = 29*K_slope
-    _dx[2] += (-_c0/(C_memb*R_memb))*e13/(-K0 + _c0 + e27)
-    _dx[4] = (k_scale/(C_k*R_pipe))*(0.1 + (6*k_scale/R_brine)*(e13 - e6))*(e6 - e13 + (m2)*f22)
-    _dx[5] = 0.0
-
-
-@njit(**_kernel.JIT)
-def _predict(x, u, theta, _A, _b, dt, substeps):
-    """RK4 over dt in ``substeps`` substeps of every particle (column) of x
-    (n_x, N), in place (compiled; the arithmetic of ``_kernel.rk4``)."""
-    _n_x, _n = x.shape
-    _h = dt / substeps
-    _k1, _k2, _k3, _k4 = np.empty(_n_x), np.empty(_n_x), np.empty(_n_x), np.empty(_n_x)
-    _s, _xb = np.empty(_n_x), np.empty(_n_x)
-    for _i in range(_n):
-        for _j in range(_n_x):
-            _xb[_j] = x[_j, _i]
-        for _ in range(substeps):
-            _derivative_at(_xb, u, theta, _A, _b, _k1)
-            for _j in range(_n_x):
-                _s[_j] = _k1[_j] * (0.5 * _h) + _xb[_j]
-            _derivative_at(_s, u, theta, _A, _b, _k2)
-            for _j in range(_n_x):
-                _s[_j] = _k2[_j] * (0.5 * _h) + _xb[_j]
-            _derivative_at(_s, u, theta, _A, _b, _k3)
-            for _j in range(_n_x):
-                _s[_j] = _k3[_j] * _h + _xb[_j]
-            _derivative_at(_s, u, theta, _A, _b, _k4)
-            for _j in range(_n_x):
-                _xb[_j] += (_h / 6.0) * _k1[_j] + (_h / 3.0) * _k2[_j] + (_h / 3.0) * _k3[_j] + (_h / 6.0) * _k4[_j]
-        for _j in range(_n_x):
-            x[_j, _i] = _xb[_j]
-
-
-@njit(**_kernel.JIT)
-def _observe_at(x, u, theta, _y):
-    """Noise-free measurements of one particle, x (n_x,), into _y (n_y,) (compiled)."""
-    e6 = x[1]
-    e13 = x[2]
-    f22 = x[3]
-    e27 = x[4]
-    K0 = theta[5]
-    K_slope = theta[6]
-    R_brine = theta[7]
-    R_memb = theta[9]
-    R_pipe = theta[10]
-    m2 = theta[14]
-    F_back_offset = theta[15]
-    F_loop_offset = theta[16] + x[5]
-    F_perm_offset = theta[17]
-    P_memb_offset = theta[18]
-    _c0 = 29*K_slope
-    _y[0] = F_back_offset + (1/R_brine)*(e13 - e6)
-    _y[1] = F_loop_offset + (1/R_pipe)*(e6 - e13 + (m2)*f22)
-    _y[2] = F_perm_offset + (_c0/R_memb)*e13/(-K0 + _c0 + e27)
-    _y[3] = P_memb_offset + e13
-
-
-@njit(**_kernel.JIT)
-def _observe(x, u, theta, _y):
-    """Noise-free measurements of every particle (column) of x into _y (n_y, N) (compiled)."""
-    _n_x, _n = x.shape
-    _n_y = _y.shape[0]
-    _xc, _yc = np.empty(_n_x), np.empty(_n_y)
-    for _i in range(_n):
-        for _j in range(_n_x):
-            _xc[_j] = x[_j, _i]
-        _observe_at(_xc, u, theta, _yc)
-        for _j in range(_n_y):
-            _y[_j, _i] = _yc[_j]
+#: The compiled kernels of this model (``_jit_F_loop_offset_bias.py``, imported once per process under a name of
+#: its own path, so numba's disk cache beside it serves every instance of this package).
+_JIT = _kernel.load_jit(__file__, "_jit_F_loop_offset_bias.py")
 
 
 def derivative(x, u, theta, out=None, linear=None):
@@ -231,7 +142,7 @@ def predict(x, u, theta, dt, out=None):
         out[...] = x
     _A, _b, _u, _theta = _arrays(u, theta)
     _x = _kernel.contiguous(out)
-    _predict(_x, _u, _theta, _A, _b, float(dt), SUBSTEPS)
+    _JIT.predict(_x, _u, _theta, _A, _b, float(dt), SUBSTEPS)
     if _x is not out:
         out[...] = _x
     return out
@@ -254,7 +165,7 @@ def observe(x, u, theta, out=None):
     _y = np.empty((4, x.shape[1])) if out is None else out
     _A, _b, _u, _theta = _arrays(u, theta)
     _target = _y if _y.flags.c_contiguous else np.empty(_y.shape)
-    _observe(_kernel.contiguous(x), _u, _theta, _target)
+    _JIT.observe(_kernel.contiguous(x), _u, _theta, _target)
     if _target is not _y:
         _y[...] = _target
     return _y

@@ -13,7 +13,6 @@ values, computed by bgc from the model's relative noise levels).
 """
 
 import numpy as np
-from numba import njit
 
 from . import _kernel
 
@@ -93,77 +92,9 @@ def _arrays(u, theta):
     return _hit
 
 
-@njit(**_kernel.JIT)
-def _derivative_at(x, u, theta, _A, _b, _dx):
-    """dx/dt of one particle, x (n_x,), into _dx (n_x,) (compiled)."""
-    e7 = x[1]
-    C2 = theta[1]
-    R20 = theta[4] + x[2]
-    for _r in range(0, 2):
-        _s = 0.0
-        for _c in range(0, 2):
-            _s += _A[_r - 0, _c - 0] * x[_c]
-        _dx[_r] = _s + _b[_r - 0, 0]
-    _dx[1] += (-1/C2)*e7/R20
-    _dx[2] = 0.0
-
-
-@njit(**_kernel.JIT)
-def _predict(x, u, theta, _A, _b, dt, substeps):
-    """RK4 over dt in ``substeps`` substeps of every particle (column) of x
-    (n_x, N), in place (compiled; the arithmetic of ``_kernel.rk4``)."""
-    _n_x, _n = x.shape
-    _h = dt / substeps
-    _k1, _k2, _k3, _k4 = np.empty(_n_x), np.empty(_n_x), np.empty(_n_x), np.empty(_n_x)
-    _s, _xb = np.empty(_n_x), np.empty(_n_x)
-    for _i in range(_n):
-        for _j in range(_n_x):
-            _xb[_j] = x[_j, _i]
-        for _ in range(substeps):
-            _derivative_at(_xb, u, theta, _A, _b, _k1)
-            for _j in range(_n_x):
-                _s[_j] = _k1[_j] * (0.5 * _h) + _xb[_j]
-            _derivative_at(_s, u, theta, _A, _b, _k2)
-            for _j in range(_n_x):
-                _s[_j] = _k2[_j] * (0.5 * _h) + _xb[_j]
-            _derivative_at(_s, u, theta, _A, _b, _k3)
-            for _j in range(_n_x):
-                _s[_j] = _k3[_j] * _h + _xb[_j]
-            _derivative_at(_s, u, theta, _A, _b, _k4)
-            for _j in range(_n_x):
-                _xb[_j] += (_h / 6.0) * _k1[_j] + (_h / 3.0) * _k2[_j] + (_h / 3.0) * _k3[_j] + (_h / 6.0) * _k4[_j]
-        for _j in range(_n_x):
-            x[_j, _i] = _xb[_j]
-
-
-@njit(**_kernel.JIT)
-def _observe_at(x, u, theta, _y):
-    """Noise-free measurements of one particle, x (n_x,), into _y (n_y,) (compiled)."""
-    e2 = x[0]
-    e7 = x[1]
-    R10 = theta[2]
-    R12 = theta[3]
-    R20 = theta[4] + x[2]
-    F10_offset = theta[5]
-    F12_offset = theta[6]
-    F20_offset = theta[7]
-    _y[0] = F10_offset + (1/R10)*e2
-    _y[1] = F12_offset + (1/R12)*(e2 - e7)
-    _y[2] = F20_offset + e7/R20
-
-
-@njit(**_kernel.JIT)
-def _observe(x, u, theta, _y):
-    """Noise-free measurements of every particle (column) of x into _y (n_y, N) (compiled)."""
-    _n_x, _n = x.shape
-    _n_y = _y.shape[0]
-    _xc, _yc = np.empty(_n_x), np.empty(_n_y)
-    for _i in range(_n):
-        for _j in range(_n_x):
-            _xc[_j] = x[_j, _i]
-        _observe_at(_xc, u, theta, _yc)
-        for _j in range(_n_y):
-            _y[_j, _i] = _yc[_j]
+#: The compiled kernels of this model (``_jit_R20_abrupt.py``, imported once per process under a name of
+#: its own path, so numba's disk cache beside it serves every instance of this package).
+_JIT = _kernel.load_jit(__file__, "_jit_R20_abrupt.py")
 
 
 def derivative(x, u, theta, out=None, linear=None):
@@ -191,7 +122,7 @@ def predict(x, u, theta, dt, out=None):
         out[...] = x
     _A, _b, _u, _theta = _arrays(u, theta)
     _x = _kernel.contiguous(out)
-    _predict(_x, _u, _theta, _A, _b, float(dt), SUBSTEPS)
+    _JIT.predict(_x, _u, _theta, _A, _b, float(dt), SUBSTEPS)
     if _x is not out:
         out[...] = _x
     return out
@@ -214,7 +145,7 @@ def observe(x, u, theta, out=None):
     _y = np.empty((3, x.shape[1])) if out is None else out
     _A, _b, _u, _theta = _arrays(u, theta)
     _target = _y if _y.flags.c_contiguous else np.empty(_y.shape)
-    _observe(_kernel.contiguous(x), _u, _theta, _target)
+    _JIT.observe(_kernel.contiguous(x), _u, _theta, _target)
     if _target is not _y:
         _y[...] = _target
     return _y
