@@ -327,7 +327,7 @@ def diagnosis_hypotheses(r) -> Figure:
         top = max(h.posterior for h in others)
         handles.append(_line(f"{len(others)} others (p {'= 0' if top == 0 else f'<= {top:.2g}'}; "
                              f"{sum(h.dropped is not None for h in others)} dropped)", LIGHT_GREY, ":"))
-    handles += [_line("where dropped", GREY, marker="X"), *_mark_handles(d)]
+    handles += [_line("where dropped (in its colour)", GREY, marker="X"), *_mark_handles(d)]
     _legend_above(axes[0], handles, ncol=3)
     fig.suptitle(f"{d.model}: fault hypotheses' predicted measurements (dotted: dropped)", fontsize=10)
     axes[-1].set_xlabel(labels.time)

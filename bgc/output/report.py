@@ -368,8 +368,8 @@ DETECTION_PICTURES = {
     "measurements.png": "the measurements and the nominal observer's predictions (band: +-2 std; dashed: onset, "
                         "red: detection)",
     "residuals.png": "each sensor's normalised residual and its largest windowed |Z| against the threshold"}
-HYPOTHESIS_PICTURES = {"hypotheses.png": "each fault model's predicted measurements from its onset (dotted: "
-                                         "dropped, X: where)"}
+HYPOTHESIS_PICTURES = {"hypotheses.png": "the most probable fault models' predicted measurements from their "
+                                         "onsets, the others' in grey (dotted: dropped, X: where)"}
 ESTIMATE_PICTURES = {"estimate.png": "the fault magnitude over time, its interval, and the truth when the run "
                                      "records it"}
 
