@@ -56,6 +56,7 @@ from .ir import NUMBA_PACKAGE, PACKAGE, NoiseLevels, Numerics
 from .kinds import DIRECTIONS, fault_kind
 from .runtime import distinguish as distinction
 from .output import calibrated
+from .output.labels import Labels, labels_of
 from .runtime import calibrate as calibration
 from .runtime import identify, kalman, metrics, runs, simulate, track
 from .runtime.diagnose import IDENTIFY, KALMAN_METHOD, PATHS, Diagnosis, DiagnosisOptions
@@ -84,6 +85,8 @@ class DiagnosisReport:
     noise_levels: NoiseLevels
     options: DiagnosisOptions
     diagnosis: Diagnosis
+    #: What each variable is and its unit, from the model (:mod:`bgc.output.labels`).
+    labels: Labels = Labels()
 
     def __repr__(self) -> str:  # the run and the diagnosis hold arrays: the verdict is what a reader wants
         d = self.diagnosis
@@ -472,7 +475,7 @@ class Session:
                injected=None) -> DiagnosisReport:
         """A :class:`DiagnosisReport` of ``diagnosis`` made on ``run``."""
         return DiagnosisReport(self.name, self.compiled.model.display_source, run, scenario, injected, self.noise,
-                               self.levels, diagnosis.options, diagnosis)
+                               self.levels, diagnosis.options, diagnosis, labels_of(self.compiled.model))
 
 
 @dataclass(frozen=True, slots=True)
@@ -876,7 +879,7 @@ def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> Diagn
     priors = {f.parameter: f.prior for f in c.model.faults}
     result = run_diagnosis(run, package, c.signatures, priors, opts, say)
     return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,
-                           result)
+                           result, labels_of(c.model))
 
 
 def most_steps(num: Numerics, options: DiagnosisOptions) -> int:

@@ -195,8 +195,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
           f"{fault.describe() if fault else 'none'} ({time.perf_counter() - start:.2f} s)")
     if args.plot:
         from .output import plots
+        from .output.labels import labels_of
 
-        artifacts.write_file(Path(args.plot), plots.simulation_figure(result, "png"))
+        artifacts.write_file(Path(args.plot), plots.simulation_figure(
+            result, "png", labels_of(c.model), sim.noise_free(c.numerics, options).clean_measurements))
         print(f"wrote {printable(args.plot)}")
     return 0
 
@@ -237,8 +239,9 @@ def cmd_filter(args: argparse.Namespace) -> int:
             print(f"  estimate of {est.what} at t = {est.time:g}: {est.value:.4g} +- {est.std:.2g}{true_text}")
     if args.plot:
         from .output import plots
+        from .output.labels import labels_of
 
-        artifacts.write_file(Path(args.plot), plots.tracking_figure(run, results, "png"))
+        artifacts.write_file(Path(args.plot), plots.tracking_figure(run, results, "png", labels_of(c.model)))
         print(f"wrote {printable(args.plot)}")
     return 0
 
@@ -295,7 +298,7 @@ def _write_report(r, output: str, command: str) -> Path:
     if d.detection is not None:
         print(f"  detected at t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}), "
               f"onset t = {events.time_text(d.time_of(d.onset))}")  # a logger's Unix time in full
-    for line in report.plain_words(d):
+    for line in report.plain_words(d, r.labels):
         print(f"  {printable(line)}")
     e = d.estimate
     if e is not None and d.verdict != "no fault":

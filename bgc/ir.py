@@ -121,6 +121,9 @@ class Element:
     #: Process-noise level of a storage element's state (fraction of the signal);
     #: None: the model's default.
     noise: float | None = None
+    #: What a storage element's state is (``conductivity``), where the model's
+    #: domain does not say it; None: the domain's effort or flow.
+    quantity: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -207,7 +210,8 @@ class FaultCandidate:
 
 @dataclass(frozen=True, slots=True)
 class Settings:
-    """Defaults for simulation and filtering; noise as a fraction of the signal.
+    """Defaults for simulation and filtering; noise as a fraction of the signal;
+    ``time_unit``: the unit of time the model declares (None: none).
 
     ``locations``: where each setting the model gives is written (key ->
     place), and under ``""`` the place errors about the settings point at when
@@ -219,6 +223,8 @@ class Settings:
     process_noise: float = 0.03
     measurement_noise: float = 0.02
     locations: tuple[tuple[str, SourceLoc], ...] = ()
+    #: The unit of time and ``dt`` (``s``); None: not declared.
+    time_unit: str | None = None
 
     def loc(self, key: str) -> SourceLoc | None:
         """Where setting ``key`` is written, or where the settings are."""
@@ -241,6 +247,8 @@ class BondGraph:
     faults: tuple[FaultCandidate, ...]
     settings: Settings
     source_sha256: str = ""
+    #: The physical domain of its efforts and flows (:data:`bgc.kinds.DOMAINS`); None: not declared.
+    domain: str | None = None
 
     def element(self, name: str) -> Element:
         for el in self.elements:

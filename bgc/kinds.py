@@ -95,9 +95,10 @@ ELEMENT_KINDS: Mapping[str, ElementKind] = _kinds(
     ElementKind("Se", "source", "effort source", 1, frozenset({"value"}), "Se", imposes="effort"),
     ElementKind("Sf", "source", "flow source", 1, frozenset({"value"}), "Sf", imposes="flow"),
     ElementKind("R", "resistor", "resistor", 1, frozenset({"parameter", "law"}), "R"),
-    ElementKind("C", "storage", "capacitor", 1, frozenset({"parameter", "initial", "noise"}), "C",
+    ElementKind("C", "storage", "capacitor", 1, frozenset({"parameter", "initial", "noise", "quantity"}), "C",
                 imposes="effort"),
-    ElementKind("I", "storage", "inertia", 1, frozenset({"parameter", "initial", "noise"}), "I", imposes="flow"),
+    ElementKind("I", "storage", "inertia", 1, frozenset({"parameter", "initial", "noise", "quantity"}), "I",
+                imposes="flow"),
     ElementKind("TF", "two_port", "transformer", 2, frozenset({"parameter"}), "TF", two_port="transformer"),
     ElementKind("GY", "two_port", "gyrator", 2, frozenset({"parameter"}), "GY", two_port="gyrator"),
     ElementKind("0", "junction", "0-junction", None, frozenset(), "0", common="effort"),
@@ -111,6 +112,31 @@ def element_kind(name: str) -> ElementKind:
         return ELEMENT_KINDS[name]
     except KeyError:
         raise KeyError(f"unknown element kind '{name}' (valid: {', '.join(ELEMENT_KINDS)})") from None
+
+
+# ------------------------------------------------------------------- domains
+@dataclass(frozen=True, slots=True)
+class Domain:
+    """A physical domain a model may declare (``domain:``): what its efforts
+    and flows are, so that a state reads as the quantity it is (a C's
+    effort: a pressure in a hydraulic model, a voltage in an electrical
+    one; an I's flow: a volume flow, a current)."""
+
+    name: str
+    effort: str
+    flow: str
+
+
+#: The domains a model may declare; without one, an effort is an "effort" and a flow a "flow".
+DOMAINS: Mapping[str, Domain] = {d.name: d for d in (
+    Domain("electrical", "voltage", "current"),
+    Domain("hydraulic", "pressure", "volume flow"),
+    Domain("rotational", "torque", "angular velocity"),
+    Domain("thermal", "temperature", "entropy flow"),
+    Domain("translational", "force", "velocity"),
+)}
+#: The effort and flow of a model that declares no domain.
+GENERIC = Domain("generic", "effort", "flow")
 
 
 # -------------------------------------------------------------------- faults

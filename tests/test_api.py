@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 import bgc
 from bgc import api, cli
@@ -461,7 +462,8 @@ def test_figures_are_the_reports_plots_as_live_matplotlib_figures(hostile_report
         assert isinstance(fig, Figure) and fig.axes and all(ax.has_data() for ax in fig.axes)
         assert plots.picture(fig) == (folder / name).read_bytes()  # drawn by the same code the folder's was
     assert len(figures["measurements.png"].axes) == len(r.diagnosis.outputs)  # a sensor an axes
-    assert figures["estimate.png"].axes[0].get_ylabel() == "bias of R2"
+    unit = yaml.safe_load((ROOT / "models" / "circuit.yaml").read_text())["parameters"]["R2"]["unit"]
+    assert figures["estimate.png"].axes[0].get_ylabel() == f"bias of R2 [{unit}]"  # the model's unit
 
 
 def test_write_gives_the_folder_bgc_diagnose_writes_and_refuses_foreign_files(hostile_model, hostile_report, tmp_path,

@@ -1,7 +1,20 @@
 """Plots: text from outside (a model file's name) is drawn as it is, and two
-models whose files share a name get a plot each."""
+models whose files share a name get a plot each; axes say what each
+variable is and its unit, as the model file declares them (read here with
+yaml); legends show what is drawn."""
 
+import numpy as np
+import pytest
+import yaml
+
+from bgc.kinds import DOMAINS
 from bgc.output import plots
+from bgc.output.labels import labels_of
+from bgc.runtime import runs
+from bgc.runtime import simulate as sim
+from bgc.runtime import track
+
+from conftest import MODELS, ROOT, compiled
 
 
 def test_campaign_plots_draw_any_model_file_name_and_keep_one_per_model():
@@ -17,8 +30,6 @@ def test_campaign_plots_draw_any_model_file_name_and_keep_one_per_model():
 
 
 def test_a_run_with_a_measurement_at_the_edge_of_the_floats_is_drawn():
-    import numpy as np
-
     from bgc.runtime.simulate import SimulationResult
 
     t = np.arange(1.0, 11.0)
@@ -27,3 +38,123 @@ def test_a_run_with_a_measurement_at_the_edge_of_the_floats_is_drawn():
     r = SimulationResult("m", "m.yaml", t, (), np.zeros((10, 0)), ("e3",), y, np.ones((10, 1)), ("q2",),
                          np.ones((10, 1)), None, None, ())
     assert plots.simulation_figure(r, "png").startswith(b"\x89PNG")
+
+
+# ---------------------------------------------------------- labels and legends
+def _text(label: str) -> str:
+    """An axis label as one line (plots break long ones over lines)."""
+    return " ".join(label.split())
+
+
+def _state_of(doc: dict, element: str) -> str:
+    """The state of storage element ``element``, read from the YAML: a C's effort, an I's flow."""
+    bond = next(k for k, ends in doc["bonds"].items() if element in ends)
+    return f"{'e' if doc['elements'][element]['kind'] == 'C' else 'f'}{bond}"
+
+
+def _tracked(model: str, fault: str | None, name: str = "nominal", start: int | None = None):
+    num = compiled(model).numerics
+    options = sim.SimulationOptions(steps=60, seed=1, fault=sim.parse_fault(fault, num) if fault else None)
+    run = runs.parse_run(sim.to_csv(sim.simulate(num, options)))
+    package = track.load_package(ROOT / "generated", model)
+    return run, [track.track(run, package, name, m, 100, seed=0, start=start) for m in ("gpf", "apf")]
+
+
+def test_the_ro_tracking_plot_names_state_e6_by_its_element_and_domain_and_legends_the_truth_and_dashes():
+    doc = yaml.safe_load((MODELS / "ro.yaml").read_text())
+    run, results = _tracked("ro", "R_pipe:incipient:0.5@20", "R_pipe_incipient", start=22)
+    fig = plots.tracking_plot(run, results, labels_of(compiled("ro").model))
+    ylabels = [_text(ax.get_ylabel()) for ax in fig.axes]
+    state = _state_of(doc, "C_res")
+    (label,) = [x for x in ylabels if x.startswith(f"{state}:")]
+    assert label == f"{state}: {DOMAINS[doc['domain']].effort} at C_res"  # RO declares no units: no brackets
+    assert not any("[" in x for x in ylabels[:len(doc["measurements"])])
+    assert any(x.endswith(f"[per {doc['simulation']['time_unit']}]") for x in ylabels)  # the drift's slope
+    assert fig.axes[-1].get_xlabel() == f"time [{doc['simulation']['time_unit']}]"
+    legend = fig.axes[0].get_legend()
+    texts = [t.get_text() for t in legend.get_texts()]
+    assert any(t.startswith("true") for t in texts)
+    styles = {t.get_text(): h.get_linestyle() for t, h in zip(legend.get_texts(), legend.legend_handles)
+              if hasattr(h, "get_linestyle")}
+    assert styles["GPF: state estimate"] == "--" and styles["GPF: predicted measurement"] == "-"
+    # the estimated states are drawn dashed, as the legend says
+    state_axis = fig.axes[ylabels.index(label)]
+    assert "--" in {line.get_linestyle() for line in state_axis.get_lines()}
+
+
+def test_a_model_with_units_labels_its_axes_with_them_and_one_without_shows_no_brackets():
+    doc = yaml.safe_load((MODELS / "circuit.yaml").read_text())
+    num = compiled("circuit").numerics
+    options = sim.SimulationOptions(steps=40, seed=1)
+    r = sim.simulate(num, options)
+    fig = plots.simulation_plot(r, labels_of(compiled("circuit").model), sim.noise_free(num, options).clean_measurements)
+    ylabels = [_text(ax.get_ylabel()) for ax in fig.axes]
+    for name, spec in doc["measurements"].items():
+        assert f"{name} [{spec['unit']}]" in ylabels
+    for name, spec in doc["inputs"].items():
+        assert f"{name} [{spec['unit']}]" in ylabels  # the run plot shows the input
+    bare = [_text(ax.get_ylabel()) for ax in plots.simulation_plot(r).axes]
+    assert bare == [*r.output_names, *r.input_names] and fig.axes[-1].get_xlabel() == "time [s]"
+    assert plots.simulation_plot(r).axes[-1].get_xlabel() == "time"
+
+
+def test_the_noise_free_line_of_a_run_carries_no_process_noise():
+    num = compiled("two_tank").numerics
+    options = sim.SimulationOptions(steps=80, seed=3, process_noise=0.05)
+    r = sim.simulate(num, options)
+    clean = sim.noise_free(num, options).clean_measurements
+    again = sim.noise_free(num, sim.SimulationOptions(steps=80, seed=4, process_noise=0.05)).clean_measurements
+    assert np.array_equal(clean, again)                       # no draw of any seed reaches it
+    assert not np.allclose(clean, r.clean_measurements)        # the run's own states wander with process noise
+    fig = plots.simulation_plot(r, noise_free=clean)
+    line = next(ln for ln in fig.axes[0].get_lines() if ln.get_linestyle() == "-")
+    assert np.array_equal(line.get_ydata(), clean[:, 0])
+
+
+def test_the_hypotheses_legend_keeps_the_most_probable_and_groups_the_others(ro_report):
+    d = ro_report.diagnosis
+    fig = plots.diagnosis_hypotheses(ro_report)
+    texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    shown, others = plots.ranked_hypotheses(d)
+    assert len(d.hypotheses) > plots.SHOWN_HYPOTHESES and len(texts) <= plots.SHOWN_HYPOTHESES + 6
+    best = max(d.hypotheses, key=lambda h: h.posterior)
+    assert any(t.startswith(f"{best.name} (p = ") for t in texts)
+    assert any(t.startswith(f"{len(d.hypotheses) - plots.SHOWN_HYPOTHESES} others") for t in texts)
+    assert all(h.posterior >= o.posterior for h in shown for o in others)
+    # every hypothesis is drawn: the grouped ones too (one line per sensor each, and an X where dropped)
+    drawn = len(fig.axes[0].get_lines())
+    assert drawn >= 1 + len(d.hypotheses) + sum(h.dropped is not None for h in d.hypotheses)
+
+
+def test_the_distinguishability_map_has_a_colour_bar():
+    import types
+
+    rival = types.SimpleNamespace(name="B", probability=0.7)
+    r = types.SimpleNamespace(model="m", distinctions=[types.SimpleNamespace(label="A", level=0.95, rivals=[rival])])
+    fig = plots.distinguishability_plot(r)
+    (bar,) = [ax for ax in fig.axes if ax.get_label() == "<colorbar>"]
+    assert bar.get_ylabel().startswith("P(")
+    assert plots.distinguishability_figure(r).startswith(b"\x89PNG")
+
+
+@pytest.fixture(scope="module")
+def ro_report():
+    import bgc
+
+    return bgc.diagnose(str(MODELS / "ro.yaml"), scenario="R_pipe:incipient:0.5@165", seed=1,
+                        generated=ROOT / "generated")
+
+
+def test_the_diagnosis_plots_and_tables_say_the_time_unit_and_the_magnitude_s_unit(ro_report):
+    from bgc.output import report
+
+    doc = yaml.safe_load((MODELS / "ro.yaml").read_text())
+    per = f"per {doc['simulation']['time_unit']}"
+    for name, fig in plots.diagnosis_plots(ro_report).items():
+        assert fig.axes[-1].get_xlabel() == f"time [{doc['simulation']['time_unit']}]", name
+    estimate = plots.diagnosis_estimate(ro_report)
+    assert _text(estimate.axes[0].get_ylabel()) == f"slope of R_pipe [{per}]"
+    row = report.hypothesis_rows(ro_report.diagnosis, ro_report.labels)[0]
+    assert row[0] == "R_pipe_incipient" and row[3].startswith("slope ") and per in row[3] and row[4].endswith(per)
+    assert report.plain_words(ro_report.diagnosis, ro_report.labels)[0].startswith("parameter R_pipe drifts up by")
+    assert per in report.plain_words(ro_report.diagnosis, ro_report.labels)[0]

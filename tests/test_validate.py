@@ -544,3 +544,32 @@ def test_a_schema_error_without_a_specific_message_still_has_a_fix():
                                      instance=5, schema={"multipleOf": 2})
     what, fix, _ = _schema_message(err, ("simulation", "steps"))
     assert what == "simulation.steps: 5 is not a multiple of 2" and "docs/format.md" in fix
+
+
+# ------------------------------------------------ domain, quantity, time unit
+def test_the_schema_lists_the_domains_of_the_registry():
+    from bgc.compiler.validate import schema
+    from bgc.kinds import DOMAINS
+
+    assert schema()["properties"]["domain"]["enum"] == sorted(DOMAINS)
+
+
+def test_a_model_declares_its_domain_time_unit_and_a_state_quantity():
+    text = RC.replace("description: an RC circuit", "description: an RC circuit\ndomain: electrical")
+    text = text.replace("C: {kind: C, initial: 1.5}", "C: {kind: C, initial: 1.5, quantity: charge voltage}")
+    g = build(text + "simulation: {dt: 0.5, time_unit: ms}\n")
+    assert g.domain == "electrical"
+    assert g.element("C").quantity == "charge voltage"
+    assert (g.settings.dt, g.settings.time_unit) == (0.5, "ms")
+
+
+def test_without_them_none_is_declared():
+    g = build(RC)
+    assert (g.domain, g.element("C").quantity, g.settings.time_unit) == (None, None, None)
+
+
+def test_an_unknown_domain_and_a_quantity_off_a_storage_element_are_refused():
+    text = RC.replace("description: an RC circuit", "description: an RC circuit\ndomain: acoustic")
+    assert any("domain" in str(e) and "hydraulic" in str(e) for e in errors(text))
+    text = RC.replace("R: {kind: R}", "R: {kind: R, quantity: heat}")
+    assert any("has no key 'quantity'" in str(e) for e in errors(text))

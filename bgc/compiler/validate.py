@@ -195,6 +195,7 @@ class _Validator:
             faults=faults,
             settings=settings,
             source_sha256=self.raw.sha256,
+            domain=data.get("domain"),
         )
 
     def name_ok(self, name: str, path: tuple, what: str) -> bool:
@@ -361,7 +362,8 @@ class _Validator:
             noise = spec.get("noise")
             out.append(Element(name, kind, parameter, law, source,
                                float(initial) if initial is not None else (0.0 if role == "storage" else None),
-                               spec.get("description"), loc, float(noise) if noise is not None else None))
+                               spec.get("description"), loc, float(noise) if noise is not None else None,
+                               spec.get("quantity")))
         return tuple(out)
 
     def unmodulated(self, name: str, kind: str, expr: sympy.Expr, variables: set[str], path: tuple) -> bool:
@@ -541,7 +543,7 @@ class _Validator:
         return Settings(dt=float(raw.get("dt", base.dt)), steps=int(raw.get("steps", base.steps)),
                         process_noise=float(raw.get("process_noise", base.process_noise)),
                         measurement_noise=float(raw.get("measurement_noise", base.measurement_noise)),
-                        locations=tuple(places))
+                        locations=tuple(places), time_unit=raw.get("time_unit"))
 
 
 def _direction_of(size, rate) -> str:

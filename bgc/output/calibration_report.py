@@ -18,7 +18,7 @@ from ..runtime.calibrate import FIT_LEVEL, Z95, Calibration, Estimate, autocorre
 from . import html
 from .artifacts import manifest
 from .markdown import escape
-from .plots import laid_out, new_figure, picture
+from .plots import OKABE_ITO, laid_out, new_figure, picture
 
 #: The pictures of a calibration report.
 PICTURES = ("estimates.png", "residuals.png", "autocorrelation.png")
@@ -181,7 +181,7 @@ def estimates_figure(r, fmt: str = "png") -> bytes:
         v, lo, hi = e.level / ref, e.level_low / ref, e.level_high / ref
         lo = lo if math.isfinite(lo) and lo > 0 else v / 1e3
         ax.errorbar([v], [y], xerr=[[v - lo], [max(hi - v, 0) if math.isfinite(hi) else v]], fmt="o",
-                    color="#0072b2", capsize=4, label="estimate, 95 % interval" if y == 0 else None)
+                    color=OKABE_ITO["blue"], capsize=4, label="estimate, 95 % interval" if y == 0 else None)
     ax.axvline(1.0, color="#555555", ls="--", lw=1, label="model file's value")
     ax.set_xscale("log")
     ax.set_yticks(range(len(shown)))
@@ -202,9 +202,9 @@ def residuals_figure(r, fmt: str = "png") -> bytes:
     for ax, name in zip(axes, sensors):
         j = c.outputs.index(name)
         for k, (t, z) in enumerate(zip(c.times, c.residuals)):
-            ax.plot(t, z[:, j], ".", ms=2, color="#0072b2", label="normalised residual" if k == 0 else None)
-        ax.axhline(Z95, color="#d55e00", ls="--", lw=1, label="+-1.96 (95 % of N(0, 1))")
-        ax.axhline(-Z95, color="#d55e00", ls="--", lw=1)
+            ax.plot(t, z[:, j], ".", ms=2, color=OKABE_ITO["blue"], label="normalised residual" if k == 0 else None)
+        ax.axhline(Z95, color=OKABE_ITO["vermillion"], ls="--", lw=1, label="+-1.96 (95 % of N(0, 1))")
+        ax.axhline(-Z95, color=OKABE_ITO["vermillion"], ls="--", lw=1)
         ax.axhline(0, color="#555555", lw=0.6)
         ax.set_ylabel(printable(name))
     axes[0].legend(loc="upper right", fontsize=7)
@@ -226,7 +226,7 @@ def autocorrelation_figure(r, fmt: str = "png") -> bytes:
     for ax, i in zip(axes, c.innovations):
         lags = int(max(1, min(ACF_LAGS, i.samples // 5)))
         rho = autocorrelation(c, c.outputs.index(i.sensor), lags)
-        ax.vlines(np.arange(1, lags + 1), 0, rho, color="#0072b2", lw=2, label="autocorrelation")
+        ax.vlines(np.arange(1, lags + 1), 0, rho, color=OKABE_ITO["blue"], lw=2, label="autocorrelation")
         band = Z95 / math.sqrt(i.samples)
         ax.axhspan(-band, band, color="#999999", alpha=0.3, label="95 % band of white noise")
         ax.axhline(0, color="#555555", lw=0.6)

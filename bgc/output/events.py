@@ -153,12 +153,13 @@ def notes(events, time_of) -> list[str]:
     return out
 
 
-def fault_sentence(e, since) -> str:
+def fault_sentence(e, since, per_time: str = "per unit time") -> str:
     """What a fault estimate ``e`` (:class:`~bgc.runtime.values.Estimate`)
     says in plain words: which kind of thing failed (a sensor, an actuator,
     a part of the plant), how and how much, ``since`` the onset's time
     (None: not known). A magnitude that presses against its prior's bound
-    says "or more".
+    says "or more". ``per_time``: a drift's rate is so much ``per s``
+    (:attr:`bgc.output.labels.Labels.per_time`).
 
     >>> from bgc.runtime.values import Estimate
     >>> e = Estimate("P_offset", "bias", "bias", 3.1, 0.1, 2.9, 3.3, 0.95, 3.1, 0.0,
@@ -178,7 +179,7 @@ def fault_sentence(e, since) -> str:
     if not math.isfinite(v):
         return f"{e.target} {e.subject or e.parameter}: {e.kind} of unknown size"
     size = f"{abs(v):.4g}" + (f" {e.unit}" if e.unit else "")
-    rate = f"{size} per unit time"
+    rate = f"{size} {per_time}"
     up = v >= 0
     name = e.subject or e.parameter
     match (e.target, e.kind):

@@ -10,6 +10,8 @@ is left open."""
 from __future__ import annotations
 
 import io
+import re
+import textwrap
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -18,15 +20,56 @@ import numpy as np
 from ..errors import printable
 from ..kinds import fault_kind
 from .artifacts import mark_picture
+from .labels import Labels, with_unit
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 
+#: Okabe and Ito's colour-blind-safe palette (*Color Universal Design*, 2002):
+#: every plot of bgc takes its colours from here.
+OKABE_ITO = {"black": "#000000", "orange": "#E69F00", "sky blue": "#56B4E9", "bluish green": "#009E73",
+             "yellow": "#F0E442", "blue": "#0072B2", "vermillion": "#D55E00", "reddish purple": "#CC79A7"}
+#: Lines that need only differ (filters, hypotheses), in order (yellow is too pale on white).
+CYCLE = tuple(OKABE_ITO[c] for c in ("blue", "orange", "bluish green", "reddish purple", "sky blue"))
+MEASURED, TRUTH, DETECTION = OKABE_ITO["vermillion"], OKABE_ITO["black"], OKABE_ITO["vermillion"]
+#: Marks and what is drawn for context only (the onset, the hypotheses grouped as others).
+GREY, LIGHT_GREY = "#808080", "#b8b8b8"
+
+
 def _measured(ax, run, name: str) -> None:
     """Sensor ``name``'s samples as crosses (none for a sensor the data lack)."""
     if name in run.measurements:
-        ax.plot(run.time, run.measurements[name], "x", ms=3, color="#c03030", label="measured")
+        ax.plot(run.time, run.measurements[name], "x", ms=3, color=MEASURED, label="measured")
+
+
+def _ylabel(ax, text: str, width: int = 22) -> None:
+    """An axis label that fits a row: small, broken over lines of about
+    ``width`` characters, never inside a unit's brackets."""
+    kept = re.sub(r"\[[^\]]*\]", lambda m: m.group(0).replace(" ", "\u00a0"), text)
+    ax.set_ylabel("\n".join(textwrap.wrap(kept, width)), fontsize=8)
+
+
+def _legend_above(ax, handles=None, ncol: int = 4) -> None:
+    """The legend of a figure over its first axes, off the data (``handles``:
+    what it shows; None: the axes' labelled lines)."""
+    ax.legend(handles=handles, loc="lower left", bbox_to_anchor=(0.0, 1.02), ncol=ncol, fontsize=7, frameon=False,
+              borderaxespad=0.0)
+
+
+def _line(label: str, color: str, style: str = "-", marker: str | None = None, lw: float = 1.0):
+    """A legend entry drawn as the traces it stands for."""
+    from matplotlib.lines import Line2D
+
+    return Line2D([], [], color=color, ls=style if marker is None else "none", marker=marker, ms=5, lw=lw,
+                  label=label)
+
+
+def _band(label: str, color: str):
+    """A legend entry for a shaded band."""
+    from matplotlib.patches import Patch
+
+    return Patch(color=color, alpha=0.2, lw=0, label=label)
 
 
 def new_figure(rows: int, width: float = 9.0, height_per_row: float = 1.7) -> tuple[Figure, np.ndarray]:
@@ -83,169 +126,262 @@ def picture(fig: Figure, fmt: str = "png") -> bytes:
     return mark_picture(buf.getvalue(), fmt)
 
 
-def simulation_figure(r, fmt: str = "png") -> bytes:
-    """Measurements (noisy and clean) and, last, the faulty parameter, against time."""
-    n = len(r.output_names) + (1 if r.fault else 0)
-    fig, axes = new_figure(n)
+def simulation_figure(r, fmt: str = "png", labels: Labels = Labels(), noise_free: np.ndarray | None = None) -> bytes:
+    """:func:`simulation_plot` as ``png`` or ``svg`` bytes."""
+    return picture(simulation_plot(r, labels, noise_free), fmt)
+
+
+def simulation_plot(r, labels: Labels = Labels(), noise_free: np.ndarray | None = None) -> Figure:
+    """The measurements, noisy and noise-free, the inputs and, last, the
+    faulty parameter, against time. ``noise_free``: the measurements of the
+    same run without process or sensor noise
+    (:func:`bgc.runtime.simulate.noise_free`); None: the run's own, without
+    sensor noise only, and so labelled."""
+    rows = [*r.output_names, *r.input_names, *([r.fault.parameter] if r.fault else [])]
+    fig, axes = new_figure(len(rows))
+    clean, said = ((noise_free, "noise-free (no process or sensor noise)") if noise_free is not None
+                   else (r.clean_measurements, "without sensor noise"))
     for j, name in enumerate(r.output_names):
-        ax = axes[j]
-        ax.plot(r.time, r.measurements[:, j], ".", ms=2.5, color="#c03030", label="measured")
-        ax.plot(r.time, r.clean_measurements[:, j], "-", lw=1.0, color="#202020", label="noise-free")
-        ax.set_ylabel(name)
-        if r.fault:
-            ax.axvline(r.fault.time, color="#808080", ls=":", lw=1)
+        axes[j].plot(r.time, r.measurements[:, j], ".", ms=2.5, color=MEASURED, label="measured")
+        axes[j].plot(r.time, clean[:, j], "-", lw=1.0, color=TRUTH, label=said)
+    for i, name in enumerate(r.input_names):
+        axes[len(r.output_names) + i].plot(r.time, r.inputs[:, i], "-", lw=1.2, color=CYCLE[2],
+                                           drawstyle="steps-pre", label="input (as commanded)")
     if r.fault:
-        ax = axes[-1]
-        ax.plot(r.time, r.parameter, color="#2060c0")
-        ax.set_ylabel(r.fault.parameter)
-    axes[0].legend(loc="best", fontsize=7)
-    axes[0].set_title(f"{r.model}: simulated run ({r.fault.describe() if r.fault else 'no fault'})")
-    axes[-1].set_xlabel("time")
-    return picture(laid_out(fig), fmt)
+        axes[-1].plot(r.time, r.parameter, color=CYCLE[0], label="faulty parameter")
+    for ax, name in zip(axes, rows):
+        _ylabel(ax, labels.axis(name))
+        if r.fault:
+            ax.axvline(r.fault.time, color=GREY, ls=":", lw=1)
+    handles = [_line("measured", MEASURED, marker="."), _line(said, TRUTH)]
+    if r.input_names:
+        handles.append(_line("input (as commanded)", CYCLE[2], lw=1.2))
+    if r.fault:
+        handles += [_line("faulty parameter", CYCLE[0]), _line("fault onset", GREY, ":")]
+    _legend_above(axes[0], handles, ncol=len(handles))
+    fig.suptitle(f"{r.model}: simulated run ({r.fault.describe() if r.fault else 'no fault'})", fontsize=10)
+    axes[-1].set_xlabel(labels.time)
+    return laid_out(fig)
 
 
-def tracking_figure(run, results, fmt: str = "png") -> bytes:
+def _state_truth(run, first, name: str):
+    """The run's truth of filter state ``name`` (a state, the faulty
+    parameter, or the fault magnitude ``delta_<parameter>``), or None."""
+    truth = run.states.get(name, run.parameters.get(name))
+    fault = first.fault
+    if truth is None and fault and name == f"delta_{fault['parameter']}" and fault["parameter"] in run.parameters:
+        p = run.parameters[fault["parameter"]]  # the magnitude: a bias, or a slope
+        truth = fault_kind(fault["kind"]).truth_series(run.time, p, p[0])
+    return truth
+
+
+def _state_axis(labels: Labels, first, name: str) -> str:
+    """A filter state's axis label: a plant state by its meaning, a fault's
+    parameter and magnitude in the unit of what fails."""
+    fault = first.fault
+    if not fault or name not in (fault["parameter"], f"delta_{fault['parameter']}"):
+        return labels.axis(name)
+    unit = fault.get("unit") or labels.unit(fault["parameter"])
+    if name == fault["parameter"]:
+        return with_unit(name, unit)
+    kind = fault_kind(fault["kind"])
+    return with_unit(f"{name}: {kind.magnitude} of {fault['parameter']}", labels.magnitude_unit(unit, kind.drifts))
+
+
+def tracking_figure(run, results, fmt: str = "png", labels: Labels = Labels()) -> bytes:
+    """:func:`tracking_plot` as ``png`` or ``svg`` bytes."""
+    return picture(tracking_plot(run, results, labels), fmt)
+
+
+def tracking_plot(run, results, labels: Labels = Labels()) -> Figure:
     """Measurements with each filter's predicted measurement (mean +- 2 std), then
     the states (true and estimated), like the thesis's Figs. IV.4 and IV.6."""
     first = results[0]
-    names_y = first.output_names
-    names_x = [n for n in first.state_names]
-    n = len(names_y) + len(names_x)
-    fig, axes = new_figure(n, height_per_row=1.5)
-    colors = ["#2060c0", "#20a040", "#c08020", "#8040c0"]
+    names_y, names_x = first.output_names, first.state_names
+    fig, axes = new_figure(len(names_y) + len(names_x), height_per_row=1.5)
     for j, name in enumerate(names_y):
-        ax = axes[j]
-        _measured(ax, run, name)
-        for r, c in zip(results, colors):
-            ax.plot(r.time, r.y_mean[:, j], "-", lw=1.0, color=c, label=f"{r.method.upper()} {r.model}")
-            ax.fill_between(r.time, r.y_mean[:, j] - 2 * r.y_std[:, j], r.y_mean[:, j] + 2 * r.y_std[:, j],
-                            color=c, alpha=0.15, lw=0)
-        ax.set_ylabel(name)
+        _measured(axes[j], run, name)
+        for r, c in zip(results, CYCLE):
+            _with_band(axes[j], r.time, r.y_mean[:, j], r.y_std[:, j], c, "-")
+        _ylabel(axes[j], labels.axis(name))
+    truths = 0
     for i, name in enumerate(names_x):
         ax = axes[len(names_y) + i]
-        truth = run.states.get(name, run.parameters.get(name))
-        if truth is None and first.fault and name == f"delta_{first.fault['parameter']}" \
-                and first.fault["parameter"] in run.parameters:  # the magnitude: a bias, or a slope
-            p = run.parameters[first.fault["parameter"]]
-            truth = fault_kind(first.fault["kind"]).truth_series(run.time, p, p[0])
+        truth = _state_truth(run, first, name)
         if truth is not None:
-            ax.plot(run.time, truth, "-", lw=1.0, color="#202020", label="true")
-        for r, c in zip(results, colors):
+            ax.plot(run.time, truth, "-", lw=1.0, color=TRUTH)
+            truths += 1
+        for r, c in zip(results, CYCLE):
             if name in r.state_names:
                 k = r.state_names.index(name)
-                ax.plot(r.time, r.mean[:, k], "--", lw=1.0, color=c)
-                ax.fill_between(r.time, r.mean[:, k] - 2 * r.std[:, k], r.mean[:, k] + 2 * r.std[:, k],
-                                color=c, alpha=0.15, lw=0)
-        ax.set_ylabel(name)
-    axes[0].legend(loc="best", fontsize=7)
-    axes[0].set_title(f"{first.model}: filter estimates (bands: +-2 std)")
-    axes[-1].set_xlabel("time")
-    return picture(laid_out(fig), fmt)
+                _with_band(ax, r.time, r.mean[:, k], r.std[:, k], c, "--")
+        _ylabel(ax, _state_axis(labels, first, name))
+    handles = [_line("measured", MEASURED, marker="x")]
+    for r, c in zip(results, CYCLE):
+        handles += [_line(f"{r.method.upper()}: predicted measurement", c),
+                    _line(f"{r.method.upper()}: state estimate", c, "--"), _band(f"{r.method.upper()}: +-2 std", c)]
+    if truths:
+        handles.append(_line("true (the run's)", TRUTH))
+    _legend_above(axes[0], handles, ncol=4)
+    fig.suptitle(f"{first.model}: filter estimates", fontsize=10)
+    axes[-1].set_xlabel(labels.time)
+    return laid_out(fig)
+
+
+def _with_band(ax, t, mean, std, color: str, style: str) -> None:
+    """A mean as a line and its +-2 std as a band around it."""
+    ax.plot(t, mean, style, lw=1.0, color=color)
+    ax.fill_between(t, mean - 2 * std, mean + 2 * std, color=color, alpha=0.2, lw=0)
 
 
 # ------------------------------------------------------------------ diagnosis
-_COLORS = ["#2060c0", "#20a040", "#c08020", "#8040c0", "#c04080", "#40a0a0"]
-
-
 def _marks(ax, d) -> None:
     """Vertical marks: onset (dashed) and detection (solid)."""
     if d.onset is not None:
-        ax.axvline(d.time[d.onset], color="#808080", ls="--", lw=0.9)
+        ax.axvline(d.time[d.onset], color=GREY, ls="--", lw=0.9)
     if d.detection is not None:
-        ax.axvline(d.time[d.detection.step], color="#c03030", ls="-", lw=0.9)
+        ax.axvline(d.time[d.detection.step], color=DETECTION, ls="-", lw=0.9)
+
+
+def _mark_handles(d) -> list:
+    """The legend entries of :func:`_marks`."""
+    return ([_line("onset", GREY, "--")] if d.onset is not None else []) + \
+        ([_line("detection", DETECTION)] if d.detection is not None else [])
+
+
+def report_labels(r) -> Labels:
+    """A diagnosis report's labels (a report made without them: none)."""
+    return getattr(r, "labels", None) or Labels()
 
 
 def diagnosis_measurements(r) -> Figure:
     """Measurements and the nominal observer's predicted measurements (mean +-
     2 std), onset and detection marked (thesis Fig. IV.4)."""
-    d, run = r.diagnosis, r.run
+    d, run, labels = r.diagnosis, r.run, report_labels(r)
     fig, axes = new_figure(len(d.outputs))
     for j, name in enumerate(d.outputs):
-        ax = axes[j]
-        _measured(ax, run, name)
-        ax.plot(d.time, d.nominal_y_mean[:, j], "-", lw=1.0, color="#2060c0", label="nominal observer")
-        ax.fill_between(d.time, d.nominal_y_mean[:, j] - 2 * d.nominal_y_std[:, j],
-                        d.nominal_y_mean[:, j] + 2 * d.nominal_y_std[:, j], color="#2060c0", alpha=0.15, lw=0)
-        _marks(ax, d)
-        ax.set_ylabel(name)
-    axes[0].legend(loc="best", fontsize=7)
-    axes[0].set_title(f"{d.model}: measurements and the nominal observer (dashed: onset, red: detection)")
-    axes[-1].set_xlabel("time")
+        _measured(axes[j], run, name)
+        _with_band(axes[j], d.time, d.nominal_y_mean[:, j], d.nominal_y_std[:, j], CYCLE[0], "-")
+        _marks(axes[j], d)
+        _ylabel(axes[j], labels.axis(name))
+    _legend_above(axes[0], [_line("measured", MEASURED, marker="x"), _line("nominal observer", CYCLE[0]),
+                            _band("+-2 std", CYCLE[0]), *_mark_handles(d)], ncol=5)
+    fig.suptitle(f"{d.model}: measurements and the nominal observer", fontsize=10)
+    axes[-1].set_xlabel(labels.time)
     return laid_out(fig)
 
 
 def diagnosis_residuals(r) -> Figure:
     """Each sensor's normalised residual and its largest windowed |Z|, with the
     detection threshold and mark."""
-    d = r.diagnosis
+    d, labels = r.diagnosis, report_labels(r)
     fig, axes = new_figure(len(d.outputs))
     for j, name in enumerate(d.outputs):
         ax = axes[j]
-        ax.plot(d.time, d.nominal_z[:, j], ".", ms=2.5, color="#808080", label="normalised residual")
-        ax.plot(d.time, d.statistics[:, j], "-", lw=1.0, color="#2060c0", label="largest windowed |Z|")
-        ax.axhline(d.threshold, color="#c03030", ls=":", lw=1.0, label=f"threshold {d.threshold:.2f}")
+        ax.plot(d.time, d.nominal_z[:, j], ".", ms=2.5, color=GREY)
+        ax.plot(d.time, d.statistics[:, j], "-", lw=1.0, color=CYCLE[0])
+        ax.axhline(d.threshold, color=DETECTION, ls=":", lw=1.0)
         _marks(ax, d)
-        ax.set_ylabel(name)
-    axes[0].legend(loc="best", fontsize=7)
-    per = "run" if d.options.horizon is None else f"{d.options.horizon:g} time units"
-    axes[0].set_title(f"{d.model}: detection (false-alarm probability {d.options.false_alarm:g} per {per})")
-    axes[-1].set_xlabel("time")
+        _ylabel(ax, f"{name} (normalised)")
+    _legend_above(axes[0], [_line("normalised residual", GREY, marker="."), _line("largest windowed |Z|", CYCLE[0]),
+                            _line(f"threshold {d.threshold:.2f}", DETECTION, ":"), *_mark_handles(d)], ncol=5)
+    per = ("run" if d.options.horizon is None else
+           f"{d.options.horizon:g} {labels.time_unit or 'time units'}")
+    fig.suptitle(f"{d.model}: detection (false-alarm probability {d.options.false_alarm:g} per {per})", fontsize=10)
+    axes[-1].set_xlabel(labels.time)
     return laid_out(fig)
+
+
+#: The hypotheses plot draws this many fault models in colours of their own,
+#: the most probable first; the others share one grey legend entry.
+SHOWN_HYPOTHESES = 4
+
+
+def ranked_hypotheses(d) -> tuple[list, list]:
+    """The fault models of diagnosis ``d`` most probable first (among equals,
+    the ones not dropped first), split into those drawn in colour
+    (:data:`SHOWN_HYPOTHESES`) and the others."""
+    ranked = sorted(d.hypotheses, key=lambda h: (-h.posterior, h.dropped is not None))
+    return ranked[:SHOWN_HYPOTHESES], ranked[SHOWN_HYPOTHESES:]
 
 
 def diagnosis_hypotheses(r) -> Figure:
     """Each hypothesis's predicted measurements against the data from its
-    onset, a cross where it was dropped (thesis Fig. IV.6)."""
-    d, run = r.diagnosis, r.run
+    onset, a cross where it was dropped (thesis Fig. IV.6): the most probable
+    in colour, the others in grey under one legend entry."""
+    d, run, labels = r.diagnosis, r.run, report_labels(r)
+    shown, others = ranked_hypotheses(d)
     fig, axes = new_figure(len(d.outputs))
     for j, name in enumerate(d.outputs):
-        ax = axes[j]
-        _measured(ax, run, name)
-        for h, c in zip(sorted(d.hypotheses, key=lambda h: -h.posterior), _COLORS * 4):
-            t = d.time[h.start:]
-            style = "-" if h.dropped is None else ":"
-            ax.plot(t, h.y_mean[:, j], style, lw=1.0, color=c, label=f"{h.name} (p = {h.posterior:.2g})")
-            if h.dropped is not None:
-                ax.plot(d.time[h.dropped], h.y_mean[h.dropped - h.start, j], "X", color=c, ms=6)
-        _marks(ax, d)
-        ax.set_ylabel(name)
-    if d.hypotheses:
-        axes[0].legend(loc="best", fontsize=6)
-    axes[0].set_title(f"{d.model}: fault hypotheses' predicted measurements (dotted: dropped, X: where)")
-    axes[-1].set_xlabel("time")
+        _measured(axes[j], run, name)
+        for h in others:
+            _hypothesis(axes[j], d, h, j, LIGHT_GREY, 0.7)
+        for h, c in zip(shown, CYCLE):
+            _hypothesis(axes[j], d, h, j, c, 1.2)
+        _marks(axes[j], d)
+        _ylabel(axes[j], labels.axis(name))
+    handles = [_line("measured", MEASURED, marker="x")]
+    handles += [_line(f"{h.name} (p = {h.posterior:.3g}" + (", dropped)" if h.dropped is not None else ")"), c,
+                      "-" if h.dropped is None else ":", lw=1.2) for h, c in zip(shown, CYCLE)]
+    if others:
+        top = max(h.posterior for h in others)
+        handles.append(_line(f"{len(others)} others (p {'= 0' if top == 0 else f'<= {top:.2g}'}; "
+                             f"{sum(h.dropped is not None for h in others)} dropped)", LIGHT_GREY, ":"))
+    handles += [_line("where dropped (in its colour)", GREY, marker="X"), *_mark_handles(d)]
+    _legend_above(axes[0], handles, ncol=3)
+    fig.suptitle(f"{d.model}: fault hypotheses' predicted measurements (dotted: dropped)", fontsize=10)
+    axes[-1].set_xlabel(labels.time)
     return laid_out(fig)
+
+
+def _hypothesis(ax, d, h, j: int, color: str, lw: float) -> None:
+    """Hypothesis ``h``'s prediction of sensor ``j`` from its onset, dotted
+    when it was dropped, with an X where."""
+    ax.plot(d.time[h.start:], h.y_mean[:, j], "-" if h.dropped is None else ":", lw=lw, color=color, zorder=3)
+    if h.dropped is not None:
+        ax.plot(d.time[h.dropped], h.y_mean[h.dropped - h.start, j], "X", color=color, ms=5, zorder=3)
 
 
 def diagnosis_estimate(r) -> Figure:
     """The fault magnitude of the diagnosed hypotheses over time, its interval
     and the truth when known (thesis Fig. IV.7)."""
-    d, run = r.diagnosis, r.run
+    d, run, labels = r.diagnosis, r.run, report_labels(r)
     shown = [h for h in d.hypotheses if h.name in d.candidates] or list(d.hypotheses[:1])
     fig, axes = new_figure(max(1, len(shown)), height_per_row=2.4)
-    for ax, h, c in zip(axes, shown, _COLORS * 4):
-        t = d.time[h.start:]
+    for ax, h in zip(axes, shown):
         e = h.estimate
-        static = h.filter_estimate is not None  # the estimate is the static posterior's (or --refine's grid's)
-        ax.plot(t, h.magnitude, "-", lw=1.2, color=c, label="particle filter" if static else "estimate")
-        ax.fill_between(t, h.magnitude_band[:, 0], h.magnitude_band[:, 1], color=c, alpha=0.2, lw=0,
-                        label=f"{100 * e.level:.0f} % interval" + (" (particle filter)" if static else ""))
-        if static:
-            span = d.time[h.onset:]
-            ax.plot(span, np.full(len(span), e.value), "--", lw=1.4, color="#d62728",
-                    label=("static posterior (Kalman filters)" if e.method == "kalman"
-                           else "grid posterior (particle filters)") + ", from its onset")
-            ax.fill_between(span, e.low, e.high, color="#d62728", alpha=0.15, lw=0,
-                            label=f"its {100 * e.level:.0f} % interval")
+        _estimate(ax, d, h)
         truth = run.parameters.get(h.parameter)
         if truth is not None and e.truth is not None:  # the run's fault is of this hypothesis's kind
-            truth = fault_kind(h.kind).truth_series(run.time, truth, e.nominal)
-            ax.plot(run.time, truth, "-", lw=1.0, color="#202020", label="truth")
+            ax.plot(run.time, fault_kind(h.kind).truth_series(run.time, truth, e.nominal), "-", lw=1.0,
+                    color=TRUTH, label="truth")
         _marks(ax, d)
-        ax.set_ylabel(f"{e.magnitude} of {h.parameter}")
-        ax.legend(loc="best", fontsize=7)
-    axes[0].set_title(f"{d.model}: fault magnitude" + (f" ({d.verdict})" if d.hypotheses else ": no fault"))
-    axes[-1].set_xlabel("time")
+        _ylabel(ax, with_unit(f"{e.magnitude} of {h.parameter}",
+                              labels.magnitude_unit(e.unit, fault_kind(h.kind).drifts)), width=30)
+        ax.legend(handles=[*ax.get_legend_handles_labels()[0], *_mark_handles(d)], loc="center left",
+                  bbox_to_anchor=(1.01, 0.5), fontsize=7, frameon=False)
+    fig.suptitle(f"{d.model}: fault magnitude" + (f" ({d.verdict})" if d.hypotheses else ": no fault"), fontsize=10)
+    axes[-1].set_xlabel(labels.time)
     return laid_out(fig)
+
+
+def _estimate(ax, d, h) -> None:
+    """Hypothesis ``h``'s magnitude: the particle filter's over time with its
+    band and, when the estimate is the static posterior's (or ``--refine``'s
+    grid's), that estimate and its interval from the onset."""
+    e = h.estimate
+    t = d.time[h.start:]
+    static = h.filter_estimate is not None
+    level = f"{100 * e.level:.0f} %"
+    ax.plot(t, h.magnitude, "-", lw=1.2, color=CYCLE[0], label="particle filter" if static else "estimate")
+    ax.fill_between(t, h.magnitude_band[:, 0], h.magnitude_band[:, 1], color=CYCLE[0], alpha=0.2, lw=0,
+                    label=f"{level} interval" + (" (particle filter)" if static else ""))
+    if static:
+        span = d.time[h.onset:]
+        ax.plot(span, np.full(len(span), e.value), "--", lw=1.4, color=CYCLE[1],
+                label=("static posterior (Kalman filters)" if e.method == "kalman"
+                       else "grid posterior (particle filters)") + ",\nfrom its onset")
+        ax.fill_between(span, e.low, e.high, color=CYCLE[1], alpha=0.25, lw=0, label=f"its {level} interval")
 
 
 #: The pictures of a diagnosis by file name, and the function that draws each.
@@ -297,7 +433,7 @@ def campaign_figures(rows) -> dict[str, bytes]:
     for ax, metric, title in ((axes[0], "est_error", "fault-magnitude error (%)"), (axes[1], "ct", "time to convergence")):
         data = [[100 * v if metric == "est_error" else v for v in _values(rows, metric, filter=f)] for f in filters]
         if any(data):
-            ax.boxplot([d if d else [np.nan] for d in data], showfliers=True)
+            ax.boxplot([d if d else [np.nan] for d in data], showfliers=True, medianprops={"color": CYCLE[1]})
             ax.set_xticks(range(1, len(filters) + 1), [f.upper() for f in filters])
         ax.set_title(title, fontsize=9)
         ax.grid(True, alpha=0.3)
@@ -307,12 +443,12 @@ def campaign_figures(rows) -> dict[str, bytes]:
         if len(levels) < 2:
             continue
         fig, axes = new_grid(2)
-        for f in filters:
+        for f, c in zip(filters, CYCLE):
             err = [np.mean(_values(rows, "est_error", filter=f, **{axis: x}) or [np.nan]) * 100 for x in levels]
             right = [np.mean(_values(rows, "right", filter=f, **{axis: x}) or [np.nan]) * 100 for x in levels]
             xs = levels if axis == "particles" else list(range(len(levels)))
-            axes[0].plot(xs, err, "o-", label=f.upper())
-            axes[1].plot(xs, right, "o-", label=f.upper())
+            axes[0].plot(xs, err, "o-", color=c, label=f.upper())
+            axes[1].plot(xs, right, "o-", color=c, label=f.upper())
         for ax, title in ((axes[0], "mean magnitude error (%)"), (axes[1], "right isolation (%)")):
             ax.set_title(title, fontsize=9)
             ax.set_xlabel(label, fontsize=8)
@@ -370,9 +506,14 @@ def _unique(stem: str, suffix: str, taken: set[str]) -> str:
 
 
 def distinguishability_figure(r, fmt: str = "png") -> bytes:
+    """:func:`distinguishability_plot` as ``png`` or ``svg`` bytes."""
+    return picture(distinguishability_plot(r), fmt)
+
+
+def distinguishability_plot(r) -> Figure:
     """A heat map of :class:`bgc.api.DistinguishabilityReport`: per fault
     (rows) and rival fault model (columns), the probability that the data name
-    the fault over the rival; a cell under the level is outlined."""
+    the fault over the rival, on a colour bar; a cell under the level shows its number."""
     rows = [d.label for d in r.distinctions]
     cols = sorted({x.name for d in r.distinctions for x in d.rivals})
     m = np.full((len(rows), len(cols)), np.nan)
@@ -380,14 +521,16 @@ def distinguishability_figure(r, fmt: str = "png") -> bytes:
         for x in d.rivals:
             m[i, cols.index(x.name)] = x.probability
     fig, ax = new_axes(max(4.0, 0.45 * len(cols) + 3), max(2.5, 0.35 * len(rows) + 2))
-    ax.imshow(m, cmap="RdYlGn", vmin=0.5, vmax=1.0, aspect="auto")
+    image = ax.imshow(m, cmap="cividis", vmin=0.5, vmax=1.0, aspect="auto")
+    fig.colorbar(image, ax=ax, fraction=0.05, pad=0.02).set_label("P(the data name the truth)", fontsize=7)
     for i, d in enumerate(r.distinctions):
         for j in range(len(cols)):
             if np.isfinite(m[i, j]) and m[i, j] < d.level:
-                ax.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize=6)
+                ax.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize=6,
+                        color="white" if m[i, j] < 0.75 else "black")  # cividis is dark at its low end
     ax.set_xticks(range(len(cols)), cols, rotation=60, ha="right", fontsize=7)
     ax.set_yticks(range(len(rows)), rows, fontsize=7)
     ax.set_xlabel("rival fault model", fontsize=8)
     ax.set_ylabel("true fault", fontsize=8)
     ax.set_title(f"{r.model}: P(the data name the truth over the rival); numbers: under the level", fontsize=8)
-    return picture(laid_out(fig), fmt)
+    return laid_out(fig)

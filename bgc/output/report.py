@@ -13,8 +13,10 @@ import json
 import math
 from typing import Any, Callable, Mapping
 
+from ..kinds import fault_kind
 from . import events, html, plots
 from .artifacts import manifest
+from .labels import Labels
 from .markdown import escape
 
 
@@ -83,7 +85,7 @@ def _drop_reason(d, name: str) -> str | None:
 
 def report_data(r) -> dict[str, Any]:
     """The report as plain data (what ``report.json`` holds)."""
-    d = r.diagnosis
+    d, labels = r.diagnosis, plots.report_labels(r)
     det = d.detection
     out: dict[str, Any] = {
         "generated_by": "bgc",
@@ -114,7 +116,7 @@ def report_data(r) -> dict[str, Any]:
         "refuted_by_signatures": [{"fault": n, "why": why} for n, why in d.refuted],
         "hypotheses": [],
         "diagnosis": list(d.candidates),
-        "in_words": plain_words(d),
+        "in_words": plain_words(d, labels),
         "events": [events.record(e, d.time_of) for e in d.events],
         "data_semantics": None if d.data is None else {
             "inputs": [{"input": u, "from": src, "holds": dict(d.data.holds).get(u, 0)} for u, src in d.data.inputs],
@@ -137,6 +139,7 @@ def report_data(r) -> dict[str, Any]:
                          "truth": _num(e.truth), "covers_truth": e.covers, "method": e.method,
                          "at_prior_bound": e.bound},
             "target": e.target, "subject": e.subject or e.parameter, "unit": e.unit,
+            "magnitude_unit": magnitude_unit(h, labels),
             "ruled_out_by_symbols": h.ruled_out or None,
             "static_consistency_alarm": None if h.static_alarm is None else {
                 "sensor": h.static_alarm.sensor, "window": h.static_alarm.window,
@@ -147,7 +150,13 @@ def report_data(r) -> dict[str, Any]:
     return out
 
 
-def plain_words(d) -> list[str]:
+def magnitude_unit(h, labels: Labels) -> str | None:
+    """The unit of hypothesis ``h``'s fault magnitude: its subject's, per
+    unit of time for a drift (None: not declared)."""
+    return labels.magnitude_unit(h.estimate.unit, fault_kind(h.kind).drifts)
+
+
+def plain_words(d, labels: Labels = Labels()) -> list[str]:
     """The verdict's faults in plain words (:func:`~bgc.output.events.fault_sentence`):
     the one isolated, each of an ambiguity group ("either ... or ..."), or
     the one that lasted longest of an unexplained verdict (which does not
@@ -155,7 +164,8 @@ def plain_words(d) -> list[str]:
     if d.verdict == "no fault" or not d.candidates:
         return []
     by = {h.name: h for h in d.hypotheses}
-    words = [events.fault_sentence(by[n].estimate, d.time_of(by[n].onset)) for n in d.candidates if n in by]
+    words = [events.fault_sentence(by[n].estimate, d.time_of(by[n].onset), labels.per_time)
+             for n in d.candidates if n in by]
     if d.verdict == "ambiguous":
         return [("either " if i == 0 else "or ") + w for i, w in enumerate(words)]
     if d.verdict == "unexplained":
@@ -253,23 +263,25 @@ def detection_lines(d) -> list[str]:
 HYPOTHESIS_COLUMNS = ("hypothesis", "onset", "posterior", "estimate", "interval", "dropped", "why")
 
 
-def hypothesis_rows(d) -> list[tuple[str, ...]]:
+def hypothesis_rows(d, labels: Labels = Labels()) -> list[tuple[str, ...]]:
     """A row per fault model tried, most probable first (:data:`HYPOTHESIS_COLUMNS`;
-    ``why`` is the model's text, empty when it survived)."""
+    the estimate and its interval in the magnitude's unit; ``why`` is the
+    model's text, empty when it survived)."""
     rows = []
     for h in sorted(d.hypotheses, key=lambda h: -h.posterior):
         e = h.estimate
+        unit = f" {u}" if (u := magnitude_unit(h, labels)) else ""
         truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
-        rows.append((h.name, _tt(d, h.onset), f"{h.posterior:.3g}", f"{e.magnitude} {e.value:.4g}{truth}",
-                     f"[{e.low:.4g}, {e.high:.4g}]", "-" if h.dropped is None else f"t = {_tt(d, h.dropped)}",
+        rows.append((h.name, _tt(d, h.onset), f"{h.posterior:.3g}", f"{e.magnitude} {e.value:.4g}{unit}{truth}",
+                     f"[{e.low:.4g}, {e.high:.4g}]{unit}", "-" if h.dropped is None else f"t = {_tt(d, h.dropped)}",
                      h.reason))
     return rows
 
 
-def identification_lines(d) -> list[tuple[str, str | None]]:
+def identification_lines(d, labels: Labels = Labels()) -> list[tuple[str, str | None]]:
     """Per candidate of an isolated or ambiguous verdict: its estimate with
-    interval (and truth, when known), and the particle filters' own estimate
-    (None: none)."""
+    interval in its unit (and truth, when known), and the particle filters'
+    own estimate (None: none)."""
     if d.best is None or d.verdict not in ("isolated", "ambiguous"):
         return []
     out = []
@@ -277,20 +289,22 @@ def identification_lines(d) -> list[tuple[str, str | None]]:
         h = next(x for x in d.hypotheses if x.name == name)
         e = h.estimate
         what = (f"{e.parameter} = {e.nominal:g} + bias" if e.magnitude == "bias"
-                else f"slope of {e.parameter} (per unit time)")
+                else f"slope of {e.parameter} ({labels.per_time})")
+        unit = f" {u}" if (u := magnitude_unit(h, labels)) else ""
         truth = ""
         if e.truth is not None:
             truth = (f"; truth {e.truth:.4g}, error {100 * e.relative_error:.1f} %, "
                      f"{'inside' if e.covers else 'outside'} the interval")
-        line = (f"{name}: {what}: {e.magnitude} {e.value:.4g} +- {e.std:.2g}, "
-                f"{100 * e.level:.0f} % interval [{e.low:.4g}, {e.high:.4g}], {e.parameter} at the "
-                f"end {e.parameter_value:.4g}, onset t = {_tt(d, h.onset)}{truth}"
+        at_end = f" {e.unit}" if e.unit else ""
+        line = (f"{name}: {what}: {e.magnitude} {e.value:.4g} +- {e.std:.2g}{unit}, "
+                f"{100 * e.level:.0f} % interval [{e.low:.4g}, {e.high:.4g}]{unit}, {e.parameter} at the "
+                f"end {e.parameter_value:.4g}{at_end}, onset t = {_tt(d, h.onset)}{truth}"
                 + {"grid": " (grid posterior of the particle filters' marginal likelihood)",
                    "kalman": " (with the magnitude held static: cubature Kalman filters on a grid)",
                    "filter": ""}[e.method])
         f = h.filter_estimate
         sub = None if f is None else (f"the particle filters' own estimate (a magnitude with a random walk): "
-                                      f"{f.value:.4g} +- {f.std:.2g}, [{f.low:.4g}, {f.high:.4g}]")
+                                      f"{f.value:.4g} +- {f.std:.2g}, [{f.low:.4g}, {f.high:.4g}]{unit}")
         out.append((line, sub))
     return out
 
@@ -312,11 +326,11 @@ def signature_rows(d) -> list[tuple[str, str, str]]:
 
 def report_markdown(r) -> str:
     """The report for people: ``report.md``."""
-    d = r.diagnosis
+    d, labels = r.diagnosis, plots.report_labels(r)
     det = d.detection
     lines = _heading(r)
     lines += ["## Verdict", "", f"**{verdict_text(d)[:-1]}.**", ""]
-    words = plain_words(d)
+    words = plain_words(d, labels)
     lines += [f"- {escape(line)}" for line in words] + ([""] if words else [])
     if det is None:
         lines += [no_detection_text(d), ""]
@@ -333,9 +347,9 @@ def report_markdown(r) -> str:
         lines += ["", "## Fault-model filters", "",
                   "| hypothesis | onset | posterior | estimate | interval | dropped | why |",
                   "|---|---|---|---|---|---|---|"]
-        for row in hypothesis_rows(d):
+        for row in hypothesis_rows(d, labels):
             lines.append("| " + " | ".join(row[:-1]) + f" | {escape(row[-1]) or '-'} |")
-        found = identification_lines(d)
+        found = identification_lines(d, labels)
         if found:
             lines += ["", "## Identification", ""]
             for line, sub in found:
@@ -354,8 +368,8 @@ DETECTION_PICTURES = {
     "measurements.png": "the measurements and the nominal observer's predictions (band: +-2 std; dashed: onset, "
                         "red: detection)",
     "residuals.png": "each sensor's normalised residual and its largest windowed |Z| against the threshold"}
-HYPOTHESIS_PICTURES = {"hypotheses.png": "each fault model's predicted measurements from its onset (dotted: "
-                                         "dropped, X: where)"}
+HYPOTHESIS_PICTURES = {"hypotheses.png": "the most probable fault models' predicted measurements from their "
+                                         "onsets, the others' in grey (dotted: dropped, X: where)"}
 ESTIMATE_PICTURES = {"estimate.png": "the fault magnitude over time, its interval, and the truth when the run "
                                      "records it"}
 
@@ -386,10 +400,12 @@ def report_html(r, data: Mapping[str, Any], pictures: Mapping[str, bytes]) -> st
         detection_pictures=html.pictures(pictures, DETECTION_PICTURES),
         isolation=d.detection is not None, symbols=symbols if symbols.rows else None,
         signatures=html.table(("signature", "outcome", "why"), signatures) if signatures else None,
-        hypotheses=html.table(HYPOTHESIS_COLUMNS, [(*row[:-1], row[-1] or "-") for row in hypothesis_rows(d)])
+        hypotheses=html.table(HYPOTHESIS_COLUMNS, [(*row[:-1], row[-1] or "-")
+                                                   for row in hypothesis_rows(d, plots.report_labels(r))])
         if d.hypotheses else None,
         hypothesis_pictures=html.pictures(pictures, HYPOTHESIS_PICTURES),
-        identification=identification_lines(d), estimate_pictures=html.pictures(pictures, ESTIMATE_PICTURES),
+        identification=identification_lines(d, plots.report_labels(r)),
+        estimate_pictures=html.pictures(pictures, ESTIMATE_PICTURES),
         data_lines=data_lines(d),
         events=html.table(("t", "event"), [("" if e["time"] is None else events.time_text(e["time"]), e["text"])
                                            for e in data["events"]]) if data["events"] else None,

@@ -33,16 +33,16 @@ def diagnosis_html(r) -> str:
     model and the data, the verdict in words, the detection, the estimate
     with its interval, and the estimate's picture (the measurements' when no
     fault model was tried)."""
-    d = r.diagnosis
+    d, labels = r.diagnosis, plots.report_labels(r)
     title, data_line, filter_line = report.heading(r)
     name = "estimate.png" if "estimate.png" in plots.diagnosis_plot_names(r) else "measurements.png"
     captions = {**report.DETECTION_PICTURES, **report.ESTIMATE_PICTURES}
     picture = html.Picture(name, captions[name], html.data_uri(plots.picture(plots.DIAGNOSIS_PLOTS[name](r))))
     return html.fragment(
         "diagnosis_summary.html.j2", title=title, data_line=data_line, filter_line=filter_line,
-        style=VERDICT_STYLES[d.verdict], headline=report.verdict_text(d), words=report.plain_words(d),
+        style=VERDICT_STYLES[d.verdict], headline=report.verdict_text(d), words=report.plain_words(d, labels),
         detection=report.detection_lines(d), no_detection=report.no_detection_text(d),
-        identification=report.identification_lines(d), picture=picture)
+        identification=report.identification_lines(d, labels), picture=picture)
 
 
 def model_html(session) -> str:

@@ -20,6 +20,7 @@ parameter at ``t_k``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass
@@ -90,6 +91,13 @@ class SimulationResult:
     fault: FaultInjection | None
     parameter: np.ndarray | None
     header: tuple[str, ...]
+
+
+def noise_free(num: Numerics, options: SimulationOptions) -> SimulationResult:
+    """The run ``options`` asks for, fault and all, without process noise: its
+    measurements without sensor noise (``clean_measurements``) are the
+    plant's own response, the line a noisy run scatters around."""
+    return simulate(num, dataclasses.replace(options, process_noise=0.0))
 
 
 _FAULT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([a-z]+):([-+0-9.eE]+)@([0-9.eE+]+)$")
