@@ -168,3 +168,25 @@ def test_without_numba_the_numpy_package_runs_and_numba_is_refused_in_one_line(t
     assert "pip install 'bgc[fast]'" in refused.stderr
     for path in (ROOT / "generated").glob("*/numpy_model/*.py"):
         assert "numba" not in path.read_text(encoding="utf-8"), path
+
+
+def test_a_package_instance_at_other_noise_levels_uses_its_own_noise_on_both_backends():
+    """``load_package(noise=...)`` loads a second instance of a package (its
+    own module names) whose stds differ: the compiled kernels, shared by both
+    instances, take the stds as arguments, so each instance filters with its
+    own, and the backends agree."""
+    c = compiled("two_tank")
+    levels = c.numerics.noise_at(0.05, 0.04)
+    ys, us = record("two_tank")
+    runs = {}
+    for backend in ("numpy", "numba"):
+        base = track.load_package(ROOT / "generated", "two_tank", backend=backend)
+        other = track.load_package(ROOT / "generated", "two_tank", noise=levels, backend=backend)
+        assert other.__name__ != base.__name__
+        assert not np.allclose(other.MODELS["nominal"].PROCESS_STD, base.MODELS["nominal"].PROCESS_STD)
+        for name, p in (("base", base), ("other", other)):
+            runs[backend, name] = p.filters.GenericParticleFilter(p.MODELS["nominal"], 64,
+                                                                  np.random.default_rng(1)).run(ys, us)
+    for name in ("base", "other"):
+        assert difference(runs["numpy", name].y_std, runs["numba", name].y_std) <= TOLERANCE
+    assert difference(runs["numba", "base"].y_std, runs["numba", "other"].y_std) > 1e-3

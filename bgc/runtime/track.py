@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+import multiprocessing
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -67,27 +69,65 @@ def resolve_backend(backend: str | None) -> str:
     return chosen
 
 
-def warm_up(package: ModuleType) -> tuple[float, int, int]:
+def _cold(model: ModuleType) -> bool:
+    """Whether numba's disk cache holds nothing yet of a compiled model's kernels."""
+    try:
+        return not Path(model._JIT.predict._cache._cache_file._index_path).exists()
+    except AttributeError:  # another numba's internals: taken for cold
+        return True
+
+
+def _call_kernels(model: ModuleType) -> list:
+    """Call a compiled model's kernels once on one particle (compiling them
+    or loading them from the disk cache); the kernels called."""
+    x = np.array(model.X0, dtype=float)[:, None].copy()
+    u = model.inputs(0.0)
+    model.predict(x, u, model.THETA, model.DT, out=x)
+    model.observe(x, u, model.THETA)
+    return [model._JIT.predict, model._JIT.observe]  # their per-particle functions are compiled into them
+
+
+def _compile_some(args: tuple[str, list[str]]) -> int:
+    """In a forked worker: compile the kernels of the models ``names`` of the
+    package ``sys.modules[package]`` into numba's disk cache."""
+    package, names = args
+    for name in names:
+        _call_kernels(sys.modules[package].MODELS[name])
+    return len(names)
+
+
+def warm_up(package: ModuleType, workers: int | None = None) -> tuple[float, int, int]:
     """Compile (or load from numba's disk cache) every compiled kernel of a
     numba package by one call of each model's transition and observation on
     one particle: (seconds, kernels compiled, kernels loaded from the cache).
-    A NumPy package: (0, 0, 0). Forked workers inherit what is compiled here."""
+    A NumPy package: (0, 0, 0). When the cache is cold the models are
+    compiled on ``workers`` forked processes (default: the cores, at most 4)
+    into the disk cache first, then loaded here; forked workers of this
+    process inherit what is loaded."""
+    import os
+
+    models = list(package.MODELS.values())
+    if not hasattr(models[0], "_JIT"):
+        return 0.0, 0, 0
     t0 = time.perf_counter()
-    kernels = []
-    for m in package.MODELS.values():
-        if not hasattr(m, "_JIT"):
-            return 0.0, 0, 0
-        x = np.array(m.X0, dtype=float)[:, None].copy()
-        u = m.inputs(0.0)
-        m.predict(x, u, m.THETA, m.DT, out=x)
-        m.observe(x, u, m.THETA)
-        kernels += [m._JIT.predict, m._JIT.observe]  # their per-particle functions are compiled into them
-    kernel = next(iter(package.MODELS.values()))._kernel
+    cold = [name for name, m in package.MODELS.items() if _cold(m)]
+    workers = min(workers or os.cpu_count() or 1, 4, len(cold))
+    compiled_elsewhere = 0
+    if workers > 1 and "fork" in multiprocessing.get_all_start_methods():
+        batches = [(package.__name__, cold[i::workers]) for i in range(workers)]
+        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork")) as pool:
+            compiled_elsewhere = 2 * sum(pool.map(_compile_some, batches))
+    kernels = [k for m in models for k in _call_kernels(m)]
+    kernel = models[0]._kernel
     kernel.gaussian_loglik(np.zeros(1), np.zeros((1, 1)), np.ones(1))
-    kernels += [kernel._JIT.loglik]
+    logw, w, yhat = np.zeros(2), np.full(2, 0.5), np.zeros((1, 2))
+    kernel.weigh(yhat, np.zeros(1), np.ones(1), logw, w)
+    kernel.resample(yhat, kernel.normalise(logw)[2], 0.5)
+    kernel.moments(yhat, w)
+    kernels += [getattr(kernel._JIT, name) for name in ("loglik", "weigh", "normalise", "resample", "moments")]
     compiled = sum(1 for k in kernels if sum(k.stats.cache_misses.values()))
     loaded = sum(1 for k in kernels if sum(k.stats.cache_hits.values()))
-    return time.perf_counter() - t0, compiled, loaded
+    return time.perf_counter() - t0, compiled + compiled_elsewhere, loaded - compiled_elsewhere
 
 
 def load_package(generated_dir: str | Path, model: str, source: str | None = None,

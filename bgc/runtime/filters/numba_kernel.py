@@ -1,7 +1,7 @@
 """Model-independent numerics of the compiled (numba) packages: the NumPy
-kernel's functions, with the Gaussian log-likelihood compiled by numba (the
-weighted moments stay NumPy's: a long sum is faster in BLAS than in a loop
-that must add in order).
+kernel's functions, with the Gaussian log-likelihood, the weighted moments
+and the generic particle filter's weighing, normalising and resampling
+compiled by numba.
 
 bgc copies this file unchanged into every ``numba_model`` package it
 generates, as ``_kernel.py``, beside a copy of the NumPy kernel as
@@ -30,13 +30,20 @@ import threading
 
 import numpy as np
 
-from .kernel import (
-    BLOCK, block_views, gaussian_loglik_each, log_normaliser, moments, perturb, predictive_std, rk4, spans,
-)
+from . import kernel as _numpy
+from .kernel import BLOCK, block_views, gaussian_loglik_each, log_normaliser, perturb, predictive_std, rk4, spans
 
-#: The kernel's functions: the NumPy kernel's, but the compiled ones defined here.
-__all__ = ["BLOCK", "block_views", "contiguous", "gaussian_loglik", "gaussian_loglik_each", "load_jit",
-           "log_normaliser", "moments", "perturb", "predictive_std", "rk4", "spans"]
+#: The kernel's functions: the NumPy kernel's, but the compiled ones defined here; ``weigh``,
+#: ``normalise`` and ``resample`` are the generic particle filter's steps, which the filters take
+#: from a kernel that has them.
+__all__ = ["BLOCK", "block_views", "contiguous", "draw", "gaussian_loglik", "gaussian_loglik_each", "load_jit",
+           "log_normaliser", "moments", "NO_NOISE", "normalise", "perturb", "predictive_std", "resample", "rk4", "spans",
+           "weigh"]
+#: The prediction's noise when there is none (a compiled kernel takes an array all the same).
+NO_NOISE = np.empty((0, 0))
+#: Up to this many particles the moments are one compiled pass; beyond, NumPy's (a long sum is faster
+#: in BLAS than in a loop that must add in order).
+SHORT = 4096
 
 _LOCK = threading.Lock()
 
@@ -84,4 +91,56 @@ def gaussian_loglik(y, yhat, std):
     kept = std[rows]
     out = np.empty(yhat.shape[1])
     _JIT.loglik(y, contiguous(yhat), rows, -0.5 / (kept * kept), log_normaliser(kept), out)
+    return out
+
+
+def moments(a, w):
+    """Weighted mean and std of each row of a (n, N), weights w (N,) summing to 1."""
+    if a.shape[1] > SHORT:
+        return _numpy.moments(a, w)
+    mean, std = np.empty(a.shape[0]), np.empty(a.shape[0])
+    _JIT.moments(contiguous(a), contiguous(w), mean, std)
+    return mean, std
+
+
+def weigh(yhat, y, std, logw, w):
+    """The generic filter's weighing in one compiled pass: add log p(y | x) to
+    ``logw`` in place (nothing when ``y`` is None; NaN entries not used) and
+    give the predicted measurement's mean and std over the weights ``w``
+    before the update, measurement noise ``std`` (n_y,) included."""
+    n_y = yhat.shape[0]
+    y_mean, y_std = np.empty(n_y), np.empty(n_y)
+    if y is None:
+        rows, weight, constant, y = np.empty(0, np.intp), np.empty(0), 0.0, np.empty(n_y)
+    else:
+        rows = np.flatnonzero(np.isfinite(y))
+        kept = std[rows]
+        weight, constant = -0.5 / (kept * kept), log_normaliser(kept)
+    _JIT.weigh(contiguous(yhat), contiguous(y), rows, weight, constant, std * std, logw, contiguous(w), y_mean,
+               y_std)
+    return y_mean, y_std
+
+
+def normalise(logw):
+    """Normalise the log-weights in place: (logw, the effective sample size, the weights exp(logw))."""
+    w = np.empty(logw.shape[0])
+    ess = _JIT.normalise(logw, w)
+    return logw, ess, w
+
+
+def resample(x, w, uniform):
+    """The particles x (n_x, N) resampled systematically from the weights ``w``
+    with the uniform draw ``uniform``: a new array."""
+    return _JIT.resample(contiguous(x), contiguous(w), float(uniform))
+
+
+def draw(rng, rows, n):
+    """Standard normal draws (rows, n) from ``rng``, in the order
+    :func:`perturb` draws them (a block of particles at a time)."""
+    parts, _ = spans(n)
+    if len(parts) == 1:
+        return rng.standard_normal((rows, n))
+    out = np.empty((rows, n))
+    for start, stop in parts:
+        out[:, start:stop] = rng.standard_normal((rows, stop - start))
     return out

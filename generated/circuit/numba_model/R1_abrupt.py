@@ -114,16 +114,18 @@ def derivative(x, u, theta, out=None, linear=None):
     return _dx
 
 
-def predict(x, u, theta, dt, out=None):
+def predict(x, u, theta, dt, out=None, _noise=None):
     """Noise-free state after one sample period (RK4, SUBSTEPS substeps); ``out``
-    may be ``x`` itself (in place)."""
+    may be ``x`` itself (in place). ``_noise``: standard normal draws
+    (n_x, N) to add times PROCESS_STD in the same pass (:func:`transition`)."""
     if out is None:
         out = np.array(x, dtype=float)
     elif out is not x:
         out[...] = x
     _A, _b, _u, _theta = _arrays(u, theta)
     _x = _kernel.contiguous(out)
-    _JIT.predict(_x, _u, _theta, _A, _b, float(dt), SUBSTEPS)
+    _JIT.predict(_x, _u, _theta, _A, _b, float(dt), SUBSTEPS, _kernel.NO_NOISE if _noise is None else _noise,
+                 PROCESS_STD)
     if _x is not out:
         out[...] = _x
     return out
@@ -136,8 +138,9 @@ def perturb(x, rng):
 
 def transition(x, u, theta, dt, rng, out=None):
     """Sample x(t+dt) ~ p(x(t+dt) | x(t)): predict, then add process noise.
-    ``out`` may be ``x`` itself (in place)."""
-    return perturb(predict(x, u, theta, dt, out), rng)
+    ``out`` may be ``x`` itself (in place). The process noise is drawn first, as
+    ``_kernel.perturb`` draws it, and added in the compiled pass of the prediction."""
+    return predict(x, u, theta, dt, out, _kernel.draw(rng, x.shape[0], x.shape[1]))
 
 
 def observe(x, u, theta, out=None):

@@ -12,15 +12,16 @@ from numba import njit
 JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 
 
-#: Particles per block of the RK4 loop: its scratch (six state-sized blocks) stays in cache.
+#: Most particles per block of the RK4 loop: its scratch (six state-sized blocks) stays in cache.
 BLOCK = 128
 
 
 @njit(**JIT)
-def derivative_block(x, u, theta, _A, _b, _dx):
-    """dx/dt of every particle (column) of x (n_x, BLOCK) into _dx (compiled;
-    the loop over particles innermost, so that the compiler can vectorise it)."""
-    for _i in range(x.shape[1]):
+def derivative_block(x, u, theta, _A, _b, _dx, _w):
+    """dx/dt of the first ``_w`` particles (columns) of x (n_x, B) into _dx
+    (compiled; the loop over particles innermost, so that the compiler can
+    vectorise it)."""
+    for _i in range(_w):
         f10 = x[2, _i]
         R3 = x[3, _i]
         L = theta[2]
@@ -33,42 +34,48 @@ def derivative_block(x, u, theta, _A, _b, _dx):
 
 
 @njit(**JIT)
-def predict(x, u, theta, _A, _b, dt, substeps):
+def predict(x, u, theta, _A, _b, dt, substeps, noise, std):
     """RK4 over dt in ``substeps`` substeps of every particle (column) of x
-    (n_x, N), in place, a block of particles at a time (compiled; the
-    arithmetic of ``_kernel.rk4``; a last, partial block is filled up with
-    copies of its first particle, computed and not written back)."""
+    (n_x, N), in place, a block of at most BLOCK particles at a time
+    (compiled; the arithmetic of ``_kernel.rk4``); then, when ``noise`` (n_x,
+    N) is not empty, x += std * noise (``_kernel.perturb``'s arithmetic)."""
     _n_x, _n = x.shape
     _h = dt / substeps
-    _xb, _s = np.empty((_n_x, BLOCK)), np.empty((_n_x, BLOCK))
-    _k1, _k2, _k3, _k4 = (np.empty((_n_x, BLOCK)), np.empty((_n_x, BLOCK)), np.empty((_n_x, BLOCK)),
-                          np.empty((_n_x, BLOCK)))
-    for _start in range(0, _n, BLOCK):
-        _w = min(BLOCK, _n - _start)
+    _width = max(1, -(-_n // -(-_n // BLOCK)))  # blocks of equal width, up to one particle
+    _xb, _s = np.empty((_n_x, _width)), np.empty((_n_x, _width))
+    _k1, _k2, _k3, _k4 = (np.empty((_n_x, _width)), np.empty((_n_x, _width)), np.empty((_n_x, _width)),
+                          np.empty((_n_x, _width)))
+    _noisy = noise.shape[1] > 0
+    for _start in range(0, _n, _width):
+        _w = min(_width, _n - _start)  # the last block may be narrower
         for _j in range(_n_x):
-            for _i in range(BLOCK):
-                _xb[_j, _i] = x[_j, _start + (_i if _i < _w else 0)]
+            for _i in range(_w):
+                _xb[_j, _i] = x[_j, _start + _i]
         for _ in range(substeps):
-            derivative_block(_xb, u, theta, _A, _b, _k1)
+            derivative_block(_xb, u, theta, _A, _b, _k1, _w)
             for _j in range(_n_x):
-                for _i in range(BLOCK):
+                for _i in range(_w):
                     _s[_j, _i] = _k1[_j, _i] * (0.5 * _h) + _xb[_j, _i]
-            derivative_block(_s, u, theta, _A, _b, _k2)
+            derivative_block(_s, u, theta, _A, _b, _k2, _w)
             for _j in range(_n_x):
-                for _i in range(BLOCK):
+                for _i in range(_w):
                     _s[_j, _i] = _k2[_j, _i] * (0.5 * _h) + _xb[_j, _i]
-            derivative_block(_s, u, theta, _A, _b, _k3)
+            derivative_block(_s, u, theta, _A, _b, _k3, _w)
             for _j in range(_n_x):
-                for _i in range(BLOCK):
+                for _i in range(_w):
                     _s[_j, _i] = _k3[_j, _i] * _h + _xb[_j, _i]
-            derivative_block(_s, u, theta, _A, _b, _k4)
+            derivative_block(_s, u, theta, _A, _b, _k4, _w)
             for _j in range(_n_x):
-                for _i in range(BLOCK):
+                for _i in range(_w):
                     _xb[_j, _i] += ((_h / 6.0) * _k1[_j, _i] + (_h / 3.0) * _k2[_j, _i] + (_h / 3.0) * _k3[_j, _i]
                                     + (_h / 6.0) * _k4[_j, _i])
         for _j in range(_n_x):
-            for _i in range(_w):
-                x[_j, _start + _i] = _xb[_j, _i]
+            if _noisy:
+                for _i in range(_w):
+                    x[_j, _start + _i] = _xb[_j, _i] + noise[_j, _start + _i] * std[_j]
+            else:
+                for _i in range(_w):
+                    x[_j, _start + _i] = _xb[_j, _i]
 
 
 @njit(**JIT)

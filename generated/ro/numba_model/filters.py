@@ -199,10 +199,15 @@ class _Filter:
                 self.recoveries -= 1
             self._recover()
             logw, recovered = self.logw, True
-        logw, ess, w = _normalise(logw)
+        kernel = self.model._kernel
+        compiled = getattr(kernel, "resample", None)  # a compiled package's kernel: each step in one call
+        logw, ess, w = (kernel.normalise if compiled else _normalise)(logw)
         resampled = ess < self.threshold
         if resampled:
-            self.x = self._replicate(self.x, offspring_counts(w, self.rng, overwrite=True))
+            if compiled:
+                self.x = compiled(self.x, w, self.rng.random())
+            else:
+                self.x = self._replicate(self.x, offspring_counts(w, self.rng, overwrite=True))
             logw.fill(-np.log(self.n))
             w.fill(1.0 / self.n)  # w held the counts
         self.logw = logw
@@ -270,6 +275,8 @@ class GenericParticleFilter(_Filter):
         if std.ndim == 2:
             return self._weigh_each(y, u, std)
         w = self._weights()
+        if hasattr(kernel, "weigh"):  # a compiled package's kernel: the loop below in one call
+            return kernel.weigh(model.observe(self.x, u, self.theta), y, std, self.logw, w)
         n_y = len(std)
         if y is not None:
             seen = np.isfinite(y)

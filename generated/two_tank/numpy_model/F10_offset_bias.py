@@ -88,7 +88,7 @@ def derivative(x, u, theta, out=None, linear=None):
     return _dx
 
 
-def predict(x, u, theta, dt, out=None):
+def predict(x, u, theta, dt, out=None, _noise=None):
     """Noise-free state after one sample period (RK4, SUBSTEPS substeps); ``out``
     may be ``x`` itself (in place)."""
     return _kernel.rk4(derivative, x, u, theta, dt, SUBSTEPS, out, _linear(u, theta))
