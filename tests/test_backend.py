@@ -190,3 +190,22 @@ def test_a_package_instance_at_other_noise_levels_uses_its_own_noise_on_both_bac
     for name in ("base", "other"):
         assert difference(runs["numpy", name].y_std, runs["numba", name].y_std) <= TOLERANCE
     assert difference(runs["numba", "base"].y_std, runs["numba", "other"].y_std) > 1e-3
+
+
+def test_the_static_posterior_and_its_verdict_do_not_depend_on_the_backend():
+    """The cubature Kalman filters' banks (onset cells, held magnitudes, a
+    drifting parameter) on the RO plant, through a whole ckf diagnosis: the
+    same verdict, hypotheses' weights and estimate on both backends."""
+    import bgc
+
+    reports = [bgc.diagnose("models/ro.yaml", scenario="R_pipe:incipient:0.5@165", seed=1, method="ckf",
+                            generated=ROOT / "generated", backend=b) for b in ("numpy", "numba")]
+    a, b = (r.diagnosis for r in reports)
+    assert (a.verdict, a.candidates, a.onset) == (b.verdict, b.candidates, b.onset)
+    weights = [{h.name: (h.posterior, h.static_log_evidence) for h in d.hypotheses} for d in (a, b)]
+    assert weights[0].keys() == weights[1].keys()
+    for k, (p, e) in weights[0].items():
+        q, f = weights[1][k]
+        assert abs(p - q) <= 1e-8 and (e == f or abs(e - f) <= 1e-8 * abs(e)), k
+    assert abs(a.estimate.value - b.estimate.value) <= 1e-8 * abs(a.estimate.value)
+    assert abs(a.estimate.high - b.estimate.high) <= 1e-8 * abs(a.estimate.high)

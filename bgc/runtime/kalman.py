@@ -238,6 +238,7 @@ class _Filter:
         self.varies = np.ndim(model.measurement_std(np.zeros((self.n_x, 1)))) == 2
         self.buffer = np.empty((self.n_x, 0))
         self.root, self.inverse, self.scale = math.sqrt(n), 1.0 / (2 * n), math.sqrt(1.0 / (2 * n))
+        self.phys = np.array(self.physical, dtype=np.intp)
         self._seen: dict = {}
 
     def _points(self, m: np.ndarray, P: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -296,6 +297,8 @@ class _Filter:
         from the Cholesky factor of the innovation covariance by forward
         substitution (:func:`lower_solve`)."""
         model, n, C = self.model, self.n, m.shape[0]
+        if hasattr(getattr(model, "_kernel", None), "cubature_update"):  # a compiled package's kernel
+            return self._compiled_step(y, u, m, P, fixed, onset, dt)
         if self.buffer.shape[1] < 2 * n * C:
             self.buffer = np.empty((self.n_x, 2 * n * C))
         flat = self.buffer[:, :2 * n * C]
@@ -365,6 +368,42 @@ class _Filter:
         np.subtract(Pp, P, out=P)
         P += P.transpose(0, 2, 1)  # symmetric against rounding
         P *= 0.5
+        return loglik, m, P, zk, yh, sd
+
+
+    def _compiled_step(self, y, u, m, P, fixed, onset, dt):
+        """:meth:`step` with a compiled package's kernel: the arithmetic
+        between the model's calls (points, moments, the update) in one
+        compiled loop over the cells each."""
+        model, n, C, kernel = self.model, self.n, m.shape[0], self.model._kernel
+        phys = self.phys
+        flat = np.empty((self.n_x, 2 * n * C))
+        X = flat.reshape(self.n_x, C, 2 * n)
+        kernel.cubature_points(m, P, self.root, flat, phys)
+        for j, row in enumerate(self.extra):
+            X[row] = fixed[j][:, None]
+        if self.extra:
+            X[self.extra[-1], onset] = 0.0
+        model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
+        for j, row in enumerate(self.extra[:-1]):  # a drifting parameter: the same in every point of a cell
+            fixed[j] = X[row, :, 0]
+        mp, Pp = kernel.cubature_moments(flat, phys, self.inverse, self.scale, self.Q)
+        seen = np.isfinite(y)
+        if not seen.any():
+            nan = np.full((C, len(y)), np.nan)
+            return np.zeros(C), mp, Pp, nan, nan, nan
+        L = kernel.cubature_points(mp, Pp, self.root, flat, phys)
+        if self.extra and onset.stop > onset.start:  # the onset cells see their fault from this sample on
+            X[self.extra[-1], onset] = fixed[-1][onset][:, None]
+        _, rows = self._noise(seen)
+        noise = self._cell_noise(mp, fixed, rows) if self.varies else np.tile(self.R[rows], (C, 1))
+        loglik, m, P, zk, yh, sd = kernel.cubature_update(model.observe(flat, u, model.THETA), rows, y, noise, L,
+                                                          self.inverse, mp, Pp)
+        if not seen.all():
+            full = [np.full((C, len(y)), np.nan) for _ in range(3)]
+            for out, part in zip(full, (zk, yh, sd)):
+                out[:, rows] = part
+            zk, yh, sd = full
         return loglik, m, P, zk, yh, sd
 
 

@@ -124,7 +124,9 @@ def warm_up(package: ModuleType, workers: int | None = None) -> tuple[float, int
     kernel.weigh(yhat, np.zeros(1), np.ones(1), logw, w)
     kernel.resample(yhat, kernel.normalise(logw)[2], 0.5)
     kernel.moments(yhat, w)
-    kernels += [getattr(kernel._JIT, name) for name in ("loglik", "weigh", "normalise", "resample", "moments")]
+    kalman.CubatureKalmanFilter(models[0]).step(np.full(len(models[0].OUTPUTS), 0.0), models[0].inputs(0.0))
+    kernels += [getattr(kernel._JIT, name) for name in ("loglik", "weigh", "normalise", "resample", "moments",
+                                                        "cubature_points", "cubature_moments", "cubature_update")]
     compiled = sum(1 for k in kernels if sum(k.stats.cache_misses.values()))
     loaded = sum(1 for k in kernels if sum(k.stats.cache_hits.values()))
     return time.perf_counter() - t0, compiled + compiled_elsewhere, loaded - compiled_elsewhere

@@ -1,7 +1,9 @@
 """Compiled loops of the numba kernel (``_kernel.py``, its source
 ``bgc/runtime/filters/numba_kernel.py``): the Gaussian log-likelihood over
-particles, and the generic particle filter's weighing, normalising,
-resampling and moments, each a loop over particles in one call. Imports numpy and numba only; bgc copies it
+particles, the generic particle filter's weighing, normalising,
+resampling and moments, each a loop over particles in one call, and the
+cubature Kalman filter's arithmetic between the model's calls (points,
+moments, measurement update), a loop over cells. Imports numpy and numba only; bgc copies it
 unchanged into every compiled package (the same file name)."""
 
 import numpy as np
@@ -116,3 +118,131 @@ def moments(a, w, mean, std):
             v += d * d * w[i]
         mean[j] = m
         std[j] = np.sqrt(max(v, 0.0))
+
+
+@njit(**JIT)
+def cholesky_into(P, L):
+    """The lower Cholesky factor of one covariance P (n, n) into L, column by
+    column, each pivot under 1e-12 of its diagonal entry raised to that (the
+    NumPy runtime's ``kalman.cholesky``, whose LAPACK factor it equals to
+    rounding where P is positive definite)."""
+    n = P.shape[0]
+    for i in range(n):
+        for j in range(n):
+            L[i, j] = 0.0
+    for j in range(n):
+        pivot = P[j, j]
+        for k in range(j):
+            pivot -= L[j, k] * L[j, k]
+        floor = 1e-12 * abs(P[j, j]) + 1e-300
+        L[j, j] = np.sqrt(max(pivot, floor))
+        for i in range(j + 1, n):
+            s = P[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+
+
+@njit(**JIT)
+def cubature_points(m, P, root, X, phys, L):
+    """The cubature points m +- root L e_k of N(m, P) of every cell c (m (C,
+    n), P (C, n, n)) into the physical rows ``phys`` of X (n_x, C 2n), cell c
+    in columns c 2n .. c 2n + 2n - 1; root L into L (C, n, n)."""
+    C, n = m.shape
+    for c in range(C):
+        cholesky_into(P[c], L[c])
+        for i in range(n):
+            for k in range(n):
+                L[c, i, k] *= root
+        for i in range(n):
+            row = phys[i]
+            for k in range(n):
+                X[row, c * 2 * n + k] = m[c, i] + L[c, i, k]
+                X[row, c * 2 * n + n + k] = m[c, i] - L[c, i, k]
+
+
+@njit(**JIT)
+def cubature_moments(X, phys, inverse, scale, Q, mp, Pp):
+    """Mean (C, n) and covariance (C, n, n) of every cell's predicted points
+    (the physical rows ``phys`` of X, 2n points a cell), plus Q."""
+    C, n = mp.shape
+    D = np.empty((n, 2 * n))
+    for c in range(C):
+        for i in range(n):
+            s = 0.0
+            for p in range(2 * n):
+                s += X[phys[i], c * 2 * n + p]
+            mp[c, i] = s * inverse
+            for p in range(2 * n):
+                D[i, p] = (X[phys[i], c * 2 * n + p] - mp[c, i]) * scale
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for p in range(2 * n):
+                    s += D[i, p] * D[j, p]
+                Pp[c, i, j] = s + Q[i, j]
+
+
+@njit(**JIT)
+def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp, loglik, m, P, zk, yh, sd, log_2pi):
+    """Every cell's measurement update from its points' measurements Y
+    (n_y, C 2n), the sensors read ``rows`` with values y[rows] and noise
+    variances ``noise`` (C, k), its points' root L (C, n, n) and prediction
+    (mp, Pp): log p(y | the past) into loglik (C,), the mean and covariance
+    after it into m, P, the normalised residuals, predicted measurement and
+    its std of the sensors read into zk, yh, sd (C, k) (``kalman._Filter.step``)."""
+    C, n = mp.shape
+    k = rows.shape[0]
+    DY = np.empty((k, 2 * n))
+    S = np.empty((k, k))
+    Ly = np.empty((k, k))
+    rhs = np.empty((k, 1 + n))
+    for c in range(C):
+        for a in range(k):
+            s = 0.0
+            for p in range(2 * n):
+                s += Y[rows[a], c * 2 * n + p]
+            yh[c, a] = s * inverse
+            for p in range(2 * n):
+                DY[a, p] = Y[rows[a], c * 2 * n + p] - yh[c, a]
+        for a in range(k):
+            for b in range(k):
+                s = 0.0
+                for p in range(2 * n):
+                    s += DY[a, p] * DY[b, p]
+                S[a, b] = s * inverse
+            S[a, a] += noise[c, a]
+            rhs[a, 0] = y[rows[a]] - yh[c, a]
+            for i in range(n):  # Pxy' = (DY+ - DY-) L' / 2n
+                s = 0.0
+                for p in range(n):
+                    s += (DY[a, p] - DY[a, n + p]) * L[c, i, p]
+                rhs[a, 1 + i] = s * inverse
+        cholesky_into(S, Ly)
+        for a in range(k):  # Ly^-1 rhs by forward substitution, in place
+            for r in range(1 + n):
+                s = rhs[a, r]
+                for b in range(a):
+                    s -= Ly[a, b] * rhs[b, r]
+                rhs[a, r] = s / Ly[a, a]
+        q = 0.0
+        logdet = 0.0
+        for a in range(k):
+            q += rhs[a, 0] * rhs[a, 0]
+            logdet += np.log(Ly[a, a])
+            sd[c, a] = np.sqrt(S[a, a])
+            zk[c, a] = (y[rows[a]] - yh[c, a]) / sd[c, a]
+        loglik[c] = -0.5 * (q + 2.0 * logdet + k * log_2pi)
+        for i in range(n):
+            s = 0.0
+            for a in range(k):
+                s += rhs[a, 1 + i] * rhs[a, 0]
+            m[c, i] = mp[c, i] + s
+        for i in range(n):  # Pp - B'B, made symmetric against rounding as the NumPy runtime makes it
+            for j in range(i + 1):
+                s = 0.0
+                for a in range(k):
+                    s += rhs[a, 1 + i] * rhs[a, 1 + j]
+                v = 0.5 * ((Pp[c, i, j] - s) + (Pp[c, j, i] - s))
+                P[c, i, j] = v
+                P[c, j, i] = v
