@@ -239,6 +239,7 @@ class _Filter:
         self.buffer = np.empty((self.n_x, 0))
         self.root, self.inverse, self.scale = math.sqrt(n), 1.0 / (2 * n), math.sqrt(1.0 / (2 * n))
         self.phys = np.array(self.physical, dtype=np.intp)
+        self._tiles: dict = {}  # the compiled step's noise variances per cell, per pattern of sensors read
         self._seen: dict = {}
 
     def _points(self, m: np.ndarray, P: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -373,13 +374,13 @@ class _Filter:
 
     def _compiled_step(self, y, u, m, P, fixed, onset, dt):
         """:meth:`step` with a compiled package's kernel: the arithmetic
-        between the model's calls (points, moments, the update) in one
-        compiled loop over the cells each."""
+        between the model's calls (points, moments, the update) in compiled
+        loops over the cells, one call each side of the prediction."""
         model, n, C, kernel = self.model, self.n, m.shape[0], self.model._kernel
         phys = self.phys
         flat = np.empty((self.n_x, 2 * n * C))
         X = flat.reshape(self.n_x, C, 2 * n)
-        kernel.cubature_points(m, P, self.root, flat, phys)
+        kernel.cubature_points(np.ascontiguousarray(m), np.ascontiguousarray(P), self.root, flat, phys)
         for j, row in enumerate(self.extra):
             X[row] = fixed[j][:, None]
         if self.extra:
@@ -387,17 +388,24 @@ class _Filter:
         model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
         for j, row in enumerate(self.extra[:-1]):  # a drifting parameter: the same in every point of a cell
             fixed[j] = X[row, :, 0]
-        mp, Pp = kernel.cubature_moments(flat, phys, self.inverse, self.scale, self.Q)
         seen = np.isfinite(y)
         if not seen.any():
+            mp, Pp, _ = kernel.cubature_predicted(flat, phys, self.inverse, self.scale, self.Q, self.root)
             nan = np.full((C, len(y)), np.nan)
             return np.zeros(C), mp, Pp, nan, nan, nan
-        L = kernel.cubature_points(mp, Pp, self.root, flat, phys)
+        mp, Pp, L = kernel.cubature_predicted(flat, phys, self.inverse, self.scale, self.Q, self.root)
         if self.extra and onset.stop > onset.start:  # the onset cells see their fault from this sample on
             X[self.extra[-1], onset] = fixed[-1][onset][:, None]
         _, rows = self._noise(seen)
-        noise = self._cell_noise(mp, fixed, rows) if self.varies else np.tile(self.R[rows], (C, 1))
-        loglik, m, P, zk, yh, sd = kernel.cubature_update(model.observe(flat, u, model.THETA), rows, y, noise, L,
+        if self.varies:
+            noise = np.ascontiguousarray(self._cell_noise(mp, fixed, rows))
+        else:
+            key = (seen.tobytes(), C)
+            noise = self._tiles.get(key)
+            if noise is None:
+                noise = self._tiles[key] = np.tile(self.R[rows], (C, 1))
+        loglik, m, P, zk, yh, sd = kernel.cubature_update(model.observe(flat, u, model.THETA), rows,
+                                                          np.ascontiguousarray(y, dtype=float), noise, L,
                                                           self.inverse, mp, Pp)
         if not seen.all():
             full = [np.full((C, len(y)), np.nan) for _ in range(3)]

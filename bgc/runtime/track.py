@@ -126,7 +126,7 @@ def warm_up(package: ModuleType, workers: int | None = None) -> tuple[float, int
     kernel.moments(yhat, w)
     kalman.CubatureKalmanFilter(models[0]).step(np.full(len(models[0].OUTPUTS), 0.0), models[0].inputs(0.0))
     kernels += [getattr(kernel._JIT, name) for name in ("loglik", "weigh", "normalise", "resample", "moments",
-                                                        "cubature_points", "cubature_moments", "cubature_update")]
+                                                        "cubature_points", "cubature_predicted", "cubature_update")]
     compiled = sum(1 for k in kernels if sum(k.stats.cache_misses.values()))
     loaded = sum(1 for k in kernels if sum(k.stats.cache_hits.values()))
     return time.perf_counter() - t0, compiled + compiled_elsewhere, loaded - compiled_elsewhere

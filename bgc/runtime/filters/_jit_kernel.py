@@ -246,3 +246,11 @@ def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp, loglik, m, P, zk, yh,
                 v = 0.5 * ((Pp[c, i, j] - s) + (Pp[c, j, i] - s))
                 P[c, i, j] = v
                 P[c, j, i] = v
+
+
+@njit(**JIT)
+def cubature_predicted(X, phys, inverse, scale, Q, root, mp, Pp, L):
+    """:func:`cubature_moments` of the predicted points, then the update's
+    points of N(mp, Pp) into the same rows of X (:func:`cubature_points`), in one call."""
+    cubature_moments(X, phys, inverse, scale, Q, mp, Pp)
+    cubature_points(mp, Pp, root, X, phys, L)

@@ -38,7 +38,7 @@ from .kernel import BLOCK, block_views, gaussian_loglik_each, log_normaliser, pe
 #: ``normalise`` and ``resample`` are the generic particle filter's steps, which the filters take
 #: from a kernel that has them, and the ``cubature_*`` functions the cubature Kalman filter's
 #: (``bgc.runtime.kalman`` takes them from a compiled package's kernel).
-__all__ = ["BLOCK", "block_views", "contiguous", "cubature_moments", "cubature_points", "cubature_update", "draw", "gaussian_loglik", "gaussian_loglik_each", "load_jit",
+__all__ = ["BLOCK", "block_views", "contiguous", "cubature_points", "cubature_predicted", "cubature_update", "draw", "gaussian_loglik", "gaussian_loglik_each", "load_jit",
            "log_normaliser", "LOG_2PI", "moments", "NO_NOISE", "normalise", "perturb", "predictive_std", "resample", "rk4", "spans",
            "weigh"]
 #: The prediction's noise when there is none (a compiled kernel takes an array all the same).
@@ -154,21 +154,22 @@ LOG_2PI = float(np.log(2.0 * np.pi))
 
 def cubature_points(m, P, root, X, phys):
     """The cubature Kalman filter's points m +- root chol(P) e_k of every cell
-    (m (C, n), P (C, n, n)) into the physical rows ``phys`` of X (n_x, C 2n,
-    C-contiguous); root chol(P) (C, n, n)."""
+    (m (C, n), P (C, n, n), C-contiguous) into the physical rows ``phys`` of
+    X (n_x, C 2n, C-contiguous); root chol(P) (C, n, n)."""
     L = np.empty(P.shape)
-    _JIT.cubature_points(contiguous(m), contiguous(P), float(root), X, phys, L)
+    _JIT.cubature_points(m, P, float(root), X, phys, L)
     return L
 
 
-def cubature_moments(X, phys, inverse, scale, Q):
-    """Mean (C, n) and covariance (C, n, n, plus Q) of every cell's points in
-    the physical rows ``phys`` of X (n_x, C 2n)."""
+def cubature_predicted(X, phys, inverse, scale, Q, root):
+    """Mean (C, n) and covariance (C, n, n, plus Q) of every cell's predicted
+    points in the physical rows ``phys`` of X (n_x, C 2n), and the update's
+    points of that Gaussian written into the same rows: (mp, Pp, root chol(Pp))."""
     n = len(phys)
     C = X.shape[1] // (2 * n)
-    mp, Pp = np.empty((C, n)), np.empty((C, n, n))
-    _JIT.cubature_moments(X, phys, float(inverse), float(scale), contiguous(Q), mp, Pp)
-    return mp, Pp
+    mp, Pp, L = np.empty((C, n)), np.empty((C, n, n)), np.empty((C, n, n))
+    _JIT.cubature_predicted(X, phys, float(inverse), float(scale), Q, float(root), mp, Pp, L)
+    return mp, Pp, L
 
 
 def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp):
@@ -180,6 +181,5 @@ def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp):
     k = len(rows)
     loglik, m, P = np.empty(C), np.empty((C, n)), np.empty((C, n, n))
     zk, yh, sd = np.empty((C, k)), np.empty((C, k)), np.empty((C, k))
-    _JIT.cubature_update(contiguous(Y), rows, contiguous(y), contiguous(noise), L, float(inverse), mp, Pp, loglik,
-                         m, P, zk, yh, sd, LOG_2PI)
+    _JIT.cubature_update(Y, rows, y, noise, L, float(inverse), mp, Pp, loglik, m, P, zk, yh, sd, LOG_2PI)
     return loglik, m, P, zk, yh, sd
