@@ -4,6 +4,7 @@ Started by bench/filter_speed.py, once per (implementation, N, round), with the
 interpreter of the venv the implementation needs:
 
   gpf, apf, numpy   the project's .venv (generated package, hand-written NumPy)
+  compiled          the project's .venv (the generated compiled package, numba_model)
   numba             bench/.venvs/numba
   particles         bench/.venvs/particles
 
@@ -45,7 +46,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-IMPLEMENTATIONS = ("gpf", "apf", "numpy", "numba", "particles")
+IMPLEMENTATIONS = ("gpf", "compiled", "apf", "numpy", "numba", "particles")
 
 
 def load(path):
@@ -64,6 +65,16 @@ def check_names(data, states, outputs):
 
 def make(impl, data, model):
     """A function run(ys, us, n, seed) -> (mean (T, n_x), std (T, n_x)): the weighted moments at every step."""
+    if impl == "compiled":
+        sys.path.insert(0, str(ROOT / "generated" / "ro"))
+        from numba_model import filters, nominal
+
+        check_names(data, nominal.STATES, nominal.OUTPUTS)
+
+        def run(ys, us, n, seed):
+            out = filters.GenericParticleFilter(nominal, n, np.random.default_rng(seed)).run(ys, us)
+            return out.mean, out.std
+        return run
     if impl in ("gpf", "apf"):
         sys.path.insert(0, str(ROOT / "generated" / "ro"))
         from numpy_model import filters, nominal

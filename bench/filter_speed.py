@@ -8,6 +8,8 @@ N = 200, 1 000, 10 000, 100 000 particles (--quick: up to 10 000, fewer rounds)
 it times:
 
   GPF        generated/ro/numpy_model: GenericParticleFilter on ``nominal``
+  GPF numba  generated/ro/numba_model: the same filter on the compiled backend
+             (bgc compile's numba package; its kernels compiled in the warm-up)
   APF        the same package's AuxiliaryParticleFilter
   hand       a hand-written NumPy bootstrap filter of the same equations and
              discretisation, written the natural first way ((N, n_x) particles,
@@ -91,14 +93,16 @@ SEED = 1
 FULL = {200: 5, 1_000: 5, 10_000: 3, 100_000: 2}    # N -> rounds (timed runs per column)
 QUICK = {200: 3, 1_000: 2, 10_000: 1}
 CHECK_N = 10_000
-COLUMNS = ("gpf", "apf", "numpy", "numba", "particles")
-TITLES = {"gpf": "GPF", "apf": "APF", "numpy": "hand", "numba": "numba", "particles": "particles"}
+COLUMNS = ("gpf", "compiled", "apf", "numpy", "numba", "particles")
+TITLES = {"gpf": "GPF", "compiled": "GPF numba", "apf": "APF", "numpy": "hand", "numba": "numba",
+          "particles": "particles"}
 
 
 def generated_digest() -> str:
     """sha256 of the generated package's sources: the bench warns when they change during the run."""
     h = hashlib.sha256()
-    for path in sorted((ROOT / "generated" / "ro" / "numpy_model").glob("*.py")):
+    for path in sorted([*(ROOT / "generated" / "ro" / "numpy_model").glob("*.py"),
+                        *(ROOT / "generated" / "ro" / "numba_model").glob("*.py")]):
         h.update(path.name.encode() + b"\0" + path.read_bytes())
     return h.hexdigest()[:12]
 
@@ -158,9 +162,9 @@ def ratio(a: float | None, b: float | None) -> float | None:
 
 def print_tables(results: dict, sizes: dict, n_x: int) -> None:
     print(f"\nRO model, T = {T} steps; CPU seconds per run (user + system), best of the rounds; 1 thread")
-    head = (f"{'N':>7} {'rnds':>4} {'GPF s':>8} {'APF s':>8} {'hand s':>8} {'numba s':>8} {'partcl s':>8}"
-            f" {'GPF p-st/s':>10} {'GPF MB':>7} {'x MB':>6} {'hand/GPF':>8} {'GPF/numba':>9} {'partcl/GPF':>10}"
-            f" {'APF/GPF':>7}")
+    head = (f"{'N':>7} {'rnds':>4} {'GPF s':>8} {'GPFnb s':>8} {'APF s':>8} {'hand s':>8} {'numba s':>8}"
+            f" {'partcl s':>8} {'GPF p-st/s':>10} {'GPF MB':>7} {'x MB':>6} {'hand/GPF':>8} {'GPF/numba':>9}"
+            f" {'GPFnb/numba':>11} {'GPF/GPFnb':>9} {'partcl/GPF':>10} {'APF/GPF':>7}")
     print(head)
     print("-" * len(head))
     for n, reps in sizes.items():
@@ -170,9 +174,11 @@ def print_tables(results: dict, sizes: dict, n_x: int) -> None:
               + " " + fmt(None if t["gpf"] is None else n * T / t["gpf"], ".3g", 10)
               + " " + fmt(gpf.get("traced_mb"), ".1f", 7) + " " + fmt(n_x * n * 8 / 2**20, ".2f", 6)
               + " " + fmt(ratio(t["numpy"], t["gpf"]), ".2f", 8) + " " + fmt(ratio(t["gpf"], t["numba"]), ".2f", 9)
+              + " " + fmt(ratio(t["compiled"], t["numba"]), ".2f", 11)
+              + " " + fmt(ratio(t["gpf"], t["compiled"]), ".2f", 9)
               + " " + fmt(ratio(t["particles"], t["gpf"]), ".2f", 10) + " " + fmt(ratio(t["apf"], t["gpf"]), ".2f", 7))
     print("GPF p-st/s: particle-steps per second, N * T / GPF s; GPF MB: tracemalloc peak of one run; "
-          "x MB: the particle array, n_x * N * 8 bytes")
+          "x MB: the particle array, n_x * N * 8 bytes; GPFnb: the generated GPF on the compiled backend")
     print("\nWall-clock seconds per run, best of the rounds (inflated when other processes load the machine)")
     print(f"{'N':>7} " + " ".join(f"{TITLES[c]:>9}" for c in COLUMNS))
     for n in sizes:
@@ -255,7 +261,20 @@ def print_targets(results: dict, sizes: dict, n_x: int, missing: dict, agree: bo
     else:
         print("  GPF >= 2.5x faster than particles at every N: particles/GPF = "
               + ", ".join(f"{v:.2f}" for v in rs) + " -> " + verdict(min(rs) >= 2.5))
+    print("  Compiled backend (GPF numba against the hand-written numba filter):")
+    for n in sizes:
+        r = ratio(t[("compiled", n)], t[("numba", n)])
+        limit = 1.5 if n < 10_000 else 1.2
+        print(f"    N = {n}: GPF numba within {limit}x of numba: GPF numba/numba = {fmt(r, '.2f', 0)} -> "
+              + verdict(None if r is None else r <= limit, missing.get("numba", "")))
     n = 100_000
+    for column in ("compiled",):
+        r = results.get((column, n), {})
+        if r.get("traced_mb") is not None:
+            limit = 2 * n_x * n * 8 / 2**20
+            print(f"    GPF numba peak memory at N = {n} within 2x of n_x * N * 8 bytes: {r['traced_mb']:.1f} MB traced "
+                  f"(NumPy's buffers; RSS growth {r.get('rss_mb', float('nan')):.1f} MB) (limit {limit:.1f} MB) -> "
+                  + verdict(r["traced_mb"] <= limit and r.get("rss_mb", 0.0) <= limit))
     traced = results.get(("gpf", n), {}).get("traced_mb")
     if traced is None:
         print(f"  GPF peak memory at N = {n} within 2x of n_x * N * 8 bytes -> "
@@ -294,7 +313,7 @@ def main() -> int:
     start = time.perf_counter()
     load_start = os.getloadavg()[0]
     digest = generated_digest()
-    pythons = {c: sys.executable for c in ("gpf", "apf", "numpy")}
+    pythons = {c: sys.executable for c in ("gpf", "compiled", "apf", "numpy")}
     missing = {}
     for name in VENV_SPECS:
         python, why = ensure_venv(name)
@@ -335,7 +354,7 @@ def main() -> int:
               f"{results.get(('particles', 200), {}).get('numpy', 'n/a')}), "
               f"{os.cpu_count()} CPUs, BLAS/OpenMP threads pinned to 1")
         changed = generated_digest() != digest
-        print(f"generated/ro/numpy_model sources sha256 {digest}"
+        print(f"generated/ro/numpy_model and numba_model sources sha256 {digest}"
               + (" -- WARNING: CHANGED DURING THE RUN, the columns mix versions; run again" if changed else
                  ", unchanged during the run"))
         print(f"load average (1 min) at start {load_start:.2f}, at end {os.getloadavg()[0]:.2f} "
@@ -343,6 +362,13 @@ def main() -> int:
         for name, why in missing.items():
             print(f"column {name}: {why}")
         agree = check_agreement(results, truth, names)
+        for n in sizes:  # the same filter, seed and random numbers: the backends' numbers agree to rounding
+            a, b = results.get(("gpf", n), {}), results.get(("compiled", n), {})
+            if "mean" in a and "mean" in b:
+                ma, mb = np.array(a["mean"]), np.array(b["mean"])
+                worst = float(np.max(np.abs(ma - mb) / np.maximum(np.abs(ma).max(axis=0), 1e-300)))
+                print(f"  N = {n}: GPF numba's state means against GPF's (same seed): largest relative "
+                      f"difference {worst:.2g} -> " + ("equal to 1e-10" if worst <= 1e-10 else "DIFFERENT"))
         print_tables(results, sizes, n_x)
         print_targets(results, sizes, n_x, missing, agree)
         if args.profile:

@@ -1,7 +1,7 @@
 """Online latency of the diagnoser on the RO plant, per sample, by phase
 (issue 27's targets), beside the batch diagnosis of the same runs.
 
-    .venv/bin/python bench/online_latency.py [--runs 20] [--quick]
+    .venv/bin/python bench/online_latency.py [--runs 20] [--quick] [--backends numpy,numba]
 
 The runs: the RO plant (models/ro.yaml) at the model's noise, 300 steps, one
 fault from t = 165, simulated with seeds 1, 2, ... (simulation and filters
@@ -28,6 +28,10 @@ samples of that phase pooled over the runs, wall-clock (the targets'
 measure); beside them the process's CPU time over the same calls, which the
 other processes of a busy machine do not inflate (a step the scheduler
 preempts costs a time slice, about 4 ms here, on the wall clock only).
+
+Every filter runs on each backend of ``--backends`` (default: numpy and
+numba, the compiled package; a label says which), the same runs and seeds:
+the backends' columns side by side.
 
 Beside it, the batch diagnosis of the same run with the same options,
 ``bgc.diagnose(model, data=run, options=...)``, with ``workers=1`` and the
@@ -81,6 +85,8 @@ FILTERS = (
 #: Issue 27's targets on the p99 latency, ms: (phase, filter) -> target.
 TARGETS = {("watching", "gpf N=200"): 2.0, ("watching", "ckf"): 1.0,
            ("tracking", "gpf N=1000"): 50.0, ("tracking", "ckf"): 50.0}
+#: The compiled-backend issue's target: (phase, filter, backend) -> p99 ms.
+BACKEND_TARGETS = {("watching", "gpf N=200", "numba"): 0.2}
 PHASES = ("watching", "isolating", "tracking")
 
 
@@ -144,9 +150,9 @@ def online(session, run: runs.Run, options: DiagnosisOptions) -> Online:
     return Online(steps, cpu, isolation, isolation_cpu, clock() - started, diagnosis.candidates, alarm)
 
 
-def batch(run: runs.Run, options: DiagnosisOptions) -> tuple[float, tuple[str, ...]]:
+def batch(run: runs.Run, options: DiagnosisOptions, backend: str) -> tuple[float, tuple[str, ...]]:
     started = time.perf_counter()
-    d = bgc.diagnose(MODEL, data=run, options=options).diagnosis
+    d = bgc.diagnose(MODEL, data=run, options=options, backend=backend).diagnosis
     return time.perf_counter() - started, d.candidates
 
 
@@ -161,39 +167,46 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=20, help="seeded runs (default 20)")
     ap.add_argument("--quick", action="store_true", help="a smoke test: 2 runs")
+    ap.add_argument("--backends", default="numpy,numba", help="comma-separated: numpy, numba (default both)")
     args = ap.parse_args()
+    backends = [b.strip() for b in args.backends.split(",") if b.strip()]
+    filters = [(f"{label} ({b})", o, b, label) for b in backends for label, o in FILTERS]
     n_runs = 2 if args.quick else args.runs
     print("$ .venv/bin/python bench/online_latency.py " + " ".join(sys.argv[1:]))
     print(f"# bgc from {Path(bgc.__file__).parent} ({code_version(ROOT)})")
     print(f"# {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at the start; wall-clock times\n")
 
-    session = bgc.open(MODEL)
+    sessions = {b: bgc.open(MODEL, backend=b) for b in backends}
+    for b in backends:
+        if sessions[b].backend_note():
+            print(f"# {sessions[b].backend_note()}")
+    session = sessions[backends[0]]
     warm = simulated(session, SCENARIOS[0][0], 0)
-    for _, o in FILTERS:  # imports, first calls: untimed
-        online(session, warm, dataclasses.replace(o, seed=0))
-        batch(warm, dataclasses.replace(o, seed=0))
+    for _, o, b, _ in filters:  # imports, first calls: untimed
+        online(sessions[b], warm, dataclasses.replace(o, seed=0))
+        batch(warm, dataclasses.replace(o, seed=0), b)
 
-    results: dict[str, list[Online]] = {label: [] for label, _ in FILTERS}
+    results: dict[str, list[Online]] = {label: [] for label, *_ in filters}
     batches: dict[tuple[str, int], list[float]] = {}
-    agree: dict[str, int] = {label: 0 for label, _ in FILTERS}
+    agree: dict[str, int] = {label: 0 for label, *_ in filters}
     per_scenario: dict[str, list[tuple[int, Online]]] = {}
     began = time.perf_counter()
     for i in range(n_runs):
         seed = 1 + i
         scenario, truth = SCENARIOS[i % len(SCENARIOS)]
         run = simulated(session, scenario, seed)
-        for label, o in FILTERS:
+        for label, o, backend, _ in filters:
             o = dataclasses.replace(o, seed=seed)
-            r = online(session, run, o)
+            r = online(sessions[backend], run, o)
             results[label].append(r)
             for workers in (1, 2):
-                seconds, candidates = batch(run, dataclasses.replace(o, workers=workers))
+                seconds, candidates = batch(run, dataclasses.replace(o, workers=workers), backend)
                 batches.setdefault((label, workers), []).append(seconds)
                 agree[label] += workers == 1 and candidates == r.candidates
-            if label == "gpf N=1000":
+            if label == f"gpf N=1000 ({backends[0]})":
                 per_scenario.setdefault(scenario, []).append((seed, r))
         print(f"# run {i + 1}/{n_runs}: {scenario} seed {seed}: "
-              + ", ".join(f"{label} {results[label][-1].candidates or 'no fault'}" for label, _ in FILTERS),
+              + ", ".join(f"{label} {results[label][-1].candidates or 'no fault'}" for label, *_ in filters),
               file=sys.stderr, flush=True)
 
     print(f"RO plant (models/ro.yaml), model's noise, 300 steps, {n_runs} runs with a fault at t = {ONSET} "
@@ -203,14 +216,14 @@ def main() -> None:
     print("| phase | filter | samples | p50 ms | p99 ms | max ms | target (p99) | CPU p50 / p99 ms |")
     print("|---|---|---|---|---|---|---|---|")
     for phase in PHASES:
-        for label, _ in FILTERS:
+        for label, _, backend, plain in filters:
             lat = [s for r in results[label] for s in r.steps[phase]]
             cpu = [s for r in results[label] for s in r.cpu[phase]]
-            target = TARGETS.get((phase, label))
+            target = BACKEND_TARGETS.get((phase, plain, backend), TARGETS.get((phase, plain)))
             verdict = "-" if target is None else (f"<= {target:g} ms: "
                                                   + ("met" if len(lat) and np.percentile(lat, 99) * 1e3 <= target
                                                      else "**missed**"))
-            note = " (nominal Kalman filter only, see note)" if (phase, label) == ("tracking", "ckf") else ""
+            note = " (nominal Kalman filter only, see note)" if (phase, plain) == ("tracking", "ckf") else ""
             print(f"| {phase}{note} | {label} | {len(lat)} | {ms(lat, 50)} | {ms(lat, 99)} | {ms(lat)} | {verdict} "
                   f"| {ms(cpu, 50)} / {ms(cpu, 99)} |")
     print()
@@ -219,7 +232,7 @@ def main() -> None:
           "| online total s (steps + finish) p50 / sum | batch workers=1 s p50 / sum | batch workers=2 s p50 / sum "
           "| online = batch (candidates) |")
     print("|---|---|---|---|---|---|---|---|")
-    for label, _ in FILTERS:
+    for label, *_ in filters:
         rs = results[label]
         iso = [r.isolation for r in rs if r.isolation is not None]
         iso_cpu = [r.isolation_cpu for r in rs if r.isolation_cpu is not None]
@@ -232,7 +245,7 @@ def main() -> None:
               f"| {statistics.median(b1):.2f} / {sum(b1):.1f} | {statistics.median(b2):.2f} / {sum(b2):.1f} "
               f"| {agree[label]}/{len(rs)} |")
     print()
-    print("## gpf N=1000 by scenario\n")
+    print(f"## gpf N=1000 ({backends[0]}) by scenario\n")
     print("| scenario | seeds | alarm at t (median) | candidates (first seed) | tracking samples "
           "| tracking p50 / p99 ms | isolation step ms (max) |")
     print("|---|---|---|---|---|---|---|")

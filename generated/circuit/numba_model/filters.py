@@ -200,7 +200,9 @@ class _Filter:
             self._recover()
             logw, recovered = self.logw, True
         kernel = self.model._kernel
-        compiled = getattr(kernel, "resample", None)  # a compiled package's kernel: each step in one call
+        # a compiled package's kernel: each step in one call (up to two blocks of particles; beyond, the
+        # block-wise steps below keep the memory beyond the particle array to a few blocks)
+        compiled = getattr(kernel, "resample", None) if self._small else None
         logw, ess, w = (kernel.normalise if compiled else _normalise)(logw)
         resampled = ess < self.threshold
         if resampled:
@@ -275,7 +277,7 @@ class GenericParticleFilter(_Filter):
         if std.ndim == 2:
             return self._weigh_each(y, u, std)
         w = self._weights()
-        if hasattr(kernel, "weigh"):  # a compiled package's kernel: the loop below in one call
+        if self._small and hasattr(kernel, "weigh"):  # a compiled package's kernel: the loop below in one call
             return kernel.weigh(model.observe(self.x, u, self.theta), y, std, self.logw, w)
         n_y = len(std)
         if y is not None:
