@@ -274,13 +274,21 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed,
                                    identify=args.identify, rank=args.rank, refine=args.refine,
                                    horizon=args.horizon, gap=args.gap, recheck=args.recheck)
-        r = api.diagnose(args.model, data=args.data, scenario=args.scenario, seed=args.seed, process_noise=process,
-                         measurement_noise=measurement, steps=args.steps, generated=args.generated,
-                         options=options, progress=progress, prior_scale=args.prior_scale, backend=args.backend)
+        session = api.open(args.model, process_noise=process, measurement_noise=measurement,
+                           generated=args.generated, prior_scale=args.prior_scale, backend=args.backend)
+        _backend_note(session)
+        r = api.diagnose(session, data=args.data, scenario=args.scenario, seed=args.seed, steps=args.steps,
+                         options=options, progress=progress)
     finally:
         progress.close()
     _write_report(r, args.output or f"{r.model}-diagnosis", "diagnose")
     return 0
+
+
+def _backend_note(session) -> None:
+    """On the compiled backend, one line on stderr: its kernels compiled (how long) or loaded."""
+    if session.backend_note():
+        print(f"bgc: {session.backend_note()}", file=sys.stderr, flush=True)
 
 
 def _write_report(r, output: str, command: str) -> Path:
@@ -336,8 +344,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                                gap=args.gap, recheck=args.recheck)
     session = api.open(args.model, process_noise=process, measurement_noise=measurement, generated=args.generated,
                        prior_scale=args.prior_scale, backend=args.backend)
-    if session.backend_note():
-        print(f"bgc: {session.backend_note()}", file=sys.stderr)
+    _backend_note(session)
     out = Path(args.output or f"{session.name}-monitor")
     _refuse_input_in_output(args.data, out)
     artifacts.check_folder(out, ("report.md", "report.json", "report.html", "manifest.json"),
@@ -528,8 +535,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                            "calibrate")
     start = time.perf_counter()
     session = bgc.open(args.model, backend=args.backend)
-    if session.backend_note():
-        print(f"bgc: {session.backend_note()}", file=sys.stderr)
+    _backend_note(session)
     report = session.calibrate(list(args.data), args.estimate)
     report.write(out)
     report.write_report(folder)

@@ -209,3 +209,52 @@ def test_the_static_posterior_and_its_verdict_do_not_depend_on_the_backend():
         assert abs(p - q) <= 1e-8 and (e == f or abs(e - f) <= 1e-8 * abs(e)), k
     assert abs(a.estimate.value - b.estimate.value) <= 1e-8 * abs(a.estimate.value)
     assert abs(a.estimate.high - b.estimate.high) <= 1e-8 * abs(a.estimate.high)
+
+
+def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_path):
+    """``bgc diagnose --backend numba`` says in one line how its kernels were
+    had (compiled or loaded) and writes the same verdict as on NumPy; a
+    campaign's rows are the same on both backends but for the run time."""
+    import csv
+    import textwrap
+
+    env = {**os.environ}
+    lines = {}
+    for backend in ("numpy", "numba"):
+        out = subprocess.run([sys.executable, "-m", "bgc", "diagnose", "models/circuit.yaml", "--scenario",
+                              "R2:abrupt:0.6@5", "--particles", "200", "--generated", str(ROOT / "generated"),
+                              "--backend", backend, "-o", str(tmp_path / f"d-{backend}")],
+                             cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+        assert out.returncode == 0, out.stderr
+        lines[backend] = out.stdout.splitlines()[0]
+        assert ("numba backend: " in out.stderr) == (backend == "numba")
+    assert lines["numpy"] == lines["numba"]
+    config = tmp_path / "c.yaml"
+    config.write_text(textwrap.dedent(f"""\
+        campaign: b
+        seed: 1
+        defaults: {{steps: 60, filters: [gpf], particles: [100], seeds: 1}}
+        groups:
+          - name: g
+            model: {ROOT / "models" / "circuit.yaml"}
+            scenarios: [none, "R2:abrupt:0.6@1.5"]
+        """), encoding="utf-8")
+    rows = {}
+    for backend in ("numpy", "numba"):
+        out = subprocess.run([sys.executable, "-m", "bgc", "experiment", str(config), "--workers", "1",
+                              "--no-progress", "--backend", backend, "-o", str(tmp_path / f"e-{backend}")],
+                             cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+        assert out.returncode == 0, out.stderr
+        with open(tmp_path / f"e-{backend}" / "runs.csv", encoding="utf-8") as f:
+            table = csv.DictReader(line for line in f if not line.startswith("#"))
+            rows[backend] = [{k: v for k, v in r.items() if k != "rt"} for r in table]
+        assert "rt" in table.fieldnames and "verdict" in table.fieldnames
+    assert len(rows["numpy"]) == len(rows["numba"]) == 2
+    def same(x: str, y: str) -> bool:  # numbers to rounding (the backends add in their own order)
+        try:
+            return x == y or abs(float(x) - float(y)) <= 1e-9 * max(abs(float(x)), 1e-300)
+        except ValueError:
+            return False
+    for a, b in zip(rows["numpy"], rows["numba"]):
+        differ = {k: (a[k], b[k]) for k in a if not same(a[k], b[k])}
+        assert not differ, differ

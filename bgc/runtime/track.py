@@ -113,7 +113,8 @@ def warm_up(package: ModuleType, workers: int | None = None) -> tuple[float, int
     cold = [name for name, m in package.MODELS.items() if _cold(m)]
     workers = min(workers or os.cpu_count() or 1, 4, len(cold))
     compiled_elsewhere = 0
-    if workers > 1 and "fork" in multiprocessing.get_all_start_methods():
+    if workers > 1 and "fork" in multiprocessing.get_all_start_methods() \
+            and not multiprocessing.current_process().daemon:  # a daemon (a Dask worker's) has no children
         batches = [(package.__name__, cold[i::workers]) for i in range(workers)]
         with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork")) as pool:
             compiled_elsewhere = 2 * sum(pool.map(_compile_some, batches))
