@@ -258,3 +258,26 @@ def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_pat
     for a, b in zip(rows["numpy"], rows["numba"]):
         differ = {k: (a[k], b[k]) for k in a if not same(a[k], b[k])}
         assert not differ, differ
+
+
+@pytest.mark.parametrize("name", ["dc_motor", "resistor_loop", "mass_spring_damper", "orifice_tanks"])
+def test_plants_nobody_here_wrote_compile_to_the_same_numbers(name, tmp_path):
+    """The test plants (a DC motor across domains, a resistor loop, a
+    mass-spring-damper, tanks with orifices: sqrt, abs and sign in their
+    laws), written into a fresh folder: the nominal model and a fault model
+    on both backends, the generic particle filter and the cubature Kalman
+    filter, agree to 1e-10 (only these two modules are compiled)."""
+    from bgc.output import artifacts
+    from bgc.pipeline import generated_files
+
+    c = compiled(name)
+    artifacts.write_folder(tmp_path / c.model.name, generated_files(c))
+    ys, us = record(name, steps=60)
+    numpy_pkg, numba_pkg = (track.load_package(tmp_path, c.model.name, backend=b) for b in ("numpy", "numba"))
+    for module in ("nominal", sorted(numpy_pkg.MODELS)[1]):
+        runs = [p.filters.GenericParticleFilter(p.MODELS[module], 64, np.random.default_rng(2)).run(ys, us)
+                for p in (numpy_pkg, numba_pkg)]
+        assert max(difference(getattr(runs[0], k), getattr(runs[1], k)) for k in ("mean", "y_std")) <= TOLERANCE
+        kf = [kalman.CubatureKalmanFilter(p.MODELS[module]) for p in (numpy_pkg, numba_pkg)]
+        steps = [[f.step(ys[k], us[k]) for k in range(len(ys))] for f in kf]
+        assert difference(np.array([s.mean for s in steps[0]]), np.array([s.mean for s in steps[1]])) <= TOLERANCE
