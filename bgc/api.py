@@ -49,6 +49,7 @@ from typing import Mapping
 import numpy as np
 
 from . import arguments, pipeline
+from .compiler.printing import escape
 from .errors import (
     ArgumentTypeError, ArgumentValueError, CalibrationError, OutputError, SimulationError, TrackingError, printable,
 )
@@ -344,13 +345,32 @@ class Session:
         levels = c.numerics.noise_at(process_noise, measurement_noise)
         self.levels = levels
         custom = levels if (process_noise, measurement_noise) != (None, None) else None
-        if generated is None:  # the compiled package from a folder that lasts: numba's disk cache stays valid
+        #: why the compiled backend, chosen by what is installed, could not be had (None: it was not needed)
+        self.fallback: str | None = None
+        try:
+            self._load(generated, str(model), custom)
+        except Exception as exc:  # noqa: BLE001 - whatever keeps the compiled package from working
+            if self.backend == "numpy":
+                raise
+            why = printable(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)[:200]
+            if track.chosen_by_name(backend):
+                raise TrackingError(f"the numba backend cannot run {printable(str(model))}: {why}", None,
+                                    "use --backend numpy (backend='numpy')") from None
+            self.backend, self.fallback = "numpy", why
+            self._load(generated, str(model), custom)
+        self.priors = {f.parameter: f.prior for f in c.model.faults}
+
+    def _load(self, generated, model: str, custom) -> None:
+        """Load this session's package of its backend (from ``generated``, or a
+        private folder for NumPy, or, for the compiled package, a folder of
+        bgc's cache that lasts, so numba's disk cache stays valid) and warm it up."""
+        c = self.compiled
+        if generated is None:
             generated = self.folder if self.backend == "numpy" else _lasting_folder(c)
         with _LOCK:  # another thread must not see a package half imported
-            self.package = track.load_package(generated, c.model.name, str(model), custom, self.backend)
+            self.package = track.load_package(generated, c.model.name, model, custom, self.backend)
             #: (seconds, kernels compiled, kernels loaded from numba's disk cache) of this session's warm-up
             self.warm = track.warm_up(self.package)
-        self.priors = {f.parameter: f.prior for f in c.model.faults}
 
     @property
     def name(self) -> str:
@@ -358,8 +378,11 @@ class Session:
 
     def backend_note(self) -> str | None:
         """One line on the compiled backend's warm-up (None on the NumPy
-        backend): kernels compiled, or loaded from numba's disk cache, and how long it took."""
+        backend): kernels compiled, or loaded from numba's disk cache, and how
+        long it took; or why it could not be had (``auto`` fell back to NumPy)."""
         seconds, compiled, loaded = self.warm
+        if self.fallback is not None:
+            return f"numba backend unavailable ({self.fallback}): running on numpy"
         if self.backend != "numba":
             return None
         if compiled:
@@ -853,10 +876,15 @@ def _lasting_folder(c: pipeline.Compiled) -> str:
     """A folder that holds ``c``'s compiled (numba) package and lasts from
     run to run, so numba's disk cache beside it stays valid: under
     :func:`cache_root`, named by the package's digest (the same model text
-    always meets the same folder, another one never). Written once, whole,
+    always meets the same folder, another one never; the path of the model
+    file, in the package's comments only, is left out). Written once, whole,
     by renaming a finished private folder into place (processes racing to
     write it: one wins, the others' copies are dropped)."""
-    digest = hashlib.sha256(repr(c.package.numba_files).encode()).hexdigest()[:20]
+    # the package's text but the model file's path (in its comments): the same model text met at another
+    # path (a campaign worker's private copy) finds the same folder and its compiled kernels
+    source = escape(c.model.display_source)
+    digest = hashlib.sha256(repr([(rel, text.replace(source, "")) for rel, text in c.package.numba_files]).encode()
+                            ).hexdigest()[:20]
     root = cache_root() / "packages" / f"{c.model.name}-{digest}"
     if (root / c.model.name / NUMBA_PACKAGE / "__init__.py").exists():
         return str(root)

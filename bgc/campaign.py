@@ -930,6 +930,20 @@ def local_workers(requested: int | None, todo: int) -> tuple[int, str | None]:
     return n, why
 
 
+def _compile_models(specs: list[RunSpec]) -> None:
+    """Compile the compiled backend's kernels of every model of ``specs`` once,
+    here, into numba's disk cache (bgc's cache folder is named by the model
+    text, not its path): the local workers then load them instead of each
+    compiling them."""
+    from . import api
+
+    texts = {}
+    for spec in specs:
+        texts.setdefault(spec.model_text, spec)
+    for spec in texts.values():
+        api.open(_model_file(spec), backend="numba")
+
+
 def _local(specs: list[RunSpec], workers: int, backend: str = "numpy") -> Iterator[tuple[RunSpec, dict]]:
     # fork where there is one: workers inherit the loaded modules and run from a
     # notebook or a script without a __main__ guard (spawn re-imports __main__)
@@ -1217,9 +1231,10 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
         Seconds to wait for the scheduler (:func:`check_scheduler`, then
         Dask's handshake).
     backend
-        The generated package the runs' filters use ('numpy' or 'numba'; a
-        Dask worker needs numba installed for 'numba'); the rows do not
-        depend on it.
+        The generated package the runs' filters use ('numpy', 'numba', or
+        'auto': each worker's choice, numba where it is installed); the rows
+        do not depend on it. With 'numba' and local workers, the models'
+        kernels are compiled here first, once.
     on_start
         Called with a :class:`CampaignStart` once the folder is read, before
         the first run.
@@ -1263,6 +1278,8 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
     if todo:
         show = sys.stderr.isatty() if progress is None else bool(progress)
         bar = _bar(len(c.specs), len(done), c.name, show)
+        if backend == "numba" and not scheduler:
+            _compile_models(todo)
         source = (_dask(todo, scheduler, connect_timeout, backend) if scheduler
                   else _local(todo, n_workers, backend))
         try:

@@ -444,7 +444,9 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     from .output import tables
     from .runtime import track
 
-    backend = track.resolve_backend(args.backend)  # a name for the workers, not 'auto'
+    # local workers get a name (numba compiled once, before they start); a Dask cluster's workers choose
+    # by what they have installed
+    backend = track.resolve_backend(args.backend) if not args.scheduler else args.backend
 
     # what can be refused without the models: before they compile
     campaign.check_workers(args.workers, "--workers")

@@ -281,3 +281,56 @@ def test_plants_nobody_here_wrote_compile_to_the_same_numbers(name, tmp_path):
         kf = [kalman.CubatureKalmanFilter(p.MODELS[module]) for p in (numpy_pkg, numba_pkg)]
         steps = [[f.step(ys[k], us[k]) for k in range(len(ys))] for f in kf]
         assert difference(np.array([s.mean for s in steps[0]]), np.array([s.mean for s in steps[1]])) <= TOLERANCE
+
+
+def test_a_diverged_particle_is_recovered_alike_on_both_backends():
+    """A particle whose prediction is +inf: the NumPy filter's weighing makes
+    its log-weight NaN (shift - y < 0 against +inf), and the step recovers;
+    the compiled weighing does the same arithmetic, so it recovers too."""
+    outs = []
+    for p in packages("two_tank"):
+        model = p.MODELS["nominal"]
+        f = p.filters.GenericParticleFilter(model, 8, np.random.default_rng(0))
+        f.x[0, 3] = np.inf
+        y = np.array(model.observe(np.array(model.X0, dtype=float)[:, None].copy(), model.inputs(0.0),
+                                   model.THETA))[:, 0] + 5.0 * np.asarray(model.MEASUREMENT_STD)
+        outs.append((f.step(y, model.inputs(0.0)), f.recoveries))
+    (a, ra), (b, rb) = outs
+    assert ra == rb == 1 and a.recovered and b.recovered
+    assert difference(a.mean[None, :], b.mean[None, :]) <= TOLERANCE
+
+
+def test_above_two_blocks_of_particles_the_backends_agree_too():
+    """From 2 * BLOCK particles the filters take the block-wise steps (the
+    compiled prediction and measurements still): the same numbers."""
+    ys, us = record("two_tank", steps=24)
+    runs = []
+    for p in packages("two_tank"):
+        n = 2 * p.MODELS["nominal"]._kernel.BLOCK + 5
+        runs.append(p.filters.GenericParticleFilter(p.MODELS["nominal"], n, np.random.default_rng(4)).run(ys, us))
+    assert max(difference(getattr(runs[0], k), getattr(runs[1], k)) for k in ("mean", "std", "y_std")) <= TOLERANCE
+
+
+def test_integers_beyond_64_bits_reach_the_compiled_kernels_as_the_float_numpy_makes():
+    from bgc.compiler.codegen import _machine_ints
+
+    assert _machine_ints("_c0 = 1180591620717411303424*x + 3*y - 2.5e10") == \
+        f"_c0 = {float(2 ** 70)!r}*x + 3*y - 2.5e10"
+    assert _machine_ints("_y[0] = 9223372036854775807*e6") == "_y[0] = 9223372036854775807*e6"  # int64 holds it
+
+
+def test_auto_falls_back_to_numpy_when_the_compiled_package_is_missing(tmp_path, monkeypatch):
+    """A folder written by an older bgc (no numba_model): ``auto`` runs on
+    NumPy and says why in its one line; ``numba`` by name is refused in one line."""
+    import shutil
+
+    import bgc
+
+    shutil.copytree(ROOT / "generated" / "circuit", tmp_path / "circuit",
+                    ignore=shutil.ignore_patterns("numba_model", "__pycache__"))
+    monkeypatch.delenv("BGC_BACKEND", raising=False)
+    session = bgc.open("models/circuit.yaml", generated=tmp_path)
+    assert session.backend == "numpy" and "numba backend unavailable" in session.backend_note()
+    assert "numba_model" in session.backend_note()
+    with pytest.raises(TrackingError, match="--backend numpy"):
+        bgc.open("models/circuit.yaml", generated=tmp_path, backend="numba")

@@ -139,7 +139,18 @@ def _particle(line: str) -> str:
     """A line of the NumPy code of rows (``x[3]``, ``_dx[3] += ...``, ``_y[0] = ...``)
     for one particle ``_i`` of the compiled loop (``x[3, _i]``, ``_dx[3, _i] += ...``):
     the rows are the only subscripts of x, _dx and _y the generated lines hold."""
-    return re.sub(r"\b(x|_dx|_y)\[(\d+)\]", r"\1[\2, _i]", line)
+    return _machine_ints(re.sub(r"\b(x|_dx|_y)\[(\d+)\]", r"\1[\2, _i]", line))
+
+
+def _machine_ints(line: str) -> str:
+    """A line for the compiled kernels with every integer literal beyond 64
+    bits as the float NumPy makes of it (numba types integers as int64 or
+    uint64 and cannot hold ``2**70``; NumPy turns it into the float64 of the
+    arrays it multiplies)."""
+    def as_float(m: re.Match) -> str:
+        n = int(m.group(0))
+        return repr(float(n)) if abs(n) >= 2 ** 63 else m.group(0)
+    return re.sub(r"(?<![\w.])\d+(?![\w.])", as_float, line)
 
 
 def _used(exprs) -> set[str]:
@@ -277,8 +288,9 @@ def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
         "has_linear": bool(nz), "has_b": has_b, "linear_note": (
             f"rows {rows.start}..{rows.stop - 1}, columns {cols.start}..{cols.stop - 1}" if nz else ""),
         "x_cols": "x" + _slice(cols, len(states)), "dx_rows": "_dx" + _slice(rows, len(states)),
-        "linear_rows_range": (rows.start, rows.stop), "linear_cols_range": (cols.start, cols.stop),
         "jit_unpack": [_particle(line) for line in _unpack(order, sources, _used(exprs))],
+        "jit_rhs_cse": [_machine_ints(line) for line in rhs_lines],
+        "jit_out_cse": [_machine_ints(line) for line in out_lines],
         "jit_linear": [f"_dx[{i}, _i] = " + " + ".join(f"_A[{i - rows.start}, {j - cols.start}] * x[{j}, _i]"
                                                         for j in cols)
                        + (f" + _b[{i - rows.start}, 0]" if has_b else "") for i in rows],

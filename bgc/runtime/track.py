@@ -24,7 +24,7 @@ from types import ModuleType
 import numpy as np
 
 from ..errors import DataError, TrackingError, printable
-from ..ir import PACKAGE, PACKAGES, NoiseLevels
+from ..ir import PACKAGES, NoiseLevels
 from ..kinds import fault_kind
 from . import kalman
 from .runs import Run
@@ -56,9 +56,7 @@ def resolve_backend(backend: str | None) -> str:
     TrackingError
         An unknown backend, or numba asked for and not installed.
     """
-    import os
-
-    chosen = backend if backend not in (None, "auto") else os.environ.get("BGC_BACKEND") or (
+    chosen = backend if backend not in (None, "auto") else _environment_backend() or (
         "numba" if numba_installed() else "numpy")
     if chosen not in PACKAGES:
         raise TrackingError(f"unknown backend {printable(str(chosen))}", None,
@@ -77,14 +75,14 @@ def _cold(model: ModuleType) -> bool:
         return True
 
 
-def _call_kernels(model: ModuleType) -> list:
-    """Call a compiled model's kernels once on one particle (compiling them
-    or loading them from the disk cache); the kernels called."""
+def _call_kernels(model: ModuleType) -> None:
+    """Call a compiled model's kernels (``_JIT.predict``, ``_JIT.observe``: the
+    per-particle functions are compiled into them) once on one particle,
+    compiling them or loading them from the disk cache."""
     x = np.array(model.X0, dtype=float)[:, None].copy()
     u = model.inputs(0.0)
     model.predict(x, u, model.THETA, model.DT, out=x)
     model.observe(x, u, model.THETA)
-    return [model._JIT.predict, model._JIT.observe]  # their per-particle functions are compiled into them
 
 
 def _compile_some(args: tuple[str, list[str]]) -> int:
@@ -96,6 +94,21 @@ def _compile_some(args: tuple[str, list[str]]) -> int:
     return len(names)
 
 
+def _environment_backend() -> str | None:
+    """``BGC_BACKEND`` when it names a backend (empty or 'auto': None)."""
+    import os
+
+    chosen = os.environ.get("BGC_BACKEND", "").strip()
+    return None if chosen in ("", "auto") else chosen
+
+
+def chosen_by_name(backend: str | None) -> bool:
+    """Whether ``backend`` (or, for None / 'auto', ``BGC_BACKEND``) names a backend: a
+    backend asked for by name is used or refused; one chosen by what is installed
+    falls back to NumPy when the compiled package cannot be had."""
+    return backend not in (None, "auto") or _environment_backend() is not None
+
+
 def warm_up(package: ModuleType, workers: int | None = None) -> tuple[float, int, int]:
     """Compile (or load from numba's disk cache) every compiled kernel of a
     numba package by one call of each model's transition and observation on
@@ -105,32 +118,38 @@ def warm_up(package: ModuleType, workers: int | None = None) -> tuple[float, int
     into the disk cache first, then loaded here; forked workers of this
     process inherit what is loaded."""
     import os
+    import threading
 
     models = list(package.MODELS.values())
     if not hasattr(models[0], "_JIT"):
         return 0.0, 0, 0
     t0 = time.perf_counter()
+    kernel = models[0]._kernel
+    jitted = [k for m in models for k in (m._JIT.predict, m._JIT.observe)]
+    jitted += [getattr(kernel._JIT, name) for name in ("loglik", "weigh", "normalise", "resample", "moments",
+                                                       "cubature_points", "cubature_predicted", "cubature_update")]
+    before = {id(k): (sum(k.stats.cache_misses.values()), sum(k.stats.cache_hits.values())) for k in jitted}
     cold = [name for name, m in package.MODELS.items() if _cold(m)]
-    workers = min(workers or os.cpu_count() or 1, 4, len(cold))
+    workers = min(workers or len(os.sched_getaffinity(0)) or 1, 4, len(cold))
     compiled_elsewhere = 0
+    # forked compilers: only from a process with one thread (a thread holding numba's compiler lock at the
+    # fork would leave the child waiting for it) that may have children (a Dask worker is a daemon)
     if workers > 1 and "fork" in multiprocessing.get_all_start_methods() \
-            and not multiprocessing.current_process().daemon:  # a daemon (a Dask worker's) has no children
+            and not multiprocessing.current_process().daemon and threading.active_count() == 1:
         batches = [(package.__name__, cold[i::workers]) for i in range(workers)]
         with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork")) as pool:
             compiled_elsewhere = 2 * sum(pool.map(_compile_some, batches))
-    kernels = [k for m in models for k in _call_kernels(m)]
-    kernel = models[0]._kernel
+    for m in models:
+        _call_kernels(m)
     kernel.gaussian_loglik(np.zeros(1), np.zeros((1, 1)), np.ones(1))
     logw, w, yhat = np.zeros(2), np.full(2, 0.5), np.zeros((1, 2))
     kernel.weigh(yhat, np.zeros(1), np.ones(1), logw, w)
     kernel.resample(yhat, kernel.normalise(logw)[2], 0.5)
     kernel.moments(yhat, w)
     kalman.CubatureKalmanFilter(models[0]).step(np.full(len(models[0].OUTPUTS), 0.0), models[0].inputs(0.0))
-    kernels += [getattr(kernel._JIT, name) for name in ("loglik", "weigh", "normalise", "resample", "moments",
-                                                        "cubature_points", "cubature_predicted", "cubature_update")]
-    compiled = sum(1 for k in kernels if sum(k.stats.cache_misses.values()))
-    loaded = sum(1 for k in kernels if sum(k.stats.cache_hits.values()))
-    return time.perf_counter() - t0, compiled + compiled_elsewhere, loaded - compiled_elsewhere
+    compiled = sum(1 for k in jitted if sum(k.stats.cache_misses.values()) > before[id(k)][0])
+    loaded = sum(1 for k in jitted if sum(k.stats.cache_hits.values()) > before[id(k)][1])
+    return time.perf_counter() - t0, compiled + compiled_elsewhere, max(loaded - compiled_elsewhere, 0)
 
 
 def load_package(generated_dir: str | Path, model: str, source: str | None = None,

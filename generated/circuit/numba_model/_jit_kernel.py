@@ -29,32 +29,46 @@ def loglik(y, yhat, rows, weight, constant, out):
 @njit(**JIT)
 def weigh(yhat, y, rows, weight, constant, variance, logw, w, y_mean, y_std):
     """The generic particle filter's weighing (``particle.GenericParticleFilter._weigh``)
-    in one pass: the predicted measurement's mean and std over the weights
-    ``w`` before the update (moments taken from the first particle's
-    prediction, as there), ``variance`` the measurement noise's, and, when
-    ``rows`` is not empty, logw[i] += constant + sum_k weight[k] (yhat[rows[k], i] - y[rows[k]])^2."""
+    in one pass, in its arithmetic: from the shift K (the first particle's
+    prediction, 0 where that is not finite), d = yhat - K and r = K - y, the
+    predicted measurement's mean K + E[d] and std sqrt(E[d^2] - E[d]^2 +
+    ``variance``) over the weights ``w`` before the update, and, when ``rows``
+    (the sensors read) is not empty, logw[i] += sum_k weight[k] d[k, i]^2, then
+    += sum_k 2 weight[k] r[k] d[k, i], then += constant + sum_k weight[k] r[k]^2
+    (a particle at +-inf gets NaN where the NumPy filter's does, and is recovered)."""
     n_y, n = yhat.shape
+    shift = np.empty(n_y)
     for j in range(n_y):
-        shift = yhat[j, 0]
-        if not np.isfinite(shift):
-            shift = 0.0
+        shift[j] = yhat[j, 0] if np.isfinite(yhat[j, 0]) else 0.0
         s1 = 0.0
         for i in range(n):
-            s1 += (yhat[j, i] - shift) * w[i]
+            s1 += (yhat[j, i] - shift[j]) * w[i]
         s2 = 0.0
         for i in range(n):
-            d = yhat[j, i] - shift
+            d = yhat[j, i] - shift[j]
             s2 += d * d * w[i]
-        y_mean[j] = shift + s1
+        y_mean[j] = shift[j] + s1
         y_std[j] = np.sqrt(max(s2 - s1 * s1, 0.0) + variance[j])
-    if rows.shape[0] == 0:
+    k = rows.shape[0]
+    if k == 0:
         return
+    linear = np.empty(k)
+    dot = 0.0
+    for a in range(k):
+        r = shift[rows[a]] - y[rows[a]]
+        linear[a] = 2.0 * weight[a] * r
+        dot += weight[a] * (r * r)
+    total = constant + dot
     for i in range(n):
-        s = 0.0
-        for k in range(rows.shape[0]):
-            d = yhat[rows[k], i] - y[rows[k]]
-            s += d * d * weight[k]
-        logw[i] += s + constant
+        square = 0.0
+        cross = 0.0
+        for a in range(k):
+            d = yhat[rows[a], i] - shift[rows[a]]
+            square += weight[a] * (d * d)
+            cross += linear[a] * d
+        logw[i] += square
+        logw[i] += cross
+        logw[i] += total
 
 
 @njit(**JIT)

@@ -47,7 +47,20 @@ NO_NOISE = np.empty((0, 0))
 #: in BLAS than in a loop that must add in order).
 SHORT = 4096
 
-_LOCK = threading.Lock()
+def _shared_lock():
+    """One lock for every copy of this kernel in the process (each package
+    instance imports its own ``_kernel``), kept under a fixed name in
+    ``sys.modules``, and made afresh in a forked child."""
+    holder = sys.modules.get("bgc_jit_lock")
+    if holder is None:
+        import types
+
+        fresh = types.ModuleType("bgc_jit_lock")
+        fresh.lock = threading.Lock()
+        holder = sys.modules.setdefault("bgc_jit_lock", fresh)  # atomic: one holder wins
+        if holder is fresh:
+            os.register_at_fork(after_in_child=lambda: setattr(fresh, "lock", threading.Lock()))
+    return holder
 
 
 def load_jit(near, file):
@@ -59,7 +72,7 @@ def load_jit(near, file):
     file, whose name a later process gives it again."""
     path = os.path.realpath(os.path.join(os.path.dirname(os.path.abspath(near)), file))
     name = "bgc_jit_" + hashlib.sha256(path.encode("utf-8")).hexdigest()[:16] + "_" + file[:-3].lstrip("_")
-    with _LOCK:
+    with _shared_lock().lock:
         module = sys.modules.get(name)
         if module is None:
             spec = importlib.util.spec_from_file_location(name, path)
@@ -92,7 +105,7 @@ def gaussian_loglik(y, yhat, std):
     rows = np.flatnonzero(seen)
     kept = std[rows]
     out = np.empty(yhat.shape[1])
-    _JIT.loglik(y, contiguous(yhat), rows, -0.5 / (kept * kept), log_normaliser(kept), out)
+    _JIT.loglik(contiguous(y), contiguous(yhat), rows, -0.5 / (kept * kept), log_normaliser(kept), out)
     return out
 
 

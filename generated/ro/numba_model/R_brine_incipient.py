@@ -164,7 +164,7 @@ def transition(x, u, theta, dt, rng, out=None):
     ``out`` may be ``x`` itself (in place). Up to two blocks of particles the process
     noise is drawn first, as ``_kernel.perturb`` draws it, and added in the
     compiled pass of the prediction."""
-    if x.shape[1] <= 2 * _kernel.BLOCK:
+    if x.shape[1] < 2 * _kernel.BLOCK:
         return predict(x, u, theta, dt, out, _kernel.draw(rng, x.shape[0], x.shape[1]))
     return perturb(predict(x, u, theta, dt, out), rng)  # no noise array of the particles' size
 

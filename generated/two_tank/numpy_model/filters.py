@@ -211,7 +211,7 @@ class _Filter:
             else:
                 self.x = self._replicate(self.x, offspring_counts(w, self.rng, overwrite=True))
             logw.fill(-np.log(self.n))
-            w.fill(1.0 / self.n)  # w held the counts
+            w.fill(1.0 / self.n)  # (offspring_counts made the counts in w's memory)
         self.logw = logw
         mean, std = self.model._kernel.moments(self.x, w)
         if self._small:
