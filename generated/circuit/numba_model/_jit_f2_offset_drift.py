@@ -19,14 +19,59 @@ BLOCK = 128
 @njit(**JIT)
 def derivative_block(x, u, theta, _A, _b, _dx, _w):
     """dx/dt of the first ``_w`` particles (columns) of x (n_x, B) into _dx
-    (compiled; the loop over particles innermost, so that the compiler can
-    vectorise it)."""
+    (compiled; what does not change from particle to particle read before
+    the loop over particles, which writes no array it reads: the compiler
+    vectorises it)."""
+    _xr0 = x[0]
+    _xr1 = x[1]
+    _xr2 = x[2]
+    _xr3 = x[3]
+    _xr4 = x[4]
+    _dxr0 = _dx[0]
+    _dxr1 = _dx[1]
+    _dxr2 = _dx[2]
+    _dxr3 = _dx[3]
+    _dxr4 = _dx[4]
+    _A_0_0 = _A[0, 0]
+    _A_0_1 = _A[0, 1]
+    _A_0_2 = _A[0, 2]
+    _A_0_3 = _A[0, 3]
+    _A_0_4 = _A[0, 4]
+    _b_0_0 = _b[0, 0]
+    _A_1_0 = _A[1, 0]
+    _A_1_1 = _A[1, 1]
+    _A_1_2 = _A[1, 2]
+    _A_1_3 = _A[1, 3]
+    _A_1_4 = _A[1, 4]
+    _b_1_0 = _b[1, 0]
+    _A_2_0 = _A[2, 0]
+    _A_2_1 = _A[2, 1]
+    _A_2_2 = _A[2, 2]
+    _A_2_3 = _A[2, 3]
+    _A_2_4 = _A[2, 4]
+    _b_2_0 = _b[2, 0]
+    _A_3_0 = _A[3, 0]
+    _A_3_1 = _A[3, 1]
+    _A_3_2 = _A[3, 2]
+    _A_3_3 = _A[3, 3]
+    _A_3_4 = _A[3, 4]
+    _b_3_0 = _b[3, 0]
     for _i in range(_w):
-        _dx[0, _i] = _A[0, 0] * x[0, _i] + _A[0, 1] * x[1, _i] + _A[0, 2] * x[2, _i] + _A[0, 3] * x[3, _i] + _A[0, 4] * x[4, _i] + _b[0, 0]
-        _dx[1, _i] = _A[1, 0] * x[0, _i] + _A[1, 1] * x[1, _i] + _A[1, 2] * x[2, _i] + _A[1, 3] * x[3, _i] + _A[1, 4] * x[4, _i] + _b[1, 0]
-        _dx[2, _i] = _A[2, 0] * x[0, _i] + _A[2, 1] * x[1, _i] + _A[2, 2] * x[2, _i] + _A[2, 3] * x[3, _i] + _A[2, 4] * x[4, _i] + _b[2, 0]
-        _dx[3, _i] = _A[3, 0] * x[0, _i] + _A[3, 1] * x[1, _i] + _A[3, 2] * x[2, _i] + _A[3, 3] * x[3, _i] + _A[3, 4] * x[4, _i] + _b[3, 0]
-        _dx[4, _i] = 0.0
+        _x0 = _xr0[_i]
+        _x1 = _xr1[_i]
+        _x2 = _xr2[_i]
+        _x3 = _xr3[_i]
+        _x4 = _xr4[_i]
+        _d0 = _A_0_0 * _x0 + _A_0_1 * _x1 + _A_0_2 * _x2 + _A_0_3 * _x3 + _A_0_4 * _x4 + _b_0_0
+        _d1 = _A_1_0 * _x0 + _A_1_1 * _x1 + _A_1_2 * _x2 + _A_1_3 * _x3 + _A_1_4 * _x4 + _b_1_0
+        _d2 = _A_2_0 * _x0 + _A_2_1 * _x1 + _A_2_2 * _x2 + _A_2_3 * _x3 + _A_2_4 * _x4 + _b_2_0
+        _d3 = _A_3_0 * _x0 + _A_3_1 * _x1 + _A_3_2 * _x2 + _A_3_3 * _x3 + _A_3_4 * _x4 + _b_3_0
+        _d4 = 0.0
+        _dxr0[_i] = _d0
+        _dxr1[_i] = _d1
+        _dxr2[_i] = _d2
+        _dxr3[_i] = _d3
+        _dxr4[_i] = _d4
 
 
 @njit(**JIT)

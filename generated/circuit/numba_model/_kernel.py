@@ -8,10 +8,12 @@ bgc copies this file unchanged into every ``numba_model`` package it
 generates, as ``_kernel.py``, beside a copy of the NumPy kernel as
 ``kernel.py`` (its source is ``bgc/runtime/filters/kernel.py``); each
 compiled model module imports it as ``from . import _kernel``. What is not
-redefined here is the NumPy kernel's own function, so the two backends draw
-the same random numbers in the same order (``perturb`` draws a block of
-particles at a time from the caller's ``np.random.Generator``) and differ in
-rounding only: a compiled loop adds the terms of a sum in its own order.
+redefined here is the NumPy kernel's own function. The two backends draw
+the same random numbers in the same order from the caller's
+``np.random.Generator`` (``perturb`` a block of particles at a time; here
+the draws are made by numba's implementation of the Generator, NumPy's
+algorithms on the same bit generator) and differ in rounding only: a
+compiled loop adds the terms of a sum in its own order.
 
 The compiled functions live in modules of their own (``_jit_kernel.py``
 here, ``_jit_<model>.py`` beside each model module), loaded by
@@ -32,14 +34,14 @@ import threading
 import numpy as np
 
 from . import kernel as _numpy
-from .kernel import BLOCK, block_views, gaussian_loglik_each, log_normaliser, perturb, predictive_std, rk4, spans
+from .kernel import BLOCK, block_views, gaussian_loglik_each, log_normaliser, predictive_std, rk4, spans
 
 #: The kernel's functions: the NumPy kernel's, but the compiled ones defined here; ``weigh``,
 #: ``normalise`` and ``resample`` are the generic particle filter's steps, which the filters take
 #: from a kernel that has them, and the ``cubature_*`` functions the cubature Kalman filter's
 #: (``bgc.runtime.kalman`` takes them from a compiled package's kernel).
-__all__ = ["BLOCK", "block_views", "contiguous", "cubature_points", "cubature_predicted", "cubature_update", "draw", "gaussian_loglik", "gaussian_loglik_each", "load_jit",
-           "log_normaliser", "LOG_2PI", "moments", "NO_NOISE", "normalise", "perturb", "predictive_std", "resample", "rk4", "spans",
+__all__ = ["BLOCK", "block_views", "contiguous", "cubature_points", "cubature_predicted", "cubature_update", "draw", "gauss_terms", "gaussian_loglik", "gaussian_loglik_each", "load_jit",
+           "log_normaliser", "LOG_2PI", "moments", "NO_NOISE", "normal_into", "normalise", "perturb", "predictive_std", "resample", "rk4", "spans",
            "weigh"]
 #: The prediction's noise when there is none (a compiled kernel takes an array all the same).
 NO_NOISE = np.empty((0, 0))
@@ -118,22 +120,35 @@ def moments(a, w):
     return mean, std
 
 
-def weigh(yhat, y, std, logw, w):
+def weigh(yhat, y, std, logw, w, gauss=None):
     """The generic filter's weighing in one compiled pass: add log p(y | x) to
     ``logw`` in place (nothing when ``y`` is None; NaN entries not used) and
     give the predicted measurement's mean and std over the weights ``w``
-    before the update, measurement noise ``std`` (n_y,) included."""
+    before the update, measurement noise ``std`` (n_y,) included. ``gauss``:
+    :func:`gauss_terms` of ``y``'s pattern of sensors read and ``std``, when
+    the caller keeps them."""
     n_y = yhat.shape[0]
     y_mean, y_std = np.empty(n_y), np.empty(n_y)
     if y is None:
-        rows, weight, constant, y = np.empty(0, np.intp), np.empty(0), 0.0, np.empty(n_y)
+        rows, weight, constant, variance, y = _NONE_READ + (std * std, np.empty(n_y))
     else:
-        rows = np.flatnonzero(np.isfinite(y))
-        kept = std[rows]
-        weight, constant = -0.5 / (kept * kept), log_normaliser(kept)
-    _JIT.weigh(contiguous(yhat), contiguous(y), rows, weight, constant, std * std, logw, contiguous(w), y_mean,
+        rows, weight, constant, variance = gauss_terms(np.isfinite(y), std) if gauss is None else gauss
+    _JIT.weigh(contiguous(yhat), contiguous(y), rows, weight, constant, variance, logw, contiguous(w), y_mean,
                y_std)
     return y_mean, y_std
+
+
+#: :func:`gauss_terms` of no sensor read, without the variance.
+_NONE_READ = (np.empty(0, np.intp), np.empty(0), 0.0)
+
+
+def gauss_terms(seen, std):
+    """What :func:`weigh` needs of a pattern ``seen`` of sensors read (bool
+    (n_y,)) and the noise std (n_y,): (the rows read, -1 / (2 std^2) of them,
+    the sum of their log normalisers, std^2 of every sensor)."""
+    rows = np.flatnonzero(seen)
+    kept = std[rows]
+    return rows, -0.5 / (kept * kept), log_normaliser(kept), std * std
 
 
 def normalise(logw):
@@ -150,15 +165,51 @@ def resample(x, w, uniform):
 
 
 def draw(rng, rows, n):
-    """Standard normal draws (rows, n) from ``rng``, in the order
-    :func:`perturb` draws them (a block of particles at a time)."""
-    parts, _ = spans(n)
-    if len(parts) == 1:
-        return rng.standard_normal((rows, n))
+    """Standard normal draws (rows, n) from ``rng``, in the order the NumPy
+    kernel's :func:`perturb` draws them (a block of particles at a time),
+    drawn by compiled code (numba's ``np.random.Generator``: NumPy's
+    algorithm on the same bit generator, the same numbers, without NumPy's
+    per-call cost)."""
     out = np.empty((rows, n))
-    for start, stop in parts:
-        out[:, start:stop] = rng.standard_normal((rows, stop - start))
+    for start, stop in spans(n)[0]:
+        normal_into(rng, out, start, stop)
     return out
+
+
+#: Fewest standard normal draws that compiled code makes (handing it the
+#: generator costs about as much as a thousand draws by NumPy).
+DRAWN = 1500
+
+
+def normal_into(rng, out, start=0, stop=None):
+    """Standard normal draws from ``rng`` into the columns start..stop-1 of
+    ``out`` (rows, N), as ``rng.standard_normal(out=...)`` of those columns
+    would make them (compiled for an ``np.random.Generator``; any other
+    generator, and fewer than DRAWN draws, where handing the generator to
+    compiled code costs more than it saves, are drawn by the generator
+    itself)."""
+    stop = out.shape[1] if stop is None else stop
+    if ((stop - start) * out.shape[0] >= DRAWN and isinstance(rng, np.random.Generator)
+            and out.dtype == np.float64 and out.flags.c_contiguous):
+        _JIT.standard_normal(rng, out, start, stop)
+    elif start == 0 and stop == out.shape[1]:
+        rng.standard_normal(out=out)
+    else:
+        out[:, start:stop] = rng.standard_normal((out.shape[0], stop - start))
+
+
+def perturb(x, std, rng):
+    """x += std[:, None] * N(0, 1), in place: the NumPy kernel's
+    :func:`perturb` (the same numbers, the same arithmetic), its draws
+    compiled, a block at a time."""
+    n_x, n = x.shape
+    scale = np.asarray(std, dtype=float)[:, None]
+    for start, stop in spans(n)[0]:
+        buf = block_views("state", 1, n_x, stop - start)[0]
+        normal_into(rng, buf)
+        buf *= scale
+        x[:, start:stop] += buf
+    return x
 
 
 #: log(2 pi), of the Gaussian log densities.

@@ -278,7 +278,14 @@ class GenericParticleFilter(_Filter):
             return self._weigh_each(y, u, std)
         w = self._weights()
         if self._small and hasattr(kernel, "weigh"):  # a compiled package's kernel: the loop below in one call
-            return kernel.weigh(model.observe(self.x, u, self.theta), y, std, self.logw, w)
+            gauss = None
+            if y is not None:
+                seen = np.isfinite(y)
+                key = (b"compiled", seen.tobytes())
+                if key not in self._gauss:  # per pattern of missing outputs
+                    self._gauss[key] = kernel.gauss_terms(seen, std)
+                gauss = self._gauss[key]
+            return kernel.weigh(model.observe(self.x, u, self.theta), y, std, self.logw, w, gauss)
         n_y = len(std)
         if y is not None:
             seen = np.isfinite(y)
@@ -606,7 +613,7 @@ class FilterBank:
         ``model.perturb`` draws it (one block of particles)."""
         buf = np.empty((len(self.filters), x.shape[0], self.n))
         for f, pf in enumerate(self.filters):
-            pf.rng.standard_normal(out=buf[f])
+            self.model._kernel.normal_into(pf.rng, buf[f])
         buf *= np.asarray(self.model.PROCESS_STD, dtype=float)[:, None]
         self._stacked(x)[...] += buf
 

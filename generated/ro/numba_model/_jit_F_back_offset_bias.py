@@ -19,30 +19,73 @@ BLOCK = 128
 @njit(**JIT)
 def derivative_block(x, u, theta, _A, _b, _dx, _w):
     """dx/dt of the first ``_w`` particles (columns) of x (n_x, B) into _dx
-    (compiled; the loop over particles innermost, so that the compiler can
-    vectorise it)."""
+    (compiled; what does not change from particle to particle read before
+    the loop over particles, which writes no array it reads: the compiler
+    vectorises it)."""
+    _xr0 = x[0]
+    _xr1 = x[1]
+    _xr2 = x[2]
+    _xr3 = x[3]
+    _xr4 = x[4]
+    _dxr0 = _dx[0]
+    _dxr1 = _dx[1]
+    _dxr2 = _dx[2]
+    _dxr3 = _dx[3]
+    _dxr4 = _dx[4]
+    _dxr5 = _dx[5]
+    _A_0_0 = _A[0, 0]
+    _A_0_1 = _A[0, 1]
+    _A_0_2 = _A[0, 2]
+    _A_0_3 = _A[0, 3]
+    _b_0_0 = _b[0, 0]
+    _A_1_0 = _A[1, 0]
+    _A_1_1 = _A[1, 1]
+    _A_1_2 = _A[1, 2]
+    _A_1_3 = _A[1, 3]
+    _b_1_0 = _b[1, 0]
+    _A_2_0 = _A[2, 0]
+    _A_2_1 = _A[2, 1]
+    _A_2_2 = _A[2, 2]
+    _A_2_3 = _A[2, 3]
+    _b_2_0 = _b[2, 0]
+    _A_3_0 = _A[3, 0]
+    _A_3_1 = _A[3, 1]
+    _A_3_2 = _A[3, 2]
+    _A_3_3 = _A[3, 3]
+    _b_3_0 = _b[3, 0]
+    C_k = theta[0]
+    C_memb = theta[1]
+    K0 = theta[5]
+    K_slope = theta[6]
+    R_brine = theta[7]
+    R_memb = theta[9]
+    R_pipe = theta[10]
+    k_scale = theta[12]
+    m2 = theta[14]
+    _c0 = 29*K_slope
     for _i in range(_w):
-        e6 = x[1, _i]
-        e13 = x[2, _i]
-        f22 = x[3, _i]
-        e27 = x[4, _i]
-        C_k = theta[0]
-        C_memb = theta[1]
-        K0 = theta[5]
-        K_slope = theta[6]
-        R_brine = theta[7]
-        R_memb = theta[9]
-        R_pipe = theta[10]
-        k_scale = theta[12]
-        m2 = theta[14]
-        _dx[0, _i] = _A[0, 0] * x[0, _i] + _A[0, 1] * x[1, _i] + _A[0, 2] * x[2, _i] + _A[0, 3] * x[3, _i] + _b[0, 0]
-        _dx[1, _i] = _A[1, 0] * x[0, _i] + _A[1, 1] * x[1, _i] + _A[1, 2] * x[2, _i] + _A[1, 3] * x[3, _i] + _b[1, 0]
-        _dx[2, _i] = _A[2, 0] * x[0, _i] + _A[2, 1] * x[1, _i] + _A[2, 2] * x[2, _i] + _A[2, 3] * x[3, _i] + _b[2, 0]
-        _dx[3, _i] = _A[3, 0] * x[0, _i] + _A[3, 1] * x[1, _i] + _A[3, 2] * x[2, _i] + _A[3, 3] * x[3, _i] + _b[3, 0]
-        _c0 = 29*K_slope
-        _dx[2, _i] += (-_c0/(C_memb*R_memb))*e13/(-K0 + _c0 + e27)
-        _dx[4, _i] = (k_scale/(C_k*R_pipe))*(0.1 + (6*k_scale/R_brine)*(e13 - e6))*(e6 - e13 + (m2)*f22)
-        _dx[5, _i] = 0.0
+        _x0 = _xr0[_i]
+        _x1 = _xr1[_i]
+        _x2 = _xr2[_i]
+        _x3 = _xr3[_i]
+        _x4 = _xr4[_i]
+        e6 = _x1
+        e13 = _x2
+        f22 = _x3
+        e27 = _x4
+        _d0 = _A_0_0 * _x0 + _A_0_1 * _x1 + _A_0_2 * _x2 + _A_0_3 * _x3 + _b_0_0
+        _d1 = _A_1_0 * _x0 + _A_1_1 * _x1 + _A_1_2 * _x2 + _A_1_3 * _x3 + _b_1_0
+        _d2 = _A_2_0 * _x0 + _A_2_1 * _x1 + _A_2_2 * _x2 + _A_2_3 * _x3 + _b_2_0
+        _d3 = _A_3_0 * _x0 + _A_3_1 * _x1 + _A_3_2 * _x2 + _A_3_3 * _x3 + _b_3_0
+        _d2 += (-_c0/(C_memb*R_memb))*e13/(-K0 + _c0 + e27)
+        _d4 = (k_scale/(C_k*R_pipe))*(0.1 + (6*k_scale/R_brine)*(e13 - e6))*(e6 - e13 + (m2)*f22)
+        _d5 = 0.0
+        _dxr0[_i] = _d0
+        _dxr1[_i] = _d1
+        _dxr2[_i] = _d2
+        _dxr3[_i] = _d3
+        _dxr4[_i] = _d4
+        _dxr5[_i] = _d5
 
 
 @njit(**JIT)

@@ -72,6 +72,18 @@ def weigh(yhat, y, rows, weight, constant, variance, logw, w, y_mean, y_std):
 
 
 @njit(**JIT)
+def standard_normal(rng, out, start, stop):
+    """Standard normal draws from the ``np.random.Generator`` ``rng`` into
+    the columns start..stop-1 of ``out`` (rows, N), row by row: the numbers,
+    and the generator's state after, of ``rng.standard_normal((rows, stop -
+    start))`` (numba's Generator runs NumPy's algorithms on the same bit
+    generator)."""
+    for j in range(out.shape[0]):
+        for i in range(start, stop):
+            out[j, i] = rng.standard_normal()
+
+
+@njit(**JIT)
 def normalise(logw, w):
     """Normalise the log-weights in place, the weights exp(logw) into ``w``;
     the effective sample size 1 / sum(w^2) (``particle._normalise``)."""

@@ -100,6 +100,17 @@ def rk4(derivative, x, u, theta, dt, substeps, out=None, linear=None):
     return out
 
 
+def normal_into(rng, out, start=0, stop=None):
+    """Standard normal draws from ``rng`` into the columns start..stop-1 of
+    ``out`` (rows, N), row by row: ``rng.standard_normal(out=...)`` of those
+    columns (a compiled kernel draws the same numbers faster)."""
+    stop = out.shape[1] if stop is None else stop
+    if start == 0 and stop == out.shape[1]:
+        rng.standard_normal(out=out)
+    else:
+        out[:, start:stop] = rng.standard_normal((out.shape[0], stop - start))
+
+
 def perturb(x, std, rng):
     """x += std[:, None] * N(0, 1), in place, drawing one block at a time."""
     n_x, n = x.shape

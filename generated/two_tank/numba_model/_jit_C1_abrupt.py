@@ -19,19 +19,34 @@ BLOCK = 128
 @njit(**JIT)
 def derivative_block(x, u, theta, _A, _b, _dx, _w):
     """dx/dt of the first ``_w`` particles (columns) of x (n_x, B) into _dx
-    (compiled; the loop over particles innermost, so that the compiler can
-    vectorise it)."""
+    (compiled; what does not change from particle to particle read before
+    the loop over particles, which writes no array it reads: the compiler
+    vectorises it)."""
+    _xr0 = x[0]
+    _xr1 = x[1]
+    _xr2 = x[2]
+    _dxr1 = _dx[1]
+    _dxr0 = _dx[0]
+    _dxr2 = _dx[2]
+    _A_0_0 = _A[0, 0]
+    _A_0_1 = _A[0, 1]
+    f_in = u[0]
+    R10 = theta[2]
+    R12 = theta[3]
+    f_in_offset = theta[8]
     for _i in range(_w):
-        e2 = x[0, _i]
-        e7 = x[1, _i]
-        f_in = u[0]
-        C1 = theta[0] + x[2, _i]
-        R10 = theta[2]
-        R12 = theta[3]
-        f_in_offset = theta[8]
-        _dx[1, _i] = _A[0, 0] * x[0, _i] + _A[0, 1] * x[1, _i]
-        _dx[0, _i] = (f_in + f_in_offset + (-1/R12)*(e2 - e7) + (-1/R10)*e2)/C1
-        _dx[2, _i] = 0.0
+        _x0 = _xr0[_i]
+        _x1 = _xr1[_i]
+        _x2 = _xr2[_i]
+        e2 = _x0
+        e7 = _x1
+        C1 = theta[0] + _x2
+        _d1 = _A_0_0 * _x0 + _A_0_1 * _x1
+        _d0 = (f_in + f_in_offset + (-1/R12)*(e2 - e7) + (-1/R10)*e2)/C1
+        _d2 = 0.0
+        _dxr1[_i] = _d1
+        _dxr0[_i] = _d0
+        _dxr2[_i] = _d2
 
 
 @njit(**JIT)

@@ -19,12 +19,29 @@ BLOCK = 128
 @njit(**JIT)
 def derivative_block(x, u, theta, _A, _b, _dx, _w):
     """dx/dt of the first ``_w`` particles (columns) of x (n_x, B) into _dx
-    (compiled; the loop over particles innermost, so that the compiler can
-    vectorise it)."""
+    (compiled; what does not change from particle to particle read before
+    the loop over particles, which writes no array it reads: the compiler
+    vectorises it)."""
+    _xr0 = x[0]
+    _xr1 = x[1]
+    _dxr0 = _dx[0]
+    _dxr1 = _dx[1]
+    _dxr2 = _dx[2]
+    _A_0_0 = _A[0, 0]
+    _A_0_1 = _A[0, 1]
+    _b_0_0 = _b[0, 0]
+    _A_1_0 = _A[1, 0]
+    _A_1_1 = _A[1, 1]
+    _b_1_0 = _b[1, 0]
     for _i in range(_w):
-        _dx[0, _i] = _A[0, 0] * x[0, _i] + _A[0, 1] * x[1, _i] + _b[0, 0]
-        _dx[1, _i] = _A[1, 0] * x[0, _i] + _A[1, 1] * x[1, _i] + _b[1, 0]
-        _dx[2, _i] = 0.0
+        _x0 = _xr0[_i]
+        _x1 = _xr1[_i]
+        _d0 = _A_0_0 * _x0 + _A_0_1 * _x1 + _b_0_0
+        _d1 = _A_1_0 * _x0 + _A_1_1 * _x1 + _b_1_0
+        _d2 = 0.0
+        _dxr0[_i] = _d0
+        _dxr1[_i] = _d1
+        _dxr2[_i] = _d2
 
 
 @njit(**JIT)
