@@ -1,8 +1,40 @@
-"""pytest's collection of bgc's doctests (``testpaths``): the compiled
-backend's kernels import numba, the ``fast`` extra; without it they are not
-collected (the NumPy package never imports them)."""
+"""pytest's set-up, loaded before anything imports NumPy.
+
+The compiled backend's kernels import numba, the ``fast`` extra; without it
+they are not collected as doctests (the NumPy package never imports them).
+
+OpenBLAS chooses its kernels by CPU (Haswell, SkylakeX, Zen, ...), and they
+add the terms of a matrix product in different orders: the rounding differs
+from machine to machine, and a particle filter's resampling turns a
+difference in the last bit into another cloud. The regression corpus
+(tests/regression) is recorded with the Haswell kernels (AVX2 and FMA, which
+every x86-64 CPU of the last ten years has); on a CPU that can run them the
+suite asks OpenBLAS for them (``OPENBLAS_CORETYPE``, read when NumPy loads
+OpenBLAS, unless the caller set it), so the corpus replays bit for bit on
+any such machine. Elsewhere, or with other kernels asked for, the corpus's
+exact numbers are skipped, with that reason (tests/test_regression.py).
+"""
 
 import importlib.util
+import os
+
+#: The OpenBLAS kernels the regression corpus is recorded with (tests/regression/record.py).
+RECORDED_CORETYPE = "Haswell"
+#: What the Haswell kernels need of the CPU.
+_HASWELL_FLAGS = ("avx2", "fma")
+
+
+def _runs_haswell() -> bool:
+    try:
+        with open("/proc/cpuinfo") as f:
+            flags = set(f.read().split())
+    except OSError:
+        return False
+    return all(flag in flags for flag in _HASWELL_FLAGS)
+
+
+if _runs_haswell():
+    os.environ.setdefault("OPENBLAS_CORETYPE", RECORDED_CORETYPE)
 
 collect_ignore = ([] if importlib.util.find_spec("numba") is not None
                   else ["bgc/runtime/filters/numba_kernel.py", "bgc/runtime/filters/_jit_kernel.py"])

@@ -492,3 +492,22 @@ def test_a_cell_of_a_parameter_no_sensor_sees_is_the_nominal_filter_up_to_its_on
         assert r.loglik[1] == pytest.approx(t.loglik[k + 1], rel=1e-12)
         assert abs(r.loglik[2] - t.loglik[k + 1]) > 1e-6  # from k - 1 on, the transition into k has the bias
         np.testing.assert_allclose(r.mean[0], t.mean[k + 1], rtol=1e-12)
+
+
+def test_a_cell_whose_likelihood_exceeds_what_its_measurement_noise_allows_is_impossible():
+    """log N(y; yhat, S) <= -(k log 2 pi + log det R) / 2 when S = Syy + R with
+    Syy positive semi-definite: a value above it (a diverged cell whose
+    spread lost that by rounding) becomes -inf; values at or below it, and
+    per-cell noise, are kept."""
+    from bgc.runtime.kalman import LOG_2PI, _impossible
+
+    variances = np.array([0.04, 0.25])
+    bound = -0.5 * (2 * LOG_2PI + math.log(0.04) + math.log(0.25))
+    loglik = np.array([bound - 3.0, bound, 4.5e19, bound + 1e-3])
+    _impossible(loglik, variances)
+    assert loglik[0] == bound - 3.0 and loglik[1] == bound
+    assert loglik[2] == -math.inf and loglik[3] == -math.inf
+    per_cell = np.array([[1.0], [0.01]])  # cell 1's smaller noise allows more
+    loglik = np.full(2, -0.5 * LOG_2PI + 1.0)
+    _impossible(loglik, per_cell)
+    assert loglik[0] == -math.inf and loglik[1] == -0.5 * LOG_2PI + 1.0

@@ -305,13 +305,7 @@ class _Filter:
         flat = self.buffer[:, :2 * n * C]
         X = flat.reshape(self.n_x, C, 2 * n)
         self._points(m, P, X)
-        for j, row in enumerate(self.extra):
-            X[row] = fixed[j][:, None]
-        if self.extra:
-            X[self.extra[-1], onset] = 0.0
-        model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
-        for j, row in enumerate(self.extra[:-1]):  # a drifting parameter: the same in every point of a cell
-            fixed[j] = X[row, :, 0]
+        self._predict_points(flat, X, u, fixed, onset, dt)
         Xp = self._physical(X)  # (C, n, 2n)
         mp = np.add.reduce(Xp, axis=2)
         mp *= self.inverse
@@ -340,9 +334,11 @@ class _Filter:
         Syy *= self.inverse
         if self.varies:  # each cell its own R
             diagonal = np.arange(len(rows))
-            Syy[:, diagonal, diagonal] += self._cell_noise(mp, fixed, rows)
+            variances = self._cell_noise(mp, fixed, rows)
+            Syy[:, diagonal, diagonal] += variances
         else:
             Syy += R
+            variances = self.R[rows]
         # [v | Pxy'] (C, k, 1 + n), Pxy' = (DY+ - DY-) L' / 2n
         rhs = np.empty((C, len(rows), 1 + n))
         np.subtract(y[rows], yh, out=rhs[:, :, 0])
@@ -356,6 +352,7 @@ class _Filter:
         loglik += 2.0 * np.log(diagonal).sum(axis=1)
         loglik += len(rows) * LOG_2PI
         loglik *= -0.5
+        _impossible(loglik, variances)
         sd = np.sqrt(np.diagonal(Syy, axis1=1, axis2=2))
         zk = rhs[:, :, 0] / sd
         if not every:
@@ -372,6 +369,21 @@ class _Filter:
         return loglik, m, P, zk, yh, sd
 
 
+    def _predict_points(self, flat, X, u, fixed, onset, dt):
+        """Move every cell's points (``flat`` (n_x, C 2n), ``X`` its (n_x, C,
+        2n) view) through the model over one sample, in place: first each
+        cell's fixed rows (``fixed``: the magnitude, a drifting parameter)
+        written into its points, the magnitude 0 in the cells before their
+        onset; after it a drifting parameter read back into ``fixed``."""
+        model = self.model
+        for j, row in enumerate(self.extra):
+            X[row] = fixed[j][:, None]
+        if self.extra:
+            X[self.extra[-1], onset] = 0.0
+        model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
+        for j, row in enumerate(self.extra[:-1]):  # a drifting parameter: the same in every point of a cell
+            fixed[j] = X[row, :, 0]
+
     def _compiled_step(self, y, u, m, P, fixed, onset, dt):
         """:meth:`step` with a compiled package's kernel: the arithmetic
         between the model's calls (points, moments, the update) in compiled
@@ -381,13 +393,7 @@ class _Filter:
         flat = np.empty((self.n_x, 2 * n * C))
         X = flat.reshape(self.n_x, C, 2 * n)
         kernel.cubature_points(np.ascontiguousarray(m), np.ascontiguousarray(P), self.root, flat, phys)
-        for j, row in enumerate(self.extra):
-            X[row] = fixed[j][:, None]
-        if self.extra:
-            X[self.extra[-1], onset] = 0.0
-        model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
-        for j, row in enumerate(self.extra[:-1]):  # a drifting parameter: the same in every point of a cell
-            fixed[j] = X[row, :, 0]
+        self._predict_points(flat, X, u, fixed, onset, dt)
         seen = np.isfinite(y)
         if not seen.any():
             mp, Pp, _ = kernel.cubature_predicted(flat, phys, self.inverse, self.scale, self.Q, self.root)
@@ -407,12 +413,27 @@ class _Filter:
         loglik, m, P, zk, yh, sd = kernel.cubature_update(model.observe(flat, u, model.THETA), rows,
                                                           np.ascontiguousarray(y, dtype=float), noise, L,
                                                           self.inverse, mp, Pp)
+        _impossible(loglik, noise)
         if not seen.all():
             full = [np.full((C, len(y)), np.nan) for _ in range(3)]
             for out, part in zip(full, (zk, yh, sd)):
                 out[:, rows] = part
             zk, yh, sd = full
         return loglik, m, P, zk, yh, sd
+
+
+def _impossible(loglik: np.ndarray, variances: np.ndarray) -> None:
+    """Set to -inf, in place, each cell's log p(y | the past) (C,) that lies
+    above what a Gaussian with the measurement noise ``variances`` ((k,), or
+    (C, k) one row per cell) allows: with S = Syy + R and Syy positive
+    semi-definite, det S >= det R, so log p <= -(k log 2 pi + log det R) / 2.
+    Only a cell whose points' spread lost that property by rounding exceeds
+    it (a cell that diverged: a magnitude that makes the model unstable, its
+    covariance collapsed under a mean of 1e19), and its value (up to 1e19
+    here) would outweigh every sound cell of the grid."""
+    k = variances.shape[-1]
+    bound = -0.5 * (k * LOG_2PI + np.log(variances).sum(axis=-1))
+    loglik[loglik > bound + 1e-9 * (np.abs(bound) + 1.0)] = -math.inf
 
 
 def lower_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -968,11 +989,16 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
         current = np.asarray(sorted(set(batch) | set(current.tolist())))
     name = getattr(model, "NAME", "")
     widths = [width_of[int(o)] for o in current]
-    if g is None or not math.isfinite(g.top):
+
+    def none_told() -> StaticPosterior:
+        """What the grid cannot tell: no likelihood (log evidence -inf), no estimate."""
         nan = math.nan
         return StaticPosterior(name, tuple(int(o) for o in current), tuple(widths), np.zeros((len(current), 0)),
                                np.zeros((len(current), 0)), -math.inf, nan, nan, nan, nan, level, nan,
                                int(current[0]), tuple(0.0 for _ in current), passes)
+
+    if g is None or not math.isfinite(g.top):
+        return none_told()
     spans = span(current)
     nodes, changes, logm, rows = [], [], [], []
     for i, (m, ll) in enumerate(zip(g.magnitudes, g.loglik)):
@@ -986,6 +1012,8 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     shift = _overflow_shift(float(np.max(every)))  # see _grid
     mass = np.exp(every - shift)
     total = float(mass.sum())
+    if not total > 0.0:  # the best points of the grid hold no mass (each between points outside the prior)
+        return none_told()
     log_evidence = g.top + shift + math.log(total) - math.log(b - a)
     p = mass / total
     mean = float(p @ x)

@@ -127,7 +127,8 @@ def warm_up(package: ModuleType, workers: int | None = None) -> tuple[float, int
     kernel = models[0]._kernel
     jitted = [k for m in models for k in (m._JIT.predict, m._JIT.observe)]
     jitted += [getattr(kernel._JIT, name) for name in ("loglik", "weigh", "normalise", "resample", "moments",
-                                                       "cubature_points", "cubature_predicted", "cubature_update")]
+                                                       "standard_normal", "cubature_points", "cubature_predicted",
+                                                       "cubature_update")]
     before = {id(k): (sum(k.stats.cache_misses.values()), sum(k.stats.cache_hits.values())) for k in jitted}
     cold = [name for name, m in package.MODELS.items() if _cold(m)]
     workers = min(workers or len(os.sched_getaffinity(0)) or 1, 4, len(cold))
@@ -146,6 +147,7 @@ def warm_up(package: ModuleType, workers: int | None = None) -> tuple[float, int
     kernel.weigh(yhat, np.zeros(1), np.ones(1), logw, w)
     kernel.resample(yhat, kernel.normalise(logw)[2], 0.5)
     kernel.moments(yhat, w)
+    kernel.normal_into(np.random.default_rng(0), np.empty((1, kernel.DRAWN)))  # compiled draws (a Generator)
     kalman.CubatureKalmanFilter(models[0]).step(np.full(len(models[0].OUTPUTS), 0.0), models[0].inputs(0.0))
     compiled = sum(1 for k in jitted if sum(k.stats.cache_misses.values()) > before[id(k)][0])
     loaded = sum(1 for k in jitted if sum(k.stats.cache_hits.values()) > before[id(k)][1])

@@ -10,8 +10,19 @@ drivetrain's fault-free run whose particle observer degenerates
 and is "unexplained" (every hypothesis presses against no change); and
 drivetrain_b1_drift_up_opf was "isolated: c_s_abrupt" and is "isolated:
 b2_incipient", wrong before and after (the truth, b1's drift, is dropped by
-its particle filters' test, at 4.9 against a threshold of 4.9, in both). A
-change that is meant to change
+its particle filters' test, at 4.9 against a threshold of 4.9, in both).
+Re-recorded on 2026-11-28 (--only, --keep-runs, the code of that day's
+commit): ro_R_pipe_drift_up_ckf, ro_R_pipe_drift_up_gpf,
+dc_motor_R_a_step_up_gpf, dc_motor_k_step_up_every_fallback_ckf and
+drivetrain_b1_drift_up_opf, whose numbers depend on the rounding of
+OpenBLAS's kernels (a hypothesis dropped a step earlier or later, the
+particle clouds after it; that code replays the first recording exactly
+with the SkylakeX kernels): the corpus is now recorded and replayed with the
+Haswell kernels (``OPENBLAS_CORETYPE``, set here and by the root
+conftest.py), which any CPU with AVX2 runs. The verdict of
+drivetrain_b1_drift_up_opf moved with the rounding, from "isolated:
+b2_incipient" (wrong) to "ambiguous: g_m_incipient, b1_incipient" (the truth
+among two): its particle filters' test sits on its threshold. A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
 ``bgc/`` holds exactly the code being committed, and commits the corpus with
 that code (the commit is the provenance; its message says why):
@@ -45,6 +56,10 @@ import time
 from pathlib import Path
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+# as the test replays the corpus: the NumPy backend (tests/conftest.py), and the OpenBLAS kernels the
+# root conftest.py asks for (read when NumPy loads OpenBLAS: set before it is imported)
+os.environ.setdefault("BGC_BACKEND", "numpy")
+os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent

@@ -202,12 +202,13 @@ def cubature_moments(X, phys, inverse, scale, Q, mp, Pp):
             mp[c, i] = s * inverse
             for p in range(2 * n):
                 D[i, p] = (X[phys[i], c * 2 * n + p] - mp[c, i]) * scale
-        for i in range(n):
-            for j in range(n):
+        for i in range(n):  # each sum once: D[i] D[j] and D[j] D[i] are the same products
+            for j in range(i + 1):
                 s = 0.0
                 for p in range(2 * n):
                     s += D[i, p] * D[j, p]
                 Pp[c, i, j] = s + Q[i, j]
+                Pp[c, j, i] = s + Q[j, i]
 
 
 @njit(**JIT)
@@ -233,11 +234,12 @@ def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp, loglik, m, P, zk, yh,
             for p in range(2 * n):
                 DY[a, p] = Y[rows[a], c * 2 * n + p] - yh[c, a]
         for a in range(k):
-            for b in range(k):
+            for b in range(a + 1):  # each sum once, as above
                 s = 0.0
                 for p in range(2 * n):
                     s += DY[a, p] * DY[b, p]
                 S[a, b] = s * inverse
+                S[b, a] = s * inverse
             S[a, a] += noise[c, a]
             rhs[a, 0] = y[rows[a]] - yh[c, a]
             for i in range(n):  # Pxy' = (DY+ - DY-) L' / 2n
