@@ -12,6 +12,7 @@ hypothesis (bgc/runtime/kalman.py), against references derived here:
 """
 
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -494,20 +495,36 @@ def test_a_cell_of_a_parameter_no_sensor_sees_is_the_nominal_filter_up_to_its_on
         np.testing.assert_allclose(r.mean[0], t.mean[k + 1], rtol=1e-12)
 
 
-def test_a_cell_whose_likelihood_exceeds_what_its_measurement_noise_allows_is_impossible():
-    """log N(y; yhat, S) <= -(k log 2 pi + log det R) / 2 when S = Syy + R with
-    Syy positive semi-definite: a value above it (a diverged cell whose
-    spread lost that by rounding) becomes -inf; values at or below it, and
-    per-cell noise, are kept."""
-    from bgc.runtime.kalman import LOG_2PI, _impossible
+def test_the_row_quadrature_does_not_rise_far_above_its_points_next_to_an_extreme_one():
+    """A row of log densities as the compiled backend's grid gave for the DC
+    motor's b_incipient: sound points, then a cell whose model diverged
+    (-1.96e18), then points outside the prior. The parabola through the
+    extreme point bent the interpolant of the interval before it up to about
+    1e17 (the grid's log evidence came out at 4.5e19 on the NumPy backend;
+    on the compiled one its mass underflowed to 0 and the static posterior
+    failed); a neighbour that far below shapes no parabola, and the interval
+    stays below its left end. The peak between the two highest points may
+    still rise above them (a row too coarse for its peak), by what the
+    parabolas through sound points say."""
+    from bgc.runtime.kalman import row_quadrature
 
-    variances = np.array([0.04, 0.25])
-    bound = -0.5 * (2 * LOG_2PI + math.log(0.04) + math.log(0.25))
-    loglik = np.array([bound - 3.0, bound, 4.5e19, bound + 1e-3])
-    _impossible(loglik, variances)
-    assert loglik[0] == bound - 3.0 and loglik[1] == bound
-    assert loglik[2] == -math.inf and loglik[3] == -math.inf
-    per_cell = np.array([[1.0], [0.01]])  # cell 1's smaller noise allows more
-    loglik = np.full(2, -0.5 * LOG_2PI + 1.0)
-    _impossible(loglik, per_cell)
-    assert loglik[0] == -math.inf and loglik[1] == -0.5 * LOG_2PI + 1.0
+    values = np.linspace(-3.1e-4, 1.56e-3, 9)
+    logd = np.array([-np.inf, -8977.98, -5050.65, -4153.61, -4374.58, -8682.57, -1.95757e18, -np.inf, -np.inf])
+    _, logm = row_quadrature(values, logd + 4153.61)
+    per_interval = logm.reshape(len(values) - 1, -1).max(axis=1)
+    assert per_interval[4] < -4374.58 + 4153.61  # between -221 and -4529, next to the extreme point
+    assert np.max(logm) < 500.0  # the coarse peak between 0 and -221: the parabolas' own rise
+
+
+def test_a_grid_whose_points_hold_no_mass_tells_nothing_instead_of_failing(monkeypatch):
+    """Should the final quadrature's masses all vanish (every mass below the
+    shift), the static posterior says it cannot tell (log evidence -inf, no
+    estimate) instead of raising math.log's domain error."""
+    synthetic(monkeypatch, lambda onsets, c: -0.5 * ((c - 1.0) / 0.1) ** 2)
+    real = kalman._overflow_shift
+
+    def shift(peak):  # the grid's passes as usual; the final sum's masses all 0
+        return math.inf if sys._getframe(1).f_code.co_name == "static_posterior" else real(peak)
+    monkeypatch.setattr(kalman, "_overflow_shift", shift)
+    p = posterior(FakeFault("abrupt", (0.0, 2.0)), [100], (0.8, 1.2), 100)
+    assert p.log_evidence == -math.inf and math.isnan(p.mean)

@@ -22,7 +22,13 @@ Haswell kernels (``OPENBLAS_CORETYPE``, set here and by the root
 conftest.py), which any CPU with AVX2 runs. The verdict of
 drivetrain_b1_drift_up_opf moved with the rounding, from "isolated:
 b2_incipient" (wrong) to "ambiguous: g_m_incipient, b1_incipient" (the truth
-among two): its particle filters' test sits on its threshold. A change that is meant to change
+among two): its particle filters' test sits on its threshold. Then, the same day,
+dc_motor_R_a_step_up_gpf and dc_motor_k_step_up_every_fallback_ckf: their
+b_incipient had a log evidence of 4.5e19 and 6.4e20 with a std of 0, the
+quadrature's parabola bent up by a grid cell whose model diverged (-2e18);
+a neighbour that far below no longer shapes a parabola
+(``kalman.row_quadrature``), and b_incipient's log evidence is -3920 and
+-5072 (it was dropped before the end in both, the verdicts are unchanged). A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
 ``bgc/`` holds exactly the code being committed, and commits the corpus with
 that code (the commit is the provenance; its message says why):
