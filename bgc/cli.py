@@ -220,6 +220,8 @@ def cmd_filter(args: argparse.Namespace) -> int:
               file=sys.stderr)
     name = _fault_model(c, args.fault) if args.fault else "nominal"
     track.check_request(run, package, name, args.particles, args.start)
+    from .output.labels import labels_of
+
     results = []
     for method in (["gpf", "apf"] if args.method == "both" else [args.method]):
         r = track.track(run, package, name, method, args.particles, args.seed, args.start)
@@ -231,7 +233,7 @@ def cmd_filter(args: argparse.Namespace) -> int:
         print("  RMSE vs truth: " + (rmse or "no truth in the run"))
         last = ", ".join(f"{x} {m:.4g} +- {s:.2g}" for x, m, s in zip(r.state_names, r.mean[-1], r.std[-1]))
         print(f"  final estimate: {last}")
-        est = track.fault_estimate(r, package, run)
+        est = track.fault_estimate(r, package, run, labels_of(c.model).per_time)
         if est is not None:
             true_text = ""
             if est.truth is not None:
@@ -239,7 +241,6 @@ def cmd_filter(args: argparse.Namespace) -> int:
             print(f"  estimate of {est.what} at t = {est.time:g}: {est.value:.4g} +- {est.std:.2g}{true_text}")
     if args.plot:
         from .output import plots
-        from .output.labels import labels_of
 
         artifacts.write_file(Path(args.plot), plots.tracking_figure(run, results, "png", labels_of(c.model)))
         print(f"wrote {printable(args.plot)}")

@@ -230,7 +230,7 @@ def test_filter_on_a_broken_run_file_is_one_located_line(tmp_path, content, mess
 
 def test_filter_on_a_run_of_one_sample_works(tmp_path):
     model = tmp_path / "rc.yaml"
-    model.write_text(RC % ("1.0", "2.0", "measurements: {e3: {}}"))
+    model.write_text(RC % ("1.0", "2.0", "measurements: {e3: {}}\nsimulation: {time_unit: ms}"))
     csv = tmp_path / "run.csv"
     assert run("compile", str(model), "-o", str(tmp_path / "g"), "--no-pictures").returncode == 0
     assert run("simulate", str(model), "--steps", "1", "-o", str(csv)).returncode == 0
@@ -238,7 +238,7 @@ def test_filter_on_a_run_of_one_sample_works(tmp_path):
     assert r.returncode == 0 and "GPF on nominal, N = 200: 1 steps" in r.stdout, r.stderr
     r = run("filter", str(model), str(csv), "--generated", str(tmp_path / "g"), "--method", "gpf",
             "--fault", "R:incipient", "--start", "1")
-    assert r.returncode == 0 and "estimate of slope of R" in r.stdout, r.stderr
+    assert r.returncode == 0 and "estimate of slope of R (per ms)" in r.stdout, r.stdout + r.stderr  # the model's time unit
 
 
 def test_filter_without_the_compiled_package_names_generated(tmp_path):

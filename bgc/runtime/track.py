@@ -261,9 +261,11 @@ class FaultEstimate:
         return abs(self.value - self.truth) / abs(self.truth or 1.0)
 
 
-def fault_estimate(result: TrackResult, package: ModuleType, run: Run) -> FaultEstimate | None:
+def fault_estimate(result: TrackResult, package: ModuleType, run: Run,
+                   per_time: str = "per unit time") -> FaultEstimate | None:
     """The fault estimate of a fault-model track (None for the nominal model):
-    a bias as the parameter's value (nominal + bias), a slope as it is."""
+    a bias as the parameter's value (nominal + bias), a slope as it is
+    (``per_time``: how its rate is named, e.g. "per s" in the model's time unit)."""
     fault = result.fault
     if not fault:
         return None
@@ -275,7 +277,7 @@ def fault_estimate(result: TrackResult, package: ModuleType, run: Run) -> FaultE
     mean, std = float(result.mean[-1, k]), float(result.std[-1, k])
     truth = run.parameters.get(p)
     if kind.drifts:
-        value, what = mean, f"{kind.magnitude} of {p} (per unit time)"
+        value, what = mean, f"{kind.magnitude} of {p} ({per_time})"
         true_value = None
         if truth is not None and len(truth) > 1:
             true_value = float((truth[-1] - truth[-2]) / (run.time[-1] - run.time[-2]))
