@@ -191,24 +191,15 @@ def normal_into(rng, out, start=0, stop=None):
     if ((stop - start) * out.shape[0] >= DRAWN and isinstance(rng, np.random.Generator)
             and out.dtype == np.float64 and out.flags.c_contiguous):
         _JIT.standard_normal(rng, out, start, stop)
-    elif start == 0 and stop == out.shape[1]:
-        rng.standard_normal(out=out)
     else:
-        out[:, start:stop] = rng.standard_normal((out.shape[0], stop - start))
+        _numpy.normal_into(rng, out, start, stop)
 
 
 def perturb(x, std, rng):
     """x += std[:, None] * N(0, 1), in place: the NumPy kernel's
-    :func:`perturb` (the same numbers, the same arithmetic), its draws
-    compiled, a block at a time."""
-    n_x, n = x.shape
-    scale = np.asarray(std, dtype=float)[:, None]
-    for start, stop in spans(n)[0]:
-        buf = block_views("state", 1, n_x, stop - start)[0]
-        normal_into(rng, buf)
-        buf *= scale
-        x[:, start:stop] += buf
-    return x
+    :func:`perturb` (the same numbers, the same arithmetic), its blocks
+    drawn by :func:`normal_into`."""
+    return _numpy.perturb(x, std, rng, normal_into)
 
 
 #: log(2 pi), of the Gaussian log densities.

@@ -77,6 +77,21 @@ def offspring_counts(w, rng, overwrite=False, chunk=8192):
     return counts
 
 
+def gauss_terms(cache, seen, std, kernel, compiled=False):
+    """The Gaussian log-likelihood's terms of a pattern ``seen`` of sensors
+    read (bool (n_y,)) with noise std ``std`` (n_y,), kept in ``cache`` per
+    pattern: (the rows read, None when all are, -1 / (2 std^2) of them, the
+    sum of their log normalisers); ``compiled``: a compiled kernel's own
+    ``gauss_terms`` (what its ``weigh`` takes)."""
+    key = (compiled, seen.tobytes())
+    hit = cache.get(key)
+    if hit is None:
+        hit = cache[key] = (kernel.gauss_terms(seen, std) if compiled else
+                            (None if seen.all() else np.flatnonzero(seen), -0.5 / (std[seen] * std[seen]),
+                             kernel.log_normaliser(std[seen])))
+    return hit
+
+
 def noise_variance(r, w):
     """The measurement noise's variance (n_y,) over weighted particles
     (weights ``w``) from their noise std ``r``, a model's
@@ -278,22 +293,11 @@ class GenericParticleFilter(_Filter):
             return self._weigh_each(y, u, std)
         w = self._weights()
         if self._small and hasattr(kernel, "weigh"):  # a compiled package's kernel: the loop below in one call
-            gauss = None
-            if y is not None:
-                seen = np.isfinite(y)
-                key = (b"compiled", seen.tobytes())
-                if key not in self._gauss:  # per pattern of missing outputs
-                    self._gauss[key] = kernel.gauss_terms(seen, std)
-                gauss = self._gauss[key]
+            gauss = None if y is None else gauss_terms(self._gauss, np.isfinite(y), std, kernel, compiled=True)
             return kernel.weigh(model.observe(self.x, u, self.theta), y, std, self.logw, w, gauss)
         n_y = len(std)
         if y is not None:
-            seen = np.isfinite(y)
-            key = seen.tobytes()
-            if key not in self._gauss:  # per pattern of missing outputs
-                self._gauss[key] = (None if seen.all() else np.flatnonzero(seen), -0.5 / (std[seen] * std[seen]),
-                                    kernel.log_normaliser(std[seen]))
-            rows, weight, constant = self._gauss[key]
+            rows, weight, constant = gauss_terms(self._gauss, np.isfinite(y), std, kernel)
             measured = y if rows is None else y[rows]
         s1 = np.zeros(n_y)
         s2 = np.zeros(n_y)
@@ -666,12 +670,7 @@ class FilterBank:
         s1 = np.zeros(shift.shape)
         s1 += np.matmul(d, self.w[:, :, None])[:, :, 0]
         if not missing:
-            seen = np.isfinite(y)
-            key = seen.tobytes()
-            if key not in self._gauss:
-                self._gauss[key] = (None if seen.all() else np.flatnonzero(seen), -0.5 / (std[seen] * std[seen]),
-                                    model._kernel.log_normaliser(std[seen]))
-            rows, weight, constant = self._gauss[key]
+            rows, weight, constant = gauss_terms(self._gauss, np.isfinite(y), std, model._kernel)
             measured = y if rows is None else y[rows]
             constants = np.empty(count)
             cross = np.empty((count, self.n))

@@ -111,14 +111,16 @@ def normal_into(rng, out, start=0, stop=None):
         out[:, start:stop] = rng.standard_normal((out.shape[0], stop - start))
 
 
-def perturb(x, std, rng):
-    """x += std[:, None] * N(0, 1), in place, drawing one block at a time."""
+def perturb(x, std, rng, normal=normal_into):
+    """x += std[:, None] * N(0, 1), in place, drawing one block at a time
+    (``normal``: what draws a block, :func:`normal_into` or a compiled
+    kernel's, which draws the same numbers)."""
     n_x, n = x.shape
     scale = np.asarray(std, dtype=float)[:, None]
     parts, _ = spans(n)
     for start, stop in parts:
         buf = block_views("state", 1, n_x, stop - start)[0]  # contiguous, as rng needs
-        rng.standard_normal(out=buf)
+        normal(rng, buf)
         buf *= scale
         x[:, start:stop] += buf
     return x
