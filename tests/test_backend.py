@@ -334,3 +334,62 @@ def test_auto_falls_back_to_numpy_when_the_compiled_package_is_missing(tmp_path,
     assert "numba_model" in session.backend_note()
     with pytest.raises(TrackingError, match="--backend numpy"):
         bgc.open("models/circuit.yaml", generated=tmp_path, backend="numba")
+
+
+def test_compiled_draws_are_the_generators_own_numbers_and_leave_it_where_numpy_would():
+    """The compiled kernel draws from a Generator through its bit generator's
+    handle (no conversion of the Generator per call): the numbers of
+    ``rng.standard_normal`` of the same shape, and the generator's next draw
+    the same after, for two bit generators; a column range fills those
+    columns only, row by row."""
+    kernel = packages("ro")[1].MODELS["nominal"]._kernel
+    for bits in (np.random.PCG64, np.random.Philox):
+        ours, theirs = np.random.Generator(bits(11)), np.random.Generator(bits(11))
+        out = np.full((3, 7), 9.0)
+        kernel.normal_into(ours, out, 2, 6)
+        assert np.array_equal(out[:, 2:6], theirs.standard_normal((3, 4)))
+        assert (out[:, :2] == 9.0).all() and (out[:, 6:] == 9.0).all()
+        assert ours.random() == theirs.random()
+    assert kernel.generator_handle(np.random.RandomState(0)) is None
+
+
+def test_a_compiled_generic_filter_step_is_one_call_with_the_numpy_filters_numbers(monkeypatch):
+    """Up to two blocks of particles the compiled package's generic filter
+    makes a whole step in one compiled call (the model's transition is not
+    called), resampling (a uniform drawn only then) as the NumPy filter does:
+    the same outputs and the same generator state after every step."""
+    ys, us = record("ro", steps=40)
+    numpy_pkg, numba_pkg = packages("ro")
+    model = numba_pkg.MODELS["R_pipe_abrupt"]
+    monkeypatch.setattr(model, "transition", lambda *a, **k: pytest.fail("the step was not one compiled call"))
+    filters = [p.filters.GenericParticleFilter(p.MODELS["R_pipe_abrupt"], 200, np.random.default_rng(5))
+               for p in (numpy_pkg, numba_pkg)]
+    resampled = 0
+    for y, u in zip(ys, us):
+        a, b = (f.step(y, u) for f in filters)
+        assert a.resampled == b.resampled
+        resampled += a.resampled
+        for k in ("mean", "std", "y_mean", "y_std", "ess"):
+            assert difference(np.atleast_1d(getattr(a, k))[None, :], np.atleast_1d(getattr(b, k))[None, :]) <= TOLERANCE
+        assert filters[0].rng.bit_generator.state == filters[1].rng.bit_generator.state
+    assert 0 < resampled < len(ys)
+
+
+def test_a_compiled_model_names_the_kernel_its_cached_step_was_compiled_with():
+    """numba's disk cache of a model's compiled step holds the kernel's loops
+    and is renewed only when the model's file changes: each ``_jit_<model>.py``
+    carries the sha256 of the ``_jit_kernel.py`` beside it, so a new kernel
+    rewrites every model file."""
+    import hashlib
+
+    from bgc.runtime.filters import _jit_kernel
+
+    source = open(_jit_kernel.__file__, encoding="utf-8").read()
+    for name in MODELS:
+        folder = ROOT / "generated" / name / "numba_model"
+        shipped = (folder / "_jit_kernel.py").read_text(encoding="utf-8")
+        assert shipped.endswith(source)
+        digest = hashlib.sha256(source.encode("utf-8")).hexdigest()
+        for path in folder.glob("_jit_*.py"):
+            if path.name != "_jit_kernel.py":
+                assert f'KERNEL_SHA256 = "{digest}"' in path.read_text(encoding="utf-8"), path

@@ -20,6 +20,8 @@ parameter called ``out``, ``linear`` or ``A`` cannot shadow anything.
 
 from __future__ import annotations
 
+import hashlib
+
 import re
 from importlib import resources
 
@@ -65,13 +67,15 @@ def generate(dbns: DbnModel, num: Numerics) -> GeneratedPackage:
     files: dict[str, str] = {}
     compiled: dict[str, str] = {}
     modules = []
+    kernel_sha256 = hashlib.sha256(_fixed_text("_jit_kernel.py").encode("utf-8")).hexdigest()
     for d in (dbns.nominal, *dbns.faulty):
         name = module_name(d.name)
         modules.append(name)
         ctx = _model_context(dbns, num, d)
         files[f"{name}.py"] = env.get_template("model.py.j2").render(**common, **ctx, numba=False)
         compiled[f"{name}.py"] = env.get_template("model.py.j2").render(**common, **ctx, numba=True)
-        compiled[f"_jit_{name}.py"] = env.get_template("model_jit.py.j2").render(**common, **ctx)
+        compiled[f"_jit_{name}.py"] = env.get_template("model_jit.py.j2").render(**common, **ctx,
+                                                                                   kernel_sha256=kernel_sha256)
     for package, fixed in ((files, FIXED_FILES), (compiled, NUMBA_FIXED_FILES)):
         for name, source in fixed.items():
             package[name] = _header(common["source"]) + _fixed_text(source)

@@ -75,23 +75,80 @@ def _cold(model: ModuleType) -> bool:
         return True
 
 
-def _call_kernels(model: ModuleType) -> None:
+def _compiled_step(model: ModuleType) -> bool:
+    """Whether warm-up compiles the model's whole generic filter step
+    (``_JIT.generic_step``): the nominal model's, a diagnosis's watching
+    filter (a fault model's is compiled when a filter first steps alone)."""
+    return model.NAME == "nominal" and hasattr(model._JIT, "generic_step")
+
+
+def _call_kernels(package: ModuleType, model: ModuleType) -> None:
     """Call a compiled model's kernels (``_JIT.predict``, ``_JIT.observe``: the
     per-particle functions are compiled into them) once on one particle,
-    compiling them or loading them from the disk cache."""
+    compiling them or loading them from the disk cache; the nominal model's
+    whole generic filter step too (:func:`_compiled_step`)."""
     x = np.array(model.X0, dtype=float)[:, None].copy()
     u = model.inputs(0.0)
     model.predict(x, u, model.THETA, model.DT, out=x)
     model.observe(x, u, model.THETA)
+    if _compiled_step(model):
+        package.filters.GenericParticleFilter(model, 2, np.random.default_rng(0)).step(
+            np.full(len(model.OUTPUTS), np.nan), u)
 
 
-def _compile_some(args: tuple[str, list[str]]) -> int:
+def _call_kernel_loops(model: ModuleType) -> None:
+    """Call the compiled kernel's loops (``model._kernel._JIT``: the Gaussian
+    log-likelihood, the generic filter's weighing, normalising, resampling,
+    draws and moments, the cubature Kalman filter's steps) once each."""
+    kernel = model._kernel
+    kernel.gaussian_loglik(np.zeros(1), np.zeros((1, 1)), np.ones(1))
+    logw, w, yhat = np.zeros(2), np.full(2, 0.5), np.zeros((1, 2))
+    kernel.weigh(yhat, np.zeros(1), np.ones(1), logw, w)
+    kernel.resample(yhat, kernel.normalise(logw)[2], 0.5)
+    kernel.moments(yhat, w)
+    kernel.normal_into(np.random.default_rng(0), np.empty((1, 2)))  # compiled draws (a Generator)
+    kernel.finish(yhat, np.zeros(2), 3.0, np.random.default_rng(0))  # resampling: ESS 2 < 3
+    kalman.CubatureKalmanFilter(model).step(np.full(len(model.OUTPUTS), 0.0), model.inputs(0.0))
+
+
+def _compile_some(args: tuple[str, list[str]]) -> set[tuple[str, str]]:
     """In a forked worker: compile the kernels of the models ``names`` of the
-    package ``sys.modules[package]`` into numba's disk cache."""
-    package, names = args
-    for name in names:
-        _call_kernels(sys.modules[package].MODELS[name])
-    return len(names)
+    package ``sys.modules[package]`` into numba's disk cache (the name
+    ``None``: the compiled kernel's loops); which kernels this process
+    compiled (:func:`_kernels`' keys: a loop of the kernel that another
+    worker's model step compiled too is named by both)."""
+    package = sys.modules[args[0]]
+    kernels = _kernels(package)
+    before = _misses(kernels.values())
+    for name in args[1]:
+        if name is None:
+            _call_kernel_loops(next(iter(package.MODELS.values())))
+        else:
+            _call_kernels(package, package.MODELS[name])
+    return {key for key, after, was in zip(kernels, _misses(kernels.values()), before) if after > was}
+
+
+#: The compiled kernel's loops that warm-up compiles (``_kernel._JIT``'s).
+KERNEL_LOOPS = ("loglik", "weigh", "normalise", "resample", "finish", "moments", "standard_normal",
+                "cubature_points", "cubature_predicted", "cubature_update")
+
+
+def _kernels(package: ModuleType) -> dict[tuple[str, str], object]:
+    """The numba dispatchers warm-up compiles, by (model, function) (the
+    kernel's loops by ('', loop)): every model's predict and observe, the
+    generic step of :func:`_compiled_step`, the kernel's :data:`KERNEL_LOOPS`."""
+    found = {}
+    for name, m in package.MODELS.items():
+        found[name, "predict"], found[name, "observe"] = m._JIT.predict, m._JIT.observe
+        if _compiled_step(m):
+            found[name, "generic_step"] = m._JIT.generic_step
+    jit = next(iter(package.MODELS.values()))._kernel._JIT
+    return found | {("", loop): getattr(jit, loop) for loop in KERNEL_LOOPS}
+
+
+def _misses(dispatchers) -> list[int]:
+    """How often each numba dispatcher missed its disk cache (compiled)."""
+    return [sum(k.stats.cache_misses.values()) for k in dispatchers]
 
 
 def _environment_backend() -> str | None:
@@ -111,12 +168,14 @@ def chosen_by_name(backend: str | None) -> bool:
 
 def warm_up(package: ModuleType, workers: int | None = None) -> tuple[float, int, int]:
     """Compile (or load from numba's disk cache) every compiled kernel of a
-    numba package by one call of each model's transition and observation on
-    one particle: (seconds, kernels compiled, kernels loaded from the cache).
-    A NumPy package: (0, 0, 0). When the cache is cold the models are
-    compiled on ``workers`` forked processes (default: the cores, at most 4)
-    into the disk cache first, then loaded here; forked workers of this
-    process inherit what is loaded."""
+    numba package (:func:`_kernels`) by one call of each model's transition
+    and observation on one particle, the nominal model's generic filter step
+    and the kernel's loops: (seconds, kernels compiled, kernels loaded from
+    the cache; each kernel counted once). A NumPy package: (0, 0, 0). When
+    the cache is cold the models and the kernel's loops are compiled on
+    ``workers`` forked processes (default: the cores, at most 4), one task
+    each, into the disk cache first, then loaded here; forked workers of
+    this process inherit what is loaded."""
     import os
     import threading
 
@@ -124,34 +183,27 @@ def warm_up(package: ModuleType, workers: int | None = None) -> tuple[float, int
     if not hasattr(models[0], "_JIT"):
         return 0.0, 0, 0
     t0 = time.perf_counter()
-    kernel = models[0]._kernel
-    jitted = [k for m in models for k in (m._JIT.predict, m._JIT.observe)]
-    jitted += [getattr(kernel._JIT, name) for name in ("loglik", "weigh", "normalise", "resample", "moments",
-                                                       "standard_normal", "cubature_points", "cubature_predicted",
-                                                       "cubature_update")]
-    before = {id(k): (sum(k.stats.cache_misses.values()), sum(k.stats.cache_hits.values())) for k in jitted}
+    kernels = _kernels(package)
+    misses = _misses(kernels.values())
+    hits = [sum(k.stats.cache_hits.values()) for k in kernels.values()]
     cold = [name for name, m in package.MODELS.items() if _cold(m)]
+    if cold:  # the kernel's loops too (the longest task, so first), in one task each: the pool balances them
+        cold.insert(0, None)
     workers = min(workers or len(os.sched_getaffinity(0)) or 1, 4, len(cold))
-    compiled_elsewhere = 0
+    elsewhere = set()
     # forked compilers: only from a process with one thread (a thread holding numba's compiler lock at the
     # fork would leave the child waiting for it) that may have children (a Dask worker is a daemon)
     if workers > 1 and "fork" in multiprocessing.get_all_start_methods() \
             and not multiprocessing.current_process().daemon and threading.active_count() == 1:
-        batches = [(package.__name__, cold[i::workers]) for i in range(workers)]
+        tasks = [(package.__name__, [name]) for name in cold]
         with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork")) as pool:
-            compiled_elsewhere = 2 * sum(pool.map(_compile_some, batches))
+            elsewhere = set().union(*pool.map(_compile_some, tasks))
     for m in models:
-        _call_kernels(m)
-    kernel.gaussian_loglik(np.zeros(1), np.zeros((1, 1)), np.ones(1))
-    logw, w, yhat = np.zeros(2), np.full(2, 0.5), np.zeros((1, 2))
-    kernel.weigh(yhat, np.zeros(1), np.ones(1), logw, w)
-    kernel.resample(yhat, kernel.normalise(logw)[2], 0.5)
-    kernel.moments(yhat, w)
-    kernel.normal_into(np.random.default_rng(0), np.empty((1, kernel.DRAWN)))  # compiled draws (a Generator)
-    kalman.CubatureKalmanFilter(models[0]).step(np.full(len(models[0].OUTPUTS), 0.0), models[0].inputs(0.0))
-    compiled = sum(1 for k in jitted if sum(k.stats.cache_misses.values()) > before[id(k)][0])
-    loaded = sum(1 for k in jitted if sum(k.stats.cache_hits.values()) > before[id(k)][1])
-    return time.perf_counter() - t0, compiled + compiled_elsewhere, max(loaded - compiled_elsewhere, 0)
+        _call_kernels(package, m)
+    _call_kernel_loops(models[0])
+    here = {key for key, after, was in zip(kernels, _misses(kernels.values()), misses) if after > was}
+    loaded = {key for key, k, was in zip(kernels, kernels.values(), hits) if sum(k.stats.cache_hits.values()) > was}
+    return time.perf_counter() - t0, len(here | elsewhere), len(loaded - elsewhere - here)
 
 
 def load_package(generated_dir: str | Path, model: str, source: str | None = None,

@@ -96,7 +96,7 @@ def _arrays(u, theta):
 
 #: The compiled kernels of this model (``_jit_V_offset_bias.py``, imported once per process under a name of
 #: its own path, so numba's disk cache beside it serves every instance of this package).
-_JIT = _kernel.load_jit(__file__, "_jit_V_offset_bias.py")
+_JIT = _kernel.load_jit(__file__, "_jit_V_offset_bias.py", _kernel._JIT)
 
 
 def derivative(x, u, theta, out=None, linear=None):
@@ -145,6 +145,32 @@ def transition(x, u, theta, dt, rng, out=None):
     if x.shape[1] < 2 * _kernel.BLOCK:
         return predict(x, u, theta, dt, out, _kernel.draw(rng, x.shape[0], x.shape[1]))
     return perturb(predict(x, u, theta, dt, out), rng)  # no noise array of the particles' size
+
+
+def generic_step(x, u, theta, dt, rng, y, gauss, logw, w, threshold):
+    """One step of the generic particle filter (``filters.GenericParticleFilter``)
+    in one compiled call, its arithmetic and its draws: process noise from
+    ``rng``, RK4, the measurements, the weighing of ``logw`` (in place) by
+    the measurement y (C-contiguous float64) of the sensors in ``gauss``
+    (``_kernel.gauss_terms``) with the predicted measurement over ``w``
+    (the weights before), then normalising, systematic resampling of x (in
+    place) when the effective sample size is below ``threshold``, and the
+    moments. Gives (ess, resampled, the new weights, y mean, y std, state
+    mean, state std); ess -1 when the log-weights failed (none finite, or
+    one NaN: left unnormalised for the caller to recover); None when it
+    cannot run (``rng`` no ``np.random.Generator``, x not C-contiguous
+    float64, more than ``_kernel.SHORT`` particles)."""
+    _handle = _kernel.generator_handle(rng)
+    if _handle is None or x.dtype != np.float64 or not x.flags.c_contiguous or x.shape[1] > _kernel.SHORT:
+        return None
+    _A, _b, _u, _theta = _arrays(u, theta)
+    _rows, _weight, _constant, _variance = gauss
+    _w = np.empty(x.shape[1])
+    _y_mean, _y_std, _mean, _std = np.empty(3), np.empty(3), np.empty(4), np.empty(4)
+    _ess, _resampled = _JIT.generic_step(x, _u, _theta, _A, _b, float(dt), SUBSTEPS, PROCESS_STD, _handle, y, _rows,
+                                         _weight, _constant, _variance, logw, w, _w, float(threshold), _y_mean,
+                                         _y_std, _mean, _std)
+    return _ess, _resampled, _w, _y_mean, _y_std, _mean, _std
 
 
 def observe(x, u, theta, out=None):

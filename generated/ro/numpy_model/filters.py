@@ -215,8 +215,15 @@ class _Filter:
             self._recover()
             logw, recovered = self.logw, True
         kernel = self.model._kernel
-        # a compiled package's kernel: each step in one call (up to two blocks of particles; beyond, the
-        # block-wise steps below keep the memory beyond the particle array to a few blocks)
+        # a compiled package's kernel: normalising, resampling and the moments in one call (up to two
+        # blocks of particles; beyond, the block-wise steps below keep the memory beyond the particle
+        # array to a few blocks)
+        done = kernel.finish(self.x, logw, self.threshold, self.rng) if self._small and hasattr(
+            kernel, "finish") else None
+        if done is not None:
+            self.logw, ess, resampled, w, mean, std = done
+            self.w = w
+            return StepResult(mean, std, y_mean, y_std, ess, resampled, recovered)
         compiled = getattr(kernel, "resample", None) if self._small else None
         logw, ess, w = (kernel.normalise if compiled else _normalise)(logw)
         resampled = ess < self.threshold
@@ -265,11 +272,25 @@ class GenericParticleFilter(_Filter):
         (a caller that predicts several filters' particles in one array, the
         same model and theta); only the process noise is added here."""
         dt = self.model.DT if dt is None else dt
+        y = np.asarray(y, dtype=float)
+        # a compiled package's model: the whole step in one call (up to two blocks of particles)
+        fused = None if predicted or not self._small else getattr(self.model, "generic_step", None)
+        if fused is not None:
+            kernel = self.model._kernel
+            y = kernel.contiguous(y)
+            done = fused(self.x, u, self.theta, dt, self.rng, y,
+                         gauss_terms(self._gauss, np.isfinite(y), self.model.MEASUREMENT_STD, kernel, compiled=True),
+                         self.logw, self._weights(), self.threshold)
+            if done is not None:
+                ess, resampled, w, y_mean, y_std, mean, std = done
+                if ess < 0:  # the weights failed: recovered as the step below would
+                    return self._finish(self.logw, y_mean, y_std, False)
+                self.w = w
+                return StepResult(mean, std, y_mean, y_std, ess, resampled, False)
         if predicted:
             self.model.perturb(self.x, self.rng)
         else:
             self.model.transition(self.x, u, self.theta, dt, self.rng, out=self.x)
-        y = np.asarray(y, dtype=float)
         missing = np.isnan(y).all()
         y_mean, y_std = self._weigh(None if missing else y, u)
         return self._finish(self.logw, y_mean, y_std, False)
@@ -548,8 +569,9 @@ class FilterBank:
         if len(filters) == 1:  # nothing to share: the filter's own step, without the bank's overhead
             self.filters, self.packed = list(filters), False
             pf = filters[0]
-            self.model.predict(pf.x, u, pf.theta, self.model.DT, out=pf.x)
-            return [pf.step(y, u, predicted=True)]
+            if not pf.x.flags.c_contiguous:  # a view of the bank's particles: the filter's own (a compiled
+                pf.x = np.ascontiguousarray(pf.x)  # package's model then makes the whole step in one call)
+            return [pf.step(y, u)]
         if [id(pf) for pf in filters] != [id(pf) for pf in self.filters] or not self.packed:
             self.filters = list(filters)
             self._pack()

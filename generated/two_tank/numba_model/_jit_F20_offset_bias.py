@@ -10,6 +10,12 @@ from numba import njit
 
 #: numba options: cached on disk beside this file; float division by zero gives inf or NaN as in NumPy.
 JIT = {"cache": True, "error_model": "numpy", "nogil": True}
+#: The package's compiled kernel (the module of ``_jit_kernel.py``), set here by ``_kernel.load_jit``
+#: before this module runs: :func:`generic_step` calls its loops.
+_kernel_jit = globals().get("_kernel_jit")
+#: sha256 of that kernel's file: numba's cache of :func:`generic_step`, which holds the kernel's code,
+#: is renewed when this file changes, so this file changes with that one.
+KERNEL_SHA256 = "1ec209223e7502d5f912b6de4de7f26c5db07bd4ce85ef55457dad8bda57e69e"
 
 
 #: Most particles per block of the RK4 loop: its scratch (six state-sized blocks) stays in cache.
@@ -105,3 +111,31 @@ def observe(x, u, theta, _y):
         _y[0, _i] = F10_offset + (1/R10)*e2
         _y[1, _i] = F12_offset + (1/R12)*(e2 - e7)
         _y[2, _i] = F20_offset + (1/R20)*e7
+
+
+@njit(**JIT)
+def generic_step(x, u, theta, _A, _b, dt, substeps, std, handle, y, rows, weight, constant, variance, logw, w,
+                 w_new, threshold, y_mean, y_std, mean, sd):
+    """The generic particle filter's step in one call (``F20_offset_bias.generic_step``):
+    standard normal draws from the generator of ``handle`` in the NumPy
+    filter's order (``_kernel_jit.standard_normal``), :func:`predict` with
+    them times ``std``, :func:`observe`, the weighing
+    (``_kernel_jit.weigh``, over the weights ``w`` before), then, when no
+    log-weight is NaN and the largest is finite, ``_kernel_jit.finish``
+    (weights into ``w_new``): (ess, resampled); (-1, False) when the
+    log-weights failed."""
+    _n_x, _n = x.shape
+    _noise = np.empty((_n_x, _n))
+    _kernel_jit.standard_normal(handle, _noise, 0, _n)
+    predict(x, u, theta, _A, _b, dt, substeps, _noise, std)
+    _yhat = np.empty((y_mean.shape[0], _n))
+    observe(x, u, theta, _yhat)
+    _kernel_jit.weigh(_yhat, y, rows, weight, constant, variance, logw, w, y_mean, y_std)
+    _top = -np.inf
+    for _i in range(_n):
+        if np.isnan(logw[_i]):
+            return -1.0, False
+        _top = max(_top, logw[_i])
+    if not np.isfinite(_top):
+        return -1.0, False
+    return _kernel_jit.finish(x, logw, w_new, threshold, handle, mean, sd)
