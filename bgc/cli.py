@@ -214,11 +214,11 @@ def cmd_filter(args: argparse.Namespace) -> int:
     track.check_run_of(run, c.model.name, args.run_csv)
     backend = track.resolve_backend(args.backend)
     package = track.load_package(args.generated, c.model.name, args.model, backend=backend)
-    seconds, compiled, _ = track.warm_up(package)
+    name = _fault_model(c, args.fault) if args.fault else "nominal"
+    seconds, compiled, _ = track.warm_up(package, steps=(name,))  # the filtered model's whole step
     if compiled:
         print(f"numba backend: {compiled} kernels compiled in {seconds:.1f} s (kept in numba's disk cache)",
               file=sys.stderr)
-    name = _fault_model(c, args.fault) if args.fault else "nominal"
     track.check_request(run, package, name, args.particles, args.start)
     from .output.labels import labels_of
 

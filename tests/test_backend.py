@@ -393,3 +393,24 @@ def test_a_compiled_model_names_the_kernel_its_cached_step_was_compiled_with():
         for path in folder.glob("_jit_*.py"):
             if path.name != "_jit_kernel.py":
                 assert f'KERNEL_SHA256 = "{digest}"' in path.read_text(encoding="utf-8"), path
+
+
+def test_the_compiled_quadrature_of_the_static_posterior_is_the_numpy_ones():
+    """``kalman.row_quadrature`` on a compiled package's kernel (one call)
+    gives the NumPy rule's nodes and log masses: Gaussian and steep rows
+    (several panels), rows cut by the prior (-inf), a neighbour far below
+    (ignored by the parabola), two points, random rows."""
+    kernel = packages("ro")[1].MODELS["nominal"]._kernel
+    assert hasattr(kernel, "row_quadrature")
+    rng = np.random.default_rng(3)
+    v = np.linspace(-2.0, 3.0, 11)
+    rows = [-v ** 2 / 2, -40.0 * v ** 2, np.where(v < 0, -np.inf, -v), np.r_[-1e20, -v[1:] ** 2],
+            rng.normal(0, 30, 11), np.r_[-np.inf, rng.normal(0, 3, 9), -np.inf]]
+    for lg in rows:
+        a, b = kalman.row_quadrature(v, lg), kalman.row_quadrature(v, lg, kernel)
+        assert a[0].shape == b[0].shape and np.array_equal(a[0], b[0])
+        assert np.array_equal(np.isfinite(a[1]), np.isfinite(b[1]))
+        finite = np.isfinite(a[1])
+        assert np.allclose(a[1][finite], b[1][finite], rtol=1e-14, atol=1e-13)
+    assert np.array_equal(kalman.row_quadrature(v[:2], np.zeros(2), kernel)[0],
+                          kalman.row_quadrature(v[:2], np.zeros(2))[0])

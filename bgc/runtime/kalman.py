@@ -239,6 +239,7 @@ class _Filter:
         self.buffer = np.empty((self.n_x, 0))
         self.root, self.inverse, self.scale = math.sqrt(n), 1.0 / (2 * n), math.sqrt(1.0 / (2 * n))
         self.phys = np.array(self.physical, dtype=np.intp)
+        self.extra_rows = np.array(self.extra, dtype=np.intp)
         self._tiles: dict = {}  # the compiled step's noise variances per cell, per pattern of sensors read
         self._seen: dict = {}
 
@@ -383,22 +384,23 @@ class _Filter:
 
     def _compiled_step(self, y, u, m, P, fixed, onset, dt):
         """:meth:`step` with a compiled package's kernel: the arithmetic
-        between the model's calls (points, moments, the update) in compiled
-        loops over the cells, one call each side of the prediction."""
+        between the model's calls (points and fault states, moments, the
+        update) in compiled loops over the cells, one call each side of the
+        prediction and one for the update."""
         model, n, C, kernel = self.model, self.n, m.shape[0], self.model._kernel
         phys = self.phys
         flat = np.empty((self.n_x, 2 * n * C))
-        X = flat.reshape(self.n_x, C, 2 * n)
-        kernel.cubature_points(np.ascontiguousarray(m), np.ascontiguousarray(P), self.root, flat, phys)
-        self._predict_points(flat, X, u, fixed, onset, dt)
+        held = kernel.contiguous(fixed)  # a drifting parameter is read back into it
+        kernel.cubature_prepare(m, P, self.root, flat, phys, self.extra_rows, held, onset)
+        model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
+        mp, Pp, L = kernel.cubature_after(flat, phys, self.extra_rows, held, self.inverse, self.scale, self.Q,
+                                          self.root, onset)
+        if held is not fixed:
+            fixed[...] = held
         seen = np.isfinite(y)
         if not seen.any():
-            mp, Pp, _ = kernel.cubature_predicted(flat, phys, self.inverse, self.scale, self.Q, self.root)
             nan = np.full((C, len(y)), np.nan)
             return np.zeros(C), mp, Pp, nan, nan, nan
-        mp, Pp, L = kernel.cubature_predicted(flat, phys, self.inverse, self.scale, self.Q, self.root)
-        if self.extra and onset.stop > onset.start:  # the onset cells see their fault from this sample on
-            X[self.extra[-1], onset] = fixed[-1][onset][:, None]
         _, rows = self._noise(seen)
         if self.varies:
             noise = np.ascontiguousarray(self._cell_noise(mp, fixed, rows))
@@ -654,6 +656,8 @@ _GL_NODES, _GL_WEIGHTS = (_GL_NODES + 1.0) / 2.0, _GL_WEIGHTS / 2.0
 #: the most the log density may change over one Gauss-Legendre panel (8 nodes
 #: integrate exp(-8 t) on [0, 1] to about 1e-10); a steeper interval is split
 _PANEL_RANGE = 8.0
+#: the most Gauss-Legendre panels an interval is split into
+_MOST_PANELS = 256
 
 
 #: How many times an interval's own change of log density (plus 1) a neighbour may lie below it and
@@ -661,7 +665,7 @@ _PANEL_RANGE = 8.0
 _WILD = 1e6
 
 
-def row_quadrature(values: np.ndarray, logd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def row_quadrature(values: np.ndarray, logd: np.ndarray, kernel=None) -> tuple[np.ndarray, np.ndarray]:
     """Quadrature nodes and the log of their masses for a density known by
     its log ``logd`` at the evenly spaced points ``values`` (-inf: outside
     the prior).
@@ -677,6 +681,8 @@ def row_quadrature(values: np.ndarray, logd: np.ndarray) -> tuple[np.ndarray, np
     one interval where a bound cuts a steep density off); a peak that lies
     between two points is found. An interval with an end outside the prior
     holds no mass. A row of one point (or of zero width) is a point mass.
+    ``kernel``: a generated package's kernel; a compiled one's
+    ``row_quadrature`` does the same arithmetic in one call.
 
     >>> x, logm = row_quadrature(np.linspace(-4.0, 4.0, 9), -np.linspace(-4.0, 4.0, 9) ** 2 / 2)
     >>> round(float(np.exp(logm).sum()), 6) == round(math.sqrt(2 * math.pi) * math.erf(4 / math.sqrt(2)), 6)
@@ -686,6 +692,8 @@ def row_quadrature(values: np.ndarray, logd: np.ndarray) -> tuple[np.ndarray, np
     lg = np.asarray(logd, dtype=float)
     if len(v) < 2 or not v[-1] > v[0]:
         return v[:1].copy(), lg[:1].copy()
+    if hasattr(kernel, "row_quadrature"):
+        return kernel.row_quadrature(v, lg, _GL_NODES, _GL_WEIGHTS, _PANEL_RANGE, _MOST_PANELS, _WILD)
     h = (v[-1] - v[0]) / (len(v) - 1)
     l0, l1 = lg[:-1, None], lg[1:, None]
     lm = np.concatenate([[-math.inf], lg[:-2]])[:, None]  # the point before each interval
@@ -708,7 +716,7 @@ def row_quadrature(values: np.ndarray, logd: np.ndarray) -> tuple[np.ndarray, np
     probe = interpolant(np.linspace(0.0, 1.0, 9)[None, :])
     ok = np.isfinite(probe).all(axis=1)
     spread = float(np.max(np.ptp(probe[ok], axis=1))) if ok.any() else 0.0
-    panels = int(min(max(math.ceil(spread / _PANEL_RANGE), 1), 256))
+    panels = int(min(max(math.ceil(spread / _PANEL_RANGE), 1), _MOST_PANELS))
     t = ((np.arange(panels)[:, None] + _GL_NODES[None, :]) / panels).ravel()[None, :]
     w = np.tile(_GL_WEIGHTS / panels, panels)[None, :]
     with np.errstate(divide="ignore"):
@@ -763,7 +771,8 @@ def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, sta
     top = float(np.max(loglik))
     if not math.isfinite(top):
         return _Grid(changes, magnitudes, loglik, np.zeros(len(loglik)), top)
-    logm = [row_quadrature(m, ll - top)[1] for m, ll in zip(magnitudes, loglik)]
+    kernel = getattr(model, "_kernel", None)
+    logm = [row_quadrature(m, ll - top, kernel)[1] for m, ll in zip(magnitudes, loglik)]
     # the interpolant may rise far above the highest point of a row too coarse for its peak:
     # the masses are then scaled down with ``top`` raised, so that none overflows
     shift = _overflow_shift(max((float(np.max(q)) for q in logm if np.isfinite(q).any()), default=0.0))
@@ -772,7 +781,7 @@ def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, sta
 
 
 def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, float],
-                options: KalmanOptions) -> tuple[tuple[float, float] | None, float]:
+                options: KalmanOptions, kernel=None) -> tuple[tuple[float, float] | None, float]:
     """The range of changes of one onset's next pass from its row of a grid:
     ``logd``, the log density at its points (-inf outside the prior); None:
     the row is fine. ``bounds``: the changes its prior allows. Also the log
@@ -814,7 +823,7 @@ def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, floa
             return _inside(vertex - 4.0 * sd_parabola, vertex + 4.0 * sd_parabola, vmin, vmax), math.inf
         span = max(hi - lo, spacing)
         return ((max(lo - span, vmin), hi) if at_low else (lo, min(hi + span, vmax))), math.inf
-    x, logm = row_quadrature(changes, logd)
+    x, logm = row_quadrature(changes, logd, kernel)
     peak = float(np.max(logm))
     m = np.exp(logm - peak)
     mass = peak + math.log(m.sum())
@@ -929,7 +938,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
             following, mass = [], np.empty(len(current))  # log of each onset's mass, as far as its row tells
             for i in range(len(current)):
                 bounds = tuple(sorted((a * spans[i], b * spans[i])))
-                f, mass[i] = _next_range(g.changes[i], g.loglik[i], bounds, options)
+                f, mass[i] = _next_range(g.changes[i], g.loglik[i], bounds, options, getattr(model, "_kernel", None))
                 following.append(f)
                 mass[i] += math.log(widths[i] / spans[i])
             told = np.isfinite(mass)
@@ -993,7 +1002,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     spans = span(current)
     nodes, changes, logm, rows = [], [], [], []
     for i, (m, ll) in enumerate(zip(g.magnitudes, g.loglik)):
-        x, lm = row_quadrature(m, ll - g.top)
+        x, lm = row_quadrature(m, ll - g.top, getattr(model, "_kernel", None))
         nodes.append(x)
         changes.append(x * spans[i])
         logm.append(lm + math.log(widths[i]))

@@ -343,3 +343,99 @@ def cubature_predicted(X, phys, inverse, scale, Q, root, mp, Pp, L):
     points of N(mp, Pp) into the same rows of X (:func:`cubature_points`), in one call."""
     cubature_moments(X, phys, inverse, scale, Q, mp, Pp)
     cubature_points(mp, Pp, root, X, phys, L)
+
+
+@njit(**JIT)
+def quadrature_interpolant(lg, i, t, wild):
+    """``kalman.row_quadrature``'s interpolant of the log density ``lg`` (a
+    row) on interval i at t in [0, 1], in its arithmetic: the mean of the
+    parabolas through the three points either side (a neighbour missing,
+    -inf, or lying more than ``wild`` (|l1 - l0| + 1) below: the other one,
+    else the line), -inf when an end of the interval is not finite."""
+    l0, l1 = lg[i], lg[i + 1]
+    if not (np.isfinite(l0) and np.isfinite(l1)):
+        return -np.inf
+    lm = lg[i - 1] if i > 0 else -np.inf
+    lp = lg[i + 2] if i + 2 < lg.shape[0] else -np.inf
+    own = wild * (abs(l1 - l0) + 1.0)
+    has_left = np.isfinite(lm) and not (l0 - lm > own)
+    has_right = np.isfinite(lp) and not (l1 - lp > own)
+    left = l0 + (l1 - lm) / 2.0 * t + (l1 - 2.0 * l0 + lm) / 2.0 * t * t
+    right = l0 + (l1 - l0) * t + (lp - 2.0 * l1 + l0) / 2.0 * (t * t - t)
+    if has_left and has_right:
+        return (left + right) / 2.0
+    if has_left:
+        return left
+    if has_right:
+        return right
+    return l0 + (l1 - l0) * t
+
+
+@njit(**JIT)
+def row_quadrature(v, lg, nodes, weights, panel_range, most_panels, wild):
+    """``kalman.row_quadrature`` of a row of at least two points, ``v``
+    evenly spaced and rising, in its arithmetic: the panels per interval
+    from the interpolant's largest range over 9 probes of an interval whose
+    probes are all finite, then Gauss-Legendre ``nodes`` and ``weights`` (on
+    [0, 1]) on every panel of every interval: (nodes, log masses)."""
+    n = v.shape[0]
+    h = (v[n - 1] - v[0]) / (n - 1)
+    spread = 0.0
+    for i in range(n - 1):
+        low, high, ok = np.inf, -np.inf, True
+        for k in range(9):
+            value = quadrature_interpolant(lg, i, k / 8.0, wild)
+            if not np.isfinite(value):
+                ok = False
+                break
+            low, high = min(low, value), max(high, value)
+        if ok:
+            spread = max(spread, high - low)
+    panels = int(min(max(np.ceil(spread / panel_range), 1.0), most_panels))
+    g = nodes.shape[0]
+    per = panels * g
+    ts, logw = np.empty(per), np.empty(per)
+    for p in range(panels):
+        for q in range(g):
+            ts[p * g + q] = (p + nodes[q]) / panels
+            logw[p * g + q] = np.log(weights[q] / panels * h)
+    x, logm = np.empty((n - 1) * per), np.empty((n - 1) * per)
+    for i in range(n - 1):
+        for j in range(per):
+            x[i * per + j] = v[i] + h * ts[j]
+            logm[i * per + j] = quadrature_interpolant(lg, i, ts[j], wild) + logw[j]
+    return x, logm
+
+
+@njit(**JIT)
+def cubature_prepare(m, P, root, X, phys, L, extra, fixed, onset_start, onset_stop):
+    """:func:`cubature_points` of every cell, then each cell's fault states
+    ``fixed`` (f, C; the magnitude last) into the rows ``extra`` of its
+    points, the magnitude 0 in the cells onset_start .. onset_stop - 1 (at
+    their onset: a nominal transition) (``kalman._Filter._predict_points``)."""
+    cubature_points(m, P, root, X, phys, L)
+    C, n = m.shape
+    f = extra.shape[0]
+    for j in range(f):
+        for c in range(C):
+            value = 0.0 if j == f - 1 and onset_start <= c < onset_stop else fixed[j, c]
+            for p in range(2 * n):
+                X[extra[j], c * 2 * n + p] = value
+
+
+@njit(**JIT)
+def cubature_after(X, phys, extra, fixed, inverse, scale, Q, root, mp, Pp, L, onset_start, onset_stop):
+    """After the prediction of the points X: a drifting parameter (the rows
+    ``extra`` but the last) read back into ``fixed`` from each cell's first
+    point, :func:`cubature_predicted`, and the cells at their onset given
+    their magnitude in the update's points (``kalman._Filter._compiled_step``)."""
+    C, n = mp.shape
+    f = extra.shape[0]
+    for j in range(f - 1):
+        for c in range(C):
+            fixed[j, c] = X[extra[j], c * 2 * n]
+    cubature_predicted(X, phys, inverse, scale, Q, root, mp, Pp, L)
+    if f > 0:
+        for c in range(onset_start, onset_stop):
+            for p in range(2 * n):
+                X[extra[f - 1], c * 2 * n + p] = fixed[f - 1, c]

@@ -15,7 +15,7 @@ JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 _kernel_jit = globals().get("_kernel_jit")
 #: sha256 of that kernel's file: numba's cache of :func:`generic_step`, which holds the kernel's code,
 #: is renewed when this file changes, so this file changes with that one.
-KERNEL_SHA256 = "1ec209223e7502d5f912b6de4de7f26c5db07bd4ce85ef55457dad8bda57e69e"
+KERNEL_SHA256 = "7e2c2cb489bff9a3d92f4f56831178ea4dee1769469d569b912675b724e5926a"
 
 
 #: Most particles per block of the RK4 loop: its scratch (six state-sized blocks) stays in cache.

@@ -40,8 +40,9 @@ from .kernel import BLOCK, block_views, gaussian_loglik_each, log_normaliser, pr
 #: ``normalise`` and ``resample`` are the generic particle filter's steps, which the filters take
 #: from a kernel that has them, and the ``cubature_*`` functions the cubature Kalman filter's
 #: (``bgc.runtime.kalman`` takes them from a compiled package's kernel).
-__all__ = ["BLOCK", "block_views", "contiguous", "cubature_points", "cubature_predicted", "cubature_update", "draw", "finish", "gauss_terms", "generator_handle", "gaussian_loglik", "gaussian_loglik_each", "load_jit",
-           "log_normaliser", "LOG_2PI", "moments", "NO_NOISE", "normal_into", "normalise", "perturb", "predictive_std", "resample", "rk4", "spans",
+__all__ = ["BLOCK", "block_views", "contiguous", "cubature_after", "cubature_points", "cubature_predicted", "cubature_prepare",
+           "cubature_update", "draw", "finish", "gauss_terms", "generator_handle", "gaussian_loglik", "gaussian_loglik_each", "load_jit",
+           "log_normaliser", "LOG_2PI", "moments", "NO_NOISE", "normal_into", "normalise", "perturb", "predictive_std", "resample", "rk4", "row_quadrature", "spans",
            "weigh"]
 #: The prediction's noise when there is none (a compiled kernel takes an array all the same).
 NO_NOISE = np.empty((0, 0))
@@ -269,6 +270,31 @@ def cubature_predicted(X, phys, inverse, scale, Q, root):
     return mp, Pp, L
 
 
+def cubature_prepare(m, P, root, X, phys, extra, fixed, onset):
+    """:func:`cubature_points` of every cell (m (C, n), P (C, n, n)) into the
+    physical rows ``phys`` of X (n_x, C 2n, C-contiguous), and each cell's
+    fault states ``fixed`` (f, C; the magnitude last) into its points' rows
+    ``extra``, the magnitude 0 in the cells of the slice ``onset`` (at
+    their onset); root chol(P) (C, n, n)."""
+    L = np.empty(P.shape)
+    _JIT.cubature_prepare(contiguous(m), contiguous(P), float(root), X, phys, L, extra, contiguous(fixed),
+                          onset.start, onset.stop)
+    return L
+
+
+def cubature_after(X, phys, extra, fixed, inverse, scale, Q, root, onset):
+    """After the prediction of the points X: a drifting parameter read back
+    into ``fixed`` (f, C, C-contiguous: in place), :func:`cubature_predicted`
+    (mp, Pp, L), and the cells of the slice ``onset`` given their magnitude
+    in the update's points."""
+    n = len(phys)
+    C = X.shape[1] // (2 * n)
+    mp, Pp, L = np.empty((C, n)), np.empty((C, n, n)), np.empty((C, n, n))
+    _JIT.cubature_after(X, phys, extra, fixed, float(inverse), float(scale), Q, float(root), mp, Pp, L,
+                        onset.start, onset.stop)
+    return mp, Pp, L
+
+
 def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp):
     """Every cell's measurement update (the cubature Kalman filter's, from its
     points' measurements Y (n_y, C 2n) of the sensors ``rows`` read, y, their
@@ -280,3 +306,13 @@ def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp):
     zk, yh, sd = np.empty((C, k)), np.empty((C, k)), np.empty((C, k))
     _JIT.cubature_update(Y, rows, y, noise, L, float(inverse), mp, Pp, loglik, m, P, zk, yh, sd, LOG_2PI)
     return loglik, m, P, zk, yh, sd
+
+
+def row_quadrature(values, logd, nodes, weights, panel_range, most_panels, wild):
+    """``bgc.runtime.kalman.row_quadrature`` compiled, for a row of at least
+    two rising points (the caller handles the rest), with its constants
+    (Gauss-Legendre nodes and weights on [0, 1], the largest log range of a
+    panel, the most panels, the neighbour a parabola ignores): (nodes, log
+    masses)."""
+    return _JIT.row_quadrature(contiguous(values), contiguous(logd), nodes, weights, float(panel_range),
+                               int(most_panels), float(wild))

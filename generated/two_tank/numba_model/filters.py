@@ -569,9 +569,8 @@ class FilterBank:
         if len(filters) == 1:  # nothing to share: the filter's own step, without the bank's overhead
             self.filters, self.packed = list(filters), False
             pf = filters[0]
-            if not pf.x.flags.c_contiguous:  # a view of the bank's particles: the filter's own (a compiled
-                pf.x = np.ascontiguousarray(pf.x)  # package's model then makes the whole step in one call)
-            return [pf.step(y, u)]
+            self.model.predict(pf.x, u, pf.theta, self.model.DT, out=pf.x)
+            return [pf.step(y, u, predicted=True)]
         if [id(pf) for pf in filters] != [id(pf) for pf in self.filters] or not self.packed:
             self.filters = list(filters)
             self._pack()
