@@ -134,8 +134,7 @@ def _compile_some(args: tuple[str, list[str], tuple[str, ...]]) -> set[tuple[str
 
 #: The compiled kernel's loops that warm-up compiles (``_kernel._JIT``'s).
 KERNEL_LOOPS = ("loglik", "weigh", "normalise", "resample", "finish", "moments", "standard_normal",
-                "cubature_points", "cubature_predicted", "cubature_prepare", "cubature_after", "cubature_update",
-                "row_quadrature")
+                "cubature_prepare", "cubature_after", "cubature_update", "row_quadrature")
 
 
 def _kernels(package: ModuleType, steps=("nominal",)) -> dict[tuple[str, str], object]:

@@ -2,10 +2,13 @@
 """Compiled loops of the numba kernel (``_kernel.py``, its source
 ``bgc/runtime/filters/numba_kernel.py``): the Gaussian log-likelihood over
 particles, the generic particle filter's weighing, normalising,
-resampling and moments, each a loop over particles in one call, and the
-cubature Kalman filter's arithmetic between the model's calls (points,
-moments, measurement update), a loop over cells. Imports numpy and numba only; bgc copies it
-unchanged into every compiled package (the same file name)."""
+resampling and moments, each a loop over particles in one call, standard
+normal draws from a generator's handle (:func:`generator`), the cubature
+Kalman filter's arithmetic between the model's calls (points and fault
+states, moments, measurement update), a loop over cells, and the static
+posterior's quadrature of a grid row. A model's compiled step
+(``_jit_<model>.py``) calls these loops too. Imports numpy and numba only;
+bgc copies it unchanged into every compiled package (the same file name)."""
 
 import numpy as np
 from numba import njit, types

@@ -40,7 +40,7 @@ from .kernel import BLOCK, block_views, gaussian_loglik_each, log_normaliser, pr
 #: ``normalise`` and ``resample`` are the generic particle filter's steps, which the filters take
 #: from a kernel that has them, and the ``cubature_*`` functions the cubature Kalman filter's
 #: (``bgc.runtime.kalman`` takes them from a compiled package's kernel).
-__all__ = ["BLOCK", "block_views", "contiguous", "cubature_after", "cubature_points", "cubature_predicted", "cubature_prepare",
+__all__ = ["BLOCK", "block_views", "contiguous", "cubature_after", "cubature_prepare",
            "cubature_update", "draw", "finish", "gauss_terms", "generator_handle", "gaussian_loglik", "gaussian_loglik_each", "load_jit",
            "log_normaliser", "LOG_2PI", "moments", "NO_NOISE", "normal_into", "normalise", "perturb", "predictive_std", "resample", "rk4", "row_quadrature", "spans",
            "weigh"]
@@ -250,29 +250,10 @@ def perturb(x, std, rng):
 LOG_2PI = float(np.log(2.0 * np.pi))
 
 
-def cubature_points(m, P, root, X, phys):
-    """The cubature Kalman filter's points m +- root chol(P) e_k of every cell
-    (m (C, n), P (C, n, n), C-contiguous) into the physical rows ``phys`` of
-    X (n_x, C 2n, C-contiguous); root chol(P) (C, n, n)."""
-    L = np.empty(P.shape)
-    _JIT.cubature_points(m, P, float(root), X, phys, L)
-    return L
-
-
-def cubature_predicted(X, phys, inverse, scale, Q, root):
-    """Mean (C, n) and covariance (C, n, n, plus Q) of every cell's predicted
-    points in the physical rows ``phys`` of X (n_x, C 2n), and the update's
-    points of that Gaussian written into the same rows: (mp, Pp, root chol(Pp))."""
-    n = len(phys)
-    C = X.shape[1] // (2 * n)
-    mp, Pp, L = np.empty((C, n)), np.empty((C, n, n)), np.empty((C, n, n))
-    _JIT.cubature_predicted(X, phys, float(inverse), float(scale), Q, float(root), mp, Pp, L)
-    return mp, Pp, L
-
-
 def cubature_prepare(m, P, root, X, phys, extra, fixed, onset):
-    """:func:`cubature_points` of every cell (m (C, n), P (C, n, n)) into the
-    physical rows ``phys`` of X (n_x, C 2n, C-contiguous), and each cell's
+    """The cubature points m +- root chol(P) e_k of every cell (m (C, n), P
+    (C, n, n)) into the physical rows ``phys`` of X (n_x, C 2n,
+    C-contiguous), and each cell's
     fault states ``fixed`` (f, C; the magnitude last) into its points' rows
     ``extra``, the magnitude 0 in the cells of the slice ``onset`` (at
     their onset); root chol(P) (C, n, n)."""
@@ -284,9 +265,10 @@ def cubature_prepare(m, P, root, X, phys, extra, fixed, onset):
 
 def cubature_after(X, phys, extra, fixed, inverse, scale, Q, root, onset):
     """After the prediction of the points X: a drifting parameter read back
-    into ``fixed`` (f, C, C-contiguous: in place), :func:`cubature_predicted`
-    (mp, Pp, L), and the cells of the slice ``onset`` given their magnitude
-    in the update's points."""
+    into ``fixed`` (f, C, C-contiguous: in place), the predicted points' mean
+    (C, n) and covariance (C, n, n, plus Q) and the update's points of that
+    Gaussian in the same rows (mp, Pp, root chol(Pp)), and the cells of the
+    slice ``onset`` given their magnitude in the update's points."""
     n = len(phys)
     C = X.shape[1] // (2 * n)
     mp, Pp, L = np.empty((C, n)), np.empty((C, n, n)), np.empty((C, n, n))

@@ -15,7 +15,7 @@ JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 _kernel_jit = globals().get("_kernel_jit")
 #: sha256 of that kernel's file: numba's cache of :func:`generic_step`, which holds the kernel's code,
 #: is renewed when this file changes, so this file changes with that one.
-KERNEL_SHA256 = "7e2c2cb489bff9a3d92f4f56831178ea4dee1769469d569b912675b724e5926a"
+KERNEL_SHA256 = "0b8e00087fb23b441338a944c0dbd3dfb5d4e12882f7e0fb02b729341dda413d"
 
 
 #: Most particles per block of the RK4 loop: its scratch (six state-sized blocks) stays in cache.
