@@ -67,10 +67,13 @@ def resolve_backend(backend: str | None) -> str:
     return chosen
 
 
-def _cold(model: ModuleType) -> bool:
-    """Whether numba's disk cache holds nothing yet of a compiled model's kernels."""
+def _cold(model: ModuleType, steps=("nominal",)) -> bool:
+    """Whether numba's disk cache lacks a compiled model's kernels (its
+    prediction, or its whole filter step when the model is one of ``steps``,
+    :func:`_compiled_step`)."""
+    kernels = [model._JIT.predict] + ([model._JIT.generic_step] if _compiled_step(model, steps) else [])
     try:
-        return not Path(model._JIT.predict._cache._cache_file._index_path).exists()
+        return not all(Path(k._cache._cache_file._index_path).exists() for k in kernels)
     except AttributeError:  # another numba's internals: taken for cold
         return True
 
@@ -191,7 +194,7 @@ def warm_up(package: ModuleType, workers: int | None = None, steps=("nominal",))
     kernels = _kernels(package, steps)
     misses = _misses(kernels.values())
     hits = [sum(k.stats.cache_hits.values()) for k in kernels.values()]
-    cold = [name for name, m in package.MODELS.items() if _cold(m)]
+    cold = [name for name, m in package.MODELS.items() if _cold(m, steps)]
     if cold:  # the kernel's loops too (the longest task, so first), in one task each: the pool balances them
         cold.insert(0, None)
     workers = min(workers or len(os.sched_getaffinity(0)) or 1, 4, len(cold))
