@@ -191,7 +191,8 @@ def generic_step(x, u, theta, dt, rng, y, gauss, logw, w, threshold):
     _A, _b, _u, _theta = _arrays(u, theta)
     _rows, _weight, _constant, _variance = gauss
     _w = np.empty(x.shape[1])
-    _y_mean, _y_std, _mean, _std = np.empty(4), np.empty(4), np.empty(7), np.empty(7)
+    _y_mean, _y_std = np.empty(4), np.empty(4)
+    _mean, _std = np.empty(7), np.empty(7)
     _ess, _resampled = _JIT.generic_step(x, _u, _theta, _A, _b, float(dt), SUBSTEPS, PROCESS_STD, _handle, y, _rows,
                                          _weight, _constant, _variance, logw, w, _w, float(threshold), _y_mean,
                                          _y_std, _mean, _std)
