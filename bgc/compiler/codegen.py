@@ -21,7 +21,6 @@ parameter called ``out``, ``linear`` or ``A`` cannot shadow anything.
 from __future__ import annotations
 
 import hashlib
-
 import re
 from importlib import resources
 

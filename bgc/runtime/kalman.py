@@ -771,7 +771,7 @@ def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, sta
     top = float(np.max(loglik))
     if not math.isfinite(top):
         return _Grid(changes, magnitudes, loglik, np.zeros(len(loglik)), top)
-    kernel = getattr(model, "_kernel", None)
+    kernel = getattr(model, "_kernel", None)  # a compiled one's quadrature is compiled
     logm = [row_quadrature(m, ll - top, kernel)[1] for m, ll in zip(magnitudes, loglik)]
     # the interpolant may rise far above the highest point of a row too coarse for its peak:
     # the masses are then scaled down with ``top`` raised, so that none overflows
@@ -908,6 +908,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     ranges = {int(o): (lo, hi) for o in current}
     counts = {int(o): options.first_points for o in current}
     start = fault_start(model, track, int(current[0]))
+    kernel = getattr(model, "_kernel", None)  # the quadrature's (compiled in a compiled package)
     cache: dict = {}
     passes = 0
     g = None
@@ -938,7 +939,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
             following, mass = [], np.empty(len(current))  # log of each onset's mass, as far as its row tells
             for i in range(len(current)):
                 bounds = tuple(sorted((a * spans[i], b * spans[i])))
-                f, mass[i] = _next_range(g.changes[i], g.loglik[i], bounds, options, getattr(model, "_kernel", None))
+                f, mass[i] = _next_range(g.changes[i], g.loglik[i], bounds, options, kernel)
                 following.append(f)
                 mass[i] += math.log(widths[i] / spans[i])
             told = np.isfinite(mass)
@@ -1002,7 +1003,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
     spans = span(current)
     nodes, changes, logm, rows = [], [], [], []
     for i, (m, ll) in enumerate(zip(g.magnitudes, g.loglik)):
-        x, lm = row_quadrature(m, ll - g.top, getattr(model, "_kernel", None))
+        x, lm = row_quadrature(m, ll - g.top, kernel)
         nodes.append(x)
         changes.append(x * spans[i])
         logm.append(lm + math.log(widths[i]))

@@ -43,7 +43,7 @@ from .kernel import BLOCK, block_views, gaussian_loglik_each, log_normaliser, pr
 __all__ = ["BLOCK", "block_views", "contiguous", "cubature_after", "cubature_prepare",
            "cubature_update", "draw", "finish", "gauss_terms", "generator_handle", "gaussian_loglik", "gaussian_loglik_each", "load_jit",
            "log_normaliser", "LOG_2PI", "moments", "NO_NOISE", "normal_into", "normalise", "perturb", "predictive_std", "resample", "rk4", "row_quadrature", "spans",
-           "weigh"]
+           "step_handle", "weigh"]
 #: The prediction's noise when there is none (a compiled kernel takes an array all the same).
 NO_NOISE = np.empty((0, 0))
 #: Up to this many particles the moments are one compiled pass; beyond, NumPy's (a long sum is faster
@@ -223,16 +223,26 @@ def normal_into(rng, out, start=0, stop=None):
         _numpy.normal_into(rng, out, start, stop)
 
 
+def step_handle(x, rng):
+    """The handle (:func:`generator_handle`) with which one compiled call
+    makes a particle filter's step, or its end, on particles x: None when
+    ``rng`` is no ``np.random.Generator``, x no C-contiguous float64 array or
+    more than SHORT particles (the caller takes the separate steps)."""
+    if x.dtype != np.float64 or not x.flags.c_contiguous or x.shape[1] > SHORT:
+        return None
+    return generator_handle(rng)
+
+
 def finish(x, logw, threshold, rng):
     """The generic particle filter's end of a step in one compiled call:
     normalise ``logw`` in place, resample x (n_x, N) in place by
     :func:`resample` when the effective sample size is below ``threshold``
     (its uniform drawn from ``rng`` then only, as the NumPy filter draws
     it), and the particles' weighted moments: (logw, ess, resampled, the
-    weights, mean, std). None when ``rng`` is no ``np.random.Generator`` or
-    x is no C-contiguous float64 array (the caller takes the NumPy steps)."""
-    handle = generator_handle(rng)
-    if handle is None or x.dtype != np.float64 or not x.flags.c_contiguous or x.shape[1] > SHORT:
+    weights, mean, std). None where :func:`step_handle` is (the caller takes
+    the separate steps)."""
+    handle = step_handle(x, rng)
+    if handle is None:
         return None
     w, mean, std = np.empty(logw.shape[0]), np.empty(x.shape[0]), np.empty(x.shape[0])
     ess, resampled = _JIT.finish(x, logw, w, float(threshold), handle, mean, std)

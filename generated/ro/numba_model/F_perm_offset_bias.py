@@ -176,10 +176,10 @@ def generic_step(x, u, theta, dt, rng, y, gauss, logw, w, threshold):
     moments. Gives (ess, resampled, the new weights, y mean, y std, state
     mean, state std); ess -1 when the log-weights failed (none finite, or
     one NaN: left unnormalised for the caller to recover); None when it
-    cannot run (``rng`` no ``np.random.Generator``, x not C-contiguous
-    float64, more than ``_kernel.SHORT`` particles)."""
-    _handle = _kernel.generator_handle(rng)
-    if _handle is None or x.dtype != np.float64 or not x.flags.c_contiguous or x.shape[1] > _kernel.SHORT:
+    cannot run (``_kernel.step_handle``: ``rng`` no ``np.random.Generator``,
+    x not C-contiguous float64, more than ``_kernel.SHORT`` particles)."""
+    _handle = _kernel.step_handle(x, rng)
+    if _handle is None:
         return None
     _A, _b, _u, _theta = _arrays(u, theta)
     _rows, _weight, _constant, _variance = gauss
