@@ -386,7 +386,10 @@ class _Filter:
         """:meth:`step` with a compiled package's kernel: the arithmetic
         between the model's calls (points and fault states, moments, the
         update) in compiled loops over the cells, one call each side of the
-        prediction and one for the update."""
+        prediction and one for the update. The points are laid out point by
+        point, the cells innermost (point p of cell c in column p C + c), and
+        so are the prediction's moments, so that the kernel's loops run over
+        the cells in vector instructions."""
         model, n, C, kernel = self.model, self.n, m.shape[0], self.model._kernel
         phys = self.phys
         flat = np.empty((self.n_x, 2 * n * C))
@@ -394,16 +397,16 @@ class _Filter:
         kernel.cubature_prepare(m, P, self.root, flat, phys, self.extra_rows, held, onset)
         model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
         mp, Pp, L = kernel.cubature_after(flat, phys, self.extra_rows, held, self.inverse, self.scale, self.Q,
-                                          self.root, onset)
+                                          self.root, onset)  # the cells innermost: (n, C), (n, n, C)
         if held is not fixed:
             fixed[...] = held
         seen = np.isfinite(y)
         if not seen.any():
             nan = np.full((C, len(y)), np.nan)
-            return np.zeros(C), mp, Pp, nan, nan, nan
+            return np.zeros(C), np.ascontiguousarray(mp.T), np.ascontiguousarray(Pp.transpose(2, 0, 1)), nan, nan, nan
         _, rows = self._noise(seen)
         if self.varies:
-            noise = np.ascontiguousarray(self._cell_noise(mp, fixed, rows))
+            noise = np.ascontiguousarray(self._cell_noise(mp.T, fixed, rows))
         else:
             key = (seen.tobytes(), C)
             noise = self._tiles.get(key)

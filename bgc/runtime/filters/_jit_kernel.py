@@ -211,141 +211,205 @@ def moments(a, w, mean, std):
 
 
 @njit(**JIT)
-def cholesky_into(P, L):
-    """The lower Cholesky factor of one covariance P (n, n) into L, column by
-    column, each pivot under 1e-12 of its diagonal entry raised to that (the
-    NumPy runtime's ``kalman.cholesky``, whose LAPACK factor it equals to
-    rounding where P is positive definite)."""
-    n = P.shape[0]
+def cholesky_cells(P, L, pivot):
+    """The lower Cholesky factor of every cell's covariance P (n, n, C: the
+    cells innermost) into L (n, n, C), column by column, each pivot under
+    1e-12 of its diagonal entry raised to that (the NumPy runtime's
+    ``kalman.cholesky``, whose LAPACK factor it equals to rounding where P
+    is positive definite). Each cell's arithmetic is that of one
+    factorisation in the usual order; the loops run over the cells
+    innermost, so the compiler makes them vector instructions. ``pivot``
+    (C,): scratch."""
+    n, _, C = P.shape
     for i in range(n):
-        for j in range(n):
-            L[i, j] = 0.0
+        for j in range(i + 1, n):
+            Lij = L[i, j]
+            for c in range(C):
+                Lij[c] = 0.0
     for j in range(n):
-        pivot = P[j, j]
+        Pjj, Ljj = P[j, j], L[j, j]
+        for c in range(C):
+            pivot[c] = Pjj[c]
         for k in range(j):
-            pivot -= L[j, k] * L[j, k]
-        floor = 1e-12 * abs(P[j, j]) + 1e-300
-        L[j, j] = np.sqrt(max(pivot, floor))
+            Ljk = L[j, k]
+            for c in range(C):
+                pivot[c] -= Ljk[c] * Ljk[c]
+        for c in range(C):
+            Ljj[c] = np.sqrt(max(pivot[c], 1e-12 * abs(Pjj[c]) + 1e-300))
         for i in range(j + 1, n):
-            s = P[i, j]
+            Lij, Pij = L[i, j], P[i, j]
+            for c in range(C):
+                Lij[c] = Pij[c]
             for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / L[j, j]
+                Lik, Ljk = L[i, k], L[j, k]
+                for c in range(C):
+                    Lij[c] -= Lik[c] * Ljk[c]
+            for c in range(C):
+                Lij[c] /= Ljj[c]
 
 
 @njit(**JIT)
-def cubature_points(m, P, root, X, phys, L):
-    """The cubature points m +- root L e_k of N(m, P) of every cell c (m (C,
-    n), P (C, n, n)) into the physical rows ``phys`` of X (n_x, C 2n), cell c
-    in columns c 2n .. c 2n + 2n - 1; root L into L (C, n, n)."""
-    C, n = m.shape
-    for c in range(C):
-        cholesky_into(P[c], L[c])
-        for i in range(n):
-            for k in range(n):
-                L[c, i, k] *= root
-        for i in range(n):
-            row = phys[i]
-            for k in range(n):
-                X[row, c * 2 * n + k] = m[c, i] + L[c, i, k]
-                X[row, c * 2 * n + n + k] = m[c, i] - L[c, i, k]
+def cubature_points(m, P, root, X, phys, L, pivot):
+    """The cubature points m +- root L e_k of N(m, P) of every cell c (m (n,
+    C), P (n, n, C): the cells innermost) into the physical rows ``phys`` of
+    X (n_x, 2n C), point p of cell c in column p C + c; root L into L (n, n,
+    C). ``pivot`` (C,): scratch."""
+    n, C = m.shape
+    cholesky_cells(P, L, pivot)
+    for i in range(n):
+        for k in range(n):
+            Lik = L[i, k]
+            for c in range(C):
+                Lik[c] *= root
+    for i in range(n):
+        row, mi = X[phys[i]], m[i]
+        for k in range(n):
+            Lik = L[i, k]
+            for c in range(C):
+                row[k * C + c] = mi[c] + Lik[c]
+                row[(n + k) * C + c] = mi[c] - Lik[c]
 
 
 @njit(**JIT)
-def cubature_moments(X, phys, inverse, scale, Q, mp, Pp):
-    """Mean (C, n) and covariance (C, n, n) of every cell's predicted points
-    (the physical rows ``phys`` of X, 2n points a cell), plus Q."""
-    C, n = mp.shape
-    D = np.empty((n, 2 * n))
-    for c in range(C):
-        for i in range(n):
-            s = 0.0
+def cubature_moments(X, phys, inverse, scale, Q, mp, Pp, D):
+    """Mean (n, C) and covariance (n, n, C) of every cell's predicted points
+    (the physical rows ``phys`` of X, 2n points a cell, the cells
+    innermost), plus Q; D (n, 2n, C): scratch."""
+    n, C = mp.shape
+    for i in range(n):
+        row, mpi = X[phys[i]], mp[i]
+        for c in range(C):
+            mpi[c] = 0.0
+        for p in range(2 * n):
+            for c in range(C):
+                mpi[c] += row[p * C + c]
+        for c in range(C):
+            mpi[c] *= inverse
+        for p in range(2 * n):
+            Dip = D[i, p]
+            for c in range(C):
+                Dip[c] = (row[p * C + c] - mpi[c]) * scale
+    for i in range(n):  # each sum once: D[i] D[j] and D[j] D[i] are the same products
+        for j in range(i + 1):
+            Ppij, Ppji = Pp[i, j], Pp[j, i]
+            for c in range(C):
+                Ppij[c] = 0.0
             for p in range(2 * n):
-                s += X[phys[i], c * 2 * n + p]
-            mp[c, i] = s * inverse
-            for p in range(2 * n):
-                D[i, p] = (X[phys[i], c * 2 * n + p] - mp[c, i]) * scale
-        for i in range(n):  # each sum once: D[i] D[j] and D[j] D[i] are the same products
-            for j in range(i + 1):
-                s = 0.0
-                for p in range(2 * n):
-                    s += D[i, p] * D[j, p]
-                Pp[c, i, j] = s + Q[i, j]
-                Pp[c, j, i] = s + Q[j, i]
+                Dip, Djp = D[i, p], D[j, p]
+                for c in range(C):
+                    Ppij[c] += Dip[c] * Djp[c]
+            qij, qji = Q[i, j], Q[j, i]
+            for c in range(C):
+                s = Ppij[c]
+                Ppij[c] = s + qij
+                Ppji[c] = s + qji
 
 
 @njit(**JIT)
 def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp, loglik, m, P, zk, yh, sd, log_2pi):
     """Every cell's measurement update from its points' measurements Y
-    (n_y, C 2n), the sensors read ``rows`` with values y[rows] and noise
-    variances ``noise`` (C, k), its points' root L (C, n, n) and prediction
-    (mp, Pp): log p(y | the past) into loglik (C,), the mean and covariance
-    after it into m, P, the normalised residuals, predicted measurement and
-    its std of the sensors read into zk, yh, sd (C, k) (``kalman._Filter.step``)."""
-    C, n = mp.shape
+    (n_y, 2n C, point p of cell c in column p C + c), the sensors read
+    ``rows`` with values y[rows] and noise variances ``noise`` (C, k), its
+    points' root L (n, n, C) and prediction (mp (n, C), Pp (n, n, C)): log
+    p(y | the past) into loglik (C,), the mean (C, n) and covariance (C, n,
+    n) after it into m, P, the normalised residuals, predicted measurement
+    and its std of the sensors read into zk, yh, sd (C, k)
+    (``kalman._Filter.step``). Each cell's arithmetic is that of one filter
+    in the usual order, the loops over the cells innermost."""
+    n, C = mp.shape
     k = rows.shape[0]
-    DY = np.empty((k, 2 * n))
-    S = np.empty((k, k))
-    Ly = np.empty((k, k))
-    rhs = np.empty((k, 1 + n))
+    DY = np.empty((k, 2 * n, C))
+    S = np.empty((k, k, C))
+    Ly = np.empty((k, k, C))
+    rhs = np.empty((k, 1 + n, C))
+    yt = np.empty((k, C))
+    acc = np.empty(C)
+    for a in range(k):
+        row, yta = Y[rows[a]], yt[a]
+        for c in range(C):
+            yta[c] = 0.0
+        for p in range(2 * n):
+            for c in range(C):
+                yta[c] += row[p * C + c]
+        for c in range(C):
+            yta[c] *= inverse
+        for p in range(2 * n):
+            DYap = DY[a, p]
+            for c in range(C):
+                DYap[c] = row[p * C + c] - yta[c]
+    for a in range(k):
+        for b in range(a + 1):  # each sum once, as above
+            for c in range(C):
+                acc[c] = 0.0
+            for p in range(2 * n):
+                DYap, DYbp = DY[a, p], DY[b, p]
+                for c in range(C):
+                    acc[c] += DYap[c] * DYbp[c]
+            Sab, Sba = S[a, b], S[b, a]
+            for c in range(C):
+                Sab[c] = acc[c] * inverse
+                Sba[c] = acc[c] * inverse
+        Saa, ya, yta, r0 = S[a, a], y[rows[a]], yt[a], rhs[a, 0]
+        for c in range(C):
+            Saa[c] += noise[c, a]
+            r0[c] = ya - yta[c]
+        for i in range(n):  # Pxy' = (DY+ - DY-) L' / 2n
+            for c in range(C):
+                acc[c] = 0.0
+            for p in range(n):
+                plus, minus, Lip = DY[a, p], DY[a, n + p], L[i, p]
+                for c in range(C):
+                    acc[c] += (plus[c] - minus[c]) * Lip[c]
+            ri = rhs[a, 1 + i]
+            for c in range(C):
+                ri[c] = acc[c] * inverse
+    cholesky_cells(S, Ly, acc)
+    for a in range(k):  # Ly^-1 rhs by forward substitution, in place
+        Lyaa = Ly[a, a]
+        for r in range(1 + n):
+            ra = rhs[a, r]
+            for b in range(a):
+                Lyab, rb = Ly[a, b], rhs[b, r]
+                for c in range(C):
+                    ra[c] -= Lyab[c] * rb[c]
+            for c in range(C):
+                ra[c] /= Lyaa[c]
+    q = np.zeros(C)
+    logdet = np.zeros(C)
+    for a in range(k):
+        ra, Lyaa, Saa, ya, yta = rhs[a, 0], Ly[a, a], S[a, a], y[rows[a]], yt[a]
+        for c in range(C):
+            q[c] += ra[c] * ra[c]
+            logdet[c] += np.log(Lyaa[c])
+            s = np.sqrt(Saa[c])
+            sd[c, a] = s
+            yh[c, a] = yta[c]
+            zk[c, a] = (ya - yta[c]) / s
     for c in range(C):
+        loglik[c] = -0.5 * (q[c] + 2.0 * logdet[c] + k * log_2pi)
+    for i in range(n):
+        for c in range(C):
+            acc[c] = 0.0
         for a in range(k):
-            s = 0.0
-            for p in range(2 * n):
-                s += Y[rows[a], c * 2 * n + p]
-            yh[c, a] = s * inverse
-            for p in range(2 * n):
-                DY[a, p] = Y[rows[a], c * 2 * n + p] - yh[c, a]
-        for a in range(k):
-            for b in range(a + 1):  # each sum once, as above
-                s = 0.0
-                for p in range(2 * n):
-                    s += DY[a, p] * DY[b, p]
-                S[a, b] = s * inverse
-                S[b, a] = s * inverse
-            S[a, a] += noise[c, a]
-            rhs[a, 0] = y[rows[a]] - yh[c, a]
-            for i in range(n):  # Pxy' = (DY+ - DY-) L' / 2n
-                s = 0.0
-                for p in range(n):
-                    s += (DY[a, p] - DY[a, n + p]) * L[c, i, p]
-                rhs[a, 1 + i] = s * inverse
-        cholesky_into(S, Ly)
-        for a in range(k):  # Ly^-1 rhs by forward substitution, in place
-            for r in range(1 + n):
-                s = rhs[a, r]
-                for b in range(a):
-                    s -= Ly[a, b] * rhs[b, r]
-                rhs[a, r] = s / Ly[a, a]
-        q = 0.0
-        logdet = 0.0
-        for a in range(k):
-            q += rhs[a, 0] * rhs[a, 0]
-            logdet += np.log(Ly[a, a])
-            sd[c, a] = np.sqrt(S[a, a])
-            zk[c, a] = (y[rows[a]] - yh[c, a]) / sd[c, a]
-        loglik[c] = -0.5 * (q + 2.0 * logdet + k * log_2pi)
-        for i in range(n):
-            s = 0.0
+            rai, ra0 = rhs[a, 1 + i], rhs[a, 0]
+            for c in range(C):
+                acc[c] += rai[c] * ra0[c]
+        mpi = mp[i]
+        for c in range(C):
+            m[c, i] = mpi[c] + acc[c]
+    for i in range(n):  # Pp - B'B, made symmetric against rounding as the NumPy runtime makes it
+        for j in range(i + 1):
+            for c in range(C):
+                acc[c] = 0.0
             for a in range(k):
-                s += rhs[a, 1 + i] * rhs[a, 0]
-            m[c, i] = mp[c, i] + s
-        for i in range(n):  # Pp - B'B, made symmetric against rounding as the NumPy runtime makes it
-            for j in range(i + 1):
-                s = 0.0
-                for a in range(k):
-                    s += rhs[a, 1 + i] * rhs[a, 1 + j]
-                v = 0.5 * ((Pp[c, i, j] - s) + (Pp[c, j, i] - s))
+                rai, raj = rhs[a, 1 + i], rhs[a, 1 + j]
+                for c in range(C):
+                    acc[c] += rai[c] * raj[c]
+            Ppij, Ppji = Pp[i, j], Pp[j, i]
+            for c in range(C):
+                v = 0.5 * ((Ppij[c] - acc[c]) + (Ppji[c] - acc[c]))
                 P[c, i, j] = v
                 P[c, j, i] = v
-
-
-@njit(**JIT)
-def cubature_predicted(X, phys, inverse, scale, Q, root, mp, Pp, L):
-    """:func:`cubature_moments` of the predicted points, then the update's
-    points of N(mp, Pp) into the same rows of X (:func:`cubature_points`), in one call."""
-    cubature_moments(X, phys, inverse, scale, Q, mp, Pp)
-    cubature_points(mp, Pp, root, X, phys, L)
 
 
 @njit(**JIT)
@@ -412,33 +476,53 @@ def row_quadrature(v, lg, nodes, weights, panel_range, most_panels, wild):
 
 @njit(**JIT)
 def cubature_prepare(m, P, root, X, phys, L, extra, fixed, onset_start, onset_stop):
-    """:func:`cubature_points` of every cell, then each cell's fault states
-    ``fixed`` (f, C; the magnitude last) into the rows ``extra`` of its
-    points, the magnitude 0 in the cells onset_start .. onset_stop - 1 (at
-    their onset: a nominal transition) (``kalman._Filter._predict_points``)."""
-    cubature_points(m, P, root, X, phys, L)
+    """:func:`cubature_points` of every cell (m (C, n), P (C, n, n), each
+    cell's own row, turned here to the cells innermost), then each cell's
+    fault states ``fixed`` (f, C; the magnitude last) into the rows
+    ``extra`` of its points, the magnitude 0 in the cells onset_start ..
+    onset_stop - 1 (at their onset: a nominal transition)
+    (``kalman._Filter._predict_points``); X (n_x, 2n C), point p of cell c
+    in column p C + c; L (n, n, C)."""
     C, n = m.shape
+    mt = np.empty((n, C))
+    Pt = np.empty((n, n, C))
+    for c in range(C):
+        for i in range(n):
+            mt[i, c] = m[c, i]
+            for j in range(n):
+                Pt[i, j, c] = P[c, i, j]
+    cubature_points(mt, Pt, root, X, phys, L, np.empty(C))
     f = extra.shape[0]
     for j in range(f):
-        for c in range(C):
-            value = 0.0 if j == f - 1 and onset_start <= c < onset_stop else fixed[j, c]
+        row, fj = X[extra[j]], fixed[j]
+        for p in range(2 * n):
+            for c in range(C):
+                row[p * C + c] = fj[c]
+        if j == f - 1:
             for p in range(2 * n):
-                X[extra[j], c * 2 * n + p] = value
+                for c in range(onset_start, onset_stop):
+                    row[p * C + c] = 0.0
 
 
 @njit(**JIT)
 def cubature_after(X, phys, extra, fixed, inverse, scale, Q, root, mp, Pp, L, onset_start, onset_stop):
-    """After the prediction of the points X: a drifting parameter (the rows
-    ``extra`` but the last) read back into ``fixed`` from each cell's first
-    point, :func:`cubature_predicted`, and the cells at their onset given
-    their magnitude in the update's points (``kalman._Filter._compiled_step``)."""
-    C, n = mp.shape
+    """After the prediction of the points X (n_x, 2n C, point p of cell c
+    in column p C + c): a drifting parameter (the rows ``extra`` but the
+    last) read back into ``fixed`` from each cell's first point,
+    :func:`cubature_moments` (mp (n, C), Pp (n, n, C)), the update's points
+    of N(mp, Pp) into the same rows (root chol(Pp) into L (n, n, C)), and the
+    cells at their onset given their magnitude in the update's points
+    (``kalman._Filter._compiled_step``)."""
+    n, C = mp.shape
     f = extra.shape[0]
     for j in range(f - 1):
+        row, fj = X[extra[j]], fixed[j]
         for c in range(C):
-            fixed[j, c] = X[extra[j], c * 2 * n]
-    cubature_predicted(X, phys, inverse, scale, Q, root, mp, Pp, L)
+            fj[c] = row[c]
+    cubature_moments(X, phys, inverse, scale, Q, mp, Pp, np.empty((n, 2 * n, C)))
+    cubature_points(mp, Pp, root, X, phys, L, np.empty(C))
     if f > 0:
-        for c in range(onset_start, onset_stop):
-            for p in range(2 * n):
-                X[extra[f - 1], c * 2 * n + p] = fixed[f - 1, c]
+        row, fj = X[extra[f - 1]], fixed[f - 1]
+        for p in range(2 * n):
+            for c in range(onset_start, onset_stop):
+                row[p * C + c] = fj[c]

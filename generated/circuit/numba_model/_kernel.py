@@ -262,26 +262,27 @@ LOG_2PI = float(np.log(2.0 * np.pi))
 
 def cubature_prepare(m, P, root, X, phys, extra, fixed, onset):
     """The cubature points m +- root chol(P) e_k of every cell (m (C, n), P
-    (C, n, n)) into the physical rows ``phys`` of X (n_x, C 2n,
-    C-contiguous), and each cell's
-    fault states ``fixed`` (f, C; the magnitude last) into its points' rows
-    ``extra``, the magnitude 0 in the cells of the slice ``onset`` (at
-    their onset); root chol(P) (C, n, n)."""
-    L = np.empty(P.shape)
-    _JIT.cubature_prepare(contiguous(m), contiguous(P), float(root), X, phys, L, extra, contiguous(fixed),
-                          onset.start, onset.stop)
-    return L
+    (C, n, n)) into the physical rows ``phys`` of X (n_x, 2n C,
+    C-contiguous, point p of cell c in column p C + c: the cells innermost,
+    so the compiled loops over them are vector instructions), and each
+    cell's fault states ``fixed`` (f, C; the magnitude last) into its
+    points' rows ``extra``, the magnitude 0 in the cells of the slice
+    ``onset`` (at their onset)."""
+    n = m.shape[1]
+    _JIT.cubature_prepare(contiguous(m), contiguous(P), float(root), X, phys, np.empty((n, n, m.shape[0])), extra,
+                          contiguous(fixed), onset.start, onset.stop)
 
 
 def cubature_after(X, phys, extra, fixed, inverse, scale, Q, root, onset):
-    """After the prediction of the points X: a drifting parameter read back
-    into ``fixed`` (f, C, C-contiguous: in place), the predicted points' mean
-    (C, n) and covariance (C, n, n, plus Q) and the update's points of that
-    Gaussian in the same rows (mp, Pp, root chol(Pp)), and the cells of the
-    slice ``onset`` given their magnitude in the update's points."""
+    """After the prediction of the points X (:func:`cubature_prepare`'s
+    layout): a drifting parameter read back into ``fixed`` (f, C,
+    C-contiguous: in place), the predicted points' mean (n, C) and
+    covariance (n, n, C, plus Q) and the update's points of that Gaussian in
+    the same rows (mp, Pp, root chol(Pp), the cells innermost), and the cells
+    of the slice ``onset`` given their magnitude in the update's points."""
     n = len(phys)
     C = X.shape[1] // (2 * n)
-    mp, Pp, L = np.empty((C, n)), np.empty((C, n, n)), np.empty((C, n, n))
+    mp, Pp, L = np.empty((n, C)), np.empty((n, n, C)), np.empty((n, n, C))
     _JIT.cubature_after(X, phys, extra, fixed, float(inverse), float(scale), Q, float(root), mp, Pp, L,
                         onset.start, onset.stop)
     return mp, Pp, L
@@ -289,10 +290,11 @@ def cubature_after(X, phys, extra, fixed, inverse, scale, Q, root, onset):
 
 def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp):
     """Every cell's measurement update (the cubature Kalman filter's, from its
-    points' measurements Y (n_y, C 2n) of the sensors ``rows`` read, y, their
+    points' measurements Y (n_y, 2n C) of the sensors ``rows`` read, y, their
     noise variances per cell (C, k), the points' root L and the prediction
-    mp, Pp): (loglik (C,), m, P, zk, yh, sd (C, k))."""
-    C, n = mp.shape
+    mp, Pp, as :func:`cubature_after` gives them): (loglik (C,), m (C, n),
+    P (C, n, n), zk, yh, sd (C, k))."""
+    n, C = mp.shape
     k = len(rows)
     loglik, m, P = np.empty(C), np.empty((C, n)), np.empty((C, n, n))
     zk, yh, sd = np.empty((C, k)), np.empty((C, k)), np.empty((C, k))
