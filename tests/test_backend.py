@@ -415,3 +415,34 @@ def test_the_compiled_quadrature_of_the_static_posterior_is_the_numpy_ones():
         assert np.allclose(a[1][finite], b[1][finite], rtol=1e-14, atol=1e-13)
     assert np.array_equal(kalman.row_quadrature(v[:2], np.zeros(2), kernel)[0],
                           kalman.row_quadrature(v[:2], np.zeros(2))[0])
+
+
+def test_a_prepared_filter_makes_nothing_on_its_first_step_and_gives_the_same_numbers():
+    """``prepare`` (an online diagnoser calls it before its first sample)
+    makes the weights, the Gaussian terms of the sensors read and, compiled,
+    the generator's handle before the data come: the first step then adds no
+    Gaussian terms and finds the handle, and a prepared filter gives the
+    numbers of one that is not, on both backends, to the bit."""
+    ys, us = record("ro", steps=24)
+    for package in packages("ro"):
+        model = package.MODELS["nominal"]
+        plain, ready = (package.filters.GenericParticleFilter(model, 200, np.random.default_rng(8)) for _ in range(2))
+        ready.prepare(np.isfinite(ys[0]))
+        terms = dict(ready._gauss)
+        assert len(terms) == 1 and ready.w is not None
+        compiled = hasattr(model._kernel, "generator_handle")
+        if compiled:
+            assert model._kernel._HANDLES[id(ready.rng)][0] is ready.rng
+        for k, (y, u) in enumerate(zip(ys, us)):
+            a, b = plain.step(y, u), ready.step(y, u)
+            if k == 0:  # the first step found what prepare made
+                assert ready._gauss.keys() == terms.keys()
+                assert all(ready._gauss[key] is terms[key] for key in terms)
+            for key in ("mean", "std", "y_mean", "y_std", "ess"):
+                assert np.array_equal(getattr(a, key), getattr(b, key))
+            assert plain.rng.bit_generator.state == ready.rng.bit_generator.state
+    import bgc
+
+    d = bgc.open(ROOT / "models" / "ro.yaml", backend="numba").diagnoser(method="gpf", particles=200, seed=3)
+    assert len(d.pf._gauss) == 1 and d.pf.w is not None  # the diagnoser prepared its filter
+    assert d.pf.model._kernel._HANDLES[id(d.pf.rng)][0] is d.pf.rng

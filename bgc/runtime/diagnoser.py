@@ -128,6 +128,8 @@ class Diagnoser:
         present = tuple(y for y in self.outputs if y in self.sampler.present)
         self.detector = Detector(present, DetectorOptions(options.false_alarm, options.windows, self.horizon))
         self._present = np.array([y in self.sampler.present for y in self.outputs])
+        if self.pf is not None:  # what its first step would make, made before the data come
+            self.pf.prepare(self._present)
         self.samples: list[Sample] = []
         self.y_mean: list = []
         self.y_std: list = []

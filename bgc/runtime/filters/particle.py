@@ -182,6 +182,22 @@ class _Filter:
         self.recoveries = 0
         self._gauss = {}
 
+    def prepare(self, seen) -> None:
+        """Make now what the first step would make on first use, so that an
+        online diagnosis's first sample costs what the others cost: the
+        weights kept from step to step, the Gaussian terms of the pattern
+        ``seen`` (bool (n_y,)) of sensors the data are expected to read, and
+        a compiled kernel's handle of the generator. No number the filter
+        gives changes (each is what that step would have made)."""
+        if self._small:
+            self.w = self._weights()
+        kernel = self.model._kernel
+        std = np.asarray(self.model.MEASUREMENT_STD, dtype=float)
+        gauss_terms(self._gauss, np.asarray(seen, dtype=bool), std, kernel, compiled=hasattr(kernel, "weigh"))
+        handle = getattr(kernel, "generator_handle", None)
+        if handle is not None:
+            handle(self.rng)
+
     def _weights(self):
         """The normalised weights exp(logw): the ones kept from the last step
         (up to two blocks of particles), else computed afresh (for more
