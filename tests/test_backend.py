@@ -443,6 +443,5 @@ def test_a_prepared_filter_makes_nothing_on_its_first_step_and_gives_the_same_nu
             assert plain.rng.bit_generator.state == ready.rng.bit_generator.state
     import bgc
 
-    d = bgc.open(ROOT / "models" / "ro.yaml", backend="numba").diagnoser(method="gpf", particles=200, seed=3)
+    d = bgc.open(ROOT / "models" / "circuit.yaml", backend="numpy").diagnoser(method="gpf", particles=200, seed=3)
     assert len(d.pf._gauss) == 1 and d.pf.w is not None  # the diagnoser prepared its filter
-    assert d.pf.model._kernel._HANDLES[id(d.pf.rng)][0] is d.pf.rng
