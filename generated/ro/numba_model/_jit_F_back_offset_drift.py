@@ -140,8 +140,7 @@ def predict(x, u, theta, _A, _b, dt, substeps, noise, std):
     _h = dt / substeps
     _width = max(1, -(-_n // -(-_n // BLOCK)))  # blocks of equal width, up to one particle
     _xb, _s = np.empty((_n_x, _width)), np.empty((_n_x, _width))
-    _k1, _k2, _k3, _k4 = (np.empty((_n_x, _width)), np.empty((_n_x, _width)), np.empty((_n_x, _width)),
-                          np.empty((_n_x, _width)))
+    _k = np.empty((4, _n_x, _width))  # the four stages' slopes
     _noisy = noise.shape[1] > 0
     for _start in range(0, _n, _width):
         _w = min(_width, _n - _start)  # the last block may be narrower
@@ -149,23 +148,20 @@ def predict(x, u, theta, _A, _b, dt, substeps, noise, std):
             for _i in range(_w):
                 _xb[_j, _i] = x[_j, _start + _i]
         for _ in range(substeps):
-            derivative_block(_xb, u, theta, _A, _b, _k1, _w)
+            # one call of the derivative in a loop over the stages: the compiler inlines and
+            # vectorises it once, not four times (a quicker compile, and quicker code)
+            for _stage in range(4):
+                derivative_block(_xb if _stage == 0 else _s, u, theta, _A, _b, _k[_stage], _w)
+                if _stage < 3:  # the next stage's state: x + h/2 k1, x + h/2 k2, x + h k3
+                    _c = _h if _stage == 2 else 0.5 * _h
+                    _ks = _k[_stage]
+                    for _j in range(_n_x):
+                        for _i in range(_w):
+                            _s[_j, _i] = _ks[_j, _i] * _c + _xb[_j, _i]
             for _j in range(_n_x):
                 for _i in range(_w):
-                    _s[_j, _i] = _k1[_j, _i] * (0.5 * _h) + _xb[_j, _i]
-            derivative_block(_s, u, theta, _A, _b, _k2, _w)
-            for _j in range(_n_x):
-                for _i in range(_w):
-                    _s[_j, _i] = _k2[_j, _i] * (0.5 * _h) + _xb[_j, _i]
-            derivative_block(_s, u, theta, _A, _b, _k3, _w)
-            for _j in range(_n_x):
-                for _i in range(_w):
-                    _s[_j, _i] = _k3[_j, _i] * _h + _xb[_j, _i]
-            derivative_block(_s, u, theta, _A, _b, _k4, _w)
-            for _j in range(_n_x):
-                for _i in range(_w):
-                    _xb[_j, _i] += ((_h / 6.0) * _k1[_j, _i] + (_h / 3.0) * _k2[_j, _i] + (_h / 3.0) * _k3[_j, _i]
-                                    + (_h / 6.0) * _k4[_j, _i])
+                    _xb[_j, _i] += ((_h / 6.0) * _k[0, _j, _i] + (_h / 3.0) * _k[1, _j, _i]
+                                    + (_h / 3.0) * _k[2, _j, _i] + (_h / 6.0) * _k[3, _j, _i])
         for _j in range(_n_x):
             if _noisy:
                 for _i in range(_w):
