@@ -13,7 +13,9 @@ settings.register_profile("ci", derandomize=True, max_examples=200, deadline=Non
 settings.register_profile("dev", max_examples=100, deadline=None)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
 # The suite runs on the NumPy backend (a model the tests write afresh would be compiled by numba
-# each time); tests/test_backend.py asks for numba by name, and a run may choose: BGC_BACKEND=numba make test.
+# each time); tests/test_backend.py asks for numba by name, so does the seeded interval-coverage test
+# of tests/test_diagnose.py when numba is installed (shipped models only), and a run may choose:
+# BGC_BACKEND=numba make test.
 os.environ.setdefault("BGC_BACKEND", "numpy")
 
 ROOT = Path(__file__).resolve().parent.parent
