@@ -349,6 +349,9 @@ def test_a_misspelt_or_bad_value_from_python_is_an_error_not_a_silent_no_fault()
         d.step(0.05, None, {"e11": math.inf})
     with pytest.raises(bgc.errors.ArgumentValueError, match=r"y\[e11\]='x' is not a finite number"):
         d.step(0.05, None, {"e11": "x"})
+    for row in ([2.4, -math.inf, 2.4], (2.4, math.inf, 2.4)):  # a row of floats in order, the usual form
+        with pytest.raises(bgc.errors.ArgumentValueError, match=r"y\[f2\]=-?inf \(line 7\) is not a finite number"):
+            d.step(0.05, None, row, line=7)
     for t in ("0.05", True, None, 1j):
         with pytest.raises(bgc.errors.ArgumentTypeError, match="is not a number"):
             d.step(t, None, [2.4, 2.4, 2.4])

@@ -169,6 +169,8 @@ class Diagnoser:
             self._infer_inputs = False
             self.sampler.data_inputs = tuple(name for name in self.nominal.INPUTS if name in u)
         rows = self.sampler.push(t, u, y, line)
+        if len(rows) == 1:  # the usual row: one step, its belief as it is
+            return self.take(rows[0])
         belief = None
         collected: list = []
         for s in rows:
@@ -490,6 +492,8 @@ def _named(values, names, what: str, line) -> dict[str, float]:
                                      "use the model's names (bgc show equations MODEL lists them)")
         pairs = list(values.items())
     else:
+        if type(values) in (list, tuple) and len(values) == len(names) and all(type(v) is float for v in values):
+            return _floats(values, names, what, where)  # the usual row: floats in the model's order
         if isinstance(values, (str, bytes)) or not hasattr(values, "__len__"):
             raise ArgumentTypeError(f"Diagnoser.step: {what}={shown(values)}{where} is not a mapping or a sequence",
                                     None, "give a dict by name, or one value per name in the model's order")
@@ -505,4 +509,15 @@ def _named(values, names, what: str, line) -> dict[str, float]:
             raise ArgumentValueError(f"Diagnoser.step: {what}[{name}]={shown(v)}{where} is not a finite number", None,
                                      "give a float, or NaN for a value not read")
         out[str(name)] = as_float(v)
+    return out
+
+
+def _floats(values, names, what: str, where: str) -> dict[str, float]:
+    """:func:`_named` of a sequence of floats, one per name in ``names``'
+    order: each finite or NaN, else the same one-line error."""
+    out = dict(zip(names, values))
+    for name, v in out.items():
+        if math.isinf(v):
+            raise ArgumentValueError(f"Diagnoser.step: {what}[{name}]={shown(v)}{where} is not a finite number", None,
+                                     "give a float, or NaN for a value not read")
     return out
