@@ -272,24 +272,31 @@ def cubature_points(m, P, root, X, phys, L, pivot):
 
 
 @njit(**JIT)
+def point_deviations(row, C, inverse, scale, mean, D):
+    """The mean over its 2n points of every cell in ``row`` (2n C, point p
+    of cell c at p C + c) into ``mean`` (C,), and each point's deviation from
+    it times ``scale`` into D (2n, C)."""
+    for c in range(C):
+        mean[c] = 0.0
+    for p in range(D.shape[0]):
+        for c in range(C):
+            mean[c] += row[p * C + c]
+    for c in range(C):
+        mean[c] *= inverse
+    for p in range(D.shape[0]):
+        Dp = D[p]
+        for c in range(C):
+            Dp[c] = (row[p * C + c] - mean[c]) * scale
+
+
+@njit(**JIT)
 def cubature_moments(X, phys, inverse, scale, Q, mp, Pp, D):
     """Mean (n, C) and covariance (n, n, C) of every cell's predicted points
     (the physical rows ``phys`` of X, 2n points a cell, the cells
     innermost), plus Q; D (n, 2n, C): scratch."""
     n, C = mp.shape
     for i in range(n):
-        row, mpi = X[phys[i]], mp[i]
-        for c in range(C):
-            mpi[c] = 0.0
-        for p in range(2 * n):
-            for c in range(C):
-                mpi[c] += row[p * C + c]
-        for c in range(C):
-            mpi[c] *= inverse
-        for p in range(2 * n):
-            Dip = D[i, p]
-            for c in range(C):
-                Dip[c] = (row[p * C + c] - mpi[c]) * scale
+        point_deviations(X[phys[i]], C, inverse, scale, mp[i], D[i])
     for i in range(n):  # each sum once: D[i] D[j] and D[j] D[i] are the same products
         for j in range(i + 1):
             Ppij, Ppji = Pp[i, j], Pp[j, i]
@@ -326,18 +333,7 @@ def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp, loglik, m, P, zk, yh,
     yt = np.empty((k, C))
     acc = np.empty(C)
     for a in range(k):
-        row, yta = Y[rows[a]], yt[a]
-        for c in range(C):
-            yta[c] = 0.0
-        for p in range(2 * n):
-            for c in range(C):
-                yta[c] += row[p * C + c]
-        for c in range(C):
-            yta[c] *= inverse
-        for p in range(2 * n):
-            DYap = DY[a, p]
-            for c in range(C):
-                DYap[c] = row[p * C + c] - yta[c]
+        point_deviations(Y[rows[a]], C, inverse, 1.0, yt[a], DY[a])  # x 1.0: the deviations as they are
     for a in range(k):
         for b in range(a + 1):  # each sum once, as above
             for c in range(C):
