@@ -165,3 +165,25 @@ def test_a_detector_bank_gives_each_row_what_its_own_detector_gives(seed):
             assert got[i] == want, (k, r)
             alarms += want is not None
     assert alarms > 10
+
+
+@pytest.mark.parametrize("windows", [(1, 8, 32), (32, 1, 8), (5,)])
+def test_the_statistics_are_the_window_sums_computed_directly(windows):
+    """Every step's statistic, per sensor the largest over the windows that
+    fit in the record of |sum z| / sqrt(W + (sum a)^2), against the window
+    sums taken afresh from the residuals (no running sums); NaN counts 0; a
+    record shorter than every window tests nothing (0). Longer runs than the
+    detector keeps sums for (the longest window's reach): 200 steps."""
+    rng = np.random.default_rng(5)
+    T, n = 200, 3
+    z = rng.standard_normal((T, n)) + 0.3
+    z[rng.random(z.shape) < 0.1] = np.nan
+    a = 0.2 * rng.random((T, n))
+    det = Detector(("a", "b", "c"), DetectorOptions(windows=windows, steps=T))
+    for k in range(T):
+        det.update(z[k], a[k])
+        zs, as_ = np.nan_to_num(z[: k + 1]), a[: k + 1]
+        fits = [w for w in windows if w <= k + 1]
+        want = (np.max([np.abs(zs[-w:].sum(axis=0)) / np.sqrt(w + as_[-w:].sum(axis=0) ** 2) for w in fits], axis=0)
+                if fits else np.zeros(n))
+        np.testing.assert_allclose(det.statistics[k], want, rtol=1e-11, atol=1e-13)

@@ -97,7 +97,7 @@ class Sampler:
         self.unsampled = 0  # steps with no sample
         self.gaps = 0  # runs of steps with no sample beyond the limit
         self._pending: list = []  # events for the next sample
-        self._y_index = {y: j for j, y in enumerate(model.OUTPUTS)}
+        self._read = tuple((y, y in self.present) for y in model.OUTPUTS)  # per sensor: whether the data have it
 
     def start_events(self) -> tuple:
         """The events that hold for the whole run (absent columns)."""
@@ -110,12 +110,8 @@ class Sampler:
         """The samples a data row at time ``t`` gives: the steps with no sample
         before it, then its own (none when it is skipped). ``u``, ``y``: the
         row's cells by input and sensor name (NaN: empty)."""
-        where = f"{printable(self.source)}:{line}" if line is not None else printable(self.source)
-        if not math.isfinite(t):
-            raise DataError(f"{where}: time {t!r} is not a finite number", None, "give every row its time")
-        if t <= self.last_t:
-            raise DataError(f"{where}: time {t:.12g} does not increase (the row before has {self.last_t:.12g})", None,
-                            "sort the rows by time, one row per sample")
+        if not math.isfinite(t) or t <= self.last_t:
+            self._refuse(t, line)
         t0 = t if self.t0 is None else self.t0
         k = int(round((t - t0) / self.dt))
         if k <= self.k:  # the step is taken: the first sample of a step is used
@@ -126,6 +122,7 @@ class Sampler:
             return []
         missing = k - self.k - 1
         if missing > MAX_GAP_STEPS:
+            where = self._where(line)
             many = f"{missing}" if missing < 1e15 else f"{float(missing):.3g}"
             raise DataError(f"{where}: time {t:.12g} is {many} steps of dt = {self.dt:g} after the sample "
                             f"before it, more than {MAX_GAP_STEPS}", None,
@@ -145,12 +142,22 @@ class Sampler:
         events += self._pending
         self._pending = []
         uk = self._inputs(t, u, k, events)
-        yk = np.full(len(self.model.OUTPUTS), np.nan)
-        for name in self.present:
-            yk[self._y_index[name]] = float(y.get(name, math.nan))
+        yk = np.array([float(y.get(name, math.nan)) if read else math.nan for name, read in self._read])
         out.append(Sample(k, t, uk, yk, line, tuple(events)))
         self.k = k
         return out
+
+    def _where(self, line: int | None) -> str:
+        """The data's name and the row's line, for a message."""
+        return f"{printable(self.source)}:{line}" if line is not None else printable(self.source)
+
+    def _refuse(self, t: float, line: int | None) -> None:
+        """The error for a row whose time is not finite or does not increase."""
+        where = self._where(line)
+        if not math.isfinite(t):
+            raise DataError(f"{where}: time {t!r} is not a finite number", None, "give every row its time")
+        raise DataError(f"{where}: time {t:.12g} does not increase (the row before has {self.last_t:.12g})", None,
+                        "sort the rows by time, one row per sample")
 
     def _inputs(self, t: float, row: dict[str, float], k: int, events: list | None) -> np.ndarray:
         """The inputs over the step that ends at ``t``: the row's, the last one
@@ -159,7 +166,7 @@ class Sampler:
         if not self.model.INPUTS:
             return np.zeros(0)
         declared = None
-        u = np.empty(len(self.model.INPUTS))
+        u = [0.0] * len(self.model.INPUTS)
         for i, name in enumerate(self.model.INPUTS):
             value = float(row.get(name, math.nan)) if name in self.data_inputs else math.nan
             if math.isfinite(value):
@@ -177,8 +184,8 @@ class Sampler:
                 declared = np.asarray(self.model.inputs(t - self.dt), dtype=float)
             if name in self.data_inputs and k == 0 and events is not None:
                 events.append(ev.InputFromModel(name, "before-data", k))
-            u[i] = declared[i]
-        return u
+            u[i] = float(declared[i])
+        return np.array(u)
 
     def summary(self) -> "DataSummary":
         """What the data gave, per input and sensor, so far."""

@@ -217,36 +217,33 @@ class Diagnoser:
     def _observe(self, s: Sample) -> None:
         """The nominal observer's step, and the detector's while watching."""
         k, o = s.k, self.options
-        if self.ckf:
-            self.kf.step(s.y, s.u)
-            ym, sd, zk = self.kf.y_mean[-1], self.kf.y_std[-1], self.kf.z[-1]
-            xm, xs = self.kf.means[-1], self.kf.x_std[-1]  # the state after the step
-            mc = None
-        else:
-            with np.errstate(all="ignore"):
+        mc = detection = None
+        with np.errstate(all="ignore"):  # one context for the step's arithmetic (NaN: a sensor not read)
+            if self.ckf:
+                self.kf.step(s.y, s.u)
+                ym, sd, zk = self.kf.y_mean[-1], self.kf.y_std[-1], self.kf.z[-1]
+                xm, xs = self.kf.means[-1], self.kf.x_std[-1]  # the state after the step
+            else:
                 r = self.pf.step(s.y, s.u)
                 ym, sd, xm, xs = r.y_mean, r.y_std, r.mean, r.std
                 zk = (s.y - r.y_mean) / r.y_std
-                mc = None
                 if self.detection is None:
                     mc = monte_carlo_share(r.y_std, self.nominal.MEASUREMENT_STD, self.ess, o.particles)
-        self.y_mean.append(ym)
-        self.y_std.append(sd)
-        self.z.append(zk)
-        self.x_mean.append(xm)
-        self.x_std.append(xs)
-        if not self.lazy:
-            with np.errstate(all="ignore"):
+            self.y_mean.append(ym)
+            self.y_std.append(sd)
+            self.z.append(zk)
+            self.x_mean.append(xm)
+            self.x_std.append(xs)
+            if not self.lazy:
                 self.density.append(float(log_density(np.asarray(zk)[None], np.asarray(sd)[None])[0]))
-        if self.detection is None:
-            if not self.ckf:
-                self.clouds[k] = (self.pf.x.copy(), self.pf.logw.copy())
-                self.clouds.pop(k - o.history - 1, None)
-            with np.errstate(all="ignore"):
-                detection = self.detector.update(np.asarray(zk)[self._present],
-                                                 None if mc is None else np.asarray(mc)[self._present])
-            if detection is not None:
-                self._alarm(detection)
+            if self.detection is None:
+                if not self.ckf:
+                    self.clouds[k] = (self.pf.x.copy(), self.pf.logw.copy())
+                    self.clouds.pop(k - o.history - 1, None)
+                present = self._present
+                detection = self.detector.update(np.asarray(zk)[present], None if mc is None else mc[present])
+        if detection is not None:
+            self._alarm(detection)
         if not self.ckf:
             self.ess = r.ess
             if self.detection is None or k < self.detection.step:  # before the alarm: a fault degenerates it too
@@ -481,9 +478,11 @@ def _named(values, names, what: str, line) -> dict[str, float]:
     """A row's cells by name: from a mapping (each key one of ``names``), or
     a sequence in ``names``' order (None: none); each a real number or NaN
     (not read), never infinite."""
-    where = "" if line is None else f" (line {line})"
     if values is None:
         return {}
+    if type(values) in (list, tuple) and len(values) == len(names) and all(type(v) is float for v in values):
+        return _floats(values, names, what, line)  # the usual row: floats in the model's order
+    where = "" if line is None else f" (line {line})"
     if isinstance(values, Mapping):
         unknown = [k for k in values if k not in names]
         if unknown:
@@ -492,8 +491,6 @@ def _named(values, names, what: str, line) -> dict[str, float]:
                                      "use the model's names (bgc show equations MODEL lists them)")
         pairs = list(values.items())
     else:
-        if type(values) in (list, tuple) and len(values) == len(names) and all(type(v) is float for v in values):
-            return _floats(values, names, what, where)  # the usual row: floats in the model's order
         if isinstance(values, (str, bytes)) or not hasattr(values, "__len__"):
             raise ArgumentTypeError(f"Diagnoser.step: {what}={shown(values)}{where} is not a mapping or a sequence",
                                     None, "give a dict by name, or one value per name in the model's order")
@@ -512,12 +509,13 @@ def _named(values, names, what: str, line) -> dict[str, float]:
     return out
 
 
-def _floats(values, names, what: str, where: str) -> dict[str, float]:
+def _floats(values, names, what: str, line) -> dict[str, float]:
     """:func:`_named` of a sequence of floats, one per name in ``names``'
     order: each finite or NaN, else the same one-line error."""
     out = dict(zip(names, values))
     for name, v in out.items():
         if math.isinf(v):
+            where = "" if line is None else f" (line {line})"
             raise ArgumentValueError(f"Diagnoser.step: {what}[{name}]={shown(v)}{where} is not a finite number", None,
                                      "give a float, or NaN for a value not read")
     return out
