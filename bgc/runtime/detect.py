@@ -127,8 +127,8 @@ class Detector:
 
     The step's arithmetic is on Python floats: on a few sensors (a bond
     graph's plant has a handful) a dozen scalar operations cost less than the
-    NumPy calls on arrays of four numbers that did them (14 -> 5 us on RO per
-    sample, the online diagnoser's budget is a fraction of a millisecond).
+    NumPy calls on arrays of four numbers that did them (13 -> 5 us on RO per
+    sample; the online diagnoser's budget is a fraction of a millisecond).
     Each number is the same IEEE operation in the same order as
     :class:`DetectorBank`'s, so the two agree to the bit (tested). Only the
     cumulative sums of the last ``max(windows) + 1`` steps are kept: the
@@ -155,8 +155,8 @@ class Detector:
         ``mc``: arrays or sequences of floats, one per sensor."""
         k = self._k
         c, m = self._cumsum, self._mc
-        c_now = tuple([a + (b if isfinite(b) else 0.0) for a, b in zip(c[-1], _floats(z))])
-        m_now = m[-1] if mc is None else tuple([a + (b if isfinite(b) else 0.0) for a, b in zip(m[-1], _floats(mc))])
+        c_now = tuple([a + (b if isfinite(b) else 0.0) for a, b in zip(c[-1], _row(z))])
+        m_now = m[-1] if mc is None else tuple([a + (b if isfinite(b) else 0.0) for a, b in zip(m[-1], _row(mc))])
         c.append(c_now)
         m.append(m_now)
         self._k = k + 1
@@ -182,7 +182,7 @@ class Detector:
         return first + change_point(rows, k - first, self._longest)
 
 
-def _floats(values) -> list[float]:
+def _row(values) -> list[float]:
     """A row of numbers as Python floats."""
     return values.tolist() if isinstance(values, np.ndarray) else [float(v) for v in values]
 
