@@ -15,7 +15,7 @@ JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 _kernel_jit = globals().get("_kernel_jit")
 #: sha256 of that kernel's file: numba's cache of :func:`generic_step`, which holds the kernel's code,
 #: is renewed when this file changes, so this file changes with that one.
-KERNEL_SHA256 = "93832965984d70e02efef85748caf109b8cd3358bb1a2eefc43d3d3f0dd93add"
+KERNEL_SHA256 = "fa20e3d63b343cc716c92d77e6fe8bc4e67188a6cb5935dd8dbae0997abaf5b6"
 
 
 #: Most particles per block of the RK4 loop: its scratch (six state-sized blocks) stays in cache.

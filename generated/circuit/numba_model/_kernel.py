@@ -268,8 +268,9 @@ def cubature_prepare(m, P, root, X, phys, extra, fixed, onset):
     cell's fault states ``fixed`` (f, C; the magnitude last) into its
     points' rows ``extra``, the magnitude 0 in the cells of the slice
     ``onset`` (at their onset)."""
-    _JIT.cubature_prepare(contiguous(m), contiguous(P), float(root), X, phys, extra, contiguous(fixed), onset.start,
-                          onset.stop)
+    n = m.shape[1]
+    _JIT.cubature_prepare(contiguous(m), contiguous(P), float(root), X, phys, np.empty((n, n, m.shape[0])), extra,
+                          contiguous(fixed), onset.start, onset.stop)
 
 
 def cubature_after(X, phys, extra, fixed, inverse, scale, Q, root, onset):

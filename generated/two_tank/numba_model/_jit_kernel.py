@@ -314,23 +314,6 @@ def cubature_moments(X, phys, inverse, scale, Q, mp, Pp, D):
 
 
 @njit(**JIT)
-def forward_substitution(L, B):
-    """L^-1 B of every cell, in place: L (k, k, C) lower triangular, B (k,
-    r, C), the cells innermost."""
-    k, r, C = B.shape
-    for a in range(k):
-        Laa = L[a, a]
-        for j in range(r):
-            Ba = B[a, j]
-            for b in range(a):
-                Lab, Bb = L[a, b], B[b, j]
-                for c in range(C):
-                    Ba[c] -= Lab[c] * Bb[c]
-            for c in range(C):
-                Ba[c] /= Laa[c]
-
-
-@njit(**JIT)
 def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp, loglik, m, P, zk, yh, sd, log_2pi):
     """Every cell's measurement update from its points' measurements Y
     (n_y, 2n C, point p of cell c in column p C + c), the sensors read
@@ -378,7 +361,16 @@ def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp, loglik, m, P, zk, yh,
             for c in range(C):
                 ri[c] = acc[c] * inverse
     cholesky_cells(S, Ly, acc)
-    forward_substitution(Ly, rhs)
+    for a in range(k):  # Ly^-1 rhs by forward substitution, in place
+        Lyaa = Ly[a, a]
+        for r in range(1 + n):
+            ra = rhs[a, r]
+            for b in range(a):
+                Lyab, rb = Ly[a, b], rhs[b, r]
+                for c in range(C):
+                    ra[c] -= Lyab[c] * rb[c]
+            for c in range(C):
+                ra[c] /= Lyaa[c]
     q = np.zeros(C)
     logdet = np.zeros(C)
     for a in range(k):
@@ -480,14 +472,14 @@ def row_quadrature(v, lg, nodes, weights, panel_range, most_panels, wild):
 
 
 @njit(**JIT)
-def cubature_prepare(m, P, root, X, phys, extra, fixed, onset_start, onset_stop):
+def cubature_prepare(m, P, root, X, phys, L, extra, fixed, onset_start, onset_stop):
     """:func:`cubature_points` of every cell (m (C, n), P (C, n, n), each
     cell's own row, turned here to the cells innermost), then each cell's
     fault states ``fixed`` (f, C; the magnitude last) into the rows
     ``extra`` of its points, the magnitude 0 in the cells onset_start ..
     onset_stop - 1 (at their onset: a nominal transition)
     (``kalman._Filter._predict_points``); X (n_x, 2n C), point p of cell c
-    in column p C + c."""
+    in column p C + c; L (n, n, C)."""
     C, n = m.shape
     mt = np.empty((n, C))
     Pt = np.empty((n, n, C))
@@ -496,7 +488,7 @@ def cubature_prepare(m, P, root, X, phys, extra, fixed, onset_start, onset_stop)
             mt[i, c] = m[c, i]
             for j in range(n):
                 Pt[i, j, c] = P[c, i, j]
-    cubature_points(mt, Pt, root, X, phys, np.empty((n, n, C)), np.empty(C))
+    cubature_points(mt, Pt, root, X, phys, L, np.empty(C))
     f = extra.shape[0]
     for j in range(f):
         row, fj = X[extra[j]], fixed[j]
