@@ -140,7 +140,6 @@ class Detector:
         self.threshold = options.threshold(len(sensors))
         self._windows = tuple(int(w) for w in options.windows)
         self._longest = max(self._windows)
-        self._k = 0  # steps taken
         # cumulative sums of z and of the Monte Carlo shares a_k: the last (the newest at -1), as tuples of floats
         zero = (0.0,) * len(sensors)
         self._cumsum = deque([zero], maxlen=self._longest + 1)
@@ -153,13 +152,12 @@ class Detector:
         units of its predicted std (:func:`monte_carlo_share`; none: an exact
         prediction); return the alarm when this step raises one. ``z``,
         ``mc``: arrays or sequences of floats, one per sensor."""
-        k = self._k
+        k = len(self.statistics)  # steps taken before this one
         c, m = self._cumsum, self._mc
-        c_now = tuple([a + (b if isfinite(b) else 0.0) for a, b in zip(c[-1], _row(z))])
-        m_now = m[-1] if mc is None else tuple([a + (b if isfinite(b) else 0.0) for a, b in zip(m[-1], _row(mc))])
+        c_now = _accumulate(c[-1], z)
+        m_now = m[-1] if mc is None else _accumulate(m[-1], mc)
         c.append(c_now)
         m.append(m_now)
-        self._k = k + 1
         best, at, top = -1.0, None, None
         for w in self._windows:
             if w > k + 1:  # longer than the record: no test
@@ -182,9 +180,11 @@ class Detector:
         return first + change_point(rows, k - first, self._longest)
 
 
-def _row(values) -> list[float]:
-    """A row of numbers as Python floats."""
-    return values.tolist() if isinstance(values, np.ndarray) else [float(v) for v in values]
+def _accumulate(sums: tuple[float, ...], values) -> tuple[float, ...]:
+    """The running sums ``sums`` plus one row of ``values`` (an array or a
+    sequence of numbers), a value that is not finite counting 0."""
+    row = values.tolist() if isinstance(values, np.ndarray) else [float(v) for v in values]
+    return tuple([a + (b if isfinite(b) else 0.0) for a, b in zip(sums, row)])
 
 
 def change_point(cumsum: np.ndarray, k: int, longest: int) -> int:
