@@ -37,4 +37,4 @@ if _runs_haswell():
     os.environ.setdefault("OPENBLAS_CORETYPE", RECORDED_CORETYPE)
 
 collect_ignore = ([] if importlib.util.find_spec("numba") is not None
-                  else ["bgc/runtime/filters/numba_kernel.py", "bgc/runtime/filters/_jit_kernel.py"])
+                  else ["bgc/filters/numba_kernel.py", "bgc/filters/_jit_kernel.py"])

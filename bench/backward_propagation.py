@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bgc.pipeline import compile_model  # noqa: E402
-from bgc.runtime.isolate import first_symbol  # noqa: E402
+from bgc.diagnosis.isolate import first_symbol  # noqa: E402
 
 #: the plants of models/ and of the test suite's tests/data/models/
 MODELS = sorted([*(ROOT / "models").glob("*.yaml"), *(ROOT / "tests" / "data" / "models").glob("*.yaml")])

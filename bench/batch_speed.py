@@ -59,7 +59,7 @@ def worker(code: str) -> None:
 
     import bgc
     from bgc import api
-    from bgc.runtime.diagnose import DiagnosisOptions
+    from bgc.diagnosis.diagnose import DiagnosisOptions
 
     where = Path(bgc.__file__).resolve().parent
     if where != Path(code).resolve() / "bgc":
@@ -136,7 +136,7 @@ def prepared(case: dict) -> dict:
     """What a worker needs of a case: absolute paths, and the horizon (rows x dt, as
     tests/test_regression.py's ``options_for``) for the new code."""
     sys.path.insert(0, str(ROOT))
-    from bgc.runtime import runs
+    from bgc.data import runs
 
     run = ROOT / case["run"]
     t = runs.read_run(run).time

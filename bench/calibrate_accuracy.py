@@ -58,8 +58,9 @@ import numpy as np
 import yaml
 
 import bgc
-from bgc.runtime import calibrate as cal
-from bgc.runtime import runs, simulate
+from bgc.analysis import calibrate as cal
+from bgc.data import runs
+from bgc.analysis import simulate
 
 
 def offset_model(path: str, parameter: str | None, factor: float, folder: str) -> str:

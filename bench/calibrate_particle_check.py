@@ -17,7 +17,7 @@ natural scale, converging to the exact likelihood as N grows; Del Moral 2004,
 Andrieu, Doucet and Holenstein 2010), on the same model with the same noise
 structure and time indexing (bench/_particles_model.py: prior N(X0,
 diag(X0_STD^2)); at sample k, RK4 with u_k, then N(0, diag(PROCESS_STD^2)),
-then y_k ~ N(h(x), diag(MEASUREMENT_STD^2)), as bgc.runtime.kalman's filter
+then y_k ~ N(h(x), diag(MEASUREMENT_STD^2)), as bgc.filters.cubature's filter
 does). ``particles`` pins numpy < 2, so that part runs in bench/.venvs/particles
 (made with pip the first time, bench/_venvs.py) as a subprocess
 (bench/_particle_loglik.py).
@@ -109,7 +109,8 @@ from _venvs import BENCH, ROOT, ensure_venv, progress  # noqa: E402
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.runtime import calibrate, runs, simulate  # noqa: E402
+from bgc.analysis import calibrate, simulate
+from bgc.data import runs  # noqa: E402
 
 import _handwritten_numpy as hand  # noqa: E402
 

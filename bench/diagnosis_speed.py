@@ -11,7 +11,7 @@ process: the ratio is the backends', not the scheduler's), once per backend
 per round, the backends taking turns; the table keeps the best round of each
 (CPU seconds of the process, time.process_time: other processes on a busy
 machine do not inflate it; wall-clock beside it). The static posterior's
-share (``bgc.runtime.kalman.static_posterior``, the cubature Kalman filters'
+share (``bgc.filters.cubature.static_posterior``, the cubature Kalman filters'
 banks that weigh and size every hypothesis) is timed by wrapping that
 function.
 
@@ -49,8 +49,10 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.runtime import kalman, runs, simulate  # noqa: E402
-from bgc.runtime.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.filters import cubature as kalman
+from bgc.data import runs
+from bgc.analysis import simulate  # noqa: E402
+from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
 
 MODEL = ROOT / "models" / "ro.yaml"
 SCENARIOS = (("step", "R_pipe:abrupt:24@165"), ("drift", "R_pipe:incipient:0.18@165"))

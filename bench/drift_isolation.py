@@ -31,8 +31,8 @@ from tqdm import tqdm
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bgc import campaign  # noqa: E402
-from bgc.runtime import diagnose as dg  # noqa: E402
+from bgc.experiment import campaign  # noqa: E402
+from bgc.diagnosis import diagnose as dg  # noqa: E402
 
 
 

@@ -13,7 +13,7 @@ t = 150). Two ways, taking turns in rounds:
               ``step(y, u, predicted=True)`` and its Liu and West move of
               the magnitude: bgc's path before the bank
   bank        ``FilterBank.step`` and the Liu and West move on the bank's rows
-              (``bgc.runtime.hypothesis._shrink_together``): bgc's path now
+              (``bgc.diagnosis.hypothesis._shrink_together``): bgc's path now
 
 for F = 1, 4, 16 filters, N = 200, 500, 1000 particles, GPF and APF. The table
 gives, per pass over the 150 steps, the best round's CPU seconds of each
@@ -42,9 +42,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.runtime import track  # noqa: E402
-from bgc.runtime.hypothesis import _shrink_together  # noqa: E402
-from bgc.runtime.hypothesis import kernel_shrinkage as _kernel_shrinkage  # noqa: E402
+from bgc.model import package as track  # noqa: E402
+from bgc.diagnosis.hypothesis import _shrink_together  # noqa: E402
+from bgc.diagnosis.hypothesis import kernel_shrinkage as _kernel_shrinkage  # noqa: E402
 
 SHRINKAGE = 0.98
 FIRST, STEPS = 150, 150

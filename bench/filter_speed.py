@@ -110,7 +110,7 @@ def generated_digest() -> str:
 def make_data(directory: Path) -> Path:
     """Simulate the RO plant (seed 1, T steps) and write what every column needs to one .npz."""
     from bgc import pipeline
-    from bgc.runtime import simulate as sim
+    from bgc.analysis import simulate as sim
     from numpy_model import nominal
 
     import _handwritten_numpy as hand

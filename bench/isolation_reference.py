@@ -54,7 +54,9 @@ sys.path.insert(0, str(ROOT))
 
 from bgc import pipeline  # noqa: E402
 from bgc.kinds import DIRECTIONS, fault_kind  # noqa: E402
-from bgc.runtime import runs, simulate, track  # noqa: E402
+from bgc.data import runs
+from bgc.analysis import simulate
+from bgc.model import package as track  # noqa: E402
 
 
 def main() -> None:

@@ -16,7 +16,7 @@ by every c. With a flat prior on the grid, p(c | y) is proportional to sum over
 tau of p(y | tau, c). Its mean and std are what the data allow; bgc's estimate
 (its own onset search and a magnitude state with Liu-West moves) is compared with it
 run by run, and so is bgc's optional refinement (``--refine``:
-:mod:`bgc.runtime.identify`, the same idea on a small grid around the
+:mod:`bgc.diagnosis.identify`, the same idea on a small grid around the
 filter's interval).
 
 The sensor faults (``--kind sensor-bias|sensor-drift``, P_memb's) enter the
@@ -50,8 +50,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.runtime import track  # noqa: E402
-from bgc.runtime.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.model import package as track  # noqa: E402
+from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
 
 ONSET = 165.0
 #: kind -> (what fails, its fault kind, fault model, true magnitude, reference grid of onsets (steps; dt = 1,

@@ -58,8 +58,10 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.runtime import events, runs, simulate  # noqa: E402
-from bgc.runtime.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.diagnosis import events
+from bgc.data import runs
+from bgc.analysis import simulate  # noqa: E402
+from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
 
 MODEL = ROOT / "models" / "ro.yaml"
 ONSET = 165

@@ -5,7 +5,7 @@ and whether it changes the estimate.
 
 The RO plant's R_pipe drift (the thesis's, slope 0.5 from t = 165, model
 noise), seeds 100, 101, ...; one diagnosis per seed and per bound on the log
-evidence an onset may fall behind the best one (``bgc.runtime.hypothesis.PRUNE``),
+evidence an onset may fall behind the best one (``bgc.diagnosis.hypothesis.PRUNE``),
 hypothesis filters in this process (``workers=1``, so that the times add up
 the same work). Prints, per bound, the mean slope error, the largest change of
 an estimate against the first bound's, and the mean time, with its ratio to the
@@ -25,8 +25,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.runtime import hypothesis as runtime  # noqa: E402
-from bgc.runtime.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.diagnosis import hypothesis as runtime  # noqa: E402
+from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
 
 SCENARIO, TRUTH = "R_pipe:incipient:0.5@165", "R_pipe_incipient"
 

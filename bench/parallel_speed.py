@@ -7,7 +7,7 @@
    ``bgc.diagnose`` (simulating the scenario included) and, last column, the
    diagnosis alone (``Diagnosis.seconds``);
 2. a campaign (the first ``--runs`` runs of experiments/thesis_tables.yaml)
-   on 2 local processes against 1 (``bgc.campaign.run_campaign(workers=...)``).
+   on 2 local processes against 1 (``bgc.experiment.campaign.run_campaign(workers=...)``).
 
     .venv/bin/python bench/parallel_speed.py [--repeats 3] [--runs 40]
 
@@ -28,8 +28,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc import campaign  # noqa: E402
-from bgc.runtime.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.experiment import campaign  # noqa: E402
+from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
 
 
 def time_diagnosis(workers: int, seed: int, scenario: str) -> tuple[float, object]:
@@ -58,7 +58,7 @@ def main() -> None:
             assert d1.candidates == d2.candidates and d1.estimate.value == d2.estimate.value
             one.append(t1)
             two.append(t2)
-            alone.append(d2.seconds)  # bgc.runtime.diagnose.diagnose itself: nominal observer to verdict
+            alone.append(d2.seconds)  # bgc.diagnosis.diagnose.diagnose itself: nominal observer to verdict
         m1, m2 = statistics.median(one), statistics.median(two)
         print(f"| {scenario} | {min(one):.2f} / {m1:.2f} | {min(two):.2f} / {m2:.2f} | {m1 / m2:.2f}x "
               f"| {statistics.median(alone):.2f} |")

@@ -16,7 +16,7 @@ Then, on the circuit (linear, so a Kalman filter is its exact observer), where
 the false alarms come from: ``--kalman-runs`` fault-free runs (seeds 5000,
 ...) seen by the detector through white N(0, 1) residuals, the exact Kalman
 filter's, and the generated GPF's and APF's at N = 1000 without and with the
-detector's Monte Carlo allowance (bgc.runtime.detect, module docstring).
+detector's Monte Carlo allowance (bgc.diagnosis.detect, module docstring).
 """
 
 from __future__ import annotations
@@ -33,9 +33,10 @@ sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
 from bgc import pipeline  # noqa: E402
-from bgc.runtime import simulate, track  # noqa: E402
-from bgc.runtime.detect import Detector, DetectorOptions, monte_carlo_share  # noqa: E402
-from bgc.runtime.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.analysis import simulate
+from bgc.model import package as track  # noqa: E402
+from bgc.diagnosis.detect import Detector, DetectorOptions, monte_carlo_share  # noqa: E402
+from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
 
 
 def main() -> None:

@@ -27,7 +27,10 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bgc import api  # noqa: E402
-from bgc.runtime import kalman, runs, simulate, track  # noqa: E402
+from bgc.filters import cubature as kalman
+from bgc.data import runs
+from bgc.analysis import simulate
+from bgc.model import package as track  # noqa: E402
 
 LOST = 10.0
 

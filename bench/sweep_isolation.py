@@ -22,7 +22,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bgc import campaign  # noqa: E402
+from bgc.experiment import campaign  # noqa: E402
 
 
 def main() -> None:

@@ -11,7 +11,7 @@
 :func:`diagnose` compiles the model, generates its NumPy package (into a
 private folder, or uses the one ``generated`` points at), reads the run (or
 simulates ``scenario`` with the truth simulator), and runs
-:func:`bgc.runtime.diagnose.diagnose`. :mod:`bgc.output.report` turns the
+:func:`bgc.diagnosis.diagnose.diagnose`. :mod:`bgc.output.report` turns the
 result into ``report.json``, ``report.md``, ``report.html`` and plots:
 :meth:`DiagnosisReport.write` writes them, :meth:`DiagnosisReport.figures`
 gives the plots as matplotlib figures, and in a notebook a report, a
@@ -23,7 +23,7 @@ line does, with the same ranges: a wrong type is an
 :class:`~bgc.errors.ArgumentTypeError` (also a :class:`TypeError`), a value
 out of range an :class:`~bgc.errors.ArgumentValueError` (also a
 :class:`ValueError`), each one line naming the function and the argument;
-problems of the data (a run file, a :class:`~bgc.runtime.runs.Run`) are the
+problems of the data (a run file, a :class:`~bgc.data.runs.Run`) are the
 runtime's :class:`~bgc.errors.DataError`, naming the run's ``source``.
 
 >>> bgc.diagnose("models/circuit.yaml", scenario="none", seed=-1)
@@ -55,16 +55,21 @@ from .errors import (
 )
 from .ir import NUMBA_PACKAGE, PACKAGE, NoiseLevels, Numerics
 from .kinds import DIRECTIONS, fault_kind
-from .runtime import distinguish as distinction
+from .analysis import distinguish as distinction
 from .output import calibrated
 from .output.labels import Labels, labels_of
-from .runtime import calibrate as calibration
-from .runtime import identify, kalman, metrics, runs, simulate, track
-from .runtime.diagnose import IDENTIFY, KALMAN_METHOD, PATHS, Diagnosis, DiagnosisOptions
-from .runtime.diagnose import diagnose as run_diagnosis
-from .runtime.data import grid_steps
-from .runtime.diagnose import horizon_steps
-from .runtime.diagnoser import Diagnoser
+from .analysis import calibrate as calibration
+from .diagnosis import identify
+from .filters import cubature as kalman
+from .experiment import metrics
+from .data import runs
+from .analysis import simulate
+from .model import package as track
+from .diagnosis.diagnose import IDENTIFY, KALMAN_METHOD, PATHS, Diagnosis, DiagnosisOptions
+from .diagnosis.diagnose import diagnose as run_diagnosis
+from .data.sampler import grid_steps
+from .diagnosis.diagnose import horizon_steps
+from .diagnosis.diagnoser import Diagnoser
 
 #: The filters of a diagnosis (``bgc diagnose --filter``).
 METHODS = tuple(track.FILTER_CLASSES)
@@ -141,7 +146,7 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
              steps: int | None = None, generated: str | Path | None = None,
              options: DiagnosisOptions | None = None, progress=None,
              prior_scale: float | None = None, backend: str | None = None) -> DiagnosisReport:
-    """Diagnose ``data`` (a run file or a :class:`~bgc.runtime.runs.Run`) or a
+    """Diagnose ``data`` (a run file or a :class:`~bgc.data.runs.Run`) or a
     simulated ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, or ``none`` for a
     fault-free run) of ``model``.
 
@@ -154,8 +159,8 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         left out or be the session's).
     data : str, os.PathLike or Run, optional
         A recorded run: a CSV as ``bgc simulate`` writes, or a
-        :class:`~bgc.runtime.runs.Run` (checked as a file's would be, by
-        :func:`bgc.runtime.runs.check_run`). Either ``data`` or ``scenario``.
+        :class:`~bgc.data.runs.Run` (checked as a file's would be, by
+        :func:`bgc.data.runs.check_run`). Either ``data`` or ``scenario``.
     scenario : str, optional
         A fault to simulate, its onset inside the run (0 < TIME < the last
         sample's time), or ``none``.
@@ -217,7 +222,7 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         arguments.path(func, "model", model)
     if data is not None and not isinstance(data, (str, os.PathLike, runs.Run)):
         raise ArgumentTypeError(f"{func}: data={arguments.shown(data)} is not a path or a Run", None,
-                                "give a run file's path or a bgc.runtime.runs.Run")
+                                "give a run file's path or a bgc.data.runs.Run")
     arguments.text(func, "scenario", scenario, optional=True)
     if (data is None) == (scenario is None):
         both = "both" if data is not None else "neither"
@@ -418,7 +423,7 @@ class Session:
 
     def diagnoser(self, options: DiagnosisOptions | None = None, *, method: str = "gpf", particles: int = 1000,
                   seed: int = 0, inputs=None, sensors=None, source: str = "<stream>", progress=None) -> Diagnoser:
-        """An online :class:`~bgc.runtime.diagnoser.Diagnoser` of this model:
+        """An online :class:`~bgc.diagnosis.diagnoser.Diagnoser` of this model:
         ``step(t, u, y)`` per sample, ``finish()`` at the end. ``inputs``,
         ``sensors``: the input and sensor names the data have (default: all
         of the model's sensors, and the inputs the first ``step`` gives);
@@ -434,12 +439,12 @@ class Session:
 
     def calibrate(self, data, estimate: str | tuple[str, ...] = "noise", *, progress=None) -> CalibrationReport:
         """Maximum-likelihood estimates, from healthy recordings ``data`` (a
-        run file, a :class:`~bgc.runtime.runs.Run`, or a list or tuple of
+        run file, a :class:`~bgc.data.runs.Run`, or a list or tuple of
         them), of what ``estimate`` names: ``noise`` (every sensor's
         measurement noise and the process-noise level, the default),
         ``measurement_noise``, ``process_noise`` and parameters of the model
         file, as a comma-separated text or a tuple of names
-        (:mod:`bgc.runtime.calibrate`). The :class:`CalibrationReport` holds
+        (:mod:`bgc.analysis.calibrate`). The :class:`CalibrationReport` holds
         the estimates with their 95 % intervals and the calibrated model's
         text; :meth:`CalibrationReport.write` writes it.
 
@@ -464,7 +469,7 @@ class Session:
         for item in items:
             if not isinstance(item, (str, os.PathLike, runs.Run)):
                 raise ArgumentTypeError(f"{func}: data={arguments.shown(item)} is not a path or a Run", None,
-                                        "give a run file's path, a bgc.runtime.runs.Run, or a list of them")
+                                        "give a run file's path, a bgc.data.runs.Run, or a list of them")
         if isinstance(estimate, tuple):
             for word in estimate:
                 arguments.text(func, "estimate", word)
@@ -505,7 +510,7 @@ class Session:
 class CalibrationReport:
     """A calibration (:meth:`Session.calibrate`): the model file, the
     model's name, the sensors whose noise, whether the process level and
-    which parameters were estimated, the :class:`~bgc.runtime.calibrate.Calibration`
+    which parameters were estimated, the :class:`~bgc.analysis.calibrate.Calibration`
     (estimates, intervals, innovations) and ``text``, the calibrated model
     file (the user's text with the estimates in place, comments kept)."""
 
@@ -746,7 +751,7 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose") -> None
     """
     if not isinstance(options, DiagnosisOptions):
         raise ArgumentTypeError(f"{func}: options={arguments.shown(options)} is not a DiagnosisOptions", None,
-                                "give bgc.runtime.diagnose.DiagnosisOptions(...) or None")
+                                "give bgc.diagnosis.diagnose.DiagnosisOptions(...) or None")
     o = "options."
     arguments.choice(func, o + "method", options.method, METHODS)
     arguments.integer(func, o + "particles", options.particles, None, "", "particles=1000")
@@ -842,7 +847,7 @@ os.register_at_fork(after_in_child=_new_folder_lock)
 
 def remove_private_folders() -> None:
     """Remove this process's private folders now (a campaign worker whose
-    campaign has died, ending at once: :func:`bgc.campaign._orphaned`).
+    campaign has died, ending at once: :func:`bgc.experiment.campaign._orphaned`).
     Under the lock :func:`private_folder` takes, so no folder is being made
     meanwhile; a folder named but not yet made is simply absent."""
     with _FOLDER_LOCK:
@@ -928,7 +933,7 @@ def with_horizon(options: DiagnosisOptions, settings) -> DiagnosisOptions:
 @dataclass(frozen=True, slots=True)
 class DistinguishabilityReport:
     """What the data of a model's scenarios are predicted to tell apart
-    (:mod:`bgc.runtime.distinguish`): one :class:`Distinction` per scenario,
+    (:mod:`bgc.analysis.distinguish`): one :class:`Distinction` per scenario,
     over ``steps`` samples at the relative noise levels ``noise`` (None: the
     model's); ``scenario`` when one was asked for, else every fault
     candidate, kind and direction at a relative ``change`` of its parameter
@@ -974,7 +979,7 @@ def distinguishability(model: str | Path | Session, scenario: str | None = None,
         Relative noise levels, as for :func:`diagnose`.
     steps : int, optional
         Samples of the run (default: the model's), within what a prediction
-        may take (:func:`bgc.runtime.distinguish.check_steps`, 2 GB).
+        may take (:func:`bgc.analysis.distinguish.check_steps`, 2 GB).
     level : float
         The probability under which a rival is in the predicted ambiguity
         group, between 0 and 1.

@@ -175,7 +175,7 @@ def _parse_noise(text: str | None) -> tuple[float | None, float | None]:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from .output import artifacts
-    from .runtime import simulate as sim
+    from .analysis import simulate as sim
 
     c = pipeline.compile_model(args.model, args.prior_scale)
     process, measurement = _parse_noise(args.noise)
@@ -207,7 +207,8 @@ def cmd_filter(args: argparse.Namespace) -> int:
     import numpy as np
 
     from .output import artifacts
-    from .runtime import runs, track
+    from .data import runs
+    from .model import package as track
 
     c = pipeline.compile_model(args.model)
     run = runs.read_run(args.run_csv)
@@ -259,7 +260,7 @@ def _fault_model(c, fault: str) -> str:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from . import api
-    from .runtime.diagnose import DiagnosisOptions
+    from .diagnosis.diagnose import DiagnosisOptions
 
     if (args.data is None) == (args.scenario is None):
         raise BgcError("give --data RUN.csv or --scenario NAME:KIND:MAGNITUDE@TIME", None,
@@ -324,9 +325,10 @@ def _write_report(r, output: str, command: str) -> Path:
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
-    from . import api, monitor
+    from . import api
+    from .service import monitor
     from .output import artifacts
-    from .runtime.diagnose import DiagnosisOptions
+    from .diagnosis.diagnose import DiagnosisOptions
 
     _check_times(args, ("horizon", "gap", "checkpoint"))
     if args.idle is not None and not (math.isfinite(args.idle) and args.idle >= 0):
@@ -441,9 +443,9 @@ def cmd_distinguish(args: argparse.Namespace) -> int:
 
 
 def cmd_experiment(args: argparse.Namespace) -> int:
-    from . import campaign
+    from .experiment import campaign
     from .output import tables
-    from .runtime import track
+    from .model import package as track
 
     # local workers get a name (numba compiled once, before they start); a Dask cluster's workers choose
     # by what they have installed

@@ -42,7 +42,8 @@ from pathlib import Path
 import numpy as np
 
 import bgc
-from bgc.runtime import runs, simulate
+from bgc.data import runs
+from bgc.analysis import simulate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
 from calibrate_accuracy import offset_model  # noqa: E402 - the model file with a parameter off, as the bench makes it

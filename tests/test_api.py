@@ -19,8 +19,10 @@ from bgc import api, cli
 from bgc.errors import (ArgumentTypeError, ArgumentValueError, BgcError, DataError, SimulationError,
                         TrackingError)
 from bgc.output.events import sentence
-from bgc.runtime import events, runs, simulate
-from bgc.runtime.diagnose import DiagnosisOptions
+from bgc.diagnosis import events
+from bgc.data import runs
+from bgc.analysis import simulate
+from bgc.diagnosis.diagnose import DiagnosisOptions
 
 from conftest import ROOT, compiled, peak_memory
 

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from bgc.errors import TrackingError
-from bgc.runtime import kalman, simulate, track
+from bgc.filters import cubature as kalman
+from bgc.analysis import simulate
+from bgc.model import package as track
 
 from conftest import ROOT, compiled
 
@@ -383,7 +385,7 @@ def test_a_compiled_model_names_the_kernel_its_cached_step_was_compiled_with():
     rewrites every model file."""
     import hashlib
 
-    from bgc.runtime.filters import _jit_kernel
+    from bgc.filters import _jit_kernel
 
     source = open(_jit_kernel.__file__, encoding="utf-8").read()
     for name in MODELS:

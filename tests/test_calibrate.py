@@ -1,4 +1,4 @@
-"""Calibration (bgc/runtime/calibrate.py, bgc/output/calibrated.py, bgc
+"""Calibration (bgc/analysis/calibrate.py, bgc/output/calibrated.py, bgc
 calibrate): maximum-likelihood noise levels and parameters from healthy data,
 checked against closed forms on a one-state linear plant, against the truth
 of simulated runs of the two tanks, and the calibrated model file: the
@@ -18,8 +18,9 @@ from bgc.compiler import load, validate
 from bgc.errors import ArgumentTypeError, ArgumentValueError, CalibrationError, DataError, OutputError
 from bgc.output.calibrated import calibrated_text, number
 from bgc.pipeline import compile_model
-from bgc.runtime import calibrate as cal
-from bgc.runtime import runs, simulate
+from bgc.analysis import calibrate as cal
+from bgc.data import runs
+from bgc.analysis import simulate
 
 from conftest import MODELS, TEST_MODELS
 

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bgc import campaign
+from bgc.experiment import campaign
 from bgc.errors import BgcError
 from bgc.output import tables
-from bgc.runtime import metrics
+from bgc.experiment import metrics
 
 from conftest import ROOT
 

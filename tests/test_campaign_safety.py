@@ -20,7 +20,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bgc import campaign
+from bgc.experiment import campaign
 from bgc.errors import ArgumentTypeError, ArgumentValueError, BgcError, ExperimentError, printable
 from bgc.output import tables
 

@@ -198,7 +198,7 @@ def test_filters_and_init_import_numpy_and_siblings_only(model):
 
 @pytest.mark.parametrize("model", MODELS)
 def test_filters_and_kernel_are_bgcs_plain_files_behind_the_header(model):
-    """filters.py and _kernel.py are bgc/runtime/filters/particle.py and
+    """filters.py and _kernel.py are bgc/filters/particle.py and
     kernel.py as they are, behind the header line: fixed Python is a plain
     module of bgc (importable and linted on its own), not a template."""
     plain = ROOT / "bgc" / "runtime" / "filters"
@@ -210,7 +210,7 @@ def test_filters_and_kernel_are_bgcs_plain_files_behind_the_header(model):
 
 
 def test_the_plain_files_import_as_bgc_modules_and_meet_the_filter_protocol():
-    from bgc.runtime.filters import Filter, kernel, particle
+    from bgc.filters import Filter, kernel, particle
 
     model = package("circuit").nominal
     assert model._kernel.__doc__ == kernel.__doc__
@@ -561,7 +561,7 @@ def test_predictive_std_where_the_plant_runs_passes_on_the_process_noise_of_a_pr
     normalised P_mech residuals had std 1.35 and 8 of 40 fault-free runs
     alarmed."""
     from bgc import api
-    from bgc.runtime.track import load_package as load
+    from bgc.model.package import load_package as load
 
     c, folder = api._compiled(ROOT / "tests" / "data" / "models" / "dc_motor.yaml")
     mod = load(folder, "dc_motor").nominal
@@ -603,7 +603,7 @@ def test_blocked_transition_matches_unblocked_for_a_partial_last_block():
     every particle."""
     import numpy as np
 
-    from bgc.runtime.track import load_package
+    from bgc.model.package import load_package
 
     pkg = load_package(ROOT / "generated", "ro")
     m = pkg.MODELS["nominal"]
@@ -631,7 +631,7 @@ def test_predict_in_threads_equals_serial():
 
     import numpy as np
 
-    from bgc.runtime.track import load_package
+    from bgc.model.package import load_package
 
     pkg = load_package(ROOT / "generated", "ro")
     m = pkg.MODELS["nominal"]
@@ -655,7 +655,7 @@ def test_predict_in_threads_equals_serial():
 @settings(max_examples=200)
 @given(n=st.integers(1, 200_000))
 def test_kernel_spans_split_particles_evenly_into_blocks_of_one_to_two_block_lengths(n):
-    from bgc.runtime.track import load_package
+    from bgc.model.package import load_package
 
     kernel = load_package(ROOT / "generated", "ro")._kernel
     parts, width = kernel.spans(n)
@@ -835,7 +835,7 @@ def test_a_lightly_damped_plant_pushed_from_rest_gets_the_substeps_its_accuracy_
     The compiled SUBSTEPS keep the generated model's noise-free run within
     0.2 measurement std of the same code with 64 times as many substeps."""
     from bgc import pipeline
-    from bgc.runtime import track
+    from bgc.model import package as track
 
     c = compile_model(ROOT / "tests" / "data" / "models" / "mass_spring_damper.yaml")
     for rel, text in pipeline.generated_files(c).items():

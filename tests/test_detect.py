@@ -1,4 +1,4 @@
-"""The detector (bgc.runtime.detect): its threshold, its false-alarm rate per
+"""The detector (bgc.diagnosis.detect): its threshold, its false-alarm rate per
 run on white residuals, its detection of a mean shift and its onset."""
 
 import dataclasses
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from bgc.runtime.detect import Detector, DetectorBank, DetectorOptions, monte_carlo_share
+from bgc.diagnosis.detect import Detector, DetectorBank, DetectorOptions, monte_carlo_share
 
 
 def normal_quantile(p: float) -> float:

@@ -13,8 +13,8 @@ import pytest
 
 import bgc
 from bgc.output.events import NOTABLE
-from bgc.runtime import events
-from bgc.runtime.diagnose import DiagnosisOptions
+from bgc.diagnosis import events
+from bgc.diagnosis.diagnose import DiagnosisOptions
 
 from conftest import ROOT
 
@@ -208,7 +208,7 @@ def test_symbols_from_a_subsample_of_the_paths_when_particles_are_many(monkeypat
     """Above ``PATHS`` particles the open loop keeps a random subsample of
     the paths for the symbols' null distribution (memory); the circuit's R2
     step is still read as f6 falling and isolated."""
-    from bgc.runtime import openloop
+    from bgc.diagnosis import openloop
 
     monkeypatch.setattr(openloop, "PATHS", 64)
     d = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R2:abrupt:0.6@5", seed=1, generated=GENERATED,
@@ -223,7 +223,7 @@ def test_the_estimate_over_onsets_is_the_weighted_mixture_of_their_clouds():
     constant. The mixture is 1 with probability 1/4 and 3 with 3/4: mean 2.5,
     variance 1/4 * 1.5^2 + 3/4 * 0.5^2 = 0.75; its 95 % interval runs from the
     1's to the 3's."""
-    from bgc.runtime.estimate import onset_mixture
+    from bgc.diagnosis.estimate import onset_mixture
 
     mean, std, low, high = onset_mixture([(1.0, [1.0] * 4, [0.0] * 4), (3.0, [3.0, 3.0], [-7.0, -7.0])], 0.95)
     assert mean == pytest.approx(2.5) and std == pytest.approx(0.75 ** 0.5)
@@ -242,9 +242,9 @@ def test_filters_stepped_in_a_bank_end_each_step_as_if_each_were_stepped_alone(m
     4, a measurement with one output missing, one with all missing, one far
     off the data (weights that underflow: the filters recover), then the
     Liu and West move on the bank's arrays against a lone row's."""
-    from bgc.runtime import track
-    from bgc.runtime.hypothesis import _shrink_together
-    from bgc.runtime.hypothesis import kernel_shrinkage as _kernel_shrinkage
+    from bgc.model import package as track
+    from bgc.diagnosis.hypothesis import _shrink_together
+    from bgc.diagnosis.hypothesis import kernel_shrinkage as _kernel_shrinkage
 
     package = track.load_package(ROOT / "generated", model_name)
     model = package.MODELS[fault]
@@ -294,7 +294,7 @@ def test_a_bank_of_filters_of_different_sizes_steps_them_one_by_one():
     """Filters of different particle counts cannot share arrays: the bank
     predicts each theta's particles in one call and steps each filter alone,
     with the same numbers as each filter's own step."""
-    from bgc.runtime import track
+    from bgc.model import package as track
 
     package = track.load_package(ROOT / "generated", "ro")
     model = package.MODELS["R_pipe_incipient"]
@@ -318,7 +318,7 @@ def test_a_hypothesis_is_seeded_by_its_name_not_by_its_rank():
     symbols, and different for different names, onsets and seeds."""
     import zlib
 
-    from bgc.runtime.onsets import hypothesis_seed
+    from bgc.diagnosis.onsets import hypothesis_seed
 
     assert hypothesis_seed(3, "R_pipe_incipient", 160) == [3, 1, zlib.crc32(b"R_pipe_incipient"), 160]
     seeds = {tuple(hypothesis_seed(s, n, o)) for s in (0, 1) for n in ("R1_abrupt", "R2_abrupt") for o in (5, 6)}
@@ -333,7 +333,7 @@ def test_a_drifts_onsets_are_every_4_samples_near_the_alarm_and_coarser_further_
     before it, 89 (the first deviating sample of a fault that acts through
     the dynamics is the one after its onset). With a history of 64 the grid
     stops at 64."""
-    from bgc.runtime.onsets import drift_onsets
+    from bgc.diagnosis.onsets import drift_onsets
 
     assert drift_onsets(100, 90, 4, 100) == sorted({100 - d for d in (*range(0, 81, 4), 85, 90, 95, 100)}
                                                    | {89, 90})
@@ -346,7 +346,7 @@ def test_each_onset_weighs_the_span_of_samples_it_stands_for():
     """The onset prior is uniform in time: consecutive samples weigh 1 each,
     a grid 4 apart 4 each, and an uneven grid the span between the midpoints
     to its neighbours (0, 4, 6: edges -2, 2, 5, 7)."""
-    from bgc.runtime.kalman import onset_widths
+    from bgc.filters.cubature import onset_widths
 
     assert onset_widths([5, 6, 7]).tolist() == [1.0, 1.0, 1.0]
     assert onset_widths([10, 14, 18]).tolist() == [4.0, 4.0, 4.0]
@@ -529,7 +529,10 @@ def test_a_sensor_sharp_against_the_process_noise_degenerates_the_particle_filte
     at step k-1, so its weights degenerate as well, and on 5 of 8 seeds at
     N = 1000 it lost the state altogether.)"""
     from bgc import api
-    from bgc.runtime import kalman, runs, simulate, track
+    from bgc.filters import cubature as kalman
+    from bgc.data import runs
+    from bgc.analysis import simulate
+    from bgc.model import package as track
 
     model = TEST_MODELS / "drivetrain.yaml"
     d = bgc.diagnose(model, scenario="none", seed=1,

@@ -1,4 +1,4 @@
-"""Predicted distinguishability (bgc/runtime/distinguish.py), against
+"""Predicted distinguishability (bgc/analysis/distinguish.py), against
 references derived here on the two tanks, whose RK4 map is derived by hand
 (``conftest.tank_map``):
 
@@ -22,7 +22,8 @@ import pytest
 from bgc.kinds import fault_kind
 
 from bgc import api, cli
-from bgc.runtime import distinguish, track
+from bgc.analysis import distinguish
+from bgc.model import package as track
 
 from conftest import ROOT, TEST_MODELS, compiled, peak_memory, tank_map
 

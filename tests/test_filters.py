@@ -27,8 +27,8 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from bgc.runtime.filters import Filter
-from bgc.runtime.kalman import CubatureKalmanFilter
+from bgc.filters import Filter
+from bgc.filters.cubature import CubatureKalmanFilter
 
 from conftest import ROOT
 
@@ -456,7 +456,7 @@ def test_offspring_counts_in_place_equal_the_counts_of_the_search_definition(chu
 def test_replicate_row_by_row_beyond_two_blocks_equals_np_repeat():
     """Beyond two blocks the filter resamples row by row in place; the result is
     np.repeat of the columns all the same."""
-    from bgc.runtime.track import load_package
+    from bgc.model.package import load_package
 
     pkg = load_package(ROOT / "generated", "ro")
     m = pkg.MODELS["nominal"]

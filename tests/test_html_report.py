@@ -24,7 +24,7 @@ from html.parser import HTMLParser
 import pytest
 
 import bgc
-from bgc import campaign
+from bgc.experiment import campaign
 from bgc.output import calibration_report, report, tables
 from bgc.output.html import PAGE
 
@@ -163,7 +163,7 @@ def test_a_campaign_name_description_model_and_failure_are_escaped(tmp_path):
 def test_a_calibration_page_says_its_verdict_and_escapes_the_model_path(tmp_path):
     from test_calibrate import RC, rc_run
 
-    from bgc.runtime import runs
+    from bgc.data import runs
 
     model = tmp_path / f"{HOSTILE_NAME}.yaml"
     shutil.copy(RC, model)

@@ -3,8 +3,9 @@
 import numpy as np
 
 import bgc
-from bgc.runtime import identify, track
-from bgc.runtime.diagnose import DiagnosisOptions
+from bgc.diagnosis import identify
+from bgc.model import package as track
+from bgc.diagnosis.diagnose import DiagnosisOptions
 
 from conftest import ROOT
 

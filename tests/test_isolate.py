@@ -1,4 +1,4 @@
-"""Qualitative isolation (bgc.runtime.isolate): magnitude and slope symbols
+"""Qualitative isolation (bgc.diagnosis.isolate): magnitude and slope symbols
 from window tests on open-loop deviations, tested against the particle paths'
 own spread, and their agreement with the circuit's signatures (see
 tests/test_signatures.py for the signatures derived by hand)."""
@@ -6,8 +6,8 @@ tests/test_signatures.py for the signatures derived by hand)."""
 import numpy as np
 import pytest
 
-from bgc.runtime.isolate import (OpenLoop, Symbol, consistent, expected_slope, first_symbol, hypotheses,
-                                 observed_symbols, slope_z, threshold, window_z)
+from bgc.diagnosis.isolate import (OpenLoop, Symbol, consistent, expected_slope, first_symbol, hypotheses,
+    observed_symbols, slope_z, threshold, window_z)
 
 from conftest import compiled
 

@@ -1,5 +1,5 @@
 """The cubature Kalman filter bank and the static posterior of a fault
-hypothesis (bgc/runtime/kalman.py), against references derived here:
+hypothesis (bgc/filters/cubature.py), against references derived here:
 
 - on the two tanks (linear in their states once the fault is fixed), a
   Kalman filter written out in matrices, with the RK4 map of the plant's
@@ -17,8 +17,11 @@ import sys
 import numpy as np
 import pytest
 
-from bgc.runtime import kalman, runs, simulate, track
-from bgc.runtime.kalman import KalmanOptions, cholesky, onset_widths
+from bgc.filters import cubature as kalman
+from bgc.data import runs
+from bgc.analysis import simulate
+from bgc.model import package as track
+from bgc.filters.cubature import KalmanOptions, cholesky, onset_widths
 
 from conftest import ROOT, compiled, tank_map
 
@@ -431,12 +434,12 @@ def test_on_the_ro_plant_the_bias_agrees_with_a_particle_filter_reference():
 
 
 def test_the_residuals_of_the_most_probable_cell_are_white_for_the_true_model_and_not_for_a_wrong_one():
-    """The consistency test of the static model (bgc.runtime.static.checked)
+    """The consistency test of the static model (bgc.diagnosis.static.checked)
     reads the most probable cell's normalised residuals: on the true
     hypothesis they are N(0, 1) and pass the windowed Z-test; a hypothesis
     that cannot produce the data (a capacitance step: it does not move the
     tanks' steady state) leaves a bias that fails it."""
-    from bgc.runtime.detect import Detector, DetectorOptions
+    from bgc.diagnosis.detect import Detector, DetectorOptions
 
     package, ys, us = data("two_tank", "R12:abrupt:0.8@60", seed=11)
     t = kalman.nominal_track(package.MODELS["nominal"], ys, us, 125)
@@ -461,7 +464,7 @@ def test_a_hypothesis_whose_likelihood_peaks_outside_its_prior_gets_its_grid_aga
     bound 0, and the posterior is finite there (this sweep run once crashed:
     a grid laid wholly beyond the bound)."""
     import bgc
-    from bgc.runtime.diagnose import DiagnosisOptions
+    from bgc.diagnosis.diagnose import DiagnosisOptions
 
     d = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R1:incipient:-0.0208821@5.85", seed=2922547472,
                      generated=GENERATED, options=DiagnosisOptions(seed=2922547472, particles=500, workers=1)).diagnosis
@@ -506,7 +509,7 @@ def test_the_row_quadrature_does_not_rise_far_above_its_points_next_to_an_extrem
     stays below its left end. The peak between the two highest points may
     still rise above them (a row too coarse for its peak), by what the
     parabolas through sound points say."""
-    from bgc.runtime.kalman import row_quadrature
+    from bgc.filters.cubature import row_quadrature
 
     values = np.linspace(-3.1e-4, 1.56e-3, 9)
     logd = np.array([-np.inf, -8977.98, -5050.65, -4153.61, -4374.58, -8682.57, -1.95757e18, -np.inf, -np.inf])

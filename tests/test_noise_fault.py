@@ -30,8 +30,9 @@ from bgc.kinds import LOWEST, NOISE_FLOOR, fault_kind, kinds_for
 from bgc.output import report
 from bgc.output.events import fault_sentence
 from bgc.pipeline import compile_model
-from bgc.runtime import kalman, metrics
-from bgc.runtime import simulate as sim
+from bgc.filters import cubature as kalman
+from bgc.experiment import metrics
+from bgc.analysis import simulate as sim
 
 from conftest import TEST_MODELS, tank_map
 
@@ -326,7 +327,7 @@ def test_a_fault_free_run_of_the_plant_stays_no_fault(session):
 
 
 def test_the_sentence_says_how_many_times_the_noise():
-    from bgc.runtime.values import Estimate
+    from bgc.diagnosis.values import Estimate
 
     e = Estimate("F12_noise", "noise", "bias", 4.0, 0.3, 3.4, 4.6, 0.95, 5.0, 1.0, target="sensor", subject="F12")
     assert fault_sentence(e, 60.0) == "sensor F12's noise is 5 times its own since t = 60"
@@ -395,7 +396,7 @@ def test_campaign_draws_of_a_noise_fault_are_its_factor_less_one(tmp_path):
     the sensor's noise std times 1 +- c (F12 declares no direction: both
     signs), named by the sensor, with the truth F12_noise = 1 +- c. (A
     campaign's change is at most 1: a larger burst is a scenario.)"""
-    from bgc import campaign
+    from bgc.experiment import campaign
 
     text = (f"campaign: s\nseed: 5\ngroups:\n  - name: g\n    model: {PLANT}\n"
             "    draws: {count: 30, change: [0.5, 0.9], onset: [0.3, 0.6], kinds: [noise]}\n")

@@ -19,9 +19,11 @@ import bgc
 import bgc.errors
 from bgc import api
 from bgc.errors import DataError
-from bgc.runtime import events, runs, simulate
-from bgc.runtime.detect import DetectorOptions
-from bgc.runtime.diagnose import DiagnosisOptions
+from bgc.diagnosis import events
+from bgc.data import runs
+from bgc.analysis import simulate
+from bgc.diagnosis.detect import DetectorOptions
+from bgc.diagnosis.diagnose import DiagnosisOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 CIRCUIT = ROOT / "models" / "circuit.yaml"
@@ -302,7 +304,7 @@ def test_bgc_monitor_follows_a_file_another_program_appends_to(tmp_path):
 def test_every_option_belongs_to_one_stage_of_the_loop():
     import dataclasses
 
-    from bgc.runtime.values import STAGES
+    from bgc.diagnosis.values import STAGES
 
     grouped = [name for names in STAGES.values() for name in names]
     assert sorted(grouped) == sorted(f.name for f in dataclasses.fields(DiagnosisOptions))

@@ -10,9 +10,9 @@ import yaml
 from bgc.kinds import DOMAINS
 from bgc.output import plots
 from bgc.output.labels import labels_of
-from bgc.runtime import runs
-from bgc.runtime import simulate as sim
-from bgc.runtime import track
+from bgc.data import runs
+from bgc.analysis import simulate as sim
+from bgc.model import package as track
 
 from conftest import MODELS, ROOT, compiled
 
@@ -30,7 +30,7 @@ def test_campaign_plots_draw_any_model_file_name_and_keep_one_per_model():
 
 
 def test_a_run_with_a_measurement_at_the_edge_of_the_floats_is_drawn():
-    from bgc.runtime.simulate import SimulationResult
+    from bgc.analysis.simulate import SimulationResult
 
     t = np.arange(1.0, 11.0)
     y = np.ones((10, 1))

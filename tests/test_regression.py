@@ -1,6 +1,6 @@
 """Regression corpus: diagnoses recorded with the code of commit 5cca73a, re-recorded with step 6b.
 
-What it is for: a refactor of the diagnosis runtime (bgc/runtime/diagnose.py
+What it is for: a refactor of the diagnosis runtime (bgc/diagnosis/diagnose.py
 and what it calls) must not change the diagnoses. Each case of
 tests/regression/cases.json is a run file (tests/regression/runs/*.csv, made
 by that commit's simulator) of one of the plants (the shipped models as they were before
@@ -49,8 +49,9 @@ from pathlib import Path
 import pytest
 
 from bgc import api
-from bgc.runtime import events, runs
-from bgc.runtime.diagnose import DiagnosisOptions
+from bgc.diagnosis import events
+from bgc.data import runs
+from bgc.diagnosis.diagnose import DiagnosisOptions
 
 pytestmark = pytest.mark.slow
 

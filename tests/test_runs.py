@@ -1,4 +1,4 @@
-"""Run files (bgc/runtime/runs.py): the streaming reader's limits on hostile
+"""Run files (bgc/data/runs.py): the streaming reader's limits on hostile
 files (comment floods, blank floods, endless lines, unterminated quotes,
 infinite numbers), the memory it takes, and the one check a run from a file
 and a run built in Python both go through (``check_run``)."""
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from bgc.errors import DataError
-from bgc.runtime import runs
+from bgc.data import runs
 
 from conftest import peak_memory
 
@@ -226,5 +226,5 @@ def test_a_python_run_goes_through_the_checks_of_a_file(change, what):
 
 
 def test_check_run_refuses_what_is_not_a_run():
-    with pytest.raises(DataError, match="a dict, not a bgc.runtime.runs.Run"):
+    with pytest.raises(DataError, match="a dict, not a bgc.data.runs.Run"):
         runs.check_run({"time": [1.0]})

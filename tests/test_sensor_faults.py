@@ -34,8 +34,8 @@ from bgc.compiler.load import loads
 from bgc.compiler.validate import validate
 from bgc.errors import BgcError
 from bgc.pipeline import compile_model
-from bgc.runtime import events as ev
-from bgc.runtime import simulate as sim
+from bgc.diagnosis import events as ev
+from bgc.analysis import simulate as sim
 
 from conftest import ROOT as REPO
 
@@ -298,7 +298,7 @@ def test_a_dead_sensor_is_named_stuck_at_zero(stuck_model):
     r = bgc.diagnose(stuck_model, scenario="F12:stuck:0@60", seed=1, particles=500)
     d = r.diagnosis
     assert d.verdict == "isolated" and d.candidates == ("F12_stuck_stuck",)
-    from bgc.runtime import metrics
+    from bgc.experiment import metrics
 
     m = metrics.measure(d, r.run, metrics.Truth("F12_stuck", "stuck", 0.0, 60.0))
     assert m.right and m.covers and m.error is None  # no relative error of a truth of 0 (it divided by zero)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from bgc import campaign
+from bgc.experiment import campaign
 from bgc.kinds import FAULT_KINDS
 
 from conftest import ROOT

@@ -43,7 +43,7 @@ import pytest
 
 from bgc.compiler.signatures import qmul, qsum
 from bgc.pipeline import compile_model
-from bgc.runtime import simulate as sim
+from bgc.analysis import simulate as sim
 
 from conftest import ROOT, compiled
 

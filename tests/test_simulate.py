@@ -1,4 +1,4 @@
-"""The truth simulator (bgc.runtime.simulate), run files (bgc.runtime.runs) and ``bgc simulate``.
+"""The truth simulator (bgc.analysis.simulate), run files (bgc.data.runs) and ``bgc simulate``.
 
 Expected trajectories are derived here, independently of the simulator: the circuit
 is linear, so its exact solution is x* + exp(t A)(x0 - x*) with A the sympy Jacobian
@@ -18,8 +18,8 @@ import sympy
 
 from bgc.cli import main
 from bgc.errors import DataError
-from bgc.runtime import runs
-from bgc.runtime import simulate as sim
+from bgc.data import runs
+from bgc.analysis import simulate as sim
 from bgc.ir import sym
 from bgc.pipeline import compile_model
 

@@ -7,9 +7,9 @@ import sys
 import numpy as np
 import pytest
 
-from bgc.runtime import runs
-from bgc.runtime import simulate as sim
-from bgc.runtime import track as runtime
+from bgc.data import runs
+from bgc.analysis import simulate as sim
+from bgc.model import package as runtime
 
 from conftest import ROOT, compiled
 
@@ -63,8 +63,8 @@ def test_every_registered_filter_tracks_the_nominal_model_through_the_one_protoc
     residuals without a fault. A hand-over needs a particle cloud: ckf with
     start is refused."""
     from bgc.errors import TrackingError
-    from bgc.runtime.filters import Filter
-    from bgc.runtime.kalman import CubatureKalmanFilter
+    from bgc.filters import Filter
+    from bgc.filters.cubature import CubatureKalmanFilter
 
     assert runtime.filter_class(ro, "ckf") is CubatureKalmanFilter
     run = run_of("ro", None, seed=3)

@@ -22,10 +22,10 @@ import numpy as np
 import pytest
 
 import bgc
-from bgc.runtime import decide
-from bgc.runtime.diagnose import DiagnosisOptions
-from bgc.runtime import events as ev
-from bgc.runtime.values import Estimate, Hypothesis
+from bgc.diagnosis import finish as decide
+from bgc.diagnosis.diagnose import DiagnosisOptions
+from bgc.diagnosis import events as ev
+from bgc.diagnosis.values import Estimate, Hypothesis
 
 
 def hypothesis(name: str, posterior: float, dropped: int | None = None) -> Hypothesis:

@@ -4,7 +4,7 @@
 A pure function: the same DBNs and numbers always give the same bytes. One
 module per model (``nominal`` and one per fault model: its DBN's augmented
 state, thesis Fig. III.2), ``__init__``, and the filters and the kernel: plain
-Python files of bgc (:data:`FIXED_FILES`, in ``bgc/runtime/filters/``)
+Python files of bgc (:data:`FIXED_FILES`, in ``bgc/filters/``)
 copied unchanged but for the header line. Math goes through one strict printer (:mod:`bgc.compiler.printing`),
 numbers through :func:`~bgc.compiler.printing.print_number` (finite, shortest
 repr), and every piece of model text (the file name, the description) through
@@ -32,7 +32,7 @@ from .dbn import fault_outputs, noisy_sensor
 from .numerics import ACCURACY, H_LAMBDA
 from .printing import cse_block, escape, print_expr, print_number, split_linear
 
-#: The files every package gets as they are in ``bgc/runtime/filters/``
+#: The files every package gets as they are in ``bgc/filters/``
 #: (package file -> source file): model-independent Python that imports
 #: numpy only, valid and tested on its own.
 FIXED_FILES = {"filters.py": "particle.py", "_kernel.py": "kernel.py"}
@@ -88,9 +88,9 @@ def _header(source: str) -> str:
 
 
 def _fixed_text(name: str) -> str:
-    """The text of ``bgc/runtime/filters/<name>`` (read as package data, so
+    """The text of ``bgc/filters/<name>`` (read as package data, so
     an installed bgc finds it too)."""
-    return (resources.files("bgc") / "runtime" / "filters" / name).read_text(encoding="utf-8")
+    return (resources.files("bgc") / "filters" / name).read_text(encoding="utf-8")
 
 
 def _env():

@@ -32,8 +32,8 @@ from typing import Sequence
 import yaml
 
 from ..errors import CalibrationError, InternalError, printable
-from ..output.artifacts import MARK
-from ..runtime.calibrate import Calibration, Estimate
+from .artifacts import MARK
+from ..analysis.calibrate import Calibration, Estimate
 
 
 def number(value: float) -> str:

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import printable
-from ..runtime.calibrate import FIT_LEVEL, Z95, Calibration, Estimate, autocorrelations
+from ..analysis.calibrate import FIT_LEVEL, Z95, Calibration, Estimate, autocorrelations
 from . import html
 from .artifacts import manifest
 from .markdown import escape

@@ -1,4 +1,4 @@
-"""Events (:mod:`bgc.runtime.events`) as sentences and as plain data: the one
+"""Events (:mod:`bgc.diagnosis.events`) as sentences and as plain data: the one
 place they are put into words (the report, ``bgc diagnose``'s and ``bgc
 monitor``'s lines)."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from ..runtime import events as ev
+from ..diagnosis import events as ev
 
 
 def time_text(t) -> str:
@@ -134,7 +134,7 @@ NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.InputFromMode
 
 def notes(events, time_of) -> list[str]:
     """The :data:`NOTABLE` events among ``events`` in words, for the command
-    line: two or more :class:`~bgc.runtime.events.Overruled` are one
+    line: two or more :class:`~bgc.diagnosis.events.Overruled` are one
     sentence naming them all, in the place of the first (the report keeps
     one sentence each, with the symbol that ruled each out)."""
     overruled = [e.hypothesis for e in events if isinstance(e, ev.Overruled)]
@@ -154,14 +154,14 @@ def notes(events, time_of) -> list[str]:
 
 
 def fault_sentence(e, since, per_time: str = "per unit time") -> str:
-    """What a fault estimate ``e`` (:class:`~bgc.runtime.values.Estimate`)
+    """What a fault estimate ``e`` (:class:`~bgc.diagnosis.values.Estimate`)
     says in plain words: which kind of thing failed (a sensor, an actuator,
     a part of the plant), how and how much, ``since`` the onset's time
     (None: not known). A magnitude that presses against its prior's bound
     says "or more". ``per_time``: a drift's rate is so much ``per s``
     (:attr:`bgc.output.labels.Labels.per_time`).
 
-    >>> from bgc.runtime.values import Estimate
+    >>> from bgc.diagnosis.values import Estimate
     >>> e = Estimate("P_offset", "bias", "bias", 3.1, 0.1, 2.9, 3.3, 0.95, 3.1, 0.0,
     ...              target="sensor", subject="P", unit="bar")
     >>> fault_sentence(e, 140.0)

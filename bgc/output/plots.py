@@ -135,7 +135,7 @@ def simulation_plot(r, labels: Labels = Labels(), noise_free: np.ndarray | None 
     """The measurements, noisy and noise-free, the inputs and, last, the
     faulty parameter, against time. ``noise_free``: the measurements of the
     same run without process or sensor noise
-    (:func:`bgc.runtime.simulate.noise_free`); None: the run's own, without
+    (:func:`bgc.analysis.simulate.noise_free`); None: the run's own, without
     sensor noise only, and so labelled."""
     rows = [*r.output_names, *r.input_names, *([r.fault.parameter] if r.fault else [])]
     fig, axes = new_figure(len(rows))

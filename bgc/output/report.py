@@ -79,7 +79,7 @@ def _num(v: float | None) -> float | None:
 
 
 def _drop_reason(d, name: str) -> str | None:
-    """The code of the Dropped event of hypothesis ``name`` (bgc.runtime.events.DROP_REASONS)."""
+    """The code of the Dropped event of hypothesis ``name`` (bgc.diagnosis.events.DROP_REASONS)."""
     return next((e.reason for e in d.events if type(e).__name__ == "Dropped" and e.hypothesis == name), None)
 
 
@@ -219,7 +219,7 @@ def verdict_text(d) -> str:
 
 def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:
     """What a verdict means, in one sentence, with the levels the diagnosis
-    used (``settings``: report.json's; :mod:`bgc.runtime.decide`)."""
+    used (``settings``: report.json's; :mod:`bgc.diagnosis.finish`)."""
     level = f"{100 * settings['isolation_level']:g} %"
     factor = f"{settings['bayes_factor']:g}"
     horizon = settings["horizon"]
@@ -418,7 +418,7 @@ def report_files(r, command: str = "diagnose") -> dict[str, str | bytes]:
     write): report.json, report.md, report.html, the pictures
     (:func:`bgc.output.plots.diagnosis_figures`), the run as ``run.csv`` when
     it was simulated (a scenario), and the manifest of ``command``, last."""
-    from ..runtime import runs
+    from ..data import runs
 
     data = report_data(r)
     pictures = plots.diagnosis_figures(r)

@@ -1,7 +1,7 @@
 """A campaign's tables: the ones its file asks for (shaped like the thesis's
 Tables IV.2 to IV.4, with published numbers beside ours), a summary per group,
 filter, noise level and particle count, and an isolation confusion matrix per
-model. Rows are the dicts of :mod:`bgc.campaign` (``runs.csv``).
+model. Rows are the dicts of :mod:`bgc.experiment.campaign` (``runs.csv``).
 
 Every free-text value that reaches ``tables.md`` (the campaign's name and
 description, table titles, sources, scenarios, model paths, group and noise
@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from typing import Any, Iterable
 
-from ..runtime.distinguish import LEVEL
+from ..analysis.distinguish import LEVEL
 from . import html, render
 from .markdown import comment as _comment
 from .markdown import escape
@@ -151,7 +151,7 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
     'isolated' and right, and the same outside the ambiguity groups the
     signatures predict, and outside those and the groups the data of the
     scenario are predicted not to separate (the row's ``separable``,
-    :mod:`bgc.runtime.distinguish`; rows without it are not counted there).
+    :mod:`bgc.analysis.distinguish`; rows without it are not counted there).
     Detection is also counted among the faulty runs whose data are predicted
     to show the fault (``detectability`` at least ``distinguish.LEVEL``: an
     ideal test that knew the fault's onset and magnitude would favour it over

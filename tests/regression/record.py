@@ -36,7 +36,7 @@ that code (the commit is the provenance; its message says why):
     PYTHONPATH=<checkout> python tests/regression/record.py --keep-runs
 
 What it does, for every case of ``CASES`` below: simulates the run with the
-checkout's simulator (``bgc.runtime.simulate``, as ``bgc simulate`` does) and
+checkout's simulator (``bgc.analysis.simulate``, as ``bgc simulate`` does) and
 writes it to ``runs/<name>.csv`` (``--keep-runs``: the run files as they
 are, so that a change of the diagnosis alone leaves the data untouched);
 then diagnoses that file through the public API, ``bgc.api.diagnose(model,
@@ -184,7 +184,7 @@ def f(x) -> str | None:
 
 def simulate_run(c) -> str:
     from bgc import api
-    from bgc.runtime import simulate
+    from bgc.analysis import simulate
 
     s = c["simulation"]
     compiled, _ = api._compiled(c["model"])

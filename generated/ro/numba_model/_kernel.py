@@ -6,7 +6,7 @@ compiled by numba.
 
 bgc copies this file unchanged into every ``numba_model`` package it
 generates, as ``_kernel.py``, beside a copy of the NumPy kernel as
-``kernel.py`` (its source is ``bgc/runtime/filters/kernel.py``); each
+``kernel.py`` (its source is ``bgc/filters/kernel.py``); each
 compiled model module imports it as ``from . import _kernel``. What is not
 redefined here is the NumPy kernel's own function. The two backends draw
 the same random numbers in the same order from the caller's
@@ -39,7 +39,7 @@ from .kernel import BLOCK, block_views, gaussian_loglik_each, log_normaliser, pr
 #: The kernel's functions: the NumPy kernel's, but the compiled ones defined here; ``weigh``,
 #: ``normalise`` and ``resample`` are the generic particle filter's steps, which the filters take
 #: from a kernel that has them, and the ``cubature_*`` functions the cubature Kalman filter's
-#: (``bgc.runtime.kalman`` takes them from a compiled package's kernel).
+#: (``bgc.filters.cubature`` takes them from a compiled package's kernel).
 __all__ = ["BLOCK", "block_views", "contiguous", "cubature_after", "cubature_prepare",
            "cubature_update", "draw", "finish", "gauss_terms", "generator_handle", "gaussian_loglik", "gaussian_loglik_each", "load_jit",
            "log_normaliser", "LOG_2PI", "moments", "NO_NOISE", "normal_into", "normalise", "perturb", "predictive_std", "resample", "rk4", "row_quadrature", "spans",
@@ -303,7 +303,7 @@ def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp):
 
 
 def row_quadrature(values, logd, nodes, weights, panel_range, most_panels, wild):
-    """``bgc.runtime.kalman.row_quadrature`` compiled, for a row of at least
+    """``bgc.filters.cubature.row_quadrature`` compiled, for a row of at least
     two rising points (the caller handles the rest), with its constants
     (Gauss-Legendre nodes and weights on [0, 1], the largest log range of a
     panel, the most panels, the neighbour a parabola ignores): (nodes, log

@@ -4,7 +4,7 @@ only): in-place RK4, process noise, Gaussian log-likelihood and weighted
 moments, on blocks of particles.
 
 bgc copies this file unchanged into every package it generates, as
-``_kernel.py`` (its source is ``bgc/runtime/filters/kernel.py``); each model
+``_kernel.py`` (its source is ``bgc/filters/kernel.py``); each model
 module imports it as ``from . import _kernel``.
 
 Work is done on blocks of BLOCK to 2 * BLOCK particles (a run of N particles is

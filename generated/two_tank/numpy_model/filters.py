@@ -2,10 +2,10 @@
 """Particle filters over the generated models of a package (NumPy only).
 
 bgc copies this file unchanged into every package it generates, as
-``filters.py`` (its source is ``bgc/runtime/filters/particle.py``): it
+``filters.py`` (its source is ``bgc/filters/particle.py``): it
 imports numpy only, and reaches the package's numerics through each model's
 ``_kernel``. Every filter here meets the filter protocol
-(``bgc.runtime.filters.Filter``): ``step(y, u, dt)`` takes one sample and
+(``bgc.filters.Filter``): ``step(y, u, dt)`` takes one sample and
 gives a :class:`StepResult`, ``run(ys, us, dt)`` a whole record.
 
 The model (initial sampler, transition, observation log-likelihood) lives in

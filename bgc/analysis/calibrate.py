@@ -1,0 +1,889 @@
+"""Calibration: noise levels and nominal values estimated from healthy data.
+
+A diagnoser is only as good as its nominal model. From one or more
+fault-free recordings, :func:`calibrate` finds the maximum-likelihood
+values of each sensor's measurement-noise std, the process-noise level
+(``simulation.process_noise``) and the parameters the user names, with a 95 %
+interval for each, and names those the data cannot tell.
+
+**The likelihood.** The recordings are independent runs of the nominal
+model, each from its prior (``X0``, ``X0_STD``). The log-likelihood of a run
+is the sum over its samples of the log predictive density of each sample
+given the ones before: the prediction-error decomposition of a state-space
+model's likelihood (Schweppe 1965; Harvey 1989, section 3.4), computed by the
+nominal model's cubature Kalman filter (Arasaratnam and Haykin 2009;
+:class:`bgc.filters.cubature.NominalKalman`, the ``--filter ckf`` observer).
+On a plant linear in its states (the circuit, the two tanks) that filter is
+the Kalman filter and the likelihood is exact; on the RO plant it is a close
+approximation. Steps without a sample are predicted across (they add no
+term), a sensor not read on a row is left out of that row's term, and the
+data meet the model's time grid as they do in a diagnosis
+(:mod:`bgc.data.sampler`).
+
+**What changes with what.** The generated model reads its parameters from
+``THETA`` and its noise from ``PROCESS_STD``, ``MEASUREMENT_STD`` and
+``X0_STD`` (twice the process std, as bgc compiles it), all passed to the
+filter through the module: a likelihood evaluation runs the filter on a copy
+of the module's namespace with those four replaced, nothing is recompiled.
+A sensor's noise is estimated as its absolute std (its relative level, the
+model file's ``noise``, is that std over the sensor's nominal reading); the
+process noise as the model's relative level ``q``, whose absolute stds are
+the compiler's (:meth:`bgc.ir.Numerics.noise_at`): ``q`` times each state's
+size times ``sqrt(min(1, 2 dt / tau))``, ``tau`` the state's own time
+constant, which follows the estimated parameters (the Jacobian's diagonal of
+the generated ``derivative``, by central differences). The process noise
+keeps the model's shape across states: one level is estimated, as the model
+file declares one.
+
+**The optimiser** is SciPy's L-BFGS-B (Byrd et al. 1995) on the negative
+log-likelihood, in the logarithms of the stds, of the process level and of
+the parameters (a parameter whose nominal value is 0 in its own units),
+followed by up to three Newton steps with the numerical Hessian. The
+**interval** of each estimate ends where the log-likelihood has fallen by
+chi2(0.95, 1) / 2 = 1.92 from its maximum, walking along the estimate while
+the others follow their conditional best to first order (the direction of
+the inverse Hessian's column; :func:`_interval_ends`): on a quadratic
+log-likelihood that is the curvature's ``z +- 1.96 sd``, and where the
+likelihood is lopsided (a std near 0) it follows the likelihood. An
+estimate is **not identifiable** when the Hessian is near singular along a
+direction it takes part in, when its correlation with another estimate is
+above 0.99 in magnitude (parameters that enter only as a product), or when
+its interval spans more than a factor of 100 (a flat likelihood): it is
+named, keeps the model's value, and the others are estimated again with it
+held there. A process level whose likelihood is highest at 0 (it falls
+1000 times below its start) is 0, with a one-sided bound (Self and Liang
+1987). Where the optimiser stops short of a maximum it is started again from
+there; where none is found, a :class:`~bgc.errors.CalibrationError` says so.
+
+**The innovations** of the calibrated model on the data (the normalised
+residuals of the nominal filter, which are white N(0, 1) when the model
+fits) are summed up per sensor: their mean, variance and the Ljung-Box
+portmanteau statistic (Ljung and Box 1978) over ``lags`` lags with its
+chi-square p-value.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import types
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import CalibrationError, printable
+from ..ir import Numerics
+from ..data import sampler as data_grid
+from ..filters.cubature import NominalKalman
+from ..data.runs import Run
+
+#: The ``--estimate`` words that name noise (a parameter's name names itself).
+NOISE_WORDS = ("noise", "measurement_noise", "process_noise")
+#: The ``--estimate`` word that asks for each recording's initial state.
+INITIAL_WORD = "initial"
+#: The probability of a finding (:attr:`Calibration.findings`) when the model fits, over all sensors and tests.
+FIT_LEVEL = 0.01
+#: The start of the process level when the model declares none (0 has no logarithm).
+PROCESS_START = 0.01
+#: Largest |correlation| between two estimates for both to be identifiable.
+MAX_CORRELATION = 0.99
+#: Largest ratio high / low of an interval (log coordinates) for an identifiable estimate.
+MAX_SPAN = 100.0
+#: Eigenvalues of the Hessian under this share of the largest are a flat direction.
+FLAT = 1e-9
+#: Directions of the Hessian under this share of the largest eigenvalue are not asked for a small Newton
+#: step at the maximum (an estimate the data barely tell; the identifiability test names it).
+FLAT_STEP = 1e-6
+#: The 95 % point of the standard normal.
+Z95 = 1.959963984540054
+#: A process level that falls this far (a logarithm: 1000 times) below its start is taken as 0.
+ZERO_FALL = math.log(1e3)
+#: The fall of the log-likelihood that ends a 95 % interval (the chi-square quantile of 0.95 with one degree
+#: of freedom, halved).
+DROP95 = 3.841458820694124 / 2
+#: How close (relative) the fall at an interval's end comes to ``DROP95``.
+DROP_TOL = 1e-3
+#: The fall of the log-likelihood that ends the interval of a level estimated at 0 (the chi-square
+#: quantile of 0.90 with one degree of freedom, halved: a one-sided 95 % bound at the boundary).
+ZERO_DROP = 2.705543454095404 / 2
+#: The length of the optimiser's first step (its objective is scaled to that gradient at the start).
+FIRST_STEP = 0.1
+#: Starts of the optimiser from where it stopped, when that is not a maximum.
+RESTARTS = 2
+#: How far (in the optimiser's coordinates) an estimate may move from its start.
+REACH = 15.0
+
+
+@dataclass(frozen=True, slots=True)
+class Record:
+    """One recording on the model's time grid: measurements ``ys`` (T,
+    n_y; NaN: not read) and inputs ``us`` (T, n_u) at times ``ts`` (T,);
+    ``source``: its name (the file)."""
+
+    source: str
+    ys: np.ndarray
+    us: np.ndarray
+    ts: np.ndarray | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """One estimated quantity: ``kind`` ``measurement_noise`` (``subject``: a
+    sensor; ``value`` its absolute std, ``level`` the model file's relative
+    ``noise``), ``process_noise`` (``subject`` ``process``; ``value`` and
+    ``level`` the relative level ``simulation.process_noise``) or
+    ``parameter`` (``subject``: its name; ``value``, ``level``: its value)
+    or ``initial`` (``subject``: a state, ``STATE of SOURCE`` over several
+    recordings; ``value``, ``level``: its value at the recording's start).
+    ``low``, ``high``: the 95 % interval of ``value`` (``level_low``,
+    ``level_high`` of ``level``); ``start``: the model's value. Not
+    ``identifiable``: ``why`` says why, and ``value`` is the model's."""
+
+    kind: str
+    subject: str
+    value: float
+    low: float
+    high: float
+    level: float
+    level_low: float
+    level_high: float
+    start: float
+    start_level: float
+    identifiable: bool = True
+    why: str | None = None
+    at_bound: bool = False
+
+    @property
+    def name(self) -> str:
+        """``noise F10``, ``process noise`` or the parameter's name."""
+        return {"measurement_noise": f"noise {self.subject}", "process_noise": "process noise",
+                "initial": f"initial {self.subject}"}.get(self.kind, self.subject)
+
+
+@dataclass(frozen=True, slots=True)
+class Innovations:
+    """A sensor's normalised residuals under the calibrated model over every
+    recording: ``samples`` read, their ``mean`` and ``variance`` (0 and 1
+    when the model fits), the Ljung-Box statistic ``ljung_box`` over
+    ``lags`` lags and its p-value (small: the residuals are correlated, the
+    model misses a dynamic)."""
+
+    sensor: str
+    samples: int
+    mean: float
+    variance: float
+    ljung_box: float
+    lags: int
+    p_value: float
+
+
+@dataclass(frozen=True, slots=True)
+class Calibration:
+    """What :func:`calibrate` found: the ``estimates`` (in the order asked:
+    sensors, process, parameters), the log-likelihood of the data at the
+    model's values (``start_loglik``) and at the estimates (``loglik``), the
+    correlation matrix of the identifiable estimates (``correlation``, in the
+    order of ``correlated``), the ``innovations`` per sensor, the
+    recordings' ``sources`` and ``samples`` (rows read), whether the
+    optimiser ``converged`` and its ``message``, the likelihood
+    ``evaluations`` and the ``seconds`` it took; ``residuals``: per
+    recording, the calibrated model's normalised residuals (steps, sensors
+    ``outputs``; NaN: not read), what the innovations sum up, at the
+    recording's ``times`` (steps,)."""
+
+    estimates: tuple[Estimate, ...]
+    loglik: float
+    start_loglik: float
+    correlated: tuple[str, ...]
+    correlation: tuple[tuple[float, ...], ...]
+    innovations: tuple[Innovations, ...]
+    sources: tuple[str, ...]
+    samples: int
+    converged: bool
+    message: str
+    evaluations: int
+    seconds: float
+    outputs: tuple[str, ...] = ()
+    residuals: tuple[np.ndarray, ...] = ()
+    times: tuple[np.ndarray, ...] = ()
+
+    @property
+    def findings(self) -> tuple[str, ...]:
+        """What the innovations say is wrong with the calibrated model, one
+        sentence per sensor that fails a test at ``FIT_LEVEL`` (over every
+        sensor and test: Bonferroni): residuals correlated (Ljung-Box), off
+        0 (their mean, against its standard error 1 / sqrt(n)) or of another
+        variance than 1 (against its standard error sqrt(2 / n)); empty when
+        the model explains the data."""
+        out = []
+        if not self.innovations:
+            return ()
+        alpha = FIT_LEVEL / (3 * len(self.innovations))
+        from scipy.stats import norm
+
+        cut = float(norm.isf(alpha / 2))
+        for i in self.innovations:
+            if i.p_value < alpha:
+                p = f"p = {i.p_value:.2g}" if i.p_value > 0 else "p < 1e-300"
+                out.append(f"sensor {i.sensor}'s residuals are correlated (Ljung-Box {p}): the model misses a "
+                           "dynamic")
+            elif abs(i.mean) * math.sqrt(i.samples) > cut:
+                out.append(f"sensor {i.sensor}'s residuals average {i.mean:+.3g} stds, not 0: the model misses an "
+                           "offset or a slow change of that reading")
+            elif abs(i.variance - 1) / math.sqrt(2 / i.samples) > cut:
+                out.append(f"sensor {i.sensor}'s residuals have variance {i.variance:.3g}, not 1: the model's "
+                           "noise does not fit that reading")
+        return tuple(out)
+
+    @property
+    def verdict(self) -> str:
+        """One line: "the model explains this data", or its findings."""
+        return "; ".join(self.findings) or "the model explains this data"
+
+    def estimate(self, name: str) -> Estimate:
+        """The estimate called ``name`` (``noise F10``, ``process noise``, a parameter)."""
+        for e in self.estimates:
+            if e.name == name:
+                return e
+        raise KeyError(name)
+
+
+def targets(words: str | Sequence[str], model: ModuleType, parameters: Sequence[str],
+            where: str = "--estimate") -> tuple[tuple[str, ...], bool, tuple[str, ...]]:
+    """What ``--estimate`` asks for: (the sensors whose noise, whether the
+    process level, the parameters), from words ``noise`` (every sensor's
+    noise and the process level), ``measurement_noise``, ``process_noise``
+    and parameter names (of the model file's ``parameters``), separated by
+    commas; the word ``initial`` (each recording's initial state) is read by
+    :func:`wants_initial`.
+
+    Raises
+    ------
+    CalibrationError
+        An unknown word, a repeated one, or none.
+    """
+    items = [w.strip() for w in (words.split(",") if isinstance(words, str) else words)]
+    if not items or any(not w for w in items):
+        raise CalibrationError(f"{where} {printable(repr(','.join(items)))}: an empty name", None,
+                               "e.g. --estimate noise,R1 (names separated by commas)")
+    sensors: tuple[str, ...] = ()
+    process = False
+    chosen: list[str] = []
+    for w in items:
+        if w in ("noise", "measurement_noise"):
+            sensors = tuple(model.OUTPUTS)
+        if w in ("noise", "process_noise"):
+            process = True
+        if w in NOISE_WORDS or w == INITIAL_WORD:
+            continue
+        if w not in parameters:
+            raise CalibrationError(
+                f"{where} {printable(w)}: not a parameter of {model.MODEL}", None,
+                f"give noise, measurement_noise, process_noise, initial or parameters of the model file "
+                f"({', '.join(parameters) or 'it declares none'})")
+        if w in chosen:
+            raise CalibrationError(f"{where} {printable(w)}: named twice", None, "name each parameter once")
+        chosen.append(w)
+    return sensors, process, tuple(chosen)
+
+
+def wants_initial(words: str | Sequence[str]) -> bool:
+    """Whether ``--estimate`` asks for the recordings' initial states (the word ``initial``)."""
+    return INITIAL_WORD in [w.strip() for w in (words.split(",") if isinstance(words, str) else words)]
+
+
+def record_of(run: Run, model: ModuleType) -> Record:
+    """A checked run (:func:`bgc.data.runs.check_run`) on the model's time
+    grid, as a diagnosis reads it (:class:`bgc.data.sampler.Sampler`: gaps
+    predicted across, empty input cells held, absent sensors missing)."""
+    sampler = data_grid.Sampler(model, tuple(run.inputs), tuple(run.measurements), run.source)
+    ys, us, ts = [], [], []
+    for s in data_grid.samples(run, sampler):
+        ys.append(s.y)
+        us.append(s.u)
+        ts.append(s.t)
+    n_u = len(model.INPUTS)
+    return Record(run.source, np.array(ys, dtype=float).reshape(len(ys), len(model.OUTPUTS)),
+                  np.array(us, dtype=float).reshape(len(us), n_u), np.array(ts, dtype=float))
+
+
+class _Likelihood:
+    """The log-likelihood of the records as a function of the optimiser's
+    coordinates ``z``: the sensors' log stds, the log process level, the
+    parameters (log |value|, or the value when the model's is 0), then the
+    ``initial`` states asked for, pairs (recording, physical state), each as
+    its value over the state's size. ``level``: the process level when it is
+    held at another value than the model's (0: the data show none)."""
+
+    def __init__(self, model: ModuleType, numerics: Numerics, records: Sequence[Record],
+                 sensors: Sequence[str], process: bool, parameters: Sequence[str], level: float | None = None,
+                 initial: Sequence[tuple[int, int]] = ()):
+        self.model, self.numerics, self.records = model, numerics, tuple(records)
+        self.initial = tuple(initial)
+        self.sensor_rows = [list(model.OUTPUTS).index(s) for s in sensors]
+        self.process = process
+        self.param_rows = [list(model.PARAMETERS).index(p) for p in parameters]
+        self.theta0 = np.asarray(model.THETA, dtype=float)
+        self.sigma0 = np.asarray(model.MEASUREMENT_STD, dtype=float)
+        self.fixed_level = level  # a process level held (None: the model's)
+        self.level0 = float(numerics.equations.model.settings.process_noise if level is None else level)
+        self.signs = [float(np.sign(self.theta0[i])) for i in self.param_rows]  # 0: linear coordinate
+        self.physical = [i for i, k in enumerate(getattr(model, "STATE_KINDS", ("physical",) * len(model.STATES)))
+                         if k == "physical"]
+        self.u0 = np.asarray(model.inputs(0.0), dtype=float)
+        self.factor0 = self._factors(self.theta0)
+        self.x0 = np.asarray(model.X0, dtype=float)
+        self.x_size = np.array([_state_size(self.x0[i], numerics.x_scale[i] if i < len(numerics.x_scale) else 0.0)
+                                for i in range(len(self.x0))])
+        self.evaluations = 0
+
+    def start(self) -> np.ndarray:
+        """The model's own values in the optimiser's coordinates."""
+        z = [math.log(self.sigma0[j]) for j in self.sensor_rows]
+        if self.process:
+            z.append(math.log(self.level0 if self.level0 > 0 else PROCESS_START))
+        for i, s in zip(self.param_rows, self.signs):
+            z.append(math.log(abs(self.theta0[i])) if s else float(self.theta0[i]))
+        z += [self.x0[i] / self.x_size[i] for _, i in self.initial]
+        return np.array(z, dtype=float)
+
+    def starts(self, z: np.ndarray) -> list[np.ndarray]:
+        """Each record's initial state at ``z`` (the model's ``X0`` where not estimated)."""
+        out = [self.x0.copy() for _ in self.records]
+        tail = len(z) - len(self.initial)
+        for v, (r, i) in zip(z[tail:], self.initial):
+            out[r][i] = v * self.x_size[i]
+        return out
+
+    def values(self, z: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+        """(measurement stds, process level, THETA) at ``z``."""
+        sigma = self.sigma0.copy()
+        k = len(self.sensor_rows)
+        sigma[self.sensor_rows] = np.exp(z[:k])
+        level = self.level0
+        if self.process:
+            level = float(math.exp(z[k]))
+            k += 1
+        theta = self.theta0.copy()
+        for j, (i, s) in enumerate(zip(self.param_rows, self.signs)):
+            theta[i] = s * math.exp(z[k + j]) if s else z[k + j]
+        return sigma, level, theta
+
+    def _factors(self, theta: np.ndarray) -> np.ndarray:
+        """Each physical state's ``sqrt(min(1, 2 dt / tau))`` at ``theta``,
+        ``tau`` = 1 / |d(dx_i/dt)/dx_i| at X0 and the inputs at t = 0 (central
+        differences of the generated ``derivative``; the run's length when
+        it is 0), as the compiler sets the process noise's shape."""
+        m = self.model
+        x0 = np.asarray(m.X0, dtype=float)
+        dt = float(m.DT)
+        horizon = self.numerics.equations.model.settings.steps * dt
+        out = []
+        for i in self.physical:
+            h = 1e-6 * max(abs(x0[i]), 1e-3)
+            x = np.repeat(x0[:, None], 2, axis=1)
+            x[i, 0] += h
+            x[i, 1] -= h
+            d = np.asarray(m.derivative(x, self.u0, tuple(theta)), dtype=float)
+            j = (d[i, 0] - d[i, 1]) / (2 * h)
+            tau = 1.0 / abs(j) if j != 0 and math.isfinite(j) else horizon
+            out.append(math.sqrt(min(1.0, 2.0 * dt / tau)))
+        return np.array(out)
+
+    def module(self, z: np.ndarray) -> ModuleType:
+        """A copy of the nominal module's namespace with THETA and the noise at ``z``."""
+        sigma, level, theta = self.values(z)
+        ns = types.ModuleType(self.model.__name__)
+        ns.__dict__.update(vars(self.model))
+        process = np.array(self.numerics.noise_at(level if self.process else self.fixed_level).process, dtype=float)
+        if self.param_rows:
+            process = process * self._factors(theta) / self.factor0
+        std = np.asarray(self.model.PROCESS_STD, dtype=float).copy()
+        std[self.physical] = process
+        x0_std = np.asarray(self.model.X0_STD, dtype=float).copy()
+        x0_std[self.physical] = 2.0 * process  # as bgc compiles X0_STD
+        ns.THETA = tuple(float(v) for v in theta)
+        ns.MEASUREMENT_STD = sigma
+        ns.PROCESS_STD = std
+        ns.X0_STD = x0_std
+        return ns
+
+    def filters(self, z: np.ndarray) -> list[NominalKalman]:
+        """The nominal filter run over each record at ``z``."""
+        ns = self.module(z)
+        out = []
+        for r, x0 in zip(self.records, self.starts(z)):
+            ns.X0 = x0
+            kf = NominalKalman(ns, r.ys.shape[1])
+            for k in range(len(r.ys)):
+                kf.step(r.ys[k], r.us[k])
+            out.append(kf)
+        return out
+
+    def __call__(self, z: np.ndarray) -> float:
+        """The log-likelihood at ``z`` (-inf where the filter fails)."""
+        self.evaluations += 1
+        with np.errstate(all="ignore"):
+            total = float(sum(kf.logliks[-1] for kf in self.filters(np.asarray(z, dtype=float))))
+        return total if math.isfinite(total) else -math.inf
+
+
+def _hessian(f, z: np.ndarray, h: np.ndarray, f0: float) -> tuple[np.ndarray, np.ndarray]:
+    """The gradient and Hessian of ``f`` at ``z`` by central differences of steps ``h``."""
+    p = len(z)
+    g = np.zeros(p)
+    H = np.zeros((p, p))
+    plus, minus = np.zeros(p), np.zeros(p)
+    for i in range(p):
+        e = np.zeros(p)
+        e[i] = h[i]
+        plus[i], minus[i] = f(z + e), f(z - e)
+        g[i] = (plus[i] - minus[i]) / (2 * h[i])
+        H[i, i] = (plus[i] - 2 * f0 + minus[i]) / h[i] ** 2
+    for i in range(p):
+        for j in range(i + 1, p):
+            ei, ej = np.zeros(p), np.zeros(p)
+            ei[i], ej[j] = h[i], h[j]
+            v = (f(z + ei + ej) - f(z + ei - ej) - f(z - ei + ej) + f(z - ei - ej)) / (4 * h[i] * h[j])
+            H[i, j] = H[j, i] = v
+    return g, H
+
+
+def _gradient(f, z: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The gradient of ``f`` at ``z`` by central differences of steps ``h``."""
+    g = np.zeros(len(z))
+    for i in range(len(z)):
+        e = np.zeros(len(z))
+        e[i] = h[i]
+        g[i] = (f(z + e) - f(z - e)) / (2 * h[i])
+    return g
+
+
+def _steps(z: np.ndarray) -> np.ndarray:
+    """Finite-difference steps: 1e-4 in a logarithm, 1e-4 x max(1, |z|) in a value."""
+    return 1e-4 * np.maximum(1.0, np.abs(z))
+
+
+def _fit(lik: _Likelihood, z0: np.ndarray, stop=None) -> tuple[np.ndarray, float, np.ndarray, bool, str]:
+    """The maximum of ``lik`` from ``z0``: (z, log-likelihood, Hessian of the
+    negative log-likelihood there, converged, the optimiser's message).
+
+    L-BFGS-B's first step is the whole gradient: the objective is scaled so
+    that its gradient at the start has the length ``FIRST_STEP`` (a model far
+    off the data has a steep likelihood, and a first step of several units of
+    a logarithm leaves the region where the filter's likelihood is finite).
+    Where the optimiser stops short of a maximum (the Hessian not positive
+    definite, a gradient not small), it is started again from there, up to
+    ``RESTARTS`` times, unless ``stop(z)`` says the caller takes it from
+    there (a level that heads for 0)."""
+    from scipy.optimize import minimize
+
+    if len(z0) == 0:
+        return z0, lik(z0), np.zeros((0, 0)), True, "nothing to estimate"
+    neg = lambda v: -lik(v)  # noqa: E731 - the negative log-likelihood, for the differences
+    bounds = [(v - REACH, v + REACH) for v in z0]
+    z = z0
+    for _ in range(RESTARTS + 1):
+        g = _gradient(neg, z, _steps(z))
+        scale = max(float(np.linalg.norm(g)) / FIRST_STEP, 1e-300) if np.all(np.isfinite(g)) else 1.0
+        high = abs(lik(z)) / scale + 1e6  # what a non-finite likelihood costs: above any value seen from here
+
+        def objective(v, scale=scale, high=high):
+            value = lik(v)
+            return -value / scale if math.isfinite(value) else high
+
+        def enough(intermediate_result):  # the caller takes it from there (SciPy >= 1.11 stops on StopIteration)
+            if stop is not None and stop(intermediate_result.x):
+                raise StopIteration
+
+        res = minimize(objective, z, method="L-BFGS-B", bounds=bounds, callback=enough,
+                       options={"maxiter": 1000, "ftol": 1e-12, "gtol": 1e-9, "maxfun": 20000})
+        z, best = np.asarray(res.x, dtype=float), lik(np.asarray(res.x, dtype=float))
+        g, H = _hessian(neg, z, _steps(z), -best)
+        for _ in range(3):  # Newton steps (the Hessian kept): the optimiser stops on a relative change
+            try:
+                step = -np.linalg.solve(H, g)
+            except np.linalg.LinAlgError:
+                break
+            if not np.all(np.isfinite(step)) or np.max(np.abs(step)) > 1.0 or np.any(np.linalg.eigvalsh(H) <= 0):
+                break
+            trial = z + step
+            value = lik(trial)
+            if not (math.isfinite(value) and value >= best):
+                break
+            z, best = trial, value
+            if np.max(np.abs(step)) < 1e-10:
+                break
+            g = _gradient(neg, z, _steps(z))
+        inside = np.array([lo + 1e-7 < v < hi - 1e-7 for v, (lo, hi) in zip(z, bounds)])
+        if _at_maximum(g[inside], H[np.ix_(inside, inside)]) or (stop is not None and stop(z)):
+            return z, best, H, bool(res.success), str(res.message)
+    return z, best, H, False, f"no maximum reached after {RESTARTS + 1} starts ({res.message})"
+
+
+def _at_maximum(g: np.ndarray, H: np.ndarray) -> bool:
+    """Whether the negative log-likelihood's gradient ``g`` and Hessian ``H``
+    (over the coordinates not at an end of their range) say a minimum: no
+    direction of negative curvature beyond rounding, and a Newton step
+    (where the curvature is positive) under 0.01 of a unit of the
+    coordinates."""
+    if len(g) == 0:
+        return True
+    if not (np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
+        return False
+    w, V = np.linalg.eigh(H)
+    top = max(float(np.max(np.abs(w))), 1e-300)
+    if np.any(w < -1e-6 * top):
+        return False
+    along = V.T @ g
+    curved = w > FLAT_STEP * top  # along a nearly flat direction the step says nothing (that estimate is vague)
+    return bool(np.all(np.abs(along[curved] / w[curved]) < 1e-2))
+
+
+def _unidentifiable(names: Sequence[str], H: np.ndarray, logs: Sequence[bool]) -> dict[str, str]:
+    """The estimates the data cannot tell, each with why: on a flat or
+    negative direction of the Hessian ``H``, correlated above
+    ``MAX_CORRELATION`` with another, or an interval spanning more than a
+    factor ``MAX_SPAN`` (a coordinate in ``logs``)."""
+    why: dict[str, str] = {}
+    p = len(names)
+    if p == 0:
+        return why
+    w, V = np.linalg.eigh(H)
+    top = max(float(np.max(np.abs(w))), 1e-300)
+    for k in range(p):
+        if w[k] <= FLAT * top:
+            for i in np.flatnonzero(np.abs(V[:, k]) > 0.2):
+                others = [names[j] for j in np.flatnonzero(np.abs(V[:, k]) > 0.2) if j != i]
+                why.setdefault(names[i], "the likelihood is flat along it"
+                               + (f" and {', '.join(others)} together" if others else ""))
+    if why:
+        return why
+    cov = np.linalg.inv(H)
+    sd = np.sqrt(np.diag(cov))
+    corr = cov / np.outer(sd, sd)
+    for i in range(p):
+        for j in range(p):
+            if i != j and abs(corr[i, j]) > MAX_CORRELATION:
+                why.setdefault(names[i], f"correlated {corr[i, j]:+.3f} with {names[j]}: the data tell only "
+                                         "a combination of the two")
+    for i in range(p):
+        if logs[i] and names[i] not in why and 2 * Z95 * sd[i] > math.log(MAX_SPAN):
+            span = 2 * Z95 * sd[i]
+            why[names[i]] = ("the likelihood is nearly flat: its 95 % interval spans a factor of "
+                             + (f"{math.exp(span):.3g}" if span < 690 else "more than 1e300"))
+    return why
+
+
+def autocorrelations(z: Sequence[np.ndarray], lags: int) -> tuple[np.ndarray, int]:
+    """The sample autocorrelation r_k = sum (z_t - m)(z_t+k - m) / sum (z_t
+    - m)^2 at lags 1 .. ``lags`` of the residual series ``z`` (one per
+    recording, NaN: not read; pairs are taken within a recording, both read;
+    ``m`` the mean of every sample read), and ``n`` the samples read: (r, n)
+    (r NaN when fewer than 3)."""
+    parts = [np.asarray(a, dtype=float) for a in z]
+    values = np.concatenate([a[np.isfinite(a)] for a in parts]) if parts else np.zeros(0)
+    n = len(values)
+    if n < 3:
+        return np.full(lags, math.nan), n
+    mean = float(values.mean())
+    denom = float(((values - mean) ** 2).sum())
+    r = np.zeros(lags)
+    for k in range(1, lags + 1):
+        s = 0.0
+        for a in parts:
+            if len(a) > k:
+                prod = (a[:-k] - mean) * (a[k:] - mean)
+                s += float(prod[np.isfinite(prod)].sum())
+        r[k - 1] = s / denom if denom > 0 else 0.0
+    return r, n
+
+
+def ljung_box(z: Sequence[np.ndarray], lags: int) -> tuple[float, int]:
+    """The Ljung-Box statistic Q = n (n + 2) sum_k r_k^2 / (n - k) over lags
+    1 .. ``lags`` of the residual series ``z`` (:func:`autocorrelations`),
+    with n the samples read: (Q, n)."""
+    r, n = autocorrelations(z, lags)
+    if n < 3:
+        return math.nan, n
+    return n * (n + 2) * float(sum(r[k - 1] ** 2 / (n - k) for k in range(1, lags + 1))), n
+
+
+def innovations(filters: Sequence[NominalKalman], outputs: Sequence[str]) -> tuple[Innovations, ...]:
+    """Per sensor read, the summary of its normalised residuals (:class:`Innovations`)."""
+    from scipy.stats import chi2
+
+    out = []
+    zs = [np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in filters]
+    for j, name in enumerate(outputs):
+        series = [z[:, j] for z in zs]
+        read = np.concatenate([s[np.isfinite(s)] for s in series])
+        if len(read) < 3:
+            continue
+        lags = int(max(1, min(20, len(read) // 5)))
+        q, n = ljung_box(series, lags)
+        out.append(Innovations(name, n, float(read.mean()), float(read.var()), float(q), lags,
+                               float(chi2.sf(q, lags))))
+    return tuple(out)
+
+
+def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
+              process: bool, parameters: Sequence[str], initial: bool = False) -> Calibration:
+    """Maximum-likelihood estimates of the noise of ``sensors``, of the
+    process level (``process``) and of ``parameters`` of the nominal model
+    ``model`` (its generated module; ``numerics``: its compiled numbers) from
+    the ``records``, with their 95 % intervals (see the module docstring);
+    with ``initial``, each record's initial physical state too (estimates
+    ``initial STATE``, or ``initial STATE of SOURCE`` over several records).
+
+    Raises
+    ------
+    CalibrationError
+        No record, or the likelihood is not finite at the model's values.
+    """
+    start_time = time.perf_counter()
+    if not records:
+        raise CalibrationError("no data to calibrate on", None, "give at least one healthy recording")
+    outputs = list(model.OUTPUTS)
+    read = {s for r in records for j, s in enumerate(outputs) if np.isfinite(r.ys[:, j]).any()}
+    silent = tuple(s for s in sensors if s not in read)
+    asked = [s for s in sensors if s in read]
+    held: dict[str, str] = {s: "no sample of it in the data" for s in silent}
+    settings = numerics.equations.model.settings
+    y_scale = np.asarray(numerics.y_scale, dtype=float)
+    zero = False  # the process level's likelihood is highest at 0: held there
+    start_loglik = _Likelihood(model, numerics, records, [], False, [])(np.zeros(0))  # at the model's values
+    evaluations = 1
+    states = [i for i, k in enumerate(getattr(model, "STATE_KINDS", ("physical",) * len(model.STATES)))
+              if k == "physical"] if initial else []
+    starts = {(r, i): (f"initial {model.STATES[i]}" + (f" of {records[r].source}" if len(records) > 1 else ""))
+              for r in range(len(records)) for i in states}
+    while True:
+        free_params = [p for p in parameters if p not in held]
+        free_sensors = [s for s in asked if f"noise {s}" not in held]
+        free_process = process and "process noise" not in held and not zero
+        free_starts = [pair for pair, name in starts.items() if name not in held]
+        lik = _Likelihood(model, numerics, records, free_sensors, free_process, free_params, 0.0 if zero else None,
+                          free_starts)
+        z0 = lik.start()
+        if not math.isfinite(lik(z0)):
+            raise CalibrationError(f"the model's likelihood of the data ({', '.join(map(printable, _sources(records)))})"
+                                   " is not finite at its own values", None,
+                                   "check that the data are of this model and its units")
+        k = len(free_sensors)  # the process level's coordinate
+
+        def heads_for_zero(z, k=k, z0=z0, free=free_process):
+            return bool(free and z[k] < z0[k] - ZERO_FALL)
+
+        z, best, H, converged, message = _fit(lik, z0, heads_for_zero)
+        evaluations += lik.evaluations
+        if heads_for_zero(z):
+            zero = True
+            continue
+        if not converged and message.startswith("no maximum"):
+            raise CalibrationError(f"the likelihood of {', '.join(map(printable, _sources(records)))} has no "
+                                   f"maximum the optimiser could find ({message})", None,
+                                   "estimate fewer quantities (--estimate), or start from closer values in the "
+                                   "model file")
+        names = [f"noise {s}" for s in free_sensors]
+        names += ["process noise"] if lik.process else []
+        names += free_params
+        logs = [True] * (len(names) - len(free_params)) + [bool(s) for s in lik.signs]
+        names += [starts[pair] for pair in free_starts]
+        logs += [False] * len(free_starts)
+        why = _unidentifiable(names, H, logs)
+        if not why:
+            break
+        held.update(why)
+    sigma, level, theta = lik.values(z)
+    cov = np.linalg.inv(H) if len(z) else np.zeros((0, 0))
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    before = lik.evaluations
+    z_low, z_high = _interval_ends(lik, z, best, cov)
+    evaluations += lik.evaluations - before
+    with np.errstate(over="ignore"):
+        lo, hi = lik.values(z_low), lik.values(z_high)
+    estimates = []
+    k = 0
+    for s in sensors:
+        j = outputs.index(s)
+        scale = _reading_scale(model, lik, theta, j, y_scale[j])
+        start_sigma = float(model.MEASUREMENT_STD[j])
+        if f"noise {s}" in held:
+            estimates.append(Estimate("measurement_noise", s, start_sigma, math.nan, math.nan,
+                                      float(start_sigma / y_scale[j]), math.nan, math.nan, start_sigma,
+                                      float(start_sigma / y_scale[j]), False, held[f"noise {s}"]))
+            continue
+        v, a, b = float(sigma[j]), float(lo[0][j]), float(hi[0][j])
+        estimates.append(Estimate("measurement_noise", s, v, a, b, v / scale, a / scale, b / scale, start_sigma,
+                                  float(start_sigma / y_scale[j]), at_bound=_at_bound(z[k], z0[k])))
+        k += 1
+    if process:
+        q0 = float(settings.process_noise)
+        if zero:
+            upper = _zero_upper(model, numerics, records, free_sensors, free_params, z, best, free_starts)
+            estimates.append(Estimate("process_noise", "process", 0.0, 0.0, upper, 0.0, 0.0, upper, q0, q0,
+                                      at_bound=True))
+        elif "process noise" in held:
+            estimates.append(Estimate("process_noise", "process", q0, math.nan, math.nan, q0, math.nan, math.nan,
+                                      q0, q0, False, held["process noise"]))
+        else:
+            estimates.append(Estimate("process_noise", "process", level, lo[1], hi[1], level, lo[1], hi[1], q0, q0,
+                                      at_bound=_at_bound(z[k], z0[k])))
+            k += 1
+    index = list(model.PARAMETERS)
+    for p in parameters:
+        i = index.index(p)
+        t0 = float(model.THETA[i])
+        if p in held:
+            estimates.append(Estimate("parameter", p, t0, math.nan, math.nan, t0, math.nan, math.nan, t0, t0, False,
+                                      held[p]))
+            continue
+        v, a, b = float(theta[i]), float(lo[2][i]), float(hi[2][i])
+        a, b = min(a, b), max(a, b)
+        estimates.append(Estimate("parameter", p, v, a, b, v, a, b, t0, t0, at_bound=_at_bound(z[k], z0[k])))
+        k += 1
+    estimates += _start_estimates(lik, starts, held, z, z0, z_low, z_high, k)
+    corr = cov / np.outer(sd, sd) if len(z) else cov
+    filters = lik.filters(z)
+    return Calibration(tuple(estimates), float(best), float(start_loglik), tuple(names),
+                       tuple(tuple(float(c) for c in row) for row in corr), innovations(filters, outputs),
+                       _sources(records), sum(int(np.isfinite(r.ys).any(axis=1).sum()) for r in records),
+                       converged, message, evaluations, time.perf_counter() - start_time, tuple(outputs),
+                       tuple(np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in filters),
+                       tuple(np.asarray(r.ts if r.ts is not None else np.arange(len(r.ys)), dtype=float)
+                             for r in records))
+
+
+def _start_estimates(lik: _Likelihood, starts: dict[tuple[int, int], str], held: dict[str, str], z: np.ndarray,
+                     z0: np.ndarray, z_low: np.ndarray, z_high: np.ndarray, k: int) -> list[Estimate]:
+    """The estimates of the recordings' initial states ``starts`` ((record,
+    state) -> name), the free ones from coordinate ``k`` of ``z`` on (in
+    units of each state's size), those ``held`` at the model's ``X0``."""
+    out = []
+    for (_, i), name in starts.items():
+        subject = name.removeprefix("initial ")
+        start = float(lik.x0[i])
+        if name in held:
+            out.append(Estimate("initial", subject, start, math.nan, math.nan, start, math.nan, math.nan, start,
+                                start, False, held[name]))
+            continue
+        size = lik.x_size[i]
+        v, a, b = float(z[k] * size), float(z_low[k] * size), float(z_high[k] * size)
+        out.append(Estimate("initial", subject, v, a, b, v, a, b, start, start, at_bound=_at_bound(z[k], z0[k])))
+        k += 1
+    return out
+
+
+def _interval_ends(lik: _Likelihood, z: np.ndarray, best: float, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ends of each estimate's 95 % interval in the optimiser's
+    coordinates: where the log-likelihood has fallen by ``DROP95`` from
+    ``best``, walking from the maximum ``z`` along estimate i while the
+    others follow their best values to first order (the direction
+    ``cov[:, i]``, the path of the profile likelihood of a quadratic
+    log-likelihood; Venzon and Moolgavkar 1988 walk the exact profile). On a
+    quadratic log-likelihood these are the curvature's ``z +- 1.96 sd``;
+    where it is not (a std near 0, whose likelihood is flat below and steep
+    above) they follow the likelihood itself. An end the fall does not reach
+    within ``REACH`` is infinite (a std's interval then starts at 0)."""
+    low, high = z.copy(), z.copy()
+    for i in range(len(z)):
+        sd = math.sqrt(max(float(cov[i, i]), 0.0))
+        if not sd > 0:
+            continue
+        d = cov[:, i] / sd  # one sd of estimate i, the others at their conditional best (to first order)
+        for sign, out in ((-1.0, low), (1.0, high)):
+            def fall(t, sign=sign, d=d):
+                value = lik(z + sign * t * d)
+                return best - value if math.isfinite(value) else math.inf
+            out[i] = z[i] + sign * sd * _crossing(fall, REACH / sd)
+    return low, high
+
+
+def _crossing(fall, limit: float) -> float:
+    """The t in (0, ``limit``] where ``fall(t)`` (0 at t = 0, rising)
+    reaches ``DROP95``, within ``DROP_TOL``; infinite when it stays below up
+    to ``limit``. Starts at the curvature's answer ``Z95`` and scales t by
+    the square root of the ratio to ``DROP95`` (exact for a parabola); then
+    Brent's method in the bracket."""
+    from scipy.optimize import brentq
+
+    below, above = 0.0, math.inf
+    t = min(Z95, limit)
+    for _ in range(4):
+        f = fall(t)
+        if abs(f / DROP95 - 1) < DROP_TOL:
+            return t
+        if f < DROP95:
+            below = t
+            if t >= limit:
+                return math.inf
+            t = min(limit, t * min(4.0, max(1.05, math.sqrt(DROP95 / max(f, 1e-12)))))
+        else:
+            above = t
+            t = t * min(0.95, max(0.25, math.sqrt(DROP95 / f))) if math.isfinite(f) else 0.5 * (below + t)
+        if math.isfinite(above):  # keep within the bracket
+            t = min(max(t, below + 0.1 * (above - below)), above - 0.1 * (above - below))
+    while not math.isfinite(above):  # still no end above: go on out, doubling
+        t = min(limit, 2 * below)
+        if fall(t) >= DROP95:
+            above = t
+        elif t >= limit:
+            return math.inf
+        else:
+            below = t
+    g = lambda t: min(fall(t), 1e6) - DROP95  # noqa: E731 - a filter that fails is far beyond the end
+    return float(brentq(g, below, above, rtol=1e-6, xtol=1e-6 * above))
+
+
+def _zero_upper(model: ModuleType, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
+                parameters: Sequence[str], z: np.ndarray, best: float, initial: Sequence[tuple[int, int]] = ()
+                ) -> float:
+    """The upper end of the process level's 95 % interval when its
+    likelihood is highest at 0 (the other estimates ``z`` held): the level
+    where the log-likelihood has fallen by ``ZERO_DROP`` from ``best`` (a
+    one-sided bound at the edge of the parameter space, Self and Liang
+    1987); NaN when it does not fall that far below ``MAX_SPAN`` times the
+    model's level."""
+    from scipy.optimize import brentq
+
+    lik = _Likelihood(model, numerics, records, sensors, True, parameters, initial=initial)
+    k = len(sensors)
+    start = float(lik.start()[k])
+
+    def drop(log_level: float) -> float:
+        return lik(np.concatenate([z[:k], [log_level], z[k:]])) - (best - ZERO_DROP)
+
+    low, high = start - 3 * ZERO_FALL, start + math.log(MAX_SPAN)
+    if not (drop(low) > 0 > drop(high)):
+        return math.nan
+    return float(math.exp(brentq(drop, low, high, xtol=1e-6)))
+
+
+def _state_size(x0: float, scale: float) -> float:
+    """The size an initial state is measured in: its model value's magnitude, the compiler's size of the
+    state, or 1, whichever is largest but not 0."""
+    size = max(abs(float(x0)), abs(float(scale)))
+    return size if size > 0 and math.isfinite(size) else 1.0
+
+
+def _at_bound(z: float, start: float) -> bool:
+    """Whether an estimate stopped at the end of the range searched (``REACH`` from its start)."""
+    return bool(abs(float(z) - float(start)) >= REACH - 1e-6)
+
+
+def _sources(records: Sequence[Record]) -> tuple[str, ...]:
+    return tuple(r.source for r in records)
+
+
+def _reading_scale(model: ModuleType, lik: _Likelihood, theta: np.ndarray, j: int, nominal: float) -> float:
+    """The size a sensor's relative noise level multiplies at ``theta``: its
+    reading at X0 and the inputs at t = 0, as the compiler sets it
+    (``nominal``, the compiled one, when the reading there is 0: the
+    compiler then sizes it over the nominal run)."""
+    x = np.asarray(model.X0, dtype=float)[:, None]
+    at_start = float(np.asarray(model.observe(x, lik.u0, tuple(lik.theta0)))[j, 0])
+    y = float(np.asarray(model.observe(x, lik.u0, tuple(theta)))[j, 0])
+    return abs(y) if at_start != 0 and y != 0 and math.isfinite(y) else nominal

@@ -1,0 +1,317 @@
+"""Truth simulator: the plant with noise and an injected fault, for testing diagnosers.
+
+It integrates the sympy state equations (``sympy.lambdify`` to NumPy; a path
+independent of the generated filter code) with classical RK4 on a step
+``TRUTH_REFINEMENT`` times finer than the generated filters use, so a filter is
+never handed its own discretisation as the truth.
+
+Fault profiles are the fault kinds' own (:mod:`bgc.kinds`; the thesis's abrupt
+``p(t) = p + b`` for ``t >= t_f``, eq. II.1, and incipient ``p(t) = p + c (t -
+t_f)`` for ``t > t_f``, eq. II.2), evaluated at every integration substep; a
+step change takes effect at the start of a substep, so no substep straddles it. Noise (zero-mean Gaussian) has the
+absolute levels of the compiled model's :class:`~bgc.ir.Numerics` from the relative levels (process
+noise added once per sample period, measurement noise on every sample).
+
+Time grid: row k (k = 1..steps) holds time ``t_k = k dt``, the input held over
+``(t_k-1, t_k]`` (zero-order hold of the signal at ``t_k-1``), the noisy
+measurements and true states at ``t_k``, and the true value of the faulty
+parameter at ``t_k``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..compiler.numerics import float_safe, lambdified, rk4_sample
+from ..errors import SimulationError
+from ..ir import Numerics
+from ..kinds import FAULT_KINDS, fault_kind, kinds_for
+from ..data.runs import to_csv as _csv_text
+
+TRUTH_REFINEMENT = 8
+#: Longest simulation: the loop is Python, and the arrays grow with it.
+MAX_STEPS = 10_000_000
+#: Memory the arrays of one simulation may take.
+MAX_BYTES = 2_000_000_000
+
+
+@dataclass(frozen=True, slots=True)
+class FaultInjection:
+    """``magnitude``: what the fault kind's ``magnitude`` names (a bias b for
+    an abrupt fault, a slope c per unit time for an incipient one).
+    ``parameter``: the symbol the fault changes (a model parameter, or
+    ``<sensor>_offset``, ``<input>_offset``, ``<input>_gain``: see
+    :meth:`bgc.kinds.FaultKind.parameter_of`); ``target`` and ``subject``:
+    what it strikes, as the model names it."""
+
+    parameter: str
+    kind: str
+    magnitude: float
+    time: float
+    target: str = "parameter"
+    subject: str = ""
+
+    def value(self, nominal: float, t: float) -> float:
+        return fault_kind(self.kind).value(nominal, self.magnitude, self.time, t)
+
+    def describe(self) -> str:
+        kind = fault_kind(self.kind)
+        size = (f"std {kind.noise_factor(self.magnitude):g} times its own (magnitude {self.magnitude:g})"
+                if kind.noise else f"{kind.magnitude} {self.magnitude:g}")
+        return (f"{self.target + ' ' if self.target != 'parameter' else ''}{self.subject or self.parameter} "
+                f"{self.kind}, {size} from t = {self.time:g}")
+
+
+@dataclass(frozen=True, slots=True)
+class SimulationOptions:
+    steps: int | None = None
+    process_noise: float | None = None
+    measurement_noise: float | None = None
+    seed: int = 0
+    fault: FaultInjection | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class SimulationResult:
+    model: str
+    source: str
+    time: np.ndarray
+    input_names: tuple[str, ...]
+    inputs: np.ndarray
+    output_names: tuple[str, ...]
+    measurements: np.ndarray
+    clean_measurements: np.ndarray
+    state_names: tuple[str, ...]
+    states: np.ndarray
+    fault: FaultInjection | None
+    parameter: np.ndarray | None
+    header: tuple[str, ...]
+
+
+def noise_free(num: Numerics, options: SimulationOptions) -> SimulationResult:
+    """The run ``options`` asks for, fault and all, without process noise: its
+    measurements without sensor noise (``clean_measurements``) are the
+    plant's own response, the line a noisy run scatters around."""
+    return simulate(num, dataclasses.replace(options, process_noise=0.0))
+
+
+_FAULT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([a-z]+):([-+0-9.eE]+)@([0-9.eE+]+)$")
+
+
+def parse_fault(text: str, num: Numerics) -> FaultInjection:
+    """``NAME:KIND:MAGNITUDE@TIME``: NAME a parameter (``R_pipe:incipient:0.5@165``),
+    a measurement (a sensor fault, ``P_memb:bias:0.3@100``; ``P_memb:stuck:0@100``
+    reads 0 from t = 100; ``P_memb:noise:4@100`` has five times its noise from
+    t = 100) or an input (an actuator fault, ``u_pump:gain:-0.2@100``). The model need not list the
+    fault among its candidates: a plant may fail in ways its model does not
+    foresee."""
+    ssm = num.equations
+    model = ssm.model
+    m = _FAULT.match(text.strip())
+    if not m:
+        raise SimulationError(f"--fault {text!r} is not NAME:KIND:MAGNITUDE@TIME", None,
+                              "e.g. R_pipe:incipient:0.5@165, R_pipe:abrupt:31@165 or P_memb:bias:0.3@100")
+    name, kind, mag, time = m.groups()
+    targets = {**{i: "actuator" for i in ssm.inputs}, **{y: "sensor" for y in ssm.outputs},
+               **{p.name: "parameter" for p in model.parameters}}
+    if name not in targets:
+        raise SimulationError(f"--fault: '{name}' is no parameter, measurement or input of {model.name}", None,
+                              "parameters: " + ", ".join(p.name for p in model.parameters)
+                              + "; measurements: " + ", ".join(ssm.outputs)
+                              + ("; inputs: " + ", ".join(ssm.inputs) if ssm.inputs else ""))
+    target = targets[name]
+    if kind not in FAULT_KINDS or target not in FAULT_KINDS[kind].targets:
+        raise SimulationError(f"--fault: {'unknown kind' if kind not in FAULT_KINDS else 'kind'} '{kind}'"
+                              f"{'' if kind not in FAULT_KINDS else f' does not apply to {target} {name}'}", None,
+                              kinds_for(target))
+    try:
+        injection = FaultInjection(fault_kind(kind).parameter_of(name), kind, float(mag), float(time), target, name)
+    except ValueError:
+        raise SimulationError(f"--fault {text!r}: magnitude and time must be numbers", None,
+                              "e.g. R_pipe:abrupt:31@165") from None
+    if not (math.isfinite(injection.magnitude) and math.isfinite(injection.time)):
+        raise SimulationError(f"--fault {text!r}: magnitude and time must be finite numbers", None,
+                              "e.g. R_pipe:abrupt:31@165")
+    return injection
+
+
+def change_magnitude(num: Numerics, fault: str, change: float, span: float) -> float:
+    """The magnitude of fault model ``fault`` (``PARAM:KIND``) that changes
+    what it strikes by ``change`` (signed) times its scale (a parameter's
+    |nominal|, a sensor's nominal reading, ...), a drift over ``span`` time
+    units after the onset; a stuck reading that far off the sensor's nominal
+    reading."""
+    f = num.fault(fault)
+    kind = fault_kind(f.kind)
+    magnitude = kind.magnitude_for(change * f.scale, span)
+    if kind.replaces:
+        subject = next(c.subject for c in num.equations.model.faults if c.parameter == f.parameter)
+        magnitude += num.y0[num.equations.outputs.index(subject)]
+    return magnitude
+
+
+def outside_prior(injection: FaultInjection, num: Numerics) -> str | None:
+    """Why the model's diagnoser would not expect this fault: not among its
+    candidates, or a magnitude outside the candidate's prior; None when it
+    would."""
+    name = f"{injection.parameter}:{injection.kind}"
+    try:
+        f = num.fault(name)
+    except KeyError:
+        return (f"the model lists no fault {injection.subject or injection.parameter}:{injection.kind} "
+                f"among its candidates: its diagnoser should find it unexplained")
+    lo, hi = f.prior
+    if lo <= injection.magnitude <= hi:
+        return None
+    what = fault_kind(injection.kind).magnitude + (" per unit time" if fault_kind(injection.kind).drifts else "")
+    return (f"{what} {injection.magnitude:g} is outside the prior of {name} in the model ({lo:.4g} to {hi:.4g}): "
+            "its diagnoser may size it wrong (widen it with the fault's 'size' or 'rate' in the model, "
+            "or --prior-scale)")
+
+
+def check_steps(steps: int, num: Numerics, where: str) -> None:
+    """Refuse, before any work, a run longer than MAX_STEPS or whose arrays
+    would take more than MAX_BYTES."""
+    ssm = num.equations
+    width = 2 * len(ssm.outputs) + len(ssm.states) + len(ssm.inputs) + 2
+    if steps < 1:
+        raise SimulationError(f"{where}: {steps} steps", None, "simulate at least 1 step, e.g. --steps 300")
+    if steps > MAX_STEPS or steps * width * 8 > MAX_BYTES:
+        raise SimulationError(f"{where}: {steps} steps is more than bgc simulates in one run "
+                              f"(at most {min(MAX_STEPS, MAX_BYTES // (width * 8))} for this model)", None,
+                              "simulate fewer steps, e.g. --steps 300")
+
+
+def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
+    """Simulate the plant of ``num`` (its equations, at its noise scales)."""
+    ssm = num.equations
+    model = ssm.model
+    steps = options.steps or model.settings.steps
+    check_steps(steps, num, "--steps" if options.steps else f"{model.source}: simulation.steps")
+    dt = model.settings.dt
+    fault = options.fault
+    if fault is not None and not 0 <= fault.time < steps * dt:  # a fault from the start is a plant as it came
+        raise SimulationError(f"--fault {fault.parameter}:{fault.kind}: onset {fault.time:g} is outside the run (0 to "
+                              f"{steps * dt:g})", None, "choose an onset inside the run, or more --steps")
+    noise = num.noise_at(options.process_noise, options.measurement_noise)
+    substeps = num.substeps * TRUTH_REFINEMENT
+    h = dt / substeps
+    f, g = lambdified(ssm)
+    theta0 = np.array(ssm.parameter_values, dtype=float)
+    target = index = column = nominal = kind = None
+    if fault is not None:  # what it changes: a parameter (index), an input or a sensor's reading (column)
+        target, kind = fault.target, fault_kind(fault.kind)
+        if target == "parameter":
+            index = ssm.parameters.index(fault.parameter)
+            nominal = theta0[index]
+        else:
+            column = (ssm.inputs if target == "actuator" else ssm.outputs).index(fault.subject)
+            nominal = kind.nominal
+    steps_at_substeps = fault is not None and not kind.drifts
+
+    def when(t: float, interval_start: float | None) -> float:
+        """A step change takes effect at the start of an integration substep
+        (``interval_start``), so no substep straddles the discontinuity; a
+        drift is continuous and evaluated at t."""
+        return interval_start if (steps_at_substeps and interval_start is not None) else t
+
+    def theta_at(t: float, interval_start: float | None = None) -> np.ndarray:
+        """Parameters at time t."""
+        if target != "parameter":
+            return theta0
+        th = theta0.copy()
+        th[index] = fault.value(theta0[index], when(t, interval_start))
+        return th
+
+    def delivered(u: np.ndarray, t: float, interval_start: float | None = None) -> np.ndarray:
+        """What the actuators deliver for the command u: an actuator fault's
+        gain times it plus its offset; the command is what the run records."""
+        if target != "actuator":
+            return u
+        v = u.copy()
+        level = fault.value(nominal, when(t, interval_start))
+        v[column] = level * u[column] if kind.suffix == "gain" else u[column] + level
+        return v
+
+    floats = float_safe(ssm)
+
+    def evaluate(fn, x, u, theta):
+        """fn on Python floats when that gives the same numbers (float_safe),
+        a few times faster than on NumPy scalars; else, or when Python
+        raises (a division by zero, an overflow: NumPy gives inf or NaN and
+        the run stops as diverged), on NumPy scalars."""
+        if floats:
+            try:
+                return np.array(fn(x.tolist(), u.tolist(), theta.tolist()), dtype=float)
+            except (ZeroDivisionError, OverflowError):
+                pass
+        return np.array(fn(x, u, theta), dtype=float)
+
+    def rhs(x, u, t, t_sub):
+        return evaluate(f, x, delivered(u, t, t_sub), theta_at(t, t_sub))
+
+    rng = np.random.default_rng(options.seed)
+    x = np.array(ssm.initial, dtype=float)
+    proc = np.array(noise.process)
+    meas = np.array(noise.measurement)
+    T = steps
+    states = np.empty((T, len(ssm.states)))
+    clean = np.empty((T, len(ssm.outputs)))
+    inputs = np.empty((T, len(ssm.inputs)))
+    times = dt * np.arange(1, T + 1)
+    param = np.empty(T) if fault else None
+    for k in range(T):
+        t0 = k * dt
+        u = np.array([i.signal.at(t0) for i in model.inputs], dtype=float)
+        x = rk4_sample(lambda x, t, t_sub: rhs(x, u, t, t_sub), x, t0, h, substeps)  # noqa: B023
+        x = x + proc * rng.standard_normal(len(ssm.states))
+        if not np.all(np.isfinite(x)):
+            raise SimulationError(f"the simulation of {model.name} diverged at t = {times[k]:g}", model.source,
+                                  "reduce the fault magnitude or the noise, or check the model's values")
+        tk = times[k]
+        states[k] = x
+        inputs[k] = u
+        clean[k] = evaluate(g, x, delivered(u, tk), theta_at(tk))
+        if fault:
+            param[k] = fault.value(nominal, tk)
+    if target == "sensor" and not kind.replaces and not kind.noise:  # the sensor's offset on its reading
+        clean[:, column] += param
+    draws = rng.standard_normal(clean.shape)
+    if target == "sensor" and kind.noise:  # a noise burst: the sensor's noise std times its factor
+        draws[:, column] *= kind.noise_factor(param - nominal)
+    noisy = clean + meas * draws
+    if target == "sensor" and kind.replaces:  # a stuck sensor reads its value, noise and all
+        stuck = times >= fault.time
+        clean[stuck, column] = noisy[stuck, column] = fault.magnitude
+    src = model.display_source
+    settings = model.settings
+    header = (
+        f"generated by bgc simulate from {src}",
+        f"model {model.name}: {steps} steps of dt = {dt:g}; truth by RK4 with {substeps} substeps per step "
+        f"({TRUTH_REFINEMENT}x finer than the generated filters)",
+        "fault: " + (fault.describe() if fault else "none"),
+        f"noise: process {options.process_noise if options.process_noise is not None else settings.process_noise:g}, "
+        f"measurement {options.measurement_noise if options.measurement_noise is not None else 'per model'} "
+        f"(fractions of the signal); seed {options.seed}",
+        "columns: time; u:* inputs held over the step ending at time; y:* noisy measurements; "
+        "x:* true states; theta:* true value of the faulty parameter (a sensor's or input's offset, "
+        "an input's gain, a sensor's noise factor)",
+    )
+    return SimulationResult(model.name, src, times, tuple(ssm.inputs), inputs, tuple(ssm.outputs), noisy, clean,
+                            tuple(ssm.states), states, fault, param, header)
+
+
+def to_csv(r: SimulationResult) -> str:
+    """The run as the CSV text :func:`bgc.data.runs.read_run` reads."""
+    columns = [("time", r.time)]
+    columns += [(f"u:{n}", r.inputs[:, j]) for j, n in enumerate(r.input_names)]
+    columns += [(f"y:{n}", r.measurements[:, j]) for j, n in enumerate(r.output_names)]
+    columns += [(f"x:{n}", r.states[:, j]) for j, n in enumerate(r.state_names)]
+    if r.fault:
+        columns.append((f"theta:{r.fault.parameter}", r.parameter))
+    return _csv_text(r.header, columns)

@@ -1,0 +1,483 @@
+r"""Recorded runs: the CSV that ``bgc simulate`` writes and the filters read.
+
+Format: ``#`` comment lines (a header saying which model and fault made the
+run), then a CSV table with a ``time`` column and columns prefixed by what they
+hold: ``u:NAME`` inputs (held over the step that ends at the row's time),
+``y:NAME`` measurements, ``x:NAME`` true states, ``theta:NAME`` the true value
+of a faulty parameter. A measurement left empty or ``nan`` was not taken.
+
+A run file is data from outside: it is size-checked before it is read (and
+must be a regular file: not a FIFO or a device), decoded strictly, and every
+problem is a one-line :class:`~bgc.errors.DataError` naming the file and line.
+It is read as a stream, one line at a time, into growing NumPy arrays: the
+memory a run takes stays near the size of its numbers (8 bytes each), whatever
+else the file holds. Its header is a few lines (bgc simulate writes five):
+at most ``MAX_COMMENT_LINES`` comment lines of at most ``MAX_COMMENT``
+characters, at most ``MAX_BLANK_LINES`` blank lines, at most ``MAX_COLUMNS``
+columns and ``MAX_VALUES`` numbers; a line of more than ``MAX_LINE``
+characters is refused without being held in memory.
+
+:func:`check_run` holds what a run must be (times finite and increasing,
+columns of numbers as long as the time, no infinite value): the CSV reader
+and the Python API (a :class:`Run` built in a script) both use it.
+
+Examples
+--------
+>>> run = parse_run("# model rc: 2 steps\ntime,y:e3\n0.5,1.25\n1.0,\n", "rc.csv")
+>>> run.time.tolist(), run.measurements["e3"].tolist(), run.model, run.source
+([0.5, 1.0], [1.25, nan], 'rc', 'rc.csv')
+>>> parse_run("time,y:e3\n0.5,inf\n", "rc.csv")  # doctest: +ELLIPSIS
+Traceback (most recent call last):
+...
+bgc.errors.DataError: rc.csv:2: inf in column y:e3 is not a finite number (write a finite number, ...)
+"""
+
+from __future__ import annotations
+
+import codecs
+import csv
+import io
+import math
+import stat
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from ..errors import DataError, printable
+
+#: A run file larger than this is refused before it is read (a 300-step run of
+#: the RO plant is about 60 kB).
+MAX_RUN_BYTES = 256_000_000
+#: Longest field: a number's text is far shorter.
+MAX_FIELD = 1000
+#: Longest line, in characters (a row of 10,000 columns of 25-character numbers
+#: is 250,000).
+MAX_LINE = MAX_FIELD * 1000
+#: Most ``#`` comment lines in a run file: its header (bgc simulate writes 5).
+MAX_COMMENT_LINES = 256
+#: Longest comment line, in characters (bgc simulate's are under 200, plus the
+#: model file's path).
+MAX_COMMENT = 10_000
+#: Most blank lines in a run file (bgc simulate writes none).
+MAX_BLANK_LINES = 1000
+#: Most columns of a run file (a model's inputs, sensors, states and a parameter).
+MAX_COLUMNS = 10_000
+#: Most numbers of a run (rows x columns, each held as 8 bytes, with each row's
+#: line number: 128 MB); a run file of ``MAX_RUN_BYTES`` as bgc simulate
+#: writes it (about 19 characters a number) holds about 13.5 million.
+MAX_VALUES = 16_000_000
+PREFIXES = ("u", "y", "x", "theta")
+#: Numbers parsed (as Python floats, about 32 bytes each) before they are
+#: copied into the arrays at once.
+_BLOCK = 16384
+#: The ``source`` of a :class:`Run` built in Python, when it is given none.
+PYTHON_SOURCE = "<Run from Python>"
+_FIX = "give a CSV written by bgc simulate"
+
+
+@dataclass(frozen=True, slots=True)
+class Run:
+    """A recorded run: columns by prefix, arrays of shape (T,); ``source``:
+    where it comes from (the file it was read from, ``scenario PARAM:...``
+    for a simulated one), named by every message about its data."""
+
+    time: np.ndarray
+    inputs: dict[str, np.ndarray]
+    measurements: dict[str, np.ndarray]
+    states: dict[str, np.ndarray]
+    parameters: dict[str, np.ndarray]
+    header: tuple[str, ...]
+    source: str = PYTHON_SOURCE
+
+    @property
+    def model(self) -> str | None:
+        """The model the header says made the run (``model NAME: ...``), if any."""
+        for h in self.header:
+            if h.startswith("model ") and ":" in h:
+                return h.split(":")[0][len("model "):]
+        return None
+
+
+def to_csv(header: tuple[str, ...], columns: list[tuple[str, np.ndarray]]) -> str:
+    """The CSV text of a run: ``# `` header lines (kept on one line each), then
+    the columns (name, values) with every number as its shortest repr."""
+    buf = io.StringIO()
+    for line in header:
+        buf.write(f"# {printable(line)}\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow([name for name, _ in columns])
+    data = np.column_stack([np.asarray(v, dtype=float) for _, v in columns])
+    for row in data:
+        w.writerow([repr(float(v)) for v in row])
+    return buf.getvalue()
+
+
+def run_csv(run: Run) -> str:
+    """A run as CSV text again (what :func:`parse_run` reads back)."""
+    columns = [("time", run.time)]
+    for prefix, group in (("u", run.inputs), ("y", run.measurements), ("x", run.states), ("theta", run.parameters)):
+        columns += [(f"{prefix}:{name}", values) for name, values in group.items()]
+    return to_csv(run.header, columns)
+
+
+def read_run(path: str | Path) -> Run:
+    """Read a run file (see the module docstring for the checks)."""
+    name = printable(str(path))
+    p = Path(path)
+    try:
+        info = p.stat()
+    except FileNotFoundError:
+        raise DataError(f"{name}: no such file", None, _FIX) from None
+    except OSError as exc:
+        raise DataError(f"{name}: cannot read: {exc.strerror}", None, _FIX) from None
+    if not stat.S_ISREG(info.st_mode):
+        raise DataError(f"{name}: not a regular file", None, "give a CSV file written by bgc simulate")
+    if info.st_size > MAX_RUN_BYTES:
+        raise DataError(f"{name}: file is {info.st_size} bytes, more than {MAX_RUN_BYTES}", None,
+                        "split the run into shorter records")
+    try:
+        with open(p, "rb") as f:
+            return _parse(f, name)
+    except OSError as exc:
+        raise DataError(f"{name}: cannot read: {exc.strerror}", None, _FIX) from None
+
+
+def parse_run(text: str, name: str = "<csv>") -> Run:
+    """Parse the text of a run file; ``name`` (the run's ``source``) is used in errors."""
+    return _parse(io.StringIO(text, newline="\n"), name)
+
+
+class _Lines:
+    """The lines of a run file that hold CSV (column names, then rows), one
+    at a time from ``stream`` (bytes, decoded strictly, or text), each at
+    most ``MAX_LINE`` characters; the ``#`` comment lines go to ``header``
+    and blank lines are skipped, both counted and bounded. ``number`` is the
+    number of the line last read (from 1)."""
+
+    def __init__(self, stream: IO, name: str):
+        self.stream = stream
+        self.name = name
+        self.number = 0
+        self.offset = 0  # bytes (characters, for text) read so far
+        self.header: list[str] = []
+        self.blank = 0
+        self.length = 0  # of the line last returned
+
+    def __iter__(self):
+        return self
+
+    def __next__(self) -> str:
+        while True:
+            raw = self.stream.readline(MAX_LINE + 1)
+            if not raw:
+                raise StopIteration
+            self.number += 1
+            if len(raw) > MAX_LINE and raw[-1:] not in ("\n", b"\n"):
+                raise self.error(f"line is {self._rest(raw)} characters long", "give one sample per line, "
+                                 "numbers only")
+            start = self.offset
+            self.offset += len(raw)
+            if self.offset > MAX_RUN_BYTES:
+                raise DataError(f"{self.name}: more than {MAX_RUN_BYTES} bytes", None,
+                                "split the run into shorter records")
+            if isinstance(raw, bytes):
+                try:
+                    line = raw.decode("utf-8")
+                except UnicodeDecodeError as exc:
+                    raise self.error(f"not UTF-8 text (byte {start + exc.start} is 0x{raw[exc.start]:02x})", _FIX) \
+                        from None
+            else:
+                line = raw
+            if self.number == 1 and line.startswith("\ufeff"):  # a byte-order mark, as a spreadsheet saves it
+                line = line[1:]
+            if line.startswith("#"):
+                if len(self.header) == MAX_COMMENT_LINES:
+                    raise self.error(f"more than {MAX_COMMENT_LINES} comment lines", "a run's header is a few "
+                                     "# lines (bgc simulate writes 5): remove the others")
+                text = line.rstrip("\r\n")
+                if len(text) > MAX_COMMENT:
+                    raise self.error(f"a comment line of {len(text)} characters, more than {MAX_COMMENT}",
+                                     "keep each # line of the header short")
+                self.header.append(text[2:] if text.startswith("# ") else text[1:])
+            elif not line.strip():
+                self.blank += 1
+                if self.blank > MAX_BLANK_LINES:
+                    raise self.error(f"more than {MAX_BLANK_LINES} blank lines", "remove the blank lines")
+            else:
+                self.length = len(line)
+                return line
+
+    def _rest(self, head) -> int:
+        """The length in characters of a line too long to keep: ``head`` and
+        the rest of it, read in blocks and counted, not kept."""
+        decoder = codecs.getincrementaldecoder("utf-8")("replace") if isinstance(head, bytes) else None
+        count = len(decoder.decode(head)) if decoder else len(head)
+        while True:
+            block = self.stream.readline(MAX_LINE)
+            if not block:
+                break
+            ends = block[-1:] in ("\n", b"\n")
+            if ends:
+                block = block[:-1]
+            count += len(decoder.decode(block)) if decoder else len(block)
+            if ends or count > MAX_RUN_BYTES:  # a stream without an end of line ends the count too
+                break
+        return count
+
+    def error(self, what: str, fix: str) -> DataError:
+        return DataError(f"{self.name}:{self.number}: {what}", None, fix)
+
+
+class RowReader:
+    """The rows of a run as they arrive on ``stream`` (a file another
+    program appends to, a pipe): the column names are read and checked
+    first (``columns``; ``header``: the ``#`` lines before them), then each
+    iteration gives one row's numbers (empty or nan: NaN) and its line
+    number; a malformed row is a :class:`~bgc.errors.DataError` naming the
+    line. Whether the times increase is the reader's caller's to check (the
+    diagnoser's :class:`~bgc.data.sampler.Sampler`)."""
+
+    def __init__(self, stream: IO, name: str):
+        self.name = name
+        self.lines = _Lines(stream, name)
+        self.reader = csv.reader(self.lines)
+        self.columns = _columns(self.reader, self.lines, name)
+        self.header = tuple(self.lines.header)
+
+    def __iter__(self):
+        width, lines = len(self.columns), self.lines
+        while True:
+            fields = _next(self.reader, lines)
+            if fields is None:
+                return
+            if len(fields) != width:
+                raise lines.error(f"{len(fields)} fields, expected {width}", "give every row one value per column")
+            if lines.length > MAX_FIELD:
+                _fields(fields, lines)
+            values = [_number(v, c, lines) for v, c in zip(fields, self.columns)]
+            for v, c in zip(values, self.columns):
+                if math.isinf(v):
+                    raise lines.error(f"{v} in column {printable(c)} is not a finite number",
+                                      "write finite numbers (empty or nan: not measured)")
+            yield values, lines.number
+
+    @property
+    def model(self) -> str | None:
+        """The model the header says made the run (``model NAME: ...``), if any."""
+        return Run(np.zeros(0), {}, {}, {}, {}, self.header).model
+
+
+def _columns(reader, lines: _Lines, name: str) -> list[str]:
+    """The column names, checked: ``time`` first, each once, each prefixed."""
+    cols = _next(reader, lines)
+    if cols is None:
+        raise DataError(f"{name}: no data", None, "write it with bgc simulate")
+    first_line = lines.number
+    _fields(cols, lines)
+    if not cols or cols[0] != "time":
+        raise DataError(f"{name}:{first_line}: the first column must be 'time', not {printable(repr(cols[0]))}"
+                        if cols else f"{name}:{first_line}: no column names", None,
+                        "write the run with bgc simulate")
+    if len(cols) > MAX_COLUMNS:
+        raise DataError(f"{name}:{first_line}: {len(cols)} columns, more than {MAX_COLUMNS}", None,
+                        "give the model's inputs, sensors, states and parameters only")
+    seen: set[str] = set()
+    for c in cols:
+        if c in seen:
+            raise DataError(f"{name}:{first_line}: column {printable(repr(c))} appears twice", None,
+                            "give each column once")
+        seen.add(c)
+        prefix, colon, rest = c.partition(":")
+        if c != "time" and not (colon and prefix in PREFIXES and rest):
+            raise DataError(f"{name}:{first_line}: column {printable(repr(c))} is not time, u:NAME, y:NAME, x:NAME "
+                            "or theta:NAME", None, "name the columns as bgc simulate does")
+    return cols
+
+
+def _parse(stream: IO, name: str) -> Run:
+    """A run from the lines of ``stream`` (one csv reader over them, the rows
+    into growing arrays), checked by :func:`check_run`."""
+    lines = _Lines(stream, name)
+    reader = csv.reader(lines)
+    cols = _columns(reader, lines, name)
+    width = len(cols)
+    most = MAX_VALUES // (width + 1)  # the rows' numbers and their line numbers
+    rows = max(1, _BLOCK // width)  # a block's rows
+    data = np.empty((min(rows, most), width))
+    numbers = np.empty(len(data), dtype=np.int64)
+    n = 0
+    block: list[list[float]] = []  # rows waiting to be copied into the arrays, with their line numbers
+    at: list[int] = []
+    try:
+        for fields in reader:
+            if len(fields) != width:
+                raise lines.error(f"{len(fields)} fields, expected {width}", "give every row one value per column")
+            if lines.length > MAX_FIELD:
+                _fields(fields, lines)
+            try:
+                if "_" in "".join(fields):  # float() reads 1_0 as 10: a number of Python's, not of a run file
+                    raise ValueError
+                block.append([float(v) for v in fields])
+            except ValueError:
+                block.append([_number(v, c, lines) for v, c in zip(fields, cols)])
+            at.append(lines.number)
+            if len(block) == rows:
+                data, numbers, n = _store(data, numbers, n, block, at, most, lines)
+    except csv.Error as exc:
+        raise lines.error(f"not CSV: {printable(str(exc))}", "write the run with bgc simulate") from None
+    data, numbers, n = _store(data, numbers, n, block, at, most, lines)
+    if n == 0:
+        raise DataError(f"{name}: the run has no data rows, only column names", None, "record at least one sample")
+    data.resize((n, width), refcheck=False)
+    numbers.resize(n, refcheck=False)
+    return check_run(run_of(cols, data, tuple(lines.header), name), numbers)
+
+
+def run_of(columns: list[str], data: np.ndarray, header: tuple[str, ...], name: str) -> Run:
+    """The run of a table whose columns (``time`` first, then prefixed
+    names) are those of ``data`` (rows x columns)."""
+    groups: dict[str, dict[str, np.ndarray]] = {p: {} for p in PREFIXES}
+    for j, c in enumerate(columns[1:], start=1):
+        prefix, _, rest = c.partition(":")
+        groups[prefix][rest] = data[:, j]
+    return Run(data[:, 0], groups["u"], groups["y"], groups["x"], groups["theta"], header, name)
+
+
+def _store(data: np.ndarray, numbers: np.ndarray, n: int, block: list, at: list, most: int,
+           lines: _Lines) -> tuple[np.ndarray, np.ndarray, int]:
+    """Copy the rows of ``block`` (their line numbers ``at``) into the arrays
+    after their first ``n`` rows, growing them (in place, by a quarter) up
+    to ``most`` rows; ``block`` and ``at`` are emptied."""
+    end = n + len(block)
+    if end > len(data):
+        if end > most:
+            width = data.shape[1]
+            raise DataError(f"{lines.name}:{at[most - n]}: more than {most} rows of {width} column"
+                            f"{'s' if width > 1 else ''} ({MAX_VALUES} numbers)", None,
+                            "split the run into shorter records")
+        grown = min(max(len(data) + len(data) // 4, end), most)  # a quarter more: little unused at the end
+        data.resize((grown, data.shape[1]), refcheck=False)
+        numbers.resize(grown, refcheck=False)
+    if block:
+        data[n:end] = block
+        numbers[n:end] = at
+    block.clear()
+    at.clear()
+    return data, numbers, end
+
+
+def _next(reader, lines: _Lines) -> list[str] | None:
+    """The reader's next row (None at the end), a CSV error located."""
+    try:
+        return next(reader)
+    except StopIteration:
+        return None
+    except csv.Error as exc:
+        raise lines.error(f"not CSV: {printable(str(exc))}", "write the run with bgc simulate") from None
+
+
+def _fields(fields: list[str], lines: _Lines) -> None:
+    longest = max(map(len, fields), default=0)
+    if longest > MAX_FIELD:
+        raise lines.error(f"a field of {longest} characters", "a field holds one number or one column name")
+
+
+def _number(text: str, column: str, lines: _Lines) -> float:
+    """A cell's number: empty is NaN (not measured)."""
+    if not text.strip():
+        return math.nan
+    try:
+        if "_" in text:
+            raise ValueError
+        return float(text)
+    except ValueError:
+        raise lines.error(f"{printable(repr(text[:40]))} in column {printable(column)} is not a number",
+                          "write numbers only (empty or nan: not measured)") from None
+
+
+def check_run(run: Run, lines: np.ndarray | None = None) -> Run:
+    """``run`` as the runtime takes it, or a :class:`~bgc.errors.DataError`
+    naming its ``source`` (and with ``lines``, the line number of each row
+    in its file, the line): at least one row; the time finite and strictly
+    increasing; each column of ``inputs``, ``measurements``, ``states`` and
+    ``parameters`` a 1-D array of numbers (integers or floats) as long as
+    the time, finite or NaN (not measured: an infinite value is an error);
+    names non-empty text; ``header`` lines of text, bounded as a file's.
+    Returns the run with every array as float64 (no copy when it is one).
+
+    >>> t = np.array([0.1, 0.2, 0.2])
+    >>> check_run(Run(t, {}, {"f2": np.ones(3)}, {}, {}, ()))  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    bgc.errors.DataError: <Run from Python>, index 2: time 0.2 does not increase (the row before has 0.2) (...)
+    """
+    source = printable(run.source) if isinstance(run, Run) and isinstance(run.source, str) else PYTHON_SOURCE
+    if not isinstance(run, Run):
+        raise DataError(f"{source}: a {type(run).__name__}, not a bgc.data.runs.Run", None,
+                        "build a Run, or read one with bgc.data.runs.read_run")
+
+    def at(k: int) -> str:
+        return f"{source}:{int(lines[k])}" if lines is not None else f"{source}, index {k}"
+
+    header = run.header
+    if not isinstance(header, (tuple, list)) or not all(isinstance(h, str) for h in header):
+        raise DataError(f"{source}: the header is not a tuple of text lines", None, "give header=('model NAME: ...',)")
+    if len(header) > MAX_COMMENT_LINES or any(len(h) > MAX_COMMENT for h in header):
+        raise DataError(f"{source}: the header has more than {MAX_COMMENT_LINES} lines or a line of more than "
+                        f"{MAX_COMMENT} characters", None, "keep the header to a few short lines")
+    t = _array(run.time, "time", None, source)
+    T = len(t)
+    if T == 0:
+        raise DataError(f"{source}: the run has no data rows, only column names", None, "record at least one sample")
+    bad = ~np.isfinite(t)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise DataError(f"{at(k)}: time {float(t[k])!r} is not a finite number", None, "give every row its time")
+    if T > 1:
+        step = np.diff(t)
+        if not np.all(step > 0):
+            k = int(np.argmax(step <= 0)) + 1
+            raise DataError(f"{at(k)}: time {t[k]:g} does not increase (the row before has {t[k - 1]:g})", None,
+                            "sort the rows by time, one row per sample")
+    groups = []
+    for prefix, group in (("u", run.inputs), ("y", run.measurements), ("x", run.states), ("theta", run.parameters)):
+        if not isinstance(group, Mapping):
+            raise DataError(f"{source}: the {prefix}:* columns are a {type(group).__name__}, not a dict of name to "
+                            "array", None, f"give e.g. {{'NAME': values}} for the {prefix}:NAME columns")
+        out = {}
+        for key, values in group.items():
+            if not isinstance(key, str) or not key:
+                raise DataError(f"{source}: column name {printable(repr(key))[:60]} under {prefix}:* is not a "
+                                "non-empty text", None, "name each column by text, e.g. 'f2'")
+            column = f"{prefix}:{key}"
+            v = _array(values, column, T, source)
+            infinite = np.isinf(v)
+            if infinite.any():
+                k = int(np.argmax(infinite))
+                raise DataError(f"{at(k)}: {float(v[k])!r} in column {printable(column)} is not a finite number", None,
+                                "write a finite number, or leave the cell empty or nan where the sensor was not read")
+            out[key] = v
+        groups.append(out)
+    return Run(t, *groups, tuple(header), run.source if isinstance(run.source, str) else source)
+
+
+def _array(values, column: str, length: int | None, source: str) -> np.ndarray:
+    """A column as a 1-D float64 array, or an error naming it."""
+    try:
+        a = np.asarray(values)
+    except (TypeError, ValueError) as exc:  # ragged nested sequences, objects NumPy refuses
+        raise DataError(f"{source}: column {printable(column)} is not an array of numbers "
+                        f"({printable(str(exc))[:80]})", None, "give a 1-D NumPy array of floats") from None
+    if a.dtype.kind not in "iuf":
+        raise DataError(f"{source}: column {printable(column)} holds {a.dtype} values, not numbers", None,
+                        "give a 1-D NumPy array of floats, NaN where not measured")
+    if a.ndim != 1:
+        raise DataError(f"{source}: column {printable(column)} has shape {a.shape}, not one value per row", None,
+                        "give a 1-D array, one value per time")
+    if length is not None and len(a) != length:
+        raise DataError(f"{source}: column {printable(column)} has {len(a)} values, the time {length}", None,
+                        "give each column one value per time")
+    return a.astype(float, copy=False)

@@ -1,0 +1,230 @@
+"""Plant data onto the model's time grid, one sample at a time.
+
+The diagnoser's filters are the model's DBN: one time slice per step of the
+model's ``dt`` (``simulation.dt``). Real data are not that regular, so a
+:class:`Sampler` places each sample on that grid and says what it did, as
+events (:mod:`bgc.diagnosis.events`):
+
+- **Time.** The grid starts at the first sample's time; a sample at time
+  ``t`` is the step ``round((t - t0) / dt)``. A step that no sample falls on
+  is a step whose measurements are missing: the filters predict across it.
+  A run of missing steps longer than ``gap`` (time units; default
+  :data:`GAP_STEPS` steps) is a :class:`~bgc.diagnosis.events.Gap` event; one
+  beyond :data:`MAX_GAP_STEPS` steps is refused (a clock that jumped). A
+  second sample on a step already taken is skipped (the first one of a step
+  is used; :class:`~bgc.diagnosis.events.SampleSkipped`, once, with the count
+  in the report): to use every sample, give the model a ``dt`` no longer
+  than the sampling interval. Times that do not increase, or that are not
+  numbers, are refused with the file and line.
+- **Inputs.** A ``u:NAME`` column of the data is used; an empty cell holds
+  the last value (zero-order hold, :class:`~bgc.diagnosis.events.InputHeld`
+  when a hole begins), and before the column's first value, and for an input
+  the data have no column for, the model's declared input function is used
+  (:class:`~bgc.diagnosis.events.InputFromModel`). An input's value on a row is
+  the one applied over the step that ends at the row's time.
+- **Sensors.** A model output the data have no ``y:NAME`` column for is
+  missing at every step (:class:`~bgc.diagnosis.events.SensorMissing`): the
+  diagnosis uses the sensors present. With none present the data are
+  refused. A ``y:`` or ``u:`` column the model has no sensor or input of is
+  not used (:class:`~bgc.diagnosis.events.ColumnIgnored`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Iterator
+
+import numpy as np
+
+from ..errors import DataError, printable
+from ..diagnosis import events as ev
+from .runs import Run
+
+#: Missing steps in a row, by default, beyond which a gap is an event.
+GAP_STEPS = 10
+#: Missing steps in a row beyond which the data are refused (the filters
+#: would predict that far without a measurement).
+MAX_GAP_STEPS = 100_000
+
+
+@dataclass(frozen=True, slots=True)
+class Sample:
+    """Step ``k`` of the model's time grid at time ``t``: inputs ``u``
+    (model order) applied over the step that ends at ``t``, measurements
+    ``y`` (model order; NaN: not read); ``line``: the data line it came
+    from (None: a step with no sample, or a run from Python); ``events``:
+    what the data reader did at this step."""
+
+    k: int
+    t: float
+    u: np.ndarray
+    y: np.ndarray
+    line: int | None = None
+    events: tuple = ()
+
+
+class Sampler:
+    """Rows of plant data in (:meth:`push`), samples on the model's grid out.
+
+    ``model``: the generated nominal model (its ``INPUTS``, ``OUTPUTS``,
+    ``DT`` and ``inputs(t)``); ``inputs``, ``sensors``: the input and sensor
+    names the data have columns for; ``source``: the data's name for
+    messages; ``gap``: the gap limit in time units (None: :data:`GAP_STEPS`
+    steps)."""
+
+    def __init__(self, model: ModuleType, inputs, sensors, source: str, gap: float | None = None):
+        self.model = model
+        self.dt = float(model.DT)
+        self.source = source
+        self.data_inputs = tuple(u for u in model.INPUTS if u in set(inputs))
+        self.present = tuple(y for y in model.OUTPUTS if y in set(sensors))
+        self.ignored = tuple([f"u:{u}" for u in inputs if u not in model.INPUTS]
+                             + [f"y:{y}" for y in sensors if y not in model.OUTPUTS])
+        if not self.present:
+            raise DataError(f"{printable(source)}: the data have none of the model's sensors "
+                            f"({', '.join('y:' + printable(y) for y in model.OUTPUTS)})", None,
+                            "record at least one of them as a y:NAME column")
+        self.gap_steps = GAP_STEPS if gap is None else max(int(math.floor(gap / self.dt + 1e-9)), 0)
+        self.t0: float | None = None
+        self.last_t = -math.inf
+        self.k = -1
+        self.held: dict[str, float | None] = {u: None for u in self.data_inputs}  # last recorded value
+        self.holding = {u: False for u in self.data_inputs}  # in a hole (its event given)
+        self.holds = {u: 0 for u in self.data_inputs}  # holes so far
+        self.skipped = 0  # samples on a step already taken
+        self.unsampled = 0  # steps with no sample
+        self.gaps = 0  # runs of steps with no sample beyond the limit
+        self._pending: list = []  # events for the next sample
+        self._read = tuple((y, y in self.present) for y in model.OUTPUTS)  # per sensor: whether the data have it
+
+    def start_events(self) -> tuple:
+        """The events that hold for the whole run (absent columns)."""
+        missing = tuple(ev.SensorMissing(y) for y in self.model.OUTPUTS if y not in self.present)
+        missing += tuple(ev.ColumnIgnored(c) for c in self.ignored)
+        absent = tuple(ev.InputFromModel(u, "absent") for u in self.model.INPUTS if u not in self.data_inputs)
+        return missing + absent
+
+    def push(self, t: float, u: dict[str, float], y: dict[str, float], line: int | None = None) -> list[Sample]:
+        """The samples a data row at time ``t`` gives: the steps with no sample
+        before it, then its own (none when it is skipped). ``u``, ``y``: the
+        row's cells by input and sensor name (NaN: empty)."""
+        if not math.isfinite(t) or t <= self.last_t:
+            self._refuse(t, line)
+        t0 = t if self.t0 is None else self.t0
+        k = int(round((t - t0) / self.dt))
+        if k <= self.k:  # the step is taken: the first sample of a step is used
+            self.last_t = t
+            self.skipped += 1
+            if self.skipped == 1:
+                self._pending.append(ev.SampleSkipped(k, line, t))
+            return []
+        missing = k - self.k - 1
+        if missing > MAX_GAP_STEPS:
+            where = self._where(line)
+            many = f"{missing}" if missing < 1e15 else f"{float(missing):.3g}"
+            raise DataError(f"{where}: time {t:.12g} is {many} steps of dt = {self.dt:g} after the sample "
+                            f"before it, more than {MAX_GAP_STEPS}", None,
+                            "check the time column (a clock that jumped?), or split the data at the gap")
+        self.last_t, self.t0 = t, t0  # the row is taken: a refused one leaves the sampler as it was
+        out = []
+        first = self.k + 1
+        if missing > self.gap_steps:
+            self.gaps += 1
+        self.unsampled += missing
+        for j in range(first, k):
+            tj = self.t0 + j * self.dt
+            events = (ev.Gap(first, missing),) if j == first and missing > self.gap_steps else ()
+            out.append(Sample(j, tj, self._inputs(tj, {}, j, None), np.full(len(self.model.OUTPUTS), np.nan),
+                              None, events))
+        events: list = [] if self.k >= 0 else list(self.start_events())
+        events += self._pending
+        self._pending = []
+        uk = self._inputs(t, u, k, events)
+        yk = np.array([float(y.get(name, math.nan)) if read else math.nan for name, read in self._read])
+        out.append(Sample(k, t, uk, yk, line, tuple(events)))
+        self.k = k
+        return out
+
+    def _where(self, line: int | None) -> str:
+        """The data's name and the row's line, for a message."""
+        return f"{printable(self.source)}:{line}" if line is not None else printable(self.source)
+
+    def _refuse(self, t: float, line: int | None) -> None:
+        """The error for a row whose time is not finite or does not increase."""
+        where = self._where(line)
+        if not math.isfinite(t):
+            raise DataError(f"{where}: time {t!r} is not a finite number", None, "give every row its time")
+        raise DataError(f"{where}: time {t:.12g} does not increase (the row before has {self.last_t:.12g})", None,
+                        "sort the rows by time, one row per sample")
+
+    def _inputs(self, t: float, row: dict[str, float], k: int, events: list | None) -> np.ndarray:
+        """The inputs over the step that ends at ``t``: the row's, the last one
+        held, or the model's; ``events`` (None: a step with no sample, whose
+        holds the gap explains) gets what was done."""
+        if not self.model.INPUTS:
+            return np.zeros(0)
+        declared = None
+        u = [0.0] * len(self.model.INPUTS)
+        for i, name in enumerate(self.model.INPUTS):
+            value = float(row.get(name, math.nan)) if name in self.data_inputs else math.nan
+            if math.isfinite(value):
+                self.held[name], self.holding[name] = value, False
+                u[i] = value
+                continue
+            if name in self.data_inputs and self.held[name] is not None:
+                if events is not None and not self.holding[name]:
+                    events.append(ev.InputHeld(name, k, self.held[name]))
+                    self.holding[name] = True
+                    self.holds[name] += 1
+                u[i] = self.held[name]
+                continue
+            if declared is None:
+                declared = np.asarray(self.model.inputs(t - self.dt), dtype=float)
+            if name in self.data_inputs and k == 0 and events is not None:
+                events.append(ev.InputFromModel(name, "before-data", k))
+            u[i] = float(declared[i])
+        return np.array(u)
+
+    def summary(self) -> "DataSummary":
+        """What the data gave, per input and sensor, so far."""
+        inputs = tuple((u, "data" if u in self.data_inputs else "model") for u in self.model.INPUTS)
+        return DataSummary(inputs, tuple((u, self.holds[u]) for u in self.data_inputs), self.present,
+                           tuple(y for y in self.model.OUTPUTS if y not in self.present), self.skipped,
+                           self.unsampled, self.gaps, self.dt)
+
+
+@dataclass(frozen=True, slots=True)
+class DataSummary:
+    """How the data met the model: per input, where its values came from
+    (``data`` or ``model``), the holes held per data input (count of
+    zero-order holds), the sensors present and missing, the samples skipped
+    (a step already taken), the steps with no sample and the gaps beyond the
+    limit among them, and the grid's ``dt``."""
+
+    inputs: tuple[tuple[str, str], ...]
+    holds: tuple[tuple[str, int], ...]
+    sensors: tuple[str, ...]
+    missing: tuple[str, ...]
+    skipped: int
+    unsampled: int
+    gaps: int
+    dt: float
+
+
+def grid_steps(time, dt: float) -> int:
+    """The steps of the model's time grid (of ``dt``) that samples at ``time``
+    (increasing) cover: the first to the last, the steps between them too."""
+    t = np.asarray(time, dtype=float)
+    return int(round((t[-1] - t[0]) / dt)) + 1 if len(t) else 0
+
+
+def samples(run: Run, sampler: Sampler) -> Iterator[Sample]:
+    """The samples of a recorded run on the model's grid: its rows fed to
+    ``sampler`` (a :class:`Sampler` of the run's columns; the run is checked
+    already, :func:`bgc.data.runs.check_run`)."""
+    cols_u = [(u, np.asarray(run.inputs[u], dtype=float)) for u in sampler.data_inputs]
+    cols_y = [(y, np.asarray(run.measurements[y], dtype=float)) for y in sampler.present]
+    for i, t in enumerate(np.asarray(run.time, dtype=float)):
+        yield from sampler.push(float(t), {u: c[i] for u, c in cols_u}, {y: c[i] for y, c in cols_y})

@@ -1,0 +1,313 @@
+"""What happened during a diagnosis, as data: one frozen value per event.
+
+The diagnoser (:mod:`bgc.diagnosis.diagnoser`) and the data reader
+(:mod:`bgc.data.sampler`) emit these; a :class:`~bgc.diagnosis.diagnoser.Belief`
+carries the events of its step and a
+:class:`~bgc.diagnosis.diagnose.Diagnosis` all of them, in time order. They are
+rendered into sentences only by :mod:`bgc.output.events` (the report, the
+monitor's lines); tests assert on their fields. ``step`` is a step of the
+model's time grid (the diagnosis's ``time[step]`` is its time); ``None``
+where the event has no instant (it holds for the whole run).
+
+In loop order: the data (:class:`SensorMissing`, :class:`ColumnIgnored`, :class:`SensorSilent`,
+:class:`InputFromModel`, :class:`InputHeld`, :class:`Gap`,
+:class:`SampleSkipped`), detection (:class:`Alarmed`, :class:`Degenerate`,
+:class:`Switched`), isolation (:class:`Isolated`, :class:`AllTried`),
+tracking (:class:`Started`, :class:`Dropped`, :class:`Rescued`), weighing
+(:class:`Truncated`, :class:`AtPriorBound`, :class:`NoLikelihood`, :class:`Misfit`), and the end
+(:class:`SensorExcluded`, :class:`Checkpoint`, :class:`Decided`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class SensorMissing:
+    """The data have no column for sensor ``sensor``: it is diagnosed
+    without (its fault signatures and detection use the other sensors)."""
+
+    sensor: str
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ColumnIgnored:
+    """The data's column ``column`` (``y:NAME`` or ``u:NAME``) is no sensor
+    or input of the model: it is not used (a misspelt name, or a signal the
+    model does not have)."""
+
+    column: str
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class SensorSilent:
+    """Sensor ``sensor``'s column has no finite value in the run."""
+
+    sensor: str
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class InputFromModel:
+    """Input ``input`` comes from the model's declared input function:
+    ``reason`` ``absent`` (no ``u:`` column in the data) or ``before-data``
+    (its column has no value yet at ``step``; from the model until its first
+    value)."""
+
+    input: str
+    reason: str
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class InputHeld:
+    """Input ``input``'s cell is empty at ``step``: its last recorded value
+    ``value`` is held (zero-order hold) until a value arrives."""
+
+    input: str
+    step: int
+    value: float
+
+
+@dataclass(frozen=True, slots=True)
+class Gap:
+    """No sample between ``step`` (the first step without one) and
+    ``step + steps - 1``, longer than the gap limit: the filters predict
+    across it (their measurements missing)."""
+
+    step: int
+    steps: int
+
+
+@dataclass(frozen=True, slots=True)
+class SampleSkipped:
+    """The sample of data line ``line`` (time ``time``) falls on step
+    ``step`` of the model's time grid, which a sample before it already took:
+    it is skipped (the first of a step is used). Emitted once per run;
+    ``count`` is how many were skipped by the end (the report's count)."""
+
+    step: int
+    line: int | None
+    time: float
+    count: int = 1
+
+
+@dataclass(frozen=True, slots=True)
+class Alarmed:
+    """The detector's alarm: at ``step`` on ``sensor`` (window ``window``
+    samples, statistic above ``threshold``); ``onset``: the estimated change
+    point."""
+
+    step: int
+    sensor: str
+    window: int
+    statistic: float
+    threshold: float
+    onset: int
+
+
+@dataclass(frozen=True, slots=True)
+class Degenerate:
+    """The nominal particle observer degenerates: mean effective sample
+    size ``ess`` of ``particles`` before the alarm (or over the run);
+    ``switched``: the diagnosis went on with cubature Kalman filters."""
+
+    method: str
+    ess: float
+    particles: int
+    switched: bool
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Switched:
+    """From ``step`` on, the diagnosis is made again with filter ``to``
+    (every step replayed) because of ``why`` (``degenerate``)."""
+
+    to: str
+    why: str
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Isolated:
+    """The qualitative isolation at ``step``: the symbols read from
+    ``onset`` on kept the fault models ``kept``; ``refuted``: (signature,
+    why) pairs."""
+
+    step: int
+    onset: int
+    kept: tuple[str, ...]
+    refuted: tuple[tuple[str, str], ...]
+
+
+@dataclass(frozen=True, slots=True)
+class AllTried:
+    """Every fault model is tried, not only those the symbols kept:
+    ``why`` ``no-signature`` (no signature agrees with the symbols) or
+    ``unexplained`` (none of those kept explains the data: the diagnosis is
+    made again with all of them)."""
+
+    why: str
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Started:
+    """Hypothesis ``hypothesis``'s filters start tracking, from the onsets
+    ``onsets`` (steps)."""
+
+    step: int
+    hypothesis: str
+    onsets: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class Dropped:
+    """Hypothesis ``hypothesis`` is dropped at ``step``: ``reason`` is one of
+    :data:`DROP_REASONS`, ``detail`` says more (a sentence of the runtime's
+    numbers)."""
+
+    step: int
+    hypothesis: str
+    reason: str
+    detail: str
+
+
+#: Why a hypothesis is dropped: its filter's residuals failed the
+#: consistency test (``inconsistent``); another onset explained the data far
+#: better and failed (``pruned``); the data favour another hypothesis by the
+#: Bayes factor (``bayes-factor``); with its magnitude held static, no finite
+#: likelihood (``no-likelihood``) or its residuals failed the test
+#: (``static-test``).
+DROP_REASONS = ("inconsistent", "pruned", "bayes-factor", "no-likelihood", "static-test", "wrong-direction")
+
+
+@dataclass(frozen=True, slots=True)
+class Rescued:
+    """Hypothesis ``hypothesis``'s particle filters failed their test
+    (``reason``, at ``step``), but its fault model with the magnitude held
+    static passes it: it is kept."""
+
+    hypothesis: str
+    reason: str
+    step: int | None
+
+
+@dataclass(frozen=True, slots=True)
+class Truncated:
+    """Hypothesis ``hypothesis``'s magnitude posterior may reach past the
+    Kalman filters' last grid: its evidence and interval may be short."""
+
+    hypothesis: str
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class AtPriorBound:
+    """Hypothesis ``hypothesis``'s magnitude presses against ``side``
+    (``low`` or ``high``) of its prior, at ``bound``: its interval is the
+    prior's edge, not the data's. At the bound of no change (``bound`` 0)
+    the data ask for a change in a direction the model does not list; at
+    the other, the fault may be larger than the prior allows."""
+
+    hypothesis: str
+    side: str
+    bound: float
+    value: float
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class NoLikelihood:
+    """The cubature Kalman filters found no finite likelihood for any
+    hypothesis; ``fallback``: the particle filters' evidence is reported
+    instead (False: nothing is)."""
+
+    fallback: bool
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Misfit:
+    """Hypothesis ``hypothesis`` with its ``magnitude`` held at its most
+    probable value ``value`` from step ``start``: its residual of ``sensor``
+    over ``window`` samples reached ``statistic`` (threshold
+    ``threshold``)."""
+
+    hypothesis: str
+    magnitude: str
+    value: float
+    start: int
+    sensor: str
+    window: int
+    statistic: float
+    threshold: float
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Overruled:
+    """Hypothesis ``hypothesis`` was ruled out by the symbols (``why``: the
+    signature and the symbol), but with its magnitude held static it
+    explains the data as well as the others (within the Bayes factor, and
+    its consistency test passes): it is a candidate all the same."""
+
+    hypothesis: str
+    why: str
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Uncertain:
+    """The survivors of the Bayes factor (``candidates``) hold a posterior
+    of ``mass`` only, under the ``level`` a verdict promises
+    (``DiagnosisOptions.isolation_level``): the most probable hypotheses it
+    had dropped, ``kept`` (posteriors ``posteriors``), are candidates too."""
+
+    candidates: tuple[str, ...]
+    mass: float
+    level: float
+    kept: tuple[str, ...]
+    posteriors: tuple[float, ...]
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class SensorExcluded:
+    """Sensor ``sensor``'s fault was isolated (``finding``, in words, at a
+    checkpoint at time ``time``): the monitor took it out of the nominal
+    observer and goes on watching with the other sensors (``bgc monitor
+    --exclude-faulty-sensor``); the diagnosis after it starts there."""
+
+    sensor: str
+    finding: str
+    time: float
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Checkpoint:
+    """A diagnosis of the data so far, made online at ``step``."""
+
+    step: int
+    verdict: str
+    candidates: tuple[str, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class Decided:
+    """The final verdict, at the last step."""
+
+    step: int
+    verdict: str
+    candidates: tuple[str, ...]
+
+
+Event = (SensorMissing | ColumnIgnored | SensorSilent | InputFromModel | InputHeld | Gap | SampleSkipped | Alarmed | Degenerate
+         | Switched | Isolated | AllTried | Started | Dropped | Rescued | Truncated | NoLikelihood | Misfit
+         | AtPriorBound | Overruled | Uncertain | SensorExcluded
+         | Checkpoint | Decided)

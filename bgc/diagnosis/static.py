@@ -1,0 +1,184 @@
+"""Each hypothesis with its magnitude held static (step 6): the jobs of
+:func:`bgc.filters.cubature.static_posterior` (:class:`StaticJob`,
+:func:`run_static`), the hypotheses of ``--filter ckf`` from them alone
+(:func:`kalman_hypotheses`), the consistency test of the most likely cell
+(:func:`static_alarm`, :func:`checked`) and the estimate
+(:func:`static_estimate`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import time
+from dataclasses import dataclass
+from statistics import NormalDist
+
+import numpy as np
+
+from ..kinds import fault_kind
+from ..filters import cubature as kalman
+from .detect import Detection, Detector, DetectorOptions
+from .hypothesis import FAR
+from ..filters.cubature import KalmanOptions, StaticPosterior
+from ..data.runs import Run
+from .values import DiagnosisOptions, Estimate, Hypothesis
+from .estimate import struck, truth_of
+from .onsets import earlier_onsets
+from .parallel import run_all
+
+
+@dataclass(frozen=True, slots=True)
+class StaticJob:
+    """The arguments of :func:`bgc.filters.cubature.static_posterior` for one
+    hypothesis: ``package_name``, the generated package (imported in the
+    worker by name), ``name``, its fault model."""
+
+    package_name: str
+    name: str
+    ys: np.ndarray
+    us: np.ndarray
+    track: kalman.NominalTrack
+    onsets: tuple[int, ...]
+    hint: tuple[float, float]
+    hint_onset: int
+    level: float
+    options: KalmanOptions
+    earlier: tuple[tuple[int, ...], ...]
+    record: bool = False
+    refine: bool | None = None
+    far: tuple | None = None  # (outputs, rejection, windows) of :func:`far_off`
+
+
+def far_off(outputs: tuple[str, ...], rejection: float, windows: tuple[int, ...]):
+    """The consistency test of section 5 at ``FAR`` times its threshold, as a
+    predicate of a filter's normalised residuals (steps x outputs): True when
+    they are far off the data."""
+    def far(z: np.ndarray) -> bool:
+        return first_alarm(z, outputs, rejection, windows, FAR) is not None
+    return far
+
+
+def run_static(job: StaticJob) -> StaticPosterior:
+    """:func:`bgc.filters.cubature.static_posterior` of one hypothesis (in a
+    worker process); with ``record``, its most probable onset's filter too
+    (:func:`bgc.filters.cubature.record_path`); ``seconds``: its time."""
+    started = time.perf_counter()
+    model = sys.modules[job.package_name].MODELS[job.name]
+    far = None if job.far is None else far_off(*job.far)
+    p = kalman.static_posterior(model, job.ys, job.us, job.track, job.onsets, job.hint, job.hint_onset, job.level,
+                                job.options, job.earlier, job.refine, far)
+    if job.record:
+        p = kalman.record_path(model, job.ys, job.us, job.track, p)
+    return dataclasses.replace(p, seconds=time.perf_counter() - started)
+
+
+def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, times, ys, us,
+                       observer: kalman.NominalTrack,
+                       onsets: dict, reach: list[int], drifts: dict, options: DiagnosisOptions,
+                       say) -> tuple[list[dict], dict[str, StaticPosterior]]:
+    """``--filter ckf``: each hypothesis's static posterior (:mod:`bgc.filters.cubature`)
+    over its onsets (``onsets[drifts]``; a drift reaching back over
+    ``reach``) with its magnitude's whole prior as the first grid's span,
+    the jobs on ``options.workers`` processes; then each as the dict
+    :func:`diagnose` assembles: its most probable onset's filter (posterior
+    mean magnitude) gives the predicted measurements and state estimates, the
+    sequential posterior the magnitude over time, and the consistency test
+    of the most likely cell (section 5's windowed Z-test) drops it."""
+    T = len(ys)
+    say(f"weighing {len(names)} fault hypotheses ({', '.join(names)}) with cubature Kalman filters over their "
+        f"onsets and magnitudes")
+    outputs = tuple(package.MODELS["nominal"].OUTPUTS)
+    jobs = []
+    for name in names:
+        module = package.MODELS[name]
+        # a step change too reaches back over the drifts' grid of onsets while its onset posterior piles up
+        # at its earliest onset: a plant that answers slowly shows a step long after it
+        tried = onsets[drifts[name]]
+        earlier = earlier_onsets(reach, tried, options.search)
+        a, b = (float(v) for v in module.FAULT_PRIOR)
+        jobs.append(StaticJob(package.__name__, name, ys, us, observer, tuple(tried), (a, b), min(tried),
+                              options.interval, options.kalman, earlier, record=True, refine=True,
+                              far=(outputs, options.rejection, options.windows)))
+    posteriors = dict(zip(names, run_all(jobs, options.workers, run_static)))
+    q = NormalDist().inv_cdf((1.0 + options.interval) / 2.0)
+    n = len(package.MODELS["nominal"].STATES)
+    hyps = []
+    for name in names:
+        module, p = package.MODELS[name], posteriors[name]
+        parameter, kind_name = module.FAULT["parameter"], module.FAULT["kind"]
+        nominal, truth = truth_of(module, run)
+        nan = math.nan
+        estimate = Estimate(parameter, kind_name, fault_kind(kind_name).magnitude, nan, nan, nan, nan,
+                            options.interval, nan, nominal, truth, method="kalman", **struck(module))
+        h = dict(name=name, parameter=parameter, kind=kind_name, signatures=tuple(models[name]),
+                 onsets=p.onsets, onset_posterior=p.onset_posterior, log_evidence=p.log_evidence,
+                 seconds=p.seconds, estimate=estimate, dropped=None, reason="")
+        if p.path is None:  # no finite likelihood: nothing to show
+            start = max(p.onsets)
+            empty = np.full((T - start, len(outputs)), np.nan)
+            h.update(start=start, y_mean=empty, y_std=empty, z=empty, x_mean=np.full((T - start, n), nan),
+                     x_std=np.full((T - start, n), nan), magnitude=np.full(T - start, nan),
+                     magnitude_band=np.full((T - start, 2), nan))
+        else:
+            start, path = p.onset, p.path
+            y_mean, y_std = path.y_mean[start:, 0], path.y_std[start:, 0]
+            mean, std = p.trace[start:, 0], p.trace[start:, 1]
+            h.update(start=start, y_mean=y_mean, y_std=y_std, z=(ys[start:] - y_mean) / y_std,
+                     x_mean=path.x_mean[start:, 0, :n], x_std=path.x_std[start:, 0, :n], magnitude=mean,
+                     magnitude_band=np.column_stack([mean - q * std, mean + q * std]))
+            alarm = static_alarm(p, outputs, options)
+            if alarm is not None:
+                h["dropped"] = p.best[0] + alarm.step
+                h["why"] = "static-test"
+                h["reason"] = misfit_reason(estimate.magnitude, p.best[1], times[p.best[0]], alarm)
+        hyps.append(h)
+    return hyps, posteriors
+
+
+def misfit_reason(magnitude: str, value: float, start: float, alarm: Detection) -> str:
+    """Why a fault model with its magnitude held static fails the consistency test."""
+    return (f"with its {magnitude} held at its most probable value {value:.4g} from t = {start:g}, its residual "
+            f"of {alarm.sensor} over {alarm.window} sample(s) reached {alarm.statistic:.1f} (threshold "
+            f"{alarm.threshold:.1f})")
+
+
+def checked(h: Hypothesis, outputs, options: DiagnosisOptions) -> Hypothesis:
+    """``h`` with the consistency test of its static model: the windowed
+    Z-test of section 5 (a probability ``rejection`` of an alarm on the true
+    model over the run) on the normalised residuals of its static
+    posterior's most likely cell, from that cell's onset; its first alarm,
+    or None."""
+    alarm = None if h.static is None else static_alarm(h.static, outputs, options)
+    return h if alarm is None else dataclasses.replace(h, static_alarm=alarm)
+
+
+def static_alarm(p: StaticPosterior, outputs, options: DiagnosisOptions) -> Detection | None:
+    """The first alarm of the windowed Z-test of section 5 on the normalised
+    residuals of static posterior ``p``'s most likely cell, from that cell's
+    onset (None: it passes, or ``p`` has no such cell)."""
+    if p.residuals is None or p.best is None:
+        return None
+    return first_alarm(p.residuals[p.best[0]:], outputs, options.rejection, options.windows)
+
+
+def first_alarm(z: np.ndarray, outputs: tuple[str, ...], rejection: float, windows: tuple[int, ...],
+                 scale: float = 1.0) -> Detection | None:
+    """The first alarm of the windowed Z-test of section 5 (probability
+    ``rejection`` over the steps of ``z``, its threshold times ``scale``) on
+    the normalised residuals ``z`` (steps x outputs); None: they pass."""
+    test = Detector(outputs, DetectorOptions(rejection, windows, len(z)))
+    test.threshold *= scale
+    for zk in z:
+        alarm = test.update(zk)
+        if alarm is not None:
+            return alarm
+    return None
+
+
+def static_estimate(e: Estimate, p: StaticPosterior) -> Estimate:
+    """``e`` with the static posterior's mean, std and interval of the
+    magnitude, and the parameter's value at the last step (nominal plus the
+    posterior mean of its change)."""
+    return dataclasses.replace(e, value=p.mean, std=p.std, low=p.low, high=p.high,
+                               parameter_value=e.nominal + p.change, method="kalman")

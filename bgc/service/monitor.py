@@ -1,0 +1,236 @@
+"""``bgc monitor``: diagnose a plant's data as they arrive.
+
+The rows of a CSV (as ``bgc simulate`` writes, or a plant's logger with the
+same columns) are read one at a time from standard input or from a file,
+which :class:`Follow` keeps reading as another program appends to it; each
+row goes to the online diagnoser (:meth:`bgc.api.Session.diagnoser`), whose
+events are handed to ``say`` as they happen. At the end of the input (or on
+Ctrl-C, or after ``idle`` seconds without a new row) the diagnoser finishes
+and the same report as ``bgc diagnose``'s is made.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import threading
+import time
+from typing import IO, Callable
+
+import numpy as np
+
+from .. import api
+from ..errors import BgcError, DataError, printable
+from ..diagnosis import events as ev
+from ..data import runs
+from ..model import package as track
+from ..diagnosis.diagnose import DiagnosisOptions
+
+
+class Follow:
+    """A file read as another program appends to it: :meth:`readline` waits
+    for a whole line (polling every ``poll`` seconds) and ends the input
+    (returns ``""``) after ``idle`` seconds without a new byte (None: never;
+    Ctrl-C ends it then). A last line without its end of line is not read
+    (``unfinished`` keeps it: a logger stopped mid-line). A file truncated or
+    replaced (rotated) while it is followed ends the input with an error:
+    its rows no longer follow the ones read."""
+
+    def __init__(self, stream: IO[bytes], idle: float | None = None, poll: float = 0.1, path: str | None = None):
+        self.stream, self.idle, self.poll, self.path = stream, idle, poll, path
+        self.pending = b""
+        self.unfinished = b""
+        self.inode = os.fstat(stream.fileno()).st_ino
+
+    def readline(self, limit: int = -1) -> bytes:
+        waited = 0.0
+        while True:
+            chunk = self.stream.readline(limit - len(self.pending) if limit > 0 else -1)
+            if chunk:
+                waited = 0.0
+                self.pending += chunk
+                if self.pending.endswith(b"\n") or 0 < limit <= len(self.pending):
+                    line, self.pending = self.pending, b""
+                    return line
+                continue
+            self._check()
+            if self.idle is not None and waited >= self.idle:
+                self.unfinished, self.pending = self.pending, b""
+                return b""
+            time.sleep(self.poll)
+            waited += self.poll
+
+    def _check(self) -> None:
+        """Refuse a followed file that shrank or was replaced."""
+        name = printable(self.path or "the followed file")
+        if os.fstat(self.stream.fileno()).st_size < self.stream.tell():
+            raise DataError(f"{name} was truncated while it was followed: the rows read so far are diagnosed", None,
+                            "follow the new data with another bgc monitor")
+        try:
+            replaced = self.path is not None and os.stat(self.path).st_ino != self.inode
+        except OSError:
+            replaced = True
+        if replaced:
+            raise DataError(f"{name} was replaced (or removed) while it was followed: the rows read so far are "
+                            "diagnosed", None, "follow the new file with another bgc monitor")
+
+
+def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptions, *,
+            say: Callable[[str], None] = print, checkpoint: float | None = None,
+            progress=None, exclude_faulty: bool = False) -> tuple[api.DiagnosisReport, BgcError | None]:
+    """Diagnose the rows of ``stream`` (named ``name`` in messages) as they
+    arrive, with the model of ``session`` (:func:`bgc.open`); ``say(line)``
+    gets each event as a line with its time, as it happens; ``checkpoint``:
+    while hypotheses are tracked, a diagnosis of the data so far every this
+    many time units (a :class:`~bgc.diagnosis.events.Checkpoint` event; as
+    costly as a batch diagnosis of the record). Returns the report of the
+    final diagnosis and the error that ended the stream early (None: it
+    ended, or Ctrl-C): a malformed row, a followed file rotated, the memory
+    rule; the rows before it are diagnosed all the same.
+
+    ``exclude_faulty`` (with ``checkpoint``): when a checkpoint isolates a
+    sensor fault, that sensor is taken out of the nominal observer (a
+    :class:`~bgc.diagnosis.events.SensorExcluded` event) and a new diagnoser
+    watches the rows from the next one on with the other sensors (its
+    observer starts again from the model's initial state: a sensor fault
+    leaves the plant where it was); the report is that diagnoser's, its
+    events led by the exclusions."""
+    from ..output.events import fault_sentence, sentence, time_text
+
+    reader = runs.RowReader(stream, name)
+    track.check_run_of(runs.Run(np.zeros(0), {}, {}, {}, {}, reader.header), session.name, name)
+    columns = reader.columns
+    groups: dict[str, list[tuple[int, str]]] = {p: [] for p in runs.PREFIXES}
+    for j, c in enumerate(columns[1:], start=1):
+        prefix, _, rest = c.partition(":")
+        groups[prefix].append((j, rest))
+    sensors = [y for _, y in groups["y"]]
+    d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors, source=name,
+                          progress=progress)
+    rows: list[list[float]] = []
+    last_check = None
+    told: set = set()
+    excluded: list[ev.SensorExcluded] = []
+    taken_out: set[str] = set()
+
+    def tell(belief_events, time_of) -> None:
+        for e in belief_events:
+            told.add(e)
+            if isinstance(e, ev.SensorMissing) and e.sensor in taken_out:
+                continue  # taken out by the monitor, not missing from the data: said by its SensorExcluded
+            step = getattr(e, "step", None)
+            when = "" if step is None else f"t = {time_text(time_of(step))}: "
+            say(f"{when}{printable(sentence(e, time_of))}")
+
+    def time_of(step):
+        return d.samples[step].t
+
+    guard = _Guard()
+    failure = None
+    try:
+        for values, line in reader:
+            t = values[0]
+            u = {name_: values[j] for j, name_ in groups["u"]}
+            y = {name_: values[j] for j, name_ in groups["y"]}
+            with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
+                belief = d.step(t, u, y, line)
+                rows.append(values)
+            tell(belief.events, time_of)
+            if checkpoint is not None and belief.phase == "tracking":
+                if last_check is None:
+                    last_check = belief.time
+                elif belief.time - last_check >= checkpoint:
+                    last_check = belief.time
+                    c = d.checkpoint()
+                    tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)], time_of)
+                    faulty = _faulty_sensor(c, sensors) if exclude_faulty else None
+                    if faulty is not None:
+                        out = ev.SensorExcluded(faulty, fault_sentence(c.estimate, c.time_of(c.onset)), belief.time)
+                        excluded.append(out)
+                        taken_out.add(faulty)
+                        tell([out], time_of)
+                        sensors = [y for y in sensors if y != faulty]
+                        d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors,
+                                              source=name, progress=progress)
+                        rows, last_check = [], None
+    except KeyboardInterrupt:
+        say("interrupted: finishing the diagnosis of the data so far")
+    except BgcError as exc:  # a bad row, a followed file rotated, the memory rule: the rows so far are diagnosed
+        if not rows:
+            raise
+        failure = exc
+        say(f"stopped: {printable(str(exc))}")
+    finally:
+        guard.close()
+    if getattr(stream, "unfinished", b""):
+        say(f"the input ended in the middle of a line ({len(stream.unfinished)} bytes without an end of line): "
+            "that line is not read")
+    if not rows:
+        if excluded:
+            raise DataError(f"{printable(name)}: no data row arrived after sensor {excluded[-1].sensor} was taken "
+                            "out of the nominal observer", None, "let more rows arrive, or drop --exclude-faulty-sensor")
+        raise DataError(f"{printable(name)}: no data row arrived", None, "give at least one row after the column names")
+    run = runs.run_of(columns, np.array(rows, dtype=float).reshape(len(rows), len(columns)), reader.header, name)
+    diagnosis = d.finish(run)
+    if excluded:
+        diagnosis = _with_exclusions(diagnosis, excluded, taken_out)
+        told.update(excluded)
+    gone = {e.hypothesis for e in told if isinstance(e, ev.Dropped)}  # dropped online: said already
+    tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))
+          and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
+         diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
+    return session.report(run, diagnosis), failure
+
+
+def _with_exclusions(diagnosis, excluded: list, taken_out: set[str]):
+    """The last diagnoser's diagnosis with the monitor's exclusions: its
+    events led by them, and the sensors taken out not said missing from the
+    data (they were in it)."""
+    data = diagnosis.data and dataclasses.replace(
+        diagnosis.data, missing=tuple(m for m in diagnosis.data.missing if m not in taken_out))
+    events = tuple(e for e in diagnosis.events if not (isinstance(e, ev.SensorMissing) and e.sensor in taken_out))
+    return dataclasses.replace(diagnosis, data=data, events=tuple(excluded) + events)
+
+
+def _faulty_sensor(c, sensors: list[str]) -> str | None:
+    """The sensor a checkpoint's diagnosis ``c`` isolated a fault of, when
+    another sensor is left to watch with; else None."""
+    e = c.estimate
+    if c.verdict != "isolated" or e is None or e.target != "sensor" or len(sensors) < 2:
+        return None
+    return e.subject if e.subject in sensors else None
+
+
+class _Guard:
+    """Ctrl-C (SIGINT) while a step runs is held until the step ends, then
+    raised as KeyboardInterrupt; between steps (waiting for a row) it is
+    raised at once. Only in the main thread (where Python delivers signals)."""
+
+    def __init__(self):
+        self.inside = False
+        self.pending = False
+        self.previous = None
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGINT, self._handle)
+
+    def _handle(self, signum, frame) -> None:
+        if self.inside:
+            self.pending = True
+            return
+        raise KeyboardInterrupt
+
+    def __enter__(self):
+        self.inside = True
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.inside = False
+        if self.pending and exc[0] is None:
+            self.pending = False
+            raise KeyboardInterrupt
+
+    def close(self) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+            self.previous = None
