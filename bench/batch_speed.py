@@ -59,7 +59,7 @@ def worker(code: str) -> None:
 
     import bgc
     from bgc import api
-    from bgc.diagnosis.diagnose import DiagnosisOptions
+    from bgc.diagnosis.options import DiagnosisOptions
 
     where = Path(bgc.__file__).resolve().parent
     if where != Path(code).resolve() / "bgc":

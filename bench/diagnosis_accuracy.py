@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.diagnosis.options import DiagnosisOptions
 
 #: (model, scenario, process noise, measurement noise): the thesis's RO faults
 #: at its noise levels and at others, and the other plants' faults.

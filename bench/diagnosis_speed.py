@@ -11,7 +11,7 @@ process: the ratio is the backends', not the scheduler's), once per backend
 per round, the backends taking turns; the table keeps the best round of each
 (CPU seconds of the process, time.process_time: other processes on a busy
 machine do not inflate it; wall-clock beside it). The static posterior's
-share (``bgc.filters.cubature.static_posterior``, the cubature Kalman filters'
+share (``bgc.diagnosis.static_posterior.static_posterior``, the cubature Kalman filters'
 banks that weigh and size every hypothesis) is timed by wrapping that
 function.
 
@@ -49,10 +49,10 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.filters import cubature as kalman
+from bgc.diagnosis import static_posterior
 from bgc.data import runs
 from bgc.analysis import simulate  # noqa: E402
-from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.diagnosis.options import DiagnosisOptions
 
 MODEL = ROOT / "models" / "ro.yaml"
 SCENARIOS = (("step", "R_pipe:abrupt:24@165"), ("drift", "R_pipe:incipient:0.18@165"))
@@ -60,13 +60,13 @@ FILTERS = (("gpf N=200", DiagnosisOptions(method="gpf", particles=200, workers=1
            ("gpf N=1000", DiagnosisOptions(method="gpf", particles=1000, workers=1)),
            ("ckf", DiagnosisOptions(method="ckf", workers=1)))
 BACKENDS = ("numpy", "numba")
-#: CPU seconds spent in kalman.static_posterior since the last reset.
+#: CPU seconds spent in static_posterior.static_posterior since the last reset.
 STATIC = [0.0]
 
 
 def timed_static_posterior():
-    """Wrap kalman.static_posterior to add its CPU seconds to STATIC."""
-    inner = kalman.static_posterior
+    """Wrap static_posterior.static_posterior to add its CPU seconds to STATIC."""
+    inner = static_posterior.static_posterior
 
     def wrapper(*args, **kwargs):
         started = time.process_time()
@@ -74,7 +74,7 @@ def timed_static_posterior():
             return inner(*args, **kwargs)
         finally:
             STATIC[0] += time.process_time() - started
-    kalman.static_posterior = wrapper
+    static_posterior.static_posterior = wrapper
 
 
 def first_call() -> list[str]:
@@ -160,7 +160,7 @@ def main() -> int:
                   f"| {'-' if static is None else format(static, '.2f')} "
                   f"| {med('numpy', 'wall'):.2f} / {med('numba', 'wall'):.2f} |")
     print("\nMedians over the seeds of each run's best round. Static posterior: the CPU seconds inside "
-          "kalman.static_posterior (the cubature Kalman filters' banks).\n")
+          "static_posterior.static_posterior (the cubature Kalman filters' banks).\n")
     whole, static = ratios[("drift", "gpf N=1000")]
     print("## Targets\n")
     print(f"- whole RO diagnosis, drift, gpf N = 1000, at least 4x faster: {whole:.2f}x -> "

@@ -42,7 +42,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.model import package as track  # noqa: E402
+from bgc.model import package as packages  # noqa: E402
+from bgc.analysis import track
 from bgc.diagnosis.hypothesis import _shrink_together  # noqa: E402
 from bgc.diagnosis.hypothesis import kernel_shrinkage as _kernel_shrinkage  # noqa: E402
 
@@ -80,7 +81,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args()
-    package = track.load_package(ROOT / "generated", "ro", "models/ro.yaml")
+    package = packages.load_package(ROOT / "generated", "ro", "models/ro.yaml")
     name = "R_pipe_incipient"
     model = package.MODELS[name]
     row = len(model.STATES) - 1

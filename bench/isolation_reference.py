@@ -56,7 +56,8 @@ from bgc import pipeline  # noqa: E402
 from bgc.kinds import DIRECTIONS, fault_kind  # noqa: E402
 from bgc.data import runs
 from bgc.analysis import simulate
-from bgc.model import package as track  # noqa: E402
+from bgc.model import package as packages  # noqa: E402
+from bgc.analysis import track
 
 
 def main() -> None:
@@ -115,7 +116,7 @@ def reference(job) -> dict:
     pn = float(row["process_noise"]) if row["process_noise"] else None
     mn = float(row["measurement_noise"]) if row["measurement_noise"] else None
     levels = c.numerics.noise_at(pn, mn)
-    package = track.load_package(ROOT / "generated", c.model.name, model,
+    package = packages.load_package(ROOT / "generated", c.model.name, model,
                                  levels if (pn, mn) != (None, None) else None)
     inj = simulate.parse_fault(row["scenario"], c.numerics)
     result = simulate.simulate(c.numerics, simulate.SimulationOptions(

@@ -50,8 +50,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.model import package as track  # noqa: E402
-from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.model import package as packages  # noqa: E402
+from bgc.analysis import track
+from bgc.diagnosis.options import DiagnosisOptions
 
 ONSET = 165.0
 #: kind -> (what fails, its fault kind, fault model, true magnitude, reference grid of onsets (steps; dt = 1,
@@ -133,7 +134,7 @@ def main() -> None:
     ap.add_argument("--method", choices=["gpf", "apf"], default="gpf", help="bgc diagnose's filter")
     ap.add_argument("--ref-particles", type=int, default=2000)
     args = ap.parse_args()
-    package = track.load_package(ROOT / "generated", "ro", "models/ro.yaml")
+    package = packages.load_package(ROOT / "generated", "ro", "models/ro.yaml")
     subject, kind, name, truth, taus, values = KINDS[args.kind]
     what, whats = ("slope", "slopes") if kind in ("incipient", "drift") else ("bias", "biases")
     scenario = f"{subject}:{kind}:{truth:g}@{ONSET:g}"

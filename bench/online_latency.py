@@ -61,7 +61,7 @@ import bgc  # noqa: E402
 from bgc.diagnosis import events
 from bgc.data import runs
 from bgc.analysis import simulate  # noqa: E402
-from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.diagnosis.options import DiagnosisOptions
 
 MODEL = ROOT / "models" / "ro.yaml"
 ONSET = 165

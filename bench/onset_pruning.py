@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
 from bgc.diagnosis import hypothesis as runtime  # noqa: E402
-from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.diagnosis.options import DiagnosisOptions
 
 SCENARIO, TRUTH = "R_pipe:incipient:0.5@165", "R_pipe_incipient"
 

@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
 from bgc.experiment import campaign  # noqa: E402
-from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.diagnosis.options import DiagnosisOptions
 
 
 def time_diagnosis(workers: int, seed: int, scenario: str) -> tuple[float, object]:

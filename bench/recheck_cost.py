@@ -70,7 +70,7 @@ SHIPPED = {
 def shipped(model: str, scenario: str, seed: int, recheck: bool):
     """(CPU seconds, wall seconds, diagnosis) of a shipped model's scenario with ``recheck``."""
     from bgc import api
-    from bgc.diagnosis.diagnose import DiagnosisOptions
+    from bgc.diagnosis.options import DiagnosisOptions
 
     options = DiagnosisOptions(method="gpf", particles=1000, seed=seed, workers=1, recheck=recheck)
     return timed(lambda: api.diagnose(ROOT / model, scenario=scenario, seed=seed, options=options))

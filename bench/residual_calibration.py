@@ -36,7 +36,7 @@ from bgc import pipeline  # noqa: E402
 from bgc.analysis import simulate
 from bgc.model import package as track  # noqa: E402
 from bgc.diagnosis.detect import Detector, DetectorOptions, monte_carlo_share  # noqa: E402
-from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.diagnosis.options import DiagnosisOptions
 
 
 def main() -> None:

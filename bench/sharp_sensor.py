@@ -30,7 +30,8 @@ from bgc import api  # noqa: E402
 from bgc.filters import cubature as kalman
 from bgc.data import runs
 from bgc.analysis import simulate
-from bgc.model import package as track  # noqa: E402
+from bgc.model import package as packages  # noqa: E402
+from bgc.analysis import track
 
 LOST = 10.0
 
@@ -41,7 +42,7 @@ def main() -> None:
     ap.add_argument("--filter-seeds", type=int, default=3)
     args = ap.parse_args()
     c, private = api._compiled(ROOT / "tests" / "data" / "models" / "drivetrain.yaml")
-    package = track.load_package(private, "drivetrain")
+    package = packages.load_package(private, "drivetrain")
     nominal = package.nominal
     print("| data seed | N | GPF mean ESS | OPF mean ESS | OPF runs that lost the state | CKF var(z) per sensor "
           "| CKF largest lag-1 autocorrelation |")

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.diagnosis.diagnose import DiagnosisOptions  # noqa: E402
+from bgc.diagnosis.options import DiagnosisOptions
 
 
 def main() -> None:

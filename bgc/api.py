@@ -59,20 +59,23 @@ from .analysis import distinguish as distinction
 from .output import calibrated
 from .output.labels import Labels, labels_of
 from .analysis import calibrate as calibration
-from .diagnosis import identify
-from .filters import cubature as kalman
+from .diagnosis.options import GridOptions, KalmanOptions
 from .experiment import metrics
 from .data import runs
 from .analysis import simulate
-from .model import package as track
-from .diagnosis.diagnose import IDENTIFY, KALMAN_METHOD, PATHS, Diagnosis, DiagnosisOptions
+from .model import package as packages
+from .analysis import track
+from .filters import registry
+from .model import warmup
+from .diagnosis.diagnose import IDENTIFY, KALMAN_METHOD, PATHS, Diagnosis
+from .diagnosis.options import DiagnosisOptions
 from .diagnosis.diagnose import diagnose as run_diagnosis
 from .data.sampler import grid_steps
 from .diagnosis.diagnose import horizon_steps
 from .diagnosis.diagnoser import Diagnoser
 
 #: The filters of a diagnosis (``bgc diagnose --filter``).
-METHODS = tuple(track.FILTER_CLASSES)
+METHODS = tuple(registry.FILTER_CLASSES)
 
 
 @dataclass(frozen=True, slots=True)
@@ -343,8 +346,8 @@ class Session:
         self.noise = (process_noise, measurement_noise)
         self.prior_scale = float(prior_scale)
         if backend is not None:
-            arguments.choice(func, "backend", backend, (*track.BACKENDS, "auto"))
-        self.backend = track.resolve_backend(backend)
+            arguments.choice(func, "backend", backend, (*packages.BACKENDS, "auto"))
+        self.backend = packages.resolve_backend(backend)
         self.compiled, self.folder = _compiled(model, self.prior_scale)  # this session's own compilation and folder
         c = self.compiled
         levels = c.numerics.noise_at(process_noise, measurement_noise)
@@ -358,7 +361,7 @@ class Session:
             if self.backend == "numpy":
                 raise
             why = printable(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)[:200]
-            if track.chosen_by_name(backend):
+            if packages.chosen_by_name(backend):
                 raise TrackingError(f"the numba backend cannot run {printable(str(model))}: {why}", None,
                                     "use --backend numpy (backend='numpy')") from None
             self.backend, self.fallback = "numpy", why
@@ -373,9 +376,9 @@ class Session:
         if generated is None:
             generated = self.folder if self.backend == "numpy" else _lasting_folder(c)
         with _LOCK:  # another thread must not see a package half imported
-            self.package = track.load_package(generated, c.model.name, model, custom, self.backend)
+            self.package = packages.load_package(generated, c.model.name, model, custom, self.backend)
             #: (seconds, kernels compiled, kernels loaded from numba's disk cache) of this session's warm-up
-            self.warm = track.warm_up(self.package)
+            self.warm = warmup.warm_up(self.package)
 
     @property
     def name(self) -> str:
@@ -785,8 +788,8 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose") -> None
             raise ArgumentTypeError(f"{func}: options.{name}={arguments.shown(getattr(options, name))} is not True "
                                     "or False",
                                     None, f"give {name}=True or {name}=False")
-    for name, kind in (("kalman", kalman.KalmanOptions), ("grid", identify.GridOptions),
-                       ("rank_grid", identify.GridOptions)):
+    for name, kind in (("kalman", KalmanOptions), ("grid", GridOptions),
+                       ("rank_grid", GridOptions)):
         if not isinstance(getattr(options, name), kind):
             raise ArgumentTypeError(f"{func}: options.{name}={arguments.shown(getattr(options, name))} is not a "
                                     f"{kind.__name__}", None, f"give {kind.__name__}(...)")
@@ -1061,7 +1064,7 @@ def distinguishability(model: str | Path | Session, scenario: str | None = None,
     need = distinction.memory(T, *(len(x) for x in (num.equations.states, num.equations.outputs,
                                                      num.equations.inputs, num.faults)))
     with _LOCK:
-        package = track.load_package(private, c.model.name, str(model), custom)
+        package = packages.load_package(private, c.model.name, str(model), custom)
         families = _families(package, T, need, say)
     priors = {f.parameter: f.prior for f in c.model.faults}
     out = []

@@ -18,6 +18,7 @@ from typing import Sequence
 
 from . import __version__, pipeline
 from .errors import BgcError, ErrorGroup, printable
+from .model import warmup
 
 
 def _error_lines(exc: BgcError) -> tuple[str, ...]:
@@ -208,15 +209,16 @@ def cmd_filter(args: argparse.Namespace) -> int:
 
     from .output import artifacts
     from .data import runs
-    from .model import package as track
+    from .analysis import track
+    from .model import package as packages
 
     c = pipeline.compile_model(args.model)
     run = runs.read_run(args.run_csv)
     track.check_run_of(run, c.model.name, args.run_csv)
-    backend = track.resolve_backend(args.backend)
-    package = track.load_package(args.generated, c.model.name, args.model, backend=backend)
+    backend = packages.resolve_backend(args.backend)
+    package = packages.load_package(args.generated, c.model.name, args.model, backend=backend)
     name = _fault_model(c, args.fault) if args.fault else "nominal"
-    seconds, compiled, _ = track.warm_up(package, steps=(name,))  # the filtered model's whole step
+    seconds, compiled, _ = warmup.warm_up(package, steps=(name,))  # the filtered model's whole step
     if compiled:
         print(f"numba backend: {compiled} kernels compiled in {seconds:.1f} s (kept in numba's disk cache)",
               file=sys.stderr)
@@ -260,7 +262,7 @@ def _fault_model(c, fault: str) -> str:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from . import api
-    from .diagnosis.diagnose import DiagnosisOptions
+    from .diagnosis.options import DiagnosisOptions
 
     if (args.data is None) == (args.scenario is None):
         raise BgcError("give --data RUN.csv or --scenario NAME:KIND:MAGNITUDE@TIME", None,
@@ -328,7 +330,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     from . import api
     from .service import monitor
     from .output import artifacts
-    from .diagnosis.diagnose import DiagnosisOptions
+    from .diagnosis.options import DiagnosisOptions
 
     _check_times(args, ("horizon", "gap", "checkpoint"))
     if args.idle is not None and not (math.isfinite(args.idle) and args.idle >= 0):
@@ -445,11 +447,11 @@ def cmd_distinguish(args: argparse.Namespace) -> int:
 def cmd_experiment(args: argparse.Namespace) -> int:
     from .experiment import campaign
     from .output import tables
-    from .model import package as track
+    from .model import package as packages
 
     # local workers get a name (numba compiled once, before they start); a Dask cluster's workers choose
     # by what they have installed
-    backend = track.resolve_backend(args.backend) if not args.scheduler else args.backend
+    backend = packages.resolve_backend(args.backend) if not args.scheduler else args.backend
 
     # what can be refused without the models: before they compile
     campaign.check_workers(args.workers, "--workers")

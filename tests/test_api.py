@@ -22,7 +22,7 @@ from bgc.output.events import sentence
 from bgc.diagnosis import events
 from bgc.data import runs
 from bgc.analysis import simulate
-from bgc.diagnosis.diagnose import DiagnosisOptions
+from bgc.diagnosis.options import DiagnosisOptions
 
 from conftest import ROOT, compiled, peak_memory
 

@@ -11,8 +11,10 @@ import pytest
 
 from bgc.errors import TrackingError
 from bgc.filters import cubature as kalman
+from bgc.filters import quadrature
 from bgc.analysis import simulate
-from bgc.model import package as track
+from bgc.model import package as loading
+from bgc.model import warmup
 
 from conftest import ROOT, compiled
 
@@ -60,8 +62,8 @@ def difference(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def packages(name: str):
-    return (track.load_package(ROOT / "generated", name, backend="numpy"),
-            track.load_package(ROOT / "generated", name, backend="numba"))
+    return (loading.load_package(ROOT / "generated", name, backend="numpy"),
+            loading.load_package(ROOT / "generated", name, backend="numba"))
 
 
 @pytest.mark.parametrize("name", MODELS)
@@ -72,8 +74,8 @@ def test_backends_give_the_same_filter_outputs_on_every_model_and_filter(name):
     which a compiled loop adds terms differs)."""
     ys, us = record(name)
     numpy_pkg, numba_pkg = packages(name)
-    assert track.warm_up(numpy_pkg) == (0.0, 0, 0)
-    track.warm_up(numba_pkg, steps=tuple(numba_pkg.MODELS))  # every model's whole step, on forked workers
+    assert warmup.warm_up(numpy_pkg) == (0.0, 0, 0)
+    warmup.warm_up(numba_pkg, steps=tuple(numba_pkg.MODELS))  # every model's whole step, on forked workers
     assert numba_pkg.MODELS.keys() == numpy_pkg.MODELS.keys()
     worst = {}
     for module in numpy_pkg.MODELS:
@@ -137,19 +139,19 @@ def test_a_second_process_loads_the_compiled_kernels_from_the_disk_cache(tmp_pat
 
 
 def test_the_backend_is_chosen_by_name_by_the_environment_or_by_what_is_installed(monkeypatch):
-    assert track.resolve_backend("numpy") == "numpy"
-    assert track.resolve_backend("numba") == "numba"
+    assert loading.resolve_backend("numpy") == "numpy"
+    assert loading.resolve_backend("numba") == "numba"
     monkeypatch.delenv("BGC_BACKEND", raising=False)
-    assert track.resolve_backend(None) == "numba"
+    assert loading.resolve_backend(None) == "numba"
     monkeypatch.setenv("BGC_BACKEND", "numpy")
-    assert track.resolve_backend("auto") == "numpy"
+    assert loading.resolve_backend("auto") == "numpy"
     monkeypatch.delenv("BGC_BACKEND")
-    monkeypatch.setattr(track, "numba_installed", lambda: False)
-    assert track.resolve_backend(None) == "numpy"
+    monkeypatch.setattr(loading, "numba_installed", lambda: False)
+    assert loading.resolve_backend(None) == "numpy"
     with pytest.raises(TrackingError, match="pip install 'bgc\\[fast\\]'"):
-        track.resolve_backend("numba")
+        loading.resolve_backend("numba")
     with pytest.raises(TrackingError, match="unknown backend"):
-        track.resolve_backend("cuda")
+        loading.resolve_backend("cuda")
 
 
 def test_without_numba_the_numpy_package_runs_and_numba_is_refused_in_one_line(tmp_path):
@@ -183,8 +185,8 @@ def test_a_package_instance_at_other_noise_levels_uses_its_own_noise_on_both_bac
     ys, us = record("two_tank")
     runs = {}
     for backend in ("numpy", "numba"):
-        base = track.load_package(ROOT / "generated", "two_tank", backend=backend)
-        other = track.load_package(ROOT / "generated", "two_tank", noise=levels, backend=backend)
+        base = loading.load_package(ROOT / "generated", "two_tank", backend=backend)
+        other = loading.load_package(ROOT / "generated", "two_tank", noise=levels, backend=backend)
         assert other.__name__ != base.__name__
         assert not np.allclose(other.MODELS["nominal"].PROCESS_STD, base.MODELS["nominal"].PROCESS_STD)
         for name, p in (("base", base), ("other", other)):
@@ -276,7 +278,7 @@ def test_plants_nobody_here_wrote_compile_to_the_same_numbers(name, tmp_path):
     c = compiled(name)
     artifacts.write_folder(tmp_path / c.model.name, generated_files(c))
     ys, us = record(name, steps=60)
-    numpy_pkg, numba_pkg = (track.load_package(tmp_path, c.model.name, backend=b) for b in ("numpy", "numba"))
+    numpy_pkg, numba_pkg = (loading.load_package(tmp_path, c.model.name, backend=b) for b in ("numpy", "numba"))
     for module in ("nominal", sorted(numpy_pkg.MODELS)[1]):
         runs = [p.filters.GenericParticleFilter(p.MODELS[module], 64, np.random.default_rng(2)).run(ys, us)
                 for p in (numpy_pkg, numba_pkg)]
@@ -399,7 +401,7 @@ def test_a_compiled_model_names_the_kernel_its_cached_step_was_compiled_with():
 
 
 def test_the_compiled_quadrature_of_the_static_posterior_is_the_numpy_ones():
-    """``kalman.row_quadrature`` on a compiled package's kernel (one call)
+    """``quadrature.row_quadrature`` on a compiled package's kernel (one call)
     gives the NumPy rule's nodes and log masses: Gaussian and steep rows
     (several panels), rows cut by the prior (-inf), a neighbour far below
     (ignored by the parabola), two points, random rows."""
@@ -410,13 +412,13 @@ def test_the_compiled_quadrature_of_the_static_posterior_is_the_numpy_ones():
     rows = [-v ** 2 / 2, -40.0 * v ** 2, np.where(v < 0, -np.inf, -v), np.r_[-1e20, -v[1:] ** 2],
             rng.normal(0, 30, 11), np.r_[-np.inf, rng.normal(0, 3, 9), -np.inf]]
     for lg in rows:
-        a, b = kalman.row_quadrature(v, lg), kalman.row_quadrature(v, lg, kernel)
+        a, b = quadrature.row_quadrature(v, lg), quadrature.row_quadrature(v, lg, kernel)
         assert a[0].shape == b[0].shape and np.array_equal(a[0], b[0])
         assert np.array_equal(np.isfinite(a[1]), np.isfinite(b[1]))
         finite = np.isfinite(a[1])
         assert np.allclose(a[1][finite], b[1][finite], rtol=1e-14, atol=1e-13)
-    assert np.array_equal(kalman.row_quadrature(v[:2], np.zeros(2), kernel)[0],
-                          kalman.row_quadrature(v[:2], np.zeros(2))[0])
+    assert np.array_equal(quadrature.row_quadrature(v[:2], np.zeros(2), kernel)[0],
+                          quadrature.row_quadrature(v[:2], np.zeros(2))[0])
 
 
 def test_a_prepared_filter_makes_nothing_on_its_first_step_and_gives_the_same_numbers():

@@ -14,9 +14,10 @@ import pytest
 import bgc
 from bgc.output.events import NOTABLE
 from bgc.diagnosis import events
-from bgc.diagnosis.diagnose import DiagnosisOptions
+from bgc.diagnosis.options import DiagnosisOptions
 
 from conftest import ROOT
+from bgc.analysis import track
 
 GENERATED = ROOT / "generated"
 
@@ -242,11 +243,11 @@ def test_filters_stepped_in_a_bank_end_each_step_as_if_each_were_stepped_alone(m
     4, a measurement with one output missing, one with all missing, one far
     off the data (weights that underflow: the filters recover), then the
     Liu and West move on the bank's arrays against a lone row's."""
-    from bgc.model import package as track
+    from bgc.model import package as packages
     from bgc.diagnosis.hypothesis import _shrink_together
     from bgc.diagnosis.hypothesis import kernel_shrinkage as _kernel_shrinkage
 
-    package = track.load_package(ROOT / "generated", model_name)
+    package = packages.load_package(ROOT / "generated", model_name)
     model = package.MODELS[fault]
     cls = {"gpf": package.filters.GenericParticleFilter, "apf": package.filters.AuxiliaryParticleFilter}[method]
     rng = np.random.default_rng(5)
@@ -294,9 +295,9 @@ def test_a_bank_of_filters_of_different_sizes_steps_them_one_by_one():
     """Filters of different particle counts cannot share arrays: the bank
     predicts each theta's particles in one call and steps each filter alone,
     with the same numbers as each filter's own step."""
-    from bgc.model import package as track
+    from bgc.model import package as packages
 
-    package = track.load_package(ROOT / "generated", "ro")
+    package = packages.load_package(ROOT / "generated", "ro")
     model = package.MODELS["R_pipe_incipient"]
     u = model.inputs(0.0)
     pfs = [package.filters.GenericParticleFilter(model, n, np.random.default_rng(n)) for n in (300, 500, 200)]
@@ -346,7 +347,7 @@ def test_each_onset_weighs_the_span_of_samples_it_stands_for():
     """The onset prior is uniform in time: consecutive samples weigh 1 each,
     a grid 4 apart 4 each, and an uneven grid the span between the midpoints
     to its neighbours (0, 4, 6: edges -2, 2, 5, 7)."""
-    from bgc.filters.cubature import onset_widths
+    from bgc.diagnosis.static_posterior import onset_widths
 
     assert onset_widths([5, 6, 7]).tolist() == [1.0, 1.0, 1.0]
     assert onset_widths([10, 14, 18]).tolist() == [4.0, 4.0, 4.0]
@@ -532,7 +533,7 @@ def test_a_sensor_sharp_against_the_process_noise_degenerates_the_particle_filte
     from bgc.filters import cubature as kalman
     from bgc.data import runs
     from bgc.analysis import simulate
-    from bgc.model import package as track
+    from bgc.model import package as packages
 
     model = TEST_MODELS / "drivetrain.yaml"
     d = bgc.diagnose(model, scenario="none", seed=1,
@@ -546,7 +547,7 @@ def test_a_sensor_sharp_against_the_process_noise_degenerates_the_particle_filte
     assert any(isinstance(e, events.Degenerate) and e.switched for e in d.events)
     assert any(isinstance(e, events.Switched) and e.to == "ckf" for e in d.events)
     c, private = api._compiled(model)
-    package = track.load_package(private, "drivetrain")
+    package = packages.load_package(private, "drivetrain")
     for seed in (1, 2, 3, 4):
         result = simulate.simulate(c.numerics, simulate.SimulationOptions(seed=seed))
         ys, us = track.run_arrays(runs.parse_run(simulate.to_csv(result), "none"), package, "nominal")

@@ -4,8 +4,10 @@ import numpy as np
 
 import bgc
 from bgc.diagnosis import identify
-from bgc.model import package as track
-from bgc.diagnosis.diagnose import DiagnosisOptions
+from bgc.diagnosis import options
+from bgc.model import package as packages
+from bgc.analysis import track
+from bgc.diagnosis.options import DiagnosisOptions
 
 from conftest import ROOT
 
@@ -18,7 +20,7 @@ def test_the_grid_posterior_finds_the_bias_and_splits_into_parts_without_changin
     the same likelihoods (the nominal path and each onset's random numbers do
     not depend on the part)."""
     report = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R2:abrupt:0.6@5", seed=4, generated=GENERATED)
-    package = track.load_package(GENERATED, "circuit")
+    package = packages.load_package(GENERATED, "circuit")
     ys, us = track.run_arrays(report.run, package, "nominal")
     onset = int(np.searchsorted(report.run.time, 5.0))
     values = np.linspace(0.2, 1.0, 9)
@@ -27,7 +29,7 @@ def test_the_grid_posterior_finds_the_bias_and_splits_into_parts_without_changin
              for v in np.array_split(values, 2)]
     assert np.array_equal(whole, np.concatenate(parts, axis=1))
     g = identify.refine(package, "R2_abrupt", None, ys, us, (onset,), 0.3, 0.9, (0.0, 2.0), 0.95,
-                        identify.GridOptions(points=15, particles=300), [2])
+                        options.GridOptions(points=15, particles=300), [2])
     assert g.low <= 0.6 <= g.high and abs(g.mean - 0.6) < 0.1 and g.std > 0
     assert abs(g.posterior.sum() - 1.0) < 1e-12 and g.values[0] >= 0.0
 

@@ -6,8 +6,8 @@ tests/test_signatures.py for the signatures derived by hand)."""
 import numpy as np
 import pytest
 
-from bgc.diagnosis.isolate import (OpenLoop, Symbol, consistent, expected_slope, first_symbol, hypotheses,
-    observed_symbols, slope_z, threshold, window_z)
+from bgc.diagnosis.isolate import OpenLoop, consistent, expected_slope, first_symbol, hypotheses, observed_symbols, slope_z, threshold, window_z
+from bgc.diagnosis.values import Symbol
 
 from conftest import compiled
 

@@ -18,10 +18,15 @@ import numpy as np
 import pytest
 
 from bgc.filters import cubature as kalman
+from bgc.diagnosis import static_posterior
+from bgc.filters import quadrature
 from bgc.data import runs
 from bgc.analysis import simulate
-from bgc.model import package as track
-from bgc.filters.cubature import KalmanOptions, cholesky, onset_widths
+from bgc.model import package as packages
+from bgc.analysis import track
+from bgc.filters.cubature import cholesky
+from bgc.diagnosis.static_posterior import onset_widths
+from bgc.diagnosis.options import KalmanOptions
 
 from conftest import ROOT, compiled, tank_map
 
@@ -33,7 +38,7 @@ def data(model: str, scenario: str, seed: int):
     result = simulate.simulate(c.numerics, simulate.SimulationOptions(
         seed=seed, fault=simulate.parse_fault(scenario, c.numerics) if scenario != "none" else None))
     run = runs.parse_run(simulate.to_csv(result), scenario)
-    package = track.load_package(GENERATED, model)
+    package = packages.load_package(GENERATED, model)
     ys, us = track.run_arrays(run, package, "nominal")
     return package, ys, us
 
@@ -104,16 +109,16 @@ def test_the_quadrature_of_a_row_is_exact_for_gaussians_cut_off_or_not_and_for_e
     # a Gaussian over +-4 stds at spacings from fine to 2 stds, off the points' lattice
     for spacing in (0.25, 1.0, 2.0):
         x = np.arange(-4.0, 4.0 + 1e-9, spacing) + 0.3 * spacing
-        _, logm = kalman.row_quadrature(x, -x ** 2 / 2)
+        _, logm = quadrature.row_quadrature(x, -x ** 2 / 2)
         assert np.log(np.exp(logm).sum()) == pytest.approx(truncated_normal(0, 1, x[0], x[-1])[4], abs=1e-9)
     # the peak between two points of a coarse row (3 points over 6 stds)
     x = np.array([-2.0, 1.0, 4.0])
-    _, logm = kalman.row_quadrature(x, -(x - 0.4) ** 2 / 2)
+    _, logm = quadrature.row_quadrature(x, -(x - 0.4) ** 2 / 2)
     assert np.log(np.exp(logm).sum()) == pytest.approx(truncated_normal(0.4, 1, -2, 4)[4], abs=1e-9)
     # cut off by a bound where the density falls by 20 to 500 nats over one interval
     for mu in (2.5, 10.0, 51.0):
         x = np.linspace(1.0, 2.0, 9)
-        nodes, logm = kalman.row_quadrature(x, -(x - mu) ** 2 / (2 * 0.01))
+        nodes, logm = quadrature.row_quadrature(x, -(x - mu) ** 2 / (2 * 0.01))
         ref = truncated_normal(mu, 0.1, 1.0, 2.0)
         top = logm.max()
         p = np.exp(logm - top)
@@ -121,18 +126,18 @@ def test_the_quadrature_of_a_row_is_exact_for_gaussians_cut_off_or_not_and_for_e
         assert (p @ nodes) / p.sum() == pytest.approx(ref[0], abs=1e-3 * ref[1])
     # an exponential tail, 40 nats per interval
     x = np.linspace(0.0, 1.0, 5)
-    _, logm = kalman.row_quadrature(x, -160.0 * x)
+    _, logm = quadrature.row_quadrature(x, -160.0 * x)
     assert np.exp(logm).sum() == pytest.approx((1 - math.exp(-160.0)) / 160.0, rel=1e-9)
     # points outside the prior (-inf) hold no mass, and neither do the intervals reaching them
     x = np.linspace(-4.0, 4.0, 9)
     logd = np.where(x <= 1.0, -x ** 2 / 2, -math.inf)
-    _, logm = kalman.row_quadrature(x, logd)
+    _, logm = quadrature.row_quadrature(x, logd)
     assert np.log(np.exp(logm).sum()) == pytest.approx(truncated_normal(0, 1, -4, 1)[4], abs=1e-9)
 
 
 class FakeFault:
     """A fault model with one physical state and the fault states of its
-    kind, for :func:`kalman.static_posterior` with :func:`kalman.run_bank`
+    kind, for :func:`static_posterior.static_posterior` with :func:`kalman.run_bank`
     replaced by a likelihood in closed form."""
 
     DT = 0.5
@@ -154,12 +159,12 @@ def synthetic(monkeypatch, loglik):
     def run_bank(model, ys, us, track, onsets, magnitudes, fixed, residuals=False):
         ll = loglik(np.asarray(onsets, dtype=float), np.asarray(magnitudes, dtype=float))
         return kalman.BankResult(ll, None, None, np.zeros((len(ys), len(ll), 1)))
-    monkeypatch.setattr(kalman, "run_bank", run_bank)
+    monkeypatch.setattr(static_posterior, "run_bank", run_bank)
 
 
 def posterior(model, onsets, hint, hint_onset, T=200):
     track = kalman.NominalTrack(np.zeros((T + 1, 1)), np.zeros((T + 1, 1, 1)), np.zeros(T + 1))
-    return kalman.static_posterior(model, np.zeros((T, 1)), np.zeros((T, 1)), track, onsets, hint, hint_onset, 0.95)
+    return static_posterior.static_posterior(model, np.zeros((T, 1)), np.zeros((T, 1)), track, onsets, hint, hint_onset, 0.95)
 
 
 @pytest.mark.parametrize("mu, sd, hint", [
@@ -354,7 +359,7 @@ def test_the_adaptive_grid_integrates_like_a_fine_brute_force_grid(scenario, nam
     fault = package.MODELS[name]
     t = kalman.nominal_track(package.MODELS["nominal"], ys, us, max(onsets))
     truth = float(scenario.split(":")[2].split("@")[0])
-    p = kalman.static_posterior(fault, ys, us, t, onsets, (1.3 * truth, 1.9 * truth), onsets[len(onsets) // 2], 0.95)
+    p = static_posterior.static_posterior(fault, ys, us, t, onsets, (1.3 * truth, 1.9 * truth), onsets[len(onsets) // 2], 0.95)
     assert p.onsets[0] >= onsets[0] and p.onsets[-1] <= onsets[-1]
     assert sum(p.widths) <= onset_widths(onsets).sum() + 1e-9  # the window kept (less the onsets left out)
     ll, _ = exact_grid(package, name, ys, us, list(p.onsets), values)
@@ -385,8 +390,8 @@ def test_a_drift_that_began_before_the_onsets_tried_reaches_back():
     t = kalman.nominal_track(package.MODELS["nominal"], ys, us, 200)
     tried = list(range(150, 201, 4))
     earlier = tuple(tuple(range(s, s + 32, 8)) for s in (118, 86, 54, 22))
-    alone = kalman.static_posterior(fault, ys, us, t, tried, (0.005, 0.02), 150, 0.95)
-    far = kalman.static_posterior(fault, ys, us, t, tried, (0.005, 0.02), 150, 0.95, earlier=earlier)
+    alone = static_posterior.static_posterior(fault, ys, us, t, tried, (0.005, 0.02), 150, 0.95)
+    far = static_posterior.static_posterior(fault, ys, us, t, tried, (0.005, 0.02), 150, 0.95, earlier=earlier)
     assert alone.onset <= 154 and sum(alone.onset_posterior[:2]) > 0.05
     assert min(far.onsets) < 60 and abs(far.onset - 40) <= 16
     assert far.low <= 0.006 <= far.high
@@ -429,7 +434,7 @@ def test_on_the_ro_plant_the_bias_agrees_with_a_particle_filter_reference():
     post /= post.sum()
     mean = post @ values
     t = kalman.nominal_track(nominal, ys, us, onset)
-    p = kalman.static_posterior(fault, ys, us, t, [onset], (26.0, 36.0), onset, 0.95, KalmanOptions())
+    p = static_posterior.static_posterior(fault, ys, us, t, [onset], (26.0, 36.0), onset, 0.95, KalmanOptions())
     assert abs(p.mean - mean) < p.std / 3, (p.mean, mean, p.std)
 
 
@@ -446,7 +451,7 @@ def test_the_residuals_of_the_most_probable_cell_are_white_for_the_true_model_an
     onsets = list(range(114, 125))
 
     def alarm(name, hint):
-        p = kalman.static_posterior(package.MODELS[name], ys, us, t, onsets, hint, 119, 0.95)
+        p = static_posterior.static_posterior(package.MODELS[name], ys, us, t, onsets, hint, 119, 0.95)
         z = p.residuals[p.best[0]:]
         assert np.all(np.isnan(p.residuals[:p.best[0]]))
         test = Detector(tuple(package.MODELS["nominal"].OUTPUTS), DetectorOptions(0.001, (1, 8, 32), len(z)))
@@ -464,7 +469,7 @@ def test_a_hypothesis_whose_likelihood_peaks_outside_its_prior_gets_its_grid_aga
     bound 0, and the posterior is finite there (this sweep run once crashed:
     a grid laid wholly beyond the bound)."""
     import bgc
-    from bgc.diagnosis.diagnose import DiagnosisOptions
+    from bgc.diagnosis.options import DiagnosisOptions
 
     d = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R1:incipient:-0.0208821@5.85", seed=2922547472,
                      generated=GENERATED, options=DiagnosisOptions(seed=2922547472, particles=500, workers=1)).diagnosis
@@ -485,7 +490,7 @@ def test_a_cell_of_a_parameter_no_sensor_sees_is_the_nominal_filter_up_to_its_on
     from bgc import api
 
     c, folder = api._compiled(ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml")
-    package = track.load_package(folder, "orifice_tanks")
+    package = packages.load_package(folder, "orifice_tanks")
     result = simulate.simulate(c.numerics, simulate.SimulationOptions(seed=3, steps=60))
     ys, us = track.run_arrays(runs.parse_run(simulate.to_csv(result), "none"), package, "nominal")
     nominal, fault = package.MODELS["nominal"], package.MODELS["R20_abrupt"]
@@ -509,7 +514,7 @@ def test_the_row_quadrature_does_not_rise_far_above_its_points_next_to_an_extrem
     stays below its left end. The peak between the two highest points may
     still rise above them (a row too coarse for its peak), by what the
     parabolas through sound points say."""
-    from bgc.filters.cubature import row_quadrature
+    from bgc.filters.quadrature import row_quadrature
 
     values = np.linspace(-3.1e-4, 1.56e-3, 9)
     logd = np.array([-np.inf, -8977.98, -5050.65, -4153.61, -4374.58, -8682.57, -1.95757e18, -np.inf, -np.inf])
@@ -524,10 +529,10 @@ def test_a_grid_whose_points_hold_no_mass_tells_nothing_instead_of_failing(monke
     shift), the static posterior says it cannot tell (log evidence -inf, no
     estimate) instead of raising math.log's domain error."""
     synthetic(monkeypatch, lambda onsets, c: -0.5 * ((c - 1.0) / 0.1) ** 2)
-    real = kalman._overflow_shift
+    real = static_posterior.overflow_shift
 
     def shift(peak):  # the grid's passes as usual; the final sum's masses all 0
         return math.inf if sys._getframe(1).f_code.co_name == "static_posterior" else real(peak)
-    monkeypatch.setattr(kalman, "_overflow_shift", shift)
+    monkeypatch.setattr(static_posterior, "overflow_shift", shift)
     p = posterior(FakeFault("abrupt", (0.0, 2.0)), [100], (0.8, 1.2), 100)
     assert p.log_evidence == -math.inf and math.isnan(p.mean)

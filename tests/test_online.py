@@ -23,7 +23,7 @@ from bgc.diagnosis import events
 from bgc.data import runs
 from bgc.analysis import simulate
 from bgc.diagnosis.detect import DetectorOptions
-from bgc.diagnosis.diagnose import DiagnosisOptions
+from bgc.diagnosis.options import DiagnosisOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 CIRCUIT = ROOT / "models" / "circuit.yaml"
@@ -304,7 +304,7 @@ def test_bgc_monitor_follows_a_file_another_program_appends_to(tmp_path):
 def test_every_option_belongs_to_one_stage_of_the_loop():
     import dataclasses
 
-    from bgc.diagnosis.values import STAGES
+    from bgc.diagnosis.options import STAGES
 
     grouped = [name for names in STAGES.values() for name in names]
     assert sorted(grouped) == sorted(f.name for f in dataclasses.fields(DiagnosisOptions))

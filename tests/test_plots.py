@@ -12,7 +12,8 @@ from bgc.output import plots
 from bgc.output.labels import labels_of
 from bgc.data import runs
 from bgc.analysis import simulate as sim
-from bgc.model import package as track
+from bgc.model import package as packages
+from bgc.analysis import track
 
 from conftest import MODELS, ROOT, compiled
 
@@ -56,7 +57,7 @@ def _tracked(model: str, fault: str | None, name: str = "nominal", start: int | 
     num = compiled(model).numerics
     options = sim.SimulationOptions(steps=60, seed=1, fault=sim.parse_fault(fault, num) if fault else None)
     run = runs.parse_run(sim.to_csv(sim.simulate(num, options)))
-    package = track.load_package(ROOT / "generated", model)
+    package = packages.load_package(ROOT / "generated", model)
     return run, [track.track(run, package, name, m, 100, seed=0, start=start) for m in ("gpf", "apf")]
 
 

@@ -51,7 +51,7 @@ import pytest
 from bgc import api
 from bgc.diagnosis import events
 from bgc.data import runs
-from bgc.diagnosis.diagnose import DiagnosisOptions
+from bgc.diagnosis.options import DiagnosisOptions
 
 pytestmark = pytest.mark.slow
 

@@ -10,6 +10,9 @@ import pytest
 from bgc.data import runs
 from bgc.analysis import simulate as sim
 from bgc.model import package as runtime
+from bgc.analysis import track
+from bgc.filters import registry
+from bgc.model import protocol
 
 from conftest import ROOT, compiled
 
@@ -20,7 +23,7 @@ def run_of(model: str, fault: str | None, seed: int) -> runs.Run:
     return runs.parse_run(sim.to_csv(sim.simulate(num, options)))
 
 
-def normalised_residuals(r: runtime.TrackResult, run: runs.Run) -> np.ndarray:
+def normalised_residuals(r: track.TrackResult, run: runs.Run) -> np.ndarray:
     y = np.column_stack([run.measurements[name] for name in r.output_names])
     return (y - r.y_mean) / r.y_std
 
@@ -35,7 +38,7 @@ def test_ro_membrane_abrupt_fault_is_identified(ro, method):
     """R_memb 26 -> 50 at t = 165 (thesis Table IV.3: GPF 45.73, APF 47.92): after
     the hand-over at t = 167 the faulty-model filter ends within 5 % of 50."""
     run = run_of("ro", "R_memb:abrupt:24@165", seed=5)
-    r = runtime.track(run, ro, "R_memb_abrupt", method, 200, seed=0, start=167)
+    r = track.track(run, ro, "R_memb_abrupt", method, 200, seed=0, start=167)
     k = r.state_names.index("delta_R_memb")
     estimate = 26.0 + r.mean[-20:, k].mean()
     assert abs(estimate - 50.0) < 0.05 * 50.0, estimate
@@ -47,11 +50,11 @@ def test_ro_nominal_filter_is_consistent_without_fault_and_not_after_one(ro):
     predicted std have mean square about 1, so a detector on them stays quiet.
     After an R_pipe abrupt fault (69 -> 100 at t = 165) the loop-flow residual
     leaves that band: its mean square over t > 170 is many times larger."""
-    quiet = normalised_residuals(runtime.track(run_of("ro", None, seed=3), ro, "nominal", "gpf", 200, 0),
+    quiet = normalised_residuals(track.track(run_of("ro", None, seed=3), ro, "nominal", "gpf", 200, 0),
                                  run_of("ro", None, seed=3))
     assert np.all(np.mean(quiet[20:] ** 2, axis=0) < 2.0), np.mean(quiet[20:] ** 2, axis=0)
     faulty = run_of("ro", "R_pipe:abrupt:31@165", seed=3)
-    r = runtime.track(faulty, ro, "nominal", "gpf", 200, 0)
+    r = track.track(faulty, ro, "nominal", "gpf", 200, 0)
     z = normalised_residuals(r, faulty)
     loop = r.output_names.index("F_loop")
     assert np.mean(z[166:175, loop] ** 2) > 10 * np.mean(quiet[20:, loop] ** 2)
@@ -66,18 +69,18 @@ def test_every_registered_filter_tracks_the_nominal_model_through_the_one_protoc
     from bgc.filters import Filter
     from bgc.filters.cubature import CubatureKalmanFilter
 
-    assert runtime.filter_class(ro, "ckf") is CubatureKalmanFilter
+    assert registry.filter_class(ro, "ckf") is CubatureKalmanFilter
     run = run_of("ro", None, seed=3)
-    for method in runtime.FILTER_CLASSES:
-        assert isinstance(runtime.filter_class(ro, method)(ro.nominal, 20, np.random.default_rng(0)), Filter)
-    r = runtime.track(run, ro, "nominal", "ckf", 200, 0)
+    for method in registry.FILTER_CLASSES:
+        assert isinstance(registry.filter_class(ro, method)(ro.nominal, 20, np.random.default_rng(0)), Filter)
+    r = track.track(run, ro, "nominal", "ckf", 200, 0)
     z = normalised_residuals(r, run)
     assert np.all(np.abs(np.mean(z[20:] ** 2, axis=0) - 1.0) < 0.5), np.mean(z[20:] ** 2, axis=0)
     assert np.isinf(r.ess).all() and r.recoveries == 0
     with pytest.raises(TrackingError, match="ckf has none"):
-        runtime.track(run, ro, "R_pipe_abrupt", "ckf", 200, 0, start=167)
+        track.track(run, ro, "R_pipe_abrupt", "ckf", 200, 0, start=167)
     with pytest.raises(TrackingError, match="unknown filter 'kf'.*gpf, apf, opf, ckf"):
-        runtime.filter_class(ro, "kf")
+        registry.filter_class(ro, "kf")
 
 
 def test_the_true_fault_model_explains_the_data_better_than_a_wrong_one(ro):
@@ -85,8 +88,8 @@ def test_the_true_fault_model_explains_the_data_better_than_a_wrong_one(ro):
     (R_pipe incipient) predicts the measurements better than the one on a wrong
     hypothesis (R_fp incipient)."""
     run = run_of("ro", "R_pipe:incipient:0.5@165", seed=1)
-    right = runtime.track(run, ro, "R_pipe_incipient", "gpf", 200, 0, start=167)
-    wrong = runtime.track(run, ro, "R_fp_incipient", "gpf", 200, 0, start=167)
+    right = track.track(run, ro, "R_pipe_incipient", "gpf", 200, 0, start=167)
+    wrong = track.track(run, ro, "R_fp_incipient", "gpf", 200, 0, start=167)
     late = slice(200, None)
     right_ms = np.mean(normalised_residuals(right, run)[late] ** 2)
     wrong_ms = np.mean(normalised_residuals(wrong, run)[late] ** 2)
@@ -96,7 +99,7 @@ def test_the_true_fault_model_explains_the_data_better_than_a_wrong_one(ro):
 def test_circuit_abrupt_fault_on_r2_is_identified():
     pkg = runtime.load_package(ROOT / "generated", "circuit")
     run = run_of("circuit", "R2:abrupt:1.0@5", seed=1)
-    r = runtime.track(run, pkg, "R2_abrupt", "apf", 300, seed=0, start=5.1)
+    r = track.track(run, pkg, "R2_abrupt", "apf", 300, seed=0, start=5.1)
     k = r.state_names.index("delta_R2")
     assert abs(2.0 + r.mean[-1, k] - 3.0) < 0.15
 
@@ -135,7 +138,7 @@ def test_the_transition_into_an_onset_sample_is_nominal_and_keeps_the_magnitude(
     x[-1] = magnitude
     before = x.copy()
     u = nominal.inputs(0.0)
-    runtime.onset_transition(fault, x, u, fault.THETA)
+    protocol.onset_transition(fault, x, u, fault.THETA)
     want = nominal.predict(physical.copy(), u, nominal.THETA, nominal.DT)
     np.testing.assert_allclose(x[:len(nominal.STATES)], want, rtol=1e-13)
     np.testing.assert_array_equal(x[len(nominal.STATES):], before[len(nominal.STATES):])
@@ -162,11 +165,11 @@ def test_data_messages_name_the_run_by_its_source(ro):
 
     run = runs.parse_run("# model ro: 2 steps\ntime,y:F_loop\n1,2\n2,3\n", "lab/ro run.csv")
     with pytest.raises(DataError, match=r"^lab/ro run.csv: the run has no column y:"):
-        runtime.run_arrays(run, ro, "nominal")
+        track.run_arrays(run, ro, "nominal")
     with pytest.raises(DataError, match=r"^lab/ro run.csv is a run of model 'ro', not of 'circuit'"):
-        runtime.check_run_of(run, "circuit")
+        track.check_run_of(run, "circuit")
     python = runs.Run(run.time, {}, {}, {}, {}, ("model ro: x",))
     with pytest.raises(DataError, match=r"^<Run from Python> is a run of model 'ro'"):
-        runtime.check_run_of(python, "circuit")
+        track.check_run_of(python, "circuit")
     with pytest.raises(DataError, match=r"^given.csv is a run of model 'ro'"):
-        runtime.check_run_of(python, "circuit", "given.csv")
+        track.check_run_of(python, "circuit", "given.csv")

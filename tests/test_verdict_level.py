@@ -23,7 +23,7 @@ import pytest
 
 import bgc
 from bgc.diagnosis import finish as decide
-from bgc.diagnosis.diagnose import DiagnosisOptions
+from bgc.diagnosis.options import DiagnosisOptions
 from bgc.diagnosis import events as ev
 from bgc.diagnosis.values import Estimate, Hypothesis
 

@@ -73,6 +73,8 @@ from statistics import NormalDist
 
 import numpy as np
 
+from .values import Detection
+
 
 def monte_carlo_share(y_std: np.ndarray, measurement_std: np.ndarray, ess, particles: int) -> np.ndarray:
     """a_k: the Monte Carlo std of a particle filter's predicted measurement
@@ -105,21 +107,6 @@ class DetectorOptions:
     def threshold(self, sensors: int) -> float:
         """The |S| above which the detector alarms (see the module docstring)."""
         return union_threshold(self.false_alarm, max(1, self.steps) * max(1, sensors) * len(self.windows))
-
-
-@dataclass(frozen=True, slots=True)
-class Detection:
-    """An alarm: at step ``step`` (index into the run), on ``sensor`` (its
-    name) with window ``window`` and statistic ``statistic`` (|S| > threshold);
-    ``onset``: the estimated first faulty step (None: not estimated, see
-    :meth:`DetectorBank.update`)."""
-
-    step: int
-    sensor: str
-    window: int
-    statistic: float
-    threshold: float
-    onset: int | None
 
 
 class Detector:

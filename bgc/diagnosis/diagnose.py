@@ -19,7 +19,7 @@ with the onset, not the detection time, as the hand-over:
    the magnitude jointly with the state. The fault changes the parameter at
    the instant of the onset sample (the thesis's DBN, the simulator): the
    transition into that sample is nominal, the sample sees the fault
-   (:func:`~bgc.model.package.onset_transition`). One hypothesis's filters run in
+   (:func:`~bgc.model.protocol.onset_transition`). One hypothesis's filters run in
    lockstep over its onsets (an onset whose running evidence falls ``PRUNE``
    behind the best one's is pruned); the hypotheses run in parallel
    processes.
@@ -100,7 +100,8 @@ from ..data.sampler import grid_steps, samples
 from .diagnoser import IDENTIFY, KALMAN_METHOD, Diagnoser
 from .openloop import PATHS
 from ..data.runs import Run
-from .values import Belief, Diagnosis, DiagnosisOptions, Estimate, Hypothesis, Live
+from .values import Belief, Diagnosis, Estimate, Hypothesis, Live
+from .options import DiagnosisOptions
 
 #: What the batch diagnosis's callers take from here (the values and the method's names).
 __all__ = ["diagnose", "horizon_steps", "Belief", "Diagnosis", "DiagnosisOptions", "Estimate", "Hypothesis", "Live",

@@ -60,8 +60,9 @@ from .hypothesis import HypothesisTracker, log_density, weighted_quantiles
 from .isolate import hypotheses as signature_hypotheses
 from .isolate import observed_symbols
 from ..data.runs import Run
-from ..model.package import check_particles, filter_class
-from .values import Belief, Diagnosis, DiagnosisOptions, Live
+from ..filters.registry import check_particles, filter_class
+from .values import Belief, Diagnosis, Live
+from .options import DiagnosisOptions
 from .finish import STOPPED, _ordered, decide
 from .hypothesis import track_job
 from .onsets import drift_onsets

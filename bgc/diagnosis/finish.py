@@ -15,7 +15,8 @@ from ..kinds import fault_kind
 from . import events as ev
 from ..filters import cubature as kalman
 from .hypothesis import log_density
-from ..filters.cubature import EDGE, EXTEND, StaticPosterior
+from .static_posterior import EDGE, EXTEND
+from .values import StaticPosterior
 from ..data.runs import Run
 from .values import Diagnosis, Hypothesis
 from .estimate import estimate_of, pressed

@@ -13,7 +13,7 @@ and the loop body is one.
 
 Per step: the onsets not started yet add the nominal observer's density; a
 filter at its onset sample starts from the nominal cloud before it
-(:func:`~bgc.model.package.onset_transition`: the transition into the onset
+(:func:`~bgc.model.protocol.onset_transition`: the transition into the onset
 sample is nominal, the sample sees the fault); the filters step together (a
 ``FilterBank``); the magnitude gets Liu and West's kernel move; each filter's
 normalised residuals feed its consistency test (a windowed Z-test,
@@ -35,10 +35,11 @@ import numpy as np
 
 from ..kinds import fault_kind
 from .detect import DetectorBank, DetectorOptions, monte_carlo_share
-from ..model.package import filter_class, onset_transition
+from ..filters.registry import filter_class
+from ..model.protocol import onset_transition
 from .onsets import hypothesis_seed
 from .openloop import cloud_before
-from .values import DiagnosisOptions
+from .options import DiagnosisOptions
 
 #: A hypothesis filter whose consistency statistic exceeds this many times the
 #: threshold is stopped (its onset is out of the evidence).

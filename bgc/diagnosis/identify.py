@@ -28,18 +28,7 @@ from types import ModuleType
 
 import numpy as np
 
-
-@dataclass(frozen=True, slots=True)
-class GridOptions:
-    """``points`` magnitudes on the grid, ``onsets`` onsets (the most probable
-    ones of the hypothesis), ``particles`` per filter, ``widen``: the grid
-    spans the filter's interval widened by this fraction of its width on each
-    side (and once more if the posterior piles up at an end)."""
-
-    points: int = 21
-    onsets: int = 3
-    particles: int = 500
-    widen: float = 0.2
+from .options import GridOptions
 
 
 @dataclass(frozen=True, slots=True)

@@ -53,21 +53,7 @@ import numpy as np
 
 from ..ir import FaultSignatures, Signature
 from .detect import union_threshold
-
-
-@dataclass(frozen=True, slots=True)
-class Symbol:
-    """A sensor's observed deviation: magnitude ``sign`` (+ or -) seen at
-    ``step`` by a window of ``window`` samples (``statistic``: its Z), and
-    ``slope`` (+, -, or "" when not significant; ``slope_statistic``: its Z)."""
-
-    sensor: str
-    sign: str
-    step: int
-    statistic: float
-    window: int = 1
-    slope: str = ""
-    slope_statistic: float = 0.0
+from .values import Symbol
 
 
 @dataclass(frozen=True, slots=True)

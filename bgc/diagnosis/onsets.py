@@ -10,7 +10,7 @@ import zlib
 
 import numpy as np
 
-from ..filters.cubature import onset_widths
+from .static_posterior import onset_widths
 
 
 def earlier_onsets(reach: list[int], tried, search: int) -> tuple[tuple[int, ...], ...]:

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..filters import cubature as kalman
 from .isolate import OpenLoop
-from .values import DiagnosisOptions
+from .options import DiagnosisOptions
 
 
 #: Open-loop particle paths kept for the symbols' null distribution: enough for

@@ -11,9 +11,10 @@ import numpy as np
 
 from ..kinds import fault_kind
 from . import identify
-from .identify import GridOptions
-from ..filters.cubature import onset_widths
-from .values import DiagnosisOptions, Estimate, Hypothesis
+from .options import GridOptions
+from .static_posterior import onset_widths
+from .values import Estimate, Hypothesis
+from .options import DiagnosisOptions
 from .onsets import top_onsets
 from .openloop import cloud_before
 from .parallel import run_all

@@ -1,5 +1,5 @@
 """Each hypothesis with its magnitude held static (step 6): the jobs of
-:func:`bgc.filters.cubature.static_posterior` (:class:`StaticJob`,
+:func:`bgc.diagnosis.static_posterior.static_posterior` (:class:`StaticJob`,
 :func:`run_static`), the hypotheses of ``--filter ckf`` from them alone
 (:func:`kalman_hypotheses`), the consistency test of the most likely cell
 (:func:`static_alarm`, :func:`checked`) and the estimate
@@ -18,11 +18,15 @@ import numpy as np
 
 from ..kinds import fault_kind
 from ..filters import cubature as kalman
-from .detect import Detection, Detector, DetectorOptions
+from . import static_posterior
+from .detect import Detector, DetectorOptions
+from .values import Detection
 from .hypothesis import FAR
-from ..filters.cubature import KalmanOptions, StaticPosterior
+from .values import StaticPosterior
+from .options import KalmanOptions
 from ..data.runs import Run
-from .values import DiagnosisOptions, Estimate, Hypothesis
+from .values import Estimate, Hypothesis
+from .options import DiagnosisOptions
 from .estimate import struck, truth_of
 from .onsets import earlier_onsets
 from .parallel import run_all
@@ -30,7 +34,7 @@ from .parallel import run_all
 
 @dataclass(frozen=True, slots=True)
 class StaticJob:
-    """The arguments of :func:`bgc.filters.cubature.static_posterior` for one
+    """The arguments of :func:`bgc.diagnosis.static_posterior.static_posterior` for one
     hypothesis: ``package_name``, the generated package (imported in the
     worker by name), ``name``, its fault model."""
 
@@ -60,16 +64,16 @@ def far_off(outputs: tuple[str, ...], rejection: float, windows: tuple[int, ...]
 
 
 def run_static(job: StaticJob) -> StaticPosterior:
-    """:func:`bgc.filters.cubature.static_posterior` of one hypothesis (in a
+    """:func:`bgc.diagnosis.static_posterior.static_posterior` of one hypothesis (in a
     worker process); with ``record``, its most probable onset's filter too
-    (:func:`bgc.filters.cubature.record_path`); ``seconds``: its time."""
+    (:func:`bgc.diagnosis.static_posterior.record_path`); ``seconds``: its time."""
     started = time.perf_counter()
     model = sys.modules[job.package_name].MODELS[job.name]
     far = None if job.far is None else far_off(*job.far)
-    p = kalman.static_posterior(model, job.ys, job.us, job.track, job.onsets, job.hint, job.hint_onset, job.level,
+    p = static_posterior.static_posterior(model, job.ys, job.us, job.track, job.onsets, job.hint, job.hint_onset, job.level,
                                 job.options, job.earlier, job.refine, far)
     if job.record:
-        p = kalman.record_path(model, job.ys, job.us, job.track, p)
+        p = static_posterior.record_path(model, job.ys, job.us, job.track, p)
     return dataclasses.replace(p, seconds=time.perf_counter() - started)
 
 

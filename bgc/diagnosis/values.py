@@ -1,6 +1,8 @@
-"""The values the diagnosis hands over, as frozen dataclasses: its options,
-each hypothesis's estimate and record, the diagnosis, and (online) the belief
-after each sample (:class:`Belief`)."""
+"""The values the diagnosis hands over, as frozen dataclasses: an alarm
+(:class:`Detection`), a symbol read (:class:`Symbol`), the static
+posterior of a hypothesis, each hypothesis's estimate and record, the
+diagnosis, and (online) the belief after each sample (:class:`Belief`).
+They import no algorithm: the parts of the loop import them."""
 
 from __future__ import annotations
 
@@ -9,121 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .detect import Detection
-from .identify import GridOptions
-from .isolate import Symbol
 from ..data.sampler import DataSummary
-from ..filters.cubature import KalmanOptions, StaticPosterior
-
-
-@dataclass(frozen=True, slots=True)
-class DiagnosisOptions:
-    """The diagnosis's options, stage by stage (:data:`STAGES`; the loop of
-    :mod:`bgc.diagnosis.diagnoser`).
-
-    **Filters** (the nominal observer and the hypotheses' filters):
-    ``method``: ``gpf``, ``apf``, ``opf`` (particle filters) or ``ckf`` (no
-    particles: the nominal observer is the cubature Kalman filter, and every
-    hypothesis the symbols keep goes to the static posterior directly, its
-    consistency test dropping those that fail; ``particles`` then only sizes
-    the open-loop cloud of the symbols); ``particles``: 1000 by default (with
-    200, the RO plant's fault magnitude scatters about twice as far as the
-    filter's own interval says); ``seed``; ``shrinkage``: Liu and West's
-    kernel shrinkage of the magnitude's particles; ``switch``: when the
-    nominal particle observer degenerates (its mean effective sample size
-    before the alarm under ``DEGENERATE`` of its particles), diagnose with
-    ``ckf`` instead (a ``Switched`` event; a campaign comparing filters turns
-    it off); ``workers``: processes for the hypotheses' filters in a batch
-    diagnosis (1: in this process).
-
-    **Data** (:mod:`bgc.data.sampler`): ``gap``: missing samples in a row
-    longer than this (time units; None: ``GAP_STEPS`` steps) are a ``Gap``
-    event.
-
-    **Detection** (:mod:`bgc.diagnosis.detect`): ``false_alarm``: the
-    probability of any alarm over a fault-free ``horizon``; ``horizon``: the
-    monitoring horizon in the model's time unit (None: the model's declared
-    run length, ``simulation.steps`` x ``dt``, filled in by :func:`bgc.open`
-    and :func:`bgc.diagnose`; the record's length for the runtime's own
-    :func:`~bgc.diagnosis.diagnose.diagnose`): the same detector for a file of
-    any length and for a stream; ``windows``: the Z-tests' window lengths.
-
-    **Isolation** (:mod:`bgc.diagnosis.isolate`, :mod:`bgc.diagnosis.onsets`):
-    ``symbol_steps``: open-loop steps read for the symbols after the alarm
-    (a slope needs samples after the magnitude is seen); ``history``: how far
-    back the nominal clouds are kept (and a drift's onset is looked for);
-    ``search``: how far before the alarm a drift's onset is looked for
-    first, and by how much further back each time its onset posterior piles
-    up at the earliest onset tried; ``spacing``: steps between the onsets a
-    drift's particle filters are tried from near the alarm (further back,
-    1/16 of the distance to it; None: 8 with ``identify = "kalman"``, 4 with
-    ``"filter"``); ``near``: samples before the detector's change point a
-    step change is tried from.
-
-    **Tracking** (:mod:`bgc.diagnosis.hypothesis`): ``rejection``: the
-    probability of dropping the true hypothesis over what remains of the
-    horizon after its onset.
-
-    **Weighing** (:mod:`bgc.diagnosis.finish`, :mod:`bgc.diagnosis.static`,
-    :mod:`bgc.diagnosis.rank`): ``identify``: ``kalman`` (the hypotheses
-    weighed and the magnitude sized with the magnitude held static, by
-    cubature Kalman filters on a grid: ``kalman`` holds their options) or
-    ``filter`` (by the particle filters' magnitude state and evidence: the
-    thesis's method); ``bayes_factor``: a survivor this many times less
-    probable than the best is dropped (100: "decisive" on Jeffreys' scale);
-    ``isolation_level``: the posterior the candidates of a verdict must
-    hold together (0.95): where the survivors of the Bayes factor hold less,
-    the most probable of the hypotheses it dropped are kept as candidates
-    too, until they do (an ``Uncertain`` event), so that "isolated" names a
-    fault with at least this posterior; ``recheck``: the fault models the
-    symbols ruled out are weighed too, by their static posteriors (``identify
-    = "kalman"``), and one that explains the data is a candidate all the
-    same (an ``Overruled`` event): symbols read after a late alarm can
-    mislead;
-    ``interval``: the probability of the reported interval; ``rank``: weigh
-    the survivors anew by the evidence of their models with the magnitude
-    held static on a particle-filter grid ``rank_grid`` (``identify =
-    "filter"`` only; off by default); ``refine``: each survivor's estimate
-    from the particle filters' marginal likelihood on ``grid`` (about three
-    times slower; off by default)."""
-
-    method: str = "gpf"
-    particles: int = 1000
-    seed: int = 0
-    false_alarm: float = 0.01
-    rejection: float = 0.001
-    windows: tuple[int, ...] = (1, 8, 32)
-    history: int = 256
-    search: int = 64
-    spacing: int | None = None
-    near: int = 4
-    symbol_steps: int = 32
-    interval: float = 0.95
-    bayes_factor: float = 100.0
-    isolation_level: float = 0.95
-    recheck: bool = True
-    shrinkage: float = 0.98
-    workers: int = 2
-    identify: str = "kalman"
-    kalman: KalmanOptions = KalmanOptions()
-    rank: bool = False
-    refine: bool = False
-    grid: GridOptions = GridOptions()
-    rank_grid: GridOptions = GridOptions(points=11)
-    switch: bool = True
-    horizon: float | None = None
-    gap: float | None = None
-
-
-#: The options of each stage of the loop (every field of DiagnosisOptions in one).
-STAGES = {
-    "filters": ("method", "particles", "seed", "shrinkage", "switch", "workers"),
-    "data": ("gap",),
-    "detection": ("false_alarm", "horizon", "windows"),
-    "isolation": ("symbol_steps", "history", "search", "spacing", "near"),
-    "tracking": ("rejection",),
-    "weighing": ("identify", "kalman", "bayes_factor", "isolation_level", "recheck", "interval", "rank", "rank_grid", "refine", "grid"),
-}
+from ..filters.cubature import BankResult
+from .options import DiagnosisOptions
 
 
 @dataclass(frozen=True, slots=True)
@@ -275,7 +165,6 @@ class Diagnosis:
         return mean, std
 
 
-
 #: The diagnoser's phases, in loop order: the nominal observer watches the
 #: data (no alarm yet); after an alarm it waits for the samples the symbols
 #: read (isolating); the hypotheses' filters follow the data (tracking); the
@@ -346,3 +235,82 @@ class Isolation:
         """The fault models of ``package`` the symbols ruled out and that
         are not tried (sorted)."""
         return sorted({n for n in self.ruled_out if n in package.MODELS} - set(self.names))
+
+
+@dataclass(frozen=True, slots=True)
+class Detection:
+    """An alarm: at step ``step`` (index into the run), on ``sensor`` (its
+    name) with window ``window`` and statistic ``statistic`` (|S| > threshold);
+    ``onset``: the estimated first faulty step (None: not estimated, see
+    :meth:`DetectorBank.update`)."""
+
+    step: int
+    sensor: str
+    window: int
+    statistic: float
+    threshold: float
+    onset: int | None
+
+
+@dataclass(frozen=True, slots=True)
+class Symbol:
+    """A sensor's observed deviation: magnitude ``sign`` (+ or -) seen at
+    ``step`` by a window of ``window`` samples (``statistic``: its Z), and
+    ``slope`` (+, -, or "" when not significant; ``slope_statistic``: its Z)."""
+
+    sensor: str
+    sign: str
+    step: int
+    statistic: float
+    window: int = 1
+    slope: str = ""
+    slope_statistic: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class StaticPosterior:
+    """The posterior of a hypothesis's onset and magnitude, with the magnitude
+    held static. ``onsets`` (steps) with their prior ``widths``; ``values``
+    (onsets x points): the magnitude of each cell; ``loglik``: log p(y |
+    onset, magnitude) over the whole run; ``log_evidence``: log p(y |
+    hypothesis) (the onset's prior up to the factor common to every
+    hypothesis); the magnitude's posterior ``mean``, ``std`` and central
+    interval (``low``, ``high``) of probability ``level``; ``change``: the
+    posterior mean of the parameter's change at the last step (the bias, or
+    slope x time since the onset); ``onset_posterior`` (the mass of each
+    onset of the grid) and the most probable ``onset`` (the largest mass per
+    sample the onset stands for); ``passes``: grids computed; ``best``: the
+    most likely cell (onset, magnitude) and ``residuals`` (steps x outputs):
+    its normalised residuals (NaN before its onset), for a consistency test
+    of the static model; ``truncated``: the posterior may reach past the
+    grid's last pass (a row still holds mass at an end short of a bound of
+    the prior); ``trace`` (steps x 2): the magnitude's posterior mean and
+    std given the data up to each step, over the last pass's cells (point
+    masses: a picture of how the data narrowed it down, limited to the span
+    of the final grid); ``path``: when asked for (:func:`record_path`), one
+    filter's run at the most probable onset with the posterior mean
+    magnitude; ``seconds``: the time it took (set by its caller). ``values``
+    and ``loglik`` are object arrays of rows when the onsets' rows differ in
+    length."""
+
+    name: str
+    onsets: tuple[int, ...]
+    widths: tuple[float, ...]
+    values: np.ndarray
+    loglik: np.ndarray
+    log_evidence: float
+    mean: float
+    std: float
+    low: float
+    high: float
+    level: float
+    change: float
+    onset: int
+    onset_posterior: tuple[float, ...]
+    passes: int
+    best: tuple[int, float] | None = None
+    residuals: np.ndarray | None = None
+    truncated: bool = False
+    trace: np.ndarray | None = None
+    path: "BankResult | None" = None
+    seconds: float = 0.0

@@ -627,7 +627,7 @@ def run_one(spec: RunSpec, backend: str = "numpy") -> dict[str, Any]:
     from .. import api
     from . import metrics
     from ..analysis import simulate
-    from ..diagnosis.diagnose import DiagnosisOptions
+    from ..diagnosis.options import DiagnosisOptions
 
     row: dict[str, Any] = dict.fromkeys(COLUMNS)
     row.update(spec.identity())

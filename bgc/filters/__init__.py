@@ -26,7 +26,7 @@ line: they import numpy only (and the standard library's ``threading``), so
 a generated package runs without bgc. The runtime takes the particle filters
 from the package it loaded (``package.filters``). A new filter is one class
 that meets :class:`Filter`, registered by its short name in
-:data:`bgc.model.package.FILTER_CLASSES` (a particle filter in
+:data:`bgc.filters.registry.FILTER_CLASSES` (a particle filter in
 ``particle.py``, so every package gets it; a filter that needs bgc in the
 runtime).
 """

@@ -302,7 +302,7 @@ def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp):
 
 
 def row_quadrature(values, logd, nodes, weights, panel_range, most_panels, wild):
-    """``bgc.filters.cubature.row_quadrature`` compiled, for a row of at least
+    """``bgc.filters.quadrature.row_quadrature`` compiled, for a row of at least
     two rising points (the caller handles the rest), with its constants
     (Gauss-Legendre nodes and weights on [0, 1], the largest log range of a
     panel, the most panels, the neighbour a parabola ignores): (nodes, log

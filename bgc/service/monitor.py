@@ -24,8 +24,8 @@ from .. import api
 from ..errors import BgcError, DataError, printable
 from ..diagnosis import events as ev
 from ..data import runs
-from ..model import package as track
-from ..diagnosis.diagnose import DiagnosisOptions
+from ..analysis import track
+from ..diagnosis.options import DiagnosisOptions
 
 
 class Follow:

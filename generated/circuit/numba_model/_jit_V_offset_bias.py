@@ -15,7 +15,7 @@ JIT = {"cache": True, "error_model": "numpy", "nogil": True}
 _kernel_jit = globals().get("_kernel_jit")
 #: sha256 of that kernel's file: numba's cache of :func:`generic_step`, which holds the kernel's code,
 #: is renewed when this file changes, so this file changes with that one.
-KERNEL_SHA256 = "454a18b28df7bae77f80f89dbaf3bd376fcde746c4d89baa6314d1a931c847d6"
+KERNEL_SHA256 = "ff074ffb28a21062dccd3d6e8043437e5056f48efe1ed4d9da84603bbe2b11df"
 
 
 #: Most particles per block of the RK4 loop: its scratch (six state-sized blocks) stays in cache.

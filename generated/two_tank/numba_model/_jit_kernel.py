@@ -216,7 +216,7 @@ def cholesky_cells(P, L, pivot):
     """The lower Cholesky factor of every cell's covariance P (n, n, C: the
     cells innermost) into L (n, n, C), column by column, each pivot under
     1e-12 of its diagonal entry raised to that (the NumPy runtime's
-    ``kalman.cholesky``, whose LAPACK factor it equals to rounding where P
+    ``cubature.cholesky``, whose LAPACK factor it equals to rounding where P
     is positive definite). Each cell's arithmetic is that of one
     factorisation in the usual order; the loops run over the cells
     innermost, so the compiler makes them vector instructions. ``pivot``
@@ -322,7 +322,7 @@ def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp, loglik, m, P, zk, yh,
     p(y | the past) into loglik (C,), the mean (C, n) and covariance (C, n,
     n) after it into m, P, the normalised residuals, predicted measurement
     and its std of the sensors read into zk, yh, sd (C, k)
-    (``kalman._Filter.step``). Each cell's arithmetic is that of one filter
+    (``cubature._Filter.step``). Each cell's arithmetic is that of one filter
     in the usual order, the loops over the cells innermost."""
     n, C = mp.shape
     k = rows.shape[0]
@@ -411,7 +411,7 @@ def cubature_update(Y, rows, y, noise, L, inverse, mp, Pp, loglik, m, P, zk, yh,
 
 @njit(**JIT)
 def quadrature_interpolant(lg, i, t, wild):
-    """``kalman.row_quadrature``'s interpolant of the log density ``lg`` (a
+    """``quadrature.row_quadrature``'s interpolant of the log density ``lg`` (a
     row) on interval i at t in [0, 1], in its arithmetic: the mean of the
     parabolas through the three points either side (a neighbour missing,
     -inf, or lying more than ``wild`` (|l1 - l0| + 1) below: the other one,
@@ -437,7 +437,7 @@ def quadrature_interpolant(lg, i, t, wild):
 
 @njit(**JIT)
 def row_quadrature(v, lg, nodes, weights, panel_range, most_panels, wild):
-    """``kalman.row_quadrature`` of a row of at least two points, ``v``
+    """``quadrature.row_quadrature`` of a row of at least two points, ``v``
     evenly spaced and rising, in its arithmetic: the panels per interval
     from the interpolant's largest range over 9 probes of an interval whose
     probes are all finite, then Gauss-Legendre ``nodes`` and ``weights`` (on
@@ -478,7 +478,7 @@ def cubature_prepare(m, P, root, X, phys, L, extra, fixed, onset_start, onset_st
     fault states ``fixed`` (f, C; the magnitude last) into the rows
     ``extra`` of its points, the magnitude 0 in the cells onset_start ..
     onset_stop - 1 (at their onset: a nominal transition)
-    (``kalman._Filter._predict_points``); X (n_x, 2n C), point p of cell c
+    (``cubature._Filter._predict_points``); X (n_x, 2n C), point p of cell c
     in column p C + c; L (n, n, C)."""
     C, n = m.shape
     mt = np.empty((n, C))
@@ -509,7 +509,7 @@ def cubature_after(X, phys, extra, fixed, inverse, scale, Q, root, mp, Pp, L, on
     :func:`cubature_moments` (mp (n, C), Pp (n, n, C)), the update's points
     of N(mp, Pp) into the same rows (root chol(Pp) into L (n, n, C)), and the
     cells at their onset given their magnitude in the update's points
-    (``kalman._Filter._compiled_step``)."""
+    (``cubature._Filter._compiled_step``)."""
     n, C = mp.shape
     f = extra.shape[0]
     for j in range(f - 1):

@@ -1,0 +1,165 @@
+"""The diagnosis's options, as frozen dataclasses: the whole loop's
+(:class:`DiagnosisOptions`, stage by stage: :data:`STAGES`) and those of
+its parts that have their own (the static posterior's grid,
+:class:`KalmanOptions`; the particle filters' grid, :class:`GridOptions`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import ArgumentValueError
+
+
+@dataclass(frozen=True, slots=True)
+class KalmanOptions:
+    """``spacing``: samples between a drift's onsets near the alarm (further
+    back, 1/16 of the distance to it); ``first_points``, ``points``:
+    magnitudes on the first pass of the grid
+    and on the others; ``keep``: after a pass, the onsets holding less than
+    this share of the best onset's mass are left out of the next; ``relay``:
+    only onsets holding at least this share of it are laid anew; ``widen``: the first pass
+    spans the hint interval widened by this fraction of its width on each
+    side; ``passes``: at most this many passes. After a pass whose posterior
+    peaks at an end of the grid, the grid reaches its span further that way;
+    after one whose ends hold more than ``edge`` of the peak density, or
+    whose spacing is coarse (the posterior's std under ``resolution``
+    spacings), it spans 4 stds either side of the posterior's mean; else the
+    pass is the last."""
+
+    spacing: int = 4
+    first_points: int = 9
+    points: int = 9
+    keep: float = 1e-4
+    relay: float = 1e-3
+    widen: float = 0.5
+    passes: int = 4
+    resolution: float = 0.8
+    edge: float = 1e-3
+
+    def __post_init__(self):
+        if self.first_points < 3 or self.points < 3 or self.passes < 1 or self.spacing < 1:
+            raise ArgumentValueError("KalmanOptions: a row needs at least 3 points (first_points, points), passes "
+                                     "and spacing at least 1", None, "e.g. KalmanOptions(points=9)")
+
+
+@dataclass(frozen=True, slots=True)
+class GridOptions:
+    """``points`` magnitudes on the grid, ``onsets`` onsets (the most probable
+    ones of the hypothesis), ``particles`` per filter, ``widen``: the grid
+    spans the filter's interval widened by this fraction of its width on each
+    side (and once more if the posterior piles up at an end)."""
+
+    points: int = 21
+    onsets: int = 3
+    particles: int = 500
+    widen: float = 0.2
+
+
+@dataclass(frozen=True, slots=True)
+class DiagnosisOptions:
+    """The diagnosis's options, stage by stage (:data:`STAGES`; the loop of
+    :mod:`bgc.diagnosis.diagnoser`).
+
+    **Filters** (the nominal observer and the hypotheses' filters):
+    ``method``: ``gpf``, ``apf``, ``opf`` (particle filters) or ``ckf`` (no
+    particles: the nominal observer is the cubature Kalman filter, and every
+    hypothesis the symbols keep goes to the static posterior directly, its
+    consistency test dropping those that fail; ``particles`` then only sizes
+    the open-loop cloud of the symbols); ``particles``: 1000 by default (with
+    200, the RO plant's fault magnitude scatters about twice as far as the
+    filter's own interval says); ``seed``; ``shrinkage``: Liu and West's
+    kernel shrinkage of the magnitude's particles; ``switch``: when the
+    nominal particle observer degenerates (its mean effective sample size
+    before the alarm under ``DEGENERATE`` of its particles), diagnose with
+    ``ckf`` instead (a ``Switched`` event; a campaign comparing filters turns
+    it off); ``workers``: processes for the hypotheses' filters in a batch
+    diagnosis (1: in this process).
+
+    **Data** (:mod:`bgc.data.sampler`): ``gap``: missing samples in a row
+    longer than this (time units; None: ``GAP_STEPS`` steps) are a ``Gap``
+    event.
+
+    **Detection** (:mod:`bgc.diagnosis.detect`): ``false_alarm``: the
+    probability of any alarm over a fault-free ``horizon``; ``horizon``: the
+    monitoring horizon in the model's time unit (None: the model's declared
+    run length, ``simulation.steps`` x ``dt``, filled in by :func:`bgc.open`
+    and :func:`bgc.diagnose`; the record's length for the runtime's own
+    :func:`~bgc.diagnosis.diagnose.diagnose`): the same detector for a file of
+    any length and for a stream; ``windows``: the Z-tests' window lengths.
+
+    **Isolation** (:mod:`bgc.diagnosis.isolate`, :mod:`bgc.diagnosis.onsets`):
+    ``symbol_steps``: open-loop steps read for the symbols after the alarm
+    (a slope needs samples after the magnitude is seen); ``history``: how far
+    back the nominal clouds are kept (and a drift's onset is looked for);
+    ``search``: how far before the alarm a drift's onset is looked for
+    first, and by how much further back each time its onset posterior piles
+    up at the earliest onset tried; ``spacing``: steps between the onsets a
+    drift's particle filters are tried from near the alarm (further back,
+    1/16 of the distance to it; None: 8 with ``identify = "kalman"``, 4 with
+    ``"filter"``); ``near``: samples before the detector's change point a
+    step change is tried from.
+
+    **Tracking** (:mod:`bgc.diagnosis.hypothesis`): ``rejection``: the
+    probability of dropping the true hypothesis over what remains of the
+    horizon after its onset.
+
+    **Weighing** (:mod:`bgc.diagnosis.finish`, :mod:`bgc.diagnosis.static`,
+    :mod:`bgc.diagnosis.rank`): ``identify``: ``kalman`` (the hypotheses
+    weighed and the magnitude sized with the magnitude held static, by
+    cubature Kalman filters on a grid: ``kalman`` holds their options) or
+    ``filter`` (by the particle filters' magnitude state and evidence: the
+    thesis's method); ``bayes_factor``: a survivor this many times less
+    probable than the best is dropped (100: "decisive" on Jeffreys' scale);
+    ``isolation_level``: the posterior the candidates of a verdict must
+    hold together (0.95): where the survivors of the Bayes factor hold less,
+    the most probable of the hypotheses it dropped are kept as candidates
+    too, until they do (an ``Uncertain`` event), so that "isolated" names a
+    fault with at least this posterior; ``recheck``: the fault models the
+    symbols ruled out are weighed too, by their static posteriors (``identify
+    = "kalman"``), and one that explains the data is a candidate all the
+    same (an ``Overruled`` event): symbols read after a late alarm can
+    mislead;
+    ``interval``: the probability of the reported interval; ``rank``: weigh
+    the survivors anew by the evidence of their models with the magnitude
+    held static on a particle-filter grid ``rank_grid`` (``identify =
+    "filter"`` only; off by default); ``refine``: each survivor's estimate
+    from the particle filters' marginal likelihood on ``grid`` (about three
+    times slower; off by default)."""
+
+    method: str = "gpf"
+    particles: int = 1000
+    seed: int = 0
+    false_alarm: float = 0.01
+    rejection: float = 0.001
+    windows: tuple[int, ...] = (1, 8, 32)
+    history: int = 256
+    search: int = 64
+    spacing: int | None = None
+    near: int = 4
+    symbol_steps: int = 32
+    interval: float = 0.95
+    bayes_factor: float = 100.0
+    isolation_level: float = 0.95
+    recheck: bool = True
+    shrinkage: float = 0.98
+    workers: int = 2
+    identify: str = "kalman"
+    kalman: KalmanOptions = KalmanOptions()
+    rank: bool = False
+    refine: bool = False
+    grid: GridOptions = GridOptions()
+    rank_grid: GridOptions = GridOptions(points=11)
+    switch: bool = True
+    horizon: float | None = None
+    gap: float | None = None
+
+
+#: The options of each stage of the loop (every field of DiagnosisOptions in one).
+STAGES = {
+    "filters": ("method", "particles", "seed", "shrinkage", "switch", "workers"),
+    "data": ("gap",),
+    "detection": ("false_alarm", "horizon", "windows"),
+    "isolation": ("symbol_steps", "history", "search", "spacing", "near"),
+    "tracking": ("rejection",),
+    "weighing": ("identify", "kalman", "bayes_factor", "isolation_level", "recheck", "interval", "rank", "rank_grid", "refine", "grid"),
+}

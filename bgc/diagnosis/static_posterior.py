@@ -1,0 +1,498 @@
+"""Static fault posteriors: a hypothesis's onset and magnitude on a grid, each
+cell weighed by a cubature Kalman filter (:mod:`bgc.filters.cubature`).
+
+A fault hypothesis with its onset ``tau`` and magnitude ``c`` (a bias, or a
+slope) held fixed is a state-space model with additive Gaussian noise: the
+generated model's noise-free step (RK4) plus process noise, and its noise-free
+measurement plus measurement noise. The likelihood of the data under it,
+p(y | hypothesis, tau, c), is what the Bayes classifier and the posterior of
+the magnitude need. A particle filter estimates it without bias but with a
+Monte Carlo error that needs thousands of particles per (tau, c) to be small
+(the pseudo-marginal reference of ``bench/magnitude_reference.py``). A Kalman
+filter gives it exactly, with no random numbers, when the plant is linear in
+its states once tau and c are fixed (the circuit and the two tanks are).
+
+The grid is adaptive in the magnitude. For a drift it is laid out in the
+change the parameter reaches by the end of the run, ``c (T - tau) dt``,
+which the data pin down much better than the slope (an earlier onset with a
+smaller slope reaches the same change): one grid of changes serves every
+onset. It starts on the particle filters' interval, widened; it is moved
+while the posterior leans on an end and narrowed while its spacing is coarse
+against the posterior's std. The evidence of the hypothesis, p(y |
+hypothesis), is the sum over the onsets (each weighed by the span of time it
+stands for: a uniform prior in time) of the likelihood integrated over the
+magnitude's uniform prior (:func:`row_quadrature`: the log likelihood
+interpolated by parabolas between the grid's points, exact for a Gaussian
+posterior whether or not a bound of the prior cuts it off); it covers the
+data from step 0, so hypotheses compare like for like.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from types import ModuleType
+
+import numpy as np
+
+from ..kinds import fault_kind
+from ..filters.cubature import NominalTrack, run_bank, state_rows
+
+from ..filters.quadrature import overflow_shift, row_quadrature
+from .options import KalmanOptions
+from .values import StaticPosterior
+
+
+def onset_widths(onsets, ends: tuple[float, float] | None = None) -> np.ndarray:
+    """How many samples each onset of a sorted grid stands for: the span
+    between the midpoints to its neighbours (1 for consecutive samples). The
+    onset's prior is uniform in time, so an onset's prior weight is its width:
+    a hypothesis's evidence is the sum over its onsets of width x likelihood,
+    up to a factor (the length of the window the onset may lie in) common to
+    every hypothesis. The first and last onsets reach half a spacing beyond
+    themselves, or to ``ends`` when given (a grid refined inside keeps the
+    window of the grid it refines: :func:`grid_ends`)."""
+    s = np.asarray(onsets, dtype=float)
+    lo, hi = grid_ends(s) if ends is None else ends
+    return np.diff(np.concatenate([[lo], (s[1:] + s[:-1]) / 2.0, [hi]]))
+
+
+def grid_ends(onsets) -> tuple[float, float]:
+    """Where the window of a sorted grid of onsets starts and ends: half a
+    spacing beyond its first and last onsets (half a sample for one onset)."""
+    s = np.asarray(onsets, dtype=float)
+    if len(s) == 1:
+        return float(s[0]) - 0.5, float(s[0]) + 0.5
+    return float(s[0] - (s[1] - s[0]) / 2.0), float(s[-1] + (s[-1] - s[-2]) / 2.0)
+
+
+#: A drift's onsets reach further back (the next batch of ``earlier``) while
+#: the onset posterior puts at least ``EXTEND`` on its ``EDGE`` earliest onsets.
+EXTEND = 0.05
+
+
+EDGE = 2
+
+
+@dataclass(frozen=True, slots=True)
+class _Grid:
+    """One pass: per onset (rows) an evenly spaced grid of changes, the
+    cells' magnitudes and log likelihoods (rows x points; object arrays of
+    rows when the rows differ in length), and each row's posterior mass
+    ``mass`` (its onset's prior weight times the likelihood integrated over
+    the magnitude by :func:`row_quadrature`), scaled by exp(-``top``)."""
+
+    changes: np.ndarray
+    magnitudes: np.ndarray
+    loglik: np.ndarray
+    mass: np.ndarray
+    top: float
+
+
+def _row_key(onset, changes: tuple[float, float], count: int) -> tuple:
+    """The key of a grid row in the cache of :func:`_grid`: (onset, low, high, count)."""
+    return int(onset), float(changes[0]), float(changes[1]), int(count)
+
+
+def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, start, cache: dict) -> _Grid:
+    """Row i: ``count`` changes over ``ranges[i]`` (low, high) at onset
+    ``onsets[i]``, whose prior weight is ``widths[i]``; ``cache``: rows
+    computed before, by (onset, low, high, count): their log likelihoods,
+    normalised residuals (steps x count x outputs) and log predictive
+    densities (steps x count). A magnitude outside the
+    ``prior`` (beyond rounding) has no likelihood."""
+    a, b = prior
+    changes = np.array([np.linspace(lo, hi, count) if hi > lo else np.full(count, lo) for lo, hi in ranges])
+    magnitudes = changes / spans[:, None]
+    tolerance = _rounding(a, b)
+    inside = (magnitudes >= a - tolerance) & (magnitudes <= b + tolerance)
+    magnitudes = np.where(inside, np.clip(magnitudes, a, b), magnitudes)  # a bound reached by rounding is the bound
+    keys = [_row_key(o, r, count) for o, r in zip(onsets, ranges)]
+    new = [i for i, key in enumerate(keys) if key not in cache]
+    if new:
+        r = run_bank(model, ys, us, track, np.repeat(onsets[new], count), magnitudes[new].ravel(), start,
+                     residuals=True)
+        z = r.z.reshape(len(ys), len(new), count, -1).transpose(1, 0, 2, 3)  # (rows, steps, count, outputs)
+        increments = (np.zeros((len(new), len(ys), count)) if r.increments is None
+                      else r.increments.reshape(len(ys), len(new), count).transpose(1, 0, 2))
+        for i, row, zr, inc in zip(new, r.loglik.reshape(len(new), count), z, increments):
+            cache[keys[i]] = (row, zr, inc)
+    loglik = np.where(inside, np.array([cache[key][0] for key in keys]), -math.inf)
+    top = float(np.max(loglik))
+    if not math.isfinite(top):
+        return _Grid(changes, magnitudes, loglik, np.zeros(len(loglik)), top)
+    kernel = getattr(model, "_kernel", None)  # a compiled one's quadrature is compiled
+    logm = [row_quadrature(m, ll - top, kernel)[1] for m, ll in zip(magnitudes, loglik)]
+    # the interpolant may rise far above the highest point of a row too coarse for its peak:
+    # the masses are then scaled down with ``top`` raised, so that none overflows
+    shift = overflow_shift(max((float(np.max(q)) for q in logm if np.isfinite(q).any()), default=0.0))
+    mass = np.array([w * np.exp(q - shift).sum() for w, q in zip(widths, logm)])
+    return _Grid(changes, magnitudes, loglik, mass, top + shift)
+
+
+def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, float],
+                options: KalmanOptions, kernel=None) -> tuple[tuple[float, float] | None, float]:
+    """The range of changes of one onset's next pass from its row of a grid:
+    ``logd``, the log density at its points (-inf outside the prior); None:
+    the row is fine. ``bounds``: the changes its prior allows. Also the log
+    of the row's mass (:func:`row_quadrature`, which finds a peak between two
+    points of a coarse row), +inf when the peak lies beyond the row.
+
+    A row wholly outside the prior is moved inside it, its mass unknown (+inf).
+    A row whose highest point is its first or last inside the prior, short of
+    a bound, reaches further that way (to where the parabola through its
+    three points nearest the end puts the peak, else a span further). A row
+    whose end short of a bound holds more than ``edge`` of the peak density
+    is laid over 4 stds either side of the peak (the parabola's vertex and
+    std when it is concave: exact for a Gaussian however narrow the row,
+    else 4 times wider); a coarse one (std under ``resolution`` spacings)
+    over 4 stds either side of its mean, or, pressed against a bound, over 10
+    stds from the bound (an exponential's density falls to 5e-5 there, a
+    half-Gaussian's to 1e-7)."""
+    vmin, vmax = bounds
+    if not np.isfinite(logd).any():  # wholly beyond a bound (a late onset's share of a common first grid): moved inside
+        lo, hi = float(changes[0]), float(changes[-1])
+        tolerance = _rounding(vmin, vmax)
+        outside = hi < vmin - tolerance or lo > vmax + tolerance
+        return (_inside(lo, hi, vmin, vmax), math.inf) if outside else (None, -math.inf)
+    first, last, open_low, open_high = _ends(changes, logd, bounds)
+    lo, hi = float(changes[first]), float(changes[last])
+    top_at = int(np.argmax(logd))
+    spacing = float(changes[1] - changes[0]) if len(changes) > 1 else 0.0
+    vertex = sd_parabola = None
+    if last - first >= 2:  # the parabola through the three points around the highest
+        k = min(max(top_at, first + 1), last - 1)
+        l0, l1, l2 = logd[k - 1:k + 2] - logd[top_at]
+        bend = l0 - 2.0 * l1 + l2
+        if bend < 0.0:
+            vertex = float(changes[k] + spacing * (l0 - l2) / (2.0 * bend))
+            sd_parabola = spacing / math.sqrt(-bend)
+    at_low, at_high = top_at == first and open_low, top_at == last and open_high
+    if at_low or at_high:  # the peak lies beyond an end
+        if vertex is not None and (vertex < lo if at_low else vertex > hi):
+            return _inside(vertex - 4.0 * sd_parabola, vertex + 4.0 * sd_parabola, vmin, vmax), math.inf
+        span = max(hi - lo, spacing)
+        return ((max(lo - span, vmin), hi) if at_low else (lo, min(hi + span, vmax))), math.inf
+    x, logm = row_quadrature(changes, logd, kernel)
+    peak = float(np.max(logm))
+    m = np.exp(logm - peak)
+    mass = peak + math.log(m.sum())
+    p = m / m.sum()
+    mean = float(p @ x)
+    sd = math.sqrt(max(float(p @ (x - mean) ** 2), 0.0))
+    edge = _holds_mass(logd, first, last, open_low, open_high, options.edge)
+    if edge:  # the density reaches past an end: from the parabola when it tells, else 4 times wider
+        if vertex is not None and lo - (hi - lo) <= vertex <= hi + (hi - lo):
+            mean, sd = vertex, max(sd, sd_parabola)
+        else:
+            sd = max(sd, hi - lo)
+    elif sd >= options.resolution * spacing:
+        return None, mass
+    if top_at in (first, last) and not edge:  # pressed against a bound: a fall like an exponential's, 10 stds
+        new = (max(hi - 10.0 * sd, vmin), hi) if top_at == last else (lo, min(lo + 10.0 * sd, vmax))
+    else:
+        new = _inside(mean - 4.0 * sd, mean + 4.0 * sd, vmin, vmax)
+    return (None if np.allclose(new, (lo, hi), rtol=1e-9, atol=0.0) else new), mass
+
+
+def _inside(lo: float, hi: float, vmin: float, vmax: float) -> tuple[float, float]:
+    """(lo, hi) cut to the prior's (vmin, vmax); a range beyond a bound (the
+    likelihood peaks outside the prior) keeps its width against that bound."""
+    width = min(hi - lo, vmax - vmin)
+    if hi <= vmin:
+        return vmin, vmin + width
+    if lo >= vmax:
+        return vmax - width, vmax
+    return max(lo, vmin), min(hi, vmax)
+
+
+#: At most this many rounds of a drift's onset refinement (:func:`static_posterior`).
+REFINE_ROUNDS = 6
+
+
+def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets,
+                     hint: tuple[float, float], hint_onset: int, level: float,
+                     options: KalmanOptions = KalmanOptions(), earlier=(), refine: bool | None = None,
+                     far=None) -> StaticPosterior:
+    """The posterior of fault model ``model``'s onset (one of ``onsets``,
+    each weighed by the span of samples it stands for, :func:`onset_widths`)
+    and magnitude (uniform on the model's ``FAULT_PRIOR``), from cubature
+    Kalman filters on a grid adapted to it. ``hint``: an interval of the
+    magnitude where the posterior is expected (the particle filters'
+    interval) when the onset is ``hint_onset``; ``track``: the nominal filter
+    over the run up to the latest onset; ``earlier``: batches of earlier
+    onsets the fault reaches back to, one batch at a time, while its onset
+    posterior piles up at its earliest onsets (``EXTEND`` on the ``EDGE``
+    earliest); ``refine``: whether the onset is refined sample by sample
+    around the most probable one (below; None: for a drift only); ``far``:
+    a test of the most likely cell's normalised residuals (steps x outputs,
+    from its onset) after each pass: when it says the cell is far off the
+    data, the model is (its best fit fails, the grid only refines it) and no
+    further pass is made (``StaticPosterior.passes`` tells how many were).
+
+    The first pass lays one grid of ``first_points`` changes over the hint,
+    widened (and moved inside the prior when it lies beyond a bound), at
+    every onset; after it each onset's row is laid anew on its own
+    (:func:`_next_range`), up to ``passes`` passes; onsets holding under
+    ``keep`` of the best one's mass are left out of the next pass."""
+    T = len(ys)
+    kind = fault_kind(model.FAULT["kind"])
+    drifts = kind.drifts
+    prior = tuple(float(v) for v in model.FAULT_PRIOR)
+    a, b = prior
+    batches = [sorted(int(o) for o in batch) for batch in earlier]
+
+    def span(o) -> np.ndarray:  # a cell's variable: the parameter's change by the last step (bias, slope x time)
+        o = np.asarray(o, dtype=float)
+        return kind.change(np.ones(o.shape), (T - o) * model.DT)
+
+    current = np.asarray(sorted(int(o) for o in onsets))
+    tried = current.tolist()
+    width_of = dict(zip(tried, onset_widths(tried).tolist()))  # an onset's prior weight: its span in the grid tried
+    spans = span(current)
+    scale = float(kind.change(1.0, (T - hint_onset) * model.DT))
+    lo, hi = sorted((hint[0] * scale, hint[1] * scale))
+    vmin, vmax = float(np.min(a * spans)), float(np.max(b * spans))
+    width = max(hi - lo, 1e-6 * max(abs(lo), abs(hi), vmax - vmin))
+    lo, hi = _inside(lo - options.widen * width, hi + options.widen * width, vmin, vmax)
+    ranges = {int(o): (lo, hi) for o in current}
+    counts = {int(o): options.first_points for o in current}
+    start = fault_start(model, track, int(current[0]))
+    kernel = getattr(model, "_kernel", None)  # the quadrature's (compiled in a compiled package)
+    cache: dict = {}
+    passes = 0
+    g = None
+    rounds = 0  # of a drift's onset refinement, below
+    ends = None  # the window of the onsets' grid before it was refined
+    given_up = False  # the best fit is far off the data (``far``): no further pass
+    while True:
+        for turn in range(options.passes):
+            passes += 1
+            spans = span(current)
+            groups = {}  # rows of one point count are one grid
+            for i, o in enumerate(current.tolist()):
+                groups.setdefault(counts[o], []).append(i)
+            widths = np.array([width_of[o] for o in current.tolist()])
+            parts = {c: _grid(model, ys, us, track, current[rows], widths[rows], spans[rows],
+                              [ranges[current[i]] for i in rows], c, prior, start, cache)
+                     for c, rows in groups.items()}
+            g = _merge(current, groups, parts)
+            if not math.isfinite(g.top) or turn == options.passes - 1:
+                break
+            if far is not None:
+                row = int(np.argmax([np.max(ll) for ll in g.loglik]))
+                o = int(current[row])
+                key = _row_key(o, ranges[o], counts[o])
+                if far(cache[key][1][o:, int(np.argmax(g.loglik[row]))]):
+                    given_up = True
+                    break
+            following, mass = [], np.empty(len(current))  # log of each onset's mass, as far as its row tells
+            for i in range(len(current)):
+                bounds = tuple(sorted((a * spans[i], b * spans[i])))
+                f, mass[i] = _next_range(g.changes[i], g.loglik[i], bounds, options, kernel)
+                following.append(f)
+                mass[i] += math.log(widths[i] / spans[i])
+            told = np.isfinite(mass)
+            best = mass[told].max() if told.any() else math.inf
+            # onsets the posterior leaves out are left out (a coarse row's mass as its quadrature tells: a
+            # peak may lie between its points); rows are laid anew only where the posterior's mass is
+            kept = ~told & (mass > 0) | told & (mass >= math.log(options.keep) + best)
+            relaid = [i for i, f in enumerate(following)
+                      if f is not None and kept[i] and not (told[i] and mass[i] < math.log(options.relay) + best)]
+            if not relaid and kept.all():
+                break
+            for i in relaid:
+                ranges[int(current[i])], counts[int(current[i])] = following[i], options.points
+            current = current[kept]
+        if g is None or not math.isfinite(g.top) or given_up:
+            break
+        share = dict(zip(current.tolist(), g.mass))
+        if not (batches and sum(share.get(o, 0.0) for o in tried[:EDGE]) / sum(share.values()) >= EXTEND):
+            # a fault's magnitude given its onset is much sharper than the onset grid: every sample from
+            # the most probable onset's neighbour before it in the grid tried to the one after it is tried
+            # too (for a drift, those left out by an earlier pass as well), so the onset is marginalised
+            # sample by sample where the posterior is (it is a whole number of samples); again while the
+            # most probable onset moves to an end of what was tried
+            if not (drifts if refine is None else refine) or rounds == REFINE_ROUNDS:
+                break
+            best = max(share, key=lambda o: share[o] / width_of[o])
+            before = [o for o in tried if o < best]
+            after = [o for o in tried if o > best]
+            fill = [o for o in range(before[-1] if before else best, (after[0] if after else best) + 1)
+                    if o not in (share if drifts else tried)]
+            if not fill:
+                break
+            rounds += 1
+            if ends is None:  # the refined grid keeps the window of the grid it refines (the evidence's factor)
+                ends = grid_ends(tried)
+            tried = sorted(set(fill) | set(tried))
+            width_of = dict(zip(tried, onset_widths(tried, ends).tolist()))
+            for o in fill:
+                ranges[o], counts[o] = ranges[best], counts[best]
+            current = np.asarray(sorted(set(fill) | set(current.tolist())))
+            continue
+        batch = batches.pop(0)  # a drift that began earlier: reach further back, from the earliest onset's grid
+        tried = sorted(set(batch) | set(tried))
+        width_of = dict(zip(tried, onset_widths(tried).tolist()))
+        ends = None
+        for o in batch:
+            ranges[o], counts[o] = ranges[int(current[0])], counts[int(current[0])]
+        current = np.asarray(sorted(set(batch) | set(current.tolist())))
+    name = getattr(model, "NAME", "")
+    widths = [width_of[int(o)] for o in current]
+
+    def none_told() -> StaticPosterior:
+        """What the grid cannot tell: no likelihood (log evidence -inf), no estimate."""
+        nan = math.nan
+        return StaticPosterior(name, tuple(int(o) for o in current), tuple(widths), np.zeros((len(current), 0)),
+                               np.zeros((len(current), 0)), -math.inf, nan, nan, nan, nan, level, nan,
+                               int(current[0]), tuple(0.0 for _ in current), passes)
+
+    if g is None or not math.isfinite(g.top):
+        return none_told()
+    spans = span(current)
+    nodes, changes, logm, rows = [], [], [], []
+    for i, (m, ll) in enumerate(zip(g.magnitudes, g.loglik)):
+        x, lm = row_quadrature(m, ll - g.top, kernel)
+        nodes.append(x)
+        changes.append(x * spans[i])
+        logm.append(lm + math.log(widths[i]))
+        rows.append(np.full(len(x), i))
+    x, c, row_of = np.concatenate(nodes), np.concatenate(changes), np.concatenate(rows)
+    every = np.concatenate(logm)
+    shift = overflow_shift(float(np.max(every)))  # see _grid
+    mass = np.exp(every - shift)
+    total = float(mass.sum())
+    # the grid's points hold no mass: the quadrature's interpolant rose far above its points (a row whose
+    # next point is extreme, e.g. -2e18 where a magnitude made the model diverge, bends the parabola
+    # through it upwards: tests/test_kalman.py, the strict xfail) and the shift left every mass at 0
+    if not total > 0.0:
+        return none_told()
+    log_evidence = g.top + shift + math.log(total) - math.log(b - a)
+    p = mass / total
+    mean = float(p @ x)
+    std = math.sqrt(max(float(p @ (x - mean) ** 2), 0.0))
+    order = np.argsort(x, kind="stable")
+    cdf = np.cumsum(p[order]) - p[order] / 2.0
+    low, high = (float(q) for q in np.interp([(1.0 - level) / 2.0, (1.0 + level) / 2.0], cdf, x[order]))
+    onset_posterior = np.bincount(row_of, weights=p, minlength=len(current))
+    row = int(np.argmax([np.max(ll) for ll in g.loglik]))  # the most likely cell, and its residuals
+    col = int(np.argmax(g.loglik[row]))
+    best = (int(current[row]), float(g.magnitudes[row][col]))
+    key = {int(o): _row_key(o, ranges[int(o)], counts[int(o)]) for o in current}
+    residuals = cache[key[best[0]]][1][:, col]
+    trace = _trace(track, current, widths, g, [cache[key[int(o)]][2] for o in current])
+    return StaticPosterior(name, tuple(int(o) for o in current), tuple(float(w) for w in widths),
+                           g.magnitudes, g.loglik, log_evidence, mean, std, low, high, level, float(p @ c),
+                           int(current[int(np.argmax(onset_posterior / np.asarray(widths)))]),
+                           tuple(float(q) for q in onset_posterior), passes, best, residuals,
+                           _truncated(g, prior, options), trace)
+
+
+def fault_start(model: ModuleType, track: NominalTrack, onset: int) -> np.ndarray:
+    """The fault states a cell of ``model`` starts with (a drifting
+    parameter's nominal value; the magnitude, last, is the cell's own)."""
+    _, extra = state_rows(model)
+    return model.augment(track.mean[onset][:, None], np.random.default_rng(0))[extra, 0]
+
+
+def _trace(track: NominalTrack, onsets, widths, g: _Grid, increments: list) -> np.ndarray:
+    """(steps x 2): the magnitude's posterior mean and std given the data up
+    to each step, over the cells of grid ``g`` (row i at ``onsets[i]``, its
+    prior weight ``widths[i]``, its cells' log predictive densities
+    ``increments[i]``, steps x cells), each cell a point mass of its row's
+    spacing: before a cell's onset its likelihood is the nominal filter's."""
+    T = len(increments[0])
+    logs, values, weights = [], [], []
+    for o, w, m, ll, inc in zip(onsets, widths, g.magnitudes, g.loglik, increments):
+        o = int(o)
+        m = np.asarray(m, dtype=float)
+        spacing = float(abs(m[-1] - m[0]) / (len(m) - 1)) if len(m) > 1 and m[-1] != m[0] else 1.0
+        cum = np.empty((T, len(m)))
+        cum[:o] = track.loglik[1:o + 1, None]
+        cum[o:] = track.loglik[o] + np.cumsum(inc[o:], axis=0)
+        cum[:, ~np.isfinite(np.asarray(ll, dtype=float))] = -math.inf  # outside the prior
+        logs.append(cum)
+        values.append(m)
+        weights.append(np.full(len(m), w * spacing))
+    L, v, w = np.concatenate(logs, axis=1), np.concatenate(values), np.concatenate(weights)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p = np.exp(L - np.max(L, axis=1, keepdims=True)) * w
+        p /= p.sum(axis=1, keepdims=True)
+        mean = p @ v
+        std = np.sqrt(np.maximum(p @ (v * v) - mean * mean, 0.0))
+    return np.column_stack([mean, std])
+
+
+def record_path(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack,
+                p: StaticPosterior) -> StaticPosterior:
+    """``p`` with its ``path``: the filter of its most probable onset with
+    its posterior mean magnitude, its predictions and estimates recorded."""
+    if not math.isfinite(p.log_evidence):
+        return p
+    r = run_bank(model, ys, us, track, [p.onset], [p.mean], fault_start(model, track, p.onset), residuals=True,
+                 record=True)
+    return dataclasses.replace(p, path=r)
+
+
+def _truncated(g: _Grid, prior: tuple[float, float], options: KalmanOptions) -> bool:
+    """Whether a row holding at least ``relay`` of the posterior's mass still
+    has its highest point, or more than ``edge`` of it, at an end short of a
+    bound of the prior after the last pass: its posterior may reach past the
+    grid."""
+    share = g.mass / g.mass.sum()
+    return any(_holds_mass(ll, *_ends(m, ll, prior), options.edge)
+               for m, ll, s in zip(g.magnitudes, g.loglik, share)
+               if s >= options.relay and np.isfinite(ll).sum() >= 2)
+
+
+def _rounding(lo: float, hi: float) -> float:
+    """How far a value may lie beyond a bound of (``lo``, ``hi``) by rounding alone."""
+    return 1e-9 * max(abs(lo), abs(hi), hi - lo)
+
+
+def _ends(values: np.ndarray, logd: np.ndarray, bounds: tuple[float, float]) -> tuple[int, int, bool, bool]:
+    """The first and last points of a row inside the prior (finite
+    ``logd``; there is one at least), and whether each lies short of its
+    bound of ``bounds`` (by more than rounding)."""
+    finite = np.flatnonzero(np.isfinite(logd))
+    first, last = int(finite[0]), int(finite[-1])
+    vmin, vmax = bounds
+    tolerance = _rounding(vmin, vmax)
+    return first, last, bool(values[first] > vmin + tolerance), bool(values[last] < vmax - tolerance)
+
+
+def _holds_mass(logd: np.ndarray, first: int, last: int, open_low: bool, open_high: bool, edge: float) -> bool:
+    """Whether an end of a row short of a bound (``open_low``,
+    ``open_high``) holds more than ``edge`` of the row's peak density: the
+    density reaches past the row."""
+    d_first, d_last = np.exp(logd[[first, last]] - np.max(logd))
+    return bool(d_first > edge and open_low or d_last > edge and open_high)
+
+
+def _merge(onsets: np.ndarray, groups: dict, parts: dict) -> _Grid:
+    """The grids of ``parts`` (point count -> grid of the rows ``groups[count]``)
+    as one, row i for onset i, on a common scale. Rows may differ in length:
+    the arrays are object arrays of rows then."""
+    top = max(part.top for part in parts.values())
+    rows = [None] * len(onsets)
+    for c, idx in groups.items():
+        part = parts[c]
+        scale = math.exp(part.top - top) if math.isfinite(part.top) else 0.0
+        for k, i in enumerate(idx):
+            rows[i] = (part.changes[k], part.magnitudes[k], part.loglik[k], part.mass[k] * scale)
+    mass = np.array([r[3] for r in rows])
+    if len({len(r[0]) for r in rows}) == 1:
+        changes, magnitudes, loglik = (np.array([r[j] for r in rows]) for j in range(3))
+    else:
+        changes, magnitudes, loglik = (_ragged([r[j] for r in rows]) for j in range(3))
+    return _Grid(changes, magnitudes, loglik, mass, top)
+
+
+def _ragged(rows: list) -> np.ndarray:
+    """An object array of the arrays ``rows`` (NumPy would broadcast rows of one length into 2-D)."""
+    out = np.empty(len(rows), dtype=object)
+    for i, r in enumerate(rows):
+        out[i] = r
+    return out
