@@ -22,7 +22,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bgc.experiment import campaign  # noqa: E402
+
+from bgc.experiment import runs_csv
 
 BANDS = ((0.0, 0.5), (0.5, 0.8), (0.8, 0.95), (0.95, 0.99), (0.99, 1.0))
 
@@ -31,7 +32,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", default=str(ROOT / "out" / "sweep" / "runs.csv"))
     args = ap.parse_args()
-    rows = campaign.read_rows(Path(args.runs))
+    rows = runs_csv.read_rows(Path(args.runs))
     seen = [r for r in rows if r["status"] == "ok" and r["fault"] and r["delay"] is not None
             and r["separation"] is not None]
     print(f"{len(seen)} detected faulty runs with a prediction, from {args.runs}\n")

@@ -31,7 +31,8 @@ from tqdm import tqdm
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bgc.experiment import campaign  # noqa: E402
+
+from bgc.experiment import campaign_file, one_run, runs_csv
 from bgc.diagnosis import diagnose as dg  # noqa: E402
 
 
@@ -42,7 +43,7 @@ def _run(job):
     dg.DiagnosisOptions = lambda **kw: original(**{**kw, **options})  # run_one builds its options here
     try:
         started = time.perf_counter()
-        row = campaign.run_one(spec)
+        row = one_run.run_one(spec)
         return spec.group, row, time.perf_counter() - started
     finally:
         dg.DiagnosisOptions = original
@@ -62,11 +63,11 @@ def main() -> None:
     a = ap.parse_args()
     if not Path(a.runs).is_file():
         sys.exit(f"{a.runs}: no finished sweep; run: bgc experiment experiments/sweep.yaml -o out/sweep")
-    rows = {r["id"]: r for r in campaign.read_rows(Path(a.runs))}
+    rows = {r["id"]: r for r in runs_csv.read_rows(Path(a.runs))}
     options = {"rank": a.rank}
     options.update({k: v for k, v in (("search", a.search), ("history", a.history)) if v is not None})
     groups = a.groups.split(",")
-    c = campaign.load_campaign(a.config)
+    c = campaign_file.load_campaign(a.config)
     specs = [s for s in c.specs if s.group in groups and s.kind == a.kind and s.filter == a.filter
              and rows.get(s.id, {}).get("detected") is True]
     print(f"{len(specs)} detected {a.kind} runs ({a.filter}) of {', '.join(groups)}; options {options}")

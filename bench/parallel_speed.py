@@ -28,7 +28,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.experiment import campaign  # noqa: E402
+from bgc.experiment import campaign
+from bgc.experiment import campaign_file
 from bgc.diagnosis.options import DiagnosisOptions
 
 
@@ -64,8 +65,8 @@ def main() -> None:
               f"| {statistics.median(alone):.2f} |")
 
     print(f"\n## 2. Campaign: the first {args.runs} runs of experiments/thesis_tables.yaml (2 processes vs 1)\n")
-    c = campaign.load_campaign(ROOT / "experiments" / "thesis_tables.yaml")
-    c = campaign.Campaign(c.name, c.description, c.source, c.sha256, c.specs[: args.runs], (), c.groups)
+    c = campaign_file.load_campaign(ROOT / "experiments" / "thesis_tables.yaml")
+    c = campaign_file.Campaign(c.name, c.description, c.source, c.sha256, c.specs[: args.runs], (), c.groups)
     times: dict[int, list[float]] = {1: [], 2: []}
     rows = {}
     with tempfile.TemporaryDirectory() as folder:

@@ -26,7 +26,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bgc import api  # noqa: E402
+
+from bgc.api import folders as api_folders
 from bgc.filters import cubature as kalman
 from bgc.data import runs
 from bgc.analysis import simulate
@@ -41,7 +42,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--filter-seeds", type=int, default=3)
     args = ap.parse_args()
-    c, private = api._compiled(ROOT / "tests" / "data" / "models" / "drivetrain.yaml")
+    c, private = api_folders._compiled(ROOT / "tests" / "data" / "models" / "drivetrain.yaml")
     package = packages.load_package(private, "drivetrain")
     nominal = package.nominal
     print("| data seed | N | GPF mean ESS | OPF mean ESS | OPF runs that lost the state | CKF var(z) per sensor "

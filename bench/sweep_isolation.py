@@ -22,7 +22,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bgc.experiment import campaign  # noqa: E402
+
+from bgc.experiment import runs_csv
 
 
 def main() -> None:
@@ -32,7 +33,7 @@ def main() -> None:
     if not Path(a.runs).is_file():
         sys.exit(f"{a.runs}: no finished sweep; run: bgc experiment experiments/sweep.yaml -o out/sweep")
     tally = defaultdict(lambda: [0, 0, 0, 0, 0])
-    for r in campaign.read_rows(Path(a.runs)):
+    for r in runs_csv.read_rows(Path(a.runs)):
         if r["kind"] is None or r["detected"] is not True:
             continue
         t = tally[(r["group"], r["kind"], r["filter"])]

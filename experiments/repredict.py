@@ -38,7 +38,8 @@ from tqdm import tqdm
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bgc.experiment import campaign  # noqa: E402
+
+from bgc.experiment import campaign_file, one_run, runs_csv
 from bgc.output.artifacts import MARK  # noqa: E402
 
 COLUMNS = ("separable", "rivals", "separation", "detectability")
@@ -61,20 +62,20 @@ def main() -> int:
     if kept.exists():
         print(f"{kept} exists: move it away first (this script never overwrites it)", file=sys.stderr)
         return 1
-    c = campaign.load_campaign(args.config)
+    c = campaign_file.load_campaign(args.config)
     specs = {s.id: s for s in c.specs}
-    rows = campaign.read_rows(runs)
+    rows = runs_csv.read_rows(runs)
     changed = 0
     todo = [(row, specs[row["id"]]) for row in rows if row["id"] in specs and specs[row["id"]].fault is not None]
     # by model and noise levels: each is compiled, and its families prepared, once (as in a campaign's worker)
     todo.sort(key=lambda rs: (rs[1].model_name, rs[1].noise))
     for row, spec in tqdm(todo, desc="predictions", unit="run"):
-        campaign._session(spec, spec.process_noise, spec.measurement_noise)  # its compiled model, for the prediction
-        new = dict.fromkeys(COLUMNS) | campaign._separation(spec)
+        one_run._session(spec, spec.process_noise, spec.measurement_noise)  # its compiled model, for the prediction
+        new = dict.fromkeys(COLUMNS) | one_run._separation(spec)
         if any(new[k] != row[k] for k in COLUMNS):
             changed += 1
         row.update(new)
-    data = campaign.csv_header(c) + "".join(campaign.csv_row(r) for r in rows)
+    data = runs_csv.csv_header(c) + "".join(runs_csv.csv_row(r) for r in rows)
     os.link(runs, kept)  # the old rows stay under the new name
     tmp = runs.with_name("runs.csv.repredict-tmp")
     tmp.write_text(data, encoding="utf-8")
@@ -85,10 +86,10 @@ def main() -> int:
 
 def check(config: Path, runs: Path, kept: Path, count: int) -> int:
     """Rerun ``count`` rows whose predictions changed and compare them with ``runs``."""
-    c = campaign.load_campaign(config)
+    c = campaign_file.load_campaign(config)
     specs = {s.id: s for s in c.specs}
-    new = {r["id"]: r for r in campaign.read_rows(runs)}
-    old = {r["id"]: r for r in campaign.read_rows(kept)}
+    new = {r["id"]: r for r in runs_csv.read_rows(runs)}
+    old = {r["id"]: r for r in runs_csv.read_rows(kept)}
     changed = [i for i in new if i in old and i in specs and any(new[i][k] != old[i][k] for k in COLUMNS)]
     by_model: dict[str, list[str]] = {}
     for i in changed:
@@ -97,9 +98,9 @@ def check(config: Path, runs: Path, kept: Path, count: int) -> int:
              if j < len(ids)]
     differing = 0
     for i in order[:count]:
-        row = campaign.run_one(specs[i])
+        row = one_run.run_one(specs[i])
         diff = {k: (row[k], new[i][k]) for k in row if k not in ("rt", "model")
-                and campaign.format_cell(k, row[k]) != campaign.format_cell(k, new[i][k])}
+                and runs_csv.format_cell(k, row[k]) != runs_csv.format_cell(k, new[i][k])}
         differing += bool(diff)
         print(f"{specs[i].scenario} {specs[i].filter} {specs[i].noise} seed {specs[i].seed}: "
               + (f"differs: {diff}" if diff else "the same in every column but rt"))

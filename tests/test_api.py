@@ -16,6 +16,8 @@ import yaml
 
 import bgc
 from bgc import api, cli
+from bgc.api import folders as api_folders
+from bgc.api import limits as api_limits
 from bgc.errors import (ArgumentTypeError, ArgumentValueError, BgcError, DataError, SimulationError,
                         TrackingError)
 from bgc.output.events import sentence
@@ -212,20 +214,20 @@ def test_a_diagnosis_beyond_the_memory_is_refused_with_the_most_steps():
     line = refused(lambda: bgc.diagnose(CIRCUIT, scenario="none", steps=10_000_000, generated=GENERATED),
                    TrackingError, "--steps: a diagnosis of 10000000 steps of circuit may take about")
     most = int(line.split("at most ")[1].split()[0])
-    api.check_diagnosis_steps(most, num, 1000, "gpf")
+    api_limits.check_diagnosis_steps(most, num, 1000, "gpf")
     with pytest.raises(TrackingError):
-        api.check_diagnosis_steps(most + 1, num, 1000, "gpf")
-    fixed, per_step = api.diagnosis_memory(most, num, 1000, "gpf")
-    assert fixed + most * per_step <= api.MAX_DIAGNOSIS_BYTES < fixed + (most + 1) * per_step
+        api_limits.check_diagnosis_steps(most + 1, num, 1000, "gpf")
+    fixed, per_step = api_limits.diagnosis_memory(most, num, 1000, "gpf")
+    assert fixed + most * per_step <= api_limits.MAX_DIAGNOSIS_BYTES < fixed + (most + 1) * per_step
     # ckf keeps no particle clouds: it may diagnose longer runs; more particles, shorter ones
-    assert api.diagnosis_memory(1, num, 1000, "ckf")[0] == 0
-    assert api.diagnosis_memory(1, num, 4000, "gpf")[1] > per_step
+    assert api_limits.diagnosis_memory(1, num, 1000, "ckf")[0] == 0
+    assert api_limits.diagnosis_memory(1, num, 4000, "gpf")[1] > per_step
     refused(lambda: bgc.diagnose(CIRCUIT, scenario="none", particles=10_000_000, generated=GENERATED), TrackingError,
             "10000000 particles: a diagnosis of circuit keeps 257 clouds of them")
 
 
 def test_a_long_recorded_run_is_refused_by_the_same_rule(monkeypatch):
-    monkeypatch.setattr(api, "MAX_DIAGNOSIS_BYTES", 20_000_000)
+    monkeypatch.setattr(api_limits, "MAX_DIAGNOSIS_BYTES", 20_000_000)
     refused(lambda: bgc.diagnose(CIRCUIT, data=circuit_run(200), generated=GENERATED), TrackingError,
             "circuit.csv: 200 samples: a diagnosis of 200 steps of circuit may take about")
 
@@ -238,7 +240,7 @@ def test_the_rule_bounds_the_memory_a_diagnosis_takes():
     options = DiagnosisOptions(particles=300, workers=1)
     bgc.diagnose(CIRCUIT, data=run, generated=GENERATED, options=options)  # compiled, imported: not counted
     d, peak = peak_memory(lambda: bgc.diagnose(CIRCUIT, data=run, generated=GENERATED, options=options).diagnosis)
-    fixed, per_step = api.diagnosis_memory(200, compiled("circuit").numerics, 300, "gpf")
+    fixed, per_step = api_limits.diagnosis_memory(200, compiled("circuit").numerics, 300, "gpf")
     assert d.verdict != "no fault" and peak < fixed + 200 * per_step, (peak, fixed, per_step)
 
 
@@ -271,21 +273,21 @@ def test_private_folders_are_this_processs_own_and_removed_on_demand(tmp_path, m
     its own private folders go (the one being made too: it is named before
     it is made); a folder listed for another process (the parent a worker
     was forked from) stays."""
-    monkeypatch.setattr(api, "_FOLDERS", [])
-    monkeypatch.setattr(api.tempfile, "gettempdir", lambda: str(tmp_path))
-    mine = Path(api.private_folder("bgc-test-"))
+    monkeypatch.setattr(api_folders, "_FOLDERS", [])
+    monkeypatch.setattr(api_folders.tempfile, "gettempdir", lambda: str(tmp_path))
+    mine = Path(api_folders.private_folder("bgc-test-"))
     assert mine.is_dir() and mine.parent == tmp_path and (os.stat(mine).st_mode & 0o777) == 0o700
     (mine / "x.yaml").write_text("x", encoding="utf-8")
     other = tmp_path / "bgc-parent"
     other.mkdir()
-    api._FOLDERS.append((os.getpid() + 1, str(other)))
-    api._FOLDERS.append((os.getpid(), str(tmp_path / "bgc-named-not-made")))
-    api.remove_private_folders()
+    api_folders._FOLDERS.append((os.getpid() + 1, str(other)))
+    api_folders._FOLDERS.append((os.getpid(), str(tmp_path / "bgc-named-not-made")))
+    api_folders.remove_private_folders()
     assert not mine.exists() and other.is_dir()
 
 
 def test_private_folder_takes_a_prefix_string():
-    refused(lambda: api.private_folder(5), ArgumentTypeError, "bgc.api.private_folder: prefix=5 is not a string")
+    refused(lambda: api_folders.private_folder(5), ArgumentTypeError, "bgc.api.private_folder: prefix=5 is not a string")
 
 
 def test_bgc_gives_the_api_functions():
@@ -336,14 +338,14 @@ def test_bgc_distinguish_steps_must_be_positive(capsys):
 
 def test_the_step_limit_a_campaign_calls_checks_its_arguments_too():
     num = compiled("circuit").numerics
-    refused(lambda: api.check_diagnosis_steps(0, num), ArgumentValueError, "bgc.api.diagnosis_memory: steps=0")
-    refused(lambda: api.check_diagnosis_steps(300, "circuit"), ArgumentTypeError,
+    refused(lambda: api_limits.check_diagnosis_steps(0, num), ArgumentValueError, "bgc.api.diagnosis_memory: steps=0")
+    refused(lambda: api_limits.check_diagnosis_steps(300, "circuit"), ArgumentTypeError,
             "bgc.api.diagnosis_memory: num='circuit' is not a Numerics")
-    refused(lambda: api.check_diagnosis_steps(300, num, 1000, "pf"), ArgumentValueError,
+    refused(lambda: api_limits.check_diagnosis_steps(300, num, 1000, "pf"), ArgumentValueError,
             "bgc.api.diagnosis_memory: method='pf' is not one of")
-    refused(lambda: api.check_diagnosis_steps(300, num, True), ArgumentTypeError,
+    refused(lambda: api_limits.check_diagnosis_steps(300, num, True), ArgumentTypeError,
             "bgc.api.diagnosis_memory: particles=True is not an integer")
-    refused(lambda: api.check_diagnosis_steps(10**7, num, 1000, "ckf", "steps"), TrackingError,
+    refused(lambda: api_limits.check_diagnosis_steps(10**7, num, 1000, "ckf", "steps"), TrackingError,
             "steps: a diagnosis of 10000000 steps of circuit may take about")
 
 

@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 
 from bgc.experiment import campaign
+
+from bgc.experiment import campaign_file, one_run, runs_csv
 from bgc.errors import BgcError
 from bgc.output import tables
 from bgc.experiment import metrics
@@ -64,7 +66,7 @@ def without_time(rows):
 
 # ------------------------------------------------------------------ the file
 def test_the_grid_expands_into_every_combination_in_order(tmp_path):
-    c = campaign.load_campaign(write(tmp_path, SMALL))
+    c = campaign_file.load_campaign(write(tmp_path, SMALL))
     grid = [s for s in c.specs if s.group == "grid"]
     # 2 scenarios x 1 noise x 2 filters x 1 particle count x 2 seeds
     assert len(grid) == 8 and len([s for s in c.specs if s.group == "draws"]) == 2
@@ -89,7 +91,7 @@ def test_draws_of_sensor_faults_are_in_units_of_the_reading(tmp_path):
         model: {TWO_TANK}
         draws: {{count: 20, change: [0.2, 0.4], onset: [0.3, 0.6], faults: [F12]}}
     """
-    c = campaign.load_campaign(write(tmp_path, text))
+    c = campaign_file.load_campaign(write(tmp_path, text))
     assert {s.fault for s in c.specs} == {"F12_offset"} and {s.kind for s in c.specs} <= {"bias", "drift"}
     for s in c.specs:
         assert s.scenario.startswith("F12:")
@@ -106,8 +108,8 @@ def test_draws_are_reproducible_and_respect_ranges_and_declared_directions(tmp_p
         model: {CIRCUIT}
         draws: {{count: 60, change: [0.2, 0.5], onset: [0.3, 0.6], kinds: [abrupt, incipient]}}
     """
-    a = campaign.load_campaign(write(tmp_path, text))
-    b = campaign.load_campaign(write(tmp_path, text, "again.yaml"))
+    a = campaign_file.load_campaign(write(tmp_path, text))
+    b = campaign_file.load_campaign(write(tmp_path, text, "again.yaml"))
     assert [s.scenario for s in a.specs] == [s.scenario for s in b.specs]
     assert len({s.seed for s in a.specs}) == 60  # every draw its own noise
     nominal = {"R1": 1.0, "R2": 2.0, "R3": 1.0, "C1": 0.5, "C2": 1.0, "L": 0.5}  # circuit.yaml
@@ -147,7 +149,7 @@ def test_draws_are_reproducible_and_respect_ranges_and_declared_directions(tmp_p
 def test_a_bad_campaign_is_one_located_line_without_traceback(tmp_path, body, where, words):
     path = write(tmp_path, "campaign: bad\n" + body.replace("model: M", f"model: {CIRCUIT}") + "\n")
     with pytest.raises(BgcError) as err:
-        campaign.load_campaign(path)
+        campaign_file.load_campaign(path)
     assert words in str(err.value) and f"{path}{where}" in str(err.value)
     r = subprocess.run([sys.executable, "-m", "bgc", "experiment", str(path), "-o", str(tmp_path / "o")],
                        capture_output=True, text=True)
@@ -162,29 +164,29 @@ def test_the_published_campaign_schema_is_the_packaged_one():
 
 
 def test_the_shipped_campaigns_load():
-    thesis = campaign.load_campaign(ROOT / "experiments" / "thesis_tables.yaml")
+    thesis = campaign_file.load_campaign(ROOT / "experiments" / "thesis_tables.yaml")
     # Tables IV.2 to IV.4: 5 scenarios x 2 filters x 10 seeds, and R_pipe abrupt at the high noise level
     assert len(thesis.specs) == 100 + 20 and len(thesis.tables) == 4
-    sweep = campaign.load_campaign(ROOT / "experiments" / "sweep.yaml")
+    sweep = campaign_file.load_campaign(ROOT / "experiments" / "sweep.yaml")
     faulty = [s for s in sweep.specs if s.fault]
     for model in ("ro", "circuit", "two_tank"):
         mine = {s.scenario for s in faulty if s.model_name == model}
         free = [s for s in sweep.specs if s.model_name == model and not s.fault]
         assert len(mine) >= 100 and len(free) >= 100
     assert {s.filter for s in sweep.specs} == {"gpf", "apf"} and len({s.noise for s in sweep.specs}) == 2
-    plants = campaign.load_campaign(ROOT / "experiments" / "test_plants.yaml")  # 3 plants x (30 + 20) x 2 x 2
+    plants = campaign_file.load_campaign(ROOT / "experiments" / "test_plants.yaml")  # 3 plants x (30 + 20) x 2 x 2
     assert len(plants.specs) == 3 * (30 + 20) * 2 * 2
     assert {s.model_name for s in plants.specs} == {"dc_motor", "orifice_tanks", "mass_spring_damper"}
-    sharp = campaign.load_campaign(ROOT / "experiments" / "sharp_sensor.yaml")  # 30 draws, 3 filters x 20 fault-free
+    sharp = campaign_file.load_campaign(ROOT / "experiments" / "sharp_sensor.yaml")  # 30 draws, 3 filters x 20 fault-free
     assert len(sharp.specs) == 30 + 3 * 20 and {s.model_name for s in sharp.specs} == {"drivetrain"}
     assert {s.filter for s in sharp.specs if s.fault} == {"ckf"}
 
 
 # ------------------------------------------------------------------ running
 def test_a_failing_run_is_recorded_and_does_not_raise(tmp_path):
-    c = campaign.load_campaign(write(tmp_path, SMALL))
+    c = campaign_file.load_campaign(write(tmp_path, SMALL))
     broken = dataclasses.replace(c.specs[0], model_text="name: [\n")
-    row = campaign.run_one(broken)
+    row = one_run.run_one(broken)
     assert row["status"] == "failed" and "YAML" in row["failure"] and row["index"] == 0
 
 
@@ -192,10 +194,10 @@ def test_a_failing_run_is_recorded_and_does_not_raise(tmp_path):
 def local_run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("campaign")
     config = write(folder, SMALL)
-    c = campaign.load_campaign(config)
+    c = campaign_file.load_campaign(config)
     # this process fills its caches first: forked workers must make their own folders
     # (sharing them, two workers once wrote the same model file at once and a run failed)
-    assert campaign.run_one(c.specs[1])["status"] == "ok"
+    assert one_run.run_one(c.specs[1])["status"] == "ok"
     return c, campaign.run_campaign(c, folder / "out", workers=2, progress=False), folder
 
 
@@ -204,7 +206,7 @@ def test_a_local_campaign_writes_rows_tables_and_plots(local_run):
     out = folder / "out"
     assert r.failed == 0, [row["failure"] for row in r.rows if row["status"] != "ok"]
     assert r.ran == 10 and [row["index"] for row in r.rows] == list(range(10))
-    rows = campaign.read_rows(out / "runs.csv")
+    rows = runs_csv.read_rows(out / "runs.csv")
     assert without_time(rows) == without_time(r.rows)
     for row in rows:
         if row["scenario"] == "none":  # fault-free: no alarm expected at the model's noise
@@ -372,19 +374,19 @@ def test_refine_is_a_setting_and_rows_of_an_older_runs_csv_are_read(tmp_path):
         scenarios: ["R2:abrupt:0.6@5"]
         refine: [false, true]
     """
-    c = campaign.load_campaign(write(tmp_path, text))
+    c = campaign_file.load_campaign(write(tmp_path, text))
     assert [s.refine for s in c.specs] == [False, True] and c.specs[0].id != c.specs[1].id
     # a runs.csv written before the 'refine' column existed: its rows are read, refine False
-    old = campaign.COLUMNS[:campaign.COLUMNS.index("refine")]
+    old = runs_csv.COLUMNS[:runs_csv.COLUMNS.index("refine")]
     row = {k: None for k in old} | {"id": "x", "index": 0, "status": "ok", "right": True}
     (tmp_path / "runs.csv").write_text(
-        "# generated by bgc\n" + ",".join(old) + "\n" + ",".join(campaign.format_value(row[k]) for k in old) + "\n")
-    rows = campaign.read_rows(tmp_path / "runs.csv")
+        "# generated by bgc\n" + ",".join(old) + "\n" + ",".join(runs_csv.format_value(row[k]) for k in old) + "\n")
+    rows = runs_csv.read_rows(tmp_path / "runs.csv")
     assert len(rows) == 1 and rows[0]["refine"] is False and rows[0]["right"] is True
 
 
 def test_numpy_scalars_are_written_as_plain_numbers():
     """A NumPy float's repr is 'np.float64(2.5)': read back, that is no number."""
-    assert campaign.format_value(np.float64(2.5)) == "2.5" and campaign.format_value(2.5) == "2.5"
-    assert campaign.format_value(np.bool_(True)) == "true" and campaign.format_value(np.int64(3)) == "3"
-    assert campaign.format_value(np.float64("nan")) == "nan" and campaign.format_value(None) == ""
+    assert runs_csv.format_value(np.float64(2.5)) == "2.5" and runs_csv.format_value(2.5) == "2.5"
+    assert runs_csv.format_value(np.bool_(True)) == "true" and runs_csv.format_value(np.int64(3)) == "3"
+    assert runs_csv.format_value(np.float64("nan")) == "nan" and runs_csv.format_value(None) == ""

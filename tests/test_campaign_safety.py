@@ -21,6 +21,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from bgc.experiment import campaign
+
+from bgc.experiment import campaign_file, dispatch, runs_csv
 from bgc.errors import ArgumentTypeError, ArgumentValueError, BgcError, ExperimentError, printable
 from bgc.output import tables
 
@@ -64,7 +66,7 @@ def one_line_error(r: subprocess.CompletedProcess) -> str:
 def tiny(tmp_path_factory):
     """The tiny campaign run once: (campaign, result, its folder's runs.csv bytes)."""
     folder = tmp_path_factory.mktemp("tiny")
-    c = campaign.load_campaign(write(folder, TINY.format(model=CIRCUIT)))
+    c = campaign_file.load_campaign(write(folder, TINY.format(model=CIRCUIT)))
     r = campaign.run_campaign(c, folder / "out", workers=1, progress=False)
     assert r.failed == 0 and r.ran == 2
     return c, r, (folder / "out" / "runs.csv").read_bytes()
@@ -87,8 +89,8 @@ def unused_port() -> int:
 
 # ------------------------------------------------------------------ item 3: how many workers
 def test_workers_beyond_the_limit_are_refused_with_the_limit_before_anything_is_compiled(tmp_path):
-    limit = campaign.worker_limit()
-    assert limit == campaign.WORKERS_PER_CORE * campaign.cores() and campaign.cores() >= 1
+    limit = dispatch.worker_limit()
+    assert limit == dispatch.WORKERS_PER_CORE * dispatch.cores() and dispatch.cores() >= 1
     config = write(tmp_path, TINY.format(model=tmp_path / "not-there.yaml"))  # would fail to load
     for n in (limit + 1, 600, 100000):
         t = time.perf_counter()
@@ -113,7 +115,7 @@ def test_workers_beyond_the_limit_are_refused_with_the_limit_before_anything_is_
 def test_run_campaign_refuses_bad_arguments_before_touching_the_folder(tiny, tmp_path, kwargs, error):
     c = tiny[0]
     if kwargs.get("workers") == "limit+1":
-        kwargs = {"workers": campaign.worker_limit() + 1}
+        kwargs = {"workers": dispatch.worker_limit() + 1}
     out = tmp_path / "o"
     with pytest.raises(error) as err:
         campaign.run_campaign(c, out, **kwargs)
@@ -122,7 +124,7 @@ def test_run_campaign_refuses_bad_arguments_before_touching_the_folder(tiny, tmp
     assert isinstance(err.value, ValueError if error is ArgumentValueError else TypeError)
     assert "\n" not in str(err.value)
     if "workers" in kwargs and error is ArgumentValueError and kwargs["workers"] > 0:
-        assert f"limit of {campaign.worker_limit()}" in str(err.value)
+        assert f"limit of {dispatch.worker_limit()}" in str(err.value)
     assert not out.exists()
     with pytest.raises(ArgumentTypeError):
         campaign.run_campaign("c.yaml", out)
@@ -131,36 +133,36 @@ def test_run_campaign_refuses_bad_arguments_before_touching_the_folder(tiny, tmp
 
 
 def test_no_more_workers_start_than_runs_to_do_or_memory_holds(monkeypatch):
-    monkeypatch.setattr(campaign, "_available_memory", lambda: 10**15)
-    assert campaign.local_workers(8, 2) == (2, "runs")
-    assert campaign.local_workers(2, 2) == (2, None)
-    assert campaign.local_workers(1, 1000) == (1, None)
-    assert campaign.local_workers(5, 0) == (0, None)  # nothing to run: no process
-    assert campaign.local_workers(None, 1) == (1, "runs" if campaign.cores() > 1 else None)
-    assert campaign.local_workers(None, 10**6) == (campaign.cores(), None)
-    monkeypatch.setattr(campaign, "_available_memory", lambda: 3 * campaign.WORKER_MEMORY + 1)
-    assert campaign.local_workers(8, 100) == (3, "memory")
-    monkeypatch.setattr(campaign, "_available_memory", lambda: 0)  # at least one, whatever the memory
-    assert campaign.local_workers(8, 100) == (1, "memory")
-    monkeypatch.setattr(campaign, "_available_memory", lambda: None)  # unknown: not limited by it
-    assert campaign.local_workers(3, 100) == (3, None)
+    monkeypatch.setattr(dispatch, "_available_memory", lambda: 10**15)
+    assert dispatch.local_workers(8, 2) == (2, "runs")
+    assert dispatch.local_workers(2, 2) == (2, None)
+    assert dispatch.local_workers(1, 1000) == (1, None)
+    assert dispatch.local_workers(5, 0) == (0, None)  # nothing to run: no process
+    assert dispatch.local_workers(None, 1) == (1, "runs" if dispatch.cores() > 1 else None)
+    assert dispatch.local_workers(None, 10**6) == (dispatch.cores(), None)
+    monkeypatch.setattr(dispatch, "_available_memory", lambda: 3 * dispatch.WORKER_MEMORY + 1)
+    assert dispatch.local_workers(8, 100) == (3, "memory")
+    monkeypatch.setattr(dispatch, "_available_memory", lambda: 0)  # at least one, whatever the memory
+    assert dispatch.local_workers(8, 100) == (1, "memory")
+    monkeypatch.setattr(dispatch, "_available_memory", lambda: None)  # unknown: not limited by it
+    assert dispatch.local_workers(3, 100) == (3, None)
 
 
 def test_a_request_for_more_workers_than_runs_starts_one_per_run_and_says_so(tiny, tmp_path):
     c = tiny[0]
     events = []
-    r = campaign.run_campaign(c, tmp_path / "o", workers=campaign.worker_limit(), progress=False, outputs=False,
+    r = campaign.run_campaign(c, tmp_path / "o", workers=dispatch.worker_limit(), progress=False, outputs=False,
                               on_start=events.append)
     assert len(events) == 1
     start = events[0]
     assert (start.total, start.todo, start.reused, start.workers, start.requested) == \
-        (2, 2, 0, 2, campaign.worker_limit())
+        (2, 2, 0, 2, dispatch.worker_limit())
     assert r.workers == 2
-    if campaign.worker_limit() > 2:
+    if dispatch.worker_limit() > 2:
         assert start.limited_by in ("runs", "memory")
     # the command line says it on stderr
     config = write(tmp_path, TINY.format(model=CIRCUIT))
-    n = campaign.worker_limit()
+    n = dispatch.worker_limit()
     p = bgc("experiment", str(config), "-o", str(tmp_path / "cli"), "--workers", str(n), "--no-progress")
     assert p.returncode == 0, p.stderr
     assert f"--workers {n}: starting 2 local processes, one per run to do" in p.stderr
@@ -191,7 +193,7 @@ def test_a_huge_grid_is_refused_from_its_count_before_anything_is_expanded(tmp_p
     total = 1 + 2 * 4 * 100 * 100 * 2 * 100000  # 16 000 000 001 runs
     t = time.perf_counter()
     with pytest.raises(ExperimentError) as err:
-        campaign.load_campaign(path)
+        campaign_file.load_campaign(path)
     assert time.perf_counter() - t < 10
     line = str(err.value)
     assert f"{total:,} runs" in line and "limit of 100,000" in line and "group 'big'" in line
@@ -220,21 +222,21 @@ def test_draws_and_seed_lists_count_and_groups_add_up(tmp_path):
     """
     path = write(tmp_path, text)
     with pytest.raises(ExperimentError, match=r"plans 110,000 runs.*group 'a' alone: 60,000"):
-        campaign.load_campaign(path)
-    assert campaign.group_size({"draws": {"count": 60}}, {"noise": ["model"], "filters": ["gpf"],
+        campaign_file.load_campaign(path)
+    assert campaign_file.group_size({"draws": {"count": 60}}, {"noise": ["model"], "filters": ["gpf"],
                                                             "particles": [1000], "refine": [False],
                                                             "seeds": seeds}) == 60_000
 
 
 def test_the_run_limit_can_be_raised_or_lowered_and_is_exact(tmp_path):
     path = write(tmp_path, TINY.format(model=CIRCUIT))
-    assert len(campaign.load_campaign(path, max_runs=2).specs) == 2  # exactly at the limit
+    assert len(campaign_file.load_campaign(path, max_runs=2).specs) == 2  # exactly at the limit
     with pytest.raises(ExperimentError, match=r"plans 2 runs, more than the limit of 1 "):
-        campaign.load_campaign(path, max_runs=1)
+        campaign_file.load_campaign(path, max_runs=1)
     for bad, error in ((0, ArgumentValueError), (-5, ArgumentValueError), ("10", ArgumentTypeError),
                        (True, ArgumentTypeError), (2.5, ArgumentTypeError), (None, ArgumentTypeError)):
         with pytest.raises(error):
-            campaign.load_campaign(path, max_runs=bad)
+            campaign_file.load_campaign(path, max_runs=bad)
     r = bgc("experiment", str(path), "-o", str(tmp_path / "o"), "--max-runs", "1")
     assert "plans 2 runs, more than the limit of 1 " in one_line_error(r)
     r = bgc("experiment", str(path), "-o", str(tmp_path / "o"), "--max-runs", "0")
@@ -245,8 +247,8 @@ def test_the_command_line_defaults_are_the_documented_limits():
     from bgc.cli import build_parser
 
     args = build_parser().parse_args(["experiment", "c.yaml"])
-    assert (args.max_runs, args.connect_timeout, args.workers) == (campaign.MAX_RUNS, campaign.CONNECT_TIMEOUT, None)
-    assert campaign.MAX_RUNS == 100_000 and campaign.WORKERS_PER_CORE == 4  # as docs/experiments.md says
+    assert (args.max_runs, args.connect_timeout, args.workers) == (campaign_file.MAX_RUNS, dispatch.CONNECT_TIMEOUT, None)
+    assert campaign_file.MAX_RUNS == 100_000 and dispatch.WORKERS_PER_CORE == 4  # as docs/experiments.md says
     docs = (ROOT / "docs" / "experiments.md").read_text(encoding="utf-8")
     assert "100 000 runs" in docs and "4 per core" in docs and "default 10" in docs
 
@@ -262,7 +264,7 @@ def test_a_refused_scheduler_fails_in_seconds_with_one_line(tmp_path):
         line = one_line_error(r)
         assert "Dask scheduler" in line and "connection refused" in line, line
     assert not (tmp_path / "o").exists()
-    c = campaign.load_campaign(config)
+    c = campaign_file.load_campaign(config)
     t = time.perf_counter()
     with pytest.raises(ExperimentError, match="connection refused"):
         campaign.run_campaign(c, tmp_path / "api", scheduler=f"tcp://127.0.0.1:{port}")
@@ -290,7 +292,7 @@ def test_a_silent_host_fails_after_the_connect_timeout(tmp_path):
             pytest.skip("this system accepts every connection to a full queue")
         t = time.perf_counter()
         with pytest.raises(ExperimentError, match=r"no answer within 1\.5 s"):
-            campaign.check_scheduler(f"tcp://127.0.0.1:{port}", 1.5)
+            dispatch.check_scheduler(f"tcp://127.0.0.1:{port}", 1.5)
         assert 1.4 < time.perf_counter() - t < 4
     finally:
         for s in held:
@@ -347,15 +349,15 @@ def test_a_server_that_is_no_scheduler_fails_in_one_line(tmp_path, answer):
 ])
 def test_a_malformed_scheduler_address_is_one_line(address, words):
     with pytest.raises(ExperimentError, match=re.escape(words)):
-        campaign.check_scheduler(address, 1.0)
+        dispatch.check_scheduler(address, 1.0)
 
 
 def test_scheduler_addresses_are_read_as_dask_writes_them():
-    assert campaign.scheduler_endpoint("tcp://10.0.0.5:8786") == ("10.0.0.5", 8786)
-    assert campaign.scheduler_endpoint("TLS://host.example:1") == ("host.example", 1)
-    assert campaign.scheduler_endpoint("127.0.0.1:9000") == ("127.0.0.1", 9000)
-    assert campaign.scheduler_endpoint("tcp://[::1]:8786") == ("::1", 8786)
-    assert campaign.scheduler_endpoint("inproc://10.0.0.5/1/2") is None  # left to Dask
+    assert dispatch.scheduler_endpoint("tcp://10.0.0.5:8786") == ("10.0.0.5", 8786)
+    assert dispatch.scheduler_endpoint("TLS://host.example:1") == ("host.example", 1)
+    assert dispatch.scheduler_endpoint("127.0.0.1:9000") == ("127.0.0.1", 9000)
+    assert dispatch.scheduler_endpoint("tcp://[::1]:8786") == ("::1", 8786)
+    assert dispatch.scheduler_endpoint("inproc://10.0.0.5/1/2") is None  # left to Dask
 
 
 # ------------------------------------------------------------------ item 8 and 9: reading runs.csv
@@ -378,9 +380,9 @@ def test_every_intact_row_is_read_and_every_other_line_kept_exactly(tiny, tmp_pa
     path = tmp_path / "runs.csv"
     path.write_bytes(b"\xef\xbb\xbf" + comment + header + bad[0] + row0 + bad[1] + bad[2] + b"\n" + bad[3]
                      + bad[4] + bad[5] + row1 + b"  \n" + cut)
-    found = campaign.read_runs(path)
+    found = runs_csv.read_runs(path)
     assert [r["index"] for r in found.rows] == [0, 1]
-    expected = campaign.read_runs(_file(tmp_path, tiny[2])).rows
+    expected = runs_csv.read_runs(_file(tmp_path, tiny[2])).rows
     assert found.rows == expected
     assert found.unread == b"".join(bad) + cut and found.unread_lines == len(bad) + 1
 
@@ -406,17 +408,17 @@ def test_a_spreadsheet_save_is_read(tiny, tmp_path):
         w.writerow([v.upper() if v in ("true", "false") else v for v in values])
     saved = tmp_path / "runs.csv"
     saved.write_bytes(b"\xef\xbb\xbf" + buf.getvalue().encode())
-    found = campaign.read_runs(saved)
+    found = runs_csv.read_runs(saved)
     assert found.unread_lines == 0
-    assert found.rows == campaign.read_runs(_file(tmp_path, tiny[2])).rows
+    assert found.rows == runs_csv.read_runs(_file(tmp_path, tiny[2])).rows
 
 
 def test_a_foreign_header_keeps_every_line(tmp_path):
     data = b"name,value\nx,1\ny,2\n"
     (tmp_path / "runs.csv").write_bytes(data)
-    found = campaign.read_runs(tmp_path / "runs.csv")
+    found = runs_csv.read_runs(tmp_path / "runs.csv")
     assert found.rows == () and found.unread == data
-    assert campaign.read_runs(tmp_path / "missing.csv") == campaign.RunsFile((), b"", 0)
+    assert runs_csv.read_runs(tmp_path / "missing.csv") == runs_csv.RunsFile((), b"", 0)
 
 
 def test_a_resumed_campaign_keeps_every_intact_row_and_sets_aside_the_rest(tiny, tmp_path):
@@ -433,7 +435,7 @@ def test_a_resumed_campaign_keeps_every_intact_row_and_sets_aside_the_rest(tiny,
     assert r.quarantine == out / "runs.unread-2.csv" and events[0].quarantine == r.quarantine
     assert (out / "runs.unread-2.csv").read_bytes() == b'"broken,row\n' + b"y" * 140_000 + b"\n" + b"cut"
     assert (out / "runs.unread-1.csv").read_bytes() == mine
-    assert [row["index"] for row in campaign.read_rows(out / "runs.csv")] == [0, 1]
+    assert [row["index"] for row in runs_csv.read_rows(out / "runs.csv")] == [0, 1]
     # once more, damaged again: a third file, the first two untouched
     (out / "runs.csv").write_bytes((out / "runs.csv").read_bytes() + b'"again\n')
     again = campaign.run_campaign(c, out, progress=False, outputs=False)
@@ -477,20 +479,20 @@ HOSTILE = ["=cmd|' -C calc'!A0", "+1+1", "-2+3", "@SUM(A1)", "\t=1", "\r=1", "'q
 
 @pytest.mark.parametrize("text", HOSTILE)
 def test_text_cells_are_one_line_safe_in_a_spreadsheet_and_read_back_exactly(tmp_path, text):
-    row = dict.fromkeys(campaign.COLUMNS)
+    row = dict.fromkeys(runs_csv.COLUMNS)
     row.update(id="abc", index=3, status="failed", model=text, scenario=text, failure=text, group=text,
                magnitude=-0.5, onset=-1e-300, seed=7, detected=False)
-    line = campaign.csv_row(row)
+    line = runs_csv.csv_row(row)
     assert line.count("\n") == 1 and line.endswith("\n") and "\r" not in line
     import csv as csvmod
 
-    cells = dict(zip(campaign.COLUMNS, next(csvmod.reader([line]))))
+    cells = dict(zip(runs_csv.COLUMNS, next(csvmod.reader([line]))))
     for column in ("model", "scenario", "failure", "group"):
         assert not cells[column].startswith(("=", "+", "-", "@", "\t", "\r")), cells[column]
     assert cells["magnitude"] == "-0.5" and cells["onset"] == "-1e-300"  # numbers untouched
     path = tmp_path / "runs.csv"
-    path.write_text("# generated by bgc\n" + ",".join(campaign.COLUMNS) + "\n" + line, encoding="utf-8")
-    found = campaign.read_runs(path)
+    path.write_text("# generated by bgc\n" + ",".join(runs_csv.COLUMNS) + "\n" + line, encoding="utf-8")
+    found = runs_csv.read_runs(path)
     assert found.unread_lines == 0
     back = found.rows[0]
     assert back["model"] == back["failure"] == printable(text)  # exact for a one-line text
@@ -499,10 +501,10 @@ def test_text_cells_are_one_line_safe_in_a_spreadsheet_and_read_back_exactly(tmp
 
 @given(st.text(max_size=40))
 def test_any_text_cell_reads_back_as_its_printable_line(text):
-    line = campaign.format_cell("model", text)
+    line = runs_csv.format_cell("model", text)
     assert "\n" not in line and "\r" not in line
     assert not line.startswith(("=", "+", "-", "@", "\t", "\r"))
-    assert campaign.parse_value("model", line) == (printable(text) or None)
+    assert runs_csv.parse_value("model", line) == (printable(text) or None)
 
 
 def unescape(md: str) -> str:
@@ -570,7 +572,7 @@ def test_tables_md_cannot_be_forged_by_names_paths_and_messages(tmp_path, monkey
           values: [{{row: none, filter: gpf, rt: 1}}]
     """
     write(tmp_path, text, "--> x.yaml")
-    c = campaign.load_campaign(Path("--> x.yaml"))
+    c = campaign_file.load_campaign(Path("--> x.yaml"))
     r = campaign.run_campaign(c, tmp_path / "o", workers=1, progress=False)
     failed = dict(r.rows[0], status="failed", failure="boom | x\n# h <i>", scenario="[a](b)")
     md = tables.campaign_markdown(c, (failed,) + r.rows)
@@ -597,7 +599,7 @@ def test_tables_md_cannot_be_forged_by_names_paths_and_messages(tmp_path, monkey
     # runs.csv: the model's name is not a formula to a spreadsheet, and reads back as it was
     runs = (tmp_path / "o" / "runs.csv").read_text(encoding="utf-8")
     assert ",'=cmd|' -C calc'!A0" in runs
-    assert campaign.read_rows(tmp_path / "o" / "runs.csv")[0]["model"] == r.rows[0]["model"]
+    assert runs_csv.read_rows(tmp_path / "o" / "runs.csv")[0]["model"] == r.rows[0]["model"]
     assert Path(r.rows[0]["model"]).name == model.name
 
 

@@ -560,10 +560,10 @@ def test_predictive_std_where_the_plant_runs_passes_on_the_process_noise_of_a_pr
     PREDICTIVE_STD at any state. Before: the APF used PREDICTIVE_STD, its
     normalised P_mech residuals had std 1.35 and 8 of 40 fault-free runs
     alarmed."""
-    from bgc import api
+    from bgc.api import folders as api_folders
     from bgc.model.package import load_package as load
 
-    c, folder = api._compiled(ROOT / "tests" / "data" / "models" / "dc_motor.yaml")
+    c, folder = api_folders._compiled(ROOT / "tests" / "data" / "models" / "dc_motor.yaml")
     mod = load(folder, "dc_motor").nominal
     k = dict(zip(mod.PARAMETERS, mod.THETA))["k"]
     out = list(mod.OUTPUTS)
@@ -674,7 +674,7 @@ def fresh_package(name: str):
     """The package bgc generates for one of conftest.ALL_MODELS, written to a
     temporary directory, removed when the test session ends, and imported
     (the test plants have no generated/ copy)."""
-    from bgc.api import private_folder
+    from bgc.api.folders import private_folder
     from conftest import compiled as compiled_any
 
     root = Path(private_folder(f"bgc-{name}-")) / "numpy_model"

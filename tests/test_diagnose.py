@@ -529,7 +529,7 @@ def test_a_sensor_sharp_against_the_process_noise_degenerates_the_particle_filte
     towards y_k, but the torque at step k is fixed by the speeds' noise drawn
     at step k-1, so its weights degenerate as well, and on 5 of 8 seeds at
     N = 1000 it lost the state altogether.)"""
-    from bgc import api
+    from bgc.api import folders as api_folders
     from bgc.filters import cubature as kalman
     from bgc.data import runs
     from bgc.analysis import simulate
@@ -546,7 +546,7 @@ def test_a_sensor_sharp_against_the_process_noise_degenerates_the_particle_filte
     assert d.options.method == "ckf" and d.verdict == "no fault"
     assert any(isinstance(e, events.Degenerate) and e.switched for e in d.events)
     assert any(isinstance(e, events.Switched) and e.to == "ckf" for e in d.events)
-    c, private = api._compiled(model)
+    c, private = api_folders._compiled(model)
     package = packages.load_package(private, "drivetrain")
     for seed in (1, 2, 3, 4):
         result = simulate.simulate(c.numerics, simulate.SimulationOptions(seed=seed))

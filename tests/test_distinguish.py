@@ -22,6 +22,10 @@ import pytest
 from bgc.kinds import fault_kind
 
 from bgc import api, cli
+
+from bgc.api import distinguish as api_distinguish
+
+from bgc.api import folders as api_folders
 from bgc.analysis import distinguish
 from bgc.model import package as track
 
@@ -175,7 +179,7 @@ def test_the_bayes_factor_over_data_sets_has_the_predicted_mean_and_spread():
 
 
 def test_two_parameters_that_enter_as_their_sum_are_predicted_inseparable():
-    package = track.load_package(api._compiled(PIPES)[1], "series_pipes")
+    package = track.load_package(api_folders._compiled(PIPES)[1], "series_pipes")
     fam = distinguish.prepare(package, distinguish.scenario_inputs(package, 120))
     equal = {"R1": 0.02, "R2": 0.02, "R3": 0.01}
     d = distinguish.distinguish(fam, "R1_abrupt", 0.3, 60, equal)
@@ -251,7 +255,7 @@ def test_the_memory_estimate_bounds_the_peak_closely():
     
     num = compiled("two_tank").numerics
     T = distinguish.MAX_ONSETS
-    api._FAMILIES.clear()
+    api_distinguish._FAMILIES.clear()
     _, peak = peak_memory(lambda: api.distinguishability(TWO_TANK, steps=T))
     estimate = distinguish.memory(T, *distinguish._sizes(num))
     assert peak <= estimate <= 1.15 * peak, (peak, estimate)
@@ -281,7 +285,7 @@ def test_a_run_too_long_for_the_memory_is_refused_at_once_with_the_most_steps(ca
 
 def test_progress_says_what_is_being_done():
     said = []
-    api._FAMILIES.clear()
+    api_distinguish._FAMILIES.clear()
     r = api.distinguishability(TWO_TANK, steps=30, progress=said.append)
     faults = len(compiled("two_tank").numerics.faults)
     assert said[0] == "compiling the model"
@@ -294,11 +298,11 @@ def test_progress_says_what_is_being_done():
 def test_prepared_families_are_let_go_to_fit_the_memory(monkeypatch):
     """The cache of prepared families holds, with the next one, at most
     distinguish.MAX_BYTES."""
-    api._FAMILIES.clear()
+    api_distinguish._FAMILIES.clear()
     api.distinguishability(TWO_TANK, steps=30)
     api.distinguishability(TWO_TANK, steps=31)
-    assert len(api._FAMILIES) == 2
+    assert len(api_distinguish._FAMILIES) == 2
     monkeypatch.setattr(distinguish, "MAX_BYTES", distinguish.memory(32, *distinguish._sizes(
         compiled("two_tank").numerics)))
     api.distinguishability(TWO_TANK, steps=32)
-    assert [key[2] for key in api._FAMILIES] == [32]
+    assert [key[2] for key in api_distinguish._FAMILIES] == [32]

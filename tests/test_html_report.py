@@ -24,7 +24,7 @@ from html.parser import HTMLParser
 import pytest
 
 import bgc
-from bgc.experiment import campaign
+from bgc.experiment import campaign_file, runs_csv
 from bgc.output import calibration_report, report, tables
 from bgc.output.html import PAGE
 
@@ -146,8 +146,8 @@ def test_a_campaign_name_description_model_and_failure_are_escaped(tmp_path):
     path = tmp_path / "c.yaml"
     path.write_text(f"campaign: c\ndescription: '{HOSTILE}'\ngroups:\n  - name: g\n    model: "
                     f"{ROOT / 'models' / 'circuit.yaml'}\n    scenarios: [none]\n", encoding="utf-8")
-    c = campaign.load_campaign(path)
-    row = {k: None for k in campaign.COLUMNS}
+    c = campaign_file.load_campaign(path)
+    row = {k: None for k in runs_csv.COLUMNS}
     row.update(index=0, group="g", model=f"models/{HOSTILE}.yaml", scenario="none", filter="gpf", particles=100,
                noise="model", seed=0, status="ok", verdict="no fault", false_alarm=False, rt=1.0)
     failed = {**row, "index": 1, "status": "failed", "failure": HOSTILE}

@@ -487,9 +487,9 @@ def test_a_cell_of_a_parameter_no_sensor_sees_is_the_nominal_filter_up_to_its_on
     R20 enters no measurement (F_orifice = cd sqrt(P1 - P2), P2), so a cell
     of any bias whose onset is k explains y_0 .. y_k exactly as the nominal
     filter does (before: its transition into k had the bias)."""
-    from bgc import api
+    from bgc.api import folders as api_folders
 
-    c, folder = api._compiled(ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml")
+    c, folder = api_folders._compiled(ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml")
     package = packages.load_package(folder, "orifice_tanks")
     result = simulate.simulate(c.numerics, simulate.SimulationOptions(seed=3, steps=60))
     ys, us = track.run_arrays(runs.parse_run(simulate.to_csv(result), "none"), package, "nominal")

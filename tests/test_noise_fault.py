@@ -396,13 +396,13 @@ def test_campaign_draws_of_a_noise_fault_are_its_factor_less_one(tmp_path):
     the sensor's noise std times 1 +- c (F12 declares no direction: both
     signs), named by the sensor, with the truth F12_noise = 1 +- c. (A
     campaign's change is at most 1: a larger burst is a scenario.)"""
-    from bgc.experiment import campaign
+    from bgc.experiment import campaign_file
 
     text = (f"campaign: s\nseed: 5\ngroups:\n  - name: g\n    model: {PLANT}\n"
             "    draws: {count: 30, change: [0.5, 0.9], onset: [0.3, 0.6], kinds: [noise]}\n")
     path = tmp_path / "c.yaml"
     path.write_text(text)
-    specs = campaign.load_campaign(path).specs
+    specs = campaign_file.load_campaign(path).specs
     assert len(specs) == 30 and {(s.fault, s.kind) for s in specs} == {("F12_noise", "noise")}
     assert {s.magnitude > 0 for s in specs} == {True, False}
     for s in specs:

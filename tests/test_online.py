@@ -17,7 +17,7 @@ import pytest
 
 import bgc
 import bgc.errors
-from bgc import api
+from bgc.api import folders as api_folders
 from bgc.errors import DataError
 from bgc.diagnosis import events
 from bgc.data import runs
@@ -31,7 +31,7 @@ OPTIONS = DiagnosisOptions(particles=300, seed=1, workers=1)
 
 
 def simulated(model: Path, fault: str | None = None, steps: int | None = None, seed: int = 1) -> runs.Run:
-    num = api._compiled(model)[0].numerics
+    num = api_folders._compiled(model)[0].numerics
     injected = None if fault is None else simulate.parse_fault(fault, num)
     result = simulate.simulate(num, simulate.SimulationOptions(steps=steps, seed=seed, fault=injected))
     return runs.parse_run(simulate.to_csv(result), f"{model.stem}.csv")

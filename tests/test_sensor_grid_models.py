@@ -10,7 +10,8 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from bgc.experiment import campaign
+
+from bgc.experiment import campaign_file
 from bgc.kinds import FAULT_KINDS
 
 from conftest import ROOT
@@ -41,7 +42,7 @@ def test_a_variant_is_its_shipped_plant_with_every_sensor_and_actuator_kind(plan
 
 
 def test_the_grid_tries_every_kind_on_a_sensor_of_each_plant_and_on_every_input_at_both_noise_levels_with_20_seeds():
-    grid = campaign.load_campaign(ROOT / "experiments" / "sensor_grid.yaml")
+    grid = campaign_file.load_campaign(ROOT / "experiments" / "sensor_grid.yaml")
     cells: dict[tuple, set] = {}
     for s in grid.specs:
         subject = s.scenario.split(":")[0] if s.fault else None  # f2:bias:0.5@7.5 -> f2

@@ -332,9 +332,9 @@ def test_the_truth_on_python_floats_is_the_truth_on_numpy_scalars(monkeypatch):
     equations divide by zero (R_pipe brought to 0) raises on Python floats;
     the simulator then evaluates on NumPy scalars and stops the run as
     diverged, as it always did."""
-    from bgc import api
+    from bgc.api import folders as api_folders
 
-    ro, _ = api._compiled(ROOT / "models" / "ro.yaml")
+    ro, _ = api_folders._compiled(ROOT / "models" / "ro.yaml")
     assert sim.float_safe(ro.numerics.equations)
     x = sympy.Symbol("x")
     assert not sim.float_safe(type("Equations", (), {"rhs": (x ** sympy.Rational(3, 2),), "output_exprs": ()})())

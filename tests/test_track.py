@@ -127,9 +127,9 @@ def test_the_transition_into_an_onset_sample_is_nominal_and_keeps_the_magnitude(
     out of k): the fault filter's particles make the nominal transition into
     sample k, and keep their magnitude (a bias, a slope) for the next ones;
     a drifting parameter's own state stays nominal."""
-    from bgc import api
+    from bgc.api import folders as api_folders
 
-    _, folder = api._compiled(ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml")
+    _, folder = api_folders._compiled(ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml")
     package = runtime.load_package(folder, "orifice_tanks")
     nominal, fault = package.MODELS["nominal"], package.MODELS[name]
     rng = np.random.default_rng(8)

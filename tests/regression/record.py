@@ -183,11 +183,11 @@ def f(x) -> str | None:
 
 
 def simulate_run(c) -> str:
-    from bgc import api
+    from bgc.api import folders as api_folders
     from bgc.analysis import simulate
 
     s = c["simulation"]
-    compiled, _ = api._compiled(c["model"])
+    compiled, _ = api_folders._compiled(c["model"])
     fault = simulate.parse_fault(s["fault"], compiled.numerics) if s["fault"] else None
     result = simulate.simulate(compiled.numerics, simulate.SimulationOptions(
         steps=s["steps"], process_noise=s["process_noise"], measurement_noise=s["measurement_noise"],

@@ -1,0 +1,180 @@
+""":func:`diagnose`: a run file, a :class:`~bgc.data.runs.Run` or a simulated scenario diagnosed."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+from .. import arguments
+from ..errors import (
+    ArgumentTypeError, ArgumentValueError, SimulationError, printable,
+)
+from ..output.labels import labels_of
+from ..data import runs
+from ..analysis import simulate
+from ..analysis import track
+from ..diagnosis.options import DiagnosisOptions
+from ..diagnosis.diagnose import diagnose as run_diagnosis
+from ..data.sampler import grid_steps
+from .limits import (METHODS, check_diagnosis_steps, check_options,
+                     with_horizon)
+from .reports import DiagnosisReport
+from .session import Session, _session_of
+
+
+def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = None, scenario: str | None = None, *,
+             method: str = "gpf", particles: int = 1000, seed: int = 0,
+             process_noise: float | None = None, measurement_noise: float | None = None,
+             steps: int | None = None, generated: str | Path | None = None,
+             options: DiagnosisOptions | None = None, progress=None,
+             prior_scale: float | None = None, backend: str | None = None) -> DiagnosisReport:
+    """Diagnose ``data`` (a run file or a :class:`~bgc.data.runs.Run`) or a
+    simulated ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, or ``none`` for a
+    fault-free run) of ``model``.
+
+    Parameters
+    ----------
+    model : str, os.PathLike or Session
+        The model file (YAML), or a :class:`Session` of it (:func:`open`:
+        compiled once for many diagnoses; its noise levels then apply, and
+        ``process_noise``, ``measurement_noise`` and ``generated`` must be
+        left out or be the session's).
+    data : str, os.PathLike or Run, optional
+        A recorded run: a CSV as ``bgc simulate`` writes, or a
+        :class:`~bgc.data.runs.Run` (checked as a file's would be, by
+        :func:`bgc.data.runs.check_run`). Either ``data`` or ``scenario``.
+    scenario : str, optional
+        A fault to simulate, its onset inside the run (0 < TIME < the last
+        sample's time), or ``none``.
+    method : {"gpf", "apf", "opf", "ckf"}
+        The filter (``bgc diagnose --filter``).
+    particles : int
+        Particles of each filter, at least 1.
+    seed : int
+        Seeds the simulation of a scenario and, unless ``options`` is given,
+        the filters; an integer >= 0.
+    process_noise, measurement_noise : float, optional
+        Relative noise levels (fractions of the signal), at most 1e6: a
+        scenario is simulated with them, and the filters assume them
+        (default: the model's). The process level may be 0, the measurement
+        level must be above 0.
+    steps : int, optional
+        With a scenario: the samples to simulate (default: the model's),
+        within what the diagnosis may take (:func:`check_diagnosis_steps`).
+    generated : str or os.PathLike, optional
+        The folder ``bgc compile -o`` wrote the package to (default: a
+        private one generated for this call).
+    options : DiagnosisOptions, optional
+        Overrides ``method``, ``particles`` and the filters' seed.
+    progress : callable, optional
+        ``progress(text)`` is told what is being done.
+    prior_scale : float, optional
+        Widens every fault's prior of its magnitude by this factor
+        (``--prior-scale``; default 1: the model's priors).
+    backend : {"numpy", "numba", "auto"}, optional
+        The generated package the filters run on (``--backend``): the NumPy
+        package, or the compiled one (numba, the ``fast`` extra); None or
+        "auto": numba when it is installed (the environment's
+        ``BGC_BACKEND`` first). The diagnosis does not depend on it.
+
+    Returns
+    -------
+    DiagnosisReport
+
+    Raises
+    ------
+    ArgumentTypeError
+        An argument of the wrong type (``particles=100.5``, ``scenario=5``,
+        ``options={}``; a bool is not an integer here).
+    ArgumentValueError
+        An argument out of range (``seed=-1``, ``process_noise=-1.0``), both
+        or neither of ``data`` and ``scenario``, ``steps`` with ``data``.
+    DataError
+        The run cannot be read, is not of this model or is malformed (named
+        by its file and line, or its ``source``).
+    SimulationError
+        A malformed scenario, or its onset outside the run.
+    TrackingError
+        A request beyond the memory (too many steps or particles).
+    BgcError
+        The model's own errors (load, validation, ...).
+    """
+    func = "bgc.diagnose"
+    if not isinstance(model, Session):
+        arguments.path(func, "model", model)
+    if data is not None and not isinstance(data, (str, os.PathLike, runs.Run)):
+        raise ArgumentTypeError(f"{func}: data={arguments.shown(data)} is not a path or a Run", None,
+                                "give a run file's path or a bgc.data.runs.Run")
+    arguments.text(func, "scenario", scenario, optional=True)
+    if (data is None) == (scenario is None):
+        both = "both" if data is not None else "neither"
+        raise ArgumentValueError(f"{func}: give either data or a scenario, not {both}", None,
+                                 "e.g. data='run.csv' or scenario='R_pipe:incipient:0.5@165'")
+    arguments.choice(func, "method", method, METHODS)
+    arguments.integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
+    arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
+    arguments.noise_levels(func, process_noise, measurement_noise)
+    if steps is not None:
+        arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
+        if data is not None:
+            raise ArgumentValueError(f"{func}: steps={steps} with data: a recorded run has its own length", None,
+                                     "give steps with a scenario only")
+    arguments.path(func, "generated", generated, optional=True)
+    if options is not None:
+        check_options(options, func)
+    arguments.callable_or_none(func, "progress", progress)
+    say = progress or (lambda text: None)
+    session = _session_of(func, model, process_noise, measurement_noise, generated, say, prior_scale, backend)
+    opts = options or DiagnosisOptions(method=method, particles=particles, seed=seed)
+    if scenario is not None:
+        run, injected = _scenario_run(session, scenario, steps, seed, opts, say)
+    else:
+        run, injected = _recorded_run(session, data, opts), None
+    return _run(session.compiled, run, session.package, scenario, injected, session.noise, session.levels, opts,
+                say)
+
+
+def _scenario_run(session: Session, scenario: str, steps: int | None, seed: int, opts: DiagnosisOptions,
+                  say) -> tuple[runs.Run, simulate.FaultInjection | None]:
+    """The run of a simulated scenario at the session's noise levels, checked
+    (its onset inside the run, its length within the diagnosis's memory)."""
+    c = session.compiled
+    T = steps or c.model.settings.steps
+    where = "--steps" if steps is not None else f"{printable(c.model.source)}: simulation.steps"
+    simulate.check_steps(T, c.numerics, where)
+    injected = None
+    if scenario.strip().lower() != "none":
+        injected = simulate.parse_fault(scenario, c.numerics)
+        last = T * c.model.settings.dt
+        if not 0 < injected.time < last:
+            raise SimulationError(f"scenario {printable(scenario.strip())}: onset {injected.time:g} is outside the "
+                                  f"run (0 to {last:g})", None, "choose an onset inside the run, or more --steps")
+    check_diagnosis_steps(T, c.numerics, opts.particles, opts.method, where, opts.history)
+    say("simulating the scenario")
+    process_noise, measurement_noise = session.noise
+    result = simulate.simulate(c.numerics, simulate.SimulationOptions(
+        steps=steps, process_noise=process_noise, measurement_noise=measurement_noise, seed=seed, fault=injected))
+    return runs.parse_run(simulate.to_csv(result), f"scenario {scenario.strip()}"), injected
+
+
+def _recorded_run(session: Session, data, opts: DiagnosisOptions) -> runs.Run:
+    """A recorded run (a file or a Run), checked: of this model, its grid
+    within the diagnosis's memory."""
+    c = session.compiled
+    run = runs.check_run(data) if isinstance(data, runs.Run) else runs.read_run(data)
+    track.check_run_of(run, c.model.name)
+    grid = grid_steps(run.time, c.model.settings.dt)  # the model's time grid: a gap's steps count too
+    check_diagnosis_steps(grid, c.numerics, opts.particles, opts.method,
+                          f"{printable(run.source)}: {len(run.time)} samples"
+                          + (f" over {grid} steps of dt" if grid != len(run.time) else ""), opts.history)
+    return run
+
+
+def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> DiagnosisReport:
+    track.check_request(run, package, "nominal", opts.particles, None, columns=False)
+    opts = with_horizon(opts, c.model.settings)
+    priors = {f.parameter: f.prior for f in c.model.faults}
+    result = run_diagnosis(run, package, c.signatures, priors, opts, say)
+    return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,
+                           result, labels_of(c.model))

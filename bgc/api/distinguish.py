@@ -1,0 +1,174 @@
+""":func:`distinguishability`: which faults a scenario's data can tell apart, before any data."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .. import arguments
+from ..errors import (
+    SimulationError, printable,
+)
+from ..kinds import DIRECTIONS, fault_kind
+from ..analysis import distinguish as distinction
+from ..experiment import metrics
+from ..analysis import simulate
+from ..model import package as packages
+from .folders import _LOCK, _compiled
+from .reports import DistinguishabilityReport
+from .session import Session
+
+
+def distinguishability(model: str | Path | Session, scenario: str | None = None, *, change: float = 0.3,
+                       at: float = 0.5,
+                       process_noise: float | None = None, measurement_noise: float | None = None,
+                       steps: int | None = None, level: float = distinction.LEVEL,
+                       progress=None) -> DistinguishabilityReport:
+    """Predict which fault hypotheses the data of ``scenario``
+    (``NAME:KIND:MAGNITUDE@TIME``) of ``model`` can tell apart, at the given
+    relative noise levels (default: the model's), before any data are seen;
+    without a scenario, for every fault candidate, kind and direction at a
+    relative ``change`` from the fraction ``at`` of the run.
+
+    Parameters
+    ----------
+    model : str or os.PathLike
+        The model file (YAML).
+    scenario : str, optional
+        One fault, its onset inside the run (0 < TIME <= the last sample's).
+    change : float
+        Without a scenario: the relative change of each parameter, above 0.
+    at : float
+        Without a scenario: the onset as a fraction of the run, between 0
+        and 1 (and before the last two samples).
+    process_noise, measurement_noise : float, optional
+        Relative noise levels, as for :func:`diagnose`.
+    steps : int, optional
+        Samples of the run (default: the model's), within what a prediction
+        may take (:func:`bgc.analysis.distinguish.check_steps`, 2 GB).
+    level : float
+        The probability under which a rival is in the predicted ambiguity
+        group, between 0 and 1.
+    progress : callable, optional
+        ``progress(text)`` is told what is being done (preparing the
+        families, fault model i of n, scenario i of n).
+
+    Returns
+    -------
+    DistinguishabilityReport
+
+    Raises
+    ------
+    ArgumentTypeError
+        An argument of the wrong type.
+    ArgumentValueError
+        An argument out of range.
+    SimulationError
+        A malformed scenario, not a fault candidate, its onset outside the
+        run; ``at`` too late in the run; a model without fault candidates.
+    TrackingError
+        A run too long for the memory (the message gives the most steps).
+    """
+    func = "bgc.distinguishability"
+    if not isinstance(model, Session):  # a session: its compilation (the noise levels are this call's)
+        arguments.path(func, "model", model)
+    arguments.text(func, "scenario", scenario, optional=True)
+    arguments.real(func, "change", change, 0.0, math.inf, "a relative change above 0, e.g. change=0.3")
+    arguments.real(func, "at", at, 0.0, 1.0, "a fraction of the run between 0 and 1, e.g. at=0.5")
+    arguments.noise_levels(func, process_noise, measurement_noise)
+    if steps is not None:
+        arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
+    arguments.real(func, "level", level, 0.0, 1.0, "a probability between 0 and 1, e.g. level=0.95")
+    arguments.callable_or_none(func, "progress", progress)
+    say = progress or (lambda text: None)
+    if isinstance(model, Session):
+        c, private = model.compiled, model.folder
+    else:
+        say("compiling the model")
+        c, private = _compiled(model)
+    num = c.numerics
+    if steps is not None:
+        simulate.check_steps(steps, num, "--steps")
+    T = steps or c.model.settings.steps
+    dt = c.model.settings.dt
+    where = "--steps" if steps is not None else f"{printable(c.model.source)}: simulation.steps"
+    distinction.check_steps(T, num, where)
+    if scenario is None and not int(at * T) < T - 1:
+        raise SimulationError(f"change {change:g} at {at:g} of the run", None,
+                              "give a change above 0 and an onset inside the run, a fraction between 0 and 1")
+    if not num.faults:
+        raise SimulationError(f"{c.model.name} declares no fault candidates", None,
+                              "list the faults to tell apart under 'faults' in the model file")
+    times = dt * np.arange(1, T + 1)
+    if scenario is not None:
+        if scenario.strip().lower() == "none":
+            raise SimulationError("a fault-free scenario has no fault to tell apart", None,
+                                  "give a fault, e.g. R_pipe:incipient:0.5@165, or no scenario for every candidate")
+        inj = simulate.parse_fault(scenario, num)
+        if all(f.name != f"{inj.parameter}:{inj.kind}" for f in num.faults):
+            raise SimulationError(f"{inj.subject or inj.parameter}:{inj.kind} is not a fault candidate of "
+                                  f"{c.model.name}: no fault model to tell apart from the others (its diagnosis "
+                                  "should end unexplained)", None,
+                                  "candidates: " + ", ".join(f"{f.parameter}:{f.kind}" for f in num.faults))
+        if not 0 < inj.time <= times[-1]:
+            raise SimulationError(f"onset {inj.time:g} is outside the run (0 to {times[-1]:g})", None,
+                                  "choose an onset inside the run, or more --steps")
+        injected = [inj]
+    else:
+        injected = []
+        for f in num.faults:
+            onset = int(at * T)
+            candidate = next(x for x in c.model.faults if x.parameter == f.parameter)
+            for sign in (1,) if fault_kind(f.kind).replaces else DIRECTIONS[candidate.direction]:
+                magnitude = simulate.change_magnitude(num, f.name, sign * change, (T - 1 - onset) * dt)  # at the end
+                injected.append(simulate.FaultInjection(f.parameter, f.kind, magnitude, float(times[onset])))
+    levels = num.noise_at(process_noise, measurement_noise)
+    custom = levels if (process_noise, measurement_noise) != (None, None) else None
+    need = distinction.memory(T, *(len(x) for x in (num.equations.states, num.equations.outputs,
+                                                     num.equations.inputs, num.faults)))
+    with _LOCK:
+        package = packages.load_package(private, c.model.name, str(model), custom)
+        families = _families(package, T, need, say)
+    priors = {f.parameter: f.prior for f in c.model.faults}
+    out = []
+    for i, inj in enumerate(injected, start=1):
+        say(f"scenario {i} of {len(injected)}: {inj.parameter}:{inj.kind}:{inj.magnitude:.4g}@{inj.time:g}")
+        onset = metrics.sample_at(times, inj.time)
+        out.append(distinction.distinguish(families, f"{inj.parameter}_{inj.kind}", inj.magnitude, onset, priors,
+                                           level))
+    warning = simulate.outside_prior(injected[0], num) if scenario is not None else None
+    return DistinguishabilityReport(c.model.name, c.model.display_source, T, dt, (process_noise, measurement_noise),
+                                    scenario, None if scenario else change, None if scenario else at, tuple(out),
+                                    warning)
+
+
+#: Prepared families by package (its module name tells the noise levels) and
+#: run length; the latest few are kept (a campaign worker meets a few models),
+#: as many as fit, with the next one, in ``distinguish.MAX_BYTES``.
+_FAMILIES: dict[tuple[str, str, int], distinction.Families] = {}
+
+
+_FAMILIES_KEPT = 4
+
+
+def _families(package, steps: int, need: int = 0, progress=None) -> distinction.Families:
+    """The families of ``package`` over ``steps`` samples, prepared once;
+    ``need``: the bytes a new preparation is expected to take (older
+    families are let go until it fits)."""
+    key = (package.__name__, str(getattr(package, "__file__", "")), steps)
+    if key not in _FAMILIES:
+        while _FAMILIES and (len(_FAMILIES) >= _FAMILIES_KEPT
+                             or sum(map(_nbytes, _FAMILIES.values())) + need > distinction.MAX_BYTES):
+            _FAMILIES.pop(next(iter(_FAMILIES)))
+        _FAMILIES[key] = distinction.prepare(package, distinction.scenario_inputs(package, steps), progress)
+    return _FAMILIES[key]
+
+
+def _nbytes(families: distinction.Families) -> int:
+    """The bytes of a family's arrays."""
+    w = families.whitening
+    arrays = (families.us, families.x_before, families.x_after, families.y, w.F, w.H, w.K, w.Linv,
+              *families.responses)
+    return sum(a.nbytes for a in arrays)

@@ -1,0 +1,132 @@
+"""Private folders: a session's compilation and generated package, removed at exit; and bgc's lasting cache of compiled packages."""
+
+from __future__ import annotations
+
+import atexit
+import hashlib
+import os
+import shutil
+import tempfile
+import threading
+from pathlib import Path
+
+
+from .. import arguments, pipeline
+from ..compiler.printing import escape
+from ..ir import NUMBA_PACKAGE, PACKAGE
+
+
+#: The compile cache, the private folders and the package imports are shared
+#: by the threads of a process (a Dask worker runs several tasks at once).
+_LOCK = threading.RLock()
+
+
+def private_folder(prefix: str) -> str:
+    """A new temporary folder of this process, removed when it exits: at
+    interpreter exit, or at the end of a multiprocessing worker (which skips
+    atexit handlers).
+
+    Raises
+    ------
+    ArgumentTypeError
+        ``prefix`` is not a string.
+    """
+    import secrets
+    from multiprocessing import util
+
+    arguments.text("bgc.api.private_folder", "prefix", prefix)
+
+    base = tempfile.gettempdir()
+    with _FOLDER_LOCK:  # an orphaned campaign worker removes its folders under it (remove_private_folders)
+        for _ in range(100):
+            folder = os.path.join(base, prefix + secrets.token_hex(6))
+            # named before it is made: a worker ended between the two (SIGTERM when its campaign dies)
+            # removes it all the same
+            _FOLDERS.append((os.getpid(), folder))
+            try:
+                os.mkdir(folder, 0o700)  # as tempfile.mkdtemp: a new folder, this user's only
+            except FileExistsError:
+                _FOLDERS.pop()
+                continue
+            break
+        else:
+            raise FileExistsError(f"no free name for a private folder in {base}")
+        atexit.register(shutil.rmtree, folder, True)
+        util.Finalize(None, shutil.rmtree, args=(folder, True), exitpriority=0)
+    return folder
+
+
+#: The private folders of this process and of the process it was forked from: (pid, path).
+_FOLDERS: list[tuple[int, str]] = []
+
+
+_FOLDER_LOCK = threading.RLock()
+
+
+def _new_folder_lock() -> None:  # a forked child starts with its own lock, free, whoever held its parent's
+    global _FOLDER_LOCK
+    _FOLDER_LOCK = threading.RLock()
+
+
+def remove_private_folders() -> None:
+    """Remove this process's private folders now (a campaign worker whose
+    campaign has died, ending at once: :func:`bgc.experiment.campaign._orphaned`).
+    Under the lock :func:`private_folder` takes, so no folder is being made
+    meanwhile; a folder named but not yet made is simply absent."""
+    with _FOLDER_LOCK:
+        for pid, folder in _FOLDERS:
+            if pid == os.getpid():
+                shutil.rmtree(folder, True)
+
+
+def _compiled(model: str | Path, prior_scale: float = 1.0) -> tuple[pipeline.Compiled, str]:
+    """Compile ``model`` (its priors widened by ``prior_scale``) and write
+    its generated package into a new private folder of this process: (the
+    compiled model, the folder). Nothing is kept between calls: a
+    :class:`Session` holds what one model needs."""
+    c = pipeline.compile_model(model, prior_scale)
+    folder = private_folder("bgc-")
+    root = Path(folder) / c.model.name / PACKAGE
+    root.mkdir(parents=True)
+    for rel, text in c.package.files:
+        (root / rel).write_text(text, encoding="utf-8")
+    return c, folder
+
+
+def cache_root() -> Path:
+    """bgc's own cache folder: ``BGC_CACHE_DIR``, else ``$XDG_CACHE_HOME/bgc``, else ``~/.cache/bgc``."""
+    if os.environ.get("BGC_CACHE_DIR"):
+        return Path(os.environ["BGC_CACHE_DIR"])
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bgc"
+
+
+def _lasting_folder(c: pipeline.Compiled) -> str:
+    """A folder that holds ``c``'s compiled (numba) package and lasts from
+    run to run, so numba's disk cache beside it stays valid: under
+    :func:`cache_root`, named by the package's digest (the same model text
+    always meets the same folder, another one never; the path of the model
+    file, in the package's comments only, is left out). Written once, whole,
+    by renaming a finished private folder into place (processes racing to
+    write it: one wins, the others' copies are dropped)."""
+    # the package's text but the model file's path (in its comments): the same model text met at another
+    # path (a campaign worker's private copy) finds the same folder and its compiled kernels
+    source = escape(c.model.display_source)
+    digest = hashlib.sha256(repr([(rel, text.replace(source, "")) for rel, text in c.package.numba_files]).encode()
+                            ).hexdigest()[:20]
+    root = cache_root() / "packages" / f"{c.model.name}-{digest}"
+    if (root / c.model.name / NUMBA_PACKAGE / "__init__.py").exists():
+        return str(root)
+    root.parent.mkdir(parents=True, exist_ok=True)
+    fresh = Path(tempfile.mkdtemp(prefix=f".{root.name}-", dir=root.parent))
+    package = fresh / c.model.name / NUMBA_PACKAGE
+    package.mkdir(parents=True)
+    for rel, text in c.package.numba_files:
+        (package / rel).write_text(text, encoding="utf-8")
+    try:
+        os.rename(fresh, root)
+    except OSError:  # another process put it there first
+        shutil.rmtree(fresh, ignore_errors=True)
+    return str(root)
+
+
+os.register_at_fork(after_in_child=_new_folder_lock)

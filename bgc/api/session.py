@@ -1,0 +1,262 @@
+""":func:`open` and :class:`Session`: a compiled model and its generated package, ready to diagnose."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+from .. import arguments
+from ..errors import (
+    ArgumentTypeError, ArgumentValueError, TrackingError, printable,
+)
+from ..output import calibrated
+from ..output.labels import labels_of
+from ..analysis import calibrate as calibration
+from ..data import runs
+from ..model import package as packages
+from ..analysis import track
+from ..model import warmup
+from ..diagnosis.diagnose import Diagnosis
+from ..diagnosis.options import DiagnosisOptions
+from ..diagnosis.diagnose import horizon_steps
+from ..diagnosis.diagnoser import Diagnoser
+from .limits import (METHODS, MAX_PRIOR_SCALE, check_options,
+                     most_steps, with_horizon)
+from .folders import _LOCK, _compiled, _lasting_folder
+from .reports import CalibrationReport, DiagnosisReport
+from .calibrate import _check_calibrated, _model_text
+
+
+def _session_of(func: str, model, process_noise, measurement_noise, generated, say,
+                prior_scale: float | None = None, backend: str | None = None) -> Session:
+    """``model`` when it is a :class:`Session` (whose noise levels, prior
+    scale and package apply: other ones are refused), else a new session of
+    the file."""
+    if not isinstance(model, Session):
+        say("compiling the model")
+        session = Session(model, process_noise, measurement_noise, generated,
+                          1.0 if prior_scale is None else prior_scale, backend)
+        note = session.backend_note()
+        if note:
+            say(note)
+        return session
+    if (process_noise, measurement_noise) not in ((None, None), model.noise) or generated is not None \
+            or prior_scale not in (None, model.prior_scale) or backend not in (None, "auto", model.backend):
+        raise ArgumentValueError(f"{func}: noise levels, prior_scale, backend or generated= with a Session: the session's "
+                                 "apply", None, "open a session with them: bgc.open(model, process_noise=..., ...)")
+    return model
+
+
+class Session:
+    """A compiled model and its generated package, ready to diagnose: made
+    by :func:`open`. ``model``: the model file; ``noise``: the relative
+    (process, measurement) noise levels the filters assume (None: the
+    model's). A session holds its own compilation and package (in a private
+    folder removed at exit); nothing is cached between sessions: diagnose
+    many runs of one model through one session (``bgc.diagnose(session,
+    data=...)``, :meth:`diagnoser`).
+
+    >>> import bgc
+    >>> session = bgc.open("models/circuit.yaml")
+    >>> d = session.diagnoser(particles=200)
+    >>> belief = d.step(0.05, y={"e11": 2.45, "f2": 2.49, "f6": 2.47})  # no u: the model's input
+    >>> belief.phase, belief.alarm, belief.events
+    ('watching', None, (InputFromModel(input='V', reason='absent', step=None),))
+    """
+
+    def __init__(self, model: str | Path, process_noise: float | None = None,
+                 measurement_noise: float | None = None, generated: str | Path | None = None,
+                 prior_scale: float = 1.0, backend: str | None = None):
+        func = "bgc.open"
+        arguments.path(func, "model", model)
+        arguments.noise_levels(func, process_noise, measurement_noise)
+        arguments.path(func, "generated", generated, optional=True)
+        arguments.real(func, "prior_scale", prior_scale, 0.0, MAX_PRIOR_SCALE,
+                       f"a factor above 0 and below {MAX_PRIOR_SCALE:g}, e.g. prior_scale=2")
+        if generated is not None and prior_scale != 1.0:
+            raise ArgumentValueError(f"{func}: prior_scale={prior_scale:g} with generated=: that package carries the "
+                                     "priors it was compiled with", None,
+                                     "drop generated= (a package is generated with the widened priors), or the "
+                                     "prior scale")
+        self.model = str(model)
+        self.noise = (process_noise, measurement_noise)
+        self.prior_scale = float(prior_scale)
+        if backend is not None:
+            arguments.choice(func, "backend", backend, (*packages.BACKENDS, "auto"))
+        self.backend = packages.resolve_backend(backend)
+        self.compiled, self.folder = _compiled(model, self.prior_scale)  # this session's own compilation and folder
+        c = self.compiled
+        levels = c.numerics.noise_at(process_noise, measurement_noise)
+        self.levels = levels
+        custom = levels if (process_noise, measurement_noise) != (None, None) else None
+        #: why the compiled backend, chosen by what is installed, could not be had (None: it was not needed)
+        self.fallback: str | None = None
+        try:
+            self._load(generated, str(model), custom)
+        except Exception as exc:  # noqa: BLE001 - whatever keeps the compiled package from working
+            if self.backend == "numpy":
+                raise
+            why = printable(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)[:200]
+            if packages.chosen_by_name(backend):
+                raise TrackingError(f"the numba backend cannot run {printable(str(model))}: {why}", None,
+                                    "use --backend numpy (backend='numpy')") from None
+            self.backend, self.fallback = "numpy", why
+            self._load(generated, str(model), custom)
+        self.priors = {f.parameter: f.prior for f in c.model.faults}
+
+    def _load(self, generated, model: str, custom) -> None:
+        """Load this session's package of its backend (from ``generated``, or a
+        private folder for NumPy, or, for the compiled package, a folder of
+        bgc's cache that lasts, so numba's disk cache stays valid) and warm it up."""
+        c = self.compiled
+        if generated is None:
+            generated = self.folder if self.backend == "numpy" else _lasting_folder(c)
+        with _LOCK:  # another thread must not see a package half imported
+            self.package = packages.load_package(generated, c.model.name, model, custom, self.backend)
+            #: (seconds, kernels compiled, kernels loaded from numba's disk cache) of this session's warm-up
+            self.warm = warmup.warm_up(self.package)
+
+    @property
+    def name(self) -> str:
+        return self.compiled.model.name
+
+    def backend_note(self) -> str | None:
+        """One line on the compiled backend's warm-up (None on the NumPy
+        backend): kernels compiled, or loaded from numba's disk cache, and how
+        long it took; or why it could not be had (``auto`` fell back to NumPy)."""
+        seconds, compiled, loaded = self.warm
+        if self.fallback is not None:
+            return f"numba backend unavailable ({self.fallback}): running on numpy"
+        if self.backend != "numba":
+            return None
+        if compiled:
+            return (f"numba backend: {compiled} kernels compiled in {seconds:.1f} s (kept in numba's disk cache: "
+                    "later runs load them)")
+        if loaded:
+            return f"numba backend: {loaded} kernels loaded from numba's disk cache in {seconds:.1f} s"
+        return "numba backend: kernels compiled before in this process"
+
+    def __repr__(self) -> str:
+        return f"<bgc.Session of {self.name} ({printable(self.compiled.model.display_source)})>"
+
+    def _repr_html_(self) -> str:
+        """A notebook's view: the model's name and file, elements, bonds and
+        states, sensors, inputs, parameters and fault candidates
+        (:func:`bgc.output.summary.model_html`)."""
+        from ..output import summary
+
+        return summary.model_html(self)
+
+    def options(self, options: DiagnosisOptions | None = None, *, method: str = "gpf", particles: int = 1000,
+                seed: int = 0, func: str = "bgc.Session.diagnoser") -> DiagnosisOptions:
+        """``options`` (checked; default: built from ``method``, ``particles``
+        and ``seed``) with the detector's horizon filled in (the model's run
+        length when None)."""
+        if options is None:
+            arguments.choice(func, "method", method, METHODS)
+            arguments.integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
+            arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
+            options = DiagnosisOptions(method=method, particles=particles, seed=seed)
+        check_options(options, func)
+        return with_horizon(options, self.compiled.model.settings)
+
+    def diagnoser(self, options: DiagnosisOptions | None = None, *, method: str = "gpf", particles: int = 1000,
+                  seed: int = 0, inputs=None, sensors=None, source: str = "<stream>", progress=None) -> Diagnoser:
+        """An online :class:`~bgc.diagnosis.diagnoser.Diagnoser` of this model:
+        ``step(t, u, y)`` per sample, ``finish()`` at the end. ``inputs``,
+        ``sensors``: the input and sensor names the data have (default: all
+        of the model's sensors, and the inputs the first ``step`` gives);
+        ``source``: the data's name in messages."""
+        func = "bgc.Session.diagnoser"
+        opts = self.options(options, method=method, particles=particles, seed=seed, func=func)
+        arguments.text(func, "source", source)
+        arguments.callable_or_none(func, "progress", progress)
+        nominal = self.package.MODELS["nominal"]
+        return Diagnoser(self.package, self.compiled.signatures, self.priors, opts,
+                         horizon_steps(opts.horizon, nominal.DT, 0), inputs=inputs, sensors=sensors, source=source,
+                         progress=progress, most=most_steps(self.compiled.numerics, opts))
+
+    def calibrate(self, data, estimate: str | tuple[str, ...] = "noise", *, progress=None) -> CalibrationReport:
+        """Maximum-likelihood estimates, from healthy recordings ``data`` (a
+        run file, a :class:`~bgc.data.runs.Run`, or a list or tuple of
+        them), of what ``estimate`` names: ``noise`` (every sensor's
+        measurement noise and the process-noise level, the default),
+        ``measurement_noise``, ``process_noise`` and parameters of the model
+        file, as a comma-separated text or a tuple of names
+        (:mod:`bgc.analysis.calibrate`). The :class:`CalibrationReport` holds
+        the estimates with their 95 % intervals and the calibrated model's
+        text; :meth:`CalibrationReport.write` writes it.
+
+        Raises
+        ------
+        ArgumentTypeError, ArgumentValueError
+            ``data`` or ``estimate`` of the wrong type, no data, or a session
+            opened with other noise levels than the model file's.
+        CalibrationError
+            An unknown name to estimate; a likelihood that is not finite at
+            the model's values.
+        DataError
+            A run that cannot be read or is not of this model.
+        """
+        func = "bgc.Session.calibrate"
+        if self.noise != (None, None):
+            raise ArgumentValueError(f"{func}: a session opened with noise levels calibrates from the model file's "
+                                     "own", None, "open the session without them: bgc.open(model)")
+        items = list(data) if isinstance(data, (list, tuple)) else [data]
+        if not items:
+            raise ArgumentValueError(f"{func}: data=[] holds no recording", None, "give a run file or a list of them")
+        for item in items:
+            if not isinstance(item, (str, os.PathLike, runs.Run)):
+                raise ArgumentTypeError(f"{func}: data={arguments.shown(item)} is not a path or a Run", None,
+                                        "give a run file's path, a bgc.data.runs.Run, or a list of them")
+        if isinstance(estimate, tuple):
+            for word in estimate:
+                arguments.text(func, "estimate", word)
+        else:
+            arguments.text(func, "estimate", estimate)
+        arguments.callable_or_none(func, "progress", progress)
+        say = progress or (lambda text: None)
+        c = self.compiled
+        nominal = self.package.MODELS["nominal"]
+        sensors, process, parameters = calibration.targets(estimate, nominal, [p.name for p in c.model.parameters],
+                                                           "--estimate" if isinstance(estimate, str) else "estimate")
+        records, dates = [], []
+        for item in items:
+            run = runs.check_run(item) if isinstance(item, runs.Run) else runs.read_run(item)
+            track.check_run_of(run, c.model.name)
+            records.append(calibration.record_of(run, nominal))
+            dates += [h.split(":", 1)[1].strip() for h in run.header
+                      if h.lower().startswith(("date:", "recorded:")) and h.split(":", 1)[1].strip()]
+        say(f"calibrating on {len(records)} recording(s)")
+        result = calibration.calibrate(nominal, c.numerics, records, sensors, process, parameters,
+                                       calibration.wants_initial(estimate))
+        original = _model_text(self.model, c)
+        own = {el.name: el.noise for el in c.model.elements if el.noise is not None}
+        text = calibrated.calibrated_text(original, c.model.display_source, result, own, tuple(dates))
+        _check_calibrated(text, result, c)
+        units = {x.name: x.unit for x in (*c.model.parameters, *c.model.measurements, *c.model.inputs)}
+        return CalibrationReport(self.model, self.name, tuple(sensors), process, tuple(parameters), result, text,
+                                 units)
+
+    def report(self, run: runs.Run, diagnosis: Diagnosis, scenario: str | None = None,
+               injected=None) -> DiagnosisReport:
+        """A :class:`DiagnosisReport` of ``diagnosis`` made on ``run``."""
+        return DiagnosisReport(self.name, self.compiled.model.display_source, run, scenario, injected, self.noise,
+                               self.levels, diagnosis.options, diagnosis, labels_of(self.compiled.model))
+
+
+def open(model: str | Path, *, process_noise: float | None = None, measurement_noise: float | None = None,
+         generated: str | Path | None = None, prior_scale: float = 1.0, backend: str | None = None) -> Session:
+    """Compile ``model`` and load its generated package: a :class:`Session`
+    whose :meth:`Session.diagnoser` diagnoses a stream one sample at a time,
+    and which :func:`diagnose` and :func:`distinguishability` take in place of
+    the model file (compiled once for many runs; nothing is cached between
+    sessions). ``process_noise``,
+    ``measurement_noise``: the relative noise levels the filters assume
+    (default: the model's); ``generated``: the folder ``bgc compile -o``
+    wrote (default: a private one); ``prior_scale``: widens every fault's
+    prior of its magnitude by that factor (``--prior-scale``); ``backend``:
+    'numpy', 'numba' (the compiled package, the ``fast`` extra) or None /
+    'auto' (numba when installed; the environment's ``BGC_BACKEND`` first)."""
+    return Session(model, process_noise, measurement_noise, generated, prior_scale, backend)

@@ -1,0 +1,71 @@
+"""``bgc calibrate``: noise levels and nominal values from healthy recordings, into a new model file."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from ..errors import printable
+from .common import add_backend_option, backend_note, refuse_input_in_output
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("calibrate", help="estimate noise levels and nominal values from healthy recordings, and "
+                                         "write the calibrated model (a new YAML)")
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--data", nargs="+", required=True, metavar="HEALTHY.csv",
+                   help="fault-free recordings of the plant (run files, as bgc simulate writes)")
+    p.add_argument("--estimate", default="noise", metavar="WHAT",
+                   help="what to estimate, separated by commas: noise (every sensor's noise and the process "
+                        "level), measurement_noise, process_noise, initial (each recording's initial state), "
+                        "parameter names (default: noise)")
+    p.add_argument("-o", "--output", required=True, metavar="CALIBRATED.yaml",
+                   help="the calibrated model: a new file (never the model file, nor a file bgc did not write)")
+    p.add_argument("--report", default=None, metavar="DIR",
+                   help="the calibration report's folder: report.md, report.json, report.html, pictures (default: "
+                        "CALIBRATED-report beside the calibrated model)")
+    add_backend_option(p)
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import bgc
+
+    from ..api.calibrate import check_calibration_output
+
+    from ..output import artifacts, calibration_report
+
+    out = Path(args.output)
+    folder = Path(args.report) if args.report else out.with_name(out.stem + "-report")
+    check_calibration_output(out, args.model, args.data)  # before any work
+    for item in args.data:
+        refuse_input_in_output(item, folder)
+    artifacts.check_folder(folder, (*calibration_report.PICTURES, "report.md", "report.json", "report.html",
+                                    "manifest.json"),
+                           "calibrate")
+    start = time.perf_counter()
+    session = bgc.open(args.model, backend=args.backend)
+    backend_note(session)
+    report = session.calibrate(list(args.data), args.estimate)
+    report.write(out)
+    report.write_report(folder)
+    cal = report.calibration
+    print(f"wrote {printable(str(out))}: {report.name} calibrated on {cal.samples} samples of "
+          f"{', '.join(printable(s) for s in cal.sources)} ({time.perf_counter() - start:.1f} s); report in "
+          f"{printable(str(folder))}")
+    for e in cal.estimates:
+        if not e.identifiable:
+            print(printable(f"  {e.name}: not identifiable, kept at {e.start_level:.6g} ({e.why})"))
+            continue
+        std = f" (std {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}])" if e.kind == "measurement_noise" else ""
+        bound = ""
+        if e.at_bound:
+            bound = ", the data show none" if e.value == 0 else ", at the end of the range searched"
+        print(printable(f"  {e.name}: {e.level:.6g} in [{e.level_low:.6g}, {e.level_high:.6g}] (95 %){std}, "
+                        f"was {e.start_level:.6g}{bound}"))
+    for i in cal.innovations:
+        print(printable(f"  innovations of {i.sensor}: mean {i.mean:+.3f}, variance {i.variance:.3f}, Ljung-Box "
+                        f"p = {i.p_value:.3g} ({i.lags} lags)"))
+    print(printable(f"  {cal.verdict}"))
+    return 0

@@ -1,0 +1,196 @@
+"""What the commands share: the options of several (noise, backend, prior,
+real data), the argparse types, the checks of times and output folders, the
+progress line, the diagnosis report's printing, and the one-line errors."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from pathlib import Path
+
+from ..errors import BgcError, ErrorGroup, printable
+
+
+def error_lines(exc: BgcError) -> tuple[str, ...]:
+    return exc.lines() if isinstance(exc, ErrorGroup) else (exc.line(),)
+
+def print_errors(exc: BgcError) -> None:
+    for line in error_lines(exc):
+        print(line, file=sys.stderr)
+
+def parse_noise(text: str | None) -> tuple[float | None, float | None]:
+    import math
+
+    if not text:
+        return None, None
+    values: dict[str, float | None] = {"process": None, "measurement": None}
+    for part in text.split(","):
+        key, _, val = part.partition("=")
+        key = key.strip()
+        if key not in values:
+            raise BgcError(f"--noise: unknown key {key!r}", None, "write process=0.03,measurement=0.02")
+        try:
+            values[key] = float(val)
+        except ValueError:
+            raise BgcError(f"--noise: {val!r} is not a number", None, "write process=0.03,measurement=0.02") from None
+        if not math.isfinite(values[key]) or values[key] < 0 or values[key] > 1e6:
+            raise BgcError(f"--noise: {key} level must be a finite number >= 0 and at most 1e6", None,
+                           "noise levels are fractions of the signal, e.g. 0.02")
+        if key == "measurement" and values[key] == 0:
+            raise BgcError("--noise: measurement level 0 makes the filters' likelihood degenerate", None,
+                           "give a measurement level above 0, e.g. 0.02 (as a model's sensor noise)")
+    return values["process"], values["measurement"]
+
+def check_times(args: argparse.Namespace, names) -> None:
+    """Refuse --horizon, --gap, --checkpoint that are not times above 0, naming the flag."""
+    for name in names:
+        value = getattr(args, name, None)
+        if value is not None and not (math.isfinite(value) and 0 < value <= 1e12):
+            raise BgcError(f"--{name} {value:g}: give a time above 0 in the model's time unit", None,
+                           f"e.g. --{name} 300")
+
+def refuse_input_in_output(data: str | None, out: Path | None) -> None:
+    """Refuse a data file inside the folder the command writes: it may hold a file of the same name."""
+    if data is None or data == "-" or out is None:
+        return
+    try:
+        inside = Path(data).resolve().parent == out.resolve()
+    except OSError:
+        return
+    if inside:
+        raise BgcError(f"--data {printable(data)} is in the output folder {printable(str(out))}, which this command "
+                       "rewrites", None, "copy the run elsewhere first, or write the report to another folder (-o)")
+
+def open_stream(path: str):
+    """A run file or a named pipe, opened for reading (not a device that never ends)."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+        if not (stat.S_ISREG(mode) or stat.S_ISFIFO(mode)):
+            raise BgcError(f"{printable(path)} is not a regular file or a pipe", None,
+                           "give a run file, a named pipe, or - for standard input")
+        return open(path, "rb")
+    except OSError as exc:
+        raise BgcError(f"{printable(path)}: {printable(exc.strerror or str(exc))}", None,
+                       "give a run file, or - for standard input") from None
+
+class Progress:
+    """One line on stderr saying what ``bgc COMMAND`` is doing, rewritten in
+    place, on a terminal (stderr then holds only errors when it is a file or
+    a pipe)."""
+
+    def __init__(self, command: str = "diagnose"):
+        self.command = command
+        self.tty = sys.stderr.isatty()
+        self.width = 0
+
+    def __call__(self, text: str) -> None:
+        if not self.tty:
+            return
+        line = printable(f"bgc {self.command}: {text}")
+        sys.stderr.write("\r" + line.ljust(self.width))
+        sys.stderr.flush()
+        self.width = len(line)
+
+    def close(self) -> None:
+        if self.tty and self.width:
+            sys.stderr.write("\r" + " " * self.width + "\r")
+            sys.stderr.flush()
+
+def backend_note(session) -> None:
+    """On the compiled backend, one line on stderr: its kernels compiled (how long) or loaded."""
+    if session.backend_note():
+        print(f"bgc: {session.backend_note()}", file=sys.stderr, flush=True)
+
+def write_report(r, output: str, command: str) -> Path:
+    """Write diagnosis report ``r`` into folder ``output`` (report.json,
+    report.md, report.html, plots, the run when simulated:
+    :func:`bgc.output.report.report_files`), print its verdict, estimate and
+    notable events, and return the folder."""
+    from ..output import artifacts, events, report
+
+    files = report.report_files(r, command)
+    out = Path(output)
+    artifacts.write_folder(out, files)
+    d = r.diagnosis
+    print(f"{r.model}: {d.verdict}" + (f": {', '.join(d.candidates)}" if d.candidates else ""))
+    if d.detection is not None:
+        print(f"  detected at t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}), "
+              f"onset t = {events.time_text(d.time_of(d.onset))}")  # a logger's Unix time in full
+    for line in report.plain_words(d, r.labels):
+        print(f"  {printable(line)}")
+    e = d.estimate
+    if e is not None and d.verdict != "no fault":
+        truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
+        edge = {"high": ", at the upper bound of its prior", "low": ", at the lower bound of its prior"}
+        print(f"  {e.magnitude} of {e.parameter}: {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}] "
+              f"({100 * e.level:.0f} %{edge.get(e.bound, '')}){truth}")
+    if command == "diagnose":
+        for line in events.notes(d.events, d.time_of):
+            print(f"  note: {printable(line)}")
+    print(f"wrote {printable(str(out))}/: report.md, report.json, report.html, {len(files) - 4} more files "
+          f"(diagnosis {d.seconds:.1f} s)")
+    return out
+
+def fault_model(c, fault: str) -> str:
+    """The generated module of ``PARAM:KIND`` (a sensor's or actuator's fault
+    also by its name in the model, ``F12:bias``); an unknown one as written
+    (the package's check names the valid ones)."""
+    try:
+        return c.dbn.get(fault).name.replace(":", "_")
+    except KeyError:
+        return fault.replace(":", "_")
+
+def add_prior_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--prior-scale", type=above_zero, default=1.0, metavar="K",
+                   help="widen every fault's prior of its size (and drift rate) by K (default 1: the model's; a "
+                        "fault's own 'size' and 'rate' in the model set it per fault)")
+
+def add_backend_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--backend", choices=["auto", "numpy", "numba"], default="auto",
+                   help="the generated package the filters run on: numpy, or numba (compiled; pip install "
+                        "'bgc[fast]'); auto (default): numba when installed (BGC_BACKEND first). The result does "
+                        "not depend on it")
+
+def add_data_options(p: argparse.ArgumentParser) -> None:
+    """The options of real data, shared by bgc diagnose and bgc monitor."""
+    p.add_argument("--horizon", type=float, default=None, metavar="TIME",
+                   help="the detector's false-alarm rate is per this much time (default: the model's run length, "
+                        "simulation.steps x dt)")
+    p.add_argument("--gap", type=float, default=None, metavar="TIME",
+                   help="missing samples longer than this are reported as a gap (default: 10 steps of dt)")
+    p.add_argument("--no-recheck", dest="recheck", action="store_false",
+                   help="do not weigh the fault models the symbols ruled out before a verdict (faster; trusts the "
+                        "symbols, as the thesis does)")
+
+def at_least(low: int, message: str):
+    """An argparse type: an integer >= ``low``; ``message`` (with ``{value}``) says what is wrong."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if value < low:
+            raise argparse.ArgumentTypeError(message.format(value=value))
+        return value
+    return parse
+
+positive = at_least(1, "{value}: give an integer >= 1")
+
+#: --seed: NumPy's generators take no negative seed.
+seed = at_least(0, "{value} is negative: give an integer >= 0")
+
+def above_zero(text: str) -> float:
+    """An argparse type: a finite number above 0."""
+    import math
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text}: give a number above 0")
+    return value

@@ -1,0 +1,56 @@
+"""``bgc distinguish``: which faults the data of a scenario can tell apart, before any data."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..errors import printable
+from .common import Progress, above_zero, parse_noise, positive
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("distinguish", help="predict which faults the data of a scenario can tell apart (before "
+                       "any data: noise, size, onset and kind of the fault)")
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--scenario", metavar="NAME:KIND:MAGNITUDE@TIME",
+                   help="one fault, e.g. R_pipe:incipient:0.5@165 (default: every candidate, kind and direction)")
+    p.add_argument("--change", type=above_zero, default=0.3,
+                   help="without --scenario: the relative change of each parameter (a drift reaches it at the end "
+                        "of the run; default 0.3)")
+    p.add_argument("--at", type=above_zero, default=0.5,
+                   help="without --scenario: the onset, as a fraction of the run (default 0.5)")
+    p.add_argument("--noise", metavar="process=Q,measurement=R", help="relative noise levels (default: the model's)")
+    p.add_argument("--steps", type=positive, default=None, help="samples of the run (default: the model's; at most "
+                   "what the prediction's memory allows, 2 GB: bgc says how many)")
+    p.add_argument("--format", choices=["text", "json"], default="text")
+    p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of printing")
+    p.add_argument("--plot", metavar="FILE.png", help="also draw the probabilities as a heat map")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .. import api
+    from ..output import artifacts, plots, render
+
+    process, measurement = parse_noise(args.noise)
+    progress = Progress("distinguish")
+    try:
+        r = api.distinguishability(args.model, args.scenario, change=args.change, at=args.at,
+                                   process_noise=process, measurement_noise=measurement, steps=args.steps,
+                                   progress=progress)
+    finally:
+        progress.close()
+    text = render.to_json(render.distinguishability_json(r)) if args.format == "json" else \
+        render.distinguishability_text(r)
+    if args.output:
+        artifacts.write_file(Path(args.output), artifacts.mark_text(text, args.format, r.source))
+        print(f"wrote {printable(args.output)}")
+    else:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    if args.plot:
+        artifacts.write_file(Path(args.plot), plots.distinguishability_figure(r, "png"))
+        print(f"wrote {printable(args.plot)}")
+    return 0

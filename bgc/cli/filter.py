@@ -1,0 +1,77 @@
+"""``bgc filter``: one generated filter over a recorded run."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .. import pipeline
+from ..errors import printable
+from ..model import warmup
+from .common import add_backend_option, fault_model, seed
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("filter", help="run a generated particle filter (GPF/APF) over a recorded run")
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("run_csv", metavar="RUN.csv", help="a CSV written by bgc simulate")
+    p.add_argument("--fault", metavar="PARAM:KIND", help="track with this fault model (default: nominal)")
+    p.add_argument("--method", choices=["gpf", "apf", "opf", "both"], default="both",
+                   help="gpf, apf, opf (the locally optimal proposal) or both (gpf and apf)")
+    p.add_argument("--particles", type=int, default=200)
+    p.add_argument("--seed", type=seed, default=0, help="random seed, an integer >= 0")
+    p.add_argument("--start", type=float, metavar="T",
+                   help="with --fault: track the nominal model until T, then the fault model (its fault from the "
+                        "sample at T)")
+    p.add_argument("--generated", default="generated", metavar="DIR",
+                   help="where bgc compile wrote the package (its -o DIR; default: generated)")
+    p.add_argument("--plot", metavar="FILE.png")
+    add_backend_option(p)
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from ..output import artifacts
+    from ..data import runs
+    from ..analysis import track
+    from ..model import package as packages
+
+    c = pipeline.compile_model(args.model)
+    run = runs.read_run(args.run_csv)
+    track.check_run_of(run, c.model.name, args.run_csv)
+    backend = packages.resolve_backend(args.backend)
+    package = packages.load_package(args.generated, c.model.name, args.model, backend=backend)
+    name = fault_model(c, args.fault) if args.fault else "nominal"
+    seconds, compiled, _ = warmup.warm_up(package, steps=(name,))  # the filtered model's whole step
+    if compiled:
+        print(f"numba backend: {compiled} kernels compiled in {seconds:.1f} s (kept in numba's disk cache)",
+              file=sys.stderr)
+    track.check_request(run, package, name, args.particles, args.start)
+    from ..output.labels import labels_of
+
+    results = []
+    for method in (["gpf", "apf"] if args.method == "both" else [args.method]):
+        r = track.track(run, package, name, method, args.particles, args.seed, args.start)
+        results.append(r)
+        rmse = ", ".join(f"{x} {v:.4g}" for x, v in r.rmse(run).items())
+        print(f"{method.upper()} on {name}, N = {args.particles}: {len(r.time)} steps in {r.seconds:.3f} s, "
+              f"mean ESS {float(np.mean(r.ess)):.0f}, resampled {int(r.resampled.sum())} times, "
+              f"recoveries {r.recoveries}")
+        print("  RMSE vs truth: " + (rmse or "no truth in the run"))
+        last = ", ".join(f"{x} {m:.4g} +- {s:.2g}" for x, m, s in zip(r.state_names, r.mean[-1], r.std[-1]))
+        print(f"  final estimate: {last}")
+        est = track.fault_estimate(r, package, run, labels_of(c.model).per_time)
+        if est is not None:
+            true_text = ""
+            if est.truth is not None:
+                true_text = f" (true {est.truth:.4g}, error {100 * est.relative_error:.1f} %)"
+            print(f"  estimate of {est.what} at t = {est.time:g}: {est.value:.4g} +- {est.std:.2g}{true_text}")
+    if args.plot:
+        from ..output import plots
+
+        artifacts.write_file(Path(args.plot), plots.tracking_figure(run, results, "png", labels_of(c.model)))
+        print(f"wrote {printable(args.plot)}")
+    return 0

@@ -1,0 +1,98 @@
+"""``bgc monitor``: a stream of rows diagnosed as they arrive, events as they happen."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+from pathlib import Path
+
+from ..errors import BgcError
+from .common import (add_backend_option, add_data_options, add_prior_option, backend_note, check_times, open_stream,
+    parse_noise, refuse_input_in_output, seed, write_report)
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("monitor", help="diagnose a run as its rows arrive (a file being appended to, or - for "
+                                       "standard input): events as they happen, the report at the end")
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--data", metavar="RUN.csv|-", required=True,
+                   help="the run's CSV (as bgc simulate writes): a file, or - for standard input")
+    p.add_argument("--follow", action="store_true",
+                   help="keep reading the file as another program appends to it (until Ctrl-C, or --idle)")
+    p.add_argument("--idle", type=float, default=None, metavar="SECONDS",
+                   help="with --follow: end the input after this many seconds without a new row")
+    p.add_argument("--filter", choices=["gpf", "apf", "opf", "ckf"], default="gpf",
+                   help="the nominal observer and hypothesis filters, as for bgc diagnose")
+    p.add_argument("--particles", type=int, default=1000)
+    p.add_argument("--seed", type=seed, default=0, help="random seed, an integer >= 0")
+    p.add_argument("--noise", metavar="process=Q,measurement=R",
+                   help="relative noise levels the filters assume; default: the model's")
+    add_data_options(p)
+    p.add_argument("--exclude-faulty-sensor", action="store_true",
+                   help="with --checkpoint: when a checkpoint isolates a sensor fault, take that sensor out of the "
+                        "nominal observer and go on watching with the others (an event says so)")
+    p.add_argument("--checkpoint", type=float, default=None, metavar="TIME",
+                   help="while tracking hypotheses, diagnose the data so far every TIME (default: only at the end)")
+    p.add_argument("--generated", metavar="DIR",
+                   help="use the package bgc compile wrote there (default: generate one)")
+    add_prior_option(p)
+    p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-monitor)")
+    add_backend_option(p)
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .. import api
+    from ..service import monitor
+    from ..output import artifacts
+    from ..diagnosis.options import DiagnosisOptions
+
+    check_times(args, ("horizon", "gap", "checkpoint"))
+    if args.idle is not None and not (math.isfinite(args.idle) and args.idle >= 0):
+        raise BgcError(f"--idle {args.idle:g}: give the seconds to wait for a new row, a number >= 0", None,
+                       "e.g. --idle 60")
+    if args.idle is not None and not args.follow:
+        raise BgcError("--idle applies to --follow", None, "add --follow, or drop --idle")
+    if args.exclude_faulty_sensor and args.checkpoint is None:
+        raise BgcError("--exclude-faulty-sensor acts at checkpoints: a sensor fault is isolated there", None,
+                       "add --checkpoint TIME, e.g. --checkpoint 10")
+    if args.follow and args.data == "-":
+        raise BgcError("--follow applies to a file: standard input ends when its writer closes it", None,
+                       "drop --follow, or give the file")
+    process, measurement = parse_noise(args.noise)
+    options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed, horizon=args.horizon,
+                               gap=args.gap, recheck=args.recheck)
+    session = api.open(args.model, process_noise=process, measurement_noise=measurement, generated=args.generated,
+                       prior_scale=args.prior_scale, backend=args.backend)
+    backend_note(session)
+    out = Path(args.output or f"{session.name}-monitor")
+    refuse_input_in_output(args.data, out)
+    artifacts.check_folder(out, ("report.md", "report.json", "report.html", "manifest.json"),
+                           "monitor")  # before the stream
+    if args.data == "-":
+        stream, name = sys.stdin.buffer, "<stdin>"
+    else:
+        stream, name = open_stream(args.data), args.data
+        if args.follow:
+            stream = monitor.Follow(stream, args.idle, path=args.data)
+    quiet = []
+
+    def say(line: str) -> None:  # a reader that went away (| head) stops the printing, not the diagnosis
+        if quiet:
+            return
+        try:
+            print(line, flush=True)
+        except BrokenPipeError:
+            quiet.append(True)
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+    r, failure = monitor.monitor(session, stream, name, options, say=say, checkpoint=args.checkpoint,
+                                 exclude_faulty=args.exclude_faulty_sensor)
+    if quiet:
+        sys.stdout = open(os.devnull, "w")
+    write_report(r, str(out), "monitor")
+    if failure is not None:
+        raise failure
+    return 0

@@ -1,0 +1,57 @@
+"""``bgc simulate``: the plant simulated (the truth), with noise and a fault, to a run file."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from .. import pipeline
+from ..errors import printable
+from .common import add_prior_option, parse_noise, seed
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("simulate", help="simulate the plant (truth) with noise and an injected fault, to CSV")
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--steps", type=int, default=None, help="number of samples (default: the model's)")
+    p.add_argument("--fault", metavar="NAME:KIND:MAGNITUDE@TIME",
+                   help="inject a fault, e.g. R_pipe:incipient:0.5@165 (slope per unit time), R_pipe:abrupt:31@165 "
+                        "(bias), a sensor's P_memb:bias:0.3@100 or an actuator's u_pump:gain:-0.2@100")
+    p.add_argument("--noise", metavar="process=Q,measurement=R", help="noise levels as fractions of the signal")
+    p.add_argument("--seed", type=seed, default=0, help="random seed, an integer >= 0")
+    p.add_argument("-o", "--output", metavar="FILE.csv")
+    p.add_argument("--plot", metavar="FILE.png", help="also plot measurements and states")
+    add_prior_option(p)
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..output import artifacts
+    from ..analysis import simulate as sim
+
+    c = pipeline.compile_model(args.model, args.prior_scale)
+    process, measurement = parse_noise(args.noise)
+    fault = sim.parse_fault(args.fault, c.numerics) if args.fault else None
+    if args.steps is not None:
+        sim.check_steps(args.steps, c.numerics, "--steps")
+    unexpected = sim.outside_prior(fault, c.numerics) if fault else None
+    if unexpected:
+        print(f"warning: {unexpected}", file=sys.stderr)
+    options = sim.SimulationOptions(steps=args.steps, process_noise=process, measurement_noise=measurement,
+                                    seed=args.seed, fault=fault)
+    start = time.perf_counter()
+    result = sim.simulate(c.numerics, options)
+    out = Path(args.output or f"{c.model.name}-run.csv")
+    artifacts.write_file(out, sim.to_csv(result))
+    print(f"wrote {printable(str(out))}: {len(result.time)} steps of {c.model.name}, fault: "
+          f"{fault.describe() if fault else 'none'} ({time.perf_counter() - start:.2f} s)")
+    if args.plot:
+        from ..output import plots
+        from ..output.labels import labels_of
+
+        artifacts.write_file(Path(args.plot), plots.simulation_figure(
+            result, "png", labels_of(c.model), sim.noise_free(c.numerics, options).clean_measurements))
+        print(f"wrote {printable(args.plot)}")
+    return 0
