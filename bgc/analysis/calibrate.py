@@ -68,7 +68,7 @@ import math
 import time
 import types
 from dataclasses import dataclass
-from types import ModuleType
+
 from typing import Sequence
 
 import numpy as np
@@ -78,6 +78,7 @@ from ..ir import Numerics
 from ..data import sampler as data_grid
 from ..filters.cubature import NominalKalman
 from ..data.runs import Run
+from ..model.protocol import FaultModel
 
 #: The ``--estimate`` words that name noise (a parameter's name names itself).
 NOISE_WORDS = ("noise", "measurement_noise", "process_noise")
@@ -250,7 +251,7 @@ class Calibration:
         raise KeyError(name)
 
 
-def targets(words: str | Sequence[str], model: ModuleType, parameters: Sequence[str],
+def targets(words: str | Sequence[str], model: FaultModel, parameters: Sequence[str],
             where: str = "--estimate") -> tuple[tuple[str, ...], bool, tuple[str, ...]]:
     """What ``--estimate`` asks for: (the sensors whose noise, whether the
     process level, the parameters), from words ``noise`` (every sensor's
@@ -294,7 +295,7 @@ def wants_initial(words: str | Sequence[str]) -> bool:
     return INITIAL_WORD in [w.strip() for w in (words.split(",") if isinstance(words, str) else words)]
 
 
-def record_of(run: Run, model: ModuleType) -> Record:
+def record_of(run: Run, model: FaultModel) -> Record:
     """A checked run (:func:`bgc.data.runs.check_run`) on the model's time
     grid, as a diagnosis reads it (:class:`bgc.data.sampler.Sampler`: gaps
     predicted across, empty input cells held, absent sensors missing)."""
@@ -317,7 +318,7 @@ class _Likelihood:
     its value over the state's size. ``level``: the process level when it is
     held at another value than the model's (0: the data show none)."""
 
-    def __init__(self, model: ModuleType, numerics: Numerics, records: Sequence[Record],
+    def __init__(self, model: FaultModel, numerics: Numerics, records: Sequence[Record],
                  sensors: Sequence[str], process: bool, parameters: Sequence[str], level: float | None = None,
                  initial: Sequence[tuple[int, int]] = ()):
         self.model, self.numerics, self.records = model, numerics, tuple(records)
@@ -392,7 +393,7 @@ class _Likelihood:
             out.append(math.sqrt(min(1.0, 2.0 * dt / tau)))
         return np.array(out)
 
-    def module(self, z: np.ndarray) -> ModuleType:
+    def module(self, z: np.ndarray) -> FaultModel:
         """A copy of the nominal module's namespace with THETA and the noise at ``z``."""
         sigma, level, theta = self.values(z)
         ns = types.ModuleType(self.model.__name__)
@@ -629,7 +630,7 @@ def innovations(filters: Sequence[NominalKalman], outputs: Sequence[str]) -> tup
     return tuple(out)
 
 
-def calibrate(model: ModuleType, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
+def calibrate(model: FaultModel, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
               process: bool, parameters: Sequence[str], initial: bool = False) -> Calibration:
     """Maximum-likelihood estimates of the noise of ``sensors``, of the
     process level (``process``) and of ``parameters`` of the nominal model
@@ -838,7 +839,7 @@ def _crossing(fall, limit: float) -> float:
     return float(brentq(g, below, above, rtol=1e-6, xtol=1e-6 * above))
 
 
-def _zero_upper(model: ModuleType, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
+def _zero_upper(model: FaultModel, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
                 parameters: Sequence[str], z: np.ndarray, best: float, initial: Sequence[tuple[int, int]] = ()
                 ) -> float:
     """The upper end of the process level's 95 % interval when its
@@ -878,7 +879,7 @@ def _sources(records: Sequence[Record]) -> tuple[str, ...]:
     return tuple(r.source for r in records)
 
 
-def _reading_scale(model: ModuleType, lik: _Likelihood, theta: np.ndarray, j: int, nominal: float) -> float:
+def _reading_scale(model: FaultModel, lik: _Likelihood, theta: np.ndarray, j: int, nominal: float) -> float:
     """The size a sensor's relative noise level multiplies at ``theta``: its
     reading at X0 and the inputs at t = 0, as the compiler sets it
     (``nominal``, the compiled one, when the reading there is 0: the

@@ -89,7 +89,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from types import ModuleType
 
 import numpy as np
 
@@ -97,6 +96,7 @@ from ..errors import TrackingError
 from ..ir import Numerics
 from ..kinds import fault_kind
 from .simulate import MAX_STEPS
+from ..model.protocol import FaultModel, Package, magnitude_row, nominal_model
 
 #: A rival is in the predicted ambiguity group when the data, with the priors,
 #: are expected to name the truth over it with a probability under this.
@@ -143,7 +143,7 @@ class Families:
     responses (T n_y, onsets) from each of ``onsets`` and the bounds of its
     magnitude's prior (``bounds``)."""
 
-    package: ModuleType
+    package: Package
     us: np.ndarray
     x_before: np.ndarray
     x_after: np.ndarray
@@ -279,20 +279,20 @@ def _sizes(num: Numerics) -> tuple[int, int, int, int]:
     return len(ssm.states), len(ssm.outputs), len(ssm.inputs), len(num.faults)
 
 
-def scenario_inputs(package: ModuleType, steps: int) -> np.ndarray:
+def scenario_inputs(package: Package, steps: int) -> np.ndarray:
     """The model's default inputs over ``steps`` samples: sample k's step
     holds the input at k dt (as the simulator does)."""
-    nominal = package.MODELS["nominal"]
+    nominal = nominal_model(package)
     return np.array([nominal.inputs(k * nominal.DT) for k in range(steps)], dtype=float).reshape(steps, -1)
 
 
-def prepare(package: ModuleType, us: np.ndarray, progress=None) -> Families:
+def prepare(package: Package, us: np.ndarray, progress=None) -> Families:
     """The nominal run, its whitening and every fault model's whitened unit
     responses, for the inputs ``us`` (T, n_u) of a run; ``progress(text)``,
     when given, is told what is being done."""
     say = progress or (lambda text: None)
     say("preparing the families: the nominal run and its Kalman filter")
-    nominal = package.MODELS["nominal"]
+    nominal = nominal_model(package)
     us = np.asarray(us, dtype=float).reshape(len(us), -1)
     T = len(us)
     theta = np.asarray(nominal.THETA, dtype=float)
@@ -357,8 +357,9 @@ def _fault_runs(families: Families, name: str, magnitudes, onsets) -> tuple[np.n
     if first >= T:
         return before, after, y
     theta = np.asarray(model.THETA, dtype=float)
+    row = magnitude_row(model)
     z = after[first].copy()
-    z[-1] = 0.0
+    z[row] = 0.0  # the onset rule: the transition into an onset sample is nominal
     with np.errstate(all="ignore"):
         for k in range(first, T):
             if k > first:
@@ -366,7 +367,7 @@ def _fault_runs(families: Families, name: str, magnitudes, onsets) -> tuple[np.n
                 before[k][:, moved] = z[:, moved]
                 z = model.predict(z, families.us[k], theta, model.DT)
             starting = onsets == k
-            z[-1, starting] = magnitudes[starting]
+            z[row, starting] = magnitudes[starting]
             seen = onsets <= k
             after[k][:, seen] = z[:, seen]
             y[k][:, seen] = model.observe(z, families.us[k], theta)[:, seen]
@@ -440,7 +441,7 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
     return Distinction(name, float(magnitude), int(onset), 0.5 * ww, own_r, tuple(rivals), level)
 
 
-def noisy_row(model: ModuleType) -> int | None:
+def noisy_row(model: FaultModel) -> int | None:
     """The row of the sensor whose noise std a noise fault's model scales
     (its ``FAULT``'s subject), None for any other model."""
     fault = getattr(model, "FAULT", None)
@@ -451,7 +452,7 @@ def noisy_row(model: ModuleType) -> int | None:
 
 def _noise_variance(families: Families, j: int) -> float:
     """Sensor ``j``'s nominal measurement noise variance R_j."""
-    return float(np.asarray(families.package.MODELS["nominal"].MEASUREMENT_STD, dtype=float)[j]) ** 2
+    return float(np.asarray(nominal_model(families.package).MEASUREMENT_STD, dtype=float)[j]) ** 2
 
 
 def _threshold(prior_of: dict[str, float], rival: str, truth: str) -> float:
@@ -461,7 +462,7 @@ def _threshold(prior_of: dict[str, float], rival: str, truth: str) -> float:
     return math.log(max(prior_of[rival], 1e-300) / max(prior_of[truth], 1e-300))
 
 
-def _noise_ratios(families: Families, model: ModuleType, magnitude: float) -> np.ndarray:
+def _noise_ratios(families: Families, model: FaultModel, magnitude: float) -> np.ndarray:
     """delta_k (T,): by how much a noise fault of ``magnitude`` widens the
     variance of the nominal filter's whitened innovation along its sensor,
     ``(k^2 - 1) R_j (S_k^-1)_jj`` with ``S_k^-1 = Linv_k' Linv_k``."""
@@ -560,7 +561,7 @@ def divergence(families: Families, a: FaultRun, b: FaultRun) -> float:
     second moments of a's state and b's estimate, propagated exactly)."""
     Wa, Wb = a.whitening, b.whitening
     T, n_y, n = Wa.H.shape
-    P0, Q, R = _noise(families.package.MODELS["nominal"], n)
+    P0, Q, R = _noise(nominal_model(families.package), n)
     mean = np.zeros(n)  # b's estimate of the deviation a's mean makes from b's
     Z = np.zeros((2 * n, 2 * n))  # (a's state about its mean, b's estimate of it)
     Z[:n, :n] = P0
@@ -643,7 +644,7 @@ def _normal_above(mean: float, std: float) -> float:
     return 0.5 * math.erfc(-mean / (std * math.sqrt(2.0)))
 
 
-def _scales(model: ModuleType, points: np.ndarray) -> np.ndarray:
+def _scales(model: FaultModel, points: np.ndarray) -> np.ndarray:
     """Central-difference steps per physical state: 1e-6 of the state's size
     (its largest value on the run, its initial spread or its process std)."""
     size = np.maximum.reduce([np.abs(points).max(axis=0), np.asarray(model.X0_STD, dtype=float)[: points.shape[1]],
@@ -676,7 +677,7 @@ def _jacobian(fn, points: np.ndarray, rows, steps: np.ndarray, us: np.ndarray) -
     return out
 
 
-def _noise(model: ModuleType, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _noise(model: FaultModel, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The covariances of a model's first ``n`` (physical) states' initial
     spread and process noise, and of its measurement noise."""
     return (np.diag(np.asarray(model.X0_STD, dtype=float)[:n] ** 2),
@@ -684,7 +685,7 @@ def _noise(model: ModuleType, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarra
             np.diag(np.asarray(model.MEASUREMENT_STD, dtype=float) ** 2))
 
 
-def _whitening(model: ModuleType, F: np.ndarray, H: np.ndarray) -> Whitening:
+def _whitening(model: FaultModel, F: np.ndarray, H: np.ndarray) -> Whitening:
     """The nominal Kalman filter's gains and innovation factors along the run."""
     T, n_y, n = H.shape
     P, Q, R = _noise(model, n)
@@ -708,7 +709,7 @@ def _whitening(model: ModuleType, F: np.ndarray, H: np.ndarray) -> Whitening:
     return Whitening(F, H, K, Linv)
 
 
-def _unit_responses(model: ModuleType, F: np.ndarray, H: np.ndarray, x_before: np.ndarray, x_after: np.ndarray,
+def _unit_responses(model: FaultModel, F: np.ndarray, H: np.ndarray, x_before: np.ndarray, x_after: np.ndarray,
                     us: np.ndarray, onsets: np.ndarray) -> np.ndarray:
     """Fault model ``model``'s linearised measurement deviations (T, n_y,
     onsets) for a unit magnitude from each onset: its fault states (a
@@ -741,7 +742,7 @@ def _unit_responses(model: ModuleType, F: np.ndarray, H: np.ndarray, x_before: n
         j = where.get(k)
         if j is not None:  # the onset sample: the states so far are nominal, the magnitude is 1
             D[:, j] = 0.0
-            D[-1, j] = 1.0
+            D[magnitude_row(model), j] = 1.0
         G[k] = H[k] @ D[:n] + Hz_f[k] @ D[n:]
     return G
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from types import ModuleType
 
 import numpy as np
 
@@ -16,6 +15,7 @@ from ..filters.cubature import CubatureKalmanFilter
 from ..filters.registry import check_particles, filter_class
 from ..kinds import fault_kind
 from ..model.protocol import onset_transition
+from ..model.protocol import Package, nominal_model
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,7 +76,7 @@ class FaultEstimate:
         return abs(self.value - self.truth) / abs(self.truth or 1.0)
 
 
-def fault_estimate(result: TrackResult, package: ModuleType, run: Run,
+def fault_estimate(result: TrackResult, package: Package, run: Run,
                    per_time: str = "per unit time") -> FaultEstimate | None:
     """The fault estimate of a fault-model track (None for the nominal model):
     a bias as the parameter's value (nominal + bias), a slope as it is
@@ -102,7 +102,7 @@ def fault_estimate(result: TrackResult, package: ModuleType, run: Run,
     return FaultEstimate(p, kind.name, what, value, std, float(result.time[-1]), true_value)
 
 
-def run_arrays(run: Run, package: ModuleType, model_name: str) -> tuple[np.ndarray, np.ndarray]:
+def run_arrays(run: Run, package: Package, model_name: str) -> tuple[np.ndarray, np.ndarray]:
     """(ys, us) arrays of a recorded run in the model's output and input order."""
     model = package.MODELS[model_name]
     missing = [y for y in model.OUTPUTS if y not in run.measurements]
@@ -130,7 +130,7 @@ def check_run_of(run: Run, model: str, where: str | None = None) -> None:
                         "filter it with the model the run was made with")
 
 
-def check_request(run: Run, package: ModuleType, model_name: str, particles: int, start: float | None,
+def check_request(run: Run, package: Package, model_name: str, particles: int, start: float | None,
                   columns: bool = True) -> None:
     """Refuse a filter request that cannot run, before any work: a model the
     package lacks, no sensors, a hand-over without a fault model or outside
@@ -138,7 +138,7 @@ def check_request(run: Run, package: ModuleType, model_name: str, particles: int
     measurements (a diagnosis takes one: it uses the sensors present).
     Whether the run is of this model at all is :func:`check_run_of`, which
     callers ask first."""
-    name = package.MODELS["nominal"].MODEL
+    name = nominal_model(package).MODEL
     if model_name not in package.MODELS:
         raise TrackingError(f"no generated model {printable(repr(model_name))}", None,
                             "choose one of: " + ", ".join(package.MODELS))
@@ -157,7 +157,7 @@ def check_request(run: Run, package: ModuleType, model_name: str, particles: int
 
 
 @np.errstate(all="ignore")  # particles outside a law's domain are weighted out and counted
-def track(run: Run, package: ModuleType, model_name: str = "nominal", method: str = "gpf",
+def track(run: Run, package: Package, model_name: str = "nominal", method: str = "gpf",
           particles: int = 200, seed: int = 0, start: float | None = None) -> TrackResult:
     """Run the filter ``method`` (:data:`FILTER_CLASSES`) of ``model_name`` over the run.
 
@@ -192,7 +192,7 @@ def track(run: Run, package: ModuleType, model_name: str = "nominal", method: st
     recoveries = 0
     x0 = None
     if split > 0:
-        nominal = package.MODELS["nominal"]
+        nominal = nominal_model(package)
         pf0 = cls(nominal, particles, rng)
         out = pf0.run(ys[:split], us[:split])
         k = out.mean.shape[1]

@@ -26,6 +26,7 @@ from .limits import (METHODS, MAX_PRIOR_SCALE, check_options,
 from .folders import _LOCK, _compiled, _lasting_folder
 from .reports import CalibrationReport, DiagnosisReport
 from .calibrate import _check_calibrated, _model_text
+from ..model.protocol import nominal_model
 
 
 def _session_of(func: str, model, process_noise, measurement_noise, generated, say,
@@ -172,7 +173,7 @@ class Session:
         opts = self.options(options, method=method, particles=particles, seed=seed, func=func)
         arguments.text(func, "source", source)
         arguments.callable_or_none(func, "progress", progress)
-        nominal = self.package.MODELS["nominal"]
+        nominal = nominal_model(self.package)
         return Diagnoser(self.package, self.compiled.signatures, self.priors, opts,
                          horizon_steps(opts.horizon, nominal.DT, 0), inputs=inputs, sensors=sensors, source=source,
                          progress=progress, most=most_steps(self.compiled.numerics, opts))
@@ -218,7 +219,7 @@ class Session:
         arguments.callable_or_none(func, "progress", progress)
         say = progress or (lambda text: None)
         c = self.compiled
-        nominal = self.package.MODELS["nominal"]
+        nominal = nominal_model(self.package)
         sensors, process, parameters = calibration.targets(estimate, nominal, [p.name for p in c.model.parameters],
                                                            "--estimate" if isinstance(estimate, str) else "estimate")
         records, dates = [], []

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from types import ModuleType
 from typing import Iterator
 
 import numpy as np
@@ -41,6 +40,7 @@ import numpy as np
 from ..errors import DataError, printable
 from ..diagnosis import events as ev
 from .runs import Run
+from ..model.protocol import FaultModel
 
 #: Missing steps in a row, by default, beyond which a gap is an event.
 GAP_STEPS = 10
@@ -74,7 +74,7 @@ class Sampler:
     messages; ``gap``: the gap limit in time units (None: :data:`GAP_STEPS`
     steps)."""
 
-    def __init__(self, model: ModuleType, inputs, sensors, source: str, gap: float | None = None):
+    def __init__(self, model: FaultModel, inputs, sensors, source: str, gap: float | None = None):
         self.model = model
         self.dt = float(model.DT)
         self.source = source

@@ -93,7 +93,6 @@ onset's weighted mean plus or minus the normal quantile times its weighted std.
 from __future__ import annotations
 
 import math
-from types import ModuleType
 
 from ..ir import FaultSignatures
 from ..data.sampler import grid_steps, samples
@@ -102,13 +101,14 @@ from .openloop import PATHS
 from ..data.runs import Run
 from .values import Belief, Diagnosis, Estimate, Hypothesis, Live
 from .options import DiagnosisOptions
+from ..model.protocol import Package, nominal_model
 
 #: What the batch diagnosis's callers take from here (the values and the method's names).
 __all__ = ["diagnose", "horizon_steps", "Belief", "Diagnosis", "DiagnosisOptions", "Estimate", "Hypothesis", "Live",
            "IDENTIFY", "KALMAN_METHOD", "PATHS"]
 
 
-def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors: dict[str, float],
+def diagnose(run: Run, package: Package, signatures: FaultSignatures, priors: dict[str, float],
              options: DiagnosisOptions = DiagnosisOptions(), progress=None, every: bool = False) -> Diagnosis:
     """Diagnose a recorded run with a generated package and the model's
     signatures: the online :class:`~bgc.diagnosis.diagnoser.Diagnoser` over
@@ -122,7 +122,7 @@ def diagnose(run: Run, package: ModuleType, signatures: FaultSignatures, priors:
     too. ``options.horizon`` None here: the detector's horizon is the
     record's length (:func:`bgc.diagnose` fills in the model's run length).
     """
-    nominal = package.MODELS["nominal"]
+    nominal = nominal_model(package)
     steps = grid_steps(run.time, nominal.DT)  # the record's length on the grid, for a horizon of None
     d = Diagnoser(package, signatures, priors, options, horizon_steps(options.horizon, nominal.DT, steps),
                   inputs=run.inputs, sensors=run.measurements, source=run.source, lazy=True, every=every,

@@ -44,7 +44,6 @@ import dataclasses
 import math
 import time
 from collections.abc import Mapping
-from types import ModuleType
 
 import numpy as np
 
@@ -68,6 +67,7 @@ from .hypothesis import track_job
 from .onsets import drift_onsets
 from .openloop import cloud_before, gaussian_cloud, open_loop
 from .values import Isolation
+from ..model.protocol import Package, nominal_model
 
 #: The nominal observer degenerates when its mean effective sample size
 #: before the alarm is under this share of its particles (an event says so).
@@ -98,14 +98,14 @@ class Diagnoser:
     the hypotheses run in parallel there); ``every``: try every fault model,
     those the symbols rule out too; ``progress(text)``: told what is done."""
 
-    def __init__(self, package: ModuleType, signatures: FaultSignatures, priors: dict[str, float],
+    def __init__(self, package: Package, signatures: FaultSignatures, priors: dict[str, float],
                  options: DiagnosisOptions, horizon: int, *, inputs=None, sensors=None, source: str = "<stream>",
                  lazy: bool = False, every: bool = False, progress=None, most: int | None = None):
         self.started = time.perf_counter()
         self.package, self.signatures, self.priors = package, signatures, priors
         self.options, self.horizon, self.lazy, self.every = options, max(int(horizon), 1), lazy, every
         self.say = progress or (lambda text: None)
-        self.nominal = nominal = package.MODELS["nominal"]
+        self.nominal = nominal = nominal_model(package)
         check_particles(options.particles, package, "nominal")
         if options.identify not in IDENTIFY:
             raise TrackingError(f"unknown identification {options.identify!r}", None, f"use {' or '.join(IDENTIFY)}")

@@ -36,7 +36,7 @@ import numpy as np
 from ..kinds import fault_kind
 from .detect import DetectorBank, DetectorOptions, monte_carlo_share
 from ..filters.registry import filter_class
-from ..model.protocol import onset_transition
+from ..model.protocol import magnitude_row, onset_transition
 from .onsets import hypothesis_seed
 from .openloop import cloud_before
 from .options import DiagnosisOptions
@@ -90,7 +90,7 @@ class HypothesisTracker:
         self.cls = filter_class(package, job.method)
         self.started = time.perf_counter()
         n_y, n_x = len(job.outputs), len(module.STATES)
-        self.n_y, self.n_x, self.k_mag = n_y, n_x, n_x - 1
+        self.n_y, self.n_x, self.k_mag = n_y, n_x, magnitude_row(module)
         self.filters: dict[int, object] = {}  # onset -> its particle filter
         self.evidence = {s: 0.0 for s in job.starts}
         self.ess = {s: float(job.particles) for s in job.starts}  # of the weights that predict the next step

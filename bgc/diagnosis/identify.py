@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from types import ModuleType
 
 import numpy as np
 
 from .options import GridOptions
+from ..model.protocol import FaultModel, Package, magnitude_row, nominal_model
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,7 +53,7 @@ def _logsumexp(a: np.ndarray) -> float:
     return m + math.log(float(np.sum(np.exp(a - m)))) if np.isfinite(m) else m
 
 
-def _bootstrap(package: ModuleType, model: ModuleType, x: np.ndarray, ys: np.ndarray, us: np.ndarray, rng,
+def _bootstrap(package: Package, model: FaultModel, x: np.ndarray, ys: np.ndarray, us: np.ndarray, rng,
                fixed: tuple[int, float] | None = None) -> tuple[float, np.ndarray]:
     """log p(ys | the cloud x) by a bootstrap filter (its unbiased estimate);
     ``fixed`` (row, value) holds a state at a value. Returns it and the final cloud."""
@@ -74,14 +74,14 @@ def _bootstrap(package: ModuleType, model: ModuleType, x: np.ndarray, ys: np.nda
     return total, x
 
 
-def loglik_grid(package: ModuleType, name: str, cloud, ys: np.ndarray, us: np.ndarray, first: int,
+def loglik_grid(package: Package, name: str, cloud, ys: np.ndarray, us: np.ndarray, first: int,
                 onsets: tuple[int, ...], values: np.ndarray, particles: int, seed) -> np.ndarray:
     """log p(ys[first:] | onset, value) for every onset (steps, each >= first)
     and grid value; ``cloud`` (x, logw): the nominal cloud before ``first``
     (None: the model's prior)."""
-    nominal = package.MODELS["nominal"]
+    nominal = nominal_model(package)
     model = package.MODELS[name]
-    row = len(model.STATES) - 1  # the magnitude state
+    row = magnitude_row(model)
     rng = np.random.default_rng([*seed, 0])
     if cloud is None:
         x = nominal.initial_particles(rng, particles)
@@ -113,7 +113,7 @@ def grid_job(job) -> np.ndarray:
     return loglik_grid(sys.modules[package_name], name, cloud, ys, us, first, onsets, values, particles, seed)
 
 
-def refine(package: ModuleType, name: str, cloud, ys: np.ndarray, us: np.ndarray, onsets: tuple[int, ...],
+def refine(package: Package, name: str, cloud, ys: np.ndarray, us: np.ndarray, onsets: tuple[int, ...],
            low: float, high: float, prior: tuple[float, float], level: float, options: GridOptions,
            seed, parts: int = 1, mapper=None, first: int | None = None) -> GridPosterior:
     """The grid posterior of the magnitude of fault model ``name`` (a key of

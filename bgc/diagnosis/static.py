@@ -30,6 +30,7 @@ from .options import DiagnosisOptions
 from .estimate import struck, truth_of
 from .onsets import earlier_onsets
 from .parallel import run_all
+from ..model.protocol import nominal_model
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,7 +93,7 @@ def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, 
     T = len(ys)
     say(f"weighing {len(names)} fault hypotheses ({', '.join(names)}) with cubature Kalman filters over their "
         f"onsets and magnitudes")
-    outputs = tuple(package.MODELS["nominal"].OUTPUTS)
+    outputs = tuple(nominal_model(package).OUTPUTS)
     jobs = []
     for name in names:
         module = package.MODELS[name]
@@ -106,7 +107,7 @@ def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, 
                               far=(outputs, options.rejection, options.windows)))
     posteriors = dict(zip(names, run_all(jobs, options.workers, run_static)))
     q = NormalDist().inv_cdf((1.0 + options.interval) / 2.0)
-    n = len(package.MODELS["nominal"].STATES)
+    n = len(nominal_model(package).STATES)
     hyps = []
     for name in names:
         module, p = package.MODELS[name], posteriors[name]

@@ -32,16 +32,16 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from types import ModuleType
 
 import numpy as np
 
 from ..kinds import fault_kind
-from ..filters.cubature import NominalTrack, run_bank, state_rows
+from ..filters.cubature import NominalTrack, run_bank
 
 from ..filters.quadrature import overflow_shift, row_quadrature
 from .options import KalmanOptions
 from .values import StaticPosterior
+from ..model.protocol import FaultModel, state_rows
 
 
 def onset_widths(onsets, ends: tuple[float, float] | None = None) -> np.ndarray:
@@ -211,7 +211,7 @@ def _inside(lo: float, hi: float, vmin: float, vmax: float) -> tuple[float, floa
 REFINE_ROUNDS = 6
 
 
-def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets,
+def static_posterior(model: FaultModel, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets,
                      hint: tuple[float, float], hint_onset: int, level: float,
                      options: KalmanOptions = KalmanOptions(), earlier=(), refine: bool | None = None,
                      far=None) -> StaticPosterior:
@@ -390,7 +390,7 @@ def static_posterior(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: N
                            _truncated(g, prior, options), trace)
 
 
-def fault_start(model: ModuleType, track: NominalTrack, onset: int) -> np.ndarray:
+def fault_start(model: FaultModel, track: NominalTrack, onset: int) -> np.ndarray:
     """The fault states a cell of ``model`` starts with (a drifting
     parameter's nominal value; the magnitude, last, is the cell's own)."""
     _, extra = state_rows(model)
@@ -425,7 +425,7 @@ def _trace(track: NominalTrack, onsets, widths, g: _Grid, increments: list) -> n
     return np.column_stack([mean, std])
 
 
-def record_path(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack,
+def record_path(model: FaultModel, ys: np.ndarray, us: np.ndarray, track: NominalTrack,
                 p: StaticPosterior) -> StaticPosterior:
     """``p`` with its ``path``: the filter of its most probable onset with
     its posterior mean magnitude, its predictions and estimates recorded."""

@@ -33,10 +33,10 @@ runtime).
 
 from __future__ import annotations
 
-from types import ModuleType
 from typing import Protocol, runtime_checkable
 
 from .particle import FilterRun, StepResult
+from ..model.protocol import FaultModel
 
 __all__ = ["Filter", "FilterRun", "StepResult"]
 
@@ -54,7 +54,7 @@ class Filter(Protocol):
     kind is that kind's own."""
 
     #: The generated model module it filters (``STATES``, ``OUTPUTS``, ``DT`` ...).
-    model: ModuleType
+    model: FaultModel
     #: Steps whose update failed and that the filter recovered from.
     recoveries: int
 

@@ -23,11 +23,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from types import ModuleType
 
 import numpy as np
 
 from .particle import FilterRun, StepResult, run_filter
+from ..model.protocol import FaultModel, magnitude_row, state_rows
 
 LOG_2PI = math.log(2.0 * math.pi)
 
@@ -75,14 +75,6 @@ class BankResult:
     x_std: np.ndarray | None = None
 
 
-def state_rows(model: ModuleType) -> tuple[list[int], list[int]]:
-    """The physical states' rows and the fault states' rows (a drifting
-    parameter, then the magnitude last) of a generated model."""
-    kinds = getattr(model, "STATE_KINDS", ("physical",) * len(model.STATES))
-    physical = [i for i, k in enumerate(kinds) if k == "physical"]
-    return physical, [i for i, k in enumerate(kinds) if k != "physical"]
-
-
 def cholesky(P: np.ndarray) -> np.ndarray:
     """Lower Cholesky factors of a stack of covariances (..., n, n), by
     NumPy's batched LAPACK call. When a matrix of the stack is not positive
@@ -118,9 +110,12 @@ class _Filter:
     model whose ``measurement_std`` depends on its fault states (a noise
     fault: ``varies``), each cell's own (:meth:`_cell_noise`)."""
 
-    def __init__(self, model: ModuleType):
+    def __init__(self, model: FaultModel):
         self.model = model
         self.physical, self.extra = state_rows(model)
+        #: the magnitude's place among the fault states (the onset rule holds it at 0 over the transition into
+        #: the onset sample: :mod:`bgc.model.protocol`); None for the nominal model
+        self.magnitude = self.extra.index(magnitude_row(model)) if self.extra else None
         n = len(self.physical)
         self.n, self.n_x = n, len(model.STATES)
         # the physical rows of the points: a slice (a view) when they come first, as generated
@@ -213,7 +208,7 @@ class _Filter:
             return np.zeros(C), mp, Pp, nan, nan, nan
         L = self._points(mp, Pp, X)
         if self.extra and onset.stop > onset.start:  # the onset cells see their fault from this sample on
-            X[self.extra[-1], onset] = fixed[-1][onset][:, None]
+            X[self.extra[self.magnitude], onset] = fixed[self.magnitude][onset][:, None]
         R, rows = self._noise(seen)
         Y = model.observe(flat, u, model.THETA)
         if not every:
@@ -269,9 +264,11 @@ class _Filter:
         for j, row in enumerate(self.extra):
             X[row] = fixed[j][:, None]
         if self.extra:
-            X[self.extra[-1], onset] = 0.0
+            X[self.extra[self.magnitude], onset] = 0.0
         model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
-        for j, row in enumerate(self.extra[:-1]):  # a drifting parameter: the same in every point of a cell
+        for j, row in enumerate(self.extra):  # a drifting parameter: the same in every point of a cell
+            if j == self.magnitude:
+                continue
             fixed[j] = X[row, :, 0]
 
     def _compiled_step(self, y, u, m, P, fixed, onset, dt):
@@ -336,7 +333,7 @@ def lower_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
     return x
 
 
-def run_bank(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets, magnitudes,
+def run_bank(model: FaultModel, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets, magnitudes,
              fixed: np.ndarray, residuals: bool = False, record: bool = False) -> BankResult:
     """Cubature Kalman filters of fault model ``model``, one per cell: cell c
     starts at step ``onsets[c]`` from the nominal filter's state there
@@ -353,7 +350,7 @@ def run_bank(model: ModuleType, ys: np.ndarray, us: np.ndarray, track: NominalTr
     order = np.argsort(onsets, kind="stable")
     starts = onsets[order]
     state = np.repeat(np.asarray(fixed, dtype=float).reshape(-1, 1), C, axis=1)
-    state[-1] = np.asarray(magnitudes, dtype=float)[order]
+    state[kf.magnitude] = np.asarray(magnitudes, dtype=float)[order]
     m = np.empty((C, kf.n))
     P = np.empty((C, kf.n, kf.n))
     total = track.loglik[starts].astype(float)
@@ -394,7 +391,7 @@ class NominalKalman:
     ``X0_STD``), one step at a time (:meth:`step`); :meth:`track` gives what
     it did so far as a :class:`NominalTrack`."""
 
-    def __init__(self, model: ModuleType, outputs: int):
+    def __init__(self, model: FaultModel, outputs: int):
         self.kf = kf = _Filter(model)
         self.m = np.asarray(model.X0, dtype=float)[None, kf.physical]
         self.P = np.diag(np.asarray(model.X0_STD, dtype=float)[kf.physical] ** 2)[None]
@@ -458,7 +455,7 @@ class CubatureKalmanFilter:
     prior (``X0``, ``X0_STD``), or from particles ``x`` (n_x, N): their mean
     and covariance."""
 
-    def __init__(self, model: ModuleType, particles: int | None = None, rng: np.random.Generator | None = None,
+    def __init__(self, model: FaultModel, particles: int | None = None, rng: np.random.Generator | None = None,
                  x: np.ndarray | None = None, fixed: np.ndarray | None = None):
         self.model, self.particles, self.rng = model, particles, rng
         self.kf = kf = _Filter(model)
@@ -495,7 +492,7 @@ class CubatureKalmanFilter:
         return run_filter(self, ys, us, dt)
 
 
-def nominal_track(model: ModuleType, ys: np.ndarray, us: np.ndarray, stop: int) -> NominalTrack:
+def nominal_track(model: FaultModel, ys: np.ndarray, us: np.ndarray, stop: int) -> NominalTrack:
     """The nominal model's cubature Kalman filter from its prior (``X0``,
     ``X0_STD``) over steps 0 .. ``stop`` - 1: its state before every step up
     to ``stop``, the log-likelihood of the data before it, and what it

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from types import ModuleType
 
 from ..errors import TrackingError
 from . import cubature
+from ..model.protocol import Package
 
 
 #: Memory the particle arrays of one filter may take (several state-sized
@@ -27,7 +27,7 @@ FILTER_CLASSES = {"gpf": "GenericParticleFilter", "apf": "AuxiliaryParticleFilte
                   "opf": "OptimalProposalParticleFilter", "ckf": cubature.CubatureKalmanFilter}
 
 
-def filter_class(package: ModuleType, method: str):
+def filter_class(package: Package, method: str):
     """The filter class of ``method`` (gpf, apf, opf or ckf), a particle
     filter's from ``package``; built as ``cls(model, particles, rng, x=None)``."""
     if method not in FILTER_CLASSES:
@@ -36,7 +36,7 @@ def filter_class(package: ModuleType, method: str):
     return getattr(package.filters, cls) if isinstance(cls, str) else cls
 
 
-def check_particles(particles: int, package: ModuleType, model_name: str) -> None:
+def check_particles(particles: int, package: Package, model_name: str) -> None:
     """Refuse, before any work, a particle count below 1 or whose arrays
     would take more than MAX_FILTER_BYTES."""
     n_x = len(package.MODELS[model_name].STATES)

@@ -14,10 +14,10 @@ import hashlib
 import importlib.util
 import sys
 from pathlib import Path
-from types import ModuleType
 
 from ..errors import TrackingError, printable
 from ..ir import PACKAGES, NoiseLevels
+from ..model.protocol import Package
 
 
 #: The backends, in the order ``--backend`` lists them.
@@ -66,7 +66,7 @@ def chosen_by_name(backend: str | None) -> bool:
 
 
 def load_package(generated_dir: str | Path, model: str, source: str | None = None,
-                 noise: NoiseLevels | None = None, backend: str = "numpy") -> ModuleType:
+                 noise: NoiseLevels | None = None, backend: str = "numpy") -> Package:
     """Import ``<generated_dir>/<model>/numpy_model`` (``backend`` 'numba':
     ``numba_model``) as ``bgc_generated_<model>_<folder hash>``
     (``source``: the model file, for the hint when the package is missing).

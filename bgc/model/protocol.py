@@ -1,25 +1,123 @@
-"""What the runtime reads of a generated model, and the conventions of its fault."""
+"""What the runtime reads of a generated model, and the conventions of its fault, declared once.
+
+A generated package (``generated/<model>/numpy_model``, or the compiled
+``numba_model``) is a Python package whose ``MODELS`` maps ``nominal`` and
+each fault model ``PARAM_KIND`` to a module. The runtime reads those modules
+through :class:`FaultModel` and the package through :class:`Package` (typing
+protocols: a generated module meets them as it is, and a test's stand-in
+does too), never as bare modules; the conventions every part of the runtime
+shares are here, and only here:
+
+* **The state vector.** A model's states are the plant's physical states
+  first, then its fault states (``STATE_KINDS``): a drifting parameter's own
+  state (``parameter``) and, last, the fault's magnitude (``bias`` or
+  ``slope``: :attr:`bgc.kinds.FaultKind.magnitude`). :func:`state_rows` and
+  :func:`magnitude_row` say which rows are which; the nominal model has
+  physical states only.
+* **The onset rule.** A fault with onset k changes its parameter at the
+  instant of sample k, as in the thesis's DBN (the parameter of time slice k
+  enters y_k and the transition out of slice k) and in the simulator: y_k sees
+  the fault, the transition into sample k is nominal. A particle filter
+  handed over at an onset applies it with :func:`onset_transition`; the
+  cubature Kalman bank of the static posterior and the distinguishability
+  prediction apply it to their cells by holding the magnitude
+  (:func:`magnitude_row`) at 0 over that one transition.
+* **The nominal model** of a package is :func:`nominal_model`.
+"""
 
 from __future__ import annotations
 
-from types import ModuleType
+from collections.abc import Mapping
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+#: The name of the nominal (fault-free) model in a package's ``MODELS``.
+NOMINAL = "nominal"
 
-def onset_transition(model: ModuleType, x: np.ndarray, u: np.ndarray, theta) -> np.ndarray:
+
+@runtime_checkable
+class FaultModel(Protocol):
+    """One generated model module (the nominal model, or a fault model
+    ``PARAM_KIND``): its tables and the functions the filters call. Arrays
+    of particles are (states, N); ``theta`` the parameters' values."""
+
+    #: The model's name in the package (``nominal``, ``R12_abrupt``) and the plant's.
+    NAME: str
+    MODEL: str
+    STATES: tuple[str, ...]
+    #: ``physical`` per plant state, then the fault states' kinds (``parameter``, ``bias``, ``slope``).
+    STATE_KINDS: tuple[str, ...]
+    INPUTS: tuple[str, ...]
+    OUTPUTS: tuple[str, ...]
+    PARAMETERS: tuple[str, ...]
+    THETA: tuple[float, ...]
+    #: The sample period, in the model's time unit.
+    DT: float
+    X0: Any
+    X0_STD: Any
+    PROCESS_STD: np.ndarray
+    MEASUREMENT_STD: np.ndarray
+    PREDICTIVE_STD: np.ndarray
+    #: ``parameter``, ``kind``, ``magnitude``, ``target``, ``subject``, ``unit``; None: the nominal model.
+    FAULT: Mapping[str, Any] | None
+    #: The bounds of the magnitude's uniform prior (a fault model's).
+    FAULT_PRIOR: tuple[float, float]
+
+    def inputs(self, t: float): ...
+
+    def predict(self, x: np.ndarray, u, theta, dt: float, out: np.ndarray | None = None) -> np.ndarray: ...
+
+    def transition(self, x: np.ndarray, u, theta, dt: float, rng, out: np.ndarray | None = None) -> np.ndarray: ...
+
+    def observe(self, x: np.ndarray, u, theta, out: np.ndarray | None = None) -> np.ndarray: ...
+
+    def measurement_std(self, x: np.ndarray) -> np.ndarray: ...
+
+    def loglik(self, y, x: np.ndarray, u, theta) -> np.ndarray: ...
+
+    def initial_particles(self, rng, n: int) -> np.ndarray: ...
+
+    def perturb(self, x: np.ndarray, rng) -> np.ndarray: ...
+
+
+@runtime_checkable
+class Package(Protocol):
+    """A generated package: its models by name, its filters module (the
+    particle filters, ``bgc/filters/particle.py`` as copied) and its kernel."""
+
+    MODELS: Mapping[str, FaultModel]
+    filters: Any
+    _kernel: Any
+
+
+def nominal_model(package: Package) -> FaultModel:
+    """The package's nominal (fault-free) model."""
+    return package.MODELS[NOMINAL]
+
+
+def state_rows(model: FaultModel) -> tuple[list[int], list[int]]:
+    """The physical states' rows and the fault states' rows (a drifting
+    parameter, then the magnitude last) of a generated model."""
+    kinds = getattr(model, "STATE_KINDS", ("physical",) * len(model.STATES))
+    physical = [i for i, k in enumerate(kinds) if k == "physical"]
+    return physical, [i for i, k in enumerate(kinds) if k != "physical"]
+
+
+def magnitude_row(model: FaultModel) -> int:
+    """The row of a fault model's magnitude state (a bias, or a drift's
+    slope): its last."""
+    return len(model.STATES) - 1
+
+
+def onset_transition(model: FaultModel, x: np.ndarray, u: np.ndarray, theta) -> np.ndarray:
     """The noise-free transition into a fault's onset sample, in place on a
-    fault model's particles ``x``: the dynamics that lead to the sample are
-    nominal, the sample sees the fault. A fault with onset k changes the
-    parameter at the instant of sample k: as in the thesis's DBN (the
-    parameter of time slice k enters y_k and the transition out of slice k)
-    and in the simulator, y_k sees the new value and the states move from
-    step k on. So the magnitude state (the last: a bias, or a drift's slope)
-    is held at zero for this one transition, then restored; a drifting
-    parameter's own state stays at its nominal value. The filter's step then
-    adds the process noise and weighs the particles with the fault in
-    (``step(y, u, predicted=True)``)."""
-    row = len(model.STATES) - 1
+    fault model's particles ``x`` (the onset rule, module docstring): the
+    magnitude state is held at zero for this one transition, then restored;
+    a drifting parameter's own state stays at its nominal value. The
+    filter's step then adds the process noise and weighs the particles with
+    the fault in (``step(y, u, predicted=True)``)."""
+    row = magnitude_row(model)
     magnitude = x[row].copy()
     x[row] = 0.0
     model.predict(x, u, theta, model.DT, out=x)

@@ -8,14 +8,14 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 
 from ..filters import cubature, quadrature
+from ..model.protocol import FaultModel, Package
 
 
-def _cold(model: ModuleType, steps=("nominal",)) -> bool:
+def _cold(model: FaultModel, steps=("nominal",)) -> bool:
     """Whether numba's disk cache lacks a compiled model's kernels (its
     prediction, or its whole filter step when the model is one of ``steps``,
     :func:`_compiled_step`)."""
@@ -26,7 +26,7 @@ def _cold(model: ModuleType, steps=("nominal",)) -> bool:
         return True
 
 
-def _compiled_step(model: ModuleType, steps=("nominal",)) -> bool:
+def _compiled_step(model: FaultModel, steps=("nominal",)) -> bool:
     """Whether warm-up compiles the model's whole generic filter step
     (``_JIT.generic_step``): a model of ``steps``, those that run a generic
     particle filter of their own (a diagnosis's watching filter is the
@@ -35,7 +35,7 @@ def _compiled_step(model: ModuleType, steps=("nominal",)) -> bool:
     return model.NAME in steps and hasattr(model._JIT, "generic_step")
 
 
-def _call_kernels(package: ModuleType, model: ModuleType, steps=("nominal",)) -> None:
+def _call_kernels(package: Package, model: FaultModel, steps=("nominal",)) -> None:
     """Call a compiled model's kernels (``_JIT.predict``, ``_JIT.observe``: the
     per-particle functions are compiled into them) once on one particle,
     compiling them or loading them from the disk cache; the nominal model's
@@ -49,7 +49,7 @@ def _call_kernels(package: ModuleType, model: ModuleType, steps=("nominal",)) ->
             np.full(len(model.OUTPUTS), np.nan), u)
 
 
-def _call_kernel_loops(model: ModuleType) -> None:
+def _call_kernel_loops(model: FaultModel) -> None:
     """Call the compiled kernel's loops (``model._kernel._JIT``: the Gaussian
     log-likelihood, the generic filter's weighing, normalising, resampling,
     draws and moments, the cubature Kalman filter's steps, the static
@@ -88,7 +88,7 @@ KERNEL_LOOPS = ("loglik", "weigh", "normalise", "resample", "finish", "moments",
                 "cubature_prepare", "cubature_after", "cubature_update", "row_quadrature")
 
 
-def _kernels(package: ModuleType, steps=("nominal",)) -> dict[tuple[str, str], object]:
+def _kernels(package: Package, steps=("nominal",)) -> dict[tuple[str, str], object]:
     """The numba dispatchers warm-up compiles, by (model, function) (the
     kernel's loops by ('', loop)): every model's predict and observe, the
     generic steps of :func:`_compiled_step`, the kernel's :data:`KERNEL_LOOPS`."""
@@ -106,7 +106,7 @@ def _misses(dispatchers) -> list[int]:
     return [sum(k.stats.cache_misses.values()) for k in dispatchers]
 
 
-def warm_up(package: ModuleType, workers: int | None = None, steps=("nominal",)) -> tuple[float, int, int]:
+def warm_up(package: Package, workers: int | None = None, steps=("nominal",)) -> tuple[float, int, int]:
     """Compile (or load from numba's disk cache) every compiled kernel of a
     numba package (:func:`_kernels`) by one call of each model's transition
     and observation on one particle, the whole generic filter step of the
