@@ -434,6 +434,25 @@ def test_a_bad_row_mid_stream_ends_the_stream_with_the_report_of_the_rows_before
     assert '"t_last": 10' in (tmp_path / "mon" / "report.json").read_text()
 
 
+def _read_through(proc: subprocess.Popen, path, timeout: float = 120.0) -> None:
+    """Wait until process ``proc`` has read file ``path`` to its end (its
+    open file's offset, from /proc, reaches the file's size)."""
+    size = os.path.getsize(path)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and proc.poll() is None:
+        fds = Path(f"/proc/{proc.pid}/fd")
+        for fd in (fds.iterdir() if fds.is_dir() else ()):
+            try:
+                if os.path.realpath(fd) == os.path.realpath(path):
+                    pos = int(Path(f"/proc/{proc.pid}/fdinfo/{fd.name}").read_text().split()[1])
+                    if pos >= size:
+                        return
+            except (OSError, ValueError, IndexError):
+                continue
+        time.sleep(0.05)
+    raise AssertionError(f"the monitor did not read {path} through within {timeout:g} s")
+
+
 def test_a_followed_file_that_is_truncated_ends_the_stream_and_an_unfinished_last_line_is_not_read(tmp_path):
     lines = runs.run_csv(simulated(CIRCUIT, steps=120)).splitlines(keepends=True)
     path = tmp_path / "live.csv"
@@ -447,7 +466,7 @@ def test_a_followed_file_that_is_truncated_ends_the_stream_and_an_unfinished_las
     proc = subprocess.Popen([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", str(path), "--follow",
                              "--idle", "5", "--particles", "50", "-o", str(tmp_path / "b")], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=dict(os.environ, MPLBACKEND="Agg"))
-    time.sleep(2.0)
+    _read_through(proc, path)  # the monitor has read the 60 lines (a fixed sleep was too short on a busy machine)
     path.write_text("".join(lines[:10]))  # truncated and rewritten, as a logger that restarts
     out, err = proc.communicate(timeout=300)
     assert proc.returncode == 1 and "was truncated while it was followed" in err, err

@@ -22,19 +22,20 @@ import numpy as np
 import pytest
 
 import bgc
-from bgc.diagnosis import finish as decide
+from bgc.diagnosis import weigh
 from bgc.diagnosis.options import DiagnosisOptions
 from bgc.diagnosis import events as ev
-from bgc.diagnosis.values import Estimate, Hypothesis
+from bgc.diagnosis.values import Drop, Estimate, Hypothesis
 
 
-def hypothesis(name: str, posterior: float, dropped: int | None = None) -> Hypothesis:
+def hypothesis(name: str, posterior: float, dropped: int | None = None, code: str = "bayes-factor") -> Hypothesis:
     e = Estimate("P", "abrupt", "bias", 0.0, 0.0, 0.0, 0.0, 0.95, 1.0, 1.0, None)
     empty = np.zeros((0, 1))
     return Hypothesis(name=name, parameter="P", kind="abrupt", signatures=(), start=0, onsets=(0,),
                       onset_posterior=(1.0,), y_mean=empty, y_std=empty, z=empty, x_mean=empty, x_std=empty,
-                      magnitude=np.zeros(0), magnitude_band=np.zeros((0, 2)), dropped=dropped, reason="",
-                      log_evidence=0.0, posterior=posterior, estimate=e, seconds=0.0)
+                      magnitude=np.zeros(0), magnitude_band=np.zeros((0, 2)),
+                      drop=None if dropped is None else Drop(code, dropped, code), log_evidence=0.0,
+                      posterior=posterior, estimate=e, seconds=0.0)
 
 
 def test_a_lone_survivor_under_the_level_keeps_the_most_probable_outvoted_rivals():
@@ -43,28 +44,26 @@ def test_a_lone_survivor_under_the_level_keeps_the_most_probable_outvoted_rivals
     A + B hold 0.95: B is kept, C and D stay dropped. E, dropped by its
     consistency test, is out of the running whatever its posterior."""
     hs = (hypothesis("A", 0.90), hypothesis("B", 0.05, 9), hypothesis("C", 0.03, 9),
-          hypothesis("D", 0.02, 9), hypothesis("E", 0.5, 3))
-    whys = {"B": "bayes-factor", "C": "bayes-factor", "D": "bayes-factor", "E": "inconsistent"}
-    events: list = []
-    out = decide._credible(hs, 0.95, whys, events, 10)
+          hypothesis("D", 0.02, 9), hypothesis("E", 0.5, 3, "inconsistent"))
+    out, events = weigh.credible(hs, 0.95, 10)
     assert [h.name for h in out if h.dropped is None] == ["A", "B"]
-    assert decide._verdict(out) == ("ambiguous", ("A", "B"))
+    assert weigh.verdict(out) == ("ambiguous", ("A", "B"))
     (e,) = events
     assert isinstance(e, ev.Uncertain)
     assert e.candidates == ("A",) and e.kept == ("B",)
     assert e.mass == pytest.approx(0.90) and e.posteriors == pytest.approx((0.05,))
-    assert "B" not in whys and whys["C"] == "bayes-factor"
+    drops = {h.name: h.drop for h in out}
+    assert drops["B"] is None and drops["C"].code == "bayes-factor" and drops["E"].code == "inconsistent"
 
 
 def test_survivors_at_the_level_are_left_as_they_are():
     """A at 0.96 of the running 1.00: isolated, no event; a level of 0.99
     keeps B (0.96 + 0.03 = 0.99), not C."""
     hs = (hypothesis("A", 0.96), hypothesis("B", 0.03, 9), hypothesis("C", 0.01, 9))
-    whys = {"B": "bayes-factor", "C": "bayes-factor"}
-    events: list = []
-    assert decide._credible(hs, 0.95, dict(whys), events, 10) is hs and not events
-    out = decide._credible(hs, 0.99, dict(whys), events, 10)
-    assert decide._verdict(out) == ("ambiguous", ("A", "B"))
+    out, events = weigh.credible(hs, 0.95, 10)
+    assert out is hs and not events
+    out, events = weigh.credible(hs, 0.99, 10)
+    assert weigh.verdict(out) == ("ambiguous", ("A", "B"))
 
 
 def test_many_rivals_each_under_the_bayes_factor_make_a_verdict_ambiguous():
@@ -72,8 +71,7 @@ def test_many_rivals_each_under_the_bayes_factor_make_a_verdict_ambiguous():
     by one, but together hold 20/170 = 0.118: the best alone is 0.882."""
     best = 1.0 / (1.0 + 20 / 150)
     hs = (hypothesis("A", best),) + tuple(hypothesis(f"R{i:02d}", best / 150, 9) for i in range(20))
-    whys = {h.name: "bayes-factor" for h in hs[1:]}
-    out = decide._credible(hs, 0.95, whys, [], 10)
+    out, _ = weigh.credible(hs, 0.95, 10)
     kept = [h.name for h in out if h.dropped is None]
     # the best plus k rivals reach 0.95 when (1 + k/150) / (1 + 20/150) >= 0.95: k >= 11.5
     assert len(kept) == 1 + 12

@@ -99,6 +99,20 @@ class Sampler:
         self._pending: list = []  # events for the next sample
         self._read = tuple((y, y in self.present) for y in model.OUTPUTS)  # per sensor: whether the data have it
 
+    def state(self) -> "SamplerState":
+        """Where the sampler stands, as plain data (:meth:`restore` takes it back)."""
+        return SamplerState(self.data_inputs, self.t0, self.last_t, self.k, tuple(self.held.items()),
+                            tuple(self.holding.items()), tuple(self.holds.items()), self.skipped, self.unsampled,
+                            self.gaps, tuple(self._pending))
+
+    def restore(self, state: "SamplerState") -> None:
+        """Take up where ``state`` (:meth:`state`) stood."""
+        self.data_inputs = tuple(state.data_inputs)
+        self.t0, self.last_t, self.k = state.t0, state.last_t, state.k
+        self.held, self.holding, self.holds = dict(state.held), dict(state.holding), dict(state.holds)
+        self.skipped, self.unsampled, self.gaps = state.skipped, state.unsampled, state.gaps
+        self._pending = list(state.pending)
+
     def start_events(self) -> tuple:
         """The events that hold for the whole run (absent columns)."""
         missing = tuple(ev.SensorMissing(y) for y in self.model.OUTPUTS if y not in self.present)
@@ -193,6 +207,27 @@ class Sampler:
         return DataSummary(inputs, tuple((u, self.holds[u]) for u in self.data_inputs), self.present,
                            tuple(y for y in self.model.OUTPUTS if y not in self.present), self.skipped,
                            self.unsampled, self.gaps, self.dt)
+
+
+@dataclass(frozen=True, slots=True)
+class SamplerState:
+    """A :class:`Sampler`'s place in the data, as plain data: the inputs the
+    data give, the first time, the last time taken, the last step, per data
+    input the value held, whether it is in a hole and the holes so far, the
+    counts of samples skipped, steps without a sample and gaps, and the
+    events waiting for the next sample."""
+
+    data_inputs: tuple[str, ...]
+    t0: float | None
+    last_t: float
+    k: int
+    held: tuple
+    holding: tuple
+    holds: tuple
+    skipped: int
+    unsampled: int
+    gaps: int
+    pending: tuple
 
 
 @dataclass(frozen=True, slots=True)

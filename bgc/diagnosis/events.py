@@ -13,7 +13,7 @@ In loop order: the data (:class:`SensorMissing`, :class:`ColumnIgnored`, :class:
 :class:`InputFromModel`, :class:`InputHeld`, :class:`Gap`,
 :class:`SampleSkipped`), detection (:class:`Alarmed`, :class:`Degenerate`,
 :class:`Switched`), isolation (:class:`Isolated`, :class:`AllTried`),
-tracking (:class:`Started`, :class:`Dropped`, :class:`Rescued`), weighing
+tracking (:class:`Started`, :class:`Stopped`, :class:`Dropped`, :class:`Rescued`), weighing
 (:class:`Truncated`, :class:`AtPriorBound`, :class:`NoLikelihood`, :class:`Misfit`), and the end
 (:class:`SensorExcluded`, :class:`Checkpoint`, :class:`Decided`).
 """
@@ -175,6 +175,17 @@ class Dropped:
     hypothesis: str
     reason: str
     detail: str
+
+
+@dataclass(frozen=True, slots=True)
+class Stopped:
+    """Every filter of hypothesis ``hypothesis`` stopped at ``step`` while the
+    online diagnoser tracked it (far off the data, or another onset of it
+    explained the data decisively better): said as the data come; the end of
+    the diagnosis decides its drop (a :class:`Dropped`)."""
+
+    step: int
+    hypothesis: str
 
 
 #: Why a hypothesis is dropped: its filter's residuals failed the

@@ -13,11 +13,11 @@ from ..kinds import fault_kind
 from . import identify
 from .options import GridOptions
 from .static_posterior import onset_widths
-from .values import Estimate, Hypothesis
+from .values import Drop, Estimate, Hypothesis
 from .options import DiagnosisOptions
 from .onsets import top_onsets
 from .openloop import cloud_before
-from .parallel import run_all
+from .parallel import parallel_map
 
 
 def grid_posterior(package, name: str, estimate: Estimate, clouds: dict, ys, us, onsets, options: DiagnosisOptions, seed,
@@ -28,11 +28,11 @@ def grid_posterior(package, name: str, estimate: Estimate, clouds: dict, ys, us,
     return identify.refine(package, name, cloud_before(clouds, first), ys, us, onsets,
                            estimate.low, estimate.high, tuple(package.MODELS[name].FAULT_PRIOR), options.interval,
                            grid or options.grid, seed, parts=max(1, options.workers),
-                           mapper=lambda fn, jobs: run_all(jobs, options.workers, fn), first=first)
+                           mapper=lambda fn, jobs: parallel_map(fn, jobs, options.workers), first=first)
 
 
-def ranked(hyps: list[dict], weights: np.ndarray, priors: dict[str, float], package, clouds: dict, ys, us,
-            options: DiagnosisOptions, grids: dict) -> np.ndarray:
+def ranked(hyps: tuple[Hypothesis, ...], weights: np.ndarray, priors: dict[str, float], package, clouds: dict, ys,
+           us, options: DiagnosisOptions) -> tuple[tuple[Hypothesis, ...], np.ndarray, dict]:
     """The survivors' posterior weighed anew by the evidence of their static
     models: the magnitude held at each value of a grid, uniform on its prior,
     integrated (:func:`bgc.diagnosis.identify.log_evidence`); the onsets, each
@@ -44,24 +44,26 @@ def ranked(hyps: list[dict], weights: np.ndarray, priors: dict[str, float], pack
     same nominal cloud and with the same random numbers before each onset, so
     the evidences compare like for like. The survivors share the posterior
     mass they had; one less probable than the best by more than the Bayes
-    factor is dropped. Fills ``grids`` (name -> grid posterior)."""
-    alive = [i for i, h in enumerate(hyps) if h["dropped"] is None]
-    chosen = {i: top_onsets(hyps[i]["onsets"], hyps[i]["onset_posterior"], hyps[i]["start"],
-                             options.rank_grid.onsets) for i in alive}
+    factor is dropped (``bayes-factor``). Returns the hypotheses (each
+    survivor with its ``static_log_evidence``), the weights and the grid
+    posteriors by name."""
+    alive = [i for i, h in enumerate(hyps) if h.drop is None]
+    chosen = {i: top_onsets(hyps[i].onsets, hyps[i].onset_posterior, hyps[i].start, options.rank_grid.onsets)
+              for i in alive}
     first = min(min(o) for o in chosen.values())
-    log_w = []
+    out, log_w, grids = list(hyps), [], {}
     for i in alive:
         h = hyps[i]
-        g = grid_posterior(package, h["name"], h["estimate"], clouds, ys, us, chosen[i], options, [options.seed, 8], first,
-                  options.rank_grid)
-        grids[h["name"]] = g
-        posterior = dict(zip(h["onsets"], h["onset_posterior"]))
-        width = dict(zip(h["onsets"], onset_widths(h["onsets"])))
+        g = grid_posterior(package, h.name, h.estimate, clouds, ys, us, chosen[i], options, [options.seed, 8], first,
+                           options.rank_grid)
+        grids[h.name] = g
+        posterior = dict(zip(h.onsets, h.onset_posterior))
+        width = dict(zip(h.onsets, onset_widths(h.onsets)))
         covered = sum(posterior.get(s, 0.0) for s in g.onsets) or 1.0
-        evidence = identify.log_evidence(g, tuple(package.MODELS[h["name"]].FAULT_PRIOR),
+        evidence = identify.log_evidence(g, tuple(package.MODELS[h.name].FAULT_PRIOR),
                                          [width[s] for s in g.onsets]) - math.log(covered)
-        h["static_log_evidence"] = evidence
-        log_w.append(math.log(max(priors.get(h["parameter"], 0.01), 1e-300)) + evidence)
+        out[i] = dataclasses.replace(h, static_log_evidence=evidence)
+        log_w.append(math.log(max(priors.get(h.parameter, 0.01), 1e-300)) + evidence)
     log_w = np.array(log_w)
     weights = weights.copy()
     if np.isfinite(log_w).any():
@@ -70,10 +72,10 @@ def ranked(hyps: list[dict], weights: np.ndarray, priors: dict[str, float], pack
     top = max(weights[alive])
     for i in alive:
         if weights[i] < top / options.bayes_factor:
-            hyps[i]["dropped"] = len(ys) - 1
-            hyps[i]["reason"] = (f"with the magnitudes held static, the data favour another hypothesis by a Bayes "
-                                 f"factor above {options.bayes_factor:g} (posterior {weights[i] / weights.sum():.2g})")
-    return weights
+            out[i] = dataclasses.replace(out[i], drop=Drop(
+                "bayes-factor", len(ys) - 1, f"with the magnitudes held static, the data favour another hypothesis by "
+                f"a Bayes factor above {options.bayes_factor:g} (posterior {weights[i] / weights.sum():.2g})"))
+    return tuple(out), weights, grids
 
 
 def refined(h: Hypothesis, g: identify.GridPosterior | None, package, clouds: dict, ys, us,

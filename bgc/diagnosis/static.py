@@ -25,11 +25,11 @@ from .hypothesis import FAR
 from .values import StaticPosterior
 from .options import KalmanOptions
 from ..data.runs import Run
-from .values import Estimate, Hypothesis
+from .values import Drop, Estimate, Hypothesis
 from .options import DiagnosisOptions
 from .estimate import struck, truth_of
 from .onsets import earlier_onsets
-from .parallel import run_all
+from .parallel import parallel_map
 from ..model.protocol import nominal_model
 
 
@@ -79,18 +79,14 @@ def run_static(job: StaticJob) -> StaticPosterior:
 
 
 def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, times, ys, us,
-                       observer: kalman.NominalTrack,
-                       onsets: dict, reach: list[int], drifts: dict, options: DiagnosisOptions,
-                       say) -> tuple[list[dict], dict[str, StaticPosterior]]:
-    """``--filter ckf``: each hypothesis's static posterior (:mod:`bgc.filters.cubature`)
+                      observer: kalman.NominalTrack, onsets: dict, reach: list[int], drifts: dict,
+                      options: DiagnosisOptions, say) -> tuple[tuple[Hypothesis, ...], dict[str, StaticPosterior]]:
+    """``--filter ckf``: each hypothesis's static posterior (:mod:`bgc.diagnosis.static_posterior`)
     over its onsets (``onsets[drifts]``; a drift reaching back over
     ``reach``) with its magnitude's whole prior as the first grid's span,
-    the jobs on ``options.workers`` processes; then each as the dict
-    :func:`diagnose` assembles: its most probable onset's filter (posterior
-    mean magnitude) gives the predicted measurements and state estimates, the
-    sequential posterior the magnitude over time, and the consistency test
-    of the most likely cell (section 5's windowed Z-test) drops it."""
-    T = len(ys)
+    the jobs on ``options.workers`` processes; then each as a
+    :class:`Hypothesis` (:func:`kalman_hypothesis`). Returns the hypotheses
+    and their static posteriors by name."""
     say(f"weighing {len(names)} fault hypotheses ({', '.join(names)}) with cubature Kalman filters over their "
         f"onsets and magnitudes")
     outputs = tuple(nominal_model(package).OUTPUTS)
@@ -105,40 +101,48 @@ def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, 
         jobs.append(StaticJob(package.__name__, name, ys, us, observer, tuple(tried), (a, b), min(tried),
                               options.interval, options.kalman, earlier, record=True, refine=True,
                               far=(outputs, options.rejection, options.windows)))
-    posteriors = dict(zip(names, run_all(jobs, options.workers, run_static)))
-    q = NormalDist().inv_cdf((1.0 + options.interval) / 2.0)
-    n = len(nominal_model(package).STATES)
-    hyps = []
-    for name in names:
-        module, p = package.MODELS[name], posteriors[name]
-        parameter, kind_name = module.FAULT["parameter"], module.FAULT["kind"]
-        nominal, truth = truth_of(module, run)
-        nan = math.nan
-        estimate = Estimate(parameter, kind_name, fault_kind(kind_name).magnitude, nan, nan, nan, nan,
-                            options.interval, nan, nominal, truth, method="kalman", **struck(module))
-        h = dict(name=name, parameter=parameter, kind=kind_name, signatures=tuple(models[name]),
-                 onsets=p.onsets, onset_posterior=p.onset_posterior, log_evidence=p.log_evidence,
-                 seconds=p.seconds, estimate=estimate, dropped=None, reason="")
-        if p.path is None:  # no finite likelihood: nothing to show
-            start = max(p.onsets)
-            empty = np.full((T - start, len(outputs)), np.nan)
-            h.update(start=start, y_mean=empty, y_std=empty, z=empty, x_mean=np.full((T - start, n), nan),
-                     x_std=np.full((T - start, n), nan), magnitude=np.full(T - start, nan),
-                     magnitude_band=np.full((T - start, 2), nan))
-        else:
-            start, path = p.onset, p.path
-            y_mean, y_std = path.y_mean[start:, 0], path.y_std[start:, 0]
-            mean, std = p.trace[start:, 0], p.trace[start:, 1]
-            h.update(start=start, y_mean=y_mean, y_std=y_std, z=(ys[start:] - y_mean) / y_std,
-                     x_mean=path.x_mean[start:, 0, :n], x_std=path.x_std[start:, 0, :n], magnitude=mean,
-                     magnitude_band=np.column_stack([mean - q * std, mean + q * std]))
-            alarm = static_alarm(p, outputs, options)
-            if alarm is not None:
-                h["dropped"] = p.best[0] + alarm.step
-                h["why"] = "static-test"
-                h["reason"] = misfit_reason(estimate.magnitude, p.best[1], times[p.best[0]], alarm)
-        hyps.append(h)
+    posteriors = dict(zip(names, parallel_map(run_static, jobs, options.workers)))
+    hyps = tuple(kalman_hypothesis(name, tuple(models[name]), package, posteriors[name], run, times, ys, options)
+                 for name in names)
     return hyps, posteriors
+
+
+def kalman_hypothesis(name: str, signatures: tuple[str, ...], package, p: StaticPosterior, run: Run | None, times,
+                      ys, options: DiagnosisOptions) -> Hypothesis:
+    """Hypothesis ``name`` from its static posterior ``p`` alone: its most
+    probable onset's filter (posterior mean magnitude) gives the predicted
+    measurements and state estimates, the sequential posterior the magnitude
+    over time, and the consistency test of the most likely cell (section 5's
+    windowed Z-test) drops it (``static-test``). Its estimate is filled in
+    when it is weighed (:func:`static_estimate`)."""
+    T = len(ys)
+    module = package.MODELS[name]
+    outputs = tuple(nominal_model(package).OUTPUTS)
+    n = len(nominal_model(package).STATES)
+    parameter, kind_name = module.FAULT["parameter"], module.FAULT["kind"]
+    nominal, truth = truth_of(module, run)
+    nan = math.nan
+    estimate = Estimate(parameter, kind_name, fault_kind(kind_name).magnitude, nan, nan, nan, nan,
+                        options.interval, nan, nominal, truth, method="kalman", **struck(module))
+    common = dict(name=name, parameter=parameter, kind=kind_name, signatures=signatures, onsets=p.onsets,
+                  onset_posterior=p.onset_posterior, log_evidence=p.log_evidence, seconds=p.seconds,
+                  estimate=estimate)
+    if p.path is None:  # no finite likelihood: nothing to show
+        start = max(p.onsets)
+        empty = np.full((T - start, len(outputs)), np.nan)
+        return Hypothesis(start=start, y_mean=empty, y_std=empty, z=empty, x_mean=np.full((T - start, n), nan),
+                          x_std=np.full((T - start, n), nan), magnitude=np.full(T - start, nan),
+                          magnitude_band=np.full((T - start, 2), nan), **common)
+    q = NormalDist().inv_cdf((1.0 + options.interval) / 2.0)
+    start, path = p.onset, p.path
+    y_mean, y_std = path.y_mean[start:, 0], path.y_std[start:, 0]
+    mean, std = p.trace[start:, 0], p.trace[start:, 1]
+    alarm = static_alarm(p, outputs, options)
+    drop = None if alarm is None else Drop("static-test", p.best[0] + alarm.step,
+                                           misfit_reason(estimate.magnitude, p.best[1], times[p.best[0]], alarm))
+    return Hypothesis(start=start, y_mean=y_mean, y_std=y_std, z=(ys[start:] - y_mean) / y_std,
+                      x_mean=path.x_mean[start:, 0, :n], x_std=path.x_std[start:, 0, :n], magnitude=mean,
+                      magnitude_band=np.column_stack([mean - q * std, mean + q * std]), drop=drop, **common)
 
 
 def misfit_reason(magnitude: str, value: float, start: float, alarm: Detection) -> str:

@@ -55,14 +55,26 @@ class Estimate:
 
 
 @dataclass(frozen=True, slots=True)
+class Drop:
+    """Why a hypothesis is out, decided once where it is decided: ``code``
+    (one of :data:`bgc.diagnosis.events.DROP_REASONS`), the ``step`` it is
+    dropped at, and ``reason``, a sentence of the runtime's numbers."""
+
+    code: str
+    step: int
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
 class Hypothesis:
     """One fault model: its filters from every onset tried (``onsets``, with
     their posterior probabilities), and from the most probable one
     (``start``) its per-step predicted measurements, normalised residuals,
     state estimates (mean, std of the plant's states) and magnitude (mean,
-    interval), when it was dropped and why (None: it
-    survived), its log evidence (over the onsets) and posterior probability
-    among the hypotheses. With the magnitude held static (``identify =
+    interval), its ``drop`` (a :class:`Drop`; None: it survived;
+    ``dropped`` and ``reason`` read it), its log evidence (over the onsets)
+    and posterior probability among the hypotheses (0 until it is weighed).
+    With the magnitude held static (``identify =
     "kalman"``, or ``rank``): ``static_log_evidence``, the evidence of its
     model with the magnitude held static (None: not computed); ``static``,
     its static posterior (Kalman filters); ``estimate`` is then the static
@@ -87,17 +99,26 @@ class Hypothesis:
     x_std: np.ndarray
     magnitude: np.ndarray
     magnitude_band: np.ndarray
-    dropped: int | None
-    reason: str
     log_evidence: float
-    posterior: float
     estimate: Estimate
     seconds: float
+    posterior: float = 0.0
+    drop: Drop | None = None
     static_log_evidence: float | None = None
     static: StaticPosterior | None = None
     filter_estimate: Estimate | None = None
     static_alarm: Detection | None = None
     ruled_out: str = ""
+
+    @property
+    def dropped(self) -> int | None:
+        """The step it was dropped at (None: it survived)."""
+        return None if self.drop is None else self.drop.step
+
+    @property
+    def reason(self) -> str:
+        """Why it was dropped ("" when it survived)."""
+        return "" if self.drop is None else self.drop.reason
 
     @property
     def onset(self) -> int:

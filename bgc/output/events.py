@@ -69,6 +69,9 @@ def sentence(e, time_of) -> str:
             return f"tracking {h} from {len(onsets)} onset(s), t = {t(min(onsets))} to {t(max(onsets))}"
         case ev.Dropped(step=k, hypothesis=h, reason=r, detail=detail):
             return f"{h} dropped ({r}): {detail}"
+        case ev.Stopped(hypothesis=h):
+            return (f"{h} dropped (inconsistent): every filter of it stopped: far off the data, or another onset of "
+                    "it explained the data decisively better")
         case ev.Rescued(hypothesis=h, reason=r, step=k):
             return (f"{h}: its particle filters failed their test ({r}, at t = {t(k)}), its fault model with the "
                     f"magnitude held static passes it")

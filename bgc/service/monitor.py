@@ -124,7 +124,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
             say(f"{when}{printable(sentence(e, time_of))}")
 
     def time_of(step):
-        return d.samples[step].t
+        return d.time_of(step)
 
     guard = _Guard()
     failure = None
@@ -176,7 +176,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     if excluded:
         diagnosis = _with_exclusions(diagnosis, excluded, taken_out)
         told.update(excluded)
-    gone = {e.hypothesis for e in told if isinstance(e, ev.Dropped)}  # dropped online: said already
+    gone = {e.hypothesis for e in told if isinstance(e, (ev.Dropped, ev.Stopped))}  # dropped online: said
     tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))
           and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
          diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
