@@ -194,7 +194,8 @@ _ALLOWED = {("numpy", "ndarray"), ("numpy", "dtype"), ("numpy.core.multiarray", 
             ("numpy._core.multiarray", "_reconstruct"), ("numpy.core.multiarray", "scalar"),
             ("numpy._core.multiarray", "scalar"), ("numpy", "bool_"), ("builtins", "set"),
             ("builtins", "frozenset"), ("builtins", "slice"), ("copyreg", "_reconstructor"),
-            ("builtins", "object"), ("builtins", "float"), ("builtins", "int")}
+            ("builtins", "object"), ("builtins", "float"), ("builtins", "int"),
+            ("numpy._core.numeric", "_frombuffer"), ("numpy.core.numeric", "_frombuffer")}
 
 
 class _Unpickler(pickle.Unpickler):

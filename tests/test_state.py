@@ -1,0 +1,175 @@
+"""The diagnoser's state is plain data: a stream stepped half way, its state
+taken through bytes and taken up again (``Diagnoser.to_state``,
+``DiagnoserState.to_bytes`` / ``from_bytes``, ``Diagnoser.from_state``),
+then stepped to its end, gives exactly what the uninterrupted diagnoser
+gives: every belief after the cut and the whole diagnosis (every number,
+bit for bit; the seconds aside), on every shipped model and filter, cut
+while watching and while tracking hypotheses, and across a switch of
+filter. The bytes are read back by an unpickler that makes only a state's
+types."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import pickle
+
+import numpy as np
+import pytest
+
+import bgc
+from bgc.analysis import simulate
+from bgc.data import runs
+from bgc.diagnosis import events as ev
+from bgc.diagnosis.diagnoser import Diagnoser
+from bgc.diagnosis.state import MAGIC, DiagnoserState
+from bgc.errors import ArgumentValueError
+
+from conftest import MODELS, TEST_MODELS
+
+#: Per shipped model, a fault scenario whose alarm comes about halfway through the run.
+SCENARIOS = {"circuit": "R2:abrupt:0.6@5", "two_tank": "R12:abrupt:0.8@75", "ro": "R_pipe:incipient:0.5@165"}
+
+
+@pytest.fixture(scope="module")
+def sessions():
+    return {}
+
+
+def _session(sessions, path):
+    if path not in sessions:
+        sessions[path] = bgc.open(path)
+    return sessions[path]
+
+
+def _rows(session, scenario: str, seed: int = 1, steps: int | None = None):
+    """The rows of a simulated run (time, inputs by name, measurements by name) and the run."""
+    c = session.compiled
+    injected = None if scenario == "none" else simulate.parse_fault(scenario, c.numerics)
+    result = simulate.simulate(c.numerics, simulate.SimulationOptions(steps=steps, seed=seed, fault=injected))
+    run = runs.parse_run(simulate.to_csv(result), scenario)
+    rows = [(float(t), {u: float(v[i]) for u, v in run.inputs.items()},
+             {y: float(v[i]) for y, v in run.measurements.items()}) for i, t in enumerate(run.time)]
+    return rows, run
+
+
+def _equal(a, b, path: str = "") -> None:
+    """``a`` and ``b`` equal to the bit (NaN equals NaN), dataclasses field by
+    field (their ``seconds`` aside: a duration)."""
+    if dataclasses.is_dataclass(a) and not isinstance(a, type):
+        assert type(a) is type(b), path
+        for f in dataclasses.fields(a):
+            if f.name != "seconds":
+                _equal(getattr(a, f.name), getattr(b, f.name), f"{path}.{f.name}")
+    elif isinstance(a, np.ndarray):
+        assert a.shape == b.shape and np.array_equal(a, b, equal_nan=True), path
+    elif isinstance(a, (tuple, list)):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b)):
+            _equal(x, y, f"{path}[{i}]")
+    elif isinstance(a, dict):
+        assert a.keys() == b.keys(), path
+        for k in a:
+            _equal(a[k], b[k], f"{path}[{k}]")
+    elif isinstance(a, float):
+        assert a == b or (a != a and b != b), (path, a, b)
+    else:
+        assert a == b, (path, a, b)
+
+
+def _round_trip(session, rows, run, cut: float | int, **options):
+    """(the uninterrupted diagnoser's beliefs after the cut and diagnosis,
+    the resumed one's, the diagnoser at the cut); ``cut``: a share of the
+    rows, or (an int) a number of rows."""
+    whole = session.diagnoser(**options)
+    beliefs = [whole.step(t, u, y) for t, u, y in rows]
+    k = cut if isinstance(cut, int) else int(cut * len(rows))
+    first = session.diagnoser(**options)
+    for t, u, y in rows[:k]:
+        first.step(t, u, y)
+    state = DiagnoserState.from_bytes(first.to_state().to_bytes())
+    assert state.epoch == k
+    resumed = Diagnoser.from_state(first.config, state)
+    later = [resumed.step(t, u, y) for t, u, y in rows[k:]]
+    return (beliefs[k:], whole.finish(run)), (later, resumed.finish(run)), first
+
+
+@pytest.mark.parametrize("method", ["gpf", "apf", "opf", "ckf"])
+@pytest.mark.parametrize("name", ["circuit", "two_tank", "ro"])
+def test_a_diagnoser_taken_up_from_its_state_goes_on_as_if_it_never_stopped(sessions, name, method):
+    session = _session(sessions, MODELS / f"{name}.yaml")
+    rows, run = _rows(session, SCENARIOS[name])
+    (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, 0.8, method=method, particles=200,
+                                                             seed=3)
+    assert at_cut.loop.phase == "tracking"  # cut with hypotheses tracked: their filters are in the state
+    assert (method == "ckf") == (not at_cut.loop.trackers)
+    _equal(beliefs, later, "beliefs")
+    _equal(whole, resumed, "diagnosis")
+    assert whole.verdict == "isolated"
+
+
+def test_a_state_taken_while_watching_keeps_the_detectors_windows_and_the_clouds_ring(sessions):
+    session = _session(sessions, MODELS / "two_tank.yaml")
+    rows, run = _rows(session, "R12:abrupt:0.8@400", steps=1000)
+    (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, 0.6, particles=200, seed=4)
+    assert at_cut.loop.phase == "watching" and len(at_cut.loop.samples) == 600
+    # the nominal clouds are a ring of the last `history` steps (the onsets are looked for no further back)
+    options = at_cut.options
+    kept = sorted(at_cut.loop.clouds)
+    assert len(kept) == options.history + 1 and kept[-1] == len(at_cut.loop.samples) - 1
+    _equal(beliefs, later, "beliefs")
+    _equal(whole, resumed, "diagnosis")
+
+
+@pytest.mark.parametrize("cut", [3, 0.9])
+def test_a_state_taken_before_or_after_a_switch_of_filter_gives_the_same_diagnosis(sessions, cut):
+    """The drivetrain's particle observer degenerates (a stiff shaft
+    measured sharply) and the diagnoser's policy hands the record to
+    cubature Kalman filters: a state taken before the switch switches alike,
+    one taken after it resumes the cubature Kalman loop with the switch's
+    events."""
+    session = _session(sessions, TEST_MODELS / "drivetrain.yaml")
+    rows, run = _rows(session, "none", seed=2)
+    (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, cut, particles=500, seed=2)
+    assert any(isinstance(e, ev.Switched) for e in whole.events) and whole.options.method == "ckf"
+    assert bool(at_cut.switched) == (cut == 0.9)  # the alarm, and the switch, at step 6
+    _equal(beliefs, later, "beliefs")
+    _equal(whole, resumed, "diagnosis")
+
+
+def test_state_bytes_that_would_make_anything_else_are_refused_in_one_line():
+    class Boom:
+        def __reduce__(self):
+            return (print, ("never",))
+
+    for data in (MAGIC + pickle.dumps(Boom()), MAGIC + pickle.dumps(io.StringIO("x")), b"not a state",
+                 MAGIC + b"\x80\x05garbage"):
+        with pytest.raises(ArgumentValueError) as info:
+            DiagnoserState.from_bytes(data)
+        assert "DiagnoserState.from_bytes" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_state_is_taken_up_only_by_a_diagnoser_of_its_model(sessions):
+    tanks = _session(sessions, MODELS / "two_tank.yaml")
+    circuit = _session(sessions, MODELS / "circuit.yaml")
+    d = tanks.diagnoser(particles=50)
+    d.step(0.5, y={"F10": 0.1, "F12": 0.2, "F20": 0.1})
+    other = circuit.diagnoser(particles=50)
+    with pytest.raises(ArgumentValueError, match="a state of model 'two_tank'"):
+        Diagnoser.from_state(other.config, d.to_state())
+
+
+def test_a_diagnoser_on_the_compiled_backend_is_taken_up_alike(sessions):
+    """The compiled kernels draw through a handle of each filter's generator:
+    a filter taken up keeps its generator object, whose state is set, so the
+    handle stays valid (numba, a test of the compiled backend)."""
+    pytest.importorskip("numba")
+    key = ("numba", MODELS / "two_tank.yaml")
+    if key not in sessions:
+        sessions[key] = bgc.open(MODELS / "two_tank.yaml", backend="numba")
+    session = sessions[key]
+    rows, run = _rows(session, SCENARIOS["two_tank"])
+    (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, 0.75, particles=200, seed=5)
+    assert at_cut.loop.phase == "tracking"
+    _equal(beliefs, later, "beliefs")
+    _equal(whole, resumed, "diagnosis")
