@@ -58,7 +58,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import bgc  # noqa: E402
-from bgc.diagnosis import events
+from bgc import events
 from bgc.data import runs
 from bgc.analysis import simulate  # noqa: E402
 from bgc.diagnosis.options import DiagnosisOptions

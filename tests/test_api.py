@@ -21,7 +21,7 @@ from bgc.api import limits as api_limits
 from bgc.errors import (ArgumentTypeError, ArgumentValueError, BgcError, DataError, SimulationError,
                         TrackingError)
 from bgc.output.events import sentence
-from bgc.diagnosis import events
+from bgc import events
 from bgc.data import runs
 from bgc.analysis import simulate
 from bgc.diagnosis.options import DiagnosisOptions

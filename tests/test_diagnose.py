@@ -13,7 +13,7 @@ import pytest
 
 import bgc
 from bgc.output.events import NOTABLE
-from bgc.diagnosis import events
+from bgc import events
 from bgc.diagnosis.options import DiagnosisOptions
 
 from conftest import ROOT

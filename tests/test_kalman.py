@@ -532,7 +532,7 @@ def test_a_grid_whose_points_hold_no_mass_tells_nothing_instead_of_failing(monke
     real = static_posterior.overflow_shift
 
     def shift(peak):  # the grid's passes as usual; the final sum's masses all 0
-        return math.inf if sys._getframe(1).f_code.co_name == "static_posterior" else real(peak)
+        return math.inf if sys._getframe(1).f_code.co_name == "posterior" else real(peak)
     monkeypatch.setattr(static_posterior, "overflow_shift", shift)
     p = posterior(FakeFault("abrupt", (0.0, 2.0)), [100], (0.8, 1.2), 100)
     assert p.log_evidence == -math.inf and math.isnan(p.mean)

@@ -19,7 +19,7 @@ import bgc
 import bgc.errors
 from bgc.api import folders as api_folders
 from bgc.errors import DataError
-from bgc.diagnosis import events
+from bgc import events
 from bgc.data import runs
 from bgc.analysis import simulate
 from bgc.diagnosis.detect import DetectorOptions

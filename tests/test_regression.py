@@ -49,7 +49,7 @@ from pathlib import Path
 import pytest
 
 from bgc import api
-from bgc.diagnosis import events
+from bgc import events
 from bgc.data import runs
 from bgc.diagnosis.options import DiagnosisOptions
 

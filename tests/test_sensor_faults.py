@@ -34,7 +34,7 @@ from bgc.compiler.load import loads
 from bgc.compiler.validate import validate
 from bgc.errors import BgcError
 from bgc.pipeline import compile_model
-from bgc.diagnosis import events as ev
+from bgc import events as ev
 from bgc.analysis import simulate as sim
 
 from conftest import ROOT as REPO

@@ -20,7 +20,7 @@ import pytest
 import bgc
 from bgc.analysis import simulate
 from bgc.data import runs
-from bgc.diagnosis import events as ev
+from bgc import events as ev
 from bgc.diagnosis.diagnoser import Diagnoser
 from bgc.diagnosis.state import MAGIC, DiagnoserState
 from bgc.errors import ArgumentValueError

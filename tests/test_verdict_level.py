@@ -24,7 +24,7 @@ import pytest
 import bgc
 from bgc.diagnosis import weigh
 from bgc.diagnosis.options import DiagnosisOptions
-from bgc.diagnosis import events as ev
+from bgc import events as ev
 from bgc.diagnosis.values import Drop, Estimate, Hypothesis
 
 

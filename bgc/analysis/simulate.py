@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -55,9 +55,17 @@ class FaultInjection:
     time: float
     target: str = "parameter"
     subject: str = ""
+    #: The text it was read from (:func:`parse_fault`; "" when made otherwise).
+    source: str = field(default="", compare=False)
 
     def value(self, nominal: float, t: float) -> float:
         return fault_kind(self.kind).value(nominal, self.magnitude, self.time, t)
+
+    @property
+    def text(self) -> str:
+        """The scenario as ``NAME:KIND:MAGNITUDE@TIME``: the text it was read
+        from, else made (NAME as the model names what it strikes)."""
+        return self.source or f"{self.subject or self.parameter}:{self.kind}:{self.magnitude!r}@{self.time!r}"
 
     def describe(self) -> str:
         kind = fault_kind(self.kind)
@@ -130,7 +138,8 @@ def parse_fault(text: str, num: Numerics) -> FaultInjection:
                               f"{'' if kind not in FAULT_KINDS else f' does not apply to {target} {name}'}", None,
                               kinds_for(target))
     try:
-        injection = FaultInjection(fault_kind(kind).parameter_of(name), kind, float(mag), float(time), target, name)
+        injection = FaultInjection(fault_kind(kind).parameter_of(name), kind, float(mag), float(time), target, name,
+                                   text.strip())
     except ValueError:
         raise SimulationError(f"--fault {text!r}: magnitude and time must be numbers", None,
                               "e.g. R_pipe:abrupt:31@165") from None
@@ -138,6 +147,17 @@ def parse_fault(text: str, num: Numerics) -> FaultInjection:
         raise SimulationError(f"--fault {text!r}: magnitude and time must be finite numbers", None,
                               "e.g. R_pipe:abrupt:31@165")
     return injection
+
+
+def parse_scenario(scenario, num: Numerics) -> FaultInjection | None:
+    """A scenario as a value, read once at the edge: ``none`` (fault-free:
+    None), ``NAME:KIND:MAGNITUDE@TIME`` (:func:`parse_fault`), or a
+    :class:`FaultInjection` already read, as it is."""
+    if isinstance(scenario, FaultInjection):
+        return scenario
+    if scenario.strip().lower() == "none":
+        return None
+    return parse_fault(scenario, num)
 
 
 def change_magnitude(num: Numerics, fault: str, change: float, span: float) -> float:

@@ -23,7 +23,8 @@ from .reports import DiagnosisReport
 from .session import Session, _session_of
 
 
-def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = None, scenario: str | None = None, *,
+def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = None,
+             scenario: str | simulate.FaultInjection | None = None, *,
              method: str = "gpf", particles: int = 1000, seed: int = 0,
              process_noise: float | None = None, measurement_noise: float | None = None,
              steps: int | None = None, generated: str | Path | None = None,
@@ -44,9 +45,10 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         A recorded run: a CSV as ``bgc simulate`` writes, or a
         :class:`~bgc.data.runs.Run` (checked as a file's would be, by
         :func:`bgc.data.runs.check_run`). Either ``data`` or ``scenario``.
-    scenario : str, optional
+    scenario : str or FaultInjection, optional
         A fault to simulate, its onset inside the run (0 < TIME < the last
-        sample's time), or ``none``.
+        sample's time), or ``none``; or the scenario already read
+        (:func:`bgc.analysis.simulate.parse_scenario`).
     method : {"gpf", "apf", "opf", "ckf"}
         The filter (``bgc diagnose --filter``).
     particles : int
@@ -106,7 +108,8 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     if data is not None and not isinstance(data, (str, os.PathLike, runs.Run)):
         raise ArgumentTypeError(f"{func}: data={arguments.shown(data)} is not a path or a Run", None,
                                 "give a run file's path or a bgc.data.runs.Run")
-    arguments.text(func, "scenario", scenario, optional=True)
+    if not isinstance(scenario, simulate.FaultInjection):
+        arguments.text(func, "scenario", scenario, optional=True)
     if (data is None) == (scenario is None):
         both = "both" if data is not None else "neither"
         raise ArgumentValueError(f"{func}: give either data or a scenario, not {both}", None,
@@ -131,11 +134,13 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         run, injected = _scenario_run(session, scenario, steps, seed, opts, say)
     else:
         run, injected = _recorded_run(session, data, opts), None
+    if isinstance(scenario, simulate.FaultInjection):
+        scenario = scenario.text
     return _run(session.compiled, run, session.package, scenario, injected, session.noise, session.levels, opts,
                 say)
 
 
-def _scenario_run(session: Session, scenario: str, steps: int | None, seed: int, opts: DiagnosisOptions,
+def _scenario_run(session: Session, scenario, steps: int | None, seed: int, opts: DiagnosisOptions,
                   say) -> tuple[runs.Run, simulate.FaultInjection | None]:
     """The run of a simulated scenario at the session's noise levels, checked
     (its onset inside the run, its length within the diagnosis's memory)."""
@@ -143,19 +148,19 @@ def _scenario_run(session: Session, scenario: str, steps: int | None, seed: int,
     T = steps or c.model.settings.steps
     where = "--steps" if steps is not None else f"{printable(c.model.source)}: simulation.steps"
     simulate.check_steps(T, c.numerics, where)
-    injected = None
-    if scenario.strip().lower() != "none":
-        injected = simulate.parse_fault(scenario, c.numerics)
+    injected = simulate.parse_scenario(scenario, c.numerics)
+    text = scenario.strip() if isinstance(scenario, str) else scenario.text
+    if injected is not None:
         last = T * c.model.settings.dt
         if not 0 < injected.time < last:
-            raise SimulationError(f"scenario {printable(scenario.strip())}: onset {injected.time:g} is outside the "
+            raise SimulationError(f"scenario {printable(text)}: onset {injected.time:g} is outside the "
                                   f"run (0 to {last:g})", None, "choose an onset inside the run, or more --steps")
     check_diagnosis_steps(T, c.numerics, opts.particles, opts.method, where, opts.history)
     say("simulating the scenario")
     process_noise, measurement_noise = session.noise
     result = simulate.simulate(c.numerics, simulate.SimulationOptions(
         steps=steps, process_noise=process_noise, measurement_noise=measurement_noise, seed=seed, fault=injected))
-    return runs.parse_run(simulate.to_csv(result), f"scenario {scenario.strip()}"), injected
+    return runs.parse_run(simulate.to_csv(result), f"scenario {text}"), injected
 
 
 def _recorded_run(session: Session, data, opts: DiagnosisOptions) -> runs.Run:

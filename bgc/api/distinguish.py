@@ -13,15 +13,16 @@ from ..errors import (
 )
 from ..kinds import DIRECTIONS, fault_kind
 from ..analysis import distinguish as distinction
-from ..experiment import metrics
 from ..analysis import simulate
 from ..model import package as packages
 from .folders import _LOCK, _compiled
 from .reports import DistinguishabilityReport
 from .session import Session
+from ..model.protocol import onset_sample
 
 
-def distinguishability(model: str | Path | Session, scenario: str | None = None, *, change: float = 0.3,
+def distinguishability(model: str | Path | Session, scenario: str | simulate.FaultInjection | None = None, *,
+                       change: float = 0.3,
                        at: float = 0.5,
                        process_noise: float | None = None, measurement_noise: float | None = None,
                        steps: int | None = None, level: float = distinction.LEVEL,
@@ -74,7 +75,8 @@ def distinguishability(model: str | Path | Session, scenario: str | None = None,
     func = "bgc.distinguishability"
     if not isinstance(model, Session):  # a session: its compilation (the noise levels are this call's)
         arguments.path(func, "model", model)
-    arguments.text(func, "scenario", scenario, optional=True)
+    if not isinstance(scenario, simulate.FaultInjection):
+        arguments.text(func, "scenario", scenario, optional=True)
     arguments.real(func, "change", change, 0.0, math.inf, "a relative change above 0, e.g. change=0.3")
     arguments.real(func, "at", at, 0.0, 1.0, "a fraction of the run between 0 and 1, e.g. at=0.5")
     arguments.noise_levels(func, process_noise, measurement_noise)
@@ -103,10 +105,10 @@ def distinguishability(model: str | Path | Session, scenario: str | None = None,
                               "list the faults to tell apart under 'faults' in the model file")
     times = dt * np.arange(1, T + 1)
     if scenario is not None:
-        if scenario.strip().lower() == "none":
+        inj = simulate.parse_scenario(scenario, num)
+        if inj is None:
             raise SimulationError("a fault-free scenario has no fault to tell apart", None,
                                   "give a fault, e.g. R_pipe:incipient:0.5@165, or no scenario for every candidate")
-        inj = simulate.parse_fault(scenario, num)
         if all(f.name != f"{inj.parameter}:{inj.kind}" for f in num.faults):
             raise SimulationError(f"{inj.subject or inj.parameter}:{inj.kind} is not a fault candidate of "
                                   f"{c.model.name}: no fault model to tell apart from the others (its diagnosis "
@@ -135,7 +137,7 @@ def distinguishability(model: str | Path | Session, scenario: str | None = None,
     out = []
     for i, inj in enumerate(injected, start=1):
         say(f"scenario {i} of {len(injected)}: {inj.parameter}:{inj.kind}:{inj.magnitude:.4g}@{inj.time:g}")
-        onset = metrics.sample_at(times, inj.time)
+        onset = onset_sample(times, inj.time)
         out.append(distinction.distinguish(families, f"{inj.parameter}_{inj.kind}", inj.magnitude, onset, priors,
                                            level))
     warning = simulate.outside_prior(injected[0], num) if scenario is not None else None

@@ -30,7 +30,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import bgc
+    from .. import api
 
     from ..api.calibrate import check_calibration_output
 
@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
                                     "manifest.json"),
                            "calibrate")
     start = time.perf_counter()
-    session = bgc.open(args.model, backend=args.backend)
+    session = api.open(args.model, backend=args.backend)
     backend_note(session)
     report = session.calibrate(list(args.data), args.estimate)
     report.write(out)

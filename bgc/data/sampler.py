@@ -3,30 +3,30 @@
 The diagnoser's filters are the model's DBN: one time slice per step of the
 model's ``dt`` (``simulation.dt``). Real data are not that regular, so a
 :class:`Sampler` places each sample on that grid and says what it did, as
-events (:mod:`bgc.diagnosis.events`):
+events (:mod:`bgc.events`):
 
 - **Time.** The grid starts at the first sample's time; a sample at time
   ``t`` is the step ``round((t - t0) / dt)``. A step that no sample falls on
   is a step whose measurements are missing: the filters predict across it.
   A run of missing steps longer than ``gap`` (time units; default
-  :data:`GAP_STEPS` steps) is a :class:`~bgc.diagnosis.events.Gap` event; one
+  :data:`GAP_STEPS` steps) is a :class:`~bgc.events.Gap` event; one
   beyond :data:`MAX_GAP_STEPS` steps is refused (a clock that jumped). A
   second sample on a step already taken is skipped (the first one of a step
-  is used; :class:`~bgc.diagnosis.events.SampleSkipped`, once, with the count
+  is used; :class:`~bgc.events.SampleSkipped`, once, with the count
   in the report): to use every sample, give the model a ``dt`` no longer
   than the sampling interval. Times that do not increase, or that are not
   numbers, are refused with the file and line.
 - **Inputs.** A ``u:NAME`` column of the data is used; an empty cell holds
-  the last value (zero-order hold, :class:`~bgc.diagnosis.events.InputHeld`
+  the last value (zero-order hold, :class:`~bgc.events.InputHeld`
   when a hole begins), and before the column's first value, and for an input
   the data have no column for, the model's declared input function is used
-  (:class:`~bgc.diagnosis.events.InputFromModel`). An input's value on a row is
+  (:class:`~bgc.events.InputFromModel`). An input's value on a row is
   the one applied over the step that ends at the row's time.
 - **Sensors.** A model output the data have no ``y:NAME`` column for is
-  missing at every step (:class:`~bgc.diagnosis.events.SensorMissing`): the
+  missing at every step (:class:`~bgc.events.SensorMissing`): the
   diagnosis uses the sensors present. With none present the data are
   refused. A ``y:`` or ``u:`` column the model has no sensor or input of is
-  not used (:class:`~bgc.diagnosis.events.ColumnIgnored`).
+  not used (:class:`~bgc.events.ColumnIgnored`).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import DataError, printable
-from ..diagnosis import events as ev
+from .. import events as ev
 from .runs import Run
 from ..model.protocol import FaultModel
 

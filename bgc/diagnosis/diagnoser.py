@@ -24,11 +24,11 @@ fallbacks are policies of the diagnoser that react to the loop's events, not
 steps of the loop:
 
 * a particle observer that degenerates (the loop's
-  :class:`~bgc.diagnosis.events.Degenerate` event, ``switched``) hands the
+  :class:`~bgc.events.Degenerate` event, ``switched``) hands the
   record to a new loop with cubature Kalman filters
-  (:class:`~bgc.diagnosis.events.Switched`);
+  (:class:`~bgc.events.Switched`);
 * a verdict "unexplained" after the symbols ruled fault models out is made
-  again with every fault model (:class:`~bgc.diagnosis.events.AllTried`).
+  again with every fault model (:class:`~bgc.events.AllTried`).
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ from ..data.sampler import Sample, Sampler
 from ..errors import ArgumentTypeError, ArgumentValueError, TrackingError
 from ..ir import FaultSignatures
 from ..model.protocol import Package, nominal_model
-from . import events as ev
+from .. import events as ev
 from .finish import ordered
 from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig
 from .options import DiagnosisOptions

@@ -23,7 +23,7 @@ from ..data.sampler import DataSummary
 from ..filters import cubature as kalman
 from ..kinds import fault_kind
 from ..model.protocol import Package, nominal_model
-from . import events as ev
+from .. import events as ev
 from .estimate import estimate_of
 from .hypothesis import hypothesis_job, log_density, run_job
 from .onsets import earlier_onsets, onset_weights

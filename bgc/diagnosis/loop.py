@@ -9,16 +9,16 @@ For every step (a :class:`~bgc.data.sampler.Sample`):
    Kalman filter with ``method = "ckf"``) predicts the sample and the
    windowed Z-test (:class:`~bgc.diagnosis.detect.Detector`) tests its
    normalised residual; the nominal clouds of the last ``history`` steps are
-   kept (a bounded ring). An alarm (an :class:`~bgc.diagnosis.events.Alarmed`
+   kept (a bounded ring). An alarm (an :class:`~bgc.events.Alarmed`
    event) moves to
 2. **isolating**: once ``symbol_steps`` samples past the alarm are in, the
    symbols are read on the open-loop run from the estimated onset and the
-   signatures keep the hypotheses (:class:`~bgc.diagnosis.events.Isolated`).
+   signatures keep the hypotheses (:class:`~bgc.events.Isolated`).
 3. **tracking**: each kept hypothesis's filters start from their onsets in
    the past (catching up on the samples kept) and follow each new sample
    (:class:`~bgc.diagnosis.hypothesis.HypothesisTracker`;
-   :class:`~bgc.diagnosis.events.Started`, and
-   :class:`~bgc.diagnosis.events.Stopped` when all of a hypothesis's filters
+   :class:`~bgc.events.Started`, and
+   :class:`~bgc.events.Stopped` when all of a hypothesis's filters
    stop). A batch diagnosis (``lazy``) leaves the tracking to the end.
 4. :meth:`Loop.finish` hands its :class:`~bgc.diagnosis.finish.Record` to
    :func:`bgc.diagnosis.finish.finish`: the static posteriors, the weighing,
@@ -26,7 +26,7 @@ For every step (a :class:`~bgc.data.sampler.Sample`):
 
 A particle observer that degenerates (its mean effective sample size before
 the alarm under ``DEGENERATE`` of its particles) is a decision of the loop:
-a :class:`~bgc.diagnosis.events.Degenerate` event, whose ``switched`` says
+a :class:`~bgc.events.Degenerate` event, whose ``switched`` says
 whether the options ask for the switch to cubature Kalman filters; the loop
 stops there and the diagnoser's policy reacts (a new loop on the record).
 
@@ -54,7 +54,7 @@ from ..filters.registry import check_particles, filter_class
 from ..ir import FaultSignatures
 from ..kinds import fault_kind
 from ..model.protocol import Package, nominal_model
-from . import events as ev
+from .. import events as ev
 from .detect import Detector, DetectorOptions, monte_carlo_share
 from .finish import Record, Setting, finish
 from .hypothesis import HypothesisTracker, log_density, track_job, weighted_quantiles

@@ -187,7 +187,7 @@ class DiagnoserState:
 
 
 #: The modules whose classes a state may hold.
-_MODULES = ("bgc.diagnosis.state", "bgc.diagnosis.values", "bgc.diagnosis.events", "bgc.diagnosis.options",
+_MODULES = ("bgc.diagnosis.state", "bgc.diagnosis.values", "bgc.events", "bgc.diagnosis.options",
             "bgc.diagnosis.hypothesis", "bgc.diagnosis.detect", "bgc.data.sampler")
 #: Of NumPy and the standard library, what arrays and the frozen values are made with.
 _ALLOWED = {("numpy", "ndarray"), ("numpy", "dtype"), ("numpy.core.multiarray", "_reconstruct"),

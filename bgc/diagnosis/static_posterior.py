@@ -160,14 +160,7 @@ def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, floa
     lo, hi = float(changes[first]), float(changes[last])
     top_at = int(np.argmax(logd))
     spacing = float(changes[1] - changes[0]) if len(changes) > 1 else 0.0
-    vertex = sd_parabola = None
-    if last - first >= 2:  # the parabola through the three points around the highest
-        k = min(max(top_at, first + 1), last - 1)
-        l0, l1, l2 = logd[k - 1:k + 2] - logd[top_at]
-        bend = l0 - 2.0 * l1 + l2
-        if bend < 0.0:
-            vertex = float(changes[k] + spacing * (l0 - l2) / (2.0 * bend))
-            sd_parabola = spacing / math.sqrt(-bend)
+    vertex, sd_parabola = _parabola(changes, logd, first, last, top_at, spacing)
     at_low, at_high = top_at == first and open_low, top_at == last and open_high
     if at_low or at_high:  # the peak lies beyond an end
         if vertex is not None and (vertex < lo if at_low else vertex > hi):
@@ -194,6 +187,21 @@ def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, floa
     else:
         new = _inside(mean - 4.0 * sd, mean + 4.0 * sd, vmin, vmax)
     return (None if np.allclose(new, (lo, hi), rtol=1e-9, atol=0.0) else new), mass
+
+
+def _parabola(changes: np.ndarray, logd: np.ndarray, first: int, last: int, top_at: int,
+              spacing: float) -> tuple[float | None, float | None]:
+    """The vertex and std of the parabola through a row's three points
+    around its highest (``top_at``, between ``first`` and ``last``); None,
+    None when it is not concave or the row has fewer than three points."""
+    if last - first < 2:
+        return None, None
+    k = min(max(top_at, first + 1), last - 1)
+    l0, l1, l2 = logd[k - 1:k + 2] - logd[top_at]
+    bend = l0 - 2.0 * l1 + l2
+    if not bend < 0.0:
+        return None, None
+    return float(changes[k] + spacing * (l0 - l2) / (2.0 * bend)), spacing / math.sqrt(-bend)
 
 
 def _inside(lo: float, hi: float, vmin: float, vmax: float) -> tuple[float, float]:
@@ -236,158 +244,224 @@ def static_posterior(model: FaultModel, ys: np.ndarray, us: np.ndarray, track: N
     every onset; after it each onset's row is laid anew on its own
     (:func:`_next_range`), up to ``passes`` passes; onsets holding under
     ``keep`` of the best one's mass are left out of the next pass."""
-    T = len(ys)
-    kind = fault_kind(model.FAULT["kind"])
-    drifts = kind.drifts
-    prior = tuple(float(v) for v in model.FAULT_PRIOR)
-    a, b = prior
-    batches = [sorted(int(o) for o in batch) for batch in earlier]
+    search = _Search(model, ys, us, track, onsets, hint, hint_onset, options, earlier, refine, far)
+    search.run()
+    return search.posterior(level)
 
-    def span(o) -> np.ndarray:  # a cell's variable: the parameter's change by the last step (bias, slope x time)
+
+class _Search:
+    """The adaptive grid of :func:`static_posterior` between its passes: the
+    onsets in the grid (``current``) and tried (``tried``, each with its
+    prior weight), each onset's row (its range of changes and point count),
+    the rows computed (``cache``), the last grid ``g``, and how far the
+    search went (passes, rounds of the onset's refinement, whether the best
+    fit is far off the data)."""
+
+    def __init__(self, model: FaultModel, ys, us, track: NominalTrack, onsets, hint, hint_onset: int,
+                 options: KalmanOptions, earlier, refine: bool | None, far):
+        self.model, self.ys, self.us, self.track, self.options, self.far = model, ys, us, track, options, far
+        self.T = T = len(ys)
+        self.kind = kind = fault_kind(model.FAULT["kind"])
+        self.refine = kind.drifts if refine is None else refine
+        self.prior = tuple(float(v) for v in model.FAULT_PRIOR)
+        a, b = self.prior
+        self.batches = [sorted(int(o) for o in batch) for batch in earlier]
+        self.current = np.asarray(sorted(int(o) for o in onsets))
+        self.tried = self.current.tolist()
+        # an onset's prior weight: its span in the grid tried
+        self.width_of = dict(zip(self.tried, onset_widths(self.tried).tolist()))
+        spans = self.span(self.current)
+        scale = float(kind.change(1.0, (T - hint_onset) * model.DT))
+        lo, hi = sorted((hint[0] * scale, hint[1] * scale))
+        vmin, vmax = float(np.min(a * spans)), float(np.max(b * spans))
+        width = max(hi - lo, 1e-6 * max(abs(lo), abs(hi), vmax - vmin))
+        lo, hi = _inside(lo - options.widen * width, hi + options.widen * width, vmin, vmax)
+        self.ranges = {int(o): (lo, hi) for o in self.current}
+        self.counts = {int(o): options.first_points for o in self.current}
+        self.start = fault_start(model, track, int(self.current[0]))
+        self.kernel = getattr(model, "_kernel", None)  # the quadrature's (compiled in a compiled package)
+        self.cache: dict = {}
+        self.passes = 0
+        self.g = None
+        self.rounds = 0  # of a drift's onset refinement (:meth:`_refined`)
+        self.ends = None  # the window of the onsets' grid before it was refined
+        self.given_up = False  # the best fit is far off the data (``far``): no further pass
+
+    def span(self, o) -> np.ndarray:
+        """A cell's variable per onset: the parameter's change by the last step (bias, slope x time)."""
         o = np.asarray(o, dtype=float)
-        return kind.change(np.ones(o.shape), (T - o) * model.DT)
+        return self.kind.change(np.ones(o.shape), (self.T - o) * self.model.DT)
 
-    current = np.asarray(sorted(int(o) for o in onsets))
-    tried = current.tolist()
-    width_of = dict(zip(tried, onset_widths(tried).tolist()))  # an onset's prior weight: its span in the grid tried
-    spans = span(current)
-    scale = float(kind.change(1.0, (T - hint_onset) * model.DT))
-    lo, hi = sorted((hint[0] * scale, hint[1] * scale))
-    vmin, vmax = float(np.min(a * spans)), float(np.max(b * spans))
-    width = max(hi - lo, 1e-6 * max(abs(lo), abs(hi), vmax - vmin))
-    lo, hi = _inside(lo - options.widen * width, hi + options.widen * width, vmin, vmax)
-    ranges = {int(o): (lo, hi) for o in current}
-    counts = {int(o): options.first_points for o in current}
-    start = fault_start(model, track, int(current[0]))
-    kernel = getattr(model, "_kernel", None)  # the quadrature's (compiled in a compiled package)
-    cache: dict = {}
-    passes = 0
-    g = None
-    rounds = 0  # of a drift's onset refinement, below
-    ends = None  # the window of the onsets' grid before it was refined
-    given_up = False  # the best fit is far off the data (``far``): no further pass
-    while True:
-        for turn in range(options.passes):
-            passes += 1
-            spans = span(current)
+    def run(self) -> None:
+        """Passes over the grid until the posterior settles; then, while the
+        onset's posterior piles up at the earliest onsets, reach further back
+        (``earlier``), or refine the onset sample by sample."""
+        while True:
+            self._passes()
+            if self.g is None or not math.isfinite(self.g.top) or self.given_up:
+                return
+            share = dict(zip(self.current.tolist(), self.g.mass))
+            if self.batches and sum(share.get(o, 0.0) for o in self.tried[:EDGE]) / sum(share.values()) >= EXTEND:
+                self._reach_back()
+            elif not self._refined(share):
+                return
+
+    def _passes(self) -> None:
+        """Up to ``passes`` passes: a grid of every onset's row, then each
+        row laid anew (:func:`_next_range`) and the onsets the posterior
+        leaves out left out."""
+        o = self.options
+        for turn in range(o.passes):
+            self.passes += 1
+            spans = self.span(self.current)
             groups = {}  # rows of one point count are one grid
-            for i, o in enumerate(current.tolist()):
-                groups.setdefault(counts[o], []).append(i)
-            widths = np.array([width_of[o] for o in current.tolist()])
-            parts = {c: _grid(model, ys, us, track, current[rows], widths[rows], spans[rows],
-                              [ranges[current[i]] for i in rows], c, prior, start, cache)
-                     for c, rows in groups.items()}
-            g = _merge(current, groups, parts)
-            if not math.isfinite(g.top) or turn == options.passes - 1:
-                break
-            if far is not None:
-                row = int(np.argmax([np.max(ll) for ll in g.loglik]))
-                o = int(current[row])
-                key = _row_key(o, ranges[o], counts[o])
-                if far(cache[key][1][o:, int(np.argmax(g.loglik[row]))]):
-                    given_up = True
-                    break
-            following, mass = [], np.empty(len(current))  # log of each onset's mass, as far as its row tells
-            for i in range(len(current)):
-                bounds = tuple(sorted((a * spans[i], b * spans[i])))
-                f, mass[i] = _next_range(g.changes[i], g.loglik[i], bounds, options, kernel)
-                following.append(f)
-                mass[i] += math.log(widths[i] / spans[i])
-            told = np.isfinite(mass)
-            best = mass[told].max() if told.any() else math.inf
-            # onsets the posterior leaves out are left out (a coarse row's mass as its quadrature tells: a
-            # peak may lie between its points); rows are laid anew only where the posterior's mass is
-            kept = ~told & (mass > 0) | told & (mass >= math.log(options.keep) + best)
-            relaid = [i for i, f in enumerate(following)
-                      if f is not None and kept[i] and not (told[i] and mass[i] < math.log(options.relay) + best)]
-            if not relaid and kept.all():
-                break
-            for i in relaid:
-                ranges[int(current[i])], counts[int(current[i])] = following[i], options.points
-            current = current[kept]
-        if g is None or not math.isfinite(g.top) or given_up:
-            break
-        share = dict(zip(current.tolist(), g.mass))
-        if not (batches and sum(share.get(o, 0.0) for o in tried[:EDGE]) / sum(share.values()) >= EXTEND):
-            # a fault's magnitude given its onset is much sharper than the onset grid: every sample from
-            # the most probable onset's neighbour before it in the grid tried to the one after it is tried
-            # too (for a drift, those left out by an earlier pass as well), so the onset is marginalised
-            # sample by sample where the posterior is (it is a whole number of samples); again while the
-            # most probable onset moves to an end of what was tried
-            if not (drifts if refine is None else refine) or rounds == REFINE_ROUNDS:
-                break
-            best = max(share, key=lambda o: share[o] / width_of[o])
-            before = [o for o in tried if o < best]
-            after = [o for o in tried if o > best]
-            fill = [o for o in range(before[-1] if before else best, (after[0] if after else best) + 1)
-                    if o not in (share if drifts else tried)]
-            if not fill:
-                break
-            rounds += 1
-            if ends is None:  # the refined grid keeps the window of the grid it refines (the evidence's factor)
-                ends = grid_ends(tried)
-            tried = sorted(set(fill) | set(tried))
-            width_of = dict(zip(tried, onset_widths(tried, ends).tolist()))
-            for o in fill:
-                ranges[o], counts[o] = ranges[best], counts[best]
-            current = np.asarray(sorted(set(fill) | set(current.tolist())))
-            continue
-        batch = batches.pop(0)  # a drift that began earlier: reach further back, from the earliest onset's grid
-        tried = sorted(set(batch) | set(tried))
-        width_of = dict(zip(tried, onset_widths(tried).tolist()))
-        ends = None
+            for i, onset in enumerate(self.current.tolist()):
+                groups.setdefault(self.counts[onset], []).append(i)
+            widths = np.array([self.width_of[onset] for onset in self.current.tolist()])
+            parts = {c: _grid(self.model, self.ys, self.us, self.track, self.current[rows], widths[rows],
+                              spans[rows], [self.ranges[self.current[i]] for i in rows], c, self.prior, self.start,
+                              self.cache) for c, rows in groups.items()}
+            self.g = _merge(self.current, groups, parts)
+            if not math.isfinite(self.g.top) or turn == o.passes - 1:
+                return
+            if self.far is not None and self._far_off():
+                self.given_up = True
+                return
+            if self._relaid(spans, widths):
+                return
+
+    def _far_off(self) -> bool:
+        """Whether the most likely cell's residuals are far off the data (``far``)."""
+        g = self.g
+        row = int(np.argmax([np.max(ll) for ll in g.loglik]))
+        onset = int(self.current[row])
+        key = _row_key(onset, self.ranges[onset], self.counts[onset])
+        return bool(self.far(self.cache[key][1][onset:, int(np.argmax(g.loglik[row]))]))
+
+    def _relaid(self, spans: np.ndarray, widths: np.ndarray) -> bool:
+        """Each row laid anew where the posterior's mass is, and the onsets
+        it leaves out left out; True when nothing changes (the last pass)."""
+        o, g, (a, b) = self.options, self.g, self.prior
+        following, mass = [], np.empty(len(self.current))  # log of each onset's mass, as far as its row tells
+        for i in range(len(self.current)):
+            bounds = tuple(sorted((a * spans[i], b * spans[i])))
+            f, mass[i] = _next_range(g.changes[i], g.loglik[i], bounds, o, self.kernel)
+            following.append(f)
+            mass[i] += math.log(widths[i] / spans[i])
+        told = np.isfinite(mass)
+        best = mass[told].max() if told.any() else math.inf
+        # onsets the posterior leaves out are left out (a coarse row's mass as its quadrature tells: a
+        # peak may lie between its points); rows are laid anew only where the posterior's mass is
+        kept = ~told & (mass > 0) | told & (mass >= math.log(o.keep) + best)
+        relaid = [i for i, f in enumerate(following)
+                  if f is not None and kept[i] and not (told[i] and mass[i] < math.log(o.relay) + best)]
+        if not relaid and kept.all():
+            return True
+        for i in relaid:
+            self.ranges[int(self.current[i])], self.counts[int(self.current[i])] = following[i], o.points
+        self.current = self.current[kept]
+        return False
+
+    def _refined(self, share: dict) -> bool:
+        """A fault's magnitude given its onset is much sharper than the onset
+        grid: every sample from the most probable onset's neighbour before it
+        in the grid tried to the one after it is tried too (for a drift,
+        those left out by an earlier pass as well), so the onset is
+        marginalised sample by sample where the posterior is (it is a whole
+        number of samples); again while the most probable onset moves to an
+        end of what was tried. False when there is nothing to refine."""
+        if not self.refine or self.rounds == REFINE_ROUNDS:
+            return False
+        tried, width_of = self.tried, self.width_of
+        best = max(share, key=lambda o: share[o] / width_of[o])
+        before = [o for o in tried if o < best]
+        after = [o for o in tried if o > best]
+        fill = [o for o in range(before[-1] if before else best, (after[0] if after else best) + 1)
+                if o not in (share if self.kind.drifts else tried)]
+        if not fill:
+            return False
+        self.rounds += 1
+        if self.ends is None:  # the refined grid keeps the window of the grid it refines (the evidence's factor)
+            self.ends = grid_ends(tried)
+        self.tried = sorted(set(fill) | set(tried))
+        self.width_of = dict(zip(self.tried, onset_widths(self.tried, self.ends).tolist()))
+        for o in fill:
+            self.ranges[o], self.counts[o] = self.ranges[best], self.counts[best]
+        self.current = np.asarray(sorted(set(fill) | set(self.current.tolist())))
+        return True
+
+    def _reach_back(self) -> None:
+        """A drift that began earlier: the next batch of earlier onsets, from the earliest onset's grid."""
+        batch = self.batches.pop(0)
+        self.tried = sorted(set(batch) | set(self.tried))
+        self.width_of = dict(zip(self.tried, onset_widths(self.tried).tolist()))
+        self.ends = None
+        first = int(self.current[0])
         for o in batch:
-            ranges[o], counts[o] = ranges[int(current[0])], counts[int(current[0])]
-        current = np.asarray(sorted(set(batch) | set(current.tolist())))
-    name = getattr(model, "NAME", "")
-    widths = [width_of[int(o)] for o in current]
+            self.ranges[o], self.counts[o] = self.ranges[first], self.counts[first]
+        self.current = np.asarray(sorted(set(batch) | set(self.current.tolist())))
 
-    def none_told() -> StaticPosterior:
-        """What the grid cannot tell: no likelihood (log evidence -inf), no estimate."""
-        nan = math.nan
-        return StaticPosterior(name, tuple(int(o) for o in current), tuple(widths), np.zeros((len(current), 0)),
-                               np.zeros((len(current), 0)), -math.inf, nan, nan, nan, nan, level, nan,
-                               int(current[0]), tuple(0.0 for _ in current), passes)
+    def posterior(self, level: float) -> StaticPosterior:
+        """The posterior of the last grid: the quadrature of every row, the
+        evidence, the magnitude's mean, std and interval of probability
+        ``level``, the onset's posterior, the most likely cell and its
+        residuals, the trace."""
+        g, current, (a, b) = self.g, self.current, self.prior
+        name = getattr(self.model, "NAME", "")
+        widths = [self.width_of[int(o)] for o in current]
+        if g is None or not math.isfinite(g.top):
+            return _none_told(name, current, widths, level, self.passes)
+        spans = self.span(current)
+        nodes, changes, logm, rows = [], [], [], []
+        for i, (m, ll) in enumerate(zip(g.magnitudes, g.loglik)):
+            x, lm = row_quadrature(m, ll - g.top, self.kernel)
+            nodes.append(x)
+            changes.append(x * spans[i])
+            logm.append(lm + math.log(widths[i]))
+            rows.append(np.full(len(x), i))
+        x, c, row_of = np.concatenate(nodes), np.concatenate(changes), np.concatenate(rows)
+        every = np.concatenate(logm)
+        shift = overflow_shift(float(np.max(every)))  # see _grid
+        mass = np.exp(every - shift)
+        total = float(mass.sum())
+        # the grid's points hold no mass: the quadrature's interpolant rose far above its points (a row whose
+        # next point is extreme, e.g. -2e18 where a magnitude made the model diverge, bends the parabola
+        # through it upwards: tests/test_kalman.py, the strict xfail) and the shift left every mass at 0
+        if not total > 0.0:
+            return _none_told(name, current, widths, level, self.passes)
+        log_evidence = g.top + shift + math.log(total) - math.log(b - a)
+        p = mass / total
+        mean = float(p @ x)
+        std = math.sqrt(max(float(p @ (x - mean) ** 2), 0.0))
+        order = np.argsort(x, kind="stable")
+        cdf = np.cumsum(p[order]) - p[order] / 2.0
+        low, high = (float(q) for q in np.interp([(1.0 - level) / 2.0, (1.0 + level) / 2.0], cdf, x[order]))
+        onset_posterior = np.bincount(row_of, weights=p, minlength=len(current))
+        best, residuals, trace = self._best_cell(widths)
+        return StaticPosterior(name, tuple(int(o) for o in current), tuple(float(w) for w in widths),
+                               g.magnitudes, g.loglik, log_evidence, mean, std, low, high, level, float(p @ c),
+                               int(current[int(np.argmax(onset_posterior / np.asarray(widths)))]),
+                               tuple(float(q) for q in onset_posterior), self.passes, best, residuals,
+                               _truncated(g, self.prior, self.options), trace)
 
-    if g is None or not math.isfinite(g.top):
-        return none_told()
-    spans = span(current)
-    nodes, changes, logm, rows = [], [], [], []
-    for i, (m, ll) in enumerate(zip(g.magnitudes, g.loglik)):
-        x, lm = row_quadrature(m, ll - g.top, kernel)
-        nodes.append(x)
-        changes.append(x * spans[i])
-        logm.append(lm + math.log(widths[i]))
-        rows.append(np.full(len(x), i))
-    x, c, row_of = np.concatenate(nodes), np.concatenate(changes), np.concatenate(rows)
-    every = np.concatenate(logm)
-    shift = overflow_shift(float(np.max(every)))  # see _grid
-    mass = np.exp(every - shift)
-    total = float(mass.sum())
-    # the grid's points hold no mass: the quadrature's interpolant rose far above its points (a row whose
-    # next point is extreme, e.g. -2e18 where a magnitude made the model diverge, bends the parabola
-    # through it upwards: tests/test_kalman.py, the strict xfail) and the shift left every mass at 0
-    if not total > 0.0:
-        return none_told()
-    log_evidence = g.top + shift + math.log(total) - math.log(b - a)
-    p = mass / total
-    mean = float(p @ x)
-    std = math.sqrt(max(float(p @ (x - mean) ** 2), 0.0))
-    order = np.argsort(x, kind="stable")
-    cdf = np.cumsum(p[order]) - p[order] / 2.0
-    low, high = (float(q) for q in np.interp([(1.0 - level) / 2.0, (1.0 + level) / 2.0], cdf, x[order]))
-    onset_posterior = np.bincount(row_of, weights=p, minlength=len(current))
-    row = int(np.argmax([np.max(ll) for ll in g.loglik]))  # the most likely cell, and its residuals
-    col = int(np.argmax(g.loglik[row]))
-    best = (int(current[row]), float(g.magnitudes[row][col]))
-    key = {int(o): _row_key(o, ranges[int(o)], counts[int(o)]) for o in current}
-    residuals = cache[key[best[0]]][1][:, col]
-    trace = _trace(track, current, widths, g, [cache[key[int(o)]][2] for o in current])
-    return StaticPosterior(name, tuple(int(o) for o in current), tuple(float(w) for w in widths),
-                           g.magnitudes, g.loglik, log_evidence, mean, std, low, high, level, float(p @ c),
-                           int(current[int(np.argmax(onset_posterior / np.asarray(widths)))]),
-                           tuple(float(q) for q in onset_posterior), passes, best, residuals,
-                           _truncated(g, prior, options), trace)
+    def _best_cell(self, widths: list[float]):
+        """The most likely cell (onset, magnitude), its normalised residuals and the magnitude's trace."""
+        g, current = self.g, self.current
+        row = int(np.argmax([np.max(ll) for ll in g.loglik]))
+        col = int(np.argmax(g.loglik[row]))
+        best = (int(current[row]), float(g.magnitudes[row][col]))
+        key = {int(o): _row_key(o, self.ranges[int(o)], self.counts[int(o)]) for o in current}
+        residuals = self.cache[key[best[0]]][1][:, col]
+        trace = _trace(self.track, current, widths, g, [self.cache[key[int(o)]][2] for o in current])
+        return best, residuals, trace
+
+
+def _none_told(name: str, current: np.ndarray, widths: list[float], level: float, passes: int) -> StaticPosterior:
+    """What the grid cannot tell: no likelihood (log evidence -inf), no estimate."""
+    nan = math.nan
+    return StaticPosterior(name, tuple(int(o) for o in current), tuple(widths), np.zeros((len(current), 0)),
+                           np.zeros((len(current), 0)), -math.inf, nan, nan, nan, nan, level, nan,
+                           int(current[0]), tuple(0.0 for _ in current), passes)
 
 
 def fault_start(model: FaultModel, track: NominalTrack, onset: int) -> np.ndarray:

@@ -57,7 +57,7 @@ class Estimate:
 @dataclass(frozen=True, slots=True)
 class Drop:
     """Why a hypothesis is out, decided once where it is decided: ``code``
-    (one of :data:`bgc.diagnosis.events.DROP_REASONS`), the ``step`` it is
+    (one of :data:`bgc.events.DROP_REASONS`), the ``step`` it is
     dropped at, and ``reason``, a sentence of the runtime's numbers."""
 
     code: str
@@ -136,7 +136,7 @@ class Diagnosis:
     sample for, :mod:`bgc.data.sampler`); ``nominal_x_mean`` and
     ``nominal_x_std`` are the nominal observer's state estimates (steps x
     ``states``). ``events``: what happened, in time order
-    (:mod:`bgc.diagnosis.events`); ``data``: how the data met the model (per
+    (:mod:`bgc.events`); ``data``: how the data met the model (per
     input, data or model; sensors present; samples skipped; gaps)."""
 
     model: str

@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..kinds import fault_kind
-from . import events as ev
+from .. import events as ev
 from .estimate import pressed
 from .rank import ranked, refined
 from .static import checked, misfit_reason, static_estimate

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -57,14 +57,16 @@ class RunSpec:
     seed: int
     steps: int | None
     refine: bool = False
+    #: The scenario read once, when the campaign was loaded (None: fault-free); its text is ``scenario``.
+    injection: simulate.FaultInjection | None = field(default=None, compare=False)
 
     @property
     def id(self) -> str:
         """A digest of everything that decides the run's result (a resumed
         campaign reuses a row whose id it plans again)."""
         fields = asdict(self)
-        for name in ("index", "model"):  # where the run sits in the plan, how its file is called
-            fields.pop(name)
+        for name in ("index", "model", "injection"):  # where the run sits in the plan, how its file is called;
+            fields.pop(name)  # the scenario's value (its text stands for it)
         if not self.refine:  # the runs of campaigns from before the setting keep their ids
             fields.pop("refine")
         fields["model_text"] = hashlib.sha256(self.model_text.encode("utf-8")).hexdigest()
@@ -349,7 +351,7 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
                             scenario, inj.parameter if inj else None, inj.kind if inj else None,
                             inj.magnitude if inj else None, inj.time if inj else None,
                             bool(inj and f"{inj.parameter}:{inj.kind}" in ambiguous), truth_value, method,
-                            int(particles), noise, process, measurement, int(seed), steps, bool(refine)))
+                            int(particles), noise, process, measurement, int(seed), steps, bool(refine), inj))
     return out
 
 

@@ -48,6 +48,7 @@ import numpy as np
 
 from ..diagnosis.diagnose import Diagnosis
 from ..data.runs import Run
+from ..model.protocol import onset_sample
 
 #: Trailing window and quantile of the convergence test.
 CT_WINDOW = 10
@@ -126,12 +127,6 @@ def convergence_step(mean: np.ndarray, truth: np.ndarray, std: np.ndarray, start
     return None if last >= T else last
 
 
-def sample_at(times: np.ndarray, t: float) -> int:
-    """The first sample whose time is ``t`` or later (to rounding): the onset
-    sample of a fault that strikes at ``t``."""
-    return int(np.searchsorted(times, t - 1e-9 * max(1.0, abs(t))))
-
-
 def measure(d: Diagnosis, run: Run, truth: Truth) -> RunMetrics:
     """The metrics of ``d``, a diagnosis of the simulated ``run`` whose injected
     fault is ``truth``."""
@@ -139,7 +134,7 @@ def measure(d: Diagnosis, run: Run, truth: Truth) -> RunMetrics:
     true = np.column_stack([run.states[s] for s in d.states])
     mse = {s: float(np.mean((mean[:, i] - true[:, i]) ** 2)) for i, s in enumerate(d.states)}
     nmse = float(np.mean([mse[s] / max(float(np.mean(true[:, i] ** 2)), 1e-300) for i, s in enumerate(d.states)]))
-    onset_step = 0 if truth.onset is None else sample_at(run.time, truth.onset)
+    onset_step = 0 if truth.onset is None else onset_sample(run.time, truth.onset)
     ct_step = convergence_step(mean, true, std, min(onset_step, len(run.time) - 1))
     detected = d.detection is not None
     t_alarm = d.time_of(d.detection.step) if detected else None

@@ -93,7 +93,8 @@ def run_one(spec: RunSpec, backend: str = "numpy") -> dict[str, Any]:
         options = DiagnosisOptions(method=spec.filter, particles=spec.particles, seed=spec.seed, workers=1,
                                    refine=spec.refine, switch=False)  # a campaign measures the filter it names
         session = _session(spec, spec.process_noise, spec.measurement_noise, backend)
-        report = api.diagnose(session, scenario=spec.scenario, seed=spec.seed, steps=spec.steps, options=options)
+        report = api.diagnose(session, scenario=_scenario(spec), seed=spec.seed, steps=spec.steps,
+                             options=options)
         d = report.diagnosis
         m = metrics.measure(d, report.run, metrics.Truth(spec.fault, spec.kind, spec.magnitude, spec.onset))
         best = d.best
@@ -131,12 +132,18 @@ def _separation(spec: RunSpec) -> dict[str, Any]:
     empty when the prediction fails (the diagnosis's row stands). It depends
     on the scenario, noise levels and length only, not on the filter or the
     seed: a process computes it once per scenario."""
-    return dict(_prediction(model_file(spec), spec.scenario, spec.process_noise, spec.measurement_noise,
+    return dict(_prediction(model_file(spec), _scenario(spec), spec.process_noise, spec.measurement_noise,
                             spec.steps))
 
 
+def _scenario(spec: RunSpec):
+    """The run's scenario: the value read when the campaign was loaded, or
+    its text (a spec made by hand, or one of a campaign from before)."""
+    return spec.injection if spec.injection is not None else spec.scenario
+
+
 @functools.lru_cache(maxsize=64)
-def _prediction(model_file: str, scenario: str, process_noise: float | None, measurement_noise: float | None,
+def _prediction(model_file: str, scenario, process_noise: float | None, measurement_noise: float | None,
                 steps: int | None) -> tuple[tuple[str, Any], ...]:
     from .. import api
 

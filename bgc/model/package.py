@@ -17,7 +17,7 @@ from pathlib import Path
 
 from ..errors import TrackingError, printable
 from ..ir import PACKAGES, NoiseLevels
-from ..model.protocol import Package
+from .protocol import Package
 
 
 #: The backends, in the order ``--backend`` lists them.

@@ -21,7 +21,9 @@ shares are here, and only here:
   handed over at an onset applies it with :func:`onset_transition`; the
   cubature Kalman bank of the static posterior and the distinguishability
   prediction apply it to their cells by holding the magnitude
-  (:func:`magnitude_row`) at 0 over that one transition.
+  (:func:`magnitude_row`) at 0 over that one transition. The onset sample
+  of a fault that strikes at time t is the first sample at t or later
+  (:func:`onset_sample`).
 * **The nominal model** of a package is :func:`nominal_model`.
 """
 
@@ -123,3 +125,9 @@ def onset_transition(model: FaultModel, x: np.ndarray, u: np.ndarray, theta) -> 
     model.predict(x, u, theta, model.DT, out=x)
     x[row] = magnitude
     return x
+
+
+def onset_sample(times, t: float) -> int:
+    """The onset sample of a fault that strikes at time ``t`` (the onset
+    rule): the first sample whose time is ``t`` or later, to rounding."""
+    return int(np.searchsorted(times, t - 1e-9 * max(1.0, abs(t))))

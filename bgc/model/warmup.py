@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..filters import cubature, quadrature
-from ..model.protocol import FaultModel, Package
+from .protocol import FaultModel, Package
 
 
 def _cold(model: FaultModel, steps=("nominal",)) -> bool:

@@ -1,4 +1,4 @@
-"""Events (:mod:`bgc.diagnosis.events`) as sentences and as plain data: the one
+"""Events (:mod:`bgc.events`) as sentences and as plain data: the one
 place they are put into words (the report, ``bgc diagnose``'s and ``bgc
 monitor``'s lines)."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from ..diagnosis import events as ev
+from .. import events as ev
 
 
 def time_text(t) -> str:
@@ -137,7 +137,7 @@ NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.InputFromMode
 
 def notes(events, time_of) -> list[str]:
     """The :data:`NOTABLE` events among ``events`` in words, for the command
-    line: two or more :class:`~bgc.diagnosis.events.Overruled` are one
+    line: two or more :class:`~bgc.events.Overruled` are one
     sentence naming them all, in the place of the first (the report keeps
     one sentence each, with the symbol that ruled each out)."""
     overruled = [e.hypothesis for e in events if isinstance(e, ev.Overruled)]

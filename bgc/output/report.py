@@ -79,7 +79,7 @@ def _num(v: float | None) -> float | None:
 
 
 def _drop_reason(d, name: str) -> str | None:
-    """The code of the Dropped event of hypothesis ``name`` (bgc.diagnosis.events.DROP_REASONS)."""
+    """The code of the Dropped event of hypothesis ``name`` (bgc.events.DROP_REASONS)."""
     return next((e.reason for e in d.events if type(e).__name__ == "Dropped" and e.hypothesis == name), None)
 
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from .. import api
 from ..errors import BgcError, DataError, printable
-from ..diagnosis import events as ev
+from .. import events as ev
 from ..data import runs
 from ..analysis import track
 from ..diagnosis.options import DiagnosisOptions
@@ -83,7 +83,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     arrive, with the model of ``session`` (:func:`bgc.open`); ``say(line)``
     gets each event as a line with its time, as it happens; ``checkpoint``:
     while hypotheses are tracked, a diagnosis of the data so far every this
-    many time units (a :class:`~bgc.diagnosis.events.Checkpoint` event; as
+    many time units (a :class:`~bgc.events.Checkpoint` event; as
     costly as a batch diagnosis of the record). Returns the report of the
     final diagnosis and the error that ended the stream early (None: it
     ended, or Ctrl-C): a malformed row, a followed file rotated, the memory
@@ -91,7 +91,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
 
     ``exclude_faulty`` (with ``checkpoint``): when a checkpoint isolates a
     sensor fault, that sensor is taken out of the nominal observer (a
-    :class:`~bgc.diagnosis.events.SensorExcluded` event) and a new diagnoser
+    :class:`~bgc.events.SensorExcluded` event) and a new diagnoser
     watches the rows from the next one on with the other sensors (its
     observer starts again from the model's initial state: a sensor fault
     leaves the plant where it was); the report is that diagnoser's, its
