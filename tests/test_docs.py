@@ -25,14 +25,16 @@ about compiling its kernels.
 The printed output must equal what the command prints now, except for the
 parts that vary from run to run, which are marked:
 
-- a line ``...`` stands for any number of lines (none included);
+- a line ``...`` (indented or not) stands for any number of lines (none
+  included);
 - a duration bgc prints in seconds, ``(diagnosis 2.9 s)``, ``(63.3 s)`` or
   ``in 5.63 s``, matches any duration.
 
 A block a test should not run says so in an HTML comment on the line before
 its fence: ``<!-- docs-test: not run: REASON -->`` (a dated benchmark, a
-campaign of an hour). ``<!-- docs-test: slow -->`` marks a document whose
-transcripts take more than a few seconds: its test is marked ``slow``.
+campaign of an hour). A document whose transcripts take more than a few
+seconds says ``<!-- docs-test: slow -->`` on a line of its own: its test is
+marked ``slow`` (``make test`` runs it, ``make check`` does not).
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")))
 _DURATION = re.compile(r"(\((?:diagnosis )?|\bin )\d+(?:\.\d+)?( s\b)")
 _EXIT_STATUS = '; echo "exit status: $?"'
 _MARK = re.compile(r"<!--\s*docs-test:\s*(.*?)\s*-->")
+_SLOW = "<!-- docs-test: slow -->"
 
 
 @dataclass(frozen=True)
@@ -70,7 +73,7 @@ class Block:
     doc: Path
     line: int          # of the opening fence
     language: str
-    mark: str | None   # the docs-test comment on the line before the fence
+    mark: str | None   # the docs-test comment on the line before the fence: "not run: REASON"
     commands: tuple[Command, ...]
 
     @property
@@ -131,7 +134,7 @@ def matches(expected: tuple[str, ...] | list[str], actual: str) -> bool:
     """Does ``actual`` (what a command printed) match the printed ``expected``?"""
     parts = []
     for line in normalise("\n".join(expected)):
-        parts.append(r"(?:[^\n]*\n)*?" if line == "..." else re.escape(line) + r"\n")
+        parts.append(r"(?:[^\n]*\n)*?" if line.strip() == "..." else re.escape(line) + r"\n")
     text = "".join(line + "\n" for line in normalise(actual))
     return re.fullmatch("".join(parts), text) is not None
 
@@ -189,12 +192,15 @@ def _checkout_view(folder: Path) -> Path:
 
 # ---- the tests --------------------------------------------------------------------------------
 
+def _is_slow(doc: Path) -> bool:
+    return _SLOW in doc.read_text(encoding="utf-8").split("\n")
+
+
 def _doc_params():
     for doc in DOCS:
-        found = blocks(doc)
-        if not any(b.mark is None or b.mark == "slow" for b in found):
+        if all(b.mark is not None for b in blocks(doc)):
             continue
-        slow = any(b.mark == "slow" for b in found)
+        slow = _is_slow(doc)
         yield pytest.param(doc, id=str(doc.relative_to(ROOT)), marks=[pytest.mark.slow] if slow else [])
 
 
@@ -205,7 +211,7 @@ def test_transcripts_run_as_printed(doc: Path, tmp_path: Path, monkeypatch) -> N
     folder = _checkout_view(tmp_path)
     wrong = []
     for block in blocks(doc):
-        if block.mark is not None and block.mark.startswith("not run"):
+        if block.mark is not None:
             continue
         for command in block.commands:
             actual = run(command.text, folder)
@@ -225,9 +231,9 @@ def test_every_transcript_is_a_console_block_run_or_said_why_not() -> None:
             if block.language != "console":
                 problems.append(f"{block.where}: a block with $ prompts marked {block.language or 'nothing'!r}: "
                                 "mark it console (a transcript) or drop the prompts (a list of commands)")
-            if block.mark is not None and block.mark != "slow" and not re.fullmatch(r"not run: \S.*", block.mark):
-                problems.append(f"{block.where}: docs-test comment {block.mark!r}: write "
-                                "'slow' or 'not run: REASON'")
+            if block.mark is not None and not re.fullmatch(r"not run: \S.*", block.mark):
+                problems.append(f"{block.where}: docs-test comment {block.mark!r} before a block: write "
+                                "'not run: REASON'")
     assert not problems, "\n".join(problems)
 
 
@@ -273,10 +279,12 @@ def test_the_matcher_lets_only_the_marked_parts_vary() -> None:
 
 def test_a_block_is_read_as_its_commands_and_their_output(tmp_path: Path) -> None:
     doc = tmp_path / "doc.md"
-    doc.write_text("text\n<!-- docs-test: slow -->\n```console\n$ echo a \\\n  b\na b\n"
-                   "$ cat <<'EOF'\nx\nEOF\nx\n```\n", encoding="utf-8")
-    (block,) = blocks(doc)
-    assert block.mark == "slow" and block.language == "console"
+    doc.write_text("<!-- docs-test: slow -->\n\ntext\n```console\n$ echo a \\\n  b\na b\n"
+                   "$ cat <<'EOF'\nx\nEOF\nx\n```\n<!-- docs-test: not run: an example -->\n```console\n"
+                   "$ false\n```\n", encoding="utf-8")
+    block, skipped = blocks(doc)
+    assert _is_slow(doc) and block.mark is None and skipped.mark == "not run: an example"
+    assert block.language == "console"
     assert [c.text for c in block.commands] == ["echo a \\\n  b", "cat <<'EOF'\nx\nEOF"]
     assert [c.expected for c in block.commands] == [("a b",), ("x",)]
     assert [run(c.text, tmp_path) for c in block.commands] == ["a b\n", "x\n"]
@@ -304,3 +312,36 @@ def test_a_model_shown_in_a_doc_is_the_example_file_it_names() -> None:
                 f"{doc.relative_to(ROOT)}:{i + 1}: the block differs from {named[-1]}"
             shown += 1
     assert shown >= 2
+
+
+#: Written by the lead in the same issue (43, point 4); a link to it may land before the file does.
+_PENDING = {"docs/architecture.md"}
+
+
+def _anchor(heading: str) -> str:
+    """GitHub's anchor of a heading: lower case, punctuation dropped, spaces as hyphens."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower())
+    return text.replace(" ", "-")
+
+
+def test_every_link_between_the_docs_lands() -> None:
+    """Every relative link of README.md and docs/*.md names a file of the
+    checkout (and, with ``#anchor``, one of its headings)."""
+    broken = []
+    for doc in DOCS:
+        text = re.sub(r"```.*?```", "", doc.read_text(encoding="utf-8"), flags=re.S)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"[a-z]+:", target):
+                continue                                          # http(s), mailto
+            path, _, anchor = target.partition("#")
+            file = (doc.parent / path).resolve() if path else doc
+            name = file.relative_to(ROOT).as_posix() if file.is_relative_to(ROOT) else str(file)
+            if not file.exists():
+                if name not in _PENDING:
+                    broken.append(f"{doc.relative_to(ROOT)}: ({target}): no file {name}")
+                continue
+            if anchor and file.suffix == ".md":
+                headings = [_anchor(h) for h in re.findall(r"^#+ (.*)$", file.read_text(encoding="utf-8"), re.M)]
+                if anchor not in headings:
+                    broken.append(f"{doc.relative_to(ROOT)}: ({target}): no heading #{anchor} in {name}")
+    assert not broken, "links that land nowhere:\n" + "\n".join(broken)
