@@ -30,6 +30,10 @@ parts that vary from run to run, which are marked:
 - a duration bgc prints in seconds, ``(diagnosis 2.9 s)``, ``(63.3 s)`` or
   ``in 5.63 s``, matches any duration.
 
+Every other character counts. The numbers are those of OpenBLAS's Haswell
+kernels, which the suite asks for on any CPU that runs them (conftest.py);
+other kernels may round a last digit differently.
+
 A block a test should not run says so in an HTML comment on the line before
 its fence: ``<!-- docs-test: not run: REASON -->`` (a dated benchmark, a
 campaign of an hour). A document whose transcripts take more than a few
