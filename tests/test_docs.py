@@ -34,11 +34,13 @@ Every other character counts. The numbers are those of OpenBLAS's Haswell
 kernels, which the suite asks for on any CPU that runs them (conftest.py);
 other kernels may round a last digit differently.
 
-A block a test should not run says so in an HTML comment on the line before
-its fence: ``<!-- docs-test: not run: REASON -->`` (a dated benchmark, a
-campaign of an hour). A document whose transcripts take more than a few
-seconds says ``<!-- docs-test: slow -->`` on a line of its own: its test is
-marked ``slow`` (``make test`` runs it, ``make check`` does not).
+An HTML comment on the line before a block's fence says how to run it:
+``<!-- docs-test: not run: REASON -->`` (a dated benchmark, a campaign of an
+hour: never), or ``<!-- docs-test: slow -->`` (more than a few seconds: only
+in the test marked ``slow``, which ``make test`` runs and ``make check`` does
+not). ``<!-- docs-test: all slow -->`` on a line of its own makes every block
+of its document slow. A document's fast blocks run in a test of their own
+(they must not read what a slow block writes); its slow test runs them all.
 """
 
 from __future__ import annotations
@@ -62,7 +64,7 @@ DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")))
 _DURATION = re.compile(r"(\((?:diagnosis )?|\bin )\d+(?:\.\d+)?( s\b)")
 _EXIT_STATUS = '; echo "exit status: $?"'
 _MARK = re.compile(r"<!--\s*docs-test:\s*(.*?)\s*-->")
-_SLOW = "<!-- docs-test: slow -->"
+_ALL_SLOW = "<!-- docs-test: all slow -->"
 
 
 @dataclass(frozen=True)
@@ -77,7 +79,7 @@ class Block:
     doc: Path
     line: int          # of the opening fence
     language: str
-    mark: str | None   # the docs-test comment on the line before the fence: "not run: REASON"
+    mark: str | None   # the docs-test comment on the line before the fence: "slow", "not run: REASON"
     commands: tuple[Command, ...]
 
     @property
@@ -196,26 +198,37 @@ def _checkout_view(folder: Path) -> Path:
 
 # ---- the tests --------------------------------------------------------------------------------
 
-def _is_slow(doc: Path) -> bool:
-    return _SLOW in doc.read_text(encoding="utf-8").split("\n")
+def _all_slow(doc: Path) -> bool:
+    return _ALL_SLOW in doc.read_text(encoding="utf-8").split("\n")
+
+
+def _runs(block: Block, slow: bool) -> bool:
+    return block.mark is None or (slow and block.mark == "slow")
 
 
 def _doc_params():
+    """(document, slow): its fast blocks in a fast test, and all of them in
+    a slow one when some are slow."""
     for doc in DOCS:
-        if all(b.mark is not None for b in blocks(doc)):
+        found, name = blocks(doc), str(doc.relative_to(ROOT))
+        if _all_slow(doc):
+            if any(_runs(b, True) for b in found):
+                yield pytest.param(doc, True, id=name, marks=[pytest.mark.slow])
             continue
-        slow = _is_slow(doc)
-        yield pytest.param(doc, id=str(doc.relative_to(ROOT)), marks=[pytest.mark.slow] if slow else [])
+        if any(_runs(b, False) for b in found):
+            yield pytest.param(doc, False, id=name)
+        if any(b.mark == "slow" for b in found):
+            yield pytest.param(doc, True, id=f"{name}, with its slow blocks", marks=[pytest.mark.slow])
 
 
-@pytest.mark.parametrize("doc", list(_doc_params()))
-def test_transcripts_run_as_printed(doc: Path, tmp_path: Path, monkeypatch) -> None:
+@pytest.mark.parametrize(("doc", "slow"), list(_doc_params()))
+def test_transcripts_run_as_printed(doc: Path, slow: bool, tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setenv("BGC_BACKEND", "numpy")
     monkeypatch.setenv("MPLBACKEND", "Agg")
     folder = _checkout_view(tmp_path)
     wrong = []
     for block in blocks(doc):
-        if block.mark is not None:
+        if not _runs(block, slow):
             continue
         for command in block.commands:
             actual = run(command.text, folder)
@@ -235,9 +248,9 @@ def test_every_transcript_is_a_console_block_run_or_said_why_not() -> None:
             if block.language != "console":
                 problems.append(f"{block.where}: a block with $ prompts marked {block.language or 'nothing'!r}: "
                                 "mark it console (a transcript) or drop the prompts (a list of commands)")
-            if block.mark is not None and not re.fullmatch(r"not run: \S.*", block.mark):
+            if block.mark not in (None, "slow") and not re.fullmatch(r"not run: \S.*", block.mark):
                 problems.append(f"{block.where}: docs-test comment {block.mark!r} before a block: write "
-                                "'not run: REASON'")
+                                "'slow' or 'not run: REASON'")
     assert not problems, "\n".join(problems)
 
 
@@ -283,11 +296,12 @@ def test_the_matcher_lets_only_the_marked_parts_vary() -> None:
 
 def test_a_block_is_read_as_its_commands_and_their_output(tmp_path: Path) -> None:
     doc = tmp_path / "doc.md"
-    doc.write_text("<!-- docs-test: slow -->\n\ntext\n```console\n$ echo a \\\n  b\na b\n"
+    doc.write_text("<!-- docs-test: all slow -->\n\ntext\n```console\n$ echo a \\\n  b\na b\n"
                    "$ cat <<'EOF'\nx\nEOF\nx\n```\n<!-- docs-test: not run: an example -->\n```console\n"
-                   "$ false\n```\n", encoding="utf-8")
-    block, skipped = blocks(doc)
-    assert _is_slow(doc) and block.mark is None and skipped.mark == "not run: an example"
+                   "$ false\n```\n<!-- docs-test: slow -->\n```console\n$ true\n```\n", encoding="utf-8")
+    block, skipped, slow = blocks(doc)
+    assert _all_slow(doc) and block.mark is None and skipped.mark == "not run: an example"
+    assert slow.mark == "slow" and _runs(slow, True) and not _runs(slow, False) and not _runs(skipped, True)
     assert block.language == "console"
     assert [c.text for c in block.commands] == ["echo a \\\n  b", "cat <<'EOF'\nx\nEOF"]
     assert [c.expected for c in block.commands] == [("a b",), ("x",)]
