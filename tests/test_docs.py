@@ -12,7 +12,9 @@ How a command runs:
 
 - ``bgc ARGS`` (optionally ``; echo "exit status: $?"``, and optionally fed
   by ``cat FILE |``) runs in this process, through ``bgc.cli.main``: fast;
-- anything else (``head``, ``grep``, ``python ...``) runs in ``bash``.
+- ``python -c CODE`` and ``python - <<'EOF'`` (a here-document) run their
+  code in this process too, as ``__main__``: no interpreter started;
+- anything else (``head``, ``grep``, ``python FILE``) runs in ``bash``.
 
 The blocks of one document run in order in one folder (a command may read
 what an earlier one wrote), which holds a link to every top-level entry of
@@ -52,6 +54,7 @@ import re
 import shlex
 import subprocess
 import sys
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -157,15 +160,35 @@ def run(command: str, cwd: Path) -> str:
     simple = _IN_PROCESS.match(command)
     if simple:
         return _run_in_process(shlex.split(simple["args"]), cwd, simple["stdin"], bool(simple["status"]))
+    python = _PYTHON.match(command)
+    if python:
+        code = python["body"] if python["tag"] else shlex.split(command)[2]
+        return _capture(lambda: _exec(code), cwd)[1]
     env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")
     done = subprocess.run(["bash", "-c", command], cwd=cwd, env=env, stdout=subprocess.PIPE,
                           stderr=subprocess.STDOUT, text=True, timeout=600)
     return done.stdout
 
 
-def _run_in_process(argv: list[str], cwd: Path, stdin: str | None, status: bool) -> str:
-    from bgc.cli import main
+_PYTHON = re.compile(r"^python (?:-c \S.*|- <<'?(?P<tag>\w+)'?\n(?P<body>.*)\n(?P=tag))$", re.S)
 
+
+def _exec(code: str) -> int:
+    """Run ``code`` as ``python -c`` would: as ``__main__``, a traceback on
+    standard error and status 1 when it raises."""
+    try:
+        exec(compile(code, "<string>", "exec"), {"__name__": "__main__"})
+    except SystemExit as exc:
+        return exc.code if isinstance(exc.code, int) else 1
+    except Exception:  # what python prints, so that the transcript's comparison shows it
+        traceback.print_exc()
+        return 1
+    return 0
+
+
+def _capture(call, cwd: Path, stdin: str | None = None) -> tuple[int, str]:
+    """``call()`` in ``cwd``, standard input from the file ``stdin``; its
+    status and what it printed on standard output and error, interleaved."""
     out = io.TextIOWrapper(io.BytesIO(), encoding="utf-8", write_through=True)
     old_cwd, old_stdin = Path.cwd(), sys.stdin
     os.chdir(cwd)
@@ -174,15 +197,24 @@ def _run_in_process(argv: list[str], cwd: Path, stdin: str | None, status: bool)
             if stdin is not None:
                 sys.stdin = stack.enter_context(open(stdin, encoding="utf-8"))
             with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
-                try:
-                    code = main(argv)
-                except SystemExit as exc:  # argparse's usage errors
-                    code = exc.code if isinstance(exc.code, int) else 1
+                status = call()
     finally:
         sys.stdin = old_stdin
         os.chdir(old_cwd)
     out.flush()
-    text = out.buffer.getvalue().decode("utf-8")
+    return status, out.buffer.getvalue().decode("utf-8")
+
+
+def _run_in_process(argv: list[str], cwd: Path, stdin: str | None, status: bool) -> str:
+    from bgc.cli import main
+
+    def call() -> int:
+        try:
+            return main(argv)
+        except SystemExit as exc:  # argparse's usage errors
+            return exc.code if isinstance(exc.code, int) else 1
+
+    code, text = _capture(call, cwd, stdin)
     if status:
         text += ("" if text.endswith("\n") or not text else "\n") + f"exit status: {code}\n"
     return text
@@ -306,6 +338,8 @@ def test_a_block_is_read_as_its_commands_and_their_output(tmp_path: Path) -> Non
     assert [c.text for c in block.commands] == ["echo a \\\n  b", "cat <<'EOF'\nx\nEOF"]
     assert [c.expected for c in block.commands] == [("a b",), ("x",)]
     assert [run(c.text, tmp_path) for c in block.commands] == ["a b\n", "x\n"]
+    assert run('python -c "print(6 * 7)"', tmp_path) == "42\n"                     # in this process
+    assert run("python - <<'EOF'\nimport os\nprint(os.getcwd())\nEOF", tmp_path) == f"{tmp_path}\n"
 
 
 def test_a_model_shown_in_a_doc_is_the_example_file_it_names() -> None:
