@@ -21,8 +21,8 @@ what an earlier one wrote), which holds a link to every top-level entry of
 the repository (``models``, ``docs``, ``tests``, ...): the paths read as they
 do from the root, and what the commands write lands in the test's temporary
 folder, never in the checkout. The backend is NumPy (``BGC_BACKEND=numpy``):
-the numba backend gives the same numbers and, on its first call, one line
-about compiling its kernels.
+the numba backend gives the same numbers, and may print a line about its
+kernels on standard error.
 
 The printed output must equal what the command prints now, except for the
 parts that vary from run to run, which are marked:
