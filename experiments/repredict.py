@@ -14,7 +14,7 @@ the recomputed file is the one a campaign at this checkout would write.
 
 The prediction columns (``separable``, ``rivals``, ``separation``,
 ``detectability``) are what ``bgc distinguish`` predicts of a run's scenario
-(:func:`bgc.experiment.campaign._separation`). They depend on the model, the scenario,
+(:func:`bgc.experiment.one_run._separation`). They depend on the model, the scenario,
 the noise levels and the run's length only; the diagnosis never reads them.
 When a fix to ``bgc distinguish`` leaves the diagnosis unchanged (commit
 21e3e08: a sensor's or an actuator's drift as a rival had been taken for no

@@ -287,7 +287,7 @@ def test_private_folders_are_this_processs_own_and_removed_on_demand(tmp_path, m
 
 
 def test_private_folder_takes_a_prefix_string():
-    refused(lambda: api_folders.private_folder(5), ArgumentTypeError, "bgc.api.private_folder: prefix=5 is not a string")
+    refused(lambda: api_folders.private_folder(5), ArgumentTypeError, "bgc.api.folders.private_folder: prefix=5 is not a string")
 
 
 def test_bgc_gives_the_api_functions():
@@ -338,13 +338,13 @@ def test_bgc_distinguish_steps_must_be_positive(capsys):
 
 def test_the_step_limit_a_campaign_calls_checks_its_arguments_too():
     num = compiled("circuit").numerics
-    refused(lambda: api_limits.check_diagnosis_steps(0, num), ArgumentValueError, "bgc.api.diagnosis_memory: steps=0")
+    refused(lambda: api_limits.check_diagnosis_steps(0, num), ArgumentValueError, "bgc.api.limits.diagnosis_memory: steps=0")
     refused(lambda: api_limits.check_diagnosis_steps(300, "circuit"), ArgumentTypeError,
-            "bgc.api.diagnosis_memory: num='circuit' is not a Numerics")
+            "bgc.api.limits.diagnosis_memory: num='circuit' is not a Numerics")
     refused(lambda: api_limits.check_diagnosis_steps(300, num, 1000, "pf"), ArgumentValueError,
-            "bgc.api.diagnosis_memory: method='pf' is not one of")
+            "bgc.api.limits.diagnosis_memory: method='pf' is not one of")
     refused(lambda: api_limits.check_diagnosis_steps(300, num, True), ArgumentTypeError,
-            "bgc.api.diagnosis_memory: particles=True is not an integer")
+            "bgc.api.limits.diagnosis_memory: particles=True is not an integer")
     refused(lambda: api_limits.check_diagnosis_steps(10**7, num, 1000, "ckf", "steps"), TrackingError,
             "steps: a diagnosis of 10000000 steps of circuit may take about")
 

@@ -34,7 +34,7 @@ def private_folder(prefix: str) -> str:
     import secrets
     from multiprocessing import util
 
-    arguments.text("bgc.api.private_folder", "prefix", prefix)
+    arguments.text("bgc.api.folders.private_folder", "prefix", prefix)
 
     base = tempfile.gettempdir()
     with _FOLDER_LOCK:  # an orphaned campaign worker removes its folders under it (remove_private_folders)
@@ -70,7 +70,7 @@ def _new_folder_lock() -> None:  # a forked child starts with its own lock, free
 
 def remove_private_folders() -> None:
     """Remove this process's private folders now (a campaign worker whose
-    campaign has died, ending at once: :func:`bgc.experiment.campaign._orphaned`).
+    campaign has died, ending at once: :func:`bgc.experiment.dispatch._orphaned`).
     Under the lock :func:`private_folder` takes, so no folder is being made
     meanwhile; a folder named but not yet made is simply absent."""
     with _FOLDER_LOCK:

@@ -69,7 +69,7 @@ def diagnosis_memory(steps: int, num: Numerics, particles: int = 1000, method: s
     ArgumentTypeError, ArgumentValueError
         An argument of the wrong type or out of range.
     """
-    func = "bgc.api.diagnosis_memory"
+    func = "bgc.api.limits.diagnosis_memory"
     arguments.integer(func, "steps", steps, 1, "give at least 1", "steps=300")
     if not isinstance(num, Numerics):
         raise ArgumentTypeError(f"{func}: num={arguments.shown(num)} is not a Numerics", None,
@@ -103,7 +103,7 @@ def check_diagnosis_steps(steps: int, num: Numerics, particles: int = 1000, meth
     ArgumentTypeError, ArgumentValueError
         An argument of the wrong type or out of range (:func:`diagnosis_memory`).
     """
-    arguments.text("bgc.api.check_diagnosis_steps", "where", where)
+    arguments.text("bgc.api.limits.check_diagnosis_steps", "where", where)
     fixed, per_step = diagnosis_memory(steps, num, particles, method, history)
     name = num.equations.model.name
     if fixed > MAX_DIAGNOSIS_BYTES:

@@ -176,7 +176,7 @@ class Diagnoser:
                 where = self.source if s.line is None else f"{self.source}:{s.line}"
                 raise TrackingError(f"{where}: the stream reached {most} steps of the model's grid (t = {s.t:.12g}), "
                                     "the most a diagnosis of this model with these options holds in memory (4 GB "
-                                    "by bgc.api.diagnosis_memory's rule)", None,
+                                    "by bgc.api.limits.diagnosis_memory's rule)", None,
                                     "finish this diagnoser and start another for the rest of the stream, or use "
                                     "fewer particles")
             belief = self.loop.take(s)

@@ -104,7 +104,7 @@ class CampaignResult:
 def _check_arguments(c: Any, out: Any, scheduler: Any, progress: Any, outputs: Any, on_start: Any) -> None:
     if not isinstance(c, Campaign):
         raise ArgumentTypeError(f"the campaign must be a Campaign, not {type(c).__name__}", None,
-                                "read it with bgc.experiment.campaign.load_campaign(path)")
+                                "read it with bgc.experiment.campaign_file.load_campaign(path)")
     if not isinstance(out, (str, os.PathLike)) or not str(out):
         raise ArgumentTypeError(f"out must be a folder path, not {type(out).__name__}", None,
                                 "give a str or pathlib.Path")

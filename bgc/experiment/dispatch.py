@@ -175,7 +175,7 @@ def _watch_parent(parent: int) -> None:
 
 def _orphaned(*_signal: Any) -> None:
     """End this worker now: its folders removed (the finalizers of
-    :func:`bgc.api.private_folder`; a worker skips atexit), no clean-up of
+    :func:`bgc.api.folders.private_folder`; a worker skips atexit), no clean-up of
     the pool it served (its parent has gone)."""
     try:
         from multiprocessing import util
