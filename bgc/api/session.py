@@ -11,7 +11,6 @@ from ..errors import (
     ArgumentTypeError, ArgumentValueError, TrackingError, printable,
 )
 from ..output import calibrated
-from ..output.labels import labels_of
 from ..analysis import calibrate as calibration
 from ..data import runs
 from ..model import package as packages
@@ -23,7 +22,8 @@ from ..diagnosis.diagnose import horizon_steps
 from ..diagnosis.diagnoser import Diagnoser
 from .limits import (METHODS, MAX_PRIOR_SCALE, check_options,
                      most_steps, with_horizon)
-from .folders import _LOCK, _compiled, _lasting_folder
+from . import cache
+from .folders import _LOCK
 from .reports import CalibrationReport, DiagnosisReport
 from .calibrate import _check_calibrated, _model_text
 
@@ -52,10 +52,12 @@ class Session:
     """A compiled model and its generated package, ready to diagnose: made
     by :func:`open`. ``model``: the model file; ``noise``: the relative
     (process, measurement) noise levels the filters assume (None: the
-    model's). A session holds its own compilation and package (in a private
-    folder removed at exit); nothing is cached between sessions: diagnose
-    many runs of one model through one session (``bgc.diagnose(session,
-    data=...)``, :meth:`diagnoser`).
+    model's). A session reads its model through the compile cache
+    (:mod:`bgc.api.cache`): ``view``, the compiled model as plain data, and
+    the generated package; ``compiled``, every IR, is compiled on first use
+    when the cache served the session. Diagnose many runs of one model
+    through one session (``bgc.diagnose(session, data=...)``,
+    :meth:`diagnoser`).
 
     >>> import bgc
     >>> session = bgc.open("models/circuit.yaml")
@@ -85,8 +87,13 @@ class Session:
         if backend is not None:
             arguments.choice(func, "backend", backend, (*packages.BACKENDS, "auto"))
         self.backend = packages.resolve_backend(backend)
-        self.compiled, self.folder = _compiled(model, self.prior_scale)  # this session's own compilation and folder
-        c = self.compiled
+        self._opened = cache.open_model(model, self.prior_scale)
+        #: the compiled model as plain data (:mod:`bgc.model.view`): what the runtime reads
+        self.view = self._opened.view
+        #: the folder of the generated NumPy package (``<model>/numpy_model``): the cache's entry, or a private one
+        self.folder = self._opened.folder
+        self._compiled = self._opened.compiled
+        c = self.view
         levels = c.numerics.noise_at(process_noise, measurement_noise)
         self.levels = levels
         custom = levels if (process_noise, measurement_noise) != (None, None) else None
@@ -103,15 +110,30 @@ class Session:
                                     "use --backend numpy (backend='numpy')") from None
             self.backend, self.fallback = "numpy", why
             self._load(generated, str(model), custom)
-        self.priors = {f.parameter: f.prior for f in c.model.faults}
+        self.priors = c.priors
+
+    @property
+    def compiled(self):
+        """Every IR of the model (:class:`bgc.pipeline.Compiled`): compiled
+        now when the cache served the session (sympy is imported then).
+
+        Raises
+        ------
+        ArgumentValueError
+            The model file changed since the session was opened.
+        """
+        with _LOCK:
+            if self._compiled is None:
+                self._compiled = cache.compiled_again(self.model, self.prior_scale, self.view)
+            return self._compiled
 
     def _load(self, generated, model: str, custom) -> None:
         """Load this session's package of its backend (from ``generated``, or a
         private folder for NumPy, or, for the compiled package, a folder of
         bgc's cache that lasts, so numba's disk cache stays valid) and warm it up."""
-        c = self.compiled
+        c = self.view
         if generated is None:
-            generated = self.folder if self.backend == "numpy" else _lasting_folder(c)
+            generated = self.folder if self.backend == "numpy" else cache.numba_folder(self._opened)
         with _LOCK:  # another thread must not see a package half imported
             self.package = packages.load_package(generated, c.model.name, model, custom, self.backend)
             #: (seconds, kernels compiled, kernels loaded from numba's disk cache) of this session's warm-up
@@ -119,7 +141,7 @@ class Session:
 
     @property
     def name(self) -> str:
-        return self.compiled.model.name
+        return self.view.model.name
 
     def backend_note(self) -> str | None:
         """One line on the compiled backend's warm-up (None on the NumPy
@@ -138,7 +160,7 @@ class Session:
         return "numba backend: kernels compiled before in this process"
 
     def __repr__(self) -> str:
-        return f"<bgc.Session of {self.name} ({printable(self.compiled.model.display_source)})>"
+        return f"<bgc.Session of {self.name} ({printable(self.view.model.display_source)})>"
 
     def _repr_html_(self) -> str:
         """A notebook's view: the model's name and file, elements, bonds and
@@ -159,7 +181,7 @@ class Session:
             arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
             options = DiagnosisOptions(method=method, particles=particles, seed=seed)
         check_options(options, func)
-        return with_horizon(options, self.compiled.model.settings)
+        return with_horizon(options, self.view.model.settings)
 
     def diagnoser(self, options: DiagnosisOptions | None = None, *, method: str = "gpf", particles: int = 1000,
                   seed: int = 0, inputs=None, sensors=None, source: str = "<stream>", progress=None) -> Diagnoser:
@@ -173,9 +195,9 @@ class Session:
         arguments.text(func, "source", source)
         arguments.callable_or_none(func, "progress", progress)
         nominal = self.package.MODELS["nominal"]
-        return Diagnoser(self.package, self.compiled.signatures, self.priors, opts,
+        return Diagnoser(self.package, self.view.signatures, self.priors, opts,
                          horizon_steps(opts.horizon, nominal.DT, 0), inputs=inputs, sensors=sensors, source=source,
-                         progress=progress, most=most_steps(self.compiled.numerics, opts))
+                         progress=progress, most=most_steps(self.view.numerics, opts))
 
     def calibrate(self, data, estimate: str | tuple[str, ...] = "noise", *, progress=None) -> CalibrationReport:
         """Maximum-likelihood estimates, from healthy recordings ``data`` (a
@@ -217,7 +239,7 @@ class Session:
             arguments.text(func, "estimate", estimate)
         arguments.callable_or_none(func, "progress", progress)
         say = progress or (lambda text: None)
-        c = self.compiled
+        c = self.view
         nominal = self.package.MODELS["nominal"]
         sensors, process, parameters = calibration.targets(estimate, nominal, [p.name for p in c.model.parameters],
                                                            "--estimate" if isinstance(estimate, str) else "estimate")
@@ -242,8 +264,8 @@ class Session:
     def report(self, run: runs.Run, diagnosis: Diagnosis, scenario: str | None = None,
                injected=None) -> DiagnosisReport:
         """A :class:`DiagnosisReport` of ``diagnosis`` made on ``run``."""
-        return DiagnosisReport(self.name, self.compiled.model.display_source, run, scenario, injected, self.noise,
-                               self.levels, diagnosis.options, diagnosis, labels_of(self.compiled.model))
+        return DiagnosisReport(self.name, self.view.model.display_source, run, scenario, injected, self.noise,
+                               self.levels, diagnosis.options, diagnosis, self.view.labels)
 
 
 def open(model: str | Path, *, process_noise: float | None = None, measurement_noise: float | None = None,
@@ -251,8 +273,8 @@ def open(model: str | Path, *, process_noise: float | None = None, measurement_n
     """Compile ``model`` and load its generated package: a :class:`Session`
     whose :meth:`Session.diagnoser` diagnoses a stream one sample at a time,
     and which :func:`diagnose` and :func:`distinguishability` take in place of
-    the model file (compiled once for many runs; nothing is cached between
-    sessions). ``process_noise``,
+    the model file (compiled once for many runs, and kept in bgc's compile
+    cache for the next session: :mod:`bgc.api.cache`). ``process_noise``,
     ``measurement_noise``: the relative noise levels the filters assume
     (default: the model's); ``generated``: the folder ``bgc compile -o``
     wrote (default: a private one); ``prior_scale``: widens every fault's
