@@ -31,6 +31,7 @@ there (:func:`clear`).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import json
@@ -63,6 +64,10 @@ MODELS = "models"
 #: The folder of :func:`cache_root` that holds the compiled packages (:func:`~bgc.api.folders.lasting_folder`).
 PACKAGES = "packages"
 
+#: The folder of :func:`cache_root` that holds the notes of compiled packages whose kernels are in numba's
+#: disk cache (:func:`mark_warm`).
+WARM = "warm"
+
 #: A model file larger than this is not cached (the compiler refuses it, in its own words).
 MAX_TEXT = 16 * 2**20
 
@@ -71,6 +76,7 @@ STALE_SECONDS = 3600
 
 _KEY = re.compile(r"^[0-9a-f]{64}$")
 _PACKAGE_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*-[0-9a-f]{20}$")
+_WARM_NAME = re.compile(r"^[0-9a-f]{32}\.json$")
 _TEMPORARY = re.compile(r"^\.([0-9a-f]{64}|[A-Za-z_][A-Za-z0-9_]*-[0-9a-f]{20})-[A-Za-z0-9_]+$")
 
 
@@ -79,13 +85,14 @@ class Opened:
     """A model opened through the cache: its ``view``, the ``folder`` whose
     ``<model>/numpy_model`` is its NumPy package (the entry, or a private
     folder when the cache could not be used), the compilation when this
-    call compiled (None when the cache served it), and the ``entry``
-    (None: not cached)."""
+    call compiled (None when the cache served it), the ``entry`` (None:
+    not cached) and the ``seconds`` the call took."""
 
     view: CompiledView
     folder: str
     compiled: Compiled | None
     entry: Path | None
+    seconds: float = 0.0
 
 
 @functools.lru_cache(maxsize=1)
@@ -152,7 +159,12 @@ def open_model(model: str | os.PathLike, prior_scale: float = 1.0) -> Opened:
     BgcError
         The model's own errors (load, validation, ...), as the compiler raises them.
     """
-    source = str(model)
+    start = time.perf_counter()
+    opened = _open(str(model), prior_scale)
+    return dataclasses.replace(opened, seconds=time.perf_counter() - start)
+
+
+def _open(source: str, prior_scale: float) -> Opened:
     text = _text_of(source)
     if text is None:
         return _uncached(source, prior_scale)
@@ -245,6 +257,76 @@ def numba_folder(opened: Opened) -> str:
     return lasting_folder(str(meta["numba"]), name, files)
 
 
+def numba_path(opened: Opened) -> Path:
+    """Where :func:`numba_folder` has (or will have) the opened model's
+    compiled package, ``<folder>/<model>/numba_model``, without making it."""
+    if opened.entry is None:
+        from .folders import numba_digest
+
+        name = numba_digest(opened.compiled)
+    else:
+        name = str(json.loads((opened.entry / "entry.json").read_text(encoding="utf-8"))["numba"])
+    return cache_root() / PACKAGES / name / opened.view.model.name / NUMBA_PACKAGE
+
+
+def _warm_note(package: Path) -> Path:
+    return cache_root() / WARM / (hashlib.sha256(str(package.resolve()).encode()).hexdigest()[:32] + ".json")
+
+
+def _stamps(package: Path) -> dict | None:
+    """What a note of :func:`mark_warm` must find unchanged: the compiled
+    package (its path, its ``__init__.py``'s size and time) and numba's
+    installation (its ``__init__.py``'s path, size and time)."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("numba")
+    try:
+        init = (package / "__init__.py").stat()
+        numba = os.stat(spec.origin) if spec is not None and spec.origin else None
+    except OSError:
+        return None
+    if numba is None:
+        return None
+    return {"package": str(package.resolve()), "init": [init.st_size, init.st_mtime_ns],
+            "numba": [spec.origin, numba.st_size, numba.st_mtime_ns]}
+
+
+def mark_warm(package: str | os.PathLike, kernels: int) -> None:
+    """Note that the kernels of the compiled package folder ``package``
+    (``.../<model>/numba_model``) are in numba's disk cache: a warm-up
+    compiled or loaded them (``kernels``). ``--backend auto`` reads it
+    (:func:`kernels_cached`) without importing numba. Written to a
+    temporary name and renamed into place; a cache that cannot be written
+    keeps no note."""
+    package = Path(package)
+    stamps = _stamps(package)
+    if stamps is None:
+        return
+    note = _warm_note(package)
+    try:
+        note.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=".", suffix=".json", dir=note.parent)
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump({"generated_by": "bgc", **stamps, "kernels": int(kernels)}, f)
+        os.replace(tmp, note)
+    except OSError:
+        pass
+
+
+def kernels_cached(package: str | os.PathLike) -> bool:
+    """Whether a warm-up noted (:func:`mark_warm`) the kernels of the compiled
+    package folder ``package`` in numba's disk cache, the package and numba
+    unchanged since. (numba's cache emptied by hand is not seen: the next
+    warm-up compiles them again.)"""
+    package = Path(package)
+    try:
+        note = json.loads(_warm_note(package).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    stamps = _stamps(package)
+    return isinstance(note, dict) and stamps is not None and all(note.get(k) == v for k, v in stamps.items())
+
+
 def compiled_again(model: str, prior_scale: float, view: CompiledView):
     """Every IR of the model a cached view was read from (the compiler and
     sympy imported now), its text checked to be the one the view has.
@@ -322,6 +404,14 @@ def items(root: Path | None = None) -> list[Item]:
                 found.append(Item("package", path, model, _size(path), _mtime(path)))
         elif _TEMPORARY.match(path.name) and path.is_dir() and not path.is_symlink():
             found.append(Item("unfinished", path, "", _size(path), _mtime(path)))
+    for path in _children(root / WARM):
+        if _WARM_NAME.match(path.name) and path.is_file() and not path.is_symlink():
+            try:
+                note = json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                continue
+            if isinstance(note, dict) and note.get("generated_by") == "bgc":
+                found.append(Item("note", path, "", _size(path), _mtime(path), f"{note.get('package', '?')}"))
     return sorted(found, key=lambda i: (i.kind, i.model, -i.used))
 
 
@@ -335,10 +425,16 @@ def clear(root: Path | None = None) -> list[Item]:
     for item in items(root):
         if item.kind == "unfinished" and time.time() - item.used < STALE_SECONDS:
             continue
-        shutil.rmtree(item.path, ignore_errors=True)
+        if item.kind == "note":
+            try:
+                item.path.unlink()
+            except OSError:
+                pass
+        else:
+            shutil.rmtree(item.path, ignore_errors=True)
         if not item.path.exists():
             removed.append(item)
-    for folder in (root / MODELS, root / PACKAGES):
+    for folder in (root / MODELS, root / PACKAGES, root / WARM):
         try:
             folder.rmdir()  # only when empty
         except OSError:
@@ -372,6 +468,8 @@ def _generated(init: Path) -> bool:
 
 
 def _size(folder: Path) -> int:
+    if folder.is_file():
+        return _mtime(folder) and folder.stat().st_size
     total = 0
     for dirpath, _, files in os.walk(folder):
         for name in files:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 
 from .. import arguments
+from ..ir import NUMBA_PACKAGE
 from ..errors import (
     ArgumentTypeError, ArgumentValueError, TrackingError, printable,
 )
@@ -69,7 +70,8 @@ class Session:
 
     def __init__(self, model: str | Path, process_noise: float | None = None,
                  measurement_noise: float | None = None, generated: str | Path | None = None,
-                 prior_scale: float = 1.0, backend: str | None = None):
+                 prior_scale: float = 1.0, backend: str | None = None, *,
+                 work: tuple[int, int | None] | None = None):
         func = "bgc.open"
         arguments.path(func, "model", model)
         arguments.noise_levels(func, process_noise, measurement_noise)
@@ -86,7 +88,10 @@ class Session:
         self.prior_scale = float(prior_scale)
         if backend is not None:
             arguments.choice(func, "backend", backend, (*packages.BACKENDS, "auto"))
-        self.backend = packages.resolve_backend(backend)
+        if work is not None:
+            _check_work(func, work)
+        if packages.chosen_by_name(backend):  # refused (numba not installed) before any work
+            self.backend = packages.resolve_backend(backend)
         self._opened = cache.open_model(model, self.prior_scale)
         #: the compiled model as plain data (:mod:`bgc.model.view`): what the runtime reads
         self.view = self._opened.view
@@ -94,6 +99,11 @@ class Session:
         self.folder = self._opened.folder
         self._compiled = self._opened.compiled
         c = self.view
+        numba = Path(generated) / c.model.name / NUMBA_PACKAGE if generated is not None else \
+            cache.numba_path(self._opened)
+        #: why this backend: asked for by name, BGC_BACKEND, or auto's rule (:func:`bgc.model.package.auto_backend`)
+        self.backend, self.backend_reason = choose_backend(
+            backend, numba, None if work is None else work[0] * (work[1] or c.model.settings.steps))
         levels = c.numerics.noise_at(process_noise, measurement_noise)
         self.levels = levels
         custom = levels if (process_noise, measurement_noise) != (None, None) else None
@@ -138,10 +148,22 @@ class Session:
             self.package = packages.load_package(generated, c.model.name, model, custom, self.backend)
             #: (seconds, kernels compiled, kernels loaded from numba's disk cache) of this session's warm-up
             self.warm = warmup.warm_up(self.package)
+        if self.backend == "numba":  # auto finds them there next time (cache.kernels_cached)
+            cache.mark_warm(Path(generated) / c.model.name / NUMBA_PACKAGE, self.warm[1] + self.warm[2])
 
     @property
     def name(self) -> str:
         return self.view.model.name
+
+    def model_note(self) -> str:
+        """One line on where the compiled model came from: bgc's compile
+        cache, or compiled (and kept there, or not), and how long it took."""
+        o = self._opened
+        if o.compiled is None:
+            return f"model {self.name}: read from bgc's compile cache in {o.seconds:.2f} s ({printable(str(o.entry))})"
+        kept = f"kept in bgc's compile cache: {printable(str(o.entry))}" if o.entry is not None else \
+            "bgc's compile cache not used"
+        return f"model {self.name}: compiled in {o.seconds:.1f} s ({kept})"
 
     def backend_note(self) -> str | None:
         """One line on the compiled backend's warm-up (None on the NumPy
@@ -268,8 +290,37 @@ class Session:
                                self.levels, diagnosis.options, diagnosis, self.view.labels)
 
 
+def choose_backend(backend: str | None, numba: Path, work: int | None) -> tuple[str, str]:
+    """The backend to run on and why: ``backend`` when it names one (or
+    ``BGC_BACKEND`` does: :func:`bgc.model.package.resolve_backend`), else
+    ``auto``'s rule (:func:`bgc.model.package.auto_backend`) for ``work``
+    particle-steps, the kernels of the compiled package folder ``numba``
+    (``.../<model>/numba_model``) in numba's disk cache or not
+    (:func:`bgc.api.cache.kernels_cached`).
+
+    Raises
+    ------
+    TrackingError
+        An unknown backend, or numba asked for and not installed.
+    """
+    if packages.chosen_by_name(backend):
+        return packages.resolve_backend(backend), ("asked for" if backend not in (None, "auto") else "BGC_BACKEND")
+    return packages.auto_backend(work, packages.numba_installed() and cache.kernels_cached(numba))
+
+
+def _check_work(func: str, work) -> None:
+    """Refuse a ``work`` that is not (particles, steps or None), each an integer >= 1."""
+    if not isinstance(work, tuple) or len(work) != 2:
+        raise ArgumentTypeError(f"{func}: work={arguments.shown(work)} is not a (particles, steps) tuple", None,
+                                "e.g. work=(1000, 300), or work=(1000, None) for the model's run length")
+    arguments.integer(func, "work[0]", work[0], 1, "at least 1 particle is needed", "work=(1000, 300)")
+    if work[1] is not None:
+        arguments.integer(func, "work[1]", work[1], 1, "give at least 1 step", "work=(1000, 300)")
+
+
 def open(model: str | Path, *, process_noise: float | None = None, measurement_noise: float | None = None,
-         generated: str | Path | None = None, prior_scale: float = 1.0, backend: str | None = None) -> Session:
+         generated: str | Path | None = None, prior_scale: float = 1.0, backend: str | None = None,
+         work: tuple[int, int | None] | None = None) -> Session:
     """Compile ``model`` and load its generated package: a :class:`Session`
     whose :meth:`Session.diagnoser` diagnoses a stream one sample at a time,
     and which :func:`diagnose` and :func:`distinguishability` take in place of
@@ -280,5 +331,11 @@ def open(model: str | Path, *, process_noise: float | None = None, measurement_n
     wrote (default: a private one); ``prior_scale``: widens every fault's
     prior of its magnitude by that factor (``--prior-scale``); ``backend``:
     'numpy', 'numba' (the compiled package, the ``fast`` extra) or None /
-    'auto' (numba when installed; the environment's ``BGC_BACKEND`` first)."""
-    return Session(model, process_noise, measurement_noise, generated, prior_scale, backend)
+    'auto' (the environment's ``BGC_BACKEND`` first, else
+    :func:`bgc.model.package.auto_backend`: numba when installed and its
+    kernels for this model are in numba's disk cache and ``work`` repays
+    loading them, or ``work`` repays compiling them); ``work``: the
+    (particles, steps) a diagnosis of the session is expected to run (steps
+    None: the model's run length; None: not known, numba only when its
+    kernels are cached)."""
+    return Session(model, process_noise, measurement_noise, generated, prior_scale, backend, work=work)

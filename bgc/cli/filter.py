@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from ..errors import printable
-from .common import add_backend_option, fault_model, seed
+from .common import add_backend_option, fault_model, seed, status
 
 
 def add_parser(sub) -> None:
@@ -33,6 +32,8 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ..api import cache
+    from ..api.session import choose_backend
+    from ..ir import NUMBA_PACKAGE
     from ..output import artifacts
     from ..data import runs
     from ..analysis import track
@@ -42,13 +43,19 @@ def run(args: argparse.Namespace) -> int:
     c = cache.open_model(args.model).view
     run = runs.read_run(args.run_csv)
     track.check_run_of(run, c.model.name, args.run_csv)
-    backend = packages.resolve_backend(args.backend)
+    numba = Path(args.generated) / c.model.name / NUMBA_PACKAGE
+    methods = 2 if args.method == "both" else 1
+    backend, why = choose_backend(args.backend, numba, max(args.particles, 1) * len(run.time) * methods)
+    status(args, f"backend {backend} ({why})")
     package = packages.load_package(args.generated, c.model.name, args.model, backend=backend)
     name = fault_model(c, args.fault) if args.fault else "nominal"
-    seconds, compiled, _ = warmup.warm_up(package, steps=(name,))  # the filtered model's whole step
+    seconds, compiled, loaded = warmup.warm_up(package, steps=(name,))  # the filtered model's whole step
+    if backend == "numba":
+        cache.mark_warm(numba, compiled + loaded)
     if compiled:
-        print(f"numba backend: {compiled} kernels compiled in {seconds:.1f} s (kept in numba's disk cache)",
-              file=sys.stderr)
+        status(args, f"numba backend: {compiled} kernels compiled in {seconds:.1f} s (kept in numba's disk cache)")
+    elif loaded:
+        status(args, f"numba backend: {loaded} kernels loaded from numba's disk cache in {seconds:.1f} s")
     track.check_request(run, package, name, args.particles, args.start)
     results = []
     for method in (["gpf", "apf"] if args.method == "both" else [args.method]):

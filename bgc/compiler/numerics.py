@@ -318,7 +318,7 @@ def truth_source(ssm: StateSpaceModel) -> tuple[str, str, tuple[tuple[str, str, 
     names: dict[str, tuple[str, str, str]] = {}
     sources = []
     for fn in lambdified(ssm):
-        sources.append(inspect.getsource(fn))
+        sources.append(_numbered(inspect.getsource(fn)))
         for name in _names_read(fn.__code__):
             if name not in fn.__globals__:  # an attribute's name (numpy.exp's exp), or a builtin
                 continue
@@ -342,6 +342,16 @@ def truth_source(ssm: StateSpaceModel) -> tuple[str, str, tuple[tuple[str, str, 
                 return None
             names[name] = found
     return sources[0], sources[1], tuple(sorted(names.values()))
+
+
+def _numbered(text: str) -> str:
+    """lambdify's source with its argument names (``_Dummy_<counter>``, a
+    counter of the process) numbered from 0 in order of appearance: the same
+    equations always give the same text."""
+    import re
+
+    found: dict[str, str] = {}
+    return re.sub(r"\b_Dummy_[0-9]+\b", lambda m: found.setdefault(m.group(0), f"_Dummy_{len(found)}"), text)
 
 
 def _names_read(code) -> set[str]:
