@@ -11,7 +11,6 @@ from ..ir import NUMBA_PACKAGE
 from ..errors import (
     ArgumentTypeError, ArgumentValueError, TrackingError, printable,
 )
-from ..output import calibrated
 from ..analysis import calibrate as calibration
 from ..data import runs
 from ..model import package as packages
@@ -243,6 +242,8 @@ class Session:
         DataError
             A run that cannot be read or is not of this model.
         """
+        from ..output import calibrated  # yaml's writer: not needed to diagnose
+
         func = "bgc.Session.calibrate"
         if self.noise != (None, None):
             raise ArgumentValueError(f"{func}: a session opened with noise levels calibrates from the model file's "
