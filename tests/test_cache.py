@@ -286,3 +286,35 @@ def test_numbas_cached_kernels_are_noted_until_the_package_changes(root, tanks, 
     init = package / "__init__.py"
     os.utime(init, ns=(init.stat().st_atime_ns, init.stat().st_mtime_ns + 10**9))
     assert not cache.kernels_cached(package)
+
+
+def test_auto_for_a_campaign_counts_the_particle_steps_of_all_its_runs(root, tmp_path, monkeypatch):
+    """A local campaign's auto backend: numpy for a small campaign whose
+    kernels are not cached, numba once they are noted in numba's cache, and
+    numba for a campaign whose runs add up to work that repays compiling."""
+    from bgc.cli.experiment import _auto_backend
+    from bgc.experiment import campaign_file
+    from bgc.experiment.one_run import model_file
+
+    monkeypatch.setattr(packages, "numba_installed", lambda: True)
+    config = tmp_path / "c.yaml"
+
+    def campaign(particles: int, seeds: int):
+        config.write_text(textwrap.dedent(f"""\
+            campaign: auto
+            seed: 1
+            defaults: {{steps: 300, filters: [gpf], particles: [{particles}], seeds: {seeds}}}
+            groups:
+              - name: g
+                model: {ROOT / "models" / "two_tank.yaml"}
+                scenarios: [none, "R12:abrupt:1.0@60"]
+            """), encoding="utf-8")
+        return campaign_file.load_campaign(config)
+
+    small = campaign(100, 1)  # 2 runs of 100 particles over 300 steps
+    assert _auto_backend(small) == packages.auto_backend(60_000, False)
+    assert _auto_backend(small)[0] == "numpy"
+    large = campaign(20_000, 2)  # 4 runs: 24 000 000 particle-steps
+    assert _auto_backend(large)[0] == "numba"
+    cache.mark_warm(cache.numba_folder(cache.open_model(model_file(small.specs[0]))) + "/two_tank/numba_model", 44)
+    assert _auto_backend(campaign(1000, 1))[0] == "numba"  # cached, 600 000 particle-steps

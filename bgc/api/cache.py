@@ -17,6 +17,8 @@ else ``$XDG_CACHE_HOME/bgc``, else ``~/.cache/bgc``)::
     models/<key>/<model>/numba_model/      the compiled package's files, copied to:
     packages/<model>-<digest>/<model>/numba_model/   where numba's disk cache lasts
                                            (:func:`~bgc.api.folders.lasting_folder`)
+    warm/<digest>.json                     a compiled package whose kernels a warm-up
+                                           put in numba's disk cache (:func:`mark_warm`)
 
 Processes share it safely: an entry is written whole into a temporary
 folder beside its place and renamed into place (one atomic step: a reader
@@ -391,8 +393,8 @@ def items(root: Path | None = None) -> list[Item]:
         if _KEY.match(path.name) and path.is_dir() and not path.is_symlink():
             meta = _meta(path)
             if meta is not None:
-                details = (f"from {meta.get('source', '?')}, text {str(meta.get('model_sha256', ''))[:12]}, prior scale "
-                           f"{meta.get('prior_scale', '?')}")
+                details = (f"from {meta.get('source', '?')}, text {str(meta.get('model_sha256', ''))[:12]}, "
+                           f"prior scale {meta.get('prior_scale', '?')}")
                 found.append(Item("model", path, str(meta.get("model", "?")), _size(path),
                                   _mtime(path / "entry.json"), details))
         elif _TEMPORARY.match(path.name) and path.is_dir() and not path.is_symlink():
@@ -468,8 +470,12 @@ def _generated(init: Path) -> bool:
 
 
 def _size(folder: Path) -> int:
+    """The bytes of a file, or of the files under a folder."""
     if folder.is_file():
-        return _mtime(folder) and folder.stat().st_size
+        try:
+            return folder.stat().st_size
+        except OSError:
+            return 0
     total = 0
     for dirpath, _, files in os.walk(folder):
         for name in files:

@@ -124,8 +124,10 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         check_options(options, func)
     arguments.callable_or_none(func, "progress", progress)
     say = progress or (lambda text: None)
-    session = _session_of(func, model, process_noise, measurement_noise, generated, say, prior_scale, backend)
     opts = options or DiagnosisOptions(method=method, particles=particles, seed=seed)
+    length = steps if scenario is not None else (len(data.time) or None) if isinstance(data, runs.Run) else None
+    work = (opts.particles, length)  # auto's estimate (a run file's length: the model's)
+    session = _session_of(func, model, process_noise, measurement_noise, generated, say, prior_scale, backend, work)
     if scenario is not None:
         run, injected = _scenario_run(session, scenario, steps, seed, opts, say)
     else:

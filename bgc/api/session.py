@@ -29,14 +29,15 @@ from .calibrate import _check_calibrated, _model_text
 
 
 def _session_of(func: str, model, process_noise, measurement_noise, generated, say,
-                prior_scale: float | None = None, backend: str | None = None) -> Session:
+                prior_scale: float | None = None, backend: str | None = None,
+                work: tuple[int, int | None] | None = None) -> Session:
     """``model`` when it is a :class:`Session` (whose noise levels, prior
     scale and package apply: other ones are refused), else a new session of
-    the file."""
+    the file (``work``: the run's (particles, steps), for ``auto``)."""
     if not isinstance(model, Session):
         say("compiling the model")
         session = Session(model, process_noise, measurement_noise, generated,
-                          1.0 if prior_scale is None else prior_scale, backend)
+                          1.0 if prior_scale is None else prior_scale, backend, work=work)
         note = session.backend_note()
         if note:
             say(note)
