@@ -103,7 +103,7 @@ class Session:
             cache.numba_path(self._opened)
         #: why this backend: asked for by name, BGC_BACKEND, or auto's rule (:func:`bgc.model.package.auto_backend`)
         self.backend, self.backend_reason = choose_backend(
-            backend, numba, None if work is None else work[0] * (work[1] or c.model.settings.steps))
+            backend, numba, None if work is None else int(work[0]) * int(work[1] or c.model.settings.steps))
         levels = c.numerics.noise_at(process_noise, measurement_noise)
         self.levels = levels
         custom = levels if (process_noise, measurement_noise) != (None, None) else None
