@@ -138,9 +138,10 @@ class Session:
             return self._compiled
 
     def _load(self, generated, model: str, custom) -> None:
-        """Load this session's package of its backend (from ``generated``, or a
-        private folder for NumPy, or, for the compiled package, a folder of
-        bgc's cache that lasts, so numba's disk cache stays valid) and warm it up."""
+        """Load this session's package of its backend (from ``generated``, or
+        for NumPy the compile cache's entry (a private folder when the cache
+        could not be used), or, for the compiled package, a folder of bgc's
+        cache that lasts, so numba's disk cache stays valid) and warm it up."""
         c = self.view
         if generated is None:
             generated = self.folder if self.backend == "numpy" else cache.numba_folder(self._opened)
