@@ -90,26 +90,18 @@ def view(c: Compiled) -> CompiledView:
     the IRs' plain fields, the reports' labels, and the state equations as
     sympy's lambdify prints them for the truth simulator."""
     from .model.view import (
-        CompiledView, DbnEntry, DbnView, ElementView, EquationsView, MeasurementView, ModelView, NumericsView,
-        SignaturesView, TruthSource,
+        CompiledView, DbnModelView, DbnView, ElementView, EquationsView, MeasurementView, ModelView, NumericsView,
+        SignaturesView, TruthSource, plain,
     )
     from .output.labels import labels_of
 
-    m, ssm, s, n = c.model, c.equations, c.signatures, c.numerics
-    model = ModelView(m.name, m.description, m.source, m.parameters,
-                      tuple(ElementView(e.name, e.kind, e.initial, e.description, e.loc, e.noise, e.quantity)
-                            for e in m.elements),
-                      len(m.bonds), m.inputs,
-                      tuple(MeasurementView(y.name, y.text, y.noise, y.unit, y.description, y.loc)
-                            for y in m.measurements),
-                      m.faults, m.settings, m.source_sha256, m.domain)
+    m, ssm = c.model, c.equations
+    model = plain(ModelView, m, elements=tuple(plain(ElementView, e) for e in m.elements),
+                  measurements=tuple(plain(MeasurementView, y) for y in m.measurements))
     truth = numerics.truth_source(ssm)
-    equations = EquationsView(model, ssm.states, ssm.state_elements, ssm.inputs, ssm.parameters,
-                              ssm.parameter_values, ssm.outputs, ssm.initial, ssm.loops,
-                              None if truth is None else TruthSource(*truth, numerics.float_safe(ssm)))
-    signatures = SignaturesView(s.measurements, s.orders, s.signatures, s.ambiguity, s.structural, s.undetectable)
-    entry = lambda d: DbnEntry(d.name, d.parameter, d.kind)  # noqa: E731
-    dbns = DbnView(equations, entry(c.dbn.nominal), tuple(map(entry, c.dbn.faulty)))
-    nums = NumericsView(equations, n.eigenvalues, n.substeps, n.u0, n.y0, n.jacobian_diag, n.output_jacobian,
-                        n.x_scale, n.y_scale, n.process_factor, n.process_levels, n.faults)
-    return CompiledView(model, equations, signatures, dbns, nums, labels_of(m), c.package.modules)
+    equations = plain(EquationsView, ssm, model=model,
+                      truth=None if truth is None else TruthSource(*truth, numerics.float_safe(ssm)))
+    dbns = plain(DbnModelView, c.dbn, equations=equations, nominal=plain(DbnView, c.dbn.nominal),
+                 faulty=tuple(plain(DbnView, d) for d in c.dbn.faulty))
+    return CompiledView(model, equations, plain(SignaturesView, c.signatures), dbns,
+                        plain(NumericsView, c.numerics, equations=equations), labels_of(m), c.package.modules)

@@ -216,32 +216,22 @@ def _read(entry: Path, source: str) -> CompiledView:
 
 
 def _write(entry: Path, c, view_text: str, prior_scale: float) -> None:
-    """Write ``c``'s entry: into a new temporary folder beside it, renamed
-    into place; when another process put it there first, its copy stays."""
-    from .folders import numba_digest
+    """Write ``c``'s entry whole (:func:`~bgc.api.folders.write_whole`); when
+    another process put it there first, its copy stays."""
+    from .folders import numba_digest, write_package, write_whole
 
-    entry.parent.mkdir(parents=True, exist_ok=True)
-    fresh = Path(tempfile.mkdtemp(prefix=f".{entry.name}-", dir=entry.parent))
-    try:
-        name = c.model.name
-        for folder, files in ((PACKAGE, c.package.files), (NUMBA_PACKAGE, c.package.numba_files)):
-            package = fresh / name / folder
-            package.mkdir(parents=True)
-            for rel, text in files:
-                (package / rel).write_text(text, encoding="utf-8")
+    name = c.model.name
+    meta = {"generated_by": "bgc", "format": FORMAT, "bgc": __version__, "model": name,
+            "source": str(c.model.source), "model_sha256": c.model.source_sha256, "prior_scale": float(prior_scale),
+            "numba": numba_digest(c)}
+
+    def fill(fresh: Path) -> None:
+        write_package(fresh / name / PACKAGE, c.package.files)
+        write_package(fresh / name / NUMBA_PACKAGE, c.package.numba_files)
         (fresh / "view.json").write_text(view_text, encoding="utf-8")
-        meta = {"generated_by": "bgc", "format": FORMAT, "bgc": __version__, "model": name,
-                "source": str(c.model.source), "model_sha256": c.model.source_sha256,
-                "prior_scale": float(prior_scale),
-                "numba": numba_digest(c)}
         (fresh / "entry.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-        try:
-            os.rename(fresh, entry)
-        except OSError:
-            if not (entry / "entry.json").exists():
-                raise
-    finally:
-        shutil.rmtree(fresh, ignore_errors=True)  # gone when renamed into place
+
+    write_whole(entry, fill)
 
 
 def numba_folder(opened: Opened) -> str:

@@ -98,11 +98,39 @@ def _compiled(model: str | Path, prior_scale: float = 1.0) -> tuple[pipeline.Com
 def package_folder(c: pipeline.Compiled) -> str:
     """A new private folder of this process holding ``c``'s NumPy package."""
     folder = private_folder("bgc-")
-    root = Path(folder) / c.model.name / PACKAGE
-    root.mkdir(parents=True)
-    for rel, text in c.package.files:
-        (root / rel).write_text(text, encoding="utf-8")
+    write_package(Path(folder) / c.model.name / PACKAGE, c.package.files)
     return folder
+
+
+def write_package(folder: Path, files) -> None:
+    """Write a package's ``files`` ((path, text) pairs) into ``folder``, made here."""
+    folder.mkdir(parents=True)
+    for rel, text in files:
+        (folder / rel).write_text(text, encoding="utf-8")
+
+
+def write_whole(place: Path, fill) -> None:
+    """Make the folder ``place`` whole or not at all: ``fill(folder)``
+    writes into a new temporary folder beside it, which is then renamed into
+    place (one atomic step: a reader sees all of it or none). When another
+    process put it there first, that one stays and this copy is dropped.
+
+    Raises
+    ------
+    OSError
+        It could not be written (and is not there).
+    """
+    place.parent.mkdir(parents=True, exist_ok=True)
+    fresh = Path(tempfile.mkdtemp(prefix=f".{place.name}-", dir=place.parent))
+    try:
+        fill(fresh)
+        try:
+            os.rename(fresh, place)
+        except OSError:
+            if not place.exists():
+                raise
+    finally:
+        shutil.rmtree(fresh, ignore_errors=True)  # gone once renamed into place
 
 
 def cache_root() -> Path:
@@ -139,18 +167,8 @@ def lasting_folder(name: str, model: str, files) -> str:
     renaming a finished private folder into place (processes racing to
     write it: one wins, the others' copies are dropped)."""
     root = cache_root() / "packages" / name
-    if (root / model / NUMBA_PACKAGE / "__init__.py").exists():
-        return str(root)
-    root.parent.mkdir(parents=True, exist_ok=True)
-    fresh = Path(tempfile.mkdtemp(prefix=f".{root.name}-", dir=root.parent))
-    package = fresh / model / NUMBA_PACKAGE
-    package.mkdir(parents=True)
-    for rel, text in files:
-        (package / rel).write_text(text, encoding="utf-8")
-    try:
-        os.rename(fresh, root)
-    except OSError:  # another process put it there first
-        shutil.rmtree(fresh, ignore_errors=True)
+    if not (root / model / NUMBA_PACKAGE / "__init__.py").exists():
+        write_whole(root, lambda fresh: write_package(fresh / model / NUMBA_PACKAGE, files))
     return str(root)
 
 

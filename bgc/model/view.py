@@ -41,59 +41,38 @@ from typing import Any
 
 from ..errors import SourceLoc
 from ..ir import (
-    BondGraph, DbnModel, FaultCandidate, FaultNumerics, FaultSignatures, Input, Numerics, Parameter, Settings,
-    Signal, Signature,
+    Bond, BondGraph, Dbn, DbnModel, Element, FaultCandidate, FaultNumerics, FaultSignatures, Input, Measurement,
+    Numerics, Parameter, Settings, Signal, Signature, StateSpaceModel,
 )
 from ..output.labels import Labels
 
 
-@dataclass(frozen=True, slots=True)
-class ElementView:
-    """The plain part of an :class:`~bgc.ir.Element`: no law, no expression."""
+def _plain_part(name: str, ir: type, symbolic: tuple[str, ...], doc: str, *, first: tuple[tuple[str, str], ...] = (),
+                last: tuple[tuple[str, str], ...] = (), views: dict[str, str] | None = None,
+                methods: tuple[str, ...] = ()) -> type:
+    """The view of the IR class ``ir``: a frozen dataclass ``name`` of every field of it but the
+    ``symbolic`` ones (sympy expressions, graphs), in its order, after the
+    fields ``first`` and before ``last`` ((name, type) pairs); ``views``:
+    fields that hold views (name -> type); ``methods``: the IR's own methods
+    and properties it takes, the same functions. A field added to the IR is
+    in its view."""
+    from dataclasses import make_dataclass
 
-    name: str
-    kind: str
-    initial: float | None
-    description: str | None
-    loc: SourceLoc
-    noise: float | None = None
-    quantity: str | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class MeasurementView:
-    """The plain part of a :class:`~bgc.ir.Measurement`: ``text`` is its
-    expression as the model file writes it."""
-
-    name: str
-    text: str
-    noise: float
-    unit: str | None
-    description: str | None
-    loc: SourceLoc
+    kept = [(f.name, (views or {}).get(f.name, f.type)) for f in fields(ir) if f.name not in symbolic]
+    namespace = {m: ir.__dict__[m] for m in methods} | {"__doc__": doc, "__module__": __name__}
+    return make_dataclass(name, [*first, *kept, *last], frozen=True, slots=True, namespace=namespace)
 
 
-@dataclass(frozen=True, slots=True)
-class ModelView:
-    """The plain part of a :class:`~bgc.ir.BondGraph` (``bonds``: how many)."""
+ElementView = _plain_part("ElementView", Element, ("parameter", "law", "source"),
+                          "An :class:`~bgc.ir.Element` without its expressions (parameter, law, source).")
 
-    name: str
-    description: str
-    source: str
-    parameters: tuple[Parameter, ...]
-    elements: tuple[ElementView, ...]
-    bonds: int
-    inputs: tuple[Input, ...]
-    measurements: tuple[MeasurementView, ...]
-    faults: tuple[FaultCandidate, ...]
-    settings: Settings
-    source_sha256: str = ""
-    domain: str | None = None
+MeasurementView = _plain_part("MeasurementView", Measurement, ("expr",),
+                              "A :class:`~bgc.ir.Measurement` without its expression (``text``: as the model "
+                              "file writes it).")
 
-    element = BondGraph.element
-    parameter_values = BondGraph.parameter_values
-    unit = BondGraph.unit
-    display_source = BondGraph.display_source
+ModelView = _plain_part("ModelView", BondGraph, (), "A :class:`~bgc.ir.BondGraph` whose elements and measurements are views.",
+                        views={"elements": "tuple[ElementView, ...]", "measurements": "tuple[MeasurementView, ...]"},
+                        methods=("element", "bond", "bonds_of", "parameter_values", "unit", "display_source"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -140,78 +119,33 @@ class TruthSource:
 TRUTH_MODULES = ("numpy", "numpy.linalg", "builtins")
 
 
-@dataclass(frozen=True, slots=True)
-class EquationsView:
-    """The plain part of a :class:`~bgc.ir.StateSpaceModel`: names, values,
-    sizes; ``truth``: the equations as lambdify printed them (None: the
-    truth needs sympy, :func:`bgc.compiler.numerics.truth_source`)."""
+EquationsView = _plain_part(
+    "EquationsView", StateSpaceModel, ("tcg", "rhs", "output_exprs", "variables"),
+    "A :class:`~bgc.ir.StateSpaceModel`'s names, values and sizes, its model's view (``model``), and ``truth``: "
+    "the equations as lambdify printed them (None: the truth needs sympy, "
+    ":func:`bgc.compiler.numerics.truth_source`).",
+    first=(("model", "ModelView"),), last=(("truth", "TruthSource | None"),))
 
-    model: ModelView
-    states: tuple[str, ...]
-    state_elements: tuple[str, ...]
-    inputs: tuple[str, ...]
-    parameters: tuple[str, ...]
-    parameter_values: tuple[float, ...]
-    outputs: tuple[str, ...]
-    initial: tuple[float, ...]
-    loops: tuple[tuple[str, ...], ...]
-    truth: TruthSource | None
+SignaturesView = _plain_part("SignaturesView", FaultSignatures, ("equations",),
+                             "The plain part of :class:`~bgc.ir.FaultSignatures`: all of it but the equations.",
+                             methods=("get",))
 
+NumericsView = _plain_part("NumericsView", Numerics, ("dbn",),
+                           "The plain part of :class:`~bgc.ir.Numerics`: every number, the equations' view.",
+                           first=(("equations", "EquationsView"),), methods=("noise", "fault", "noise_at"))
 
-@dataclass(frozen=True, slots=True)
-class SignaturesView:
-    """The plain part of :class:`~bgc.ir.FaultSignatures` (all of it but the equations)."""
+DbnView = _plain_part("DbnView", Dbn, ("graph",), "A :class:`~bgc.ir.Dbn`'s name, the parameter its fault changes and the "
+                      "fault kind, without its graph.")
 
-    measurements: tuple[str, ...]
-    orders: int
-    signatures: tuple[Signature, ...]
-    ambiguity: tuple[tuple[str, ...], ...]
-    structural: tuple[tuple[str, ...], ...]
-    undetectable: tuple[str, ...]
-
-    get = FaultSignatures.get
+DbnModelView = _plain_part("DbnModelView", DbnModel, (), "The names of a :class:`~bgc.ir.DbnModel`'s DBNs (:meth:`get` finds one "
+                           "as it does).", views={"nominal": "DbnView", "faulty": "tuple[DbnView, ...]"},
+                           methods=("get",))
 
 
-@dataclass(frozen=True, slots=True)
-class NumericsView:
-    """The plain part of :class:`~bgc.ir.Numerics`: every number, the equations' view."""
-
-    equations: EquationsView
-    eigenvalues: tuple[complex, ...]
-    substeps: int
-    u0: tuple[float, ...]
-    y0: tuple[float, ...]
-    jacobian_diag: tuple[float, ...]
-    output_jacobian: tuple[tuple[float, ...], ...]
-    x_scale: tuple[float, ...]
-    y_scale: tuple[float, ...]
-    process_factor: tuple[float, ...]
-    process_levels: tuple[float | None, ...]
-    faults: tuple[FaultNumerics, ...]
-
-    noise = Numerics.noise
-    fault = Numerics.fault
-    noise_at = Numerics.noise_at
-
-
-@dataclass(frozen=True, slots=True)
-class DbnEntry:
-    """One DBN's name (``nominal``, ``PARAM:KIND``), the parameter its fault changes and the fault kind."""
-
-    name: str
-    parameter: str | None
-    kind: str | None
-
-
-@dataclass(frozen=True, slots=True)
-class DbnView:
-    """The names of a :class:`~bgc.ir.DbnModel`'s DBNs (:meth:`get` finds one as it does)."""
-
-    equations: EquationsView
-    nominal: DbnEntry
-    faulty: tuple[DbnEntry, ...]
-
-    get = DbnModel.get
+def plain(view: type, ir, **given):
+    """The view ``view`` of the IR value ``ir``: its fields taken from
+    ``ir``, but those ``given``."""
+    return view(**{f.name: given[f.name] if f.name in given else getattr(ir, f.name) for f in fields(view)})
 
 
 @dataclass(frozen=True, slots=True)
@@ -223,7 +157,7 @@ class CompiledView:
     model: ModelView
     equations: EquationsView
     signatures: SignaturesView
-    dbn: DbnView
+    dbn: DbnModelView
     numerics: NumericsView
     labels: Labels
     modules: tuple[str, ...]
@@ -236,15 +170,15 @@ class CompiledView:
 
 #: Every type a view holds, by the name :func:`to_json` writes (nothing else is read back).
 _TYPES = {cls.__name__: cls for cls in (
-    CompiledView, ModelView, ElementView, MeasurementView, EquationsView, TruthSource, SignaturesView, DbnView,
-    DbnEntry, NumericsView, Parameter, Input, Signal, FaultCandidate, Settings, Signature, FaultNumerics, Labels)}
+    CompiledView, ModelView, ElementView, MeasurementView, EquationsView, TruthSource, SignaturesView, DbnModelView,
+    DbnView, NumericsView, Parameter, Bond, Input, Signal, FaultCandidate, Settings, Signature, FaultNumerics, Labels)}
 
 #: The version of the JSON layout (a reader refuses another).
 FORMAT = 1
 
 #: Fields that refer back to a value written elsewhere in the view (the one
 #: model, the one equations' view): left out of the JSON, linked on reading.
-_LINKS = {("EquationsView", "model"), ("NumericsView", "equations"), ("DbnView", "equations")}
+_LINKS = {("EquationsView", "model"), ("NumericsView", "equations"), ("DbnModelView", "equations")}
 
 
 def to_json(view: CompiledView) -> str:
