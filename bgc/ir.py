@@ -2,6 +2,9 @@
 
 Every IR is a frozen dataclass holding tuples, sympy expressions and frozen
 networkx graphs. Stages take one IR and return the next; nothing here does I/O.
+Importing this module does not import sympy (the runtime reads the IRs' plain
+types, :class:`Settings`, :class:`FaultCandidate`, :class:`NoiseLevels`, ...,
+and a compiled model's plain-data view, :mod:`bgc.model.view`, without it).
 
 Pipeline order: :class:`RawModel` -> :class:`BondGraph` -> :class:`CausalBondGraph`
 -> :class:`TemporalCausalGraph` -> :class:`StateSpaceModel` -> :class:`DbnModel`
@@ -12,18 +15,21 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import PurePath
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
-import sympy
 
 from .errors import SourceLoc
 from .kinds import element_kind
 
+if TYPE_CHECKING:
+    import sympy
 
 
 def sym(name: str) -> sympy.Symbol:
     """The one sympy symbol bgc uses for a name (no assumptions: they are slow)."""
+    import sympy
+
     return sympy.Symbol(name)
 
 

@@ -11,18 +11,25 @@ that checks is a model that compiles); only the writing differs.
 ('e4', 'e8', 'f10')
 >>> c.package.modules[:2]
 ('nominal', 'C1_abrupt')
+
+:func:`view` gives what the runtime reads of a compilation as plain data
+(:mod:`bgc.model.view`), which the compile cache keeps (:mod:`bgc.api.cache`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .compiler import causality, codegen, dbn, equations, load, numerics, signatures, tcg, validate
 from .ir import (
     BondGraph, CausalBondGraph, DbnModel, FaultSignatures, GeneratedPackage, Numerics, RawModel,
     StateSpaceModel, TemporalCausalGraph,
 )
+
+if TYPE_CHECKING:
+    from .model.view import CompiledView
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,10 +47,12 @@ class Compiled:
     package: GeneratedPackage
 
 
-def compile_model(path: str | Path, prior_scale: float = 1.0) -> Compiled:
+def compile_model(path: str | Path, prior_scale: float = 1.0, *, text: str | None = None) -> Compiled:
     """Run every stage, from the model file to the generated package (in
-    memory); ``prior_scale`` widens every fault's prior (``--prior-scale``)."""
-    raw = load.load(path)                        # path -> RawModel
+    memory); ``prior_scale`` widens every fault's prior (``--prior-scale``);
+    ``text``: the file's text when it has been read (the compile cache
+    compiles the text it hashed), else the file is read."""
+    raw = load.load(path) if text is None else load.loads(text, str(path))  # path -> RawModel
     model = validate.validate(raw)               # RawModel -> BondGraph
     causal = causality.assign(model)             # BondGraph -> CausalBondGraph
     graph = tcg.build(causal)                    # CausalBondGraph -> TemporalCausalGraph
@@ -74,3 +83,25 @@ def pictures(c: Compiled, engine: str = "auto") -> dict[str, bytes]:
     from .output import artifacts, draw
 
     return {name: artifacts.seal(data) for name, data in draw.pictures(c.dbn, engine).items()}
+
+
+def view(c: Compiled) -> CompiledView:
+    """What the runtime reads of ``c``, as plain data (:mod:`bgc.model.view`):
+    the IRs' plain fields, the reports' labels, and the state equations as
+    sympy's lambdify prints them for the truth simulator."""
+    from .model.view import (
+        CompiledView, DbnModelView, DbnView, ElementView, EquationsView, MeasurementView, ModelView, NumericsView,
+        SignaturesView, TruthSource, plain,
+    )
+    from .output.labels import labels_of
+
+    m, ssm = c.model, c.equations
+    model = plain(ModelView, m, elements=tuple(plain(ElementView, e) for e in m.elements),
+                  measurements=tuple(plain(MeasurementView, y) for y in m.measurements))
+    truth = numerics.truth_source(ssm)
+    equations = plain(EquationsView, ssm, model=model,
+                      truth=None if truth is None else TruthSource(*truth, numerics.float_safe(ssm)))
+    dbns = plain(DbnModelView, c.dbn, equations=equations, nominal=plain(DbnView, c.dbn.nominal),
+                 faulty=tuple(plain(DbnView, d) for d in c.dbn.faulty))
+    return CompiledView(model, equations, plain(SignaturesView, c.signatures), dbns,
+                        plain(NumericsView, c.numerics, equations=equations), labels_of(m), c.package.modules)

@@ -1,6 +1,9 @@
 """Shared test set-up: hypothesis profiles (``ci`` is derandomized)."""
 
+import atexit
 import os
+import shutil
+import tempfile
 import tracemalloc
 from functools import lru_cache
 from pathlib import Path
@@ -17,6 +20,11 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
 # of tests/test_diagnose.py when numba is installed (shipped models only), and a run may choose:
 # BGC_BACKEND=numba make test.
 os.environ.setdefault("BGC_BACKEND", "numpy")
+# bgc's cache (models compiled once, numba's packages) in a folder of this test run, removed at its end,
+# unless one is given (BGC_CACHE_DIR=~/.cache/bgc make test keeps it from run to run).
+if not os.environ.get("BGC_CACHE_DIR"):
+    os.environ["BGC_CACHE_DIR"] = tempfile.mkdtemp(prefix="bgc-test-cache-")
+    atexit.register(shutil.rmtree, os.environ["BGC_CACHE_DIR"], True)
 
 ROOT = Path(__file__).resolve().parent.parent
 MODELS = ROOT / "models"

@@ -217,7 +217,7 @@ def test_the_static_posterior_and_its_verdict_do_not_depend_on_the_backend():
 
 
 def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_path):
-    """``bgc diagnose --backend numba`` says in one line how its kernels were
+    """``bgc diagnose --backend numba -v`` says in one line how its kernels were
     had (compiled or loaded) and writes the same verdict as on NumPy; a
     campaign's rows are the same on both backends but for the run time."""
     import csv
@@ -228,7 +228,7 @@ def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_pat
     for backend in ("numpy", "numba"):
         out = subprocess.run([sys.executable, "-m", "bgc", "diagnose", "models/circuit.yaml", "--scenario",
                               "R2:abrupt:0.6@5", "--particles", "200", "--generated", str(ROOT / "generated"),
-                              "--backend", backend, "-o", str(tmp_path / f"d-{backend}")],
+                              "--backend", backend, "-v", "-o", str(tmp_path / f"d-{backend}")],
                              cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
         assert out.returncode == 0, out.stderr
         lines[backend] = out.stdout.splitlines()[0]
@@ -325,8 +325,10 @@ def test_integers_beyond_64_bits_reach_the_compiled_kernels_as_the_float_numpy_m
 
 
 def test_auto_falls_back_to_numpy_when_the_compiled_package_is_missing(tmp_path, monkeypatch):
-    """A folder written by an older bgc (no numba_model): ``auto`` runs on
-    NumPy and says why in its one line; ``numba`` by name is refused in one line."""
+    """A folder written by an older bgc (no numba_model): ``auto``, for work
+    that repays compiling the kernels, runs on NumPy and says why in its one
+    line (for less work it does not try numba: no kernels are cached);
+    ``numba`` by name is refused in one line."""
     import shutil
 
     import bgc
@@ -334,7 +336,9 @@ def test_auto_falls_back_to_numpy_when_the_compiled_package_is_missing(tmp_path,
     shutil.copytree(ROOT / "generated" / "circuit", tmp_path / "circuit",
                     ignore=shutil.ignore_patterns("numba_model", "__pycache__"))
     monkeypatch.delenv("BGC_BACKEND", raising=False)
-    session = bgc.open("models/circuit.yaml", generated=tmp_path)
+    small = bgc.open("models/circuit.yaml", generated=tmp_path, work=(1000, 300))
+    assert small.backend == "numpy" and small.fallback is None and "not compiled yet" in small.backend_reason
+    session = bgc.open("models/circuit.yaml", generated=tmp_path, work=(100_000, 1000))
     assert session.backend == "numpy" and "numba backend unavailable" in session.backend_note()
     assert "numba_model" in session.backend_note()
     with pytest.raises(TrackingError, match="--backend numpy"):

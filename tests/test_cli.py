@@ -249,3 +249,35 @@ def test_filter_without_the_compiled_package_names_generated(tmp_path):
     assert run("simulate", str(model), "--steps", "5", "-o", str(csv)).returncode == 0
     line = one_line_error(run("filter", str(model), str(csv), "--generated", str(tmp_path / "nowhere")))
     assert "point --generated at the folder bgc compile -o wrote" in line
+
+
+def test_a_successful_run_is_quiet_on_stderr_and_says_what_it_chose_with_v(tmp_path, capsys):
+    """stderr holds errors and warnings only: a diagnosis that succeeds
+    writes nothing there; with -v (after the command or before it) it says
+    where the model came from and the backend it runs on, and why."""
+    base = ["diagnose", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@1.5", "--particles", "100", "--steps", "60"]
+    assert main([*base, "-o", str(tmp_path / "a")]) == 0
+    assert capsys.readouterr().err == ""
+    assert main([*base, "-v", "-o", str(tmp_path / "b")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err and all(line.startswith("bgc: ") for line in err), err
+    assert any(line.startswith("bgc: model circuit: ") for line in err), err
+    assert sum(line.startswith("bgc: backend numpy (") for line in err) == 1, err
+    assert main(["-v", *base, "-o", str(tmp_path / "c")]) == 0
+    assert any(line.startswith("bgc: backend numpy (") for line in capsys.readouterr().err.splitlines())
+    for command in (["simulate", "models/circuit.yaml", "--steps", "20", "-o", str(tmp_path / "r.csv")],
+                    ["filter", "models/circuit.yaml", str(tmp_path / "r.csv"), "--particles", "50"],
+                    ["cache"]):
+        assert main(command) == 0, command
+        assert capsys.readouterr().err == "", command
+
+
+def test_cache_clear_and_list_work_on_an_empty_or_missing_cache_folder(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("BGC_CACHE_DIR", str(tmp_path / "nothing-yet"))
+    assert main(["cache"]) == 0
+    assert "(empty)" in capsys.readouterr().out
+    assert main(["cache", "clear"]) == 0
+    assert "removed from" in capsys.readouterr().out
+    assert not (tmp_path / "nothing-yet").exists()
+    r = run("cache", "empty")
+    assert r.returncode == 2 and "invalid choice" in r.stderr

@@ -1,7 +1,8 @@
 """Truth simulator: the plant with noise and an injected fault, for testing diagnosers.
 
 It integrates the sympy state equations (``sympy.lambdify`` to NumPy; a path
-independent of the generated filter code) with classical RK4 on a step
+independent of the generated filter code; from a compiled model's view, the
+code lambdify printed, kept by the compile cache: :class:`bgc.model.view.TruthSource`) with classical RK4 on a step
 ``TRUTH_REFINEMENT`` times finer than the generated filters use, so a filter is
 never handed its own discretisation as the truth.
 
@@ -21,13 +22,14 @@ parameter at ``t_k``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..compiler.numerics import float_safe, lambdified, rk4_sample
+from ..compiler.rk4 import rk4_sample
 from ..errors import SimulationError
 from ..ir import Numerics
 from ..kinds import FAULT_KINDS, fault_kind, kinds_for
@@ -221,7 +223,7 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
     noise = num.noise_at(options.process_noise, options.measurement_noise)
     substeps = num.substeps * TRUTH_REFINEMENT
     h = dt / substeps
-    f, g = lambdified(ssm)
+    f, g, floats = truth_functions(ssm)
     theta0 = np.array(ssm.parameter_values, dtype=float)
     target = index = column = nominal = kind = None
     if fault is not None:  # what it changes: a parameter (index), an input or a sensor's reading (column)
@@ -257,8 +259,6 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
         level = fault.value(nominal, when(t, interval_start))
         v[column] = level * u[column] if kind.suffix == "gain" else u[column] + level
         return v
-
-    floats = float_safe(ssm)
 
     def evaluate(fn, x, u, theta):
         """fn on Python floats when that gives the same numbers (float_safe),
@@ -324,6 +324,32 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
     )
     return SimulationResult(model.name, src, times, tuple(ssm.inputs), inputs, tuple(ssm.outputs), noisy, clean,
                             tuple(ssm.states), states, fault, param, header)
+
+
+def truth_functions(ssm) -> tuple:
+    """(dx/dt, y, whether they give the same numbers on Python floats as on
+    NumPy scalars) of the state equations ``ssm``: sympy's lambdify of a
+    compilation's :class:`~bgc.ir.StateSpaceModel`, or the same code made
+    again from the text a view keeps (:class:`bgc.model.view.TruthSource`,
+    without sympy)."""
+    truth = getattr(ssm, "truth", None)
+    if truth is not None:
+        return (*_made(truth), truth.float_safe)
+    from ..compiler.numerics import lambdified
+
+    return (*lambdified(ssm), float_safe(ssm))
+
+
+@functools.lru_cache(maxsize=8)
+def _made(truth) -> tuple:
+    return truth.functions()
+
+
+def float_safe(ssm) -> bool:
+    """:func:`bgc.compiler.numerics.float_safe` of a compilation's equations."""
+    from ..compiler import numerics
+
+    return numerics.float_safe(ssm)
 
 
 def to_csv(r: SimulationResult) -> str:

@@ -8,8 +8,9 @@
 >>> round(e.value, 1), e.low < 0.6 < e.high
 (0.6, True)
 
-:func:`diagnose` compiles the model, generates its NumPy package (into a
-private folder, or uses the one ``generated`` points at), reads the run (or
+:func:`diagnose` compiles the model and generates its NumPy package, or
+reads both from bgc's compile cache (:mod:`bgc.api.cache`; or uses the
+package ``generated`` points at), reads the run (or
 simulates ``scenario`` with the truth simulator), and runs
 :func:`bgc.diagnosis.diagnose.diagnose`. :mod:`bgc.output.report` turns the
 result into ``report.json``, ``report.md``, ``report.html`` and plots:

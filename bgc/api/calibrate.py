@@ -6,7 +6,6 @@ import hashlib
 from pathlib import Path
 
 
-from .. import pipeline
 from ..errors import (
     CalibrationError, OutputError, printable,
 )
@@ -39,22 +38,25 @@ def check_calibration_output(path: str | Path, model: str | Path, data=()) -> No
     artifacts.check_writable(out, "the calibrated model")
 
 
-def _model_text(path: str, c: pipeline.Compiled) -> str:
-    """The model file's text, as it was compiled (its hash checked)."""
+def _model_text(path: str, c) -> str:
+    """The model file's text, as it was compiled (its hash checked; ``c``: a
+    :class:`bgc.pipeline.Compiled` or its view)."""
     try:
         text = Path(path).read_bytes().decode("utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise CalibrationError(f"{printable(path)}: cannot read the model file again ({exc})", None,
                                "check the path") from None
-    if hashlib.sha256(text.encode("utf-8")).hexdigest() != c.raw.sha256:
+    if hashlib.sha256(text.encode("utf-8")).hexdigest() != c.model.source_sha256:
         raise CalibrationError(f"{printable(path)} changed since it was compiled", None,
                                "open the model again (bgc.open) and calibrate")
     return text
 
 
-def _check_calibrated(text: str, result: calibration.Calibration, c: pipeline.Compiled) -> None:
-    """The calibrated text reads back, by bgc's own reader and validator,
-    with every estimate as written (else a bug: InternalError)."""
+def _check_calibrated(text: str, result: calibration.Calibration, c) -> None:
+    """The calibrated text reads back, by bgc's own reader and validator
+    (the compiler's first stages: sympy is imported here), with every
+    estimate as written (else a bug: InternalError); ``c``: the model's
+    compilation or its view."""
     from ..compiler import load, validate
     from ..errors import BgcError, InternalError
     from ..output.calibrated import number

@@ -10,7 +10,6 @@ from .. import arguments
 from ..errors import (
     ArgumentTypeError, ArgumentValueError, SimulationError, printable,
 )
-from ..output.labels import labels_of
 from ..data import runs
 from ..analysis import simulate
 from ..analysis import track
@@ -128,15 +127,17 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         check_options(options, func)
     arguments.callable_or_none(func, "progress", progress)
     say = progress or (lambda text: None)
-    session = _session_of(func, model, process_noise, measurement_noise, generated, say, prior_scale, backend)
     opts = options or DiagnosisOptions(method=method, particles=particles, seed=seed)
+    length = steps if scenario is not None else (len(data.time) or None) if isinstance(data, runs.Run) else None
+    work = (opts.particles, length)  # auto's estimate (a run file's length: the model's)
+    session = _session_of(func, model, process_noise, measurement_noise, generated, say, prior_scale, backend, work)
     if scenario is not None:
         run, injected = _scenario_run(session, scenario, steps, seed, opts, say)
     else:
         run, injected = _recorded_run(session, data, opts), None
     if isinstance(scenario, simulate.FaultInjection):
         scenario = scenario.text
-    return _run(session.compiled, run, session.package, scenario, injected, session.noise, session.levels, opts,
+    return _run(session.view, run, session.package, scenario, injected, session.noise, session.levels, opts,
                 say)
 
 
@@ -144,7 +145,7 @@ def _scenario_run(session: Session, scenario, steps: int | None, seed: int, opts
                   say) -> tuple[runs.Run, simulate.FaultInjection | None]:
     """The run of a simulated scenario at the session's noise levels, checked
     (its onset inside the run, its length within the diagnosis's memory)."""
-    c = session.compiled
+    c = session.view
     T = steps or c.model.settings.steps
     where = "--steps" if steps is not None else f"{printable(c.model.source)}: simulation.steps"
     simulate.check_steps(T, c.numerics, where)
@@ -166,7 +167,7 @@ def _scenario_run(session: Session, scenario, steps: int | None, seed: int, opts
 def _recorded_run(session: Session, data, opts: DiagnosisOptions) -> runs.Run:
     """A recorded run (a file or a Run), checked: of this model, its grid
     within the diagnosis's memory."""
-    c = session.compiled
+    c = session.view
     run = runs.check_run(data) if isinstance(data, runs.Run) else runs.read_run(data)
     track.check_run_of(run, c.model.name)
     grid = grid_steps(run.time, c.model.settings.dt)  # the model's time grid: a gap's steps count too
@@ -179,7 +180,6 @@ def _recorded_run(session: Session, data, opts: DiagnosisOptions) -> runs.Run:
 def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> DiagnosisReport:
     track.check_request(run, package, "nominal", opts.particles, None, columns=False)
     opts = with_horizon(opts, c.model.settings)
-    priors = {f.parameter: f.prior for f in c.model.faults}
-    result = run_diagnosis(run, package, c.signatures, priors, opts, say)
+    result = run_diagnosis(run, package, c.signatures, c.priors, opts, say)
     return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,
-                           result, labels_of(c.model))
+                           result, c.labels)

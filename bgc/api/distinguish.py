@@ -15,7 +15,8 @@ from ..kinds import DIRECTIONS, fault_kind
 from ..analysis import distinguish as distinction
 from ..analysis import simulate
 from ..model import package as packages
-from .folders import _LOCK, _compiled
+from . import cache
+from .folders import _LOCK
 from .reports import DistinguishabilityReport
 from .session import Session
 from ..model.protocol import onset_sample
@@ -86,10 +87,11 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
     arguments.callable_or_none(func, "progress", progress)
     say = progress or (lambda text: None)
     if isinstance(model, Session):
-        c, private = model.compiled, model.folder
+        c, private = model.view, model.folder
     else:
         say("compiling the model")
-        c, private = _compiled(model)
+        opened = cache.open_model(model)
+        c, private = opened.view, opened.folder
     num = c.numerics
     if steps is not None:
         simulate.check_steps(steps, num, "--steps")

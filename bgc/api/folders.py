@@ -11,9 +11,13 @@ import threading
 from pathlib import Path
 
 
-from .. import arguments, pipeline
-from ..compiler.printing import escape
+from typing import TYPE_CHECKING
+
+from .. import arguments
 from ..ir import NUMBA_PACKAGE, PACKAGE
+
+if TYPE_CHECKING:
+    from .. import pipeline
 
 
 #: The compile cache, the private folders and the package imports are shared
@@ -83,14 +87,50 @@ def _compiled(model: str | Path, prior_scale: float = 1.0) -> tuple[pipeline.Com
     """Compile ``model`` (its priors widened by ``prior_scale``) and write
     its generated package into a new private folder of this process: (the
     compiled model, the folder). Nothing is kept between calls: a
-    :class:`Session` holds what one model needs."""
+    :class:`Session` holds what one model needs (the compile cache,
+    :mod:`bgc.api.cache`, keeps it from process to process)."""
+    from .. import pipeline
+
     c = pipeline.compile_model(model, prior_scale)
+    return c, package_folder(c)
+
+
+def package_folder(c: pipeline.Compiled) -> str:
+    """A new private folder of this process holding ``c``'s NumPy package."""
     folder = private_folder("bgc-")
-    root = Path(folder) / c.model.name / PACKAGE
-    root.mkdir(parents=True)
-    for rel, text in c.package.files:
-        (root / rel).write_text(text, encoding="utf-8")
-    return c, folder
+    write_package(Path(folder) / c.model.name / PACKAGE, c.package.files)
+    return folder
+
+
+def write_package(folder: Path, files) -> None:
+    """Write a package's ``files`` ((path, text) pairs) into ``folder``, made here."""
+    folder.mkdir(parents=True)
+    for rel, text in files:
+        (folder / rel).write_text(text, encoding="utf-8")
+
+
+def write_whole(place: Path, fill) -> None:
+    """Make the folder ``place`` whole or not at all: ``fill(folder)``
+    writes into a new temporary folder beside it, which is then renamed into
+    place (one atomic step: a reader sees all of it or none). When another
+    process put it there first, that one stays and this copy is dropped.
+
+    Raises
+    ------
+    OSError
+        It could not be written (and is not there).
+    """
+    place.parent.mkdir(parents=True, exist_ok=True)
+    fresh = Path(tempfile.mkdtemp(prefix=f".{place.name}-", dir=place.parent))
+    try:
+        fill(fresh)
+        try:
+            os.rename(fresh, place)
+        except OSError:
+            if not place.exists():
+                raise
+    finally:
+        shutil.rmtree(fresh, ignore_errors=True)  # gone once renamed into place
 
 
 def cache_root() -> Path:
@@ -100,32 +140,35 @@ def cache_root() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bgc"
 
 
-def _lasting_folder(c: pipeline.Compiled) -> str:
-    """A folder that holds ``c``'s compiled (numba) package and lasts from
-    run to run, so numba's disk cache beside it stays valid: under
-    :func:`cache_root`, named by the package's digest (the same model text
-    always meets the same folder, another one never; the path of the model
-    file, in the package's comments only, is left out). Written once, whole,
-    by renaming a finished private folder into place (processes racing to
-    write it: one wins, the others' copies are dropped)."""
-    # the package's text but the model file's path (in its comments): the same model text met at another
-    # path (a campaign worker's private copy) finds the same folder and its compiled kernels
+def numba_digest(c: pipeline.Compiled) -> str:
+    """The name of the folder of :func:`lasting_folder` that holds ``c``'s
+    compiled package: ``<model>-<digest of its text>``, the path of the
+    model file (in the package's comments only) left out: the same model
+    text met at another path (a campaign worker's private copy) finds the
+    same folder and its compiled kernels."""
+    from ..compiler.printing import escape
+
     source = escape(c.model.display_source)
     digest = hashlib.sha256(repr([(rel, text.replace(source, "")) for rel, text in c.package.numba_files]).encode()
                             ).hexdigest()[:20]
-    root = cache_root() / "packages" / f"{c.model.name}-{digest}"
-    if (root / c.model.name / NUMBA_PACKAGE / "__init__.py").exists():
-        return str(root)
-    root.parent.mkdir(parents=True, exist_ok=True)
-    fresh = Path(tempfile.mkdtemp(prefix=f".{root.name}-", dir=root.parent))
-    package = fresh / c.model.name / NUMBA_PACKAGE
-    package.mkdir(parents=True)
-    for rel, text in c.package.numba_files:
-        (package / rel).write_text(text, encoding="utf-8")
-    try:
-        os.rename(fresh, root)
-    except OSError:  # another process put it there first
-        shutil.rmtree(fresh, ignore_errors=True)
+    return f"{c.model.name}-{digest}"
+
+
+def _lasting_folder(c: pipeline.Compiled) -> str:
+    """:func:`lasting_folder` of ``c``'s compiled (numba) package."""
+    return lasting_folder(numba_digest(c), c.model.name, c.package.numba_files)
+
+
+def lasting_folder(name: str, model: str, files) -> str:
+    """A folder that holds a compiled (numba) package (``files``: its
+    (path, text) pairs; ``name``: :func:`numba_digest`) and lasts from run to
+    run, so numba's disk cache beside it stays valid: under
+    :func:`cache_root`, ``packages/<name>``. Written once, whole, by
+    renaming a finished private folder into place (processes racing to
+    write it: one wins, the others' copies are dropped)."""
+    root = cache_root() / "packages" / name
+    if not (root / model / NUMBA_PACKAGE / "__init__.py").exists():
+        write_whole(root, lambda fresh: write_package(fresh / model / NUMBA_PACKAGE, files))
     return str(root)
 
 

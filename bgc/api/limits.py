@@ -12,6 +12,7 @@ from ..errors import (
     ArgumentTypeError, ArgumentValueError, TrackingError,
 )
 from ..ir import Numerics
+from ..model.view import NumericsView
 from ..diagnosis.options import GridOptions, KalmanOptions
 from ..diagnosis.diagnose import IDENTIFY, KALMAN_METHOD, PATHS
 from ..diagnosis.options import DiagnosisOptions
@@ -71,7 +72,7 @@ def diagnosis_memory(steps: int, num: Numerics, particles: int = 1000, method: s
     """
     func = "bgc.api.limits.diagnosis_memory"
     arguments.integer(func, "steps", steps, 1, "give at least 1", "steps=300")
-    if not isinstance(num, Numerics):
+    if not isinstance(num, (Numerics, NumericsView)):
         raise ArgumentTypeError(f"{func}: num={arguments.shown(num)} is not a Numerics", None,
                                 "give the compiled model's numerics (pipeline.compile_model(path).numerics)")
     arguments.integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")

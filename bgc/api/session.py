@@ -7,11 +7,10 @@ from pathlib import Path
 
 
 from .. import arguments
+from ..ir import NUMBA_PACKAGE
 from ..errors import (
     ArgumentTypeError, ArgumentValueError, TrackingError, printable,
 )
-from ..output import calibrated
-from ..output.labels import labels_of
 from ..analysis import calibrate as calibration
 from ..data import runs
 from ..model import package as packages
@@ -23,21 +22,23 @@ from ..diagnosis.diagnose import horizon_steps
 from ..diagnosis.diagnoser import Diagnoser
 from .limits import (METHODS, MAX_PRIOR_SCALE, check_options,
                      most_steps, with_horizon)
-from .folders import _LOCK, _compiled, _lasting_folder
+from . import cache
+from .folders import _LOCK
 from .reports import CalibrationReport, DiagnosisReport
 from .calibrate import _check_calibrated, _model_text
 from ..model.protocol import nominal_model
 
 
 def _session_of(func: str, model, process_noise, measurement_noise, generated, say,
-                prior_scale: float | None = None, backend: str | None = None) -> Session:
+                prior_scale: float | None = None, backend: str | None = None,
+                work: tuple[int, int | None] | None = None) -> Session:
     """``model`` when it is a :class:`Session` (whose noise levels, prior
     scale and package apply: other ones are refused), else a new session of
-    the file."""
+    the file (``work``: the run's (particles, steps), for ``auto``)."""
     if not isinstance(model, Session):
         say("compiling the model")
         session = Session(model, process_noise, measurement_noise, generated,
-                          1.0 if prior_scale is None else prior_scale, backend)
+                          1.0 if prior_scale is None else prior_scale, backend, work=work)
         note = session.backend_note()
         if note:
             say(note)
@@ -53,10 +54,12 @@ class Session:
     """A compiled model and its generated package, ready to diagnose: made
     by :func:`open`. ``model``: the model file; ``noise``: the relative
     (process, measurement) noise levels the filters assume (None: the
-    model's). A session holds its own compilation and package (in a private
-    folder removed at exit); nothing is cached between sessions: diagnose
-    many runs of one model through one session (``bgc.diagnose(session,
-    data=...)``, :meth:`diagnoser`).
+    model's). A session reads its model through the compile cache
+    (:mod:`bgc.api.cache`): ``view``, the compiled model as plain data, and
+    the generated package; ``compiled``, every IR, is compiled on first use
+    when the cache served the session. Diagnose many runs of one model
+    through one session (``bgc.diagnose(session, data=...)``,
+    :meth:`diagnoser`).
 
     >>> import bgc
     >>> session = bgc.open("models/circuit.yaml")
@@ -68,7 +71,8 @@ class Session:
 
     def __init__(self, model: str | Path, process_noise: float | None = None,
                  measurement_noise: float | None = None, generated: str | Path | None = None,
-                 prior_scale: float = 1.0, backend: str | None = None):
+                 prior_scale: float = 1.0, backend: str | None = None, *,
+                 work: tuple[int, int | None] | None = None):
         func = "bgc.open"
         arguments.path(func, "model", model)
         arguments.noise_levels(func, process_noise, measurement_noise)
@@ -85,9 +89,22 @@ class Session:
         self.prior_scale = float(prior_scale)
         if backend is not None:
             arguments.choice(func, "backend", backend, (*packages.BACKENDS, "auto"))
-        self.backend = packages.resolve_backend(backend)
-        self.compiled, self.folder = _compiled(model, self.prior_scale)  # this session's own compilation and folder
-        c = self.compiled
+        if work is not None:
+            _check_work(func, work)
+        if packages.chosen_by_name(backend):  # refused (numba not installed) before any work
+            self.backend = packages.resolve_backend(backend)
+        self._opened = cache.open_model(model, self.prior_scale)
+        #: the compiled model as plain data (:mod:`bgc.model.view`): what the runtime reads
+        self.view = self._opened.view
+        #: the folder of the generated NumPy package (``<model>/numpy_model``): the cache's entry, or a private one
+        self.folder = self._opened.folder
+        self._compiled = self._opened.compiled
+        c = self.view
+        numba = Path(generated) / c.model.name / NUMBA_PACKAGE if generated is not None else \
+            cache.numba_path(self._opened)
+        #: why this backend: asked for by name, BGC_BACKEND, or auto's rule (:func:`bgc.model.package.auto_backend`)
+        self.backend, self.backend_reason = choose_backend(
+            backend, numba, None if work is None else int(work[0]) * int(work[1] or c.model.settings.steps))
         levels = c.numerics.noise_at(process_noise, measurement_noise)
         self.levels = levels
         custom = levels if (process_noise, measurement_noise) != (None, None) else None
@@ -104,23 +121,51 @@ class Session:
                                     "use --backend numpy (backend='numpy')") from None
             self.backend, self.fallback = "numpy", why
             self._load(generated, str(model), custom)
-        self.priors = {f.parameter: f.prior for f in c.model.faults}
+        self.priors = c.priors
+
+    @property
+    def compiled(self):
+        """Every IR of the model (:class:`bgc.pipeline.Compiled`): compiled
+        now when the cache served the session (sympy is imported then).
+
+        Raises
+        ------
+        ArgumentValueError
+            The model file changed since the session was opened.
+        """
+        with _LOCK:
+            if self._compiled is None:
+                self._compiled = cache.compiled_again(self.model, self.prior_scale, self.view)
+            return self._compiled
 
     def _load(self, generated, model: str, custom) -> None:
-        """Load this session's package of its backend (from ``generated``, or a
-        private folder for NumPy, or, for the compiled package, a folder of
-        bgc's cache that lasts, so numba's disk cache stays valid) and warm it up."""
-        c = self.compiled
+        """Load this session's package of its backend (from ``generated``, or
+        for NumPy the compile cache's entry (a private folder when the cache
+        could not be used), or, for the compiled package, a folder of bgc's
+        cache that lasts, so numba's disk cache stays valid) and warm it up."""
+        c = self.view
         if generated is None:
-            generated = self.folder if self.backend == "numpy" else _lasting_folder(c)
+            generated = self.folder if self.backend == "numpy" else cache.numba_folder(self._opened)
         with _LOCK:  # another thread must not see a package half imported
             self.package = packages.load_package(generated, c.model.name, model, custom, self.backend)
             #: (seconds, kernels compiled, kernels loaded from numba's disk cache) of this session's warm-up
             self.warm = warmup.warm_up(self.package)
+        if self.backend == "numba":  # auto finds them there next time (cache.kernels_cached)
+            cache.mark_warm(Path(generated) / c.model.name / NUMBA_PACKAGE, self.warm[1] + self.warm[2])
 
     @property
     def name(self) -> str:
-        return self.compiled.model.name
+        return self.view.model.name
+
+    def model_note(self) -> str:
+        """One line on where the compiled model came from: bgc's compile
+        cache, or compiled (and kept there, or not), and how long it took."""
+        o = self._opened
+        if o.compiled is None:
+            return f"model {self.name}: read from bgc's compile cache in {o.seconds:.2f} s ({printable(str(o.entry))})"
+        kept = f"kept in bgc's compile cache: {printable(str(o.entry))}" if o.entry is not None else \
+            "bgc's compile cache not used"
+        return f"model {self.name}: compiled in {o.seconds:.1f} s ({kept})"
 
     def backend_note(self) -> str | None:
         """One line on the compiled backend's warm-up (None on the NumPy
@@ -139,7 +184,7 @@ class Session:
         return "numba backend: kernels compiled before in this process"
 
     def __repr__(self) -> str:
-        return f"<bgc.Session of {self.name} ({printable(self.compiled.model.display_source)})>"
+        return f"<bgc.Session of {self.name} ({printable(self.view.model.display_source)})>"
 
     def _repr_html_(self) -> str:
         """A notebook's view: the model's name and file, elements, bonds and
@@ -160,7 +205,7 @@ class Session:
             arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
             options = DiagnosisOptions(method=method, particles=particles, seed=seed)
         check_options(options, func)
-        return with_horizon(options, self.compiled.model.settings)
+        return with_horizon(options, self.view.model.settings)
 
     def diagnoser(self, options: DiagnosisOptions | None = None, *, method: str = "gpf", particles: int = 1000,
                   seed: int = 0, inputs=None, sensors=None, source: str = "<stream>", progress=None) -> Diagnoser:
@@ -174,9 +219,9 @@ class Session:
         arguments.text(func, "source", source)
         arguments.callable_or_none(func, "progress", progress)
         nominal = nominal_model(self.package)
-        return Diagnoser(self.package, self.compiled.signatures, self.priors, opts,
+        return Diagnoser(self.package, self.view.signatures, self.priors, opts,
                          horizon_steps(opts.horizon, nominal.DT, 0), inputs=inputs, sensors=sensors, source=source,
-                         progress=progress, most=most_steps(self.compiled.numerics, opts))
+                         progress=progress, most=most_steps(self.view.numerics, opts))
 
     def calibrate(self, data, estimate: str | tuple[str, ...] = "noise", *, progress=None) -> CalibrationReport:
         """Maximum-likelihood estimates, from healthy recordings ``data`` (a
@@ -200,6 +245,8 @@ class Session:
         DataError
             A run that cannot be read or is not of this model.
         """
+        from ..output import calibrated  # yaml's writer: not needed to diagnose
+
         func = "bgc.Session.calibrate"
         if self.noise != (None, None):
             raise ArgumentValueError(f"{func}: a session opened with noise levels calibrates from the model file's "
@@ -218,7 +265,7 @@ class Session:
             arguments.text(func, "estimate", estimate)
         arguments.callable_or_none(func, "progress", progress)
         say = progress or (lambda text: None)
-        c = self.compiled
+        c = self.view
         nominal = nominal_model(self.package)
         sensors, process, parameters = calibration.targets(estimate, nominal, [p.name for p in c.model.parameters],
                                                            "--estimate" if isinstance(estimate, str) else "estimate")
@@ -243,21 +290,56 @@ class Session:
     def report(self, run: runs.Run, diagnosis: Diagnosis, scenario: str | None = None,
                injected=None) -> DiagnosisReport:
         """A :class:`DiagnosisReport` of ``diagnosis`` made on ``run``."""
-        return DiagnosisReport(self.name, self.compiled.model.display_source, run, scenario, injected, self.noise,
-                               self.levels, diagnosis.options, diagnosis, labels_of(self.compiled.model))
+        return DiagnosisReport(self.name, self.view.model.display_source, run, scenario, injected, self.noise,
+                               self.levels, diagnosis.options, diagnosis, self.view.labels)
+
+
+def choose_backend(backend: str | None, numba: Path, work: int | None) -> tuple[str, str]:
+    """The backend to run on and why: ``backend`` when it names one (or
+    ``BGC_BACKEND`` does: :func:`bgc.model.package.resolve_backend`), else
+    ``auto``'s rule (:func:`bgc.model.package.auto_backend`) for ``work``
+    particle-steps, the kernels of the compiled package folder ``numba``
+    (``.../<model>/numba_model``) in numba's disk cache or not
+    (:func:`bgc.api.cache.kernels_cached`).
+
+    Raises
+    ------
+    TrackingError
+        An unknown backend, or numba asked for and not installed.
+    """
+    if packages.chosen_by_name(backend):
+        return packages.resolve_backend(backend), ("asked for" if backend not in (None, "auto") else "BGC_BACKEND")
+    return packages.auto_backend(work, packages.numba_installed() and cache.kernels_cached(numba))
+
+
+def _check_work(func: str, work) -> None:
+    """Refuse a ``work`` that is not (particles, steps or None), each an integer >= 1."""
+    if not isinstance(work, tuple) or len(work) != 2:
+        raise ArgumentTypeError(f"{func}: work={arguments.shown(work)} is not a (particles, steps) tuple", None,
+                                "e.g. work=(1000, 300), or work=(1000, None) for the model's run length")
+    arguments.integer(func, "work[0]", work[0], 1, "at least 1 particle is needed", "work=(1000, 300)")
+    if work[1] is not None:
+        arguments.integer(func, "work[1]", work[1], 1, "give at least 1 step", "work=(1000, 300)")
 
 
 def open(model: str | Path, *, process_noise: float | None = None, measurement_noise: float | None = None,
-         generated: str | Path | None = None, prior_scale: float = 1.0, backend: str | None = None) -> Session:
+         generated: str | Path | None = None, prior_scale: float = 1.0, backend: str | None = None,
+         work: tuple[int, int | None] | None = None) -> Session:
     """Compile ``model`` and load its generated package: a :class:`Session`
     whose :meth:`Session.diagnoser` diagnoses a stream one sample at a time,
     and which :func:`diagnose` and :func:`distinguishability` take in place of
-    the model file (compiled once for many runs; nothing is cached between
-    sessions). ``process_noise``,
+    the model file (compiled once for many runs, and kept in bgc's compile
+    cache for the next session: :mod:`bgc.api.cache`). ``process_noise``,
     ``measurement_noise``: the relative noise levels the filters assume
     (default: the model's); ``generated``: the folder ``bgc compile -o``
     wrote (default: a private one); ``prior_scale``: widens every fault's
     prior of its magnitude by that factor (``--prior-scale``); ``backend``:
     'numpy', 'numba' (the compiled package, the ``fast`` extra) or None /
-    'auto' (numba when installed; the environment's ``BGC_BACKEND`` first)."""
-    return Session(model, process_noise, measurement_noise, generated, prior_scale, backend)
+    'auto' (the environment's ``BGC_BACKEND`` first, else
+    :func:`bgc.model.package.auto_backend`: numba when installed and its
+    kernels for this model are in numba's disk cache and ``work`` repays
+    loading them, or ``work`` repays compiling them); ``work``: the
+    (particles, steps) a diagnosis of the session is expected to run (steps
+    None: the model's run length; None: not known, numba only when its
+    kernels are cached)."""
+    return Session(model, process_noise, measurement_noise, generated, prior_scale, backend, work=work)

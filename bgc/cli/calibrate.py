@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
                            "calibrate")
     start = time.perf_counter()
     session = api.open(args.model, backend=args.backend)
-    backend_note(session)
+    backend_note(session, args)
     report = session.calibrate(list(args.data), args.estimate)
     report.write(out)
     report.write_report(folder)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from .. import pipeline
 from ..errors import BgcError
 from .common import print_errors
 
@@ -16,6 +15,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .. import pipeline
     from ..output import render
 
     status = 0

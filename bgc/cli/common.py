@@ -100,10 +100,46 @@ class Progress:
             sys.stderr.write("\r" + " " * self.width + "\r")
             sys.stderr.flush()
 
-def backend_note(session) -> None:
-    """On the compiled backend, one line on stderr: its kernels compiled (how long) or loaded."""
+def rows_of(path: str | None) -> int | None:
+    """About how many samples the run file ``path`` holds (its lines; for
+    ``--backend auto``'s estimate of the work), None when it is not a
+    regular file (standard input, a pipe) or cannot be read."""
+    import stat
+
+    if path is None or path == "-":
+        return None
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return None
+        lines = 0
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                lines += block.count(b"\n")
+    except OSError:
+        return None
+    return max(lines, 1)
+
+def verbose(args: argparse.Namespace) -> bool:
+    """Whether ``-v`` was given (status lines on stderr)."""
+    return bool(getattr(args, "verbose", False))
+
+def status(args: argparse.Namespace, text: str) -> None:
+    """A status line on stderr, with ``-v`` only: without it stderr holds errors and warnings alone."""
+    if verbose(args):
+        print(printable(f"bgc: {text}"), file=sys.stderr, flush=True)
+
+def backend_note(session, args: argparse.Namespace) -> None:
+    """With ``-v``: where the model came from (bgc's compile cache, or
+    compiled), the backend and why, and on the compiled backend its kernels
+    compiled (how long) or loaded. The compiled backend chosen by ``auto``
+    but unavailable (running on NumPy): a warning, with or without ``-v``."""
+    status(args, session.model_note())
+    if session.fallback is not None:
+        print(printable(f"warning: {session.backend_note()}"), file=sys.stderr, flush=True)
+        return
+    status(args, f"backend {session.backend} ({session.backend_reason})")
     if session.backend_note():
-        print(f"bgc: {session.backend_note()}", file=sys.stderr, flush=True)
+        status(args, session.backend_note())
 
 def write_report(r, output: str, command: str) -> Path:
     """Write diagnosis report ``r`` into folder ``output`` (report.json,

@@ -7,7 +7,6 @@ import sys
 import time
 from pathlib import Path
 
-from .. import pipeline
 from ..errors import BgcError, printable
 from .common import print_errors
 
@@ -25,6 +24,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .. import pipeline
     from ..output import artifacts
 
     failed = 0

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..errors import BgcError
 from .common import (Progress, add_backend_option, add_data_options, add_prior_option, backend_note, check_times,
-    parse_noise, refuse_input_in_output, seed, write_report)
+    parse_noise, refuse_input_in_output, rows_of, seed, write_report)
 
 
 def add_parser(sub) -> None:
@@ -65,9 +65,11 @@ def run(args: argparse.Namespace) -> int:
         options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed,
                                    identify=args.identify, rank=args.rank, refine=args.refine,
                                    horizon=args.horizon, gap=args.gap, recheck=args.recheck)
+        steps = args.steps if args.scenario is not None else rows_of(args.data)  # auto's estimate of the work
         session = api.open(args.model, process_noise=process, measurement_noise=measurement,
-                           generated=args.generated, prior_scale=args.prior_scale, backend=args.backend)
-        backend_note(session)
+                           generated=args.generated, prior_scale=args.prior_scale, backend=args.backend,
+                           work=(max(args.particles, 1), steps if steps and steps > 0 else None))
+        backend_note(session, args)
         r = api.diagnose(session, data=args.data, scenario=args.scenario, seed=args.seed, steps=args.steps,
                          options=options, progress=progress)
     finally:

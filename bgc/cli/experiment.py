@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from ..errors import printable
-from .common import above_zero, add_backend_option, positive
+from .common import above_zero, add_backend_option, positive, status
 
 
 def add_parser(sub) -> None:
@@ -38,7 +38,8 @@ def run(args: argparse.Namespace) -> int:
 
     # local workers get a name (numba compiled once, before they start); a Dask cluster's workers choose
     # by what they have installed
-    backend = packages.resolve_backend(args.backend) if not args.scheduler else args.backend
+    backend = packages.resolve_backend(args.backend) if args.scheduler is None and \
+        packages.chosen_by_name(args.backend) else args.backend
 
     # what can be refused without the models: before they compile
     dispatch.check_workers(args.workers, "--workers")
@@ -48,6 +49,9 @@ def run(args: argparse.Namespace) -> int:
             print("bgc: --workers is for local processes: the Dask cluster's own workers run the campaign",
                   file=sys.stderr)
     c = campaign_file.load_campaign(args.config, max_runs=args.max_runs)
+    if args.scheduler is None and not packages.chosen_by_name(args.backend):
+        backend, why = _auto_backend(c)
+        status(args, f"backend {backend} ({why}, over the campaign's {len(c.specs)} runs)")
     out = Path(args.output or Path("out") / c.name)
     folder = printable(str(out))
 
@@ -86,3 +90,24 @@ def run(args: argparse.Namespace) -> int:
           f"({r.seconds:.1f} s); tables in {folder}/tables.md, the page with tables and plots in "
           f"{folder}/report.html, plots in {folder}/plots/{kept}")
     return 1 if r.failed and r.failed == r.ran and r.ran else 0
+
+
+def _auto_backend(c) -> tuple[str, str]:
+    """``--backend auto`` for a local campaign: :func:`bgc.model.package.auto_backend`
+    of the particle-steps of all its runs, the kernels cached when every
+    model's are (:func:`bgc.api.cache.kernels_cached`)."""
+    from ..api import cache
+    from ..experiment.one_run import model_file
+    from ..model import package as packages
+
+    models: dict[str, tuple[int, bool]] = {}
+    work, cached = 0, packages.numba_installed()
+    for spec in c.specs:
+        if spec.model_text not in models:
+            opened = cache.open_model(model_file(spec))
+            models[spec.model_text] = (opened.view.model.settings.steps,
+                                       cached and cache.kernels_cached(cache.numba_path(opened)))
+        steps, ok = models[spec.model_text]
+        work += spec.particles * (spec.steps or steps)
+        cached = cached and ok
+    return packages.auto_backend(work, cached)

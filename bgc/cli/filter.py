@@ -3,13 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from .. import pipeline
 from ..errors import printable
-from ..model import warmup
-from .common import add_backend_option, fault_model, seed
+from .common import add_backend_option, fault_model, seed, status
 
 
 def add_parser(sub) -> None:
@@ -34,24 +31,32 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from ..api import cache
+    from ..api.session import choose_backend
+    from ..ir import NUMBA_PACKAGE
     from ..output import artifacts
     from ..data import runs
     from ..analysis import track
     from ..model import package as packages
+    from ..model import warmup
 
-    c = pipeline.compile_model(args.model)
+    c = cache.open_model(args.model).view
     run = runs.read_run(args.run_csv)
     track.check_run_of(run, c.model.name, args.run_csv)
-    backend = packages.resolve_backend(args.backend)
+    numba = Path(args.generated) / c.model.name / NUMBA_PACKAGE
+    methods = 2 if args.method == "both" else 1
+    backend, why = choose_backend(args.backend, numba, max(args.particles, 1) * len(run.time) * methods)
+    status(args, f"backend {backend} ({why})")
     package = packages.load_package(args.generated, c.model.name, args.model, backend=backend)
     name = fault_model(c, args.fault) if args.fault else "nominal"
-    seconds, compiled, _ = warmup.warm_up(package, steps=(name,))  # the filtered model's whole step
+    seconds, compiled, loaded = warmup.warm_up(package, steps=(name,))  # the filtered model's whole step
+    if backend == "numba":
+        cache.mark_warm(numba, compiled + loaded)
     if compiled:
-        print(f"numba backend: {compiled} kernels compiled in {seconds:.1f} s (kept in numba's disk cache)",
-              file=sys.stderr)
+        status(args, f"numba backend: {compiled} kernels compiled in {seconds:.1f} s (kept in numba's disk cache)")
+    elif loaded:
+        status(args, f"numba backend: {loaded} kernels loaded from numba's disk cache in {seconds:.1f} s")
     track.check_request(run, package, name, args.particles, args.start)
-    from ..output.labels import labels_of
-
     results = []
     for method in (["gpf", "apf"] if args.method == "both" else [args.method]):
         r = track.track(run, package, name, method, args.particles, args.seed, args.start)
@@ -63,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         print("  RMSE vs truth: " + (rmse or "no truth in the run"))
         last = ", ".join(f"{x} {m:.4g} +- {s:.2g}" for x, m, s in zip(r.state_names, r.mean[-1], r.std[-1]))
         print(f"  final estimate: {last}")
-        est = track.fault_estimate(r, package, run, labels_of(c.model).per_time)
+        est = track.fault_estimate(r, package, run, c.labels.per_time)
         if est is not None:
             true_text = ""
             if est.truth is not None:
@@ -72,6 +77,6 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         from ..output import plots
 
-        artifacts.write_file(Path(args.plot), plots.tracking_figure(run, results, "png", labels_of(c.model)))
+        artifacts.write_file(Path(args.plot), plots.tracking_figure(run, results, "png", c.labels))
         print(f"wrote {printable(args.plot)}")
     return 0

@@ -16,21 +16,29 @@ from typing import Sequence
 
 from .. import __version__
 from ..errors import BgcError, printable
-from . import calibrate, check, compile, diagnose, distinguish, experiment, filter, monitor, show, simulate
+from . import cache, calibrate, check, compile, diagnose, distinguish, experiment, filter, monitor, show, simulate
 from .common import print_errors
 
 #: The commands, in the order ``bgc --help`` lists them.
-COMMANDS = (check, compile, calibrate, show, simulate, filter, diagnose, monitor, distinguish, experiment)
+COMMANDS = (check, compile, calibrate, show, simulate, filter, diagnose, monitor, distinguish, experiment, cache)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bgc", description="Bond-graph model compiler for model-based fault diagnosis.")
     parser.add_argument("--version", action="version", version=f"bgc {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help=VERBOSE)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for command in COMMANDS:
         command.add_parser(sub)
+    for p in sub.choices.values():  # after the command too: bgc diagnose ... -v
+        p.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help=VERBOSE)
     return parser
+
+
+#: What -v does.
+VERBOSE = ("also say on stderr what bgc chose and did (the model compiled or read from bgc's cache, the "
+           "backend and why, numba's kernels); without it stderr holds only errors and warnings")
 
 
 def _quiet_stdout() -> None:
@@ -43,9 +51,27 @@ def _quiet_stdout() -> None:
         pass
 
 
+def _shows(shown):
+    """``warnings.showwarning`` that prints bgc's own warnings (its cache
+    could not be used: :class:`bgc.api.cache.CacheWarning`) as one line on
+    stderr, and others as ``shown`` does."""
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        from ..api.cache import CacheWarning
+
+        if issubclass(category, CacheWarning):
+            print(printable(f"warning: {message}"), file=sys.stderr if file is None else file)
+        else:
+            shown(message, category, filename, lineno, file, line)
+    return show
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    import warnings
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    shown = warnings.showwarning
+    warnings.showwarning = _shows(shown)
     try:
         return args.run(args)
     except BrokenPipeError:  # e.g. bgc show ... | head: the reader has gone, as with other CLIs
@@ -69,3 +95,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("bgc: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = shown

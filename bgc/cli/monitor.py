@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ..errors import BgcError
 from .common import (add_backend_option, add_data_options, add_prior_option, backend_note, check_times, open_stream,
-    parse_noise, refuse_input_in_output, seed, write_report)
+    parse_noise, refuse_input_in_output, rows_of, seed, write_report)
 
 
 def add_parser(sub) -> None:
@@ -64,9 +64,11 @@ def run(args: argparse.Namespace) -> int:
     process, measurement = parse_noise(args.noise)
     options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed, horizon=args.horizon,
                                gap=args.gap, recheck=args.recheck)
+    rows = None if args.follow else rows_of(args.data)  # a stream followed, or standard input: not known
     session = api.open(args.model, process_noise=process, measurement_noise=measurement, generated=args.generated,
-                       prior_scale=args.prior_scale, backend=args.backend)
-    backend_note(session)
+                       prior_scale=args.prior_scale, backend=args.backend,
+                       work=None if rows is None else (max(args.particles, 1), rows))
+    backend_note(session, args)
     out = Path(args.output or f"{session.name}-monitor")
     refuse_input_in_output(args.data, out)
     artifacts.check_folder(out, ("report.md", "report.json", "report.html", "manifest.json"),

@@ -6,7 +6,6 @@ import argparse
 import sys
 from pathlib import Path
 
-from .. import pipeline
 from ..errors import BgcError, printable
 
 
@@ -25,6 +24,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .. import pipeline
     from ..output import artifacts, draw, render
 
     stage, fmt = args.stage, args.format

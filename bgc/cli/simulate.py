@@ -7,7 +7,6 @@ import sys
 import time
 from pathlib import Path
 
-from .. import pipeline
 from ..errors import printable
 from .common import add_prior_option, parse_noise, seed
 
@@ -28,10 +27,11 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..api import cache
     from ..output import artifacts
     from ..analysis import simulate as sim
 
-    c = pipeline.compile_model(args.model, args.prior_scale)
+    c = cache.open_model(args.model, args.prior_scale).view
     process, measurement = parse_noise(args.noise)
     fault = sim.parse_fault(args.fault, c.numerics) if args.fault else None
     if args.steps is not None:
@@ -49,9 +49,8 @@ def run(args: argparse.Namespace) -> int:
           f"{fault.describe() if fault else 'none'} ({time.perf_counter() - start:.2f} s)")
     if args.plot:
         from ..output import plots
-        from ..output.labels import labels_of
 
         artifacts.write_file(Path(args.plot), plots.simulation_figure(
-            result, "png", labels_of(c.model), sim.noise_free(c.numerics, options).clean_measurements))
+            result, "png", c.labels, sim.noise_free(c.numerics, options).clean_measurements))
         print(f"wrote {printable(args.plot)}")
     return 0

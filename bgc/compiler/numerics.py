@@ -50,6 +50,7 @@ import sympy
 from ..errors import EquationError
 from ..ir import DbnModel, FaultNumerics, Numerics, StateSpaceModel, sym
 from ..kinds import element_kind, fault_kind
+from .rk4 import rk4_sample
 
 H_LAMBDA = 1.5
 #: More RK4 substeps per sample than this is refused: the plant is too stiff for
@@ -297,6 +298,71 @@ def lambdified(ssm: StateSpaceModel):
     return f, g
 
 
+#: The modules whose objects sympy's lambdify code may read by a global name
+#: (its namespace for ``modules="numpy"``: numpy, numpy.linalg, builtins).
+TRUTH_MODULES = ("numpy", "numpy.linalg", "builtins")
+
+
+def truth_source(ssm: StateSpaceModel) -> tuple[str, str, tuple[tuple[str, str, str], ...]] | None:
+    """What :func:`lambdified` made, as text: (the source sympy's lambdify
+    printed for dx/dt, for y, and each global name that code reads, as
+    (name, module, attribute) of :data:`TRUTH_MODULES`, or (name, ``float``
+    or ``complex``, the number's repr) for a constant such as lambdify's
+    ``I``). Executed in a namespace of exactly those objects
+    (:meth:`bgc.model.view.TruthSource.functions`) it is the same code on
+    the same objects, so the same numbers, without sympy. None when the code
+    reads an object that is none of those (then the truth needs sympy)."""
+    import importlib
+    import inspect
+
+    names: dict[str, tuple[str, str, str]] = {}
+    sources = []
+    for fn in lambdified(ssm):
+        sources.append(_numbered(inspect.getsource(fn)))
+        for name in _names_read(fn.__code__):
+            if name not in fn.__globals__:  # an attribute's name (numpy.exp's exp), or a builtin
+                continue
+            value = fn.__globals__[name]
+            if type(value) in (float, complex):
+                names[name] = (name, type(value).__name__, repr(value))
+                continue
+            found = None
+            for module in TRUTH_MODULES:
+                m = importlib.import_module(module)
+                if value is m:
+                    found = (name, module, "")
+                elif getattr(m, name, None) is value:
+                    found = (name, module, name)
+                else:
+                    found = next(((name, module, a) for a, v in vars(m).items() if v is value and not a.startswith("_")),
+                                 None)
+                if found:
+                    break
+            if found is None:
+                return None
+            names[name] = found
+    return sources[0], sources[1], tuple(sorted(names.values()))
+
+
+def _numbered(text: str) -> str:
+    """lambdify's source with its argument names (``_Dummy_<counter>``, a
+    counter of the process) numbered from 0 in order of appearance: the same
+    equations always give the same text."""
+    import re
+
+    found: dict[str, str] = {}
+    return re.sub(r"\b_Dummy_[0-9]+\b", lambda m: found.setdefault(m.group(0), f"_Dummy_{len(found)}"), text)
+
+
+def _names_read(code) -> set[str]:
+    """Every name a code object (and the code nested in it) reads or calls."""
+    out = set(code.co_names)
+    for const in code.co_consts:
+        if hasattr(const, "co_names"):
+            out |= _names_read(const)
+    return out
+
+
 def float_safe(ssm: StateSpaceModel) -> bool:
     """Whether the lambdified functions of ``ssm`` give the same numbers on
     Python floats as on NumPy scalars: true when every power has an integer
@@ -306,20 +372,6 @@ def float_safe(ssm: StateSpaceModel) -> bool:
     division by zero or an overflow raises on Python floats instead, which
     the caller answers by evaluating on NumPy scalars."""
     return all(p.exp.is_Integer for e in (*ssm.rhs, *ssm.output_exprs) for p in e.atoms(sympy.Pow))
-
-
-def rk4_sample(rhs, x: np.ndarray, t0: float, h: float, substeps: int) -> np.ndarray:
-    """x after ``substeps`` classical RK4 steps of length h from t0, one state
-    vector; ``rhs(x, t, t_sub)`` is dx/dt at time t within the substep that
-    starts at t_sub."""
-    for s in range(substeps):
-        t = t0 + s * h
-        k1 = rhs(x, t, t)
-        k2 = rhs(x + 0.5 * h * k1, t + 0.5 * h, t)
-        k3 = rhs(x + 0.5 * h * k2, t + 0.5 * h, t)
-        k4 = rhs(x + h * k3, t + h, t)
-        x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-    return x
 
 
 def _nominal_run(ssm: StateSpaceModel, substeps: int):

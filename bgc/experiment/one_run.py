@@ -107,7 +107,7 @@ def run_one(spec: RunSpec, backend: str = "numpy") -> dict[str, Any]:
         injected = report.injected
         if injected is not None:
             row.update(target=injected.target,
-                       expected=simulate.outside_prior(injected, session.compiled.numerics) is None)
+                       expected=simulate.outside_prior(injected, session.view.numerics) is None)
         if m.diagnosed != "none" and best is not None:
             row["diagnosed_target"] = best.estimate.target
         if m.right and best is not None and spec.parameter_truth:  # relative: none for a truth of 0

@@ -50,6 +50,47 @@ def resolve_backend(backend: str | None) -> str:
     return chosen
 
 
+#: ``auto``'s rule (:func:`auto_backend`), in particle-steps (particles x
+#: steps of a diagnosis): from this much work, loading numba and a model's
+#: kernels from numba's disk cache (about 1 s) is repaid. Measured (CPU
+#: seconds, one process; docs/backend.md, "What auto chooses"): a diagnosis
+#: that finds a fault saves 1.6 to 1.8 s on the two tanks and 5.5 to 7.5 s
+#: on RO from 200 particles over 300 steps; a fault-free run saves 0.05 to
+#: 0.2 s, less than the loading.
+LOAD_WORK = 100_000
+
+#: From this much work, compiling a model's kernels first (20 to 35 s on a
+#: quiet 2-core machine, 44 kernels for the two tanks, 54 for RO) is repaid
+#: within the one run: the saving grows with the steps, far less with the
+#: particles (the static posterior's Kalman filters do not have any).
+COMPILE_WORK = 20_000_000
+
+
+def auto_backend(work: int | None, cached: bool) -> tuple[str, str]:
+    """The backend ``auto`` runs a diagnosis of ``work`` particle-steps on
+    (None: not known), with the model's numba kernels in numba's disk cache
+    (``cached``) or not, and why, in words: numba when it is installed and
+    either its kernels are cached and the work repays loading them (at least
+    :data:`LOAD_WORK`, or not known), or the work repays compiling them (at
+    least :data:`COMPILE_WORK`); else numpy. The result does not depend on
+    the backend, only the time does.
+
+    >>> auto_backend(None, False)[0], auto_backend(LOAD_WORK - 1, True)[0]
+    ('numpy', 'numpy')
+    """
+    if not numba_installed():
+        return "numpy", "auto: numba is not installed"
+    size = "work not known" if work is None else f"{work:,} particle-steps"
+    if cached and (work is None or work >= LOAD_WORK):
+        return "numba", f"auto: the model's kernels are in numba's disk cache ({size})"
+    if work is not None and work >= COMPILE_WORK:
+        return "numba", f"auto: {size} repay compiling the model's kernels"
+    if cached:
+        return "numpy", f"auto: {size}, too little to repay loading numba's kernels"
+    return "numpy", (f"auto: the model's kernels are not compiled yet, and {size} would not repay compiling them; "
+                     "--backend numba compiles them, and auto uses them from then on")
+
+
 def _environment_backend() -> str | None:
     """``BGC_BACKEND`` when it names a backend (empty or 'auto': None)."""
     import os

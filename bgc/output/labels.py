@@ -29,8 +29,6 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-import sympy
-
 from ..ir import BondGraph, Element
 from ..kinds import DOMAINS, GENERIC, element_kind
 
@@ -130,6 +128,8 @@ def _declared(model: BondGraph) -> list[tuple[str, str]]:
     """(bond variable, unit) pairs the model declares: a source's variable
     when it imposes a declared input or parameter as it is, a sensor's
     variable when it reads one bond variable as it is."""
+    import sympy
+
     out = []
     for el in model.elements:
         kind = element_kind(el.kind)
