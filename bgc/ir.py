@@ -4,7 +4,7 @@ Every IR is a frozen dataclass holding tuples, sympy expressions and frozen
 networkx graphs. Stages take one IR and return the next; nothing here does I/O.
 Importing this module does not import sympy (the runtime reads the IRs' plain
 types, :class:`Settings`, :class:`FaultCandidate`, :class:`NoiseLevels`, ...,
-and a compiled model's plain-data view, :mod:`bgc.model.view`, without it).
+and a compiled model's plain-data view, :mod:`bgc.view`, without it).
 
 Pipeline order: :class:`RawModel` -> :class:`BondGraph` -> :class:`CausalBondGraph`
 -> :class:`TemporalCausalGraph` -> :class:`StateSpaceModel` -> :class:`DbnModel`

@@ -13,7 +13,7 @@ that checks is a model that compiles); only the writing differs.
 ('nominal', 'C1_abrupt')
 
 :func:`view` gives what the runtime reads of a compilation as plain data
-(:mod:`bgc.model.view`), which the compile cache keeps (:mod:`bgc.api.cache`).
+(:mod:`bgc.view`), which the compile cache keeps (:mod:`bgc.api.cache`).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from .ir import (
 )
 
 if TYPE_CHECKING:
-    from .model.view import CompiledView
+    from .view import CompiledView
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,13 +86,11 @@ def pictures(c: Compiled, engine: str = "auto") -> dict[str, bytes]:
 
 
 def view(c: Compiled) -> CompiledView:
-    """What the runtime reads of ``c``, as plain data (:mod:`bgc.model.view`):
+    """What the runtime reads of ``c``, as plain data (:mod:`bgc.view`):
     the IRs' plain fields, the reports' labels, and the state equations as
     sympy's lambdify prints them for the truth simulator."""
-    from .model.view import (
-        CompiledView, DbnModelView, DbnView, ElementView, EquationsView, MeasurementView, ModelView, NumericsView,
-        SignaturesView, TruthSource, plain,
-    )
+    from .view import (CompiledView, DbnModelView, DbnView, ElementView, EquationsView, MeasurementView, ModelView,
+        NumericsView, SignaturesView, TruthSource, plain)
     from .output.labels import labels_of
 
     m, ssm = c.model, c.equations

@@ -18,7 +18,7 @@ LAYERS = (
     {"compiler"},
     {"diagnosis", "analysis"},
     {"output"},
-    {"pipeline"},
+    {"pipeline", "view"},
     {"api"},
     {"service", "experiment"},
     {"cli"},

@@ -1,5 +1,5 @@
 """The compile cache (bgc/api/cache.py) and the compiled model's plain-data
-view it keeps (bgc/model/view.py): hits and misses, processes writing at once,
+view it keeps (bgc/view.py): hits and misses, processes writing at once,
 what clearing removes, a hit without sympy, the same numbers with and without
 it, and --backend auto's note of numba's cached kernels."""
 
@@ -15,7 +15,7 @@ import pytest
 from bgc.analysis import simulate
 from bgc.api import cache
 from bgc.model import package as packages
-from bgc.model.view import from_json, to_json
+from bgc.view import from_json, to_json
 from bgc.pipeline import view
 
 from conftest import ALL_MODELS, ROOT, compiled

@@ -2,7 +2,7 @@
 
 It integrates the sympy state equations (``sympy.lambdify`` to NumPy; a path
 independent of the generated filter code; from a compiled model's view, the
-code lambdify printed, kept by the compile cache: :class:`bgc.model.view.TruthSource`) with classical RK4 on a step
+code lambdify printed, kept by the compile cache: :class:`bgc.view.TruthSource`) with classical RK4 on a step
 ``TRUTH_REFINEMENT`` times finer than the generated filters use, so a filter is
 never handed its own discretisation as the truth.
 
@@ -330,7 +330,7 @@ def truth_functions(ssm) -> tuple:
     """(dx/dt, y, whether they give the same numbers on Python floats as on
     NumPy scalars) of the state equations ``ssm``: sympy's lambdify of a
     compilation's :class:`~bgc.ir.StateSpaceModel`, or the same code made
-    again from the text a view keeps (:class:`bgc.model.view.TruthSource`,
+    again from the text a view keeps (:class:`bgc.view.TruthSource`,
     without sympy)."""
     truth = getattr(ssm, "truth", None)
     if truth is not None:

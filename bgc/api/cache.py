@@ -6,7 +6,7 @@ An entry is named by the SHA-256 of what the compilation depends on
 bgc's version and the digest of bgc's own files (a checkout being edited
 changes its code under one version), and the versions of Python, NumPy and
 SymPy. It holds what the runtime reads: the compiled model's plain-data view
-(:mod:`bgc.model.view`, JSON), the generated NumPy package and the compiled
+(:mod:`bgc.view`, JSON), the generated NumPy package and the compiled
 package's files; a command served by it imports neither sympy nor the
 compiler. Layout under :func:`~bgc.api.folders.cache_root` (``BGC_CACHE_DIR``,
 else ``$XDG_CACHE_HOME/bgc``, else ``~/.cache/bgc``)::
@@ -51,7 +51,7 @@ from typing import TYPE_CHECKING
 
 from .. import __version__
 from ..ir import NUMBA_PACKAGE, PACKAGE
-from ..model.view import CompiledView, from_json, to_json
+from ..view import CompiledView, from_json, to_json
 from .folders import cache_root, lasting_folder, package_folder
 
 if TYPE_CHECKING:

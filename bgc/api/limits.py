@@ -12,7 +12,7 @@ from ..errors import (
     ArgumentTypeError, ArgumentValueError, TrackingError,
 )
 from ..ir import Numerics
-from ..model.view import NumericsView
+from ..view import NumericsView
 from ..diagnosis.options import GridOptions, KalmanOptions
 from ..diagnosis.diagnose import IDENTIFY, KALMAN_METHOD, PATHS
 from ..diagnosis.options import DiagnosisOptions

@@ -94,7 +94,7 @@ class Session:
         if packages.chosen_by_name(backend):  # refused (numba not installed) before any work
             self.backend = packages.resolve_backend(backend)
         self._opened = cache.open_model(model, self.prior_scale)
-        #: the compiled model as plain data (:mod:`bgc.model.view`): what the runtime reads
+        #: the compiled model as plain data (:mod:`bgc.view`): what the runtime reads
         self.view = self._opened.view
         #: the folder of the generated NumPy package (``<model>/numpy_model``): the cache's entry, or a private one
         self.folder = self._opened.folder

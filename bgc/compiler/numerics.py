@@ -309,7 +309,7 @@ def truth_source(ssm: StateSpaceModel) -> tuple[str, str, tuple[tuple[str, str, 
     (name, module, attribute) of :data:`TRUTH_MODULES`, or (name, ``float``
     or ``complex``, the number's repr) for a constant such as lambdify's
     ``I``). Executed in a namespace of exactly those objects
-    (:meth:`bgc.model.view.TruthSource.functions`) it is the same code on
+    (:meth:`bgc.view.TruthSource.functions`) it is the same code on
     the same objects, so the same numbers, without sympy. None when the code
     reads an object that is none of those (then the truth needs sympy)."""
     import importlib

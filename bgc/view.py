@@ -39,12 +39,10 @@ import numbers
 from dataclasses import dataclass, fields
 from typing import Any
 
-from ..errors import SourceLoc
-from ..ir import (
-    Bond, BondGraph, Dbn, DbnModel, Element, FaultCandidate, FaultNumerics, FaultSignatures, Input, Measurement,
-    Numerics, Parameter, Settings, Signal, Signature, StateSpaceModel,
-)
-from ..output.labels import Labels
+from .errors import SourceLoc
+from .ir import (Bond, BondGraph, Dbn, DbnModel, Element, FaultCandidate, FaultNumerics, FaultSignatures, Input,
+    Measurement, Numerics, Parameter, Settings, Signal, Signature, StateSpaceModel)
+from .output.labels import Labels
 
 
 def _plain_part(name: str, ir: type, symbolic: tuple[str, ...], doc: str, *, first: tuple[tuple[str, str], ...] = (),
