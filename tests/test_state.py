@@ -173,3 +173,24 @@ def test_a_diagnoser_on_the_compiled_backend_is_taken_up_alike(sessions):
     assert at_cut.loop.phase == "tracking"
     _equal(beliefs, later, "beliefs")
     _equal(whole, resumed, "diagnosis")
+
+
+def test_a_checkpoint_is_the_batch_diagnosis_of_the_data_so_far(sessions):
+    """A checkpoint of the online diagnoser (the finish of a copy made from
+    its state: the hypotheses it tracks online are not tracked again) equals
+    the batch diagnosis of the rows so far, number for number."""
+    session = _session(sessions, MODELS / "two_tank.yaml")
+    rows, run = _rows(session, SCENARIOS["two_tank"])
+    d = session.diagnoser(particles=200, seed=3)
+    k = 240
+    for t, u, y in rows[:k]:
+        d.step(t, u, y)
+    assert d.loop.phase == "tracking" and d.loop.trackers
+    checkpoint = d.checkpoint()
+    lines = runs.run_csv(run).splitlines(keepends=True)
+    head = next(i for i, line in enumerate(lines) if line.startswith("time,"))
+    prefix = dataclasses.replace(runs.parse_run("".join(lines[:head + 1 + k]), "prefix"), parameters={})
+    batch = bgc.diagnose(session, data=prefix, options=d.options).diagnosis
+    _equal(checkpoint, batch, "checkpoint")
+    assert checkpoint.verdict == "isolated" and not d.finished  # the stream goes on
+    d.step(*rows[k])

@@ -266,14 +266,9 @@ class Diagnoser:
 
     def checkpoint(self) -> Diagnosis:
         """The diagnosis of the data so far, the stream going on: the
-        :meth:`finish` of a copy of this diagnoser's record (as costly as a
-        batch diagnosis of it)."""
-        copy = Diagnoser.__new__(Diagnoser)
-        copy._open(dataclasses.replace(self.config, lazy=True), self.sampler)
-        copy.infer_inputs = False
-        for s in self.loop.samples:
-            copy.take(s)
-        return copy.finish()
+        :meth:`finish` of a copy of this diagnoser, made from its state (the
+        hypotheses it tracks online are not tracked again)."""
+        return Diagnoser.from_state(self.config, self.to_state()).finish()
 
     # -- the state ------------------------------------------------------------------------------------------
 
