@@ -83,8 +83,8 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     arrive, with the model of ``session`` (:func:`bgc.open`); ``say(line)``
     gets each event as a line with its time, as it happens; ``checkpoint``:
     while hypotheses are tracked, a diagnosis of the data so far every this
-    many time units (a :class:`~bgc.events.Checkpoint` event; as
-    costly as a batch diagnosis of the record). Returns the report of the
+    many time units (a :class:`~bgc.events.Checkpoint` event; the
+    finish of a copy of the diagnoser, :meth:`~bgc.diagnosis.diagnoser.Diagnoser.checkpoint`). Returns the report of the
     final diagnosis and the error that ended the stream early (None: it
     ended, or Ctrl-C): a malformed row, a followed file rotated, the memory
     rule; the rows before it are diagnosed all the same.
