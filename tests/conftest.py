@@ -1,7 +1,20 @@
-"""Shared test set-up: hypothesis profiles (``ci`` is derandomized)."""
+"""Shared test set-up: hypothesis profiles (``ci`` is derandomized), the
+models compiled once per session, and ``bgc ...`` run in this process.
 
+The tiers (markers registered in pyproject.toml): ``make check`` runs every
+test but those marked ``slow`` (end-to-end scenarios), ``process`` (starts a
+real process: a CLI through a pipe, Ctrl-C, --follow, a fresh interpreter, a
+Dask cluster, a notebook kernel), ``numba`` (compiles kernels), ``install``
+and ``browser``; ``make test``, which CI runs, runs them all.
+"""
+
+import contextlib
+import io
 import os
+import subprocess
+import sys
 import tracemalloc
+import warnings
 from functools import lru_cache
 from pathlib import Path
 
@@ -35,10 +48,79 @@ ALL_MODELS = {
 
 @lru_cache(maxsize=None)
 def compiled(name: str):
-    """Every IR of one of ALL_MODELS, compiled once per test session."""
+    """Every IR of one of ALL_MODELS, compiled once per test session (for a
+    test that is not about compiling: read it, do not change it)."""
     from bgc.pipeline import compile_model
 
     return compile_model(ALL_MODELS[name])
+
+
+#: The warning filters of a fresh interpreter (``python -m bgc`` has no others).
+_FRESH_FILTERS = [("default", None, DeprecationWarning, "__main__", 0),
+                  ("ignore", None, DeprecationWarning, None, 0),
+                  ("ignore", None, PendingDeprecationWarning, None, 0),
+                  ("ignore", None, ImportWarning, None, 0),
+                  ("ignore", None, ResourceWarning, None, 0)]
+
+
+def bgc_cli(*args, cwd=ROOT, input: str | None = None, env: dict | None = None) -> subprocess.CompletedProcess:
+    """``bgc ARGS`` run in this process, as ``python -m bgc ARGS`` would run:
+    :func:`bgc.cli.main` from folder ``cwd`` with ``input`` on standard input
+    and ``env`` added to the environment (a value None: removed); its exit
+    status (argparse's ``SystemExit`` included) and what it printed on stdout
+    and stderr (a warning as a fresh interpreter shows it, on stderr), as
+    ``subprocess.run(..., capture_output=True, text=True)`` returns them. An
+    exception that would be a traceback is raised here. A test that needs a
+    real process (a pipe, a signal, a fresh interpreter) starts one instead."""
+    from bgc.cli import main
+
+    argv = [str(a) for a in args]
+    out, err = io.BytesIO(), io.BytesIO()
+    stdout = io.TextIOWrapper(out, encoding="utf-8", errors="strict", newline="", write_through=True)
+    stderr = io.TextIOWrapper(err, encoding="utf-8", errors="backslashreplace", newline="", write_through=True)
+    stdin = io.TextIOWrapper(io.BytesIO((input or "").encode("utf-8")), encoding="utf-8")
+    old = {k: os.environ.get(k) for k in (env or {})}
+    here = os.getcwd()
+    try:
+        for k, v in (env or {}).items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        os.chdir(cwd)
+        with contextlib.ExitStack() as stack:
+            stack.enter_context(warnings.catch_warnings())
+            warnings.filters[:] = list(_FRESH_FILTERS)
+            warnings.showwarning = warnings._showwarning_orig  # to sys.stderr, not to pytest's record
+            stack.enter_context(contextlib.redirect_stdout(stdout))
+            stack.enter_context(contextlib.redirect_stderr(stderr))
+            stack.enter_context(_stdin(stdin))
+            try:
+                code = main(argv)
+            except SystemExit as exc:  # argparse's usage errors, --help, --version
+                code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
+                if not isinstance(exc.code, (int, type(None))):
+                    print(exc.code, file=sys.stderr)
+            stdout.flush()
+            stderr.flush()
+    finally:
+        os.chdir(here)
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    text = lambda b: io.TextIOWrapper(io.BytesIO(b.getvalue()), encoding="utf-8", errors="replace").read()
+    return subprocess.CompletedProcess(["bgc", *argv], code, text(out), text(err))
+
+
+@contextlib.contextmanager
+def _stdin(stream):
+    old, sys.stdin = sys.stdin, stream
+    try:
+        yield
+    finally:
+        sys.stdin = old
 
 
 def tank_map(R12: float, dt: float = 0.5, R10: float = 4.0, R20: float = 3.0):
