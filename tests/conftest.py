@@ -19,6 +19,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, settings
 
 settings.register_profile("ci", derandomize=True, max_examples=200, deadline=None,
@@ -30,6 +31,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
 # of tests/test_diagnose.py when numba is installed (shipped models only), and a run may choose:
 # BGC_BACKEND=numba make test.
 os.environ.setdefault("BGC_BACKEND", "numpy")
+os.environ.setdefault("MPLBACKEND", "Agg")  # no display: as make test sets it
 
 ROOT = Path(__file__).resolve().parent.parent
 MODELS = ROOT / "models"
@@ -53,6 +55,66 @@ def compiled(name: str):
     from bgc.pipeline import compile_model
 
     return compile_model(ALL_MODELS[name])
+
+
+@lru_cache(maxsize=None)
+def _session(model: str, text: bytes, options: tuple):
+    import bgc
+
+    return bgc.open(model, **dict(options))
+
+
+def session(model, **options):
+    """``bgc.open(model, **options)`` once per test session and model text
+    (``model``: a name of ALL_MODELS or a path), for the many diagnoses of
+    tests that are not about opening a model: ``bgc.diagnose(session(...),
+    ...)`` gives what ``bgc.diagnose(model, ..., **options)`` would, without
+    compiling again. Read it, do not change it."""
+    path = ALL_MODELS.get(model, model)
+    return _session(str(path), Path(path).read_bytes(), tuple(sorted(options.items())))
+
+
+#: Folders of model files no test writes to: their compilations may be shared.
+_READ_ONLY = (MODELS, TEST_MODELS, ROOT / "tests" / "regression" / "models")
+_COMPILED: dict = {}
+
+
+@contextlib.contextmanager
+def compiled_once():
+    """Within it, ``bgc.pipeline.compile_model`` of a model file of
+    ``models/`` or ``tests/data/models/`` (which no test writes to) compiles
+    once per test session and per path as given (a message names the path
+    as the user wrote it), text and prior scale (also the regression
+    corpus's models); any other file, and a
+    model that fails, compile as usual. What bgc compiles on its way (bgc.open,
+    the commands, a campaign) goes through ``pipeline.compile_model``; a test
+    of the compiler imports ``compile_model`` itself and compiles afresh.
+    The compilations are frozen values (bgc.ir): sharing them is safe."""
+    from bgc import pipeline
+
+    fresh = pipeline.compile_model
+
+    def compile_model(path, prior_scale: float = 1.0):
+        where = Path(path).resolve()
+        if where.parent not in _READ_ONLY:
+            return fresh(path, prior_scale)
+        key = (str(path), str(where), where.read_bytes(), prior_scale)
+        if key not in _COMPILED:
+            _COMPILED[key] = fresh(path, prior_scale)
+        return _COMPILED[key]
+
+    pipeline.compile_model = compile_model
+    try:
+        yield
+    finally:
+        pipeline.compile_model = fresh
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _shipped_models_compiled_once():
+    """Every test runs within :func:`compiled_once`."""
+    with compiled_once():
+        yield
 
 
 #: The warning filters of a fresh interpreter (``python -m bgc`` has no others).
