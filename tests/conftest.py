@@ -2,10 +2,15 @@
 models compiled once per session, and ``bgc ...`` run in this process.
 
 The tiers (markers registered in pyproject.toml): ``make check`` runs every
-test but those marked ``slow`` (end-to-end scenarios), ``process`` (starts a
-real process: a CLI through a pipe, Ctrl-C, --follow, a fresh interpreter, a
-Dask cluster, a notebook kernel), ``numba`` (compiles kernels), ``install``
-and ``browser``; ``make test``, which CI runs, runs them all.
+test but those marked ``slow`` (end-to-end scenarios, seeded statistics),
+``process`` (starts a real process: a CLI through a pipe, Ctrl-C, --follow,
+a fresh interpreter, a Dask cluster, a notebook kernel; or forks the worker
+pool it tests), ``numba`` (compiles kernels), ``install`` and ``browser``;
+``make test``, which CI runs, runs them all. A diagnosis runs its filters in
+this process (``DiagnosisOptions(workers=1)``) unless workers are what the
+test is about; a command runs in this process (:func:`bgc_cli`) unless it
+needs a real one; a shipped model is compiled once (:func:`compiled`,
+:func:`session`, and :func:`compiled_once` for what bgc compiles itself).
 """
 
 import contextlib

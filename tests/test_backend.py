@@ -122,24 +122,35 @@ def test_a_diagnosis_does_not_depend_on_the_backend():
     assert abs(a.estimate.value - b.estimate.value) <= 1e-8 * abs(a.estimate.value)
 
 
+@pytest.fixture(scope="module")
+def new_cache(tmp_path_factory):
+    """The environment of a process with a bgc cache of its own, new for this
+    run of the tests, and numba's disk cache where it is by default (beside
+    the package), not the suite's: (the environment, the cache folder)."""
+    cache = tmp_path_factory.mktemp("new-cache")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    return {**env, "BGC_CACHE_DIR": str(cache)}, cache
+
+
 @pytest.mark.numba
 @pytest.mark.process
-def test_a_second_process_loads_the_compiled_kernels_from_the_disk_cache(tmp_path):
+def test_a_second_process_loads_the_compiled_kernels_from_the_disk_cache(new_cache):
     """The first session of a model text compiles its kernels, a later
     process loads them from numba's disk cache (the package lives in a
     folder of bgc's cache that lasts, named by the package's digest). The
     one test of a cold cache: two fresh interpreters, a new bgc cache, and
     numba's cache where it is by default (beside the package), not the
     suite's."""
+    env, cache = new_cache
+    assert not any(cache.iterdir()), "the test of a cold cache runs first on its cache"
     probe = ("import bgc; s = bgc.open('models/circuit.yaml', backend='numba'); "
              "print(s.package.__file__); print(*s.warm[1:]); print(s.backend_note())")
-    env = {**{k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}, "BGC_CACHE_DIR": str(tmp_path / "cache")}
     outs = [subprocess.run([sys.executable, "-c", probe], cwd=ROOT, env=env, capture_output=True, text=True,
                            timeout=600) for _ in range(2)]
     for out in outs:
         assert out.returncode == 0, out.stderr
     (first_file, first, first_note), (again_file, again, again_note) = (o.stdout.splitlines() for o in outs)
-    assert first_file == again_file and first_file.startswith(str(tmp_path / "cache"))
+    assert first_file == again_file and first_file.startswith(str(cache))
     compiled_first, _ = map(int, first.split())
     compiled_again, loaded_again = map(int, again.split())
     assert compiled_first > 0 and "compiled" in first_note
@@ -230,10 +241,15 @@ def test_the_static_posterior_and_its_verdict_do_not_depend_on_the_backend():
 
 
 @pytest.mark.numba
-def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_path):
+@pytest.mark.process
+def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_path, new_cache):
     """``bgc diagnose --backend numba`` says in one line how its kernels were
     had (compiled or loaded) and writes the same verdict as on NumPy; a
-    campaign's rows are the same on both backends but for the run time."""
+    campaign's rows are the same on both backends but for the run time. The
+    campaigns are processes of the cold-cache test's environment: the
+    circuit's kernels that test compiled into its bgc cache are loaded, not
+    compiled again (a campaign compiles its models into bgc's cache, not
+    from generated/)."""
     import csv
     import textwrap
 
@@ -256,9 +272,10 @@ def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_pat
             scenarios: [none, "R2:abrupt:0.6@1.5"]
         """), encoding="utf-8")
     rows = {}
-    for backend in ("numpy", "numba"):  # a campaign runs on a forked worker process, even with --workers 1
-        out = bgc_cli("experiment", config, "--workers", "1", "--no-progress", "--backend", backend,
-                      "-o", tmp_path / f"e-{backend}")
+    for backend in ("numpy", "numba"):
+        out = subprocess.run([sys.executable, "-m", "bgc", "experiment", str(config), "--workers", "1",
+                              "--no-progress", "--backend", backend, "-o", str(tmp_path / f"e-{backend}")],
+                             cwd=ROOT, env=new_cache[0], capture_output=True, text=True, timeout=900)
         assert out.returncode == 0, out.stderr
         with open(tmp_path / f"e-{backend}" / "runs.csv", encoding="utf-8") as f:
             table = csv.DictReader(line for line in f if not line.startswith("#"))

@@ -155,7 +155,7 @@ def test_no_more_workers_start_than_runs_to_do_or_memory_holds(monkeypatch):
     assert dispatch.local_workers(3, 100) == (3, None)
 
 
-@pytest.mark.slow  # two campaigns on forked worker processes: what it tests
+@pytest.mark.process  # two campaigns on forked worker processes: what it tests
 def test_a_request_for_more_workers_than_runs_starts_one_per_run_and_says_so(tiny, tmp_path):
     c = tiny[0]
     events = []

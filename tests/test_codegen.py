@@ -31,6 +31,7 @@ from bgc.ir import sym
 from bgc.kinds import fault_kind
 from bgc.pipeline import compile_model
 
+import conftest
 from conftest import ROOT
 
 MODELS = ["circuit", "two_tank", "ro"]
@@ -59,9 +60,9 @@ def package(model: str):
     return load_package(package_dir(model), f"_bgc_generated_{model}")
 
 
-@lru_cache(maxsize=None)
 def compiled(model: str):
-    return compile_model(ROOT / "models" / f"{model}.yaml")
+    """A shipped model compiled once per test session (conftest.compiled)."""
+    return conftest.compiled(model)
 
 
 def module_files(model: str) -> list[str]:
@@ -231,6 +232,7 @@ def test_package_lists_one_module_per_dbn_of_the_compiler(model):
         assert mod.__file__ == str(package_dir(model) / f"{name}.py")
 
 
+@pytest.mark.process  # a fresh interpreter: this one has imported bgc and sympy
 def test_importing_the_packages_loads_neither_bgc_nor_sympy():
     script = textwrap.dedent(f"""
         import importlib.util, sys
@@ -422,6 +424,7 @@ def _stiff_circuit(tmp_path):
     return c, load_package(out, f"_bgc_stiff_{abs(hash(str(tmp_path)))}")
 
 
+@pytest.mark.slow
 def test_stiff_circuit_gets_more_substeps_and_stays_bounded(tmp_path, monkeypatch):
     c, pkg = _stiff_circuit(tmp_path)
     mod = pkg.nominal
@@ -560,10 +563,9 @@ def test_predictive_std_where_the_plant_runs_passes_on_the_process_noise_of_a_pr
     PREDICTIVE_STD at any state. Before: the APF used PREDICTIVE_STD, its
     normalised P_mech residuals had std 1.35 and 8 of 40 fault-free runs
     alarmed."""
-    from bgc.api import folders as api_folders
     from bgc.model.package import load_package as load
 
-    c, folder = api_folders._compiled(ROOT / "tests" / "data" / "models" / "dc_motor.yaml")
+    folder = conftest.session("dc_motor").folder  # compiled once per test session
     mod = load(folder, "dc_motor").nominal
     k = dict(zip(mod.PARAMETERS, mod.THETA))["k"]
     out = list(mod.OUTPUTS)
@@ -771,12 +773,14 @@ def _trees(c) -> dict[str, ast.Module]:
     return {rel: ast.parse(text) for rel, text in c.package.files}
 
 
+@pytest.mark.process
 @pytest.mark.parametrize("description", HOSTILE_DESCRIPTIONS)
 def test_a_description_cannot_add_statements_to_the_generated_package(tmp_path, description):
     """Every module of the package made from a hostile description has exactly
     the statements of the package made from a plain one (its AST, docstrings
     aside, is identical), its docstrings hold the description as written, and
-    importing it runs nothing of the description."""
+    importing it runs nothing of the description (in a fresh interpreter in
+    an empty folder, which it must leave empty)."""
     plain = compile_model(_rc_model(tmp_path / "plain.yaml", "plain"))
     hostile = compile_model(_rc_model(tmp_path / "hostile.yaml", description))
     assert hostile.model.description == description
@@ -837,7 +841,7 @@ def test_a_lightly_damped_plant_pushed_from_rest_gets_the_substeps_its_accuracy_
     from bgc import pipeline
     from bgc.model import package as track
 
-    c = compile_model(ROOT / "tests" / "data" / "models" / "mass_spring_damper.yaml")
+    c = conftest.compiled("mass_spring_damper")
     for rel, text in pipeline.generated_files(c).items():
         (tmp_path / "mass_spring_damper" / rel).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / "mass_spring_damper" / rel).write_text(text)
