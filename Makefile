@@ -6,6 +6,9 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.bgc-installed
 #: The markers `make check` leaves out (pyproject.toml says what each means).
 FULL_ONLY := slow or process or numba or install or browser
+#: Test processes (pytest-xdist; a test file stays on one): `make test TEST_JOBS=0` runs in this one.
+TEST_JOBS ?= 2
+PYTEST := MPLBACKEND=Agg $(BIN)/python -m pytest -n $(TEST_JOBS) --dist loadfile
 
 .PHONY: demo check test clean
 
@@ -40,10 +43,10 @@ demo: $(STAMP)
 	@echo "demo: pictures and data in out/; the diagnosis report is out/diagnosis/report.md (plots beside it; open out/diagnosis/report.html in a browser: the same in one page), the monitor's out/monitor/report.md and report.html"
 
 check: $(STAMP)
-	MPLBACKEND=Agg $(BIN)/python -m pytest -m "not ($(FULL_ONLY))"
+	$(PYTEST) -m "not ($(FULL_ONLY))"
 
 test: $(STAMP)
-	MPLBACKEND=Agg $(BIN)/python -m pytest
+	$(PYTEST)
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

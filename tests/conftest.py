@@ -87,14 +87,14 @@ _COMPILED: dict = {}
 @contextlib.contextmanager
 def compiled_once():
     """Within it, ``bgc.pipeline.compile_model`` of a model file of
-    ``models/`` or ``tests/data/models/`` (which no test writes to) compiles
-    once per test session and per path as given (a message names the path
-    as the user wrote it), text and prior scale (also the regression
-    corpus's models); any other file, and a
-    model that fails, compile as usual. What bgc compiles on its way (bgc.open,
-    the commands, a campaign) goes through ``pipeline.compile_model``; a test
-    of the compiler imports ``compile_model`` itself and compiles afresh.
-    The compilations are frozen values (bgc.ir): sharing them is safe."""
+    ``models/``, ``tests/data/models/`` or the regression corpus's models
+    (files no test writes to) compiles once per test session and per path
+    as given (a message names the path as the user wrote it), text and
+    prior scale; any other file, and a model that fails, compile as usual.
+    What bgc compiles on its way (bgc.open, the commands, a campaign) goes
+    through ``pipeline.compile_model``; a test of the compiler imports
+    ``compile_model`` itself and compiles afresh. The compilations are
+    frozen values (bgc.ir): sharing them is safe."""
     from bgc import pipeline
 
     fresh = pipeline.compile_model
@@ -138,7 +138,10 @@ def bgc_cli(*args, cwd=ROOT, input: str | None = None, env: dict | None = None) 
     and stderr (a warning as a fresh interpreter shows it, on stderr), as
     ``subprocess.run(..., capture_output=True, text=True)`` returns them. An
     exception that would be a traceback is raised here. A test that needs a
-    real process (a pipe, a signal, a fresh interpreter) starts one instead."""
+    real process (a pipe, a signal, a fresh interpreter) starts one instead.
+    ``bgc diagnose`` forks its hypotheses' workers as the command does
+    (DiagnosisOptions' default, which no flag changes), and ``bgc
+    experiment`` its campaign's workers."""
     from bgc.cli import main
 
     argv = [str(a) for a in args]
@@ -158,7 +161,8 @@ def bgc_cli(*args, cwd=ROOT, input: str | None = None, env: dict | None = None) 
         with contextlib.ExitStack() as stack:
             stack.enter_context(warnings.catch_warnings())
             warnings.filters[:] = list(_FRESH_FILTERS)
-            warnings.showwarning = warnings._showwarning_orig  # to sys.stderr, not to pytest's record
+            warnings._filters_mutated()  # noqa: SLF001 - as warnings.filterwarnings does
+            warnings.showwarning = _show_on_stderr  # not to pytest's record
             stack.enter_context(contextlib.redirect_stdout(stdout))
             stack.enter_context(contextlib.redirect_stderr(stderr))
             stack.enter_context(_stdin(stdin))
@@ -179,6 +183,10 @@ def bgc_cli(*args, cwd=ROOT, input: str | None = None, env: dict | None = None) 
                 os.environ[k] = v
     text = lambda b: io.TextIOWrapper(io.BytesIO(b.getvalue()), encoding="utf-8", errors="replace").read()
     return subprocess.CompletedProcess(["bgc", *argv], code, text(out), text(err))
+
+
+def _show_on_stderr(message, category, filename, lineno, file=None, line=None) -> None:
+    sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
 
 
 @contextlib.contextmanager
