@@ -1,10 +1,16 @@
-# The two commands: `make demo` and `make test`. Both create .venv when missing.
+# The commands: `make demo`, `make check` (the fast tier, for a contributor every few minutes) and
+# `make test` (every test, what CI runs). Each creates .venv when missing.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.bgc-installed
+#: The markers `make check` leaves out (pyproject.toml says what each means).
+FULL_ONLY := slow or process or numba or install or browser
+#: Test processes (pytest-xdist; a test file stays on one): `make test TEST_JOBS=0` runs in this one.
+TEST_JOBS ?= 2
+PYTEST := MPLBACKEND=Agg $(BIN)/python -m pytest -n $(TEST_JOBS) --dist loadfile
 
-.PHONY: demo test clean
+.PHONY: demo check test clean
 
 # Print a CSV's lines one at a time, a pause between rows: a plant's logger, for the monitor.
 define REPLAY
@@ -36,8 +42,11 @@ demo: $(STAMP)
 	$(BIN)/python -c "$$REPLAY" out/ro-run.csv 0.01 | $(BIN)/bgc monitor models/ro.yaml --data - --noise process=0.03,measurement=0.02 --generated out/generated -o out/monitor
 	@echo "demo: pictures and data in out/; the diagnosis report is out/diagnosis/report.md (plots beside it; open out/diagnosis/report.html in a browser: the same in one page), the monitor's out/monitor/report.md and report.html"
 
+check: $(STAMP)
+	$(PYTEST) -m "not ($(FULL_ONLY))"
+
 test: $(STAMP)
-	MPLBACKEND=Agg $(BIN)/python -m pytest
+	$(PYTEST)
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

@@ -1,14 +1,30 @@
-"""Shared test set-up: hypothesis profiles (``ci`` is derandomized)."""
+"""Shared test set-up: hypothesis profiles (``ci`` is derandomized), the
+models compiled once per session, and ``bgc ...`` run in this process.
 
-import atexit
+The tiers (markers registered in pyproject.toml): ``make check`` runs every
+test but those marked ``slow`` (end-to-end scenarios, seeded statistics),
+``process`` (starts a real process: a CLI through a pipe, Ctrl-C, --follow,
+a fresh interpreter, a Dask cluster, a notebook kernel; or forks the worker
+pool it tests), ``numba`` (compiles kernels), ``install`` and ``browser``;
+``make test``, which CI runs, runs them all. A diagnosis runs its filters in
+this process (``DiagnosisOptions(workers=1)``) unless workers are what the
+test is about; a command runs in this process (:func:`bgc_cli`) unless it
+needs a real one; a shipped model is compiled once (:func:`compiled`,
+:func:`session`, and :func:`compiled_once` for what bgc compiles itself).
+"""
+
+import contextlib
+import io
 import os
-import shutil
-import tempfile
+import subprocess
+import sys
 import tracemalloc
+import warnings
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, settings
 
 settings.register_profile("ci", derandomize=True, max_examples=200, deadline=None,
@@ -20,11 +36,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
 # of tests/test_diagnose.py when numba is installed (shipped models only), and a run may choose:
 # BGC_BACKEND=numba make test.
 os.environ.setdefault("BGC_BACKEND", "numpy")
-# bgc's cache (models compiled once, numba's packages) in a folder of this test run, removed at its end,
-# unless one is given (BGC_CACHE_DIR=~/.cache/bgc make test keeps it from run to run).
-if not os.environ.get("BGC_CACHE_DIR"):
-    os.environ["BGC_CACHE_DIR"] = tempfile.mkdtemp(prefix="bgc-test-cache-")
-    atexit.register(shutil.rmtree, os.environ["BGC_CACHE_DIR"], True)
+os.environ.setdefault("MPLBACKEND", "Agg")  # no display: as make test sets it
 
 ROOT = Path(__file__).resolve().parent.parent
 MODELS = ROOT / "models"
@@ -43,10 +55,147 @@ ALL_MODELS = {
 
 @lru_cache(maxsize=None)
 def compiled(name: str):
-    """Every IR of one of ALL_MODELS, compiled once per test session."""
+    """Every IR of one of ALL_MODELS, compiled once per test session (for a
+    test that is not about compiling: read it, do not change it)."""
     from bgc.pipeline import compile_model
 
     return compile_model(ALL_MODELS[name])
+
+
+@lru_cache(maxsize=None)
+def _session(model: str, text: bytes, options: tuple):
+    import bgc
+
+    return bgc.open(model, **dict(options))
+
+
+def session(model, **options):
+    """``bgc.open(model, **options)`` once per test session and model text
+    (``model``: a name of ALL_MODELS or a path), for the many diagnoses of
+    tests that are not about opening a model: ``bgc.diagnose(session(...),
+    ...)`` gives what ``bgc.diagnose(model, ..., **options)`` would, without
+    compiling again. Read it, do not change it."""
+    path = ALL_MODELS.get(model, model)
+    return _session(str(path), Path(path).read_bytes(), tuple(sorted(options.items())))
+
+
+#: Folders of model files no test writes to: their compilations may be shared.
+_READ_ONLY = (MODELS, TEST_MODELS, ROOT / "tests" / "regression" / "models")
+_COMPILED: dict = {}
+
+
+@contextlib.contextmanager
+def compiled_once():
+    """Within it, ``bgc.pipeline.compile_model`` of a model file of
+    ``models/``, ``tests/data/models/`` or the regression corpus's models
+    (files no test writes to) compiles once per test session and per path
+    as given (a message names the path as the user wrote it), text and
+    prior scale; any other file, and a model that fails, compile as usual.
+    What bgc compiles on its way (bgc.open, the commands, a campaign) goes
+    through ``pipeline.compile_model``; a test of the compiler imports
+    ``compile_model`` itself and compiles afresh. The compilations are
+    frozen values (bgc.ir): sharing them is safe."""
+    from bgc import pipeline
+
+    fresh = pipeline.compile_model
+
+    def compile_model(path, prior_scale: float = 1.0, *, text: str | None = None):
+        where = Path(path).resolve()
+        if where.parent not in _READ_ONLY:
+            return fresh(path, prior_scale, text=text)
+        key = (str(path), str(where), where.read_bytes() if text is None else text, prior_scale)
+        if key not in _COMPILED:
+            _COMPILED[key] = fresh(path, prior_scale, text=text)
+        return _COMPILED[key]
+
+    pipeline.compile_model = compile_model
+    try:
+        yield
+    finally:
+        pipeline.compile_model = fresh
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _shipped_models_compiled_once():
+    """Every test runs within :func:`compiled_once`."""
+    with compiled_once():
+        yield
+
+
+#: The warning filters of a fresh interpreter (``python -m bgc`` has no others).
+_FRESH_FILTERS = [("default", None, DeprecationWarning, "__main__", 0),
+                  ("ignore", None, DeprecationWarning, None, 0),
+                  ("ignore", None, PendingDeprecationWarning, None, 0),
+                  ("ignore", None, ImportWarning, None, 0),
+                  ("ignore", None, ResourceWarning, None, 0)]
+
+
+def bgc_cli(*args, cwd=ROOT, input: str | None = None, env: dict | None = None) -> subprocess.CompletedProcess:
+    """``bgc ARGS`` run in this process, as ``python -m bgc ARGS`` would run:
+    :func:`bgc.cli.main` from folder ``cwd`` with ``input`` on standard input
+    and ``env`` added to the environment (a value None: removed); its exit
+    status (argparse's ``SystemExit`` included) and what it printed on stdout
+    and stderr (a warning as a fresh interpreter shows it, on stderr), as
+    ``subprocess.run(..., capture_output=True, text=True)`` returns them. An
+    exception that would be a traceback is raised here. A test that needs a
+    real process (a pipe, a signal, a fresh interpreter) starts one instead.
+    ``bgc diagnose`` forks its hypotheses' workers as the command does
+    (DiagnosisOptions' default, which no flag changes), and ``bgc
+    experiment`` its campaign's workers."""
+    from bgc.cli import main
+
+    argv = [str(a) for a in args]
+    out, err = io.BytesIO(), io.BytesIO()
+    stdout = io.TextIOWrapper(out, encoding="utf-8", errors="strict", newline="", write_through=True)
+    stderr = io.TextIOWrapper(err, encoding="utf-8", errors="backslashreplace", newline="", write_through=True)
+    stdin = io.TextIOWrapper(io.BytesIO((input or "").encode("utf-8")), encoding="utf-8")
+    old = {k: os.environ.get(k) for k in (env or {})}
+    here = os.getcwd()
+    try:
+        for k, v in (env or {}).items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        os.chdir(cwd)
+        with contextlib.ExitStack() as stack:
+            stack.enter_context(warnings.catch_warnings())
+            warnings.filters[:] = list(_FRESH_FILTERS)
+            warnings._filters_mutated()  # noqa: SLF001 - as warnings.filterwarnings does
+            warnings.showwarning = _show_on_stderr  # not to pytest's record
+            stack.enter_context(contextlib.redirect_stdout(stdout))
+            stack.enter_context(contextlib.redirect_stderr(stderr))
+            stack.enter_context(_stdin(stdin))
+            try:
+                code = main(argv)
+            except SystemExit as exc:  # argparse's usage errors, --help, --version
+                code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
+                if not isinstance(exc.code, (int, type(None))):
+                    print(exc.code, file=sys.stderr)
+            stdout.flush()
+            stderr.flush()
+    finally:
+        os.chdir(here)
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    text = lambda b: io.TextIOWrapper(io.BytesIO(b.getvalue()), encoding="utf-8", errors="replace").read()
+    return subprocess.CompletedProcess(["bgc", *argv], code, text(out), text(err))
+
+
+def _show_on_stderr(message, category, filename, lineno, file=None, line=None) -> None:
+    sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+
+@contextlib.contextmanager
+def _stdin(stream):
+    old, sys.stdin = sys.stdin, stream
+    try:
+        yield
+    finally:
+        sys.stdin = old
 
 
 def tank_map(R12: float, dt: float = 0.5, R10: float = 4.0, R20: float = 3.0):

@@ -26,7 +26,7 @@ from bgc.data import runs
 from bgc.analysis import simulate
 from bgc.diagnosis.options import DiagnosisOptions
 
-from conftest import ROOT, compiled, peak_memory
+from conftest import ROOT, compiled, peak_memory, session
 
 CIRCUIT = ROOT / "models" / "circuit.yaml"
 TWO_TANK = ROOT / "models" / "two_tank.yaml"
@@ -125,8 +125,8 @@ def test_the_issue_cases_raise_what_python_expects():
 
 
 def test_numpy_integers_are_integers():
-    r = bgc.diagnose(TWO_TANK, scenario="none", steps=np.int64(40), particles=np.int32(100), seed=np.uint8(1),
-                     generated=GENERATED, options=None)
+    r = bgc.diagnose(session(TWO_TANK, generated=GENERATED), scenario="none", steps=np.int64(40),
+                     particles=np.int32(100), seed=np.uint8(1), options=None)
     assert r.diagnosis.verdict == "no fault" and len(r.run.time) == 40 and r.run.source == "scenario none"
 
 
@@ -136,12 +136,12 @@ def test_numpy_integers_are_integers():
 def test_an_onset_outside_the_run_is_refused(scenario):
     """The issue's case (onset 100, run to t = 4 said 'no fault'), the last
     sample's time (a fault seen by no sample after it), 0, far away."""
-    refused(lambda: bgc.diagnose(CIRCUIT, scenario=scenario, steps=40, generated=GENERATED), SimulationError,
+    refused(lambda: bgc.diagnose(session(CIRCUIT, generated=GENERATED), scenario=scenario, steps=40), SimulationError,
             f"scenario {scenario}: onset")
 
 
 def test_an_onset_inside_the_run_is_diagnosed():
-    r = bgc.diagnose(CIRCUIT, scenario="R2:abrupt:0.6@1.5", steps=40, seed=1, generated=GENERATED,
+    r = bgc.diagnose(session(CIRCUIT, generated=GENERATED), scenario="R2:abrupt:0.6@1.5", steps=40, seed=1,
                      options=DiagnosisOptions(particles=200, workers=1))
     assert r.injected.time == 1.5 and r.run.source == "scenario R2:abrupt:0.6@1.5"
 
@@ -174,7 +174,7 @@ def replace(run: runs.Run, **change) -> runs.Run:
 ])
 def test_a_run_from_python_goes_through_the_checks_of_a_csv(change, start):
     run = replace(circuit_run(), **{"source": runs.PYTHON_SOURCE, "header": (), **change})
-    refused(lambda: bgc.diagnose(CIRCUIT, data=run, generated=GENERATED), DataError, start)
+    refused(lambda: bgc.diagnose(session(CIRCUIT, generated=GENERATED), data=run), DataError, start)
 
 
 def test_data_messages_name_the_file_and_line(tmp_path):
@@ -183,7 +183,7 @@ def test_data_messages_name_the_file_and_line(tmp_path):
     path = tmp_path / "run.csv"
     text = runs.run_csv(circuit_run())
     path.write_text(text.replace("y:f2", "y:f9"))  # a sensor the model lacks, one it has missing: both said
-    d = bgc.diagnose(CIRCUIT, data=path, generated=GENERATED, options=DiagnosisOptions(particles=100, workers=1))
+    d = bgc.diagnose(session(CIRCUIT, generated=GENERATED), data=path, options=DiagnosisOptions(particles=100, workers=1))
     assert {events.SensorMissing("f2"), events.ColumnIgnored("y:f9")} <= set(d.diagnosis.events)
     lines = text.splitlines(keepends=True)
     first = next(i for i, line in enumerate(lines) if line.startswith("time,"))
@@ -193,25 +193,25 @@ def test_data_messages_name_the_file_and_line(tmp_path):
         cells[column] = "-inf"
         lines[i] = ",".join(cells) + "\n"
     path.write_text("".join(lines))
-    refused(lambda: bgc.diagnose(CIRCUIT, data=path, generated=GENERATED), DataError,
+    refused(lambda: bgc.diagnose(session(CIRCUIT, generated=GENERATED), data=path), DataError,
             f"{path}:{first + 2}: -inf in column y:f2 is not a finite number")
 
 
 def test_a_sensor_never_read_is_named_in_an_event():
     run = circuit_run(80)
     blind = replace(run, measurements={**run.measurements, "f2": np.full(80, np.nan)}, source="bench.csv")
-    d = bgc.diagnose(CIRCUIT, data=blind, generated=GENERATED, options=DiagnosisOptions(particles=200, workers=1))
+    d = bgc.diagnose(session(CIRCUIT, generated=GENERATED), data=blind, options=DiagnosisOptions(particles=200, workers=1))
     silent = [e for e in d.diagnosis.events if isinstance(e, events.SensorSilent)]
     assert silent == [events.SensorSilent("f2")], d.diagnosis.events
     assert "sensor y:f2 has no sample in the run" in sentence(silent[0], d.diagnosis.time_of)
-    seen = bgc.diagnose(CIRCUIT, data=run, generated=GENERATED, options=DiagnosisOptions(particles=200, workers=1))
+    seen = bgc.diagnose(session(CIRCUIT, generated=GENERATED), data=run, options=DiagnosisOptions(particles=200, workers=1))
     assert not any(isinstance(e, events.SensorSilent) for e in seen.diagnosis.events)
 
 
 # ------------------------------------------------------------ memory: the diagnosis step limit
 def test_a_diagnosis_beyond_the_memory_is_refused_with_the_most_steps():
     num = compiled("circuit").numerics
-    line = refused(lambda: bgc.diagnose(CIRCUIT, scenario="none", steps=10_000_000, generated=GENERATED),
+    line = refused(lambda: bgc.diagnose(session(CIRCUIT, generated=GENERATED), scenario="none", steps=10_000_000),
                    TrackingError, "--steps: a diagnosis of 10000000 steps of circuit may take about")
     most = int(line.split("at most ")[1].split()[0])
     api_limits.check_diagnosis_steps(most, num, 1000, "gpf")
@@ -222,24 +222,25 @@ def test_a_diagnosis_beyond_the_memory_is_refused_with_the_most_steps():
     # ckf keeps no particle clouds: it may diagnose longer runs; more particles, shorter ones
     assert api_limits.diagnosis_memory(1, num, 1000, "ckf")[0] == 0
     assert api_limits.diagnosis_memory(1, num, 4000, "gpf")[1] > per_step
-    refused(lambda: bgc.diagnose(CIRCUIT, scenario="none", particles=10_000_000, generated=GENERATED), TrackingError,
+    refused(lambda: bgc.diagnose(session(CIRCUIT, generated=GENERATED), scenario="none", particles=10_000_000), TrackingError,
             "10000000 particles: a diagnosis of circuit keeps 257 clouds of them")
 
 
 def test_a_long_recorded_run_is_refused_by_the_same_rule(monkeypatch):
     monkeypatch.setattr(api_limits, "MAX_DIAGNOSIS_BYTES", 20_000_000)
-    refused(lambda: bgc.diagnose(CIRCUIT, data=circuit_run(200), generated=GENERATED), TrackingError,
+    refused(lambda: bgc.diagnose(session(CIRCUIT, generated=GENERATED), data=circuit_run(200)), TrackingError,
             "circuit.csv: 200 samples: a diagnosis of 200 steps of circuit may take about")
 
 
+@pytest.mark.slow
 def test_the_rule_bounds_the_memory_a_diagnosis_takes():
     """tracemalloc's peak of a diagnosis (one process, a drift found and
     sized) stays under the rule's bound."""
     run = runs.parse_run(simulate.to_csv(simulate.simulate(compiled("circuit").numerics, simulate.SimulationOptions(
         steps=200, seed=2, fault=simulate.parse_fault("R2:abrupt:0.6@3", compiled("circuit").numerics)))), "r")
     options = DiagnosisOptions(particles=300, workers=1)
-    bgc.diagnose(CIRCUIT, data=run, generated=GENERATED, options=options)  # compiled, imported: not counted
-    d, peak = peak_memory(lambda: bgc.diagnose(CIRCUIT, data=run, generated=GENERATED, options=options).diagnosis)
+    bgc.diagnose(session(CIRCUIT, generated=GENERATED), data=run, options=options)  # compiled, imported: not counted
+    d, peak = peak_memory(lambda: bgc.diagnose(session(CIRCUIT, generated=GENERATED), data=run, options=options).diagnosis)
     fixed, per_step = api_limits.diagnosis_memory(200, compiled("circuit").numerics, 300, "gpf")
     assert d.verdict != "no fault" and peak < fixed + 200 * per_step, (peak, fixed, per_step)
 
@@ -429,9 +430,11 @@ def hostile_model(tmp_path_factory):
 @pytest.fixture(scope="module")
 def hostile_report(hostile_model):
     """The circuit's R2 rising by 0.6 at t = 5; cubature Kalman filters."""
-    return bgc.diagnose(hostile_model, scenario="R2:abrupt:0.6@5", method="ckf", seed=1)
+    return bgc.diagnose(hostile_model, scenario="R2:abrupt:0.6@5", seed=1,
+                        options=DiagnosisOptions(method="ckf", seed=1, workers=1))
 
 
+@pytest.mark.slow
 def test_a_reports_notebook_view_says_the_verdict_first_and_escapes_the_model_path(hostile_report):
     r = hostile_report
     text = r._repr_html_()
@@ -451,6 +454,7 @@ def test_a_reports_notebook_view_says_the_verdict_first_and_escapes_the_model_pa
     assert repr(r) == "<bgc.DiagnosisReport of circuit: isolated: R2_abrupt>"
 
 
+@pytest.mark.slow
 def test_figures_are_the_reports_plots_as_live_matplotlib_figures(hostile_report, tmp_path):
     from matplotlib.figure import Figure
 
@@ -470,6 +474,7 @@ def test_figures_are_the_reports_plots_as_live_matplotlib_figures(hostile_report
     assert figures["estimate.png"].axes[0].get_ylabel() == f"bias of R2 [{unit}]"  # the model's unit
 
 
+@pytest.mark.slow
 def test_write_gives_the_folder_bgc_diagnose_writes_and_refuses_foreign_files(hostile_model, hostile_report, tmp_path,
                                                                              capsys):
     import json
@@ -530,6 +535,7 @@ def test_a_sessions_notebook_view_lists_the_model_and_escapes_its_text(tmp_path)
     assert "states: e4 (C1), e8 (C2), f10 (L)" in words  # the circuit's states (the model file's comment)
 
 
+@pytest.mark.slow
 def test_a_calibrations_notebook_view_says_its_verdict_and_escapes_the_model_path(tmp_path):
     from test_calibrate import RC, rc_run
 

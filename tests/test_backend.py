@@ -1,6 +1,15 @@
 """The compiled (numba) backend: the same numbers as the NumPy package on
 every shipped model and filter, the choice of backend, and a NumPy-only
-installation that never needs numba."""
+installation that never needs numba.
+
+The tests that compile kernels are marked ``numba`` (make check leaves them
+out). They load the committed packages of generated/ (or, for a package
+bgc.open makes, its folder in bgc's cache, which the suite keeps in
+.pytest_cache): each kernel is compiled once per test run, into numba's disk
+cache (conftest.py keeps it between runs), and every later test, in this
+process or another, loads it. Only the test of a cold cache starts from
+nothing.
+"""
 
 import os
 import subprocess
@@ -9,6 +18,7 @@ import sys
 import numpy as np
 import pytest
 
+from bgc.diagnosis.options import DiagnosisOptions
 from bgc.errors import TrackingError
 from bgc.filters import cubature as kalman
 from bgc.filters import quadrature
@@ -16,25 +26,13 @@ from bgc.analysis import simulate
 from bgc.model import package as loading
 from bgc.model import warmup
 
-from conftest import ROOT, compiled
+from conftest import ROOT, bgc_cli, compiled
 
 numba = pytest.importorskip("numba", reason="the fast extra (numba) is not installed: pip install '.[fast]'")
 
 MODELS = ["circuit", "two_tank", "ro"]
 #: Relative difference allowed between the backends (each series scaled by its largest magnitude).
 TOLERANCE = 1e-10
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _cache(tmp_path_factory):
-    """numba's disk cache of packages bgc writes for this module: a folder of the test run."""
-    old = os.environ.get("BGC_CACHE_DIR")
-    os.environ["BGC_CACHE_DIR"] = str(tmp_path_factory.mktemp("bgc-cache"))
-    yield
-    if old is None:
-        del os.environ["BGC_CACHE_DIR"]
-    else:
-        os.environ["BGC_CACHE_DIR"] = old
 
 
 def record(name: str, steps: int = 120):
@@ -67,6 +65,7 @@ def packages(name: str):
 
 
 @pytest.mark.parametrize("name", MODELS)
+@pytest.mark.numba
 def test_backends_give_the_same_filter_outputs_on_every_model_and_filter(name):
     """Every model module of the package, every particle filter (same seed) and
     the cubature Kalman filter: the compiled package's outputs equal the NumPy
@@ -95,6 +94,7 @@ def test_backends_give_the_same_filter_outputs_on_every_model_and_filter(name):
 
 
 @pytest.mark.parametrize("name", ["ro"])
+@pytest.mark.numba
 def test_a_bank_of_filters_is_the_same_on_both_backends(name):
     """Several generic filters of one fault model stepped together (the
     hypothesis filters' bank) give the same on both backends."""
@@ -108,30 +108,49 @@ def test_a_bank_of_filters_is_the_same_on_both_backends(name):
     assert difference(outs[0].reshape(len(ys), -1), outs[1].reshape(len(ys), -1)) <= TOLERANCE
 
 
+@pytest.mark.numba
 def test_a_diagnosis_does_not_depend_on_the_backend():
     import bgc
 
-    reports = [bgc.diagnose("models/circuit.yaml", scenario="R2:abrupt:0.6@5", seed=2, particles=200,
-                            backend=b) for b in ("numpy", "numba")]
+    # the committed packages: their kernels are compiled by now (the first test)
+    reports = [bgc.diagnose("models/circuit.yaml", scenario="R2:abrupt:0.6@5", seed=2, generated=ROOT / "generated",
+                            options=DiagnosisOptions(particles=200, seed=2, workers=1), backend=b)
+               for b in ("numpy", "numba")]
     a, b = (r.diagnosis for r in reports)
     assert (a.verdict, a.candidates, a.onset) == (b.verdict, b.candidates, b.onset)
     assert a.estimate is not None and b.estimate is not None
     assert abs(a.estimate.value - b.estimate.value) <= 1e-8 * abs(a.estimate.value)
 
 
-def test_a_second_process_loads_the_compiled_kernels_from_the_disk_cache(tmp_path):
+@pytest.fixture(scope="module")
+def new_cache(tmp_path_factory):
+    """The environment of a process with a bgc cache of its own, new for this
+    run of the tests, and numba's disk cache where it is by default (beside
+    the package), not the suite's: (the environment, the cache folder)."""
+    cache = tmp_path_factory.mktemp("new-cache")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    return {**env, "BGC_CACHE_DIR": str(cache)}, cache
+
+
+@pytest.mark.numba
+@pytest.mark.process
+def test_a_second_process_loads_the_compiled_kernels_from_the_disk_cache(new_cache):
     """The first session of a model text compiles its kernels, a later
     process loads them from numba's disk cache (the package lives in a
-    folder of bgc's cache that lasts, named by the package's digest)."""
+    folder of bgc's cache that lasts, named by the package's digest). The
+    one test of a cold cache: two fresh interpreters, a new bgc cache, and
+    numba's cache where it is by default (beside the package), not the
+    suite's."""
+    env, cache = new_cache
+    assert not any(cache.iterdir()), "the test of a cold cache runs first on its cache"
     probe = ("import bgc; s = bgc.open('models/circuit.yaml', backend='numba'); "
              "print(s.package.__file__); print(*s.warm[1:]); print(s.backend_note())")
-    env = {**os.environ, "BGC_CACHE_DIR": str(tmp_path / "cache")}
     outs = [subprocess.run([sys.executable, "-c", probe], cwd=ROOT, env=env, capture_output=True, text=True,
                            timeout=600) for _ in range(2)]
     for out in outs:
         assert out.returncode == 0, out.stderr
     (first_file, first, first_note), (again_file, again, again_note) = (o.stdout.splitlines() for o in outs)
-    assert first_file == again_file and first_file.startswith(str(tmp_path / "cache"))
+    assert first_file == again_file and first_file.startswith(str(cache))
     compiled_first, _ = map(int, first.split())
     compiled_again, loaded_again = map(int, again.split())
     assert compiled_first > 0 and "compiled" in first_note
@@ -154,10 +173,12 @@ def test_the_backend_is_chosen_by_name_by_the_environment_or_by_what_is_installe
         loading.resolve_backend("cuda")
 
 
+@pytest.mark.process
 def test_without_numba_the_numpy_package_runs_and_numba_is_refused_in_one_line(tmp_path):
     """An installation without the fast extra: numba cannot be imported (blocked
     here); ``bgc diagnose`` runs on the NumPy package, ``--backend numba`` is a
-    one-line error naming the extra."""
+    one-line error naming the extra. (A fresh interpreter: this one has
+    imported numba.)"""
     block = "import sys; sys.modules['numba'] = None; from bgc.cli import main; sys.exit(main())"
     env = {**os.environ, "BGC_BACKEND": ""}
     ok = subprocess.run([sys.executable, "-c", block, "diagnose", "models/circuit.yaml", "--scenario",
@@ -175,6 +196,7 @@ def test_without_numba_the_numpy_package_runs_and_numba_is_refused_in_one_line(t
         assert "numba" not in path.read_text(encoding="utf-8"), path
 
 
+@pytest.mark.numba
 def test_a_package_instance_at_other_noise_levels_uses_its_own_noise_on_both_backends():
     """``load_package(noise=...)`` loads a second instance of a package (its
     own module names) whose stds differ: the compiled kernels, shared by both
@@ -197,13 +219,15 @@ def test_a_package_instance_at_other_noise_levels_uses_its_own_noise_on_both_bac
     assert difference(runs["numba", "base"].y_std, runs["numba", "other"].y_std) > 1e-3
 
 
+@pytest.mark.numba
 def test_the_static_posterior_and_its_verdict_do_not_depend_on_the_backend():
     """The cubature Kalman filters' banks (onset cells, held magnitudes, a
     drifting parameter) on the RO plant, through a whole ckf diagnosis: the
     same verdict, hypotheses' weights and estimate on both backends."""
     import bgc
 
-    reports = [bgc.diagnose("models/ro.yaml", scenario="R_pipe:incipient:0.5@165", seed=1, method="ckf",
+    reports = [bgc.diagnose("models/ro.yaml", scenario="R_pipe:incipient:0.5@165", seed=1,
+                            options=DiagnosisOptions(method="ckf", seed=1, workers=1),
                             generated=ROOT / "generated", backend=b) for b in ("numpy", "numba")]
     a, b = (r.diagnosis for r in reports)
     assert (a.verdict, a.candidates, a.onset) == (b.verdict, b.candidates, b.onset)
@@ -216,20 +240,23 @@ def test_the_static_posterior_and_its_verdict_do_not_depend_on_the_backend():
     assert abs(a.estimate.high - b.estimate.high) <= 1e-8 * abs(a.estimate.high)
 
 
-def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_path):
+@pytest.mark.numba
+@pytest.mark.process
+def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_path, new_cache):
     """``bgc diagnose --backend numba -v`` says in one line how its kernels were
     had (compiled or loaded) and writes the same verdict as on NumPy; a
-    campaign's rows are the same on both backends but for the run time."""
+    campaign's rows are the same on both backends but for the run time. The
+    campaigns are processes of the cold-cache test's environment: the
+    circuit's kernels that test compiled into its bgc cache are loaded, not
+    compiled again (a campaign compiles its models into bgc's cache, not
+    from generated/)."""
     import csv
     import textwrap
 
-    env = {**os.environ}
     lines = {}
     for backend in ("numpy", "numba"):
-        out = subprocess.run([sys.executable, "-m", "bgc", "diagnose", "models/circuit.yaml", "--scenario",
-                              "R2:abrupt:0.6@5", "--particles", "200", "--generated", str(ROOT / "generated"),
-                              "--backend", backend, "-v", "-o", str(tmp_path / f"d-{backend}")],
-                             cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+        out = bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@5", "--particles", "200",
+                      "--generated", ROOT / "generated", "--backend", backend, "-v", "-o", tmp_path / f"d-{backend}")
         assert out.returncode == 0, out.stderr
         lines[backend] = out.stdout.splitlines()[0]
         assert ("numba backend: " in out.stderr) == (backend == "numba")
@@ -248,7 +275,7 @@ def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_pat
     for backend in ("numpy", "numba"):
         out = subprocess.run([sys.executable, "-m", "bgc", "experiment", str(config), "--workers", "1",
                               "--no-progress", "--backend", backend, "-o", str(tmp_path / f"e-{backend}")],
-                             cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+                             cwd=ROOT, env=new_cache[0], capture_output=True, text=True, timeout=900)
         assert out.returncode == 0, out.stderr
         with open(tmp_path / f"e-{backend}" / "runs.csv", encoding="utf-8") as f:
             table = csv.DictReader(line for line in f if not line.startswith("#"))
@@ -266,19 +293,24 @@ def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_pat
 
 
 @pytest.mark.parametrize("name", ["dc_motor", "resistor_loop", "mass_spring_damper", "orifice_tanks"])
+@pytest.mark.numba
 def test_plants_nobody_here_wrote_compile_to_the_same_numbers(name, tmp_path):
     """The test plants (a DC motor across domains, a resistor loop, a
     mass-spring-damper, tanks with orifices: sqrt, abs and sign in their
-    laws), written into a fresh folder: the nominal model and a fault model
-    on both backends, the generic particle filter and the cubature Kalman
+    laws), written into a fresh folder (the compiled package: into the
+    folder of bgc's cache that bgc.open gives it, where numba's disk cache
+    stays valid from run to run): the nominal model and a fault model on
+    both backends, the generic particle filter and the cubature Kalman
     filter, agree to 1e-10 (only these two modules are compiled)."""
+    from bgc.api.folders import _lasting_folder
     from bgc.output import artifacts
     from bgc.pipeline import generated_files
 
     c = compiled(name)
     artifacts.write_folder(tmp_path / c.model.name, generated_files(c))
     ys, us = record(name, steps=60)
-    numpy_pkg, numba_pkg = (loading.load_package(tmp_path, c.model.name, backend=b) for b in ("numpy", "numba"))
+    numpy_pkg = loading.load_package(tmp_path, c.model.name, backend="numpy")
+    numba_pkg = loading.load_package(_lasting_folder(c), c.model.name, backend="numba")
     for module in ("nominal", sorted(numpy_pkg.MODELS)[1]):
         runs = [p.filters.GenericParticleFilter(p.MODELS[module], 64, np.random.default_rng(2)).run(ys, us)
                 for p in (numpy_pkg, numba_pkg)]
@@ -288,6 +320,7 @@ def test_plants_nobody_here_wrote_compile_to_the_same_numbers(name, tmp_path):
         assert difference(np.array([s.mean for s in steps[0]]), np.array([s.mean for s in steps[1]])) <= TOLERANCE
 
 
+@pytest.mark.numba
 def test_a_diverged_particle_is_recovered_alike_on_both_backends():
     """A particle whose prediction is +inf: the NumPy filter's weighing makes
     its log-weight NaN (shift - y < 0 against +inf), and the step recovers;
@@ -305,6 +338,7 @@ def test_a_diverged_particle_is_recovered_alike_on_both_backends():
     assert difference(a.mean[None, :], b.mean[None, :]) <= TOLERANCE
 
 
+@pytest.mark.numba
 def test_above_two_blocks_of_particles_the_backends_agree_too():
     """From 2 * BLOCK particles the filters take the block-wise steps (the
     compiled prediction and measurements still): the same numbers."""
@@ -345,6 +379,7 @@ def test_auto_falls_back_to_numpy_when_the_compiled_package_is_missing(tmp_path,
         bgc.open("models/circuit.yaml", generated=tmp_path, backend="numba")
 
 
+@pytest.mark.numba
 def test_compiled_draws_are_the_generators_own_numbers_and_leave_it_where_numpy_would():
     """The compiled kernel draws from a Generator through its bit generator's
     handle (no conversion of the Generator per call): the numbers of
@@ -362,6 +397,7 @@ def test_compiled_draws_are_the_generators_own_numbers_and_leave_it_where_numpy_
     assert kernel.generator_handle(np.random.RandomState(0)) is None
 
 
+@pytest.mark.numba
 def test_a_compiled_generic_filter_step_is_one_call_with_the_numpy_filters_numbers(monkeypatch):
     """Up to two blocks of particles the compiled package's generic filter
     makes a whole step in one compiled call (the model's transition is not
@@ -404,6 +440,7 @@ def test_a_compiled_model_names_the_kernel_its_cached_step_was_compiled_with():
                 assert f'KERNEL_SHA256 = "{digest}"' in path.read_text(encoding="utf-8"), path
 
 
+@pytest.mark.numba
 def test_the_compiled_quadrature_of_the_static_posterior_is_the_numpy_ones():
     """``quadrature.row_quadrature`` on a compiled package's kernel (one call)
     gives the NumPy rule's nodes and log masses: Gaussian and steep rows
@@ -425,6 +462,7 @@ def test_the_compiled_quadrature_of_the_static_posterior_is_the_numpy_ones():
                           quadrature.row_quadrature(v[:2], np.zeros(2))[0])
 
 
+@pytest.mark.numba
 def test_a_prepared_filter_makes_nothing_on_its_first_step_and_gives_the_same_numbers():
     """``prepare`` (an online diagnoser calls it before its first sample)
     makes the weights, the Gaussian terms of the sensors read and, compiled,

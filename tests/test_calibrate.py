@@ -58,6 +58,7 @@ def rc_run(session, sigma: float, steps: int, seed: int, start: float = 1.0) -> 
 
 
 # ------------------------------------------------------------------- closed forms on a one-state linear plant
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2])
 def test_rc_noise_variance_is_the_mean_squared_residual(rc, seed):
     """With no process noise (and so an exactly known initial state, X0_STD
@@ -89,6 +90,7 @@ def test_rc_noise_variance_is_the_mean_squared_residual(rc, seed):
     assert r.calibration.loglik == pytest.approx(-0.5 * T * (math.log(2 * math.pi * expected) + 1), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_rc_initial_state_is_the_least_squares_start(rc):
     """A recording that starts at 0.8, not at the model's 1.0, with no
     process noise: the readings are x0 g^k plus white noise, so the
@@ -118,6 +120,7 @@ def test_rc_initial_state_is_the_least_squares_start(rc):
     assert wrong == pytest.approx(math.sqrt(float(np.mean((y - g) ** 2))), rel=1e-6) and wrong > 1.1 * sigma
 
 
+@pytest.mark.slow
 def test_rc_several_recordings_with_gaps_and_missing_cells(rc):
     """Two recordings, one with a gap of 10 rows and empty cells: the data
     meet the model's time grid as in a diagnosis (the filter predicts across
@@ -139,6 +142,7 @@ def test_rc_several_recordings_with_gaps_and_missing_cells(rc):
     assert r.calibration.sources == ("rc.csv", "rc2.csv") and "from rc.csv, rc2.csv" in r.text
 
 
+@pytest.mark.slow
 def test_rc_process_noise_the_data_do_not_show_is_zero(rc):
     """Asked for the process level too, on data without process noise: its
     likelihood is highest at 0, so it is 0 with a one-sided interval, and
@@ -153,6 +157,7 @@ def test_rc_process_noise_the_data_do_not_show_is_zero(rc):
     assert "process_noise: 0.0\n" in r.text and "the data show none" in r.text
 
 
+@pytest.mark.slow
 def test_rc_sensor_noise_swamped_by_process_noise_is_named(tmp_path):
     """A sensor whose noise (0.0005) is tiny beside the process noise it
     reads (a std of about 0.05): its likelihood is flat toward 0, so it is
@@ -170,6 +175,7 @@ def test_rc_sensor_noise_swamped_by_process_noise_is_named(tmp_path):
     assert p.identifiable and p.low < 0.05 < p.high
 
 
+@pytest.mark.slow
 def test_rc_product_of_parameters_is_not_identifiable(rc):
     """R and C enter the drain only as R C: each alone is named as not
     identifiable and keeps the model's value, and the noise is estimated
@@ -197,6 +203,7 @@ def tank_run(session, process: float, measurement: float, steps: int, seed: int)
     return runs.parse_run(simulate.to_csv(result), f"tanks-{seed}.csv")
 
 
+@pytest.mark.slow
 def test_two_tank_noise_levels_near_the_truth(tanks):
     """Data simulated (RK4 with 8 substeps, not the filter's own step) at a
     process level of 0.01 and a sensor level of 0.03, unlike the model's 0.03
@@ -239,6 +246,7 @@ def compile_from_text(text: str):
         return compile_model(path)
 
 
+@pytest.mark.slow
 def test_two_tank_parameter_interval_covers_the_truth(tanks, tmp_path):
     """A model whose R12 is 20 % off (2.4, the plant's is 2.0): calibrated on
     healthy data of the plant, R12's 95 % interval holds the truth and not
@@ -367,6 +375,7 @@ def test_writes_a_new_file_and_never_one_bgc_did_not_write(rc, tmp_path, monkeyp
     assert model.read_bytes() == original
 
 
+@pytest.mark.slow
 def test_cli_writes_the_calibrated_model(rc, tmp_path, capsys):
     run, _ = rc_run(rc, 0.05, 100, 6)
     data = tmp_path / "healthy.csv"
@@ -409,6 +418,7 @@ def test_cli_writes_the_calibrated_model(rc, tmp_path, capsys):
     assert sorted(p.name for p in theirs.iterdir()) == ["notes.txt"]
 
 
+@pytest.mark.slow
 def test_report_autocorrelation_is_the_sample_autocorrelation(rc):
     """The autocorrelation pictured is, on one recording read throughout,
     the textbook sample autocorrelation sum (z_t - m)(z_t+k - m) / sum (z_t
@@ -466,6 +476,7 @@ def test_data_of_another_model_is_refused(rc, tanks):
 
 
 # ------------------------------------------------------------------- innovations
+@pytest.mark.slow
 def test_innovations_tell_a_model_that_misses_the_plant(rc, tmp_path):
     """The innovations of the calibrated model: white on data of the model's
     own plant; correlated (a tiny Ljung-Box p-value) and off 0 when the

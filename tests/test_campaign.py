@@ -6,8 +6,6 @@ campaign goes on; tables and metrics computed as defined."""
 import dataclasses
 import json
 import math
-import subprocess
-import sys
 import textwrap
 import time
 from pathlib import Path
@@ -22,7 +20,7 @@ from bgc.errors import BgcError
 from bgc.output import tables
 from bgc.experiment import metrics
 
-from conftest import ROOT
+from conftest import ROOT, bgc_cli
 
 CIRCUIT = ROOT / "models" / "circuit.yaml"
 TWO_TANK = ROOT / "models" / "two_tank.yaml"
@@ -151,8 +149,7 @@ def test_a_bad_campaign_is_one_located_line_without_traceback(tmp_path, body, wh
     with pytest.raises(BgcError) as err:
         campaign_file.load_campaign(path)
     assert words in str(err.value) and f"{path}{where}" in str(err.value)
-    r = subprocess.run([sys.executable, "-m", "bgc", "experiment", str(path), "-o", str(tmp_path / "o")],
-                       capture_output=True, text=True)
+    r = bgc_cli("experiment", path, "-o", tmp_path / "o")
     assert r.returncode == 1 and "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert words in r.stderr
 
@@ -163,6 +160,7 @@ def test_the_published_campaign_schema_is_the_packaged_one():
         "after editing bgc/schema/campaign.schema.json run: cp bgc/schema/campaign.schema.json schemas/"
 
 
+@pytest.mark.slow
 def test_the_shipped_campaigns_load():
     thesis = campaign_file.load_campaign(ROOT / "experiments" / "thesis_tables.yaml")
     # Tables IV.2 to IV.4: 5 scenarios x 2 filters x 10 seeds, and R_pipe abrupt at the high noise level
@@ -192,6 +190,8 @@ def test_a_failing_run_is_recorded_and_does_not_raise(tmp_path):
 
 @pytest.fixture(scope="module")
 def local_run(tmp_path_factory):
+    """SMALL run on two forked local workers (what a local campaign is): its
+    tests are marked slow (ten diagnoses end to end)."""
     folder = tmp_path_factory.mktemp("campaign")
     config = write(folder, SMALL)
     c = campaign_file.load_campaign(config)
@@ -201,6 +201,7 @@ def local_run(tmp_path_factory):
     return c, campaign.run_campaign(c, folder / "out", workers=2, progress=False), folder
 
 
+@pytest.mark.slow
 def test_a_local_campaign_writes_rows_tables_and_plots(local_run):
     c, r, folder = local_run
     out = folder / "out"
@@ -230,6 +231,7 @@ def test_a_local_campaign_writes_rows_tables_and_plots(local_run):
     assert "report.html" in json.loads((out / "manifest.json").read_text())["files"]
 
 
+@pytest.mark.slow
 def test_an_interrupted_campaign_resumes_without_redoing_finished_runs(local_run):
     c, first, folder = local_run
     out = folder / "resume"
@@ -246,6 +248,8 @@ def test_an_interrupted_campaign_resumes_without_redoing_finished_runs(local_run
     assert without_time(again.rows) == without_time(first.rows)
 
 
+@pytest.mark.slow
+@pytest.mark.process  # a Dask cluster of two worker processes
 def test_a_dask_cluster_gives_the_local_rows_row_for_row(local_run):
     distributed = pytest.importorskip("distributed")
     c, local, folder = local_run
@@ -256,6 +260,7 @@ def test_a_dask_cluster_gives_the_local_rows_row_for_row(local_run):
     assert without_time(remote.rows) == without_time(local.rows)
 
 
+@pytest.mark.slow
 def test_the_campaign_folder_is_bgc_s_own(local_run, tmp_path):
     c, _, folder = local_run
     (tmp_path / "mine.txt").write_text("notes")
@@ -265,8 +270,7 @@ def test_the_campaign_folder_is_bgc_s_own(local_run, tmp_path):
     with pytest.raises(BgcError, match="holds campaign 'small'"):
         campaign.run_campaign(other, folder / "out", progress=False)
     # a folder bgc compile wrote is bgc's, but not a campaign's: its files must not be replaced
-    r = subprocess.run([sys.executable, "-m", "bgc", "compile", str(CIRCUIT), "-o", str(tmp_path / "gen"),
-                        "--no-pictures"], capture_output=True, text=True)
+    r = bgc_cli("compile", CIRCUIT, "-o", tmp_path / "gen", "--no-pictures")
     assert r.returncode == 0, r.stderr
     before = sorted(p.name for p in (tmp_path / "gen" / "circuit").rglob("*"))
     with pytest.raises(BgcError, match="another bgc output"):
@@ -277,8 +281,7 @@ def test_the_campaign_folder_is_bgc_s_own(local_run, tmp_path):
 def test_an_unreachable_scheduler_is_one_line(tmp_path):
     config = write(tmp_path, SMALL)
     started = time.perf_counter()
-    r = subprocess.run([sys.executable, "-m", "bgc", "experiment", str(config), "-o", str(tmp_path / "o"),
-                        "--scheduler", "tcp://127.0.0.1:9"], capture_output=True, text=True, timeout=120)
+    r = bgc_cli("experiment", config, "-o", tmp_path / "o", "--scheduler", "tcp://127.0.0.1:9")
     assert r.returncode == 1 and "Traceback" not in r.stderr and "Dask scheduler" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
     assert time.perf_counter() - started < 5  # refused: no retries for Dask's 30 s timeout

@@ -26,7 +26,7 @@ from bgc.experiment import campaign_file, dispatch, runs_csv
 from bgc.errors import ArgumentTypeError, ArgumentValueError, BgcError, ExperimentError, printable
 from bgc.output import tables
 
-from conftest import ROOT
+from conftest import ROOT, bgc_cli
 
 CIRCUIT = ROOT / "models" / "circuit.yaml"
 
@@ -49,9 +49,15 @@ def write(folder: Path, text: str, name: str = "c.yaml") -> Path:
     return p
 
 
-def bgc(*args: str, timeout: float = 120, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bgc", *args], capture_output=True, text=True, timeout=timeout,
-                          **kw)
+def bgc(*args: str) -> subprocess.CompletedProcess:
+    """``bgc ARGS`` in this process (conftest.bgc_cli)."""
+    return bgc_cli(*args)
+
+
+def bgc_process(*args: str, timeout: float) -> subprocess.CompletedProcess:
+    """``python -m bgc ARGS``, a real process: for a test whose failure would
+    be a command that never ends, which only a process can be timed out of."""
+    return subprocess.run([sys.executable, "-m", "bgc", *args], capture_output=True, text=True, timeout=timeout)
 
 
 def one_line_error(r: subprocess.CompletedProcess) -> str:
@@ -64,7 +70,8 @@ def one_line_error(r: subprocess.CompletedProcess) -> str:
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
-    """The tiny campaign run once: (campaign, result, its folder's runs.csv bytes)."""
+    """The tiny campaign run once: (campaign, result, its folder's runs.csv bytes).
+    It forks one worker process: a local campaign runs there."""
     folder = tmp_path_factory.mktemp("tiny")
     c = campaign_file.load_campaign(write(folder, TINY.format(model=CIRCUIT)))
     r = campaign.run_campaign(c, folder / "out", workers=1, progress=False)
@@ -148,6 +155,7 @@ def test_no_more_workers_start_than_runs_to_do_or_memory_holds(monkeypatch):
     assert dispatch.local_workers(3, 100) == (3, None)
 
 
+@pytest.mark.process  # two campaigns on forked worker processes: what it tests
 def test_a_request_for_more_workers_than_runs_starts_one_per_run_and_says_so(tiny, tmp_path):
     c = tiny[0]
     events = []
@@ -259,7 +267,7 @@ def test_a_refused_scheduler_fails_in_seconds_with_one_line(tmp_path):
     port = unused_port()
     for address in (f"tcp://127.0.0.1:{port}", f"127.0.0.1:{port}", f"tls://127.0.0.1:{port}"):
         t = time.perf_counter()
-        r = bgc("experiment", str(config), "-o", str(tmp_path / "o"), "--scheduler", address, timeout=60)
+        r = bgc("experiment", str(config), "-o", str(tmp_path / "o"), "--scheduler", address)
         assert time.perf_counter() - t < 5, address
         line = one_line_error(r)
         assert "Dask scheduler" in line and "connection refused" in line, line
@@ -300,11 +308,13 @@ def test_a_silent_host_fails_after_the_connect_timeout(tmp_path):
         server.close()
 
 
+@pytest.mark.process
 @pytest.mark.parametrize("answer", [None, b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n", b"\xff" * 64])
 def test_a_server_that_is_no_scheduler_fails_in_one_line(tmp_path, answer):
     """A server that takes the connection and never answers held Dask's client
     forever (its handshake has no timeout); one that answers HTTP made it
-    allocate exabytes ('out of memory')."""
+    allocate exabytes ('out of memory'). A real process: held forever or out
+    of memory, it is ended by its timeout, and the test fails."""
     server = socket.socket()
     server.bind(("127.0.0.1", 0))
     server.listen(8)
@@ -328,8 +338,8 @@ def test_a_server_that_is_no_scheduler_fails_in_one_line(tmp_path, answer):
     try:
         config = write(tmp_path, TINY.format(model=CIRCUIT))
         t = time.perf_counter()
-        r = bgc("experiment", str(config), "-o", str(tmp_path / "o"), "--scheduler", f"tcp://127.0.0.1:{port}",
-                "--connect-timeout", "1.5", timeout=60)
+        r = bgc_process("experiment", str(config), "-o", str(tmp_path / "o"), "--scheduler",
+                        f"tcp://127.0.0.1:{port}", "--connect-timeout", "1.5", timeout=60)
         assert time.perf_counter() - t < 15
         line = one_line_error(r)
         assert "Dask scheduler" in line and "out of memory" not in line
@@ -622,6 +632,7 @@ def _alive(pid: int) -> bool:
     return stat.rsplit(")", 1)[1].split()[0] not in ("Z", "X")  # a zombie has ended
 
 
+@pytest.mark.process  # the campaign's process is killed (SIGKILL), its workers must end with it
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads /proc")
 def test_the_workers_of_a_killed_campaign_end_with_it(tmp_path):
     config = write(tmp_path, f"""\
@@ -682,18 +693,20 @@ def test_integral_floats_and_non_finite_numbers_are_located_schema_errors(tmp_pa
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.process
 def test_a_runs_csv_that_is_a_fifo_or_a_folder_is_refused_at_once(tiny, tmp_path):
+    """A real process: a command that blocked reading the FIFO is ended by its timeout."""
     out = copy_of(tiny, tmp_path)
     (out / "runs.csv").unlink()
     os.mkfifo(out / "runs.csv")
     before = sorted(p.name for p in out.iterdir())
     start = time.monotonic()
-    error = one_line_error(bgc("experiment", str(tiny[0].source), "-o", str(out), timeout=30))
+    error = one_line_error(bgc_process("experiment", str(tiny[0].source), "-o", str(out), timeout=30))
     assert time.monotonic() - start < 20 and "runs.csv" in error
     assert sorted(p.name for p in out.iterdir()) == before
     (out / "runs.csv").unlink()
     (out / "runs.csv").mkdir()
-    one_line_error(bgc("experiment", str(tiny[0].source), "-o", str(out), timeout=30))
+    one_line_error(bgc("experiment", str(tiny[0].source), "-o", str(out)))
     assert sorted(p.name for p in out.iterdir()) == before
 
 

@@ -7,11 +7,7 @@ import pytest
 
 from bgc.cli import main
 
-from conftest import ROOT
-
-
-def run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bgc", *args], cwd=ROOT, capture_output=True, text=True)
+from conftest import ROOT, bgc_cli as run
 
 
 def test_check_circuit_reports_thesis_states(capsys):
@@ -160,10 +156,13 @@ measurements: {f3: {}}
 
 
 # ------------------------------------------------ pipes, limits, data from outside
+@pytest.mark.process
 @pytest.mark.parametrize("reader", ["true", "head -1"])
 def test_a_closed_pipe_ends_quietly_with_status_0(reader):
     """``bgc show equations models/ro.yaml | true`` (the reader never reads) or
-    ``| head -1`` (it stops early): no message, status 0, as other CLIs do."""
+    ``| head -1`` (it stops early): no message, status 0, as other CLIs do.
+    A real process: the pipe must be a real one, closed by its reader, and
+    the interpreter's last flush must raise nothing."""
     r = subprocess.run(["bash", "-c", f"set -o pipefail; {sys.executable} -m bgc show equations models/ro.yaml"
                                       f" | {reader} > /dev/null"], cwd=ROOT, capture_output=True, text=True)
     assert (r.returncode, r.stderr) == (0, "")

@@ -33,6 +33,7 @@ def test_threshold_is_the_union_bound_of_a_per_run_false_alarm_rate():
     assert options.threshold(1) < c < DetectorOptions(false_alarm=0.001, steps=300).threshold(4)
 
 
+@pytest.mark.slow
 def test_false_alarms_per_run_stay_below_the_target_on_white_residuals():
     """600 fault-free runs of 300 steps x 4 sensors of N(0, 1) residuals: the
     share of runs with any alarm stays below alpha (the bound is
@@ -101,6 +102,7 @@ def test_window_statistic_widens_by_the_monte_carlo_share_by_hand():
     assert det.statistics[-1][0] == pytest.approx(1 / math.sqrt(1.0625), rel=1e-12)
 
 
+@pytest.mark.slow
 def test_the_allowance_keeps_the_rate_when_the_prediction_has_a_slow_monte_carlo_error():
     """Residuals = white N(0, 1) + a slowly varying prediction error of std
     0.15 (AR(1), coefficient 0.97: ancestors shared over tens of steps). A

@@ -5,8 +5,6 @@ runs that must not alarm. Also ``bgc diagnose`` and its errors."""
 
 import importlib.util
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -16,7 +14,7 @@ from bgc.output.events import NOTABLE
 from bgc import events
 from bgc.diagnosis.options import DiagnosisOptions
 
-from conftest import ROOT
+from conftest import ROOT, bgc_cli, session
 from bgc.analysis import track
 
 GENERATED = ROOT / "generated"
@@ -27,9 +25,10 @@ GENERATED = ROOT / "generated"
 FAST = "numba" if importlib.util.find_spec("numba") else "numpy"
 
 
-def run(model: str, scenario: str, seed: int, **noise):
-    return bgc.diagnose(ROOT / "models" / f"{model}.yaml", scenario=scenario, seed=seed, generated=GENERATED,
-                        **noise).diagnosis
+def run(model: str, scenario: str, seed: int, workers: int = 1, **noise):
+    """The diagnosis of a shipped model's scenario with the committed package (1000 particles, gpf)."""
+    return bgc.diagnose(session(ROOT / "models" / f"{model}.yaml", generated=GENERATED, **noise), scenario=scenario,
+                        seed=seed, options=DiagnosisOptions(seed=seed, workers=workers)).diagnosis
 
 
 @pytest.mark.slow
@@ -102,25 +101,22 @@ def test_no_fault_no_alarm(model, seed, noise):
     assert d.verdict == "no fault" and d.detection is None and d.hypotheses == ()
 
 
+@pytest.mark.process  # forks a pool of workers: what it tests
 def test_the_filters_of_a_diagnosis_run_in_worker_processes_with_the_same_results():
     """Hypothesis filters are independent: on two processes or in this one,
-    the same seeds give the same numbers."""
-    model = ROOT / "models" / "circuit.yaml"
-    a = bgc.diagnose(model, scenario="R2:abrupt:0.6@5", generated=GENERATED,
-                     options=DiagnosisOptions(seed=5, workers=2)).diagnosis
-    b = bgc.diagnose(model, scenario="R2:abrupt:0.6@5", generated=GENERATED,
-                     options=DiagnosisOptions(seed=5, workers=1)).diagnosis
+    the same seeds give the same numbers. (It forks a pool of two workers:
+    that is what it tests.)"""
+    model = session(ROOT / "models" / "circuit.yaml", generated=GENERATED)
+    a = bgc.diagnose(model, scenario="R2:abrupt:0.6@5", options=DiagnosisOptions(seed=5, workers=2)).diagnosis
+    b = bgc.diagnose(model, scenario="R2:abrupt:0.6@5", options=DiagnosisOptions(seed=5, workers=1)).diagnosis
     assert a.hypotheses and [h.name for h in a.hypotheses] == [h.name for h in b.hypotheses]
     for x, y in zip(a.hypotheses, b.hypotheses):
         # a rejected filter stops: the rest of its arrays is NaN in both
         assert x.log_evidence == y.log_evidence and np.array_equal(x.magnitude, y.magnitude, equal_nan=True)
 
 
-# ------------------------------------------------------------------- the CLI
-def bgc_cli(*args, cwd=ROOT):
-    return subprocess.run([sys.executable, "-m", "bgc", *args], cwd=cwd, capture_output=True, text=True)
-
-
+# ------------------------------------------------------------------- the CLI (in this process: conftest.bgc_cli)
+@pytest.mark.slow
 def test_bgc_diagnose_writes_a_report_and_plots(tmp_path):
     out = tmp_path / "diag"
     r = bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@5", "--seed", "2", "-o", str(out))
@@ -173,6 +169,7 @@ def test_bgc_diagnose_bad_input_is_one_located_line(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.numba  # the compiled backend when numba is installed (FAST)
 @pytest.mark.parametrize("model, scenario, truth, noise", [
     ("ro", "R_pipe:abrupt:31@165", 31.0, {}),
     ("circuit", "R2:abrupt:0.6@5", 0.6, {"process_noise": 0.01, "measurement_noise": 0.01}),
@@ -186,12 +183,13 @@ def test_the_95_percent_interval_covers_the_truth_in_at_least_9_of_10_seeded_run
     session = bgc.open(ROOT / "models" / f"{model}.yaml", generated=GENERATED, backend=FAST, **noise)  # compiled once
     covered = 0
     for seed in range(200, 220):
-        d = bgc.diagnose(session, scenario=scenario, seed=seed).diagnosis
+        d = bgc.diagnose(session, scenario=scenario, seed=seed, options=DiagnosisOptions(seed=seed, workers=1)).diagnosis
         h = next((h for h in d.hypotheses if h.name == "_".join(scenario.split(":")[:2])), None)
         covered += h is not None and h.estimate.low <= truth <= h.estimate.high
     assert covered >= 16, covered
 
 
+@pytest.mark.slow
 def test_bgc_diagnose_rewrites_its_own_folder_but_no_one_elses(tmp_path):
     out = tmp_path / "diag"
     for _ in range(2):
@@ -205,6 +203,7 @@ def test_bgc_diagnose_rewrites_its_own_folder_but_no_one_elses(tmp_path):
     assert line.startswith(f"{mine} is not empty and holds no bgc manifest.json")
 
 
+@pytest.mark.slow
 def test_symbols_from_a_subsample_of_the_paths_when_particles_are_many(monkeypatch):
     """Above ``PATHS`` particles the open loop keeps a random subsample of
     the paths for the symbols' null distribution (memory); the circuit's R2
@@ -212,7 +211,7 @@ def test_symbols_from_a_subsample_of_the_paths_when_particles_are_many(monkeypat
     from bgc.diagnosis import openloop
 
     monkeypatch.setattr(openloop, "PATHS", 64)
-    d = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R2:abrupt:0.6@5", seed=1, generated=GENERATED,
+    d = bgc.diagnose(session("circuit", generated=GENERATED), scenario="R2:abrupt:0.6@5", seed=1,
                      options=DiagnosisOptions(seed=1, particles=300, workers=1)).diagnosis
     assert [(s.sensor, s.sign) for s in d.symbols][:1] == [("f6", "-")]
     assert d.candidates[0] == "R2_abrupt"
@@ -364,28 +363,27 @@ def test_a_drift_found_long_after_it_began_gets_its_onset_grid_extended_back():
     back (by the particle filters with ``identify="filter"``, by the Kalman
     filters of the static posterior by default); the drift is isolated with
     its onset within 12 samples."""
-    d = run("circuit", "R3:incipient:0.0308906@5.3", seed=473362393)
+    d = run("circuit", "R3:incipient:0.0308906@5.3", seed=473362393, workers=2)  # forks: against one process below
     assert d.detection.step - 106 > 64
     assert d.candidates[0] == "R3_incipient"
     h = d.best
     assert min(h.static.onsets) < d.detection.step - 64
     assert abs(h.onset - 106) <= 12 and d.onset == h.onset, h.onset
-    one = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R3:incipient:0.0308906@5.3", seed=473362393,
-                       generated=GENERATED, options=DiagnosisOptions(seed=473362393, workers=1)).diagnosis
+    circuit = session(ROOT / "models" / "circuit.yaml", generated=GENERATED)
+    one = bgc.diagnose(circuit, scenario="R3:incipient:0.0308906@5.3", seed=473362393,
+                       options=DiagnosisOptions(seed=473362393, workers=1)).diagnosis
     for x, y in zip(one.hypotheses, d.hypotheses):  # the Kalman filters have no random numbers
         assert (x.static is None) == (y.static is None) and x.estimate == y.estimate
         assert x.static is None or x.static.onsets == y.static.onsets and x.static.log_evidence == y.static.log_evidence
-    f = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R3:incipient:0.0308906@5.3", seed=473362393,
-                     generated=GENERATED, options=DiagnosisOptions(seed=473362393, identify="filter",
-                                                               spacing=4)).diagnosis
+    f = bgc.diagnose(circuit, scenario="R3:incipient:0.0308906@5.3", seed=473362393,
+                     options=DiagnosisOptions(seed=473362393, identify="filter", spacing=4)).diagnosis  # 2 workers
     h = f.best
     assert f.candidates[0] == "R3_incipient" and min(h.onsets) < f.detection.step - 64
     assert abs(h.start - 106) <= 12, h.start
     # each hypothesis's batches of onsets depend on its own results only: on one process (the
     # batches one after another) the same onsets are tried and give the same numbers
-    one = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R3:incipient:0.0308906@5.3", seed=473362393,
-                       generated=GENERATED, options=DiagnosisOptions(seed=473362393, workers=1, identify="filter",
-                                                                 spacing=4)).diagnosis
+    one = bgc.diagnose(circuit, scenario="R3:incipient:0.0308906@5.3", seed=473362393,
+                       options=DiagnosisOptions(seed=473362393, workers=1, identify="filter", spacing=4)).diagnosis
     assert [(x.name, x.onsets) for x in one.hypotheses] == [(x.name, x.onsets) for x in f.hypotheses]
     for x, y in zip(one.hypotheses, f.hypotheses):
         assert x.log_evidence == y.log_evidence and x.onset_posterior == y.onset_posterior
@@ -404,7 +402,7 @@ def test_a_parameter_seen_directly_by_a_sensor_changed_at_a_sample_is_isolated()
     (whose magnitude settles on half the change to fit it, then fails its
     test) must not prune it before it starts. Both failed before: the verdict
     was 'unexplained' in every such run of a campaign."""
-    d = bgc.diagnose(TEST_MODELS / "dc_motor.yaml", scenario="k:abrupt:0.03@150", seed=3,
+    d = bgc.diagnose(session(TEST_MODELS / "dc_motor.yaml"), scenario="k:abrupt:0.03@150", seed=3,
                      options=DiagnosisOptions(seed=3, workers=1)).diagnosis
     assert d.time_of(d.detection.step) == 150
     assert d.verdict == "isolated" and d.candidates == ("k_abrupt",)
@@ -419,8 +417,8 @@ def test_a_hypothesis_whose_earliest_filters_all_stop_before_the_next_onset_star
     """A campaign run that raised (``cannot reshape array of size 0``): every
     filter started had stopped while the hypothesis's later onsets had not
     started, so a step had no filter to run."""
-    d = bgc.diagnose(TEST_MODELS / "dc_motor.yaml", scenario="R_a:incipient:0.00113856@170", seed=505876183,
-                     process_noise=0.005, measurement_noise=0.01,
+    d = bgc.diagnose(session(TEST_MODELS / "dc_motor.yaml", process_noise=0.005, measurement_noise=0.01),
+                     scenario="R_a:incipient:0.00113856@170", seed=505876183,
                      options=DiagnosisOptions(method="gpf", particles=500, seed=505876183, workers=1)).diagnosis
     assert d.detection is not None and "R_a_incipient" in d.candidates
 
@@ -436,8 +434,8 @@ def test_the_auxiliary_filters_residuals_of_a_product_of_states_keep_unit_varian
     may alarm."""
     z = []
     for seed in (1, 2, 3):
-        d = bgc.diagnose(TEST_MODELS / "dc_motor.yaml", scenario="none", seed=seed, process_noise=0.02,
-                         measurement_noise=0.03,
+        d = bgc.diagnose(session(TEST_MODELS / "dc_motor.yaml", process_noise=0.02, measurement_noise=0.03),
+                         scenario="none", seed=seed,
                          options=DiagnosisOptions(method="apf", particles=500, seed=seed, workers=1)).diagnosis
         assert d.detection is None
         z.append(np.asarray(d.nominal_z)[10:, d.outputs.index("P_mech")])
@@ -453,8 +451,8 @@ def test_a_parameter_a_sensor_sees_is_sized_right_when_it_changes_at_a_sample():
     cd + 0.3595 was sized +0.546 (52 % off) with an interval that missed it.
     The estimate must now hold the truth and lie within 5 % of it."""
     truth = 0.359508
-    d = bgc.diagnose(TEST_MODELS / "orifice_tanks.yaml", scenario=f"cd:abrupt:{truth}@149", seed=2765532394,
-                     process_noise=0.005, measurement_noise=0.01,
+    d = bgc.diagnose(session("orifice_tanks", process_noise=0.005, measurement_noise=0.01),
+                     scenario=f"cd:abrupt:{truth}@149", seed=2765532394,
                      options=DiagnosisOptions(particles=500, seed=2765532394, workers=1)).diagnosis
     assert d.verdict == "isolated" and d.candidates == ("cd_abrupt",)
     e = d.estimate
@@ -472,7 +470,7 @@ def test_a_drift_whose_particle_filters_start_off_its_onset_is_tested_as_its_fau
     'unexplained'. When no hypothesis passes, those whose best filter ran to
     the end are tested with the magnitude held static, on the Kalman filters'
     finer onsets; R_memb's drift passes, and is the diagnosis."""
-    d = bgc.diagnose(ROOT / "models" / "ro.yaml", scenario="R_memb:incipient:0.2@165", seed=0,
+    d = bgc.diagnose(session("ro"), scenario="R_memb:incipient:0.2@165", seed=0,
                      options=DiagnosisOptions(method="apf", particles=200, seed=0, workers=1)).diagnosis
     assert d.verdict == "isolated" and d.candidates == ("R_memb_incipient",)
     assert any(isinstance(e, events.Rescued) and e.hypothesis == "R_memb_incipient" for e in d.events)
@@ -492,8 +490,8 @@ def test_a_drifts_onset_is_marginalised_sample_by_sample_where_its_posterior_is(
     truth's onset (sample 92, t = 93) is the most probable, and the
     interval holds the truth."""
     truth = -0.00150208
-    d = bgc.diagnose(TEST_MODELS / "dc_motor.yaml", scenario=f"R_a:incipient:{truth}@93", seed=2937888235,
-                     process_noise=0.005, measurement_noise=0.01,
+    d = bgc.diagnose(session("dc_motor", process_noise=0.005, measurement_noise=0.01),
+                     scenario=f"R_a:incipient:{truth}@93", seed=2937888235,
                      options=DiagnosisOptions(method=method, particles=500, seed=2937888235, workers=1)).diagnosis
     assert d.candidates == ("R_a_incipient",)
     assert d.time_of(d.onset) == 93
@@ -501,13 +499,14 @@ def test_a_drifts_onset_is_marginalised_sample_by_sample_where_its_posterior_is(
     assert e.low <= truth <= e.high
 
 
+@pytest.mark.slow
 def test_a_fault_its_symbols_rule_out_is_tried_when_those_they_keep_explain_nothing():
     """A sweep run of the two tanks: R20 up by 1.02 at t = 48. The fault is
     seen on F20 at once and the plant settles fast, so the slope read after
     the jump rules R20's signature out and keeps R12's only, whose filters then
     fail: the verdict was 'unexplained'. The fault models the symbols ruled
     out are now tried too, with a note."""
-    d = bgc.diagnose(ROOT / "models" / "two_tank.yaml", scenario="R20:abrupt:1.02018@48", seed=2743265757,
+    d = bgc.diagnose(session("two_tank"), scenario="R20:abrupt:1.02018@48", seed=2743265757,
                      options=DiagnosisOptions(particles=500, seed=2743265757, workers=1)).diagnosis
     assert any(name.startswith("R20") for name, _ in d.refuted)  # the symbols still rule it out
     assert d.verdict == "isolated" and d.candidates == ("R20_abrupt",)
@@ -515,6 +514,7 @@ def test_a_fault_its_symbols_rule_out_is_tried_when_those_they_keep_explain_noth
     assert d.estimate.low <= 1.02018 <= d.estimate.high
 
 
+@pytest.mark.slow
 def test_a_sensor_sharp_against_the_process_noise_degenerates_the_particle_filters_and_kalman_filters_take_over():
     """The drivetrain test plant: a stiff shaft between two inertias whose
     torque is measured to 0.17 N m, while the speeds' process noise of one
@@ -529,13 +529,11 @@ def test_a_sensor_sharp_against_the_process_noise_degenerates_the_particle_filte
     towards y_k, but the torque at step k is fixed by the speeds' noise drawn
     at step k-1, so its weights degenerate as well, and on 5 of 8 seeds at
     N = 1000 it lost the state altogether.)"""
-    from bgc.api import folders as api_folders
     from bgc.filters import cubature as kalman
     from bgc.data import runs
     from bgc.analysis import simulate
-    from bgc.model import package as packages
 
-    model = TEST_MODELS / "drivetrain.yaml"
+    model = session(TEST_MODELS / "drivetrain.yaml")
     d = bgc.diagnose(model, scenario="none", seed=1,
                      options=DiagnosisOptions(particles=500, seed=1, workers=1, switch=False)).diagnosis
     degenerate = [e for e in d.events if isinstance(e, events.Degenerate)]
@@ -546,8 +544,7 @@ def test_a_sensor_sharp_against_the_process_noise_degenerates_the_particle_filte
     assert d.options.method == "ckf" and d.verdict == "no fault"
     assert any(isinstance(e, events.Degenerate) and e.switched for e in d.events)
     assert any(isinstance(e, events.Switched) and e.to == "ckf" for e in d.events)
-    c, private = api_folders._compiled(model)
-    package = packages.load_package(private, "drivetrain")
+    c, package = model.compiled, model.package  # the NumPy package of the model, in a private folder
     for seed in (1, 2, 3, 4):
         result = simulate.simulate(c.numerics, simulate.SimulationOptions(seed=seed))
         ys, us = track.run_arrays(runs.parse_run(simulate.to_csv(result), "none"), package, "nominal")
@@ -566,8 +563,8 @@ def test_cubature_kalman_filters_alone_isolate_and_size_a_fault_the_particle_fil
     alarm comes seconds later, far after the step; the step's onsets reach
     back to it, and g_m's step is the most probable hypothesis, sized within
     10 % with its interval covering -0.2 and its onset within 3 samples."""
-    d = bgc.diagnose(TEST_MODELS / "drivetrain.yaml", scenario="g_m:abrupt:-0.2@8", seed=1,
-                     options=DiagnosisOptions(method="ckf", seed=1, workers=2)).diagnosis
+    d = bgc.diagnose(session(TEST_MODELS / "drivetrain.yaml"), scenario="g_m:abrupt:-0.2@8", seed=1,
+                     options=DiagnosisOptions(method="ckf", seed=1, workers=1)).diagnosis
     assert d.detection.step > 160 + 20 and d.candidates[0] == "g_m_abrupt"
     e = d.estimate
     assert abs(e.value + 0.2) < 0.02 and e.low <= -0.2 <= e.high and abs(d.onset - 160) <= 3
@@ -575,14 +572,15 @@ def test_cubature_kalman_filters_alone_isolate_and_size_a_fault_the_particle_fil
     assert best.x_mean.shape == (len(d.time) - best.start, len(d.states)) and np.isfinite(best.magnitude).all()
 
 
+@pytest.mark.slow
 def test_cubature_kalman_filters_alone_find_the_static_posterior_the_particle_filters_hint_at():
     """--filter ckf lays its first grid over the magnitude's whole prior; the
     particle filters' path starts from their interval. The adaptive grid
     converges to the same static posterior either way (circuit, R1 up by 0.3
     at t = 5)."""
     def diagnosis(method):
-        return bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R1:abrupt:0.3@5", seed=1,
-                            options=DiagnosisOptions(method=method, seed=1, workers=2, particles=500)).diagnosis
+        return bgc.diagnose(session("circuit"), scenario="R1:abrupt:0.3@5", seed=1,
+                            options=DiagnosisOptions(method=method, seed=1, workers=1, particles=500)).diagnosis
 
     k, p = diagnosis("ckf"), diagnosis("gpf")
     assert k.candidates == p.candidates == ("R1_abrupt",)
@@ -594,22 +592,24 @@ def test_cubature_kalman_filters_alone_find_the_static_posterior_the_particle_fi
     assert dropped and all(h.reason and h.posterior == 0.0 for h in dropped if "residual" in h.reason)
 
 
+@pytest.mark.slow
 def test_a_diagnosis_runs_on_the_locally_optimal_proposal_too():
     """--filter opf: the nominal observer and every hypothesis's filters (one
     by one: the bank does not pack them)."""
-    d = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R2:abrupt:0.6@5", seed=4,
+    d = bgc.diagnose(session("circuit"), scenario="R2:abrupt:0.6@5", seed=4,
                      options=DiagnosisOptions(method="opf", particles=500, seed=4, workers=1)).diagnosis
     assert d.verdict == "isolated" and d.candidates == ("R2_abrupt",)
     assert d.estimate.low <= 0.6 <= d.estimate.high
     assert not [e for e in d.events if isinstance(e, NOTABLE)]
 
 
+@pytest.mark.slow
 def test_a_fault_that_degenerates_the_observer_after_it_does_not_switch_the_filter():
     """The nominal filter degenerates after a large fault (the fault is what
     the data show): only the steps before the alarm say whether the filter
     itself is degenerate. R2 tripled from t = 1 left the circuit's nominal GPF
     14 of 1000 particles on average over the run."""
-    d = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R2:abrupt:2@1", seed=1,
+    d = bgc.diagnose(session("circuit"), scenario="R2:abrupt:2@1", seed=1,
                      options=DiagnosisOptions(seed=1, workers=1)).diagnosis
     assert d.options.method == "gpf" and not any(isinstance(e, events.Degenerate) for e in d.events)
     assert d.candidates[0] == "R2_abrupt"

@@ -25,11 +25,10 @@ from bgc import api, cli
 
 from bgc.api import distinguish as api_distinguish
 
-from bgc.api import folders as api_folders
 from bgc.analysis import distinguish
 from bgc.model import package as track
 
-from conftest import ROOT, TEST_MODELS, compiled, peak_memory, tank_map
+from conftest import ROOT, TEST_MODELS, compiled, peak_memory, session, tank_map
 
 TWO_TANK = ROOT / "models" / "two_tank.yaml"
 PIPES = TEST_MODELS / "series_pipes.yaml"
@@ -146,6 +145,7 @@ def test_a_sensor_drift_rival_is_fitted_not_taken_for_no_fault():
     assert drift.magnitude > 0 and 0 < drift.expected < 0.9 * d.divergence
 
 
+@pytest.mark.slow
 def test_the_bayes_factor_over_data_sets_has_the_predicted_mean_and_spread():
     """The truth, R12 up by 0.6 from sample 135, against R10's best fit (a
     decrease): 400 data sets drawn from the truth's Gaussian model, the log
@@ -179,7 +179,7 @@ def test_the_bayes_factor_over_data_sets_has_the_predicted_mean_and_spread():
 
 
 def test_two_parameters_that_enter_as_their_sum_are_predicted_inseparable():
-    package = track.load_package(api_folders._compiled(PIPES)[1], "series_pipes")
+    package = track.load_package(session(PIPES).folder, "series_pipes")
     fam = distinguish.prepare(package, distinguish.scenario_inputs(package, 120))
     equal = {"R1": 0.02, "R2": 0.02, "R3": 0.01}
     d = distinguish.distinguish(fam, "R1_abrupt", 0.3, 60, equal)
@@ -248,6 +248,7 @@ def test_a_noiseless_sensor_is_refused_before_any_work(capsys):
 
 
 # ------------------------------------------------------------ memory and progress
+@pytest.mark.slow
 def test_the_memory_estimate_bounds_the_peak_closely():
     """distinguish.memory against tracemalloc's peak of a whole prediction
     (every candidate, 400 samples: MAX_ONSETS onsets), fresh families: at or
@@ -298,6 +299,7 @@ def test_progress_says_what_is_being_done():
     assert said[-1].startswith(f"scenario {len(r.distinctions)} of {len(r.distinctions)}: ")
 
 
+@pytest.mark.slow
 def test_prepared_families_are_let_go_to_fit_the_memory(monkeypatch):
     """The cache of prepared families holds, with the next one, at most
     distinguish.MAX_BYTES."""

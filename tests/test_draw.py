@@ -12,7 +12,6 @@ shipped models is in integral causality: their states are the thesis's).
 import math
 import re
 import subprocess
-import sys
 import xml.etree.ElementTree as ET
 
 import pytest
@@ -20,7 +19,7 @@ import yaml
 
 from bgc.cli import main
 
-from conftest import ROOT
+from conftest import ROOT, bgc_cli
 
 SHIPPED = ["ro", "circuit", "two_tank"]
 SVG = "{http://www.w3.org/2000/svg}"
@@ -183,7 +182,7 @@ def test_dbn_picture_has_a_legend(tmp_path):
 
 # -------------------------------------------------------------------- bad input
 def run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bgc", *args], cwd=ROOT, capture_output=True, text=True)
+    return bgc_cli(*args)
 
 
 @pytest.mark.parametrize("args, says", [

@@ -16,7 +16,7 @@ import sympy
 
 from bgc.pipeline import compile_model
 
-from conftest import MODELS, ROOT
+from conftest import ALL_MODELS, MODELS, ROOT, compiled as shared_compiled
 
 TEST_MODELS = ROOT / "tests" / "data" / "models"
 S = sympy.Symbol
@@ -24,7 +24,9 @@ S = sympy.Symbol
 
 @lru_cache(maxsize=None)
 def compiled(path: str):
-    return compile_model(path)
+    """The model file at ``path`` compiled once (a model of conftest.ALL_MODELS: once per test session)."""
+    name = next((n for n, p in ALL_MODELS.items() if str(p) == path), None)
+    return shared_compiled(name) if name else compile_model(path)
 
 
 def circuit():

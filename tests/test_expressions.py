@@ -2,8 +2,6 @@
 
 import builtins
 import math
-import subprocess
-import sys
 import textwrap
 import time
 
@@ -16,7 +14,7 @@ from hypothesis import strategies as st
 from bgc.errors import ExpressionError, SourceLoc
 from bgc.compiler.expressions import FUNCTIONS, MAX_DEPTH, MAX_LENGTH, free_names, parse
 
-from conftest import ROOT
+from conftest import bgc_cli
 
 a, b, c, k_1 = sympy.symbols("a b c k_1")
 NAMES = {"a", "b", "c", "k_1"}
@@ -251,8 +249,7 @@ def test_injection_through_a_model_file_is_refused_by_bgc_check(tmp_path):
         measurements:
           P_out: {{expr: "__import__('os').system('touch {sentinel}')"}}
         """), encoding="utf-8")
-    r = subprocess.run([sys.executable, "-m", "bgc", "check", str(model)], cwd=ROOT,
-                       capture_output=True, text=True, timeout=60)
+    r = bgc_cli("check", model)
     assert r.returncode == 1 and "Traceback" not in r.stderr
     # line 11 is the measurement; its expression starts at column 17 (the quote)
     assert r.stderr.startswith(f"{model}:11:17: measurement P_out: attribute access cannot be called")

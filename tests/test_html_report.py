@@ -18,17 +18,17 @@ import hashlib
 import json
 import shutil
 import subprocess
-import sys
 from html.parser import HTMLParser
 
 import pytest
 
 import bgc
+from bgc.diagnosis.options import DiagnosisOptions
 from bgc.experiment import campaign_file, runs_csv
 from bgc.output import calibration_report, report, tables
 from bgc.output.html import PAGE
 
-from conftest import ROOT
+from conftest import ROOT, bgc_cli
 
 HOSTILE = "<script>alert(1)</script> & <b>x</b>"
 #: The same in a file's name (no slash).
@@ -76,10 +76,6 @@ def assert_self_contained(page: Page) -> None:
     assert "link" not in page.tags  # no stylesheet from elsewhere
 
 
-def bgc_cli(*args):
-    return subprocess.run([sys.executable, "-m", "bgc", *args], cwd=ROOT, capture_output=True, text=True)
-
-
 @pytest.fixture(scope="module")
 def diagnosis_folder(tmp_path_factory):
     """A real report folder: the circuit's R2 rising by 0.6 at t = 5, cubature Kalman filters (seconds)."""
@@ -90,6 +86,7 @@ def diagnosis_folder(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_the_diagnosis_page_is_in_the_folder_and_its_manifest_and_says_the_verdict_first(diagnosis_folder):
     out = diagnosis_folder
     manifest = json.loads((out / "manifest.json").read_text())
@@ -131,7 +128,7 @@ def test_model_text_is_escaped_on_the_page(tmp_path):
     validate) with a script, markup and an ampersand is shown as text."""
     model = tmp_path / f"{HOSTILE_NAME}.yaml"
     shutil.copy(ROOT / "models" / "circuit.yaml", model)
-    r = bgc.diagnose(model, scenario="none", steps=30, method="ckf")
+    r = bgc.diagnose(model, scenario="none", steps=30, options=DiagnosisOptions(method="ckf", workers=1))
     text = report.report_html(r, report.report_data(r), {})
     page = Page(text)
     assert_self_contained(page)
@@ -160,6 +157,7 @@ def test_a_campaign_name_description_model_and_failure_are_escaped(tmp_path):
     assert f"run 1 (none, gpf, seed 0): {HOSTILE}" in page.words
 
 
+@pytest.mark.slow
 def test_a_calibration_page_says_its_verdict_and_escapes_the_model_path(tmp_path):
     from test_calibrate import RC, rc_run
 
@@ -207,6 +205,7 @@ def chromium(*args, timeout=120):
                            "--disable-extensions", *args], capture_output=True, text=True, timeout=timeout)
 
 
+@pytest.mark.browser
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not on PATH (Debian: apt-get install chromium; "
                                               ".ci/run installs it)")
 def test_the_diagnosis_page_renders_in_a_headless_browser(diagnosis_folder, tmp_path):

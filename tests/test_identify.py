@@ -1,6 +1,7 @@
 """Identification by marginal likelihood on a grid (``DiagnosisOptions.refine``)."""
 
 import numpy as np
+import pytest
 
 import bgc
 from bgc.diagnosis import identify
@@ -9,17 +10,19 @@ from bgc.model import package as packages
 from bgc.analysis import track
 from bgc.diagnosis.options import DiagnosisOptions
 
-from conftest import ROOT
+from conftest import ROOT, bgc_cli, session
 
 GENERATED = ROOT / "generated"
 
 
+@pytest.mark.slow
 def test_the_grid_posterior_finds_the_bias_and_splits_into_parts_without_changing_it():
     """R2 0.6 -> 2.6 at t = 5 in the circuit: the grid posterior of the bias,
     from the true onset, holds the truth; cutting the grid into two jobs gives
     the same likelihoods (the nominal path and each onset's random numbers do
     not depend on the part)."""
-    report = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R2:abrupt:0.6@5", seed=4, generated=GENERATED)
+    report = bgc.diagnose(session("circuit", generated=GENERATED), scenario="R2:abrupt:0.6@5", seed=4,
+                          options=DiagnosisOptions(seed=4, workers=1))
     package = packages.load_package(GENERATED, "circuit")
     ys, us = track.run_arrays(report.run, package, "nominal")
     onset = int(np.searchsorted(report.run.time, 5.0))
@@ -34,22 +37,19 @@ def test_the_grid_posterior_finds_the_bias_and_splits_into_parts_without_changin
     assert abs(g.posterior.sum() - 1.0) < 1e-12 and g.values[0] >= 0.0
 
 
+@pytest.mark.slow
 def test_refine_replaces_the_estimate_of_the_diagnosed_hypothesis():
-    model = ROOT / "models" / "circuit.yaml"
-    a = bgc.diagnose(model, scenario="R2:abrupt:0.6@5", seed=4, generated=GENERATED,
-                     options=DiagnosisOptions(seed=4, refine=True)).diagnosis
+    a = bgc.diagnose(session("circuit", generated=GENERATED), scenario="R2:abrupt:0.6@5", seed=4,
+                     options=DiagnosisOptions(seed=4, refine=True, workers=1)).diagnosis
     assert a.candidates == ("R2_abrupt",) and a.estimate.method == "grid"
     assert abs(a.estimate.value - 0.6) < 4 * a.estimate.std and a.estimate.low < a.estimate.value < a.estimate.high
     assert abs(a.estimate.parameter_value - (2.0 + a.estimate.value)) < 1e-9
 
 
+@pytest.mark.slow
 def test_bgc_diagnose_refine_says_so_in_the_report(tmp_path):
-    import subprocess
-    import sys
-
-    r = subprocess.run([sys.executable, "-m", "bgc", "diagnose", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@5",
-                        "--seed", "4", "--refine", "--generated", "generated", "-o", str(tmp_path / "d")],
-                       cwd=ROOT, capture_output=True, text=True)
+    r = bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@5", "--seed", "4", "--refine",
+                "--generated", "generated", "-o", tmp_path / "d")
     assert r.returncode == 0, r.stderr
     assert "grid posterior of the particle filters' marginal likelihood" in (tmp_path / "d" / "report.md").read_text()
 
@@ -70,6 +70,7 @@ def test_the_static_evidence_integrates_the_grid_by_the_trapezoid_rule_over_the_
     assert abs(identify.log_evidence(g2, (0.0, 2.0), [1.0, 3.0]) - expected) < 1e-12
 
 
+@pytest.mark.slow
 def test_rank_weighs_the_survivors_by_their_static_evidence():
     """``rank``: R2 drifting in the circuit at 1 % process and 5 % measurement
     noise (a run of the sweep that R1's drift explains about as well): both
@@ -78,10 +79,9 @@ def test_rank_weighs_the_survivors_by_their_static_evidence():
     that evidence, and all posteriors still sum to 1."""
     import math
 
-    model = ROOT / "models" / "circuit.yaml"
-    d = bgc.diagnose(model, scenario="R2:incipient:0.0649091@5.45", seed=3751515929, process_noise=0.01,
-                     measurement_noise=0.05, generated=GENERATED,
-                     options=DiagnosisOptions(seed=3751515929, rank=True)).diagnosis
+    model = session("circuit", process_noise=0.01, measurement_noise=0.05, generated=GENERATED)
+    d = bgc.diagnose(model, scenario="R2:incipient:0.0649091@5.45", seed=3751515929,
+                     options=DiagnosisOptions(seed=3751515929, rank=True, workers=1)).diagnosis
     ranked = {h.name: h for h in d.hypotheses if h.static_log_evidence is not None}
     assert {"R1_incipient", "R2_incipient"} <= set(ranked) and set(d.candidates) <= set(ranked)
     assert all(math.isfinite(h.static_log_evidence) for h in ranked.values())

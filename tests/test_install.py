@@ -49,6 +49,7 @@ def run(*command, cwd: Path) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.slow
+@pytest.mark.install  # pip builds a wheel and installs it into a new environment: real processes
 def test_wheel_installs_and_runs_outside_the_checkout(tmp_path):
     # Build from a copy without build/: setuptools builds in the source tree and
     # reuses build/lib, so a file an earlier build left there would reach the

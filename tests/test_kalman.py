@@ -342,6 +342,7 @@ def exact_grid(package, name, ys, us, onsets, values):
     return kalman.run_bank(fault, ys, us, t, O.ravel(), V.ravel(), fixed).loglik.reshape(O.shape), t
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scenario, name, onsets, values, seed", [
     ("R12:abrupt:0.8@60", "R12_abrupt", list(range(110, 126)), np.linspace(0.3, 1.5, 1201), 7),
     ("R12:incipient:0.01@60", "R12_incipient", list(range(88, 152, 4)), np.linspace(0.002, 0.03, 1401), 7),
@@ -463,6 +464,7 @@ def test_the_residuals_of_the_most_probable_cell_are_white_for_the_true_model_an
     assert a is not None
 
 
+@pytest.mark.slow
 def test_a_hypothesis_whose_likelihood_peaks_outside_its_prior_gets_its_grid_against_the_bound():
     """R2 may only rise (models/circuit.yaml); data of R1 falling pull R2's
     drift towards a fall. The grid then stays inside the prior, against its
@@ -487,10 +489,10 @@ def test_a_cell_of_a_parameter_no_sensor_sees_is_the_nominal_filter_up_to_its_on
     R20 enters no measurement (F_orifice = cd sqrt(P1 - P2), P2), so a cell
     of any bias whose onset is k explains y_0 .. y_k exactly as the nominal
     filter does (before: its transition into k had the bias)."""
-    from bgc.api import folders as api_folders
+    from conftest import session
 
-    c, folder = api_folders._compiled(ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml")
-    package = packages.load_package(folder, "orifice_tanks")
+    s = session("orifice_tanks")  # compiled once per test session
+    c, package = s.compiled, packages.load_package(s.folder, "orifice_tanks")
     result = simulate.simulate(c.numerics, simulate.SimulationOptions(seed=3, steps=60))
     ys, us = track.run_arrays(runs.parse_run(simulate.to_csv(result), "none"), package, "nominal")
     nominal, fault = package.MODELS["nominal"], package.MODELS["R20_abrupt"]

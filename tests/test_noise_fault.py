@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 
 import bgc
+from bgc.diagnosis.options import DiagnosisOptions
 from bgc.kinds import LOWEST, NOISE_FLOOR, fault_kind, kinds_for
 from bgc.output import report
 from bgc.output.events import fault_sentence
@@ -306,11 +307,12 @@ def test_a_simulated_burst_multiplies_the_sensors_noise_from_the_onset(session):
 
 
 # ------------------------------------------------------------------ diagnosis
+@pytest.mark.slow
 def test_a_burst_of_noise_on_f12_is_named_sized_and_dated(session):
     """Named, its interval covering b = 4, and its onset found near t = 60
     although the detector (a test of the residuals' mean) alarms much later:
     a noise fault's onsets are searched back from the alarm as a drift's."""
-    r = bgc.diagnose(session, scenario="F12:noise:4@60", seed=1, particles=500)
+    r = bgc.diagnose(session, scenario="F12:noise:4@60", seed=1, options=DiagnosisOptions(particles=500, seed=1, workers=1))
     d = r.diagnosis
     assert d.verdict == "isolated" and d.candidates == (NAME,)
     assert d.estimate.low <= 4.0 <= d.estimate.high
@@ -322,7 +324,8 @@ def test_a_burst_of_noise_on_f12_is_named_sized_and_dated(session):
 
 
 def test_a_fault_free_run_of_the_plant_stays_no_fault(session):
-    d = bgc.diagnose(session, scenario="none", seed=3, particles=500).diagnosis
+    d = bgc.diagnose(session, scenario="none", seed=3,
+                     options=DiagnosisOptions(particles=500, seed=3, workers=1)).diagnosis
     assert d.verdict == "no fault" and d.detection is None
 
 

@@ -41,6 +41,7 @@ def _kernel(tmp_path):
     return KernelManager(kernel_name="python3", kernel_spec_manager=specs)
 
 
+@pytest.mark.process  # a Jupyter kernel: a process of its own
 def test_the_example_notebook_runs_and_shows_the_verdict_a_picture_and_writes_the_folder(tmp_path, monkeypatch):
     nbformat = pytest.importorskip("nbformat", reason="nbformat is needed to read the notebook (pip install .[test])")
     nbclient = pytest.importorskip("nbclient", reason="nbclient is needed to run the notebook (pip install .[test])")

@@ -112,6 +112,7 @@ def test_the_noise_free_line_of_a_run_carries_no_process_noise():
     assert np.array_equal(line.get_ydata(), clean[:, 0])
 
 
+@pytest.mark.slow
 def test_the_hypotheses_legend_keeps_the_most_probable_and_groups_the_others(ro_report):
     d = ro_report.diagnosis
     fig = plots.diagnosis_hypotheses(ro_report)
@@ -142,10 +143,13 @@ def test_the_distinguishability_map_has_a_colour_bar():
 def ro_report():
     import bgc
 
+    from bgc.diagnosis.options import DiagnosisOptions
+
     return bgc.diagnose(str(MODELS / "ro.yaml"), scenario="R_pipe:incipient:0.5@165", seed=1,
-                        generated=ROOT / "generated")
+                        generated=ROOT / "generated", options=DiagnosisOptions(seed=1, workers=1))
 
 
+@pytest.mark.slow
 def test_the_diagnosis_plots_and_tables_say_the_time_unit_and_the_magnitude_s_unit(ro_report):
     from bgc.output import report
 

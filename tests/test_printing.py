@@ -217,13 +217,14 @@ def test_cse_prefix_is_used_and_model_names_are_never_reused():
     assert lines == ["_t0 = x + y"]
 
 
+@pytest.mark.process  # fresh interpreters: the hash seed is chosen at start
 def test_cse_numbering_does_not_depend_on_the_hash_seed():
     """Same CSE text in fresh interpreters with different PYTHONHASHSEED (set/dict order changes)."""
-    from bgc.pipeline import compile_model
+    from conftest import compiled
 
     expected = [repr(cse_block(EXPRS))]
     for name in ("ro", "circuit"):
-        ssm = compile_model(ROOT / "models" / f"{name}.yaml").equations
+        ssm = compiled(name).equations  # this process's
         expected += [repr(cse_block(list(ssm.rhs))), repr(cse_block(list(ssm.output_exprs)))]
     script = CSE_SCRIPT.format(root=str(ROOT))
     procs = {seed: subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, text=True,

@@ -123,6 +123,7 @@ def test_an_unterminated_quote_stops_at_the_csv_field_limit():
 
 
 # ------------------------------------------------------------ streamed into arrays
+@pytest.mark.slow
 def test_reading_a_large_run_takes_memory_near_its_numbers(tmp_path):
     rows, cols = 200_000, 6
     path = tmp_path / "big.csv"

@@ -23,13 +23,12 @@ i.e. a bias in [0, 2].
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 import bgc
+from bgc.diagnosis.options import DiagnosisOptions
 from bgc.compiler.load import loads
 from bgc.compiler.validate import validate
 from bgc.errors import BgcError
@@ -37,9 +36,14 @@ from bgc.pipeline import compile_model
 from bgc import events as ev
 from bgc.analysis import simulate as sim
 
-from conftest import ROOT as REPO
+from conftest import ROOT as REPO, bgc_cli, session
 
 TWO_TANK = "models/two_tank.yaml"
+
+
+def one_process(particles: int, seed: int) -> DiagnosisOptions:
+    """The options of ``particles=..., seed=...``, the filters in this process."""
+    return DiagnosisOptions(particles=particles, seed=seed, workers=1)
 
 
 @pytest.fixture(scope="module")
@@ -185,19 +189,20 @@ def test_prior_scale_widens_and_a_decrease_stays_above_minus_95_percent(tanks):
 
 
 def test_check_and_show_signatures_show_the_priors():
-    out = subprocess.run([sys.executable, "-m", "bgc", "check", TWO_TANK], capture_output=True, text=True,
-                         cwd=REPO, check=True).stdout
+    r = bgc_cli("check", TWO_TANK, cwd=REPO)
+    assert r.returncode == 0, r.stderr
+    out = r.stdout
     assert "parameter R12 abrupt: bias 0 to 2 Pa*s/m^3, +0 % to +100 % of |R12| = 2 (default)" in out
     assert "sensor F12 bias: bias" in out and "of F12's nominal reading" in out
-    out = subprocess.run([sys.executable, "-m", "bgc", "show", "signatures", TWO_TANK], capture_output=True,
-                         text=True, cwd=REPO, check=True).stdout
+    r = bgc_cli("show", "signatures", TWO_TANK, cwd=REPO)
+    assert r.returncode == 0, r.stderr
+    out = r.stdout
     assert "priors of the fault magnitudes" in out and "actuator f_in bias: bias" in out
 
 
 def test_simulate_warns_outside_the_prior_and_outside_the_candidates(tmp_path):
     def run(fault):
-        return subprocess.run([sys.executable, "-m", "bgc", "simulate", TWO_TANK, "--fault", fault, "-o",
-                               str(tmp_path / "run.csv")], capture_output=True, text=True, cwd=REPO)
+        return bgc_cli("simulate", TWO_TANK, "--fault", fault, "-o", tmp_path / "run.csv", cwd=REPO)
 
     r = run("R12:abrupt:3@60")
     assert r.returncode == 0 and "warning: bias 3 is outside the prior of R12:abrupt in the model (0 to 2)" in r.stderr
@@ -214,9 +219,10 @@ def tank_session():
     return bgc.open(TWO_TANK)
 
 
+@pytest.mark.slow
 def test_a_step_past_the_prior_says_so_and_a_wider_prior_sizes_it(tank_session):
     """R12 from 2 to 4 (+100 %, the default prior's edge), seed 3."""
-    r = bgc.diagnose(tank_session, scenario="R12:abrupt:2@60", seed=3, particles=500)
+    r = bgc.diagnose(tank_session, scenario="R12:abrupt:2@60", seed=3, options=one_process(500, 3))
     d = r.diagnosis
     bounds = [e for e in d.events if isinstance(e, ev.AtPriorBound)]
     assert any(e.hypothesis == "R12_abrupt" and e.side == "high" and e.bound == pytest.approx(2.0) for e in bounds)
@@ -225,7 +231,8 @@ def test_a_step_past_the_prior_says_so_and_a_wider_prior_sizes_it(tank_session):
     from bgc.output import report
 
     assert any("or more: the model's prior ends there" in line for line in report.plain_words(d))
-    wide = bgc.diagnose(TWO_TANK, scenario="R12:abrupt:2@60", seed=3, particles=500, prior_scale=2.0)
+    wide = bgc.diagnose(session(TWO_TANK, prior_scale=2.0), scenario="R12:abrupt:2@60", seed=3,
+                        options=one_process(500, 3))
     w = wide.diagnosis
     assert w.verdict == "isolated" and w.candidates == ("R12_abrupt",)
     assert not any(isinstance(e, ev.AtPriorBound) for e in w.events)
@@ -233,13 +240,14 @@ def test_a_step_past_the_prior_says_so_and_a_wider_prior_sizes_it(tank_session):
     assert e.low <= 2.0 <= e.high and abs(e.value - 2.0) < 0.05
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model, scenario, sensor", [
     ("models/two_tank.yaml", "F12:bias:0.05@75", "F12"),
     ("models/circuit.yaml", "f2:bias:0.6@7", "f2"),
     ("models/ro.yaml", "P_memb:bias:30@165", "P_memb"),
 ])
 def test_a_biased_sensor_is_named_a_sensor_fault_on_the_shipped_plants(model, scenario, sensor):
-    r = bgc.diagnose(model, scenario=scenario, seed=0, particles=500)
+    r = bgc.diagnose(session(model), scenario=scenario, seed=0, options=one_process(500, 0))
     d = r.diagnosis
     assert d.verdict == "isolated", d.candidates
     e = d.estimate
@@ -251,8 +259,9 @@ def test_a_biased_sensor_is_named_a_sensor_fault_on_the_shipped_plants(model, sc
     assert e.low <= e.truth <= e.high
 
 
+@pytest.mark.slow
 def test_an_actuator_bias_is_named_an_actuator_fault(tank_session):
-    d = bgc.diagnose(tank_session, scenario="f_in:bias:0.4@75", seed=0, particles=500).diagnosis
+    d = bgc.diagnose(tank_session, scenario="f_in:bias:0.4@75", seed=0, options=one_process(500, 0)).diagnosis
     assert d.verdict == "isolated"
     e = d.estimate
     assert (e.target, e.subject) == ("actuator", "f_in") and e.low <= 0.4 <= e.high
@@ -290,12 +299,13 @@ def test_a_stuck_sensor_reads_its_value_and_nothing_of_the_plant(stuck_model):
     assert "_y[1] = " in module and "x[2]" in module.split("def observe", 1)[1].split("def ", 1)[0]
 
 
+@pytest.mark.slow
 def test_a_dead_sensor_is_named_stuck_at_zero(stuck_model):
     num = compile_model(stuck_model).numerics
     run = sim.simulate(num, sim.SimulationOptions(seed=1, fault=sim.parse_fault("F12:stuck:0@60", num)))
     after = run.time >= 60
     assert np.all(run.measurements[after, 1] == 0.0) and np.all(run.measurements[~after, 1] != 0.0)
-    r = bgc.diagnose(stuck_model, scenario="F12:stuck:0@60", seed=1, particles=500)
+    r = bgc.diagnose(stuck_model, scenario="F12:stuck:0@60", seed=1, options=one_process(500, 1))
     d = r.diagnosis
     assert d.verdict == "isolated" and d.candidates == ("F12_stuck_stuck",)
     from bgc.experiment import metrics
@@ -308,11 +318,12 @@ def test_a_dead_sensor_is_named_stuck_at_zero(stuck_model):
     assert d.estimate.low <= 0.0 <= d.estimate.high
 
 
+@pytest.mark.slow
 def test_a_fault_the_model_does_not_list_ends_unexplained(tank_session):
     """R12 falls by 30 % where only its rise is a candidate: the candidate
     that mimics it best (a step of R10 at seed 1) fails the goodness-of-fit
     test and is dropped; so is every other: unexplained."""
-    d = bgc.diagnose(tank_session, scenario="R12:abrupt:-0.6@75", seed=1, particles=500).diagnosis
+    d = bgc.diagnose(tank_session, scenario="R12:abrupt:-0.6@75", seed=1, options=one_process(500, 1)).diagnosis
     assert d.verdict == "unexplained"
     reasons = {e.reason for e in d.events if isinstance(e, ev.Dropped)}
     assert reasons & {"static-test", "wrong-direction"}

@@ -41,6 +41,7 @@ def test_a_variant_is_its_shipped_plant_with_every_sensor_and_actuator_kind(plan
         assert variant["faults"][u]["kinds"] == ACTUATOR_KINDS, u
 
 
+@pytest.mark.slow
 def test_the_grid_tries_every_kind_on_a_sensor_of_each_plant_and_on_every_input_at_both_noise_levels_with_20_seeds():
     grid = campaign_file.load_campaign(ROOT / "experiments" / "sensor_grid.yaml")
     cells: dict[tuple, set] = {}

@@ -45,7 +45,7 @@ from bgc.compiler.signatures import qmul, qsum
 from bgc.pipeline import compile_model
 from bgc.analysis import simulate as sim
 
-from conftest import ROOT, compiled
+from conftest import ROOT, bgc_cli, compiled
 
 
 def symbols(model: str, fault: str) -> dict[str, str]:
@@ -145,14 +145,10 @@ def test_parameters_entering_as_one_product_are_a_structural_group(tmp_path):
 
 
 def test_generated_signature_files_and_show():
-    import subprocess
-    import sys
-
     text = (ROOT / "generated" / "circuit" / "signatures.txt").read_text()
     assert "R2+:abrupt" in text
     assert "ambiguity groups (identical signatures): R1+:abrupt, V_offset-:bias; R1-:abrupt, V_offset+:bias" in text
-    r = subprocess.run([sys.executable, "-m", "bgc", "show", "signatures", "models/ro.yaml"], cwd=ROOT,
-                       capture_output=True, text=True)
+    r = bgc_cli("show", "signatures", "models/ro.yaml")
     assert r.returncode == 0 and r.stdout.startswith("# fault signatures of ro")
     assert "ambiguity groups (identical signatures): R_pipe+:incipient, R_rp+:abrupt" in r.stdout
 

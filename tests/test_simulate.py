@@ -23,15 +23,14 @@ from bgc.analysis import simulate as sim
 from bgc.ir import sym
 from bgc.pipeline import compile_model
 
-from conftest import ROOT
+from conftest import ROOT, bgc_cli, compiled
 
 CIRCUIT = ROOT / "models" / "circuit.yaml"
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
-@lru_cache(maxsize=None)
 def circuit_compiled():
-    return compile_model(CIRCUIT)
+    return compiled("circuit")
 
 
 def circuit():
@@ -306,6 +305,7 @@ def test_cli_errors_are_one_line_exit_1_and_write_nothing(tmp_path, capsys, args
     assert not out.exists()
 
 
+@pytest.mark.process  # python -m bgc itself: its exit status and stderr
 def test_cli_error_in_a_real_process_has_no_traceback(tmp_path):
     r = subprocess.run([sys.executable, "-m", "bgc", "simulate", "models/circuit.yaml", "--fault", "R2:abrupt",
                         "-o", str(tmp_path / "x.csv")], cwd=ROOT, capture_output=True, text=True, timeout=120)
@@ -332,9 +332,7 @@ def test_the_truth_on_python_floats_is_the_truth_on_numpy_scalars(monkeypatch):
     equations divide by zero (R_pipe brought to 0) raises on Python floats;
     the simulator then evaluates on NumPy scalars and stops the run as
     diverged, as it always did."""
-    from bgc.api import folders as api_folders
-
-    ro, _ = api_folders._compiled(ROOT / "models" / "ro.yaml")
+    ro = compiled("ro")
     assert sim.float_safe(ro.numerics.equations)
     x = sympy.Symbol("x")
     assert not sim.float_safe(type("Equations", (), {"rhs": (x ** sympy.Rational(3, 2),), "output_exprs": ()})())
@@ -363,11 +361,8 @@ def test_the_truth_on_python_floats_is_the_truth_on_numpy_scalars(monkeypatch):
 
 
 def test_simulate_refuses_an_onset_outside_the_run(tmp_path):
-    import subprocess
-    import sys
-
-    r = subprocess.run([sys.executable, "-m", "bgc", "simulate", "models/circuit.yaml", "--fault", "R1:abrupt:0.5@100",
-                        "--steps", "30", "-o", str(tmp_path / "f.csv")], capture_output=True, text=True, cwd=ROOT)
+    r = bgc_cli("simulate", "models/circuit.yaml", "--fault", "R1:abrupt:0.5@100", "--steps", "30", "-o",
+                tmp_path / "f.csv")
     assert r.returncode == 1 and "Traceback" not in r.stderr
     assert r.stderr.strip() == "--fault R1:abrupt: onset 100 is outside the run (0 to 1.5) (choose an onset inside " \
                                "the run, or more --steps)"

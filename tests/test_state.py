@@ -22,6 +22,7 @@ from bgc.analysis import simulate
 from bgc.data import runs
 from bgc import events as ev
 from bgc.diagnosis.diagnoser import Diagnoser
+from bgc.diagnosis.options import DiagnosisOptions
 from bgc.diagnosis.state import MAGIC, DiagnoserState
 from bgc.errors import ArgumentValueError
 
@@ -80,11 +81,13 @@ def _equal(a, b, path: str = "") -> None:
 def _round_trip(session, rows, run, cut: float | int, **options):
     """(the uninterrupted diagnoser's beliefs after the cut and diagnosis,
     the resumed one's, the diagnoser at the cut); ``cut``: a share of the
-    rows, or (an int) a number of rows."""
-    whole = session.diagnoser(**options)
+    rows, or (an int) a number of rows; ``options``: of DiagnosisOptions (the
+    end's filters in this process)."""
+    options = DiagnosisOptions(**{"workers": 1, **options})
+    whole = session.diagnoser(options)
     beliefs = [whole.step(t, u, y) for t, u, y in rows]
     k = cut if isinstance(cut, int) else int(cut * len(rows))
-    first = session.diagnoser(**options)
+    first = session.diagnoser(options)
     for t, u, y in rows[:k]:
         first.step(t, u, y)
     state = DiagnoserState.from_bytes(first.to_state().to_bytes())
@@ -94,8 +97,9 @@ def _round_trip(session, rows, run, cut: float | int, **options):
     return (beliefs[k:], whole.finish(run)), (later, resumed.finish(run)), first
 
 
-@pytest.mark.parametrize("method", ["gpf", "apf", "opf", "ckf"])
-@pytest.mark.parametrize("name", ["circuit", "two_tank", "ro"])
+@pytest.mark.parametrize("name, method", [
+    pytest.param(name, method, marks=() if (name, method) == ("two_tank", "gpf") else pytest.mark.slow)
+    for name in ("circuit", "two_tank", "ro") for method in ("gpf", "apf", "opf", "ckf")])
 def test_a_diagnoser_taken_up_from_its_state_goes_on_as_if_it_never_stopped(sessions, name, method):
     session = _session(sessions, MODELS / f"{name}.yaml")
     rows, run = _rows(session, SCENARIOS[name])
@@ -159,6 +163,7 @@ def test_a_state_is_taken_up_only_by_a_diagnoser_of_its_model(sessions):
         Diagnoser.from_state(other.config, d.to_state())
 
 
+@pytest.mark.numba
 def test_a_diagnoser_on_the_compiled_backend_is_taken_up_alike(sessions):
     """The compiled kernels draw through a handle of each filter's generator:
     a filter taken up keeps its generator object, whose state is set, so the
@@ -181,7 +186,7 @@ def test_a_checkpoint_is_the_batch_diagnosis_of_the_data_so_far(sessions):
     the batch diagnosis of the rows so far, number for number."""
     session = _session(sessions, MODELS / "two_tank.yaml")
     rows, run = _rows(session, SCENARIOS["two_tank"])
-    d = session.diagnoser(particles=200, seed=3)
+    d = session.diagnoser(DiagnosisOptions(particles=200, seed=3, workers=1))
     k = 240
     for t, u, y in rows[:k]:
         d.step(t, u, y)

@@ -1,9 +1,6 @@
 """End to end: truth from the simulator (sympy, 8x finer RK4), filters from the
 committed generated package, fault injected, estimates and residuals checked."""
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
@@ -14,7 +11,7 @@ from bgc.analysis import track
 from bgc.filters import registry
 from bgc.model import protocol
 
-from conftest import ROOT, compiled
+from conftest import ROOT, bgc_cli, compiled
 
 
 def run_of(model: str, fault: str | None, seed: int) -> runs.Run:
@@ -106,17 +103,15 @@ def test_circuit_abrupt_fault_on_r2_is_identified():
 
 def test_cli_filter_prints_the_estimate_and_refuses_bad_options(tmp_path):
     csv = tmp_path / "run.csv"
-    subprocess.run([sys.executable, "-m", "bgc", "simulate", "models/circuit.yaml", "--fault", "R2:abrupt:1.0@5",
-                    "--seed", "1", "-o", str(csv)], cwd=ROOT, check=True, capture_output=True)
-    out = subprocess.run([sys.executable, "-m", "bgc", "filter", "models/circuit.yaml", str(csv), "--fault",
-                          "R2:abrupt", "--start", "5.1", "--method", "gpf", "--plot", str(tmp_path / "p.png")],
-                         cwd=ROOT, capture_output=True, text=True)
+    assert bgc_cli("simulate", "models/circuit.yaml", "--fault", "R2:abrupt:1.0@5", "--seed", "1", "-o",
+                   csv).returncode == 0
+    out = bgc_cli("filter", "models/circuit.yaml", csv, "--fault", "R2:abrupt", "--start", "5.1", "--method", "gpf",
+                  "--plot", tmp_path / "p.png")
     assert out.returncode == 0, out.stderr
     assert "estimate of R2 = 2 + delta" in out.stdout and "(true 3," in out.stdout
     assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     for bad in (["--particles", "0"], ["--start", "3"]):
-        r = subprocess.run([sys.executable, "-m", "bgc", "filter", "models/circuit.yaml", str(csv), *bad],
-                           cwd=ROOT, capture_output=True, text=True)
+        r = bgc_cli("filter", "models/circuit.yaml", csv, *bad)
         assert r.returncode == 1 and "Traceback" not in r.stderr and r.stderr.count("\n") == 1, r.stderr
 
 
@@ -127,10 +122,9 @@ def test_the_transition_into_an_onset_sample_is_nominal_and_keeps_the_magnitude(
     out of k): the fault filter's particles make the nominal transition into
     sample k, and keep their magnitude (a bias, a slope) for the next ones;
     a drifting parameter's own state stays nominal."""
-    from bgc.api import folders as api_folders
+    from conftest import session
 
-    _, folder = api_folders._compiled(ROOT / "tests" / "data" / "models" / "orifice_tanks.yaml")
-    package = runtime.load_package(folder, "orifice_tanks")
+    package = runtime.load_package(session("orifice_tanks").folder, "orifice_tanks")
     nominal, fault = package.MODELS["nominal"], package.MODELS[name]
     rng = np.random.default_rng(8)
     physical = nominal.X0[:, None] * (1.0 + 0.1 * rng.standard_normal((len(nominal.STATES), 5)))

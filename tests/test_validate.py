@@ -8,7 +8,6 @@ Part 2 builds small models from YAML text and checks the BondGraph.
 
 import re
 import subprocess
-import sys
 import textwrap
 
 import pytest
@@ -19,7 +18,7 @@ from bgc.kinds import ELEMENT_KINDS, FAULT_KINDS
 from bgc.compiler.load import load, loads
 from bgc.compiler.validate import KINDS, validate
 
-from conftest import MODELS, ROOT
+from conftest import MODELS, ROOT, bgc_cli
 
 INVALID = ROOT / "tests" / "data" / "invalid"
 FILES = sorted(p.name for p in INVALID.glob("*.yaml"))
@@ -44,8 +43,7 @@ def expectations(name: str) -> list[tuple[int, int, str]]:
 
 
 def bgc_check(*paths: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bgc", "check", *paths],
-                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    return bgc_cli("check", *paths)
 
 
 @pytest.fixture(scope="module")

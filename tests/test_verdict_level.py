@@ -82,6 +82,7 @@ def noisy_tanks():
     return bgc.open("models/two_tank.yaml", process_noise=0.03, measurement_noise=0.1)
 
 
+@pytest.mark.slow
 def test_a_fault_model_the_symbols_ruled_out_is_weighed_before_another_is_named(noisy_tanks):
     options = DiagnosisOptions(method="gpf", particles=500, seed=6, workers=1, switch=False)
     d = bgc.diagnose(noisy_tanks, scenario="R12:incipient:0.01@75", seed=6, options=options).diagnosis
