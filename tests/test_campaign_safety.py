@@ -171,10 +171,12 @@ def test_a_request_for_more_workers_than_runs_starts_one_per_run_and_says_so(tin
     # the command line says it on stderr
     config = write(tmp_path, TINY.format(model=CIRCUIT))
     n = dispatch.worker_limit()
-    p = bgc("experiment", str(config), "-o", str(tmp_path / "cli"), "--workers", str(n), "--no-progress")
+    p = bgc("experiment", str(config), "-o", str(tmp_path / "cli"), "--workers", str(n), "--no-progress", "-v")
     assert p.returncode == 0, p.stderr
     assert f"--workers {n}: starting 2 local processes, one per run to do" in p.stderr
     assert "2 runs on 2 local processes" in p.stderr
+    quiet = bgc("experiment", str(config), "-o", str(tmp_path / "cli"), "--workers", str(n), "--no-progress")
+    assert quiet.returncode == 0 and quiet.stderr == ""  # status lines with -v only
 
 
 # ------------------------------------------------------------------ item 4: how many runs
@@ -474,7 +476,7 @@ def test_the_command_line_says_where_the_unread_lines_are(tiny, tmp_path):
     (out / "runs.csv").write_bytes(comment + header + b"z" * 200_000 + b"\n" + row0 + b'"broken,row\n' + row1)
     config = write(tmp_path, TINY.format(model=CIRCUIT))
     # the copied folder's source was another file: the campaign's name is what must match
-    r = bgc("experiment", str(config), "-o", str(out), "--no-progress")
+    r = bgc("experiment", str(config), "-o", str(out), "--no-progress", "-v")
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr and "field larger" not in r.stderr
     assert f"2 lines of {out}/runs.csv could not be read: kept as they were in {out}/runs.unread-1.csv" in r.stderr

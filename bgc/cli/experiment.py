@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     if args.scheduler:
         dispatch.check_scheduler(args.scheduler, args.connect_timeout)
         if args.workers is not None:
-            print("bgc: --workers is for local processes: the Dask cluster's own workers run the campaign",
+            print("warning: --workers is for local processes: the Dask cluster's own workers run the campaign",
                   file=sys.stderr)
     c = campaign_file.load_campaign(args.config, max_runs=args.max_runs)
     if args.scheduler is None and not packages.chosen_by_name(args.backend):
@@ -56,23 +56,23 @@ def run(args: argparse.Namespace) -> int:
     folder = printable(str(out))
 
     def started(s: campaign.CampaignStart) -> None:
-        if s.quarantined:
-            print(f"bgc: {s.quarantined} line{'s' if s.quarantined > 1 else ''} of {folder}/{runs_csv.RUNS} could "
-                  f"not be read: kept as they were in {printable(str(s.quarantine))} (a run among them runs again)",
-                  file=sys.stderr)
+        if s.quarantined:  # warnings: what was set aside, what the machine's memory allows
+            print(f"warning: {s.quarantined} line{'s' if s.quarantined > 1 else ''} of {folder}/{runs_csv.RUNS} "
+                  f"could not be read: kept as they were in {printable(str(s.quarantine))} (a run among them runs "
+                  "again)", file=sys.stderr)
         if s.workers is not None and s.limited_by == "memory":
-            print(f"bgc: starting {s.workers} local processes: the available memory holds no more at "
+            print(f"warning: starting {s.workers} local processes: the available memory holds no more at "
                   f"{dispatch.WORKER_MEMORY // 2**20} MiB each", file=sys.stderr)
         elif s.workers is not None and s.limited_by == "runs" and s.requested is not None:
-            print(f"bgc: --workers {s.requested}: starting {s.workers} local process{'es' if s.workers > 1 else ''}"
-                  f", one per run to do", file=sys.stderr)
+            status(args, f"--workers {s.requested}: starting {s.workers} local "
+                         f"process{'es' if s.workers > 1 else ''}, one per run to do")
         where = (f"the Dask cluster at {printable(args.scheduler)}" if s.workers is None else
                  f"{s.workers} local process{'es' if s.workers != 1 else ''}")
         plan = f"{s.total} runs" if not s.reused else f"{s.total} runs ({s.reused} done before, {s.todo} to run)"
         if s.todo:
-            print(f"campaign {c.name}: {plan} on {where}, results in {folder}/", file=sys.stderr)
+            status(args, f"campaign {c.name}: {plan} on {where}, results in {folder}/")
         else:
-            print(f"campaign {c.name}: {plan}: every run done before, results in {folder}/", file=sys.stderr)
+            status(args, f"campaign {c.name}: {plan}: every run done before, results in {folder}/")
 
     try:
         r = campaign.run_campaign(c, out, scheduler=args.scheduler, workers=args.workers,
