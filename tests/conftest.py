@@ -79,6 +79,32 @@ def session(model, **options):
     return _session(str(path), Path(path).read_bytes(), tuple(sorted(options.items())))
 
 
+@lru_cache(maxsize=None)
+def numba_package(name: str):
+    """The committed numba package of a shipped model (generated/NAME), every
+    kernel of every model's whole step compiled into numba's disk cache, or
+    loaded from it, once per test process. The first test process to ask
+    compiles (on forked workers) while holding a lock on a file of
+    .pytest_cache; the other waits for it, then loads: two test processes
+    never compile the same kernels at once. The tests that run a shipped
+    model on numba ask for it first."""
+    import fcntl
+
+    from bgc.model import package as loading
+    from bgc.model import warmup
+
+    package = loading.load_package(ROOT / "generated", name, backend="numba")
+    lock = ROOT / ".pytest_cache" / "numba-warm.lock"
+    lock.parent.mkdir(exist_ok=True)
+    with open(lock, "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        try:
+            warmup.warm_up(package, steps=tuple(package.MODELS))
+        finally:
+            fcntl.flock(held, fcntl.LOCK_UN)
+    return package
+
+
 #: Folders of model files no test writes to: their compilations may be shared.
 _READ_ONLY = (MODELS, TEST_MODELS, ROOT / "tests" / "regression" / "models")
 _COMPILED: dict = {}

@@ -81,3 +81,24 @@ def test_the_layer_test_sees_an_upward_import():
     assert layer[_wing("bgc.cli.main")] > layer[_wing("bgc.filters.particle")]
     assert ("diagnosis", "analysis") in APART
     assert sum(1 for _ in _imports()) > 200
+
+
+#: The longest a function of the online loop (bgc/diagnosis) may be, in lines with its docstring.
+LONGEST = 60
+
+
+def _functions(folder):
+    """(lines, 'path:name') of every function and method below ``folder``."""
+    for path in sorted(folder.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                yield node.end_lineno - node.lineno + 1, f"{path.relative_to(ROOT)}:{node.name}"
+
+
+def test_the_functions_of_the_loop_are_short():
+    """Every function of the diagnosis wing is under LONGEST lines: the loop
+    reads as steps, each a function one can hold in mind."""
+    found = list(_functions(ROOT / "bgc" / "diagnosis"))
+    assert len(found) > 100
+    long = sorted((n, where) for n, where in found if n >= LONGEST)
+    assert not long, f"functions of the loop of {LONGEST} lines or more (split them): {long}"

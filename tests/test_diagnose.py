@@ -14,7 +14,7 @@ from bgc.output.events import NOTABLE
 from bgc import events
 from bgc.diagnosis.options import DiagnosisOptions
 
-from conftest import ROOT, bgc_cli, session
+from conftest import ROOT, bgc_cli, numba_package, session
 from bgc.analysis import track
 
 GENERATED = ROOT / "generated"
@@ -25,9 +25,18 @@ GENERATED = ROOT / "generated"
 FAST = "numba" if importlib.util.find_spec("numba") else "numpy"
 
 
+def fast_session(model: str, **noise):
+    """A shipped model's committed package on the FAST backend (its kernels compiled once per test run)."""
+    if FAST == "numba":
+        numba_package(model)
+    return session(ROOT / "models" / f"{model}.yaml", generated=GENERATED, backend=FAST, **noise)
+
+
 def run(model: str, scenario: str, seed: int, workers: int = 1, **noise):
-    """The diagnosis of a shipped model's scenario with the committed package (1000 particles, gpf)."""
-    return bgc.diagnose(session(ROOT / "models" / f"{model}.yaml", generated=GENERATED, **noise), scenario=scenario,
+    """The diagnosis of a shipped model's scenario with the committed package
+    on the FAST backend (1000 particles, gpf); for the slow tests only (make
+    check compiles no kernel)."""
+    return bgc.diagnose(fast_session(model, **noise), scenario=scenario,
                         seed=seed, options=DiagnosisOptions(seed=seed, workers=workers)).diagnosis
 
 
@@ -171,16 +180,16 @@ def test_bgc_diagnose_bad_input_is_one_located_line(tmp_path):
 @pytest.mark.slow
 @pytest.mark.numba  # the compiled backend when numba is installed (FAST)
 @pytest.mark.parametrize("model, scenario, truth, noise", [
-    ("ro", "R_pipe:abrupt:31@165", 31.0, {}),
     ("circuit", "R2:abrupt:0.6@5", 0.6, {"process_noise": 0.01, "measurement_noise": 0.01}),
 ])
-def test_the_95_percent_interval_covers_the_truth_in_at_least_9_of_10_seeded_runs(model, scenario, truth, noise):
+def test_the_95_percent_interval_covers_the_truth_in_at_least_16_of_20_seeded_runs(model, scenario, truth, noise):
     """Honest uncertainty: over twenty seeded runs (data and filters), the
     reported 95 % interval of the fault magnitude holds the injected value at
     least 16 times: with a true coverage of 90 % (the issue's target) that
-    passes with probability 0.96, with 70 % only 0.24
-    (bench/diagnosis_accuracy.py measures more scenarios)."""
-    session = bgc.open(ROOT / "models" / f"{model}.yaml", generated=GENERATED, backend=FAST, **noise)  # compiled once
+    passes with probability 0.96, with 70 % only 0.24. The RO plant's
+    intervals: its incipient blockage above (4 of 5 seeded runs), and
+    bench/diagnosis_accuracy.py over more scenarios and seeds."""
+    session = fast_session(model, **noise)
     covered = 0
     for seed in range(200, 220):
         d = bgc.diagnose(session, scenario=scenario, seed=seed, options=DiagnosisOptions(seed=seed, workers=1)).diagnosis
@@ -369,7 +378,7 @@ def test_a_drift_found_long_after_it_began_gets_its_onset_grid_extended_back():
     h = d.best
     assert min(h.static.onsets) < d.detection.step - 64
     assert abs(h.onset - 106) <= 12 and d.onset == h.onset, h.onset
-    circuit = session(ROOT / "models" / "circuit.yaml", generated=GENERATED)
+    circuit = fast_session("circuit")  # as run() above
     one = bgc.diagnose(circuit, scenario="R3:incipient:0.0308906@5.3", seed=473362393,
                        options=DiagnosisOptions(seed=473362393, workers=1)).diagnosis
     for x, y in zip(one.hypotheses, d.hypotheses):  # the Kalman filters have no random numbers
