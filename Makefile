@@ -6,8 +6,10 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.bgc-installed
 #: The markers `make check` leaves out (pyproject.toml says what each means).
 FULL_ONLY := slow or process or numba or install or browser
-#: Test processes (pytest-xdist; a test file stays on one): `make test TEST_JOBS=0` runs in this one.
-TEST_JOBS ?= 2
+#: Test processes (pytest-xdist; a test file stays on one): one more than the 2 cores, since a test
+#: process often waits (on a child process, a pipe, the other's numba compilation); `make test
+#: TEST_JOBS=0` runs in this one.
+TEST_JOBS ?= 3
 PYTEST := MPLBACKEND=Agg $(BIN)/python -m pytest -n $(TEST_JOBS) --dist loadfile
 
 .PHONY: demo check test clean
