@@ -79,30 +79,11 @@ def session(model, **options):
     return _session(str(path), Path(path).read_bytes(), tuple(sorted(options.items())))
 
 
-def representative_modules(name: str) -> tuple[str, ...]:
-    """The nominal model and one fault model of each kind on each target (a
-    parameter, a sensor, an actuator) of a shipped model: the models whose
-    whole filter steps tests/test_backend.py compares on both backends. (Its
-    other fault models run the same generated step with other equations,
-    and the test compares every model's equations: predict and observe.)"""
-    c = compiled(name)
-    inputs = {i.name for i in c.model.inputs}
-    chosen: dict = {}
-    for f in c.numerics.faults:
-        stem = f.parameter.removesuffix("_offset")
-        target = "parameter" if stem == f.parameter else "actuator" if stem in inputs else "sensor"
-        chosen.setdefault((f.kind, target), f"{f.parameter}_{f.kind}")
-    return ("nominal", *chosen.values())
-
-
 @lru_cache(maxsize=None)
 def numba_package(name: str):
-    """The committed numba package of a shipped model (generated/NAME): every
-    model's predict and observe, the whole filter step of the
-    :func:`representative_modules` and the kernel's loops compiled into
-    numba's disk cache, or loaded from it, once per test process (a
-    diagnosis compiles the steps of the other fault models it tracks when it
-    first runs them). The first test process to ask
+    """The committed numba package of a shipped model (generated/NAME), every
+    kernel of every model's whole step compiled into numba's disk cache, or
+    loaded from it, once per test process. The first test process to ask
     compiles (on forked workers) while holding a lock on a file of
     .pytest_cache; the other waits for it, then loads: two test processes
     never compile the same kernels at once. The tests that run a shipped
@@ -118,7 +99,7 @@ def numba_package(name: str):
     with open(lock, "a") as held:
         fcntl.flock(held, fcntl.LOCK_EX)
         try:
-            warmup.warm_up(package, steps=representative_modules(name))
+            warmup.warm_up(package, steps=tuple(package.MODELS))
         finally:
             fcntl.flock(held, fcntl.LOCK_UN)
     return package
