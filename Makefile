@@ -46,10 +46,17 @@ demo: $(STAMP)
 	$(BIN)/python -c "$$REPLAY" out/ro-run.csv 0.01 | $(BIN)/bgc monitor models/ro.yaml --data - --noise process=0.03,measurement=0.02 --generated out/generated -o out/monitor
 	@echo "demo: pictures and data in out/; the diagnosis report is out/diagnosis/report.md (plots beside it; open out/diagnosis/report.html in a browser: the same in one page), the monitor's out/monitor/report.md and report.html"
 
+# The bytecode of bgc and of the committed packages, written once before the tests (gitignored
+# __pycache__ folders): where PYTHONDONTWRITEBYTECODE is set (this machine), every fresh process of
+# the tests would otherwise compile them from source again.
+BYTECODE := $(BIN)/python -m compileall -q bgc generated tests > /dev/null
+
 check: $(STAMP)
+	$(BYTECODE)
 	$(PYTEST) -m "not ($(FULL_ONLY))"
 
 test: $(STAMP)
+	$(BYTECODE)
 	$(PYTEST)
 
 clean:
