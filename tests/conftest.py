@@ -14,6 +14,7 @@ needs a real one; a shipped model is compiled once (:func:`compiled`,
 """
 
 import contextlib
+import importlib.util
 import io
 import os
 import subprocess
@@ -103,6 +104,20 @@ def numba_package(name: str):
         finally:
             fcntl.flock(held, fcntl.LOCK_UN)
     return package
+
+
+#: The backend of the slow tests of the shipped models (many seeded diagnoses): the compiled one when
+#: numba is installed (the same diagnoses, tests/test_backend.py checks it, about 3x faster), else NumPy.
+FAST = "numba" if importlib.util.find_spec("numba") else "numpy"
+
+
+def fast_session(model: str, **options):
+    """:func:`session` of a shipped model's committed package (generated/)
+    on the FAST backend, its kernels compiled once per test run
+    (:func:`numba_package`); for the slow tier (make check compiles no kernel)."""
+    if FAST == "numba":
+        numba_package(model)
+    return session(MODELS / f"{model}.yaml", generated=ROOT / "generated", backend=FAST, **options)
 
 
 #: Folders of model files no test writes to: their compilations may be shared.

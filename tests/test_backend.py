@@ -74,7 +74,7 @@ def test_backends_give_the_same_filter_outputs_on_every_model_and_filter(name):
     ys, us = record(name)
     numpy_pkg, numba_pkg = packages(name)
     assert warmup.warm_up(numpy_pkg) == (0.0, 0, 0)
-    seconds, compiled_now, loaded = warmup.warm_up(numba_pkg, steps=tuple(numba_pkg.MODELS))
+    _, compiled_now, _ = warmup.warm_up(numba_pkg, steps=tuple(numba_pkg.MODELS))
     assert compiled_now == 0  # numba_package compiled every model's whole step
     assert numba_pkg.MODELS.keys() == numpy_pkg.MODELS.keys()
     worst = {}
@@ -300,8 +300,8 @@ def test_plants_nobody_here_wrote_compile_to_the_same_numbers(name, tmp_path):
     """A test plant whose laws the shipped ones lack (tanks with orifices:
     sqrt, abs and sign; the resistor loop's algebraic loop is compared on
     both backends by the campaign of the CLI test above; every package
-    compiles its own copy of the kernel's loops, so each plant costs), written into a fresh folder (the compiled package: into the
-    folder of bgc's cache that bgc.open gives it, where numba's disk cache
+    compiles its own copy of the kernel's loops, so each plant costs),
+    written into a fresh folder (the compiled package: into the folder of bgc's cache that bgc.open gives it, where numba's disk cache
     stays valid from run to run): the nominal model and a fault model on
     both backends, the generic particle filter and the cubature Kalman
     filter, agree to 1e-10 (only these two modules are compiled)."""

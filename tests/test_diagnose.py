@@ -3,7 +3,6 @@ diagnosis with the committed generated packages; detection window, isolated
 fault, onset and estimate checked against the injected fault, and fault-free
 runs that must not alarm. Also ``bgc diagnose`` and its errors."""
 
-import importlib.util
 import json
 
 import numpy as np
@@ -14,22 +13,10 @@ from bgc.output.events import NOTABLE
 from bgc import events
 from bgc.diagnosis.options import DiagnosisOptions
 
-from conftest import ROOT, bgc_cli, numba_package, session
+from conftest import ROOT, bgc_cli, fast_session, session
 from bgc.analysis import track
 
 GENERATED = ROOT / "generated"
-
-
-#: The backend of the statistical tests (many seeded diagnoses): the compiled one when numba is
-#: installed (the same diagnoses, tests/test_backend.py checks it, about 3.5x faster), else NumPy.
-FAST = "numba" if importlib.util.find_spec("numba") else "numpy"
-
-
-def fast_session(model: str, **noise):
-    """A shipped model's committed package on the FAST backend (its kernels compiled once per test run)."""
-    if FAST == "numba":
-        numba_package(model)
-    return session(ROOT / "models" / f"{model}.yaml", generated=GENERATED, backend=FAST, **noise)
 
 
 def run(model: str, scenario: str, seed: int, workers: int = 1, **noise):
@@ -178,7 +165,7 @@ def test_bgc_diagnose_bad_input_is_one_located_line(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.numba  # the compiled backend when numba is installed (FAST)
+@pytest.mark.numba  # the compiled backend when numba is installed (conftest.FAST)
 @pytest.mark.parametrize("model, scenario, truth, noise", [
     ("circuit", "R2:abrupt:0.6@5", 0.6, {"process_noise": 0.01, "measurement_noise": 0.01}),
 ])
@@ -189,10 +176,11 @@ def test_the_95_percent_interval_covers_the_truth_in_at_least_16_of_20_seeded_ru
     passes with probability 0.96, with 70 % only 0.24. The RO plant's
     intervals: its incipient blockage above (4 of 5 seeded runs), and
     bench/diagnosis_accuracy.py over more scenarios and seeds."""
-    session = fast_session(model, **noise)
+    model_session = fast_session(model, **noise)
     covered = 0
     for seed in range(200, 220):
-        d = bgc.diagnose(session, scenario=scenario, seed=seed, options=DiagnosisOptions(seed=seed, workers=1)).diagnosis
+        d = bgc.diagnose(model_session, scenario=scenario, seed=seed,
+                         options=DiagnosisOptions(seed=seed, workers=1)).diagnosis
         h = next((h for h in d.hypotheses if h.name == "_".join(scenario.split(":")[:2])), None)
         covered += h is not None and h.estimate.low <= truth <= h.estimate.high
     assert covered >= 16, covered

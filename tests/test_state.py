@@ -11,7 +11,6 @@ types."""
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import io
 import pickle
 
@@ -27,7 +26,7 @@ from bgc.diagnosis.options import DiagnosisOptions
 from bgc.diagnosis.state import MAGIC, DiagnoserState
 from bgc.errors import ArgumentValueError
 
-from conftest import MODELS, ROOT, TEST_MODELS, numba_package
+from conftest import MODELS, TEST_MODELS, fast_session
 
 #: Per shipped model, a fault scenario whose alarm comes about halfway through the run.
 SCENARIOS = {"circuit": "R2:abrupt:0.6@5", "two_tank": "R12:abrupt:0.8@75", "ro": "R_pipe:incipient:0.5@165"}
@@ -107,16 +106,9 @@ def _round_trip(session, rows, run, cut: float | int, **options):
     pytest.param(name, method, marks=() if (name, method) == ("two_tank", "gpf") else pytest.mark.slow)
     for name in ("circuit", "two_tank", "ro") for method in ("gpf", "apf", "opf", "ckf")])
 def test_a_diagnoser_taken_up_from_its_state_goes_on_as_if_it_never_stopped(sessions, name, method):
-    """On NumPy; the RO plant, whose diagnoses take longest, on the committed
-    package compiled by numba when numba is installed (the slow tier only)."""
-    if name == "ro" and importlib.util.find_spec("numba"):
-        key = ("numba", MODELS / "ro.yaml")
-        if key not in sessions:
-            numba_package("ro")
-            sessions[key] = bgc.open(MODELS / "ro.yaml", generated=ROOT / "generated", backend="numba")
-        session = sessions[key]
-    else:
-        session = _session(sessions, MODELS / f"{name}.yaml")
+    """On NumPy; the RO plant, whose diagnoses take longest, on the FAST
+    backend (conftest.fast_session; the slow tier only)."""
+    session = fast_session("ro") if name == "ro" else _session(sessions, MODELS / f"{name}.yaml")
     rows, run = _rows(session, SCENARIOS[name])
     (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, 0.8, method=method, particles=200,
                                                              seed=3)
@@ -184,11 +176,7 @@ def test_a_diagnoser_on_the_compiled_backend_is_taken_up_alike(sessions):
     a filter taken up keeps its generator object, whose state is set, so the
     handle stays valid (numba, a test of the compiled backend)."""
     pytest.importorskip("numba")
-    key = ("numba", MODELS / "two_tank.yaml")
-    if key not in sessions:  # the committed package, its kernels compiled once per test run
-        numba_package("two_tank")
-        sessions[key] = bgc.open(MODELS / "two_tank.yaml", generated=ROOT / "generated", backend="numba")
-    session = sessions[key]
+    session = fast_session("two_tank")  # numba, numba being installed
     rows, run = _rows(session, SCENARIOS["two_tank"])
     (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, 0.75, particles=200, seed=5)
     assert at_cut.loop.phase == "tracking"
