@@ -60,4 +60,4 @@ test: $(STAMP)
 	$(PYTEST)
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis
+	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis "$${XDG_CACHE_HOME:-$$HOME/.cache}/bgc-tests"

@@ -15,11 +15,15 @@ any such machine. Elsewhere, or with other kernels asked for, the corpus's
 exact numbers are skipped, with that reason (tests/test_regression.py).
 
 numba's disk cache (``NUMBA_CACHE_DIR``) and bgc's cache of compiled
-packages (``BGC_CACHE_DIR``) are folders of .pytest_cache, kept from run to
-run (``make clean`` removes them), unless the caller chose others: the
-kernels compiled by one run are loaded by the next, and the suite writes
-nothing into the user's own caches. The one test of a cold cache gives its
-process a new folder (tests/test_backend.py).
+packages (``BGC_CACHE_DIR``) are folders of the suite's own cache
+(:data:`KEPT`: ``BGC_TEST_CACHE``, else ``$XDG_CACHE_HOME/bgc-tests``, else
+``~/.cache/bgc-tests``), kept from run to run and from checkout to checkout
+(``make clean`` removes it), unless the caller chose others: the kernels a
+run compiles are loaded by the next, a clean clone's included, and the suite
+writes nothing into the user's own caches. Every entry is named by what it
+was made from (bgc's code, the model's text, the package's text, numba's
+version), so checkouts of other commits share the folder safely. The one
+test of a cold cache gives its process a new folder (tests/test_backend.py).
 """
 
 import importlib.util
@@ -44,10 +48,35 @@ def _runs_haswell() -> bool:
 if _runs_haswell():
     os.environ.setdefault("OPENBLAS_CORETYPE", RECORDED_CORETYPE)
 
-#: The caches kept between test runs.
-KEPT = Path(__file__).resolve().parent / ".pytest_cache"
+#: The caches kept between test runs, outside the checkout: a clean clone finds what the last run compiled.
+KEPT = Path(os.environ.get("BGC_TEST_CACHE")
+            or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bgc-tests")
 os.environ.setdefault("NUMBA_CACHE_DIR", str(KEPT / "numba"))
 os.environ.setdefault("BGC_CACHE_DIR", str(KEPT / "bgc"))
+
+#: What the suite's cache keeps that no run used for this long is removed when a run starts.
+PRUNE_DAYS = 30
+
+
+def pytest_sessionstart(session) -> None:
+    """Prune the suite's own cache (not a folder the caller chose): what bgc
+    wrote in its part that no run used for :data:`PRUNE_DAYS` days
+    (``bgc cache clear --unused-days``), and numba's cache folders none of
+    whose files changed for as long (a checkout that is gone leaves one)."""
+    import shutil
+    import time
+
+    from bgc.api import cache
+
+    days = PRUNE_DAYS * 86400.0
+    if os.environ.get("BGC_CACHE_DIR") == str(KEPT / "bgc"):
+        cache.clear(KEPT / "bgc", unused_for=days)
+    if os.environ.get("NUMBA_CACHE_DIR") == str(KEPT / "numba") and (KEPT / "numba").is_dir():
+        for folder in (KEPT / "numba").iterdir():
+            stamps = [f.stat().st_mtime for f in folder.rglob("*") if f.is_file()] if folder.is_dir() else []
+            if stamps and time.time() - max(stamps) > days:
+                shutil.rmtree(folder, ignore_errors=True)
+
 
 collect_ignore = ([] if importlib.util.find_spec("numba") is not None
                   else ["bgc/filters/numba_kernel.py", "bgc/filters/_jit_kernel.py"])

@@ -82,21 +82,28 @@ def session(model, **options):
 
 @lru_cache(maxsize=None)
 def numba_package(name: str):
-    """The committed numba package of a shipped model (generated/NAME), every
-    kernel of every model's whole step compiled into numba's disk cache, or
-    loaded from it, once per test process. The first test process to ask
-    compiles (on forked workers) while holding a lock on a file of
-    .pytest_cache; the other waits for it, then loads: two test processes
-    never compile the same kernels at once. The tests that run a shipped
-    model on numba ask for it first."""
+    """The compiled (numba) package of a shipped model, every kernel of
+    every model's whole step compiled into numba's disk cache, or loaded from
+    it, once per test process. The package is the one bgc.open runs: the text
+    of generated/NAME/numba_model (tests/test_generated.py), in its folder of
+    bgc's cache that lasts (:func:`bgc.api.cache.numba_folder`), where numba's
+    disk cache stays valid from run to run and from checkout to checkout
+    (the root conftest.py keeps both caches outside the checkout); a
+    package's folder in a checkout is new in every clone. The first test
+    process to ask compiles (on forked workers) while holding a lock on a
+    file of the suite's cache; the other waits for it, then loads: two test
+    processes never compile the same kernels at once. The tests that run a
+    shipped model on numba ask for it first."""
     import fcntl
 
+    from bgc.api import cache
     from bgc.model import package as loading
     from bgc.model import warmup
 
-    package = loading.load_package(ROOT / "generated", name, backend="numba")
-    lock = ROOT / ".pytest_cache" / "numba-warm.lock"
-    lock.parent.mkdir(exist_ok=True)
+    folder = cache.numba_folder(cache.open_model(MODELS / f"{name}.yaml"))
+    package = loading.load_package(folder, name, backend="numba")
+    lock = Path(os.environ["BGC_CACHE_DIR"]) / "numba-warm.lock"
+    lock.parent.mkdir(parents=True, exist_ok=True)
     with open(lock, "a") as held:
         fcntl.flock(held, fcntl.LOCK_EX)
         try:
@@ -106,18 +113,25 @@ def numba_package(name: str):
     return package
 
 
+def numba_folder(name: str) -> Path:
+    """The folder of :func:`numba_package` (``<folder>/NAME/numba_model``),
+    its kernels in numba's disk cache: ``generated=`` for a shipped model's
+    compiled package."""
+    return Path(numba_package(name).__file__).parents[2]
+
+
 #: The backend of the slow tests of the shipped models (many seeded diagnoses): the compiled one when
 #: numba is installed (the same diagnoses, tests/test_backend.py checks it, about 3x faster), else NumPy.
 FAST = "numba" if importlib.util.find_spec("numba") else "numpy"
 
 
 def fast_session(model: str, **options):
-    """:func:`session` of a shipped model's committed package (generated/)
-    on the FAST backend, its kernels compiled once per test run
-    (:func:`numba_package`); for the slow tier (make check compiles no kernel)."""
+    """:func:`session` of a shipped model on the FAST backend, its kernels
+    compiled once per test run, or loaded from the last run's (:func:`numba_package`);
+    for the slow tier (make check compiles no kernel)."""
     if FAST == "numba":
         numba_package(model)
-    return session(MODELS / f"{model}.yaml", generated=ROOT / "generated", backend=FAST, **options)
+    return session(MODELS / f"{model}.yaml", backend=FAST, **options)
 
 
 #: Folders of model files no test writes to: their compilations may be shared.

@@ -3,11 +3,12 @@ every shipped model and filter, the choice of backend, and a NumPy-only
 installation that never needs numba.
 
 The tests that compile kernels are marked ``numba`` (make check leaves them
-out). They load the committed packages of generated/ (or, for a package
-bgc.open makes, its folder in bgc's cache, which the suite keeps in
-.pytest_cache): each kernel is compiled once per test run, into numba's disk
-cache (conftest.py keeps it between runs), and every later test, in this
-process or another, loads it. Only the test of a cold cache starts from
+out). On NumPy they load the committed packages of generated/; on numba the
+same package text from its folder of bgc's cache that lasts (what bgc.open
+runs; tests/conftest.py's ``numba_package``): each kernel is compiled once,
+into numba's disk cache, which the root conftest.py keeps outside the
+checkout from run to run, and every later test, in this process or another,
+in this run or the next, loads it. Only the test of a cold cache starts from
 nothing.
 """
 
@@ -26,7 +27,7 @@ from bgc.analysis import simulate
 from bgc.model import package as loading
 from bgc.model import warmup
 
-from conftest import ROOT, bgc_cli, compiled, numba_package
+from conftest import ROOT, bgc_cli, compiled, numba_folder, numba_package
 
 numba = pytest.importorskip("numba", reason="the fast extra (numba) is not installed: pip install '.[fast]'")
 
@@ -60,7 +61,7 @@ def difference(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def packages(name: str):
-    """The committed package of a shipped model on NumPy and on numba (every kernel compiled once per run)."""
+    """A shipped model's package on NumPy (generated/) and on numba (every kernel compiled once, :func:`numba_package`)."""
     return loading.load_package(ROOT / "generated", name, backend="numpy"), numba_package(name)
 
 
@@ -113,8 +114,8 @@ def test_a_bank_of_filters_is_the_same_on_both_backends(name):
 def test_a_diagnosis_does_not_depend_on_the_backend():
     import bgc
 
-    # the committed packages: their kernels are compiled by now (the first test)
-    reports = [bgc.diagnose("models/circuit.yaml", scenario="R2:abrupt:0.6@5", seed=2, generated=ROOT / "generated",
+    numba_package("circuit")  # the kernels bgc.open loads, compiled once
+    reports = [bgc.diagnose("models/circuit.yaml", scenario="R2:abrupt:0.6@5", seed=2,
                             options=DiagnosisOptions(particles=200, seed=2, workers=1), backend=b)
                for b in ("numpy", "numba")]
     a, b = (r.diagnosis for r in reports)
@@ -209,8 +210,9 @@ def test_a_package_instance_at_other_noise_levels_uses_its_own_noise_on_both_bac
     ys, us = record("two_tank")
     runs = {}
     for backend in ("numpy", "numba"):
-        base = loading.load_package(ROOT / "generated", "two_tank", backend=backend)
-        other = loading.load_package(ROOT / "generated", "two_tank", noise=levels, backend=backend)
+        folder = ROOT / "generated" if backend == "numpy" else numba_folder("two_tank")
+        base = loading.load_package(folder, "two_tank", backend=backend)
+        other = loading.load_package(folder, "two_tank", noise=levels, backend=backend)
         assert other.__name__ != base.__name__
         assert not np.allclose(other.MODELS["nominal"].PROCESS_STD, base.MODELS["nominal"].PROCESS_STD)
         for name, p in (("base", base), ("other", other)):
@@ -228,9 +230,10 @@ def test_the_static_posterior_and_its_verdict_do_not_depend_on_the_backend():
     same verdict, hypotheses' weights and estimate on both backends."""
     import bgc
 
+    numba_package("ro")
     reports = [bgc.diagnose("models/ro.yaml", scenario="R_pipe:incipient:0.5@165", seed=1,
-                            options=DiagnosisOptions(method="ckf", seed=1, workers=1),
-                            generated=ROOT / "generated", backend=b) for b in ("numpy", "numba")]
+                            options=DiagnosisOptions(method="ckf", seed=1, workers=1), backend=b)
+               for b in ("numpy", "numba")]
     a, b = (r.diagnosis for r in reports)
     assert (a.verdict, a.candidates, a.onset) == (b.verdict, b.candidates, b.onset)
     weights = [{h.name: (h.posterior, h.static_log_evidence) for h in d.hypotheses} for d in (a, b)]
@@ -256,9 +259,10 @@ def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_pat
     import textwrap
 
     lines = {}
+    numba_package("circuit")
     for backend in ("numpy", "numba"):
         out = bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@5", "--particles", "200",
-                      "--generated", ROOT / "generated", "--backend", backend, "-v", "-o", tmp_path / f"d-{backend}")
+                      "--backend", backend, "-v", "-o", tmp_path / f"d-{backend}")
         assert out.returncode == 0, out.stderr
         lines[backend] = out.stdout.splitlines()[0]
         assert ("numba backend: " in out.stderr) == (backend == "numba")

@@ -8,6 +8,8 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -185,6 +187,32 @@ def test_clear_removes_what_bgc_wrote_and_nothing_else(root, tanks, capsys):
         assert path.exists(), path
     assert not (root / cache.WARM).exists()
     assert cache.open_model(tanks).compiled is not None  # compiled again after a clear
+
+
+def test_clear_unused_days_keeps_what_was_used_since(root, tanks, capsys):
+    """``bgc cache clear --unused-days 30`` removes the entries and packages
+    last used over 30 days ago and keeps the others; using a package again
+    (a session opening it) marks it used."""
+    from bgc.cli import main
+
+    old, new = cache.open_model(tanks), None
+    package = Path(cache.numba_folder(old))
+    month = time.time() - 31 * 86400
+    os.utime(old.entry / "entry.json", (month, month))
+    os.utime(package, (month, month))
+    tanks.write_text(tanks.read_text(encoding="utf-8") + "# another text\n", encoding="utf-8")
+    new = cache.open_model(tanks)
+    assert sorted(i.kind for i in cache.items(root)) == ["model", "model", "package"]
+    assert main(["cache", "clear", "--unused-days", "30"]) == 0
+    assert "1 compiled model, 1 compiled (numba) package" in capsys.readouterr().out
+    assert [i.path for i in cache.items(root)] == [new.entry]
+    package = Path(cache.numba_folder(new))  # made again; used now
+    os.utime(package, (month, month))
+    cache.numba_folder(new)  # a later use marks it used
+    assert main(["cache", "clear", "--unused-days", "30"]) == 0
+    assert sorted(i.kind for i in cache.items(root)) == ["model", "package"]
+    assert main(["cache", "list", "--unused-days", "3"]) == 1
+    assert "--unused-days is for clear" in capsys.readouterr().err
 
 
 def test_a_hit_imports_neither_sympy_nor_the_compiler(root):

@@ -407,15 +407,19 @@ def items(root: Path | None = None) -> list[Item]:
     return sorted(found, key=lambda i: (i.kind, i.model, -i.used))
 
 
-def clear(root: Path | None = None) -> list[Item]:
+def clear(root: Path | None = None, unused_for: float | None = None) -> list[Item]:
     """Remove what :func:`items` lists (an unfinished folder only once it is
-    :data:`STALE_SECONDS` old: a younger one may be being written), then the
-    ``models`` and ``packages`` folders if nothing else is left in them;
-    what was removed. Nothing else under the cache folder is touched."""
+    :data:`STALE_SECONDS` old: a younger one may be being written; with
+    ``unused_for``, only what was last used that many seconds ago or more),
+    then the ``models`` and ``packages`` folders if nothing else is left in
+    them; what was removed. Nothing else under the cache folder is touched."""
     root = cache_root() if root is None else root
     removed = []
+    now = time.time()
     for item in items(root):
-        if item.kind == "unfinished" and time.time() - item.used < STALE_SECONDS:
+        if item.kind == "unfinished" and now - item.used < STALE_SECONDS:
+            continue
+        if unused_for is not None and now - item.used < unused_for:
             continue
         if item.kind == "note":
             try:

@@ -169,6 +169,11 @@ def lasting_folder(name: str, model: str, files) -> str:
     root = cache_root() / "packages" / name
     if not (root / model / NUMBA_PACKAGE / "__init__.py").exists():
         write_whole(root, lambda fresh: write_package(fresh / model / NUMBA_PACKAGE, files))
+    else:
+        try:
+            os.utime(root)  # used now: ``bgc cache clear --unused-days`` keeps it
+        except OSError:
+            pass
     return str(root)
 
 

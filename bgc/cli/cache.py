@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from ..errors import printable
+from ..errors import BgcError, printable
 
 
 def add_parser(sub) -> None:
@@ -13,6 +13,8 @@ def add_parser(sub) -> None:
                                      "compiled packages), or clear it")
     p.add_argument("action", nargs="?", choices=["list", "clear"], default="list",
                    help="list (default) or clear: remove what bgc wrote there, nothing else")
+    p.add_argument("--unused-days", type=_days, default=None, metavar="DAYS",
+                   help="with clear: remove only what was not used for DAYS days (e.g. 30)")
     p.set_defaults(run=run)
 
 
@@ -22,8 +24,10 @@ def run(args: argparse.Namespace) -> int:
 
     root = cache_root()
     where = printable(str(root))
+    if args.unused_days is not None and args.action != "clear":
+        raise BgcError("--unused-days is for clear", None, "write bgc cache clear --unused-days 30")
     if args.action == "clear":
-        removed = cache.clear(root)
+        removed = cache.clear(root, None if args.unused_days is None else args.unused_days * 86400.0)
         counts = {kind: sum(1 for i in removed if i.kind == kind) for kind in ("model", "package", "unfinished")}
         total = sum(i.bytes for i in removed)
         print(f"removed from {where}: {_count(counts['model'], 'compiled model')}, "
@@ -51,6 +55,17 @@ def run(args: argparse.Namespace) -> int:
         print("  (empty)")
     print(f"{_size(sum(i.bytes for i in found))} in all; remove it with: bgc cache clear")
     return 0
+
+
+def _days(text: str) -> float:
+    """A number of days, zero or more (argparse's type)."""
+    try:
+        days = float(text)
+    except ValueError:
+        days = float("nan")
+    if not days >= 0 or days == float("inf"):
+        raise argparse.ArgumentTypeError(f"{printable(text)} is not a number of days (give e.g. 30)")
+    return days
 
 
 def _count(n: int, one: str, many: str | None = None) -> str:

@@ -402,9 +402,32 @@ def diagnosis_plots(r) -> dict[str, Figure]:
     return {name: DIAGNOSIS_PLOTS[name](r) for name in diagnosis_plot_names(r)}
 
 
+#: The diagnosis report whose pictures forked processes draw (:func:`diagnosis_figures`): a child
+#: inherits it from its parent instead of receiving the report, arrays and all, pickled.
+_DRAWING: list = []
+
+
+def _diagnosis_picture(name: str) -> bytes:
+    return picture(DIAGNOSIS_PLOTS[name](_DRAWING[-1]))
+
+
 def diagnosis_figures(r) -> dict[str, bytes]:
-    """Every diagnosis picture as PNG bytes, by file name."""
-    return {name: picture(fig) for name, fig in diagnosis_plots(r).items()}
+    """Every diagnosis picture as PNG bytes, by file name: drawn on the
+    diagnosis's ``workers`` processes (forked once matplotlib is imported,
+    each drawing whole pictures; the bytes do not depend on where a picture
+    was drawn), in this process when there is one."""
+    from ..diagnosis.parallel import parallel_map
+
+    names = diagnosis_plot_names(r)
+    workers = getattr(getattr(r, "options", None), "workers", 1)
+    if workers > 1:
+        import matplotlib.backends.backend_agg  # noqa: F401  (imported once, before the fork)
+        import matplotlib.figure  # noqa: F401
+    _DRAWING.append(r)
+    try:
+        return dict(zip(names, parallel_map(_diagnosis_picture, list(names), workers)))
+    finally:
+        _DRAWING.pop()
 
 
 # ------------------------------------------------------------------ campaigns
