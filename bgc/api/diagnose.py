@@ -28,7 +28,7 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
              process_noise: float | None = None, measurement_noise: float | None = None,
              steps: int | None = None, generated: str | Path | None = None,
              options: DiagnosisOptions | None = None, progress=None,
-             prior_scale: float | None = None, backend: str | None = None) -> DiagnosisReport:
+             prior_scale: float | None = None, backend: str | None = None, columns=None) -> DiagnosisReport:
     """Diagnose ``data`` (a run file or a :class:`~bgc.data.runs.Run`) or a
     simulated ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, or ``none`` for a
     fault-free run) of ``model``.
@@ -78,6 +78,11 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         package, or the compiled one (numba, the ``fast`` extra); None or
         "auto": numba when it is installed (the environment's
         ``BGC_BACKEND`` first). The diagnosis does not depend on it.
+    columns : str, os.PathLike or ColumnMap, optional
+        With a run file: a column map from the logger's column names to
+        bgc's, with scales and offsets (``--columns``; a YAML file,
+        :mod:`bgc.data.columns`). A time column of ISO 8601 timestamps is
+        read with or without one.
 
     Returns
     -------
@@ -117,6 +122,9 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     arguments.integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
     arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
     arguments.noise_levels(func, process_noise, measurement_noise)
+    if columns is not None and data is None:
+        raise ArgumentValueError(f"{func}: columns= without data: a column map is for a run file", None,
+                                 "give data='run.csv' with it, or leave columns out")
     if steps is not None:
         arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
         if data is not None:
@@ -134,7 +142,7 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     if scenario is not None:
         run, injected = _scenario_run(session, scenario, steps, seed, opts, say)
     else:
-        run, injected = _recorded_run(session, data, opts), None
+        run, injected = _recorded_run(session, session.read_run(data, columns, func), opts), None
     if isinstance(scenario, simulate.FaultInjection):
         scenario = scenario.text
     return _run(session.view, run, session.package, scenario, injected, session.noise, session.levels, opts,
@@ -164,12 +172,10 @@ def _scenario_run(session: Session, scenario, steps: int | None, seed: int, opts
     return runs.parse_run(simulate.to_csv(result), f"scenario {text}"), injected
 
 
-def _recorded_run(session: Session, data, opts: DiagnosisOptions) -> runs.Run:
-    """A recorded run (a file or a Run), checked: of this model, its grid
+def _recorded_run(session: Session, run: runs.Run, opts: DiagnosisOptions) -> runs.Run:
+    """A recorded run (read by :meth:`Session.read_run`), checked: its grid
     within the diagnosis's memory."""
     c = session.view
-    run = runs.check_run(data) if isinstance(data, runs.Run) else runs.read_run(data)
-    track.check_run_of(run, c.model.name)
     grid = grid_steps(run.time, c.model.settings.dt)  # the model's time grid: a gap's steps count too
     check_diagnosis_steps(grid, c.numerics, opts.particles, opts.method,
                           f"{printable(run.source)}: {len(run.time)} samples"

@@ -13,6 +13,7 @@ from ..errors import (
 )
 from ..analysis import calibrate as calibration
 from ..data import runs
+from ..data.columns import ColumnMap, Reading, read_map, unit_seconds
 from ..model import package as packages
 from ..analysis import track
 from ..model import warmup
@@ -194,6 +195,29 @@ class Session:
 
         return summary.model_html(self)
 
+    def reading(self, columns=None, func: str = "bgc.Session.reading") -> Reading:
+        """What a reader of this model's run files is told
+        (:class:`~bgc.data.columns.Reading`): the column map ``columns`` (a
+        map file's path, a :class:`~bgc.data.columns.ColumnMap`, or None:
+        none), the columns the model reads, and its time unit (ISO
+        timestamps are converted to it)."""
+        return reading_of(self.view, columns, func)
+
+    def read_run(self, data, columns=None, func: str = "bgc.Session.read_run") -> runs.Run:
+        """A recorded run of this model: ``data`` a run file (read through the
+        column map ``columns``, :meth:`reading`) or a
+        :class:`~bgc.data.runs.Run` (checked), refused when its header names
+        another model."""
+        if isinstance(data, runs.Run):
+            if columns is not None:
+                raise ArgumentValueError(f"{func}: columns= with a Run: a column map is for a file", None,
+                                         "name the Run's columns as bgc does (u:NAME, y:NAME), or give the file")
+            run = runs.check_run(data)
+        else:
+            run = runs.read_run(data, self.reading(columns, func))
+        track.check_run_of(run, self.view.model.name)
+        return run
+
     def options(self, options: DiagnosisOptions | None = None, *, method: str = "gpf", particles: int = 1000,
                 seed: int = 0, func: str = "bgc.Session.diagnoser") -> DiagnosisOptions:
         """``options`` (checked; default: built from ``method``, ``particles``
@@ -223,7 +247,8 @@ class Session:
                          horizon_steps(opts.horizon, nominal.DT, 0), inputs=inputs, sensors=sensors, source=source,
                          progress=progress, most=most_steps(self.view.numerics, opts))
 
-    def calibrate(self, data, estimate: str | tuple[str, ...] = "noise", *, progress=None) -> CalibrationReport:
+    def calibrate(self, data, estimate: str | tuple[str, ...] = "noise", *, progress=None,
+                  columns=None) -> CalibrationReport:
         """Maximum-likelihood estimates, from healthy recordings ``data`` (a
         run file, a :class:`~bgc.data.runs.Run`, or a list or tuple of
         them), of what ``estimate`` names: ``noise`` (every sensor's
@@ -243,7 +268,9 @@ class Session:
             An unknown name to estimate; a likelihood that is not finite at
             the model's values.
         DataError
-            A run that cannot be read or is not of this model.
+            A run that cannot be read or is not of this model; a column map
+            (``columns``, :meth:`reading`) that cannot be read or does not
+            fit the files.
         """
         from ..output import calibrated  # yaml's writer: not needed to diagnose
 
@@ -271,8 +298,7 @@ class Session:
                                                            "--estimate" if isinstance(estimate, str) else "estimate")
         records, dates = [], []
         for item in items:
-            run = runs.check_run(item) if isinstance(item, runs.Run) else runs.read_run(item)
-            track.check_run_of(run, c.model.name)
+            run = self.read_run(item, columns, func)
             records.append(calibration.record_of(run, nominal))
             dates += [h.split(":", 1)[1].strip() for h in run.header
                       if h.lower().startswith(("date:", "recorded:")) and h.split(":", 1)[1].strip()]
@@ -292,6 +318,18 @@ class Session:
         """A :class:`DiagnosisReport` of ``diagnosis`` made on ``run``."""
         return DiagnosisReport(self.name, self.view.model.display_source, run, scenario, injected, self.noise,
                                self.levels, diagnosis.options, diagnosis, self.view.labels)
+
+
+def reading_of(view, columns=None, func: str = "bgc.Session.reading") -> Reading:
+    """:meth:`Session.reading` of a compiled model's view (:mod:`bgc.view`)."""
+    if columns is not None and not isinstance(columns, (str, os.PathLike, ColumnMap)):
+        raise ArgumentTypeError(f"{func}: columns={arguments.shown(columns)} is not a path or a ColumnMap", None,
+                                "give a column map file's path, e.g. columns='logger.yaml'")
+    mapping = read_map(columns) if isinstance(columns, (str, os.PathLike)) else columns
+    m = view.model
+    expected = tuple([f"u:{u.name}" for u in m.inputs] + [f"y:{y.name}" for y in m.measurements])
+    unit = m.settings.time_unit
+    return Reading(mapping, expected, unit_seconds(unit), unit)
 
 
 def choose_backend(backend: str | None, numba: Path, work: int | None) -> tuple[str, str]:

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from ..errors import printable
-from .common import add_backend_option, backend_note, refuse_input_in_output
+from .common import add_backend_option, add_columns_option, backend_note, refuse_input_in_output
 
 
 def add_parser(sub) -> None:
@@ -25,6 +25,7 @@ def add_parser(sub) -> None:
     p.add_argument("--report", default=None, metavar="DIR",
                    help="the calibration report's folder: report.md, report.json, report.html, pictures (default: "
                         "CALIBRATED-report beside the calibrated model)")
+    add_columns_option(p)
     add_backend_option(p)
     p.set_defaults(run=run)
 
@@ -47,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     session = api.open(args.model, backend=args.backend)
     backend_note(session, args)
-    report = session.calibrate(list(args.data), args.estimate)
+    report = session.calibrate(list(args.data), args.estimate, columns=args.columns)
     report.write(out)
     report.write_report(folder)
     cal = report.calibration

@@ -191,8 +191,16 @@ def add_backend_option(p: argparse.ArgumentParser) -> None:
                         "'bgc[fast]'); auto (default): numba when installed (BGC_BACKEND first). The result does "
                         "not depend on it")
 
+def add_columns_option(p: argparse.ArgumentParser) -> None:
+    """``--columns MAP.yaml``: a logger's columns to bgc's (bgc.data.columns)."""
+    p.add_argument("--columns", metavar="MAP.yaml", default=None,
+                   help="a column map: the logger's column names to bgc's (u:NAME, y:NAME), with a scale and an "
+                        "offset to the model's units, and the logger's time column (docs/format.md, section 9)")
+
+
 def add_data_options(p: argparse.ArgumentParser) -> None:
     """The options of real data, shared by bgc diagnose and bgc monitor."""
+    add_columns_option(p)
     p.add_argument("--horizon", type=float, default=None, metavar="TIME",
                    help="the detector's false-alarm rate is per this much time (default: the model's run length, "
                         "simulation.steps x dt)")

@@ -70,8 +70,11 @@ def run(args: argparse.Namespace) -> int:
                            generated=args.generated, prior_scale=args.prior_scale, backend=args.backend,
                            work=(max(args.particles, 1), steps if steps and steps > 0 else None))
         backend_note(session, args)
+        if args.columns is not None and args.data is None:
+            raise BgcError("--columns applies to --data: a column map is for a logger's file", None,
+                           "drop --columns, or give --data")
         r = api.diagnose(session, data=args.data, scenario=args.scenario, seed=args.seed, steps=args.steps,
-                         options=options, progress=progress)
+                         options=options, progress=progress, columns=args.columns)
     finally:
         progress.close()
     write_report(r, args.output or f"{r.model}-diagnosis", "diagnose")

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import printable
-from .common import add_backend_option, fault_model, seed, status
+from .common import add_backend_option, add_columns_option, fault_model, seed, status
 
 
 def add_parser(sub) -> None:
@@ -24,6 +24,7 @@ def add_parser(sub) -> None:
     p.add_argument("--generated", default="generated", metavar="DIR",
                    help="where bgc compile wrote the package (its -o DIR; default: generated)")
     p.add_argument("--plot", metavar="FILE.png")
+    add_columns_option(p)
     add_backend_option(p)
     p.set_defaults(run=run)
 
@@ -32,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ..api import cache
-    from ..api.session import choose_backend
+    from ..api.session import choose_backend, reading_of
     from ..ir import NUMBA_PACKAGE
     from ..output import artifacts
     from ..data import runs
@@ -41,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from ..model import warmup
 
     c = cache.open_model(args.model).view
-    run = runs.read_run(args.run_csv)
+    run = runs.read_run(args.run_csv, reading_of(c, args.columns))
     track.check_run_of(run, c.model.name, args.run_csv)
     numba = Path(args.generated) / c.model.name / NUMBA_PACKAGE
     methods = 2 if args.method == "both" else 1

@@ -69,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
                        prior_scale=args.prior_scale, backend=args.backend,
                        work=None if rows is None else (max(args.particles, 1), rows))
     backend_note(session, args)
+    reading = session.reading(args.columns)  # the column map read before the stream
     out = Path(args.output or f"{session.name}-monitor")
     refuse_input_in_output(args.data, out)
     artifacts.check_folder(out, ("report.md", "report.json", "report.html", "manifest.json"),
@@ -91,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
     r, failure = monitor.monitor(session, stream, name, options, say=say, checkpoint=args.checkpoint,
-                                 exclude_faulty=args.exclude_faulty_sensor)
+                                 exclude_faulty=args.exclude_faulty_sensor, reading=reading)
     if quiet:
         sys.stdout = open(os.devnull, "w")
     write_report(r, str(out), "monitor")

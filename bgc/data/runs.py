@@ -47,6 +47,7 @@ from typing import IO
 import numpy as np
 
 from ..errors import DataError, printable
+from .columns import Reading, bgc_name, iso_seconds
 
 #: A run file larger than this is refused before it is read (a 300-step run of
 #: the RO plant is about 60 kB).
@@ -123,8 +124,9 @@ def run_csv(run: Run) -> str:
     return to_csv(run.header, columns)
 
 
-def read_run(path: str | Path) -> Run:
-    """Read a run file (see the module docstring for the checks)."""
+def read_run(path: str | Path, reading: Reading | None = None) -> Run:
+    """Read a run file (see the module docstring for the checks); ``reading``:
+    the column map and what the model reads (:class:`~bgc.data.columns.Reading`)."""
     name = printable(str(path))
     p = Path(path)
     try:
@@ -140,14 +142,14 @@ def read_run(path: str | Path) -> Run:
                         "split the run into shorter records")
     try:
         with open(p, "rb") as f:
-            return _parse(f, name)
+            return _parse(f, name, reading)
     except OSError as exc:
         raise DataError(f"{name}: cannot read: {exc.strerror}", None, _FIX) from None
 
 
-def parse_run(text: str, name: str = "<csv>") -> Run:
+def parse_run(text: str, name: str = "<csv>", reading: Reading | None = None) -> Run:
     """Parse the text of a run file; ``name`` (the run's ``source``) is used in errors."""
-    return _parse(io.StringIO(text, newline="\n"), name)
+    return _parse(io.StringIO(text, newline="\n"), name, reading)
 
 
 class _Lines:
@@ -240,29 +242,32 @@ class RowReader:
     line. Whether the times increase is the reader's caller's to check (the
     diagnoser's :class:`~bgc.data.sampler.Sampler`)."""
 
-    def __init__(self, stream: IO, name: str):
+    def __init__(self, stream: IO, name: str, reading: Reading | None = None):
         self.name = name
         self.lines = _Lines(stream, name)
         self.reader = csv.reader(self.lines)
-        self.columns = _columns(self.reader, self.lines, name)
+        self.layout = _columns(self.reader, self.lines, name, reading or Reading())
+        #: bgc's names of the columns each row gives, ``time`` first
+        self.columns = self.layout.names
         self.header = tuple(self.lines.header)
 
     def __iter__(self):
-        width, lines = len(self.columns), self.lines
+        layout, lines = self.layout, self.lines
         while True:
             fields = _next(self.reader, lines)
             if fields is None:
                 return
-            if len(fields) != width:
-                raise lines.error(f"{len(fields)} fields, expected {width}", "give every row one value per column")
+            if len(fields) != layout.width:
+                raise lines.error(f"{len(fields)} fields, expected {layout.width}",
+                                  "give every row one value per column")
             if lines.length > MAX_FIELD:
                 _fields(fields, lines)
-            values = [_number(v, c, lines) for v, c in zip(fields, self.columns)]
+            values = layout.row(fields, lines)
             for v, c in zip(values, self.columns):
                 if math.isinf(v):
                     raise lines.error(f"{v} in column {printable(c)} is not a finite number",
                                       "write finite numbers (empty or nan: not measured)")
-            yield values, lines.number
+            yield layout.scaled(values), lines.number
 
     @property
     def model(self) -> str | None:
@@ -270,39 +275,109 @@ class RowReader:
         return Run(np.zeros(0), {}, {}, {}, {}, self.header).model
 
 
-def _columns(reader, lines: _Lines, name: str) -> list[str]:
-    """The column names, checked: ``time`` first, each once, each prefixed."""
+@dataclass(frozen=True, slots=True)
+class _Layout:
+    """How a file's fields become a run's columns: bgc's ``names`` (``time``
+    first), the file's field ``index`` of each, the file's ``width``, each
+    column's ``scale`` and ``offset`` (a column map's), the seconds in one of
+    the model's time units (ISO timestamps; None: a unit bgc does not know)."""
+
+    names: list[str]
+    index: list[int]
+    width: int
+    scale: np.ndarray
+    offset: np.ndarray
+    seconds_per_unit: float | None = 1.0
+    time_unit: str | None = None
+
+    @property
+    def scaling(self) -> bool:
+        return bool(np.any(self.scale != 1.0) or np.any(self.offset != 0.0))
+
+    def row(self, fields: list[str], lines: _Lines) -> list[float]:
+        """One row's numbers, in bgc's column order, unscaled."""
+        out = [_number(fields[j], c, lines) for j, c in zip(self.index[1:], self.names[1:])]
+        return [self.time(fields[self.index[0]], lines), *out]
+
+    def time(self, text: str, lines: _Lines) -> float:
+        """A time cell: a number, or an ISO 8601 timestamp in the model's unit."""
+        try:
+            if "_" in text:
+                raise ValueError
+            return float(text)
+        except ValueError:
+            seconds = iso_seconds(text)
+            if seconds is None:
+                return _number(text, "time", lines)
+        if self.seconds_per_unit is None:
+            raise lines.error(f"an ISO time, and the model's time unit {printable(repr(self.time_unit))} is not one "
+                              "bgc converts to", "declare time_unit: s (or ms, min, h, day) in the model, or give "
+                              "times as numbers")
+        return seconds / self.seconds_per_unit
+
+    def scaled(self, values: list[float]) -> list[float]:
+        if not self.scaling:
+            return values
+        return [float(v * a + b) for v, a, b in zip(values, self.scale, self.offset)]
+
+
+def _columns(reader, lines: _Lines, name: str, reading: Reading) -> _Layout:
+    """The column names, checked: ``time`` (first, unless a column map names
+    the logger's), each once, each prefixed or mapped."""
     cols = _next(reader, lines)
     if cols is None:
         raise DataError(f"{name}: no data", None, "write it with bgc simulate")
     first_line = lines.number
     _fields(cols, lines)
-    if not cols or cols[0] != "time":
-        raise DataError(f"{name}:{first_line}: the first column must be 'time', not {printable(repr(cols[0]))}"
-                        if cols else f"{name}:{first_line}: no column names", None,
-                        "write the run with bgc simulate")
+    where = f"{name}:{first_line}"
+    mapping = reading.columns
+    if mapping is None and cols and sum(c != "time" and not bgc_name(c) for c in cols) > 1:
+        raise reading.foreign_columns(cols, where)
+    if mapping is None and (not cols or cols[0] != "time"):
+        raise DataError(f"{where}: the first column must be 'time', not {printable(repr(cols[0]))}"
+                        if cols else f"{where}: no column names", None,
+                        "name it time, or give a column map whose time: names the logger's time column "
+                        "(--columns FILE; docs/format.md, section 9)" if cols else "write the run with bgc simulate")
     if len(cols) > MAX_COLUMNS:
-        raise DataError(f"{name}:{first_line}: {len(cols)} columns, more than {MAX_COLUMNS}", None,
+        raise DataError(f"{where}: {len(cols)} columns, more than {MAX_COLUMNS}", None,
                         "give the model's inputs, sensors, states and parameters only")
     seen: set[str] = set()
     for c in cols:
         if c in seen:
-            raise DataError(f"{name}:{first_line}: column {printable(repr(c))} appears twice", None,
-                            "give each column once")
+            raise DataError(f"{where}: column {printable(repr(c))} appears twice", None, "give each column once")
         seen.add(c)
-        prefix, colon, rest = c.partition(":")
-        if c != "time" and not (colon and prefix in PREFIXES and rest):
-            raise DataError(f"{name}:{first_line}: column {printable(repr(c))} is not time, u:NAME, y:NAME, x:NAME "
-                            "or theta:NAME", None, "name the columns as bgc simulate does")
-    return cols
+    names = mapping.names(cols, reading, where) if mapping is not None else list(cols)
+    out: list[str] = []
+    index: list[int] = []
+    scale: list[float] = []
+    offset: list[float] = []
+    taken: dict[str, str] = {}
+    for j, (c, n) in enumerate(zip(cols, names)):
+        if n is None:
+            continue
+        if n != "time" and not bgc_name(n):
+            raise reading.unknown_column(c, cols, where)
+        if n in taken:
+            raise DataError(f"{where}: columns {printable(repr(taken[n]))} and {printable(repr(c))} are both "
+                            f"{printable(n)}", None, "map one logger column to each of bgc's names")
+        taken[n] = c
+        entry = mapping.entry(c) if mapping is not None else None
+        at = 0 if n == "time" else len(out) + 1
+        out.insert(at, n)
+        index.insert(at, j)
+        scale.insert(at, entry.scale if entry is not None else 1.0)
+        offset.insert(at, entry.offset if entry is not None else 0.0)
+    return _Layout(out, index, len(cols), np.array(scale), np.array(offset), reading.seconds_per_unit,
+                   reading.time_unit)
 
 
-def _parse(stream: IO, name: str) -> Run:
+def _parse(stream: IO, name: str, reading: Reading | None = None) -> Run:
     """A run from the lines of ``stream`` (one csv reader over them, the rows
     into growing arrays), checked by :func:`check_run`."""
     lines = _Lines(stream, name)
     reader = csv.reader(lines)
-    cols = _columns(reader, lines, name)
+    layout = _columns(reader, lines, name, reading or Reading())
+    cols = layout.names
     width = len(cols)
     most = MAX_VALUES // (width + 1)  # the rows' numbers and their line numbers
     rows = max(1, _BLOCK // width)  # a block's rows
@@ -311,18 +386,23 @@ def _parse(stream: IO, name: str) -> Run:
     n = 0
     block: list[list[float]] = []  # rows waiting to be copied into the arrays, with their line numbers
     at: list[int] = []
+    plain = layout.index == list(range(layout.width))
     try:
         for fields in reader:
-            if len(fields) != width:
-                raise lines.error(f"{len(fields)} fields, expected {width}", "give every row one value per column")
+            if len(fields) != layout.width:
+                raise lines.error(f"{len(fields)} fields, expected {layout.width}",
+                                  "give every row one value per column")
             if lines.length > MAX_FIELD:
                 _fields(fields, lines)
+            if not plain:
+                fields = [fields[j] for j in layout.index]
             try:
                 if "_" in "".join(fields):  # float() reads 1_0 as 10: a number of Python's, not of a run file
                     raise ValueError
                 block.append([float(v) for v in fields])
             except ValueError:
-                block.append([_number(v, c, lines) for v, c in zip(fields, cols)])
+                block.append([layout.time(fields[0], lines),
+                              *(_number(v, c, lines) for v, c in zip(fields[1:], cols[1:]))])
             at.append(lines.number)
             if len(block) == rows:
                 data, numbers, n = _store(data, numbers, n, block, at, most, lines)
@@ -333,6 +413,9 @@ def _parse(stream: IO, name: str) -> Run:
         raise DataError(f"{name}: the run has no data rows, only column names", None, "record at least one sample")
     data.resize((n, width), refcheck=False)
     numbers.resize(n, refcheck=False)
+    if layout.scaling:
+        data *= layout.scale
+        data += layout.offset
     return check_run(run_of(cols, data, tuple(lines.header), name), numbers)
 
 

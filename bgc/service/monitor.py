@@ -24,6 +24,7 @@ from .. import api
 from ..errors import BgcError, DataError, printable
 from .. import events as ev
 from ..data import runs
+from ..data.columns import Reading
 from ..analysis import track
 from ..diagnosis.options import DiagnosisOptions
 
@@ -78,7 +79,8 @@ class Follow:
 
 def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptions, *,
             say: Callable[[str], None] = print, checkpoint: float | None = None,
-            progress=None, exclude_faulty: bool = False) -> tuple[api.DiagnosisReport, BgcError | None]:
+            progress=None, exclude_faulty: bool = False,
+            reading: Reading | None = None) -> tuple[api.DiagnosisReport, BgcError | None]:
     """Diagnose the rows of ``stream`` (named ``name`` in messages) as they
     arrive, with the model of ``session`` (:func:`bgc.open`); ``say(line)``
     gets each event as a line with its time, as it happens; ``checkpoint``:
@@ -98,7 +100,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     events led by the exclusions."""
     from ..output.events import fault_sentence, sentence, time_text
 
-    reader = runs.RowReader(stream, name)
+    reader = runs.RowReader(stream, name, reading or session.reading())
     track.check_run_of(runs.Run(np.zeros(0), {}, {}, {}, {}, reader.header), session.name, name)
     columns = reader.columns
     groups: dict[str, list[tuple[int, str]]] = {p: [] for p in runs.PREFIXES}
