@@ -10,7 +10,7 @@ model's time grid (the diagnosis's ``time[step]`` is its time); ``None``
 where the event has no instant (it holds for the whole run).
 
 In loop order: the data (:class:`SensorMissing`, :class:`ColumnIgnored`, :class:`SensorSilent`,
-:class:`InputFromModel`, :class:`InputHeld`, :class:`Gap`,
+:class:`SensorStopped`, :class:`SensorResumed`, :class:`InputFromModel`, :class:`InputHeld`, :class:`Gap`,
 :class:`SampleSkipped`), detection (:class:`Alarmed`, :class:`Degenerate`,
 :class:`Switched`), isolation (:class:`Isolated`, :class:`AllTried`),
 tracking (:class:`Started`, :class:`Stopped`, :class:`Dropped`, :class:`Rescued`), weighing
@@ -48,6 +48,28 @@ class SensorSilent:
 
     sensor: str
     step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class SensorStopped:
+    """Sensor ``sensor`` has had no sample since step ``since`` (its last
+    sample was the step before), longer than the gap limit, while rows
+    still come: it is diagnosed without it until it resumes (given at
+    ``step``, the first row past the limit)."""
+
+    sensor: str
+    since: int
+    step: int
+
+
+@dataclass(frozen=True, slots=True)
+class SensorResumed:
+    """Sensor ``sensor``, silent since step ``since`` (a
+    :class:`SensorStopped`), gives samples again from ``step``."""
+
+    sensor: str
+    since: int
+    step: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -318,7 +340,7 @@ class Decided:
     candidates: tuple[str, ...]
 
 
-Event = (SensorMissing | ColumnIgnored | SensorSilent | InputFromModel | InputHeld | Gap | SampleSkipped | Alarmed | Degenerate
+Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorResumed | InputFromModel | InputHeld | Gap | SampleSkipped | Alarmed | Degenerate
          | Switched | Isolated | AllTried | Started | Dropped | Rescued | Truncated | NoLikelihood | Misfit
          | AtPriorBound | Overruled | Uncertain | SensorExcluded
          | Checkpoint | Decided)

@@ -113,6 +113,40 @@ def test_a_healthy_run_with_a_logging_gap_is_healthy_and_the_gap_is_an_event():
     assert np.isnan(d.nominal_z[gaps[0].step:gaps[0].step + gaps[0].steps]).all()
 
 
+def test_a_sensor_silent_for_a_stretch_is_an_event_when_it_stops_and_when_it_resumes():
+    """A fault-free circuit run (dt 0.05, gap limit 10 steps) whose f2 cells
+    are empty on rows 100 to 159 (3 s, 60 samples) while the other sensors
+    go on, e11 empty on rows 200 to 205 (6 samples: under the limit), and
+    every row of 230 to 249 missing (a gap: no sensor stops): f2 stops when
+    its silence passes the limit, at row 110 (rows 100..110 are 11 steps
+    without it, more than 10), and resumes at row 160 after 60 steps; the
+    report counts one silence of 60 steps for f2 and none for e11."""
+    from bgc.output.report import data_lines, report_data
+
+    run = simulated(CIRCUIT)
+    ys = {k: v.copy() for k, v in run.measurements.items()}
+    ys["f2"][100:160] = np.nan
+    ys["e11"][200:206] = np.nan
+    keep = np.ones(len(run.time), bool)
+    keep[230:250] = False
+    quiet = rows_of(with_columns(run, measurements=ys), keep)
+    r = bgc.diagnose(session(CIRCUIT), data=quiet, options=OPTIONS)
+    d = r.diagnosis
+    assert d.verdict == "no fault"
+    stopped = [e for e in d.events if isinstance(e, events.SensorStopped)]
+    resumed = [e for e in d.events if isinstance(e, events.SensorResumed)]
+    assert stopped == [events.SensorStopped("f2", 100, 110)] and resumed == [events.SensorResumed("f2", 100, 160)]
+    assert d.data.silences == (("f2", 1, 60),)
+    assert "sensor y:f2: silent 1 time(s) for longer than the gap limit, the longest 60 step(s) (3 time units)" \
+        in data_lines(d)
+    data = report_data(r)
+    assert data["data_semantics"]["sensors_silent"] == [{"sensor": "f2", "silences": 1, "longest_steps": 60}]
+    said = [e["text"] for e in data["events"] if e["event"] in ("SensorStopped", "SensorResumed")]
+    assert said == ["sensor y:f2 has no sample since t = 5.05, longer than the gap limit: diagnosed with the other "
+                    "sensors until it resumes", "sensor y:f2 gives samples again after 60 step(s) without one "
+                    "(from t = 5.05)"]
+
+
 @pytest.mark.slow
 def test_every_fifth_row_dropped_keeps_the_time_and_the_diagnosis():
     run = simulated(CIRCUIT, "R2:abrupt:0.6@5")

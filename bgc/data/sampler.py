@@ -26,7 +26,11 @@ events (:mod:`bgc.events`):
   missing at every step (:class:`~bgc.events.SensorMissing`): the
   diagnosis uses the sensors present. With none present the data are
   refused. A ``y:`` or ``u:`` column the model has no sensor or input of is
-  not used (:class:`~bgc.events.ColumnIgnored`).
+  not used (:class:`~bgc.events.ColumnIgnored`). A sensor whose cells stay
+  empty for longer than the gap limit while rows still come is an event
+  when the limit is passed (:class:`~bgc.events.SensorStopped`) and one
+  when it gives samples again (:class:`~bgc.events.SensorResumed`); the
+  summary counts, per sensor, its silences and the longest.
 """
 
 from __future__ import annotations
@@ -98,12 +102,19 @@ class Sampler:
         self.gaps = 0  # runs of steps with no sample beyond the limit
         self._pending: list = []  # events for the next sample
         self._read = tuple((y, y in self.present) for y in model.OUTPUTS)  # per sensor: whether the data have it
+        # per sensor present: the step of its last sample, whether it is in a silence (its event given), the
+        # silences so far, the longest (steps)
+        self.last_seen = {y: -1 for y in self.present}
+        self.silent = {y: False for y in self.present}
+        self.stops = {y: 0 for y in self.present}
+        self.longest = {y: 0 for y in self.present}
 
     def state(self) -> "SamplerState":
         """Where the sampler stands, as plain data (:meth:`restore` takes it back)."""
         return SamplerState(self.data_inputs, self.t0, self.last_t, self.k, tuple(self.held.items()),
                             tuple(self.holding.items()), tuple(self.holds.items()), self.skipped, self.unsampled,
-                            self.gaps, tuple(self._pending))
+                            self.gaps, tuple(self._pending), tuple(self.last_seen.items()),
+                            tuple(self.silent.items()), tuple(self.stops.items()), tuple(self.longest.items()))
 
     def restore(self, state: "SamplerState") -> None:
         """Take up where ``state`` (:meth:`state`) stood."""
@@ -112,6 +123,8 @@ class Sampler:
         self.held, self.holding, self.holds = dict(state.held), dict(state.holding), dict(state.holds)
         self.skipped, self.unsampled, self.gaps = state.skipped, state.unsampled, state.gaps
         self._pending = list(state.pending)
+        self.last_seen, self.silent = dict(state.last_seen), dict(state.silent)
+        self.stops, self.longest = dict(state.stops), dict(state.longest)
 
     def start_events(self) -> tuple:
         """The events that hold for the whole run (absent columns)."""
@@ -157,9 +170,28 @@ class Sampler:
         self._pending = []
         uk = self._inputs(t, u, k, events)
         yk = np.array([float(y.get(name, math.nan)) if read else math.nan for name, read in self._read])
+        self._silences(k, yk, events)
         out.append(Sample(k, t, uk, yk, line, tuple(events)))
         self.k = k
         return out
+
+    def _silences(self, k: int, yk: np.ndarray, events: list) -> None:
+        """A row's sensors: one empty for longer than the gap limit is
+        stopped, one stopped that has a sample again resumes (``events``)."""
+        for (name, read), value in zip(self._read, yk):
+            if not read:
+                continue
+            last = self.last_seen[name]
+            if math.isfinite(value):
+                if self.silent[name]:
+                    events.append(ev.SensorResumed(name, last + 1, k))
+                    self.silent[name] = False
+                self.longest[name] = max(self.longest[name], k - last - 1)
+                self.last_seen[name] = k
+            elif not self.silent[name] and k - last > self.gap_steps:
+                events.append(ev.SensorStopped(name, last + 1, k))
+                self.silent[name] = True
+                self.stops[name] += 1
 
     def _where(self, line: int | None) -> str:
         """The data's name and the row's line, for a message."""
@@ -204,9 +236,11 @@ class Sampler:
     def summary(self) -> "DataSummary":
         """What the data gave, per input and sensor, so far."""
         inputs = tuple((u, "data" if u in self.data_inputs else "model") for u in self.model.INPUTS)
+        silences = tuple((y, self.stops[y], max(self.longest[y], self.k - self.last_seen[y]
+                                                  if self.silent[y] else 0)) for y in self.present if self.stops[y])
         return DataSummary(inputs, tuple((u, self.holds[u]) for u in self.data_inputs), self.present,
                            tuple(y for y in self.model.OUTPUTS if y not in self.present), self.skipped,
-                           self.unsampled, self.gaps, self.dt)
+                           self.unsampled, self.gaps, self.dt, silences)
 
 
 @dataclass(frozen=True, slots=True)
@@ -228,6 +262,10 @@ class SamplerState:
     unsampled: int
     gaps: int
     pending: tuple
+    last_seen: tuple = ()
+    silent: tuple = ()
+    stops: tuple = ()
+    longest: tuple = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -236,7 +274,9 @@ class DataSummary:
     (``data`` or ``model``), the holes held per data input (count of
     zero-order holds), the sensors present and missing, the samples skipped
     (a step already taken), the steps with no sample and the gaps beyond the
-    limit among them, and the grid's ``dt``."""
+    limit among them, the grid's ``dt``, and per sensor that stopped for
+    longer than the gap limit (``silences``): its name, how many times, and
+    its longest silence in steps."""
 
     inputs: tuple[tuple[str, str], ...]
     holds: tuple[tuple[str, int], ...]
@@ -246,6 +286,7 @@ class DataSummary:
     unsampled: int
     gaps: int
     dt: float
+    silences: tuple[tuple[str, int, int], ...] = ()
 
 
 def grid_steps(time, dt: float) -> int:

@@ -34,6 +34,11 @@ def sentence(e, time_of) -> str:
         case ev.SensorSilent(sensor=s):
             return f"sensor y:{s} has no sample in the run: every value of its column is empty or nan, so nothing " \
                    "is diagnosed from it"
+        case ev.SensorStopped(sensor=y, since=k):
+            return (f"sensor y:{y} has no sample since t = {t(k)}, longer than the gap limit: diagnosed with the "
+                    f"other sensors until it resumes")
+        case ev.SensorResumed(sensor=y, since=k, step=j):
+            return f"sensor y:{y} gives samples again after {j - k} step(s) without one (from t = {t(k)})"
         case ev.InputFromModel(input=u, reason="absent"):
             return f"the data have no column u:{u}: the model's declared input is used"
         case ev.InputFromModel(input=u):
@@ -130,8 +135,8 @@ def record(e, time_of) -> dict:
 
 
 #: Events the command line prints after a diagnosis (the others are in the report).
-NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped,
-           ev.Degenerate, ev.AllTried, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit,
+NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped, ev.SensorResumed,
+           ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate, ev.AllTried, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit,
            ev.SensorExcluded, ev.Overruled, ev.Uncertain)
 
 

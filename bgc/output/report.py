@@ -47,6 +47,9 @@ def data_lines(d, quote: Callable[[Any], str] = _same) -> list[str]:
                      + held)
     lines.append(f"sensors used: {', '.join(quote(y) for y in s.sensors)}"
                  + (f"; missing from the data: {', '.join(quote(y) for y in s.missing)}" if s.missing else ""))
+    for y, stops, longest in s.silences:
+        lines.append(f"sensor y:{quote(y)}: silent {stops} time(s) for longer than the gap limit, the longest "
+                     f"{longest} step(s) ({longest * s.dt:g} time units)")
     if s.unsampled or s.skipped:
         lines.append(f"time grid dt = {s.dt:g}: {s.unsampled} step(s) without a sample ({s.gaps} gap(s) beyond "
                      f"the limit), {s.skipped} sample(s) skipped on a step already taken")
@@ -122,6 +125,8 @@ def report_data(r) -> dict[str, Any]:
             "inputs": [{"input": u, "from": src, "holds": dict(d.data.holds).get(u, 0)} for u, src in d.data.inputs],
             "sensors": list(d.data.sensors), "sensors_missing": list(d.data.missing),
             "samples_skipped": d.data.skipped, "steps_without_sample": d.data.unsampled, "gaps": d.data.gaps,
+            "sensors_silent": [{"sensor": y, "silences": n, "longest_steps": most}
+                               for y, n, most in d.data.silences],
             "dt": d.data.dt},
         "seconds": _num(d.seconds),
     }
