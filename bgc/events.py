@@ -340,7 +340,7 @@ class Decided:
     candidates: tuple[str, ...]
 
 
-Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorResumed | InputFromModel | InputHeld | Gap | SampleSkipped | Alarmed | Degenerate
-         | Switched | Isolated | AllTried | Started | Dropped | Rescued | Truncated | NoLikelihood | Misfit
+Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorResumed | InputFromModel | InputHeld
+         | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | Started | Dropped | Rescued | Truncated | NoLikelihood | Misfit
          | AtPriorBound | Overruled | Uncertain | SensorExcluded
          | Checkpoint | Decided)

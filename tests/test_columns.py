@@ -146,7 +146,8 @@ def test_a_diagnosis_of_the_loggers_file_is_the_diagnosis_of_bgcs_own(tmp_path):
     for k, t in enumerate(run.time):
         stamp = _iso(start + float(t))
         rows.append((stamp, "ok", repr(float(run.inputs["f_in"][k])), repr(float(run.measurements["F10"][k])),
-                     repr(float(run.measurements["F12"][k]) * 1000), repr((float(run.measurements["F20"][k]) + 0.5) / 2)))
+                     repr(float(run.measurements["F12"][k]) * 1000),
+                     repr((float(run.measurements["F20"][k]) + 0.5) / 2)))
     (tmp_path / "rig2.csv").write_text(_logger(rows), encoding="utf-8")
     (tmp_path / "rig2.yaml").write_text(MAP, encoding="utf-8")
     logged = bgc.diagnose(tanks, data=tmp_path / "rig2.csv", columns=tmp_path / "rig2.yaml",

@@ -136,8 +136,8 @@ def record(e, time_of) -> dict:
 
 #: Events the command line prints after a diagnosis (the others are in the report).
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped, ev.SensorResumed,
-           ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate, ev.AllTried, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit,
-           ev.SensorExcluded, ev.Overruled, ev.Uncertain)
+           ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate, ev.AllTried, ev.Rescued,
+           ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded, ev.Overruled, ev.Uncertain)
 
 
 def notes(events, time_of) -> list[str]:
