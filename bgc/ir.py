@@ -13,6 +13,8 @@ Pipeline order: :class:`RawModel` -> :class:`BondGraph` -> :class:`CausalBondGra
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 from pathlib import PurePath
 from typing import TYPE_CHECKING, Any, Mapping
@@ -145,24 +147,82 @@ class Bond:
         return self.head if element == self.tail else self.tail
 
 
+#: The bits of the pseudo-random binary sequence (PRBS) of an input: a
+#: maximal-length sequence of a 9-bit linear-feedback shift register
+#: (x^9 + x^5 + 1), 511 bits, then it repeats.
+PRBS_BITS = 511
+#: A time on a boundary of a period (a bit, a square wave's half) is in the
+#: period it starts, within this fraction of a period (0.3 / 0.1 is 2.9999...).
+PERIOD_SLACK = 1e-9
+
+
+def prbs_bits(seed: int) -> str:
+    """The :data:`PRBS_BITS` bits of the PRBS whose register starts at
+    ``seed`` (1 to 511), as text of 0 and 1: the register's last bit, then
+    it shifts with the new bit the XOR of bits 9 and 5.
+
+    >>> prbs_bits(1)[:12]
+    '100000000100'
+    """
+    state = seed
+    out = []
+    for _ in range(PRBS_BITS):
+        out.append(state & 1)
+        bit = ((state >> 0) ^ (state >> 4)) & 1  # taps 9 and 5 of x^9 + x^5 + 1, read from the output end
+        state = (state >> 1) | (bit << 8)
+    return "".join(map(str, out))
+
+
 @dataclass(frozen=True, slots=True)
 class Signal:
-    """An input signal: ``constant`` (value), ``step`` (value until start, then
-    final) or ``ramp`` (value until start, then value + slope * (t - start))."""
+    """An input signal, ``value`` before ``start`` (default 0) and then:
+
+    - ``constant``: value;
+    - ``step``: final;
+    - ``ramp``: value + slope (t - start);
+    - ``sine``: value + amplitude sin(2 pi (t - start) / period);
+    - ``square``: value + amplitude over the first ``duty`` of each period
+      (from start), value over the rest;
+    - ``prbs``: value + amplitude b_k, b_k the k-th bit (k = floor((t -
+      start) / period)) of the PRBS of :func:`prbs_bits` (``seed``);
+    - ``chirp``: value + amplitude sin(2 pi (f0 tau + (f1 - f0) tau^2 / (2
+      duration))), tau = (t - start) mod duration: a sine whose frequency
+      sweeps linearly from f0 to f1 over ``duration``, again and again.
+    """
 
     kind: str
     value: float
     final: float | None = None
     start: float | None = None
     slope: float | None = None
+    amplitude: float | None = None
+    period: float | None = None
+    duty: float | None = None
+    seed: int | None = None
+    f0: float | None = None
+    f1: float | None = None
+    duration: float | None = None
 
     def at(self, t: float) -> float:
         """The signal's value at time t."""
         if self.kind == "constant" or t < (self.start or 0.0):
             return self.value
+        tau = t - (self.start or 0.0)
         if self.kind == "step":
             return self.final
-        return self.value + self.slope * (t - self.start)
+        if self.kind == "ramp":
+            return self.value + self.slope * tau
+        if self.kind == "sine":
+            return self.value + self.amplitude * math.sin(2 * math.pi / self.period * tau)
+        if self.kind == "square":
+            phase = tau / self.period + PERIOD_SLACK
+            return self.value + (self.amplitude if phase - math.floor(phase) < self.duty else 0.0)
+        if self.kind == "prbs":
+            k = int(math.floor(tau / self.period + PERIOD_SLACK))
+            return self.value + self.amplitude * int(prbs_bits(self.seed or 1)[k % PRBS_BITS])
+        tau = tau - self.duration * math.floor(tau / self.duration)  # chirp
+        return self.value + self.amplitude * math.sin(
+            2 * math.pi * (self.f0 * tau + (self.f1 - self.f0) * tau * tau / (2 * self.duration)))
 
 
 @dataclass(frozen=True, slots=True)

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..compiler.rk4 import rk4_sample
-from ..errors import SimulationError
+from ..errors import SimulationError, printable
 from ..ir import Numerics
 from ..kinds import FAULT_KINDS, fault_kind, kinds_for
 from ..data.runs import to_csv as _csv_text
@@ -84,6 +84,66 @@ class SimulationOptions:
     measurement_noise: float | None = None
     seed: int = 0
     fault: FaultInjection | None = None
+    #: recorded input values that drive the plant instead of the model's signals (None: the signals)
+    inputs: "InputProfile | None" = None
+
+
+@dataclass(frozen=True, slots=True)
+class InputProfile:
+    """Recorded inputs (``bgc simulate --inputs FILE``): the rows' ``time``
+    (increasing) and per input its column (NaN: not recorded), with the run
+    files' convention: a row's value is applied over the step that ends at
+    its time, and the first row drives the first step (the profile's clock
+    is shifted onto the simulation's, so a logger's dates drive it as well).
+    On the model's grid (:meth:`held`) a step no row falls on, and an empty
+    cell, hold the last value; before an input's first value, and for an
+    input the profile lacks, the model's signal drives the plant; a second
+    row on one step is not used; after the last row its value is held."""
+
+    time: np.ndarray
+    values: dict
+    source: str = "<inputs>"
+
+    def held(self, names: tuple[str, ...], steps: int, dt: float) -> np.ndarray:
+        """The recorded value of each input (``names``: the model's order) over
+        each of ``steps`` steps of ``dt``: (steps, inputs), NaN where the
+        model's signal drives it."""
+        out = np.full((steps, len(names)), np.nan)
+        t = np.asarray(self.time, dtype=float)
+        at = np.rint((t - t[0]) / dt).astype(np.int64)
+        first = np.r_[True, at[1:] != at[:-1]] & (at < steps)  # the first row of a step, inside the run
+        for i, name in enumerate(names):
+            if name not in self.values:
+                continue
+            column = np.asarray(self.values[name], dtype=float)
+            rows = first & np.isfinite(column)
+            out[at[rows], i] = column[rows]
+            last = np.nan
+            for k in range(steps):  # the last value held over the steps without one
+                if np.isfinite(out[k, i]):
+                    last = out[k, i]
+                else:
+                    out[k, i] = last
+        return out
+
+    def describe(self) -> str:
+        return (f"inputs: {', '.join('u:' + n for n in self.values)} recorded in {printable(self.source)} "
+                "(the first row drives the first step; held over the steps without a value)")
+
+
+def input_profile(run, input_names: tuple[str, ...]) -> InputProfile:
+    """The inputs of a run read from a file (:func:`bgc.data.runs.read_run`)
+    as an :class:`InputProfile`, or an error naming the file: it must have a
+    ``u:`` column, each an input of the model."""
+    if not run.inputs:
+        raise SimulationError(f"{printable(run.source)}: no u:NAME column: an input profile records inputs", None,
+                              f"give the columns of the model's inputs ({', '.join('u:' + u for u in input_names)})"
+                              if input_names else "this model has no input to drive")
+    for name in run.inputs:
+        if name not in input_names:
+            raise SimulationError(f"{printable(run.source)}: u:{printable(name)} is no input of the model", None,
+                                  f"its inputs are {', '.join('u:' + u for u in input_names) or 'none'}")
+    return InputProfile(run.time, dict(run.inputs), run.source)
 
 
 @dataclass(frozen=True, slots=True)
@@ -285,9 +345,12 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
     inputs = np.empty((T, len(ssm.inputs)))
     times = dt * np.arange(1, T + 1)
     param = np.empty(T) if fault else None
+    recorded = options.inputs.held(tuple(ssm.inputs), T, dt) if options.inputs is not None else None
     for k in range(T):
         t0 = k * dt
         u = np.array([i.signal.at(t0) for i in model.inputs], dtype=float)
+        if recorded is not None:
+            u = np.where(np.isnan(recorded[k]), u, recorded[k])
         x = rk4_sample(lambda x, t, t_sub: rhs(x, u, t, t_sub), x, t0, h, substeps)  # noqa: B023
         x = x + proc * rng.standard_normal(len(ssm.states))
         if not np.all(np.isfinite(x)):
@@ -321,7 +384,7 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
         "columns: time; u:* inputs held over the step ending at time; y:* noisy measurements; "
         "x:* true states; theta:* true value of the faulty parameter (a sensor's or input's offset, "
         "an input's gain, a sensor's noise factor)",
-    )
+    ) + ((options.inputs.describe(),) if options.inputs is not None else ())
     return SimulationResult(model.name, src, times, tuple(ssm.inputs), inputs, tuple(ssm.outputs), noisy, clean,
                             tuple(ssm.states), states, fault, param, header)
 

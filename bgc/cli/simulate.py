@@ -7,8 +7,8 @@ import sys
 import time
 from pathlib import Path
 
-from ..errors import printable
-from .common import add_prior_option, parse_noise, seed
+from ..errors import BgcError, printable
+from .common import add_columns_option, add_prior_option, parse_noise, seed
 
 
 def add_parser(sub) -> None:
@@ -20,6 +20,11 @@ def add_parser(sub) -> None:
                         "(bias), a sensor's P_memb:bias:0.3@100 or an actuator's u_pump:gain:-0.2@100")
     p.add_argument("--noise", metavar="process=Q,measurement=R", help="noise levels as fractions of the signal")
     p.add_argument("--seed", type=seed, default=0, help="random seed, an integer >= 0")
+    p.add_argument("--inputs", metavar="PROFILE.csv",
+                   help="drive the plant with recorded inputs: a run file's u:NAME columns (or a logger's, with "
+                        "--columns), each row's value over the step that ends at its time, the first row the first "
+                        "step's; the model's signals drive the inputs it lacks")
+    add_columns_option(p)
     p.add_argument("-o", "--output", metavar="FILE.csv")
     p.add_argument("--plot", metavar="FILE.png", help="also plot measurements and states")
     add_prior_option(p)
@@ -39,8 +44,21 @@ def run(args: argparse.Namespace) -> int:
     unexpected = sim.outside_prior(fault, c.numerics) if fault else None
     if unexpected:
         print(f"warning: {unexpected}", file=sys.stderr)
+    profile = None
+    if args.inputs is not None:
+        from ..api.session import reading_of
+        from ..data import runs
+
+        if Path(args.inputs).resolve() == Path(args.output or f"{c.model.name}-run.csv").resolve():
+            raise BgcError(f"--inputs {printable(args.inputs)} is the file -o would write", None,
+                           "write the run to another file")
+        profile = sim.input_profile(runs.read_run(args.inputs, reading_of(c, args.columns)),
+                                    tuple(u.name for u in c.model.inputs))
+    elif args.columns is not None:
+        raise BgcError("--columns applies to --inputs here: a column map reads a logger's file", None,
+                       "give --inputs PROFILE.csv, or drop --columns")
     options = sim.SimulationOptions(steps=args.steps, process_noise=process, measurement_noise=measurement,
-                                    seed=args.seed, fault=fault)
+                                    seed=args.seed, fault=fault, inputs=profile)
     start = time.perf_counter()
     result = sim.simulate(c.numerics, options)
     out = Path(args.output or f"{c.model.name}-run.csv")

@@ -26,7 +26,7 @@ from importlib import resources
 
 import sympy
 
-from ..ir import DbnModel, GeneratedPackage, Numerics, Signal, sym
+from ..ir import PERIOD_SLACK, PRBS_BITS, DbnModel, GeneratedPackage, Numerics, Signal, prbs_bits, sym
 from ..kinds import NOISE_FLOOR, fault_kind
 from .dbn import fault_outputs, noisy_sensor
 from .numerics import ACCURACY, H_LAMBDA
@@ -123,14 +123,42 @@ def _slice(r: range, n: int) -> str:
 
 
 def input_code(signal: Signal, where: str) -> str:
-    """The input signal as Python source in ``t``."""
-    v = print_number(signal.value, "an input value", where)
+    """The input signal as Python source in ``t`` (``math`` imported where
+    it is a periodic signal: :func:`needs_math`): the arithmetic of
+    :meth:`bgc.ir.Signal.at`, so the generated package's inputs equal the
+    simulator's to the bit."""
+    num = lambda v, what="an input value": print_number(v, what, where)  # noqa: E731
+    v = num(signal.value)
     if signal.kind == "constant":
         return v
-    start = print_number(signal.start or 0.0, "an input start", where)
+    start = num(signal.start or 0.0, "an input start")
+    tau = f"(t - {start})"
     if signal.kind == "step":
-        return f"({v} if t < {start} else {print_number(signal.final, 'an input value', where)})"
-    return f"({v} if t < {start} else {v} + {print_number(signal.slope, 'an input slope', where)} * (t - {start}))"
+        body = num(signal.final)
+    elif signal.kind == "ramp":
+        body = f"{v} + {num(signal.slope, 'an input slope')} * {tau}"
+    elif signal.kind == "sine":
+        body = (f"{v} + {num(signal.amplitude)} * math.sin(2 * math.pi / {num(signal.period, 'an input period')} "
+                f"* {tau})")
+    elif signal.kind == "square":
+        phase = f"({tau} / {num(signal.period, 'an input period')} + {PERIOD_SLACK!r})"
+        body = (f"{v} + ({num(signal.amplitude)} if {phase} - math.floor({phase}) < {num(signal.duty, 'a duty')} "
+                f"else 0.0)")
+    elif signal.kind == "prbs":
+        k = f"int(math.floor({tau} / {num(signal.period, 'an input period')} + {PERIOD_SLACK!r}))"
+        body = f"{v} + {num(signal.amplitude)} * int({prbs_bits(signal.seed or 1)!r}[{k} % {PRBS_BITS}])"
+    else:  # chirp
+        d = num(signal.duration, "a chirp's duration")
+        f0, f1 = num(signal.f0, "a chirp's f0"), num(signal.f1, "a chirp's f1")
+        wrapped = f"({tau} - {d} * math.floor({tau} / {d}))"
+        body = (f"{v} + {num(signal.amplitude)} * math.sin(2 * math.pi * ({f0} * {wrapped} + ({f1} - {f0}) * "
+                f"{wrapped} * {wrapped} / (2 * {d})))")
+    return f"({v} if t < {start} else {body})"
+
+
+def needs_math(signals) -> bool:
+    """Whether the input code of ``signals`` calls ``math`` (a periodic signal)."""
+    return any(s.kind in ("sine", "square", "prbs", "chirp") for s in signals)
 
 
 def _unpack(names: list[str], sources: dict[str, str], used: set[str]) -> list[str]:
@@ -322,6 +350,7 @@ def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
         "fault": fault_ctx,
         "fault_dict": repr(_fault_dict(model, d)) if d.parameter else "None",
         "input_exprs": [input_code(i.signal, where) for i in model.inputs],
+        "needs_math": needs_math(i.signal for i in model.inputs),
         "unpack": _unpack(order, sources, _used(exprs)), "rhs_cse": rhs_lines, "rhs_assign": rhs_assign,
         "linear_rows": linear_rows, "linear_b": linear_b,
         "linear_unpack": _unpack(order, sources, _used(a_exprs + b_exprs)),

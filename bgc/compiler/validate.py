@@ -91,6 +91,32 @@ def strict_validator(data_schema: dict, finite: bool = False) -> jsonschema.prot
     cls = jsonschema.validators.extend(jsonschema.Draft202012Validator, type_checker=checker)
     return cls(data_schema)
 
+#: What each kind of input signal needs besides its value (docs/format.md, inputs).
+SIGNAL_NEEDS = {"constant": (), "step": ("final", "start"), "ramp": ("slope",), "sine": ("amplitude", "period"),
+                "square": ("amplitude", "period"), "prbs": ("amplitude", "period"),
+                "chirp": ("amplitude", "f0", "f1", "duration")}
+#: What a kind of signal may also be given (a default otherwise).
+SIGNAL_OPTIONS = {"square": ("duty",), "prbs": ("seed",)}
+#: Every field of a signal.
+SIGNAL_FIELDS = ("value", "start", "final", "slope", "amplitude", "period", "duty", "seed", "f0", "f1", "duration")
+
+
+def _signal_range(kind: str, spec: dict) -> str | None:
+    """What is out of range in an input signal's fields (None: nothing)."""
+    for key in ("period", "duration"):
+        if key in spec and not spec[key] > 0:
+            return f"a {kind} signal's {key} must be above 0, not {spec[key]!r}"
+    for key in ("f0", "f1"):
+        if key in spec and not spec[key] >= 0:
+            return f"a chirp's {key} is a frequency, 0 or above, not {spec[key]!r}"
+    if "duty" in spec and not 0 < spec["duty"] < 1:
+        return f"a square signal's duty is the fraction of a period it is high, between 0 and 1, not {spec['duty']!r}"
+    if "seed" in spec and not (isinstance(spec["seed"], int) and not isinstance(spec["seed"], bool)
+                               and 1 <= spec["seed"] <= 511):
+        return f"a prbs signal's seed starts its shift register: an integer from 1 to 511, not {spec['seed']!r}"
+    return None
+
+
 class _Validator:
     def __init__(self, raw: RawModel):
         self.raw = raw
@@ -246,16 +272,29 @@ class _Validator:
             if not isinstance(spec, dict):
                 spec = {"value": spec}
             kind = spec.get("signal", "constant")
-            need = {"constant": (), "step": ("final", "start"), "ramp": ("slope",)}[kind]
-            missing = [k for k in need if k not in spec]
+            missing = [k for k in SIGNAL_NEEDS[kind] if k not in spec]
             if missing:
                 self.error(f"input {name}: a {kind} signal needs {', '.join(missing)}", path,
                            f"add {', '.join(k + ': <number>' for k in missing)}")
                 continue
-            signal = Signal(kind, float(spec["value"]),
-                            final=float(spec["final"]) if "final" in spec else None,
+            unused = sorted(k for k in spec if k in SIGNAL_FIELDS and k not in SIGNAL_NEEDS[kind]
+                            and k not in SIGNAL_OPTIONS.get(kind, ()) and k not in ("value", "start"))
+            if unused:
+                self.error(f"input {name}: a {kind} signal takes no {', '.join(unused)}", path,
+                           f"remove {', '.join(unused)}, or choose the signal that takes it (docs/format.md, "
+                           "inputs)")
+                continue
+            wrong = _signal_range(kind, spec)
+            if wrong:
+                self.error(f"input {name}: {wrong}", path, "see docs/format.md, inputs")
+                continue
+            number = lambda key: float(spec[key]) if key in spec else None  # noqa: E731
+            signal = Signal(kind, float(spec["value"]), final=number("final"),
                             start=float(spec.get("start", 0.0)) if kind != "constant" else None,
-                            slope=float(spec["slope"]) if "slope" in spec else None)
+                            slope=number("slope"), amplitude=number("amplitude"), period=number("period"),
+                            duty=float(spec.get("duty", 0.5)) if kind == "square" else None,
+                            seed=int(spec.get("seed", 1)) if kind == "prbs" else None,
+                            f0=number("f0"), f1=number("f1"), duration=number("duration"))
             out.append(Input(name, signal, spec.get("unit"), spec.get("description"), self.raw.key_loc(*path)))
         return tuple(out)
 

@@ -81,7 +81,16 @@ def _signal_text(s) -> str:
         return f"constant {s.value:g}"
     if s.kind == "step":
         return f"step {s.value:g} to {s.final:g} at t = {s.start:g}"
-    return f"ramp from {s.value:g} at t = {s.start:g}, slope {s.slope:g}"
+    if s.kind == "ramp":
+        return f"ramp from {s.value:g} at t = {s.start:g}, slope {s.slope:g}"
+    since = f" from t = {s.start:g}" if s.start else ""
+    if s.kind == "sine":
+        return f"sine {s.value:g} +- {s.amplitude:g}, period {s.period:g}{since}"
+    if s.kind == "square":
+        return f"square wave {s.value:g} to {s.value + s.amplitude:g}, period {s.period:g}, duty {s.duty:g}{since}"
+    if s.kind == "prbs":
+        return f"PRBS {s.value:g} or {s.value + s.amplitude:g}, a bit each {s.period:g} (seed {s.seed}){since}"
+    return f"chirp {s.value:g} +- {s.amplitude:g}, frequency {s.f0:g} to {s.f1:g} over {s.duration:g}{since}"
 
 
 def calibration_html(r) -> str:
