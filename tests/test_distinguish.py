@@ -21,6 +21,7 @@ import pytest
 
 from bgc.kinds import fault_kind
 
+import bgc
 from bgc import api, cli
 
 from bgc.api import distinguish as api_distinguish
@@ -28,7 +29,7 @@ from bgc.api import distinguish as api_distinguish
 from bgc.analysis import distinguish
 from bgc.model import package as track
 
-from conftest import ROOT, TEST_MODELS, compiled, peak_memory, session, tank_map
+from conftest import ROOT, TEST_MODELS, bgc_cli, compiled, peak_memory, session, tank_map
 
 TWO_TANK = ROOT / "models" / "two_tank.yaml"
 PIPES = TEST_MODELS / "series_pipes.yaml"
@@ -311,3 +312,66 @@ def test_prepared_families_are_let_go_to_fit_the_memory(monkeypatch):
         compiled("two_tank").numerics)))
     api.distinguishability(TWO_TANK, steps=32)
     assert [key[2] for key in api_distinguish._FAMILIES] == [32]
+
+
+@pytest.mark.slow
+def test_bgcs_detector_rate_agrees_with_its_detection_of_another_simulators_runs():
+    """``bgc distinguish --scenario`` says how often bgc's own detector alarms
+    on the fault (50 runs of bgc's simulator); 50 runs of the two tanks
+    integrated here by scipy's solve_ivp (the equations written out below,
+    the noise at the package's stds) fed to the same detector alarm about
+    as often: the two rates agree within a two-sample test at 99.9 %, and
+    the ideal detector's probability, which knows the fault's shape, is
+    printed beside it and is higher."""
+    from scipy.integrate import solve_ivp
+
+    from bgc.diagnosis.options import DiagnosisOptions
+    from bgc.api.detection import wilson
+
+    model = ROOT / "models" / "two_tank.yaml"
+    r = bgc.distinguishability(model, "R12:abrupt:0.15@75", detector_runs=50, seed=1000)
+    rate = r.detector
+    assert rate.runs == 50 and rate.low <= rate.probability <= rate.high
+    assert r.distinctions[0].detectability > rate.high  # the ideal detector is not what the user sees here
+    s = bgc.open(model, backend="numpy")
+    nominal = s.package.MODELS["nominal"]
+    q, m = np.asarray(nominal.PROCESS_STD), np.asarray(nominal.MEASUREMENT_STD)
+    C1, C2, R10, R20, f_in, dt = 2.0, 1.5, 4.0, 3.0, 1.0, 0.5
+
+    def run(seed: int) -> int:
+        rng = np.random.default_rng(seed)
+        x = np.array(nominal.X0, dtype=float)
+        d = s.diagnoser(DiagnosisOptions(seed=seed, workers=1))
+        for k in range(300):
+            R12 = 2.0 + (0.15 if k * dt >= 75.0 else 0.0)
+            rhs = lambda t, p: [(f_in - p[0] / R10 - (p[0] - p[1]) / R12) / C1,  # noqa: E731
+                                ((p[0] - p[1]) / R12 - p[1] / R20) / C2]
+            x = solve_ivp(rhs, (0.0, dt), x, rtol=1e-10, atol=1e-12).y[:, -1] + q * rng.standard_normal(2)
+            y = np.array([x[0] / R10, (x[0] - x[1]) / R12, x[1] / R20]) + m * rng.standard_normal(3)
+            alarm = d.step((k + 1) * dt, [f_in], y).alarm
+            if alarm is not None:
+                return int(alarm.step >= 149)  # sample 149 (t = 75) is the onset's
+        return 0
+
+    detected = sum(run(5000 + i) for i in range(50))
+    pooled = (detected + rate.detected) / 100
+    spread = math.sqrt(max(pooled * (1 - pooled), 1e-9) * (2 / 50))
+    assert abs(detected / 50 - rate.probability) <= 3.29 * spread, (detected, rate.detected)
+    low, high = wilson(detected, 50)
+    print(f"bgc's simulator: {rate.detected}/50 in [{rate.low:.2f}, {rate.high:.2f}]; solve_ivp: {detected}/50 "
+          f"in [{low:.2f}, {high:.2f}]")
+
+
+def test_bgcs_detector_is_measured_only_for_a_scenario_and_wilsons_interval_is_right():
+    from bgc.api.detection import wilson
+    from bgc.errors import ArgumentValueError
+
+    with pytest.raises(ArgumentValueError, match="detector_runs=5 without a scenario"):
+        bgc.distinguishability(TWO_TANK, detector_runs=5)
+    out = bgc_cli("distinguish", TWO_TANK, "--detector-runs", "3")
+    assert out.returncode != 0 and "--detector-runs applies to --scenario" in out.stderr
+    # Wilson's interval, by hand: p = 0.5, n = 4, z = 1.96: centre 0.5, half z sqrt(1/16 + z^2/64) / (1 + z^2/4)
+    z = 1.959963984540054
+    half = z * math.sqrt(0.25 / 4 + z * z / 64) / (1 + z * z / 4)
+    assert wilson(2, 4) == pytest.approx((0.5 - half, 0.5 + half), abs=1e-15)
+    assert wilson(0, 10)[0] == 0.0 and wilson(10, 10)[1] == 1.0

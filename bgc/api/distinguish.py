@@ -9,7 +9,7 @@ import numpy as np
 
 from .. import arguments
 from ..errors import (
-    SimulationError, printable,
+    ArgumentValueError, SimulationError, printable,
 )
 from ..kinds import DIRECTIONS, fault_kind
 from ..analysis import distinguish as distinction
@@ -19,6 +19,7 @@ from . import cache
 from .folders import _LOCK
 from .reports import DistinguishabilityReport
 from .session import Session
+from .session import open as open_session
 from ..model.protocol import onset_sample
 
 
@@ -27,7 +28,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
                        at: float = 0.5,
                        process_noise: float | None = None, measurement_noise: float | None = None,
                        steps: int | None = None, level: float = distinction.LEVEL,
-                       progress=None) -> DistinguishabilityReport:
+                       progress=None, detector_runs: int = 0, seed: int = 0) -> DistinguishabilityReport:
     """Predict which fault hypotheses the data of ``scenario``
     (``NAME:KIND:MAGNITUDE@TIME``) of ``model`` can tell apart, at the given
     relative noise levels (default: the model's), before any data are seen;
@@ -56,6 +57,15 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
     progress : callable, optional
         ``progress(text)`` is told what is being done (preparing the
         families, fault model i of n, scenario i of n).
+    detector_runs : int
+        With a scenario: also measure how often bgc's own detector (the
+        diagnosis's, at its false-alarm rate) alarms on it, over this many
+        simulated runs (seeds ``seed``, ``seed + 1``, ...;
+        :mod:`bgc.api.detection`); 0: not measured. The report's
+        ``detector`` then holds the rate and its 95 % interval beside the
+        ideal detector's probability.
+    seed : int
+        The first seed of those runs.
 
     Returns
     -------
@@ -85,6 +95,11 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
     arguments.real(func, "level", level, 0.0, 1.0, "a probability between 0 and 1, e.g. level=0.95")
     arguments.callable_or_none(func, "progress", progress)
+    arguments.integer(func, "detector_runs", detector_runs, 0, "is negative", "detector_runs=50")
+    arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
+    if detector_runs and scenario is None:
+        raise ArgumentValueError(f"{func}: detector_runs={detector_runs} without a scenario", None,
+                                 "give a scenario, e.g. scenario='R12:abrupt:0.3@75'")
     say = progress or (lambda text: None)
     if isinstance(model, Session):
         c, private = model.view, model.folder
@@ -143,9 +158,18 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         out.append(distinction.distinguish(families, f"{inj.parameter}_{inj.kind}", inj.magnitude, onset, priors,
                                            level))
     warning = simulate.outside_prior(injected[0], num) if scenario is not None else None
+    rate = None
+    if detector_runs:
+        from .detection import detector_rate
+
+        session = model if isinstance(model, Session) and model.noise == (process_noise, measurement_noise) else \
+            open_session(model.model if isinstance(model, Session) else model, process_noise=process_noise,
+                         measurement_noise=measurement_noise)
+        rate = detector_rate(session, injected[0], T, detector_runs, seed, progress=progress)
     return DistinguishabilityReport(c.model.name, c.model.display_source, T, dt, (process_noise, measurement_noise),
-                                    scenario, None if scenario else change, None if scenario else at, tuple(out),
-                                    warning)
+                                    scenario if isinstance(scenario, str) or scenario is None else scenario.text,
+                                    None if scenario else change, None if scenario else at, tuple(out),
+                                    warning, rate)
 
 
 #: Prepared families by package (its module name tells the noise levels) and

@@ -164,3 +164,6 @@ class DistinguishabilityReport:
     distinctions: tuple[distinction.Distinction, ...]
     #: Why the model's diagnoser would not expect the scenario's fault (outside its prior), or None.
     warning: str | None = None
+    #: How often bgc's own detector alarmed on the scenario in simulated runs
+    #: (:class:`bgc.api.detection.DetectorRate`; None: not measured)
+    detector: object | None = None

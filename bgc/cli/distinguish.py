@@ -6,8 +6,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..errors import printable
-from .common import Progress, above_zero, parse_noise, positive
+from ..errors import BgcError, printable
+from .common import Progress, above_zero, at_least, parse_noise, positive, seed
+
+nonnegative = at_least(0, "{value} is negative: give 0 or more runs")
 
 
 def add_parser(sub) -> None:
@@ -24,6 +26,10 @@ def add_parser(sub) -> None:
     p.add_argument("--noise", metavar="process=Q,measurement=R", help="relative noise levels (default: the model's)")
     p.add_argument("--steps", type=positive, default=None, help="samples of the run (default: the model's; at most "
                    "what the prediction's memory allows, 2 GB: bgc says how many)")
+    p.add_argument("--detector-runs", type=nonnegative, default=None, metavar="N",
+                   help="with --scenario: also simulate N runs and count how often bgc's own detector alarms on the "
+                        "fault (default 50; 0: skip)")
+    p.add_argument("--seed", type=seed, default=0, help="the first seed of those runs, an integer >= 0")
     p.add_argument("--format", choices=["text", "json"], default="text")
     p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of printing")
     p.add_argument("--plot", metavar="FILE.png", help="also draw the probabilities as a heat map")
@@ -32,14 +38,19 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .. import api
+    from ..api.detection import RUNS
     from ..output import artifacts, plots, render
 
     process, measurement = parse_noise(args.noise)
     progress = Progress("distinguish")
     try:
+        runs = args.detector_runs if args.detector_runs is not None else (RUNS if args.scenario else 0)
+        if runs and not args.scenario:
+            raise BgcError("--detector-runs applies to --scenario: one fault's runs are simulated", None,
+                           "give --scenario NAME:KIND:MAGNITUDE@TIME, or drop --detector-runs")
         r = api.distinguishability(args.model, args.scenario, change=args.change, at=args.at,
                                    process_noise=process, measurement_noise=measurement, steps=args.steps,
-                                   progress=progress)
+                                   progress=progress, detector_runs=runs, seed=args.seed)
     finally:
         progress.close()
     text = render.to_json(render.distinguishability_json(r)) if args.format == "json" else \

@@ -473,8 +473,11 @@ def distinguishability_text(r) -> str:
         lines.append(f"truth: {printable(r.scenario)} ({d.truth}, from sample {d.onset})")
         if getattr(r, "warning", None):
             lines.append(f"warning: {printable(r.warning)}")
-        lines.append(f"divergence from no fault: {d.divergence:.4g} (P of telling it from no fault "
-                     f"{d.detectability:.3f})")
+        lines.append(f"divergence from no fault: {d.divergence:.4g} (an ideal detector's P of telling it from no "
+                     f"fault {d.detectability:.3f}: a likelihood test of the whole run that knows the fault's shape)")
+        rate = getattr(r, "detector", None)
+        if rate is not None:
+            lines += detector_lines(rate, d.detectability, r.dt)
         width = max([len(x.name) for x in d.rivals] + [5])
         lines.append(f"{'rival':<{width}}  {'E':>10}  {'sd':>9}  {'P':>6}  best fit (magnitude from t)")
         for x in d.rivals:
@@ -496,8 +499,35 @@ def distinguishability_text(r) -> str:
     return "\n".join(lines) + "\n"
 
 
+def detector_lines(rate, ideal: float, dt: float) -> list[str]:
+    """bgc's detector on a scenario (:class:`bgc.api.detection.DetectorRate`)
+    beside the ideal detector's probability ``ideal``: the rate, how it was
+    had, and which of the two the user will see when they differ."""
+    unit = f" {rate.time_unit}" if rate.time_unit else " time units"
+    delay = f", median delay {rate.median_delay:g}{unit}" if rate.median_delay is not None else ""
+    out = [f"bgc's detector ({rate.method}, {rate.particles} particles, false-alarm probability {rate.false_alarm:g} "
+           f"per {rate.horizon:g}{unit}): detects it in {rate.detected} of {rate.runs} simulated runs, P "
+           f"{rate.probability:.2f} in [{rate.low:.2f}, {rate.high:.2f}] (95 %, Wilson; seeds {rate.first_seed} to "
+           f"{rate.first_seed + rate.runs - 1}){delay}"
+           + (f"; {rate.false_alarms} alarm(s) before the onset" if rate.false_alarms else "")]
+    if rate.high < ideal - 0.05:
+        out.append(f"  what a diagnosis will show: bgc's detector, which tests the residuals' mean over windows "
+                   f"without knowing the fault's shape; expect 'no fault' in about {100 * (1 - rate.probability):.0f} "
+                   "% of such runs (a longer run, a larger fault, a test input or a sensor nearer the fault helps)")
+    elif rate.low > ideal + 0.05:
+        out.append("  bgc's detector sees it more often than the ideal detector's P suggests (an alarm is not an "
+                   "isolation: the rivals below still hold)")
+    return out
+
+
 def distinguishability_json(r) -> dict:
+    rate = getattr(r, "detector", None)
     return {
+        "detector": None if rate is None else {
+            "runs": rate.runs, "detected": rate.detected, "false_alarms": rate.false_alarms,
+            "probability": rate.probability, "low": rate.low, "high": rate.high, "median_delay": rate.median_delay,
+            "method": rate.method, "particles": rate.particles, "false_alarm": rate.false_alarm,
+            "horizon": rate.horizon, "first_seed": rate.first_seed, "time_unit": rate.time_unit},
         "model": r.model, "steps": r.steps, "dt": r.dt,
         "noise": {"process": r.noise[0], "measurement": r.noise[1]},
         "scenario": r.scenario, "change": r.change, "at": r.at, "warning": getattr(r, "warning", None),
