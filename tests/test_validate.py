@@ -571,3 +571,18 @@ def test_an_unknown_domain_and_a_quantity_off_a_storage_element_are_refused():
     assert any("domain" in str(e) and "hydraulic" in str(e) for e in errors(text))
     text = RC.replace("R: {kind: R}", "R: {kind: R, quantity: heat}")
     assert any("has no key 'quantity'" in str(e) for e in errors(text))
+
+
+@pytest.mark.parametrize("fault, message", [
+    ("spring: [abrupt]", "fault names 'spring', an element (C), not a parameter (a fault is on a parameter (its "
+                         "parameter is 1/k_s): write 'k_s: [abrupt]')"),
+    ("damper: [abrupt, incipient]", "fault names 'damper', an element (R), not a parameter (a fault is on a "
+                                    "parameter (its parameter is c): write 'c: [abrupt, incipient]')"),
+    ("v: [abrupt]", "fault names 'v', an element (1), not a parameter (a junction has no parameter"),
+])
+def test_a_fault_naming_an_element_points_to_its_parameter(fault, message):
+    text = (ROOT / "tests" / "data" / "models" / "mass_spring_damper.yaml").read_text(encoding="utf-8")
+    head, _, _ = text.partition("faults:")
+    with pytest.raises(BgcError) as info:
+        validate(loads(head + "faults:\n  " + fault + "\n", "msd.yaml"))
+    assert message in str(info.value)

@@ -101,6 +101,28 @@ SIGNAL_OPTIONS = {"square": ("duty",), "prbs": ("seed",)}
 SIGNAL_FIELDS = ("value", "start", "final", "slope", "amplitude", "period", "duty", "seed", "f0", "f1", "duration")
 
 
+def _element_fault_fix(element, pnames: set[str], kinds) -> str:
+    """How to name the fault of an element: by the parameters its own
+    parameter or law is written in (``spring2: {parameter: 1/k2}`` -> ``k2``)."""
+    used = set()
+    for expr in (element.parameter, element.source):
+        if expr is not None:
+            used |= {str(x) for x in expr.free_symbols}
+    if element.law is not None:
+        used |= {str(x) for x in getattr(element.law.expr, "free_symbols", ())}
+    names = sorted(used & pnames)
+    shown = "[" + ", ".join(map(str, kinds)) + "]" if isinstance(kinds, list) else \
+        kinds if isinstance(kinds, str) else "[abrupt]"
+    if not names and element.kind in ("0", "1"):
+        return "a junction has no parameter: name a parameter of an element (a fault is on a declared parameter)"
+    if not names:
+        return (f"a fault is on a declared parameter: give {element.name}'s value a parameter under "
+                f"'parameters' and name that")
+    written = f" (its parameter is {element.parameter})" if element.parameter is not None else ""
+    return f"a fault is on a parameter{written}: write '{names[0]}: {shown}'" + (
+        f" (or another of {', '.join(names)})" if len(names) > 1 else "")
+
+
 def _signal_range(kind: str, spec: dict) -> str | None:
     """What is out of range in an input signal's fields (None: nothing)."""
     for key in ("period", "duration"):
@@ -208,7 +230,7 @@ class _Validator:
         measurements = self.measurements(_section(data, "measurements"), pnames | inames | variables,
                                          variables, pnames | inames, settings.measurement_noise)
         faults = self.faults(_section(data, "faults"), pnames, measurements, inames,
-                             pnames | inames | {str(m) for m in _section(data, "measurements")})
+                             pnames | inames | {str(m) for m in _section(data, "measurements")}, elements)
         return BondGraph(
             name=data["name"],
             description=str(data.get("description", "")),
@@ -506,7 +528,7 @@ class _Validator:
         return tuple(out)
 
     def faults(self, raw: dict, pnames: set[str], measurements: tuple[Measurement, ...],
-               inames: set[str], taken: set[str]) -> tuple[FaultCandidate, ...]:
+               inames: set[str], taken: set[str], elements=()) -> tuple[FaultCandidate, ...]:
         """The fault candidates: each entry names a parameter, a measurement
         (a sensor fault) or an input (an actuator fault), and expands into
         one candidate per symbol its kinds change (an input's ``bias`` and
@@ -520,6 +542,11 @@ class _Validator:
                 continue
             target = targets.get(name)
             if target is None:
+                element = next((el for el in elements if el.name == name), None)
+                if element is not None:
+                    self.error(f"fault names '{name}', an element ({element.kind}), not a parameter", path,
+                               _element_fault_fix(element, pnames, raw[name]), key=True)
+                    continue
                 close = _closest(name, set(targets))
                 self.error(f"fault names '{name}', which is no parameter, measurement or input", path,
                            f"did you mean '{close}'?" if close else
