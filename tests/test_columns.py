@@ -138,8 +138,8 @@ def test_a_diagnosis_of_the_loggers_file_is_the_diagnosis_of_bgcs_own(tmp_path):
     read through the map: the same verdict, candidates and estimate as the
     run itself, the onset shifted by the clock's start."""
     tanks = session("two_tank")
-    simulated = bgc.diagnose(tanks, scenario="R12:abrupt:1.0@60", seed=4,
-                             options=DiagnosisOptions(particles=300, seed=4, workers=1))
+    simulated = bgc.diagnose(tanks, scenario="R12:abrupt:1.0@60", seed=4, steps=180,
+                             options=DiagnosisOptions(particles=150, seed=4, workers=1))
     run = simulated.run
     start = calendar.timegm((2026, 3, 1, 8, 0, 0))
     rows = []
