@@ -66,6 +66,8 @@ def pytest_sessionstart(session) -> None:
     import shutil
     import time
 
+    if hasattr(session.config, "workerinput"):  # a pytest-xdist worker: the controller prunes, once
+        return
     from bgc.api import cache
 
     days = PRUNE_DAYS * 86400.0

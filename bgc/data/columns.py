@@ -52,7 +52,8 @@ SECONDS = {"s": 1.0, "sec": 1.0, "second": 1.0, "seconds": 1.0, "ms": 1e-3, "min
            "day": 86400.0, "days": 86400.0}
 #: What a column may be mapped to besides a bgc name: left out.
 SKIP = "skip"
-_PREFIXES = ("u", "y", "x", "theta")
+#: The prefixes of bgc's column names: inputs, measurements, true states, true parameters.
+PREFIXES = ("u", "y", "x", "theta")
 _EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
 
 
@@ -125,14 +126,11 @@ class Reading:
         there = set(columns)
         if self.columns is not None:
             there |= {e.name for e in self.columns.entries if e.name}
-        free = [c for c in self.expected if c not in there]
-        line = f"{column}: {free[0] if free else 'u:NAME'}"
-        reads = f"; the model reads {_listed(['time', *self.expected])}" if self.expected else ""
+        line = f"{column}: {self._free(there)}"
         return DataError(f"{where}: column {printable(repr(column))} is not time, u:NAME, y:NAME, x:NAME or "
-                         f"theta:NAME{reads}", None,
+                         f"theta:NAME{self._reads()}", None,
                          f"map it in a column map (--columns FILE): under columns:, a line "
                          f"'{printable(line)}', or '{printable(column)}: skip'; docs/format.md, section 9")
-
 
     def foreign_columns(self, columns: list[str], where: str) -> DataError:
         """The error of a file without a column map whose time column is not
@@ -141,24 +139,28 @@ class Reading:
         first = columns[0] if columns and columns[0] != "time" else None
         foreign = [c for c in columns if c != "time" and not bgc_name(c)]
         others = [c for c in foreign if c != first]
-        there = set(columns)
-        free = [c for c in self.expected if c not in there]
         example = []
         if first is not None:
             example.append(f"'time: {printable(first)}'")
         if others:
             example.append(f"under columns: a line per column, e.g. '{printable(others[0])}: "
-                           f"{free[0] if free else 'u:NAME'}' or '{printable(others[0])}: skip'")
-        reads = f"; the model reads {_listed(['time', *self.expected])}" if self.expected else ""
-        return DataError(f"{where}: {len(foreign)} columns are not bgc's ({_listed(foreign)}){reads}", None,
+                           f"{self._free(set(columns))}' or '{printable(others[0])}: skip'")
+        return DataError(f"{where}: {len(foreign)} columns are not bgc's ({_listed(foreign)}){self._reads()}", None,
                          "give a column map with --columns FILE (docs/format.md, section 9): "
                          + " and ".join(example))
+
+    def _free(self, there: set[str]) -> str:
+        """The first column the model reads that is not ``there`` (a map line's example target)."""
+        return next((c for c in self.expected if c not in there), "u:NAME")
+
+    def _reads(self) -> str:
+        return f"; the model reads {_listed(['time', *self.expected])}" if self.expected else ""
 
 
 def bgc_name(column: str) -> bool:
     """Whether ``column`` is a name of bgc's run files (``u:NAME`` and the like)."""
     prefix, colon, rest = column.partition(":")
-    return bool(colon and prefix in _PREFIXES and rest)
+    return bool(colon and prefix in PREFIXES and rest)
 
 
 def _listed(columns) -> str:

@@ -47,7 +47,7 @@ from typing import IO
 import numpy as np
 
 from ..errors import DataError, printable
-from .columns import Reading, bgc_name, iso_seconds
+from .columns import PREFIXES, Reading, bgc_name, iso_seconds
 
 #: A run file larger than this is refused before it is read (a 300-step run of
 #: the RO plant is about 60 kB).
@@ -70,7 +70,6 @@ MAX_COLUMNS = 10_000
 #: line number: 128 MB); a run file of ``MAX_RUN_BYTES`` as bgc simulate
 #: writes it (about 19 characters a number) holds about 13.5 million.
 MAX_VALUES = 16_000_000
-PREFIXES = ("u", "y", "x", "theta")
 #: Numbers parsed (as Python floats, about 32 bytes each) before they are
 #: copied into the arrays at once.
 _BLOCK = 16384
@@ -289,26 +288,19 @@ class _Layout:
     offset: np.ndarray
     seconds_per_unit: float | None = 1.0
     time_unit: str | None = None
-
-    @property
-    def scaling(self) -> bool:
-        return bool(np.any(self.scale != 1.0) or np.any(self.offset != 0.0))
+    #: whether a scale or an offset is not 1 or 0 (decided once, not per row)
+    scaling: bool = False
 
     def row(self, fields: list[str], lines: _Lines) -> list[float]:
-        """One row's numbers, in bgc's column order, unscaled."""
+        """One row's numbers (its fields as the file has them), in bgc's column order, unscaled."""
         out = [_number(fields[j], c, lines) for j, c in zip(self.index[1:], self.names[1:])]
         return [self.time(fields[self.index[0]], lines), *out]
 
     def time(self, text: str, lines: _Lines) -> float:
         """A time cell: a number, or an ISO 8601 timestamp in the model's unit."""
-        try:
-            if "_" in text:
-                raise ValueError
-            return float(text)
-        except ValueError:
-            seconds = iso_seconds(text)
-            if seconds is None:
-                return _number(text, "time", lines)
+        seconds = iso_seconds(text)
+        if seconds is None:
+            return _number(text, "time", lines)
         if self.seconds_per_unit is None:
             raise lines.error(f"an ISO time, and the model's time unit {printable(repr(self.time_unit))} is not one "
                               "bgc converts to", "declare time_unit: s (or ms, min, h, day) in the model, or give "
@@ -367,8 +359,9 @@ def _columns(reader, lines: _Lines, name: str, reading: Reading) -> _Layout:
         index.insert(at, j)
         scale.insert(at, entry.scale if entry is not None else 1.0)
         offset.insert(at, entry.offset if entry is not None else 0.0)
-    return _Layout(out, index, len(cols), np.array(scale), np.array(offset), reading.seconds_per_unit,
-                   reading.time_unit)
+    scales, offsets = np.array(scale), np.array(offset)
+    return _Layout(out, index, len(cols), scales, offsets, reading.seconds_per_unit, reading.time_unit,
+                   bool(np.any(scales != 1.0) or np.any(offsets != 0.0)))
 
 
 def _parse(stream: IO, name: str, reading: Reading | None = None) -> Run:
@@ -394,15 +387,13 @@ def _parse(stream: IO, name: str, reading: Reading | None = None) -> Run:
                                   "give every row one value per column")
             if lines.length > MAX_FIELD:
                 _fields(fields, lines)
-            if not plain:
-                fields = [fields[j] for j in layout.index]
+            picked = fields if plain else [fields[j] for j in layout.index]
             try:
-                if "_" in "".join(fields):  # float() reads 1_0 as 10: a number of Python's, not of a run file
+                if "_" in "".join(picked):  # float() reads 1_0 as 10: a number of Python's, not of a run file
                     raise ValueError
-                block.append([float(v) for v in fields])
+                block.append([float(v) for v in picked])
             except ValueError:
-                block.append([layout.time(fields[0], lines),
-                              *(_number(v, c, lines) for v, c in zip(fields[1:], cols[1:]))])
+                block.append(layout.row(fields, lines))
             at.append(lines.number)
             if len(block) == rows:
                 data, numbers, n = _store(data, numbers, n, block, at, most, lines)
