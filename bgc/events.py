@@ -15,7 +15,7 @@ In loop order: the data (:class:`SensorMissing`, :class:`ColumnIgnored`, :class:
 :class:`Switched`), isolation (:class:`Isolated`, :class:`AllTried`),
 tracking (:class:`Started`, :class:`Stopped`, :class:`Dropped`, :class:`Rescued`), weighing
 (:class:`Truncated`, :class:`AtPriorBound`, :class:`NoLikelihood`, :class:`Misfit`), and the end
-(:class:`SensorExcluded`, :class:`Checkpoint`, :class:`Decided`).
+(:class:`Refined`, :class:`SensorExcluded`, :class:`Checkpoint`, :class:`Decided`).
 """
 
 from __future__ import annotations
@@ -188,6 +188,20 @@ class Started:
 
 
 @dataclass(frozen=True, slots=True)
+class Refined:
+    """The verdict's onset ``onset`` (a step) of hypothesis ``hypothesis``
+    lies outside the onsets its filters tracked online (``first`` to
+    ``last``, its :class:`Started` event): the final weighing of the whole
+    record placed it there."""
+
+    step: int
+    hypothesis: str
+    onset: int
+    first: int
+    last: int
+
+
+@dataclass(frozen=True, slots=True)
 class Dropped:
     """Hypothesis ``hypothesis`` is dropped at ``step``: ``reason`` is one of
     :data:`DROP_REASONS`, ``detail`` says more (a sentence of the runtime's
@@ -341,6 +355,6 @@ class Decided:
 
 
 Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorResumed | InputFromModel | InputHeld
-         | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | Started | Dropped | Rescued | Truncated | NoLikelihood | Misfit
-         | AtPriorBound | Overruled | Uncertain | SensorExcluded
+         | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | Started | Refined | Dropped
+         | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | SensorExcluded
          | Checkpoint | Decided)

@@ -203,6 +203,25 @@ class Signal:
     f1: float | None = None
     duration: float | None = None
 
+    @property
+    def text(self) -> str:
+        """The signal in words: ``'constant 1'``, ``'step 1 to 2 at t = 5'``."""
+        s = self
+        if s.kind == "constant":
+            return f"constant {s.value:g}"
+        if s.kind == "step":
+            return f"step {s.value:g} to {s.final:g} at t = {s.start:g}"
+        if s.kind == "ramp":
+            return f"ramp from {s.value:g} at t = {s.start:g}, slope {s.slope:g}"
+        since = f" from t = {s.start:g}" if s.start else ""
+        if s.kind == "sine":
+            return f"sine {s.value:g} +- {s.amplitude:g}, period {s.period:g}{since}"
+        if s.kind == "square":
+            return f"square wave {s.value:g} to {s.value + s.amplitude:g}, period {s.period:g}, duty {s.duty:g}{since}"
+        if s.kind == "prbs":
+            return f"PRBS {s.value:g} or {s.value + s.amplitude:g}, a bit each {s.period:g} (seed {s.seed}){since}"
+        return f"chirp {s.value:g} +- {s.amplitude:g}, frequency {s.f0:g} to {s.f1:g} over {s.duration:g}{since}"
+
     def at(self, t: float) -> float:
         """The signal's value at time t."""
         if self.kind == "constant" or t < (self.start or 0.0):

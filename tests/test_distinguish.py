@@ -385,3 +385,51 @@ def test_bgcs_detector_is_measured_only_for_a_scenario_and_wilsons_interval_is_r
     half = z * math.sqrt(0.25 / 4 + z * z / 64) / (1 + z * z / 4)
     assert wilson(2, 4) == pytest.approx((0.5 - half, 0.5 + half), abs=1e-15)
     assert wilson(0, 10)[0] == 0.0 and wilson(10, 10)[1] == 1.0
+
+
+def test_the_detectors_reach_is_the_windowed_whitened_response_of_the_hand_derived_maps():
+    """bgc check's closed form of the detector (``detector_reach``): R12's
+    step at the size its prior expects (uniform on 0 to 2: a mean size of 1),
+    from sample 60, through the hand-derived maps' derivative in R12 (central
+    differences), whitened, summed over windows of 1, 8 and 32 samples and
+    divided by their square roots, at its largest; a capacitor at steady
+    state reaches nothing."""
+    T, onset = 120, 60
+    package, fam = two_tank(T)
+    x0 = np.asarray(package.MODELS["nominal"].X0, dtype=float)
+
+    def run(maps):
+        x, out = x0, []
+        for M, c, H in maps:
+            x = M @ x + c
+            out.append(H @ x)
+        return np.array(out)
+
+    h = 1e-6
+    slope = (run(fault_maps(T, onset, R12=2.0 + h)) - run(fault_maps(T, onset, R12=2.0 - h))) / (2 * h)
+    e = fam.whitening.apply(slope[:, :, None])[:, :, 0] * 1.0
+    expected = max(abs(e[k - w + 1:k + 1].sum(axis=0)).max() / math.sqrt(w) for w in (1, 8, 32)
+                   for k in range(w - 1, T))
+    reach = distinguish.detector_reach(package, distinguish.scenario_inputs(package, T), onset, (1, 8, 32))
+    assert reach["R12_abrupt"] == pytest.approx((1.0, expected), rel=1e-5)
+    assert reach["C1_abrupt"][1] < 1e-6
+    assert distinguish.typical_size(-1.0, 2.0) == pytest.approx((1 * 0.5 + 2 * 2 / 2) / 3)  # 1/3 on -1..0, 2/3 on 0..2
+
+
+def test_bgc_check_warns_of_the_faults_its_detector_would_miss(tmp_path):
+    """The two tanks at their declared noise: a capacitance at steady state
+    changes nothing the sensors read (its step moves no flow once the levels
+    settle: dP/dt = 0 whatever C is), so bgc check warns of C1 and C2 and of
+    no resistance; with the sensors' noise 15 times larger, R12's step at its
+    typical size (reach 31.5 at the declared noise) falls under the threshold
+    too."""
+    out = bgc_cli("check", TWO_TANK)
+    assert out.returncode == 0
+    warnings = [line for line in out.stderr.splitlines() if line.startswith("warning:")]
+    assert len(warnings) == 1 and "C1_abrupt, C2_abrupt change nothing the sensors read" in warnings[0]
+    assert "R12" not in out.stderr
+    noisy = tmp_path / "noisy.yaml"
+    noisy.write_text(TWO_TANK.read_text().replace("noise: 0.02", "noise: 0.3"), encoding="utf-8")
+    assert "noise: 0.3" in noisy.read_text()
+    out = bgc_cli("check", noisy)
+    assert out.returncode == 0 and "bgc's detector will miss" in out.stderr and "R12_abrupt (size 1:" in out.stderr

@@ -194,6 +194,7 @@ def test_each_verdict_is_defined_with_the_levels_the_diagnosis_used(verdict):
     if verdict == "no fault":
         assert "0.02 per horizon of 50 time units" in text
         assert "per run" in report.verdict_definition(verdict, {**settings, "horizon": None})
+        assert "0.02 per horizon of 50 s" in report.verdict_definition(verdict, {**settings, "time_unit": "s"})
 
 
 # ------------------------------------------------------------------ in a browser

@@ -139,6 +139,7 @@ def test_a_sensor_silent_for_a_stretch_is_an_event_when_it_stops_and_when_it_res
     assert d.data.silences == (("f2", 1, 60),)
     assert "sensor y:f2: silent 1 time(s) for longer than the gap limit, the longest 60 step(s) (3 time units)" \
         in data_lines(d)
+    assert "the longest 60 step(s) (3 s)" in " ".join(data_lines(d, labels=r.labels))  # circuit: time_unit s
     data = report_data(r)
     assert data["data_semantics"]["sensors_silent"] == [{"sensor": "f2", "silences": 1, "longest_steps": 60}]
     said = [e["text"] for e in data["events"] if e["event"] in ("SensorStopped", "SensorResumed")]

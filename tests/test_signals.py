@@ -189,3 +189,66 @@ def test_bgc_simulate_inputs_reads_a_profile_and_says_what_is_wrong_with_one(tmp
         assert out.returncode != 0 and out.stderr.strip().startswith(message), out.stderr
     out = bgc_cli("simulate", "msd.yaml", "--columns", "m.yaml", cwd=tmp_path)
     assert out.returncode != 0 and "--columns applies to --inputs" in out.stderr
+
+
+def test_an_input_given_on_the_command_line_drives_the_simulation_instead_of_the_models(tmp_path):
+    """``bgc simulate --input F=SPEC``: SPEC is written as in the model's
+    inputs section and checked by the same rules; the run's u:F column is the
+    signal's value at the start of each step (derived here from the sine's
+    formula), and the file's header says which signal drove it."""
+    from conftest import bgc_cli
+
+    (tmp_path / "msd.yaml").write_text(MSD.replace("SIGNAL", "{signal: constant, value: 0.0}"), encoding="utf-8")
+    out = bgc_cli("simulate", "msd.yaml", "--steps", "5", "--input",
+                  "F={signal: sine, value: 1, amplitude: 2, period: 0.4}", "-o", "run.csv", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    text = (tmp_path / "run.csv").read_text()
+    assert "# input u:F: sine 1 +- 2, period 0.4 (instead of the model's)" in text
+    u = [float(line.split(",")[1]) for line in text.splitlines() if line[:1].isdigit()]
+    assert u == pytest.approx([1 + 2 * math.sin(2 * math.pi * k * 0.05 / 0.4) for k in range(5)], abs=1e-12)
+    for option, message in (("G=1", "--input: 'G' is not an input of the model (its inputs: F)"),
+                            ("F", "--input 'F' is not NAME=SIGNAL"),
+                            ("F={signal: sine, value: 1}", "--input F: a sine signal needs amplitude, period"),
+                            ("F={signal: sine, value: 1, amplitude: 1, period: 0}",
+                             "--input F: a sine signal's period must be above 0"),
+                            ("F={signal: sine, value: .inf, amplitude: 1, period: 1}", "--input F: value:"),
+                            ("F=[1", "--input F: the signal is not YAML")):
+        out = bgc_cli("simulate", "msd.yaml", "--input", option, "-o", "x.csv", cwd=tmp_path)
+        assert out.returncode != 0 and out.stderr.strip().startswith(message), (option, out.stderr)
+        assert "Traceback" not in out.stderr and not (tmp_path / "x.csv").exists()
+    (tmp_path / "p.csv").write_text("time,u:F\n0.05,1\n", encoding="utf-8")
+    out = bgc_cli("simulate", "msd.yaml", "--inputs", "p.csv", "--input", "F=2", "-o", "x.csv", cwd=tmp_path)
+    assert out.returncode != 0 and "both drive u:F" in out.stderr
+
+
+def test_an_input_test_reaches_the_diagnosis_the_prediction_and_a_campaign(tmp_path):
+    """The same signals in the API (``inputs=``) and in a campaign's groups:
+    the simulated scenario's u:F column is the square wave's value at the
+    start of each step (derived here), the distinguishability report says
+    which input drove it, and a campaign refuses a signal the model's rules
+    refuse, at its line."""
+    from bgc.experiment.campaign_file import load_campaign
+
+    model = tmp_path / "msd.yaml"
+    model.write_text(MSD.replace("SIGNAL", "{signal: constant, value: 0.0}"), encoding="utf-8")
+    square = {"signal": "square", "value": 0.5, "amplitude": 1.0, "period": 1.0}
+    r = bgc.diagnose(model, scenario="none", inputs={"F": square}, steps=40, particles=50, method="ckf")
+    expected = [0.5 + (1.0 if (k * 0.05) % 1.0 < 0.5 - 1e-9 else 0.0) for k in range(40)]
+    assert r.run.inputs["F"].tolist() == pytest.approx(expected)
+    with pytest.raises(bgc.errors.ArgumentValueError, match="inputs: 'G' is not an input of the model"):
+        bgc.diagnose(model, scenario="none", inputs={"G": 1})
+    with pytest.raises(bgc.errors.ArgumentValueError, match="inputs= with data"):
+        bgc.diagnose(model, data=tmp_path / "run.csv", inputs={"F": 1})
+    d = bgc.distinguishability(model, "b:abrupt:0.3@5", steps=200, inputs={"F": square})
+    assert d.signals == (("F", Signal("square", 0.5, start=0.0, amplitude=1.0, period=1.0, duty=0.5)),)
+    assert "# input u:F: square wave 0.5 to 1.5, period 1, duty 0.5 (instead of the model's)" in \
+        bgc.output.render.distinguishability_text(d)
+    plain = bgc.distinguishability(model, "b:abrupt:0.3@5", steps=200)
+    assert d.distinctions[0].divergence != pytest.approx(plain.distinctions[0].divergence, rel=1e-3)
+    campaign = tmp_path / "c.yaml"
+    campaign.write_text("campaign: c\ngroups:\n  - name: g\n    model: msd.yaml\n    scenarios: [none]\n"
+                        "    inputs: {F: {signal: square, value: 0.5, amplitude: 1.0, period: 1.0}}\n", encoding="utf-8")
+    assert load_campaign(campaign).specs[0].inputs == d.signals
+    campaign.write_text(campaign.read_text().replace("period: 1.0", "period: -1"), encoding="utf-8")
+    with pytest.raises(bgc.errors.BgcError, match=r"c.yaml:6:\d+: inputs F: a square signal's period must be above 0"):
+        load_campaign(campaign)

@@ -134,7 +134,8 @@ def test_a_valid_model_among_broken_ones_is_still_checked(batch):
     r = bgc_check("tests/data/invalid/unknown_kind.yaml", "models/two_tank.yaml", "tests/data/invalid/no_storage.yaml")
     assert r.returncode == 1
     assert r.stdout.startswith("models/two_tank.yaml: ok: two_tank")
-    assert r.stderr.splitlines() == lines_of(batch, "unknown_kind.yaml") + lines_of(batch, "no_storage.yaml")
+    errors = [line for line in r.stderr.splitlines() if not line.startswith("warning: models/two_tank.yaml: ")]
+    assert errors == lines_of(batch, "unknown_kind.yaml") + lines_of(batch, "no_storage.yaml")
 
 
 # ------------------------------------------------------------ unit tests
@@ -506,7 +507,8 @@ SCHEMA_CASES = [
     ("parameters:\n", "parameters: 5\nx:\n", "parameters must be an object", "write a mapping"),
     ("direction: decrease", "direction: down", "'down' is not valid for faults.C.direction",
      "choose one of: both, decrease, increase"),
-    ("R: {kind: R}", "R: {kind: R, resistance: 1}", "unknown key 'resistance' in elements.R", "allowed keys:"),
+    ("R: {kind: R}", "R: {kind: R, resistance: 1}", "element R of kind R has no key 'resistance'",
+     "keys of an R: description, kind, law, parameter"),
     ("name: rc", "nom: rc", "the model is missing 'name'", "add 'name: ...'"),
 ]
 SIMULATION_CASES = [

@@ -279,11 +279,15 @@ def _sizes(num: Numerics) -> tuple[int, int, int, int]:
     return len(ssm.states), len(ssm.outputs), len(ssm.inputs), len(num.faults)
 
 
-def scenario_inputs(package: Package, steps: int) -> np.ndarray:
+def scenario_inputs(package: Package, steps: int, signals: tuple = ()) -> np.ndarray:
     """The model's default inputs over ``steps`` samples: sample k's step
-    holds the input at k dt (as the simulator does)."""
+    holds the input at k dt (as the simulator does); ``signals``: (name,
+    :class:`~bgc.ir.Signal`) pairs that drive those inputs instead."""
     nominal = nominal_model(package)
-    return np.array([nominal.inputs(k * nominal.DT) for k in range(steps)], dtype=float).reshape(steps, -1)
+    us = np.array([nominal.inputs(k * nominal.DT) for k in range(steps)], dtype=float).reshape(steps, -1)
+    for name, signal in signals:
+        us[:, nominal.INPUTS.index(name)] = [signal.at(k * nominal.DT) for k in range(steps)]
+    return us
 
 
 def prepare(package: Package, us: np.ndarray, progress=None) -> Families:
@@ -292,8 +296,30 @@ def prepare(package: Package, us: np.ndarray, progress=None) -> Families:
     when given, is told what is being done."""
     say = progress or (lambda text: None)
     say("preparing the families: the nominal run and its Kalman filter")
-    nominal = nominal_model(package)
     us = np.asarray(us, dtype=float).reshape(len(us), -1)
+    T = len(us)
+    x_before, x_after, y, F, H, whitening = _linearised(package, us)
+    stride = max(1, math.ceil(T / MAX_ONSETS))
+    onsets = np.arange(0, T, stride)
+    names, responses, bounds = [], [], []
+    faulty = [name for name in sorted(package.MODELS) if name != "nominal"]
+    for i, name in enumerate(faulty, start=1):
+        say(f"preparing the families: fault model {i} of {len(faulty)} ({name})")
+        model = package.MODELS[name]
+        G = _unit_responses(model, F, H, x_before, x_after, us, onsets)
+        responses.append(whitening.apply(G).reshape(T * H.shape[1], len(onsets)))
+        names.append(name)
+        lo, hi = (float(b) for b in model.FAULT_PRIOR)
+        bounds.append((lo, hi))
+    return Families(package, us, x_before, x_after, y, whitening, onsets, tuple(names), tuple(responses),
+                    tuple(bounds))
+
+
+def _linearised(package: Package, us: np.ndarray) -> tuple:
+    """The nominal model's noise-free run for the inputs ``us`` (its states
+    before and after each step, its measurements), its Jacobians ``F`` and
+    ``H`` along the run, and its Kalman filter as a :class:`Whitening`."""
+    nominal = nominal_model(package)
     T = len(us)
     theta = np.asarray(nominal.THETA, dtype=float)
     x = np.asarray(nominal.X0, dtype=float).reshape(-1, 1).copy()
@@ -312,21 +338,47 @@ def prepare(package: Package, us: np.ndarray, progress=None) -> Families:
     scale = _scales(nominal, x_before)
     F = _jacobian(lambda X, u: nominal.predict(X, u, theta, nominal.DT), x_before, range(n), scale, us)
     H = _jacobian(lambda X, u: nominal.observe(X, u, theta), x_after, range(n), scale, us)
-    whitening = _whitening(nominal, F, H)
-    stride = max(1, math.ceil(T / MAX_ONSETS))
-    onsets = np.arange(0, T, stride)
-    names, responses, bounds = [], [], []
-    faulty = [name for name in sorted(package.MODELS) if name != "nominal"]
-    for i, name in enumerate(faulty, start=1):
-        say(f"preparing the families: fault model {i} of {len(faulty)} ({name})")
+    return x_before, x_after, y, F, H, _whitening(nominal, F, H)
+
+
+def typical_size(low: float, high: float) -> float:
+    """The mean size |m| of a magnitude m drawn uniformly from its prior
+    [low, high]: the size the model's prior expects.
+
+    >>> typical_size(0.0, 2.0), typical_size(-1.0, 2.0)
+    (1.0, 0.8333333333333334)
+    """
+    if low >= 0 or high <= 0:
+        return (abs(low) + abs(high)) / 2
+    return (low * low + high * high) / (2 * (high - low))
+
+
+def detector_reach(package: Package, us: np.ndarray, onset: int, windows: tuple[int, ...]) -> dict[str, tuple]:
+    """How far each fault model, at the size its prior expects
+    (:func:`typical_size`) from sample ``onset``, moves bgc's detector:
+    (size, the largest mean of the windowed statistic) by name. The
+    statistic's mean is that of the linearised nominal Kalman filter's
+    whitened innovations (the fault's noise-free deviation through
+    :class:`Whitening`), summed over each window of ``windows`` samples and
+    divided by its square root, per whitened sensor: a closed form of the
+    detector's test (the nominal observer's residuals normalised per sensor
+    and windowed) to linear order, where the whitening stands for the
+    per-sensor normalisation (exact when the innovations of the sensors are
+    uncorrelated). With noise, the statistic at that window is that mean plus
+    a standard normal: a mean under the detector's threshold passes unseen in
+    most runs."""
+    us = np.asarray(us, dtype=float).reshape(len(us), -1)
+    x_before, x_after, _, F, H, whitening = _linearised(package, us)
+    out = {}
+    for name in sorted(n for n in package.MODELS if n != "nominal"):
         model = package.MODELS[name]
-        G = _unit_responses(model, F, H, x_before, x_after, us, onsets)
-        responses.append(whitening.apply(G).reshape(T * H.shape[1], len(onsets)))
-        names.append(name)
-        lo, hi = (float(b) for b in model.FAULT_PRIOR)
-        bounds.append((lo, hi))
-    return Families(package, us, x_before, x_after, y, whitening, onsets, tuple(names), tuple(responses),
-                    tuple(bounds))
+        size = typical_size(*(float(b) for b in model.FAULT_PRIOR))
+        e = whitening.apply(_unit_responses(model, F, H, x_before, x_after, us, np.array([onset])))[:, :, 0] * size
+        sums = np.vstack([np.zeros((1, e.shape[1])), np.cumsum(e, axis=0)])
+        reach = max((float(np.max(np.abs(sums[w:] - sums[:-w]))) / math.sqrt(w) for w in windows if w <= len(e)),
+                    default=0.0)
+        out[name] = (size, reach if math.isfinite(reach) else 0.0)
+    return out
 
 
 def deviations(families: Families, name: str, magnitudes, onsets) -> np.ndarray:

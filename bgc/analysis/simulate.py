@@ -31,7 +31,7 @@ import numpy as np
 
 from ..compiler.rk4 import rk4_sample
 from ..errors import SimulationError, printable
-from ..ir import Numerics
+from ..ir import Numerics, Signal
 from ..kinds import FAULT_KINDS, fault_kind, kinds_for
 from ..data.runs import to_csv as _csv_text
 
@@ -86,6 +86,8 @@ class SimulationOptions:
     fault: FaultInjection | None = None
     #: recorded input values that drive the plant instead of the model's signals (None: the signals)
     inputs: "InputProfile | None" = None
+    #: signals that drive inputs instead of the model's, by input (``bgc simulate --input``)
+    signals: tuple[tuple[str, Signal], ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -346,9 +348,10 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
     times = dt * np.arange(1, T + 1)
     param = np.empty(T) if fault else None
     recorded = options.inputs.held(tuple(ssm.inputs), T, dt) if options.inputs is not None else None
+    signal_of = {i.name: i.signal for i in model.inputs} | dict(options.signals)
     for k in range(T):
         t0 = k * dt
-        u = np.array([i.signal.at(t0) for i in model.inputs], dtype=float)
+        u = np.array([signal_of[i.name].at(t0) for i in model.inputs], dtype=float)
         if recorded is not None:
             u = np.where(np.isnan(recorded[k]), u, recorded[k])
         x = rk4_sample(lambda x, t, t_sub: rhs(x, u, t, t_sub), x, t0, h, substeps)  # noqa: B023
@@ -384,7 +387,8 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
         "columns: time; u:* inputs held over the step ending at time; y:* noisy measurements; "
         "x:* true states; theta:* true value of the faulty parameter (a sensor's or input's offset, "
         "an input's gain, a sensor's noise factor)",
-    ) + ((options.inputs.describe(),) if options.inputs is not None else ())
+    ) + ((options.inputs.describe(),) if options.inputs is not None else ()) + tuple(
+        f"input u:{name}: {signal.text} (instead of the model's)" for name, signal in options.signals)
     return SimulationResult(model.name, src, times, tuple(ssm.inputs), inputs, tuple(ssm.outputs), noisy, clean,
                             tuple(ssm.states), states, fault, param, header)
 

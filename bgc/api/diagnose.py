@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 
 from .. import arguments
@@ -19,7 +21,7 @@ from ..data.sampler import grid_steps
 from .limits import (METHODS, check_diagnosis_steps, check_options,
                      with_horizon)
 from .reports import DiagnosisReport
-from .session import Session, _session_of
+from .session import Session, _session_of, input_signals
 
 
 def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = None,
@@ -28,7 +30,8 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
              process_noise: float | None = None, measurement_noise: float | None = None,
              steps: int | None = None, generated: str | Path | None = None,
              options: DiagnosisOptions | None = None, progress=None,
-             prior_scale: float | None = None, backend: str | None = None, columns=None) -> DiagnosisReport:
+             prior_scale: float | None = None, backend: str | None = None, columns=None,
+             inputs: Mapping[str, Any] | None = None) -> DiagnosisReport:
     """Diagnose ``data`` (a run file or a :class:`~bgc.data.runs.Run`) or a
     simulated ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, or ``none`` for a
     fault-free run) of ``model``.
@@ -83,6 +86,12 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         bgc's, with scales and offsets (``--columns``; a YAML file,
         :mod:`bgc.data.columns`). A time column of ISO 8601 timestamps is
         read with or without one.
+    inputs : mapping, optional
+        With a scenario: inputs driven otherwise than the model says, by
+        name: a number, a mapping written as in the model's ``inputs``
+        section (``{"signal": "sine", "value": 1, "amplitude": 0.5,
+        "period": 4}``) or a :class:`~bgc.ir.Signal` (``bgc simulate
+        --input``).
 
     Returns
     -------
@@ -125,6 +134,9 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     if columns is not None and data is None:
         raise ArgumentValueError(f"{func}: columns= without data: a column map is for a run file", None,
                                  "give data='run.csv' with it, or leave columns out")
+    if inputs is not None and scenario is None:
+        raise ArgumentValueError(f"{func}: inputs= with data: a recorded run has its own inputs", None,
+                                 "give inputs with a scenario only")
     if steps is not None:
         arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
         if data is not None:
@@ -140,7 +152,8 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     work = (opts.particles, length)  # auto's estimate (a run file's length: the model's)
     session = _session_of(func, model, process_noise, measurement_noise, generated, say, prior_scale, backend, work)
     if scenario is not None:
-        run, injected = _scenario_run(session, scenario, steps, seed, opts, say)
+        signals = input_signals(func, inputs, session.view.model)
+        run, injected = _scenario_run(session, scenario, steps, seed, opts, say, signals)
     else:
         run, injected = _recorded_run(session, session.read_run(data, columns, func), opts), None
     if isinstance(scenario, simulate.FaultInjection):
@@ -150,9 +163,10 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
 
 
 def _scenario_run(session: Session, scenario, steps: int | None, seed: int, opts: DiagnosisOptions,
-                  say) -> tuple[runs.Run, simulate.FaultInjection | None]:
-    """The run of a simulated scenario at the session's noise levels, checked
-    (its onset inside the run, its length within the diagnosis's memory)."""
+                  say, signals: tuple = ()) -> tuple[runs.Run, simulate.FaultInjection | None]:
+    """The run of a simulated scenario at the session's noise levels (its
+    inputs driven by ``signals`` where given), checked (its onset inside the
+    run, its length within the diagnosis's memory)."""
     c = session.view
     T = steps or c.model.settings.steps
     where = "--steps" if steps is not None else f"{printable(c.model.source)}: simulation.steps"
@@ -168,7 +182,8 @@ def _scenario_run(session: Session, scenario, steps: int | None, seed: int, opts
     say("simulating the scenario")
     process_noise, measurement_noise = session.noise
     result = simulate.simulate(c.numerics, simulate.SimulationOptions(
-        steps=steps, process_noise=process_noise, measurement_noise=measurement_noise, seed=seed, fault=injected))
+        steps=steps, process_noise=process_noise, measurement_noise=measurement_noise, seed=seed, fault=injected,
+        signals=signals))
     return runs.parse_run(simulate.to_csv(result), f"scenario {text}"), injected
 
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -18,7 +20,7 @@ from ..model import package as packages
 from . import cache
 from .folders import _LOCK
 from .reports import DistinguishabilityReport
-from .session import Session
+from .session import Session, input_signals
 from .session import open as open_session
 from ..model.protocol import onset_sample
 
@@ -28,7 +30,8 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
                        at: float = 0.5,
                        process_noise: float | None = None, measurement_noise: float | None = None,
                        steps: int | None = None, level: float = distinction.LEVEL,
-                       progress=None, detector_runs: int = 0, seed: int = 0) -> DistinguishabilityReport:
+                       progress=None, detector_runs: int = 0, seed: int = 0,
+                       inputs: Mapping[str, Any] | None = None) -> DistinguishabilityReport:
     """Predict which fault hypotheses the data of ``scenario``
     (``NAME:KIND:MAGNITUDE@TIME``) of ``model`` can tell apart, at the given
     relative noise levels (default: the model's), before any data are seen;
@@ -66,6 +69,11 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         ideal detector's probability.
     seed : int
         The first seed of those runs.
+    inputs : mapping, optional
+        Inputs driven otherwise than the model says, by name: a number, a
+        mapping written as in the model's ``inputs`` section (``{"signal":
+        "sine", "value": 1, "amplitude": 0.5, "period": 4}``) or a
+        :class:`~bgc.ir.Signal`: an input test the plant would run.
 
     Returns
     -------
@@ -108,6 +116,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         opened = cache.open_model(model)
         c, private = opened.view, opened.folder
     num = c.numerics
+    signals = input_signals(func, inputs, c.model)
     if steps is not None:
         simulate.check_steps(steps, num, "--steps")
     T = steps or c.model.settings.steps
@@ -149,7 +158,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
                                                      num.equations.inputs, num.faults)))
     with _LOCK:
         package = packages.load_package(private, c.model.name, str(model), custom)
-        families = _families(package, T, need, say)
+        families = _families(package, T, need, say, signals)
     priors = {f.parameter: f.prior for f in c.model.faults}
     out = []
     for i, inj in enumerate(injected, start=1):
@@ -165,32 +174,34 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         session = model if isinstance(model, Session) and model.noise == (process_noise, measurement_noise) else \
             open_session(model.model if isinstance(model, Session) else model, process_noise=process_noise,
                          measurement_noise=measurement_noise)
-        rate = detector_rate(session, injected[0], T, detector_runs, seed, progress=progress)
+        rate = detector_rate(session, injected[0], T, detector_runs, seed, progress=progress, signals=signals)
     return DistinguishabilityReport(c.model.name, c.model.display_source, T, dt, (process_noise, measurement_noise),
                                     scenario if isinstance(scenario, str) or scenario is None else scenario.text,
                                     None if scenario else change, None if scenario else at, tuple(out),
-                                    warning, rate)
+                                    warning, rate, signals)
+
 
 
 #: Prepared families by package (its module name tells the noise levels) and
 #: run length; the latest few are kept (a campaign worker meets a few models),
 #: as many as fit, with the next one, in ``distinguish.MAX_BYTES``.
-_FAMILIES: dict[tuple[str, str, int], distinction.Families] = {}
+_FAMILIES: dict[tuple, distinction.Families] = {}
 
 
 _FAMILIES_KEPT = 4
 
 
-def _families(package, steps: int, need: int = 0, progress=None) -> distinction.Families:
-    """The families of ``package`` over ``steps`` samples, prepared once;
-    ``need``: the bytes a new preparation is expected to take (older
-    families are let go until it fits)."""
-    key = (package.__name__, str(getattr(package, "__file__", "")), steps)
+def _families(package, steps: int, need: int = 0, progress=None, signals: tuple = ()) -> distinction.Families:
+    """The families of ``package`` over ``steps`` samples (``signals``: the
+    inputs driven otherwise than the model says), prepared once; ``need``:
+    the bytes a new preparation is expected to take (older families are let
+    go until it fits)."""
+    key = (package.__name__, str(getattr(package, "__file__", "")), steps, signals)
     if key not in _FAMILIES:
         while _FAMILIES and (len(_FAMILIES) >= _FAMILIES_KEPT
                              or sum(map(_nbytes, _FAMILIES.values())) + need > distinction.MAX_BYTES):
             _FAMILIES.pop(next(iter(_FAMILIES)))
-        _FAMILIES[key] = distinction.prepare(package, distinction.scenario_inputs(package, steps), progress)
+        _FAMILIES[key] = distinction.prepare(package, distinction.scenario_inputs(package, steps, signals), progress)
     return _FAMILIES[key]
 
 

@@ -167,3 +167,5 @@ class DistinguishabilityReport:
     #: How often bgc's own detector alarmed on the scenario in simulated runs
     #: (:class:`bgc.api.detection.DetectorRate`; None: not measured)
     detector: object | None = None
+    #: The inputs driven otherwise than the model says: (name, :class:`~bgc.ir.Signal`) pairs
+    signals: tuple = ()

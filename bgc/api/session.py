@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 
 from .. import arguments
 from ..ir import NUMBA_PACKAGE
 from ..errors import (
-    ArgumentTypeError, ArgumentValueError, TrackingError, printable,
+    ArgumentTypeError, ArgumentValueError, BgcError, TrackingError, printable,
 )
 from ..analysis import calibrate as calibration
 from ..data import runs
@@ -381,3 +383,21 @@ def open(model: str | Path, *, process_noise: float | None = None, measurement_n
     None: the model's run length; None: not known, numba only when its
     kernels are cached)."""
     return Session(model, process_noise, measurement_noise, generated, prior_scale, backend, work=work)
+
+
+def input_signals(func: str, inputs: Mapping[str, Any] | None, model) -> tuple:
+    """The ``inputs`` argument as (name, :class:`~bgc.ir.Signal`) pairs, in
+    the model's order of inputs, or an argument error naming ``func``."""
+    if inputs is None:
+        return ()
+    if not isinstance(inputs, Mapping):
+        raise ArgumentTypeError(f"{func}: inputs={inputs!r} is not a mapping", None,
+                                "give e.g. inputs={'u': {'signal': 'sine', 'value': 1, 'amplitude': 0.5, 'period': 4}}")
+    from ..compiler.validate import signal_given  # not at import: a cache hit needs no compiler
+
+    names = tuple(u.name for u in model.inputs)
+    try:
+        given = {name: signal_given(name, spec, names, f"{func}: inputs") for name, spec in inputs.items()}
+    except BgcError as e:
+        raise ArgumentValueError(e.what, None, e.fix) from None
+    return tuple((name, given[name]) for name in names if name in given)

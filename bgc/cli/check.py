@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from ..errors import BgcError
 from .common import print_errors
@@ -27,4 +28,36 @@ def run(args: argparse.Namespace) -> int:
             status = 1
             continue
         print(render.check_summary(c.equations, c.numerics))
+        if c.numerics.faults:
+            for line in unseen_warnings(path):
+                print(f"warning: {line}", file=sys.stderr)
     return status
+
+
+def unseen_warnings(path: str) -> list[str]:
+    """What ``bgc check`` warns of the faults bgc's detector would most often
+    miss at the declared noise and inputs (:func:`bgc.api.detection.unseen`),
+    with what would help."""
+    from ..api.detection import unseen
+    from ..errors import printable
+
+    missed = unseen(path)
+    if not missed:
+        return []
+    where = printable(path)
+    threshold = missed[0].threshold
+    still = [u.name for u in missed if u.still]
+    weak = [f"{u.name} (size {u.size:.3g}: {u.reach:.2g})" for u in missed if not u.still]
+    out = []
+    if still:
+        out.append(f"{where}: with the model's inputs the plant settles and {', '.join(still)} "
+                   f"{'changes' if len(still) == 1 else 'change'} nothing the sensors read: bgc's detector will not "
+                   f"see {'it' if len(still) == 1 else 'them'} (a storage element's parameter at steady state, for "
+                   "one); an input test that moves the plant shows it (bgc distinguish MODEL --scenario ... --input "
+                   "NAME='{signal: prbs, ...}'), or a sensor on what is stored")
+    if weak:
+        out.append(f"{where}: at the declared noise, bgc's detector will miss {', '.join(weak)} in about half "
+                   f"the runs or more: at the size its prior expects, the windowed statistic's mean stays under the "
+                   f"threshold {threshold:.2f} (closed form, the fault from mid-run); calibrated noise (bgc calibrate --estimate noise), a "
+                   "sensor nearer it or an input test would help; bgc distinguish --scenario measures it")
+    return out

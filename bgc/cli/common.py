@@ -198,6 +198,24 @@ def add_columns_option(p: argparse.ArgumentParser) -> None:
                         "offset to the model's units, and the logger's time column (docs/format.md, section 9)")
 
 
+def add_signal_option(p: argparse.ArgumentParser) -> None:
+    """``--input NAME=SIGNAL`` (repeatable): an input driven by another signal than the model's."""
+    p.add_argument("--input", action="append", default=[], metavar="NAME=SIGNAL", dest="signals",
+                   help="drive input NAME with SIGNAL instead of the model's, written as in the model's inputs "
+                        "section, e.g. --input F='{signal: sine, value: 0, amplitude: 2, period: 1.5}' (sine, "
+                        "square, prbs, chirp, step, ramp or a number; repeatable)")
+
+
+def signals_of(texts: list[str], inputs: tuple[str, ...]) -> tuple:
+    """The ``--input`` options as (name, :class:`~bgc.ir.Signal`) pairs, one per input."""
+    from ..compiler.validate import signal_option
+
+    out = dict(signal_option(text, inputs) for text in texts)
+    if len(out) < len(texts):
+        raise BgcError("--input names an input twice", None, "give each input one signal")
+    return tuple(out.items())
+
+
 def add_data_options(p: argparse.ArgumentParser) -> None:
     """The options of real data, shared by bgc diagnose and bgc monitor."""
     add_columns_option(p)

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from ..errors import BgcError, printable
-from .common import Progress, above_zero, at_least, parse_noise, positive, seed
+from .common import Progress, above_zero, add_signal_option, at_least, parse_noise, positive, seed, signals_of
 
 nonnegative = at_least(0, "{value} is negative: give 0 or more runs")
 
@@ -30,6 +30,7 @@ def add_parser(sub) -> None:
                    help="with --scenario: also simulate N runs and count how often bgc's own detector alarms on the "
                         "fault (default 50; 0: skip)")
     p.add_argument("--seed", type=seed, default=0, help="the first seed of those runs, an integer >= 0")
+    add_signal_option(p)
     p.add_argument("--format", choices=["text", "json"], default="text")
     p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of printing")
     p.add_argument("--plot", metavar="FILE.png", help="also draw the probabilities as a heat map")
@@ -50,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
                            "give --scenario NAME:KIND:MAGNITUDE@TIME, or drop --detector-runs")
         r = api.distinguishability(args.model, args.scenario, change=args.change, at=args.at,
                                    process_noise=process, measurement_noise=measurement, steps=args.steps,
-                                   progress=progress, detector_runs=runs, seed=args.seed)
+                                   progress=progress, detector_runs=runs, seed=args.seed,
+                                   inputs=dict(_signals(args)) or None)
     finally:
         progress.close()
     text = render.to_json(render.distinguishability_json(r)) if args.format == "json" else \
@@ -65,3 +67,12 @@ def run(args: argparse.Namespace) -> int:
         artifacts.write_file(Path(args.plot), plots.distinguishability_figure(r, "png"))
         print(f"wrote {printable(args.plot)}")
     return 0
+
+
+def _signals(args: argparse.Namespace) -> tuple:
+    """The ``--input`` options, checked against the model's inputs."""
+    if not args.signals:
+        return ()
+    from ..api import cache
+
+    return signals_of(args.signals, tuple(u.name for u in cache.open_model(args.model).view.model.inputs))

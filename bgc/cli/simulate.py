@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from ..errors import BgcError, printable
-from .common import add_columns_option, add_prior_option, parse_noise, seed
+from .common import add_columns_option, add_prior_option, add_signal_option, parse_noise, seed, signals_of
 
 
 def add_parser(sub) -> None:
@@ -25,6 +25,7 @@ def add_parser(sub) -> None:
                         "--columns), each row's value over the step that ends at its time, the first row the first "
                         "step's; the model's signals drive the inputs it lacks")
     add_columns_option(p)
+    add_signal_option(p)
     p.add_argument("-o", "--output", metavar="FILE.csv")
     p.add_argument("--plot", metavar="FILE.png", help="also plot measurements and states")
     add_prior_option(p)
@@ -57,8 +58,13 @@ def run(args: argparse.Namespace) -> int:
     elif args.columns is not None:
         raise BgcError("--columns applies to --inputs here: a column map reads a logger's file", None,
                        "give --inputs PROFILE.csv, or drop --columns")
+    signals = signals_of(args.signals, tuple(u.name for u in c.model.inputs))
+    both = sorted(set(dict(signals)) & set(profile.values if profile is not None else ()))
+    if both:
+        raise BgcError(f"--input {both[0]} and --inputs {printable(args.inputs)} both drive u:{both[0]}", None,
+                       "give it one of them")
     options = sim.SimulationOptions(steps=args.steps, process_noise=process, measurement_noise=measurement,
-                                    seed=args.seed, fault=fault, inputs=profile)
+                                    seed=args.seed, fault=fault, inputs=profile, signals=signals)
     start = time.perf_counter()
     result = sim.simulate(c.numerics, options)
     out = Path(args.output or f"{c.model.name}-run.csv")

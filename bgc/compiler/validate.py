@@ -23,10 +23,11 @@ from importlib import resources
 from typing import Any, Iterable, Iterator
 
 import jsonschema
+import yaml
 import sympy
 
 from . import expressions, load
-from ..errors import BgcError, ErrorGroup, ExpressionError, ValidationError
+from ..errors import BgcError, ErrorGroup, ExpressionError, ValidationError, printable
 from ..kinds import ELEMENT_KINDS, element_kind, fault_kind, kinds_for
 from ..ir import (
     Bond, BondGraph, Element,
@@ -137,6 +138,76 @@ def _signal_range(kind: str, spec: dict) -> str | None:
                                and 1 <= spec["seed"] <= 511):
         return f"a prbs signal's seed starts its shift register: an integer from 1 to 511, not {spec['seed']!r}"
     return None
+
+
+def input_signal(spec: dict) -> Signal | tuple[str, str]:
+    """The signal an input's mapping declares (the schema passed), or what
+    is wrong with it and the fix: (what, fix)."""
+    kind = spec.get("signal", "constant")
+    missing = [k for k in SIGNAL_NEEDS[kind] if k not in spec]
+    if missing:
+        return f"a {kind} signal needs {', '.join(missing)}", f"add {', '.join(k + ': <number>' for k in missing)}"
+    unused = sorted(k for k in spec if k in SIGNAL_FIELDS and k not in SIGNAL_NEEDS[kind]
+                    and k not in SIGNAL_OPTIONS.get(kind, ()) and k not in ("value", "start"))
+    if unused:
+        return (f"a {kind} signal takes no {', '.join(unused)}",
+                f"remove {', '.join(unused)}, or choose the signal that takes it (docs/format.md, inputs)")
+    wrong = _signal_range(kind, spec)
+    if wrong:
+        return wrong, "see docs/format.md, inputs"
+    number = lambda key: float(spec[key]) if key in spec else None  # noqa: E731
+    return Signal(kind, float(spec["value"]), final=number("final"),
+                  start=float(spec.get("start", 0.0)) if kind != "constant" else None,
+                  slope=number("slope"), amplitude=number("amplitude"), period=number("period"),
+                  duty=float(spec.get("duty", 0.5)) if kind == "square" else None,
+                  seed=int(spec.get("seed", 1)) if kind == "prbs" else None,
+                  f0=number("f0"), f1=number("f1"), duration=number("duration"))
+
+
+def signal_option(text: str, inputs: tuple[str, ...], where: str = "--input") -> tuple[str, Signal]:
+    """An input's signal given outside the model file, ``NAME=SPEC`` with SPEC
+    written as in the model's ``inputs`` section (a number, or a flow
+    mapping: ``u={signal: sine, value: 1, amplitude: 0.5, period: 4}``),
+    checked by the same schema and rules; ``inputs``: the model's inputs.
+    Raises :class:`~bgc.errors.BgcError` naming ``where`` and the fix."""
+    example = f"{where} {inputs[0] if inputs else 'u'}={{signal: sine, value: 1, amplitude: 0.5, period: 4}}"
+    name, eq, body = str(text).partition("=")
+    name = name.strip()
+    if not eq or not body.strip():
+        raise BgcError(f"{where} {printable(text)!r} is not NAME=SIGNAL", None, f"write e.g. {example}")
+    if name not in inputs:
+        signal_given(name, None, inputs, where)  # the error
+    try:
+        spec = yaml.safe_load(body)
+    except yaml.YAMLError as e:
+        raise BgcError(f"{where} {printable(name)}: the signal is not YAML ({printable(str(e).splitlines()[0])})",
+                       None, f"write e.g. {example}") from None
+    return name, signal_given(name, spec, inputs, where)
+
+
+def signal_given(name: str, spec: Any, inputs: tuple[str, ...], where: str = "inputs") -> Signal:
+    """Input ``name``'s signal given as data (a number, a mapping as in the
+    model's ``inputs`` section, or a :class:`~bgc.ir.Signal`), checked as
+    the model's are; errors name ``where``."""
+    example = (f"{where} {name}=" if where.startswith("--") else f"{name}: ") \
+        + "{signal: sine, value: 1, amplitude: 0.5, period: 4}"
+    if name not in inputs:
+        raise BgcError(f"{where}: {printable(str(name))!r} is not an input of the model", None,
+                       f"its inputs: {', '.join(inputs) or 'none'}")
+    if isinstance(spec, Signal):
+        return spec
+    if not isinstance(spec, dict):
+        spec = {"value": spec}
+    validator = strict_validator(schema()["$defs"]["input"] | {"$defs": schema()["$defs"]}, finite=True)
+    errors = sorted(validator.iter_errors(spec), key=lambda e: list(e.absolute_path))
+    if errors:
+        where_ = ".".join(str(p) for p in errors[0].absolute_path) or "the signal"
+        raise BgcError(f"{where} {printable(name)}: {printable(where_)}: {printable(errors[0].message)}", None,
+                       f"write e.g. {example} (docs/format.md, inputs)")
+    signal = input_signal(spec)
+    if isinstance(signal, tuple):
+        raise BgcError(f"{where} {printable(name)}: {signal[0]}", None, signal[1])
+    return signal
 
 
 class _Validator:
@@ -293,30 +364,10 @@ class _Validator:
             spec = raw[name]
             if not isinstance(spec, dict):
                 spec = {"value": spec}
-            kind = spec.get("signal", "constant")
-            missing = [k for k in SIGNAL_NEEDS[kind] if k not in spec]
-            if missing:
-                self.error(f"input {name}: a {kind} signal needs {', '.join(missing)}", path,
-                           f"add {', '.join(k + ': <number>' for k in missing)}")
+            signal = input_signal(spec)
+            if isinstance(signal, tuple):
+                self.error(f"input {name}: {signal[0]}", path, signal[1])
                 continue
-            unused = sorted(k for k in spec if k in SIGNAL_FIELDS and k not in SIGNAL_NEEDS[kind]
-                            and k not in SIGNAL_OPTIONS.get(kind, ()) and k not in ("value", "start"))
-            if unused:
-                self.error(f"input {name}: a {kind} signal takes no {', '.join(unused)}", path,
-                           f"remove {', '.join(unused)}, or choose the signal that takes it (docs/format.md, "
-                           "inputs)")
-                continue
-            wrong = _signal_range(kind, spec)
-            if wrong:
-                self.error(f"input {name}: {wrong}", path, "see docs/format.md, inputs")
-                continue
-            number = lambda key: float(spec[key]) if key in spec else None  # noqa: E731
-            signal = Signal(kind, float(spec["value"]), final=number("final"),
-                            start=float(spec.get("start", 0.0)) if kind != "constant" else None,
-                            slope=number("slope"), amplitude=number("amplitude"), period=number("period"),
-                            duty=float(spec.get("duty", 0.5)) if kind == "square" else None,
-                            seed=int(spec.get("seed", 1)) if kind == "prbs" else None,
-                            f0=number("f0"), f1=number("f1"), duration=number("duration"))
             out.append(Input(name, signal, spec.get("unit"), spec.get("description"), self.raw.key_loc(*path)))
         return tuple(out)
 
@@ -667,6 +718,12 @@ def _schema_message(err: jsonschema.ValidationError, path: tuple) -> tuple[str, 
         if path == ():
             return (f"unknown section {extra[0]!r}", f"sections are: {allowed}" if not prose else
                     "quote the description: in {...} a comma ends the text and starts a new key", False)
+        kind = err.instance.get("kind")
+        if len(path) == 2 and path[0] == "elements" and isinstance(kind, (str, int)) and str(kind) in KINDS \
+                and not prose:  # the keys this element's kind takes, not every element's
+            keys = sorted(element_kind(str(kind)).keys | {"kind", "description"})
+            return (f"element {path[1]} of kind {kind} has no key {extra[0]!r}",
+                    f"keys of {_article(str(kind))}: {', '.join(keys)}", False)
         if prose and "description" in err.schema.get("properties", {}):
             return (f"unknown key {extra[0]!r} in {where}",
                     "quote the description, e.g. description: \"a, b\": in {...} a comma ends the text and "
@@ -795,7 +852,8 @@ def _coefficient(kind: str) -> str:
 
 
 def _article(word: str) -> str:
-    return ("an " if word[:1] in "aeiou" else "a ") + word
+    """``a`` or ``an`` before a word, or an element kind read letter by letter (an R, an MSe, a C)."""
+    return ("an " if word[:1] in "aeiouAEFHILMNORSX" else "a ") + word
 
 
 def _json_type(value: Any) -> str:

@@ -111,10 +111,21 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     events = list(r.events) + silent + rescued + weighing
     best_onset = next((h.onset for h in hyps if candidates and h.name == candidates[0]), iso.onset)
     s.say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
+    events += refined(r.events, candidates, best_onset, T - 1)
     events.append(ev.Decided(T - 1, verdict, candidates))
     final = [e for e in events if not isinstance(e, ev.Stopped)]  # the online drops: decided anew above
     return Diagnosis(verdict=verdict, detection=r.detection, onset=best_onset, symbols=iso.symbols,
                      refuted=iso.refuted, hypotheses=hyps, candidates=candidates, events=ordered(final), **common)
+
+
+def refined(told, candidates, onset: int | None, step: int) -> list:
+    """A :class:`~bgc.events.Refined` event when the verdict's onset lies
+    outside the onsets its first candidate was tracked from online (the
+    events ``told`` so far), so that the events and the verdict tell one story."""
+    started = [e.onsets for e in told if isinstance(e, ev.Started) and candidates and e.hypothesis == candidates[0]]
+    if onset is None or not started or not started[-1] or min(started[-1]) <= onset <= max(started[-1]):
+        return []
+    return [ev.Refined(step, candidates[0], onset, min(started[-1]), max(started[-1]))]
 
 
 def tracked(r: Record, s: Setting, truth: Run | None):
@@ -153,8 +164,8 @@ def _filters(r: Record, s: Setting) -> tuple[dict, dict]:
     starts_of = {name: list(iso.starts_of[name]) for name in iso.names}
     s.say(f"tracking {len(iso.names)} fault hypotheses ({', '.join(iso.names)}) from "
           f"{sum(len(starts_of[n]) for n in iso.names)} onsets and hypotheses "
-          f"(t = {r.time[min((min(v) for v in starts_of.values()), default=iso.onset)]:g} to "
-          f"{r.time[r.detection.step]:g})")
+          f"(t = {r.time[min((min(v) for v in starts_of.values()), default=iso.onset)]:.12g} to "
+          f"{r.time[r.detection.step]:.12g})")
     density = log_density(r.z, r.y_std)  # the nominal observer's, per step
     results: dict[tuple[str, int], dict] = {}
     best_of: dict[str, np.ndarray] = {}  # per hypothesis and step, the best running evidence over [0, step]

@@ -206,7 +206,7 @@ class Loop:
 
     def _alarm(self, detection) -> None:
         self.detection = detection
-        self.config.say(f"fault detected at t = {self.samples[detection.step].t:g} on {detection.sensor}")
+        self.config.say(f"fault detected at t = {self.samples[detection.step].t:.12g} on {detection.sensor}")
         self.events.append(ev.Alarmed(detection.step, detection.sensor, detection.window, detection.statistic,
                                       detection.threshold, detection.onset))
         degenerate = self.degenerate()

@@ -147,7 +147,8 @@ def kalman_hypothesis(name: str, signatures: tuple[str, ...], package, p: Static
 
 def misfit_reason(magnitude: str, value: float, start: float, alarm: Detection) -> str:
     """Why a fault model with its magnitude held static fails the consistency test."""
-    return (f"with its {magnitude} held at its most probable value {value:.4g} from t = {start:g}, its residual "
+    return (f"with its {magnitude} held at {value:.4g} from t = {start:.12g} (the most probable magnitude and onset; "
+            f"its estimate is the mean over all of them), its residual "
             f"of {alarm.sensor} over {alarm.window} sample(s) reached {alarm.statistic:.1f} (threshold "
             f"{alarm.threshold:.1f})")
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from .. import arguments, pipeline
 from ..compiler import load
-from ..compiler.validate import strict_validator
+from ..compiler.validate import signal_given, strict_validator
 from ..errors import (ArgumentTypeError, ArgumentValueError, BgcError, ErrorGroup, ExperimentError, printable)
 from ..kinds import DIRECTIONS, FAULT_KINDS, fault_kind
 from ..output.tables import row_label
@@ -59,6 +59,8 @@ class RunSpec:
     refine: bool = False
     #: The scenario read once, when the campaign was loaded (None: fault-free); its text is ``scenario``.
     injection: simulate.FaultInjection | None = field(default=None, compare=False)
+    #: Inputs driven otherwise than the model says: (name, :class:`~bgc.ir.Signal`) pairs (``inputs:``).
+    inputs: tuple = ()
 
     @property
     def id(self) -> str:
@@ -69,6 +71,8 @@ class RunSpec:
             fields.pop(name)  # the scenario's value (its text stands for it)
         if not self.refine:  # the runs of campaigns from before the setting keep their ids
             fields.pop("refine")
+        if not self.inputs:  # likewise
+            fields.pop("inputs")
         fields["model_text"] = hashlib.sha256(self.model_text.encode("utf-8")).hexdigest()
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode("utf-8")).hexdigest()[:16]
 
@@ -154,7 +158,7 @@ def load_campaign(path: str | Path, max_runs: int = MAX_RUNS) -> Campaign:
         raise ErrorGroup(errors)
     base = Path(path).parent
     defaults = {"steps": None, "filters": ["gpf"], "particles": [1000], "noise": ["model"], "seeds": 1,
-                "refine": [False],
+                "refine": [False], "inputs": {},
                 **data.get("defaults", {})}
     _check_size(data["groups"], defaults, raw, max_runs)
     specs: list[RunSpec] = []
@@ -265,6 +269,7 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
     except BgcError as exc:
         raise ExperimentError(exc.what, raw.loc(*where, "steps"), exc.fix) from None
     duration = steps * dt
+    signals = _signals(c, group, settings, where, raw)
     seeds = settings["seeds"]
     seeds = list(range(seeds)) if isinstance(seeds, int) else list(seeds)
     noises = []
@@ -351,8 +356,24 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
                             scenario, inj.parameter if inj else None, inj.kind if inj else None,
                             inj.magnitude if inj else None, inj.time if inj else None,
                             bool(inj and f"{inj.parameter}:{inj.kind}" in ambiguous), truth_value, method,
-                            int(particles), noise, process, measurement, int(seed), steps, bool(refine), inj))
+                            int(particles), noise, process, measurement, int(seed), steps, bool(refine), inj,
+                            signals))
     return out
+
+
+def _signals(c: pipeline.Compiled, group: dict, settings: dict, where: tuple, raw) -> tuple:
+    """A group's ``inputs`` (its own, else the defaults'): (name,
+    :class:`~bgc.ir.Signal`) pairs in the model's order, checked as the
+    model's signals are."""
+    names = tuple(u.name for u in c.model.inputs)
+    at = where + ("inputs",) if "inputs" in group else ("defaults", "inputs")
+    out = {}
+    for name, spec in settings["inputs"].items():
+        try:
+            out[name] = signal_given(name, spec, names, "inputs")
+        except BgcError as exc:
+            raise ExperimentError(exc.what, raw.loc(*at, name), exc.fix) from None
+    return tuple((name, out[name]) for name in names if name in out)
 
 
 def _nominal(c: pipeline.Compiled, inj: simulate.FaultInjection) -> float:

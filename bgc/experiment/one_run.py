@@ -94,7 +94,7 @@ def run_one(spec: RunSpec, backend: str = "numpy") -> dict[str, Any]:
                                    refine=spec.refine, switch=False)  # a campaign measures the filter it names
         session = _session(spec, spec.process_noise, spec.measurement_noise, backend)
         report = api.diagnose(session, scenario=_scenario(spec), seed=spec.seed, steps=spec.steps,
-                             options=options)
+                             options=options, inputs=dict(spec.inputs) or None)
         d = report.diagnosis
         m = metrics.measure(d, report.run, metrics.Truth(spec.fault, spec.kind, spec.magnitude, spec.onset))
         best = d.best

@@ -72,6 +72,10 @@ def sentence(e, time_of) -> str:
             return "no fault signature agrees with the observed symbols: every fault model is tried"
         case ev.Started(step=k, hypothesis=h, onsets=onsets):
             return f"tracking {h} from {len(onsets)} onset(s), t = {t(min(onsets))} to {t(max(onsets))}"
+        case ev.Refined(hypothesis=h, onset=o, first=a, last=b):
+            tracked = f"t = {t(a)}" if a == b else f"t = {t(a)} to {t(b)}"
+            return (f"{h}: onset refined to t = {t(o)} from the onsets tracked online ({tracked}) by the final "
+                    f"weighing of the whole record")
         case ev.Dropped(step=k, hypothesis=h, reason=r, detail=detail):
             return f"{h} dropped ({r}): {detail}"
         case ev.Stopped(hypothesis=h):
@@ -102,7 +106,8 @@ def sentence(e, time_of) -> str:
         case ev.NoLikelihood():
             return "the cubature Kalman filters found no finite likelihood for any hypothesis"
         case ev.Misfit(hypothesis=h, magnitude=m, value=v, start=s, sensor=y, window=w, statistic=z, threshold=c):
-            return (f"{h} with its {m} held at its most probable value {v:.4g} from t = {t(s)}: its residual of {y} "
+            return (f"{h} with its {m} held at {v:.4g} from t = {t(s)} (the most probable magnitude and onset; its "
+                    f"estimate is the mean over all of them): its residual of {y} "
                     f"over {w} sample(s) reached {z:.1f} (threshold {c:.1f}); the fault model as stated (or the "
                     f"Kalman filters' Gaussian approximation) does not explain these data: it fails the "
                     f"goodness-of-fit test")

@@ -20,8 +20,8 @@ does not declare is shown without a unit.
 >>> labels = labels_of(validate(load("models/circuit.yaml")))
 >>> labels.axis("e4"), labels.axis("f10"), labels.axis("f2"), labels.time
 ('e4: voltage at C1 [V]', 'f10: current through L [A]', 'f2 [A]', 'time [s]')
->>> Labels().axis("e4"), Labels().time, Labels().per_time
-('e4', 'time', 'per unit time')
+>>> Labels().axis("e4"), Labels().time, Labels().per_time, Labels().time_word
+('e4', 'time', 'per unit time', 'time units')
 """
 
 from __future__ import annotations
@@ -64,6 +64,11 @@ class Labels:
     def time(self) -> str:
         """The time axis: ``time [s]``, or ``time`` without a declared unit."""
         return with_unit("time", self.time_unit)
+
+    @property
+    def time_word(self) -> str:
+        """A span's unit after its number: ``s``, or ``time units`` without a declared time unit."""
+        return self.time_unit or "time units"
 
     @property
     def per_time(self) -> str:

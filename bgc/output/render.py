@@ -6,6 +6,7 @@ alphabetically), so the same model always gives the same text.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 from typing import Any
@@ -13,6 +14,7 @@ from typing import Any
 from ..errors import printable
 from ..ir import CausalBondGraph, Dbn, FaultSignatures, Numerics, StateSpaceModel, TemporalCausalGraph, var_key
 from ..kinds import ELEMENT_KINDS, FAULT_KINDS, ROLES
+from .labels import Labels
 from .layout import signal_links
 
 
@@ -271,6 +273,7 @@ def prior_rows(num: Numerics) -> list[str]:
     as a fraction of the fault's scale (a drift's over the horizon too):
     what ``bgc check`` and ``bgc show signatures`` print."""
     model = num.equations.model
+    labels = Labels(time_unit=model.settings.time_unit)
     horizon = model.settings.steps * model.settings.dt
     by = {c.parameter: c for c in model.faults}
     rows = []
@@ -279,7 +282,7 @@ def prior_rows(num: Numerics) -> list[str]:
         kind = FAULT_KINDS[f.kind]
         unit = "" if kind.factor else (model.unit(c.name) or "")
         lo, hi = f.prior
-        per = " per unit time" if kind.drifts else ""
+        per = f" {labels.per_time}" if kind.drifts else ""
         scale = {"parameter": f"|{c.name}| = {f.scale:.4g}",
                  "sensor": f"{c.name}'s nominal reading {f.scale:.4g}" if not kind.noise else
                  f"{c.name}'s noise std (its factor 1; 1 + b times it)",
@@ -287,7 +290,7 @@ def prior_rows(num: Numerics) -> list[str]:
         relative = f"{100 * lo / f.scale:+.3g} % to {100 * hi / f.scale:+.3g} %{per}"
         if kind.drifts:
             relative += f" ({100 * lo * horizon / f.scale:+.3g} % to {100 * hi * horizon / f.scale:+.3g} % over the " \
-                        f"horizon {horizon:g})"
+                        f"horizon of {horizon:g} {labels.time_word})"
         declared = c.rate if kind.drifts else c.size
         source = "declared" if declared is not None else "default"
         rows.append(f"{c.target} {c.name} {f.kind}: {kind.magnitude} {lo:.4g} to {hi:.4g}"
@@ -468,6 +471,7 @@ def distinguishability_text(r) -> str:
              "# P: probability that the data, with the priors, name the truth over the rival; "
              f"a rival with P < {r.distinctions[0].level if r.distinctions else 0.95:g} is in the predicted "
              "ambiguity group"]
+    lines += [f"# input u:{name}: {signal.text} (instead of the model's)" for name, signal in r.signals]
     if r.scenario is not None:
         d = r.distinctions[0]
         lines.append(f"truth: {printable(r.scenario)} ({d.truth}, from sample {d.onset})")
@@ -523,6 +527,7 @@ def detector_lines(rate, ideal: float, dt: float) -> list[str]:
 def distinguishability_json(r) -> dict:
     rate = getattr(r, "detector", None)
     return {
+        "inputs": {name: dataclasses.asdict(signal) for name, signal in r.signals},
         "detector": None if rate is None else {
             "runs": rate.runs, "detected": rate.detected, "false_alarms": rate.false_alarms,
             "probability": rate.probability, "low": rate.low, "high": rate.high, "median_delay": rate.median_delay,

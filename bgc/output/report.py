@@ -29,12 +29,12 @@ def _when(d, e) -> str:
     return "" if step is None else f"t = {_tt(d, step)}: "
 
 
-def _per(d) -> str:
-    """What the false-alarm probability is per: the horizon (time units), or the run."""
-    return "run" if d.options.horizon is None else f"horizon of {d.options.horizon:g} time units"
+def _per(d, labels: Labels = Labels()) -> str:
+    """What the false-alarm probability is per: the horizon (in the model's time unit), or the run."""
+    return "run" if d.options.horizon is None else f"horizon of {d.options.horizon:g} {labels.time_word}"
 
 
-def data_lines(d, quote: Callable[[Any], str] = _same) -> list[str]:
+def data_lines(d, quote: Callable[[Any], str] = _same, labels: Labels = Labels()) -> list[str]:
     """How the data met the model: per input, where it came from; the sensors used (empty: not known)."""
     if d.data is None:
         return []
@@ -49,15 +49,15 @@ def data_lines(d, quote: Callable[[Any], str] = _same) -> list[str]:
                  + (f"; missing from the data: {', '.join(quote(y) for y in s.missing)}" if s.missing else ""))
     for y, stops, longest in s.silences:
         lines.append(f"sensor y:{quote(y)}: silent {stops} time(s) for longer than the gap limit, the longest "
-                     f"{longest} step(s) ({longest * s.dt:g} time units)")
+                     f"{longest} step(s) ({longest * s.dt:g} {labels.time_word})")
     if s.unsampled or s.skipped:
         lines.append(f"time grid dt = {s.dt:g}: {s.unsampled} step(s) without a sample ({s.gaps} gap(s) beyond "
                      f"the limit), {s.skipped} sample(s) skipped on a step already taken")
     return lines
 
 
-def _data_lines(d) -> list[str]:
-    lines = data_lines(d, escape)
+def _data_lines(d, labels: Labels) -> list[str]:
+    lines = data_lines(d, escape, labels)
     return ["", "## Data", ""] + [f"- {line}" for line in lines] if lines else []
 
 
@@ -106,7 +106,8 @@ def report_data(r) -> dict[str, Any]:
                      "windows": list(d.options.windows), "bayes_factor": d.options.bayes_factor,
                      "isolation_level": d.options.isolation_level, "recheck": d.options.recheck,
                      "interval": d.options.interval, "threshold": _num(d.threshold),
-                     "process_noise": r.noise[0], "measurement_noise": r.noise[1]},
+                     "process_noise": r.noise[0], "measurement_noise": r.noise[1],
+                     "time_unit": labels.time_unit},
         "verdict": d.verdict,
         "detection": None if det is None else {
             "time": _time(_t(d, det.step)), "sensor": det.sensor, "window": det.window,
@@ -228,7 +229,7 @@ def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:
     level = f"{100 * settings['isolation_level']:g} %"
     factor = f"{settings['bayes_factor']:g}"
     horizon = settings["horizon"]
-    per = "run" if horizon is None else f"horizon of {horizon:g} time units"
+    per = "run" if horizon is None else f"horizon of {horizon:g} {settings.get('time_unit') or 'time units'}"
     return {
         "no fault": (f"no fault: no window of the nominal observer's normalised residuals crossed the detection "
                      f"threshold, set for a false-alarm probability of {settings['false_alarm_per_horizon']:g} "
@@ -245,21 +246,21 @@ def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:
     }[verdict]
 
 
-def no_detection_text(d) -> str:
+def no_detection_text(d, labels: Labels = Labels()) -> str:
     """Why the verdict is no fault: the threshold no window passed."""
     return (f"No window of the nominal observer's normalised residuals passed the threshold "
-            f"{d.threshold:.2f} (a false-alarm probability of {d.options.false_alarm:g} per {_per(d)}, "
+            f"{d.threshold:.2f} (a false-alarm probability of {d.options.false_alarm:g} per {_per(d, labels)}, "
             f"windows {', '.join(map(str, d.options.windows))} samples).")
 
 
-def detection_lines(d) -> list[str]:
+def detection_lines(d, labels: Labels = Labels()) -> list[str]:
     """The alarm, and the change point and onset it led to (empty: no alarm)."""
     det = d.detection
     if det is None:
         return []
     return [f"alarm at t = {_tt(d, det.step)}: sensor {det.sensor}, window of {det.window} sample(s), "
             f"|Z| = {det.statistic:.2f} > {det.threshold:.2f} (false-alarm probability "
-            f"{d.options.false_alarm:g} per {_per(d)})",
+            f"{d.options.false_alarm:g} per {_per(d, labels)})",
             f"change point of the residuals: t = {_tt(d, det.onset)}; onset of the diagnosis: "
             f"t = {_tt(d, d.onset)}"]
 
@@ -338,9 +339,9 @@ def report_markdown(r) -> str:
     words = plain_words(d, labels)
     lines += [f"- {escape(line)}" for line in words] + ([""] if words else [])
     if det is None:
-        lines += [no_detection_text(d), ""]
+        lines += [no_detection_text(d, labels), ""]
     else:
-        lines += ["## Detection", ""] + [f"- {line}" for line in detection_lines(d)] + [""]
+        lines += ["## Detection", ""] + [f"- {line}" for line in detection_lines(d, labels)] + [""]
         lines += ["## Qualitative isolation (TRANSCEND signatures)", ""]
         if d.symbols:
             lines.append("Observed deviations: " + "; ".join(symbol_text(d, s) for s in d.symbols) + ".")
@@ -361,7 +362,7 @@ def report_markdown(r) -> str:
                 lines.append(f"- {line}")
                 if sub is not None:
                     lines.append(f"  - {sub}")
-    lines += _data_lines(d)
+    lines += _data_lines(d, labels)
     if d.events:
         lines += ["", "## Events", ""] + [f"- {_when(d, e)}{escape(events.sentence(e, d.time_of))}" for e in d.events]
     lines += ["", f"Diagnosis computed in {d.seconds:.2f} s.", ""]
@@ -389,7 +390,7 @@ def report_html(r, data: Mapping[str, Any], pictures: Mapping[str, bytes]) -> st
     model, the estimate and the events; from ``data`` (:func:`report_data`)
     and the same sentences as :func:`report_markdown`, with ``pictures``
     (:func:`bgc.output.plots.diagnosis_figures`) embedded."""
-    d = r.diagnosis
+    d, labels = r.diagnosis, plots.report_labels(r)
     title, data_line, filter_line = heading(r)
     symbols = html.table(
         ("sensor", "deviation", "seen at t", "window (samples)", "Z", "slope", "slope Z"),
@@ -401,17 +402,17 @@ def report_html(r, data: Mapping[str, Any], pictures: Mapping[str, bytes]) -> st
         "diagnosis.html.j2", r.source, title=title, data_line=data_line, filter_line=filter_line,
         verdict=data["verdict"], verdict_class="v-" + data["verdict"].replace(" ", "-"), headline=verdict_text(d),
         definition=verdict_definition(data["verdict"], data["settings"]), words=data["in_words"],
-        detection=detection_lines(d), no_detection=no_detection_text(d),
+        detection=detection_lines(d, labels), no_detection=no_detection_text(d, labels),
         detection_pictures=html.pictures(pictures, DETECTION_PICTURES),
         isolation=d.detection is not None, symbols=symbols if symbols.rows else None,
         signatures=html.table(("signature", "outcome", "why"), signatures) if signatures else None,
         hypotheses=html.table(HYPOTHESIS_COLUMNS, [(*row[:-1], row[-1] or "-")
-                                                   for row in hypothesis_rows(d, plots.report_labels(r))])
+                                                   for row in hypothesis_rows(d, labels)])
         if d.hypotheses else None,
         hypothesis_pictures=html.pictures(pictures, HYPOTHESIS_PICTURES),
-        identification=identification_lines(d, plots.report_labels(r)),
+        identification=identification_lines(d, labels),
         estimate_pictures=html.pictures(pictures, ESTIMATE_PICTURES),
-        data_lines=data_lines(d),
+        data_lines=data_lines(d, labels=labels),
         events=html.table(("t", "event"), [("" if e["time"] is None else events.time_text(e["time"]), e["text"])
                                            for e in data["events"]]) if data["events"] else None,
         seconds=f"{d.seconds:.2f}")

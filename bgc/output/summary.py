@@ -41,7 +41,7 @@ def diagnosis_html(r) -> str:
     return html.fragment(
         "diagnosis_summary.html.j2", title=title, data_line=data_line, filter_line=filter_line,
         style=VERDICT_STYLES[d.verdict], headline=report.verdict_text(d), words=report.plain_words(d, labels),
-        detection=report.detection_lines(d), no_detection=report.no_detection_text(d),
+        detection=report.detection_lines(d, labels), no_detection=report.no_detection_text(d, labels),
         identification=report.identification_lines(d, labels), picture=picture)
 
 
@@ -66,7 +66,7 @@ def model_html(session) -> str:
         sensors=html.table(("sensor", "measures", "unit", "relative noise"),
                            [(y.name, y.text, y.unit or "-", f"{y.noise:g}") for y in m.measurements]),
         inputs=html.table(("input", "signal", "unit"),
-                          [(u.name, _signal_text(u.signal), u.unit or "-") for u in m.inputs]),
+                          [(u.name, u.signal.text, u.unit or "-") for u in m.inputs]),
         parameters=html.table(("parameter", "value", "unit", "description"),
                               [(p.name, f"{p.value:g}", p.unit or "-", p.description or "")
                                for p in m.parameters]),
@@ -75,22 +75,6 @@ def model_html(session) -> str:
 
 
 
-def _signal_text(s) -> str:
-    """An input signal in words: ``'constant 1'``, ``'step 1 to 2 at t = 5'``."""
-    if s.kind == "constant":
-        return f"constant {s.value:g}"
-    if s.kind == "step":
-        return f"step {s.value:g} to {s.final:g} at t = {s.start:g}"
-    if s.kind == "ramp":
-        return f"ramp from {s.value:g} at t = {s.start:g}, slope {s.slope:g}"
-    since = f" from t = {s.start:g}" if s.start else ""
-    if s.kind == "sine":
-        return f"sine {s.value:g} +- {s.amplitude:g}, period {s.period:g}{since}"
-    if s.kind == "square":
-        return f"square wave {s.value:g} to {s.value + s.amplitude:g}, period {s.period:g}, duty {s.duty:g}{since}"
-    if s.kind == "prbs":
-        return f"PRBS {s.value:g} or {s.value + s.amplitude:g}, a bit each {s.period:g} (seed {s.seed}){since}"
-    return f"chirp {s.value:g} +- {s.amplitude:g}, frequency {s.f0:g} to {s.f1:g} over {s.duration:g}{since}"
 
 
 def calibration_html(r) -> str:
