@@ -13,7 +13,7 @@ from typing import Any
 from ..errors import printable
 from ..ir import CausalBondGraph, Dbn, FaultSignatures, Numerics, StateSpaceModel, TemporalCausalGraph, var_key
 from ..kinds import ELEMENT_KINDS, FAULT_KINDS, ROLES
-from .layout import signal_links
+from .layout import DBN_BANDS, dbn_band, signal_links
 
 
 def to_json(data: Any) -> str:
@@ -370,25 +370,40 @@ def dbn_json(d: Dbn) -> dict:
 
 
 def dbn_dot(d: Dbn) -> str:
+    """Graphviz DOT of a DBN, drawn as the matplotlib picture is: a cluster
+    per slice (t, then t+1), the bands of :data:`~bgc.output.layout.DBN_BANDS`
+    as ranks from top to bottom (``rank=same`` across both slices, with
+    ``newrank``), each band's name at the left. An arc within a band (a
+    variable that persists) runs left to right, so slice t stands left."""
     g = d.graph
     shape = {"state": "circle", "measurement": "box", "input": "diamond", "fault_indicator": "octagon",
              **{f"fault_{k.magnitude}": "hexagon" for k in FAULT_KINDS.values()}, "fault_parameter": "doublecircle"}
-    lines = [f"digraph {_dot_id('dbn_' + d.name)} {{", "  rankdir=LR; newrank=true;",
-             '  node [fontname="Helvetica", fontsize=11];']
+    nodes = dbn_nodes(d)
+    bands: dict[int, list[str]] = {}
+    for n in nodes:
+        bands.setdefault(dbn_band(g.nodes[n]["role"]), []).append(n)
+    names = {b: _dot_id("band " + DBN_BANDS[b][0]) for b in bands}
+    lines = [f"digraph {_dot_id('dbn_' + d.name)} {{", "  newrank=true; rankdir=TB; ranksep=0.5;",
+             '  node [fontname="Helvetica", fontsize=11];', "  // the bands, top to bottom, named at the left"]
+    for b in sorted(bands):
+        lines.append(f'  {names[b]} [shape=plaintext, label={_dot_id(DBN_BANDS[b][0])}, fontcolor="#505050"];')
+    lines.append("  " + " -> ".join(names[b] for b in sorted(bands)) + " [style=invis];")
     for k, title in ((0, "t"), (1, "t+1")):
         lines.append(f"  subgraph {_dot_id('cluster_slice_' + str(k))} {{")
         lines.append(f"    label={_dot_id('slice ' + title)};")
-        for n in dbn_nodes(d):
+        for n in nodes:
             if g.nodes[n]["slice"] == k:
                 lines.append(f"    {_dot_id(n)} [shape={shape[g.nodes[n]['role']]}, label={_dot_id(g.nodes[n]['variable'])}];")
         lines.append("  }")
+    for b in sorted(bands):
+        lines.append(f"  {{rank=same; {names[b]}; {'; '.join(_dot_id(n) for n in bands[b])};}}")
+        lines.append(f"  {names[b]} -> {_dot_id(bands[b][0])} [style=invis];")
     style = {"persistence": 'color="#808080"', "temporal": 'color="#b03030", style=bold', "intra": "color=black",
              "fault": 'color="#2060c0"', "drift": 'color="#2060c0", style=dashed', "indicator": "style=dotted"}
     for a, b, k in _arcs(d):
         lines.append(f"  {_dot_id(a)} -> {_dot_id(b)} [{style[k]}];")
     lines.append("}")
     return "\n".join(lines) + "\n"
-
 
 
 # ---------------------------------------------------------------- bgc check
