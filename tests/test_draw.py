@@ -135,8 +135,47 @@ def test_png_pictures_of_every_shipped_model(tmp_path, name):
     assert width >= 600 and height >= 300
 
 
-def test_show_causality_draws_the_same_picture(tmp_path, bondgraph_svgs):
-    assert show(tmp_path, "causality", "models/circuit.yaml", "--format", "svg") == bondgraph_svgs["circuit"]
+@pytest.mark.parametrize("name", SHIPPED)
+def test_show_causality_draws_what_the_bond_graph_picture_does_not(tmp_path, bondgraph_svgs, name):
+    """The causality picture: the same bonds and strokes, and by each
+    storage element of the YAML its causality (every one of the shipped
+    models is integral: a state), by each junction its strong bond: the one
+    bond whose stroke is at a 0-junction, the one bond whose stroke is away
+    from a 1-junction (read here from the drawn strokes)."""
+    svg = show(tmp_path, "causality", f"models/{name}.yaml", "--format", "svg")
+    assert svg != bondgraph_svgs[name]
+    model = yaml_model(name)
+    kinds = {n: str(e["kind"]) for n, e in model["elements"].items()}
+    g = groups(svg)
+    at = {n: centre(g[f"label-{n}"]) for n in kinds}
+    assert sorted(k for k in g if k.startswith("stroke-")) == sorted(f"stroke-{n}" for n in model["bonds"])
+    for element, kind in kinds.items():
+        if kind in ("C", "I"):
+            assert texts(g[f"causality-{element}"])[0].startswith("integral: ")
+        elif kind in ("0", "1"):
+            strong = []
+            for number, ends in model["bonds"].items():
+                if element not in ends:
+                    continue
+                other = ends[1] if ends[0] == element else ends[0]
+                (x1, y1), (x2, y2) = path_points(g[f"stroke-{number}"])
+                at_junction = _nearer(((x1 + x2) / 2, (y1 + y2) / 2), at[element], at[other])
+                if at_junction == (kind == "0"):
+                    strong.append(number)
+            assert len(strong) == 1 and texts(g[f"causality-{element}"]) == [f"strong bond {strong[0]}"]
+        else:
+            assert f"causality-{element}" not in g
+    legend = " ".join(t for grp in g.values() for t in texts(grp))
+    assert "strong bond" in legend and "integral" in legend
+
+
+def test_show_causality_dot_and_text_name_the_strong_bonds():
+    r = run("show", "causality", "models/circuit.yaml", "--format", "dot")
+    assert r.returncode == 0 and '"j1a" [label="1:j1a\\nstrong bond 2 (sets the flow)"];' in r.stdout
+    assert '"j0a" -- "C1" [label="4", arrowhead=lvee, arrowtail=tee, penwidth=2.5];' in r.stdout
+    assert run("show", "bondgraph", "models/circuit.yaml", "--format", "dot").stdout != r.stdout
+    text = run("show", "causality", "models/circuit.yaml").stdout
+    assert "  j0a (0): strong bond 4 (sets the effort)" in text and "  C1 (C, bond 4): integral, state e4" in text
 
 
 def test_the_picture_is_the_same_bytes_twice(tmp_path, bondgraph_svgs):
@@ -213,6 +252,7 @@ measurements: {f3: {}}
 """)
     svg = show(tmp_path, "causality", str(model), "--format", "svg")
     g = groups(svg)
+    assert texts(g["causality-C"]) == ["derivative"]
     at = {n: centre(g[f"label-{n}"]) for n in ("V", "n", "C")}
     stroke = [((x1 + x2) / 2, (y1 + y2) / 2) for (x1, y1), (x2, y2) in
               (path_points(g[f"stroke-{b}"]) for b in (1, 3))]

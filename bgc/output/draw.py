@@ -27,9 +27,9 @@ from dataclasses import dataclass
 from ..ir import CausalBondGraph, Dbn, DbnModel, TemporalCausalGraph, var_key
 from ..kinds import FAULT_KINDS, element_kind
 from .artifacts import dbn_file_stem, mark_picture
-from .layout import (DBN_BAND_STEP, DbnLayout, bond_graph_layout, boxes_overlap, dbn_layout, label, label_size,
+from .layout import (CHAR_WIDTH, DBN_BAND_STEP, DbnLayout, bond_graph_layout, boxes_overlap, dbn_layout, label, label_size,
                      segment_hits_box, signal_links)
-from .render import bondgraph_dot, dbn_dot, dbn_nodes, tcg_dot, tcg_edge_label, tcg_inputs
+from .render import bondgraph_dot, dbn_dot, dbn_nodes, strong_bonds, tcg_dot, tcg_edge_label, tcg_inputs
 
 #: DBN node roles of the fault magnitudes (``fault_bias``, ``fault_slope``).
 _MAGNITUDE_ROLES = tuple(f"fault_{k.magnitude}" for k in FAULT_KINDS.values())
@@ -165,9 +165,18 @@ def bondgraph_picture(cbg: CausalBondGraph, fmt: str, engine: str = "auto") -> b
     return mark_picture(_bondgraph_picture(cbg, fmt, engine), fmt)
 
 
-def _bondgraph_picture(cbg: CausalBondGraph, fmt: str, engine: str) -> bytes:
+def causality_picture(cbg: CausalBondGraph, fmt: str, engine: str = "auto") -> bytes:
+    """The causality of the bond graph (``bgc show causality``) as an SVG or
+    PNG picture: the bond graph's layout with the causal strokes drawn bold
+    (the power half-arrows pale), each storage element's causality written
+    by it (integral: its state; derivative), each junction's strong bond
+    drawn thick and named by the junction; bgc's mark."""
+    return mark_picture(_bondgraph_picture(cbg, fmt, engine, causal=True), fmt)
+
+
+def _bondgraph_picture(cbg: CausalBondGraph, fmt: str, engine: str, causal: bool = False) -> bytes:
     if engine == "graphviz" or (engine == "auto" and graphviz_available()):
-        return render_dot(bondgraph_dot(cbg), fmt)
+        return render_dot(bondgraph_dot(cbg, causal), fmt)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -185,7 +194,8 @@ def _bondgraph_picture(cbg: CausalBondGraph, fmt: str, engine: str) -> bytes:
     x1 = max(x + w / 2 for x, _, w, _ in boxes.values()) + 0.35
     y0 = min(y - h / 2 for _, y, _, h in boxes.values()) - 0.35
     y1 = max(y + h / 2 for _, y, _, h in boxes.values()) + 0.35
-    legend_h, title_h = 1.25, 0.4
+    notes = _legend_lines(bool(derivative), bool(signal_links(model)), causal)
+    legend_h, title_h = max(1.25, 0.45 + 0.17 * len(notes)), 0.4
     width = max(x1 - x0, 7.8)
     x0, x1 = (x0 + x1) / 2 - width / 2, (x0 + x1) / 2 + width / 2
     height = (y1 - y0) + legend_h + title_h
@@ -195,8 +205,9 @@ def _bondgraph_picture(cbg: CausalBondGraph, fmt: str, engine: str) -> bytes:
         ax.set_xlim(x0, x1)
         ax.set_ylim(y0 - legend_h, y1 + title_h)
         ax.axis("off")
-        ax.text((x0 + x1) / 2, y1 + title_h / 2, f"bond graph of {model.name}, causality by SCAP",
-                ha="center", va="center", fontsize=10)
+        title = (f"causality of {model.name} by SCAP: causal strokes, storage causality, strong bonds" if causal
+                 else f"bond graph of {model.name}, causality by SCAP")
+        ax.text((x0 + x1) / 2, y1 + title_h / 2, title, ha="center", va="center", fontsize=10)
         links = []
         for bond, element in signal_links(model):
             b = model.bond(bond)
@@ -210,11 +221,15 @@ def _bondgraph_picture(cbg: CausalBondGraph, fmt: str, engine: str) -> bytes:
         ends = {b.number: _clip(boxes[b.tail], boxes[b.head]) for b in model.bonds}
         lines = [*links, *ends.values()]
         marks = [(x, y, 0.26, 0.26) for t, h in ends.values() for x, y in (t, h)]  # strokes and half-arrows
+        strong = {n for _, _, bonds in strong_bonds(cbg) for n in bonds} if causal else set()
         for b in model.bonds:
             c = cbg.causality(b.number)
             tail, head = ends[b.number]
             _draw_bond(ax, tail, head, stroke_at_head=(c.flow_by == b.head), number=b.number,
-                       obstacles=[*boxes.values(), *marks, *number_boxes], lines=lines, placed=number_boxes)
+                       obstacles=[*boxes.values(), *marks, *number_boxes], lines=lines, placed=number_boxes,
+                       causal=causal, strong=b.number in strong)
+        if causal:
+            _causality_notes(ax, cbg, boxes, [*boxes.values(), *marks, *number_boxes], lines)
         for n in sorted(pos):
             x, y, w, h = boxes[n]
             ax.add_patch(FancyBboxPatch((x - w / 2, y - h / 2), w, h, boxstyle="round,pad=0,rounding_size=0.05",
@@ -222,7 +237,7 @@ def _bondgraph_picture(cbg: CausalBondGraph, fmt: str, engine: str) -> bytes:
                                         lw=1.4 if n in derivative else 0.8, gid=f"element-{n}", zorder=3))
             ax.text(x, y, text[n], ha="center", va="center", fontsize=8, zorder=4, gid=f"label-{n}",
                     fontweight="bold" if role[n] == "junction" else "normal")
-        _bondgraph_legend(ax, x0, y0 - legend_h, x1, bool(derivative), bool(signal_links(model)))
+        _bondgraph_legend(ax, x0, y0 - legend_h, x1, legend_h, notes, causal)
         buf = io.BytesIO()
         meta = {"Date": None, "Creator": None} if fmt == "svg" else {"Software": None}
         fig.savefig(buf, format=fmt, metadata=meta, dpi=110)
@@ -247,23 +262,28 @@ def _clip(a, b):
 
 
 def _draw_bond(ax, tail, head, stroke_at_head: bool, number: int | str, obstacles, lines, placed,
-               gid: bool = True) -> None:
+               gid: bool = True, causal: bool = False, strong: bool = False) -> None:
     """One bond: its line, the half-arrow at the head (on the left of the
     direction of power), the causal stroke across the end that receives the
     effort, and its number beside the middle (where it clears the boxes in
-    ``obstacles`` and the segments in ``lines``; ``placed`` gets its box)."""
+    ``obstacles`` and the segments in ``lines``; ``placed`` gets its box).
+    ``causal``: the stroke bold and the half-arrow pale; ``strong``: the
+    line thick (a junction's strong bond)."""
     (tx, ty), (hx, hy) = tail, head
     length = math.hypot(hx - tx, hy - ty) or 1.0
     ux, uy = (hx - tx) / length, (hy - ty) / length
     nx_, ny = -uy, ux
     tag = (lambda what: f"{what}-{number}") if gid else (lambda what: None)
-    ax.plot([tx, hx], [ty, hy], color="#202020", lw=1.0, solid_capstyle="butt", gid=tag("bond"), zorder=2)
+    ax.plot([tx, hx], [ty, hy], color="#202020", lw=2.6 if strong else 1.0, solid_capstyle="butt", gid=tag("bond"),
+            zorder=2)
     back, side = _BARB
-    ax.plot([hx, hx - back * ux + side * nx_], [hy, hy - back * uy + side * ny], color="#202020", lw=1.0,
+    ax.plot([hx, hx - back * ux + side * nx_], [hy, hy - back * uy + side * ny],
+            color="#a8a8a8" if causal else "#202020", lw=1.0,
             solid_capstyle="round", gid=tag("half-arrow"), zorder=2)
     sx, sy = (hx, hy) if stroke_at_head else (tx, ty)
-    ax.plot([sx - _STROKE * nx_, sx + _STROKE * nx_], [sy - _STROKE * ny, sy + _STROKE * ny], color="#b03030",
-            lw=1.6, solid_capstyle="butt", gid=tag("stroke"), zorder=2)
+    half = _STROKE * (1.4 if causal else 1.0)
+    ax.plot([sx - half * nx_, sx + half * nx_], [sy - half * ny, sy + half * ny], color="#b03030",
+            lw=3.0 if causal else 1.6, solid_capstyle="butt", gid=tag("stroke"), zorder=2)
     w, h = label_size(str(number))[0] - 0.06, 0.16
     mx, my = (tx + hx) / 2, (ty + hy) / 2
     choices = [(mx - _NUMBER_OFFSET * nx_ * s - 0.05 * nx_ * s * abs(ux), my - _NUMBER_OFFSET * ny * s)
@@ -281,26 +301,38 @@ def _draw_bond(ax, tail, head, stroke_at_head: bool, number: int | str, obstacle
             bbox={"boxstyle": "square,pad=0.05", "fc": "white", "ec": "none", "alpha": 0.85})
 
 
-def _bondgraph_legend(ax, x0: float, y0: float, x1: float, derivative: bool, signals: bool) -> None:
-    """What the marks mean, under the graph: a sample bond from A to B whose
-    effort A imposes, and the colours of the element roles."""
+def _legend_lines(derivative: bool, signals: bool, causal: bool) -> list[str]:
+    """What the legend of the bond graph picture (``causal``: of the
+    causality picture) says about the marks drawn."""
+    lines = ["half arrow: power flows from A to B (it sits at the end that receives the power)",
+             "red stroke: causal stroke (SCAP): B, at the stroke, receives the effort; A imposes it (and B the flow)",
+             "n: the bond's number in the model; e<n> and f<n> are its effort and flow"]
+    if causal:
+        lines.append("thick bond: a junction's strong bond; it sets a 0-junction's effort (its one stroke at the "
+                     "junction), a 1-junction's flow")
+        lines.append("italic note: a storage element's causality (integral: its state; derivative: no state), "
+                     "a junction's strong bond")
+    if signals:
+        lines.append("dashed blue arrow: signal link (a modulated element reads that bond's variable)")
+    if derivative:
+        lines.append("red box: storage element in derivative causality")
+    return lines
+
+
+def _bondgraph_legend(ax, x0: float, y0: float, x1: float, height: float, lines: list[str], causal: bool) -> None:
+    """What the marks mean (``lines``), under the graph in a band of
+    ``height``: a sample bond from A to B whose effort A imposes, and the
+    colours of the element roles."""
     from matplotlib.patches import FancyBboxPatch
 
-    top = y0 + 1.1
+    top = y0 + height - 0.15
     ax.plot([x0 + 0.2, x1 - 0.2], [top + 0.05, top + 0.05], color="#c0c0c0", lw=0.6)
     a, b = (x0 + 0.45, top - 0.3), (x0 + 1.75, top - 0.3)
     for (x, y), name in ((a, "A"), (b, "B")):
         ax.text(x, y, name, ha="center", va="center", fontsize=8,
                 bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "#202020", "lw": 0.8})
     _draw_bond(ax, (a[0] + 0.2, a[1]), (b[0] - 0.2, b[1]), stroke_at_head=True, number="n", obstacles=[],
-               lines=[], placed=[], gid=False)
-    lines = ["half arrow: power flows from A to B (it sits at the end that receives the power)",
-             "red stroke: causal stroke (SCAP): B, at the stroke, receives the effort; A imposes it (and B the flow)",
-             "n: the bond's number in the model; e<n> and f<n> are its effort and flow"]
-    if signals:
-        lines.append("dashed blue arrow: signal link (a modulated element reads that bond's variable)")
-    if derivative:
-        lines.append("red box: storage element in derivative causality")
+               lines=[], placed=[], gid=False, causal=causal)
     for i, line in enumerate(lines):
         ax.text(x0 + 2.1, top - 0.12 - 0.17 * i, line, ha="left", va="center", fontsize=7)
     x = x0 + 0.25
@@ -310,6 +342,36 @@ def _bondgraph_legend(ax, x0: float, y0: float, x1: float, derivative: bool, sig
                                     fc=_ELEMENT_COLOR[r], ec="#202020", lw=0.6))
         ax.text(x + w / 2, y0 + 0.17, title, ha="center", va="center", fontsize=7)
         x += w + 0.15
+
+
+def _causality_notes(ax, cbg: CausalBondGraph, boxes: dict, obstacles: list, lines: list) -> None:
+    """By each storage element its causality (``integral: e4``,
+    ``derivative``) and by each junction its strong bond (``strong bond
+    2``; a conflict in red): under its box, else above, right, left or at a
+    corner, nearer first, where the note clears the boxes in ``obstacles``
+    and the segments in ``lines`` (else where it hits the fewest); each
+    note placed joins the obstacles."""
+    notes = {s.element: ("integral: " + s.state if s.integral else "derivative", s.integral) for s in cbg.storage}
+    for name, _, bonds in strong_bonds(cbg):
+        notes[name] = ((f"strong bond {bonds[0]}", True) if len(bonds) == 1 else
+                       (f"conflict: {len(bonds)} strong bonds", False))
+    for name in sorted(notes):
+        text, fine = notes[name]
+        x, y, w, h = boxes[name]
+        tw, th = CHAR_WIDTH * 0.85 * len(text) + 0.1, 0.17
+        choices = [(x + sx * ((w + tw) / 2 + gap), y + sy * ((h + th) / 2 + gap))
+                   for gap in (0.04, 0.2) for sx, sy in ((0, -1), (0, 1), (1, 0), (-1, 0), (1, -1), (-1, -1), (1, 1),
+                                                        (-1, 1))]
+
+        def hits(c):
+            return sum(boxes_overlap((*c, tw, th), o, 0.0) for o in obstacles) + \
+                sum(segment_hits_box(p, q, (*c, tw, th)) for p, q in lines)
+
+        at = min(choices, key=hits)
+        obstacles.append((*at, tw, th))
+        ax.text(at[0], at[1], text, ha="center", va="center", fontsize=7, style="italic", zorder=5,
+                color="#205080" if fine else "#b03030", gid=f"causality-{name}",
+                bbox={"boxstyle": "square,pad=0.05", "fc": "white", "ec": "none", "alpha": 0.85})
 
 
 #: The bends an edge of the TCG or a DBN may take (fractions of its length, to its left), tried in order
