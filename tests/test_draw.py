@@ -135,8 +135,47 @@ def test_png_pictures_of_every_shipped_model(tmp_path, name):
     assert width >= 600 and height >= 300
 
 
-def test_show_causality_draws_the_same_picture(tmp_path, bondgraph_svgs):
-    assert show(tmp_path, "causality", "models/circuit.yaml", "--format", "svg") == bondgraph_svgs["circuit"]
+@pytest.mark.parametrize("name", SHIPPED)
+def test_show_causality_draws_what_the_bond_graph_picture_does_not(tmp_path, bondgraph_svgs, name):
+    """The causality picture: the same bonds and strokes, and by each
+    storage element of the YAML its causality (every one of the shipped
+    models is integral: a state), by each junction its strong bond: the one
+    bond whose stroke is at a 0-junction, the one bond whose stroke is away
+    from a 1-junction (read here from the drawn strokes)."""
+    svg = show(tmp_path, "causality", f"models/{name}.yaml", "--format", "svg")
+    assert svg != bondgraph_svgs[name]
+    model = yaml_model(name)
+    kinds = {n: str(e["kind"]) for n, e in model["elements"].items()}
+    g = groups(svg)
+    at = {n: centre(g[f"label-{n}"]) for n in kinds}
+    assert sorted(k for k in g if k.startswith("stroke-")) == sorted(f"stroke-{n}" for n in model["bonds"])
+    for element, kind in kinds.items():
+        if kind in ("C", "I"):
+            assert texts(g[f"causality-{element}"])[0].startswith("integral: ")
+        elif kind in ("0", "1"):
+            strong = []
+            for number, ends in model["bonds"].items():
+                if element not in ends:
+                    continue
+                other = ends[1] if ends[0] == element else ends[0]
+                (x1, y1), (x2, y2) = path_points(g[f"stroke-{number}"])
+                at_junction = _nearer(((x1 + x2) / 2, (y1 + y2) / 2), at[element], at[other])
+                if at_junction == (kind == "0"):
+                    strong.append(number)
+            assert len(strong) == 1 and texts(g[f"causality-{element}"]) == [f"strong bond {strong[0]}"]
+        else:
+            assert f"causality-{element}" not in g
+    legend = " ".join(t for grp in g.values() for t in texts(grp))
+    assert "strong bond" in legend and "integral" in legend
+
+
+def test_show_causality_dot_and_text_name_the_strong_bonds():
+    r = run("show", "causality", "models/circuit.yaml", "--format", "dot")
+    assert r.returncode == 0 and '"j1a" [label="1:j1a\\nstrong bond 2 (sets the flow)"];' in r.stdout
+    assert '"j0a" -- "C1" [label="4", arrowhead=lvee, arrowtail=tee, penwidth=2.5];' in r.stdout
+    assert run("show", "bondgraph", "models/circuit.yaml", "--format", "dot").stdout != r.stdout
+    text = run("show", "causality", "models/circuit.yaml").stdout
+    assert "  j0a (0): strong bond 4 (sets the effort)" in text and "  C1 (C, bond 4): integral, state e4" in text
 
 
 def test_the_picture_is_the_same_bytes_twice(tmp_path, bondgraph_svgs):
@@ -213,8 +252,107 @@ measurements: {f3: {}}
 """)
     svg = show(tmp_path, "causality", str(model), "--format", "svg")
     g = groups(svg)
+    assert texts(g["causality-C"]) == ["derivative"]
     at = {n: centre(g[f"label-{n}"]) for n in ("V", "n", "C")}
     stroke = [((x1 + x2) / 2, (y1 + y2) / 2) for (x1, y1), (x2, y2) in
               (path_points(g[f"stroke-{b}"]) for b in (1, 3))]
     assert _nearer(stroke[0], at["n"], at["V"]) and _nearer(stroke[1], at["C"], at["n"])
     assert "storage element in derivative causality" in " ".join(t for grp in g.values() for t in texts(grp))
+
+
+# ------------------------------------------------------------------ DBN layout
+def _dbn(model: str, fault: str | None):
+    from bgc.pipeline import compile_model
+
+    c = compile_model(ROOT / "models" / f"{model}.yaml")
+    return c.dbn.get(fault or "nominal")
+
+
+#: A band's rank, top to bottom, by the node roles the DBN compiler writes (bgc/compiler/dbn.py).
+BAND_OF_ROLE = {"input": 0, "fault_indicator": 1, "fault_bias": 1, "fault_slope": 1, "fault_value": 1,
+                "fault_parameter": 1, "state": 2, "measurement": 3}
+
+
+@pytest.mark.parametrize("model, fault", [("ro", "R_pipe:incipient"), ("circuit", None), ("two_tank", None),
+                                          ("circuit", "C1:abrupt")])
+def test_dbn_slices_stand_side_by_side_in_bands(model, fault):
+    """Slice t's column left of slice t+1's; in each slice the bands go
+    inputs, faults, states, measurements from top to bottom; one band, one
+    height in both slices."""
+    from bgc.output.layout import dbn_layout
+
+    d = _dbn(model, fault)
+    pos = dbn_layout(d).positions
+    nodes = d.graph.nodes
+    left = [pos[n][0] for n in nodes if nodes[n]["slice"] == 0]
+    right = [pos[n][0] for n in nodes if nodes[n]["slice"] == 1]
+    assert max(left) < min(right)
+    for k in (0, 1):
+        height = {}
+        for n in nodes:
+            if nodes[n]["slice"] == k:
+                height.setdefault(BAND_OF_ROLE[nodes[n]["role"]], set()).add(pos[n][1])
+        assert all(len(h) == 1 for h in height.values()), height
+        ordered = [next(iter(height[b])) for b in sorted(height)]
+        assert ordered == sorted(ordered, reverse=True)  # the first band on top
+    for n in nodes:
+        if nodes[n]["slice"] == 0:
+            twin = n[:-len("@t")] + "@t+1"
+            assert pos[n][1] == pos[twin][1]
+
+
+def test_dbn_picture_names_its_bands_and_slices_and_places_the_nodes_so(tmp_path):
+    svg = show(tmp_path, "dbn", "models/ro.yaml", "--fault", "R_pipe:incipient", "--format", "svg")
+    g = groups(svg)
+    names = [" ".join(texts(g[k])) for k in sorted(k for k in g if k.startswith("band-name-"))]
+    assert names == ["inputs u", "faults", "states x", "measurements y"]
+    assert "slice t" in texts(g["slice-name-slice-t"]) and "slice t+1" in texts(g["slice-name-slice-t+1"])
+    at = {k[len("node-"):]: centre(g[k]) for k in g if k.startswith("node-")}
+    assert max(x for n, (x, _) in at.items() if n.endswith("@t")) < \
+        min(x for n, (x, _) in at.items() if n.endswith("@t+1"))
+    # SVG's y grows downward: the inputs over the fault nodes over the states over the measurements
+    assert at["e1@t+1"][1] < at["R_pipe@t+1"][1] < at["f3@t+1"][1] < at["F_back@t+1"][1]
+
+
+def test_dbn_dot_ranks_the_bands_across_both_slices():
+    from bgc.output import render
+
+    dot = render.dbn_dot(_dbn("circuit", "C1:abrupt"))
+    assert "newrank=true" in dot and "rankdir=TB" in dot
+    assert 'subgraph "cluster_slice_0"' in dot and 'subgraph "cluster_slice_1"' in dot
+    assert '{rank=same; "band inputs u"; "e1@t"; "e1@t+1";}' in dot
+    assert '{rank=same; "band faults"; "D_C1@t"; "delta_C1@t"; "D_C1@t+1"; "delta_C1@t+1";}' in dot
+    bands = [line.split(";")[1].strip() for line in dot.splitlines() if "{rank=same;" in line]
+    assert bands == ['"band inputs u"', '"band faults"', '"band states x"', '"band measurements y"']
+
+
+# ---------------------------------------------------------------- TCG labels
+def _edge_label_boxes(monkeypatch, name: str) -> list:
+    """The TCG picture of shipped model ``name`` drawn with matplotlib: its
+    edge labels' boxes as drawn (pixels, from the renderer)."""
+    from matplotlib.figure import Figure
+
+    from bgc.output import draw
+    from bgc.pipeline import compile_model
+
+    boxes: list = []
+    save = Figure.savefig
+
+    def capture(fig, *args, **kwargs):
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        boxes.extend((t.get_text(), t.get_bbox_patch().get_window_extent(renderer))
+                     for ax in fig.axes for t in ax.texts if (t.get_gid() or "").startswith("edge-label-"))
+        return save(fig, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", capture)
+    draw.tcg_picture(compile_model(ROOT / "models" / f"{name}.yaml").tcg, "svg", "matplotlib")
+    return boxes
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_tcg_edge_labels_do_not_overlap(monkeypatch, name):
+    boxes = _edge_label_boxes(monkeypatch, name)
+    assert len(boxes) >= 20
+    clashes = [(a, b) for i, (a, box) in enumerate(boxes) for b, other in boxes[i + 1:] if box.overlaps(other)]
+    assert clashes == []

@@ -163,3 +163,73 @@ def test_the_diagnosis_plots_and_tables_say_the_time_unit_and_the_magnitude_s_un
     assert row[0] == "R_pipe_incipient" and row[3].startswith("slope ") and per in row[3] and row[4].endswith(per)
     assert report.plain_words(ro_report.diagnosis, ro_report.labels)[0].startswith("parameter R_pipe drifts up by")
     assert per in report.plain_words(ro_report.diagnosis, ro_report.labels)[0]
+
+
+# ------------------------------------------------------- what reads over what
+def _diagnosed(start: float):
+    """A diagnosis report as the plots read it: one sensor, its samples from
+    time ``start`` on, one hypothesis predicting it from sample 10."""
+    import types
+
+    from bgc.output.labels import Labels
+
+    t = start + np.arange(50.0)
+    y = np.sin(np.arange(50.0) / 8)[:, None]
+    h = types.SimpleNamespace(name="R1_abrupt", posterior=0.9, dropped=None, start=10, y_mean=y[10:] + 0.1)
+    d = types.SimpleNamespace(model="m", outputs=("y1",), time=t, hypotheses=[h], onset=10,
+                              detection=types.SimpleNamespace(step=12))
+    run = types.SimpleNamespace(time=t, measurements={"y1": y[:, 0]})
+    return types.SimpleNamespace(diagnosis=d, run=run, labels=Labels("s"))
+
+
+def test_the_hypotheses_predictions_are_drawn_over_the_measured_points():
+    ax = plots.diagnosis_hypotheses(_diagnosed(0.0)).axes[0]
+    measured = [ln for ln in ax.get_lines() if ln.get_marker() == "x"]
+    predicted = [ln for ln in ax.get_lines() if ln.get_linestyle() == "-" and len(ln.get_xdata()) == 40]
+    assert measured and predicted
+    assert min(ln.get_zorder() for ln in predicted) > max(ln.get_zorder() for ln in measured)
+    assert all(ln.get_alpha() is not None and ln.get_alpha() < 1 and ln.get_markersize() <= 2 for ln in measured)
+
+
+UNIX_START = 1764669600.0  # 2025-12-02 10:00:00 UTC
+
+
+def _drawn(fig):
+    """``fig`` drawn (tick labels and offset texts are made when it is)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig).draw()
+    return fig
+
+
+def _run(t: np.ndarray):
+    from bgc.analysis.simulate import SimulationResult
+
+    y = np.linspace(0.0, 1.0, len(t))[:, None]
+    return SimulationResult("m", "m.yaml", t, (), np.zeros((len(t), 0)), ("e3",), y, y, ("q2",), y, None, None, ())
+
+
+def test_a_run_in_unix_seconds_is_plotted_from_its_start_without_an_offset():
+    from bgc.output.labels import Labels
+
+    t = UNIX_START + np.arange(0.0, 600.0, 10.0)
+    for fig in (plots.simulation_plot(_run(t), Labels("s")), plots.diagnosis_hypotheses(_diagnosed(UNIX_START))):
+        _drawn(fig)
+        assert fig.axes[-1].get_xlabel() == "time since 2025-12-02 10:00:00 UTC [s]"
+        assert all(ax.xaxis.get_offset_text().get_text() == "" for ax in fig.axes)
+        assert min(min(ln.get_xdata()) for ln in fig.axes[0].get_lines() if len(ln.get_xdata()) > 2) == 0.0
+    # the same instant in minutes (an ISO time in a model counted in minutes is read so)
+    minutes = plots.simulation_plot(_run(t / 60.0), Labels("min"))
+    assert minutes.axes[-1].get_xlabel() == "time since 2025-12-02 10:00:00 UTC [min]"
+    relative = _drawn(plots.simulation_plot(_run(t - UNIX_START), Labels("s")))
+    assert relative.axes[-1].get_xlabel() == "time [s]"
+    assert relative.axes[0].get_lines()[0].get_xdata()[-1] == 590.0
+
+
+@pytest.mark.parametrize("first, absolute", [(0.0, False), (99_999_999.0, False), (1e8, True),
+                                             (float("nan"), False)])
+def test_which_times_are_absolute(first, absolute):
+    from bgc.output.labels import Labels
+
+    clock = plots.time_axis(np.array([first, first + 1.0]), Labels("s"))
+    assert (clock.origin != 0.0) == absolute and ("since" in clock.label) == absolute

@@ -11,7 +11,8 @@ from ..errors import BgcError, printable
 
 def add_parser(sub) -> None:
     p = sub.add_parser("show", help="print or render one stage of a model (bondgraph: the causal bond graph "
-                                    "drawn, with power half-arrows and causal strokes)")
+                                    "drawn, with power half-arrows and causal strokes; causality: the strokes, "
+                                    "each storage element's causality and each junction's strong bond)")
     p.add_argument("stage", choices=["bondgraph", "causality", "tcg", "equations", "signatures", "dbn"])
     p.add_argument("model", metavar="MODEL")
     p.add_argument("--fault", metavar="PARAM:KIND",
@@ -36,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         ("bondgraph", "dot"): lambda: render.bondgraph_dot(causal),
         ("causality", "text"): lambda: render.causality_text(causal),
         ("causality", "json"): lambda: render.to_json(render.causality_json(causal)),
-        ("causality", "dot"): lambda: render.bondgraph_dot(causal),
+        ("causality", "dot"): lambda: render.bondgraph_dot(causal, causal=True),
         ("tcg", "text"): lambda: render.tcg_text(c.tcg),
         ("tcg", "json"): lambda: render.to_json(render.tcg_json(c.tcg)),
         ("tcg", "dot"): lambda: render.tcg_dot(c.tcg),
@@ -69,8 +70,10 @@ def run(args: argparse.Namespace) -> int:
         except KeyError as exc:
             raise BgcError(str(exc.args[0]), None, "pick a fault candidate and kind the model declares") from None
     if fmt in ("svg", "png"):
-        if stage in ("bondgraph", "causality"):  # the causal strokes are the causality
+        if stage == "bondgraph":
             data = draw.bondgraph_picture(causal, fmt, args.engine)
+        elif stage == "causality":  # the strokes bold, each storage element's causality, each junction's strong bond
+            data = draw.causality_picture(causal, fmt, args.engine)
         elif stage == "tcg":
             data = draw.tcg_picture(c.tcg, fmt, args.engine)
         else:

@@ -18,7 +18,7 @@ from ..analysis.calibrate import FIT_LEVEL, Z95, Calibration, Estimate, autocorr
 from . import html
 from .artifacts import manifest
 from .markdown import escape
-from .plots import OKABE_ITO, laid_out, new_figure, picture
+from .plots import OKABE_ITO, TimeAxis, laid_out, new_figure, picture, time_axis, time_label
 
 #: The pictures of a calibration report.
 PICTURES = ("estimates.png", "residuals.png", "autocorrelation.png")
@@ -199,17 +199,19 @@ def residuals_figure(r, fmt: str = "png") -> bytes:
     c: Calibration = r.calibration
     sensors = [i.sensor for i in c.innovations]
     fig, axes = new_figure(max(1, len(sensors)))
+    clock = time_axis(sorted(t[0] for t in c.times if len(t)))
+    clock = TimeAxis(clock.origin, f"{clock.label} (the data's time column)")
     for ax, name in zip(axes, sensors):
         j = c.outputs.index(name)
         for k, (t, z) in enumerate(zip(c.times, c.residuals)):
-            ax.plot(t, z[:, j], ".", ms=2, color=OKABE_ITO["blue"], label="normalised residual" if k == 0 else None)
+            ax.plot(clock(t), z[:, j], ".", ms=2, color=OKABE_ITO["blue"], label="normalised residual" if k == 0 else None)
         ax.axhline(Z95, color=OKABE_ITO["vermillion"], ls="--", lw=1, label="+-1.96 (95 % of N(0, 1))")
         ax.axhline(-Z95, color=OKABE_ITO["vermillion"], ls="--", lw=1)
         ax.axhline(0, color="#555555", lw=0.6)
         ax.set_ylabel(printable(name))
     axes[0].legend(loc="upper right", fontsize=7)
     axes[0].set_title(printable(f"{r.name}: the calibrated model's normalised residuals"))
-    axes[-1].set_xlabel("time (the data's time column)")
+    time_label(axes, clock)
     return picture(laid_out(fig), fmt)
 
 

@@ -1,4 +1,5 @@
-"""Where the elements of a bond graph picture sit: a deterministic layout.
+"""Where the elements of a bond graph picture and the nodes of a DBN
+picture sit: deterministic layouts.
 
 A bond graph reads best as its junction structure with the one-port elements
 hung around it, the way one draws it by hand (Karnopp, Margolis and
@@ -17,6 +18,11 @@ Rosenberg, *System Dynamics*, ch. 3). The layout follows that:
 
 Positions are in inches of the drawing and rounded, so the picture's bytes do
 not depend on the last bits of the optimiser.
+
+A two-slice DBN (:func:`dbn_layout`) is drawn as two columns, slice t on the
+left and slice t+1 on the right, each in the horizontal bands of
+:data:`DBN_BANDS` from top to bottom: what drives the plant, what may fail,
+what it stores, what is read.
 
 Examples
 --------
@@ -43,8 +49,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ..ir import BondGraph, Element
-from ..kinds import element_kind
+from ..ir import BondGraph, Dbn, Element, var_key
+from ..kinds import FAULT_KINDS, element_kind
 
 #: Inches per character of an element's label, and a label's height (font size 8).
 CHAR_WIDTH = 0.075
@@ -54,6 +60,13 @@ SPINE_BOND = 1.45
 LEAF_BOND = 0.95
 #: Room between two parts of a model that no bond joins.
 PART_GAP = 0.9
+#: The bands of a DBN picture, top to bottom: (the name written at the side, the node roles in it).
+DBN_BANDS = (("inputs u", ("input",)),
+             ("faults", ("fault_indicator", *(f"fault_{k}" for k in dict.fromkeys(
+                 f.magnitude for f in FAULT_KINDS.values())), "fault_parameter")),
+             ("states x", ("state",)), ("algebraic", ("algebraic",)), ("measurements y", ("measurement",)))
+#: A DBN picture's room between two nodes of a band, between two bands' rows and between the slices.
+DBN_NODE_GAP, DBN_BAND_STEP, DBN_SLICE_GAP = 0.45, 1.1, 1.6
 
 
 def label(el: Element) -> str:
@@ -316,3 +329,51 @@ def segment_hits_box(p1, p2, box) -> bool:
         if abs(x - bx) < bw / 2 and abs(y - by) < bh / 2:
             return True
     return False
+
+
+@dataclass(frozen=True, slots=True)
+class DbnLayout:
+    """A DBN picture's layout (inches): each node's centre, each band drawn
+    (its name and the y of its row), and each slice's column (its name and
+    the x of its left and right edges)."""
+
+    positions: dict[str, tuple[float, float]]
+    bands: tuple[tuple[str, float], ...]
+    slices: tuple[tuple[str, float, float], ...]
+
+
+def dbn_band(role: str) -> int:
+    """The index in :data:`DBN_BANDS` of the band a node role is drawn in."""
+    return next(i for i, (_, roles) in enumerate(DBN_BANDS) if role in roles)
+
+
+def dbn_layout(d: Dbn) -> DbnLayout:
+    """Where the nodes of DBN ``d`` sit: slice t's column left of slice
+    t+1's, the bands of :data:`DBN_BANDS` that have nodes one under the other
+    at the same heights in both slices, and in each band one row, the nodes
+    in role then variable order (the same order in both slices, so an arc
+    that persists a variable runs across at one height), centred in its
+    column."""
+    g = d.graph
+    rows: dict[tuple[int, int], list[str]] = {}
+    roles = [r for _, band in DBN_BANDS for r in band]
+    for n in sorted(g.nodes, key=lambda n: (roles.index(g.nodes[n]["role"]), var_key(g.nodes[n]["variable"]))):
+        a = g.nodes[n]
+        rows.setdefault((a["slice"], dbn_band(a["role"])), []).append(n)
+    widths = {n: label_size(g.nodes[n]["variable"])[0] for n in g.nodes}
+
+    def row_width(members: list[str]) -> float:
+        return sum(widths[n] for n in members) + DBN_NODE_GAP * (len(members) - 1)
+
+    column = max(row_width(m) for m in rows.values())
+    used = sorted({b for _, b in rows})
+    y_of = {b: -DBN_BAND_STEP * i for i, b in enumerate(used)}
+    positions = {}
+    for (slice_, band), members in rows.items():
+        x = slice_ * (column + DBN_SLICE_GAP) + (column - row_width(members)) / 2
+        for n in members:
+            positions[n] = (round(x + widths[n] / 2, 3), y_of[band])
+            x += widths[n] + DBN_NODE_GAP
+    slices = tuple((title, k * (column + DBN_SLICE_GAP), k * (column + DBN_SLICE_GAP) + column)
+                   for k, title in enumerate(("slice t", "slice t+1")))
+    return DbnLayout(positions, tuple((DBN_BANDS[b][0], y_of[b]) for b in used), slices)

@@ -9,14 +9,17 @@ is left open."""
 
 from __future__ import annotations
 
+import datetime
 import io
 import re
 import textwrap
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..data.columns import unit_seconds
 from ..errors import printable
 from ..kinds import fault_kind
 from .artifacts import mark_picture
@@ -37,10 +40,58 @@ MEASURED, TRUTH, DETECTION = OKABE_ITO["vermillion"], OKABE_ITO["black"], OKABE_
 GREY, LIGHT_GREY = "#808080", "#b8b8b8"
 
 
-def _measured(ax, run, name: str) -> None:
-    """Sensor ``name``'s samples as crosses (none for a sensor the data lack)."""
+#: A run whose first time is this many seconds after 1970-01-01 UTC or later (1973-03-03) has absolute
+#: times: a logger's Unix seconds, or ISO timestamps as bgc reads them (bgc.data.columns.iso_seconds).
+ABSOLUTE_SECONDS = 1e8
+
+
+@dataclass(frozen=True, slots=True)
+class TimeAxis:
+    """How a plot's time axis shows a run's times: as the time elapsed
+    since ``origin`` (0: the times as they are), under ``label``."""
+
+    origin: float
+    label: str
+
+    def __call__(self, t) -> np.ndarray:
+        """Times ``t`` (one or an array) as the axis shows them."""
+        return np.asarray(t, dtype=float) - self.origin
+
+
+def time_axis(time, labels: Labels = Labels()) -> TimeAxis:
+    """The time axis of a plot of ``time`` (in the model's time unit):
+    when the times are absolute (the first, once in seconds, at least
+    :data:`ABSOLUTE_SECONDS` and a date of the next 3000 years; no unit is
+    read as seconds, as an ISO timestamp is), the time since the first
+    sample, its date in the label: ``time since 2025-12-02 10:00:00 UTC
+    [s]``; else the times as they are, ``time [s]``."""
+    t = np.asarray(time, dtype=float).ravel()
+    seconds = unit_seconds(labels.time_unit)
+    if t.size and np.isfinite(t[0]) and seconds is not None and ABSOLUTE_SECONDS <= t[0] * seconds < 1e11:
+        start = datetime.datetime.fromtimestamp(float(t[0]) * seconds, tz=datetime.timezone.utc)
+        return TimeAxis(float(t[0]), with_unit(f"time since {start:%Y-%m-%d %H:%M:%S} UTC", labels.time_unit))
+    return TimeAxis(0.0, labels.time)
+
+
+def time_label(axes, clock: TimeAxis) -> None:
+    """The time axis of ``axes`` (sharing it; the label under the last):
+    ``clock``'s label, tick numbers written whole (never an offset such as
+    ``+1.7646e9`` beside the axis)."""
+    from matplotlib.ticker import ScalarFormatter
+
+    for ax in axes:
+        if isinstance(ax.xaxis.get_major_formatter(), ScalarFormatter):
+            ax.xaxis.get_major_formatter().set_useOffset(False)
+    axes[-1].set_xlabel(clock.label)
+
+
+def _measured(ax, run, name: str, clock: TimeAxis, light: bool = False) -> None:
+    """Sensor ``name``'s samples as crosses (none for a sensor the data
+    lack), under the lines drawn over them; ``light``: small and pale, so
+    that the lines over them read."""
     if name in run.measurements:
-        ax.plot(run.time, run.measurements[name], "x", ms=3, color=MEASURED, label="measured")
+        style = {"ms": 2, "alpha": 0.45} if light else {"ms": 3}
+        ax.plot(clock(run.time), run.measurements[name], "x", color=MEASURED, label="measured", zorder=1, **style)
 
 
 def _ylabel(ax, text: str, width: int = 22) -> None:
@@ -139,20 +190,21 @@ def simulation_plot(r, labels: Labels = Labels(), noise_free: np.ndarray | None 
     sensor noise only, and so labelled."""
     rows = [*r.output_names, *r.input_names, *([r.fault.parameter] if r.fault else [])]
     fig, axes = new_figure(len(rows))
+    clock = time_axis(r.time, labels)
     clean, said = ((noise_free, "noise-free (no process or sensor noise)") if noise_free is not None
                    else (r.clean_measurements, "without sensor noise"))
     for j, name in enumerate(r.output_names):
-        axes[j].plot(r.time, r.measurements[:, j], ".", ms=2.5, color=MEASURED, label="measured")
-        axes[j].plot(r.time, clean[:, j], "-", lw=1.0, color=TRUTH, label=said)
+        axes[j].plot(clock(r.time), r.measurements[:, j], ".", ms=2.5, color=MEASURED, label="measured")
+        axes[j].plot(clock(r.time), clean[:, j], "-", lw=1.0, color=TRUTH, label=said)
     for i, name in enumerate(r.input_names):
-        axes[len(r.output_names) + i].plot(r.time, r.inputs[:, i], "-", lw=1.2, color=CYCLE[2],
+        axes[len(r.output_names) + i].plot(clock(r.time), r.inputs[:, i], "-", lw=1.2, color=CYCLE[2],
                                            drawstyle="steps-pre", label="input (as commanded)")
     if r.fault:
-        axes[-1].plot(r.time, r.parameter, color=CYCLE[0], label="faulty parameter")
+        axes[-1].plot(clock(r.time), r.parameter, color=CYCLE[0], label="faulty parameter")
     for ax, name in zip(axes, rows):
         _ylabel(ax, labels.axis(name))
         if r.fault:
-            ax.axvline(r.fault.time, color=GREY, ls=":", lw=1)
+            ax.axvline(clock(r.fault.time), color=GREY, ls=":", lw=1)
     handles = [_line("measured", MEASURED, marker="."), _line(said, TRUTH)]
     if r.input_names:
         handles.append(_line("input (as commanded)", CYCLE[2], lw=1.2))
@@ -160,7 +212,7 @@ def simulation_plot(r, labels: Labels = Labels(), noise_free: np.ndarray | None 
         handles += [_line("faulty parameter", CYCLE[0]), _line("fault onset", GREY, ":")]
     _legend_above(axes[0], handles, ncol=len(handles))
     fig.suptitle(f"{r.model}: simulated run ({r.fault.describe() if r.fault else 'no fault'})", fontsize=10)
-    axes[-1].set_xlabel(labels.time)
+    time_label(axes, clock)
     return laid_out(fig)
 
 
@@ -199,22 +251,23 @@ def tracking_plot(run, results, labels: Labels = Labels()) -> Figure:
     first = results[0]
     names_y, names_x = first.output_names, first.state_names
     fig, axes = new_figure(len(names_y) + len(names_x), height_per_row=1.5)
+    clock = time_axis(run.time, labels)
     for j, name in enumerate(names_y):
-        _measured(axes[j], run, name)
+        _measured(axes[j], run, name, clock)
         for r, c in zip(results, CYCLE):
-            _with_band(axes[j], r.time, r.y_mean[:, j], r.y_std[:, j], c, "-")
+            _with_band(axes[j], clock(r.time), r.y_mean[:, j], r.y_std[:, j], c, "-")
         _ylabel(axes[j], labels.axis(name))
     truths = 0
     for i, name in enumerate(names_x):
         ax = axes[len(names_y) + i]
         truth = _state_truth(run, first, name)
         if truth is not None:
-            ax.plot(run.time, truth, "-", lw=1.0, color=TRUTH)
+            ax.plot(clock(run.time), truth, "-", lw=1.0, color=TRUTH)
             truths += 1
         for r, c in zip(results, CYCLE):
             if name in r.state_names:
                 k = r.state_names.index(name)
-                _with_band(ax, r.time, r.mean[:, k], r.std[:, k], c, "--")
+                _with_band(ax, clock(r.time), r.mean[:, k], r.std[:, k], c, "--")
         _ylabel(ax, _state_axis(labels, first, name))
     handles = [_line("measured", MEASURED, marker="x")]
     for r, c in zip(results, CYCLE):
@@ -224,7 +277,7 @@ def tracking_plot(run, results, labels: Labels = Labels()) -> Figure:
         handles.append(_line("true (the run's)", TRUTH))
     _legend_above(axes[0], handles, ncol=4)
     fig.suptitle(f"{first.model}: filter estimates", fontsize=10)
-    axes[-1].set_xlabel(labels.time)
+    time_label(axes, clock)
     return laid_out(fig)
 
 
@@ -235,12 +288,12 @@ def _with_band(ax, t, mean, std, color: str, style: str) -> None:
 
 
 # ------------------------------------------------------------------ diagnosis
-def _marks(ax, d) -> None:
+def _marks(ax, d, clock: TimeAxis) -> None:
     """Vertical marks: onset (dashed) and detection (solid)."""
     if d.onset is not None:
-        ax.axvline(d.time[d.onset], color=GREY, ls="--", lw=0.9)
+        ax.axvline(clock(d.time[d.onset]), color=GREY, ls="--", lw=0.9)
     if d.detection is not None:
-        ax.axvline(d.time[d.detection.step], color=DETECTION, ls="-", lw=0.9)
+        ax.axvline(clock(d.time[d.detection.step]), color=DETECTION, ls="-", lw=0.9)
 
 
 def _mark_handles(d) -> list:
@@ -259,15 +312,16 @@ def diagnosis_measurements(r) -> Figure:
     2 std), onset and detection marked (thesis Fig. IV.4)."""
     d, run, labels = r.diagnosis, r.run, report_labels(r)
     fig, axes = new_figure(len(d.outputs))
+    clock = time_axis(d.time, labels)
     for j, name in enumerate(d.outputs):
-        _measured(axes[j], run, name)
-        _with_band(axes[j], d.time, d.nominal_y_mean[:, j], d.nominal_y_std[:, j], CYCLE[0], "-")
-        _marks(axes[j], d)
+        _measured(axes[j], run, name, clock)
+        _with_band(axes[j], clock(d.time), d.nominal_y_mean[:, j], d.nominal_y_std[:, j], CYCLE[0], "-")
+        _marks(axes[j], d, clock)
         _ylabel(axes[j], labels.axis(name))
     _legend_above(axes[0], [_line("measured", MEASURED, marker="x"), _line("nominal observer", CYCLE[0]),
                             _band("+-2 std", CYCLE[0]), *_mark_handles(d)], ncol=5)
     fig.suptitle(f"{d.model}: measurements and the nominal observer", fontsize=10)
-    axes[-1].set_xlabel(labels.time)
+    time_label(axes, clock)
     return laid_out(fig)
 
 
@@ -276,19 +330,20 @@ def diagnosis_residuals(r) -> Figure:
     detection threshold and mark."""
     d, labels = r.diagnosis, report_labels(r)
     fig, axes = new_figure(len(d.outputs))
+    clock = time_axis(d.time, labels)
     for j, name in enumerate(d.outputs):
         ax = axes[j]
-        ax.plot(d.time, d.nominal_z[:, j], ".", ms=2.5, color=GREY)
-        ax.plot(d.time, d.statistics[:, j], "-", lw=1.0, color=CYCLE[0])
+        ax.plot(clock(d.time), d.nominal_z[:, j], ".", ms=2.5, color=GREY)
+        ax.plot(clock(d.time), d.statistics[:, j], "-", lw=1.0, color=CYCLE[0])
         ax.axhline(d.threshold, color=DETECTION, ls=":", lw=1.0)
-        _marks(ax, d)
+        _marks(ax, d, clock)
         _ylabel(ax, f"{name} (normalised)")
     _legend_above(axes[0], [_line("normalised residual", GREY, marker="."), _line("largest windowed |Z|", CYCLE[0]),
                             _line(f"threshold {d.threshold:.2f}", DETECTION, ":"), *_mark_handles(d)], ncol=5)
     per = ("run" if d.options.horizon is None else
            f"{d.options.horizon:g} {labels.time_unit or 'time units'}")
     fig.suptitle(f"{d.model}: detection (false-alarm probability {d.options.false_alarm:g} per {per})", fontsize=10)
-    axes[-1].set_xlabel(labels.time)
+    time_label(axes, clock)
     return laid_out(fig)
 
 
@@ -312,13 +367,14 @@ def diagnosis_hypotheses(r) -> Figure:
     d, run, labels = r.diagnosis, r.run, report_labels(r)
     shown, others = ranked_hypotheses(d)
     fig, axes = new_figure(len(d.outputs))
+    clock = time_axis(d.time, labels)
     for j, name in enumerate(d.outputs):
-        _measured(axes[j], run, name)
+        _measured(axes[j], run, name, clock, light=True)
         for h in others:
-            _hypothesis(axes[j], d, h, j, LIGHT_GREY, 0.7)
+            _hypothesis(axes[j], d, h, j, LIGHT_GREY, 0.7, clock)
         for h, c in zip(shown, CYCLE):
-            _hypothesis(axes[j], d, h, j, c, 1.2)
-        _marks(axes[j], d)
+            _hypothesis(axes[j], d, h, j, c, 1.2, clock)
+        _marks(axes[j], d, clock)
         _ylabel(axes[j], labels.axis(name))
     handles = [_line("measured", MEASURED, marker="x")]
     handles += [_line(f"{h.name} (p = {h.posterior:.3g}" + (", dropped)" if h.dropped is not None else ")"), c,
@@ -330,16 +386,16 @@ def diagnosis_hypotheses(r) -> Figure:
     handles += [_line("where dropped (in its colour)", GREY, marker="X"), *_mark_handles(d)]
     _legend_above(axes[0], handles, ncol=3)
     fig.suptitle(f"{d.model}: fault hypotheses' predicted measurements (dotted: dropped)", fontsize=10)
-    axes[-1].set_xlabel(labels.time)
+    time_label(axes, clock)
     return laid_out(fig)
 
 
-def _hypothesis(ax, d, h, j: int, color: str, lw: float) -> None:
+def _hypothesis(ax, d, h, j: int, color: str, lw: float, clock: TimeAxis) -> None:
     """Hypothesis ``h``'s prediction of sensor ``j`` from its onset, dotted
-    when it was dropped, with an X where."""
-    ax.plot(d.time[h.start:], h.y_mean[:, j], "-" if h.dropped is None else ":", lw=lw, color=color, zorder=3)
+    when it was dropped, with an X where; over the measurements."""
+    ax.plot(clock(d.time[h.start:]), h.y_mean[:, j], "-" if h.dropped is None else ":", lw=lw, color=color, zorder=3)
     if h.dropped is not None:
-        ax.plot(d.time[h.dropped], h.y_mean[h.dropped - h.start, j], "X", color=color, ms=5, zorder=3)
+        ax.plot(clock(d.time[h.dropped]), h.y_mean[h.dropped - h.start, j], "X", color=color, ms=5, zorder=3)
 
 
 def diagnosis_estimate(r) -> Figure:
@@ -348,36 +404,37 @@ def diagnosis_estimate(r) -> Figure:
     d, run, labels = r.diagnosis, r.run, report_labels(r)
     shown = [h for h in d.hypotheses if h.name in d.candidates] or list(d.hypotheses[:1])
     fig, axes = new_figure(max(1, len(shown)), height_per_row=2.4)
+    clock = time_axis(d.time, labels)
     for ax, h in zip(axes, shown):
         e = h.estimate
-        _estimate(ax, d, h)
+        _estimate(ax, d, h, clock)
         truth = run.parameters.get(h.parameter)
         if truth is not None and e.truth is not None:  # the run's fault is of this hypothesis's kind
-            ax.plot(run.time, fault_kind(h.kind).truth_series(run.time, truth, e.nominal), "-", lw=1.0,
+            ax.plot(clock(run.time), fault_kind(h.kind).truth_series(run.time, truth, e.nominal), "-", lw=1.0,
                     color=TRUTH, label="truth")
-        _marks(ax, d)
+        _marks(ax, d, clock)
         _ylabel(ax, with_unit(f"{e.magnitude} of {h.parameter}",
                               labels.magnitude_unit(e.unit, fault_kind(h.kind).drifts)), width=30)
         ax.legend(handles=[*ax.get_legend_handles_labels()[0], *_mark_handles(d)], loc="center left",
                   bbox_to_anchor=(1.01, 0.5), fontsize=7, frameon=False)
     fig.suptitle(f"{d.model}: fault magnitude" + (f" ({d.verdict})" if d.hypotheses else ": no fault"), fontsize=10)
-    axes[-1].set_xlabel(labels.time)
+    time_label(axes, clock)
     return laid_out(fig)
 
 
-def _estimate(ax, d, h) -> None:
+def _estimate(ax, d, h, clock: TimeAxis) -> None:
     """Hypothesis ``h``'s magnitude: the particle filter's over time with its
     band and, when the estimate is the static posterior's (or ``--refine``'s
     grid's), that estimate and its interval from the onset."""
     e = h.estimate
-    t = d.time[h.start:]
+    t = clock(d.time[h.start:])
     static = h.filter_estimate is not None
     level = f"{100 * e.level:.0f} %"
     ax.plot(t, h.magnitude, "-", lw=1.2, color=CYCLE[0], label="particle filter" if static else "estimate")
     ax.fill_between(t, h.magnitude_band[:, 0], h.magnitude_band[:, 1], color=CYCLE[0], alpha=0.2, lw=0,
                     label=f"{level} interval" + (" (particle filter)" if static else ""))
     if static:
-        span = d.time[h.onset:]
+        span = clock(d.time[h.onset:])
         ax.plot(span, np.full(len(span), e.value), "--", lw=1.4, color=CYCLE[1],
                 label=("static posterior (Kalman filters)" if e.method == "kalman"
                        else "grid posterior (particle filters)") + ",\nfrom its onset")

@@ -15,7 +15,7 @@ from ..errors import printable
 from ..ir import CausalBondGraph, Dbn, FaultSignatures, Numerics, StateSpaceModel, TemporalCausalGraph, var_key
 from ..kinds import ELEMENT_KINDS, FAULT_KINDS, ROLES
 from .labels import Labels
-from .layout import signal_links
+from .layout import DBN_BANDS, dbn_band, signal_links
 
 
 def to_json(data: Any) -> str:
@@ -28,6 +28,37 @@ def _num(v: float) -> float | int:
 
 
 # ------------------------------------------------------------------- causality
+def strong_bonds(cbg: CausalBondGraph) -> tuple[tuple[str, str, tuple[int, ...]], ...]:
+    """Each junction's strong bond (Karnopp, Margolis and Rosenberg, ch. 5):
+    (junction, kind, bonds), the bonds whose other end sets the junction's
+    common variable: the effort of a 0-junction (its one causal stroke at
+    the junction), the flow of a 1-junction (its one stroke away from it).
+    SCAP leaves exactly one; more or none is a causal conflict."""
+    out = []
+    for el in cbg.model.elements:
+        if el.kind not in ("0", "1"):
+            continue
+        common = "effort_by" if el.kind == "0" else "flow_by"
+        bonds = tuple(b.number for b in cbg.model.bonds_of(el.name)
+                      if getattr(cbg.causality(b.number), common) != el.name)
+        out.append((el.name, el.kind, bonds))
+    return tuple(out)
+
+
+def strong_bond_text(kind: str, bonds: tuple[int, ...]) -> str:
+    """``strong bond 3 (sets the effort)``; a conflict when not one bond."""
+    common = "effort" if kind == "0" else "flow"
+    if len(bonds) == 1:
+        return f"strong bond {bonds[0]} (sets the {common})"
+    return f"causal conflict: {len(bonds)} bonds set the {common}" + (f" ({', '.join(map(str, bonds))})"
+                                                                       if bonds else "")
+
+
+def storage_text(s) -> str:
+    """A storage element's causality: ``integral, state e4`` or ``derivative``."""
+    return f"integral, state {s.state}" if s.integral else "derivative"
+
+
 def causality_text(cbg: CausalBondGraph) -> str:
     m = cbg.model
     lines = [f"# causal bond graph of {m.name} (SCAP); stroke = end that receives the effort",
@@ -37,7 +68,12 @@ def causality_text(cbg: CausalBondGraph) -> str:
         lines.append(f"{b.number:>5}  {b.tail + ' -> ' + b.head:<28} {c.effort_by:<12} {c.flow_by:<12}")
     lines.append("storage:")
     for s in cbg.storage:
-        lines.append(f"  {s.element} ({s.kind}, bond {s.bond}): {'integral, state ' + s.state if s.integral else 'derivative'}")
+        lines.append(f"  {s.element} ({s.kind}, bond {s.bond}): {storage_text(s)}")
+    junctions = strong_bonds(cbg)
+    if junctions:
+        lines.append("junctions (the strong bond sets a 0-junction's common effort, a 1-junction's common flow):")
+    for name, kind, bonds in junctions:
+        lines.append(f"  {name} ({kind}): {strong_bond_text(kind, bonds)}")
     lines.append("resistors assigned arbitrarily: " + (", ".join(cbg.arbitrary) or "none"))
     for d in cbg.diagnostics:
         lines.append(f"{d.severity}: {d.message}")
@@ -50,6 +86,8 @@ def causality_json(cbg: CausalBondGraph) -> dict:
         "bonds": [{"bond": c.bond, "effort_by": c.effort_by, "flow_by": c.flow_by} for c in cbg.bonds],
         "storage": [{"element": s.element, "kind": s.kind, "bond": s.bond, "integral": s.integral,
                      "state": s.state if s.integral else None} for s in cbg.storage],
+        "junctions": [{"junction": name, "kind": kind, "strong_bonds": list(bonds)}
+                      for name, kind, bonds in strong_bonds(cbg)],
         "arbitrary": list(cbg.arbitrary),
         "diagnostics": [{"severity": d.severity, "message": d.message, "element": d.element} for d in cbg.diagnostics],
     }
@@ -91,21 +129,31 @@ def bondgraph_json(cbg: CausalBondGraph) -> dict:
     }
 
 
-def bondgraph_dot(cbg: CausalBondGraph) -> str:
+def bondgraph_dot(cbg: CausalBondGraph, causal: bool = False) -> str:
     """Graphviz DOT of the causal bond graph: ``lvee`` is the half-arrow at
     the head, ``tee`` the causal stroke (Graphviz draws the first shape of an
-    arrow name next to the node)."""
+    arrow name next to the node). ``causal`` (``bgc show causality``): each
+    storage element's causality and each junction's strong bond written
+    under its name, the strong bonds drawn bold."""
     m = cbg.model
-    lines = [f"graph {_dot_id('bondgraph_' + m.name)} {{", "  layout=neato; overlap=false; splines=true;",
+    notes = {s.element: storage_text(s) for s in cbg.storage} if causal else {}
+    strong = set()
+    for name, kind, bonds in strong_bonds(cbg) if causal else ():
+        notes[name] = strong_bond_text(kind, bonds)
+        strong.update(bonds)
+    title = "causality_" if causal else "bondgraph_"
+    lines = [f"graph {_dot_id(title + m.name)} {{", "  layout=neato; overlap=false; splines=true;",
              '  node [fontname="Helvetica", fontsize=11, shape=plaintext];',
              '  edge [fontname="Helvetica", fontsize=9, dir=both];']
     for el in m.elements:
-        lines.append(f"  {_dot_id(el.name)} [label={_dot_id(el.kind + ':' + el.name)}];")
+        text = el.kind + ":" + el.name + (f"\\n{notes[el.name]}" if el.name in notes else "")
+        lines.append(f"  {_dot_id(el.name)} [label={_dot_id(text)}];")
     for b in m.bonds:
         at_head = cbg.causality(b.number).flow_by == b.head
         head, tail = ("teelvee", "none") if at_head else ("lvee", "tee")
+        bold = ", penwidth=2.5" if b.number in strong else ""
         lines.append(f"  {_dot_id(b.tail)} -- {_dot_id(b.head)} [label={_dot_id(str(b.number))}, "
-                     f"arrowhead={head}, arrowtail={tail}];")
+                     f"arrowhead={head}, arrowtail={tail}{bold}];")
     for b, el in signal_links(m):
         bond = m.bond(b)
         lines.append(f"  {_dot_id(bond.head)} -- {_dot_id(el)} [style=dashed, color=\"#2060c0\", dir=forward, "
@@ -373,25 +421,40 @@ def dbn_json(d: Dbn) -> dict:
 
 
 def dbn_dot(d: Dbn) -> str:
+    """Graphviz DOT of a DBN, drawn as the matplotlib picture is: a cluster
+    per slice (t, then t+1), the bands of :data:`~bgc.output.layout.DBN_BANDS`
+    as ranks from top to bottom (``rank=same`` across both slices, with
+    ``newrank``), each band's name at the left. An arc within a band (a
+    variable that persists) runs left to right, so slice t stands left."""
     g = d.graph
     shape = {"state": "circle", "measurement": "box", "input": "diamond", "fault_indicator": "octagon",
              **{f"fault_{k.magnitude}": "hexagon" for k in FAULT_KINDS.values()}, "fault_parameter": "doublecircle"}
-    lines = [f"digraph {_dot_id('dbn_' + d.name)} {{", "  rankdir=LR; newrank=true;",
-             '  node [fontname="Helvetica", fontsize=11];']
+    nodes = dbn_nodes(d)
+    bands: dict[int, list[str]] = {}
+    for n in nodes:
+        bands.setdefault(dbn_band(g.nodes[n]["role"]), []).append(n)
+    names = {b: _dot_id("band " + DBN_BANDS[b][0]) for b in bands}
+    lines = [f"digraph {_dot_id('dbn_' + d.name)} {{", "  newrank=true; rankdir=TB; ranksep=0.5;",
+             '  node [fontname="Helvetica", fontsize=11];', "  // the bands, top to bottom, named at the left"]
+    for b in sorted(bands):
+        lines.append(f'  {names[b]} [shape=plaintext, label={_dot_id(DBN_BANDS[b][0])}, fontcolor="#505050"];')
+    lines.append("  " + " -> ".join(names[b] for b in sorted(bands)) + " [style=invis];")
     for k, title in ((0, "t"), (1, "t+1")):
         lines.append(f"  subgraph {_dot_id('cluster_slice_' + str(k))} {{")
         lines.append(f"    label={_dot_id('slice ' + title)};")
-        for n in dbn_nodes(d):
+        for n in nodes:
             if g.nodes[n]["slice"] == k:
                 lines.append(f"    {_dot_id(n)} [shape={shape[g.nodes[n]['role']]}, label={_dot_id(g.nodes[n]['variable'])}];")
         lines.append("  }")
+    for b in sorted(bands):
+        lines.append(f"  {{rank=same; {names[b]}; {'; '.join(_dot_id(n) for n in bands[b])};}}")
+        lines.append(f"  {names[b]} -> {_dot_id(bands[b][0])} [style=invis];")
     style = {"persistence": 'color="#808080"', "temporal": 'color="#b03030", style=bold', "intra": "color=black",
              "fault": 'color="#2060c0"', "drift": 'color="#2060c0", style=dashed', "indicator": "style=dotted"}
     for a, b, k in _arcs(d):
         lines.append(f"  {_dot_id(a)} -> {_dot_id(b)} [{style[k]}];")
     lines.append("}")
     return "\n".join(lines) + "\n"
-
 
 
 # ---------------------------------------------------------------- bgc check
