@@ -24,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -135,9 +134,10 @@ class Unseen:
     still: bool
 
 
-def unseen(model: str | Path, options: DiagnosisOptions | None = None) -> list[Unseen]:
-    """The fault models of ``model`` (a model file) whose detection the
-    declared noise and inputs leave to chance: the closed form of
+def unseen(model, options: DiagnosisOptions | None = None) -> list[Unseen]:
+    """The fault models of ``model`` (a model file, or its compilation, a
+    :class:`bgc.pipeline.Compiled`) whose detection the declared noise and
+    inputs leave to chance: the closed form of
     :func:`bgc.analysis.distinguish.detector_reach` (the fault from mid-run
     of the model's declared run, at its prior's typical size) against the
     detector's threshold with the diagnosis's default settings
@@ -147,15 +147,15 @@ def unseen(model: str | Path, options: DiagnosisOptions | None = None) -> list[U
     detector's many looks over time catch some of them (measured: DC motor,
     R_a:abrupt:0.4167@2.5, mean 3.82 against 4.65: detected in 13 of 30
     simulated runs, ``bgc distinguish --detector-runs 30``)."""
+    from .. import pipeline
     from ..analysis import distinguish as distinction
     from ..diagnosis.detect import DetectorOptions
     from ..diagnosis.diagnose import horizon_steps
     from ..model import package as packages
-    from . import cache
+    from .folders import package_folder
 
-    opened = cache.open_model(model)
-    c = opened.view
-    package = packages.load_package(opened.folder, c.model.name, str(model), None)
+    c = model if isinstance(model, pipeline.Compiled) else pipeline.compile_model(model)
+    package = packages.load_package(package_folder(c), c.model.name, str(c.model.source), None)
     settings = c.model.settings
     opts = options or DiagnosisOptions()
     steps = settings.steps

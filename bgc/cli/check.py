@@ -29,19 +29,19 @@ def run(args: argparse.Namespace) -> int:
             continue
         print(render.check_summary(c.equations, c.numerics))
         if c.numerics.faults:
-            for line in unseen_warnings(path):
+            for line in unseen_warnings(path, c):
                 print(f"warning: {line}", file=sys.stderr)
     return status
 
 
-def unseen_warnings(path: str) -> list[str]:
+def unseen_warnings(path: str, compiled=None) -> list[str]:
     """What ``bgc check`` warns of the faults bgc's detector would most often
     miss at the declared noise and inputs (:func:`bgc.api.detection.unseen`),
-    with what would help."""
+    with what would help (``compiled``: the model's compilation, when made already)."""
     from ..api.detection import unseen
     from ..errors import printable
 
-    missed = unseen(path)
+    missed = unseen(compiled if compiled is not None else path)
     if not missed:
         return []
     where = printable(path)
