@@ -79,6 +79,21 @@ def fault_maps(T: int, onset: int, **changed):
     return [nominal] * onset + [nominal[:2] + faulty[2:]] + [faulty] * (T - onset - 1)
 
 
+def noise_free(package):
+    """The noise-free measurements (T, n_y) of a sequence of the hand-derived
+    maps, from the package's initial state."""
+    x0 = np.asarray(package.MODELS["nominal"].X0, dtype=float)
+
+    def run(maps):
+        x, out = x0, []
+        for M, c, H in maps:
+            x = M @ x + c
+            out.append(H @ x)
+        return np.array(out)
+
+    return run
+
+
 def test_the_whitening_is_the_inverse_square_root_of_the_measurements_covariance():
     T = 40
     package, fam = two_tank(T)
@@ -94,14 +109,7 @@ def test_the_whitening_is_the_inverse_square_root_of_the_measurements_covariance
 def test_a_faults_deviation_and_its_unit_response_are_the_hand_derived_maps():
     T, onset, bias = 60, 17, 0.5
     package, fam = two_tank(T)
-    x0 = np.asarray(package.MODELS["nominal"].X0, dtype=float)
-
-    def run(maps):
-        x, out = x0, []
-        for M, c, H in maps:
-            x = M @ x + c
-            out.append(H @ x)
-        return np.array(out)
+    run = noise_free(package)
 
     nominal = run([tank_map(2.0)] * T)
     exact = run(fault_maps(T, onset, R12=2.0 + bias)) - nominal
@@ -396,14 +404,7 @@ def test_the_detectors_reach_is_the_windowed_whitened_response_of_the_hand_deriv
     state reaches nothing."""
     T, onset = 120, 60
     package, fam = two_tank(T)
-    x0 = np.asarray(package.MODELS["nominal"].X0, dtype=float)
-
-    def run(maps):
-        x, out = x0, []
-        for M, c, H in maps:
-            x = M @ x + c
-            out.append(H @ x)
-        return np.array(out)
+    run = noise_free(package)
 
     h = 1e-6
     slope = (run(fault_maps(T, onset, R12=2.0 + h)) - run(fault_maps(T, onset, R12=2.0 - h))) / (2 * h)

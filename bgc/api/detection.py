@@ -134,8 +134,8 @@ class Unseen:
     still: bool
 
 
-def unseen(model, options: DiagnosisOptions | None = None) -> list[Unseen]:
-    """The fault models of ``model`` (a model file, or its compilation, a
+def unseen(c, options: DiagnosisOptions | None = None) -> list[Unseen]:
+    """The fault models of the compiled model ``c`` (a
     :class:`bgc.pipeline.Compiled`) whose detection the declared noise and
     inputs leave to chance: the closed form of
     :func:`bgc.analysis.distinguish.detector_reach` (the fault from mid-run
@@ -147,14 +147,12 @@ def unseen(model, options: DiagnosisOptions | None = None) -> list[Unseen]:
     detector's many looks over time catch some of them (measured: DC motor,
     R_a:abrupt:0.4167@2.5, mean 3.82 against 4.65: detected in 13 of 30
     simulated runs, ``bgc distinguish --detector-runs 30``)."""
-    from .. import pipeline
     from ..analysis import distinguish as distinction
     from ..diagnosis.detect import DetectorOptions
     from ..diagnosis.diagnose import horizon_steps
     from ..model import package as packages
     from .folders import package_folder
 
-    c = model if isinstance(model, pipeline.Compiled) else pipeline.compile_model(model)
     package = packages.load_package(package_folder(c), c.model.name, str(c.model.source), None)
     settings = c.model.settings
     opts = options or DiagnosisOptions()

@@ -34,14 +34,14 @@ def run(args: argparse.Namespace) -> int:
     return status
 
 
-def unseen_warnings(path: str, compiled=None) -> list[str]:
+def unseen_warnings(path: str, compiled) -> list[str]:
     """What ``bgc check`` warns of the faults bgc's detector would most often
-    miss at the declared noise and inputs (:func:`bgc.api.detection.unseen`),
-    with what would help (``compiled``: the model's compilation, when made already)."""
+    miss at the declared noise and inputs (:func:`bgc.api.detection.unseen`
+    of the model file ``path``'s compilation), with what would help."""
     from ..api.detection import unseen
     from ..errors import printable
 
-    missed = unseen(compiled if compiled is not None else path)
+    missed = unseen(compiled)
     if not missed:
         return []
     where = printable(path)
@@ -58,6 +58,7 @@ def unseen_warnings(path: str, compiled=None) -> list[str]:
     if weak:
         out.append(f"{where}: at the declared noise, bgc's detector will miss {', '.join(weak)} in about half "
                    f"the runs or more: at the size its prior expects, the windowed statistic's mean stays under the "
-                   f"threshold {threshold:.2f} (closed form, the fault from mid-run); calibrated noise (bgc calibrate --estimate noise), a "
-                   "sensor nearer it or an input test would help; bgc distinguish --scenario measures it")
+                   f"threshold {threshold:.2f} (closed form, the fault from mid-run); calibrated noise (bgc calibrate "
+                   "--estimate noise), a sensor nearer it or an input test would help; bgc distinguish --scenario "
+                   "measures it")
     return out

@@ -170,9 +170,9 @@ def signal_option(text: str, inputs: tuple[str, ...], where: str = "--input") ->
     mapping: ``u={signal: sine, value: 1, amplitude: 0.5, period: 4}``),
     checked by the same schema and rules; ``inputs``: the model's inputs.
     Raises :class:`~bgc.errors.BgcError` naming ``where`` and the fix."""
-    example = f"{where} {inputs[0] if inputs else 'u'}={{signal: sine, value: 1, amplitude: 0.5, period: 4}}"
     name, eq, body = str(text).partition("=")
     name = name.strip()
+    example = _signal_example(name or (inputs[0] if inputs else "u"), where)
     if not eq or not body.strip():
         raise BgcError(f"{where} {printable(text)!r} is not NAME=SIGNAL", None, f"write e.g. {example}")
     if name not in inputs:
@@ -185,12 +185,17 @@ def signal_option(text: str, inputs: tuple[str, ...], where: str = "--input") ->
     return name, signal_given(name, spec, inputs, where)
 
 
+def _signal_example(name: str, where: str) -> str:
+    """A signal written for input ``name`` as the place ``where`` takes it: ``--input NAME=...`` or ``NAME: ...``."""
+    return (f"{where} {name}=" if where.startswith("--") else f"{name}: ") \
+        + "{signal: sine, value: 1, amplitude: 0.5, period: 4}"
+
+
 def signal_given(name: str, spec: Any, inputs: tuple[str, ...], where: str = "inputs") -> Signal:
     """Input ``name``'s signal given as data (a number, a mapping as in the
     model's ``inputs`` section, or a :class:`~bgc.ir.Signal`), checked as
     the model's are; errors name ``where``."""
-    example = (f"{where} {name}=" if where.startswith("--") else f"{name}: ") \
-        + "{signal: sine, value: 1, amplitude: 0.5, period: 4}"
+    example = _signal_example(name, where)
     if name not in inputs:
         raise BgcError(f"{where}: {printable(str(name))!r} is not an input of the model", None,
                        f"its inputs: {', '.join(inputs) or 'none'}")

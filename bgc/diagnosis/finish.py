@@ -123,9 +123,10 @@ def refined(told, candidates, onset: int | None, step: int) -> list:
     outside the onsets its first candidate was tracked from online (the
     events ``told`` so far), so that the events and the verdict tell one story."""
     started = [e.onsets for e in told if isinstance(e, ev.Started) and candidates and e.hypothesis == candidates[0]]
-    if onset is None or not started or not started[-1] or min(started[-1]) <= onset <= max(started[-1]):
+    onsets = started[-1] if started else ()
+    if onset is None or not onsets or min(onsets) <= onset <= max(onsets):
         return []
-    return [ev.Refined(step, candidates[0], onset, min(started[-1]), max(started[-1]))]
+    return [ev.Refined(step, candidates[0], onset, min(onsets), max(onsets))]
 
 
 def tracked(r: Record, s: Setting, truth: Run | None):

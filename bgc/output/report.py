@@ -29,9 +29,13 @@ def _when(d, e) -> str:
     return "" if step is None else f"t = {_tt(d, step)}: "
 
 
+def per_horizon(horizon: float | None, time_word: str) -> str:
+    """What the false-alarm probability is per: the horizon (``time_word``: the model's time unit), or the run."""
+    return "run" if horizon is None else f"horizon of {horizon:g} {time_word}"
+
+
 def _per(d, labels: Labels = Labels()) -> str:
-    """What the false-alarm probability is per: the horizon (in the model's time unit), or the run."""
-    return "run" if d.options.horizon is None else f"horizon of {d.options.horizon:g} {labels.time_word}"
+    return per_horizon(d.options.horizon, labels.time_word)
 
 
 def data_lines(d, quote: Callable[[Any], str] = _same, labels: Labels = Labels()) -> list[str]:
@@ -228,8 +232,7 @@ def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:
     used (``settings``: report.json's; :mod:`bgc.diagnosis.finish`)."""
     level = f"{100 * settings['isolation_level']:g} %"
     factor = f"{settings['bayes_factor']:g}"
-    horizon = settings["horizon"]
-    per = "run" if horizon is None else f"horizon of {horizon:g} {settings.get('time_unit') or 'time units'}"
+    per = per_horizon(settings["horizon"], Labels(time_unit=settings.get("time_unit")).time_word)
     return {
         "no fault": (f"no fault: no window of the nominal observer's normalised residuals crossed the detection "
                      f"threshold, set for a false-alarm probability of {settings['false_alarm_per_horizon']:g} "
