@@ -36,9 +36,15 @@ logw, ancestors, ess
 __version__ = "0.1.0"
 
 
+from .errors import (ArgumentError, ArgumentTypeError, ArgumentValueError, DataError, Error, ExperimentError,
+                     ModelError, OutputError, SimulationError)
+
 #: The names of :mod:`bgc.api` that ``bgc`` gives (imported on first use).
 API = ("open", "Session", "diagnose", "DiagnosisReport", "distinguishability", "DistinguishabilityReport",
-       "CalibrationReport")
+       "CalibrationReport", "simulate", "Simulation", "run_campaign", "CampaignResult", "DiagnosisOptions")
+
+__all__ = [*API, "Error", "ModelError", "DataError", "ArgumentError", "ArgumentTypeError", "ArgumentValueError",
+           "SimulationError", "OutputError", "ExperimentError", "__version__"]
 
 
 def __getattr__(name: str):

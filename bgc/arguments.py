@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import numbers
 import os
+from contextvars import ContextVar
 
 import numpy as np
 
@@ -22,6 +23,37 @@ from .errors import ArgumentTypeError, ArgumentValueError, printable
 
 #: The largest relative noise level (``bgc ... --noise``).
 MAX_NOISE = 1e6
+
+
+#: Which door the request came in by: ``python`` (the API) or ``cli`` (set by :func:`bgc.cli.main.main`).
+DOOR: ContextVar[str] = ContextVar("bgc_door", default="python")
+
+
+def spelled(python: str, flag: str) -> str:
+    """A request's name as the caller wrote it: the Python argument
+    (``scenario``) from the API, the option (``--scenario``) from the
+    command line (:data:`DOOR`), so that a message names what the user typed.
+
+    >>> spelled("steps", "--steps")
+    'steps'
+    """
+    return flag if DOOR.get() == "cli" else python
+
+
+def renamed(func: str, new: str, value, old: str, old_value, default=None):
+    """The value of argument ``new``, given as it is or under its old name
+    ``old`` (then with a :class:`DeprecationWarning`); both given is an
+    :class:`~bgc.errors.ArgumentValueError`. ``default`` when neither is."""
+    import warnings
+
+    if old_value is None:
+        return default if value is None else value
+    if value is not None:
+        raise ArgumentValueError(f"{func}: {new}={shown(value)} and {old}={shown(old_value)} name one thing", None,
+                                 f"give {new}= alone ({old}= is its old name)")
+    warnings.warn(f"{func}: {old}= is deprecated, its name is {new}= (as the command line's --{new})",
+                  DeprecationWarning, stacklevel=3)
+    return old_value
 
 
 def is_integer(value) -> bool:

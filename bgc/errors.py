@@ -46,7 +46,11 @@ class SourceLoc:
 
 
 class BgcError(Exception):
-    """A user error: one line, with a location and a fix."""
+    """A user error: one line, with a location and a fix. ``bgc.Error`` is its
+    public name; its families are :class:`ModelError` (the model file),
+    :class:`RuntimeFailure` (its :class:`DataError`: recorded data),
+    :class:`ArgumentError` (a call of the Python API; also a :class:`TypeError`
+    or :class:`ValueError`), :class:`OutputError` and :class:`ExperimentError`."""
 
     def __init__(self, what: str, loc: SourceLoc | str | None = None, fix: str | None = None):
         self.what = what
@@ -79,27 +83,36 @@ class ErrorGroup(BgcError):
         return tuple(e.line() for e in self.errors)
 
 
-class LoadError(BgcError):
+#: The public name of :class:`BgcError` (``bgc.Error``): ``except bgc.Error`` catches every user error.
+Error = BgcError
+
+
+class ModelError(BgcError):
+    """The model file is wrong: the base of the compiler stages' errors (load,
+    validation, expressions, causality, equations, code generation)."""
+
+
+class LoadError(ModelError):
     """The file cannot be read or is not well-formed YAML."""
 
 
-class ValidationError(BgcError):
+class ValidationError(ModelError):
     """The model breaks the schema or a semantic rule."""
 
 
-class ExpressionError(BgcError):
+class ExpressionError(ModelError):
     """An expression in the model is refused by the safe parser."""
 
 
-class CausalityError(BgcError):
+class CausalityError(ModelError):
     """SCAP found a causal conflict."""
 
 
-class EquationError(BgcError):
+class EquationError(ModelError):
     """State equations cannot be derived (e.g. an unsolvable algebraic loop)."""
 
 
-class CodegenError(BgcError):
+class CodegenError(ModelError):
     """Generated code cannot be produced for the model."""
 
 

@@ -66,8 +66,8 @@ def refused(call, kind, start: str) -> str:
     (dict(scenario="none", measurement_noise=0.0), ArgumentValueError,
      "bgc.diagnose: measurement_noise=0: a noiseless sensor makes the filters' likelihood degenerate"),
     (dict(scenario="none", measurement_noise=float("nan")), ArgumentValueError, "bgc.diagnose: measurement_noise=nan"),
-    (dict(scenario="none", method="pf"), ArgumentValueError, "bgc.diagnose: method='pf' is not one of gpf, apf"),
-    (dict(scenario="none", method=1), ArgumentTypeError, "bgc.diagnose: method=1 is not one of"),
+    (dict(scenario="none", filter="pf"), ArgumentValueError, "bgc.diagnose: filter='pf' is not one of gpf, apf"),
+    (dict(scenario="none", filter=1), ArgumentTypeError, "bgc.diagnose: filter=1 is not one of"),
     (dict(scenario="none", steps=0), ArgumentValueError, "bgc.diagnose: steps=0: simulate at least 1 step"),
     (dict(scenario="none", steps=30.0), ArgumentTypeError, "bgc.diagnose: steps=30.0 is not an integer"),
     (dict(data="run.csv", steps=30), ArgumentValueError, "bgc.diagnose: steps=30 with data"),
@@ -82,11 +82,11 @@ def refused(call, kind, start: str) -> str:
     (dict(scenario="none", options=DiagnosisOptions(particles=100.5)), ArgumentTypeError,
      "bgc.diagnose: options.particles=100.5 is not an integer"),
     (dict(scenario="none", options=DiagnosisOptions(particles=0)), ArgumentValueError,
-     "--particles 0: at least 1 particle is needed"),  # bgc diagnose --particles 0: the command line's words
+     "bgc.diagnose: options.particles=0: at least 1 particle is needed"),  # the CLI: "--particles 0: ..."
     (dict(scenario="none", options=DiagnosisOptions(seed=-3)), ArgumentValueError,
      "bgc.diagnose: options.seed=-3 is negative"),
-    (dict(scenario="none", options=DiagnosisOptions(method="kf")), ArgumentValueError,
-     "bgc.diagnose: options.method='kf' is not one of"),
+    (dict(scenario="none", options=DiagnosisOptions(filter="kf")), ArgumentValueError,
+     "bgc.diagnose: options.filter='kf' is not one of"),
     (dict(scenario="none", options=DiagnosisOptions(identify="both")), ArgumentValueError,
      "bgc.diagnose: options.identify='both' is not one of kalman, filter"),
     (dict(scenario="none", options=DiagnosisOptions(windows=[1, 8])), ArgumentTypeError,
@@ -136,8 +136,8 @@ def test_numpy_integers_are_integers():
 def test_an_onset_outside_the_run_is_refused(scenario):
     """The issue's case (onset 100, run to t = 4 said 'no fault'), the last
     sample's time (a fault seen by no sample after it), 0, far away."""
-    refused(lambda: bgc.diagnose(session(CIRCUIT, generated=GENERATED), scenario=scenario, steps=40), SimulationError,
-            f"scenario {scenario}: onset")
+    refused(lambda: bgc.diagnose(session(CIRCUIT, generated=GENERATED), scenario=scenario, steps=40),
+            ArgumentValueError, f"bgc.diagnose: scenario {scenario}: onset")
 
 
 def test_an_onset_inside_the_run_is_diagnosed():
@@ -212,7 +212,7 @@ def test_a_sensor_never_read_is_named_in_an_event():
 def test_a_diagnosis_beyond_the_memory_is_refused_with_the_most_steps():
     num = compiled("circuit").numerics
     line = refused(lambda: bgc.diagnose(session(CIRCUIT, generated=GENERATED), scenario="none", steps=10_000_000),
-                   TrackingError, "--steps: a diagnosis of 10000000 steps of circuit may take about")
+                   TrackingError, "bgc.diagnose: steps=10000000: a diagnosis of 10000000 steps of circuit may take about")
     most = int(line.split("at most ")[1].split()[0])
     api_limits.check_diagnosis_steps(most, num, 1000, "gpf")
     with pytest.raises(TrackingError):
@@ -260,8 +260,8 @@ def test_the_rule_bounds_the_memory_a_diagnosis_takes():
     (dict(process_noise=-0.1), ArgumentValueError, "bgc.distinguishability: process_noise=-0.1"),
     (dict(measurement_noise=0), ArgumentValueError, "bgc.distinguishability: measurement_noise=0: a noiseless"),
     (dict(progress=1), ArgumentTypeError, "bgc.distinguishability: progress=1 is not callable"),
-    (dict(steps=1_000_000), TrackingError, "--steps: 1000000 steps: bgc distinguish would take about"),
-    (dict(steps=10_000_000), TrackingError, "--steps: 10000000 steps: bgc distinguish would take about"),
+    (dict(steps=1_000_000), TrackingError, "bgc.distinguishability: steps: 1000000 steps: the prediction would take about"),
+    (dict(steps=10_000_000), TrackingError, "bgc.distinguishability: steps: 10000000 steps: the prediction would take about"),
     (dict(scenario="R2:abrupt:0.5@1e9"), SimulationError, "onset 1e+09 is outside the run"),
 ])
 def test_distinguishability_refuses_bad_arguments_before_any_work(kwargs, kind, start):
@@ -431,7 +431,7 @@ def hostile_model(tmp_path_factory):
 def hostile_report(hostile_model):
     """The circuit's R2 rising by 0.6 at t = 5; cubature Kalman filters."""
     return bgc.diagnose(hostile_model, scenario="R2:abrupt:0.6@5", seed=1,
-                        options=DiagnosisOptions(method="ckf", seed=1, workers=1))
+                        options=DiagnosisOptions(filter="ckf", seed=1, workers=1))
 
 
 @pytest.mark.slow

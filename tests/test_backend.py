@@ -232,7 +232,7 @@ def test_the_static_posterior_and_its_verdict_do_not_depend_on_the_backend():
 
     numba_package("ro")
     reports = [bgc.diagnose("models/ro.yaml", scenario="R_pipe:incipient:0.5@165", seed=1,
-                            options=DiagnosisOptions(method="ckf", seed=1, workers=1), backend=b)
+                            options=DiagnosisOptions(filter="ckf", seed=1, workers=1), backend=b)
                for b in ("numpy", "numba")]
     a, b = (r.diagnosis for r in reports)
     assert (a.verdict, a.candidates, a.onset) == (b.verdict, b.candidates, b.onset)
@@ -496,5 +496,5 @@ def test_a_prepared_filter_makes_nothing_on_its_first_step_and_gives_the_same_nu
             assert plain.rng.bit_generator.state == ready.rng.bit_generator.state
     import bgc
 
-    d = bgc.open(ROOT / "models" / "circuit.yaml", backend="numpy").diagnoser(method="gpf", particles=200, seed=3)
+    d = bgc.open(ROOT / "models" / "circuit.yaml", backend="numpy").diagnoser(filter="gpf", particles=200, seed=3)
     assert len(d.pf._gauss) == 1 and d.pf.w is not None  # the diagnoser prepared its filter

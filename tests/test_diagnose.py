@@ -148,7 +148,7 @@ def one_line(r) -> str:
 
 def test_bgc_diagnose_bad_input_is_one_located_line(tmp_path):
     assert one_line(bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "Q9:abrupt:1@5")).startswith(
-        "--fault: 'Q9' is no parameter, measurement or input of circuit")
+        "--scenario: 'Q9' is no parameter, measurement or input of circuit")
     assert one_line(bgc_cli("diagnose", "models/circuit.yaml")).startswith(
         "give --data RUN.csv or --scenario NAME:KIND:MAGNITUDE@TIME")
     other = tmp_path / "ro.csv"
@@ -416,7 +416,7 @@ def test_a_hypothesis_whose_earliest_filters_all_stop_before_the_next_onset_star
     started, so a step had no filter to run."""
     d = bgc.diagnose(session(TEST_MODELS / "dc_motor.yaml", process_noise=0.005, measurement_noise=0.01),
                      scenario="R_a:incipient:0.00113856@170", seed=505876183,
-                     options=DiagnosisOptions(method="gpf", particles=500, seed=505876183, workers=1)).diagnosis
+                     options=DiagnosisOptions(filter="gpf", particles=500, seed=505876183, workers=1)).diagnosis
     assert d.detection is not None and "R_a_incipient" in d.candidates
 
 
@@ -433,7 +433,7 @@ def test_the_auxiliary_filters_residuals_of_a_product_of_states_keep_unit_varian
     for seed in (1, 2, 3):
         d = bgc.diagnose(session(TEST_MODELS / "dc_motor.yaml", process_noise=0.02, measurement_noise=0.03),
                          scenario="none", seed=seed,
-                         options=DiagnosisOptions(method="apf", particles=500, seed=seed, workers=1)).diagnosis
+                         options=DiagnosisOptions(filter="apf", particles=500, seed=seed, workers=1)).diagnosis
         assert d.detection is None
         z.append(np.asarray(d.nominal_z)[10:, d.outputs.index("P_mech")])
     assert 0.9 < np.std(np.concatenate(z)) < 1.1
@@ -468,7 +468,7 @@ def test_a_drift_whose_particle_filters_start_off_its_onset_is_tested_as_its_fau
     the end are tested with the magnitude held static, on the Kalman filters'
     finer onsets; R_memb's drift passes, and is the diagnosis."""
     d = bgc.diagnose(session("ro"), scenario="R_memb:incipient:0.2@165", seed=0,
-                     options=DiagnosisOptions(method="apf", particles=200, seed=0, workers=1)).diagnosis
+                     options=DiagnosisOptions(filter="apf", particles=200, seed=0, workers=1)).diagnosis
     assert d.verdict == "isolated" and d.candidates == ("R_memb_incipient",)
     assert any(isinstance(e, events.Rescued) and e.hypothesis == "R_memb_incipient" for e in d.events)
     e = d.estimate
@@ -489,7 +489,7 @@ def test_a_drifts_onset_is_marginalised_sample_by_sample_where_its_posterior_is(
     truth = -0.00150208
     d = bgc.diagnose(session("dc_motor", process_noise=0.005, measurement_noise=0.01),
                      scenario=f"R_a:incipient:{truth}@93", seed=2937888235,
-                     options=DiagnosisOptions(method=method, particles=500, seed=2937888235, workers=1)).diagnosis
+                     options=DiagnosisOptions(filter=method, particles=500, seed=2937888235, workers=1)).diagnosis
     assert d.candidates == ("R_a_incipient",)
     assert d.time_of(d.onset) == 93
     e = d.estimate
@@ -538,7 +538,7 @@ def test_a_sensor_sharp_against_the_process_noise_degenerates_the_particle_filte
     assert degenerate[0].ess < 0.05 * 500 and degenerate[0].step == d.detection.step
     # by default the diagnosis switches to cubature Kalman filters by itself, and says so
     d = bgc.diagnose(model, scenario="none", seed=2, options=DiagnosisOptions(seed=2, workers=1)).diagnosis
-    assert d.options.method == "ckf" and d.verdict == "no fault"
+    assert d.options.filter == "ckf" and d.verdict == "no fault"
     assert any(isinstance(e, events.Degenerate) and e.switched for e in d.events)
     assert any(isinstance(e, events.Switched) and e.to == "ckf" for e in d.events)
     c, package = model.compiled, model.package  # the NumPy package of the model, in a private folder
@@ -561,7 +561,7 @@ def test_cubature_kalman_filters_alone_isolate_and_size_a_fault_the_particle_fil
     back to it, and g_m's step is the most probable hypothesis, sized within
     10 % with its interval covering -0.2 and its onset within 3 samples."""
     d = bgc.diagnose(session(TEST_MODELS / "drivetrain.yaml"), scenario="g_m:abrupt:-0.2@8", seed=1,
-                     options=DiagnosisOptions(method="ckf", seed=1, workers=1)).diagnosis
+                     options=DiagnosisOptions(filter="ckf", seed=1, workers=1)).diagnosis
     assert d.detection.step > 160 + 20 and d.candidates[0] == "g_m_abrupt"
     e = d.estimate
     assert abs(e.value + 0.2) < 0.02 and e.low <= -0.2 <= e.high and abs(d.onset - 160) <= 3
@@ -577,7 +577,7 @@ def test_cubature_kalman_filters_alone_find_the_static_posterior_the_particle_fi
     at t = 5)."""
     def diagnosis(method):
         return bgc.diagnose(session("circuit"), scenario="R1:abrupt:0.3@5", seed=1,
-                            options=DiagnosisOptions(method=method, seed=1, workers=1, particles=500)).diagnosis
+                            options=DiagnosisOptions(filter=method, seed=1, workers=1, particles=500)).diagnosis
 
     k, p = diagnosis("ckf"), diagnosis("gpf")
     assert k.candidates == p.candidates == ("R1_abrupt",)
@@ -594,7 +594,7 @@ def test_a_diagnosis_runs_on_the_locally_optimal_proposal_too():
     """--filter opf: the nominal observer and every hypothesis's filters (one
     by one: the bank does not pack them)."""
     d = bgc.diagnose(session("circuit"), scenario="R2:abrupt:0.6@5", seed=4,
-                     options=DiagnosisOptions(method="opf", particles=500, seed=4, workers=1)).diagnosis
+                     options=DiagnosisOptions(filter="opf", particles=500, seed=4, workers=1)).diagnosis
     assert d.verdict == "isolated" and d.candidates == ("R2_abrupt",)
     assert d.estimate.low <= 0.6 <= d.estimate.high
     assert not [e for e in d.events if isinstance(e, NOTABLE)]
@@ -608,5 +608,5 @@ def test_a_fault_that_degenerates_the_observer_after_it_does_not_switch_the_filt
     14 of 1000 particles on average over the run."""
     d = bgc.diagnose(session("circuit"), scenario="R2:abrupt:2@1", seed=1,
                      options=DiagnosisOptions(seed=1, workers=1)).diagnosis
-    assert d.options.method == "gpf" and not any(isinstance(e, events.Degenerate) for e in d.events)
+    assert d.options.filter == "gpf" and not any(isinstance(e, events.Degenerate) for e in d.events)
     assert d.candidates[0] == "R2_abrupt"

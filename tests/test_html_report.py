@@ -128,7 +128,7 @@ def test_model_text_is_escaped_on_the_page(tmp_path):
     validate) with a script, markup and an ampersand is shown as text."""
     model = tmp_path / f"{HOSTILE_NAME}.yaml"
     shutil.copy(ROOT / "models" / "circuit.yaml", model)
-    r = bgc.diagnose(model, scenario="none", steps=30, options=DiagnosisOptions(method="ckf", workers=1))
+    r = bgc.diagnose(model, scenario="none", steps=30, options=DiagnosisOptions(filter="ckf", workers=1))
     text = report.report_html(r, report.report_data(r), {})
     page = Page(text)
     assert_self_contained(page)

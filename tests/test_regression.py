@@ -67,7 +67,7 @@ def options_for(case: dict) -> DiagnosisOptions:
     by default the model's declared run length)."""
     o = case["options"]
     t = runs.read_run(ROOT / case["run"]).time
-    return DiagnosisOptions(method=o["method"], particles=o["particles"], seed=o["seed"], workers=o["workers"],
+    return DiagnosisOptions(filter=o["method"], particles=o["particles"], seed=o["seed"], workers=o["workers"],
                             identify=o["identify"], switch=o["switch"], rank=o["rank"], refine=o["refine"],
                             horizon=len(t) * float(t[1] - t[0]))
 
@@ -136,7 +136,7 @@ def test_a_refactor_does_not_change_the_diagnosis(case):
     e = case["expected"]
     assert d.verdict == e["verdict"]
     assert list(d.candidates) == e["candidates"]
-    assert d.options.method == e["method"], "the filter that made the diagnosis (ckf after a switch)"
+    assert d.options.filter == e["method"], "the filter that made the diagnosis (ckf after a switch)"
     if e["detection"] is None:
         assert d.detection is None
     else:

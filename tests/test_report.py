@@ -16,7 +16,7 @@ def test_a_hostile_model_path_cannot_forge_markdown(tmp_path):
     name = "a|b [x](javascript:alert(1)) <img src=x> *_z_* `c`\n# forged.yaml"
     model = tmp_path / name
     shutil.copy(ROOT / "models" / "circuit.yaml", model)
-    r = bgc.diagnose(model, scenario="none", steps=30, options=DiagnosisOptions(method="ckf", workers=1))
+    r = bgc.diagnose(model, scenario="none", steps=30, options=DiagnosisOptions(filter="ckf", workers=1))
     text = report.report_markdown(r)
     first = text.splitlines()[0]
     assert first.startswith("# Diagnosis of circuit (")

@@ -232,7 +232,7 @@ def test_an_input_test_reaches_the_diagnosis_the_prediction_and_a_campaign(tmp_p
     model = tmp_path / "msd.yaml"
     model.write_text(MSD.replace("SIGNAL", "{signal: constant, value: 0.0}"), encoding="utf-8")
     square = {"signal": "square", "value": 0.5, "amplitude": 1.0, "period": 1.0}
-    r = bgc.diagnose(model, scenario="none", inputs={"F": square}, steps=40, particles=50, method="ckf")
+    r = bgc.diagnose(model, scenario="none", inputs={"F": square}, steps=40, particles=50, filter="ckf")
     expected = [0.5 + (1.0 if (k * 0.05) % 1.0 < 0.5 - 1e-9 else 0.0) for k in range(40)]
     assert r.run.inputs["F"].tolist() == pytest.approx(expected)
     with pytest.raises(bgc.errors.ArgumentValueError, match="inputs: 'G' is not an input of the model"):

@@ -364,6 +364,6 @@ def test_simulate_refuses_an_onset_outside_the_run(tmp_path):
     r = bgc_cli("simulate", "models/circuit.yaml", "--fault", "R1:abrupt:0.5@100", "--steps", "30", "-o",
                 tmp_path / "f.csv")
     assert r.returncode == 1 and "Traceback" not in r.stderr
-    assert r.stderr.strip() == "--fault R1:abrupt: onset 100 is outside the run (0 to 1.5) (choose an onset inside " \
-                               "the run, or more --steps)"
+    assert r.stderr.strip() == ("--fault R1:abrupt:0.5@100: onset 100 is outside the run (0 to 1.5) (choose an onset "
+                                "inside the run, or more --steps)")
     assert not (tmp_path / "f.csv").exists()

@@ -110,7 +110,7 @@ def test_a_diagnoser_taken_up_from_its_state_goes_on_as_if_it_never_stopped(sess
     backend (conftest.fast_session; the slow tier only)."""
     session = fast_session("ro") if name == "ro" else _session(sessions, MODELS / f"{name}.yaml")
     rows, run = _rows(session, SCENARIOS[name])
-    (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, 0.8, method=method, particles=200,
+    (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, 0.8, filter=method, particles=200,
                                                              seed=3)
     assert at_cut.loop.phase == "tracking"  # cut with hypotheses tracked: their filters are in the state
     assert (method == "ckf") == (not at_cut.loop.trackers)
@@ -142,7 +142,7 @@ def test_a_state_taken_before_or_after_a_switch_of_filter_gives_the_same_diagnos
     session = _session(sessions, TEST_MODELS / "drivetrain.yaml")
     rows, run = _rows(session, "none", seed=2)
     (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, cut, particles=500, seed=2)
-    assert any(isinstance(e, ev.Switched) for e in whole.events) and whole.options.method == "ckf"
+    assert any(isinstance(e, ev.Switched) for e in whole.events) and whole.options.filter == "ckf"
     assert bool(at_cut.switched) == (cut == 0.9)  # the alarm, and the switch, at step 6
     _equal(beliefs, later, "beliefs")
     _equal(whole, resumed, "diagnosis")

@@ -84,7 +84,7 @@ def noisy_tanks():
 
 @pytest.mark.slow
 def test_a_fault_model_the_symbols_ruled_out_is_weighed_before_another_is_named(noisy_tanks):
-    options = DiagnosisOptions(method="gpf", particles=500, seed=6, workers=1, switch=False)
+    options = DiagnosisOptions(filter="gpf", particles=500, seed=6, workers=1, switch=False)
     d = bgc.diagnose(noisy_tanks, scenario="R12:incipient:0.01@75", seed=6, options=options).diagnosis
     ruled_out = {h.name for h in d.hypotheses if h.ruled_out}
     assert "R12_incipient" in ruled_out, "the symbols rule the truth out on this run"

@@ -87,6 +87,8 @@ other sensors' (:func:`_noise_fit`).
 
 from __future__ import annotations
 
+from .. import arguments
+
 import math
 from dataclasses import dataclass
 
@@ -269,9 +271,11 @@ def check_steps(steps: int, num: Numerics, where: str) -> None:
     need = memory(steps, *_sizes(num))
     if need > MAX_BYTES:
         most = most_steps(num)
-        raise TrackingError(f"{where}: {steps} steps: bgc distinguish would take about {need / 1e9:.3g} GB for "
+        what = "bgc distinguish" if arguments.DOOR.get() == "cli" else "the prediction"
+        raise TrackingError(f"{where}: {steps} steps: {what} would take about {need / 1e9:.3g} GB for "
                             f"{num.equations.model.name} (at most {most} steps for this model)", None,
-                            f"give fewer steps, e.g. --steps {min(most, 300)}")
+                            "give fewer steps, e.g. " + arguments.spelled(f"steps={min(most, 300)}",
+                                                                          f"--steps {min(most, 300)}"))
 
 
 def _sizes(num: Numerics) -> tuple[int, int, int, int]:

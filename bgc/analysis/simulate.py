@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..arguments import spelled
 from ..compiler.rk4 import rk4_sample
 from ..errors import SimulationError, printable
 from ..ir import Numerics, Signal
@@ -175,45 +176,47 @@ def noise_free(num: Numerics, options: SimulationOptions) -> SimulationResult:
 _FAULT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([a-z]+):([-+0-9.eE]+)@([0-9.eE+]+)$")
 
 
-def parse_fault(text: str, num: Numerics) -> FaultInjection:
+def parse_fault(text: str, num: Numerics, what: str | None = None) -> FaultInjection:
     """``NAME:KIND:MAGNITUDE@TIME``: NAME a parameter (``R_pipe:incipient:0.5@165``),
     a measurement (a sensor fault, ``P_memb:bias:0.3@100``; ``P_memb:stuck:0@100``
     reads 0 from t = 100; ``P_memb:noise:4@100`` has five times its noise from
     t = 100) or an input (an actuator fault, ``u_pump:gain:-0.2@100``). The model need not list the
     fault among its candidates: a plant may fail in ways its model does not
-    foresee."""
+    foresee. ``what`` names the request in messages (default: ``--fault``, or
+    ``scenario`` from the Python API: :func:`bgc.arguments.spelled`)."""
     ssm = num.equations
     model = ssm.model
+    what = what or spelled("scenario", "--fault")
     m = _FAULT.match(text.strip())
     if not m:
-        raise SimulationError(f"--fault {text!r} is not NAME:KIND:MAGNITUDE@TIME", None,
+        raise SimulationError(f"{what} {text!r} is not NAME:KIND:MAGNITUDE@TIME", None,
                               "e.g. R_pipe:incipient:0.5@165, R_pipe:abrupt:31@165 or P_memb:bias:0.3@100")
     name, kind, mag, time = m.groups()
     targets = {**{i: "actuator" for i in ssm.inputs}, **{y: "sensor" for y in ssm.outputs},
                **{p.name: "parameter" for p in model.parameters}}
     if name not in targets:
-        raise SimulationError(f"--fault: '{name}' is no parameter, measurement or input of {model.name}", None,
+        raise SimulationError(f"{what}: '{name}' is no parameter, measurement or input of {model.name}", None,
                               "parameters: " + ", ".join(p.name for p in model.parameters)
                               + "; measurements: " + ", ".join(ssm.outputs)
                               + ("; inputs: " + ", ".join(ssm.inputs) if ssm.inputs else ""))
     target = targets[name]
     if kind not in FAULT_KINDS or target not in FAULT_KINDS[kind].targets:
-        raise SimulationError(f"--fault: {'unknown kind' if kind not in FAULT_KINDS else 'kind'} '{kind}'"
+        raise SimulationError(f"{what}: {'unknown kind' if kind not in FAULT_KINDS else 'kind'} '{kind}'"
                               f"{'' if kind not in FAULT_KINDS else f' does not apply to {target} {name}'}", None,
                               kinds_for(target))
     try:
         injection = FaultInjection(fault_kind(kind).parameter_of(name), kind, float(mag), float(time), target, name,
                                    text.strip())
     except ValueError:
-        raise SimulationError(f"--fault {text!r}: magnitude and time must be numbers", None,
+        raise SimulationError(f"{what} {text!r}: magnitude and time must be numbers", None,
                               "e.g. R_pipe:abrupt:31@165") from None
     if not (math.isfinite(injection.magnitude) and math.isfinite(injection.time)):
-        raise SimulationError(f"--fault {text!r}: magnitude and time must be finite numbers", None,
+        raise SimulationError(f"{what} {text!r}: magnitude and time must be finite numbers", None,
                               "e.g. R_pipe:abrupt:31@165")
     return injection
 
 
-def parse_scenario(scenario, num: Numerics) -> FaultInjection | None:
+def parse_scenario(scenario, num: Numerics, what: str | None = None) -> FaultInjection | None:
     """A scenario as a value, read once at the edge: ``none`` (fault-free:
     None), ``NAME:KIND:MAGNITUDE@TIME`` (:func:`parse_fault`), or a
     :class:`FaultInjection` already read, as it is."""
@@ -221,7 +224,7 @@ def parse_scenario(scenario, num: Numerics) -> FaultInjection | None:
         return scenario
     if scenario.strip().lower() == "none":
         return None
-    return parse_fault(scenario, num)
+    return parse_fault(scenario, num, what)
 
 
 def change_magnitude(num: Numerics, fault: str, change: float, span: float) -> float:
@@ -264,11 +267,11 @@ def check_steps(steps: int, num: Numerics, where: str) -> None:
     ssm = num.equations
     width = 2 * len(ssm.outputs) + len(ssm.states) + len(ssm.inputs) + 2
     if steps < 1:
-        raise SimulationError(f"{where}: {steps} steps", None, "simulate at least 1 step, e.g. --steps 300")
+        raise SimulationError(f"{where}: {steps} steps", None, f"simulate at least 1 step, e.g. {spelled('steps=300', '--steps 300')}")
     if steps > MAX_STEPS or steps * width * 8 > MAX_BYTES:
         raise SimulationError(f"{where}: {steps} steps is more than bgc simulates in one run "
                               f"(at most {min(MAX_STEPS, MAX_BYTES // (width * 8))} for this model)", None,
-                              "simulate fewer steps, e.g. --steps 300")
+                              f"simulate fewer steps, e.g. {spelled('steps=300', '--steps 300')}")
 
 
 def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
@@ -276,12 +279,13 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
     ssm = num.equations
     model = ssm.model
     steps = options.steps or model.settings.steps
-    check_steps(steps, num, "--steps" if options.steps else f"{model.source}: simulation.steps")
+    check_steps(steps, num, spelled("steps", "--steps") if options.steps else f"{model.source}: simulation.steps")
     dt = model.settings.dt
     fault = options.fault
     if fault is not None and not 0 <= fault.time < steps * dt:  # a fault from the start is a plant as it came
-        raise SimulationError(f"--fault {fault.parameter}:{fault.kind}: onset {fault.time:g} is outside the run (0 to "
-                              f"{steps * dt:g})", None, "choose an onset inside the run, or more --steps")
+        raise SimulationError(f"{spelled('scenario', '--fault')} {fault.text}: "
+                              f"onset {fault.time:g} is outside the run (0 to {steps * dt:g})", None,
+                              f"choose an onset inside the run, or more {spelled('steps', '--steps')}")
     noise = num.noise_at(options.process_noise, options.measurement_noise)
     substeps = num.substeps * TRUTH_REFINEMENT
     h = dt / substeps

@@ -114,7 +114,7 @@ def detector_rate(session: Session, injection: simulate.FaultInjection, steps: i
                 break
     low, high = wilson(detected, runs)
     return DetectorRate(runs, detected, false, low, high, float(np.median(delays)) if delays else None,
-                        opts.method, opts.particles, opts.false_alarm, opts.horizon, seed,
+                        opts.filter, opts.particles, opts.false_alarm, opts.horizon, seed,
                         session.view.model.settings.time_unit)
 
 

@@ -16,22 +16,22 @@ from ..data import runs
 from ..analysis import simulate
 from ..analysis import track
 from ..diagnosis.options import DiagnosisOptions
-from ..diagnosis.diagnose import diagnose as run_diagnosis
+from ..diagnosis.diagnose import IDENTIFY, diagnose as run_diagnosis
 from ..data.sampler import grid_steps
 from .limits import (METHODS, check_diagnosis_steps, check_options,
                      with_horizon)
 from .reports import DiagnosisReport
-from .session import Session, _session_of, input_signals
+from .session import Session, _session_of, input_signals, scenario_of
 
 
 def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = None,
              scenario: str | simulate.FaultInjection | None = None, *,
-             method: str = "gpf", particles: int = 1000, seed: int = 0,
+             filter: str | None = None, particles: int = 1000, seed: int = 0, identify: str = "kalman",
              process_noise: float | None = None, measurement_noise: float | None = None,
              steps: int | None = None, generated: str | Path | None = None,
              options: DiagnosisOptions | None = None, progress=None,
              prior_scale: float | None = None, backend: str | None = None, columns=None,
-             inputs: Mapping[str, Any] | None = None) -> DiagnosisReport:
+             inputs: Mapping[str, Any] | None = None, method: str | None = None) -> DiagnosisReport:
     """Diagnose ``data`` (a run file or a :class:`~bgc.data.runs.Run`) or a
     simulated ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, or ``none`` for a
     fault-free run) of ``model``.
@@ -51,8 +51,10 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         A fault to simulate, its onset inside the run (0 < TIME < the last
         sample's time), or ``none``; or the scenario already read
         (:func:`bgc.analysis.simulate.parse_scenario`).
-    method : {"gpf", "apf", "opf", "ckf"}
-        The filter (``bgc diagnose --filter``).
+    filter : {"gpf", "apf", "opf", "ckf"}
+        The filter (``bgc diagnose --filter``; a campaign's ``filters``):
+        a particle filter (the thesis's generic, auxiliary and optimal
+        proposal ones, default ``gpf``) or cubature Kalman filters.
     particles : int
         Particles of each filter, at least 1.
     seed : int
@@ -69,8 +71,16 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     generated : str or os.PathLike, optional
         The folder ``bgc compile -o`` wrote the package to (default: a
         private one generated for this call).
+    identify : {"kalman", "filter"}
+        Where the fault's size (and the hypotheses' weights) come from
+        (``--identify``): ``kalman`` (default) holds the magnitude static
+        on a grid of cubature Kalman filters, whatever the filter;
+        ``filter`` takes the particle filters' own magnitude state (the
+        thesis's method; not with ``filter="ckf"``). Each estimate says
+        which (:attr:`Estimate.method`; ``estimate_method`` in report.json):
+        compare filters with ``identify="filter"``.
     options : DiagnosisOptions, optional
-        Overrides ``method``, ``particles`` and the filters' seed.
+        Overrides ``filter``, ``particles``, ``identify`` and the filters' seed.
     progress : callable, optional
         ``progress(text)`` is told what is being done.
     prior_scale : float, optional
@@ -127,7 +137,9 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         both = "both" if data is not None else "neither"
         raise ArgumentValueError(f"{func}: give either data or a scenario, not {both}", None,
                                  "e.g. data='run.csv' or scenario='R_pipe:incipient:0.5@165'")
-    arguments.choice(func, "method", method, METHODS)
+    filter = arguments.renamed(func, "filter", filter, "method", method, "gpf")
+    arguments.choice(func, "filter", filter, METHODS)
+    arguments.choice(func, "identify", identify, IDENTIFY)
     arguments.integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
     arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
     arguments.noise_levels(func, process_noise, measurement_noise)
@@ -147,7 +159,10 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         check_options(options, func)
     arguments.callable_or_none(func, "progress", progress)
     say = progress or (lambda text: None)
-    opts = options or DiagnosisOptions(method=method, particles=particles, seed=seed)
+    if options is None:
+        options = DiagnosisOptions(filter=filter, particles=particles, seed=seed, identify=identify)
+        check_options(options, func)
+    opts = options
     length = steps if scenario is not None else (len(data.time) or None) if isinstance(data, runs.Run) else None
     work = (opts.particles, length)  # auto's estimate (a run file's length: the model's)
     session = _session_of(func, model, process_noise, measurement_noise, generated, say, prior_scale, backend, work)
@@ -169,16 +184,19 @@ def _scenario_run(session: Session, scenario, steps: int | None, seed: int, opts
     run, its length within the diagnosis's memory)."""
     c = session.view
     T = steps or c.model.settings.steps
-    where = "--steps" if steps is not None else f"{printable(c.model.source)}: simulation.steps"
+    where = arguments.spelled(f"bgc.diagnose: steps={steps}", "--steps") if steps is not None else \
+        f"{printable(c.model.source)}: simulation.steps"
     simulate.check_steps(T, c.numerics, where)
-    injected = simulate.parse_scenario(scenario, c.numerics)
+    injected = scenario_of("bgc.diagnose", scenario, c.numerics)
     text = scenario.strip() if isinstance(scenario, str) else scenario.text
     if injected is not None:
         last = T * c.model.settings.dt
         if not 0 < injected.time < last:
-            raise SimulationError(f"scenario {printable(text)}: onset {injected.time:g} is outside the "
-                                  f"run (0 to {last:g})", None, "choose an onset inside the run, or more --steps")
-    check_diagnosis_steps(T, c.numerics, opts.particles, opts.method, where, opts.history)
+            raise (SimulationError if arguments.DOOR.get() == "cli" else ArgumentValueError)(
+                f"{arguments.spelled('bgc.diagnose: scenario', 'scenario')} {printable(text)}: onset "
+                f"{injected.time:g} is outside the run (0 to {last:g})", None,
+                f"choose an onset inside the run, or more {arguments.spelled('steps', '--steps')}")
+    check_diagnosis_steps(T, c.numerics, opts.particles, opts.filter, where, opts.history)
     say("simulating the scenario")
     process_noise, measurement_noise = session.noise
     result = simulate.simulate(c.numerics, simulate.SimulationOptions(
@@ -192,7 +210,7 @@ def _recorded_run(session: Session, run: runs.Run, opts: DiagnosisOptions) -> ru
     within the diagnosis's memory."""
     c = session.view
     grid = grid_steps(run.time, c.model.settings.dt)  # the model's time grid: a gap's steps count too
-    check_diagnosis_steps(grid, c.numerics, opts.particles, opts.method,
+    check_diagnosis_steps(grid, c.numerics, opts.particles, opts.filter,
                           f"{printable(run.source)}: {len(run.time)} samples"
                           + (f" over {grid} steps of dt" if grid != len(run.time) else ""), opts.history)
     return run

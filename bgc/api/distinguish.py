@@ -20,7 +20,7 @@ from ..model import package as packages
 from . import cache
 from .folders import _LOCK
 from .reports import DistinguishabilityReport
-from .session import Session, input_signals
+from .session import Session, input_signals, scenario_of
 from .session import open as open_session
 from ..model.protocol import onset_sample
 
@@ -118,10 +118,11 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
     num = c.numerics
     signals = input_signals(func, inputs, c.model)
     if steps is not None:
-        simulate.check_steps(steps, num, "--steps")
+        simulate.check_steps(steps, num, arguments.spelled(f"{func}: steps={steps}", "--steps"))
     T = steps or c.model.settings.steps
     dt = c.model.settings.dt
-    where = "--steps" if steps is not None else f"{printable(c.model.source)}: simulation.steps"
+    where = arguments.spelled(f"{func}: steps", "--steps") if steps is not None else \
+        f"{printable(c.model.source)}: simulation.steps"
     distinction.check_steps(T, num, where)
     if scenario is None and not int(at * T) < T - 1:
         raise SimulationError(f"change {change:g} at {at:g} of the run", None,
@@ -131,7 +132,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
                               "list the faults to tell apart under 'faults' in the model file")
     times = dt * np.arange(1, T + 1)
     if scenario is not None:
-        inj = simulate.parse_scenario(scenario, num)
+        inj = scenario_of(func, scenario, num)
         if inj is None:
             raise SimulationError("a fault-free scenario has no fault to tell apart", None,
                                   "give a fault, e.g. R_pipe:incipient:0.5@165, or no scenario for every candidate")
@@ -142,7 +143,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
                                   "candidates: " + ", ".join(f"{f.parameter}:{f.kind}" for f in num.faults))
         if not 0 < inj.time <= times[-1]:
             raise SimulationError(f"onset {inj.time:g} is outside the run (0 to {times[-1]:g})", None,
-                                  "choose an onset inside the run, or more --steps")
+                                  f"choose an onset inside the run, or more {arguments.spelled('steps', '--steps')}")
         injected = [inj]
     else:
         injected = []

@@ -134,11 +134,12 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose") -> None
         raise ArgumentTypeError(f"{func}: options={arguments.shown(options)} is not a DiagnosisOptions", None,
                                 "give bgc.diagnosis.diagnose.DiagnosisOptions(...) or None")
     o = "options."
-    arguments.choice(func, o + "method", options.method, METHODS)
+    arguments.choice(func, o + "filter", options.filter, METHODS)
     arguments.integer(func, o + "particles", options.particles, None, "", "particles=1000")
-    if options.particles < 1:  # bgc diagnose hands --particles over in the options: the runtime's words
-        raise ArgumentValueError(f"--particles {options.particles}: at least 1 particle is needed", None,
-                                 "e.g. --particles 200, or DiagnosisOptions(particles=200)")
+    if options.particles < 1:  # bgc diagnose hands --particles over in the options: the option's name there
+        raise ArgumentValueError(f"{arguments.spelled(f'{func}: options.particles=', '--particles ')}"
+                                 f"{options.particles}: at least 1 particle is needed", None,
+                                 f"e.g. {arguments.spelled('DiagnosisOptions(particles=200)', '--particles 200')}")
     arguments.integer(func, o + "seed", options.seed, 0, "is negative", "seed=0")
     for name in ("false_alarm", "rejection", "interval"):
         arguments.real(func, o + name, getattr(options, name), 0.0, 1.0, "a probability strictly between 0 and 1")
@@ -157,6 +158,12 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose") -> None
     if options.spacing is not None:
         arguments.integer(func, o + "spacing", options.spacing, 1, "give at least 1", "spacing=4")
     arguments.choice(func, o + "identify", options.identify, IDENTIFY)
+    if options.filter == KALMAN_METHOD and options.identify == "filter":
+        raise ArgumentValueError(f"{arguments.spelled(f'{func}: options.identify', '--identify')}='filter' with "
+                                 f"{arguments.spelled('filter', '--filter')}='ckf': a cubature Kalman filter has no "
+                                 "particle filter of the magnitude to identify with", None,
+                                 "ckf's estimate is the static posterior's: identify='kalman' (the default), or a "
+                                 "particle filter, filter='gpf', 'apf' or 'opf'")
     for name in ("horizon", "gap"):
         if getattr(options, name) is not None:
             arguments.real(func, o + name, getattr(options, name), 0.0, MAX_TIME, "a time above 0 (the model's "
@@ -176,7 +183,7 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose") -> None
 def most_steps(num: Numerics, options: DiagnosisOptions) -> int:
     """The most steps a diagnosis of ``options`` may hold by the rule of
     :func:`check_diagnosis_steps` (a stream is stopped there)."""
-    fixed, per_step = diagnosis_memory(1, num, options.particles, options.method, options.history)
+    fixed, per_step = diagnosis_memory(1, num, options.particles, options.filter, options.history)
     return max(int((MAX_DIAGNOSIS_BYTES - fixed) // max(per_step, 1)), 1)
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -11,7 +12,7 @@ from typing import Any
 from .. import arguments
 from ..ir import NUMBA_PACKAGE
 from ..errors import (
-    ArgumentTypeError, ArgumentValueError, BgcError, TrackingError, printable,
+    ArgumentTypeError, ArgumentValueError, BgcError, SimulationError, TrackingError, printable,
 )
 from ..analysis import calibrate as calibration
 from ..data import runs
@@ -220,28 +221,31 @@ class Session:
         track.check_run_of(run, self.view.model.name)
         return run
 
-    def options(self, options: DiagnosisOptions | None = None, *, method: str = "gpf", particles: int = 1000,
+    def options(self, options: DiagnosisOptions | None = None, *, filter: str = "gpf", particles: int = 1000,
                 seed: int = 0, func: str = "bgc.Session.diagnoser") -> DiagnosisOptions:
-        """``options`` (checked; default: built from ``method``, ``particles``
+        """``options`` (checked; default: built from ``filter``, ``particles``
         and ``seed``) with the detector's horizon filled in (the model's run
         length when None)."""
         if options is None:
-            arguments.choice(func, "method", method, METHODS)
+            arguments.choice(func, "filter", filter, METHODS)
             arguments.integer(func, "particles", particles, 1, "at least 1 particle is needed", "particles=1000")
             arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
-            options = DiagnosisOptions(method=method, particles=particles, seed=seed)
+            options = DiagnosisOptions(filter=filter, particles=particles, seed=seed)
         check_options(options, func)
         return with_horizon(options, self.view.model.settings)
 
-    def diagnoser(self, options: DiagnosisOptions | None = None, *, method: str = "gpf", particles: int = 1000,
-                  seed: int = 0, inputs=None, sensors=None, source: str = "<stream>", progress=None) -> Diagnoser:
+    def diagnoser(self, options: DiagnosisOptions | None = None, *, filter: str | None = None, particles: int = 1000,
+                  seed: int = 0, inputs=None, sensors=None, source: str = "<stream>", progress=None,
+                  method: str | None = None) -> Diagnoser:
         """An online :class:`~bgc.diagnosis.diagnoser.Diagnoser` of this model:
         ``step(t, u, y)`` per sample, ``finish()`` at the end. ``inputs``,
         ``sensors``: the input and sensor names the data have (default: all
         of the model's sensors, and the inputs the first ``step`` gives);
-        ``source``: the data's name in messages."""
+        ``source``: the data's name in messages; ``filter``: as
+        :func:`bgc.diagnose`'s (``method``: its old name, deprecated)."""
         func = "bgc.Session.diagnoser"
-        opts = self.options(options, method=method, particles=particles, seed=seed, func=func)
+        filter = arguments.renamed(func, "filter", filter, "method", method, "gpf")
+        opts = self.options(options, filter=filter, particles=particles, seed=seed, func=func)
         arguments.text(func, "source", source)
         arguments.callable_or_none(func, "progress", progress)
         nominal = nominal_model(self.package)
@@ -401,3 +405,30 @@ def input_signals(func: str, inputs: Mapping[str, Any] | None, model) -> tuple:
     except BgcError as e:
         raise ArgumentValueError(e.what, None, e.fix) from None
     return tuple((name, given[name]) for name in names if name in given)
+
+
+def scenario_of(func: str, scenario, num):
+    """``scenario`` (text or a :class:`~bgc.analysis.simulate.FaultInjection`)
+    read once at the API's edge (:func:`bgc.analysis.simulate.parse_scenario`):
+    a malformed one is an :class:`~bgc.errors.ArgumentValueError` naming
+    ``func``'s argument (from the command line: the option, as typed). A
+    fault outside the model's candidates or its prior is a
+    :class:`ScenarioWarning` (Python's :mod:`warnings`)."""
+    from ..analysis import simulate
+
+    try:
+        injected = simulate.parse_scenario(scenario, num, arguments.spelled(f"{func}: scenario", "--scenario"))
+    except SimulationError as e:
+        if arguments.DOOR.get() == "cli":
+            raise
+        raise ArgumentValueError(e.what, e.loc, e.fix) from None
+    if injected is not None:
+        why = simulate.outside_prior(injected, num)
+        if why is not None and arguments.DOOR.get() != "cli":  # the command line says it its own way
+            warnings.warn(f"{func}: scenario {injected.text}: {why}", ScenarioWarning, stacklevel=3)
+    return injected
+
+
+class ScenarioWarning(UserWarning):
+    """A scenario the model's diagnoser would not expect: a fault outside
+    its candidates, or a magnitude outside the candidate's prior."""

@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     process, measurement = parse_noise(args.noise)
     progress = Progress()
     try:
-        options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed,
+        options = DiagnosisOptions(filter=args.filter, particles=args.particles, seed=args.seed,
                                    identify=args.identify, rank=args.rank, refine=args.refine,
                                    horizon=args.horizon, gap=args.gap, recheck=args.recheck)
         steps = args.steps if args.scenario is not None else rows_of(args.data)  # auto's estimate of the work

@@ -68,8 +68,11 @@ def _shows(shown):
 def main(argv: Sequence[str] | None = None) -> int:
     import warnings
 
+    from ..arguments import DOOR
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    DOOR.set("cli")  # messages name the options typed (bgc.arguments.spelled)
     shown = warnings.showwarning
     warnings.showwarning = _shows(shown)
     try:

@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         raise BgcError("--follow applies to a file: standard input ends when its writer closes it", None,
                        "drop --follow, or give the file")
     process, measurement = parse_noise(args.noise)
-    options = DiagnosisOptions(method=args.filter, particles=args.particles, seed=args.seed, horizon=args.horizon,
+    options = DiagnosisOptions(filter=args.filter, particles=args.particles, seed=args.seed, horizon=args.horizon,
                                gap=args.gap, recheck=args.recheck)
     rows = None if args.follow else rows_of(args.data)  # a stream followed, or standard input: not known
     session = api.open(args.model, process_noise=process, measurement_noise=measurement, generated=args.generated,

@@ -209,7 +209,7 @@ class Diagnoser:
         switched = ev.Switched(KALMAN_METHOD, "degenerate", degenerate.step)
         self.switched = (degenerate, switched)
         o = self.config.options
-        self.loop = self.replay(dataclasses.replace(o, method=KALMAN_METHOD, rank=False, refine=False),
+        self.loop = self.replay(dataclasses.replace(o, filter=KALMAN_METHOD, rank=False, refine=False),
                                 self.loop.config.every)
         if belief is None:
             return None

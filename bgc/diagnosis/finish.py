@@ -87,7 +87,7 @@ class Setting:
     @property
     def ckf(self) -> bool:
         """Whether the hypotheses are weighed by cubature Kalman filters alone (``--filter ckf``)."""
-        return self.options.method == "ckf"
+        return self.options.filter == "ckf"
 
 
 def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:

@@ -356,7 +356,7 @@ def track_job(name: str, starts, package, clouds: dict, options: DiagnosisOption
     the onsets ``starts`` (steps of the record; the job counts them from the
     earliest), with the nominal clouds before them."""
     f = min(starts)
-    return TrackJob(name, package.__name__, options.method, options.particles, f, tuple(s - f for s in starts),
+    return TrackJob(name, package.__name__, options.filter, options.particles, f, tuple(s - f for s in starts),
                     {s - f: hypothesis_seed(options.seed, name, s) for s in starts},
                     {s - f: cloud_before(clouds, s) for s in starts},
                     {s - f: rejection_options(options.rejection, options.windows, horizon, s) for s in starts},

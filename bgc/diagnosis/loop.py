@@ -102,7 +102,7 @@ class LoopConfig:
 
     @property
     def ckf(self) -> bool:
-        return self.options.method == KALMAN_METHOD
+        return self.options.filter == KALMAN_METHOD
 
 
 class Loop:
@@ -123,7 +123,7 @@ class Loop:
                                 "use them with --filter gpf, apf or opf; ckf computes the static posterior already")
         self.outputs = tuple(nominal.OUTPUTS)
         self.horizon = max(int(config.horizon), 1)
-        self.pf_class = filter_class(config.package, "gpf" if config.ckf else o.method)  # ckf: the open loop's
+        self.pf_class = filter_class(config.package, "gpf" if config.ckf else o.filter)  # ckf: the open loop's
         self.present = np.array([y in config.present for y in self.outputs])
         self.detector = Detector(tuple(y for y in self.outputs if y in config.present),
                                  DetectorOptions(o.false_alarm, o.windows, self.horizon))
@@ -228,7 +228,7 @@ class Loop:
             return None
         if o.switch:
             self.config.say("the particle filter degenerates: diagnosing again with cubature Kalman filters")
-        return ev.Degenerate(o.method, mean_ess, o.particles, o.switch, self.samples[-1].k)
+        return ev.Degenerate(o.filter, mean_ess, o.particles, o.switch, self.samples[-1].k)
 
     # -- isolation and tracking -----------------------------------------------------------------------------
 

@@ -5,7 +5,8 @@ its parts that have their own (the static posterior's grid,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import InitVar, dataclass
 
 from ..errors import ArgumentValueError
 
@@ -61,7 +62,7 @@ class DiagnosisOptions:
     :mod:`bgc.diagnosis.diagnoser`).
 
     **Filters** (the nominal observer and the hypotheses' filters):
-    ``method``: ``gpf``, ``apf``, ``opf`` (particle filters) or ``ckf`` (no
+    ``filter``: ``gpf``, ``apf``, ``opf`` (particle filters) or ``ckf`` (no
     particles: the nominal observer is the cubature Kalman filter, and every
     hypothesis the symbols keep goes to the static posterior directly, its
     consistency test dropping those that fail; ``particles`` then only sizes
@@ -126,7 +127,7 @@ class DiagnosisOptions:
     from the particle filters' marginal likelihood on ``grid`` (about three
     times slower; off by default)."""
 
-    method: str = "gpf"
+    filter: str = "gpf"
     particles: int = 1000
     seed: int = 0
     false_alarm: float = 0.01
@@ -152,11 +153,19 @@ class DiagnosisOptions:
     switch: bool = True
     horizon: float | None = None
     gap: float | None = None
+    #: The filter's old name (``method=``): accepted with a :class:`DeprecationWarning` (read ``filter``).
+    method: InitVar[str | None] = None
+
+    def __post_init__(self, method: str | None) -> None:
+        if method is not None:
+            warnings.warn("DiagnosisOptions(method=...) is deprecated: the filter is named filter= (as --filter and "
+                          "a campaign's filters:)", DeprecationWarning, stacklevel=3)
+            object.__setattr__(self, "filter", method)
 
 
 #: The options of each stage of the loop (every field of DiagnosisOptions in one).
 STAGES = {
-    "filters": ("method", "particles", "seed", "shrinkage", "switch", "workers"),
+    "filters": ("filter", "particles", "seed", "shrinkage", "switch", "workers"),
     "data": ("gap",),
     "detection": ("false_alarm", "horizon", "windows"),
     "isolation": ("symbol_steps", "history", "search", "spacing", "near"),

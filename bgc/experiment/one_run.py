@@ -90,7 +90,7 @@ def run_one(spec: RunSpec, backend: str = "numpy") -> dict[str, Any]:
     row: dict[str, Any] = dict.fromkeys(COLUMNS)
     row.update(spec.identity())
     try:
-        options = DiagnosisOptions(method=spec.filter, particles=spec.particles, seed=spec.seed, workers=1,
+        options = DiagnosisOptions(filter=spec.filter, particles=spec.particles, seed=spec.seed, workers=1,
                                    refine=spec.refine, switch=False)  # a campaign measures the filter it names
         session = _session(spec, spec.process_noise, spec.measurement_noise, backend)
         report = api.diagnose(session, scenario=_scenario(spec), seed=spec.seed, steps=spec.steps,

@@ -1,4 +1,4 @@
-"""The filters by their short names (``--filter``, ``method=``): one registry."""
+"""The filters by their short names (``--filter``, ``filter=``): one registry."""
 
 from __future__ import annotations
 

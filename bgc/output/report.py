@@ -103,7 +103,7 @@ def report_data(r) -> dict[str, Any]:
                  "injected": None if r.injected is None else {
                      "parameter": r.injected.parameter, "kind": r.injected.kind,
                      "magnitude": _num(r.injected.magnitude), "time": _num(r.injected.time)}},
-        "settings": {"filter": d.options.method, "particles": d.options.particles, "seed": d.options.seed,
+        "settings": {"filter": d.options.filter, "particles": d.options.particles, "seed": d.options.seed,
                      "identify": d.options.identify,
                      "false_alarm_per_horizon": d.options.false_alarm, "rejection": d.options.rejection,
                      "horizon": _num(d.options.horizon) if d.options.horizon is not None else None,
@@ -202,11 +202,11 @@ def heading(r, quote: Callable[[Any], str] = _same) -> tuple[str, str, str]:
     how = {"kalman": "magnitudes and hypotheses weighed with the magnitude held static (cubature Kalman filters "
                      "on a grid of onsets and magnitudes)",
            "filter": "magnitudes from the particle filters' own magnitude state"}[d.options.identify]
-    if d.options.method == "ckf":
+    if d.options.filter == "ckf":
         how = (f"Filter: CKF (cubature Kalman filters: the nominal observer, and every hypothesis with its "
                f"magnitude held static on a grid of onsets and magnitudes); {noise}.")
     else:
-        how = (f"Filter: {d.options.method.upper()}, {d.options.particles} particles, seed {d.options.seed}; "
+        how = (f"Filter: {d.options.filter.upper()}, {d.options.particles} particles, seed {d.options.seed}; "
                f"{noise}; {how}.")
     return title, data, how
 

@@ -203,7 +203,7 @@ def expected(d) -> dict:
     return {
         "verdict": d.verdict,
         "candidates": list(d.candidates),
-        "method": d.options.method,  # ckf when the particle observer degenerated and the diagnosis switched
+        "method": d.options.filter,  # ckf when the particle observer degenerated and the diagnosis switched
         "detection": None if det is None else {"step": det.step, "sensor": det.sensor, "window": det.window,
                                                "change_point": det.onset, "statistic": f(det.statistic)},
         "onset": d.onset,
