@@ -118,7 +118,7 @@ def test_the_default_filter_and_particles(tmp_path):
     """The options', the command line's and a campaign's defaults agree, and the docs say them."""
     from bgc.experiment.campaign_file import load_campaign
 
-    method, particles = DEFAULT.method, DEFAULT.particles
+    method, particles = DEFAULT.filter, DEFAULT.particles
     parser = build_parser()
     for args in (["diagnose", "m"], ["monitor", "m", "--data", "-"]):
         parsed = parser.parse_args(args)
