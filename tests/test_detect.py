@@ -58,7 +58,7 @@ def test_a_jump_is_caught_at_once_and_its_onset_found():
     z[120:, 1] += 6.0  # a jump of 6 sigma on sensor b at step 120
     det = Detector(("a", "b", "c"), DetectorOptions(steps=300))
     alarm = next(a for k in range(300) if (a := det.update(z[k])) is not None)
-    assert alarm.sensor == "b" and 120 <= alarm.step <= 122 and abs(alarm.onset - 120) <= 1
+    assert alarm.sensor == "b" and 120 <= alarm.step <= 122 and abs(alarm.onset_step - 120) <= 1
 
 
 def test_a_small_persistent_shift_is_caught_by_a_long_window_and_its_onset_found():
@@ -70,7 +70,7 @@ def test_a_small_persistent_shift_is_caught_by_a_long_window_and_its_onset_found
     det = Detector(("a", "b", "c"), DetectorOptions(steps=300))
     alarm = next(a for k in range(300) if (a := det.update(z[k])) is not None)
     assert alarm.sensor == "a" and alarm.window > 1 and 150 <= alarm.step <= 180
-    assert abs(alarm.onset - 150) <= 10
+    assert abs(alarm.onset_step - 150) <= 10
 
 
 def test_missing_samples_do_not_alarm():
@@ -163,7 +163,7 @@ def test_a_detector_bank_gives_each_row_what_its_own_detector_gives(seed):
         for i, r in enumerate(rows):
             want = alone[r].update(z[i], mc[i])
             if want is not None and not locate[i]:
-                want = dataclasses.replace(want, onset=None)
+                want = dataclasses.replace(want, onset_step=None)
             assert got[i] == want, (k, r)
             alarms += want is not None
     assert alarms > 10

@@ -34,7 +34,7 @@ def test_ro_abrupt_pipe_blockage_is_detected_at_once_isolated_and_sized():
     fault's sample, and the bias is within 10 % of 31, its interval covering it."""
     d = run("ro", "R_pipe:abrupt:31@165", seed=3)
     assert d.verdict == "isolated" and d.candidates == ("R_pipe_abrupt",)
-    assert 165 <= d.time_of(d.detection.step) <= 170 and abs(d.time_of(d.onset) - 165) <= 2
+    assert 165 <= d.time_of(d.detection.step) <= 170 and abs(d.onset - 165) <= 2
     e = d.estimate
     assert abs(e.value - 31.0) < 0.1 * 31.0 and e.low <= 31.0 <= e.high
     assert e.parameter_value == pytest.approx(69.0 + e.value, rel=0.05)
@@ -56,7 +56,7 @@ def test_ro_incipient_pipe_blockage_its_slope_and_onset():
         d = run("ro", "R_pipe:incipient:0.5@165", seed=seed)
         assert d.candidates[0] == "R_pipe_incipient" and d.verdict in ("isolated", "ambiguous")
         assert d.time_of(d.detection.step) > 170
-        onset_errors.append(abs(d.time_of(d.onset) - 165))
+        onset_errors.append(abs(d.onset - 165))
         e = d.estimate
         slope_errors.append(abs(e.value - 0.5) / 0.5)
         covered += e.low <= 0.5 <= e.high
@@ -365,7 +365,7 @@ def test_a_drift_found_long_after_it_began_gets_its_onset_grid_extended_back():
     assert d.candidates[0] == "R3_incipient"
     h = d.best
     assert min(h.static.onsets) < d.detection.step - 64
-    assert abs(h.onset - 106) <= 12 and d.onset == h.onset, h.onset
+    assert abs(h.onset_step - 106) <= 12 and d.onset_step == h.onset_step, h.onset_step
     circuit = fast_session("circuit")  # as run() above
     one = bgc.diagnose(circuit, scenario="R3:incipient:0.0308906@5.3", seed=473362393,
                        options=DiagnosisOptions(seed=473362393, workers=1)).diagnosis
@@ -491,7 +491,7 @@ def test_a_drifts_onset_is_marginalised_sample_by_sample_where_its_posterior_is(
                      scenario=f"R_a:incipient:{truth}@93", seed=2937888235,
                      options=DiagnosisOptions(filter=method, particles=500, seed=2937888235, workers=1)).diagnosis
     assert d.candidates == ("R_a_incipient",)
-    assert d.time_of(d.onset) == 93
+    assert d.onset == 93 and d.time_of(d.onset_step) == 93
     e = d.estimate
     assert e.low <= truth <= e.high
 
@@ -564,7 +564,7 @@ def test_cubature_kalman_filters_alone_isolate_and_size_a_fault_the_particle_fil
                      options=DiagnosisOptions(filter="ckf", seed=1, workers=1)).diagnosis
     assert d.detection.step > 160 + 20 and d.candidates[0] == "g_m_abrupt"
     e = d.estimate
-    assert abs(e.value + 0.2) < 0.02 and e.low <= -0.2 <= e.high and abs(d.onset - 160) <= 3
+    assert abs(e.value + 0.2) < 0.02 and e.low <= -0.2 <= e.high and abs(d.onset_step - 160) <= 3
     best = d.best
     assert best.x_mean.shape == (len(d.time) - best.start, len(d.states)) and np.isfinite(best.magnitude).all()
 

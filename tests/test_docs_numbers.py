@@ -84,7 +84,7 @@ def test_a_steps_onset_window():
     """The loop's own window (its +2 is inline in _onsets): the README once
     said -5, docs/commands.md kept it."""
     near = _onsets(DEFAULT, ALARM, STEPS)[1]
-    before, after = ALARM.onset - min(near), max(near) - ALARM.onset
+    before, after = ALARM.onset_step - min(near), max(near) - ALARM.onset_step
     assert before == DEFAULT.near
     check(r"change point -(\d+) to \+(\d+) samples", (before, after))
     check(r"(\d+) before (?:it )?to (\d+) after", (before, after), places=2)
@@ -152,7 +152,7 @@ def _spacing(options: DiagnosisOptions) -> int:
     """The particle filters' spacing of a drift's onsets near the alarm, as
     the loop lays them (inline in _onsets: 8 with the Kalman filters, else 4)."""
     reach = _onsets(options, ALARM, STEPS)[0]  # also the change point and the sample before it
-    return min(ALARM.step - k for k in reach if k < ALARM.step and k not in (ALARM.onset - 1, ALARM.onset))
+    return min(ALARM.step - k for k in reach if k < ALARM.step and k not in (ALARM.onset_step - 1, ALARM.onset_step))
 
 
 def test_a_drifts_onset_grid():

@@ -316,7 +316,7 @@ def test_a_burst_of_noise_on_f12_is_named_sized_and_dated(session):
     d = r.diagnosis
     assert d.verdict == "isolated" and d.candidates == (NAME,)
     assert d.estimate.low <= 4.0 <= d.estimate.high
-    assert r.run.time[d.detection.step] > 75.0 and abs(r.run.time[d.best.onset] - 60.0) <= 5.0
+    assert r.run.time[d.detection.step] > 75.0 and abs(r.run.time[d.best.onset_step] - 60.0) <= 5.0
     m = metrics.measure(d, r.run, metrics.Truth("F12_noise", "noise", 4.0, 60.0))
     assert m.right and m.covers
     words = report.plain_words(d)[0]

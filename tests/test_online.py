@@ -157,7 +157,7 @@ def test_every_fifth_row_dropped_keeps_the_time_and_the_diagnosis():
     assert len(d.time) == len(run.time) and d.data.unsampled == (~keep).sum()
     assert not any(isinstance(e, events.Gap) for e in d.events)  # one step at a time: under the gap limit
     assert d.verdict == "isolated" and d.candidates == ("R2_abrupt",)
-    assert d.time_of(d.onset) == pytest.approx(5.0, abs=0.1)
+    assert d.onset == pytest.approx(5.0, abs=0.1)
     assert d.estimate.low <= 0.6 <= d.estimate.high
 
 

@@ -176,7 +176,7 @@ def _diagnosed(start: float):
     t = start + np.arange(50.0)
     y = np.sin(np.arange(50.0) / 8)[:, None]
     h = types.SimpleNamespace(name="R1_abrupt", posterior=0.9, dropped=None, start=10, y_mean=y[10:] + 0.1)
-    d = types.SimpleNamespace(model="m", outputs=("y1",), time=t, hypotheses=[h], onset=10,
+    d = types.SimpleNamespace(model="m", outputs=("y1",), time=t, hypotheses=[h], onset_step=10,
                               detection=types.SimpleNamespace(step=12))
     run = types.SimpleNamespace(time=t, measurements={"y1": y[:, 0]})
     return types.SimpleNamespace(diagnosis=d, run=run, labels=Labels("s"))

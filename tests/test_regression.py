@@ -142,19 +142,19 @@ def test_a_refactor_does_not_change_the_diagnosis(case):
     else:
         det, want = d.detection, e["detection"]
         assert det is not None
-        assert (det.step, det.sensor, det.window, det.onset) == (want["step"], want["sensor"], want["window"],
+        assert (det.step, det.sensor, det.window, det.onset_step) == (want["step"], want["sensor"], want["window"],
                                                                  want["change_point"])
         assert same(det.statistic, want["statistic"]), (det.statistic, want["statistic"])
-    assert d.onset == e["onset"]
+    assert d.onset_step == e["onset"]
     assert [f"{s.sensor}/{s.sign}/{s.slope}" for s in d.symbols] == e["symbols"]
     assert [signature for signature, _ in d.refuted] == e["refuted"]
     assert note_kinds(d) == sorted(e["note_kinds"]), d.events
     assert [h.name for h in d.hypotheses] == [h["name"] for h in e["hypotheses"]]
     wrong = []
     for h, want in zip(d.hypotheses, e["hypotheses"]):
-        if (h.dropped, h.start, h.onset, h.estimate.magnitude) != (want["dropped"], want["start"], want["onset"],
+        if (h.dropped, h.start, h.onset_step, h.estimate.magnitude) != (want["dropped"], want["start"], want["onset"],
                                                                    want["estimate"]["magnitude"]):
-            wrong.append(f"{h.name}: dropped/start/onset/magnitude {(h.dropped, h.start, h.onset, h.estimate.magnitude)}"
+            wrong.append(f"{h.name}: dropped/start/onset/magnitude {(h.dropped, h.start, h.onset_step, h.estimate.magnitude)}"
                          f" != {(want['dropped'], want['start'], want['onset'], want['estimate']['magnitude'])}")
         numbers = {"posterior": h.posterior, "log_evidence": h.log_evidence,
                    **{k: getattr(h.estimate, k) for k in ("value", "std", "low", "high", "parameter_value")}}

@@ -155,7 +155,7 @@ def write_report(r, output: str, command: str) -> Path:
     print(f"{r.model}: {d.verdict}" + (f": {', '.join(d.candidates)}" if d.candidates else ""))
     if d.detection is not None:
         print(f"  detected at t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}), "
-              f"onset t = {events.time_text(d.time_of(d.onset))}")  # a logger's Unix time in full
+              f"onset t = {events.time_text(d.onset)}")  # a logger's Unix time in full
     for line in report.plain_words(d, r.labels):
         print(f"  {printable(line)}")
     e = d.estimate

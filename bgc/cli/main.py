@@ -72,7 +72,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
-    DOOR.set("cli")  # messages name the options typed (bgc.arguments.spelled)
+    door = DOOR.set("cli")  # messages name the options typed (bgc.arguments.spelled), until main returns
     shown = warnings.showwarning
     warnings.showwarning = _shows(shown)
     try:
@@ -100,3 +100,4 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     finally:
         warnings.showwarning = shown
+        DOOR.reset(door)

@@ -102,19 +102,19 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
               if r.present[j] and not np.isfinite(r.ys[:, j]).any()]
     if r.detection is None:
         events = list(r.events) + silent + [ev.Decided(T - 1, "no fault", ())]
-        return Diagnosis(verdict="no fault", detection=None, onset=None, symbols=(), refuted=(), hypotheses=(),
+        return Diagnosis(verdict="no fault", detection=None, onset_step=None, symbols=(), refuted=(), hypotheses=(),
                          candidates=(), events=ordered(events), **common)
     iso = r.isolation
     hyps, posteriors, observer, rescued = tracked(r, s, truth)
     more, static = rechecked(r, s, truth, hyps, posteriors, observer)
     hyps, verdict, candidates, weighing = weighed(hyps + more, {**posteriors, **static}, r, s)
     events = list(r.events) + silent + rescued + weighing
-    best_onset = next((h.onset for h in hyps if candidates and h.name == candidates[0]), iso.onset)
+    best_onset = next((h.onset_step for h in hyps if candidates and h.name == candidates[0]), iso.onset)
     s.say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
     events += refined(r.events, candidates, best_onset, T - 1)
     events.append(ev.Decided(T - 1, verdict, candidates))
     final = [e for e in events if not isinstance(e, ev.Stopped)]  # the online drops: decided anew above
-    return Diagnosis(verdict=verdict, detection=r.detection, onset=best_onset, symbols=iso.symbols,
+    return Diagnosis(verdict=verdict, detection=r.detection, onset_step=best_onset, symbols=iso.symbols,
                      refuted=iso.refuted, hypotheses=hyps, candidates=candidates, events=ordered(final), **common)
 
 

@@ -208,7 +208,7 @@ class Loop:
         self.detection = detection
         self.config.say(f"fault detected at t = {self.samples[detection.step].t:.12g} on {detection.sensor}")
         self.events.append(ev.Alarmed(detection.step, detection.sensor, detection.window, detection.statistic,
-                                      detection.threshold, detection.onset))
+                                      detection.threshold, detection.onset_step))
         degenerate = self.degenerate()
         if degenerate is not None:
             self.events.append(degenerate)
@@ -356,7 +356,7 @@ def isolate(config: LoopConfig, pf_class, detection, clouds: dict, ys: np.ndarra
     o, T, package = config.options, len(ys), config.package
     reach, near, kalman_reach, onsets, kalman_onsets = _onsets(o, detection, T)
     config.say("reading the symbols of the deviating sensors")
-    onset = detection.onset
+    onset = detection.onset_step
     steps = min(T - onset, detection.step - onset + 1 + o.symbol_steps)
     cloud = gaussian_cloud(observer, onset, o) if config.ckf else cloud_before(clouds, onset)
     seen = observed_symbols(open_loop(package, pf_class, nominal_model(package), cloud, ys, us, onset, steps, o),
@@ -389,11 +389,11 @@ def _onsets(o: DiagnosisOptions, detection, T: int):
     spacing = o.spacing or (8 if o.identify == "kalman" else 4)
 
     def first_tried(reach: list[int]) -> list[int]:  # a drift's onsets near the alarm, and the change point
-        return [k for k in reach if k >= detection.step - o.search or detection.onset - 1 <= k <= detection.onset]
+        return [k for k in reach if k >= detection.step - o.search or detection.onset_step - 1 <= k <= detection.onset_step]
 
-    reach = drift_onsets(detection.step, detection.onset, spacing, o.history)
-    near = {k for k in range(detection.onset - o.near, detection.onset + 3) if 0 <= k <= detection.step + 1 and k < T}
-    kalman_reach = drift_onsets(detection.step, detection.onset, o.kalman.spacing, o.history)
+    reach = drift_onsets(detection.step, detection.onset_step, spacing, o.history)
+    near = {k for k in range(detection.onset_step - o.near, detection.onset_step + 3) if 0 <= k <= detection.step + 1 and k < T}
+    kalman_reach = drift_onsets(detection.step, detection.onset_step, o.kalman.spacing, o.history)
     kalman_onsets = {True: first_tried(kalman_reach), False: sorted(near)}
     onsets = {True: first_tried(reach), False: sorted(near)}
     return reach, near, kalman_reach, onsets, kalman_onsets

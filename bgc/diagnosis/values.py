@@ -121,8 +121,9 @@ class Hypothesis:
         return "" if self.drop is None else self.drop.reason
 
     @property
-    def onset(self) -> int:
-        """The most probable onset: the static posterior's when there is one, else the filters'."""
+    def onset_step(self) -> int:
+        """The most probable onset, a step of the run's time grid: the static
+        posterior's when there is one, else the filters'."""
         return self.static.onset if self.static is not None and math.isfinite(self.static.log_evidence) else self.start
 
 
@@ -145,7 +146,7 @@ class Diagnosis:
     states: tuple[str, ...]
     verdict: str
     detection: Detection | None
-    onset: int | None
+    onset_step: int | None
     symbols: tuple[Symbol, ...]
     refuted: tuple[tuple[str, str], ...]
     hypotheses: tuple[Hypothesis, ...]
@@ -171,6 +172,12 @@ class Diagnosis:
     @property
     def estimate(self) -> Estimate | None:
         return self.best.estimate if self.best is not None else None
+
+    @property
+    def onset(self) -> float | None:
+        """The diagnosed fault's onset, in the model's time unit (None: no
+        fault); ``onset_step`` is its step of the time grid."""
+        return self.time_of(self.onset_step)
 
     def time_of(self, step: int | None) -> float | None:
         return None if step is None else float(self.time[step])
@@ -262,7 +269,7 @@ class Isolation:
 class Detection:
     """An alarm: at step ``step`` (index into the run), on ``sensor`` (its
     name) with window ``window`` and statistic ``statistic`` (|S| > threshold);
-    ``onset``: the estimated first faulty step (None: not estimated, see
+    ``onset_step``: the estimated first faulty step (None: not estimated, see
     :meth:`DetectorBank.update`)."""
 
     step: int
@@ -270,7 +277,7 @@ class Detection:
     window: int
     statistic: float
     threshold: float
-    onset: int | None
+    onset_step: int | None
 
 
 @dataclass(frozen=True, slots=True)

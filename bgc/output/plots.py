@@ -290,15 +290,15 @@ def _with_band(ax, t, mean, std, color: str, style: str) -> None:
 # ------------------------------------------------------------------ diagnosis
 def _marks(ax, d, clock: TimeAxis) -> None:
     """Vertical marks: onset (dashed) and detection (solid)."""
-    if d.onset is not None:
-        ax.axvline(clock(d.time[d.onset]), color=GREY, ls="--", lw=0.9)
+    if d.onset_step is not None:
+        ax.axvline(clock(d.time[d.onset_step]), color=GREY, ls="--", lw=0.9)
     if d.detection is not None:
         ax.axvline(clock(d.time[d.detection.step]), color=DETECTION, ls="-", lw=0.9)
 
 
 def _mark_handles(d) -> list:
     """The legend entries of :func:`_marks`."""
-    return ([_line("onset", GREY, "--")] if d.onset is not None else []) + \
+    return ([_line("onset", GREY, "--")] if d.onset_step is not None else []) + \
         ([_line("detection", DETECTION)] if d.detection is not None else [])
 
 
@@ -434,7 +434,7 @@ def _estimate(ax, d, h, clock: TimeAxis) -> None:
     ax.fill_between(t, h.magnitude_band[:, 0], h.magnitude_band[:, 1], color=CYCLE[0], alpha=0.2, lw=0,
                     label=f"{level} interval" + (" (particle filter)" if static else ""))
     if static:
-        span = clock(d.time[h.onset:])
+        span = clock(d.time[h.onset_step:])
         ax.plot(span, np.full(len(span), e.value), "--", lw=1.4, color=CYCLE[1],
                 label=("static posterior (Kalman filters)" if e.method == "kalman"
                        else "grid posterior (particle filters)") + ",\nfrom its onset")

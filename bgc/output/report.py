@@ -116,8 +116,8 @@ def report_data(r) -> dict[str, Any]:
         "detection": None if det is None else {
             "time": _time(_t(d, det.step)), "sensor": det.sensor, "window": det.window,
             "statistic": _num(det.statistic), "threshold": _num(det.threshold),
-            "onset_change_point": _time(_t(d, det.onset))},
-        "onset": _time(_t(d, d.onset)),
+            "onset_change_point": _time(_t(d, det.onset_step))},
+        "onset": _time(_t(d, d.onset_step)),
         "symbols": [{"sensor": s.sensor, "sign": s.sign, "time": _time(_t(d, s.step)), "window": s.window,
                      "statistic": _num(s.statistic), "slope": s.slope or None,
                      "slope_statistic": _num(s.slope_statistic)} for s in d.symbols],
@@ -139,7 +139,7 @@ def report_data(r) -> dict[str, Any]:
         e = h.estimate
         out["hypotheses"].append({
             "model": h.name, "parameter": h.parameter, "kind": h.kind, "signatures": list(h.signatures),
-            "onset": _time(_t(d, h.onset)), "filter_onset": _time(_t(d, h.start)), "posterior": _num(h.posterior),
+            "onset": _time(_t(d, h.onset_step)), "filter_onset": _time(_t(d, h.start)), "posterior": _num(h.posterior),
             "log_evidence": _num(h.log_evidence), "static_log_evidence": _num(h.static_log_evidence),
             "dropped": None if h.dropped is None else {"time": _time(_t(d, h.dropped)), "why": h.reason,
                                                        "reason": _drop_reason(d, h.name)},
@@ -174,7 +174,7 @@ def plain_words(d, labels: Labels = Labels()) -> list[str]:
     if d.verdict == "no fault" or not d.candidates:
         return []
     by = {h.name: h for h in d.hypotheses}
-    words = [events.fault_sentence(by[n].estimate, d.time_of(by[n].onset), labels.per_time)
+    words = [events.fault_sentence(by[n].estimate, d.time_of(by[n].onset_step), labels.per_time)
              for n in d.candidates if n in by]
     if d.verdict == "ambiguous":
         return [("either " if i == 0 else "or ") + w for i, w in enumerate(words)]
@@ -264,8 +264,8 @@ def detection_lines(d, labels: Labels = Labels()) -> list[str]:
     return [f"alarm at t = {_tt(d, det.step)}: sensor {det.sensor}, window of {det.window} sample(s), "
             f"|Z| = {det.statistic:.2f} > {det.threshold:.2f} (false-alarm probability "
             f"{d.options.false_alarm:g} per {_per(d, labels)})",
-            f"change point of the residuals: t = {_tt(d, det.onset)}; onset of the diagnosis: "
-            f"t = {_tt(d, d.onset)}"]
+            f"change point of the residuals: t = {_tt(d, det.onset_step)}; onset of the diagnosis: "
+            f"t = {_tt(d, d.onset_step)}"]
 
 
 #: The columns of :func:`hypothesis_rows`.
@@ -281,7 +281,7 @@ def hypothesis_rows(d, labels: Labels = Labels()) -> list[tuple[str, ...]]:
         e = h.estimate
         unit = f" {u}" if (u := magnitude_unit(h, labels)) else ""
         truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
-        rows.append((h.name, _tt(d, h.onset), f"{h.posterior:.3g}", f"{e.magnitude} {e.value:.4g}{unit}{truth}",
+        rows.append((h.name, _tt(d, h.onset_step), f"{h.posterior:.3g}", f"{e.magnitude} {e.value:.4g}{unit}{truth}",
                      f"[{e.low:.4g}, {e.high:.4g}]{unit}", "-" if h.dropped is None else f"t = {_tt(d, h.dropped)}",
                      h.reason))
     return rows
@@ -307,7 +307,7 @@ def identification_lines(d, labels: Labels = Labels()) -> list[tuple[str, str | 
         at_end = f" {e.unit}" if e.unit else ""
         line = (f"{name}: {what}: {e.magnitude} {e.value:.4g} +- {e.std:.2g}{unit}, "
                 f"{100 * e.level:.0f} % interval [{e.low:.4g}, {e.high:.4g}]{unit}, {e.parameter} at the "
-                f"end {e.parameter_value:.4g}{at_end}, onset t = {_tt(d, h.onset)}{truth}"
+                f"end {e.parameter_value:.4g}{at_end}, onset t = {_tt(d, h.onset_step)}{truth}"
                 + {"grid": " (grid posterior of the particle filters' marginal likelihood)",
                    "kalman": " (with the magnitude held static: cubature Kalman filters on a grid)",
                    "filter": ""}[e.method])

@@ -148,7 +148,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
                     tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)], time_of)
                     faulty = _faulty_sensor(c, sensors) if exclude_faulty else None
                     if faulty is not None:
-                        out = ev.SensorExcluded(faulty, fault_sentence(c.estimate, c.time_of(c.onset),
+                        out = ev.SensorExcluded(faulty, fault_sentence(c.estimate, c.onset,
                                                                      session.view.labels.per_time), belief.time)
                         excluded.append(out)
                         taken_out.add(faulty)

@@ -205,8 +205,8 @@ def expected(d) -> dict:
         "candidates": list(d.candidates),
         "method": d.options.filter,  # ckf when the particle observer degenerated and the diagnosis switched
         "detection": None if det is None else {"step": det.step, "sensor": det.sensor, "window": det.window,
-                                               "change_point": det.onset, "statistic": f(det.statistic)},
-        "onset": d.onset,
+                                               "change_point": det.onset_step, "statistic": f(det.statistic)},
+        "onset": d.onset_step,
         "symbols": [f"{s.sensor}/{s.sign}/{s.slope}" for s in d.symbols],
         "refuted": [signature for signature, _ in d.refuted],  # the signatures the symbols ruled out
         "note_kinds": note_kinds(d),
@@ -216,7 +216,7 @@ def expected(d) -> dict:
             "dropped": h.dropped,
             "reason": h.reason,
             "start": h.start,
-            "onset": h.onset,
+            "onset": h.onset_step,
             "posterior": f(h.posterior),
             "log_evidence": f(h.log_evidence),
             "estimate": {"magnitude": h.estimate.magnitude, "value": f(h.estimate.value),
@@ -283,7 +283,7 @@ def main(argv=None) -> int:
         out.append(entry)
         e = entry["expected"]
         print(f"{c['name']:55s} {e['method']:3s} {d.verdict:11s} {','.join(d.candidates):40s} "
-              f"det={e['detection'] and e['detection']['step']} onset={d.onset} notes={e['note_kinds']} "
+              f"det={e['detection'] and e['detection']['step']} onset={d.onset_step} notes={e['note_kinds']} "
               f"{seconds:.1f} s", flush=True)
     corpus = {
         "about": "Diagnoses recorded by tests/regression/record.py with the code of the commit that adds this "
