@@ -22,8 +22,8 @@ fault), this gives the rows a campaign run at this checkout would give,
 without running the diagnoses again.
 
 The old file is kept beside the new one as ``runs.csv.before-repredict``
-(a new file: the script refuses if it exists). The script only rewrites a
-``runs.csv`` bgc wrote (its first line carries bgc's mark).
+(a new file: the script refuses if it exists). The script only rewrites the
+``runs.csv`` of a folder ``bgc experiment`` wrote (its ``manifest.json``).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 
 from bgc.experiment import campaign_file, one_run, runs_csv
-from bgc.output.artifacts import MARK  # noqa: E402
+from bgc.output import artifacts  # noqa: E402
 
 COLUMNS = ("separable", "rivals", "separation", "detectability")
 
@@ -55,10 +55,11 @@ def main() -> int:
     kept = args.folder / "runs.csv.before-repredict"
     if args.check is not None:
         return check(args.config, runs, kept, args.check)
-    with open(runs, encoding="utf-8") as f:
-        if MARK not in f.readline():
-            print(f"{runs}: not a runs.csv bgc wrote (no '{MARK}' on its first line): left alone", file=sys.stderr)
-            return 1
+    m = artifacts.read_manifest(args.folder)
+    if m is None or artifacts.manifest_command(m) != "experiment" or "runs.csv" not in m.get("files", {}):
+        print(f"{runs}: not a runs.csv bgc experiment wrote (no campaign's manifest.json beside it): left alone",
+              file=sys.stderr)
+        return 1
     if kept.exists():
         print(f"{kept} exists: move it away first (this script never overwrites it)", file=sys.stderr)
         return 1
@@ -75,7 +76,7 @@ def main() -> int:
         if any(new[k] != row[k] for k in COLUMNS):
             changed += 1
         row.update(new)
-    data = runs_csv.csv_header(c) + "".join(runs_csv.csv_row(r) for r in rows)
+    data = runs_csv.csv_header(c) + "".join(runs_csv.csv_row(r, runs_csv.columns(c.states)) for r in rows)
     os.link(runs, kept)  # the old rows stay under the new name
     tmp = runs.with_name("runs.csv.repredict-tmp")
     tmp.write_text(data, encoding="utf-8")

@@ -319,12 +319,16 @@ def test_numbas_cached_kernels_are_noted_until_the_package_changes(root, tanks, 
 def test_auto_for_a_campaign_counts_the_particle_steps_of_all_its_runs(root, tmp_path, monkeypatch):
     """A local campaign's auto backend: numpy for a small campaign whose
     kernels are not cached, numba once they are noted in numba's cache, and
-    numba for a campaign whose runs add up to work that repays compiling."""
-    from bgc.cli.experiment import _auto_backend
-    from bgc.experiment import campaign_file
+    numba for a campaign whose runs add up to work that repays compiling
+    (the rule ``bgc experiment`` and ``run_campaign`` share)."""
+    from bgc.experiment import campaign_file, dispatch
     from bgc.experiment.one_run import model_file
 
+    def _auto_backend(c):
+        return dispatch.campaign_backend(c.specs)
+
     monkeypatch.setattr(packages, "numba_installed", lambda: True)
+    monkeypatch.delenv("BGC_BACKEND", raising=False)  # the suite's numpy: auto decides here
     config = tmp_path / "c.yaml"
 
     def campaign(particles: int, seeds: int):
@@ -346,3 +350,5 @@ def test_auto_for_a_campaign_counts_the_particle_steps_of_all_its_runs(root, tmp
     assert _auto_backend(large)[0] == "numba"
     cache.mark_warm(cache.numba_folder(cache.open_model(model_file(small.specs[0]))) + "/two_tank/numba_model", 44)
     assert _auto_backend(campaign(1000, 1))[0] == "numba"  # cached, 600 000 particle-steps
+    assert dispatch.campaign_backend(small.specs, "numpy") == ("numpy", None)  # asked for by name
+    assert dispatch.campaign_backend(small.specs, "auto", "tcp://h:8786") == ("auto", None)  # each Dask worker

@@ -239,12 +239,12 @@ def test_an_interrupted_campaign_resumes_without_redoing_finished_runs(local_run
     lines = (out / "runs.csv").read_text().splitlines(keepends=True)
     # keep the header and 6 rows, then a row cut in its last column (the process was killed
     # while writing: 'tr' of 'true' or 'false' read as a value would be wrong)
-    (out / "runs.csv").write_text("".join(lines[:8]) + lines[8].rstrip("\n")[:-2])
+    (out / "runs.csv").write_text("".join(lines[:7]) + lines[7].rstrip("\n")[:-2])
     again = campaign.run_campaign(c, out, workers=2, progress=False)
     assert (again.reused, again.ran) == (6, 4)
     # the cut line is not lost: it is set aside as it was, and its run done again
     assert again.quarantined == 1 and again.quarantine == out / "runs.unread-1.csv"
-    assert again.quarantine.read_text() == lines[8].rstrip("\n")[:-2]
+    assert again.quarantine.read_text() == lines[7].rstrip("\n")[:-2]
     assert without_time(again.rows) == without_time(first.rows)
 
 
@@ -291,9 +291,29 @@ def test_an_unreachable_scheduler_is_one_line(tmp_path):
 def test_cells_are_mean_and_sample_sd_and_rates_count_defined_runs():
     rows = [{"status": "ok", "rt": x, "right": r} for x, r in ((1.0, True), (2.0, False), (6.0, None))]
     rows.append({"status": "failed", "rt": 100.0, "right": True})
-    assert tables.cell(rows, "rt") == (3.0, math.sqrt(7.0), 3)  # (4 + 1 + 9) / 2 = 7
-    assert tables.cell(rows, "right") == (0.5, 0.0, 2)
+    assert tables.cell(rows, "rt") == (3.0, math.sqrt(7.0), 3, 0)  # (4 + 1 + 9) / 2 = 7; no NaN
+    assert tables.cell(rows, "right") == (0.5, 0.0, 2, 0)
     assert tables.format_cell(tables.cell(rows, "right"), "right") == "1/2"
+
+
+def test_a_run_whose_metric_is_nan_is_counted_and_said_beside_the_mean():
+    """A NaN metric (a filter that diverged) is never dropped from a mean
+    without a word: the mean and sd are the other runs', and the cell, the
+    summary and summary.json say how many were NaN."""
+    def row(mse, rt=1.0, status="ok"):
+        return {"status": status, "group": "g", "scenario": "none", "filter": "gpf", "noise": "model",
+                "particles": 100, "fault": None, "false_alarm": False, "verdict": "no fault", "rt": rt, "mse": mse}
+    rows = [row(0.0004), row(0.0006), row(math.nan), row(math.nan, status="failed")]  # a failed run: not counted
+    c = tables.cell(rows, "mse")
+    assert (c.mean, c.sd, c.n, c.nan) == (pytest.approx(0.0005), pytest.approx(math.sqrt(2e-8)), 2, 1)
+    assert tables.format_cell(c, "mse") == "0.0005 (0.000141; n=2, 1 NaN)"
+    assert tables.cell_json(c) == {"mean": c.mean, "sd": c.sd, "n": 2, "nan": 1}
+    spec = campaign_file.TableSpec("t", ("g",), "scenario", None, ("mse", "rt"), None)
+    assert tables.table_cells(spec, rows)[1] == [["none", "0.0005 (0.000141; n=2, 1 NaN)", "1 (0)"]]
+    every = [row(math.nan), row(math.nan)]
+    assert tables.format_cell(tables.cell(every, "mse"), "mse") == "NaN (n=0, 2 NaN)"
+    assert tables.cell_json(tables.cell(every, "mse")) == {"mean": None, "sd": None, "n": 0, "nan": 2}
+    assert "| 1 (0; n=1, 1 NaN) |" in tables.summary_markdown([row(0.1), row(0.1, rt=math.nan)])  # RT s
 
 
 def test_isolation_is_counted_outside_the_qualitative_and_the_predicted_ambiguity_groups():

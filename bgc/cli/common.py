@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from ..errors import BgcError, ErrorGroup, printable
+from ..model import DEFAULT_BACKEND
 
 
 def error_lines(exc: BgcError) -> tuple[str, ...]:
@@ -186,7 +187,7 @@ def add_prior_option(p: argparse.ArgumentParser) -> None:
                         "fault's own 'size' and 'rate' in the model set it per fault)")
 
 def add_backend_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--backend", choices=["auto", "numpy", "numba"], default="auto",
+    p.add_argument("--backend", choices=["auto", "numpy", "numba"], default=DEFAULT_BACKEND,
                    help="the generated package the filters run on: numpy, or numba (compiled; pip install "
                         "'bgc[fast]'); auto (default): numba when installed (BGC_BACKEND first). The result does "
                         "not depend on it")

@@ -36,10 +36,9 @@ def run(args: argparse.Namespace) -> int:
     from ..output import tables
     from ..model import package as packages
 
-    # local workers get a name (numba compiled once, before they start); a Dask cluster's workers choose
-    # by what they have installed
-    backend = packages.resolve_backend(args.backend) if args.scheduler is None and \
-        packages.chosen_by_name(args.backend) else args.backend
+    # a backend asked for by name and not installed is refused before the models compile
+    if args.scheduler is None and packages.chosen_by_name(args.backend):
+        packages.resolve_backend(args.backend)
 
     # what can be refused without the models: before they compile
     dispatch.check_workers(args.workers, "--workers")
@@ -49,8 +48,10 @@ def run(args: argparse.Namespace) -> int:
             print("warning: --workers is for local processes: the Dask cluster's own workers run the campaign",
                   file=sys.stderr)
     c = campaign_file.load_campaign(args.config, max_runs=args.max_runs)
-    if args.scheduler is None and not packages.chosen_by_name(args.backend):
-        backend, why = _auto_backend(c)
+    # local workers get a name (numba compiled once, before they start), as run_campaign would give them;
+    # a Dask cluster's workers choose by what they have installed
+    backend, why = dispatch.campaign_backend(c.specs, args.backend, args.scheduler)
+    if why is not None:
         status(args, f"backend {backend} ({why}, over the campaign's {len(c.specs)} runs)")
     out = Path(args.output or Path("out") / c.name)
     folder = printable(str(out))
@@ -90,24 +91,3 @@ def run(args: argparse.Namespace) -> int:
           f"({r.seconds:.1f} s); tables in {folder}/tables.md, the page with tables and plots in "
           f"{folder}/report.html, plots in {folder}/plots/{kept}")
     return 1 if r.failed and r.failed == r.ran and r.ran else 0
-
-
-def _auto_backend(c) -> tuple[str, str]:
-    """``--backend auto`` for a local campaign: :func:`bgc.model.package.auto_backend`
-    of the particle-steps of all its runs, the kernels cached when every
-    model's are (:func:`bgc.api.cache.kernels_cached`)."""
-    from ..api import cache
-    from ..experiment.one_run import model_file
-    from ..model import package as packages
-
-    models: dict[str, tuple[int, bool]] = {}
-    work, cached = 0, packages.numba_installed()
-    for spec in c.specs:
-        if spec.model_text not in models:
-            opened = cache.open_model(model_file(spec))
-            models[spec.model_text] = (opened.view.model.settings.steps,
-                                       cached and cache.kernels_cached(cache.numba_path(opened)))
-        steps, ok = models[spec.model_text]
-        work += spec.particles * (spec.steps or steps)
-        cached = cached and ok
-    return packages.auto_backend(work, cached)

@@ -37,15 +37,16 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from ..errors import (ArgumentTypeError, ExperimentError, printable)
+from ..errors import (ArgumentTypeError, ArgumentValueError, ExperimentError, printable)
+from ..model import DEFAULT_BACKEND
 
 if TYPE_CHECKING:
     pass
 
 from .campaign_file import Campaign
-from .runs_csv import set_aside, RUNS, csv_header, csv_row, read_runs
-from .dispatch import (compile_models, run_locally, run_on_dask, CONNECT_TIMEOUT, check_timeout, check_workers,
-                      local_workers)
+from .runs_csv import set_aside, RUNS, columns, csv_header, csv_row, full_row, read_runs
+from .dispatch import (campaign_backend, compile_models, run_locally, run_on_dask, CONNECT_TIMEOUT, check_timeout,
+                       check_workers, local_workers)
 
 #: What the end of a campaign writes beside ``runs.csv`` (:func:`write_outputs`).
 TABLES, SUMMARY, PLOTS, REPORT = "tables.md", "summary.json", "plots/", "report.html"
@@ -71,6 +72,9 @@ class CampaignStart:
         Why fewer processes start than asked for or than the default:
         ``"runs"`` (no more than the runs to do) or ``"memory"`` (the
         available memory, :data:`WORKER_MEMORY` each); None otherwise.
+    backend
+        The backend the runs use (:func:`campaign_backend`; 'auto' on a
+        Dask cluster: each worker's choice; None: nothing to run).
     """
 
     total: int
@@ -81,6 +85,7 @@ class CampaignStart:
     workers: int | None
     requested: int | None
     limited_by: str | None
+    backend: str | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,7 +106,8 @@ class CampaignResult:
     workers: int | None = None
 
 
-def _check_arguments(c: Any, out: Any, scheduler: Any, progress: Any, outputs: Any, on_start: Any) -> None:
+def _check_arguments(c: Any, out: Any, scheduler: Any, progress: Any, outputs: Any, on_start: Any,
+                     backend: Any) -> None:
     if not isinstance(c, Campaign):
         raise ArgumentTypeError(f"the campaign must be a Campaign, not {type(c).__name__}", None,
                                 "read it with bgc.experiment.campaign_file.load_campaign(path)")
@@ -120,11 +126,18 @@ def _check_arguments(c: Any, out: Any, scheduler: Any, progress: Any, outputs: A
     if on_start is not None and not callable(on_start):
         raise ArgumentTypeError(f"on_start must be callable or None, not {type(on_start).__name__}", None,
                                 "give a function of one CampaignStart")
+    if backend is not None and not isinstance(backend, str):
+        raise ArgumentTypeError(f"backend must be a str, not {type(backend).__name__}", None,
+                                "give 'auto' (the default), 'numpy' or 'numba'")
+    if backend not in (None, "auto", "numpy", "numba"):
+        raise ArgumentValueError(f"backend {printable(repr(backend))[:40]} is not one of 'auto', 'numpy', 'numba'",
+                                 None, f"the default is {DEFAULT_BACKEND!r}: numba when it is installed and worth it")
 
 
 def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, workers: int | None = None,
                  progress: bool | None = None, outputs: bool = True, connect_timeout: float = CONNECT_TIMEOUT,
-                 on_start: Callable[[CampaignStart], None] | None = None, backend: str = "numpy") -> CampaignResult:
+                 on_start: Callable[[CampaignStart], None] | None = None,
+                 backend: str = DEFAULT_BACKEND) -> CampaignResult:
     """Run the campaign's runs not yet in ``out/runs.csv`` (a failed one is run
     again), append each row as it completes, then write the tables and plots.
 
@@ -150,10 +163,13 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
         Seconds to wait for the scheduler (:func:`check_scheduler`, then
         Dask's handshake).
     backend
-        The generated package the runs' filters use ('numpy', 'numba', or
-        'auto': each worker's choice, numba where it is installed); the rows
-        do not depend on it. With 'numba' and local workers, the models'
-        kernels are compiled here first, once.
+        The generated package the runs' filters use: 'numpy', 'numba', or
+        'auto' (the default, as ``bgc experiment``'s): with local workers
+        chosen here once by what is installed and the campaign's work
+        (:func:`campaign_backend`), on a Dask cluster by each worker
+        (numba where it is installed). The rows do not depend on it but for
+        the run time. With numba and local workers, the models' kernels are
+        compiled here first, once.
     on_start
         Called with a :class:`CampaignStart` once the folder is read, before
         the first run.
@@ -165,10 +181,12 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
     ExperimentError, OutputError
         The folder holds another campaign or files bgc did not write; the
         scheduler cannot be reached.
+    TrackingError
+        numba asked for (``backend`` or ``BGC_BACKEND``) and not installed.
     """
     from ..output import artifacts
 
-    _check_arguments(c, out, scheduler, progress, outputs, on_start)
+    _check_arguments(c, out, scheduler, progress, outputs, on_start, backend)
     workers = check_workers(workers)
     connect_timeout = check_timeout(connect_timeout)
     started = time.perf_counter()
@@ -184,15 +202,19 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
     artifacts.check_folder(folder, outputs_now, "experiment", adopt=(RUNS,))
     done, quarantine, unread = _finished(c, folder) if previous is not None else ({}, None, 0)
     todo = [s for s in c.specs if s.id not in done]
-    rows_text = csv_header(c) + "".join(csv_row(r) for r in sorted(done.values(), key=lambda r: r["index"]))
+    backend = campaign_backend(c.specs, backend or DEFAULT_BACKEND, scheduler)[0] if todo else None
+    cols = columns(c.states)
+    rows_text = csv_header(c) + "".join(csv_row(r, cols) for r in sorted(done.values(), key=lambda r: r["index"]))
     artifacts.write_folder(folder, {RUNS: rows_text, artifacts.MANIFEST: artifacts.manifest(
         {RUNS: rows_text}, "experiment", growing=(RUNS,), campaign=c.name, source=c.source)},
         adopt=(RUNS,) if previous is not None else ())
     n_workers, why = (None, None) if scheduler else local_workers(workers, len(todo))
     if on_start is not None:
-        on_start(CampaignStart(len(c.specs), len(todo), len(done), unread, quarantine, n_workers, workers, why))
+        on_start(CampaignStart(len(c.specs), len(todo), len(done), unread, quarantine, n_workers, workers, why,
+                               backend))
     by_id = {s.id: s for s in c.specs}
-    rows = {k: {**v, **by_id[k].identity()} for k, v in done.items()}  # where it sits now, its model's path now
+    # where it sits now, its model's path now; every row with the same cells, reused or run now
+    rows = {k: full_row({**v, **by_id[k].identity()}, cols) for k, v in done.items()}
     failed = 0
     if todo:
         show = sys.stderr.isatty() if progress is None else bool(progress)
@@ -204,8 +226,8 @@ def run_campaign(c: Campaign, out: str | Path, scheduler: str | None = None, wor
         try:
             with artifacts.GrowingFile(folder / RUNS) as runs_file:
                 for spec, row in source:
-                    rows[spec.id] = row
-                    runs_file.append(csv_row(row))
+                    rows[spec.id] = full_row(row, cols)
+                    runs_file.append(csv_row(row, cols))
                     failed += row["status"] != "ok"
                     bar.update(1)
                     bar.set_postfix(failed=failed, refresh=False)
@@ -252,7 +274,8 @@ def write_outputs(result: CampaignResult) -> list[Path]:
     from ..output import artifacts, plots, tables
 
     c = result.campaign
-    files: dict[str, str | bytes] = {RUNS: csv_header(c) + "".join(csv_row(r) for r in result.rows)}
+    cols = columns(c.states)
+    files: dict[str, str | bytes] = {RUNS: csv_header(c) + "".join(csv_row(r, cols) for r in result.rows)}
     files[TABLES] = tables.campaign_markdown(c, result.rows)
     files[SUMMARY] = tables.campaign_json(c, result.rows)
     figures = plots.campaign_figures(result.rows)

@@ -106,7 +106,8 @@ class TableSpec:
 
 @dataclass(frozen=True, slots=True)
 class Campaign:
-    """A checked campaign: its runs in order and its tables."""
+    """A checked campaign: its runs in order and its tables; ``states``: its
+    models' states, each once in the order met (a column of ``runs.csv`` each)."""
 
     name: str
     description: str
@@ -115,6 +116,7 @@ class Campaign:
     specs: tuple[RunSpec, ...]
     tables: tuple[TableSpec, ...]
     groups: tuple[str, ...]
+    states: tuple[str, ...] = ()
 
 
 def schema() -> dict:
@@ -203,8 +205,9 @@ def load_campaign(path: str | Path, max_runs: int = MAX_RUNS) -> Campaign:
             errors.append(exc)
     if errors:
         raise ErrorGroup(errors)
+    states = tuple(dict.fromkeys(s for c in compiled.values() for s in c.equations.states))
     return Campaign(data["campaign"], data.get("description", ""), str(path), raw.sha256, tuple(specs),
-                    tuple(tables), tuple(group_names))
+                    tuple(tables), tuple(group_names), states)
 
 
 def check_count(value: Any, name: str) -> int:

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Iterator
 
 
 from .. import arguments
+from ..model import DEFAULT_BACKEND
 from ..errors import (ArgumentTypeError, ArgumentValueError, ExperimentError, printable)
 
 if TYPE_CHECKING:
@@ -127,7 +128,46 @@ def compile_models(specs: list[RunSpec]) -> None:
         api.open(model_file(spec), backend="numba")
 
 
-def run_locally(specs: list[RunSpec], workers: int, backend: str = "numpy") -> Iterator[tuple[RunSpec, dict]]:
+def campaign_backend(specs: tuple[RunSpec, ...] | list[RunSpec], backend: str = DEFAULT_BACKEND,
+                     scheduler: str | None = None) -> tuple[str, str | None]:
+    """The backend a campaign's runs use, and why when ``auto`` chose it
+    (None: asked for by name, or left to a Dask cluster's workers).
+
+    A backend asked for by name (or by ``BGC_BACKEND``) is used, or refused
+    when it cannot be had. ``auto`` with local workers is
+    :func:`bgc.model.package.auto_backend` of the particle-steps of all the
+    runs, the kernels cached when every model's are
+    (:func:`bgc.api.cache.kernels_cached`): decided once here, so that the
+    workers do not each compile numba's kernels. On a Dask cluster
+    ``auto`` goes as it is: each worker chooses by what it has installed.
+
+    Raises
+    ------
+    TrackingError
+        An unknown backend, or numba asked for and not installed.
+    """
+    from ..api import cache
+    from ..model import package as packages
+
+    if packages.chosen_by_name(backend):
+        return (packages.resolve_backend(backend) if scheduler is None else backend), None
+    if scheduler is not None:
+        return backend, None
+    models: dict[str, tuple[int, bool]] = {}
+    work, cached = 0, packages.numba_installed()
+    for spec in specs:
+        if spec.model_text not in models:
+            opened = cache.open_model(model_file(spec))
+            models[spec.model_text] = (opened.view.model.settings.steps,
+                                       cached and cache.kernels_cached(cache.numba_path(opened)))
+        steps, ok = models[spec.model_text]
+        work += spec.particles * (spec.steps or steps)
+        cached = cached and ok
+    return packages.auto_backend(work, cached)
+
+
+def run_locally(specs: list[RunSpec], workers: int, backend: str = DEFAULT_BACKEND
+                ) -> Iterator[tuple[RunSpec, dict]]:
     # fork where there is one: workers inherit the loaded modules and run from a
     # notebook or a script without a __main__ guard (spawn re-imports __main__)
     method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
@@ -308,7 +348,7 @@ def _handshake_probe(address: str, timeout: float) -> None:
                               "check that it is the address dask scheduler prints")
 
 
-def run_on_dask(specs: list[RunSpec], address: str, timeout: float, backend: str = "numpy"
+def run_on_dask(specs: list[RunSpec], address: str, timeout: float, backend: str = DEFAULT_BACKEND
           ) -> Iterator[tuple[RunSpec, dict]]:
     try:
         from distributed import Client

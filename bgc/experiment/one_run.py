@@ -13,12 +13,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import (BgcError, printable)
+from ..model import DEFAULT_BACKEND
 
 if TYPE_CHECKING:
     pass
 
 from .campaign_file import RunSpec
-from .runs_csv import COLUMNS
+from .runs_csv import COLUMNS, SEPARATOR, state_cells
 
 
 # ------------------------------------------------------------------ one run
@@ -45,7 +46,8 @@ _MODEL_LOCK = threading.Lock()
 _SESSIONS: dict[tuple, Any] = {}
 
 
-def _session(spec: RunSpec, process_noise: float | None, measurement_noise: float | None, backend: str = "numpy"):
+def _session(spec: RunSpec, process_noise: float | None, measurement_noise: float | None,
+             backend: str = DEFAULT_BACKEND):
     """The session of the run's model at these noise levels on ``backend`` in this process, opened once."""
     from .. import api
 
@@ -73,7 +75,7 @@ def _write_model(spec: RunSpec, private_folder) -> str:
     return _MODEL_FILES[digest]
 
 
-def run_one(spec: RunSpec, backend: str = "numpy") -> dict[str, Any]:
+def run_one(spec: RunSpec, backend: str = DEFAULT_BACKEND) -> dict[str, Any]:
     """Simulate, diagnose and measure one run; a row of ``runs.csv``
     (``backend``: the generated package the filters run on; the row does
     not depend on it).
@@ -99,17 +101,18 @@ def run_one(spec: RunSpec, backend: str = "numpy") -> dict[str, Any]:
         m = metrics.measure(d, report.run, metrics.Truth(spec.fault, spec.kind, spec.magnitude, spec.onset))
         best = d.best
         row.update(
-            status="ok", rt=d.seconds, mse=float(np.mean(list(m.mse.values()))), nmse=m.nmse,
-            mse_states=" ".join(f"{k}={v:.6g}" for k, v in m.mse.items()), ct=m.ct, detected=m.detected,
-            detection_time=m.detection_time, delay=m.delay, false_alarm=m.false_alarm, verdict=m.verdict,
-            diagnosed=m.diagnosed, candidates=" ".join(d.candidates) or None, right=m.right, in_candidates=m.in_candidates,
-            estimate=m.estimate, low=m.low, high=m.high, est_error=m.error, covers=m.covers)
+            status="ok", rt=d.seconds, mse=float(np.mean(list(m.mse.values()))), nmse=m.nmse, ct=m.ct,
+            detected=m.detected, detection_time=m.detection_time, delay=m.delay, false_alarm=m.false_alarm,
+            verdict=m.verdict, diagnosed=m.diagnosed, candidates=SEPARATOR.join(d.candidates) or None,
+            right=m.right, in_candidates=m.in_candidates, estimate=m.estimate, low=m.low, high=m.high,
+            est_error=m.error, covers=m.covers)
+        row.update(state_cells(m.mse))
         injected = report.injected
         if injected is not None:
             row.update(target=injected.target,
                        expected=simulate.outside_prior(injected, session.view.numerics) is None)
-        if m.diagnosed != "none" and best is not None:
-            row["diagnosed_target"] = best.estimate.target
+        if m.diagnosed != "none" and best is not None:  # where the diagnosed fault's estimate comes from
+            row.update(diagnosed_target=best.estimate.target, estimate_method=best.estimate.method)
         if m.right and best is not None and spec.parameter_truth:  # relative: none for a truth of 0
             row["parameter"] = best.estimate.parameter_value
             row["param_error"] = abs(best.estimate.parameter_value - spec.parameter_truth) / abs(spec.parameter_truth)
@@ -153,6 +156,6 @@ def _prediction(model_file: str, scenario, process_noise: float | None, measurem
                                    measurement_noise=measurement_noise, steps=steps).distinctions[0]
     except Exception:  # noqa: BLE001 - the prediction is an extra: the diagnosis's row stands without it
         return ()
-    return (("separable", d.separable), ("rivals", " ".join(d.group) or None),
+    return (("separable", d.separable), ("rivals", SEPARATOR.join(d.group) or None),
             ("separation", min((r.probability for r in d.rivals), default=1.0)),
             ("detectability", d.detectability))

@@ -499,6 +499,14 @@ def _values(rows, metric, **match) -> list[float]:
     return out
 
 
+def _left_out(rows, metric: str, title: str) -> str:
+    """``title``, saying how many finished runs' ``metric`` is NaN or infinite (not plotted, not in
+    a mean: said, never dropped without a word)."""
+    n = sum(1 for r in rows if r.get("status") == "ok" and r.get(metric) is not None
+            and not np.isfinite(r[metric]))
+    return title if not n else f"{title}; {n} run{'s' if n > 1 else ''} NaN or infinite, left out"
+
+
 def campaign_figures(rows) -> dict[str, bytes]:
     """A campaign's plots (PNG): distributions of the estimation error and of
     the time to convergence per filter, accuracy against the particle count
@@ -515,7 +523,7 @@ def campaign_figures(rows) -> dict[str, bytes]:
         if any(data):
             ax.boxplot([d if d else [np.nan] for d in data], showfliers=True, medianprops={"color": CYCLE[1]})
             ax.set_xticks(range(1, len(filters) + 1), [f.upper() for f in filters])
-        ax.set_title(title, fontsize=9)
+        ax.set_title(_left_out(rows, metric, title), fontsize=9)
         ax.grid(True, alpha=0.3)
     out["distributions.png"] = picture(laid_out(fig), "png")
     for axis, label in (("particles", "particles"), ("noise", "noise level")):
@@ -529,8 +537,9 @@ def campaign_figures(rows) -> dict[str, bytes]:
             xs = levels if axis == "particles" else list(range(len(levels)))
             axes[0].plot(xs, err, "o-", color=c, label=f.upper())
             axes[1].plot(xs, right, "o-", color=c, label=f.upper())
-        for ax, title in ((axes[0], "mean magnitude error (%)"), (axes[1], "right isolation (%)")):
-            ax.set_title(title, fontsize=9)
+        for ax, metric, title in ((axes[0], "est_error", "mean magnitude error (%)"),
+                                  (axes[1], "right", "right isolation (%)")):
+            ax.set_title(_left_out(rows, metric, title), fontsize=9)
             ax.set_xlabel(label, fontsize=8)
             if axis == "particles":
                 ax.set_xscale("log")

@@ -9,16 +9,22 @@ names, failure messages) passes through :func:`bgc.output.markdown.escape`:
 one line, and no Markdown of its own (a heading, a table cell's bound, a
 link, HTML, emphasis).
 
+A mean never leaves a run out without a word: a run whose metric came out
+NaN (a filter that diverged) is counted, and its cell says so beside the
+mean of the others (:func:`format_cell`).
+
 >>> rows = [{"filter": "gpf", "status": "ok", "scenario": "none", "rt": 1.0, "right": None},
 ...         {"filter": "gpf", "status": "ok", "scenario": "none", "rt": 3.0, "right": None}]
 >>> cell(rows, "rt")
-(2.0, 1.4142135623730951, 2)
+Cell(mean=2.0, sd=1.4142135623730951, n=2, nan=0)
+>>> format_cell(cell(rows + [{"status": "ok", "rt": float("nan")}], "rt"), "rt")
+'2 (1.414; n=2, 1 NaN)'
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable
+from typing import Any, Iterable, NamedTuple
 
 from ..analysis.distinguish import LEVEL
 from . import html, render
@@ -38,19 +44,40 @@ def _ok(rows: Iterable[dict]) -> list[dict]:
     return [r for r in rows if r.get("status") == "ok"]
 
 
-def cell(rows: list[dict], metric: str) -> tuple[float, float, int] | None:
-    """(mean, sample sd, n) of ``metric`` over the rows where it is defined;
-    for a rate, (fraction true, 0, n)."""
-    values = [r.get(metric) for r in _ok(rows)]
-    values = [v for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))]
-    if not values:
+class Cell(NamedTuple):
+    """A table's cell: the ``mean`` and sample ``sd`` of a metric over the
+    ``n`` finished runs where it is a number, and ``nan``: the runs where it
+    was computed and came out NaN (counted, not in the mean: the cell says
+    how many). A rate's mean is the fraction true (sd 0)."""
+
+    mean: float
+    sd: float
+    n: int
+    nan: int = 0
+
+
+def _is_nan(v: Any) -> bool:
+    return isinstance(v, float) and math.isnan(v)
+
+
+def cell(rows: list[dict], metric: str) -> Cell | None:
+    """The :class:`Cell` of ``metric`` over the finished rows where it is
+    defined (not None); None when it is defined in none. Its runs whose
+    value is NaN are counted in ``nan``, the mean and sd are those of the
+    others (NaN when there are none)."""
+    defined = [v for v in (r.get(metric) for r in _ok(rows)) if v is not None]
+    values = [v for v in defined if not _is_nan(v)]
+    nan = len(defined) - len(values)
+    if not defined:
         return None
+    if not values:
+        return Cell(math.nan, math.nan, 0, nan)
     if metric in RATES:
-        return sum(bool(v) for v in values) / len(values), 0.0, len(values)
+        return Cell(sum(bool(v) for v in values) / len(values), 0.0, len(values), nan)
     n = len(values)
     mean = sum(values) / n
     sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1)) if n > 1 else 0.0
-    return mean, sd, n
+    return Cell(mean, sd, n, nan)
 
 
 def _fmt(x: float) -> str:
@@ -59,15 +86,29 @@ def _fmt(x: float) -> str:
     return f"{x:.3g}"
 
 
-def format_cell(c: tuple[float, float, int] | None, metric: str) -> str:
+def format_cell(c: Cell | None, metric: str) -> str:
+    """A cell as text: ``mean (sd)``, a rate ``k/n``, ``–`` where the metric
+    is defined in no run. Runs whose value is NaN are said after it:
+    ``0.000511 (0; n=4, 1 NaN)`` is the mean and sd of 4 runs, and 1 more
+    run whose value is NaN; ``NaN (n=0, 2 NaN)``: every one was."""
     if c is None:
         return "–"
-    mean, sd, n = c
+    mean, sd, n, nan = c
+    if n == 0:
+        return f"NaN (n=0, {nan} NaN)"
     if metric in RATES:
-        return f"{round(mean * n)}/{n}"
-    if metric in PERCENT or metric == "nmse":
-        return f"{_fmt(100 * mean)} ({_fmt(100 * sd)})"
-    return f"{_fmt(mean)} ({_fmt(sd)})"
+        text = f"{round(mean * n)}/{n}"
+        return text + (f" ({nan} NaN)" if nan else "")
+    scale = 100 if metric in PERCENT or metric == "nmse" else 1
+    return f"{_fmt(scale * mean)} ({_fmt(scale * sd)}" + (f"; n={n}, {nan} NaN)" if nan else ")")
+
+
+def cell_json(c: Cell | None) -> dict[str, Any] | None:
+    """A cell in ``summary.json``: its mean, sd, n and the runs whose value is NaN (mean and sd null
+    when every one was)."""
+    if c is None:
+        return None
+    return {"mean": c.mean if c.n else None, "sd": c.sd if c.n else None, "n": c.n, "nan": c.nan}
 
 
 def row_label(row: dict, rows: str) -> str:
@@ -391,13 +432,11 @@ def campaign_json(c, rows: tuple[dict, ...]) -> str:
                     continue
                 values = {}
                 for m in spec.metrics:
-                    x = cell(mine, m)
-                    values[m] = None if x is None else {"mean": x[0], "sd": x[1], "n": x[2]}
+                    values[m] = cell_json(cell(mine, m))
                 cells.append({"row": label, "filter": f, "metrics": values})
         tables.append({"title": spec.title, "cells": cells})
     summary = []
     for s in summary_rows(rows):
-        summary.append({k: ({"mean": v[0], "sd": v[1], "n": v[2]} if isinstance(v, tuple) else v)
-                        for k, v in s.items()})
+        summary.append({k: (cell_json(v) if isinstance(v, Cell) else v) for k, v in s.items()})
     return render.to_json({"generated_by": "bgc", "campaign": c.name, "source": c.source, "runs": len(rows),
                            "tables": tables, "summary": summary, "reliability": reliability_rows(rows)})
