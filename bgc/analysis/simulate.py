@@ -258,7 +258,7 @@ def outside_prior(injection: FaultInjection, num: Numerics) -> str | None:
     what = fault_kind(injection.kind).magnitude + (" per unit time" if fault_kind(injection.kind).drifts else "")
     return (f"{what} {injection.magnitude:g} is outside the prior of {name} in the model ({lo:.4g} to {hi:.4g}): "
             "its diagnoser may size it wrong (widen it with the fault's 'size' or 'rate' in the model, "
-            "or --prior-scale)")
+            f"or {spelled('prior_scale', '--prior-scale')})")
 
 
 def check_steps(steps: int, num: Numerics, where: str) -> None:

@@ -22,6 +22,7 @@ from .limits import (METHODS, check_diagnosis_steps, check_options,
                      with_horizon)
 from .reports import DiagnosisReport
 from .session import Session, _session_of, input_signals, scenario_of
+from .simulate import Simulation
 
 
 def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = None,
@@ -43,10 +44,12 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         compiled once for many diagnoses; its noise levels then apply, and
         ``process_noise``, ``measurement_noise`` and ``generated`` must be
         left out or be the session's).
-    data : str, os.PathLike or Run, optional
-        A recorded run: a CSV as ``bgc simulate`` writes, or a
+    data : str, os.PathLike, Run or Simulation, optional
+        A recorded run: a CSV as ``bgc simulate`` writes, a
         :class:`~bgc.data.runs.Run` (checked as a file's would be, by
-        :func:`bgc.data.runs.check_run`). Either ``data`` or ``scenario``.
+        :func:`bgc.data.runs.check_run`), or a :class:`Simulation`
+        (:func:`bgc.simulate`; its truth goes into the report). Either
+        ``data`` or ``scenario``.
     scenario : str or FaultInjection, optional
         A fault to simulate, its onset inside the run (0 < TIME < the last
         sample's time), or ``none``; or the scenario already read
@@ -128,9 +131,12 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     func = "bgc.diagnose"
     if not isinstance(model, Session):
         arguments.path(func, "model", model)
-    if data is not None and not isinstance(data, (str, os.PathLike, runs.Run)):
-        raise ArgumentTypeError(f"{func}: data={arguments.shown(data)} is not a path or a Run", None,
-                                "give a run file's path or a bgc.data.runs.Run")
+    if data is not None and not isinstance(data, (str, os.PathLike, runs.Run, Simulation)):
+        raise ArgumentTypeError(f"{func}: data={arguments.shown(data)} is not a path, a Run or a Simulation", None,
+                                "give a run file's path, a bgc.data.runs.Run or what bgc.simulate returned")
+    simulated = data if isinstance(data, Simulation) else None
+    if simulated is not None:  # its truth goes with it into the report
+        data = simulated.run
     if not isinstance(scenario, simulate.FaultInjection):
         arguments.text(func, "scenario", scenario, optional=True)
     if (data is None) == (scenario is None):
@@ -173,6 +179,8 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         run, injected = _recorded_run(session, session.read_run(data, columns, func), opts), None
     if isinstance(scenario, simulate.FaultInjection):
         scenario = scenario.text
+    if simulated is not None:
+        scenario, injected = simulated.scenario, simulated.fault
     return _run(session.view, run, session.package, scenario, injected, session.noise, session.levels, opts,
                 say)
 

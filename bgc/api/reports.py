@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
+import numpy as np
+
 
 from .. import arguments
 from ..ir import NoiseLevels
@@ -63,6 +65,51 @@ class DiagnosisReport:
         out = Path(folder)
         artifacts.write_folder(out, report.report_files(self))
         return out
+
+    def to_dict(self) -> dict:
+        """The report as plain data: what ``report.json`` holds (times in the
+        model's time unit; docs/diagnosis.md, "report.json")."""
+        from ..output import report
+
+        return report.report_data(self)
+
+    def table(self, what: str = "hypotheses"):
+        """A part of the diagnosis as a :class:`~bgc.api.tables.Table`:
+        ``hypotheses`` (one row per fault model tried: its onset, posterior,
+        estimate with interval and ``estimate_method``, when and why it was
+        dropped; times in the model's unit), ``series`` (per step: ``time``,
+        each measurement ``y:NAME``, the nominal observer's prediction
+        ``yhat:NAME`` and normalised residual ``z:NAME``) or ``events``
+        (what happened, in time order, with its sentence)."""
+        arguments.choice("bgc.DiagnosisReport.table", "what", what, ("hypotheses", "series", "events"))
+        from .tables import Table
+
+        d = self.diagnosis
+        if what == "hypotheses":
+            rows = [_hypothesis_row(d, h) for h in d.hypotheses]
+            return Table.of(rows, HYPOTHESIS_COLUMNS)
+        if what == "events":
+            from ..output import events
+
+            rows = [events.record(e, d.time_of) for e in d.events]
+            return Table.of([{"time": r["time"], "event": r["event"], "sentence": r["text"]}
+                             for r in rows], ("time", "event", "sentence"))
+        columns = {"time": d.time}
+        by_time = {float(t): k for k, t in enumerate(self.run.time)}
+        at = np.array([by_time.get(float(t), -1) for t in d.time])
+        for j, y in enumerate(d.outputs):
+            measured = self.run.measurements.get(y)
+            columns[f"y:{y}"] = np.where(at >= 0, measured[at] if measured is not None else np.nan, np.nan)
+        for j, y in enumerate(d.outputs):
+            columns[f"yhat:{y}"] = d.nominal_y_mean[:, j]
+        for j, y in enumerate(d.outputs):
+            columns[f"z:{y}"] = d.nominal_z[:, j]
+        names = tuple(columns)
+        return Table(names, tuple(zip(*(np.asarray(columns[n], dtype=float).tolist() for n in names))))
+
+    def to_frame(self, what: str = "hypotheses"):
+        """:meth:`table` as a pandas DataFrame (``pip install 'bgc[data]'``)."""
+        return self.table(what).to_frame()
 
     def figures(self) -> dict:
         """The report's plots as live :class:`matplotlib.figure.Figure`
@@ -169,3 +216,20 @@ class DistinguishabilityReport:
     detector: object | None = None
     #: The inputs driven otherwise than the model says: (name, :class:`~bgc.ir.Signal`) pairs
     signals: tuple = ()
+
+
+#: The columns of :meth:`DiagnosisReport.table` ``("hypotheses")``.
+HYPOTHESIS_COLUMNS = ("model", "parameter", "kind", "target", "onset", "posterior", "candidate", "estimate",
+                      "low", "high", "std", "level", "magnitude", "estimate_method", "parameter_value", "truth",
+                      "dropped", "reason")
+
+
+def _hypothesis_row(d: Diagnosis, h) -> dict:
+    """One hypothesis of ``d`` as a row of plain values (times in the model's unit)."""
+    e = h.estimate
+    return {"model": h.name, "parameter": h.parameter, "kind": h.kind, "target": e.target,
+            "onset": d.time_of(h.onset_step), "posterior": float(h.posterior), "candidate": h.name in d.candidates,
+            "estimate": float(e.value), "low": float(e.low), "high": float(e.high), "std": float(e.std),
+            "level": float(e.level), "magnitude": e.magnitude, "estimate_method": e.method,
+            "parameter_value": float(e.parameter_value), "truth": e.truth,
+            "dropped": d.time_of(h.dropped), "reason": h.reason or None}

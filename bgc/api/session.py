@@ -6,7 +6,7 @@ import os
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 
 from .. import arguments
@@ -319,6 +319,68 @@ class Session:
         return CalibrationReport(self.model, self.name, tuple(sensors), process, tuple(parameters), result, text,
                                  units)
 
+    # ------------------------------------------------------------ what a paper shows of the model
+    def equations(self, format: str = "text"):
+        """The state and measurement equations (``bgc show equations``):
+        ``text`` (one line each), ``latex`` (an ``aligned`` block that
+        typesets with amsmath) or ``sympy``: an :class:`Equations` of sympy
+        expressions by name (``derivatives[x]`` is dx/dt, ``outputs[y]``
+        the measurement), with the parameters' and initial states' values."""
+        arguments.choice("bgc.Session.equations", "format", format, ("text", "latex", "sympy"))
+        from ..output import render
+
+        ssm = self.compiled.equations
+        if format == "text":
+            return render.equations_text(ssm)
+        if format == "latex":
+            return render.equations_latex(ssm)
+        return Equations(dict(zip(ssm.states, ssm.rhs)), dict(zip(ssm.outputs, ssm.output_exprs)),
+                         dict(zip(ssm.parameters, ssm.parameter_values)), dict(zip(ssm.states, ssm.initial)),
+                         tuple(ssm.inputs))
+
+    def tcg(self, simplified: bool = False):
+        """The temporal causal graph as a networkx DiGraph (a copy: yours to
+        change): nodes are bond efforts and flows (``e4``, ``f4``) with
+        their attributes, edges carry ``label`` (``+1``, ``-1``, ``1/C1``,
+        ``dt``, ...); ``simplified``: over states, inputs and measurements only."""
+        import networkx as nx
+
+        t = self.compiled.tcg
+        return nx.DiGraph(t.simplified if simplified else t.graph)
+
+    def dbn(self, name: str = "nominal"):
+        """The two-slice DBN ``name`` (``nominal``, or a fault model such as
+        ``R12:abrupt``: :meth:`dbns` lists them) as a networkx DiGraph (a
+        copy): nodes ``var@t`` and ``var@t+1`` with ``role`` and ``slice``,
+        arcs with ``arc`` (persistence, temporal, intra, fault, drift, indicator)."""
+        import networkx as nx
+
+        arguments.text("bgc.Session.dbn", "name", name)
+        try:
+            return nx.DiGraph(self.compiled.dbn.get(name).graph)
+        except KeyError as e:
+            raise ArgumentValueError(f"bgc.Session.dbn: name={name!r}: {e.args[0]}", None,
+                                     "give one of Session.dbns()") from None
+
+    def dbns(self) -> tuple[str, ...]:
+        """The DBNs' names: ``nominal``, then one per fault model (``PARAM:KIND``)."""
+        d = self.compiled.dbn
+        return tuple(x.name for x in (d.nominal, *d.faulty))
+
+    def signatures(self):
+        """The TRANSCEND fault signatures as a :class:`~bgc.api.tables.Table`:
+        one row per fault and direction (``fault`` such as ``R12+:abrupt``,
+        ``parameter``, ``direction`` +1 or -1, ``kind``), a column per
+        measurement with its symbols (magnitude then slope, ``+ - 0 ?``)
+        and ``first``, the measurements expected to deviate first (a list)."""
+        from .tables import Table
+
+        s = self.compiled.signatures
+        rows = [{"fault": x.name, "parameter": x.parameter, "direction": x.direction, "kind": x.kind,
+                 **{m: "".join(sym) for m, sym in zip(s.measurements, x.symbols)}, "first": list(x.first)}
+                for x in s.signatures]
+        return Table.of(rows, ("fault", "parameter", "direction", "kind", *s.measurements, "first"))
+
     def report(self, run: runs.Run, diagnosis: Diagnosis, scenario: str | None = None,
                injected=None) -> DiagnosisReport:
         """A :class:`DiagnosisReport` of ``diagnosis`` made on ``run``."""
@@ -427,6 +489,16 @@ def scenario_of(func: str, scenario, num):
         if why is not None and arguments.DOOR.get() != "cli":  # the command line says it its own way
             warnings.warn(f"{func}: scenario {injected.text}: {why}", ScenarioWarning, stacklevel=3)
     return injected
+
+
+class Equations(NamedTuple):
+    """A model's equations as sympy expressions (:meth:`Session.equations`)."""
+
+    derivatives: dict
+    outputs: dict
+    parameters: dict
+    initial: dict
+    inputs: tuple
 
 
 class ScenarioWarning(UserWarning):

@@ -105,6 +105,22 @@ class CampaignResult:
     quarantine: Path | None = None
     workers: int | None = None
 
+    def to_frame(self):
+        """The rows as a pandas DataFrame (``pip install 'bgc[data]'``): the
+        columns of ``runs.csv`` (docs/experiments.md), numbers as numbers
+        (NaN where a metric is not a number, missing where it is not
+        defined), ``candidates`` and ``rivals`` as lists of names."""
+        from ..api.tables import frame
+        from .runs_csv import COLUMNS, SEPARATOR
+
+        lists = ("candidates", "rivals")
+        rows = [{k: (v.split(SEPARATOR) if isinstance(v, str) and v else []) if k in lists else v
+                 for k, v in row.items()} for row in self.rows]
+        states = sorted({k for row in rows for k in row if k.startswith("mse_") and k not in COLUMNS})
+        columns = [c for c in COLUMNS if any(c in row for row in rows)]
+        at = columns.index("nmse") + 1 if "nmse" in columns else len(columns)
+        return frame(rows, columns[:at] + states + columns[at:])
+
 
 def _check_arguments(c: Any, out: Any, scheduler: Any, progress: Any, outputs: Any, on_start: Any,
                      backend: Any) -> None:

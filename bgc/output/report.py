@@ -124,6 +124,9 @@ def report_data(r) -> dict[str, Any]:
         "refuted_by_signatures": [{"fault": n, "why": why} for n, why in d.refuted],
         "hypotheses": [],
         "diagnosis": list(d.candidates),
+        # where the diagnosed fault's estimate comes from: kalman (the magnitude held static on a grid of cubature
+        # Kalman filters), filter (the particle filters' own magnitude state) or grid (--refine); None: no estimate
+        "estimate_method": None if d.estimate is None else d.estimate.method,
         "in_words": plain_words(d, labels),
         "events": [events.record(e, d.time_of) for e in d.events],
         "data_semantics": None if d.data is None else {

@@ -1,0 +1,145 @@
+""":func:`simulate`: a run of a model's plant from Python, with its truth (:class:`Simulation`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import arguments
+from ..analysis import simulate as simulation
+from ..data import runs
+from ..errors import ArgumentValueError, printable
+from . import cache
+from .session import Session, _session_of, input_signals, scenario_of
+from .tables import frame
+
+
+@dataclass(frozen=True, slots=True)
+class Simulation:
+    """A simulated run of a model's plant: ``run`` (a
+    :class:`~bgc.data.runs.Run`, what :func:`bgc.diagnose` takes as ``data``),
+    the ``fault`` injected (None: fault-free), the ``scenario`` text and
+    ``seed``. The arrays by name: ``time``, ``inputs``, ``measurements``
+    (with sensor noise), ``states`` and ``parameters`` (the faulty
+    parameter's true value at each sample) in the model's units."""
+
+    model: str
+    scenario: str
+    seed: int
+    fault: simulation.FaultInjection | None
+    run: runs.Run
+
+    @property
+    def time(self) -> np.ndarray:
+        return self.run.time
+
+    @property
+    def inputs(self) -> dict[str, np.ndarray]:
+        return self.run.inputs
+
+    @property
+    def measurements(self) -> dict[str, np.ndarray]:
+        return self.run.measurements
+
+    @property
+    def states(self) -> dict[str, np.ndarray]:
+        return self.run.states
+
+    @property
+    def parameters(self) -> dict[str, np.ndarray]:
+        return self.run.parameters
+
+    @property
+    def truth(self) -> dict[str, Any]:
+        """The fault as injected: ``fault`` (``NAME:KIND``, None when fault-free),
+        ``target`` (parameter, sensor or actuator), ``magnitude`` (a step's
+        size, a drift's rate per time unit) and ``onset`` (a time)."""
+        f = self.fault
+        if f is None:
+            return {"fault": None, "target": None, "magnitude": None, "onset": None}
+        return {"fault": f"{f.subject or f.parameter}:{f.kind}", "target": f.target, "magnitude": f.magnitude,
+                "onset": f.time}
+
+    def to_frame(self):
+        """The run as a pandas DataFrame: ``time``, then ``u:``, ``y:``, ``x:``
+        and ``theta:`` columns as in a run file (``pip install 'bgc[data]'``)."""
+        r = self.run
+        columns = {"time": r.time}
+        for prefix, group in (("u", r.inputs), ("y", r.measurements), ("x", r.states), ("theta", r.parameters)):
+            columns.update({f"{prefix}:{name}": values for name, values in group.items()})
+        names = list(columns)
+        return frame([dict(zip(names, row)) for row in zip(*(columns[n].tolist() for n in names))], names)
+
+    def write(self, path: str | Path) -> Path:
+        """Write the run file ``bgc simulate -o`` writes (a new file, or one bgc
+        wrote before and nobody changed since). Returns the path."""
+        arguments.path("bgc.Simulation.write", "path", path)
+        from ..output import artifacts
+
+        return artifacts.write_file(Path(path), runs.run_csv(self.run))
+
+    def __repr__(self) -> str:
+        return (f"<bgc.Simulation of {self.model}: {printable(self.scenario)}, {len(self.run.time)} samples, "
+                f"seed {self.seed}>")
+
+
+def simulate(model: str | Path | Session, scenario: str | simulation.FaultInjection = "none", *, seed: int = 0,
+             steps: int | None = None, inputs: Mapping[str, Any] | None = None,
+             process_noise: float | None = None, measurement_noise: float | None = None) -> Simulation:
+    """Simulate ``model``'s plant (the model file, or a :class:`Session`) with
+    ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, e.g. ``R12:abrupt:0.5@75``,
+    or ``none``), as ``bgc simulate`` does: the truth simulator (RK4 on a
+    finer grid than the filters'), process noise at the model's level (or
+    ``process_noise``, relative), sensor noise likewise, ``steps`` samples
+    (default: the model's), ``inputs`` driven otherwise than the model says
+    (as in :func:`bgc.diagnose`), seeded by ``seed`` (bit for bit the same
+    run for the same seed).
+
+    >>> import bgc
+    >>> sim = bgc.simulate("models/two_tank.yaml", "R12:abrupt:0.5@75", seed=1, steps=200)
+    >>> sim.truth
+    {'fault': 'R12:abrupt', 'target': 'parameter', 'magnitude': 0.5, 'onset': 75.0}
+    >>> sorted(sim.measurements), sim.time[-1]
+    (['F10', 'F12', 'F20'], 100.0)
+
+    Raises
+    ------
+    ArgumentTypeError, ArgumentValueError
+        An argument of the wrong type or out of range, a malformed scenario or
+        one whose onset is outside the run.
+    SimulationError
+        The simulated plant diverges.
+    """
+    func = "bgc.simulate"
+    if not isinstance(model, Session):
+        arguments.path(func, "model", model)
+    if not isinstance(scenario, simulation.FaultInjection):
+        arguments.text(func, "scenario", scenario)
+    arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
+    if steps is not None:
+        arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
+    arguments.noise_levels(func, process_noise, measurement_noise)
+    if isinstance(model, Session):  # its noise levels apply, as in bgc.diagnose
+        _session_of(func, model, process_noise, measurement_noise, None, lambda text: None)
+        c, noise = model.view, model.noise
+    else:
+        c, noise = cache.open_model(model).view, (process_noise, measurement_noise)
+    T = steps or c.model.settings.steps
+    simulation.check_steps(T, c.numerics, f"{func}: steps" if steps else
+                           f"{printable(c.model.source)}: simulation.steps")
+    injected = scenario_of(func, scenario, c.numerics)
+    if injected is not None and not 0 < injected.time < T * c.model.settings.dt:
+        raise ArgumentValueError(f"{func}: scenario {injected.text}: onset {injected.time:g} is outside the run "
+                                 f"(0 to {T * c.model.settings.dt:g})", None,
+                                 "choose an onset inside the run, or more steps")
+    signals = input_signals(func, inputs, c.model)
+    result = simulation.simulate(c.numerics, simulation.SimulationOptions(
+        steps=steps, process_noise=noise[0], measurement_noise=noise[1], seed=seed, fault=injected,
+        signals=signals))
+    text = "none" if injected is None else injected.text
+    run = runs.parse_run(simulation.to_csv(result), f"scenario {text}")
+    return Simulation(c.model.name, text, seed, injected, run)
