@@ -5,6 +5,26 @@ probabilistic fault diagnoser (see :mod:`bgc.pipeline`): validated model ->
 causality (SCAP) -> temporal causal graph -> state equations -> dynamic Bayesian
 networks -> generated NumPy particle filters.
 
+The public API (docs/api.md; each name's ``help()`` says more)
+--------------------------------------------------------------
+open(model) -> Session
+    A compiled model and its generated package: ``equations(format)``,
+    ``tcg()``, ``dbn(name)``, ``signatures()``, ``diagnoser()`` (online, one
+    sample at a time), ``calibrate(data)``.
+simulate(model, scenario, seed=...) -> Simulation
+    A run of the plant with its truth (arrays by name, ``to_frame()``).
+diagnose(model, data=... | scenario=..., filter=..., identify=...) -> DiagnosisReport
+    Detection, isolation and the fault's size (``to_dict()``, ``table()``,
+    ``to_frame()``, ``write(folder)``, ``figures()``); DiagnosisOptions for every option.
+distinguishability(model, scenario=...) -> DistinguishabilityReport
+    Which faults the data of a scenario can tell apart, before any run.
+run_campaign(campaign_file, out) -> CampaignResult
+    A campaign of runs (``to_frame()``; its ``runs.csv`` reads with pandas).
+Table
+    Rows of one kind of result (``to_frame()``).
+Error, ModelError, DataError, ArgumentError, ArgumentTypeError, ArgumentValueError, SimulationError, ...
+    What bgc raises for a user's mistake; ScenarioWarning for a fault outside the model's prior.
+
 Glossary
 --------
 e, f
@@ -41,9 +61,11 @@ from .errors import (ArgumentError, ArgumentTypeError, ArgumentValueError, DataE
 
 #: The names of :mod:`bgc.api` that ``bgc`` gives (imported on first use).
 API = ("open", "Session", "diagnose", "DiagnosisReport", "distinguishability", "DistinguishabilityReport",
-       "CalibrationReport", "simulate", "Simulation", "run_campaign", "CampaignResult", "DiagnosisOptions")
+       "CalibrationReport", "simulate", "Simulation", "DiagnosisOptions", "Table", "ScenarioWarning")
+#: The campaign wing's public names (:mod:`bgc.experiment.public`; imported on first use).
+CAMPAIGN = ("run_campaign", "CampaignResult")
 
-__all__ = [*API, "Error", "ModelError", "DataError", "ArgumentError", "ArgumentTypeError", "ArgumentValueError",
+__all__ = [*API, *CAMPAIGN, "Error", "ModelError", "DataError", "ArgumentError", "ArgumentTypeError", "ArgumentValueError",
            "SimulationError", "OutputError", "ExperimentError", "__version__"]
 
 
@@ -57,4 +79,8 @@ def __getattr__(name: str):
         from . import api
 
         return getattr(api, name)
+    if name in CAMPAIGN:
+        from .experiment import public
+
+        return getattr(public, name)
     raise AttributeError(f"module 'bgc' has no attribute {name!r}")

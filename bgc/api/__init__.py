@@ -38,12 +38,10 @@ from __future__ import annotations
 from ..diagnosis.options import DiagnosisOptions
 from .diagnose import diagnose
 from .distinguish import distinguishability
-from .experiment import CampaignResult, run_campaign
 from .reports import CalibrationReport, DiagnosisReport, DistinguishabilityReport
 from .session import ScenarioWarning, Session, open
 from .simulate import Simulation, simulate
 from .tables import Table
 
 __all__ = ["open", "Session", "simulate", "Simulation", "diagnose", "DiagnosisReport", "DiagnosisOptions",
-           "distinguishability", "DistinguishabilityReport", "CalibrationReport", "run_campaign", "CampaignResult",
-           "Table", "ScenarioWarning"]
+           "distinguishability", "DistinguishabilityReport", "CalibrationReport", "Table", "ScenarioWarning"]

@@ -268,7 +268,7 @@ class Isolation:
 @dataclass(frozen=True, slots=True)
 class Detection:
     """An alarm: at step ``step`` (index into the run), on ``sensor`` (its
-    name) with window ``window`` and statistic ``statistic`` (|S| > threshold);
+    name) with window ``window`` and statistic ``statistic`` (``|S| > threshold``);
     ``onset_step``: the estimated first faulty step (None: not estimated, see
     :meth:`DetectorBank.update`)."""
 

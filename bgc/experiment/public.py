@@ -1,4 +1,5 @@
-""":func:`run_campaign`: a campaign file (``bgc experiment``) run from Python; its :class:`CampaignResult`."""
+""":func:`run_campaign`: a campaign file (``bgc experiment``) run from Python; its :class:`CampaignResult`
+(``bgc.run_campaign``, ``bgc.CampaignResult``: the campaign wing's public door, beside :mod:`bgc.api`)."""
 
 from __future__ import annotations
 
@@ -6,10 +7,10 @@ import os
 from pathlib import Path
 
 from .. import arguments
-from ..experiment.campaign import CampaignResult
-from ..experiment.campaign import run_campaign as _run
-from ..experiment.campaign_file import Campaign, load_campaign
 from ..model import DEFAULT_BACKEND
+from .campaign import CampaignResult
+from .campaign import run_campaign as _run
+from .campaign_file import Campaign, load_campaign
 
 __all__ = ["run_campaign", "CampaignResult"]
 
