@@ -233,9 +233,9 @@ def test_filter_on_a_run_of_one_sample_works(tmp_path):
     csv = tmp_path / "run.csv"
     assert run("compile", str(model), "-o", str(tmp_path / "g"), "--no-pictures").returncode == 0
     assert run("simulate", str(model), "--steps", "1", "-o", str(csv)).returncode == 0
-    r = run("filter", str(model), str(csv), "--generated", str(tmp_path / "g"), "--method", "gpf")
+    r = run("filter", str(model), str(csv), "--generated", str(tmp_path / "g"), "--filter", "gpf")
     assert r.returncode == 0 and "GPF on nominal, N = 200: 1 steps" in r.stdout, r.stderr
-    r = run("filter", str(model), str(csv), "--generated", str(tmp_path / "g"), "--method", "gpf",
+    r = run("filter", str(model), str(csv), "--generated", str(tmp_path / "g"), "--filter", "gpf",
             "--fault", "R:incipient", "--start", "1")
     assert r.returncode == 0 and "estimate of slope of R (per ms)" in r.stdout, r.stdout + r.stderr  # the model's time unit
 

@@ -184,7 +184,7 @@ def test_the_commands_take_a_column_map(tmp_path):
     out = bgc_cli("monitor", model, "--data", "-", "--columns", tmp_path / "m.yaml", "--particles", "100",
                   "-o", tmp_path / "m", input=text)
     assert out.returncode == 0, out.stderr
-    out = bgc_cli("filter", model, tmp_path / "log.csv", "--columns", tmp_path / "m.yaml", "--method", "gpf",
+    out = bgc_cli("filter", model, tmp_path / "log.csv", "--columns", tmp_path / "m.yaml", "--filter", "gpf",
                   "--generated", "generated", "--particles", "50")
     assert out.returncode == 0, out.stderr
     for command in (["diagnose", model, "--data"], ["calibrate", model, "-o", tmp_path / "c.yaml", "--data"]):

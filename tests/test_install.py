@@ -88,8 +88,8 @@ def test_wheel_installs_and_runs_outside_the_checkout(tmp_path):
     assert (work / "gen" / "circuit" / "numpy_model" / "__init__.py").is_file()
     run(bgc, "simulate", "circuit.yaml", "--steps", "40", "--fault", "R2:abrupt:1.0@1", "-o", "run.csv", cwd=work)
     nominal = run(bgc, "filter", "circuit.yaml", "run.csv", "--generated", "gen", "--particles", "100",
-                  "--method", "gpf", cwd=work)
+                  "--filter", "gpf", cwd=work)
     assert "GPF on nominal" in nominal.stdout, nominal.stdout
     tracked = run(bgc, "filter", "circuit.yaml", "run.csv", "--fault", "R2:abrupt", "--start", "1.5",
-                  "--generated", "gen", "--particles", "100", "--method", "gpf", cwd=work)
+                  "--generated", "gen", "--particles", "100", "--filter", "gpf", cwd=work)
     assert "estimate of R2" in tracked.stdout, tracked.stdout

@@ -188,3 +188,12 @@ def test_the_recipe_compares_each_filter_on_its_own_estimate(monkeypatch, capsys
     assert list(runs["estimate_method"]) == ["filter"] * 3 + ["kalman"]
     assert runs["size_error_pct"].nunique() == 4  # four estimates, not one grid's four times
     assert "mean_abs_size_error_pct" in capsys.readouterr().out
+
+
+def test_bgc_filter_takes_filter_and_its_old_name_with_a_warning(capsys):
+    from bgc.cli.main import build_parser
+
+    new = build_parser().parse_args(["filter", "m.yaml", "r.csv", "--filter", "opf"])
+    assert new.method == "opf" and capsys.readouterr().err == ""
+    old = build_parser().parse_args(["filter", "m.yaml", "r.csv", "--method", "apf"])
+    assert old.method == "apf" and "--method is deprecated, its name is --filter" in capsys.readouterr().err

@@ -105,7 +105,7 @@ def test_cli_filter_prints_the_estimate_and_refuses_bad_options(tmp_path):
     csv = tmp_path / "run.csv"
     assert bgc_cli("simulate", "models/circuit.yaml", "--fault", "R2:abrupt:1.0@5", "--seed", "1", "-o",
                    csv).returncode == 0
-    out = bgc_cli("filter", "models/circuit.yaml", csv, "--fault", "R2:abrupt", "--start", "5.1", "--method", "gpf",
+    out = bgc_cli("filter", "models/circuit.yaml", csv, "--fault", "R2:abrupt", "--start", "5.1", "--filter", "gpf",
                   "--plot", tmp_path / "p.png")
     assert out.returncode == 0, out.stderr
     assert "estimate of R2 = 2 + delta" in out.stdout and "(true 3," in out.stdout

@@ -3,10 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ..errors import printable
 from .common import add_backend_option, add_columns_option, fault_model, seed, status
+
+
+class _Renamed(argparse.Action):
+    """``--filter``, and its old name ``--method`` with a warning on stderr (the filter has one name)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if option_string == "--method":
+            print("bgc filter: --method is deprecated, its name is --filter", file=sys.stderr)
+        setattr(namespace, self.dest, values)
 
 
 def add_parser(sub) -> None:
@@ -14,8 +24,9 @@ def add_parser(sub) -> None:
     p.add_argument("model", metavar="MODEL")
     p.add_argument("run_csv", metavar="RUN.csv", help="a CSV written by bgc simulate")
     p.add_argument("--fault", metavar="PARAM:KIND", help="track with this fault model (default: nominal)")
-    p.add_argument("--method", choices=["gpf", "apf", "opf", "both"], default="both",
-                   help="gpf, apf, opf (the locally optimal proposal) or both (gpf and apf)")
+    p.add_argument("--filter", "--method", dest="method", choices=["gpf", "apf", "opf", "both"], default="both",
+                   action=_Renamed, help="gpf, apf, opf (the locally optimal proposal) or both (gpf and apf); "
+                                         "--method is its old name, as bgc diagnose's --filter")
     p.add_argument("--particles", type=int, default=200)
     p.add_argument("--seed", type=seed, default=0, help="random seed, an integer >= 0")
     p.add_argument("--start", type=float, metavar="T",
