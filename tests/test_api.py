@@ -74,7 +74,7 @@ def refused(call, kind, start: str) -> str:
     (dict(), ArgumentValueError, "bgc.diagnose: give either data or a scenario, not neither"),
     (dict(data="run.csv", scenario="none"), ArgumentValueError,
      "bgc.diagnose: give either data or a scenario, not both"),
-    (dict(data=5), ArgumentTypeError, "bgc.diagnose: data=5 is not a path or a Run"),
+    (dict(data=5), ArgumentTypeError, "bgc.diagnose: data=5 is not a path, a Run or a Simulation"),
     (dict(data=np.zeros((3, 2))), ArgumentTypeError, "bgc.diagnose: data=array("),
     (dict(scenario="none", generated=3), ArgumentTypeError, "bgc.diagnose: generated=3 is not a path"),
     (dict(scenario="none", options={}), ArgumentTypeError, "bgc.diagnose: options={} is not a DiagnosisOptions"),

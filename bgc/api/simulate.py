@@ -103,7 +103,7 @@ def simulate(model: str | Path | Session, scenario: str | simulation.FaultInject
     >>> sim = bgc.simulate("models/two_tank.yaml", "R12:abrupt:0.5@75", seed=1, steps=200)
     >>> sim.truth
     {'fault': 'R12:abrupt', 'target': 'parameter', 'magnitude': 0.5, 'onset': 75.0}
-    >>> sorted(sim.measurements), sim.time[-1]
+    >>> sorted(sim.measurements), float(sim.time[-1])
     (['F10', 'F12', 'F20'], 100.0)
 
     Raises
