@@ -382,7 +382,7 @@ def test_auto_falls_back_to_numpy_when_the_compiled_package_is_missing(tmp_path,
     session = bgc.open("models/circuit.yaml", generated=tmp_path, work=(100_000, 1000))
     assert session.backend == "numpy" and "numba backend unavailable" in session.backend_note()
     assert "numba_model" in session.backend_note()
-    with pytest.raises(TrackingError, match="--backend numpy"):
+    with pytest.raises(TrackingError, match=r"use backend='numpy'\)"):
         bgc.open("models/circuit.yaml", generated=tmp_path, backend="numba")
 
 

@@ -95,7 +95,7 @@ def test_an_unknown_column_lists_what_the_model_reads_and_the_map_line_that_fixe
         runs.parse_run(_logger(ROWS), "rig2.csv", Reading(None, TANKS_COLUMNS))
     assert str(e.value) == (
         "rig2.csv:1: 6 columns are not bgc's (stamp, temp_C, pump_flow, flow10_lps, flow12_mlps, flow20_lps); "
-        "the model reads time, u:f_in, y:F10, y:F12, y:F20 (give a column map with --columns FILE "
+        "the model reads time, u:f_in, y:F10, y:F12, y:F20 (give a column map with columns=FILE "
         "(docs/format.md, section 9): 'time: stamp' and under columns: a line per column, e.g. "
         "'temp_C: u:f_in' or 'temp_C: skip')")
 

@@ -73,6 +73,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..arguments import spelled
 from ..errors import CalibrationError, printable
 from ..ir import Numerics
 from ..data import sampler as data_grid
@@ -268,7 +269,7 @@ def targets(words: str | Sequence[str], model: FaultModel, parameters: Sequence[
     items = [w.strip() for w in (words.split(",") if isinstance(words, str) else words)]
     if not items or any(not w for w in items):
         raise CalibrationError(f"{where} {printable(repr(','.join(items)))}: an empty name", None,
-                               "e.g. --estimate noise,R1 (names separated by commas)")
+                               f"e.g. {spelled('estimate=', '--estimate ')}noise,R1 (names separated by commas)")
     sensors: tuple[str, ...] = ()
     process = False
     chosen: list[str] = []

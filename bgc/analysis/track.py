@@ -174,7 +174,7 @@ def track(run: Run, package: Package, model_name: str = "nominal", method: str =
     cls = filter_class(package, method)
     if start is not None and cls is CubatureKalmanFilter:
         raise TrackingError("--start hands a particle cloud over to a fault model; ckf has none", None,
-                            "use --method gpf, apf or opf with --start")
+                            "use --filter gpf, apf or opf with --start")
     ys, us = run_arrays(run, package, model_name)
     rng = np.random.default_rng(seed)
     split = 0

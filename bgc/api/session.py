@@ -122,7 +122,7 @@ class Session:
             why = printable(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)[:200]
             if packages.chosen_by_name(backend):
                 raise TrackingError(f"the numba backend cannot run {printable(str(model))}: {why}", None,
-                                    "use --backend numpy (backend='numpy')") from None
+                                    "use " + arguments.spelled("backend='numpy'", "--backend numpy")) from None
             self.backend, self.fallback = "numpy", why
             self._load(generated, str(model), custom)
         self.priors = c.priors
@@ -301,7 +301,7 @@ class Session:
         c = self.view
         nominal = nominal_model(self.package)
         sensors, process, parameters = calibration.targets(estimate, nominal, [p.name for p in c.model.parameters],
-                                                           "--estimate" if isinstance(estimate, str) else "estimate")
+                                                           arguments.spelled(f"{func}: estimate", "--estimate"))
         records, dates = [], []
         for item in items:
             run = self.read_run(item, columns, func)

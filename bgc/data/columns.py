@@ -41,6 +41,7 @@ from pathlib import Path
 
 import yaml
 
+from ..arguments import spelled
 from ..errors import DataError, printable
 
 #: A column map larger than this is refused (a map of a thousand columns is about 40 kB).
@@ -146,7 +147,7 @@ class Reading:
             example.append(f"under columns: a line per column, e.g. '{printable(others[0])}: "
                            f"{self._free(set(columns))}' or '{printable(others[0])}: skip'")
         return DataError(f"{where}: {len(foreign)} columns are not bgc's ({_listed(foreign)}){self._reads()}", None,
-                         "give a column map with --columns FILE (docs/format.md, section 9): "
+                         f"give a column map with {spelled('columns=FILE', '--columns FILE')} (docs/format.md, section 9): "
                          + " and ".join(example))
 
     def _free(self, there: set[str]) -> str:
@@ -206,7 +207,7 @@ def read_map(path: str | Path) -> ColumnMap:
                             "a column map names a logger's columns: keep it small")
         raw = p.read_bytes()
     except FileNotFoundError:
-        raise DataError(f"{name}: no such file", None, "check the path of --columns") from None
+        raise DataError(f"{name}: no such file", None, f"check the path of {spelled('columns=', '--columns')}") from None
     except OSError as exc:
         raise DataError(f"{name}: cannot read: {printable(exc.strerror or str(exc))}", None, fix) from None
     try:

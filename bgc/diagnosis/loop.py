@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..arguments import spelled
 from ..data.sampler import DataSummary, Sample
 from ..filters.cubature import NominalKalman
 from ..filters.registry import check_particles, filter_class
@@ -119,8 +120,9 @@ class Loop:
         if o.identify not in IDENTIFY:
             raise TrackingError(f"unknown identification {o.identify!r}", None, f"use {' or '.join(IDENTIFY)}")
         if config.ckf and (o.refine or o.rank):
-            raise TrackingError("--refine and --rank weigh particle filters on a grid", None,
-                                "use them with --filter gpf, apf or opf; ckf computes the static posterior already")
+            raise TrackingError(f"{spelled('refine and rank', '--refine and --rank')} weigh particle filters on a grid",
+                                None, f"use them with {spelled('filter=', '--filter ')}gpf, apf or opf; ckf computes "
+                                "the static posterior already")
         self.outputs = tuple(nominal.OUTPUTS)
         self.horizon = max(int(config.horizon), 1)
         self.pf_class = filter_class(config.package, "gpf" if config.ckf else o.filter)  # ckf: the open loop's

@@ -15,6 +15,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import TYPE_CHECKING, Any, Iterator
 
 
+from ..arguments import spelled
 from .. import arguments
 from ..model import DEFAULT_BACKEND
 from ..errors import (ArgumentTypeError, ArgumentValueError, ExperimentError, printable)
@@ -77,7 +78,7 @@ def check_workers(workers: Any, name: str = "workers") -> int | None:
     if workers > limit:
         raise ArgumentValueError(
             f"{name} {workers} is more than the limit of {limit} local processes ({WORKERS_PER_CORE} per core, "
-            f"{cores()} cores)", None, f"give at most {limit}, or run on a Dask cluster with --scheduler")
+            f"{cores()} cores)", None, f"give at most {limit}, or run on a Dask cluster with {spelled('scheduler=', '--scheduler')}")
     return int(workers)
 
 
@@ -354,7 +355,7 @@ def run_on_dask(specs: list[RunSpec], address: str, timeout: float, backend: str
         from distributed import Client
         from distributed import as_completed as dask_completed
     except ImportError:  # pragma: no cover - a dependency of bgc
-        raise ExperimentError("--scheduler needs dask.distributed", None, "pip install 'dask[distributed]'") from None
+        raise ExperimentError(f"{spelled('scheduler=', '--scheduler')} needs dask.distributed", None, "pip install 'dask[distributed]'") from None
     check_scheduler(address, timeout)
     try:
         client = Client(address, timeout=timeout)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 
+from ..arguments import spelled
 from ..errors import TrackingError
 from . import cubature
 from ..model.protocol import Package
@@ -41,9 +42,10 @@ def check_particles(particles: int, package: Package, model_name: str) -> None:
     would take more than MAX_FILTER_BYTES."""
     n_x = len(package.MODELS[model_name].STATES)
     if particles < 1:
-        raise TrackingError(f"--particles {particles}: at least 1 particle is needed", None, "e.g. --particles 200")
+        raise TrackingError(f"{spelled('particles=', '--particles ')}{particles}: at least 1 particle is needed", None,
+                            f"e.g. {spelled('particles=200', '--particles 200')}")
     need = int(particles) * (_ROWS_ALIVE * n_x + 3) * 8
     if need > MAX_FILTER_BYTES:
         most = MAX_FILTER_BYTES // ((_ROWS_ALIVE * n_x + 3) * 8)
-        raise TrackingError(f"--particles {particles} would take about {need / 1e9:.3g} GB", None,
+        raise TrackingError(f"{spelled('particles=', '--particles ')}{particles} would take about {need / 1e9:.3g} GB", None,
                             f"use at most {most} particles for this model")

@@ -15,6 +15,7 @@ import importlib.util
 import sys
 from pathlib import Path
 
+from ..arguments import spelled
 from ..errors import TrackingError, printable
 from ..ir import PACKAGES, NoiseLevels
 from .protocol import Package
@@ -46,7 +47,8 @@ def resolve_backend(backend: str | None) -> str:
                             "use one of: " + ", ".join(BACKENDS) + " (or auto)")
     if chosen == "numba" and not numba_installed():
         raise TrackingError("the numba backend needs numba, which is not installed", None,
-                            "pip install 'bgc[fast]', or use --backend numpy")
+                            "pip install 'bgc[fast]', or use "
+                            + spelled("backend='numpy'", "--backend numpy"))
     return chosen
 
 
