@@ -83,7 +83,10 @@ class Hypothesis:
     posterior's most likely cell (None: it passed, or was not run).
     ``ruled_out``: the signature and symbol that ruled it out ("" when the
     symbols kept it); it was weighed by its static posterior alone (step 6b,
-    ``recheck``)."""
+    ``recheck``). ``start``, ``onsets``, ``dropped`` and ``onset_step`` are
+    steps of the run's time grid (:meth:`Diagnosis.time_of` gives their
+    times; :meth:`bgc.DiagnosisReport.table` lists each hypothesis with
+    times in the model's unit)."""
 
     name: str
     parameter: str
