@@ -65,7 +65,8 @@ API = ("open", "Session", "diagnose", "DiagnosisReport", "distinguishability", "
 #: The campaign wing's public names (:mod:`bgc.experiment.public`; imported on first use).
 CAMPAIGN = ("run_campaign", "CampaignResult")
 
-__all__ = [*API, *CAMPAIGN, "Error", "ModelError", "DataError", "ArgumentError", "ArgumentTypeError", "ArgumentValueError",
+__all__ = [*API, *CAMPAIGN, "Error", "ModelError", "DataError", "ArgumentError", "ArgumentTypeError",
+           "ArgumentValueError",
            "SimulationError", "OutputError", "ExperimentError", "__version__"]
 
 

@@ -38,7 +38,7 @@ def test_ro_abrupt_pipe_blockage_is_detected_at_once_isolated_and_sized():
     e = d.estimate
     assert abs(e.value - 31.0) < 0.1 * 31.0 and e.low <= 31.0 <= e.high
     assert e.parameter_value == pytest.approx(69.0 + e.value, rel=0.05)
-    dropped = {h.name: h for h in d.hypotheses if h.dropped is not None}
+    dropped = {h.name: h for h in d.hypotheses if h.dropped_step is not None}
     assert dropped and all(h.reason for h in dropped.values())
 
 
@@ -375,13 +375,13 @@ def test_a_drift_found_long_after_it_began_gets_its_onset_grid_extended_back():
     f = bgc.diagnose(circuit, scenario="R3:incipient:0.0308906@5.3", seed=473362393,
                      options=DiagnosisOptions(seed=473362393, identify="filter", spacing=4)).diagnosis  # 2 workers
     h = f.best
-    assert f.candidates[0] == "R3_incipient" and min(h.onsets) < f.detection.step - 64
-    assert abs(h.start - 106) <= 12, h.start
+    assert f.candidates[0] == "R3_incipient" and min(h.onset_steps) < f.detection.step - 64
+    assert abs(h.start_step - 106) <= 12, h.start_step
     # each hypothesis's batches of onsets depend on its own results only: on one process (the
     # batches one after another) the same onsets are tried and give the same numbers
     one = bgc.diagnose(circuit, scenario="R3:incipient:0.0308906@5.3", seed=473362393,
                        options=DiagnosisOptions(seed=473362393, workers=1, identify="filter", spacing=4)).diagnosis
-    assert [(x.name, x.onsets) for x in one.hypotheses] == [(x.name, x.onsets) for x in f.hypotheses]
+    assert [(x.name, x.onset_steps) for x in one.hypotheses] == [(x.name, x.onset_steps) for x in f.hypotheses]
     for x, y in zip(one.hypotheses, f.hypotheses):
         assert x.log_evidence == y.log_evidence and x.onset_posterior == y.onset_posterior
         assert np.array_equal(x.magnitude, y.magnitude, equal_nan=True)
@@ -404,7 +404,7 @@ def test_a_parameter_seen_directly_by_a_sensor_changed_at_a_sample_is_isolated()
     assert d.time_of(d.detection.step) == 150
     assert d.verdict == "isolated" and d.candidates == ("k_abrupt",)
     h = d.best
-    assert max(h.onsets) == d.detection.step + 1  # the sample after the alarm was tried
+    assert max(h.onset_steps) == d.detection.step + 1  # the sample after the alarm was tried
     e = d.estimate
     assert e.low <= 0.03 <= e.high and abs(e.value - 0.03) < 0.1 * 0.03
 
@@ -454,7 +454,7 @@ def test_a_parameter_a_sensor_sees_is_sized_right_when_it_changes_at_a_sample():
     assert d.verdict == "isolated" and d.candidates == ("cd_abrupt",)
     e = d.estimate
     assert e.low <= truth <= e.high and abs(e.value - truth) < 0.05 * truth
-    assert d.time_of(d.best.start) == 149
+    assert d.time_of(d.best.start_step) == 149
 
 
 @pytest.mark.slow
@@ -566,7 +566,7 @@ def test_cubature_kalman_filters_alone_isolate_and_size_a_fault_the_particle_fil
     e = d.estimate
     assert abs(e.value + 0.2) < 0.02 and e.low <= -0.2 <= e.high and abs(d.onset_step - 160) <= 3
     best = d.best
-    assert best.x_mean.shape == (len(d.time) - best.start, len(d.states)) and np.isfinite(best.magnitude).all()
+    assert best.x_mean.shape == (len(d.time) - best.start_step, len(d.states)) and np.isfinite(best.magnitude).all()
 
 
 @pytest.mark.slow
@@ -585,7 +585,7 @@ def test_cubature_kalman_filters_alone_find_the_static_posterior_the_particle_fi
     assert k.estimate.low == pytest.approx(p.estimate.low, rel=1e-3)
     assert k.estimate.high == pytest.approx(p.estimate.high, rel=1e-3)
     assert k.estimate.low <= 0.3 <= k.estimate.high
-    dropped = [h for h in k.hypotheses if h.dropped is not None]
+    dropped = [h for h in k.hypotheses if h.dropped_step is not None]
     assert dropped and all(h.reason and h.posterior == 0.0 for h in dropped if "residual" in h.reason)
 
 

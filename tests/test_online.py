@@ -72,7 +72,7 @@ def test_stepping_the_diagnoser_sample_by_sample_gives_the_batch_diagnosis():
     assert (online.verdict, online.candidates, online.onset) == (batch.verdict, batch.candidates, batch.onset)
     assert online.verdict == "isolated" and online.candidates == ("R2_abrupt",)
     for h, g in zip(online.hypotheses, batch.hypotheses):
-        assert (h.name, h.dropped) == (g.name, g.dropped)
+        assert (h.name, h.dropped_step) == (g.name, g.dropped_step)
         for f in ("value", "low", "high"):
             assert math.isclose(getattr(h.estimate, f), getattr(g.estimate, f), rel_tol=1e-9) or \
                 (math.isnan(getattr(h.estimate, f)) and math.isnan(getattr(g.estimate, f)))

@@ -125,7 +125,7 @@ def test_the_hypotheses_legend_keeps_the_most_probable_and_groups_the_others(ro_
     assert all(h.posterior >= o.posterior for h in shown for o in others)
     # every hypothesis is drawn: the grouped ones too (one line per sensor each, and an X where dropped)
     drawn = len(fig.axes[0].get_lines())
-    assert drawn >= 1 + len(d.hypotheses) + sum(h.dropped is not None for h in d.hypotheses)
+    assert drawn >= 1 + len(d.hypotheses) + sum(h.dropped_step is not None for h in d.hypotheses)
 
 
 def test_the_distinguishability_map_has_a_colour_bar():
@@ -175,7 +175,7 @@ def _diagnosed(start: float):
 
     t = start + np.arange(50.0)
     y = np.sin(np.arange(50.0) / 8)[:, None]
-    h = types.SimpleNamespace(name="R1_abrupt", posterior=0.9, dropped=None, start=10, y_mean=y[10:] + 0.1)
+    h = types.SimpleNamespace(name="R1_abrupt", posterior=0.9, dropped_step=None, start_step=10, y_mean=y[10:] + 0.1)
     d = types.SimpleNamespace(model="m", outputs=("y1",), time=t, hypotheses=[h], onset_step=10,
                               detection=types.SimpleNamespace(step=12))
     run = types.SimpleNamespace(time=t, measurements={"y1": y[:, 0]})

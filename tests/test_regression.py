@@ -152,9 +152,9 @@ def test_a_refactor_does_not_change_the_diagnosis(case):
     assert [h.name for h in d.hypotheses] == [h["name"] for h in e["hypotheses"]]
     wrong = []
     for h, want in zip(d.hypotheses, e["hypotheses"]):
-        if (h.dropped, h.start, h.onset_step, h.estimate.magnitude) != (want["dropped"], want["start"], want["onset"],
+        if (h.dropped_step, h.start_step, h.onset_step, h.estimate.magnitude) != (want["dropped"], want["start"], want["onset"],
                                                                    want["estimate"]["magnitude"]):
-            wrong.append(f"{h.name}: dropped/start/onset/magnitude {(h.dropped, h.start, h.onset_step, h.estimate.magnitude)}"
+            wrong.append(f"{h.name}: dropped/start/onset/magnitude {(h.dropped_step, h.start_step, h.onset_step, h.estimate.magnitude)}"
                          f" != {(want['dropped'], want['start'], want['onset'], want['estimate']['magnitude'])}")
         numbers = {"posterior": h.posterior, "log_evidence": h.log_evidence,
                    **{k: getattr(h.estimate, k) for k in ("value", "std", "low", "high", "parameter_value")}}

@@ -31,7 +31,7 @@ from bgc.diagnosis.values import Drop, Estimate, Hypothesis
 def hypothesis(name: str, posterior: float, dropped: int | None = None, code: str = "bayes-factor") -> Hypothesis:
     e = Estimate("P", "abrupt", "bias", 0.0, 0.0, 0.0, 0.0, 0.95, 1.0, 1.0, None)
     empty = np.zeros((0, 1))
-    return Hypothesis(name=name, parameter="P", kind="abrupt", signatures=(), start=0, onsets=(0,),
+    return Hypothesis(name=name, parameter="P", kind="abrupt", signatures=(), start_step=0, onset_steps=(0,),
                       onset_posterior=(1.0,), y_mean=empty, y_std=empty, z=empty, x_mean=empty, x_std=empty,
                       magnitude=np.zeros(0), magnitude_band=np.zeros((0, 2)),
                       drop=None if dropped is None else Drop(code, dropped, code), log_evidence=0.0,
@@ -46,7 +46,7 @@ def test_a_lone_survivor_under_the_level_keeps_the_most_probable_outvoted_rivals
     hs = (hypothesis("A", 0.90), hypothesis("B", 0.05, 9), hypothesis("C", 0.03, 9),
           hypothesis("D", 0.02, 9), hypothesis("E", 0.5, 3, "inconsistent"))
     out, events = weigh.credible(hs, 0.95, 10)
-    assert [h.name for h in out if h.dropped is None] == ["A", "B"]
+    assert [h.name for h in out if h.dropped_step is None] == ["A", "B"]
     assert weigh.verdict(out) == ("ambiguous", ("A", "B"))
     (e,) = events
     assert isinstance(e, ev.Uncertain)
@@ -72,7 +72,7 @@ def test_many_rivals_each_under_the_bayes_factor_make_a_verdict_ambiguous():
     best = 1.0 / (1.0 + 20 / 150)
     hs = (hypothesis("A", best),) + tuple(hypothesis(f"R{i:02d}", best / 150, 9) for i in range(20))
     out, _ = weigh.credible(hs, 0.95, 10)
-    kept = [h.name for h in out if h.dropped is None]
+    kept = [h.name for h in out if h.dropped_step is None]
     # the best plus k rivals reach 0.95 when (1 + k/150) / (1 + 20/150) >= 0.95: k >= 11.5
     assert len(kept) == 1 + 12
 

@@ -232,4 +232,4 @@ def _hypothesis_row(d: Diagnosis, h) -> dict:
             "estimate": float(e.value), "low": float(e.low), "high": float(e.high), "std": float(e.std),
             "level": float(e.level), "magnitude": e.magnitude, "estimate_method": e.method,
             "parameter_value": float(e.parameter_value), "truth": e.truth,
-            "dropped": d.time_of(h.dropped), "reason": h.reason or None}
+            "dropped": d.time_of(h.dropped_step), "reason": h.reason or None}

@@ -248,7 +248,7 @@ def _assemble(name: str, starts: list[int], results: dict, r: Record, s: Setting
     weights, log_evidence = onset_weights(starts, evidence)
     n = len(r.states)
     return Hypothesis(name=name, parameter=module.FAULT["parameter"], kind=module.FAULT["kind"],
-                      signatures=tuple(r.isolation.models[name]), start=start, onsets=tuple(starts),
+                      signatures=tuple(r.isolation.models[name]), start_step=start, onset_steps=tuple(starts),
                       onset_posterior=tuple(float(w) for w in weights), y_mean=out["y_mean"], y_std=out["y_std"],
                       z=(r.ys[start:] - out["y_mean"]) / out["y_std"], x_mean=out["mean"][:, :n],
                       x_std=out["std"][:, :n], magnitude=out["magnitude"], magnitude_band=out["band"], drop=drop,
@@ -266,7 +266,7 @@ def _static_job(h: Hypothesis, r: Record, s: Setting, observer: kalman.NominalTr
     tried = iso.kalman_onsets[iso.drifts[h.name]]
     earlier = earlier_onsets(iso.kalman_reach, tried, o.search)
     return StaticJob(s.package.__name__, h.name, r.ys, r.us, observer, tuple(tried), (h.estimate.low, h.estimate.high),
-                     h.start, o.interval, o.kalman, earlier)
+                     h.start_step, o.interval, o.kalman, earlier)
 
 
 def _rescued(hyps: tuple[Hypothesis, ...], results: dict, r: Record, s: Setting, observer: kalman.NominalTrack):
@@ -278,12 +278,12 @@ def _rescued(hyps: tuple[Hypothesis, ...], results: dict, r: Record, s: Setting,
     posteriors by name, events)."""
     posteriors, events, out = {}, [], []
     for h in hyps:
-        if math.isfinite(results[(h.name, h.start)]["evidence"]):
+        if math.isfinite(results[(h.name, h.start_step)]["evidence"]):
             s.say(f"testing {h.name} with its magnitude held static")
             p = run_static(_static_job(h, r, s, observer))
             if math.isfinite(p.log_evidence) and static_alarm(p, r.outputs, s.options) is None:
                 posteriors[h.name] = p
-                events.append(ev.Rescued(h.name, h.reason, h.dropped))
+                events.append(ev.Rescued(h.name, h.reason, h.dropped_step))
                 h = replace(h, drop=None)
         out.append(h)
     return tuple(out), posteriors, events

@@ -48,7 +48,8 @@ def ranked(hyps: tuple[Hypothesis, ...], weights: np.ndarray, priors: dict[str, 
     survivor with its ``static_log_evidence``), the weights and the grid
     posteriors by name."""
     alive = [i for i, h in enumerate(hyps) if h.drop is None]
-    chosen = {i: top_onsets(hyps[i].onsets, hyps[i].onset_posterior, hyps[i].start, options.rank_grid.onsets)
+    chosen = {i: top_onsets(hyps[i].onset_steps, hyps[i].onset_posterior, hyps[i].start_step,
+                            options.rank_grid.onsets)
               for i in alive}
     first = min(min(o) for o in chosen.values())
     out, log_w, grids = list(hyps), [], {}
@@ -57,8 +58,8 @@ def ranked(hyps: tuple[Hypothesis, ...], weights: np.ndarray, priors: dict[str, 
         g = grid_posterior(package, h.name, h.estimate, clouds, ys, us, chosen[i], options, [options.seed, 8], first,
                            options.rank_grid)
         grids[h.name] = g
-        posterior = dict(zip(h.onsets, h.onset_posterior))
-        width = dict(zip(h.onsets, onset_widths(h.onsets)))
+        posterior = dict(zip(h.onset_steps, h.onset_posterior))
+        width = dict(zip(h.onset_steps, onset_widths(h.onset_steps)))
         covered = sum(posterior.get(s, 0.0) for s in g.onsets) or 1.0
         evidence = identify.log_evidence(g, tuple(package.MODELS[h.name].FAULT_PRIOR),
                                          [width[s] for s in g.onsets]) - math.log(covered)
@@ -84,7 +85,7 @@ def refined(h: Hypothesis, g: identify.GridPosterior | None, package, clouds: di
     module = package.MODELS[h.name]
     e = h.estimate
     if g is None:
-        onsets = top_onsets(h.onsets, h.onset_posterior, h.start, options.grid.onsets)
+        onsets = top_onsets(h.onset_steps, h.onset_posterior, h.start_step, options.grid.onsets)
         g = grid_posterior(package, h.name, e, clouds, ys, us, onsets, options, [options.seed, 7, sum(map(ord, h.name))])
     kind = fault_kind(h.kind)
     if kind.drifts:  # the parameter at the last step: nominal + its change since the onset

@@ -124,13 +124,13 @@ def kalman_hypothesis(name: str, signatures: tuple[str, ...], package, p: Static
     nan = math.nan
     estimate = Estimate(parameter, kind_name, fault_kind(kind_name).magnitude, nan, nan, nan, nan,
                         options.interval, nan, nominal, truth, method="kalman", **struck(module))
-    common = dict(name=name, parameter=parameter, kind=kind_name, signatures=signatures, onsets=p.onsets,
+    common = dict(name=name, parameter=parameter, kind=kind_name, signatures=signatures, onset_steps=p.onsets,
                   onset_posterior=p.onset_posterior, log_evidence=p.log_evidence, seconds=p.seconds,
                   estimate=estimate)
     if p.path is None:  # no finite likelihood: nothing to show
         start = max(p.onsets)
         empty = np.full((T - start, len(outputs)), np.nan)
-        return Hypothesis(start=start, y_mean=empty, y_std=empty, z=empty, x_mean=np.full((T - start, n), nan),
+        return Hypothesis(start_step=start, y_mean=empty, y_std=empty, z=empty, x_mean=np.full((T - start, n), nan),
                           x_std=np.full((T - start, n), nan), magnitude=np.full(T - start, nan),
                           magnitude_band=np.full((T - start, 2), nan), **common)
     q = NormalDist().inv_cdf((1.0 + options.interval) / 2.0)
@@ -140,7 +140,7 @@ def kalman_hypothesis(name: str, signatures: tuple[str, ...], package, p: Static
     alarm = static_alarm(p, outputs, options)
     drop = None if alarm is None else Drop("static-test", p.best[0] + alarm.step,
                                            misfit_reason(estimate.magnitude, p.best[1], times[p.best[0]], alarm))
-    return Hypothesis(start=start, y_mean=y_mean, y_std=y_std, z=(ys[start:] - y_mean) / y_std,
+    return Hypothesis(start_step=start, y_mean=y_mean, y_std=y_std, z=(ys[start:] - y_mean) / y_std,
                       x_mean=path.x_mean[start:, 0, :n], x_std=path.x_std[start:, 0, :n], magnitude=mean,
                       magnitude_band=np.column_stack([mean - q * std, mean + q * std]), drop=drop, **common)
 

@@ -67,12 +67,12 @@ class Drop:
 
 @dataclass(frozen=True, slots=True)
 class Hypothesis:
-    """One fault model: its filters from every onset tried (``onsets``, with
+    """One fault model: its filters from every onset tried (``onset_steps``, with
     their posterior probabilities), and from the most probable one
-    (``start``) its per-step predicted measurements, normalised residuals,
+    (``start_step``) its per-step predicted measurements, normalised residuals,
     state estimates (mean, std of the plant's states) and magnitude (mean,
     interval), its ``drop`` (a :class:`Drop`; None: it survived;
-    ``dropped`` and ``reason`` read it), its log evidence (over the onsets)
+    ``dropped_step`` and ``reason`` read it), its log evidence (over the onsets)
     and posterior probability among the hypotheses (0 until it is weighed).
     With the magnitude held static (``identify =
     "kalman"``, or ``rank``): ``static_log_evidence``, the evidence of its
@@ -83,8 +83,8 @@ class Hypothesis:
     posterior's most likely cell (None: it passed, or was not run).
     ``ruled_out``: the signature and symbol that ruled it out ("" when the
     symbols kept it); it was weighed by its static posterior alone (step 6b,
-    ``recheck``). ``start``, ``onsets``, ``dropped`` and ``onset_step`` are
-    steps of the run's time grid (:meth:`Diagnosis.time_of` gives their
+    ``recheck``). ``start_step``, ``onset_steps``, ``dropped_step`` and
+    ``onset_step`` are steps of the run's time grid (:meth:`Diagnosis.time_of` gives their
     times; :meth:`bgc.DiagnosisReport.table` lists each hypothesis with
     times in the model's unit)."""
 
@@ -92,8 +92,8 @@ class Hypothesis:
     parameter: str
     kind: str
     signatures: tuple[str, ...]
-    start: int
-    onsets: tuple[int, ...]
+    start_step: int
+    onset_steps: tuple[int, ...]
     onset_posterior: tuple[float, ...]
     y_mean: np.ndarray
     y_std: np.ndarray
@@ -114,7 +114,7 @@ class Hypothesis:
     ruled_out: str = ""
 
     @property
-    def dropped(self) -> int | None:
+    def dropped_step(self) -> int | None:
         """The step it was dropped at (None: it survived)."""
         return None if self.drop is None else self.drop.step
 
@@ -127,7 +127,7 @@ class Hypothesis:
     def onset_step(self) -> int:
         """The most probable onset, a step of the run's time grid: the static
         posterior's when there is one, else the filters'."""
-        return self.static.onset if self.static is not None and math.isfinite(self.static.log_evidence) else self.start
+        return self.static.onset if self.static is not None and math.isfinite(self.static.log_evidence) else self.start_step
 
 
 @dataclass(frozen=True, slots=True)
@@ -192,7 +192,7 @@ class Diagnosis:
         mean, std = self.nominal_x_mean.copy(), self.nominal_x_std.copy()
         best = self.best
         if best is not None:
-            mean[best.start:], std[best.start:] = best.x_mean, best.x_std
+            mean[best.start_step:], std[best.start_step:] = best.x_mean, best.x_std
         return mean, std
 
 

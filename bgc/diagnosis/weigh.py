@@ -196,7 +196,7 @@ def verdict(hyps: tuple[Hypothesis, ...]) -> tuple[str, tuple[str, ...]]:
     if survivors:
         return "ambiguous", tuple(h.name for h in survivors)
     if hyps:
-        return "unexplained", (max(hyps, key=lambda h: (h.dropped, h.posterior)).name,)
+        return "unexplained", (max(hyps, key=lambda h: (h.dropped_step, h.posterior)).name,)
     return "unexplained", ()
 
 

@@ -78,7 +78,8 @@ def check_workers(workers: Any, name: str = "workers") -> int | None:
     if workers > limit:
         raise ArgumentValueError(
             f"{name} {workers} is more than the limit of {limit} local processes ({WORKERS_PER_CORE} per core, "
-            f"{cores()} cores)", None, f"give at most {limit}, or run on a Dask cluster with {spelled('scheduler=', '--scheduler')}")
+            f"{cores()} cores)", None,
+            f"give at most {limit}, or run on a Dask cluster with {spelled('scheduler=', '--scheduler')}")
     return int(workers)
 
 
@@ -355,7 +356,8 @@ def run_on_dask(specs: list[RunSpec], address: str, timeout: float, backend: str
         from distributed import Client
         from distributed import as_completed as dask_completed
     except ImportError:  # pragma: no cover - a dependency of bgc
-        raise ExperimentError(f"{spelled('scheduler=', '--scheduler')} needs dask.distributed", None, "pip install 'dask[distributed]'") from None
+        raise ExperimentError(f"{spelled('scheduler=', '--scheduler')} needs dask.distributed", None,
+                              "pip install 'dask[distributed]'") from None
     check_scheduler(address, timeout)
     try:
         client = Client(address, timeout=timeout)

@@ -47,5 +47,6 @@ def check_particles(particles: int, package: Package, model_name: str) -> None:
     need = int(particles) * (_ROWS_ALIVE * n_x + 3) * 8
     if need > MAX_FILTER_BYTES:
         most = MAX_FILTER_BYTES // ((_ROWS_ALIVE * n_x + 3) * 8)
-        raise TrackingError(f"{spelled('particles=', '--particles ')}{particles} would take about {need / 1e9:.3g} GB", None,
+        raise TrackingError(f"{spelled('particles=', '--particles ')}{particles} would take about {need / 1e9:.3g} GB",
+                            None,
                             f"use at most {most} particles for this model")

@@ -356,7 +356,7 @@ def ranked_hypotheses(d) -> tuple[list, list]:
     """The fault models of diagnosis ``d`` most probable first (among equals,
     the ones not dropped first), split into those drawn in colour
     (:data:`SHOWN_HYPOTHESES`) and the others."""
-    ranked = sorted(d.hypotheses, key=lambda h: (-h.posterior, h.dropped is not None))
+    ranked = sorted(d.hypotheses, key=lambda h: (-h.posterior, h.dropped_step is not None))
     return ranked[:SHOWN_HYPOTHESES], ranked[SHOWN_HYPOTHESES:]
 
 
@@ -377,12 +377,12 @@ def diagnosis_hypotheses(r) -> Figure:
         _marks(axes[j], d, clock)
         _ylabel(axes[j], labels.axis(name))
     handles = [_line("measured", MEASURED, marker="x")]
-    handles += [_line(f"{h.name} (p = {h.posterior:.3g}" + (", dropped)" if h.dropped is not None else ")"), c,
-                      "-" if h.dropped is None else ":", lw=1.2) for h, c in zip(shown, CYCLE)]
+    handles += [_line(f"{h.name} (p = {h.posterior:.3g}" + (", dropped)" if h.dropped_step is not None else ")"), c,
+                      "-" if h.dropped_step is None else ":", lw=1.2) for h, c in zip(shown, CYCLE)]
     if others:
         top = max(h.posterior for h in others)
         handles.append(_line(f"{len(others)} others (p {'= 0' if top == 0 else f'<= {top:.2g}'}; "
-                             f"{sum(h.dropped is not None for h in others)} dropped)", LIGHT_GREY, ":"))
+                             f"{sum(h.dropped_step is not None for h in others)} dropped)", LIGHT_GREY, ":"))
     handles += [_line("where dropped (in its colour)", GREY, marker="X"), *_mark_handles(d)]
     _legend_above(axes[0], handles, ncol=3)
     fig.suptitle(f"{d.model}: fault hypotheses' predicted measurements (dotted: dropped)", fontsize=10)
@@ -393,9 +393,11 @@ def diagnosis_hypotheses(r) -> Figure:
 def _hypothesis(ax, d, h, j: int, color: str, lw: float, clock: TimeAxis) -> None:
     """Hypothesis ``h``'s prediction of sensor ``j`` from its onset, dotted
     when it was dropped, with an X where; over the measurements."""
-    ax.plot(clock(d.time[h.start:]), h.y_mean[:, j], "-" if h.dropped is None else ":", lw=lw, color=color, zorder=3)
-    if h.dropped is not None:
-        ax.plot(clock(d.time[h.dropped]), h.y_mean[h.dropped - h.start, j], "X", color=color, ms=5, zorder=3)
+    ax.plot(clock(d.time[h.start_step:]), h.y_mean[:, j], "-" if h.dropped_step is None else ":", lw=lw, color=color,
+            zorder=3)
+    if h.dropped_step is not None:
+        ax.plot(clock(d.time[h.dropped_step]), h.y_mean[h.dropped_step - h.start_step, j], "X", color=color, ms=5,
+                zorder=3)
 
 
 def diagnosis_estimate(r) -> Figure:
@@ -427,7 +429,7 @@ def _estimate(ax, d, h, clock: TimeAxis) -> None:
     band and, when the estimate is the static posterior's (or ``--refine``'s
     grid's), that estimate and its interval from the onset."""
     e = h.estimate
-    t = clock(d.time[h.start:])
+    t = clock(d.time[h.start_step:])
     static = h.filter_estimate is not None
     level = f"{100 * e.level:.0f} %"
     ax.plot(t, h.magnitude, "-", lw=1.2, color=CYCLE[0], label="particle filter" if static else "estimate")

@@ -142,9 +142,10 @@ def report_data(r) -> dict[str, Any]:
         e = h.estimate
         out["hypotheses"].append({
             "model": h.name, "parameter": h.parameter, "kind": h.kind, "signatures": list(h.signatures),
-            "onset": _time(_t(d, h.onset_step)), "filter_onset": _time(_t(d, h.start)), "posterior": _num(h.posterior),
+            "onset": _time(_t(d, h.onset_step)), "filter_onset": _time(_t(d, h.start_step)),
+            "posterior": _num(h.posterior),
             "log_evidence": _num(h.log_evidence), "static_log_evidence": _num(h.static_log_evidence),
-            "dropped": None if h.dropped is None else {"time": _time(_t(d, h.dropped)), "why": h.reason,
+            "dropped": None if h.dropped_step is None else {"time": _time(_t(d, h.dropped_step)), "why": h.reason,
                                                        "reason": _drop_reason(d, h.name)},
             "estimate": {"magnitude": e.magnitude, "value": _num(e.value), "std": _num(e.std),
                          "interval": [_num(e.low), _num(e.high)], "level": e.level,
@@ -285,7 +286,8 @@ def hypothesis_rows(d, labels: Labels = Labels()) -> list[tuple[str, ...]]:
         unit = f" {u}" if (u := magnitude_unit(h, labels)) else ""
         truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
         rows.append((h.name, _tt(d, h.onset_step), f"{h.posterior:.3g}", f"{e.magnitude} {e.value:.4g}{unit}{truth}",
-                     f"[{e.low:.4g}, {e.high:.4g}]{unit}", "-" if h.dropped is None else f"t = {_tt(d, h.dropped)}",
+                     f"[{e.low:.4g}, {e.high:.4g}]{unit}",
+                     "-" if h.dropped_step is None else f"t = {_tt(d, h.dropped_step)}",
                      h.reason))
     return rows
 

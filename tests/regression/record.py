@@ -213,9 +213,9 @@ def expected(d) -> dict:
         "events": [sentence(e, lambda k: float(d.time[k])) for e in d.events],  # for the reader only
         "hypotheses": [{
             "name": h.name,
-            "dropped": h.dropped,
+            "dropped": h.dropped_step,
             "reason": h.reason,
-            "start": h.start,
+            "start": h.start_step,
             "onset": h.onset_step,
             "posterior": f(h.posterior),
             "log_evidence": f(h.log_evidence),
