@@ -197,3 +197,14 @@ def test_bgc_filter_takes_filter_and_its_old_name_with_a_warning(capsys):
     assert new.method == "opf" and capsys.readouterr().err == ""
     old = build_parser().parse_args(["filter", "m.yaml", "r.csv", "--method", "apf"])
     assert old.method == "apf" and "--method is deprecated, its name is --filter" in capsys.readouterr().err
+
+
+def test_help_of_bgc_lists_the_public_api():
+    import pydoc
+
+    text = pydoc.render_doc(bgc, renderer=pydoc.plaintext)
+    for name in ("open", "simulate", "diagnose", "distinguishability", "run_campaign", "Table", "DiagnosisOptions",
+                 "Error", "ModelError", "DataError", "ArgumentValueError", "ScenarioWarning"):
+        assert name in text, name
+    for name in bgc.__all__:
+        assert getattr(bgc, name) is not None  # every name bgc lists is given, none behind an underscore
