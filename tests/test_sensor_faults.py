@@ -333,12 +333,13 @@ def test_a_fault_the_model_does_not_list_ends_unexplained(tank_session):
 
 
 def test_distinguish_says_when_its_scenario_is_outside_the_prior_or_the_candidates(tank_session):
-    r = bgc.distinguishability(tank_session, "R12:abrupt:3@60", steps=160)
+    with pytest.warns(bgc.ScenarioWarning, match="bias 3 is outside the prior of R12:abrupt"):  # Python's, too
+        r = bgc.distinguishability(tank_session, "R12:abrupt:3@60", steps=160)
     assert r.warning.startswith("bias 3 is outside the prior of R12:abrupt in the model (0 to 2)")
     from bgc.output import render
 
     assert "warning: bias 3 is outside the prior" in render.distinguishability_text(r)
     assert bgc.distinguishability(tank_session, "R12:abrupt:1@60", steps=160).warning is None
-    with pytest.raises(BgcError) as info:
+    with pytest.raises(BgcError) as info, pytest.warns(bgc.ScenarioWarning, match="no fault F12:stuck"):
         bgc.distinguishability(tank_session, "F12:stuck:0@60", steps=160)
     assert "F12:stuck is not a fault candidate of two_tank" in str(info.value)
