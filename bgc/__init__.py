@@ -57,7 +57,7 @@ __version__ = "0.1.0"
 
 
 from .errors import (ArgumentError, ArgumentTypeError, ArgumentValueError, DataError, Error, ExperimentError,
-                     ModelError, OutputError, SimulationError)
+                     ModelError, OutputError, SimulationError, TrackingError)
 
 #: The names of :mod:`bgc.api` that ``bgc`` gives (imported on first use).
 API = ("open", "Session", "diagnose", "DiagnosisReport", "distinguishability", "DistinguishabilityReport",
@@ -67,7 +67,7 @@ CAMPAIGN = ("run_campaign", "CampaignResult")
 
 __all__ = [*API, *CAMPAIGN, "Error", "ModelError", "DataError", "ArgumentError", "ArgumentTypeError",
            "ArgumentValueError",
-           "SimulationError", "OutputError", "ExperimentError", "__version__"]
+           "SimulationError", "TrackingError", "OutputError", "ExperimentError", "__version__"]
 
 
 def __getattr__(name: str):

@@ -31,7 +31,8 @@ def test_a_simulation_reaches_the_steady_state_derived_by_hand(tanks):
     the tanks sit at the steady state of f_in = 1 = e2/R10 + (e2 - e7)/R12, (e2 - e7)/R12 = e7/R20:
     e7 = 24/19, e2 = 44/19; F12 reads (e2 - e7)/R12 = 8/19 but for its noise."""
     sim = bgc.simulate(TANKS, "R12:abrupt:0.5@75", seed=3, process_noise=0.0)
-    assert sim.truth == {"fault": "R12:abrupt", "target": "parameter", "magnitude": 0.5, "onset": 75.0}
+    assert sim.truth == {"fault": "R12:abrupt", "hypothesis": "R12_abrupt", "target": "parameter", "magnitude": 0.5,
+                         "onset": 75.0}
     assert sim.time[-1] == 150.0 and len(sim.time) == 300
     assert sim.states["e2"][-1] == pytest.approx(44 / 19, abs=1e-4)
     assert sim.states["e7"][-1] == pytest.approx(24 / 19, abs=1e-4)
@@ -135,6 +136,9 @@ def test_the_equations_graphs_and_signatures_are_python_objects(tanks):
     assert {n for n, role in roles.items() if role == "state"} == {"e2@t", "e2@t+1", "e7@t", "e7@t+1"}
     assert dbn.has_edge("delta_R12@t", "delta_R12@t+1")  # the bias persists from slice to slice
     assert tanks.dbns()[0] == "nominal" and "R12:abrupt" in tanks.dbns()
+    # by the name a diagnosis gives the fault model, and a sensor's fault as the scenario names it
+    assert tanks.dbn("R12_abrupt").nodes == dbn.nodes and tanks.dbn("F12:bias").nodes == tanks.dbn("F12_offset_bias").nodes
+    assert bgc.simulate(tanks, "F12:bias:0.05@75", steps=200).truth["hypothesis"] == "F12_offset_bias"
     with pytest.raises(ArgumentValueError, match="give one of Session.dbns"):
         tanks.dbn("R99:abrupt")
     sig = tanks.signatures()
@@ -154,6 +158,9 @@ def test_a_diagnosis_comes_out_as_tables(tanks):
     series = r.table("series")
     assert series.column("time") == list(d.time) and len(series.columns) == 1 + 3 * len(d.outputs)
     assert r.table("events").column("event")[-1] == "Decided"
+    alarm = next(e for e in r.to_dict()["events"] if e["event"] == "Alarmed")  # an event's steps as times too
+    assert alarm["onset"] == d.time[alarm["onset_step"]] and alarm["time"] == d.time[d.detection.step]
+    assert "steps>" in repr(d) and len(repr(d)) < 300 and len(repr(d.hypotheses[0])) < 300
     pd = pytest.importorskip("pandas")
     frame = r.to_frame()
     assert isinstance(frame, pd.DataFrame) and frame["onset"].dtype == float and frame["candidate"].dtype == bool

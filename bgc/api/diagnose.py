@@ -33,7 +33,7 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
              options: DiagnosisOptions | None = None, progress=None,
              prior_scale: float | None = None, backend: str | None = None, columns=None,
              inputs: Mapping[str, Any] | None = None, method: str | None = None) -> DiagnosisReport:
-    """Diagnose ``data`` (a run file or a :class:`~bgc.data.runs.Run`) or a
+    """Diagnose ``data`` (a run file, a :class:`~bgc.data.runs.Run` or a :class:`Simulation`) or a
     simulated ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, or ``none`` for a
     fault-free run) of ``model``.
 
@@ -122,7 +122,8 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         The run cannot be read, is not of this model or is malformed (named
         by its file and line, or its ``source``).
     SimulationError
-        A malformed scenario, or its onset outside the run.
+        The simulated plant diverges (a malformed scenario, or one whose
+        onset is outside the run, is an ArgumentValueError).
     TrackingError
         A request beyond the memory (too many steps or particles).
     BgcError
@@ -167,7 +168,7 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     say = progress or (lambda text: None)
     if options is None:
         options = DiagnosisOptions(filter=filter, particles=particles, seed=seed, identify=identify)
-        check_options(options, func)
+        check_options(options, func, "")  # made of the arguments: their names
     opts = options
     length = steps if scenario is not None else (len(data.time) or None) if isinstance(data, runs.Run) else None
     work = (opts.particles, length)  # auto's estimate (a run file's length: the model's)

@@ -121,7 +121,7 @@ def check_diagnosis_steps(steps: int, num: Numerics, particles: int = 1000, meth
                             "diagnose a shorter run")
 
 
-def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose") -> None:
+def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose", o: str = "options.") -> None:
     """Refuse options a diagnosis cannot take, as :func:`diagnose` does its
     arguments (``func`` names the function in the message).
 
@@ -132,12 +132,11 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose") -> None
     """
     if not isinstance(options, DiagnosisOptions):
         raise ArgumentTypeError(f"{func}: options={arguments.shown(options)} is not a DiagnosisOptions", None,
-                                "give bgc.diagnosis.diagnose.DiagnosisOptions(...) or None")
-    o = "options."
+                                "give bgc.DiagnosisOptions(...) or None")
     arguments.choice(func, o + "filter", options.filter, METHODS)
     arguments.integer(func, o + "particles", options.particles, None, "", "particles=1000")
     if options.particles < 1:  # bgc diagnose hands --particles over in the options: the option's name there
-        raise ArgumentValueError(f"{arguments.spelled(f'{func}: options.particles=', '--particles ')}"
+        raise ArgumentValueError(f"{arguments.spelled(f'{func}: {o}particles=', '--particles ')}"
                                  f"{options.particles}: at least 1 particle is needed", None,
                                  f"e.g. {arguments.spelled('DiagnosisOptions(particles=200)', '--particles 200')}")
     arguments.integer(func, o + "seed", options.seed, 0, "is negative", "seed=0")
@@ -159,7 +158,7 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose") -> None
         arguments.integer(func, o + "spacing", options.spacing, 1, "give at least 1", "spacing=4")
     arguments.choice(func, o + "identify", options.identify, IDENTIFY)
     if options.filter == KALMAN_METHOD and options.identify == "filter":
-        raise ArgumentValueError(f"{arguments.spelled(f'{func}: options.identify', '--identify')}='filter' with "
+        raise ArgumentValueError(f"{arguments.spelled(f'{func}: {o}identify', '--identify')}='filter' with "
                                  f"{arguments.spelled('filter', '--filter')}='ckf': a cubature Kalman filter has no "
                                  "particle filter of the magnitude to identify with", None,
                                  "ckf's estimate is the static posterior's: identify='kalman' (the default), or a "

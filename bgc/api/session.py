@@ -322,7 +322,7 @@ class Session:
     # ------------------------------------------------------------ what a paper shows of the model
     def equations(self, format: str = "text"):
         """The state and measurement equations (``bgc show equations``):
-        ``text`` (one line each), ``latex`` (an ``aligned`` block that
+        ``text`` (the default: one line each), ``latex`` (an ``aligned`` block that
         typesets with amsmath) or ``sympy``: an :class:`Equations` of sympy
         expressions by name (``derivatives[x]`` is dx/dt, ``outputs[y]``
         the measurement), with the parameters' and initial states' values."""
@@ -342,7 +342,8 @@ class Session:
         """The temporal causal graph as a networkx DiGraph (a copy: yours to
         change): nodes are bond efforts and flows (``e4``, ``f4``) with
         their attributes, edges carry ``label`` (``+1``, ``-1``, ``1/C1``,
-        ``dt``, ...); ``simplified``: over states, inputs and measurements only."""
+        ``dt``, ...); ``simplified``: over states, inputs and measurements
+        only, its edges the dependencies (no labels)."""
         import networkx as nx
 
         t = self.compiled.tcg
@@ -350,14 +351,18 @@ class Session:
 
     def dbn(self, name: str = "nominal"):
         """The two-slice DBN ``name`` (``nominal``, or a fault model such as
-        ``R12:abrupt``: :meth:`dbns` lists them) as a networkx DiGraph (a
+        ``R12:abrupt``: :meth:`dbns` lists them; also by the name a diagnosis
+        gives it, ``R12_abrupt``, or a sensor's as the model names it,
+        ``F12:bias``) as a networkx DiGraph (a
         copy): nodes ``var@t`` and ``var@t+1`` with ``role`` and ``slice``,
         arcs with ``arc`` (persistence, temporal, intra, fault, drift, indicator)."""
         import networkx as nx
 
         arguments.text("bgc.Session.dbn", "name", name)
+        dbns = self.compiled.dbn
+        by_hypothesis = {f"{d.parameter}_{d.kind}": d.name for d in dbns.faulty}  # a report's name: R12_abrupt
         try:
-            return nx.DiGraph(self.compiled.dbn.get(name).graph)
+            return nx.DiGraph(dbns.get(by_hypothesis.get(name, name)).graph)
         except KeyError as e:
             raise ArgumentValueError(f"bgc.Session.dbn: name={name!r}: {e.args[0]}", None,
                                      "give one of Session.dbns()") from None
@@ -371,7 +376,8 @@ class Session:
         """The TRANSCEND fault signatures as a :class:`~bgc.api.tables.Table`:
         one row per fault and direction (``fault`` such as ``R12+:abrupt``,
         ``parameter``, ``direction`` +1 or -1, ``kind``), a column per
-        measurement with its symbols (magnitude then slope, ``+ - 0 ?``)
+        measurement with its symbols (``+ - 0 ?``: the deviation's
+        magnitude, then its derivatives of increasing order, the slope first)
         and ``first``, the measurements expected to deviate first (a list)."""
         from .tables import Table
 

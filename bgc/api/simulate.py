@@ -25,7 +25,10 @@ class Simulation:
     the ``fault`` injected (None: fault-free), the ``scenario`` text and
     ``seed``. The arrays by name: ``time``, ``inputs``, ``measurements``
     (with sensor noise), ``states`` and ``parameters`` (the faulty
-    parameter's true value at each sample) in the model's units."""
+    parameter's true value at each sample) in the model's units; ``truth``
+    the fault as injected; :meth:`to_frame` and :meth:`write` the run as a
+    DataFrame and as a run file. A run of another length (``steps``) is
+    another run: the same seed does not give the first samples of a longer one."""
 
     model: str
     scenario: str
@@ -55,14 +58,17 @@ class Simulation:
 
     @property
     def truth(self) -> dict[str, Any]:
-        """The fault as injected: ``fault`` (``NAME:KIND``, None when fault-free),
-        ``target`` (parameter, sensor or actuator), ``magnitude`` (a step's
-        size, a drift's rate per time unit) and ``onset`` (a time)."""
+        """The fault as injected: ``fault`` (``NAME:KIND`` as the scenario
+        names it, None when fault-free), ``hypothesis`` (the name bgc's
+        diagnosis gives its fault model: ``R12_abrupt``, a sensor's
+        ``F12_offset_bias``; what ``Diagnosis.candidates`` holds when it is
+        named), ``target`` (parameter, sensor or actuator), ``magnitude`` (a
+        step's size, a drift's rate per time unit) and ``onset`` (a time)."""
         f = self.fault
         if f is None:
-            return {"fault": None, "target": None, "magnitude": None, "onset": None}
-        return {"fault": f"{f.subject or f.parameter}:{f.kind}", "target": f.target, "magnitude": f.magnitude,
-                "onset": f.time}
+            return {"fault": None, "hypothesis": None, "target": None, "magnitude": None, "onset": None}
+        return {"fault": f"{f.subject or f.parameter}:{f.kind}", "hypothesis": f"{f.parameter}_{f.kind}",
+                "target": f.target, "magnitude": f.magnitude, "onset": f.time}
 
     def to_frame(self):
         """The run as a pandas DataFrame: ``time``, then ``u:``, ``y:``, ``x:``
@@ -102,7 +108,7 @@ def simulate(model: str | Path | Session, scenario: str | simulation.FaultInject
     >>> import bgc
     >>> sim = bgc.simulate("models/two_tank.yaml", "R12:abrupt:0.5@75", seed=1, steps=200)
     >>> sim.truth
-    {'fault': 'R12:abrupt', 'target': 'parameter', 'magnitude': 0.5, 'onset': 75.0}
+    {'fault': 'R12:abrupt', 'hypothesis': 'R12_abrupt', 'target': 'parameter', 'magnitude': 0.5, 'onset': 75.0}
     >>> sorted(sim.measurements), float(sim.time[-1])
     (['F10', 'F12', 'F20'], 100.0)
 

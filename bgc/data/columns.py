@@ -130,7 +130,7 @@ class Reading:
         line = f"{column}: {self._free(there)}"
         return DataError(f"{where}: column {printable(repr(column))} is not time, u:NAME, y:NAME, x:NAME or "
                          f"theta:NAME{self._reads()}", None,
-                         f"map it in a column map (--columns FILE): under columns:, a line "
+                         f"map it in a column map ({spelled('columns=FILE', '--columns FILE')}): under columns:, a line "
                          f"'{printable(line)}', or '{printable(column)}: skip'; docs/format.md, section 9")
 
     def foreign_columns(self, columns: list[str], where: str) -> DataError:

@@ -46,6 +46,7 @@ from typing import IO
 
 import numpy as np
 
+from ..arguments import spelled
 from ..errors import DataError, printable
 from .columns import PREFIXES, Reading, bgc_name, iso_seconds
 
@@ -329,7 +330,8 @@ def _columns(reader, lines: _Lines, name: str, reading: Reading) -> _Layout:
         raise DataError(f"{where}: the first column must be 'time', not {printable(repr(cols[0]))}"
                         if cols else f"{where}: no column names", None,
                         "name it time, or give a column map whose time: names the logger's time column "
-                        "(--columns FILE; docs/format.md, section 9)" if cols else "write the run with bgc simulate")
+                        f"({spelled('columns=FILE', '--columns FILE')}; docs/format.md, section 9)"
+                        if cols else "write the run with bgc simulate")
     if len(cols) > MAX_COLUMNS:
         raise DataError(f"{where}: {len(cols)} columns, more than {MAX_COLUMNS}", None,
                         "give the model's inputs, sensors, states and parameters only")

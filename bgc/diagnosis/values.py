@@ -113,6 +113,11 @@ class Hypothesis:
     static_alarm: Detection | None = None
     ruled_out: str = ""
 
+    def __repr__(self) -> str:  # its arrays would flood a notebook: what a reader wants
+        return (f"<Hypothesis {self.name}: posterior {self.posterior:.3g}, {self.estimate.magnitude} "
+                f"{self.estimate.value:.4g} [{self.estimate.low:.4g}, {self.estimate.high:.4g}] "
+                f"({self.estimate.method}){'' if self.drop is None else ', dropped: ' + self.drop.code}>")
+
     @property
     def dropped_step(self) -> int | None:
         """The step it was dropped at (None: it survived)."""
@@ -165,6 +170,12 @@ class Diagnosis:
     seconds: float
     events: tuple = field(default=())
     data: DataSummary | None = None
+
+    def __repr__(self) -> str:  # its arrays would flood a notebook: what a reader wants
+        onset = "" if self.onset is None else f", onset t = {self.onset:.12g}"
+        return (f"<Diagnosis of {self.model}: {self.verdict}"
+                + (f": {', '.join(self.candidates)}" if self.candidates else "")
+                + f"{onset}, {len(self.hypotheses)} hypotheses, {len(self.time)} steps>")
 
     @property
     def best(self) -> Hypothesis | None:

@@ -105,13 +105,17 @@ class CampaignResult:
     quarantine: Path | None = None
     workers: int | None = None
 
+    def __repr__(self) -> str:  # the campaign's runs would flood a notebook
+        return (f"<bgc.CampaignResult {self.campaign.name}: {len(self.rows)} rows ({self.ran} run, {self.reused} "
+                f"reused, {self.failed} failed) in {self.folder}>")
+
     def to_frame(self):
         """The rows as a pandas DataFrame (``pip install 'bgc[data]'``): the
         columns of ``runs.csv`` (docs/experiments.md), numbers as numbers
         (NaN where a metric is not a number, missing where it is not
         defined), ``candidates`` and ``rivals`` as lists of names."""
         from ..api.tables import frame
-        from .runs_csv import COLUMNS, SEPARATOR
+        from .runs_csv import COLUMNS, NUMBERS, SEPARATOR
 
         lists = ("candidates", "rivals")
         rows = [{k: (v.split(SEPARATOR) if isinstance(v, str) and v else []) if k in lists else v
@@ -119,7 +123,10 @@ class CampaignResult:
         states = sorted({k for row in rows for k in row if k.startswith("mse_") and k not in COLUMNS})
         columns = [c for c in COLUMNS if any(c in row for row in rows)]
         at = columns.index("nmse") + 1 if "nmse" in columns else len(columns)
-        return frame(rows, columns[:at] + states + columns[at:])
+        out = frame(rows, columns[:at] + states + columns[at:])
+        numbers = [c for c in out.columns if c in NUMBERS or c in states]
+        out[numbers] = out[numbers].astype(float)  # None: NaN, as pandas.read_csv reads runs.csv
+        return out
 
 
 def _check_arguments(c: Any, out: Any, scheduler: Any, progress: Any, outputs: Any, on_start: Any,

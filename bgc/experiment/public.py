@@ -11,6 +11,7 @@ from ..model import DEFAULT_BACKEND
 from .campaign import CampaignResult
 from .campaign import run_campaign as _run
 from .campaign_file import Campaign, load_campaign
+from .dispatch import check_workers
 
 __all__ = ["run_campaign", "CampaignResult"]
 
@@ -35,6 +36,7 @@ def run_campaign(campaign: str | Path | Campaign, out: str | Path, *, scheduler:
         A malformed campaign file, a folder holding another campaign, a
         scheduler that cannot be reached.
     """
+    check_workers(workers, "bgc.run_campaign: workers")
     if not isinstance(campaign, Campaign):
         arguments.path("bgc.run_campaign", "campaign", campaign)
         campaign = load_campaign(os.fspath(campaign))

@@ -66,6 +66,10 @@ _FLOAT = {"magnitude", "onset", "process_noise", "measurement_noise", "rt", "mse
           "separation", "detectability"}
 
 
+#: The real-valued columns (besides each state's ``mse_<state>``): NaN where a value is missing.
+NUMBERS = frozenset(_FLOAT)
+
+
 #: Free-text columns: written on one line, neutralised against spreadsheet formulas (:func:`format_cell`).
 _TEXT = frozenset(COLUMNS) - _INT - _BOOL - _FLOAT
 

@@ -121,16 +121,30 @@ def sentence(e, time_of) -> str:
     return type(e).__name__
 
 
+#: The fields of events that hold steps of the time grid besides ``step``: in :func:`record` each is a
+#: time, its step beside it as ``<name>_step`` (times in the model's unit wherever a value is public).
+STEP_FIELDS = frozenset({"since", "onset", "onsets", "first", "last", "start"})
+
+
 def record(e, time_of) -> dict:
-    """Event ``e`` as plain data: its type, time, fields and sentence."""
+    """Event ``e`` as plain data: its type, time, fields and sentence (a
+    field holding a step, :data:`STEP_FIELDS`, as a time, with
+    ``<name>_step`` its step)."""
     out = {"event": type(e).__name__, "time": None}
+
+    def when(step):
+        t = time_of(step)
+        return None if t is None or not math.isfinite(t) else float(time_text(t))
+
     step = getattr(e, "step", None)
     if step is not None:
-        t = time_of(step)
-        out["time"] = None if t is None or not math.isfinite(t) else float(time_text(t))
+        out["time"] = when(step)
     for f in dataclasses.fields(e):
         v = getattr(e, f.name)
-        if isinstance(v, float):
+        if f.name in STEP_FIELDS and v is not None:
+            out[f"{f.name}_step"] = list(v) if isinstance(v, tuple) else v
+            v = [when(k) for k in v] if isinstance(v, tuple) else when(v)
+        elif isinstance(v, float):
             v = float(f"{v:.6g}") if math.isfinite(v) else None
         elif isinstance(v, tuple):
             v = [list(x) if isinstance(x, tuple) else x for x in v]

@@ -30,7 +30,7 @@ def one_run(session, sim, filter: str, particles: int, seed: int) -> dict:
     identify = "kalman" if filter == "ckf" else "filter"  # ckf has no particle filter of the magnitude
     r = bgc.diagnose(session, data=sim, filter=filter, identify=identify, particles=particles, seed=seed)
     d, truth = r.diagnosis, sim.truth
-    name = truth["fault"].replace(":", "_")
+    name = truth["hypothesis"]  # the fault model's name as bgc gives it: R12_abrupt, F12_offset_bias
     named = bool(d.candidates) and d.candidates[0] == name
     e = d.estimate if named else None
     return {"scenario": sim.scenario, "filter": filter, "seed": seed, "verdict": d.verdict,
@@ -42,12 +42,14 @@ def one_run(session, sim, filter: str, particles: int, seed: int) -> dict:
 
 
 def summary(runs: pd.DataFrame) -> pd.DataFrame:
-    """Per filter: runs, right verdicts, the mean |onset error| and |size error| with how many were NaN."""
+    """Per filter: runs, right verdicts, the mean |onset error| and |size error| (its standard deviation
+    over the runs beside it) with how many were NaN."""
     def stats(g: pd.DataFrame) -> pd.Series:
         onset, size = g["onset_error"].abs(), g["size_error_pct"].abs()
         return pd.Series({"runs": len(g), "isolated_right": int(g["right"].sum()),
                           "mean_abs_onset_error": onset.mean(), "onset_nan": int(onset.isna().sum()),
-                          "mean_abs_size_error_pct": size.mean(), "size_nan": int(size.isna().sum()),
+                          "mean_abs_size_error_pct": size.mean(), "sd_abs_size_error_pct": size.std(),
+                          "size_nan": int(size.isna().sum()),
                           "estimate_method": ",".join(sorted(set(g["estimate_method"].dropna())))})
     return runs.groupby("filter", sort=False)[list(runs.columns)].apply(stats)
 
