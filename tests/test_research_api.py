@@ -208,3 +208,16 @@ def test_help_of_bgc_lists_the_public_api():
         assert name in text, name
     for name in bgc.__all__:
         assert getattr(bgc, name) is not None  # every name bgc lists is given, none behind an underscore
+
+
+@pytest.mark.slow
+def test_a_campaigns_frame_has_the_columns_pandas_reads_from_its_runs_csv(tmp_path):
+    pd = pytest.importorskip("pandas")
+    result = bgc.run_campaign(ROOT / "docs" / "examples" / "campaign.yaml", tmp_path / "out", workers=1,
+                              progress=False)
+    frame, read = result.to_frame(), pd.read_csv(tmp_path / "out" / "runs.csv")
+    assert list(frame.columns) == list(read.columns) and {"mse_e2", "mse_e7"} <= set(frame.columns)
+    assert frame["candidates"].tolist() == read["candidates"].str.split(" ").tolist()  # lists, not text
+    for column in ("onset", "mse", "mse_e2", "estimate"):
+        assert frame[column].dtype == read[column].dtype == float
+    assert "2 rows" in repr(result) and len(repr(result)) < 200

@@ -10,7 +10,7 @@ from typing import Any
 
 from .. import arguments
 from ..errors import (
-    ArgumentTypeError, ArgumentValueError, SimulationError, printable,
+    ArgumentTypeError, ArgumentValueError, printable,
 )
 from ..data import runs
 from ..analysis import simulate
@@ -21,8 +21,8 @@ from ..data.sampler import grid_steps
 from .limits import (METHODS, check_diagnosis_steps, check_options,
                      with_horizon)
 from .reports import DiagnosisReport
-from .session import Session, _session_of, input_signals, scenario_of
-from .simulate import Simulation
+from .session import Session, _session_of, input_signals
+from .simulate import Simulation, checked_scenario, simulated_run
 
 
 def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = None,
@@ -192,26 +192,12 @@ def _scenario_run(session: Session, scenario, steps: int | None, seed: int, opts
     inputs driven by ``signals`` where given), checked (its onset inside the
     run, its length within the diagnosis's memory)."""
     c = session.view
-    T = steps or c.model.settings.steps
-    where = arguments.spelled(f"bgc.diagnose: steps={steps}", "--steps") if steps is not None else \
-        f"{printable(c.model.source)}: simulation.steps"
-    simulate.check_steps(T, c.numerics, where)
-    injected = scenario_of("bgc.diagnose", scenario, c.numerics)
-    text = scenario.strip() if isinstance(scenario, str) else scenario.text
-    if injected is not None:
-        last = T * c.model.settings.dt
-        if not 0 < injected.time < last:
-            raise (SimulationError if arguments.DOOR.get() == "cli" else ArgumentValueError)(
-                f"{arguments.spelled('bgc.diagnose: scenario', 'scenario')} {printable(text)}: onset "
-                f"{injected.time:g} is outside the run (0 to {last:g})", None,
-                f"choose an onset inside the run, or more {arguments.spelled('steps', '--steps')}")
-    check_diagnosis_steps(T, c.numerics, opts.particles, opts.filter, where, opts.history)
+    injected, where = checked_scenario("bgc.diagnose", c, scenario, steps)
+    check_diagnosis_steps(steps or c.model.settings.steps, c.numerics, opts.particles, opts.filter, where,
+                          opts.history)
     say("simulating the scenario")
-    process_noise, measurement_noise = session.noise
-    result = simulate.simulate(c.numerics, simulate.SimulationOptions(
-        steps=steps, process_noise=process_noise, measurement_noise=measurement_noise, seed=seed, fault=injected,
-        signals=signals))
-    return runs.parse_run(simulate.to_csv(result), f"scenario {text}"), injected
+    text = scenario.strip() if isinstance(scenario, str) else scenario.text
+    return simulated_run(c, injected, text, steps, seed, session.noise, signals), injected
 
 
 def _recorded_run(session: Session, run: runs.Run, opts: DiagnosisOptions) -> runs.Run:

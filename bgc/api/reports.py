@@ -95,15 +95,13 @@ class DiagnosisReport:
             return Table.of([{"time": r["time"], "event": r["event"], "sentence": r["text"]}
                              for r in rows], ("time", "event", "sentence"))
         columns = {"time": d.time}
-        by_time = {float(t): k for k, t in enumerate(self.run.time)}
+        by_time = {float(t): k for k, t in enumerate(self.run.time)}  # a step without a sample: NaN
         at = np.array([by_time.get(float(t), -1) for t in d.time])
-        for j, y in enumerate(d.outputs):
+        for y in d.outputs:
             measured = self.run.measurements.get(y)
             columns[f"y:{y}"] = np.where(at >= 0, measured[at] if measured is not None else np.nan, np.nan)
-        for j, y in enumerate(d.outputs):
-            columns[f"yhat:{y}"] = d.nominal_y_mean[:, j]
-        for j, y in enumerate(d.outputs):
-            columns[f"z:{y}"] = d.nominal_z[:, j]
+        columns.update({f"yhat:{y}": d.nominal_y_mean[:, j] for j, y in enumerate(d.outputs)})
+        columns.update({f"z:{y}": d.nominal_z[:, j] for j, y in enumerate(d.outputs)})
         names = tuple(columns)
         return Table(names, tuple(zip(*(np.asarray(columns[n], dtype=float).tolist() for n in names))))
 

@@ -12,7 +12,7 @@ import numpy as np
 from .. import arguments
 from ..analysis import simulate as simulation
 from ..data import runs
-from ..errors import ArgumentValueError, printable
+from ..errors import ArgumentValueError, SimulationError, printable
 from . import cache
 from .session import Session, _session_of, input_signals, scenario_of
 from .tables import frame
@@ -134,18 +134,38 @@ def simulate(model: str | Path | Session, scenario: str | simulation.FaultInject
         c, noise = model.view, model.noise
     else:
         c, noise = cache.open_model(model).view, (process_noise, measurement_noise)
+    injected, _ = checked_scenario(func, c, scenario, steps)
+    text = "none" if injected is None else injected.text
+    run = simulated_run(c, injected, text, steps, seed, noise, input_signals(func, inputs, c.model))
+    return Simulation(c.model.name, text, seed, injected, run)
+
+
+def checked_scenario(func: str, c, scenario, steps: int | None) -> tuple[simulation.FaultInjection | None, str]:
+    """``scenario`` of the compiled model ``c`` (:mod:`bgc.view`) read once
+    (:func:`~bgc.api.session.scenario_of`) and checked before any work, with
+    the run's length (``steps``, default the model's): its arrays within
+    bgc's limits, its onset inside the run. Returns the injection (None:
+    fault-free) and how the request's length is named in messages."""
     T = steps or c.model.settings.steps
-    simulation.check_steps(T, c.numerics, f"{func}: steps" if steps else
-                           f"{printable(c.model.source)}: simulation.steps")
+    where = arguments.spelled(f"{func}: steps={steps}", "--steps") if steps is not None else \
+        f"{printable(c.model.source)}: simulation.steps"
+    simulation.check_steps(T, c.numerics, where)
     injected = scenario_of(func, scenario, c.numerics)
-    if injected is not None and not 0 < injected.time < T * c.model.settings.dt:
-        raise ArgumentValueError(f"{func}: scenario {injected.text}: onset {injected.time:g} is outside the run "
-                                 f"(0 to {T * c.model.settings.dt:g})", None,
-                                 "choose an onset inside the run, or more steps")
-    signals = input_signals(func, inputs, c.model)
+    last = T * c.model.settings.dt
+    if injected is not None and not 0 < injected.time < last:
+        raise (SimulationError if arguments.DOOR.get() == "cli" else ArgumentValueError)(
+            f"{arguments.spelled(f'{func}: scenario', 'scenario')} {printable(injected.text)}: onset "
+            f"{injected.time:g} is outside the run (0 to {last:g})", None,
+            f"choose an onset inside the run, or more {arguments.spelled('steps', '--steps')}")
+    return injected, where
+
+
+def simulated_run(c, injected: simulation.FaultInjection | None, text: str, steps: int | None, seed: int,
+                  noise: tuple[float | None, float | None], signals: tuple = ()) -> runs.Run:
+    """The truth simulator's run of ``c`` with the fault ``injected`` (checked
+    by :func:`checked_scenario`), at the relative ``noise`` levels, as a
+    :class:`~bgc.data.runs.Run` whose source is ``scenario TEXT``."""
     result = simulation.simulate(c.numerics, simulation.SimulationOptions(
         steps=steps, process_noise=noise[0], measurement_noise=noise[1], seed=seed, fault=injected,
         signals=signals))
-    text = "none" if injected is None else injected.text
-    run = runs.parse_run(simulation.to_csv(result), f"scenario {text}")
-    return Simulation(c.model.name, text, seed, injected, run)
+    return runs.parse_run(simulation.to_csv(result), f"scenario {text}")

@@ -120,7 +120,7 @@ class CampaignResult:
         lists = ("candidates", "rivals")
         rows = [{k: (v.split(SEPARATOR) if isinstance(v, str) and v else []) if k in lists else v
                  for k, v in row.items()} for row in self.rows]
-        states = sorted({k for row in rows for k in row if k.startswith("mse_") and k not in COLUMNS})
+        states = [f"mse_{x}" for x in self.campaign.states if any(f"mse_{x}" in row for row in rows)]
         columns = [c for c in COLUMNS if any(c in row for row in rows)]
         at = columns.index("nmse") + 1 if "nmse" in columns else len(columns)
         out = frame(rows, columns[:at] + states + columns[at:])
