@@ -83,6 +83,86 @@ class RawModel:
         return self.key_locations.get(p) or self.loc(*p)
 
 
+# ----------------------------------------------------------------------- modes
+#: The comparisons a guard may make, and what each means of lhs - rhs.
+GUARD_OPS = (">=", "<=", ">", "<")
+
+
+@dataclass(frozen=True, slots=True)
+class Guard:
+    """A transition's condition ``lhs OP rhs`` (OP one of :data:`GUARD_OPS`),
+    over bond variables, measurements (their noise-free value), inputs and
+    parameters, as written (``text``)."""
+
+    lhs: sympy.Expr
+    op: str
+    rhs: sympy.Expr
+    text: str
+    loc: SourceLoc
+
+    def holds(self, lhs: float, rhs: float) -> bool:
+        """Whether the guard holds for these values of its two sides."""
+        return {">": lhs > rhs, ">=": lhs >= rhs, "<": lhs < rhs, "<=": lhs <= rhs}[self.op]
+
+
+@dataclass(frozen=True, slots=True)
+class Transition:
+    """A change of mode from ``source`` to ``target``: *autonomous* when
+    ``guard`` is given (the plant switches when it holds), *timed* when
+    ``after`` is (the plant switches after that long in ``source``: a
+    schedule), else *controlled* (the mode is set from outside and the data
+    say it). ``resets``: states given new values at the transition (state,
+    expression of the values just before it)."""
+
+    source: str
+    target: str
+    guard: Guard | None
+    after: float | None
+    resets: tuple[tuple[str, Any], ...]
+    description: str | None
+    loc: SourceLoc
+
+    @property
+    def kind(self) -> str:
+        """``autonomous``, ``timed`` or ``controlled``."""
+        return "autonomous" if self.guard is not None else "timed" if self.after is not None else "controlled"
+
+
+@dataclass(frozen=True, slots=True)
+class Mode:
+    """One mode of a hybrid bond graph: the switched junctions ON in it (every
+    other one is OFF)."""
+
+    name: str
+    on: tuple[str, ...]
+    description: str | None
+    loc: SourceLoc
+
+
+@dataclass(frozen=True, slots=True)
+class Modes:
+    """A hybrid bond graph's switched junctions, its modes (the first is the
+    plant's mode at time 0) and its transitions, in the model file's order."""
+
+    switches: tuple[str, ...]
+    modes: tuple[Mode, ...]
+    transitions: tuple[Transition, ...]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(m.name for m in self.modes)
+
+    @property
+    def initial(self) -> str:
+        return self.modes[0].name
+
+    def mode(self, name: str) -> Mode:
+        for m in self.modes:
+            if m.name == name:
+                return m
+        raise KeyError(name)
+
+
 # ------------------------------------------------------------------ bond graph
 @dataclass(frozen=True, slots=True)
 class Parameter:
@@ -132,6 +212,9 @@ class Element:
     #: What a storage element's state is (``conductivity``), where the model's
     #: domain does not say it; None: the domain's effort or flow.
     quantity: str | None = None
+    #: A switched junction (hybrid bond graphs): ON an ordinary junction, OFF
+    #: zero flow (a 1-junction) or zero effort (a 0-junction) on its bonds.
+    switch: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -334,6 +417,8 @@ class BondGraph:
     source_sha256: str = ""
     #: The physical domain of its efforts and flows (:data:`bgc.kinds.DOMAINS`); None: not declared.
     domain: str | None = None
+    #: Its modes and transitions when it has switched junctions (a hybrid bond graph); None: one mode.
+    modes: Modes | None = None
 
     def element(self, name: str) -> Element:
         for el in self.elements:

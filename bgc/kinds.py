@@ -101,8 +101,8 @@ ELEMENT_KINDS: Mapping[str, ElementKind] = _kinds(
                 imposes="flow"),
     ElementKind("TF", "two_port", "transformer", 2, frozenset({"parameter"}), "TF", two_port="transformer"),
     ElementKind("GY", "two_port", "gyrator", 2, frozenset({"parameter"}), "GY", two_port="gyrator"),
-    ElementKind("0", "junction", "0-junction", None, frozenset(), "0", common="effort"),
-    ElementKind("1", "junction", "1-junction", None, frozenset(), "1", common="flow"),
+    ElementKind("0", "junction", "0-junction", None, frozenset({"switch"}), "0", common="effort"),
+    ElementKind("1", "junction", "1-junction", None, frozenset({"switch"}), "1", common="flow"),
 )
 
 

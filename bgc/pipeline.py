@@ -22,7 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .compiler import causality, codegen, dbn, equations, load, numerics, signatures, tcg, validate
+from .compiler import causality, codegen, dbn, equations, load, modes, numerics, signatures, tcg, validate
+from .errors import CodegenError
 from .ir import (
     BondGraph, CausalBondGraph, DbnModel, FaultSignatures, GeneratedPackage, Numerics, RawModel,
     StateSpaceModel, TemporalCausalGraph,
@@ -47,13 +48,42 @@ class Compiled:
     package: GeneratedPackage
 
 
+@dataclass(frozen=True, slots=True)
+class Hybrid:
+    """A hybrid bond graph (a model with modes) compiled as far as each
+    mode's state equations (:func:`bgc.compiler.modes.compile_modes`)."""
+
+    raw: RawModel
+    model: BondGraph
+    modes: tuple[modes.ModeModel, ...]
+
+    def mode(self, name: str | None) -> modes.ModeModel:
+        """The compiled mode ``name``; a one-line error names the modes when it is not one."""
+        for m in self.modes:
+            if m.name == name:
+                return m
+        names = ", ".join(self.model.modes.names)
+        what = f"has no mode {name!r}" if name else f"has modes ({names})"
+        raise CodegenError(f"model {self.model.name} {what}", self.model.source,
+                           f"choose one with --mode: {names}")
+
+
 def compile_model(path: str | Path, prior_scale: float = 1.0, *, text: str | None = None) -> Compiled:
     """Run every stage, from the model file to the generated package (in
     memory); ``prior_scale`` widens every fault's prior (``--prior-scale``);
     ``text``: the file's text when it has been read (the compile cache
-    compiles the text it hashed), else the file is read."""
+    compiles the text it hashed), else the file is read. A model with modes
+    is compiled as far as each mode's equations (:func:`check_model`); its
+    generated filters are not built yet: a one-line error says so."""
     raw = load.load(path) if text is None else load.loads(text, str(path))  # path -> RawModel
     model = validate.validate(raw)               # RawModel -> BondGraph
+    if model.modes is not None:
+        modes.compile_modes(model)               # each mode's errors first
+        raise CodegenError(
+            f"model {model.name} has modes ({', '.join(model.modes.names)}): bgc derives each mode's causality and "
+            "equations (bgc check, bgc show equations --mode MODE) but does not generate filters across modes yet",
+            model.source, "to diagnose the plant in one mode, write that mode's junctions as plain ones (OFF: "
+            "removed with their branch) in a model without 'modes:'")
     causal = causality.assign(model)             # BondGraph -> CausalBondGraph
     graph = tcg.build(causal)                    # CausalBondGraph -> TemporalCausalGraph
     ssm = equations.derive(graph)                # TemporalCausalGraph -> StateSpaceModel
@@ -64,10 +94,29 @@ def compile_model(path: str | Path, prior_scale: float = 1.0, *, text: str | Non
     return Compiled(raw, model, causal, graph, ssm, sigs, dbns, num, package)
 
 
-def assign_causality(path: str | Path) -> CausalBondGraph:
+def check_model(path: str | Path) -> Compiled | Hybrid:
+    """What ``bgc check`` checks: every stage of a model of one mode
+    (:func:`compile_model`), or each mode's causality and equations of a
+    model with modes (:class:`Hybrid`)."""
+    raw = load.load(path)
+    model = validate.validate(raw)
+    if model.modes is not None:
+        return Hybrid(raw, model, modes.compile_modes(model))
+    return compile_model(path)
+
+
+def assign_causality(path: str | Path, mode: str | None = None) -> CausalBondGraph:
     """Only as far as causality: what ``bgc show causality`` prints, also for a
-    model a later stage refuses (it shows why)."""
-    return causality.assign(validate.validate(load.load(path)))
+    model a later stage refuses (it shows why); of mode ``mode`` for a model
+    with modes (which must name one)."""
+    model = validate.validate(load.load(path))
+    if model.modes is None:
+        if mode is not None:
+            raise CodegenError(f"model {model.name} has no modes", model.source, "drop --mode")
+        return causality.assign(model)
+    if mode not in model.modes.names:
+        Hybrid(None, model, ()).mode(mode)  # the error naming the modes
+    return causality.assign(modes.mode_graph(model, mode))
 
 
 def generated_files(c: Compiled) -> dict[str, str]:

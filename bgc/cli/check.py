@@ -22,10 +22,13 @@ def run(args: argparse.Namespace) -> int:
     status = 0
     for path in args.models:
         try:
-            c = pipeline.compile_model(path)
+            c = pipeline.check_model(path)
         except BgcError as exc:
             print_errors(exc)
             status = 1
+            continue
+        if isinstance(c, pipeline.Hybrid):
+            print(render.hybrid_summary(c.model, c.modes))
             continue
         print(render.check_summary(c.equations, c.numerics))
         if c.numerics.faults:

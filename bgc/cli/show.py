@@ -21,6 +21,8 @@ def add_parser(sub) -> None:
                    help="text, json, dot, latex (equations) or a picture: svg, png (bondgraph, causality, tcg, dbn)")
     p.add_argument("-o", "--output", metavar="FILE", help="write to FILE (pictures default to MODEL-STAGE.FMT)")
     p.add_argument("--engine", choices=["auto", "graphviz", "matplotlib"], default="auto")
+    p.add_argument("--mode", metavar="MODE",
+                   help="a model with modes: the stage in this mode (bondgraph, causality, tcg, equations)")
     p.set_defaults(run=run)
 
 
@@ -55,10 +57,10 @@ def run(args: argparse.Namespace) -> int:
         valid = sorted(f for s_, f in texts if s_ == stage) + (["svg", "png"] if stage in pictures else [])
         raise BgcError(f"stage {stage} has no format {printable(fmt)}", None, f"use one of: {', '.join(valid)}")
     if stage in ("bondgraph", "causality"):  # only as far as causality: it shows why a later stage fails
-        causal = pipeline.assign_causality(args.model)
+        causal = pipeline.assign_causality(args.model, args.mode)
         model_name = causal.model.name
     else:
-        c = pipeline.compile_model(args.model)
+        c = _compiled(args.model, args.mode, stage)
         model_name = c.model.name
     d = None
     if stage == "dbn":
@@ -92,3 +94,21 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write(text)
         sys.stdout.flush()
     return 0
+
+
+def _compiled(model: str, mode: str | None, stage: str):
+    """What a stage after causality is shown from: the compiled model, or
+    for a model with modes the compiled mode ``mode`` (as far as its
+    equations: the TCG and the equations only)."""
+    from .. import pipeline
+    from ..errors import CodegenError
+
+    c = pipeline.check_model(model)
+    if not isinstance(c, pipeline.Hybrid):
+        if mode is not None:
+            raise CodegenError(f"model {c.model.name} has no modes", c.model.source, "drop --mode")
+        return c
+    if stage not in ("tcg", "equations"):
+        raise BgcError(f"--mode shows the bondgraph, causality, tcg and equations stages; {stage} is not built "
+                       "per mode yet", None, "show one of those stages")
+    return c.mode(mode)

@@ -61,6 +61,9 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
                 raise EquationError(f"variable {v} is computed by no element", model.source,
                                     "check the causality of the bonds around it")
             resolved[sym(v)] = _substitute(g.nodes[v]["definition"], resolved)
+            if "differentiates" in g.nodes[v]:
+                resolved[sym(v)] = _derivative_causality(model, g, v, resolved,
+                                                         state_set | set(variables) | {i.name for i in model.inputs})
             continue
         loops.append(tuple(members))
         resolved.update(_solve_loop(tcg, members, resolved))
@@ -88,6 +91,22 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
         initial=initial,
         loops=tuple(loops),
     )
+
+
+def _derivative_causality(model, g, v: str, resolved: dict, signals: set[str]) -> sympy.Expr:
+    """The variable ``v`` a storage element in derivative causality gives
+    (its parameter times the derivative of what the graph imposes on it): 0
+    when the imposed variable is constant in time (a switch's zero, a
+    source of a constant: the element is idle); otherwise refused, the
+    element named. ``signals``: the names that vary in time (states, bond
+    variables, inputs)."""
+    imposed = g.nodes[v]["differentiates"]
+    if not {s.name for s in resolved[sym(imposed)].free_symbols} & signals:
+        return sympy.Integer(0)
+    el = model.element(g.nodes[v]["element"])
+    raise EquationError(f"{el.kind} element {el.name} is in derivative causality ({imposed} is imposed on it by the "
+                        "rest of the graph and varies); bgc cannot derive equations for it yet", el.loc,
+                        "merge it with the storage element that fixes it, or add a resistor in between")
 
 
 def _fault_symbols(model, rhs, outputs, bond_vars):

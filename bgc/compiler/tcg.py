@@ -51,6 +51,9 @@ class _Relation:
     #: Known qualitative signs for linear relations: (d target/d source, d target/d parameter);
     #: None: computed from the expression.
     signs: tuple[int, int] | None = None
+    #: A storage element in derivative causality: ``target = parameter * d(variable)/dt``
+    #: (``expr`` is ``parameter * variable``), the variable the rest of the graph imposes.
+    differentiates: str | None = None
 
 
 def build(cbg: CausalBondGraph) -> TemporalCausalGraph:
@@ -59,8 +62,10 @@ def build(cbg: CausalBondGraph) -> TemporalCausalGraph:
     Raises
     ------
     EquationError
-        A storage element in derivative causality (not supported yet), or a
-        nonlinear law that cannot be put in the causal form SCAP chose.
+        A nonlinear law that cannot be put in the causal form SCAP chose.
+        (A storage element in derivative causality is kept as a relation
+        that differentiates what the graph imposes on it: the equations
+        stage resolves it when that is constant, and refuses it otherwise.)
     """
     model = cbg.model
     params = {p.name for p in model.parameters}
@@ -85,6 +90,8 @@ def build(cbg: CausalBondGraph) -> TemporalCausalGraph:
             node["definition"] = sym(r.target)
         else:
             node["definition"] = r.expr
+        if r.differentiates:
+            node["differentiates"] = r.differentiates
         if r.relation == "source":
             used = {s.name for s in r.expr.free_symbols}
             if not used & variables:
@@ -309,11 +316,11 @@ def _junction(el: Element, bonds: list, by: dict[int, str]) -> list[_Relation]:
 def _storage(el: Element, b: int, by: dict[int, str]) -> _Relation:
     own = element_kind(el.kind).imposes == "effort"  # C: integrates its flow into its effort
     integral = (by[b] == el.name) == own
-    if not integral:
-        raise EquationError(f"{el.kind} element {el.name} is in derivative causality; bgc cannot derive "
-                            "equations for it yet", el.loc,
-                            "merge it with the storage element that fixes it, or add a resistor in between")
     p = _pname(el)
+    if not integral:  # C: f = C de/dt of the effort imposed on it; I: e = I df/dt of the flow
+        imposed, target = (effort(b), flow(b)) if own else (flow(b), effort(b))
+        return _Relation(target, el.parameter * sym(imposed), "derivative", el.name, {imposed: f"{p} d/dt"},
+                         differentiates=imposed)
     signs = (1, -1) if isinstance(el.parameter, sympy.Symbol) else None
     if own:
         return _Relation(effort(b), sym(flow(b)) / el.parameter, "integral", el.name, {flow(b): f"dt/{p}"}, True, signs)

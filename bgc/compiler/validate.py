@@ -26,7 +26,7 @@ import jsonschema
 import yaml
 import sympy
 
-from . import expressions, load
+from . import expressions, load, modes
 from ..errors import BgcError, ErrorGroup, ExpressionError, ValidationError, printable
 from ..kinds import ELEMENT_KINDS, element_kind, fault_kind, kinds_for
 from ..ir import (
@@ -307,6 +307,8 @@ class _Validator:
                                          variables, pnames | inames, settings.measurement_noise)
         faults = self.faults(_section(data, "faults"), pnames, measurements, inames,
                              pnames | inames | {str(m) for m in _section(data, "measurements")}, elements)
+        hybrid = modes.read(self, data, elements, bonds, pnames | inames | variables,
+                            {m.name: m.expr for m in measurements}, {p.name: p.value for p in parameters})
         return BondGraph(
             name=data["name"],
             description=str(data.get("description", "")),
@@ -320,6 +322,7 @@ class _Validator:
             settings=settings,
             source_sha256=self.raw.sha256,
             domain=data.get("domain"),
+            modes=hybrid,
         )
 
     def name_ok(self, name: str, path: tuple, what: str) -> bool:
@@ -480,7 +483,7 @@ class _Validator:
             out.append(Element(name, kind, parameter, law, source,
                                float(initial) if initial is not None else (0.0 if role == "storage" else None),
                                spec.get("description"), loc, float(noise) if noise is not None else None,
-                               spec.get("quantity")))
+                               spec.get("quantity"), bool(spec.get("switch", False))))
         return tuple(out)
 
     def unmodulated(self, name: str, kind: str, expr: sympy.Expr, variables: set[str], path: tuple) -> bool:

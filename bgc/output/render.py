@@ -546,6 +546,55 @@ def check_summary(ssm: StateSpaceModel, num: Numerics | None = None) -> str:
     return "\n".join(printable(line) for line in lines)
 
 
+def hybrid_summary(model, modes) -> str:
+    """What ``bgc check`` prints for a model with modes: the model's parts,
+    then each mode (the switched junctions ON, its states, derivative
+    causality, algebraic loops), the transitions (kind, guard or time,
+    resets) with the causality each changes, and the warnings."""
+    from ..compiler.modes import causality_changes, states
+
+    m = model
+    lines = [f"{m.source}: ok: {m.name}" + (f" ({m.description})" if m.description else "")]
+    lines.append(f"  elements: {len(m.elements)} ({element_kinds_text(m)})")
+    lines.append(f"  bonds: {len(m.bonds)}")
+    lines.append(f"  switched junctions: {', '.join(m.modes.switches)}")
+    every = states(modes)
+    lines.append(f"  states: {len(every)} over the modes: {', '.join(every)}")
+    lines.append(f"  modes: {len(modes)} (the first is the mode at time 0)")
+    for mode in modes:
+        spec = m.modes.mode(mode.name)
+        on = ", ".join(spec.on) or "none"
+        own = ", ".join(mode.equations.states) or "none"
+        lines.append(f"    {mode.name}: on {on}; states {own}" + (f" ({spec.description})" if spec.description else ""))
+        deriv = [s for s in mode.causal.storage if not s.integral]
+        if deriv:
+            lines.append("      derivative causality: " + ", ".join(f"{s.element} ({s.kind}, bond {s.bond})"
+                                                                     for s in deriv))
+        if mode.equations.loops:
+            lines.append("      algebraic loops: " + "; ".join(", ".join(loop) for loop in mode.equations.loops))
+    by_name = {mode.name: mode for mode in modes}
+    lines.append(f"  transitions: {len(m.modes.transitions)}")
+    for t in m.modes.transitions:
+        how = (f"when {t.guard.text}" if t.kind == "autonomous" else f"after {t.after:g}" if t.kind == "timed"
+               else "controlled (the data say the mode)")
+        resets = ", ".join(f"{x} := {e}" for x, e in t.resets)
+        lines.append(f"    {t.source} -> {t.target}: {how}" + (f"; reset {resets}" if resets else ""))
+        changes = causality_changes(by_name[t.source], by_name[t.target])
+        if changes:
+            lines.append("      causality: " + "; ".join(changes))
+    lines.append(f"  inputs: {', '.join(i.name for i in m.inputs) or 'none'}")
+    measured = [y.name if y.text == y.name else f"{y.name} = {y.text}" for y in m.measurements]
+    lines.append("  measurements: " + (", ".join(measured) or "none"))
+    lines.append("  fault candidates: " + (fault_candidates_text(m) or "none"))
+    # a storage element in derivative causality is listed under its mode (an idle one: a switch cut it off)
+    warnings = sorted({d.message for mode in modes for d in mode.causal.diagnostics
+                       if d.severity == "warning" and "derivative causality" not in d.message})
+    lines.append(f"  warnings: {len(warnings) or 'none'}")
+    lines.extend(f"    warning: {w}" for w in warnings)
+    lines.append("  not built yet for a model with modes: the generated filters (bgc compile, diagnose, monitor)")
+    return "\n".join(printable(line) for line in lines)
+
+
 # ----------------------------------------------------------- distinguishability
 def _noise_text(noise) -> str:
     process, measurement = noise

@@ -1,0 +1,144 @@
+"""Hybrid bond graphs (bgc/compiler/modes.py): switched junctions, modes,
+transitions, and each mode's causality and equations, against equations
+derived by hand for a small switched circuit (tests/data/hybrid/relay_rl.yaml).
+The located errors of what a person gets wrong are files of
+tests/data/invalid/hybrid_*.yaml, checked by tests/test_validate.py."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import sympy
+
+from bgc.compiler import modes
+from bgc.compiler.load import load
+from bgc.compiler.validate import validate
+from bgc.errors import BgcError
+from bgc.ir import sym
+from bgc import pipeline
+
+from conftest import bgc_cli
+
+ROOT = Path(__file__).resolve().parent.parent
+RELAY = ROOT / "tests" / "data" / "hybrid" / "relay_rl.yaml"
+
+i, v, V, R_s, L, C, R_load, R_aux = sympy.symbols("f3 e6 V R_s L C R_load R_aux")
+
+
+@pytest.fixture(scope="module")
+def relay():
+    model = validate(load(RELAY))
+    return model, {m.name: m for m in modes.compile_modes(model)}
+
+
+def test_the_model_file_gives_the_switches_the_modes_and_the_transitions(relay):
+    model, _ = relay
+    hybrid = model.modes
+    assert hybrid.switches == ("K", "S")
+    assert hybrid.names == ("open", "closed", "unpowered") and hybrid.initial == "open"
+    assert [(m.name, m.on) for m in hybrid.modes] == [("open", ("S",)), ("closed", ("K", "S")), ("unpowered", ())]
+    kinds = [(t.source, t.target, t.kind) for t in hybrid.transitions]
+    assert kinds == [("open", "closed", "autonomous"), ("closed", "open", "autonomous"),
+                     ("open", "unpowered", "timed"), ("unpowered", "open", "controlled")]
+    up, down, timed, back = hybrid.transitions
+    # a guard on a measurement reads its noise-free value: v_C = e6
+    assert (up.guard.lhs, up.guard.op, up.guard.rhs) == (v, ">", 6)
+    assert up.guard.holds(6.01, 6.0) and not up.guard.holds(6.0, 6.0) and down.guard.holds(3.9, 4.0)
+    assert timed.after == 20.0 and back.resets == (("f3", sympy.Integer(0)),)
+
+
+def test_an_off_junction_is_a_zero_source_on_each_of_its_bonds(relay):
+    model, _ = relay
+    g = modes.mode_graph(model, "open")  # K is OFF: bonds 9 and 10 end at zero flow sources
+    assert [b.number for b in g.bonds] == [b.number for b in model.bonds]
+    ends = {b.number: (b.tail, b.head) for b in g.bonds}
+    assert ends[9] == ("J_c", "K_off9") and ends[10] == ("K_off10", "R_aux")
+    zero = {el.name: (el.kind, el.source) for el in g.elements if el.name.startswith("K_off")}
+    assert zero == {"K_off9": ("Sf", 0), "K_off10": ("Sf", 0)}
+    assert "K" not in {el.name for el in g.elements} and "S" in {el.name for el in g.elements}
+
+
+def _same(a, b) -> bool:
+    return sympy.simplify(a - b) == 0
+
+
+def test_each_modes_equations_are_those_derived_by_hand(relay):
+    """By hand (i the coil's current f3, v the capacitor's voltage e6):
+    supply on: L di/dt = V - R_s i - v; relay open: C dv/dt = i - v/R_load;
+    relay closed: C dv/dt = i - v/R_load - v/R_aux; supply off: the coil's
+    current is no state (0), C dv/dt = -v/R_load; the sensors read v and i
+    (0 with the supply off)."""
+    _, compiled = relay
+    open_, closed, unpowered = compiled["open"].equations, compiled["closed"].equations, compiled["unpowered"].equations
+    assert open_.states == closed.states == ("f3", "e6") and unpowered.states == ("e6",)
+    di = (V - R_s * i - v) / L
+    for eq, dv in ((open_, (i - v / R_load) / C), (closed, (i - v / R_load - v / R_aux) / C)):
+        assert _same(eq.rhs[0], di) and _same(eq.rhs[1], dv)
+        assert dict(zip(eq.outputs, eq.output_exprs)) == {"i_L": i, "v_C": v}
+    assert _same(unpowered.rhs[0], -v / (R_load * C))
+    assert dict(zip(unpowered.outputs, unpowered.output_exprs)) == {"i_L": 0, "v_C": v}
+    assert modes.states(tuple(compiled.values())) == ("f3", "e6")
+
+
+def test_an_idle_storage_element_is_no_state_and_the_causality_changes_are_listed(relay):
+    _, compiled = relay
+    coil = {s.element: s.integral for s in compiled["unpowered"].causal.storage}
+    assert coil == {"C": True, "L": False}
+    assert modes.causality_changes(compiled["open"], compiled["unpowered"]) == ["L leaves integral causality (no state)"]
+    assert modes.causality_changes(compiled["unpowered"], compiled["open"]) == [
+        "L enters integral causality (a state again)"]
+    assert modes.causality_changes(compiled["open"], compiled["closed"]) == []
+
+
+def test_bgc_check_lists_the_modes_their_states_and_the_transitions():
+    done = bgc_cli("check", "tests/data/hybrid/relay_rl.yaml")
+    assert done.returncode == 0 and done.stderr == ""
+    out = done.stdout
+    assert "  switched junctions: K, S" in out
+    assert "    open: on S; states f3, e6 (supply on, relay open)" in out
+    assert "    unpowered: on none; states e6 (supply off)\n      derivative causality: L (I, bond 3)" in out
+    assert "    open -> closed: when v_C > 6" in out and "    open -> unpowered: after 20\n" \
+           "      causality: L leaves integral causality (no state)" in out
+    assert "    unpowered -> open: controlled (the data say the mode); reset f3 := 0" in out
+
+
+def test_a_model_with_modes_is_refused_in_one_line_where_filters_would_be_generated(tmp_path):
+    with pytest.raises(BgcError, match=r"has modes \(open, closed, unpowered\): bgc derives each mode's causality"):
+        pipeline.compile_model(RELAY)
+    done = bgc_cli("compile", "tests/data/hybrid/relay_rl.yaml", "-o", tmp_path / "out")
+    assert done.returncode == 1 and len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr
+
+
+def test_a_stage_of_one_mode_is_shown_with_mode():
+    done = bgc_cli("show", "equations", "tests/data/hybrid/relay_rl.yaml", "--mode", "closed")
+    assert done.returncode == 0, done.stderr
+    assert "R_aux" in done.stdout and "de6/dt" in done.stdout.replace(" ", "")
+    missing = bgc_cli("show", "equations", "tests/data/hybrid/relay_rl.yaml")
+    assert missing.returncode == 1 and "choose one with --mode: open, closed, unpowered" in missing.stderr
+    wrong = bgc_cli("show", "causality", "models/two_tank.yaml", "--mode", "open")
+    assert wrong.returncode == 1 and "has no modes" in wrong.stderr
+
+
+def test_a_storage_element_held_by_a_varying_source_is_still_refused_and_named(tmp_path):
+    """Derivative causality is resolved only where the imposed variable is
+    constant (an idle element); docs/examples/deriv.yaml's capacitor, fixed
+    by an input, is refused with its place."""
+    with pytest.raises(BgcError, match=r"deriv.yaml:7:55: C element C is in derivative causality \(e3 is imposed"):
+        pipeline.compile_model(ROOT / "docs" / "examples" / "deriv.yaml")
+
+
+def test_a_storage_element_fixed_by_a_constant_source_is_idle(tmp_path):
+    """An inertia whose flow a constant flow source imposes gives no effort
+    (I d(const)/dt = 0): the model compiles, the inertia adds no state."""
+    path = tmp_path / "held.yaml"
+    path.write_text("name: held\nparameters: {R: 1.0, C: 2.0, I: 0.5}\ninputs: {V: 1.0}\n"
+                    "elements: {V: {kind: Se}, j: {kind: '1'}, R: {kind: R}, C: {kind: C},\n"
+                    "           q: {kind: Sf, value: 0.25}, k: {kind: '1'}, I: {kind: I}, n: {kind: '0'}}\n"
+                    "bonds: {1: [V, j], 2: [j, R], 3: [j, n], 4: [n, C], 5: [q, k], 6: [k, I], 7: [k, n]}\n",
+                    encoding="utf-8")
+    c = pipeline.compile_model(path)
+    assert c.equations.states == ("e4",)
+    variables = dict(c.equations.variables)
+    assert variables["e6"] == 0 and float(variables["f6"]) == 0.25
+    assert _same(c.equations.rhs[0], ((sym("V") - sym("e4")) / sym("R") + sympy.Rational(1, 4)) / sym("C"))
