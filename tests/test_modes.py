@@ -23,7 +23,7 @@ from conftest import bgc_cli
 ROOT = Path(__file__).resolve().parent.parent
 RELAY = ROOT / "tests" / "data" / "hybrid" / "relay_rl.yaml"
 
-i, v, V, R_s, L, C, R_load, R_aux = sympy.symbols("f3 e6 V R_s L C R_load R_aux")
+i, v, V, R_s, L, C, R_load, R_aux, offset = sympy.symbols("f3 e6 V R_s L C R_load R_aux v_C_offset")
 
 
 @pytest.fixture(scope="module")
@@ -68,16 +68,17 @@ def test_each_modes_equations_are_those_derived_by_hand(relay):
     supply on: L di/dt = V - R_s i - v; relay open: C dv/dt = i - v/R_load;
     relay closed: C dv/dt = i - v/R_load - v/R_aux; supply off: the coil's
     current is no state (0), C dv/dt = -v/R_load; the sensors read v and i
-    (0 with the supply off)."""
+    (0 with the supply off), v_C plus the offset of its bias fault
+    (v_C_offset, 0 when healthy)."""
     _, compiled = relay
     open_, closed, unpowered = compiled["open"].equations, compiled["closed"].equations, compiled["unpowered"].equations
     assert open_.states == closed.states == ("f3", "e6") and unpowered.states == ("e6",)
     di = (V - R_s * i - v) / L
     for eq, dv in ((open_, (i - v / R_load) / C), (closed, (i - v / R_load - v / R_aux) / C)):
         assert _same(eq.rhs[0], di) and _same(eq.rhs[1], dv)
-        assert dict(zip(eq.outputs, eq.output_exprs)) == {"i_L": i, "v_C": v}
+        assert dict(zip(eq.outputs, eq.output_exprs)) == {"i_L": i, "v_C": v + offset}
     assert _same(unpowered.rhs[0], -v / (R_load * C))
-    assert dict(zip(unpowered.outputs, unpowered.output_exprs)) == {"i_L": 0, "v_C": v}
+    assert dict(zip(unpowered.outputs, unpowered.output_exprs)) == {"i_L": 0, "v_C": v + offset}
     assert modes.states(tuple(compiled.values())) == ("f3", "e6")
 
 
@@ -142,3 +143,22 @@ def test_a_storage_element_fixed_by_a_constant_source_is_idle(tmp_path):
     variables = dict(c.equations.variables)
     assert variables["e6"] == 0 and float(variables["f6"]) == 0.25
     assert _same(c.equations.rhs[0], ((sym("V") - sym("e4")) / sym("R") + sympy.Rational(1, 4)) / sym("C"))
+
+
+def test_a_switch_changes_the_signatures_and_the_dbns(relay):
+    """By hand: R_aux enters the equations only with the relay closed (C dv/dt
+    gains -v/R_aux), so in 'open' its fault deviates nothing (undetectable)
+    and its DBN has no fault arc into a state; in 'closed' a rise of R_aux
+    lowers the current it draws, so v rises in slope (0+ on v_C, like a rise
+    of R_load, with which it then enters as one conductance 1/R_aux +
+    1/R_load: one ambiguity group)."""
+    _, compiled = relay
+    open_, closed = compiled["open"].signatures, compiled["closed"].signatures
+    sig = {mode: {x.name: dict(zip(s.measurements, ("".join(c[:2]) for c in x.symbols))) for x in s.signatures}
+           for mode, s in (("open", open_), ("closed", closed))}
+    assert sig["open"]["R_aux+:abrupt"] == {"i_L": "00", "v_C": "00"} and "R_aux+:abrupt" in open_.undetectable
+    assert sig["closed"]["R_aux+:abrupt"]["v_C"] == "0+" and not closed.undetectable
+    assert ("R_aux+:abrupt", "R_load+:abrupt") in [tuple(g) for g in closed.ambiguity]
+    arcs = {mode: {(u, v) for u, v, d in compiled[mode].dbn.get("R_aux:abrupt").graph.edges(data=True)
+                   if d["arc"] == "fault"} for mode in ("open", "closed")}
+    assert arcs == {"open": set(), "closed": {("delta_R_aux@t", "e6@t+1")}}

@@ -47,8 +47,8 @@ from typing import Any
 
 from ..errors import BgcError, ErrorGroup, ExpressionError, ValidationError
 from ..ir import (
-    GUARD_OPS, Bond, BondGraph, CausalBondGraph, Element, Guard, Mode, Modes, StateSpaceModel, TemporalCausalGraph,
-    Transition, effort, flow, sym, var_key,
+    GUARD_OPS, Bond, BondGraph, CausalBondGraph, DbnModel, Element, FaultSignatures, Guard, Mode, Modes,
+    StateSpaceModel, TemporalCausalGraph, Transition, effort, flow, sym, var_key,
 )
 from ..kinds import element_kind
 from . import expressions
@@ -57,13 +57,19 @@ from . import expressions
 @dataclass(frozen=True, slots=True)
 class ModeModel:
     """One mode of a hybrid bond graph compiled as far as its equations: its
-    bond graph (:func:`mode_graph`), causality, TCG and state equations."""
+    bond graph (:func:`mode_graph`), causality, TCG, state equations, fault
+    signatures and DBNs."""
 
     name: str
     graph: BondGraph
     causal: CausalBondGraph
     tcg: TemporalCausalGraph
     equations: StateSpaceModel
+    #: The TRANSCEND signatures of the model's faults in this mode (a fault whose part an OFF switch
+    #: cuts off deviates nothing: it is undetectable in this mode).
+    signatures: FaultSignatures
+    #: The DBNs of this mode, nominal and one per fault.
+    dbn: DbnModel
 
     @property
     def model(self) -> BondGraph:
@@ -366,7 +372,7 @@ def compile_modes(model: BondGraph) -> tuple[ModeModel, ...]:
     on :func:`mode_graph`), in the model's order. Errors of a mode's stages
     are the stages' own, prefixed with the mode; a reset of a state that is
     no state of the mode it enters is refused here."""
-    from . import causality, equations, tcg
+    from . import causality, dbn, equations, signatures, tcg
 
     out, found = [], {}
     for mode in model.modes.modes:
@@ -378,6 +384,7 @@ def compile_modes(model: BondGraph) -> tuple[ModeModel, ...]:
             causal = dataclasses.replace(causal, diagnostics=tuple(d for d in causal.diagnostics if d.element in own))
             temporal = tcg.build(causal)
             ssm = equations.derive(temporal)
+            sigs, dbns = signatures.derive(ssm), dbn.build(ssm)
         except BgcError as exc:
             for e in getattr(exc, "errors", (exc,)):
                 if any(f"source {name} " in f"{e.what} {e.fix or ''} " for name in off):
@@ -385,7 +392,7 @@ def compile_modes(model: BondGraph) -> tuple[ModeModel, ...]:
                 what, fix = _named(e.what, off), _named(e.fix or "", off) or None
                 found.setdefault((type(e), what, e.loc or mode.loc, fix), []).append(mode.name)
             continue
-        out.append(ModeModel(mode.name, graph, causal, temporal, ssm))
+        out.append(ModeModel(mode.name, graph, causal, temporal, ssm, sigs, dbns))
     if found:
         raise ErrorGroup([kind(f"in mode{'s' if len(names) > 1 else ''} {', '.join(names)}: {what}", loc, fix)
                           for (kind, what, loc, fix), names in found.items()])
