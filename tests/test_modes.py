@@ -40,12 +40,13 @@ def test_the_model_file_gives_the_switches_the_modes_and_the_transitions(relay):
     assert [(m.name, m.on) for m in hybrid.modes] == [("open", ("S",)), ("closed", ("K", "S")), ("unpowered", ())]
     kinds = [(t.source, t.target, t.kind) for t in hybrid.transitions]
     assert kinds == [("open", "closed", "autonomous"), ("closed", "open", "autonomous"),
-                     ("open", "unpowered", "timed"), ("unpowered", "open", "controlled")]
-    up, down, timed, back = hybrid.transitions
+                     ("open", "unpowered", "controlled"), ("closed", "unpowered", "controlled"),
+                     ("unpowered", "open", "timed")]
+    up, down, _, _, back = hybrid.transitions
     # a guard on a measurement reads its noise-free value: v_C = e6
     assert (up.guard.lhs, up.guard.op, up.guard.rhs) == (v, ">", 6)
     assert up.guard.holds(6.01, 6.0) and not up.guard.holds(6.0, 6.0) and down.guard.holds(3.9, 4.0)
-    assert timed.after == 20.0 and back.resets == (("f3", sympy.Integer(0)),)
+    assert back.after == 5.0 and back.resets == (("f3", sympy.Integer(0)),)
 
 
 def test_an_off_junction_is_a_zero_source_on_each_of_its_bonds(relay):
@@ -99,9 +100,9 @@ def test_bgc_check_lists_the_modes_their_states_and_the_transitions():
     assert "  switched junctions: K, S" in out
     assert "    open: on S; states f3, e6 (supply on, relay open)" in out
     assert "    unpowered: on none; states e6 (supply off)\n      derivative causality: L (I, bond 3)" in out
-    assert "    open -> closed: when v_C > 6" in out and "    open -> unpowered: after 20\n" \
+    assert "    open -> closed: when v_C > 6" in out and "    open -> unpowered: controlled (the data say the mode)\n" \
            "      causality: L leaves integral causality (no state)" in out
-    assert "    unpowered -> open: controlled (the data say the mode); reset f3 := 0" in out
+    assert "    unpowered -> open: after 5; reset f3 := 0" in out
 
 
 def test_a_model_with_modes_is_refused_in_one_line_where_filters_would_be_generated(tmp_path):

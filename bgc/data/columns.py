@@ -55,6 +55,8 @@ SECONDS = {"s": 1.0, "sec": 1.0, "second": 1.0, "seconds": 1.0, "ms": 1e-3, "min
 SKIP = "skip"
 #: The prefixes of bgc's column names: inputs, measurements, true states, true parameters.
 PREFIXES = ("u", "y", "x", "theta")
+#: The column of a run file that holds the plant's mode (a model with modes): the mode's number.
+MODE = "mode"
 _EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
 
 
@@ -159,9 +161,9 @@ class Reading:
 
 
 def bgc_name(column: str) -> bool:
-    """Whether ``column`` is a name of bgc's run files (``u:NAME`` and the like)."""
+    """Whether ``column`` is a name of bgc's run files (``u:NAME`` and the like, ``mode``)."""
     prefix, colon, rest = column.partition(":")
-    return bool(colon and prefix in PREFIXES and rest)
+    return bool(colon and prefix in PREFIXES and rest) or column == MODE
 
 
 def _listed(columns) -> str:

@@ -48,7 +48,7 @@ import numpy as np
 
 from ..arguments import spelled
 from ..errors import DataError, printable
-from .columns import PREFIXES, Reading, bgc_name, iso_seconds
+from .columns import MODE, PREFIXES, Reading, bgc_name, iso_seconds
 
 #: A run file larger than this is refused before it is read (a 300-step run of
 #: the RO plant is about 60 kB).
@@ -92,6 +92,9 @@ class Run:
     parameters: dict[str, np.ndarray]
     header: tuple[str, ...]
     source: str = PYTHON_SOURCE
+    #: A model with modes: the plant's mode at each sample, as its number (1 for the first mode the model
+    #: lists; NaN: not recorded), from a ``mode`` column; None: no such column.
+    modes: np.ndarray | None = None
 
     @property
     def model(self) -> str | None:
@@ -118,7 +121,7 @@ def to_csv(header: tuple[str, ...], columns: list[tuple[str, np.ndarray]]) -> st
 
 def run_csv(run: Run) -> str:
     """A run as CSV text again (what :func:`parse_run` reads back)."""
-    columns = [("time", run.time)]
+    columns = [("time", run.time)] + ([("mode", run.modes)] if run.modes is not None else [])
     for prefix, group in (("u", run.inputs), ("y", run.measurements), ("x", run.states), ("theta", run.parameters)):
         columns += [(f"{prefix}:{name}", values) for name, values in group.items()]
     return to_csv(run.header, columns)
@@ -416,10 +419,14 @@ def run_of(columns: list[str], data: np.ndarray, header: tuple[str, ...], name: 
     """The run of a table whose columns (``time`` first, then prefixed
     names) are those of ``data`` (rows x columns)."""
     groups: dict[str, dict[str, np.ndarray]] = {p: {} for p in PREFIXES}
+    modes = None
     for j, c in enumerate(columns[1:], start=1):
+        if c == MODE:
+            modes = data[:, j]
+            continue
         prefix, _, rest = c.partition(":")
         groups[prefix][rest] = data[:, j]
-    return Run(data[:, 0], groups["u"], groups["y"], groups["x"], groups["theta"], header, name)
+    return Run(data[:, 0], groups["u"], groups["y"], groups["x"], groups["theta"], header, name, modes)
 
 
 def _store(data: np.ndarray, numbers: np.ndarray, n: int, block: list, at: list, most: int,
@@ -537,7 +544,15 @@ def check_run(run: Run, lines: np.ndarray | None = None) -> Run:
                                 "write a finite number, or leave the cell empty or nan where the sensor was not read")
             out[key] = v
         groups.append(out)
-    return Run(t, *groups, tuple(header), run.source if isinstance(run.source, str) else source)
+    modes = None
+    if run.modes is not None:
+        modes = _array(run.modes, MODE, T, source)
+        wrong = np.isfinite(modes) & ((modes < 1) | (modes != np.round(modes))) | np.isinf(modes)
+        if wrong.any():
+            k = int(np.argmax(wrong))
+            raise DataError(f"{at(k)}: {float(modes[k])!r} in column mode is not a mode's number", None,
+                            "write the mode's number: 1 for the first mode the model lists, 2 for the second, ...")
+    return Run(t, *groups, tuple(header), run.source if isinstance(run.source, str) else source, modes)
 
 
 def _array(values, column: str, length: int | None, source: str) -> np.ndarray:
