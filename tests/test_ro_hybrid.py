@@ -1,0 +1,81 @@
+"""The RO plant with its three valve settings (models/ro_hybrid.yaml, the
+guards; models/ro_hybrid_valve.yaml, the valve in the data): each setting's
+equations against what the bond graph gives by hand, and a simulated cycle."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import sympy
+
+from bgc import pipeline
+from bgc.analysis import hybrid
+from bgc.analysis.simulate import SimulationOptions
+from bgc.compiler import numerics
+
+ROOT = Path(__file__).resolve().parent.parent
+e6, e13, f3, f22, e27 = sympy.symbols("e6 e13 f3 f22 e27")
+R_pipe, R_back, R_aes, R_brine, m2 = sympy.symbols("R_pipe R_back R_aes R_brine m2")
+
+
+@pytest.fixture(scope="module")
+def ro():
+    h = pipeline.check_model(ROOT / "models" / "ro_hybrid.yaml")
+    return h, {m.name: m.equations for m in h.modes}
+
+
+def test_setting_1_is_the_shipped_primary_mode(ro):
+    """models/ro.yaml is setting 1: the same states and the same equations
+    (the back-flow pipe's flow f31, which also drives the conductivity, is 0
+    with its junction OFF)."""
+    _, eq = ro
+    single = pipeline.compile_model(ROOT / "models" / "ro.yaml").equations
+    primary = eq["primary"]
+    assert primary.states == single.states
+    for a, b in zip(primary.rhs, single.rhs):
+        assert sympy.simplify(a - b) == 0
+    assert [sympy.simplify(a - b) for a, b in zip(primary.output_exprs, single.output_exprs)] == [0] * 4
+
+
+def test_each_setting_returns_the_brine_its_own_way(ro):
+    """By hand: the loop flow f10 is (e6 + m2 f22 - e13)/R_pipe with the pump
+    on (the gyrator's boost) and (e6 - e13)/R_pipe with it off (purge: f22 is
+    0 and no state); the brine leaves the membrane through R_brine in
+    setting 1, through R_back in setting 2 (both into the reservoir) and
+    through R_aes to the AES (zero pressure) in purge."""
+    _, eq = ro
+    v = {name: dict(e.variables) for name, e in eq.items()}
+    on, off = (e6 + m2 * f22 - e13) / R_pipe, (e6 - e13) / R_pipe
+    assert sympy.simplify(v["primary"]["f10"] - on) == 0 and sympy.simplify(v["secondary"]["f10"] - on) == 0
+    assert sympy.simplify(v["purge"]["f10"] - off) == 0
+    assert eq["purge"].states == ("f3", "e6", "e13", "e27") and v["purge"]["f22"] == 0
+    assert sympy.simplify(v["primary"]["f18"] - (e13 - e6) / R_brine) == 0 and v["primary"]["f31"] == 0
+    assert sympy.simplify(v["secondary"]["f31"] - (e13 - e6) / R_back) == 0 and v["secondary"]["f18"] == 0
+    assert sympy.simplify(v["purge"]["f34"] - e13 / R_aes) == 0 and v["purge"]["f18"] == v["purge"]["f31"] == 0
+
+
+def test_the_plant_cycles_through_its_settings_by_its_guards(ro):
+    h, _ = ro
+    nums = tuple(numerics.derive(m.dbn) for m in h.modes)
+    run = hybrid.simulate(h, nums, SimulationOptions(steps=400, seed=2))
+    order = [(w.source, w.target, w.kind) for w in run.switches]
+    assert order[:3] == [("primary", "secondary", "autonomous"), ("secondary", "purge", "timed"),
+                         ("purge", "primary", "autonomous")]
+    assert len(order) >= 6 and all(a[1] == b[0] for a, b in zip(order, order[1:]))
+    back = [w for w in run.switches if w.target == "primary"]
+    k = np.searchsorted(run.result.time, back[0].time)  # the row at the switch: K reset to K0
+    assert run.result.states[k, run.result.state_names.index("e27")] == pytest.approx(12000.0, abs=50.0)
+    timed = [w for w in run.switches if w.kind == "timed"]
+    entered = [w.time for w in run.switches if w.target == "secondary"]
+    assert [round(w.time - t0, 9) for w, t0 in zip(timed, entered)] == [30.0] * len(timed)
+
+
+def test_the_valve_variant_follows_the_schedule_it_is_given():
+    h = pipeline.check_model(ROOT / "models" / "ro_hybrid_valve.yaml")
+    nums = tuple(numerics.derive(m.dbn) for m in h.modes)
+    schedule = hybrid.parse_schedule("secondary@50,purge@80,primary@90", h.model.modes.names)
+    run = hybrid.simulate(h, nums, SimulationOptions(steps=120, seed=1), schedule)
+    assert [(w.time, w.target) for w in run.switches] == [(50.0, "secondary"), (80.0, "purge"), (90.0, "primary")]
+    assert list(np.unique(run.modes[49:79])) == [2] and list(np.unique(run.modes[79:89])) == [3]
