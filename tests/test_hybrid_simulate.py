@@ -129,3 +129,20 @@ def test_bgc_simulate_runs_the_automaton_and_refuses_a_change_the_model_does_not
     assert wrong.returncode == 1 and "no controlled transition from open to it" in wrong.stderr
     with pytest.raises(BgcError, match="is not MODE@TIME"):
         hybrid.parse_schedule("closed", ("open", "closed"))
+
+
+def test_the_plot_shows_the_mode_timeline_under_the_measurements(run, tmp_path):
+    from bgc.output import plots
+
+    fig = plots.simulation_plot(run.result, modes=(run.modes, run.mode_names))
+    axes = fig.axes
+    assert axes[-1].get_ylabel() == "mode"
+    assert [t.get_text() for t in axes[-1].get_yticklabels()] == ["open", "closed", "unpowered"]
+    steps = axes[-1].lines[0].get_ydata()
+    assert np.array_equal(steps, run.modes)
+    shaded = [p for p in axes[0].patches]  # one span per stretch of one mode
+    assert len(shaded) == len(run.switches) + 1
+    done = bgc_cli("simulate", "tests/data/hybrid/relay_rl.yaml", "--steps", "300", "-o", tmp_path / "r.csv",
+                   "--plot", tmp_path / "r.png")
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "r.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -102,7 +102,7 @@ def _hybrid(args: argparse.Namespace) -> int:
     from ..compiler import numerics
     from ..output import artifacts
 
-    unsupported = [flag for flag, value in (("--inputs", args.inputs), ("--plot", args.plot), ("--columns", args.columns))
+    unsupported = [flag for flag, value in (("--inputs", args.inputs), ("--columns", args.columns))
                    if value is not None]
     if unsupported:
         raise BgcError(f"{unsupported[0]} is not built yet for a model with modes", None, f"drop {unsupported[0]}")
@@ -122,4 +122,11 @@ def _hybrid(args: argparse.Namespace) -> int:
     print(f"wrote {printable(str(out))}: {len(run.result.time)} steps of {h.model.name}, {len(run.switches)} "
           f"switch{'es' if len(run.switches) != 1 else ''} of mode, fault: {fault.describe() if fault else 'none'} "
           f"({time.perf_counter() - start:.2f} s)")
+    if args.plot:
+        from ..output import plots
+        from ..output.labels import labels_of
+
+        artifacts.write_file(Path(args.plot), plots.simulation_figure(
+            run.result, "png", labels_of(h.model), None, (run.modes, run.mode_names)))
+        print(f"wrote {printable(args.plot)}")
     return 0

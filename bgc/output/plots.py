@@ -177,18 +177,23 @@ def picture(fig: Figure, fmt: str = "png") -> bytes:
     return mark_picture(buf.getvalue(), fmt)
 
 
-def simulation_figure(r, fmt: str = "png", labels: Labels = Labels(), noise_free: np.ndarray | None = None) -> bytes:
+def simulation_figure(r, fmt: str = "png", labels: Labels = Labels(), noise_free: np.ndarray | None = None,
+                      modes: tuple | None = None) -> bytes:
     """:func:`simulation_plot` as ``png`` or ``svg`` bytes."""
-    return picture(simulation_plot(r, labels, noise_free), fmt)
+    return picture(simulation_plot(r, labels, noise_free, modes), fmt)
 
 
-def simulation_plot(r, labels: Labels = Labels(), noise_free: np.ndarray | None = None) -> Figure:
+def simulation_plot(r, labels: Labels = Labels(), noise_free: np.ndarray | None = None,
+                    modes: tuple | None = None) -> Figure:
     """The measurements, noisy and noise-free, the inputs and, last, the
     faulty parameter, against time. ``noise_free``: the measurements of the
     same run without process or sensor noise
     (:func:`bgc.analysis.simulate.noise_free`); None: the run's own, without
-    sensor noise only, and so labelled."""
-    rows = [*r.output_names, *r.input_names, *([r.fault.parameter] if r.fault else [])]
+    sensor noise only, and so labelled. ``modes``: a model with modes, (each
+    sample's mode number, the modes' names): the mode timeline under the
+    rest, and each mode's stretches shaded alike on every axis."""
+    rows = [*r.output_names, *r.input_names, *([r.fault.parameter] if r.fault else []),
+            *(["mode"] if modes is not None else [])]
     fig, axes = new_figure(len(rows))
     clock = time_axis(r.time, labels)
     clean, said = ((noise_free, "noise-free (no process or sensor noise)") if noise_free is not None
@@ -200,9 +205,12 @@ def simulation_plot(r, labels: Labels = Labels(), noise_free: np.ndarray | None 
         axes[len(r.output_names) + i].plot(clock(r.time), r.inputs[:, i], "-", lw=1.2, color=CYCLE[2],
                                            drawstyle="steps-pre", label="input (as commanded)")
     if r.fault:
-        axes[-1].plot(clock(r.time), r.parameter, color=CYCLE[0], label="faulty parameter")
+        axes[len(r.output_names) + len(r.input_names)].plot(clock(r.time), r.parameter, color=CYCLE[0],
+                                                             label="faulty parameter")
+    if modes is not None:
+        _mode_timeline(axes, clock(r.time), *modes)
     for ax, name in zip(axes, rows):
-        _ylabel(ax, labels.axis(name))
+        _ylabel(ax, "mode" if modes is not None and ax is axes[-1] else labels.axis(name))
         if r.fault:
             ax.axvline(clock(r.fault.time), color=GREY, ls=":", lw=1)
     handles = [_line("measured", MEASURED, marker="."), _line(said, TRUTH)]
@@ -214,6 +222,24 @@ def simulation_plot(r, labels: Labels = Labels(), noise_free: np.ndarray | None 
     fig.suptitle(f"{r.model}: simulated run ({r.fault.describe() if r.fault else 'no fault'})", fontsize=10)
     time_label(axes, clock)
     return laid_out(fig)
+
+
+def _mode_timeline(axes, clock: np.ndarray, numbers: np.ndarray, names: tuple[str, ...]) -> None:
+    """The last axis: the mode at each sample as a step line, its ticks named;
+    every axis: each mode's stretches shaded in one light colour."""
+    numbers = np.asarray(numbers, dtype=float)
+    axes[-1].plot(clock, numbers, drawstyle="steps-pre", color=CYCLE[3], lw=1.2)
+    axes[-1].set_yticks(range(1, len(names) + 1), names, fontsize=7)
+    axes[-1].set_ylim(0.5, len(names) + 0.5)
+    edges = np.flatnonzero(np.diff(numbers)) + 1
+    starts, stops = np.r_[0, edges], np.r_[edges, len(numbers)]
+    step = clock[1] - clock[0] if len(clock) > 1 else 1.0
+    for a, b in zip(starts, stops):
+        if not np.isfinite(numbers[a]):
+            continue
+        colour = CYCLE[int(numbers[a] - 1) % len(CYCLE)]
+        for ax in axes:
+            ax.axvspan(clock[a] - step, clock[b - 1], color=colour, alpha=0.1, lw=0)
 
 
 def _state_truth(run, first, name: str):
