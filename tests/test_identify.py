@@ -51,7 +51,7 @@ def test_refine_replaces_the_estimate_of_the_diagnosed_hypothesis():
 @pytest.mark.slow
 def test_bgc_diagnose_refine_says_so_in_the_report(tmp_path):
     r = bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@5", "--seed", "4", "--refine",
-                "--particles", "300", "--generated", "generated", "-o", tmp_path / "d")  # what the report says
+                "--generated", "generated", "-o", tmp_path / "d")
     assert r.returncode == 0, r.stderr
     assert "grid posterior of the particle filters' marginal likelihood" in (tmp_path / "d" / "report.md").read_text()
 
