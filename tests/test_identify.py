@@ -10,7 +10,7 @@ from bgc.model import package as packages
 from bgc.analysis import track
 from bgc.diagnosis.options import DiagnosisOptions
 
-from conftest import ROOT, bgc_cli, session
+from conftest import ROOT, bgc_cli, fast_session, session
 
 GENERATED = ROOT / "generated"
 
@@ -21,11 +21,12 @@ def test_the_grid_posterior_finds_the_bias_and_splits_into_parts_without_changin
     from the true onset, holds the truth; cutting the grid into two jobs gives
     the same likelihoods (the nominal path and each onset's random numbers do
     not depend on the part)."""
-    report = bgc.diagnose(session("circuit", generated=GENERATED), scenario="R2:abrupt:0.6@5", seed=4,
-                          options=DiagnosisOptions(seed=4, workers=1))
+    # the run bgc.diagnose(..., scenario="R2:abrupt:0.6@5", seed=4) diagnoses (one simulator for both), not
+    # diagnosed: the grid is given the true onset
+    run = bgc.simulate(session("circuit", generated=GENERATED), "R2:abrupt:0.6@5", seed=4).run
     package = packages.load_package(GENERATED, "circuit")
-    ys, us = track.run_arrays(report.run, package, "nominal")
-    onset = int(np.searchsorted(report.run.time, 5.0))
+    ys, us = track.run_arrays(run, package, "nominal")
+    onset = int(np.searchsorted(run.time, 5.0))
     values = np.linspace(0.2, 1.0, 9)
     whole = identify.loglik_grid(package, "R2_abrupt", None, ys, us, 0, (onset, onset + 2), values, 300, [1])
     parts = [identify.loglik_grid(package, "R2_abrupt", None, ys, us, 0, (onset, onset + 2), v, 300, [1])
@@ -39,7 +40,8 @@ def test_the_grid_posterior_finds_the_bias_and_splits_into_parts_without_changin
 
 @pytest.mark.slow
 def test_refine_replaces_the_estimate_of_the_diagnosed_hypothesis():
-    a = bgc.diagnose(session("circuit", generated=GENERATED), scenario="R2:abrupt:0.6@5", seed=4,
+    """On the FAST backend (conftest.fast_session; the slow tier only)."""
+    a = bgc.diagnose(fast_session("circuit"), scenario="R2:abrupt:0.6@5", seed=4,
                      options=DiagnosisOptions(seed=4, refine=True, workers=1)).diagnosis
     assert a.candidates == ("R2_abrupt",) and a.estimate.method == "grid"
     assert abs(a.estimate.value - 0.6) < 4 * a.estimate.std and a.estimate.low < a.estimate.value < a.estimate.high
@@ -76,10 +78,11 @@ def test_rank_weighs_the_survivors_by_their_static_evidence():
     noise (a run of the sweep that R1's drift explains about as well): both
     drifts survive the filters' Bayes factor, each gets the static evidence of
     its grid, the survivors' posteriors are in the ratio of their prior times
-    that evidence, and all posteriors still sum to 1."""
+    that evidence, and all posteriors still sum to 1. On the FAST backend
+    (conftest.fast_session; the slow tier only)."""
     import math
 
-    model = session("circuit", process_noise=0.01, measurement_noise=0.05, generated=GENERATED)
+    model = fast_session("circuit", process_noise=0.01, measurement_noise=0.05)
     d = bgc.diagnose(model, scenario="R2:incipient:0.0649091@5.45", seed=3751515929,
                      options=DiagnosisOptions(seed=3751515929, rank=True, workers=1)).diagnosis
     ranked = {h.name: h for h in d.hypotheses if h.static_log_evidence is not None}

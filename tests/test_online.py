@@ -24,7 +24,7 @@ from bgc.analysis import simulate
 from bgc.diagnosis.detect import DetectorOptions
 from bgc.diagnosis.options import DiagnosisOptions
 
-from conftest import bgc_cli, session
+from conftest import FAST, bgc_cli, fast_session, numba_package, session
 
 ROOT = Path(__file__).resolve().parents[1]
 CIRCUIT = ROOT / "models" / "circuit.yaml"
@@ -59,10 +59,11 @@ def kinds(d) -> list[str]:
 def test_stepping_the_diagnoser_sample_by_sample_gives_the_batch_diagnosis():
     """The online loop (trackers stepped as samples arrive) and the batch
     one (the same loop, the hypotheses' filters run at the end) give the
-    same diagnosis: each filter has its own random numbers and one loop body."""
+    same diagnosis: each filter has its own random numbers and one loop body
+    (on the FAST backend: conftest.fast_session, the slow tier only)."""
     run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
-    batch = bgc.diagnose(session(CIRCUIT), data=run, options=OPTIONS).diagnosis
-    d = session(CIRCUIT).diagnoser(OPTIONS)
+    batch = bgc.diagnose(fast_session("circuit"), data=run, options=OPTIONS).diagnosis
+    d = fast_session("circuit").diagnoser(OPTIONS)
     phases = []
     for i, t in enumerate(run.time):
         belief = d.step(float(t), {u: c[i] for u, c in run.inputs.items()},
@@ -150,10 +151,11 @@ def test_a_sensor_silent_for_a_stretch_is_an_event_when_it_stops_and_when_it_res
 
 @pytest.mark.slow
 def test_every_fifth_row_dropped_keeps_the_time_and_the_diagnosis():
+    """On the FAST backend (conftest.fast_session; the slow tier only)."""
     run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
     keep = np.arange(len(run.time)) % 5 != 4
     keep[-1] = True  # the grid ends at the last sample
-    d = bgc.diagnose(session(CIRCUIT), data=rows_of(run, keep), options=OPTIONS).diagnosis
+    d = bgc.diagnose(fast_session("circuit"), data=rows_of(run, keep), options=OPTIONS).diagnosis
     assert len(d.time) == len(run.time) and d.data.unsampled == (~keep).sum()
     assert not any(isinstance(e, events.Gap) for e in d.events)  # one step at a time: under the gap limit
     assert d.verdict == "isolated" and d.candidates == ("R2_abrupt",)
@@ -212,19 +214,22 @@ def test_a_recorded_input_is_used_and_a_blank_cell_holds_the_last_value():
     """The data's u:V (a ramp) is used, not the model's declared constant;
     one blank cell holds the last value with an event (before: the whole
     recorded input was dropped for the model's, with a false alarm); with
-    no u:V column at all the model's input is used, and the report says so."""
+    no u:V column at all the model's input is used, and the report says so
+    (diagnosed on the FAST backend: conftest.fast_session, the slow tier
+    only)."""
     run = ramp_run()
     assert run.inputs["V"][-1] > 12.5
-    d = bgc.diagnose(session(CIRCUIT), data=run, options=OPTIONS).diagnosis
+    circuit = fast_session("circuit")
+    d = bgc.diagnose(circuit, data=run, options=OPTIONS).diagnosis
     assert d.verdict == "no fault" and d.data.inputs == (("V", "data"),)
     holed = run.inputs["V"].copy()
     holed[150] = np.nan
-    d = bgc.diagnose(session(CIRCUIT), data=with_columns(run, inputs={"V": holed}), options=OPTIONS).diagnosis
+    d = bgc.diagnose(circuit, data=with_columns(run, inputs={"V": holed}), options=OPTIONS).diagnosis
     assert d.verdict == "no fault"
     held = [e for e in d.events if isinstance(e, events.InputHeld)]
     assert held == [events.InputHeld("V", 150, float(run.inputs["V"][149]))]
     assert d.data.holds == (("V", 1),)
-    r = bgc.diagnose(session(CIRCUIT), data=with_columns(run, inputs={}), options=OPTIONS)
+    r = bgc.diagnose(circuit, data=with_columns(run, inputs={}), options=OPTIONS)
     assert r.diagnosis.data.inputs == (("V", "model"),)
     assert events.InputFromModel("V", "absent") in r.diagnosis.events
     from bgc.output import report
@@ -234,9 +239,10 @@ def test_a_recorded_input_is_used_and_a_blank_cell_holds_the_last_value():
 
 @pytest.mark.slow
 def test_a_sensor_column_missing_from_the_data_is_diagnosed_with_the_others():
+    """On the FAST backend (conftest.fast_session; the slow tier only)."""
     run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
     without = with_columns(run, measurements={k: v for k, v in run.measurements.items() if k != "f6"})
-    d = bgc.diagnose(session(CIRCUIT), data=without, options=OPTIONS).diagnosis
+    d = bgc.diagnose(fast_session("circuit"), data=without, options=OPTIONS).diagnosis
     assert events.SensorMissing("f6") in d.events and d.data.missing == ("f6",)
     assert d.detection is not None and d.detection.sensor != "f6"
     assert "R2_abrupt" in d.candidates
@@ -245,7 +251,7 @@ def test_a_sensor_column_missing_from_the_data_is_diagnosed_with_the_others():
     assert d.threshold == pytest.approx(DetectorOptions(0.01, (1, 8, 32), 300).threshold(2))
     nothing = with_columns(run, measurements={})
     with pytest.raises(DataError, match="none of the model's sensors"):
-        bgc.diagnose(session(CIRCUIT), data=nothing, options=OPTIONS)
+        bgc.diagnose(fast_session("circuit"), data=nothing, options=OPTIONS)
 
 
 def test_the_detector_is_the_same_for_a_short_and_a_long_file_and_a_stream():
@@ -421,11 +427,13 @@ def test_a_refused_row_leaves_the_stream_as_it_was_and_a_finished_diagnoser_take
 
 @pytest.mark.slow
 def test_an_alarm_on_the_first_sample_is_not_called_a_degenerate_filter():
+    """On the FAST backend (conftest.fast_session; the slow tier only)."""
     run = simulated(CIRCUIT, "R2:abrupt:0.6@5")
     first = dict(run.measurements)
     first["f6"] = first["f6"].copy()
     first["f6"][0] += 1.0  # far off on the first row
-    d = bgc.diagnose(session(CIRCUIT), data=with_columns(run, measurements=first), options=OPTIONS).diagnosis
+    d = bgc.diagnose(fast_session("circuit"), data=with_columns(run, measurements=first),
+                     options=OPTIONS).diagnosis
     assert d.detection is not None and d.detection.step == 0
     assert not any(isinstance(e, (events.Degenerate, events.Switched)) for e in d.events)
 
@@ -567,7 +575,11 @@ def test_a_faulty_sensor_is_taken_out_and_monitoring_goes_on_through_a_pipe(tmp_
     """The two tanks: F12 reads 0.05 high from t = 60 (added to the recorded
     reading), and R10 steps up by 1.5 at t = 120. With --exclude-faulty-sensor
     a checkpoint isolates F12's bias, takes F12 out of the nominal observer,
-    and the monitor, watching F10 and F20, finds the step of R10."""
+    and the monitor, watching F10 and F20, finds the step of R10. (On the
+    FAST backend, --backend: conftest.fast_session's kernels, the slow tier
+    only.)"""
+    if FAST == "numba":
+        numba_package("two_tank")  # the kernels the command loads, compiled once per test run
     tanks = ROOT / "models" / "two_tank.yaml"
     run = simulated(tanks, "R10:abrupt:1.5@120", seed=2)
     biased = dict(run.measurements)
@@ -575,7 +587,7 @@ def test_a_faulty_sensor_is_taken_out_and_monitoring_goes_on_through_a_pipe(tmp_
     text = runs.run_csv(runs.Run(run.time, run.inputs, biased, {}, {}, run.header, run.source))
     out = tmp_path / "mon"
     p = bgc_cli("monitor", tanks, "--data", "-", "--checkpoint", "10", "--exclude-faulty-sensor", "--particles",
-                "500", "-o", out, input=text)
+                "500", "--backend", FAST, "-o", out, input=text)
     assert p.returncode == 0, p.stderr
     lines = p.stdout.splitlines()
     taken = next(i for i, line in enumerate(lines) if line.startswith("sensor F12 taken out of the nominal observer"))

@@ -16,6 +16,8 @@ import pytest
 import bgc
 from bgc.errors import (ArgumentTypeError, ArgumentValueError, CausalityError, ModelError, ValidationError)
 
+from conftest import FAST, numba_package
+
 ROOT = Path(__file__).resolve().parents[1]
 TANKS = ROOT / "models" / "two_tank.yaml"
 
@@ -42,8 +44,8 @@ def test_a_simulation_reaches_the_steady_state_derived_by_hand(tanks):
 
 
 def test_a_simulation_is_its_seed_and_goes_into_a_diagnosis_with_its_truth(tanks):
-    a, b = (bgc.simulate(tanks, "R12:abrupt:0.5@75", seed=7) for _ in range(2))
-    c = bgc.simulate(tanks, "R12:abrupt:0.5@75", seed=8)
+    a, b = (bgc.simulate(tanks, "R12:abrupt:0.5@75", seed=7, steps=200) for _ in range(2))
+    c = bgc.simulate(tanks, "R12:abrupt:0.5@75", seed=8, steps=200)
     assert all(np.array_equal(a.measurements[y], b.measurements[y]) for y in a.measurements)
     assert not np.array_equal(a.measurements["F12"], c.measurements["F12"])
     r = bgc.diagnose(tanks, data=a, filter="ckf", seed=1)
@@ -213,8 +215,12 @@ def test_help_of_bgc_lists_the_public_api():
 @pytest.mark.slow
 def test_a_campaigns_frame_has_the_columns_pandas_reads_from_its_runs_csv(tmp_path):
     pd = pytest.importorskip("pandas")
+    # on the FAST backend (the rows do not depend on it but for the run time: docs/experiments.md), its
+    # kernels compiled once per test run (conftest.numba_package)
+    if FAST == "numba":
+        numba_package("two_tank")
     result = bgc.run_campaign(ROOT / "docs" / "examples" / "campaign.yaml", tmp_path / "out", workers=1,
-                              progress=False)
+                              progress=False, backend=FAST)
     frame, read = result.to_frame(), pd.read_csv(tmp_path / "out" / "runs.csv")
     assert list(frame.columns) == list(read.columns) and {"mse_e2", "mse_e7"} <= set(frame.columns)
     assert frame["candidates"].tolist() == read["candidates"].str.split(" ").tolist()  # lists, not text

@@ -23,6 +23,7 @@ i.e. a bias in [0, 2].
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -36,7 +37,7 @@ from bgc.pipeline import compile_model
 from bgc import events as ev
 from bgc.analysis import simulate as sim
 
-from conftest import ROOT as REPO, bgc_cli, session
+from conftest import ROOT as REPO, bgc_cli, fast_session, session
 
 TWO_TANK = "models/two_tank.yaml"
 
@@ -220,9 +221,12 @@ def tank_session():
 
 
 @pytest.mark.slow
-def test_a_step_past_the_prior_says_so_and_a_wider_prior_sizes_it(tank_session):
-    """R12 from 2 to 4 (+100 %, the default prior's edge), seed 3."""
-    r = bgc.diagnose(tank_session, scenario="R12:abrupt:2@60", seed=3, options=one_process(500, 3))
+def test_a_step_past_the_prior_says_so_and_a_wider_prior_sizes_it():
+    """R12 from 2 to 4 (+100 %, the default prior's edge), seed 3; at the
+    model's prior on the FAST backend (conftest.fast_session; the slow tier
+    only), at the wider prior on NumPy (its package is another, whose kernels
+    no other test compiles)."""
+    r = bgc.diagnose(fast_session("two_tank"), scenario="R12:abrupt:2@60", seed=3, options=one_process(500, 3))
     d = r.diagnosis
     bounds = [e for e in d.events if isinstance(e, ev.AtPriorBound)]
     assert any(e.hypothesis == "R12_abrupt" and e.side == "high" and e.bound == pytest.approx(2.0) for e in bounds)
@@ -247,7 +251,8 @@ def test_a_step_past_the_prior_says_so_and_a_wider_prior_sizes_it(tank_session):
     ("models/ro.yaml", "P_memb:bias:30@165", "P_memb"),
 ])
 def test_a_biased_sensor_is_named_a_sensor_fault_on_the_shipped_plants(model, scenario, sensor):
-    r = bgc.diagnose(session(model), scenario=scenario, seed=0, options=one_process(500, 0))
+    """On the FAST backend (conftest.fast_session; the slow tier only)."""
+    r = bgc.diagnose(fast_session(Path(model).stem), scenario=scenario, seed=0, options=one_process(500, 0))
     d = r.diagnosis
     assert d.verdict == "isolated", d.candidates
     e = d.estimate
@@ -260,8 +265,10 @@ def test_a_biased_sensor_is_named_a_sensor_fault_on_the_shipped_plants(model, sc
 
 
 @pytest.mark.slow
-def test_an_actuator_bias_is_named_an_actuator_fault(tank_session):
-    d = bgc.diagnose(tank_session, scenario="f_in:bias:0.4@75", seed=0, options=one_process(500, 0)).diagnosis
+def test_an_actuator_bias_is_named_an_actuator_fault():
+    """On the FAST backend (conftest.fast_session; the slow tier only)."""
+    d = bgc.diagnose(fast_session("two_tank"), scenario="f_in:bias:0.4@75", seed=0,
+                     options=one_process(500, 0)).diagnosis
     assert d.verdict == "isolated"
     e = d.estimate
     assert (e.target, e.subject) == ("actuator", "f_in") and e.low <= 0.4 <= e.high
@@ -319,11 +326,13 @@ def test_a_dead_sensor_is_named_stuck_at_zero(stuck_model):
 
 
 @pytest.mark.slow
-def test_a_fault_the_model_does_not_list_ends_unexplained(tank_session):
+def test_a_fault_the_model_does_not_list_ends_unexplained():
     """R12 falls by 30 % where only its rise is a candidate: the candidate
     that mimics it best (a step of R10 at seed 1) fails the goodness-of-fit
-    test and is dropped; so is every other: unexplained."""
-    d = bgc.diagnose(tank_session, scenario="R12:abrupt:-0.6@75", seed=1, options=one_process(500, 1)).diagnosis
+    test and is dropped; so is every other: unexplained. On the FAST backend
+    (conftest.fast_session; the slow tier only)."""
+    d = bgc.diagnose(fast_session("two_tank"), scenario="R12:abrupt:-0.6@75", seed=1,
+                     options=one_process(500, 1)).diagnosis
     assert d.verdict == "unexplained"
     reasons = {e.reason for e in d.events if isinstance(e, ev.Dropped)}
     assert reasons & {"static-test", "wrong-direction"}

@@ -27,6 +27,8 @@ from bgc.diagnosis.options import DiagnosisOptions
 from bgc import events as ev
 from bgc.diagnosis.values import Drop, Estimate, Hypothesis
 
+from conftest import fast_session
+
 
 def hypothesis(name: str, posterior: float, dropped: int | None = None, code: str = "bayes-factor") -> Hypothesis:
     e = Estimate("P", "abrupt", "bias", 0.0, 0.0, 0.0, 0.0, 0.95, 1.0, 1.0, None)
@@ -79,7 +81,8 @@ def test_many_rivals_each_under_the_bayes_factor_make_a_verdict_ambiguous():
 
 @pytest.fixture(scope="module")
 def noisy_tanks():
-    return bgc.open("models/two_tank.yaml", process_noise=0.03, measurement_noise=0.1)
+    """The two tanks at 3 % / 10 % noise on the FAST backend (conftest.fast_session; the slow tier only)."""
+    return fast_session("two_tank", process_noise=0.03, measurement_noise=0.1)
 
 
 @pytest.mark.slow
