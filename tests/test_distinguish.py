@@ -333,7 +333,7 @@ def test_bgcs_detector_rate_agrees_with_its_detection_of_another_simulators_runs
     the ideal detector's probability, which knows the fault's shape, is
     printed beside it and is higher. Both detectors run on the compiled
     backend when numba is installed (the same filters, tests/test_backend.py
-    checks it; about 3x faster over the 100 runs)."""
+    checks it; faster over the 100 runs)."""
     from scipy.integrate import solve_ivp
 
     from bgc.diagnosis.options import DiagnosisOptions

@@ -470,8 +470,8 @@ def test_a_hypothesis_whose_likelihood_peaks_outside_its_prior_gets_its_grid_aga
     drift towards a fall. The grid then stays inside the prior, against its
     bound 0, and the posterior is finite there (this sweep run once crashed:
     a grid laid wholly beyond the bound). On the compiled backend when numba
-    is installed (the same diagnosis, tests/test_backend.py checks it, about
-    3x faster: 500 particles on every hypothesis)."""
+    is installed (the same diagnosis, tests/test_backend.py checks it;
+    faster with 500 particles on every hypothesis)."""
     import bgc
     from bgc.diagnosis.options import DiagnosisOptions
 
