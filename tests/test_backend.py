@@ -71,8 +71,8 @@ def test_backends_give_the_same_filter_outputs_on_every_model_and_filter(name):
     """Every model module of the package, every particle filter (same seed) and
     the cubature Kalman filter: the compiled package's outputs equal the NumPy
     package's to 1e-10 (they draw the same random numbers; only the order in
-    which a compiled loop adds terms differs)."""
-    ys, us = record(name)
+    which a compiled loop adds terms differs), over a faulty run of 60 steps."""
+    ys, us = record(name, steps=60)
     numpy_pkg, numba_pkg = packages(name)
     assert warmup.warm_up(numpy_pkg) == (0.0, 0, 0)
     _, compiled_now, _ = warmup.warm_up(numba_pkg, steps=tuple(numba_pkg.MODELS))
@@ -115,7 +115,7 @@ def test_a_diagnosis_does_not_depend_on_the_backend():
     import bgc
 
     numba_package("circuit")  # the kernels bgc.open loads, compiled once
-    reports = [bgc.diagnose("models/circuit.yaml", scenario="R2:abrupt:0.6@5", seed=2,
+    reports = [bgc.diagnose("models/circuit.yaml", scenario="R2:abrupt:0.6@5", seed=2, steps=150,  # fault: sample 100
                             options=DiagnosisOptions(particles=200, seed=2, workers=1), backend=b)
                for b in ("numpy", "numba")]
     a, b = (r.diagnosis for r in reports)
@@ -185,7 +185,7 @@ def test_without_numba_the_numpy_package_runs_and_numba_is_refused_in_one_line(t
     block = "import sys; sys.modules['numba'] = None; from bgc.cli import main; sys.exit(main())"
     env = {**os.environ, "BGC_BACKEND": ""}
     ok = subprocess.run([sys.executable, "-c", block, "diagnose", "models/circuit.yaml", "--scenario",
-                         "R2:abrupt:0.6@5", "--particles", "100", "-o", str(tmp_path / "d")],
+                         "R2:abrupt:0.6@5", "--particles", "100", "--steps", "150", "-o", str(tmp_path / "d")],
                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert ok.returncode == 0, ok.stderr
     assert "numba" not in ok.stderr
@@ -251,10 +251,12 @@ def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_pat
     """``bgc diagnose --backend numba -v`` says in one line how its kernels were
     had (compiled or loaded) and writes the same verdict as on NumPy; a
     campaign's rows are the same on both backends but for the run time. The
-    campaigns are processes of the cold-cache test's environment: the
-    resistor loop's kernels that test compiled into its bgc cache are
-    loaded, not compiled again (a campaign compiles its models into bgc's
-    cache, not from generated/)."""
+    campaigns use the cold-cache test's bgc cache, the compiled one in a
+    process of that test's environment (numba reads where its disk cache is
+    when it is imported): the resistor loop's kernels that test compiled
+    into its bgc cache are loaded, not compiled again (a campaign compiles
+    its models into bgc's cache, not from generated/); the NumPy one runs in
+    this process."""
     import csv
     import textwrap
 
@@ -262,7 +264,7 @@ def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_pat
     numba_package("circuit")
     for backend in ("numpy", "numba"):
         out = bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@5", "--particles", "200",
-                      "--backend", backend, "-v", "-o", tmp_path / f"d-{backend}")
+                      "--steps", "150", "--backend", backend, "-v", "-o", tmp_path / f"d-{backend}")
         assert out.returncode == 0, out.stderr
         lines[backend] = out.stdout.splitlines()[0]
         assert ("numba backend: " in out.stderr) == (backend == "numba")
@@ -279,9 +281,13 @@ def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_pat
         """), encoding="utf-8")
     rows = {}
     for backend in ("numpy", "numba"):
-        out = subprocess.run([sys.executable, "-m", "bgc", "experiment", str(config), "--workers", "1",
-                              "--no-progress", "--backend", backend, "-o", str(tmp_path / f"e-{backend}")],
-                             cwd=ROOT, env=new_cache[0], capture_output=True, text=True, timeout=900)
+        args = ["experiment", str(config), "--workers", "1", "--no-progress", "--backend", backend,
+                "-o", str(tmp_path / f"e-{backend}")]
+        if backend == "numpy":
+            out = bgc_cli(*args, env={"BGC_CACHE_DIR": new_cache[0]["BGC_CACHE_DIR"]})
+        else:
+            out = subprocess.run([sys.executable, "-m", "bgc", *args], cwd=ROOT, env=new_cache[0], capture_output=True,
+                                 text=True, timeout=900)
         assert out.returncode == 0, out.stderr
         with open(tmp_path / f"e-{backend}" / "runs.csv", encoding="utf-8") as f:
             table = csv.DictReader(line for line in f if not line.startswith("#"))

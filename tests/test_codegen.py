@@ -773,15 +773,23 @@ def _trees(c) -> dict[str, ast.Module]:
     return {rel: ast.parse(text) for rel, text in c.package.files}
 
 
+@pytest.fixture(scope="module")
+def plain_rc(tmp_path_factory):
+    """The RC plant with a plain description, compiled once for every hostile
+    one (its package's statements and docstrings are what each is compared
+    with; read it, do not change it)."""
+    return compile_model(_rc_model(tmp_path_factory.mktemp("rc") / "plain.yaml", "plain"))
+
+
 @pytest.mark.process
 @pytest.mark.parametrize("description", HOSTILE_DESCRIPTIONS)
-def test_a_description_cannot_add_statements_to_the_generated_package(tmp_path, description):
+def test_a_description_cannot_add_statements_to_the_generated_package(tmp_path, plain_rc, description):
     """Every module of the package made from a hostile description has exactly
     the statements of the package made from a plain one (its AST, docstrings
     aside, is identical), its docstrings hold the description as written, and
     importing it runs nothing of the description (in a fresh interpreter in
     an empty folder, which it must leave empty)."""
-    plain = compile_model(_rc_model(tmp_path / "plain.yaml", "plain"))
+    plain = plain_rc
     hostile = compile_model(_rc_model(tmp_path / "hostile.yaml", description))
     assert hostile.model.description == description
     want, got = _trees(plain), _trees(hostile)

@@ -29,7 +29,7 @@ from bgc.api import distinguish as api_distinguish
 from bgc.analysis import distinguish
 from bgc.model import package as track
 
-from conftest import ROOT, TEST_MODELS, bgc_cli, compiled, peak_memory, session, tank_map
+from conftest import ROOT, TEST_MODELS, bgc_cli, compiled, fast_session, peak_memory, session, tank_map
 
 TWO_TANK = ROOT / "models" / "two_tank.yaml"
 PIPES = TEST_MODELS / "series_pipes.yaml"
@@ -331,18 +331,19 @@ def test_bgcs_detector_rate_agrees_with_its_detection_of_another_simulators_runs
     R12; the noise at the package's stds) fed to the same detector alarm about
     as often: the two rates agree within a two-sample test at 99.9 %, and
     the ideal detector's probability, which knows the fault's shape, is
-    printed beside it and is higher."""
+    printed beside it and is higher. Both detectors run on the compiled
+    backend when numba is installed (the same filters, tests/test_backend.py
+    checks it; faster over the 100 runs)."""
     from scipy.integrate import solve_ivp
 
     from bgc.diagnosis.options import DiagnosisOptions
     from bgc.api.detection import wilson
 
-    model = ROOT / "models" / "two_tank.yaml"
-    r = bgc.distinguishability(model, "R12:abrupt:0.15@75", detector_runs=50, seed=1000)
+    s = fast_session("two_tank")
+    r = bgc.distinguishability(s, "R12:abrupt:0.15@75", detector_runs=50, seed=1000)
     rate = r.detector
     assert rate.runs == 50 and rate.low <= rate.probability <= rate.high
     assert r.distinctions[0].detectability > rate.high  # the ideal detector is not what the user sees here
-    s = bgc.open(model, backend="numpy")
     nominal = s.package.MODELS["nominal"]
     q, m = np.asarray(nominal.PROCESS_STD), np.asarray(nominal.MEASUREMENT_STD)
     C1, C2, R10, R20, f_in, dt = 2.0, 1.5, 4.0, 3.0, 1.0, 0.5

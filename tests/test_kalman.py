@@ -28,7 +28,7 @@ from bgc.filters.cubature import cholesky
 from bgc.diagnosis.static_posterior import onset_widths
 from bgc.diagnosis.options import KalmanOptions
 
-from conftest import ROOT, compiled, tank_map
+from conftest import ROOT, compiled, fast_session, tank_map
 
 GENERATED = ROOT / "generated"
 
@@ -469,12 +469,14 @@ def test_a_hypothesis_whose_likelihood_peaks_outside_its_prior_gets_its_grid_aga
     """R2 may only rise (models/circuit.yaml); data of R1 falling pull R2's
     drift towards a fall. The grid then stays inside the prior, against its
     bound 0, and the posterior is finite there (this sweep run once crashed:
-    a grid laid wholly beyond the bound)."""
+    a grid laid wholly beyond the bound). On the compiled backend when numba
+    is installed (the same diagnosis, tests/test_backend.py checks it;
+    faster with 500 particles on every hypothesis)."""
     import bgc
     from bgc.diagnosis.options import DiagnosisOptions
 
-    d = bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R1:incipient:-0.0208821@5.85", seed=2922547472,
-                     generated=GENERATED, options=DiagnosisOptions(seed=2922547472, particles=500, workers=1)).diagnosis
+    d = bgc.diagnose(fast_session("circuit"), scenario="R1:incipient:-0.0208821@5.85", seed=2922547472,
+                     options=DiagnosisOptions(seed=2922547472, particles=500, workers=1)).diagnosis
     assert d.candidates[0] == "R1_incipient"
     h = next(h for h in d.hypotheses if h.name == "R2_incipient")
     p = h.static

@@ -15,7 +15,7 @@ from bgc.analysis import simulate as sim
 from bgc.model import package as packages
 from bgc.analysis import track
 
-from conftest import MODELS, ROOT, compiled
+from conftest import MODELS, ROOT, compiled, fast_session
 
 
 def test_campaign_plots_draw_any_model_file_name_and_keep_one_per_model():
@@ -141,12 +141,15 @@ def test_the_distinguishability_map_has_a_colour_bar():
 
 @pytest.fixture(scope="module")
 def ro_report():
+    """The RO plant's R_pipe drifting from t = 165, on the compiled backend
+    when numba is installed (the same diagnosis, tests/test_backend.py checks
+    it; its tests are marked slow, as make check compiles no kernel)."""
     import bgc
 
     from bgc.diagnosis.options import DiagnosisOptions
 
-    return bgc.diagnose(str(MODELS / "ro.yaml"), scenario="R_pipe:incipient:0.5@165", seed=1,
-                        generated=ROOT / "generated", options=DiagnosisOptions(seed=1, workers=1))
+    return bgc.diagnose(fast_session("ro"), scenario="R_pipe:incipient:0.5@165", seed=1,
+                        options=DiagnosisOptions(seed=1, workers=1))
 
 
 @pytest.mark.slow
