@@ -30,6 +30,8 @@ import importlib.util
 import os
 from pathlib import Path
 
+import pytest
+
 #: The OpenBLAS kernels the regression corpus is recorded with (tests/regression/record.py).
 RECORDED_CORETYPE = "Haswell"
 #: What the Haswell kernels need of the CPU.
@@ -82,3 +84,17 @@ def pytest_sessionstart(session) -> None:
 
 collect_ignore = ([] if importlib.util.find_spec("numba") is not None
                   else ["bgc/filters/numba_kernel.py", "bgc/filters/_jit_kernel.py"])
+
+
+@pytest.hookimpl(trylast=True)  # after -m has deselected by marker: make check keeps the fast ones
+def pytest_collection_modifyitems(config, items) -> None:
+    """A document's fast transcripts (``test_transcripts_run_as_printed[DOC]``)
+    run again inside its slow test (``[DOC, with its slow blocks]``, which
+    runs every block in order): when both are selected (``make test``), the
+    fast one is left out, deselected; ``make check`` keeps it."""
+    slow = {item.nodeid.replace(", with its slow blocks]", "]") for item in items
+            if item.nodeid.endswith(", with its slow blocks]")}
+    dropped = [item for item in items if item.nodeid in slow]
+    if dropped:
+        config.hook.pytest_deselected(items=dropped)
+        items[:] = [item for item in items if item.nodeid not in slow]
