@@ -478,3 +478,20 @@ def test_an_html_page_is_sealed_in_its_mark_comment_and_its_edits_are_seen(tmp_p
         artifacts.write_file(page, text)
     page.write_text(sealed.replace("<!DOCTYPE html>\n", ""))  # the comment without the doctype before it
     assert artifacts.ownership(page) == "other"
+
+
+def test_distinguish_refuses_a_users_file_before_it_computes(tmp_path, monkeypatch):
+    """The report and the plot are checked before the prediction and the
+    detector runs (minutes on a big plant), not after them."""
+    from bgc import api as public
+
+    def never(*args, **kwargs):
+        raise AssertionError("the prediction ran before the output was checked")
+
+    monkeypatch.setattr(public, "distinguishability", never)
+    for flag, name in (("-o", "notes.md"), ("--plot", "mine.png")):
+        out = tmp_path / name
+        out.write_text(NOTES)
+        r = bgc("distinguish", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@5", flag, str(out))
+        assert one_line(r) == f"{out} exists and bgc did not write it (choose another output path, or move the file away)"
+        assert out.read_text() == NOTES

@@ -43,6 +43,9 @@ def run(args: argparse.Namespace) -> int:
     from ..output import artifacts, plots, render
 
     process, measurement = parse_noise(args.noise)
+    for path, what in ((args.output, "the report"), (args.plot, "the plot")):  # refused before the work, not after
+        if path:
+            artifacts.check_writable(Path(path), what)
     progress = Progress("distinguish")
     try:
         runs = args.detector_runs if args.detector_runs is not None else (RUNS if args.scenario else 0)
