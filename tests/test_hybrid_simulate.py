@@ -129,6 +129,10 @@ def test_bgc_simulate_runs_the_automaton_and_refuses_a_change_the_model_does_not
     assert wrong.returncode == 1 and "no controlled transition from open to it" in wrong.stderr
     with pytest.raises(BgcError, match="is not MODE@TIME"):
         hybrid.parse_schedule("closed", ("open", "closed"))
+    single = bgc_cli("simulate", "models/two_tank.yaml", "--modes", "open@1", "-o", tmp_path / "t.csv")
+    assert single.returncode == 1 and single.stderr.strip() == \
+        "--modes: models/two_tank.yaml has no modes (drop --modes)"
+    assert not (tmp_path / "t.csv").exists()
 
 
 def test_the_plot_shows_the_mode_timeline_under_the_measurements(run, tmp_path):

@@ -79,3 +79,20 @@ def test_the_valve_variant_follows_the_schedule_it_is_given():
     run = hybrid.simulate(h, nums, SimulationOptions(steps=120, seed=1), schedule)
     assert [(w.time, w.target) for w in run.switches] == [(50.0, "secondary"), (80.0, "purge"), (90.0, "primary")]
     assert list(np.unique(run.modes[49:79])) == [2] and list(np.unique(run.modes[79:89])) == [3]
+
+
+def test_bgc_simulate_from_python_takes_a_model_with_modes():
+    import bgc
+
+    sim = bgc.simulate("models/ro_hybrid_valve.yaml", "R_pipe:abrupt:20@100", seed=1, steps=200,
+                       modes="secondary@50,purge@80,primary@90")
+    assert sim.mode_names == ("primary", "secondary", "purge")
+    assert [(w.time, w.source, w.target, w.kind) for w in sim.switches] == [
+        (50.0, "primary", "secondary", "controlled"), (80.0, "secondary", "purge", "controlled"),
+        (90.0, "purge", "primary", "controlled")]
+    assert sim.modes[48:51].tolist() == [1.0, 2.0, 2.0] and sim.truth["hypothesis"] == "R_pipe_abrupt"
+    assert bgc.simulate("models/two_tank.yaml", seed=1, steps=10).modes is None
+    with pytest.raises(bgc.Error, match=r"modes='a@1', and the model has no modes \(drop modes=\)"):
+        bgc.simulate("models/two_tank.yaml", seed=1, steps=10, modes="a@1")
+    with pytest.raises(ValueError, match=r"bgc.simulate: modes 'closed' is no mode of the model"):
+        bgc.simulate("models/ro_hybrid_valve.yaml", seed=1, steps=10, modes="closed@1")

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..arguments import spelled
 from ..errors import SimulationError, printable
 from ..ir import sym
 from .simulate import TRUTH_REFINEMENT, SimulationOptions, SimulationResult
@@ -73,11 +74,12 @@ def parse_schedule(text: str | None, names: tuple[str, ...]) -> tuple[tuple[floa
             t = float(when)
         except ValueError:
             t = math.nan
+        flag = spelled("modes", "--modes")
         if not at or not math.isfinite(t) or t < 0:
-            raise SimulationError(f"--modes {printable(part.strip())!r} is not MODE@TIME", None,
-                                  "e.g. --modes closed@12.5,open@30")
+            raise SimulationError(f"{flag} {printable(part.strip())!r} is not MODE@TIME", None,
+                                  f"e.g. {spelled('modes=', '--modes ')}closed@12.5,open@30")
         if mode not in names:
-            raise SimulationError(f"--modes {printable(mode)!r} is no mode of the model", None,
+            raise SimulationError(f"{flag} {printable(mode)!r} is no mode of the model", None,
                                   f"its modes: {', '.join(names)}")
         out.append((t, mode))
     return tuple(sorted(out))
@@ -306,7 +308,8 @@ class _Automaton:
                     and self.pending[0][1] == tr.target:
                 return j
         if self.pending and self.pending[0][0] <= t + 1e-12:
-            raise SimulationError(f"--modes asks for {self.pending[0][1]} at {self.pending[0][0]:g}, and the model "
+            raise SimulationError(f"{spelled('modes', '--modes')} asks for {self.pending[0][1]} at "
+                                  f"{self.pending[0][0]:g}, and the model "
                                   f"has no controlled transition from {self.current} to it", self.model.source,
                                   "schedule only the controlled transitions the model declares")
         return None

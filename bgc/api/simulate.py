@@ -35,6 +35,16 @@ class Simulation:
     seed: int
     fault: simulation.FaultInjection | None
     run: runs.Run
+    #: A model with modes: the changes of mode, in time order (each a :class:`bgc.analysis.hybrid.Switch`:
+    #: ``time``, ``source``, ``target``, ``kind``); empty otherwise.
+    switches: tuple = ()
+    #: A model with modes: the modes' names, in the model's order (a mode's number is its place, from 1).
+    mode_names: tuple[str, ...] = ()
+
+    @property
+    def modes(self) -> np.ndarray | None:
+        """A model with modes: each sample's mode, as its number (1 for the first of ``mode_names``); else None."""
+        return self.run.modes
 
     @property
     def time(self) -> np.ndarray:
@@ -95,7 +105,8 @@ class Simulation:
 
 def simulate(model: str | Path | Session, scenario: str | simulation.FaultInjection = "none", *, seed: int = 0,
              steps: int | None = None, inputs: Mapping[str, Any] | None = None,
-             process_noise: float | None = None, measurement_noise: float | None = None) -> Simulation:
+             process_noise: float | None = None, measurement_noise: float | None = None,
+             modes: str | None = None) -> Simulation:
     """Simulate ``model``'s plant (the model file, or a :class:`Session`) with
     ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, e.g. ``R12:abrupt:0.5@75``,
     or ``none``), as ``bgc simulate`` does: the truth simulator (RK4 on a
@@ -129,6 +140,15 @@ def simulate(model: str | Path | Session, scenario: str | simulation.FaultInject
     if steps is not None:
         arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
     arguments.noise_levels(func, process_noise, measurement_noise)
+    if modes is not None:
+        arguments.text(func, "modes", modes)
+    if not isinstance(model, Session):
+        from ..compiler.load import declares_modes
+
+        if declares_modes(model):
+            return _hybrid(func, model, scenario, seed, steps, inputs, (process_noise, measurement_noise), modes)
+    if modes is not None:
+        raise ArgumentValueError(f"{func}: modes={modes!r}, and the model has no modes", None, "drop modes=")
     if isinstance(model, Session):  # its noise levels apply, as in bgc.diagnose
         _session_of(func, model, process_noise, measurement_noise, None, lambda text: None)
         c, noise = model.view, model.noise
@@ -138,6 +158,33 @@ def simulate(model: str | Path | Session, scenario: str | simulation.FaultInject
     text = "none" if injected is None else injected.text
     run = simulated_run(c, injected, text, steps, seed, noise, input_signals(func, inputs, c.model))
     return Simulation(c.model.name, text, seed, injected, run)
+
+
+def _hybrid(func: str, model, scenario, seed: int, steps: int | None, inputs, noise, modes: str | None) -> Simulation:
+    """:func:`simulate` of a model with modes: its automaton (:mod:`bgc.analysis.hybrid`)."""
+    from .. import pipeline
+    from ..analysis import hybrid
+    from ..compiler import numerics
+
+    h = pipeline.check_model(model)
+    nums = tuple(numerics.derive(m.dbn) for m in h.modes)
+    T = steps or h.model.settings.steps
+    simulation.check_steps(T, nums[0], arguments.spelled(f"{func}: steps={steps}", "--steps"))
+    injected = scenario_of(func, scenario, nums[0])
+    if injected is not None and not 0 < injected.time < T * h.model.settings.dt:
+        raise ArgumentValueError(f"{func}: scenario {printable(injected.text)}: onset {injected.time:g} is outside "
+                                 f"the run (0 to {T * h.model.settings.dt:g})", None, "choose an onset inside the run")
+    signals = input_signals(func, inputs, h.model)
+    options = simulation.SimulationOptions(steps=steps, process_noise=noise[0], measurement_noise=noise[1],
+                                           seed=seed, fault=injected, signals=signals)
+    try:
+        schedule = hybrid.parse_schedule(modes, h.model.modes.names)
+    except SimulationError as exc:  # a malformed argument, told as one
+        raise ArgumentValueError(f"{func}: {exc.what}", None, exc.fix) from None
+    result = hybrid.simulate(h, nums, options, schedule)
+    text = "none" if injected is None else injected.text
+    run = runs.parse_run(hybrid.to_csv(result), f"scenario {text}")
+    return Simulation(h.model.name, text, seed, injected, run, result.switches, result.mode_names)
 
 
 def checked_scenario(func: str, c, scenario, steps: int | None) -> tuple[simulation.FaultInjection | None, str]:

@@ -40,7 +40,9 @@ def run(args: argparse.Namespace) -> int:
     from ..output import artifacts
     from ..analysis import simulate as sim
 
-    if _has_modes(args.model):
+    from ..compiler.load import declares_modes
+
+    if declares_modes(args.model):
         return _hybrid(args)
     if args.modes:
         raise BgcError(f"--modes: {printable(args.model)} has no modes", None, "drop --modes")
@@ -85,14 +87,6 @@ def run(args: argparse.Namespace) -> int:
             result, "png", c.labels, sim.noise_free(c.numerics, options).clean_measurements))
         print(f"wrote {printable(args.plot)}")
     return 0
-
-
-def _has_modes(path: str) -> bool:
-    """Whether the model file declares modes (read by the loader only: no compiler)."""
-    from ..compiler import load
-
-    data = load.load(path).data
-    return isinstance(data, dict) and "modes" in data
 
 
 def _hybrid(args: argparse.Namespace) -> int:

@@ -65,6 +65,14 @@ def scalar_value(text: str) -> Any:
         return None
 
 
+def declares_modes(path: str | Path) -> bool:
+    """Whether the model file declares modes (a hybrid bond graph), read by
+    the loader only: what a command asks before it takes the single-mode
+    path (no compiler, no sympy). A file the loader refuses raises its error."""
+    data = load(path).data
+    return isinstance(data, dict) and "modes" in data
+
+
 def load(path: str | Path) -> RawModel:
     """Read a model file.
 
