@@ -116,6 +116,10 @@ def test_a_stage_of_one_mode_is_shown_with_mode():
     done = bgc_cli("show", "equations", "tests/data/hybrid/relay_rl.yaml", "--mode", "closed")
     assert done.returncode == 0, done.stderr
     assert "R_aux" in done.stdout and "de6/dt" in done.stdout.replace(" ", "")
+    graph = bgc_cli("show", "bondgraph", "tests/data/hybrid/relay_rl.yaml", "--mode", "open").stdout
+    assert "# mode open: switched junctions ON: S; OFF: K (each OFF junction a zero source on each of its bonds)" \
+        in graph
+    assert "  K_off9  Sf   flow source (K OFF in mode open)" in graph and "  S       1    1-junction (switched: ON)" in graph
     missing = bgc_cli("show", "equations", "tests/data/hybrid/relay_rl.yaml")
     assert missing.returncode == 1 and "choose one with --mode: open, closed, unpowered" in missing.stderr
     wrong = bgc_cli("show", "causality", "models/two_tank.yaml", "--mode", "open")

@@ -101,11 +101,14 @@ def bondgraph_text(cbg: CausalBondGraph) -> str:
     m = cbg.model
     lines = [f"# bond graph of {m.name}: half arrow at the head (power tail -> head); causal stroke (SCAP) at the "
              "end that receives the effort"]
+    lines.extend(_mode_lines(m))
     width = max([len(el.name) for el in m.elements] + [7])
     lines.append("elements:")
+    zero = _zero_sources(m)
     for el in m.elements:
         kind = ELEMENT_KINDS[el.kind]
-        lines.append(f"  {el.name:<{width}} {el.kind:<4} {kind.title}")
+        note = f" ({el.description})" if el.name in zero else " (switched: ON)" if el.switch else ""
+        lines.append(f"  {el.name:<{width}} {el.kind:<4} {kind.title}{note}")
     lines.append("bonds:")
     for b in m.bonds:
         c = cbg.causality(b.number)
@@ -116,6 +119,29 @@ def bondgraph_text(cbg: CausalBondGraph) -> str:
     if links:
         lines.append("signal links: " + ", ".join(f"bond {b} -> {el}" for b, el in links))
     return "\n".join(lines) + "\n"
+
+
+def _zero_sources(m) -> set[str]:
+    """The zero sources a mode's bond graph has in place of its OFF junctions
+    (:func:`bgc.compiler.modes.mode_graph`: the elements that are not the model's own)."""
+    if m.modes is None:
+        return set()
+    switched = set(m.modes.switches)
+    present = {el.name for el in m.elements}
+    off = switched - present
+    return {el.name for el in m.elements if any(el.name.startswith(f"{j}_off") for j in off)}
+
+
+def _mode_lines(m) -> list[str]:
+    """For one mode of a model with modes: which switched junctions are ON and which OFF."""
+    if m.modes is None:
+        return []
+    present = {el.name for el in m.elements}
+    on = [j for j in m.modes.switches if j in present]
+    off = [j for j in m.modes.switches if j not in present]
+    mode = next((x.name for x in m.modes.modes if set(x.on) == set(on)), "?")
+    return [f"# mode {mode}: switched junctions ON: {', '.join(on) or 'none'}; OFF: {', '.join(off) or 'none'} "
+            "(each OFF junction a zero source on each of its bonds)"]
 
 
 def bondgraph_json(cbg: CausalBondGraph) -> dict:
