@@ -19,6 +19,9 @@ from bgc.errors import BgcError
 
 from conftest import bgc_cli
 
+#: Simulations of thousands of samples and an exact reference: the full suite's (make test), not make check's.
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parent.parent
 RELAY = ROOT / "tests" / "data" / "hybrid" / "relay_rl.yaml"
 #: The relay's values (the model file's), and its automaton.

@@ -15,6 +15,9 @@ from bgc.analysis import hybrid
 from bgc.analysis.simulate import SimulationOptions
 from bgc.compiler import numerics
 
+#: Simulated cycles of the RO: the full suite's (make test), not make check's.
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parent.parent
 e6, e13, f3, f22, e27 = sympy.symbols("e6 e13 f3 f22 e27")
 R_pipe, R_back, R_aes, R_brine, m2 = sympy.symbols("R_pipe R_back R_aes R_brine m2")
