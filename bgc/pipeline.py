@@ -62,10 +62,21 @@ class Hybrid:
         for m in self.modes:
             if m.name == name:
                 return m
-        names = ", ".join(self.model.modes.names)
-        what = f"has no mode {name!r}" if name else f"has modes ({names})"
-        raise CodegenError(f"model {self.model.name} {what}", self.model.source,
-                           f"choose one with --mode: {names}")
+        raise unknown_mode(self.model, name)
+
+    def numerics(self, prior_scale: float = 1.0) -> tuple[Numerics, ...]:
+        """Each mode's numbers (noise scales, priors, substeps), in the model's order: what the simulator takes."""
+        return tuple(numerics.derive(m.dbn, prior_scale) for m in self.modes)
+
+
+def unknown_mode(model: BondGraph, name: str | None) -> CodegenError:
+    """The one-line error for ``--mode NAME`` that names no mode of ``model``
+    (None: not given, and the model has modes), or given for a model without modes."""
+    if model.modes is None:
+        return CodegenError(f"model {model.name} has no modes", model.source, "drop --mode")
+    names = ", ".join(model.modes.names)
+    what = f"has no mode {name!r}" if name else f"has modes ({names})"
+    return CodegenError(f"model {model.name} {what}", model.source, f"choose one with --mode: {names}")
 
 
 def compile_model(path: str | Path, prior_scale: float = 1.0, *, text: str | None = None) -> Compiled:
@@ -98,11 +109,11 @@ def check_model(path: str | Path) -> Compiled | Hybrid:
     """What ``bgc check`` checks: every stage of a model of one mode
     (:func:`compile_model`), or each mode's causality and equations of a
     model with modes (:class:`Hybrid`)."""
+    if not load.declares_modes(path):  # validated once, by compile_model
+        return compile_model(path)
     raw = load.load(path)
     model = validate.validate(raw)
-    if model.modes is not None:
-        return Hybrid(raw, model, modes.compile_modes(model))
-    return compile_model(path)
+    return Hybrid(raw, model, modes.compile_modes(model))
 
 
 def assign_causality(path: str | Path, mode: str | None = None) -> CausalBondGraph:
@@ -110,13 +121,9 @@ def assign_causality(path: str | Path, mode: str | None = None) -> CausalBondGra
     model a later stage refuses (it shows why); of mode ``mode`` for a model
     with modes (which must name one)."""
     model = validate.validate(load.load(path))
-    if model.modes is None:
-        if mode is not None:
-            raise CodegenError(f"model {model.name} has no modes", model.source, "drop --mode")
-        return causality.assign(model)
-    if mode not in model.modes.names:
-        Hybrid(None, model, ()).mode(mode)  # the error naming the modes
-    return causality.assign(modes.mode_graph(model, mode))
+    if (model.modes is None) != (mode is None) or (mode is not None and mode not in model.modes.names):
+        raise unknown_mode(model, mode)
+    return causality.assign(model if mode is None else modes.mode_graph(model, mode))
 
 
 def generated_files(c: Compiled) -> dict[str, str]:

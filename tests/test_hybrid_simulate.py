@@ -13,7 +13,6 @@ from scipy.integrate import solve_ivp
 from bgc import pipeline
 from bgc.analysis import hybrid
 from bgc.analysis.simulate import SimulationOptions
-from bgc.compiler import numerics
 from bgc.data import runs
 from bgc.errors import BgcError
 
@@ -81,7 +80,7 @@ def reference(end: float):
 @pytest.fixture(scope="module")
 def run():
     h = pipeline.check_model(RELAY)
-    nums = tuple(numerics.derive(m.dbn) for m in h.modes)
+    nums = h.numerics()
     options = SimulationOptions(steps=STEPS, process_noise=0.0, seed=3)
     return hybrid.simulate(h, nums, options, hybrid.parse_schedule(f"unpowered@{TRIP}", h.model.modes.names))
 

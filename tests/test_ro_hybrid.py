@@ -13,7 +13,6 @@ import sympy
 from bgc import pipeline
 from bgc.analysis import hybrid
 from bgc.analysis.simulate import SimulationOptions
-from bgc.compiler import numerics
 
 #: Simulated cycles of the RO: the full suite's (make test), not make check's.
 pytestmark = pytest.mark.slow
@@ -61,7 +60,7 @@ def test_each_setting_returns_the_brine_its_own_way(ro):
 
 def test_the_plant_cycles_through_its_settings_by_its_guards(ro):
     h, _ = ro
-    nums = tuple(numerics.derive(m.dbn) for m in h.modes)
+    nums = h.numerics()
     run = hybrid.simulate(h, nums, SimulationOptions(steps=400, seed=2))
     order = [(w.source, w.target, w.kind) for w in run.switches]
     assert order[:3] == [("primary", "secondary", "autonomous"), ("secondary", "purge", "timed"),
@@ -77,7 +76,7 @@ def test_the_plant_cycles_through_its_settings_by_its_guards(ro):
 
 def test_the_valve_variant_follows_the_schedule_it_is_given():
     h = pipeline.check_model(ROOT / "models" / "ro_hybrid_valve.yaml")
-    nums = tuple(numerics.derive(m.dbn) for m in h.modes)
+    nums = h.numerics()
     schedule = hybrid.parse_schedule("secondary@50,purge@80,primary@90", h.model.modes.names)
     run = hybrid.simulate(h, nums, SimulationOptions(steps=120, seed=1), schedule)
     assert [(w.time, w.target) for w in run.switches] == [(50.0, "secondary"), (80.0, "purge"), (90.0, "primary")]

@@ -35,7 +35,8 @@ import numpy as np
 from ..arguments import spelled
 from ..errors import SimulationError, printable
 from ..ir import sym
-from .simulate import TRUTH_REFINEMENT, SimulationOptions, SimulationResult
+from ..data.runs import to_csv as csv_text
+from .simulate import TRUTH_REFINEMENT, SimulationOptions, SimulationResult, columns as simulation_columns
 
 
 #: The switches a run file's header lists (the mode column has them all).
@@ -133,36 +134,20 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
 
     model = hybrid.model
     names = model.modes.names
-    if options.fault is not None and (options.fault.target == "actuator" or options.fault.kind in ("stuck", "noise")):
-        raise SimulationError(f"--fault {options.fault.text}: a model with modes takes parameter faults and sensor "
+    fault = options.fault
+    if fault is not None and (fault.target == "actuator" or fault.kind in ("stuck", "noise")):
+        raise SimulationError(f"--fault {fault.text}: a model with modes takes parameter faults and sensor "
                               "biases and drifts so far", None, "inject one of those")
     every = every_state(hybrid.modes)
     modes = {m.name: _Mode(m, every) for m in hybrid.modes}
     first = hybrid.modes[0].equations
-    steps = options.steps or model.settings.steps
-    dt = model.settings.dt
+    steps, dt = options.steps or model.settings.steps, model.settings.dt
     substeps = max(n.substeps for n in numerics) * TRUTH_REFINEMENT
     h = dt / substeps
     process, measurement = _noise(hybrid, numerics, every, options)
     theta0 = np.array(first.parameter_values, dtype=float)
-    parameters = first.parameters
-    fault = options.fault
-    index = parameters.index(fault.parameter) if fault is not None else None
-    guards, resets = _transitions(model, modes)
+    index = first.parameters.index(fault.parameter) if fault is not None else None
     signal_of = {i.name: i.signal for i in model.inputs} | dict(options.signals)
-    x = np.zeros(len(every))
-    initial = {s: v for m in hybrid.modes for s, v in zip(m.equations.states, m.equations.initial)}
-    for i, s in enumerate(every):
-        x[i] = initial[s]
-    rng = np.random.default_rng(options.seed)
-    current = names[0]
-    times = dt * np.arange(1, steps + 1)
-    out_x = np.empty((steps, len(every)))
-    out_y = np.empty((steps, len(first.outputs)))
-    out_u = np.empty((steps, len(first.inputs)))
-    out_m = np.empty(steps, dtype=int)
-    param = np.empty(steps) if fault else None
-    switches: list[Switch] = []
 
     def theta_at(t: float) -> list:
         if fault is None:
@@ -171,46 +156,53 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
         th[index] = fault.value(theta0[index], t)
         return th.tolist()
 
-    x = modes[current].settle(x, [signal_of[i.name].at(0.0) for i in model.inputs], theta_at(0.0))
-    automaton = _Automaton(model, modes, guards, resets, list(schedule), switches, theta_at, current)
+    initial = {s: v for m in hybrid.modes for s, v in zip(m.equations.states, m.equations.initial)}
+    x = modes[names[0]].settle(np.array([initial[s] for s in every], dtype=float),
+                               [signal_of[i.name].at(0.0) for i in model.inputs], theta_at(0.0))
+    automaton = _Automaton(model, modes, *_transitions(model, modes), list(schedule), theta_at, names[0])
+    rng = np.random.default_rng(options.seed)
+    times = dt * np.arange(1, steps + 1)
+    out_x, out_y = np.empty((steps, len(every))), np.empty((steps, len(first.outputs)))
+    out_u, out_m = np.empty((steps, len(first.inputs))), np.empty(steps, dtype=int)
     for k in range(steps):
-        t0 = k * dt
-        u = [signal_of[i.name].at(t0) for i in model.inputs]
+        u = [signal_of[i.name].at(k * dt) for i in model.inputs]
         for s in range(substeps):
-            automaton.t, automaton.x, automaton.u = t0 + s * h, x, u
-            automaton.advance(h)
-            x = automaton.x
-        automaton.t = times[k]  # the row holds the state after the changes due at its time
-        automaton.advance(0.0)
-        x = automaton.x
-        current = automaton.current
-        active = modes[current].active
-        x[active] += process[active] * rng.standard_normal(len(active))
-        x = modes[current].settle(x, u, theta_at(times[k]))
+            x = automaton.advance(x, u, k * dt + s * h, h)
+        x = automaton.advance(x, u, times[k], 0.0)  # the row holds the state after the changes due at its time
+        mode = modes[automaton.current]
+        x[mode.active] += process[mode.active] * rng.standard_normal(len(mode.active))
+        x = mode.settle(x, u, theta_at(times[k]))
         if not np.all(np.isfinite(x)):
             raise SimulationError(f"the simulation of {model.name} diverged at t = {times[k]:g}", model.source,
                                   "reduce the fault magnitude or the noise, or check the model's values")
-        mode = modes[current]
-        out_x[k], out_u[k], out_m[k] = x, u, names.index(current) + 1
+        out_x[k], out_u[k], out_m[k] = x, u, names.index(automaton.current) + 1
         out_y[k] = np.asarray(mode.g(list(x[mode.active]), u, theta_at(times[k])), dtype=float)
-        if fault:
-            param[k] = fault.value(theta0[index], times[k])
+    param = np.array([fault.value(theta0[index], t) for t in times]) if fault else None
     noisy = out_y + measurement * rng.standard_normal(out_y.shape)
-    header = (f"generated by bgc simulate from {model.display_source}",
-              f"model {model.name}: {steps} steps of dt = {dt:g}; truth by RK4 with {substeps} substeps per step "
-              f"({TRUTH_REFINEMENT}x finer than the generated filters), each mode's equations",
-              "fault: " + (fault.describe() if fault else "none"),
-              f"noise: process {options.process_noise if options.process_noise is not None else model.settings.process_noise:g}, "
-              f"measurement {options.measurement_noise if options.measurement_noise is not None else 'per model'} "
-              f"(fractions of the signal, the first mode's scales); seed {options.seed}",
-              "modes: " + ", ".join(f"{i + 1} {n}" for i, n in enumerate(names)) + f"; {len(switches)} switches"
-              + "".join(f", {w.source} -> {w.target} at {w.time:g} ({w.kind})" for w in switches[:SHOWN])
-              + (", ..." if len(switches) > SHOWN else ""),
-              "columns: time; mode: the mode's number at time; u:* inputs; y:* noisy measurements; x:* true states; "
-              "theta:* true value of the faulty parameter")
+    switches = tuple(automaton.switches)
     result = SimulationResult(model.name, model.display_source, times, tuple(first.inputs), out_u,
-                              tuple(first.outputs), noisy, out_y, every, out_x, fault, param, header)
-    return HybridRun(result, out_m, names, tuple(switches))
+                              tuple(first.outputs), noisy, out_y, every, out_x, fault, param,
+                              _header(model, options, steps, substeps, names, switches))
+    return HybridRun(result, out_m, names, switches)
+
+
+def _header(model, options: SimulationOptions, steps: int, substeps: int, names: tuple[str, ...],
+            switches: tuple[Switch, ...]) -> tuple[str, ...]:
+    """The run file's header: the model, the integration, the fault, the noise, the modes and switches."""
+    settings, fault = model.settings, options.fault
+    process = options.process_noise if options.process_noise is not None else settings.process_noise
+    measurement = options.measurement_noise if options.measurement_noise is not None else "per model"
+    listed = "".join(f", {w.source} -> {w.target} at {w.time:g} ({w.kind})" for w in switches[:SHOWN])
+    return (f"generated by bgc simulate from {model.display_source}",
+            f"model {model.name}: {steps} steps of dt = {settings.dt:g}; truth by RK4 with {substeps} substeps per "
+            f"step ({TRUTH_REFINEMENT}x finer than the generated filters), each mode's equations",
+            "fault: " + (fault.describe() if fault else "none"),
+            f"noise: process {process:g}, measurement {measurement} (fractions of the signal, the first mode's "
+            f"scales); seed {options.seed}",
+            "modes: " + ", ".join(f"{i + 1} {n}" for i, n in enumerate(names)) + f"; {len(switches)} switches"
+            + listed + (", ..." if len(switches) > SHOWN else ""),
+            "columns: time; mode: the mode's number at time; u:* inputs; y:* noisy measurements; x:* true states; "
+            "theta:* true value of the faulty parameter")
 
 
 def _noise(hybrid, numerics: tuple, every: tuple[str, ...], options: SimulationOptions):
@@ -248,10 +240,10 @@ class _Automaton:
     happens (a guard's crossing found by bisection of the step, a timed or
     scheduled change at its time) and going on in the mode entered."""
 
-    def __init__(self, model, modes: dict, guards: list, resets: list, pending: list, switches: list, theta_at,
-                 current: str):
+    def __init__(self, model, modes: dict, guards: list, resets: list, pending: list, theta_at, current: str):
         self.model, self.modes, self.guards, self.resets = model, modes, guards, resets
-        self.pending, self.switches, self.theta_at = pending, switches, theta_at
+        self.pending, self.theta_at = pending, theta_at
+        self.switches: list[Switch] = []
         self.current, self.entered = current, 0.0
         self.t, self.x, self.u = 0.0, None, None
 
@@ -269,7 +261,10 @@ class _Automaton:
         value = float(self.guards[j](list(x[mode.active]), self.u, self.theta_at(t)))
         return self.model.modes.transitions[j].guard.holds(value, 0.0)
 
-    def advance(self, h: float) -> None:
+    def advance(self, x: np.ndarray, u, t: float, h: float) -> np.ndarray:
+        """The state ``x`` at time ``t`` under inputs ``u`` carried over ``h``
+        (0: only the changes due at ``t``), through the changes of mode on the way."""
+        self.x, self.u, self.t = x, u, t
         remaining, zero = h, 0
         while True:
             fired = self._due(0.0)  # what holds at once (a guard on entering a mode, a time reached)
@@ -282,12 +277,12 @@ class _Automaton:
                 self._switch(fired)
                 continue
             if remaining <= 0.0:
-                return
+                return self.x
             new = self.step(self.x, remaining)
             fired, span = self._first(new, remaining)
             if fired is None:
-                self.x, self.t, remaining = new, self.t + remaining, 0.0
-                return
+                self.x, self.t = new, self.t + remaining
+                return self.x
             self.x = self.step(self.x, span) if span > 0.0 else self.x
             self.t += span
             remaining -= span
@@ -364,13 +359,5 @@ class _Automaton:
 
 def to_csv(run: HybridRun) -> str:
     """The run as CSV: ``time``, ``mode`` (the mode's number), then the columns of :func:`bgc.analysis.simulate.to_csv`."""
-    from ..data.runs import to_csv as csv_text
-
-    r = run.result
-    columns = [("time", r.time), ("mode", run.modes)]
-    columns += [(f"u:{n}", r.inputs[:, j]) for j, n in enumerate(r.input_names)]
-    columns += [(f"y:{n}", r.measurements[:, j]) for j, n in enumerate(r.output_names)]
-    columns += [(f"x:{n}", r.states[:, j]) for j, n in enumerate(r.state_names)]
-    if r.fault:
-        columns.append((f"theta:{r.fault.parameter}", r.parameter))
-    return csv_text(r.header, columns)
+    columns = simulation_columns(run.result)
+    return csv_text(run.result.header, [columns[0], ("mode", run.modes), *columns[1:]])

@@ -425,10 +425,15 @@ def float_safe(ssm) -> bool:
 
 def to_csv(r: SimulationResult) -> str:
     """The run as the CSV text :func:`bgc.data.runs.read_run` reads."""
+    return _csv_text(r.header, columns(r))
+
+
+def columns(r: SimulationResult) -> list[tuple[str, np.ndarray]]:
+    """A run's columns as a run file has them: ``time``, ``u:``, ``y:``, ``x:``, ``theta:``."""
     columns = [("time", r.time)]
     columns += [(f"u:{n}", r.inputs[:, j]) for j, n in enumerate(r.input_names)]
     columns += [(f"y:{n}", r.measurements[:, j]) for j, n in enumerate(r.output_names)]
     columns += [(f"x:{n}", r.states[:, j]) for j, n in enumerate(r.state_names)]
     if r.fault:
         columns.append((f"theta:{r.fault.parameter}", r.parameter))
-    return _csv_text(r.header, columns)
+    return columns

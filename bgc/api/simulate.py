@@ -162,18 +162,15 @@ def simulate(model: str | Path | Session, scenario: str | simulation.FaultInject
 
 def _hybrid(func: str, model, scenario, seed: int, steps: int | None, inputs, noise, modes: str | None) -> Simulation:
     """:func:`simulate` of a model with modes: its automaton (:mod:`bgc.analysis.hybrid`)."""
+    from types import SimpleNamespace
+
     from .. import pipeline
     from ..analysis import hybrid
-    from ..compiler import numerics
 
     h = pipeline.check_model(model)
-    nums = tuple(numerics.derive(m.dbn) for m in h.modes)
-    T = steps or h.model.settings.steps
-    simulation.check_steps(T, nums[0], arguments.spelled(f"{func}: steps={steps}", "--steps"))
-    injected = scenario_of(func, scenario, nums[0])
-    if injected is not None and not 0 < injected.time < T * h.model.settings.dt:
-        raise ArgumentValueError(f"{func}: scenario {printable(injected.text)}: onset {injected.time:g} is outside "
-                                 f"the run (0 to {T * h.model.settings.dt:g})", None, "choose an onset inside the run")
+    nums = h.numerics()
+    # the first mode's numbers read and check the scenario, as a compiled model's do
+    injected, _ = checked_scenario(func, SimpleNamespace(model=h.model, numerics=nums[0]), scenario, steps)
     signals = input_signals(func, inputs, h.model)
     options = simulation.SimulationOptions(steps=steps, process_noise=noise[0], measurement_noise=noise[1],
                                            seed=seed, fault=injected, signals=signals)

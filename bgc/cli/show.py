@@ -100,11 +100,10 @@ def _compiled(model: str, mode: str | None, stage: str):
     for a model with modes the compiled mode ``mode`` (its TCG, equations,
     signatures and DBNs; the priors of the fault magnitudes are not shown)."""
     from .. import pipeline
-    from ..errors import CodegenError
 
     c = pipeline.check_model(model)
     if not isinstance(c, pipeline.Hybrid):
         if mode is not None:
-            raise CodegenError(f"model {c.model.name} has no modes", c.model.source, "drop --mode")
+            raise pipeline.unknown_mode(c.model, mode)
         return c
     return c.mode(mode)

@@ -93,7 +93,6 @@ def _hybrid(args: argparse.Namespace) -> int:
     """``bgc simulate`` of a model with modes: its automaton over each mode's equations (:mod:`bgc.analysis.hybrid`)."""
     from .. import pipeline
     from ..analysis import hybrid, simulate as sim
-    from ..compiler import numerics
     from ..output import artifacts
 
     unsupported = [flag for flag, value in (("--inputs", args.inputs), ("--columns", args.columns))
@@ -101,7 +100,7 @@ def _hybrid(args: argparse.Namespace) -> int:
     if unsupported:
         raise BgcError(f"{unsupported[0]} is not built yet for a model with modes", None, f"drop {unsupported[0]}")
     h = pipeline.check_model(args.model)
-    nums = tuple(numerics.derive(m.dbn, args.prior_scale) for m in h.modes)
+    nums = h.numerics(args.prior_scale)
     process, measurement = parse_noise(args.noise)
     fault = sim.parse_fault(args.fault, nums[0]) if args.fault else None
     if args.steps is not None:

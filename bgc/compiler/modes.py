@@ -316,7 +316,7 @@ def _no_chatter(v, transitions: tuple[Transition, ...], measurements: dict[str, 
             rising = op1 in (">", ">=")  # entered with the variable just above c1 (else just below)
             holds = (c2 <= c1 if op2 in (">", ">=") else c2 > c1) if rising else \
                     (c2 < c1 if op2 in (">", ">=") else c2 >= c1)
-            if op2 in (">", ">=") and rising and c2 == c1 and op2 == ">" and op1 == ">=":
+            if rising and op1 == ">=" and op2 == ">" and c2 == c1:
                 holds = False  # entered at c1 exactly: > c1 waits
             if holds:
                 told.add((id(t), id(u)))
@@ -327,14 +327,18 @@ def _no_chatter(v, transitions: tuple[Transition, ...], measurements: dict[str, 
                     f"{'above' if rising else 'below'} {c1:g} must not satisfy {u.guard.text}"))
 
 
-def _closest(name: str, options) -> str | None:
-    import difflib
+def _closest(name, options) -> str | None:
+    """Stage 2's nearest name (:mod:`bgc.compiler.validate` reads the modes: it is loaded by then)."""
+    from .validate import _closest as closest
 
-    match = difflib.get_close_matches(str(name), sorted(options), n=1, cutoff=0.6)
-    return match[0] if match else None
+    return closest(str(name), options)
 
 
 # ------------------------------------------------------------------ per mode
+#: What names the zero source of an OFF junction on one of its bonds: ``<junction>_off<bond>``.
+_OFF = "_off"
+
+
 def mode_graph(model: BondGraph, mode: str) -> BondGraph:
     """The ordinary bond graph of ``model`` in ``mode``: each switched
     junction OFF in it removed, and each of its bonds ending instead at a
@@ -355,7 +359,7 @@ def mode_graph(model: BondGraph, mode: str) -> BondGraph:
             if end not in off:
                 continue
             kind = "Sf" if model.element(end).kind == "1" else "Se"
-            name = f"{end}_off{b.number}"
+            name = f"{end}{_OFF}{b.number}"
             while name in taken:
                 name += "_"
             taken.add(name)
@@ -364,6 +368,17 @@ def mode_graph(model: BondGraph, mode: str) -> BondGraph:
             tail, head = (name, head) if end == b.tail else (tail, name)
         bonds.append(dataclasses.replace(b, tail=tail, head=head))
     return dataclasses.replace(model, elements=tuple(sorted(elements, key=lambda el: el.name)), bonds=tuple(bonds))
+
+
+def zero_sources(graph: BondGraph) -> dict[str, str]:
+    """The zero sources of a mode's bond graph (:func:`mode_graph`), each
+    with the OFF junction it stands for; empty for a model of one mode."""
+    if graph.modes is None:
+        return {}
+    present = {el.name for el in graph.elements}
+    off = [j for j in graph.modes.switches if j not in present]
+    return {el.name: j for el in graph.elements for j in off
+            if re.fullmatch(rf"{re.escape(j)}{_OFF}\d+_*", el.name)}
 
 
 def compile_modes(model: BondGraph) -> tuple[ModeModel, ...]:
@@ -375,10 +390,10 @@ def compile_modes(model: BondGraph) -> tuple[ModeModel, ...]:
     from . import causality, dbn, equations, signatures, tcg
 
     out, found = [], {}
+    own = {el.name for el in model.elements}
     for mode in model.modes.modes:
         graph = mode_graph(model, mode.name)
-        own = {el.name for el in model.elements}
-        off = {el.name: el.description.split(" OFF")[0] + " (OFF)" for el in graph.elements if el.name not in own}
+        off = {name: f"{junction} (OFF)" for name, junction in zero_sources(graph).items()}
         try:
             causal = causality.assign(graph)
             causal = dataclasses.replace(causal, diagnostics=tuple(d for d in causal.diagnostics if d.element in own))

@@ -104,7 +104,9 @@ def bondgraph_text(cbg: CausalBondGraph) -> str:
     lines.extend(_mode_lines(m))
     width = max([len(el.name) for el in m.elements] + [7])
     lines.append("elements:")
-    zero = _zero_sources(m)
+    from ..compiler.modes import zero_sources
+
+    zero = zero_sources(m)
     for el in m.elements:
         kind = ELEMENT_KINDS[el.kind]
         note = f" ({el.description})" if el.name in zero else " (switched: ON)" if el.switch else ""
@@ -119,17 +121,6 @@ def bondgraph_text(cbg: CausalBondGraph) -> str:
     if links:
         lines.append("signal links: " + ", ".join(f"bond {b} -> {el}" for b, el in links))
     return "\n".join(lines) + "\n"
-
-
-def _zero_sources(m) -> set[str]:
-    """The zero sources a mode's bond graph has in place of its OFF junctions
-    (:func:`bgc.compiler.modes.mode_graph`: the elements that are not the model's own)."""
-    if m.modes is None:
-        return set()
-    switched = set(m.modes.switches)
-    present = {el.name for el in m.elements}
-    off = switched - present
-    return {el.name for el in m.elements if any(el.name.startswith(f"{j}_off") for j in off)}
 
 
 def _mode_lines(m) -> list[str]:
