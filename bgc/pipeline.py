@@ -22,7 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .compiler import causality, codegen, dbn, equations, load, modes, numerics, signatures, tcg, validate
+from .compiler import (causality, codegen, dbn, equations, hybrid_codegen, load, modes, numerics, signatures, tcg,
+                       validate)
 from .errors import CodegenError
 from .ir import (
     BondGraph, CausalBondGraph, DbnModel, FaultSignatures, GeneratedPackage, Numerics, RawModel,
@@ -68,6 +69,10 @@ class Hybrid:
         """Each mode's numbers (noise scales, priors, substeps), in the model's order: what the simulator takes."""
         return tuple(numerics.derive(m.dbn, prior_scale) for m in self.modes)
 
+    def package(self, prior_scale: float = 1.0) -> GeneratedPackage:
+        """The generated packages across the modes (:mod:`bgc.compiler.hybrid_codegen`)."""
+        return hybrid_codegen.generate(self.model, self.modes, self.numerics(prior_scale))
+
 
 def unknown_mode(model: BondGraph, name: str | None) -> CodegenError:
     """The one-line error for ``--mode NAME`` that names no mode of ``model``
@@ -84,15 +89,15 @@ def compile_model(path: str | Path, prior_scale: float = 1.0, *, text: str | Non
     memory); ``prior_scale`` widens every fault's prior (``--prior-scale``);
     ``text``: the file's text when it has been read (the compile cache
     compiles the text it hashed), else the file is read. A model with modes
-    is compiled as far as each mode's equations (:func:`check_model`); its
-    generated filters are not built yet: a one-line error says so."""
+    is not diagnosed yet (its stages and package across the modes:
+    :func:`check_model`, :meth:`Hybrid.package`): a one-line error says so."""
     raw = load.load(path) if text is None else load.loads(text, str(path))  # path -> RawModel
     model = validate.validate(raw)               # RawModel -> BondGraph
     if model.modes is not None:
         modes.compile_modes(model)               # each mode's errors first
         raise CodegenError(
-            f"model {model.name} has modes ({', '.join(model.modes.names)}): bgc derives each mode's causality and "
-            "equations (bgc check, bgc show equations --mode MODE) but does not generate filters across modes yet",
+            f"model {model.name} has modes ({', '.join(model.modes.names)}): bgc compiles, shows and simulates it "
+            "(each mode's stages, its filters across the modes) but does not diagnose across modes yet",
             model.source, "to diagnose the plant in one mode, write that mode's junctions as plain ones (OFF: "
             "removed with their branch) in a model without 'modes:'")
     causal = causality.assign(model)             # BondGraph -> CausalBondGraph
@@ -126,18 +131,27 @@ def assign_causality(path: str | Path, mode: str | None = None) -> CausalBondGra
     return causality.assign(model if mode is None else modes.mode_graph(model, mode))
 
 
-def generated_files(c: Compiled) -> dict[str, str]:
-    """The text files of ``generated/<model>/``: every IR's dump, the package, the manifest."""
+def generated_files(c: Compiled | Hybrid) -> dict[str, str]:
+    """The text files of ``generated/<model>/``: every IR's dump (of each
+    mode, under ``modes/<mode>/``, for a model with modes), the package, the
+    manifest."""
     from .output import artifacts
 
+    if isinstance(c, Hybrid):
+        nums = c.numerics()
+        return artifacts.hybrid_folder_files(c.model, c.modes, hybrid_codegen.generate(c.model, c.modes, nums), nums)
     return artifacts.folder_files(c.dbn, c.signatures, c.package)
 
 
-def pictures(c: Compiled, engine: str = "auto") -> dict[str, bytes]:
-    """The SVG pictures of ``generated/<model>/`` (TCG and every DBN), each
-    sealed (the folder's manifest lists them without a hash)."""
+def pictures(c: Compiled | Hybrid, engine: str = "auto") -> dict[str, bytes]:
+    """The SVG pictures of ``generated/<model>/`` (TCG and every DBN, of
+    each mode for a model with modes), each sealed (the folder's manifest
+    lists them without a hash)."""
     from .output import artifacts, draw
 
+    if isinstance(c, Hybrid):
+        return {f"modes/{m.name}/{name}": artifacts.seal(data) for m in c.modes
+                for name, data in draw.pictures(m.dbn, engine).items()}
     return {name: artifacts.seal(data) for name, data in draw.pictures(c.dbn, engine).items()}
 
 

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
 
 from bgc import pipeline
 from bgc.analysis import hybrid
@@ -17,66 +16,13 @@ from bgc.data import runs
 from bgc.errors import BgcError
 
 from conftest import bgc_cli
+from hybrid_reference import BACK, DT, STEPS, TRIP, reference
 
 #: Simulations of thousands of samples and an exact reference: the full suite's (make test), not make check's.
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parent.parent
 RELAY = ROOT / "tests" / "data" / "hybrid" / "relay_rl.yaml"
-#: The relay's values (the model file's), and its automaton.
-V, R_s, L, C, R_load, R_aux = 8.0, 0.5, 0.2, 2.0, 10.0, 0.5
-DT, STEPS, TRIP, BACK = 0.01, 3000, 12.0, 5.0
-
-
-def reference(end: float):
-    """The noise-free relay by solve_ivp: (switch times and modes, a function
-    of t giving (i, v)), by hand: L di/dt = V - R_s i - v with the supply on
-    (i = 0 with it off); C dv/dt = i - v/R_load (- v/R_aux with the relay
-    closed); the relay closes when v rises through 6 and opens when it
-    falls through 4; the operator trips the supply at TRIP; it closes again
-    BACK later, into the open relay, the coil's current reset to 0."""
-    def rhs(mode):
-        def f(t, x):
-            i, v = x
-            di = 0.0 if mode == "unpowered" else (V - R_s * i - v) / L
-            dv = (i - v / R_load - (v / R_aux if mode == "closed" else 0.0)) / C
-            return [di, dv]
-        return f
-
-    def crossing(level, direction):
-        def event(t, x):
-            return x[1] - level
-        event.terminal, event.direction = True, direction
-        return event
-
-    t, x, mode, pieces, switches = 0.0, np.array([0.0, 0.0]), "open", [], []
-    while t < end - 1e-12:
-        if mode == "unpowered":
-            stop, events = min(t + BACK, end), []
-        else:
-            stop = min(TRIP, end) if t < TRIP else end
-            events = [crossing(6.0, 1)] if mode == "open" else [crossing(4.0, -1)]
-        sol = solve_ivp(rhs(mode), (t, stop), x, events=events, dense_output=True, rtol=1e-10, atol=1e-12)
-        pieces.append((t, sol.t[-1], mode, sol.sol))
-        t, x = sol.t[-1], sol.y[:, -1].copy()
-        if sol.status == 1:  # a guard fired
-            mode = "closed" if mode == "open" else "open"
-        elif mode == "unpowered":
-            mode, x[0] = "open", 0.0  # the timed transition back, its reset
-        elif abs(t - TRIP) < 1e-12:
-            mode, x[0] = "unpowered", 0.0  # the contactor trips: no current through the coil
-        else:
-            break
-        switches.append((t, mode))
-
-    def at(time):  # at a switch's time, the state after it (as a run's row holds it)
-        for start, stop, m, dense in reversed(pieces):
-            if start <= time <= stop:
-                return dense(time)
-        raise ValueError(time)
-    return switches, at
-
-
 @pytest.fixture(scope="module")
 def run():
     h = pipeline.check_model(RELAY)

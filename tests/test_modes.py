@@ -105,11 +105,14 @@ def test_bgc_check_lists_the_modes_their_states_and_the_transitions():
     assert "    unpowered -> open: after 5; reset f3 := 0" in out
 
 
-def test_a_model_with_modes_is_refused_in_one_line_where_filters_would_be_generated(tmp_path):
-    with pytest.raises(BgcError, match=r"has modes \(open, closed, unpowered\): bgc derives each mode's causality"):
+def test_a_model_with_modes_is_refused_in_one_line_where_it_would_be_diagnosed(tmp_path):
+    with pytest.raises(BgcError, match=r"has modes \(open, closed, unpowered\): bgc compiles, shows and simulates"):
         pipeline.compile_model(RELAY)
-    done = bgc_cli("compile", "tests/data/hybrid/relay_rl.yaml", "-o", tmp_path / "out")
+    run = bgc_cli("simulate", "tests/data/hybrid/relay_rl.yaml", "--steps", "50", "-o", tmp_path / "r.csv")
+    assert run.returncode == 0, run.stderr
+    done = bgc_cli("diagnose", "tests/data/hybrid/relay_rl.yaml", "--data", tmp_path / "r.csv", "-o", tmp_path / "d")
     assert done.returncode == 1 and len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr
+    assert "does not diagnose across modes yet" in done.stderr
 
 
 def test_a_stage_of_one_mode_is_shown_with_mode():

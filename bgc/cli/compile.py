@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     for path in args.models:
         start = time.perf_counter()
         try:
-            c = pipeline.compile_model(path)
+            c = pipeline.check_model(path)  # a model of one mode compiled, or each mode of a model with modes
             texts = pipeline.generated_files(c)
             outdir = Path(args.output) / c.model.name
             if args.check:
@@ -54,9 +54,12 @@ def run(args: argparse.Namespace) -> int:
             failed = 1
             continue
         seconds = time.perf_counter() - start
-        n_dbn = 1 + len(c.dbn.faulty)
-        print(f"{printable(str(path))}: wrote {printable(str(outdir))}/ ({len(files)} files: equations, TCG, "
+        each = c.modes if isinstance(c, pipeline.Hybrid) else (c,)
+        n_dbn = sum(1 + len(m.dbn.faulty) for m in each)
+        what = f"{len(each)} modes' equations, TCGs" if len(each) > 1 else "equations, TCG"
+        print(f"{printable(str(path))}: wrote {printable(str(outdir))}/ ({len(files)} files: {what}, "
               f"{n_dbn} DBNs{'' if args.no_pictures else ', pictures'}) in {seconds:.2f} s")
-        for d in c.causal.diagnostics:
-            print(printable(f"  {d.severity}: {d.message}"))
+        for m in each:
+            for d in m.causal.diagnostics:
+                print(printable(f"  {'' if m is c else f'mode {m.name}: '}{d.severity}: {d.message}"))
     return failed

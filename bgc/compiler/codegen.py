@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+from dataclasses import dataclass
 from importlib import resources
 
 import sympy
@@ -66,7 +67,7 @@ def generate(dbns: DbnModel, num: Numerics) -> GeneratedPackage:
     files: dict[str, str] = {}
     compiled: dict[str, str] = {}
     modules = []
-    kernel_sha256 = hashlib.sha256(_fixed_text("_jit_kernel.py").encode("utf-8")).hexdigest()
+    kernel_sha256 = kernel_digest()
     for d in (dbns.nominal, *dbns.faulty):
         name = module_name(d.name)
         modules.append(name)
@@ -80,6 +81,11 @@ def generate(dbns: DbnModel, num: Numerics) -> GeneratedPackage:
             package[name] = _header(common["source"]) + _fixed_text(source)
         package["__init__.py"] = env.get_template("package_init.py.j2").render(**common, modules=modules)
     return GeneratedPackage(num, tuple(sorted(files.items())), tuple(modules), tuple(sorted(compiled.items())))
+
+
+def kernel_digest() -> str:
+    """The SHA-256 of the compiled kernel's source (each compiled model module names the kernel it was made for)."""
+    return hashlib.sha256(_fixed_text("_jit_kernel.py").encode("utf-8")).hexdigest()
 
 
 def _header(source: str) -> str:
@@ -236,6 +242,28 @@ def _fault_dict(model, d) -> dict:
             "target": c.target, "subject": c.name, "unit": unit}
 
 
+@dataclass(frozen=True, slots=True)
+class FaultRows:
+    """The fault states a fault model appends to the plant's (thesis Fig.
+    III.2): a drifting parameter's own state and its slope, or a bias; their
+    kinds, per-step process stds, initial values and initial stds."""
+
+    states: list[str]
+    kinds: list[str]
+    process: list[float]
+    x0: list[float]
+    x0_std: list[float]
+
+
+def fault_rows(num: Numerics, d) -> FaultRows:
+    """The fault states of the fault model of DBN ``d`` (its parameter and kind)."""
+    kind, fn, delta = fault_kind(d.kind), num.fault(d.name), f"delta_{d.parameter}"
+    if kind.drifts:  # P is a state drifting at the slope delta_P
+        return FaultRows([d.parameter, delta], ["parameter", kind.magnitude], [0.0, fn.jitter], [fn.nominal, 0.0],
+                         [0.0, 0.0])
+    return FaultRows([delta], [kind.magnitude], [fn.jitter], [0.0], [0.0])  # P + delta_P, the bias persistent
+
+
 def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
     """What model.py.j2 lays out for the DBN ``d``: strings only."""
     ssm = dbns.equations
@@ -262,23 +290,19 @@ def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
         delta = f"delta_{p}"
         n_physical = len(states)
         theta_index = ssm.parameters.index(p)
+        rows = fault_rows(num, d)
+        states += rows.states
+        kinds += rows.kinds
+        proc += rows.process
+        x0 += rows.x0
+        x0_std += rows.x0_std
         if kind.drifts:  # P is a state drifting at the slope delta_P
-            states += [p, delta]
-            kinds += ["parameter", kind.magnitude]
             rhs += [sym(delta), sympy.Integer(0)]
-            proc += [0.0, fn.jitter]
-            x0 += [fn.nominal, 0.0]
-            x0_std += [0.0, 0.0]
             sources[p] = f"x[{n_physical}]"
             note = f"{p}(t+dt) = {p}(t) + {delta} * dt, {delta} persistent"
             value = f"x[{n_physical}]"
         else:  # P + delta_P, the bias persistent
-            states.append(delta)
-            kinds.append(kind.magnitude)
             rhs.append(sympy.Integer(0))
-            proc.append(fn.jitter)
-            x0.append(0.0)
-            x0_std.append(0.0)
             sources[p] = f"theta[{theta_index}] + x[{n_physical}]"
             note = f"{p} + {delta}, {delta} persistent"
             value = f"theta[{theta_index}] + x[{n_physical}]"

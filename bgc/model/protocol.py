@@ -13,7 +13,10 @@ shares are here, and only here:
   state (``parameter``) and, last, the fault's magnitude (``bias`` or
   ``slope``: :attr:`bgc.kinds.FaultKind.magnitude`). :func:`state_rows` and
   :func:`magnitude_row` say which rows are which; the nominal model has
-  physical states only.
+  physical states only. A model with modes has one more state before the
+  fault states, its mode (kind ``mode``: the mode's number), which the
+  model keeps an exact integer and which has no noise: the filters carry
+  it as they carry a physical state (:mod:`bgc.compiler.hybrid_codegen`).
 * **The onset rule.** A fault with onset k changes its parameter at the
   instant of sample k, as in the thesis's DBN (the parameter of time slice k
   enters y_k and the transition out of slice k) and in the simulator: y_k sees
@@ -98,12 +101,17 @@ def nominal_model(package: Package) -> FaultModel:
     return package.MODELS[NOMINAL]
 
 
+#: The kinds of states the filters carry as the plant's (the rest are a fault model's fault states).
+CARRIED = ("physical", "mode")
+
+
 def state_rows(model: FaultModel) -> tuple[list[int], list[int]]:
-    """The physical states' rows and the fault states' rows (a drifting
-    parameter, then the magnitude last) of a generated model."""
+    """The physical states' rows (the mode's among them) and the fault
+    states' rows (a drifting parameter, then the magnitude last) of a
+    generated model."""
     kinds = getattr(model, "STATE_KINDS", ("physical",) * len(model.STATES))
-    physical = [i for i, k in enumerate(kinds) if k == "physical"]
-    return physical, [i for i, k in enumerate(kinds) if k != "physical"]
+    physical = [i for i, k in enumerate(kinds) if k in CARRIED]
+    return physical, [i for i, k in enumerate(kinds) if k not in CARRIED]
 
 
 def magnitude_row(model: FaultModel) -> int:

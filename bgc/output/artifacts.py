@@ -88,6 +88,36 @@ def header(comment: str, source: str) -> str:
 
 def folder_files(dbns: DbnModel, signatures: FaultSignatures, package: GeneratedPackage) -> dict[str, str]:
     """Every deterministic text file of ``generated/<model>/``, by relative path."""
+    files = stage_files(dbns, signatures, package.numerics)
+    return _with_package(files, package, dbns.equations.model, sorted(picture_names(dbns)))
+
+
+def hybrid_folder_files(model, modes, package: GeneratedPackage, numerics) -> dict[str, str]:
+    """Every deterministic text file of ``generated/<model>/`` for a model
+    with modes: each mode's stages under ``modes/<mode>/`` (``modes``: the
+    compiled modes, ``numerics`` theirs), the package across the modes."""
+    files: dict[str, str] = {}
+    pictures: list[str] = []
+    for m, num in zip(modes, numerics):
+        files.update({f"modes/{m.name}/{rel}": text for rel, text in stage_files(m.dbn, m.signatures, num).items()})
+        pictures += [f"modes/{m.name}/{rel}" for rel in picture_names(m.dbn)]
+    return _with_package(files, package, model, sorted(pictures))
+
+
+def _with_package(files: dict[str, str], package: GeneratedPackage, model, pictures: list[str]) -> dict[str, str]:
+    """``files`` with the package's and the manifest, sorted by path."""
+    for rel, text in package.files:
+        files[f"{PACKAGE}/{rel}"] = text
+    for rel, text in package.numba_files:
+        files[f"{NUMBA_PACKAGE}/{rel}"] = text
+    files[MANIFEST] = manifest(files, "compile", model=model.name, source=model.display_source,
+                               source_sha256=model.source_sha256, pictures=pictures)
+    return dict(sorted(files.items()))
+
+
+def stage_files(dbns: DbnModel, signatures: FaultSignatures, numerics) -> dict[str, str]:
+    """The text dumps of the stages of one bond graph (causality, TCG,
+    equations, signatures, DBNs), by relative path."""
     ssm = dbns.equations
     tcg = ssm.tcg
     cbg = tcg.causal
@@ -101,7 +131,7 @@ def folder_files(dbns: DbnModel, signatures: FaultSignatures, package: Generated
         "equations.txt": header("#", src) + render.equations_text(ssm),
         "equations.tex": header("%", src) + render.equations_latex(ssm),
         "equations.json": render.to_json(render.equations_json(ssm)),
-        "signatures.txt": header("#", src) + render.signatures_text(signatures, package.numerics),
+        "signatures.txt": header("#", src) + render.signatures_text(signatures, numerics),
         "signatures.json": render.to_json(render.signatures_json(signatures)),
     }
     for d in (dbns.nominal, *dbns.faulty):
@@ -109,13 +139,7 @@ def folder_files(dbns: DbnModel, signatures: FaultSignatures, package: Generated
         files[f"dbn/{stem}.txt"] = header("#", src) + render.dbn_text(d)
         files[f"dbn/{stem}.json"] = render.to_json(render.dbn_json(d))
         files[f"dbn/{stem}.dot"] = header("//", src) + render.dbn_dot(d)
-    for rel, text in package.files:
-        files[f"{PACKAGE}/{rel}"] = text
-    for rel, text in package.numba_files:
-        files[f"{NUMBA_PACKAGE}/{rel}"] = text
-    files[MANIFEST] = manifest(files, "compile", model=cbg.model.name, source=src,
-                               source_sha256=cbg.model.source_sha256, pictures=sorted(picture_names(dbns)))
-    return dict(sorted(files.items()))
+    return files
 
 
 def manifest(files: Mapping[str, str | bytes], command: str, *, growing: Iterable[str] = (), **fields) -> str:

@@ -1,0 +1,205 @@
+"""Stage 8 for a model with modes: each mode's generated models, and one
+model per fault hypothesis across the modes (:func:`generate`).
+
+Every mode is an ordinary bond graph (:func:`bgc.compiler.modes.mode_graph`),
+so stage 8 generates its modules as it does a model of one mode's, named
+``_m<I>_<model>`` (``I`` the mode's number, 1 for the first listed). Over
+them, one module per model (``nominal`` and each fault model) meets the
+runtime's protocol (:mod:`bgc.model.protocol`) with a mode axis:
+
+* **The state vector** is every variable that is a state in some mode
+  (:func:`bgc.compiler.modes.states`), then the mode (kind ``mode``: its
+  number, an integer the model keeps exact; the filters carry it like a
+  physical state with no noise), then the fault model's fault states.
+* **The mode is an input** too, the last (``mode``: its number, from the run
+  file's ``mode`` column). ``predict`` moves every particle into that mode
+  first (the resets of the transition it takes, then the idle states of the
+  mode entered), then integrates each particle with its mode's equations.
+  An input that is NaN (the data do not say) leaves each particle in its mode.
+* **A state idle in a mode** (an inertia behind an open switch: no state
+  there) takes the value that mode's equations give it after every step
+  and every draw of process noise, as in the truth simulator
+  (:mod:`bgc.analysis.hybrid`).
+* **Noise levels** are those the simulator uses: a state's process noise is
+  that of the first mode it is a state of, the measurement noise the first
+  mode's.
+"""
+
+from __future__ import annotations
+
+import sympy
+
+from ..errors import CodegenError
+from ..ir import GeneratedPackage, sym
+from ..kinds import fault_kind
+from . import codegen
+from .modes import ModeModel, states as every_state
+from .printing import escape, print_expr, print_number
+
+#: The name of the mode among a hybrid model's states and inputs.
+MODE = "mode"
+
+
+def generate(model, modes: tuple[ModeModel, ...], nums: tuple) -> GeneratedPackage:
+    """The generated packages of a model with modes: each mode's modules
+    (``_m<I>_<name>``, NumPy and compiled), and a module per model across the
+    modes (module docstring); ``nums`` each mode's :class:`~bgc.ir.Numerics`.
+
+    Raises
+    ------
+    CodegenError
+        The modes disagree on the inputs, sensors, parameters or fault
+        models (a model file cannot make them), or an expression or a number
+        that NumPy code cannot hold.
+    """
+    first = modes[0]
+    ssm0 = first.equations
+    names = [codegen.module_name(d.name) for d in (first.dbn.nominal, *first.dbn.faulty)]
+    for m in modes[1:]:
+        s = m.equations
+        if (s.inputs, s.outputs, s.parameters) != (ssm0.inputs, ssm0.outputs, ssm0.parameters) or \
+                [codegen.module_name(d.name) for d in (m.dbn.nominal, *m.dbn.faulty)] != names:
+            raise CodegenError(f"modes {first.name} and {m.name} of {model.name} differ in their inputs, sensors, "
+                               "parameters or faults", model.source, "report this: every mode has the model's")
+    env = codegen._env()
+    common = {"source": escape(model.display_source), "model": escape(model.name),
+              "description": escape(model.description, newlines=True)}
+    kernel_sha256 = codegen.kernel_digest()
+    files: dict[str, str] = {}
+    compiled: dict[str, str] = {}
+    for i, (m, num) in enumerate(zip(modes, nums), start=1):
+        for d in (m.dbn.nominal, *m.dbn.faulty):
+            ctx = codegen._model_context(m.dbn, num, d)
+            ctx["name"] = own = f"_m{i}_{codegen.module_name(d.name)}"
+            ctx["title"] = escape(f"{ctx['title'][:-1]} in mode {m.name} (mode {i}).")
+            files[f"{own}.py"] = env.get_template("model.py.j2").render(**common, **ctx, numba=False)
+            compiled[f"{own}.py"] = env.get_template("model.py.j2").render(**common, **ctx, numba=True)
+            compiled[f"_jit_{own}.py"] = env.get_template("model_jit.py.j2").render(**common, **ctx,
+                                                                                      kernel_sha256=kernel_sha256)
+    every = every_state(modes)
+    for j, name in enumerate(names):
+        ctx = _context(model, modes, nums, every, j, name)
+        text = env.get_template("hybrid_model.py.j2").render(**common, **ctx)
+        files[f"{name}.py"] = compiled[f"{name}.py"] = text
+    for package, fixed in ((files, codegen.FIXED_FILES), (compiled, codegen.NUMBA_FIXED_FILES)):
+        for name, source in fixed.items():
+            package[name] = codegen._header(common["source"]) + codegen._fixed_text(source)
+        package["__init__.py"] = env.get_template("package_init.py.j2").render(**common, modules=names)
+    return GeneratedPackage(nums[0], tuple(sorted(files.items())), tuple(names), tuple(sorted(compiled.items())))
+
+
+def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str, ...], j: int, name: str) -> dict:
+    """What hybrid_model.py.j2 lays out for the ``j``-th model (0: nominal) across the modes."""
+    where = model.source
+    first, num0 = modes[0], nums[0]
+    d0 = (first.dbn.nominal, *first.dbn.faulty)[j]
+    ssm0 = first.equations
+    n = len(every)
+    fault = codegen.fault_rows(num0, d0) if d0.parameter is not None else None
+    fault_states = fault.states if fault else []
+    states = list(every) + [MODE] + fault_states
+    kinds = ["physical"] * n + [MODE] + (fault.kinds if fault else [])
+    # a state's noise and initial value: the first mode it is a state of (the simulator's rule)
+    process, x0 = [], []
+    for x in every:
+        owner, num = next((m, nm) for m, nm in zip(modes, nums) if x in m.equations.states)
+        k = owner.equations.states.index(x)
+        process.append(num.noise.process[k])
+        x0.append(owner.equations.initial[k])
+    x0_std = [2.0 * s for s in process] + [0.0] + (fault.x0_std if fault else [])
+    process += [0.0] + (fault.process if fault else [])
+    initial = _settled(first, every, x0, ssm0)
+    x0 = initial + [1.0] + (fault.x0 if fault else [])
+    row = {x: i for i, x in enumerate(every)}
+    fault_row = {s: n + 1 + i for i, s in enumerate(fault_states)}
+    mode_ctx = []
+    for i, m in enumerate(modes, start=1):
+        s = m.equations
+        rows = [row[x] for x in s.states] + [fault_row[x] for x in fault_states]
+        sources = _sources(s, row, d0, fault_row)
+        idle = [x for x in every if x not in s.states]
+        variables = dict(s.variables)
+        settle = [(row[x], variables[x]) for x in idle]
+        mode_ctx.append({"number": i, "name": m.name, "module": f"_m{i}_{name}", "rows": rows,
+                         "idle": [row[x] for x in idle],
+                         "settle": _assignments(settle, sources, where, f"mode {m.name}'s idle states")})
+    resets = []
+    by_name = {m.name: (i, m) for i, m in enumerate(modes, start=1)}
+    for t in model.modes.transitions:
+        if not t.resets:
+            continue
+        i, source = by_name[t.source]
+        s = source.equations
+        resolve = {sym(v): e for v, e in s.variables}
+        sources = _sources(s, row, d0, fault_row)
+        body = [(row[state], expr.xreplace(resolve)) for state, expr in t.resets]
+        resets.append({"source": i, "target": by_name[t.target][0], "text": escape(f"{t.source} -> {t.target}"),
+                       "lines": _assignments(body, sources, where, f"the resets of {t.source} -> {t.target}")})
+    n_inputs = len(ssm0.inputs)
+    return {
+        "name": name, "title": escape(f"{'Nominal model' if fault is None else 'Model'} of {model.name} across "
+                                      f"its modes{'' if fault is None else f', with an {d0.kind} fault of {d0.parameter}'}."),
+        "modes": mode_ctx, "mode_names_tuple": codegen._tuple(repr(m.name) for m in modes),
+        "states_tuple": codegen._tuple(repr(x) for x in states),
+        "state_kinds_tuple": codegen._tuple(repr(k) for k in kinds),
+        "inputs_tuple": codegen._tuple(repr(u) for u in (*ssm0.inputs, MODE)), "n_inputs": n_inputs,
+        "mode_row": n, "n_nominal": n + 1, "n_states": len(states),
+        "n_first": len(first.equations.states),
+        "x0": codegen._floats(x0, "an initial value", where), "x0_std": codegen._floats(x0_std, "an initial std", where),
+        "process_std": codegen._floats(process, "a process-noise std", where),
+        "fault": fault is not None,
+        "noise_fault": fault is not None and fault_kind(d0.kind).noise,
+        "resets": resets,
+        "dt": print_number(model.settings.dt, "simulation.dt", where),
+        "substeps": max(num.substeps for num in nums),
+    }
+
+
+def _settled(first: ModeModel, every: tuple[str, ...], x0: list[float], ssm) -> list[float]:
+    """The initial states with those idle in the first mode at what its
+    equations give them (the inputs at time 0, the parameters nominal)."""
+    values = {sym(x): v for x, v in zip(every, x0)}
+    values.update({sym(p): v for p, v in zip(ssm.parameters, ssm.parameter_values)})
+    signals = {i.name: i.signal for i in first.graph.inputs}
+    values.update({sym(u): signals[u].at(0.0) for u in ssm.inputs})
+    variables = dict(ssm.variables)
+    out = []
+    for x, v in zip(every, x0):
+        if x in ssm.states:
+            out.append(float(v))
+        else:
+            out.append(float(sympy.sympify(variables[x]).xreplace(values)))
+    return out
+
+
+def _sources(ssm, row: dict[str, int], d, fault_row: dict[str, int]) -> dict[str, str]:
+    """Where each name an expression of mode ``ssm`` uses comes from in the
+    model across the modes: states and inputs by index, parameters from
+    theta, a fault model's parameter from its fault states."""
+    sources = {x: f"x[{row[x]}]" for x in ssm.states}
+    sources.update({u: f"u[{i}]" for i, u in enumerate(ssm.inputs)})
+    sources.update({p: f"theta[{i}]" for i, p in enumerate(ssm.parameters)})
+    if d.parameter is not None:
+        p = d.parameter
+        if fault_kind(d.kind).drifts:
+            sources[p] = f"x[{fault_row[p]}]"
+        else:
+            sources[p] = f"theta[{ssm.parameters.index(p)}] + x[{fault_row[f'delta_{p}']}]"
+    return sources
+
+
+def _assignments(pairs: list[tuple[int, object]], sources: dict[str, str], where, what: str) -> list[str]:
+    """The lines that set rows of x to expressions (all computed first, then
+    written): the names they use unpacked, then ``_v<k> = ...``, then ``x[row] = _v<k>``."""
+    if not pairs:
+        return []
+    exprs = [sympy.sympify(e) for _, e in pairs]
+    used = {s.name for e in exprs for s in e.free_symbols}
+    unknown = sorted(used - set(sources))
+    if unknown:
+        raise CodegenError(f"{what} name {', '.join(unknown)}, which the mode's equations do not give", where,
+                           "report this: a reset or an idle state reads states, inputs and parameters only")
+    lines = [f"{name} = {sources[name]}" for name in sources if name in used]
+    lines += [f"_v{k} = {print_expr(e)}" for k, e in enumerate(exprs)]
+    lines += [f"x[{r}] = _v{k}" for k, (r, _) in enumerate(pairs)]
+    return lines
