@@ -185,3 +185,17 @@ def test_the_compiled_package_gives_the_numpy_packages_filter(folder, package, e
 def test_generation_is_a_pure_function_of_the_model():
     h = pipeline.check_model(RELAY)
     assert pipeline.generated_files(h) == pipeline.generated_files(h)
+
+
+def test_bgc_filter_follows_a_simulated_run_through_its_switches(folder, tmp_path):
+    run = tmp_path / "relay.csv"
+    made = bgc_cli("simulate", RELAY, "--steps", "1500", "--modes", "unpowered@9", "--seed", "4", "-o", run)
+    assert made.returncode == 0, made.stderr
+    done = bgc_cli("filter", RELAY, run, "--generated", folder, "--backend", "numpy", "--filter", "gpf",
+                   "--plot", tmp_path / "f.png")
+    assert done.returncode == 0, done.stderr
+    rmse = dict(part.split() for part in done.stdout.split("RMSE vs truth: ")[1].splitlines()[0].split(", "))
+    std = dict(zip(("f3", "e6"), load_package(folder, "relay_rl").MODELS["nominal"].MEASUREMENT_STD))  # i_L, v_C
+    # the filter knows each sample's mode (the run's column): it estimates both states better than their sensors
+    assert float(rmse["f3"]) < std["f3"] and float(rmse["e6"]) < std["e6"]
+    assert (tmp_path / "f.png").stat().st_size > 10_000

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..data.columns import MODE
 from ..data.runs import Run
 from ..errors import DataError, TrackingError, printable
 from ..filters.cubature import CubatureKalmanFilter
@@ -110,13 +111,16 @@ def run_arrays(run: Run, package: Package, model_name: str) -> tuple[np.ndarray,
         raise DataError(f"{printable(run.source)}: the run has no column y:{printable(missing[0])}", None,
                         "record it with bgc simulate for the same model")
     ys = np.column_stack([run.measurements[y] for y in model.OUTPUTS])
-    if model.INPUTS:
-        us = np.column_stack([run.inputs[u] if u in run.inputs else np.full(len(run.time), np.nan)
-                              for u in model.INPUTS])
-        if np.isnan(us).any():
-            us = np.array([model.inputs(t - model.DT) for t in run.time])
-    else:
-        us = np.zeros((len(run.time), 0))
+    if not model.INPUTS:
+        return ys, np.zeros((len(run.time), 0))
+    us = np.column_stack([run.inputs[u] if u in run.inputs else np.full(len(run.time), np.nan)
+                          for u in model.INPUTS])
+    # a model with modes: its last input is the mode, the run's mode column (NaN: not given)
+    plant = [i for i, u in enumerate(model.INPUTS) if not (u == MODE and i == getattr(model, "MODE_INPUT", None))]
+    if len(plant) < len(model.INPUTS) and run.modes is not None:
+        us[:, model.MODE_INPUT] = run.modes
+    if np.isnan(us[:, plant]).any():
+        us[:, plant] = np.array([model.inputs(t - model.DT) for t in run.time])[:, plant]
     return ys, us
 
 

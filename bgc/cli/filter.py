@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import printable
@@ -40,6 +41,30 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
+@dataclass(frozen=True, slots=True)
+class _Modes:
+    """What ``bgc filter`` reads of a model with modes, as of a compiled
+    model's view: the bond graph, its labels, and the first mode's DBNs (the
+    fault models' names, the same in every mode)."""
+
+    model: object
+    labels: object
+    dbn: object
+
+
+def _opened(path: str):
+    """The compiled model's view (:mod:`bgc.view`), or :class:`_Modes` of a model with modes."""
+    from .. import pipeline
+    from ..api import cache
+    from ..compiler import load
+    from ..output.labels import labels_of
+
+    if not load.declares_modes(path):
+        return cache.open_model(path).view
+    h = pipeline.check_model(path)
+    return _Modes(h.model, labels_of(h.model), h.modes[0].dbn)
+
+
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -52,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     from ..model import package as packages
     from ..model import warmup
 
-    c = cache.open_model(args.model).view
+    c = _opened(args.model)
     run = runs.read_run(args.run_csv, reading_of(c, args.columns))
     track.check_run_of(run, c.model.name, args.run_csv)
     numba = Path(args.generated) / c.model.name / NUMBA_PACKAGE
@@ -78,7 +103,9 @@ def run(args: argparse.Namespace) -> int:
               f"mean ESS {float(np.mean(r.ess)):.0f}, resampled {int(r.resampled.sum())} times, "
               f"recoveries {r.recoveries}")
         print("  RMSE vs truth: " + (rmse or "no truth in the run"))
-        last = ", ".join(f"{x} {m:.4g} +- {s:.2g}" for x, m, s in zip(r.state_names, r.mean[-1], r.std[-1]))
+        modes = getattr(package.MODELS[name], "MODES", ())
+        last = ", ".join(f"mode {round(m)} ({modes[round(m) - 1]})" if x == "mode" and modes else
+                         f"{x} {m:.4g} +- {s:.2g}" for x, m, s in zip(r.state_names, r.mean[-1], r.std[-1]))
         print(f"  final estimate: {last}")
         est = track.fault_estimate(r, package, run, c.labels.per_time)
         if est is not None:
