@@ -47,6 +47,9 @@ class Compiled:
     dbn: DbnModel
     numerics: Numerics
     package: GeneratedPackage
+    #: A model with modes: each mode compiled (:class:`bgc.compiler.modes.ModeModel`); the stages above are
+    #: then the first mode's, and the package is the one across the modes. Empty: a model of one mode.
+    modes: tuple[modes.ModeModel, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,17 +92,16 @@ def compile_model(path: str | Path, prior_scale: float = 1.0, *, text: str | Non
     memory); ``prior_scale`` widens every fault's prior (``--prior-scale``);
     ``text``: the file's text when it has been read (the compile cache
     compiles the text it hashed), else the file is read. A model with modes
-    is not diagnosed yet (its stages and package across the modes:
-    :func:`check_model`, :meth:`Hybrid.package`): a one-line error says so."""
+    is compiled in every mode (:attr:`Compiled.modes`), its package across
+    the modes (:mod:`bgc.compiler.hybrid_codegen`)."""
     raw = load.load(path) if text is None else load.loads(text, str(path))  # path -> RawModel
     model = validate.validate(raw)               # RawModel -> BondGraph
-    if model.modes is not None:
-        modes.compile_modes(model)               # each mode's errors first
-        raise CodegenError(
-            f"model {model.name} has modes ({', '.join(model.modes.names)}): bgc compiles, shows and simulates it "
-            "(each mode's stages, its filters across the modes) but does not diagnose across modes yet",
-            model.source, "to diagnose the plant in one mode, write that mode's junctions as plain ones (OFF: "
-            "removed with their branch) in a model without 'modes:'")
+    if model.modes is not None:                  # every stage of each mode, the package across them
+        each = modes.compile_modes(model)
+        nums = tuple(numerics.derive(m.dbn, prior_scale) for m in each)
+        first = each[0]
+        return Compiled(raw, model, first.causal, first.tcg, first.equations, first.signatures, first.dbn, nums[0],
+                        hybrid_codegen.generate(model, each, nums), each)
     causal = causality.assign(model)             # BondGraph -> CausalBondGraph
     graph = tcg.build(causal)                    # CausalBondGraph -> TemporalCausalGraph
     ssm = equations.derive(graph)                # TemporalCausalGraph -> StateSpaceModel
@@ -140,6 +142,9 @@ def generated_files(c: Compiled | Hybrid) -> dict[str, str]:
     if isinstance(c, Hybrid):
         nums = c.numerics()
         return artifacts.hybrid_folder_files(c.model, c.modes, hybrid_codegen.generate(c.model, c.modes, nums), nums)
+    if c.modes:
+        nums = tuple(numerics.derive(m.dbn, 1.0) if i else c.numerics for i, m in enumerate(c.modes))
+        return artifacts.hybrid_folder_files(c.model, c.modes, c.package, nums)
     return artifacts.folder_files(c.dbn, c.signatures, c.package)
 
 
@@ -149,7 +154,7 @@ def pictures(c: Compiled | Hybrid, engine: str = "auto") -> dict[str, bytes]:
     lists them without a hash)."""
     from .output import artifacts, draw
 
-    if isinstance(c, Hybrid):
+    if isinstance(c, Hybrid) or c.modes:
         return {f"modes/{m.name}/{name}": artifacts.seal(data) for m in c.modes
                 for name, data in draw.pictures(m.dbn, engine).items()}
     return {name: artifacts.seal(data) for name, data in draw.pictures(c.dbn, engine).items()}
@@ -159,8 +164,8 @@ def view(c: Compiled) -> CompiledView:
     """What the runtime reads of ``c``, as plain data (:mod:`bgc.view`):
     the IRs' plain fields, the reports' labels, and the state equations as
     sympy's lambdify prints them for the truth simulator."""
-    from .view import (CompiledView, DbnModelView, DbnView, ElementView, EquationsView, MeasurementView, ModelView,
-        NumericsView, SignaturesView, TruthSource, plain)
+    from .view import (CompiledView, DbnModelView, DbnView, ElementView, EquationsView, MeasurementView, ModeView,
+        ModelView, NumericsView, SignaturesView, TruthSource, plain)
     from .output.labels import labels_of
 
     m, ssm = c.model, c.equations
@@ -171,5 +176,7 @@ def view(c: Compiled) -> CompiledView:
                       truth=None if truth is None else TruthSource(*truth, numerics.float_safe(ssm)))
     dbns = plain(DbnModelView, c.dbn, equations=equations, nominal=plain(DbnView, c.dbn.nominal),
                  faulty=tuple(plain(DbnView, d) for d in c.dbn.faulty))
+    each = tuple(ModeView(mode.name, mode.equations.states, plain(SignaturesView, mode.signatures))
+                 for mode in c.modes)
     return CompiledView(model, equations, plain(SignaturesView, c.signatures), dbns,
-                        plain(NumericsView, c.numerics, equations=equations), labels_of(m), c.package.modules)
+                        plain(NumericsView, c.numerics, equations=equations), labels_of(m), c.package.modules, each)

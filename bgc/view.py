@@ -39,7 +39,7 @@ import numbers
 from dataclasses import dataclass, fields
 from typing import Any
 
-from .errors import SourceLoc
+from .errors import ModelError, SourceLoc
 from .ir import (Bond, BondGraph, Dbn, DbnModel, Element, FaultCandidate, FaultNumerics, FaultSignatures, Input,
     Measurement, Numerics, Parameter, Settings, Signal, Signature, StateSpaceModel)
 from .output.labels import Labels
@@ -68,7 +68,8 @@ MeasurementView = _plain_part("MeasurementView", Measurement, ("expr",),
                               "A :class:`~bgc.ir.Measurement` without its expression (``text``: as the model "
                               "file writes it).")
 
-ModelView = _plain_part("ModelView", BondGraph, (), "A :class:`~bgc.ir.BondGraph` whose elements and measurements are views.",
+ModelView = _plain_part("ModelView", BondGraph, ("modes",), "A :class:`~bgc.ir.BondGraph` whose elements and measurements "
+                        "are views, without its modes (a model with modes: :attr:`CompiledView.modes`).",
                         views={"elements": "tuple[ElementView, ...]", "measurements": "tuple[MeasurementView, ...]"},
                         methods=("element", "bond", "bonds_of", "parameter_values", "unit", "display_source"))
 
@@ -147,6 +148,16 @@ def plain(view: type, ir, **given):
 
 
 @dataclass(frozen=True, slots=True)
+class ModeView:
+    """One mode of a model with modes: its name, its states and its fault
+    signatures (TRANSCEND's, on that mode's temporal causal graph)."""
+
+    name: str
+    states: tuple[str, ...]
+    signatures: SignaturesView
+
+
+@dataclass(frozen=True, slots=True)
 class CompiledView:
     """What the runtime reads of a :class:`bgc.pipeline.Compiled`, as plain
     data: the model, its equations, signatures, DBNs' names and numbers
@@ -159,6 +170,16 @@ class CompiledView:
     numerics: NumericsView
     labels: Labels
     modules: tuple[str, ...]
+    #: A model with modes: each mode, in the model's order (its number is its place, from 1); the
+    #: equations, signatures, DBNs and numerics above are then the first mode's. Empty: a model of one mode.
+    modes: tuple[ModeView, ...] = ()
+
+    def refuse_modes(self, what: str, hint: str) -> None:
+        """A one-line error (:class:`~bgc.errors.ModelError`) when this is a
+        model with modes, for which ``what`` is not built yet."""
+        if self.modes:
+            raise ModelError(f"{self.model.name} has modes ({', '.join(m.name for m in self.modes)}): {what} is not "
+                             "built yet for a model with modes", self.model.source, hint)
 
     @property
     def priors(self) -> dict[str, float]:
@@ -168,7 +189,7 @@ class CompiledView:
 
 #: Every type a view holds, by the name :func:`to_json` writes (nothing else is read back).
 _TYPES = {cls.__name__: cls for cls in (
-    CompiledView, ModelView, ElementView, MeasurementView, EquationsView, TruthSource, SignaturesView, DbnModelView,
+    CompiledView, ModeView, ModelView, ElementView, MeasurementView, EquationsView, TruthSource, SignaturesView, DbnModelView,
     DbnView, NumericsView, Parameter, Bond, Input, Signal, FaultCandidate, Settings, Signature, FaultNumerics, Labels)}
 
 #: The version of the JSON layout (a reader refuses another).

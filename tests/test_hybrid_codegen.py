@@ -82,17 +82,26 @@ def test_each_mode_steps_as_its_hand_derived_equations(package, mode, number):
 
 
 def test_a_change_of_mode_settles_the_idle_states_and_applies_the_transitions_resets(package):
+    """A step integrates each particle in its mode, then moves it into the mode the data say at the
+    sample (a run's row holds the state after the changes due at its time)."""
     nominal = package.MODELS["nominal"]
     theta = nominal.THETA
-    # closed -> unpowered (no reset declared): the coil's current is no state with the supply off: 0
+    # closed -> unpowered (no reset declared): a step of the closed relay, then the coil's current is no state
+    # with the supply off: 0
     x = np.array([[4.0], [5.0], [2.0]])
     after = nominal.predict(x, np.array([V, 3.0]), theta, DT)
     assert after[0, 0] == 0.0 and after[2, 0] == 3.0
+    assert after[1, 0] == pytest.approx(exact_step("closed", (4.0, 5.0))[1], rel=1e-7)
+    # unpowered: the capacitor discharges through R_load alone, v(t) = v0 exp(-t / (R_load C))
+    x = np.array([[0.0], [5.0], [3.0]])
+    after = nominal.predict(x, np.array([V, 3.0]), theta, DT)
     assert after[1, 0] == pytest.approx(5.0 * np.exp(-DT / (R_load * C)), rel=1e-9)
-    # unpowered -> open resets f3 to 0 (reset: {f3: 0}): a current left in the row does not survive it
-    x = np.array([[0.7], [5.0], [3.0]])
-    after = nominal.predict(x, np.array([V, 1.0]), theta, DT)
-    assert after[0, 0] == pytest.approx(exact_step("open", (0.0, 5.0))[0], rel=1e-7)
+    # unpowered -> open resets f3 to 0 (reset: {f3: 0}), from the values before it
+    module = __import__(nominal.__name__, fromlist=["_RESETS"])
+    assert set(module._RESETS) == {(3, 1)}
+    block = np.array([[0.7, 1.5], [5.0, 4.0], [3.0, 3.0]])
+    module._RESETS[3, 1](block, np.array([V]), theta)
+    assert list(block[0]) == [0.0, 0.0] and list(block[1]) == [5.0, 4.0]
     # the mode NaN: each particle stays in its own mode and follows its equations, in one array
     x = np.array([[3.0, 3.0, 0.0], [5.0, 5.0, 5.0], [1.0, 2.0, 3.0]])
     after = nominal.predict(x, np.array([V, np.nan]), theta, DT)

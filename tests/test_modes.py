@@ -105,14 +105,16 @@ def test_bgc_check_lists_the_modes_their_states_and_the_transitions():
     assert "    unpowered -> open: after 5; reset f3 := 0" in out
 
 
-def test_a_model_with_modes_is_refused_in_one_line_where_it_would_be_diagnosed(tmp_path):
-    with pytest.raises(BgcError, match=r"has modes \(open, closed, unpowered\): bgc compiles, shows and simulates"):
-        pipeline.compile_model(RELAY)
-    run = bgc_cli("simulate", "tests/data/hybrid/relay_rl.yaml", "--steps", "50", "-o", tmp_path / "r.csv")
+def test_bgc_diagnoses_a_run_of_a_model_with_modes_and_refuses_what_is_not_built_in_one_line(tmp_path):
+    run = bgc_cli("simulate", "tests/data/hybrid/relay_rl.yaml", "--steps", "200", "-o", tmp_path / "r.csv")
     assert run.returncode == 0, run.stderr
-    done = bgc_cli("diagnose", "tests/data/hybrid/relay_rl.yaml", "--data", tmp_path / "r.csv", "-o", tmp_path / "d")
-    assert done.returncode == 1 and len(done.stderr.strip().splitlines()) == 1 and "Traceback" not in done.stderr
-    assert "does not diagnose across modes yet" in done.stderr
+    done = bgc_cli("diagnose", "tests/data/hybrid/relay_rl.yaml", "--data", tmp_path / "r.csv", "-o", tmp_path / "d",
+                   "--backend", "numpy")
+    assert done.returncode == 0 and "relay_rl: no fault" in done.stdout, done.stderr
+    refused = bgc_cli("calibrate", "tests/data/hybrid/relay_rl.yaml", "--data", tmp_path / "r.csv", "-o",
+                      tmp_path / "c.yaml")
+    assert refused.returncode == 1 and len(refused.stderr.strip().splitlines()) == 1
+    assert "calibration is not built yet for a model with modes" in refused.stderr and "Traceback" not in refused.stderr
 
 
 def test_a_stage_of_one_mode_is_shown_with_mode():

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import sympy
 
+import bgc
 from bgc import pipeline
 from bgc.analysis import hybrid
 from bgc.analysis.simulate import SimulationOptions
@@ -18,6 +19,7 @@ from bgc.analysis.simulate import SimulationOptions
 pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parent.parent
+VALVE = ROOT / "models" / "ro_hybrid_valve.yaml"
 e6, e13, f3, f22, e27 = sympy.symbols("e6 e13 f3 f22 e27")
 R_pipe, R_back, R_aes, R_brine, m2 = sympy.symbols("R_pipe R_back R_aes R_brine m2")
 
@@ -98,3 +100,22 @@ def test_bgc_simulate_from_python_takes_a_model_with_modes():
         bgc.simulate("models/two_tank.yaml", seed=1, steps=10, modes="a@1")
     with pytest.raises(ValueError, match=r"bgc.simulate: modes 'closed' is no mode of the model"):
         bgc.simulate("models/ro_hybrid_valve.yaml", seed=1, steps=10, modes="closed@1")
+
+
+#: The valve RO cycled twice through its three settings (controlled: the valve in the data).
+CYCLES = "secondary@60,purge@100,primary@120,secondary@180,purge@220,primary@240"
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_the_cycling_valve_ro_raises_no_alarm_at_its_switches(seed):
+    sim = bgc.simulate(VALVE, seed=seed, steps=300, modes=CYCLES)
+    assert len(sim.switches) == 6
+    report = bgc.diagnose(VALVE, data=sim, backend="numpy")
+    assert report.diagnosis.verdict == "no fault", report.diagnosis.candidates
+
+
+def test_a_pipe_clogging_in_the_second_cycle_is_named():
+    sim = bgc.simulate(VALVE, "R_pipe:incipient:0.5@140", seed=4, steps=300, modes=CYCLES)
+    d = bgc.diagnose(VALVE, data=sim, backend="numpy").diagnosis
+    assert d.verdict == "isolated" and d.candidates == ("R_pipe_incipient",), (d.verdict, d.candidates)
+    assert d.detection.step > 140

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..data.columns import MODE
-from ..data.runs import Run
+from ..data.runs import Run, input_columns
 from ..errors import DataError, TrackingError, printable
 from ..filters.cubature import CubatureKalmanFilter
 from ..filters.registry import check_particles, filter_class
@@ -113,12 +113,10 @@ def run_arrays(run: Run, package: Package, model_name: str) -> tuple[np.ndarray,
     ys = np.column_stack([run.measurements[y] for y in model.OUTPUTS])
     if not model.INPUTS:
         return ys, np.zeros((len(run.time), 0))
-    us = np.column_stack([run.inputs[u] if u in run.inputs else np.full(len(run.time), np.nan)
-                          for u in model.INPUTS])
-    # a model with modes: its last input is the mode, the run's mode column (NaN: not given)
+    given = input_columns(run)
+    us = np.column_stack([given[u] if u in given else np.full(len(run.time), np.nan) for u in model.INPUTS])
+    # a model with modes: its last input is the mode, the run's mode column (NaN: not given, each particle's stays)
     plant = [i for i, u in enumerate(model.INPUTS) if not (u == MODE and i == getattr(model, "MODE_INPUT", None))]
-    if len(plant) < len(model.INPUTS) and run.modes is not None:
-        us[:, model.MODE_INPUT] = run.modes
     if np.isnan(us[:, plant]).any():
         us[:, plant] = np.array([model.inputs(t - model.DT) for t in run.time])[:, plant]
     return ys, us

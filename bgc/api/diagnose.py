@@ -21,7 +21,7 @@ from ..data.sampler import grid_steps
 from .limits import (METHODS, check_diagnosis_steps, check_options,
                      with_horizon)
 from .reports import DiagnosisReport
-from .session import Session, _session_of, input_signals
+from .session import Session, _session_of, input_signals, isolation_signatures
 from .simulate import Simulation, checked_scenario, simulated_run
 
 
@@ -214,6 +214,6 @@ def _recorded_run(session: Session, run: runs.Run, opts: DiagnosisOptions) -> ru
 def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> DiagnosisReport:
     track.check_request(run, package, "nominal", opts.particles, None, columns=False)
     opts = with_horizon(opts, c.model.settings)
-    result = run_diagnosis(run, package, c.signatures, c.priors, opts, say)
+    result = run_diagnosis(run, package, isolation_signatures(c), c.priors, opts, say)
     return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,
                            result, c.labels)

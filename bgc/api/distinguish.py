@@ -115,6 +115,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         say("compiling the model")
         opened = cache.open_model(model)
         c, private = opened.view, opened.folder
+    c.refuse_modes("distinguishability", "ask it of a model of one mode")
     num = c.numerics
     signals = input_signals(func, inputs, c.model)
     if steps is not None:

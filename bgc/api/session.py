@@ -249,7 +249,7 @@ class Session:
         arguments.text(func, "source", source)
         arguments.callable_or_none(func, "progress", progress)
         nominal = nominal_model(self.package)
-        return Diagnoser(self.package, self.view.signatures, self.priors, opts,
+        return Diagnoser(self.package, isolation_signatures(self.view), self.priors, opts,
                          horizon_steps(opts.horizon, nominal.DT, 0), inputs=inputs, sensors=sensors, source=source,
                          progress=progress, most=most_steps(self.view.numerics, opts))
 
@@ -299,6 +299,7 @@ class Session:
         arguments.callable_or_none(func, "progress", progress)
         say = progress or (lambda text: None)
         c = self.view
+        c.refuse_modes("calibration", "calibrate a model of one mode on data of that mode")
         nominal = nominal_model(self.package)
         sensors, process, parameters = calibration.targets(estimate, nominal, [p.name for p in c.model.parameters],
                                                            arguments.spelled(f"{func}: estimate", "--estimate"))
@@ -392,6 +393,16 @@ class Session:
         """A :class:`DiagnosisReport` of ``diagnosis`` made on ``run``."""
         return DiagnosisReport(self.name, self.view.model.display_source, run, scenario, injected, self.noise,
                                self.levels, diagnosis.options, diagnosis, self.view.labels)
+
+
+def isolation_signatures(view):
+    """The signatures a diagnosis matches its symbols against: the model's,
+    or, for a model with modes, each mode's (:class:`~bgc.diagnosis.isolate.ModeSignatures`)."""
+    if not view.modes:
+        return view.signatures
+    from ..diagnosis.isolate import ModeSignatures
+
+    return ModeSignatures(tuple(m.signatures for m in view.modes), tuple(m.name for m in view.modes))
 
 
 def reading_of(view, columns=None, func: str = "bgc.Session.reading") -> Reading:

@@ -209,6 +209,8 @@ def simulated_run(c, injected: simulation.FaultInjection | None, text: str, step
     """The truth simulator's run of ``c`` with the fault ``injected`` (checked
     by :func:`checked_scenario`), at the relative ``noise`` levels, as a
     :class:`~bgc.data.runs.Run` whose source is ``scenario TEXT``."""
+    c.refuse_modes("a scenario simulated inside a diagnosis", "simulate the run first (bgc simulate --modes, or "
+                   "bgc.simulate(model, modes=...)) and diagnose it as data")
     result = simulation.simulate(c.numerics, simulation.SimulationOptions(
         steps=steps, process_noise=noise[0], measurement_noise=noise[1], seed=seed, fault=injected,
         signals=signals))

@@ -12,10 +12,13 @@ runtime's protocol (:mod:`bgc.model.protocol`) with a mode axis:
   number, an integer the model keeps exact; the filters carry it like a
   physical state with no noise), then the fault model's fault states.
 * **The mode is an input** too, the last (``mode``: its number, from the run
-  file's ``mode`` column). ``predict`` moves every particle into that mode
-  first (the resets of the transition it takes, then the idle states of the
-  mode entered), then integrates each particle with its mode's equations.
-  An input that is NaN (the data do not say) leaves each particle in its mode.
+  file's ``mode`` column, the mode at the sample's time). ``predict``
+  integrates each particle with its mode's equations over the sample
+  period, then moves it into the input's mode (the resets of the transition
+  it takes, then the idle states of the mode entered): a switch the data
+  show at a sample happened by its time, as a run's row holds the state
+  after the changes due at its time. An input that is NaN (the data do not
+  say) leaves each particle in its mode.
 * **A state idle in a mode** (an inertia behind an open switch: no state
   there) takes the value that mode's equations give it after every step
   and every draw of process noise, as in the truth simulator

@@ -105,6 +105,12 @@ class Run:
         return None
 
 
+
+def input_columns(run: Run) -> dict[str, np.ndarray]:
+    """A run's inputs by name, its ``mode`` column among them when it has one
+    (a model with modes reads it as its last input, ``mode``)."""
+    return dict(run.inputs) | ({MODE: run.modes} if run.modes is not None else {})
+
 def to_csv(header: tuple[str, ...], columns: list[tuple[str, np.ndarray]]) -> str:
     """The CSV text of a run: ``# `` header lines (kept on one line each), then
     the columns (name, values) with every number as its shortest repr."""

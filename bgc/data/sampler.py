@@ -43,7 +43,7 @@ import numpy as np
 
 from ..errors import DataError, printable
 from .. import events as ev
-from .runs import Run
+from .runs import Run, input_columns
 from ..model.protocol import FaultModel
 
 #: Missing steps in a row, by default, beyond which a gap is an event.
@@ -300,7 +300,8 @@ def samples(run: Run, sampler: Sampler) -> Iterator[Sample]:
     """The samples of a recorded run on the model's grid: its rows fed to
     ``sampler`` (a :class:`Sampler` of the run's columns; the run is checked
     already, :func:`bgc.data.runs.check_run`)."""
-    cols_u = [(u, np.asarray(run.inputs[u], dtype=float)) for u in sampler.data_inputs]
+    given = input_columns(run)
+    cols_u = [(u, np.asarray(given[u], dtype=float)) for u in sampler.data_inputs]
     cols_y = [(y, np.asarray(run.measurements[y], dtype=float)) for y in sampler.present]
     for i, t in enumerate(np.asarray(run.time, dtype=float)):
         yield from sampler.push(float(t), {u: c[i] for u, c in cols_u}, {y: c[i] for y, c in cols_y})

@@ -98,7 +98,7 @@ from ..ir import FaultSignatures
 from ..data.sampler import grid_steps, samples
 from .diagnoser import IDENTIFY, KALMAN_METHOD, Diagnoser
 from .openloop import PATHS
-from ..data.runs import Run
+from ..data.runs import Run, input_columns
 from .values import Belief, Diagnosis, Estimate, Hypothesis, Live
 from .options import DiagnosisOptions
 from ..model.protocol import Package, nominal_model
@@ -125,7 +125,7 @@ def diagnose(run: Run, package: Package, signatures: FaultSignatures, priors: di
     nominal = nominal_model(package)
     steps = grid_steps(run.time, nominal.DT)  # the record's length on the grid, for a horizon of None
     d = Diagnoser(package, signatures, priors, options, horizon_steps(options.horizon, nominal.DT, steps),
-                  inputs=run.inputs, sensors=run.measurements, source=run.source, lazy=True, every=every,
+                  inputs=input_columns(run), sensors=run.measurements, source=run.source, lazy=True, every=every,
                   progress=progress)
     for s in samples(run, d.sampler):
         d.take(s)

@@ -166,3 +166,54 @@ def hypotheses(signatures: FaultSignatures, seen: tuple[Symbol, ...]) -> tuple[l
         else:
             dropped.append((sig, why))
     return keep, dropped
+
+
+@dataclass(frozen=True, slots=True)
+class ModeSignatures:
+    """The signatures of a model with modes, one set per mode (``modes[i]``:
+    mode number i + 1, in the model's order), for the matching above: a
+    switch changes what a fault shows (an open relay's load carries no
+    current; its fault changes nothing), so the symbols are matched against
+    the signatures of the modes the plant was in while they were read.
+    ``signatures`` and ``measurements`` are the first mode's (every mode has
+    the model's faults and sensors)."""
+
+    modes: tuple[FaultSignatures, ...]
+    names: tuple[str, ...]
+
+    @property
+    def signatures(self) -> tuple[Signature, ...]:
+        return self.modes[0].signatures
+
+    @property
+    def measurements(self) -> tuple[str, ...]:
+        return self.modes[0].measurements
+
+    def hypotheses(self, seen: tuple[Symbol, ...], numbers) -> tuple[list[Signature], list[tuple[Signature, str]]]:
+        """(consistent signatures, [(refuted signature, why)]) over the modes
+        ``numbers`` (the modes' numbers, from 1; NaN: a sample whose mode the
+        data do not say, which may be any): a signature is kept when it is
+        consistent in one of them, refuted when it is in none (the reason
+        of each mode given)."""
+        numbers = np.asarray(numbers, dtype=float)
+        if np.isnan(numbers).any() or not len(numbers):
+            chosen = list(range(len(self.modes)))
+        else:
+            chosen = sorted({int(n) - 1 for n in numbers})
+        results = [dict(hypotheses_why(self.modes[i], seen)) for i in chosen]
+        keep, dropped = [], []
+        for sig in self.signatures:
+            whys = [r[sig.name] for r in results]
+            if any(why is None for why in whys):
+                keep.append(sig)
+            elif len(chosen) == 1:
+                dropped.append((sig, whys[0]))
+            else:
+                dropped.append((sig, "; ".join(f"in mode {self.names[i]}: {why}" for i, why in zip(chosen, whys))))
+        return keep, dropped
+
+
+def hypotheses_why(signatures: FaultSignatures, seen: tuple[Symbol, ...]) -> list[tuple[str, str | None]]:
+    """Each signature's name and why the symbols ``seen`` refute it (None: they do not)."""
+    return [(sig.name, consistent(sig, signatures.measurements, seen)) for sig in signatures.signatures]
+

@@ -59,7 +59,7 @@ from .. import events as ev
 from .detect import Detector, DetectorOptions, monte_carlo_share
 from .finish import Record, Setting, finish
 from .hypothesis import HypothesisTracker, log_density, track_job, weighted_quantiles
-from .isolate import hypotheses as signature_hypotheses
+from .isolate import ModeSignatures, hypotheses as signature_hypotheses
 from .isolate import observed_symbols
 from .onsets import drift_onsets
 from .openloop import cloud_before, gaussian_cloud, open_loop
@@ -363,7 +363,11 @@ def isolate(config: LoopConfig, pf_class, detection, clouds: dict, ys: np.ndarra
     cloud = gaussian_cloud(observer, onset, o) if config.ckf else cloud_before(clouds, onset)
     seen = observed_symbols(open_loop(package, pf_class, nominal_model(package), cloud, ys, us, onset, steps, o),
                             tuple(nominal_model(package).OUTPUTS), o.windows)
-    keep, dropped = signature_hypotheses(config.signatures, seen)
+    if isinstance(config.signatures, ModeSignatures):  # a model with modes: those the symbols were read in
+        mode = nominal_model(package).MODE_INPUT
+        keep, dropped = config.signatures.hypotheses(seen, us[onset:onset + steps, mode])
+    else:
+        keep, dropped = signature_hypotheses(config.signatures, seen)
     events = []
     if config.every and dropped:
         events.append(ev.AllTried("unexplained", T - 1))

@@ -182,6 +182,11 @@ def load_campaign(path: str | Path, max_runs: int = MAX_RUNS) -> Campaign:
                 continue
             compiled[model_path] = pipeline.compile_model(model_path)
         c = compiled[model_path]
+        if c.modes:
+            errors.append(ExperimentError(f"{printable(str(model_path))} has modes: a campaign of a model with modes "
+                                          "is not built yet", raw.loc(*where, "model"),
+                                          "run campaigns of models of one mode"))
+            continue
         try:
             specs.extend(_group_specs(c, model_path, group, settings, where, raw, data.get("seed", 0), g_index,
                                       len(specs)))

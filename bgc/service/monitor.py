@@ -24,7 +24,7 @@ from .. import api
 from ..errors import BgcError, DataError, printable
 from .. import events as ev
 from ..data import runs
-from ..data.columns import Reading
+from ..data.columns import MODE, Reading
 from ..analysis import track
 from ..diagnosis.options import DiagnosisOptions
 
@@ -106,6 +106,8 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     groups: dict[str, list[tuple[int, str]]] = {p: [] for p in runs.PREFIXES}
     for j, c in enumerate(columns[1:], start=1):
         prefix, _, rest = c.partition(":")
+        if c == MODE:  # a model with modes reads the mode column as its last input, mode
+            prefix, rest = "u", MODE
         groups[prefix].append((j, rest))
     sensors = [y for _, y in groups["y"]]
     d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors, source=name,

@@ -1,0 +1,106 @@
+"""Diagnosis through mode changes with the mode from the data (the run file's
+``mode`` column): the relay circuit (tests/data/hybrid/relay_rl.yaml)
+simulated by an independent simulator (solve_ivp with events on its
+hand-derived equations: tests/hybrid_reference.py), its relay cycling by
+itself and its supply tripped and closed again."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import bgc
+from bgc.data import runs
+from bgc.diagnosis.isolate import ModeSignatures
+from bgc.diagnosis.values import Symbol
+from bgc.errors import BgcError
+
+from hybrid_reference import R_aux, V, sampled
+
+ROOT = Path(__file__).resolve().parent.parent
+RELAY = ROOT / "tests" / "data" / "hybrid" / "relay_rl.yaml"
+#: The relay's sensors' noise stds as its generated model has them (1 % of the signals' size: i_L, v_C).
+NOISE = (0.10825763, 0.07757651)
+
+
+def exact_run(seed: int, fault: tuple[float, float] | None = None, end: float = 30.0) -> runs.Run:
+    """The exact relay, sampled every 0.01 s with the model's measurement
+    noise (seeded), its mode column, as a plant's logger would record it."""
+    times, states, modes, _ = sampled(end, fault=fault)
+    y = states + np.array(NOISE) * np.random.default_rng(seed).standard_normal(states.shape)
+    return runs.Run(times, {"V": np.full(len(times), V)}, {"i_L": y[:, 0], "v_C": y[:, 1]}, {}, {},
+                    ("exact relay (solve_ivp)",), f"exact relay, seed {seed}", modes.astype(float))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_relay_cycling_without_a_fault_raises_no_alarm(seed):
+    run = exact_run(seed)
+    assert int(np.sum(np.diff(run.modes) != 0)) >= 25  # many switches, each one the model explains
+    report = bgc.diagnose(RELAY, data=run, backend="numpy")
+    assert report.diagnosis.verdict == "no fault", report.diagnosis.candidates
+
+
+@pytest.mark.slow
+def test_a_fault_only_the_closed_relay_shows_is_isolated_and_sized():
+    """R_aux carries current only with the relay closed: its fault is seen there, and the
+    symbols read over a stretch in that mode keep it while an open relay's signatures would not."""
+    truth = 0.4
+    report = bgc.diagnose(RELAY, data=exact_run(5, fault=(21.0, R_aux + truth)), backend="numpy")
+    d = report.diagnosis
+    assert d.verdict == "isolated" and d.candidates[0] == "R_aux_abrupt", (d.verdict, d.candidates)
+    best = next(h for h in d.hypotheses if h.name == "R_aux_abrupt")
+    e = best.estimate
+    assert e.low <= truth <= e.high and abs(e.value - truth) / truth < 0.1
+    assert abs(d.detection.onset_step * 0.01 - 21.0) < 0.5
+
+
+def test_symbols_are_matched_in_the_modes_the_plant_was_in():
+    """By hand: R_aux enters the capacitor's equation only with the relay closed (C dv/dt = i -
+    v/R_load - v/R_aux), so its rise makes v_C rise in mode closed (signature v_C: 0+, a slope)
+    and moves nothing in modes open and unpowered (00 at both sensors). A v_C that rises is
+    then explained by R_aux in closed, not in open; over a window of both modes, by closed."""
+    session = bgc.open(RELAY, backend="numpy")
+    names = tuple(m.name for m in session.view.modes)
+    assert names == ("open", "closed", "unpowered")
+    sigs = ModeSignatures(tuple(m.signatures for m in session.view.modes), names)
+    # each sensor's symbols at derivative orders 0 and 1 (i_L, v_C)
+    by_mode = {m.name: tuple("".join(order[:2]) for order in m.signatures.get("R_aux+:abrupt").symbols)
+               for m in session.view.modes}
+    assert by_mode["open"] == by_mode["unpowered"] == ("00", "00")
+    assert by_mode["closed"] == ("00", "0+")
+    rising = (Symbol("v_C", "+", "+", 10),)
+    kept = lambda modes: {s.name for s in sigs.hypotheses(rising, modes)[0]}  # noqa: E731
+    assert "R_aux+:abrupt" not in kept([1, 1, 1])
+    assert "R_aux+:abrupt" in kept([2, 2]) and "R_aux+:abrupt" in kept([1, 2, 1])
+    assert "R_aux+:abrupt" in kept([np.nan, 1])  # a sample whose mode the data do not say: any mode
+    _, dropped = sigs.hypotheses(rising, [1, 3])
+    why = dict((s.name, w) for s, w in dropped)["R_aux+:abrupt"]
+    assert why.startswith("in mode open: v_C deviated (+) but R_aux+:abrupt does not move it; in mode unpowered:")
+
+
+def test_what_is_not_built_for_a_model_with_modes_is_refused_in_one_line(tmp_path):
+    session = bgc.open(RELAY, backend="numpy")
+    with pytest.raises(BgcError, match="calibration is not built yet for a model with modes"):
+        session.calibrate(exact_run(1, end=2.0))
+    with pytest.raises(BgcError, match="a scenario simulated inside a diagnosis is not built yet"):
+        bgc.diagnose(RELAY, scenario="R_aux:abrupt:0.4@5", backend="numpy")
+    with pytest.raises(BgcError, match="distinguishability is not built yet"):
+        bgc.distinguishability(RELAY, "R_aux:abrupt:0.4@5")
+
+
+@pytest.mark.slow
+def test_bgc_monitor_reads_the_mode_column_of_a_stream(tmp_path):
+    """A run file with its mode column through a real pipe into bgc monitor: the switches raise no alarm."""
+    text = runs.run_csv(exact_run(4, end=14.0))  # through the trip at 12 s
+    env = dict(os.environ, MPLBACKEND="Agg", BGC_BACKEND="numpy")
+    done = subprocess.run([sys.executable, "-m", "bgc", "monitor", str(RELAY), "--data", "-", "-o",
+                           str(tmp_path / "mon")], input=text, capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "no fault" in done.stdout and "alarm" not in done.stdout, done.stdout
+    assert "input u:mode: from the data" in (tmp_path / "mon" / "report.md").read_text(encoding="utf-8")
