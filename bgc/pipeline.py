@@ -50,6 +50,8 @@ class Compiled:
     #: A model with modes: each mode compiled (:class:`bgc.compiler.modes.ModeModel`); the stages above are
     #: then the first mode's, and the package is the one across the modes. Empty: a model of one mode.
     modes: tuple[modes.ModeModel, ...] = ()
+    #: Each mode's numerics (the first is ``numerics``).
+    mode_numerics: tuple[Numerics, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -101,7 +103,7 @@ def compile_model(path: str | Path, prior_scale: float = 1.0, *, text: str | Non
         nums = tuple(numerics.derive(m.dbn, prior_scale) for m in each)
         first = each[0]
         return Compiled(raw, model, first.causal, first.tcg, first.equations, first.signatures, first.dbn, nums[0],
-                        hybrid_codegen.generate(model, each, nums), each)
+                        hybrid_codegen.generate(model, each, nums), each, nums)
     causal = causality.assign(model)             # BondGraph -> CausalBondGraph
     graph = tcg.build(causal)                    # CausalBondGraph -> TemporalCausalGraph
     ssm = equations.derive(graph)                # TemporalCausalGraph -> StateSpaceModel
@@ -143,8 +145,7 @@ def generated_files(c: Compiled | Hybrid) -> dict[str, str]:
         nums = c.numerics()
         return artifacts.hybrid_folder_files(c.model, c.modes, hybrid_codegen.generate(c.model, c.modes, nums), nums)
     if c.modes:
-        nums = tuple(numerics.derive(m.dbn, 1.0) if i else c.numerics for i, m in enumerate(c.modes))
-        return artifacts.hybrid_folder_files(c.model, c.modes, c.package, nums)
+        return artifacts.hybrid_folder_files(c.model, c.modes, c.package, c.mode_numerics)
     return artifacts.folder_files(c.dbn, c.signatures, c.package)
 
 
