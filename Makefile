@@ -46,7 +46,10 @@ demo: $(STAMP)
 	$(BIN)/bgc diagnose models/ro.yaml --data out/ro-run.csv --noise process=0.03,measurement=0.02 --generated out/generated -o out/diagnosis
 	@echo "demo: the same run as a stream, row by row through a pipe, into bgc monitor (events as they arrive):"
 	$(BIN)/python -c "$$REPLAY" out/ro-run.csv 0.01 | $(BIN)/bgc monitor models/ro.yaml --data - --noise process=0.03,measurement=0.02 --generated out/generated -o out/monitor
-	@echo "demo: pictures and data in out/; the diagnosis report is out/diagnosis/report.md (plots beside it; open out/diagnosis/report.html in a browser: the same in one page), the monitor's out/monitor/report.md and report.html"
+	@echo "demo: the RO cycling through its three valve settings twice (the valve in the data's mode column), its pipe clogging from t = 140 in the second cycle, monitored through its switches:"
+	$(BIN)/bgc simulate models/ro_hybrid_valve.yaml --steps 300 --modes secondary@60,purge@100,primary@120,secondary@180,purge@220,primary@240 --fault R_pipe:incipient:0.5@140 --seed 4 -o out/ro-cycles.csv --plot out/ro-cycles.png
+	$(BIN)/python -c "$$REPLAY" out/ro-cycles.csv 0.01 | $(BIN)/bgc monitor models/ro_hybrid_valve.yaml --data - -o out/ro-cycles-monitor
+	@echo "demo: pictures and data in out/; the diagnosis report is out/diagnosis/report.md (plots beside it; open out/diagnosis/report.html in a browser: the same in one page), the monitors' out/monitor/ and out/ro-cycles-monitor/ (report.md, report.html)"
 
 # The bytecode of bgc and of the committed packages, written once before the tests (gitignored
 # __pycache__ folders): where PYTHONDONTWRITEBYTECODE is set (this machine), every fresh process of
