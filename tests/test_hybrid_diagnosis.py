@@ -19,6 +19,7 @@ from bgc.data import runs
 from bgc.diagnosis.isolate import ModeSignatures
 from bgc.diagnosis.values import Symbol
 from bgc.errors import BgcError
+from bgc.output import plots
 
 from hybrid_reference import R_aux, V, sampled
 
@@ -58,6 +59,10 @@ def test_a_fault_only_the_closed_relay_shows_is_isolated_and_sized():
     e = best.estimate
     assert e.low <= truth <= e.high and abs(e.value - truth) / truth < 0.1
     assert abs(d.detection.onset_step * 0.01 - 21.0) < 0.5
+    # the report's measurements figure has the mode timeline under the sensors, its ticks the modes' names
+    fig = plots.diagnosis_measurements(report)
+    assert len(fig.axes) == 3 and [t.get_text() for t in fig.axes[-1].get_yticklabels()] == \
+        ["open", "closed", "unpowered"]
 
 
 def test_symbols_are_matched_in_the_modes_the_plant_was_in():

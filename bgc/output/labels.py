@@ -50,6 +50,8 @@ class Labels:
     time_unit: str | None = None
     units: tuple[tuple[str, str], ...] = ()
     meanings: tuple[tuple[str, str], ...] = ()
+    #: A model with modes: the modes' names, in the order of their numbers (a run's mode column).
+    modes: tuple[str, ...] = ()
 
     def unit(self, name: str) -> str | None:
         """The unit of variable ``name`` (None: not declared)."""
@@ -98,7 +100,8 @@ def labels_of(model: BondGraph) -> Labels:
         meanings[name] = state_meaning(model, el)
         if name in implied:
             units.setdefault(name, implied[name])
-    return Labels(model.settings.time_unit, tuple(sorted(units.items())), tuple(sorted(meanings.items())))
+    return Labels(model.settings.time_unit, tuple(sorted(units.items())), tuple(sorted(meanings.items())),
+                  model.modes.names if getattr(model, "modes", None) is not None else ())
 
 
 def state_meaning(model: BondGraph, el: Element) -> str:

@@ -337,13 +337,18 @@ def diagnosis_measurements(r) -> Figure:
     """Measurements and the nominal observer's predicted measurements (mean +-
     2 std), onset and detection marked (thesis Fig. IV.4)."""
     d, run, labels = r.diagnosis, r.run, report_labels(r)
-    fig, axes = new_figure(len(d.outputs))
+    modes = run.modes is not None and bool(labels.modes)  # a model with modes: its timeline under the sensors
+    fig, axes = new_figure(len(d.outputs) + modes)
     clock = time_axis(d.time, labels)
     for j, name in enumerate(d.outputs):
         _measured(axes[j], run, name, clock)
         _with_band(axes[j], clock(d.time), d.nominal_y_mean[:, j], d.nominal_y_std[:, j], CYCLE[0], "-")
         _marks(axes[j], d, clock)
         _ylabel(axes[j], labels.axis(name))
+    if modes:
+        _mode_timeline(axes, clock(run.time), run.modes, labels.modes)
+        _marks(axes[-1], d, clock)
+        _ylabel(axes[-1], "mode")
     _legend_above(axes[0], [_line("measured", MEASURED, marker="x"), _line("nominal observer", CYCLE[0]),
                             _band("+-2 std", CYCLE[0]), *_mark_handles(d)], ncol=5)
     fig.suptitle(f"{d.model}: measurements and the nominal observer", fontsize=10)
