@@ -41,6 +41,8 @@ from .printing import escape, print_expr, print_number
 
 #: The name of the mode among a hybrid model's states and inputs.
 MODE = "mode"
+#: The state of the time spent in the current mode (a model with a timed transition).
+DWELL = "dwell"
 
 
 def generate(model, modes: tuple[ModeModel, ...], nums: tuple) -> GeneratedPackage:
@@ -100,8 +102,10 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
     n = len(every)
     fault = codegen.fault_rows(num0, d0) if d0.parameter is not None else None
     fault_states = fault.states if fault else []
-    states = list(every) + [MODE] + fault_states
-    kinds = ["physical"] * n + [MODE] + (fault.kinds if fault else [])
+    timed = any(t.after is not None for t in model.modes.transitions)
+    carried = [MODE] + ([DWELL] if timed else [])  # the mode, and the time in it when a transition is timed
+    states = list(every) + carried + fault_states
+    kinds = ["physical"] * n + carried + (fault.kinds if fault else [])
     # a state's noise and initial value: the first mode it is a state of (the simulator's rule)
     process, x0 = [], []
     for x in every:
@@ -109,12 +113,13 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
         k = owner.equations.states.index(x)
         process.append(num.noise.process[k])
         x0.append(owner.equations.initial[k])
-    x0_std = [2.0 * s for s in process] + [0.0] + (fault.x0_std if fault else [])
-    process += [0.0] + (fault.process if fault else [])
+    x0_std = [2.0 * s for s in process] + [0.0] * len(carried) + (fault.x0_std if fault else [])
+    process += [0.0] * len(carried) + (fault.process if fault else [])
     initial = _settled(first, every, x0, ssm0)
-    x0 = initial + [1.0] + (fault.x0 if fault else [])
+    x0 = initial + [1.0] + [0.0] * timed + (fault.x0 if fault else [])
     row = {x: i for i, x in enumerate(every)}
-    fault_row = {s: n + 1 + i for i, s in enumerate(fault_states)}
+    n_nominal = n + len(carried)
+    fault_row = {s: n_nominal + i for i, s in enumerate(fault_states)}
     mode_ctx = []
     for i, m in enumerate(modes, start=1):
         s = m.equations
@@ -126,18 +131,24 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
         mode_ctx.append({"number": i, "name": m.name, "module": f"_m{i}_{name}", "rows": rows,
                          "idle": [row[x] for x in idle],
                          "settle": _assignments(settle, sources, where, f"mode {m.name}'s idle states")})
-    resets = []
+    transitions = []
     by_name = {m.name: (i, m) for i, m in enumerate(modes, start=1)}
-    for t in model.modes.transitions:
-        if not t.resets:
-            continue
+    for k, t in enumerate(model.modes.transitions):
         i, source = by_name[t.source]
         s = source.equations
         resolve = {sym(v): e for v, e in s.variables}
         sources = _sources(s, row, d0, fault_row)
+        what = f"transition {t.source} -> {t.target}"
         body = [(row[state], expr.xreplace(resolve)) for state, expr in t.resets]
-        resets.append({"source": i, "target": by_name[t.target][0], "text": escape(f"{t.source} -> {t.target}"),
-                       "lines": _assignments(body, sources, where, f"the resets of {t.source} -> {t.target}")})
+        guard = None
+        if t.guard is not None:
+            sides = [sympy.sympify(t.guard.lhs).xreplace(resolve), sympy.sympify(t.guard.rhs).xreplace(resolve)]
+            unpack, (lhs, rhs) = _expressions(sides, sources, where, f"the guard of {what}")
+            guard = {"unpack": unpack, "lhs": lhs, "op": t.guard.op, "rhs": rhs, "text": escape(t.guard.text)}
+        transitions.append({"index": k, "source": i, "target": by_name[t.target][0], "kind": t.kind,
+                            "text": escape(f"{t.source} -> {t.target}"), "guard": guard,
+                            "after": print_number(t.after, "a transition's after", where) if t.after is not None
+                            else None, "reset": _assignments(body, sources, where, f"the resets of {what}")})
     n_inputs = len(ssm0.inputs)
     return {
         "name": name, "title": escape(f"{'Nominal model' if fault is None else 'Model'} of {model.name} across "
@@ -146,13 +157,13 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
         "states_tuple": codegen._tuple(repr(x) for x in states),
         "state_kinds_tuple": codegen._tuple(repr(k) for k in kinds),
         "inputs_tuple": codegen._tuple(repr(u) for u in (*ssm0.inputs, MODE)), "n_inputs": n_inputs,
-        "mode_row": n, "n_nominal": n + 1, "n_states": len(states),
+        "mode_row": n, "dwell_row": n + 1 if timed else None, "n_nominal": n_nominal, "n_states": len(states),
         "n_first": len(first.equations.states),
         "x0": codegen._floats(x0, "an initial value", where), "x0_std": codegen._floats(x0_std, "an initial std", where),
         "process_std": codegen._floats(process, "a process-noise std", where),
         "fault": fault is not None,
         "noise_fault": fault is not None and fault_kind(d0.kind).noise,
-        "resets": resets,
+        "transitions": transitions,
         "dt": print_number(model.settings.dt, "simulation.dt", where),
         "substeps": max(num.substeps for num in nums),
     }
@@ -196,13 +207,17 @@ def _assignments(pairs: list[tuple[int, object]], sources: dict[str, str], where
     written): the names they use unpacked, then ``_v<k> = ...``, then ``x[row] = _v<k>``."""
     if not pairs:
         return []
-    exprs = [sympy.sympify(e) for _, e in pairs]
+    unpack, texts = _expressions([e for _, e in pairs], sources, where, what)
+    return (unpack + [f"_v{k} = {text}" for k, text in enumerate(texts)]
+            + [f"x[{r}] = _v{k}" for k, (r, _) in enumerate(pairs)])
+
+
+def _expressions(exprs: list, sources: dict[str, str], where, what: str) -> tuple[list[str], list[str]]:
+    """(the lines that unpack the names ``exprs`` use from ``sources``, each expression's NumPy text)."""
+    exprs = [sympy.sympify(e) for e in exprs]
     used = {s.name for e in exprs for s in e.free_symbols}
     unknown = sorted(used - set(sources))
     if unknown:
         raise CodegenError(f"{what} name {', '.join(unknown)}, which the mode's equations do not give", where,
-                           "report this: a reset or an idle state reads states, inputs and parameters only")
-    lines = [f"{name} = {sources[name]}" for name in sources if name in used]
-    lines += [f"_v{k} = {print_expr(e)}" for k, e in enumerate(exprs)]
-    lines += [f"x[{r}] = _v{k}" for k, (r, _) in enumerate(pairs)]
-    return lines
+                           "report this: a guard, a reset or an idle state reads states, inputs and parameters only")
+    return [f"{name} = {sources[name]}" for name in sources if name in used], [print_expr(e) for e in exprs]

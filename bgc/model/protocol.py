@@ -15,8 +15,9 @@ shares are here, and only here:
   :func:`magnitude_row` say which rows are which; the nominal model has
   physical states only. A model with modes has one more state before the
   fault states, its mode (kind ``mode``: the mode's number), which the
-  model keeps an exact integer and which has no noise: the filters carry
-  it as they carry a physical state (:mod:`bgc.compiler.hybrid_codegen`).
+  model keeps an exact integer and which has no noise, and with a timed
+  transition the time spent in the mode (kind ``dwell``): the filters carry
+  them as they carry a physical state (:mod:`bgc.compiler.hybrid_codegen`).
 * **The onset rule.** A fault with onset k changes its parameter at the
   instant of sample k, as in the thesis's DBN (the parameter of time slice k
   enters y_k and the transition out of slice k) and in the simulator: y_k sees
@@ -102,7 +103,7 @@ def nominal_model(package: Package) -> FaultModel:
 
 
 #: The kinds of states the filters carry as the plant's (the rest are a fault model's fault states).
-CARRIED = ("physical", "mode")
+CARRIED = ("physical", "mode", "dwell")
 
 
 def state_rows(model: FaultModel) -> tuple[list[int], list[int]]:
