@@ -74,10 +74,6 @@ class Hybrid:
         """Each mode's numbers (noise scales, priors, substeps), in the model's order: what the simulator takes."""
         return tuple(numerics.derive(m.dbn, prior_scale) for m in self.modes)
 
-    def package(self, prior_scale: float = 1.0) -> GeneratedPackage:
-        """The generated packages across the modes (:mod:`bgc.compiler.hybrid_codegen`)."""
-        return hybrid_codegen.generate(self.model, self.modes, self.numerics(prior_scale))
-
 
 def unknown_mode(model: BondGraph, name: str | None) -> CodegenError:
     """The one-line error for ``--mode NAME`` that names no mode of ``model``
@@ -135,27 +131,24 @@ def assign_causality(path: str | Path, mode: str | None = None) -> CausalBondGra
     return causality.assign(model if mode is None else modes.mode_graph(model, mode))
 
 
-def generated_files(c: Compiled | Hybrid) -> dict[str, str]:
+def generated_files(c: Compiled) -> dict[str, str]:
     """The text files of ``generated/<model>/``: every IR's dump (of each
     mode, under ``modes/<mode>/``, for a model with modes), the package, the
     manifest."""
     from .output import artifacts
 
-    if isinstance(c, Hybrid):
-        nums = c.numerics()
-        return artifacts.hybrid_folder_files(c.model, c.modes, hybrid_codegen.generate(c.model, c.modes, nums), nums)
     if c.modes:
         return artifacts.hybrid_folder_files(c.model, c.modes, c.package, c.mode_numerics)
     return artifacts.folder_files(c.dbn, c.signatures, c.package)
 
 
-def pictures(c: Compiled | Hybrid, engine: str = "auto") -> dict[str, bytes]:
+def pictures(c: Compiled, engine: str = "auto") -> dict[str, bytes]:
     """The SVG pictures of ``generated/<model>/`` (TCG and every DBN, of
     each mode for a model with modes), each sealed (the folder's manifest
     lists them without a hash)."""
     from .output import artifacts, draw
 
-    if isinstance(c, Hybrid) or c.modes:
+    if c.modes:
         return {f"modes/{m.name}/{name}": artifacts.seal(data) for m in c.modes
                 for name, data in draw.pictures(m.dbn, engine).items()}
     return {name: artifacts.seal(data) for name, data in draw.pictures(c.dbn, engine).items()}

@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     for path in args.models:
         start = time.perf_counter()
         try:
-            c = pipeline.check_model(path)  # a model of one mode compiled, or each mode of a model with modes
+            c = pipeline.compile_model(path)
             texts = pipeline.generated_files(c)
             outdir = Path(args.output) / c.model.name
             if args.check:
@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
             failed = 1
             continue
         seconds = time.perf_counter() - start
-        each = c.modes if isinstance(c, pipeline.Hybrid) else (c,)
+        each = c.modes or (c,)
         n_dbn = sum(1 + len(m.dbn.faulty) for m in each)
         what = f"{len(each)} modes' equations, TCGs" if len(each) > 1 else "equations, TCG"
         print(f"{printable(str(path))}: wrote {printable(str(outdir))}/ ({len(files)} files: {what}, "

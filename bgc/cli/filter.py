@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import printable
@@ -41,30 +40,6 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
-@dataclass(frozen=True, slots=True)
-class _Modes:
-    """What ``bgc filter`` reads of a model with modes, as of a compiled
-    model's view: the bond graph, its labels, and the first mode's DBNs (the
-    fault models' names, the same in every mode)."""
-
-    model: object
-    labels: object
-    dbn: object
-
-
-def _opened(path: str):
-    """The compiled model's view (:mod:`bgc.view`), or :class:`_Modes` of a model with modes."""
-    from .. import pipeline
-    from ..api import cache
-    from ..compiler import load
-    from ..output.labels import labels_of
-
-    if not load.declares_modes(path):
-        return cache.open_model(path).view
-    h = pipeline.check_model(path)
-    return _Modes(h.model, labels_of(h.model), h.modes[0].dbn)
-
-
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -77,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from ..model import package as packages
     from ..model import warmup
 
-    c = _opened(args.model)
+    c = cache.open_model(args.model).view
     run = runs.read_run(args.run_csv, reading_of(c, args.columns))
     track.check_run_of(run, c.model.name, args.run_csv)
     numba = Path(args.generated) / c.model.name / NUMBA_PACKAGE
