@@ -89,6 +89,30 @@ def test_symbols_are_matched_in_the_modes_the_plant_was_in():
     assert why.startswith("in mode open: v_C deviated (+) but R_aux+:abrupt does not move it; in mode unpowered:")
 
 
+def test_candidates_alike_in_the_modes_seen_are_named_with_the_mode_that_would_separate_them():
+    """By hand: with the relay closed, R_load and R_aux are two loads in parallel across C
+    (C dv/dt = i - v/R_load - v/R_aux), so a rise of either shows alike; with it open R_aux
+    carries no current (its fault shows nothing) and R_load's still does, as it does unpowered
+    (C dv/dt = -v/R_load). An ambiguity of the two read while closed may end at the next switch."""
+    from types import SimpleNamespace
+
+    from bgc.output.report import mode_split_lines
+
+    session = bgc.open(RELAY, backend="numpy")
+    sigs = ModeSignatures(tuple(m.signatures for m in session.view.modes), tuple(m.name for m in session.view.modes))
+    pair = ("R_load_abrupt", "R_aux_abrupt")
+    split = sigs.split(pair, [2, 2, 2])
+    assert split is not None and split.seen == ("closed",)
+    assert split.pairs == (("R_load_abrupt", "R_aux_abrupt", ("open", "unpowered")),)
+    assert sigs.split(pair, [2, 1, 2]) is None  # open was seen: its signatures separate them already
+    assert sigs.split(pair, [2, np.nan]) is None  # a sample of unknown mode: the modes seen are not known
+    assert sigs.split(("R_load_abrupt", "v_C_offset_bias"), [2]) is None  # a sensor's offset differs in every mode
+    (line,) = mode_split_lines(SimpleNamespace(mode_split=split))
+    assert line == ("R_load_abrupt and R_aux_abrupt show the same signature in mode closed, where the plant was "
+                    "from the onset on; they differ in open and unpowered: data that reach a switch to one of "
+                    "them may separate them")
+
+
 def test_what_is_not_built_for_a_model_with_modes_is_refused_in_one_line(tmp_path):
     session = bgc.open(RELAY, backend="numpy")
     with pytest.raises(BgcError, match="calibration is not built yet for a model with modes"):

@@ -49,11 +49,13 @@ decide.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import combinations
+
 import numpy as np
 
 from ..ir import FaultSignatures, Signature
 from .detect import union_threshold
-from .values import Symbol
+from .values import ModeSplit, Symbol
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,6 +213,30 @@ class ModeSignatures:
             else:
                 dropped.append((sig, "; ".join(f"in mode {self.names[i]}: {why}" for i, why in zip(chosen, whys))))
         return keep, dropped
+
+    def split(self, candidates: tuple[str, ...], numbers) -> ModeSplit | None:
+        """The pairs of fault models ``candidates`` (``PARAMETER_KIND``) whose
+        signatures are alike in every mode of ``numbers`` (the modes the
+        plant was in, by number from 1) and differ in another mode, with
+        those modes (None: no such pair, or a sample whose mode the data do
+        not say, so that the modes seen are not known)."""
+        numbers = np.asarray(numbers, dtype=float)
+        if not len(numbers) or np.isnan(numbers).any():
+            return None
+        seen = sorted({int(n) - 1 for n in numbers})
+
+        def shown(i: int, name: str) -> tuple:  # what the fault model's signatures predict in mode i
+            return tuple(sorted(s.symbols for s in self.modes[i].signatures if f"{s.parameter}_{s.kind}" == name))
+
+        pairs = []
+        for one, other in combinations(candidates, 2):
+            if any(shown(i, one) != shown(i, other) for i in seen):
+                continue  # the modes seen can separate them: no switch needed
+            differ = tuple(self.names[i] for i in range(len(self.modes))
+                           if i not in seen and shown(i, one) != shown(i, other))
+            if differ:
+                pairs.append((one, other, differ))
+        return ModeSplit(tuple(self.names[i] for i in seen), tuple(pairs)) if pairs else None
 
 
 def hypotheses_why(signatures: FaultSignatures, seen: tuple[Symbol, ...]) -> list[tuple[str, str | None]]:

@@ -42,6 +42,7 @@ plain data (:meth:`Loop.state`, :class:`~bgc.diagnosis.state.LoopState`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -347,7 +348,15 @@ class Loop:
         if self.detection is not None and self.isolation is None:  # the data ended before the symbols' samples
             self.isolate()
         c = self.config
-        return finish(self.record(data), Setting(c.package, c.priors, c.options, self.horizon, c.say), truth)
+        record = self.record(data)
+        d = finish(record, Setting(c.package, c.priors, c.options, self.horizon, c.say), truth)
+        if d.verdict == "ambiguous" and isinstance(c.signatures, ModeSignatures) and d.onset_step is not None:
+            # which other mode's signatures would separate the candidates, over the modes since the onset
+            mode = nominal_model(c.package).MODE_INPUT
+            split = c.signatures.split(d.candidates, record.us[d.onset_step:, mode])
+            if split is not None:
+                d = dataclasses.replace(d, mode_split=split)
+        return d
 
 
 def isolate(config: LoopConfig, pf_class, detection, clouds: dict, ys: np.ndarray, us: np.ndarray,

@@ -136,6 +136,19 @@ class Hypothesis:
 
 
 @dataclass(frozen=True, slots=True)
+class ModeSplit:
+    """Fault models of an ambiguous verdict of a model with modes that show
+    the same signature in every mode the plant was in from the onset on
+    (``seen``: those modes' names) but not in others: ``pairs`` holds (one
+    model, the other, the modes whose signatures differ for them). Data that
+    reach a switch to one of those modes may separate them
+    (:meth:`bgc.diagnosis.isolate.ModeSignatures.split`)."""
+
+    seen: tuple[str, ...]
+    pairs: tuple[tuple[str, str, tuple[str, ...]], ...]
+
+
+@dataclass(frozen=True, slots=True)
 class Diagnosis:
     """What :func:`diagnose` found. ``verdict``: ``no fault``, ``isolated``
     (one hypothesis survives), ``ambiguous`` (several do: ``candidates``, best
@@ -146,7 +159,10 @@ class Diagnosis:
     ``nominal_x_std`` are the nominal observer's state estimates (steps x
     ``states``). ``events``: what happened, in time order
     (:mod:`bgc.events`); ``data``: how the data met the model (per
-    input, data or model; sensors present; samples skipped; gaps)."""
+    input, data or model; sensors present; samples skipped; gaps);
+    ``mode_split``: for an ambiguous verdict of a model with modes, the
+    candidates another mode may separate (a :class:`ModeSplit`; None: none,
+    or no modes)."""
 
     model: str
     time: np.ndarray
@@ -170,6 +186,7 @@ class Diagnosis:
     seconds: float
     events: tuple = field(default=())
     data: DataSummary | None = None
+    mode_split: ModeSplit | None = None
 
     def __repr__(self) -> str:  # its arrays would flood a notebook: what a reader wants
         onset = "" if self.onset is None else f", onset t = {self.onset:.12g}"

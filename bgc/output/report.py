@@ -128,6 +128,10 @@ def report_data(r) -> dict[str, Any]:
         # Kalman filters), filter (the particle filters' own magnitude state) or grid (--refine); None: no estimate
         "estimate_method": None if d.estimate is None else d.estimate.method,
         "in_words": plain_words(d, labels),
+        # an ambiguous verdict of a model with modes: candidates another mode's signatures would separate
+        "mode_split": None if d.mode_split is None else {
+            "modes_seen": list(d.mode_split.seen),
+            "pairs": [{"faults": [one, other], "differ_in": list(modes)} for one, other, modes in d.mode_split.pairs]},
         "events": [events.record(e, d.time_of) for e in d.events],
         "data_semantics": None if d.data is None else {
             "inputs": [{"input": u, "from": src, "holds": dict(d.data.holds).get(u, 0)} for u, src in d.data.inputs],
@@ -181,10 +185,25 @@ def plain_words(d, labels: Labels = Labels()) -> list[str]:
     words = [events.fault_sentence(by[n].estimate, d.time_of(by[n].onset_step), labels.per_time)
              for n in d.candidates if n in by]
     if d.verdict == "ambiguous":
-        return [("either " if i == 0 else "or ") + w for i, w in enumerate(words)]
+        return [("either " if i == 0 else "or ") + w for i, w in enumerate(words)] + mode_split_lines(d)
     if d.verdict == "unexplained":
         return [f"closest, but not explaining the data: {w}" for w in words]
     return words
+
+
+def mode_split_lines(d) -> list[str]:
+    """For an ambiguous verdict of a model with modes: the candidates whose
+    signatures are alike in the modes the plant was in from the onset on
+    but differ in another mode, which data reaching a switch to it may
+    separate (:class:`~bgc.diagnosis.values.ModeSplit`)."""
+    split = d.mode_split
+    if split is None:
+        return []
+    seen = ", ".join(split.seen)
+    return [f"{one} and {other} show the same signature in {'mode' if len(split.seen) == 1 else 'modes'} {seen}, "
+            f"where the plant was from the onset on; they differ in {' and '.join(modes)}: data that reach a "
+            f"switch to {'it' if len(modes) == 1 else 'one of them'} may separate them"
+            for one, other, modes in split.pairs]
 
 
 def heading(r, quote: Callable[[Any], str] = _same) -> tuple[str, str, str]:
