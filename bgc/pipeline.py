@@ -170,7 +170,10 @@ def view(c: Compiled) -> CompiledView:
                       truth=None if truth is None else TruthSource(*truth, numerics.float_safe(ssm)))
     dbns = plain(DbnModelView, c.dbn, equations=equations, nominal=plain(DbnView, c.dbn.nominal),
                  faulty=tuple(plain(DbnView, d) for d in c.dbn.faulty))
-    each = tuple(ModeView(mode.name, mode.equations.states, plain(SignaturesView, mode.signatures))
-                 for mode in c.modes)
+    # each mode's numbers link to the one equations' view, as they read back (bgc.view._with_source): what they
+    # are asked of it is the model (its settings and sensors), the same in every mode
+    each = tuple(ModeView(mode.name, mode.equations.states, plain(SignaturesView, mode.signatures),
+                          plain(NumericsView, nums, equations=equations))
+                 for mode, nums in zip(c.modes, c.mode_numerics))
     return CompiledView(model, equations, plain(SignaturesView, c.signatures), dbns,
                         plain(NumericsView, c.numerics, equations=equations), labels_of(m), c.package.modules, each)

@@ -149,12 +149,15 @@ def plain(view: type, ir, **given):
 
 @dataclass(frozen=True, slots=True)
 class ModeView:
-    """One mode of a model with modes: its name, its states and its fault
-    signatures (TRANSCEND's, on that mode's temporal causal graph)."""
+    """One mode of a model with modes: its name, its states, its fault
+    signatures (TRANSCEND's, on that mode's temporal causal graph) and its
+    numbers (noise, scales: what calibration reads; their ``equations``
+    link to the model's view, whose model and settings every mode shares)."""
 
     name: str
     states: tuple[str, ...]
     signatures: SignaturesView
+    numerics: NumericsView
 
 
 @dataclass(frozen=True, slots=True)
@@ -274,5 +277,6 @@ def _with_source(view: CompiledView, source: str) -> CompiledView:
 
     model = replace(view.model, source=source)
     equations = replace(view.equations, model=model)
+    modes = tuple(replace(m, numerics=replace(m.numerics, equations=equations)) for m in view.modes)
     return replace(view, model=model, equations=equations, numerics=replace(view.numerics, equations=equations),
-                   dbn=replace(view.dbn, equations=equations))
+                   dbn=replace(view.dbn, equations=equations), modes=modes)

@@ -111,10 +111,13 @@ def test_bgc_diagnoses_a_run_of_a_model_with_modes_and_refuses_what_is_not_built
     done = bgc_cli("diagnose", "tests/data/hybrid/relay_rl.yaml", "--data", tmp_path / "r.csv", "-o", tmp_path / "d",
                    "--backend", "numpy")
     assert done.returncode == 0 and "relay_rl: no fault" in done.stdout, done.stderr
-    refused = bgc_cli("calibrate", "tests/data/hybrid/relay_rl.yaml", "--data", tmp_path / "r.csv", "-o",
+    rows = [line.split(",") for line in (tmp_path / "r.csv").read_text().splitlines() if line and line[0] != "#"]
+    drop = rows[0].index("mode")  # the run without its mode column
+    (tmp_path / "plain.csv").write_text("\n".join(",".join(r[:drop] + r[drop + 1:]) for r in rows) + "\n")
+    refused = bgc_cli("calibrate", "tests/data/hybrid/relay_rl.yaml", "--data", tmp_path / "plain.csv", "-o",
                       tmp_path / "c.yaml")
-    assert refused.returncode == 1 and len(refused.stderr.strip().splitlines()) == 1
-    assert "calibration is not built yet for a model with modes" in refused.stderr and "Traceback" not in refused.stderr
+    assert refused.returncode == 1 and len(refused.stderr.strip().splitlines()) == 1, refused.stderr
+    assert "the data have no mode column" in refused.stderr and "Traceback" not in refused.stderr
 
 
 def test_a_stage_of_one_mode_is_shown_with_mode():

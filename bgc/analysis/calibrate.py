@@ -78,7 +78,7 @@ from ..errors import CalibrationError, printable
 from ..ir import Numerics
 from ..data import sampler as data_grid
 from ..filters.cubature import NominalKalman
-from ..data.runs import Run
+from ..data.runs import Run, input_columns
 from ..model.protocol import FaultModel
 
 #: The ``--estimate`` words that name noise (a parameter's name names itself).
@@ -300,7 +300,7 @@ def record_of(run: Run, model: FaultModel) -> Record:
     """A checked run (:func:`bgc.data.runs.check_run`) on the model's time
     grid, as a diagnosis reads it (:class:`bgc.data.sampler.Sampler`: gaps
     predicted across, empty input cells held, absent sensors missing)."""
-    sampler = data_grid.Sampler(model, tuple(run.inputs), tuple(run.measurements), run.source)
+    sampler = data_grid.Sampler(model, tuple(input_columns(run)), tuple(run.measurements), run.source)
     ys, us, ts = [], [], []
     for s in data_grid.samples(run, sampler):
         ys.append(s.y)
@@ -321,7 +321,7 @@ class _Likelihood:
 
     def __init__(self, model: FaultModel, numerics: Numerics, records: Sequence[Record],
                  sensors: Sequence[str], process: bool, parameters: Sequence[str], level: float | None = None,
-                 initial: Sequence[tuple[int, int]] = ()):
+                 initial: Sequence[tuple[int, int]] = (), modes: Sequence[Numerics] = ()):
         self.model, self.numerics, self.records = model, numerics, tuple(records)
         self.initial = tuple(initial)
         self.sensor_rows = [list(model.OUTPUTS).index(s) for s in sensors]
@@ -335,10 +335,11 @@ class _Likelihood:
         self.physical = [i for i, k in enumerate(getattr(model, "STATE_KINDS", ("physical",) * len(model.STATES)))
                          if k == "physical"]
         self.u0 = np.asarray(model.inputs(0.0), dtype=float)
+        self.sources = _sources_of(model, numerics, self.physical, tuple(modes))
         self.factor0 = self._factors(self.theta0)
         self.x0 = np.asarray(model.X0, dtype=float)
-        self.x_size = np.array([_state_size(self.x0[i], numerics.x_scale[i] if i < len(numerics.x_scale) else 0.0)
-                                for i in range(len(self.x0))])
+        scale = dict(zip(self.physical, (nums.x_scale[k] for _, nums, k in self.sources)))
+        self.x_size = np.array([_state_size(self.x0[i], scale.get(i, 0.0)) for i in range(len(self.x0))])
         self.evaluations = 0
 
     def start(self) -> np.ndarray:
@@ -378,17 +379,17 @@ class _Likelihood:
         ``tau`` = 1 / |d(dx_i/dt)/dx_i| at X0 and the inputs at t = 0 (central
         differences of the generated ``derivative``; the run's length when
         it is 0), as the compiler sets the process noise's shape."""
-        m = self.model
-        x0 = np.asarray(m.X0, dtype=float)
-        dt = float(m.DT)
+        dt = float(self.model.DT)
         horizon = self.numerics.equations.model.settings.steps * dt
         out = []
-        for i in self.physical:
+        for m, _, i in self.sources:  # a model with modes: the state in the first mode it is one of
+            x0 = np.asarray(m.X0, dtype=float)
+            u0 = self.u0 if m is self.model else np.asarray(m.inputs(0.0), dtype=float)
             h = 1e-6 * max(abs(x0[i]), 1e-3)
             x = np.repeat(x0[:, None], 2, axis=1)
             x[i, 0] += h
             x[i, 1] -= h
-            d = np.asarray(m.derivative(x, self.u0, tuple(theta)), dtype=float)
+            d = np.asarray(m.derivative(x, u0, tuple(theta)), dtype=float)
             j = (d[i, 0] - d[i, 1]) / (2 * h)
             tau = 1.0 / abs(j) if j != 0 and math.isfinite(j) else horizon
             out.append(math.sqrt(min(1.0, 2.0 * dt / tau)))
@@ -399,7 +400,9 @@ class _Likelihood:
         sigma, level, theta = self.values(z)
         ns = types.ModuleType(self.model.__name__)
         ns.__dict__.update(vars(self.model))
-        process = np.array(self.numerics.noise_at(level if self.process else self.fixed_level).process, dtype=float)
+        at = level if self.process else self.fixed_level
+        levels = {id(nums): nums.noise_at(at).process for _, nums, _ in self.sources}
+        process = np.array([levels[id(nums)][k] for _, nums, k in self.sources], dtype=float)
         if self.param_rows:
             process = process * self._factors(theta) / self.factor0
         std = np.asarray(self.model.PROCESS_STD, dtype=float).copy()
@@ -430,6 +433,23 @@ class _Likelihood:
         with np.errstate(all="ignore"):
             total = float(sum(kf.logliks[-1] for kf in self.filters(np.asarray(z, dtype=float))))
         return total if math.isfinite(total) else -math.inf
+
+
+def _sources_of(model: FaultModel, numerics: Numerics, physical: list[int],
+                modes: tuple[Numerics, ...]) -> list[tuple[FaultModel, Numerics, int]]:
+    """Per physical state of ``model`` (rows ``physical``): the module, the
+    numerics and the row its noise and time constant come from: its own,
+    or, for a model with modes (``modes``: each mode's numerics), the first
+    mode it is a state of, as the compiler sets a state's noise
+    (:mod:`bgc.compiler.hybrid_codegen`): that mode's generated module
+    (``_MODULES``) and the state's row in it (``_ROWS``)."""
+    if not modes:
+        return [(model, numerics, i) for i in physical]
+    out = []
+    for i in physical:
+        mode = next(j for j, rows in enumerate(model._ROWS) if i in rows)
+        out.append((model._MODULES[mode], modes[mode], int(list(model._ROWS[mode]).index(i))))
+    return out
 
 
 def _hessian(f, z: np.ndarray, h: np.ndarray, f0: float) -> tuple[np.ndarray, np.ndarray]:
@@ -632,13 +652,19 @@ def innovations(filters: Sequence[NominalKalman], outputs: Sequence[str]) -> tup
 
 
 def calibrate(model: FaultModel, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
-              process: bool, parameters: Sequence[str], initial: bool = False) -> Calibration:
+              process: bool, parameters: Sequence[str], initial: bool = False,
+              modes: Sequence[Numerics] = ()) -> Calibration:
     """Maximum-likelihood estimates of the noise of ``sensors``, of the
     process level (``process``) and of ``parameters`` of the nominal model
     ``model`` (its generated module; ``numerics``: its compiled numbers) from
     the ``records``, with their 95 % intervals (see the module docstring);
     with ``initial``, each record's initial physical state too (estimates
     ``initial STATE``, or ``initial STATE of SOURCE`` over several records).
+    A model with modes gives each mode's numerics (``modes``, in the model's
+    order; ``numerics`` is then the first mode's) and records whose inputs
+    end with the mode's number (the data's mode column): its filter follows
+    the data's mode, and a state's process noise is that of the first mode
+    it is a state of, at each level tried.
 
     Raises
     ------
@@ -656,7 +682,7 @@ def calibrate(model: FaultModel, numerics: Numerics, records: Sequence[Record], 
     settings = numerics.equations.model.settings
     y_scale = np.asarray(numerics.y_scale, dtype=float)
     zero = False  # the process level's likelihood is highest at 0: held there
-    start_loglik = _Likelihood(model, numerics, records, [], False, [])(np.zeros(0))  # at the model's values
+    start_loglik = _Likelihood(model, numerics, records, [], False, [], modes=modes)(np.zeros(0))  # model's values
     evaluations = 1
     states = [i for i, k in enumerate(getattr(model, "STATE_KINDS", ("physical",) * len(model.STATES)))
               if k == "physical"] if initial else []
@@ -668,7 +694,7 @@ def calibrate(model: FaultModel, numerics: Numerics, records: Sequence[Record], 
         free_process = process and "process noise" not in held and not zero
         free_starts = [pair for pair, name in starts.items() if name not in held]
         lik = _Likelihood(model, numerics, records, free_sensors, free_process, free_params, 0.0 if zero else None,
-                          free_starts)
+                          free_starts, modes)
         z0 = lik.start()
         if not math.isfinite(lik(z0)):
             raise CalibrationError(f"the model's likelihood of the data ({', '.join(map(printable, _sources(records)))})"
@@ -725,7 +751,7 @@ def calibrate(model: FaultModel, numerics: Numerics, records: Sequence[Record], 
     if process:
         q0 = float(settings.process_noise)
         if zero:
-            upper = _zero_upper(model, numerics, records, free_sensors, free_params, z, best, free_starts)
+            upper = _zero_upper(model, numerics, records, free_sensors, free_params, z, best, free_starts, modes)
             estimates.append(Estimate("process_noise", "process", 0.0, 0.0, upper, 0.0, 0.0, upper, q0, q0,
                                       at_bound=True))
         elif "process noise" in held:
@@ -841,8 +867,8 @@ def _crossing(fall, limit: float) -> float:
 
 
 def _zero_upper(model: FaultModel, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
-                parameters: Sequence[str], z: np.ndarray, best: float, initial: Sequence[tuple[int, int]] = ()
-                ) -> float:
+                parameters: Sequence[str], z: np.ndarray, best: float, initial: Sequence[tuple[int, int]] = (),
+                modes: Sequence[Numerics] = ()) -> float:
     """The upper end of the process level's 95 % interval when its
     likelihood is highest at 0 (the other estimates ``z`` held): the level
     where the log-likelihood has fallen by ``ZERO_DROP`` from ``best`` (a
@@ -851,7 +877,7 @@ def _zero_upper(model: FaultModel, numerics: Numerics, records: Sequence[Record]
     model's level."""
     from scipy.optimize import brentq
 
-    lik = _Likelihood(model, numerics, records, sensors, True, parameters, initial=initial)
+    lik = _Likelihood(model, numerics, records, sensors, True, parameters, initial=initial, modes=modes)
     k = len(sensors)
     start = float(lik.start()[k])
 

@@ -23,7 +23,7 @@ from ..model import warmup
 from ..diagnosis.diagnose import Diagnosis
 from ..diagnosis.options import DiagnosisOptions
 from ..diagnosis.diagnose import horizon_steps
-from ..diagnosis.diagnoser import Diagnoser
+from ..diagnosis.diagnoser import Diagnoser, mode_given
 from .limits import (METHODS, MAX_PRIOR_SCALE, check_options,
                      most_steps, with_horizon)
 from . import cache
@@ -299,19 +299,19 @@ class Session:
         arguments.callable_or_none(func, "progress", progress)
         say = progress or (lambda text: None)
         c = self.view
-        c.refuse_modes("calibration", "calibrate a model of one mode on data of that mode")
         nominal = nominal_model(self.package)
         sensors, process, parameters = calibration.targets(estimate, nominal, [p.name for p in c.model.parameters],
                                                            arguments.spelled(f"{func}: estimate", "--estimate"))
         records, dates = [], []
         for item in items:
             run = self.read_run(item, columns, func)
+            mode_given(nominal, runs.input_columns(run), run.source, "calibration")
             records.append(calibration.record_of(run, nominal))
             dates += [h.split(":", 1)[1].strip() for h in run.header
                       if h.lower().startswith(("date:", "recorded:")) and h.split(":", 1)[1].strip()]
         say(f"calibrating on {len(records)} recording(s)")
         result = calibration.calibrate(nominal, c.numerics, records, sensors, process, parameters,
-                                       calibration.wants_initial(estimate))
+                                       calibration.wants_initial(estimate), tuple(m.numerics for m in c.modes))
         original = _model_text(self.model, c)
         own = {el.name: el.noise for el in c.model.elements if el.noise is not None}
         text = calibrated.calibrated_text(original, c.model.display_source, result, own, tuple(dates))

@@ -97,7 +97,7 @@ class Diagnoser:
                  options: DiagnosisOptions, horizon: int, *, inputs=None, sensors=None, source: str = "<stream>",
                  lazy: bool = False, every: bool = False, progress=None, most: int | None = None):
         if inputs is not None:
-            _mode_given(nominal_model(package), inputs, source)
+            mode_given(nominal_model(package), inputs, source)
         config = DiagnoserConfig(package, signatures, priors, options, max(int(horizon), 1),
                                  None if inputs is None else tuple(inputs),
                                  None if sensors is None else tuple(sensors), source, lazy, every, most, progress)
@@ -155,7 +155,7 @@ class Diagnoser:
         u = _named(u, self.nominal.INPUTS, "u", line)
         y = _named(y, self.nominal.OUTPUTS, "y", line)
         if self.infer_inputs:  # the first row says which inputs the data give
-            _mode_given(self.nominal, u, self.source)
+            mode_given(self.nominal, u, self.source)
             self.infer_inputs = False
             self.sampler.data_inputs = tuple(name for name in self.nominal.INPUTS if name in u)
         rows = self.sampler.push(t, u, y, line)
@@ -348,15 +348,15 @@ def _floats(values, names, what: str, line) -> dict[str, float]:
     return out
 
 
-def _mode_given(nominal, inputs, source: str) -> None:
+def mode_given(nominal, inputs, source: str, what: str = "diagnosing") -> None:
     """Refuse data of a model with modes that do not say the mode (no
-    ``mode`` column): a diagnosis follows the mode the data give; a hidden
-    mode (each particle through the guards by itself, as ``bgc filter``
-    follows it) misses some switches by a few samples, and a diagnosis would
-    take that for a fault."""
+    ``mode`` column), for ``what`` (diagnosing, calibration): a diagnosis
+    follows the mode the data give; a hidden mode (each particle through the
+    guards by itself, as ``bgc filter`` follows it) misses some switches by
+    a few samples, and a diagnosis would take that for a fault."""
     index = getattr(nominal, "MODE_INPUT", None)
     if index is not None and nominal.INPUTS[index] not in set(inputs):
         raise DataError(f"{printable(source)}: the data have no mode column, and {nominal.MODEL} has modes", None,
                         "record the plant's mode as a column 'mode' (each mode's number, 1 for the first the model "
-                        "lists): diagnosing a mode the data do not give is not built yet")
+                        f"lists): {what} with a mode the data do not give is not built yet")
 

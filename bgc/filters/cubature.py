@@ -82,11 +82,22 @@ def cholesky(P: np.ndarray) -> np.ndarray:
     one), the stack is factored one column at a time for all matrices at once
     instead, each pivot under 1e-12 of its diagonal entry raised to that: the
     result is then the factor of a nearby positive definite matrix, not of
-    ``P``."""
+    ``P``. A state whose variance is exactly 0 in every matrix (a model with
+    modes: the mode and the time in it, known from the data) is left out of
+    the factoring: its row and column of the factor are 0 (its covariances
+    with the others are 0 but for rounding, which divided by a floored pivot
+    would blow up), the rest factored as a block."""
     try:
         return np.linalg.cholesky(P)
     except np.linalg.LinAlgError:
         pass
+    variance = np.diagonal(P, axis1=-2, axis2=-1).reshape(-1, P.shape[-1])
+    known = (variance == 0.0).all(axis=0)
+    if known.any() and not known.all():
+        keep = np.flatnonzero(~known)
+        L = np.zeros(P.shape)
+        L[..., keep[:, None], keep] = cholesky(P[..., keep[:, None], keep])
+        return L
     n = P.shape[-1]
     L = np.zeros(P.shape)
     for j in range(n):

@@ -608,7 +608,7 @@ def hybrid_summary(model, modes) -> str:
                        if d.severity == "warning" and "derivative causality" not in d.message})
     lines.append(f"  warnings: {len(warnings) or 'none'}")
     lines.extend(f"    warning: {w}" for w in warnings)
-    lines.append("  not built yet for a model with modes: a mode the data do not give (hidden), calibrate, distinguish, "
+    lines.append("  not built yet for a model with modes: diagnosing a mode the data do not give (hidden), distinguish, "
                  "experiment")
     return "\n".join(printable(line) for line in lines)
 
