@@ -114,7 +114,6 @@ def test_candidates_alike_in_the_modes_seen_are_named_with_the_mode_that_would_s
 
 
 def test_what_is_not_built_for_a_model_with_modes_is_refused_in_one_line(tmp_path):
-    session = bgc.open(RELAY, backend="numpy")
     with pytest.raises(BgcError, match="a scenario simulated inside a diagnosis is not built yet"):
         bgc.diagnose(RELAY, scenario="R_aux:abrupt:0.4@5", backend="numpy")
     with pytest.raises(BgcError, match="distinguishability is not built yet"):
