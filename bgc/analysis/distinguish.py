@@ -283,15 +283,47 @@ def _sizes(num: Numerics) -> tuple[int, int, int, int]:
     return len(ssm.states), len(ssm.outputs), len(ssm.inputs), len(num.faults)
 
 
-def scenario_inputs(package: Package, steps: int, signals: tuple = ()) -> np.ndarray:
+def scenario_inputs(package: Package, steps: int, signals: tuple = (),
+                    schedule: tuple[tuple[float, str], ...] | None = None) -> np.ndarray:
     """The model's default inputs over ``steps`` samples: sample k's step
     holds the input at k dt (as the simulator does); ``signals``: (name,
-    :class:`~bgc.ir.Signal`) pairs that drive those inputs instead."""
+    :class:`~bgc.ir.Signal`) pairs that drive those inputs instead. A model
+    with modes: its mode input (the data's mode column) at each sample's
+    time, (k + 1) dt, from the controlled changes ``schedule`` ((time, mode
+    name), sorted: a change due at a sample's time holds at that sample, as
+    in a run's rows), from the first mode; without a schedule, the mode the
+    noise-free nominal run reaches by its own guards and timed transitions
+    (:func:`own_modes`)."""
     nominal = nominal_model(package)
     us = np.array([nominal.inputs(k * nominal.DT) for k in range(steps)], dtype=float).reshape(steps, -1)
     for name, signal in signals:
         us[:, nominal.INPUTS.index(name)] = [signal.at(k * nominal.DT) for k in range(steps)]
+    column = getattr(nominal, "MODE_INPUT", None)
+    if column is not None:
+        if schedule is None:
+            us[:, column] = own_modes(nominal, us)
+        else:
+            times = nominal.DT * np.arange(1, steps + 1)
+            us[:, column] = 1.0
+            for t, mode in schedule:
+                us[times >= t - 1e-9 * max(1.0, abs(t)), column] = nominal.MODES.index(mode) + 1
     return us
+
+
+def own_modes(nominal, us: np.ndarray) -> np.ndarray:
+    """The mode (its number) at each sample of the noise-free run of a model
+    with modes from ``X0`` under the inputs ``us`` (their mode column not
+    read), each step through the mode's guards and timed transitions (the
+    generated model's hidden-mode step); a controlled change is not taken."""
+    us = np.array(us, dtype=float)
+    us[:, nominal.MODE_INPUT] = np.nan
+    x = np.asarray(nominal.X0, dtype=float).reshape(-1, 1).copy()
+    out = np.empty(len(us))
+    with np.errstate(all="ignore"):
+        for k in range(len(us)):
+            x = nominal.predict(x, us[k], nominal.THETA, nominal.DT)
+            out[k] = x[nominal.MODE_ROW, 0]
+    return out
 
 
 def prepare(package: Package, us: np.ndarray, progress=None) -> Families:

@@ -15,7 +15,7 @@ from ..errors import (
 )
 from ..kinds import DIRECTIONS, fault_kind
 from ..analysis import distinguish as distinction
-from ..analysis import simulate
+from ..analysis import hybrid, simulate
 from ..model import package as packages
 from . import cache
 from .folders import _LOCK
@@ -31,7 +31,8 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
                        process_noise: float | None = None, measurement_noise: float | None = None,
                        steps: int | None = None, level: float = distinction.LEVEL,
                        progress=None, detector_runs: int = 0, seed: int = 0,
-                       inputs: Mapping[str, Any] | None = None) -> DistinguishabilityReport:
+                       inputs: Mapping[str, Any] | None = None,
+                       modes: str | None = None) -> DistinguishabilityReport:
     """Predict which fault hypotheses the data of ``scenario``
     (``NAME:KIND:MAGNITUDE@TIME``) of ``model`` can tell apart, at the given
     relative noise levels (default: the model's), before any data are seen;
@@ -74,6 +75,13 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         mapping written as in the model's ``inputs`` section (``{"signal":
         "sine", "value": 1, "amplitude": 0.5, "period": 4}``) or a
         :class:`~bgc.ir.Signal`: an input test the plant would run.
+    modes : str, optional
+        A model with modes: the controlled changes of mode over the run,
+        ``MODE@TIME,...`` as ``bgc simulate --modes`` takes them (the run
+        starts in the first mode); without it, the modes the noise-free
+        plant reaches by its guards and timed transitions. A fault's
+        response is linearised with the mode held to this schedule (a fault
+        that moves a switch's time is not followed).
 
     Returns
     -------
@@ -115,7 +123,13 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         say("compiling the model")
         opened = cache.open_model(model)
         c, private = opened.view, opened.folder
-    c.refuse_modes("distinguishability", "ask it of a model of one mode")
+    arguments.text(func, "modes", modes, optional=True)
+    if modes is not None and not c.modes:
+        raise ArgumentValueError(f"{func}: modes={modes!r}: {c.model.name} has no modes", None, "leave modes out")
+    schedule = None if modes is None else hybrid.parse_schedule(modes, tuple(m.name for m in c.modes))
+    if detector_runs and c.modes:
+        raise ArgumentValueError(f"{func}: detector_runs={detector_runs} is not built yet for a model with modes",
+                                 None, "leave detector_runs out: the prediction itself is made")
     num = c.numerics
     signals = input_signals(func, inputs, c.model)
     if steps is not None:
@@ -160,7 +174,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
                                                      num.equations.inputs, num.faults)))
     with _LOCK:
         package = packages.load_package(private, c.model.name, str(model), custom)
-        families = _families(package, T, need, say, signals)
+        families = _families(package, T, need, say, signals, schedule)
     priors = {f.parameter: f.prior for f in c.model.faults}
     out = []
     for i, inj in enumerate(injected, start=1):
@@ -180,7 +194,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
     return DistinguishabilityReport(c.model.name, c.model.display_source, T, dt, (process_noise, measurement_noise),
                                     scenario if isinstance(scenario, str) or scenario is None else scenario.text,
                                     None if scenario else change, None if scenario else at, tuple(out),
-                                    warning, rate, signals)
+                                    warning, rate, signals, (modes or "") if c.modes else None)
 
 
 
@@ -193,17 +207,20 @@ _FAMILIES: dict[tuple, distinction.Families] = {}
 _FAMILIES_KEPT = 4
 
 
-def _families(package, steps: int, need: int = 0, progress=None, signals: tuple = ()) -> distinction.Families:
+def _families(package, steps: int, need: int = 0, progress=None, signals: tuple = (),
+              schedule: tuple | None = None) -> distinction.Families:
     """The families of ``package`` over ``steps`` samples (``signals``: the
-    inputs driven otherwise than the model says), prepared once; ``need``:
-    the bytes a new preparation is expected to take (older families are let
-    go until it fits)."""
-    key = (package.__name__, str(getattr(package, "__file__", "")), steps, signals)
+    inputs driven otherwise than the model says; ``schedule``: a model with
+    modes, its controlled changes), prepared once; ``need``: the bytes a new
+    preparation is expected to take (older families are let go until it
+    fits)."""
+    key = (package.__name__, str(getattr(package, "__file__", "")), steps, signals, schedule)
     if key not in _FAMILIES:
         while _FAMILIES and (len(_FAMILIES) >= _FAMILIES_KEPT
                              or sum(map(_nbytes, _FAMILIES.values())) + need > distinction.MAX_BYTES):
             _FAMILIES.pop(next(iter(_FAMILIES)))
-        _FAMILIES[key] = distinction.prepare(package, distinction.scenario_inputs(package, steps, signals), progress)
+        _FAMILIES[key] = distinction.prepare(package, distinction.scenario_inputs(package, steps, signals, schedule),
+                                             progress)
     return _FAMILIES[key]
 
 

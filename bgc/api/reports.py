@@ -214,6 +214,9 @@ class DistinguishabilityReport:
     detector: object | None = None
     #: The inputs driven otherwise than the model says: (name, :class:`~bgc.ir.Signal`) pairs
     signals: tuple = ()
+    #: A model with modes: the controlled changes asked for (``MODE@TIME,...``); "" : the modes its
+    #: guards and timed transitions reach; None: a model of one mode
+    modes: str | None = None
 
 
 #: The columns of :meth:`DiagnosisReport.table` ``("hypotheses")``.

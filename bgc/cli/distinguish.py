@@ -31,6 +31,10 @@ def add_parser(sub) -> None:
                         "fault (default 50; 0: skip)")
     p.add_argument("--seed", type=seed, default=0, help="the first seed of those runs, an integer >= 0")
     add_signal_option(p)
+    p.add_argument("--modes", metavar="MODE@TIME,...",
+                   help="a model with modes: the controlled changes of mode over the run, e.g. closed@0.5,open@3 "
+                        "(default: the modes its guards and timed transitions reach; the detector's runs are not "
+                        "built for such a model and are skipped)")
     p.add_argument("--format", choices=["text", "json"], default="text")
     p.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of printing")
     p.add_argument("--plot", metavar="FILE.png", help="also draw the probabilities as a heat map")
@@ -48,14 +52,17 @@ def run(args: argparse.Namespace) -> int:
             artifacts.check_writable(Path(path), what)
     progress = Progress("distinguish")
     try:
-        runs = args.detector_runs if args.detector_runs is not None else (RUNS if args.scenario else 0)
+        from ..compiler.load import declares_modes
+
+        hybrid = declares_modes(args.model)
+        runs = args.detector_runs if args.detector_runs is not None else (RUNS if args.scenario and not hybrid else 0)
         if runs and not args.scenario:
             raise BgcError("--detector-runs applies to --scenario: one fault's runs are simulated", None,
                            "give --scenario NAME:KIND:MAGNITUDE@TIME, or drop --detector-runs")
         r = api.distinguishability(args.model, args.scenario, change=args.change, at=args.at,
                                    process_noise=process, measurement_noise=measurement, steps=args.steps,
                                    progress=progress, detector_runs=runs, seed=args.seed,
-                                   inputs=dict(_signals(args)) or None)
+                                   inputs=dict(_signals(args)) or None, modes=args.modes)
     finally:
         progress.close()
     text = render.to_json(render.distinguishability_json(r)) if args.format == "json" else \

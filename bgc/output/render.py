@@ -608,8 +608,8 @@ def hybrid_summary(model, modes) -> str:
                        if d.severity == "warning" and "derivative causality" not in d.message})
     lines.append(f"  warnings: {len(warnings) or 'none'}")
     lines.extend(f"    warning: {w}" for w in warnings)
-    lines.append("  not built yet for a model with modes: diagnosing a mode the data do not give (hidden), distinguish, "
-                 "experiment")
+    lines.append("  not built yet for a model with modes: diagnosing a mode the data do not give (hidden), stuck "
+                 "switches, experiment")
     return "\n".join(printable(line) for line in lines)
 
 
@@ -634,6 +634,9 @@ def distinguishability_text(r) -> str:
              f"a rival with P < {r.distinctions[0].level if r.distinctions else 0.95:g} is in the predicted "
              "ambiguity group"]
     lines += [f"# input u:{name}: {signal.text} (instead of the model's)" for name, signal in r.signals]
+    if getattr(r, "modes", None) is not None:
+        lines.append(f"# modes: {printable(r.modes)} (the controlled changes; from the first mode)" if r.modes else
+                     "# modes: those the noise-free plant reaches by its guards and timed transitions")
     if r.scenario is not None:
         d = r.distinctions[0]
         lines.append(f"truth: {printable(r.scenario)} ({d.truth}, from sample {d.onset})")
@@ -698,6 +701,7 @@ def distinguishability_json(r) -> dict:
         "model": r.model, "steps": r.steps, "dt": r.dt,
         "noise": {"process": r.noise[0], "measurement": r.noise[1]},
         "scenario": r.scenario, "change": r.change, "at": r.at, "warning": getattr(r, "warning", None),
+        "modes": getattr(r, "modes", None),
         "faults": [{
             "fault": d.label, "model": d.truth, "magnitude": d.magnitude, "onset_sample": d.onset,
             "divergence": d.divergence, "detectability": d.detectability, "misfit": d.misfit, "level": d.level,
