@@ -39,7 +39,7 @@ import numbers
 from dataclasses import dataclass, fields
 from typing import Any
 
-from .errors import ModelError, SourceLoc
+from .errors import SourceLoc
 from .ir import (Bond, BondGraph, Dbn, DbnModel, Element, FaultCandidate, FaultNumerics, FaultSignatures, Input,
     Measurement, Numerics, Parameter, Settings, Signal, Signature, StateSpaceModel)
 from .output.labels import Labels
@@ -176,13 +176,6 @@ class CompiledView:
     #: A model with modes: each mode, in the model's order (its number is its place, from 1); the
     #: equations, signatures, DBNs and numerics above are then the first mode's. Empty: a model of one mode.
     modes: tuple[ModeView, ...] = ()
-
-    def refuse_modes(self, what: str, hint: str) -> None:
-        """A one-line error (:class:`~bgc.errors.ModelError`) when this is a
-        model with modes, for which ``what`` is not built yet."""
-        if self.modes:
-            raise ModelError(f"{self.model.name} has modes ({', '.join(m.name for m in self.modes)}): {what} is not "
-                             "built yet for a model with modes", self.model.source, hint)
 
     @property
     def priors(self) -> dict[str, float]:

@@ -113,11 +113,15 @@ def test_candidates_alike_in_the_modes_seen_are_named_with_the_mode_that_would_s
                     "them may separate them")
 
 
-def test_what_is_not_built_for_a_model_with_modes_is_refused_in_one_line(tmp_path):
-    with pytest.raises(BgcError, match="a scenario simulated inside a diagnosis is not built yet"):
-        bgc.diagnose(RELAY, scenario="R_aux:abrupt:0.4@5", backend="numpy")
-    with pytest.raises(BgcError, match="distinguishability is not built yet"):
-        bgc.distinguishability(RELAY, "R_aux:abrupt:0.4@5")
+def test_a_scenario_of_a_model_with_modes_takes_its_switches_and_refuses_them_in_one_line_where_they_do_not_fit():
+    with pytest.raises(BgcError, match="'shut' is no mode of the model"):
+        bgc.diagnose(RELAY, scenario="R_aux:abrupt:0.4@5", modes="shut@1", backend="numpy")
+    with pytest.raises(BgcError, match="modes= with data"):
+        bgc.diagnose(RELAY, data=exact_run(1, end=1.0), modes="closed@0.5", backend="numpy")
+    with pytest.raises(BgcError, match="the model has no modes"):
+        bgc.diagnose(ROOT / "models" / "circuit.yaml", scenario="R2:abrupt:0.6@5", modes="on@1", backend="numpy")
+    report = bgc.diagnose(RELAY, scenario="none", modes="unpowered@0.5", steps=100, backend="numpy", particles=100)
+    assert report.diagnosis.verdict == "no fault" and set(report.run.modes[50:]) == {3.0}  # tripped from 0.5 s
 
 
 @pytest.mark.slow

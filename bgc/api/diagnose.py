@@ -22,7 +22,7 @@ from .limits import (METHODS, check_diagnosis_steps, check_options,
                      with_horizon)
 from .reports import DiagnosisReport
 from .session import Session, _session_of, input_signals, isolation_signatures
-from .simulate import Simulation, checked_scenario, simulated_run
+from .simulate import Simulation, _schedule, checked_scenario, simulated_run
 
 
 def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = None,
@@ -32,7 +32,8 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
              steps: int | None = None, generated: str | Path | None = None,
              options: DiagnosisOptions | None = None, progress=None,
              prior_scale: float | None = None, backend: str | None = None, columns=None,
-             inputs: Mapping[str, Any] | None = None, method: str | None = None) -> DiagnosisReport:
+             inputs: Mapping[str, Any] | None = None, method: str | None = None,
+             modes: str | None = None) -> DiagnosisReport:
     """Diagnose ``data`` (a run file, a :class:`~bgc.data.runs.Run` or a :class:`Simulation`) or a
     simulated ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, or ``none`` for a
     fault-free run) of ``model``.
@@ -105,6 +106,11 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         section (``{"signal": "sine", "value": 1, "amplitude": 0.5,
         "period": 4}``) or a :class:`~bgc.ir.Signal` (``bgc simulate
         --input``).
+    modes : str, optional
+        With a scenario of a model with modes: the controlled changes of
+        mode over the simulated run, ``MODE@TIME,...`` as ``bgc simulate
+        --modes`` takes them (the run starts in the first mode; the
+        autonomous and timed changes happen by themselves).
 
     Returns
     -------
@@ -156,6 +162,11 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     if inputs is not None and scenario is None:
         raise ArgumentValueError(f"{func}: inputs= with data: a recorded run has its own inputs", None,
                                  "give inputs with a scenario only")
+    if modes is not None:
+        arguments.text(func, "modes", modes)
+        if scenario is None:
+            raise ArgumentValueError(f"{func}: modes= with data: a recorded run has its own mode column", None,
+                                     "give modes with a scenario only")
     if steps is not None:
         arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
         if data is not None:
@@ -175,7 +186,10 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     session = _session_of(func, model, process_noise, measurement_noise, generated, say, prior_scale, backend, work)
     if scenario is not None:
         signals = input_signals(func, inputs, session.view.model)
-        run, injected = _scenario_run(session, scenario, steps, seed, opts, say, signals)
+        if modes is not None and not session.view.modes:
+            raise ArgumentValueError(f"{func}: modes={modes!r}, and the model has no modes", None, "drop modes=")
+        schedule = _schedule(func, modes, tuple(m.name for m in session.view.modes)) if modes else ()
+        run, injected = _scenario_run(session, scenario, steps, seed, opts, say, signals, schedule)
     else:
         run, injected = _recorded_run(session, session.read_run(data, columns, func), opts), None
     if isinstance(scenario, simulate.FaultInjection):
@@ -187,9 +201,10 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
 
 
 def _scenario_run(session: Session, scenario, steps: int | None, seed: int, opts: DiagnosisOptions,
-                  say, signals: tuple = ()) -> tuple[runs.Run, simulate.FaultInjection | None]:
+                  say, signals: tuple = (), schedule: tuple = ()) -> tuple[runs.Run, simulate.FaultInjection | None]:
     """The run of a simulated scenario at the session's noise levels (its
-    inputs driven by ``signals`` where given), checked (its onset inside the
+    inputs driven by ``signals`` where given; a model with modes through
+    the controlled changes ``schedule``), checked (its onset inside the
     run, its length within the diagnosis's memory)."""
     c = session.view
     injected, where = checked_scenario("bgc.diagnose", c, scenario, steps)
@@ -197,7 +212,7 @@ def _scenario_run(session: Session, scenario, steps: int | None, seed: int, opts
                           opts.history)
     say("simulating the scenario")
     text = scenario.strip() if isinstance(scenario, str) else scenario.text
-    return simulated_run(c, injected, text, steps, seed, session.noise, signals), injected
+    return simulated_run(c, injected, text, steps, seed, session.noise, signals, schedule), injected
 
 
 def _recorded_run(session: Session, run: runs.Run, opts: DiagnosisOptions) -> runs.Run:

@@ -165,23 +165,59 @@ def _hybrid(func: str, model, scenario, seed: int, steps: int | None, inputs, no
     from types import SimpleNamespace
 
     from .. import pipeline
-    from ..analysis import hybrid
 
     h = pipeline.check_model(model)
     nums = h.numerics()
     # the first mode's numbers read and check the scenario, as a compiled model's do
     injected, _ = checked_scenario(func, SimpleNamespace(model=h.model, numerics=nums[0]), scenario, steps)
     signals = input_signals(func, inputs, h.model)
-    options = simulation.SimulationOptions(steps=steps, process_noise=noise[0], measurement_noise=noise[1],
-                                           seed=seed, fault=injected, signals=signals)
+    schedule = _schedule(func, modes, h.model.modes.names)
+    text = "none" if injected is None else injected.text
+    run, result = _automaton_run(h, nums, injected, text, steps, seed, noise, signals, schedule)
+    return Simulation(h.model.name, text, seed, injected, run, result.switches, result.mode_names)
+
+
+def _schedule(func: str, modes: str | None, names: tuple[str, ...]) -> tuple:
+    """The controlled changes ``modes`` (``MODE@TIME,...``) of a model whose modes are ``names``."""
+    from ..analysis import hybrid
+
     try:
-        schedule = hybrid.parse_schedule(modes, h.model.modes.names)
+        return hybrid.parse_schedule(modes, names)
     except SimulationError as exc:  # a malformed argument, told as one
         raise ArgumentValueError(f"{func}: {exc.what}", None, exc.fix) from None
+
+
+def _automaton_run(h, nums, injected, text: str, steps: int | None, seed: int, noise, signals: tuple,
+                   schedule: tuple):
+    """The truth simulator's run of the model with modes ``h`` (its check,
+    ``nums`` each mode's numerics) through the controlled changes
+    ``schedule``: (the :class:`~bgc.data.runs.Run`, the simulator's result)."""
+    from ..analysis import hybrid
+
+    options = simulation.SimulationOptions(steps=steps, process_noise=noise[0], measurement_noise=noise[1],
+                                           seed=seed, fault=injected, signals=signals)
     result = hybrid.simulate(h, nums, options, schedule)
-    text = "none" if injected is None else injected.text
-    run = runs.parse_run(hybrid.to_csv(result), f"scenario {text}")
-    return Simulation(h.model.name, text, seed, injected, run, result.switches, result.mode_names)
+    return runs.parse_run(hybrid.to_csv(result), f"scenario {text}"), result
+
+
+#: Checked models with modes and their modes' numerics, by model file and text (a campaign's worker
+#: simulates many runs of a few models; the view a session holds has no truth simulator of the modes).
+_CHECKED: dict[tuple[str, str], tuple] = {}
+
+
+def _checked(path: str) -> tuple:
+    """(the check of the model file with modes ``path``, each mode's numerics), made once per file and text."""
+    import hashlib
+
+    from .. import pipeline
+
+    key = (str(path), hashlib.sha256(Path(path).read_bytes()).hexdigest())
+    if key not in _CHECKED:
+        if len(_CHECKED) >= 8:
+            _CHECKED.pop(next(iter(_CHECKED)))
+        h = pipeline.check_model(path)
+        _CHECKED[key] = (h, h.numerics())
+    return _CHECKED[key]
 
 
 def checked_scenario(func: str, c, scenario, steps: int | None) -> tuple[simulation.FaultInjection | None, str]:
@@ -205,12 +241,16 @@ def checked_scenario(func: str, c, scenario, steps: int | None) -> tuple[simulat
 
 
 def simulated_run(c, injected: simulation.FaultInjection | None, text: str, steps: int | None, seed: int,
-                  noise: tuple[float | None, float | None], signals: tuple = ()) -> runs.Run:
+                  noise: tuple[float | None, float | None], signals: tuple = (),
+                  schedule: tuple = ()) -> runs.Run:
     """The truth simulator's run of ``c`` with the fault ``injected`` (checked
     by :func:`checked_scenario`), at the relative ``noise`` levels, as a
-    :class:`~bgc.data.runs.Run` whose source is ``scenario TEXT``."""
-    c.refuse_modes("a scenario simulated inside a diagnosis", "simulate the run first (bgc simulate --modes, or "
-                   "bgc.simulate(model, modes=...)) and diagnose it as data")
+    :class:`~bgc.data.runs.Run` whose source is ``scenario TEXT``; a model
+    with modes through its automaton and the controlled changes ``schedule``
+    ((time, mode) pairs, sorted)."""
+    if c.modes:
+        h, nums = _checked(c.model.source)
+        return _automaton_run(h, nums, injected, text, steps, seed, noise, signals, schedule)[0]
     result = simulation.simulate(c.numerics, simulation.SimulationOptions(
         steps=steps, process_noise=noise[0], measurement_noise=noise[1], seed=seed, fault=injected,
         signals=signals))

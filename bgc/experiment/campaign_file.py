@@ -61,6 +61,8 @@ class RunSpec:
     injection: simulate.FaultInjection | None = field(default=None, compare=False)
     #: Inputs driven otherwise than the model says: (name, :class:`~bgc.ir.Signal`) pairs (``inputs:``).
     inputs: tuple = ()
+    #: A model with modes: the group's controlled changes of mode (``MODE@TIME,...``; None: none given).
+    modes: str | None = None
 
     @property
     def id(self) -> str:
@@ -73,6 +75,8 @@ class RunSpec:
             fields.pop("refine")
         if not self.inputs:  # likewise
             fields.pop("inputs")
+        if self.modes is None:  # likewise
+            fields.pop("modes")
         fields["model_text"] = hashlib.sha256(self.model_text.encode("utf-8")).hexdigest()
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode("utf-8")).hexdigest()[:16]
 
@@ -182,10 +186,9 @@ def load_campaign(path: str | Path, max_runs: int = MAX_RUNS) -> Campaign:
                 continue
             compiled[model_path] = pipeline.compile_model(model_path)
         c = compiled[model_path]
-        if c.modes:
-            errors.append(ExperimentError(f"{printable(str(model_path))} has modes: a campaign of a model with modes "
-                                          "is not built yet", raw.loc(*where, "model"),
-                                          "run campaigns of models of one mode"))
+        if "modes" in group and not c.modes:
+            errors.append(ExperimentError(f"modes: {printable(str(model_path))} has no modes", raw.loc(*where, "modes"),
+                                          "drop the group's modes"))
             continue
         try:
             specs.extend(_group_specs(c, model_path, group, settings, where, raw, data.get("seed", 0), g_index,
@@ -265,7 +268,7 @@ def _check_size(groups: list[dict], defaults: dict, raw, max_runs: int) -> None:
 def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: dict, where: tuple, raw,
                  campaign_seed: int, g_index: int, first_index: int) -> list[RunSpec]:
     from ..api import limits as api_limits
-    from ..analysis import simulate
+    from ..analysis import hybrid, simulate
 
     num = c.numerics
     steps = settings["steps"] or c.model.settings.steps
@@ -278,6 +281,12 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
         raise ExperimentError(exc.what, raw.loc(*where, "steps"), exc.fix) from None
     duration = steps * dt
     signals = _signals(c, group, settings, where, raw)
+    modes = group.get("modes")
+    if modes is not None:
+        try:
+            hybrid.parse_schedule(modes, tuple(m.name for m in c.modes))
+        except BgcError as exc:
+            raise ExperimentError(exc.what.replace("--modes", "modes:"), raw.loc(*where, "modes"), exc.fix) from None
     seeds = settings["seeds"]
     seeds = list(range(seeds)) if isinstance(seeds, int) else list(seeds)
     noises = []
@@ -365,7 +374,7 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
                             inj.magnitude if inj else None, inj.time if inj else None,
                             bool(inj and f"{inj.parameter}:{inj.kind}" in ambiguous), truth_value, method,
                             int(particles), noise, process, measurement, int(seed), steps, bool(refine), inj,
-                            signals))
+                            signals, modes))
     return out
 
 

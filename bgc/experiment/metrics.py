@@ -131,9 +131,13 @@ def measure(d: Diagnosis, run: Run, truth: Truth) -> RunMetrics:
     """The metrics of ``d``, a diagnosis of the simulated ``run`` whose injected
     fault is ``truth``."""
     mean, std = d.state_estimate()
-    true = np.column_stack([run.states[s] for s in d.states])
-    mse = {s: float(np.mean((mean[:, i] - true[:, i]) ** 2)) for i, s in enumerate(d.states)}
-    nmse = float(np.mean([mse[s] / max(float(np.mean(true[:, i] ** 2)), 1e-300) for i, s in enumerate(d.states)]))
+    # the plant's states (a model with modes: not its mode and the time in it, which the data give)
+    rows = [i for i, s in enumerate(d.states) if s in run.states]
+    states = [d.states[i] for i in rows]
+    mean, std = mean[:, rows], std[:, rows]
+    true = np.column_stack([run.states[s] for s in states])
+    mse = {s: float(np.mean((mean[:, i] - true[:, i]) ** 2)) for i, s in enumerate(states)}
+    nmse = float(np.mean([mse[s] / max(float(np.mean(true[:, i] ** 2)), 1e-300) for i, s in enumerate(states)]))
     onset_step = 0 if truth.onset is None else onset_sample(run.time, truth.onset)
     ct_step = convergence_step(mean, true, std, min(onset_step, len(run.time) - 1))
     detected = d.detection is not None

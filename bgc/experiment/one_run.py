@@ -96,7 +96,7 @@ def run_one(spec: RunSpec, backend: str = DEFAULT_BACKEND) -> dict[str, Any]:
                                    refine=spec.refine, switch=False)  # a campaign measures the filter it names
         session = _session(spec, spec.process_noise, spec.measurement_noise, backend)
         report = api.diagnose(session, scenario=_scenario(spec), seed=spec.seed, steps=spec.steps,
-                             options=options, inputs=dict(spec.inputs) or None)
+                             options=options, inputs=dict(spec.inputs) or None, modes=spec.modes)
         d = report.diagnosis
         m = metrics.measure(d, report.run, metrics.Truth(spec.fault, spec.kind, spec.magnitude, spec.onset))
         best = d.best
@@ -136,7 +136,7 @@ def _separation(spec: RunSpec) -> dict[str, Any]:
     on the scenario, noise levels and length only, not on the filter or the
     seed: a process computes it once per scenario."""
     return dict(_prediction(model_file(spec), _scenario(spec), spec.process_noise, spec.measurement_noise,
-                            spec.steps))
+                            spec.steps, spec.modes))
 
 
 def _scenario(spec: RunSpec):
@@ -147,13 +147,14 @@ def _scenario(spec: RunSpec):
 
 @functools.lru_cache(maxsize=64)
 def _prediction(model_file: str, scenario, process_noise: float | None, measurement_noise: float | None,
-                steps: int | None) -> tuple[tuple[str, Any], ...]:
+                steps: int | None, modes: str | None = None) -> tuple[tuple[str, Any], ...]:
     from .. import api
 
     try:
         compiled = next((v for k, v in _SESSIONS.items() if k[:2] == (os.getpid(), model_file)), model_file)
         d = api.distinguishability(compiled, scenario, process_noise=process_noise,  # the run's session: compiled
-                                   measurement_noise=measurement_noise, steps=steps).distinctions[0]
+                                   measurement_noise=measurement_noise, steps=steps,
+                                   modes=modes).distinctions[0]
     except Exception:  # noqa: BLE001 - the prediction is an extra: the diagnosis's row stands without it
         return ()
     return (("separable", d.separable), ("rivals", SEPARATOR.join(d.group) or None),

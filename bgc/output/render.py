@@ -609,7 +609,7 @@ def hybrid_summary(model, modes) -> str:
     lines.append(f"  warnings: {len(warnings) or 'none'}")
     lines.extend(f"    warning: {w}" for w in warnings)
     lines.append("  not built yet for a model with modes: diagnosing a mode the data do not give (hidden), stuck "
-                 "switches, experiment")
+                 "switches")
     return "\n".join(printable(line) for line in lines)
 
 
