@@ -69,6 +69,31 @@ def test_cholesky_of_a_stack_is_numpys():
     assert np.all(np.triu(L, 1) == 0.0) and np.all(np.diagonal(L, axis1=1, axis2=2) > 0)
 
 
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_cholesky_is_numpys_to_the_bit_and_numpys_fallback_where_lapack_fails(n):
+    """The stack's factors, written out for n <= 2 (:func:`cubature._cholesky_2`),
+    are np.linalg.cholesky's bit for bit, over covariances of scales 1e-8 to
+    1e8; in a stack with a matrix LAPACK refuses, a NaN or an inf, each is
+    what NumPy, or else the column-by-column factoring, gives."""
+    rng = np.random.default_rng(n)
+    G = rng.standard_normal((4000, n, n)) * 10.0 ** rng.uniform(-4, 4, (4000, 1, 1))
+    P = G @ G.transpose(0, 2, 1)
+    P = np.tril(P) + np.tril(P, -1).transpose(0, 2, 1)  # exactly symmetric
+    assert np.array_equal(cholesky(P), np.linalg.cholesky(P))
+    assert np.array_equal(cholesky(P[:1]), np.linalg.cholesky(P[:1]))
+    for spoilt in (-1.0, np.nan, np.inf):
+        for row, col in ((0, 0), (n - 1, 0), (n - 1, n - 1)):
+            Q = P[:20].copy()
+            Q[2, row, col] = spoilt
+            try:
+                reference = np.linalg.cholesky(Q)
+            except np.linalg.LinAlgError:
+                alone = cholesky(np.stack([Q[0], Q[2]]))[1]  # the fallback's factor of that matrix
+                assert np.array_equal(cholesky(Q)[2], alone, equal_nan=True)
+                continue
+            assert np.array_equal(cholesky(Q), reference, equal_nan=True)
+
+
 def test_a_covariance_made_indefinite_by_rounding_still_factors():
     good = np.array([[4.0, 2.0], [2.0, 3.0]])  # L = [[2, 0], [1, sqrt(2)]]
     bad = np.array([[1.0, 1.0], [1.0, 1.0 - 1e-15]])  # the second pivot is -1e-15: LAPACK refuses it
