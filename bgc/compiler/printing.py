@@ -219,9 +219,14 @@ def split_linear(expr: sympy.Expr, states: Sequence[str], arrays: frozenset[str]
     return coefficients, constant, rest
 
 
+@functools.lru_cache(maxsize=4096)
 def array_op_count(expr: sympy.Expr, arrays: frozenset[str]) -> int:
     """Number of NumPy operations on arrays the printed ``expr`` performs: the
-    operators and calls whose operands include an array name."""
+    operators and calls whose operands include an array name.
+
+    Kept per expression: :func:`fewer_array_ops` counts an expression again
+    for every candidate of every enclosing sum, and printing and parsing it is
+    most of that rewrite's time."""
     import ast
 
     tree = ast.parse(print_expr(expr, arrays=arrays), mode="eval")
