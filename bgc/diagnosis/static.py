@@ -99,9 +99,14 @@ def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, 
         earlier = earlier_onsets(reach, tried, options.search)
         a, b = (float(v) for v in module.FAULT_PRIOR)
         jobs.append(StaticJob(package.__name__, name, ys, us, observer, tuple(tried), (a, b), min(tried),
-                              options.interval, options.kalman, earlier, record=True, refine=True,
+                              options.interval, options.kalman, earlier, refine=True,
                               far=(outputs, options.rejection, options.windows)))
-    posteriors = dict(zip(names, parallel_map(run_static, jobs, options.workers)))
+    done = parallel_map(run_static, jobs, options.workers)
+    # each one's most probable onset's filter recorded (record_path), all of them side by side: the same numbers
+    started = time.perf_counter()
+    done = static_posterior.record_paths([package.MODELS[name] for name in names], ys, us, observer, done)
+    share = (time.perf_counter() - started) / max(len(done), 1)
+    posteriors = {name: dataclasses.replace(p, seconds=p.seconds + share) for name, p in zip(names, done)}
     hyps = tuple(kalman_hypothesis(name, tuple(models[name]), package, posteriors[name], run, times, ys, options)
                  for name in names)
     return hyps, posteriors

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..kinds import fault_kind
-from ..filters.cubature import NominalTrack, run_bank
+from ..filters.cubature import NominalTrack, run_bank, run_paths
 
 from ..filters.quadrature import overflow_shift, row_quadrature
 from .options import KalmanOptions
@@ -508,6 +508,20 @@ def record_path(model: FaultModel, ys: np.ndarray, us: np.ndarray, track: Nomina
     r = run_bank(model, ys, us, track, [p.onset], [p.mean], fault_start(model, track, p.onset), residuals=True,
                  record=True)
     return dataclasses.replace(p, path=r)
+
+
+def record_paths(models: list, ys: np.ndarray, us: np.ndarray, track: NominalTrack, posteriors: list) -> list:
+    """``[record_path(model, ys, us, track, p) for model, p in zip(models,
+    posteriors)]``, the filters run side by side (:func:`bgc.filters.cubature.run_paths`:
+    the same numbers)."""
+    told = [i for i, p in enumerate(posteriors) if math.isfinite(p.log_evidence)]
+    paths = run_paths([models[i] for i in told], ys, us, track, [posteriors[i].onset for i in told],
+                      [posteriors[i].mean for i in told],
+                      [fault_start(models[i], track, posteriors[i].onset) for i in told])
+    out = list(posteriors)
+    for i, r in zip(told, paths):
+        out[i] = dataclasses.replace(posteriors[i], path=r)
+    return out
 
 
 def _truncated(g: _Grid, prior: tuple[float, float], options: KalmanOptions) -> bool:

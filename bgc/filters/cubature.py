@@ -428,6 +428,177 @@ def run_bank(model: FaultModel, ys: np.ndarray, us: np.ndarray, track: NominalTr
                       **{name: a[:, back] for name, a in kept.items()})
 
 
+def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.ndarray, P: np.ndarray,
+                  fixed: list, onsets: list):
+    """:meth:`_Filter.step` of several models' filters at once, one block of
+    cells each (``kfs[i]``'s cells ``blocks[i]``, a slice of the stack; its
+    fault states ``fixed[i]``, its onset cells ``onsets[i]``, a slice of its
+    block); the filters have the same physical states (the fault models of
+    one package) and the NumPy arithmetic (no compiled kernel). Each model
+    moves and reads its own points; the arithmetic between those calls is the
+    step's, on the whole stack: every operation acts on each cell alone (a
+    matrix product of a stack multiplies each matrix by itself, a sum runs
+    along a cell's own points), so each cell's numbers are those of its
+    model's step, bit for bit (tests/test_kalman.py), for one set of array
+    operations instead of one per model. A stack LAPACK refuses to factor is
+    factored block by block, as each model's step would."""
+    kf0 = kfs[0]
+    n, C = kf0.n, m.shape[0]
+
+    def factor(P):
+        try:
+            return np.linalg.cholesky(P)
+        except np.linalg.LinAlgError:
+            return np.concatenate([cholesky(P[b]) for b in blocks])
+
+    def points(m, P, Xs):  # _Filter._points of every block's points, each into its model's own buffer
+        L = factor(P)
+        L *= kf0.root
+        Lt = L.transpose(1, 0, 2)
+        plus, minus = m.T[:, :, None] + Lt, m.T[:, :, None] - Lt
+        for kf, b, X in zip(kfs, blocks, Xs):
+            X[kf.rows] = np.concatenate([plus[:, b], minus[:, b]], axis=2)
+        return L
+
+    flats = [np.empty((kf.n_x, 2 * n * (b.stop - b.start))) for kf, b in zip(kfs, blocks)]
+    Xs = [flat.reshape(kf.n_x, b.stop - b.start, 2 * n) for kf, flat, b in zip(kfs, flats, blocks)]
+    points(m, P, Xs)
+    physical = np.empty((n, C, 2 * n))
+    for kf, b, flat, X, f, onset in zip(kfs, blocks, flats, Xs, fixed, onsets):
+        kf._predict_points(flat, X, u, f, onset, None)
+        physical[:, b] = X[kf.rows]
+    Xp = physical.transpose(1, 0, 2)  # (C, n, 2n)
+    mp = np.add.reduce(Xp, axis=2)
+    mp *= kf0.inverse
+    D = Xp - mp[:, :, None]
+    D *= kf0.scale
+    Pp = np.matmul(D, D.transpose(0, 2, 1))
+    if all(np.array_equal(kf.Q, kf0.Q) for kf in kfs):
+        Pp += kf0.Q
+    else:
+        for kf, b in zip(kfs, blocks):
+            Pp[b] += kf.Q
+    seen = np.isfinite(y)
+    every = bool(seen.all())
+    if not every and not seen.any():
+        nan = np.full((C, len(y)), np.nan)
+        return np.zeros(C), mp, Pp, nan, nan, nan
+    L = points(mp, Pp, Xs)
+    Ys = []
+    for kf, b, flat, X, f, onset in zip(kfs, blocks, flats, Xs, fixed, onsets):
+        if kf.extra and onset.stop > onset.start:
+            X[kf.extra[kf.magnitude], onset] = f[kf.magnitude][onset][:, None]
+        Y = kf.model.observe(flat, u, kf.model.THETA)
+        if not every:
+            Y = Y[kf._noise(seen)[1]]
+        Ys.append(Y.reshape(-1, b.stop - b.start, 2 * n))
+    R, rows = kf0._noise(seen)
+    Y = np.concatenate(Ys, axis=1)  # (k, C, 2n)
+    yh = np.add.reduce(Y, axis=2)
+    yh *= kf0.inverse
+    DY = (Y - yh[:, :, None]).transpose(1, 0, 2)  # (C, k, 2n)
+    yh = yh.T  # (C, k)
+    Syy = np.matmul(DY, DY.transpose(0, 2, 1))
+    Syy *= kf0.inverse
+    diagonal = np.arange(len(rows))
+    for kf, b, f in zip(kfs, blocks, fixed):
+        if kf.varies:
+            Syy[b, diagonal, diagonal] += kf._cell_noise(mp[b], f, rows)
+        else:
+            Syy[b] += kf._noise(seen)[0]
+    rhs = np.empty((C, len(rows), 1 + n))
+    np.subtract(y[rows], yh, out=rhs[:, :, 0])
+    np.matmul(np.subtract(DY[:, :, :n], DY[:, :, n:]), L.transpose(0, 2, 1), out=rhs[:, :, 1:])
+    rhs[:, :, 1:] *= kf0.inverse
+    Ly = factor(Syy)
+    solved = lower_solve(Ly, rhs)
+    a, B = solved[:, :, 0], solved[:, :, 1:]
+    diagonal = np.diagonal(Ly, axis1=1, axis2=2)
+    loglik = np.einsum("ck,ck->c", a, a)
+    loglik += 2.0 * np.log(diagonal).sum(axis=1)
+    loglik += len(rows) * LOG_2PI
+    loglik *= -0.5
+    sd = np.sqrt(np.diagonal(Syy, axis1=1, axis2=2))
+    zk = rhs[:, :, 0] / sd
+    if not every:
+        full = [np.full((C, len(y)), np.nan) for _ in range(3)]
+        for out, part in zip(full, (zk, yh, sd)):
+            out[:, rows] = part
+        zk, yh, sd = full
+    Bt = B.transpose(0, 2, 1)
+    m = mp + np.matmul(Bt, a[:, :, None])[:, :, 0]
+    P = np.matmul(Bt, B)
+    np.subtract(Pp, P, out=P)
+    P += P.transpose(0, 2, 1)
+    P *= 0.5
+    return loglik, m, P, zk, yh, sd
+
+
+def run_paths(models: list, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets, magnitudes,
+              fixed: list) -> list[BankResult]:
+    """``[run_bank(models[i], ys, us, track, [onsets[i]], [magnitudes[i]],
+    fixed[i], residuals=True, record=True) for i ...]``: one filter per fault
+    model (its recorded path, :func:`bgc.diagnosis.static_posterior.record_paths`),
+    the same numbers, the filters run side by side (:func:`_side_by_side`):
+    a path of one cell spends its step on the array operations' cost per
+    call, which the models then share. Models of a compiled kernel, or of
+    other physical states than the first's, run one at a time."""
+    kfs = [_Filter(model) for model in models]
+    alone = [i for i, kf in enumerate(kfs) if kf.compiled or kf.n != kfs[0].n or kf.magnitude is None]
+    out: list = [None] * len(models)
+    for i in alone:
+        out[i] = run_bank(models[i], ys, us, track, [onsets[i]], [magnitudes[i]], fixed[i], residuals=True,
+                          record=True)
+    together = sorted((i for i in range(len(models)) if i not in alone), key=lambda i: (int(onsets[i]), i))
+    if not together:
+        return out
+    T, n_y = ys.shape
+    n = kfs[together[0]].n
+    C = len(together)
+    m = np.empty((C, n))
+    P = np.empty((C, n, n))
+    states = []
+    for i in together:
+        kf = kfs[i]
+        state = np.asarray(fixed[i], dtype=float).reshape(-1, 1).copy()
+        state[kf.magnitude] = float(magnitudes[i])
+        states.append(state)
+    starts = [int(onsets[i]) for i in together]
+    total = track.loglik[starts].astype(float)
+    z = np.full((T, C, n_y), np.nan)
+    increments = np.zeros((T, C))
+    kept = {name: np.full((T, C, size), np.nan) for name, size in
+            (("y_mean", n_y), ("y_std", n_y), ("x_mean", n), ("x_std", n))}
+    live = 0
+    with np.errstate(all="ignore"):
+        for k in range(starts[0], T):
+            joining = live
+            while joining < C and starts[joining] <= k:
+                joining += 1
+            fresh = range(live, joining)
+            for c in fresh:
+                m[c] = track.mean[k]
+                P[c] = track.cov[k]
+            live = joining
+            blocks = [slice(c, c + 1) for c in range(live)]
+            onset = [slice(0, 1) if c in fresh else slice(0, 0) for c in range(live)]
+            ll, m[:live], P[:live], zk, y_mean, y_std = _side_by_side([kfs[i] for i in together[:live]], blocks,
+                                                                      ys[k], us[k], m[:live], P[:live],
+                                                                      states[:live], onset)
+            total[:live] += ll
+            z[k, :live] = zk
+            increments[k, :live] = ll
+            kept["y_mean"][k, :live], kept["y_std"][k, :live] = y_mean, y_std
+            kept["x_mean"][k, :live] = m[:live]
+            kept["x_std"][k, :live] = np.sqrt(np.maximum(np.diagonal(P[:live], axis1=1, axis2=2), 0.0))
+    total[~np.isfinite(total)] = -math.inf
+    for c, i in enumerate(together):
+        cell = slice(c, c + 1)
+        out[i] = BankResult(total[cell].copy(), m[cell].copy(), P[cell].copy(), z[:, cell].copy(),
+                            increments[:, cell].copy(), **{name: a[:, cell].copy() for name, a in kept.items()})
+    return out
+
+
 class NominalKalman:
     """The nominal model's cubature Kalman filter from its prior (``X0``,
     ``X0_STD``), one step at a time (:meth:`step`); :meth:`track` gives what
