@@ -11,6 +11,7 @@ hypothesis (bgc/filters/cubature.py), against references derived here:
   against a particle-filter (pseudo-marginal) grid on the same data.
 """
 
+import dataclasses
 import math
 import sys
 
@@ -530,6 +531,40 @@ def test_a_cell_of_a_parameter_no_sensor_sees_is_the_nominal_filter_up_to_its_on
         assert r.loglik[1] == pytest.approx(t.loglik[k + 1], rel=1e-12)
         assert abs(r.loglik[2] - t.loglik[k + 1]) > 1e-6  # from k - 1 on, the transition into k has the bias
         np.testing.assert_allclose(r.mean[0], t.mean[k + 1], rtol=1e-12)
+
+
+@pytest.mark.parametrize("model, scenario", [("two_tank", "R12:incipient:0.006@20"), ("ro", "R_pipe:abrupt:30@165")])
+def test_paths_side_by_side_are_each_models_path_alone_bit_for_bit(model, scenario):
+    """run_paths (the recorded paths of every hypothesis of a diagnosis at
+    once, static_posterior.record_paths) gives each fault model's filter
+    exactly what run_bank of that model alone gives: every step's log
+    density, state, residuals and predictions, with onsets joining at
+    different steps, a drifting parameter (the two tanks' drifts) and
+    sensors not read at some steps; a path the prior tells nothing about
+    (log evidence -inf) is left without one."""
+    package, ys, us = data(model, scenario, seed=2)
+    ys = ys.copy()
+    ys[100:110, 0] = np.nan  # one sensor not read
+    ys[120:122] = np.nan  # none read
+    t = kalman.nominal_track(package.MODELS["nominal"], ys, us, len(ys))
+    names = [name for name in package.MODELS if name != "nominal"]
+    models = [package.MODELS[name] for name in names]
+    onsets = [int(o) for o in np.random.default_rng(0).integers(60, len(ys) - 5, len(models))]
+    magnitudes = [float(np.mean(m.FAULT_PRIOR)) for m in models]
+    fixed = [static_posterior.fault_start(m, t, o) for m, o in zip(models, onsets)]
+    together = kalman.run_paths(models, ys, us, t, onsets, magnitudes, fixed)
+    for m, o, c, f, r in zip(models, onsets, magnitudes, fixed, together):
+        alone = kalman.run_bank(m, ys, us, t, [o], [c], f, residuals=True, record=True)
+        for field in ("loglik", "mean", "cov", "z", "increments", "y_mean", "y_std", "x_mean", "x_std"):
+            a, b = getattr(alone, field), getattr(r, field)
+            assert a.shape == b.shape and np.array_equal(a, b, equal_nan=True), (m.NAME, field)
+    posteriors = [static_posterior._none_told(m.NAME, np.array([o]), [1.0], 0.95, 1) for m, o in zip(models, onsets)]
+    told = [dataclasses.replace(p, log_evidence=0.0, onset=o, mean=c)
+            for p, o, c in zip(posteriors[:2], onsets, magnitudes)]
+    recorded = static_posterior.record_paths(models, ys, us, t, told + posteriors[2:])
+    assert all(p.path is None for p in recorded[2:])
+    for m, p, q in zip(models, told, recorded):
+        np.testing.assert_array_equal(static_posterior.record_path(m, ys, us, t, p).path.x_mean, q.path.x_mean)
 
 
 def test_the_row_quadrature_does_not_rise_far_above_its_points_next_to_an_extreme_one():
