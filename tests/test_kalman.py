@@ -567,6 +567,34 @@ def test_paths_side_by_side_are_each_models_path_alone_bit_for_bit(model, scenar
         np.testing.assert_array_equal(static_posterior.record_path(m, ys, us, t, p).path.x_mean, q.path.x_mean)
 
 
+def test_static_posteriors_side_by_side_are_each_models_alone_bit_for_bit():
+    """static_posteriors (every hypothesis's adaptive grid at once, the banks
+    of each pass run as one stack by run_banks) gives each fault model the
+    static posterior static_posterior gives it alone: its grid, log
+    likelihoods, evidence, estimate, residuals and trace, with searches that
+    take different numbers of passes, reach back and refine (drifts)."""
+    package, ys, us = data("two_tank", "R12:incipient:0.006@20", seed=3)
+    t = kalman.nominal_track(package.MODELS["nominal"], ys, us, 200)
+    tried = tuple(range(150, 201, 4))
+    earlier = tuple(tuple(range(s, s + 32, 8)) for s in (118, 86, 54, 22))
+    names = [name for name in package.MODELS if name != "nominal"]
+    models = [package.MODELS[name] for name in names]
+    arguments = [(tried, tuple(float(v) for v in m.FAULT_PRIOR), 150, 0.95, KalmanOptions(), earlier, True, None)
+                 for m in models]
+    together = static_posterior.static_posteriors(models, ys, us, t, arguments)
+    assert len({p.passes for p in together}) > 1
+    for m, a, p in zip(models, arguments, together):
+        alone = static_posterior.static_posterior(m, ys, us, t, *a)
+        for field in ("onsets", "widths", "log_evidence", "mean", "std", "low", "high", "change", "onset",
+                      "onset_posterior", "passes", "best", "truncated"):
+            assert getattr(alone, field) == getattr(p, field), (m.NAME, field)
+        for field in ("values", "loglik", "residuals", "trace"):
+            a_, b_ = getattr(alone, field), getattr(p, field)
+            assert (a_ is None and b_ is None) or all(
+                np.array_equal(np.asarray(x, dtype=float), np.asarray(y, dtype=float), equal_nan=True)
+                for x, y in zip(a_, b_)), (m.NAME, field)
+
+
 def test_the_row_quadrature_does_not_rise_far_above_its_points_next_to_an_extreme_one():
     """A row of log densities as the compiled backend's grid gave for the DC
     motor's b_incipient: sound points, then a cell whose model diverged

@@ -101,7 +101,16 @@ def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, 
         jobs.append(StaticJob(package.__name__, name, ys, us, observer, tuple(tried), (a, b), min(tried),
                               options.interval, options.kalman, earlier, refine=True,
                               far=(outputs, options.rejection, options.windows)))
-    done = parallel_map(run_static, jobs, options.workers)
+    if options.workers <= 1 or len(jobs) <= 1:  # in this process: the searches side by side, the same numbers
+        started = time.perf_counter()
+        done = static_posterior.static_posteriors(
+            [package.MODELS[job.name] for job in jobs], ys, us, observer,
+            [(job.onsets, job.hint, job.hint_onset, job.level, job.options, job.earlier, job.refine,
+              None if job.far is None else far_off(*job.far)) for job in jobs])
+        share = (time.perf_counter() - started) / max(len(done), 1)
+        done = [dataclasses.replace(p, seconds=share) for p in done]
+    else:
+        done = parallel_map(run_static, jobs, options.workers)
     # each one's most probable onset's filter recorded (record_path), all of them side by side: the same numbers
     started = time.perf_counter()
     done = static_posterior.record_paths([package.MODELS[name] for name in names], ys, us, observer, done)

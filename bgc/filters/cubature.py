@@ -534,6 +534,76 @@ def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.n
     return loglik, m, P, zk, yh, sd
 
 
+def run_banks(models: list, ys: np.ndarray, us: np.ndarray, track: NominalTrack, requests: list) -> list[BankResult]:
+    """``[run_bank(models[i], ys, us, track, *requests[i], residuals=True) for i
+    ...]`` (a request: the cells' onsets, magnitudes and fault states), the
+    banks run side by side (:func:`_side_by_side`: the same numbers), for the
+    static posteriors of several fault models at once
+    (:func:`bgc.diagnosis.static_posterior.static_posteriors`). Each bank's
+    cells are sorted by onset as :func:`run_bank` sorts them; at each step the
+    stack is every bank's cells started so far. Models of a compiled kernel,
+    or of other physical states than the first's, run one at a time."""
+    kfs = [_Filter(model) for model in models]
+    out: list = [None] * len(models)
+    together = []
+    for i, kf in enumerate(kfs):
+        if kf.compiled or kf.n != kfs[0].n or kf.magnitude is None or not len(requests[i][0]):
+            out[i] = run_bank(models[i], ys, us, track, *requests[i], residuals=True)
+        else:
+            together.append(i)
+    if not together:
+        return out
+    T, n_y = ys.shape
+    n = kfs[together[0]].n
+    banks = []  # per bank: its order, onsets sorted, cells' states, m, P, totals, z, increments, live
+    for i in together:
+        onsets, magnitudes, fixed = requests[i]
+        kf = kfs[i]
+        onsets = np.asarray(onsets, dtype=int)
+        C = len(onsets)
+        order = np.argsort(onsets, kind="stable")
+        starts = onsets[order]
+        state = np.repeat(np.asarray(fixed, dtype=float).reshape(-1, 1), C, axis=1)
+        state[kf.magnitude] = np.asarray(magnitudes, dtype=float)[order]
+        banks.append(dict(order=order, starts=starts, state=state, m=np.empty((C, n)), P=np.empty((C, n, n)),
+                          total=track.loglik[starts].astype(float), z=np.full((T, C, n_y), np.nan),
+                          increments=np.zeros((T, C)), live=0))
+    with np.errstate(all="ignore"):
+        for k in range(min(int(b["starts"][0]) for b in banks), T):
+            kf_now, blocks, onsets_now, fixed_now, at = [], [], [], [], 0
+            for i, b in zip(together, banks):
+                live = b["live"]
+                joining = int(np.searchsorted(b["starts"], k, side="right"))
+                if joining > live:
+                    b["m"][live:joining] = track.mean[k]
+                    b["P"][live:joining] = track.cov[k]
+                    b["live"] = joining
+                if not joining:
+                    continue
+                kf_now.append(kfs[i])
+                blocks.append(slice(at, at + joining))
+                onsets_now.append(slice(live, joining))
+                fixed_now.append(b["state"][:, :joining])
+                at += joining
+            live_banks = [b for b in banks if b["live"]]
+            m = np.concatenate([b["m"][:b["live"]] for b in live_banks])
+            P = np.concatenate([b["P"][:b["live"]] for b in live_banks])
+            ll, m, P, zk, _, _ = _side_by_side(kf_now, blocks, ys[k], us[k], m, P, fixed_now, onsets_now)
+            for b, block in zip(live_banks, blocks):
+                live = b["live"]
+                b["m"][:live], b["P"][:live] = m[block], P[block]
+                b["total"][:live] += ll[block]
+                b["z"][k, :live] = zk[block]
+                b["increments"][k, :live] = ll[block]
+    for i, b in zip(together, banks):
+        total = b["total"]
+        total[~np.isfinite(total)] = -math.inf
+        back = np.empty(len(b["order"]), dtype=int)
+        back[b["order"]] = np.arange(len(b["order"]))
+        out[i] = BankResult(total[back], b["m"][back], b["P"][back], b["z"][:, back], b["increments"][:, back])
+    return out
+
+
 def run_paths(models: list, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets, magnitudes,
               fixed: list) -> list[BankResult]:
     """``[run_bank(models[i], ys, us, track, [onsets[i]], [magnitudes[i]],
