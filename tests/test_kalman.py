@@ -11,6 +11,7 @@ hypothesis (bgc/filters/cubature.py), against references derived here:
   against a particle-filter (pseudo-marginal) grid on the same data.
 """
 
+import dataclasses
 import math
 import sys
 
@@ -67,6 +68,31 @@ def test_cholesky_of_a_stack_is_numpys():
     L = cholesky(P)
     assert np.allclose(L @ L.transpose(0, 2, 1), P, rtol=1e-12, atol=1e-12)
     assert np.all(np.triu(L, 1) == 0.0) and np.all(np.diagonal(L, axis1=1, axis2=2) > 0)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_cholesky_is_numpys_to_the_bit_and_numpys_fallback_where_lapack_fails(n):
+    """The stack's factors, written out for n <= 2 (:func:`cubature._cholesky_2`),
+    are np.linalg.cholesky's bit for bit, over covariances of scales 1e-8 to
+    1e8; in a stack with a matrix LAPACK refuses, a NaN or an inf, each is
+    what NumPy, or else the column-by-column factoring, gives."""
+    rng = np.random.default_rng(n)
+    G = rng.standard_normal((4000, n, n)) * 10.0 ** rng.uniform(-4, 4, (4000, 1, 1))
+    P = G @ G.transpose(0, 2, 1)
+    P = np.tril(P) + np.tril(P, -1).transpose(0, 2, 1)  # exactly symmetric
+    assert np.array_equal(cholesky(P), np.linalg.cholesky(P))
+    assert np.array_equal(cholesky(P[:1]), np.linalg.cholesky(P[:1]))
+    for spoilt in (-1.0, np.nan, np.inf):
+        for row, col in ((0, 0), (n - 1, 0), (n - 1, n - 1)):
+            Q = P[:20].copy()
+            Q[2, row, col] = spoilt
+            try:
+                reference = np.linalg.cholesky(Q)
+            except np.linalg.LinAlgError:
+                alone = cholesky(np.stack([Q[0], Q[2]]))[1]  # the fallback's factor of that matrix
+                assert np.array_equal(cholesky(Q)[2], alone, equal_nan=True)
+                continue
+            assert np.array_equal(cholesky(Q), reference, equal_nan=True)
 
 
 def test_a_covariance_made_indefinite_by_rounding_still_factors():
@@ -505,6 +531,66 @@ def test_a_cell_of_a_parameter_no_sensor_sees_is_the_nominal_filter_up_to_its_on
         assert r.loglik[1] == pytest.approx(t.loglik[k + 1], rel=1e-12)
         assert abs(r.loglik[2] - t.loglik[k + 1]) > 1e-6  # from k - 1 on, the transition into k has the bias
         np.testing.assert_allclose(r.mean[0], t.mean[k + 1], rtol=1e-12)
+
+
+@pytest.mark.parametrize("model, scenario", [("two_tank", "R12:incipient:0.006@20"), ("ro", "R_pipe:abrupt:30@165")])
+def test_paths_side_by_side_are_each_models_path_alone_bit_for_bit(model, scenario):
+    """run_paths (the recorded paths of every hypothesis of a diagnosis at
+    once, static_posterior.record_paths) gives each fault model's filter
+    exactly what run_bank of that model alone gives: every step's log
+    density, state, residuals and predictions, with onsets joining at
+    different steps, a drifting parameter (the two tanks' drifts) and
+    sensors not read at some steps; a path the prior tells nothing about
+    (log evidence -inf) is left without one."""
+    package, ys, us = data(model, scenario, seed=2)
+    ys = ys.copy()
+    ys[100:110, 0] = np.nan  # one sensor not read
+    ys[120:122] = np.nan  # none read
+    t = kalman.nominal_track(package.MODELS["nominal"], ys, us, len(ys))
+    models = [m for name, m in package.MODELS.items() if name != "nominal"][:8]  # drifts and steps
+    onsets = [int(o) for o in np.random.default_rng(0).integers(60, len(ys) - 5, len(models))]
+    magnitudes = [float(np.mean(m.FAULT_PRIOR)) for m in models]
+    fixed = [static_posterior.fault_start(m, t, o) for m, o in zip(models, onsets)]
+    together = kalman.run_paths(models, ys, us, t, onsets, magnitudes, fixed)
+    for m, o, c, f, r in zip(models, onsets, magnitudes, fixed, together):
+        alone = kalman.run_bank(m, ys, us, t, [o], [c], f, residuals=True, record=True)
+        for field in ("loglik", "mean", "cov", "z", "increments", "y_mean", "y_std", "x_mean", "x_std"):
+            a, b = getattr(alone, field), getattr(r, field)
+            assert a.shape == b.shape and np.array_equal(a, b, equal_nan=True), (m.NAME, field)
+    posteriors = [static_posterior._none_told(m.NAME, np.array([o]), [1.0], 0.95, 1) for m, o in zip(models, onsets)]
+    told = [dataclasses.replace(p, log_evidence=0.0, onset=o, mean=c)
+            for p, o, c in zip(posteriors[:2], onsets, magnitudes)]
+    recorded = static_posterior.record_paths(models, ys, us, t, told + posteriors[2:])
+    assert all(p.path is None for p in recorded[2:])
+    for m, p, q in zip(models, told, recorded):
+        np.testing.assert_array_equal(static_posterior.record_path(m, ys, us, t, p).path.x_mean, q.path.x_mean)
+
+
+def test_static_posteriors_side_by_side_are_each_models_alone_bit_for_bit():
+    """static_posteriors (every hypothesis's adaptive grid at once, the banks
+    of each pass run as one stack by run_banks) gives each fault model the
+    static posterior static_posterior gives it alone: its grid, log
+    likelihoods, evidence, estimate, residuals and trace, with searches that
+    take different numbers of passes, reach back and refine (drifts)."""
+    package, ys, us = data("two_tank", "R12:incipient:0.006@20", seed=3)
+    t = kalman.nominal_track(package.MODELS["nominal"], ys, us, 200)
+    tried = tuple(range(150, 201, 10))
+    earlier = (tuple(range(118, 150, 8)),)
+    models = [package.MODELS[name] for name in ("R12_incipient", "R10_abrupt", "F12_offset_bias", "C1_abrupt")]
+    arguments = [(tried, tuple(float(v) for v in m.FAULT_PRIOR), 150, 0.95, KalmanOptions(), earlier, True, None)
+                 for m in models]
+    together = static_posterior.static_posteriors(models, ys, us, t, arguments)
+    assert len({p.passes for p in together}) > 1
+    for m, a, p in zip(models, arguments, together):
+        alone = static_posterior.static_posterior(m, ys, us, t, *a)
+        for field in ("onsets", "widths", "log_evidence", "mean", "std", "low", "high", "change", "onset",
+                      "onset_posterior", "passes", "best", "truncated"):
+            assert getattr(alone, field) == getattr(p, field), (m.NAME, field)
+        for field in ("values", "loglik", "residuals", "trace"):
+            a_, b_ = getattr(alone, field), getattr(p, field)
+            assert (a_ is None and b_ is None) or all(
+                np.array_equal(np.asarray(x, dtype=float), np.asarray(y, dtype=float), equal_nan=True)
+                for x, y in zip(a_, b_)), (m.NAME, field)
 
 
 def test_the_row_quadrature_does_not_rise_far_above_its_points_next_to_an_extreme_one():

@@ -20,6 +20,7 @@ np.sqrt(x)*np.maximum(0.1, np.maximum(x, y))
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Sequence
 
@@ -218,9 +219,14 @@ def split_linear(expr: sympy.Expr, states: Sequence[str], arrays: frozenset[str]
     return coefficients, constant, rest
 
 
+@functools.lru_cache(maxsize=4096)
 def array_op_count(expr: sympy.Expr, arrays: frozenset[str]) -> int:
     """Number of NumPy operations on arrays the printed ``expr`` performs: the
-    operators and calls whose operands include an array name."""
+    operators and calls whose operands include an array name.
+
+    Kept per expression: :func:`fewer_array_ops` counts an expression again
+    for every candidate of every enclosing sum, and printing and parsing it is
+    most of that rewrite's time."""
     import ast
 
     tree = ast.parse(print_expr(expr, arrays=arrays), mode="eval")
@@ -309,7 +315,24 @@ def cse_block(exprs: Sequence[sympy.Expr], prefix: str = "_c",
     With ``arrays`` (the names that hold one value per particle), every product
     prints its scalar factors as one group, computed in Python floats before a
     single array operation.
-    """
+
+    The text depends only on the arguments (sympy's expressions compare
+    equal only when they are the same tree, a Float's precision and a
+    symbol's assumptions included), so it is kept for the compilations of a
+    process that print the same expressions again (a model compiled again,
+    each of its fault models' blocks that are the nominal's): :func:`fewer_array_ops`
+    and sympy's CSE are most of a compilation's time (measured: 7.5 s of the
+    9.3 s they took over the compiler's tests went to blocks printed before).
+    ``_cse_text.cache_clear()`` forgets them (a test that a compilation is a
+    pure function of the model)."""
+    lines, printed = _cse_text(tuple(exprs), prefix, frozenset(arrays))
+    return list(lines), list(printed)
+
+
+@functools.lru_cache(maxsize=512)
+def _cse_text(exprs: tuple[sympy.Expr, ...], prefix: str, arrays: frozenset[str]) -> tuple[tuple[str, ...],
+                                                                                           tuple[str, ...]]:
+    """:func:`cse_block`'s text, as tuples."""
     exprs = [fewer_array_ops(e, arrays) for e in exprs] if arrays else list(exprs)
     symbols = sympy.numbered_symbols(prefix)
     replacements, reduced = sympy.cse(exprs, symbols=symbols, order="canonical")
@@ -320,7 +343,7 @@ def cse_block(exprs: Sequence[sympy.Expr], prefix: str = "_c",
         lines.append(f"{s.name} = {print_expr(e, temps, frozenset(arrays_now))}")
         if any(x.name in arrays_now for x in e.free_symbols):
             arrays_now.add(s.name)
-    return lines, [print_expr(e, temps, frozenset(arrays_now)) for e in reduced]
+    return tuple(lines), tuple(print_expr(e, temps, frozenset(arrays_now)) for e in reduced)
 
 
 def escape(text: str, newlines: bool = False) -> str:

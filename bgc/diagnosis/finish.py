@@ -29,7 +29,7 @@ from .hypothesis import hypothesis_job, log_density, run_job
 from .onsets import earlier_onsets, onset_weights
 from .options import DiagnosisOptions
 from .parallel import parallel_map
-from .static import StaticJob, kalman_hypotheses, run_static, static_alarm
+from .static import StaticJob, kalman_hypotheses, run_static, run_statics, static_alarm
 from .static_posterior import EDGE, EXTEND
 from .values import Detection, Diagnosis, Drop, Hypothesis, Isolation, StaticPosterior
 from .weigh import weighed
@@ -148,7 +148,7 @@ def tracked(r: Record, s: Setting, truth: Run | None):
     # Kalman filters on a grid of onsets and magnitudes, from the nominal cubature Kalman filter's state
     observer = _nominal_track(r, s)
     kept = [h for h in hyps if h.drop is None]
-    landed = parallel_map(run_static, [_static_job(h, r, s, observer) for h in kept], o.workers)
+    landed = run_statics([_static_job(h, r, s, observer) for h in kept], o.workers)
     posteriors = {h.name: p for h, p in zip(kept, landed)}
     if posteriors:
         return hyps, posteriors, observer, []

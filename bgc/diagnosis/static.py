@@ -78,6 +78,32 @@ def run_static(job: StaticJob) -> StaticPosterior:
     return dataclasses.replace(p, seconds=time.perf_counter() - started)
 
 
+def run_statics(jobs: list[StaticJob], workers: int) -> list[StaticPosterior]:
+    """``[run_static(job) for job in jobs]``: on ``workers`` processes
+    (:func:`parallel_map`) when there are more than one, else in this
+    process with the searches side by side
+    (:func:`bgc.diagnosis.static_posterior.static_posteriors`; the jobs of one
+    record, the same numbers), their paths recorded together
+    (:func:`bgc.diagnosis.static_posterior.record_paths`); ``seconds``: each
+    one's share of the time."""
+    first = jobs[0] if jobs else None
+    if workers > 1 or len(jobs) <= 1 or any(job.ys is not first.ys or job.us is not first.us
+                                            or job.track is not first.track for job in jobs):
+        return parallel_map(run_static, jobs, workers)
+    started = time.perf_counter()
+    models = [sys.modules[job.package_name].MODELS[job.name] for job in jobs]
+    done = static_posterior.static_posteriors(
+        models, first.ys, first.us, first.track,
+        [(job.onsets, job.hint, job.hint_onset, job.level, job.options, job.earlier, job.refine,
+          None if job.far is None else far_off(*job.far)) for job in jobs])
+    recorded = [i for i, job in enumerate(jobs) if job.record]
+    for i, p in zip(recorded, static_posterior.record_paths([models[i] for i in recorded], first.ys, first.us,
+                                                            first.track, [done[i] for i in recorded])):
+        done[i] = p
+    share = (time.perf_counter() - started) / len(jobs)
+    return [dataclasses.replace(p, seconds=share) for p in done]
+
+
 def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, times, ys, us,
                       observer: kalman.NominalTrack, onsets: dict, reach: list[int], drifts: dict,
                       options: DiagnosisOptions, say) -> tuple[tuple[Hypothesis, ...], dict[str, StaticPosterior]]:
@@ -101,7 +127,7 @@ def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, 
         jobs.append(StaticJob(package.__name__, name, ys, us, observer, tuple(tried), (a, b), min(tried),
                               options.interval, options.kalman, earlier, record=True, refine=True,
                               far=(outputs, options.rejection, options.windows)))
-    posteriors = dict(zip(names, parallel_map(run_static, jobs, options.workers)))
+    posteriors = dict(zip(names, run_statics(jobs, options.workers)))
     hyps = tuple(kalman_hypothesis(name, tuple(models[name]), package, posteriors[name], run, times, ys, options)
                  for name in names)
     return hyps, posteriors

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..kinds import fault_kind
-from ..filters.cubature import NominalTrack, run_bank
+from ..filters.cubature import NominalTrack, run_bank, run_banks, run_paths
 
 from ..filters.quadrature import overflow_shift, row_quadrature
 from .options import KalmanOptions
@@ -96,7 +96,27 @@ def _row_key(onset, changes: tuple[float, float], count: int) -> tuple:
 
 
 def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, start, cache: dict) -> _Grid:
-    """Row i: ``count`` changes over ``ranges[i]`` (low, high) at onset
+    """:func:`_grid_steps` with its bank run here (:func:`run_bank`)."""
+    return _drive(_grid_steps(model, ys, us, track, onsets, widths, spans, ranges, count, prior, start, cache),
+                  model, ys, us, track)
+
+
+def _drive(steps, model, ys, us, track):
+    """Run the generator ``steps`` to its end, each bank it asks for (cells'
+    onsets, magnitudes, fault states) by :func:`run_bank` of ``model``; its value."""
+    try:
+        request = next(steps)
+        while True:
+            request = steps.send(run_bank(model, ys, us, track, *request, residuals=True))
+    except StopIteration as done:
+        return done.value
+
+
+def _grid_steps(model, ys, us, track, onsets, widths, spans, ranges, count, prior, start, cache: dict):
+    """A generator: it asks (yields) for the bank of the rows not in
+    ``cache`` (the cells' onsets, magnitudes and fault states, for
+    :func:`run_bank`, residuals and all), is sent its result, and returns
+    the grid. Row i: ``count`` changes over ``ranges[i]`` (low, high) at onset
     ``onsets[i]``, whose prior weight is ``widths[i]``; ``cache``: rows
     computed before, by (onset, low, high, count): their log likelihoods,
     normalised residuals (steps x count x outputs) and log predictive
@@ -111,8 +131,7 @@ def _grid(model, ys, us, track, onsets, widths, spans, ranges, count, prior, sta
     keys = [_row_key(o, r, count) for o, r in zip(onsets, ranges)]
     new = [i for i, key in enumerate(keys) if key not in cache]
     if new:
-        r = run_bank(model, ys, us, track, np.repeat(onsets[new], count), magnitudes[new].ravel(), start,
-                     residuals=True)
+        r = yield np.repeat(onsets[new], count), magnitudes[new].ravel(), start
         z = r.z.reshape(len(ys), len(new), count, -1).transpose(1, 0, 2, 3)  # (rows, steps, count, outputs)
         increments = (np.zeros((len(new), len(ys), count)) if r.increments is None
                       else r.increments.reshape(len(ys), len(new), count).transpose(1, 0, 2))
@@ -245,8 +264,36 @@ def static_posterior(model: FaultModel, ys: np.ndarray, us: np.ndarray, track: N
     (:func:`_next_range`), up to ``passes`` passes; onsets holding under
     ``keep`` of the best one's mass are left out of the next pass."""
     search = _Search(model, ys, us, track, onsets, hint, hint_onset, options, earlier, refine, far)
-    search.run()
+    _drive(search.run(), model, ys, us, track)
     return search.posterior(level)
+
+
+def static_posteriors(models: list, ys: np.ndarray, us: np.ndarray, track: NominalTrack, arguments: list) -> list:
+    """``[static_posterior(model, ys, us, track, *a) for model, a in zip(models,
+    arguments)]`` (each ``a`` all eight: onsets, hint, hint_onset, level,
+    options, earlier, refine, far), the searches side by side: each pass's banks of all the
+    models run as one stack (:func:`bgc.filters.cubature.run_banks`: every
+    cell's numbers those of its model's bank alone), so a step's array
+    operations are paid once for every model instead of once each."""
+    searches, steps, asked = [], [], {}
+    for i, (model, a) in enumerate(zip(models, arguments)):
+        search = _Search(model, ys, us, track, *a[:3], *a[4:])
+        searches.append(search)
+        steps.append(search.run())
+        try:
+            asked[i] = next(steps[i])
+        except StopIteration:
+            pass
+    while asked:
+        order = list(asked)
+        results = run_banks([models[i] for i in order], ys, us, track, [asked[i] for i in order])
+        asked = {}
+        for i, r in zip(order, results):
+            try:
+                asked[i] = steps[i].send(r)
+            except StopIteration:
+                pass
+    return [search.posterior(a[3]) for search, a in zip(searches, arguments)]
 
 
 class _Search:
@@ -292,12 +339,13 @@ class _Search:
         o = np.asarray(o, dtype=float)
         return self.kind.change(np.ones(o.shape), (self.T - o) * self.model.DT)
 
-    def run(self) -> None:
+    def run(self):
         """Passes over the grid until the posterior settles; then, while the
         onset's posterior piles up at the earliest onsets, reach further back
-        (``earlier``), or refine the onset sample by sample."""
+        (``earlier``), or refine the onset sample by sample. A generator of
+        the banks it needs (:func:`_grid_steps`; :func:`_drive` runs it)."""
         while True:
-            self._passes()
+            yield from self._passes()
             if self.g is None or not math.isfinite(self.g.top) or self.given_up:
                 return
             share = dict(zip(self.current.tolist(), self.g.mass))
@@ -306,7 +354,7 @@ class _Search:
             elif not self._refined(share):
                 return
 
-    def _passes(self) -> None:
+    def _passes(self):
         """Up to ``passes`` passes: a grid of every onset's row, then each
         row laid anew (:func:`_next_range`) and the onsets the posterior
         leaves out left out."""
@@ -318,9 +366,11 @@ class _Search:
             for i, onset in enumerate(self.current.tolist()):
                 groups.setdefault(self.counts[onset], []).append(i)
             widths = np.array([self.width_of[onset] for onset in self.current.tolist()])
-            parts = {c: _grid(self.model, self.ys, self.us, self.track, self.current[rows], widths[rows],
-                              spans[rows], [self.ranges[self.current[i]] for i in rows], c, self.prior, self.start,
-                              self.cache) for c, rows in groups.items()}
+            parts = {}
+            for c, rows in groups.items():
+                parts[c] = yield from _grid_steps(self.model, self.ys, self.us, self.track, self.current[rows],
+                                                  widths[rows], spans[rows], [self.ranges[self.current[i]] for i in rows],
+                                                  c, self.prior, self.start, self.cache)
             self.g = _merge(self.current, groups, parts)
             if not math.isfinite(self.g.top) or turn == o.passes - 1:
                 return
@@ -508,6 +558,20 @@ def record_path(model: FaultModel, ys: np.ndarray, us: np.ndarray, track: Nomina
     r = run_bank(model, ys, us, track, [p.onset], [p.mean], fault_start(model, track, p.onset), residuals=True,
                  record=True)
     return dataclasses.replace(p, path=r)
+
+
+def record_paths(models: list, ys: np.ndarray, us: np.ndarray, track: NominalTrack, posteriors: list) -> list:
+    """``[record_path(model, ys, us, track, p) for model, p in zip(models,
+    posteriors)]``, the filters run side by side (:func:`bgc.filters.cubature.run_paths`:
+    the same numbers)."""
+    told = [i for i, p in enumerate(posteriors) if math.isfinite(p.log_evidence)]
+    paths = run_paths([models[i] for i in told], ys, us, track, [posteriors[i].onset for i in told],
+                      [posteriors[i].mean for i in told],
+                      [fault_start(models[i], track, posteriors[i].onset) for i in told])
+    out = list(posteriors)
+    for i, r in zip(told, paths):
+        out[i] = dataclasses.replace(posteriors[i], path=r)
+    return out
 
 
 def _truncated(g: _Grid, prior: tuple[float, float], options: KalmanOptions) -> bool:

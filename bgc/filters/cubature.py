@@ -86,19 +86,31 @@ def cholesky(P: np.ndarray) -> np.ndarray:
     modes: the mode and the time in it, known from the data) is left out of
     the factoring: its row and column of the factor are 0 (its covariances
     with the others are 0 but for rounding, which divided by a floored pivot
-    would blow up), the rest factored as a block."""
+    would blow up), the rest factored as a block.
+
+    A stack of 2 x 2 (or 1 x 1) matrices, the two tanks' and the plants of
+    two states, is factored by LAPACK's own arithmetic written out
+    (:func:`_cholesky_2`): the same factors to the bit in a few array
+    operations, where ``np.linalg.cholesky`` calls LAPACK once per matrix
+    (its time grows with the cells of a bank: 60 us for 200, 25 us written
+    out, measured); a stack where that meets a pivot LAPACK would refuse
+    goes the way above."""
+    n = P.shape[-1]
+    if 0 < n <= 2 and P.ndim == 3 and P.shape[0] > 8 and P.dtype == np.float64:
+        L = _cholesky_2(P)
+        if L is not None:
+            return L
     try:
         return np.linalg.cholesky(P)
     except np.linalg.LinAlgError:
         pass
-    variance = np.diagonal(P, axis1=-2, axis2=-1).reshape(-1, P.shape[-1])
+    variance = np.diagonal(P, axis1=-2, axis2=-1).reshape(-1, n)
     known = (variance == 0.0).all(axis=0)
     if known.any() and not known.all():
         keep = np.flatnonzero(~known)
         L = np.zeros(P.shape)
         L[..., keep[:, None], keep] = cholesky(P[..., keep[:, None], keep])
         return L
-    n = P.shape[-1]
     L = np.zeros(P.shape)
     for j in range(n):
         row = L[..., j, :j]
@@ -108,6 +120,32 @@ def cholesky(P: np.ndarray) -> np.ndarray:
         if j + 1 < n:
             L[..., j + 1:, j] = ((P[..., j + 1:, j] - np.einsum("...ik,...k->...i", L[..., j + 1:, :j], row))
                                  / L[..., j, j][..., None])
+    return L
+
+
+def _cholesky_2(P: np.ndarray) -> np.ndarray | None:
+    """The lower Cholesky factors of a stack of 1 x 1 or 2 x 2 matrices (C, n,
+    n) as LAPACK's dpotrf computes them (its unblocked dpotf2, and the
+    recursive dpotrf2 alike, from the lower triangle): l00 = sqrt(p00), l10 =
+    p10 times 1 / l00 (a scaling by the reciprocal, not a division), l11 =
+    sqrt(p11 - l10 l10); None when a pivot is not positive (or NaN: where
+    LAPACK would fail or give NaN). Equal to NumPy's factors bit for bit
+    (tests/test_kalman.py)."""
+    p00 = P[:, 0, 0]
+    if not (p00 > 0.0).all():
+        return None
+    L = np.zeros(P.shape)
+    l00 = L[:, 0, 0]
+    np.sqrt(p00, out=l00)
+    if P.shape[-1] == 2:
+        l10, l11 = L[:, 1, 0], L[:, 1, 1]
+        np.divide(1.0, l00, out=l10)
+        l10 *= P[:, 1, 0]
+        np.multiply(l10, l10, out=l11)
+        np.subtract(P[:, 1, 1], l11, out=l11)
+        if not (l11 > 0.0).all():
+            return None
+        np.sqrt(l11, out=l11)
     return L
 
 
@@ -139,6 +177,8 @@ class _Filter:
         self.phys = np.array(self.physical, dtype=np.intp)
         self.extra_rows = np.array(self.extra, dtype=np.intp)
         self._tiles: dict = {}  # the compiled step's noise variances per cell, per pattern of sensors read
+        #: a compiled package's kernel does the step's arithmetic (:meth:`_compiled_step`); asked once, not per step
+        self.compiled = hasattr(getattr(model, "_kernel", None), "cubature_update")
         self._seen: dict = {}
 
     def _points(self, m: np.ndarray, P: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -197,7 +237,7 @@ class _Filter:
         from the Cholesky factor of the innovation covariance by forward
         substitution (:func:`lower_solve`)."""
         model, n, C = self.model, self.n, m.shape[0]
-        if hasattr(getattr(model, "_kernel", None), "cubature_update"):  # a compiled package's kernel
+        if self.compiled:  # a compiled package's kernel
             return self._compiled_step(y, u, m, P, fixed, onset, dt)
         if self.buffer.shape[1] < 2 * n * C:
             self.buffer = np.empty((self.n_x, 2 * n * C))
@@ -336,8 +376,10 @@ def lower_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
     k = L.shape[-1]
     x = np.empty(b.shape)
     for i in range(k):
-        if i:
+        if i > 1:
             np.subtract(b[:, i], np.matmul(L[:, i, None, :i], x[:, :i])[:, 0], out=x[:, i])
+        elif i:  # a product of one term: the matrix product's, without its call per cell
+            np.subtract(b[:, 1], np.multiply(L[:, 1, 0, None], x[:, 0]), out=x[:, 1])
         else:
             x[:, 0] = b[:, 0]
         x[:, i] /= L[:, i, i, None]
@@ -395,6 +437,247 @@ def run_bank(model: FaultModel, ys: np.ndarray, us: np.ndarray, track: NominalTr
     return BankResult(total[back], m[back], P[back], None if z is None else z[:, back],
                       None if increments is None else increments[:, back],
                       **{name: a[:, back] for name, a in kept.items()})
+
+
+def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.ndarray, P: np.ndarray,
+                  fixed: list, onsets: list):
+    """:meth:`_Filter.step` of several models' filters at once, one block of
+    cells each (``kfs[i]``'s cells ``blocks[i]``, a slice of the stack; its
+    fault states ``fixed[i]``, its onset cells ``onsets[i]``, a slice of its
+    block); the filters have the same physical states (the fault models of
+    one package) and the NumPy arithmetic (no compiled kernel). Each model
+    moves and reads its own points; the arithmetic between those calls is the
+    step's, on the whole stack: every operation acts on each cell alone (a
+    matrix product of a stack multiplies each matrix by itself, a sum runs
+    along a cell's own points), so each cell's numbers are those of its
+    model's step, bit for bit (tests/test_kalman.py), for one set of array
+    operations instead of one per model. A stack LAPACK refuses to factor is
+    factored block by block, as each model's step would."""
+    kf0 = kfs[0]
+    n, C = kf0.n, m.shape[0]
+
+    def factor(P):
+        try:
+            return np.linalg.cholesky(P)
+        except np.linalg.LinAlgError:
+            return np.concatenate([cholesky(P[b]) for b in blocks])
+
+    def points(m, P, Xs):  # _Filter._points of every block's points, each into its model's own buffer
+        L = factor(P)
+        L *= kf0.root
+        Lt = L.transpose(1, 0, 2)
+        plus, minus = m.T[:, :, None] + Lt, m.T[:, :, None] - Lt
+        for kf, b, X in zip(kfs, blocks, Xs):
+            X[kf.rows] = np.concatenate([plus[:, b], minus[:, b]], axis=2)
+        return L
+
+    flats = [np.empty((kf.n_x, 2 * n * (b.stop - b.start))) for kf, b in zip(kfs, blocks)]
+    Xs = [flat.reshape(kf.n_x, b.stop - b.start, 2 * n) for kf, flat, b in zip(kfs, flats, blocks)]
+    points(m, P, Xs)
+    physical = np.empty((n, C, 2 * n))
+    for kf, b, flat, X, f, onset in zip(kfs, blocks, flats, Xs, fixed, onsets):
+        kf._predict_points(flat, X, u, f, onset, None)
+        physical[:, b] = X[kf.rows]
+    Xp = physical.transpose(1, 0, 2)  # (C, n, 2n)
+    mp = np.add.reduce(Xp, axis=2)
+    mp *= kf0.inverse
+    D = Xp - mp[:, :, None]
+    D *= kf0.scale
+    Pp = np.matmul(D, D.transpose(0, 2, 1))
+    if all(np.array_equal(kf.Q, kf0.Q) for kf in kfs):
+        Pp += kf0.Q
+    else:
+        for kf, b in zip(kfs, blocks):
+            Pp[b] += kf.Q
+    seen = np.isfinite(y)
+    every = bool(seen.all())
+    if not every and not seen.any():
+        nan = np.full((C, len(y)), np.nan)
+        return np.zeros(C), mp, Pp, nan, nan, nan
+    L = points(mp, Pp, Xs)
+    Ys = []
+    for kf, b, flat, X, f, onset in zip(kfs, blocks, flats, Xs, fixed, onsets):
+        if kf.extra and onset.stop > onset.start:
+            X[kf.extra[kf.magnitude], onset] = f[kf.magnitude][onset][:, None]
+        Y = kf.model.observe(flat, u, kf.model.THETA)
+        if not every:
+            Y = Y[kf._noise(seen)[1]]
+        Ys.append(Y.reshape(-1, b.stop - b.start, 2 * n))
+    R, rows = kf0._noise(seen)
+    Y = np.concatenate(Ys, axis=1)  # (k, C, 2n)
+    yh = np.add.reduce(Y, axis=2)
+    yh *= kf0.inverse
+    DY = (Y - yh[:, :, None]).transpose(1, 0, 2)  # (C, k, 2n)
+    yh = yh.T  # (C, k)
+    Syy = np.matmul(DY, DY.transpose(0, 2, 1))
+    Syy *= kf0.inverse
+    diagonal = np.arange(len(rows))
+    for kf, b, f in zip(kfs, blocks, fixed):
+        if kf.varies:
+            Syy[b, diagonal, diagonal] += kf._cell_noise(mp[b], f, rows)
+        else:
+            Syy[b] += kf._noise(seen)[0]
+    rhs = np.empty((C, len(rows), 1 + n))
+    np.subtract(y[rows], yh, out=rhs[:, :, 0])
+    np.matmul(np.subtract(DY[:, :, :n], DY[:, :, n:]), L.transpose(0, 2, 1), out=rhs[:, :, 1:])
+    rhs[:, :, 1:] *= kf0.inverse
+    Ly = factor(Syy)
+    solved = lower_solve(Ly, rhs)
+    a, B = solved[:, :, 0], solved[:, :, 1:]
+    diagonal = np.diagonal(Ly, axis1=1, axis2=2)
+    loglik = np.einsum("ck,ck->c", a, a)
+    loglik += 2.0 * np.log(diagonal).sum(axis=1)
+    loglik += len(rows) * LOG_2PI
+    loglik *= -0.5
+    sd = np.sqrt(np.diagonal(Syy, axis1=1, axis2=2))
+    zk = rhs[:, :, 0] / sd
+    if not every:
+        full = [np.full((C, len(y)), np.nan) for _ in range(3)]
+        for out, part in zip(full, (zk, yh, sd)):
+            out[:, rows] = part
+        zk, yh, sd = full
+    Bt = B.transpose(0, 2, 1)
+    m = mp + np.matmul(Bt, a[:, :, None])[:, :, 0]
+    P = np.matmul(Bt, B)
+    np.subtract(Pp, P, out=P)
+    P += P.transpose(0, 2, 1)
+    P *= 0.5
+    return loglik, m, P, zk, yh, sd
+
+
+def run_banks(models: list, ys: np.ndarray, us: np.ndarray, track: NominalTrack, requests: list) -> list[BankResult]:
+    """``[run_bank(models[i], ys, us, track, *requests[i], residuals=True) for i
+    ...]`` (a request: the cells' onsets, magnitudes and fault states), the
+    banks run side by side (:func:`_side_by_side`: the same numbers), for the
+    static posteriors of several fault models at once
+    (:func:`bgc.diagnosis.static_posterior.static_posteriors`). Each bank's
+    cells are sorted by onset as :func:`run_bank` sorts them; at each step the
+    stack is every bank's cells started so far. Models of a compiled kernel,
+    or of other physical states than the first's, run one at a time."""
+    kfs = [_Filter(model) for model in models]
+    out: list = [None] * len(models)
+    together = []
+    for i, kf in enumerate(kfs):
+        if kf.compiled or kf.n != kfs[0].n or kf.magnitude is None or not len(requests[i][0]):
+            out[i] = run_bank(models[i], ys, us, track, *requests[i], residuals=True)
+        else:
+            together.append(i)
+    if not together:
+        return out
+    T, n_y = ys.shape
+    n = kfs[together[0]].n
+    banks = []  # per bank: its order, onsets sorted, cells' states, m, P, totals, z, increments, live
+    for i in together:
+        onsets, magnitudes, fixed = requests[i]
+        kf = kfs[i]
+        onsets = np.asarray(onsets, dtype=int)
+        C = len(onsets)
+        order = np.argsort(onsets, kind="stable")
+        starts = onsets[order]
+        state = np.repeat(np.asarray(fixed, dtype=float).reshape(-1, 1), C, axis=1)
+        state[kf.magnitude] = np.asarray(magnitudes, dtype=float)[order]
+        banks.append(dict(order=order, starts=starts, state=state, m=np.empty((C, n)), P=np.empty((C, n, n)),
+                          total=track.loglik[starts].astype(float), z=np.full((T, C, n_y), np.nan),
+                          increments=np.zeros((T, C)), live=0))
+    with np.errstate(all="ignore"):
+        for k in range(min(int(b["starts"][0]) for b in banks), T):
+            kf_now, blocks, onsets_now, fixed_now, at = [], [], [], [], 0
+            for i, b in zip(together, banks):
+                live = b["live"]
+                joining = int(np.searchsorted(b["starts"], k, side="right"))
+                if joining > live:
+                    b["m"][live:joining] = track.mean[k]
+                    b["P"][live:joining] = track.cov[k]
+                    b["live"] = joining
+                if not joining:
+                    continue
+                kf_now.append(kfs[i])
+                blocks.append(slice(at, at + joining))
+                onsets_now.append(slice(live, joining))
+                fixed_now.append(b["state"][:, :joining])
+                at += joining
+            live_banks = [b for b in banks if b["live"]]
+            m = np.concatenate([b["m"][:b["live"]] for b in live_banks])
+            P = np.concatenate([b["P"][:b["live"]] for b in live_banks])
+            ll, m, P, zk, _, _ = _side_by_side(kf_now, blocks, ys[k], us[k], m, P, fixed_now, onsets_now)
+            for b, block in zip(live_banks, blocks):
+                live = b["live"]
+                b["m"][:live], b["P"][:live] = m[block], P[block]
+                b["total"][:live] += ll[block]
+                b["z"][k, :live] = zk[block]
+                b["increments"][k, :live] = ll[block]
+    for i, b in zip(together, banks):
+        total = b["total"]
+        total[~np.isfinite(total)] = -math.inf
+        back = np.empty(len(b["order"]), dtype=int)
+        back[b["order"]] = np.arange(len(b["order"]))
+        out[i] = BankResult(total[back], b["m"][back], b["P"][back], b["z"][:, back], b["increments"][:, back])
+    return out
+
+
+def run_paths(models: list, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets, magnitudes,
+              fixed: list) -> list[BankResult]:
+    """``[run_bank(models[i], ys, us, track, [onsets[i]], [magnitudes[i]],
+    fixed[i], residuals=True, record=True) for i ...]``: one filter per fault
+    model (its recorded path, :func:`bgc.diagnosis.static_posterior.record_paths`),
+    the same numbers, the filters run side by side (:func:`_side_by_side`):
+    a path of one cell spends its step on the array operations' cost per
+    call, which the models then share. Models of a compiled kernel, or of
+    other physical states than the first's, run one at a time."""
+    kfs = [_Filter(model) for model in models]
+    alone = [i for i, kf in enumerate(kfs) if kf.compiled or kf.n != kfs[0].n or kf.magnitude is None]
+    out: list = [None] * len(models)
+    for i in alone:
+        out[i] = run_bank(models[i], ys, us, track, [onsets[i]], [magnitudes[i]], fixed[i], residuals=True,
+                          record=True)
+    together = sorted((i for i in range(len(models)) if i not in alone), key=lambda i: (int(onsets[i]), i))
+    if not together:
+        return out
+    T, n_y = ys.shape
+    n = kfs[together[0]].n
+    C = len(together)
+    m = np.empty((C, n))
+    P = np.empty((C, n, n))
+    states = []
+    for i in together:
+        kf = kfs[i]
+        state = np.asarray(fixed[i], dtype=float).reshape(-1, 1).copy()
+        state[kf.magnitude] = float(magnitudes[i])
+        states.append(state)
+    starts = [int(onsets[i]) for i in together]
+    total = track.loglik[starts].astype(float)
+    z = np.full((T, C, n_y), np.nan)
+    increments = np.zeros((T, C))
+    kept = {name: np.full((T, C, size), np.nan) for name, size in
+            (("y_mean", n_y), ("y_std", n_y), ("x_mean", n), ("x_std", n))}
+    live = 0
+    with np.errstate(all="ignore"):
+        for k in range(starts[0], T):
+            joining = live
+            while joining < C and starts[joining] <= k:
+                joining += 1
+            fresh = range(live, joining)
+            for c in fresh:
+                m[c] = track.mean[k]
+                P[c] = track.cov[k]
+            live = joining
+            blocks = [slice(c, c + 1) for c in range(live)]
+            onset = [slice(0, 1) if c in fresh else slice(0, 0) for c in range(live)]
+            ll, m[:live], P[:live], zk, y_mean, y_std = _side_by_side([kfs[i] for i in together[:live]], blocks,
+                                                                      ys[k], us[k], m[:live], P[:live],
+                                                                      states[:live], onset)
+            total[:live] += ll
+            z[k, :live] = zk
+            increments[k, :live] = ll
+            kept["y_mean"][k, :live], kept["y_std"][k, :live] = y_mean, y_std
+            kept["x_mean"][k, :live] = m[:live]
+            kept["x_std"][k, :live] = np.sqrt(np.maximum(np.diagonal(P[:live], axis1=1, axis2=2), 0.0))
+    total[~np.isfinite(total)] = -math.inf
+    for c, i in enumerate(together):
+        cell = slice(c, c + 1)
+        out[i] = BankResult(total[cell].copy(), m[cell].copy(), P[cell].copy(), z[:, cell].copy(),
+                            increments[:, cell].copy(), **{name: a[:, cell].copy() for name, a in kept.items()})
+    return out
 
 
 class NominalKalman:

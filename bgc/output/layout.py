@@ -168,6 +168,12 @@ def _linked_place(pos: dict, placed: dict, model: BondGraph, links, labels: dict
             for j in range(-24, 25):
                 dx, dy = cx + 0.25 * i, cy + 0.25 * j
                 moved = {n: (x + dx, y + dy) for n, (x, y) in local.items()}
+                length = sum(math.hypot(moved[n][0] - x, moved[n][1] - y) for n, (x, y) in pairs)
+                # the score's first term is at least its length's (crossings add to it), and a tie goes to the
+                # spot tried first: a spot whose length alone reaches the best score cannot win, and its
+                # clearances and crossings (nearly all the search's time) are not worth computing
+                if best_score is not None and round(0.15 * length, 6) >= best_score[0]:
+                    continue
                 mine = [(x, y, *label_size(labels[n])) for n, (x, y) in moved.items()]
                 if any(boxes_overlap(a, b, 0.3) for a in mine for b in boxes):
                     continue
@@ -178,7 +184,6 @@ def _linked_place(pos: dict, placed: dict, model: BondGraph, links, labels: dict
                 crossings = sum(_segments_cross(p, q, r, s) for p, q in own for r, s in segments)
                 crossings += sum(_segments_cross(moved[n], target, r, s) for n, target in pairs
                                  for r, s in segments) * 0.25
-                length = sum(math.hypot(moved[n][0] - x, moved[n][1] - y) for n, (x, y) in pairs)
                 score = (round(crossings + 0.15 * length, 6), mirror < 0, i, j)
                 if best_score is None or score < best_score:
                     best, best_score = moved, score
