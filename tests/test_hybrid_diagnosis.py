@@ -65,6 +65,29 @@ def test_a_fault_only_the_closed_relay_shows_is_isolated_and_sized():
         ["open", "closed", "unpowered"]
 
 
+@pytest.mark.slow
+def test_stepping_the_diagnoser_through_the_switches_gives_the_batch_diagnosis():
+    """Online (a sample at a time, the mode among the inputs as a stream's column) and batch
+    give the same diagnosis of the relay through its switches."""
+    from bgc.diagnosis.options import DiagnosisOptions
+    from bgc.model.protocol import nominal_model
+
+    run = exact_run(6, fault=(5.0, R_aux + 0.4), end=8.0)
+    options = DiagnosisOptions(particles=300, seed=1, workers=1)
+    session = bgc.open(RELAY, backend="numpy")
+    batch = bgc.diagnose(session, data=run, options=options).diagnosis
+    d = session.diagnoser(options)
+    outputs = nominal_model(session.package).OUTPUTS
+    for i, t in enumerate(run.time):
+        d.step(float(t), {"V": run.inputs["V"][i], "mode": run.modes[i]}, [run.measurements[y][i] for y in outputs])
+    online = d.finish(run)
+    assert (online.verdict, online.candidates, online.onset) == (batch.verdict, batch.candidates, batch.onset)
+    assert online.candidates[0] == "R_aux_abrupt"
+    for h, g in zip(online.hypotheses, batch.hypotheses):
+        assert (h.name, h.dropped_step) == (g.name, g.dropped_step)
+        assert h.estimate.value == pytest.approx(g.estimate.value, rel=1e-9)
+
+
 def test_symbols_are_matched_in_the_modes_the_plant_was_in():
     """By hand: R_aux enters the capacitor's equation only with the relay closed (C dv/dt = i -
     v/R_load - v/R_aux), so its rise makes v_C rise in mode closed (signature v_C: 0+, a slope)
