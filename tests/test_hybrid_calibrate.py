@@ -68,3 +68,12 @@ def test_data_without_the_mode_column_are_refused_in_one_line():
     with pytest.raises(DataError, match="the data have no mode column") as info:
         session.calibrate(exact_run(0.5, 0.5, seed=1, modes=False))
     assert "calibration with a mode the data do not give is not built yet" in info.value.line()
+
+
+def test_a_mode_number_the_model_does_not_have_is_refused_in_one_line():
+    run = exact_run(0.5, 0.3, seed=1)
+    run.modes[10] = 4  # the relay has three modes
+    session = bgc.open(RELAY, backend="numpy")
+    for call in (lambda: session.calibrate(run), lambda: bgc.diagnose(session, data=run)):
+        with pytest.raises(DataError, match=r"mode 4 is no mode of relay_rl \(1 to 3: open, closed, unpowered\)"):
+            call()

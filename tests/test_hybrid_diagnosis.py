@@ -129,7 +129,7 @@ def test_candidates_alike_in_the_modes_seen_are_named_with_the_mode_that_would_s
     assert split.pairs == (("R_load_abrupt", "R_aux_abrupt", ("open", "unpowered")),)
     assert sigs.split(pair, [2, 1, 2]) is None  # open was seen: its signatures separate them already
     assert sigs.split(pair, [2, np.nan]) is None  # a sample of unknown mode: the modes seen are not known
-    assert sigs.split(("R_load_abrupt", "v_C_offset_bias"), [2]) is None  # a sensor's offset differs in every mode
+    assert sigs.split(("R_load_abrupt", "v_C_offset_bias"), [2]) is None  # an offset of v_C shows otherwise
     (line,) = mode_split_lines(SimpleNamespace(mode_split=split))
     assert line == ("R_load_abrupt and R_aux_abrupt show the same signature in mode closed, where the plant was "
                     "from the onset on; they differ in open and unpowered: data that reach a switch to one of "

@@ -283,30 +283,21 @@ def _sizes(num: Numerics) -> tuple[int, int, int, int]:
     return len(ssm.states), len(ssm.outputs), len(ssm.inputs), len(num.faults)
 
 
-def scenario_inputs(package: Package, steps: int, signals: tuple = (),
-                    schedule: tuple[tuple[float, str], ...] | None = None) -> np.ndarray:
+def scenario_inputs(package: Package, steps: int, signals: tuple = (), modes: np.ndarray | None = None) -> np.ndarray:
     """The model's default inputs over ``steps`` samples: sample k's step
     holds the input at k dt (as the simulator does); ``signals``: (name,
     :class:`~bgc.ir.Signal`) pairs that drive those inputs instead. A model
-    with modes: its mode input (the data's mode column) at each sample's
-    time, (k + 1) dt, from the controlled changes ``schedule`` ((time, mode
-    name), sorted: a change due at a sample's time holds at that sample, as
-    in a run's rows), from the first mode; without a schedule, the mode the
-    noise-free nominal run reaches by its own guards and timed transitions
-    (:func:`own_modes`)."""
+    with modes: its mode input (the data's mode column) is ``modes`` (the
+    mode's number at each sample, as the truth simulator's run has it), or,
+    not given, the mode the noise-free nominal run reaches by its own guards
+    and timed transitions (:func:`own_modes`)."""
     nominal = nominal_model(package)
     us = np.array([nominal.inputs(k * nominal.DT) for k in range(steps)], dtype=float).reshape(steps, -1)
     for name, signal in signals:
         us[:, nominal.INPUTS.index(name)] = [signal.at(k * nominal.DT) for k in range(steps)]
     column = getattr(nominal, "MODE_INPUT", None)
     if column is not None:
-        if schedule is None:
-            us[:, column] = own_modes(nominal, us)
-        else:
-            times = nominal.DT * np.arange(1, steps + 1)
-            us[:, column] = 1.0
-            for t, mode in schedule:
-                us[times >= t - 1e-9 * max(1.0, abs(t)), column] = nominal.MODES.index(mode) + 1
+        us[:, column] = own_modes(nominal, us) if modes is None else np.asarray(modes, dtype=float)
     return us
 
 

@@ -21,6 +21,7 @@ from . import cache
 from .folders import _LOCK
 from .reports import DistinguishabilityReport
 from .session import Session, input_signals, scenario_of
+from .simulate import _schedule
 from .session import open as open_session
 from ..model.protocol import onset_sample
 
@@ -77,11 +78,11 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         :class:`~bgc.ir.Signal`: an input test the plant would run.
     modes : str, optional
         A model with modes: the controlled changes of mode over the run,
-        ``MODE@TIME,...`` as ``bgc simulate --modes`` takes them (the run
-        starts in the first mode); without it, the modes the noise-free
-        plant reaches by its guards and timed transitions. A fault's
-        response is linearised with the mode held to this schedule (a fault
-        that moves a switch's time is not followed).
+        ``MODE@TIME,...`` as ``bgc simulate --modes`` takes them. The run
+        starts in the first mode and goes through the automaton as the
+        noise-free plant does (its guards and timed transitions, and these
+        changes); each fault's response is linearised with the mode held to
+        that run (a fault that moves a switch's time is not followed).
 
     Returns
     -------
@@ -126,7 +127,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
     arguments.text(func, "modes", modes, optional=True)
     if modes is not None and not c.modes:
         raise ArgumentValueError(f"{func}: modes={modes!r}: {c.model.name} has no modes", None, "leave modes out")
-    schedule = None if modes is None else hybrid.parse_schedule(modes, tuple(m.name for m in c.modes))
+    schedule = _schedule(func, modes, tuple(m.name for m in c.modes)) if modes else ()
     if detector_runs and c.modes:
         raise ArgumentValueError(f"{func}: detector_runs={detector_runs} is not built yet for a model with modes",
                                  None, "leave detector_runs out: the prediction itself is made")
@@ -172,9 +173,11 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
     custom = levels if (process_noise, measurement_noise) != (None, None) else None
     need = distinction.memory(T, *(len(x) for x in (num.equations.states, num.equations.outputs,
                                                      num.equations.inputs, num.faults)))
+    # a model with modes: the modes of the noise-free plant's run through its automaton and the schedule
+    column = _automaton_modes(func, c, T, schedule, signals) if c.modes else None
     with _LOCK:
         package = packages.load_package(private, c.model.name, str(model), custom)
-        families = _families(package, T, need, say, signals, schedule)
+        families = _families(package, T, need, say, signals, schedule, column)
     priors = {f.parameter: f.prior for f in c.model.faults}
     out = []
     for i, inj in enumerate(injected, start=1):
@@ -207,19 +210,36 @@ _FAMILIES: dict[tuple, distinction.Families] = {}
 _FAMILIES_KEPT = 4
 
 
+def _automaton_modes(func: str, c, steps: int, schedule: tuple, signals: tuple) -> np.ndarray:
+    """The mode's number at each of ``steps`` samples of the noise-free run
+    of the model with modes ``c`` through its automaton (its guards, timed
+    transitions and the controlled changes ``schedule``), as the truth
+    simulator runs it; a change the model does not allow is a one-line
+    error."""
+    from .simulate import _checked
+
+    h, nums = _checked(c)
+    options = simulate.SimulationOptions(steps=steps, process_noise=0.0, measurement_noise=0.0, seed=0,
+                                         signals=signals)
+    try:
+        return np.asarray(hybrid.simulate(h, nums, options, schedule).modes, dtype=float)
+    except SimulationError as exc:
+        raise ArgumentValueError(f"{func}: {exc.what}", None, exc.fix) from None
+
+
 def _families(package, steps: int, need: int = 0, progress=None, signals: tuple = (),
-              schedule: tuple | None = None) -> distinction.Families:
+              schedule: tuple = (), modes: np.ndarray | None = None) -> distinction.Families:
     """The families of ``package`` over ``steps`` samples (``signals``: the
-    inputs driven otherwise than the model says; ``schedule``: a model with
-    modes, its controlled changes), prepared once; ``need``: the bytes a new
-    preparation is expected to take (older families are let go until it
-    fits)."""
+    inputs driven otherwise than the model says; a model with modes:
+    ``modes``, the mode at each sample, from the controlled changes
+    ``schedule``), prepared once; ``need``: the bytes a new preparation is
+    expected to take (older families are let go until it fits)."""
     key = (package.__name__, str(getattr(package, "__file__", "")), steps, signals, schedule)
     if key not in _FAMILIES:
         while _FAMILIES and (len(_FAMILIES) >= _FAMILIES_KEPT
                              or sum(map(_nbytes, _FAMILIES.values())) + need > distinction.MAX_BYTES):
             _FAMILIES.pop(next(iter(_FAMILIES)))
-        _FAMILIES[key] = distinction.prepare(package, distinction.scenario_inputs(package, steps, signals, schedule),
+        _FAMILIES[key] = distinction.prepare(package, distinction.scenario_inputs(package, steps, signals, modes),
                                              progress)
     return _FAMILIES[key]
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -12,7 +13,7 @@ import numpy as np
 from .. import arguments
 from ..analysis import simulate as simulation
 from ..data import runs
-from ..errors import ArgumentValueError, SimulationError, printable
+from ..errors import ArgumentValueError, ModelError, SimulationError, printable
 from . import cache
 from .session import Session, _session_of, input_signals, scenario_of
 from .tables import frame
@@ -201,23 +202,40 @@ def _automaton_run(h, nums, injected, text: str, steps: int | None, seed: int, n
 
 
 #: Checked models with modes and their modes' numerics, by model file and text (a campaign's worker
-#: simulates many runs of a few models; the view a session holds has no truth simulator of the modes).
+#: simulates many runs of a few models; the view a session holds has no truth simulator of the modes),
+#: and the lock its threads (a Dask worker's) share.
 _CHECKED: dict[tuple[str, str], tuple] = {}
+_CHECKED_LOCK = threading.Lock()
 
 
-def _checked(path: str) -> tuple:
-    """(the check of the model file with modes ``path``, each mode's numerics), made once per file and text."""
+def _checked(c) -> tuple:
+    """(the check of the compiled model with modes ``c``'s file, each mode's
+    numerics), made once per file and text; the file as it was compiled
+    (its text changed since: a one-line error, never another model's run)."""
     import hashlib
 
     from .. import pipeline
 
-    key = (str(path), hashlib.sha256(Path(path).read_bytes()).hexdigest())
-    if key not in _CHECKED:
-        if len(_CHECKED) >= 8:
-            _CHECKED.pop(next(iter(_CHECKED)))
-        h = pipeline.check_model(path)
-        _CHECKED[key] = (h, h.numerics())
-    return _CHECKED[key]
+    path = c.model.source
+    try:
+        text = Path(path).read_bytes()
+    except OSError as exc:
+        raise ModelError(f"{printable(str(path))}: cannot read the model file to simulate it ({exc.strerror})",
+                         None, "open the model again from where its file is") from None
+    digest = hashlib.sha256(text).hexdigest()
+    if c.model.source_sha256 and digest != c.model.source_sha256:
+        raise ModelError(f"{printable(str(path))} changed since it was compiled: its run would not be of the model "
+                         "diagnosed", None, "open the model again (bgc.open) and simulate from that session")
+    key = (str(path), digest)
+    with _CHECKED_LOCK:
+        found = _CHECKED.get(key)
+        if found is None:
+            h = pipeline.check_model(path)
+            found = (h, h.numerics())
+            while len(_CHECKED) >= 8:
+                _CHECKED.pop(next(iter(_CHECKED)))
+            _CHECKED[key] = found
+    return found
 
 
 def checked_scenario(func: str, c, scenario, steps: int | None) -> tuple[simulation.FaultInjection | None, str]:
@@ -249,7 +267,7 @@ def simulated_run(c, injected: simulation.FaultInjection | None, text: str, step
     with modes through its automaton and the controlled changes ``schedule``
     ((time, mode) pairs, sorted)."""
     if c.modes:
-        h, nums = _checked(c.model.source)
+        h, nums = _checked(c)
         return _automaton_run(h, nums, injected, text, steps, seed, noise, signals, schedule)[0]
     result = simulation.simulate(c.numerics, simulation.SimulationOptions(
         steps=steps, process_noise=noise[0], measurement_noise=noise[1], seed=seed, fault=injected,

@@ -169,6 +169,7 @@ class Sampler:
         events += self._pending
         self._pending = []
         uk = self._inputs(t, u, k, events)
+        self._check_mode(uk, line)
         yk = np.array([float(y.get(name, math.nan)) if read else math.nan for name, read in self._read])
         self._silences(k, yk, events)
         out.append(Sample(k, t, uk, yk, line, tuple(events)))
@@ -204,6 +205,18 @@ class Sampler:
             raise DataError(f"{where}: time {t!r} is not a finite number", None, "give every row its time")
         raise DataError(f"{where}: time {t:.12g} does not increase (the row before has {self.last_t:.12g})", None,
                         "sort the rows by time, one row per sample")
+
+    def _check_mode(self, u: np.ndarray, line: int | None) -> None:
+        """A model with modes: refuse a row whose mode is not one of the
+        model's numbers (1 to its modes; NaN, not said, is taken)."""
+        index = getattr(self.model, "MODE_INPUT", None)
+        if index is None or not math.isfinite(u[index]):
+            return
+        count = len(self.model.MODES)
+        if not (1 <= u[index] <= count and u[index] == round(u[index])):
+            raise DataError(f"{self._where(line)}: mode {u[index]:g} is no mode of {self.model.MODEL} (1 to {count}: "
+                            f"{', '.join(self.model.MODES)})", None,
+                            "give each row's mode as its number in the model's order, 1 for the first")
 
     def _inputs(self, t: float, row: dict[str, float], k: int, events: list | None) -> np.ndarray:
         """The inputs over the step that ends at ``t``: the row's, the last one

@@ -82,11 +82,7 @@ def cholesky(P: np.ndarray) -> np.ndarray:
     one), the stack is factored one column at a time for all matrices at once
     instead, each pivot under 1e-12 of its diagonal entry raised to that: the
     result is then the factor of a nearby positive definite matrix, not of
-    ``P``. A state whose variance is exactly 0 in every matrix (a model with
-    modes: the mode and the time in it, known from the data) is left out of
-    the factoring: its row and column of the factor are 0 (its covariances
-    with the others are 0 but for rounding, which divided by a floored pivot
-    would blow up), the rest factored as a block.
+    ``P``.
 
     A stack of 2 x 2 (or 1 x 1) matrices, the two tanks' and the plants of
     two states, is factored by LAPACK's own arithmetic written out
@@ -104,13 +100,6 @@ def cholesky(P: np.ndarray) -> np.ndarray:
         return np.linalg.cholesky(P)
     except np.linalg.LinAlgError:
         pass
-    variance = np.diagonal(P, axis1=-2, axis2=-1).reshape(-1, n)
-    known = (variance == 0.0).all(axis=0)
-    if known.any() and not known.all():
-        keep = np.flatnonzero(~known)
-        L = np.zeros(P.shape)
-        L[..., keep[:, None], keep] = cholesky(P[..., keep[:, None], keep])
-        return L
     L = np.zeros(P.shape)
     for j in range(n):
         row = L[..., j, :j]
@@ -175,6 +164,11 @@ class _Filter:
         self.buffer = np.empty((self.n_x, 0))
         self.root, self.inverse, self.scale = math.sqrt(n), 1.0 / (2 * n), math.sqrt(1.0 / (2 * n))
         self.phys = np.array(self.physical, dtype=np.intp)
+        # a model with modes: the mode's rows among the carried ones (and the others'), for _factor
+        kinds = getattr(model, "STATE_KINDS", ())
+        self.carried = np.array([j for j, i in enumerate(self.physical) if kinds and kinds[i] != "physical"],
+                                dtype=np.intp)
+        self.uncarried = np.array([j for j in range(n) if j not in set(self.carried.tolist())], dtype=np.intp)
         self.extra_rows = np.array(self.extra, dtype=np.intp)
         self._tiles: dict = {}  # the compiled step's noise variances per cell, per pattern of sensors read
         #: a compiled package's kernel does the step's arithmetic (:meth:`_compiled_step`); asked once, not per step
@@ -186,7 +180,7 @@ class _Filter:
         cell into the physical rows of ``X`` (n_x, C, 2n); return sqrt(n) L
         (C, n, n)."""
         n = self.n
-        L = cholesky(P)
+        L = self._factor(P)
         L *= self.root
         Lt = L.transpose(1, 0, 2)  # (n, C, n): state, cell, point
         if isinstance(self.rows, slice):  # a view: written in place
@@ -196,6 +190,22 @@ class _Filter:
         else:
             X[self.rows] = np.concatenate([m.T[:, :, None] + Lt, m.T[:, :, None] - Lt], axis=2)
         return L
+
+    def _factor(self, P: np.ndarray) -> np.ndarray:
+        """:func:`cholesky` of the cells' covariances; a model with modes whose
+        mode (and time in it) every cell knows (variance exactly 0: the data
+        say the mode) has them left out of the factoring, their rows and
+        columns of the factor 0 (their covariances with the others are 0 but
+        for rounding, which a floored pivot would divide), the rest factored
+        as a block by LAPACK."""
+        if len(self.carried):
+            known = P[:, self.carried, self.carried]
+            if (known == 0.0).all():
+                L = np.zeros(P.shape)
+                keep = self.uncarried
+                L[:, keep[:, None], keep] = cholesky(P[:, keep[:, None], keep])
+                return L
+        return cholesky(P)
 
     def _physical(self, X: np.ndarray) -> np.ndarray:
         """The physical rows of the points ``X`` (n_x, C, 2n) as (C, n, 2n)."""
