@@ -24,7 +24,8 @@ SHIPPED = ["models/circuit.yaml", "models/two_tank.yaml", "models/ro.yaml", "doc
            "docs/examples/rc.yaml", "docs/examples/shaker.yaml", "docs/examples/two_mass.yaml"]
 #: The YAML files of docs/examples that are not plants of one mode bgc compiles (errors on purpose, a
 #: campaign, a column map, a capacitor in derivative causality, a model with modes: tests/test_modes.py).
-NOT_PLANTS = {"broken_two_tank.yaml", "campaign.yaml", "deriv.yaml", "tank_logger.yaml", "relay.yaml"}
+NOT_PLANTS = {"broken_two_tank.yaml", "campaign.yaml", "deriv.yaml", "tank_logger.yaml", "relay.yaml",
+              "relay_switched.yaml"}
 ENGINE = shutil.which("pdflatex") or shutil.which("latex")
 
 
