@@ -286,33 +286,7 @@ class _Filter:
             Syy[:, diagonal, diagonal] += self._cell_noise(mp, fixed, rows)
         else:
             Syy += R
-        # [v | Pxy'] (C, k, 1 + n), Pxy' = (DY+ - DY-) L' / 2n
-        rhs = np.empty((C, len(rows), 1 + n))
-        np.subtract(y[rows], yh, out=rhs[:, :, 0])
-        np.matmul(np.subtract(DY[:, :, :n], DY[:, :, n:]), L.transpose(0, 2, 1), out=rhs[:, :, 1:])
-        rhs[:, :, 1:] *= self.inverse
-        Ly = cholesky(Syy)
-        solved = lower_solve(Ly, rhs)  # L^-1 [v | Pxy']: a (C, k) and B (C, k, n)
-        a, B = solved[:, :, 0], solved[:, :, 1:]
-        diagonal = np.diagonal(Ly, axis1=1, axis2=2)
-        loglik = np.einsum("ck,ck->c", a, a)
-        loglik += 2.0 * np.log(diagonal).sum(axis=1)
-        loglik += len(rows) * LOG_2PI
-        loglik *= -0.5
-        sd = np.sqrt(np.diagonal(Syy, axis1=1, axis2=2))
-        zk = rhs[:, :, 0] / sd
-        if not every:
-            full = [np.full((C, len(y)), np.nan) for _ in range(3)]
-            for out, part in zip(full, (zk, yh, sd)):
-                out[:, rows] = part
-            zk, yh, sd = full
-        Bt = B.transpose(0, 2, 1)
-        m = mp + np.matmul(Bt, a[:, :, None])[:, :, 0]  # Pxy Syy^-1 v = (L^-1 Pxy')' (L^-1 v)
-        P = np.matmul(Bt, B)  # Pxy Syy^-1 Pxy'
-        np.subtract(Pp, P, out=P)
-        P += P.transpose(0, 2, 1)  # symmetric against rounding
-        P *= 0.5
-        return loglik, m, P, zk, yh, sd
+        return _update(y, rows, every, yh, DY, L, Syy, mp, Pp, self.inverse, cholesky)
 
 
     def _predict_points(self, flat, X, u, fixed, onset, dt):
@@ -527,12 +501,27 @@ def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.n
             Syy[b, diagonal, diagonal] += kf._cell_noise(mp[b], f, rows)
         else:
             Syy[b] += kf._noise(seen)[0]
+    return _update(y, rows, every, yh, DY, L, Syy, mp, Pp, kf0.inverse, factor)
+
+
+def _update(y, rows, every: bool, yh, DY, L, Syy, mp, Pp, inverse: float, factor):
+    """The measurement update of every cell, from the sensors read ``rows``
+    of ``y`` (``every``: all of them), the points' predicted measurements'
+    mean ``yh`` (C, k) and deviations ``DY`` (C, k, 2n), the points' root
+    ``L``, the innovation covariance ``Syy`` and the prediction ``mp``,
+    ``Pp``; ``factor``: the Cholesky factoring of ``Syy``. The deviations of
+    the points from their mean are +-sqrt(n) L, so the cross covariance is
+    L (DY+ - DY-)' / 2n; the gain and the log density come from the factor
+    of Syy by forward substitution (:func:`lower_solve`). Returns (loglik
+    (C,), m, P, zk, yh, sd (C, n_y; NaN: not read))."""
+    C, n = mp.shape
+    # [v | Pxy'] (C, k, 1 + n), Pxy' = (DY+ - DY-) L' / 2n
     rhs = np.empty((C, len(rows), 1 + n))
     np.subtract(y[rows], yh, out=rhs[:, :, 0])
     np.matmul(np.subtract(DY[:, :, :n], DY[:, :, n:]), L.transpose(0, 2, 1), out=rhs[:, :, 1:])
-    rhs[:, :, 1:] *= kf0.inverse
+    rhs[:, :, 1:] *= inverse
     Ly = factor(Syy)
-    solved = lower_solve(Ly, rhs)
+    solved = lower_solve(Ly, rhs)  # L^-1 [v | Pxy']: a (C, k) and B (C, k, n)
     a, B = solved[:, :, 0], solved[:, :, 1:]
     diagonal = np.diagonal(Ly, axis1=1, axis2=2)
     loglik = np.einsum("ck,ck->c", a, a)
@@ -547,10 +536,10 @@ def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.n
             out[:, rows] = part
         zk, yh, sd = full
     Bt = B.transpose(0, 2, 1)
-    m = mp + np.matmul(Bt, a[:, :, None])[:, :, 0]
-    P = np.matmul(Bt, B)
+    m = mp + np.matmul(Bt, a[:, :, None])[:, :, 0]  # Pxy Syy^-1 v = (L^-1 Pxy')' (L^-1 v)
+    P = np.matmul(Bt, B)  # Pxy Syy^-1 Pxy'
     np.subtract(Pp, P, out=P)
-    P += P.transpose(0, 2, 1)
+    P += P.transpose(0, 2, 1)  # symmetric against rounding
     P *= 0.5
     return loglik, m, P, zk, yh, sd
 
