@@ -112,7 +112,10 @@ class Transition:
     ``after`` is (the plant switches after that long in ``source``: a
     schedule), else *controlled* (the mode is set from outside and the data
     say it). ``resets``: states given new values at the transition (state,
-    expression of the values just before it)."""
+    expression of the values just before it). ``tolerance``: an autonomous
+    transition's threshold is uncertain: on each visit of ``source`` the
+    plant switches where ``lhs - rhs`` crosses a value drawn from
+    N(0, tolerance^2) instead of 0 (0: exactly at the guard)."""
 
     source: str
     target: str
@@ -121,6 +124,7 @@ class Transition:
     resets: tuple[tuple[str, Any], ...]
     description: str | None
     loc: SourceLoc
+    tolerance: float = 0.0
 
     @property
     def kind(self) -> str:

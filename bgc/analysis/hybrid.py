@@ -10,7 +10,11 @@ the transitions out of the current mode, in the model's order, and takes the
 first that fires:
 
 - an **autonomous** one when its guard holds on the noise-free state (a
-  guard on a measurement reads its noise-free value);
+  guard on a measurement reads its noise-free value); a transition with a
+  ``tolerance`` compares ``lhs - rhs`` with a value drawn from
+  N(0, tolerance^2) on each visit of its source mode (when the mode is
+  entered; the first mode at the start), from its own random stream (the
+  seed's, apart from the noise's: a model without tolerances draws nothing);
 - a **timed** one when the plant has been in the mode for its ``after``;
 - a **controlled** one when the schedule (``bgc simulate --modes``) says so
   at a time reached.
@@ -159,7 +163,8 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
     initial = {s: v for m in hybrid.modes for s, v in zip(m.equations.states, m.equations.initial)}
     x = modes[names[0]].settle(np.array([initial[s] for s in every], dtype=float),
                                [signal_of[i.name].at(0.0) for i in model.inputs], theta_at(0.0))
-    automaton = _Automaton(model, modes, *_transitions(model, modes), list(schedule), theta_at, names[0])
+    automaton = _Automaton(model, modes, *_transitions(model, modes), list(schedule), theta_at, names[0],
+                           np.random.default_rng((options.seed, THRESHOLD_STREAM)))
     rng = np.random.default_rng(options.seed)
     times = dt * np.arange(1, steps + 1)
     out_x, out_y = np.empty((steps, len(every))), np.empty((steps, len(first.outputs)))
@@ -231,6 +236,8 @@ def _transitions(model, modes: dict) -> tuple[list, list]:
 
 #: Bisections of a substep to find where a guard starts to hold (2^-50 of a substep).
 BISECTIONS = 50
+#: The random stream of the thresholds drawn for transitions with a tolerance (with the seed).
+THRESHOLD_STREAM = 46
 
 
 class _Automaton:
@@ -240,12 +247,22 @@ class _Automaton:
     happens (a guard's crossing found by bisection of the step, a timed or
     scheduled change at its time) and going on in the mode entered."""
 
-    def __init__(self, model, modes: dict, guards: list, resets: list, pending: list, theta_at, current: str):
+    def __init__(self, model, modes: dict, guards: list, resets: list, pending: list, theta_at, current: str,
+                 rng: np.random.Generator):
         self.model, self.modes, self.guards, self.resets = model, modes, guards, resets
         self.pending, self.theta_at = pending, theta_at
         self.switches: list[Switch] = []
         self.current, self.entered = current, 0.0
         self.t, self.x, self.u = 0.0, None, None
+        #: each guard's threshold on this visit of its source mode (lhs - rhs is compared with it)
+        self.rng, self.offsets = rng, [0.0] * len(model.modes.transitions)
+        self._draw(current)
+
+    def _draw(self, mode: str) -> None:
+        """The thresholds of the transitions out of ``mode`` with a tolerance, for the visit it starts."""
+        for j, tr in enumerate(self.model.modes.transitions):
+            if tr.source == mode and tr.tolerance > 0:
+                self.offsets[j] = tr.tolerance * float(self.rng.standard_normal())
 
     def step(self, x: np.ndarray, span: float) -> np.ndarray:
         """One RK4 step of ``span`` in the current mode from ``x`` at ``self.t``."""
@@ -259,7 +276,7 @@ class _Automaton:
     def holds(self, j: int, x: np.ndarray, t: float) -> bool:
         mode = self.modes[self.current]
         value = float(self.guards[j](list(x[mode.active]), self.u, self.theta_at(t)))
-        return self.model.modes.transitions[j].guard.holds(value, 0.0)
+        return self.model.modes.transitions[j].guard.holds(value, self.offsets[j])
 
     def advance(self, x: np.ndarray, u, t: float, h: float) -> np.ndarray:
         """The state ``x`` at time ``t`` under inputs ``u`` carried over ``h``
@@ -355,6 +372,7 @@ class _Automaton:
         self.x = self.modes[tr.target].settle(x, self.u, th)
         self.switches.append(Switch(self.t, self.current, tr.target, tr.kind))
         self.current, self.entered = tr.target, self.t
+        self._draw(tr.target)
 
 
 def to_csv(run: HybridRun) -> str:

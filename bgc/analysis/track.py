@@ -13,6 +13,7 @@ from ..data.columns import MODE
 from ..data.runs import Run, input_columns
 from ..errors import DataError, TrackingError, printable
 from ..filters.cubature import CubatureKalmanFilter
+from ..filters.particle import mode_probabilities
 from ..filters.registry import check_particles, filter_class
 from ..kinds import fault_kind
 from ..model.protocol import onset_transition
@@ -23,7 +24,9 @@ from ..model.protocol import Package, nominal_model
 class TrackResult:
     """A filter's estimates over a run: arrays of shape (T, n_x) / (T, n_y) / (T,).
 
-    Before a hand-over (``start``) the fault states are NaN.
+    Before a hand-over (``start``) the fault states are NaN. A particle
+    filter of a model with modes: ``modes``, each mode's probability per step
+    (T, number of modes), else None.
     """
 
     model: str
@@ -41,6 +44,14 @@ class TrackResult:
     recoveries: int
     seconds: float
     fault: dict | None = None
+    modes: np.ndarray | None = None
+
+    def mode_agreement(self, run: Run) -> float | None:
+        """The fraction of samples whose most probable mode is the run's
+        (its mode column; None without one, or without mode probabilities)."""
+        if self.modes is None or run.modes is None:
+            return None
+        return float(np.mean(np.argmax(self.modes, axis=1) + 1 == np.rint(run.modes)))
 
     def rmse(self, run: Run) -> dict[str, float]:
         """Root-mean-square error of each state estimate against the run's truth
@@ -103,8 +114,9 @@ def fault_estimate(result: TrackResult, package: Package, run: Run,
     return FaultEstimate(p, kind.name, what, value, std, float(result.time[-1]), true_value)
 
 
-def run_arrays(run: Run, package: Package, model_name: str) -> tuple[np.ndarray, np.ndarray]:
-    """(ys, us) arrays of a recorded run in the model's output and input order."""
+def run_arrays(run: Run, package: Package, model_name: str, hidden_mode: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(ys, us) arrays of a recorded run in the model's output and input order
+    (``hidden_mode``: a model with modes follows its guards as if the run had no mode column)."""
     model = package.MODELS[model_name]
     missing = [y for y in model.OUTPUTS if y not in run.measurements]
     if missing:
@@ -119,6 +131,8 @@ def run_arrays(run: Run, package: Package, model_name: str) -> tuple[np.ndarray,
     plant = [i for i, u in enumerate(model.INPUTS) if not (u == MODE and i == getattr(model, "MODE_INPUT", None))]
     if np.isnan(us[:, plant]).any():
         us[:, plant] = np.array([model.inputs(t - model.DT) for t in run.time])[:, plant]
+    if hidden_mode and len(plant) < us.shape[1]:
+        us[:, model.MODE_INPUT] = np.nan
     return ys, us
 
 
@@ -160,13 +174,16 @@ def check_request(run: Run, package: Package, model_name: str, particles: int, s
 
 @np.errstate(all="ignore")  # particles outside a law's domain are weighted out and counted
 def track(run: Run, package: Package, model_name: str = "nominal", method: str = "gpf",
-          particles: int = 200, seed: int = 0, start: float | None = None) -> TrackResult:
+          particles: int = 200, seed: int = 0, start: float | None = None, hidden_mode: bool = False) -> TrackResult:
     """Run the filter ``method`` (:data:`FILTER_CLASSES`) of ``model_name`` over the run.
 
     With ``start`` (a fault model only), the nominal model is tracked up to
     ``start`` and its particles are then lifted into the fault model with a fresh
     prior on the fault magnitude (the thesis's hand-over at detection time);
     the nominal part of the estimates is reported with NaN for the fault states.
+    ``hidden_mode``: a model with modes follows its guards and timed
+    transitions by itself, the run's mode column left for the comparison
+    (:meth:`TrackResult.mode_agreement`).
     """
     if model_name not in package.MODELS:
         raise TrackingError(f"no generated model {printable(repr(model_name))}", None,
@@ -177,7 +194,7 @@ def track(run: Run, package: Package, model_name: str = "nominal", method: str =
     if start is not None and cls is CubatureKalmanFilter:
         raise TrackingError("--start hands a particle cloud over to a fault model; ckf has none", None,
                             "use --filter gpf, apf or opf with --start")
-    ys, us = run_arrays(run, package, model_name)
+    ys, us = run_arrays(run, package, model_name, hidden_mode)
     rng = np.random.default_rng(seed)
     split = 0
     if start is not None and model.FAULT is not None:
@@ -191,6 +208,8 @@ def track(run: Run, package: Package, model_name: str = "nominal", method: str =
     y_std = np.empty((T, ys.shape[1]))
     ess = np.empty(T)
     resampled = np.zeros(T, bool)
+    count = len(getattr(model, "MODES", ())) if cls is not CubatureKalmanFilter else 0
+    modes = np.full((T, count), np.nan) if count else None
     recoveries = 0
     x0 = None
     if split > 0:
@@ -201,6 +220,8 @@ def track(run: Run, package: Package, model_name: str = "nominal", method: str =
         mean[:split, :k], std[:split, :k] = out.mean, out.std
         y_mean[:split], y_std[:split], ess[:split] = out.y_mean, out.y_std, out.ess
         resampled[:split] = out.resampled
+        if count:
+            modes[:split] = out.modes
         recoveries += pf0.recoveries
         x0 = model.augment(pf0.x[:, package.filters.systematic_resample(pf0.logw, rng)], rng)
     if split < T:
@@ -210,13 +231,17 @@ def track(run: Run, package: Package, model_name: str = "nominal", method: str =
             r = pf.step(ys[split], us[split], predicted=True)
             mean[split], std[split], y_mean[split], y_std[split] = r.mean, r.std, r.y_mean, r.y_std
             ess[split], resampled[split] = r.ess, r.resampled
+            if count:
+                modes[split] = mode_probabilities(model, pf.x, pf.logw)
             split += 1
         out = pf.run(ys[split:], us[split:])
         mean[split:], std[split:] = out.mean, out.std
         y_mean[split:], y_std[split:], ess[split:] = out.y_mean, out.y_std, out.ess
         resampled[split:] = out.resampled
+        if count:
+            modes[split:] = out.modes
         recoveries += pf.recoveries
     seconds = time.perf_counter() - started
     return TrackResult(model_name, method, particles, run.time, tuple(model.STATES), mean, std,
                        tuple(model.OUTPUTS), y_mean, y_std, ess, resampled, recoveries, seconds,
-                       dict(model.FAULT) if model.FAULT else None)
+                       dict(model.FAULT) if model.FAULT else None, modes)

@@ -35,6 +35,9 @@ def add_parser(sub) -> None:
     p.add_argument("--generated", default="generated", metavar="DIR",
                    help="where bgc compile wrote the package (its -o DIR; default: generated)")
     p.add_argument("--plot", metavar="FILE.png")
+    p.add_argument("--hidden-mode", action="store_true",
+                   help="a model with modes: follow its guards and timed transitions as if the run had no mode "
+                        "column, and say how often the most probable mode is the run's")
     add_columns_option(p)
     add_backend_option(p)
     p.set_defaults(run=run)
@@ -71,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     track.check_request(run, package, name, args.particles, args.start)
     results = []
     for method in (["gpf", "apf"] if args.method == "both" else [args.method]):
-        r = track.track(run, package, name, method, args.particles, args.seed, args.start)
+        r = track.track(run, package, name, method, args.particles, args.seed, args.start, args.hidden_mode)
         results.append(r)
         rmse = ", ".join(f"{x} {v:.4g}" for x, v in r.rmse(run).items())
         print(f"{method.upper()} on {name}, N = {args.particles}: {len(r.time)} steps in {r.seconds:.3f} s, "
@@ -82,6 +85,11 @@ def run(args: argparse.Namespace) -> int:
         last = ", ".join(f"mode {round(m)} ({modes[round(m) - 1]})" if x == "mode" and modes else
                          f"{x} {m:.4g} +- {s:.2g}" for x, m, s in zip(r.state_names, r.mean[-1], r.std[-1]))
         print(f"  final estimate: {last}")
+        agreement = r.mode_agreement(run) if args.hidden_mode else None
+        if agreement is not None:
+            right = int(round(agreement * len(r.time)))
+            print(f"  mode: the most probable mode is the run's at {right} of {len(r.time)} samples "
+                  f"({100 * agreement:.2f} %)")
         est = track.fault_estimate(r, package, run, c.labels.per_time)
         if est is not None:
             true_text = ""

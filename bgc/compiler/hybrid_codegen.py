@@ -23,6 +23,24 @@ runtime's protocol (:mod:`bgc.model.protocol`) with a mode axis:
   there) takes the value that mode's equations give it after every step
   and every draw of process noise, as in the truth simulator
   (:mod:`bgc.analysis.hybrid`).
+* **A particle switches where within a step** its guard is crossed (linear
+  interpolation between the step's two ends, to 1/8 of a step) or its time
+  in the mode runs out: it is integrated to there in its mode and on in the
+  mode entered.
+* **A guard with a tolerance** (its threshold drawn per visit from
+  N(threshold, tolerance^2), as the truth simulator draws it): a particle
+  that has not switched yet has its threshold beyond the margin its guard
+  had at the step's start; it crosses it within the step with the
+  conditional probability of a threshold between the margin it had at the
+  last step's end (state ``margin<k>``) and the margin at this step's end,
+  decided by its state ``threshold<k>``, a uniform draw made afresh by every
+  ``perturb`` (a draw kept from visit to visit would collapse onto a few
+  values as the filters resample): at the step's start when the process
+  noise carried it across, else where that probability reaches the draw.
+  Each step proposes the switch to at least 2 % of the particles a guard
+  could move (a threshold in its tail is still tried), their importance
+  weight in the state ``proposal``, which the particle filters add to the
+  particles' log-weights.
 * **Noise levels** are those the simulator uses: a state's process noise is
   that of the first mode it is a state of, the measurement noise the first
   mode's.
@@ -43,6 +61,11 @@ from .printing import escape, print_expr, print_number
 MODE = "mode"
 #: The state of the time spent in the current mode (a model with a timed transition).
 DWELL = "dwell"
+#: The states of the guards with a tolerance (k the transition's number, 1 for the first):
+#: ``threshold<k>`` a uniform draw for the next step, made by ``perturb``; ``margin<k>`` the guard's
+#: margin at the end of the last step, before its process noise; ``proposal`` the log importance
+#: weight of the last step's switches (a particle filter adds it to the particle's log-weight).
+THRESHOLD, MARGIN, PROPOSAL = "threshold", "margin", "proposal"
 
 
 def generate(model, modes: tuple[ModeModel, ...], nums: tuple) -> GeneratedPackage:
@@ -104,8 +127,13 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
     fault_states = fault.states if fault else []
     timed = any(t.after is not None for t in model.modes.transitions)
     carried = [MODE] + ([DWELL] if timed else [])  # the mode, and the time in it when a transition is timed
-    states = list(every) + carried + fault_states
-    kinds = ["physical"] * n + carried + (fault.kinds if fault else [])
+    # a guard with a tolerance: each particle's uniform draw for the step, with which it crosses the threshold
+    spread = [k for k, t in enumerate(model.modes.transitions) if t.tolerance > 0]
+    thresholds = [f"{THRESHOLD}{k + 1}" for k in spread] + [f"{MARGIN}{k + 1}" for k in spread] + \
+        ([PROPOSAL] if spread else [])
+    states = list(every) + carried + thresholds + fault_states
+    kinds = ["physical"] * n + carried + ["threshold"] * len(thresholds) + (fault.kinds if fault else [])
+    carried = carried + thresholds
     # a state's noise and initial value: the first mode it is a state of (the simulator's rule)
     process, x0 = [], []
     for x in every:
@@ -116,7 +144,9 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
     x0_std = [2.0 * s for s in process] + [0.0] * len(carried) + (fault.x0_std if fault else [])
     process += [0.0] * len(carried) + (fault.process if fault else [])
     initial = _settled(first, every, x0, ssm0)
-    x0 = initial + [1.0] + [0.0] * timed + (fault.x0 if fault else [])
+    # the draws of the guards with a tolerance: the median where no perturb draws them (a Kalman filter's points)
+    x0 = initial + [1.0] + [0.0] * timed + [0.5] * len(spread) + [0.0] * (len(thresholds) - len(spread)) + \
+        (fault.x0 if fault else [])
     row = {x: i for i, x in enumerate(every)}
     n_nominal = n + len(carried)
     fault_row = {s: n_nominal + i for i, s in enumerate(fault_states)}
@@ -144,7 +174,12 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
         if t.guard is not None:
             sides = [sympy.sympify(t.guard.lhs).xreplace(resolve), sympy.sympify(t.guard.rhs).xreplace(resolve)]
             unpack, (lhs, rhs) = _expressions(sides, sources, where, f"the guard of {what}")
-            guard = {"unpack": unpack, "lhs": lhs, "op": t.guard.op, "rhs": rhs, "text": escape(t.guard.text)}
+            guard = {"unpack": unpack, "lhs": lhs, "op": t.guard.op, "rhs": rhs, "text": escape(t.guard.text),
+                     "rising": t.guard.op in (">", ">="), "strict": t.guard.op in (">", "<"),
+                     "tolerance": print_number(t.tolerance, "a transition's tolerance", where) if k in spread
+                     else None, "row": n + len(carried) - len(thresholds) + spread.index(k) if k in spread else None,
+                     "margin_row": n + len(carried) - len(thresholds) + len(spread) + spread.index(k)
+                     if k in spread else None}
         transitions.append({"index": k, "source": i, "target": by_name[t.target][0], "kind": t.kind,
                             "text": escape(f"{t.source} -> {t.target}"), "guard": guard,
                             "after": print_number(t.after, "a transition's after", where) if t.after is not None
@@ -158,6 +193,10 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
         "state_kinds_tuple": codegen._tuple(repr(k) for k in kinds),
         "inputs_tuple": codegen._tuple(repr(u) for u in (*ssm0.inputs, MODE)), "n_inputs": n_inputs,
         "mode_row": n, "dwell_row": n + 1 if timed else None, "n_nominal": n_nominal, "n_states": len(states),
+        "threshold_rows": [n + len(carried) - len(thresholds) + i for i in range(len(spread))],
+        "margins": [{"index": k, "row": n + len(carried) - len(thresholds) + len(spread) + i}
+                    for i, k in enumerate(spread)],
+        "proposal_row": n + len(carried) - 1 if spread else None,
         "n_first": len(first.equations.states),
         "x0": codegen._floats(x0, "an initial value", where), "x0_std": codegen._floats(x0_std, "an initial std", where),
         "process_std": codegen._floats(process, "a process-noise std", where),

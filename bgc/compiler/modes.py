@@ -199,12 +199,16 @@ def _transitions(v, raw: list | None, modes: list[str], names: set[str], measure
             v.error(f"transition {i + 1} has both 'when' and 'after'", path + ("after",),
                     "a transition is autonomous (when) or timed (after): split it into two", key=True)
             continue
+        if "tolerance" in spec and "when" not in spec:
+            v.error(f"transition {i + 1} has a tolerance but no guard", path + ("tolerance",),
+                    "a tolerance is the spread of a guard's threshold: give 'when', or drop 'tolerance'", key=True)
+            continue
         guard = _guard(v, spec["when"], names, measurements, path + ("when",), i) if "when" in spec else None
         resets = _resets(v, spec.get("reset", {}), names, states, path + ("reset",), i)
         if ends[0] not in modes or ends[1] not in modes or ("when" in spec and guard is None) or resets is None:
             continue
         out.append(Transition(ends[0], ends[1], guard, float(spec["after"]) if "after" in spec else None, resets,
-                              spec.get("description"), v.raw.loc(*path)))
+                              spec.get("description"), v.raw.loc(*path), float(spec.get("tolerance", 0.0))))
     return tuple(out)
 
 
@@ -318,6 +322,14 @@ def _no_chatter(v, transitions: tuple[Transition, ...], measurements: dict[str, 
                     (c2 < c1 if op2 in (">", ">=") else c2 >= c1)
             if rising and op1 == ">=" and op2 == ">" and c2 == c1:
                 holds = False  # entered at c1 exactly: > c1 waits
+            spread = 4.0 * (t.tolerance + u.tolerance)
+            if not holds and spread > 0 and abs(c2 - c1) < spread:
+                told.add((id(t), id(u)))
+                v.errors.append(ValidationError(
+                    f"the thresholds of {t.source} -> {t.target} ({t.guard.text}) and {u.source} -> {u.target} "
+                    f"({u.guard.text}) are {abs(c2 - c1):g} apart, under 4 times their tolerances ({spread:g}): a "
+                    f"drawn threshold could make the plant switch again at once", u.guard.loc,
+                    "leave a wider gap between the thresholds, or give smaller tolerances"))
             if holds:
                 told.add((id(t), id(u)))
                 v.errors.append(ValidationError(

@@ -66,6 +66,8 @@ def _bootstrap(package: Package, model: FaultModel, x: np.ndarray, ys: np.ndarra
             if fixed is not None:
                 x[fixed[0]] = fixed[1]
             ll = model.loglik(ys[k], x, us[k], theta)
+            if getattr(model, "PROPOSAL_ROW", None) is not None:  # switches proposed beyond the guards' odds
+                ll = ll + x[model.PROPOSAL_ROW]
             ll = np.where(np.isfinite(ll), ll, -np.inf)
             total += _logsumexp(ll) - math.log(n)
             if not np.isfinite(total):

@@ -134,16 +134,28 @@ class FilterRun:
     """What a filter gives over a whole record of T steps: weighted mean and
     std of the state (T, n_x), predicted measurement mean and std before each
     update (T, n_y), ESS (T,), and per step whether the particles were
-    resampled and whether the filter had to recover (bool, (T,))."""
+    resampled and whether the filter had to recover (bool, (T,)); a particle
+    filter of a model with modes: each mode's probability, the weight of the
+    particles in it after the update (T, number of modes), else None."""
 
-    __slots__ = ("mean", "std", "y_mean", "y_std", "ess", "resampled", "recovered")
+    __slots__ = ("mean", "std", "y_mean", "y_std", "ess", "resampled", "recovered", "modes")
 
-    def __init__(self, steps, n_x, n_y):
+    def __init__(self, steps, n_x, n_y, modes=0):
         self.mean, self.std = np.empty((steps, n_x)), np.empty((steps, n_x))
         self.y_mean, self.y_std = np.empty((steps, n_y)), np.empty((steps, n_y))
         self.ess = np.empty(steps)
         self.resampled = np.zeros(steps, bool)
         self.recovered = np.zeros(steps, bool)
+        self.modes = np.empty((steps, modes)) if modes else None
+
+
+def mode_probabilities(model, x, logw) -> np.ndarray:
+    """Each mode's probability under a weighted cloud of a model with modes:
+    the normalised weight of the particles whose mode state rounds to it."""
+    count = len(model.MODES)
+    w = np.exp(logw - np.max(logw))
+    numbers = np.clip(np.rint(np.nan_to_num(x[model.MODE_ROW], nan=1.0)), 1, count).astype(np.intp)
+    return np.bincount(numbers - 1, weights=w, minlength=count) / w.sum()
 
 
 def run_filter(f, ys, us, dt=None):
@@ -152,12 +164,15 @@ def run_filter(f, ys, us, dt=None):
     order. Returns a FilterRun."""
     ys = np.asarray(ys, dtype=float)
     us = np.asarray(us, dtype=float)
-    out = FilterRun(ys.shape[0], len(f.model.STATES), ys.shape[1])
+    modes = len(getattr(f.model, "MODES", ())) if hasattr(f, "logw") else 0
+    out = FilterRun(ys.shape[0], len(f.model.STATES), ys.shape[1], modes)
     for k in range(ys.shape[0]):
         r = f.step(ys[k], us[k], dt)
         out.mean[k], out.std[k], out.ess[k] = r.mean, r.std, r.ess
         out.y_mean[k], out.y_std[k] = r.y_mean, r.y_std
         out.resampled[k], out.recovered[k] = r.resampled, r.recovered
+        if modes:
+            out.modes[k] = mode_probabilities(f.model, f.x, f.logw)
     return out
 
 
@@ -197,6 +212,16 @@ class _Filter:
         handle = getattr(kernel, "generator_handle", None)
         if handle is not None:
             handle(self.rng)
+
+    def _proposed(self, x):
+        """Add to the log-weights the importance weights of a step's proposal
+        (a model with modes whose guards have a tolerance proposes switches
+        beyond the model's probability: their log-weights in row
+        ``PROPOSAL_ROW`` of the predicted particles ``x``)."""
+        row = getattr(self.model, "PROPOSAL_ROW", None)
+        if row is not None:
+            self.logw = self.logw + x[row]
+            self.w = None
 
     def _weights(self):
         """The normalised weights exp(logw): the ones kept from the last step
@@ -306,6 +331,7 @@ class GenericParticleFilter(_Filter):
             self.model.perturb(self.x, self.rng)
         else:
             self.model.transition(self.x, u, self.theta, dt, self.rng, out=self.x)
+        self._proposed(self.x)
         missing = np.isnan(y).all()
         y_mean, y_std = self._weigh(None if missing else y, u)
         return self._finish(self.logw, y_mean, y_std, False)
@@ -397,6 +423,7 @@ class AuxiliaryParticleFilter(_Filter):
         dt = self.model.DT if dt is None else dt
         y = np.asarray(y, dtype=float)
         mu = self.x if predicted else self.model.predict(self.x, u, self.theta, dt, out=self.x)
+        self._proposed(mu)
         if np.isnan(y).all():
             self.model.perturb(mu, self.rng)
             y_mean, y_std = self._predicted_measurement(self.model.observe(mu, u, self.theta), mu)
@@ -468,6 +495,7 @@ class OptimalProposalParticleFilter(_Filter):
         dt = model.DT if dt is None else dt
         y = np.asarray(y, dtype=float)
         mu = self.x if predicted else model.predict(self.x, u, self.theta, dt, out=self.x)
+        self._proposed(mu)
         if np.isnan(y).all():
             model.perturb(mu, self.rng)
             y_mean, y_std = self._predicted_measurement(model.observe(mu, u, self.theta), mu)
@@ -606,6 +634,7 @@ class FilterBank:
         fs = self.filters
         first = fs[0]
         self.packed = (not isinstance(first, OptimalProposalParticleFilter)
+                       and getattr(self.model, "PROPOSAL_ROW", None) is None
                        and np.ndim(self.model.measurement_std(first.x)) == 1
                        and all(type(pf) is type(first) and pf.n == first.n and pf.theta == first.theta
                                and pf._small and pf.threshold == first.threshold for pf in fs))

@@ -103,7 +103,7 @@ def nominal_model(package: Package) -> FaultModel:
 
 
 #: The kinds of states the filters carry as the plant's (the rest are a fault model's fault states).
-CARRIED = ("physical", "mode", "dwell")
+CARRIED = ("physical", "mode", "dwell", "threshold")
 
 
 def state_rows(model: FaultModel) -> tuple[list[int], list[int]]:

@@ -592,7 +592,8 @@ def hybrid_summary(model, modes) -> str:
     by_name = {mode.name: mode for mode in modes}
     lines.append(f"  transitions: {len(m.modes.transitions)}")
     for t in m.modes.transitions:
-        how = (f"when {t.guard.text}" if t.kind == "autonomous" else f"after {t.after:g}" if t.kind == "timed"
+        how = (f"when {t.guard.text}" + (f" (threshold's std {t.tolerance:g})" if t.tolerance else "")
+               if t.kind == "autonomous" else f"after {t.after:g}" if t.kind == "timed"
                else "controlled (the data say the mode)")
         resets = ", ".join(f"{x} := {e}" for x, e in t.resets)
         lines.append(f"    {t.source} -> {t.target}: {how}" + (f"; reset {resets}" if resets else ""))
