@@ -6,6 +6,7 @@ tests/data/invalid/hybrid_*.yaml, checked by tests/test_validate.py."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -175,3 +176,44 @@ def test_a_switch_changes_the_signatures_and_the_dbns(relay):
     arcs = {mode: {(u, v) for u, v, d in compiled[mode].dbn.get("R_aux:abrupt").graph.edges(data=True)
                    if d["arc"] == "fault"} for mode in ("open", "closed")}
     assert arcs == {"open": set(), "closed": {("delta_R_aux@t", "e6@t+1")}}
+
+
+def test_the_dbn_across_the_modes_has_the_mode_as_a_node(relay):
+    """By hand, from the relay's equations: the coil's current is a state only with the supply on
+    (idle, 0, unpowered) and C dv/dt gains -v/R_aux with the relay closed, so the mode picks both
+    states' equations; i_L reads f3, which is 0 unpowered, and v_C reads e6 in every mode. The
+    guards read v_C = e6 (after the step), the timed return needs the time in the mode, the
+    operator's trips the data's mode, and the return resets f3. The supply's arcs (V into the
+    current, the current into v) hold with the supply on only; R_aux's fault reaches v only closed.
+    The zero sources an OFF junction leaves are not nodes."""
+    from bgc.compiler.hybrid_dbn import across_modes
+
+    model, compiled = relay
+    ordered = tuple(compiled[name] for name in model.modes.names)
+    g = across_modes(model, ordered).graph
+    arcs = {(a, b): (k, g.edges[a, b].get("modes")) for a, b, k in g.edges(data="arc")}
+    assert {n for n in g if g.nodes[n]["role"] == "input"} == {"e1@t", "e1@t+1", "mode_input@t", "mode_input@t+1"}
+    assert {n for n in g if g.nodes[n]["role"] == "mode"} == {"mode@t", "mode@t+1", "dwell@t", "dwell@t+1"}
+    mode_arcs = {(a, b) for (a, b), (k, _) in arcs.items() if k in ("mode", "guard", "command", "timer", "reset")}
+    assert mode_arcs == {("mode@t", "f3@t+1"), ("mode@t", "e6@t+1"), ("mode@t+1", "i_L@t+1"),
+                         ("e6@t+1", "mode@t+1"), ("mode_input@t+1", "mode@t+1"), ("mode@t", "dwell@t+1"),
+                         ("dwell@t+1", "mode@t+1"), ("mode@t+1", "f3@t+1")}
+    assert arcs[("mode@t+1", "f3@t+1")] == ("reset", None) and arcs[("e6@t+1", "mode@t+1")] == ("guard", None)
+    assert arcs[("e1@t", "f3@t+1")] == ("temporal", "open,closed")
+    assert arcs[("f3@t", "e6@t+1")] == ("temporal", "open,closed")
+    assert arcs[("e6@t", "e6@t+1")] == ("persistence", None)
+    fault = across_modes(model, ordered, "R_aux:abrupt").graph
+    assert fault.edges["delta_R_aux@t", "e6@t+1"] == {"arc": "fault", "modes": "closed"}
+
+
+def test_bgc_show_dbn_draws_the_dbn_across_the_modes(tmp_path):
+    done = bgc_cli("show", "dbn", "tests/data/hybrid/relay_rl.yaml")
+    assert done.returncode == 0, done.stderr
+    assert re.search(r"^node mode@t\+1 +mode$", done.stdout, re.M)
+    assert re.search(r"^arc +e1@t -> f3@t\+1 +temporal \(in open, closed\)$", done.stdout, re.M)
+    dot = bgc_cli("show", "dbn", "tests/data/hybrid/relay_rl.yaml", "--format", "dot").stdout
+    assert '"mode@t" -> "f3@t+1" [color="#208040"];' in dot and 'tooltip="in open,closed"' in dot
+    picture = tmp_path / "relay-dbn.png"
+    drawn = bgc_cli("show", "dbn", "tests/data/hybrid/relay_rl.yaml", "--format", "png", "-o", picture,
+                    "--engine", "matplotlib")
+    assert drawn.returncode == 0 and picture.stat().st_size > 20_000

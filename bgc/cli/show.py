@@ -21,12 +21,14 @@ def add_parser(sub) -> None:
                    help="text, json, dot, latex (equations) or a picture: svg, png (bondgraph, causality, tcg, dbn)")
     p.add_argument("-o", "--output", metavar="FILE", help="write to FILE (pictures default to MODEL-STAGE.FMT)")
     p.add_argument("--engine", choices=["auto", "graphviz", "matplotlib"], default="auto")
-    p.add_argument("--mode", metavar="MODE", help="a model with modes: the stage in this mode")
+    p.add_argument("--mode", metavar="MODE", help="a model with modes: the stage in this mode (dbn without it: "
+                                                  "the DBN across the modes, the mode a node)")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from .. import pipeline
+    from ..compiler.hybrid_dbn import across_modes
     from ..output import artifacts, draw, render
 
     stage, fmt = args.stage, args.format
@@ -67,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         if args.fault and name.count(":") != 1:
             raise BgcError(f"--fault {name!r}: expected PARAM:KIND", None, "e.g. --fault R_pipe:incipient")
         try:
-            d = c.dbn.get(name)
+            d = across_modes(c.model, c.modes, name) if isinstance(c, pipeline.Hybrid) else c.dbn.get(name)
         except KeyError as exc:
             raise BgcError(str(exc.args[0]), None, "pick a fault candidate and kind the model declares") from None
     if fmt in ("svg", "png"):
@@ -105,5 +107,7 @@ def _compiled(model: str, mode: str | None, stage: str):
     if not isinstance(c, pipeline.Hybrid):
         if mode is not None:
             raise pipeline.unknown_mode(c.model, mode)
+        return c
+    if stage == "dbn" and mode is None:  # the DBN across the modes
         return c
     return c.mode(mode)

@@ -36,7 +36,7 @@ _MAGNITUDE_ROLES = tuple(f"fault_{k.magnitude}" for k in FAULT_KINDS.values())
 _ROLE_COLOR = {"state": "#f4c7a1", "input": "#c9e4c5", "signal": "#9fd39a", "measurement": "#a9c8ec",
                "algebraic": "#ffffff",
                "fault_indicator": "#e0e0e0", **{r: "#d6b4e8" for r in _MAGNITUDE_ROLES},
-               "fault_parameter": "#e8b4c8"}
+               "fault_parameter": "#e8b4c8", "mode": "#f0e68c"}
 
 
 def graphviz_available() -> bool:
@@ -93,7 +93,8 @@ def _tcg_picture(tcg: TemporalCausalGraph, fmt: str, engine: str) -> bytes:
 _TCG_ROLES = (("signal", "input (the model's; [..]: an actuator fault's parameter)"),
               ("input", "source variable (an Se's effort, an Sf's flow)"), ("state", "state (integral causality)"),
               ("algebraic", "algebraic variable"), ("measurement", "measured variable"))
-_DBN_ROLES = (("input", "input u"), ("state", "state x"), ("measurement", "measurement y"),
+_DBN_ROLES = (("input", "input u"), ("mode", "mode q (and the time in it)"), ("state", "state x"),
+              ("measurement", "measurement y"),
               ("fault_indicator", "fault indicator D (is the fault present)"),
               *((r, "fault magnitude delta (bias or slope)") for r in _MAGNITUDE_ROLES[:1]),
               ("fault_parameter", "drifting parameter (incipient fault)"))
@@ -114,7 +115,8 @@ def _dbn_picture(d: Dbn, fmt: str, engine: str) -> bytes:
     present = {_MAGNITUDE_ROLES[0] if r in _MAGNITUDE_ROLES else r for r in roles.values()}
     legend = [("node", _ROLE_COLOR[r], text) for r, text in _DBN_ROLES if r in present]
     legend.append(("edge", _HIGHLIGHT, "temporal arc: integration from slice t to t+1"))
-    legend.append(("edge", _EDGE, "other arcs: persistence, measurement, fault"))
+    legend.append(("edge", _EDGE, "other arcs: persistence, measurement, fault"
+                   + (", mode (guard, timer, command, reset)" if "mode" in present else "")))
     x0, x1 = lay.slices[0][1] - 1.5, lay.slices[1][2] + 0.4
     y0, y1 = lay.bands[-1][1] - 0.6, lay.bands[0][1] + 0.85
     bottom = (0.25 + 0.2 * math.ceil(len(legend) / 2))

@@ -61,7 +61,7 @@ LEAF_BOND = 0.95
 #: Room between two parts of a model that no bond joins.
 PART_GAP = 0.9
 #: The bands of a DBN picture, top to bottom: (the name written at the side, the node roles in it).
-DBN_BANDS = (("inputs u", ("input",)),
+DBN_BANDS = (("inputs u", ("input",)), ("mode q", ("mode",)),
              ("faults", ("fault_indicator", *(f"fault_{k}" for k in dict.fromkeys(
                  f.magnitude for f in FAULT_KINDS.values())), "fault_parameter")),
              ("states x", ("state",)), ("algebraic", ("algebraic",)), ("measurements y", ("measurement",)))

@@ -439,7 +439,7 @@ def signatures_json(s: FaultSignatures) -> dict:
 # ------------------------------------------------------------------------- DBN
 def dbn_nodes(d: Dbn) -> list[str]:
     g = d.graph
-    order = {"input": 0, "fault_indicator": 1, **{f"fault_{k.magnitude}": 2 for k in FAULT_KINDS.values()},
+    order = {"input": 0, "mode": 0.5, "fault_indicator": 1, **{f"fault_{k.magnitude}": 2 for k in FAULT_KINDS.values()},
              "fault_parameter": 3, "state": 4, "measurement": 5}
     return sorted(g.nodes, key=lambda n: (g.nodes[n]["slice"], order[g.nodes[n]["role"]],
                                           var_key(g.nodes[n]["variable"])))
@@ -451,12 +451,15 @@ def _arcs(d: Dbn) -> list[tuple[str, str, str]]:
 
 
 def dbn_text(d: Dbn) -> str:
+    """A DBN as text: its nodes (id, role), then its arcs (from, to, kind; in a
+    model with modes, an arc that holds in some modes only lists them)."""
     g = d.graph
     lines = [f"# two-slice DBN '{d.name}'"]
     for n in dbn_nodes(d):
         lines.append(f"node {n:<22} {g.nodes[n]['role']}")
     for a, b, k in _arcs(d):
-        lines.append(f"arc  {a:>22} -> {b:<22} {k}")
+        modes = g.edges[a, b].get("modes")
+        lines.append(f"arc  {a:>22} -> {b:<22} {k}" + (f" (in {modes.replace(',', ', ')})" if modes else ""))
     return "\n".join(lines) + "\n"
 
 
@@ -465,7 +468,9 @@ def dbn_json(d: Dbn) -> dict:
     return {
         "name": d.name, "parameter": d.parameter, "kind": d.kind,
         "nodes": [{"id": n, **{k: g.nodes[n][k] for k in sorted(g.nodes[n])}} for n in dbn_nodes(d)],
-        "arcs": [{"source": a, "target": b, "arc": k} for a, b, k in _arcs(d)],
+        "arcs": [{"source": a, "target": b, "arc": k,
+                  **({"modes": d.graph.edges[a, b]["modes"].split(",")} if "modes" in d.graph.edges[a, b] else {})}
+                 for a, b, k in _arcs(d)],
     }
 
 
@@ -477,7 +482,8 @@ def dbn_dot(d: Dbn) -> str:
     variable that persists) runs left to right, so slice t stands left."""
     g = d.graph
     shape = {"state": "circle", "measurement": "box", "input": "diamond", "fault_indicator": "octagon",
-             **{f"fault_{k.magnitude}": "hexagon" for k in FAULT_KINDS.values()}, "fault_parameter": "doublecircle"}
+             **{f"fault_{k.magnitude}": "hexagon" for k in FAULT_KINDS.values()}, "fault_parameter": "doublecircle",
+             "mode": "Msquare"}
     nodes = dbn_nodes(d)
     bands: dict[int, list[str]] = {}
     for n in nodes:
@@ -499,9 +505,13 @@ def dbn_dot(d: Dbn) -> str:
         lines.append(f"  {{rank=same; {names[b]}; {'; '.join(_dot_id(n) for n in bands[b])};}}")
         lines.append(f"  {names[b]} -> {_dot_id(bands[b][0])} [style=invis];")
     style = {"persistence": 'color="#808080"', "temporal": 'color="#b03030", style=bold', "intra": "color=black",
-             "fault": 'color="#2060c0"', "drift": 'color="#2060c0", style=dashed', "indicator": "style=dotted"}
+             "fault": 'color="#2060c0"', "drift": 'color="#2060c0", style=dashed', "indicator": "style=dotted",
+             "mode": 'color="#208040"', "guard": 'color="#208040", style=bold', "command": 'color="#208040"',
+             "timer": 'color="#208040"', "reset": 'color="#208040", style=dotted'}
     for a, b, k in _arcs(d):
-        lines.append(f"  {_dot_id(a)} -> {_dot_id(b)} [{style[k]}];")
+        modes = g.edges[a, b].get("modes")  # a model with modes: an arc of some modes only, dashed and named
+        extra = f', style=dashed, tooltip={_dot_id("in " + modes)}' if modes else ""
+        lines.append(f"  {_dot_id(a)} -> {_dot_id(b)} [{style[k]}{extra}];")
     lines.append("}")
     return "\n".join(lines) + "\n"
 

@@ -1,0 +1,110 @@
+"""The two-slice DBN of a model with modes, the mode a node of it
+(:func:`across_modes`; ``bgc show dbn`` of such a model without ``--mode``).
+
+Each mode has its own DBNs (:mod:`bgc.compiler.dbn` on the mode's
+equations). Across the modes, the DBN is their union, with the mode as a
+discrete node in both slices:
+
+* ``mode@t -> mode@t+1`` (``persistence``): the mode stays unless a
+  transition fires;
+* ``mode@t -> x@t+1`` (``mode``) for every state whose equation is not the
+  same in every mode (it differs, or the state is idle in some mode: the
+  mode picks the equations the step integrates);
+* ``mode@t+1 -> y@t+1`` (``mode``) for every measurement whose expression is
+  not the same in every mode;
+* what makes the mode change, into ``mode@t+1``: the variables an autonomous
+  transition's guard reads (``guard``, from slice t+1: the guard is looked at
+  on the state the step reaches), the ``mode`` input the data give for a
+  controlled one (``command``), and the time in the mode, ``dwell`` (a node
+  of role ``mode`` too), for a timed one (``timer``);
+* ``mode@t+1 -> x@t+1`` (``reset``) for a state a transition resets;
+* an arc of the modes' DBNs that holds in some modes only keeps the list of
+  those modes (attribute ``modes``); one that holds in every mode has none;
+* the zero sources an OFF junction leaves in a mode's bond graph
+  (:func:`bgc.compiler.modes.mode_graph`) are not drawn: the mode stands for
+  them.
+"""
+
+from __future__ import annotations
+
+import networkx as nx
+import sympy
+
+from ..ir import Dbn, sym
+from .dbn import measurement_id, node
+from .modes import zero_sources
+
+#: The mode's node, and the time in the mode (a timed transition).
+MODE, DWELL = "mode", "dwell"
+
+
+def across_modes(model, modes: tuple, name: str = "nominal") -> Dbn:
+    """The DBN ``name`` (``nominal`` or ``PARAM:KIND``, as
+    :meth:`bgc.ir.DbnModel.get` takes it) of the model with modes ``model``
+    across its compiled ``modes`` (:class:`bgc.compiler.modes.ModeModel`), the
+    mode a node (module docstring). Raises KeyError for a name no mode has."""
+    dbns = [m.dbn.get(name) for m in modes]
+    g = nx.DiGraph()
+    held: dict[tuple[str, str], list[str]] = {}
+    for m, d in zip(modes, dbns):
+        # the zero sources an OFF junction leaves (mode_graph) are the mode's doing: the mode node stands for them
+        zero = set(zero_sources(m.graph))
+        kept = {n for n, attrs in d.graph.nodes(data=True) if attrs.get("element") not in zero}
+        for n in kept:
+            if n not in g:
+                g.add_node(n, **d.graph.nodes[n])
+        for a, b, arc in d.graph.edges(data="arc"):
+            if a in kept and b in kept:
+                g.add_edge(a, b, arc=arc)
+                held.setdefault((a, b), []).append(m.name)
+    every = [m.name for m in modes]
+    for (a, b), names in held.items():
+        if names != every:
+            g.edges[a, b]["modes"] = ",".join(names)
+    for k in (0, 1):
+        g.add_node(node(MODE, k), variable=MODE, slice=k, role="mode", element=None)
+    g.add_edge(node(MODE, 0), node(MODE, 1), arc="persistence")
+    states = sorted({x for m in modes for x in m.equations.states})
+    for x in states:
+        if len({_text(_equation(m.equations, x)) for m in modes}) > 1:
+            g.add_edge(node(MODE, 0), node(x, 1), arc="mode")
+    first = modes[0].equations
+    for i, y in enumerate(first.outputs):
+        if len({_text(_output(m.equations, i)) for m in modes}) > 1:
+            g.add_edge(node(MODE, 1), node(measurement_id(y, tuple(states)), 1), arc="mode")
+    by_name = {m.name: m for m in modes}
+    for t in model.modes.transitions:
+        if t.guard is not None:
+            s = by_name[t.source].equations
+            resolve = {sym(v): e for v, e in s.variables}
+            for v in sorted({v.name for side in (t.guard.lhs, t.guard.rhs)
+                             for v in sympy.sympify(side).xreplace(resolve).free_symbols}):
+                if v in states or node(v, 1) in g:
+                    g.add_edge(node(v, 1), node(MODE, 1), arc="guard")
+        elif t.after is not None:
+            for k in (0, 1):
+                g.add_node(node(DWELL, k), variable=DWELL, slice=k, role="mode", element=None)
+            g.add_edge(node(DWELL, 0), node(DWELL, 1), arc="persistence")
+            g.add_edge(node(MODE, 0), node(DWELL, 1), arc="timer")
+            g.add_edge(node(DWELL, 1), node(MODE, 1), arc="timer")
+        else:
+            for k in (0, 1):
+                g.add_node(node("mode_input", k), variable="mode (data)", slice=k, role="input", element=None)
+            g.add_edge(node("mode_input", 1), node(MODE, 1), arc="command")
+        for state, _ in t.resets:
+            g.add_edge(node(MODE, 1), node(state, 1), arc="reset")
+    d0 = dbns[0]
+    return Dbn(d0.name, d0.parameter, d0.kind, nx.freeze(g))
+
+
+def _equation(ssm, x: str):
+    """A state's derivative in one mode (None: idle there)."""
+    return ssm.rhs[ssm.states.index(x)] if x in ssm.states else None
+
+
+def _output(ssm, i: int):
+    return ssm.output_exprs[i]
+
+
+def _text(expr) -> str:
+    return "idle" if expr is None else sympy.srepr(sympy.simplify(sympy.sympify(expr)))
