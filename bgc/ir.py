@@ -143,14 +143,51 @@ class Mode:
     loc: SourceLoc
 
 
+#: The fault kinds of a switched junction: it stays ON, or OFF, whatever the mode says.
+SWITCH_FAULTS = ("stuck_on", "stuck_off")
+
+
+@dataclass(frozen=True, slots=True)
+class StuckSwitch:
+    """A switched junction that may stick (a valve that does not move): from
+    the fault's onset it is ON (``stuck_on``) or OFF (``stuck_off``) in every
+    mode, the rest of each mode's junctions as the mode says; ``prior``: the
+    fault's probability before any data."""
+
+    junction: str
+    kind: str
+    prior: float
+    loc: SourceLoc
+
+    @property
+    def name(self) -> str:
+        """``K:stuck_off``: what ``--fault`` and ``bgc show dbn --fault`` call it."""
+        return f"{self.junction}:{self.kind}"
+
+    @property
+    def title(self) -> str:
+        return f"{self.junction} stuck {'ON' if self.kind == 'stuck_on' else 'OFF'}"
+
+    def on(self, on: tuple[str, ...]) -> tuple[str, ...]:
+        """The junctions ON in a mode whose own are ``on``, with this fault."""
+        kept = set(on) | {self.junction} if self.kind == "stuck_on" else set(on) - {self.junction}
+        return tuple(sorted(kept))
+
+
 @dataclass(frozen=True, slots=True)
 class Modes:
     """A hybrid bond graph's switched junctions, its modes (the first is the
-    plant's mode at time 0) and its transitions, in the model file's order."""
+    plant's mode at time 0), its transitions, in the model file's order, and
+    the switches the model says may stick (``stuck``, its ``faults:`` on them)."""
 
     switches: tuple[str, ...]
     modes: tuple[Mode, ...]
     transitions: tuple[Transition, ...]
+    stuck: tuple[StuckSwitch, ...] = ()
+
+    def stuck_fault(self, name: str) -> StuckSwitch | None:
+        """The stuck switch called ``name`` (``K:stuck_off``), or None."""
+        return next((f for f in self.stuck if f.name == name), None)
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -123,12 +123,14 @@ def test_unknown_kind_lists_every_valid_kind(batch):
 
 def test_the_schema_lists_the_kinds_of_the_registry():
     """Element and fault kinds are declared once (bgc.kinds): the schema's
-    enumerations are that registry (plus the junctions written as numbers)."""
+    enumerations are that registry (plus the junctions written as numbers,
+    and a switched junction's stuck_on and stuck_off, bgc.ir.SWITCH_FAULTS)."""
     from bgc.compiler.validate import schema
+    from bgc.ir import SWITCH_FAULTS
 
     defs = schema()["$defs"]
     assert set(defs["element"]["properties"]["kind"]["enum"]) == set(ELEMENT_KINDS) | {0, 1}
-    assert defs["faultKinds"]["items"]["enum"] == list(FAULT_KINDS)
+    assert defs["faultKinds"]["items"]["enum"] == list(FAULT_KINDS) + list(SWITCH_FAULTS)
 
 
 def test_a_valid_model_among_broken_ones_is_still_checked(batch):

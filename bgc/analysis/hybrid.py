@@ -139,10 +139,11 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
     model = hybrid.model
     names = model.modes.names
     fault = options.fault
-    if fault is not None and (fault.target == "actuator" or fault.kind in ("stuck", "noise")):
-        raise SimulationError(f"--fault {fault.text}: a model with modes takes parameter faults and sensor "
-                              "biases and drifts so far", None, "inject one of those")
-    every = every_state(hybrid.modes)
+    if fault is not None and not fault.stuck and (fault.target == "actuator" or fault.kind in ("stuck", "noise")):
+        raise SimulationError(f"--fault {fault.text}: a model with modes takes parameter faults, sensor "
+                              "biases and drifts, and stuck switches so far", None, "inject one of those")
+    configs = _stuck_configurations(hybrid, fault)
+    every = every_state(hybrid.modes + configs)
     modes = {m.name: _Mode(m, every) for m in hybrid.modes}
     first = hybrid.modes[0].equations
     steps, dt = options.steps or model.settings.steps, model.settings.dt
@@ -150,11 +151,11 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
     h = dt / substeps
     process, measurement = _noise(hybrid, numerics, every, options)
     theta0 = np.array(first.parameter_values, dtype=float)
-    index = first.parameters.index(fault.parameter) if fault is not None else None
+    index = first.parameters.index(fault.parameter) if fault is not None and not fault.stuck else None
     signal_of = {i.name: i.signal for i in model.inputs} | dict(options.signals)
 
     def theta_at(t: float) -> list:
-        if fault is None:
+        if index is None:
             return theta0.tolist()
         th = theta0.copy()
         th[index] = fault.value(theta0[index], t)
@@ -165,6 +166,9 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
                                [signal_of[i.name].at(0.0) for i in model.inputs], theta_at(0.0))
     automaton = _Automaton(model, modes, *_transitions(model, modes), list(schedule), theta_at, names[0],
                            np.random.default_rng((options.seed, THRESHOLD_STREAM)))
+    if configs:  # from the onset, each mode's configuration with the switch stuck
+        after = {m.name: _Mode(c, every) for m, c in zip(hybrid.modes, configs)}
+        automaton.stuck = (after, *_transitions(model, after), fault.time)
     rng = np.random.default_rng(options.seed)
     times = dt * np.arange(1, steps + 1)
     out_x, out_y = np.empty((steps, len(every))), np.empty((steps, len(first.outputs)))
@@ -174,7 +178,7 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
         for s in range(substeps):
             x = automaton.advance(x, u, k * dt + s * h, h)
         x = automaton.advance(x, u, times[k], 0.0)  # the row holds the state after the changes due at its time
-        mode = modes[automaton.current]
+        mode = automaton.modes[automaton.current]
         x[mode.active] += process[mode.active] * rng.standard_normal(len(mode.active))
         x = mode.settle(x, u, theta_at(times[k]))
         if not np.all(np.isfinite(x)):
@@ -182,13 +186,30 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
                                   "reduce the fault magnitude or the noise, or check the model's values")
         out_x[k], out_u[k], out_m[k] = x, u, names.index(automaton.current) + 1
         out_y[k] = np.asarray(mode.g(list(x[mode.active]), u, theta_at(times[k])), dtype=float)
-    param = np.array([fault.value(theta0[index], t) for t in times]) if fault else None
+    param = np.array([fault.value(theta0[index], t) for t in times]) if index is not None else None
     noisy = out_y + measurement * rng.standard_normal(out_y.shape)
     switches = tuple(automaton.switches)
     result = SimulationResult(model.name, model.display_source, times, tuple(first.inputs), out_u,
                               tuple(first.outputs), noisy, out_y, every, out_x, fault, param,
                               _header(model, options, steps, substeps, names, switches))
     return HybridRun(result, out_m, names, switches)
+
+
+def _stuck_configurations(hybrid, fault) -> tuple:
+    """Per mode, the configuration the plant runs in with the switch of
+    ``fault`` stuck (:func:`bgc.compiler.modes.compile_stuck`); empty for
+    any other fault."""
+    if fault is None or not fault.stuck:
+        return ()
+    from ..compiler.modes import compile_stuck
+    from ..ir import StuckSwitch
+
+    switches = hybrid.model.modes.switches
+    if fault.subject not in switches:
+        raise SimulationError(f"{fault.text}: '{fault.subject}' is no switched junction of {hybrid.model.name}", None,
+                              f"its switched junctions: {', '.join(switches)}")
+
+    return compile_stuck(hybrid.model, hybrid.modes, StuckSwitch(fault.subject, fault.kind, 0.0, None)).configs
 
 
 def _header(model, options: SimulationOptions, steps: int, substeps: int, names: tuple[str, ...],
@@ -257,6 +278,9 @@ class _Automaton:
         #: each guard's threshold on this visit of its source mode (lhs - rhs is compared with it)
         self.rng, self.offsets = rng, [0.0] * len(model.modes.transitions)
         self._draw(current)
+        #: a stuck switch: (each mode's configuration with it, their guards, their resets, the onset), taken
+        #: in place of the modes' at the onset
+        self.stuck = None
 
     def _draw(self, mode: str) -> None:
         """The thresholds of the transitions out of ``mode`` with a tolerance, for the visit it starts."""
@@ -282,6 +306,10 @@ class _Automaton:
         """The state ``x`` at time ``t`` under inputs ``u`` carried over ``h``
         (0: only the changes due at ``t``), through the changes of mode on the way."""
         self.x, self.u, self.t = x, u, t
+        if self.stuck is not None and t >= self.stuck[3] - 1e-12:  # the switch sticks: the configurations from now
+            self.modes, self.guards, self.resets = self.stuck[:3]
+            self.stuck = None
+            self.x = self.modes[self.current].settle(self.x, u, self.theta_at(t))
         remaining, zero = h, 0
         while True:
             fired = self._due(0.0)  # what holds at once (a guard on entering a mode, a time reached)

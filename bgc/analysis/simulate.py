@@ -65,12 +65,21 @@ class FaultInjection:
         return fault_kind(self.kind).value(nominal, self.magnitude, self.time, t)
 
     @property
+    def stuck(self) -> bool:
+        """A switched junction stuck ON or OFF (a model with modes; no magnitude)."""
+        return self.target == "switch"
+
+    @property
     def text(self) -> str:
         """The scenario as ``NAME:KIND:MAGNITUDE@TIME``: the text it was read
         from, else made (NAME as the model names what it strikes)."""
+        if self.stuck:
+            return self.source or f"{self.subject}:{self.kind}@{self.time!r}"
         return self.source or f"{self.subject or self.parameter}:{self.kind}:{self.magnitude!r}@{self.time!r}"
 
     def describe(self) -> str:
+        if self.stuck:
+            return f"switch {self.subject} stuck {'ON' if self.kind == 'stuck_on' else 'OFF'} from t = {self.time:g}"
         kind = fault_kind(self.kind)
         size = (f"std {kind.noise_factor(self.magnitude):g} times its own (magnitude {self.magnitude:g})"
                 if kind.noise else f"{kind.magnitude} {self.magnitude:g}")
@@ -174,6 +183,8 @@ def noise_free(num: Numerics, options: SimulationOptions) -> SimulationResult:
 
 
 _FAULT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([a-z]+):([-+0-9.eE]+)@([0-9.eE+]+)$")
+#: A switched junction stuck from a time on: NAME:stuck_on@TIME or NAME:stuck_off@TIME (no magnitude).
+_STUCK = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):(stuck_on|stuck_off)@([0-9.eE+]+)$")
 
 
 def parse_fault(text: str, num: Numerics, what: str | None = None) -> FaultInjection:
@@ -187,6 +198,9 @@ def parse_fault(text: str, num: Numerics, what: str | None = None) -> FaultInjec
     ssm = num.equations
     model = ssm.model
     what = what or spelled("scenario", "--fault")
+    stuck = _STUCK.match(text.strip())
+    if stuck:
+        return _stuck(stuck, text, model, what)
     m = _FAULT.match(text.strip())
     if not m:
         raise SimulationError(f"{what} {text!r} is not NAME:KIND:MAGNITUDE@TIME", None,
@@ -214,6 +228,24 @@ def parse_fault(text: str, num: Numerics, what: str | None = None) -> FaultInjec
         raise SimulationError(f"{what} {text!r}: magnitude and time must be finite numbers", None,
                               "e.g. R_pipe:abrupt:31@165")
     return injection
+
+
+def _stuck(m, text: str, model, what: str) -> FaultInjection:
+    """``J:stuck_on@TIME`` or ``J:stuck_off@TIME``: a switched junction of a model with modes."""
+    name, kind, time = m.groups()
+    switches = model.modes.switches if getattr(model, "modes", None) is not None else ()
+    # (a compiled model's view keeps no switches: the truth simulator checks the name, bgc.analysis.hybrid)
+    if name not in switches and hasattr(model, "modes"):
+        raise SimulationError(f"{what}: '{name}' is no switched junction of {model.name}", None,
+                              f"its switched junctions: {', '.join(switches)}" if switches else
+                              "stuck_on and stuck_off are a switched junction's faults, in a model with modes")
+    try:
+        onset = float(time)
+    except ValueError:
+        onset = math.nan
+    if not math.isfinite(onset):
+        raise SimulationError(f"{what} {text!r}: the time must be a finite number", None, f"e.g. {name}:{kind}@10")
+    return FaultInjection(name, kind, math.nan, onset, "switch", name, text.strip())
 
 
 def parse_scenario(scenario, num: Numerics, what: str | None = None) -> FaultInjection | None:
@@ -247,6 +279,13 @@ def outside_prior(injection: FaultInjection, num: Numerics) -> str | None:
     candidates, or a magnitude outside the candidate's prior; None when it
     would."""
     name = f"{injection.parameter}:{injection.kind}"
+    if injection.stuck:
+        modes = getattr(num.equations.model, "modes", None)
+        if modes is None:  # no model with modes: the simulator refuses it (analysis.simulate.simulate)
+            return None
+        declared = modes.stuck_fault(name) is not None
+        return (f"{'' if declared else 'the model lists no fault ' + name + ' among its candidates, and '}"
+                "the diagnosis does not weigh stuck switches yet: its diagnoser should find it unexplained")
     try:
         f = num.fault(name)
     except KeyError:
@@ -282,6 +321,10 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
     check_steps(steps, num, spelled("steps", "--steps") if options.steps else f"{model.source}: simulation.steps")
     dt = model.settings.dt
     fault = options.fault
+    if fault is not None and fault.stuck:
+        raise SimulationError(f"{spelled('scenario', '--fault')} {fault.text}: '{fault.subject}' is no switched "
+                              f"junction of {model.name}", None,
+                              "stuck_on and stuck_off are a switched junction's faults, in a model with modes")
     if fault is not None and not 0 <= fault.time < steps * dt:  # a fault from the start is a plant as it came
         raise SimulationError(f"{spelled('scenario', '--fault')} {fault.text}: "
                               f"onset {fault.time:g} is outside the run (0 to {steps * dt:g})", None,
@@ -478,6 +521,6 @@ def columns(r: SimulationResult) -> list[tuple[str, np.ndarray]]:
     columns += [(f"u:{n}", r.inputs[:, j]) for j, n in enumerate(r.input_names)]
     columns += [(f"y:{n}", r.measurements[:, j]) for j, n in enumerate(r.output_names)]
     columns += [(f"x:{n}", r.states[:, j]) for j, n in enumerate(r.state_names)]
-    if r.fault:
+    if r.fault and r.parameter is not None:  # (a stuck switch changes no parameter)
         columns.append((f"theta:{r.fault.parameter}", r.parameter))
     return columns

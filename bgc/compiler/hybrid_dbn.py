@@ -23,6 +23,13 @@ discrete node in both slices:
 * the zero sources an OFF junction leaves in a mode's bond graph
   (:func:`bgc.compiler.modes.mode_graph`) are not drawn: the mode stands for
   them.
+
+A stuck switch's DBN (``J:stuck_on``, ``J:stuck_off``) is the nominal one
+with the fault's indicator ``D_J_stuck_on`` (persisting from slice to
+slice) and a ``fault`` arc from it into every state whose equation, and
+every measurement whose expression, differs between a mode and the
+configuration the plant runs in with the switch stuck in that mode
+(:func:`bgc.compiler.modes.compile_stuck`), naming those modes.
 """
 
 from __future__ import annotations
@@ -30,7 +37,7 @@ from __future__ import annotations
 import networkx as nx
 import sympy
 
-from ..ir import Dbn, sym
+from ..ir import SWITCH_FAULTS, Dbn, StuckSwitch, sym
 from .dbn import measurement_id, node
 from .modes import zero_sources
 
@@ -39,10 +46,14 @@ MODE, DWELL = "mode", "dwell"
 
 
 def across_modes(model, modes: tuple, name: str = "nominal") -> Dbn:
-    """The DBN ``name`` (``nominal`` or ``PARAM:KIND``, as
-    :meth:`bgc.ir.DbnModel.get` takes it) of the model with modes ``model``
-    across its compiled ``modes`` (:class:`bgc.compiler.modes.ModeModel`), the
-    mode a node (module docstring). Raises KeyError for a name no mode has."""
+    """The DBN ``name`` (``nominal``, ``PARAM:KIND`` as
+    :meth:`bgc.ir.DbnModel.get` takes it, or a switch's ``J:stuck_on``,
+    ``J:stuck_off``) of the model with modes ``model`` across its compiled
+    ``modes`` (:class:`bgc.compiler.modes.ModeModel`), the mode a node
+    (module docstring). Raises KeyError for a name no mode has."""
+    fault = stuck_switch(model, name)
+    if fault is not None:
+        return _stuck(model, modes, fault)
     dbns = [m.dbn.get(name) for m in modes]
     g = nx.DiGraph()
     held: dict[tuple[str, str], list[str]] = {}
@@ -95,6 +106,44 @@ def across_modes(model, modes: tuple, name: str = "nominal") -> Dbn:
             g.add_edge(node(MODE, 1), node(state, 1), arc="reset")
     d0 = dbns[0]
     return Dbn(d0.name, d0.parameter, d0.kind, nx.freeze(g))
+
+
+def stuck_switch(model, name: str) -> StuckSwitch | None:
+    """The stuck switch ``name`` names (``K:stuck_off``): the model's own
+    declaration, or any switched junction of it with either kind (a plant may
+    fail in ways its model does not list); None for another name."""
+    junction, _, kind = name.partition(":")
+    if kind not in SWITCH_FAULTS or model.modes is None or junction not in model.modes.switches:
+        return None
+    return model.modes.stuck_fault(name) or StuckSwitch(junction, kind, 0.01, None)
+
+
+def _stuck(model, modes: tuple, fault: StuckSwitch) -> Dbn:
+    from .modes import compile_stuck
+
+    g = nx.DiGraph(across_modes(model, modes).graph)
+    stuck = compile_stuck(model, modes, fault)
+    indicator = f"D_{fault.junction}_{fault.kind}"
+    for k in (0, 1):
+        g.add_node(node(indicator, k), variable=indicator, slice=k, role="fault_indicator", element=fault.junction)
+    g.add_edge(node(indicator, 0), node(indicator, 1), arc="persistence")
+    states = tuple(sorted({x for m in (*modes, *stuck.configs) for x in m.equations.states}))
+    changed: dict[tuple[str, str], list[str]] = {}
+    for m, config in zip(modes, stuck.configs):
+        a, b = m.equations, config.equations
+        for x in states:
+            if _text(_equation(a, x)) != _text(_equation(b, x)):
+                changed.setdefault((node(indicator, 0), node(x, 1)), []).append(m.name)
+        for i, y in enumerate(a.outputs):
+            if _text(_output(a, i)) != _text(_output(b, i)):
+                changed.setdefault((node(indicator, 1), node(measurement_id(y, states), 1)), []).append(m.name)
+    for (a, b), names in changed.items():
+        variable = b.rsplit("@", 1)[0]
+        for k in (0, 1):  # a state only the stuck configurations have
+            if node(variable, k) not in g:
+                g.add_node(node(variable, k), variable=variable, slice=k, role="state", element=None)
+        g.add_edge(a, b, arc="fault", **({"modes": ",".join(names)} if len(names) < len(modes) else {}))
+    return Dbn(fault.name, fault.junction, fault.kind, nx.freeze(g))
 
 
 def _equation(ssm, x: str):

@@ -47,8 +47,8 @@ from typing import Any
 
 from ..errors import BgcError, ErrorGroup, ExpressionError, ValidationError
 from ..ir import (
-    GUARD_OPS, Bond, BondGraph, CausalBondGraph, DbnModel, Element, FaultSignatures, Guard, Mode, Modes,
-    StateSpaceModel, TemporalCausalGraph, Transition, effort, flow, sym, var_key,
+    GUARD_OPS, SWITCH_FAULTS, Bond, BondGraph, CausalBondGraph, DbnModel, Element, FaultSignatures, Guard, Mode,
+    Modes, StateSpaceModel, StuckSwitch, TemporalCausalGraph, Transition, effort, flow, sym, var_key,
 )
 from ..kinds import element_kind
 from . import expressions
@@ -117,7 +117,28 @@ def read(v, data: dict, elements: tuple[Element, ...], bonds: tuple[Bond, ...], 
     if len(v.errors) == before:  # a mode or a transition refused would make others look unreachable
         _reachable(v, modes, transitions)
     _no_chatter(v, transitions, measurements, values)
-    return Modes(switches, modes, transitions)
+    return Modes(switches, modes, transitions, _stuck(v, data.get("faults") or {}, switches))
+
+
+def _stuck(v, raw: dict, switches: tuple[str, ...]) -> tuple[StuckSwitch, ...]:
+    """The switches the model's ``faults:`` says may stick (the validator
+    left them to the modes: :meth:`bgc.compiler.validate.Validator.faults`)."""
+    out = []
+    for name in switches:
+        spec = raw.get(name)
+        if spec is None or v.bad(("faults", name)):
+            continue
+        kinds = spec.get("kinds", ()) if isinstance(spec, dict) else spec
+        prior = float(spec.get("prior", 0.01)) if isinstance(spec, dict) else 0.01
+        extra = sorted(set(spec) - {"kinds", "prior", "description"}) if isinstance(spec, dict) else []
+        if extra:
+            v.error(f"a stuck switch takes no '{extra[0]}'", ("faults", name, extra[0]),
+                    "give a switched junction's fault its kinds (stuck_on, stuck_off) and a prior only", key=True)
+            continue
+        for kind in sorted(kinds):
+            if kind in SWITCH_FAULTS:
+                out.append(StuckSwitch(name, kind, prior, v.raw.key_loc("faults", name)))
+    return tuple(out)
 
 
 def _switch_kinds(v, elements: tuple[Element, ...], bonds: tuple[Bond, ...]) -> None:
@@ -351,16 +372,18 @@ def _closest(name, options) -> str | None:
 _OFF = "_off"
 
 
-def mode_graph(model: BondGraph, mode: str) -> BondGraph:
+def mode_graph(model: BondGraph, mode: str, on: tuple[str, ...] | None = None) -> BondGraph:
     """The ordinary bond graph of ``model`` in ``mode``: each switched
     junction OFF in it removed, and each of its bonds ending instead at a
     source of zero (flow for a 1-junction, effort for a 0-junction), named
     ``<junction>_off<bond>``; the bonds keep their numbers and directions,
-    so the variables (e<N>, f<N>) are the same in every mode."""
+    so the variables (e<N>, f<N>) are the same in every mode. ``on``: the
+    switched junctions ON instead of the mode's (a stuck switch's
+    configuration, ``mode`` then names it)."""
     import sympy
 
     modes = model.modes
-    on = set(modes.mode(mode).on)
+    on = set(modes.mode(mode).on if on is None else on)
     off = {name for name in modes.switches if name not in on}
     taken = {el.name for el in model.elements}
     elements = [el for el in model.elements if el.name not in off]
@@ -399,27 +422,13 @@ def compile_modes(model: BondGraph) -> tuple[ModeModel, ...]:
     on :func:`mode_graph`), in the model's order. Errors of a mode's stages
     are the stages' own, prefixed with the mode; a reset of a state that is
     no state of the mode it enters is refused here."""
-    from . import causality, dbn, equations, signatures, tcg
-
     out, found = [], {}
-    own = {el.name for el in model.elements}
     for mode in model.modes.modes:
-        graph = mode_graph(model, mode.name)
-        off = {name: f"{junction} (OFF)" for name, junction in zero_sources(graph).items()}
         try:
-            causal = causality.assign(graph)
-            causal = dataclasses.replace(causal, diagnostics=tuple(d for d in causal.diagnostics if d.element in own))
-            temporal = tcg.build(causal)
-            ssm = equations.derive(temporal)
-            sigs, dbns = signatures.derive(ssm), dbn.build(ssm)
-        except BgcError as exc:
-            for e in getattr(exc, "errors", (exc,)):
-                if any(f"source {name} " in f"{e.what} {e.fix or ''} " for name in off):
-                    continue  # the same conflict is told at the model's own element
-                what, fix = _named(e.what, off), _named(e.fix or "", off) or None
-                found.setdefault((type(e), what, e.loc or mode.loc, fix), []).append(mode.name)
-            continue
-        out.append(ModeModel(mode.name, graph, causal, temporal, ssm, sigs, dbns))
+            out.append(_compile_graph(model, mode.name, mode_graph(model, mode.name)))
+        except _Refused as exc:
+            for kind, what, loc, fix in exc.found:
+                found.setdefault((kind, what, loc or mode.loc, fix), []).append(mode.name)
     if found:
         raise ErrorGroup([kind(f"in mode{'s' if len(names) > 1 else ''} {', '.join(names)}: {what}", loc, fix)
                           for (kind, what, loc, fix), names in found.items()])
@@ -434,6 +443,77 @@ def compile_modes(model: BondGraph) -> tuple[ModeModel, ...]:
     if errors:
         raise ErrorGroup(errors)
     return tuple(out)
+
+
+class _Refused(Exception):
+    """A configuration's stages refused it: (kind, what, where, fix) of each error, zero sources named."""
+
+    def __init__(self, found: list):
+        super().__init__(found)
+        self.found = found
+
+
+def _compile_graph(model: BondGraph, name: str, graph: BondGraph) -> ModeModel:
+    """One configuration of the switches (``graph``: :func:`mode_graph`) as
+    far as its equations, signatures and DBNs, called ``name``. Raises
+    :class:`_Refused` with its stages' errors, the zero sources named as
+    the junctions OFF they stand for."""
+    from . import causality, dbn, equations, signatures, tcg
+
+    own = {el.name for el in model.elements}
+    off = {zero: f"{junction} (OFF)" for zero, junction in zero_sources(graph).items()}
+    try:
+        causal = causality.assign(graph)
+        causal = dataclasses.replace(causal, diagnostics=tuple(d for d in causal.diagnostics if d.element in own))
+        temporal = tcg.build(causal)
+        ssm = equations.derive(temporal)
+        sigs, dbns = signatures.derive(ssm), dbn.build(ssm)
+    except BgcError as exc:
+        found = []
+        for e in getattr(exc, "errors", (exc,)):
+            if any(f"source {zero} " in f"{e.what} {e.fix or ''} " for zero in off):
+                continue  # the same conflict is told at the model's own element
+            found.append((type(e), _named(e.what, off), e.loc, _named(e.fix or "", off) or None))
+        raise _Refused(found) from None
+    return ModeModel(name, graph, causal, temporal, ssm, sigs, dbns)
+
+
+@dataclass(frozen=True, slots=True)
+class StuckModel:
+    """A stuck switch compiled: per mode of the model (its order), the
+    configuration the plant runs in with the switch stuck (``configs``: a
+    declared mode's own compiled model when the configuration is that
+    mode's, else one of its own, named ``<mode> with <J> stuck ON/OFF``) and
+    the declared mode it is (``same``: None for a configuration no mode has)."""
+
+    fault: StuckSwitch
+    configs: tuple[ModeModel, ...]
+    same: tuple[str | None, ...]
+
+
+def compile_stuck(model: BondGraph, compiled: tuple[ModeModel, ...], fault: StuckSwitch) -> StuckModel:
+    """The configurations of ``model`` with the switch of ``fault`` stuck,
+    per mode (:class:`StuckModel`); a configuration whose causality or
+    equations fail is an error naming the fault and the mode."""
+    declared = {tuple(sorted(m.on)): m.name for m in model.modes.modes}
+    by_name = {m.name: m for m in compiled}
+    configs, same, made = [], [], {}
+    for mode in model.modes.modes:
+        on = fault.on(mode.on)
+        if on in declared:
+            configs.append(by_name[declared[on]])
+            same.append(declared[on])
+            continue
+        if on not in made:
+            name = f"{mode.name} with {fault.title}"
+            try:
+                made[on] = _compile_graph(model, name, mode_graph(model, mode.name, on))
+            except _Refused as exc:
+                raise ErrorGroup([kind(f"with {fault.title} in mode {mode.name}: {what}", loc or fault.loc, fix)
+                                  for kind, what, loc, fix in exc.found]) from None
+        configs.append(made[on])
+        same.append(None)
+    return StuckModel(fault, tuple(configs), tuple(same))
 
 
 def _named(text: str, off: dict[str, str]) -> str:

@@ -31,7 +31,7 @@ from ..errors import BgcError, ErrorGroup, ExpressionError, ValidationError, pri
 from ..kinds import ELEMENT_KINDS, element_kind, fault_kind, kinds_for
 from ..ir import (
     Bond, BondGraph, Element,
-    FaultCandidate, Input, Law, Measurement, Parameter, RawModel, Settings, Signal, effort, flow, sym,
+    FaultCandidate, Input, Law, Measurement, Parameter, RawModel, SWITCH_FAULTS, Settings, Signal, effort, flow, sym,
 )
 
 #: The JSON Schema of model files ships inside the package (``bgc/schema/``);
@@ -600,6 +600,17 @@ class _Validator:
             if self.bad(path):
                 continue
             target = targets.get(name)
+            spec = raw[name]
+            kinds = spec.get("kinds", ()) if isinstance(spec, dict) else spec
+            switch = next((el for el in elements if el.name == name and el.switch), None)
+            if switch is not None and all(k in SWITCH_FAULTS for k in kinds):
+                continue  # a stuck switch: read with the modes (bgc.compiler.modes)
+            stuck = [k for k in kinds if k in SWITCH_FAULTS]
+            if stuck:
+                self.error(f"fault kind '{stuck[0]}' is a switched junction's, and {name} is "
+                           f"{'a switched junction with other kinds too' if switch else 'none'}", path + ("kinds",),
+                           "give stuck_on and stuck_off to a junction with 'switch: true', and to nothing else")
+                continue
             if target is None:
                 element = next((el for el in elements if el.name == name), None)
                 if element is not None:
@@ -612,7 +623,6 @@ class _Validator:
                            "a fault is on a declared parameter, a measurement (a sensor) or an input (an actuator)",
                            key=True)
                 continue
-            spec = raw[name]
             if not isinstance(spec, dict):
                 spec = {"kinds": spec}
             wrong = [k for k in spec["kinds"] if target not in fault_kind(k).targets]

@@ -192,7 +192,8 @@ def simulation_plot(r, labels: Labels = Labels(), noise_free: np.ndarray | None 
     sensor noise only, and so labelled. ``modes``: a model with modes, (each
     sample's mode number, the modes' names): the mode timeline under the
     rest, and each mode's stretches shaded alike on every axis."""
-    rows = [*r.output_names, *r.input_names, *([r.fault.parameter] if r.fault else []),
+    changed = r.fault is not None and r.parameter is not None  # (a stuck switch changes no parameter)
+    rows = [*r.output_names, *r.input_names, *([r.fault.parameter] if changed else []),
             *(["mode"] if modes is not None else [])]
     fig, axes = new_figure(len(rows))
     clock = time_axis(r.time, labels)
@@ -204,7 +205,7 @@ def simulation_plot(r, labels: Labels = Labels(), noise_free: np.ndarray | None 
     for i, name in enumerate(r.input_names):
         axes[len(r.output_names) + i].plot(clock(r.time), r.inputs[:, i], "-", lw=1.2, color=CYCLE[2],
                                            drawstyle="steps-pre", label="input (as commanded)")
-    if r.fault:
+    if changed:
         axes[len(r.output_names) + len(r.input_names)].plot(clock(r.time), r.parameter, color=CYCLE[0],
                                                              label="faulty parameter")
     if modes is not None:
@@ -217,7 +218,8 @@ def simulation_plot(r, labels: Labels = Labels(), noise_free: np.ndarray | None 
     if r.input_names:
         handles.append(_line("input (as commanded)", CYCLE[2], lw=1.2))
     if r.fault:
-        handles += [_line("faulty parameter", CYCLE[0]), _line("fault onset", GREY, ":")]
+        handles += [_line("faulty parameter", CYCLE[0])] if changed else []
+        handles.append(_line("fault onset", GREY, ":"))
     _legend_above(axes[0], handles, ncol=len(handles))
     fig.suptitle(f"{r.model}: simulated run ({r.fault.describe() if r.fault else 'no fault'})", fontsize=10)
     time_label(axes, clock)

@@ -578,7 +578,7 @@ def hybrid_summary(model, modes) -> str:
     then each mode (the switched junctions ON, its states, derivative
     causality, algebraic loops), the transitions (kind, guard or time,
     resets) with the causality each changes, and the warnings."""
-    from ..compiler.modes import causality_changes, states
+    from ..compiler.modes import causality_changes, compile_stuck, states
 
     m = model
     lines = [f"{m.source}: ok: {m.name}" + (f" ({m.description})" if m.description else "")]
@@ -614,13 +614,22 @@ def hybrid_summary(model, modes) -> str:
     measured = [y.name if y.text == y.name else f"{y.name} = {y.text}" for y in m.measurements]
     lines.append("  measurements: " + (", ".join(measured) or "none"))
     lines.append("  fault candidates: " + (fault_candidates_text(m) or "none"))
+    if m.modes.stuck:
+        lines.append(f"  stuck switches: {len(m.modes.stuck)} (simulated and drawn; not weighed by the diagnosis "
+                     "yet)")
+    for fault in m.modes.stuck:
+        stuck = compile_stuck(m, modes, fault)
+        runs = [f"{mode.name} runs as {same}" if same else f"{mode.name} runs in a configuration of its own"
+                for mode, same in zip(modes, stuck.same) if same != mode.name]
+        none = [mode.name for mode, same in zip(modes, stuck.same) if same == mode.name]
+        lines.append(f"    {fault.title}: " + "; ".join(runs) + (f"; no effect in {', '.join(none)}" if none else ""))
     # a storage element in derivative causality is listed under its mode (an idle one: a switch cut it off)
     warnings = sorted({d.message for mode in modes for d in mode.causal.diagnostics
                        if d.severity == "warning" and "derivative causality" not in d.message})
     lines.append(f"  warnings: {len(warnings) or 'none'}")
     lines.extend(f"    warning: {w}" for w in warnings)
-    lines.append("  not built yet for a model with modes: diagnosing a mode the data do not give (hidden), stuck "
-                 "switches")
+    lines.append("  not built yet for a model with modes: diagnosing a mode the data do not give (hidden), "
+                 "weighing stuck switches")
     return "\n".join(printable(line) for line in lines)
 
 
