@@ -233,9 +233,13 @@ def parse_fault(text: str, num: Numerics, what: str | None = None) -> FaultInjec
 def _stuck(m, text: str, model, what: str) -> FaultInjection:
     """``J:stuck_on@TIME`` or ``J:stuck_off@TIME``: a switched junction of a model with modes."""
     name, kind, time = m.groups()
-    switches = model.modes.switches if getattr(model, "modes", None) is not None else ()
-    # (a compiled model's view keeps no switches: the truth simulator checks the name, bgc.analysis.hybrid)
-    if name not in switches and hasattr(model, "modes"):
+    if getattr(model, "modes", None) is not None:
+        switches = list(model.modes.switches)
+    else:  # a model's view (or a model of one mode): its first mode's elements, a switch OFF there a zero source
+        switches = [el.name for el in model.elements if el.switch] + [
+            el.description.split(" OFF in mode ")[0] for el in model.elements
+            if el.kind in ("Se", "Sf") and " OFF in mode " in (el.description or "")]
+    if name not in switches:
         raise SimulationError(f"{what}: '{name}' is no switched junction of {model.name}", None,
                               f"its switched junctions: {', '.join(switches)}" if switches else
                               "stuck_on and stuck_off are a switched junction's faults, in a model with modes")
@@ -280,11 +284,9 @@ def outside_prior(injection: FaultInjection, num: Numerics) -> str | None:
     would."""
     name = f"{injection.parameter}:{injection.kind}"
     if injection.stuck:
-        modes = getattr(num.equations.model, "modes", None)
-        if modes is None:  # no model with modes: the simulator refuses it (analysis.simulate.simulate)
-            return None
-        declared = modes.stuck_fault(name) is not None
-        return (f"{'' if declared else 'the model lists no fault ' + name + ' among its candidates, and '}"
+        modes = getattr(num.equations.model, "modes", None)  # (a model's view keeps none: not said then)
+        listed = modes is None or modes.stuck_fault(name) is not None
+        return (f"{'' if listed else 'the model lists no fault ' + name + ' among its candidates, and '}"
                 "the diagnosis does not weigh stuck switches yet: its diagnoser should find it unexplained")
     try:
         f = num.fault(name)

@@ -362,7 +362,7 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
     out = []
     for scenario, inj, run_seeds in scenarios:
         truth_value = None
-        if inj is not None:
+        if inj is not None and not inj.stuck:  # (a stuck switch has no value to estimate)
             truth_value = inj.value(float(_nominal(c, inj)), duration)
         for noise, process, measurement in noises:
             for method in settings["filters"]:
