@@ -168,23 +168,6 @@ def test_without_the_mode_the_filter_follows_the_guards_but_not_a_controlled_tri
     assert np.max(np.abs(track.z[trip:trip + 3])) > 10.0  # the coil's current falls to 0: many stds off
 
 
-def test_a_particle_filter_follows_a_hidden_mode_through_the_guards(package):
-    """Without the mode column, the particles switch by the guards on their own states: the weighted
-    majority's mode is the exact run's at most samples (a particle's switch lags the truth's by up
-    to a sample near a threshold, where one sample cannot yet tell the modes apart)."""
-    times, states, modes, switches = sampled(11.5)  # before the trip: every switch autonomous
-    nominal = package.MODELS["nominal"]
-    ys = states + nominal.MEASUREMENT_STD * np.random.default_rng(3).standard_normal(states.shape)
-    pf = package.filters.GenericParticleFilter(nominal, 200, np.random.default_rng(3))
-    right = 0
-    for k in range(len(times)):
-        pf.step(ys[k], np.array([V, np.nan]))
-        w = np.exp(pf.logw - pf.logw.max())
-        number = np.rint(pf.x[nominal.MODE_ROW])
-        right += max(set(number), key=lambda v: w[number == v].sum()) == modes[k]
-    assert len(switches) >= 12 and right / len(times) > 0.97
-
-
 def test_a_particle_filter_follows_an_exact_run_through_its_switches(package, exact_run):
     times, states, modes, switches, rng = exact_run
     nominal = package.MODELS["nominal"]

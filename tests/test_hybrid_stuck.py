@@ -142,11 +142,11 @@ def test_a_stuck_switch_is_asked_for_in_one_line(tmp_path):
         done = bgc_cli("simulate", model, "--fault", fault, "-o", run)
         assert done.returncode == 1 and said in done.stderr and "Traceback" not in done.stderr
         assert len(done.stderr.strip().splitlines()) == 1
-    made = bgc_cli("simulate", RELAY, "--fault", "K:stuck_on@2", "--steps", "500", "-o", run, "--plot",
+    made = bgc_cli("simulate", RELAY, "--fault", "K:stuck_on@1", "--steps", "200", "-o", run, "--plot",
                    tmp_path / "run.png")
     assert made.returncode == 0, made.stderr
-    assert "fault: switch K stuck ON from t = 2" in made.stdout
-    assert "# fault: switch K stuck ON from t = 2" in run.read_text()
+    assert "fault: switch K stuck ON from t = 1" in made.stdout
+    assert "# fault: switch K stuck ON from t = 1" in run.read_text()
 
 
 def test_a_campaign_runs_a_stuck_relay_and_its_diagnosis_says_unexplained(tmp_path):
@@ -156,7 +156,7 @@ def test_a_campaign_runs_a_stuck_relay_and_its_diagnosis_says_unexplained(tmp_pa
     from bgc.experiment import campaign_file, one_run
 
     path = tmp_path / "campaign.yaml"
-    path.write_text(f"campaign: stuck\nseed: 1\ndefaults: {{particles: [300], steps: 1000}}\ngroups:\n"
+    path.write_text(f"campaign: stuck\nseed: 1\ndefaults: {{particles: [200], steps: 600}}\ngroups:\n"
                     f"  - name: stuck\n    model: {RELAY}\n    modes: unpowered@6\n"
                     "    scenarios: ['K:stuck_off@3']\n")
     spec, = campaign_file.load_campaign(path).specs
