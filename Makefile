@@ -62,7 +62,7 @@ check: $(STAMP)
 
 test: $(STAMP)
 	$(BYTECODE)
-	$(PYTEST) -m "not covered"
+	$(PYTEST)
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis "$${XDG_CACHE_HOME:-$$HOME/.cache}/bgc-tests"

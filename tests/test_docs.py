@@ -240,18 +240,16 @@ def _runs(block: Block, slow: bool) -> bool:
 
 def _doc_params():
     """(document, slow): its fast blocks in a fast test, and all of them in
-    a slow one when some are slow (the fast test is then marked ``covered``:
-    ``make test`` runs the slow one only)."""
+    a slow one when some are slow."""
     for doc in DOCS:
         found, name = blocks(doc), str(doc.relative_to(ROOT))
         if _all_slow(doc):
             if any(_runs(b, True) for b in found):
                 yield pytest.param(doc, True, id=name, marks=[pytest.mark.slow])
             continue
-        slow = any(b.mark == "slow" for b in found)
-        if any(_runs(b, False) for b in found):  # (the slow test runs these again: make test leaves this out)
-            yield pytest.param(doc, False, id=name, marks=[pytest.mark.covered] if slow else [])
-        if slow:
+        if any(_runs(b, False) for b in found):
+            yield pytest.param(doc, False, id=name)
+        if any(b.mark == "slow" for b in found):
             yield pytest.param(doc, True, id=f"{name}, with its slow blocks", marks=[pytest.mark.slow])
 
 
