@@ -233,12 +233,9 @@ def parse_fault(text: str, num: Numerics, what: str | None = None) -> FaultInjec
 def _stuck(m, text: str, model, what: str) -> FaultInjection:
     """``J:stuck_on@TIME`` or ``J:stuck_off@TIME``: a switched junction of a model with modes."""
     name, kind, time = m.groups()
-    if getattr(model, "modes", None) is not None:
-        switches = list(model.modes.switches)
-    else:  # a model's view (or a model of one mode): its first mode's elements, a switch OFF there a zero source
-        switches = [el.name for el in model.elements if el.switch] + [
-            el.description.split(" OFF in mode ")[0] for el in model.elements
-            if el.kind in ("Se", "Sf") and " OFF in mode " in (el.description or "")]
+    from ..compiler.modes import switches_of
+
+    switches = switches_of(model)  # (a compiled model's view keeps its first mode's elements, not its modes)
     if name not in switches:
         raise SimulationError(f"{what}: '{name}' is no switched junction of {model.name}", None,
                               f"its switched junctions: {', '.join(switches)}" if switches else

@@ -132,6 +132,7 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
     thresholds = [f"{THRESHOLD}{k + 1}" for k in spread] + [f"{MARGIN}{k + 1}" for k in spread] + \
         ([PROPOSAL] if spread else [])
     states = list(every) + carried + thresholds + fault_states
+    at = {x: i for i, x in enumerate(states)}  # each state's row
     kinds = ["physical"] * n + carried + ["threshold"] * len(thresholds) + (fault.kinds if fault else [])
     carried = carried + thresholds
     # a state's noise and initial value: the first mode it is a state of (the simulator's rule)
@@ -177,9 +178,7 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
             guard = {"unpack": unpack, "lhs": lhs, "op": t.guard.op, "rhs": rhs, "text": escape(t.guard.text),
                      "rising": t.guard.op in (">", ">="), "strict": t.guard.op in (">", "<"),
                      "tolerance": print_number(t.tolerance, "a transition's tolerance", where) if k in spread
-                     else None, "row": n + len(carried) - len(thresholds) + spread.index(k) if k in spread else None,
-                     "margin_row": n + len(carried) - len(thresholds) + len(spread) + spread.index(k)
-                     if k in spread else None}
+                     else None, "row": at.get(f"{THRESHOLD}{k + 1}"), "margin_row": at.get(f"{MARGIN}{k + 1}")}
         transitions.append({"index": k, "source": i, "target": by_name[t.target][0], "kind": t.kind,
                             "text": escape(f"{t.source} -> {t.target}"), "guard": guard,
                             "after": print_number(t.after, "a transition's after", where) if t.after is not None
@@ -192,11 +191,10 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
         "states_tuple": codegen._tuple(repr(x) for x in states),
         "state_kinds_tuple": codegen._tuple(repr(k) for k in kinds),
         "inputs_tuple": codegen._tuple(repr(u) for u in (*ssm0.inputs, MODE)), "n_inputs": n_inputs,
-        "mode_row": n, "dwell_row": n + 1 if timed else None, "n_nominal": n_nominal, "n_states": len(states),
-        "threshold_rows": [n + len(carried) - len(thresholds) + i for i in range(len(spread))],
-        "margins": [{"index": k, "row": n + len(carried) - len(thresholds) + len(spread) + i}
-                    for i, k in enumerate(spread)],
-        "proposal_row": n + len(carried) - 1 if spread else None,
+        "mode_row": at[MODE], "dwell_row": at.get(DWELL), "n_nominal": n_nominal, "n_states": len(states),
+        "threshold_rows": [at[f"{THRESHOLD}{k + 1}"] for k in spread],
+        "margins": [{"index": k, "row": at[f"{MARGIN}{k + 1}"]} for k in spread],
+        "proposal_row": at.get(PROPOSAL),
         "n_first": len(first.equations.states),
         "x0": codegen._floats(x0, "an initial value", where), "x0_std": codegen._floats(x0_std, "an initial std", where),
         "process_std": codegen._floats(process, "a process-noise std", where),

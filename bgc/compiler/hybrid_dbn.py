@@ -34,6 +34,8 @@ configuration the plant runs in with the switch stuck in that mode
 
 from __future__ import annotations
 
+import functools
+
 import networkx as nx
 import sympy
 
@@ -155,5 +157,8 @@ def _output(ssm, i: int):
     return ssm.output_exprs[i]
 
 
+@functools.lru_cache(maxsize=512)
 def _text(expr) -> str:
+    """An equation's canonical text, to compare modes' (None: the state is idle), simplified once per
+    expression (a stuck switch's DBN compares the modes' equations again)."""
     return "idle" if expr is None else sympy.srepr(sympy.simplify(sympy.sympify(expr)))

@@ -370,6 +370,8 @@ def _closest(name, options) -> str | None:
 # ------------------------------------------------------------------ per mode
 #: What names the zero source of an OFF junction on one of its bonds: ``<junction>_off<bond>``.
 _OFF = "_off"
+#: The description of the zero source an OFF junction leaves in a mode's bond graph.
+_OFF_TEXT = " OFF in mode "
 
 
 def mode_graph(model: BondGraph, mode: str, on: tuple[str, ...] | None = None) -> BondGraph:
@@ -399,10 +401,23 @@ def mode_graph(model: BondGraph, mode: str, on: tuple[str, ...] | None = None) -
                 name += "_"
             taken.add(name)
             elements.append(Element(name, kind, None, None, sympy.Integer(0), None,
-                                    f"{end} OFF in mode {mode}", model.element(end).loc))
+                                    f"{end}{_OFF_TEXT}{mode}", model.element(end).loc))
             tail, head = (name, head) if end == b.tail else (tail, name)
         bonds.append(dataclasses.replace(b, tail=tail, head=head))
     return dataclasses.replace(model, elements=tuple(sorted(elements, key=lambda el: el.name)), bonds=tuple(bonds))
+
+
+def switches_of(graph) -> tuple[str, ...]:
+    """The switched junctions of a model with modes, from its bond graph, or
+    from one mode's (:func:`mode_graph`) or its view, which keep elements
+    only: the junctions switched ON there, and those OFF there, as the
+    zero sources they left. Empty for a model of one mode."""
+    modes = getattr(graph, "modes", None)
+    if modes is not None:
+        return modes.switches
+    return tuple(sorted({el.name for el in graph.elements if el.switch}
+                        | {el.description.split(_OFF_TEXT)[0] for el in graph.elements
+                           if el.kind in ("Se", "Sf") and _OFF_TEXT in (el.description or "")}))
 
 
 def zero_sources(graph: BondGraph) -> dict[str, str]:
