@@ -162,27 +162,7 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
         mode_ctx.append({"number": i, "name": m.name, "module": f"_m{i}_{name}", "rows": rows,
                          "idle": [row[x] for x in idle],
                          "settle": _assignments(settle, sources, where, f"mode {m.name}'s idle states")})
-    transitions = []
-    by_name = {m.name: (i, m) for i, m in enumerate(modes, start=1)}
-    for k, t in enumerate(model.modes.transitions):
-        i, source = by_name[t.source]
-        s = source.equations
-        resolve = {sym(v): e for v, e in s.variables}
-        sources = _sources(s, row, d0, fault_row)
-        what = f"transition {t.source} -> {t.target}"
-        body = [(row[state], expr.xreplace(resolve)) for state, expr in t.resets]
-        guard = None
-        if t.guard is not None:
-            sides = [sympy.sympify(t.guard.lhs).xreplace(resolve), sympy.sympify(t.guard.rhs).xreplace(resolve)]
-            unpack, (lhs, rhs) = _expressions(sides, sources, where, f"the guard of {what}")
-            guard = {"unpack": unpack, "lhs": lhs, "op": t.guard.op, "rhs": rhs, "text": escape(t.guard.text),
-                     "rising": t.guard.op in (">", ">="), "strict": t.guard.op in (">", "<"),
-                     "tolerance": print_number(t.tolerance, "a transition's tolerance", where) if k in spread
-                     else None, "row": at.get(f"{THRESHOLD}{k + 1}"), "margin_row": at.get(f"{MARGIN}{k + 1}")}
-        transitions.append({"index": k, "source": i, "target": by_name[t.target][0], "kind": t.kind,
-                            "text": escape(f"{t.source} -> {t.target}"), "guard": guard,
-                            "after": print_number(t.after, "a transition's after", where) if t.after is not None
-                            else None, "reset": _assignments(body, sources, where, f"the resets of {what}")})
+    transitions = _transitions(model, modes, row, d0, fault_row, at, spread)
     n_inputs = len(ssm0.inputs)
     return {
         "name": name, "title": escape(f"{'Nominal model' if fault is None else 'Model'} of {model.name} across "
@@ -204,6 +184,35 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
         "dt": print_number(model.settings.dt, "simulation.dt", where),
         "substeps": max(num.substeps for num in nums),
     }
+
+
+def _transitions(model, modes: tuple[ModeModel, ...], row: dict[str, int], d0, fault_row: dict[str, int],
+                 at: dict[str, int], spread: list[int]) -> list[dict]:
+    """What hybrid_model.py.j2 lays out of each transition: its modes' numbers, its guard (each side's
+    NumPy text; a tolerance's std and the rows of its draw and last margin), its time, its resets."""
+    where = model.source
+    transitions = []
+    by_name = {m.name: (i, m) for i, m in enumerate(modes, start=1)}
+    for k, t in enumerate(model.modes.transitions):
+        i, source = by_name[t.source]
+        s = source.equations
+        resolve = {sym(v): e for v, e in s.variables}
+        sources = _sources(s, row, d0, fault_row)
+        what = f"transition {t.source} -> {t.target}"
+        body = [(row[state], expr.xreplace(resolve)) for state, expr in t.resets]
+        guard = None
+        if t.guard is not None:
+            sides = [sympy.sympify(t.guard.lhs).xreplace(resolve), sympy.sympify(t.guard.rhs).xreplace(resolve)]
+            unpack, (lhs, rhs) = _expressions(sides, sources, where, f"the guard of {what}")
+            guard = {"unpack": unpack, "lhs": lhs, "op": t.guard.op, "rhs": rhs, "text": escape(t.guard.text),
+                     "rising": t.guard.op in (">", ">="), "strict": t.guard.op in (">", "<"),
+                     "tolerance": print_number(t.tolerance, "a transition's tolerance", where) if k in spread
+                     else None, "row": at.get(f"{THRESHOLD}{k + 1}"), "margin_row": at.get(f"{MARGIN}{k + 1}")}
+        transitions.append({"index": k, "source": i, "target": by_name[t.target][0], "kind": t.kind,
+                            "text": escape(f"{t.source} -> {t.target}"), "guard": guard,
+                            "after": print_number(t.after, "a transition's after", where) if t.after is not None
+                            else None, "reset": _assignments(body, sources, where, f"the resets of {what}")})
+    return transitions
 
 
 def _settled(first: ModeModel, every: tuple[str, ...], x0: list[float], ssm) -> list[float]:
