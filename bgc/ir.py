@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 import numpy as np
 
 from .errors import SourceLoc
-from .kinds import element_kind
+from .kinds import SWITCH_KINDS, element_kind
 
 if TYPE_CHECKING:
     import sympy
@@ -144,7 +144,7 @@ class Mode:
 
 
 #: The fault kinds of a switched junction: it stays ON, or OFF, whatever the mode says.
-SWITCH_FAULTS = ("stuck_on", "stuck_off")
+SWITCH_FAULTS = tuple(SWITCH_KINDS)
 
 
 @dataclass(frozen=True, slots=True)

@@ -212,6 +212,13 @@ class FaultKind:
     noise: bool = False
 
     @property
+    def discrete(self) -> bool:
+        """A fault with no size (a switch that sticks): its magnitude state is
+        a flag, 0 before the onset and 1 from it, its prior the one point 1;
+        a hypothesis of it is weighed over its onsets alone."""
+        return self.magnitude == "switch"
+
+    @property
     def searched_back(self) -> bool:
         """Its onset is looked for far back from the alarm, on a drift's
         grid of onsets, not only around the detector's change point, which
@@ -349,6 +356,17 @@ FAULT_KINDS: Mapping[str, FaultKind] = {
 }
 
 
+#: The fault kinds of a switched junction (a valve that does not move): from the onset it is ON, or
+#: OFF, whatever the mode says. Not a change of a symbol: its fault model runs the plant in the
+#: configuration the stuck switch makes in each mode (bgc.compiler.modes.compile_stuck), its
+#: magnitude state ``<junction>_stuck`` a flag (:attr:`FaultKind.discrete`).
+SWITCH_KINDS: Mapping[str, FaultKind] = {
+    name: FaultKind(name, "switch", False, {d: (1.0, 1.0) for d in ("increase", "decrease", "both")}, 0.0,
+                    "prior", f"a switched junction stuck {state} from the onset, whatever the mode says",
+                    ("switch",), "stuck")
+    for name, state in (("stuck_on", "ON"), ("stuck_off", "OFF"))}
+
+
 def kinds_for(target: str) -> str:
     """What a target takes, for messages: ``a sensor takes: bias, drift, stuck, noise``."""
     valid = ", ".join(k for k, fk in FAULT_KINDS.items() if target in fk.targets)
@@ -358,6 +376,6 @@ def kinds_for(target: str) -> str:
 def fault_kind(name: str) -> FaultKind:
     """The registry entry of a fault kind; KeyError lists the valid kinds."""
     try:
-        return FAULT_KINDS[name]
+        return FAULT_KINDS[name] if name in FAULT_KINDS else SWITCH_KINDS[name]
     except KeyError:
         raise KeyError(f"unknown fault kind '{name}' (valid: {', '.join(FAULT_KINDS)})") from None

@@ -98,7 +98,7 @@ from ..errors import TrackingError
 from ..ir import Numerics
 from ..kinds import fault_kind
 from .simulate import MAX_STEPS
-from ..model.protocol import FaultModel, Package, magnitude_row, nominal_model
+from ..model.protocol import FaultModel, Package, magnitude_row, nominal_model, sized_models
 
 #: A rival is in the predicted ambiguity group when the data, with the priors,
 #: are expected to name the truth over it with a probability under this.
@@ -329,7 +329,7 @@ def prepare(package: Package, us: np.ndarray, progress=None) -> Families:
     stride = max(1, math.ceil(T / MAX_ONSETS))
     onsets = np.arange(0, T, stride)
     names, responses, bounds = [], [], []
-    faulty = [name for name in sorted(package.MODELS) if name != "nominal"]
+    faulty = sized_models(package)  # (a stuck switch's is weighed over its onsets alone: not here)
     for i, name in enumerate(faulty, start=1):
         say(f"preparing the families: fault model {i} of {len(faulty)} ({name})")
         model = package.MODELS[name]
@@ -397,7 +397,7 @@ def detector_reach(package: Package, us: np.ndarray, onset: int, windows: tuple[
     us = np.asarray(us, dtype=float).reshape(len(us), -1)
     x_before, x_after, _, F, H, whitening = _linearised(package, us)
     out = {}
-    for name in sorted(n for n in package.MODELS if n != "nominal"):
+    for name in sized_models(package):
         model = package.MODELS[name]
         size = typical_size(*(float(b) for b in model.FAULT_PRIOR))
         e = whitening.apply(_unit_responses(model, F, H, x_before, x_after, us, np.array([onset])))[:, :, 0] * size

@@ -90,11 +90,12 @@ class FaultEstimate:
 
 def fault_estimate(result: TrackResult, package: Package, run: Run,
                    per_time: str = "per unit time") -> FaultEstimate | None:
-    """The fault estimate of a fault-model track (None for the nominal model):
+    """The fault estimate of a fault-model track (None for the nominal model
+    and a stuck switch's, which has no size):
     a bias as the parameter's value (nominal + bias), a slope as it is
     (``per_time``: how its rate is named, e.g. "per s" in the model's time unit)."""
     fault = result.fault
-    if not fault:
+    if not fault or fault_kind(fault["kind"]).discrete:  # a stuck switch: no size to estimate
         return None
     module = package.MODELS[result.model]
     p = fault["parameter"]

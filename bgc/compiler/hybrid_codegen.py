@@ -54,7 +54,8 @@ from ..errors import CodegenError
 from ..ir import GeneratedPackage, sym
 from ..kinds import fault_kind
 from . import codegen
-from .modes import ModeModel, states as every_state
+from . import numerics
+from .modes import ModeModel, compile_stuck, states as every_state
 from .printing import escape, print_expr, print_number
 
 #: The name of the mode among a hybrid model's states and inputs.
@@ -66,6 +67,9 @@ DWELL = "dwell"
 #: margin at the end of the last step, before its process noise; ``proposal`` the log importance
 #: weight of the last step's switches (a particle filter adds it to the particle's log-weight).
 THRESHOLD, MARGIN, PROPOSAL = "threshold", "margin", "proposal"
+#: A stuck switch's fault state, ``<junction>_stuck`` (its kind ``switch``): its flag, 0 before the
+#: onset and 1 from it (:attr:`bgc.kinds.FaultKind.discrete`).
+FLAG, FLAG_KIND = "stuck", "switch"
 
 
 def generate(model, modes: tuple[ModeModel, ...], nums: tuple) -> GeneratedPackage:
@@ -109,6 +113,32 @@ def generate(model, modes: tuple[ModeModel, ...], nums: tuple) -> GeneratedPacka
         ctx = _context(model, modes, nums, every, j, name)
         text = env.get_template("hybrid_model.py.j2").render(**common, **ctx)
         files[f"{name}.py"] = compiled[f"{name}.py"] = text
+    number = 0  # the configurations no mode has, numbered over the stuck switches
+    for fault in model.modes.stuck:
+        stuck = compile_stuck(model, modes, fault)
+        extra, indices = [], []
+        for config, same in zip(stuck.configs, stuck.same):
+            if same is not None:
+                indices.append(model.modes.names.index(same))
+                continue
+            known = next((k for k, (m, _) in enumerate(extra) if m is config), None)
+            if known is None:
+                number += 1
+                known = len(extra)
+                extra.append((config, number))
+                num = numerics.derive(config.dbn)
+                ctx = codegen._model_context(config.dbn, num, config.dbn.nominal)
+                ctx["name"] = own = f"_c{number}_{codegen.module_name(config.dbn.nominal.name)}"
+                ctx["title"] = escape(f"{ctx['title'][:-1]} in configuration {config.name}.")
+                files[f"{own}.py"] = env.get_template("model.py.j2").render(**common, **ctx, numba=False)
+                compiled[f"{own}.py"] = env.get_template("model.py.j2").render(**common, **ctx, numba=True)
+                compiled[f"_jit_{own}.py"] = env.get_template("model_jit.py.j2").render(
+                    **common, **ctx, kernel_sha256=kernel_sha256)
+            indices.append(len(modes) + known)
+        name = codegen.module_name(f"{fault.junction}_{fault.kind}")
+        names.append(name)
+        ctx = _context(model, modes, nums, every, 0, name, (fault, indices, extra))
+        files[f"{name}.py"] = compiled[f"{name}.py"] = env.get_template("hybrid_model.py.j2").render(**common, **ctx)
     for package, fixed in ((files, codegen.FIXED_FILES), (compiled, codegen.NUMBA_FIXED_FILES)):
         for name, source in fixed.items():
             package[name] = codegen._header(common["source"]) + codegen._fixed_text(source)
@@ -116,8 +146,11 @@ def generate(model, modes: tuple[ModeModel, ...], nums: tuple) -> GeneratedPacka
     return GeneratedPackage(nums[0], tuple(sorted(files.items())), tuple(names), tuple(sorted(compiled.items())))
 
 
-def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str, ...], j: int, name: str) -> dict:
-    """What hybrid_model.py.j2 lays out for the ``j``-th model (0: nominal) across the modes."""
+def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str, ...], j: int, name: str,
+             stuck: tuple | None = None) -> dict:
+    """What hybrid_model.py.j2 lays out for the ``j``-th model (0: nominal) across the modes; ``stuck``:
+    (the stuck switch, each mode's configuration's index, the configurations no mode has, each with its
+    number) for the model of a stuck switch (``j`` 0: the nominal's modules, and the fault's flag)."""
     where = model.source
     first, num0 = modes[0], nums[0]
     d0 = (first.dbn.nominal, *first.dbn.faulty)[j]
@@ -125,15 +158,17 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
     n = len(every)
     fault = codegen.fault_rows(num0, d0) if d0.parameter is not None else None
     fault_states = fault.states if fault else []
+    flag = [] if stuck is None else [f"{stuck[0].junction}_{FLAG}"]
     timed = any(t.after is not None for t in model.modes.transitions)
     carried = [MODE] + ([DWELL] if timed else [])  # the mode, and the time in it when a transition is timed
     # a guard with a tolerance: each particle's uniform draw for the step, with which it crosses the threshold
     spread = [k for k, t in enumerate(model.modes.transitions) if t.tolerance > 0]
     thresholds = [f"{THRESHOLD}{k + 1}" for k in spread] + [f"{MARGIN}{k + 1}" for k in spread] + \
         ([PROPOSAL] if spread else [])
-    states = list(every) + carried + thresholds + fault_states
+    states = list(every) + carried + thresholds + fault_states + flag
     at = {x: i for i, x in enumerate(states)}  # each state's row
-    kinds = ["physical"] * n + carried + ["threshold"] * len(thresholds) + (fault.kinds if fault else [])
+    kinds = ["physical"] * n + carried + ["threshold"] * len(thresholds) + (fault.kinds if fault else []) + \
+        [FLAG_KIND] * len(flag)
     carried = carried + thresholds
     # a state's noise and initial value: the first mode it is a state of (the simulator's rule)
     process, x0 = [], []
@@ -142,12 +177,12 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
         k = owner.equations.states.index(x)
         process.append(num.noise.process[k])
         x0.append(owner.equations.initial[k])
-    x0_std = [2.0 * s for s in process] + [0.0] * len(carried) + (fault.x0_std if fault else [])
-    process += [0.0] * len(carried) + (fault.process if fault else [])
+    x0_std = [2.0 * s for s in process] + [0.0] * len(carried) + (fault.x0_std if fault else []) + [0.0] * len(flag)
+    process += [0.0] * len(carried) + (fault.process if fault else []) + [0.0] * len(flag)
     initial = _settled(first, every, x0, ssm0)
     # the draws of the guards with a tolerance: the median where no perturb draws them (a Kalman filter's points)
     x0 = initial + [1.0] + [0.0] * timed + [0.5] * len(spread) + [0.0] * (len(thresholds) - len(spread)) + \
-        (fault.x0 if fault else [])
+        (fault.x0 if fault else []) + [1.0] * len(flag)
     row = {x: i for i, x in enumerate(every)}
     n_nominal = n + len(carried)
     fault_row = {s: n_nominal + i for i, s in enumerate(fault_states)}
@@ -159,15 +194,40 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
         idle = [x for x in every if x not in s.states]
         variables = dict(s.variables)
         settle = [(row[x], variables[x]) for x in idle]
-        mode_ctx.append({"number": i, "name": m.name, "module": f"_m{i}_{name}", "rows": rows,
+        mode_ctx.append({"number": i, "name": m.name, "title": f"Mode {m.name}",
+                         "module": f"_m{i}_{codegen.module_name(d0.name) if stuck else name}", "rows": rows,
                          "idle": [row[x] for x in idle],
                          "settle": _assignments(settle, sources, where, f"mode {m.name}'s idle states")})
+    configs = list(mode_ctx)
+    stuck_ctx = None
+    if stuck is not None:
+        switch, indices, extra = stuck
+        for m, number in extra:
+            s = m.equations
+            missing = [x for x in s.states if x not in row]
+            if missing:
+                raise CodegenError(f"with {switch.title} in {m.name.split(' with ')[0]}, {', '.join(missing)} "
+                                   f"{'is a state' if len(missing) == 1 else 'are states'} in no mode of "
+                                   f"{model.name}; bgc cannot follow that stuck switch yet", switch.loc,
+                                   "declare a mode with that configuration of the switches, or leave out the fault")
+            idle = [x for x in every if x not in s.states]
+            configs.append({"number": len(configs) + 1, "name": m.name, "title": f"Configuration {m.name}",
+                            "module": f"_c{number}_{codegen.module_name(m.dbn.nominal.name)}",
+                            "rows": [row[x] for x in s.states], "idle": [row[x] for x in idle],
+                            "settle": _assignments([(row[x], dict(s.variables)[x]) for x in idle],
+                                                   _sources(s, row, m.dbn.nominal, {}), where,
+                                                   f"{m.name}'s idle states")})
+        stuck_ctx = {"configs": list(indices), "row": at[flag[0]], "title": escape(switch.title),
+                     "fault": repr({"parameter": switch.junction, "kind": switch.kind, "magnitude": FLAG_KIND,
+                                    "target": "switch", "subject": switch.junction, "unit": ""})}
     transitions = _transitions(model, modes, row, d0, fault_row, at, spread)
     n_inputs = len(ssm0.inputs)
     return {
-        "name": name, "title": escape(f"{'Nominal model' if fault is None else 'Model'} of {model.name} across "
-                                      f"its modes{'' if fault is None else f', with an {d0.kind} fault of {d0.parameter}'}."),
-        "modes": mode_ctx, "mode_names_tuple": codegen._tuple(repr(m.name) for m in modes),
+        "name": name, "title": escape(f"{'Nominal model' if fault is None and stuck is None else 'Model'} of "
+                                      f"{model.name} across its modes"
+                                      f"{'' if fault is None else f', with an {d0.kind} fault of {d0.parameter}'}"
+                                      f"{'' if stuck is None else f', with {stuck[0].title}'}."),
+        "modes": mode_ctx, "configs": configs, "stuck": stuck_ctx, "mode_names_tuple": codegen._tuple(repr(m.name) for m in modes),
         "states_tuple": codegen._tuple(repr(x) for x in states),
         "state_kinds_tuple": codegen._tuple(repr(k) for k in kinds),
         "inputs_tuple": codegen._tuple(repr(u) for u in (*ssm0.inputs, MODE)), "n_inputs": n_inputs,
@@ -178,7 +238,7 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
         "n_first": len(first.equations.states),
         "x0": codegen._floats(x0, "an initial value", where), "x0_std": codegen._floats(x0_std, "an initial std", where),
         "process_std": codegen._floats(process, "a process-noise std", where),
-        "fault": fault is not None,
+        "fault": fault is not None or stuck is not None,
         "noise_fault": fault is not None and fault_kind(d0.kind).noise,
         "transitions": transitions,
         "dt": print_number(model.settings.dt, "simulation.dt", where),

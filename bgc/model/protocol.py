@@ -102,6 +102,16 @@ def nominal_model(package: Package) -> FaultModel:
     return package.MODELS[NOMINAL]
 
 
+def sized_models(package: Package) -> list[str]:
+    """The names of the package's fault models that have a size to weigh and
+    estimate (sorted): all but the nominal model and a stuck switch's (whose
+    magnitude is a flag: :attr:`bgc.kinds.FaultKind.discrete`)."""
+    from ..kinds import fault_kind
+
+    return [name for name in sorted(package.MODELS) if name != NOMINAL
+            and not fault_kind(package.MODELS[name].FAULT["kind"]).discrete]
+
+
 #: The kinds of states the filters carry as the plant's (the rest are a fault model's fault states).
 CARRIED = ("physical", "mode", "dwell", "threshold")
 

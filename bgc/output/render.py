@@ -615,8 +615,8 @@ def hybrid_summary(model, modes) -> str:
     lines.append("  measurements: " + (", ".join(measured) or "none"))
     lines.append("  fault candidates: " + (fault_candidates_text(m) or "none"))
     if m.modes.stuck:
-        lines.append(f"  stuck switches: {len(m.modes.stuck)} (simulated and drawn; not weighed by the diagnosis "
-                     "yet)")
+        lines.append(f"  stuck switches: {len(m.modes.stuck)} (simulated, drawn and followed by bgc filter --fault; "
+                     "not weighed by the diagnosis yet)")
     for fault in m.modes.stuck:
         stuck = compile_stuck(m, modes, fault)
         runs = [f"{mode.name} runs as {same}" if same else f"{mode.name} runs in a configuration of its own"
