@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from ..errors import BgcError, ErrorGroup, printable
+from ..kinds import fault_kind
 from ..model import DEFAULT_BACKEND
 
 
@@ -160,7 +161,7 @@ def write_report(r, output: str, command: str) -> Path:
     for line in report.plain_words(d, r.labels):
         print(f"  {printable(line)}")
     e = d.estimate
-    if e is not None and d.verdict != "no fault":
+    if e is not None and d.verdict != "no fault" and not fault_kind(e.kind).discrete:  # (a stuck switch: no size)
         truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
         edge = {"high": ", at the upper bound of its prior", "low": ", at the lower bound of its prior"}
         print(f"  {e.magnitude} of {e.parameter}: {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}] "

@@ -48,7 +48,7 @@ from typing import Any
 from ..errors import BgcError, ErrorGroup, ExpressionError, ValidationError
 from ..ir import (
     GUARD_OPS, SWITCH_FAULTS, Bond, BondGraph, CausalBondGraph, DbnModel, Element, FaultSignatures, Guard, Mode,
-    Modes, StateSpaceModel, StuckSwitch, TemporalCausalGraph, Transition, effort, flow, sym, var_key,
+    Modes, Signature, StateSpaceModel, StuckSwitch, TemporalCausalGraph, Transition, effort, flow, sym, var_key,
 )
 from ..kinds import element_kind
 from . import expressions
@@ -457,7 +457,30 @@ def compile_modes(model: BondGraph) -> tuple[ModeModel, ...]:
                     t.loc, f"the states of {t.target}: {', '.join(sorted(states[t.target], key=var_key)) or 'none'}"))
     if errors:
         raise ErrorGroup(errors)
-    return tuple(out)
+    return _with_stuck(model, tuple(out))
+
+
+def _with_stuck(model: BondGraph, compiled: tuple[ModeModel, ...]) -> tuple[ModeModel, ...]:
+    """Each mode's signatures with those of the switches that may stick: in a
+    mode whose configuration the stuck switch leaves as it is, nothing
+    deviates ("0" everywhere: a deviation seen there rules it out); in the
+    others every sensor may deviate either way ("?": which way a switch's
+    flow or effort moves them depends on where the plant stands, so the
+    symbols cannot rule it out there; the data weigh it)."""
+    if not model.modes.stuck:
+        return compiled
+    added: list[list[Signature]] = [[] for _ in compiled]
+    for fault in model.modes.stuck:
+        stuck = compile_stuck(model, compiled, fault)
+        for i, (m, same) in enumerate(zip(compiled, stuck.same)):
+            ssm = m.equations
+            depth = len(ssm.states) + 2  # as signatures.derive: through every integrator, plus a drift's order
+            symbol = "0" if same == m.name else "?"
+            added[i].append(Signature(fault.junction, 1 if fault.kind == "stuck_on" else -1, fault.kind,
+                                      tuple((symbol,) * (depth + 1) for _ in ssm.outputs),
+                                      ssm.outputs if symbol == "?" else ()))
+    return tuple(dataclasses.replace(m, signatures=dataclasses.replace(
+        m.signatures, signatures=m.signatures.signatures + tuple(more))) for m, more in zip(compiled, added))
 
 
 class _Refused(Exception):

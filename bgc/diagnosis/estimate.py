@@ -39,6 +39,8 @@ def truth_of(module, run: Run | None) -> tuple[float, float | None]:
     stopped stepped)."""
     p = module.FAULT["parameter"]
     kind = fault_kind(module.FAULT["kind"])
+    if kind.discrete:  # a stuck switch: its flag, nominal 0; a run records no flag
+        return 0.0, None
     nominal = dict(zip(module.PARAMETERS, module.THETA))[p]
     if run is None:
         return nominal, None

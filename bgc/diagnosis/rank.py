@@ -55,6 +55,10 @@ def ranked(hyps: tuple[Hypothesis, ...], weights: np.ndarray, priors: dict[str, 
     out, log_w, grids = list(hyps), [], {}
     for i in alive:
         h = hyps[i]
+        if fault_kind(h.kind).discrete:  # no size to hold on a grid: its filters' evidence over its onsets
+            out[i] = dataclasses.replace(h, static_log_evidence=h.log_evidence)
+            log_w.append(math.log(max(priors.get(h.parameter, 0.01), 1e-300)) + h.log_evidence)
+            continue
         g = grid_posterior(package, h.name, h.estimate, clouds, ys, us, chosen[i], options, [options.seed, 8], first,
                            options.rank_grid)
         grids[h.name] = g

@@ -173,8 +173,10 @@ def kalman_hypothesis(name: str, signatures: tuple[str, ...], package, p: Static
 
 def misfit_reason(magnitude: str, value: float, start: float, alarm: Detection) -> str:
     """Why a fault model with its magnitude held static fails the consistency test."""
-    return (f"with its {magnitude} held at {value:.4g} from t = {start:.12g} (the most probable magnitude and onset; "
-            f"its estimate is the mean over all of them), its residual "
+    held = ("stuck from t = {start:.12g} (its most probable onset)" if magnitude == "switch" else  # no size
+            f"with its {magnitude} held at {value:.4g} from t = {start:.12g} (the most probable magnitude and onset; "
+            f"its estimate is the mean over all of them)").format(start=start)
+    return (f"{held}, its residual "
             f"of {alarm.sensor} over {alarm.window} sample(s) reached {alarm.statistic:.1f} (threshold "
             f"{alarm.threshold:.1f})")
 

@@ -263,9 +263,44 @@ def static_posterior(model: FaultModel, ys: np.ndarray, us: np.ndarray, track: N
     every onset; after it each onset's row is laid anew on its own
     (:func:`_next_range`), up to ``passes`` passes; onsets holding under
     ``keep`` of the best one's mass are left out of the next pass."""
+    if fault_kind(model.FAULT["kind"]).discrete:
+        return flag_posterior(model, ys, us, track, onsets, level)
     search = _Search(model, ys, us, track, onsets, hint, hint_onset, options, earlier, refine, far)
     _drive(search.run(), model, ys, us, track)
     return search.posterior(level)
+
+
+def flag_posterior(model: FaultModel, ys: np.ndarray, us: np.ndarray, track: NominalTrack, onsets,
+                   level: float) -> StaticPosterior:
+    """The posterior of a fault with no size (a stuck switch,
+    :attr:`bgc.kinds.FaultKind.discrete`): its onset alone, each of
+    ``onsets`` weighed by the span of samples it stands for, the flag at 1
+    from the onset (one cubature Kalman filter per onset); its evidence
+    the onsets' sum of width x likelihood, as a sized fault's with its
+    magnitude's integral left out. The magnitude's "posterior" is the point
+    1 (its ``trace`` too); the most likely onset's normalised residuals are
+    kept for its consistency test."""
+    onsets = np.asarray(sorted(int(o) for o in onsets))
+    widths = onset_widths(onsets)
+    r = run_bank(model, ys, us, track, onsets, np.ones(len(onsets)), fault_start(model, track, int(onsets[0])),
+                 residuals=True)
+    loglik = np.asarray(r.loglik, dtype=float)
+    name = getattr(model, "NAME", "")
+    if not np.isfinite(loglik).any():
+        return _none_told(name, onsets, widths.tolist(), level, 1)
+    every = loglik + np.log(widths)
+    top = float(np.max(every[np.isfinite(every)]))
+    mass = np.where(np.isfinite(every), np.exp(every - top), 0.0)
+    posterior = mass / mass.sum()
+    # the onset: the latest of the most likely (a stuck switch changes nothing until a mode asks it to
+    # move, so the onsets before that tie: it stuck at the latest there)
+    finite = np.where(np.isfinite(loglik), loglik, -np.inf)
+    best = int(np.flatnonzero(finite >= finite.max() - 1e-9 * max(1.0, abs(finite.max())))[-1])
+    return StaticPosterior(name, tuple(int(o) for o in onsets), tuple(float(w) for w in widths),
+                           np.ones((len(onsets), 1)), loglik[:, None], top + math.log(float(mass.sum())), 1.0, 0.0,
+                           1.0, 1.0, level, 1.0, int(onsets[best]),
+                           tuple(float(q) for q in posterior), 1, (int(onsets[best]), 1.0), r.z[:, best],
+                           trace=np.column_stack([np.ones(len(ys)), np.zeros(len(ys))]))
 
 
 def static_posteriors(models: list, ys: np.ndarray, us: np.ndarray, track: NominalTrack, arguments: list) -> list:
@@ -275,8 +310,13 @@ def static_posteriors(models: list, ys: np.ndarray, us: np.ndarray, track: Nomin
     models run as one stack (:func:`bgc.filters.cubature.run_banks`: every
     cell's numbers those of its model's bank alone), so a step's array
     operations are paid once for every model instead of once each."""
-    searches, steps, asked = [], [], {}
+    searches, steps, asked, flags = [], [], {}, {}
     for i, (model, a) in enumerate(zip(models, arguments)):
+        if fault_kind(model.FAULT["kind"]).discrete:  # no grid: its onsets alone
+            flags[i] = flag_posterior(model, ys, us, track, a[0], a[3])
+            searches.append(None)
+            steps.append(None)
+            continue
         search = _Search(model, ys, us, track, *a[:3], *a[4:])
         searches.append(search)
         steps.append(search.run())
@@ -293,7 +333,7 @@ def static_posteriors(models: list, ys: np.ndarray, us: np.ndarray, track: Nomin
                 asked[i] = steps[i].send(r)
             except StopIteration:
                 pass
-    return [search.posterior(a[3]) for search, a in zip(searches, arguments)]
+    return [flags[i] if search is None else search.posterior(a[3]) for i, (search, a) in enumerate(zip(searches, arguments))]
 
 
 class _Search:

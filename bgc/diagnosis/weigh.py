@@ -42,8 +42,8 @@ def weighed(hyps: tuple[Hypothesis, ...], posteriors: dict, r, s) -> tuple[tuple
     if o.refine and decided in ("isolated", "ambiguous"):  # 8. the survivors' magnitudes on a grid
         s.say(f"refining the magnitude of {', '.join(candidates)} on a grid")
         reuse = grids if o.rank_grid == o.grid else {}  # the ranking's grids, when as fine
-        hyps = tuple(refined(h, reuse.get(h.name), s.package, r.clouds, r.ys, r.us, o) if h.name in candidates
-                     else h for h in hyps)
+        hyps = tuple(refined(h, reuse.get(h.name), s.package, r.clouds, r.ys, r.us, o)
+                     if h.name in candidates and not fault_kind(h.kind).discrete else h for h in hyps)
     hyps = tuple(checked(h, r.outputs, o) if h.name in candidates and static else h for h in hyps)
     hyps = misfits(hyps, lambda k: float(r.time[k]))
     prior_of = {h.name: tuple(float(v) for v in s.package.MODELS[h.name].FAULT_PRIOR) for h in hyps}

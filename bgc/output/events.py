@@ -106,8 +106,10 @@ def sentence(e, time_of) -> str:
         case ev.NoLikelihood():
             return "the cubature Kalman filters found no finite likelihood for any hypothesis"
         case ev.Misfit(hypothesis=h, magnitude=m, value=v, start=s, sensor=y, window=w, statistic=z, threshold=c):
-            return (f"{h} with its {m} held at {v:.4g} from t = {t(s)} (the most probable magnitude and onset; its "
-                    f"estimate is the mean over all of them): its residual of {y} "
+            held = (f"stuck from t = {t(s)} (its most probable onset)" if m == "switch" else
+                    f"with its {m} held at {v:.4g} from t = {t(s)} (the most probable magnitude and onset; its "
+                    f"estimate is the mean over all of them)")
+            return (f"{h} {held}: its residual of {y} "
                     f"over {w} sample(s) reached {z:.1f} (threshold {c:.1f}); the fault model as stated (or the "
                     f"Kalman filters' Gaussian approximation) does not explain these data: it fails the "
                     f"goodness-of-fit test")
@@ -199,6 +201,9 @@ def fault_sentence(e, since, per_time: str = "per unit time") -> str:
     >>> e = Estimate("F12_noise", "noise", "bias", 4.0, 0.3, 3.4, 4.6, 0.95, 5.0, 1.0, target="sensor", subject="F12")
     >>> fault_sentence(e, 60.0)
     "sensor F12's noise is 5 times its own since t = 60"
+    >>> e = Estimate("K", "stuck_off", "switch", 1.0, 0.0, 1.0, 1.0, 0.95, 1.0, 0.0, target="switch", subject="K")
+    >>> fault_sentence(e, 0.99)
+    'switch K is stuck OFF, at the latest since t = 0.99'
     """
     from ..kinds import fault_kind
 
@@ -224,13 +229,16 @@ def fault_sentence(e, since, per_time: str = "per unit time") -> str:
             text = f"actuator {name} delivers {size} {'more' if up else 'less'} than commanded"
         case ("actuator", "drift"):
             text = f"actuator {name}'s output drifts {'up' if up else 'down'} by {rate} from the command"
+        case ("switch", _):
+            text = f"switch {name} is stuck {'ON' if e.kind == 'stuck_on' else 'OFF'}"
         case (_, "incipient"):
             text = f"parameter {name} drifts {'up' if up else 'down'} by {rate}"
         case _:
             percent = f" ({100 * v / abs(e.nominal):+.3g} %)" if e.nominal else ""
             text = f"parameter {name} {'rose' if up else 'fell'} by {size}{percent}"
     if since is not None and math.isfinite(since):
-        text += f" since t = {time_text(since)}"
+        # a stuck switch shows only when a mode asks it to move: it stuck at that latest
+        text += f"{', at the latest' if e.target == 'switch' else ''} since t = {time_text(since)}"
     if e.bound is not None:
         text += ", or more: the model's prior ends there"
     return text

@@ -304,11 +304,18 @@ def hypothesis_rows(d, labels: Labels = Labels()) -> list[tuple[str, ...]]:
         e = h.estimate
         unit = f" {u}" if (u := magnitude_unit(h, labels)) else ""
         truth = f" (true {e.truth:.4g})" if e.truth is not None else ""
-        rows.append((h.name, _tt(d, h.onset_step), f"{h.posterior:.3g}", f"{e.magnitude} {e.value:.4g}{unit}{truth}",
-                     f"[{e.low:.4g}, {e.high:.4g}]{unit}",
+        stuck = e.magnitude == "switch"  # a stuck switch: no size
+        rows.append((h.name, _tt(d, h.onset_step), f"{h.posterior:.3g}",
+                     _stuck_text(e) if stuck else f"{e.magnitude} {e.value:.4g}{unit}{truth}",
+                     "-" if stuck else f"[{e.low:.4g}, {e.high:.4g}]{unit}",
                      "-" if h.dropped_step is None else f"t = {_tt(d, h.dropped_step)}",
                      h.reason))
     return rows
+
+
+def _stuck_text(e) -> str:
+    """A stuck switch's estimate in words: ``K stuck OFF``."""
+    return f"{e.subject or e.parameter} stuck {'ON' if e.kind == 'stuck_on' else 'OFF'}"
 
 
 def identification_lines(d, labels: Labels = Labels()) -> list[tuple[str, str | None]]:
@@ -321,6 +328,11 @@ def identification_lines(d, labels: Labels = Labels()) -> list[tuple[str, str | 
     for name in d.candidates:
         h = next(x for x in d.hypotheses if x.name == name)
         e = h.estimate
+        if e.magnitude == "switch":  # no size: its onset alone
+            out.append((f"{name}: {_stuck_text(e)}, at the latest from t = {_tt(d, h.onset_step)} (a stuck switch "
+                        f"shows only when a mode asks it to move; weighed over its onsets by cubature Kalman "
+                        f"filters)", None))
+            continue
         what = (f"{e.parameter} = {e.nominal:g} + bias" if e.magnitude == "bias"
                 else f"slope of {e.parameter} ({labels.per_time})")
         unit = f" {u}" if (u := magnitude_unit(h, labels)) else ""
