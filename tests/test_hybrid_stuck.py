@@ -85,7 +85,7 @@ def test_the_truth_simulator_keeps_a_stuck_relay_open_whatever_its_mode_says():
     """K stuck OFF from 0.5 s (the relay still open then): the plant is the open relay's from the
     start (solve_ivp on its equations), while the automaton closes the relay when v passes 6 and,
     v never falling under 4 again, stays closed."""
-    with pytest.warns(bgc.ScenarioWarning, match="does not weigh stuck switches yet"):
+    with pytest.warns(bgc.ScenarioWarning, match="lists no fault K:stuck_off among its candidates"):
         sim = bgc.simulate(RELAY, "K:stuck_off@0.5", seed=1, steps=1100, process_noise=0.0)
     t = sim.time
     exact = solve_ivp(lambda _, x: derivative("open", x), (0.0, t[-1]), [0.0, 0.0], t_eval=t, rtol=1e-11,
@@ -150,9 +150,9 @@ def test_a_stuck_switch_is_asked_for_in_one_line(tmp_path):
 
 
 def test_a_campaign_runs_a_stuck_relay_and_its_diagnosis_says_unexplained(tmp_path):
-    """The diagnosis does not weigh stuck switches yet: a run whose relay sticks open at 3 s comes
-    out "unexplained" (no fault model explains it), and the campaign counts it as a fault the
-    model does not expect."""
+    """A model that lists no stuck switch: a run whose relay sticks open at 3 s comes out
+    "unexplained" (no fault model explains it), and the campaign counts it as a fault the model
+    does not expect (one that lists it: tests/test_stuck_switch.py)."""
     from bgc.experiment import campaign_file, one_run
 
     path = tmp_path / "campaign.yaml"

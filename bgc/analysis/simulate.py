@@ -275,16 +275,21 @@ def change_magnitude(num: Numerics, fault: str, change: float, span: float) -> f
     return magnitude
 
 
-def outside_prior(injection: FaultInjection, num: Numerics) -> str | None:
+def outside_prior(injection: FaultInjection, num: Numerics, modules: tuple[str, ...] | None = None) -> str | None:
     """Why the model's diagnoser would not expect this fault: not among its
     candidates, or a magnitude outside the candidate's prior; None when it
-    would."""
+    would. ``modules``: the generated modules' names (a compiled model's
+    view's), which say whether a stuck switch is a candidate (a view's
+    model keeps no modes; without either, one is taken as listed)."""
     name = f"{injection.parameter}:{injection.kind}"
     if injection.stuck:
-        modes = getattr(num.equations.model, "modes", None)  # (a model's view keeps none: not said then)
-        listed = modes is None or modes.stuck_fault(name) is not None
-        return (f"{'' if listed else 'the model lists no fault ' + name + ' among its candidates, and '}"
-                "the diagnosis does not weigh stuck switches yet: its diagnoser should find it unexplained")
+        modes = getattr(num.equations.model, "modes", None)
+        if modules is not None:
+            listed = f"{injection.parameter}_{injection.kind}" in modules
+        else:
+            listed = modes is None or modes.stuck_fault(name) is not None
+        return None if listed else (f"the model lists no fault {name} among its candidates: its diagnoser should "
+                                    "find it unexplained")
     try:
         f = num.fault(name)
     except KeyError:

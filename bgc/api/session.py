@@ -486,7 +486,7 @@ def input_signals(func: str, inputs: Mapping[str, Any] | None, model) -> tuple:
     return tuple((name, given[name]) for name in names if name in given)
 
 
-def scenario_of(func: str, scenario, num):
+def scenario_of(func: str, scenario, num, modules: tuple[str, ...] | None = None):
     """``scenario`` (text or a :class:`~bgc.analysis.simulate.FaultInjection`)
     read once at the API's edge (:func:`bgc.analysis.simulate.parse_scenario`):
     a malformed one is an :class:`~bgc.errors.ArgumentValueError` naming
@@ -502,7 +502,7 @@ def scenario_of(func: str, scenario, num):
             raise
         raise ArgumentValueError(e.what, e.loc, e.fix) from None
     if injected is not None:
-        why = simulate.outside_prior(injected, num)
+        why = simulate.outside_prior(injected, num, modules)
         if why is not None and arguments.DOOR.get() != "cli":  # the command line says it its own way
             warnings.warn(f"{func}: scenario {injected.text}: {why}", ScenarioWarning, stacklevel=3)
     return injected

@@ -248,7 +248,7 @@ def checked_scenario(func: str, c, scenario, steps: int | None) -> tuple[simulat
     where = arguments.spelled(f"{func}: steps={steps}", "--steps") if steps is not None else \
         f"{printable(c.model.source)}: simulation.steps"
     simulation.check_steps(T, c.numerics, where)
-    injected = scenario_of(func, scenario, c.numerics)
+    injected = scenario_of(func, scenario, c.numerics, getattr(c, "modules", None))
     last = T * c.model.settings.dt
     if injected is not None and not 0 < injected.time < last:
         raise (SimulationError if arguments.DOOR.get() == "cli" else ArgumentValueError)(

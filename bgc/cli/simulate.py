@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     fault = sim.parse_fault(args.fault, c.numerics) if args.fault else None
     if args.steps is not None:
         sim.check_steps(args.steps, c.numerics, "--steps")
-    unexpected = sim.outside_prior(fault, c.numerics) if fault else None
+    unexpected = sim.outside_prior(fault, c.numerics, c.modules) if fault else None
     if unexpected:
         print(f"warning: {unexpected}", file=sys.stderr)
     profile = None

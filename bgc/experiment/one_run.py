@@ -110,7 +110,8 @@ def run_one(spec: RunSpec, backend: str = DEFAULT_BACKEND) -> dict[str, Any]:
         injected = report.injected
         if injected is not None:
             row.update(target=injected.target,
-                       expected=simulate.outside_prior(injected, session.view.numerics) is None)
+                       expected=simulate.outside_prior(injected, session.view.numerics,
+                                                         session.view.modules) is None)
         if m.diagnosed != "none" and best is not None:  # where the diagnosed fault's estimate comes from
             row.update(diagnosed_target=best.estimate.target, estimate_method=best.estimate.method)
         if m.right and best is not None and spec.parameter_truth:  # relative: none for a truth of 0

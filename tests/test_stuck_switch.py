@@ -1,4 +1,5 @@
-"""A stuck switch's fault model, generated and followed by the filters.
+"""A stuck switch's fault model, generated, followed by the filters and
+weighed by the diagnosis.
 
 The relay of docs/examples/relay.yaml with ``K: {kinds: [stuck_on,
 stuck_off]}`` and ``S: [stuck_off]``: its package has a model per stuck
@@ -19,6 +20,7 @@ capacitor's voltage; the supply S ON in modes open and closed):
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -47,26 +49,35 @@ def _model(tmp_path: Path) -> Path:
     return path
 
 
-def _plant(closed: bool):
+def _plant(closed: bool, r_aux: float = R_AUX):
     def f(t, x):
         i, v = x
-        load = v / R_LOAD + (v / R_AUX if closed else 0.0)
+        load = v / R_LOAD + (v / r_aux if closed else 0.0)
         return [(V - R_S * i - v) / L, (i - load) / C]
     return f
 
 
-def _run(seed: int = 5) -> tuple[str, np.ndarray]:
-    """The run file's text (mode column: open, then closed from COMMAND) and
-    the true states: K never closes (stuck OFF), so the open equations all
-    along, from rest."""
+def _run(seed: int = 5, pieces=((0.0, False, R_AUX),), command=COMMAND) -> tuple[str, np.ndarray]:
+    """The run file's text (mode column: open, then closed from ``command``;
+    ``command`` a list of (time, mode number) for another schedule) and the
+    true states from rest: ``pieces`` (from time, relay closed, R_aux) of
+    the plant's own equations, solved piece by piece (default: K never
+    closes, stuck OFF, so the open equations all along)."""
     times = DT * np.arange(1, STEPS + 1)
-    sol = solve_ivp(_plant(closed=False), (0.0, times[-1]), [0.0, 0.0], t_eval=times, rtol=1e-10, atol=1e-12)
-    truth = sol.y.T
+    schedule = [(0.0, 1), (command, 2)] if isinstance(command, float) else list(command)
+    truth = np.empty((STEPS, 2))
+    x = [0.0, 0.0]
+    for k, (start, closed, r_aux) in enumerate(pieces):
+        end = pieces[k + 1][0] if k + 1 < len(pieces) else times[-1] + DT
+        inside = (times >= start - 1e-9) & (times < end - 1e-9)
+        sol = solve_ivp(_plant(closed, r_aux), (start, end), x, dense_output=True, rtol=1e-10, atol=1e-12)
+        truth[inside] = sol.sol(times[inside]).T
+        x = list(sol.sol(end))
     rng = np.random.default_rng(seed)
     ys = truth + NOISE * rng.standard_normal(truth.shape)
     lines = ["time,mode,u:V,y:i_L,y:v_C"]
     for t, (i, v) in zip(times, ys):
-        mode = 2 if t >= COMMAND - 1e-9 else 1
+        mode = [m for at, m in schedule if t >= at - 1e-9][-1]
         lines.append(f"{t:.10g},{mode},{V},{float(i)!r},{float(v)!r}")
     return "\n".join(lines) + "\n", truth
 
@@ -149,3 +160,74 @@ def test_bgc_filter_follows_a_stuck_switch_from_its_onset(relay):
         assert track.fault_estimate(r, package, run) is None  # no size: nothing to estimate
     assert errors["K_stuck_off"] < 3 * NOISE, errors
     assert errors["nominal"] > 30 * NOISE, errors
+
+
+# ------------------------------------------------------------------ the diagnosis weighs them
+def _diagnose(session, text: str):
+    return bgc.diagnose(session, runs.parse_run(text, "relay_stuck.csv"), particles=300, seed=2).diagnosis
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_a_relay_that_stuck_open_before_it_was_closed_is_named(relay, seed):
+    """K stuck OFF at 0.5 s, the operator closing it at 1 s (the data's mode
+    column): isolated as K stuck OFF, its onset at the latest the last
+    sample before the command (before it, a stuck-open relay changes
+    nothing: every onset there explains the data alike)."""
+    session, _, _ = relay
+    text, _ = _run(seed)
+    d = _diagnose(session, text)
+    assert d.verdict == "isolated" and d.candidates == ("K_stuck_off",), (d.verdict, d.candidates)
+    assert d.time_of(d.onset_step) <= COMMAND + 1e-9
+    assert d.detection.step >= int(round(COMMAND / DT)) - 1
+    e = d.best.estimate
+    assert e.target == "switch" and e.magnitude == "switch" and e.value == 1.0
+
+
+def test_a_relay_that_stuck_closed_is_named_when_the_operator_opens_it(relay):
+    """Closed at 0.5 s (it closes), commanded open at 1.5 s; K stuck ON from
+    1.2 s, so the plant stays closed: K stuck ON, not a parametric fault
+    (the relay's loads would have to change just as the mode does)."""
+    session, _, _ = relay
+    text, _ = _run(7, pieces=((0.0, False, R_AUX), (0.5, True, R_AUX)), command=[(0.0, 1), (0.5, 2), (1.5, 1)])
+    d = _diagnose(session, text)
+    assert d.verdict == "isolated" and d.candidates == ("K_stuck_on",), (d.verdict, d.candidates)
+    assert 1.2 - 1e-9 <= d.time_of(d.onset_step) <= 1.5 + 1e-9
+
+
+def test_a_load_that_changes_behind_a_closed_relay_is_not_called_a_stuck_switch(relay):
+    """R_aux 0.5 -> 0.9 ohm at 1.5 s, the relay closed at 0.5 s as commanded
+    and closed since: R_aux's step, sized, though the stuck switches are
+    weighed too (K stuck OFF would be R_aux infinite)."""
+    session, _, _ = relay
+    text, _ = _run(8, pieces=((0.0, False, R_AUX), (0.5, True, R_AUX), (1.5, True, 0.9)), command=0.5)
+    d = _diagnose(session, text)
+    assert d.verdict == "isolated" and d.candidates == ("R_aux_abrupt",), (d.verdict, d.candidates)
+    assert abs(d.best.estimate.value - 0.4) < 0.04
+    assert any(h.name == "K_stuck_off" for h in d.hypotheses)  # weighed, and out
+
+
+def test_a_relay_that_moves_as_commanded_raises_no_alarm(relay):
+    """Closed at 0.5 s, open at 1.5 s, closed at 2.2 s, as the mode column
+    says: no fault."""
+    session, _, _ = relay
+    text, _ = _run(9, pieces=((0.0, False, R_AUX), (0.5, True, R_AUX), (1.5, False, R_AUX), (2.2, True, R_AUX)),
+                   command=[(0.0, 1), (0.5, 2), (1.5, 1), (2.2, 2)])
+    assert _diagnose(session, text).verdict == "no fault"
+
+
+def test_a_campaign_counts_a_listed_stuck_relay_named_as_right(relay, tmp_path):
+    """bgc's simulator, the relay sticking open at 3 s after the automaton
+    closed it (the model lists the stuck switch): the campaign's row says
+    the fault was expected and named right (no size: no error)."""
+    from bgc.experiment import campaign_file, one_run
+
+    session, _, _ = relay
+    path = tmp_path / "campaign.yaml"
+    path.write_text(f"campaign: stuck\nseed: 1\ndefaults: {{particles: [200], steps: 600}}\ngroups:\n"
+                    f"  - name: stuck\n    model: {session.view.model.source}\n    modes: unpowered@6\n"
+                    "    scenarios: ['K:stuck_off@3']\n", encoding="utf-8")
+    spec, = campaign_file.load_campaign(path).specs
+    row = one_run.run_one(spec, backend="numpy")
+    assert row["status"] == "ok", row["failure"]
+    assert row["expected"] is True and row["detected"] and row["verdict"] == "isolated"
+    assert row["candidates"] == "K_stuck_off" and row["right"] is True and math.isnan(row["est_error"])
