@@ -1,7 +1,7 @@
 """A stuck switch's fault model, generated, followed by the filters and
 weighed by the diagnosis.
 
-The relay of docs/examples/relay.yaml with ``K: {kinds: [stuck_on,
+The relay of docs/examples/relay.yaml, which lists ``K: {kinds: [stuck_on,
 stuck_off]}`` and ``S: [stuck_off]``: its package has a model per stuck
 switch, ``K_stuck_off`` and so on, whose flag (0 before the onset, 1 from it)
 runs each mode in the configuration the stuck switch makes. The data come
@@ -35,18 +35,11 @@ from bgc.filters.cubature import nominal_track, run_bank
 from bgc.model.protocol import magnitude_row, nominal_model, sized_models
 
 ROOT = Path(__file__).resolve().parents[1]
+#: The relay, its switches K and S listed as stuck switches (K: stuck_on, stuck_off; S: stuck_off).
+RELAY = ROOT / "docs" / "examples" / "relay.yaml"
 R_S, L, C, R_LOAD, R_AUX, V = 0.5, 0.2, 2.0, 10.0, 0.5, 8.0
 DT, STEPS, NOISE = 0.01, 300, 0.01
 COMMAND, STUCK = 1.0, 0.5  # the operator closes K; K stuck OFF before it
-
-
-def _model(tmp_path: Path) -> Path:
-    text = (ROOT / "docs" / "examples" / "relay.yaml").read_text(encoding="utf-8")
-    assert "  v_C: [bias]\n" in text
-    text = text.replace("  v_C: [bias]\n", "  v_C: [bias]\n  K: {kinds: [stuck_on, stuck_off]}\n  S: [stuck_off]\n")
-    path = tmp_path / "relay_stuck.yaml"
-    path.write_text(text, encoding="utf-8")
-    return path
 
 
 def _plant(closed: bool, r_aux: float = R_AUX):
@@ -83,9 +76,8 @@ def _run(seed: int = 5, pieces=((0.0, False, R_AUX),), command=COMMAND) -> tuple
 
 
 @pytest.fixture(scope="module")
-def relay(tmp_path_factory):
-    path = _model(tmp_path_factory.mktemp("stuck"))
-    session = bgc.open(path, backend="numpy")
+def relay():
+    session = bgc.open(RELAY, backend="numpy")
     text, truth = _run()
     return session, runs.parse_run(text, "relay_stuck.csv"), truth
 

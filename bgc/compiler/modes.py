@@ -466,7 +466,8 @@ def _with_stuck(model: BondGraph, compiled: tuple[ModeModel, ...]) -> tuple[Mode
     deviates ("0" everywhere: a deviation seen there rules it out); in the
     others every sensor may deviate either way ("?": which way a switch's
     flow or effort moves them depends on where the plant stands, so the
-    symbols cannot rule it out there; the data weigh it)."""
+    symbols cannot rule it out there; the data weigh it). One with no
+    effect in a mode is listed among the mode's undetectable faults."""
     if not model.modes.stuck:
         return compiled
     added: list[list[Signature]] = [[] for _ in compiled]
@@ -480,7 +481,9 @@ def _with_stuck(model: BondGraph, compiled: tuple[ModeModel, ...]) -> tuple[Mode
                                       tuple((symbol,) * (depth + 1) for _ in ssm.outputs),
                                       ssm.outputs if symbol == "?" else ()))
     return tuple(dataclasses.replace(m, signatures=dataclasses.replace(
-        m.signatures, signatures=m.signatures.signatures + tuple(more))) for m, more in zip(compiled, added))
+        m.signatures, signatures=m.signatures.signatures + tuple(more),
+        undetectable=m.signatures.undetectable + tuple(s.name for s in more if not s.first)))
+        for m, more in zip(compiled, added))
 
 
 class _Refused(Exception):

@@ -615,8 +615,8 @@ def hybrid_summary(model, modes) -> str:
     lines.append("  measurements: " + (", ".join(measured) or "none"))
     lines.append("  fault candidates: " + (fault_candidates_text(m) or "none"))
     if m.modes.stuck:
-        lines.append(f"  stuck switches: {len(m.modes.stuck)} (simulated, drawn and followed by bgc filter --fault; "
-                     "not weighed by the diagnosis yet)")
+        lines.append(f"  stuck switches: {len(m.modes.stuck)} (fault models with no size: the diagnosis weighs them "
+                     "over their onsets)")
     for fault in m.modes.stuck:
         stuck = compile_stuck(m, modes, fault)
         runs = [f"{mode.name} runs as {same}" if same else f"{mode.name} runs in a configuration of its own"
@@ -629,7 +629,7 @@ def hybrid_summary(model, modes) -> str:
     lines.append(f"  warnings: {len(warnings) or 'none'}")
     lines.extend(f"    warning: {w}" for w in warnings)
     lines.append("  not built yet for a model with modes: diagnosing a mode the data do not give (hidden), "
-                 "weighing stuck switches")
+                 "a transition the controller did not command")
     return "\n".join(printable(line) for line in lines)
 
 
