@@ -166,12 +166,13 @@ def test_rc_sensor_noise_swamped_by_process_noise_is_named(tmp_path):
     """A sensor whose noise (0.0005) is tiny beside the process noise it
     reads (a std of about 0.05): its likelihood is flat toward 0, so it is
     named as not identifiable (not an error, not a spurious estimate), and
-    the process level is estimated with it held."""
+    the process level is estimated with it held (150 steps: each of the
+    fit's some 200 likelihoods runs a Kalman filter over them)."""
     text = RC.read_text(encoding="utf-8").replace("process_noise: 0", "process_noise: 0.05")
     path = tmp_path / "rc_noisy_plant.yaml"
     path.write_text(text.replace("e1: {noise: 0.02}", "e1: {noise: 0.0005}"), encoding="utf-8")
     session = bgc.open(path)
-    result = simulate.simulate(session.compiled.numerics, simulate.SimulationOptions(steps=300, seed=6))
+    result = simulate.simulate(session.compiled.numerics, simulate.SimulationOptions(steps=150, seed=6))
     c = session.calibrate(runs.parse_run(simulate.to_csv(result), "r.csv")).calibration
     e = c.estimate("noise e1")
     assert not e.identifiable and e.why.startswith("the likelihood is nearly flat") and e.level == 0.0005
