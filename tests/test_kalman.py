@@ -371,17 +371,21 @@ def exact_grid(package, name, ys, us, onsets, values):
 @pytest.mark.slow
 @pytest.mark.parametrize("scenario, name, onsets, values, seed", [
     ("R12:abrupt:0.8@60", "R12_abrupt", list(range(110, 126)), np.linspace(0.3, 1.5, 1201), 7),
-    ("R12:incipient:0.01@60", "R12_incipient", list(range(88, 152, 4)), np.linspace(0.002, 0.03, 1401), 7),
+    ("R12:incipient:0.01@60", "R12_incipient", list(range(88, 152, 4)), np.linspace(0.002, 0.03, 701), 7),
     # a wide window of onsets, each with a narrow likelihood in the slope: a first grid coarse against
     # every onset's peak must not leave out the onsets whose peaks fall between its points
-    ("R10:incipient:0.013333@60", "R10_incipient", list(range(79, 144, 4)), np.linspace(0.006, 0.022, 1601), 0),
+    ("R10:incipient:0.013333@60", "R10_incipient", list(range(79, 144, 4)), np.linspace(0.006, 0.022, 801), 0),
 ])
 def test_the_adaptive_grid_integrates_like_a_fine_brute_force_grid(scenario, name, onsets, values, seed):
     """Posterior mean, std, interval and evidence of the adaptive grid (a few
     dozen cells, started from a poor hint) against quadrature on a grid of
-    ~20000 cells over the same onsets with the same weights (a drift's onsets
+    ~10000 cells over the same onsets with the same weights (a drift's onsets
     are refined sample by sample where its posterior is: the onsets the
-    adaptive grid ends with), with the magnitude uniform on its prior."""
+    adaptive grid ends with), with the magnitude uniform on its prior. The
+    fine grid's spacing is at most a ninth of the posterior's std (measured:
+    0.11 and 0.07 std for the drifts, 0.1 for the step): its mean, std and
+    evidence are those of a grid twice as fine to 1e-5, its interval's ends
+    to 0.003 std, against the tolerance of 0.05 std."""
     package, ys, us = data("two_tank", scenario, seed=seed)
     fault = package.MODELS[name]
     t = kalman.nominal_track(package.MODELS["nominal"], ys, us, max(onsets))
