@@ -38,8 +38,8 @@ def exact_run(r_aux: float, end: float, seed: int, modes: bool = True) -> runs.R
 @pytest.mark.slow
 def test_a_load_behind_the_relay_is_calibrated_through_its_switches():
     """R_aux carries current only while the relay is closed: the plant's 0.45 ohm (the model
-    file says 0.5) is found from 5 s of data holding several closings and openings."""
-    run = exact_run(0.45, 5.0, seed=7)
+    file says 0.5) is found from 4 s of data holding four closings and openings."""
+    run = exact_run(0.45, 4.0, seed=7)
     assert int(np.sum(np.diff(run.modes) != 0)) >= 4
     report = bgc.open(RELAY, backend="numpy").calibrate(run, estimate="R_aux")
     e = report.calibration.estimate("R_aux")
