@@ -362,12 +362,13 @@ def test_a_drift_found_long_after_it_began_gets_its_onset_grid_extended_back():
     onset posterior piles up at its earliest onset, and the grid is extended
     back (by the particle filters with ``identify="filter"``, by the Kalman
     filters of the static posterior by default); the drift is isolated with
-    its onset within 12 samples. (Both diagnoses on two workers; that a
-    diagnosis on one process gives the same numbers is
-    test_the_filters_of_a_diagnosis_run_in_worker_processes_with_the_same_results's,
-    and the Kalman filters' searches side by side each model's alone,
+    its onset within 12 samples. Both diagnoses on two workers; the particle
+    filters' rounds of earlier onsets give the same numbers on one process
+    (a Kalman diagnosis on one process gives the same numbers:
+    test_the_filters_of_a_diagnosis_run_in_worker_processes_with_the_same_results,
+    and the Kalman filters' searches side by side each model's alone:
     tests/test_kalman.py's
-    test_static_posteriors_side_by_side_are_each_models_alone_bit_for_bit.)"""
+    test_static_posteriors_side_by_side_are_each_models_alone_bit_for_bit)."""
     d = run("circuit", "R3:incipient:0.0308906@5.3", seed=473362393, workers=2)
     assert d.detection.step - 106 > 64
     assert d.candidates[0] == "R3_incipient"
@@ -380,6 +381,14 @@ def test_a_drift_found_long_after_it_began_gets_its_onset_grid_extended_back():
     h = f.best
     assert f.candidates[0] == "R3_incipient" and min(h.onset_steps) < f.detection.step - 64
     assert abs(h.start_step - 106) <= 12, h.start_step
+    # each hypothesis's batches of onsets depend on its own results only: on one process (the
+    # batches one after another) the same onsets are tried and give the same numbers
+    one = bgc.diagnose(circuit, scenario="R3:incipient:0.0308906@5.3", seed=473362393,
+                       options=DiagnosisOptions(seed=473362393, workers=1, identify="filter", spacing=4)).diagnosis
+    assert [(x.name, x.onset_steps) for x in one.hypotheses] == [(x.name, x.onset_steps) for x in f.hypotheses]
+    for x, y in zip(one.hypotheses, f.hypotheses):
+        assert x.log_evidence == y.log_evidence and x.onset_posterior == y.onset_posterior
+        assert np.array_equal(x.magnitude, y.magnitude, equal_nan=True)
 
 
 TEST_MODELS = ROOT / "tests" / "data" / "models"
