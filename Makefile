@@ -29,9 +29,13 @@ export REPLAY
 # (this machine) nothing else would, and every process of the tests would compile its imports from
 # source (measured: the suite 608 s -> 753 s without it). pip would write it one file at a time (half
 # of the install's 46 s); compileall -j 0 writes the same files on every core (21 s + 13 s, measured).
+# bgc itself is built with the environment's own setuptools and wheel (pyproject.toml's build
+# requirement, installed first), not in an isolated build environment pip would make afresh each
+# time (measured: the install 42 s -> 32 s).
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --no-compile --disable-pip-version-check -e '.[test]'
+	$(BIN)/python -m pip install --quiet --no-compile --disable-pip-version-check 'setuptools>=64' wheel
+	$(BIN)/python -m pip install --quiet --no-compile --disable-pip-version-check --no-build-isolation -e '.[test]'
 	$(BIN)/python -m compileall -q -j 0 $$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])') > /dev/null
 	touch $(STAMP)
 
