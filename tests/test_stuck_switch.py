@@ -20,6 +20,7 @@ capacitor's voltage; the supply S ON in modes open and closed):
 
 from __future__ import annotations
 
+import io
 import math
 from pathlib import Path
 
@@ -223,3 +224,20 @@ def test_a_campaign_counts_a_listed_stuck_relay_named_as_right(relay, tmp_path):
     assert row["status"] == "ok", row["failure"]
     assert row["expected"] is True and row["detected"] and row["verdict"] == "isolated"
     assert row["candidates"] == "K_stuck_off" and row["right"] is True and math.isnan(row["est_error"])
+
+
+@pytest.mark.parametrize("model", [RELAY, ROOT / "models" / "ro_hybrid.yaml"])
+def test_the_packages_of_a_model_with_modes_pass_pyflakes(model):
+    """No unused or undefined names in the generated modules of a model with
+    modes, the NumPy and the compiled package: the relay (stuck switches,
+    guards without a tolerance) and the autonomous RO (guards with one)."""
+    from pyflakes.api import check
+    from pyflakes.reporter import Reporter
+
+    from bgc.pipeline import compile_model
+
+    package = compile_model(model).package
+    out, err = io.StringIO(), io.StringIO()
+    for name, text in (*package.files, *package.numba_files):
+        check(text, name, Reporter(out, err))
+    assert out.getvalue() + err.getvalue() == ""

@@ -41,6 +41,16 @@ runtime's protocol (:mod:`bgc.model.protocol`) with a mode axis:
   could move (a threshold in its tail is still tried), their importance
   weight in the state ``proposal``, which the particle filters add to the
   particles' log-weights.
+* **A stuck switch** the model lists (``faults: K: {kinds: [stuck_off]}``)
+  has a model of its own, ``K_stuck_off``: the nominal model's states and
+  one more, its flag ``K_stuck`` (kind ``switch``: 0 before the onset, 1
+  from it, a magnitude with no size); a particle whose flag is set runs
+  each mode in the configuration the stuck switch makes there
+  (:func:`bgc.compiler.modes.compile_stuck`): a declared mode's module, or
+  one generated for a configuration no mode has, ``_c<k>_nominal``. Its
+  guards, resets and transitions are the modes' (the data still say the
+  mode the controller asked for). A configuration with a state no mode has
+  is refused in one line.
 * **Noise levels** are those the simulator uses: a state's process noise is
   that of the first mode it is a state of, the measurement noise the first
   mode's.
