@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import bgc
 from bgc import pipeline
 from bgc.analysis import hybrid
 from bgc.analysis.simulate import SimulationOptions
@@ -98,3 +99,16 @@ def test_the_plot_shows_the_mode_timeline_under_the_measurements(run, tmp_path):
                    "--plot", tmp_path / "r.png")
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "r.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_session_of_a_model_with_modes_simulates_its_automaton():
+    """bgc.simulate of a session (bgc.open) of a model with modes runs the
+    automaton as the model file does: the same run, the same switches (it
+    once took the session for a model of one mode and refused modes=)."""
+    session = bgc.open(RELAY, backend="numpy")
+    by_session = bgc.simulate(session, "R_aux:abrupt:0.4@3", seed=2, steps=600, modes="unpowered@4")
+    by_file = bgc.simulate(RELAY, "R_aux:abrupt:0.4@3", seed=2, steps=600, modes="unpowered@4")
+    assert by_session.switches == by_file.switches and by_session.switches
+    assert any(s.kind == "controlled" and s.target == "unpowered" for s in by_session.switches)
+    for name, values in by_file.measurements.items():
+        assert np.array_equal(by_session.measurements[name], values), name

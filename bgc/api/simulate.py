@@ -144,10 +144,16 @@ def simulate(model: str | Path | Session, scenario: str | simulation.FaultInject
     if modes is not None:
         arguments.text(func, "modes", modes)
     if not isinstance(model, Session):
+        from .. import pipeline
         from ..compiler.load import declares_modes
 
         if declares_modes(model):
-            return _hybrid(func, model, scenario, seed, steps, inputs, (process_noise, measurement_noise), modes)
+            h = pipeline.check_model(model)
+            return _hybrid(func, h, h.numerics(), scenario, seed, steps, inputs, (process_noise, measurement_noise),
+                           modes)
+    elif model.view.modes:  # a session of a model with modes: its noise levels, its file as it was compiled
+        _session_of(func, model, process_noise, measurement_noise, None, lambda text: None)
+        return _hybrid(func, *_checked(model.view), scenario, seed, steps, inputs, model.noise, modes)
     if modes is not None:
         raise ArgumentValueError(f"{func}: modes={modes!r}, and the model has no modes", None, "drop modes=")
     if isinstance(model, Session):  # its noise levels apply, as in bgc.diagnose
@@ -161,14 +167,12 @@ def simulate(model: str | Path | Session, scenario: str | simulation.FaultInject
     return Simulation(c.model.name, text, seed, injected, run)
 
 
-def _hybrid(func: str, model, scenario, seed: int, steps: int | None, inputs, noise, modes: str | None) -> Simulation:
-    """:func:`simulate` of a model with modes: its automaton (:mod:`bgc.analysis.hybrid`)."""
+def _hybrid(func: str, h, nums, scenario, seed: int, steps: int | None, inputs, noise,
+            modes: str | None) -> Simulation:
+    """:func:`simulate` of a model with modes (``h`` its check, ``nums`` each
+    mode's numerics): its automaton (:mod:`bgc.analysis.hybrid`)."""
     from types import SimpleNamespace
 
-    from .. import pipeline
-
-    h = pipeline.check_model(model)
-    nums = h.numerics()
     # the first mode's numbers read and check the scenario, as a compiled model's do
     injected, _ = checked_scenario(func, SimpleNamespace(model=h.model, numerics=nums[0]), scenario, steps)
     signals = input_signals(func, inputs, h.model)
