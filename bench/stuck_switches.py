@@ -4,7 +4,7 @@ operator: the data's mode column), solved by scipy's solve_ivp on its
 equations derived by hand, piece by piece between the plant's switches.
 
     .venv/bin/python bench/stuck_switches.py [--runs 60] [--steps 600] [--seed 1]
-    .venv/bin/python bench/stuck_switches.py --plant ro [--runs 30] [--steps 300]
+    .venv/bin/python bench/stuck_switches.py --plant ro [--runs 30] [--steps 600]
 
 Each run draws an operator's schedule (a change of mode every 0.6 to 1.5 s
 among open, closed and unpowered: the supply on with the relay open or
@@ -27,8 +27,8 @@ unexplained, or not detected; and for the runs with no fault or a
 parametric one, how often a stuck switch was named.
 
 ``--plant ro``: the RO plant of models/ro_hybrid_valve.yaml (its valve set
-by an operator: a setting among primary, secondary and purge every 20 to
-60 s), one of its six stuck valves per run in turn, the data from bgc's
+by an operator through its cycle, primary, secondary, purge, primary, a
+change every 20 to 60 s), one of its six stuck valves per run in turn, the data from bgc's
 truth simulator (RK4 on 8 substeps of each mode's equations: not the
 filters' code, but bgc's equations; no hand-derived RO to compare with),
 the model's noise; separable as above, from the simulator's noise-free
@@ -215,20 +215,20 @@ def ro(args) -> int:
             t += float(rng.uniform(20.0, 60.0))
             if t >= end - dt:
                 break
-            mode = int(rng.choice([m for m in range(3) if m != mode]))
+            mode = (mode + 1) % 3  # the model's controlled transitions: primary, secondary, purge, primary
             changes.append(f"{names[mode]}@{round(t / dt) * dt:g}")
         modes = ",".join(changes)
         onset = round(float(rng.uniform(0.05, 2 / 3)) * end / dt) * dt
         scenario = f"{fault}@{onset:g}"
         quiet = dict(steps=args.steps, modes=modes, process_noise=0.0, measurement_noise=1e-12)  # noise-free, to rounding
-        clean = bgc.simulate(session, scenario, seed=k, **quiet)
-        healthy = bgc.simulate(session, "none", seed=k, **quiet)
+        clean = bgc.simulate(RO, scenario, seed=k, **quiet)
+        healthy = bgc.simulate(RO, "none", seed=k, **quiet)
         std = np.asarray(session.view.numerics.noise.measurement, dtype=float)
         sensors = [m.name for m in session.view.model.measurements]
         y = np.column_stack([clean.measurements[n] for n in sensors])
         y0 = np.column_stack([healthy.measurements[n] for n in sensors])
         separable = int((np.abs(y - y0) > 3 * std).any(axis=1).sum()) >= 10
-        sim = bgc.simulate(session, scenario, seed=k, steps=args.steps, modes=modes)
+        sim = bgc.simulate(RO, scenario, seed=k, steps=args.steps, modes=modes)
         d = bgc.diagnose(session, sim, particles=500, seed=k).diagnosis
         right = fault.replace(":", "_")
         if d.detection is None or d.verdict == "no fault":
