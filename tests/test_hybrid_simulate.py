@@ -112,3 +112,19 @@ def test_a_session_of_a_model_with_modes_simulates_its_automaton():
     assert any(s.kind == "controlled" and s.target == "unpowered" for s in by_session.switches)
     for name, values in by_file.measurements.items():
         assert np.array_equal(by_session.measurements[name], values), name
+
+
+def test_a_sensor_fault_the_model_does_not_list_is_simulated_and_said_unexpected(tmp_path):
+    """i_L's bias of 0.3 from 0.5 s, which the relay's model does not list
+    (no symbol of it in the equations): the reading is the true current
+    plus 0.3 from the onset (it once failed with a traceback), and the
+    scenario is said to be outside the model's candidates."""
+    with pytest.warns(bgc.ScenarioWarning, match="lists no fault i_L:bias among its candidates"):
+        sim = bgc.simulate(RELAY, "i_L:bias:0.3@0.5", seed=3, steps=100, process_noise=0.0,
+                           measurement_noise=1e-9)
+    offset = sim.measurements["i_L"] - sim.run.states["f3"]
+    after = sim.time >= 0.5 - 1e-9
+    assert np.allclose(offset[after], 0.3, atol=1e-6) and np.allclose(offset[~after], 0.0, atol=1e-6)
+    done = bgc_cli("simulate", str(RELAY), "--steps", "100", "--fault", "i_L:drift:0.1@0.5", "-o",
+                   str(tmp_path / "run.csv"))
+    assert done.returncode == 0 and "lists no fault i_L:drift among its candidates" in done.stderr

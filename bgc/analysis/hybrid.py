@@ -151,7 +151,10 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
     h = dt / substeps
     process, measurement = _noise(hybrid, numerics, every, options)
     theta0 = np.array(first.parameter_values, dtype=float)
-    index = first.parameters.index(fault.parameter) if fault is not None and not fault.stuck else None
+    changed = fault is not None and not fault.stuck
+    index = first.parameters.index(fault.parameter) if changed and fault.parameter in first.parameters else None
+    # a sensor's fault the model does not list has no symbol in its equations: added to the reading here
+    read = first.outputs.index(fault.subject) if changed and index is None else None
     signal_of = {i.name: i.signal for i in model.inputs} | dict(options.signals)
 
     def theta_at(t: float) -> list:
@@ -186,7 +189,10 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
                                   "reduce the fault magnitude or the noise, or check the model's values")
         out_x[k], out_u[k], out_m[k] = x, u, names.index(automaton.current) + 1
         out_y[k] = np.asarray(mode.g(list(x[mode.active]), u, theta_at(times[k])), dtype=float)
-    param = np.array([fault.value(theta0[index], t) for t in times]) if index is not None else None
+        if read is not None:
+            out_y[k, read] += fault.value(0.0, times[k])
+    param = np.array([fault.value(theta0[index], t) for t in times]) if index is not None else \
+        np.array([fault.value(0.0, t) for t in times]) if read is not None else None
     noisy = out_y + measurement * rng.standard_normal(out_y.shape)
     switches = tuple(automaton.switches)
     result = SimulationResult(model.name, model.display_source, times, tuple(first.inputs), out_u,

@@ -105,6 +105,9 @@ def _hybrid(args: argparse.Namespace) -> int:
     fault = sim.parse_fault(args.fault, nums[0]) if args.fault else None
     if args.steps is not None:
         sim.check_steps(args.steps, nums[0], "--steps")
+    unexpected = sim.outside_prior(fault, nums[0]) if fault else None  # (as for a model of one mode)
+    if unexpected:
+        print(f"warning: {unexpected}", file=sys.stderr)
     signals = signals_of(args.signals, tuple(u.name for u in h.model.inputs))
     options = sim.SimulationOptions(steps=args.steps, process_noise=process, measurement_noise=measurement,
                                     seed=args.seed, fault=fault, signals=signals)
