@@ -159,11 +159,12 @@ measurements: {f3: {}}
 @pytest.mark.process
 @pytest.mark.parametrize("reader", ["true", "head -1"])
 def test_a_closed_pipe_ends_quietly_with_status_0(reader):
-    """``bgc show equations models/ro.yaml | true`` (the reader never reads) or
-    ``| head -1`` (it stops early): no message, status 0, as other CLIs do.
-    A real process: the pipe must be a real one, closed by its reader, and
-    the interpreter's last flush must raise nothing."""
-    r = subprocess.run(["bash", "-c", f"set -o pipefail; {sys.executable} -m bgc show equations models/ro.yaml"
+    """``bgc show equations models/two_tank.yaml | true`` (the reader never
+    reads) or ``| head -1`` (it stops early), and the RO's TCG as JSON (a
+    longer output): no message, status 0, as other CLIs do. A real process:
+    the pipe must be a real one, closed by its reader, and the interpreter's
+    last flush must raise nothing."""
+    r = subprocess.run(["bash", "-c", f"set -o pipefail; {sys.executable} -m bgc show equations models/two_tank.yaml"
                                       f" | {reader} > /dev/null"], cwd=ROOT, capture_output=True, text=True)
     assert (r.returncode, r.stderr) == (0, "")
     big = subprocess.run(["bash", "-c", f"set -o pipefail; {sys.executable} -m bgc show tcg models/ro.yaml"
