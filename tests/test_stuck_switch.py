@@ -241,3 +241,16 @@ def test_the_packages_of_a_model_with_modes_pass_pyflakes(model):
     for name, text in (*package.files, *package.numba_files):
         check(text, name, Reporter(out, err))
     assert out.getvalue() + err.getvalue() == ""
+
+
+def test_bgc_distinguish_of_a_stuck_switch_says_it_cannot_predict_it_yet():
+    """bgc distinguish's prediction is linear in a fault's size; a stuck
+    switch has none: a one-line error pointing to the diagnosis (it used to
+    say the switch was no candidate and its diagnosis would end
+    unexplained, which is no longer so)."""
+    from conftest import bgc_cli
+
+    r = bgc_cli("distinguish", str(RELAY), "--scenario", "K:stuck_off@1", "--steps", "300")
+    assert r.returncode != 0 and "Traceback" not in r.stderr
+    line, = r.stderr.strip().splitlines()
+    assert "does not predict a stuck switch yet" in line and "bgc diagnose MODEL --scenario K:stuck_off@1" in line

@@ -152,6 +152,10 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         if inj is None:
             raise SimulationError("a fault-free scenario has no fault to tell apart", None,
                                   "give a fault, e.g. R_pipe:incipient:0.5@165, or no scenario for every candidate")
+        if inj.stuck:  # (a listed one is a candidate, weighed by the diagnosis; its families would have no size)
+            raise SimulationError(f"{inj.text}: bgc distinguish does not predict a stuck switch yet (its prediction "
+                                  "is linear in a fault's size, and a stuck switch has none)", None,
+                                  f"simulate and diagnose it instead: bgc diagnose MODEL --scenario {inj.text}")
         if all(f.name != f"{inj.parameter}:{inj.kind}" for f in num.faults):
             raise SimulationError(f"{inj.subject or inj.parameter}:{inj.kind} is not a fault candidate of "
                                   f"{c.model.name}: no fault model to tell apart from the others (its diagnosis "
