@@ -110,6 +110,35 @@ def truth(times, modes: list[tuple[float, int]], fault: str, onset: float, size:
     return out
 
 
+def outcome_of(d, fault: str) -> str:
+    """What diagnosis ``d`` made of a run with ``fault`` (``NAME:KIND``)."""
+    right = fault.replace(":", "_")
+    if d.detection is None or d.verdict == "no fault":
+        return "not detected"
+    if d.verdict == "isolated":
+        return "right" if d.candidates == (right,) else "another fault"
+    if d.verdict == "ambiguous":
+        return "among candidates" if right in d.candidates else "another fault"
+    return d.verdict
+
+
+def table(rows: list, faults, what: str) -> None:
+    """Print, per fault of ``faults``, its runs (``rows``: fault, separable,
+    outcome, ...), those separable and their outcomes, and the share of
+    the separable ones isolated right (``what``: how the faults are called)."""
+    print("| fault | runs | separable | isolated right | among candidates | another fault | unexplained | "
+          "not detected |")
+    print("|---|---|---|---|---|---|---|---|")
+    for fault in faults:
+        mine = [r for r in rows if r[0] == fault]
+        c = Counter(r[2] for r in mine if r[1])
+        print(f"| {fault} | {len(mine)} | {sum(r[1] for r in mine)} | {c['right']} | {c['among candidates']} | "
+              f"{c['another fault']} | {c['unexplained']} | {c['not detected']} |")
+    sep = [r for r in rows if r[0] in faults and r[1]]
+    right = sum(r[2] == "right" for r in sep)
+    print(f"\n{what} isolated right where separable: {right} of {len(sep)} ({100 * right / max(len(sep), 1):.1f} %)")
+
+
 def run_text(times, modes, ys) -> str:
     lines = ["time,mode,u:V,y:i_L,y:v_C"]
     for t, (i, v) in zip(times, ys):
@@ -152,36 +181,14 @@ def main(argv=None) -> int:
             warnings.simplefilter("ignore")
             d = bgc.diagnose(session, runs.parse_run(run_text(times, modes, ys), f"run{k}.csv"), particles=500,
                              seed=k).diagnosis
-        right = fault.replace(":", "_")
-        if d.detection is None:
-            outcome = "not detected"
-        elif d.verdict == "isolated":
-            outcome = "right" if d.candidates == (right,) else "another fault"
-        elif d.verdict == "ambiguous":
-            outcome = "among candidates" if right in d.candidates else "another fault"
-        elif d.verdict == "no fault":
-            outcome = "not detected"
-        else:
-            outcome = d.verdict
+        outcome = outcome_of(d, fault)
         stuck_named = any("stuck" in c for c in d.candidates)
         rows.append((fault, separable, outcome, stuck_named, noise))
         print(f"run {k:3d} {fault:14s} onset {onset:5.2f} noise {noise:.2f} separable {separable!s:5s} -> "
               f"{d.verdict}: {', '.join(d.candidates) or '-'}", flush=True)
     seconds = time.process_time() - started
     print()
-    print("| fault | runs | separable | isolated right | among candidates | another fault | unexplained | "
-          "not detected |")
-    print("|---|---|---|---|---|---|---|---|")
-    for fault in FAULTS[:3]:
-        mine = [r for r in rows if r[0] == fault]
-        sep = [r for r in mine if r[1]]
-        c = Counter(r[2] for r in sep)
-        print(f"| {fault} | {len(mine)} | {len(sep)} | {c['right']} | {c['among candidates']} | "
-              f"{c['another fault']} | {c['unexplained']} | {c['not detected']} |")
-    sep = [r for r in rows if r[0] in FAULTS[:3] and r[1]]
-    right = sum(r[2] == "right" for r in sep)
-    print(f"\nstuck switches isolated right where separable: {right} of {len(sep)} "
-          f"({100 * right / max(len(sep), 1):.1f} %)")
+    table(rows, FAULTS[:3], "stuck switches")
     for fault in FAULTS[3:]:
         mine = [r for r in rows if r[0] == fault]
         c = Counter(r[2] for r in mine)
@@ -204,8 +211,7 @@ def ro(args) -> int:
     dt = session.view.model.settings.dt
     end = args.steps * dt
     names = ("primary", "secondary", "purge")
-    counts: dict[str, Counter] = {f: Counter() for f in RO_FAULTS}
-    separable_runs: Counter = Counter()
+    rows = []
     started = time.process_time()
     for k in range(args.runs):
         rng = np.random.default_rng([args.seed, 100, k])
@@ -230,33 +236,12 @@ def ro(args) -> int:
         separable = int((np.abs(y - y0) > 3 * std).any(axis=1).sum()) >= 10
         sim = bgc.simulate(RO, scenario, seed=k, steps=args.steps, modes=modes)
         d = bgc.diagnose(session, sim, particles=500, seed=k).diagnosis
-        right = fault.replace(":", "_")
-        if d.detection is None or d.verdict == "no fault":
-            outcome = "not detected"
-        elif d.verdict == "isolated":
-            outcome = "right" if d.candidates == (right,) else "another fault"
-        elif d.verdict == "ambiguous":
-            outcome = "among candidates" if right in d.candidates else "another fault"
-        else:
-            outcome = d.verdict
-        if separable:
-            counts[fault][outcome] += 1
-            separable_runs[fault] += 1
+        rows.append((fault, separable, outcome_of(d, fault)))
         print(f"run {k:3d} {fault:17s} onset {onset:6.1f} modes {modes[:60]:60s} separable {separable!s:5s} -> "
               f"{d.verdict}: {', '.join(d.candidates) or '-'}", flush=True)
     seconds = time.process_time() - started
     print()
-    print("| fault | runs | separable | isolated right | among candidates | another fault | unexplained | "
-          "not detected |")
-    print("|---|---|---|---|---|---|---|---|")
-    for fault in RO_FAULTS:
-        c = counts[fault]
-        runs_of = len(range(RO_FAULTS.index(fault), args.runs, len(RO_FAULTS)))
-        print(f"| {fault} | {runs_of} | {separable_runs[fault]} | {c['right']} | {c['among candidates']} | "
-              f"{c['another fault']} | {c['unexplained']} | {c['not detected']} |")
-    right = sum(c["right"] for c in counts.values())
-    total = sum(separable_runs.values())
-    print(f"\nstuck valves isolated right where separable: {right} of {total} ({100 * right / max(total, 1):.1f} %)")
+    table(rows, RO_FAULTS, "stuck valves")
     print(f"CPU {seconds:.0f} s ({seconds / max(args.runs, 1):.1f} s per run)")
     return 0
 

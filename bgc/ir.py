@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 import numpy as np
 
 from .errors import SourceLoc
-from .kinds import SWITCH_KINDS, element_kind
+from .kinds import SWITCH_KINDS, element_kind, stuck_title
 
 if TYPE_CHECKING:
     import sympy
@@ -166,7 +166,7 @@ class StuckSwitch:
 
     @property
     def title(self) -> str:
-        return f"{self.junction} stuck {'ON' if self.kind == 'stuck_on' else 'OFF'}"
+        return stuck_title(self.junction, self.kind)
 
     def on(self, on: tuple[str, ...]) -> tuple[str, ...]:
         """The junctions ON in a mode whose own are ``on``, with this fault."""

@@ -367,6 +367,16 @@ SWITCH_KINDS: Mapping[str, FaultKind] = {
     for name, state in (("stuck_on", "ON"), ("stuck_off", "OFF"))}
 
 
+def stuck_state(kind: str) -> str:
+    """Where a stuck switch of ``kind`` (stuck_on, stuck_off) stays: ``ON`` or ``OFF``."""
+    return "ON" if kind == "stuck_on" else "OFF"
+
+
+def stuck_title(junction: str, kind: str) -> str:
+    """A stuck switch in words: ``K stuck OFF``."""
+    return f"{junction} stuck {stuck_state(kind)}"
+
+
 def kinds_for(target: str) -> str:
     """What a target takes, for messages: ``a sensor takes: bias, drift, stuck, noise``."""
     valid = ", ".join(k for k, fk in FAULT_KINDS.items() if target in fk.targets)

@@ -33,7 +33,7 @@ from ..arguments import spelled
 from ..compiler.rk4 import rk4_sample
 from ..errors import SimulationError, printable
 from ..ir import Numerics, Signal
-from ..kinds import FAULT_KINDS, fault_kind, kinds_for
+from ..kinds import FAULT_KINDS, fault_kind, kinds_for, stuck_title
 from ..data.runs import to_csv as _csv_text
 
 TRUTH_REFINEMENT = 8
@@ -79,7 +79,7 @@ class FaultInjection:
 
     def describe(self) -> str:
         if self.stuck:
-            return f"switch {self.subject} stuck {'ON' if self.kind == 'stuck_on' else 'OFF'} from t = {self.time:g}"
+            return f"switch {stuck_title(self.subject, self.kind)} from t = {self.time:g}"
         kind = fault_kind(self.kind)
         size = (f"std {kind.noise_factor(self.magnitude):g} times its own (magnitude {self.magnitude:g})"
                 if kind.noise else f"{kind.magnitude} {self.magnitude:g}")
@@ -283,10 +283,10 @@ def outside_prior(injection: FaultInjection, num: Numerics, modules: tuple[str, 
     model keeps no modes; without either, one is taken as listed)."""
     name = f"{injection.parameter}:{injection.kind}"
     if injection.stuck:
-        modes = getattr(num.equations.model, "modes", None)
         if modules is not None:
             listed = f"{injection.parameter}_{injection.kind}" in modules
         else:
+            modes = getattr(num.equations.model, "modes", None)
             listed = modes is None or modes.stuck_fault(name) is not None
         return None if listed else (f"the model lists no fault {name} among its candidates: its diagnoser should "
                                     "find it unexplained")

@@ -196,40 +196,13 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
     row = {x: i for i, x in enumerate(every)}
     n_nominal = n + len(carried)
     fault_row = {s: n_nominal + i for i, s in enumerate(fault_states)}
-    mode_ctx = []
-    for i, m in enumerate(modes, start=1):
-        s = m.equations
-        rows = [row[x] for x in s.states] + [fault_row[x] for x in fault_states]
-        sources = _sources(s, row, d0, fault_row)
-        idle = [x for x in every if x not in s.states]
-        variables = dict(s.variables)
-        settle = [(row[x], variables[x]) for x in idle]
-        mode_ctx.append({"number": i, "name": m.name, "title": f"Mode {m.name}",
-                         "module": f"_m{i}_{codegen.module_name(d0.name) if stuck else name}", "rows": rows,
-                         "idle": [row[x] for x in idle],
-                         "settle": _assignments(settle, sources, where, f"mode {m.name}'s idle states")})
-    configs = list(mode_ctx)
-    stuck_ctx = None
+    mode_ctx = [_configuration(i, m, f"Mode {m.name}", f"_m{i}_{codegen.module_name(d0.name) if stuck else name}",
+                               every, row, d0, fault_row, fault_states, where, f"mode {m.name}'s idle states")
+                for i, m in enumerate(modes, start=1)]
+    configs, stuck_ctx = list(mode_ctx), None
     if stuck is not None:
-        switch, indices, extra = stuck
-        for m, number in extra:
-            s = m.equations
-            missing = [x for x in s.states if x not in row]
-            if missing:
-                raise CodegenError(f"with {switch.title} in {m.name.split(' with ')[0]}, {', '.join(missing)} "
-                                   f"{'is a state' if len(missing) == 1 else 'are states'} in no mode of "
-                                   f"{model.name}; bgc cannot follow that stuck switch yet", switch.loc,
-                                   "declare a mode with that configuration of the switches, or leave out the fault")
-            idle = [x for x in every if x not in s.states]
-            configs.append({"number": len(configs) + 1, "name": m.name, "title": f"Configuration {m.name}",
-                            "module": f"_c{number}_{codegen.module_name(m.dbn.nominal.name)}",
-                            "rows": [row[x] for x in s.states], "idle": [row[x] for x in idle],
-                            "settle": _assignments([(row[x], dict(s.variables)[x]) for x in idle],
-                                                   _sources(s, row, m.dbn.nominal, {}), where,
-                                                   f"{m.name}'s idle states")})
-        stuck_ctx = {"configs": list(indices), "row": at[flag[0]], "title": escape(switch.title),
-                     "fault": repr({"parameter": switch.junction, "kind": switch.kind, "magnitude": FLAG_KIND,
-                                    "target": "switch", "subject": switch.junction, "unit": ""})}
+        more, stuck_ctx = _stuck(model, stuck, every, row, at[flag[0]], len(mode_ctx))
+        configs += more
     transitions = _transitions(model, modes, row, d0, fault_row, at, spread)
     n_inputs = len(ssm0.inputs)
     return {
@@ -254,6 +227,47 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
         "dt": print_number(model.settings.dt, "simulation.dt", where),
         "substeps": max(num.substeps for num in nums),
     }
+
+
+def _configuration(number: int, m: ModeModel, title: str, module: str, every: tuple[str, ...], row: dict[str, int],
+                   d, fault_row: dict[str, int], fault_states: list[str], where, what: str) -> dict:
+    """What hybrid_model.py.j2 lays out of a configuration of the switches
+    (a mode's, or one a stuck switch makes: ``m``) for fault model ``d``:
+    its number, name, title, module, its states' rows (then the fault
+    states'), the rows of the states idle in it and the lines that settle them."""
+    s = m.equations
+    idle = [x for x in every if x not in s.states]
+    variables = dict(s.variables)
+    return {"number": number, "name": m.name, "title": title, "module": module,
+            "rows": [row[x] for x in s.states] + [fault_row[x] for x in fault_states],
+            "idle": [row[x] for x in idle],
+            "settle": _assignments([(row[x], variables[x]) for x in idle], _sources(s, row, d, fault_row), where,
+                                   what)}
+
+
+def _stuck(model, stuck: tuple, every: tuple[str, ...], row: dict[str, int], flag_row: int,
+           first: int) -> tuple[list[dict], dict]:
+    """The configurations a stuck switch makes that no mode has (numbered
+    from ``first`` + 1, after the modes), and what hybrid_model.py.j2 lays
+    out of the switch (each mode's configuration, its flag's row, its
+    ``FAULT``); ``stuck``: (the switch, each mode's configuration's index,
+    those configurations with their modules' numbers). A configuration with
+    a state no mode has is refused."""
+    switch, indices, extra = stuck
+    out = []
+    for m, number in extra:
+        missing = [x for x in m.equations.states if x not in row]
+        if missing:
+            raise CodegenError(f"with {switch.title} in {m.name.split(' with ')[0]}, {', '.join(missing)} "
+                               f"{'is a state' if len(missing) == 1 else 'are states'} in no mode of "
+                               f"{model.name}; bgc cannot follow that stuck switch yet", switch.loc,
+                               "declare a mode with that configuration of the switches, or leave out the fault")
+        out.append(_configuration(first + len(out) + 1, m, f"Configuration {m.name}",
+                                  f"_c{number}_{codegen.module_name(m.dbn.nominal.name)}", every, row,
+                                  m.dbn.nominal, {}, [], model.source, f"{m.name}'s idle states"))
+    return out, {"configs": list(indices), "row": flag_row, "title": escape(switch.title),
+                 "fault": repr({"parameter": switch.junction, "kind": switch.kind, "magnitude": FLAG_KIND,
+                                "target": "switch", "subject": switch.junction, "unit": ""})}
 
 
 def _transitions(model, modes: tuple[ModeModel, ...], row: dict[str, int], d0, fault_row: dict[str, int],

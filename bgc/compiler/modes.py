@@ -472,11 +472,10 @@ def _with_stuck(model: BondGraph, compiled: tuple[ModeModel, ...]) -> tuple[Mode
         return compiled
     added: list[list[Signature]] = [[] for _ in compiled]
     for fault in model.modes.stuck:
-        stuck = compile_stuck(model, compiled, fault)
-        for i, (m, same) in enumerate(zip(compiled, stuck.same)):
+        for i, (m, mode) in enumerate(zip(compiled, model.modes.modes)):
             ssm = m.equations
             depth = len(ssm.states) + 2  # as signatures.derive: through every integrator, plus a drift's order
-            symbol = "0" if same == m.name else "?"
+            symbol = "0" if fault.on(mode.on) == tuple(sorted(mode.on)) else "?"  # the mode's own configuration
             added[i].append(Signature(fault.junction, 1 if fault.kind == "stuck_on" else -1, fault.kind,
                                       tuple((symbol,) * (depth + 1) for _ in ssm.outputs),
                                       ssm.outputs if symbol == "?" else ()))

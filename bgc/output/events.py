@@ -205,7 +205,7 @@ def fault_sentence(e, since, per_time: str = "per unit time") -> str:
     >>> fault_sentence(e, 0.99)
     'switch K is stuck OFF, at the latest since t = 0.99'
     """
-    from ..kinds import fault_kind
+    from ..kinds import fault_kind, stuck_state
 
     v = e.value
     if not math.isfinite(v):
@@ -230,7 +230,7 @@ def fault_sentence(e, since, per_time: str = "per unit time") -> str:
         case ("actuator", "drift"):
             text = f"actuator {name}'s output drifts {'up' if up else 'down'} by {rate} from the command"
         case ("switch", _):
-            text = f"switch {name} is stuck {'ON' if e.kind == 'stuck_on' else 'OFF'}"
+            text = f"switch {name} is stuck {stuck_state(e.kind)}"
         case (_, "incipient"):
             text = f"parameter {name} drifts {'up' if up else 'down'} by {rate}"
         case _:

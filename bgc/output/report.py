@@ -315,7 +315,9 @@ def hypothesis_rows(d, labels: Labels = Labels()) -> list[tuple[str, ...]]:
 
 def _stuck_text(e) -> str:
     """A stuck switch's estimate in words: ``K stuck OFF``."""
-    return f"{e.subject or e.parameter} stuck {'ON' if e.kind == 'stuck_on' else 'OFF'}"
+    from ..kinds import stuck_title
+
+    return stuck_title(e.subject or e.parameter, e.kind)
 
 
 def identification_lines(d, labels: Labels = Labels()) -> list[tuple[str, str | None]]:
