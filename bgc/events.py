@@ -346,6 +346,44 @@ class Checkpoint:
 
 
 @dataclass(frozen=True, slots=True)
+class ModeHidden:
+    """The data have no mode column, and the model has modes: the mode is
+    read from the measurements (:mod:`bgc.diagnosis.hidden`), each sample's
+    decided at most ``lag`` steps after it."""
+
+    lag: int
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ModeRead:
+    """The mode read from the data changes at ``step`` from ``source`` to
+    ``target``; ``share``: the weight of the histories that agreed when it was
+    decided (under 1: the likeliest, decided when the sample had waited the
+    longest it may)."""
+
+    step: int
+    source: str
+    target: str
+    share: float
+
+
+@dataclass(frozen=True, slots=True)
+class ModesReread:
+    """The mode hidden: the modes read again from the data with fault model
+    ``hypothesis``'s own equations (its onset and size as the diagnosis
+    estimated them, read with the nominal model's modes): ``changed``
+    samples' modes differ from the nominal model's reading; ``explains``:
+    whether the diagnosis with them isolates ``hypothesis`` (the verdict then
+    stands on them)."""
+
+    step: int
+    hypothesis: str
+    changed: int
+    explains: bool
+
+
+@dataclass(frozen=True, slots=True)
 class Decided:
     """The final verdict, at the last step."""
 
@@ -357,4 +395,4 @@ class Decided:
 Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorResumed | InputFromModel | InputHeld
          | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | Started | Refined | Dropped
          | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | SensorExcluded
-         | Checkpoint | Decided)
+         | Checkpoint | ModeHidden | ModeRead | ModesReread | Decided)

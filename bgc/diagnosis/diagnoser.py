@@ -45,8 +45,9 @@ from ..arguments import as_float, is_real, shown
 from ..data.runs import Run
 from ..data.sampler import Sample, Sampler
 from ..errors import ArgumentTypeError, ArgumentValueError, DataError, TrackingError, printable
+from .hidden import REREAD, ModeDecoder, read_again, read_size, readable
 from ..ir import FaultSignatures
-from ..model.protocol import Package, nominal_model
+from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
 from .finish import ordered
 from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig
@@ -96,14 +97,15 @@ class Diagnoser:
     def __init__(self, package: Package, signatures: FaultSignatures, priors: Mapping[str, float],
                  options: DiagnosisOptions, horizon: int, *, inputs=None, sensors=None, source: str = "<stream>",
                  lazy: bool = False, every: bool = False, progress=None, most: int | None = None):
-        if inputs is not None:
-            mode_given(nominal_model(package), inputs, source)
+        hidden = inputs is not None and mode_hidden(nominal_model(package), inputs, source)
         config = DiagnoserConfig(package, signatures, priors, options, max(int(horizon), 1),
                                  None if inputs is None else tuple(inputs),
                                  None if sensors is None else tuple(sensors), source, lazy, every, most, progress)
         self._open(config, Sampler(nominal_model(package), nominal_model(package).INPUTS if inputs is None else inputs,
                                    nominal_model(package).OUTPUTS if sensors is None else sensors, source,
                                    options.gap))
+        if hidden:
+            self.hide()
         config.say("tracking the nominal model")
 
     def _open(self, config: DiagnoserConfig, sampler: Sampler) -> None:
@@ -115,6 +117,13 @@ class Diagnoser:
         self.finished = False
         self.busy = 0.0  # seconds spent in steps (not waiting for data)
         self.started = time.perf_counter()
+        self.decoder: ModeDecoder | None = None  # a hidden mode's reader (the data have no mode column)
+
+    def hide(self) -> None:
+        """Read the mode from the data (they have no mode column): every
+        sample goes through a :class:`~bgc.diagnosis.hidden.ModeDecoder` first."""
+        self.config.say("the data have no mode column: reading the mode from the measurements")
+        self.decoder = ModeDecoder(self.nominal)
 
     def _loop_config(self, options: DiagnosisOptions, every: bool, lazy: bool) -> LoopConfig:
         c = self.config
@@ -155,7 +164,8 @@ class Diagnoser:
         u = _named(u, self.nominal.INPUTS, "u", line)
         y = _named(y, self.nominal.OUTPUTS, "y", line)
         if self.infer_inputs:  # the first row says which inputs the data give
-            mode_given(self.nominal, u, self.source)
+            if mode_hidden(self.nominal, u, self.source):
+                self.hide()
             self.infer_inputs = False
             self.sampler.data_inputs = tuple(name for name in self.nominal.INPUTS if name in u)
         rows = self.sampler.push(t, u, y, line)
@@ -171,7 +181,25 @@ class Diagnoser:
         return dataclasses.replace(belief, events=tuple(collected))
 
     def take(self, s: Sample) -> Belief:
-        """Take one step of the grid (a :class:`~bgc.data.sampler.Sample`)."""
+        """Take one step of the grid (a :class:`~bgc.data.sampler.Sample`);
+        with the mode read from the data, the steps whose mode it decided
+        (none: the belief stands)."""
+        if self.decoder is None:
+            return self._take(s)
+        started = time.perf_counter()
+        decided = self.decoder.push(s)
+        self.busy += time.perf_counter() - started
+        belief = None
+        collected: list = []
+        for d in decided:
+            belief = self._take(d)
+            collected += belief.events
+        if belief is None:
+            return self.loop.belief(len(self.loop.events))
+        return belief if len(decided) == 1 else dataclasses.replace(belief, events=tuple(collected))
+
+    def _take(self, s: Sample) -> Belief:
+        """The loop's step of the grid (a :class:`~bgc.data.sampler.Sample`)."""
         started = time.perf_counter()
         try:
             most = self.config.most
@@ -249,6 +277,9 @@ class Diagnoser:
         """The diagnosis of the record (the stream ends here); ``truth``: the
         run, when it records the true fault (its parameter columns)."""
         if not self.finished:  # the diagnosis's seconds: its steps' and its end's, not the waits for data
+            if self.decoder is not None:  # the samples still waiting, with their likeliest modes
+                for s in self.decoder.flush():
+                    self._take(s)
             self.finished = True
             self.started = time.perf_counter() - self.busy
         if not self.loop.samples:
@@ -263,9 +294,66 @@ class Diagnoser:
         if self._retry(diagnosis):
             again = self.replay(dataclasses.replace(self.loop.options, switch=False), True)
             diagnosis = again.finish(self.sampler.summary(), truth)
+        if self.decoder is not None and diagnosis.detection is not None:
+            diagnosis = self._reread(diagnosis, truth)
         if self.switched:
             diagnosis = dataclasses.replace(diagnosis, events=ordered(list(self.switched) + list(diagnosis.events)))
         return dataclasses.replace(diagnosis, seconds=time.perf_counter() - self.started)
+
+    def _reread(self, d: Diagnosis, truth: Run | None) -> Diagnosis:
+        """The policy for a hidden mode read with the nominal model: a fault
+        may move the switches (a guard crossed early), and then the faulty
+        plant's modes are not those the nominal model reads. The
+        :data:`REREAD` likeliest hypotheses (the verdict's candidates first)
+        read the modes again each with its own equations from its most likely
+        onset and size, and the diagnosis is made again on each reading that
+        differs; a hypothesis that it then isolates explains the data with the
+        modes it reads itself. One such: its diagnosis is the verdict; none,
+        or several: ``d`` stands, the readings said
+        (:class:`~bgc.events.ModesReread`)."""
+        ranked = sorted(d.hypotheses, key=lambda h: (h.name not in d.candidates, -h.posterior, -h.log_evidence))
+        names = [h.name for h in ranked if math.isfinite(h.estimate.value)][:REREAD]
+        if not names:
+            return d
+        index = self.nominal.MODE_INPUT
+        read = np.array([s.u[index] for s in self.loop.samples])
+        raw = []
+        for s in self.loop.samples:
+            u = s.u.copy()
+            u[index] = np.nan
+            raw.append(dataclasses.replace(s, u=u, events=tuple(e for e in s.events if not isinstance(e, ev.ModeRead))))
+        said, explained = [], []
+        for name in names:
+            samples = self._read_with(next(h for h in d.hypotheses if h.name == name), raw)
+            changed = int(np.sum(np.array([s.u[index] for s in samples]) != read))
+            again = d if not changed else self._loop_of(samples).finish(self.sampler.summary(), truth)
+            explains = again.verdict == "isolated" and again.candidates == (name,)
+            said.append(ev.ModesReread(len(read) - 1, name, changed, explains))
+            if explains:
+                explained.append(again)
+        chosen = explained[0] if len(explained) == 1 else d
+        return dataclasses.replace(chosen, events=ordered(list(chosen.events) + said))
+
+    def _read_with(self, h, raw: list[Sample]) -> list[Sample]:
+        """The samples ``raw`` (mode NaN) with the modes hypothesis ``h``'s
+        fault model reads from them: from its most likely onset, and the size
+        that makes the data likeliest with the modes hidden (:func:`read_size`,
+        its diagnosis's estimate a hint)."""
+        onset, value = h.static.best if h.static is not None and h.static.best else (h.onset_step, h.estimate.value)
+        model = self.config.package.MODELS[h.name]
+        nominal = np.asarray(self.loop.x_mean[max(onset - 1, 0)], dtype=float)[:, None]
+        _, extra = state_rows(model)
+        start = np.asarray(model.augment(nominal, np.random.default_rng(0)), dtype=float)[extra, 0]
+        self.config.say(f"reading the modes again with {h.name}'s equations")
+        start[-1] = read_size(model, raw, onset, start, value)
+        return read_again(model, raw, (onset, start))[0]
+
+    def _loop_of(self, samples: list[Sample]) -> Loop:
+        """A loop of this diagnoser's options that has taken ``samples``."""
+        loop = Loop(self._loop_config(self.loop.options, self.loop.config.every, self.config.lazy))
+        for s in samples:
+            loop.take(s)
+        return loop
 
     def checkpoint(self) -> Diagnosis:
         """The diagnosis of the data so far, the stream going on: the
@@ -350,13 +438,28 @@ def _floats(values, names, what: str, line) -> dict[str, float]:
 
 def mode_given(nominal, inputs, source: str, what: str = "diagnosing") -> None:
     """Refuse data of a model with modes that do not say the mode (no
-    ``mode`` column), for ``what`` (diagnosing, calibration): a diagnosis
-    follows the mode the data give; a hidden mode (each particle through the
-    guards by itself, as ``bgc filter`` follows it) misses some switches by
-    a few samples, and a diagnosis would take that for a fault."""
+    ``mode`` column), for ``what`` (calibration): it follows the mode the
+    data give."""
     index = getattr(nominal, "MODE_INPUT", None)
     if index is not None and nominal.INPUTS[index] not in set(inputs):
         raise DataError(f"{printable(source)}: the data have no mode column, and {nominal.MODEL} has modes", None,
                         "record the plant's mode as a column 'mode' (each mode's number, 1 for the first the model "
                         f"lists): {what} with a mode the data do not give is not built yet")
+
+
+def mode_hidden(nominal, inputs, source: str) -> bool:
+    """Whether the data of a model with modes do not say the mode (no
+    ``mode`` column), so that the diagnosis reads it from the measurements
+    (:mod:`bgc.diagnosis.hidden`); refused in one line when a transition is
+    controlled (only the data can say when it happens)."""
+    index = getattr(nominal, "MODE_INPUT", None)
+    if index is None or nominal.INPUTS[index] in set(inputs):
+        return False
+    why = readable(nominal)
+    if why is not None:
+        raise DataError(f"{printable(source)}: the data have no mode column, and the mode of {nominal.MODEL} cannot "
+                        f"be read from the measurements: {why}", None,
+                        "record the plant's mode as a column 'mode' (each mode's number, 1 for the first the model "
+                        "lists)")
+    return True
 

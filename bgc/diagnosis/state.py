@@ -31,6 +31,7 @@ import numpy as np
 from ..data.sampler import Sample, SamplerState
 from ..errors import ArgumentValueError
 from ..filters.cubature import NominalKalman
+from .hidden import DecoderState
 from ..filters.registry import filter_class
 from .hypothesis import HypothesisTracker, TrackJob
 from .options import DiagnosisOptions
@@ -163,6 +164,8 @@ class DiagnoserState:
     infer_inputs: bool
     busy: float
     finished: bool
+    #: the mode read from the data (:class:`~bgc.diagnosis.hidden.DecoderState`; None: the data say it)
+    decoder: DecoderState | None = None
 
     def to_bytes(self) -> bytes:
         """The state as bytes (:meth:`from_bytes` reads them)."""
@@ -195,7 +198,8 @@ _ALLOWED = {("numpy", "ndarray"), ("numpy", "dtype"), ("numpy.core.multiarray", 
             ("numpy._core.multiarray", "scalar"), ("numpy", "bool_"), ("builtins", "set"),
             ("builtins", "frozenset"), ("builtins", "slice"), ("copyreg", "_reconstructor"),
             ("builtins", "object"), ("builtins", "float"), ("builtins", "int"),
-            ("numpy._core.numeric", "_frombuffer"), ("numpy.core.numeric", "_frombuffer")}
+            ("numpy._core.numeric", "_frombuffer"), ("numpy.core.numeric", "_frombuffer"),
+            ("bgc.diagnosis.hidden", "DecoderState")}
 
 
 class _Unpickler(pickle.Unpickler):
@@ -213,7 +217,8 @@ class _Unpickler(pickle.Unpickler):
 def diagnoser_state(d) -> DiagnoserState:
     """The state of diagnoser ``d``."""
     return DiagnoserState(VERSION, d.nominal.MODEL, len(d.loop.samples), d.sampler.state(), loop_state(d.loop),
-                          tuple(d.switched), d.infer_inputs, d.busy, d.finished)
+                          tuple(d.switched), d.infer_inputs, d.busy, d.finished,
+                          None if d.decoder is None else d.decoder.state())
 
 
 def loop_state(loop) -> LoopState:
@@ -295,6 +300,10 @@ def restore_diagnoser(cls, config, state: DiagnoserState):
     d.loop = restore_loop(d._loop_config(state.loop.options, state.loop.every, state.loop.lazy), state.loop)
     d.switched, d.infer_inputs, d.busy, d.finished = tuple(state.switched), state.infer_inputs, state.busy, \
         state.finished
+    decoder = getattr(state, "decoder", None)
+    if decoder is not None:
+        d.hide()
+        d.decoder.restore(decoder)
     return d
 
 

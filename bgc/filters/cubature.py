@@ -193,16 +193,17 @@ class _Filter:
 
     def _factor(self, P: np.ndarray) -> np.ndarray:
         """:func:`cholesky` of the cells' covariances; a model with modes whose
-        mode (and time in it) every cell knows (variance exactly 0: the data
-        say the mode) has them left out of the factoring, their rows and
+        mode (or time in it) every cell knows (variance exactly 0: the data
+        say the mode) has those left out of the factoring, their rows and
         columns of the factor 0 (their covariances with the others are 0 but
         for rounding, which a floored pivot would divide), the rest factored
         as a block by LAPACK."""
         if len(self.carried):
-            known = P[:, self.carried, self.carried]
-            if (known == 0.0).all():
+            known = (P[:, self.carried, self.carried] == 0.0).all(axis=0)
+            if known.any():
                 L = np.zeros(P.shape)
-                keep = self.uncarried
+                keep = self.uncarried if known.all() else np.sort(np.concatenate([self.uncarried,
+                                                                                   self.carried[~known]]))
                 L[:, keep[:, None], keep] = cholesky(P[:, keep[:, None], keep])
                 return L
         return cholesky(P)

@@ -43,6 +43,17 @@ def sentence(e, time_of) -> str:
             return f"the data have no column u:{u}: the model's declared input is used"
         case ev.InputFromModel(input=u):
             return f"input u:{u} has no value yet: the model's declared input is used until its first value"
+        case ev.ModeHidden(lag=lag):
+            return ("the data have no mode column: the mode is read from the measurements by a bank of Kalman filters "
+                    f"over the modes' histories, each sample's decided once the data settle it (at most {lag} samples "
+                    "later)")
+        case ev.ModeRead(source=a, target=b, share=w):
+            tail = "" if w >= 0.999 else f" (the likeliest history's, weight {w:.2f}: the data did not settle it)"
+            return f"the mode read from the data changes from {a} to {b}" + tail
+        case ev.ModesReread(hypothesis=h, changed=n, explains=yes):
+            head = f"the modes read again with {h}'s own equations (its onset and size): "
+            moved = f"{n} sample(s)' mode differ from the nominal model's reading" if n else "the same modes"
+            return head + moved + ("; with them it explains the data" if yes else "; it does not explain the data")
         case ev.InputHeld(input=u, step=k, value=v):
             return f"input u:{u} is empty: its last value {v:g} is held until a value arrives"
         case ev.Gap(step=k, steps=n):
@@ -157,8 +168,9 @@ def record(e, time_of) -> dict:
 
 #: Events the command line prints after a diagnosis (the others are in the report).
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped, ev.SensorResumed,
-           ev.InputFromModel, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate, ev.AllTried, ev.Rescued,
-           ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded, ev.Overruled, ev.Uncertain)
+           ev.InputFromModel, ev.ModeHidden, ev.ModesReread, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate,
+           ev.AllTried, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded,
+           ev.Overruled, ev.Uncertain)
 
 
 def notes(events, time_of) -> list[str]:

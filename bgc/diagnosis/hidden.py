@@ -1,0 +1,436 @@
+"""The mode of a model with modes, read from the data when they do not say it (a hidden mode).
+
+A plant whose valves or relays switch by themselves (autonomous transitions:
+a guard on its state, or a time in the mode) often logs no mode column. The
+diagnosis then reads the mode from the measurements before anything else
+sees the samples: :class:`ModeDecoder` is a bank of cubature Kalman filters
+of the nominal model, one per *branch*, a history of modes the data may
+have followed (a multiple-hypothesis filter over the modes, pruned):
+
+* each step, a branch in mode i may stay or leave by one of i's transitions:
+  a timed one when its time in the mode runs out (exactly: a branch knows
+  when it entered); an autonomous one with the probability that its guard
+  is crossed over the step, from the branch's estimate: the guard's margin
+  g at the branch's cubature points, its mean and variance, and the
+  threshold's std tau the model declares, give Phi(mean / sqrt(variance +
+  tau^2)) that the guard holds, at the step's start (the estimate after the
+  last sample: its process noise may have carried the plant across) and at
+  its end (the prediction in mode i); with a tau, a branch that has not
+  switched knows its threshold lies beyond where it was at the end of the
+  step before, and the hazard is the probability's increase since then over
+  what was left, (max(Phi_start, Phi_end) - Phi_before) / (1 - Phi_before),
+  the particle filter's rule (the generated model's ``_first``); without a
+  tau, max(Phi_start, Phi_end). A controlled transition needs the data: a
+  model that has one is not read this way (:func:`readable`);
+* each branch that moves is a filter of its own from there (the generated
+  model's step with the mode given: the transition placed within the step
+  where the guard or the time in the mode puts it, the resets, the rest of
+  the step in the mode entered), weighted by the probability of its move
+  times its likelihood of the sample;
+* branches under ``FLOOR`` of the weight are dropped, and the ``BRANCHES``
+  likeliest kept.
+
+A step's mode is **decided** when the branches that disagree on it hold less
+than ``AGREE`` of the weight (they are dropped), or, the oldest sample
+waiting ``LAG`` steps, as the likeliest mode (the branches that disagree
+dropped): a plant that stays in its mode has each sample's mode decided as
+it comes; around a switch the samples wait until the data settle it. The
+decided samples go on with the mode as their ``mode`` input, as if the data
+had said it, each switch with a :class:`~bgc.events.ModeRead` event. What
+the data decide is the nominal model's reading of them: a fault that moves
+a switch (a guard crossed early) shows in the data as the switch itself, and
+the faults' filters then follow the switch read.
+
+The decoder's state is plain data (:class:`DecoderState`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+from scipy.special import ndtr
+
+from ..data.sampler import Sample
+from .. import events as ev
+from ..filters.cubature import _Filter
+
+__all__ = ["AGREE", "BRANCHES", "DecoderState", "FLOOR", "GRID", "LAG", "ModeDecoder", "REREAD", "read_again", "read_size",
+           "readable"]
+
+#: The most steps a sample waits for its mode to be decided.
+LAG = 10
+#: The most branches (histories of modes) the bank keeps.
+BRANCHES = 8
+#: A step's mode is decided when the branches that disagree hold less than this share of the weight.
+AGREE = 1e-6
+#: A branch under this share of the weight is dropped.
+FLOOR = 1e-12
+#: The most hypotheses whose own equations read the modes again after a diagnosis
+#: (:meth:`bgc.diagnosis.diagnoser.Diagnoser.finish`).
+REREAD = 3
+#: The points of the first grid over a fault's prior on which its size is read with the hidden mode.
+GRID = 9
+#: A mode with a timed exit entered by a guard: the least probability given to its entry at the step's
+#: start (the last sample's noise carried the plant across) and to its entry within the step.
+PLACED = 0.01
+
+
+def readable(model) -> str | None:
+    """Why the mode of ``model`` (a generated model with modes) cannot be read
+    from the data (None: it can): a controlled transition, which only the data
+    can say."""
+    controlled = [t for t in model.TRANSITIONS if t[2] is None and t[3] is None]
+    if controlled:
+        names = ", ".join(f"{model.MODES[t[0] - 1]} -> {model.MODES[t[1] - 1]}" for t in controlled)
+        return f"its transition {names} is controlled (set from outside), which only the data can say"
+    return None
+
+
+@dataclass(frozen=True, slots=True)
+class DecoderState:
+    """A :class:`ModeDecoder`'s: per branch its mean ``m`` (B, n), covariance
+    ``P`` (B, n, n), log weight, each transition's probability that its guard
+    held at the branch's last estimate and at the end of its last prediction
+    (B, transitions each) and its modes over the samples waiting (B,
+    waiting); the samples waiting; the mode of the last sample decided; each
+    branch's fault states (f, B), the steps taken and the log-likelihood of
+    the samples taken."""
+
+    m: np.ndarray
+    P: np.ndarray
+    logw: np.ndarray
+    held: np.ndarray
+    before: np.ndarray
+    history: np.ndarray
+    waiting: tuple
+    mode: int
+    fixed: np.ndarray
+    k: int
+    loglik: float
+
+
+class ModeDecoder:
+    """The mode of a model with modes read from its data, one sample at a
+    time (module docstring): :meth:`push` a sample (its ``mode`` input NaN),
+    get the samples whose mode is decided, with it; :meth:`flush` at the end
+    decides the rest."""
+
+    def __init__(self, model, fault: tuple[int, np.ndarray] | None = None):
+        """``model``: the generated model (the nominal model, or a fault
+        model with ``fault`` = (its onset step, its fault states from the
+        onset: a drifting parameter's value, then the magnitude), whose
+        branches run with the fault from that step)."""
+        why = readable(model)
+        if why is not None:
+            raise ValueError(f"the mode of {model.MODEL} cannot be read from the data: {why}")
+        self.model = model
+        self.kf = kf = _Filter(model)
+        self.transitions = tuple(model.TRANSITIONS)
+        self.row, self.input = model.MODE_ROW, model.MODE_INPUT
+        #: the index of the time in the mode among the filter's rows (None: no transition is timed)
+        self.clock = None if model.DWELL_ROW is None else kf.physical.index(model.DWELL_ROW)
+        #: per mode number, whether a timed transition leaves it
+        self.timed = {i + 1: any(t[0] == i + 1 and t[3] is not None for t in self.transitions)
+                      for i in range(len(model.MODES))}
+        self.m = np.asarray(model.X0, dtype=float)[None, kf.physical]
+        self.P = np.diag(np.asarray(model.X0_STD, dtype=float)[kf.physical] ** 2)[None]
+        self.logw = np.zeros(1)
+        self.history = np.zeros((1, 0), dtype=np.intp)
+        self.waiting: list[Sample] = []
+        self.mode = self._modes(self.m)[0]
+        self.fault = fault
+        self.k = 0  # the steps taken
+        #: each branch's fault states (f, B): before the onset the nominal model's (the magnitude 0)
+        self.fixed = np.zeros((len(kf.extra), 1))
+        if fault is not None:
+            self.fixed[:, 0] = fault[1]
+            self.fixed[kf.magnitude, 0] = 0.0
+        self.held = self._held(self.m, self.P, np.asarray(model.inputs(0.0), dtype=float))
+        self.before = self.held.copy()
+        #: log p(y_0 .. y_k) of the samples taken, over the branches (those pruned included as they stood)
+        self.loglik = 0.0
+
+    # -- the bank -------------------------------------------------------------------------------------------
+
+    def _modes(self, m: np.ndarray) -> np.ndarray:
+        return np.rint(m[:, self.kf.physical.index(self.row)]).astype(np.intp)
+
+    def _points(self, m: np.ndarray, P: np.ndarray, fixed: np.ndarray | None = None) -> np.ndarray:
+        """The cubature points of the branches (n_x, C 2n), their fault
+        states ``fixed`` (f, C; None: the model's X0)."""
+        kf, C = self.kf, m.shape[0]
+        X = np.empty((kf.n_x, C, 2 * kf.n))
+        X[:] = np.asarray(self.model.X0, dtype=float)[:, None, None]
+        if fixed is not None:
+            for j, row in enumerate(kf.extra):
+                X[row] = fixed[j][:, None]
+        kf._points(m, P, X)
+        return X.reshape(kf.n_x, -1)
+
+    def _margins(self, flat: np.ndarray, C: int, k: int, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The mean and variance over each branch's points of transition k's guard margin."""
+        guard = self.transitions[k][2]
+        g = np.asarray(guard(flat, u[:self.input], self.model.THETA), dtype=float).reshape(C, -1)
+        return g.mean(axis=1), g.var(axis=1)
+
+    def _holds(self, mean: np.ndarray, var: np.ndarray, k: int) -> np.ndarray:
+        """The probability that transition k's guard holds, its margin's mean and variance given."""
+        _, _, _, _, _, strict, tolerance, _ = self.transitions[k]
+        scale = np.sqrt(var + (tolerance or 0.0) ** 2)
+        sharp = (mean > 0) if strict else (mean >= 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            p = ndtr(mean / np.where(scale > 0, scale, 1.0))
+        return np.where(scale > 0, p, sharp.astype(float))
+
+    def _held(self, m: np.ndarray, P: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Per branch, each transition's probability that its guard holds at
+        the branch's estimate (0 for those out of other modes, or with no guard)."""
+        out = np.zeros((m.shape[0], len(self.transitions)))
+        modes = self._modes(m)
+        flat = None
+        for k, t in enumerate(self.transitions):
+            rows = np.flatnonzero(modes == t[0])
+            if t[2] is None or not len(rows):
+                continue
+            if flat is None:
+                flat = self._points(m, P, self.fixed)
+            C = m.shape[0]
+            mean, var = self._margins(flat, C, k, u)
+            out[rows, k] = self._holds(mean, var, k)[rows]
+        return out
+
+    def _moves(self, u: np.ndarray) -> tuple[list[tuple], np.ndarray]:
+        """Each branch's moves over the next step: (branches, mode after the
+        step, log probability of the move, the share of it that happens at the
+        step's start (None: none), the time in the mode after the step (NaN:
+        as the model's step puts it)) per group; and each branch's
+        probabilities that its guards hold at the end of the step in its mode."""
+        dt = self.model.DT
+        modes = self._modes(self.m)
+        ends = np.zeros_like(self.held)
+        moves = []
+        for i in np.unique(modes):
+            sel = np.flatnonzero(modes == i)
+            hazards, starts = self._hazards(int(i), sel, u, ends)
+            stay = np.ones(len(sel))
+            for h in hazards.values():
+                stay = stay * (1.0 - h)
+            share = {k: h * stay / np.where(h < 1.0, 1.0 - h, 1.0) for k, h in hazards.items()}
+            for k, h in hazards.items():  # a certain crossing: the others' share is 0 unless certain too
+                share[k] = np.where(h >= 1.0, np.prod([np.where(hazards[j] >= 1.0, 1.0, 1.0 - hazards[j])
+                                                        for j in hazards if j != k], axis=0), share[k])
+            clock = self.m[sel, self.clock] + dt if self.clock is not None else np.full(len(sel), np.nan)
+            clocks = {}
+            for k, t in enumerate(self.transitions):  # a timed exit: when the time in the mode runs out
+                if t[0] != i or t[2] is not None or t[3] is None:
+                    continue
+                due = clock >= t[3] - 1e-9 * max(1.0, t[3])
+                share[k] = np.where(due, stay, 0.0)
+                stay = np.where(due, 0.0, stay)
+                clocks[k] = np.maximum(clock - t[3], 0.0)  # the time in the mode entered, exactly
+            total = stay + sum(share.values()) if share else stay
+            total = np.where(total > 0, total, 1.0)
+            with np.errstate(divide="ignore"):
+                moves.append((sel, int(i), np.log(stay / total), None, clock))
+                for k, p in share.items():
+                    moves.append((sel, self.transitions[k][1], np.log(p / total), starts.get(k),
+                                  clocks.get(k, np.full(len(sel), np.nan))))
+        return moves, ends
+
+    def _hazards(self, i: int, sel: np.ndarray, u: np.ndarray, ends: np.ndarray) -> tuple[dict, dict]:
+        """For branches ``sel``, all in mode i: per autonomous transition out
+        of i, the probability that it fires over the next step and the share
+        of that at the step's start; ``ends`` gets the probabilities that the
+        guards hold at the step's end."""
+        model = self.model
+        hazards, starts = {}, {}
+        autonomous = [(k, t) for k, t in enumerate(self.transitions) if t[0] == i and t[2] is not None]
+        if not autonomous:
+            return hazards, starts
+        ui = u.copy()
+        ui[self.input] = i
+        flat = self._points(self.m[sel], self.P[sel], self.fixed[:, sel])
+        model.predict(flat, ui, model.THETA, model.DT, out=flat)
+        for k, t in autonomous:
+            ends[sel, k] = end = self._holds(*self._margins(flat, len(sel), k, ui), k)
+            start = self.held[sel, k]
+            now = np.maximum(start, end)
+            before = self.before[sel, k] if t[6] else np.zeros(len(sel))
+            if t[6]:  # a threshold with a std: not crossed before, so beyond where the branch was
+                h = np.clip((now - before) / np.maximum(1.0 - before, 1e-300), 0.0, 1.0)
+                hazards[k] = np.where(before < 1.0, h, 1.0)
+            else:
+                hazards[k] = now
+            # of the crossing, the share at the start (the last sample's noise carried it across); at least
+            # PLACED each way: the estimate's margins place a crossing within a step roughly, and a timed
+            # exit later tells which it was
+            gain = now - before
+            starts[k] = np.clip(np.where(gain > 0, (start - before) / np.where(gain > 0, gain, 1.0), 0.0),
+                                PLACED, 1.0 - PLACED)
+        return hazards, starts
+
+    def _advance(self, y: np.ndarray, u: np.ndarray) -> None:
+        """One step of every branch and its moves; the pruned bank after it."""
+        parents, targets, logp, dwell = [], [], [], []
+        moves, ends = self._moves(u)
+        dt = self.model.DT
+        for sel, target, lp, start, clock in moves:
+            if start is not None and self.timed[target]:  # the time in the mode entered: from the start, or less
+                for share, at in ((start, dt), (1.0 - start, -1.0)):
+                    with np.errstate(divide="ignore"):
+                        self._keep(parents, targets, logp, dwell, sel, target, lp + np.log(share), at)
+            else:
+                self._keep(parents, targets, logp, dwell, sel, target, lp, clock)
+        parents, targets, logp = np.concatenate(parents), np.concatenate(targets), np.concatenate(logp)
+        dwell = np.concatenate(dwell)
+        n = self.kf.n
+        m = np.empty((len(parents), n))
+        P = np.empty((len(parents), n, n))
+        loglik = np.empty(len(parents))
+        fixed = self.fixed[:, parents]
+        at_onset = self.fault is not None and self.k == self.fault[0]
+        if at_onset:  # from this sample on the fault (its transition into it nominal: the onset rule)
+            fixed[:] = np.asarray(self.fault[1], dtype=float)[:, None]
+        for j in np.unique(targets):
+            rows = np.flatnonzero(targets == j)
+            uj = u.copy()
+            uj[self.input] = j
+            held = np.ascontiguousarray(fixed[:, rows])
+            with np.errstate(all="ignore"):
+                ll, mj, Pj, *_ = self.kf.step(y, uj, self.m[parents[rows]], self.P[parents[rows]], held,
+                                              slice(0, len(rows)) if at_onset else slice(0, 0))
+            m[rows], P[rows], loglik[rows], fixed[:, rows] = mj, Pj, ll, held
+        self.k += 1
+        if self.clock is not None:  # each branch's time in its mode, exactly (no variance: it says when it entered)
+            row = self.clock
+            m[:, row] = np.where(dwell >= 0, dwell, np.where(dwell == -1.0, np.minimum(m[:, row], dt * (1 - 1 / 8)),
+                                                               m[:, row]))
+            m[:, row] = np.where(np.isfinite(m[:, row]), m[:, row], 0.0)
+            P[:, row, :] = 0.0
+            P[:, :, row] = 0.0
+        logw = self.logw[parents] + logp + np.where(np.isfinite(loglik), loglik, -np.inf)
+        if not np.isfinite(logw).any():  # no branch explains the sample: keep them as they were weighed
+            logw = self.logw[parents] + logp
+        history = np.concatenate([self.history[parents], targets[:, None]], axis=1)
+        moved = targets != self._modes(self.m)[parents]
+        total = _logsumexp(logw)
+        if math.isfinite(total):
+            self.loglik += total
+        order = np.argsort(-logw, kind="stable")
+        order = order[logw[order] - logw[order[0]] > math.log(FLOOR)][:BRANCHES]
+        self.m, self.P, self.history, self.fixed = m[order], P[order], history[order], fixed[:, order]
+        self.logw = logw[order] - _logsumexp(logw[order])
+        self.held = self._held(self.m, self.P, u)
+        # the end of the step in its mode, where a branch that stayed did not switch; a mode entered: its start
+        self.before = np.where(moved[order][:, None], self.held, ends[parents[order]])
+
+    @staticmethod
+    def _keep(parents, targets, logp, dwell, sel, target, lp, clock) -> None:
+        """Add the moves of branches ``sel`` into mode ``target`` of log
+        probability ``lp`` (those over ``FLOOR``); ``clock``: the time in
+        its mode after the step (NaN: as the model's step puts it; -1: less
+        than a step, as the step puts it)."""
+        keep = lp > math.log(FLOOR)
+        parents.append(sel[keep])
+        targets.append(np.full(int(keep.sum()), target, dtype=np.intp))
+        logp.append(lp[keep])
+        dwell.append(np.broadcast_to(np.asarray(clock, dtype=float), sel.shape)[keep])
+
+    # -- the samples ----------------------------------------------------------------------------------------
+
+    def push(self, s: Sample) -> list[Sample]:
+        """Take sample ``s``; the samples whose mode is decided (oldest first)."""
+        self._advance(s.y, s.u)
+        self.waiting.append(s)
+        return self._decide(final=False)
+
+    def flush(self) -> list[Sample]:
+        """The samples still waiting, each with its likeliest mode (the data end)."""
+        return self._decide(final=True)
+
+    def _decide(self, final: bool) -> list[Sample]:
+        out = []
+        while self.waiting:
+            first = self.history[:, 0]
+            w = np.exp(self.logw)
+            modes = np.unique(first)
+            weights = np.array([w[first == mode].sum() for mode in modes])
+            best = int(np.argmax(weights))
+            share = weights[best] / weights.sum()
+            if not (share >= 1.0 - AGREE or final or len(self.waiting) > LAG):
+                break
+            mode = int(modes[best])
+            keep = first == mode
+            self.m, self.P, self.held, self.before = self.m[keep], self.P[keep], self.held[keep], self.before[keep]
+            self.fixed = self.fixed[:, keep]
+            self.logw = self.logw[keep] - _logsumexp(self.logw[keep])
+            self.history = self.history[keep, 1:]
+            s = self.waiting.pop(0)
+            u = s.u.copy()
+            u[self.input] = mode
+            name = self.model.INPUTS[self.input]
+            events = tuple(ev.ModeHidden(LAG) if isinstance(e, ev.InputFromModel) and e.input == name else e
+                           for e in s.events)
+            if mode != self.mode:
+                events += (ev.ModeRead(s.k, self.model.MODES[self.mode - 1], self.model.MODES[mode - 1],
+                                       float(share)),)
+                self.mode = mode
+            out.append(dataclasses.replace(s, u=u, events=events))
+        return out
+
+    # -- the state ------------------------------------------------------------------------------------------
+
+    def state(self) -> DecoderState:
+        return DecoderState(self.m.copy(), self.P.copy(), self.logw.copy(), self.held.copy(), self.before.copy(),
+                            self.history.copy(), tuple(self.waiting), self.mode, self.fixed.copy(), self.k,
+                            self.loglik)
+
+    def restore(self, s: DecoderState) -> None:
+        self.m, self.P, self.logw = s.m.copy(), s.P.copy(), s.logw.copy()
+        self.held, self.before, self.history = s.held.copy(), s.before.copy(), s.history.copy()
+        self.waiting, self.mode = list(s.waiting), int(s.mode)
+        self.fixed, self.k, self.loglik = s.fixed.copy(), int(s.k), float(s.loglik)
+
+
+def _logsumexp(a: np.ndarray) -> float:
+    top = float(np.max(a))
+    return top + math.log(float(np.exp(a - top).sum()))
+
+
+def read_again(model, samples, fault: tuple[int, np.ndarray]) -> tuple[list[Sample], float]:
+    """``samples`` (their mode input NaN) with the modes a fault model reads
+    from them (:class:`ModeDecoder` of ``model`` with ``fault``: its onset
+    step and fault states), the :class:`~bgc.events.ModeRead` events anew;
+    and the log-likelihood of the samples under it, the modes hidden."""
+    decoder = ModeDecoder(model, fault)
+    out = [decided for s in samples for decided in decoder.push(s)]
+    return out + decoder.flush(), decoder.loglik
+
+
+def read_size(model, samples, onset: int, start: np.ndarray, hint: float) -> float:
+    """The size of fault model ``model`` from ``onset`` (``start``: its fault
+    states there, the magnitude last) that makes the samples likeliest with
+    the modes hidden (:func:`read_again`'s likelihood): the best of a grid of
+    :data:`GRID` points over its prior and ``hint``, refined between its
+    neighbours (scipy's bounded scalar minimiser). A fault with no size (a
+    stuck switch's flag) is its one point."""
+    low, high = (float(v) for v in model.FAULT_PRIOR)
+    if high <= low:
+        return low
+
+    def loglik(value: float) -> float:
+        fault = np.array(start, dtype=float)
+        fault[-1] = value
+        return read_again(model, samples, (onset, fault))[1]
+
+    points = np.unique(np.append(np.linspace(low, high, GRID), np.clip(hint, low, high)))
+    values = np.array([loglik(v) for v in points])
+    best = int(np.nanargmax(np.where(np.isfinite(values), values, -np.inf)))
+    a, b = points[max(best - 1, 0)], points[min(best + 1, len(points) - 1)]
+    found = minimize_scalar(lambda v: -loglik(v), bounds=(a, b), method="bounded",
+                            options={"xatol": 1e-3 * (high - low), "maxiter": 16})
+    return float(found.x) if found.success and -found.fun >= values[best] else float(points[best])
