@@ -1,8 +1,11 @@
-"""An independent simulator of the relay circuit (tests/data/hybrid/relay_rl.yaml,
-docs/examples/relay.yaml) for the tests: scipy's solve_ivp, with events, on
-its equations derived by hand."""
+"""Independent simulators of the relay circuit (tests/data/hybrid/relay_rl.yaml,
+docs/examples/relay.yaml) and of the level plant (docs/examples/level.yaml)
+for the tests and benches: scipy's solve_ivp, with events, on their
+equations derived by hand."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -90,3 +93,64 @@ def reference(end: float, trip: float = TRIP, fault: tuple[float, float] | None 
     return switches, at
 
 
+#: The level plant's values (the model file's), its level switch's band, its run.
+LEVEL_C, LEVEL_R_IN, LEVEL_R_OUT, LEVEL_E, LEVEL_HIGH, LEVEL_LOW = 2.0, 1.0, 1.5, 2.0, 0.8, 0.4
+LEVEL_DT, LEVEL_STEPS, LEVEL_NOISE, LEVEL_DISTURBANCE = 0.05, 600, 0.004, 0.01
+
+
+def level_run(seed: int, fault: tuple[float, str, float] | None = None, steps: int = LEVEL_STEPS):
+    """The level plant of docs/examples/level.yaml (a tank a pump fills, its
+    contactor switched by the tank's pressure: OFF over 0.8, ON under 0.4)
+    by solve_ivp on its equations derived by hand: with the pump running,
+    C p' = (E - p)/R_in - p/R_out + w; with it off, C p' = -p/R_out + w (w:
+    an inflow disturbance, constant over each sample period); the switch's
+    crossings found by solve_ivp's events (anywhere within a sample
+    period); the sensors read p and q_out = p/R_out with Gaussian noise of
+    std LEVEL_NOISE (the model's declared levels). Returns the times, the
+    true mode per sample (1 filling, 2 draining), p and q_out as read, and
+    the switch times; ``fault``: (time, name, value): R_in, R_out or C_t
+    takes the value from then on, or sensor p reads the value more."""
+    rng = np.random.default_rng(seed)
+    times = LEVEL_DT * np.arange(1, steps + 1)
+    p, mode, t = 0.6, 1, 0.0
+    truth, modes, switches = [], [], []
+
+    def value(name: str, nominal: float, at: float) -> float:
+        return fault[2] if fault and fault[1] == name and at >= fault[0] - 1e-12 else nominal
+
+    for end in times:
+        w = LEVEL_DISTURBANCE * rng.standard_normal()
+        while t < end - 1e-12:
+            stop = fault[0] if fault and t < fault[0] - 1e-12 < end else end
+            r_in, r_out, c = value("R_in", LEVEL_R_IN, t), value("R_out", LEVEL_R_OUT, t), value("C_t", LEVEL_C, t)
+            on = mode == 1
+
+            def f(_, x, r_in=r_in, r_out=r_out, c=c, on=on, w=w):
+                return [(((LEVEL_E - x[0]) / r_in if on else 0.0) - x[0] / r_out + w) / c]
+
+            def crossed(_, x, on=on):
+                return x[0] - (LEVEL_HIGH if on else LEVEL_LOW)
+
+            crossed.terminal, crossed.direction = True, 1 if on else -1
+            sol = solve_ivp(f, (t, stop), [p], events=crossed, rtol=1e-10, atol=1e-12)
+            if sol.status == 1:
+                t, p, mode = float(sol.t_events[0][0]), float(sol.y_events[0][0][0]), 2 if on else 1
+                switches.append(t)
+            else:
+                t, p = stop, float(sol.y[0, -1])
+        truth.append(p)
+        modes.append(mode)
+    truth = np.array(truth)
+    q = truth / np.array([value("R_out", LEVEL_R_OUT, s) for s in times])
+    y_p = truth + LEVEL_NOISE * rng.standard_normal(steps) + np.array([value("p", 0.0, s) for s in times])
+    y_q = q + LEVEL_NOISE * rng.standard_normal(steps)
+    return times, np.array(modes), y_p, y_q, switches
+
+
+def level_csv(path: Path, times, modes, y_p, y_q, with_mode: bool) -> Path:
+    """A run file of :func:`level_run`'s samples, with the mode column or without."""
+    lines = ["time," + ("mode," if with_mode else "") + "u:E,y:p,y:q_out"]
+    for t, m, a, b in zip(times, modes, y_p, y_q):
+        lines.append(f"{t:.10g}," + (f"{m}," if with_mode else "") + f"{LEVEL_E},{float(a)!r},{float(b)!r}")
+    path.write_text("\n".join(lines) + "\n")
+    return path

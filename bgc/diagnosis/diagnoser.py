@@ -45,7 +45,7 @@ from ..arguments import as_float, is_real, shown
 from ..data.runs import Run
 from ..data.sampler import Sample, Sampler
 from ..errors import ArgumentTypeError, ArgumentValueError, DataError, TrackingError, printable
-from .hidden import REREAD, ModeDecoder, read_again, read_size, readable
+from .hidden import REREAD, ModeDecoder, read_again, read_head, read_size, readable
 from ..ir import FaultSignatures
 from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
@@ -322,9 +322,9 @@ class Diagnoser:
             u = s.u.copy()
             u[index] = np.nan
             raw.append(dataclasses.replace(s, u=u, events=tuple(e for e in s.events if not isinstance(e, ev.ModeRead))))
-        said, explained = [], []
+        said, explained, heads = [], [], {}
         for name in names:
-            samples = self._read_with(next(h for h in d.hypotheses if h.name == name), raw)
+            samples = self._read_with(next(h for h in d.hypotheses if h.name == name), raw, heads)
             changed = int(np.sum(np.array([s.u[index] for s in samples]) != read))
             again = d if not changed else self._loop_of(samples).finish(self.sampler.summary(), truth)
             explains = again.verdict == "isolated" and again.candidates == (name,)
@@ -334,19 +334,23 @@ class Diagnoser:
         chosen = explained[0] if len(explained) == 1 else d
         return dataclasses.replace(chosen, events=ordered(list(chosen.events) + said))
 
-    def _read_with(self, h, raw: list[Sample]) -> list[Sample]:
+    def _read_with(self, h, raw: list[Sample], heads: dict) -> list[Sample]:
         """The samples ``raw`` (mode NaN) with the modes hypothesis ``h``'s
         fault model reads from them: from its most likely onset, and the size
         that makes the data likeliest with the modes hidden (:func:`read_size`,
-        its diagnosis's estimate a hint)."""
+        its diagnosis's estimate a hint; ``heads``: the nominal readings
+        before each onset so far)."""
         onset, value = h.static.best if h.static is not None and h.static.best else (h.onset_step, h.estimate.value)
         model = self.config.package.MODELS[h.name]
         nominal = np.asarray(self.loop.x_mean[max(onset - 1, 0)], dtype=float)[:, None]
         _, extra = state_rows(model)
         start = np.asarray(model.augment(nominal, np.random.default_rng(0)), dtype=float)[extra, 0]
         self.config.say(f"reading the modes again with {h.name}'s equations")
-        start[-1] = read_size(model, raw, onset, start, value)
-        return read_again(model, raw, (onset, start))[0]
+        if onset not in heads:  # the nominal reading before an onset, shared by the hypotheses from it
+            heads[onset] = read_head(self.nominal, raw, onset)
+        head = heads[onset]
+        start[-1] = read_size(model, raw, onset, start, value, head)
+        return read_again(model, raw, (onset, start), head)
 
     def _loop_of(self, samples: list[Sample]) -> Loop:
         """A loop of this diagnoser's options that has taken ``samples``."""

@@ -51,14 +51,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 from scipy.special import ndtr
 
 from ..data.sampler import Sample
 from .. import events as ev
 from ..filters.cubature import _Filter
 
-__all__ = ["AGREE", "BRANCHES", "DecoderState", "FLOOR", "GRID", "LAG", "ModeDecoder", "REREAD", "read_again", "read_size",
+__all__ = ["AGREE", "BRANCHES", "DecoderState", "FLOOR", "GRID", "LAG", "ModeDecoder", "REFINE", "REREAD", "read_again", "read_head", "read_size",
            "readable"]
 
 #: The most steps a sample waits for its mode to be decided.
@@ -73,7 +72,9 @@ FLOOR = 1e-12
 #: (:meth:`bgc.diagnosis.diagnoser.Diagnoser.finish`).
 REREAD = 3
 #: The points of the first grid over a fault's prior on which its size is read with the hidden mode.
-GRID = 9
+GRID = 7
+#: The refinements of that grid: each a grid of as many points between the best point's neighbours.
+REFINE = 3
 #: A mode with a timed exit entered by a guard: the least probability given to its entry at the step's
 #: start (the last sample's noise carried the plant across) and to its entry within the step.
 PLACED = 0.01
@@ -110,7 +111,8 @@ class DecoderState:
     mode: int
     fixed: np.ndarray
     k: int
-    loglik: float
+    logliks: np.ndarray
+    cell: np.ndarray
 
 
 class ModeDecoder:
@@ -119,11 +121,14 @@ class ModeDecoder:
     get the samples whose mode is decided, with it; :meth:`flush` at the end
     decides the rest."""
 
-    def __init__(self, model, fault: tuple[int, np.ndarray] | None = None):
+    def __init__(self, model, fault: tuple[int, np.ndarray] | None = None, decide: bool = True):
         """``model``: the generated model (the nominal model, or a fault
         model with ``fault`` = (its onset step, its fault states from the
-        onset: a drifting parameter's value, then the magnitude), whose
-        branches run with the fault from that step)."""
+        onset: a drifting parameter's value, then the magnitude; (f,), or (f,
+        cells) for several banks at once, one per column, each with its own
+        branches and likelihood), whose branches run with the fault from that
+        step); ``decide``: decide the samples' modes (one bank), else only
+        weigh the data (:attr:`loglik`, per bank)."""
         why = readable(model)
         if why is not None:
             raise ValueError(f"the mode of {model.MODEL} cannot be read from the data: {why}")
@@ -136,23 +141,31 @@ class ModeDecoder:
         #: per mode number, whether a timed transition leaves it
         self.timed = {i + 1: any(t[0] == i + 1 and t[3] is not None for t in self.transitions)
                       for i in range(len(model.MODES))}
-        self.m = np.asarray(model.X0, dtype=float)[None, kf.physical]
-        self.P = np.diag(np.asarray(model.X0_STD, dtype=float)[kf.physical] ** 2)[None]
-        self.logw = np.zeros(1)
-        self.history = np.zeros((1, 0), dtype=np.intp)
+        values = None if fault is None else np.asarray(fault[1], dtype=float)
+        cells = 1 if values is None or values.ndim == 1 else values.shape[1]
+        self.decide = decide
+        if decide and cells > 1:
+            raise ValueError("a decoder that decides the samples' modes has one bank")
+        #: the bank of each branch
+        self.cell = np.arange(cells)
+        self.m = np.repeat(np.asarray(model.X0, dtype=float)[None, kf.physical], cells, axis=0)
+        self.P = np.repeat(np.diag(np.asarray(model.X0_STD, dtype=float)[kf.physical] ** 2)[None], cells, axis=0)
+        self.logw = np.zeros(cells)
+        self.history = np.zeros((cells, 0), dtype=np.intp)
         self.waiting: list[Sample] = []
         self.mode = self._modes(self.m)[0]
-        self.fault = fault
+        #: the fault's onset step and each bank's fault states from it (f, cells)
+        self.fault = None if fault is None else (int(fault[0]), values.reshape(len(kf.extra), cells))
         self.k = 0  # the steps taken
         #: each branch's fault states (f, B): before the onset the nominal model's (the magnitude 0)
-        self.fixed = np.zeros((len(kf.extra), 1))
+        self.fixed = np.zeros((len(kf.extra), cells))
         if fault is not None:
-            self.fixed[:, 0] = fault[1]
-            self.fixed[kf.magnitude, 0] = 0.0
+            self.fixed[:] = self.fault[1]
+            self.fixed[kf.magnitude] = 0.0
         self.held = self._held(self.m, self.P, np.asarray(model.inputs(0.0), dtype=float))
         self.before = self.held.copy()
-        #: log p(y_0 .. y_k) of the samples taken, over the branches (those pruned included as they stood)
-        self.loglik = 0.0
+        #: per bank, log p(y_0 .. y_k) of the samples taken over its branches (those pruned as they stood)
+        self.logliks = np.zeros(cells)
 
     # -- the bank -------------------------------------------------------------------------------------------
 
@@ -293,8 +306,9 @@ class ModeDecoder:
         loglik = np.empty(len(parents))
         fixed = self.fixed[:, parents]
         at_onset = self.fault is not None and self.k == self.fault[0]
+        cell = self.cell[parents]
         if at_onset:  # from this sample on the fault (its transition into it nominal: the onset rule)
-            fixed[:] = np.asarray(self.fault[1], dtype=float)[:, None]
+            fixed[:] = self.fault[1][:, cell]
         for j in np.unique(targets):
             rows = np.flatnonzero(targets == j)
             uj = u.copy()
@@ -313,17 +327,25 @@ class ModeDecoder:
             P[:, row, :] = 0.0
             P[:, :, row] = 0.0
         logw = self.logw[parents] + logp + np.where(np.isfinite(loglik), loglik, -np.inf)
-        if not np.isfinite(logw).any():  # no branch explains the sample: keep them as they were weighed
-            logw = self.logw[parents] + logp
-        history = np.concatenate([self.history[parents], targets[:, None]], axis=1)
+        history = np.concatenate([self.history[parents], targets[:, None]], axis=1) if self.decide else \
+            self.history[parents]
         moved = targets != self._modes(self.m)[parents]
-        total = _logsumexp(logw)
-        if math.isfinite(total):
-            self.loglik += total
-        order = np.argsort(-logw, kind="stable")
-        order = order[logw[order] - logw[order[0]] > math.log(FLOOR)][:BRANCHES]
+        order, weights = [], []
+        for c in np.unique(cell):  # each bank weighed, pruned and normalised on its own
+            rows = np.flatnonzero(cell == c)
+            lw = logw[rows]
+            if not np.isfinite(lw).any():  # no branch explains the sample: keep them as they were weighed
+                lw = self.logw[parents[rows]] + logp[rows]
+            total = _logsumexp(lw)
+            if math.isfinite(total):
+                self.logliks[c] += total
+            best = np.argsort(-lw, kind="stable")
+            best = best[lw[best] - lw[best[0]] > math.log(FLOOR)][:BRANCHES]
+            order.append(rows[best])
+            weights.append(lw[best] - _logsumexp(lw[best]))
+        order = np.concatenate(order)
         self.m, self.P, self.history, self.fixed = m[order], P[order], history[order], fixed[:, order]
-        self.logw = logw[order] - _logsumexp(logw[order])
+        self.cell, self.logw = cell[order], np.concatenate(weights)
         self.held = self._held(self.m, self.P, u)
         # the end of the step in its mode, where a branch that stayed did not switch; a mode entered: its start
         self.before = np.where(moved[order][:, None], self.held, ends[parents[order]])
@@ -345,6 +367,8 @@ class ModeDecoder:
     def push(self, s: Sample) -> list[Sample]:
         """Take sample ``s``; the samples whose mode is decided (oldest first)."""
         self._advance(s.y, s.u)
+        if not self.decide:
+            return []
         self.waiting.append(s)
         return self._decide(final=False)
 
@@ -366,7 +390,7 @@ class ModeDecoder:
             mode = int(modes[best])
             keep = first == mode
             self.m, self.P, self.held, self.before = self.m[keep], self.P[keep], self.held[keep], self.before[keep]
-            self.fixed = self.fixed[:, keep]
+            self.fixed, self.cell = self.fixed[:, keep], self.cell[keep]
             self.logw = self.logw[keep] - _logsumexp(self.logw[keep])
             self.history = self.history[keep, 1:]
             s = self.waiting.pop(0)
@@ -387,13 +411,13 @@ class ModeDecoder:
     def state(self) -> DecoderState:
         return DecoderState(self.m.copy(), self.P.copy(), self.logw.copy(), self.held.copy(), self.before.copy(),
                             self.history.copy(), tuple(self.waiting), self.mode, self.fixed.copy(), self.k,
-                            self.loglik)
+                            self.logliks.copy(), self.cell.copy())
 
     def restore(self, s: DecoderState) -> None:
         self.m, self.P, self.logw = s.m.copy(), s.P.copy(), s.logw.copy()
         self.held, self.before, self.history = s.held.copy(), s.before.copy(), s.history.copy()
         self.waiting, self.mode = list(s.waiting), int(s.mode)
-        self.fixed, self.k, self.loglik = s.fixed.copy(), int(s.k), float(s.loglik)
+        self.fixed, self.k, self.logliks, self.cell = s.fixed.copy(), int(s.k), s.logliks.copy(), s.cell.copy()
 
 
 def _logsumexp(a: np.ndarray) -> float:
@@ -401,36 +425,70 @@ def _logsumexp(a: np.ndarray) -> float:
     return top + math.log(float(np.exp(a - top).sum()))
 
 
-def read_again(model, samples, fault: tuple[int, np.ndarray]) -> tuple[list[Sample], float]:
+def read_head(model, samples, onset: int) -> tuple[DecoderState, list[Sample]] | None:
+    """The nominal ``model``'s reading of ``samples`` up to the last sample
+    before step ``onset`` at which no sample waits: its state there and the
+    samples it decided (None: none such), where every reading of a fault
+    from that onset starts (:func:`read_again`)."""
+    decoder = ModeDecoder(model)
+    decided: list[Sample] = []
+    head = None
+    for s in samples[:max(onset, 0)]:
+        decided += decoder.push(s)
+        if not decoder.waiting:
+            head = (decoder.state(), list(decided))
+    return head
+
+
+def read_again(model, samples, fault: tuple[int, np.ndarray], head=None) -> list[Sample]:
     """``samples`` (their mode input NaN) with the modes a fault model reads
     from them (:class:`ModeDecoder` of ``model`` with ``fault``: its onset
-    step and fault states), the :class:`~bgc.events.ModeRead` events anew;
-    and the log-likelihood of the samples under it, the modes hidden."""
-    decoder = ModeDecoder(model, fault)
-    out = [decided for s in samples for decided in decoder.push(s)]
-    return out + decoder.flush(), decoder.loglik
+    step and fault states), the :class:`~bgc.events.ModeRead` events anew.
+    ``head``: :func:`read_head`'s reading before the onset, taken up there."""
+    decoder = _taken_up(ModeDecoder(model, fault), fault, head)
+    out = [] if head is None else list(head[1])
+    out += [decided for s in samples[len(out):] for decided in decoder.push(s)]
+    return out + decoder.flush()
 
 
-def read_size(model, samples, onset: int, start: np.ndarray, hint: float) -> float:
+def _taken_up(decoder: ModeDecoder, fault, head) -> ModeDecoder:
+    """``decoder`` (of a fault model, one bank per column of its fault
+    states) taken up from ``head``'s nominal reading, each bank a copy of it."""
+    if head is None:
+        return decoder
+    state = head[0]
+    cells = decoder.fault[1].shape[1]
+    before = decoder.fault[1].copy()
+    before[decoder.kf.magnitude] = 0.0
+    B = len(state.logw)
+    decoder.restore(dataclasses.replace(
+        state, m=np.tile(state.m, (cells, 1)), P=np.tile(state.P, (cells, 1, 1)), logw=np.tile(state.logw, cells),
+        held=np.tile(state.held, (cells, 1)), before=np.tile(state.before, (cells, 1)),
+        history=np.tile(state.history, (cells, 1)), fixed=np.repeat(before, B, axis=1),
+        logliks=np.full(cells, float(state.logliks[0])), cell=np.repeat(np.arange(cells), B)))
+    return decoder
+
+
+def read_size(model, samples, onset: int, start: np.ndarray, hint: float, head=None) -> float:
     """The size of fault model ``model`` from ``onset`` (``start``: its fault
     states there, the magnitude last) that makes the samples likeliest with
-    the modes hidden (:func:`read_again`'s likelihood): the best of a grid of
-    :data:`GRID` points over its prior and ``hint``, refined between its
-    neighbours (scipy's bounded scalar minimiser). A fault with no size (a
-    stuck switch's flag) is its one point."""
+    the modes hidden (a bank of :class:`ModeDecoder` per size, weighed
+    together, from ``head``): a grid of :data:`GRID` sizes over its prior
+    and ``hint``, then :data:`REFINE` times a grid of as many between the
+    best one's neighbours. A fault with no size (a stuck switch's flag) is
+    its one point."""
     low, high = (float(v) for v in model.FAULT_PRIOR)
     if high <= low:
         return low
-
-    def loglik(value: float) -> float:
-        fault = np.array(start, dtype=float)
-        fault[-1] = value
-        return read_again(model, samples, (onset, fault))[1]
-
     points = np.unique(np.append(np.linspace(low, high, GRID), np.clip(hint, low, high)))
-    values = np.array([loglik(v) for v in points])
-    best = int(np.nanargmax(np.where(np.isfinite(values), values, -np.inf)))
-    a, b = points[max(best - 1, 0)], points[min(best + 1, len(points) - 1)]
-    found = minimize_scalar(lambda v: -loglik(v), bounds=(a, b), method="bounded",
-                            options={"xatol": 1e-3 * (high - low), "maxiter": 16})
-    return float(found.x) if found.success and -found.fun >= values[best] else float(points[best])
+    for _ in range(REFINE + 1):
+        faults = np.repeat(np.asarray(start, dtype=float)[:, None], len(points), axis=1)
+        faults[-1] = points
+        decoder = _taken_up(ModeDecoder(model, (onset, faults), decide=False), (onset, faults), head)
+        for s in samples[0 if head is None else len(head[1]):]:
+            decoder.push(s)
+        best = int(np.argmax(np.where(np.isfinite(decoder.logliks), decoder.logliks, -np.inf)))
+        a, b = points[max(best - 1, 0)], points[min(best + 1, len(points) - 1)]
+        found = float(points[best])
+        points = np.linspace(a, b, GRID)
+    return found

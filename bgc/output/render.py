@@ -628,8 +628,7 @@ def hybrid_summary(model, modes) -> str:
                        if d.severity == "warning" and "derivative causality" not in d.message})
     lines.append(f"  warnings: {len(warnings) or 'none'}")
     lines.extend(f"    warning: {w}" for w in warnings)
-    lines.append("  not built yet for a model with modes: diagnosing a mode the data do not give (hidden), "
-                 "a transition the controller did not command")
+    lines.append("  not built yet for a model with modes: a transition the controller did not command")
     return "\n".join(printable(line) for line in lines)
 
 
