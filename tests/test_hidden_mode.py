@@ -4,9 +4,12 @@ P switched by the tank's pressure: ON under 0.4, OFF over 0.8) and an outlet
 drains, logged without a mode column.
 
 The data come from solve_ivp on the plant's equations derived by hand, not
-from bgc's simulator (tests/hybrid_reference.py, :func:`level_run`). The
-same data with the mode column added are the exact reference: what the
-diagnosis gives when the data say the mode.
+from bgc's simulator (tests/hybrid_reference.py, :func:`level_run`). A
+fault that moves the switches, diagnosed with the mode hidden, is the
+transcript of docs/format.md section 10 (docs/examples/level_run.csv, the
+same simulator: a smaller tank isolated and sized as the same data with the
+mode column give it); bench/hidden_mode.py runs the plant's faults over
+seeds both ways.
 """
 
 from __future__ import annotations
@@ -23,8 +26,7 @@ from bgc.diagnosis.state import DiagnoserState
 from bgc.model.protocol import nominal_model
 
 from conftest import ROOT, bgc_cli, session
-from hybrid_reference import (LEVEL_C as C, LEVEL_DT as DT, LEVEL_E as E, LEVEL_R_OUT as R_OUT,
-                              LEVEL_STEPS as STEPS, level_csv, level_run)
+from hybrid_reference import LEVEL_DT as DT, LEVEL_E as E, LEVEL_STEPS as STEPS, level_csv, level_run
 
 LEVEL = ROOT / "docs" / "examples" / "level.yaml"
 RELAY = ROOT / "docs" / "examples" / "relay.yaml"
@@ -70,31 +72,6 @@ def test_a_plant_that_switches_by_itself_raises_no_alarm(level, tmp_path):
         assert d.verdict == "no fault", seed
         reads = [e for e in d.events if isinstance(e, ev.ModeRead)]
         assert abs(len(reads) - len(switches)) <= 1 and any(isinstance(e, ev.ModeHidden) for e in d.events)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("fault", [(15.0, "C_t", 1.5)])
-def test_a_fault_that_moves_the_switches_is_named_and_sized_as_with_the_mode_given(level, tmp_path, fault):
-    """A smaller tank (a quarter less) moves the level switch's crossings,
-    so the nominal model's reading of the modes is wrong after the fault;
-    the hypotheses read them again with their own equations, and the
-    diagnosis isolates the fault and sizes it as the diagnosis of the same
-    data with the mode column does (within 3 % of the fault's size), the
-    truth within 10 %. (bench/hidden_mode.py runs the other faults and
-    seeds.)"""
-    when, name, value = fault
-    times, modes, y_p, y_q, _ = _simulate(4, fault)
-    hidden = bgc.diagnose(level, data=_csv(tmp_path / "h.csv", times, modes, y_p, y_q, False)).diagnosis
-    given = bgc.diagnose(level, data=_csv(tmp_path / "g.csv", times, modes, y_p, y_q, True)).diagnosis
-    expected = {"R_out": "R_out_abrupt", "p": "p_offset_bias", "C_t": "C_t_abrupt"}[name]
-    size = value - {"R_out": R_OUT, "p": 0.0, "C_t": C}[name]
-    assert given.verdict == "isolated" and given.candidates == (expected,)
-    assert hidden.verdict == "isolated" and hidden.candidates == (expected,), hidden.verdict
-    assert abs(hidden.estimate.value - given.estimate.value) <= 0.03 * abs(size)
-    assert abs(hidden.estimate.value - size) <= 0.1 * abs(size)
-    assert abs(hidden.onset - when) <= 2 * DT
-    reread = [e for e in hidden.events if isinstance(e, ev.ModesReread) and e.hypothesis == expected]
-    assert reread and reread[0].explains
 
 
 def test_a_hidden_modes_diagnoser_taken_up_from_its_state_goes_on_as_if_it_never_stopped(level):

@@ -45,7 +45,7 @@ from ..arguments import as_float, is_real, shown
 from ..data.runs import Run
 from ..data.sampler import Sample, Sampler
 from ..errors import ArgumentTypeError, ArgumentValueError, DataError, TrackingError, printable
-from .hidden import REREAD, ModeDecoder, read_again, read_head, read_size, readable
+from .hidden import ONSETS, REREAD, ModeDecoder, read_again, read_fault, read_head, readable
 from ..ir import FaultSignatures
 from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
@@ -336,20 +336,22 @@ class Diagnoser:
 
     def _read_with(self, h, raw: list[Sample], heads: dict) -> list[Sample]:
         """The samples ``raw`` (mode NaN) with the modes hypothesis ``h``'s
-        fault model reads from them: from its most likely onset, and the size
-        that makes the data likeliest with the modes hidden (:func:`read_size`,
-        its diagnosis's estimate a hint; ``heads``: the nominal readings
-        before each onset so far)."""
+        fault model reads from them, at the onset (within ONSETS samples
+        before its diagnosis's to 2 after) and size that make the data
+        likeliest with the modes hidden (:func:`read_fault`, its diagnosis's
+        estimate a hint; ``heads``: the nominal readings before each first
+        onset so far)."""
         onset, value = h.static.best if h.static is not None and h.static.best else (h.onset_step, h.estimate.value)
         model = self.config.package.MODELS[h.name]
-        nominal = np.asarray(self.loop.x_mean[max(onset - 1, 0)], dtype=float)[:, None]
+        onsets = [k for k in range(onset - ONSETS, onset + 3) if 0 <= k < len(raw)]
+        nominal = np.asarray(self.loop.x_mean[max(onsets[0] - 1, 0)], dtype=float)[:, None]
         _, extra = state_rows(model)
         start = np.asarray(model.augment(nominal, np.random.default_rng(0)), dtype=float)[extra, 0]
         self.config.say(f"reading the modes again with {h.name}'s equations")
-        if onset not in heads:  # the nominal reading before an onset, shared by the hypotheses from it
-            heads[onset] = read_head(self.nominal, raw, onset)
-        head = heads[onset]
-        start[-1] = read_size(model, raw, onset, start, value, head)
+        if onsets[0] not in heads:  # the nominal reading before an onset, shared by the hypotheses from it
+            heads[onsets[0]] = read_head(self.nominal, raw, onsets[0])
+        head = heads[onsets[0]]
+        onset, start[-1] = read_fault(model, raw, onsets, start, value, head)
         return read_again(model, raw, (onset, start), head)
 
     def _loop_of(self, samples: list[Sample]) -> Loop:

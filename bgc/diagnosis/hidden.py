@@ -36,10 +36,15 @@ waiting ``LAG`` steps, as the likeliest mode (the branches that disagree
 dropped): a plant that stays in its mode has each sample's mode decided as
 it comes; around a switch the samples wait until the data settle it. The
 decided samples go on with the mode as their ``mode`` input, as if the data
-had said it, each switch with a :class:`~bgc.events.ModeRead` event. What
-the data decide is the nominal model's reading of them: a fault that moves
-a switch (a guard crossed early) shows in the data as the switch itself, and
-the faults' filters then follow the switch read.
+had said it, each switch with a :class:`~bgc.events.ModeRead` event.
+
+That is the nominal model's reading. A fault moves the switches (a guard
+crossed early), so after a diagnosis the likeliest hypotheses read the modes
+again each with its own fault model (:func:`read_again`, from the nominal
+reading before its onset, :func:`read_head`) at the onset and size that make
+the data likeliest with the modes hidden (:func:`read_fault`: one bank per
+onset and size of a grid, weighed together, ``logliks``), and the diagnosis is made again on
+that reading (:meth:`bgc.diagnosis.diagnoser.Diagnoser.finish`).
 
 The decoder's state is plain data (:class:`DecoderState`).
 """
@@ -57,8 +62,8 @@ from ..data.sampler import Sample
 from .. import events as ev
 from ..filters.cubature import _Filter
 
-__all__ = ["AGREE", "BRANCHES", "DecoderState", "FLOOR", "GRID", "LAG", "ModeDecoder", "REFINE", "REREAD", "read_again", "read_head", "read_size",
-           "readable"]
+__all__ = ["AGREE", "BRANCHES", "DecoderState", "FLOOR", "GRID", "LAG", "ModeDecoder", "ONSETS", "REFINE", "REREAD",
+           "read_again", "read_fault", "read_head", "readable"]
 
 #: The most steps a sample waits for its mode to be decided.
 LAG = 10
@@ -71,6 +76,8 @@ FLOOR = 1e-12
 #: The most hypotheses whose own equations read the modes again after a diagnosis
 #: (:meth:`bgc.diagnosis.diagnoser.Diagnoser.finish`).
 REREAD = 3
+#: A fault's onset read with the hidden mode: from this many samples before its diagnosis's onset to 2 after.
+ONSETS = 4
 #: The points of the first grid over a fault's prior on which its size is read with the hidden mode.
 GRID = 7
 #: The refinements of that grid: each a grid of as many points between the best point's neighbours.
@@ -98,8 +105,8 @@ class DecoderState:
     held at the branch's last estimate and at the end of its last prediction
     (B, transitions each) and its modes over the samples waiting (B,
     waiting); the samples waiting; the mode of the last sample decided; each
-    branch's fault states (f, B), the steps taken and the log-likelihood of
-    the samples taken."""
+    branch's fault states (f, B), the steps taken, per bank the
+    log-likelihood of the samples taken, and each branch's bank."""
 
     m: np.ndarray
     P: np.ndarray
@@ -128,7 +135,7 @@ class ModeDecoder:
         cells) for several banks at once, one per column, each with its own
         branches and likelihood), whose branches run with the fault from that
         step); ``decide``: decide the samples' modes (one bank), else only
-        weigh the data (:attr:`loglik`, per bank)."""
+        weigh the data (:attr:`logliks`, per bank)."""
         why = readable(model)
         if why is not None:
             raise ValueError(f"the mode of {model.MODEL} cannot be read from the data: {why}")
@@ -155,7 +162,8 @@ class ModeDecoder:
         self.waiting: list[Sample] = []
         self.mode = self._modes(self.m)[0]
         #: the fault's onset step and each bank's fault states from it (f, cells)
-        self.fault = None if fault is None else (int(fault[0]), values.reshape(len(kf.extra), cells))
+        self.fault = None if fault is None else (np.broadcast_to(np.asarray(fault[0], dtype=np.intp), (cells,)).copy(),
+                                                 values.reshape(len(kf.extra), cells))
         self.k = 0  # the steps taken
         #: each branch's fault states (f, B): before the onset the nominal model's (the magnitude 0)
         self.fixed = np.zeros((len(kf.extra), cells))
@@ -299,28 +307,10 @@ class ModeDecoder:
             else:
                 self._keep(parents, targets, logp, dwell, sel, target, lp, clock)
         parents, targets, logp = np.concatenate(parents), np.concatenate(targets), np.concatenate(logp)
-        dwell = np.concatenate(dwell)
-        n = self.kf.n
-        m = np.empty((len(parents), n))
-        P = np.empty((len(parents), n, n))
-        loglik = np.empty(len(parents))
-        fixed = self.fixed[:, parents]
-        at_onset = self.fault is not None and self.k == self.fault[0]
-        cell = self.cell[parents]
-        if at_onset:  # from this sample on the fault (its transition into it nominal: the onset rule)
-            fixed[:] = self.fault[1][:, cell]
-        for j in np.unique(targets):
-            rows = np.flatnonzero(targets == j)
-            uj = u.copy()
-            uj[self.input] = j
-            held = np.ascontiguousarray(fixed[:, rows])
-            with np.errstate(all="ignore"):
-                ll, mj, Pj, *_ = self.kf.step(y, uj, self.m[parents[rows]], self.P[parents[rows]], held,
-                                              slice(0, len(rows)) if at_onset else slice(0, 0))
-            m[rows], P[rows], loglik[rows], fixed[:, rows] = mj, Pj, ll, held
+        m, P, loglik, fixed = self._children(y, u, parents, targets)
         self.k += 1
         if self.clock is not None:  # each branch's time in its mode, exactly (no variance: it says when it entered)
-            row = self.clock
+            row, dwell = self.clock, np.concatenate(dwell)
             m[:, row] = np.where(dwell >= 0, dwell, np.where(dwell == -1.0, np.minimum(m[:, row], dt * (1 - 1 / 8)),
                                                                m[:, row]))
             m[:, row] = np.where(np.isfinite(m[:, row]), m[:, row], 0.0)
@@ -330,6 +320,7 @@ class ModeDecoder:
         history = np.concatenate([self.history[parents], targets[:, None]], axis=1) if self.decide else \
             self.history[parents]
         moved = targets != self._modes(self.m)[parents]
+        cell = self.cell[parents]
         order, weights = [], []
         for c in np.unique(cell):  # each bank weighed, pruned and normalised on its own
             rows = np.flatnonzero(cell == c)
@@ -349,6 +340,31 @@ class ModeDecoder:
         self.held = self._held(self.m, self.P, u)
         # the end of the step in its mode, where a branch that stayed did not switch; a mode entered: its start
         self.before = np.where(moved[order][:, None], self.held, ends[parents[order]])
+
+    def _children(self, y, u, parents: np.ndarray, targets: np.ndarray):
+        """Each child's filter step from its parent branch into its mode
+        ``targets`` (the generated model's step with the mode given): its mean,
+        covariance, log-likelihood of the sample and fault states."""
+        n = self.kf.n
+        m, P, loglik = np.empty((len(parents), n)), np.empty((len(parents), n, n)), np.empty(len(parents))
+        fixed = self.fixed[:, parents]
+        cell = self.cell[parents]
+        at_onset = np.zeros(len(parents), dtype=bool) if self.fault is None else self.fault[0][cell] == self.k
+        # from its onset's sample on a bank has its fault (its transition into it nominal: the onset rule)
+        fixed[:, at_onset] = self.fault[1][:, cell[at_onset]] if at_onset.any() else fixed[:, at_onset]
+        for j in np.unique(targets):
+            for onset in (False, True):
+                rows = np.flatnonzero((targets == j) & (at_onset == onset))
+                if not len(rows):
+                    continue
+                uj = u.copy()
+                uj[self.input] = j
+                held = np.ascontiguousarray(fixed[:, rows])
+                with np.errstate(all="ignore"):
+                    ll, mj, Pj, *_ = self.kf.step(y, uj, self.m[parents[rows]], self.P[parents[rows]], held,
+                                                  slice(0, len(rows) if onset else 0))
+                m[rows], P[rows], loglik[rows], fixed[:, rows] = mj, Pj, ll, held
+        return m, P, loglik, fixed
 
     @staticmethod
     def _keep(parents, targets, logp, dwell, sel, target, lp, clock) -> None:
@@ -445,13 +461,13 @@ def read_again(model, samples, fault: tuple[int, np.ndarray], head=None) -> list
     from them (:class:`ModeDecoder` of ``model`` with ``fault``: its onset
     step and fault states), the :class:`~bgc.events.ModeRead` events anew.
     ``head``: :func:`read_head`'s reading before the onset, taken up there."""
-    decoder = _taken_up(ModeDecoder(model, fault), fault, head)
+    decoder = _taken_up(ModeDecoder(model, fault), head)
     out = [] if head is None else list(head[1])
     out += [decided for s in samples[len(out):] for decided in decoder.push(s)]
     return out + decoder.flush()
 
 
-def _taken_up(decoder: ModeDecoder, fault, head) -> ModeDecoder:
+def _taken_up(decoder: ModeDecoder, head) -> ModeDecoder:
     """``decoder`` (of a fault model, one bank per column of its fault
     states) taken up from ``head``'s nominal reading, each bank a copy of it."""
     if head is None:
@@ -469,26 +485,31 @@ def _taken_up(decoder: ModeDecoder, fault, head) -> ModeDecoder:
     return decoder
 
 
-def read_size(model, samples, onset: int, start: np.ndarray, hint: float, head=None) -> float:
-    """The size of fault model ``model`` from ``onset`` (``start``: its fault
-    states there, the magnitude last) that makes the samples likeliest with
-    the modes hidden (a bank of :class:`ModeDecoder` per size, weighed
-    together, from ``head``): a grid of :data:`GRID` sizes over its prior
-    and ``hint``, then :data:`REFINE` times a grid of as many between the
-    best one's neighbours. A fault with no size (a stuck switch's flag) is
-    its one point."""
+def read_fault(model, samples, onsets, start: np.ndarray, hint: float, head=None) -> tuple[int, float]:
+    """The onset (one of ``onsets``) and size of fault model ``model``
+    (``start``: its fault states at the onset, the magnitude last) that make
+    the samples likeliest with the modes hidden (a bank of
+    :class:`ModeDecoder` per onset and size, weighed together, from
+    ``head``): every onset with a grid of :data:`GRID` sizes over the
+    fault's prior and ``hint``; then, at the best onset, :data:`REFINE`
+    times a grid of as many sizes between the best one's neighbours. A
+    fault with no size (a stuck switch's flag) is its one point."""
     low, high = (float(v) for v in model.FAULT_PRIOR)
-    if high <= low:
-        return low
-    points = np.unique(np.append(np.linspace(low, high, GRID), np.clip(hint, low, high)))
-    for _ in range(REFINE + 1):
-        faults = np.repeat(np.asarray(start, dtype=float)[:, None], len(points), axis=1)
-        faults[-1] = points
-        decoder = _taken_up(ModeDecoder(model, (onset, faults), decide=False), (onset, faults), head)
+    onsets = np.asarray(sorted(set(int(k) for k in onsets)), dtype=np.intp)
+    sizes = np.array([low]) if high <= low else np.unique(np.append(np.linspace(low, high, GRID),
+                                                                    np.clip(hint, low, high)))
+    cells_onset, cells_size = np.repeat(onsets, len(sizes)), np.tile(sizes, len(onsets))
+    for _ in range(REFINE + 1 if high > low else 1):
+        faults = np.repeat(np.asarray(start, dtype=float)[:, None], len(cells_size), axis=1)
+        faults[-1] = cells_size
+        decoder = _taken_up(ModeDecoder(model, (cells_onset, faults), decide=False), head)
         for s in samples[0 if head is None else len(head[1]):]:
             decoder.push(s)
         best = int(np.argmax(np.where(np.isfinite(decoder.logliks), decoder.logliks, -np.inf)))
-        a, b = points[max(best - 1, 0)], points[min(best + 1, len(points) - 1)]
-        found = float(points[best])
-        points = np.linspace(a, b, GRID)
-    return found
+        onset, size = int(cells_onset[best]), float(cells_size[best])
+        mine = np.flatnonzero(cells_onset == onset)
+        where = int(np.searchsorted(cells_size[mine], size))
+        a, b = cells_size[mine][max(where - 1, 0)], cells_size[mine][min(where + 1, len(mine) - 1)]
+        cells_size = np.linspace(a, b, GRID)
+        cells_onset = np.full(GRID, onset)
+    return onset, size
