@@ -105,7 +105,7 @@ def ro_rows(runs: int, seed: int, folder: Path) -> list:
                                                                           31.0)):
         for r in range(runs):
             onset = int(rng.integers(100, 200))
-            sim = bgc.simulate(session, None if scenario is None else f"{scenario}@{onset}", steps=300,
+            sim = bgc.simulate(session, "none" if scenario is None else f"{scenario}@{onset}", steps=300,
                                seed=int(rng.integers(1 << 30)))
             given = folder / f"ro_g{r}.csv"
             sim.write(given)
