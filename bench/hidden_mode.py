@@ -42,6 +42,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import bgc  # noqa: E402
 from hybrid_reference import LEVEL_C, LEVEL_R_IN, LEVEL_R_OUT, level_csv, level_run  # noqa: E402
+from stuck_switches import outcome_of  # noqa: E402  (bench/, the script's folder)
 
 LEVEL = ROOT / "docs" / "examples" / "level.yaml"
 RO = ROOT / "models" / "ro_hybrid.yaml"
@@ -58,15 +59,9 @@ WAYS = ("hidden", "given")
 
 def outcome(d, right: str | None) -> str:
     """What diagnosis ``d`` made of a run whose fault model is ``right`` (None: no fault)."""
-    if d.detection is None or d.verdict == "no fault":
-        return "right" if right is None else "not detected"
     if right is None:
-        return "false alarm"
-    if d.verdict == "isolated":
-        return "right" if d.candidates == (right,) else "another fault"
-    if d.verdict == "ambiguous":
-        return "among candidates" if right in d.candidates else "another fault"
-    return d.verdict
+        return "right" if d.detection is None or d.verdict == "no fault" else "false alarm"
+    return outcome_of(d, right)
 
 
 def diagnose_both(session, hidden: Path, given: Path, right, size, rows: list, label: str) -> None:

@@ -56,7 +56,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import ndtr
+from scipy.special import logsumexp, ndtr
 
 from ..data.sampler import Sample
 from .. import events as ev
@@ -327,13 +327,13 @@ class ModeDecoder:
             lw = logw[rows]
             if not np.isfinite(lw).any():  # no branch explains the sample: keep them as they were weighed
                 lw = self.logw[parents[rows]] + logp[rows]
-            total = _logsumexp(lw)
+            total = logsumexp(lw)
             if math.isfinite(total):
                 self.logliks[c] += total
             best = np.argsort(-lw, kind="stable")
             best = best[lw[best] - lw[best[0]] > math.log(FLOOR)][:BRANCHES]
             order.append(rows[best])
-            weights.append(lw[best] - _logsumexp(lw[best]))
+            weights.append(lw[best] - logsumexp(lw[best]))
         order = np.concatenate(order)
         self.m, self.P, self.history, self.fixed = m[order], P[order], history[order], fixed[:, order]
         self.cell, self.logw = cell[order], np.concatenate(weights)
@@ -407,7 +407,7 @@ class ModeDecoder:
             keep = first == mode
             self.m, self.P, self.held, self.before = self.m[keep], self.P[keep], self.held[keep], self.before[keep]
             self.fixed, self.cell = self.fixed[:, keep], self.cell[keep]
-            self.logw = self.logw[keep] - _logsumexp(self.logw[keep])
+            self.logw = self.logw[keep] - logsumexp(self.logw[keep])
             self.history = self.history[keep, 1:]
             s = self.waiting.pop(0)
             u = s.u.copy()
@@ -435,10 +435,6 @@ class ModeDecoder:
         self.waiting, self.mode = list(s.waiting), int(s.mode)
         self.fixed, self.k, self.logliks, self.cell = s.fixed.copy(), int(s.k), s.logliks.copy(), s.cell.copy()
 
-
-def _logsumexp(a: np.ndarray) -> float:
-    top = float(np.max(a))
-    return top + math.log(float(np.exp(a - top).sum()))
 
 
 def read_head(model, samples, onset: int) -> tuple[DecoderState, list[Sample]] | None:
