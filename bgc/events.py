@@ -15,7 +15,7 @@ In loop order: the data (:class:`SensorMissing`, :class:`ColumnIgnored`, :class:
 :class:`Switched`), isolation (:class:`Isolated`, :class:`AllTried`),
 tracking (:class:`Started`, :class:`Stopped`, :class:`Dropped`, :class:`Rescued`), weighing
 (:class:`Truncated`, :class:`AtPriorBound`, :class:`NoLikelihood`, :class:`Misfit`), and the end
-(:class:`Refined`, :class:`SensorExcluded`, :class:`Checkpoint`, :class:`Decided`).
+(:class:`Refined`, :class:`SensorExcluded`, :class:`Checkpoint`, :class:`Mismatched`, :class:`Decided`).
 """
 
 from __future__ import annotations
@@ -384,6 +384,25 @@ class ModesReread:
 
 
 @dataclass(frozen=True, slots=True)
+class Mismatched:
+    """The model does not fit this plant (:mod:`bgc.diagnosis.fit`): the
+    data the verdict says are fault-free, steps 0 to ``last``, fail the
+    test of the model (``findings``: a sentence per sensor), or (``short``)
+    are fewer than ``least`` samples, too few to tell a fault since the
+    data's start from a model that does not fit. ``possible``: the faults
+    the diagnosis would have named, kept as possibilities; ``estimate``:
+    what to calibrate (``bgc calibrate --estimate``'s words)."""
+
+    step: int
+    last: int
+    findings: tuple[str, ...]
+    short: bool
+    least: int
+    possible: tuple[str, ...]
+    estimate: tuple[str, ...]
+
+
+@dataclass(frozen=True, slots=True)
 class Decided:
     """The final verdict, at the last step."""
 
@@ -395,4 +414,4 @@ class Decided:
 Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorResumed | InputFromModel | InputHeld
          | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | Started | Refined | Dropped
          | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | SensorExcluded
-         | Checkpoint | ModeHidden | ModeRead | ModesReread | Decided)
+         | Checkpoint | ModeHidden | ModeRead | ModesReread | Mismatched | Decided)

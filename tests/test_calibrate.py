@@ -16,6 +16,7 @@ import bgc
 from bgc import cli
 from bgc.compiler import load, validate
 from bgc.errors import ArgumentTypeError, ArgumentValueError, CalibrationError, DataError, OutputError
+from bgc.filters import residuals
 from bgc.output.calibrated import calibrated_text, number
 from bgc.pipeline import compile_model
 from bgc.analysis import calibrate as cal
@@ -512,7 +513,7 @@ def test_ljung_box_against_its_formula_and_its_power():
     n, h = len(a), 10
     acf = np.correlate(a, a, "full")[n - 1:] / np.dot(a, a)
     expected = n * (n + 2) * sum(acf[k] ** 2 / (n - k) for k in range(1, h + 1))
-    q, count = cal.ljung_box([white], h)
+    q, count = residuals.ljung_box([white], h)
     assert count == n and q == pytest.approx(expected, rel=1e-12)
     from scipy.stats import chi2
 
@@ -520,9 +521,9 @@ def test_ljung_box_against_its_formula_and_its_power():
     ar = np.zeros(500)
     for t in range(1, 500):
         ar[t] = 0.5 * ar[t - 1] + white[t]
-    assert chi2.sf(cal.ljung_box([ar], h)[0], h) < 1e-10
+    assert chi2.sf(residuals.ljung_box([ar], h)[0], h) < 1e-10
     # a missing sample (NaN) breaks only the pairs it is in
     holed = white.copy()
     holed[100] = np.nan
-    q_holed, count = cal.ljung_box([holed], h)
+    q_holed, count = residuals.ljung_box([holed], h)
     assert count == n - 1 and abs(q_holed - q) < 0.1 * q

@@ -25,6 +25,7 @@ from ..kinds import fault_kind
 from ..model.protocol import Package, nominal_model
 from .. import events as ev
 from .estimate import estimate_of
+from .fit import fit
 from .hypothesis import hypothesis_job, log_density, run_job
 from .onsets import earlier_onsets, onset_weights
 from .options import DiagnosisOptions
@@ -101,9 +102,10 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     silent = [ev.SensorSilent(y) for j, y in enumerate(r.outputs)
               if r.present[j] and not np.isfinite(r.ys[:, j]).any()]
     if r.detection is None:
-        events = list(r.events) + silent + [ev.Decided(T - 1, "no fault", ())]
-        return Diagnosis(verdict="no fault", detection=None, onset_step=None, symbols=(), refuted=(), hypotheses=(),
-                         candidates=(), events=ordered(events), **common)
+        verdict, candidates, judged, fitted = judged_fit(r, s, (), "no fault", (), None)
+        events = list(r.events) + silent + judged + [ev.Decided(T - 1, verdict, candidates)]
+        return Diagnosis(verdict=verdict, detection=None, onset_step=None, symbols=(), refuted=(), hypotheses=(),
+                         candidates=candidates, events=ordered(events), fit=fitted, **common)
     iso = r.isolation
     hyps, posteriors, observer, rescued = tracked(r, s, truth)
     more, static = rechecked(r, s, truth, hyps, posteriors, observer)
@@ -112,10 +114,47 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     best_onset = next((h.onset_step for h in hyps if candidates and h.name == candidates[0]), iso.onset)
     s.say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
     events += refined(r.events, candidates, best_onset, T - 1)
+    verdict, candidates, judged, fitted = judged_fit(r, s, hyps, verdict, candidates, best_onset)
+    events += judged
     events.append(ev.Decided(T - 1, verdict, candidates))
     final = [e for e in events if not isinstance(e, ev.Stopped)]  # the online drops: decided anew above
     return Diagnosis(verdict=verdict, detection=r.detection, onset_step=best_onset, symbols=iso.symbols,
-                     refuted=iso.refuted, hypotheses=hyps, candidates=candidates, events=ordered(final), **common)
+                     refuted=iso.refuted, hypotheses=hyps, candidates=candidates, events=ordered(final), fit=fitted,
+                     **common)
+
+
+def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str, ...], onset: int | None):
+    """The test of the model on the data the verdict says are fault-free
+    (:mod:`bgc.diagnosis.fit`): before the earlier of the change point and
+    the onset ``onset`` (the whole record without an alarm). A model that
+    fails it, or data too short before an alarm to tell, make the verdict
+    ``mismatch``, the faults it named kept as possibilities. Returns (the
+    verdict, its candidates, the events, the :class:`~bgc.diagnosis.fit.Fit`)."""
+    T = len(r.time)
+    if r.detection is None:
+        end = T
+    else:
+        end = min(k for k in (r.detection.onset_step, onset, r.detection.step) if k is not None)
+    least = max(s.options.windows)
+    fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, least)
+    # too short to tell: the onset comes before the detector's longest window is full; a drift's by the
+    # detector's change point (its own onset, weakly told by the data, may lie far before it and the truth)
+    by = {h.name: h for h in hyps}
+    drifts = bool(candidates) and candidates[0] in by and fault_kind(by[candidates[0]].kind).drifts
+    first = None if r.detection is None else r.detection.onset_step if drifts else end
+    short = first is not None and first < least
+    fitted = replace(fitted, short=short)
+    if fitted.fits:
+        return verdict, candidates, [], fitted
+    possible = candidates if verdict in ("isolated", "ambiguous") else ()
+    parameters = [by[n].parameter for n in possible if n in by and by[n].estimate.target == "parameter"]
+    if not parameters and any("average" in f for f in fitted.findings):
+        parameters = [m.FAULT["parameter"] for m in s.package.MODELS.values()
+                      if getattr(m, "FAULT", None) and m.FAULT.get("target") == "parameter"]
+    estimate = tuple(dict.fromkeys(["noise", *parameters]))
+    event = ev.Mismatched(T - 1, max(end - 1, 0), fitted.findings, short, least, possible, estimate)
+    s.say("the model does not fit these data" + ("" if not possible else f"; possibly {', '.join(possible)}"))
+    return "mismatch", possible, [event], fitted
 
 
 def refined(told, candidates, onset: int | None, step: int) -> list:

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..data.sampler import DataSummary
 from ..filters.cubature import BankResult
+from ..filters.residuals import Innovations
 from .options import DiagnosisOptions
 
 
@@ -149,8 +150,32 @@ class ModeSplit:
 
 
 @dataclass(frozen=True, slots=True)
+class Fit:
+    """The test of the model on steps ``0 .. end - 1`` (the data before the
+    fault, or the whole record): per sensor read, the summary of the
+    nominal Kalman filter's normalised residuals (``innovations``) and their
+    mean offset in the sensor's unit (``offsets``, y - predicted, by sensor
+    name); ``findings``, a sentence per sensor that fails at ``level``
+    (:func:`bgc.filters.residuals.findings`); ``short``: fewer than
+    ``least`` samples, too few to tell. ``fits``: neither."""
+
+    end: int
+    least: int
+    level: float
+    innovations: tuple[Innovations, ...]
+    offsets: tuple[tuple[str, float], ...]
+    findings: tuple[str, ...]
+    short: bool
+
+    @property
+    def fits(self) -> bool:
+        return not self.findings and not self.short
+
+
+
+@dataclass(frozen=True, slots=True)
 class Diagnosis:
-    """What :func:`diagnose` found. ``verdict``: ``no fault``, ``isolated``
+    """What :func:`diagnose` found. ``verdict``: ``no fault``, ``mismatch``, ``isolated``
     (one hypothesis survives), ``ambiguous`` (several do: ``candidates``, best
     first) or ``unexplained`` (none does; ``candidates`` then holds the one
     that lasted longest). Steps are steps of the model's time grid
@@ -160,6 +185,10 @@ class Diagnosis:
     ``states``). ``events``: what happened, in time order
     (:mod:`bgc.events`); ``data``: how the data met the model (per
     input, data or model; sensors present; samples skipped; gaps);
+    ``fit``: the test of the model on the data before the fault (the whole
+    record without one; :mod:`bgc.diagnosis.fit`), whose failure makes the
+    verdict ``mismatch`` (the model does not fit this plant; ``candidates``
+    then hold the faults the diagnosis would have named, as possibilities);
     ``mode_split``: for an ambiguous verdict of a model with modes, the
     candidates another mode may separate (a :class:`ModeSplit`; None: none,
     or no modes)."""
@@ -187,6 +216,7 @@ class Diagnosis:
     events: tuple = field(default=())
     data: DataSummary | None = None
     mode_split: ModeSplit | None = None
+    fit: Fit | None = None
 
     def __repr__(self) -> str:  # its arrays would flood a notebook: what a reader wants
         onset = "" if self.onset is None else f", onset t = {self.onset:.12g}"

@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import printable
-from ..analysis.calibrate import FIT_LEVEL, Z95, Calibration, Estimate, autocorrelations
+from ..analysis.calibrate import FIT_LEVEL, Z95, Calibration, Estimate
+from ..filters.residuals import autocorrelations
 from . import html
 from .artifacts import manifest
 from .markdown import escape

@@ -129,9 +129,30 @@ def sentence(e, time_of) -> str:
                     f"goes on with the other sensors")
         case ev.Checkpoint(step=k, verdict=v, candidates=c):
             return f"checkpoint: {v}" + (f": {', '.join(c)}" if c else "")
+        case ev.Mismatched():
+            return mismatch_sentence(e, time_of)
         case ev.Decided(step=k, verdict=v, candidates=c):
             return f"decided: {v}" + (f": {', '.join(c)}" if c else "")
     return type(e).__name__
+
+
+def mismatch_sentence(e: ev.Mismatched, time_of) -> str:
+    """A :class:`~bgc.events.Mismatched` in words: why the model does not
+    fit (or may not), the faults kept as possibilities, and what to
+    calibrate."""
+    samples = e.last + 1
+    if e.short:
+        why = (f"the model may not fit this plant: the alarm's onset leaves {samples} sample(s) before it, fewer than "
+               f"the {e.least} that would show the model fitted the plant before a fault; a fault since the data's "
+               f"start and a model that does not fit give the same data")
+    else:
+        span = "the whole record" if e.last == e.step else "the data before the fault"
+        why = (f"the model does not fit this plant: over {span} (t = {_t(time_of, 0)} to "
+               f"{_t(time_of, e.last)}, {samples} samples) " + "; ".join(e.findings))
+    if e.possible:
+        why += f"; possibly a fault all the same: {', '.join(e.possible)}"
+    words = ",".join(e.estimate)
+    return why + f"; calibrate the model on healthy data (bgc calibrate MODEL --data FILE --estimate {words})"
 
 
 #: The fields of events that hold steps of the time grid besides ``step``: in :func:`record` each is a
@@ -170,7 +191,7 @@ def record(e, time_of) -> dict:
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped, ev.SensorResumed,
            ev.InputFromModel, ev.ModeHidden, ev.ModesReread, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate,
            ev.AllTried, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded,
-           ev.Overruled, ev.Uncertain)
+           ev.Overruled, ev.Uncertain, ev.Mismatched)
 
 
 def notes(events, time_of) -> list[str]:

@@ -13,6 +13,7 @@ import json
 import math
 from typing import Any, Callable, Mapping
 
+from ..diagnosis.fit import LEVEL as FIT_LEVEL
 from ..kinds import fault_kind
 from . import events, html, plots
 from .artifacts import manifest
@@ -132,6 +133,13 @@ def report_data(r) -> dict[str, Any]:
         "mode_split": None if d.mode_split is None else {
             "modes_seen": list(d.mode_split.seen),
             "pairs": [{"faults": [one, other], "differ_in": list(modes)} for one, other, modes in d.mode_split.pairs]},
+        # the test of the model on the data before the fault (the whole record without one): bgc.diagnosis.fit
+        "fit": None if d.fit is None else {
+            "t_last": _time(_t(d, d.fit.end - 1)) if d.fit.end else None, "samples": d.fit.end,
+            "least": d.fit.least, "level": d.fit.level, "short": d.fit.short, "findings": list(d.fit.findings),
+            "sensors": [{"sensor": i.sensor, "samples": i.samples, "mean_std": _num(i.mean),
+                         "variance": _num(i.variance), "mean_offset": _num(dict(d.fit.offsets).get(i.sensor))}
+                        for i in d.fit.innovations]},
         "events": [events.record(e, d.time_of) for e in d.events],
         "data_semantics": None if d.data is None else {
             "inputs": [{"input": u, "from": src, "holds": dict(d.data.holds).get(u, 0)} for u, src in d.data.inputs],
@@ -188,6 +196,8 @@ def plain_words(d, labels: Labels = Labels()) -> list[str]:
         return [("either " if i == 0 else "or ") + w for i, w in enumerate(words)] + mode_split_lines(d)
     if d.verdict == "unexplained":
         return [f"closest, but not explaining the data: {w}" for w in words]
+    if d.verdict == "mismatch":
+        return [f"possibly, on the model as it stands: {w}" for w in words]
     return words
 
 
@@ -247,7 +257,10 @@ def verdict_text(d) -> str:
             "ambiguous": "Fault detected; the data cannot separate: " + ", ".join(d.candidates) + ".",
             "unexplained": "Fault detected, but no fault model explains the data"
                            + (f" (the one that lasted longest: {d.candidates[0]})" if d.candidates else "")
-                           + "."}[d.verdict]
+                           + ".",
+            "mismatch": "The model does not fit this plant: calibrate it"
+                        + (f" (a fault is possible too: {', '.join(d.candidates)})" if d.candidates else "")
+                        + "."}[d.verdict]
 
 
 def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:
@@ -269,6 +282,11 @@ def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:
         "unexplained": ("unexplained: a fault was detected but no fault model explains the data: every one was "
                         "ruled out by its signature, failed a test of its fit, or was outweighed; the fault lies "
                         "outside the model's fault candidates or beyond the sizes their priors allow."),
+        "mismatch": ("mismatch: the model does not fit this plant: the nominal Kalman filter's normalised "
+                     "residuals over the data before the fault (the whole record without an alarm) are not N(0, 1) "
+                     f"(their mean or variance, each sensor tested at a joint level of {FIT_LEVEL:g}), or an alarm "
+                     "comes too soon after the data's start to tell a fault from a model that does not fit; the faults named are "
+                     "possibilities, and the model needs calibrating (bgc calibrate)."),
     }[verdict]
 
 

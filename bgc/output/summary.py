@@ -23,6 +23,7 @@ VERDICT_STYLES = {
     "no fault": "border-left: 0.5em solid #009e73; background: #e6f5f0",
     "ambiguous": "border-left: 0.5em solid #e69f00; background: #fcf3e0",
     "unexplained": "border-left: 0.5em solid #d55e00; background: #fbebe1",
+    "mismatch": "border-left: 0.5em solid #cc79a7; background: #f9eef4",
     "fits": "border-left: 0.5em solid #0072b2; background: #e8f2f9",
     "findings": "border-left: 0.5em solid #d55e00; background: #fbebe1",
 }

@@ -311,7 +311,8 @@ def _verdict_right(r: dict) -> bool:
     names is the injected one; ``ambiguous``, the injected one is in the
     group; ``unexplained``, the injected fault is not one the model expects
     (not among its candidates, or outside the candidate's prior: ``expected``
-    false); ``no fault``, none was injected."""
+    false); ``mismatch``, never (a campaign simulates the model itself, which
+    fits its own runs); ``no fault``, none was injected."""
     truth = f"{r['fault']}_{r['kind']}" if r.get("fault") else None
     verdict = r["verdict"]
     if verdict == "isolated":
@@ -320,11 +321,13 @@ def _verdict_right(r: dict) -> bool:
         return truth is not None and truth in (r.get("candidates") or "").split()
     if verdict == "unexplained":
         return truth is not None and r.get("expected") is False
+    if verdict == "mismatch":  # a campaign's runs are the model's own: it fits them
+        return False
     return truth is None
 
 
 #: The verdicts, in the order the reliability table lists them.
-VERDICTS = ("isolated", "ambiguous", "unexplained", "no fault")
+VERDICTS = ("isolated", "ambiguous", "unexplained", "mismatch", "no fault")
 
 
 def reliability_rows(rows: list[dict]) -> list[dict[str, Any]]:
@@ -359,7 +362,8 @@ def reliability_markdown(rows: list[dict]) -> str:
 RELIABILITY_TEXT = (
     "How often each verdict told the truth: isolated, the fault named is the one injected; ambiguous, it "
     "is in the group; unexplained, the injected fault is not one the model expects (not a candidate, or "
-    "outside its prior); no fault, none was injected (a fault the detector missed counts against it). "
+    "outside its prior); mismatch, never (the runs are the model's own); no fault, none was injected (a "
+    "fault the detector missed counts against it). "
     "The last row: among detected faults, the named fault's class (parameter, sensor, actuator).")
 
 

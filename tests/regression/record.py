@@ -28,7 +28,12 @@ b_incipient had a log evidence of 4.5e19 and 6.4e20 with a std of 0, the
 quadrature's parabola bent up by a grid cell whose model diverged (-2e18);
 a neighbour that far below no longer shapes a parabola
 (``kalman.row_quadrature``), and b_incipient's log evidence is -3920 and
--5072 (it was dropped before the end in both, the verdicts are unchanged). A change that is meant to change
+-5072 (it was dropped before the end in both, the verdicts are unchanged). Re-recorded on 2026-12-03
+(--only msd_c_step_up_gpf --keep-runs) with the test of the model on the data a verdict says are
+fault-free (bgc.diagnosis.fit, the verdict "mismatch"): its damper's abrupt increase from t = 100, which
+no window of the detector sees, leaves F_damp's residuals over the whole record with a variance of 1.89,
+not 1; the verdict was "no fault" (wrong: a fault was injected) and is "mismatch" (the model as written
+does not fit these data); every other case is unchanged. A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
 ``bgc/`` holds exactly the code being committed, and commits the corpus with
 that code (the commit is the provenance; its message says why):
@@ -154,7 +159,8 @@ CASES = [
     case("msd_k_s_step_down_apf", MSD, "k_s:abrupt:-3@100", 200, 3, "abrupt decrease", method="apf"),
     case("msd_k_s_step_up_opf", MSD, "k_s:abrupt:2@100", 200, 22, "abrupt increase", method="opf"),
     case("msd_c_drift_up_ckf", MSD, "c:incipient:0.01@50", 200, 4, "drift up", method="ckf"),
-    case("msd_c_step_up_gpf", MSD, "c:abrupt:0.5@100", 200, 2, "abrupt increase the data do not show"),
+    case("msd_c_step_up_gpf", MSD, "c:abrupt:0.5@100", 200, 2, "abrupt increase the detector misses: the whole "
+         "record's residuals fail the model's fit test (mismatch)"),
     case("msd_none_gpf", MSD, None, 200, 1, "fault-free"),
     # --- the drivetrain (dt = 0.05 s): its torque sensor is sharp, a particle observer degenerates
     case("drivetrain_none_switch_gpf", DRIVETRAIN, None, 300, 2,

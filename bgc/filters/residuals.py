@@ -1,0 +1,126 @@
+"""The normalised residuals of a nominal filter, tested: are they the white
+N(0, 1) draws they are when the model fits the plant?
+
+Per sensor, over the samples read: their mean (0 when the model fits; its
+standard error 1 / sqrt(n)), their variance (1; standard error
+sqrt(2 / n)) and the Ljung-Box portmanteau statistic (Ljung and Box 1978)
+over ``lags`` lags, chi-square with ``lags`` degrees of freedom when they are
+white. ``bgc calibrate`` reports them for the calibrated model
+(:mod:`bgc.analysis.calibrate`), and the diagnosis for the model as written
+over the data before a fault (:mod:`bgc.diagnosis.fit`): both say what fails
+in the same sentences (:func:`findings`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+
+@dataclass(frozen=True, slots=True)
+class Innovations:
+    """A sensor's normalised residuals under the calibrated model over every
+    recording: ``samples`` read, their ``mean`` and ``variance`` (0 and 1
+    when the model fits), the Ljung-Box statistic ``ljung_box`` over
+    ``lags`` lags and its p-value (small: the residuals are correlated, the
+    model misses a dynamic)."""
+
+    sensor: str
+    samples: int
+    mean: float
+    variance: float
+    ljung_box: float
+    lags: int
+    p_value: float
+
+
+
+def autocorrelations(z: Sequence[np.ndarray], lags: int) -> tuple[np.ndarray, int]:
+    """The sample autocorrelation r_k = sum (z_t - m)(z_t+k - m) / sum (z_t
+    - m)^2 at lags 1 .. ``lags`` of the residual series ``z`` (one per
+    recording, NaN: not read; pairs are taken within a recording, both read;
+    ``m`` the mean of every sample read), and ``n`` the samples read: (r, n)
+    (r NaN when fewer than 3)."""
+    parts = [np.asarray(a, dtype=float) for a in z]
+    values = np.concatenate([a[np.isfinite(a)] for a in parts]) if parts else np.zeros(0)
+    n = len(values)
+    if n < 3:
+        return np.full(lags, math.nan), n
+    mean = float(values.mean())
+    denom = float(((values - mean) ** 2).sum())
+    r = np.zeros(lags)
+    for k in range(1, lags + 1):
+        s = 0.0
+        for a in parts:
+            if len(a) > k:
+                prod = (a[:-k] - mean) * (a[k:] - mean)
+                s += float(prod[np.isfinite(prod)].sum())
+        r[k - 1] = s / denom if denom > 0 else 0.0
+    return r, n
+
+
+def ljung_box(z: Sequence[np.ndarray], lags: int) -> tuple[float, int]:
+    """The Ljung-Box statistic Q = n (n + 2) sum_k r_k^2 / (n - k) over lags
+    1 .. ``lags`` of the residual series ``z`` (:func:`autocorrelations`),
+    with n the samples read: (Q, n)."""
+    r, n = autocorrelations(z, lags)
+    if n < 3:
+        return math.nan, n
+    return n * (n + 2) * float(sum(r[k - 1] ** 2 / (n - k) for k in range(1, lags + 1))), n
+
+
+def innovations(filters: Sequence, outputs: Sequence[str]) -> tuple[Innovations, ...]:
+    """Per sensor read, the summary of the normalised residuals of the
+    nominal Kalman filters ``filters`` (:class:`~bgc.filters.cubature.NominalKalman`,
+    one per recording) (:func:`summary`)."""
+    return summary([np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in filters], outputs)
+
+
+def summary(zs: Sequence[np.ndarray], outputs: Sequence[str]) -> tuple[Innovations, ...]:
+    """Per sensor read, the summary of its normalised residuals ``zs`` (one
+    array of steps x ``outputs`` per recording; NaN: not read): an
+    :class:`Innovations` (none for a sensor read fewer than 3 times)."""
+    from scipy.stats import chi2
+
+    out = []
+    for j, name in enumerate(outputs):
+        series = [z[:, j] for z in zs]
+        read = np.concatenate([s[np.isfinite(s)] for s in series])
+        if len(read) < 3:
+            continue
+        lags = int(max(1, min(20, len(read) // 5)))
+        q, n = ljung_box(series, lags)
+        out.append(Innovations(name, n, float(read.mean()), float(read.var()), float(q), lags,
+                               float(chi2.sf(q, lags))))
+    return tuple(out)
+
+
+def findings(summaries: Sequence[Innovations], level: float, correlation: bool = True) -> tuple[str, ...]:
+    """One sentence per sensor of ``summaries`` that fails a test at
+    ``level`` over every sensor and test (Bonferroni): residuals correlated
+    (Ljung-Box; left out without ``correlation``), off 0 (their mean,
+    against its standard error 1 / sqrt(n)) or of another variance than 1
+    (against its standard error sqrt(2 / n)); empty when every sensor
+    passes."""
+    from scipy.stats import norm
+
+    if not summaries:
+        return ()
+    alpha = level / ((3 if correlation else 2) * len(summaries))
+    cut = float(norm.isf(alpha / 2))
+    out = []
+    for i in summaries:
+        if correlation and i.p_value < alpha:
+            p = f"p = {i.p_value:.2g}" if i.p_value > 0 else "p < 1e-300"
+            out.append(f"sensor {i.sensor}'s residuals are correlated (Ljung-Box {p}): the model misses a "
+                       "dynamic")
+        elif abs(i.mean) * math.sqrt(i.samples) > cut:
+            out.append(f"sensor {i.sensor}'s residuals average {i.mean:+.3g} stds, not 0: the model misses an "
+                       "offset or a slow change of that reading")
+        elif abs(i.variance - 1) / math.sqrt(2 / i.samples) > cut:
+            out.append(f"sensor {i.sensor}'s residuals have variance {i.variance:.3g}, not 1: the model's "
+                       "noise does not fit that reading")
+    return tuple(out)
