@@ -134,6 +134,11 @@ def test_the_fit_findings_against_their_closed_forms():
     wide = np.column_stack([base, base * scale])
     said = residuals.findings(residuals.summary([wide], ("a", "b")), level, correlation=False)
     assert len(said) == 1 and "sensor b's residuals have variance" in said[0]
+    narrow = np.column_stack([base, base * math.sqrt(1 - cut * math.sqrt(2 / n) * 1.01)])
+    assert len(residuals.findings(residuals.summary([narrow], ("a", "b")), level, correlation=False)) == 1
+    # the diagnosis's test: a variance under 1 (a filter more cautious than the plant) is no misfit
+    assert residuals.findings(residuals.summary([narrow], ("a", "b")), level, correlation=False,
+                              narrower=False) == ()
 
 
 def test_the_fit_takes_the_data_before_the_onset_only():

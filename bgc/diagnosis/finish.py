@@ -25,7 +25,7 @@ from ..kinds import fault_kind
 from ..model.protocol import Package, nominal_model
 from .. import events as ev
 from .estimate import estimate_of
-from .fit import fit
+from .fit import LEAST, fit
 from .hypothesis import hypothesis_job, log_density, run_job
 from .onsets import earlier_onsets, onset_weights
 from .options import DiagnosisOptions
@@ -135,10 +135,10 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
         end = T
     else:
         end = min(k for k in (r.detection.onset_step, onset, r.detection.step) if k is not None)
-    least = max(s.options.windows)
+    least = LEAST
     fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, least)
-    # too short to tell: the onset comes before the detector's longest window is full; a drift's by the
-    # detector's change point (its own onset, weakly told by the data, may lie far before it and the truth)
+    # too short to tell: fewer than LEAST samples before the onset; a drift's by the detector's change point
+    # (its own onset, weakly told by the data, may lie far before it and the truth)
     by = {h.name: h for h in hyps}
     drifts = bool(candidates) and candidates[0] in by and fault_kind(by[candidates[0]].kind).drifts
     first = None if r.detection is None else r.detection.onset_step if drifts else end
@@ -148,7 +148,7 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
         return verdict, candidates, [], fitted
     possible = candidates if verdict in ("isolated", "ambiguous") else ()
     parameters = [by[n].parameter for n in possible if n in by and by[n].estimate.target == "parameter"]
-    if not parameters and any("average" in f for f in fitted.findings):
+    if not parameters and (short or any("average" in f for f in fitted.findings)):
         parameters = [m.FAULT["parameter"] for m in s.package.MODELS.values()
                       if getattr(m, "FAULT", None) and m.FAULT.get("target") == "parameter"]
     estimate = tuple(dict.fromkeys(["noise", *parameters]))

@@ -20,19 +20,22 @@ stretch; per sensor read, its normalised residuals, white N(0, 1) draws
 when the model fits, are summed up as ``bgc calibrate`` sums up the
 calibrated model's (:mod:`bgc.filters.residuals`): their mean, against its
 standard error 1 / sqrt(n), and their variance, against sqrt(2 / n), each
-sensor and test at :data:`LEVEL` over all of them (Bonferroni). Ljung-Box's
+sensor and test at :data:`LEVEL` over all of them (Bonferroni). Only a
+variance above 1 counts: residuals narrower than the filter predicts (a
+plant quieter than its model, or a filter that spreads its prediction
+wider, as it does across the switches of a model with modes) make the
+detector more cautious, never confidently wrong. Ljung-Box's
 whiteness test, which ``bgc calibrate`` adds, is left out of the verdict: on
 data of the model itself it fails more often than its level says (a
 portmanteau over 20 lags is sensitive to the slight slow wander a
 discretised simulation leaves); it is reported beside the findings.
 
 **Too short to tell.** When the fault's onset (the earlier of the change
-point and the diagnosis's) comes before the detector's longest window is
-full (:data:`LEAST` samples, by default 32), nothing shows that the model
-fitted the plant before the fault: a fault since the data's start and a
-model that does not fit give the same data. For a drift, the detector's
-change point alone: a drift's onset is weakly told by the data, and its
-most probable one may lie far before the truth.
+point and the diagnosis's) leaves fewer than :data:`LEAST` samples before
+it, their mean and variance say too little to vouch for the model: a fault
+since the data's start and a model that does not fit give the same data.
+For a drift, the detector's change point alone: a drift's onset is weakly
+told by the data, and its most probable one may lie far before the truth.
 
 **The verdict** (:mod:`bgc.diagnosis.finish`): when the stretch fails the
 test, or is too short, the diagnosis is ``mismatch``. Its candidates are
@@ -54,9 +57,8 @@ from .values import Fit
 
 #: The probability that the test finds a model that fits the plant at fault, over every sensor and test.
 LEVEL = 0.001
-#: The samples before the change point below which a fault cannot be told from a model that does not fit
-#: (the diagnosis takes the detector's longest window).
-LEAST = 32
+#: The samples before a fault's onset below which it cannot be told from a model that does not fit.
+LEAST = 10
 
 
 def fit(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], end: int, least: int,
@@ -74,5 +76,5 @@ def fit(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], end: 
         read = gap[:, j][np.isfinite(gap[:, j])]
         if len(read) >= 3:
             offsets.append((name, float(read.mean())))
-    said = findings(summaries, level, correlation=False)
+    said = findings(summaries, level, correlation=False, narrower=False)
     return Fit(end, int(least), float(level), summaries, tuple(offsets), said, end < least)

@@ -98,13 +98,14 @@ def summary(zs: Sequence[np.ndarray], outputs: Sequence[str]) -> tuple[Innovatio
     return tuple(out)
 
 
-def findings(summaries: Sequence[Innovations], level: float, correlation: bool = True) -> tuple[str, ...]:
+def findings(summaries: Sequence[Innovations], level: float, correlation: bool = True,
+             narrower: bool = True) -> tuple[str, ...]:
     """One sentence per sensor of ``summaries`` that fails a test at
     ``level`` over every sensor and test (Bonferroni): residuals correlated
     (Ljung-Box; left out without ``correlation``), off 0 (their mean,
     against its standard error 1 / sqrt(n)) or of another variance than 1
-    (against its standard error sqrt(2 / n)); empty when every sensor
-    passes."""
+    (against its standard error sqrt(2 / n); without ``narrower``, only a
+    variance above 1); empty when every sensor passes."""
     from scipy.stats import norm
 
     if not summaries:
@@ -120,7 +121,7 @@ def findings(summaries: Sequence[Innovations], level: float, correlation: bool =
         elif abs(i.mean) * math.sqrt(i.samples) > cut:
             out.append(f"sensor {i.sensor}'s residuals average {i.mean:+.3g} stds, not 0: the model misses an "
                        "offset or a slow change of that reading")
-        elif abs(i.variance - 1) / math.sqrt(2 / i.samples) > cut:
+        elif (i.variance - 1 if not narrower else abs(i.variance - 1)) / math.sqrt(2 / i.samples) > cut:
             out.append(f"sensor {i.sensor}'s residuals have variance {i.variance:.3g}, not 1: the model's "
                        "noise does not fit that reading")
     return tuple(out)

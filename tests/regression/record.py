@@ -33,7 +33,11 @@ a neighbour that far below no longer shapes a parabola
 fault-free (bgc.diagnosis.fit, the verdict "mismatch"): its damper's abrupt increase from t = 100, which
 no window of the detector sees, leaves F_damp's residuals over the whole record with a variance of 1.89,
 not 1; the verdict was "no fault" (wrong: a fault was injected) and is "mismatch" (the model as written
-does not fit these data); every other case is unchanged. A change that is meant to change
+does not fit these data). And drivetrain_none_no_switch_gpf (--only, --keep-runs): its false alarm,
+whose change point is the data's second sample, leaves 1 sample before the fault, fewer than the 10
+that could vouch for the model: "unexplained" (k_s_abrupt the closest) before, "mismatch" now; its
+hypotheses' numbers moved in their last digits (the same code recorded them; the replay passes).
+Every other case is unchanged. A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
 ``bgc/`` holds exactly the code being committed, and commits the corpus with
 that code (the commit is the provenance; its message says why):

@@ -1,0 +1,56 @@
+"""The verdicts on data a model does not fit (issue 48): the circuit as a
+plant gives it, simulated by another simulator (the exact solution of its
+equations derived by hand, tests/test_mismatch.py's ``plant_csv``), its
+parameters each off the model file's by up to ``--off`` (relative) and its
+noise ``--noise`` times the model's, no fault; beside it, the same
+simulator with the model's own numbers. Prints the count of each verdict
+per plant, side by side.
+
+    .venv/bin/python bench/mismatch.py --runs 12
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+import bgc  # noqa: E402
+from test_mismatch import plant_csv  # noqa: E402
+
+VERDICTS = ("no fault", "mismatch", "isolated", "ambiguous", "unexplained")
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--runs", type=int, default=12)
+    p.add_argument("--off", type=float, default=0.03)
+    p.add_argument("--noise", type=float, default=1.5)
+    a = p.parse_args(argv)
+    session = bgc.open(ROOT / "models" / "circuit.yaml")
+    plants = {f"off {100 * a.off:g} %, noise x{a.noise:g}": (a.off, a.noise), "the model's numbers": (0.0, 1.0)}
+    counts = {name: Counter() for name in plants}
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "run.csv"
+        for seed in range(a.runs):
+            for name, (off, noise) in plants.items():
+                plant_csv(path, seed, off, noise)
+                d = bgc.diagnose(session, path).diagnosis
+                counts[name][d.verdict] += 1
+                print(f"seed {seed}, {name}: {d.verdict}" + (f" ({', '.join(d.candidates)})" if d.candidates else ""),
+                      file=sys.stderr, flush=True)
+    print(f"| plant ({a.runs} runs each) | " + " | ".join(VERDICTS) + " |")
+    print("|---|" + "---|" * len(VERDICTS))
+    for name, c in counts.items():
+        print(f"| {name} | " + " | ".join(str(c[v]) for v in VERDICTS) + " |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
