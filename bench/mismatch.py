@@ -7,6 +7,13 @@ simulator with the model's own numbers. Prints the count of each verdict
 per plant, side by side.
 
     .venv/bin/python bench/mismatch.py --runs 12
+
+With ``--null RUNS``: the test of the model's fit alone (bgc.diagnosis.fit,
+over the whole record, as a diagnosis without an alarm runs it) on bgc's own
+fault-free runs of the shipped and test plants (``bgc simulate``'s, seeds 0
+to RUNS - 1): how often it finds a misfit in data the model made.
+
+    .venv/bin/python bench/mismatch.py --null 60
 """
 
 from __future__ import annotations
@@ -25,6 +32,31 @@ import bgc  # noqa: E402
 from test_mismatch import plant_csv  # noqa: E402
 
 VERDICTS = ("no fault", "mismatch", "isolated", "ambiguous", "unexplained")
+PLANTS = ("models/circuit.yaml", "models/two_tank.yaml", "models/ro.yaml", "tests/data/models/dc_motor.yaml",
+          "tests/data/models/orifice_tanks.yaml", "tests/data/models/mass_spring_damper.yaml")
+
+
+def null(runs: int) -> None:
+    """The fit test's findings on ``runs`` fault-free runs of each of :data:`PLANTS`, as a table."""
+    import numpy as np
+
+    from bgc.diagnosis.fit import LEAST, LEVEL, fit
+
+    print(f"| plant | runs | misfit found (level {LEVEL:g}) | findings |")
+    print("|---|---|---|---|")
+    for plant in PLANTS:
+        session = bgc.open(ROOT / plant)
+        nominal = session.package.MODELS["nominal"]
+        found, said = 0, []
+        for seed in range(runs):
+            run = bgc.simulate(session, "none", seed=seed).run
+            ys = np.column_stack([run.measurements[y] for y in nominal.OUTPUTS])
+            us = np.column_stack([run.inputs[u] for u in nominal.INPUTS])
+            f = fit(nominal, ys, us, tuple(nominal.OUTPUTS), len(ys), LEAST)
+            if f.findings:
+                found += 1
+                said += [f"seed {seed}: {x.split(':')[0]}" for x in f.findings]
+        print(f"| {plant} | {runs} | {found} | {'; '.join(said)} |", flush=True)
 
 
 def main(argv=None) -> int:
@@ -32,7 +64,11 @@ def main(argv=None) -> int:
     p.add_argument("--runs", type=int, default=12)
     p.add_argument("--off", type=float, default=0.03)
     p.add_argument("--noise", type=float, default=1.5)
+    p.add_argument("--null", type=int, default=0, metavar="RUNS")
     a = p.parse_args(argv)
+    if a.null:
+        null(a.null)
+        return 0
     session = bgc.open(ROOT / "models" / "circuit.yaml")
     plants = {f"off {100 * a.off:g} %, noise x{a.noise:g}": (a.off, a.noise), "the model's numbers": (0.0, 1.0)}
     counts = {name: Counter() for name in plants}

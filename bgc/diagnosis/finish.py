@@ -102,7 +102,7 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     silent = [ev.SensorSilent(y) for j, y in enumerate(r.outputs)
               if r.present[j] and not np.isfinite(r.ys[:, j]).any()]
     if r.detection is None:
-        verdict, candidates, judged, fitted = judged_fit(r, s, (), "no fault", (), None)
+        verdict, candidates, judged, fitted = judged_fit(r, s, (), "no fault", (), None, r.observer)
         events = list(r.events) + silent + judged + [ev.Decided(T - 1, verdict, candidates)]
         return Diagnosis(verdict=verdict, detection=None, onset_step=None, symbols=(), refuted=(), hypotheses=(),
                          candidates=candidates, events=ordered(events), fit=fitted, **common)
@@ -114,7 +114,8 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     best_onset = next((h.onset_step for h in hyps if candidates and h.name == candidates[0]), iso.onset)
     s.say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
     events += refined(r.events, candidates, best_onset, T - 1)
-    verdict, candidates, judged, fitted = judged_fit(r, s, hyps, verdict, candidates, best_onset)
+    verdict, candidates, judged, fitted = judged_fit(r, s, hyps, verdict, candidates, best_onset,
+                                                     observer or r.observer)
     events += judged
     events.append(ev.Decided(T - 1, verdict, candidates))
     final = [e for e in events if not isinstance(e, ev.Stopped)]  # the online drops: decided anew above
@@ -123,20 +124,22 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
                      **common)
 
 
-def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str, ...], onset: int | None):
+def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str, ...], onset: int | None,
+               track: kalman.NominalTrack | None = None):
     """The test of the model on the data the verdict says are fault-free
     (:mod:`bgc.diagnosis.fit`): before the earlier of the change point and
     the onset ``onset`` (the whole record without an alarm). A model that
     fails it, or data too short before an alarm to tell, make the verdict
     ``mismatch``, the faults it named kept as possibilities. Returns (the
-    verdict, its candidates, the events, the :class:`~bgc.diagnosis.fit.Fit`)."""
+    verdict, its candidates, the events, the :class:`~bgc.diagnosis.fit.Fit`). ``track``: the nominal
+    cubature Kalman filter's, when the diagnosis ran it."""
     T = len(r.time)
     if r.detection is None:
         end = T
     else:
         end = min(k for k in (r.detection.onset_step, onset, r.detection.step) if k is not None)
     least = LEAST
-    fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, least)
+    fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, least, track=track)
     # too short to tell: fewer than LEAST samples before the onset; a drift's by the detector's change point
     # (its own onset, weakly told by the data, may lie far before it and the truth)
     by = {h.name: h for h in hyps}

@@ -62,16 +62,20 @@ LEAST = 10
 
 
 def fit(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], end: int, least: int,
-        level: float = LEVEL) -> Fit:
+        level: float = LEVEL, track=None) -> Fit:
     """The test of the nominal model ``nominal`` (a generated model) on the
-    measurements ``ys`` and inputs ``us`` of steps ``0 .. end - 1``."""
+    measurements ``ys`` and inputs ``us`` of steps ``0 .. end - 1``;
+    ``track``: the nominal cubature Kalman filter's track over them or
+    further (:class:`~bgc.filters.cubature.NominalTrack`), when the
+    diagnosis computed it already (else it is computed here)."""
     end = max(0, min(int(end), len(ys)))
-    track = nominal_track(nominal, ys, us, end)
-    z = np.asarray(track.z, dtype=float).reshape(end, len(outputs))
+    if track is None or track.z is None or len(track.z) < end:
+        track = nominal_track(nominal, ys, us, end)
+    z = np.asarray(track.z, dtype=float)[:end].reshape(end, len(outputs))
     summaries = summary([z], outputs)
     offsets = []
     with np.errstate(invalid="ignore"):
-        gap = ys[:end] - np.asarray(track.y_mean, dtype=float).reshape(end, len(outputs))
+        gap = ys[:end] - np.asarray(track.y_mean, dtype=float)[:end].reshape(end, len(outputs))
     for j, name in enumerate(outputs):
         read = gap[:, j][np.isfinite(gap[:, j])]
         if len(read) >= 3:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from statistics import NormalDist
 from typing import Sequence
 
 import numpy as np
@@ -83,7 +84,7 @@ def summary(zs: Sequence[np.ndarray], outputs: Sequence[str]) -> tuple[Innovatio
     """Per sensor read, the summary of its normalised residuals ``zs`` (one
     array of steps x ``outputs`` per recording; NaN: not read): an
     :class:`Innovations` (none for a sensor read fewer than 3 times)."""
-    from scipy.stats import chi2
+    from scipy.special import chdtrc  # chi-square's survival function (scipy.stats costs a second to import)
 
     out = []
     for j, name in enumerate(outputs):
@@ -94,7 +95,7 @@ def summary(zs: Sequence[np.ndarray], outputs: Sequence[str]) -> tuple[Innovatio
         lags = int(max(1, min(20, len(read) // 5)))
         q, n = ljung_box(series, lags)
         out.append(Innovations(name, n, float(read.mean()), float(read.var()), float(q), lags,
-                               float(chi2.sf(q, lags))))
+                               float(chdtrc(lags, q))))
     return tuple(out)
 
 
@@ -106,12 +107,10 @@ def findings(summaries: Sequence[Innovations], level: float, correlation: bool =
     against its standard error 1 / sqrt(n)) or of another variance than 1
     (against its standard error sqrt(2 / n); without ``narrower``, only a
     variance above 1); empty when every sensor passes."""
-    from scipy.stats import norm
-
     if not summaries:
         return ()
     alpha = level / ((3 if correlation else 2) * len(summaries))
-    cut = float(norm.isf(alpha / 2))
+    cut = NormalDist().inv_cdf(1.0 - alpha / 2)
     out = []
     for i in summaries:
         if correlation and i.p_value < alpha:
