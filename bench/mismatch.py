@@ -40,7 +40,7 @@ def null(runs: int) -> None:
     """The fit test's findings on ``runs`` fault-free runs of each of :data:`PLANTS`, as a table."""
     import numpy as np
 
-    from bgc.diagnosis.fit import LEAST, LEVEL, fit
+    from bgc.diagnosis.fit import LEVEL, fit
 
     print(f"| plant | runs | misfit found (level {LEVEL:g}) | findings |")
     print("|---|---|---|---|")
@@ -52,7 +52,7 @@ def null(runs: int) -> None:
             run = bgc.simulate(session, "none", seed=seed).run
             ys = np.column_stack([run.measurements[y] for y in nominal.OUTPUTS])
             us = np.column_stack([run.inputs[u] for u in nominal.INPUTS])
-            f = fit(nominal, ys, us, tuple(nominal.OUTPUTS), len(ys), LEAST)
+            f = fit(nominal, ys, us, tuple(nominal.OUTPUTS), len(ys))
             if f.findings:
                 found += 1
                 said += [f"seed {seed}: {x.split(':')[0]}" for x in f.findings]

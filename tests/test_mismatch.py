@@ -148,5 +148,5 @@ def test_the_fit_takes_the_data_before_the_onset_only():
     ys = np.column_stack([run.measurements[y] for y in nominal.OUTPUTS])
     us = np.column_stack([run.inputs[u] for u in nominal.INPUTS])
     ys[150:] += 1.0  # twenty sensor stds from step 150 on
-    assert fit_module.fit(nominal, ys, us, tuple(nominal.OUTPUTS), 150, 32).findings == ()
-    assert fit_module.fit(nominal, ys, us, tuple(nominal.OUTPUTS), 300, 32).findings != ()
+    assert fit_module.fit(nominal, ys, us, tuple(nominal.OUTPUTS), 150).findings == ()
+    assert fit_module.fit(nominal, ys, us, tuple(nominal.OUTPUTS), 300).findings != ()

@@ -138,24 +138,22 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
         end = T
     else:
         end = min(k for k in (r.detection.onset_step, onset, r.detection.step) if k is not None)
-    least = LEAST
-    fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, least, track=track)
     # too short to tell: fewer than LEAST samples before the onset; a drift's by the detector's change point
     # (its own onset, weakly told by the data, may lie far before it and the truth)
     by = {h.name: h for h in hyps}
     drifts = bool(candidates) and candidates[0] in by and fault_kind(by[candidates[0]].kind).drifts
     first = None if r.detection is None else r.detection.onset_step if drifts else end
-    short = first is not None and first < least
-    fitted = replace(fitted, short=short)
+    short = first is not None and first < LEAST
+    fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, short, track=track)
     if fitted.fits:
         return verdict, candidates, [], fitted
     possible = candidates if verdict in ("isolated", "ambiguous") else ()
     parameters = [by[n].parameter for n in possible if n in by and by[n].estimate.target == "parameter"]
-    if not parameters and (short or any("average" in f for f in fitted.findings)):
+    if not parameters and (short or "mean" in fitted.failed):
         parameters = [m.FAULT["parameter"] for m in s.package.MODELS.values()
                       if getattr(m, "FAULT", None) and m.FAULT.get("target") == "parameter"]
     estimate = tuple(dict.fromkeys(["noise", *parameters]))
-    event = ev.Mismatched(T - 1, max(end - 1, 0), fitted.findings, short, least, possible, estimate)
+    event = ev.Mismatched(T - 1, max(end - 1, 0), fitted.findings, short, LEAST, possible, estimate)
     s.say("the model does not fit these data" + ("" if not possible else f"; possibly {', '.join(possible)}"))
     return "mismatch", possible, [event], fitted
 

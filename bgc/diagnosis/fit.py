@@ -28,7 +28,8 @@ detector more cautious, never confidently wrong. Ljung-Box's
 whiteness test, which ``bgc calibrate`` adds, is left out of the verdict: on
 data of the model itself it fails more often than its level says (a
 portmanteau over 20 lags is sensitive to the slight slow wander a
-discretised simulation leaves); it is reported beside the findings.
+discretised simulation leaves); its statistic stays in the summary
+(:attr:`~bgc.diagnosis.values.Fit.innovations`).
 
 **Too short to tell.** When the fault's onset (the earlier of the change
 point and the diagnosis's) leaves fewer than :data:`LEAST` samples before
@@ -52,7 +53,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..filters.cubature import nominal_track
-from ..filters.residuals import findings, summary
+from ..filters.residuals import failures, finding, summary
 from .values import Fit
 
 #: The probability that the test finds a model that fits the plant at fault, over every sensor and test.
@@ -61,13 +62,15 @@ LEVEL = 0.001
 LEAST = 10
 
 
-def fit(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], end: int, least: int,
+def fit(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], end: int, short: bool = False,
         level: float = LEVEL, track=None) -> Fit:
     """The test of the nominal model ``nominal`` (a generated model) on the
     measurements ``ys`` and inputs ``us`` of steps ``0 .. end - 1``;
-    ``track``: the nominal cubature Kalman filter's track over them or
-    further (:class:`~bgc.filters.cubature.NominalTrack`), when the
-    diagnosis computed it already (else it is computed here)."""
+    ``short``: the caller's judgement that the data before the fault are
+    too few to tell (fewer than :data:`LEAST`); ``track``: the nominal
+    cubature Kalman filter's track over them or further
+    (:class:`~bgc.filters.cubature.NominalTrack`), when the diagnosis
+    computed it already (else it is computed here)."""
     end = max(0, min(int(end), len(ys)))
     if track is None or track.z is None or len(track.z) < end:
         track = nominal_track(nominal, ys, us, end)
@@ -80,5 +83,6 @@ def fit(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], end: 
         read = gap[:, j][np.isfinite(gap[:, j])]
         if len(read) >= 3:
             offsets.append((name, float(read.mean())))
-    said = findings(summaries, level, correlation=False, narrower=False)
-    return Fit(end, int(least), float(level), summaries, tuple(offsets), said, end < least)
+    failed = failures(summaries, level, correlation=False, narrower=False)
+    return Fit(end, LEAST, float(level), summaries, tuple(offsets), tuple(finding(i, t) for i, t in failed),
+               bool(short), tuple(t for _, t in failed))

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..filters.kernel import log_sum_exp
 from .options import GridOptions
 from ..model.protocol import FaultModel, Package, magnitude_row, nominal_model
 
@@ -48,11 +49,6 @@ class GridPosterior:
     level: float
 
 
-def _logsumexp(a: np.ndarray) -> float:
-    m = float(np.max(a))
-    return m + math.log(float(np.sum(np.exp(a - m)))) if np.isfinite(m) else m
-
-
 def _bootstrap(package: Package, model: FaultModel, x: np.ndarray, ys: np.ndarray, us: np.ndarray, rng,
                fixed: tuple[int, float] | None = None) -> tuple[float, np.ndarray]:
     """log p(ys | the cloud x) by a bootstrap filter (its unbiased estimate);
@@ -69,7 +65,7 @@ def _bootstrap(package: Package, model: FaultModel, x: np.ndarray, ys: np.ndarra
             if getattr(model, "PROPOSAL_ROW", None) is not None:  # switches proposed beyond the guards' odds
                 ll = ll + x[model.PROPOSAL_ROW]
             ll = np.where(np.isfinite(ll), ll, -np.inf)
-            total += _logsumexp(ll) - math.log(n)
+            total += log_sum_exp(ll) - math.log(n)
             if not np.isfinite(total):
                 return -math.inf, x
             x = x[:, package.filters.systematic_resample(ll, rng)]

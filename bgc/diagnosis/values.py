@@ -156,8 +156,9 @@ class Fit:
     nominal Kalman filter's normalised residuals (``innovations``) and their
     mean offset in the sensor's unit (``offsets``, y - predicted, by sensor
     name); ``findings``, a sentence per sensor that fails at ``level``
-    (:func:`bgc.filters.residuals.findings`); ``short``: fewer than
-    ``least`` samples, too few to tell. ``fits``: neither."""
+    (:func:`bgc.filters.residuals.findings`), and the test each failed
+    (``failed``: ``mean`` or ``variance``); ``short``: fewer than ``least``
+    samples before an alarm's onset, too few to tell. ``fits``: neither."""
 
     end: int
     least: int
@@ -166,11 +167,11 @@ class Fit:
     offsets: tuple[tuple[str, float], ...]
     findings: tuple[str, ...]
     short: bool
+    failed: tuple[str, ...] = ()
 
     @property
     def fits(self) -> bool:
         return not self.findings and not self.short
-
 
 
 @dataclass(frozen=True, slots=True)

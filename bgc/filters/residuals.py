@@ -38,7 +38,6 @@ class Innovations:
     p_value: float
 
 
-
 def autocorrelations(z: Sequence[np.ndarray], lags: int) -> tuple[np.ndarray, int]:
     """The sample autocorrelation r_k = sum (z_t - m)(z_t+k - m) / sum (z_t
     - m)^2 at lags 1 .. ``lags`` of the residual series ``z`` (one per
@@ -99,14 +98,14 @@ def summary(zs: Sequence[np.ndarray], outputs: Sequence[str]) -> tuple[Innovatio
     return tuple(out)
 
 
-def findings(summaries: Sequence[Innovations], level: float, correlation: bool = True,
-             narrower: bool = True) -> tuple[str, ...]:
-    """One sentence per sensor of ``summaries`` that fails a test at
-    ``level`` over every sensor and test (Bonferroni): residuals correlated
-    (Ljung-Box; left out without ``correlation``), off 0 (their mean,
-    against its standard error 1 / sqrt(n)) or of another variance than 1
-    (against its standard error sqrt(2 / n); without ``narrower``, only a
-    variance above 1); empty when every sensor passes."""
+def failures(summaries: Sequence[Innovations], level: float, correlation: bool = True,
+             narrower: bool = True) -> tuple[tuple[Innovations, str], ...]:
+    """The sensors of ``summaries`` that fail a test at ``level`` over every
+    sensor and test (Bonferroni), each with the first test it fails:
+    ``correlated`` (Ljung-Box; not tried without ``correlation``), ``mean``
+    (off 0, against its standard error 1 / sqrt(n)) or ``variance`` (off 1,
+    against its standard error sqrt(2 / n); without ``narrower``, only a
+    variance above 1)."""
     if not summaries:
         return ()
     alpha = level / ((3 if correlation else 2) * len(summaries))
@@ -114,13 +113,29 @@ def findings(summaries: Sequence[Innovations], level: float, correlation: bool =
     out = []
     for i in summaries:
         if correlation and i.p_value < alpha:
-            p = f"p = {i.p_value:.2g}" if i.p_value > 0 else "p < 1e-300"
-            out.append(f"sensor {i.sensor}'s residuals are correlated (Ljung-Box {p}): the model misses a "
-                       "dynamic")
+            out.append((i, "correlated"))
         elif abs(i.mean) * math.sqrt(i.samples) > cut:
-            out.append(f"sensor {i.sensor}'s residuals average {i.mean:+.3g} stds, not 0: the model misses an "
-                       "offset or a slow change of that reading")
-        elif (i.variance - 1 if not narrower else abs(i.variance - 1)) / math.sqrt(2 / i.samples) > cut:
-            out.append(f"sensor {i.sensor}'s residuals have variance {i.variance:.3g}, not 1: the model's "
-                       "noise does not fit that reading")
+            out.append((i, "mean"))
+        elif (abs(i.variance - 1) if narrower else i.variance - 1) / math.sqrt(2 / i.samples) > cut:
+            out.append((i, "variance"))
     return tuple(out)
+
+
+def finding(i: Innovations, test: str) -> str:
+    """The sentence of sensor ``i`` failing ``test`` (:func:`failures`)."""
+    if test == "correlated":
+        p = f"p = {i.p_value:.2g}" if i.p_value > 0 else "p < 1e-300"
+        return f"sensor {i.sensor}'s residuals are correlated (Ljung-Box {p}): the model misses a dynamic"
+    if test == "mean":
+        return (f"sensor {i.sensor}'s residuals average {i.mean:+.3g} stds, not 0: the model misses an offset or a "
+                "slow change of that reading")
+    return (f"sensor {i.sensor}'s residuals have variance {i.variance:.3g}, not 1: the model's noise does not fit "
+            "that reading")
+
+
+def findings(summaries: Sequence[Innovations], level: float, correlation: bool = True,
+             narrower: bool = True) -> tuple[str, ...]:
+    """One sentence per sensor of ``summaries`` that fails a test at
+    ``level`` (:func:`failures`, :func:`finding`); empty when every sensor
+    passes."""
+    return tuple(finding(i, test) for i, test in failures(summaries, level, correlation, narrower))

@@ -86,6 +86,20 @@ def _num(v: float | None) -> float | None:
     return float(f"{v:.6g}")
 
 
+def _fit_data(d) -> dict[str, Any] | None:
+    """The test of the model on the data before the fault (the whole record
+    without one; :mod:`bgc.diagnosis.fit`) as report.json holds it."""
+    f = d.fit
+    if f is None:
+        return None
+    offsets = dict(f.offsets)
+    return {"t_last": _time(_t(d, f.end - 1)) if f.end else None, "samples": f.end, "least": f.least,
+            "level": f.level, "short": f.short, "findings": list(f.findings),
+            "sensors": [{"sensor": i.sensor, "samples": i.samples, "mean_std": _num(i.mean),
+                         "variance": _num(i.variance), "mean_offset": _num(offsets.get(i.sensor))}
+                        for i in f.innovations]}
+
+
 def _drop_reason(d, name: str) -> str | None:
     """The code of the Dropped event of hypothesis ``name`` (bgc.events.DROP_REASONS)."""
     return next((e.reason for e in d.events if type(e).__name__ == "Dropped" and e.hypothesis == name), None)
@@ -133,13 +147,7 @@ def report_data(r) -> dict[str, Any]:
         "mode_split": None if d.mode_split is None else {
             "modes_seen": list(d.mode_split.seen),
             "pairs": [{"faults": [one, other], "differ_in": list(modes)} for one, other, modes in d.mode_split.pairs]},
-        # the test of the model on the data before the fault (the whole record without one): bgc.diagnosis.fit
-        "fit": None if d.fit is None else {
-            "t_last": _time(_t(d, d.fit.end - 1)) if d.fit.end else None, "samples": d.fit.end,
-            "least": d.fit.least, "level": d.fit.level, "short": d.fit.short, "findings": list(d.fit.findings),
-            "sensors": [{"sensor": i.sensor, "samples": i.samples, "mean_std": _num(i.mean),
-                         "variance": _num(i.variance), "mean_offset": _num(dict(d.fit.offsets).get(i.sensor))}
-                        for i in d.fit.innovations]},
+        "fit": _fit_data(d),
         "events": [events.record(e, d.time_of) for e in d.events],
         "data_semantics": None if d.data is None else {
             "inputs": [{"input": u, "from": src, "holds": dict(d.data.holds).get(u, 0)} for u, src in d.data.inputs],
@@ -284,9 +292,9 @@ def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:
                         "outside the model's fault candidates or beyond the sizes their priors allow."),
         "mismatch": ("mismatch: the model does not fit this plant: the nominal Kalman filter's normalised "
                      "residuals over the data before the fault (the whole record without an alarm) are not N(0, 1) "
-                     f"(their mean or variance, each sensor tested at a joint level of {FIT_LEVEL:g}), or an alarm "
-                     "comes too soon after the data's start to tell a fault from a model that does not fit; the faults named are "
-                     "possibilities, and the model needs calibrating (bgc calibrate)."),
+                     f"(their mean, or a variance above 1, each sensor tested at a joint level of {FIT_LEVEL:g}), "
+                     "or an alarm comes too soon after the data's start to tell a fault from a model that does not "
+                     "fit; the faults named are possibilities, and the model needs calibrating (bgc calibrate)."),
     }[verdict]
 
 
