@@ -61,7 +61,7 @@ from scipy.special import ndtr
 from ..data.sampler import Sample
 from .. import events as ev
 from ..filters.cubature import _Filter
-from ..filters.kernel import log_sum_exp
+from .identify import log_sum_exp
 
 __all__ = ["AGREE", "BRANCHES", "DecoderState", "FLOOR", "GRID", "LAG", "ModeDecoder", "ONSETS", "REFINE", "REREAD",
            "read_again", "read_fault", "read_head", "readable"]

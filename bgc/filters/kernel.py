@@ -20,8 +20,6 @@ faster) against that scratch memory (five state-sized blocks for RK4).
 
 import threading
 
-import math
-
 import numpy as np
 
 BLOCK = 6144
@@ -125,18 +123,6 @@ def perturb(x, std, rng, normal=normal_into):
         buf *= scale
         x[:, start:stop] += buf
     return x
-
-
-def log_sum_exp(a: np.ndarray) -> float:
-    """log(sum(exp(a))) of a 1-d array, shifted by its largest entry (-inf
-    when empty, or when every entry is -inf). On the few numbers of a bank's
-    weights it costs 9 us a call, where scipy.special.logsumexp costs 240 us
-    (its array-API dispatch; measured), and the mode decoder calls it a
-    hundred thousand times a diagnosis."""
-    if not len(a):
-        return -math.inf
-    m = float(np.max(a))
-    return m + math.log(float(np.sum(np.exp(a - m)))) if np.isfinite(m) else m
 
 
 def gaussian_loglik(y, yhat, std):
