@@ -39,7 +39,7 @@ def exact_run(seed: int, fault: tuple[float, float] | None = None, end: float = 
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("seed", [1, 2])  # the rate over 100 runs: bench/hybrid_false_alarms.py (the RO)
 def test_a_relay_cycling_without_a_fault_raises_no_alarm(seed):
     run = exact_run(seed)
     assert int(np.sum(np.diff(run.modes) != 0)) >= 25  # many switches, each one the model explains

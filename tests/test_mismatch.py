@@ -79,7 +79,9 @@ def test_the_models_sensors_share_one_noise_level():  # plant_csv draws every se
 
 @pytest.mark.slow
 def test_a_plant_off_its_model_gets_mismatch_and_never_a_fault(tmp_path):
-    for seed in (0, 4, 7):  # an alarm at t = 2, at the data's start, and a sensor offset "since t = 0.5"
+    # an alarm at t = 2, and at the data's start (bench/mismatch.py runs twelve: a sensor offset "since
+    # t = 0.5" among them)
+    for seed in (0, 4):
         plant_csv(tmp_path / "run.csv", seed, 0.03, 1.5)
         d = bgc.diagnose(session("circuit"), tmp_path / "run.csv").diagnosis
         assert d.verdict == "mismatch", (seed, d.verdict, d.candidates)

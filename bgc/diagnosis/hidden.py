@@ -322,25 +322,36 @@ class ModeDecoder:
             self.history[parents]
         moved = targets != self._modes(self.m)[parents]
         cell = self.cell[parents]
-        order, weights = [], []
-        for c in np.unique(cell):  # each bank weighed, pruned and normalised on its own
-            rows = np.flatnonzero(cell == c)
-            lw = logw[rows]
-            if not np.isfinite(lw).any():  # no branch explains the sample: keep them as they were weighed
-                lw = self.logw[parents[rows]] + logp[rows]
-            total = log_sum_exp(lw)
-            if math.isfinite(total):
-                self.logliks[c] += total
-            best = np.argsort(-lw, kind="stable")
-            best = best[lw[best] - lw[best[0]] > math.log(FLOOR)][:BRANCHES]
-            order.append(rows[best])
-            weights.append(lw[best] - log_sum_exp(lw[best]))
-        order = np.concatenate(order)
+        order, weights = self._pruned(cell, logw, self.logw[parents] + logp)
         self.m, self.P, self.history, self.fixed = m[order], P[order], history[order], fixed[:, order]
-        self.cell, self.logw = cell[order], np.concatenate(weights)
+        self.cell, self.logw = cell[order], weights
         self.held = self._held(self.m, self.P, u)
         # the end of the step in its mode, where a branch that stayed did not switch; a mode entered: its start
         self.before = np.where(moved[order][:, None], self.held, ends[parents[order]])
+
+    def _pruned(self, cell: np.ndarray, logw: np.ndarray, prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each bank (the children of one cell) weighed, pruned and normalised
+        on its own, all banks in a few array operations: the children kept
+        (bank by bank, the heaviest first, those within ``FLOOR`` of their
+        bank's heaviest, at most ``BRANCHES``) and their normalised log
+        weights; each bank's log-likelihood of the sample added to
+        ``logliks``. A bank none of whose children explains the sample keeps
+        them as they were weighed before it (``prior``)."""
+        banks, index = np.unique(cell, return_inverse=True)
+        finite = np.isfinite(logw)
+        explained = np.bincount(index, weights=finite, minlength=len(banks)) > 0
+        lw = np.where(explained[index], logw, prior)
+        sort = np.lexsort((-lw, index))  # bank by bank, the heaviest first (ties: in the children's order)
+        lw, index = lw[sort], index[sort]
+        first = np.flatnonzero(np.r_[True, index[1:] != index[:-1]])
+        top = lw[first]  # each bank's heaviest
+        rank = np.arange(len(lw)) - np.repeat(first, np.diff(np.r_[first, len(lw)]))
+        total = _group_log_sum_exp(lw, index, top, len(banks))
+        ok = np.isfinite(total)
+        self.logliks[banks[ok]] += total[ok]
+        keep = (lw - top[index] > math.log(FLOOR)) & (rank < BRANCHES)
+        lw, index = lw[keep], index[keep]
+        return sort[keep], lw - _group_log_sum_exp(lw, index, top, len(banks))[index]
 
     def _children(self, y, u, parents: np.ndarray, targets: np.ndarray):
         """Each child's filter step from its parent branch into its mode
@@ -510,3 +521,13 @@ def read_fault(model, samples, onsets, start: np.ndarray, hint: float, head=None
         cells_size = np.linspace(a, b, GRID)
         cells_onset = np.full(GRID, onset)
     return onset, size
+
+
+def _group_log_sum_exp(lw: np.ndarray, index: np.ndarray, top: np.ndarray, groups: int) -> np.ndarray:
+    """log(sum(exp(lw))) per group (``index``: each entry's group; ``top``:
+    each group's largest entry, the shift): :func:`log_sum_exp` of every
+    group at once; -inf for a group whose entries are all -inf."""
+    shift = np.where(np.isfinite(top), top, 0.0)
+    with np.errstate(divide="ignore"):
+        sums = np.log(np.bincount(index, weights=np.exp(lw - shift[index]), minlength=groups))
+    return np.where(np.isfinite(top), shift + sums, top)
