@@ -391,7 +391,10 @@ class Mismatched:
     are fewer than ``least`` samples, too few to tell a fault since the
     data's start from a model that does not fit. ``possible``: the faults
     the diagnosis would have named, kept as possibilities; ``estimate``:
-    what to calibrate (``bgc calibrate --estimate``'s words)."""
+    what to calibrate (``bgc calibrate --estimate``'s words); ``timing``:
+    the other input timing (``start`` or ``end``) when the model fits the
+    whole record with the data's inputs read that way and not as they were
+    read (:func:`bgc.diagnosis.fit.timing_told`), None otherwise."""
 
     step: int
     last: int
@@ -400,6 +403,7 @@ class Mismatched:
     least: int
     possible: tuple[str, ...]
     estimate: tuple[str, ...]
+    timing: str | None = None
 
 
 @dataclass(frozen=True, slots=True)

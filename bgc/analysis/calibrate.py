@@ -80,7 +80,7 @@ from ..data import sampler as data_grid
 from ..filters import residuals
 from ..filters.residuals import Innovations, innovations
 from ..filters.cubature import NominalKalman
-from ..data.runs import Run, input_columns
+from ..data.runs import Run, header_timing, input_columns
 from ..model.protocol import FaultModel
 
 #: The ``--estimate`` words that name noise (a parameter's name names itself).
@@ -265,8 +265,10 @@ def wants_initial(words: str | Sequence[str]) -> bool:
 def record_of(run: Run, model: FaultModel) -> Record:
     """A checked run (:func:`bgc.data.runs.check_run`) on the model's time
     grid, as a diagnosis reads it (:class:`bgc.data.sampler.Sampler`: gaps
-    predicted across, empty input cells held, absent sensors missing)."""
-    sampler = data_grid.Sampler(model, tuple(input_columns(run)), tuple(run.measurements), run.source)
+    predicted across, empty input cells held, absent sensors missing; its
+    inputs' timing as its header says, :func:`bgc.data.runs.header_timing`)."""
+    sampler = data_grid.Sampler(model, tuple(input_columns(run)), tuple(run.measurements), run.source, None,
+                                header_timing(run.header, run.source) or "end")
     ys, us, ts = [], [], []
     for s in data_grid.samples(run, sampler):
         ys.append(s.y)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -229,6 +230,14 @@ def _recorded_run(session: Session, run: runs.Run, opts: DiagnosisOptions) -> ru
 def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> DiagnosisReport:
     track.check_request(run, package, "nominal", opts.particles, None, columns=False)
     opts = with_horizon(opts, c.model.settings)
+    if scenario is not None and opts.input_timing == "start":
+        raise ArgumentValueError(f"{arguments.spelled('bgc.diagnose: options.input_timing', '--input-timing')}="
+                                 "start with a simulated scenario: bgc simulate's inputs are held over the step "
+                                 "that ends at each row's time", None, "drop it, or give it with data")
+    timing = runs.resolve_timing(run.header, opts.input_timing, run.source,
+                                 arguments.spelled("options.input_timing", "--input-timing"))
+    if timing != (opts.input_timing or "end"):  # the header's word (None stays None: the default, as a stream's)
+        opts = dataclasses.replace(opts, input_timing=timing)
     result = run_diagnosis(run, package, isolation_signatures(c), c.priors, opts, say)
     return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,
                            result, c.labels)

@@ -11,6 +11,7 @@ from .. import arguments
 from ..errors import (
     ArgumentTypeError, ArgumentValueError, TrackingError,
 )
+from ..data.runs import TIMINGS
 from ..ir import Numerics
 from ..view import NumericsView
 from ..diagnosis.options import GridOptions, KalmanOptions
@@ -163,6 +164,8 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose", o: str 
                                  "particle filter of the magnitude to identify with", None,
                                  "ckf's estimate is the static posterior's: identify='kalman' (the default), or a "
                                  "particle filter, filter='gpf', 'apf' or 'opf'")
+    if options.input_timing is not None:
+        arguments.choice(func, o + "input_timing", options.input_timing, TIMINGS)
     for name in ("horizon", "gap"):
         if getattr(options, name) is not None:
             arguments.real(func, o + name, getattr(options, name), 0.0, MAX_TIME, "a time above 0 (the model's "

@@ -226,6 +226,10 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
                         "simulation.steps x dt)")
     p.add_argument("--gap", type=float, default=None, metavar="TIME",
                    help="missing samples longer than this are reported as a gap (default: 10 steps of dt)")
+    p.add_argument("--input-timing", choices=("end", "start"), default=None,
+                   help="what a row's u: value is: end, held over the step that ends at the row's time (bgc's own "
+                        "files), or start, set at the row's time and acting until the next row (many loggers); "
+                        "default: as the data's header says ('# input timing: start'), else end")
     p.add_argument("--no-recheck", dest="recheck", action="store_false",
                    help="do not weigh the fault models the symbols ruled out before a verdict (faster; trusts the "
                         "symbols, as the thesis does)")

@@ -2,7 +2,9 @@ r"""Recorded runs: the CSV that ``bgc simulate`` writes and the filters read.
 
 Format: ``#`` comment lines (a header saying which model and fault made the
 run), then a CSV table with a ``time`` column and columns prefixed by what they
-hold: ``u:NAME`` inputs (held over the step that ends at the row's time),
+hold: ``u:NAME`` inputs (held over the step that ends at the row's time;
+a header line ``input timing: start`` says they are set at the row's time
+instead: :data:`TIMINGS`),
 ``y:NAME`` measurements, ``x:NAME`` true states, ``theta:NAME`` the true value
 of a faulty parameter. A measurement left empty or ``nan`` was not taken.
 
@@ -104,6 +106,44 @@ class Run:
                 return h.split(":")[0][len("model "):]
         return None
 
+
+
+#: What a row's input value is (:class:`~bgc.diagnosis.options.DiagnosisOptions`' ``input_timing``):
+#: ``end``, the value held over the step that ends at the row's time (bgc's own files, the default), or
+#: ``start``, the value set at the row's time and acting until the next row (what many loggers write).
+TIMINGS = ("end", "start")
+#: The header line (``# input timing: start``) by which a run file says its inputs' timing.
+TIMING_LINE = "input timing"
+
+
+def header_timing(header: tuple[str, ...], source: str) -> str | None:
+    """The inputs' timing a run's header states (an ``input timing: end``
+    or ``input timing: start`` line), None when it states none; a line that
+    states another is a one-line :class:`~bgc.errors.DataError`."""
+    said = None
+    for h in header:
+        key, colon, value = h.partition(":")
+        if not colon or key.strip().lower() != TIMING_LINE:
+            continue
+        value = value.strip().lower()
+        if value not in TIMINGS or (said is not None and value != said):
+            raise DataError(f"{printable(source)}: its header line '# {printable(h)}' is not one input timing of "
+                            f"{', '.join(TIMINGS)}", None,
+                            "write '# input timing: end' (each value held over the step that ends at its row's "
+                            "time) or '# input timing: start' (set at its row's time), once")
+        said = value
+    return said
+
+
+def resolve_timing(header: tuple[str, ...], given: str | None, source: str, flag: str) -> str:
+    """The inputs' timing of a run: ``given`` (the option, ``flag`` its name
+    in messages) or what its header says (:func:`header_timing`), else
+    ``end``; the two disagreeing is a one-line :class:`~bgc.errors.DataError`."""
+    said = header_timing(header, source)
+    if given is not None and said is not None and given != said:
+        raise DataError(f"{printable(source)}: its header says 'input timing: {said}', and {flag} says {given}",
+                        None, f"drop {flag} (the header says it), or correct the header's line")
+    return given or said or "end"
 
 
 def input_columns(run: Run) -> dict[str, np.ndarray]:

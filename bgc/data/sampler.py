@@ -21,7 +21,12 @@ events (:mod:`bgc.events`):
   when a hole begins), and before the column's first value, and for an input
   the data have no column for, the model's declared input function is used
   (:class:`~bgc.events.InputFromModel`). An input's value on a row is
-  the one applied over the step that ends at the row's time.
+  the one applied over the step that ends at the row's time (``timing``
+  ``end``, bgc's own files); with ``timing`` ``start`` (a logger that
+  writes the value it sets at the row's time, acting until the next row)
+  the step that ends at a row's time gets the values the rows before it
+  set (the model's before the first row), and the row's own act from the
+  next step on: the data's inputs one step later.
 - **Sensors.** A model output the data have no ``y:NAME`` column for is
   missing at every step (:class:`~bgc.events.SensorMissing`): the
   diagnosis uses the sensors present. With none present the data are
@@ -76,10 +81,13 @@ class Sampler:
     ``DT`` and ``inputs(t)``); ``inputs``, ``sensors``: the input and sensor
     names the data have columns for; ``source``: the data's name for
     messages; ``gap``: the gap limit in time units (None: :data:`GAP_STEPS`
-    steps)."""
+    steps); ``timing``: what a row's input value is, ``end`` or ``start``
+    (module docstring)."""
 
-    def __init__(self, model: FaultModel, inputs, sensors, source: str, gap: float | None = None):
+    def __init__(self, model: FaultModel, inputs, sensors, source: str, gap: float | None = None,
+                 timing: str = "end"):
         self.model = model
+        self.timing = timing
         self.dt = float(model.DT)
         self.source = source
         self.data_inputs = tuple(u for u in model.INPUTS if u in set(inputs))
@@ -168,7 +176,7 @@ class Sampler:
         events: list = [] if self.k >= 0 else list(self.start_events())
         events += self._pending
         self._pending = []
-        uk = self._inputs(t, u, k, events)
+        uk = self._set_before(t, u, k, events) if self.timing == "start" else self._inputs(t, u, k, events)
         self._check_mode(uk, line)
         yk = np.array([float(y.get(name, math.nan)) if read else math.nan for name, read in self._read])
         self._silences(k, yk, events)
@@ -246,6 +254,25 @@ class Sampler:
             u[i] = float(declared[i])
         return np.array(u)
 
+    def _set_before(self, t: float, row: dict[str, float], k: int, events: list) -> np.ndarray:
+        """The inputs over the step that ends at ``t`` when a row's values
+        are set at its time: the values the rows before set (held; the
+        model's before the first row, an ``InputFromModel`` event); the row's
+        own are held for the steps after it (an empty cell: the value before
+        it goes on, an ``InputHeld`` event when a hole begins)."""
+        u = self._inputs(t, {}, k, None)
+        for name in self.data_inputs:
+            value = float(row.get(name, math.nan))
+            if math.isfinite(value):
+                self.held[name], self.holding[name] = value, False
+            elif self.held[name] is not None and not self.holding[name]:
+                events.append(ev.InputHeld(name, k, self.held[name]))
+                self.holding[name] = True
+                self.holds[name] += 1
+        if k == 0:
+            events += [ev.InputFromModel(name, "before-data", k) for name in self.data_inputs]
+        return u
+
     def summary(self) -> "DataSummary":
         """What the data gave, per input and sensor, so far."""
         inputs = tuple((u, "data" if u in self.data_inputs else "model") for u in self.model.INPUTS)
@@ -253,7 +280,7 @@ class Sampler:
                                                   if self.silent[y] else 0)) for y in self.present if self.stops[y])
         return DataSummary(inputs, tuple((u, self.holds[u]) for u in self.data_inputs), self.present,
                            tuple(y for y in self.model.OUTPUTS if y not in self.present), self.skipped,
-                           self.unsampled, self.gaps, self.dt, silences)
+                           self.unsampled, self.gaps, self.dt, silences, self.timing)
 
 
 @dataclass(frozen=True, slots=True)
@@ -287,9 +314,10 @@ class DataSummary:
     (``data`` or ``model``), the holes held per data input (count of
     zero-order holds), the sensors present and missing, the samples skipped
     (a step already taken), the steps with no sample and the gaps beyond the
-    limit among them, the grid's ``dt``, and per sensor that stopped for
+    limit among them, the grid's ``dt``, per sensor that stopped for
     longer than the gap limit (``silences``): its name, how many times, and
-    its longest silence in steps."""
+    its longest silence in steps, and what a row's input value was read as
+    (``timing``: ``end`` or ``start``, :class:`Sampler`)."""
 
     inputs: tuple[tuple[str, str], ...]
     holds: tuple[tuple[str, int], ...]
@@ -300,6 +328,7 @@ class DataSummary:
     gaps: int
     dt: float
     silences: tuple[tuple[str, int, int], ...] = ()
+    timing: str = "end"
 
 
 def grid_steps(time, dt: float) -> int:

@@ -103,7 +103,7 @@ class Diagnoser:
                                  None if sensors is None else tuple(sensors), source, lazy, every, most, progress)
         self._open(config, Sampler(nominal_model(package), nominal_model(package).INPUTS if inputs is None else inputs,
                                    nominal_model(package).OUTPUTS if sensors is None else sensors, source,
-                                   options.gap))
+                                   options.gap, options.input_timing or "end"))
         if hidden:
             self.hide()
         config.say("tracking the nominal model")

@@ -86,3 +86,35 @@ def fit(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], end: 
     failed = failures(summaries, level, correlation=False, narrower=False)
     return Fit(end, LEAST, float(level), summaries, tuple(offsets), tuple(finding(i, t) for i, t in failed),
                bool(short), tuple(t for _, t in failed))
+
+
+def reread(us: np.ndarray, columns: list[int], timing: str) -> np.ndarray:
+    """The inputs ``us`` (steps x inputs) with ``columns`` (the data's own)
+    read with the other input timing: ``timing`` ``start`` (a row's value
+    set at its time) makes each value act one step later than read as
+    ``end`` (held over the step that ends at the row's time), ``end`` one
+    step earlier; the value at the edge is held."""
+    out = np.array(us, dtype=float, copy=True)
+    if timing == "start":
+        out[1:, columns] = us[:-1, columns]
+    else:
+        out[:-1, columns] = us[1:, columns]
+    return out
+
+
+def timing_told(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], columns: list[int],
+                timing: str, level: float = LEVEL, track=None) -> str | None:
+    """The other input timing (``start`` for ``end``, and back) when the
+    data say their inputs follow it: inputs of the data (``columns``) that
+    change, the whole record failing :func:`fit` with the inputs read as
+    ``timing`` and passing it with them read the other way (one step later
+    or earlier: :func:`reread`). None otherwise. A plant whose response to
+    an input change shows within a step (a motor's current, a sensor that
+    reads the input itself) leaves a residual spike at each change when the
+    timing is misread, and nowhere else."""
+    columns = [j for j in columns if np.any(np.diff(us[:, j]) != 0)]
+    T = len(ys)
+    if not columns or T < LEAST or fit(nominal, ys, us, outputs, T, level=level, track=track).fits:
+        return None
+    other = "start" if timing == "end" else "end"
+    return other if fit(nominal, ys, reread(us, columns, other), outputs, T, level=level).fits else None

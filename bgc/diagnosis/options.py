@@ -78,7 +78,10 @@ class DiagnosisOptions:
 
     **Data** (:mod:`bgc.data.sampler`): ``gap``: missing samples in a row
     longer than this (time units; None: ``GAP_STEPS`` steps) are a ``Gap``
-    event.
+    event; ``input_timing``: what a row's input value is, ``end`` (held over
+    the step that ends at the row's time: bgc's own files) or ``start`` (set
+    at the row's time, acting until the next row: what many loggers write);
+    None: as the data's header says (an ``input timing:`` line), else ``end``.
 
     **Detection** (:mod:`bgc.diagnosis.detect`): ``false_alarm``: the
     probability of any alarm over a fault-free ``horizon``; ``horizon``: the
@@ -153,6 +156,7 @@ class DiagnosisOptions:
     switch: bool = True
     horizon: float | None = None
     gap: float | None = None
+    input_timing: str | None = None
     #: The filter's old name (``method=``): accepted with a :class:`DeprecationWarning` (read ``filter``).
     method: InitVar[str | None] = None
 
@@ -166,7 +170,7 @@ class DiagnosisOptions:
 #: The options of each stage of the loop (every field of DiagnosisOptions in one).
 STAGES = {
     "filters": ("filter", "particles", "seed", "shrinkage", "switch", "workers"),
-    "data": ("gap",),
+    "data": ("gap", "input_timing"),
     "detection": ("false_alarm", "horizon", "windows"),
     "isolation": ("symbol_steps", "history", "search", "spacing", "near"),
     "tracking": ("rejection",),

@@ -295,7 +295,7 @@ def restore_diagnoser(cls, config, state: DiagnoserState):
     d = cls.__new__(cls)
     d._open(config, Sampler(nominal, nominal.INPUTS if config.inputs is None else config.inputs,
                             nominal.OUTPUTS if config.sensors is None else config.sensors, config.source,
-                            config.options.gap))
+                            config.options.gap, config.options.input_timing or "end"))
     d.sampler.restore(state.sampler)
     d.loop = restore_loop(d._loop_config(state.loop.options, state.loop.every, state.loop.lazy), state.loop)
     d.switched, d.infer_inputs, d.busy, d.finished = tuple(state.switched), state.infer_inputs, state.busy, \

@@ -141,6 +141,14 @@ def mismatch_sentence(e: ev.Mismatched, time_of) -> str:
     fit (or may not), the faults kept as possibilities, and what to
     calibrate."""
     samples = e.last + 1
+    if e.timing is not None:
+        read = {"start": "set at each row's time, acting until the next row",
+                "end": "held over the step that ends at each row's time"}
+        why = (f"the model fits the whole record with the data's inputs read as {read[e.timing]}, and not as they "
+               f"were read: the data seem to follow that timing, and what the alarm saw was the inputs read one "
+               f"step off; diagnose again with --input-timing {e.timing} (or the run file's header line "
+               f"'# input timing: {e.timing}')")
+        return why + (f"; possibly a fault all the same: {', '.join(e.possible)}" if e.possible else "")
     if e.short:
         why = (f"the model may not fit this plant: the alarm's onset leaves {samples} sample(s) before it, fewer than "
                f"the {e.least} that would show the model fitted the plant before a fault; a fault since the data's "

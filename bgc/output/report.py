@@ -14,6 +14,7 @@ import math
 from typing import Any, Callable, Mapping
 
 from ..diagnosis.fit import LEVEL as FIT_LEVEL
+from .. import events as ev
 from ..kinds import fault_kind
 from . import events, html, plots
 from .artifacts import manifest
@@ -48,8 +49,10 @@ def data_lines(d, quote: Callable[[Any], str] = _same, labels: Labels = Labels()
     holds = dict(s.holds)
     for u, src in s.inputs:
         held = f", {holds[u]} hole(s) held at the last value" if holds.get(u) else ""
+        timed = ", each row's value set at its time (input timing start)" if src == "data" and s.timing == "start" \
+            else ""
         lines.append(f"input u:{quote(u)}: from the " + ("data" if src == "data" else "model's declared input")
-                     + held)
+                     + timed + held)
     lines.append(f"sensors used: {', '.join(quote(y) for y in s.sensors)}"
                  + (f"; missing from the data: {', '.join(quote(y) for y in s.missing)}" if s.missing else ""))
     for y, stops, longest in s.silences:
@@ -126,7 +129,7 @@ def report_data(r) -> dict[str, Any]:
                      "isolation_level": d.options.isolation_level, "recheck": d.options.recheck,
                      "interval": d.options.interval, "threshold": _num(d.threshold),
                      "process_noise": r.noise[0], "measurement_noise": r.noise[1],
-                     "time_unit": labels.time_unit},
+                     "time_unit": labels.time_unit, "input_timing": d.options.input_timing or "end"},
         "verdict": d.verdict,
         "detection": None if det is None else {
             "time": _time(_t(d, det.step)), "sensor": det.sensor, "window": det.window,
@@ -266,9 +269,16 @@ def verdict_text(d) -> str:
             "unexplained": "Fault detected, but no fault model explains the data"
                            + (f" (the one that lasted longest: {d.candidates[0]})" if d.candidates else "")
                            + ".",
-            "mismatch": "The model does not fit this plant: calibrate it"
+            "mismatch": ("The model does not fit these data as their inputs were read: read them with "
+                         f"--input-timing {_timing(d)}" if _timing(d) else
+                         "The model does not fit this plant: calibrate it")
                         + (f" (a fault is possible too: {', '.join(d.candidates)})" if d.candidates else "")
                         + "."}[d.verdict]
+
+
+def _timing(d) -> str | None:
+    """The other input timing a mismatch names (:class:`~bgc.events.Mismatched`), if any."""
+    return next((e.timing for e in d.events if isinstance(e, ev.Mismatched)), None)
 
 
 def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:
@@ -294,7 +304,9 @@ def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:
                      "residuals over the data before the fault (the whole record without an alarm) are not N(0, 1) "
                      f"(their mean, or a variance above 1, each sensor tested at a joint level of {FIT_LEVEL:g}), "
                      "or an alarm comes too soon after the data's start to tell a fault from a model that does not "
-                     "fit; the faults named are possibilities, and the model needs calibrating (bgc calibrate)."),
+                     "fit, or the whole record fits only with the data's inputs read one step off (the other input "
+                     "timing); the faults named are possibilities, and the model needs calibrating (bgc calibrate) "
+                     "or the inputs reading with the other timing (--input-timing)."),
     }[verdict]
 
 

@@ -110,6 +110,9 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
             prefix, rest = "u", MODE
         groups[prefix].append((j, rest))
     sensors = [y for _, y in groups["y"]]
+    timing = runs.resolve_timing(reader.header, options.input_timing, name, "--input-timing")
+    if timing != (options.input_timing or "end"):  # the header's word (None stays None: the default)
+        options = dataclasses.replace(options, input_timing=timing)
     d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors, source=name,
                           progress=progress)
     rows: list[list[float]] = []

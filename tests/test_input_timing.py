@@ -1,0 +1,139 @@
+"""The input's timing, a choice the data can state (issue 48, point 5).
+
+bgc reads a ``u:`` cell as the value held over the step that *ends* at the
+row's time; many loggers write the value set *at* that time, acting until
+the next row. The plant here is the circuit of models/circuit.yaml, its
+source V a square wave (10 V and 12 V, 20 samples each), simulated by the
+exact solution of its hand-derived equations (tests/test_mismatch.py) and
+logged both ways: ``end`` (bgc's convention) and ``start`` (the logger's:
+row k holds the value V takes from t_k on). f2 = (V - e4) / R1 reads the
+source itself, so an input read one step off shows at once, at each change.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+import bgc
+from bgc.data import runs
+from bgc.data.sampler import Sampler
+from bgc.diagnosis import fit as fit_module
+from bgc import events as ev
+from bgc.errors import DataError
+
+from conftest import bgc_cli, session
+from test_mismatch import DT, NOMINAL, START
+
+STEPS, HALF = 240, 20
+
+
+def square(k: int) -> float:
+    """The source over the step that ends at sample k (steps (k - 1) dt to k dt)."""
+    return 10.0 if ((k - 1) // HALF) % 2 == 0 else 12.0
+
+
+def square_csv(path, timing: str, seed: int = 1, header: bool = False) -> None:
+    """The circuit driven by :func:`square`, the model's parameters and noise,
+    logged with inputs of ``timing``: ``end``, row k holds the value over the
+    step that ends at it; ``start``, the value from t_k on (the next step's)."""
+    nominal = session("circuit").package.MODELS["nominal"]
+    p = NOMINAL
+    a = np.array([[-(1 / p["R2"] + 1 / p["R1"]) / p["C1"], 1 / (p["R2"] * p["C1"]), 0.0],
+                  [1 / (p["R2"] * p["C2"]), -1 / (p["R2"] * p["C2"]), -1 / p["C2"]],
+                  [0.0, 1 / p["L"], -p["R3"] / p["L"]]])
+    block = np.zeros((4, 4))
+    block[:3, :3], block[0, 3] = a, 1 / (p["R1"] * p["C1"])
+    e = expm(block * DT)
+    std = dict(zip(nominal.STATES, np.asarray(nominal.PROCESS_STD, dtype=float)))
+    process = np.array([std["e4"], std["e8"], std["f10"]])
+    sensor = float(np.asarray(nominal.MEASUREMENT_STD, dtype=float)[0])
+    rng = np.random.default_rng(seed)
+    x = np.array(START)
+    lines = (["# input timing: start"] if header else []) + ["time,u:V,y:f2,y:f6,y:e11"]
+    for k in range(1, STEPS + 1):
+        v = square(k)  # over the step that ends at t_k: the state moves under it, f2 reads it at t_k
+        x = e[:3, :3] @ x + e[:3, 3] * v + process * rng.standard_normal(3)
+        y = np.array([(v - x[0]) / p["R1"], (x[0] - x[1]) / p["R2"], p["R3"] * x[2]])
+        y = y + sensor * rng.standard_normal(3)
+        logged = v if timing == "end" else square(k + 1)
+        lines.append(",".join(f"{value:.6g}" for value in (k * DT, logged, *y)))
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def test_the_models_sensors_read_as_the_simulator_draws_them():
+    nominal = session("circuit").package.MODELS["nominal"]
+    assert set(nominal.OUTPUTS) == {"f2", "f6", "e11"} and set(nominal.STATES) == {"e4", "e8", "f10"}
+    assert len(set(np.asarray(nominal.MEASUREMENT_STD, dtype=float).tolist())) == 1
+
+
+# ------------------------------------------------------------ the sampler, by hand
+def _sampler(timing: str) -> Sampler:
+    nominal = session("circuit").package.MODELS["nominal"]
+    return Sampler(nominal, ("V",), ("f2",), "rows.csv", None, timing)
+
+
+def test_with_timing_start_a_rows_value_acts_from_the_next_step_on():
+    """Rows at steps 0, 1, 2, 4 (step 3 a gap) with V = 11, 12, (empty), 14:
+    read as ``end``, steps 0..4 get 11, 12, 12, 12, 14; as ``start`` each
+    step gets the value set before it: the model's 10 at step 0, then 11,
+    12, 12 (held), 12."""
+    rows = [(0.05, 11.0), (0.10, 12.0), (0.15, math.nan), (0.25, 14.0)]
+    got = {}
+    for timing in ("end", "start"):
+        s = _sampler(timing)
+        samples = [x for t, v in rows for x in s.push(t, {"V": v}, {"f2": 1.0})]
+        got[timing] = ([x.k for x in samples], [float(x.u[0]) for x in samples], samples)
+    assert got["end"][:2] == ([0, 1, 2, 3, 4], [11.0, 12.0, 12.0, 12.0, 14.0])
+    assert got["start"][:2] == ([0, 1, 2, 3, 4], [10.0, 11.0, 12.0, 12.0, 12.0])
+    first, _, _, _, last = got["start"][2]
+    assert ev.InputFromModel("V", "before-data", 0) in first.events
+    held = [e for x in got["start"][2] for e in x.events if isinstance(e, ev.InputHeld)]
+    assert held == [ev.InputHeld("V", 2, 12.0)]
+    assert s.summary().timing == "start"
+
+
+def test_reread_moves_the_datas_inputs_one_step_and_holds_the_edge():
+    us = np.array([[1.0, 5.0], [2.0, 5.0], [3.0, 5.0]])
+    assert fit_module.reread(us, [0], "start")[:, 0].tolist() == [1.0, 1.0, 2.0]
+    assert fit_module.reread(us, [0], "end")[:, 0].tolist() == [2.0, 3.0, 3.0]
+    assert fit_module.reread(us, [0], "end")[:, 1].tolist() == [5.0, 5.0, 5.0]  # a column not the data's
+
+
+# ------------------------------------------------------------ stated by the header or the flag
+def test_the_header_or_the_flag_states_it_and_they_may_not_disagree(tmp_path):
+    assert runs.header_timing(("model circuit: x", "input timing: start"), "r.csv") == "start"
+    assert runs.header_timing(("Input Timing: END",), "r.csv") == "end"
+    assert runs.header_timing(("model circuit: x",), "r.csv") is None
+    assert runs.resolve_timing((), None, "r.csv", "--input-timing") == "end"
+    with pytest.raises(DataError, match=r"r.csv: its header line '# input timing: later'"):
+        runs.header_timing(("input timing: later",), "r.csv")
+    square_csv(tmp_path / "run.csv", "start", header=True)
+    r = bgc_cli("diagnose", "models/circuit.yaml", "--data", tmp_path / "run.csv", "--input-timing", "end")
+    assert r.returncode == 1 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+    assert "its header says 'input timing: start', and --input-timing says end" in r.stderr
+
+
+@pytest.mark.slow
+def test_a_loggers_timing_read_as_bgcs_is_a_mismatch_that_names_the_timing(tmp_path):
+    """The start-timed log read as bgc's own: the residuals spike at every
+    change of V. The verdict is "mismatch" saying the other timing, never a
+    fault; read as it is logged (the flag, or the file's header), and the
+    end-timed log read as bgc's: "no fault", the whole record fitting."""
+    square_csv(tmp_path / "start.csv", "start")
+    d = bgc.diagnose(session("circuit"), tmp_path / "start.csv", filter="ckf").diagnosis
+    assert d.verdict == "mismatch", (d.verdict, d.candidates)
+    said = [e for e in d.events if isinstance(e, ev.Mismatched)]
+    assert len(said) == 1 and said[0].timing == "start"
+    from bgc.output.events import sentence
+    assert "--input-timing start" in sentence(said[0], d.time_of)
+    for path, kwargs in ((tmp_path / "start.csv", {"options": bgc.DiagnosisOptions(input_timing="start")}),
+                         (tmp_path / "header.csv", {}), (tmp_path / "end.csv", {})):
+        if path.name == "header.csv":
+            square_csv(path, "start", header=True)
+        elif path.name == "end.csv":
+            square_csv(path, "end")
+        d = bgc.diagnose(session("circuit"), path, **kwargs).diagnosis
+        assert d.verdict == "no fault" and d.fit.fits, (path.name, d.verdict, d.fit.findings)
+        assert d.data.timing == ("end" if path.name == "end.csv" else "start")
