@@ -14,6 +14,16 @@ fault-free runs of the shipped and test plants (``bgc simulate``'s, seeds 0
 to RUNS - 1): how often it finds a misfit in data the model made.
 
     .venv/bin/python bench/mismatch.py --null 60
+
+With ``--timing RUNS``: the inputs' timing (docs/format.md section 9): the
+circuit driven by a square wave (tests/test_input_timing.py's
+``square_csv``: the exact solution, seeds 0 to RUNS - 1), logged with the
+value set at each row's time (``start``) or held over the step that ends
+there (``end``), the model's numbers or off by 3 % with 1.5x noise; each
+diagnosed as bgc reads by default and with the timing it was logged with.
+Prints the verdicts and how many mismatches named the other timing.
+
+    .venv/bin/python bench/mismatch.py --timing 20
 """
 
 from __future__ import annotations
@@ -59,13 +69,40 @@ def null(runs: int) -> None:
         print(f"| {plant} | {runs} | {found} | {'; '.join(said)} |", flush=True)
 
 
+def timing(runs: int) -> None:
+    """The verdicts on the square-wave circuit logged either way, read either way, as a table."""
+    from bgc import events
+    from test_input_timing import square_csv
+
+    session = bgc.open(ROOT / "models" / "circuit.yaml")
+    print("| logged | plant | read as | runs | " + " | ".join(VERDICTS) + " | mismatch naming the other timing |")
+    print("|---|---|---|---|" + "---|" * (len(VERDICTS) + 1))
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "run.csv"
+        for logged in ("start", "end"):
+            for plant, (off, noise) in (("the model's numbers", (0.0, 1.0)), ("off 3 %, noise x1.5", (0.03, 1.5))):
+                for read in dict.fromkeys(("end", logged)):
+                    counts, named = Counter(), 0
+                    for seed in range(runs):
+                        square_csv(path, logged, seed, off=off, noise=noise)
+                        d = bgc.diagnose(session, path, options=bgc.DiagnosisOptions(input_timing=read)).diagnosis
+                        counts[d.verdict] += 1
+                        named += any(isinstance(e, events.Mismatched) and e.timing for e in d.events)
+                    print(f"| {logged} | {plant} | {read} | {runs} | " + " | ".join(str(counts[v]) for v in VERDICTS)
+                          + f" | {named} |", flush=True)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--runs", type=int, default=12)
     p.add_argument("--off", type=float, default=0.03)
     p.add_argument("--noise", type=float, default=1.5)
     p.add_argument("--null", type=int, default=0, metavar="RUNS")
+    p.add_argument("--timing", type=int, default=0, metavar="RUNS")
     a = p.parse_args(argv)
+    if a.timing:
+        timing(a.timing)
+        return 0
     if a.null:
         null(a.null)
         return 0

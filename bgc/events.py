@@ -392,9 +392,11 @@ class Mismatched:
     data's start from a model that does not fit. ``possible``: the faults
     the diagnosis would have named, kept as possibilities; ``estimate``:
     what to calibrate (``bgc calibrate --estimate``'s words); ``timing``:
-    the other input timing (``start`` or ``end``) when the model fits the
-    whole record with the data's inputs read that way and not as they were
-    read (:func:`bgc.diagnosis.fit.timing_told`), None otherwise."""
+    the other input timing (``start`` or ``end``) when the whole record is
+    decisively likelier with the data's inputs read that way
+    (:func:`bgc.diagnosis.fit.timing_told`), None otherwise;
+    ``timing_fits``: whether the model then fits it; ``timing_ratio``: the
+    log of that likelihood ratio."""
 
     step: int
     last: int
@@ -404,6 +406,8 @@ class Mismatched:
     possible: tuple[str, ...]
     estimate: tuple[str, ...]
     timing: str | None = None
+    timing_fits: bool = False
+    timing_ratio: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

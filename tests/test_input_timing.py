@@ -34,12 +34,15 @@ def square(k: int) -> float:
     return 10.0 if ((k - 1) // HALF) % 2 == 0 else 12.0
 
 
-def square_csv(path, timing: str, seed: int = 1, header: bool = False) -> None:
-    """The circuit driven by :func:`square`, the model's parameters and noise,
-    logged with inputs of ``timing``: ``end``, row k holds the value over the
-    step that ends at it; ``start``, the value from t_k on (the next step's)."""
+def square_csv(path, timing: str, seed: int = 1, header: bool = False, off: float = 0.0, noise: float = 1.0) -> None:
+    """The circuit driven by :func:`square`, logged with inputs of
+    ``timing``: ``end``, row k holds the value over the step that ends at it;
+    ``start``, the value from t_k on (the next step's). Its parameters each
+    off the model's by up to ``off`` (relative; drawn after the noise's
+    seed), its noise ``noise`` times the model's."""
     nominal = session("circuit").package.MODELS["nominal"]
-    p = NOMINAL
+    rng = np.random.default_rng(seed)
+    p = {k: v * (1 + rng.uniform(-off, off)) for k, v in NOMINAL.items()} if off else NOMINAL
     a = np.array([[-(1 / p["R2"] + 1 / p["R1"]) / p["C1"], 1 / (p["R2"] * p["C1"]), 0.0],
                   [1 / (p["R2"] * p["C2"]), -1 / (p["R2"] * p["C2"]), -1 / p["C2"]],
                   [0.0, 1 / p["L"], -p["R3"] / p["L"]]])
@@ -47,9 +50,8 @@ def square_csv(path, timing: str, seed: int = 1, header: bool = False) -> None:
     block[:3, :3], block[0, 3] = a, 1 / (p["R1"] * p["C1"])
     e = expm(block * DT)
     std = dict(zip(nominal.STATES, np.asarray(nominal.PROCESS_STD, dtype=float)))
-    process = np.array([std["e4"], std["e8"], std["f10"]])
-    sensor = float(np.asarray(nominal.MEASUREMENT_STD, dtype=float)[0])
-    rng = np.random.default_rng(seed)
+    process = noise * np.array([std["e4"], std["e8"], std["f10"]])
+    sensor = noise * float(np.asarray(nominal.MEASUREMENT_STD, dtype=float)[0])
     x = np.array(START)
     lines = (["# input timing: start"] if header else []) + ["time,u:V,y:f2,y:f6,y:e11"]
     for k in range(1, STEPS + 1):
@@ -125,7 +127,7 @@ def test_a_loggers_timing_read_as_bgcs_is_a_mismatch_that_names_the_timing(tmp_p
     d = bgc.diagnose(session("circuit"), tmp_path / "start.csv", filter="ckf").diagnosis
     assert d.verdict == "mismatch", (d.verdict, d.candidates)
     said = [e for e in d.events if isinstance(e, ev.Mismatched)]
-    assert len(said) == 1 and said[0].timing == "start"
+    assert len(said) == 1 and said[0].timing == "start" and said[0].timing_fits and said[0].timing_ratio > 100
     from bgc.output.events import sentence
     assert "--input-timing start" in sentence(said[0], d.time_of)
     for path, kwargs in ((tmp_path / "start.csv", {"options": bgc.DiagnosisOptions(input_timing="start")}),

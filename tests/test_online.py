@@ -5,8 +5,10 @@ through a real pipe."""
 
 from __future__ import annotations
 
+import json
 import math
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -515,8 +517,12 @@ def read_to_the_end(pid: int, path: Path, timeout: float = 120) -> None:
 
 
 @pytest.mark.process
-def test_a_followed_file_that_is_truncated_ends_the_stream_and_an_unfinished_last_line_is_not_read(tmp_path):
-    """The second half truncates a file a real bgc monitor --follow reads."""
+def test_a_followed_file_rewritten_from_an_earlier_time_ends_the_stream_and_an_unfinished_line_is_not_read(
+        tmp_path):
+    """The second half truncates a file a real bgc monitor --follow reads
+    and writes its first rows again, as a logger that restarts its clock:
+    the truncation is followed (read again from the start, the header
+    skipped), and the first row whose time goes back ends the stream."""
     lines = runs.run_csv(simulated(CIRCUIT, steps=120)).splitlines(keepends=True)
     path = tmp_path / "live.csv"
     path.write_text("".join(lines[:80]) + lines[80][:8])  # the logger stopped mid-line
@@ -532,8 +538,50 @@ def test_a_followed_file_that_is_truncated_ends_the_stream_and_an_unfinished_las
     read_to_the_end(proc.pid, path)  # it follows the file now
     path.write_text("".join(lines[:10]))  # truncated and rewritten, as a logger that restarts
     out, err = proc.communicate(timeout=300)
-    assert proc.returncode == 1 and "was truncated while it was followed" in err, err
-    assert (tmp_path / "b" / "report.md").is_file()
+    assert "was truncated (rotated by copy and truncate): reading it again from its start" in out, out
+    assert proc.returncode == 1 and "time 0.05 does not increase" in err, err
+    assert '"steps": 54' in (tmp_path / "b" / "report.json").read_text()  # the rows before it, diagnosed
+
+
+@pytest.mark.process
+def test_a_followed_file_rotated_both_ways_goes_on_as_one_stream(tmp_path):
+    """A real bgc monitor --follow while the test rotates its file as
+    logrotate does: renamed (the logger writing on into the old file a
+    while) and recreated with its header, then copied and truncated (the
+    logger writing on without a header). Every row is diagnosed once, in
+    order: the report has the run's 120 steps, and the verdict is the one
+    of the whole run read at once."""
+    run = simulated(CIRCUIT, "R2:abrupt:0.6@5", steps=120)
+    lines = runs.run_csv(run).splitlines(keepends=True)
+    head = next(i for i, line in enumerate(lines) if line.startswith("time,")) + 1
+    header, rows = lines[:head], lines[head:]
+    path, old, copy = tmp_path / "live.csv", tmp_path / "live.csv.1", tmp_path / "live.csv.2"
+    path.write_text("".join(header + rows[:40]))
+    proc = subprocess.Popen([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", str(path), "--follow",
+                             "--idle", "3", "--particles", "100", "-o", str(tmp_path / "mon")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, MPLBACKEND="Agg"))
+    read_to_the_end(proc.pid, path)
+    path.rename(old)
+    with open(old, "a") as f:  # the logger has not reopened yet
+        f.write("".join(rows[40:50]))
+    read_to_the_end(proc.pid, old)
+    path.write_text("".join(header + rows[50:80]))
+    read_to_the_end(proc.pid, path)
+    shutil.copyfile(path, copy)
+    with open(path, "r+") as f:
+        f.truncate(0)
+    time.sleep(1.0)  # the reader polls every 0.1 s: it sees the file shorter before it grows again
+    with open(path, "a") as f:
+        f.write("".join(rows[80:]))
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert "was rotated (renamed, and a new file made under its name)" in out
+    assert "was truncated (rotated by copy and truncate)" in out
+    followed = json.loads((tmp_path / "mon" / "report.json").read_text())
+    assert followed["data"]["steps"] == 120
+    whole = bgc.diagnose(session(CIRCUIT), data=run, options=DiagnosisOptions(particles=100)).diagnosis
+    assert (followed["verdict"], followed["diagnosis"]) == (whole.verdict, list(whole.candidates))
 
 
 def test_a_session_is_compiled_once_for_many_diagnoses_and_owns_its_package(tmp_path):

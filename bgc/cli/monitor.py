@@ -74,12 +74,6 @@ def run(args: argparse.Namespace) -> int:
     refuse_input_in_output(args.data, out)
     artifacts.check_folder(out, ("report.md", "report.json", "report.html", "manifest.json"),
                            "monitor")  # before the stream
-    if args.data == "-":
-        stream, name = sys.stdin.buffer, "<stdin>"
-    else:
-        stream, name = open_stream(args.data), args.data
-        if args.follow:
-            stream = monitor.Follow(stream, args.idle, path=args.data)
     quiet = []
 
     def say(line: str) -> None:  # a reader that went away (| head) stops the printing, not the diagnosis
@@ -91,6 +85,12 @@ def run(args: argparse.Namespace) -> int:
             quiet.append(True)
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
+    if args.data == "-":
+        stream, name = sys.stdin.buffer, "<stdin>"
+    else:
+        stream, name = open_stream(args.data), args.data
+        if args.follow:
+            stream = monitor.Follow(stream, args.idle, path=args.data, say=say)
     r, failure = monitor.monitor(session, stream, name, options, say=say, checkpoint=args.checkpoint,
                                  exclude_faulty=args.exclude_faulty_sensor, reading=reading)
     if quiet:

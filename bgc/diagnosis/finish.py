@@ -148,7 +148,8 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
     # an alarm, or a misfit, that the inputs read with the other timing explain (docs/format.md, section 9)
     timing = None if r.data is None or (fitted.fits and r.detection is None) else timing_told(
         nominal_model(s.package), r.ys, r.us, r.outputs,
-        [j for j, (_, where) in enumerate(r.data.inputs) if where == "data"], r.data.timing, track=track)
+        [j for j, (_, where) in enumerate(r.data.inputs) if where == "data"], r.data.timing,
+        factor=s.options.bayes_factor, track=track)
     if fitted.fits and timing is None:
         return verdict, candidates, [], fitted
     possible = candidates if verdict in ("isolated", "ambiguous") else ()
@@ -157,7 +158,8 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
         parameters = [m.FAULT["parameter"] for m in s.package.MODELS.values()
                       if getattr(m, "FAULT", None) and m.FAULT.get("target") == "parameter"]
     estimate = tuple(dict.fromkeys(["noise", *parameters]))
-    event = ev.Mismatched(T - 1, max(end - 1, 0), fitted.findings, short, LEAST, possible, estimate, timing)
+    event = ev.Mismatched(T - 1, max(end - 1, 0), fitted.findings, short, LEAST, possible, estimate,
+                          *(timing or (None, False, 0.0)))
     s.say("the model does not fit these data" + ("" if not possible else f"; possibly {', '.join(possible)}"))
     return "mismatch", possible, [event], fitted
 

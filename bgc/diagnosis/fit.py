@@ -103,18 +103,31 @@ def reread(us: np.ndarray, columns: list[int], timing: str) -> np.ndarray:
 
 
 def timing_told(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], columns: list[int],
-                timing: str, level: float = LEVEL, track=None) -> str | None:
+                timing: str, level: float = LEVEL, factor: float = 100.0,
+                track=None) -> tuple[str, bool, float] | None:
     """The other input timing (``start`` for ``end``, and back) when the
     data say their inputs follow it: inputs of the data (``columns``) that
     change, the whole record failing :func:`fit` with the inputs read as
-    ``timing`` and passing it with them read the other way (one step later
-    or earlier: :func:`reread`). None otherwise. A plant whose response to
-    an input change shows within a step (a motor's current, a sensor that
-    reads the input itself) leaves a residual spike at each change when the
-    timing is misread, and nowhere else."""
+    ``timing``, and the nominal cubature Kalman filter finding the record at
+    least ``factor`` times likelier with them read the other way (one step
+    later or earlier: :func:`reread`); two readings of one model, weighed as
+    the diagnosis weighs its hypotheses (``bayes_factor``). Returns (the
+    other timing, whether the model fits the whole record read that way,
+    the log of the likelihood ratio), or None. A plant whose response to an
+    input change shows within a step (a motor's current, a sensor that reads
+    the input itself) leaves a residual spike at each change when the timing
+    is misread, and nowhere else."""
     columns = [j for j in columns if np.any(np.diff(us[:, j]) != 0)]
     T = len(ys)
-    if not columns or T < LEAST or fit(nominal, ys, us, outputs, T, level=level, track=track).fits:
+    if not columns or T < LEAST:
+        return None
+    if track is None or track.z is None or len(track.z) < T:
+        track = nominal_track(nominal, ys, us, T)
+    if fit(nominal, ys, us, outputs, T, level=level, track=track).fits:
         return None
     other = "start" if timing == "end" else "end"
-    return other if fit(nominal, ys, reread(us, columns, other), outputs, T, level=level).fits else None
+    alternative = nominal_track(nominal, ys, reread(us, columns, other), T)
+    ratio = float(alternative.loglik[T] - track.loglik[T])
+    if not ratio >= np.log(factor):
+        return None
+    return other, fit(nominal, ys, None, outputs, T, level=level, track=alternative).fits, ratio

@@ -141,14 +141,21 @@ def mismatch_sentence(e: ev.Mismatched, time_of) -> str:
     fit (or may not), the faults kept as possibilities, and what to
     calibrate."""
     samples = e.last + 1
-    if e.timing is not None:
-        read = {"start": "set at each row's time, acting until the next row",
-                "end": "held over the step that ends at each row's time"}
+    read = {"start": "set at each row's time, acting until the next row",
+            "end": "held over the step that ends at each row's time"}
+    again = (f"diagnose again with --input-timing {e.timing} (or the run file's header line "
+             f"'# input timing: {e.timing}')")
+    if e.timing is not None and e.timing_fits:
         why = (f"the model fits the whole record with the data's inputs read as {read[e.timing]}, and not as they "
                f"were read: the data seem to follow that timing, and what the alarm saw was the inputs read one "
-               f"step off; diagnose again with --input-timing {e.timing} (or the run file's header line "
-               f"'# input timing: {e.timing}')")
+               f"step off; {again}")
         return why + (f"; possibly a fault all the same: {', '.join(e.possible)}" if e.possible else "")
+    if e.timing is not None:  # likelier read the other way, and not fitted either way: the timing and more
+        return (f"the model does not fit this plant, with the data's inputs read either way, and the record is "
+                f"{_times(e.timing_ratio)} times likelier with them read as {read[e.timing]}: {again}, and "
+                f"calibrate the model on healthy data whose file says '# input timing: {e.timing}' (bgc calibrate "
+                f"MODEL --data FILE --estimate {','.join(e.estimate)})"
+                + (f"; possibly a fault all the same: {', '.join(e.possible)}" if e.possible else ""))
     if e.short:
         why = (f"the model may not fit this plant: the alarm's onset leaves {samples} sample(s) before it, fewer than "
                f"the {e.least} that would show the model fitted the plant before a fault; a fault since the data's "
@@ -161,6 +168,11 @@ def mismatch_sentence(e: ev.Mismatched, time_of) -> str:
         why += f"; possibly a fault all the same: {', '.join(e.possible)}"
     words = ",".join(e.estimate)
     return why + f"; calibrate the model on healthy data (bgc calibrate MODEL --data FILE --estimate {words})"
+
+
+def _times(log_ratio: float) -> str:
+    """A likelihood ratio from its log, as a sentence prints it (1e+300 and up: 'more than 1e300')."""
+    return f"{math.exp(log_ratio):.3g}" if log_ratio < 690 else "more than 1e300"
 
 
 #: The fields of events that hold steps of the time grid besides ``step``: in :func:`record` each is a

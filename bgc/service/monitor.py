@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import signal
+import stat
 import threading
 import time
 from typing import IO, Callable
@@ -34,15 +35,33 @@ class Follow:
     for a whole line (polling every ``poll`` seconds) and ends the input
     (returns ``""``) after ``idle`` seconds without a new byte (None: never;
     Ctrl-C ends it then). A last line without its end of line is not read
-    (``unfinished`` keeps it: a logger stopped mid-line). A file truncated or
-    replaced (rotated) while it is followed ends the input with an error:
-    its rows no longer follow the ones read."""
+    (``unfinished`` keeps it: a logger stopped mid-line).
 
-    def __init__(self, stream: IO[bytes], idle: float | None = None, poll: float = 0.1, path: str | None = None):
+    **Rotation**, as loggers and logrotate do it, is followed (``say`` is
+    told each time):
+
+    - *renamed and recreated*: once the old file is read to its end and
+      ``path`` names another file, that file is read from its start; while
+      ``path`` names no file, the reader waits for one (the wait counts
+      towards ``idle``);
+    - *copied and truncated*: a file shorter than what was read is read
+      again from its start (what the logger wrote between the copy and the
+      truncation is in the copy, not here);
+    - the new file's header is skipped: its ``#`` comment lines, blank lines
+      and a column line equal to the first file's; any other line is a row
+      (rows whose times do not go on from the ones read are refused, as in
+      one file)."""
+
+    def __init__(self, stream: IO[bytes], idle: float | None = None, poll: float = 0.1, path: str | None = None,
+                 say: Callable[[str], None] | None = None):
         self.stream, self.idle, self.poll, self.path = stream, idle, poll, path
+        self.say = say or (lambda text: None)
         self.pending = b""
         self.unfinished = b""
         self.inode = os.fstat(stream.fileno()).st_ino
+        self.names: bytes | None = None  # the first file's column line
+        self.skipping = False  # a new file's header lines are skipped
+        self.rotations = 0
 
     def readline(self, limit: int = -1) -> bytes:
         waited = 0.0
@@ -53,28 +72,66 @@ class Follow:
                 self.pending += chunk
                 if self.pending.endswith(b"\n") or 0 < limit <= len(self.pending):
                     line, self.pending = self.pending, b""
+                    if self._header(line):
+                        continue
                     return line
                 continue
-            self._check()
+            if self._rotated():
+                waited = 0.0
+                continue
             if self.idle is not None and waited >= self.idle:
                 self.unfinished, self.pending = self.pending, b""
                 return b""
             time.sleep(self.poll)
             waited += self.poll
 
-    def _check(self) -> None:
-        """Refuse a followed file that shrank or was replaced."""
+    def _header(self, line: bytes) -> bool:
+        """Whether ``line`` is a new file's header line, skipped; the first
+        file's column line is noted (the first line that is no comment)."""
+        text = line.strip()
+        if self.names is None and text and not text.startswith(b"#"):
+            self.names = text
+        if not self.skipping:
+            return False
+        if not text or text.startswith(b"#"):
+            return True
+        self.skipping = False
+        return text == self.names
+
+    def _rotated(self) -> bool:
+        """At the end of what the file holds: whether it was truncated (read
+        again from its start) or another file took its name (read from its
+        start once it is there); True when the reading goes on elsewhere."""
         name = printable(self.path or "the followed file")
         if os.fstat(self.stream.fileno()).st_size < self.stream.tell():
-            raise DataError(f"{name} was truncated while it was followed: the rows read so far are diagnosed", None,
-                            "follow the new data with another bgc monitor")
+            self.stream.seek(0)
+            self.pending, self.skipping = b"", True
+            self.rotations += 1
+            self.say(f"{name} was truncated (rotated by copy and truncate): reading it again from its start")
+            return True
+        if self.path is None:
+            return False
         try:
-            replaced = self.path is not None and os.stat(self.path).st_ino != self.inode
+            info = os.stat(self.path)
         except OSError:
-            replaced = True
-        if replaced:
-            raise DataError(f"{name} was replaced (or removed) while it was followed: the rows read so far are "
-                            "diagnosed", None, "follow the new file with another bgc monitor")
+            return False  # renamed, not yet recreated: wait for it
+        if info.st_ino == self.inode:
+            return False
+        try:
+            fresh = open(self.path, "rb")
+        except OSError:
+            return False
+        if not stat.S_ISREG(os.fstat(fresh.fileno()).st_mode):
+            fresh.close()
+            raise DataError(f"{name} was replaced by something that is not a regular file while it was followed: "
+                            "the rows read so far are diagnosed", None, "follow a regular file")
+        self.stream.close()
+        self.stream, self.inode = fresh, os.fstat(fresh.fileno()).st_ino
+        self.pending, self.skipping = b"", True
+        self.rotations += 1
+        self.say(f"{name} was rotated (renamed, and a new file made under its name): reading the new file from "
+                 "its start")
+        return True
 
 
 def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptions, *,
@@ -88,7 +145,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     many time units (a :class:`~bgc.events.Checkpoint` event; the
     finish of a copy of the diagnoser, :meth:`~bgc.diagnosis.diagnoser.Diagnoser.checkpoint`). Returns the report of the
     final diagnosis and the error that ended the stream early (None: it
-    ended, or Ctrl-C): a malformed row, a followed file rotated, the memory
+    ended, or Ctrl-C): a malformed row, a followed file replaced by no regular file, the memory
     rule; the rows before it are diagnosed all the same.
 
     ``exclude_faulty`` (with ``checkpoint``): when a checkpoint isolates a
@@ -164,7 +221,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
                         rows, last_check = [], None
     except KeyboardInterrupt:
         say("interrupted: finishing the diagnosis of the data so far")
-    except BgcError as exc:  # a bad row, a followed file rotated, the memory rule: the rows so far are diagnosed
+    except BgcError as exc:  # a bad row, a followed file replaced by no regular file, the memory rule: the rows so far are diagnosed
         if not rows:
             raise
         failure = exc
