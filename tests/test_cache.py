@@ -110,6 +110,7 @@ def test_the_same_text_at_another_path_is_read_with_its_own_path(root, tanks, tm
     assert o.view.model.display_source == "elsewhere/tanks.yaml"
 
 
+@pytest.mark.slow
 def test_two_processes_writing_one_entry_at_once_leave_one_whole_entry(root, tanks):
     """Both compile the model (nothing cached yet) and write its entry at
     the same time: one rename wins, the other copy is dropped, neither
@@ -215,6 +216,7 @@ def test_clear_unused_days_keeps_what_was_used_since(root, tanks, capsys):
     assert "--unused-days is for clear" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_hit_imports_neither_sympy_nor_the_compiler(root):
     """A diagnosis of a scenario (the truth simulated, then diagnosed) and
     its report, served by the cache: sympy, networkx and the compiler's
@@ -244,6 +246,7 @@ def test_a_hit_imports_neither_sympy_nor_the_compiler(root):
     assert reports[0] == reports[1]
 
 
+@pytest.mark.slow
 def test_a_diagnosis_is_the_same_with_and_without_the_cache(root):
     """The same diagnosis, to the bit, from a fresh compilation (a miss),
     from the cache (a hit) and from the committed generated package and a

@@ -251,6 +251,7 @@ def test_filter_without_the_compiled_package_names_generated(tmp_path):
     assert "point --generated at the folder bgc compile -o wrote" in line
 
 
+@pytest.mark.slow
 def test_a_successful_run_is_quiet_on_stderr_and_says_what_it_chose_with_v(tmp_path, capsys):
     """stderr holds errors and warnings only: a diagnosis that succeeds
     writes nothing there; with -v (after the command or before it) it says

@@ -167,6 +167,7 @@ def _iso(seconds: float) -> str:
     return f"{y:04d}-{mo:02d}-{d:02d}T{h:02d}:{mi:02d}:{s:02d}.{round((seconds - whole) * 1e6):06d}Z"
 
 
+@pytest.mark.slow
 def test_the_commands_take_a_column_map(tmp_path):
     """``--columns`` on diagnose, monitor (through a stream), filter and
     calibrate; a map that does not fit is one line with its file and line."""

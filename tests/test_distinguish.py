@@ -209,6 +209,7 @@ def test_a_capacitor_at_steady_state_is_told_from_no_fault_by_nothing():
     assert d.divergence < 1e-12 and d.detectability == pytest.approx(0.5)
 
 
+@pytest.mark.slow
 def test_cli_prints_a_scenarios_rivals_and_every_candidates_group(capsys, tmp_path):
     assert cli.main(["distinguish", str(PIPES), "--scenario", "R1:abrupt:0.3@30.5"]) == 0
     out = capsys.readouterr().out
@@ -234,6 +235,7 @@ def test_cli_refuses_a_scenario_it_cannot_predict(capsys, scenario, message):
     assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_every_candidate_reaches_the_change_asked_for_a_drift_at_the_last_sample():
     r = api.distinguishability(TWO_TANK, change=0.3, at=0.5)
     # a change of 30 % of each fault's scale: a parameter's |nominal|, a sensor's nominal reading

@@ -38,6 +38,7 @@ def level():
     return session(LEVEL)
 
 
+@pytest.mark.slow
 def test_the_modes_read_from_the_data_are_the_plants(level):
     """Five runs of 600 samples, 21 switches each at times solve_ivp finds
     anywhere within a sample period: the mode the bank reads is the plant's
@@ -63,6 +64,7 @@ def test_the_modes_read_from_the_data_are_the_plants(level):
     assert wrong <= total / 200, (wrong, total)
 
 
+@pytest.mark.slow
 def test_a_plant_that_switches_by_itself_raises_no_alarm(level, tmp_path):
     """Three fault-free runs without a mode column: no fault, each switch a
     ModeRead event, and the first sample says the mode is read from the data."""
@@ -74,6 +76,7 @@ def test_a_plant_that_switches_by_itself_raises_no_alarm(level, tmp_path):
         assert abs(len(reads) - len(switches)) <= 1 and any(isinstance(e, ev.ModeHidden) for e in d.events)
 
 
+@pytest.mark.slow
 def test_a_hidden_modes_diagnoser_taken_up_from_its_state_goes_on_as_if_it_never_stopped(level):
     """Stopped at the first sample after 200 whose mode waits to be decided
     (a switch the data have not settled yet), saved as bytes and taken up:

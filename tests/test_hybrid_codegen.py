@@ -198,12 +198,14 @@ def test_the_compiled_package_gives_the_numpy_packages_filter(folder, package, e
     assert np.allclose(tracks[0].loglik, tracks[1].loglik, rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_generation_is_a_pure_function_of_the_model():
     first = pipeline.generated_files(pipeline.compile_model(RELAY))
     printing._cse_text.cache_clear()  # the second compilation prints its blocks again, not from the first's
     assert pipeline.generated_files(pipeline.compile_model(RELAY)) == first
 
 
+@pytest.mark.slow
 def test_bgc_filter_follows_a_simulated_run_through_its_switches(folder, tmp_path):
     run = tmp_path / "relay.csv"
     made = bgc_cli("simulate", RELAY, "--steps", "1500", "--modes", "unpowered@9", "--seed", "4", "-o", run)

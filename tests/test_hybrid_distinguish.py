@@ -27,6 +27,7 @@ def rival(report, name):
     return next(x for x in d.rivals if x.name == name)
 
 
+@pytest.mark.slow
 def test_two_loads_in_parallel_are_told_apart_only_by_a_switch():
     """By hand: with the relay closed, R_load and R_aux load C in parallel (C dv/dt = i - v G,
     G = 1/R_load + 1/R_aux), so a rise of R_aux from 0.5 to 0.51 (G falls by 0.0392) is the rise of

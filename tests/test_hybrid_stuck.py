@@ -134,6 +134,7 @@ def test_stuck_switches_are_declared_on_switched_junctions_only(tmp_path):
         assert "relay_rl.yaml:" in done.stderr
 
 
+@pytest.mark.slow
 def test_a_stuck_switch_is_asked_for_in_one_line(tmp_path):
     run = tmp_path / "run.csv"
     for model, fault, said in ((RELAY, "R_s:stuck_off@1", "'R_s' is no switched junction of relay_rl"),
@@ -149,6 +150,7 @@ def test_a_stuck_switch_is_asked_for_in_one_line(tmp_path):
     assert "# fault: switch K stuck ON from t = 1" in run.read_text()
 
 
+@pytest.mark.slow
 def test_a_campaign_runs_a_stuck_relay_and_its_diagnosis_says_unexplained(tmp_path):
     """A model that lists no stuck switch: a run whose relay sticks open at 3 s comes out
     "unexplained" (no fault model explains it), and the campaign counts it as a fault the model

@@ -173,6 +173,7 @@ def closing_levels(model, seeds) -> np.ndarray:
     return np.array(levels)
 
 
+@pytest.mark.slow
 def test_the_truth_simulator_draws_a_threshold_per_visit(uncertain):
     """Noise-free runs: the voltage at which the relay closes is 6 without a tolerance, and spread
     around 6 with std about 0.2 with it, a new draw per visit and per seed."""

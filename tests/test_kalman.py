@@ -570,6 +570,7 @@ def test_paths_side_by_side_are_each_models_path_alone_bit_for_bit(model, scenar
         np.testing.assert_array_equal(static_posterior.record_path(m, ys, us, t, p).path.x_mean, q.path.x_mean)
 
 
+@pytest.mark.slow
 def test_static_posteriors_side_by_side_are_each_models_alone_bit_for_bit():
     """static_posteriors (every hypothesis's adaptive grid at once, the banks
     of each pass run as one stack by run_banks) gives each fault model the

@@ -101,6 +101,7 @@ def test_the_same_simulator_with_the_models_numbers_gives_no_fault(tmp_path):
         assert d.fit.fits and d.fit.end == STEPS
 
 
+@pytest.mark.slow
 def test_a_fault_since_the_first_samples_is_a_possibility_beside_the_mismatch(tmp_path):
     """R3 a fifth higher in the plant from its start: data that a fault at
     the start and a model that does not fit make alike; the diagnosis says

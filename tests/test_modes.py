@@ -106,6 +106,7 @@ def test_bgc_check_lists_the_modes_their_states_and_the_transitions():
     assert "    unpowered -> open: after 5; reset f3 := 0" in out
 
 
+@pytest.mark.slow
 def test_bgc_diagnoses_a_run_of_a_model_with_modes_and_refuses_what_is_not_built_in_one_line(tmp_path):
     run = bgc_cli("simulate", "tests/data/hybrid/relay_rl.yaml", "--steps", "200", "-o", tmp_path / "r.csv")
     assert run.returncode == 0, run.stderr

@@ -43,6 +43,7 @@ def test_a_simulation_reaches_the_steady_state_derived_by_hand(tanks):
     assert abs(tail.mean() - 8 / 19) < 4 * tail.std() / math.sqrt(len(tail))
 
 
+@pytest.mark.slow
 def test_a_simulation_is_its_seed_and_goes_into_a_diagnosis_with_its_truth(tanks):
     a, b = (bgc.simulate(tanks, "R12:abrupt:0.5@75", seed=7, steps=200) for _ in range(2))
     c = bgc.simulate(tanks, "R12:abrupt:0.5@75", seed=8, steps=200)

@@ -134,6 +134,7 @@ def test_a_diagnoser_taken_up_from_its_state_goes_on_as_if_it_never_stopped(sess
     assert whole.verdict == "isolated"
 
 
+@pytest.mark.slow
 def test_a_state_taken_while_watching_keeps_the_detectors_windows_and_the_clouds_ring(sessions):
     session = _session(sessions, MODELS / "two_tank.yaml")
     # 300 rows watched at the cut: more than the ring's history + 1 = 257 clouds
@@ -200,6 +201,7 @@ def test_a_diagnoser_on_the_compiled_backend_is_taken_up_alike(sessions):
     _equal(whole, resumed, "diagnosis")
 
 
+@pytest.mark.slow
 def test_a_checkpoint_is_the_batch_diagnosis_of_the_data_so_far(sessions):
     """A checkpoint of the online diagnoser (the finish of a copy made from
     its state: the hypotheses it tracks online are not tracked again) equals

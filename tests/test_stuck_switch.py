@@ -187,6 +187,7 @@ def test_a_relay_that_stuck_closed_is_named_when_the_operator_opens_it(relay):
     assert 1.2 - 1e-9 <= d.time_of(d.onset_step) <= 1.5 + 1e-9
 
 
+@pytest.mark.slow
 def test_a_load_that_changes_behind_a_closed_relay_is_not_called_a_stuck_switch(relay):
     """R_aux 0.5 -> 0.9 ohm at 1.5 s, the relay closed at 0.5 s as commanded
     and closed since: R_aux's step, sized, though the stuck switches are
@@ -208,6 +209,7 @@ def test_a_relay_that_moves_as_commanded_raises_no_alarm(relay):
     assert _diagnose(session, text).verdict == "no fault"
 
 
+@pytest.mark.slow
 def test_a_campaign_counts_a_listed_stuck_relay_named_as_right(relay, tmp_path):
     """bgc's simulator, the relay sticking open at 3 s after the automaton
     closed it (the model lists the stuck switch): the campaign's row says
@@ -226,6 +228,7 @@ def test_a_campaign_counts_a_listed_stuck_relay_named_as_right(relay, tmp_path):
     assert row["candidates"] == "K_stuck_off" and row["right"] is True and math.isnan(row["est_error"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", [RELAY, ROOT / "models" / "ro_hybrid.yaml"])
 def test_the_packages_of_a_model_with_modes_pass_pyflakes(model):
     """No unused or undefined names in the generated modules of a model with

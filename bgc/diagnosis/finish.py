@@ -150,6 +150,9 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
         nominal_model(s.package), r.ys, r.us, r.outputs,
         [j for j, (_, where) in enumerate(r.data.inputs) if where == "data"], r.data.timing,
         factor=s.options.bayes_factor, track=track)
+    if timing is not None and not timing[1] and fitted.fits:
+        timing = None  # likelier read the other way but not fitted: a fault's effects that begin at an input's
+        # change (a stuck switch at a command) look so too, and the verdict's own stretch fits: it stands
     if fitted.fits and timing is None:
         return verdict, candidates, [], fitted
     possible = candidates if verdict in ("isolated", "ambiguous") else ()
