@@ -671,3 +671,45 @@ def test_bgc_diagnose_prints_a_loggers_unix_times_in_full(tmp_path):
     detected, onset = (float(part.split("t = ")[1].split()[0].rstrip(",")) for part in line.split(", onset"))
     assert "e+09" not in line
     assert start + 4.5 <= onset <= detected <= start + 7.0, line
+
+
+def _daily(folder: Path, run: runs.Run, cuts: tuple[int, ...]) -> None:
+    """``run`` cut into a logger's daily files at rows ``cuts``, each with the run's header and column line."""
+    lines = runs.run_csv(run).splitlines(keepends=True)
+    head = next(i for i, line in enumerate(lines) if line.startswith("time,")) + 1
+    edges = (0, *cuts, len(lines) - head)
+    folder.mkdir()
+    for day, (a, b) in enumerate(zip(edges, edges[1:]), start=1):
+        (folder / f"day{day:02d}.csv").write_text("".join(lines[:head] + lines[head + a:head + b]))
+
+
+def test_bgc_monitor_reads_a_folder_of_daily_files_as_one_stream(tmp_path):
+    run = simulated(CIRCUIT, "R2:abrupt:0.6@5", steps=160)
+    _daily(tmp_path / "logs", run, (50, 90))
+    p = monitor_cli("--data", str(tmp_path / "logs" / "day*.csv"), "--particles", "100", "-o", str(tmp_path / "a"))
+    assert p.returncode == 0, p.stderr
+    assert f"{tmp_path / 'logs' / 'day01.csv'} read to its end: reading the next file" in p.stdout
+    followed = json.loads((tmp_path / "a" / "report.json").read_text())
+    whole = bgc.diagnose(session(CIRCUIT), data=run, options=DiagnosisOptions(particles=100)).diagnosis
+    assert followed["data"]["steps"] == 160
+    assert (followed["verdict"], followed["diagnosis"]) == (whole.verdict, list(whole.candidates))
+
+
+@pytest.mark.process
+def test_a_followed_folder_takes_up_the_days_file_when_it_appears(tmp_path):
+    """--follow on a folder: the last file there is followed, and a file
+    that appears later (the next day's) is read when the one before ends."""
+    run = simulated(CIRCUIT, steps=120)
+    _daily(tmp_path / "logs", run, (60,))
+    tomorrow = (tmp_path / "logs" / "day02.csv").read_text()
+    (tmp_path / "logs" / "day02.csv").unlink()
+    proc = subprocess.Popen([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", str(tmp_path / "logs"),
+                             "--follow", "--idle", "3", "--particles", "50", "-o", str(tmp_path / "mon")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, MPLBACKEND="Agg"))
+    read_to_the_end(proc.pid, tmp_path / "logs" / "day01.csv")
+    (tmp_path / "logs" / "day02.csv").write_text(tomorrow)
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert "day01.csv read to its end: reading the next file" in out
+    assert json.loads((tmp_path / "mon" / "report.json").read_text())["data"]["steps"] == 120

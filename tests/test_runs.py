@@ -163,8 +163,8 @@ def test_not_utf8_is_located_by_line_and_byte(tmp_path):
     assert file_error(path) == f"{path}:4: not UTF-8 text (byte 19 is 0xff) (give a CSV written by bgc simulate)"
 
 
-def test_a_folder_or_a_missing_file_is_one_line(tmp_path):
-    assert file_error(tmp_path).startswith(f"{tmp_path}: not a regular file")
+def test_a_folder_without_run_files_or_a_missing_file_is_one_line(tmp_path):
+    assert file_error(tmp_path).startswith(f"{tmp_path}: no run file in the folder (*.csv)")  # a folder: its files
     assert file_error(tmp_path / "none.csv").startswith(f"{tmp_path / 'none.csv'}: no such file")
 
 
@@ -229,3 +229,43 @@ def test_a_python_run_goes_through_the_checks_of_a_file(change, what):
 def test_check_run_refuses_what_is_not_a_run():
     with pytest.raises(DataError, match="a dict, not a bgc.data.runs.Run"):
         runs.check_run({"time": [1.0]})
+
+
+# ------------------------------------------------------------ a logger's daily files
+DAY = "# model circuit: a day of the logger\ntime,u:V,y:f2\n"
+
+
+def _days(folder, *days: str) -> None:
+    folder.mkdir(exist_ok=True)
+    for i, rows in enumerate(days, start=1):
+        (folder / f"2026-03-0{i}.csv").write_text(DAY + rows, encoding="utf-8")
+
+
+def test_a_folder_or_a_pattern_of_daily_files_reads_as_one_run_in_the_order_of_their_names(tmp_path):
+    _days(tmp_path / "logs", "1,10,2.0\n2,10,2.1\n", "3,10,2.2\n", "4,11,,\n5,11,2.4\n".replace(",,", ","))
+    (tmp_path / "logs" / "notes.txt").write_text("not a run")
+    for path in (tmp_path / "logs", str(tmp_path / "logs" / "2026-03-*.csv")):
+        run = runs.read_run(path)
+        assert run.time.tolist() == [1.0, 2.0, 3.0, 4.0, 5.0]
+        assert run.inputs["V"].tolist() == [10.0, 10.0, 10.0, 11.0, 11.0]
+        assert np.array_equal(run.measurements["f2"], [2.0, 2.1, 2.2, np.nan, 2.4], equal_nan=True)
+        assert run.model == "circuit" and run.source == str(path)
+    assert runs.run_files(tmp_path / "logs" / "2026-03-01.csv") is None  # one file
+
+
+@pytest.mark.parametrize("days, message", [
+    (("1,10,2.0\n2,10,2.1\n", "2,10,2.2\n"), "2026-03-02.csv: its first time 2 does not go on from the last time "
+                                             "of {folder}/2026-03-01.csv (2)"),
+    (("1,10,2.0\n", "time,y:f2\n"), None),
+])
+def test_daily_files_that_overlap_or_differ_are_refused_naming_the_file(tmp_path, days, message):
+    folder = tmp_path / "logs"
+    _days(folder, *days)
+    if message is None:  # the second file's columns differ
+        (folder / "2026-03-02.csv").write_text("# model circuit\ntime,y:f2\n2,2.5\n")
+        message = "2026-03-02.csv: its columns differ from {folder}/2026-03-01.csv's"
+    with pytest.raises(DataError) as caught:
+        runs.read_run(folder)
+    assert message.format(folder=folder) in str(caught.value) and "\n" not in str(caught.value)
+    with pytest.raises(DataError, match="no run file matches the pattern"):
+        runs.read_run(str(tmp_path / "nothing-*.csv"))

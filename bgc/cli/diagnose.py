@@ -13,7 +13,9 @@ from .common import (Progress, add_backend_option, add_data_options, add_prior_o
 def add_parser(sub) -> None:
     p = sub.add_parser("diagnose", help="detect, isolate and identify a fault in a run (report and plots)")
     p.add_argument("model", metavar="MODEL")
-    p.add_argument("--data", metavar="RUN.csv", help="a recorded run (a CSV as bgc simulate writes)")
+    p.add_argument("--data", metavar="RUN.csv",
+                   help="a recorded run (a CSV as bgc simulate writes), or a folder or a glob pattern of a logger's "
+                        "files, read in the order of their names as one run")
     p.add_argument("--scenario", metavar="NAME:KIND:MAGNITUDE@TIME",
                    help="simulate this fault (or 'none'), then diagnose, e.g. R_pipe:incipient:0.5@165; MAGNITUDE "
                         "is an abrupt fault's bias (in the parameter's units) or an incipient fault's slope (per "

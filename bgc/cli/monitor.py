@@ -18,7 +18,8 @@ def add_parser(sub) -> None:
                                        "standard input): events as they happen, the report at the end")
     p.add_argument("model", metavar="MODEL")
     p.add_argument("--data", metavar="RUN.csv|-", required=True,
-                   help="the run's CSV (as bgc simulate writes): a file, or - for standard input")
+                   help="the run's CSV (as bgc simulate writes): a file, a folder or a glob pattern of a logger's "
+                        "files (read in the order of their names), or - for standard input")
     p.add_argument("--follow", action="store_true",
                    help="keep reading the file as another program appends to it (until Ctrl-C, or --idle)")
     p.add_argument("--idle", type=float, default=None, metavar="SECONDS",
@@ -45,6 +46,7 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .. import api
+    from ..data import runs
     from ..service import monitor
     from ..output import artifacts
     from ..diagnosis.options import DiagnosisOptions
@@ -85,8 +87,13 @@ def run(args: argparse.Namespace) -> int:
             quiet.append(True)
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
 
+    files = None if args.data == "-" else runs.run_files(args.data)  # a folder or a pattern: several files
     if args.data == "-":
         stream, name = sys.stdin.buffer, "<stdin>"
+    elif files is not None:  # read one after the other; followed, the last and those that appear after it
+        stream = monitor.Follow(open_stream(str(files[0])), args.idle if args.follow else 0, path=str(files[0]),
+                                say=say, pattern=args.data)
+        name = args.data
     else:
         stream, name = open_stream(args.data), args.data
         if args.follow:

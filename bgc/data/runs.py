@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import codecs
 import csv
+import glob
 import io
 import math
 import stat
@@ -173,9 +174,33 @@ def run_csv(run: Run) -> str:
     return to_csv(run.header, columns)
 
 
+def run_files(path: str | Path) -> list[Path] | None:
+    """The files ``path`` names when it names several: a folder (its
+    ``*.csv`` files) or a glob pattern (``logs/2026-03-*.csv``), the
+    regular files sorted by name (a logger's daily files named by date sort
+    in time order); None when it names one file (an existing file whose name
+    holds a ``*`` is that file)."""
+    p = Path(path)
+    if p.is_dir():
+        files = sorted(f for f in p.glob("*.csv") if f.is_file())
+    elif not p.exists() and glob.has_magic(str(path)):
+        files = sorted(Path(f) for f in glob.glob(str(path)) if Path(f).is_file())
+    else:
+        return None
+    if not files:
+        raise DataError(f"{printable(str(path))}: no run file " + ("in the folder (*.csv)" if p.is_dir() else
+                        "matches the pattern"), None, "give a run file, a folder of them, or a pattern that matches")
+    return files
+
+
 def read_run(path: str | Path, reading: Reading | None = None) -> Run:
     """Read a run file (see the module docstring for the checks); ``reading``:
-    the column map and what the model reads (:class:`~bgc.data.columns.Reading`)."""
+    the column map and what the model reads (:class:`~bgc.data.columns.Reading`).
+    A folder or a glob pattern (:func:`run_files`) is read as one run, its
+    files in the order of their names (:func:`join_runs`)."""
+    files = run_files(path)
+    if files is not None:
+        return join_runs([read_run(f, reading) for f in files], printable(str(path)))
     name = printable(str(path))
     p = Path(path)
     try:
@@ -194,6 +219,41 @@ def read_run(path: str | Path, reading: Reading | None = None) -> Run:
             return _parse(f, name, reading)
     except OSError as exc:
         raise DataError(f"{name}: cannot read: {exc.strerror}", None, _FIX) from None
+
+
+def join_runs(parts: list[Run], source: str) -> Run:
+    """Runs read from consecutive files (a logger's daily files) as one run
+    named ``source``: the same columns in each (each its own header: the
+    first's is kept, and a file that states another input timing is
+    refused), each file's rows going on in time from the one before's;
+    every mistake a one-line :class:`~bgc.errors.DataError` naming the file."""
+    first = parts[0]
+
+    def columns(r: Run) -> tuple:
+        return (tuple(r.inputs), tuple(r.measurements), tuple(r.states), tuple(r.parameters), r.modes is None)
+
+    for before, r in zip(parts, parts[1:]):
+        if columns(r) != columns(first):
+            raise DataError(f"{r.source}: its columns differ from {first.source}'s", None,
+                            "give files of one logger, with the same columns")
+        if header_timing(r.header, r.source) != header_timing(first.header, first.source):
+            raise DataError(f"{r.source}: its header states another input timing than {first.source}'s", None,
+                            "give files of one logger, with one input timing")
+        if not r.time[0] > before.time[-1]:
+            raise DataError(f"{r.source}: its first time {r.time[0]:.12g} does not go on from the last time of "
+                            f"{before.source} ({before.time[-1]:.12g})", None,
+                            "name the files so that they sort in time order; files that overlap are not one run")
+    if sum(len(r.time) * (1 + len(r.inputs) + len(r.measurements) + len(r.states) + len(r.parameters))
+           for r in parts) > MAX_VALUES:
+        raise DataError(f"{source}: more than {MAX_VALUES} numbers in its files together", None,
+                        "give fewer files at once")
+
+    def joined(group: str) -> dict[str, np.ndarray]:
+        return {k: np.concatenate([getattr(r, group)[k] for r in parts]) for k in getattr(first, group)}
+
+    modes = None if first.modes is None else np.concatenate([r.modes for r in parts])
+    return Run(np.concatenate([r.time for r in parts]), joined("inputs"), joined("measurements"), joined("states"),
+               joined("parameters"), first.header, source, modes)
 
 
 def parse_run(text: str, name: str = "<csv>", reading: Reading | None = None) -> Run:

@@ -17,6 +17,7 @@ import signal
 import stat
 import threading
 import time
+from pathlib import Path
 from typing import IO, Callable
 
 import numpy as np
@@ -47,14 +48,19 @@ class Follow:
     - *copied and truncated*: a file shorter than what was read is read
       again from its start (what the logger wrote between the copy and the
       truncation is in the copy, not here);
+    - *several files* (``pattern``: a folder or a glob pattern,
+      :func:`bgc.data.runs.run_files`): once a file is read to its end, the
+      next one in the order of their names is read from its start, and one
+      that appears later is read when its turn comes (with ``idle`` 0 the
+      input ends after the last file there is);
     - the new file's header is skipped: its ``#`` comment lines, blank lines
       and a column line equal to the first file's; any other line is a row
       (rows whose times do not go on from the ones read are refused, as in
       one file)."""
 
     def __init__(self, stream: IO[bytes], idle: float | None = None, poll: float = 0.1, path: str | None = None,
-                 say: Callable[[str], None] | None = None):
-        self.stream, self.idle, self.poll, self.path = stream, idle, poll, path
+                 say: Callable[[str], None] | None = None, pattern: str | None = None):
+        self.stream, self.idle, self.poll, self.path, self.pattern = stream, idle, poll, path, pattern
         self.say = say or (lambda text: None)
         self.pending = b""
         self.unfinished = b""
@@ -111,26 +117,37 @@ class Follow:
             return True
         if self.path is None:
             return False
+        later = [] if self.pattern is None else [f for f in runs.run_files(self.pattern) if f > Path(self.path)]
+        if later:
+            self._open(str(later[0]))
+            self.say(f"{name} read to its end: reading the next file, {printable(str(later[0]))}")
+            return True
         try:
             info = os.stat(self.path)
         except OSError:
             return False  # renamed, not yet recreated: wait for it
         if info.st_ino == self.inode:
             return False
+        if not self._open(self.path):
+            return False
+        self.say(f"{name} was rotated (renamed, and a new file made under its name): reading the new file from "
+                 "its start")
+        return True
+
+    def _open(self, path: str) -> bool:
+        """Go on reading from the start of file ``path`` (False: it cannot be opened now)."""
         try:
-            fresh = open(self.path, "rb")
+            fresh = open(path, "rb")
         except OSError:
             return False
         if not stat.S_ISREG(os.fstat(fresh.fileno()).st_mode):
             fresh.close()
-            raise DataError(f"{name} was replaced by something that is not a regular file while it was followed: "
-                            "the rows read so far are diagnosed", None, "follow a regular file")
+            raise DataError(f"{printable(path)} is not a regular file: the rows read so far are diagnosed", None,
+                            "follow regular files")
         self.stream.close()
-        self.stream, self.inode = fresh, os.fstat(fresh.fileno()).st_ino
+        self.stream, self.inode, self.path = fresh, os.fstat(fresh.fileno()).st_ino, path
         self.pending, self.skipping = b"", True
         self.rotations += 1
-        self.say(f"{name} was rotated (renamed, and a new file made under its name): reading the new file from "
-                 "its start")
         return True
 
 
