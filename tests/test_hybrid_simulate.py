@@ -128,3 +128,40 @@ def test_a_sensor_fault_the_model_does_not_list_is_simulated_and_said_unexpected
     done = bgc_cli("simulate", str(RELAY), "--steps", "100", "--fault", "i_L:drift:0.1@0.5", "-o",
                    str(tmp_path / "run.csv"))
     assert done.returncode == 0 and "lists no fault i_L:drift among its candidates" in done.stderr
+
+
+def test_a_recorded_run_replayed_with_its_inputs_and_mode_column_is_the_same_run(tmp_path):
+    """bgc simulate --inputs FILE of a model with modes: the file's u:
+    columns drive the inputs and its mode column the controlled changes
+    (the valve RO: every change controlled); the run replayed with the same
+    seed is the run, number for number."""
+    valve = str(ROOT / "models" / "ro_hybrid_valve.yaml")
+    first = bgc_cli("simulate", valve, "--steps", "150", "--modes", "secondary@60,purge@100,primary@120",
+                    "--seed", "4", "-o", tmp_path / "a.csv")
+    again = bgc_cli("simulate", valve, "--steps", "150", "--inputs", tmp_path / "a.csv", "--seed", "4",
+                    "-o", tmp_path / "b.csv")
+    assert first.returncode == 0 and again.returncode == 0, again.stderr
+    a, b = runs.read_run(tmp_path / "a.csv"), runs.read_run(tmp_path / "b.csv")
+    assert np.array_equal(a.modes, b.modes) and all(np.array_equal(a.states[x], b.states[x]) for x in a.states)
+    assert any(h.startswith("inputs: u:tau_fp, u:tau_rp recorded in") for h in b.header)
+    both = bgc_cli("simulate", valve, "--inputs", tmp_path / "a.csv", "--modes", "purge@10", "-o", tmp_path / "c.csv")
+    assert both.returncode == 1 and "--modes and the mode column of --inputs" in both.stderr
+
+
+def test_a_mode_column_sets_the_controlled_changes_and_leaves_the_guards_to_the_plant(tmp_path):
+    """The relay: open <-> closed by guards on v_C, open or closed ->
+    unpowered controlled, unpowered -> open after 5 s. A mode column that
+    goes unpowered at row 200 (t = 2) schedules that change only; one that
+    goes from unpowered to closed, which no transition allows, is refused
+    naming the file and the time."""
+    h = pipeline.check_model(RELAY)
+    names = h.model.modes.names
+    times = DT * np.arange(1, 401)
+    modes = np.where(np.arange(400) < 199, names.index("open") + 1, names.index("unpowered") + 1).astype(float)
+    modes[50:60] = names.index("closed") + 1  # the guards' own: not scheduled
+    run = runs.Run(times, {}, {}, {}, {}, (), "relay.csv", modes)
+    assert hybrid.schedule_of(run, h.model) == ((pytest.approx(2.0), "unpowered"),)
+    modes[300] = names.index("closed") + 1
+    with pytest.raises(BgcError, match=r"relay.csv: its mode goes from unpowered to closed at t = 3.01, a change no "
+                                       r"transition of relay_rl allows"):
+        hybrid.schedule_of(runs.Run(times, {}, {}, {}, {}, (), "relay.csv", modes), h.model)

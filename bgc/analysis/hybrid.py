@@ -90,6 +90,36 @@ def parse_schedule(text: str | None, names: tuple[str, ...]) -> tuple[tuple[floa
     return tuple(sorted(out))
 
 
+def schedule_of(run, model) -> tuple[tuple[float, str], ...]:
+    """The controlled changes of mode a recorded run's ``mode`` column says
+    (``bgc simulate --inputs FILE`` of a model with modes), on the
+    simulation's clock as :class:`~bgc.analysis.simulate.InputProfile` puts
+    a row (the first row drives the first step, and its time is that step's
+    end): each change into a mode by a controlled transition of ``model``,
+    at the time of the first row in the mode (a run file's ``mode`` is the
+    mode at the row's time, the changes due then made). A change by an autonomous or timed transition is the plant's own:
+    the automaton makes it where its guard or its time says; a change no
+    transition allows is an error naming the file and the time."""
+    names, dt = model.modes.names, model.settings.dt
+    kinds = {(t.source, t.target): t.kind for t in model.modes.transitions}
+    t = np.asarray(run.time, dtype=float)
+    steps = np.rint((t - t[0]) / dt).astype(np.int64)
+    out, current = [], names[0]
+    for k, number, when in zip(steps, np.asarray(run.modes, dtype=float), t):
+        if not math.isfinite(number) or names[int(number) - 1] == current:
+            continue
+        target = names[int(number) - 1]
+        kind = kinds.get((current, target))
+        if kind is None:
+            raise SimulationError(f"{printable(run.source)}: its mode goes from {current} to {target} at t = "
+                                  f"{when:g}, a change no transition of {model.name} allows", None,
+                                  "give a mode column the model's transitions can follow")
+        if kind == "controlled":
+            out.append((float((k + 1) * dt), target))
+        current = target
+    return tuple(out)
+
+
 class _Mode:
     """One mode's numerics on the plant's whole state vector."""
 
@@ -176,8 +206,11 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
     times = dt * np.arange(1, steps + 1)
     out_x, out_y = np.empty((steps, len(every))), np.empty((steps, len(first.outputs)))
     out_u, out_m = np.empty((steps, len(first.inputs))), np.empty(steps, dtype=int)
+    recorded = options.inputs.held(tuple(i.name for i in model.inputs), steps, dt) if options.inputs else None
     for k in range(steps):
         u = [signal_of[i.name].at(k * dt) for i in model.inputs]
+        if recorded is not None:  # a recorded value where the profile has one
+            u = [v if math.isnan(r) else float(r) for v, r in zip(u, recorded[k])]
         for s in range(substeps):
             x = automaton.advance(x, u, k * dt + s * h, h)
         x = automaton.advance(x, u, times[k], 0.0)  # the row holds the state after the changes due at its time
@@ -233,6 +266,7 @@ def _header(model, options: SimulationOptions, steps: int, substeps: int, names:
             f"scales); seed {options.seed}",
             "modes: " + ", ".join(f"{i + 1} {n}" for i, n in enumerate(names)) + f"; {len(switches)} switches"
             + listed + (", ..." if len(switches) > SHOWN else ""),
+            *((options.inputs.describe(),) if options.inputs is not None else ()),
             "columns: time; mode: the mode's number at time; u:* inputs; y:* noisy measurements; x:* true states; "
             "theta:* true value of the faulty parameter")
 

@@ -89,17 +89,41 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _recorded(args: argparse.Namespace, h) -> tuple:
+    """A model with modes: the input profile (None: none) and the controlled
+    changes of mode (:func:`bgc.analysis.hybrid.schedule_of`) of ``--inputs
+    FILE`` (read through ``--columns``), () without it."""
+    from ..analysis import hybrid, simulate as sim
+    from ..api.session import reading_of
+    from ..data import runs
+
+    if args.inputs is None:
+        if args.columns is not None:
+            raise BgcError("--columns applies to --inputs here: a column map reads a logger's file", None,
+                           "give --inputs PROFILE.csv, or drop --columns")
+        return None, ()
+    if Path(args.inputs).resolve() == Path(args.output or f"{h.model.name}-run.csv").resolve():
+        raise BgcError(f"--inputs {printable(args.inputs)} is the file -o would write", None,
+                       "write the run to another file")
+    run = runs.read_run(args.inputs, reading_of(h, args.columns))
+    names = tuple(u.name for u in h.model.inputs)
+    profile = sim.input_profile(run, names) if run.inputs or run.modes is None else None
+    if run.modes is None:
+        return profile, ()
+    if args.modes:
+        raise BgcError(f"--modes and the mode column of --inputs {printable(args.inputs)} both set the mode", None,
+                       "give one of them")
+    return profile, hybrid.schedule_of(run, h.model)
+
+
 def _hybrid(args: argparse.Namespace) -> int:
     """``bgc simulate`` of a model with modes: its automaton over each mode's equations (:mod:`bgc.analysis.hybrid`)."""
     from .. import pipeline
     from ..analysis import hybrid, simulate as sim
     from ..output import artifacts
 
-    unsupported = [flag for flag, value in (("--inputs", args.inputs), ("--columns", args.columns))
-                   if value is not None]
-    if unsupported:
-        raise BgcError(f"{unsupported[0]} is not built yet for a model with modes", None, f"drop {unsupported[0]}")
     h = pipeline.check_model(args.model)
+    profile, schedule = _recorded(args, h)
     nums = h.numerics(args.prior_scale)
     process, measurement = parse_noise(args.noise)
     fault = sim.parse_fault(args.fault, nums[0]) if args.fault else None
@@ -109,10 +133,14 @@ def _hybrid(args: argparse.Namespace) -> int:
     if unexpected:
         print(f"warning: {unexpected}", file=sys.stderr)
     signals = signals_of(args.signals, tuple(u.name for u in h.model.inputs))
+    both = sorted(set(dict(signals)) & set(profile.values if profile is not None else ()))
+    if both:
+        raise BgcError(f"--input {both[0]} and --inputs {printable(args.inputs)} both drive u:{both[0]}", None,
+                       "give it one of them")
     options = sim.SimulationOptions(steps=args.steps, process_noise=process, measurement_noise=measurement,
-                                    seed=args.seed, fault=fault, signals=signals)
+                                    seed=args.seed, fault=fault, signals=signals, inputs=profile)
     start = time.perf_counter()
-    run = hybrid.simulate(h, nums, options, hybrid.parse_schedule(args.modes, h.model.modes.names))
+    run = hybrid.simulate(h, nums, options, schedule or hybrid.parse_schedule(args.modes, h.model.modes.names))
     out = Path(args.output or f"{h.model.name}-run.csv")
     artifacts.write_file(out, hybrid.to_csv(run))
     print(f"wrote {printable(str(out))}: {len(run.result.time)} steps of {h.model.name}, {len(run.switches)} "
