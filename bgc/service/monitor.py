@@ -117,10 +117,11 @@ class Follow:
             return True
         if self.path is None:
             return False
-        later = [] if self.pattern is None else [f for f in runs.run_files(self.pattern) if f > Path(self.path)]
-        if later:
-            self._open(str(later[0]))
-            self.say(f"{name} read to its end: reading the next file, {printable(str(later[0]))}")
+        later = self._later()
+        if later is not None:
+            if not self._open(str(later)):
+                return False  # not readable yet: tried again after the next poll
+            self.say(f"{name} read to its end: reading the next file, {printable(str(later))}")
             return True
         try:
             info = os.stat(self.path)
@@ -133,6 +134,18 @@ class Follow:
         self.say(f"{name} was rotated (renamed, and a new file made under its name): reading the new file from "
                  "its start")
         return True
+
+    def _later(self) -> Path | None:
+        """The first file of ``pattern`` after the one read, in the order of
+        their names (None: none yet, or no pattern; a folder emptied meanwhile
+        holds none)."""
+        if self.pattern is None:
+            return None
+        try:
+            files = runs.run_files(self.pattern) or []
+        except DataError:
+            return None
+        return next((f for f in files if f > Path(self.path)), None)
 
     def _open(self, path: str) -> bool:
         """Go on reading from the start of file ``path`` (False: it cannot be opened now)."""
