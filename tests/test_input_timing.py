@@ -139,3 +139,25 @@ def test_a_loggers_timing_read_as_bgcs_is_a_mismatch_that_names_the_timing(tmp_p
         d = bgc.diagnose(session("circuit"), path, **kwargs).diagnosis
         assert d.verdict == "no fault" and d.fit.fits, (path.name, d.verdict, d.fit.findings)
         assert d.data.timing == ("end" if path.name == "end.csv" else "start")
+
+
+@pytest.mark.slow
+def test_calibration_reads_the_inputs_as_the_flag_or_the_header_says(tmp_path):
+    """bgc calibrate of the start-logged square wave: read as logged (the
+    argument, or the file's header), f2's noise comes out at the simulator's
+    own (its 95 % interval holds it); read as bgc's own timing, f2 takes the
+    spikes at the changes of V as noise, several times the truth."""
+    square_csv(tmp_path / "start.csv", "start", seed=2)
+    square_csv(tmp_path / "header.csv", "start", seed=2, header=True)
+    s = session("circuit")
+    truth = float(np.asarray(s.package.MODELS["nominal"].MEASUREMENT_STD, dtype=float)[0])
+
+    def f2(**kwargs):
+        report = s.calibrate(kwargs.pop("path"), "measurement_noise", **kwargs)
+        return next(e for e in report.calibration.estimates if e.subject == "f2")
+
+    for e in (f2(path=tmp_path / "start.csv", input_timing="start"), f2(path=tmp_path / "header.csv")):
+        assert e.low <= truth <= e.high, (e.low, truth, e.high)
+    assert f2(path=tmp_path / "start.csv").value > 3 * truth
+    with pytest.raises(DataError, match="its header says 'input timing: start', and input_timing says end"):
+        s.calibrate(tmp_path / "header.csv", "measurement_noise", input_timing="end")

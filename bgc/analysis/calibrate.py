@@ -262,13 +262,14 @@ def wants_initial(words: str | Sequence[str]) -> bool:
     return INITIAL_WORD in [w.strip() for w in (words.split(",") if isinstance(words, str) else words)]
 
 
-def record_of(run: Run, model: FaultModel) -> Record:
+def record_of(run: Run, model: FaultModel, timing: str | None = None) -> Record:
     """A checked run (:func:`bgc.data.runs.check_run`) on the model's time
     grid, as a diagnosis reads it (:class:`bgc.data.sampler.Sampler`: gaps
-    predicted across, empty input cells held, absent sensors missing; its
-    inputs' timing as its header says, :func:`bgc.data.runs.header_timing`)."""
+    predicted across, empty input cells held, absent sensors missing); its
+    inputs' ``timing`` ``end`` or ``start`` (None: as its header says,
+    :func:`bgc.data.runs.header_timing`, else ``end``)."""
     sampler = data_grid.Sampler(model, tuple(input_columns(run)), tuple(run.measurements), run.source, None,
-                                header_timing(run.header, run.source) or "end")
+                                timing or header_timing(run.header, run.source) or "end")
     ys, us, ts = [], [], []
     for s in data_grid.samples(run, sampler):
         ys.append(s.y)

@@ -254,7 +254,7 @@ class Session:
                          progress=progress, most=most_steps(self.view.numerics, opts))
 
     def calibrate(self, data, estimate: str | tuple[str, ...] = "noise", *, progress=None,
-                  columns=None) -> CalibrationReport:
+                  columns=None, input_timing: str | None = None) -> CalibrationReport:
         """Maximum-likelihood estimates, from healthy recordings ``data`` (a
         run file, a :class:`~bgc.data.runs.Run`, or a list or tuple of
         them), of what ``estimate`` names: ``noise`` (every sensor's
@@ -263,7 +263,9 @@ class Session:
         file, as a comma-separated text or a tuple of names
         (:mod:`bgc.analysis.calibrate`). The :class:`CalibrationReport` holds
         the estimates with their 95 % intervals and the calibrated model's
-        text; :meth:`CalibrationReport.write` writes it.
+        text; :meth:`CalibrationReport.write` writes it. ``input_timing``:
+        what a row's input value is, ``end`` or ``start`` (None: as each
+        file's header says, else ``end``; docs/format.md section 9).
 
         Raises
         ------
@@ -297,6 +299,8 @@ class Session:
         else:
             arguments.text(func, "estimate", estimate)
         arguments.callable_or_none(func, "progress", progress)
+        if input_timing is not None:
+            arguments.choice(func, "input_timing", input_timing, runs.TIMINGS)
         say = progress or (lambda text: None)
         c = self.view
         nominal = nominal_model(self.package)
@@ -306,7 +310,9 @@ class Session:
         for item in items:
             run = self.read_run(item, columns, func)
             mode_given(nominal, runs.input_columns(run), run.source, "calibration")
-            records.append(calibration.record_of(run, nominal))
+            timing = runs.resolve_timing(run.header, input_timing, run.source,
+                                         arguments.spelled("input_timing", "--input-timing"))
+            records.append(calibration.record_of(run, nominal, timing))
             dates += [h.split(":", 1)[1].strip() for h in run.header
                       if h.lower().startswith(("date:", "recorded:")) and h.split(":", 1)[1].strip()]
         say(f"calibrating on {len(records)} recording(s)")

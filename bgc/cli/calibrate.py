@@ -26,6 +26,9 @@ def add_parser(sub) -> None:
                    help="the calibration report's folder: report.md, report.json, report.html, pictures (default: "
                         "CALIBRATED-report beside the calibrated model)")
     add_columns_option(p)
+    p.add_argument("--input-timing", choices=("end", "start"), default=None,
+                   help="what a row's u: value is: end, held over the step that ends at the row's time, or start, "
+                        "set at the row's time (default: as each file's header says, else end)")
     add_backend_option(p)
     p.set_defaults(run=run)
 
@@ -48,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     session = api.open(args.model, backend=args.backend)
     backend_note(session, args)
-    report = session.calibrate(list(args.data), args.estimate, columns=args.columns)
+    report = session.calibrate(list(args.data), args.estimate, columns=args.columns, input_timing=args.input_timing)
     report.write(out)
     report.write_report(folder)
     cal = report.calibration
