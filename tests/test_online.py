@@ -683,6 +683,7 @@ def _daily(folder: Path, run: runs.Run, cuts: tuple[int, ...]) -> None:
         (folder / f"day{day:02d}.csv").write_text("".join(lines[:head] + lines[head + a:head + b]))
 
 
+@pytest.mark.slow
 def test_bgc_monitor_reads_a_folder_of_daily_files_as_one_stream(tmp_path):
     run = simulated(CIRCUIT, "R2:abrupt:0.6@5", steps=160)
     _daily(tmp_path / "logs", run, (50, 90))
