@@ -38,7 +38,7 @@ from .options import DiagnosisOptions
 from .values import Detection, Isolation
 
 #: The state's format; a state of another format is refused.
-VERSION = 1
+VERSION = 2  # 2: the options' input_timing (2026-12-03)
 #: The first bytes of a state file.
 MAGIC = b"bgc-diagnoser-state\n"
 
