@@ -269,3 +269,12 @@ def test_daily_files_that_overlap_or_differ_are_refused_naming_the_file(tmp_path
     assert message.format(folder=folder) in str(caught.value) and "\n" not in str(caught.value)
     with pytest.raises(DataError, match="no run file matches the pattern"):
         runs.read_run(str(tmp_path / "nothing-*.csv"))
+
+
+def test_daily_files_whose_names_do_not_sort_in_time_are_read_in_time_order(tmp_path):
+    """logrotate's numbering: log.csv.2 is the oldest."""
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    for name, rows in (("log.2.csv", "1,10,2.0\n"), ("log.1.csv", "2,10,2.1\n"), ("log.csv", "3,10,2.2\n")):
+        (folder / name).write_text(DAY + rows)
+    assert runs.read_run(folder).time.tolist() == [1.0, 2.0, 3.0]

@@ -15,7 +15,7 @@ def add_parser(sub) -> None:
     p.add_argument("model", metavar="MODEL")
     p.add_argument("--data", metavar="RUN.csv",
                    help="a recorded run (a CSV as bgc simulate writes), or a folder or a glob pattern of a logger's "
-                        "files, read in the order of their names as one run")
+                        "files, read in time order as one run")
     p.add_argument("--scenario", metavar="NAME:KIND:MAGNITUDE@TIME",
                    help="simulate this fault (or 'none'), then diagnose, e.g. R_pipe:incipient:0.5@165; MAGNITUDE "
                         "is an abrupt fault's bias (in the parameter's units) or an incipient fault's slope (per "

@@ -178,8 +178,9 @@ def run_files(path: str | Path) -> list[Path] | None:
     """The files ``path`` names when it names several: a folder (its
     ``*.csv`` files) or a glob pattern (``logs/2026-03-*.csv``), the
     regular files sorted by name (a logger's daily files named by date sort
-    in time order); None when it names one file (an existing file whose name
-    holds a ``*`` is that file)."""
+    in time order; :func:`read_run` orders them by their times); None when
+    it names one file (an existing file whose name holds a ``*`` is that
+    file)."""
     p = Path(path)
     if p.is_dir():
         files = sorted(f for f in p.glob("*.csv") if f.is_file())
@@ -197,10 +198,11 @@ def read_run(path: str | Path, reading: Reading | None = None) -> Run:
     """Read a run file (see the module docstring for the checks); ``reading``:
     the column map and what the model reads (:class:`~bgc.data.columns.Reading`).
     A folder or a glob pattern (:func:`run_files`) is read as one run, its
-    files in the order of their names (:func:`join_runs`)."""
+    files in time order (by each one's first time; :func:`join_runs`)."""
     files = run_files(path)
-    if files is not None:
-        return join_runs([read_run(f, reading) for f in files], printable(str(path)))
+    if files is not None:  # in time order: by each file's first time (names need not sort so: log.2, log.1)
+        return join_runs(sorted((read_run(f, reading) for f in files), key=lambda r: float(r.time[0])),
+                         printable(str(path)))
     name = printable(str(path))
     p = Path(path)
     try:
