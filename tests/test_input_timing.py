@@ -14,7 +14,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy.linalg import expm
 
 import bgc
 from bgc.data import runs
@@ -24,7 +23,7 @@ from bgc import events as ev
 from bgc.errors import DataError
 
 from conftest import bgc_cli, session
-from test_mismatch import DT, NOMINAL, START
+from test_mismatch import DT, NOMINAL, START, circuit, readings
 
 STEPS, HALF = 240, 20
 
@@ -40,25 +39,15 @@ def square_csv(path, timing: str, seed: int = 1, header: bool = False, off: floa
     ``start``, the value from t_k on (the next step's). Its parameters each
     off the model's by up to ``off`` (relative; drawn after the noise's
     seed), its noise ``noise`` times the model's."""
-    nominal = session("circuit").package.MODELS["nominal"]
     rng = np.random.default_rng(seed)
     p = {k: v * (1 + rng.uniform(-off, off)) for k, v in NOMINAL.items()} if off else NOMINAL
-    a = np.array([[-(1 / p["R2"] + 1 / p["R1"]) / p["C1"], 1 / (p["R2"] * p["C1"]), 0.0],
-                  [1 / (p["R2"] * p["C2"]), -1 / (p["R2"] * p["C2"]), -1 / p["C2"]],
-                  [0.0, 1 / p["L"], -p["R3"] / p["L"]]])
-    block = np.zeros((4, 4))
-    block[:3, :3], block[0, 3] = a, 1 / (p["R1"] * p["C1"])
-    e = expm(block * DT)
-    std = dict(zip(nominal.STATES, np.asarray(nominal.PROCESS_STD, dtype=float)))
-    process = noise * np.array([std["e4"], std["e8"], std["f10"]])
-    sensor = noise * float(np.asarray(nominal.MEASUREMENT_STD, dtype=float)[0])
+    e, process, sensor = circuit(p, noise)
     x = np.array(START)
     lines = (["# input timing: start"] if header else []) + ["time,u:V,y:f2,y:f6,y:e11"]
     for k in range(1, STEPS + 1):
         v = square(k)  # over the step that ends at t_k: the state moves under it, f2 reads it at t_k
         x = e[:3, :3] @ x + e[:3, 3] * v + process * rng.standard_normal(3)
-        y = np.array([(v - x[0]) / p["R1"], (x[0] - x[1]) / p["R2"], p["R3"] * x[2]])
-        y = y + sensor * rng.standard_normal(3)
+        y = readings(p, x, v) + sensor * rng.standard_normal(3)
         logged = v if timing == "end" else square(k + 1)
         lines.append(",".join(f"{value:.6g}" for value in (k * DT, logged, *y)))
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")

@@ -50,26 +50,39 @@ def plant_csv(path, seed: int, off: float, noise: float) -> dict:
     (relative), its noise ``noise`` times the model's (per step: the
     compiled model's declared standard deviations), written as a logger's
     CSV; returns the plant's parameters."""
-    nominal = session("circuit").package.MODELS["nominal"]
     rng = np.random.default_rng(seed)
     p = {k: v * (1 + rng.uniform(-off, off)) for k, v in NOMINAL.items()}
+    e, process, sensor = circuit(p, noise)
+    x, lines = np.array(START), ["time,u:V,y:f2,y:f6,y:e11"]
+    for k in range(1, STEPS + 1):
+        x = e[:3, :3] @ x + e[:3, 3] * V + process * rng.standard_normal(3)
+        y = readings(p, x, V) + sensor * rng.standard_normal(3)
+        lines.append(",".join(f"{v:.6g}" for v in (k * DT, V, *y)))
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return p
+
+
+def circuit(p: dict, noise: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """The circuit of parameters ``p`` over one sample period: the matrix
+    exponential of its equations augmented by a constant source (Van Loan's
+    block: ``e[:3, :3]`` moves the state, ``e[:3, 3]`` times V adds the
+    source's share), and its process stds (e4, e8, f10) and sensor std,
+    ``noise`` times the model's."""
+    nominal = session("circuit").package.MODELS["nominal"]
     a = np.array([[-(1 / p["R2"] + 1 / p["R1"]) / p["C1"], 1 / (p["R2"] * p["C1"]), 0.0],
                   [1 / (p["R2"] * p["C2"]), -1 / (p["R2"] * p["C2"]), -1 / p["C2"]],
                   [0.0, 1 / p["L"], -p["R3"] / p["L"]]])
     block = np.zeros((4, 4))
     block[:3, :3], block[0, 3] = a, 1 / (p["R1"] * p["C1"])
-    e = expm(block * DT)
     std = dict(zip(nominal.STATES, np.asarray(nominal.PROCESS_STD, dtype=float)))
     process = noise * np.array([std["e4"], std["e8"], std["f10"]])
     sensor = noise * dict(zip(nominal.OUTPUTS, np.asarray(nominal.MEASUREMENT_STD, dtype=float)))["f2"]
-    x, lines = np.array(START), ["time,u:V,y:f2,y:f6,y:e11"]
-    for k in range(1, STEPS + 1):
-        x = e[:3, :3] @ x + e[:3, 3] * V + process * rng.standard_normal(3)
-        y = np.array([(V - x[0]) / p["R1"], (x[0] - x[1]) / p["R2"], p["R3"] * x[2]])
-        y = y + sensor * rng.standard_normal(3)
-        lines.append(",".join(f"{v:.6g}" for v in (k * DT, V, *y)))
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return p
+    return expm(block * DT), process, sensor
+
+
+def readings(p: dict, x: np.ndarray, v: float) -> np.ndarray:
+    """f2, f6 and e11 of state ``x`` (e4, e8, f10) with the source at ``v``."""
+    return np.array([(v - x[0]) / p["R1"], (x[0] - x[1]) / p["R2"], p["R3"] * x[2]])
 
 
 def test_the_models_sensors_share_one_noise_level():  # plant_csv draws every sensor at f2's level

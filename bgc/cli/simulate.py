@@ -54,24 +54,9 @@ def run(args: argparse.Namespace) -> int:
     unexpected = sim.outside_prior(fault, c.numerics, c.modules) if fault else None
     if unexpected:
         print(f"warning: {unexpected}", file=sys.stderr)
-    profile = None
-    if args.inputs is not None:
-        from ..api.session import reading_of
-        from ..data import runs
-
-        if Path(args.inputs).resolve() == Path(args.output or f"{c.model.name}-run.csv").resolve():
-            raise BgcError(f"--inputs {printable(args.inputs)} is the file -o would write", None,
-                           "write the run to another file")
-        profile = sim.input_profile(runs.read_run(args.inputs, reading_of(c, args.columns)),
-                                    tuple(u.name for u in c.model.inputs))
-    elif args.columns is not None:
-        raise BgcError("--columns applies to --inputs here: a column map reads a logger's file", None,
-                       "give --inputs PROFILE.csv, or drop --columns")
-    signals = signals_of(args.signals, tuple(u.name for u in c.model.inputs))
-    both = sorted(set(dict(signals)) & set(profile.values if profile is not None else ()))
-    if both:
-        raise BgcError(f"--input {both[0]} and --inputs {printable(args.inputs)} both drive u:{both[0]}", None,
-                       "give it one of them")
+    recorded = _input_run(args, c)
+    profile = None if recorded is None else sim.input_profile(recorded, tuple(u.name for u in c.model.inputs))
+    signals = _signals(args, tuple(u.name for u in c.model.inputs), profile)
     options = sim.SimulationOptions(steps=args.steps, process_noise=process, measurement_noise=measurement,
                                     seed=args.seed, fault=fault, inputs=profile, signals=signals)
     start = time.perf_counter()
@@ -89,11 +74,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _recorded(args: argparse.Namespace, h) -> tuple:
-    """A model with modes: the input profile (None: none) and the controlled
-    changes of mode (:func:`bgc.analysis.hybrid.schedule_of`) of ``--inputs
-    FILE`` (read through ``--columns``), () without it."""
-    from ..analysis import hybrid, simulate as sim
+def _input_run(args: argparse.Namespace, view):
+    """The run of ``--inputs FILE`` (read through ``--columns``), None
+    without it; ``view``: the model's (``.model``), for its columns and
+    its run file's default name."""
     from ..api.session import reading_of
     from ..data import runs
 
@@ -101,11 +85,32 @@ def _recorded(args: argparse.Namespace, h) -> tuple:
         if args.columns is not None:
             raise BgcError("--columns applies to --inputs here: a column map reads a logger's file", None,
                            "give --inputs PROFILE.csv, or drop --columns")
-        return None, ()
-    if Path(args.inputs).resolve() == Path(args.output or f"{h.model.name}-run.csv").resolve():
+        return None
+    if Path(args.inputs).resolve() == Path(args.output or f"{view.model.name}-run.csv").resolve():
         raise BgcError(f"--inputs {printable(args.inputs)} is the file -o would write", None,
                        "write the run to another file")
-    run = runs.read_run(args.inputs, reading_of(h, args.columns))
+    return runs.read_run(args.inputs, reading_of(view, args.columns))
+
+
+def _signals(args: argparse.Namespace, names: tuple[str, ...], profile) -> tuple:
+    """``--input`` signals, none of them driving an input ``profile`` records."""
+    signals = signals_of(args.signals, names)
+    both = sorted(set(dict(signals)) & set(profile.values if profile is not None else ()))
+    if both:
+        raise BgcError(f"--input {both[0]} and --inputs {printable(args.inputs)} both drive u:{both[0]}", None,
+                       "give it one of them")
+    return signals
+
+
+def _recorded(args: argparse.Namespace, h) -> tuple:
+    """A model with modes: the input profile (None: none) and the controlled
+    changes of mode (:func:`bgc.analysis.hybrid.schedule_of`) of ``--inputs
+    FILE`` (read through ``--columns``), () without it."""
+    from ..analysis import hybrid, simulate as sim
+
+    run = _input_run(args, h)
+    if run is None:
+        return None, ()
     names = tuple(u.name for u in h.model.inputs)
     profile = sim.input_profile(run, names) if run.inputs or run.modes is None else None
     if run.modes is None:
@@ -132,11 +137,7 @@ def _hybrid(args: argparse.Namespace) -> int:
     unexpected = sim.outside_prior(fault, nums[0]) if fault else None  # (as for a model of one mode)
     if unexpected:
         print(f"warning: {unexpected}", file=sys.stderr)
-    signals = signals_of(args.signals, tuple(u.name for u in h.model.inputs))
-    both = sorted(set(dict(signals)) & set(profile.values if profile is not None else ()))
-    if both:
-        raise BgcError(f"--input {both[0]} and --inputs {printable(args.inputs)} both drive u:{both[0]}", None,
-                       "give it one of them")
+    signals = _signals(args, tuple(u.name for u in h.model.inputs), profile)
     options = sim.SimulationOptions(steps=args.steps, process_noise=process, measurement_noise=measurement,
                                     seed=args.seed, fault=fault, signals=signals, inputs=profile)
     start = time.perf_counter()

@@ -67,7 +67,6 @@ class Follow:
         self.inode = os.fstat(stream.fileno()).st_ino
         self.names: bytes | None = None  # the first file's column line
         self.skipping = False  # a new file's header lines are skipped
-        self.rotations = 0
 
     def readline(self, limit: int = -1) -> bytes:
         waited = 0.0
@@ -112,7 +111,6 @@ class Follow:
         if os.fstat(self.stream.fileno()).st_size < self.stream.tell():
             self.stream.seek(0)
             self.pending, self.skipping = b"", True
-            self.rotations += 1
             self.say(f"{name} was truncated (rotated by copy and truncate): reading it again from its start")
             return True
         if self.path is None:
@@ -160,7 +158,6 @@ class Follow:
         self.stream.close()
         self.stream, self.inode, self.path = fresh, os.fstat(fresh.fileno()).st_ino, path
         self.pending, self.skipping = b"", True
-        self.rotations += 1
         return True
 
 
