@@ -210,6 +210,8 @@ def add_signal_option(p: argparse.ArgumentParser) -> None:
 
 def signals_of(texts: list[str], inputs: tuple[str, ...]) -> tuple:
     """The ``--input`` options as (name, :class:`~bgc.ir.Signal`) pairs, one per input."""
+    if not texts:
+        return ()  # without importing the compiler's checks (and sympy with them: 0.6 s)
     from ..compiler.validate import signal_option
 
     out = dict(signal_option(text, inputs) for text in texts)

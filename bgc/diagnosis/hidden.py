@@ -56,7 +56,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import ndtr
 
 from ..data.sampler import Sample
 from .. import events as ev
@@ -204,6 +203,7 @@ class ModeDecoder:
         _, _, _, _, _, strict, tolerance, _ = self.transitions[k]
         scale = np.sqrt(var + (tolerance or 0.0) ** 2)
         sharp = (mean > 0) if strict else (mean >= 0)
+        from scipy.special import ndtr  # here: scipy.special costs half a second to import, and only modes hidden in the data ask
         with np.errstate(divide="ignore", invalid="ignore"):
             p = ndtr(mean / np.where(scale > 0, scale, 1.0))
         return np.where(scale > 0, p, sharp.astype(float))
