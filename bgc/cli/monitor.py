@@ -36,6 +36,11 @@ def add_parser(sub) -> None:
                         "nominal observer and go on watching with the others (an event says so)")
     p.add_argument("--checkpoint", type=float, default=None, metavar="TIME",
                    help="while tracking hypotheses, diagnose the data so far every TIME (default: only at the end)")
+    p.add_argument("--state", metavar="DIR",
+                   help="save the monitor's state in this folder (made when missing) every --state-every rows and "
+                        "at the end; a state found there is taken up: a restart goes on where it stopped")
+    p.add_argument("--state-every", type=int, default=None, metavar="ROWS",
+                   help="with --state: rows between two saves (default 100)")
     p.add_argument("--generated", metavar="DIR",
                    help="use the package bgc compile wrote there (default: generate one)")
     add_prior_option(p)
@@ -60,6 +65,11 @@ def run(args: argparse.Namespace) -> int:
     if args.exclude_faulty_sensor and args.checkpoint is None:
         raise BgcError("--exclude-faulty-sensor acts at checkpoints: a sensor fault is isolated there", None,
                        "add --checkpoint TIME, e.g. --checkpoint 10")
+    if args.state_every is not None and args.state is None:
+        raise BgcError("--state-every applies to --state", None, "add --state DIR, or drop --state-every")
+    if args.state is not None and args.exclude_faulty_sensor:
+        raise BgcError("--state does not go with --exclude-faulty-sensor yet: a sensor taken out changes the "
+                       "diagnoser the state is of", None, "drop one of them")
     if args.follow and args.data == "-":
         raise BgcError("--follow applies to a file: standard input ends when its writer closes it", None,
                        "drop --follow, or give the file")
@@ -99,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
         if args.follow:
             stream = monitor.Follow(stream, args.idle, path=args.data, say=say)
     r, failure = monitor.monitor(session, stream, name, options, say=say, checkpoint=args.checkpoint,
-                                 exclude_faulty=args.exclude_faulty_sensor, reading=reading)
+                                 exclude_faulty=args.exclude_faulty_sensor, reading=reading, state=args.state,
+                                 state_every=monitor.STATE_EVERY if args.state_every is None else args.state_every)
     if quiet:
         sys.stdout = open(os.devnull, "w")
     write_report(r, str(out), "monitor")

@@ -29,6 +29,10 @@ from ..data import runs
 from ..data.columns import MODE, Reading
 from ..analysis import track
 from ..diagnosis.options import DiagnosisOptions
+from . import resume
+
+#: Rows between two saves of the monitor's state (``--state-every``).
+STATE_EVERY = 100
 
 
 class Follow:
@@ -164,7 +168,8 @@ class Follow:
 def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptions, *,
             say: Callable[[str], None] = print, checkpoint: float | None = None,
             progress=None, exclude_faulty: bool = False,
-            reading: Reading | None = None) -> tuple[api.DiagnosisReport, BgcError | None]:
+            reading: Reading | None = None, state: str | Path | None = None,
+            state_every: int = STATE_EVERY) -> tuple[api.DiagnosisReport, BgcError | None]:
     """Diagnose the rows of ``stream`` (named ``name`` in messages) as they
     arrive, with the model of ``session`` (:func:`bgc.open`); ``say(line)``
     gets each event as a line with its time, as it happens; ``checkpoint``:
@@ -181,7 +186,13 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     watches the rows from the next one on with the other sensors (its
     observer starts again from the model's initial state: a sensor fault
     leaves the plant where it was); the report is that diagnoser's, its
-    events led by the exclusions."""
+    events led by the exclusions.
+
+    ``state``: a folder where the monitor's state is saved every
+    ``state_every`` rows and when the input ends (:mod:`bgc.service.resume`);
+    a state found there is taken up: the rows of the input up to its last
+    row's time are passed over, and the diagnosis goes on as if it had
+    never stopped (a state of another model, bgc or options is refused)."""
     from ..output.events import fault_sentence, sentence, time_text
 
     reader = runs.RowReader(stream, name, reading or session.reading())
@@ -204,6 +215,14 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     told: set = set()
     excluded: list[ev.SensorExcluded] = []
     taken_out: set[str] = set()
+    keep = _Keeper(session, options, checkpoint, columns, state, state_every, exclude_faulty)
+    saved = keep.load()
+    if saved is not None:
+        d = type(d).from_state(d.config, saved.diagnoser)
+        rows, last_check = [list(r) for r in saved.rows], saved.last_check
+        told.update(d.loop.events, d.switched)  # said before the restart
+        say(f"resumed from {printable(str(keep.where))}: {len(rows)} rows, to t = {time_text(saved.last_time)}; "
+            "the input's rows after it are read on")
 
     def tell(belief_events, time_of) -> None:
         for e in belief_events:
@@ -222,12 +241,15 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     try:
         for values, line in reader:
             t = values[0]
+            if saved is not None and t <= saved.last_time:
+                continue  # diagnosed before the restart
             u = {name_: values[j] for j, name_ in groups["u"]}
             y = {name_: values[j] for j, name_ in groups["y"]}
             with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
                 belief = d.step(t, u, y, line)
                 rows.append(values)
             tell(belief.events, time_of)
+            keep.every(rows, last_check, d)
             if checkpoint is not None and belief.phase == "tracking":
                 if last_check is None:
                     last_check = belief.time
@@ -255,6 +277,8 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
         say(f"stopped: {printable(str(exc))}")
     finally:
         guard.close()
+        if rows:
+            keep.save(rows, last_check, d)  # where the input ended: a restart goes on from there
     if getattr(stream, "unfinished", b""):
         say(f"the input ended in the middle of a line ({len(stream.unfinished)} bytes without an end of line): "
             "that line is not read")
@@ -273,6 +297,33 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
           and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
          diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
     return session.report(run, diagnosis), failure
+
+
+class _Keeper:
+    """The monitor's state on disk, when a folder is given (:mod:`bgc.service.resume`)."""
+
+    def __init__(self, session, options, checkpoint, columns, where, every: int, exclude_faulty: bool):
+        self.where = None if where is None else resume.folder(where)
+        if self.where is not None and exclude_faulty:
+            raise BgcError("--state does not go with --exclude-faulty-sensor yet: a sensor taken out changes the "
+                           "diagnoser the state is of", None, "drop one of them")
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            raise BgcError(f"--state-every {every!r}: give the rows between saves, an integer >= 1", None,
+                           f"e.g. --state-every {STATE_EVERY}")
+        self.ident = None if where is None else resume.identity(session, options, checkpoint, columns)
+        self.period, self.count = every, 0
+
+    def load(self):
+        return None if self.where is None else resume.load(self.where, self.ident)
+
+    def every(self, rows: list, last_check, d) -> None:
+        self.count += 1
+        if self.where is not None and self.count % self.period == 0:
+            self.save(rows, last_check, d)
+
+    def save(self, rows: list, last_check, d) -> None:
+        if self.where is not None:
+            resume.save(self.where, self.ident, rows, rows[-1][0], last_check, d)
 
 
 def _with_exclusions(diagnosis, excluded: list, taken_out: set[str]):

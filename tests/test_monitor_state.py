@@ -1,0 +1,174 @@
+"""A monitor that survives a restart (issue 47, point 4): ``bgc monitor
+--state DIR`` saves its state, and a monitor started again with the same
+folder goes on where the state left it, as if it had never stopped.
+
+The plant is the circuit of models/circuit.yaml simulated by the exact
+solution of its equations (tests/test_mismatch.py: the matrix exponential
+over each sample period), its R2 stepping to 1.6 times its value at
+t = 6; the rows reach the monitor through a file and through a real pipe,
+the process killed (SIGKILL) part way through.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bgc.service import resume
+
+from conftest import ROOT, bgc_cli
+from test_mismatch import DT, NOMINAL, START, V, circuit, readings
+
+CIRCUIT = ROOT / "models" / "circuit.yaml"
+STEPS, ONSET = 240, 6.0
+#: The monitor's options in every run here (a state is valid for them only).
+OPTIONS = ("--particles", "200", "--seed", "3")
+
+
+def plant_lines(seed: int = 2) -> list[str]:
+    """The circuit's run as a logger's CSV lines: R2 rises to 1.6 times its
+    value at t = ONSET; noise as the model declares."""
+    rng = np.random.default_rng(seed)
+    healthy, faulty = circuit(NOMINAL, 1.0), circuit(dict(NOMINAL, R2=1.6 * NOMINAL["R2"]), 1.0)
+    x, lines = np.array(START), ["time,u:V,y:f2,y:f6,y:e11"]
+    for k in range(1, STEPS + 1):
+        p, (e, process, sensor) = (NOMINAL, healthy) if k * DT < ONSET else \
+            (dict(NOMINAL, R2=1.6 * NOMINAL["R2"]), faulty)
+        x = e[:3, :3] @ x + e[:3, 3] * V + process * rng.standard_normal(3)
+        y = readings(p, x, V) + sensor * rng.standard_normal(3)
+        lines.append(",".join(f"{v:.6g}" for v in (k * DT, V, *y)))
+    return [line + "\n" for line in lines]
+
+
+def report(folder: Path) -> dict:
+    """report.json without the seconds the diagnosis took (a clock's, not the data's)."""
+    return _no_seconds(json.loads((folder / "report.json").read_text(encoding="utf-8")))
+
+
+def _no_seconds(value):
+    if isinstance(value, dict):
+        return {k: _no_seconds(v) for k, v in value.items() if k != "seconds"}
+    if isinstance(value, list):
+        return [_no_seconds(v) for v in value]
+    return value
+
+
+def saved_rows(state: Path) -> int:
+    """The rows the state file in folder ``state`` was saved after (0: none yet)."""
+    f = state / resume.NAME
+    return json.loads(f.read_bytes().split(b"\n")[1])["rows"] if f.is_file() else 0
+
+
+def monitor(tmp: Path, lines: list[str], out: str, *more):
+    return bgc_cli("monitor", CIRCUIT, "--data", "-", *OPTIONS, "-o", tmp / out, *more, input="".join(lines))
+
+
+@pytest.fixture(scope="module")
+def whole(tmp_path_factory):
+    """The uninterrupted monitor's run: what it printed, and its report."""
+    tmp = tmp_path_factory.mktemp("whole")
+    p = monitor(tmp, plant_lines(), "whole")
+    assert p.returncode == 0, p.stderr
+    assert "circuit: isolated: R2_abrupt" in p.stdout
+    return p.stdout, report(tmp / "whole")
+
+
+@pytest.mark.slow
+def test_a_monitor_started_again_on_its_state_gives_the_uninterrupted_diagnosis(tmp_path, whole):
+    lines = plant_lines()
+    # The first 100 rows, then the input ends (the state saved every 30 rows, and at the end).
+    first = monitor(tmp_path, lines[:101], "first", "--state", tmp_path / "state", "--state-every", "30")
+    assert first.returncode == 0, first.stderr
+    assert (tmp_path / "state" / resume.NAME).is_file() and not (tmp_path / "state" / resume.PARTIAL).exists()
+    # Started again with the whole input from its start: the rows to t = 5 are passed over.
+    again = monitor(tmp_path, lines, "again", "--state", tmp_path / "state", "--state-every", "30")
+    assert again.returncode == 0, again.stderr
+    said = again.stdout.splitlines()
+    assert said[0] == "resumed from " + str(tmp_path / "state") + \
+        ": 100 rows, to t = 5; the input's rows after it are read on"
+    assert report(tmp_path / "again") == whole[1]
+    assert said[1:-1] == whole[0].splitlines()[:-1]  # every event: none was said before t = 5
+    assert said[-1].startswith("wrote ")
+
+
+def test_a_state_that_is_not_this_monitors_is_refused_in_one_line_and_kept(tmp_path):
+    lines = plant_lines()[:41]
+    state = tmp_path / "state"
+    assert monitor(tmp_path, lines, "a", "--state", state).returncode == 0
+    saved = (state / resume.NAME).read_bytes()
+
+    def refused(*more, model=CIRCUIT, what):
+        p = bgc_cli("monitor", model, "--data", "-", *more, "-o", tmp_path / "b", "--state", state,
+                    input="".join(lines))
+        assert p.returncode != 0 and "Traceback" not in p.stderr, p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1 and what in p.stderr, p.stderr
+        assert (state / resume.NAME).read_bytes() == saved  # never replaced
+
+    refused("--particles", "300", "--seed", "3", what="saved with another options")
+    edited = tmp_path / "circuit.yaml"
+    edited.write_text(CIRCUIT.read_text(encoding="utf-8").replace("value: 2.0", "value: 2.1", 1), encoding="utf-8")
+    refused(*OPTIONS, model=edited, what="saved with another model file")
+    refused(*OPTIONS, "--checkpoint", "1", what="saved with another --checkpoint")
+    (state / resume.NAME).write_bytes(saved[: len(saved) // 2])
+    saved = (state / resume.NAME).read_bytes()
+    refused(*OPTIONS, what="the state cannot be read")
+    (state / resume.NAME).write_bytes(b"a file of someone else\n")
+    saved = (state / resume.NAME).read_bytes()
+    refused(*OPTIONS, what="is not a state bgc wrote")
+
+
+def test_the_state_options_are_checked_before_the_input_is_read(tmp_path):
+    for args, what in ((("--state-every", "5"), "--state-every applies to --state"),
+                       (("--state", tmp_path / "s", "--exclude-faulty-sensor", "--checkpoint", "1"),
+                        "--state does not go with --exclude-faulty-sensor"),
+                       (("--state", tmp_path / "s", "--state-every", "0"), "--state-every 0")):
+        p = monitor(tmp_path, plant_lines()[:5], "c", *args)
+        assert p.returncode != 0 and what in p.stderr and "Traceback" not in p.stderr, p.stderr
+    (tmp_path / "file").write_text("x", encoding="utf-8")
+    p = monitor(tmp_path, plant_lines()[:5], "c", "--state", tmp_path / "file")
+    assert p.returncode != 0 and "not a folder" in p.stderr
+    assert (tmp_path / "file").read_text(encoding="utf-8") == "x"
+
+
+@pytest.mark.process
+@pytest.mark.slow
+def test_a_monitor_killed_mid_stream_goes_on_from_its_last_state(tmp_path, whole):
+    """SIGKILL to a real ``bgc monitor`` reading a pipe, after its state was
+    saved; started again with the logger's whole file on its standard input,
+    it gives the uninterrupted diagnosis."""
+    lines = plant_lines()
+    state = tmp_path / "state"
+
+    def cmd(out: str) -> list[str]:
+        return [sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", "-", *OPTIONS, "-o",
+                str(tmp_path / out), "--state", str(state), "--state-every", "20"]
+
+    p = subprocess.Popen(cmd("killed"), stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                         env=dict(os.environ, MPLBACKEND="Agg"))
+    try:
+        p.stdin.write("".join(lines[:151]))
+        p.stdin.flush()
+        deadline = time.monotonic() + 120
+        while saved_rows(state) < 100 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        p.send_signal(signal.SIGKILL)
+        p.wait(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert not (tmp_path / "killed" / "report.json").exists()  # killed: no report
+    rows = saved_rows(state)
+    assert 100 <= rows <= 140
+    again = subprocess.run(cmd("again"), input="".join(lines), capture_output=True, text=True, timeout=300,
+                           env=dict(os.environ, MPLBACKEND="Agg"))
+    assert again.returncode == 0, again.stderr
+    assert again.stdout.startswith(f"resumed from {state}: {rows} rows")
+    assert report(tmp_path / "again") == whole[1]
