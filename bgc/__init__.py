@@ -18,6 +18,9 @@ diagnose(model, data=... | scenario=..., filter=..., identify=...) -> DiagnosisR
     ``to_frame()``, ``write(folder)``, ``figures()``); DiagnosisOptions for every option.
 distinguishability(model, scenario=...) -> DistinguishabilityReport
     Which faults the data of a scenario can tell apart, before any run.
+analyse(model) -> AnalysisReport
+    Which faults the sensors can detect and tell apart, structurally, by
+    their signatures and at the data's noise, before the plant runs.
 run_campaign(campaign_file, out) -> CampaignResult
     A campaign of runs (``to_frame()``; its ``runs.csv`` reads with pandas).
 Table
@@ -61,7 +64,7 @@ from .errors import (ArgumentError, ArgumentTypeError, ArgumentValueError, DataE
 
 #: The names of :mod:`bgc.api` that ``bgc`` gives (imported on first use).
 API = ("open", "Session", "diagnose", "DiagnosisReport", "distinguishability", "DistinguishabilityReport",
-       "CalibrationReport", "simulate", "Simulation", "DiagnosisOptions", "Table", "ScenarioWarning")
+       "analyse", "AnalysisReport", "CalibrationReport", "simulate", "Simulation", "DiagnosisOptions", "Table", "ScenarioWarning")
 #: The campaign wing's public names (:mod:`bgc.experiment.public`; imported on first use).
 CAMPAIGN = ("run_campaign", "CampaignResult")
 

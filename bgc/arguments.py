@@ -149,6 +149,13 @@ def choice(func: str, name: str, value, choices: tuple[str, ...]) -> None:
                     f"give e.g. {name.rpartition('.')[2]}={choices[0]!r}")
 
 
+def flag(func: str, name: str, value) -> None:
+    """True or False, nothing else (1 and "no" are not flags)."""
+    if not isinstance(value, bool):
+        raise ArgumentTypeError(f"{func}: {name}={shown(value)} is not True or False", None,
+                                f"give {name}=True or {name}=False")
+
+
 def callable_or_none(func: str, name: str, value) -> None:
     """A function (``progress``), or None."""
     if value is not None and not callable(value):

@@ -665,6 +665,21 @@ class Signature:
         return f"{self.parameter}{'+' if self.direction > 0 else '-'}:{self.kind}"
 
 
+def first_symbol(symbols: tuple[str, ...]) -> str:
+    """The first symbol of a signature that is not 0 (``0`` if none)."""
+    return next((s for s in symbols if s != "0"), "0")
+
+
+def expected_slope(symbols: tuple[str, ...]) -> str:
+    """The slope a sensor shows once it deviates: its first non-zero symbol
+    when that is at order 1 or higher, after a jump (order 0) the first
+    non-zero symbol after it (``0``: none)."""
+    k = next((i for i, s in enumerate(symbols) if s != "0"), None)
+    if k is None:
+        return "0"
+    return first_symbol(symbols[k + 1:]) if k == 0 else symbols[k]
+
+
 @dataclass(frozen=True, slots=True)
 class FaultSignatures:
     """Every fault's signature (``measurements`` in model order), the order up

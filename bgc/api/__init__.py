@@ -36,6 +36,7 @@ bgc.errors.ArgumentValueError: bgc.diagnose: seed=-1 is negative (give an intege
 from __future__ import annotations
 
 from ..diagnosis.options import DiagnosisOptions
+from .analyse import AnalysisReport, analyse
 from .diagnose import diagnose
 from .distinguish import distinguishability
 from .reports import CalibrationReport, DiagnosisReport, DistinguishabilityReport
@@ -44,4 +45,5 @@ from .simulate import Simulation, simulate
 from .tables import Table
 
 __all__ = ["open", "Session", "simulate", "Simulation", "diagnose", "DiagnosisReport", "DiagnosisOptions",
-           "distinguishability", "DistinguishabilityReport", "CalibrationReport", "Table", "ScenarioWarning"]
+           "distinguishability", "DistinguishabilityReport", "analyse", "AnalysisReport", "CalibrationReport", "Table",
+           "ScenarioWarning"]

@@ -16,11 +16,12 @@ from typing import Sequence
 
 from .. import __version__
 from ..errors import BgcError, printable
-from . import cache, calibrate, check, compile, diagnose, distinguish, experiment, filter, monitor, show, simulate
+from . import analyse, cache, calibrate, check, compile, diagnose, distinguish, experiment, filter, monitor, show, simulate
 from .common import print_errors
 
 #: The commands, in the order ``bgc --help`` lists them.
-COMMANDS = (check, compile, calibrate, show, simulate, filter, diagnose, monitor, distinguish, experiment, cache)
+COMMANDS = (check, compile, calibrate, show, simulate, filter, diagnose, monitor, distinguish, analyse, experiment,
+            cache)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -53,7 +53,7 @@ from itertools import combinations
 
 import numpy as np
 
-from ..ir import FaultSignatures, Signature
+from ..ir import FaultSignatures, Signature, expected_slope, first_symbol
 from .detect import union_threshold
 from .values import ModeSplit, Symbol
 
@@ -126,21 +126,6 @@ def observed_symbols(run: OpenLoop, sensors: tuple[str, ...], windows: tuple[int
             out.append(Symbol(name, "+" if z > 0 else "-", run.onset + t, z, w, slope, 0.0 if s is None else float(s)))
             break
     return tuple(out)
-
-
-def first_symbol(symbols: tuple[str, ...]) -> str:
-    """The first symbol of a signature that is not 0 (``0`` if none)."""
-    return next((s for s in symbols if s != "0"), "0")
-
-
-def expected_slope(symbols: tuple[str, ...]) -> str:
-    """The slope a sensor shows once it deviates: its first non-zero symbol
-    when that is at order 1 or higher, after a jump (order 0) the first
-    non-zero symbol after it (``0``: none)."""
-    k = next((i for i, s in enumerate(symbols) if s != "0"), None)
-    if k is None:
-        return "0"
-    return first_symbol(symbols[k + 1:]) if k == 0 else symbols[k]
 
 
 def consistent(signature: Signature, measurements: tuple[str, ...], seen: tuple[Symbol, ...]) -> str | None:

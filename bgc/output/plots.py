@@ -658,3 +658,27 @@ def distinguishability_plot(r) -> Figure:
     ax.set_ylabel("true fault", fontsize=8)
     ax.set_title(f"{r.model}: P(the data name the truth over the rival); numbers: under the level", fontsize=8)
     return laid_out(fig)
+
+
+def analysis_figure(r, fmt: str = "png") -> bytes:
+    """:func:`analysis_plot` as ``png`` or ``svg`` bytes."""
+    return picture(analysis_plot(r), fmt)
+
+
+def analysis_plot(r) -> Figure:
+    """``bgc analyse``'s isolability matrices side by side, one per level: a
+    filled cell where the row's fault is told from the column's, the row of
+    a fault the level does not detect grey."""
+    n, k = len(r.faults), len(r.levels)
+    fig, axes = new_grid(k, max(4.0, k * (0.28 * n + 1.6)), max(2.8, 0.28 * n + 1.8))
+    for a, (lv, ax) in enumerate(zip(r.levels, axes)):
+        m = np.array(lv.isolable, dtype=float).reshape(n, n)
+        for i, d in enumerate(lv.detectable):
+            if not d:
+                m[i, :] = 0.5
+        ax.imshow(m, cmap="Greys", vmin=0, vmax=1.4, aspect="equal")
+        ax.set_xticks(range(n), r.faults, rotation=70, ha="right", fontsize=6)
+        ax.set_yticks(range(n), r.faults if a == 0 else [""] * n, fontsize=6)
+        ax.set_title(f"{lv.name}: {len(lv.pairs())} pairs told apart", fontsize=8)
+    fig.suptitle(f"{r.model}: which fault (row) is told from which (column)", fontsize=8)
+    return laid_out(fig)

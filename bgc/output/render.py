@@ -687,6 +687,65 @@ def distinguishability_text(r) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: One letter per level of ``bgc analyse`` in its matrix's cells.
+LEVEL_LETTERS = {"structural": "S", "qualitative": "Q", "quantitative": "N"}
+
+
+def analysis_text(r) -> str:
+    """``bgc analyse``'s report (:class:`bgc.api.analyse.AnalysisReport`):
+    per fault what detects it, the isolability matrix with a letter per
+    level, the classes of faults not told apart, and why."""
+    f, levels = r.faults, r.levels
+    letters = "".join(LEVEL_LETTERS[lv.name] for lv in levels)
+    lines = [f"# analysis of {r.model}: {len(f)} faults, sensors {', '.join(r.sensors)}; levels: "
+             + ", ".join(f"{LEVEL_LETTERS[lv.name]} {lv.name}" for lv in levels)]
+    lines.append("# S: the equations' structure (as the Fault Diagnosis Toolbox); Q: the TRANSCEND signatures once "
+                 "every sensor shows its symbols")
+    if r.steps is not None:
+        noise = "the model's noise" if r.noise == (None, None) else \
+            f"noise process={r.noise[0] or 1:g}, measurement={r.noise[1] or 1:g} of the model's"
+        lines.append(f"# N: bgc distinguish, each fault a change of {100 * r.change:g} % of its scale from "
+                     f"{100 * r.at:g} % of a {r.steps}-sample run, {noise}, told at P >= {r.level:g}")
+    width = max(len(x) for x in (*f, "fault"))
+    number = len(str(len(f)))
+    lines.append("")
+    lines.append(f"{'#':>{number}}  {'fault':<{width}}  {'target':<9}  detected by")
+    for i, name in enumerate(f):
+        seen = "".join(LEVEL_LETTERS[lv.name] if lv.detectable[i] else "." for lv in levels)
+        lines.append(f"{i + 1:>{number}}  {name:<{width}}  {r.targets[i]:<9}  {seen}")
+    lines.append("")
+    lines.append(f"isolability: row = the fault that happened, column (its #) = the fault it is told from; "
+                 f"{letters} per level, . where that level cannot tell them apart")
+    cell = max(len(letters), number)
+    lines.append((" " * (number + width + 2) + "  " + " ".join(f"{j + 1:<{cell}}" for j in range(len(f)))).rstrip())
+    for i, name in enumerate(f):
+        cells = ["-" * len(letters) if i == j else
+                 "".join(LEVEL_LETTERS[lv.name] if lv.isolable[i][j] else "." for lv in levels)
+                 for j in range(len(f))]
+        lines.append(f"{i + 1:>{number}}  {name:<{width}}  " + " ".join(f"{c:<{cell}}" for c in cells).rstrip())
+    lines.append("")
+    for lv in levels:
+        groups = lv.classes(f)
+        missed = [x for x, d in zip(f, lv.detectable) if not d]
+        text = "; ".join(["{" + ", ".join(g) + "}" for g in groups]) or "none"
+        lines.append(f"{lv.name}: not detected: {', '.join(missed) or 'none'}; not told apart (both ways): {text}")
+    for a, b in zip(levels, levels[1:]):
+        for x, y in ((a, b), (b, a)):
+            pairs = r.more(x.name, y.name)
+            if pairs:
+                lines.append(f"{x.name} tells {len(pairs)} ordered pair(s) apart that {y.name} does not: "
+                             + ", ".join(f"{i} from {j}" for i, j in pairs[:8]) + (", ..." if len(pairs) > 8 else ""))
+    lines.append("")
+    lines.append("why not:")
+    for i, name in enumerate(f):
+        for j, other in enumerate(f):
+            reasons = [f"{LEVEL_LETTERS[lv.name]}: {printable(lv.why[i, j])}" for lv in levels if (i, j) in lv.why]
+            if reasons:
+                what = f"{name} not detected" if i == j else f"{name} not told from {other}"
+                lines.append(f"  {what}: " + "; ".join(reasons))
+    return "\n".join(lines) + "\n"
+
+
 def detector_lines(rate, ideal: float, dt: float) -> list[str]:
     """bgc's detector on a scenario (:class:`bgc.api.detection.DetectorRate`)
     beside the ideal detector's probability ``ideal``: the rate, how it was

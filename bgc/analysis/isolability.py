@@ -1,0 +1,167 @@
+"""Which faults a model's sensors can detect and tell apart, before the plant
+runs: three levels side by side (``bgc analyse``; docs/commands.md).
+
+* **structural**, from the equations' structure (:mod:`.structure`, as the
+  Fault Diagnosis Toolbox computes it): a redundancy of the equations that
+  holds a fault's equation detects it; one that holds fault i's and not
+  fault j's tells i from j;
+* **qualitative**, from the TRANSCEND signatures (each sensor's magnitude
+  and slope, as ``bgc.diagnosis.isolate`` reads a signature): fault i is
+  told from fault j when, whatever direction and kind each takes, once
+  every sensor shows its symbols some sensor tells them apart: one of them
+  moves it and the other does not, or they move it opposite ways, or its
+  slopes differ (a ``?``, a stuck or noisy reading that may show either
+  sign or none, tells nothing). bgc's isolation, online, is more cautious:
+  a sensor that has not deviated yet rules out nothing (a fault may reach
+  it later), and the fault-model filters decide what the symbols leave;
+* **quantitative**, from ``bgc distinguish`` (:mod:`.distinguish`): each
+  fault model at a change of its scale, at the model's noise over its
+  inputs and run length; fault i is told from fault j when, for each of
+  i's fault models the data detect, the probability that the data name it
+  over every fault model of j is at least the level (0.95).
+
+The faults are the model's fault candidates, one per parameter (a
+parameter's kinds and directions together): what happened is told from what
+did not when each of its forms is. Each level gives a matrix, ``[i][j]``:
+fault i (what happened) is told from fault j; the classes of faults that
+cannot be told apart (both ways); and, per pair not told apart, why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import networkx as nx
+
+from ..ir import FaultSignatures, Signature, expected_slope, first_symbol
+from . import structure
+
+#: The levels, in the order they are shown.
+LEVELS = ("structural", "qualitative", "quantitative")
+
+
+@dataclass(frozen=True)
+class Level:
+    """One level's answer: ``detectable[i]``, ``isolable[i][j]`` (fault i
+    told from fault j; the diagonal False), and ``why``: per fault not
+    detectable ``(i, i)``, per pair not told apart ``(i, j)``, the reason."""
+
+    name: str
+    detectable: tuple[bool, ...]
+    isolable: tuple[tuple[bool, ...], ...]
+    why: Mapping[tuple[int, int], str]
+
+    def classes(self, faults: Sequence[str]) -> tuple[tuple[str, ...], ...]:
+        """The faults no sensor detects, and the groups of detected faults
+        each of which cannot be told from another of its group both ways
+        (connected: a chain of such pairs), each of more than one fault."""
+        g = nx.Graph()
+        n = len(faults)
+        g.add_nodes_from(i for i in range(n) if self.detectable[i])
+        g.add_edges_from((i, j) for i in g for j in g
+                         if i < j and not self.isolable[i][j] and not self.isolable[j][i])
+        groups = [sorted(c) for c in nx.connected_components(g) if len(c) > 1]
+        return tuple(tuple(faults[i] for i in c) for c in sorted(groups))
+
+    def pairs(self) -> set[tuple[int, int]]:
+        """The ordered pairs (i, j) where fault i is told from fault j."""
+        n = len(self.detectable)
+        return {(i, j) for i in range(n) for j in range(n) if self.isolable[i][j]}
+
+
+def structural(ssm, faults: Sequence[str]) -> tuple[Level, structure.StructuralModel]:
+    """The structural level of the state equations ``ssm`` with the fault
+    parameters ``faults``."""
+    model = structure.of_equations(ssm, {p: p for p in faults})
+    names, matrix = model.matrix()
+    plus = model.overdetermined()
+    detectable = tuple(model.faults[p] in plus for p in names)
+    why = {}
+    for i, p in enumerate(names):
+        if not detectable[i]:
+            why[i, i] = f"no redundancy of the equations holds {p}'s: its change is taken up by the unknowns"
+        for j, q in enumerate(names):
+            if i != j and detectable[i] and not matrix[i][j]:
+                why[i, j] = f"every redundancy that holds {p}'s equation holds {q}'s as well"
+    return Level("structural", detectable, matrix, why), model
+
+
+def _refutes(a: Signature, b: Signature, measurements: Sequence[str]) -> str | None:
+    """How fault ``a``'s symbols, once every sensor shows them, rule ``b``
+    out (None: they cannot): a sensor one of them moves and the other does
+    not, or moves the other way, or whose slope differs. A ``?`` (a stuck or
+    noisy reading: either sign, or none) rules out nothing."""
+    for m, sa, sb in zip(measurements, a.symbols, b.symbols):
+        fa, fb = first_symbol(sa), first_symbol(sb)
+        if "?" in (fa, fb):
+            continue
+        if fa != fb:
+            return f"{m} moves {fa} under {a.name}, {fb} under {b.name}" if "0" not in (fa, fb) else \
+                f"{m} moves under {a.name if fb == '0' else b.name} only"
+        ka, kb = expected_slope(sa), expected_slope(sb)
+        if ka in ("+", "-") and kb in ("+", "-") and ka != kb:
+            return f"{m}'s slope is {ka} under {a.name}, {kb} under {b.name}"
+    return None
+
+
+def qualitative(signatures: FaultSignatures, faults: Sequence[str]) -> Level:
+    """The qualitative level: the signatures of each fault parameter (every
+    kind and direction) against each other's."""
+    by = {p: [s for s in signatures.signatures if s.parameter == p] for p in faults}
+    ms = signatures.measurements
+    moves = {p: [s for s in by[p] if any(first_symbol(x) != "0" for x in s.symbols)] for p in faults}
+    detectable = tuple(bool(moves[p]) for p in faults)
+    why, matrix = {}, []
+    for i, p in enumerate(faults):
+        row = []
+        if not detectable[i]:
+            why[i, i] = "no sensor moves under any of its signatures"
+        for j, q in enumerate(faults):
+            if i == j or not detectable[i]:
+                row.append(False)
+                continue
+            alike = next(((a, b) for a in moves[p] for b in by[q] if _refutes(a, b, ms) is None), None)
+            row.append(alike is None)
+            if alike is not None:
+                why[i, j] = f"{alike[0].name} and {alike[1].name} show the same symbols: {_shown(alike[0], ms)}"
+        matrix.append(tuple(row))
+    return Level("qualitative", detectable, tuple(matrix), why)
+
+
+def _shown(s: Signature, measurements: Sequence[str]) -> str:
+    """What signature ``s`` shows: per sensor it moves, magnitude and slope."""
+    parts = [f"{m} {first_symbol(x)}" + (f" slope {expected_slope(x)}" if expected_slope(x) in ("+", "-") else "")
+             for m, x in zip(measurements, s.symbols) if first_symbol(x) != "0"]
+    return ", ".join(parts) or "no sensor moves"
+
+
+def quantitative(distinctions: Sequence, faults: Sequence[str], level: float) -> Level:
+    """The quantitative level from ``bgc distinguish``'s distinctions (one
+    per fault model of every candidate, kind and direction)."""
+    def parameter(name: str) -> str:
+        return name.rsplit("_", 1)[0]
+
+    by = {p: [d for d in distinctions if parameter(d.truth) == p] for p in faults}
+    seen = {p: [d for d in by[p] if d.detectability >= level] for p in faults}
+    detectable = tuple(bool(seen[p]) for p in faults)
+    why, matrix = {}, []
+    for i, p in enumerate(faults):
+        row = []
+        if not detectable[i]:
+            best = max(by[p], key=lambda d: d.detectability, default=None)
+            why[i, i] = ("no fault model of it" if best is None else
+                         f"{best.label} is detected with probability {best.detectability:.2f} at most (< {level:g})")
+        for j, q in enumerate(faults):
+            if i == j or not detectable[i]:
+                row.append(False)
+                continue
+            close = min(((d, r) for d in seen[p] for r in d.rivals if parameter(r.name) == q),
+                        key=lambda dr: dr[1].probability, default=None)
+            told = close is None or close[1].probability >= level
+            row.append(told)
+            if not told:
+                d, r = close
+                why[i, j] = f"{d.label}'s data name it over {r.name} with probability {r.probability:.2f} (< {level:g})"
+        matrix.append(tuple(row))
+    return Level("quantitative", detectable, tuple(matrix), why)

@@ -1,0 +1,131 @@
+"""Structural detectability and isolability of a model's faults, from its
+equations' structure alone (which variables each equation holds), as the
+Fault Diagnosis Toolbox computes them (Frisk, Krysander and Jung; Krysander,
+Aslund and Nyberg 2008 for the overdetermined part).
+
+The structural model is written from the state equations bgc derives
+(:class:`~bgc.ir.StateSpaceModel`):
+
+- per state x, its dynamic equation ``dx = f(x, u, theta)`` and its
+  differential constraint ``dx = d/dt x`` (the derivative a variable of its
+  own, as the toolbox writes dynamic models);
+- per sensor y, its measurement equation ``y = h(x, u, theta)``;
+- per fault candidate, the equation of its parameter ``v_p = p + f_p``: the
+  faulty parameter ``v_p`` is an unknown of its own, in every equation the
+  parameter enters, and the fault enters that one equation only. A
+  parameter of a bond graph element (a resistance) enters several state
+  equations once the bond variables are eliminated; its fault stays one
+  fault in one equation, as in the element's constitutive law it came from.
+
+Unknowns: the states, their derivatives and the faulty parameters. Known:
+the inputs and the measurements. A fault is **structurally detectable** when
+its equation is in the overdetermined part ``M+`` of the Dulmage-Mendelsohn
+decomposition (some redundancy involves it), and fault ``i`` is
+**structurally isolable** from fault ``j`` when its equation is in the
+overdetermined part of the model without fault ``j``'s equation (a test can
+see ``i`` and not ``j``). ``M+`` is found from a maximum matching of
+equations to unknowns (networkx's Hopcroft-Karp): the equations reached from
+the unmatched ones by alternating paths.
+
+Two equations of one unknown x are a redundancy (a fault in either is seen);
+an unknown z only the third holds takes it up (a fault there is not):
+
+>>> m = StructuralModel(("e1", "e2", "e3"), ("x", "z"), {"e1": {"x"}, "e2": {"x"}, "e3": {"z"}}, {"f1": "e1", "f3": "e3"})
+>>> sorted(m.overdetermined()), m.detectable("f1"), m.detectable("f3")
+(['e1', 'e2'], True, False)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import networkx as nx
+
+
+@dataclass(frozen=True)
+class StructuralModel:
+    """Equations (names, in order), unknowns, the unknowns each equation holds,
+    and each fault's equation; ``known``: the known variables each equation
+    holds (inputs, measurements), for the record; ``kind``: what each
+    equation is (``dynamic``, ``differential``, ``measurement``, ``fault``)."""
+
+    equations: tuple[str, ...]
+    unknowns: tuple[str, ...]
+    holds: Mapping[str, frozenset | set]
+    faults: Mapping[str, str]
+    known: Mapping[str, frozenset | set] = field(default_factory=dict)
+    kind: Mapping[str, str] = field(default_factory=dict)
+
+    def overdetermined(self, without: frozenset | set = frozenset()) -> frozenset:
+        """``M+`` of the equations but ``without``: the equations reached by
+        alternating paths from those a maximum matching leaves unmatched."""
+        eqs = [e for e in self.equations if e not in without]
+        g = nx.Graph()
+        g.add_nodes_from((("e", e) for e in eqs), bipartite=0)
+        g.add_nodes_from((("x", x) for x in self.unknowns), bipartite=1)
+        g.add_edges_from((("e", e), ("x", x)) for e in eqs for x in self.holds[e])
+        mate = nx.bipartite.hopcroft_karp_matching(g, top_nodes=[("e", e) for e in eqs])
+        reached = {e for e in eqs if ("e", e) not in mate}
+        todo = list(reached)
+        while todo:
+            e = todo.pop()
+            for x in self.holds[e]:
+                other = mate.get(("x", x))
+                if other is not None and other[1] not in reached:
+                    reached.add(other[1])
+                    todo.append(other[1])
+        return frozenset(reached)
+
+    def detectable(self, fault: str) -> bool:
+        """Whether ``fault``'s equation is in the overdetermined part."""
+        return self.faults[fault] in self.overdetermined()
+
+    def isolable(self, fault: str, other: str) -> bool:
+        """Whether ``fault`` can be told from ``other``: its equation is in
+        the overdetermined part of the model without ``other``'s."""
+        return self.faults[fault] in self.overdetermined({self.faults[other]})
+
+    def matrix(self) -> tuple[tuple[str, ...], tuple[tuple[bool, ...], ...]]:
+        """The faults and the isolability matrix: ``[i][j]`` whether fault i
+        is isolable from fault j (the toolbox's ``IsolabilityAnalysis``
+        transposed: there ``[i][j]`` is true when i cannot be told from j);
+        the diagonal is False, a fault that is not detectable is isolable
+        from nothing."""
+        names = tuple(self.faults)
+        cut = {f: self.overdetermined({self.faults[f]}) for f in names}
+        return names, tuple(tuple(i != j and self.faults[i] in cut[j] for j in names) for i in names)
+
+
+def of_equations(ssm, faults: Mapping[str, str]) -> StructuralModel:
+    """The structural model of the state equations ``ssm``
+    (:class:`~bgc.ir.StateSpaceModel`) with ``faults``: each fault's name ->
+    the parameter its fault changes (module docstring)."""
+    states, inputs, outputs = tuple(ssm.states), set(ssm.inputs), tuple(ssm.outputs)
+    parameters = sorted(set(faults.values()))
+    faulty = {p: f"v_{p}" for p in parameters}
+
+    def variables(expr) -> tuple[set, set]:
+        names = {s.name for s in expr.free_symbols}
+        return ({x for x in states if x in names} | {faulty[p] for p in parameters if p in names},
+                names & inputs)
+
+    equations, holds, known, kind = [], {}, {}, {}
+    for x, rhs in zip(states, ssm.rhs):
+        unknown, given = variables(rhs)
+        e, d = f"dyn_{x}", f"diff_{x}"
+        equations += [e, d]
+        holds[e], known[e], kind[e] = frozenset(unknown | {f"d{x}"}), frozenset(given), "dynamic"
+        holds[d], known[d], kind[d] = frozenset({f"d{x}", x}), frozenset(), "differential"
+    for y, h in zip(outputs, ssm.output_exprs):
+        unknown, given = variables(h)
+        e = f"meas_{y}"
+        equations.append(e)
+        holds[e], known[e], kind[e] = frozenset(unknown), frozenset(given | {y}), "measurement"
+    for p in parameters:
+        e = f"fault_{p}"
+        equations.append(e)
+        holds[e], known[e], kind[e] = frozenset({faulty[p]}), frozenset(), "fault"
+    unknowns = (*states, *(f"d{x}" for x in states), *(faulty[p] for p in parameters))
+    return StructuralModel(tuple(equations), unknowns, holds, {f: f"fault_{p}" for f, p in faults.items()},
+                           known, kind)

@@ -1,0 +1,173 @@
+"""``bgc analyse`` (issue 49, point 1): detectability and isolability of a
+model's faults at three levels, before the plant runs.
+
+The structural level is checked three ways: by hand on the two tanks (the
+structural model written out below), against the Fault Diagnosis Toolbox
+(the ``faultdiagnosistoolbox`` package, a test-only dependency) on every
+shipped and test plant of one mode, and on small structures whose
+overdetermined part is known. The qualitative level is checked by hand on
+the two tanks' signatures, the quantitative one against ``bgc distinguish``
+on the same model.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from bgc.analysis import isolability, structure
+from bgc.api.analyse import analyse
+from bgc.compiler import load
+
+from conftest import ROOT, bgc_cli, compiled
+
+TWO_TANK = ROOT / "models" / "two_tank.yaml"
+
+#: Every plant of one mode the repository ships or tests with.
+PLANTS = sorted(p for p in [*(ROOT / "models").glob("*.yaml"), *(ROOT / "tests" / "data" / "models").glob("*.yaml")]
+                if not load.declares_modes(p))
+
+
+def test_the_overdetermined_part_of_small_structures():
+    """Known decompositions: two equations in one unknown are a redundancy
+    (both in M+); a chain x1 -> x2 with one equation each is just determined
+    (none); a third equation on x2 makes the chain's end redundant, and the
+    equation that only fixes x1 stays outside."""
+    S = structure.StructuralModel
+    assert S(("a", "b"), ("x",), {"a": {"x"}, "b": {"x"}}, {}).overdetermined() == {"a", "b"}
+    chain = {"a": {"x1"}, "b": {"x1", "x2"}}
+    assert S(("a", "b"), ("x1", "x2"), chain, {}).overdetermined() == set()
+    assert S(("a", "b", "c"), ("x1", "x2"), {**chain, "c": {"x2"}}, {}).overdetermined() == {"a", "b", "c"}
+    # a: x1 alone; b, c: x2 twice: only b and c are redundant
+    assert S(("a", "b", "c"), ("x1", "x2"), {"a": {"x1"}, "b": {"x2"}, "c": {"x2"}}, {}).overdetermined() == {"b", "c"}
+
+
+def test_the_two_tanks_structure_by_hand():
+    """The two tanks' structural model, written from their state equations
+
+        C1 de2 = f_in + f_in_offset - (e2 - e7)/R12 - e2/R10
+        C2 de7 = (e2 - e7)/R12 - e7/R20
+        F10 = e2/R10 + F10_offset,  F12 = (e2 - e7)/R12 + F12_offset,  F20 = e7/R20 + F20_offset
+
+    with each fault parameter an unknown of its own (v_p = p + f_p): 16
+    equations (2 dynamic, 2 differential, 3 measurements, 9 faults) in 13
+    unknowns (e2, e7, de2, de7 and the 9 v_p), so 3 redundancies. Every
+    fault's equation is in one: detectable. C1 and f_in_offset enter the
+    first dynamic equation only, so every redundancy that holds one holds
+    the other: they cannot be told apart; every other ordered pair can (a
+    sensor's offset is in its measurement alone; R10, R12, R20 each in a
+    measurement the others are not in)."""
+    c = compiled("two_tank")
+    faults = tuple(sorted({f.parameter for f in c.model.faults}))
+    m = structure.of_equations(c.equations, {p: p for p in faults})
+    assert len(m.equations) == 16 and len(m.unknowns) == 13
+    assert m.holds["dyn_e2"] == {"de2", "e2", "e7", "v_C1", "v_R12", "v_R10", "v_f_in_offset"}
+    assert m.holds["meas_F12"] == {"e2", "e7", "v_R12", "v_F12_offset"}
+    assert m.holds["diff_e7"] == {"de7", "e7"}
+    names, matrix = m.matrix()
+    assert all(m.detectable(f) for f in names)
+    alike = {("C1", "f_in_offset"), ("f_in_offset", "C1")}
+    for i, a in enumerate(names):
+        for j, b in enumerate(names):
+            assert matrix[i][j] == (i != j and (a, b) not in alike), (a, b)
+
+
+def fdt_model(m: structure.StructuralModel):
+    """The Fault Diagnosis Toolbox's model of the same structure: a
+    differential constraint per state (``fdt.DiffConstraint``), every other
+    equation by the variables it holds."""
+    import faultdiagnosistoolbox as fdt  # the test extra's (pyproject.toml)
+    faults = list(m.faults)
+    known = sorted({z for e in m.equations for z in m.known[e]})
+    rels = []
+    for e in m.equations:
+        if m.kind[e] == "differential":
+            x = e.removeprefix("diff_")
+            rels.append(fdt.DiffConstraint(f"d{x}", x))
+        else:
+            rels.append(sorted(m.holds[e]) + sorted(m.known[e]) + [f for f in faults if m.faults[f] == e])
+    return fdt.DiagnosisModel({"type": "VarStruc", "x": list(m.unknowns), "f": faults, "z": known, "rels": rels})
+
+
+@pytest.mark.parametrize("path", PLANTS, ids=lambda p: p.stem)
+def test_structural_results_equal_the_fault_diagnosis_toolboxs(path):
+    if "faults:" not in path.read_text(encoding="utf-8"):  # nothing to analyse: said in one line
+        with pytest.raises(ValueError, match="declares no fault candidates"):
+            analyse(path, quantitative=False)
+        return
+    r = analyse(path, quantitative=False)
+    m = r.structure
+    tool = fdt_model(m)
+    detected, missed = tool.DetectabilityAnalysis()
+    mine = r.get("structural")
+    assert set(detected) == {f for f, d in zip(r.faults, mine.detectable) if d}
+    assert set(missed) == {f for f, d in zip(r.faults, mine.detectable) if not d}
+    im = tool.IsolabilityAnalysis()  # im[i][j] = 1: fault i cannot be told from fault j
+    for i in range(len(r.faults)):
+        for j in range(len(r.faults)):
+            assert mine.isolable[i][j] == (i != j and not im[i][j]), (path.stem, r.faults[i], r.faults[j])
+
+
+def test_the_two_tanks_signatures_by_hand():
+    """Qualitatively (magnitude and slope at each sensor once it moves):
+    C1 up and f_in_offset down both lower the first tank's level and every
+    flow (F10 -, F12 -, F20 -), so they are alike, as the structure says;
+    R10 down, R12 up and R20 up, as drifts, all raise F10 and lower F12 and
+    F20 (R12 holds water in tank 1; R10 and R20 push it round so that tank
+    1 rises and tank 2 falls in the end), so the signatures cannot tell
+    them apart although the structure can; every sensor offset moves its own
+    sensor only and is told from every plant fault, which moves all three."""
+    r = analyse(TWO_TANK, quantitative=False)
+    q = r.get("qualitative")
+    assert q.classes(r.faults) == (("C1", "f_in_offset"), ("R10", "R12", "R20"))
+    assert set(r.more("structural", "qualitative")) == {(a, b) for a in ("R10", "R12", "R20")
+                                                        for b in ("R10", "R12", "R20") if a != b}
+    assert r.more("qualitative", "structural") == ()
+    why = q.why[r.faults.index("R12"), r.faults.index("R20")]
+    assert "show the same symbols: F10 + slope +, F12 - slope -, F20 - slope -" in why
+
+
+@pytest.mark.slow
+def test_the_quantitative_level_is_bgc_distinguishs():
+    """At the model's noise and constant inputs the capacitances change
+    nothing at steady state (bgc check warns of it): not detected; every
+    other fault is, and the quantitative level tells R10, R12 and R20 apart,
+    which their signatures cannot; the pairs it calls alike are those whose
+    rival bgc distinguish puts in the predicted ambiguity group."""
+    from bgc import api
+
+    r = analyse(TWO_TANK)
+    n = r.get("quantitative")
+    assert [f for f, d in zip(r.faults, n.detectable) if not d] == ["C1", "C2"]
+    assert {(a, b) for a in ("R10", "R12", "R20") for b in ("R10", "R12", "R20") if a != b} <= \
+        set(r.more("quantitative", "qualitative"))
+    d = api.distinguishability(TWO_TANK)
+    grouped = {(x.truth.rsplit("_", 1)[0], g.rsplit("_", 1)[0]) for x in d.distinctions
+               if x.detectability >= 0.95 for g in x.group}
+    told = n.pairs()
+    for i, a in enumerate(r.faults):
+        for j, b in enumerate(r.faults):
+            if i != j and n.detectable[i]:
+                assert ((i, j) in told) == ((a, b) not in grouped), (a, b)
+
+
+def test_bgc_analyse_prints_and_writes_its_folder(tmp_path):
+    p = bgc_cli("analyse", TWO_TANK, "--structure-only")
+    assert p.returncode == 0, p.stderr
+    assert "C1 not told from f_in_offset: S: every redundancy that holds C1's equation holds f_in_offset's" in p.stdout
+    assert p.stderr == ""
+    p = bgc_cli("analyse", TWO_TANK, "--structure-only", "--format", "json")
+    data = json.loads(p.stdout)
+    assert data["levels"]["structural"]["classes"] == [["C1", "f_in_offset"]] and data["quantitative"] is None
+    p = bgc_cli("analyse", TWO_TANK, "--structure-only", "-o", tmp_path / "a")
+    assert p.returncode == 0 and (tmp_path / "a" / "isolability.png").read_bytes()[:4] == b"\x89PNG"
+    assert "structural: not detected: none" in (tmp_path / "a" / "analysis.md").read_text(encoding="utf-8")
+
+
+def test_a_model_with_modes_and_bad_arguments_are_refused_in_one_line():
+    p = bgc_cli("analyse", ROOT / "models" / "ro_hybrid_valve.yaml")
+    assert p.returncode != 0 and "not built yet" in p.stderr and len(p.stderr.strip().splitlines()) == 1
+    with pytest.raises(TypeError, match="quantitative=1 is not True or False"):
+        analyse(TWO_TANK, quantitative=1)
+    assert isolability.LEVELS == ("structural", "qualitative", "quantitative")
