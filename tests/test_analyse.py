@@ -171,3 +171,44 @@ def test_a_model_with_modes_and_bad_arguments_are_refused_in_one_line():
     with pytest.raises(TypeError, match="quantitative=1 is not True or False"):
         analyse(TWO_TANK, quantitative=1)
     assert isolability.LEVELS == ("structural", "qualitative", "quantitative")
+
+
+def test_the_sensor_that_splits_the_tanks_inflow_from_its_capacity_by_hand(tmp_path):
+    """C1 and the inflow's actuator bias enter the first tank's dynamic
+    equation only: a sensor on the delivered inflow f1 (= f_in +
+    f_in_offset) knows the actuator's share, and one on C1's flow f2 (=
+    C1 de2, with e2 = R10 F10 measured) knows the capacity's: each alone
+    separates them; no sensor on a pressure does (each is a state the flows
+    give already). Costs choose between them; the model written with f1
+    reads back and its analysis separates the pair at both levels."""
+    r = analyse(TWO_TANK, quantitative=False, place_sensors=True)
+    p = r.placement
+    assert p.cost == 1 and set(p.sets) == {("f1",), ("f2",)}
+    assert len(p.now[1]) + 2 == len(p.reachable[1]) and p.reachable[0] == p.now[0] == set(r.faults)
+    assert analyse(TWO_TANK, quantitative=False, place_sensors=True, costs={"f1": 5, "f2": 1}).placement.sets == \
+        (("f2",),)
+    assert analyse(TWO_TANK, quantitative=False, place_sensors=True, costs={"e2": 1}).placement.sets == ((),)
+    out = tmp_path / "placed.yaml"
+    p = bgc_cli("analyse", TWO_TANK, "--structure-only", "--place-sensors", "--write", out)
+    assert p.returncode == 0, p.stderr
+    assert f"wrote {out}: {TWO_TANK} with f1 added" in p.stdout
+    assert "  # bgc analyse --place-sensors: a sensor added on f1\n  f1: {expr: f1}\n" in out.read_text(encoding="utf-8")
+    placed = analyse(out, quantitative=False)
+    assert placed.get("structural").classes(placed.faults) == ()
+    i, j = placed.faults.index("C1"), placed.faults.index("f_in_offset")
+    assert {(i, j), (j, i)} <= placed.get("qualitative").pairs()
+
+
+def test_sensor_placement_refuses_what_it_cannot_do_in_one_line(tmp_path):
+    costs = tmp_path / "costs.yaml"
+    for args, what in ((("--write", tmp_path / "x.yaml"), "--write applies to --place-sensors"),
+                       (("--place-sensors", "--write", TWO_TANK), "is the model file: it is never replaced"),
+                       (("--place-sensors", "--costs", costs), "cannot be read")):
+        p = bgc_cli("analyse", TWO_TANK, "--structure-only", *args)
+        assert p.returncode != 0 and what in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+    costs.write_text("{e2: -1}\n", encoding="utf-8")
+    p = bgc_cli("analyse", TWO_TANK, "--structure-only", "--place-sensors", "--costs", costs)
+    assert p.returncode != 0 and "not a mapping of bond variables to costs >= 0" in p.stderr
+    costs.write_text("{x99: 1}\n", encoding="utf-8")
+    p = bgc_cli("analyse", TWO_TANK, "--structure-only", "--place-sensors", "--costs", costs)
+    assert p.returncode != 0 and "costs names 'x99', not a bond variable of two_tank" in p.stderr

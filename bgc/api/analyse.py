@@ -8,7 +8,9 @@ from pathlib import Path
 
 from .. import arguments
 from ..analysis import isolability
-from ..errors import ArgumentValueError
+from collections.abc import Mapping
+
+from ..errors import ArgumentTypeError, ArgumentValueError, printable
 
 
 @dataclass(frozen=True)
@@ -37,6 +39,8 @@ class AnalysisReport:
     at: float
     noise: tuple[float | None, float | None]
     level: float
+    #: Sensor placement (:mod:`bgc.analysis.placement`; None: not asked for)
+    placement: object | None = None
 
     def get(self, name: str) -> isolability.Level:
         """The level called ``name`` (structural, qualitative, quantitative)."""
@@ -67,14 +71,30 @@ class AnalysisReport:
                 "structural_model": {"equations": [{"name": e, "kind": s.kind[e], "unknowns": sorted(s.holds[e]),
                                                     "known": sorted(s.known[e])} for e in s.equations],
                                      "faults": dict(s.faults)},
+                "placement": None if self.placement is None else _placement_dict(self.placement),
                 "quantitative": None if self.steps is None else
                 {"steps": self.steps, "dt": self.dt, "change": self.change, "at": self.at,
                  "noise": {"process": self.noise[0], "measurement": self.noise[1]}, "level": self.level}}
 
 
+def _placement_dict(p) -> dict:
+    return {"sets": [list(x) for x in p.sets], "cost": p.cost,
+            "candidates": [{"name": c.name, "reads": str(c.expr), "cost": c.cost} for c in p.candidates],
+            "detected_now": sorted(p.now[0]), "detected_at_most": sorted(p.reachable[0]),
+            "pairs_now": len(p.now[1]), "pairs_at_most": len(p.reachable[1]),
+            "never_detected": sorted(set(p.faults) - p.reachable[0]),
+            "never_told_apart": [[a, b] for a, b in sorted(_untold(p))]}
+
+
+def _untold(p) -> set:
+    """The ordered pairs of detected faults no candidate set tells apart."""
+    return {(a, b) for a in p.reachable[0] for b in p.faults if a != b and (a, b) not in p.reachable[1]}
+
+
 def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3, at: float = 0.5,
             process_noise: float | None = None, measurement_noise: float | None = None,
-            steps: int | None = None, level: float = 0.95, progress=None) -> AnalysisReport:
+            steps: int | None = None, level: float = 0.95, progress=None, place_sensors: bool = False,
+            costs: Mapping[str, float] | None = None, most: int = 2) -> AnalysisReport:
     """Detectability and isolability of every fault candidate of ``model``
     (a model file of one mode) at three levels side by side: structural
     (the equations' structure, as the Fault Diagnosis Toolbox computes it),
@@ -102,6 +122,15 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
         arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
     arguments.real(func, "level", level, 0.0, 1.0, "a probability between 0 and 1, e.g. level=0.95")
     arguments.callable_or_none(func, "progress", progress)
+    arguments.flag(func, "place_sensors", place_sensors)
+    arguments.integer(func, "most", most, 1, "is below 1", "most=2")
+    if costs is not None:
+        if not isinstance(costs, Mapping):
+            raise ArgumentTypeError(f"{func}: costs={arguments.shown(costs)} is not a mapping", None,
+                                    "give {variable: cost}, e.g. costs={'e2': 1, 'f1': 3}")
+        for name, cost in costs.items():
+            arguments.text(func, "a name of costs", name)
+            arguments.real(func, f"costs[{name!r}]", cost, 0.0, math.inf, "a cost >= 0, e.g. 1", low_ok=True)
     from ..compiler import load
     from ..pipeline import compile_model
 
@@ -128,6 +157,69 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
                                measurement_noise=measurement_noise, steps=steps, level=level, progress=progress)
         levels.append(isolability.quantitative(r.distinctions, faults, level))
         settings = r.steps, r.dt
+    placed = None
+    if place_sensors:
+        say("sensor placement")
+        placed = _place(func, c, model_, costs, most)
     return AnalysisReport(c.model.name, str(model), faults, tuple(of[p].target for p in faults),
                           tuple(of[p].subject for p in faults), tuple(c.equations.outputs), tuple(levels), model_,
-                          settings[0], settings[1], change, at, (process_noise, measurement_noise), level)
+                          settings[0], settings[1], change, at, (process_noise, measurement_noise), level, placed)
+
+
+def _place(func: str, c, model_, costs, most: int):
+    """The placement of compilation ``c``'s sensors (:func:`analyse`)."""
+    import sympy
+
+    from ..analysis import placement
+
+    names = {name for name, _ in c.equations.variables}
+    unknown = sorted(set(costs or ()) - names)
+    if unknown:
+        raise ArgumentValueError(f"{func}: costs names {unknown[0]!r}, not a bond variable of {c.model.name}", None,
+                                 f"name efforts and flows of its bonds, e.g. {sorted(names)[0]}")
+    offsets = {sympy.Symbol(f.parameter): 0 for f in c.model.faults if f.target == "sensor"}
+    measured = [e.subs(offsets) for e in c.equations.output_exprs]
+    return placement.place(model_, c.equations, placement.candidates(c.equations, measured, costs), most)
+
+
+def with_sensors(model: str | Path, sensors, out: str | Path) -> Path:
+    """Write ``model`` with measurements of the bond variables ``sensors``
+    added (each named after its variable, or ``<variable>_sensor`` when that
+    name is taken; its noise the model's default) to the new file ``out``,
+    never the model itself; the text is the model's, with a line per sensor
+    and a comment above it, and reads back (checked). Returns ``out``."""
+    from ..compiler import load, validate
+    from ..output import artifacts
+    from ..output.calibrated import TextChange, edit_text
+
+    func = "bgc.analyse.with_sensors"
+    arguments.path(func, "model", model)
+    arguments.path(func, "out", out)
+    target = Path(out)
+    try:
+        same = target.exists() and target.samefile(model)
+    except OSError:
+        same = False
+    if same:
+        raise ArgumentValueError(f"{func}: out={str(out)!r} is the model file: it is never replaced", None,
+                                 "write the model with its sensors to a new file")
+    artifacts.check_writable(target, "the model with its sensors")
+    text = Path(model).read_text(encoding="utf-8")
+    bg = validate.validate(load.loads(text, str(model)))
+    taken = {m.name for m in bg.measurements} | {p.name for p in bg.parameters} | {u.name for u in bg.inputs}
+    changes = []
+    for v in sensors:
+        name = v if v not in taken else f"{v}_sensor"
+        taken.add(name)
+        changes.append(TextChange(("measurements", name), f"{{expr: {v}}}",
+                                  f"# bgc analyse --place-sensors: a sensor added on {v}"))
+    out_text = edit_text(text, changes)
+    added = {m.name for m in validate.validate(load.loads(out_text, str(out))).measurements} - \
+        {m.name for m in bg.measurements}
+    if len(added) != len(changes):
+        from ..errors import InternalError
+
+        raise InternalError(f"the model with its sensors does not read back with them ({sorted(added)})")
+    head = f"# {artifacts.MARK} analyse --place-sensors from {printable(str(model))}: {', '.join(sensors)} added\n"
+    artifacts.write_file(target, head + out_text)
+    return target

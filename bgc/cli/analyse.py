@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..errors import printable
+from ..errors import BgcError, printable
 from .common import Progress, above_zero, parse_noise, positive
 
 
@@ -23,6 +23,16 @@ def add_parser(sub) -> None:
                    help="the quantitative level: the onset, as a fraction of the run (default 0.5)")
     p.add_argument("--noise", metavar="process=Q,measurement=R", help="relative noise levels (default: the model's)")
     p.add_argument("--steps", type=positive, default=None, help="samples of the run (default: the model's)")
+    p.add_argument("--place-sensors", action="store_true",
+                   help="also the cheapest sets of sensors to add so that every fault is detected and every pair told "
+                        "apart structurally, as far as the candidates can (every effort and flow, or --costs)")
+    p.add_argument("--costs", metavar="FILE.yaml",
+                   help="with --place-sensors: the candidate sensors and their costs, a mapping of bond variables "
+                        "to numbers, e.g. {e2: 1, f1: 3} (default: every effort and flow at cost 1)")
+    p.add_argument("--most", type=positive, default=2, help="with --place-sensors: at most this many sensors added "
+                   "(default 2)")
+    p.add_argument("--write", metavar="NEW.yaml",
+                   help="with --place-sensors: write the model with the first cheapest set added to this new file")
     p.add_argument("--format", choices=["text", "json"], default="text")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="write analysis.md, analysis.json and isolability.png there instead of printing")
@@ -34,16 +44,36 @@ def run(args: argparse.Namespace) -> int:
     from ..output import artifacts, plots, render
 
     process, measurement = parse_noise(args.noise)
+    for flag, value in (("--costs", args.costs), ("--write", args.write), ("--most", args.most != 2 or None)):
+        if value and not args.place_sensors:
+            raise BgcError(f"{flag} applies to --place-sensors", None, f"add --place-sensors, or drop {flag}")
+    costs = _costs(args.costs) if args.costs else None
+    if args.write:
+        from ..output import artifacts as _a
+
+        if Path(args.write).exists() and Path(args.write).resolve() == Path(args.model).resolve():
+            raise BgcError(f"--write {printable(args.write)} is the model file: it is never replaced", None,
+                           "write the model with its sensors to a new file")
+        _a.check_writable(Path(args.write), "the model with its sensors")
     names = ("analysis.md", "analysis.json", "isolability.png", "manifest.json")
     if args.output:
         artifacts.check_folder(Path(args.output), names, "analyse")  # refused before the work, not after
     progress = Progress("analyse")
     try:
         r = analyse(args.model, quantitative=not args.structure_only, change=args.change, at=args.at,
-                    process_noise=process, measurement_noise=measurement, steps=args.steps, progress=progress)
+                    process_noise=process, measurement_noise=measurement, steps=args.steps, progress=progress,
+                    place_sensors=args.place_sensors, costs=costs, most=args.most)
     finally:
         progress.close()
     text = render.analysis_text(r)
+    if args.write:
+        from ..api.analyse import with_sensors
+
+        if not r.placement.sets or not r.placement.sets[0]:
+            raise BgcError("--write: no sensor to add" + ("" if r.placement.sets else f" within --most {args.most}"),
+                           None, "drop --write" if r.placement.sets else "raise --most")
+        with_sensors(args.model, r.placement.sets[0], args.write)
+        text += f"wrote {printable(args.write)}: {args.model} with {', '.join(r.placement.sets[0])} added\n"
     data = render.to_json(r.to_dict())
     if not args.output:
         sys.stdout.write(data if args.format == "json" else text)
@@ -56,3 +86,20 @@ def run(args: argparse.Namespace) -> int:
     artifacts.write_folder(Path(args.output), files)
     print(f"wrote {printable(args.output)}/: {', '.join(names[:3])}")
     return 0
+
+
+def _costs(path: str) -> dict:
+    """The ``--costs`` file: a mapping of bond variables to costs (numbers >= 0), read safely."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise BgcError(f"--costs {printable(path)}: cannot be read ({printable(str(exc).splitlines()[0])})", None,
+                       "give a YAML file of {variable: cost}, e.g. {e2: 1, f1: 3}") from None
+    if not isinstance(data, dict) or not data or not all(isinstance(k, str) and isinstance(v, (int, float))
+                                                         and not isinstance(v, bool) and v >= 0
+                                                         for k, v in data.items()):
+        raise BgcError(f"--costs {printable(path)}: not a mapping of bond variables to costs >= 0", None,
+                       "write e.g. {e2: 1, f1: 3}")
+    return {k: float(v) for k, v in data.items()}

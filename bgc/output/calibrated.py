@@ -46,7 +46,7 @@ def number(value: float) -> str:
 
 
 @dataclass(frozen=True, slots=True)
-class _Change:
+class TextChange:
     """A value written: the keys leading to it (``('parameters', 'R1')``),
     the text written, and the comment line(s) to put above it."""
 
@@ -64,23 +64,23 @@ def calibrated_text(text: str, source: str, cal: Calibration, element_levels: di
     ``dates``: the dates the data's headers give."""
     data = ", ".join(printable(s) for s in cal.sources)
     when = f" (recorded {', '.join(printable(d) for d in dates)})" if dates else ""
-    changes: list[_Change] = []
+    changes: list[TextChange] = []
     for e in cal.estimates:
         if e.kind == "measurement_noise":
-            changes.append(_Change(("measurements", e.subject, "noise"), _written(e, e.level),
+            changes.append(TextChange(("measurements", e.subject, "noise"), _written(e, e.level),
                                    _comment(e, f"noise of sensor {e.subject}", data + when, "std")))
         elif e.kind == "process_noise":
-            changes.append(_Change(("simulation", "process_noise"), _written(e, e.level),
+            changes.append(TextChange(("simulation", "process_noise"), _written(e, e.level),
                                    _comment(e, "process noise level", data + when, None)))
             if e.identifiable and e.start > 0:
                 for name, own in sorted(element_levels.items()):
-                    changes.append(_Change(("elements", name, "noise"), number(own * e.level / e.start),
+                    changes.append(TextChange(("elements", name, "noise"), number(own * e.level / e.start),
                                            f"# bgc calibrate: {name}'s own process noise scaled as the process "
                                            f"level ({e.level / e.start:.4g} times; was {own:g})"))
         elif e.kind == "parameter":
-            changes.append(_Change(("parameters", e.subject), _written(e, e.value),
+            changes.append(TextChange(("parameters", e.subject), _written(e, e.value),
                                    _comment(e, e.subject, data + when, None)))
-    out = _edit(text, changes)
+    out = edit_text(text, changes)
     head = f"# {MARK} calibrate from {printable(source)} on {data}\n"
     return head + out
 
@@ -131,7 +131,7 @@ def _shared(root: yaml.Node) -> set[int]:
     return {i for i, n in seen.items() if n > 1}
 
 
-def _edit(text: str, changes: Sequence[_Change]) -> str:
+def edit_text(text: str, changes: Sequence[TextChange]) -> str:
     """``text`` with every change made: a value replaced in place, or a key
     added to its mapping (a flow mapping gets ``, key: value`` before its
     ``}``, a block mapping a new line at its keys' indentation, an empty

@@ -735,6 +735,8 @@ def analysis_text(r) -> str:
             if pairs:
                 lines.append(f"{x.name} tells {len(pairs)} ordered pair(s) apart that {y.name} does not: "
                              + ", ".join(f"{i} from {j}" for i, j in pairs[:8]) + (", ..." if len(pairs) > 8 else ""))
+    if r.placement is not None:
+        lines += [""] + placement_lines(r.placement)
     lines.append("")
     lines.append("why not:")
     for i, name in enumerate(f):
@@ -744,6 +746,30 @@ def analysis_text(r) -> str:
                 what = f"{name} not detected" if i == j else f"{name} not told from {other}"
                 lines.append(f"  {what}: " + "; ".join(reasons))
     return "\n".join(lines) + "\n"
+
+
+def placement_lines(p) -> list[str]:
+    """``bgc analyse --place-sensors``'s answer, as lines."""
+    detected, pairs = p.reachable
+    lines = [f"sensor placement (structural; candidates: {len(p.candidates)} bond variables no sensor reads): "
+             f"now {len(p.now[0])} faults detected and {len(p.now[1])} ordered pairs told apart; "
+             f"with every candidate {len(detected)} and {len(pairs)}"]
+    never = [f for f in p.faults if f not in detected]
+    if never:
+        lines.append(f"  no candidate detects: {', '.join(never)}")
+    untold = sorted((a, b) for a in detected for b in p.faults if a != b and (a, b) not in pairs)
+    if untold:
+        lines.append("  no candidate tells apart: " + ", ".join(f"{a} from {b}" for a, b in untold[:8])
+                     + (", ..." if len(untold) > 8 else ""))
+    if not p.sets:
+        lines.append("  no set of candidates within --most gives as much: raise --most")
+    elif p.sets == ((),):
+        lines.append("  no sensor to add: the sensors there give what every candidate would")
+    else:
+        reads = {c.name: c.expr for c in p.candidates}
+        lines.append(f"  the cheapest sets (cost {p.cost:g}), each enough:")
+        lines += [f"    {', '.join(f'{v} (= {reads[v]})' for v in s)}" for s in p.sets]
+    return lines
 
 
 def detector_lines(rate, ideal: float, dt: float) -> list[str]:

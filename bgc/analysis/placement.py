@@ -1,0 +1,130 @@
+"""Sensor placement (``bgc analyse --place-sensors``): the cheapest sets of
+sensors to add so that every fault is detected and every pair told apart,
+structurally (:mod:`.structure`), as far as the candidate sensors can.
+
+The candidates are the bond graph's efforts and flows (each different
+expression once, the first bond's name for it; none already measured), or
+those a candidates file names, each with a cost (1 by default). A set is
+*enough* when the model with those sensors added detects every fault the
+model with every candidate added detects, and tells apart every ordered pair
+that one tells apart: what no candidate can give is not asked of any set
+(and is said). The sets are tried by their cost, the fewest sensors first
+among equal costs, up to ``most`` sensors; every set of the cheapest cost
+that is enough is given (a sensor whose equation holds the same unknowns as
+another's, e.g. the effort and the flow of one resistor at a known
+resistance, gives the same structure: both sets are listed).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, replace
+from typing import Mapping, Sequence
+
+from .structure import StructuralModel
+
+#: How many cheapest sets are given at most.
+MOST_SETS = 12
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A sensor that may be added: the bond variable it reads, its expression
+    in the states, inputs and parameters, and its cost."""
+
+    name: str
+    expr: object
+    cost: float = 1.0
+
+
+@dataclass(frozen=True)
+class Placement:
+    """The answer: ``sets`` (each a tuple of candidate names) of the cheapest
+    ``cost`` that are enough; what every candidate together gives
+    (``reachable``: faults detected and ordered pairs told apart) against the
+    model as it is (``now``); the faults and pairs no candidate can give."""
+
+    sets: tuple[tuple[str, ...], ...]
+    cost: float | None
+    candidates: tuple[Candidate, ...]
+    now: tuple[frozenset, frozenset]
+    reachable: tuple[frozenset, frozenset]
+    faults: tuple[str, ...]
+
+
+def candidates(ssm, measured_exprs: Sequence, costs: Mapping[str, float] | None = None) -> tuple[Candidate, ...]:
+    """Every bond variable of ``ssm`` with an expression of its own that no
+    sensor reads already (``measured_exprs``: the sensors' expressions
+    without their offsets), or the variables ``costs`` names with their
+    costs."""
+    seen = {str(e) for e in measured_exprs}
+    out = []
+    for name, expr in ssm.variables:
+        if costs is not None and name not in costs:
+            continue
+        if str(expr) in seen or not expr.free_symbols:
+            continue
+        seen.add(str(expr))
+        out.append(Candidate(name, expr, 1.0 if costs is None else float(costs[name])))
+    return tuple(out)
+
+
+def with_sensors(model: StructuralModel, ssm, added: Sequence[Candidate]) -> StructuralModel:
+    """``model`` with a measurement equation per added sensor."""
+    states = set(ssm.states)
+    faulty = {e: next(iter(model.holds[e])) for e in model.faults.values()}  # fault equation -> its v_p
+    by_parameter = {v[2:]: v for v in faulty.values()}
+    holds, kind, known = dict(model.holds), dict(model.kind), dict(model.known)
+    equations = list(model.equations)
+    for c in added:
+        names = {s.name for s in c.expr.free_symbols}
+        e = f"meas_added_{c.name}"
+        equations.append(e)
+        holds[e] = frozenset({x for x in states if x in names} | {v for p, v in by_parameter.items() if p in names})
+        known[e], kind[e] = frozenset(names & set(ssm.inputs)) | {c.name}, "measurement"
+    return replace(model, equations=tuple(equations), holds=holds, kind=kind, known=known)
+
+
+def _gives(model: StructuralModel) -> tuple[frozenset, frozenset]:
+    """The faults ``model`` detects and the ordered pairs it tells apart."""
+    names, matrix = model.matrix()
+    plus = model.overdetermined()
+    detected = frozenset(f for f in names if model.faults[f] in plus)
+    pairs = frozenset((a, b) for i, a in enumerate(names) for j, b in enumerate(names) if matrix[i][j])
+    return detected, pairs
+
+
+def _enough(model: StructuralModel, target: tuple[frozenset, frozenset]) -> bool:
+    """Whether ``model`` gives ``target``, stopping at the first miss."""
+    detected, pairs = target
+    plus = model.overdetermined()
+    if any(model.faults[f] not in plus for f in detected):
+        return False
+    for b in model.faults:
+        need = [a for a in model.faults if (a, b) in pairs]
+        if need:
+            cut = model.overdetermined({model.faults[b]})
+            if any(model.faults[a] not in cut for a in need):
+                return False
+    return True
+
+
+def place(model: StructuralModel, ssm, cands: Sequence[Candidate], most: int = 2) -> Placement:
+    """The cheapest sets of at most ``most`` candidates that are enough
+    (module docstring)."""
+    now = _gives(model)
+    reachable = _gives(with_sensors(model, ssm, cands))
+    faults = tuple(model.faults)
+    if now == reachable:
+        return Placement(((),), 0.0, tuple(cands), now, reachable, faults)
+    subsets = sorted((s for k in range(1, most + 1) for s in itertools.combinations(cands, k)),
+                     key=lambda s: (sum(c.cost for c in s), len(s)))
+    found, cost = [], None
+    for s in subsets:
+        total = sum(c.cost for c in s)
+        if cost is not None and (total > cost or len(found) >= MOST_SETS):
+            break
+        if _enough(with_sensors(model, ssm, s), reachable):
+            found.append(tuple(c.name for c in s))
+            cost = total
+    return Placement(tuple(found), cost, tuple(cands), now, reachable, faults)
