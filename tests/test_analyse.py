@@ -212,3 +212,23 @@ def test_sensor_placement_refuses_what_it_cannot_do_in_one_line(tmp_path):
     costs.write_text("{x99: 1}\n", encoding="utf-8")
     p = bgc_cli("analyse", TWO_TANK, "--structure-only", "--place-sensors", "--costs", costs)
     assert p.returncode != 0 and "costs names 'x99', not a bond variable of two_tank" in p.stderr
+
+
+@pytest.mark.slow
+def test_an_input_test_is_proposed_for_the_capacities_steady_state_hides():
+    """At the declared constant inflow the tanks settle and C1, C2 change
+    nothing the sensors read (P 0.5: a coin); a moving inflow shows them. The
+    proposal's probability is what bgc distinguish gives with that input."""
+    from bgc import api
+
+    import yaml
+
+    r = analyse(TWO_TANK, design_inputs=True, steps=100)
+    tests = {f: (u, text, p, p0) for f, u, text, p, p0 in r.input_tests}
+    assert set(tests) == {"C1", "C2"}
+    assert all(u == "f_in" and p0 < 0.6 < p for u, text, p, p0 in tests.values()), tests
+    u, text, p, _ = tests["C1"]
+    again = api.distinguishability(TWO_TANK, inputs={u: yaml.safe_load(text)}, steps=100)
+    assert max(d.detectability for d in again.distinctions if d.truth.startswith("C1_")) == pytest.approx(p)
+    with pytest.raises(ValueError, match="design_inputs=True needs the quantitative level"):
+        analyse(TWO_TANK, quantitative=False, design_inputs=True)

@@ -41,6 +41,10 @@ class AnalysisReport:
     level: float
     #: Sensor placement (:mod:`bgc.analysis.placement`; None: not asked for)
     placement: object | None = None
+    #: Input tests for the faults the quantitative level does not detect: per
+    #: fault, (fault, input, signal as written in a model, probability of
+    #: detection with it, without it); None: not asked for
+    input_tests: tuple | None = None
 
     def get(self, name: str) -> isolability.Level:
         """The level called ``name`` (structural, qualitative, quantitative)."""
@@ -72,6 +76,9 @@ class AnalysisReport:
                                                     "known": sorted(s.known[e])} for e in s.equations],
                                      "faults": dict(s.faults)},
                 "placement": None if self.placement is None else _placement_dict(self.placement),
+                "input_tests": None if self.input_tests is None else
+                [{"fault": f, "input": u, "signal": text, "detected_with": p, "detected_without": p0}
+                 for f, u, text, p, p0 in self.input_tests],
                 "quantitative": None if self.steps is None else
                 {"steps": self.steps, "dt": self.dt, "change": self.change, "at": self.at,
                  "noise": {"process": self.noise[0], "measurement": self.noise[1]}, "level": self.level}}
@@ -94,7 +101,7 @@ def _untold(p) -> set:
 def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3, at: float = 0.5,
             process_noise: float | None = None, measurement_noise: float | None = None,
             steps: int | None = None, level: float = 0.95, progress=None, place_sensors: bool = False,
-            costs: Mapping[str, float] | None = None, most: int = 2) -> AnalysisReport:
+            costs: Mapping[str, float] | None = None, most: int = 2, design_inputs: bool = False) -> AnalysisReport:
     """Detectability and isolability of every fault candidate of ``model``
     (a model file of one mode) at three levels side by side: structural
     (the equations' structure, as the Fault Diagnosis Toolbox computes it),
@@ -123,6 +130,10 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     arguments.real(func, "level", level, 0.0, 1.0, "a probability between 0 and 1, e.g. level=0.95")
     arguments.callable_or_none(func, "progress", progress)
     arguments.flag(func, "place_sensors", place_sensors)
+    arguments.flag(func, "design_inputs", design_inputs)
+    if design_inputs and not quantitative:
+        raise ArgumentValueError(f"{func}: design_inputs=True needs the quantitative level", None,
+                                 "leave quantitative=True")
     arguments.integer(func, "most", most, 1, "is below 1", "most=2")
     if costs is not None:
         if not isinstance(costs, Mapping):
@@ -151,19 +162,60 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     settings = None, c.model.settings.dt
     if quantitative:
         from .distinguish import distinguishability
+        from .session import open as open_session
 
+        session = open_session(model)  # compiled once, for every prediction
         say("distinguishability of every fault model")
-        r = distinguishability(model, change=change, at=at, process_noise=process_noise,
+        r = distinguishability(session, change=change, at=at, process_noise=process_noise,
                                measurement_noise=measurement_noise, steps=steps, level=level, progress=progress)
         levels.append(isolability.quantitative(r.distinctions, faults, level))
         settings = r.steps, r.dt
+    tests = None
+    if design_inputs:
+        tests = _input_tests(session, c, faults, r, levels[-1], dict(change=change, at=at, process_noise=process_noise,
+                             measurement_noise=measurement_noise, steps=steps, level=level), say)
     placed = None
     if place_sensors:
         say("sensor placement")
         placed = _place(func, c, model_, costs, most)
     return AnalysisReport(c.model.name, str(model), faults, tuple(of[p].target for p in faults),
                           tuple(of[p].subject for p in faults), tuple(c.equations.outputs), tuple(levels), model_,
-                          settings[0], settings[1], change, at, (process_noise, measurement_noise), level, placed)
+                          settings[0], settings[1], change, at, (process_noise, measurement_noise), level, placed, tests)
+
+
+def _input_tests(session, c, faults, r, quantitative, settings: dict, say) -> tuple:
+    """Per fault the quantitative level does not detect, the best input test (:func:`analyse`)."""
+    from .distinguish import distinguishability
+
+    missed = [f for f, d in zip(faults, quantitative.detectable) if not d]
+    if not missed:
+        return ()
+
+    def detection(report, fault):
+        return max((d.detectability for d in report.distinctions if d.truth.rsplit("_", 1)[0] == fault), default=0.0)
+
+    before = {f: detection(r, f) for f in missed}
+    best: dict = {}
+    T = r.steps * r.dt
+    for u in c.model.inputs:
+        v = u.signal.value
+        a = 0.2 * abs(v) if v else 1.0
+        for spec in ({"signal": "step", "value": v, "final": v + a, "start": (settings["at"] + 1) / 2 * T},
+                     {"signal": "square", "value": v, "amplitude": a, "period": T / 8},
+                     {"signal": "sine", "value": v, "amplitude": a, "period": T / 8},
+                     {"signal": "prbs", "value": v, "amplitude": a, "period": max(r.dt, T / 60)}):
+            say(f"input test: {u.name} {spec['signal']}")
+            tried = distinguishability(session, inputs={u.name: spec}, **settings)
+            for f in missed:
+                p = detection(tried, f)
+                if p > best.get(f, (None, None, before[f]))[2]:
+                    best[f] = (u.name, _signal_text(spec), p)
+    return tuple((f, *best[f], before[f]) if f in best else (f, None, None, before[f], before[f]) for f in missed)
+
+
+def _signal_text(spec: dict) -> str:
+    """A signal as a model's ``inputs`` section and ``--input`` write it."""
+    return "{" + ", ".join(f"{k}: {v:.6g}" if isinstance(v, float) else f"{k}: {v}" for k, v in spec.items()) + "}"
 
 
 def _place(func: str, c, model_, costs, most: int):

@@ -33,6 +33,9 @@ def add_parser(sub) -> None:
                    "(default 2)")
     p.add_argument("--write", metavar="NEW.yaml",
                    help="with --place-sensors: write the model with the first cheapest set added to this new file")
+    p.add_argument("--design-inputs", action="store_true",
+                   help="for each fault the declared inputs leave undetected, the input test (a step, square wave, "
+                        "sine or PRBS of an input) that detects it best, with the probability it reaches")
     p.add_argument("--format", choices=["text", "json"], default="text")
     p.add_argument("-o", "--output", metavar="DIR",
                    help="write analysis.md, analysis.json and isolability.png there instead of printing")
@@ -47,6 +50,8 @@ def run(args: argparse.Namespace) -> int:
     for flag, value in (("--costs", args.costs), ("--write", args.write), ("--most", args.most != 2 or None)):
         if value and not args.place_sensors:
             raise BgcError(f"{flag} applies to --place-sensors", None, f"add --place-sensors, or drop {flag}")
+    if args.design_inputs and args.structure_only:
+        raise BgcError("--design-inputs needs the quantitative level", None, "drop --structure-only")
     costs = _costs(args.costs) if args.costs else None
     if args.write:
         from ..output import artifacts as _a
@@ -62,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         r = analyse(args.model, quantitative=not args.structure_only, change=args.change, at=args.at,
                     process_noise=process, measurement_noise=measurement, steps=args.steps, progress=progress,
-                    place_sensors=args.place_sensors, costs=costs, most=args.most)
+                    place_sensors=args.place_sensors, costs=costs, most=args.most, design_inputs=args.design_inputs)
     finally:
         progress.close()
     text = render.analysis_text(r)

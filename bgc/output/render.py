@@ -737,6 +737,12 @@ def analysis_text(r) -> str:
                              + ", ".join(f"{i} from {j}" for i, j in pairs[:8]) + (", ..." if len(pairs) > 8 else ""))
     if r.placement is not None:
         lines += [""] + placement_lines(r.placement)
+    if r.input_tests:
+        lines += ["", "input tests for the faults the declared inputs leave undetected (P: probability of detection):"]
+        for f, u, text, p, p0 in r.input_tests:
+            lines.append(f"  {f}: none of the input tests tried detects it better (P {p0:.2f})" if u is None else
+                         f"  {f}: P {p0:.2f} -> {p:.2f} with {u}={text} "
+                         f"(bgc distinguish {r.source} --input {u}='{text}')")
     lines.append("")
     lines.append("why not:")
     for i, name in enumerate(f):
