@@ -165,9 +165,11 @@ def test_bgc_analyse_prints_and_writes_its_folder(tmp_path):
     assert "structural: not detected: none" in (tmp_path / "a" / "analysis.md").read_text(encoding="utf-8")
 
 
-def test_a_model_with_modes_and_bad_arguments_are_refused_in_one_line():
-    p = bgc_cli("analyse", ROOT / "models" / "ro_hybrid_valve.yaml")
+def test_what_is_not_built_and_bad_arguments_are_refused_in_one_line():
+    p = bgc_cli("analyse", ROOT / "models" / "ro_hybrid_valve.yaml", "--structure-only", "--place-sensors")
     assert p.returncode != 0 and "not built yet" in p.stderr and len(p.stderr.strip().splitlines()) == 1
+    p = bgc_cli("analyse", TWO_TANK, "--structure-only", "--modes", "a@1")
+    assert p.returncode != 0 and "has no modes" in p.stderr and len(p.stderr.strip().splitlines()) == 1
     with pytest.raises(TypeError, match="quantitative=1 is not True or False"):
         analyse(TWO_TANK, quantitative=1)
     assert isolability.LEVELS == ("structural", "qualitative", "quantitative")
@@ -232,3 +234,44 @@ def test_an_input_test_is_proposed_for_the_capacities_steady_state_hides():
     assert max(d.detectability for d in again.distinctions if d.truth.startswith("C1_")) == pytest.approx(p)
     with pytest.raises(ValueError, match="design_inputs=True needs the quantitative level"):
         analyse(TWO_TANK, quantitative=False, design_inputs=True)
+
+
+HYBRID = sorted(p for p in [*(ROOT / "models").glob("*.yaml"), *(ROOT / "docs" / "examples").glob("relay*.yaml")]
+                if load.declares_modes(p))
+
+
+@pytest.mark.parametrize("path", HYBRID, ids=lambda p: p.stem)
+def test_each_modes_structure_equals_the_fault_diagnosis_toolboxs(path):
+    from bgc.pipeline import compile_model
+
+    c = compile_model(path)
+    faults = tuple(sorted({f.parameter for f in c.model.faults}))
+    for m in c.modes:
+        level, model = isolability.structural(m.equations, faults)
+        tool = fdt_model(model)
+        detected, _ = tool.DetectabilityAnalysis()
+        assert set(detected) == {f for f, d in zip(faults, level.detectable) if d}, m.name
+        im = tool.IsolabilityAnalysis()
+        assert all(level.isolable[i][j] == (i != j and not im[i][j])
+                   for i in range(len(faults)) for j in range(len(faults))), m.name
+
+
+def test_a_relays_faults_across_its_modes_by_hand():
+    """docs/examples/relay.yaml: the auxiliary load R_aux carries current only
+    with the relay closed, where it sits beside the main load R_load (a
+    change of either moves i_L and v_C alike: not told apart, structurally
+    nor by the signatures); open, R_load alone is on the source. Across the
+    modes: each is detected; R_load is told from R_aux (in the open mode,
+    where R_aux is not in the circuit), R_aux not from R_load."""
+    r = analyse(ROOT / "docs" / "examples" / "relay.yaml", quantitative=False)
+    assert list(r.by_mode) == ["open", "closed", "unpowered"]
+    aux, load_ = r.faults.index("R_aux"), r.faults.index("R_load")
+    for name in ("structural", "qualitative"):
+        lv = r.get(name)
+        assert lv.detectable[aux] and lv.detectable[load_]
+        assert lv.isolable[load_][aux] and not lv.isolable[aux][load_]
+        assert "in closed: " in lv.why[aux, load_]
+        open_, closed = (dict(zip(("structural", "qualitative"), r.by_mode[m]))[name] for m in ("open", "closed"))
+        assert not open_.detectable[aux] and closed.detectable[aux] and not closed.isolable[aux][load_]
+    with pytest.raises(ValueError, match="place_sensors=True for a model with modes is not built yet"):
+        analyse(ROOT / "docs" / "examples" / "relay.yaml", quantitative=False, place_sensors=True)

@@ -151,7 +151,7 @@ def quantitative(distinctions: Sequence, faults: Sequence[str], level: float) ->
         if not detectable[i]:
             best = max(by[p], key=lambda d: d.detectability, default=None)
             why[i, i] = ("no fault model of it" if best is None else
-                         f"{best.label} is detected with probability {best.detectability:.2f} at most (< {level:g})")
+                         f"{best.label} is detected with probability {best.detectability:.3f} at most (< {level:g})")
         for j, q in enumerate(faults):
             if i == j or not detectable[i]:
                 row.append(False)
@@ -162,6 +162,23 @@ def quantitative(distinctions: Sequence, faults: Sequence[str], level: float) ->
             row.append(told)
             if not told:
                 d, r = close
-                why[i, j] = f"{d.label}'s data name it over {r.name} with probability {r.probability:.2f} (< {level:g})"
+                why[i, j] = f"{d.label}'s data name it over {r.name} with probability {r.probability:.3f} (< {level:g})"
         matrix.append(tuple(row))
     return Level("quantitative", detectable, tuple(matrix), why)
+
+
+def across(levels: Sequence[Level], modes: Sequence[str]) -> Level:
+    """One level over the modes a run goes through (``levels[k]``: the level
+    in mode ``modes[k]``): a fault is detected when some mode detects it,
+    and told from another when some mode tells them apart (its data are
+    read in every mode it visits); a pair no mode tells apart gives each
+    mode's reason."""
+    n = len(levels[0].detectable)
+    detectable = tuple(any(lv.detectable[i] for lv in levels) for i in range(n))
+    isolable = tuple(tuple(any(lv.isolable[i][j] for lv in levels) for j in range(n)) for i in range(n))
+    why = {}
+    for i in range(n):
+        for j in range(n):
+            if (i == j and not detectable[i]) or (i != j and detectable[i] and not isolable[i][j]):
+                why[i, j] = "; ".join(f"in {m}: {lv.why[i, j]}" for lv, m in zip(levels, modes) if (i, j) in lv.why)
+    return Level(levels[0].name, detectable, isolable, why)

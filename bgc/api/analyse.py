@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from .. import arguments
@@ -45,6 +45,12 @@ class AnalysisReport:
     #: fault, (fault, input, signal as written in a model, probability of
     #: detection with it, without it); None: not asked for
     input_tests: tuple | None = None
+    #: A model with modes: per mode, its structural and qualitative levels
+    #: (``levels`` holds them across the modes; the quantitative level is of
+    #: the run through the modes); empty: a model of one mode
+    by_mode: Mapping = field(default_factory=dict)
+    #: The controlled changes of mode of the quantitative level's run (``MODE@TIME,...``; None: the guards')
+    modes: str | None = None
 
     def get(self, name: str) -> isolability.Level:
         """The level called ``name`` (structural, qualitative, quantitative)."""
@@ -75,6 +81,8 @@ class AnalysisReport:
                 "structural_model": {"equations": [{"name": e, "kind": s.kind[e], "unknowns": sorted(s.holds[e]),
                                                     "known": sorted(s.known[e])} for e in s.equations],
                                      "faults": dict(s.faults)},
+                "modes": {m: {lv.name: {"detectable": list(lv.detectable), "isolable": [list(r) for r in lv.isolable]}
+                              for lv in pair} for m, pair in self.by_mode.items()},
                 "placement": None if self.placement is None else _placement_dict(self.placement),
                 "input_tests": None if self.input_tests is None else
                 [{"fault": f, "input": u, "signal": text, "detected_with": p, "detected_without": p0}
@@ -101,7 +109,8 @@ def _untold(p) -> set:
 def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3, at: float = 0.5,
             process_noise: float | None = None, measurement_noise: float | None = None,
             steps: int | None = None, level: float = 0.95, progress=None, place_sensors: bool = False,
-            costs: Mapping[str, float] | None = None, most: int = 2, design_inputs: bool = False) -> AnalysisReport:
+            costs: Mapping[str, float] | None = None, most: int = 2, design_inputs: bool = False,
+            modes: str | None = None) -> AnalysisReport:
     """Detectability and isolability of every fault candidate of ``model``
     (a model file of one mode) at three levels side by side: structural
     (the equations' structure, as the Fault Diagnosis Toolbox computes it),
@@ -116,8 +125,8 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     Raises
     ------
     ArgumentTypeError, ArgumentValueError
-        An argument of the wrong type or out of range; a model with modes
-        (not built yet: each mode's model is analysed by itself).
+        An argument of the wrong type or out of range; sensor placement on a
+        model with modes (not built yet).
     """
     func = "bgc.analyse"
     arguments.path(func, "model", model)
@@ -146,9 +155,13 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     from ..pipeline import compile_model
 
     say = progress or (lambda text: None)
-    if load.declares_modes(model):
-        raise ArgumentValueError(f"{func}: {model} has modes: analysing a model with modes is not built yet", None,
-                                 "analyse a model of each mode by itself")
+    arguments.text(func, "modes", modes, optional=True)
+    hybrid = load.declares_modes(model)
+    if hybrid and place_sensors:
+        raise ArgumentValueError(f"{func}: place_sensors=True for a model with modes is not built yet", None,
+                                 "place the sensors on a model of each mode by itself")
+    if modes is not None and not hybrid:
+        raise ArgumentValueError(f"{func}: modes={modes!r}: {model} has no modes", None, "leave modes out")
     say("compiling the model")
     c = compile_model(model)
     faults = tuple(sorted({f.parameter for f in c.model.faults}))
@@ -159,6 +172,12 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     say("structural analysis")
     structural, model_ = isolability.structural(c.equations, faults)
     levels = [structural, isolability.qualitative(c.signatures, faults)]
+    by_mode = {}
+    if hybrid:  # each mode by itself, and across them
+        names = tuple(m.name for m in c.modes)
+        by_mode = {m.name: (isolability.structural(m.equations, faults)[0],
+                            isolability.qualitative(m.signatures, faults)) for m in c.modes}
+        levels = [isolability.across([by_mode[m][k] for m in names], names) for k in range(2)]
     settings = None, c.model.settings.dt
     if quantitative:
         from .distinguish import distinguishability
@@ -167,20 +186,23 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
         session = open_session(model)  # compiled once, for every prediction
         say("distinguishability of every fault model")
         r = distinguishability(session, change=change, at=at, process_noise=process_noise,
-                               measurement_noise=measurement_noise, steps=steps, level=level, progress=progress)
+                               measurement_noise=measurement_noise, steps=steps, level=level, progress=progress,
+                               modes=modes if hybrid else None)
         levels.append(isolability.quantitative(r.distinctions, faults, level))
         settings = r.steps, r.dt
     tests = None
     if design_inputs:
         tests = _input_tests(session, c, faults, r, levels[-1], dict(change=change, at=at, process_noise=process_noise,
-                             measurement_noise=measurement_noise, steps=steps, level=level), say)
+                             measurement_noise=measurement_noise, steps=steps, level=level,
+                             modes=modes if hybrid else None), say)
     placed = None
     if place_sensors:
         say("sensor placement")
         placed = _place(func, c, model_, costs, most)
     return AnalysisReport(c.model.name, str(model), faults, tuple(of[p].target for p in faults),
                           tuple(of[p].subject for p in faults), tuple(c.equations.outputs), tuple(levels), model_,
-                          settings[0], settings[1], change, at, (process_noise, measurement_noise), level, placed, tests)
+                          settings[0], settings[1], change, at, (process_noise, measurement_noise), level, placed, tests,
+                          by_mode, modes)
 
 
 def _input_tests(session, c, faults, r, quantitative, settings: dict, say) -> tuple:

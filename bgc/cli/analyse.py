@@ -23,6 +23,9 @@ def add_parser(sub) -> None:
                    help="the quantitative level: the onset, as a fraction of the run (default 0.5)")
     p.add_argument("--noise", metavar="process=Q,measurement=R", help="relative noise levels (default: the model's)")
     p.add_argument("--steps", type=positive, default=None, help="samples of the run (default: the model's)")
+    p.add_argument("--modes", metavar="MODE@TIME,...",
+                   help="a model with modes: the quantitative level's controlled changes of mode over the run "
+                        "(default: the modes its guards and timed transitions reach)")
     p.add_argument("--place-sensors", action="store_true",
                    help="also the cheapest sets of sensors to add so that every fault is detected and every pair told "
                         "apart structurally, as far as the candidates can (every effort and flow, or --costs)")
@@ -67,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         r = analyse(args.model, quantitative=not args.structure_only, change=args.change, at=args.at,
                     process_noise=process, measurement_noise=measurement, steps=args.steps, progress=progress,
-                    place_sensors=args.place_sensors, costs=costs, most=args.most, design_inputs=args.design_inputs)
+                    place_sensors=args.place_sensors, costs=costs, most=args.most, design_inputs=args.design_inputs,
+                    modes=args.modes)
     finally:
         progress.close()
     text = render.analysis_text(r)

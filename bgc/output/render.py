@@ -701,6 +701,10 @@ def analysis_text(r) -> str:
              + ", ".join(f"{LEVEL_LETTERS[lv.name]} {lv.name}" for lv in levels)]
     lines.append("# S: the equations' structure (as the Fault Diagnosis Toolbox); Q: the TRANSCEND signatures once "
                  "every sensor shows its symbols")
+    if r.by_mode:
+        lines.append(f"# S and Q across the modes {', '.join(r.by_mode)}: a fault detected, or a pair told apart, in "
+                     "some mode" + ("" if r.steps is None else "; N over a run through the modes"
+                                    + (f" ({r.modes})" if r.modes else " (its guards')")))
     if r.steps is not None:
         noise = "the model's noise" if r.noise == (None, None) else \
             f"noise process={r.noise[0] or 1:g}, measurement={r.noise[1] or 1:g} of the model's"
@@ -729,6 +733,12 @@ def analysis_text(r) -> str:
         missed = [x for x, d in zip(f, lv.detectable) if not d]
         text = "; ".join(["{" + ", ".join(g) + "}" for g in groups]) or "none"
         lines.append(f"{lv.name}: not detected: {', '.join(missed) or 'none'}; not told apart (both ways): {text}")
+    for mode, pair in r.by_mode.items():
+        for lv in pair:
+            missed = [x for x, d in zip(f, lv.detectable) if not d]
+            groups = "; ".join("{" + ", ".join(g) + "}" for g in lv.classes(f)) or "none"
+            lines.append(f"  in {mode}, {lv.name}: not detected: {', '.join(missed) or 'none'}; "
+                         f"not told apart: {groups}")
     for a, b in zip(levels, levels[1:]):
         for x, y in ((a, b), (b, a)):
             pairs = r.more(x.name, y.name)
