@@ -246,8 +246,9 @@ def test_each_modes_structure_equals_the_fault_diagnosis_toolboxs(path):
 
     c = compile_model(path)
     faults = tuple(sorted({f.parameter for f in c.model.faults}))
+    sensors = {f.parameter: f.subject for f in c.model.faults if f.target == "sensor"}
     for m in c.modes:
-        level, model = isolability.structural(m.equations, faults)
+        level, model = isolability.structural(m.equations, faults, sensors)
         tool = fdt_model(model)
         detected, _ = tool.DetectabilityAnalysis()
         assert set(detected) == {f for f, d in zip(faults, level.detectable) if d}, m.name

@@ -70,10 +70,12 @@ class Level:
         return {(i, j) for i in range(n) for j in range(n) if self.isolable[i][j]}
 
 
-def structural(ssm, faults: Sequence[str]) -> tuple[Level, structure.StructuralModel]:
+def structural(ssm, faults: Sequence[str], sensors: Mapping[str, str] | None = None
+               ) -> tuple[Level, structure.StructuralModel]:
     """The structural level of the state equations ``ssm`` with the fault
-    parameters ``faults``."""
-    model = structure.of_equations(ssm, {p: p for p in faults})
+    parameters ``faults`` (``sensors``: a sensor fault's parameter -> its
+    sensor, :func:`.structure.of_equations`)."""
+    model = structure.of_equations(ssm, {p: p for p in faults}, sensors)
     names, matrix = model.matrix()
     plus = model.overdetermined()
     detectable = tuple(model.faults[p] in plus for p in names)

@@ -97,10 +97,14 @@ class StructuralModel:
         return names, tuple(tuple(i != j and self.faults[i] in cut[j] for j in names) for i in names)
 
 
-def of_equations(ssm, faults: Mapping[str, str]) -> StructuralModel:
+def of_equations(ssm, faults: Mapping[str, str], sensors: Mapping[str, str] | None = None) -> StructuralModel:
     """The structural model of the state equations ``ssm``
     (:class:`~bgc.ir.StateSpaceModel`) with ``faults``: each fault's name ->
-    the parameter its fault changes (module docstring)."""
+    the parameter its fault changes (module docstring). ``sensors``: the
+    parameter of a sensor's fault -> the sensor; the fault is in that
+    sensor's measurement equation also where its parameter is not (a stuck
+    reading, a noise burst: the generated fault model replaces or widens the
+    reading)."""
     states, inputs, outputs = tuple(ssm.states), set(ssm.inputs), tuple(ssm.outputs)
     parameters = sorted(set(faults.values()))
     faulty = {p: f"v_{p}" for p in parameters}
@@ -119,6 +123,7 @@ def of_equations(ssm, faults: Mapping[str, str]) -> StructuralModel:
         holds[d], known[d], kind[d] = frozenset({f"d{x}", x}), frozenset(), "differential"
     for y, h in zip(outputs, ssm.output_exprs):
         unknown, given = variables(h)
+        unknown |= {faulty[p] for p, sensor in (sensors or {}).items() if sensor == y and p in faulty}
         e = f"meas_{y}"
         equations.append(e)
         holds[e], known[e], kind[e] = frozenset(unknown), frozenset(given | {y}), "measurement"

@@ -170,12 +170,13 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
                                  "list its faults in the model's faults: section (docs/format.md)")
     of = {f.parameter: f for f in c.model.faults}
     say("structural analysis")
-    structural, model_ = isolability.structural(c.equations, faults)
+    sensors = {f.parameter: f.subject for f in c.model.faults if f.target == "sensor"}
+    structural, model_ = isolability.structural(c.equations, faults, sensors)
     levels = [structural, isolability.qualitative(c.signatures, faults)]
     by_mode = {}
     if hybrid:  # each mode by itself, and across them
         names = tuple(m.name for m in c.modes)
-        by_mode = {m.name: (isolability.structural(m.equations, faults)[0],
+        by_mode = {m.name: (isolability.structural(m.equations, faults, sensors)[0],
                             isolability.qualitative(m.signatures, faults)) for m in c.modes}
         levels = [isolability.across([by_mode[m][k] for m in names], names) for k in range(2)]
     settings = None, c.model.settings.dt
