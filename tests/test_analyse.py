@@ -162,7 +162,12 @@ def test_bgc_analyse_prints_and_writes_its_folder(tmp_path):
     assert data["levels"]["structural"]["classes"] == [["C1", "f_in_offset"]] and data["quantitative"] is None
     p = bgc_cli("analyse", TWO_TANK, "--structure-only", "-o", tmp_path / "a")
     assert p.returncode == 0 and (tmp_path / "a" / "isolability.png").read_bytes()[:4] == b"\x89PNG"
-    assert "structural: not detected: none" in (tmp_path / "a" / "analysis.md").read_text(encoding="utf-8")
+    md = (tmp_path / "a" / "analysis.md").read_text(encoding="utf-8")
+    assert md.startswith("# What the sensors of two_tank can detect and tell apart\n")
+    assert "| 1 C1 | -- | SQ | SQ | SQ | SQ | SQ | SQ | SQ | .. |" in md  # C1 not told from f_in_offset (9)
+    page = (tmp_path / "a" / "analysis.html").read_text(encoding="utf-8")
+    assert "<li>C1 not told from f_in_offset: structural: every redundancy" in page and "data:image/png" in page
+    assert json.loads((tmp_path / "a" / "manifest.json").read_text())["command"].startswith("analyse")
 
 
 def test_what_is_not_built_and_bad_arguments_are_refused_in_one_line():

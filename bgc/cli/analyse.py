@@ -41,7 +41,7 @@ def add_parser(sub) -> None:
                         "sine or PRBS of an input) that detects it best, with the probability it reaches")
     p.add_argument("--format", choices=["text", "json"], default="text")
     p.add_argument("-o", "--output", metavar="DIR",
-                   help="write analysis.md, analysis.json and isolability.png there instead of printing")
+                   help="write analysis.md, analysis.html, analysis.json and isolability.png there instead of printing")
     p.set_defaults(run=run)
 
 
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
             raise BgcError(f"--write {printable(args.write)} is the model file: it is never replaced", None,
                            "write the model with its sensors to a new file")
         _a.check_writable(Path(args.write), "the model with its sensors")
-    names = ("analysis.md", "analysis.json", "isolability.png", "manifest.json")
+    names = ("analysis.md", "analysis.html", "analysis.json", "isolability.png", "manifest.json")
     if args.output:
         artifacts.check_folder(Path(args.output), names, "analyse")  # refused before the work, not after
     progress = Progress("analyse")
@@ -88,12 +88,14 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write(data if args.format == "json" else text)
         sys.stdout.flush()
         return 0
-    files = {"analysis.md": artifacts.mark_text("```\n" + text + "```\n", "md", r.source),
-             "analysis.json": artifacts.mark_text(data, "json", r.source),
-             "isolability.png": plots.analysis_figure(r, "png")}
+    from ..output import analysis_report
+
+    png = plots.analysis_figure(r, "png")
+    files = {"analysis.md": analysis_report.markdown(r), "analysis.html": analysis_report.page(r, {"isolability.png": png}),
+             "analysis.json": data, "isolability.png": png}  # the folder's manifest.json lists them
     files["manifest.json"] = artifacts.manifest(files, "analyse")
     artifacts.write_folder(Path(args.output), files)
-    print(f"wrote {printable(args.output)}/: {', '.join(names[:3])}")
+    print(f"wrote {printable(args.output)}/: {', '.join(names[:4])}")
     return 0
 
 
