@@ -153,14 +153,14 @@ def test_the_quantitative_level_is_bgc_distinguishs():
 
 
 def test_bgc_analyse_prints_and_writes_its_folder(tmp_path):
-    p = bgc_cli("analyse", TWO_TANK, "--structure-only")
+    p = bgc_cli("analyse", TWO_TANK, "--no-quantitative")
     assert p.returncode == 0, p.stderr
     assert "C1 not told from f_in_offset: S: every redundancy that holds C1's equation holds f_in_offset's" in p.stdout
     assert p.stderr == ""
-    p = bgc_cli("analyse", TWO_TANK, "--structure-only", "--format", "json")
+    p = bgc_cli("analyse", TWO_TANK, "--no-quantitative", "--format", "json")
     data = json.loads(p.stdout)
     assert data["levels"]["structural"]["classes"] == [["C1", "f_in_offset"]] and data["quantitative"] is None
-    p = bgc_cli("analyse", TWO_TANK, "--structure-only", "-o", tmp_path / "a")
+    p = bgc_cli("analyse", TWO_TANK, "--no-quantitative", "-o", tmp_path / "a")
     assert p.returncode == 0 and (tmp_path / "a" / "isolability.png").read_bytes()[:4] == b"\x89PNG"
     md = (tmp_path / "a" / "analysis.md").read_text(encoding="utf-8")
     assert md.startswith("# What the sensors of two_tank can detect and tell apart\n")
@@ -171,9 +171,9 @@ def test_bgc_analyse_prints_and_writes_its_folder(tmp_path):
 
 
 def test_what_is_not_built_and_bad_arguments_are_refused_in_one_line():
-    p = bgc_cli("analyse", ROOT / "models" / "ro_hybrid_valve.yaml", "--structure-only", "--place-sensors")
+    p = bgc_cli("analyse", ROOT / "models" / "ro_hybrid_valve.yaml", "--no-quantitative", "--place-sensors")
     assert p.returncode != 0 and "not built yet" in p.stderr and len(p.stderr.strip().splitlines()) == 1
-    p = bgc_cli("analyse", TWO_TANK, "--structure-only", "--modes", "a@1")
+    p = bgc_cli("analyse", TWO_TANK, "--no-quantitative", "--modes", "a@1")
     assert p.returncode != 0 and "has no modes" in p.stderr and len(p.stderr.strip().splitlines()) == 1
     with pytest.raises(TypeError, match="quantitative=1 is not True or False"):
         analyse(TWO_TANK, quantitative=1)
@@ -181,22 +181,24 @@ def test_what_is_not_built_and_bad_arguments_are_refused_in_one_line():
 
 
 def test_the_sensor_that_splits_the_tanks_inflow_from_its_capacity_by_hand(tmp_path):
-    """C1 and the inflow's actuator bias enter the first tank's dynamic
-    equation only: a sensor on the delivered inflow f1 (= f_in +
-    f_in_offset) knows the actuator's share, and one on C1's flow f2 (=
-    C1 de2, with e2 = R10 F10 measured) knows the capacity's: each alone
+    """Structurally: C1 and the inflow's actuator bias enter the first tank's
+    dynamic equation only; a sensor on the delivered inflow f1 (= f_in +
+    f_in_offset) knows the actuator's share, and one on C1's flow f2 (= C1
+    de2, with e2 = R10 F10 measured) knows the capacity's: each alone
     separates them; no sensor on a pressure does (each is a state the flows
     give already). Costs choose between them; the model written with f1
     reads back and its analysis separates the pair at both levels."""
-    r = analyse(TWO_TANK, quantitative=False, place_sensors=True)
-    p = r.placement
-    assert p.cost == 1 and set(p.sets) == {("f1",), ("f2",)}
-    assert len(p.now[1]) + 2 == len(p.reachable[1]) and p.reachable[0] == p.now[0] == set(r.faults)
-    assert analyse(TWO_TANK, quantitative=False, place_sensors=True, costs={"f1": 5, "f2": 1}).placement.sets == \
-        (("f2",),)
-    assert analyse(TWO_TANK, quantitative=False, place_sensors=True, costs={"e2": 1}).placement.sets == ((),)
+    def structural(**kw):
+        return analyse(TWO_TANK, quantitative=False, place_sensors=True, place_by="structural", **kw).placement
+
+    p = structural()
+    assert p.cost == 1 and set(p.sets) == {("f1",), ("f2",)} and p.reachable_qualitative is None
+    assert len(p.now[1]) + 2 == len(p.reachable[1]) and p.reachable[0] == p.now[0] == set(p.faults)
+    assert structural(costs={"f1": 5, "f2": 1}).sets == (("f2",),)
+    assert structural(costs={"e2": 1}).sets == ((),)
     out = tmp_path / "placed.yaml"
-    p = bgc_cli("analyse", TWO_TANK, "--structure-only", "--place-sensors", "--write", out)
+    p = bgc_cli("analyse", TWO_TANK, "--no-quantitative", "--place-sensors", "--place-by", "structural",
+                "--write", out)
     assert p.returncode == 0, p.stderr
     assert f"wrote {out}: {TWO_TANK} with f1 added" in p.stdout
     assert "  # bgc analyse --place-sensors: a sensor added on f1\n  f1: {expr: f1}\n" in out.read_text(encoding="utf-8")
@@ -206,18 +208,37 @@ def test_the_sensor_that_splits_the_tanks_inflow_from_its_capacity_by_hand(tmp_p
     assert {(i, j), (j, i)} <= placed.get("qualitative").pairs()
 
 
+def test_sensors_placed_by_the_signatures_too_are_the_cheapest_that_reach_both_levels(tmp_path):
+    """With the qualitative level as well, the two tanks' resistors must be
+    told apart by their signatures: no single sensor does it (checked on
+    every candidate's model written out and analysed afresh), each set given
+    does, at both levels, as every candidate together."""
+    r = analyse(TWO_TANK, quantitative=False, place_sensors=True)
+    p = r.placement
+    assert p.cost == 2 and p.sets and all(len(s) == 2 for s in p.sets)
+    for k, sensors in enumerate([*((c.name,) for c in p.candidates), p.sets[0]]):
+        out = tmp_path / f"m{k}.yaml"
+        from bgc.api.analyse import with_sensors
+
+        with_sensors(TWO_TANK, sensors, out)
+        a = analyse(out, quantitative=False)
+        reaches = len(a.get("structural").pairs()) == len(p.reachable[1]) and \
+            len(a.get("qualitative").pairs()) == len(p.reachable_qualitative[1])
+        assert reaches == (len(sensors) == 2), sensors
+
+
 def test_sensor_placement_refuses_what_it_cannot_do_in_one_line(tmp_path):
     costs = tmp_path / "costs.yaml"
     for args, what in ((("--write", tmp_path / "x.yaml"), "--write applies to --place-sensors"),
                        (("--place-sensors", "--write", TWO_TANK), "is the model file: it is never replaced"),
                        (("--place-sensors", "--costs", costs), "cannot be read")):
-        p = bgc_cli("analyse", TWO_TANK, "--structure-only", *args)
+        p = bgc_cli("analyse", TWO_TANK, "--no-quantitative", *args)
         assert p.returncode != 0 and what in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
     costs.write_text("{e2: -1}\n", encoding="utf-8")
-    p = bgc_cli("analyse", TWO_TANK, "--structure-only", "--place-sensors", "--costs", costs)
+    p = bgc_cli("analyse", TWO_TANK, "--no-quantitative", "--place-sensors", "--costs", costs)
     assert p.returncode != 0 and "not a mapping of bond variables to costs >= 0" in p.stderr
     costs.write_text("{x99: 1}\n", encoding="utf-8")
-    p = bgc_cli("analyse", TWO_TANK, "--structure-only", "--place-sensors", "--costs", costs)
+    p = bgc_cli("analyse", TWO_TANK, "--no-quantitative", "--place-sensors", "--costs", costs)
     assert p.returncode != 0 and "costs names 'x99', not a bond variable of two_tank" in p.stderr
 
 

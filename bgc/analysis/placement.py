@@ -1,14 +1,16 @@
 """Sensor placement (``bgc analyse --place-sensors``): the cheapest sets of
 sensors to add so that every fault is detected and every pair told apart,
-structurally (:mod:`.structure`), as far as the candidate sensors can.
+structurally (:mod:`.structure`) and by the signatures (the qualitative
+level of :mod:`.isolability`, a sensor's signature the TRANSCEND symbols its
+bond variable shows), as far as the candidate sensors can.
 
 The candidates are the bond graph's efforts and flows (each different
 expression once, the first bond's name for it; none already measured), or
 those a candidates file names, each with a cost (1 by default). A set is
 *enough* when the model with those sensors added detects every fault the
 model with every candidate added detects, and tells apart every ordered pair
-that one tells apart: what no candidate can give is not asked of any set
-(and is said). The sets are tried by their cost, the fewest sensors first
+that one tells apart, at both levels: what no candidate can give is not
+asked of any set (and is said). The sets are tried by their cost, the fewest sensors first
 among equal costs, up to ``most`` sensors; every set of the cheapest cost
 that is enough is given (a sensor whose equation holds the same unknowns as
 another's, e.g. the effort and the flow of one resistor at a known
@@ -50,6 +52,9 @@ class Placement:
     now: tuple[frozenset, frozenset]
     reachable: tuple[frozenset, frozenset]
     faults: tuple[str, ...]
+    #: The same at the qualitative level (None: not asked for)
+    now_qualitative: tuple[frozenset, frozenset] | None = None
+    reachable_qualitative: tuple[frozenset, frozenset] | None = None
 
 
 def candidates(ssm, measured_exprs: Sequence, costs: Mapping[str, float] | None = None) -> tuple[Candidate, ...]:
@@ -109,14 +114,37 @@ def _enough(model: StructuralModel, target: tuple[frozenset, frozenset]) -> bool
     return True
 
 
-def place(model: StructuralModel, ssm, cands: Sequence[Candidate], most: int = 2) -> Placement:
+def _qualitative(signatures, faults: Sequence[str], columns: Sequence[str]) -> tuple[frozenset, frozenset]:
+    """What the signatures read at ``columns`` (measurement names) detect and tell apart."""
+    from .isolability import qualitative
+
+    keep = [signatures.measurements.index(c) for c in columns]
+    view = replace(signatures, measurements=tuple(columns),
+                   signatures=tuple(replace(x, symbols=tuple(x.symbols[k] for k in keep)) for x in signatures.signatures))
+    level = qualitative(view, faults)
+    return (frozenset(f for f, d in zip(faults, level.detectable) if d),
+            frozenset((faults[i], faults[j]) for i, j in level.pairs()))
+
+
+def _covers(got: tuple[frozenset, frozenset], want: tuple[frozenset, frozenset]) -> bool:
+    return want[0] <= got[0] and want[1] <= got[1]
+
+
+def place(model: StructuralModel, ssm, cands: Sequence[Candidate], most: int = 2, signatures=None) -> Placement:
     """The cheapest sets of at most ``most`` candidates that are enough
-    (module docstring)."""
+    (module docstring); ``signatures``: the signatures read at the model's
+    sensors and then at every candidate (:func:`bgc.compiler.signatures.derive`
+    with ``extra``), for the qualitative level too (None: structurally only)."""
     now = _gives(model)
     reachable = _gives(with_sensors(model, ssm, cands))
     faults = tuple(model.faults)
-    if now == reachable:
-        return Placement(((),), 0.0, tuple(cands), now, reachable, faults)
+    outputs = tuple(ssm.outputs)
+    q_now = q_all = None
+    if signatures is not None:
+        q_now = _qualitative(signatures, faults, outputs)
+        q_all = _qualitative(signatures, faults, outputs + tuple(c.name for c in cands))
+    if now == reachable and q_now == q_all:
+        return Placement(((),), 0.0, tuple(cands), now, reachable, faults, q_now, q_all)
     subsets = sorted((s for k in range(1, most + 1) for s in itertools.combinations(cands, k)),
                      key=lambda s: (sum(c.cost for c in s), len(s)))
     found, cost = [], None
@@ -124,7 +152,8 @@ def place(model: StructuralModel, ssm, cands: Sequence[Candidate], most: int = 2
         total = sum(c.cost for c in s)
         if cost is not None and (total > cost or len(found) >= MOST_SETS):
             break
-        if _enough(with_sensors(model, ssm, s), reachable):
+        if _enough(with_sensors(model, ssm, s), reachable) and \
+                (q_all is None or _covers(_qualitative(signatures, faults, outputs + tuple(c.name for c in s)), q_all)):
             found.append(tuple(c.name for c in s))
             cost = total
-    return Placement(tuple(found), cost, tuple(cands), now, reachable, faults)
+    return Placement(tuple(found), cost, tuple(cands), now, reachable, faults, q_now, q_all)

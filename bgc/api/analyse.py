@@ -97,6 +97,9 @@ def _placement_dict(p) -> dict:
             "candidates": [{"name": c.name, "reads": str(c.expr), "cost": c.cost} for c in p.candidates],
             "detected_now": sorted(p.now[0]), "detected_at_most": sorted(p.reachable[0]),
             "pairs_now": len(p.now[1]), "pairs_at_most": len(p.reachable[1]),
+            "qualitative": None if p.reachable_qualitative is None else
+            {"detected_now": sorted(p.now_qualitative[0]), "detected_at_most": sorted(p.reachable_qualitative[0]),
+             "pairs_now": len(p.now_qualitative[1]), "pairs_at_most": len(p.reachable_qualitative[1])},
             "never_detected": sorted(set(p.faults) - p.reachable[0]),
             "never_told_apart": [[a, b] for a, b in sorted(_untold(p))]}
 
@@ -109,7 +112,8 @@ def _untold(p) -> set:
 def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3, at: float = 0.5,
             process_noise: float | None = None, measurement_noise: float | None = None,
             steps: int | None = None, level: float = 0.95, progress=None, place_sensors: bool = False,
-            costs: Mapping[str, float] | None = None, most: int = 2, design_inputs: bool = False,
+            costs: Mapping[str, float] | None = None, most: int = 2, place_by: str = "qualitative",
+            design_inputs: bool = False,
             modes: str | None = None) -> AnalysisReport:
     """Detectability and isolability of every fault candidate of ``model``
     (a model file of one mode) at three levels side by side: structural
@@ -144,6 +148,7 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
         raise ArgumentValueError(f"{func}: design_inputs=True needs the quantitative level", None,
                                  "leave quantitative=True")
     arguments.integer(func, "most", most, 1, "is below 1", "most=2")
+    arguments.choice(func, "place_by", place_by, ("structural", "qualitative"))
     if costs is not None:
         if not isinstance(costs, Mapping):
             raise ArgumentTypeError(f"{func}: costs={arguments.shown(costs)} is not a mapping", None,
@@ -199,7 +204,7 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     placed = None
     if place_sensors:
         say("sensor placement")
-        placed = _place(func, c, model_, costs, most)
+        placed = _place(func, c, model_, costs, most, place_by == "qualitative")
     return AnalysisReport(c.model.name, str(model), faults, tuple(of[p].target for p in faults),
                           tuple(of[p].subject for p in faults), tuple(c.equations.outputs), tuple(levels), model_,
                           settings[0], settings[1], change, at, (process_noise, measurement_noise), level, placed, tests,
@@ -241,7 +246,7 @@ def _signal_text(spec: dict) -> str:
     return "{" + ", ".join(f"{k}: {v:.6g}" if isinstance(v, float) else f"{k}: {v}" for k, v in spec.items()) + "}"
 
 
-def _place(func: str, c, model_, costs, most: int):
+def _place(func: str, c, model_, costs, most: int, qualitative: bool):
     """The placement of compilation ``c``'s sensors (:func:`analyse`)."""
     import sympy
 
@@ -252,9 +257,13 @@ def _place(func: str, c, model_, costs, most: int):
     if unknown:
         raise ArgumentValueError(f"{func}: costs names {unknown[0]!r}, not a bond variable of {c.model.name}", None,
                                  f"name efforts and flows of its bonds, e.g. {sorted(names)[0]}")
+    from ..compiler import signatures
+
     offsets = {sympy.Symbol(f.parameter): 0 for f in c.model.faults if f.target == "sensor"}
     measured = [e.subs(offsets) for e in c.equations.output_exprs]
-    return placement.place(model_, c.equations, placement.candidates(c.equations, measured, costs), most)
+    cands = placement.candidates(c.equations, measured, costs)
+    every = signatures.derive(c.equations, tuple(x.name for x in cands)) if qualitative else None  # each one's symbols
+    return placement.place(model_, c.equations, cands, most, every)
 
 
 def with_sensors(model: str | Path, sensors, out: str | Path) -> Path:

@@ -15,7 +15,7 @@ def add_parser(sub) -> None:
                        help="which faults the sensors can detect and tell apart, at three levels: the equations' "
                             "structure, the signatures, and the data's noise (before the plant runs)")
     p.add_argument("model", metavar="MODEL")
-    p.add_argument("--structure-only", action="store_true",
+    p.add_argument("--no-quantitative", action="store_true",
                    help="the structural and qualitative levels only (no distinguishability: seconds less)")
     p.add_argument("--change", type=above_zero, default=0.3,
                    help="the quantitative level: each fault's change, relative to its scale (default 0.3)")
@@ -32,6 +32,9 @@ def add_parser(sub) -> None:
     p.add_argument("--costs", metavar="FILE.yaml",
                    help="with --place-sensors: the candidate sensors and their costs, a mapping of bond variables "
                         "to numbers, e.g. {e2: 1, f1: 3} (default: every effort and flow at cost 1)")
+    p.add_argument("--place-by", choices=["structural", "qualitative"], default="qualitative",
+                   help="with --place-sensors: the levels the sensors must reach what every candidate gives at: "
+                        "structural, or structural and qualitative (default)")
     p.add_argument("--most", type=positive, default=2, help="with --place-sensors: at most this many sensors added "
                    "(default 2)")
     p.add_argument("--write", metavar="NEW.yaml",
@@ -50,11 +53,12 @@ def run(args: argparse.Namespace) -> int:
     from ..output import artifacts, plots, render
 
     process, measurement = parse_noise(args.noise)
-    for flag, value in (("--costs", args.costs), ("--write", args.write), ("--most", args.most != 2 or None)):
+    for flag, value in (("--costs", args.costs), ("--write", args.write), ("--most", args.most != 2 or None),
+                        ("--place-by", args.place_by != "qualitative" or None)):
         if value and not args.place_sensors:
             raise BgcError(f"{flag} applies to --place-sensors", None, f"add --place-sensors, or drop {flag}")
-    if args.design_inputs and args.structure_only:
-        raise BgcError("--design-inputs needs the quantitative level", None, "drop --structure-only")
+    if args.design_inputs and args.no_quantitative:
+        raise BgcError("--design-inputs needs the quantitative level", None, "drop --no-quantitative")
     costs = _costs(args.costs) if args.costs else None
     if args.write:
         from ..output import artifacts as _a
@@ -68,9 +72,9 @@ def run(args: argparse.Namespace) -> int:
         artifacts.check_folder(Path(args.output), names, "analyse")  # refused before the work, not after
     progress = Progress("analyse")
     try:
-        r = analyse(args.model, quantitative=not args.structure_only, change=args.change, at=args.at,
+        r = analyse(args.model, quantitative=not args.no_quantitative, change=args.change, at=args.at,
                     process_noise=process, measurement_noise=measurement, steps=args.steps, progress=progress,
-                    place_sensors=args.place_sensors, costs=costs, most=args.most, design_inputs=args.design_inputs,
+                    place_sensors=args.place_sensors, costs=costs, most=args.most, place_by=args.place_by, design_inputs=args.design_inputs,
                     modes=args.modes)
     finally:
         progress.close()

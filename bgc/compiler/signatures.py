@@ -58,12 +58,16 @@ from ..ir import FaultSignatures, Signature, StateSpaceModel, sym, var_key
 from ..kinds import DIRECTIONS, fault_kind
 
 
-def derive(ssm: StateSpaceModel) -> FaultSignatures:
-    """Signatures of every fault candidate, direction and kind of the model."""
+def derive(ssm: StateSpaceModel, extra: tuple[str, ...] = ()) -> FaultSignatures:
+    """Signatures of every fault candidate, direction and kind of the model;
+    ``extra``: bond variables read as if a sensor were on each (after the
+    model's, in this order: what a sensor added there would show; ``bgc
+    analyse --place-sensors``)."""
     tcg = ssm.tcg
     g = tcg.graph
     model = ssm.model
-    measured = _measured_nodes(g, ssm.outputs)
+    measured = _measured_nodes(g, ssm.outputs) | {v: v for v in extra}
+    columns = tuple(ssm.outputs) + tuple(extra)
     depth = len(ssm.states) + 2  # a path through every integrator, plus a drift's order
     algebraic = nx.DiGraph()
     algebraic.add_nodes_from(g.nodes)
@@ -81,18 +85,18 @@ def derive(ssm: StateSpaceModel) -> FaultSignatures:
                         own = ("?",) + ("0",) * depth
                     if fault_kind(kind).noise:  # a noise burst moves no mean: any symbol, at every order
                         own = ("?",) * (depth + 1)
-                    symbols = tuple(own if m == fault.subject else ("0",) * (depth + 1) for m in ssm.outputs)
+                    symbols = tuple(own if m == fault.subject else ("0",) * (depth + 1) for m in columns)
                 else:
                     effects = _actuator_effects(g, model, fault, kind) if fault.target == "actuator" else None
                     dev = _propagate(g, order, fault.parameter, direction, shift, depth, effects)
-                    symbols = tuple(tuple(dev[measured[m]]) for m in ssm.outputs)
-                signatures.append(Signature(fault.parameter, direction, kind, symbols, _first(ssm.outputs, symbols)))
+                    symbols = tuple(tuple(dev[measured[m]]) for m in columns)
+                signatures.append(Signature(fault.parameter, direction, kind, symbols, _first(columns, symbols)))
     full = {s.name: (s.symbols, s.first) for s in signatures}
     groups = _groups(full)
     orders = next(k for k in range(depth + 1)
                   if _groups({n: tuple(m[: k + 1] for m in sym_) for n, (sym_, _) in full.items()}) == groups)
     undetectable = tuple(s.name for s in signatures if all(c == "0" for m in s.symbols for c in m))
-    return FaultSignatures(ssm, tuple(ssm.outputs), orders, tuple(signatures),
+    return FaultSignatures(ssm, columns, orders, tuple(signatures),
                            tuple(g_ for g_ in groups if len(g_) > 1), _structural(ssm), undetectable)
 
 

@@ -767,9 +767,13 @@ def analysis_text(r) -> str:
 def placement_lines(p) -> list[str]:
     """``bgc analyse --place-sensors``'s answer, as lines."""
     detected, pairs = p.reachable
-    lines = [f"sensor placement (structural; candidates: {len(p.candidates)} bond variables no sensor reads): "
-             f"now {len(p.now[0])} faults detected and {len(p.now[1])} ordered pairs told apart; "
-             f"with every candidate {len(detected)} and {len(pairs)}"]
+    lines = [f"sensor placement (structural{' and qualitative' if p.reachable_qualitative else ''}; candidates: "
+             f"{len(p.candidates)} bond variables no sensor reads): structurally now {len(p.now[0])} faults "
+             f"detected and {len(p.now[1])} ordered pairs told apart, with every candidate {len(detected)} and "
+             f"{len(pairs)}"]
+    if p.reachable_qualitative:
+        lines.append(f"  by the signatures now {len(p.now_qualitative[0])} and {len(p.now_qualitative[1])}, with "
+                     f"every candidate {len(p.reachable_qualitative[0])} and {len(p.reachable_qualitative[1])}")
     never = [f for f in p.faults if f not in detected]
     if never:
         lines.append(f"  no candidate detects: {', '.join(never)}")
