@@ -243,23 +243,24 @@ def test_sensor_placement_refuses_what_it_cannot_do_in_one_line(tmp_path):
 
 
 @pytest.mark.slow
-def test_an_input_test_is_proposed_for_the_capacities_steady_state_hides():
-    """At the declared constant inflow the tanks settle and C1, C2 change
-    nothing the sensors read (P 0.5: a coin); a moving inflow shows them. The
-    proposal's probability is what bgc distinguish gives with that input."""
-    from bgc import api
-
+def test_an_input_test_is_proposed_for_a_damper_at_rest():
+    """The mass-spring-damper of tests/data/models at rest (its force input
+    0): the damper's force c v is 0 while nothing moves, so a change of c
+    changes nothing the sensors read (P 0.5: a coin); a force that moves the
+    mass shows it. The proposal's probability is what bgc distinguish gives
+    with that input."""
     import yaml
 
-    r = analyse(TWO_TANK, design_inputs=True, steps=100)
-    tests = {f: (u, text, p, p0) for f, u, text, p, p0 in r.input_tests}
-    assert set(tests) == {"C1", "C2"}
-    assert all(u == "f_in" and p0 < 0.6 < p for u, text, p, p0 in tests.values()), tests
-    u, text, p, _ = tests["C1"]
-    again = api.distinguishability(TWO_TANK, inputs={u: yaml.safe_load(text)}, steps=100)
-    assert max(d.detectability for d in again.distinctions if d.truth.startswith("C1_")) == pytest.approx(p)
+    from bgc import api
+
+    msd = ROOT / "tests" / "data" / "models" / "mass_spring_damper.yaml"
+    r = analyse(msd, design_inputs=True, steps=100)
+    (f, u, text, p, p0), = r.input_tests
+    assert (f, u) == ("c", "F") and p0 < 0.6 and p > 0.99
+    again = api.distinguishability(msd, inputs={u: yaml.safe_load(text)}, steps=100)
+    assert max(d.detectability for d in again.distinctions if d.truth.startswith("c_")) == pytest.approx(p)
     with pytest.raises(ValueError, match="design_inputs=True needs the quantitative level"):
-        analyse(TWO_TANK, quantitative=False, design_inputs=True)
+        analyse(msd, quantitative=False, design_inputs=True)
 
 
 HYBRID = sorted(p for p in [*(ROOT / "models").glob("*.yaml"), *(ROOT / "docs" / "examples").glob("relay*.yaml")]
