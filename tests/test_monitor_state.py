@@ -33,17 +33,18 @@ STEPS, ONSET = 240, 6.0
 OPTIONS = ("--particles", "200", "--seed", "3")
 
 
-def plant_lines(seed: int = 2) -> list[str]:
-    """The circuit's run as a logger's CSV lines: R2 rises to 1.6 times its
-    value at t = ONSET; noise as the model declares."""
+def plant_lines(seed: int = 2, r2: float = 1.6, f2_bias: float = 0.0) -> list[str]:
+    """The circuit's run as a logger's CSV lines: from t = ONSET, R2 is
+    ``r2`` times its value and sensor f2 reads ``f2_bias`` high; noise as the
+    model declares."""
     rng = np.random.default_rng(seed)
-    healthy, faulty = circuit(NOMINAL, 1.0), circuit(dict(NOMINAL, R2=1.6 * NOMINAL["R2"]), 1.0)
+    healthy, faulty = circuit(NOMINAL, 1.0), circuit(dict(NOMINAL, R2=r2 * NOMINAL["R2"]), 1.0)
     x, lines = np.array(START), ["time,u:V,y:f2,y:f6,y:e11"]
     for k in range(1, STEPS + 1):
         p, (e, process, sensor) = (NOMINAL, healthy) if k * DT < ONSET else \
-            (dict(NOMINAL, R2=1.6 * NOMINAL["R2"]), faulty)
+            (dict(NOMINAL, R2=r2 * NOMINAL["R2"]), faulty)
         x = e[:3, :3] @ x + e[:3, 3] * V + process * rng.standard_normal(3)
-        y = readings(p, x, V) + sensor * rng.standard_normal(3)
+        y = readings(p, x, V) + sensor * rng.standard_normal(3) + [f2_bias * (k * DT >= ONSET), 0, 0]
         lines.append(",".join(f"{v:.6g}" for v in (k * DT, V, *y)))
     return [line + "\n" for line in lines]
 
@@ -117,18 +118,38 @@ def test_a_state_that_is_not_this_monitors_is_refused_in_one_line_and_kept(tmp_p
     edited.write_text(CIRCUIT.read_text(encoding="utf-8").replace("value: 2.0", "value: 2.1", 1), encoding="utf-8")
     refused(*OPTIONS, model=edited, what="saved with another model file")
     refused(*OPTIONS, "--checkpoint", "1", what="saved with another --checkpoint")
+    changed = bytearray(saved)
+    changed[-1000] ^= 1  # one bit of the diagnoser's state
+    (state / resume.NAME).write_bytes(bytes(changed))
+    saved = (state / resume.NAME).read_bytes()
+    refused(*OPTIONS, what="the state is not whole (its checksum differs)")
     (state / resume.NAME).write_bytes(saved[: len(saved) // 2])
     saved = (state / resume.NAME).read_bytes()
-    refused(*OPTIONS, what="the state cannot be read")
+    refused(*OPTIONS, what="the state is not whole")
     (state / resume.NAME).write_bytes(b"a file of someone else\n")
     saved = (state / resume.NAME).read_bytes()
     refused(*OPTIONS, what="is not a state bgc wrote")
+    (state / resume.NAME).unlink()
+    (tmp_path / "theirs").write_text("", encoding="utf-8")
+    (state / resume.PARTIAL).symlink_to(tmp_path / "theirs")  # bgc writes through no link
+    p = bgc_cli("monitor", CIRCUIT, "--data", "-", *OPTIONS, "-o", tmp_path / "d", "--state", state,
+                input="".join(lines))
+    assert p.returncode != 0 and "is not a state bgc wrote" in p.stderr
+    assert (tmp_path / "theirs").read_text(encoding="utf-8") == ""
+
+
+@pytest.mark.slow
+def test_a_restart_on_other_rows_than_the_state_was_saved_with_is_refused(tmp_path):
+    lines = plant_lines()
+    assert monitor(tmp_path, lines[:61], "a", "--state", tmp_path / "s").returncode == 0
+    other = lines[:30] + [lines[30].replace(",10,", ",10.5,", 1)] + lines[31:]
+    p = monitor(tmp_path, other, "b", "--state", tmp_path / "s")
+    assert p.returncode != 0 and "line 31: the row of t = 1.5 differs from the one the state" in p.stderr, p.stderr
 
 
 def test_the_state_options_are_checked_before_the_input_is_read(tmp_path):
     for args, what in ((("--state-every", "5"), "--state-every applies to --state"),
-                       (("--state", tmp_path / "s", "--exclude-faulty-sensor", "--checkpoint", "1"),
-                        "--state does not go with --exclude-faulty-sensor"),
+                       (("--state", tmp_path / "c" / "state"), "is inside the report folder"),
                        (("--state", tmp_path / "s", "--state-every", "0"), "--state-every 0")):
         p = monitor(tmp_path, plant_lines()[:5], "c", *args)
         assert p.returncode != 0 and what in p.stderr and "Traceback" not in p.stderr, p.stderr
@@ -172,3 +193,23 @@ def test_a_monitor_killed_mid_stream_goes_on_from_its_last_state(tmp_path, whole
     assert again.returncode == 0, again.stderr
     assert again.stdout.startswith(f"resumed from {state}: {rows} rows")
     assert report(tmp_path / "again") == whole[1]
+
+
+@pytest.mark.slow
+def test_a_restart_after_a_sensor_was_taken_out_goes_on_without_it(tmp_path):
+    """f2 reads 0.5 high from t = 6: a checkpoint every time unit isolates
+    it and the monitor takes it out (--exclude-faulty-sensor); stopped
+    after that and started again, the monitor watches without f2 and ends
+    as the uninterrupted one, checkpoints at the same times."""
+    lines = plant_lines(r2=1.0, f2_bias=0.5)
+    more = ("--checkpoint", "1", "--exclude-faulty-sensor")
+    whole = monitor(tmp_path, lines, "whole", *more)
+    assert whole.returncode == 0 and "sensor f2 taken out" in whole.stdout, whole.stdout
+    first = monitor(tmp_path, lines[:231], "first", *more, "--state", tmp_path / "s", "--state-every", "7")
+    assert first.returncode == 0 and "sensor f2 taken out" in first.stdout
+    again = monitor(tmp_path, lines, "again", *more, "--state", tmp_path / "s", "--state-every", "7")
+    assert again.returncode == 0, again.stderr
+    assert report(tmp_path / "again") == report(tmp_path / "whole")
+    said = again.stdout.splitlines()
+    assert said[0].startswith("resumed from ") and said[1:-1] == \
+        [x for x in whole.stdout.splitlines()[:-1] if x not in first.stdout.splitlines()[:-2]]

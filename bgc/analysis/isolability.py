@@ -53,15 +53,16 @@ class Level:
     why: Mapping[tuple[int, int], str]
 
     def classes(self, faults: Sequence[str]) -> tuple[tuple[str, ...], ...]:
-        """The faults no sensor detects, and the groups of detected faults
-        each of which cannot be told from another of its group both ways
-        (connected: a chain of such pairs), each of more than one fault."""
+        """The groups of detected faults no two of which can be told apart
+        either way (the largest such groups: the maximal cliques of the
+        pairs not told apart both ways; a fault may be in more than one),
+        each of more than one fault."""
         g = nx.Graph()
         n = len(faults)
         g.add_nodes_from(i for i in range(n) if self.detectable[i])
         g.add_edges_from((i, j) for i in g for j in g
                          if i < j and not self.isolable[i][j] and not self.isolable[j][i])
-        groups = [sorted(c) for c in nx.connected_components(g) if len(c) > 1]
+        groups = [sorted(c) for c in nx.find_cliques(g) if len(c) > 1]
         return tuple(tuple(faults[i] for i in c) for c in sorted(groups))
 
     def pairs(self) -> set[tuple[int, int]]:

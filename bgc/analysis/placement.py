@@ -55,23 +55,27 @@ class Placement:
     #: The same at the qualitative level (None: not asked for)
     now_qualitative: tuple[frozenset, frozenset] | None = None
     reachable_qualitative: tuple[frozenset, frozenset] | None = None
+    #: Whether more sets of that cost are enough than the MOST_SETS given
+    more: bool = False
 
 
 def candidates(ssm, measured_exprs: Sequence, costs: Mapping[str, float] | None = None) -> tuple[Candidate, ...]:
     """Every bond variable of ``ssm`` with an expression of its own that no
     sensor reads already (``measured_exprs``: the sensors' expressions
     without their offsets), or the variables ``costs`` names with their
-    costs."""
+    costs; of variables with one expression, the cheapest (then the first
+    bond's)."""
     seen = {str(e) for e in measured_exprs}
-    out = []
+    best: dict[str, Candidate] = {}
     for name, expr in ssm.variables:
         if costs is not None and name not in costs:
             continue
         if str(expr) in seen or not expr.free_symbols:
             continue
-        seen.add(str(expr))
-        out.append(Candidate(name, expr, 1.0 if costs is None else float(costs[name])))
-    return tuple(out)
+        c = Candidate(name, expr, 1.0 if costs is None else float(costs[name]))
+        if str(expr) not in best or c.cost < best[str(expr)].cost:
+            best[str(expr)] = c
+    return tuple(best.values())
 
 
 def with_sensors(model: StructuralModel, ssm, added: Sequence[Candidate]) -> StructuralModel:
@@ -147,13 +151,19 @@ def place(model: StructuralModel, ssm, cands: Sequence[Candidate], most: int = 2
         return Placement(((),), 0.0, tuple(cands), now, reachable, faults, q_now, q_all)
     subsets = sorted((s for k in range(1, most + 1) for s in itertools.combinations(cands, k)),
                      key=lambda s: (sum(c.cost for c in s), len(s)))
-    found, cost = [], None
+    found, cost, more = [], None, False
     for s in subsets:
         total = sum(c.cost for c in s)
-        if cost is not None and (total > cost or len(found) >= MOST_SETS):
+        if cost is not None and total > cost:
             break
+        names = tuple(c.name for c in s)
+        if any(set(f) <= set(names) for f in found):  # a set that holds one found already is not the cheapest
+            continue
         if _enough(with_sensors(model, ssm, s), reachable) and \
-                (q_all is None or _covers(_qualitative(signatures, faults, outputs + tuple(c.name for c in s)), q_all)):
-            found.append(tuple(c.name for c in s))
+                (q_all is None or _covers(_qualitative(signatures, faults, outputs + names), q_all)):
+            if len(found) == MOST_SETS:
+                more = True
+                break
+            found.append(names)
             cost = total
-    return Placement(tuple(found), cost, tuple(cands), now, reachable, faults, q_now, q_all)
+    return Placement(tuple(found), cost, tuple(cands), now, reachable, faults, q_now, q_all, more)

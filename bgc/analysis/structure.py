@@ -88,8 +88,8 @@ class StructuralModel:
 
     def matrix(self) -> tuple[tuple[str, ...], tuple[tuple[bool, ...], ...]]:
         """The faults and the isolability matrix: ``[i][j]`` whether fault i
-        is isolable from fault j (the toolbox's ``IsolabilityAnalysis``
-        transposed: there ``[i][j]`` is true when i cannot be told from j);
+        is isolable from fault j (the complement of the toolbox's
+        ``IsolabilityAnalysis``: there ``[i][j]`` is 1 when i cannot be told from j);
         the diagonal is False, a fault that is not detectable is isolable
         from nothing."""
         names = tuple(self.faults)

@@ -51,6 +51,8 @@ class AnalysisReport:
     by_mode: Mapping = field(default_factory=dict)
     #: The controlled changes of mode of the quantitative level's run (``MODE@TIME,...``; None: the guards')
     modes: str | None = None
+    #: Whether ``steps`` was asked for (else the model's run length)
+    steps_given: bool = False
 
     def get(self, name: str) -> isolability.Level:
         """The level called ``name`` (structural, qualitative, quantitative)."""
@@ -93,7 +95,7 @@ class AnalysisReport:
 
 
 def _placement_dict(p) -> dict:
-    return {"sets": [list(x) for x in p.sets], "cost": p.cost,
+    return {"sets": [list(x) for x in p.sets], "cost": p.cost, "more_sets": p.more,
             "candidates": [{"name": c.name, "reads": str(c.expr), "cost": c.cost} for c in p.candidates],
             "detected_now": sorted(p.now[0]), "detected_at_most": sorted(p.reachable[0]),
             "pairs_now": len(p.now[1]), "pairs_at_most": len(p.reachable[1]),
@@ -208,7 +210,7 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     return AnalysisReport(c.model.name, str(model), faults, tuple(of[p].target for p in faults),
                           tuple(of[p].subject for p in faults), tuple(c.equations.outputs), tuple(levels), model_,
                           settings[0], settings[1], change, at, (process_noise, measurement_noise), level, placed, tests,
-                          by_mode, modes)
+                          by_mode, modes, steps is not None)
 
 
 def _input_tests(session, c, faults, r, quantitative, settings: dict, say) -> tuple:

@@ -74,8 +74,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         r = analyse(args.model, quantitative=not args.no_quantitative, change=args.change, at=args.at,
                     process_noise=process, measurement_noise=measurement, steps=args.steps, progress=progress,
-                    place_sensors=args.place_sensors, costs=costs, most=args.most, place_by=args.place_by, design_inputs=args.design_inputs,
-                    modes=args.modes)
+                    place_sensors=args.place_sensors, costs=costs, most=args.most, place_by=args.place_by,
+                    design_inputs=args.design_inputs, modes=args.modes)
+    except BgcError as exc:
+        if costs is not None and "costs names" in str(exc):  # said of the file, not of the API's argument
+            raise BgcError(f"--costs {printable(args.costs)}: {str(exc).split(': ', 1)[1].split(' (')[0]}", None,
+                           "name efforts and flows of the model's bonds (bgc show bondgraph MODEL lists them)") \
+                from None
+        raise
     finally:
         progress.close()
     text = render.analysis_text(r)
@@ -104,17 +110,29 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _costs(path: str) -> dict:
-    """The ``--costs`` file: a mapping of bond variables to costs (numbers >= 0), read safely."""
+    """The ``--costs`` file: a mapping of bond variables to costs (finite
+    numbers >= 0), each named once, read safely."""
+    import math
+
     import yaml
 
+    fix = "give a YAML file of {variable: cost}, e.g. {e2: 1, f1: 3}"
     try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        text = Path(path).read_text(encoding="utf-8")
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        data = yaml.safe_load(text)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise BgcError(f"--costs {printable(path)}: cannot be read ({printable(str(exc).splitlines()[0])})", None,
-                       "give a YAML file of {variable: cost}, e.g. {e2: 1, f1: 3}") from None
-    if not isinstance(data, dict) or not data or not all(isinstance(k, str) and isinstance(v, (int, float))
-                                                         and not isinstance(v, bool) and v >= 0
-                                                         for k, v in data.items()):
+                       fix) from None
+    if isinstance(node, yaml.MappingNode):
+        keys = [k.value for k, _ in node.value if isinstance(k, yaml.ScalarNode)]
+        twice = sorted({k for k in keys if keys.count(k) > 1})
+        if twice:
+            raise BgcError(f"--costs {printable(path)}: {printable(twice[0])} is named twice", None,
+                           "give each variable one cost")
+    if not isinstance(data, dict) or not data or not all(
+            isinstance(k, str) and isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            and v >= 0 for k, v in data.items()):
         raise BgcError(f"--costs {printable(path)}: not a mapping of bond variables to costs >= 0", None,
                        "write e.g. {e2: 1, f1: 3}")
     return {k: float(v) for k, v in data.items()}

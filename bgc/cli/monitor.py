@@ -67,9 +67,6 @@ def run(args: argparse.Namespace) -> int:
                        "add --checkpoint TIME, e.g. --checkpoint 10")
     if args.state_every is not None and args.state is None:
         raise BgcError("--state-every applies to --state", None, "add --state DIR, or drop --state-every")
-    if args.state is not None and args.exclude_faulty_sensor:
-        raise BgcError("--state does not go with --exclude-faulty-sensor yet: a sensor taken out changes the "
-                       "diagnoser the state is of", None, "drop one of them")
     if args.follow and args.data == "-":
         raise BgcError("--follow applies to a file: standard input ends when its writer closes it", None,
                        "drop --follow, or give the file")
@@ -84,6 +81,10 @@ def run(args: argparse.Namespace) -> int:
     reading = session.reading(args.columns)  # the column map read before the stream
     out = Path(args.output or f"{session.name}-monitor")
     refuse_input_in_output(args.data, out)
+    if args.state is not None and (Path(args.state).resolve() == out.resolve()
+                                   or out.resolve() in Path(args.state).resolve().parents):
+        raise BgcError(f"--state {args.state} is inside the report folder {out}", None,
+                       "give the state a folder of its own, e.g. --state monitor-state")
     artifacts.check_folder(out, ("report.md", "report.json", "report.html", "manifest.json"),
                            "monitor")  # before the stream
     quiet = []

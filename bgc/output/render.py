@@ -749,10 +749,10 @@ def analysis_text(r) -> str:
         lines += [""] + placement_lines(r.placement)
     if r.input_tests:
         lines += ["", "input tests for the faults the declared inputs leave undetected (P: probability of detection):"]
-        for f, u, text, p, p0 in r.input_tests:
-            lines.append(f"  {f}: none of the input tests tried detects it better (P {p0:.2f})" if u is None else
-                         f"  {f}: P {p0:.2f} -> {p:.2f} with {u}={text} "
-                         f"(bgc distinguish {r.source} --input {u}='{text}')")
+        for fault, u, text, p, p0 in r.input_tests:
+            lines.append(f"  {fault}: none of the input tests tried detects it better (P {p0:.3f})" if u is None else
+                         f"  {fault}: P {p0:.3f} -> {p:.3f} with {u}={text} "
+                         f"(bgc distinguish {r.source}{distinguish_options(r)} --input {u}='{text}')")
     lines.append("")
     lines.append("why not:")
     for i, name in enumerate(f):
@@ -762,6 +762,22 @@ def analysis_text(r) -> str:
                 what = f"{name} not detected" if i == j else f"{name} not told from {other}"
                 lines.append(f"  {what}: " + "; ".join(reasons))
     return "\n".join(lines) + "\n"
+
+
+def distinguish_options(r) -> str:
+    """The options of ``bgc distinguish`` that reproduce the quantitative level of analysis ``r``."""
+    out = ""
+    if r.change != 0.3:
+        out += f" --change {r.change:g}"
+    if r.at != 0.5:
+        out += f" --at {r.at:g}"
+    if r.noise != (None, None):
+        out += f" --noise process={r.noise[0] or 1:g},measurement={r.noise[1] or 1:g}"
+    if r.steps is not None and r.steps_given:
+        out += f" --steps {r.steps}"
+    if r.modes:
+        out += f" --modes {r.modes}"
+    return out
 
 
 def placement_lines(p) -> list[str]:
@@ -787,7 +803,8 @@ def placement_lines(p) -> list[str]:
         lines.append("  no sensor to add: the sensors there give what every candidate would")
     else:
         reads = {c.name: c.expr for c in p.candidates}
-        lines.append(f"  the cheapest sets (cost {p.cost:g}), each enough:")
+        lines.append(f"  the cheapest sets (cost {p.cost:g}), each enough" + (f" (the first {len(p.sets)}; there are "
+                     "more)" if p.more else "") + ":")
         lines += [f"    {', '.join(f'{v} (= {reads[v]})' for v in s)}" for s in p.sets]
     return lines
 

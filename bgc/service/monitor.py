@@ -192,7 +192,8 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     ``state_every`` rows and when the input ends (:mod:`bgc.service.resume`);
     a state found there is taken up: the rows of the input up to its last
     row's time are passed over, and the diagnosis goes on as if it had
-    never stopped (a state of another model, bgc or options is refused)."""
+    never stopped (a state of another model, bgc or options is refused), the
+    sensors taken out before taken out again."""
     from ..output.events import fault_sentence, sentence, time_text
 
     reader = runs.RowReader(stream, name, reading or session.reading())
@@ -215,9 +216,15 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     told: set = set()
     excluded: list[ev.SensorExcluded] = []
     taken_out: set[str] = set()
-    keep = _Keeper(session, options, checkpoint, columns, state, state_every, exclude_faulty)
+    keep = _Keeper(session, options, checkpoint, columns, state, state_every, exclude_faulty, reading)
     saved = keep.load()
     if saved is not None:
+        excluded = [ev.SensorExcluded(*e) for e in saved.excluded]
+        taken_out = {e.sensor for e in excluded}
+        if taken_out:  # the diagnoser the state is of watches the other sensors
+            sensors = [y for y in sensors if y not in taken_out]
+            d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors, source=name,
+                                  progress=progress)
         d = type(d).from_state(d.config, saved.diagnoser)
         rows, last_check = [list(r) for r in saved.rows], saved.last_check
         told.update(d.loop.events, d.switched)  # said before the restart
@@ -242,14 +249,14 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
         for values, line in reader:
             t = values[0]
             if saved is not None and t <= saved.last_time:
-                continue  # diagnosed before the restart
+                keep.same(values, line, name)  # diagnosed before the restart: the same row as then
+                continue
             u = {name_: values[j] for j, name_ in groups["u"]}
             y = {name_: values[j] for j, name_ in groups["y"]}
             with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
                 belief = d.step(t, u, y, line)
                 rows.append(values)
             tell(belief.events, time_of)
-            keep.every(rows, last_check, d)
             if checkpoint is not None and belief.phase == "tracking":
                 if last_check is None:
                     last_check = belief.time
@@ -268,6 +275,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
                         d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors,
                                               source=name, progress=progress)
                         rows, last_check = [], None
+            keep.every(rows, last_check, d, excluded)  # after the checkpoint: its time is in the state
     except KeyboardInterrupt:
         say("interrupted: finishing the diagnosis of the data so far")
     except BgcError as exc:  # a bad row, a followed file replaced by no regular file, the memory rule: the rows so far are diagnosed
@@ -278,7 +286,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     finally:
         guard.close()
         if rows:
-            keep.save(rows, last_check, d)  # where the input ended: a restart goes on from there
+            keep.save(rows, last_check, d, excluded)  # where the input ended: a restart goes on from there
     if getattr(stream, "unfinished", b""):
         say(f"the input ended in the middle of a line ({len(stream.unfinished)} bytes without an end of line): "
             "that line is not read")
@@ -302,28 +310,41 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
 class _Keeper:
     """The monitor's state on disk, when a folder is given (:mod:`bgc.service.resume`)."""
 
-    def __init__(self, session, options, checkpoint, columns, where, every: int, exclude_faulty: bool):
+    def __init__(self, session, options, checkpoint, columns, where, every: int, exclude_faulty: bool, reading=None):
         self.where = None if where is None else resume.folder(where)
-        if self.where is not None and exclude_faulty:
-            raise BgcError("--state does not go with --exclude-faulty-sensor yet: a sensor taken out changes the "
-                           "diagnoser the state is of", None, "drop one of them")
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise BgcError(f"--state-every {every!r}: give the rows between saves, an integer >= 1", None,
                            f"e.g. --state-every {STATE_EVERY}")
-        self.ident = None if where is None else resume.identity(session, options, checkpoint, columns)
+        self.ident = None if where is None else resume.identity(session, options, checkpoint, columns,
+                                                                 exclude_faulty, reading)
         self.period, self.count = every, 0
+        self.before: dict = {}
 
     def load(self):
-        return None if self.where is None else resume.load(self.where, self.ident)
+        saved = None if self.where is None else resume.load(self.where, self.ident)
+        if saved is not None:
+            self.before = {float(r[0]): r for r in saved.rows}
+        return saved
 
-    def every(self, rows: list, last_check, d) -> None:
+    def same(self, values, line, name: str) -> None:
+        """Refuse a row passed over on a restart that differs from the row of
+        that time the state was saved with (when it holds one)."""
+        then = self.before.get(float(values[0]))
+        if then is not None and not np.array_equal(np.asarray(values, dtype=float), then, equal_nan=True):
+            raise DataError(f"{printable(name)}, line {line}: the row of t = {values[0]:.12g} differs from the one "
+                            f"the state in {printable(str(self.where))} was saved with", None,
+                            "give the input the monitor read before the restart, or start afresh with another "
+                            "--state folder")
+
+    def every(self, rows: list, last_check, d, excluded: list) -> None:
         self.count += 1
-        if self.where is not None and self.count % self.period == 0:
-            self.save(rows, last_check, d)
+        if self.where is not None and self.count % self.period == 0 and rows:
+            self.save(rows, last_check, d, excluded)
 
-    def save(self, rows: list, last_check, d) -> None:
+    def save(self, rows: list, last_check, d, excluded: list) -> None:
         if self.where is not None:
-            resume.save(self.where, self.ident, rows, rows[-1][0], last_check, d)
+            resume.save(self.where, self.ident, rows, rows[-1][0], last_check, d,
+                        tuple((e.sensor, e.finding, e.time, e.step) for e in excluded))
 
 
 def _with_exclusions(diagnosis, excluded: list, taken_out: set[str]):

@@ -9,16 +9,18 @@ moment leaves the last whole state). It holds, after the first line
 - one line of JSON, the header: the format, what the state is valid for (the
   identity: bgc's version and the digest of its code, the model file's
   digest, the noise levels, the prior scale, the backend, the diagnosis's
-  options, the checkpoint period, the data's columns) and where the input
-  stands (the rows taken, the last row's time, the last checkpoint's time);
-- the rows taken so far, as a NumPy array file (``allow_pickle=False``):
+  options, the checkpoint period, whether faulty sensors are taken out, the
+  data's columns) and where the input stands (the rows taken, the last
+  row's time, the last checkpoint's time, the sensors taken out so far);
+- the rows the diagnoser took (since the last sensor was taken out), as a NumPy array file (``allow_pickle=False``):
   the final report is made of them, also when the files they came from are
   gone;
 - the diagnoser's state (:meth:`~bgc.diagnosis.state.DiagnoserState.to_bytes`,
   read back by an unpickler that makes nothing but a state's types).
 
-A state whose identity differs from the monitor's now, of another format,
-or not whole is refused in one line, never replaced: the user removes it or
+The header holds the SHA-256 of itself and the payload: a state whose
+identity differs from the monitor's now, of another format, or changed or
+cut anywhere is refused in one line, never replaced: the user removes it or
 gives another folder.
 """
 
@@ -29,6 +31,7 @@ import hashlib
 import io
 import json
 import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -54,18 +57,25 @@ class Saved:
     last_time: float
     last_check: float | None
     diagnoser: object  # a DiagnoserState
+    #: the sensors the monitor took out before (``--exclude-faulty-sensor``): (sensor, finding, time, step)
+    excluded: tuple = ()
 
 
-def identity(session, options, checkpoint: float | None, columns: list[str]) -> dict:
-    """What a state is valid for: the same bgc, model, noise, prior scale,
-    backend, options, checkpoint period and columns."""
+def identity(session, options, checkpoint: float | None, columns: list[str], exclude_faulty: bool = False,
+             reading=None) -> dict:
+    """What a state is valid for: the same bgc, model, noise (a relative
+    level of 1 is the model's), prior scale, options, checkpoint period,
+    exclusion of faulty sensors, columns and column map (``reading``'s). The
+    backend is not part of it: both give the same numbers (their packages
+    are checked against each other)."""
     from ..api.cache import code_digest
 
     text = Path(session.model).read_bytes() if Path(session.model).is_file() else str(session.model).encode()
     return {"bgc": __version__, "code": code_digest(), "model": hashlib.sha256(text).hexdigest(),
-            "noise": [None if n is None else float(n) for n in session.noise], "prior_scale": session.prior_scale,
-            "backend": session.backend, "options": _plain(dataclasses.asdict(options)),
-            "checkpoint": checkpoint, "columns": list(columns)}
+            "noise": [1.0 if n is None else float(n) for n in session.noise], "prior_scale": session.prior_scale,
+            "options": _plain(dataclasses.asdict(options)),
+            "column_map": hashlib.sha256(repr(getattr(reading, "columns", None)).encode()).hexdigest(),
+            "checkpoint": checkpoint, "exclude_faulty": bool(exclude_faulty), "columns": list(columns)}
 
 
 def _plain(value):
@@ -74,7 +84,9 @@ def _plain(value):
 
 
 def folder(path: str | Path) -> Path:
-    """The state folder, made when missing; refused when it is no folder."""
+    """The state folder, made when missing; refused when it is no folder,
+    or when a file of the state's names there is not one bgc wrote (a link
+    included: bgc writes no file through a link)."""
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise BgcError(f"--state {printable(str(p))}: not a folder", None,
@@ -82,7 +94,11 @@ def folder(path: str | Path) -> Path:
     p.mkdir(parents=True, exist_ok=True)
     for name in (NAME, PARTIAL):
         f = p / name
-        if f.exists() and (not f.is_file() or f.stat().st_size and _head(f) != MAGIC):
+        try:
+            info = os.lstat(f)
+        except FileNotFoundError:
+            continue
+        if not stat.S_ISREG(info.st_mode) or (info.st_size and _head(f) != MAGIC):
             raise BgcError(f"--state {printable(str(p))}: {name} there is not a state bgc wrote", None,
                            "give another folder (bgc does not replace a file it did not write)")
     return p
@@ -93,16 +109,29 @@ def _head(path: Path) -> bytes:
         return f.read(len(MAGIC))
 
 
-def save(where: Path, ident: dict, rows: list, last_time: float, last_check: float | None, d) -> None:
-    """Write the state of diagnoser ``d`` after ``rows``, atomically."""
-    header = {"format": FORMAT, "identity": ident, "rows": len(rows), "last_time": last_time,
-              "last_check": last_check}
+def save(where: Path, ident: dict, rows: list, last_time: float, last_check: float | None, d,
+         excluded: tuple = ()) -> None:
+    """Write the state of diagnoser ``d`` after ``rows``, atomically
+    (``excluded``: the sensors taken out before, :class:`Saved`): a new
+    file, made afresh (never through a link), flushed to the disk, renamed
+    over the last state."""
     table = io.BytesIO()
     width = len(ident["columns"])
     np.save(table, np.asarray(rows, dtype=float).reshape(len(rows), width), allow_pickle=False)
-    data = b"".join([MAGIC, json.dumps(header).encode("utf-8"), b"\n", table.getvalue(), d.to_state().to_bytes()])
+    payload = table.getvalue() + d.to_state().to_bytes()
+    header = {"format": FORMAT, "identity": ident, "rows": len(rows), "last_time": last_time,
+              "last_check": last_check, "excluded": [list(e) for e in excluded]}
+    header["sha256"] = _digest(header, payload)
+    data = b"".join([MAGIC, json.dumps(header).encode("utf-8"), b"\n", payload])
     tmp = where / PARTIAL
-    with open(tmp, "wb") as f:
+    try:
+        info = os.lstat(tmp)
+        if stat.S_ISREG(info.st_mode) and (not info.st_size or _head(tmp) == MAGIC):
+            os.unlink(tmp)  # a save a kill cut short: bgc's own
+    except FileNotFoundError:
+        pass
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    with os.fdopen(fd, "wb") as f:
         f.write(data)
         f.flush()
         os.fsync(f.fileno())
@@ -120,38 +149,57 @@ def save(where: Path, ident: dict, rows: list, last_time: float, last_check: flo
 def load(where: Path, ident: dict) -> Saved | None:
     """The state saved in folder ``where`` (None: none yet), checked
     against the monitor's ``ident``; refused in one line when it is not
-    this monitor's or not whole."""
+    this monitor's, or not whole (its checksum)."""
     from ..diagnosis.state import DiagnoserState
 
     path = where / NAME
-    if not path.exists():
+    if not os.path.lexists(path):
         return None
     data = path.read_bytes()
     fix = f"start afresh with another --state folder, or move {path.name} away"
+    where_ = printable(str(path))
     if not data.startswith(MAGIC):
-        raise BgcError(f"{printable(str(path))}: not a state bgc wrote", None, fix)
+        raise BgcError(f"{where_}: not a state bgc wrote", None, fix)
+    head, newline, payload = data[len(MAGIC):].partition(b"\n")
     try:
-        head, _, rest = data[len(MAGIC):].partition(b"\n")
-        header = json.loads(head.decode("utf-8"))
-        table = io.BytesIO(rest)
-        rows = np.load(table, allow_pickle=False)
-        state = DiagnoserState.from_bytes(rest[table.tell():])
-    except (ValueError, UnicodeDecodeError, OSError, BgcError) as exc:
-        raise BgcError(f"{printable(str(path))}: the state cannot be read ({printable(str(exc).splitlines()[0])})",
-                       None, fix) from None
-    if not isinstance(header, dict) or header.get("format") != FORMAT:
-        raise BgcError(f"{printable(str(path))}: a state of another format", None, fix)
-    saved = header.get("identity", {})
+        header = json.loads(head.decode("utf-8")) if newline else None
+    except (ValueError, UnicodeDecodeError):
+        header = None
+    keys = {"format", "identity", "rows", "last_time", "sha256"}
+    if not isinstance(header, dict) or not keys <= set(header) or not isinstance(header["identity"], dict):
+        raise BgcError(f"{where_}: the state's header cannot be read", None, fix)
+    if header["format"] != FORMAT:
+        raise BgcError(f"{where_}: a state of another format", None, fix)
+    if _digest(header, payload) != header["sha256"]:
+        raise BgcError(f"{where_}: the state is not whole (its checksum differs)", None, fix)
+    saved = header["identity"]
     differ = [k for k in ident if saved.get(k) != ident[k]]
     if differ:
-        raise BgcError(f"{printable(str(path))}: the state was saved with another {_what(differ[0])}", None,
+        raise BgcError(f"{where_}: the state was saved with another {_what(differ[0])}", None,
                        f"monitor with the {_what(differ[0])} it was saved with, or {fix}")
-    if rows.ndim != 2 or rows.shape != (header.get("rows"), len(ident["columns"])):
-        raise BgcError(f"{printable(str(path))}: the state's rows are not whole", None, fix)
-    return Saved(rows, float(header["last_time"]), header.get("last_check"), state)
+    try:
+        table = io.BytesIO(payload)
+        rows = np.load(table, allow_pickle=False)
+        state = DiagnoserState.from_bytes(payload[table.tell():])
+        excluded = tuple((str(a), str(b), float(c), None if k is None else int(k))
+                         for a, b, c, k in header.get("excluded", ()))
+        last_time, last_check = float(header["last_time"]), header.get("last_check")
+    except (ValueError, TypeError, EOFError, OSError, BgcError) as exc:
+        raise BgcError(f"{where_}: the state cannot be read ({printable(str(exc).splitlines()[0])})", None,
+                       fix) from None
+    if rows.ndim != 2 or rows.shape != (header["rows"], len(ident["columns"])):
+        raise BgcError(f"{where_}: the state's rows are not whole", None, fix)
+    return Saved(rows, last_time, last_check if last_check is None else float(last_check), state, excluded)
+
+
+def _digest(header: dict, payload: bytes) -> str:
+    """The SHA-256 of the header (but its own digest) and the payload: a state changed anywhere is refused."""
+    rest = {k: v for k, v in header.items() if k != "sha256"}
+    return hashlib.sha256(json.dumps(rest).encode("utf-8") + b"\n" + payload).hexdigest()
 
 
 def _what(key: str) -> str:
     return {"bgc": "bgc version", "code": "bgc (its code differs)", "model": "model file", "noise": "noise levels",
-            "prior_scale": "prior scale", "backend": "backend", "options": "options",
-            "checkpoint": "--checkpoint", "columns": "data columns"}.get(key, key)
+            "prior_scale": "prior scale", "column_map": "column map (--columns)", "options": "options",
+            "checkpoint": "--checkpoint", "exclude_faulty": "--exclude-faulty-sensor",
+            "columns": "data columns"}.get(key, key)
