@@ -7,7 +7,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .. import arguments
-from ..analysis import isolability
 from collections.abc import Mapping
 
 from ..errors import ArgumentTypeError, ArgumentValueError, printable
@@ -31,7 +30,7 @@ class AnalysisReport:
     targets: tuple[str, ...]
     subjects: tuple[str, ...]
     sensors: tuple[str, ...]
-    levels: tuple[isolability.Level, ...]
+    levels: tuple
     structure: object
     steps: int | None
     dt: float
@@ -54,7 +53,7 @@ class AnalysisReport:
     #: Whether ``steps`` was asked for (else the model's run length)
     steps_given: bool = False
 
-    def get(self, name: str) -> isolability.Level:
+    def get(self, name: str):
         """The level called ``name`` (structural, qualitative, quantitative)."""
         for lv in self.levels:
             if lv.name == name:
@@ -158,6 +157,7 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
         for name, cost in costs.items():
             arguments.text(func, "a name of costs", name)
             arguments.real(func, f"costs[{name!r}]", cost, 0.0, math.inf, "a cost >= 0, e.g. 1", low_ok=True)
+    from ..analysis import isolability
     from ..compiler import load
     from ..pipeline import compile_model
 
