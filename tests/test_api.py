@@ -441,6 +441,15 @@ def hostile_report(hostile_model):
                         options=DiagnosisOptions(filter="ckf", seed=1, workers=1))
 
 
+@pytest.fixture(scope="module")
+def written(hostile_report, tmp_path_factory):
+    """The folder ``hostile_report.write`` wrote (it returns the folder it was
+    given), written once for the tests that read it."""
+    folder = tmp_path_factory.mktemp("written") / "report"
+    assert hostile_report.write(folder) == folder
+    return folder
+
+
 @pytest.mark.slow
 def test_a_reports_notebook_view_says_the_verdict_first_and_escapes_the_model_path(hostile_report):
     r = hostile_report
@@ -462,15 +471,14 @@ def test_a_reports_notebook_view_says_the_verdict_first_and_escapes_the_model_pa
 
 
 @pytest.mark.slow
-def test_figures_are_the_reports_plots_as_live_matplotlib_figures(hostile_report, tmp_path):
+def test_figures_are_the_reports_plots_as_live_matplotlib_figures(hostile_report, written):
     from matplotlib.figure import Figure
 
     from bgc.output import plots
 
     r = hostile_report
     figures = r.figures()
-    folder = r.write(tmp_path / "report")
-    assert folder == tmp_path / "report"
+    folder = written  # r.write's folder
     pngs = sorted(p.name for p in folder.glob("*.png"))
     assert sorted(figures) == pngs == ["estimate.png", "hypotheses.png", "measurements.png", "residuals.png"]
     for name, fig in figures.items():
@@ -482,8 +490,8 @@ def test_figures_are_the_reports_plots_as_live_matplotlib_figures(hostile_report
 
 
 @pytest.mark.slow
-def test_write_gives_the_folder_bgc_diagnose_writes_and_refuses_foreign_files(hostile_model, hostile_report, tmp_path,
-                                                                             capsys):
+def test_write_gives_the_folder_bgc_diagnose_writes_and_refuses_foreign_files(hostile_model, hostile_report, written,
+                                                                             tmp_path, capsys):
     import json
 
     from bgc.errors import OutputError
@@ -493,7 +501,7 @@ def test_write_gives_the_folder_bgc_diagnose_writes_and_refuses_foreign_files(ho
     done = cli.main(["diagnose", str(hostile_model), "--scenario",
                      "R2:abrupt:0.6@5", "--steps", "150", "--filter", "ckf", "--seed", "1", "-o", str(out)])
     assert done == 0 and capsys.readouterr().out.startswith("circuit: isolated: R2_abrupt")
-    mine = r.write(tmp_path / "api")
+    mine = written  # r.write's folder
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted(p.name for p in mine.iterdir())
     assert {"report.md", "report.json", "report.html", "manifest.json", "run.csv"} <= set(names)

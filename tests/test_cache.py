@@ -250,15 +250,17 @@ def test_a_hit_imports_neither_sympy_nor_the_compiler(root):
 def test_a_diagnosis_is_the_same_with_and_without_the_cache(root):
     """The same diagnosis, to the bit, from a fresh compilation (a miss),
     from the cache (a hit) and from the committed generated package and a
-    compilation that never met the cache. (150 of the circuit's 300 steps:
-    the fault at t = 5 is sample 100.)"""
+    compilation that never met the cache. (80 of the circuit's 300 steps:
+    the fault at t = 1.5 is sample 30, found, isolated and sized by the 50
+    samples after it.)"""
     import bgc
     from bgc.api import folders
     from bgc.diagnosis.diagnose import diagnose as run_diagnosis
     from bgc.model.package import load_package
 
-    kwargs = dict(scenario="R2:abrupt:0.6@5", seed=3, particles=200, steps=150, backend="numpy")
+    kwargs = dict(scenario="R2:abrupt:0.6@1.5", seed=3, particles=200, steps=80, backend="numpy")
     miss = bgc.diagnose("models/circuit.yaml", **kwargs)
+    assert miss.diagnosis.verdict == "isolated" and miss.diagnosis.estimate is not None  # a diagnosis with all its parts
     hit = bgc.diagnose("models/circuit.yaml", **kwargs)
     c, folder = folders._compiled("models/circuit.yaml")
     package = load_package(folder, "circuit")

@@ -7,6 +7,7 @@ not write, the original untouched."""
 
 import json
 import math
+from functools import lru_cache
 
 import numpy as np
 import pytest
@@ -58,6 +59,16 @@ def rc_run(session, sigma: float, steps: int, seed: int, start: float = 1.0) -> 
     return run, clean
 
 
+@lru_cache(maxsize=None)
+def noise_fitted(session, seed: int, steps: int):
+    """``rc_run(session, 0.05, steps, seed)`` (the run and its noise-free
+    readings) and its calibration of the sensor's noise alone, made once
+    per test process for the tests that read it (read them, do not change
+    them)."""
+    run, clean = rc_run(session, 0.05, steps, seed)
+    return run, clean, session.calibrate(run, "measurement_noise")
+
+
 # ------------------------------------------------------------------- closed forms on a one-state linear plant
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [1, 2])
@@ -68,12 +79,11 @@ def test_rc_noise_variance_is_the_mean_squared_residual(rc, seed):
     the log-likelihood falls from there by T d + T (exp(-2 d) - 1) / 2 at
     log sigma = log sigma_hat + d, so the 95 % interval's ends are where that
     fall is chi2(0.95, 1) / 2 (solved here by bisection; near
-    sigma_hat exp(+-1.96 / sqrt(2 T)), the curvature's answer). (T = 100:
+    sigma_hat exp(+-1.96 / sqrt(2 T)), the curvature's answer). (T = 50:
     the closed form holds at any length; the drain has decayed below the
-    noise by the 50th sample.)"""
-    T = 100
-    run, clean = rc_run(rc, 0.05, T, seed)
-    r = rc.calibrate(run, "measurement_noise")
+    noise by the 30th sample.)"""
+    T = 50
+    run, clean, r = noise_fitted(rc, seed, T)
     e = r.calibration.estimate("noise e1")
     expected = float(np.mean((run.measurements["e1"] - clean) ** 2))
     assert e.value ** 2 == pytest.approx(expected, rel=1e-6)
@@ -101,9 +111,9 @@ def test_rc_initial_state_is_the_least_squares_start(rc):
     g^2k, the noise variance the mean squared residual from x0 g^k, and (the
     start's and the std's estimates uncorrelated at the maximum: a mean and
     a variance) the start's interval x0 +- 1.96 sigma / sqrt(sum g^2k). The
-    model file keeps its initial value. (T = 100 samples: the start's
+    model file keeps its initial value. (T = 50 samples: the start's
     information, sum g^2k, is all in the first 30.)"""
-    T = 100
+    T = 50
     run, clean = rc_run(rc, 0.05, T, 3, start=0.8)
     report = rc.calibrate(run, "measurement_noise,initial")
     c = report.calibration
@@ -185,8 +195,9 @@ def test_rc_sensor_noise_swamped_by_process_noise_is_named(tmp_path):
 def test_rc_product_of_parameters_is_not_identifiable(rc):
     """R and C enter the drain only as R C: each alone is named as not
     identifiable and keeps the model's value, and the noise is estimated
-    with them held there (the closed form again)."""
-    run, clean = rc_run(rc, 0.05, 100, 3)
+    with them held there (the closed form again, on 50 samples: it holds
+    at any length)."""
+    run, clean = rc_run(rc, 0.05, 50, 3)
     r = rc.calibrate(run, "measurement_noise,R,C")
     c = r.calibration
     for name, other in (("R", "C"), ("C", "R")):
@@ -346,7 +357,7 @@ def test_writes_a_new_file_and_never_one_bgc_did_not_write(rc, tmp_path, monkeyp
     model = tmp_path / "rc.yaml"
     original = RC.read_bytes()
     model.write_bytes(original)
-    run, _ = rc_run(rc, 0.05, 100, 4)
+    run, _ = rc_run(rc, 0.05, 50, 4)
     data = tmp_path / "healthy.csv"
     data.write_text(runs.run_csv(run), encoding="utf-8")
     theirs = tmp_path / "theirs.yaml"
@@ -383,7 +394,7 @@ def test_writes_a_new_file_and_never_one_bgc_did_not_write(rc, tmp_path, monkeyp
 
 @pytest.mark.slow
 def test_cli_writes_the_calibrated_model(rc, tmp_path, capsys):
-    run, _ = rc_run(rc, 0.05, 100, 6)
+    run, _ = rc_run(rc, 0.05, 50, 6)
     data = tmp_path / "healthy.csv"
     data.write_text(runs.run_csv(run), encoding="utf-8")
     out = tmp_path / "cal.yaml"
@@ -404,9 +415,9 @@ def test_cli_writes_the_calibrated_model(rc, tmp_path, capsys):
     (e,) = data_json["estimates"]
     assert e["name"] == "noise e1" and e["level"] == pytest.approx(written, rel=1e-5) and e["identifiable"]
     assert e["low"] < e["value"] < e["high"]
-    assert data_json["verdict"] == "the model explains this data" and data_json["samples"] == 100
+    assert data_json["verdict"] == "the model explains this data" and data_json["samples"] == 50
     md = (folder / "report.md").read_text(encoding="utf-8")
-    assert "**The model explains this data.**" in md and "| e1 | 100 |" in md
+    assert "**The model explains this data.**" in md and "| e1 | 50 |" in md
     for name in ("estimates.png", "residuals.png", "autocorrelation.png"):
         assert (folder / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # again into the same folder: bgc's own, replaced; a folder of someone else's files: refused before any work
@@ -429,11 +440,12 @@ def test_report_autocorrelation_is_the_sample_autocorrelation(rc):
     """The autocorrelation pictured is, on one recording read throughout,
     the textbook sample autocorrelation sum (z_t - m)(z_t+k - m) / sum (z_t
     - m)^2 (here by numpy.correlate), and the Ljung-Box statistic is
-    n (n + 2) sum_k r_k^2 / (n - k) over it."""
+    n (n + 2) sum_k r_k^2 / (n - k) over it. (The recording and calibration
+    of test_rc_noise_variance_is_the_mean_squared_residual[1]: these are
+    identities of whatever residuals the calibration leaves.)"""
     from bgc.output.calibration_report import autocorrelation
 
-    run, _ = rc_run(rc, 0.05, 100, 12)
-    c = rc.calibrate(run, "measurement_noise").calibration
+    c = noise_fitted(rc, 1, 50)[2].calibration
     z = c.residuals[0][:, 0]
     d = z - z.mean()
     full = np.correlate(d, d, mode="full")[len(d) - 1:] / (d @ d)

@@ -240,14 +240,15 @@ def test_an_interrupted_campaign_resumes_without_redoing_finished_runs(local_run
     out = tmp_path / "resume"
     shutil.copytree(folder / "out", out)
     lines = (out / "runs.csv").read_text().splitlines(keepends=True)
-    # keep the header and 6 rows, then a row cut in its last column (the process was killed
-    # while writing: 'tr' of 'true' or 'false' read as a value would be wrong)
-    (out / "runs.csv").write_text("".join(lines[:7]) + lines[7].rstrip("\n")[:-2])
+    # keep the header and 8 rows, then a row cut in its last column (the process was killed
+    # while writing: 'tr' of 'true' or 'false' read as a value would be wrong); the two runs
+    # left (one whose row was cut, one never written) are done again, one per worker
+    (out / "runs.csv").write_text("".join(lines[:9]) + lines[9].rstrip("\n")[:-2])
     again = campaign.run_campaign(c, out, workers=2, progress=False)
-    assert (again.reused, again.ran) == (6, 4)
+    assert (again.reused, again.ran) == (8, 2)
     # the cut line is not lost: it is set aside as it was, and its run done again
     assert again.quarantined == 1 and again.quarantine == out / "runs.unread-1.csv"
-    assert again.quarantine.read_text() == lines[7].rstrip("\n")[:-2]
+    assert again.quarantine.read_text() == lines[9].rstrip("\n")[:-2]
     assert without_time(again.rows) == without_time(first.rows)
 
 

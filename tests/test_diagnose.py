@@ -13,7 +13,7 @@ from bgc.output.events import NOTABLE
 from bgc import events
 from bgc.diagnosis.options import DiagnosisOptions
 
-from conftest import ROOT, bgc_cli, fast_session, session
+from conftest import FAST, ROOT, bgc_cli, fast_session, numba_package, session
 from bgc.analysis import track
 
 GENERATED = ROOT / "generated"
@@ -101,10 +101,14 @@ def test_no_fault_no_alarm(model, seed, noise):
 def test_the_filters_of_a_diagnosis_run_in_worker_processes_with_the_same_results():
     """Hypothesis filters are independent: on two processes or in this one,
     the same seeds give the same numbers. (It forks a pool of two workers:
-    that is what it tests.)"""
+    that is what it tests.) A short run (160 samples, 8 s, the fault at
+    t = 5, every hypothesis tracked and weighed) of 300 particles: what is
+    compared is each hypothesis's numbers, whatever the run's size."""
     model = session(ROOT / "models" / "circuit.yaml", generated=GENERATED)
-    a = bgc.diagnose(model, scenario="R2:abrupt:0.6@5", options=DiagnosisOptions(seed=5, workers=2)).diagnosis
-    b = bgc.diagnose(model, scenario="R2:abrupt:0.6@5", options=DiagnosisOptions(seed=5, workers=1)).diagnosis
+    a = bgc.diagnose(model, scenario="R2:abrupt:0.6@5", steps=160,
+                     options=DiagnosisOptions(seed=5, workers=2, particles=300)).diagnosis
+    b = bgc.diagnose(model, scenario="R2:abrupt:0.6@5", steps=160,
+                     options=DiagnosisOptions(seed=5, workers=1, particles=300)).diagnosis
     assert a.hypotheses and [h.name for h in a.hypotheses] == [h.name for h in b.hypotheses]
     for x, y in zip(a.hypotheses, b.hypotheses):
         # a rejected filter stops: the rest of its arrays is NaN in both
@@ -114,8 +118,14 @@ def test_the_filters_of_a_diagnosis_run_in_worker_processes_with_the_same_result
 # ------------------------------------------------------------------- the CLI (in this process: conftest.bgc_cli)
 @pytest.mark.slow
 def test_bgc_diagnose_writes_a_report_and_plots(tmp_path):
+    """On the FAST backend, --backend (conftest.fast_session's kernels; the
+    result does not depend on it: tests/test_backend.py; the slow tier
+    only)."""
+    if FAST == "numba":
+        numba_package("circuit")  # the kernels the command loads, compiled once per test run
     out = tmp_path / "diag"
-    r = bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@5", "--seed", "2", "-o", str(out))
+    r = bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@5", "--seed", "2", "--backend", FAST,
+                "-o", str(out))
     assert r.returncode == 0, r.stderr
     assert r.stdout.startswith("circuit: isolated: R2_abrupt")
     assert f"wrote {out}/: report.md, report.json, report.html" in r.stdout
@@ -134,8 +144,8 @@ def test_bgc_diagnose_writes_a_report_and_plots(tmp_path):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "Fault isolated: R2_abrupt." in (out / "report.html").read_text()  # tests/test_html_report.py: the rest
     # the recorded run is beside it, and can be diagnosed again from the file
-    again = bgc_cli("diagnose", "models/circuit.yaml", "--data", str(out / "run.csv"), "--seed", "2", "-o",
-                    str(tmp_path / "again"))
+    again = bgc_cli("diagnose", "models/circuit.yaml", "--data", str(out / "run.csv"), "--seed", "2", "--backend", FAST,
+                    "-o", str(tmp_path / "again"))
     assert again.returncode == 0 and again.stdout.startswith("circuit: isolated: R2_abrupt"), again.stderr
 
 
@@ -207,11 +217,13 @@ def test_bgc_diagnose_rewrites_its_own_folder_but_no_one_elses(tmp_path):
 def test_symbols_from_a_subsample_of_the_paths_when_particles_are_many(monkeypatch):
     """Above ``PATHS`` particles the open loop keeps a random subsample of
     the paths for the symbols' null distribution (memory); the circuit's R2
-    step is still read as f6 falling and isolated."""
+    step is still read as f6 falling and isolated. (On the FAST backend:
+    conftest.fast_session, the slow tier only; the open loop's paths are
+    bgc.diagnosis.openloop's on either backend.)"""
     from bgc.diagnosis import openloop
 
     monkeypatch.setattr(openloop, "PATHS", 64)
-    d = bgc.diagnose(session("circuit", generated=GENERATED), scenario="R2:abrupt:0.6@5", seed=1,
+    d = bgc.diagnose(fast_session("circuit"), scenario="R2:abrupt:0.6@5", seed=1,
                      options=DiagnosisOptions(seed=1, particles=300, workers=1)).diagnosis
     assert [(s.sensor, s.sign) for s in d.symbols][:1] == [("f6", "-")]
     assert d.candidates[0] == "R2_abrupt"
@@ -531,13 +543,14 @@ def test_a_sensor_sharp_against_the_process_noise_degenerates_the_particle_filte
     locally optimal proposal is no remedy: it draws step k's particles
     towards y_k, but the torque at step k is fixed by the speeds' noise drawn
     at step k-1, so its weights degenerate as well, and on 5 of 8 seeds at
-    N = 1000 it lost the state altogether.)"""
+    N = 1000 it lost the state altogether.) The diagnosis that must not
+    switch is of 100 samples: what it is read for is its first alarm."""
     from bgc.filters import cubature as kalman
     from bgc.data import runs
     from bgc.analysis import simulate
 
     model = session(TEST_MODELS / "drivetrain.yaml")
-    d = bgc.diagnose(model, scenario="none", seed=1,
+    d = bgc.diagnose(model, scenario="none", seed=1, steps=100,
                      options=DiagnosisOptions(particles=500, seed=1, workers=1, switch=False)).diagnosis
     degenerate = [e for e in d.events if isinstance(e, events.Degenerate)]
     assert [(e.method, e.particles, e.switched) for e in degenerate] == [("gpf", 500, False)]

@@ -13,6 +13,7 @@ references derived here on the two tanks, whose RK4 map is derived by hand
   inseparable, the priors deciding.
 """
 
+import functools
 import json
 import math
 
@@ -35,7 +36,11 @@ TWO_TANK = ROOT / "models" / "two_tank.yaml"
 PIPES = TEST_MODELS / "series_pipes.yaml"
 
 
+@functools.lru_cache(maxsize=None)
 def two_tank(steps: int):
+    """The two tanks' package and its families prepared for ``steps``
+    samples, once per test process and run length (the tests that read the
+    same length share them: they read them, never change them)."""
     package = track.load_package(ROOT / "generated", "two_tank")
     return package, distinguish.prepare(package, distinguish.scenario_inputs(package, steps))
 
@@ -313,14 +318,16 @@ def test_progress_says_what_is_being_done():
 @pytest.mark.slow
 def test_prepared_families_are_let_go_to_fit_the_memory(monkeypatch):
     """The cache of prepared families holds, with the next one, at most
-    distinguish.MAX_BYTES."""
+    distinguish.MAX_BYTES. (Each prediction is of one scenario: its families
+    are prepared whole, every fault model, as for every scenario; the other
+    scenarios' predictions would add nothing to the cache.)"""
     api_distinguish._FAMILIES.clear()
-    api.distinguishability(TWO_TANK, steps=30)
-    api.distinguishability(TWO_TANK, steps=31)
+    api.distinguishability(TWO_TANK, "R12:abrupt:0.5@5", steps=30)
+    api.distinguishability(TWO_TANK, "R12:abrupt:0.5@5", steps=31)
     assert len(api_distinguish._FAMILIES) == 2
     monkeypatch.setattr(distinguish, "MAX_BYTES", distinguish.memory(32, *distinguish._sizes(
         compiled("two_tank").numerics)))
-    api.distinguishability(TWO_TANK, steps=32)
+    api.distinguishability(TWO_TANK, "R12:abrupt:0.5@5", steps=32)
     assert [key[2] for key in api_distinguish._FAMILIES] == [32]
 
 

@@ -184,8 +184,19 @@ def test_a_particle_filter_follows_an_exact_run_through_its_switches(package, ex
 
 @pytest.mark.numba
 def test_the_compiled_package_gives_the_numpy_packages_filter(folder, package, exact_run):
+    """The folder's compiled package, loaded from the copy of it that bgc.open
+    runs (the same files, checked here, in their folder of bgc's cache that
+    lasts, where numba's disk cache stays valid from run to run: a folder
+    new in every run would compile the kernels every time), filters as the
+    NumPy package does."""
+    from bgc.api import cache
+
     times, states, modes, _, _ = exact_run
-    compiled = load_package(folder, "relay_rl", backend="numba")
+    lasting = Path(cache.numba_folder(cache.open_model(RELAY)))
+    ours, lasting_files = ([(p.name, p.read_text(encoding="utf-8"))
+                            for p in sorted((f / "relay_rl" / "numba_model").glob("*.py"))] for f in (folder, lasting))
+    assert ours == lasting_files  # the folder's compiled package, file for file
+    compiled = load_package(lasting, "relay_rl", backend="numba")
     ys = states + package.MODELS["nominal"].MEASUREMENT_STD * np.random.default_rng(9).standard_normal(states.shape)
     us = np.column_stack([np.full(len(times), V), modes])
     tracks = []

@@ -21,12 +21,21 @@ from bgc.diagnosis.values import Symbol
 from bgc.errors import BgcError
 from bgc.output import plots
 
+from conftest import session
 from hybrid_reference import R_aux, V, sampled
 
 ROOT = Path(__file__).resolve().parent.parent
 RELAY = ROOT / "tests" / "data" / "hybrid" / "relay_rl.yaml"
 #: The relay's sensors' noise stds as its generated model has them (1 % of the signals' size: i_L, v_C).
 NOISE = (0.10825763, 0.07757651)
+
+
+def relay():
+    """The relay's session on NumPy, opened once per test process for the
+    tests that diagnose with it or read its modes and are not about opening
+    it: ``bgc.diagnose(relay(), ...)`` gives what ``bgc.diagnose(RELAY, ...,
+    backend="numpy")`` gives (conftest.session)."""
+    return session(RELAY, backend="numpy")
 
 
 def exact_run(seed: int, fault: tuple[float, float] | None = None, end: float = 30.0) -> runs.Run:
@@ -43,7 +52,7 @@ def exact_run(seed: int, fault: tuple[float, float] | None = None, end: float = 
 def test_a_relay_cycling_without_a_fault_raises_no_alarm(seed):
     run = exact_run(seed)
     assert int(np.sum(np.diff(run.modes) != 0)) >= 25  # many switches, each one the model explains
-    report = bgc.diagnose(RELAY, data=run, backend="numpy")
+    report = bgc.diagnose(relay(), data=run)
     assert report.diagnosis.verdict == "no fault", report.diagnosis.candidates
 
 
@@ -52,7 +61,7 @@ def test_a_fault_only_the_closed_relay_shows_is_isolated_and_sized():
     """R_aux carries current only with the relay closed: its fault is seen there, and the
     symbols read over a stretch in that mode keep it while an open relay's signatures would not."""
     truth = 0.4
-    report = bgc.diagnose(RELAY, data=exact_run(5, fault=(21.0, R_aux + truth)), backend="numpy")
+    report = bgc.diagnose(relay(), data=exact_run(5, fault=(21.0, R_aux + truth)))
     d = report.diagnosis
     assert d.verdict == "isolated" and d.candidates[0] == "R_aux_abrupt", (d.verdict, d.candidates)
     best = next(h for h in d.hypotheses if h.name == "R_aux_abrupt")
@@ -74,10 +83,9 @@ def test_stepping_the_diagnoser_through_the_switches_gives_the_batch_diagnosis()
 
     run = exact_run(6, fault=(5.0, R_aux + 0.4), end=8.0)
     options = DiagnosisOptions(particles=300, seed=1, workers=1)
-    session = bgc.open(RELAY, backend="numpy")
-    batch = bgc.diagnose(session, data=run, options=options).diagnosis
-    d = session.diagnoser(options)
-    outputs = nominal_model(session.package).OUTPUTS
+    batch = bgc.diagnose(relay(), data=run, options=options).diagnosis
+    d = relay().diagnoser(options)
+    outputs = nominal_model(relay().package).OUTPUTS
     for i, t in enumerate(run.time):
         d.step(float(t), {"V": run.inputs["V"][i], "mode": run.modes[i]}, [run.measurements[y][i] for y in outputs])
     online = d.finish(run)
@@ -93,13 +101,13 @@ def test_symbols_are_matched_in_the_modes_the_plant_was_in():
     v/R_load - v/R_aux), so its rise makes v_C rise in mode closed (signature v_C: 0+, a slope)
     and moves nothing in modes open and unpowered (00 at both sensors). A v_C that rises is
     then explained by R_aux in closed, not in open; over a window of both modes, by closed."""
-    session = bgc.open(RELAY, backend="numpy")
-    names = tuple(m.name for m in session.view.modes)
+    view = relay().view
+    names = tuple(m.name for m in view.modes)
     assert names == ("open", "closed", "unpowered")
-    sigs = ModeSignatures(tuple(m.signatures for m in session.view.modes), names)
+    sigs = ModeSignatures(tuple(m.signatures for m in view.modes), names)
     # each sensor's symbols at derivative orders 0 and 1 (i_L, v_C)
     by_mode = {m.name: tuple("".join(order[:2]) for order in m.signatures.get("R_aux+:abrupt").symbols)
-               for m in session.view.modes}
+               for m in view.modes}
     assert by_mode["open"] == by_mode["unpowered"] == ("00", "00")
     assert by_mode["closed"] == ("00", "0+")
     rising = (Symbol("v_C", "+", "+", 10),)
@@ -121,8 +129,8 @@ def test_candidates_alike_in_the_modes_seen_are_named_with_the_mode_that_would_s
 
     from bgc.output.report import mode_split_lines
 
-    session = bgc.open(RELAY, backend="numpy")
-    sigs = ModeSignatures(tuple(m.signatures for m in session.view.modes), tuple(m.name for m in session.view.modes))
+    view = relay().view
+    sigs = ModeSignatures(tuple(m.signatures for m in view.modes), tuple(m.name for m in view.modes))
     pair = ("R_load_abrupt", "R_aux_abrupt")
     split = sigs.split(pair, [2, 2, 2])
     assert split is not None and split.seen == ("closed",)

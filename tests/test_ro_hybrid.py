@@ -15,6 +15,8 @@ from bgc import pipeline
 from bgc.analysis import hybrid
 from bgc.analysis.simulate import SimulationOptions
 
+from conftest import session
+
 #: Simulated cycles of the RO: the full suite's (make test), not make check's.
 pytestmark = pytest.mark.slow
 
@@ -106,16 +108,26 @@ def test_bgc_simulate_from_python_takes_a_model_with_modes():
 CYCLES = "secondary@60,purge@100,primary@120,secondary@180,purge@220,primary@240"
 
 
+@pytest.fixture(scope="module")
+def valve():
+    """The valve RO's session on NumPy, opened once for the simulations and
+    diagnoses below, which are not about opening the model:
+    ``bgc.simulate(valve, ...)`` and ``bgc.diagnose(valve, ...)`` give what
+    they give of the model file (the session's noise levels are the
+    model's), its check and each mode's numerics made once, not per call."""
+    return session(VALVE, backend="numpy")
+
+
 @pytest.mark.parametrize("seed", [11, 12])
-def test_the_cycling_valve_ro_raises_no_alarm_at_its_switches(seed):
-    sim = bgc.simulate(VALVE, seed=seed, steps=300, modes=CYCLES)
+def test_the_cycling_valve_ro_raises_no_alarm_at_its_switches(valve, seed):
+    sim = bgc.simulate(valve, seed=seed, steps=300, modes=CYCLES)
     assert len(sim.switches) == 6
-    report = bgc.diagnose(VALVE, data=sim, backend="numpy")
+    report = bgc.diagnose(valve, data=sim)
     assert report.diagnosis.verdict == "no fault", report.diagnosis.candidates
 
 
-def test_a_pipe_clogging_in_the_second_cycle_is_named():
-    sim = bgc.simulate(VALVE, "R_pipe:incipient:0.5@140", seed=4, steps=300, modes=CYCLES)
-    d = bgc.diagnose(VALVE, data=sim, backend="numpy").diagnosis
+def test_a_pipe_clogging_in_the_second_cycle_is_named(valve):
+    sim = bgc.simulate(valve, "R_pipe:incipient:0.5@140", seed=4, steps=300, modes=CYCLES)
+    d = bgc.diagnose(valve, data=sim).diagnosis
     assert d.verdict == "isolated" and d.candidates == ("R_pipe_incipient",), (d.verdict, d.candidates)
     assert d.detection.step > 140

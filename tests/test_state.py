@@ -11,6 +11,7 @@ types."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import io
 import pickle
 
@@ -27,12 +28,16 @@ from bgc.diagnosis.state import MAGIC, DiagnoserState
 from bgc.errors import ArgumentValueError
 
 from conftest import MODELS, TEST_MODELS, fast_session
+from conftest import session as session_of
 
-#: Per shipped model, a fault scenario whose alarm comes about halfway through the run.
+#: Per shipped model, a fault scenario whose alarm comes after about half of the run.
 SCENARIOS = {"circuit": "R2:abrupt:0.6@5", "two_tank": "R12:abrupt:0.8@75", "ro": "R_pipe:incipient:0.5@165"}
-#: The runs' lengths (None: the model's declared run): the circuit's 200 steps of 0.05 put its fault at
-#: t = 5 halfway (its declared 300 would leave the end twice the samples to weigh, bit for bit as well).
-STEPS = {"circuit": 200, "two_tank": None, "ro": None}
+#: The runs' lengths (None: the model's declared run), each long enough for a cut at 0.8 of it to fall
+#: while the hypotheses are tracked and for the fault to be isolated at the end: the circuit's 170 steps
+#: of 0.05 put its fault at t = 5 (sample 100, the alarm at 99: the cut at 136), the two tanks' 240 of
+#: 0.5 theirs at t = 75 (sample 150, the alarm at 155: the cut at 192). Their declared 300 would only
+#: leave the end more samples to track and weigh, bit for bit as well, twice (uninterrupted and resumed).
+STEPS = {"circuit": 170, "two_tank": 240, "ro": None}
 
 
 @pytest.fixture(scope="module")
@@ -108,25 +113,40 @@ def _round_trip(session, rows, run, cut: float | int, **options):
 #: A covering set of (model, filter): each filter's state is taken up on each backend, each shipped model
 #: appears. NumPy: the two tanks' GPF (the fast tier) and the circuit's APF, OPF and CKF; FAST: the RO
 #: plant's GPF and the two tanks' APF, OPF and CKF. (The other four pairs ran a filter on a backend a pair
-#: here already runs it on.)
+#: here already runs it on.) All eight are kept: on the compiled backend each filter reaches its
+#: generator's handle, or the compiled cubature step, at a place of its own (the GPF's fused step and
+#: its bank's packed step, the APF's packed bank, the OPF's own step filter by filter; the CKF's
+#: compiled step and its caches), so each (filter, backend) is a path of its own through a restored state.
 CASES = [("two_tank", "gpf"), ("circuit", "apf"), ("circuit", "opf"), ("circuit", "ckf"),
          ("ro", "gpf"), ("two_tank", "apf"), ("two_tank", "opf"), ("two_tank", "ckf")]
+
+
+def _fast(name: str, method: str) -> bool:
+    """Whether case (name, method) runs on the FAST backend."""
+    return name == "ro" or (name == "two_tank" and method != "gpf")
+
+
+@functools.lru_cache(maxsize=None)
+def _case(name: str, method: str):
+    """The round trip of case (name, method) of CASES (:func:`_round_trip`,
+    cut at 0.8 of the run, 200 particles, seed 3), once per test process: the
+    RO plant's GPF on FAST is also the compiled backend's own test below
+    (FAST is numba when numba is installed), which asserts on it again."""
+    session = fast_session(name) if _fast(name, method) else session_of(MODELS / f"{name}.yaml")
+    rows, run = _rows(session, SCENARIOS[name], steps=STEPS[name])
+    return session, _round_trip(session, rows, run, 0.8, filter=method, particles=200, seed=3)
 
 
 @pytest.mark.parametrize("name, method", [
     pytest.param(name, method, marks=() if (name, method) == ("two_tank", "gpf") else pytest.mark.slow)
     for name, method in CASES])
-def test_a_diagnoser_taken_up_from_its_state_goes_on_as_if_it_never_stopped(sessions, name, method):
+def test_a_diagnoser_taken_up_from_its_state_goes_on_as_if_it_never_stopped(name, method):
     """The circuit on NumPy (APF, OPF, CKF) and the two tanks' GPF, in the
     fast tier, on NumPy; the two tanks' other filters and the RO plant's GPF,
     whose diagnoses take longest, on the FAST backend (conftest.fast_session;
     the slow tier only): each filter's state is taken up on both backends,
     on each shipped model."""
-    fast = name == "ro" or (name == "two_tank" and method != "gpf")
-    session = fast_session(name) if fast else _session(sessions, MODELS / f"{name}.yaml")
-    rows, run = _rows(session, SCENARIOS[name], steps=STEPS[name])
-    (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, 0.8, filter=method, particles=200,
-                                                             seed=3)
+    _, ((beliefs, whole), (later, resumed), at_cut) = _case(name, method)
     assert at_cut.loop.phase == "tracking"  # cut with hypotheses tracked: their filters are in the state
     assert (method == "ckf") == (not at_cut.loop.trackers)
     _equal(beliefs, later, "beliefs")
@@ -188,15 +208,17 @@ def test_a_state_is_taken_up_only_by_a_diagnoser_of_its_model(sessions):
 
 
 @pytest.mark.numba
-def test_a_diagnoser_on_the_compiled_backend_is_taken_up_alike(sessions):
+def test_a_diagnoser_on_the_compiled_backend_is_taken_up_alike():
     """The compiled kernels draw through a handle of each filter's generator:
     a filter taken up keeps its generator object, whose state is set, so the
-    handle stays valid (numba, a test of the compiled backend)."""
+    handle stays valid (numba, a test of the compiled backend): the RO
+    plant's GPF, cut while tracking, on numba (the round trip of that case of
+    CASES, which runs on FAST: numba, numba being installed; made once for
+    both tests)."""
     pytest.importorskip("numba")
-    session = fast_session("two_tank")  # numba, numba being installed
-    rows, run = _rows(session, SCENARIOS["two_tank"])
-    (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, 0.75, particles=200, seed=5)
-    assert at_cut.loop.phase == "tracking"
+    session, ((beliefs, whole), (later, resumed), at_cut) = _case("ro", "gpf")
+    assert session.backend == "numba" and at_cut.options.filter == "gpf"
+    assert at_cut.loop.phase == "tracking" and at_cut.loop.trackers
     _equal(beliefs, later, "beliefs")
     _equal(whole, resumed, "diagnosis")
 
@@ -207,9 +229,9 @@ def test_a_checkpoint_is_the_batch_diagnosis_of_the_data_so_far(sessions):
     its state: the hypotheses it tracks online are not tracked again) equals
     the batch diagnosis of the rows so far, number for number."""
     session = _session(sessions, MODELS / "two_tank.yaml")
-    rows, run = _rows(session, SCENARIOS["two_tank"])
+    rows, run = _rows(session, SCENARIOS["two_tank"], steps=STEPS["two_tank"])
     d = session.diagnoser(DiagnosisOptions(particles=200, seed=3, workers=1))
-    k = 240
+    k = 192  # 37 samples after the alarm (155), 48 rows before the end
     for t, u, y in rows[:k]:
         d.step(t, u, y)
     assert d.loop.phase == "tracking" and d.loop.trackers
