@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .. import arguments
+from .distinguish import check_prediction
 from collections.abc import Mapping
 
 from ..errors import ArgumentTypeError, ArgumentValueError, printable
@@ -136,13 +137,7 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     func = "bgc.analyse"
     arguments.path(func, "model", model)
     arguments.flag(func, "quantitative", quantitative)
-    arguments.real(func, "change", change, 0.0, math.inf, "a relative change above 0, e.g. change=0.3")
-    arguments.real(func, "at", at, 0.0, 1.0, "a fraction of the run between 0 and 1, e.g. at=0.5")
-    arguments.noise_levels(func, process_noise, measurement_noise)
-    if steps is not None:
-        arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
-    arguments.real(func, "level", level, 0.0, 1.0, "a probability between 0 and 1, e.g. level=0.95")
-    arguments.callable_or_none(func, "progress", progress)
+    check_prediction(func, change, at, process_noise, measurement_noise, steps, level, progress)
     arguments.flag(func, "place_sensors", place_sensors)
     arguments.flag(func, "design_inputs", design_inputs)
     if design_inputs and not quantitative:

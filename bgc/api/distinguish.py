@@ -26,6 +26,18 @@ from .session import open as open_session
 from ..model.protocol import onset_sample
 
 
+def check_prediction(func: str, change, at, process_noise, measurement_noise, steps, level, progress) -> None:
+    """The arguments of a prediction over every fault candidate, checked as
+    :func:`distinguishability` checks them (also :func:`bgc.analyse`'s)."""
+    arguments.real(func, "change", change, 0.0, math.inf, "a relative change above 0, e.g. change=0.3")
+    arguments.real(func, "at", at, 0.0, 1.0, "a fraction of the run between 0 and 1, e.g. at=0.5")
+    arguments.noise_levels(func, process_noise, measurement_noise)
+    if steps is not None:
+        arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
+    arguments.real(func, "level", level, 0.0, 1.0, "a probability between 0 and 1, e.g. level=0.95")
+    arguments.callable_or_none(func, "progress", progress)
+
+
 def distinguishability(model: str | Path | Session, scenario: str | simulate.FaultInjection | None = None, *,
                        change: float = 0.3,
                        at: float = 0.5,
@@ -105,13 +117,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         arguments.path(func, "model", model)
     if not isinstance(scenario, simulate.FaultInjection):
         arguments.text(func, "scenario", scenario, optional=True)
-    arguments.real(func, "change", change, 0.0, math.inf, "a relative change above 0, e.g. change=0.3")
-    arguments.real(func, "at", at, 0.0, 1.0, "a fraction of the run between 0 and 1, e.g. at=0.5")
-    arguments.noise_levels(func, process_noise, measurement_noise)
-    if steps is not None:
-        arguments.integer(func, "steps", steps, 1, "simulate at least 1 step", "steps=300")
-    arguments.real(func, "level", level, 0.0, 1.0, "a probability between 0 and 1, e.g. level=0.95")
-    arguments.callable_or_none(func, "progress", progress)
+    check_prediction(func, change, at, process_noise, measurement_noise, steps, level, progress)
     arguments.integer(func, "detector_runs", detector_runs, 0, "is negative", "detector_runs=50")
     arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
     if detector_runs and scenario is None:
