@@ -20,6 +20,7 @@ tracking (:class:`Started`, :class:`Stopped`, :class:`Dropped`, :class:`Rescued`
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 
@@ -423,3 +424,20 @@ Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorRe
          | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | Started | Refined | Dropped
          | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | SensorExcluded
          | Checkpoint | ModeHidden | ModeRead | ModesReread | Mismatched | Decided)
+
+
+def shifted(event, by: int):
+    """Data event ``event`` (of the rows, while watching) with its steps
+    ``by`` earlier: the diagnoser forgot ``by`` steps of its record
+    (:meth:`bgc.diagnosis.diagnoser.Diagnoser.step`); None when its step
+    falls before the record kept (a ``since`` before it is its first step)."""
+    step = getattr(event, "step", None)
+    if step is None or not by:
+        return event
+    if step - by < 0:
+        return None
+    changes = {"step": step - by}
+    since = getattr(event, "since", None)
+    if since is not None:
+        changes["since"] = max(since - by, 0)
+    return dataclasses.replace(event, **changes)

@@ -166,7 +166,7 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose", o: str 
                                  "particle filter, filter='gpf', 'apf' or 'opf'")
     if options.input_timing is not None:
         arguments.choice(func, o + "input_timing", options.input_timing, TIMINGS)
-    for name in ("horizon", "gap"):
+    for name in ("horizon", "gap", "keep"):
         if getattr(options, name) is not None:
             arguments.real(func, o + name, getattr(options, name), 0.0, MAX_TIME, "a time above 0 (the model's "
                            "time unit), at most 1e12", high_ok=True)

@@ -41,6 +41,10 @@ def add_parser(sub) -> None:
                         "at the end; a state found there is taken up: a restart goes on where it stopped")
     p.add_argument("--state-every", type=int, default=None, metavar="ROWS",
                    help="with --state: rows between two saves (default 100)")
+    p.add_argument("--keep", type=float, default=None, metavar="TIME",
+                   help="while watching, the record kept, in the model's time unit (default: 1024 steps; at least "
+                        "the onsets' reach back plus the longest window): the memory stays bounded however long "
+                        "the stream runs, and the report shows the record kept")
     p.add_argument("--generated", metavar="DIR",
                    help="use the package bgc compile wrote there (default: generate one)")
     add_prior_option(p)
@@ -56,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from ..output import artifacts
     from ..diagnosis.options import DiagnosisOptions
 
-    check_times(args, ("horizon", "gap", "checkpoint"))
+    check_times(args, ("horizon", "gap", "checkpoint", "keep"))
     if args.idle is not None and not (math.isfinite(args.idle) and args.idle >= 0):
         raise BgcError(f"--idle {args.idle:g}: give the seconds to wait for a new row, a number >= 0", None,
                        "e.g. --idle 60")
@@ -72,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
                        "drop --follow, or give the file")
     process, measurement = parse_noise(args.noise)
     options = DiagnosisOptions(filter=args.filter, particles=args.particles, seed=args.seed, horizon=args.horizon,
-                               gap=args.gap, recheck=args.recheck, input_timing=args.input_timing)
+                               gap=args.gap, recheck=args.recheck, input_timing=args.input_timing,
+                               keep=args.keep)
     rows = None if args.follow else rows_of(args.data)  # a stream followed, or standard input: not known
     session = api.open(args.model, process_noise=process, measurement_noise=measurement, generated=args.generated,
                        prior_scale=args.prior_scale, backend=args.backend,

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -47,10 +48,11 @@ from ..data.sampler import Sample, Sampler
 from ..errors import ArgumentTypeError, ArgumentValueError, DataError, TrackingError, printable
 from .hidden import ONSETS, REREAD, ModeDecoder, read_again, read_fault, read_head, readable
 from ..ir import FaultSignatures
+from ..model.package import forget_started, started_package
 from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
 from .finish import ordered
-from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig
+from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig, shifted_events
 from .options import DiagnosisOptions
 from .values import Belief, Diagnosis
 
@@ -118,6 +120,9 @@ class Diagnoser:
         self.busy = 0.0  # seconds spent in steps (not waiting for data)
         self.started = time.perf_counter()
         self.decoder: ModeDecoder | None = None  # a hidden mode's reader (the data have no mode column)
+        self.keep = keep_steps(config.options, self.nominal.DT)  # the record kept while watching (None: all)
+        self.offset = 0  # the steps of the grid forgotten (step k of the loop is step offset + k of the data)
+        self.start: tuple[np.ndarray, np.ndarray] | None = None  # where the models of the record kept start
 
     def hide(self) -> None:
         """Read the mode from the data (they have no mode column): every
@@ -202,6 +207,12 @@ class Diagnoser:
         """The loop's step of the grid (a :class:`~bgc.data.sampler.Sample`)."""
         started = time.perf_counter()
         try:
+            loop = self.loop
+            if self.keep is not None and len(loop.samples) >= 2 * self.keep and loop.detection is None \
+                    and not self.switched:
+                self._forget(len(loop.samples) - self.keep)
+            if self.offset:  # the sampler counts the data's steps, the loop those of the record it keeps
+                s = dataclasses.replace(s, k=s.k - self.offset, events=shifted_events(s.events, self.offset))
             most = self.config.most
             if most is not None and len(self.loop.samples) >= most:
                 where = self.source if s.line is None else f"{self.source}:{s.line}"
@@ -215,6 +226,28 @@ class Diagnoser:
             return belief if degenerate is None else self._switch(degenerate, belief)
         finally:
             self.busy += time.perf_counter() - started
+
+    def _forget(self, cut: int) -> None:
+        """Watching, with ``keep`` steps to keep: forget the record's first
+        ``cut`` steps (:meth:`Loop.forget <bgc.diagnosis.loop.Loop.forget>`);
+        the models of the record kept start from the nominal observer's
+        estimate at its first step (:func:`~bgc.model.package.started_package`)."""
+        old = self.config.package
+        self.start = self.loop.forget(cut)
+        package = started_package(old, *self.start)
+        if package is not old:
+            forget_started(old)
+        self._started(package)
+        self.offset += cut
+        self.config.say(f"watching: the record keeps the last {self.keep} steps (from t = {self.loop.samples[0].t:.12g})")
+
+    def _started(self, package) -> None:
+        """Run on ``package`` (a started package) from now on."""
+        self.config = dataclasses.replace(self.config, package=package)
+        self.nominal = nominal_model(package)
+        if hasattr(self, "loop"):
+            self.loop.config = dataclasses.replace(self.loop.config, package=package)
+            self.loop.nominal = self.nominal
 
     def time_of(self, step: int) -> float:
         """The time of step ``step`` of the grid."""
@@ -284,6 +317,7 @@ class Diagnoser:
             self.started = time.perf_counter() - self.busy
         if not self.loop.samples:
             raise TrackingError(f"{self.source}: no sample to diagnose", None, "give at least one row of data")
+        sys.modules.setdefault(self.config.package.__name__, self.config.package)  # a started package, for the workers
         if not self.switched and self.loop.detection is None:  # degenerate over a run without an alarm
             degenerate = self.loop.degenerate()
             if degenerate is not None:
@@ -469,3 +503,13 @@ def mode_hidden(nominal, inputs, source: str) -> bool:
                         "lists)")
     return True
 
+
+
+def keep_steps(options: DiagnosisOptions, dt: float) -> int | None:
+    """The steps of the record a diagnoser keeps while watching
+    (``options.keep``, a time, in steps of ``dt``; None: every step), at
+    least the nominal clouds' ``history`` and the longest window of the
+    detector: an alarm's onsets are looked for no further back."""
+    if options.keep is None:
+        return None
+    return max(math.ceil(options.keep / dt - 1e-9), options.history + max(options.windows))

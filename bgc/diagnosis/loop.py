@@ -233,6 +233,37 @@ class Loop:
             self.config.say("the particle filter degenerates: diagnosing again with cubature Kalman filters")
         return ev.Degenerate(o.filter, mean_ess, o.particles, o.switch, self.samples[-1].k)
 
+    # -- a bounded record -----------------------------------------------------------------------------------
+
+    def forget(self, cut: int) -> tuple[np.ndarray, np.ndarray]:
+        """Forget the first ``cut`` steps of the record while watching (no
+        alarm, no hypothesis: nothing looks back that far): the record, the
+        nominal observer's estimates, the detector's statistics, the clouds
+        and the data events kept are those of the steps from ``cut`` on,
+        which become steps 0, 1, ... (the windows' sums and the observer
+        itself go on as they were). Returns the nominal observer's state
+        before the first step kept (its mean and std), where the models of
+        the record kept start (:func:`bgc.model.package.started_package`)."""
+        if self.phase != "watching" or self.detection is not None or not 0 < cut < len(self.samples):
+            raise TrackingError(f"Loop.forget({cut}): only steps of a record being watched can be forgotten", None,
+                                "forget fewer steps than the record holds, before an alarm")
+        if self.kf is not None:  # its state before step cut, then every list from there
+            kf = self.kf
+            start = kf.means[cut], np.sqrt(np.maximum(np.diagonal(kf.covs[cut]), 0.0))
+            kf.means, kf.covs = kf.means[cut:], kf.covs[cut:]
+            kf.logliks = [v - kf.logliks[cut] for v in kf.logliks[cut:]]
+            kf.y_mean, kf.y_std, kf.z, kf.x_std = kf.y_mean[cut:], kf.y_std[cut:], kf.z[cut:], kf.x_std[cut:]
+        else:  # the particle observer's estimate after step cut - 1
+            start = self.x_mean[cut - 1], self.x_std[cut - 1]
+        self.samples = [dataclasses.replace(s, k=s.k - cut, events=shifted_events(s.events, cut))
+                        for s in self.samples[cut:]]
+        self.y_mean, self.y_std, self.z = self.y_mean[cut:], self.y_std[cut:], self.z[cut:]
+        self.x_mean, self.x_std, self.density = self.x_mean[cut:], self.x_std[cut:], self.density[cut:]
+        self.detector.statistics = self.detector.statistics[cut:]
+        self.clouds = {k - cut: cloud for k, cloud in self.clouds.items() if k >= cut}
+        self.events = list(shifted_events(self.events, cut))
+        return np.asarray(start[0], dtype=float).copy(), np.asarray(start[1], dtype=float).copy()
+
     # -- isolation and tracking -----------------------------------------------------------------------------
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -412,3 +443,9 @@ def _onsets(o: DiagnosisOptions, detection, T: int):
     kalman_onsets = {True: first_tried(kalman_reach), False: sorted(near)}
     onsets = {True: first_tried(reach), False: sorted(near)}
     return reach, near, kalman_reach, onsets, kalman_onsets
+
+
+def shifted_events(events, cut: int) -> tuple:
+    """Data events with their steps ``cut`` earlier, those before the record kept left out."""
+    moved = (ev.shifted(e, cut) for e in events)
+    return tuple(e for e in moved if e is not None)

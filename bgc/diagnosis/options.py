@@ -81,7 +81,14 @@ class DiagnosisOptions:
     event; ``input_timing``: what a row's input value is, ``end`` (held over
     the step that ends at the row's time: bgc's own files) or ``start`` (set
     at the row's time, acting until the next row: what many loggers write);
-    None: as the data's header says (an ``input timing:`` line), else ``end``.
+    None: as the data's header says (an ``input timing:`` line), else ``end``;
+    ``keep``: while watching (before an alarm), the record a diagnoser
+    keeps, in the model's time unit (None: every sample from the first, a
+    batch diagnosis's record; ``bgc monitor`` keeps a bounded one): once it
+    holds twice this, its older half is forgotten and the models of the rest
+    start from the nominal observer's estimate there
+    (:meth:`bgc.diagnosis.diagnoser.Diagnoser.step`); at least ``history``
+    plus the longest window, in steps.
 
     **Detection** (:mod:`bgc.diagnosis.detect`): ``false_alarm``: the
     probability of any alarm over a fault-free ``horizon``; ``horizon``: the
@@ -157,6 +164,7 @@ class DiagnosisOptions:
     horizon: float | None = None
     gap: float | None = None
     input_timing: str | None = None
+    keep: float | None = None
     #: The filter's old name (``method=``): accepted with a :class:`DeprecationWarning` (read ``filter``).
     method: InitVar[str | None] = None
 
@@ -170,7 +178,7 @@ class DiagnosisOptions:
 #: The options of each stage of the loop (every field of DiagnosisOptions in one).
 STAGES = {
     "filters": ("filter", "particles", "seed", "shrinkage", "switch", "workers"),
-    "data": ("gap", "input_timing"),
+    "data": ("gap", "input_timing", "keep"),
     "detection": ("false_alarm", "horizon", "windows"),
     "isolation": ("symbol_steps", "history", "search", "spacing", "near"),
     "tracking": ("rejection",),

@@ -38,7 +38,7 @@ from .options import DiagnosisOptions
 from .values import Detection, Isolation
 
 #: The state's format; a state of another format is refused.
-VERSION = 2  # 2: the options' input_timing (2026-12-03)
+VERSION = 3  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten (2026-12-04)
 #: The first bytes of a state file.
 MAGIC = b"bgc-diagnoser-state\n"
 
@@ -150,7 +150,7 @@ class LoopState:
 @dataclass(frozen=True, slots=True)
 class DiagnoserState:
     """A diagnoser's state (module docstring): the format's ``version``, the
-    plant's model, ``epoch`` (the steps taken), the sampler's place, the loop
+    plant's model, ``epoch`` (the steps taken, those forgotten too), the sampler's place, the loop
     that runs now, the events of a switch of filter (empty: none), whether
     the inputs are still to be read from the first row, the seconds spent in
     steps and whether it has finished."""
@@ -166,6 +166,10 @@ class DiagnoserState:
     finished: bool
     #: the mode read from the data (:class:`~bgc.diagnosis.hidden.DecoderState`; None: the data say it)
     decoder: DecoderState | None = None
+    #: the steps of the data's grid forgotten before the record kept (``options.keep``)
+    offset: int = 0
+    #: where the models of the record kept start (mean, std; None: the model's X0)
+    start: tuple | None = None
 
     def to_bytes(self) -> bytes:
         """The state as bytes (:meth:`from_bytes` reads them)."""
@@ -216,9 +220,10 @@ class _Unpickler(pickle.Unpickler):
 
 def diagnoser_state(d) -> DiagnoserState:
     """The state of diagnoser ``d``."""
-    return DiagnoserState(VERSION, d.nominal.MODEL, len(d.loop.samples), d.sampler.state(), loop_state(d.loop),
-                          tuple(d.switched), d.infer_inputs, d.busy, d.finished,
-                          None if d.decoder is None else d.decoder.state())
+    return DiagnoserState(VERSION, d.nominal.MODEL, d.offset + len(d.loop.samples), d.sampler.state(),
+                          loop_state(d.loop), tuple(d.switched), d.infer_inputs, d.busy, d.finished,
+                          None if d.decoder is None else d.decoder.state(), d.offset,
+                          None if d.start is None else (d.start[0].copy(), d.start[1].copy()))
 
 
 def loop_state(loop) -> LoopState:
@@ -282,6 +287,7 @@ def tracker_state(t: HypothesisTracker) -> TrackerState:
 
 def restore_diagnoser(cls, config, state: DiagnoserState):
     """A diagnoser of class ``cls`` and configuration ``config`` in ``state``."""
+    from ..model.package import started_package
     from ..model.protocol import nominal_model
     from ..data.sampler import Sampler
 
@@ -297,6 +303,10 @@ def restore_diagnoser(cls, config, state: DiagnoserState):
                             nominal.OUTPUTS if config.sensors is None else config.sensors, config.source,
                             config.options.gap, config.options.input_timing or "end"))
     d.sampler.restore(state.sampler)
+    d.offset = state.offset
+    if state.start is not None:  # a record whose first steps were forgotten: its models start there
+        d.start = (np.array(state.start[0], dtype=float), np.array(state.start[1], dtype=float))
+        d._started(started_package(config.package, *d.start))
     d.loop = restore_loop(d._loop_config(state.loop.options, state.loop.every, state.loop.lazy), state.loop)
     d.switched, d.infer_inputs, d.busy, d.finished = tuple(state.switched), state.infer_inputs, state.busy, \
         state.finished

@@ -15,6 +15,8 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from ..arguments import spelled
 from ..errors import TrackingError, printable
 from ..ir import PACKAGES, NoiseLevels
@@ -157,3 +159,55 @@ def load_package(generated_dir: str | Path, model: str, source: str | None = Non
     return module
 
 
+
+
+#: The attribute a started package (:func:`started_package`) names the package it was made from with.
+STARTED_FROM = "BGC_STARTED_FROM"
+
+
+def started_package(package: Package, mean, std) -> Package:
+    """Generated ``package`` with its record starting elsewhere than the
+    model's ``X0``: another instance of its files (imported again under a
+    name of its own, ``<name>_from_<digest>``, registered in ``sys.modules``
+    as every package is, so forked workers find it by name), whose models'
+    carried states (``mean``, ``std``: one per nominal state) start at
+    ``mean`` with spread ``std`` (a mode or a dwell time exactly: std 0; a
+    fault model's fault states keep theirs), every other array (the noise)
+    copied from ``package``. The filters and the static posteriors that
+    start "from the model's prior" start there: a diagnoser that forgot the
+    first part of its record (:meth:`bgc.diagnosis.diagnoser.Diagnoser.step`)
+    starts its record's models from the nominal observer's estimate at the
+    step it kept first. Made once per start (a package of the same start is
+    the same module)."""
+    from .protocol import CARRIED, nominal_model
+
+    base = sys.modules.get(getattr(package, STARTED_FROM, package.__name__), package)
+    mean, std = np.asarray(mean, dtype=float), np.asarray(std, dtype=float)
+    digest = hashlib.sha256(mean.tobytes() + std.tobytes()).hexdigest()[:16]
+    name = f"{base.__name__}_from_{digest}"
+    if name in sys.modules:
+        return sys.modules[name]
+    init = Path(base.__file__)
+    spec = importlib.util.spec_from_file_location(name, init, submodule_search_locations=[str(init.parent)])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    setattr(module, STARTED_FROM, base.__name__)
+    kinds = getattr(nominal_model(base), "STATE_KINDS", ("physical",) * len(mean))
+    rows = [i for i, k in enumerate(kinds[:len(mean)]) if k in CARRIED and k != "threshold"]
+    for key, m in module.MODELS.items():
+        source = base.MODELS[key]
+        for array in ("PROCESS_STD", "MEASUREMENT_STD", "PREDICTIVE_STD", "X0", "X0_STD"):
+            getattr(m, array)[:] = getattr(source, array)
+        m.X0[rows] = mean[rows]
+        m.X0_STD[rows] = [std[i] if kinds[i] == "physical" else 0.0 for i in rows]
+    return module
+
+
+def forget_started(package: Package) -> None:
+    """Take a started package (:func:`started_package`) out of
+    ``sys.modules`` (its diagnoser made another start, or finished); any
+    other package is left alone."""
+    if getattr(package, STARTED_FROM, None) is not None:
+        for name in [m for m in sys.modules if m == package.__name__ or m.startswith(package.__name__ + ".")]:
+            del sys.modules[name]

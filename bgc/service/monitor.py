@@ -33,6 +33,9 @@ from . import resume
 
 #: Rows between two saves of the monitor's state (``--state-every``).
 STATE_EVERY = 100
+#: The steps of the model's grid the monitor's diagnoser keeps while watching, by default (``--keep``;
+#: :attr:`~bgc.diagnosis.options.DiagnosisOptions.keep`): four times the onsets' default reach back.
+KEEP_STEPS = 1024
 
 
 class Follow:
@@ -209,9 +212,12 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     timing = runs.resolve_timing(reader.header, options.input_timing, name, "--input-timing")
     if timing != (options.input_timing or "end"):  # the header's word (None stays None: the default)
         options = dataclasses.replace(options, input_timing=timing)
+    if options.keep is None:  # a stream may not end: the record kept while watching is bounded
+        options = dataclasses.replace(options, keep=KEEP_STEPS * session.package.MODELS["nominal"].DT)
     d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors, source=name,
                           progress=progress)
     rows: list[list[float]] = []
+    forgot = 0  # the steps the diagnoser forgot when the rows and what was told were last cut to its record
     last_check = None
     told: set = set()
     excluded: list[ev.SensorExcluded] = []
@@ -228,6 +234,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
         d = type(d).from_state(d.config, saved.diagnoser)
         rows, last_check = [list(r) for r in saved.rows], saved.last_check
         told.update(d.loop.events, d.switched)  # said before the restart
+        forgot = d.offset
         say(f"resumed from {printable(str(keep.where))}: {len(rows)} rows, to t = {time_text(saved.last_time)}; "
             "the input's rows after it are read on")
 
@@ -256,6 +263,9 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
             with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
                 belief = d.step(t, u, y, line)
                 rows.append(values)
+                if d.offset != forgot:  # the diagnoser forgot its record's first steps: the rows before go too
+                    rows, told = _kept(rows, told, d, d.offset - forgot)
+                    forgot = d.offset
             tell(belief.events, time_of)
             if checkpoint is not None and belief.phase == "tracking":
                 if last_check is None:
@@ -274,7 +284,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
                         sensors = [y for y in sensors if y != faulty]
                         d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors,
                                               source=name, progress=progress)
-                        rows, last_check = [], None
+                        rows, last_check, forgot = [], None, 0
             keep.every(rows, last_check, d, excluded)  # after the checkpoint: its time is in the state
     except KeyboardInterrupt:
         say("interrupted: finishing the diagnosis of the data so far")
@@ -305,6 +315,15 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
           and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
          diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
     return session.report(run, diagnosis), failure
+
+
+def _kept(rows: list, told: set, d, cut: int) -> tuple[list, set]:
+    """The rows of the steps diagnoser ``d`` keeps in its record, and the
+    events told with their steps ``cut`` earlier (those of the steps it
+    forgot left out): the report and the state hold what the record does."""
+    first = d.loop.samples[0].t - 0.5 * d.nominal.DT
+    moved = (ev.shifted(e, cut) for e in told)
+    return [r for r in rows if r[0] >= first], {e for e in moved if e is not None}
 
 
 class _Keeper:
