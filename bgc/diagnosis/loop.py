@@ -33,11 +33,15 @@ stops there and the diagnoser's policy reacts (a new loop on the record).
 What the loop keeps, and for how long: the record of the samples and of the
 nominal observer's predictions, residuals and state estimates, and the
 detector's statistics, from the first sample on (the end of a diagnosis
-weighs every hypothesis over the whole record and the report draws it);
-the nominal clouds of the last ``history`` steps before the alarm (the
-onsets are looked for no further back); the detector's sums over its longest
-window; the trackers' filters and outputs from their onsets on. Its state is
-plain data (:meth:`Loop.state`, :class:`~bgc.diagnosis.state.LoopState`).
+weighs every hypothesis over the whole record and the report draws it),
+unless the diagnoser bounds it (``options.keep``: while watching,
+:meth:`Loop.forget` drops the older half once it holds twice ``keep``
+steps, and the record's steps are counted from the first one kept); the
+nominal clouds of the last ``history`` steps before the alarm (the onsets
+are looked for no further back); the detector's sums over its longest
+window; the trackers' filters and outputs from their onsets on. Its state
+is plain data (:func:`bgc.diagnosis.state.loop_state`,
+:class:`~bgc.diagnosis.state.LoopState`).
 """
 
 from __future__ import annotations
