@@ -15,7 +15,8 @@ In loop order: the data (:class:`SensorMissing`, :class:`ColumnIgnored`, :class:
 :class:`Switched`), isolation (:class:`Isolated`, :class:`AllTried`),
 tracking (:class:`Started`, :class:`Stopped`, :class:`Dropped`, :class:`Rescued`), weighing
 (:class:`Truncated`, :class:`AtPriorBound`, :class:`NoLikelihood`, :class:`Misfit`), and the end
-(:class:`Refined`, :class:`SensorExcluded`, :class:`Checkpoint`, :class:`Mismatched`, :class:`Decided`).
+(:class:`Refined`, :class:`SensorExcluded`, :class:`Checkpoint`, :class:`Mismatched`, :class:`Decided`);
+a monitor's fault log (:class:`EpisodeClosed`, :class:`Repaired`).
 """
 
 from __future__ import annotations
@@ -338,6 +339,47 @@ class SensorExcluded:
 
 
 @dataclass(frozen=True, slots=True)
+class EpisodeClosed:
+    """Fault episode ``number`` of a monitor's stream (``bgc monitor
+    --episodes``), closed at time ``time`` by a checkpoint's diagnosis: the
+    alarm at ``alarm`` on sensor ``sensor``, the verdict ``verdict`` and its
+    ``candidates``, the time the fault began (``began``: its onset; None: none) and in words
+    ``finding`` (its estimate and interval; empty: none), and what the monitor
+    did: ``action`` ``accommodated`` (the fault is part of the model watched
+    from then on: ``parameter`` at ``value``), ``sensor out`` (sensor
+    ``parameter`` taken out of the nominal observer) or ``re-armed`` (watching
+    again on the model as it was, the episode not decided). The fault log of
+    a monitor is its episodes."""
+
+    number: int
+    alarm: float
+    sensor: str
+    time: float
+    verdict: str
+    candidates: tuple[str, ...]
+    began: float | None
+    finding: str
+    action: str
+    parameter: str | None = None
+    value: float | None = None
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Repaired:
+    """The plant was said repaired at time ``time`` (a ``# repaired`` line of
+    the stream, or :meth:`bgc.service.episodes.Episodes.repaired`): the
+    faults of episodes ``episodes`` accommodated until then are taken out
+    of the model (``parameters``, back at their values in the model file)
+    and the monitor watches on the model as it was."""
+
+    time: float
+    episodes: tuple[int, ...]
+    parameters: tuple[str, ...]
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class Checkpoint:
     """A diagnosis of the data so far, made online at ``step``."""
 
@@ -423,7 +465,7 @@ class Decided:
 Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorResumed | InputFromModel | InputHeld
          | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | Started | Refined | Dropped
          | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | SensorExcluded
-         | Checkpoint | ModeHidden | ModeRead | ModesReread | Mismatched | Decided)
+         | EpisodeClosed | Repaired | Checkpoint | ModeHidden | ModeRead | ModesReread | Mismatched | Decided)
 
 
 def shifted(event, by: int):

@@ -36,6 +36,14 @@ def add_parser(sub) -> None:
                         "nominal observer and go on watching with the others (an event says so)")
     p.add_argument("--checkpoint", type=float, default=None, metavar="TIME",
                    help="while tracking hypotheses, diagnose the data so far every TIME (default: only at the end)")
+    p.add_argument("--episodes", action="store_true",
+                   help="with --checkpoint: go on after a verdict, keeping a fault log: a fault isolated at a "
+                        "checkpoint is accommodated in the model watched from then on (or its sensor taken out), "
+                        "an episode not decided within --rearm is closed and the monitor re-armed; a '# repaired' "
+                        "line of the stream takes the accommodated faults out again")
+    p.add_argument("--rearm", type=float, default=None, metavar="TIME",
+                   help="with --episodes: close an episode not decided this long after its alarm and watch again "
+                        "(default: only an isolation closes one)")
     p.add_argument("--state", metavar="DIR",
                    help="save the monitor's state in this folder (made when missing) every --state-every rows and "
                         "at the end; a state found there is taken up: a restart goes on where it stopped")
@@ -60,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     from ..output import artifacts
     from ..diagnosis.options import DiagnosisOptions
 
-    check_times(args, ("horizon", "gap", "checkpoint", "keep"))
+    check_times(args, ("horizon", "gap", "checkpoint", "keep", "rearm"))
     if args.idle is not None and not (math.isfinite(args.idle) and args.idle >= 0):
         raise BgcError(f"--idle {args.idle:g}: give the seconds to wait for a new row, a number >= 0", None,
                        "e.g. --idle 60")
@@ -69,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
     if args.exclude_faulty_sensor and args.checkpoint is None:
         raise BgcError("--exclude-faulty-sensor acts at checkpoints: a sensor fault is isolated there", None,
                        "add --checkpoint TIME, e.g. --checkpoint 10")
+    if args.rearm is not None and not args.episodes:
+        raise BgcError("--rearm applies to --episodes", None, "add --episodes, or drop --rearm")
     if args.state_every is not None and args.state is None:
         raise BgcError("--state-every applies to --state", None, "add --state DIR, or drop --state-every")
     if args.follow and args.data == "-":
@@ -116,7 +126,8 @@ def run(args: argparse.Namespace) -> int:
             stream = monitor.Follow(stream, args.idle, path=args.data, say=say)
     r, failure = monitor.monitor(session, stream, name, options, say=say, checkpoint=args.checkpoint,
                                  exclude_faulty=args.exclude_faulty_sensor, reading=reading, state=args.state,
-                                 state_every=monitor.STATE_EVERY if args.state_every is None else args.state_every)
+                                 state_every=monitor.STATE_EVERY if args.state_every is None else args.state_every,
+                                 episodes=args.episodes, rearm=args.rearm)
     if quiet:
         sys.stdout = open(os.devnull, "w")
     write_report(r, str(out), "monitor")

@@ -122,7 +122,6 @@ class Diagnoser:
         self.decoder: ModeDecoder | None = None  # a hidden mode's reader (the data have no mode column)
         self.keep = keep_steps(config.options, self.nominal.DT)  # the record kept while watching (None: all)
         self.offset = 0  # the steps of the grid forgotten (step k of the loop is step offset + k of the data)
-        self.start: tuple[np.ndarray, np.ndarray] | None = None  # where the models of the record kept start
 
     def hide(self) -> None:
         """Read the mode from the data (they have no mode column): every
@@ -233,8 +232,7 @@ class Diagnoser:
         the models of the record kept start from the nominal observer's
         estimate at its first step (:func:`~bgc.model.package.started_package`)."""
         old = self.config.package
-        self.start = self.loop.forget(cut)
-        package = started_package(old, *self.start)
+        package = started_package(old, *self.loop.forget(cut))
         if package is not old:
             forget_started(old)
         self._started(package)
@@ -248,6 +246,17 @@ class Diagnoser:
         if hasattr(self, "loop"):
             self.loop.config = dataclasses.replace(self.loop.config, package=package)
             self.loop.nominal = self.nominal
+
+    def again(self, package: Package | None = None, sensors=None) -> Diagnoser:
+        """A new diagnoser of this one's configuration, for the rows after
+        the last one this one took: on ``package`` (a started package of this
+        one's, :func:`~bgc.model.package.started_package`: a fault
+        accommodated, a start elsewhere; None: this one's) and with
+        ``sensors`` (None: this one's)."""
+        c = self.config
+        return Diagnoser(c.package if package is None else package, c.signatures, c.priors, c.options, c.horizon,
+                         inputs=c.inputs, sensors=c.sensors if sensors is None else sensors, source=c.source,
+                         lazy=c.lazy, every=c.every, progress=c.progress, most=c.most)
 
     def time_of(self, step: int) -> float:
         """The time of step ``step`` of the grid."""

@@ -168,8 +168,10 @@ class DiagnoserState:
     decoder: DecoderState | None = None
     #: the steps of the data's grid forgotten before the record kept (``options.keep``)
     offset: int = 0
-    #: where the models of the record kept start (mean, std; None: the model's X0)
+    #: where the models of the record start (mean, std; None: the model's X0)
     start: tuple | None = None
+    #: the parameters at other values than the model's ((name, value), ...: faults accommodated)
+    theta: tuple = ()
 
     def to_bytes(self) -> bytes:
         """The state as bytes (:meth:`from_bytes` reads them)."""
@@ -222,8 +224,18 @@ def diagnoser_state(d) -> DiagnoserState:
     """The state of diagnoser ``d``."""
     return DiagnoserState(VERSION, d.nominal.MODEL, d.offset + len(d.loop.samples), d.sampler.state(),
                           loop_state(d.loop), tuple(d.switched), d.infer_inputs, d.busy, d.finished,
-                          None if d.decoder is None else d.decoder.state(), d.offset,
-                          None if d.start is None else (d.start[0].copy(), d.start[1].copy()))
+                          None if d.decoder is None else d.decoder.state(), d.offset, *package_state(d.config.package))
+
+
+def package_state(package) -> tuple:
+    """A started package's start (mean, std; None: X0) and parameters
+    changed (sorted (name, value) pairs), from which
+    :func:`~bgc.model.package.started_package` makes it again."""
+    from ..model.package import STARTED_AT, STARTED_THETA
+
+    start = getattr(package, STARTED_AT, None)
+    theta = getattr(package, STARTED_THETA, None) or {}
+    return (None if start is None else (start[0].copy(), start[1].copy())), tuple(sorted(theta.items()))
 
 
 def loop_state(loop) -> LoopState:
@@ -304,9 +316,10 @@ def restore_diagnoser(cls, config, state: DiagnoserState):
                             config.options.gap, config.options.input_timing or "end"))
     d.sampler.restore(state.sampler)
     d.offset = state.offset
-    if state.start is not None:  # a record whose first steps were forgotten: its models start there
-        d.start = (np.array(state.start[0], dtype=float), np.array(state.start[1], dtype=float))
-        d._started(started_package(config.package, *d.start))
+    if state.start is not None or state.theta:  # a record started elsewhere, faults accommodated: its models'
+        start = (None, None) if state.start is None else (np.array(state.start[0], dtype=float),
+                                                           np.array(state.start[1], dtype=float))
+        d._started(started_package(config.package, *start, theta={k: float(v) for k, v in state.theta}))
     d.loop = restore_loop(d._loop_config(state.loop.options, state.loop.every, state.loop.lazy), state.loop)
     d.switched, d.infer_inputs, d.busy, d.finished = tuple(state.switched), state.infer_inputs, state.busy, \
         state.finished

@@ -163,28 +163,46 @@ def load_package(generated_dir: str | Path, model: str, source: str | None = Non
 
 #: The attribute a started package (:func:`started_package`) names the package it was made from with.
 STARTED_FROM = "BGC_STARTED_FROM"
+#: The attributes a started package keeps its start (mean, std; None: X0) and its parameters changed ({name: value}) in.
+STARTED_AT, STARTED_THETA = "BGC_STARTED_AT", "BGC_STARTED_THETA"
 
 
-def started_package(package: Package, mean, std) -> Package:
+def started_package(package: Package, mean=None, std=None, theta: dict | None = None) -> Package:
     """Generated ``package`` with its record starting elsewhere than the
-    model's ``X0``: another instance of its files (imported again under a
-    name of its own, ``<name>_from_<digest>``, registered in ``sys.modules``
-    as every package is, so forked workers find it by name), whose models'
-    carried states (``mean``, ``std``: one per nominal state) start at
-    ``mean`` with spread ``std`` (a mode or a dwell time exactly: std 0; a
-    fault model's fault states keep theirs), every other array (the noise)
-    copied from ``package``. The filters and the static posteriors that
-    start "from the model's prior" start there: a diagnoser that forgot the
-    first part of its record (:meth:`bgc.diagnosis.diagnoser.Diagnoser.step`)
-    starts its record's models from the nominal observer's estimate at the
-    step it kept first. Made once per start (a package of the same start is
-    the same module)."""
+    model's ``X0``, or some of its parameters at other values: another
+    instance of its files (imported again under a name of its own,
+    ``<name>_from_<digest>``, registered in ``sys.modules`` as every package
+    is, so forked workers find it by name), every array (the noise) copied
+    from ``package``, and
+
+    - with ``mean`` and ``std`` (one per nominal state): its models' carried
+      states start at ``mean`` with spread ``std`` (a mode or a dwell time
+      exactly: std 0; a fault model's fault states keep theirs), so that the
+      filters and the static posteriors that start "from the model's prior"
+      start there: a diagnoser that forgot the first part of its record
+      (:meth:`bgc.diagnosis.diagnoser.Diagnoser.step`) starts its record's
+      models from the nominal observer's estimate at the step it kept first;
+    - with ``theta`` ({parameter: value}): those parameters (``THETA``) at
+      those values in every model: a fault accommodated by the monitor
+      (:mod:`bgc.service.episodes`), its fault models sized from there.
+
+    What ``package`` was started with is kept where an argument is None (a
+    started package started again keeps its parameters); a package of the
+    same start and parameters is the same module."""
     from .protocol import CARRIED, nominal_model
 
     base = sys.modules.get(getattr(package, STARTED_FROM, package.__name__), package)
-    mean, std = np.asarray(mean, dtype=float), np.asarray(std, dtype=float)
-    digest = hashlib.sha256(mean.tobytes() + std.tobytes()).hexdigest()[:16]
-    name = f"{base.__name__}_from_{digest}"
+    if mean is None:
+        mean, std = getattr(package, STARTED_AT, None) or (None, None)
+    if theta is None:
+        theta = getattr(package, STARTED_THETA, None) or {}
+    if mean is None and not theta:
+        return base
+    key = repr(sorted(theta.items())).encode()
+    if mean is not None:
+        mean, std = np.array(mean, dtype=float), np.array(std, dtype=float)
+        key += mean.tobytes() + std.tobytes()
+    name = f"{base.__name__}_from_{hashlib.sha256(key).hexdigest()[:16]}"
     if name in sys.modules:
         return sys.modules[name]
     init = Path(base.__file__)
@@ -193,14 +211,20 @@ def started_package(package: Package, mean, std) -> Package:
     sys.modules[name] = module
     spec.loader.exec_module(module)
     setattr(module, STARTED_FROM, base.__name__)
-    kinds = getattr(nominal_model(base), "STATE_KINDS", ("physical",) * len(mean))
-    rows = [i for i, k in enumerate(kinds[:len(mean)]) if k in CARRIED and k != "threshold"]
-    for key, m in module.MODELS.items():
-        source = base.MODELS[key]
+    setattr(module, STARTED_AT, None if mean is None else (mean, std))
+    setattr(module, STARTED_THETA, dict(theta))
+    nominal = nominal_model(base)
+    kinds = getattr(nominal, "STATE_KINDS", ("physical",) * len(nominal.STATES))
+    rows = [i for i, k in enumerate(kinds) if k in CARRIED and k != "threshold"]
+    for key_, m in module.MODELS.items():
+        source = base.MODELS[key_]
         for array in ("PROCESS_STD", "MEASUREMENT_STD", "PREDICTIVE_STD", "X0", "X0_STD"):
             getattr(m, array)[:] = getattr(source, array)
-        m.X0[rows] = mean[rows]
-        m.X0_STD[rows] = [std[i] if kinds[i] == "physical" else 0.0 for i in rows]
+        if mean is not None:
+            m.X0[rows] = mean[rows]
+            m.X0_STD[rows] = [std[i] if kinds[i] == "physical" else 0.0 for i in rows]
+        if theta:
+            m.THETA = tuple(float(theta.get(p, v)) for p, v in zip(m.PARAMETERS, source.THETA))
     return module
 
 

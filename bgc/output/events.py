@@ -127,6 +127,22 @@ def sentence(e, time_of) -> str:
         case ev.SensorExcluded(sensor=y, finding=f, time=when):
             return (f"sensor {y} taken out of the nominal observer from t = {time_text(when)} ({f}): monitoring "
                     f"goes on with the other sensors")
+        case ev.EpisodeClosed(number=n, alarm=a, sensor=y, time=when, verdict=v, candidates=c, began=o, finding=f,
+                              action=act, parameter=p, value=x):
+            what = f"{v}: {', '.join(c)}" if c else v
+            since = "" if o is None else f", onset t = {time_text(o)}"
+            if act == "accommodated":
+                did = f"accommodated: the model watched from now on has {p} = {x:.6g}"
+            elif act == "sensor out":
+                did = f"sensor {p} taken out of the nominal observer"
+            else:
+                did = "not decided: watching again on the model as it was"
+            return (f"episode {n} closed at t = {time_text(when)} (alarm at t = {time_text(a)} on {y}{since}): "
+                    f"{what}" + (f" ({f})" if f else "") + f"; {did}")
+        case ev.Repaired(time=when, episodes=ns, parameters=ps):
+            out = ", ".join(ps) if ps else "nothing accommodated"
+            return (f"repaired at t = {time_text(when)}: " + (f"episode(s) {', '.join(map(str, ns))} taken out of the "
+                    f"model ({out}); " if ns else "") + "watching on the model as it was")
         case ev.Checkpoint(step=k, verdict=v, candidates=c):
             return f"checkpoint: {v}" + (f": {', '.join(c)}" if c else "")
         case ev.Mismatched():
@@ -211,7 +227,7 @@ def record(e, time_of) -> dict:
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped, ev.SensorResumed,
            ev.InputFromModel, ev.ModeHidden, ev.ModesReread, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate,
            ev.AllTried, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded,
-           ev.Overruled, ev.Uncertain, ev.Mismatched)
+           ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.Mismatched)
 
 
 def notes(events, time_of) -> list[str]:

@@ -30,6 +30,7 @@ from ..data.columns import MODE, Reading
 from ..analysis import track
 from ..diagnosis.options import DiagnosisOptions
 from . import resume
+from .episodes import Episodes, repair_of
 
 #: Rows between two saves of the monitor's state (``--state-every``).
 STATE_EVERY = 100
@@ -172,7 +173,8 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
             say: Callable[[str], None] = print, checkpoint: float | None = None,
             progress=None, exclude_faulty: bool = False,
             reading: Reading | None = None, state: str | Path | None = None,
-            state_every: int = STATE_EVERY) -> tuple[api.DiagnosisReport, BgcError | None]:
+            state_every: int = STATE_EVERY, episodes: bool = False,
+            rearm: float | None = None) -> tuple[api.DiagnosisReport, BgcError | None]:
     """Diagnose the rows of ``stream`` (named ``name`` in messages) as they
     arrive, with the model of ``session`` (:func:`bgc.open`); ``say(line)``
     gets each event as a line with its time, as it happens; ``checkpoint``:
@@ -196,7 +198,15 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     a state found there is taken up: the rows of the input up to its last
     row's time are passed over, and the diagnosis goes on as if it had
     never stopped (a state of another model, bgc or options is refused), the
-    sensors taken out before taken out again."""
+    sensors taken out before taken out again.
+
+    ``episodes`` (with ``checkpoint``): the monitor goes on after a verdict
+    and keeps a fault log (:mod:`bgc.service.episodes`): an episode closes at
+    a checkpoint that isolates a fault (accommodated in the model watched
+    from then on, or its sensor taken out) or ``rearm`` after its alarm
+    (re-armed); a ``# repaired`` line of the stream takes the accommodated
+    faults out again. The report is the last diagnoser's, its events led by
+    the fault log."""
     from ..output.events import fault_sentence, sentence, time_text
 
     reader = runs.RowReader(stream, name, reading or session.reading())
@@ -222,18 +232,25 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     told: set = set()
     excluded: list[ev.SensorExcluded] = []
     taken_out: set[str] = set()
-    keep = _Keeper(session, options, checkpoint, columns, state, state_every, exclude_faulty, reading)
+    if episodes and checkpoint is None:
+        raise BgcError("--episodes are closed at checkpoints: a fault is isolated there", None,
+                       "add --checkpoint TIME, e.g. --checkpoint 10")
+    log = Episodes(session.package, rearm, exclude_faulty, session.view.labels.per_time) if episodes else None
+    remarks = 0  # the stream's comment lines read so far (a repair is one)
+    keep = _Keeper(session, options, checkpoint, columns, state, state_every, exclude_faulty, reading, log)
     saved = keep.load()
     if saved is not None:
         excluded = [ev.SensorExcluded(*e) for e in saved.excluded]
-        taken_out = {e.sensor for e in excluded}
+        if log is not None and saved.episodes is not None:
+            log.restore(saved.episodes)
+        taken_out = {e.sensor for e in excluded} | (set() if log is None else log.sensors_out())
         if taken_out:  # the diagnoser the state is of watches the other sensors
             sensors = [y for y in sensors if y not in taken_out]
             d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors, source=name,
                                   progress=progress)
         d = type(d).from_state(d.config, saved.diagnoser)
         rows, last_check = [list(r) for r in saved.rows], saved.last_check
-        told.update(d.loop.events, d.switched)  # said before the restart
+        told.update(d.loop.events, d.switched, [] if log is None else log.log)  # said before the restart
         forgot = d.offset
         say(f"resumed from {printable(str(keep.where))}: {len(rows)} rows, to t = {time_text(saved.last_time)}; "
             "the input's rows after it are read on")
@@ -260,6 +277,14 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
                 continue
             u = {name_: values[j] for j, name_ in groups["u"]}
             y = {name_: values[j] for j, name_ in groups["y"]}
+            if log is not None and len(reader.lines.header) > remarks:  # the stream's word: a repair
+                for text in reader.lines.header[remarks:]:
+                    which = repair_of(text)
+                    if which is not None:  # before this row: the row is the repaired plant's
+                        d, done = log.repaired(d, t, which)
+                        tell([done], time_of)
+                        rows, last_check, forgot = [], None, 0
+                remarks = len(reader.lines.header)
             with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
                 belief = d.step(t, u, y, line)
                 rows.append(values)
@@ -267,6 +292,8 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
                     rows, told = _kept(rows, told, d, d.offset - forgot)
                     forgot = d.offset
             tell(belief.events, time_of)
+            if log is not None:
+                log.watch(belief, d)
             if checkpoint is not None and belief.phase == "tracking":
                 if last_check is None:
                     last_check = belief.time
@@ -274,7 +301,13 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
                     last_check = belief.time
                     c = d.checkpoint()
                     tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)], time_of)
-                    faulty = _faulty_sensor(c, sensors) if exclude_faulty else None
+                    if log is not None and log.due(c, belief.time):
+                        d, sensors, closed = log.close(c, d, belief.time, sensors)
+                        if closed.action == "sensor out":
+                            taken_out.add(closed.parameter)
+                        tell([closed], time_of)
+                        rows, last_check, forgot = [], None, 0
+                    faulty = _faulty_sensor(c, sensors) if exclude_faulty and log is None else None
                     if faulty is not None:
                         out = ev.SensorExcluded(faulty, fault_sentence(c.estimate, c.onset,
                                                                      session.view.labels.per_time), belief.time)
@@ -307,9 +340,12 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
         raise DataError(f"{printable(name)}: no data row arrived", None, "give at least one row after the column names")
     run = runs.run_of(columns, np.array(rows, dtype=float).reshape(len(rows), len(columns)), reader.header, name)
     diagnosis = d.finish(run)
-    if excluded:
+    if excluded or taken_out:
         diagnosis = _with_exclusions(diagnosis, excluded, taken_out)
         told.update(excluded)
+    if log is not None and log.log:  # the fault log leads the events
+        diagnosis = dataclasses.replace(diagnosis, events=tuple(log.log) + tuple(diagnosis.events))
+        told.update(log.log)
     gone = {e.hypothesis for e in told if isinstance(e, (ev.Dropped, ev.Stopped))}  # dropped online: said
     tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))
           and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
@@ -329,13 +365,16 @@ def _kept(rows: list, told: set, d, cut: int) -> tuple[list, set]:
 class _Keeper:
     """The monitor's state on disk, when a folder is given (:mod:`bgc.service.resume`)."""
 
-    def __init__(self, session, options, checkpoint, columns, where, every: int, exclude_faulty: bool, reading=None):
+    def __init__(self, session, options, checkpoint, columns, where, every: int, exclude_faulty: bool, reading=None,
+                 log: Episodes | None = None):
         self.where = None if where is None else resume.folder(where)
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise BgcError(f"--state-every {every!r}: give the rows between saves, an integer >= 1", None,
                            f"e.g. --state-every {STATE_EVERY}")
         self.ident = None if where is None else resume.identity(session, options, checkpoint, columns,
-                                                                 exclude_faulty, reading)
+                                                                 exclude_faulty, reading, log is not None,
+                                                                 None if log is None else log.rearm)
+        self.log = log
         self.period, self.count = every, 0
         self.before: dict = {}
 
@@ -363,7 +402,8 @@ class _Keeper:
     def save(self, rows: list, last_check, d, excluded: list) -> None:
         if self.where is not None:
             resume.save(self.where, self.ident, rows, rows[-1][0], last_check, d,
-                        tuple((e.sensor, e.finding, e.time, e.step) for e in excluded))
+                        tuple((e.sensor, e.finding, e.time, e.step) for e in excluded),
+                        None if self.log is None else self.log.plain())
 
 
 def _with_exclusions(diagnosis, excluded: list, taken_out: set[str]):

@@ -59,13 +59,16 @@ class Saved:
     diagnoser: object  # a DiagnoserState
     #: the sensors the monitor took out before (``--exclude-faulty-sensor``): (sensor, finding, time, step)
     excluded: tuple = ()
+    #: the fault log and the faults accommodated (``--episodes``: :meth:`bgc.service.episodes.Episodes.plain`)
+    episodes: dict | None = None
 
 
 def identity(session, options, checkpoint: float | None, columns: list[str], exclude_faulty: bool = False,
-             reading=None) -> dict:
+             reading=None, episodes: bool = False, rearm: float | None = None) -> dict:
     """What a state is valid for: the same bgc, model, noise (a relative
     level of 1 is the model's), prior scale, options, checkpoint period,
-    exclusion of faulty sensors, columns and column map (``reading``'s). The
+    exclusion of faulty sensors, episodes and their re-arming, columns and
+    column map (``reading``'s). The
     backend is not part of it: both give the same numbers (their packages
     are checked against each other)."""
     from ..api.cache import code_digest
@@ -75,7 +78,8 @@ def identity(session, options, checkpoint: float | None, columns: list[str], exc
             "noise": [1.0 if n is None else float(n) for n in session.noise], "prior_scale": session.prior_scale,
             "options": _plain(dataclasses.asdict(options)),
             "column_map": hashlib.sha256(repr(getattr(reading, "columns", None)).encode()).hexdigest(),
-            "checkpoint": checkpoint, "exclude_faulty": bool(exclude_faulty), "columns": list(columns)}
+            "checkpoint": checkpoint, "exclude_faulty": bool(exclude_faulty), "episodes": bool(episodes),
+            "rearm": rearm, "columns": list(columns)}
 
 
 def _plain(value):
@@ -110,9 +114,10 @@ def _head(path: Path) -> bytes:
 
 
 def save(where: Path, ident: dict, rows: list, last_time: float, last_check: float | None, d,
-         excluded: tuple = ()) -> None:
+         excluded: tuple = (), episodes: dict | None = None) -> None:
     """Write the state of diagnoser ``d`` after ``rows``, atomically
-    (``excluded``: the sensors taken out before, :class:`Saved`): a new
+    (``excluded``: the sensors taken out before; ``episodes``: the fault
+    log, :class:`Saved`): a new
     file, made afresh (never through a link), flushed to the disk, renamed
     over the last state."""
     table = io.BytesIO()
@@ -120,7 +125,7 @@ def save(where: Path, ident: dict, rows: list, last_time: float, last_check: flo
     np.save(table, np.asarray(rows, dtype=float).reshape(len(rows), width), allow_pickle=False)
     payload = table.getvalue() + d.to_state().to_bytes()
     header = {"format": FORMAT, "identity": ident, "rows": len(rows), "last_time": last_time,
-              "last_check": last_check, "excluded": [list(e) for e in excluded]}
+              "last_check": last_check, "excluded": [list(e) for e in excluded], "episodes": episodes}
     header["sha256"] = _digest(header, payload)
     data = b"".join([MAGIC, json.dumps(header).encode("utf-8"), b"\n", payload])
     tmp = where / PARTIAL
@@ -189,7 +194,11 @@ def load(where: Path, ident: dict) -> Saved | None:
                        fix) from None
     if rows.ndim != 2 or rows.shape != (header["rows"], len(ident["columns"])):
         raise BgcError(f"{where_}: the state's rows are not whole", None, fix)
-    return Saved(rows, last_time, last_check if last_check is None else float(last_check), state, excluded)
+    episodes = header.get("episodes")
+    if episodes is not None and not isinstance(episodes, dict):
+        raise BgcError(f"{where_}: the state's fault log cannot be read", None, fix)
+    return Saved(rows, last_time, last_check if last_check is None else float(last_check), state, excluded,
+                 episodes)
 
 
 def _digest(header: dict, payload: bytes) -> str:
@@ -201,5 +210,6 @@ def _digest(header: dict, payload: bytes) -> str:
 def _what(key: str) -> str:
     return {"bgc": "bgc version", "code": "bgc (its code differs)", "model": "model file", "noise": "noise levels",
             "prior_scale": "prior scale", "column_map": "column map (--columns)", "options": "options",
-            "checkpoint": "--checkpoint", "exclude_faulty": "--exclude-faulty-sensor",
+            "checkpoint": "--checkpoint", "exclude_faulty": "--exclude-faulty-sensor", "episodes": "--episodes",
+            "rearm": "--rearm",
             "columns": "data columns"}.get(key, key)

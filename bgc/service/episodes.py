@@ -1,0 +1,180 @@
+"""A monitor's fault episodes (``bgc monitor --episodes``): the monitor goes
+on after a verdict, and keeps a fault log.
+
+An episode opens with an alarm and closes at the first checkpoint
+(``--checkpoint T``: a diagnosis of the data so far every T while hypotheses
+are tracked) whose verdict is ``isolated``, or, whatever the verdict, once
+``--rearm T`` has passed since the alarm (an episode not decided: the
+checkpoint's verdict is logged, ``unexplained`` or ``ambiguous``). What the
+monitor does then, an :class:`~bgc.events.EpisodeClosed` event saying it:
+
+- **accommodated**: an isolated fault whose estimate is a value of one of
+  the model's parameters (a part of the plant's, a sensor's or an actuator's
+  offset; a drift at the value it reached) becomes part of the model the
+  next diagnoser watches with (that parameter at the estimate's value,
+  :func:`~bgc.model.package.started_package`): a second fault is detected
+  against the plant as it now is, and its fault models are sized from
+  there (sequential multiple faults);
+- **sensor out**: an isolated fault of a sensor that no parameter holds (a
+  stuck or noisy sensor), or any sensor fault with
+  ``--exclude-faulty-sensor``: the sensor is taken out of the nominal
+  observer (when another is left);
+- **re-armed**: anything else: watching again on the model as it was.
+
+The next diagnoser's observer starts where the plant is: from the isolated
+hypothesis's state estimate at the checkpoint (else the nominal observer's),
+and it watches the rows after the checkpoint's.
+
+A repair (the operator's word: a ``# repaired`` line of the stream, or
+:meth:`Episodes.repaired`) takes the accommodated faults out of the model
+(``# repaired: R2`` only that parameter's; a :class:`~bgc.events.Repaired`
+event) and the monitor watches on the model as it was, from the nominal
+observer's estimate. The fault log is these events: the monitor's lines as
+they happen, and the report's events (report.md, report.html,
+report.json), led by them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .. import events as ev
+from ..model.package import STARTED_AT, STARTED_THETA, forget_started, started_package
+
+#: What a comment line of the stream says to declare a repair (``# repaired``, ``# repaired: R2``).
+REPAIRED = "repaired"
+
+
+class Episodes:
+    """The fault log and the faults accommodated of one monitor (module
+    docstring). ``base``: the model's own package (the healthy plant);
+    ``rearm``: the time after an alarm at which an episode not decided is
+    closed and the monitor re-armed (None: only an isolation closes one);
+    ``exclude_faulty``: a sensor fault takes the sensor out instead of being
+    accommodated."""
+
+    def __init__(self, base, rearm: float | None = None, exclude_faulty: bool = False, per_time: str = "per unit time"):
+        self.base, self.rearm, self.exclude_faulty, self.per_time = base, rearm, exclude_faulty, per_time
+        self.theta: dict[str, float] = {}  # the parameters of the faults accommodated, at their values
+        self.by: dict[str, int] = {}  # per parameter accommodated, its episode
+        self.log: list = []  # EpisodeClosed and Repaired, in order
+        self.alarm: tuple[float, str] | None = None  # the open episode's alarm (time, sensor)
+
+    def watch(self, belief, d) -> None:
+        """Note the alarm of a belief (the open episode's)."""
+        if self.alarm is None and belief.alarm is not None:
+            self.alarm = (d.time_of(belief.alarm.step), belief.alarm.sensor)
+
+    def due(self, c, now: float) -> bool:
+        """Whether checkpoint diagnosis ``c`` at time ``now`` closes the open episode."""
+        if self.alarm is None:
+            return False
+        return c.verdict == "isolated" or (self.rearm is not None and now - self.alarm[0] >= self.rearm)
+
+    def close(self, c, d, now: float, sensors: list[str]):
+        """Close the open episode on checkpoint diagnosis ``c`` of diagnoser
+        ``d`` at time ``now``: (the next diagnoser, its sensors, the
+        :class:`~bgc.events.EpisodeClosed` event)."""
+        from ..output.events import fault_sentence
+
+        e = c.estimate if c.verdict == "isolated" else None
+        nominal = d.nominal
+        action, parameter, value, out = "re-armed", None, None, list(sensors)
+        if e is not None and e.target == "sensor" and (self.exclude_faulty or e.parameter not in nominal.PARAMETERS) \
+                and e.subject in sensors and len(sensors) > 1:
+            action, parameter = "sensor out", e.subject
+            out = [y for y in sensors if y != e.subject]
+        elif e is not None and e.parameter in nominal.PARAMETERS and math.isfinite(e.parameter_value):
+            action, parameter, value = "accommodated", e.parameter, float(e.parameter_value)
+            self.theta[parameter] = value
+            self.by[parameter] = len(self.episodes()) + 1
+        finding = "" if e is None else fault_sentence(e, c.onset, self.per_time)
+        alarm, sensor = self.alarm
+        closed = ev.EpisodeClosed(len(self.episodes()) + 1, alarm, sensor, now, c.verdict, tuple(c.candidates),
+                                  c.onset, finding, action, parameter, value)
+        self.log.append(closed)
+        self.alarm = None
+        return self._next(d, *_state_now(c, d), out), out, closed
+
+    def repaired(self, d, now: float, which: tuple[str, ...] = ()):
+        """The operator says the plant was repaired at time ``now`` (``which``:
+        the parameters repaired; empty: every one accommodated): (the next
+        diagnoser, the :class:`~bgc.events.Repaired` event)."""
+        names = tuple(p for p in self.theta if not which or p in which)
+        done = ev.Repaired(now, tuple(sorted({self.by[p] for p in names})), names)
+        for p in names:
+            del self.theta[p]
+            del self.by[p]
+        self.log.append(done)
+        self.alarm = None
+        if d.loop.x_mean:  # the nominal observer's estimate now
+            x, s = np.asarray(d.loop.x_mean[-1], dtype=float), np.asarray(d.loop.x_std[-1], dtype=float)
+        else:  # no row since the last diagnoser was opened: where it started
+            x, s = getattr(d.config.package, STARTED_AT, None) or (None, None)
+        return self._next(d, x, s, None), done
+
+    def plain(self) -> dict:
+        """The log, the faults accommodated and the open episode's alarm as
+        JSON data (a monitor's state, :mod:`bgc.service.resume`)."""
+        return {"theta": dict(self.theta), "by": dict(self.by), "alarm": None if self.alarm is None else list(self.alarm),
+                "log": [[type(e).__name__, {f.name: getattr(e, f.name) for f in dataclasses.fields(e)}]
+                        for e in self.log]}
+
+    def restore(self, data: dict) -> None:
+        """Take up :meth:`plain`'s data (of a monitor's state, checked whole by its checksum)."""
+        self.theta = {str(k): float(v) for k, v in data["theta"].items()}
+        self.by = {str(k): int(v) for k, v in data["by"].items()}
+        self.alarm = None if data["alarm"] is None else (float(data["alarm"][0]), str(data["alarm"][1]))
+        kinds = {"EpisodeClosed": ev.EpisodeClosed, "Repaired": ev.Repaired}
+        self.log = [kinds[name](**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+                    for name, fields in data["log"]]
+
+    def sensors_out(self) -> set[str]:
+        """The sensors the episodes took out."""
+        return {e.parameter for e in self.episodes() if e.action == "sensor out"}
+
+    def episodes(self) -> list[ev.EpisodeClosed]:
+        return [e for e in self.log if isinstance(e, ev.EpisodeClosed)]
+
+    def _next(self, d, mean, std, sensors):
+        """A diagnoser for the rows after now: on the model with the faults
+        accommodated, its observer from ``mean``, ``std`` (None: the model's
+        X0), with ``sensors`` (None: ``d``'s)."""
+        old = d.config.package
+        package = started_package(self.base, mean, std, theta=dict(self.theta)) if (mean is not None or self.theta) \
+            else self.base
+        if package is not old and getattr(old, STARTED_THETA, None) is not None:
+            forget_started(old)
+        return d.again(package, sensors)
+
+
+def _state_now(c, d) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Where the plant is at the end of checkpoint diagnosis ``c``: the
+    isolated hypothesis's state estimate, else the nominal observer's (None:
+    neither is finite)."""
+    n = len(d.nominal.STATES)
+    if c.verdict == "isolated":
+        h = next((h for h in c.hypotheses if h.name == c.candidates[0]), None)
+        if h is not None and len(h.x_mean):
+            mean, std = np.asarray(h.x_mean[-1], dtype=float)[:n], np.asarray(h.x_std[-1], dtype=float)[:n]
+            if np.all(np.isfinite(mean)) and np.all(np.isfinite(std)):
+                return mean, std
+    mean, std = np.asarray(c.nominal_x_mean[-1], dtype=float), np.asarray(c.nominal_x_std[-1], dtype=float)
+    if np.all(np.isfinite(mean)) and np.all(np.isfinite(std)):
+        return mean, std
+    return None, None
+
+
+def repair_of(line: str) -> tuple[str, ...] | None:
+    """The parameters a comment line of the stream says were repaired (empty:
+    all), or None when it says no repair: ``repaired`` or ``repaired: R2, C1``."""
+    text = line.strip()
+    if not text.lower().startswith(REPAIRED):
+        return None
+    rest = text[len(REPAIRED):].strip()
+    if rest.startswith(":"):
+        return tuple(p.strip() for p in rest[1:].split(",") if p.strip())
+    return () if not rest else None
