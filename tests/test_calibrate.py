@@ -71,8 +71,7 @@ def noise_fitted(session, seed: int, steps: int):
 
 # ------------------------------------------------------------------- closed forms on a one-state linear plant
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [1, 2])
-def test_rc_noise_variance_is_the_mean_squared_residual(rc, seed):
+def test_rc_noise_variance_is_the_mean_squared_residual(rc, seed=1):
     """With no process noise (and so an exactly known initial state, X0_STD
     = 2 x 0), the likelihood of sigma is that of iid N(clean_k, sigma^2): its
     maximum is the mean squared residual from the noise-free trajectory, and

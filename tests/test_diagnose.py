@@ -44,25 +44,21 @@ def test_ro_abrupt_pipe_blockage_is_detected_at_once_isolated_and_sized():
 
 @pytest.mark.slow
 def test_ro_incipient_pipe_blockage_its_slope_and_onset():
-    """R_pipe drifting at 0.5 per unit time from t = 165 (Table IV.4), five
-    seeded runs: found long after it began, but the onsets tried reach back to
-    it (mean onset error within two steps of the onset grid, 8 samples), and
-    the slope is sized (mean error under 15 %, about twice what 20 seeds of
-    bench/diagnosis_accuracy.py average; its interval holding it in at least 4
-    of 5 runs). One seed alone is too few: the onset and the slope trade off,
-    and a single run's onset can be 9 samples off."""
-    onset_errors, slope_errors, covered = [], [], 0
-    for seed in range(1, 6):
-        d = run("ro", "R_pipe:incipient:0.5@165", seed=seed)
-        assert d.candidates[0] == "R_pipe_incipient" and d.verdict in ("isolated", "ambiguous")
-        assert d.time_of(d.detection.step) > 170
-        onset_errors.append(abs(d.onset - 165))
-        e = d.estimate
-        slope_errors.append(abs(e.value - 0.5) / 0.5)
-        covered += e.low <= 0.5 <= e.high
-    assert np.mean(onset_errors) <= 8, onset_errors
-    assert np.mean(slope_errors) < 0.15, slope_errors
-    assert covered >= 4, covered
+    """R_pipe drifting at 0.5 per unit time from t = 165 (Table IV.4), one
+    seeded run: found long after it began, but the onsets tried reach back to
+    it (within 16 samples: four steps of the 4-sample onset grid near the
+    alarm; one run's onset can be 9 samples off, the onset and the slope
+    trading off), and the slope is sized within 4 of its reported stds (an
+    honest std fails this once in 16000 runs). Over seeds (the mean onset
+    error within two grid steps, 8 samples, the mean slope error under 15 %,
+    the interval holding the slope in at least 4 of 5 runs): ``bench/seeded_statistics.py ro-incipient``, and
+    bench/diagnosis_accuracy.py over 20 seeds."""
+    d = run("ro", "R_pipe:incipient:0.5@165", seed=1)
+    assert d.candidates[0] == "R_pipe_incipient" and d.verdict in ("isolated", "ambiguous")
+    assert d.time_of(d.detection.step) > 170
+    assert abs(d.onset - 165) <= 16, d.onset
+    e = d.estimate
+    assert abs(e.value - 0.5) < 4 * e.std and e.low < e.value < e.high, e
 
 
 @pytest.mark.slow
@@ -176,27 +172,23 @@ def test_bgc_diagnose_bad_input_is_one_located_line(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.numba  # the compiled backend when numba is installed (conftest.FAST)
-@pytest.mark.parametrize("model, scenario, truth, noise", [
-    ("circuit", "R2:abrupt:0.6@5", 0.6, {"process_noise": 0.01, "measurement_noise": 0.01}),
-])
-def test_the_95_percent_interval_covers_the_truth_in_at_least_16_of_20_seeded_runs(model, scenario, truth, noise):
-    """Honest uncertainty: over twenty seeded runs (data and filters), the
-    reported 95 % interval of the fault magnitude holds the injected value at
-    least 16 times: with a true coverage of 90 % (the issue's target) that
-    passes with probability 0.96, with 70 % only 0.24. The RO plant's
-    intervals: its incipient blockage above (4 of 5 seeded runs), and
+def test_the_95_percent_interval_is_an_honest_interval_of_one_seeded_run():
+    """Honest uncertainty, one run (the circuit's R2 up by 0.6 at t = 5 at a
+    third and a half of the model's noise, seed 200, without the weighing of
+    the fault models the symbols ruled out, ``recheck``, which leaves the
+    interval of a hypothesis they kept as it is): the truth lies within 4 of
+    the reported stds, and the 95 % interval of this near-normal posterior
+    is the estimate +-1.96 of its std (within a quarter). That the interval
+    covers the truth at least 16 times in 20 seeded runs (with a true
+    coverage of 90 %, the issue's target, that passes with probability
+    0.96, with 70 % only 0.24) is ``bench/seeded_statistics.py coverage``;
     bench/diagnosis_accuracy.py over more scenarios and seeds."""
-    model_session = fast_session(model, **noise)
-    covered = 0
-    for seed in range(200, 220):
-        # recheck off: it weighs the fault models the symbols ruled out (about three quarters of a run's time
-        # here) and leaves the interval of a hypothesis they kept, the one read below, as it is (the same
-        # numbers with it on, on each of these seeds)
-        d = bgc.diagnose(model_session, scenario=scenario, seed=seed,
-                         options=DiagnosisOptions(seed=seed, workers=1, recheck=False)).diagnosis
-        h = next((h for h in d.hypotheses if h.name == "_".join(scenario.split(":")[:2])), None)
-        covered += h is not None and h.estimate.low <= truth <= h.estimate.high
-    assert covered >= 16, covered
+    d = bgc.diagnose(fast_session("circuit", process_noise=0.01, measurement_noise=0.01), scenario="R2:abrupt:0.6@5",
+                     seed=200, options=DiagnosisOptions(seed=200, workers=1, recheck=False)).diagnosis
+    h = next(h for h in d.hypotheses if h.name == "R2_abrupt")
+    e = h.estimate
+    assert abs(e.value - 0.6) < 4 * e.std, e
+    assert e.low < e.value < e.high and 0.8 < (e.high - e.low) / (2 * 1.96 * e.std) < 1.25, e
 
 
 @pytest.mark.slow

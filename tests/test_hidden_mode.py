@@ -38,42 +38,48 @@ def level():
     return session(LEVEL)
 
 
+def modes_read(level, seed: int):
+    """The run of ``seed`` (:func:`level_run`) read by the mode decoder of
+    the level's nominal model, sample by sample: the times, the plant's
+    modes, the modes read and the switch times."""
+    times, modes, y_p, y_q, switches = _simulate(seed)
+    decoder = ModeDecoder(nominal_model(level.package))
+    read = []
+    for k, t in enumerate(times):
+        read += decoder.push(Sample(k, float(t), np.array([E, np.nan]), np.array([y_p[k], y_q[k]])))
+    read += decoder.flush()
+    assert [s.k for s in read] == list(range(STEPS))
+    return times, modes, np.array([s.u[-1] for s in read]), switches
+
+
 @pytest.mark.slow
 def test_the_modes_read_from_the_data_are_the_plants(level):
-    """Five runs of 600 samples, 21 switches each at times solve_ivp finds
-    anywhere within a sample period: the mode the bank reads is the plant's
-    at all but at most one sample in 200, each of those the sample next to a
-    switch (a crossing near a sample's instant, which the data cannot place
-    to the sample)."""
-    nominal = nominal_model(level.package)
-    wrong = total = 0
-    for seed in range(5):
-        times, modes, y_p, y_q, switches = _simulate(seed)
-        assert len(switches) >= 15
-        decoder = ModeDecoder(nominal)
-        read = []
-        for k, t in enumerate(times):
-            read += decoder.push(Sample(k, float(t), np.array([E, np.nan]), np.array([y_p[k], y_q[k]])))
-        read += decoder.flush()
-        got = np.array([s.u[-1] for s in read])
-        assert [s.k for s in read] == list(range(STEPS))
-        off = np.flatnonzero(got != modes)
-        near = [min(abs(times[k] - s) for s in switches) for k in off]
-        assert all(d <= 2 * DT for d in near), (seed, off, near)
-        wrong, total = wrong + len(off), total + STEPS
-    assert wrong <= total / 200, (wrong, total)
+    """A run of 600 samples (seed 3: two of its samples read in the other
+    mode), 21 switches at times solve_ivp finds anywhere within a sample
+    period: the mode the bank reads is the plant's at every sample but those
+    next to a switch (a crossing near a sample's instant, which the data
+    cannot place to the sample), at most one such sample per switch. The
+    rate over five runs (all but at most one sample in 200: 5 of 3000):
+    ``bench/seeded_statistics.py hidden-modes``."""
+    times, modes, got, switches = modes_read(level, 3)
+    assert len(switches) >= 15
+    off = np.flatnonzero(got != modes)
+    near = [min(abs(times[k] - s) for s in switches) for k in off]
+    assert all(d <= 2 * DT for d in near), (off, near)
+    assert len(off) <= len(switches), (off, switches)
 
 
 @pytest.mark.slow
 def test_a_plant_that_switches_by_itself_raises_no_alarm(level, tmp_path):
-    """Three fault-free runs without a mode column: no fault, each switch a
-    ModeRead event, and the first sample says the mode is read from the data."""
-    for seed in (1, 2, 3):
-        times, modes, y_p, y_q, switches = _simulate(seed)
-        d = bgc.diagnose(level, data=_csv(tmp_path / f"n{seed}.csv", times, modes, y_p, y_q, False)).diagnosis
-        assert d.verdict == "no fault", seed
-        reads = [e for e in d.events if isinstance(e, ev.ModeRead)]
-        assert abs(len(reads) - len(switches)) <= 1 and any(isinstance(e, ev.ModeHidden) for e in d.events)
+    """A fault-free run without a mode column: no fault, each switch a
+    ModeRead event, and the first sample says the mode is read from the
+    data. (Fault-free runs over seeds, with the mode hidden and given:
+    bench/hidden_mode.py's row "none".)"""
+    times, modes, y_p, y_q, switches = _simulate(1)
+    d = bgc.diagnose(level, data=_csv(tmp_path / "n1.csv", times, modes, y_p, y_q, False)).diagnosis
+    assert d.verdict == "no fault"
+    reads = [e for e in d.events if isinstance(e, ev.ModeRead)]
+    assert abs(len(reads) - len(switches)) <= 1 and any(isinstance(e, ev.ModeHidden) for e in d.events)
 
 
 @pytest.mark.slow

@@ -48,9 +48,10 @@ def exact_run(seed: int, fault: tuple[float, float] | None = None, end: float = 
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [1, 2])  # the rate over 100 runs: bench/hybrid_false_alarms.py (the RO)
-def test_a_relay_cycling_without_a_fault_raises_no_alarm(seed):
-    run = exact_run(seed)
+def test_a_relay_cycling_without_a_fault_raises_no_alarm():
+    """One fault-free run (seed 1; a second seed ran the same path): the rate over 100 runs is
+    bench/hybrid_false_alarms.py's (the RO)."""
+    run = exact_run(1)
     assert int(np.sum(np.diff(run.modes) != 0)) >= 25  # many switches, each one the model explains
     report = bgc.diagnose(relay(), data=run)
     assert report.diagnosis.verdict == "no fault", report.diagnosis.candidates

@@ -175,14 +175,16 @@ def closing_levels(model, seeds) -> np.ndarray:
 
 @pytest.mark.slow
 def test_the_truth_simulator_draws_a_threshold_per_visit(uncertain):
-    """Noise-free runs: the voltage at which the relay closes is 6 without a tolerance, and spread
-    around 6 with std about 0.2 with it, a new draw per visit and per seed."""
+    """Noise-free runs: the voltage at which the relay closes is 6 without a tolerance, and with it
+    a new draw per visit and per seed (two seeds), each within 5 of its stds (0.2) of 6 (a normal
+    draw leaves that once in 1.7 million) and not all on one side of 6. That the draws are spread
+    around 6 with std 0.2 (their mean within 4 standard errors of 6, their std within 40 % of 0.2,
+    over four seeds' 24 and more draws) is ``bench/seeded_statistics.py relay-thresholds``."""
     path, _ = uncertain
-    exact, drawn = closing_levels(RELAY, [0]), closing_levels(path, range(4))
+    exact, drawn = closing_levels(RELAY, [0]), closing_levels(path, range(2))
     assert len(exact) >= 6 and np.max(np.abs(exact - 6.0)) < 1e-3
-    assert len(drawn) >= 24 and len(np.unique(np.round(drawn, 6))) == len(drawn)
-    assert abs(np.mean(drawn) - 6.0) < 4 * SPREAD / np.sqrt(len(drawn))
-    assert 0.6 * SPREAD < np.std(drawn) < 1.4 * SPREAD
+    assert len(drawn) >= 12 and len(np.unique(np.round(drawn, 6))) == len(drawn)
+    assert np.max(np.abs(drawn - 6.0)) < 5 * SPREAD and np.min(drawn) < 6.0 < np.max(drawn)
 
 
 def test_bgc_filter_hidden_mode_says_how_often_it_follows_the_run(relay, folder, tmp_path):

@@ -106,8 +106,10 @@ def test_a_plant_off_its_model_gets_mismatch_and_never_a_fault(tmp_path):
 @pytest.mark.slow
 def test_the_same_simulator_with_the_models_numbers_gives_no_fault(tmp_path):
     """The test is no alarm on everything another simulator makes: with the
-    model's parameters and noise, its runs fit."""
-    for seed in range(4):
+    model's parameters and noise, its runs fit (two seeds; the rate over
+    many: ``bench/mismatch.py --runs 12``'s column of the model's own
+    numbers, and ``--null`` on bgc's own runs)."""
+    for seed in range(2):
         plant_csv(tmp_path / "run.csv", seed, 0.0, 1.0)
         d = bgc.diagnose(session("circuit"), tmp_path / "run.csv").diagnosis
         assert d.verdict == "no fault", (seed, d.verdict, d.fit.findings)

@@ -118,9 +118,10 @@ def valve():
     return session(VALVE, backend="numpy")
 
 
-@pytest.mark.parametrize("seed", [11, 12])
-def test_the_cycling_valve_ro_raises_no_alarm_at_its_switches(valve, seed):
-    sim = bgc.simulate(valve, seed=seed, steps=300, modes=CYCLES)
+def test_the_cycling_valve_ro_raises_no_alarm_at_its_switches(valve):
+    """One fault-free run (seed 11; a second seed ran the same path): the rate over 100 runs at two
+    noise levels is bench/hybrid_false_alarms.py's."""
+    sim = bgc.simulate(valve, seed=11, steps=300, modes=CYCLES)
     assert len(sim.switches) == 6
     report = bgc.diagnose(valve, data=sim)
     assert report.diagnosis.verdict == "no fault", report.diagnosis.candidates

@@ -160,14 +160,15 @@ def _diagnose(session, text: str):
     return bgc.diagnose(session, runs.parse_run(text, "relay_stuck.csv"), particles=300, seed=2).diagnosis
 
 
-@pytest.mark.parametrize("seed", [5, 6])
-def test_a_relay_that_stuck_open_before_it_was_closed_is_named(relay, seed):
+def test_a_relay_that_stuck_open_before_it_was_closed_is_named(relay):
     """K stuck OFF at 0.5 s, the operator closing it at 1 s (the data's mode
     column): isolated as K stuck OFF, its onset at the latest the last
     sample before the command (before it, a stuck-open relay changes
-    nothing: every onset there explains the data alike)."""
+    nothing: every onset there explains the data alike). One seeded run (a
+    second seed ran the same path); a campaign of stuck relays over seeds:
+    bench/stuck_switches.py."""
     session, _, _ = relay
-    text, _ = _run(seed)
+    text, _ = _run(5)
     d = _diagnose(session, text)
     assert d.verdict == "isolated" and d.candidates == ("K_stuck_off",), (d.verdict, d.candidates)
     assert d.time_of(d.onset_step) <= COMMAND + 1e-9
