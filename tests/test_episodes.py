@@ -92,13 +92,13 @@ def test_two_faults_in_sequence_are_named_in_order_each_sized_against_the_plant_
 @pytest.mark.slow
 def test_a_repair_said_in_the_stream_takes_the_fault_out_and_without_it_the_change_is_an_alarm(tmp_path):
     changes = [(6.0, {"R2": 1.6}), (15.0, {"R2": 1.0})]  # repaired at t = 15
-    _, report, log = run(tmp_path / "said", plant(500, changes, repaired_at=15.0))
+    _, report, log = run(tmp_path / "said", plant(400, changes, repaired_at=15.0))
     closed, repaired = log
     assert closed["action"] == "accommodated" and closed["parameter"] == "R2"
     assert (repaired["time"], repaired["episodes"], repaired["parameters"]) == (15.0, [1], ["R2"])
     assert report["verdict"] == "no fault"
     assert not [e for e in report["events"] if e["event"] == "Alarmed"]  # the last diagnoser's: none after it
-    _, report, log = run(tmp_path / "unsaid", plant(500, changes))
+    _, report, log = run(tmp_path / "unsaid", plant(400, changes))
     assert [e["event"] for e in log] == ["EpisodeClosed"]
     (alarm,) = [e for e in report["events"] if e["event"] == "Alarmed"]
     assert 15.0 <= alarm["time"] <= 15.5  # the model with R2 accommodated meets a plant whose R2 went back
@@ -116,7 +116,7 @@ def test_an_episode_not_decided_is_closed_after_rearm_and_the_monitor_watches_ag
 
 @pytest.mark.slow
 def test_a_sensor_bias_is_accommodated_as_its_offset_or_the_sensor_taken_out(tmp_path):
-    text = plant(500, [(16.0, {"R2": 1.6})], bias=(6.0, 0, 0.5))  # f2 reads 0.5 high from t = 6
+    text = plant(420, [(16.0, {"R2": 1.6})], bias=(6.0, 0, 0.5))  # f2 reads 0.5 high from t = 6
     _, _, log = run(tmp_path / "kept", text)
     first, second = log[:2]
     assert (first["candidates"], first["parameter"]) == (["f2_offset_bias"], "f2_offset")
