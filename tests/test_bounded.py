@@ -14,6 +14,7 @@ a bounded one must meet.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -169,3 +170,15 @@ def test_bgc_monitor_keeps_a_bounded_record_and_state(tmp_path):
     r = report(tmp_path / "out")
     assert r["verdict"] == "isolated" and r["diagnosis"] == ["R2_abrupt"]
     assert r["data"]["t_first"] == pytest.approx(3 * KEEP * DT + DT)  # the record kept: from the third cut on
+
+
+def test_the_docs_and_the_help_say_the_monitors_default_record():
+    from bgc.cli.main import build_parser
+    from bgc.service.monitor import KEEP_STEPS
+
+    text = " ".join((ROOT / "docs" / "commands.md").read_text(encoding="utf-8").split())
+    said = re.findall(r"by default (\d+) steps of the model's grid", text)
+    monitor = next(a for a in build_parser()._subparsers._group_actions[0].choices.values() if a.prog.endswith("monitor"))
+    text = " ".join(monitor.format_help().split())
+    helped = re.findall(r"^--keep TIME [^-]*?default: (\d+) steps", text[text.rfind("--keep TIME"):])  # its help
+    assert said and helped and {int(n) for n in said + helped} == {KEEP_STEPS}
