@@ -347,9 +347,10 @@ class EpisodeClosed:
     ``finding`` (its estimate and interval; empty: none), and what the monitor
     did: ``action`` ``accommodated`` (the fault is part of the model watched
     from then on: ``parameter`` at ``value``), ``sensor out`` (sensor
-    ``parameter`` taken out of the nominal observer) or ``re-armed`` (watching
-    again on the model as it was, the episode not decided). The fault log of
-    a monitor is its episodes."""
+    ``parameter`` taken out of the nominal observer), ``not accommodated``
+    (isolated, but no parameter holds it), ``re-armed`` (the episode not
+    decided) or ``repaired`` (a repair came first, verdict ``undecided``).
+    The fault log of a monitor is its episodes."""
 
     number: int
     alarm: float

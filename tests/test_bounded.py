@@ -137,6 +137,17 @@ def test_a_gap_is_told_at_its_time_and_one_before_the_record_kept_is_forgotten()
 
 
 @pytest.mark.slow
+def test_a_gap_across_the_moment_the_record_is_cut_keeps_its_time():
+    missing = tuple(range(2 * KEEP - 10, 2 * KEEP + 10))  # the row after the gap brings the steps past the cut
+    d = diagnoser(KEEP)
+    told = feed(d, plant(onset=None, steps=2 * KEEP + 40, missing=missing))
+    (gap, at), = [(e, t) for e, t in told if isinstance(e, ev.Gap)]
+    assert at == pytest.approx(missing[0] * DT) and d.offset > 0
+    kept = [e for e in d.finish().events if isinstance(e, ev.Gap)]
+    assert len(kept) == 1 and d.time_of(kept[0].step) == pytest.approx(missing[0] * DT)
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["gpf", "ckf"])
 def test_a_state_taken_after_cuts_goes_on_as_if_it_never_stopped(method):
     rows = plant(seed=3)

@@ -143,6 +143,20 @@ def test_a_restart_in_the_second_episode_goes_on_with_the_first_accommodated(tmp
     assert _no_seconds(report) == _no_seconds(whole)
 
 
+@pytest.mark.slow
+def test_a_stream_that_ends_as_an_episode_closes_reports_it_and_a_restart_takes_no_repair_twice(tmp_path):
+    lines = plant(400, [(6.0, {"R2": 1.6}), (15.0, {"R2": 1.0})], repaired_at=15.0).splitlines(keepends=True)
+    _, _, log = run(tmp_path / "whole", "".join(lines))
+    closing = next(i for i, line in enumerate(lines) if line.startswith(f"{log[0]['time']:g},"))
+    p, report, cut = run(tmp_path / "cut", "".join(lines[:closing + 1]))  # the last row is the one it closes on
+    assert [e["event"] for e in cut] == ["EpisodeClosed"] and report["verdict"] == "isolated"
+    first = bgc_cli("monitor", CIRCUIT, "--data", "-", *OPTIONS, "--state", tmp_path / "state", "-o",
+                    tmp_path / "first", input="".join(lines[:330]))  # stopped after the repair (t = 15, row 301)
+    assert first.returncode == 0 and "repaired at t = 15" in first.stdout, first.stderr
+    p, report, again = run(tmp_path, "".join(lines), "--state", tmp_path / "state")
+    assert "repaired" not in p.stdout and again == log  # the repair taken once, before the restart
+
+
 def test_a_repair_line_names_what_was_repaired():
     assert repair_of("repaired") == ()
     assert repair_of("repaired: R2, C1") == ("R2", "C1")

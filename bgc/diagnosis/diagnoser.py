@@ -173,12 +173,13 @@ class Diagnoser:
             self.infer_inputs = False
             self.sampler.data_inputs = tuple(name for name in self.nominal.INPUTS if name in u)
         rows = self.sampler.push(t, u, y, line)
+        self._forget_if_full()  # once per row: the steps of a row (a gap's) are counted from one start
         if len(rows) == 1:  # the usual row: one step, its belief as it is
-            return self.take(rows[0])
+            return self._decoded(rows[0])
         belief = None
         collected: list = []
         for s in rows:
-            belief = self.take(s)
+            belief = self._decoded(s)
             collected += belief.events
         if belief is None:  # a row on a step already taken: the belief stands
             return self.loop.belief(len(self.loop.events))
@@ -188,6 +189,11 @@ class Diagnoser:
         """Take one step of the grid (a :class:`~bgc.data.sampler.Sample`);
         with the mode read from the data, the steps whose mode it decided
         (none: the belief stands)."""
+        self._forget_if_full()
+        return self._decoded(s)
+
+    def _decoded(self, s: Sample) -> Belief:
+        """:meth:`take` without forgetting first (the caller did)."""
         if self.decoder is None:
             return self._take(s)
         started = time.perf_counter()
@@ -206,10 +212,6 @@ class Diagnoser:
         """The loop's step of the grid (a :class:`~bgc.data.sampler.Sample`)."""
         started = time.perf_counter()
         try:
-            loop = self.loop
-            if self.keep is not None and len(loop.samples) >= 2 * self.keep and loop.detection is None \
-                    and not self.switched:
-                self._forget(len(loop.samples) - self.keep)
             if self.offset:  # the sampler counts the data's steps, the loop those of the record it keeps
                 s = dataclasses.replace(s, k=s.k - self.offset, events=shifted_events(s.events, self.offset))
             most = self.config.most
@@ -225,6 +227,13 @@ class Diagnoser:
             return belief if degenerate is None else self._switch(degenerate, belief)
         finally:
             self.busy += time.perf_counter() - started
+
+    def _forget_if_full(self) -> None:
+        """Watching, with ``keep`` steps to keep and twice that in the record: forget its older half."""
+        loop = self.loop
+        if self.keep is not None and len(loop.samples) >= 2 * self.keep and loop.detection is None \
+                and not self.switched and not self.finished:
+            self._forget(len(loop.samples) - self.keep)
 
     def _forget(self, cut: int) -> None:
         """Watching, with ``keep`` steps to keep: forget the record's first

@@ -38,7 +38,8 @@ from .options import DiagnosisOptions
 from .values import Detection, Isolation
 
 #: The state's format; a state of another format is refused.
-VERSION = 3  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten (2026-12-04)
+VERSION = 4  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
+# parameters of faults accommodated (2026-12-04)
 #: The first bytes of a state file.
 MAGIC = b"bgc-diagnoser-state\n"
 

@@ -135,6 +135,10 @@ def sentence(e, time_of) -> str:
                 did = f"accommodated: the model watched from now on has {p} = {x:.6g}"
             elif act == "sensor out":
                 did = f"sensor {p} taken out of the nominal observer"
+            elif act == "repaired":
+                did = "closed by the repair"
+            elif act == "not accommodated":
+                did = "not accommodated (no parameter of the model holds it): watching again on the model as it was"
             else:
                 did = "not decided: watching again on the model as it was"
             return (f"episode {n} closed at t = {time_text(when)} (alarm at t = {time_text(a)} on {y}{since}): "

@@ -19,7 +19,12 @@ monitor does then, an :class:`~bgc.events.EpisodeClosed` event saying it:
   stuck or noisy sensor), or any sensor fault with
   ``--exclude-faulty-sensor``: the sensor is taken out of the nominal
   observer (when another is left);
-- **re-armed**: anything else: watching again on the model as it was.
+- **not accommodated**: an isolated fault neither of these holds (a switch
+  stuck, a noisy sensor that is the last one): watching again on the
+  model as it was;
+- **re-armed**: an episode not decided (``--rearm``): the same.
+
+A repair while an episode is under way closes it (action ``repaired``).
 
 The next diagnoser's observer starts where the plant is: from the isolated
 hypothesis's state estimate at the checkpoint (else the nominal observer's),
@@ -62,6 +67,7 @@ class Episodes:
         self.by: dict[str, int] = {}  # per parameter accommodated, its episode
         self.log: list = []  # EpisodeClosed and Repaired, in order
         self.alarm: tuple[float, str] | None = None  # the open episode's alarm (time, sensor)
+        self.remarks = 0  # the stream's comment lines read so far (a repair is one)
 
     def watch(self, belief, d) -> None:
         """Note the alarm of a belief (the open episode's)."""
@@ -81,13 +87,13 @@ class Episodes:
         from ..output.events import fault_sentence
 
         e = c.estimate if c.verdict == "isolated" else None
-        nominal = d.nominal
-        action, parameter, value, out = "re-armed", None, None, list(sensors)
-        if e is not None and e.target == "sensor" and (self.exclude_faulty or e.parameter not in nominal.PARAMETERS) \
+        held = e is not None and _held(e, d.nominal)  # a parameter's value the model can take
+        action, parameter, value, out = "re-armed" if e is None else "not accommodated", None, None, list(sensors)
+        if e is not None and e.target == "sensor" and (self.exclude_faulty or not held) \
                 and e.subject in sensors and len(sensors) > 1:
             action, parameter = "sensor out", e.subject
             out = [y for y in sensors if y != e.subject]
-        elif e is not None and e.parameter in nominal.PARAMETERS and math.isfinite(e.parameter_value):
+        elif held:
             action, parameter, value = "accommodated", e.parameter, float(e.parameter_value)
             self.theta[parameter] = value
             self.by[parameter] = len(self.episodes()) + 1
@@ -103,6 +109,10 @@ class Episodes:
         """The operator says the plant was repaired at time ``now`` (``which``:
         the parameters repaired; empty: every one accommodated): (the next
         diagnoser, the :class:`~bgc.events.Repaired` event)."""
+        if self.alarm is not None:  # an episode under way ends with the repair
+            alarm, sensor = self.alarm
+            self.log.append(ev.EpisodeClosed(len(self.episodes()) + 1, alarm, sensor, now, "undecided", (), None, "",
+                                             "repaired"))
         names = tuple(p for p in self.theta if not which or p in which)
         done = ev.Repaired(now, tuple(sorted({self.by[p] for p in names})), names)
         for p in names:
@@ -119,7 +129,8 @@ class Episodes:
     def plain(self) -> dict:
         """The log, the faults accommodated and the open episode's alarm as
         JSON data (a monitor's state, :mod:`bgc.service.resume`)."""
-        return {"theta": dict(self.theta), "by": dict(self.by), "alarm": None if self.alarm is None else list(self.alarm),
+        return {"theta": dict(self.theta), "by": dict(self.by), "remarks": self.remarks,
+                "alarm": None if self.alarm is None else list(self.alarm),
                 "log": [[type(e).__name__, {f.name: getattr(e, f.name) for f in dataclasses.fields(e)}]
                         for e in self.log]}
 
@@ -127,6 +138,7 @@ class Episodes:
         """Take up :meth:`plain`'s data (of a monitor's state, checked whole by its checksum)."""
         self.theta = {str(k): float(v) for k, v in data["theta"].items()}
         self.by = {str(k): int(v) for k, v in data["by"].items()}
+        self.remarks = int(data["remarks"])
         self.alarm = None if data["alarm"] is None else (float(data["alarm"][0]), str(data["alarm"][1]))
         kinds = {"EpisodeClosed": ev.EpisodeClosed, "Repaired": ev.Repaired}
         self.log = [kinds[name](**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
@@ -149,6 +161,17 @@ class Episodes:
         if package is not old and getattr(old, STARTED_THETA, None) is not None:
             forget_started(old)
         return d.again(package, sensors)
+
+
+def _held(e, nominal) -> bool:
+    """Whether fault estimate ``e`` is a value one of ``nominal``'s
+    parameters can take (a part of the plant's, a sensor's or an actuator's
+    offset), not a change of a sensor's noise or reading."""
+    from ..kinds import fault_kind
+
+    kind = fault_kind(e.kind)
+    return (not kind.noise and not kind.replaces and not kind.discrete and e.parameter in nominal.PARAMETERS
+            and math.isfinite(e.parameter_value))
 
 
 def _state_now(c, d) -> tuple[np.ndarray | None, np.ndarray | None]:

@@ -31,6 +31,7 @@ from ..analysis import track
 from ..diagnosis.options import DiagnosisOptions
 from . import resume
 from .episodes import Episodes, repair_of
+from ..model.package import forget_started
 
 #: Rows between two saves of the monitor's state (``--state-every``).
 STATE_EVERY = 100
@@ -236,7 +237,6 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
         raise BgcError("--episodes are closed at checkpoints: a fault is isolated there", None,
                        "add --checkpoint TIME, e.g. --checkpoint 10")
     log = Episodes(session.package, rearm, exclude_faulty, session.view.labels.per_time) if episodes else None
-    remarks = 0  # the stream's comment lines read so far (a repair is one)
     keep = _Keeper(session, options, checkpoint, columns, state, state_every, exclude_faulty, reading, log)
     saved = keep.load()
     if saved is not None:
@@ -269,25 +269,33 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
 
     guard = _Guard()
     failure = None
+    ended = None  # (diagnoser, rows) of the episode closed or repaired last, until the next row
+    rows_time = None if saved is None else saved.last_time  # the last row's time
     try:
         for values, line in reader:
             t = values[0]
             if saved is not None and t <= saved.last_time:
                 keep.same(values, line, name)  # diagnosed before the restart: the same row as then
+                if log is not None:  # and the repairs before it taken then
+                    log.remarks = max(log.remarks, len(reader.lines.header))
                 continue
             u = {name_: values[j] for j, name_ in groups["u"]}
             y = {name_: values[j] for j, name_ in groups["y"]}
-            if log is not None and len(reader.lines.header) > remarks:  # the stream's word: a repair
-                for text in reader.lines.header[remarks:]:
+            if log is not None and len(reader.lines.header) > log.remarks:  # the stream's word: a repair
+                for text in reader.lines.header[log.remarks:]:
+                    log.remarks += 1
                     which = repair_of(text)
                     if which is not None:  # before this row: the row is the repaired plant's
+                        ended = (d, rows) if rows else ended
                         d, done = log.repaired(d, t, which)
                         tell([done], time_of)
-                        rows, last_check, forgot = [], None, 0
-                remarks = len(reader.lines.header)
+                        rows, last_check, forgot, told = [], None, 0, set()
+                        if rows_time is not None:  # decided: kept across a kill
+                            keep.save(rows, last_check, d, excluded, rows_time)
             with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
                 belief = d.step(t, u, y, line)
                 rows.append(values)
+                rows_time, ended = t, None
                 if d.offset != forgot:  # the diagnoser forgot its record's first steps: the rows before go too
                     rows, told = _kept(rows, told, d, d.offset - forgot)
                     forgot = d.offset
@@ -302,11 +310,13 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
                     c = d.checkpoint()
                     tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)], time_of)
                     if log is not None and log.due(c, belief.time):
+                        ended = (d, rows)  # its report, should the stream end before the next row
                         d, sensors, closed = log.close(c, d, belief.time, sensors)
                         if closed.action == "sensor out":
                             taken_out.add(closed.parameter)
                         tell([closed], time_of)
-                        rows, last_check, forgot = [], None, 0
+                        rows, last_check, forgot, told = [], None, 0, set()
+                        keep.save(rows, last_check, d, excluded, t)  # decided: kept across a kill
                     faulty = _faulty_sensor(c, sensors) if exclude_faulty and log is None else None
                     if faulty is not None:
                         out = ev.SensorExcluded(faulty, fault_sentence(c.estimate, c.onset,
@@ -315,6 +325,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
                         taken_out.add(faulty)
                         tell([out], time_of)
                         sensors = [y for y in sensors if y != faulty]
+                        forget_started(d.config.package)  # a record that forgot its start: its package goes
                         d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors,
                                               source=name, progress=progress)
                         rows, last_check, forgot = [], None, 0
@@ -330,6 +341,8 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
         guard.close()
         if rows:
             keep.save(rows, last_check, d, excluded)  # where the input ended: a restart goes on from there
+    if not rows and ended is not None:  # the stream ended as an episode closed: the report is the closed one's
+        d, rows = ended
     if getattr(stream, "unfinished", b""):
         say(f"the input ended in the middle of a line ({len(stream.unfinished)} bytes without an end of line): "
             "that line is not read")
@@ -399,9 +412,11 @@ class _Keeper:
         if self.where is not None and self.count % self.period == 0 and rows:
             self.save(rows, last_check, d, excluded)
 
-    def save(self, rows: list, last_check, d, excluded: list) -> None:
+    def save(self, rows: list, last_check, d, excluded: list, last_time: float | None = None) -> None:
+        """Save the state after ``rows`` (the last row's time ``last_time``
+        when no row is left: a diagnoser opened by an episode's close)."""
         if self.where is not None:
-            resume.save(self.where, self.ident, rows, rows[-1][0], last_check, d,
+            resume.save(self.where, self.ident, rows, rows[-1][0] if rows else last_time, last_check, d,
                         tuple((e.sensor, e.finding, e.time, e.step) for e in excluded),
                         None if self.log is None else self.log.plain())
 
