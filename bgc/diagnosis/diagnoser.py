@@ -34,6 +34,7 @@ steps of the loop:
 from __future__ import annotations
 
 import dataclasses
+import gc
 import math
 import sys
 import time
@@ -244,6 +245,9 @@ class Diagnoser:
         package = started_package(old, *self.loop.forget(cut))
         if package is not old:
             forget_started(old)
+            # its modules are cycles (functions <-> their module's globals) only the cyclic collector frees:
+            # collected now, not left to pile up between its rare full passes (tens of MB over hundreds of cuts)
+            gc.collect()
         self._started(package)
         self.offset += cut
         self.config.say(f"watching: the record keeps the last {self.keep} steps (from t = {self.loop.samples[0].t:.12g})")
