@@ -10,7 +10,7 @@ from bgc.model import package as packages
 from bgc.analysis import track
 from bgc.diagnosis.options import DiagnosisOptions
 
-from conftest import ROOT, bgc_cli, fast_session, session
+from conftest import FAST, ROOT, bgc_cli, fast_session, numba_package, session
 
 GENERATED = ROOT / "generated"
 
@@ -50,8 +50,13 @@ def test_refine_replaces_the_estimate_of_the_diagnosed_hypothesis():
 
 @pytest.mark.slow
 def test_bgc_diagnose_refine_says_so_in_the_report(tmp_path):
+    """On the FAST backend, --backend (conftest.fast_session's kernels; the
+    slow tier only): the command's --refine reaches the grid as the option
+    does above, and the report says which estimate it gives."""
+    if FAST == "numba":
+        numba_package("circuit")  # the kernels the command loads, compiled once per test run
     r = bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "R2:abrupt:0.6@5", "--seed", "4", "--refine",
-                "--generated", "generated", "-o", tmp_path / "d")
+                "--backend", FAST, "-o", tmp_path / "d")
     assert r.returncode == 0, r.stderr
     assert "grid posterior of the particle filters' marginal likelihood" in (tmp_path / "d" / "report.md").read_text()
 

@@ -368,10 +368,14 @@ def exact_grid(package, name, ys, us, onsets, values):
     return kalman.run_bank(fault, ys, us, t, O.ravel(), V.ravel(), fixed).loglik.reshape(O.shape), t
 
 
+#: A case of the test below that ran the drift's path of its R10 case again (the same refinement of onsets
+#: and passes, on a narrower window): bench/full_cases.py grid-cases runs it with the two kept.
+MORE_GRID_CASES = [("R12:incipient:0.01@60", "R12_incipient", list(range(88, 152, 4)), np.linspace(0.002, 0.03, 701), 7)]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("scenario, name, onsets, values, seed", [
     ("R12:abrupt:0.8@60", "R12_abrupt", list(range(110, 126)), np.linspace(0.3, 1.5, 1201), 7),
-    ("R12:incipient:0.01@60", "R12_incipient", list(range(88, 152, 4)), np.linspace(0.002, 0.03, 701), 7),
     # a wide window of onsets, each with a narrow likelihood in the slope: a first grid coarse against
     # every onset's peak must not leave out the onsets whose peaks fall between its points
     ("R10:incipient:0.013333@60", "R10_incipient", list(range(79, 144, 4)), np.linspace(0.006, 0.022, 801), 0),
@@ -435,10 +439,14 @@ def test_on_the_ro_plant_the_bias_agrees_with_a_particle_filter_reference():
     bias against a grid posterior of bootstrap particle filters (2000
     particles, the pseudo-marginal likelihood) on the same data, within a
     third of the posterior's std (the reference's own Monte Carlo scatter is
-    about a sixth)."""
+    about a sixth). The reference's grid is 1.0 apart (was 0.5): the
+    posterior's std is 1.6, and a sum over points 0.6 std apart gives a
+    Gaussian's mean exactly but for the filters' scatter (measured: the
+    reference's mean 30.73 on this grid, 30.95 on the finer one, the
+    cubature filters' 30.69)."""
     package, ys, us = data("ro", "R_pipe:abrupt:31@165", seed=102)
     nominal, fault = package.MODELS["nominal"], package.MODELS["R_pipe_abrupt"]
-    onset, values = 164, np.arange(25.0, 37.01, 0.5)
+    onset, values = 164, np.arange(25.0, 37.01, 1.0)
     rng = np.random.default_rng(5)
     n = 2000
 

@@ -11,6 +11,7 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from functools import lru_cache
 from pathlib import Path
@@ -342,28 +343,36 @@ def test_bgc_monitor_prints_events_from_a_pipe_before_the_input_ends(tmp_path):
     assert "Fault isolated: R2_abrupt." in (out / "report.html").read_text()
 
 
-@pytest.mark.process
+@pytest.mark.slow
 def test_bgc_monitor_follows_a_file_another_program_appends_to(tmp_path):
     """--follow: the file grows, half a line at a time, while bgc monitor
-    reads it (a real process: the test is the other program)."""
+    reads it. The command runs in this process (conftest.bgc_cli); the other
+    program, the logger appending to the file, is a thread of the test."""
     run = simulated(CIRCUIT, steps=120)
     lines = runs.run_csv(run).splitlines(keepends=True)
     path = tmp_path / "live.csv"
     path.write_text("".join(lines[:40]))
-    p = subprocess.Popen([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", str(path), "--follow",
-                          "--idle", "2", "--particles", "100", "-o", str(tmp_path / "mon")],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         env=dict(os.environ, MPLBACKEND="Agg"))
-    time.sleep(1.0)
-    with open(path, "a") as f:
-        for line in lines[40:]:
-            f.write(line[:10])  # half a line first: the reader waits for the rest
-            f.flush()
-            f.write(line[10:])
-            f.flush()
-    out, err = p.communicate(timeout=300)
-    assert p.returncode == 0, err
-    assert "decided: no fault" in out
+    failed = []
+
+    def logger():
+        try:
+            time.sleep(1.0)
+            with open(path, "a") as f:
+                for line in lines[40:]:
+                    f.write(line[:10])  # half a line first: the reader waits for the rest
+                    f.flush()
+                    f.write(line[10:])
+                    f.flush()
+        except BaseException as exc:  # said by the test, not lost in the thread
+            failed.append(exc)
+
+    writer = threading.Thread(target=logger, daemon=True)
+    writer.start()
+    p = monitor_cli("--data", str(path), "--follow", "--idle", "2", "--particles", "100", "-o", str(tmp_path / "mon"))
+    writer.join(timeout=60)
+    assert not writer.is_alive() and not failed, failed
+    assert p.returncode == 0, p.stderr
+    assert "decided: no fault" in p.stdout
     report = (tmp_path / "mon" / "report.json").read_text()
     assert '"steps": 120' in report
 
@@ -518,6 +527,28 @@ def test_a_bad_row_mid_stream_ends_the_stream_with_the_report_of_the_rows_before
     assert '"t_last": 10' in (tmp_path / "mon" / "report.json").read_text()
 
 
+def monitor_with_logger(logger, *args):
+    """``bgc monitor`` of the circuit with ``args``, in this process (:func:`monitor_cli`), while
+    ``logger()`` (the other program, writing the files the monitor follows) runs in a thread; what it
+    raised is raised here."""
+    failed = []
+
+    def run():
+        try:
+            logger()
+        except BaseException as exc:  # said by the test, not lost in the thread
+            failed.append(exc)
+
+    writer = threading.Thread(target=run, daemon=True)
+    writer.start()
+    p = monitor_cli(*args)
+    writer.join(timeout=130)
+    assert not writer.is_alive(), "the logger thread did not end"
+    if failed:
+        raise failed[0]
+    return p
+
+
 def read_to_the_end(pid: int, path: Path, timeout: float = 120) -> None:
     """Wait until process ``pid`` has read the file ``path`` to its end (its
     offset in /proc/PID/fdinfo), or two seconds where there is no /proc: a
@@ -541,13 +572,14 @@ def read_to_the_end(pid: int, path: Path, timeout: float = 120) -> None:
     raise AssertionError(f"process {pid} did not read {path} to its end in {timeout} s")
 
 
-@pytest.mark.process
+@pytest.mark.slow
 def test_a_followed_file_rewritten_from_an_earlier_time_ends_the_stream_and_an_unfinished_line_is_not_read(
         tmp_path):
-    """The second half truncates a file a real bgc monitor --follow reads
-    and writes its first rows again, as a logger that restarts its clock:
-    the truncation is followed (read again from the start, the header
-    skipped), and the first row whose time goes back ends the stream."""
+    """The second half truncates a file bgc monitor --follow reads and
+    writes its first rows again, as a logger that restarts its clock: the
+    truncation is followed (read again from the start, the header skipped),
+    and the first row whose time goes back ends the stream. (The command in
+    this process, the logger a thread: :func:`monitor_with_logger`.)"""
     lines = runs.run_csv(simulated(CIRCUIT, steps=120)).splitlines(keepends=True)
     path = tmp_path / "live.csv"
     path.write_text("".join(lines[:80]) + lines[80][:8])  # the logger stopped mid-line
@@ -557,52 +589,55 @@ def test_a_followed_file_rewritten_from_an_earlier_time_ends_the_stream_and_an_u
     report = (tmp_path / "a" / "report.json").read_text()
     assert f'"steps": {80 - 6}' in report  # the header's 6 lines aside, the 74 whole rows
     path.write_text("".join(lines[:60]))
-    proc = subprocess.Popen([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", str(path), "--follow",
-                             "--idle", "5", "--particles", "50", "-o", str(tmp_path / "b")], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=dict(os.environ, MPLBACKEND="Agg"))
-    read_to_the_end(proc.pid, path)  # it follows the file now
-    path.write_text("".join(lines[:10]))  # truncated and rewritten, as a logger that restarts
-    out, err = proc.communicate(timeout=300)
-    assert "was truncated (rotated by copy and truncate): reading it again from its start" in out, out
-    assert proc.returncode == 1 and "time 0.05 does not increase" in err, err
+
+    def logger():
+        read_to_the_end(os.getpid(), path)  # the monitor follows the file now
+        path.write_text("".join(lines[:10]))  # truncated and rewritten, as a logger that restarts
+
+    p = monitor_with_logger(logger, "--data", str(path), "--follow", "--idle", "5", "--particles", "50",
+                            "-o", str(tmp_path / "b"))
+    assert "was truncated (rotated by copy and truncate): reading it again from its start" in p.stdout, p.stdout
+    assert p.returncode == 1 and "time 0.05 does not increase" in p.stderr, p.stderr
     assert '"steps": 54' in (tmp_path / "b" / "report.json").read_text()  # the rows before it, diagnosed
 
 
-@pytest.mark.process
+@pytest.mark.slow
 def test_a_followed_file_rotated_both_ways_goes_on_as_one_stream(tmp_path):
-    """A real bgc monitor --follow while the test rotates its file as
-    logrotate does: renamed (the logger writing on into the old file a
-    while) and recreated with its header, then copied and truncated (the
-    logger writing on without a header). Every row is diagnosed once, in
-    order: the report has the run's 120 steps, and the verdict is the one
-    of the whole run read at once."""
+    """bgc monitor --follow while the test rotates its file as logrotate
+    does: renamed (the logger writing on into the old file a while) and
+    recreated with its header, then copied and truncated (the logger writing
+    on without a header). Every row is diagnosed once, in order: the report
+    has the run's 120 steps, and the verdict is the one of the whole run
+    read at once. (The command in this process, the logger and logrotate a
+    thread: :func:`monitor_with_logger`; the thread closes each file it
+    writes before it waits on the monitor's reading of it.)"""
     run = simulated(CIRCUIT, "R2:abrupt:0.6@5", steps=120)
     lines = runs.run_csv(run).splitlines(keepends=True)
     head = next(i for i, line in enumerate(lines) if line.startswith("time,")) + 1
     header, rows = lines[:head], lines[head:]
     path, old, copy = tmp_path / "live.csv", tmp_path / "live.csv.1", tmp_path / "live.csv.2"
     path.write_text("".join(header + rows[:40]))
-    proc = subprocess.Popen([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", str(path), "--follow",
-                             "--idle", "3", "--particles", "100", "-o", str(tmp_path / "mon")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=dict(os.environ, MPLBACKEND="Agg"))
-    read_to_the_end(proc.pid, path)
-    path.rename(old)
-    with open(old, "a") as f:  # the logger has not reopened yet
-        f.write("".join(rows[40:50]))
-    read_to_the_end(proc.pid, old)
-    path.write_text("".join(header + rows[50:80]))
-    read_to_the_end(proc.pid, path)
-    shutil.copyfile(path, copy)
-    with open(path, "r+") as f:
-        f.truncate(0)
-    time.sleep(1.0)  # the reader polls every 0.1 s: it sees the file shorter before it grows again
-    with open(path, "a") as f:
-        f.write("".join(rows[80:]))
-    out, err = proc.communicate(timeout=300)
-    assert proc.returncode == 0, err
-    assert "was rotated (renamed, and a new file made under its name)" in out
-    assert "was truncated (rotated by copy and truncate)" in out
+
+    def logger():
+        read_to_the_end(os.getpid(), path)
+        path.rename(old)
+        with open(old, "a") as f:  # the logger has not reopened yet
+            f.write("".join(rows[40:50]))
+        read_to_the_end(os.getpid(), old)
+        path.write_text("".join(header + rows[50:80]))
+        read_to_the_end(os.getpid(), path)
+        shutil.copyfile(path, copy)
+        with open(path, "r+") as f:
+            f.truncate(0)
+        time.sleep(1.0)  # the reader polls every 0.1 s: it sees the file shorter before it grows again
+        with open(path, "a") as f:
+            f.write("".join(rows[80:]))
+
+    p = monitor_with_logger(logger, "--data", str(path), "--follow", "--idle", "3", "--particles", "100",
+                            "-o", str(tmp_path / "mon"))
+    assert p.returncode == 0, p.stderr
+    assert "was rotated (renamed, and a new file made under its name)" in p.stdout
+    assert "was truncated (rotated by copy and truncate)" in p.stdout
     followed = json.loads((tmp_path / "mon" / "report.json").read_text())
     assert followed["data"]["steps"] == 120
     assert (followed["verdict"], followed["diagnosis"]) == read_at_once()
@@ -726,23 +761,35 @@ def test_bgc_monitor_reads_a_folder_of_daily_files_as_one_stream(tmp_path):
     assert (followed["verdict"], followed["diagnosis"]) == read_at_once()
 
 
-@pytest.mark.process
+@pytest.mark.slow
 def test_a_followed_folder_takes_up_the_days_file_when_it_appears(tmp_path):
     """--follow on a folder: the last file there is followed, and a file
     that appears later (the next day's) is read when the one before ends.
     (100 particles: with 50 the observer raises a false alarm on these
-    fault-free rows, and the monitor would weigh every fault model.)"""
+    fault-free rows, and the monitor would weigh every fault model.) The
+    command runs in this process (conftest.bgc_cli: the test is about the
+    folder followed, not about a process); the other program, the logger
+    that writes the next day's file once the monitor has read the first to
+    its end (this process's /proc says where its reader is), is a thread."""
     run = simulated(CIRCUIT, steps=120)
     _daily(tmp_path / "logs", run, (60,))
     tomorrow = (tmp_path / "logs" / "day02.csv").read_text()
     (tmp_path / "logs" / "day02.csv").unlink()
-    proc = subprocess.Popen([sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", str(tmp_path / "logs"),
-                             "--follow", "--idle", "3", "--particles", "100", "-o", str(tmp_path / "mon")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=dict(os.environ, MPLBACKEND="Agg"))
-    read_to_the_end(proc.pid, tmp_path / "logs" / "day01.csv")
-    (tmp_path / "logs" / "day02.csv").write_text(tomorrow)
-    out, err = proc.communicate(timeout=300)
-    assert proc.returncode == 0, err
-    assert "day01.csv read to its end: reading the next file" in out
+    failed = []
+
+    def logger():
+        try:
+            read_to_the_end(os.getpid(), tmp_path / "logs" / "day01.csv")
+            (tmp_path / "logs" / "day02.csv").write_text(tomorrow)
+        except BaseException as exc:  # said by the test, not lost in the thread
+            failed.append(exc)
+
+    writer = threading.Thread(target=logger, daemon=True)
+    writer.start()
+    p = monitor_cli("--data", str(tmp_path / "logs"), "--follow", "--idle", "3", "--particles", "100",
+                    "-o", str(tmp_path / "mon"))
+    writer.join(timeout=130)
+    assert not writer.is_alive() and not failed, failed
+    assert p.returncode == 0, p.stderr
+    assert "day01.csv read to its end: reading the next file" in p.stdout
     assert json.loads((tmp_path / "mon" / "report.json").read_text())["data"]["steps"] == 120

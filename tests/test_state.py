@@ -126,15 +126,33 @@ def _fast(name: str, method: str) -> bool:
     return name == "ro" or (name == "two_tank" and method != "gpf")
 
 
+#: The case whose end weighs the fault models the symbols ruled out (``recheck``, the default) after the
+#: round trip: that weighing reads the restored record like the rest of the end, and one case (the fast
+#: tier's) covers it; the other seven leave it off (a third of their time, the same for a filter of either
+#: backend, since it runs its own filters from the record after the loop). All eight with it, at 200
+#: particles, as before: bench/full_cases.py state-cases.
+RECHECKED = ("two_tank", "gpf")
+
+
+#: The particles of a case: 100, but 200 on the RO plant (with 100 its alarm comes later and the cut at 0.8
+#: falls while the hypotheses are still being isolated, not tracked).
+PARTICLES = {"ro": 200}
+
+
 @functools.lru_cache(maxsize=None)
 def _case(name: str, method: str):
     """The round trip of case (name, method) of CASES (:func:`_round_trip`,
-    cut at 0.8 of the run, 200 particles, seed 3), once per test process: the
-    RO plant's GPF on FAST is also the compiled backend's own test below
-    (FAST is numba when numba is installed), which asserts on it again."""
+    cut at 0.8 of the run, PARTICLES, seed 3; ``recheck`` on for
+    RECHECKED only), once per test process: the RO plant's GPF on FAST is
+    also the compiled backend's own test below (FAST is numba when numba is
+    installed), which asserts on it again. 100 particles (was 200): every filter's
+    whole state (its clouds, its generator, its trackers) is taken up all the
+    same, and the faults are still isolated (asserted), so a number of the
+    state lost or wrong still shows in the beliefs after the cut."""
     session = fast_session(name) if _fast(name, method) else session_of(MODELS / f"{name}.yaml")
     rows, run = _rows(session, SCENARIOS[name], steps=STEPS[name])
-    return session, _round_trip(session, rows, run, 0.8, filter=method, particles=200, seed=3)
+    return session, _round_trip(session, rows, run, 0.8, filter=method, particles=PARTICLES.get(name, 100), seed=3,
+                                recheck=(name, method) == RECHECKED)
 
 
 @pytest.mark.parametrize("name, method", [
@@ -159,7 +177,8 @@ def test_a_state_taken_while_watching_keeps_the_detectors_windows_and_the_clouds
     session = _session(sessions, MODELS / "two_tank.yaml")
     # 300 rows watched at the cut: more than the ring's history + 1 = 257 clouds
     rows, run = _rows(session, "R12:abrupt:0.8@200", steps=500)
-    (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, 0.6, particles=200, seed=4)
+    (beliefs, whole), (later, resumed), at_cut = _round_trip(session, rows, run, 0.6, particles=100, seed=4,
+                                                             recheck=False)  # the end's weighing: RECHECKED
     assert at_cut.loop.phase == "watching" and len(at_cut.loop.samples) == 300
     # the nominal clouds are a ring of the last `history` steps (the onsets are looked for no further back)
     options = at_cut.options
