@@ -31,23 +31,10 @@ claim fails.
 
 from __future__ import annotations
 
-import argparse
-import os
 import sys
 import time
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-#: The suite's set-up, before NumPy loads (the root conftest.py): OpenBLAS's kernels and the kept caches.
-os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")
-_KEPT = Path(os.environ.get("BGC_TEST_CACHE")
-             or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "bgc-tests")
-os.environ.setdefault("NUMBA_CACHE_DIR", str(_KEPT / "numba"))
-os.environ.setdefault("BGC_CACHE_DIR", str(_KEPT / "bgc"))
-os.environ.setdefault("BGC_BACKEND", "numpy")
-os.environ.setdefault("MPLBACKEND", "Agg")
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
+from _claims import run  # noqa: E402  (first: the suite's set-up before NumPy loads)
 
 
 def backend_modules():
@@ -120,29 +107,7 @@ CLAIMS = {
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("claims", nargs="*", metavar="CLAIM", help=f"of {', '.join(CLAIMS)} (default: all)")
-    args = parser.parse_args(argv)
-    unknown = [name for name in args.claims if name not in CLAIMS]
-    if unknown:
-        parser.error(f"no claim {', '.join(unknown)} (the claims: {', '.join(CLAIMS)})")
-    names = args.claims or list(CLAIMS)
-    summary = []
-    for name in names:
-        start = time.perf_counter()
-        rows, checks = CLAIMS[name]()
-        seconds = time.perf_counter() - start
-        ok = all(passed for _, passed in checks)
-        print(f"{name} ({seconds:.0f} s): {'holds' if ok else 'FAILS'}")
-        print("\n".join(rows))
-        for text, passed in checks:
-            print(f"  {'ok  ' if passed else 'FAIL'} {text}")
-        print(flush=True)
-        summary.append((name, ok, seconds))
-    print(f"{'claim':<20} {'result':<7} {'s':>5}")
-    for name, ok, seconds in summary:
-        print(f"{name:<20} {'holds' if ok else 'FAILS':<7} {seconds:5.0f}")
-    return 0 if all(ok for _, ok, _ in summary) else 1
+    return run(CLAIMS, __doc__, argv)
 
 
 if __name__ == "__main__":

@@ -156,8 +156,7 @@ class Episodes:
         accommodated, its observer from ``mean``, ``std`` (None: the model's
         X0), with ``sensors`` (None: ``d``'s)."""
         old = d.config.package
-        package = started_package(self.base, mean, std, theta=dict(self.theta)) if (mean is not None or self.theta) \
-            else self.base
+        package = started_package(self.base, mean, std, theta=dict(self.theta))  # the base itself when neither
         if package is not old and getattr(old, STARTED_THETA, None) is not None:
             forget_started(old)
         return d.again(package, sensors)
