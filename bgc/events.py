@@ -346,7 +346,9 @@ class EpisodeClosed:
     ``candidates``, the time the fault began (``began``: its onset; None: none) and in words
     ``finding`` (its estimate and interval; empty: none), and what the monitor
     did: ``action`` ``accommodated`` (the fault is part of the model watched
-    from then on: ``parameter`` at ``value``), ``sensor out`` (sensor
+    from then on: ``parameter`` at ``value``), ``ended`` (a fault
+    accommodated went away by itself, without a repair: ``parameter`` back at
+    its value in the model file, ``value``; an intermittent fault), ``sensor out`` (sensor
     ``parameter`` taken out of the nominal observer), ``not accommodated``
     (isolated, but no parameter holds it), ``re-armed`` (the episode not
     decided) or ``repaired`` (a repair came first, verdict ``undecided``).
@@ -364,6 +366,10 @@ class EpisodeClosed:
     parameter: str | None = None
     value: float | None = None
     step: int | None = None
+    #: A fault of a parameter (accommodated, or ``ended``): its appearance's number (2 and on: it
+    #: came back), and the spans it was present over, as the episodes tell ((onset, end or None), ...).
+    appearance: int = 0
+    present: tuple = ()
 
 
 @dataclass(frozen=True, slots=True)

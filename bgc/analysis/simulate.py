@@ -60,8 +60,21 @@ class FaultInjection:
     subject: str = ""
     #: The text it was read from (:func:`parse_fault`; "" when made otherwise).
     source: str = field(default="", compare=False)
+    #: An intermittent fault (``NAME:KIND:MAGNITUDE@ON-OFF,ON-OFF,ON``): the spans (on, off) over
+    #: which it is present, the last one's off ``inf`` when it stays; the first on is ``time``.
+    #: Empty: present from ``time`` on (a permanent fault).
+    spans: tuple[tuple[float, float], ...] = ()
+
+    def present(self, t: float) -> bool:
+        """Whether the fault is present at time ``t`` (a step kind's value; a
+        drift, never intermittent, from ``time``)."""
+        if not self.spans:
+            return t >= self.time
+        return any(on <= t < off for on, off in self.spans)
 
     def value(self, nominal: float, t: float) -> float:
+        if self.spans and not self.present(t):
+            return nominal
         return fault_kind(self.kind).value(nominal, self.magnitude, self.time, t)
 
     @property
@@ -83,8 +96,10 @@ class FaultInjection:
         kind = fault_kind(self.kind)
         size = (f"std {kind.noise_factor(self.magnitude):g} times its own (magnitude {self.magnitude:g})"
                 if kind.noise else f"{kind.magnitude} {self.magnitude:g}")
-        return (f"{self.target + ' ' if self.target != 'parameter' else ''}{self.subject or self.parameter} "
-                f"{self.kind}, {size} from t = {self.time:g}")
+        when = f"from t = {self.time:g}" if not self.spans else "intermittent, present " + ", ".join(
+            f"from t = {on:g}" if math.isinf(off) else f"t = {on:g} to {off:g}" for on, off in self.spans)
+        return f"{self.target + ' ' if self.target != 'parameter' else ''}{self.subject or self.parameter} " \
+               f"{self.kind}, {size} {when}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -183,6 +198,9 @@ def noise_free(num: Numerics, options: SimulationOptions) -> SimulationResult:
 
 
 _FAULT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([a-z]+):([-+0-9.eE]+)@([0-9.eE+]+)$")
+#: An intermittent fault: NAME:KIND:MAGNITUDE@ON-OFF,ON-OFF[,ON] (present over each span, the last
+#: one open to the run's end when it has no OFF).
+_SPANS = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([a-z]+):([-+0-9.eE]+)@([0-9.]+-[0-9.]+(?:,[0-9.]+(?:-[0-9.]+)?)*)$")
 #: A switched junction stuck from a time on: NAME:stuck_on@TIME or NAME:stuck_off@TIME (no magnitude).
 _STUCK = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):(stuck_on|stuck_off)@([0-9.eE+]+)$")
 
@@ -201,11 +219,13 @@ def parse_fault(text: str, num: Numerics, what: str | None = None) -> FaultInjec
     stuck = _STUCK.match(text.strip())
     if stuck:
         return _stuck(stuck, text, model, what)
-    m = _FAULT.match(text.strip())
+    m = _FAULT.match(text.strip()) or _SPANS.match(text.strip())
     if not m:
         raise SimulationError(f"{what} {text!r} is not NAME:KIND:MAGNITUDE@TIME", None,
-                              "e.g. R_pipe:incipient:0.5@165, R_pipe:abrupt:31@165 or P_memb:bias:0.3@100")
+                              "e.g. R_pipe:incipient:0.5@165, R_pipe:abrupt:31@165, P_memb:bias:0.3@100, or "
+                              "an intermittent R_pipe:abrupt:31@100-140,200-260,300")
     name, kind, mag, time = m.groups()
+    spans = _spans(time, text, what) if m.re is _SPANS else ()
     targets = {**{i: "actuator" for i in ssm.inputs}, **{y: "sensor" for y in ssm.outputs},
                **{p.name: "parameter" for p in model.parameters}}
     if name not in targets:
@@ -218,9 +238,15 @@ def parse_fault(text: str, num: Numerics, what: str | None = None) -> FaultInjec
         raise SimulationError(f"{what}: {'unknown kind' if kind not in FAULT_KINDS else 'kind'} '{kind}'"
                               f"{'' if kind not in FAULT_KINDS else f' does not apply to {target} {name}'}", None,
                               kinds_for(target))
+    if spans and fault_kind(kind).drifts:
+        article = "an" if kind[0] in "aeiou" else "a"
+        raise SimulationError(f"{what} {text!r}: {article} {kind} fault does not come and go", None,
+                              "an intermittent fault is a step: give it a step kind ("
+                              + ", ".join(k for k, fk in FAULT_KINDS.items() if target in fk.targets and not fk.drifts)
+                              + ")")
     try:
-        injection = FaultInjection(fault_kind(kind).parameter_of(name), kind, float(mag), float(time), target, name,
-                                   text.strip())
+        injection = FaultInjection(fault_kind(kind).parameter_of(name), kind, float(mag),
+                                   spans[0][0] if spans else float(time), target, name, text.strip(), spans)
     except ValueError:
         raise SimulationError(f"{what} {text!r}: magnitude and time must be numbers", None,
                               "e.g. R_pipe:abrupt:31@165") from None
@@ -228,6 +254,28 @@ def parse_fault(text: str, num: Numerics, what: str | None = None) -> FaultInjec
         raise SimulationError(f"{what} {text!r}: magnitude and time must be finite numbers", None,
                               "e.g. R_pipe:abrupt:31@165")
     return injection
+
+
+def _spans(text: str, whole: str, what: str) -> tuple[tuple[float, float], ...]:
+    """The spans (on, off) of an intermittent fault's ``ON-OFF,ON-OFF[,ON]``:
+    increasing times, the last span open (off ``inf``) when it has no OFF."""
+    times: list[float] = []
+    parts = text.split(",")
+    for i, part in enumerate(parts):
+        pair = part.split("-")
+        if len(pair) == 1 and i < len(parts) - 1:
+            raise SimulationError(f"{what} {whole!r}: '{part}' is not ON-OFF", None,
+                                  "only the last span may have no end: e.g. R_pipe:abrupt:31@100-140,200-260,300")
+        try:
+            times += [float(v) for v in pair]
+        except ValueError:
+            raise SimulationError(f"{what} {whole!r}: '{part}' is not ON-OFF with numbers", None,
+                                  "e.g. R_pipe:abrupt:31@100-140,200-260,300") from None
+    if not all(math.isfinite(v) for v in times) or any(b <= a for a, b in zip(times, times[1:])):
+        raise SimulationError(f"{what} {whole!r}: the times of an intermittent fault must increase", None,
+                              "each span ON-OFF after the last, e.g. R_pipe:abrupt:31@100-140,200-260,300")
+    times += [math.inf] if len(times) % 2 else []
+    return tuple(zip(times[::2], times[1::2]))
 
 
 def _stuck(m, text: str, model, what: str) -> FaultInjection:
@@ -467,7 +515,7 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
         draws[:, column] *= kind.noise_factor(param - nominal)
     noisy = clean + meas * draws
     if target == "sensor" and kind.replaces:  # a stuck sensor reads its value, noise and all
-        stuck = times >= fault.time
+        stuck = np.array([fault.present(t) for t in times])
         clean[stuck, column] = noisy[stuck, column] = fault.magnitude
     src = model.display_source
     settings = model.settings

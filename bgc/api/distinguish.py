@@ -171,6 +171,9 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
             raise SimulationError(f"onset {inj.time:g} is outside the run (0 to {times[-1]:g})", None,
                                   f"choose an onset inside the run, or more {arguments.spelled('steps', '--steps')}")
         injected = [inj]
+        if inj.spans and inj.spans[0][1] < times[-1]:  # intermittent: its first appearance, as the monitor meets it
+            T = max(int(np.sum(times < inj.spans[0][1] - 1e-9 * dt)), onset_sample(times, inj.time) + 2)
+            times = times[:T]
     else:
         injected = []
         for f in num.faults:

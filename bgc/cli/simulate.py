@@ -17,7 +17,9 @@ def add_parser(sub) -> None:
     p.add_argument("--steps", type=int, default=None, help="number of samples (default: the model's)")
     p.add_argument("--fault", metavar="NAME:KIND:MAGNITUDE@TIME",
                    help="inject a fault, e.g. R_pipe:incipient:0.5@165 (slope per unit time), R_pipe:abrupt:31@165 "
-                        "(bias), a sensor's P_memb:bias:0.3@100 or an actuator's u_pump:gain:-0.2@100")
+                        "(bias), a sensor's P_memb:bias:0.3@100 or an actuator's u_pump:gain:-0.2@100; a step "
+                        "that comes and goes (intermittent) with its spans: R_pipe:abrupt:31@100-140,200-260,300 "
+                        "(present from 100 to 140, from 200 to 260, and from 300 on)")
     p.add_argument("--noise", metavar="process=Q,measurement=R", help="noise levels as fractions of the signal")
     p.add_argument("--seed", type=seed, default=0, help="random seed, an integer >= 0")
     p.add_argument("--inputs", metavar="PROFILE.csv",

@@ -49,10 +49,11 @@ from ..data.sampler import Sample, Sampler
 from ..errors import ArgumentTypeError, ArgumentValueError, DataError, TrackingError, printable
 from .hidden import ONSETS, REREAD, ModeDecoder, read_again, read_fault, read_head, readable
 from ..ir import FaultSignatures
-from ..model.package import forget_started, started_package
+from ..model.package import accommodated, forget_started, started_package
 from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
 from .finish import ordered
+from .isolate import with_returns
 from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig, shifted_events
 from .options import DiagnosisOptions
 from .values import Belief, Diagnosis
@@ -132,8 +133,9 @@ class Diagnoser:
 
     def _loop_config(self, options: DiagnosisOptions, every: bool, lazy: bool) -> LoopConfig:
         c = self.config
-        return LoopConfig(c.package, c.signatures, c.priors, options, c.horizon, self.sampler.present, lazy, every,
-                          c.say)
+        # a fault accommodated (the package holds it) may go away: its step back is a candidate too
+        return LoopConfig(c.package, with_returns(c.signatures, accommodated(c.package)), c.priors, options,
+                          c.horizon, self.sampler.present, lazy, every, c.say)
 
     @property
     def options(self) -> DiagnosisOptions:

@@ -228,3 +228,36 @@ def hypotheses_why(signatures: FaultSignatures, seen: tuple[Symbol, ...]) -> lis
     """Each signature's name and why the symbols ``seen`` refute it (None: they do not)."""
     return [(sig.name, consistent(sig, signatures.measurements, seen)) for sig in signatures.signatures]
 
+
+
+#: A symbol of a signature in the opposite direction: a deviation's sign turns, no change stays none.
+_OPPOSITE = {"+": "-", "-": "+", "0": "0", "?": "?"}
+
+
+def with_returns(signatures, returning: tuple[str, ...]):
+    """``signatures`` (:class:`~bgc.ir.FaultSignatures`, or a model with
+    modes' :class:`ModeSignatures`) with, for each parameter of
+    ``returning`` (a fault accommodated: the model watched holds it at its
+    faulty value), the signatures of its step faults in the direction back
+    to its value in the model file where the model lists only the other:
+    a fault that goes away, as an intermittent one does, moves every sensor
+    the other way (the symbols of the opposite direction, ``+`` and ``-``
+    swapped), and is named then as the same fault model sized back to where
+    the model file has it."""
+    from ..kinds import fault_kind
+
+    if not returning:
+        return signatures
+    if isinstance(signatures, ModeSignatures):
+        return ModeSignatures(tuple(with_returns(s, returning) for s in signatures.modes), signatures.names)
+    have = {s.name for s in signatures.signatures}
+    back = tuple(Signature(s.parameter, -s.direction, s.kind,
+                           tuple(tuple(_OPPOSITE[c] for c in row) for row in s.symbols), s.first)
+                 for s in signatures.signatures
+                 if s.parameter in returning and not fault_kind(s.kind).drifts
+                 and Signature(s.parameter, -s.direction, s.kind, (), ()).name not in have)
+    if not back:
+        return signatures
+    from dataclasses import replace
+
+    return replace(signatures, signatures=signatures.signatures + back)

@@ -225,7 +225,48 @@ def started_package(package: Package, mean=None, std=None, theta: dict | None = 
             m.X0_STD[rows] = [std[i] if kinds[i] == "physical" else 0.0 for i in rows]
         if theta:
             m.THETA = tuple(float(theta.get(p, v)) for p, v in zip(m.PARAMETERS, source.THETA))
+            if hasattr(source, "FAULT_PRIOR"):  # a fault model
+                m.FAULT_PRIOR = _with_return(source, m.THETA)
     return module
+
+
+#: How far past its way back to the model file's value the prior of an accommodated fault's step
+#: reaches, as a fraction of that way: room for the estimate's spread around it.
+RETURN_MARGIN = 0.5
+
+
+def _with_return(source, theta: tuple) -> tuple:
+    """The prior (``FAULT_PRIOR``) of fault model ``source`` on a package
+    whose parameters are ``theta``: its own, and where its fault's parameter
+    is held at a faulty value (accommodated) and its kind is a step, widened
+    to the step back to the value in the model file (the fault going away)
+    with ``RETURN_MARGIN`` of it beyond; a parameter's never below ``LOWEST``
+    of its value."""
+    from ..kinds import LOWEST, fault_kind
+
+    low, high = (float(v) for v in source.FAULT_PRIOR)
+    fault = getattr(source, "FAULT", None)
+    if not fault or fault.get("parameter") not in source.PARAMETERS or fault_kind(fault["kind"]).drifts:
+        return (low, high)
+    i = source.PARAMETERS.index(fault["parameter"])
+    back = float(source.THETA[i]) - float(theta[i])
+    if back == 0.0 or fault_kind(fault["kind"]).discrete:
+        return (low, high)
+    low, high = min(low, back - RETURN_MARGIN * abs(back)), max(high, back + RETURN_MARGIN * abs(back))
+    if fault.get("target") == "parameter":
+        low = max(low, LOWEST * abs(float(theta[i])))
+    return (low, high)
+
+
+def accommodated(package: Package) -> tuple[str, ...]:
+    """The parameters a started package (:func:`started_package`) holds at
+    other values than the model file's (faults accommodated), in its order."""
+    theta = getattr(package, STARTED_THETA, None) or {}
+    base = sys.modules.get(getattr(package, STARTED_FROM, package.__name__), package)
+    from .protocol import nominal_model
+
+    nominal = nominal_model(base)
+    return tuple(p for p, v in zip(nominal.PARAMETERS, nominal.THETA) if p in theta and float(theta[p]) != float(v))
 
 
 def forget_started(package: Package) -> None:

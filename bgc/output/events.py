@@ -128,10 +128,16 @@ def sentence(e, time_of) -> str:
             return (f"sensor {y} taken out of the nominal observer from t = {time_text(when)} ({f}): monitoring "
                     f"goes on with the other sensors")
         case ev.EpisodeClosed(number=n, alarm=a, sensor=y, time=when, verdict=v, candidates=c, began=o, finding=f,
-                              action=act, parameter=p, value=x):
+                              action=act, parameter=p, value=x, appearance=k, present=spans):
             what = f"{v}: {', '.join(c)}" if c else v
             since = "" if o is None else f", onset t = {time_text(o)}"
-            if act == "accommodated":
+            if act == "ended":
+                did = (f"the fault of {p} went away without a repair (intermittent: present {spans_text(spans)}): "
+                       f"the model watched from now on has {p} = {x:.6g}, its value in the model file")
+            elif act == "accommodated" and k > 1:
+                did = (f"the intermittent fault of {p} is back (appearance {k}; present {spans_text(spans)}): "
+                       f"accommodated, the model watched from now on has {p} = {x:.6g}")
+            elif act == "accommodated":
                 did = f"accommodated: the model watched from now on has {p} = {x:.6g}"
             elif act == "sensor out":
                 did = f"sensor {p} taken out of the nominal observer"
@@ -154,6 +160,13 @@ def sentence(e, time_of) -> str:
         case ev.Decided(step=k, verdict=v, candidates=c):
             return f"decided: {v}" + (f": {', '.join(c)}" if c else "")
     return type(e).__name__
+
+
+def spans_text(spans) -> str:
+    """The spans a fault was present over, in words: ``t = 6.05 to 14.1 and from t = 22``."""
+    return " and ".join(f"t = {time_text(on)} to {time_text(off)}" if off is not None else f"from t = {time_text(on)}"
+                        if on is not None else "at an onset not known"
+                        for on, off in spans) or "not known"
 
 
 def mismatch_sentence(e: ev.Mismatched, time_of) -> str:

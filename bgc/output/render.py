@@ -659,6 +659,10 @@ def distinguishability_text(r) -> str:
     if r.scenario is not None:
         d = r.distinctions[0]
         lines.append(f"truth: {printable(r.scenario)} ({d.truth}, from sample {d.onset})")
+        if "-" in r.scenario.rsplit("@", 1)[-1]:  # an intermittent fault's spans
+            lines.append(f"# an intermittent fault: its first appearance is told apart, over the {r.steps} samples "
+                         "before it first goes away (bgc monitor --episodes names each appearance and its going "
+                         "away as the step it is)")
         if getattr(r, "warning", None):
             lines.append(f"warning: {printable(r.warning)}")
         lines.append(f"divergence from no fault: {d.divergence:.4g} (an ideal detector's P of telling it from no "

@@ -52,6 +52,10 @@ from ..model.package import STARTED_AT, STARTED_THETA, forget_started, started_p
 #: What a comment line of the stream says to declare a repair (``# repaired``, ``# repaired: R2``).
 REPAIRED = "repaired"
 
+#: An estimate of a parameter held at a faulty value within this fraction of the way back to its
+#: value in the model file names the fault gone (:func:`_returned`).
+BACK = 0.2
+
 
 class Episodes:
     """The fault log and the faults accommodated of one monitor (module
@@ -67,6 +71,8 @@ class Episodes:
         self.by: dict[str, int] = {}  # per parameter accommodated, its episode
         self.log: list = []  # EpisodeClosed and Repaired, in order
         self.alarm: tuple[float, str] | None = None  # the open episode's alarm (time, sensor)
+        #: per parameter accommodated at least once, its appearances: [onset, end (None: present), value]
+        self.spells: dict[str, list[list]] = {}
         self.remarks = 0  # the stream's comment lines read so far (a repair is one)
 
     def watch(self, belief, d) -> None:
@@ -89,18 +95,30 @@ class Episodes:
         e = c.estimate if c.verdict == "isolated" else None
         held = e is not None and _held(e, d.nominal)  # a parameter's value the model can take
         action, parameter, value, out = "re-armed" if e is None else "not accommodated", None, None, list(sensors)
-        if e is not None and e.target == "sensor" and (self.exclude_faulty or not held) \
+        number, appearance = len(self.episodes()) + 1, 0
+        if held and e.parameter in self.theta and _returned(e, self._file_value(e.parameter)):
+            action, parameter, value = "ended", e.parameter, self._file_value(e.parameter)
+            del self.theta[parameter], self.by[parameter]
+            spell = self.spells[parameter][-1]
+            spell[1] = c.onset
+            appearance = len(self.spells[parameter])
+        elif e is not None and e.target == "sensor" and (self.exclude_faulty or not held) \
                 and e.subject in sensors and len(sensors) > 1:
             action, parameter = "sensor out", e.subject
             out = [y for y in sensors if y != e.subject]
         elif held:
             action, parameter, value = "accommodated", e.parameter, float(e.parameter_value)
+            if parameter not in self.theta:  # an appearance (a fault of it that went away before: again)
+                self.spells.setdefault(parameter, []).append([c.onset, None, value])
+            else:  # a further change of a fault still present: its value while present is now this
+                self.spells[parameter][-1][2] = value
+            appearance = len(self.spells[parameter])
             self.theta[parameter] = value
-            self.by[parameter] = len(self.episodes()) + 1
+            self.by[parameter] = number
         finding = "" if e is None else fault_sentence(e, c.onset, self.per_time)
         alarm, sensor = self.alarm
-        closed = ev.EpisodeClosed(len(self.episodes()) + 1, alarm, sensor, now, c.verdict, tuple(c.candidates),
-                                  c.onset, finding, action, parameter, value)
+        closed = ev.EpisodeClosed(number, alarm, sensor, now, c.verdict, tuple(c.candidates), c.onset, finding,
+                                  action, parameter, value, None, appearance, self.present(parameter))
         self.log.append(closed)
         self.alarm = None
         return self._next(d, *_state_now(c, d), out), out, closed
@@ -118,6 +136,7 @@ class Episodes:
         for p in names:
             del self.theta[p]
             del self.by[p]
+            self.spells.pop(p, None)  # repaired: a fault of it later is a new one, not this one again
         self.log.append(done)
         self.alarm = None
         if d.loop.x_mean:  # the nominal observer's estimate now
@@ -126,10 +145,34 @@ class Episodes:
             x, s = getattr(d.config.package, STARTED_AT, None) or (None, None)
         return self._next(d, x, s, None), done
 
+    def present(self, parameter: str | None) -> tuple:
+        """The spans over which ``parameter``'s fault was present, as far as
+        the episodes tell: ((onset, end), ...), the end None while it still
+        is (empty: no fault of it accommodated)."""
+        return tuple((on, off) for on, off, _ in self.spells.get(parameter, ())) if parameter else ()
+
+    def intermittent(self) -> dict[str, dict]:
+        """The faults that went away without a repair (intermittent), per
+        parameter: its ``spans`` present (:meth:`present`), its ``values``
+        while present (one per appearance) and their ``mean``."""
+        out = {}
+        for p, spells in self.spells.items():
+            if any(off is not None for _, off, _ in spells):
+                values = [float(v) for _, _, v in spells]
+                out[p] = {"spans": self.present(p), "values": values, "mean": float(np.mean(values))}
+        return out
+
+    def _file_value(self, parameter: str) -> float:
+        """``parameter``'s value in the model file (the healthy plant's)."""
+        from ..model.protocol import nominal_model
+
+        nominal = nominal_model(self.base)
+        return float(nominal.THETA[nominal.PARAMETERS.index(parameter)])
+
     def plain(self) -> dict:
         """The log, the faults accommodated and the open episode's alarm as
         JSON data (a monitor's state, :mod:`bgc.service.resume`)."""
-        return {"theta": dict(self.theta), "by": dict(self.by), "remarks": self.remarks,
+        return {"theta": dict(self.theta), "by": dict(self.by), "remarks": self.remarks, "spells": self.spells,
                 "alarm": None if self.alarm is None else list(self.alarm),
                 "log": [[type(e).__name__, {f.name: getattr(e, f.name) for f in dataclasses.fields(e)}]
                         for e in self.log]}
@@ -139,9 +182,10 @@ class Episodes:
         self.theta = {str(k): float(v) for k, v in data["theta"].items()}
         self.by = {str(k): int(v) for k, v in data["by"].items()}
         self.remarks = int(data["remarks"])
+        self.spells = {str(p): [list(spell) for spell in spells] for p, spells in data.get("spells", {}).items()}
         self.alarm = None if data["alarm"] is None else (float(data["alarm"][0]), str(data["alarm"][1]))
         kinds = {"EpisodeClosed": ev.EpisodeClosed, "Repaired": ev.Repaired}
-        self.log = [kinds[name](**{k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()})
+        self.log = [kinds[name](**{k: _tuples(v) for k, v in fields.items()})
                     for name, fields in data["log"]]
 
     def sensors_out(self) -> set[str]:
@@ -171,6 +215,21 @@ def _held(e, nominal) -> bool:
     kind = fault_kind(e.kind)
     return (not kind.noise and not kind.replaces and not kind.discrete and e.parameter in nominal.PARAMETERS
             and math.isfinite(e.parameter_value))
+
+
+def _tuples(value):
+    """JSON's lists as the tuples an event holds (nested: a fault's spans)."""
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
+
+
+def _returned(e, file_value: float) -> bool:
+    """Whether estimate ``e`` of a parameter held at a faulty value says it
+    went back to ``file_value`` (its value in the model file): that value
+    inside the estimate's interval, or the estimate within ``BACK`` of the
+    way back from the faulty value (the particle filter's interval may be
+    narrower than its error)."""
+    back = file_value - e.nominal  # the step back, from the faulty value the model held
+    return bool(e.low <= back <= e.high or abs(e.value - back) <= BACK * abs(back))
 
 
 def _state_now(c, d) -> tuple[np.ndarray | None, np.ndarray | None]:
