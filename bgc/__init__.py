@@ -67,8 +67,10 @@ API = ("open", "Session", "diagnose", "DiagnosisReport", "distinguishability", "
        "analyse", "AnalysisReport", "CalibrationReport", "simulate", "Simulation", "DiagnosisOptions", "Table", "ScenarioWarning")
 #: The campaign wing's public names (:mod:`bgc.experiment.public`; imported on first use).
 CAMPAIGN = ("run_campaign", "CampaignResult")
+#: The service wing's public names (:mod:`bgc.service.public`; imported on first use).
+SERVICE = ("monitor",)
 
-__all__ = [*API, *CAMPAIGN, "Error", "ModelError", "DataError", "ArgumentError", "ArgumentTypeError",
+__all__ = [*API, *CAMPAIGN, *SERVICE, "Error", "ModelError", "DataError", "ArgumentError", "ArgumentTypeError",
            "ArgumentValueError",
            "SimulationError", "TrackingError", "OutputError", "ExperimentError", "__version__"]
 
@@ -87,4 +89,8 @@ def __getattr__(name: str):
         from .experiment import public
 
         return getattr(public, name)
+    if name in SERVICE:
+        from .service import public as service
+
+        return getattr(service, name)
     raise AttributeError(f"module 'bgc' has no attribute {name!r}")

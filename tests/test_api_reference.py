@@ -19,6 +19,7 @@ from bgc import errors, events  # noqa: E402
 from bgc.data import runs  # noqa: E402
 from bgc.diagnosis import options, values  # noqa: E402
 from bgc.experiment import public  # noqa: E402
+from bgc.service import public as service  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCE = ROOT / "docs" / "reference"
@@ -69,10 +70,12 @@ def test_every_name_bgc_gives_is_documented(pages):
     ``__all__``), the errors on theirs, each with its docstring."""
     _documented(pages["api"], bgc.api, bgc.api.__all__)
     _documented(pages["api"], public, public.__all__)
-    given = [name for name in bgc.__all__ if name not in (*bgc.API, *bgc.CAMPAIGN) and name != "__version__"]
+    _documented(pages["api"], service, service.__all__)
+    given = [name for name in bgc.__all__ if name not in (*bgc.API, *bgc.CAMPAIGN, *bgc.SERVICE) and name != "__version__"]
     _documented(pages["errors"], errors, given)
     assert set(bgc.API) <= set(bgc.api.__all__), "bgc gives a name bgc.api does not list in __all__"
     assert set(bgc.CAMPAIGN) == set(public.__all__)
+    assert set(bgc.SERVICE) == set(service.__all__)
     assert _squeeze("A recorded run (CSV) cannot be read or does not fit the model.") in pages["errors"]
 
 

@@ -44,6 +44,34 @@ class DiagnosisReport:
         return (f"<bgc.DiagnosisReport of {self.model}: {d.verdict}"
                 + (f": {', '.join(d.candidates)}" if d.candidates else "") + ">")
 
+    @property
+    def fault_log(self) -> tuple:
+        """A monitor's fault log (``episodes``: :func:`bgc.monitor`,
+        ``bgc monitor --episodes``): its closed episodes and repairs, in
+        order (:class:`~bgc.events.EpisodeClosed`, :class:`~bgc.events.Repaired`);
+        empty for a diagnosis of one fault."""
+        from .. import events as ev
+
+        return tuple(e for e in self.diagnosis.events if isinstance(e, (ev.EpisodeClosed, ev.Repaired)))
+
+    @property
+    def intermittent(self) -> dict[str, dict]:
+        """The faults of the log that went away without a repair, by
+        parameter: ``spans`` (the (onset, end) it was present over, the end
+        None while it is), ``values`` (the parameter's value estimated at
+        each appearance) and their ``mean``."""
+        out: dict[str, dict] = {}
+        for p in dict.fromkeys(e.parameter for e in self.fault_log if getattr(e, "action", None) == "ended"):
+            mine = [e for e in self.fault_log if getattr(e, "parameter", None) == p
+                    and e.action in ("accommodated", "ended")]
+            each: dict[int, float] = {}  # per appearance, its value last estimated (a further change moves it)
+            for e in mine:
+                if e.action == "accommodated":
+                    each[e.appearance] = e.value
+            values = [each[k] for k in sorted(each)]
+            out[p] = {"spans": mine[-1].present, "values": values, "mean": sum(values) / len(values)}
+        return out
+
     def write(self, folder: str | Path) -> Path:
         """Write the report folder ``bgc diagnose -o`` writes into ``folder``
         (report.md, report.json, report.html, the plots, the run when it was

@@ -65,20 +65,6 @@ def refuse_input_in_output(data: str | None, out: Path | None) -> None:
         raise BgcError(f"--data {printable(data)} is in the output folder {printable(str(out))}, which this command "
                        "rewrites", None, "copy the run elsewhere first, or write the report to another folder (-o)")
 
-def open_stream(path: str):
-    """A run file or a named pipe, opened for reading (not a device that never ends)."""
-    import stat
-
-    try:
-        mode = os.stat(path).st_mode
-        if not (stat.S_ISREG(mode) or stat.S_ISFIFO(mode)):
-            raise BgcError(f"{printable(path)} is not a regular file or a pipe", None,
-                           "give a run file, a named pipe, or - for standard input")
-        return open(path, "rb")
-    except OSError as exc:
-        raise BgcError(f"{printable(path)}: {printable(exc.strerror or str(exc))}", None,
-                       "give a run file, or - for standard input") from None
-
 class Progress:
     """One line on stderr saying what ``bgc COMMAND`` is doing, rewritten in
     place, on a terminal (stderr then holds only errors when it is a file or

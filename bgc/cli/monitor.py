@@ -9,7 +9,8 @@ import sys
 from pathlib import Path
 
 from ..errors import BgcError
-from .common import (add_backend_option, add_data_options, add_prior_option, backend_note, check_times, open_stream,
+from ..data.runs import open_stream
+from .common import (add_backend_option, add_data_options, add_prior_option, backend_note, check_times,
     parse_noise, refuse_input_in_output, rows_of, seed, write_report)
 
 

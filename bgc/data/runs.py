@@ -41,6 +41,7 @@ import csv
 import glob
 import io
 import math
+import os
 import stat
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -172,6 +173,19 @@ def run_csv(run: Run) -> str:
     for prefix, group in (("u", run.inputs), ("y", run.measurements), ("x", run.states), ("theta", run.parameters)):
         columns += [(f"{prefix}:{name}", values) for name, values in group.items()]
     return to_csv(run.header, columns)
+
+
+def open_stream(path: str):
+    """A run file or a named pipe, opened for reading (not a device that never ends)."""
+    try:
+        mode = os.stat(path).st_mode
+        if not (stat.S_ISREG(mode) or stat.S_ISFIFO(mode)):
+            raise DataError(f"{printable(path)} is not a regular file or a pipe", None,
+                            "give a run file, a named pipe, or - for standard input")
+        return open(path, "rb")
+    except OSError as exc:
+        raise DataError(f"{printable(path)}: {printable(exc.strerror or str(exc))}", None,
+                        "give a run file, or - for standard input") from None
 
 
 def run_files(path: str | Path) -> list[Path] | None:
