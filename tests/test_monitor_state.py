@@ -213,3 +213,33 @@ def test_a_restart_after_a_sensor_was_taken_out_goes_on_without_it(tmp_path):
     said = again.stdout.splitlines()
     assert said[0].startswith("resumed from ") and said[1:-1] == \
         [x for x in whole.stdout.splitlines()[:-1] if x not in first.stdout.splitlines()[:-2]]
+
+
+@pytest.mark.slow
+def test_a_restart_from_the_state_saved_as_an_episode_closed_gives_the_uninterrupted_report(tmp_path):
+    """--episodes: the state saved as an episode closes holds no row (the
+    next diagnoser, on the model with the fault accommodated, took none yet):
+    what a kill right after the close leaves, and a stream that ends on the
+    close row (its end saves nothing more). Started again on it, the monitor
+    ends as the uninterrupted one (bench/restart_kills.py kills at 20 points
+    of a longer stream)."""
+    from test_episodes import OPTIONS as EPISODES, plant
+
+    lines = plant(180, [(6.0, {"R2": 1.6})]).splitlines(keepends=True)  # R2 up from t = 6, to t = 9
+    fast = ("--particles", "100", "--no-recheck")  # over EPISODES', the same in every run (a state is for them)
+
+    def run(out: str, rows: int, *more):
+        p = bgc_cli("monitor", CIRCUIT, "--data", "-", *EPISODES, *fast, "-o", tmp_path / out, *more,
+                    input="".join(lines[:rows + 1]))
+        assert p.returncode == 0, p.stderr
+        return p
+
+    run("whole", 180)
+    closed = report(tmp_path / "whole")["events"][0]
+    assert closed["event"] == "EpisodeClosed" and closed["action"] == "accommodated"
+    state = tmp_path / "state"
+    first = run("first", round(closed["time"] / DT), "--state", state)  # up to the row it closed on
+    assert "episode 1 closed" in first.stdout and (state / resume.NAME).is_file() and saved_rows(state) == 0
+    again = run("again", 180, "--state", state)
+    assert again.stdout.startswith(f"resumed from {state}: 0 rows, to t = {closed['time']:g};")
+    assert report(tmp_path / "again") == report(tmp_path / "whole")
