@@ -315,8 +315,8 @@ def restart_kills():
             equal += ok
             differed = "" if ok else f"{len(problems)}: " + "; ".join(problems[:3])
             fed = f"{k}-{k + window - 1}"
-            rows.append(f"  {k:>8} {k * DT:>6.2f}  {where:<30} {fed:>9} {1000 * delay:>5.0f} ms ({100 * fraction:>2.0f} %)"
-                        f"  {at:<30} {resumed:<22} {'yes' if ok else 'NO':<5} {'yes' if same_log else 'NO':<5} "
+            rows.append(f"  {k:>8} {k * DT:>6.2f}  {where:<30} {fed:>9} "
+                        f"{1000 * delay:>5.0f} ms ({100 * fraction:>2.0f} %)  {at:<30} {resumed:<22} {'yes' if ok else 'NO':<5} {'yes' if same_log else 'NO':<5} "
                         f"{differed}")
             print(rows[-1], flush=True)
     checks = [("fed one row at a time, the uninterrupted run gives the same report", paced_same),
