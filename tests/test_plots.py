@@ -194,6 +194,24 @@ def test_the_hypotheses_predictions_are_drawn_over_the_measured_points():
     assert all(ln.get_alpha() is not None and ln.get_alpha() < 1 and ln.get_markersize() <= 2 for ln in measured)
 
 
+@pytest.mark.parametrize("dropped", [3, 8, 25])
+def test_a_hypothesis_dropped_before_or_after_its_filters_ran_is_marked_where_it_was_dropped(dropped):
+    """The static test replays a fault model from an onset earlier than the
+    onsets its filters tracked: its drop may fall before their first step
+    (here they ran from step 10; step 3 and 8 are before it, 8 within the
+    length of the prediction counted back from its end)."""
+    r = _diagnosed(0.0)
+    h = r.diagnosis.hypotheses[0]
+    h.dropped_step = dropped
+    ax = plots.diagnosis_hypotheses(r).axes[0]
+    (cross,) = [ln for ln in ax.get_lines() if ln.get_marker() == "X"]
+    assert cross.get_xdata()[0] == r.diagnosis.time[dropped]
+    if dropped >= h.start_step:  # on its prediction
+        assert cross.get_ydata()[0] == h.y_mean[dropped - h.start_step, 0]
+    else:  # at the bottom of the axes: no prediction there
+        assert cross.get_ydata()[0] == 0.0 and cross.get_transform() is not ax.transData
+
+
 UNIX_START = 1764669600.0  # 2025-12-02 10:00:00 UTC
 
 

@@ -425,12 +425,18 @@ def diagnosis_hypotheses(r) -> Figure:
 
 def _hypothesis(ax, d, h, j: int, color: str, lw: float, clock: TimeAxis) -> None:
     """Hypothesis ``h``'s prediction of sensor ``j`` from its onset, dotted
-    when it was dropped, with an X where; over the measurements."""
+    when it was dropped, with an X where: on its prediction, or, dropped at a
+    step its filters did not run (the static test replays a fault model
+    from an onset earlier than those tracked), at the bottom of the axes."""
     ax.plot(clock(d.time[h.start_step:]), h.y_mean[:, j], "-" if h.dropped_step is None else ":", lw=lw, color=color,
             zorder=3)
     if h.dropped_step is not None:
-        ax.plot(clock(d.time[h.dropped_step]), h.y_mean[h.dropped_step - h.start_step, j], "X", color=color, ms=5,
-                zorder=3)
+        row = h.dropped_step - h.start_step
+        if 0 <= row < len(h.y_mean):
+            ax.plot(clock(d.time[h.dropped_step]), h.y_mean[row, j], "X", color=color, ms=5, zorder=3)
+        else:
+            ax.plot(clock(d.time[h.dropped_step]), 0.0, "X", color=color, ms=5, zorder=3,
+                    transform=ax.get_xaxis_transform(), clip_on=False)
 
 
 def diagnosis_estimate(r) -> Figure:
