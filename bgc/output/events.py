@@ -128,7 +128,7 @@ def sentence(e, time_of) -> str:
             return (f"sensor {y} taken out of the nominal observer from t = {time_text(when)} ({f}): monitoring "
                     f"goes on with the other sensors")
         case ev.EpisodeClosed(number=n, alarm=a, sensor=y, time=when, verdict=v, candidates=c, began=o, finding=f,
-                              action=act, parameter=p, value=x, appearance=k, present=spans):
+                              action=act, parameter=p, value=x, appearance=k, present=spans, reason=why):
             what = f"{v}: {', '.join(c)}" if c else v
             since = "" if o is None else f", onset t = {time_text(o)}"
             if act == "ended":
@@ -145,6 +145,9 @@ def sentence(e, time_of) -> str:
                 did = "closed by the repair"
             elif act == "not accommodated":
                 did = "not accommodated (no parameter of the model holds it): watching again on the model as it was"
+            elif why == "memory":
+                did = ("not decided before its record reached the most this diagnosis holds in memory: watching "
+                       "again on the model as it was")
             else:
                 did = "not decided: watching again on the model as it was"
             return (f"episode {n} closed at t = {time_text(when)} (alarm at t = {time_text(a)} on {y}{since}): "

@@ -86,10 +86,12 @@ class Episodes:
             return False
         return c.verdict == "isolated" or (self.rearm is not None and now - self.alarm[0] >= self.rearm)
 
-    def close(self, c, d, now: float, sensors: list[str]):
+    def close(self, c, d, now: float, sensors: list[str], full: bool = False):
         """Close the open episode on checkpoint diagnosis ``c`` of diagnoser
         ``d`` at time ``now``: (the next diagnoser, its sensors, the
-        :class:`~bgc.events.EpisodeClosed` event)."""
+        :class:`~bgc.events.EpisodeClosed` event). ``full``: its record
+        reached the most the diagnosis holds in memory; not isolated, it is
+        re-armed for that reason (``--rearm`` or not)."""
         from ..output.events import fault_sentence
 
         e = c.estimate if c.verdict == "isolated" else None
@@ -117,8 +119,9 @@ class Episodes:
             self.by[parameter] = number
         finding = "" if e is None else fault_sentence(e, c.onset, self.per_time)
         alarm, sensor = self.alarm
+        reason = "" if action != "re-armed" else "memory" if full else "rearm"
         closed = ev.EpisodeClosed(number, alarm, sensor, now, c.verdict, tuple(c.candidates), c.onset, finding,
-                                  action, parameter, value, None, appearance, self.present(parameter))
+                                  action, parameter, value, None, appearance, self.present(parameter), reason)
         self.log.append(closed)
         self.alarm = None
         return self._next(d, *_state_now(c, d), out), out, closed

@@ -302,16 +302,17 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
             tell(belief.events, time_of)
             if log is not None:
                 log.watch(belief, d)
-            if checkpoint is not None and belief.phase == "tracking":
-                if last_check is None:
+            full = log is not None and log.alarm is not None and _nearly_full(d)
+            if checkpoint is not None and (belief.phase == "tracking" or full):
+                if last_check is None and not full:
                     last_check = belief.time
-                elif belief.time - last_check >= checkpoint:
+                elif full or belief.time - last_check >= checkpoint:
                     last_check = belief.time
                     c = d.checkpoint()
                     tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)], time_of)
-                    if log is not None and log.due(c, belief.time):
+                    if log is not None and (full or log.due(c, belief.time)):
                         ended = (d, rows)  # its report, should the stream end before the next row
-                        d, sensors, closed = log.close(c, d, belief.time, sensors)
+                        d, sensors, closed = log.close(c, d, belief.time, sensors, full=full)
                         if closed.action == "sensor out":
                             taken_out.add(closed.parameter)
                         tell([closed], time_of)
@@ -364,6 +365,20 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
           and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
          diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
     return session.report(run, diagnosis), failure
+
+
+#: An episode's record within this many steps of the most the diagnosis holds in memory
+#: (:attr:`~bgc.diagnosis.diagnoser.DiagnoserConfig.most`) is closed, not decided: the next rows could
+#: not be taken (a row after a gap brings several steps; a longer gap is the memory rule's error).
+FULL_ROOM = 64
+
+
+def _nearly_full(d) -> bool:
+    """Whether diagnoser ``d``'s record is within :data:`FULL_ROOM` steps
+    of the most it may hold (an episode never decided would otherwise stop the
+    monitor with the memory rule's error)."""
+    most = d.config.most
+    return most is not None and len(d.loop.samples) >= max(most - FULL_ROOM, most // 2)
 
 
 def _kept(rows: list, told: set, d, cut: int) -> tuple[list, set]:
