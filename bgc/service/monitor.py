@@ -205,166 +205,245 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     and keeps a fault log (:mod:`bgc.service.episodes`): an episode closes at
     a checkpoint that isolates a fault (accommodated in the model watched
     from then on, or its sensor taken out) or ``rearm`` after its alarm
-    (re-armed); a ``# repaired`` line of the stream takes the accommodated
-    faults out again. The report is the last diagnoser's, its events led by
-    the fault log."""
-    from ..output.events import fault_sentence, sentence, time_text
-
-    reader = runs.RowReader(stream, name, reading or session.reading())
-    track.check_run_of(runs.Run(np.zeros(0), {}, {}, {}, {}, reader.header), session.name, name)
-    columns = reader.columns
-    groups: dict[str, list[tuple[int, str]]] = {p: [] for p in runs.PREFIXES}
-    for j, c in enumerate(columns[1:], start=1):
-        prefix, _, rest = c.partition(":")
-        if c == MODE:  # a model with modes reads the mode column as its last input, mode
-            prefix, rest = "u", MODE
-        groups[prefix].append((j, rest))
-    sensors = [y for _, y in groups["y"]]
-    timing = runs.resolve_timing(reader.header, options.input_timing, name, "--input-timing")
-    if timing != (options.input_timing or "end"):  # the header's word (None stays None: the default)
-        options = dataclasses.replace(options, input_timing=timing)
-    if options.keep is None:  # a stream may not end: the record kept while watching is bounded
-        options = dataclasses.replace(options, keep=KEEP_STEPS * session.package.MODELS["nominal"].DT)
-    d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors, source=name,
-                          progress=progress)
-    rows: list[list[float]] = []
-    forgot = 0  # the steps the diagnoser forgot when the rows and what was told were last cut to its record
-    last_check = None
-    told: set = set()
-    excluded: list[ev.SensorExcluded] = []
-    taken_out: set[str] = set()
+    (re-armed; also, whatever ``rearm``, when its record nears the most the
+    diagnosis holds in memory, :data:`FULL_ROOM`); a ``# repaired`` line of
+    the stream takes the accommodated faults out again. The report is the
+    last diagnoser's, its events led by the fault log."""
     if episodes and checkpoint is None:
         raise BgcError("--episodes are closed at checkpoints: a fault is isolated there", None,
                        "add --checkpoint TIME, e.g. --checkpoint 10")
-    log = Episodes(session.package, rearm, exclude_faulty, session.view.labels.per_time) if episodes else None
-    keep = _Keeper(session, options, checkpoint, columns, state, state_every, exclude_faulty, reading, log)
-    saved = keep.load()
-    if saved is not None:
-        excluded = [ev.SensorExcluded(*e) for e in saved.excluded]
-        if log is not None and saved.episodes is not None:
-            log.restore(saved.episodes)
-        taken_out = {e.sensor for e in excluded} | (set() if log is None else log.sensors_out())
-        if taken_out:  # the diagnoser the state is of watches the other sensors
-            sensors = [y for y in sensors if y not in taken_out]
-            d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors, source=name,
-                                  progress=progress)
-        d = type(d).from_state(d.config, saved.diagnoser)
-        rows, last_check = [list(r) for r in saved.rows], saved.last_check
-        told.update(d.loop.events, d.switched, [] if log is None else log.log)  # said before the restart
-        forgot = d.offset
-        say(f"resumed from {printable(str(keep.where))}: {len(rows)} rows, to t = {time_text(saved.last_time)}; "
-            "the input's rows after it are read on")
-
-    def tell(belief_events, time_of) -> None:
-        for e in belief_events:
-            told.add(e)
-            if isinstance(e, ev.SensorMissing) and e.sensor in taken_out:
-                continue  # taken out by the monitor, not missing from the data: said by its SensorExcluded
-            step = getattr(e, "step", None)
-            when = "" if step is None else f"t = {time_text(time_of(step))}: "
-            say(f"{when}{printable(sentence(e, time_of))}")
-
-    def time_of(step):
-        return d.time_of(step)
-
+    run = _Monitor(session, stream, name, options, say, checkpoint, progress, exclude_faulty, reading,
+                   state, state_every, rearm if episodes else None, episodes)
     guard = _Guard()
     failure = None
-    ended = None  # (diagnoser, rows) of the episode closed or repaired last, until the next row
-    rows_time = None if saved is None else saved.last_time  # the last row's time
     try:
-        for values, line in reader:
-            t = values[0]
-            if saved is not None and t <= saved.last_time:
-                keep.same(values, line, name)  # diagnosed before the restart: the same row as then
-                if log is not None:  # and the repairs before it taken then
-                    log.remarks = max(log.remarks, len(reader.lines.header))
-                continue
-            u = {name_: values[j] for j, name_ in groups["u"]}
-            y = {name_: values[j] for j, name_ in groups["y"]}
-            if log is not None and len(reader.lines.header) > log.remarks:  # the stream's word: a repair
-                for text in reader.lines.header[log.remarks:]:
-                    log.remarks += 1
-                    which = repair_of(text)
-                    if which is not None:  # before this row: the row is the repaired plant's
-                        ended = (d, rows) if rows else ended
-                        d, done = log.repaired(d, t, which)
-                        tell([done], time_of)
-                        rows, last_check, forgot, told = [], None, 0, set()
-                        if rows_time is not None:  # decided: kept across a kill
-                            keep.save(rows, last_check, d, excluded, rows_time)
-            with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
-                belief = d.step(t, u, y, line)
-                rows.append(values)
-                rows_time, ended = t, None
-                if d.offset != forgot:  # the diagnoser forgot its record's first steps: the rows before go too
-                    rows, told = _kept(rows, told, d, d.offset - forgot)
-                    forgot = d.offset
-            tell(belief.events, time_of)
-            if log is not None:
-                log.watch(belief, d)
-            full = log is not None and log.alarm is not None and _nearly_full(d)
-            if checkpoint is not None and (belief.phase == "tracking" or full):
-                if last_check is None and not full:
-                    last_check = belief.time
-                elif full or belief.time - last_check >= checkpoint:
-                    last_check = belief.time
-                    c = d.checkpoint()
-                    tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)], time_of)
-                    if log is not None and (full or log.due(c, belief.time)):
-                        ended = (d, rows)  # its report, should the stream end before the next row
-                        d, sensors, closed = log.close(c, d, belief.time, sensors, full=full)
-                        if closed.action == "sensor out":
-                            taken_out.add(closed.parameter)
-                        tell([closed], time_of)
-                        rows, last_check, forgot, told = [], None, 0, set()
-                        keep.save(rows, last_check, d, excluded, t)  # decided: kept across a kill
-                    faulty = _faulty_sensor(c, sensors) if exclude_faulty and log is None else None
-                    if faulty is not None:
-                        out = ev.SensorExcluded(faulty, fault_sentence(c.estimate, c.onset,
-                                                                     session.view.labels.per_time), belief.time)
-                        excluded.append(out)
-                        taken_out.add(faulty)
-                        tell([out], time_of)
-                        sensors = [y for y in sensors if y != faulty]
-                        forget_started(d.config.package)  # a record that forgot its start: its package goes
-                        d = session.diagnoser(options, inputs=[u for _, u in groups["u"]], sensors=sensors,
-                                              source=name, progress=progress)
-                        rows, last_check, forgot = [], None, 0
-            keep.every(rows, last_check, d, excluded)  # after the checkpoint: its time is in the state
+        for values, line in run.reader:
+            run.row(values, line, guard)
     except KeyboardInterrupt:
         say("interrupted: finishing the diagnosis of the data so far")
     except BgcError as exc:  # a bad row, a followed file replaced by no regular file, the memory rule: the rows so far are diagnosed
-        if not rows:
+        if not run.rows:
             raise
         failure = exc
         say(f"stopped: {printable(str(exc))}")
     finally:
         guard.close()
-        if rows:
-            keep.save(rows, last_check, d, excluded)  # where the input ended: a restart goes on from there
-    if not rows and ended is not None:  # the stream ended as an episode closed: the report is the closed one's
-        d, rows = ended
-    if getattr(stream, "unfinished", b""):
-        say(f"the input ended in the middle of a line ({len(stream.unfinished)} bytes without an end of line): "
-            "that line is not read")
-    if not rows:
-        if excluded:
-            raise DataError(f"{printable(name)}: no data row arrived after sensor {excluded[-1].sensor} was taken "
-                            "out of the nominal observer", None, "let more rows arrive, or drop --exclude-faulty-sensor")
-        raise DataError(f"{printable(name)}: no data row arrived", None, "give at least one row after the column names")
-    run = runs.run_of(columns, np.array(rows, dtype=float).reshape(len(rows), len(columns)), reader.header, name)
-    diagnosis = d.finish(run)
-    if excluded or taken_out:
-        diagnosis = _with_exclusions(diagnosis, excluded, taken_out)
-        told.update(excluded)
-    if log is not None and log.log:  # the fault log leads the events
-        diagnosis = dataclasses.replace(diagnosis, events=tuple(log.log) + tuple(diagnosis.events))
-        told.update(log.log)
-    gone = {e.hypothesis for e in told if isinstance(e, (ev.Dropped, ev.Stopped))}  # dropped online: said
-    tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))
-          and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
-         diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
-    return session.report(run, diagnosis), failure
+        if run.rows:
+            run.keep.save(run.rows, run.last_check, run.d, run.excluded)  # where the input ended: a restart goes on from there
+    return run.finish(stream), failure
+
+
+class _Monitor:
+    """One run of :func:`monitor` (its arguments): the diagnoser watching
+    now, the rows of its record, what was told, the sensors taken out, the
+    fault log (with ``episodes``) and the state on disk; :meth:`row` takes
+    each row of the input, :meth:`finish` makes the report."""
+
+    def __init__(self, session, stream, name, options, say, checkpoint, progress, exclude_faulty, reading,
+                 state, state_every, rearm, episodes: bool):
+        self.session, self.name, self.say, self.checkpoint = session, name, say, checkpoint
+        self.progress, self.exclude_faulty = progress, exclude_faulty
+        self.reader = runs.RowReader(stream, name, reading or session.reading())
+        track.check_run_of(runs.Run(np.zeros(0), {}, {}, {}, {}, self.reader.header), session.name, name)
+        self.columns = self.reader.columns
+        self.groups: dict[str, list[tuple[int, str]]] = {p: [] for p in runs.PREFIXES}
+        for j, c in enumerate(self.columns[1:], start=1):
+            prefix, _, rest = c.partition(":")
+            if c == MODE:  # a model with modes reads the mode column as its last input, mode
+                prefix, rest = "u", MODE
+            self.groups[prefix].append((j, rest))
+        self.sensors = [y for _, y in self.groups["y"]]
+        timing = runs.resolve_timing(self.reader.header, options.input_timing, name, "--input-timing")
+        if timing != (options.input_timing or "end"):  # the header's word (None stays None: the default)
+            options = dataclasses.replace(options, input_timing=timing)
+        if options.keep is None:  # a stream may not end: the record kept while watching is bounded
+            options = dataclasses.replace(options, keep=KEEP_STEPS * session.package.MODELS["nominal"].DT)
+        self.options = options
+        self.d = self._diagnoser()
+        self.rows: list[list[float]] = []
+        self.forgot = 0  # the steps the diagnoser forgot when the rows and what was told were last cut to its record
+        self.last_check = None
+        self.told: set = set()
+        self.excluded: list[ev.SensorExcluded] = []
+        self.taken_out: set[str] = set()
+        self.log = Episodes(session.package, rearm, exclude_faulty, session.view.labels.per_time) if episodes else None
+        self.keep = _Keeper(session, options, checkpoint, self.columns, state, state_every, exclude_faulty, reading,
+                            self.log)
+        self.saved = self.keep.load()
+        self.ended = None  # (diagnoser, rows) of the episode closed or repaired last, until the next row
+        self.rows_time = None  # the last row's time
+        if self.saved is not None:
+            self._resume(self.saved)
+
+    def _diagnoser(self):
+        """A new diagnoser of the model as the file has it, watching :attr:`sensors`."""
+        return self.session.diagnoser(self.options, inputs=[u for _, u in self.groups["u"]], sensors=self.sensors,
+                                      source=self.name, progress=self.progress)
+
+    def _resume(self, saved) -> None:
+        """Take up a state saved before a restart."""
+        from ..output.events import time_text
+
+        self.excluded = [ev.SensorExcluded(*e) for e in saved.excluded]
+        if self.log is not None and saved.episodes is not None:
+            self.log.restore(saved.episodes)
+        self.taken_out = {e.sensor for e in self.excluded} | (set() if self.log is None else self.log.sensors_out())
+        if self.taken_out:  # the diagnoser the state is of watches the other sensors
+            self.sensors = [y for y in self.sensors if y not in self.taken_out]
+            self.d = self._diagnoser()
+        self.d = type(self.d).from_state(self.d.config, saved.diagnoser)
+        self.rows, self.last_check = [list(r) for r in saved.rows], saved.last_check
+        self.told.update(self.d.loop.events, self.d.switched, [] if self.log is None else self.log.log)  # said before
+        self.forgot = self.d.offset
+        self.rows_time = saved.last_time
+        self.say(f"resumed from {printable(str(self.keep.where))}: {len(self.rows)} rows, to t = "
+                 f"{time_text(saved.last_time)}; the input's rows after it are read on")
+
+    def time_of(self, step):
+        return self.d.time_of(step)
+
+    def tell(self, events, time_of=None) -> None:
+        """Say ``events`` as lines, each with its time (``time_of``: of a step; default the diagnoser's)."""
+        from ..output.events import sentence, time_text
+
+        time_of = time_of or self.time_of
+        for e in events:
+            self.told.add(e)
+            if isinstance(e, ev.SensorMissing) and e.sensor in self.taken_out:
+                continue  # taken out by the monitor, not missing from the data: said by its SensorExcluded
+            step = getattr(e, "step", None)
+            when = "" if step is None else f"t = {time_text(time_of(step))}: "
+            self.say(f"{when}{printable(sentence(e, time_of))}")
+
+    def _afresh(self) -> None:
+        """A new diagnoser took over (an episode closed, a repair): its record starts empty."""
+        self.rows, self.last_check, self.forgot, self.told = [], None, 0, set()
+
+    # -- a row -------------------------------------------------------------------------------------------------
+
+    def row(self, values, line, guard) -> None:
+        """Take one row of the input (``guard``: Ctrl-C waits for the end of its step)."""
+        t = values[0]
+        if self.saved is not None and t <= self.saved.last_time:
+            self.keep.same(values, line, self.name)  # diagnosed before the restart: the same row as then
+            if self.log is not None:  # and the repairs before it taken then
+                self.log.remarks = max(self.log.remarks, len(self.reader.lines.header))
+            return
+        u = {name_: values[j] for j, name_ in self.groups["u"]}
+        y = {name_: values[j] for j, name_ in self.groups["y"]}
+        if self.log is not None:
+            self._repairs(t)
+        with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
+            belief = self.d.step(t, u, y, line)
+            self.rows.append(values)
+            self.rows_time, self.ended = t, None
+            if self.d.offset != self.forgot:  # the diagnoser forgot its record's first steps: the rows before go too
+                self.rows, self.told = _kept(self.rows, self.told, self.d, self.d.offset - self.forgot)
+                self.forgot = self.d.offset
+        self.tell(belief.events)
+        if self.log is not None:
+            self.log.watch(belief, self.d)
+        self._checkpoint(belief, t)
+        self.keep.every(self.rows, self.last_check, self.d, self.excluded)  # after the checkpoint: its time is saved
+
+    def _repairs(self, t: float) -> None:
+        """The stream's comment lines read since the last row: a repair takes
+        effect before the row of time ``t`` (the row is the repaired plant's)."""
+        for text in self.reader.lines.header[self.log.remarks:]:
+            self.log.remarks += 1
+            which = repair_of(text)
+            if which is None:
+                continue
+            self.ended = (self.d, self.rows) if self.rows else self.ended
+            self.d, done = self.log.repaired(self.d, t, which)
+            self.tell([done])
+            self._afresh()
+            if self.rows_time is not None:  # decided: kept across a kill
+                self.keep.save(self.rows, self.last_check, self.d, self.excluded, self.rows_time)
+
+    def _checkpoint(self, belief, t: float) -> None:
+        """While hypotheses are tracked, every ``checkpoint``: the diagnosis of
+        the data so far; an episode it decides is closed (or one whose record
+        is nearly full), a faulty sensor taken out."""
+        if self.checkpoint is None:
+            return
+        full = self.log is not None and self.log.alarm is not None and _nearly_full(self.d)
+        if belief.phase != "tracking" and not full:
+            return
+        if self.last_check is None and not full:
+            self.last_check = belief.time
+            return
+        if not full and belief.time - self.last_check < self.checkpoint:
+            return
+        self.last_check = belief.time
+        c = self.d.checkpoint()
+        self.tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)])
+        if self.log is not None and (full or self.log.due(c, belief.time)):
+            self._close(c, belief.time, t, full)
+        elif self.exclude_faulty and self.log is None:
+            faulty = _faulty_sensor(c, self.sensors)
+            if faulty is not None:
+                self._exclude(c, faulty, belief.time)
+
+    def _close(self, c, now: float, t: float, full: bool) -> None:
+        """Close the open episode on checkpoint diagnosis ``c`` at time ``now``
+        (the row of time ``t``): a new diagnoser watches from the next row."""
+        self.ended = (self.d, self.rows)  # its report, should the stream end before the next row
+        self.d, self.sensors, closed = self.log.close(c, self.d, now, self.sensors, full=full)
+        if closed.action == "sensor out":
+            self.taken_out.add(closed.parameter)
+        self.tell([closed])
+        self._afresh()
+        self.keep.save(self.rows, self.last_check, self.d, self.excluded, t)  # decided: kept across a kill
+
+    def _exclude(self, c, faulty: str, now: float) -> None:
+        """Take sensor ``faulty``, isolated as faulty by checkpoint diagnosis
+        ``c`` at time ``now``, out of the nominal observer: a new diagnoser
+        watches the other sensors from the next row."""
+        from ..output.events import fault_sentence
+
+        out = ev.SensorExcluded(faulty, fault_sentence(c.estimate, c.onset, self.session.view.labels.per_time), now)
+        self.excluded.append(out)
+        self.taken_out.add(faulty)
+        self.tell([out])
+        self.sensors = [y for y in self.sensors if y != faulty]
+        forget_started(self.d.config.package)  # a record that forgot its start: its package goes
+        self.d = self._diagnoser()
+        self.rows, self.last_check, self.forgot = [], None, 0
+
+    # -- the end -----------------------------------------------------------------------------------------------
+
+    def finish(self, stream) -> api.DiagnosisReport:
+        """The report of the rows the last diagnoser took (the closed episode's when the input ended on it)."""
+        d, rows = self.d, self.rows
+        if not rows and self.ended is not None:  # the stream ended as an episode closed: the report is the closed one's
+            d, rows = self.ended
+        if getattr(stream, "unfinished", b""):
+            self.say(f"the input ended in the middle of a line ({len(stream.unfinished)} bytes without an end of "
+                     "line): that line is not read")
+        if not rows:
+            if self.excluded:
+                raise DataError(f"{printable(self.name)}: no data row arrived after sensor {self.excluded[-1].sensor} "
+                                "was taken out of the nominal observer", None,
+                                "let more rows arrive, or drop --exclude-faulty-sensor")
+            raise DataError(f"{printable(self.name)}: no data row arrived", None,
+                            "give at least one row after the column names")
+        cols = self.columns
+        run = runs.run_of(cols, np.array(rows, dtype=float).reshape(len(rows), len(cols)), self.reader.header,
+                          self.name)
+        diagnosis = d.finish(run)
+        told = self.told
+        if self.excluded or self.taken_out:
+            diagnosis = _with_exclusions(diagnosis, self.excluded, self.taken_out)
+            told.update(self.excluded)
+        if self.log is not None and self.log.log:  # the fault log leads the events
+            diagnosis = dataclasses.replace(diagnosis, events=tuple(self.log.log) + tuple(diagnosis.events))
+            told.update(self.log.log)
+        gone = {e.hypothesis for e in told if isinstance(e, (ev.Dropped, ev.Stopped))}  # dropped online: said
+        self.tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))
+                   and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
+                  diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
+        return self.session.report(run, diagnosis)
 
 
 #: An episode's record within this many steps of the most the diagnosis holds in memory
