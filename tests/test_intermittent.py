@@ -151,6 +151,41 @@ def test_a_fault_that_stays_is_never_said_gone(tmp_path):
     assert "went away" not in p.stdout
 
 
+def actuator_plant(steps: int, spans, offset: float, seed: int = 2) -> str:
+    """The circuit's run (the exact solution of its equations) with its source
+    driving ``offset`` volts above the 10 V the logger records over ``spans``
+    ((on, off), ...): an actuator's intermittent fault."""
+    from test_mismatch import START, V, circuit, readings
+
+    rng = np.random.default_rng(seed)
+    e, process, sensor = circuit(dict(NOMINAL), 1.0)
+    x, lines = np.array(START), ["time,u:V,y:f2,y:f6,y:e11"]
+    for k in range(1, steps + 1):
+        t = k * DT
+        v = V + (offset if any(a - 1e-9 <= t < b - 1e-9 for a, b in spans) else 0.0)
+        x = e[:3, :3] @ x + e[:3, 3] * v + process * rng.standard_normal(3)
+        y = readings(NOMINAL, x, v) + sensor * rng.standard_normal(3)
+        lines.append(",".join(f"{w:.6g}" for w in (t, V, *y)))
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.slow
+def test_an_actuators_fault_that_comes_and_goes_is_named_each_time(tmp_path):
+    """The source drives 1.5 V high over t = 6 to 14 and from t = 22 (the
+    logged input stays 10 V): its offset is accommodated, named gone, and
+    back, each change dated as a permanent one's, sized 1.5 V while on."""
+    _, report, log = run(tmp_path, actuator_plant(600, [(6.0, 14.0), (22.0, np.inf)], 1.5))
+    assert [(e["candidates"], e["action"], e["parameter"], e["appearance"]) for e in log] == [
+        (["V_offset_bias"], "accommodated", "V_offset", 1), (["V_offset_bias"], "ended", "V_offset", 1),
+        (["V_offset_bias"], "accommodated", "V_offset", 2)]
+    delay = log[0]["alarm"] - 6.0
+    for e, truth in zip(log, (6.0, 14.0, 22.0)):
+        assert abs(e["began"] - truth) <= delay + DT + 1e-9, (e["began"], truth, delay)
+    assert log[0]["value"] == pytest.approx(1.5, rel=0.1) and log[2]["value"] == pytest.approx(1.5, rel=0.1)
+    assert log[1]["value"] == 0.0  # the model file's offset
+    assert report["verdict"] == "no fault"
+
+
 def test_distinguish_tells_apart_an_intermittent_faults_first_appearance_as_the_step_it_is():
     """Until it first goes away an intermittent fault is the permanent one:
     the prediction over the samples before t = 14 (279 of 0.05 s) is that
