@@ -38,6 +38,9 @@ class DiagnosisReport:
     diagnosis: Diagnosis
     #: What each variable is and its unit, from the model (:mod:`bgc.output.labels`).
     labels: Labels = Labels()
+    #: A monitor's stream (:func:`bgc.monitor`, ``bgc monitor``): the rows read in all and the first
+    #: one's time; the run is the record the last diagnoser kept of them. None: the run is all the data.
+    stream: tuple | None = None
 
     def __repr__(self) -> str:  # the run and the diagnosis hold arrays: the verdict is what a reader wants
         d = self.diagnosis

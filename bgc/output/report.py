@@ -118,6 +118,8 @@ def report_data(r) -> dict[str, Any]:
         "source": r.source,
         "data": {"scenario": r.scenario, "steps": int(len(d.time)), "t_first": _time(float(d.time[0])),
                  "t_last": _time(float(d.time[-1])),
+                 "stream": None if r.stream is None else {"rows_read": int(r.stream[0]),
+                                                          "t_first_read": _num(r.stream[1])},
                  "injected": None if r.injected is None else {
                      "parameter": r.injected.parameter, "kind": r.injected.kind,
                      "magnitude": _num(r.injected.magnitude), "time": _num(r.injected.time)}},
@@ -240,6 +242,9 @@ def heading(r, quote: Callable[[Any], str] = _same) -> tuple[str, str, str]:
         data = f"Data: simulated scenario {quote(r.scenario)}, {count} ({span})."
     else:
         data = f"Data: {count} ({span})."
+    if r.stream is not None and r.stream[0] > rows:  # a monitor's report: the record kept, not the stream
+        data = (f"{data[:-1]}: the record the monitor kept of the {r.stream[0]} rows it read from "
+                f"t = {events.time_text(r.stream[1])} on.")
     noise = ("the model's noise levels" if r.noise == (None, None) else
              f"relative noise levels process {r.noise[0] if r.noise[0] is not None else 'per model'}, "
              f"measurement {r.noise[1] if r.noise[1] is not None else 'per model'}")

@@ -296,6 +296,7 @@ class _Monitor:
         self.told.update(self.d.loop.events, self.d.switched, [] if self.log is None else self.log.log)  # said before
         self.forgot = self.d.offset
         self.rows_time = saved.last_time
+        self.keep.stream = saved.stream
         self.say(f"resumed from {printable(str(self.keep.where))}: {len(self.rows)} rows, to t = "
                  f"{time_text(saved.last_time)}; the input's rows after it are read on")
 
@@ -329,6 +330,8 @@ class _Monitor:
             if self.log is not None:  # and the repairs before it taken then
                 self.log.remarks = max(self.log.remarks, len(self.reader.lines.header))
             return
+        read, first = self.keep.stream
+        self.keep.stream = (read + 1, t if first is None else first)
         u = {name_: values[j] for j, name_ in self.groups["u"]}
         y = {name_: values[j] for j, name_ in self.groups["y"]}
         if self.log is not None:
@@ -443,7 +446,7 @@ class _Monitor:
         self.tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))
                    and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
                   diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
-        return self.session.report(run, diagnosis)
+        return dataclasses.replace(self.session.report(run, diagnosis), stream=self.keep.stream)
 
 
 #: An episode's record within this many steps of the most the diagnosis holds in memory
@@ -484,6 +487,7 @@ class _Keeper:
         self.log = log
         self.period, self.count = every, 0
         self.before: dict = {}
+        self.stream: tuple = (0, None)  # the rows read in all and the first one's time, saved with the state
 
     def load(self):
         saved = None if self.where is None else resume.load(self.where, self.ident)
@@ -512,7 +516,7 @@ class _Keeper:
         if self.where is not None:
             resume.save(self.where, self.ident, rows, rows[-1][0] if rows else last_time, last_check, d,
                         tuple((e.sensor, e.finding, e.time, e.step) for e in excluded),
-                        None if self.log is None else self.log.plain())
+                        None if self.log is None else self.log.plain(), self.stream)
 
 
 def _with_exclusions(diagnosis, excluded: list, taken_out: set[str]):

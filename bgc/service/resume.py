@@ -61,6 +61,8 @@ class Saved:
     excluded: tuple = ()
     #: the fault log and the faults accommodated (``--episodes``: :meth:`bgc.service.episodes.Episodes.plain`)
     episodes: dict | None = None
+    #: the stream's rows read to here, in all, and the first one's time (the report says them)
+    stream: tuple = (0, None)
 
 
 def identity(session, options, checkpoint: float | None, columns: list[str], exclude_faulty: bool = False,
@@ -114,10 +116,11 @@ def _head(path: Path) -> bytes:
 
 
 def save(where: Path, ident: dict, rows: list, last_time: float, last_check: float | None, d,
-         excluded: tuple = (), episodes: dict | None = None) -> None:
+         excluded: tuple = (), episodes: dict | None = None, stream: tuple = (0, None)) -> None:
     """Write the state of diagnoser ``d`` after ``rows``, atomically
     (``excluded``: the sensors taken out before; ``episodes``: the fault
-    log, :class:`Saved`): a new
+    log; ``stream``: the rows read in all and the first one's time;
+    :class:`Saved`): a new
     file, made afresh (never through a link), flushed to the disk, renamed
     over the last state."""
     table = io.BytesIO()
@@ -125,7 +128,8 @@ def save(where: Path, ident: dict, rows: list, last_time: float, last_check: flo
     np.save(table, np.asarray(rows, dtype=float).reshape(len(rows), width), allow_pickle=False)
     payload = table.getvalue() + d.to_state().to_bytes()
     header = {"format": FORMAT, "identity": ident, "rows": len(rows), "last_time": last_time,
-              "last_check": last_check, "excluded": [list(e) for e in excluded], "episodes": episodes}
+              "last_check": last_check, "excluded": [list(e) for e in excluded], "episodes": episodes,
+              "stream": list(stream)}
     header["sha256"] = _digest(header, payload)
     data = b"".join([MAGIC, json.dumps(header).encode("utf-8"), b"\n", payload])
     tmp = where / PARTIAL
@@ -189,6 +193,8 @@ def load(where: Path, ident: dict) -> Saved | None:
         excluded = tuple((str(a), str(b), float(c), None if k is None else int(k))
                          for a, b, c, k in header.get("excluded", ()))
         last_time, last_check = float(header["last_time"]), header.get("last_check")
+        read, first = header.get("stream", (0, None))
+        stream = (int(read), None if first is None else float(first))
     except (ValueError, TypeError, EOFError, OSError, BgcError) as exc:
         raise BgcError(f"{where_}: the state cannot be read ({printable(str(exc).splitlines()[0])})", None,
                        fix) from None
@@ -198,7 +204,7 @@ def load(where: Path, ident: dict) -> Saved | None:
     if episodes is not None and not isinstance(episodes, dict):
         raise BgcError(f"{where_}: the state's fault log cannot be read", None, fix)
     return Saved(rows, last_time, last_check if last_check is None else float(last_check), state, excluded,
-                 episodes)
+                 episodes, stream)
 
 
 def _digest(header: dict, payload: bytes) -> str:
