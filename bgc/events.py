@@ -370,8 +370,9 @@ class EpisodeClosed:
     #: came back), and the spans it was present over, as the episodes tell ((onset, end or None), ...).
     appearance: int = 0
     present: tuple = ()
-    #: An episode ``re-armed``: why (``rearm``: ``--rearm`` passed since its alarm; ``memory``: its
-    #: record reached the most the diagnosis holds in memory, a fault never decided; empty: other actions).
+    #: An episode ``re-armed``: why (``rearm``: not isolated when ``--rearm`` had passed since its alarm;
+    #: ``memory``: its record neared the most the diagnosis holds in memory, a fault never decided; ``no
+    #: estimate``: isolated without an estimate to accommodate; empty: the other actions).
     reason: str = ""
 
 

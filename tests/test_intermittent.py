@@ -195,3 +195,58 @@ def test_distinguish_tells_apart_an_intermittent_faults_first_appearance_as_the_
     assert intermittent.steps == 279
     assert intermittent.distinctions == permanent.distinctions
     assert "its first appearance is told apart, over the 279 samples" in distinguishability_text(intermittent)
+
+
+# ------------------------------------------------------------- found in review
+def test_the_spans_in_words_take_an_onset_not_known():
+    from bgc.output.events import spans_text
+
+    assert spans_text(((6.0, 14.0), (22.0, None))) == "t = 6 to 14 and from t = 22"
+    assert spans_text(((None, 14.0),)) == "at an onset not known"
+
+
+def test_a_repair_starts_an_intermittent_faults_story_again():
+    """The report's ``intermittent``, as the monitor's episodes keep it: a
+    fault of R2 after R2's repair is a new one (a permanent fault then is
+    not intermittent); one that went away after the repair is."""
+    from bgc.api.reports import DiagnosisReport
+
+    def closed(action, began, value, appearance, present):
+        return ev.EpisodeClosed(0, began, "f6", began + 1, "isolated", ("R2_abrupt",), began, "", action, "R2",
+                                value, None, appearance, present)
+
+    before = [closed("accommodated", 6.0, 3.2, 1, ((6.0, None),)), closed("ended", 14.0, 2.0, 1, ((6.0, 14.0),)),
+              closed("accommodated", 22.0, 3.2, 2, ((6.0, 14.0), (22.0, None))),
+              ev.Repaired(30.0, (3,), ("R2",))]
+
+    class Log:
+        def __init__(self, log):
+            self.fault_log = tuple(log)
+
+    after = [closed("accommodated", 40.0, 3.5, 1, ((40.0, None),))]
+    assert DiagnosisReport.intermittent.fget(Log(before + after)) == {}
+    again = after + [closed("ended", 50.0, 2.0, 1, ((40.0, 50.0),))]
+    assert DiagnosisReport.intermittent.fget(Log(before + again)) == {
+        "R2": {"spans": ((40.0, 50.0),), "values": [3.5], "mean": 3.5}}
+
+
+def test_an_injection_made_in_python_keeps_its_spans_in_its_text():
+    import math
+
+    from bgc.analysis.simulate import FaultInjection
+
+    f = FaultInjection("R2", "abrupt", 1.2, 6.0, "parameter", "R2", None, ((6.0, 14.0), (22.0, math.inf)))
+    assert f.text == "R2:abrupt:1.2@6.0-14.0,22.0"
+
+
+def test_distinguish_cuts_to_the_first_appearance_only_when_it_ends_inside_the_run():
+    assert not bgc.distinguishability(CIRCUIT, "R2:abrupt:1.2@6-100", steps=300).first_appearance
+    cut = bgc.distinguishability(CIRCUIT, "R2:abrupt:1.2@6-10,12", steps=300)
+    assert cut.first_appearance and cut.steps < 300
+
+
+def test_the_csv_text_given_as_a_path_is_refused_in_one_line():
+    from bgc.errors import ArgumentTypeError
+
+    with pytest.raises(ArgumentTypeError, match="splitlines"):
+        bgc.monitor(CIRCUIT, "time,u:V,y:f2,y:f6,y:e11\n0.05,10,1,2,3\n")

@@ -88,7 +88,9 @@ class FaultInjection:
         from, else made (NAME as the model names what it strikes)."""
         if self.stuck:
             return self.source or f"{self.subject}:{self.kind}@{self.time!r}"
-        return self.source or f"{self.subject or self.parameter}:{self.kind}:{self.magnitude!r}@{self.time!r}"
+        when = repr(self.time) if not self.spans else ",".join(
+            repr(on) if math.isinf(off) else f"{on!r}-{off!r}" for on, off in self.spans)
+        return self.source or f"{self.subject or self.parameter}:{self.kind}:{self.magnitude!r}@{when}"
 
     def describe(self) -> str:
         if self.stuck:

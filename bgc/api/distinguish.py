@@ -153,6 +153,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         raise SimulationError(f"{c.model.name} declares no fault candidates", None,
                               "list the faults to tell apart under 'faults' in the model file")
     times = dt * np.arange(1, T + 1)
+    first = False  # an intermittent fault cut to its first appearance
     if scenario is not None:
         inj = scenario_of(func, scenario, num)
         if inj is None:
@@ -171,7 +172,8 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
             raise SimulationError(f"onset {inj.time:g} is outside the run (0 to {times[-1]:g})", None,
                                   f"choose an onset inside the run, or more {arguments.spelled('steps', '--steps')}")
         injected = [inj]
-        if inj.spans and inj.spans[0][1] < times[-1]:  # intermittent: its first appearance, as the monitor meets it
+        first = bool(inj.spans and inj.spans[0][1] < times[-1])
+        if first:  # intermittent: its first appearance, as the monitor meets it
             T = max(int(np.sum(times < inj.spans[0][1] - 1e-9 * dt)), onset_sample(times, inj.time) + 2)
             times = times[:T]
     else:
@@ -210,7 +212,8 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
     return DistinguishabilityReport(c.model.name, c.model.display_source, T, dt, (process_noise, measurement_noise),
                                     scenario if isinstance(scenario, str) or scenario is None else scenario.text,
                                     None if scenario else change, None if scenario else at, tuple(out),
-                                    warning, rate, signals, (modes or "") if c.modes else None)
+                                    warning, rate, signals, (modes or "") if c.modes else None,
+                                    first)
 
 
 

@@ -62,11 +62,18 @@ class DiagnosisReport:
         """The faults of the log that went away without a repair, by
         parameter: ``spans`` (the (onset, end) it was present over, the end
         None while it is), ``values`` (the parameter's value estimated at
-        each appearance) and their ``mean``."""
+        each appearance) and their ``mean``; a repair of the parameter
+        starts its story again (a fault of it after the repair is a new one)."""
+        from .. import events as ev
+
         out: dict[str, dict] = {}
         for p in dict.fromkeys(e.parameter for e in self.fault_log if getattr(e, "action", None) == "ended"):
-            mine = [e for e in self.fault_log if getattr(e, "parameter", None) == p
+            last = max((i for i, e in enumerate(self.fault_log) if isinstance(e, ev.Repaired) and p in e.parameters),
+                       default=-1)
+            mine = [e for e in self.fault_log[last + 1:] if getattr(e, "parameter", None) == p
                     and e.action in ("accommodated", "ended")]
+            if not any(e.action == "ended" for e in mine):
+                continue
             each: dict[int, float] = {}  # per appearance, its value last estimated (a further change moves it)
             for e in mine:
                 if e.action == "accommodated":
@@ -248,6 +255,9 @@ class DistinguishabilityReport:
     #: A model with modes: the controlled changes asked for (``MODE@TIME,...``); "" : the modes its
     #: guards and timed transitions reach; None: a model of one mode
     modes: str | None = None
+    #: An intermittent fault that goes away inside the run: ``steps`` are those before it first does
+    #: (its first appearance is told apart, as a step)
+    first_appearance: bool = False
 
 
 #: The columns of :meth:`DiagnosisReport.table` ``("hypotheses")``.

@@ -167,8 +167,8 @@ def sentence(e, time_of) -> str:
 
 def spans_text(spans) -> str:
     """The spans a fault was present over, in words: ``t = 6.05 to 14.1 and from t = 22``."""
-    return " and ".join(f"t = {time_text(on)} to {time_text(off)}" if off is not None else f"from t = {time_text(on)}"
-                        if on is not None else "at an onset not known"
+    return " and ".join("at an onset not known" if on is None else
+                        f"t = {time_text(on)} to {time_text(off)}" if off is not None else f"from t = {time_text(on)}"
                         for on, off in spans) or "not known"
 
 

@@ -659,7 +659,7 @@ def distinguishability_text(r) -> str:
     if r.scenario is not None:
         d = r.distinctions[0]
         lines.append(f"truth: {printable(r.scenario)} ({d.truth}, from sample {d.onset})")
-        if "-" in r.scenario.rsplit("@", 1)[-1]:  # an intermittent fault's spans
+        if getattr(r, "first_appearance", False):  # an intermittent fault that goes away inside the run
             lines.append(f"# an intermittent fault: its first appearance is told apart, over the {r.steps} samples "
                          "before it first goes away (bgc monitor --episodes names each appearance and its going "
                          "away as the step it is)")

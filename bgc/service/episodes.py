@@ -92,17 +92,19 @@ class Episodes:
         :class:`~bgc.events.EpisodeClosed` event). ``full``: its record
         reached the most the diagnosis holds in memory; not isolated, it is
         re-armed for that reason (``--rearm`` or not)."""
+        from ..kinds import fault_kind
         from ..output.events import fault_sentence
 
         e = c.estimate if c.verdict == "isolated" else None
         held = e is not None and _held(e, d.nominal)  # a parameter's value the model can take
         action, parameter, value, out = "re-armed" if e is None else "not accommodated", None, None, list(sensors)
         number, appearance = len(self.episodes()) + 1, 0
-        if held and e.parameter in self.theta and _returned(e, self._file_value(e.parameter)):
+        if held and e.parameter in self.theta and not fault_kind(e.kind).drifts \
+                and _returned(e, self._file_value(e.parameter)):  # a step back (a drift's slope is no value)
             action, parameter, value = "ended", e.parameter, self._file_value(e.parameter)
             del self.theta[parameter], self.by[parameter]
             spell = self.spells[parameter][-1]
-            spell[1] = c.onset
+            spell[1] = c.onset if c.onset is not None else now
             appearance = len(self.spells[parameter])
         elif e is not None and e.target == "sensor" and (self.exclude_faulty or not held) \
                 and e.subject in sensors and len(sensors) > 1:
@@ -119,7 +121,8 @@ class Episodes:
             self.by[parameter] = number
         finding = "" if e is None else fault_sentence(e, c.onset, self.per_time)
         alarm, sensor = self.alarm
-        reason = "" if action != "re-armed" else "memory" if full else "rearm"
+        reason = ("" if action != "re-armed" else "memory" if full else "rearm" if c.verdict != "isolated"
+                  else "no estimate")
         closed = ev.EpisodeClosed(number, alarm, sensor, now, c.verdict, tuple(c.candidates), c.onset, finding,
                                   action, parameter, value, None, appearance, self.present(parameter), reason)
         self.log.append(closed)

@@ -330,8 +330,6 @@ class _Monitor:
             if self.log is not None:  # and the repairs before it taken then
                 self.log.remarks = max(self.log.remarks, len(self.reader.lines.header))
             return
-        read, first = self.keep.stream
-        self.keep.stream = (read + 1, t if first is None else first)
         u = {name_: values[j] for j, name_ in self.groups["u"]}
         y = {name_: values[j] for j, name_ in self.groups["y"]}
         if self.log is not None:
@@ -339,6 +337,8 @@ class _Monitor:
         with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
             belief = self.d.step(t, u, y, line)
             self.rows.append(values)
+            read, first = self.keep.stream
+            self.keep.stream = (read + 1, t if first is None else first)  # counted once taken, as its row is
             self.rows_time, self.ended = t, None
             if self.d.offset != self.forgot:  # the diagnoser forgot its record's first steps: the rows before go too
                 self.rows, self.told = _kept(self.rows, self.told, self.d, self.d.offset - self.forgot)
@@ -457,7 +457,8 @@ FULL_ROOM = 64
 
 def _nearly_full(d) -> bool:
     """Whether diagnoser ``d``'s record is within :data:`FULL_ROOM` steps
-    of the most it may hold (an episode never decided would otherwise stop the
+    of the most it may hold, or past half of it when that is less than
+    2 :data:`FULL_ROOM` (an episode never decided would otherwise stop the
     monitor with the memory rule's error)."""
     most = d.config.most
     return most is not None and len(d.loop.samples) >= max(most - FULL_ROOM, most // 2)

@@ -23,7 +23,7 @@ from ..api.session import Session, open as open_session
 from ..api.simulate import Simulation
 from ..data import runs
 from ..diagnosis.options import DiagnosisOptions
-from ..errors import ArgumentTypeError, ArgumentValueError
+from ..errors import ArgumentTypeError, ArgumentValueError, DataError, printable
 
 
 class _Lines:
@@ -136,10 +136,17 @@ def _stream(func: str, data):
     """(the byte stream the monitor reads, its name in messages) of ``data``."""
     if isinstance(data, Simulation):
         return _Lines(io.StringIO(runs.run_csv(data.run))), f"simulation of {data.scenario}"
+    if isinstance(data, str) and "\n" in data:
+        raise ArgumentTypeError(f"{func}: data is the CSV's text, not a path", None,
+                                "give its lines, data=text.splitlines(keepends=True), or write it to a file")
     if isinstance(data, (str, Path)):
         from .monitor import Follow
 
-        files = runs.run_files(str(data))
+        try:
+            files = runs.run_files(str(data))
+        except OSError as exc:
+            raise DataError(f"{func}: data {printable(str(data))!r} cannot be read ({exc.strerror})", None,
+                            "give a run file's path, a folder or a glob pattern of run files") from None
         if files is not None:  # a folder or a pattern: the files one after the other
             return Follow(runs.open_stream(str(files[0])), 0, path=str(files[0]), say=lambda line: None,
                           pattern=str(data)), str(data)
