@@ -134,6 +134,17 @@ def fast_session(model: str, **options):
     return session(MODELS / f"{model}.yaml", backend=FAST, **options)
 
 
+def fast_backend(model: str) -> tuple[str, str]:
+    """A command's ``--backend`` option for the FAST backend, a shipped
+    model's kernels compiled first once per test run, or loaded from the last
+    run's (:func:`numba_package`): :func:`fast_session` for the commands
+    (``bgc_cli("monitor", ..., *fast_backend("circuit"))``); for the slow
+    tier only (make check compiles no kernel)."""
+    if FAST == "numba":
+        numba_package(model)
+    return ("--backend", FAST)
+
+
 #: Folders of model files no test writes to: their compilations may be shared.
 _READ_ONLY = (MODELS, TEST_MODELS, ROOT / "tests" / "regression" / "models")
 _COMPILED: dict = {}

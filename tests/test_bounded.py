@@ -8,7 +8,9 @@ the exact solution of its equations (tests/test_mismatch.py: the matrix
 exponential over each sample period), healthy or with its R2 stepping to
 1.6 times its value; the truth the diagnoses are held to is the simulated
 fault, and the whole record's diagnosis of the same rows is the reference
-a bounded one must meet.
+a bounded one must meet. The slow tests run on the FAST backend
+(conftest.fast_session, fast_backend: numba when installed; the diagnosis
+does not depend on it, tests/test_backend.py), the others on NumPy.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from bgc import events as ev
 from bgc.diagnosis.state import DiagnoserState
 from bgc.model.package import STARTED_FROM, forget_started
 
-from conftest import ROOT, bgc_cli, session
+from conftest import ROOT, bgc_cli, fast_backend, fast_session, session
 from test_mismatch import DT, NOMINAL, START, V, circuit, readings
 from test_monitor_state import report, saved_rows
 
@@ -70,8 +72,10 @@ def feed(d, rows, watch=None) -> list:
     return told
 
 
-def diagnoser(keep: int | None, **more):
-    return session("circuit").diagnoser(options(keep, **more), inputs=["V"], sensors=["f2", "f6", "e11"])
+def diagnoser(keep: int | None, fast: bool = True, **more):
+    """A diagnoser of the circuit's stream, on the FAST backend (else NumPy: the fast tier's)."""
+    opened = fast_session("circuit") if fast else session("circuit")
+    return opened.diagnoser(options(keep, **more), inputs=["V"], sensors=["f2", "f6", "e11"])
 
 
 @pytest.fixture(scope="module")
@@ -127,7 +131,7 @@ def test_a_healthy_stream_many_times_longer_than_the_record_raises_no_alarm():
 
 def test_a_gap_is_told_at_its_time_and_one_before_the_record_kept_is_forgotten():
     before, after = range(400, 420), range(1300, 1320)
-    d = diagnoser(KEEP)
+    d = diagnoser(KEEP, fast=False)
     told = feed(d, plant(onset=None, missing=tuple(before) + tuple(after)))
     gaps = [(e, t) for e, t in told if isinstance(e, ev.Gap)]
     assert [t for _, t in gaps] == pytest.approx([before[0] * DT, after[0] * DT])
@@ -172,7 +176,7 @@ def test_a_state_taken_after_cuts_goes_on_as_if_it_never_stopped(method):
 def test_bgc_monitor_keeps_a_bounded_record_and_state(tmp_path):
     lines = ["time,u:V,y:f2,y:f6,y:e11\n"] + [",".join(f"{v:.6g}" for v in row) + "\n" for row in plant(seed=4)]
     p = bgc_cli("monitor", CIRCUIT, "--data", "-", "--particles", "300", "--seed", "2", "--keep", f"{KEEP * DT:g}",
-                "--state", tmp_path / "state", "-o", tmp_path / "out", input="".join(lines))
+                *fast_backend("circuit"), "--state", tmp_path / "state", "-o", tmp_path / "out", input="".join(lines))
     assert p.returncode == 0, p.stderr
     assert saved_rows(tmp_path / "state") <= 2 * KEEP  # the rows the state holds are the record's
     alarm = next(line for line in p.stdout.splitlines() if "fault detected" in line.lower() or "alarm" in line.lower())

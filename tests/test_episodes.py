@@ -8,7 +8,9 @@ decided.
 The plant is the circuit of models/circuit.yaml simulated by the exact
 solution of its equations (tests/test_mismatch.py: the matrix exponential
 over each sample period), its parameters changed at the times a test says;
-the expectations are those changes, the simulator's truth.
+the expectations are those changes, the simulator's truth. The monitors of
+the slow tests run on the FAST backend (conftest.fast_backend: numba when
+installed; the diagnosis does not depend on it, tests/test_backend.py).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import pytest
 from bgc import events as ev
 from bgc.service.episodes import repair_of
 
-from conftest import ROOT, bgc_cli
+from conftest import ROOT, bgc_cli, fast_backend
 from test_monitor_state import _no_seconds
 from test_mismatch import DT, NOMINAL, START, V, circuit, readings
 
@@ -56,7 +58,8 @@ def plant(steps: int, changes, seed: int = 2, bias: tuple = (), repaired_at: flo
 
 
 def run(tmp_path: Path, text: str, *more):
-    p = bgc_cli("monitor", CIRCUIT, "--data", "-", *OPTIONS, *more, "-o", tmp_path / "out", input=text)
+    p = bgc_cli("monitor", CIRCUIT, "--data", "-", *OPTIONS, *fast_backend("circuit"), *more, "-o", tmp_path / "out",
+                input=text)
     assert p.returncode == 0, p.stderr
     report = json.loads((tmp_path / "out" / "report.json").read_text(encoding="utf-8"))
     log = [e for e in report["events"] if e["event"] in ("EpisodeClosed", "Repaired")]
@@ -71,6 +74,17 @@ TWO = [(6.0, {"R2": 1.6}), (18.0, {"R1": 1.5})]
 def two(tmp_path_factory):
     """The monitor's run of the two faults, uninterrupted."""
     return run(tmp_path_factory.mktemp("two"), plant(600, TWO))
+
+
+#: R2 at 1.6 times its value from t = 6, back to its value at t = 15, a "# repaired" line there.
+REPAIRED = [(6.0, {"R2": 1.6}), (15.0, {"R2": 1.0})]
+
+
+@pytest.fixture(scope="module")
+def said(tmp_path_factory):
+    """The plant of REPAIRED, 400 rows, the repair said; and the monitor's run of it, uninterrupted."""
+    text = plant(400, REPAIRED, repaired_at=15.0)
+    return text, run(tmp_path_factory.mktemp("repaired"), text)
 
 
 @pytest.mark.slow
@@ -90,9 +104,8 @@ def test_two_faults_in_sequence_are_named_in_order_each_sized_against_the_plant_
 
 
 @pytest.mark.slow
-def test_a_repair_said_in_the_stream_takes_the_fault_out_and_without_it_the_fault_went_away(tmp_path):
-    changes = [(6.0, {"R2": 1.6}), (15.0, {"R2": 1.0})]  # repaired at t = 15
-    _, report, log = run(tmp_path / "said", plant(400, changes, repaired_at=15.0))
+def test_a_repair_said_in_the_stream_takes_the_fault_out_and_without_it_the_fault_went_away(tmp_path, said):
+    _, (_, report, log) = said  # repaired at t = 15
     closed, repaired = log
     assert closed["action"] == "accommodated" and closed["parameter"] == "R2"
     assert (repaired["time"], repaired["episodes"], repaired["parameters"]) == (15.0, [1], ["R2"])
@@ -100,7 +113,7 @@ def test_a_repair_said_in_the_stream_takes_the_fault_out_and_without_it_the_faul
     assert not [e for e in report["events"] if e["event"] == "Alarmed"]  # the last diagnoser's: none after it
     # unsaid, the model with R2 accommodated meets a plant whose R2 went back: an alarm, and the fault
     # gone by itself (an intermittent fault's going away: tests/test_intermittent.py)
-    _, report, log = run(tmp_path / "unsaid", plant(400, changes))
+    _, report, log = run(tmp_path / "unsaid", plant(400, REPAIRED))
     assert [(e["event"], e["action"], e["parameter"]) for e in log] == [
         ("EpisodeClosed", "accommodated", "R2"), ("EpisodeClosed", "ended", "R2")]
     assert 15.0 <= log[1]["alarm"] <= 15.5 and abs(log[1]["began"] - 15.0) <= 0.25
@@ -134,8 +147,9 @@ def test_a_sensor_bias_is_accommodated_as_its_offset_or_the_sensor_taken_out(tmp
 def test_a_restart_in_the_second_episode_goes_on_with_the_first_accommodated(tmp_path, two):
     text = plant(600, TWO)
     lines = text.splitlines(keepends=True)
-    first = bgc_cli("monitor", CIRCUIT, "--data", "-", *OPTIONS, "--state", tmp_path / "state", "-o",
-                    tmp_path / "first", input="".join(lines[:391]))  # stopped at t = 19.5: episode 2's alarm is in
+    first = bgc_cli("monitor", CIRCUIT, "--data", "-", *OPTIONS, *fast_backend("circuit"), "--state",
+                    tmp_path / "state", "-o", tmp_path / "first",
+                    input="".join(lines[:391]))  # stopped at t = 19.5: episode 2's alarm is in
     assert first.returncode == 0, first.stderr
     assert "episode 1 closed" in first.stdout and "episode 2" not in first.stdout
     p, report, log = run(tmp_path, text, "--state", tmp_path / "state")
@@ -146,14 +160,15 @@ def test_a_restart_in_the_second_episode_goes_on_with_the_first_accommodated(tmp
 
 
 @pytest.mark.slow
-def test_a_stream_that_ends_as_an_episode_closes_reports_it_and_a_restart_takes_no_repair_twice(tmp_path):
-    lines = plant(400, [(6.0, {"R2": 1.6}), (15.0, {"R2": 1.0})], repaired_at=15.0).splitlines(keepends=True)
-    _, _, log = run(tmp_path / "whole", "".join(lines))
+def test_a_stream_that_ends_as_an_episode_closes_reports_it_and_a_restart_takes_no_repair_twice(tmp_path, said):
+    text, (_, _, log) = said
+    lines = text.splitlines(keepends=True)
     closing = next(i for i, line in enumerate(lines) if line.startswith(f"{log[0]['time']:g},"))
     p, report, cut = run(tmp_path / "cut", "".join(lines[:closing + 1]))  # the last row is the one it closes on
     assert [e["event"] for e in cut] == ["EpisodeClosed"] and report["verdict"] == "isolated"
-    first = bgc_cli("monitor", CIRCUIT, "--data", "-", *OPTIONS, "--state", tmp_path / "state", "-o",
-                    tmp_path / "first", input="".join(lines[:330]))  # stopped after the repair (t = 15, row 301)
+    first = bgc_cli("monitor", CIRCUIT, "--data", "-", *OPTIONS, *fast_backend("circuit"), "--state",
+                    tmp_path / "state", "-o", tmp_path / "first",
+                    input="".join(lines[:330]))  # stopped after the repair (t = 15, row 301)
     assert first.returncode == 0 and "repaired at t = 15" in first.stdout, first.stderr
     p, report, again = run(tmp_path, "".join(lines), "--state", tmp_path / "state")
     assert "repaired" not in p.stdout and again == log  # the repair taken once, before the restart

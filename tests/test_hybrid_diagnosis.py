@@ -6,9 +6,6 @@ itself and its supply tripped and closed again."""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +18,7 @@ from bgc.diagnosis.values import Symbol
 from bgc.errors import BgcError
 from bgc.output import plots
 
-from conftest import session
+from conftest import bgc_cli, session
 from hybrid_reference import R_aux, V, sampled
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -158,11 +155,10 @@ def test_a_scenario_of_a_model_with_modes_takes_its_switches_and_refuses_them_in
 
 @pytest.mark.slow
 def test_bgc_monitor_reads_the_mode_column_of_a_stream(tmp_path):
-    """A run file with its mode column through a real pipe into bgc monitor: the switches raise no alarm."""
+    """A run file with its mode column on bgc monitor's standard input (the command in this process,
+    conftest.bgc_cli; a real pipe into a real process: tests/test_online.py): the switches raise no alarm."""
     text = runs.run_csv(exact_run(4, end=14.0))  # through the trip at 12 s
-    env = dict(os.environ, MPLBACKEND="Agg", BGC_BACKEND="numpy")
-    done = subprocess.run([sys.executable, "-m", "bgc", "monitor", str(RELAY), "--data", "-", "-o",
-                           str(tmp_path / "mon")], input=text, capture_output=True, text=True, env=env, timeout=300)
+    done = bgc_cli("monitor", RELAY, "--data", "-", "-o", tmp_path / "mon", input=text, env={"BGC_BACKEND": "numpy"})
     assert done.returncode == 0, done.stderr
     assert "no fault" in done.stdout and "alarm" not in done.stdout, done.stdout
     assert "input u:mode: from the data" in (tmp_path / "mon" / "report.md").read_text(encoding="utf-8")

@@ -8,6 +8,8 @@ exact solution of its hand-derived equations (tests/test_mismatch.py) and
 logged both ways: ``end`` (bgc's convention) and ``start`` (the logger's:
 row k holds the value V takes from t_k on). f2 = (V - e4) / R1 reads the
 source itself, so an input read one step off shows at once, at each change.
+The slow tests run on the FAST backend (conftest.fast_session: numba when
+installed; the diagnosis does not depend on it, tests/test_backend.py).
 """
 
 import math
@@ -22,7 +24,7 @@ from bgc.diagnosis import fit as fit_module
 from bgc import events as ev
 from bgc.errors import DataError
 
-from conftest import bgc_cli, session
+from conftest import bgc_cli, fast_session, session
 from test_mismatch import DT, NOMINAL, START, circuit, readings
 
 STEPS, HALF = 240, 20
@@ -114,7 +116,7 @@ def test_a_loggers_timing_read_as_bgcs_is_a_mismatch_that_names_the_timing(tmp_p
     fault; read as it is logged (the flag, or the file's header), and the
     end-timed log read as bgc's: "no fault", the whole record fitting."""
     square_csv(tmp_path / "start.csv", "start")
-    d = bgc.diagnose(session("circuit"), tmp_path / "start.csv", filter="ckf").diagnosis
+    d = bgc.diagnose(fast_session("circuit"), tmp_path / "start.csv", filter="ckf").diagnosis
     assert d.verdict == "mismatch", (d.verdict, d.candidates)
     said = [e for e in d.events if isinstance(e, ev.Mismatched)]
     assert len(said) == 1 and said[0].timing == "start" and said[0].timing_fits and said[0].timing_ratio > 100
@@ -126,7 +128,7 @@ def test_a_loggers_timing_read_as_bgcs_is_a_mismatch_that_names_the_timing(tmp_p
             square_csv(path, "start", header=True)
         elif path.name == "end.csv":
             square_csv(path, "end")
-        d = bgc.diagnose(session("circuit"), path, **kwargs).diagnosis
+        d = bgc.diagnose(fast_session("circuit"), path, **kwargs).diagnosis
         assert d.verdict == "no fault" and d.fit.fits, (path.name, d.verdict, d.fit.findings)
         assert d.data.timing == ("end" if path.name == "end.csv" else "start")
 
@@ -143,7 +145,7 @@ def test_calibration_reads_the_inputs_as_the_flag_or_the_header_says(tmp_path):
     around the truth either way)."""
     square_csv(tmp_path / "start.csv", "start", seed=2, steps=120)
     square_csv(tmp_path / "header.csv", "start", seed=2, header=True, steps=120)
-    s = session("circuit")
+    s = fast_session("circuit")
     truth = float(np.asarray(s.package.MODELS["nominal"].MEASUREMENT_STD, dtype=float)[0])
 
     def f2(**kwargs):

@@ -14,7 +14,9 @@ input, Van Loan's block), derived by hand from Fig. II.3 of the thesis
 read by f2 = (V - e4) / R1, f6 = (e4 - e8) / R2 and e11 = R3 f10. Its
 parameters are each off the model file's by a uniform draw within 3 %, and
 its process and sensor noise are 1.5 times the model's: the data a new
-user's plant gives a model written from a datasheet.
+user's plant gives a model written from a datasheet. The slow tests'
+diagnoses run on the FAST backend (conftest.fast_session: numba when
+installed; the diagnosis does not depend on it, tests/test_backend.py).
 """
 
 import math
@@ -28,7 +30,7 @@ import bgc
 from bgc.diagnosis import fit as fit_module
 from bgc.filters import residuals
 
-from conftest import session
+from conftest import fast_session, session
 
 NOMINAL = dict(R1=1.0, C1=0.5, R2=2.0, C2=1.0, L=0.5, R3=1.0)
 V, DT, STEPS, START = 10.0, 0.05, 300, (7.5, 2.5, 2.5)
@@ -96,7 +98,7 @@ def test_a_plant_off_its_model_gets_mismatch_and_never_a_fault(tmp_path):
     # t = 0.5" among them)
     for seed in (0, 4):
         plant_csv(tmp_path / "run.csv", seed, 0.03, 1.5)
-        d = bgc.diagnose(session("circuit"), tmp_path / "run.csv").diagnosis
+        d = bgc.diagnose(fast_session("circuit"), tmp_path / "run.csv").diagnosis
         assert d.verdict == "mismatch", (seed, d.verdict, d.candidates)
         said = [e for e in d.events if type(e).__name__ == "Mismatched"]
         assert len(said) == 1 and "noise" in said[0].estimate
@@ -111,7 +113,7 @@ def test_the_same_simulator_with_the_models_numbers_gives_no_fault(tmp_path):
     numbers, and ``--null`` on bgc's own runs)."""
     for seed in range(2):
         plant_csv(tmp_path / "run.csv", seed, 0.0, 1.0)
-        d = bgc.diagnose(session("circuit"), tmp_path / "run.csv").diagnosis
+        d = bgc.diagnose(fast_session("circuit"), tmp_path / "run.csv").diagnosis
         assert d.verdict == "no fault", (seed, d.verdict, d.fit.findings)
         assert d.fit.fits and d.fit.end == STEPS
 
@@ -128,7 +130,7 @@ def test_a_fault_since_the_first_samples_is_a_possibility_beside_the_mismatch(tm
     finally:
         NOMINAL.clear()
         NOMINAL.update(nominal)
-    d = bgc.diagnose(session("circuit"), tmp_path / "run.csv").diagnosis
+    d = bgc.diagnose(fast_session("circuit"), tmp_path / "run.csv").diagnosis
     assert d.verdict == "mismatch"
     assert d.detection is not None and d.fit.short
     assert any(name.startswith("R3") for name in d.candidates), d.candidates

@@ -6,7 +6,9 @@ The plant is the circuit of models/circuit.yaml simulated by the exact
 solution of its equations (tests/test_mismatch.py: the matrix exponential
 over each sample period), its R2 stepping to 1.6 times its value at
 t = 6; the rows reach the monitor through a file and through a real pipe,
-the process killed (SIGKILL) part way through.
+the process killed (SIGKILL) part way through. The monitors of the slow tests
+run on the FAST backend (conftest.fast_backend: numba when installed; the
+diagnosis does not depend on it, tests/test_backend.py), the others on NumPy.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import pytest
 
 from bgc.service import resume
 
-from conftest import ROOT, bgc_cli
+from conftest import ROOT, bgc_cli, fast_backend
 from test_mismatch import DT, NOMINAL, START, V, circuit, readings
 
 CIRCUIT = ROOT / "models" / "circuit.yaml"
@@ -72,11 +74,16 @@ def monitor(tmp: Path, lines: list[str], out: str, *more):
     return bgc_cli("monitor", CIRCUIT, "--data", "-", *OPTIONS, "-o", tmp / out, *more, input="".join(lines))
 
 
+def fast_monitor(tmp: Path, lines: list[str], out: str, *more):
+    """:func:`monitor` on the FAST backend (the slow tests')."""
+    return monitor(tmp, lines, out, *fast_backend("circuit"), *more)
+
+
 @pytest.fixture(scope="module")
 def whole(tmp_path_factory):
     """The uninterrupted monitor's run: what it printed, and its report."""
     tmp = tmp_path_factory.mktemp("whole")
-    p = monitor(tmp, plant_lines(), "whole")
+    p = fast_monitor(tmp, plant_lines(), "whole")
     assert p.returncode == 0, p.stderr
     assert "circuit: isolated: R2_abrupt" in p.stdout
     return p.stdout, report(tmp / "whole")
@@ -86,11 +93,11 @@ def whole(tmp_path_factory):
 def test_a_monitor_started_again_on_its_state_gives_the_uninterrupted_diagnosis(tmp_path, whole):
     lines = plant_lines()
     # The first 100 rows, then the input ends (the state saved every 30 rows, and at the end).
-    first = monitor(tmp_path, lines[:101], "first", "--state", tmp_path / "state", "--state-every", "30")
+    first = fast_monitor(tmp_path, lines[:101], "first", "--state", tmp_path / "state", "--state-every", "30")
     assert first.returncode == 0, first.stderr
     assert (tmp_path / "state" / resume.NAME).is_file() and not (tmp_path / "state" / resume.PARTIAL).exists()
     # Started again with the whole input from its start: the rows to t = 5 are passed over.
-    again = monitor(tmp_path, lines, "again", "--state", tmp_path / "state", "--state-every", "30")
+    again = fast_monitor(tmp_path, lines, "again", "--state", tmp_path / "state", "--state-every", "30")
     assert again.returncode == 0, again.stderr
     said = again.stdout.splitlines()
     assert said[0] == "resumed from " + str(tmp_path / "state") + \
@@ -141,9 +148,9 @@ def test_a_state_that_is_not_this_monitors_is_refused_in_one_line_and_kept(tmp_p
 @pytest.mark.slow
 def test_a_restart_on_other_rows_than_the_state_was_saved_with_is_refused(tmp_path):
     lines = plant_lines()
-    assert monitor(tmp_path, lines[:61], "a", "--state", tmp_path / "s").returncode == 0
+    assert fast_monitor(tmp_path, lines[:61], "a", "--state", tmp_path / "s").returncode == 0
     other = lines[:30] + [lines[30].replace(",10,", ",10.5,", 1)] + lines[31:]
-    p = monitor(tmp_path, other, "b", "--state", tmp_path / "s")
+    p = fast_monitor(tmp_path, other, "b", "--state", tmp_path / "s")
     assert p.returncode != 0 and "line 31: the row of t = 1.5 differs from the one the state" in p.stderr, p.stderr
 
 
@@ -169,8 +176,8 @@ def test_a_monitor_killed_mid_stream_goes_on_from_its_last_state(tmp_path, whole
     state = tmp_path / "state"
 
     def cmd(out: str) -> list[str]:
-        return [sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", "-", *OPTIONS, "-o",
-                str(tmp_path / out), "--state", str(state), "--state-every", "20"]
+        return [sys.executable, "-m", "bgc", "monitor", str(CIRCUIT), "--data", "-", *OPTIONS,
+                *fast_backend("circuit"), "-o", str(tmp_path / out), "--state", str(state), "--state-every", "20"]
 
     p = subprocess.Popen(cmd("killed"), stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                          env=dict(os.environ, MPLBACKEND="Agg"))
@@ -203,11 +210,11 @@ def test_a_restart_after_a_sensor_was_taken_out_goes_on_without_it(tmp_path):
     as the uninterrupted one, checkpoints at the same times."""
     lines = plant_lines(r2=1.0, f2_bias=0.5)
     more = ("--checkpoint", "1", "--exclude-faulty-sensor")
-    whole = monitor(tmp_path, lines, "whole", *more)
+    whole = fast_monitor(tmp_path, lines, "whole", *more)
     assert whole.returncode == 0 and "sensor f2 taken out" in whole.stdout, whole.stdout
-    first = monitor(tmp_path, lines[:231], "first", *more, "--state", tmp_path / "s", "--state-every", "7")
+    first = fast_monitor(tmp_path, lines[:231], "first", *more, "--state", tmp_path / "s", "--state-every", "7")
     assert first.returncode == 0 and "sensor f2 taken out" in first.stdout
-    again = monitor(tmp_path, lines, "again", *more, "--state", tmp_path / "s", "--state-every", "7")
+    again = fast_monitor(tmp_path, lines, "again", *more, "--state", tmp_path / "s", "--state-every", "7")
     assert again.returncode == 0, again.stderr
     assert report(tmp_path / "again") == report(tmp_path / "whole")
     said = again.stdout.splitlines()
@@ -229,8 +236,8 @@ def test_a_restart_from_the_state_saved_as_an_episode_closed_gives_the_uninterru
     fast = ("--particles", "100", "--no-recheck")  # over EPISODES', the same in every run (a state is for them)
 
     def run(out: str, rows: int, *more):
-        p = bgc_cli("monitor", CIRCUIT, "--data", "-", *EPISODES, *fast, "-o", tmp_path / out, *more,
-                    input="".join(lines[:rows + 1]))
+        p = bgc_cli("monitor", CIRCUIT, "--data", "-", *EPISODES, *fast, *fast_backend("circuit"), "-o", tmp_path / out,
+                    *more, input="".join(lines[:rows + 1]))
         assert p.returncode == 0, p.stderr
         return p
 
