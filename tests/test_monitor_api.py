@@ -49,6 +49,8 @@ def test_a_malformed_row_ends_the_stream_with_the_report_of_the_rows_before_it()
     (dict(rearm=5, checkpoint=1), ArgumentValueError, "rearm applies to episodes"),
     (dict(particles=0), ArgumentValueError, "particles=0 is below 1"),
     (dict(state_every=0), ArgumentValueError, "state_every=0 is below 1"),
+    (dict(state_every=10), ArgumentValueError, "state_every without a state folder"),
+    (dict(options=bgc.DiagnosisOptions(), particles=50), ArgumentValueError, "particles beside options"),
 ])
 def test_the_arguments_are_checked_before_any_work(kwargs, error, said):
     with pytest.raises(error, match=said):
@@ -58,3 +60,9 @@ def test_the_arguments_are_checked_before_any_work(kwargs, error, said):
 def test_data_of_another_type_is_refused_in_one_line():
     with pytest.raises(ArgumentTypeError, match="bgc.monitor: data is int"):
         bgc.monitor(CIRCUIT, 3)
+
+
+def test_keep_beside_options_is_the_monitors_record():
+    lines = ["time,u:V,y:f2,y:f6,y:e11"] + [f"{0.05 * k:.2f},10,2.5,2.5,2.5" for k in range(1, 301)]
+    report = bgc.monitor(session("circuit"), lines, options=bgc.DiagnosisOptions(particles=50), keep=300 * 0.05)
+    assert report.options.keep == pytest.approx(15.0) and report.stream == (300, pytest.approx(0.05))

@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import math
 from collections.abc import Callable, Iterable
@@ -75,8 +76,9 @@ def monitor(model: str | Path | Session, data, *, checkpoint: float | None = Non
         A folder the monitor's state is saved in every ``state_every`` rows;
         a state found there is taken up (a restart goes on where it stopped).
     filter, particles, seed, options
-        The filters, as for :func:`diagnose` (``options``: all of them, then
-        ``filter``, ``particles`` and ``seed`` are left at their defaults).
+        The filters, as for :func:`diagnose` (``options``: all of them; then
+        ``filter``, ``particles`` and ``seed`` are refused, and ``keep``, when
+        given, replaces the options' own).
     process_noise, measurement_noise : float, optional
         Relative noise levels the filters assume (default: the model's).
     events : callable, optional
@@ -86,9 +88,11 @@ def monitor(model: str | Path | Session, data, *, checkpoint: float | None = Non
     ------
     ArgumentTypeError, ArgumentValueError
         An argument of the wrong type or out of range.
-    DataError
-        A malformed row: the rows before it are diagnosed, their report is
-        the exception's ``report``.
+    DataError, BgcError
+        A malformed row, or the stream past what the diagnosis may hold in
+        memory (without ``episodes``): the rows before it are diagnosed, their
+        report is the exception's ``report``; a malformed first row (no row
+        before it) raises without one.
     """
     func = "bgc.monitor"
     if not isinstance(model, Session):
@@ -99,6 +103,9 @@ def monitor(model: str | Path | Session, data, *, checkpoint: float | None = Non
     if state is not None:
         arguments.path(func, "state", state)
     arguments.integer(func, "state_every", state_every, 1, "is below 1", "state_every=100")
+    if state is None and state_every != 100:
+        raise ArgumentValueError(f"{func}: state_every without a state folder", None,
+                                 "give state='monitor-state', or drop state_every")
     arguments.noise_levels(func, process_noise, measurement_noise)
     if episodes and checkpoint is None:
         raise ArgumentValueError(f"{func}: episodes=True without a checkpoint: a fault is isolated there", None,
@@ -114,6 +121,14 @@ def monitor(model: str | Path | Session, data, *, checkpoint: float | None = Non
     elif not isinstance(options, DiagnosisOptions):
         raise ArgumentTypeError(f"{func}: options is {type(options).__name__}, not DiagnosisOptions", None,
                                 "give bgc.DiagnosisOptions(...), or leave options out")
+    else:
+        given = [n for n, v, d in (("filter", filter, "gpf"), ("particles", particles, 1000), ("seed", seed, 0))
+                 if v != d]
+        if given:
+            raise ArgumentValueError(f"{func}: {given[0]} beside options: options holds the filters' settings", None,
+                                     f"give DiagnosisOptions({given[0]}=...), or leave options out")
+        if keep is not None:
+            options = dataclasses.replace(options, keep=keep)
     session = model if isinstance(model, Session) else open_session(
         model, process_noise=process_noise, measurement_noise=measurement_noise)
     stream, name = _stream(func, data)
