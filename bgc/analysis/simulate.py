@@ -86,11 +86,13 @@ class FaultInjection:
     def text(self) -> str:
         """The scenario as ``NAME:KIND:MAGNITUDE@TIME``: the text it was read
         from, else made (NAME as the model names what it strikes)."""
+        if self.source:
+            return self.source
         if self.stuck:
-            return self.source or f"{self.subject}:{self.kind}@{self.time!r}"
+            return f"{self.subject}:{self.kind}@{self.time!r}"
         when = repr(self.time) if not self.spans else ",".join(
             repr(on) if math.isinf(off) else f"{on!r}-{off!r}" for on, off in self.spans)
-        return self.source or f"{self.subject or self.parameter}:{self.kind}:{self.magnitude!r}@{when}"
+        return f"{self.subject or self.parameter}:{self.kind}:{self.magnitude!r}@{when}"
 
     def describe(self) -> str:
         if self.stuck:

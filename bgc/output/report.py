@@ -238,13 +238,11 @@ def heading(r, quote: Callable[[Any], str] = _same) -> tuple[str, str, str]:
     rows = len(r.run.time)
     count = (f"{rows} samples" if rows == len(d.time) else
              f"{rows} samples on {len(d.time)} steps of the model's time grid")
-    if r.scenario:
-        data = f"Data: simulated scenario {quote(r.scenario)}, {count} ({span})."
-    else:
-        data = f"Data: {count} ({span})."
-    if r.stream is not None and r.stream[0] > rows:  # a monitor's report: the record kept, not the stream
-        data = (f"{data[:-1]}: the record the monitor kept of the {r.stream[0]} rows it read from "
-                f"t = {events.time_text(r.stream[1])} on.")
+    kept = ("" if r.stream is None or r.stream[0] <= rows else  # a monitor's: the record kept, not the stream
+            f": the record the monitor kept of the {r.stream[0]} rows it read from "
+            f"t = {events.time_text(r.stream[1])} on")
+    scenario = f"simulated scenario {quote(r.scenario)}, " if r.scenario else ""
+    data = f"Data: {scenario}{count} ({span}){kept}."
     noise = ("the model's noise levels" if r.noise == (None, None) else
              f"relative noise levels process {r.noise[0] if r.noise[0] is not None else 'per model'}, "
              f"measurement {r.noise[1] if r.noise[1] is not None else 'per model'}")

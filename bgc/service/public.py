@@ -25,6 +25,10 @@ from ..api.simulate import Simulation
 from ..data import runs
 from ..diagnosis.options import DiagnosisOptions
 from ..errors import ArgumentTypeError, ArgumentValueError, DataError, printable
+from .monitor import STATE_EVERY
+
+#: The filters' settings :func:`monitor` takes by name, at their defaults.
+_DEFAULT = DiagnosisOptions()
 
 
 class _Lines:
@@ -43,8 +47,9 @@ class _Lines:
 
 def monitor(model: str | Path | Session, data, *, checkpoint: float | None = None, episodes: bool = False,
             rearm: float | None = None, exclude_faulty_sensor: bool = False, keep: float | None = None,
-            state: str | Path | None = None, state_every: int = 100, filter: str = "gpf", particles: int = 1000,
-            seed: int = 0, process_noise: float | None = None, measurement_noise: float | None = None,
+            state: str | Path | None = None, state_every: int = STATE_EVERY, filter: str = _DEFAULT.filter,
+            particles: int = _DEFAULT.particles, seed: int = _DEFAULT.seed, process_noise: float | None = None,
+            measurement_noise: float | None = None,
             options: DiagnosisOptions | None = None, events: Callable[[str], None] | None = None) -> DiagnosisReport:
     """Diagnose ``data`` row by row as ``bgc monitor`` does (its commands'
     options by their names; docs/commands.md, "Diagnose a stream"), and
@@ -102,8 +107,8 @@ def monitor(model: str | Path | Session, data, *, checkpoint: float | None = Non
             arguments.real(func, name, value, 0.0, math.inf, f"a time above 0 in the model's unit, e.g. {name}=10")
     if state is not None:
         arguments.path(func, "state", state)
-    arguments.integer(func, "state_every", state_every, 1, "is below 1", "state_every=100")
-    if state is None and state_every != 100:
+    arguments.integer(func, "state_every", state_every, 1, "is below 1", f"state_every={STATE_EVERY}")
+    if state is None and state_every != STATE_EVERY:
         raise ArgumentValueError(f"{func}: state_every without a state folder", None,
                                  "give state='monitor-state', or drop state_every")
     arguments.noise_levels(func, process_noise, measurement_noise)
@@ -114,21 +119,7 @@ def monitor(model: str | Path | Session, data, *, checkpoint: float | None = Non
         raise ArgumentValueError(f"{func}: rearm applies to episodes", None, "give episodes=True, or drop rearm")
     if exclude_faulty_sensor and checkpoint is None:
         raise ArgumentValueError(f"{func}: exclude_faulty_sensor acts at checkpoints", None, "give checkpoint=10, e.g.")
-    if options is None:
-        arguments.integer(func, "particles", particles, 1, "is below 1", "particles=1000")
-        arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
-        options = DiagnosisOptions(filter=filter, particles=particles, seed=seed, keep=keep)
-    elif not isinstance(options, DiagnosisOptions):
-        raise ArgumentTypeError(f"{func}: options is {type(options).__name__}, not DiagnosisOptions", None,
-                                "give bgc.DiagnosisOptions(...), or leave options out")
-    else:
-        given = [n for n, v, d in (("filter", filter, "gpf"), ("particles", particles, 1000), ("seed", seed, 0))
-                 if v != d]
-        if given:
-            raise ArgumentValueError(f"{func}: {given[0]} beside options: options holds the filters' settings", None,
-                                     f"give DiagnosisOptions({given[0]}=...), or leave options out")
-        if keep is not None:
-            options = dataclasses.replace(options, keep=keep)
+    options = _options(func, options, keep, filter=filter, particles=particles, seed=seed)
     session = model if isinstance(model, Session) else open_session(
         model, process_noise=process_noise, measurement_noise=measurement_noise)
     stream, name = _stream(func, data)
@@ -145,6 +136,23 @@ def monitor(model: str | Path | Session, data, *, checkpoint: float | None = Non
         failure.report = report
         raise failure
     return report
+
+
+def _options(func: str, options: DiagnosisOptions | None, keep: float | None, **filters) -> DiagnosisOptions:
+    """The diagnosis options of :func:`monitor`: ``options``, or made of
+    ``filters`` (``filter``, ``particles``, ``seed``), with ``keep``."""
+    if options is None:
+        arguments.integer(func, "particles", filters["particles"], 1, "is below 1", f"particles={_DEFAULT.particles}")
+        arguments.integer(func, "seed", filters["seed"], 0, "is negative", f"seed={_DEFAULT.seed}")
+        return DiagnosisOptions(**filters, keep=keep)
+    if not isinstance(options, DiagnosisOptions):
+        raise ArgumentTypeError(f"{func}: options is {type(options).__name__}, not DiagnosisOptions", None,
+                                "give bgc.DiagnosisOptions(...), or leave options out")
+    given = [name for name, value in filters.items() if value != getattr(_DEFAULT, name)]
+    if given:
+        raise ArgumentValueError(f"{func}: {given[0]} beside options: options holds the filters' settings", None,
+                                 f"give DiagnosisOptions({given[0]}=...), or leave options out")
+    return options if keep is None else dataclasses.replace(options, keep=keep)
 
 
 def _stream(func: str, data):
