@@ -123,7 +123,8 @@ class SampleSkipped:
 class Alarmed:
     """The detector's alarm: at ``step`` on ``sensor`` (window ``window``
     samples, statistic above ``threshold``); ``onset``: the estimated change
-    point."""
+    point; ``test``: the family of tests that fired (``mean``, ``drift``,
+    ``variance``, ``frozen``: :class:`bgc.diagnosis.values.Detection`)."""
 
     step: int
     sensor: str
@@ -131,6 +132,7 @@ class Alarmed:
     statistic: float
     threshold: float
     onset: int
+    test: str = "mean"
 
 
 @dataclass(frozen=True, slots=True)
@@ -177,6 +179,20 @@ class AllTried:
 
     why: str
     step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ReadingFrozen:
+    """The detector saw ``sensor`` frozen from ``onset`` (its reading
+    repeated to the last digit, or its residual's variance fell to nothing:
+    :class:`Alarmed`'s ``test``): no fault of the plant does that, so only
+    the sensor's ``stuck`` fault models (``kept``; none: the model declares
+    none, and the verdict is unexplained) are tried."""
+
+    step: int
+    sensor: str
+    onset: int
+    kept: tuple[str, ...]
 
 
 @dataclass(frozen=True, slots=True)
@@ -474,7 +490,8 @@ class Decided:
 
 
 Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorResumed | InputFromModel | InputHeld
-         | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | Started | Refined | Dropped
+         | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | ReadingFrozen | Started
+         | Refined | Dropped
          | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | SensorExcluded
          | EpisodeClosed | Repaired | Checkpoint | ModeHidden | ModeRead | ModesReread | Mismatched | Decided)
 

@@ -158,7 +158,8 @@ def unseen(c, options: DiagnosisOptions | None = None) -> list[Unseen]:
     opts = options or DiagnosisOptions()
     steps = settings.steps
     horizon = horizon_steps(opts.horizon, settings.dt, steps)
-    threshold = DetectorOptions(opts.false_alarm, tuple(opts.windows), horizon).threshold(len(c.model.measurements))
+    threshold = DetectorOptions(opts.false_alarm, tuple(opts.windows), horizon,
+                                tuple(opts.detectors)).threshold(len(c.model.measurements))
     reach = distinction.detector_reach(package, distinction.scenario_inputs(package, steps), steps // 2,
                                        tuple(opts.windows))
     return [Unseen(name, size, r, threshold, r < 1e-6 * threshold) for name, (size, r) in reach.items()

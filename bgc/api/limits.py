@@ -17,6 +17,7 @@ from ..view import NumericsView
 from ..diagnosis.options import GridOptions, KalmanOptions
 from ..diagnosis.diagnose import IDENTIFY, KALMAN_METHOD, PATHS
 from ..diagnosis.options import DiagnosisOptions
+from ..diagnosis.detect import TESTS
 
 
 #: The longest detector horizon or gap limit (time units) the options take.
@@ -152,6 +153,17 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose", o: str 
                                 None, "e.g. windows=(1, 8, 32)")
     for w in windows:
         arguments.integer(func, o + "windows", w, 1, "a window holds at least 1 sample", "windows=(1, 8, 32)")
+    detectors = options.detectors
+    if not isinstance(detectors, tuple) or not all(isinstance(t, str) for t in detectors):
+        raise ArgumentTypeError(f"{func}: options.detectors={arguments.shown(detectors)} is not a tuple of names",
+                                None, "e.g. detectors=('mean', 'drift', 'variance', 'frozen')")
+    wrong = [t for t in detectors if t not in TESTS] + (["(no mean)"] if "mean" not in detectors else []) \
+        + (["(one twice)"] if len(set(detectors)) < len(detectors) else [])
+    if wrong:
+        raise ArgumentValueError(f"{arguments.spelled(f'{func}: {o}detectors', '--detect')}: "
+                                 f"{', '.join(map(str, wrong))} is not a family of the detector's tests", None,
+                                 f"give the mean test and any of {', '.join(TESTS[1:])}, each once "
+                                 f"(e.g. {arguments.spelled(repr(TESTS), ','.join(TESTS))})")
     for name in ("history", "search", "symbol_steps", "workers"):
         arguments.integer(func, o + name, getattr(options, name), 1, "give at least 1", f"{name}=1")
     arguments.integer(func, o + "near", options.near, 0, "is negative", "near=4")

@@ -142,7 +142,8 @@ def write_report(r, output: str, command: str) -> Path:
     d = r.diagnosis
     print(f"{r.model}: {d.verdict}" + (f": {', '.join(d.candidates)}" if d.candidates else ""))
     if d.detection is not None:
-        print(f"  detected at t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}), "
+        test = "" if d.detection.test == "mean" else f", the {d.detection.test} test"
+        print(f"  detected at t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}{test}), "
               f"onset t = {events.time_text(d.onset)}")  # a logger's Unix time in full
     for line in report.plain_words(d, r.labels):
         print(f"  {printable(line)}")
@@ -212,6 +213,11 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--horizon", type=float, default=None, metavar="TIME",
                    help="the detector's false-alarm rate is per this much time (default: the model's run length, "
                         "simulation.steps x dt)")
+    p.add_argument("--detect", type=detectors, default=("mean",), metavar="TESTS",
+                   help="the detector's tests, comma-separated: mean (the residuals' windowed mean, always), drift "
+                        "(long and ramp-weighted windows: slow drifts), variance (a burst of noise, a frozen "
+                        "sensor), frozen (readings that repeat to the last digit), or all; they share the "
+                        "false-alarm rate (default: mean)")
     p.add_argument("--gap", type=float, default=None, metavar="TIME",
                    help="missing samples longer than this are reported as a gap (default: 10 steps of dt)")
     p.add_argument("--input-timing", choices=("end", "start"), default=None,
@@ -221,6 +227,19 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-recheck", dest="recheck", action="store_false",
                    help="do not weigh the fault models the symbols ruled out before a verdict (faster; trusts the "
                         "symbols, as the thesis does)")
+
+def detectors(text: str) -> tuple[str, ...]:
+    """An argparse type: ``--detect``'s families of tests, the mean test first and always."""
+    from ..diagnosis.detect import TESTS
+
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    if names == ["all"]:
+        return TESTS
+    wrong = [t for t in names if t not in TESTS]
+    if wrong or not names:
+        raise argparse.ArgumentTypeError(f"{text!r}: give some of {', '.join(TESTS)}, comma-separated, or all")
+    return tuple(t for t in TESTS if t in names or t == "mean")
+
 
 def at_least(low: int, message: str):
     """An argparse type: an integer >= ``low``; ``message`` (with ``{value}``) says what is wrong."""

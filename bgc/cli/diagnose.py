@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         options = DiagnosisOptions(filter=args.filter, particles=args.particles, seed=args.seed,
                                    identify=args.identify, rank=args.rank, refine=args.refine,
                                    horizon=args.horizon, gap=args.gap, recheck=args.recheck,
-                                   input_timing=args.input_timing)
+                                   input_timing=args.input_timing, detectors=args.detect)
         steps = args.steps if args.scenario is not None else rows_of(args.data)  # auto's estimate of the work
         session = api.open(args.model, process_noise=process, measurement_noise=measurement,
                            generated=args.generated, prior_scale=args.prior_scale, backend=args.backend,

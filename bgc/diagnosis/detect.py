@@ -62,13 +62,60 @@ in every sensor's residuals (Basseville and Nikiforov, 1993, ch. 2):
     t_hat = argmax_t  sum_j (z_t,j + ... + z_k,j)^2 / (k - t + 1),   k - L < t <= k,
 
 ``L`` the longest window.
+
+**A bank of tests** (``DetectorOptions.tests``; ``--detect``). The mean test
+is always on; three families may join it, and the families share the
+false-alarm probability ``alpha`` equally (``alpha / F`` each, ``F`` the
+families on), each holding its share by the union bound over its own tests
+(steps x sensors x windows), so that the detector's whole false-alarm
+probability per horizon stays at most ``alpha``:
+
+* ``drift``: a slow drift moves each residual too little for a 32-sample
+  mean. Ramp-weighted sums over the last ``W`` samples (``W`` in
+  :data:`DRIFT_RAMPS`), the generalised likelihood ratio of a drift from
+  ``k - W + 1`` on (a ramp in the residual: a filter that cannot follow it),
+
+      S = (1 z_k-W+1 + 2 z_k-W+2 + ... + W z_k) / sqrt(W (W + 1) (2 W + 1) / 6),
+
+  and plain sums over the long windows :data:`DRIFT_MEANS` (a filter that
+  follows a drift leaves a small constant offset in its residuals), both
+  N(0, 1) without a fault, with the Monte Carlo allowance of the mean test
+  in the ramp's weights. At an alarm, the onset is the change point of a
+  ramp (of a mean shift for a long mean) over the longest window.
+* ``variance``: a burst of noise raises the residuals' variance, a frozen
+  sensor lowers it (the filter follows the stuck reading and the residual
+  keeps only what the prediction wanders). Over ``W`` samples (``W`` in
+  :data:`VARIANCE_WINDOWS`) the centred sum of squares
+  ``Q = sum (z - mean z)^2`` is chi-square with ``W - 1`` degrees of freedom
+  without a fault (the centring leaves out an offset, the Monte Carlo error
+  common to the window too); the test alarms below its ``p`` quantile or
+  above its ``1 - p`` quantile, ``p = alpha / F / (2 T n_y n_W)``. The onset is
+  the change point of the variance (the likelihood ratio
+  ``m (v - 1 - log v)`` of the ``m`` samples from ``t``, ``v`` their centred
+  mean square).
+* ``frozen``: a sensor whose reading repeats to the last digit. A reading is
+  the plant's value plus the sensor's noise, at least N(0, r^2) (``r`` the
+  model's std), independent of the past, so the chance that it falls in the
+  previous reading's bin of width ``q`` (the data's resolution) is at most
+  ``rho = q / (sqrt(2 pi) r)``, and ``n`` repeats in a row at most
+  ``rho^n``; the test alarms when ``rho^n <= alpha / F / (T n_y)``. ``q`` is
+  bounded by the smallest change seen between two readings of the sensor
+  (every change is a multiple of the resolution; on full-precision data a
+  repeat is all but impossible and two repeats alarm). A sensor whose noise
+  is smaller than the model says fails the variance test as well: the model
+  does not fit it.
+
+When several families alarm at one step, the alarm is the one furthest past
+its own level (the log of its p-value over its level). The alarm names the
+family (:class:`~bgc.diagnosis.values.Detection`'s ``test``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from collections import deque
-from math import isfinite, sqrt
+from math import erfc, isfinite, log, pi, sqrt
 from statistics import NormalDist
 
 import numpy as np
@@ -94,19 +141,51 @@ def union_threshold(alpha: float, tests: int) -> float:
     return NormalDist().inv_cdf(1.0 - alpha / (2.0 * max(1, tests)))
 
 
+#: The detector's families of tests, in the order an alarm names them on a tie (module docstring).
+TESTS = ("mean", "drift", "variance", "frozen")
+#: The drift family's ramp-weighted windows and its long mean windows (samples).
+DRIFT_RAMPS = (32, 128, 256)
+DRIFT_MEANS = (128, 256)
+#: The variance family's windows (samples).
+VARIANCE_WINDOWS = (8, 32)
+
+
 @dataclass(frozen=True, slots=True)
 class DetectorOptions:
     """``false_alarm``: probability of any alarm in a fault-free run of
-    ``steps`` steps (all sensors, all windows); ``windows``: window lengths in
-    samples."""
+    ``steps`` steps (all sensors, all windows, all tests); ``windows``: the
+    mean test's window lengths in samples; ``tests``: the families of tests
+    run (:data:`TESTS`; the mean test always), which share ``false_alarm``
+    equally (module docstring, "A bank of tests")."""
 
     false_alarm: float = 0.01
     windows: tuple[int, ...] = (1, 8, 32)
     steps: int = 300
+    tests: tuple[str, ...] = ("mean",)
+
+    @property
+    def share(self) -> float:
+        """Each family's part of the false-alarm probability."""
+        return self.false_alarm / max(1, len(self.tests))
+
+    def _tests(self, sensors: int, per_step: int) -> int:
+        return max(1, self.steps) * max(1, sensors) * per_step
 
     def threshold(self, sensors: int) -> float:
-        """The |S| above which the detector alarms (see the module docstring)."""
-        return union_threshold(self.false_alarm, max(1, self.steps) * max(1, sensors) * len(self.windows))
+        """The |S| above which the mean test alarms (see the module docstring)."""
+        return union_threshold(self.share, self._tests(sensors, len(self.windows)))
+
+    def drift_threshold(self, sensors: int) -> float:
+        """The |S| above which a test of the drift family alarms."""
+        return union_threshold(self.share, self._tests(sensors, len(DRIFT_RAMPS) + len(DRIFT_MEANS)))
+
+    def variance_level(self, sensors: int) -> float:
+        """The probability of each tail of each variance test, each step."""
+        return self.share / (2.0 * self._tests(sensors, len(VARIANCE_WINDOWS)))
+
+    def frozen_level(self, sensors: int) -> float:
+        """The probability, each step and sensor, at or below which repeated readings alarm."""
+        return self.share / self._tests(sensors, 1)
 
 
 class Detector:
@@ -121,9 +200,11 @@ class Detector:
     cumulative sums of the last ``max(windows) + 1`` steps are kept: the
     windows and the onset's search reach no further back."""
 
-    def __init__(self, sensors: tuple[str, ...], options: DetectorOptions = DetectorOptions()):
+    def __init__(self, sensors: tuple[str, ...], options: DetectorOptions = DetectorOptions(), noise=None):
         self.sensors = sensors
         self.options = options
+        # the drift, variance and frozen tests (``noise``: the sensors' noise std, which the frozen test needs)
+        self.more = Families(sensors, options, noise) if len(options.tests) > 1 else None
         self.threshold = options.threshold(len(sensors))
         self._windows = tuple(int(w) for w in options.windows)
         self._longest = max(self._windows)
@@ -133,12 +214,30 @@ class Detector:
         self._mc = deque([zero], maxlen=self._longest + 1)
         self.statistics: list[list[float]] = []  # max over windows of |S|, per sensor and step
 
-    def update(self, z, mc=None) -> Detection | None:
+    def update(self, z, mc=None, y=None) -> Detection | None:
         """Take the normalised residuals of one step (NaN: sensor not read)
         and, from a particle filter, the Monte Carlo std of its prediction in
         units of its predicted std (:func:`monte_carlo_share`; none: an exact
-        prediction); return the alarm when this step raises one. ``z``,
-        ``mc``: arrays or sequences of floats, one per sensor."""
+        prediction), and the readings ``y`` themselves (the frozen test's;
+        none: no frozen test this step); return the alarm when this step
+        raises one. ``z``, ``mc``, ``y``: arrays or sequences of floats, one
+        per sensor."""
+        alarm = self._mean(z, mc)
+        if self.more is None:
+            return alarm
+        found = self.more.update(z, mc, y)
+        if alarm is not None:
+            found.insert(0, (alarm, _normal_excess(alarm.statistic, alarm.threshold)))
+        if not found:
+            return None
+        best = min(found, key=lambda pair: pair[1])[0]  # the most significant for its level; a tie: TESTS' order
+        if best.test == "mean":
+            return best
+        k = len(self.statistics) - 1  # the tests count their own steps: a record forgotten shifts this one's
+        return dataclasses.replace(best, step=k, onset_step=best.onset_step + k - (self.more.taken - 1))
+
+    def _mean(self, z, mc) -> Detection | None:
+        """The mean test's step (the module docstring)."""
         k = len(self.statistics)  # steps taken before this one
         c, m = self._cumsum, self._mc
         c_now = _accumulate(c[-1], z)
@@ -248,3 +347,250 @@ class DetectorBank:
             out.append(Detection(local, self.sensors[j], int(self._windows[w]), float(value),
                                  float(self.thresholds[r]), onset))
         return out
+
+
+def _normal_excess(statistic: float, threshold: float) -> float:
+    """How far a two-sided Z test is past its level: log(p / p at the threshold), negative past it."""
+    return _log_tail(statistic) - _log_tail(threshold)
+
+
+def _log_tail(z: float) -> float:
+    """log P(|Z| > z), Z ~ N(0, 1) (no underflow to log 0 before z = 37)."""
+    return log(max(erfc(z / sqrt(2.0)), 1e-300))
+
+
+class Families:
+    """The tests a :class:`Detector` runs beside the mean test when its
+    options ask for them (:data:`TESTS`; module docstring, "A bank of
+    tests"), one step at a time on Python floats, from running sums over
+    their longest window (a bounded record, whatever the stream's length):
+
+    - ``drift``: ramp-weighted sums over :data:`DRIFT_RAMPS` and plain sums
+      over :data:`DRIFT_MEANS` of each sensor's normalised residuals;
+    - ``variance``: the centred sum of squares over :data:`VARIANCE_WINDOWS`
+      against both tails of its chi-square law;
+    - ``frozen``: readings repeated to the data's resolution.
+
+    :meth:`update` returns the alarms of the step, each with how far it is
+    past its level (the log of its p-value over the level's)."""
+
+    def __init__(self, sensors: tuple[str, ...], options: DetectorOptions, noise=None):
+        unknown = [t for t in options.tests if t not in TESTS]
+        if unknown or "mean" not in options.tests:
+            raise ValueError(f"detector tests {options.tests!r}: the mean test and some of {TESTS[1:]!r}")
+        n = len(sensors)
+        self.sensors = sensors
+        self.drift = "drift" in options.tests
+        self.variance = "variance" in options.tests
+        self.frozen = "frozen" in options.tests and noise is not None
+        longest = max(((*DRIFT_RAMPS, *DRIFT_MEANS) if self.drift else ())
+                      + (VARIANCE_WINDOWS if self.variance else ()) + (1,))
+        zero = (0.0,) * n
+        # running sums (the newest last) of z, of those sums, of a_k and of theirs, of z^2, and of the readings taken
+        self._c = deque([zero], maxlen=longest + 2)
+        self._cc = deque([zero], maxlen=longest + 2)
+        self._a = deque([zero], maxlen=longest + 2)
+        self._aa = deque([zero], maxlen=longest + 2)
+        self._sq = deque([zero], maxlen=longest + 2)
+        self._n = deque([zero], maxlen=longest + 2)
+        self.taken = 0
+        if self.drift:
+            self.drift_threshold = options.drift_threshold(n)
+        if self.variance:
+            from scipy.stats import chi2
+
+            level = options.variance_level(n)
+            df = np.arange(1, max(VARIANCE_WINDOWS))
+            # per degrees of freedom (index df - 1): the bounds of the centred sum of squares
+            self._low = tuple(chi2.ppf(level, df).tolist())
+            self._high = tuple(chi2.isf(level, df).tolist())
+            self._level = level
+        if self.frozen:
+            self._log_frozen = log(options.frozen_level(n))
+            self._noise = tuple(float(v) for v in np.asarray(noise, dtype=float).reshape(n))
+            self._last = [float("nan")] * n  # per sensor: its last reading, the readings repeating it, and the
+            self._repeats = [0] * n          # smallest change seen between two of its readings (the resolution's bound)
+            self._step = [float("inf")] * n
+
+    def bounds(self, df: int) -> tuple[float, float]:
+        """The variance test's bounds on the centred sum of squares of a
+        window with ``df + 1`` residuals: its chi-square law's quantiles at
+        the test's level, each tail."""
+        return self._low[df - 1], self._high[df - 1]
+
+    # -- the state as plain data ---------------------------------------------------------------------------
+
+    def state(self) -> tuple:
+        """Everything :meth:`update` carries from step to step, as tuples of floats."""
+        rings = tuple(tuple(d) for d in (self._c, self._cc, self._a, self._aa, self._sq, self._n))
+        frozen = (tuple(self._last), tuple(self._repeats), tuple(self._step)) if self.frozen else ()
+        return rings, self.taken, frozen
+
+    def restore(self, state: tuple) -> None:
+        """Put the tests in ``state`` (:meth:`state`)."""
+        rings, self.taken, frozen = state
+        for d, rows in zip((self._c, self._cc, self._a, self._aa, self._sq, self._n), rings):
+            d.clear()
+            d.extend(tuple(float(v) for v in row) for row in rows)
+        if frozen:
+            self._last, self._repeats, self._step = [list(v) for v in frozen]
+
+    # -- one step --------------------------------------------------------------------------------------------
+
+    def update(self, z, mc=None, y=None) -> list[tuple[Detection, float]]:
+        """Take one step (:meth:`Detector.update`'s arguments); the alarms it
+        raises (steps counted by the caller), each with its excess."""
+        row = z.tolist() if isinstance(z, np.ndarray) else [float(v) for v in z]
+        seen = [1.0 if isfinite(v) else 0.0 for v in row]
+        zs = [v if isfinite(v) else 0.0 for v in row]
+        c_now = tuple(a + b for a, b in zip(self._c[-1], zs))
+        self._c.append(c_now)
+        self._cc.append(tuple(a + b for a, b in zip(self._cc[-1], c_now)))
+        if mc is None:
+            a_now = self._a[-1]
+        else:
+            a_row = mc.tolist() if isinstance(mc, np.ndarray) else [float(v) for v in mc]
+            a_now = tuple(a + (b if isfinite(b) else 0.0) for a, b in zip(self._a[-1], a_row))
+        self._a.append(a_now)
+        self._aa.append(tuple(a + b for a, b in zip(self._aa[-1], a_now)))
+        self._sq.append(tuple(a + b * b for a, b in zip(self._sq[-1], zs)))
+        self._n.append(tuple(a + b for a, b in zip(self._n[-1], seen)))
+        self.taken += 1
+        found: list[tuple[Detection, float]] = []
+        if self.drift:
+            found += self._drift()
+        if self.variance:
+            found += self._variances()
+        if self.frozen and y is not None:
+            found += self._frozen(y)
+        return found
+
+    def _drift(self) -> list[tuple[Detection, float]]:
+        c, cc, a, aa, threshold = self._c, self._cc, self._a, self._aa, self.drift_threshold
+        best, at = -1.0, None
+        for w in DRIFT_RAMPS:  # sum_i i z_(k-w+i), i = 1..w: w C_k - (D_k-1 - D_k-1-w)
+            if w + 2 > len(cc):
+                continue
+            norm = w * (w + 1) * (2 * w + 1) / 6.0
+            for j in range(len(self.sensors)):
+                ramp = w * c[-1][j] - (cc[-2][j] - cc[-2 - w][j])
+                spread = w * a[-1][j] - (aa[-2][j] - aa[-2 - w][j])
+                value = abs(ramp) / sqrt(norm + spread * spread)
+                if value > best:
+                    best, at = value, (w, j, "ramp")
+        for w in DRIFT_MEANS:
+            if w + 1 > len(c):
+                continue
+            for j in range(len(self.sensors)):
+                spread = a[-1][j] - a[-1 - w][j]
+                value = abs(c[-1][j] - c[-1 - w][j]) / sqrt(w + spread * spread)
+                if value > best:
+                    best, at = value, (w, j, "mean")
+        if at is None or not best > threshold:
+            return []
+        w, j, shape = at
+        onset = self._ramp_onset() if shape == "ramp" else self._mean_onset(max(DRIFT_MEANS))
+        return [(Detection(0, self.sensors[j], w, best, threshold, onset, "drift"), _normal_excess(best, threshold))]
+
+    def _variances(self) -> list[tuple[Detection, float]]:
+        c, sq, n = self._c, self._sq, self._n
+        worst, at = 0.0, None
+        for w in VARIANCE_WINDOWS:
+            if w + 1 > len(n):
+                continue
+            for j in range(len(self.sensors)):
+                count = int(round(n[-1][j] - n[-1 - w][j]))
+                if count < 2:
+                    continue
+                s1 = c[-1][j] - c[-1 - w][j]
+                q = max(sq[-1][j] - sq[-1 - w][j] - s1 * s1 / count, 0.0)
+                low, high = self.bounds(count - 1)
+                if low <= q <= high:
+                    continue
+                excess = self._chi2_excess(q, count - 1)
+                if excess < worst:
+                    worst, at = excess, (w, j, q / (count - 1), (low if q < low else high) / (count - 1))
+        if at is None:
+            return []
+        w, j, ratio, bound = at
+        return [(Detection(0, self.sensors[j], w, ratio, bound, self._variance_onset(), "variance"), worst)]
+
+    def _chi2_excess(self, q: float, df: int) -> float:
+        from scipy.stats import chi2
+
+        tail = min(float(chi2.logcdf(q, df)), float(chi2.logsf(q, df)))
+        return tail - log(self._level)
+
+    def _frozen(self, y) -> list[tuple[Detection, float]]:
+        row = y.tolist() if isinstance(y, np.ndarray) else [float(v) for v in y]
+        worst, at = 0.0, None
+        for j, v in enumerate(row):
+            if not isfinite(v):
+                continue
+            last = self._last[j]
+            if v == last:
+                self._repeats[j] += 1
+            else:
+                if isfinite(last):
+                    self._step[j] = min(self._step[j], abs(v - last))
+                self._repeats[j] = 0
+            self._last[j] = v
+            repeats = self._repeats[j]
+            if not repeats or not isfinite(self._step[j]):
+                continue
+            # P(a reading falls in its last one's bin of width q | the past) <= q / (sqrt(2 pi) r)
+            chance = self._step[j] / (sqrt(2.0 * pi) * self._noise[j])
+            if chance >= 1.0:
+                continue
+            excess = repeats * log(chance) - self._log_frozen
+            if excess <= 0.0 and excess < worst:
+                needed = int(np.ceil(self._log_frozen / log(chance)))
+                worst, at = excess, (j, repeats, needed)
+        if at is None:
+            return []
+        j, repeats, needed = at
+        return [(Detection(0, self.sensors[j], repeats + 1, float(repeats), float(needed), self.taken - repeats,
+                           "frozen"), worst)]
+
+    # -- the onsets ------------------------------------------------------------------------------------------
+
+    def _local(self, rows: deque) -> tuple[np.ndarray, int]:
+        """The ring ``rows`` as an array, and the step its first row ends (-1: before the first)."""
+        array = np.array(rows)
+        return array, self.taken - len(array)
+
+    def _mean_onset(self, longest: int) -> int:
+        cumsum, first = self._local(self._c)
+        return first + 1 + change_point(cumsum, len(cumsum) - 2, longest)
+
+    def _ramp_onset(self) -> int:
+        """The GLR change point of a ramp from an unknown step, every sensor's
+        residuals: argmax_t sum_j R_j(t)^2 / sum_i i^2, R_j(t) = sum_i i z_(t-1+i)."""
+        c, _ = self._local(self._c)
+        cc, _ = self._local(self._cc)
+        last = len(c) - 1
+        best, at = -1.0, self.taken - 1
+        for n in range(1, min(max(DRIFT_RAMPS), last - 1) + 1):
+            ramp = n * c[last] - (cc[last - 1] - cc[last - 1 - n])
+            score = float(ramp @ ramp) / (n * (n + 1) * (2 * n + 1) / 6.0)
+            if score > best:
+                best, at = score, self.taken - n
+        return at
+
+    def _variance_onset(self) -> int:
+        """The GLR change point of the residuals' variance: argmax_t sum_j
+        m (v - 1 - log v), v the centred mean square of the m samples from t."""
+        c, _ = self._local(self._c)
+        sq, _ = self._local(self._sq)
+        n, _ = self._local(self._n)
+        last = len(c) - 1
+        best, at = -1.0, self.taken - 1
+        for m in range(2, min(max(VARIANCE_WINDOWS), last) + 1):
+            count = n[last] - n[last - m]
+            s1 = c[last] - c[last - m]
+            v = np.maximum(sq[last] - sq[last - m] - np.where(count > 0, s1 * s1 / np.maximum(count, 1), 0.0), 1e-12)
+            v = v / np.maximum(count - 1, 1)
+            score = float(np.sum(np.where(count >= 2, count * (v - 1.0 - np.log(v)), 0.0)))
+            if score > best:
+                best, at = score, self.taken - m
+        return at

@@ -232,7 +232,7 @@ def _filters(r: Record, s: Setting) -> tuple[dict, dict]:
         taken = {name: _arrived(name, batches[name], res, trace, starts_of, results, best_of, density, r, s)
                  for name, (res, trace) in zip(names, landed)}
         batches = {name: more for name, more in taken.items() if more}
-    first = min(min(v) for v in starts_of.values())
+    first = min((min(v) for v in starts_of.values()), default=iso.onset)  # none: a frozen sensor not declared
     for out in results.values():  # the common span starts at `first`
         out["evidence"] -= float(density[:first].sum())
     return results, starts_of

@@ -133,7 +133,8 @@ class Loop:
         self.pf_class = filter_class(config.package, "gpf" if config.ckf else o.filter)  # ckf: the open loop's
         self.present = np.array([y in config.present for y in self.outputs])
         self.detector = Detector(tuple(y for y in self.outputs if y in config.present),
-                                 DetectorOptions(o.false_alarm, o.windows, self.horizon))
+                                 DetectorOptions(o.false_alarm, o.windows, self.horizon, o.detectors),
+                                 np.asarray(nominal.MEASUREMENT_STD, dtype=float)[self.present])
         self.pf = None if config.ckf else self.pf_class(nominal, o.particles, np.random.default_rng([o.seed, 0]))
         self.kf = NominalKalman(nominal, len(self.outputs)) if config.ckf else None
         if self.pf is not None:  # what its first step would make, made before the data come
@@ -202,7 +203,8 @@ class Loop:
                     self.clouds[k] = (self.pf.x.copy(), self.pf.logw.copy())
                     self.clouds.pop(k - o.history - 1, None)
                 present = self.present
-                detection = self.detector.update(np.asarray(zk)[present], None if mc is None else mc[present])
+                detection = self.detector.update(np.asarray(zk)[present], None if mc is None else mc[present],
+                                                 np.asarray(s.y, dtype=float)[present])
         if detection is not None:
             self._alarm(detection)
         if self.pf is not None:
@@ -215,7 +217,7 @@ class Loop:
         self.detection = detection
         self.config.say(f"fault detected at t = {self.samples[detection.step].t:.12g} on {detection.sensor}")
         self.events.append(ev.Alarmed(detection.step, detection.sensor, detection.window, detection.statistic,
-                                      detection.threshold, detection.onset_step))
+                                      detection.threshold, detection.onset_step, detection.test))
         degenerate = self.degenerate()
         if degenerate is not None:
             self.events.append(degenerate)
@@ -419,6 +421,13 @@ def isolate(config: LoopConfig, pf_class, detection, clouds: dict, ys: np.ndarra
     elif not keep:
         events.append(ev.AllTried("no-signature", T - 1))
         keep = list(config.signatures.signatures)
+    excluded: tuple[str, ...] = ()
+    frozen = frozen_sensor(detection)
+    if frozen is not None:  # a reading held still: its sensor's stuck fault and nothing else, whatever the symbols
+        keep = [s for s in config.signatures.signatures if s.parameter == f"{frozen}_stuck"]
+        kept = {f"{s.parameter}_{s.kind}" for s in keep}
+        excluded = tuple(sorted(n for n in package.MODELS if n != "nominal" and n not in kept))
+        events = [ev.ReadingFrozen(T - 1, frozen, detection.onset_step, tuple(sorted(kept)))]
     models: dict[str, list[str]] = {}
     for s in keep:
         models.setdefault(f"{s.parameter}_{s.kind}", []).append(s.name)
@@ -428,7 +437,16 @@ def isolate(config: LoopConfig, pf_class, detection, clouds: dict, ys: np.ndarra
     return Isolation(onset, seen, tuple((s.name, why) for s, why in dropped),
                      tuple(f"{s.parameter}_{s.kind}" for s, _ in dropped), models, names, drifts,
                      {name: onsets[drifts[name]] for name in names}, reach, kalman_onsets, kalman_reach,
-                     tuple(events))
+                     tuple(events), excluded)
+
+
+def frozen_sensor(detection) -> str | None:
+    """The sensor the detector saw frozen: its reading repeated to the last
+    digit, or its residual's variance fell below the variance test's lower
+    bound (:mod:`bgc.diagnosis.detect`); None for every other alarm."""
+    if detection.test == "frozen" or (detection.test == "variance" and detection.statistic < detection.threshold):
+        return detection.sensor
+    return None
 
 
 def _onsets(o: DiagnosisOptions, detection, T: int):

@@ -96,7 +96,10 @@ class DiagnosisOptions:
     run length, ``simulation.steps`` x ``dt``, filled in by :func:`bgc.open`
     and :func:`bgc.diagnose`; the record's length for the runtime's own
     :func:`~bgc.diagnosis.diagnose.diagnose`): the same detector for a file of
-    any length and for a stream; ``windows``: the Z-tests' window lengths.
+    any length and for a stream; ``windows``: the Z-tests' window lengths;
+    ``detectors``: the families of tests the detector runs, sharing
+    ``false_alarm`` (``mean`` always; ``drift``, ``variance``, ``frozen``:
+    :mod:`bgc.diagnosis.detect`, "A bank of tests").
 
     **Isolation** (:mod:`bgc.diagnosis.isolate`, :mod:`bgc.diagnosis.onsets`):
     ``symbol_steps``: open-loop steps read for the symbols after the alarm
@@ -143,6 +146,7 @@ class DiagnosisOptions:
     false_alarm: float = 0.01
     rejection: float = 0.001
     windows: tuple[int, ...] = (1, 8, 32)
+    detectors: tuple[str, ...] = ("mean",)
     history: int = 256
     search: int = 64
     spacing: int | None = None
@@ -179,7 +183,7 @@ class DiagnosisOptions:
 STAGES = {
     "filters": ("filter", "particles", "seed", "shrinkage", "switch", "workers"),
     "data": ("gap", "input_timing", "keep"),
-    "detection": ("false_alarm", "horizon", "windows"),
+    "detection": ("false_alarm", "horizon", "windows", "detectors"),
     "isolation": ("symbol_steps", "history", "search", "spacing", "near"),
     "tracking": ("rejection",),
     "weighing": ("identify", "kalman", "bayes_factor", "isolation_level", "recheck", "interval", "rank", "rank_grid", "refine", "grid"),

@@ -38,8 +38,8 @@ from .options import DiagnosisOptions
 from .values import Detection, Isolation
 
 #: The state's format; a state of another format is refused.
-VERSION = 4  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
-# parameters of faults accommodated (2026-12-04)
+VERSION = 5  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
+# parameters of faults accommodated (2026-12-04); 5: the detector's other families of tests (2026-12-04)
 #: The first bytes of a state file.
 MAGIC = b"bgc-diagnoser-state\n"
 
@@ -84,6 +84,7 @@ class DetectorState:
     cumsum: tuple
     mc: tuple
     statistics: np.ndarray
+    more: tuple = ()  # the other families' (Families.state); () with the mean test alone
 
 
 @dataclass(frozen=True, slots=True)
@@ -280,7 +281,8 @@ def detector_state(detector) -> DetectorState:
     """The state of a :class:`~bgc.diagnosis.detect.Detector`."""
     width = len(detector.sensors)
     return DetectorState(tuple(detector._cumsum), tuple(detector._mc),
-                         np.array(detector.statistics, dtype=float).reshape(len(detector.statistics), width))
+                         np.array(detector.statistics, dtype=float).reshape(len(detector.statistics), width),
+                         () if detector.more is None else detector.more.state())
 
 
 def tracker_state(t: HypothesisTracker) -> TrackerState:
@@ -378,6 +380,8 @@ def restore_detector(detector, s: DetectorState) -> None:
     detector._mc.clear()
     detector._mc.extend(tuple(row) for row in s.mc)
     detector.statistics = [list(map(float, row)) for row in s.statistics]
+    if detector.more is not None:
+        detector.more.restore(s.more)
 
 
 def restore_tracker(s: TrackerState) -> HypothesisTracker:

@@ -306,7 +306,9 @@ class Isolation:
     a drift, or a burst of noise, :attr:`bgc.kinds.FaultKind.searched_back`), each one's onsets for the particle
     filters (``starts_of``; a drift's reach back over ``reach``) and for the
     Kalman filters (``kalman_onsets`` by drift, over ``kalman_reach``), and
-    the events of the isolation."""
+    the events of the isolation; ``excluded``: the fault models the
+    detector's test rules out whatever the symbols (a frozen reading: every
+    fault but its sensor's ``stuck``), never weighed."""
 
     onset: int
     symbols: tuple
@@ -320,11 +322,12 @@ class Isolation:
     kalman_onsets: dict
     kalman_reach: list
     events: tuple = ()
+    excluded: tuple[str, ...] = ()
 
     def untried(self, package) -> list[str]:
         """The fault models of ``package`` the symbols ruled out and that
-        are not tried (sorted)."""
-        return sorted({n for n in self.ruled_out if n in package.MODELS} - set(self.names))
+        are not tried (sorted), those the detector's test excludes left out."""
+        return sorted({n for n in self.ruled_out if n in package.MODELS} - set(self.names) - set(self.excluded))
 
 
 @dataclass(frozen=True, slots=True)
@@ -332,7 +335,12 @@ class Detection:
     """An alarm: at step ``step`` (index into the run), on ``sensor`` (its
     name) with window ``window`` and statistic ``statistic`` (``|S| > threshold``);
     ``onset_step``: the estimated first faulty step (None: not estimated, see
-    :meth:`DetectorBank.update`)."""
+    :meth:`DetectorBank.update`); ``test``: the family of tests that fired
+    (:data:`bgc.diagnosis.detect.TESTS`: ``mean``, ``drift``, ``variance``,
+    ``frozen``; for ``variance`` the statistic is the window's variance
+    ratio and the threshold the bound it crossed, for ``frozen`` the
+    statistic is the readings repeated and the threshold the repeats that
+    alarm)."""
 
     step: int
     sensor: str
@@ -340,6 +348,7 @@ class Detection:
     statistic: float
     threshold: float
     onset_step: int | None
+    test: str = "mean"
 
 
 @dataclass(frozen=True, slots=True)

@@ -62,9 +62,8 @@ def sentence(e, time_of) -> str:
             where = f" (line {line})" if line is not None else ""
             return (f"the sample at t = {time_text(when)}{where} falls on a step of the model's grid a sample already took "
                     f"(t = {t(k)}): skipped; give the model a dt no longer than the sampling interval to use every one")
-        case ev.Alarmed(step=k, sensor=s, window=w, statistic=z, threshold=c, onset=o):
-            return (f"alarm on {s}: its residual over {w} sample(s) reached {z:.1f} (threshold "
-                    f"{c:.1f}); estimated onset t = {t(o)}")
+        case ev.Alarmed(step=k, sensor=s, window=w, statistic=z, threshold=c, onset=o, test=test):
+            return f"alarm on {s}: {alarm_text(test, w, z, c)}; estimated onset t = {t(o)}"
         case ev.Degenerate(method=m, ess=e_, particles=n, switched=sw):
             tail = "; diagnosed with cubature Kalman filters (ckf) instead" if sw else \
                 "; use --filter ckf (cubature Kalman filters), or more particles"
@@ -81,6 +80,12 @@ def sentence(e, time_of) -> str:
                     "as well")
         case ev.AllTried():
             return "no fault signature agrees with the observed symbols: every fault model is tried"
+        case ev.ReadingFrozen(sensor=y, onset=o, kept=kept):
+            head = f"{y} is frozen from t = {t(o)}: no fault of the plant holds a reading still, "
+            if kept:
+                return head + f"so only {', '.join(kept)} is tried"
+            return (head + f"and the model declares no stuck fault of {y}: unexplained (declare stuck among "
+                    f"{y}'s kinds in the model's faults to have it diagnosed and sized)")
         case ev.Started(step=k, hypothesis=h, onsets=onsets):
             return f"tracking {h} from {len(onsets)} onset(s), t = {t(min(onsets))} to {t(max(onsets))}"
         case ev.Refined(hypothesis=h, onset=o, first=a, last=b):
@@ -246,7 +251,7 @@ def record(e, time_of) -> dict:
 #: Events the command line prints after a diagnosis (the others are in the report).
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped, ev.SensorResumed,
            ev.InputFromModel, ev.ModeHidden, ev.ModesReread, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate,
-           ev.AllTried, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded,
+           ev.AllTried, ev.ReadingFrozen, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded,
            ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.Mismatched)
 
 
@@ -331,3 +336,18 @@ def fault_sentence(e, since, per_time: str = "per unit time") -> str:
     if e.bound is not None:
         text += ", or more: the model's prior ends there"
     return text
+
+
+def alarm_text(test: str, window: int, statistic: float, threshold: float) -> str:
+    """What the detector's test ``test`` saw (:class:`bgc.diagnosis.values.Detection`)."""
+    if test == "drift":
+        return (f"the drift test's statistic over {window} sample(s) reached {statistic:.1f} (threshold "
+                f"{threshold:.1f})")
+    if test == "variance":
+        way = "rose" if statistic > threshold else "fell"
+        return (f"the variance of its residual over {window} sample(s) {way} to {statistic:.3g} times the model's "
+                f"(bound {threshold:.3g})")
+    if test == "frozen":
+        return (f"its reading repeated {statistic:.0f} times to the last digit (a frozen sensor; "
+                f"{threshold:.0f} repeats alarm at the data's resolution)")
+    return f"its residual over {window} sample(s) reached {statistic:.1f} (threshold {threshold:.1f})"

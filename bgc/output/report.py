@@ -315,9 +315,12 @@ def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:
 
 def no_detection_text(d, labels: Labels = Labels()) -> str:
     """Why the verdict is no fault: the threshold no window passed."""
+    tests = d.options.detectors
+    more = "" if len(tests) == 1 else (f"; nor did the {', '.join(tests[1:])} test{'s' if len(tests) > 2 else ''} "
+                                        "alarm, which share that probability")
     return (f"No window of the nominal observer's normalised residuals passed the threshold "
             f"{d.threshold:.2f} (a false-alarm probability of {d.options.false_alarm:g} per {_per(d, labels)}, "
-            f"windows {', '.join(map(str, d.options.windows))} samples).")
+            f"windows {', '.join(map(str, d.options.windows))} samples{more}).")
 
 
 def detection_lines(d, labels: Labels = Labels()) -> list[str]:
@@ -325,9 +328,16 @@ def detection_lines(d, labels: Labels = Labels()) -> list[str]:
     det = d.detection
     if det is None:
         return []
-    return [f"alarm at t = {_tt(d, det.step)}: sensor {det.sensor}, window of {det.window} sample(s), "
-            f"|Z| = {det.statistic:.2f} > {det.threshold:.2f} (false-alarm probability "
-            f"{d.options.false_alarm:g} per {_per(d, labels)})",
+    if det.test == "mean":
+        seen = (f"sensor {det.sensor}, window of {det.window} sample(s), |Z| = {det.statistic:.2f} > "
+                f"{det.threshold:.2f}")
+    else:
+        said = events.alarm_text(det.test, det.window, det.statistic, det.threshold)
+        seen = f"sensor {det.sensor}, the {det.test} test: {said}"
+    tests = d.options.detectors
+    shared = "" if len(tests) == 1 else f", shared by the tests {', '.join(tests)}"
+    return [f"alarm at t = {_tt(d, det.step)}: {seen} (false-alarm probability "
+            f"{d.options.false_alarm:g} per {_per(d, labels)}{shared})",
             f"change point of the residuals: t = {_tt(d, det.onset_step)}; onset of the diagnosis: "
             f"t = {_tt(d, d.onset_step)}"]
 

@@ -1,0 +1,275 @@
+"""The detector's bank of tests (issue 48, point 2; bgc.diagnosis.detect,
+"A bank of tests"): a drift test, a variance test and a frozen-sensor test
+beside the windowed mean test, sharing one false-alarm budget.
+
+The statistics and thresholds are derived here from their closed forms
+(ramp-weighted sums computed by convolution, the normal quantile of the
+union bound, the chi-square law of even degrees of freedom in closed form,
+the repeat bound q / (sqrt(2 pi) r)) and compared with what the detector
+computes step by step; the slow tests feed it a plant simulated by another
+simulator (tests/test_mismatch.py's exact solution of the circuit) with a
+sensor that freezes, one whose noise grows five times, and a healthy run.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+import bgc
+from bgc.diagnosis import state as states
+from bgc.diagnosis.detect import (DRIFT_MEANS, DRIFT_RAMPS, TESTS, VARIANCE_WINDOWS, Detector,
+                                  DetectorOptions)
+
+from conftest import bgc_cli
+
+ALL = TESTS
+
+
+def _ramp_stats(z: np.ndarray, k: int) -> dict:
+    """Every drift statistic at step k of one sensor's residuals ``z``, computed directly."""
+    out = {}
+    for w in DRIFT_RAMPS:
+        if w + 1 <= k:  # the detector needs w + 2 running sums: a window that fits with one step before it
+            weights = np.arange(1, w + 1)
+            out[("ramp", w)] = abs(weights @ z[k - w + 1:k + 1]) / math.sqrt(weights @ weights)
+    for w in DRIFT_MEANS:
+        if w <= k + 1:
+            out[("mean", w)] = abs(z[k - w + 1:k + 1].sum()) / math.sqrt(w)
+    return out
+
+
+def _mean_stats(z: np.ndarray, k: int, windows=(1, 8, 32)) -> dict:
+    return {w: abs(z[k - w + 1:k + 1].sum()) / math.sqrt(w) for w in windows if w <= k + 1}
+
+
+def test_a_ramp_is_found_by_the_drift_test_at_its_closed_form_and_dated_at_its_start():
+    steps, start, slope = 300, 40, 0.006
+    z = np.where(np.arange(steps) >= start, slope * (np.arange(steps) - start + 1), 0.0)
+    options = DetectorOptions(0.01, (1, 8, 32), steps, ("mean", "drift"))
+    # each family holds half the budget by the union bound over its own tests
+    c_mean = norm.isf(0.005 / (2 * steps * 1 * 3))
+    c_drift = norm.isf(0.005 / (2 * steps * 1 * (len(DRIFT_RAMPS) + len(DRIFT_MEANS))))
+    assert options.threshold(1) == pytest.approx(c_mean, rel=1e-9)
+    assert options.drift_threshold(1) == pytest.approx(c_drift, rel=1e-9)
+    expected = None
+    for k in range(steps):
+        mean = max(_mean_stats(z, k).values())
+        drift = _ramp_stats(z, k)
+        if mean > c_mean or (drift and max(drift.values()) > c_drift):
+            expected = (k, mean, drift)
+            break
+    assert expected is not None
+    k, mean, drift = expected
+    assert mean <= c_mean  # the ramp is slow enough that the drift test sees it first
+    detector = Detector(("y",), options)
+    alarm = None
+    for i in range(steps):
+        alarm = detector.update([z[i]])
+        if alarm is not None:
+            break
+    shape, window = max(drift, key=drift.get)
+    assert (alarm.step, alarm.test, alarm.window) == (k, "drift", window)
+    assert alarm.statistic == pytest.approx(drift[(shape, window)], rel=1e-9)
+    if shape == "ramp":
+        # the template of the ramp from its first step fits it exactly: by Cauchy-Schwarz no other start scores as much
+        assert alarm.onset_step == start
+
+
+def test_the_mean_test_alone_is_unchanged_and_the_bank_shares_its_budget():
+    steps, sensors = 400, 3
+    alone = DetectorOptions(0.01, (1, 8, 32), steps)
+    assert alone.threshold(sensors) == pytest.approx(norm.isf(0.01 / (2 * steps * sensors * 3)), rel=1e-9)
+    bank = DetectorOptions(0.01, (1, 8, 32), steps, ALL)
+    assert bank.threshold(sensors) == pytest.approx(norm.isf(0.0025 / (2 * steps * sensors * 3)), rel=1e-9)
+    assert bank.variance_level(sensors) == pytest.approx(0.0025 / (2 * steps * sensors * len(VARIANCE_WINDOWS)))
+    assert bank.frozen_level(sensors) == pytest.approx(0.0025 / (steps * sensors))
+
+
+def _chi2_even_sf(x: float, df: int) -> float:
+    """P(chi2_df > x) for even df: exp(-x/2) sum_{i < df/2} (x/2)^i / i!."""
+    half = x / 2.0
+    return math.exp(-half) * sum(half ** i / math.factorial(i) for i in range(df // 2))
+
+
+def test_the_variance_bounds_are_the_chi_square_quantiles_at_the_level():
+    options = DetectorOptions(0.01, (1, 8, 32), 300, ALL)
+    detector = Detector(("a", "b"), options, noise=[0.1, 0.1])
+    level = options.variance_level(2)
+    for df in (2, 4, 6, 16, 30):
+        low, high = detector.more.bounds(df)
+        assert _chi2_even_sf(high, df) == pytest.approx(level, rel=1e-6)
+        assert 1.0 - _chi2_even_sf(low, df) == pytest.approx(level, rel=1e-6)
+
+
+def test_a_swinging_and_a_flat_residual_alarm_the_variance_test_with_its_ratio():
+    rng = np.random.default_rng(3)
+    steps = 300
+    for way in ("rose", "fell"):
+        z = rng.standard_normal(steps)
+        if way == "rose":  # swings of 2.5 either way: no window's mean reaches the mean test's threshold
+            z[150:] = 2.5 * (-1.0) ** np.arange(steps - 150)
+        else:  # a residual that no longer moves: off by a constant, its variance nothing
+            z[150:] = 0.4
+        options = DetectorOptions(0.01, (1, 8, 32), steps, ("mean", "variance"))
+        detector = Detector(("y",), options)
+        alarm = next(a for a in (detector.update([v]) for v in z) if a is not None)
+        assert alarm.step >= 150 and alarm.test == "variance"
+        w = alarm.window
+        window = z[alarm.step - w + 1:alarm.step + 1]
+        q = float(((window - window.mean()) ** 2).sum())
+        assert alarm.statistic == pytest.approx(q / (w - 1), rel=1e-6, abs=1e-12)
+        low, high = detector.more.bounds(w - 1)
+        assert (q > high) if way == "rose" else (q < low)
+        assert abs(alarm.onset_step - 150) <= 3
+
+
+def _quantised(rng, n: int, step: float, r: float) -> list[float]:
+    values = np.round((1.0 + r * rng.standard_normal(n)) / step) * step
+    values[1] = values[0] + step  # one change of exactly the resolution
+    return values.tolist()
+
+
+@pytest.mark.parametrize("resolution", [1e-3, 1e-6])
+def test_a_frozen_reading_alarms_after_the_repeats_its_resolution_allows(resolution):
+    rng = np.random.default_rng(5)
+    r, steps = 0.02, 300
+    readings = _quantised(rng, 100, resolution, r)
+    assert len(set(readings[-5:])) == 5  # the plant's readings move
+    frozen = readings + [readings[-1]] * 50
+    options = DetectorOptions(0.01, (1, 8, 32), steps, ("mean", "frozen"))
+    detector = Detector(("y",), options, noise=[r])
+    smallest = min(abs(a - b) for a, b in zip(readings, readings[1:]) if a != b)
+    assert smallest == pytest.approx(resolution, rel=1e-6)
+    chance = smallest / (math.sqrt(2 * math.pi) * r)
+    needed = math.ceil(math.log(options.frozen_level(1)) / math.log(chance))
+    alarm = None
+    for i, v in enumerate(frozen):
+        alarm = detector.update([0.0], None, [v])
+        if alarm is not None:
+            break
+    assert (alarm.step, alarm.test, alarm.onset_step) == (99 + needed, "frozen", 100)
+    assert (alarm.statistic, alarm.threshold) == (needed, needed)
+
+
+def test_readings_coarser_than_their_noise_never_alarm_the_frozen_test():
+    rng = np.random.default_rng(6)
+    readings = _quantised(rng, 300, 0.1, 0.02)  # most readings repeat: a repeat says nothing
+    detector = Detector(("y",), DetectorOptions(0.01, (1, 8, 32), 300, ("mean", "frozen")), noise=[0.02])
+    assert all(detector.update([0.0], None, [v]) is None for v in readings)
+
+
+def test_white_residuals_alarm_the_bank_at_most_at_its_false_alarm_rate():
+    rng = np.random.default_rng(7)
+    runs, steps, alpha = 300, 100, 0.2
+    options = DetectorOptions(alpha, (1, 8, 32), steps, ALL)
+    alarms = Counter = {}
+    for _ in range(runs):
+        detector = Detector(("a", "b"), options, noise=[0.05, 0.05])
+        z = rng.standard_normal((steps, 2))
+        y = 1.0 + 0.05 * z  # readings at full precision, with the noise the model declares
+        for k in range(steps):
+            alarm = detector.update(z[k], None, y[k])
+            if alarm is not None:
+                alarms[alarm.test] = Counter.get(alarm.test, 0) + 1
+                break
+    count = sum(alarms.values())
+    # the union bound holds each family's share: the whole rate at most alpha (3 standard errors of slack)
+    assert count <= alpha * runs + 3 * math.sqrt(runs * alpha * (1 - alpha)), alarms
+
+
+def test_the_banks_state_round_trips_and_the_run_goes_on_as_if_never_stopped():
+    rng = np.random.default_rng(8)
+    steps = 400
+    z = rng.standard_normal((steps, 2))
+    z[300:, 0] += 0.01 * np.arange(100)  # a drift late in the run
+    y = np.round(1.0 + 0.05 * z, 4)
+    options = DetectorOptions(0.01, (1, 8, 32), steps, ALL)
+
+    def run(detector, rows):
+        for k in rows:
+            alarm = detector.update(z[k], None, y[k])
+            if alarm is not None:
+                return alarm
+        return None
+
+    whole = Detector(("a", "b"), options, noise=[0.05, 0.05])
+    expected = run(whole, range(steps))
+    half = Detector(("a", "b"), options, noise=[0.05, 0.05])
+    assert run(half, range(200)) is None
+    saved = states.detector_state(half)
+    again = Detector(("a", "b"), options, noise=[0.05, 0.05])
+    states.restore_detector(again, saved)
+    assert run(again, range(200, steps)) == expected
+    assert expected is not None and expected.step >= 300
+
+
+def test_the_options_refuse_a_bank_without_the_mean_test_or_an_unknown_family():
+    with pytest.raises(bgc.ArgumentValueError, match="mean"):
+        bgc.diagnose("models/circuit.yaml", scenario="none", steps=20,
+                     options=bgc.DiagnosisOptions(detectors=("drift",)))
+    out = bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "none", "--detect", "slope")
+    assert out.returncode == 2 and "'slope': give some of mean, drift, variance, frozen" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def _circuit_with(path, seed: int, change: str) -> float:
+    """A healthy run of the circuit by another simulator (tests/test_mismatch.py's
+    exact solution, the model's own numbers), its sensor f6 changed from
+    step 150 on: ``frozen`` (the logger repeats its reading of step 149),
+    ``burst`` (its noise five times the model's), or ``none``; returns f6's
+    noise std."""
+    from test_mismatch import circuit, plant_csv
+
+    p = plant_csv(path, seed, 0.0, 1.0)
+    _, _, r = circuit(p, 1.0)
+    lines = path.read_text(encoding="utf-8").splitlines()
+    column = lines[0].split(",").index("y:f6")
+    rows = [line.split(",") for line in lines[1:]]
+    rng = np.random.default_rng(seed + 100)
+    for row in rows[150:]:
+        if change == "frozen":
+            row[column] = rows[149][column]
+        elif change == "burst":  # the reading's noise r becomes 5 r: add sqrt(24) r more
+            row[column] = f"{float(row[column]) + math.sqrt(24.0) * r * rng.standard_normal():.6g}"
+    path.write_text("\n".join([lines[0]] + [",".join(row) for row in rows]) + "\n", encoding="utf-8")
+    return r
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("change", ["frozen", "burst"])
+def test_a_frozen_sensor_and_a_burst_of_noise_are_alarmed_within_ten_samples(tmp_path, change):
+    from conftest import fast_session
+
+    for seed in (0, 1):
+        _circuit_with(tmp_path / "run.csv", seed, change)
+        d = bgc.diagnose(fast_session("circuit"), tmp_path / "run.csv",
+                         options=bgc.DiagnosisOptions(detectors=ALL)).diagnosis
+        alarm = d.detection
+        assert alarm is not None and 150 <= alarm.step <= 159, (seed, alarm)
+        if change == "frozen":  # at 6 significant digits two repeats are already beyond chance
+            assert (alarm.sensor, alarm.test, alarm.onset_step) == ("f6", "frozen", 150)
+
+
+@pytest.mark.slow
+def test_the_bank_raises_no_alarm_on_another_simulators_healthy_runs(tmp_path):
+    from conftest import fast_session
+
+    for seed in range(3):
+        _circuit_with(tmp_path / "run.csv", seed, "none")
+        d = bgc.diagnose(fast_session("circuit"), tmp_path / "run.csv",
+                         options=bgc.DiagnosisOptions(detectors=ALL)).diagnosis
+        assert d.verdict == "no fault" and d.detection is None, (seed, d.verdict, d.detection)
+
+
+@pytest.mark.slow
+def test_the_report_says_which_test_fired(tmp_path):
+    from conftest import fast_backend
+
+    _circuit_with(tmp_path / "run.csv", 0, "frozen")
+    out = bgc_cli("diagnose", "models/circuit.yaml", "--data", tmp_path / "run.csv", "--detect", "frozen,variance",
+                  "--output", tmp_path / "out", *fast_backend("circuit"))
+    assert out.returncode == 0, out.stderr
+    report = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
+    assert "alarm on f6: its reading repeated" in report and "a frozen sensor" in report
