@@ -250,6 +250,30 @@ def test_a_frozen_sensor_and_a_burst_of_noise_are_alarmed_within_ten_samples(tmp
         assert alarm is not None and 150 <= alarm.step <= 159, (seed, alarm)
         if change == "frozen":  # at 6 significant digits two repeats are already beyond chance
             assert (alarm.sensor, alarm.test, alarm.onset_step) == ("f6", "frozen", 150)
+            # no fault of the plant holds a reading still, and the circuit declares no stuck sensor
+            said = [e for e in d.events if type(e).__name__ == "ReadingFrozen"]
+            assert d.verdict == "unexplained" and not d.hypotheses and len(said) == 1 and said[0].kept == ()
+
+
+@pytest.mark.slow
+def test_a_frozen_sensor_the_model_declares_stuck_is_isolated_and_sized(tmp_path):
+    from conftest import ROOT, session
+
+    _circuit_with(tmp_path / "run.csv", 0, "frozen")
+    held = float((tmp_path / "run.csv").read_text(encoding="utf-8").splitlines()[150].split(",")[3])
+    d = bgc.diagnose(session(ROOT / "experiments" / "models" / "circuit_all_kinds.yaml"), tmp_path / "run.csv",
+                     options=bgc.DiagnosisOptions(detectors=ALL)).diagnosis
+    assert d.verdict == "isolated" and d.candidates == ("f6_stuck_stuck",)
+    assert d.best.estimate.low <= held <= d.best.estimate.high
+
+
+def test_the_example_file_is_the_frozen_run_of_the_circuit(tmp_path):
+    from conftest import ROOT
+
+    _circuit_with(tmp_path / "run.csv", 0, "frozen")
+    shipped = (ROOT / "docs" / "examples" / "circuit_frozen.csv").read_text(encoding="utf-8").splitlines()
+    assert [line for line in shipped if not line.startswith("#")] == \
+        (tmp_path / "run.csv").read_text(encoding="utf-8").splitlines()
 
 
 @pytest.mark.slow
