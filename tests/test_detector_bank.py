@@ -297,3 +297,27 @@ def test_the_report_says_which_test_fired(tmp_path):
     assert out.returncode == 0, out.stderr
     report = (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
     assert "alarm on f6: its reading repeated" in report and "a frozen sensor" in report
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("how", ["--episodes", "--exclude-faulty-sensor"])
+def test_the_monitor_takes_a_frozen_sensor_out_and_watches_on(tmp_path, how):
+    """A frozen reading the model cannot size (no stuck fault of f6 in the
+    circuit) is off all the same: the monitor takes the sensor out at the
+    checkpoint that says so and watches the rest of the stream with the
+    other two, which raise no alarm (the plant is healthy)."""
+    import json
+
+    from conftest import fast_backend
+
+    _circuit_with(tmp_path / "run.csv", 0, "frozen")
+    out = bgc_cli("monitor", "models/circuit.yaml", "--data", tmp_path / "run.csv", "--detect", "all", how,
+                  "--checkpoint", "1", "-o", tmp_path / "out", *fast_backend("circuit"))
+    assert out.returncode == 0, out.stderr
+    events = json.loads((tmp_path / "out" / "report.json").read_text(encoding="utf-8"))["events"]
+    if how == "--episodes":
+        closed = [e for e in events if e["event"] == "EpisodeClosed"]
+        assert [(e["verdict"], e["action"], e["parameter"]) for e in closed] == [("unexplained", "sensor out", "f6")]
+    else:
+        assert [e["sensor"] for e in events if e["event"] == "SensorExcluded"] == ["f6"]
+    assert "circuit: no fault" in out.stdout

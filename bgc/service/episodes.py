@@ -84,7 +84,8 @@ class Episodes:
         """Whether checkpoint diagnosis ``c`` at time ``now`` closes the open episode."""
         if self.alarm is None:
             return False
-        return c.verdict == "isolated" or (self.rearm is not None and now - self.alarm[0] >= self.rearm)
+        return c.verdict == "isolated" or frozen_sensor(c) is not None \
+            or (self.rearm is not None and now - self.alarm[0] >= self.rearm)
 
     def close(self, c, d, now: float, sensors: list[str], full: bool = False):
         """Close the open episode on checkpoint diagnosis ``c`` of diagnoser
@@ -110,6 +111,9 @@ class Episodes:
                 and e.subject in sensors and len(sensors) > 1:
             action, parameter = "sensor out", e.subject
             out = [y for y in sensors if y != e.subject]
+        elif frozen_sensor(c) in sensors and len(sensors) > 1:  # frozen, and the model declares no stuck fault of it
+            action, parameter = "sensor out", frozen_sensor(c)
+            out = [y for y in sensors if y != parameter]
         elif held:
             action, parameter, value = "accommodated", e.parameter, float(e.parameter_value)
             if parameter not in self.theta:  # an appearance (a fault of it that went away before: again)
@@ -120,6 +124,8 @@ class Episodes:
             self.theta[parameter] = value
             self.by[parameter] = number
         finding = "" if e is None else fault_sentence(e, c.onset, self.per_time)
+        if e is None and action == "sensor out":
+            finding = f"sensor {parameter}'s reading is frozen, and the model declares no stuck fault of it"
         alarm, sensor = self.alarm
         reason = ("" if action != "re-armed" else "memory" if full else "rearm" if c.verdict != "isolated"
                   else "no estimate")
@@ -156,17 +162,6 @@ class Episodes:
         the episodes tell: ((onset, end), ...), the end None while it still
         is (empty: no fault of it accommodated)."""
         return tuple((on, off) for on, off, _ in self.spells.get(parameter, ())) if parameter else ()
-
-    def intermittent(self) -> dict[str, dict]:
-        """The faults that went away without a repair (intermittent), per
-        parameter: its ``spans`` present (:meth:`present`), its ``values``
-        while present (one per appearance) and their ``mean``."""
-        out = {}
-        for p, spells in self.spells.items():
-            if any(off is not None for _, off, _ in spells):
-                values = [float(v) for _, _, v in spells]
-                out[p] = {"spans": self.present(p), "values": values, "mean": float(np.mean(values))}
-        return out
 
     def _file_value(self, parameter: str) -> float:
         """``parameter``'s value in the model file (the healthy plant's)."""
@@ -265,3 +260,12 @@ def repair_of(line: str) -> tuple[str, ...] | None:
     if rest.startswith(":"):
         return tuple(p.strip() for p in rest[1:].split(",") if p.strip())
     return () if not rest else None
+
+
+def frozen_sensor(c) -> str | None:
+    """The sensor diagnosis ``c`` found frozen and could not size (the model
+    declares no stuck fault of it: the verdict is unexplained, and the
+    reading is off all the same, :class:`~bgc.events.ReadingFrozen`); else None."""
+    if c.verdict != "unexplained":
+        return None
+    return next((e.sensor for e in c.events if isinstance(e, ev.ReadingFrozen) and not e.kept), None)

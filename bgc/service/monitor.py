@@ -30,7 +30,7 @@ from ..data.columns import MODE, Reading
 from ..analysis import track
 from ..diagnosis.options import DiagnosisOptions
 from . import resume
-from .episodes import Episodes, repair_of
+from .episodes import Episodes, frozen_sensor, repair_of
 from ..model.package import forget_started
 
 #: Rows between two saves of the monitor's state (``--state-every``).
@@ -405,7 +405,10 @@ class _Monitor:
         watches the other sensors from the next row."""
         from ..output.events import fault_sentence
 
-        out = ev.SensorExcluded(faulty, fault_sentence(c.estimate, c.onset, self.session.view.labels.per_time), now)
+        finding = (f"sensor {faulty}'s reading is frozen, and the model declares no stuck fault of it"
+                   if c.estimate is None or c.verdict != "isolated"
+                   else fault_sentence(c.estimate, c.onset, self.session.view.labels.per_time))
+        out = ev.SensorExcluded(faulty, finding, now)
         self.excluded.append(out)
         self.taken_out.add(faulty)
         self.tell([out])
@@ -534,6 +537,9 @@ def _faulty_sensor(c, sensors: list[str]) -> str | None:
     """The sensor a checkpoint's diagnosis ``c`` isolated a fault of, when
     another sensor is left to watch with; else None."""
     e = c.estimate
+    frozen = frozen_sensor(c)  # frozen, and the model declares no stuck fault of it: off all the same
+    if frozen is not None:
+        return frozen if frozen in sensors and len(sensors) > 1 else None
     if c.verdict != "isolated" or e is None or e.target != "sensor" or len(sensors) < 2:
         return None
     return e.subject if e.subject in sensors else None
