@@ -24,6 +24,17 @@ diagnosed as bgc reads by default and with the timing it was logged with.
 Prints the verdicts and how many mismatches named the other timing.
 
     .venv/bin/python bench/mismatch.py --timing 20
+
+With ``--calibrated RUNS``: issue 48's target after calibration. Per seed,
+the plant off its model (``--off``, ``--noise``) is recorded twice (the
+same parameters, two noise draws): the model is calibrated on the first
+(``Session.calibrate(..., "noise,R1,C1,R2,C2,L,R3")``, what the mismatch
+verdict tells the user to run), and the second is diagnosed with the model
+as written and with the calibrated one, each with the mean test alone and
+with the detector's bank (``--detect all``). Prints the verdicts per
+column.
+
+    .venv/bin/python bench/mismatch.py --calibrated 40
 """
 
 from __future__ import annotations
@@ -92,6 +103,34 @@ def timing(runs: int) -> None:
                           + f" | {named} |", flush=True)
 
 
+def calibrated(runs: int, off: float, noise: float) -> None:
+    """Verdicts on a fresh healthy run of a plant off its model, with the model as written and calibrated."""
+    from bgc.diagnosis.detect import TESTS
+
+    session = bgc.open(ROOT / "models" / "circuit.yaml")
+    estimate = "noise," + ",".join(p.name for p in session.view.model.parameters)  # the model file's
+    columns = [(model, tests) for model in ("as written", "calibrated") for tests in (("mean",), TESTS)]
+    counts = {c: Counter() for c in columns}
+    with tempfile.TemporaryDirectory() as folder:
+        healthy, fresh, model = (Path(folder) / name for name in ("healthy.csv", "fresh.csv", "calibrated.yaml"))
+        for seed in range(runs):
+            plant_csv(healthy, seed, off, noise)
+            plant_csv(fresh, seed, off, noise, noise_seed=1)
+            model.write_text(session.calibrate(healthy, estimate).text, encoding="utf-8")
+            calibrated_session = bgc.open(model)
+            said = []
+            for column in columns:
+                which = session if column[0] == "as written" else calibrated_session
+                d = bgc.diagnose(which, fresh, options=bgc.DiagnosisOptions(detectors=column[1])).diagnosis
+                counts[column][d.verdict] += 1
+                said.append(d.verdict)
+            print(f"seed {seed}: " + ", ".join(said), file=sys.stderr, flush=True)
+    print(f"| model ({runs} plants, off {100 * off:g} %, noise x{noise:g}) | detector | " + " | ".join(VERDICTS) + " |")
+    print("|---|---|" + "---|" * len(VERDICTS))
+    for (name, tests), c in counts.items():
+        print(f"| {name} | {'mean' if len(tests) == 1 else 'all'} | " + " | ".join(str(c[v]) for v in VERDICTS) + " |")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--runs", type=int, default=12)
@@ -99,7 +138,11 @@ def main(argv=None) -> int:
     p.add_argument("--noise", type=float, default=1.5)
     p.add_argument("--null", type=int, default=0, metavar="RUNS")
     p.add_argument("--timing", type=int, default=0, metavar="RUNS")
+    p.add_argument("--calibrated", type=int, default=0, metavar="RUNS")
     a = p.parse_args(argv)
+    if a.calibrated:
+        calibrated(a.calibrated, a.off, a.noise)
+        return 0
     if a.timing:
         timing(a.timing)
         return 0

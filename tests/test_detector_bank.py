@@ -321,3 +321,25 @@ def test_the_monitor_takes_a_frozen_sensor_out_and_watches_on(tmp_path, how):
     else:
         assert [e["sensor"] for e in events if e["event"] == "SensorExcluded"] == ["f6"]
     assert "circuit: no fault" in out.stdout
+
+
+def test_a_forgotten_record_shifts_the_alarm_and_its_onset_by_the_steps_forgotten():
+    """The diagnoser forgets the first steps of a long record while watching
+    (Loop.forget trims the detector's statistics); the tests' own sums run
+    on, and their alarm is dated in the steps kept."""
+    rng = np.random.default_rng(9)
+    steps = 500
+    z = rng.standard_normal((steps, 1))
+    z[400:, 0] = 0.3  # a residual that stops moving: the variance test's lower tail
+    options = DetectorOptions(0.01, (1, 8, 32), steps, ("mean", "variance"))
+    whole, cut = Detector(("y",), options), Detector(("y",), options)
+    expected = next(a for a in (whole.update(z[k]) for k in range(steps)) if a is not None)
+    alarm = None
+    for k in range(steps):
+        if k == 300:
+            cut.statistics = cut.statistics[120:]  # 120 steps forgotten
+        alarm = cut.update(z[k])
+        if alarm is not None:
+            break
+    assert expected.test == "variance" and expected.step >= 400
+    assert (alarm.step, alarm.onset_step) == (expected.step - 120, expected.onset_step - 120)

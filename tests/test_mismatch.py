@@ -47,13 +47,16 @@ def test_the_model_file_is_the_circuit_derived_here():
     assert tuple(data["elements"][e]["initial"] for e in ("C1", "C2", "L")) == START
 
 
-def plant_csv(path, seed: int, off: float, noise: float) -> dict:
+def plant_csv(path, seed: int, off: float, noise: float, noise_seed: int | None = None) -> dict:
     """A run of the circuit, its parameters each off by up to ``off``
     (relative), its noise ``noise`` times the model's (per step: the
     compiled model's declared standard deviations), written as a logger's
-    CSV; returns the plant's parameters."""
+    CSV; returns the plant's parameters. ``noise_seed``: another recording
+    of the same plant (the parameters are the seed's, the noise this seed's)."""
     rng = np.random.default_rng(seed)
     p = {k: v * (1 + rng.uniform(-off, off)) for k, v in NOMINAL.items()}
+    if noise_seed is not None:
+        rng = np.random.default_rng([seed, noise_seed])
     e, process, sensor = circuit(p, noise)
     x, lines = np.array(START), ["time,u:V,y:f2,y:f6,y:e11"]
     for k in range(1, STEPS + 1):
