@@ -343,3 +343,21 @@ def test_a_forgotten_record_shifts_the_alarm_and_its_onset_by_the_steps_forgotte
             break
     assert expected.test == "variance" and expected.step >= 400
     assert (alarm.step, alarm.onset_step) == (expected.step - 120, expected.onset_step - 120)
+
+
+def test_a_prediction_unsure_of_itself_does_not_pass_for_a_frozen_sensor():
+    """The lower tail takes the residual in units of the sensor's own noise:
+    residuals whose predicted std is 20 times the noise (a filter's wide
+    first steps) have a tiny variance in those units of their std, and none
+    below the noise's in units of the noise; the same sensor frozen (its
+    residual no longer carrying the noise) alarms."""
+    rng = np.random.default_rng(10)
+    steps, ratio = 300, 20.0
+    noise = rng.standard_normal(steps)  # the innovations: the sensor's noise, of std r
+    options = DetectorOptions(0.01, (1, 8, 32), steps, ("mean", "variance"))
+    unsure = Detector(("y",), options)
+    assert all(unsure.update([v / ratio], None, None, [ratio]) is None for v in noise)
+    frozen = Detector(("y",), options)
+    residual = np.where(np.arange(steps) < 150, noise, 0.05 * rng.standard_normal(steps))
+    alarm = next(a for a in (frozen.update([v / ratio], None, None, [ratio]) for v in residual) if a is not None)
+    assert alarm.test == "variance" and alarm.statistic < alarm.threshold and 150 <= alarm.step < 160

@@ -88,11 +88,20 @@ probability per horizon stays at most ``alpha``:
   :data:`VARIANCE_WINDOWS`) the centred sum of squares
   ``Q = sum (z - mean z)^2`` is chi-square with ``W - 1`` degrees of freedom
   without a fault (the centring leaves out an offset, the Monte Carlo error
-  common to the window too); the test alarms below its ``p`` quantile or
-  above its ``1 - p`` quantile, ``p = alpha / F / (2 T n_y n_W)``. The onset is
-  the change point of the variance (the likelihood ratio
+  common to the window too); the test alarms above its ``1 - p`` quantile,
+  ``p = alpha / F / (2 T n_y n_W)``. Its lower tail is tested on the residual
+  in units of the sensor's own noise, ``e = (y - mean) / r``: ``z`` has too
+  little variance wherever the prediction's std overstates its error (a
+  filter's first steps, from a wide initial spread), but ``e`` never has
+  less than the sensor's noise gives it. With independent innovations of
+  variances ``s_k^2 >= r^2``, its centred sum of squares is a sum of
+  chi-square terms weighted by the eigenvalues of ``D^1/2 C D^1/2`` (``C``
+  the centring, ``D`` the variances over ``r^2``), each at least ``C``'s
+  (Ostrowski): it is stochastically larger than chi-square with ``W - 1``
+  degrees of freedom, and the ``p`` quantile of that law bounds its lower
+  tail. The onset is the change point of the variance (the likelihood ratio
   ``m (v - 1 - log v)`` of the ``m`` samples from ``t``, ``v`` their centred
-  mean square).
+  mean square, of ``z`` or of ``e``, the series that alarmed).
 * ``frozen``: a sensor whose reading repeats to the last digit. A reading is
   the plant's value plus the sensor's noise, at least N(0, r^2) (``r`` the
   model's std), independent of the past, so the chance that it falls in the
@@ -214,18 +223,20 @@ class Detector:
         self._mc = deque([zero], maxlen=self._longest + 1)
         self.statistics: list[list[float]] = []  # max over windows of |S|, per sensor and step
 
-    def update(self, z, mc=None, y=None) -> Detection | None:
+    def update(self, z, mc=None, y=None, spread=None) -> Detection | None:
         """Take the normalised residuals of one step (NaN: sensor not read)
         and, from a particle filter, the Monte Carlo std of its prediction in
         units of its predicted std (:func:`monte_carlo_share`; none: an exact
-        prediction), and the readings ``y`` themselves (the frozen test's;
-        none: no frozen test this step); return the alarm when this step
-        raises one. ``z``, ``mc``, ``y``: arrays or sequences of floats, one
-        per sensor."""
+        prediction), the readings ``y`` themselves (the frozen test's;
+        none: no frozen test this step) and ``spread``, the predicted std over
+        the sensor's own noise std (the variance test's lower tail takes the
+        residual in units of that noise, ``z * spread``; none: 1); return the
+        alarm when this step raises one. ``z``, ``mc``, ``y``, ``spread``:
+        arrays or sequences of floats, one per sensor."""
         alarm = self._mean(z, mc)
         if self.more is None:
             return alarm
-        found = self.more.update(z, mc, y)
+        found = self.more.update(z, mc, y, spread)
         if alarm is not None:
             found.insert(0, (alarm, _normal_excess(alarm.statistic, alarm.threshold)))
         if not found:
@@ -393,6 +404,9 @@ class Families:
         self._aa = deque([zero], maxlen=longest + 2)
         self._sq = deque([zero], maxlen=longest + 2)
         self._n = deque([zero], maxlen=longest + 2)
+        # and of the residuals in units of the sensors' own noise, e = (y - mean) / r, and of e^2 (the lower tail's)
+        self._e = deque([zero], maxlen=longest + 2)
+        self._ee = deque([zero], maxlen=longest + 2)
         self.taken = 0
         if self.drift:
             self.drift_threshold = options.drift_threshold(n)
@@ -422,14 +436,17 @@ class Families:
 
     def state(self) -> tuple:
         """Everything :meth:`update` carries from step to step, as tuples of floats."""
-        rings = tuple(tuple(d) for d in (self._c, self._cc, self._a, self._aa, self._sq, self._n))
+        rings = tuple(tuple(d) for d in self._rings())
         frozen = (tuple(self._last), tuple(self._repeats), tuple(self._step)) if self.frozen else ()
         return rings, self.taken, frozen
+
+    def _rings(self) -> tuple:
+        return self._c, self._cc, self._a, self._aa, self._sq, self._n, self._e, self._ee
 
     def restore(self, state: tuple) -> None:
         """Put the tests in ``state`` (:meth:`state`)."""
         rings, self.taken, frozen = state
-        for d, rows in zip((self._c, self._cc, self._a, self._aa, self._sq, self._n), rings):
+        for d, rows in zip(self._rings(), rings):
             d.clear()
             d.extend(tuple(float(v) for v in row) for row in rows)
         if frozen:
@@ -437,12 +454,19 @@ class Families:
 
     # -- one step --------------------------------------------------------------------------------------------
 
-    def update(self, z, mc=None, y=None) -> list[tuple[Detection, float]]:
+    def update(self, z, mc=None, y=None, spread=None) -> list[tuple[Detection, float]]:
         """Take one step (:meth:`Detector.update`'s arguments); the alarms it
         raises (steps counted by the caller), each with its excess."""
         row = z.tolist() if isinstance(z, np.ndarray) else [float(v) for v in z]
         seen = [1.0 if isfinite(v) else 0.0 for v in row]
         zs = [v if isfinite(v) else 0.0 for v in row]
+        if spread is None:
+            es = zs
+        else:
+            ratio = spread.tolist() if isinstance(spread, np.ndarray) else [float(v) for v in spread]
+            es = [v * (q if isfinite(q) else 1.0) for v, q in zip(zs, ratio)]
+        self._e.append(tuple(a + b for a, b in zip(self._e[-1], es)))
+        self._ee.append(tuple(a + b * b for a, b in zip(self._ee[-1], es)))
         c_now = tuple(a + b for a, b in zip(self._c[-1], zs))
         self._c.append(c_now)
         self._cc.append(tuple(a + b for a, b in zip(self._cc[-1], c_now)))
@@ -493,7 +517,12 @@ class Families:
         return [(Detection(0, self.sensors[j], w, best, threshold, onset, "drift"), _normal_excess(best, threshold))]
 
     def _variances(self) -> list[tuple[Detection, float]]:
-        c, sq, n = self._c, self._sq, self._n
+        """Each window's centred sum of squares against its chi-square law:
+        the upper tail on z (the residual in units of its predicted std), the
+        lower on e (in units of the sensor's own noise: a prediction too
+        unsure of itself, a filter's start, gives z too little variance, and
+        never e, whose noise alone makes it at least chi-square)."""
+        n = self._n
         worst, at = 0.0, None
         for w in VARIANCE_WINDOWS:
             if w + 1 > len(n):
@@ -502,18 +531,29 @@ class Families:
                 count = int(round(n[-1][j] - n[-1 - w][j]))
                 if count < 2:
                     continue
-                s1 = c[-1][j] - c[-1 - w][j]
-                q = max(sq[-1][j] - sq[-1 - w][j] - s1 * s1 / count, 0.0)
                 low, high = self.bounds(count - 1)
-                if low <= q <= high:
-                    continue
+                q = self._centred(self._c, self._sq, j, w, count)
+                if q > high:
+                    bound, fell = high, False
+                else:
+                    q = self._centred(self._e, self._ee, j, w, count)
+                    if q >= low:
+                        continue
+                    bound, fell = low, True
                 excess = self._chi2_excess(q, count - 1)
                 if excess < worst:
-                    worst, at = excess, (w, j, q / (count - 1), (low if q < low else high) / (count - 1))
+                    worst, at = excess, (w, j, q / (count - 1), bound / (count - 1), fell)
         if at is None:
             return []
-        w, j, ratio, bound = at
-        return [(Detection(0, self.sensors[j], w, ratio, bound, self._variance_onset(), "variance"), worst)]
+        w, j, ratio, bound, fell = at
+        onset = self._variance_onset(*((self._e, self._ee) if fell else (self._c, self._sq)))
+        return [(Detection(0, self.sensors[j], w, ratio, bound, onset, "variance"), worst)]
+
+    @staticmethod
+    def _centred(sums: deque, squares: deque, j: int, w: int, count: int) -> float:
+        """The centred sum of squares of sensor j's last ``w`` steps (``count`` read) from running sums."""
+        s1 = sums[-1][j] - sums[-1 - w][j]
+        return max(squares[-1][j] - squares[-1 - w][j] - s1 * s1 / count, 0.0)
 
     def _chi2_excess(self, q: float, df: int) -> float:
         from scipy.stats import chi2
@@ -577,11 +617,12 @@ class Families:
                 best, at = score, self.taken - n
         return at
 
-    def _variance_onset(self) -> int:
+    def _variance_onset(self, sums: deque, squares: deque) -> int:
         """The GLR change point of the residuals' variance: argmax_t sum_j
-        m (v - 1 - log v), v the centred mean square of the m samples from t."""
-        c, _ = self._local(self._c)
-        sq, _ = self._local(self._sq)
+        m (v - 1 - log v), v the centred mean square of the m samples from t
+        (of the residuals whose running sums are ``sums`` and ``squares``)."""
+        c, _ = self._local(sums)
+        sq, _ = self._local(squares)
         n, _ = self._local(self._n)
         last = len(c) - 1
         best, at = -1.0, self.taken - 1

@@ -132,9 +132,10 @@ class Loop:
         self.horizon = max(int(config.horizon), 1)
         self.pf_class = filter_class(config.package, "gpf" if config.ckf else o.filter)  # ckf: the open loop's
         self.present = np.array([y in config.present for y in self.outputs])
+        self.noise = np.asarray(nominal.MEASUREMENT_STD, dtype=float)  # the sensors' own noise std
         self.detector = Detector(tuple(y for y in self.outputs if y in config.present),
                                  DetectorOptions(o.false_alarm, o.windows, self.horizon, o.detectors),
-                                 np.asarray(nominal.MEASUREMENT_STD, dtype=float)[self.present])
+                                 self.noise[self.present])
         self.pf = None if config.ckf else self.pf_class(nominal, o.particles, np.random.default_rng([o.seed, 0]))
         self.kf = NominalKalman(nominal, len(self.outputs)) if config.ckf else None
         if self.pf is not None:  # what its first step would make, made before the data come
@@ -204,7 +205,8 @@ class Loop:
                     self.clouds.pop(k - o.history - 1, None)
                 present = self.present
                 detection = self.detector.update(np.asarray(zk)[present], None if mc is None else mc[present],
-                                                 np.asarray(s.y, dtype=float)[present])
+                                                 np.asarray(s.y, dtype=float)[present],
+                                                 (np.asarray(sd, dtype=float) / self.noise)[present])
         if detection is not None:
             self._alarm(detection)
         if self.pf is not None:

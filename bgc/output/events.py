@@ -343,10 +343,12 @@ def alarm_text(test: str, window: int, statistic: float, threshold: float) -> st
     if test == "drift":
         return (f"the drift test's statistic over {window} sample(s) reached {statistic:.1f} (threshold "
                 f"{threshold:.1f})")
-    if test == "variance":
-        way = "rose" if statistic > threshold else "fell"
-        return (f"the variance of its residual over {window} sample(s) {way} to {statistic:.3g} times the model's "
+    if test == "variance" and statistic > threshold:
+        return (f"the variance of its residual over {window} sample(s) rose to {statistic:.3g} times the predicted "
                 f"(bound {threshold:.3g})")
+    if test == "variance":
+        return (f"the variance of its residual over {window} sample(s) fell to {statistic:.3g} times its sensor's "
+                f"noise variance (bound {threshold:.3g}): a reading that no longer moves")
     if test == "frozen":
         return (f"its reading repeated {statistic:.0f} times to the last digit (a frozen sensor; "
                 f"{threshold:.0f} repeats alarm at the data's resolution)")
