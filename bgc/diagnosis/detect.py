@@ -124,6 +124,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from collections import deque
+import math
 from math import erfc, isfinite, log, pi, sqrt
 from statistics import NormalDist
 
@@ -383,7 +384,10 @@ class Families:
     - ``frozen``: readings repeated to the data's resolution.
 
     :meth:`update` returns the alarms of the step, each with how far it is
-    past its level (the log of its p-value over the level's)."""
+    past its level (the log of its p-value over the level's). Every ring of
+    running sums starts with two rows of zeros (the sums before the first
+    step, and before that), so that a window is tested from the step it
+    fits in."""
 
     def __init__(self, sensors: tuple[str, ...], options: DetectorOptions, noise=None):
         unknown = [t for t in options.tests if t not in TESTS]
@@ -393,21 +397,23 @@ class Families:
         self.sensors = sensors
         self.drift = "drift" in options.tests
         self.variance = "variance" in options.tests
+        self.noise = None if noise is None else tuple(float(v) for v in np.asarray(noise, dtype=float).reshape(n))
         self.frozen = "frozen" in options.tests and noise is not None
         longest = max(((*DRIFT_RAMPS, *DRIFT_MEANS) if self.drift else ())
                       + (VARIANCE_WINDOWS if self.variance else ()) + (1,))
         zero = (0.0,) * n
-        # running sums (the newest last) of z, of those sums, of a_k and of theirs, of z^2, and of the readings taken
-        self._c = deque([zero], maxlen=longest + 2)
-        self._cc = deque([zero], maxlen=longest + 2)
-        self._a = deque([zero], maxlen=longest + 2)
-        self._aa = deque([zero], maxlen=longest + 2)
-        self._sq = deque([zero], maxlen=longest + 2)
-        self._n = deque([zero], maxlen=longest + 2)
-        # and of the residuals in units of the sensors' own noise, e = (y - mean) / r, and of e^2 (the lower tail's)
-        self._e = deque([zero], maxlen=longest + 2)
-        self._ee = deque([zero], maxlen=longest + 2)
+        # running sums (the newest last) of z, of those sums, of a_k and of theirs, of z^2, of the readings taken,
+        # and of the residual in units of the sensor's own noise, e = (y - mean) / r, and of e^2 (the lower tail's)
+        self._c, self._cc, self._a, self._aa, self._sq, self._n, self._e, self._ee = (
+            deque([zero, zero], maxlen=longest + 2) for _ in range(8))
         self.taken = 0
+        # per sensor, what its readings tell (when given): the last one, the step its run of repeats began, the
+        # run's length, the longest run that ended before, and the smallest change seen per decimal exponent
+        self._last = [float("nan")] * n
+        self._since = [-1] * n
+        self._run = [0] * n
+        self._longest = [0] * n
+        self._steps: list[dict] = [{} for _ in range(n)]
         if self.drift:
             self.drift_threshold = options.drift_threshold(n)
         if self.variance:
@@ -421,10 +427,6 @@ class Families:
             self._level = level
         if self.frozen:
             self._log_frozen = log(options.frozen_level(n))
-            self._noise = tuple(float(v) for v in np.asarray(noise, dtype=float).reshape(n))
-            self._last = [float("nan")] * n  # per sensor: its last reading, the readings repeating it, and the
-            self._repeats = [0] * n          # smallest change seen between two of its readings (the resolution's bound)
-            self._step = [float("inf")] * n
 
     def bounds(self, df: int) -> tuple[float, float]:
         """The variance test's bounds on the centred sum of squares of a
@@ -432,25 +434,42 @@ class Families:
         the test's level, each tail."""
         return self._low[df - 1], self._high[df - 1]
 
-    # -- the state as plain data ---------------------------------------------------------------------------
+    def resolution(self, j: int, value: float) -> float | None:
+        """The bound on sensor j's resolution near ``value``: the smallest
+        change seen between two of its readings of that decimal exponent (a
+        logger writing significant digits has a coarser step for larger
+        values), or of the nearest larger one seen; None: none seen yet."""
+        steps, key = self._steps[j], _exponent(value)
+        if key in steps:
+            return steps[key]
+        larger = [k for k in steps if k is not None and (key is None or k > key)]
+        return steps[min(larger)] if larger else None
 
-    def state(self) -> tuple:
-        """Everything :meth:`update` carries from step to step, as tuples of floats."""
-        rings = tuple(tuple(d) for d in self._rings())
-        frozen = (tuple(self._last), tuple(self._repeats), tuple(self._step)) if self.frozen else ()
-        return rings, self.taken, frozen
+    # -- the state as plain data ---------------------------------------------------------------------------
 
     def _rings(self) -> tuple:
         return self._c, self._cc, self._a, self._aa, self._sq, self._n, self._e, self._ee
 
+    def state(self) -> tuple:
+        """Everything :meth:`update` carries from step to step, as plain tuples, lists and dicts."""
+        rings = tuple(tuple(d) for d in self._rings())
+        readings = (tuple(self._last), tuple(self._since), tuple(self._run), tuple(self._longest),
+                    tuple(dict(s) for s in self._steps))
+        return rings, self.taken, readings
+
     def restore(self, state: tuple) -> None:
         """Put the tests in ``state`` (:meth:`state`)."""
-        rings, self.taken, frozen = state
+        rings, taken, readings = state
+        if len(rings) != len(self._rings()) or len(readings) != 5:
+            raise ValueError("a detector state of another shape")
+        self.taken = int(taken)
         for d, rows in zip(self._rings(), rings):
             d.clear()
             d.extend(tuple(float(v) for v in row) for row in rows)
-        if frozen:
-            self._last, self._repeats, self._step = [list(v) for v in frozen]
+        last, since, run, longest, steps = readings
+        self._last, self._since = [float(v) for v in last], [int(v) for v in since]
+        self._run, self._longest = [int(v) for v in run], [int(v) for v in longest]
+        self._steps = [dict(s) for s in steps]
 
     # -- one step --------------------------------------------------------------------------------------------
 
@@ -465,8 +484,6 @@ class Families:
         else:
             ratio = spread.tolist() if isinstance(spread, np.ndarray) else [float(v) for v in spread]
             es = [v * (q if isfinite(q) else 1.0) for v, q in zip(zs, ratio)]
-        self._e.append(tuple(a + b for a, b in zip(self._e[-1], es)))
-        self._ee.append(tuple(a + b * b for a, b in zip(self._ee[-1], es)))
         c_now = tuple(a + b for a, b in zip(self._c[-1], zs))
         self._c.append(c_now)
         self._cc.append(tuple(a + b for a, b in zip(self._cc[-1], c_now)))
@@ -479,21 +496,47 @@ class Families:
         self._aa.append(tuple(a + b for a, b in zip(self._aa[-1], a_now)))
         self._sq.append(tuple(a + b * b for a, b in zip(self._sq[-1], zs)))
         self._n.append(tuple(a + b for a, b in zip(self._n[-1], seen)))
+        self._e.append(tuple(a + b for a, b in zip(self._e[-1], es)))
+        self._ee.append(tuple(a + b * b for a, b in zip(self._ee[-1], es)))
         self.taken += 1
+        readings = None if y is None else (y.tolist() if isinstance(y, np.ndarray) else [float(v) for v in y])
+        if readings is not None:
+            self._read(readings)
         found: list[tuple[Detection, float]] = []
         if self.drift:
             found += self._drift()
         if self.variance:
-            found += self._variances()
-        if self.frozen and y is not None:
-            found += self._frozen(y)
+            found += self._variances(readings)
+        if self.frozen and readings is not None:
+            found += self._frozen(readings)
         return found
+
+    def _read(self, readings: list[float]) -> None:
+        """Each sensor's reading: its run of repeats and the changes it shows."""
+        for j, v in enumerate(readings):
+            if not isfinite(v):
+                continue
+            last = self._last[j]
+            if v == last:
+                if not self._run[j]:
+                    self._since[j] = self.taken - 1  # this step: the first reading that repeats
+                self._run[j] += 1
+            else:
+                if isfinite(last):
+                    key = _exponent(max(abs(v), abs(last)))
+                    change = abs(v - last)
+                    steps = self._steps[j]
+                    if change < steps.get(key, math.inf):
+                        steps[key] = change
+                self._longest[j] = max(self._longest[j], self._run[j])
+                self._run[j] = 0
+            self._last[j] = v
 
     def _drift(self) -> list[tuple[Detection, float]]:
         c, cc, a, aa, threshold = self._c, self._cc, self._a, self._aa, self.drift_threshold
         best, at = -1.0, None
         for w in DRIFT_RAMPS:  # sum_i i z_(k-w+i), i = 1..w: w C_k - (D_k-1 - D_k-1-w)
-            if w + 2 > len(cc):
+            if w > self.taken:
                 continue
             norm = w * (w + 1) * (2 * w + 1) / 6.0
             for j in range(len(self.sensors)):
@@ -503,7 +546,7 @@ class Families:
                 if value > best:
                     best, at = value, (w, j, "ramp")
         for w in DRIFT_MEANS:
-            if w + 1 > len(c):
+            if w > self.taken:
                 continue
             for j in range(len(self.sensors)):
                 spread = a[-1][j] - a[-1 - w][j]
@@ -516,16 +559,19 @@ class Families:
         onset = self._ramp_onset() if shape == "ramp" else self._mean_onset(max(DRIFT_MEANS))
         return [(Detection(0, self.sensors[j], w, best, threshold, onset, "drift"), _normal_excess(best, threshold))]
 
-    def _variances(self) -> list[tuple[Detection, float]]:
+    def _variances(self, readings: list[float] | None) -> list[tuple[Detection, float]]:
         """Each window's centred sum of squares against its chi-square law:
-        the upper tail on z (the residual in units of its predicted std), the
+        the upper tail on z (the residual in units of its predicted std),
+        its bound widened by the window's largest Monte Carlo share; the
         lower on e (in units of the sensor's own noise: a prediction too
         unsure of itself, a filter's start, gives z too little variance, and
-        never e, whose noise alone makes it at least chi-square)."""
+        never e, whose noise alone makes it at least chi-square), on sensors
+        whose readings are fine against their noise (a resolution of at
+        most a quarter of it: coarser readings repeat by themselves)."""
         n = self._n
         worst, at = 0.0, None
         for w in VARIANCE_WINDOWS:
-            if w + 1 > len(n):
+            if w > self.taken:
                 continue
             for j in range(len(self.sensors)):
                 count = int(round(n[-1][j] - n[-1 - w][j]))
@@ -534,13 +580,18 @@ class Families:
                 low, high = self.bounds(count - 1)
                 q = self._centred(self._c, self._sq, j, w, count)
                 if q > high:
-                    bound, fell = high, False
+                    share = max(self._a[-1 - i][j] - self._a[-2 - i][j] for i in range(w))
+                    bound, fell = high * (1.0 + share * share), False
+                    if q <= bound:
+                        continue
                 else:
+                    if not self._fine(j, readings):
+                        continue
                     q = self._centred(self._e, self._ee, j, w, count)
                     if q >= low:
                         continue
                     bound, fell = low, True
-                excess = self._chi2_excess(q, count - 1)
+                excess = self._chi2_excess(q / (bound / (low if fell else high)), count - 1)
                 if excess < worst:
                     worst, at = excess, (w, j, q / (count - 1), bound / (count - 1), fell)
         if at is None:
@@ -548,6 +599,14 @@ class Families:
         w, j, ratio, bound, fell = at
         onset = self._variance_onset(*((self._e, self._ee) if fell else (self._c, self._sq)))
         return [(Detection(0, self.sensors[j], w, ratio, bound, onset, "variance"), worst)]
+
+    def _fine(self, j: int, readings: list[float] | None) -> bool:
+        """Whether sensor j's readings are fine enough for the lower tail (no readings given: taken so)."""
+        if readings is None or self.noise is None:
+            return True
+        v = readings[j]
+        q = self.resolution(j, v) if isfinite(v) else None
+        return q is not None and q <= 0.25 * self.noise[j]
 
     @staticmethod
     def _centred(sums: deque, squares: deque, j: int, w: int, count: int) -> float:
@@ -561,36 +620,34 @@ class Families:
         tail = min(float(chi2.logcdf(q, df)), float(chi2.logsf(q, df)))
         return tail - log(self._level)
 
-    def _frozen(self, y) -> list[tuple[Detection, float]]:
-        row = y.tolist() if isinstance(y, np.ndarray) else [float(v) for v in y]
+    def _frozen(self, readings: list[float]) -> list[tuple[Detection, float]]:
+        """A sensor whose reading repeats beyond chance: P(a reading falls in
+        its last one's bin of width q | the past) <= q / (sqrt(2 pi) r), and
+        longer than twice any run of repeats the data showed before (a logger
+        that writes a reading twice, or a historian's compression, repeats
+        by habit)."""
         worst, at = 0.0, None
-        for j, v in enumerate(row):
-            if not isfinite(v):
+        for j, v in enumerate(readings):
+            run = self._run[j]
+            if not run or not isfinite(v):
                 continue
-            last = self._last[j]
-            if v == last:
-                self._repeats[j] += 1
-            else:
-                if isfinite(last):
-                    self._step[j] = min(self._step[j], abs(v - last))
-                self._repeats[j] = 0
-            self._last[j] = v
-            repeats = self._repeats[j]
-            if not repeats or not isfinite(self._step[j]):
+            q = self.resolution(j, v)
+            if q is None:
                 continue
-            # P(a reading falls in its last one's bin of width q | the past) <= q / (sqrt(2 pi) r)
-            chance = self._step[j] / (sqrt(2.0 * pi) * self._noise[j])
+            chance = q / (sqrt(2.0 * pi) * self.noise[j])
             if chance >= 1.0:
                 continue
-            excess = repeats * log(chance) - self._log_frozen
-            if excess <= 0.0 and excess < worst:
-                needed = int(np.ceil(self._log_frozen / log(chance)))
-                worst, at = excess, (j, repeats, needed)
+            needed = max(int(math.ceil(self._log_frozen / log(chance) - 1e-12)), 2 * self._longest[j] + 1)
+            if run < needed:
+                continue
+            excess = min(run * log(chance) - self._log_frozen, 0.0)
+            if at is None or excess < worst:
+                worst, at = excess, (j, run, needed)
         if at is None:
             return []
-        j, repeats, needed = at
-        return [(Detection(0, self.sensors[j], repeats + 1, float(repeats), float(needed), self.taken - repeats,
-                           "frozen"), worst)]
+        j, run, needed = at
+        return [(Detection(0, self.sensors[j], run + 1, float(run), float(needed), self._since[j], "frozen"),
+                 worst)]
 
     # -- the onsets ------------------------------------------------------------------------------------------
 
@@ -601,7 +658,7 @@ class Families:
 
     def _mean_onset(self, longest: int) -> int:
         cumsum, first = self._local(self._c)
-        return first + 1 + change_point(cumsum, len(cumsum) - 2, longest)
+        return max(first + 1 + change_point(cumsum, len(cumsum) - 2, min(longest, self.taken)), 0)
 
     def _ramp_onset(self) -> int:
         """The GLR change point of a ramp from an unknown step, every sensor's
@@ -610,7 +667,7 @@ class Families:
         cc, _ = self._local(self._cc)
         last = len(c) - 1
         best, at = -1.0, self.taken - 1
-        for n in range(1, min(max(DRIFT_RAMPS), last - 1) + 1):
+        for n in range(1, min(max(DRIFT_RAMPS), last - 1, self.taken) + 1):
             ramp = n * c[last] - (cc[last - 1] - cc[last - 1 - n])
             score = float(ramp @ ramp) / (n * (n + 1) * (2 * n + 1) / 6.0)
             if score > best:
@@ -626,7 +683,7 @@ class Families:
         n, _ = self._local(self._n)
         last = len(c) - 1
         best, at = -1.0, self.taken - 1
-        for m in range(2, min(max(VARIANCE_WINDOWS), last) + 1):
+        for m in range(2, min(max(VARIANCE_WINDOWS), last, self.taken) + 1):
             count = n[last] - n[last - m]
             s1 = c[last] - c[last - m]
             v = np.maximum(sq[last] - sq[last - m] - np.where(count > 0, s1 * s1 / np.maximum(count, 1), 0.0), 1e-12)
@@ -635,3 +692,8 @@ class Families:
             if score > best:
                 best, at = score, self.taken - m
         return at
+
+
+def _exponent(value: float) -> int | None:
+    """The decimal exponent of ``value`` (None for 0): readings of one exponent share a resolution."""
+    return None if value == 0.0 else math.floor(math.log10(abs(value)))

@@ -208,6 +208,10 @@ class Loop:
                                                  np.asarray(s.y, dtype=float)[present],
                                                  (np.asarray(sd, dtype=float) / self.noise)[present])
         if detection is not None:
+            # an onset older than the clouds and the record kept (a drift test's window reaches 256 steps back)
+            earliest = max(detection.step - o.history, 0)
+            if detection.onset_step is not None and detection.onset_step < earliest:
+                detection = dataclasses.replace(detection, onset_step=earliest)
             self._alarm(detection)
         if self.pf is not None:
             self.ess = r.ess
@@ -444,11 +448,11 @@ def isolate(config: LoopConfig, pf_class, detection, clouds: dict, ys: np.ndarra
 
 def frozen_sensor(detection) -> str | None:
     """The sensor the detector saw frozen: its reading repeated to the last
-    digit, or its residual's variance fell below the variance test's lower
-    bound (:mod:`bgc.diagnosis.detect`); None for every other alarm."""
-    if detection.test == "frozen" or (detection.test == "variance" and detection.statistic < detection.threshold):
-        return detection.sensor
-    return None
+    digit beyond chance (the ``frozen`` test, :mod:`bgc.diagnosis.detect`);
+    None for every other alarm (a variance that fell is evidence too, but a
+    reading quantised coarser than the model thinks, or a noise that shrank,
+    lowers it as well: the fault models decide)."""
+    return detection.sensor if detection.test == "frozen" else None
 
 
 def _onsets(o: DiagnosisOptions, detection, T: int):
