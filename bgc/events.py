@@ -184,10 +184,10 @@ class AllTried:
 @dataclass(frozen=True, slots=True)
 class ReadingFrozen:
     """The detector saw ``sensor`` frozen from ``onset`` (its reading
-    repeated to the last digit, or its residual's variance fell to nothing:
-    :class:`Alarmed`'s ``test``): no fault of the plant does that, so only
-    the sensor's ``stuck`` fault models (``kept``; none: the model declares
-    none, and the verdict is unexplained) are tried."""
+    repeated to the last digit beyond chance: :class:`Alarmed`'s ``test``
+    ``frozen``): no fault of the plant does that, so only the sensor's
+    ``stuck`` fault models (``kept``; none: the model declares none, and the
+    verdict is unexplained) are tried."""
 
     step: int
     sensor: str

@@ -108,11 +108,24 @@ probability per horizon stays at most ``alpha``:
   previous reading's bin of width ``q`` (the data's resolution) is at most
   ``rho = q / (sqrt(2 pi) r)``, and ``n`` repeats in a row at most
   ``rho^n``; the test alarms when ``rho^n <= alpha / F / (T n_y)``. ``q`` is
-  bounded by the smallest change seen between two readings of the sensor
-  (every change is a multiple of the resolution; on full-precision data a
-  repeat is all but impossible and two repeats alarm). A sensor whose noise
-  is smaller than the model says fails the variance test as well: the model
-  does not fit it.
+  bounded by the smallest change seen between two readings of the sensor of
+  the same decimal exponent as the one repeated (every change is a multiple
+  of the resolution, and a logger writing significant digits has a coarser
+  one for larger values; on full-precision data a repeat is all but
+  impossible and two repeats alarm). A reading that repeats by the data's
+  habit (a logger writing each value twice, a historian's compression) is
+  no independent draw: the run must also be longer than twice the longest
+  run of repeats seen before. The onset is the step of the first repeat. A
+  sensor whose noise is smaller than the model says fails the variance test
+  as well: the model does not fit it.
+
+The variance test's lower tail is left to sensors whose readings are finer
+than a quarter of their noise (``q <= r / 4``): coarser readings repeat by
+themselves, and their residuals move in steps the chi-square does not
+describe. Its upper tail is widened by the window's Monte Carlo share,
+``(1 + max a_k^2)`` times the quantile (a prediction error that varies
+within the window adds up to ``a_k^2`` to each residual's variance; the
+bound of a sum of weighted chi-squares, Ostrowski, as for the lower tail).
 
 When several families alarm at one step, the alarm is the one furthest past
 its own level (the log of its p-value over its level). The alarm names the
