@@ -422,3 +422,10 @@ def test_readings_rounded_coarser_than_their_noise_raise_no_alarm(tmp_path):
         d = bgc.diagnose(fast_session("circuit"), tmp_path / "run.csv",
                          options=bgc.DiagnosisOptions(detectors=ALL)).diagnosis
         assert d.detection is None, (seed, d.detection)
+
+
+def test_distinguish_measures_the_detector_with_the_tests_asked_for():
+    report = bgc.distinguishability("models/circuit.yaml", "R2:abrupt:1.2@7.5", detector_runs=2, detectors=ALL)
+    assert report.detector.detectors == ALL and report.detector.runs == 2
+    with pytest.raises(bgc.ArgumentValueError, match="mean"):
+        bgc.distinguishability("models/circuit.yaml", "R2:abrupt:1.2@7.5", detector_runs=2, detectors=("frozen",))

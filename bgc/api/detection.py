@@ -45,7 +45,7 @@ class DetectorRate:
     it, the detected fraction's 95 % Wilson interval (``low``, ``high``),
     the median delay from the onset to the alarm (time units; None: no
     detection), and the detector's settings: the filter and its particles,
-    the false-alarm probability per ``horizon`` (time units)."""
+    the false-alarm probability per ``horizon`` (time units), its tests."""
 
     runs: int
     detected: int
@@ -59,6 +59,7 @@ class DetectorRate:
     horizon: float
     first_seed: int
     time_unit: str | None = None
+    detectors: tuple[str, ...] = ("mean",)
 
     @property
     def probability(self) -> float:
@@ -115,7 +116,7 @@ def detector_rate(session: Session, injection: simulate.FaultInjection, steps: i
     low, high = wilson(detected, runs)
     return DetectorRate(runs, detected, false, low, high, float(np.median(delays)) if delays else None,
                         opts.filter, opts.particles, opts.false_alarm, opts.horizon, seed,
-                        session.view.model.settings.time_unit)
+                        session.view.model.settings.time_unit, tuple(opts.detectors))
 
 
 @dataclass(frozen=True, slots=True)

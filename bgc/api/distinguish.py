@@ -19,6 +19,8 @@ from ..analysis import hybrid, simulate
 from ..model import package as packages
 from . import cache
 from .folders import _LOCK
+from ..diagnosis.options import DiagnosisOptions
+from .limits import check_options
 from .reports import DistinguishabilityReport
 from .session import Session, input_signals, scenario_of
 from .simulate import _schedule
@@ -45,7 +47,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
                        steps: int | None = None, level: float = distinction.LEVEL,
                        progress=None, detector_runs: int = 0, seed: int = 0,
                        inputs: Mapping[str, Any] | None = None,
-                       modes: str | None = None) -> DistinguishabilityReport:
+                       modes: str | None = None, detectors: tuple[str, ...] = ("mean",)) -> DistinguishabilityReport:
     """Predict which fault hypotheses the data of ``scenario``
     (``NAME:KIND:MAGNITUDE@TIME``) of ``model`` can tell apart, at the given
     relative noise levels (default: the model's), before any data are seen;
@@ -83,6 +85,10 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         ideal detector's probability.
     seed : int
         The first seed of those runs.
+    detectors : tuple of str
+        The detector's tests on those runs (:attr:`DiagnosisOptions.detectors`:
+        the mean test alone by default, or with ``drift``, ``variance``,
+        ``frozen``).
     inputs : mapping, optional
         Inputs driven otherwise than the model says, by name: a number, a
         mapping written as in the model's ``inputs`` section (``{"signal":
@@ -120,6 +126,8 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
     check_prediction(func, change, at, process_noise, measurement_noise, steps, level, progress)
     arguments.integer(func, "detector_runs", detector_runs, 0, "is negative", "detector_runs=50")
     arguments.integer(func, "seed", seed, 0, "is negative", "seed=0")
+    detecting = DiagnosisOptions(workers=1, detectors=detectors)
+    check_options(detecting, func, "")
     if detector_runs and scenario is None:
         raise ArgumentValueError(f"{func}: detector_runs={detector_runs} without a scenario", None,
                                  "give a scenario, e.g. scenario='R12:abrupt:0.3@75'")
@@ -208,7 +216,8 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         session = model if isinstance(model, Session) and model.noise == (process_noise, measurement_noise) else \
             open_session(model.model if isinstance(model, Session) else model, process_noise=process_noise,
                          measurement_noise=measurement_noise)
-        rate = detector_rate(session, injected[0], T, detector_runs, seed, progress=progress, signals=signals)
+        rate = detector_rate(session, injected[0], T, detector_runs, seed, options=detecting, progress=progress,
+                             signals=signals)
     return DistinguishabilityReport(c.model.name, c.model.display_source, T, dt, (process_noise, measurement_noise),
                                     scenario if isinstance(scenario, str) or scenario is None else scenario.text,
                                     None if scenario else change, None if scenario else at, tuple(out),

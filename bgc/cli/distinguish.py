@@ -7,7 +7,8 @@ import sys
 from pathlib import Path
 
 from ..errors import BgcError, printable
-from .common import Progress, above_zero, add_signal_option, at_least, parse_noise, positive, seed, signals_of
+from .common import (Progress, above_zero, add_signal_option, at_least, detectors, parse_noise, positive, seed,
+                     signals_of)
 
 nonnegative = at_least(0, "{value} is negative: give 0 or more runs")
 
@@ -30,6 +31,8 @@ def add_parser(sub) -> None:
                    help="with --scenario: also simulate N runs and count how often bgc's own detector alarms on the "
                         "fault (default 50; 0: skip)")
     p.add_argument("--seed", type=seed, default=0, help="the first seed of those runs, an integer >= 0")
+    p.add_argument("--detect", type=detectors, default=("mean",), metavar="TESTS",
+                   help="the tests of bgc's detector on those runs, as bgc diagnose --detect (default: mean)")
     add_signal_option(p)
     p.add_argument("--modes", metavar="MODE@TIME,...",
                    help="a model with modes: the controlled changes of mode over the run, e.g. closed@0.5,open@3 "
@@ -62,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         r = api.distinguishability(args.model, args.scenario, change=args.change, at=args.at,
                                    process_noise=process, measurement_noise=measurement, steps=args.steps,
                                    progress=progress, detector_runs=runs, seed=args.seed,
-                                   inputs=dict(_signals(args)) or None, modes=args.modes)
+                                   inputs=dict(_signals(args)) or None, modes=args.modes, detectors=args.detect)
     finally:
         progress.close()
     text = render.to_json(render.distinguishability_json(r)) if args.format == "json" else \

@@ -819,13 +819,15 @@ def detector_lines(rate, ideal: float, dt: float) -> list[str]:
     had, and which of the two the user will see when they differ."""
     unit = f" {rate.time_unit}" if rate.time_unit else " time units"
     delay = f", median delay {rate.median_delay:g}{unit}" if rate.median_delay is not None else ""
-    out = [f"bgc's detector ({rate.method}, {rate.particles} particles, false-alarm probability {rate.false_alarm:g} "
+    tests = getattr(rate, "detectors", ("mean",))
+    which = "" if len(tests) == 1 else f", tests {', '.join(tests)}"
+    out = [f"bgc's detector ({rate.method}, {rate.particles} particles{which}, false-alarm probability {rate.false_alarm:g} "
            f"per {rate.horizon:g}{unit}): detects it in {rate.detected} of {rate.runs} simulated runs, P "
            f"{rate.probability:.2f} in [{rate.low:.2f}, {rate.high:.2f}] (95 %, Wilson; seeds {rate.first_seed} to "
            f"{rate.first_seed + rate.runs - 1}){delay}"
            + (f"; {rate.false_alarms} alarm(s) before the onset" if rate.false_alarms else "")]
     if rate.high < ideal - 0.05:
-        out.append(f"  what a diagnosis will show: bgc's detector, which tests the residuals' mean over windows "
+        out.append(f"  what a diagnosis will show: bgc's detector, which tests the residuals over windows "
                    f"without knowing the fault's shape; expect 'no fault' in about {100 * (1 - rate.probability):.0f} "
                    "% of such runs (a longer run, a larger fault, a test input or a sensor nearer the fault helps)")
     elif rate.low > ideal + 0.05:
@@ -842,7 +844,8 @@ def distinguishability_json(r) -> dict:
             "runs": rate.runs, "detected": rate.detected, "false_alarms": rate.false_alarms,
             "probability": rate.probability, "low": rate.low, "high": rate.high, "median_delay": rate.median_delay,
             "method": rate.method, "particles": rate.particles, "false_alarm": rate.false_alarm,
-            "horizon": rate.horizon, "first_seed": rate.first_seed, "time_unit": rate.time_unit},
+            "horizon": rate.horizon, "first_seed": rate.first_seed, "time_unit": rate.time_unit,
+            "detectors": list(getattr(rate, "detectors", ("mean",)))},
         "model": r.model, "steps": r.steps, "dt": r.dt,
         "noise": {"process": r.noise[0], "measurement": r.noise[1]},
         "scenario": r.scenario, "change": r.change, "at": r.at, "warning": getattr(r, "warning", None),
