@@ -82,12 +82,14 @@ ALARM, STEPS = Detection(200, "y", 1, 9.0, 4.0, 150), 400
 
 def test_a_steps_onset_window():
     """The loop's own window (its +2 is inline in _onsets): the README once
-    said -5, docs/commands.md kept it."""
+    said -5, docs/commands.md kept it. The Kalman filters' reach the alarm."""
     near = _onsets(DEFAULT, ALARM, STEPS)[1]
     before, after = ALARM.onset_step - min(near), max(near) - ALARM.onset_step
     assert before == DEFAULT.near
-    check(r"change point -(\d+) to \+(\d+) samples", (before, after))
     check(r"(\d+) before (?:it )?to (\d+) after", (before, after), places=2)
+    kalman = _onsets(DEFAULT, ALARM, STEPS)[4][False]
+    assert (kalman[0], kalman[-1]) == (ALARM.onset_step - before, ALARM.step)
+    check(r"every sample from (\d+) before the\s+detector's change point up to the alarm's", (before,))
 
 
 def test_the_detectors_windows():

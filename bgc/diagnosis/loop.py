@@ -468,7 +468,9 @@ def _onsets(o: DiagnosisOptions, detection, T: int):
     reach = drift_onsets(detection.step, detection.onset_step, spacing, o.history)
     near = {k for k in range(detection.onset_step - o.near, detection.onset_step + 3) if 0 <= k <= detection.step + 1 and k < T}
     kalman_reach = drift_onsets(detection.step, detection.onset_step, o.kalman.spacing, o.history)
-    kalman_onsets = {True: first_tried(kalman_reach), False: sorted(near)}
+    # a step's Kalman onsets reach the alarm: a change point that falls early leaves the true onset after it
+    late = {k for k in range(detection.onset_step + 3, detection.step + 1) if k < T}
+    kalman_onsets = {True: first_tried(kalman_reach), False: sorted(near | late)}
     onsets = {True: first_tried(reach), False: sorted(near)}
     return reach, near, kalman_reach, onsets, kalman_onsets
 

@@ -37,6 +37,16 @@ does not fit these data). And drivetrain_none_no_switch_gpf (--only, --keep-runs
 whose change point is the data's second sample, leaves 1 sample before the fault, fewer than the 10
 that could vouch for the model: "unexplained" (k_s_abrupt the closest) before, "mismatch" now; its
 hypotheses' numbers moved in their last digits (the same code recorded them; the replay passes).
+Re-recorded on 2026-12-04 (--only two_tank_R20_drift_up_gpf_workers2 drivetrain_g_m_step_down_switch_gpf
+--keep-runs) when a step's Kalman onsets came to reach the alarm (bgc.diagnosis.loop._onsets: from the
+detector's change point - 4 up to the alarm's sample, not to the change point + 2 only; issue 48, point
+4: the sweep's two "unexplained" two-tank R12 steps, whose change point fell 3 samples before the true
+onset, are "isolated: R12_abrupt" now). These two cases' numbers moved: in
+two_tank_R20_drift_up_gpf_workers2 the rival R10_abrupt (dropped at step 199 either way) has its most
+probable onset at step 81, one of the onsets added, instead of 77; in
+drivetrain_g_m_step_down_switch_gpf the step hypotheses' static posteriors hold the onsets up to the
+alarm (step 126), which moves every posterior in its fifth digit (g_m_abrupt 0.995856 to 0.995868). The
+verdicts, candidates and onsets of both are unchanged.
 Every other case is unchanged. A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
 ``bgc/`` holds exactly the code being committed, and commits the corpus with
