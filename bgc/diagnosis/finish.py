@@ -21,6 +21,7 @@ import numpy as np
 from ..data.runs import Run
 from ..data.sampler import DataSummary
 from ..filters import cubature as kalman
+from ..filters.residuals import failures, finding, summary
 from ..kinds import fault_kind
 from ..model.protocol import Package, nominal_model
 from .. import events as ev
@@ -32,7 +33,7 @@ from .options import DiagnosisOptions
 from .parallel import parallel_map
 from .static import StaticJob, kalman_hypotheses, run_static, run_statics, static_alarm
 from .static_posterior import EDGE, EXTEND
-from .values import Detection, Diagnosis, Drop, Hypothesis, Isolation, StaticPosterior
+from .values import Detection, Diagnosis, Drop, Fit, Hypothesis, Isolation, StaticPosterior
 from .weigh import weighed
 
 
@@ -145,6 +146,8 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
     first = None if r.detection is None else r.detection.onset_step if drifts else end
     short = first is not None and first < LEAST
     fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, short, track=track)
+    if fitted.fits and verdict in ("isolated", "ambiguous") and candidates and candidates[0] in by:
+        fitted = noise_misfit(fitted, by[candidates[0]], r.outputs)
     # an alarm, or a misfit, that the inputs read with the other timing explain (docs/format.md, section 9)
     timing = None if r.data is None or (fitted.fits and r.detection is None) else timing_told(
         nominal_model(s.package), r.ys, r.us, r.outputs,
@@ -165,6 +168,28 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
                           *(timing or (None, False, 0.0)))
     s.say("the model does not fit these data" + ("" if not possible else f"; possibly {', '.join(possible)}"))
     return "mismatch", possible, [event], fitted
+
+
+def noise_misfit(fitted: Fit, h: Hypothesis, outputs: tuple[str, ...]) -> Fit:
+    """``fitted`` with the test of the named fault's own residuals after its
+    onset (its static posterior's most likely cell, :mod:`bgc.diagnosis.fit`'s
+    variance test, a variance above 1 only): a fault model explains a change
+    of what the sensors read, never noise the model lacks; a plant noisier
+    than its model, whose alarm came late, leaves the named fault's
+    residuals too wide (a variance of 2.2 for sensors 1.5 times noisier),
+    while the data before the onset were too few to show it. Its findings
+    are added to the fit's: the verdict is ``mismatch``."""
+    p = h.static
+    if p is None or p.residuals is None or p.best is None:
+        return fitted
+    z = np.asarray(p.residuals, dtype=float)[int(p.best[0]):]
+    summaries = summary([z], outputs)
+    wide = [(i, test) for i, test in failures(summaries, fitted.level, correlation=False, narrower=False)
+            if test == "variance"]
+    if not wide:
+        return fitted
+    said = tuple(f"with {h.name}, {finding(i, test)}" for i, test in wide)
+    return replace(fitted, findings=fitted.findings + said, failed=fitted.failed + tuple(t for _, t in wide))
 
 
 def refined(told, candidates, onset: int | None, step: int) -> list:

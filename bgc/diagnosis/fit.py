@@ -38,8 +38,17 @@ since the data's start and a model that does not fit give the same data.
 For a drift, the detector's change point alone: a drift's onset is weakly
 told by the data, and its most probable one may lie far before the truth.
 
+**The named fault's noise** (:func:`bgc.diagnosis.finish.noise_misfit`):
+when the stretch fits and the diagnosis names a fault, the same variance test
+runs on that fault's own residuals after its onset (its static posterior's
+most likely cell): a fault model explains a change of the readings, never
+noise the model lacks, and a plant noisier than its model whose alarm came
+late leaves them too wide while the few samples before the onset did not
+show it.
+
 **The verdict** (:mod:`bgc.diagnosis.finish`): when the stretch fails the
-test, or is too short, the diagnosis is ``mismatch``. Its candidates are
+test, or is too short, or the named fault's residuals are too wide, the
+diagnosis is ``mismatch``. Its candidates are
 the faults the diagnosis would have named, kept as possibilities: a fault
 that truly starts with the data is one of them.
 
