@@ -298,6 +298,7 @@ def test_a_frozen_sensor_the_model_declares_stuck_is_isolated_and_sized(tmp_path
                      options=bgc.DiagnosisOptions(detectors=ALL)).diagnosis
     assert d.verdict == "isolated" and d.candidates == ("f6_stuck_stuck",)
     assert d.best.estimate.low <= held <= d.best.estimate.high
+    assert d.onset_step == 150  # the first reading that repeats: the stuck fault is tried from there
 
 
 def test_the_example_file_is_the_frozen_run_of_the_circuit(tmp_path):
