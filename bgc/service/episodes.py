@@ -111,7 +111,7 @@ class Episodes:
                 and e.subject in sensors and len(sensors) > 1:
             action, parameter = "sensor out", e.subject
             out = [y for y in sensors if y != e.subject]
-        elif frozen_sensor(c) in sensors and len(sensors) > 1:  # frozen, and the model declares no stuck fault of it
+        elif frozen_sensor(c) in sensors and len(sensors) > 1:  # frozen, and no stuck fault of the model explains it
             action, parameter = "sensor out", frozen_sensor(c)
             out = [y for y in sensors if y != parameter]
         elif held:
@@ -125,7 +125,7 @@ class Episodes:
             self.by[parameter] = number
         finding = "" if e is None else fault_sentence(e, c.onset, self.per_time)
         if e is None and action == "sensor out":
-            finding = f"sensor {parameter}'s reading is frozen, and the model declares no stuck fault of it"
+            finding = f"sensor {parameter}'s reading is frozen, and no stuck fault of the model explains it"
         alarm, sensor = self.alarm
         reason = ("" if action != "re-armed" else "memory" if full else "rearm" if c.verdict != "isolated"
                   else "no estimate")
@@ -264,8 +264,9 @@ def repair_of(line: str) -> tuple[str, ...] | None:
 
 def frozen_sensor(c) -> str | None:
     """The sensor diagnosis ``c`` found frozen and could not size (the model
-    declares no stuck fault of it: the verdict is unexplained, and the
-    reading is off all the same, :class:`~bgc.events.ReadingFrozen`); else None."""
+    declares no stuck fault of it, or the one it declares does not explain
+    the data: the verdict is unexplained, and the reading is off all the
+    same, :class:`~bgc.events.ReadingFrozen`); else None."""
     if c.verdict != "unexplained":
         return None
-    return next((e.sensor for e in c.events if isinstance(e, ev.ReadingFrozen) and not e.kept), None)
+    return next((e.sensor for e in c.events if isinstance(e, ev.ReadingFrozen)), None)

@@ -405,7 +405,7 @@ class _Monitor:
         watches the other sensors from the next row."""
         from ..output.events import fault_sentence
 
-        finding = (f"sensor {faulty}'s reading is frozen, and the model declares no stuck fault of it"
+        finding = (f"sensor {faulty}'s reading is frozen, and no stuck fault of the model explains it"
                    if c.estimate is None or c.verdict != "isolated"
                    else fault_sentence(c.estimate, c.onset, self.session.view.labels.per_time))
         out = ev.SensorExcluded(faulty, finding, now)
@@ -537,7 +537,7 @@ def _faulty_sensor(c, sensors: list[str]) -> str | None:
     """The sensor a checkpoint's diagnosis ``c`` isolated a fault of, when
     another sensor is left to watch with; else None."""
     e = c.estimate
-    frozen = frozen_sensor(c)  # frozen, and the model declares no stuck fault of it: off all the same
+    frozen = frozen_sensor(c)  # frozen, and no stuck fault of the model explains it: off all the same
     if frozen is not None:
         return frozen if frozen in sensors and len(sensors) > 1 else None
     if c.verdict != "isolated" or e is None or e.target != "sensor" or len(sensors) < 2:
