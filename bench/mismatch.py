@@ -35,6 +35,8 @@ with the detector's bank (``--detect all``). Prints the verdicts per
 column.
 
     .venv/bin/python bench/mismatch.py --calibrated 40
+
+With ``--as-written RUNS``: its rows of the model as written only.
 """
 
 from __future__ import annotations
@@ -103,21 +105,24 @@ def timing(runs: int) -> None:
                           + f" | {named} |", flush=True)
 
 
-def calibrated(runs: int, off: float, noise: float) -> None:
-    """Verdicts on a fresh healthy run of a plant off its model, with the model as written and calibrated."""
+def calibrated(runs: int, off: float, noise: float, calibrate: bool = True) -> None:
+    """Verdicts on a fresh healthy run of a plant off its model, with the model as written and calibrated
+    (``calibrate``: else as written only, without the calibrations' minutes)."""
     from bgc.diagnosis.detect import TESTS
 
     session = bgc.open(ROOT / "models" / "circuit.yaml")
     estimate = "noise," + ",".join(p.name for p in session.view.model.parameters)  # the model file's
-    columns = [(model, tests) for model in ("as written", "calibrated") for tests in (("mean",), TESTS)]
+    models = ("as written", "calibrated") if calibrate else ("as written",)
+    columns = [(model, tests) for model in models for tests in (("mean",), TESTS)]
     counts = {c: Counter() for c in columns}
     with tempfile.TemporaryDirectory() as folder:
         healthy, fresh, model = (Path(folder) / name for name in ("healthy.csv", "fresh.csv", "calibrated.yaml"))
         for seed in range(runs):
             plant_csv(healthy, seed, off, noise)
             plant_csv(fresh, seed, off, noise, noise_seed=1)
-            model.write_text(session.calibrate(healthy, estimate).text, encoding="utf-8")
-            calibrated_session = bgc.open(model)
+            if calibrate:
+                model.write_text(session.calibrate(healthy, estimate).text, encoding="utf-8")
+                calibrated_session = bgc.open(model)
             said = []
             for column in columns:
                 which = session if column[0] == "as written" else calibrated_session
@@ -139,9 +144,11 @@ def main(argv=None) -> int:
     p.add_argument("--null", type=int, default=0, metavar="RUNS")
     p.add_argument("--timing", type=int, default=0, metavar="RUNS")
     p.add_argument("--calibrated", type=int, default=0, metavar="RUNS")
+    p.add_argument("--as-written", type=int, default=0, metavar="RUNS",
+                   help="--calibrated's rows of the model as written only (no calibration)")
     a = p.parse_args(argv)
-    if a.calibrated:
-        calibrated(a.calibrated, a.off, a.noise)
+    if a.calibrated or a.as_written:
+        calibrated(a.calibrated or a.as_written, a.off, a.noise, calibrate=bool(a.calibrated))
         return 0
     if a.timing:
         timing(a.timing)
