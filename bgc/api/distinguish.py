@@ -209,21 +209,27 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         out.append(distinction.distinguish(families, f"{inj.parameter}_{inj.kind}", inj.magnitude, onset, priors,
                                            level))
     warning = simulate.outside_prior(injected[0], num) if scenario is not None else None
-    rate = None
-    if detector_runs:
-        from .detection import detector_rate
-
-        session = model if isinstance(model, Session) and model.noise == (process_noise, measurement_noise) else \
-            open_session(model.model if isinstance(model, Session) else model, process_noise=process_noise,
-                         measurement_noise=measurement_noise)
-        rate = detector_rate(session, injected[0], T, detector_runs, seed, options=detecting, progress=progress,
-                             signals=signals)
+    rate = _detector_rate(model, injected[0], T, detector_runs, seed, detecting, (process_noise, measurement_noise),
+                          progress, signals) if detector_runs else None
     return DistinguishabilityReport(c.model.name, c.model.display_source, T, dt, (process_noise, measurement_noise),
                                     scenario if isinstance(scenario, str) or scenario is None else scenario.text,
                                     None if scenario else change, None if scenario else at, tuple(out),
                                     warning, rate, signals, (modes or "") if c.modes else None,
                                     first)
 
+
+
+def _detector_rate(model, injection, steps: int, runs: int, seed: int, options: DiagnosisOptions, noise: tuple,
+                   progress, signals):
+    """bgc's detector on ``runs`` simulated runs of ``injection``
+    (:func:`bgc.api.detection.detector_rate`), on ``model`` opened at the
+    noise levels ``noise`` (a session at them: itself)."""
+    from .detection import detector_rate
+
+    session = model if isinstance(model, Session) and model.noise == noise else \
+        open_session(model.model if isinstance(model, Session) else model, process_noise=noise[0],
+                     measurement_noise=noise[1])
+    return detector_rate(session, injection, steps, runs, seed, options=options, progress=progress, signals=signals)
 
 
 #: Prepared families by package (its module name tells the noise levels) and

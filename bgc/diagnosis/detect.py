@@ -490,30 +490,31 @@ class Families:
         """Take one step (:meth:`Detector.update`'s arguments); the alarms it
         raises (steps counted by the caller), each with its excess."""
         row = z.tolist() if isinstance(z, np.ndarray) else [float(v) for v in z]
-        seen = [1.0 if isfinite(v) else 0.0 for v in row]
         zs = [v if isfinite(v) else 0.0 for v in row]
-        if spread is None:
-            es = zs
-        else:
-            ratio = spread.tolist() if isinstance(spread, np.ndarray) else [float(v) for v in spread]
-            es = [v * (q if isfinite(q) else 1.0) for v, q in zip(zs, ratio)]
         c_now = tuple(a + b for a, b in zip(self._c[-1], zs))
         self._c.append(c_now)
-        self._cc.append(tuple(a + b for a, b in zip(self._cc[-1], c_now)))
         if mc is None:
             a_now = self._a[-1]
         else:
             a_row = mc.tolist() if isinstance(mc, np.ndarray) else [float(v) for v in mc]
             a_now = tuple(a + (b if isfinite(b) else 0.0) for a, b in zip(self._a[-1], a_row))
         self._a.append(a_now)
-        self._aa.append(tuple(a + b for a, b in zip(self._aa[-1], a_now)))
-        self._sq.append(tuple(a + b * b for a, b in zip(self._sq[-1], zs)))
-        self._n.append(tuple(a + b for a, b in zip(self._n[-1], seen)))
-        self._e.append(tuple(a + b for a, b in zip(self._e[-1], es)))
-        self._ee.append(tuple(a + b * b for a, b in zip(self._ee[-1], es)))
+        if self.drift:  # the rings only a family that is on reads
+            self._cc.append(tuple(a + b for a, b in zip(self._cc[-1], c_now)))
+            self._aa.append(tuple(a + b for a, b in zip(self._aa[-1], a_now)))
+        if self.variance:
+            if spread is None:
+                es = zs
+            else:
+                ratio = spread.tolist() if isinstance(spread, np.ndarray) else [float(v) for v in spread]
+                es = [v * (q if isfinite(q) else 1.0) for v, q in zip(zs, ratio)]
+            self._sq.append(tuple(a + b * b for a, b in zip(self._sq[-1], zs)))
+            self._n.append(tuple(a + (1.0 if isfinite(b) else 0.0) for a, b in zip(self._n[-1], row)))
+            self._e.append(tuple(a + b for a, b in zip(self._e[-1], es)))
+            self._ee.append(tuple(a + b * b for a, b in zip(self._ee[-1], es)))
         self.taken += 1
         readings = None if y is None else (y.tolist() if isinstance(y, np.ndarray) else [float(v) for v in y])
-        if readings is not None:
+        if readings is not None and (self.variance or self.frozen):  # the lower tail's resolution, the repeats
             self._read(readings)
         found: list[tuple[Detection, float]] = []
         if self.drift:
@@ -594,8 +595,8 @@ class Families:
                 q = self._centred(self._c, self._sq, j, w, count)
                 if q > high:
                     share = max(self._a[-1 - i][j] - self._a[-2 - i][j] for i in range(w))
-                    bound, fell = high * (1.0 + share * share), False
-                    if q <= bound:
+                    widen, fell = 1.0 + share * share, False  # the window's largest Monte Carlo share
+                    if q <= high * widen:
                         continue
                 else:
                     if not self._fine(j, readings):
@@ -603,8 +604,9 @@ class Families:
                     q = self._centred(self._e, self._ee, j, w, count)
                     if q >= low:
                         continue
-                    bound, fell = low, True
-                excess = self._chi2_excess(q / (bound / (low if fell else high)), count - 1)
+                    widen, fell = 1.0, True
+                bound = (low if fell else high) * widen
+                excess = self._chi2_excess(q / widen, count - 1)
                 if excess < worst:
                     worst, at = excess, (w, j, q / (count - 1), bound / (count - 1), fell)
         if at is None:

@@ -437,8 +437,8 @@ def isolate(config: LoopConfig, pf_class, detection, clouds: dict, ys: np.ndarra
         # its onset is the first reading that repeats, to the sample: the stuck fault is tried from there only
         # (its model reads the held value with the sensor's noise, so the readings just before, as near it,
         # would draw the onset earlier: the repeats themselves say where it is)
-        onsets, kalman_onsets = ({flag: [detection.onset_step] for flag in (True, False)} for _ in range(2))
         reach = kalman_reach = [detection.onset_step]
+        onsets = kalman_onsets = {True: reach, False: reach}
     models: dict[str, list[str]] = {}
     for s in keep:
         models.setdefault(f"{s.parameter}_{s.kind}", []).append(s.name)

@@ -84,7 +84,7 @@ class Episodes:
         """Whether checkpoint diagnosis ``c`` at time ``now`` closes the open episode."""
         if self.alarm is None:
             return False
-        return c.verdict == "isolated" or frozen_sensor(c) is not None \
+        return c.verdict == "isolated" or frozen_unsized(c) is not None \
             or (self.rearm is not None and now - self.alarm[0] >= self.rearm)
 
     def close(self, c, d, now: float, sensors: list[str], full: bool = False):
@@ -111,8 +111,8 @@ class Episodes:
                 and e.subject in sensors and len(sensors) > 1:
             action, parameter = "sensor out", e.subject
             out = [y for y in sensors if y != e.subject]
-        elif frozen_sensor(c) in sensors and len(sensors) > 1:  # frozen, and no stuck fault of the model explains it
-            action, parameter = "sensor out", frozen_sensor(c)
+        elif frozen_unsized(c) in sensors and len(sensors) > 1:
+            action, parameter = "sensor out", frozen_unsized(c)
             out = [y for y in sensors if y != parameter]
         elif held:
             action, parameter, value = "accommodated", e.parameter, float(e.parameter_value)
@@ -123,9 +123,8 @@ class Episodes:
             appearance = len(self.spells[parameter])
             self.theta[parameter] = value
             self.by[parameter] = number
-        finding = "" if e is None else fault_sentence(e, c.onset, self.per_time)
-        if e is None and action == "sensor out":
-            finding = f"sensor {parameter}'s reading is frozen, and no stuck fault of the model explains it"
+        finding = frozen_finding(parameter) if e is None and action == "sensor out" else \
+            "" if e is None else fault_sentence(e, c.onset, self.per_time)
         alarm, sensor = self.alarm
         reason = ("" if action != "re-armed" else "memory" if full else "rearm" if c.verdict != "isolated"
                   else "no estimate")
@@ -262,7 +261,12 @@ def repair_of(line: str) -> tuple[str, ...] | None:
     return () if not rest else None
 
 
-def frozen_sensor(c) -> str | None:
+def frozen_finding(sensor: str) -> str:
+    """What the fault log says of a sensor taken out as :func:`frozen_unsized`."""
+    return f"sensor {sensor}'s reading is frozen, and no stuck fault of the model explains it"
+
+
+def frozen_unsized(c) -> str | None:
     """The sensor diagnosis ``c`` found frozen and could not size (the model
     declares no stuck fault of it, or the one it declares does not explain
     the data: the verdict is unexplained, and the reading is off all the

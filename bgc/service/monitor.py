@@ -30,7 +30,7 @@ from ..data.columns import MODE, Reading
 from ..analysis import track
 from ..diagnosis.options import DiagnosisOptions
 from . import resume
-from .episodes import Episodes, frozen_sensor, repair_of
+from .episodes import Episodes, frozen_finding, frozen_unsized, repair_of
 from ..model.package import forget_started
 
 #: Rows between two saves of the monitor's state (``--state-every``).
@@ -405,8 +405,7 @@ class _Monitor:
         watches the other sensors from the next row."""
         from ..output.events import fault_sentence
 
-        finding = (f"sensor {faulty}'s reading is frozen, and no stuck fault of the model explains it"
-                   if c.estimate is None or c.verdict != "isolated"
+        finding = (frozen_finding(faulty) if c.estimate is None or c.verdict != "isolated"
                    else fault_sentence(c.estimate, c.onset, self.session.view.labels.per_time))
         out = ev.SensorExcluded(faulty, finding, now)
         self.excluded.append(out)
@@ -537,7 +536,7 @@ def _faulty_sensor(c, sensors: list[str]) -> str | None:
     """The sensor a checkpoint's diagnosis ``c`` isolated a fault of, when
     another sensor is left to watch with; else None."""
     e = c.estimate
-    frozen = frozen_sensor(c)  # frozen, and no stuck fault of the model explains it: off all the same
+    frozen = frozen_unsized(c)  # off all the same
     if frozen is not None:
         return frozen if frozen in sensors and len(sensors) > 1 else None
     if c.verdict != "isolated" or e is None or e.target != "sensor" or len(sensors) < 2:
