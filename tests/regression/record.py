@@ -47,6 +47,18 @@ probable onset at step 81, one of the onsets added, instead of 77; in
 drivetrain_g_m_step_down_switch_gpf the step hypotheses' static posteriors hold the onsets up to the
 alarm (step 126), which moves every posterior in its fifth digit (g_m_abrupt 0.995856 to 0.995868). The
 verdicts, candidates and onsets of both are unchanged.
+That commit (c13e763) moved eight more cases, which tests/test_regression.py does not run and which
+were not replayed then (bench/regression_corpus.py replays all 42: at c13e763 34 were the same); they
+were re-recorded on 2026-12-04 (--only, --keep-runs), the replay of c13e763 and of 92b4a3b checked
+case by case. In seven, the step hypotheses' Kalman onsets now reach the alarm, so their start,
+most probable onset and sizes moved; verdicts and candidates are unchanged:
+circuit_R2_drift_up_gpf, two_tank_R12_drift_up_apf, ro_R_pipe_drift_up_ckf, ro_R_pipe_drift_up_gpf,
+dc_motor_R_a_drift_up_opf and drivetrain_b2_step_up_switch_and_every_fallback_apf (a rival step's
+numbers only), and orifice_R20_step_up_opf, whose verdict's onset moved from step 81 to step 97 and
+size from 0.939 to 1.008 (the truth: R20 +1.0 from t = 100). In two_tank_R10_drift_down_ckf the same
+change moved every step rival's numbers, and then 92b4a3b (a named fault whose own residuals are wider
+than the model's noise makes the verdict mismatch) changed its verdict from "isolated: R12_incipient"
+(wrong: the truth is R10's drift down) to "mismatch", R12_incipient the possibility named.
 Every other case is unchanged. A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
 ``bgc/`` holds exactly the code being committed, and commits the corpus with
