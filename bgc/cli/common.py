@@ -230,15 +230,12 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
 
 def detectors(text: str) -> tuple[str, ...]:
     """An argparse type: ``--detect``'s families of tests, the mean test first and always."""
-    from ..diagnosis.detect import TESTS
+    from ..diagnosis.detect import TESTS, tests_named
 
-    names = [t.strip() for t in text.split(",") if t.strip()]
-    if names == ["all"]:
-        return TESTS
-    wrong = [t for t in names if t not in TESTS]
-    if wrong or not names:
+    named = tests_named(text)
+    if named is None:
         raise argparse.ArgumentTypeError(f"{text!r}: give some of {', '.join(TESTS)}, comma-separated, or all")
-    return tuple(t for t in TESTS if t in names or t == "mean")
+    return named
 
 
 def at_least(low: int, message: str):

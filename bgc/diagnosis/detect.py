@@ -166,6 +166,25 @@ def union_threshold(alpha: float, tests: int) -> float:
 
 #: The detector's families of tests, in the order an alarm names them on a tie (module docstring).
 TESTS = ("mean", "drift", "variance", "frozen")
+
+
+def tests_named(text: str) -> tuple[str, ...] | None:
+    """The families of tests ``text`` names (``--detect``'s and a campaign's
+    ``detect:`` form: ``all``, or some of :data:`TESTS` comma-separated), in
+    :data:`TESTS`'s order with the mean test always first; None when it names
+    none or one bgc does not have.
+
+    >>> tests_named("variance,drift"), tests_named("all"), tests_named("mean"), tests_named("slope")
+    (('mean', 'drift', 'variance'), ('mean', 'drift', 'variance', 'frozen'), ('mean',), None)
+    """
+    names = [t.strip() for t in str(text).split(",") if t.strip()]
+    if names == ["all"]:
+        return TESTS
+    if not names or any(t not in TESTS for t in names):
+        return None
+    return tuple(t for t in TESTS if t in names or t == "mean")
+
+
 #: The drift family's ramp-weighted windows and its long mean windows (samples).
 DRIFT_RAMPS = (32, 128, 256)
 DRIFT_MEANS = (128, 256)

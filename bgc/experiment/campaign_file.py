@@ -57,6 +57,8 @@ class RunSpec:
     seed: int
     steps: int | None
     refine: bool = False
+    #: The detector's families of tests (``detect:``; :data:`bgc.diagnosis.detect.TESTS`), the mean test first.
+    detectors: tuple[str, ...] = ("mean",)
     #: The scenario read once, when the campaign was loaded (None: fault-free); its text is ``scenario``.
     injection: simulate.FaultInjection | None = field(default=None, compare=False)
     #: Inputs driven otherwise than the model says: (name, :class:`~bgc.ir.Signal`) pairs (``inputs:``).
@@ -73,6 +75,8 @@ class RunSpec:
             fields.pop(name)  # the scenario's value (its text stands for it)
         if not self.refine:  # the runs of campaigns from before the setting keep their ids
             fields.pop("refine")
+        if self.detectors == ("mean",):  # likewise
+            fields.pop("detectors")
         if not self.inputs:  # likewise
             fields.pop("inputs")
         if self.modes is None:  # likewise
@@ -87,7 +91,8 @@ class RunSpec:
                 "onset": self.onset, "ambiguous": self.ambiguous, "filter": self.filter,
                 "particles": self.particles, "noise": self.noise, "process_noise": self.process_noise,
                 "measurement_noise": self.measurement_noise, "seed": self.seed, "steps": self.steps,
-                "parameter_truth": self.parameter_truth, "refine": self.refine}
+                "parameter_truth": self.parameter_truth, "refine": self.refine,
+                "detectors": ",".join(self.detectors)}
 
 
 @dataclass(frozen=True, slots=True)
@@ -164,7 +169,7 @@ def load_campaign(path: str | Path, max_runs: int = MAX_RUNS) -> Campaign:
         raise ErrorGroup(errors)
     base = Path(path).parent
     defaults = {"steps": None, "filters": ["gpf"], "particles": [1000], "noise": ["model"], "seeds": 1,
-                "refine": [False], "inputs": {},
+                "refine": [False], "detect": ["mean"], "inputs": {},
                 **data.get("defaults", {})}
     _check_size(data["groups"], defaults, raw, max_runs)
     specs: list[RunSpec] = []
@@ -237,17 +242,17 @@ def check_count(value: Any, name: str) -> int:
 def group_size(group: dict, settings: dict) -> int:
     """The runs a group of a schema-valid campaign file plans, counted
     without expanding anything: scenarios (or draws) x noise levels x
-    filters x particle counts x refine settings x seeds.
+    filters x particle counts x refine settings x detectors x seeds.
 
     >>> group_size({"scenarios": ["none", "R1:abrupt:1@2"]}, {"noise": ["model"], "filters": ["gpf", "apf"],
-    ...            "particles": [100, 1000], "refine": [False], "seeds": 10})
-    80
+    ...            "particles": [100, 1000], "refine": [False], "detect": ["mean", "all"], "seeds": 10})
+    160
     """
     scenarios = len(group["scenarios"]) if "scenarios" in group else group["draws"]["count"]
     seeds = settings["seeds"]
     seeds = seeds if isinstance(seeds, int) else len(seeds)
     return (scenarios * len(settings["noise"]) * len(settings["filters"]) * len(settings["particles"])
-            * len(settings["refine"]) * seeds)
+            * len(settings["refine"]) * len(settings.get("detect", ["mean"])) * seeds)
 
 
 def _check_size(groups: list[dict], defaults: dict, raw, max_runs: int) -> None:
@@ -260,7 +265,8 @@ def _check_size(groups: list[dict], defaults: dict, raw, max_runs: int) -> None:
     name = printable(str(groups[big].get("name")))
     raise ExperimentError(
         f"the campaign plans {total:,} runs, more than the limit of {max_runs:,} (group '{name}' alone: "
-        f"{sizes[big]:,} = scenarios x noise levels x filters x particle counts x refine settings x seeds)",
+        f"{sizes[big]:,} = scenarios x noise levels x filters x particle counts x refine settings x detectors x "
+        f"seeds)",
         raw.loc("groups", big), "make the grid smaller, or raise the limit: bgc experiment --max-runs N, "
         "load_campaign(path, max_runs=N)")
 
@@ -281,6 +287,7 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
         raise ExperimentError(exc.what, raw.loc(*where, "steps"), exc.fix) from None
     duration = steps * dt
     signals = _signals(c, group, settings, where, raw)
+    detect = _detect(group, settings, where, raw)
     modes = group.get("modes")
     if modes is not None:
         try:
@@ -366,15 +373,33 @@ def _group_specs(c: pipeline.Compiled, model_path: Path, group: dict, settings: 
             truth_value = inj.value(float(_nominal(c, inj)), duration)
         for noise, process, measurement in noises:
             for method in settings["filters"]:
-                for particles, refine in [(p, r) for p in settings["particles"] for r in settings["refine"]]:
+                for particles, refine, tests in [(p, r, d) for p in settings["particles"] for r in settings["refine"]
+                                                 for d in detect]:
                     for seed in run_seeds:
                         out.append(RunSpec(
                             first_index + len(out), group["name"], _display(model_path), c.model.name, text,
                             scenario, inj.parameter if inj else None, inj.kind if inj else None,
                             inj.magnitude if inj else None, inj.time if inj else None,
                             bool(inj and f"{inj.parameter}:{inj.kind}" in ambiguous), truth_value, method,
-                            int(particles), noise, process, measurement, int(seed), steps, bool(refine), inj,
-                            signals, modes))
+                            int(particles), noise, process, measurement, int(seed), steps, bool(refine), tests,
+                            inj, signals, modes))
+    return out
+
+
+def _detect(group: dict, settings: dict, where: tuple, raw) -> list[tuple[str, ...]]:
+    """A group's ``detect`` (its own, else the defaults'): each item's
+    families of tests (:func:`bgc.diagnosis.detect.tests_named`; the schema
+    admits only names bgc has), two items naming the same families refused."""
+    from ..diagnosis.detect import tests_named
+
+    out: list[tuple[str, ...]] = []
+    for i, item in enumerate(settings["detect"]):
+        tests = tests_named(item)
+        if tests in out:
+            at = raw.loc(*where, "detect", i) if "detect" in group else raw.loc("defaults", "detect", i)
+            raise ExperimentError(f"detect: '{printable(item)}' names the same tests as an item before it "
+                                  f"({', '.join(tests)}; the mean test is always run)", at, "list each set once")
+        out.append(tests)
     return out
 
 

@@ -93,7 +93,8 @@ def run_one(spec: RunSpec, backend: str = DEFAULT_BACKEND) -> dict[str, Any]:
     row.update(spec.identity())
     try:
         options = DiagnosisOptions(filter=spec.filter, particles=spec.particles, seed=spec.seed, workers=1,
-                                   refine=spec.refine, switch=False)  # a campaign measures the filter it names
+                                   refine=spec.refine, switch=False,  # a campaign measures the filter it names
+                                   detectors=spec.detectors)
         session = _session(spec, spec.process_noise, spec.measurement_noise, backend)
         report = api.diagnose(session, scenario=_scenario(spec), seed=spec.seed, steps=spec.steps,
                              options=options, inputs=dict(spec.inputs) or None, modes=spec.modes)

@@ -37,7 +37,7 @@ COLUMNS = (
     "mse", "nmse", "ct", "detected", "detection_time", "delay", "false_alarm", "verdict",
     "diagnosed", "candidates", "right", "in_candidates", "estimate", "low", "high", "estimate_method", "est_error",
     "parameter", "parameter_truth", "param_error", "covers", "refine", "separable", "rivals", "separation",
-    "detectability", "target", "diagnosed_target", "expected",
+    "detectability", "target", "diagnosed_target", "expected", "detectors",
 )
 
 #: A state's MSE column: ``mse_e2`` for the state ``e2`` (a number; empty when the run did not compute it).
@@ -293,6 +293,7 @@ def read_runs(path: Path) -> RunsFile:
                 unread.append(raw)
                 continue
             row["refine"] = bool(row["refine"])
+            row["detectors"] = row["detectors"] or "mean"  # an earlier file's runs: the mean test alone
             rows.append(row)
     return RunsFile(tuple(rows), b"".join(unread), len(unread))
 
