@@ -15,6 +15,8 @@ from __future__ import annotations
 import pytest
 import sympy
 
+from bgc.kinds import fault_kind
+
 from bgc.compiler import causality, dbn, equations, tcg
 from bgc.compiler.load import loads
 from bgc.compiler.validate import validate
@@ -185,6 +187,8 @@ def test_fault_arcs_reach_exactly_the_equations_containing_the_parameter(name):
     c = compiled(name)
     ssm = c.equations
     for d in c.dbn.faulty:
+        if fault_kind(d.kind).noise or fault_kind(d.kind).replaces:  # in no equation: its arcs go to its sensor's
+            continue  # measurement nodes only (tests/test_noise_fault.py, tests/test_sensor_faults.py)
         p = sympy.Symbol(d.parameter)
         carrier = d.parameter if d.kind in ("incipient", "drift") else f"delta_{d.parameter}"
         expected = {(f"{carrier}@t", f"{x}@t+1") for x, rhs in zip(ssm.states, ssm.rhs) if p in rhs.free_symbols}

@@ -12,14 +12,22 @@ from . import _kernel, filters
 from . import nominal
 from . import C_memb_abrupt
 from . import C_res_abrupt
+from . import F_back_noise_noise
 from . import F_back_offset_bias
 from . import F_back_offset_drift
+from . import F_back_stuck_stuck
+from . import F_loop_noise_noise
 from . import F_loop_offset_bias
 from . import F_loop_offset_drift
+from . import F_loop_stuck_stuck
+from . import F_perm_noise_noise
 from . import F_perm_offset_bias
 from . import F_perm_offset_drift
+from . import F_perm_stuck_stuck
+from . import P_memb_noise_noise
 from . import P_memb_offset_bias
 from . import P_memb_offset_drift
+from . import P_memb_stuck_stuck
 from . import R_brine_abrupt
 from . import R_brine_incipient
 from . import R_fp_abrupt
@@ -35,14 +43,22 @@ MODELS = {
     "nominal": nominal,
     "C_memb_abrupt": C_memb_abrupt,
     "C_res_abrupt": C_res_abrupt,
+    "F_back_noise_noise": F_back_noise_noise,
     "F_back_offset_bias": F_back_offset_bias,
     "F_back_offset_drift": F_back_offset_drift,
+    "F_back_stuck_stuck": F_back_stuck_stuck,
+    "F_loop_noise_noise": F_loop_noise_noise,
     "F_loop_offset_bias": F_loop_offset_bias,
     "F_loop_offset_drift": F_loop_offset_drift,
+    "F_loop_stuck_stuck": F_loop_stuck_stuck,
+    "F_perm_noise_noise": F_perm_noise_noise,
     "F_perm_offset_bias": F_perm_offset_bias,
     "F_perm_offset_drift": F_perm_offset_drift,
+    "F_perm_stuck_stuck": F_perm_stuck_stuck,
+    "P_memb_noise_noise": P_memb_noise_noise,
     "P_memb_offset_bias": P_memb_offset_bias,
     "P_memb_offset_drift": P_memb_offset_drift,
+    "P_memb_stuck_stuck": P_memb_stuck_stuck,
     "R_brine_abrupt": R_brine_abrupt,
     "R_brine_incipient": R_brine_incipient,
     "R_fp_abrupt": R_fp_abrupt,
@@ -55,4 +71,4 @@ MODELS = {
     "R_rp_incipient": R_rp_incipient,
 }
 
-__all__ = ["MODELS", "filters", "_kernel", "nominal", "C_memb_abrupt", "C_res_abrupt", "F_back_offset_bias", "F_back_offset_drift", "F_loop_offset_bias", "F_loop_offset_drift", "F_perm_offset_bias", "F_perm_offset_drift", "P_memb_offset_bias", "P_memb_offset_drift", "R_brine_abrupt", "R_brine_incipient", "R_fp_abrupt", "R_fp_incipient", "R_memb_abrupt", "R_memb_incipient", "R_pipe_abrupt", "R_pipe_incipient", "R_rp_abrupt", "R_rp_incipient"]
+__all__ = ["MODELS", "filters", "_kernel", "nominal", "C_memb_abrupt", "C_res_abrupt", "F_back_noise_noise", "F_back_offset_bias", "F_back_offset_drift", "F_back_stuck_stuck", "F_loop_noise_noise", "F_loop_offset_bias", "F_loop_offset_drift", "F_loop_stuck_stuck", "F_perm_noise_noise", "F_perm_offset_bias", "F_perm_offset_drift", "F_perm_stuck_stuck", "P_memb_noise_noise", "P_memb_offset_bias", "P_memb_offset_drift", "P_memb_stuck_stuck", "R_brine_abrupt", "R_brine_incipient", "R_fp_abrupt", "R_fp_incipient", "R_memb_abrupt", "R_memb_incipient", "R_pipe_abrupt", "R_pipe_incipient", "R_rp_abrupt", "R_rp_incipient"]

@@ -186,10 +186,10 @@ def observe(x, u, theta, _y):
         R_brine = theta[7]
         R_pipe = theta[10]
         m2 = theta[14]
-        F_back_offset = theta[15]
-        F_loop_offset = theta[16]
-        F_perm_offset = theta[17]
-        P_memb_offset = theta[18]
+        F_back_offset = theta[16]
+        F_loop_offset = theta[19]
+        F_perm_offset = theta[22]
+        P_memb_offset = theta[25]
         _c0 = 29*K_slope
         _y[0, _i] = F_back_offset + (1/R_brine)*(e13 - e6)
         _y[1, _i] = F_loop_offset + (1/R_pipe)*(e6 - e13 + (m2)*f22)

@@ -22,9 +22,9 @@ STATES = ('f3', 'e6', 'e13', 'f22', 'e27', 'R_memb', 'delta_R_memb')
 STATE_KINDS = ('physical', 'physical', 'physical', 'physical', 'physical', 'parameter', 'slope')
 INPUTS = ('tau_fp', 'tau_rp')
 OUTPUTS = ('F_back', 'F_loop', 'F_perm', 'P_memb')
-PARAMETERS = ('C_k', 'C_memb', 'C_res', 'I_fp', 'I_rp', 'K0', 'K_slope', 'R_brine', 'R_fp', 'R_memb', 'R_pipe', 'R_rp', 'k_scale', 'm1', 'm2', 'F_back_offset', 'F_loop_offset', 'F_perm_offset', 'P_memb_offset')
+PARAMETERS = ('C_k', 'C_memb', 'C_res', 'I_fp', 'I_rp', 'K0', 'K_slope', 'R_brine', 'R_fp', 'R_memb', 'R_pipe', 'R_rp', 'k_scale', 'm1', 'm2', 'F_back_noise', 'F_back_offset', 'F_back_stuck', 'F_loop_noise', 'F_loop_offset', 'F_loop_stuck', 'F_perm_noise', 'F_perm_offset', 'F_perm_stuck', 'P_memb_noise', 'P_memb_offset', 'P_memb_stuck')
 #: Nominal parameter values, in the order of PARAMETERS.
-THETA = (565.0, 0.6, 1.5, 0.1, 2.0, 12000.0, 165.0, 220.0, 0.1, 26.0, 69.0, 0.1, 3.46, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+THETA = (565.0, 0.6, 1.5, 0.1, 2.0, 12000.0, 165.0, 220.0, 0.1, 26.0, 69.0, 0.1, 3.46, 1.0, 1.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0)
 DT = 1.0
 SUBSTEPS = 2
 #: Eigenvalues of the nominal linearisation at X0 (real, imaginary), for the stability check.
@@ -144,10 +144,10 @@ def observe(x, u, theta, out=None):
     R_brine = theta[7]
     R_pipe = theta[10]
     m2 = theta[14]
-    F_back_offset = theta[15]
-    F_loop_offset = theta[16]
-    F_perm_offset = theta[17]
-    P_memb_offset = theta[18]
+    F_back_offset = theta[16]
+    F_loop_offset = theta[19]
+    F_perm_offset = theta[22]
+    P_memb_offset = theta[25]
     _c0 = 29*K_slope
     _y[0] = F_back_offset + (1/R_brine)*(e13 - e6)
     _y[1] = F_loop_offset + (1/R_pipe)*(e6 - e13 + (m2)*f22)
