@@ -181,7 +181,8 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     gets each event as a line with its time, as it happens; ``checkpoint``:
     while hypotheses are tracked, a diagnosis of the data so far every this
     many time units (a :class:`~bgc.events.Checkpoint` event; the
-    finish of a copy of the diagnoser, :meth:`~bgc.diagnosis.diagnoser.Diagnoser.checkpoint`). Returns the report of the
+    finish of a copy of the diagnoser, :meth:`~bgc.diagnosis.diagnoser.Diagnoser.checkpoint`; the
+    first whose verdict is mismatch also says why, its :class:`~bgc.events.Mismatched`). Returns the report of the
     final diagnosis and the error that ended the stream early (None: it
     ended, or Ctrl-C): a malformed row, a followed file replaced by no regular file, the memory
     rule; the rows before it are diagnosed all the same.
@@ -264,6 +265,8 @@ class _Monitor:
         self.forgot = 0  # the steps the diagnoser forgot when the rows and what was told were last cut to its record
         self.last_check = None
         self.told: set = set()
+        #: the finding of a checkpoint whose verdict is mismatch was said (once per diagnoser)
+        self.mismatch_said = False
         self.excluded: list[ev.SensorExcluded] = []
         self.taken_out: set[str] = set()
         self.log = Episodes(session.package, rearm, exclude_faulty, session.view.labels.per_time) if episodes else None
@@ -319,6 +322,7 @@ class _Monitor:
     def _afresh(self) -> None:
         """A new diagnoser took over (an episode closed, a repair): its record starts empty."""
         self.rows, self.last_check, self.forgot, self.told = [], None, 0, set()
+        self.mismatch_said = False
 
     # -- a row -------------------------------------------------------------------------------------------------
 
@@ -381,6 +385,9 @@ class _Monitor:
         self.last_check = belief.time
         c = self.d.checkpoint()
         self.tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)])
+        if c.verdict == "mismatch" and not self.mismatch_said:  # why, and what to do, as the data come: once
+            self.mismatch_said = True
+            self.tell([e for e in c.events if isinstance(e, ev.Mismatched)])
         if self.log is not None and (full or self.log.due(c, belief.time)):
             self._close(c, belief.time, t, full)
         elif self.exclude_faulty and self.log is None:
@@ -415,6 +422,7 @@ class _Monitor:
         forget_started(self.d.config.package)  # a record that forgot its start: its package goes
         self.d = self._diagnoser()
         self.rows, self.last_check, self.forgot = [], None, 0
+        self.mismatch_said = False
 
     # -- the end -----------------------------------------------------------------------------------------------
 
