@@ -456,6 +456,22 @@ def test_the_detectors_reach_is_the_windowed_whitened_response_of_the_hand_deriv
     assert distinguish.typical_size(-1.0, 2.0) == pytest.approx((1 * 0.5 + 2 * 2 / 2) / 3)  # 1/3 on -1..0, 2/3 on 0..2
 
 
+def test_bgc_check_says_a_burst_of_noise_moves_no_mean_not_that_an_input_test_would_show_it():
+    """A noise fault enters no equation: the detector's mean reach of it is 0,
+    as a capacitance's at steady state, but no input test would show it: its
+    variance does. The test plant declares F12's noise and the shipped RO each
+    sensor's: bgc check names them apart, with the variance test."""
+    for model, names in ((TEST_MODELS / "two_tank_sensors.yaml", "F12_noise_noise moves no reading's mean"),
+                         (ROOT / "models" / "ro.yaml", "F_back_noise_noise, F_loop_noise_noise, F_perm_noise_noise, "
+                                                       "P_memb_noise_noise move no reading's mean")):
+        out = bgc_cli("check", model)
+        assert out.returncode == 0
+        warnings = [line for line in out.stderr.splitlines() if line.startswith("warning:")]
+        bursts = [w for w in warnings if "no reading's mean" in w]
+        assert len(bursts) == 1 and names in bursts[0] and "--detect variance" in bursts[0]
+        assert not any("_noise_noise" in w for w in warnings if w not in bursts)
+
+
 def test_bgc_check_warns_of_the_faults_its_detector_would_miss(tmp_path):
     """The two tanks at their declared noise: a capacitance at steady state
     changes nothing the sensors read (its step moves no flow once the levels

@@ -44,14 +44,26 @@ def unseen_warnings(path: str, compiled) -> list[str]:
     from ..api.detection import unseen
     from ..errors import printable
 
+    from ..kinds import FAULT_KINDS
+
     missed = unseen(compiled)
     if not missed:
         return []
     where = printable(path)
     threshold = missed[0].threshold
-    still = [u.name for u in missed if u.still]
-    weak = [f"{u.name} (size {u.size:.3g}: {u.reach:.2g})" for u in missed if not u.still]
+
+    def burst(name: str) -> bool:  # a sensor's noise fault (``<sensor>_noise_noise``): it moves no mean
+        kind = FAULT_KINDS.get(name.rsplit("_", 1)[-1])
+        return kind is not None and kind.noise
+
+    bursts = [u.name for u in missed if burst(u.name)]
+    still = [u.name for u in missed if u.still and not burst(u.name)]
+    weak = [f"{u.name} (size {u.size:.3g}: {u.reach:.2g})" for u in missed if not u.still and not burst(u.name)]
     out = []
+    if bursts:
+        out.append(f"{where}: {', '.join(bursts)} {'moves' if len(bursts) == 1 else 'move'} no reading's mean: "
+                   "the detector's default mean test sees a burst of noise late or by chance; its variance test "
+                   "sees it within a few samples (bgc diagnose or monitor --detect variance, or all)")
     if still:
         out.append(f"{where}: with the model's inputs the plant settles and {', '.join(still)} "
                    f"{'changes' if len(still) == 1 else 'change'} nothing the sensors read: bgc's detector will not "
