@@ -415,6 +415,22 @@ def test_campaign_draws_of_a_noise_fault_are_its_factor_less_one(tmp_path):
         assert s.parameter_truth == pytest.approx(1.0 + s.magnitude)
 
 
+def tank_readings(rng, steps: int, process: np.ndarray, burst_from: int | None = None) -> np.ndarray:
+    """``steps`` readings (F10, F12, F20) of the two tanks made here: the
+    linear step of conftest.tank_map from the steady state under the inflow
+    1, with process noise ``process`` per state, then each sensor's noise
+    SIGMA (F12's five times SIGMA from step ``burst_from`` on)."""
+    M, c, H = tank_map(R12)
+    x, xs = np.array([20.0 / 9.0, 4.0 / 3.0]), []
+    for _ in range(steps):
+        x = M @ x + c + process * rng.standard_normal(2)
+        xs.append(x)
+    draws = rng.standard_normal((steps, 3)) * np.array(SIGMA)
+    if burst_from is not None:
+        draws[burst_from:, 1] *= 5.0
+    return np.array(xs) @ H.T + draws
+
+
 def kalman_loglik(y: np.ndarray, factors: np.ndarray, onsets: np.ndarray, process: np.ndarray) -> np.ndarray:
     """log p(y | b, onset) (onsets x factors) for each factor 1 + b of
     ``factors`` and each step of ``onsets``, by the Kalman filter of the two
@@ -468,14 +484,7 @@ def test_the_factors_interval_is_the_exact_posteriors_on_data_made_here(session,
     steps, onset = 300, 120
     time = 0.5 * np.arange(1, steps + 1)
     process = np.array(session.compiled.numerics.noise_at().process)
-    M, c, H = tank_map(R12)
-    x, xs = np.array([20.0 / 9.0, 4.0 / 3.0]), []
-    for _ in range(steps):
-        x = M @ x + c + process * rng.standard_normal(2)
-        xs.append(x)
-    draws = rng.standard_normal((steps, 3)) * np.array(SIGMA)
-    draws[onset:, 1] *= 5.0
-    y = np.array(xs) @ H.T + draws
+    y = tank_readings(rng, steps, process, burst_from=onset)
     run = runs.Run(time, {"f_in": np.ones(steps)}, {"F10": y[:, 0], "F12": y[:, 1], "F20": y[:, 2]}, {}, {},
                    ("made by tests/test_noise_fault.py",), "burst.csv")
     d = bgc.diagnose(session, data=run, options=DiagnosisOptions(particles=500, seed=seed, workers=1)).diagnosis
@@ -512,12 +521,7 @@ def test_a_burst_whose_earliest_onset_fits_factor_one_is_not_searched_back(sessi
     rng = np.random.default_rng(11)
     steps = 300
     process = np.array(session.compiled.numerics.noise_at().process)
-    M, c, H = tank_map(R12)
-    x, xs = np.array([20.0 / 9.0, 4.0 / 3.0]), []
-    for _ in range(steps):
-        x = M @ x + c + process * rng.standard_normal(2)
-        xs.append(x)
-    ys = np.array(xs) @ H.T + rng.standard_normal((steps, 3)) * np.array(SIGMA)
+    ys = tank_readings(rng, steps, process)
     us = np.ones((steps, 1))
     package = session.package
     tried = list(range(250, 281, 6))

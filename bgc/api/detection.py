@@ -126,13 +126,16 @@ class Unseen:
     expects, the largest mean of the windowed statistic, ``reach``, stays
     under the detector's ``threshold``; ``still``: it changes nothing the
     sensors see while the inputs are constant (a capacitance or inductance
-    at steady state)."""
+    at steady state); ``burst``: a burst of a sensor's noise, which moves no
+    reading's mean whatever the inputs (the variance test sees it), so
+    neither ``still`` nor a size the mean test would reach."""
 
     name: str
     size: float
     reach: float
     threshold: float
     still: bool
+    burst: bool = False
 
 
 def unseen(c, options: DiagnosisOptions | None = None) -> list[Unseen]:
@@ -151,6 +154,7 @@ def unseen(c, options: DiagnosisOptions | None = None) -> list[Unseen]:
     from ..analysis import distinguish as distinction
     from ..diagnosis.detect import DetectorOptions
     from ..diagnosis.diagnose import horizon_steps
+    from ..kinds import fault_kind
     from ..model import package as packages
     from .folders import package_folder
 
@@ -163,5 +167,6 @@ def unseen(c, options: DiagnosisOptions | None = None) -> list[Unseen]:
                                 tuple(opts.detectors)).threshold(len(c.model.measurements))
     reach = distinction.detector_reach(package, distinction.scenario_inputs(package, steps), steps // 2,
                                        tuple(opts.windows))
-    return [Unseen(name, size, r, threshold, r < 1e-6 * threshold) for name, (size, r) in reach.items()
-            if r < threshold]
+    bursts = {name for name in reach if fault_kind(package.MODELS[name].FAULT["kind"]).noise}
+    return [Unseen(name, size, r, threshold, r < 1e-6 * threshold and name not in bursts, name in bursts)
+            for name, (size, r) in reach.items() if r < threshold]

@@ -44,21 +44,14 @@ def unseen_warnings(path: str, compiled) -> list[str]:
     from ..api.detection import unseen
     from ..errors import printable
 
-    from ..kinds import FAULT_KINDS
-
     missed = unseen(compiled)
     if not missed:
         return []
     where = printable(path)
     threshold = missed[0].threshold
-
-    def burst(name: str) -> bool:  # a sensor's noise fault (``<sensor>_noise_noise``): it moves no mean
-        kind = FAULT_KINDS.get(name.rsplit("_", 1)[-1])
-        return kind is not None and kind.noise
-
-    bursts = [u.name for u in missed if burst(u.name)]
-    still = [u.name for u in missed if u.still and not burst(u.name)]
-    weak = [f"{u.name} (size {u.size:.3g}: {u.reach:.2g})" for u in missed if not u.still and not burst(u.name)]
+    bursts = [u.name for u in missed if u.burst]
+    still = [u.name for u in missed if u.still]
+    weak = [f"{u.name} (size {u.size:.3g}: {u.reach:.2g})" for u in missed if not u.still and not u.burst]
     out = []
     if bursts:
         out.append(f"{where}: {', '.join(bursts)} {'moves' if len(bursts) == 1 else 'move'} no reading's mean: "
