@@ -216,7 +216,8 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--detect", type=detectors, default=("mean",), metavar="TESTS",
                    help="the detector's tests, comma-separated: mean (the residuals' windowed mean, always), drift "
                         "(long and ramp-weighted windows: slow drifts), variance (a burst of noise, a frozen "
-                        "sensor), frozen (readings that repeat to the last digit), or all; they share the "
+                        "sensor), frozen (readings that repeat to the last digit), pooled (every sensor's residuals at "
+                        "once, whitened: a fault that moves several a little each), or all; they share the "
                         "false-alarm rate (default: mean)")
     p.add_argument("--gap", type=float, default=None, metavar="TIME",
                    help="missing samples longer than this are reported as a gap (default: 10 steps of dt)")

@@ -64,7 +64,7 @@ in every sensor's residuals (Basseville and Nikiforov, 1993, ch. 2):
 ``L`` the longest window.
 
 **A bank of tests** (``DetectorOptions.tests``; ``--detect``). The mean test
-is always on; three families may join it, and the families share the
+is always on; four families may join it, and the families share the
 false-alarm probability ``alpha`` equally (``alpha / F`` each, ``F`` the
 families on), each holding its share by the union bound over its own tests
 (steps x sensors x windows), so that the detector's whole false-alarm
@@ -118,6 +118,30 @@ probability per horizon stays at most ``alpha``:
   run of repeats seen before. The onset is the step of the first repeat. A
   sensor whose noise is smaller than the model says fails the variance test
   as well: the model does not fit it.
+* ``pooled``: a fault that moves several sensors a little each, none of
+  them past the mean test's threshold. Over ``W`` samples (``W`` in
+  :data:`POOLED_WINDOWS`) the sum of the residual vectors ``s`` (the
+  sensors read in the window) has covariance ``sum_k C_k`` without a fault,
+  ``C_k`` the correlation matrix of step k's residuals as the observer
+  predicts it (the predicted measurement's covariance, the cubature rule
+  from the observer's mean and covariance before the step,
+  :meth:`bgc.filters.cubature._Filter.predicted_measurement`: a particle
+  filter gives each sensor's std only); a sensor not read at a step has its
+  row and column of ``C_k`` zero. The particle filter's Monte Carlo error
+  adds a vector whose entries have std at most ``A_j = sum_k a_k,j``
+  whatever their correlation, so its covariance is at most ``df diag(A^2)``
+  (for any v, ``v' Cov v <= (sum_j |v_j| A_j)^2 <= df sum_j v_j^2 A_j^2``,
+  Cauchy-Schwarz; ``df`` the sensors read). With ``M = sum_k C_k + df
+  diag(A^2)``, the statistic ``s' M^-1 s`` is then at most chi-square
+  with ``df`` degrees of freedom (a Gaussian whose covariance is at most
+  ``M``: the weights of its chi-square terms are at most 1): the
+  generalised likelihood ratio of a mean shift of unknown size and
+  direction, which alarms above the chi-square's ``1 - p`` quantile, ``p =
+  alpha / F / (T n_W)`` (one test per step and window, all sensors at
+  once). A step with its correlation not given (a caller without it) is
+  in no pooled window. The onset is the change point of that shift over
+  the longest window (``argmax_t s_t' M_t^-1 s_t``, the sums from t); the
+  alarm names the sensor with the largest share ``s_j^2 / M_jj``.
 
 The variance test's lower tail is left to sensors whose readings are finer
 than a quarter of their noise (``q <= r / 4``): coarser readings repeat by
@@ -165,7 +189,7 @@ def union_threshold(alpha: float, tests: int) -> float:
 
 
 #: The detector's families of tests, in the order an alarm names them on a tie (module docstring).
-TESTS = ("mean", "drift", "variance", "frozen")
+TESTS = ("mean", "drift", "variance", "frozen", "pooled")
 
 
 def tests_named(text: str) -> tuple[str, ...] | None:
@@ -175,7 +199,7 @@ def tests_named(text: str) -> tuple[str, ...] | None:
     none or one bgc does not have.
 
     >>> tests_named("variance,drift"), tests_named("all"), tests_named("mean"), tests_named("slope")
-    (('mean', 'drift', 'variance'), ('mean', 'drift', 'variance', 'frozen'), ('mean',), None)
+    (('mean', 'drift', 'variance'), ('mean', 'drift', 'variance', 'frozen', 'pooled'), ('mean',), None)
     """
     names = [t.strip() for t in str(text).split(",") if t.strip()]
     if names == ["all"]:
@@ -190,6 +214,8 @@ DRIFT_RAMPS = (32, 128, 256)
 DRIFT_MEANS = (128, 256)
 #: The variance family's windows (samples).
 VARIANCE_WINDOWS = (8, 32)
+#: The pooled test's windows (samples).
+POOLED_WINDOWS = (1, 8, 32)
 
 
 @dataclass(frozen=True, slots=True)
@@ -229,6 +255,10 @@ class DetectorOptions:
         """The probability, each step and sensor, at or below which repeated readings alarm."""
         return self.share / self._tests(sensors, 1)
 
+    def pooled_level(self) -> float:
+        """The probability of each pooled test (one per step and window: it takes every sensor at once)."""
+        return self.share / self._tests(1, len(POOLED_WINDOWS))
+
 
 class Detector:
     """The sliding-window Z-test, one step at a time (:meth:`update`).
@@ -256,20 +286,23 @@ class Detector:
         self._mc = deque([zero], maxlen=self._longest + 1)
         self.statistics: list[list[float]] = []  # max over windows of |S|, per sensor and step
 
-    def update(self, z, mc=None, y=None, spread=None) -> Detection | None:
+    def update(self, z, mc=None, y=None, spread=None, corr=None) -> Detection | None:
         """Take the normalised residuals of one step (NaN: sensor not read)
         and, from a particle filter, the Monte Carlo std of its prediction in
         units of its predicted std (:func:`monte_carlo_share`; none: an exact
         prediction), the readings ``y`` themselves (the frozen test's;
         none: no frozen test this step) and ``spread``, the predicted std over
         the sensor's own noise std (the variance test's lower tail takes the
-        residual in units of that noise, ``z * spread``; none: 1); return the
-        alarm when this step raises one. ``z``, ``mc``, ``y``, ``spread``:
-        arrays or sequences of floats, one per sensor."""
+        residual in units of that noise, ``z * spread``; none: 1) and
+        ``corr``, the correlation matrix of the step's residuals as the
+        observer predicts them (the pooled test's; none: no pooled test over
+        a window holding this step); return the alarm when this step raises
+        one. ``z``, ``mc``, ``y``, ``spread``: arrays or sequences of floats,
+        one per sensor; ``corr``: sensors x sensors."""
         alarm = self._mean(z, mc)
         if self.more is None:
             return alarm
-        found = self.more.update(z, mc, y, spread)
+        found = self.more.update(z, mc, y, spread, corr)
         if alarm is not None:
             found.insert(0, (alarm, _normal_excess(alarm.statistic, alarm.threshold)))
         if not found:
@@ -413,7 +446,10 @@ class Families:
       over :data:`DRIFT_MEANS` of each sensor's normalised residuals;
     - ``variance``: the centred sum of squares over :data:`VARIANCE_WINDOWS`
       against both tails of its chi-square law;
-    - ``frozen``: readings repeated to the data's resolution.
+    - ``frozen``: readings repeated to the data's resolution;
+    - ``pooled``: the window's sum of the residual vectors, whitened by the
+      sum of their predicted correlation matrices, against the chi-square
+      law (:data:`POOLED_WINDOWS`).
 
     :meth:`update` returns the alarms of the step, each with how far it is
     past its level (the log of its p-value over the level's). Every ring of
@@ -431,13 +467,18 @@ class Families:
         self.variance = "variance" in options.tests
         self.noise = None if noise is None else tuple(float(v) for v in np.asarray(noise, dtype=float).reshape(n))
         self.frozen = "frozen" in options.tests and noise is not None
+        self.pooled = "pooled" in options.tests
         longest = max(((*DRIFT_RAMPS, *DRIFT_MEANS) if self.drift else ())
-                      + (VARIANCE_WINDOWS if self.variance else ()) + (1,))
+                      + (VARIANCE_WINDOWS if self.variance else ()) + (POOLED_WINDOWS if self.pooled else ()) + (1,))
         zero = (0.0,) * n
         # running sums (the newest last) of z, of those sums, of a_k and of theirs, of z^2, of the readings taken,
         # and of the residual in units of the sensor's own noise, e = (y - mean) / r, and of e^2 (the lower tail's)
         self._c, self._cc, self._a, self._aa, self._sq, self._n, self._e, self._ee = (
             deque([zero, zero], maxlen=longest + 2) for _ in range(8))
+        # the pooled test's running sums, one array per step: of z, of a_k and of the predicted correlation
+        # matrices (flattened, row by row; a sensor not read: its row and column 0; NaN: a step whose
+        # correlation was not given)
+        self._p = deque([np.zeros(2 * n + n * n)] * 2, maxlen=longest + 2)
         self.taken = 0
         # per sensor, what its readings tell (when given): the last one, the step its run of repeats began, the
         # run's length, the longest run that ended before, and the smallest change seen per decimal exponent
@@ -459,6 +500,9 @@ class Families:
             self._level = level
         if self.frozen:
             self._log_frozen = log(options.frozen_level(n))
+        if self.pooled:
+            self._pooled_level = options.pooled_level()
+            self._pooled_high: dict[int, float] = {}  # per degrees of freedom: the chi-square's upper quantile
 
     def bounds(self, df: int) -> tuple[float, float]:
         """The variance test's bounds on the centred sum of squares of a
@@ -484,7 +528,7 @@ class Families:
 
     def state(self) -> tuple:
         """Everything :meth:`update` carries from step to step, as plain tuples, lists and dicts."""
-        rings = tuple(tuple(d) for d in self._rings())
+        rings = tuple(tuple(d) for d in self._rings()) + (tuple(tuple(row.tolist()) for row in self._p),)
         readings = (tuple(self._last), tuple(self._since), tuple(self._run), tuple(self._longest),
                     tuple(dict(s) for s in self._steps))
         return rings, self.taken, readings
@@ -492,12 +536,14 @@ class Families:
     def restore(self, state: tuple) -> None:
         """Put the tests in ``state`` (:meth:`state`)."""
         rings, taken, readings = state
-        if len(rings) != len(self._rings()) or len(readings) != 5:
+        if len(rings) != len(self._rings()) + 1 or len(readings) != 5:
             raise ValueError("a detector state of another shape")
         self.taken = int(taken)
         for d, rows in zip(self._rings(), rings):
             d.clear()
             d.extend(tuple(float(v) for v in row) for row in rows)
+        self._p.clear()
+        self._p.extend(np.array(row, dtype=float) for row in rings[-1])
         last, since, run, longest, steps = readings
         self._last, self._since = [float(v) for v in last], [int(v) for v in since]
         self._run, self._longest = [int(v) for v in run], [int(v) for v in longest]
@@ -505,7 +551,7 @@ class Families:
 
     # -- one step --------------------------------------------------------------------------------------------
 
-    def update(self, z, mc=None, y=None, spread=None) -> list[tuple[Detection, float]]:
+    def update(self, z, mc=None, y=None, spread=None, corr=None) -> list[tuple[Detection, float]]:
         """Take one step (:meth:`Detector.update`'s arguments); the alarms it
         raises (steps counted by the caller), each with its excess."""
         row = z.tolist() if isinstance(z, np.ndarray) else [float(v) for v in z]
@@ -531,6 +577,18 @@ class Families:
             self._n.append(tuple(a + (1.0 if isfinite(b) else 0.0) for a, b in zip(self._n[-1], row)))
             self._e.append(tuple(a + b for a, b in zip(self._e[-1], es)))
             self._ee.append(tuple(a + b * b for a, b in zip(self._ee[-1], es)))
+        if self.pooled:
+            n = len(row)
+            values = np.asarray(row, dtype=float)
+            seen = np.isfinite(values)
+            if corr is None:
+                block = np.full(n * n, math.nan)
+            else:
+                block = np.where(seen[:, None] & seen[None, :], np.asarray(corr, dtype=float).reshape(n, n), 0.0)
+            share = np.zeros(n) if mc is None else np.asarray(mc, dtype=float)
+            self._p.append(self._p[-1] + np.concatenate([np.where(seen, values, 0.0),
+                                                         np.where(np.isfinite(share), share, 0.0),
+                                                         block.ravel()]))
         self.taken += 1
         readings = None if y is None else (y.tolist() if isinstance(y, np.ndarray) else [float(v) for v in y])
         if readings is not None and (self.variance or self.frozen):  # the lower tail's resolution, the repeats
@@ -542,6 +600,8 @@ class Families:
             found += self._variances(readings)
         if self.frozen and readings is not None:
             found += self._frozen(readings)
+        if self.pooled:
+            found += self._pool()
         return found
 
     def _read(self, readings: list[float]) -> None:
@@ -683,6 +743,72 @@ class Families:
         return [(Detection(0, self.sensors[j], run + 1, float(run), float(needed), self._since[j], "frozen"),
                  worst)]
 
+    def _pooled(self, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The window of the last ``w`` steps: the residuals' sum ``s`` over
+        the sensors read in it, the bound ``M`` on its covariance (the sum
+        of the predicted correlation matrices, plus ``df diag(A^2)`` for the
+        particle filter's Monte Carlo error, ``A`` the window's sum of
+        shares per sensor, ``df`` the sensors read) and those sensors'
+        indices; None when a step of the window came without its
+        correlation or no sensor was read."""
+        found = self._scores((w,))
+        return found[0][2:] if found else None
+
+    def _scores(self, widths) -> list:
+        """Per window of ``widths`` (those :meth:`_pooled` gives), (w, s' M^-1 s
+        or None where M is not positive definite, s, M, keep); the windows
+        that take every sensor (the usual case) in one array operation each
+        step of the way."""
+        n = len(self.sensors)
+        d = self._p[-1][None, :] - np.stack([self._p[-1 - w] for w in widths])  # windows x (2n + n^2)
+        s, a, r = d[:, :n], d[:, n:2 * n], d[:, 2 * n:].reshape(-1, n, n)
+        diagonal = np.arange(n)
+        finite = np.isfinite(r).all(axis=(1, 2))
+        every = finite & (r[:, diagonal, diagonal] > 0.0).all(axis=1)
+        out = []
+        if every.any():
+            M = r[every]
+            M[:, diagonal, diagonal] += n * a[every] ** 2
+            S = s[every]
+            for (i, w), t in zip(((i, w) for i, w in enumerate(widths) if every[i]), _whitened(S, M)):
+                out.append((w, t, S[len(out)], M[len(out)], diagonal))
+        for i, w in enumerate(widths):  # a window with a sensor not read in it
+            if every[i] or not finite[i]:
+                continue
+            keep = np.flatnonzero(np.diagonal(r[i]) > 0.0)
+            if not len(keep):
+                continue
+            M = r[i][np.ix_(keep, keep)]
+            M[np.diag_indices_from(M)] += len(keep) * a[i, keep] ** 2
+            out.append((w, _whitened(s[i, keep][None], M[None])[0], s[i, keep], M, keep))
+        return out
+
+    def _pool(self) -> list[tuple[Detection, float]]:
+        """The pooled test: over each window of :data:`POOLED_WINDOWS`, the
+        sum ``s`` of the residual vectors against its covariance bound ``M``
+        (:meth:`_pooled`): ``s' M^-1 s`` is at most chi-square with as many
+        degrees of freedom as sensors read (module docstring). The alarm
+        names the sensor whose own share ``s_j^2 / M_jj`` is the largest."""
+        from scipy.stats import chi2
+
+        widths = [w for w in POOLED_WINDOWS if w <= self.taken]
+        worst, at = 0.0, None
+        for w, t, s, M, keep in (self._scores(widths) if widths else ()):
+            df = len(keep)
+            high = self._pooled_high.get(df)
+            if high is None:
+                high = self._pooled_high[df] = float(chi2.isf(self._pooled_level, df))
+            if t is None or not t > high:
+                continue
+            excess = float(chi2.logsf(t, df)) - log(self._pooled_level)
+            if at is None or excess < worst:
+                j = int(keep[np.argmax(s * s / np.diagonal(M))])
+                worst, at = excess, (w, j, t, high)
+        if at is None:
+            return []
+        w, j, t, high = at
+        return [(Detection(0, self.sensors[j], w, t, high, self._pooled_onset(), "pooled"), worst)]
+
     # -- the onsets ------------------------------------------------------------------------------------------
 
     def _local(self, rows: deque) -> tuple[np.ndarray, int]:
@@ -726,6 +852,37 @@ class Families:
             if score > best:
                 best, at = score, self.taken - m
         return at
+
+
+    def _pooled_onset(self) -> int:
+        """The GLR change point of a mean shift of unknown size and
+        direction in the residual vector: argmax_t s_t' M_t^-1 s_t, ``s_t``
+        the sum of the residual vectors from step t on and ``M_t`` its
+        covariance bound (:meth:`_pooled`), over the longest pooled window."""
+        widths = list(range(1, min(max(POOLED_WINDOWS), len(self._p) - 2, self.taken) + 1))
+        best, at = -1.0, self.taken - 1
+        for m, score, *_ in sorted(self._scores(widths), key=lambda found: found[0]):
+            if score is not None and score > best:
+                best, at = score, self.taken - m
+        return at
+
+
+def _whitened(S: np.ndarray, M: np.ndarray) -> list:
+    """s' M^-1 s of each row s of ``S`` (k, n) and matrix of ``M`` (k, n, n)
+    in one batched solve; None where M is singular (a correlation matrix
+    that rounding made so, or a window of one sensor exactly the sum of
+    others)."""
+    try:
+        v = np.linalg.solve(M, S[:, :, None])[:, :, 0]
+    except np.linalg.LinAlgError:
+        out = []
+        for s, m in zip(S, M):
+            try:
+                out.append(float(s @ np.linalg.solve(m, s)))
+            except np.linalg.LinAlgError:
+                out.append(None)
+        return out
+    return np.einsum("ij,ij->i", S, v).tolist()
 
 
 def _exponent(value: float) -> int | None:

@@ -55,7 +55,7 @@ import numpy as np
 
 from ..arguments import spelled
 from ..data.sampler import DataSummary, Sample
-from ..filters.cubature import NominalKalman
+from ..filters.cubature import NominalKalman, _Filter as CubatureRule
 from ..filters.registry import check_particles, filter_class
 from ..ir import FaultSignatures
 from ..kinds import fault_kind
@@ -138,6 +138,9 @@ class Loop:
                                  self.noise[self.present])
         self.pf = None if config.ckf else self.pf_class(nominal, o.particles, np.random.default_rng([o.seed, 0]))
         self.kf = NominalKalman(nominal, len(self.outputs)) if config.ckf else None
+        # the pooled test's predicted correlation of the residuals (a particle filter gives each sensor's std only)
+        self.rule = None if "pooled" not in o.detectors else (self.kf.kf if self.kf is not None
+                                                               else CubatureRule(nominal))
         if self.pf is not None:  # what its first step would make, made before the data come
             self.pf.prepare(self.present)
         # the record (what the end needs), from the first sample on
@@ -182,6 +185,7 @@ class Loop:
         k, o = s.k, self.options
         mc = detection = None
         with np.errstate(all="ignore"):  # one context for the step's arithmetic (NaN: a sensor not read)
+            corr = self._correlation(s.u) if self.rule is not None and self.detection is None else None
             if self.kf is not None:
                 self.kf.step(s.y, s.u)
                 ym, sd, zk = self.kf.y_mean[-1], self.kf.y_std[-1], self.kf.z[-1]
@@ -206,7 +210,8 @@ class Loop:
                 present = self.present
                 detection = self.detector.update(np.asarray(zk)[present], None if mc is None else mc[present],
                                                  np.asarray(s.y, dtype=float)[present],
-                                                 (np.asarray(sd, dtype=float) / self.noise)[present])
+                                                 (np.asarray(sd, dtype=float) / self.noise)[present],
+                                                 None if corr is None else corr[np.ix_(present, present)])
         if detection is not None:
             # an onset older than the clouds and the record kept (a drift test's window reaches 256 steps back)
             earliest = max(detection.step - o.history, 0)
@@ -218,6 +223,31 @@ class Loop:
             if self.detection is None or k < self.detection.step:  # before the alarm: a fault degenerates it too
                 self.ess_sum += 0.0 if r.recovered else r.ess
                 self.ess_steps += 1
+
+    def _correlation(self, u) -> np.ndarray | None:
+        """The correlation matrix of the next step's residuals as the
+        nominal observer predicts them, before it takes the step: the
+        cubature rule from its mean and covariance (a particle filter's
+        weighted cloud; :meth:`bgc.filters.cubature._Filter.predicted_measurement`).
+        None where the rule does not apply: a mode the cloud is unsure of (a
+        discrete state has no cubature points), a covariance not finite."""
+        rule = self.rule
+        if self.kf is not None:
+            m, P = self.kf.m[0], self.kf.P[0]
+        else:
+            x = self.pf.x[rule.physical]
+            w = np.exp(self.pf.logw - self.pf.logw.max())
+            w /= w.sum()
+            m = x @ w
+            d = x - m[:, None]
+            P = (d * w) @ d.T
+        if len(rule.carried) and np.diagonal(P)[rule.carried].any():
+            return None
+        _, S = rule.predicted_measurement(m, P, u)
+        std = np.sqrt(np.diagonal(S))
+        if not (np.isfinite(S).all() and (std > 0).all()):
+            return None
+        return S / np.outer(std, std)
 
     def _alarm(self, detection) -> None:
         self.detection = detection

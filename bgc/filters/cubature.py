@@ -290,6 +290,39 @@ class _Filter:
         return _update(y, rows, every, yh, DY, L, Syy, mp, Pp, self.inverse, cholesky)
 
 
+    def predicted_measurement(self, m: np.ndarray, P: np.ndarray, u: np.ndarray,
+                              dt: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The predicted measurement one step on from N(``m``, ``P``) over a
+        nominal model's physical states (no fault states), by the cubature
+        rule of :meth:`step` without its update: mean (n_y,) and covariance
+        (n_y, n_y), every sensor's, the measurement noise included. The
+        covariance's off-diagonal entries are what the particle filters do
+        not give (their predicted std is per sensor): the detector's pooled
+        test whitens the residual vector with them (:mod:`bgc.diagnosis.detect`).
+        Always the NumPy arithmetic (one cell: a compiled kernel saves
+        nothing)."""
+        n = self.n
+        if self.extra:
+            raise ValueError("predicted_measurement: a nominal model's (a fault model has fault states)")
+        flat = np.zeros((self.n_x, 2 * n))
+        X = flat.reshape(self.n_x, 1, 2 * n)
+        self._points(np.asarray(m, dtype=float)[None], np.asarray(P, dtype=float)[None], X)
+        self.model.predict(flat, u, self.model.THETA, self.model.DT if dt is None else dt, out=flat)
+        Xp = self._physical(X)[0]  # (n, 2n)
+        mp = np.add.reduce(Xp, axis=1) * self.inverse
+        D = (Xp - mp[:, None]) * self.scale
+        Pp = D @ D.T + self.Q
+        self._points(mp[None], Pp[None], X)
+        Y = np.asarray(self.model.observe(flat, u, self.model.THETA), dtype=float)
+        yh = np.add.reduce(Y, axis=1) * self.inverse
+        DY = (Y - yh[:, None]) * self.scale
+        S = DY @ DY.T
+        if self.varies:
+            S[np.diag_indices_from(S)] += self._cell_noise(mp[None], np.zeros((0, 1)), np.arange(len(yh)))[0]
+        else:
+            S[np.diag_indices_from(S)] += self.R
+        return yh, S
+
     def _predict_points(self, flat, X, u, fixed, onset, dt):
         """Move every cell's points (``flat`` (n_x, C 2n), ``X`` its (n_x, C,
         2n) view) through the model over one sample, in place: first each

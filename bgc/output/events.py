@@ -349,6 +349,9 @@ def alarm_text(test: str, window: int, statistic: float, threshold: float) -> st
     if test == "variance":
         return (f"the variance of its residual over {window} sample(s) fell to {statistic:.3g} times its sensor's "
                 f"noise variance (bound {threshold:.3g}): a reading that no longer moves")
+    if test == "pooled":
+        return (f"the pooled test of every sensor's residuals over {window} sample(s) reached {statistic:.1f} "
+                f"(chi-square, threshold {threshold:.1f}; this sensor's share the largest)")
     if test == "frozen":
         return (f"its reading repeated {statistic:.0f} times to the last digit (a frozen sensor; "
                 f"{threshold:.0f} repeats alarm at the data's resolution)")
