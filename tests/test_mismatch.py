@@ -211,3 +211,28 @@ def test_the_monitor_says_why_the_model_does_not_fit_at_its_first_mismatch_check
     assert lines[first + 1] == said[0] and "calibrate the model on healthy data (bgc calibrate" in said[0]
     when = float(said[0].split(":")[0].removeprefix("t = "))
     assert when < 10.0 and len(said) == 2 and said[1].startswith("t = 15: ")
+
+
+@pytest.mark.slow
+def test_the_monitor_says_a_misfit_while_watching_without_an_alarm(tmp_path):
+    """The circuit with the model's parameters and 1.3 times its noise (the
+    exact solution, seed 0): the detector never alarms (the residuals' mean
+    stays in its bounds), but their variance is 1.6 to 2. A monitor with a
+    checkpoint every 5 s tests the model's fit once, when its record
+    reaches 5 s (100 samples), and says there that the model does not fit, with the
+    calibration to run, before any alarm; it says it once more at the end,
+    and nothing else is decided. With the model's own noise the same
+    monitor says nothing of a misfit (one test per diagnoser: its level)."""
+    data = tmp_path / "plant.csv"
+    plant_csv(data, 0, 0.0, 1.3)
+    r = bgc_cli("monitor", "models/circuit.yaml", "--data", str(data), "--checkpoint", "5", "-o", str(tmp_path / "m"))
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    said = [line for line in lines if "the model does not fit this plant" in line]
+    assert len(said) == 2 and said[0].startswith("t = 5: ") and said[1].startswith("t = 15: "), lines
+    assert "variance" in said[0] and "bgc calibrate" in said[0]
+    assert lines[lines.index(said[0]) - 1] == "t = 5: checkpoint: mismatch"
+    assert not any("fault detected" in line or "alarm" in line for line in lines), lines
+    plant_csv(data, 0, 0.0, 1.0)
+    r = bgc_cli("monitor", "models/circuit.yaml", "--data", str(data), "--checkpoint", "5", "-o", str(tmp_path / "n"))
+    assert r.returncode == 0 and "does not fit" not in r.stdout and "circuit: no fault" in r.stdout, r.stdout

@@ -170,6 +170,12 @@ class Follow:
         return True
 
 
+#: The samples a diagnoser's record holds at least before the monitor tests the model's fit while watching
+#: (the first checkpoint's time, or this, whichever is later): its start from an estimate settles, and the
+#: residuals' mean and variance mean something.
+FIT_STEPS = 100
+
+
 def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptions, *,
             say: Callable[[str], None] = print, checkpoint: float | None = None,
             progress=None, exclude_faulty: bool = False,
@@ -339,6 +345,7 @@ class _Monitor:
         if self.log is not None:
             self._repairs(t)
         with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
+            before = self._taken()
             belief = self.d.step(t, u, y, line)
             self.rows.append(values)
             read, first = self.keep.stream
@@ -350,6 +357,7 @@ class _Monitor:
         self.tell(belief.events)
         if self.log is not None:
             self.log.watch(belief, self.d)
+        self._fits(belief, before)
         self._checkpoint(belief, t)
         self.keep.every(self.rows, self.last_check, self.d, self.excluded)  # after the checkpoint: its time is saved
 
@@ -367,6 +375,32 @@ class _Monitor:
             self._afresh()
             if self.rows_time is not None:  # decided: kept across a kill
                 self.keep.save(self.rows, self.last_check, self.d, self.excluded, self.rows_time)
+
+    def _taken(self) -> int:
+        """The steps the diagnoser has taken (those it forgot too)."""
+        return self.d.offset + len(self.d.loop.samples)
+
+    def _fits(self, belief, before: int) -> None:
+        """While watching, once per diagnoser: when its record reaches one
+        ``checkpoint`` of steps and :data:`FIT_STEPS` (the row that takes it
+        there, ``before`` the steps taken before the row), the test of the model's fit on that
+        record (the diagnosis of the data so far: with no alarm, the fit of
+        the whole record, :mod:`bgc.diagnosis.fit`); a model that does not
+        fit is said as the data come, not only after an alarm. One test per
+        diagnoser holds the fit test's level (a test at every checkpoint of a
+        stream that runs for months would find a misfit by chance); a
+        restart past that point does not test again (the steps count from
+        the diagnoser's first)."""
+        if self.checkpoint is None or belief.phase != "watching" or self.mismatch_said:
+            return
+        steps = max(FIT_STEPS, int(round(self.checkpoint / float(self.session.package.MODELS["nominal"].DT))))
+        if not before < steps <= self._taken():
+            return
+        c = self.d.checkpoint()
+        if c.verdict == "mismatch":
+            self.mismatch_said = True
+            self.tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)]
+                      + [e for e in c.events if isinstance(e, ev.Mismatched)])
 
     def _checkpoint(self, belief, t: float) -> None:
         """While hypotheses are tracked, every ``checkpoint``: the diagnosis of
