@@ -46,8 +46,10 @@ def recorded(model: str, runs: int, method: str) -> tuple[np.ndarray, np.ndarray
             d = session.diagnoser(bgc.DiagnosisOptions(detectors=("mean", "pooled"), filter=method, seed=i,
                                                        workers=1))
             for k, t in enumerate(sim.time):
-                belief = d.step(float(t), {n: v[k] for n, v in sim.inputs.items()},
-                                {n: v[k] for n, v in sim.measurements.items()})
+                u = {n: v[k] for n, v in sim.inputs.items()}
+                if sim.modes is not None and "mode" in session.package.MODELS["nominal"].INPUTS:
+                    u["mode"] = float(sim.modes[k])  # a controlled mode: the data say it
+                belief = d.step(float(t), u, {n: v[k] for n, v in sim.measurements.items()})
                 if belief.alarm is not None:
                     alarms += 1
                     break

@@ -141,6 +141,9 @@ class Loop:
         # the pooled test's predicted correlation of the residuals (a particle filter gives each sensor's std only)
         self.rule = None if "pooled" not in o.detectors else (self.kf.kf if self.kf is not None
                                                                else CubatureRule(nominal))
+        if self.rule is not None:  # the kind of each of the rule's states (a mode must be known to it)
+            kinds = getattr(nominal, "STATE_KINDS", ("physical",) * len(nominal.STATES))
+            self._kinds = [kinds[i] for i in self.rule.physical]
         if self.pf is not None:  # what its first step would make, made before the data come
             self.pf.prepare(self.present)
         # the record (what the end needs), from the first sample on
@@ -230,19 +233,29 @@ class Loop:
         cubature rule from its mean and covariance (a particle filter's
         weighted cloud; :meth:`bgc.filters.cubature._Filter.predicted_measurement`).
         None where the rule does not apply: a mode the cloud is unsure of (a
-        discrete state has no cubature points), a covariance not finite."""
+        discrete state has no cubature points; a carried state the cloud
+        agrees on, its dwell in the mode, is held exactly, one it does not,
+        a guard's threshold, is spread as the cloud spreads it), a
+        covariance not finite."""
         rule = self.rule
         if self.kf is not None:
             m, P = self.kf.m[0], self.kf.P[0]
+            if any(P[j, j] != 0.0 for j in rule.carried if self._kinds[j] == "mode"):
+                return None
         else:
             x = self.pf.x[rule.physical]
             w = np.exp(self.pf.logw - self.pf.logw.max())
             w /= w.sum()
             m = x @ w
+            # a carried row every particle agrees on (the mode, its dwell): exactly that value (the weights'
+            # sum rounds), and no spread; the mode itself must be agreed on
+            agreed = [j for j in rule.carried if (x[j] == x[j, 0]).all()]
+            if any(self._kinds[j] == "mode" for j in rule.carried if j not in agreed):
+                return None
+            m[agreed] = x[agreed, 0]
             d = x - m[:, None]
+            d[agreed] = 0.0
             P = (d * w) @ d.T
-        if len(rule.carried) and np.diagonal(P)[rule.carried].any():
-            return None
         _, S = rule.predicted_measurement(m, P, u)
         std = np.sqrt(np.diagonal(S))
         if not (np.isfinite(S).all() and (std > 0).all()):
