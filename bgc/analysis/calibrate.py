@@ -571,6 +571,83 @@ def _unidentifiable(names: Sequence[str], H: np.ndarray, logs: Sequence[bool]) -
 def calibrate(model: FaultModel, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
               process: bool, parameters: Sequence[str], initial: bool = False,
               modes: Sequence[Numerics] = ()) -> Calibration:
+    """:func:`calibrated`'s calibration alone."""
+    return calibrated(model, numerics, records, sensors, process, parameters, initial, modes)[0]
+
+
+@dataclass(frozen=True, slots=True)
+class ModesRead:
+    """The modes of a recording without a mode column, read from its
+    measurements (:func:`calibrate_hidden`): its name, the switches read by
+    the calibrated model (time, from, to: the modes' numbers), the rounds of
+    reading and calibrating, and the samples whose mode the calibrated
+    model reads otherwise than the model the last calibration ran on."""
+
+    source: str
+    switches: tuple[tuple[float, int, int], ...]
+    rounds: int
+    moved: int
+
+
+#: The most rounds of reading the modes and calibrating on them (:func:`calibrate_hidden`).
+ROUNDS = 3
+
+
+def _switches(model: FaultModel, record: Record) -> tuple[tuple[float, int, int], ...]:
+    """The changes of a record's mode input: (time, from, to)."""
+    modes = record.us[:, model.MODE_INPUT]
+    ts = record.ts if record.ts is not None else (np.arange(len(modes)) + 1) * float(model.DT)
+    return tuple((float(ts[k]), int(modes[k - 1]), int(modes[k])) for k in range(1, len(modes))
+                 if modes[k] != modes[k - 1])
+
+
+def calibrate_hidden(read_modes, model: FaultModel, numerics: Numerics, records: Sequence[Record],
+                     sensors: Sequence[str], process: bool, parameters: Sequence[str], initial: bool = False,
+                     modes: Sequence[Numerics] = (), say=lambda text: None) -> tuple[Calibration, tuple[ModesRead, ...]]:
+    """:func:`calibrate` on records of a model with modes some of which have
+    no mode column (their mode input NaN; a controlled transition, which
+    only the data can say, is refused by the caller). Their modes are read
+    from the measurements by the model at its file's values
+    (``read_modes(model, record)``: the record with its mode input filled;
+    the diagnosis's reader, :func:`bgc.api.calibrate.read_modes`), the model is calibrated on that reading, and the
+    calibrated model reads them again: the estimates with the modes held,
+    then the modes with the estimates held (a hard-decision
+    expectation-maximisation). The rounds stop when the new reading has the
+    same switches, none moved by more than a sample (a switch's sample is
+    the one thing the data leave uncertain: a crossing near a sample's
+    instant), else after :data:`ROUNDS` calibrations; a round whose
+    optimiser fails keeps the round before. Returns the calibration and, per
+    record read, its reading by the calibrated model."""
+    hidden = [bool(np.isnan(r.us[:, model.MODE_INPUT]).any()) for r in records]
+    read = [read_modes(model, r) if h else r for r, h in zip(records, hidden)]
+    result, rounds = None, 0
+    while True:
+        rounds += 1
+        say(f"calibrating on the modes read from the data, round {rounds}: "
+            + ", ".join(f"{len(_switches(model, r))} switch(es)" for r, h in zip(read, hidden) if h))
+        try:
+            now, current = calibrated(model, numerics, read, sensors, process, parameters, initial, modes)
+        except CalibrationError:
+            if result is None:
+                raise
+            rounds -= 1  # the round before stands
+            break
+        result, used = now, read
+        again = [read_modes(current, r) if h else r for r, h in zip(records, hidden)]
+        moved = [int(np.sum(a.us[:, model.MODE_INPUT] != b.us[:, model.MODE_INPUT])) for a, b in zip(again, used)]
+        settled = all(len(_switches(model, a)) == len(_switches(model, b)) and m <= len(_switches(model, a))
+                      for a, b, m, h in zip(again, used, moved, hidden) if h)
+        read = again
+        if settled or rounds == ROUNDS:
+            break
+    told = tuple(ModesRead(r.source, _switches(model, a), rounds, m)
+                 for r, a, m, h in zip(records, again, moved, hidden) if h)
+    return result, told
+
+
+def calibrated(model: FaultModel, numerics: Numerics, records: Sequence[Record], sensors: Sequence[str],
+               process: bool, parameters: Sequence[str], initial: bool = False,
+               modes: Sequence[Numerics] = ()) -> tuple[Calibration, FaultModel]:
     """Maximum-likelihood estimates of the noise of ``sensors``, of the
     process level (``process``) and of ``parameters`` of the nominal model
     ``model`` (its generated module; ``numerics``: its compiled numbers) from
@@ -693,13 +770,13 @@ def calibrate(model: FaultModel, numerics: Numerics, records: Sequence[Record], 
     estimates += _start_estimates(lik, starts, held, z, z0, z_low, z_high, k)
     corr = cov / np.outer(sd, sd) if len(z) else cov
     filters = lik.filters(z)
-    return Calibration(tuple(estimates), float(best), float(start_loglik), tuple(names),
+    return (Calibration(tuple(estimates), float(best), float(start_loglik), tuple(names),
                        tuple(tuple(float(c) for c in row) for row in corr), innovations(filters, outputs),
                        _sources(records), sum(int(np.isfinite(r.ys).any(axis=1).sum()) for r in records),
                        converged, message, evaluations, time.perf_counter() - start_time, tuple(outputs),
                        tuple(np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in filters),
                        tuple(np.asarray(r.ts if r.ts is not None else np.arange(len(r.ys)), dtype=float)
-                             for r in records))
+                             for r in records)), lik.module(z))
 
 
 def _start_estimates(lik: _Likelihood, starts: dict[tuple[int, int], str], held: dict[str, str], z: np.ndarray,

@@ -75,3 +75,30 @@ def _check_calibrated(text: str, result: calibration.Calibration, c) -> None:
         want = float(number(e.level if e.kind != "parameter" else e.value))
         if got != want:
             raise InternalError(f"the calibrated model reads {e.name} as {got!r}, not {want!r}")
+
+
+def read_modes(model, record):
+    """``record`` (a :class:`bgc.analysis.calibrate.Record` whose mode input
+    is NaN: the data have no mode column) with each sample's mode as
+    ``model`` (a generated model with modes, at its values) reads it from
+    the measurements: the diagnosis's bank of cubature Kalman filters over
+    the modes' histories (:class:`bgc.diagnosis.hidden.ModeDecoder`), each
+    sample's likeliest mode once the data settle it."""
+    import dataclasses
+
+    import numpy as np
+
+    from ..data.sampler import Sample
+    from ..diagnosis.hidden import ModeDecoder
+
+    decoder = ModeDecoder(model)
+    ts = record.ts if record.ts is not None else (np.arange(len(record.ys)) + 1) * float(model.DT)
+    decided = []
+    for k in range(len(record.ys)):
+        decided += decoder.push(Sample(k, float(ts[k]), record.us[k].copy(), record.ys[k].copy()))
+    decided += decoder.flush()
+    us = record.us.copy()
+    column = model.MODE_INPUT
+    for sample in decided:
+        us[sample.k, column] = sample.u[column]
+    return dataclasses.replace(record, us=us)

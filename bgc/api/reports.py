@@ -182,6 +182,9 @@ class CalibrationReport:
     calibration: calibration.Calibration
     text: str
     units: Mapping[str, str | None] = field(default_factory=dict)
+    #: per recording without a mode column (a model with modes), the modes read from its measurements
+    #: (:class:`~bgc.analysis.calibrate.ModesRead`)
+    modes_read: tuple = ()
 
     def _repr_html_(self) -> str:
         """A notebook's view: whether the model fits the data, the estimates

@@ -23,7 +23,7 @@ from ..model import warmup
 from ..diagnosis.diagnose import Diagnosis
 from ..diagnosis.options import DiagnosisOptions
 from ..diagnosis.diagnose import horizon_steps
-from ..diagnosis.diagnoser import Diagnoser, mode_given
+from ..diagnosis.diagnoser import Diagnoser, mode_hidden
 from .limits import (METHODS, MAX_PRIOR_SCALE, check_options,
                      most_steps, with_horizon)
 from . import cache
@@ -306,25 +306,31 @@ class Session:
         nominal = nominal_model(self.package)
         sensors, process, parameters = calibration.targets(estimate, nominal, [p.name for p in c.model.parameters],
                                                            arguments.spelled(f"{func}: estimate", "--estimate"))
-        records, dates = [], []
+        records, dates, hidden = [], [], False
         for item in items:
             run = self.read_run(item, columns, func)
-            mode_given(nominal, runs.input_columns(run), run.source, "calibration")
+            hidden = mode_hidden(nominal, runs.input_columns(run), run.source) or hidden
             timing = runs.resolve_timing(run.header, input_timing, run.source,
                                          arguments.spelled("input_timing", "--input-timing"))
             records.append(calibration.record_of(run, nominal, timing))
             dates += [h.split(":", 1)[1].strip() for h in run.header
                       if h.lower().startswith(("date:", "recorded:")) and h.split(":", 1)[1].strip()]
         say(f"calibrating on {len(records)} recording(s)")
-        result = calibration.calibrate(nominal, c.numerics, records, sensors, process, parameters,
-                                       calibration.wants_initial(estimate), tuple(m.numerics for m in c.modes))
+        how = (nominal, c.numerics, records, sensors, process, parameters, calibration.wants_initial(estimate),
+               tuple(m.numerics for m in c.modes))
+        if hidden:  # a mode the data do not give: read from the measurements, in rounds with the calibration
+            from .calibrate import read_modes
+
+            result, read = calibration.calibrate_hidden(read_modes, *how, say=say)
+        else:
+            result, read = calibration.calibrate(*how), ()
         original = _model_text(self.model, c)
         own = {el.name: el.noise for el in c.model.elements if el.noise is not None}
         text = calibrated.calibrated_text(original, c.model.display_source, result, own, tuple(dates))
         _check_calibrated(text, result, c)
         units = {x.name: x.unit for x in (*c.model.parameters, *c.model.measurements, *c.model.inputs)}
         return CalibrationReport(self.model, self.name, tuple(sensors), process, tuple(parameters), result, text,
-                                 units)
+                                 units, read)
 
     # ------------------------------------------------------------ what a paper shows of the model
     def equations(self, format: str = "text"):

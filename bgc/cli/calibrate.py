@@ -58,6 +58,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {printable(str(out))}: {report.name} calibrated on {cal.samples} samples of "
           f"{', '.join(printable(s) for s in cal.sources)} ({time.perf_counter() - start:.1f} s); report in "
           f"{printable(str(folder))}")
+    for m in report.modes_read:  # a model with modes, data without a mode column
+        print(printable(f"  modes read from {m.source}'s measurements: {len(m.switches)} switch(es), "
+                        f"{m.rounds} round(s) of reading and calibrating, {m.moved} sample(s) read otherwise by "
+                        "the calibrated model"))
     for e in cal.estimates:
         if not e.identifiable:
             print(printable(f"  {e.name}: not identifiable, kept at {e.start_level:.6g} ({e.why})"))
