@@ -527,15 +527,21 @@ def test_the_pooled_test_holds_its_share_only_with_the_residuals_own_correlation
 
 
 def test_a_step_without_its_correlation_is_in_no_pooled_window_and_a_sensor_not_read_leaves_it():
-    """A step whose correlation is not given keeps every window that holds it
-    untested (a large shift there raises no pooled alarm until 32 steps have
-    passed it); a sensor not read (NaN) takes its row and column out: the
-    window's test has one degree of freedom fewer."""
+    """A step whose correlation is not given keeps the windows that hold it
+    untested, and only those: residuals of 3 in both sensors from the first
+    step, the first step's correlation missing. One step (|s|^2 = 18) stays
+    under the chi-square's quantile (-2 log p = 24.2), eight (144) pass it:
+    the first pooled alarm is at step 8, the first 8-step window without
+    step 0 (with step 0's correlation given: step 7). A sensor not read
+    (NaN) takes its row and column out: the window's test has one degree of
+    freedom fewer."""
     options = DetectorOptions(0.01, (1, 8, 32), 300, ("mean", "pooled"))
-    tests = Families(("a", "b"), options)
-    for k in range(40):
-        found = tests.update(np.array([3.0, 3.0]), None, None, None, None if k == 0 else np.eye(2))
-        assert not found or k >= 1
+    assert -2.0 * math.log(options.pooled_level()) == pytest.approx(24.2, abs=0.05)
+    for missing, first in ((0, 8), (None, 7)):
+        tests = Families(("a", "b"), options)
+        alarms = [k for k in range(40)
+                  if tests.update(np.array([3.0, 3.0]), None, None, None, None if k == missing else np.eye(2))]
+        assert alarms and alarms[0] == first and alarms == list(range(first, 40)), (missing, alarms)
     tests = Families(("a", "b"), options)
     for k in range(5):
         tests.update(np.array([0.0, 0.0]), None, None, None, np.eye(2))

@@ -475,10 +475,10 @@ class Families:
         # and of the residual in units of the sensor's own noise, e = (y - mean) / r, and of e^2 (the lower tail's)
         self._c, self._cc, self._a, self._aa, self._sq, self._n, self._e, self._ee = (
             deque([zero, zero], maxlen=longest + 2) for _ in range(8))
-        # the pooled test's running sums, one array per step: of z, of a_k and of the predicted correlation
-        # matrices (flattened, row by row; a sensor not read: its row and column 0; NaN: a step whose
-        # correlation was not given)
-        self._p = deque([np.zeros(2 * n + n * n)] * 2, maxlen=longest + 2)
+        # the pooled test's running sums, one array per step: of z, of a_k, of the predicted correlation
+        # matrices (flattened, row by row; a sensor not read: its row and column 0; a step whose correlation
+        # was not given: 0) and, last, of the steps whose correlation was not given
+        self._p = deque([np.zeros(2 * n + n * n + 1)] * 2, maxlen=longest + 2)
         self.taken = 0
         # per sensor, what its readings tell (when given): the last one, the step its run of repeats began, the
         # run's length, the longest run that ended before, and the smallest change seen per decimal exponent
@@ -581,14 +581,13 @@ class Families:
             n = len(row)
             values = np.asarray(row, dtype=float)
             seen = np.isfinite(values)
-            if corr is None:
-                block = np.full(n * n, math.nan)
-            else:
-                block = np.where(seen[:, None] & seen[None, :], np.asarray(corr, dtype=float).reshape(n, n), 0.0)
+            given = corr is not None and bool(np.isfinite(corr).all())
+            block = (np.where(seen[:, None] & seen[None, :], np.asarray(corr, dtype=float).reshape(n, n), 0.0)
+                     if given else np.zeros((n, n)))
             share = np.zeros(n) if mc is None else np.asarray(mc, dtype=float)
             self._p.append(self._p[-1] + np.concatenate([np.where(seen, values, 0.0),
                                                          np.where(np.isfinite(share), share, 0.0),
-                                                         block.ravel()]))
+                                                         block.ravel(), [0.0 if given else 1.0]]))
         self.taken += 1
         readings = None if y is None else (y.tolist() if isinstance(y, np.ndarray) else [float(v) for v in y])
         if readings is not None and (self.variance or self.frozen):  # the lower tail's resolution, the repeats
@@ -756,14 +755,14 @@ class Families:
 
     def _scores(self, widths) -> list:
         """Per window of ``widths`` (those :meth:`_pooled` gives), (w, s' M^-1 s
-        or None where M is not positive definite, s, M, keep); the windows
+        or None where M is singular, s, M, keep); the windows
         that take every sensor (the usual case) in one array operation each
         step of the way."""
         n = len(self.sensors)
-        d = self._p[-1][None, :] - np.stack([self._p[-1 - w] for w in widths])  # windows x (2n + n^2)
-        s, a, r = d[:, :n], d[:, n:2 * n], d[:, 2 * n:].reshape(-1, n, n)
+        d = self._p[-1][None, :] - np.stack([self._p[-1 - w] for w in widths])  # windows x (2n + n^2 + 1)
+        s, a, r = d[:, :n], d[:, n:2 * n], d[:, 2 * n:-1].reshape(-1, n, n)
         diagonal = np.arange(n)
-        finite = np.isfinite(r).all(axis=(1, 2))
+        finite = (d[:, -1] == 0.0) & np.isfinite(r).all(axis=(1, 2))  # every step's correlation given
         every = finite & (r[:, diagonal, diagonal] > 0.0).all(axis=1)
         out = []
         if every.any():
