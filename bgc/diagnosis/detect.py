@@ -138,8 +138,11 @@ probability per horizon stays at most ``alpha``:
   generalised likelihood ratio of a mean shift of unknown size and
   direction, which alarms above the chi-square's ``1 - p`` quantile, ``p =
   alpha / F / (T n_W)`` (one test per step and window, all sensors at
-  once). A step with its correlation not given (a caller without it) is
-  in no pooled window. The onset is the change point of that shift over
+  once). The windows that hold a step whose correlation was not given (a
+  caller without it, a cloud unsure of its mode) are not tested; the
+  windows after it are. A caller that never gives one spends the family's
+  share of the budget for nothing: ask for ``pooled`` only where the
+  correlation comes (the diagnoser's loop gives it). The onset is the change point of that shift over
   the longest window (``argmax_t s_t' M_t^-1 s_t``, the sums from t); the
   alarm names the sensor with the largest share ``s_j^2 / M_jj``.
 
