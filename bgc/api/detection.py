@@ -83,15 +83,16 @@ def wilson(successes: int, n: int, z: float = _Z95) -> tuple[float, float]:
 
 def detector_rate(session: Session, injection: simulate.FaultInjection, steps: int, runs: int = RUNS,
                   seed: int = 0, options: DiagnosisOptions | None = None, progress=None,
-                  signals: tuple = ()) -> DetectorRate:
+                  signals: tuple = (), schedule: tuple = ()) -> DetectorRate:
     """The rate at which the diagnosis's detector alarms on ``injection``
     (see the module docstring) over ``runs`` runs of ``steps`` samples,
     simulated at the session's noise levels (``signals``: (name,
     :class:`~bgc.ir.Signal`) pairs driving inputs instead of the model's);
     ``options``: the diagnosis's (default: :class:`DiagnosisOptions`'
-    defaults, one process)."""
-    num = session.view.numerics
-    process, measurement = session.noise
+    defaults, one process). A model with modes runs through its automaton
+    and the controlled changes ``schedule`` ((time, mode) pairs), and its
+    diagnoser reads each sample's mode from the run's mode column, as from
+    a logger that records it."""
     opts = session.options(options or DiagnosisOptions(workers=1))
     dt = session.view.model.settings.dt
     detected = false = 0
@@ -99,13 +100,11 @@ def detector_rate(session: Session, injection: simulate.FaultInjection, steps: i
     for i in range(runs):
         if progress is not None:
             progress(f"bgc's detector: simulated run {i + 1} of {runs}")
-        r = simulate.simulate(num, simulate.SimulationOptions(steps=steps, process_noise=process,
-                                                              measurement_noise=measurement, seed=seed + i,
-                                                              fault=injection, signals=signals))
-        onset = onset_sample(r.time, injection.time)
+        time, rows = _simulated(session, injection, steps, seed + i, signals, schedule)
+        onset = onset_sample(time, injection.time)
         d = session.diagnoser(dataclasses.replace(opts, seed=seed + i))
-        for k, t in enumerate(r.time):
-            alarm = d.step(float(t), r.inputs[k], r.measurements[k]).alarm
+        for k, t in enumerate(time):
+            alarm = d.step(float(t), *rows(k)).alarm
             if alarm is not None:
                 if alarm.step >= onset:
                     detected += 1
@@ -117,6 +116,30 @@ def detector_rate(session: Session, injection: simulate.FaultInjection, steps: i
     return DetectorRate(runs, detected, false, low, high, float(np.median(delays)) if delays else None,
                         opts.filter, opts.particles, opts.false_alarm, opts.horizon, seed,
                         session.view.model.settings.time_unit, tuple(opts.detectors))
+
+
+def _simulated(session: Session, injection, steps: int, seed: int, signals: tuple, schedule: tuple):
+    """One truth-simulator run of ``injection`` at the session's noise
+    levels: its times, and per step k the (inputs, measurements) a diagnoser
+    takes (a model with modes: through its automaton and ``schedule``, the
+    mode among the inputs, as the run's mode column gives it)."""
+    process, measurement = session.noise
+    if not session.view.modes:
+        r = simulate.simulate(session.view.numerics, simulate.SimulationOptions(
+            steps=steps, process_noise=process, measurement_noise=measurement, seed=seed, fault=injection,
+            signals=signals))
+        return r.time, lambda k: (r.inputs[k], r.measurements[k])
+    from .simulate import simulated_run
+
+    run = simulated_run(session.view, injection, injection.text, steps, seed, (process, measurement), signals,
+                        schedule)
+
+    def rows(k: int):
+        u = {name: float(values[k]) for name, values in run.inputs.items()}
+        u["mode"] = float(run.modes[k])
+        return u, {name: float(values[k]) for name, values in run.measurements.items()}
+
+    return run.time, rows
 
 
 @dataclass(frozen=True, slots=True)

@@ -142,9 +142,6 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
     if modes is not None and not c.modes:
         raise ArgumentValueError(f"{func}: modes={modes!r}: {c.model.name} has no modes", None, "leave modes out")
     schedule = _schedule(func, modes, tuple(m.name for m in c.modes)) if modes else ()
-    if detector_runs and c.modes:
-        raise ArgumentValueError(f"{func}: detector_runs={detector_runs} is not built yet for a model with modes",
-                                 None, "leave detector_runs out: the prediction itself is made")
     num = c.numerics
     signals = input_signals(func, inputs, c.model)
     if steps is not None:
@@ -210,7 +207,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
                                            level))
     warning = simulate.outside_prior(injected[0], num) if scenario is not None else None
     rate = _detector_rate(model, injected[0], T, detector_runs, seed, detecting, (process_noise, measurement_noise),
-                          progress, signals) if detector_runs else None
+                          progress, signals, schedule) if detector_runs else None
     return DistinguishabilityReport(c.model.name, c.model.display_source, T, dt, (process_noise, measurement_noise),
                                     scenario if isinstance(scenario, str) or scenario is None else scenario.text,
                                     None if scenario else change, None if scenario else at, tuple(out),
@@ -220,7 +217,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
 
 
 def _detector_rate(model, injection, steps: int, runs: int, seed: int, options: DiagnosisOptions, noise: tuple,
-                   progress, signals):
+                   progress, signals, schedule: tuple = ()):
     """bgc's detector on ``runs`` simulated runs of ``injection``
     (:func:`bgc.api.detection.detector_rate`), on ``model`` opened at the
     noise levels ``noise`` (a session at them: itself)."""
@@ -229,7 +226,8 @@ def _detector_rate(model, injection, steps: int, runs: int, seed: int, options: 
     session = model if isinstance(model, Session) and model.noise == noise else \
         open_session(model.model if isinstance(model, Session) else model, process_noise=noise[0],
                      measurement_noise=noise[1])
-    return detector_rate(session, injection, steps, runs, seed, options=options, progress=progress, signals=signals)
+    return detector_rate(session, injection, steps, runs, seed, options=options, progress=progress, signals=signals,
+                         schedule=schedule)
 
 
 #: Prepared families by package (its module name tells the noise levels) and
