@@ -545,12 +545,12 @@ def test_a_step_without_its_correlation_is_in_no_pooled_window_and_a_sensor_not_
     tests = Families(("a", "b"), options)
     for k in range(5):
         tests.update(np.array([0.0, 0.0]), None, None, None, np.eye(2))
-    s, M, keep = tests._pooled(1)
+    s, M, keep = tests._scores((1,))[0][2:]
     assert keep.tolist() == [0, 1]
     tests.update(np.array([1.0, np.nan]), None, None, None, np.array([[1.0, 0.5], [0.5, 1.0]]))
-    s, M, keep = tests._pooled(1)
+    s, M, keep = tests._scores((1,))[0][2:]
     assert keep.tolist() == [0] and s.tolist() == [1.0] and M.tolist() == [[1.0]]
-    s, M, keep = tests._pooled(2)
+    s, M, keep = tests._scores((2,))[0][2:]
     assert keep.tolist() == [0, 1] and M.tolist() == [[2.0, 0.0], [0.0, 1.0]]
 
 

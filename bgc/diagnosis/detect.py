@@ -745,20 +745,15 @@ class Families:
         return [(Detection(0, self.sensors[j], run + 1, float(run), float(needed), self._since[j], "frozen"),
                  worst)]
 
-    def _pooled(self, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """The window of the last ``w`` steps: the residuals' sum ``s`` over
-        the sensors read in it, the bound ``M`` on its covariance (the sum
-        of the predicted correlation matrices, plus ``df diag(A^2)`` for the
-        particle filter's Monte Carlo error, ``A`` the window's sum of
-        shares per sensor, ``df`` the sensors read) and those sensors'
-        indices; None when a step of the window came without its
-        correlation or no sensor was read."""
-        found = self._scores((w,))
-        return found[0][2:] if found else None
-
     def _scores(self, widths) -> list:
-        """Per window of ``widths`` (those :meth:`_pooled` gives), (w, s' M^-1 s
-        or None where M is singular, s, M, keep); the windows
+        """Per window of the last ``w`` steps, ``w`` in ``widths``: (w, s' M^-1 s
+        or None where M is singular, s, M, keep), ``s`` the residuals' sum
+        over the sensors read in it (``keep``, their indices), ``M`` the bound
+        on its covariance (the sum of the predicted correlation matrices,
+        plus ``df diag(A^2)`` for the particle filter's Monte Carlo error,
+        ``A`` the window's sum of shares per sensor, ``df`` the sensors read);
+        a window with a step whose correlation was not given, or with no
+        sensor read, is left out. The windows
         that take every sensor (the usual case) in one array operation each
         step of the way."""
         n = len(self.sensors)
@@ -788,7 +783,7 @@ class Families:
     def _pool(self) -> list[tuple[Detection, float]]:
         """The pooled test: over each window of :data:`POOLED_WINDOWS`, the
         sum ``s`` of the residual vectors against its covariance bound ``M``
-        (:meth:`_pooled`): ``s' M^-1 s`` is at most chi-square with as many
+        (:meth:`_scores`): ``s' M^-1 s`` is at most chi-square with as many
         degrees of freedom as sensors read (module docstring). The alarm
         names the sensor whose own share ``s_j^2 / M_jj`` is the largest."""
         from scipy.stats import chi2
@@ -860,7 +855,7 @@ class Families:
         """The GLR change point of a mean shift of unknown size and
         direction in the residual vector: argmax_t s_t' M_t^-1 s_t, ``s_t``
         the sum of the residual vectors from step t on and ``M_t`` its
-        covariance bound (:meth:`_pooled`), over the longest pooled window."""
+        covariance bound (:meth:`_scores`), over the longest pooled window."""
         widths = list(range(1, min(max(POOLED_WINDOWS), len(self._p) - 2, self.taken) + 1))
         best, at = -1.0, self.taken - 1
         for m, score, *_ in sorted(self._scores(widths), key=lambda found: found[0]):

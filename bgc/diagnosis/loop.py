@@ -244,8 +244,7 @@ class Loop:
                 return None
         else:
             x = self.pf.x[rule.physical]
-            w = np.exp(self.pf.logw - self.pf.logw.max())
-            w /= w.sum()
+            w = self.pf._weights()  # the cloud's normalised weights after the last step
             m = x @ w
             # a carried row every particle agrees on (the mode, its dwell): exactly that value (the weights'
             # sum rounds), and no spread; the mode itself must be agreed on

@@ -273,6 +273,9 @@ class _Monitor:
         self.told: set = set()
         #: the finding of a checkpoint whose verdict is mismatch was said (once per diagnoser)
         self.mismatch_said = False
+        #: the steps of a diagnoser's record at which its fit is tested while watching (:meth:`_fits`)
+        self.fit_steps = None if checkpoint is None else max(
+            FIT_STEPS, int(round(checkpoint / float(session.package.MODELS["nominal"].DT))))
         self.excluded: list[ev.SensorExcluded] = []
         self.taken_out: set[str] = set()
         self.log = Episodes(session.package, rearm, exclude_faulty, session.view.labels.per_time) if episodes else None
@@ -393,8 +396,7 @@ class _Monitor:
         the diagnoser's first)."""
         if self.checkpoint is None or belief.phase != "watching" or self.mismatch_said:
             return
-        steps = max(FIT_STEPS, int(round(self.checkpoint / float(self.session.package.MODELS["nominal"].DT))))
-        if not before < steps <= self._taken():
+        if not before < self.fit_steps <= self._taken():
             return
         c = self.d.checkpoint()
         if c.verdict == "mismatch":
