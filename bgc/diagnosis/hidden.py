@@ -8,8 +8,12 @@ of the nominal model, one per *branch*, a history of modes the data may
 have followed (a multiple-hypothesis filter over the modes, pruned):
 
 * each step, a branch in mode i may stay or leave by one of i's transitions:
-  a timed one when its time in the mode runs out (exactly: a branch knows
-  when it entered); an autonomous one with the probability that its guard
+  a timed one when its time in the mode runs out (exactly where a branch
+  knows when it entered; a mode entered by a guard within a step keeps the
+  variance the step's placement and the samples after it leave its time in
+  the mode, and the exit is due with the probability that time has run out
+  by the step's end, so that an exit just before or after a sample is tried
+  both ways); an autonomous one with the probability that its guard
   is crossed over the step, from the branch's estimate: the guard's margin
   g at the branch's cubature points, its mean and variance, and the
   threshold's std tau the model declares, give Phi(mean / sqrt(variance +
@@ -85,6 +89,17 @@ REFINE = 3
 #: A mode with a timed exit entered by a guard: the least probability given to its entry at the step's
 #: start (the last sample's noise carried the plant across) and to its entry within the step.
 PLACED = 0.01
+
+
+def _due(over: np.ndarray, spread: np.ndarray, slack: float) -> np.ndarray:
+    """The probability that a timed exit is due within the step: its time in
+    the mode at the step's end ``over`` the exit's time by a normal error of
+    std ``spread`` (0: exactly, with ``slack`` for rounding)."""
+    from scipy.special import ndtr
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = ndtr(over / np.where(spread > 0, spread, 1.0))
+    return np.where(spread > 0, p, (over >= -slack).astype(float))
 
 
 def readable(model) -> str | None:
@@ -246,14 +261,20 @@ class ModeDecoder:
                 share[k] = np.where(h >= 1.0, np.prod([np.where(hazards[j] >= 1.0, 1.0, 1.0 - hazards[j])
                                                         for j in hazards if j != k], axis=0), share[k])
             clock = self.m[sel, self.clock] + dt if self.clock is not None else np.full(len(sel), np.nan)
+            # the std of the time in the mode: 0 where the branch knows when it entered, else what the data
+            # said of an entry within a step (the step's placement and the samples after it)
+            spread = np.sqrt(np.maximum(self.P[sel, self.clock, self.clock], 0.0)) if self.clock is not None \
+                else np.zeros(len(sel))
             clocks = {}
             for k, t in enumerate(self.transitions):  # a timed exit: when the time in the mode runs out
                 if t[0] != i or t[2] is not None or t[3] is None:
                     continue
-                due = clock >= t[3] - 1e-9 * max(1.0, t[3])
-                share[k] = np.where(due, stay, 0.0)
-                stay = np.where(due, 0.0, stay)
+                due = _due(clock - t[3], spread, 1e-9 * max(1.0, t[3]))
+                share[k] = due * stay
+                stay = (1.0 - due) * stay
                 clocks[k] = np.maximum(clock - t[3], 0.0)  # the time in the mode entered, exactly
+            # staying, a branch unsure of its time in the mode lets the step's update move it
+            clock = np.where(spread > 0, np.nan, clock)
             total = stay + sum(share.values()) if share else stay
             total = np.where(total > 0, total, 1.0)
             with np.errstate(divide="ignore"):
@@ -310,13 +331,14 @@ class ModeDecoder:
         parents, targets, logp = np.concatenate(parents), np.concatenate(targets), np.concatenate(logp)
         m, P, loglik, fixed = self._children(y, u, parents, targets)
         self.k += 1
-        if self.clock is not None:  # each branch's time in its mode, exactly (no variance: it says when it entered)
+        if self.clock is not None:  # each branch's time in its mode: exactly where it says when it entered
             row, dwell = self.clock, np.concatenate(dwell)
             m[:, row] = np.where(dwell >= 0, dwell, np.where(dwell == -1.0, np.minimum(m[:, row], dt * (1 - 1 / 8)),
                                                                m[:, row]))
             m[:, row] = np.where(np.isfinite(m[:, row]), m[:, row], 0.0)
-            P[:, row, :] = 0.0
-            P[:, :, row] = 0.0
+            exact = dwell >= 0  # (an entry within the step, or a stay not knowing when: the variance the update left)
+            P[exact, row, :] = 0.0
+            P[exact, :, row] = 0.0
         logw = self.logw[parents] + logp + np.where(np.isfinite(loglik), loglik, -np.inf)
         history = np.concatenate([self.history[parents], targets[:, None]], axis=1) if self.decide else \
             self.history[parents]
