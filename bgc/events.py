@@ -342,6 +342,26 @@ class Uncertain:
 
 
 @dataclass(frozen=True, slots=True)
+class NoFault:
+    """After an alarm, no fault at all (the alarm one of the false alarms
+    the detector's budget allows) weighed beside the faults: the nominal
+    model passes the consistency test of the hypotheses over the whole
+    record, and holds ``mass`` of the posterior of it and every fault
+    weighed; ``best`` (None: none was weighed) is the likeliest fault, the
+    data favouring it over no fault by the log Bayes factor ``log_factor``
+    (each fault's prior spread over the horizon's steps as its onset's).
+    ``decided``: no fault holds the ``level`` a verdict promises and is the
+    verdict; else the faults named cannot be promised without it."""
+
+    mass: float
+    best: str | None
+    log_factor: float
+    level: float
+    decided: bool
+    step: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class SensorExcluded:
     """Sensor ``sensor``'s fault was isolated (``finding``, in words, at a
     checkpoint at time ``time``): the monitor took it out of the nominal
@@ -492,7 +512,7 @@ class Decided:
 Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorResumed | InputFromModel | InputHeld
          | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | ReadingFrozen | Started
          | Refined | Dropped
-         | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | SensorExcluded
+         | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | NoFault | SensorExcluded
          | EpisodeClosed | Repaired | Checkpoint | ModeHidden | ModeRead | ModesReread | Mismatched | Decided)
 
 

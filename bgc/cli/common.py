@@ -143,8 +143,12 @@ def write_report(r, output: str, command: str) -> Path:
     print(f"{r.model}: {d.verdict}" + (f": {', '.join(d.candidates)}" if d.candidates else ""))
     if d.detection is not None:
         test = "" if d.detection.test == "mean" else f", the {d.detection.test} test"
-        print(f"  detected at t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}{test}), "
-              f"onset t = {events.time_text(d.onset)}")  # a logger's Unix time in full
+        if d.onset is None:  # no fault after the alarm: a false one
+            print(f"  alarm at t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}{test}): "
+                  f"no fault explains the data better than chance")
+        else:
+            print(f"  detected at t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}{test}), "
+                  f"onset t = {events.time_text(d.onset)}")  # a logger's Unix time in full
     for line in report.plain_words(d, r.labels):
         print(f"  {printable(line)}")
     e = d.estimate
@@ -228,6 +232,9 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-recheck", dest="recheck", action="store_false",
                    help="do not weigh the fault models the symbols ruled out before a verdict (faster; trusts the "
                         "symbols, as the thesis does)")
+    p.add_argument("--faults-only", dest="no_fault", action="store_false",
+                   help="after an alarm, weigh the fault models alone, not no fault (a false alarm) beside them "
+                        "(the thesis's verdict: an alarm always ends in a fault named or unexplained)")
 
 def detectors(text: str) -> tuple[str, ...]:
     """An argparse type: ``--detect``'s families of tests, the mean test first and always."""

@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         options = DiagnosisOptions(filter=args.filter, particles=args.particles, seed=args.seed,
                                    identify=args.identify, rank=args.rank, refine=args.refine,
-                                   horizon=args.horizon, gap=args.gap, recheck=args.recheck,
+                                   horizon=args.horizon, gap=args.gap, recheck=args.recheck, no_fault=args.no_fault,
                                    input_timing=args.input_timing, detectors=args.detect)
         steps = args.steps if args.scenario is not None else rows_of(args.data)  # auto's estimate of the work
         session = api.open(args.model, process_noise=process, measurement_noise=measurement,

@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
                        "drop --follow, or give the file")
     process, measurement = parse_noise(args.noise)
     options = DiagnosisOptions(filter=args.filter, particles=args.particles, seed=args.seed, horizon=args.horizon,
-                               gap=args.gap, recheck=args.recheck, input_timing=args.input_timing,
+                               gap=args.gap, recheck=args.recheck, no_fault=args.no_fault, input_timing=args.input_timing,
                                keep=args.keep, detectors=args.detect)
     rows = None if args.follow else rows_of(args.data)  # a stream followed, or standard input: not known
     session = api.open(args.model, process_noise=process, measurement_noise=measurement, generated=args.generated,

@@ -31,7 +31,7 @@ from .hypothesis import hypothesis_job, log_density, run_job
 from .onsets import earlier_onsets, onset_weights
 from .options import DiagnosisOptions
 from .parallel import parallel_map
-from .static import StaticJob, kalman_hypotheses, run_static, run_statics, static_alarm
+from .static import StaticJob, first_alarm, kalman_hypotheses, run_static, run_statics, static_alarm
 from .static_posterior import EDGE, EXTEND
 from .values import Detection, Diagnosis, Drop, Fit, Hypothesis, Isolation, StaticPosterior
 from .weigh import weighed
@@ -110,9 +110,12 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     iso = r.isolation
     hyps, posteriors, observer, rescued = tracked(r, s, truth)
     more, static = rechecked(r, s, truth, hyps, posteriors, observer)
-    hyps, verdict, candidates, weighing = weighed(hyps + more, {**posteriors, **static}, r, s)
+    weighing_posteriors = {**posteriors, **static}
+    null = nominal_evidence(r, s, observer) if weighing_posteriors and s.options.no_fault else None
+    hyps, verdict, candidates, weighing = weighed(hyps + more, weighing_posteriors, r, s, null)
     events = list(r.events) + silent + rescued + weighing
-    best_onset = next((h.onset_step for h in hyps if candidates and h.name == candidates[0]), iso.onset)
+    best_onset = None if verdict == "no fault" else \
+        next((h.onset_step for h in hyps if candidates and h.name == candidates[0]), iso.onset)
     s.say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
     events += refined(r.events, candidates, best_onset, T - 1)
     verdict, candidates, judged, fitted = judged_fit(r, s, hyps, verdict, candidates, best_onset,
@@ -129,13 +132,15 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
                track: kalman.NominalTrack | None = None):
     """The test of the model on the data the verdict says are fault-free
     (:mod:`bgc.diagnosis.fit`): before the earlier of the change point and
-    the onset ``onset`` (the whole record without an alarm). A model that
+    the onset ``onset`` (the whole record without an alarm, or when the
+    verdict after one is no fault). A model that
     fails it, or data too short before an alarm to tell, make the verdict
     ``mismatch``, the faults it named kept as possibilities. Returns (the
     verdict, its candidates, the events, the :class:`~bgc.diagnosis.fit.Fit`). ``track``: the nominal
     cubature Kalman filter's, when the diagnosis ran it."""
     T = len(r.time)
-    if r.detection is None:
+    quiet = r.detection is None or verdict == "no fault"  # no fault, after an alarm too: the whole record
+    if quiet:
         end = T
     else:
         end = min(k for k in (r.detection.onset_step, onset, r.detection.step) if k is not None)
@@ -143,7 +148,7 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
     # (its own onset, weakly told by the data, may lie far before it and the truth)
     by = {h.name: h for h in hyps}
     drifts = bool(candidates) and candidates[0] in by and fault_kind(by[candidates[0]].kind).drifts
-    first = None if r.detection is None else r.detection.onset_step if drifts else end
+    first = None if quiet else r.detection.onset_step if drifts else end
     short = first is not None and first < LEAST
     fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, short, track=track)
     if fitted.fits and verdict in ("isolated", "ambiguous") and candidates and candidates[0] in by:
@@ -398,10 +403,34 @@ def rechecked(r: Record, s: Setting, truth: Run | None, hyps: tuple[Hypothesis, 
 
 
 def _nominal_track(r: Record, s: Setting) -> kalman.NominalTrack:
-    """The nominal cubature Kalman filter over the record up to the latest
-    onset a static posterior starts from (the particle filters' diagnosis)."""
-    stop = max(max(v) for v in r.isolation.kalman_onsets.values())
-    return kalman.nominal_track(nominal_model(s.package), r.ys, r.us, stop)
+    """The nominal cubature Kalman filter over the whole record (the
+    particle filters' diagnosis): the static posteriors start from its state
+    at their onsets, and no fault is weighed by its likelihood of the record
+    (:func:`nominal_evidence`)."""
+    return kalman.nominal_track(nominal_model(s.package), r.ys, r.us, len(r.time))
+
+
+def nominal_evidence(r: Record, s: Setting, track: kalman.NominalTrack | None) -> float | None:
+    """log p(data | no fault): the nominal cubature Kalman filter's
+    log-likelihood of the whole record (``track``'s, when it covers it), the
+    same filter the static posteriors' cells follow before their onsets, so
+    that no fault and the faults are weighed like for like; None where the
+    nominal model fails the consistency test the hypotheses pass (the
+    windowed Z-test at ``rejection`` over its normalised residuals, the
+    sensors the data have): the alarm is then no false one, and no fault is
+    not weighed (:func:`bgc.diagnosis.weigh.no_fault`)."""
+    T = len(r.time)
+    if track is None or len(track.loglik) <= T or track.z is None or len(track.z) < T:
+        track = kalman.nominal_track(nominal_model(s.package), r.ys, r.us, T)
+    value = float(track.loglik[T])
+    if not math.isfinite(value):
+        return None
+    present = np.asarray(r.present, dtype=bool)
+    z = np.asarray(track.z, dtype=float)[:T][:, present]
+    outputs = tuple(y for y, here in zip(r.outputs, present) if here)
+    if first_alarm(z, outputs, s.options.rejection, s.options.windows) is not None:
+        return None
+    return value
 
 
 def ordered(events: list) -> tuple:

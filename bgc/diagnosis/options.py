@@ -132,7 +132,11 @@ class DiagnosisOptions:
     symbols ruled out are weighed too, by their static posteriors (``identify
     = "kalman"``), and one that explains the data is a candidate all the
     same (an ``Overruled`` event): symbols read after a late alarm can
-    mislead;
+    mislead; ``no_fault``: after an alarm, no fault (the alarm a false one)
+    is weighed beside the faults (:func:`bgc.diagnosis.weigh.no_fault`;
+    ``identify = "kalman"`` or ``filter = "ckf"``): "no fault" when it holds
+    ``isolation_level``, never "isolated" while it holds more than 1 -
+    ``isolation_level`` (False: the faults alone, as the thesis weighs them);
     ``interval``: the probability of the reported interval; ``rank``: weigh
     the survivors anew by the evidence of their models with the magnitude
     held static on a particle-filter grid ``rank_grid`` (``identify =
@@ -156,6 +160,7 @@ class DiagnosisOptions:
     bayes_factor: float = 100.0
     isolation_level: float = 0.95
     recheck: bool = True
+    no_fault: bool = True
     shrinkage: float = 0.98
     workers: int = 2
     identify: str = "kalman"
@@ -186,5 +191,5 @@ STAGES = {
     "detection": ("false_alarm", "horizon", "windows", "detectors"),
     "isolation": ("symbol_steps", "history", "search", "spacing", "near"),
     "tracking": ("rejection",),
-    "weighing": ("identify", "kalman", "bayes_factor", "isolation_level", "recheck", "interval", "rank", "rank_grid", "refine", "grid"),
+    "weighing": ("identify", "kalman", "bayes_factor", "isolation_level", "recheck", "no_fault", "interval", "rank", "rank_grid", "refine", "grid"),
 }

@@ -22,16 +22,24 @@ from .static import checked, misfit_reason, static_estimate
 from .values import Drop, Hypothesis
 
 
-def weighed(hyps: tuple[Hypothesis, ...], posteriors: dict, r, s) -> tuple[tuple[Hypothesis, ...], str,
-                                                                          tuple[str, ...], list]:
+def weighed(hyps: tuple[Hypothesis, ...], posteriors: dict, r, s, null: float | None = None) \
+        -> tuple[tuple[Hypothesis, ...], str, tuple[str, ...], list]:
     """Steps 6 to 8 on record ``r`` (a :class:`~bgc.diagnosis.finish.Record`)
     with setting ``s``: the hypotheses weighed (with their magnitudes held
     static where their static posteriors are), dropped by the Bayes factor,
-    ranked and refined, tested, and the verdict. Returns (the hypotheses,
-    the verdict, its candidates, the events)."""
+    ranked and refined, tested, and the verdict. ``null``: log p(data | no
+    fault), the nominal model's likelihood of the whole record, when it
+    passes the hypotheses' consistency test there (None: no fault is not
+    weighed): weighed beside the faults with static posteriors
+    (:func:`posterior`, :func:`no_fault`). Returns (the hypotheses, the
+    verdict, its candidates, the events)."""
     o, T = s.options, len(r.time)
     hyps, evidence_of, static, events = static_evidence(hyps, posteriors, s.ckf, T)
-    hyps, weights = posterior(hyps, evidence_of, s.priors, o.bayes_factor, static, T)
+    p0 = None
+    if static and null is not None:
+        hyps, weights, p0 = posterior(hyps, evidence_of, s.priors, o.bayes_factor, static, T, null, s.horizon)
+    else:
+        hyps, weights, _ = posterior(hyps, evidence_of, s.priors, o.bayes_factor, static, T)
     grids: dict = {}
     if o.rank and not static and sum(h.drop is None for h in hyps) > 1:  # 7. by their static evidence
         s.say(f"weighing {', '.join(h.name for h in hyps if h.drop is None)} with their magnitudes held static, "
@@ -54,6 +62,9 @@ def weighed(hyps: tuple[Hypothesis, ...], posteriors: dict, r, s) -> tuple[tuple
     decided, candidates = verdict(hyps)
     if decided == "unexplained":  # the one that lasted longest says so too
         hyps, more = at_bounds(hyps, prior_of, T, lambda h: h.name in candidates)
+        events += more
+    if p0 is not None:
+        decided, candidates, more = no_fault(hyps, decided, candidates, p0, o.isolation_level, T)
         events += more
     return hyps, decided, candidates, events + notes(hyps, decided, candidates, T)
 
@@ -95,22 +106,62 @@ def static_evidence(hyps: tuple[Hypothesis, ...], posteriors: dict, ckf: bool, T
 
 
 def posterior(hyps: tuple[Hypothesis, ...], evidence_of: dict, priors: dict, bayes_factor: float, static: bool,
-              T: int) -> tuple[tuple[Hypothesis, ...], np.ndarray]:
+              T: int, null: float | None = None, horizon: int = 1) -> tuple[tuple[Hypothesis, ...], np.ndarray,
+                                                                          float | None]:
     """The hypotheses' posterior (evidence times prior, normalised); a
     survivor decisively less probable than the best (the Bayes factor) is
-    dropped (``bayes-factor``)."""
-    weights = np.array([math.log(max(priors.get(h.parameter, 0.01), 1e-300)) + evidence_of[h.name] for h in hyps])
-    if np.isfinite(weights).any():
-        weights = np.exp(weights - weights.max())
-        weights = weights / weights.sum()
+    dropped (``bayes-factor``). With ``null`` (log p(data | no fault)), no
+    fault is weighed too. A fault's prior p is the probability that it
+    happens within a ``horizon`` of steps, so that it begins at a given step
+    with probability p / horizon; its static evidence sums its likelihood
+    over its onsets each weighed by the steps it stands for
+    (:func:`bgc.diagnosis.static_posterior.onset_widths`), so its weight is
+    p / horizon times that; no fault's is its likelihood (the probability
+    that no fault begins within the record is a factor common to both, for
+    one fault at a time). Returns (the hypotheses, their posteriors, no
+    fault's posterior: None when not weighed)."""
+    shift = 0.0 if null is None else math.log(max(int(horizon), 1))
+    logs = [math.log(max(priors.get(h.parameter, 0.01), 1e-300)) - shift + evidence_of[h.name] for h in hyps]
+    every = np.array(logs + ([] if null is None else [null]), dtype=float)
+    if np.isfinite(every).any():
+        every = np.exp(every - every.max())
+        every = every / every.sum()
     else:  # none survives (or none was tried)
-        weights = np.zeros(len(hyps))
-    top = max(weights) if len(weights) else 0.0
+        every = np.zeros(len(every))
+    weights = every[:len(hyps)]
+    p0 = None if null is None else float(every[-1])
+    top = max(every) if len(every) else 0.0
+    favoured = "no fault" if p0 is not None and p0 >= top else "another hypothesis"
     out = tuple(replace(h, drop=Drop("bayes-factor", T - 1, (
         ("with the magnitudes held static, " if static else "")
-        + f"the data favour another hypothesis by a Bayes factor above {bayes_factor:g} (posterior {w:.2g})")))
+        + f"the data favour {favoured} by a Bayes factor above {bayes_factor:g} (posterior {w:.2g})")))
                 if h.drop is None and w < top / bayes_factor else h for h, w in zip(hyps, weights))
-    return out, weights
+    return out, weights, p0
+
+
+def no_fault(hyps: tuple[Hypothesis, ...], decided: str, candidates: tuple[str, ...], p0: float, level: float,
+             T: int) -> tuple[str, tuple[str, ...], list]:
+    """The verdict with no fault weighed (its posterior ``p0``, beside the
+    hypotheses' own): its share of the posterior of it and every fault
+    weighed, whatever dropped them (a fault that failed its fit test but
+    explains the data far better than no fault still says the data are not
+    the nominal model's). A share of at least ``level`` is the verdict "no
+    fault" (the alarm a false one); over 1 - ``level``, "isolated" cannot be
+    promised and is "ambiguous", and a verdict says it with a
+    :class:`~bgc.events.NoFault` event. Returns (the verdict, its
+    candidates, the events)."""
+    weighed_ = [h for h in hyps if math.isfinite(h.posterior)]
+    total = p0 + sum(h.posterior for h in weighed_)
+    mass = p0 / total if total > 0 else 1.0
+    if mass <= 1.0 - level:
+        return decided, candidates, []
+    best = max(weighed_, key=lambda h: h.posterior, default=None)
+    factor = math.log(best.posterior / p0) if best is not None and best.posterior > 0 and p0 > 0 else -math.inf
+    name = None if best is None else best.name
+    if mass >= level:
+        return "no fault", (), [ev.NoFault(mass, name, factor, level, True, T - 1)]
+    return ("ambiguous" if decided == "isolated" else decided), candidates, [
+        ev.NoFault(mass, name, factor, level, False, T - 1)]
 
 
 def misfits(hyps: tuple[Hypothesis, ...], time_of) -> tuple[Hypothesis, ...]:

@@ -116,6 +116,15 @@ def sentence(e, time_of) -> str:
         case ev.Uncertain(candidates=c, mass=m, level=lv, kept=k, posteriors=p):
             return (f"{', '.join(c)} hold(s) a posterior of {m:.3g} only, under the {lv:g} a verdict promises: "
                     f"{', '.join(f'{n} ({q:.2g})' for n, q in zip(k, p))} kept as candidates too")
+        case ev.NoFault(mass=m, best=b, log_factor=f, level=lv, decided=True):
+            return (f"no fault explains the data best: the alarm is one the detector's false-alarm budget allows "
+                    f"(no fault holds a posterior of {m:.3g}, at least the {lv:g} a verdict promises"
+                    + (f"; the likeliest fault, {b}, is favoured by a Bayes factor of only {math.exp(f):.3g}" if b
+                       else "") + ")")
+        case ev.NoFault(mass=m, best=b, log_factor=f, level=lv):
+            return (f"no fault at all (the alarm a false one) holds a posterior of {m:.3g}: the faults named "
+                    f"cannot be promised at {lv:g} without it" + (f" (the likeliest, {b}, is favoured over no fault by "
+                                                                   f"a Bayes factor of {math.exp(f):.3g})" if b else ""))
         case ev.NoLikelihood(fallback=True):
             return ("the cubature Kalman filters found no finite likelihood: the particle filters' evidence and "
                     "estimates are reported")
@@ -252,7 +261,7 @@ def record(e, time_of) -> dict:
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped, ev.SensorResumed,
            ev.InputFromModel, ev.ModeHidden, ev.ModesReread, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate,
            ev.AllTried, ev.ReadingFrozen, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded,
-           ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.Mismatched)
+           ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.NoFault, ev.Mismatched)
 
 
 def notes(events, time_of) -> list[str]:

@@ -129,6 +129,7 @@ def report_data(r) -> dict[str, Any]:
                      "horizon": _num(d.options.horizon) if d.options.horizon is not None else None,
                      "windows": list(d.options.windows), "bayes_factor": d.options.bayes_factor,
                      "isolation_level": d.options.isolation_level, "recheck": d.options.recheck,
+                     "no_fault": d.options.no_fault,
                      "interval": d.options.interval, "threshold": _num(d.threshold),
                      "process_noise": r.noise[0], "measurement_noise": r.noise[1],
                      "time_unit": labels.time_unit, "input_timing": d.options.input_timing or "end"},
@@ -266,9 +267,13 @@ def _heading(r) -> list[str]:
 
 def verdict_text(d) -> str:
     """The verdict as the report's headline: ``'Fault isolated: R2_abrupt.'``."""
-    return {"no fault": "No fault detected.",
+    unsure = any(isinstance(e, ev.NoFault) and not e.decided for e in d.events)
+    return {"no fault": "No fault detected." if d.detection is None else
+                        "No fault: the alarm is one the detector's false-alarm budget allows.",
             "isolated": f"Fault isolated: {d.candidates[0] if d.candidates else ''}.",
-            "ambiguous": "Fault detected; the data cannot separate: " + ", ".join(d.candidates) + ".",
+            "ambiguous": ("An alarm the data cannot tell from a false one: " + ", ".join(d.candidates)
+                          + ", or no fault." if unsure else
+                          "Fault detected; the data cannot separate: " + ", ".join(d.candidates) + "."),
             "unexplained": "Fault detected, but no fault model explains the data"
                            + (f" (the one that lasted longest: {d.candidates[0]})" if d.candidates else "")
                            + ".",
@@ -293,7 +298,10 @@ def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:
     return {
         "no fault": (f"no fault: no window of the nominal observer's normalised residuals crossed the detection "
                      f"threshold, set for a false-alarm probability of {settings['false_alarm_per_horizon']:g} "
-                     f"per {per}."),
+                     f"per {per}; or one did, but the nominal model passes the fault models' test of their fit "
+                     f"over the whole record and no fault holds at least {level} of the posterior beside every "
+                     f"fault model (each fault's prior spread over the {per}'s steps as its onset's): a false "
+                     f"alarm the budget allows."),
         "isolated": (f"isolated: one fault model explains the data and every other is ruled out (by its "
                      f"signature, by a failed test of its fit, or by being at least {factor} times less "
                      f"probable); it holds at least {level} of the posterior."),
@@ -339,7 +347,7 @@ def detection_lines(d, labels: Labels = Labels()) -> list[str]:
     return [f"alarm at t = {_tt(d, det.step)}: {seen} (false-alarm probability "
             f"{d.options.false_alarm:g} per {_per(d, labels)}{shared})",
             f"change point of the residuals: t = {_tt(d, det.onset_step)}; onset of the diagnosis: "
-            f"t = {_tt(d, d.onset_step)}"]
+            + ("none (no fault)" if d.onset_step is None else f"t = {_tt(d, d.onset_step)}")]
 
 
 #: The columns of :func:`hypothesis_rows`.

@@ -59,7 +59,19 @@ size from 0.939 to 1.008 (the truth: R20 +1.0 from t = 100). In two_tank_R10_dri
 change moved every step rival's numbers, and then 92b4a3b (a named fault whose own residuals are wider
 than the model's noise makes the verdict mismatch) changed its verdict from "isolated: R12_incipient"
 (wrong: the truth is R10's drift down) to "mismatch", R12_incipient the possibility named.
-Every other case is unchanged. A change that is meant to change
+Every other case is unchanged.
+Re-recorded on 2026-12-04 (--only orifice_none_gpf drivetrain_none_no_switch_gpf
+drivetrain_b1_drift_up_opf --keep-runs) when no fault came to be weighed beside the faults after an
+alarm (bgc.diagnosis.weigh.no_fault; issue 48): each fault's prior spread over the horizon's steps
+as its onset's, no fault weighed by the nominal cubature Kalman filter's likelihood of the record
+when the nominal model passes the hypotheses' test of fit over it. The two fault-free runs' false
+alarms were "ambiguous: cd_incipient, cd_abrupt, R20_abrupt" (orifice_none_gpf) and "mismatch"
+(drivetrain_none_no_switch_gpf: an alarm at step 5, too soon to vouch for the model) and are both
+"no fault" (no fault holds 0.998 and 0.9998 of the posterior; the fit test then takes the whole
+record, which fits), their onset none; in drivetrain_b1_drift_up_opf no fault holds 1.4 % and every
+posterior moved by that share, its verdict ("ambiguous: g_m_incipient, b1_incipient") unchanged.
+Every other case is unchanged (bench/regression_corpus.py: 39 of 42 the same before the
+re-recording). A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
 ``bgc/`` holds exactly the code being committed, and commits the corpus with
 that code (the commit is the provenance; its message says why):
