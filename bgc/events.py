@@ -408,7 +408,8 @@ class EpisodeClosed:
     present: tuple = ()
     #: An episode ``re-armed``: why (``rearm``: not isolated when ``--rearm`` had passed since its alarm;
     #: ``memory``: its record neared the most the diagnosis holds in memory, a fault never decided; ``no
-    #: estimate``: isolated without an estimate to accommodate; empty: the other actions).
+    #: estimate``: isolated without an estimate to accommodate; ``false alarm``: the checkpoint's verdict
+    #: after the alarm is no fault, :class:`NoFault`; empty: the other actions).
     reason: str = ""
 
 

@@ -352,7 +352,9 @@ class Diagnoser:
         if self._retry(diagnosis):
             again = self.replay(dataclasses.replace(self.loop.options, switch=False), True)
             diagnosis = again.finish(self.sampler.summary(), truth)
-        if self.decoder is not None and diagnosis.detection is not None:
+        if self.decoder is not None and diagnosis.detection is not None and diagnosis.verdict != "no fault":
+            # (no fault after the alarm: the nominal reading stands; a fault model's own reading would be
+            # weighed against no fault on that fault's modes, not on the nominal's)
             diagnosis = self._reread(diagnosis, truth)
         if self.switched:
             diagnosis = dataclasses.replace(diagnosis, events=ordered(list(self.switched) + list(diagnosis.events)))

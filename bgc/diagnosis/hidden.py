@@ -9,11 +9,10 @@ have followed (a multiple-hypothesis filter over the modes, pruned):
 
 * each step, a branch in mode i may stay or leave by one of i's transitions:
   a timed one when its time in the mode runs out (exactly where a branch
-  knows when it entered; a mode entered by a guard within a step keeps the
-  variance the step's placement and the samples after it leave its time in
-  the mode, and the exit is due with the probability that time has run out
-  by the step's end, so that an exit just before or after a sample is tried
-  both ways); an autonomous one with the probability that its guard
+  knows when it entered; a mode entered by a guard within a step has its
+  time in the mode uncertain by the step's uniform placement, variance
+  dt^2/12, and the exit comes with its hazard over each step, so that an
+  exit just before or after a sample is tried both ways); an autonomous one with the probability that its guard
   is crossed over the step, from the branch's estimate: the guard's margin
   g at the branch's cubature points, its mean and variance, and the
   threshold's std tau the model declares, give Phi(mean / sqrt(variance +
@@ -91,15 +90,22 @@ REFINE = 3
 PLACED = 0.01
 
 
-def _due(over: np.ndarray, spread: np.ndarray, slack: float) -> np.ndarray:
-    """The probability that a timed exit is due within the step: its time in
-    the mode at the step's end ``over`` the exit's time by a normal error of
-    std ``spread`` (0: exactly, with ``slack`` for rounding)."""
+def _due(over: np.ndarray, spread: np.ndarray, span: float, slack: float) -> np.ndarray:
+    """The probability that a timed exit happens within the step of ``span``,
+    the branch having stayed until its start: its time in the mode at the
+    step's end is ``over`` the exit's time, with a normal error of std
+    ``spread`` (0: exactly, with ``slack`` for rounding); the hazard
+    (Phi(over/spread) - Phi((over - span)/spread)) / (1 - Phi((over -
+    span)/spread)), the exit's distribution over the step given it had not
+    come by the step's start."""
     from scipy.special import ndtr
 
     with np.errstate(divide="ignore", invalid="ignore"):
-        p = ndtr(over / np.where(spread > 0, spread, 1.0))
-    return np.where(spread > 0, p, (over >= -slack).astype(float))
+        scale = np.where(spread > 0, spread, 1.0)
+        end, start = ndtr(over / scale), ndtr((over - span) / scale)
+        left = 1.0 - start
+        h = np.where(left > 1e-300, (end - start) / np.where(left > 1e-300, left, 1.0), 1.0)
+    return np.where(spread > 0, np.clip(h, 0.0, 1.0), (over >= -slack).astype(float))
 
 
 def readable(model) -> str | None:
@@ -269,7 +275,7 @@ class ModeDecoder:
             for k, t in enumerate(self.transitions):  # a timed exit: when the time in the mode runs out
                 if t[0] != i or t[2] is not None or t[3] is None:
                     continue
-                due = _due(clock - t[3], spread, 1e-9 * max(1.0, t[3]))
+                due = _due(clock - t[3], spread, dt, 1e-9 * max(1.0, t[3]))
                 share[k] = due * stay
                 stay = (1.0 - due) * stay
                 clocks[k] = np.maximum(clock - t[3], 0.0)  # the time in the mode entered, exactly
@@ -336,9 +342,11 @@ class ModeDecoder:
             m[:, row] = np.where(dwell >= 0, dwell, np.where(dwell == -1.0, np.minimum(m[:, row], dt * (1 - 1 / 8)),
                                                                m[:, row]))
             m[:, row] = np.where(np.isfinite(m[:, row]), m[:, row], 0.0)
-            exact = dwell >= 0  # (an entry within the step, or a stay not knowing when: the variance the update left)
-            P[exact, row, :] = 0.0
-            P[exact, :, row] = 0.0
+            exact = dwell >= 0  # (a stay not knowing when it entered: the variance it had)
+            within = dwell == -1.0  # an entry somewhere within the step: uniform over it
+            P[exact | within, row, :] = 0.0
+            P[exact | within, :, row] = 0.0
+            P[within, row, row] = dt * dt / 12.0
         logw = self.logw[parents] + logp + np.where(np.isfinite(loglik), loglik, -np.inf)
         history = np.concatenate([self.history[parents], targets[:, None]], axis=1) if self.decide else \
             self.history[parents]

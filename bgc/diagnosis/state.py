@@ -38,10 +38,10 @@ from .options import DiagnosisOptions
 from .values import Detection, Isolation
 
 #: The state's format; a state of another format is refused.
-VERSION = 7  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
+VERSION = 8  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
 # parameters of faults accommodated (2026-12-04); 5: the detector's other families of tests (2026-12-04); 6: their
 # residuals in units of the sensors' noise, and what the readings tell (2026-12-04); 7: the pooled test's sums of
-# the residuals' predicted correlation (2026-12-04)
+# the residuals' predicted correlation (2026-12-04); 8: the options' no_fault (2026-12-04)
 #: The first bytes of a state file.
 MAGIC = b"bgc-diagnoser-state\n"
 

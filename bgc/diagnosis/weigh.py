@@ -64,7 +64,7 @@ def weighed(hyps: tuple[Hypothesis, ...], posteriors: dict, r, s, null: float | 
         hyps, more = at_bounds(hyps, prior_of, T, lambda h: h.name in candidates)
         events += more
     if p0 is not None:
-        decided, candidates, more = no_fault(hyps, decided, candidates, p0, o.isolation_level, T)
+        decided, candidates, more = no_fault(hyps, decided, candidates, p0, o.isolation_level, T, o.bayes_factor)
         events += more
     return hyps, decided, candidates, events + notes(hyps, decided, candidates, T)
 
@@ -140,7 +140,7 @@ def posterior(hyps: tuple[Hypothesis, ...], evidence_of: dict, priors: dict, bay
 
 
 def no_fault(hyps: tuple[Hypothesis, ...], decided: str, candidates: tuple[str, ...], p0: float, level: float,
-             T: int) -> tuple[str, tuple[str, ...], list]:
+             T: int, bayes_factor: float = math.inf) -> tuple[str, tuple[str, ...], list]:
     """The verdict with no fault weighed (its posterior ``p0``, beside the
     hypotheses' own): its share of the posterior of it and every fault
     weighed, whatever dropped them (a fault that failed its fit test but
@@ -148,17 +148,21 @@ def no_fault(hyps: tuple[Hypothesis, ...], decided: str, candidates: tuple[str, 
     the nominal model's). A share of at least ``level`` is the verdict "no
     fault" (the alarm a false one); over 1 - ``level``, "isolated" cannot be
     promised and is "ambiguous", and a verdict says it with a
-    :class:`~bgc.events.NoFault` event. Returns (the verdict, its
-    candidates, the events)."""
+    :class:`~bgc.events.NoFault` event. An "unexplained" verdict every
+    fault of which is at least ``bayes_factor`` times less probable than no
+    fault is "no fault" too (many faults each far less probable can hold
+    more than 1 - ``level`` together, but none explains the data). Returns
+    (the verdict, its candidates, the events)."""
     weighed_ = [h for h in hyps if math.isfinite(h.posterior)]
     total = p0 + sum(h.posterior for h in weighed_)
-    mass = p0 / total if total > 0 else 1.0
-    if mass <= 1.0 - level:
+    mass = p0 / total if total > 0 and math.isfinite(total) else 0.0
+    outweighed = decided == "unexplained" and p0 > 0 and all(h.posterior * bayes_factor <= p0 for h in weighed_)
+    if mass <= 1.0 - level and not outweighed:
         return decided, candidates, []
     best = max(weighed_, key=lambda h: h.posterior, default=None)
     factor = math.log(best.posterior / p0) if best is not None and best.posterior > 0 and p0 > 0 else -math.inf
     name = None if best is None else best.name
-    if mass >= level:
+    if mass >= level or outweighed:
         return "no fault", (), [ev.NoFault(mass, name, factor, level, True, T - 1)]
     return ("ambiguous" if decided == "isolated" else decided), candidates, [
         ev.NoFault(mass, name, factor, level, False, T - 1)]

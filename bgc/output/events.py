@@ -159,6 +159,9 @@ def sentence(e, time_of) -> str:
                 did = "closed by the repair"
             elif act == "not accommodated":
                 did = "not accommodated (no parameter of the model holds it): watching again on the model as it was"
+            elif why == "false alarm":
+                did = ("no fault explains the data better than chance (a false alarm the detector's budget allows): "
+                       "watching again on the model as it was")
             elif why == "memory":
                 did = ("not decided before its record reached the most this diagnosis holds in memory: watching "
                        "again on the model as it was")

@@ -84,7 +84,7 @@ class Episodes:
         """Whether checkpoint diagnosis ``c`` at time ``now`` closes the open episode."""
         if self.alarm is None:
             return False
-        return c.verdict == "isolated" or frozen_unsized(c) is not None \
+        return c.verdict in ("isolated", "no fault") or frozen_unsized(c) is not None \
             or (self.rearm is not None and now - self.alarm[0] >= self.rearm)
 
     def close(self, c, d, now: float, sensors: list[str], full: bool = False):
@@ -126,8 +126,8 @@ class Episodes:
         finding = frozen_finding(parameter) if e is None and action == "sensor out" else \
             "" if e is None else fault_sentence(e, c.onset, self.per_time)
         alarm, sensor = self.alarm
-        reason = ("" if action != "re-armed" else "memory" if full else "rearm" if c.verdict != "isolated"
-                  else "no estimate")
+        reason = ("" if action != "re-armed" else "false alarm" if c.verdict == "no fault" else "memory" if full
+                  else "rearm" if c.verdict != "isolated" else "no estimate")
         closed = ev.EpisodeClosed(number, alarm, sensor, now, c.verdict, tuple(c.candidates), c.onset, finding,
                                   action, parameter, value, None, appearance, self.present(parameter), reason)
         self.log.append(closed)
