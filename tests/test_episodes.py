@@ -207,3 +207,23 @@ def test_the_fault_log_is_in_words():
 def test_the_docs_example_is_this_plants_run():
     text = (ROOT / "docs" / "examples" / "circuit_two_faults.csv").read_text(encoding="utf-8")
     assert "\n".join(line for line in text.splitlines() if not line.startswith("#")) + "\n" == plant(600, TWO)
+
+
+def test_a_checkpoints_no_fault_after_an_alarm_closes_the_episode_as_a_false_alarm():
+    """A checkpoint's verdict "no fault" while an alarm is open (no fault
+    weighed beside the faults, bgc.diagnosis.weigh.no_fault) closes the
+    episode: the monitor re-arms on the model as it was, the reason said;
+    "ambiguous" does not (it waits for --rearm)."""
+    from types import SimpleNamespace
+
+    from bgc.output.events import sentence
+    from bgc.service.episodes import Episodes
+
+    log = Episodes(base=None)
+    log.alarm = (12.5, "f6")
+    assert log.due(SimpleNamespace(verdict="no fault"), 13.0)
+    assert not log.due(SimpleNamespace(verdict="ambiguous"), 13.0)
+    e = ev.EpisodeClosed(1, 12.5, "f6", 13.0, "no fault", (), None, "", "re-armed", reason="false alarm")
+    assert sentence(e, None) == ("episode 1 closed at t = 13 (alarm at t = 12.5 on f6): no fault; no fault explains "
+                                 "the data better than chance (a false alarm the detector's budget allows): "
+                                 "watching again on the model as it was")
