@@ -538,3 +538,36 @@ def test_ljung_box_against_its_formula_and_its_power():
     holed[100] = np.nan
     q_holed, count = residuals.ljung_box([holed], h)
     assert count == n - 1 and abs(q_holed - q) < 0.1 * q
+
+
+def test_a_maximum_by_its_own_test_is_converged_whatever_the_optimisers_flag(monkeypatch):
+    """L-BFGS-B's line search can end "abnormally" on a likelihood that is not
+    smooth at the finite differences' scale (a model's switches) while at its
+    maximum: the fit is converged when the gradient and the Hessian say a
+    maximum (a Newton step under 0.01), the optimiser's message kept; and not
+    when they do not, whatever the optimiser says."""
+    import scipy.optimize
+    from types import SimpleNamespace
+
+    def lik(z):  # a concave quadratic, its maximum at (1, -2)
+        return -float(3.0 * (z[0] - 1.0) ** 2 + 0.5 * (z[1] + 2.0) ** 2 + 0.2 * (z[0] - 1.0) * (z[1] + 2.0))
+
+    def stops_at(x):
+        def minimize(fun, x0, **kwargs):
+            return SimpleNamespace(x=np.asarray(x, dtype=float), success=False,
+                                   message="ABNORMAL_TERMINATION_IN_LNSRCH")
+        return minimize
+
+    monkeypatch.setattr(scipy.optimize, "minimize", stops_at([1.0, -2.0]))
+    z, best, H, converged, message = cal._fit(lik, np.array([0.5, 0.0]))
+    assert converged and message.startswith("ABNORMAL_TERMINATION_IN_LNSRCH; at a maximum")
+    assert z == pytest.approx([1.0, -2.0], abs=1e-6)
+    assert np.allclose(H, [[6.0, 0.2], [0.2, 1.0]], rtol=1e-3)  # the negative log-likelihood's, by hand
+    # stopped short of the maximum (a Newton step of 0.3): not converged, whatever the flag
+    monkeypatch.setattr(scipy.optimize, "minimize", stops_at([1.3, -2.0]))
+    monkeypatch.setattr(cal, "_gradient", lambda f, z, h: np.array([1.8, 0.06]))  # the gradient at (1.3, -2)
+    monkeypatch.setattr(cal, "_hessian", lambda f, z, h, value: (np.array([1.8, 0.06]),
+                                                                np.array([[6.0, 0.2], [0.2, 1.0]])))
+    *_, converged, message = cal._fit(lambda z: lik(np.asarray(z)) if np.all(np.abs(np.asarray(z) - [1.3, -2.0]) < 1e-9)
+                                      else -math.inf, np.array([0.5, 0.0]))
+    assert not converged and message.startswith("no maximum reached")

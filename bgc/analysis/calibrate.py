@@ -174,7 +174,8 @@ class Calibration:
     correlation matrix of the identifiable estimates (``correlation``, in the
     order of ``correlated``), the ``innovations`` per sensor, the
     recordings' ``sources`` and ``samples`` (rows read), whether the
-    optimiser ``converged`` and its ``message``, the likelihood
+    fit ``converged`` (a maximum by the gradient and the Hessian, whatever
+    the optimiser's own flag) and the optimiser's ``message``, the likelihood
     ``evaluations`` and the ``seconds`` it took; ``residuals``: per
     recording, the calibrated model's normalised residuals (steps, sensors
     ``outputs``; NaN: not read), what the innovations sum up, at the
@@ -509,7 +510,14 @@ def _fit(lik: _Likelihood, z0: np.ndarray, stop=None) -> tuple[np.ndarray, float
                 break
             g = _gradient(neg, z, _steps(z))
         inside = np.array([lo + 1e-7 < v < hi - 1e-7 for v, (lo, hi) in zip(z, bounds)])
-        if _at_maximum(g[inside], H[np.ix_(inside, inside)]) or (stop is not None and stop(z)):
+        if _at_maximum(g[inside], H[np.ix_(inside, inside)]):
+            # a maximum by its own test, whatever the optimiser's flag (a likelihood through a model's switches
+            # is not smooth at the finite differences' scale, and L-BFGS-B's line search can end "abnormally"
+            # on it at a maximum)
+            said = str(res.message)
+            return z, best, H, True, said if res.success else (
+                f"{said}; at a maximum by the gradient and the Hessian (a Newton step under 0.01)")
+        if stop is not None and stop(z):
             return z, best, H, bool(res.success), str(res.message)
     return z, best, H, False, f"no maximum reached after {RESTARTS + 1} starts ({res.message})"
 
