@@ -85,7 +85,7 @@ def test_false_alarms_on_another_simulators_fault_free_runs_name_no_fault(tmp_pa
     Bayes factor of about 20 over the prior's odds to be isolated)."""
     options = DiagnosisOptions(false_alarm=0.3)
     alarmed, verdicts = 0, []
-    for seed in range(12):
+    for seed in range(6):  # (seeds 102, 104 and 105 alarm)
         plant_csv(tmp_path / "run.csv", 100 + seed, 0.0, 1.0)
         d = bgc.diagnose(fast_session("circuit"), tmp_path / "run.csv", options=options).diagnosis
         if d.detection is None:
