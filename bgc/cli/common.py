@@ -143,12 +143,9 @@ def write_report(r, output: str, command: str) -> Path:
     print(f"{r.model}: {d.verdict}" + (f": {', '.join(d.candidates)}" if d.candidates else ""))
     if d.detection is not None:
         test = "" if d.detection.test == "mean" else f", the {d.detection.test} test"
-        if d.onset is None:  # no fault after the alarm: a false one
-            print(f"  alarm at t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}{test}): "
-                  f"no fault explains the data better than chance")
-        else:
-            print(f"  detected at t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}{test}), "
-                  f"onset t = {events.time_text(d.onset)}")  # a logger's Unix time in full
+        at = f"t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}{test})"  # Unix time in full
+        print(f"  alarm at {at}: no fault explains the data better than chance" if d.onset is None  # a false one
+              else f"  detected at {at}, onset t = {events.time_text(d.onset)}")
     for line in report.plain_words(d, r.labels):
         print(f"  {printable(line)}")
     e = d.estimate

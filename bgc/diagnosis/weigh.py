@@ -35,11 +35,8 @@ def weighed(hyps: tuple[Hypothesis, ...], posteriors: dict, r, s, null: float | 
     verdict, its candidates, the events)."""
     o, T = s.options, len(r.time)
     hyps, evidence_of, static, events = static_evidence(hyps, posteriors, s.ckf, T)
-    p0 = None
-    if static and null is not None:
-        hyps, weights, p0 = posterior(hyps, evidence_of, s.priors, o.bayes_factor, static, T, null, s.horizon)
-    else:
-        hyps, weights, _ = posterior(hyps, evidence_of, s.priors, o.bayes_factor, static, T)
+    hyps, weights, p0 = posterior(hyps, evidence_of, s.priors, o.bayes_factor, static, T,
+                                  null if static else None, s.horizon)
     grids: dict = {}
     if o.rank and not static and sum(h.drop is None for h in hyps) > 1:  # 7. by their static evidence
         s.say(f"weighing {', '.join(h.name for h in hyps if h.drop is None)} with their magnitudes held static, "
