@@ -22,8 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .compiler import (causality, codegen, dbn, equations, hybrid_codegen, load, modes, numerics, signatures, tcg,
-                       validate)
+from .compiler import (causality, codegen, dbn, decompose, equations, hybrid_codegen, load, modes, numerics,
+                       signatures, tcg, validate)
 from .errors import CodegenError
 from .ir import (
     BondGraph, CausalBondGraph, DbnModel, FaultSignatures, GeneratedPackage, Numerics, RawModel,
@@ -110,6 +110,38 @@ def compile_model(path: str | Path, prior_scale: float = 1.0, *, text: str | Non
     return Compiled(raw, model, causal, graph, ssm, sigs, dbns, num, package)
 
 
+@dataclass(frozen=True, slots=True)
+class Decomposed:
+    """A model split into submodels (``bgc compile --decompose``): the
+    whole model's file, IR and numbers, its :class:`~bgc.compiler.decompose.Decomposition`,
+    and each submodel compiled (``parts``, in the same order)."""
+
+    raw: RawModel
+    model: BondGraph
+    numerics: Numerics
+    decomposition: decompose.Decomposition
+    parts: tuple[Compiled, ...]
+
+
+def decompose_model(path: str | Path, prior_scale: float = 1.0, *, text: str | None = None) -> Decomposed:
+    """The model split into minimal submodels, each compiled with its own
+    faults (:mod:`bgc.compiler.decompose`): the whole model is compiled as
+    far as its numbers only (no fault model of the whole plant is
+    generated), each submodel to its package. A submodel's errors name it
+    as ``submodels/<name>.yaml``, the file ``bgc compile --decompose``
+    writes."""
+    raw = load.load(path) if text is None else load.loads(text, str(path))
+    model = validate.validate(raw)
+    if model.modes is not None:
+        raise CodegenError(f"model {model.name} has modes: --decompose takes a model of one mode", model.source,
+                           "drop --decompose")
+    ssm = equations.derive(tcg.build(causality.assign(model)))
+    num = numerics.derive(dbn.build(ssm), prior_scale)
+    d = decompose.decompose(raw, num)
+    parts = tuple(compile_model(f"submodels/{s.name}.yaml", prior_scale, text=s.text) for s in d.submodels)
+    return Decomposed(raw, model, num, d, parts)
+
+
 def check_model(path: str | Path) -> Compiled | Hybrid:
     """What ``bgc check`` checks: every stage of a model of one mode
     (:func:`compile_model`), or each mode's causality and equations of a
@@ -140,6 +172,21 @@ def generated_files(c: Compiled) -> dict[str, str]:
     if c.modes:
         return artifacts.hybrid_folder_files(c.model, c.modes, c.package, c.mode_numerics)
     return artifacts.folder_files(c.dbn, c.signatures, c.package)
+
+
+def decomposed_files(d: Decomposed) -> dict[str, str]:
+    """The text files of ``generated/<model>/`` written by ``bgc compile
+    --decompose``: the decomposition, each submodel's file and folder under
+    ``submodels/``, the manifest."""
+    from .output import artifacts
+
+    return artifacts.decomposed_folder_files(d.model, d.decomposition, d.parts)
+
+
+def decomposed_pictures(d: Decomposed, engine: str = "auto") -> dict[str, bytes]:
+    """The SVG pictures of each submodel, under ``submodels/<name>/``."""
+    return {f"submodels/{s.name}/{name}": data for s, part in zip(d.decomposition.submodels, d.parts)
+            for name, data in pictures(part, engine).items()}
 
 
 def pictures(c: Compiled, engine: str = "auto") -> dict[str, bytes]:

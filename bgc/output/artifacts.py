@@ -104,6 +104,28 @@ def hybrid_folder_files(model, modes, package: GeneratedPackage, numerics) -> di
     return _with_package(files, package, model, sorted(pictures))
 
 
+def decomposed_folder_files(model, decomposition, parts) -> dict[str, str]:
+    """Every deterministic text file of ``generated/<model>/`` for a model
+    split into submodels (``bgc compile --decompose``): ``decomposition.txt``
+    and ``.json``, and per submodel ``submodels/<name>.yaml`` (its model
+    file) and ``submodels/<name>/`` (its stages and packages)."""
+    src = model.display_source
+    files: dict[str, str] = {
+        "decomposition.txt": header("#", src) + render.decomposition_text(decomposition, parts),
+        "decomposition.json": render.to_json(render.decomposition_json(decomposition, parts)),
+    }
+    pictures: list[str] = []
+    for s, c in zip(decomposition.submodels, parts):
+        files[f"submodels/{s.name}.yaml"] = s.text
+        for rel, text in folder_files(c.dbn, c.signatures, c.package).items():
+            if rel != MANIFEST:
+                files[f"submodels/{s.name}/{rel}"] = text
+        pictures += [f"submodels/{s.name}/{rel}" for rel in picture_names(c.dbn)]
+    files[MANIFEST] = manifest(files, "compile", model=model.name, source=model.display_source,
+                               source_sha256=model.source_sha256, decomposed=True, pictures=sorted(pictures))
+    return dict(sorted(files.items()))
+
+
 def _with_package(files: dict[str, str], package: GeneratedPackage, model, pictures: list[str]) -> dict[str, str]:
     """``files`` with the package's and the manifest, sorted by path."""
     for rel, text in package.files:

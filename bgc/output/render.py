@@ -858,3 +858,34 @@ def distinguishability_json(r) -> dict:
                         "onset_sample": x.onset, "magnitude": x.magnitude} for x in d.rivals],
         } for d in r.distinctions],
     }
+
+
+def decomposition_json(d, parts) -> dict:
+    """A model's submodels (:class:`bgc.compiler.decompose.Decomposition`) as
+    plain data, each with its compiled states (``parts``: the submodels compiled)."""
+    return {"model": d.model, "submodels": [
+        {"name": s.name, "predicts": list(s.outputs), "reads": list(s.reads),
+         "reads_as": dict(s.read_as), "inputs": list(s.inputs), "elements": list(s.elements),
+         "states": [{"state": x, "element": el} for x, el in zip(c.equations.states, c.equations.state_elements)],
+         "faults": list(s.faults), "fault_models": [f.name for f in c.dbn.faulty]}
+        for s, c in zip(d.submodels, parts)]}
+
+
+def decomposition_text(d, parts) -> str:
+    """What ``decomposition.txt`` says: per submodel, what it predicts from
+    what, its states and the faults it can see."""
+    n = max((len(c.equations.states) for c in parts), default=0)
+    lines = [f"{d.model}: {len(d.submodels)} submodel(s), the largest with {n} state(s); each predicts its "
+             "sensors from the plant's inputs and the readings of the sensors around it", ""]
+    for s, c in zip(d.submodels, parts):
+        states = ", ".join(f"{x} ({el})" for x, el in zip(c.equations.states, c.equations.state_elements))
+        read = {r: a for r, a in s.read_as}
+        reads = ", ".join(r if a == r else f"{r} (as input {a})" for r, a in read.items())
+        lines.append(f"{s.name}: predicts {', '.join(s.outputs)}" + (f" from {reads}" if reads else ""))
+        if s.inputs:
+            lines.append(f"  plant inputs: {', '.join(s.inputs)}")
+        lines.append(f"  states: {states}")
+        lines.append(f"  elements: {', '.join(s.elements)}")
+        lines.append(f"  faults it sees: {', '.join(s.faults) if s.faults else 'none'} "
+                     f"({len(c.dbn.faulty)} fault model(s))")
+    return "\n".join(lines) + "\n"
