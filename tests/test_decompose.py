@@ -214,3 +214,25 @@ def test_bgc_compile_decompose_writes_each_submodel_as_a_model_file_and_its_fold
     assert again.returncode == 0, again.stderr
     r = bgc_cli("compile", str(ROOT / "docs" / "examples" / "relay.yaml"), "--decompose", "-o", str(tmp_path / "x"))
     assert r.returncode == 1 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+
+
+def test_a_submodel_s_noise_is_the_whole_plant_s_where_its_scales_differ():
+    """A chain that starts empty: the scales of a submodel's signals come from its own nominal run,
+    not the plant's, yet each sensor's std is the whole model's, and each state's the whole model's
+    raised by what its read sensors bring (dt |df/dy| sigma, df/dy = 1/(R C) for a tank's neighbour)."""
+    text = CHAIN.replace(", initial: 4.5}", "}").replace(", initial: 2.5}", "}").replace(", initial: 1.5}", "}")
+    whole = compile_model("chain3.yaml", text=text)
+    d = decompose.decompose(whole.raw, whole.numerics)
+    sensor = dict(zip(whole.equations.outputs, whole.numerics.noise.measurement))
+    state = dict(zip(whole.equations.state_elements, whole.numerics.noise.process))
+    R = {"R1": 2.0, "R2": 1.0, "R3": 1.5}
+    C = {"C1": 1.0, "C2": 2.0, "C3": 0.5}
+    neighbours = {"C1": [("p2", "R1")], "C2": [("p1", "R1"), ("p3", "R2")], "C3": [("p2", "R2")]}
+    for s in d.submodels:
+        part = compile_model(f"{s.name}.yaml", text=s.text)
+        noise = part.numerics.noise
+        for name, std in zip(part.equations.outputs, noise.measurement):
+            assert std == pytest.approx(sensor[name], rel=1e-8)
+        for el, std in zip(part.equations.state_elements, noise.process):
+            extra = 0.5 * math.hypot(*(sensor[y] / (R[r] * C[el]) for y, r in neighbours[el]))
+            assert std == pytest.approx(math.hypot(state[el], extra), rel=1e-8)

@@ -26,14 +26,21 @@ holding all its bonds, or by one of its own reached from them.
 
 Each submodel is written as a model file of its own (:attr:`Submodel.text`):
 the whole model's parameters, inputs and elements it holds, with their
-faults; the storages start from the whole model's initial state; a measured
-input starts at the whole model's nominal reading. A fault of a sensor read
-as an input becomes a fault of that input (a bias or a drift of the reading
-is one of the value delivered: an actuator's). The reading's noise enters
-the submodel's states through the input: each storage's process noise is
-raised by the reading's std times the state's sensitivity to it and the
-sample period (``dt |df/dy| sigma``, the input held over a sample), written
-as the storage's ``noise`` level, so the file says what its filter assumes.
+faults; the storages start from the whole model's initial state; a read
+sensor is a constant input at the whole model's size of its reading (its
+first value, or its largest over the nominal run when that is 0), the point
+the submodel's scales and priors are taken at. A fault of a sensor read as
+an input becomes a fault of that input (a bias or a drift of the reading is
+one of the value delivered: an actuator's). Noise levels are fractions of a
+signal's scale, and a submodel's scales need not be the whole plant's: each
+storage's and each sensor's level is written so that its absolute std is
+the whole model's, each storage's raised by the noise its read sensors
+carry into it (``dt |df/dy| sigma``: the reading's std times the state's
+sensitivity to it and the sample period, the input held over a sample). The
+file says what its filter assumes.
+
+A law that reads a bond variable a sensor measures beyond the submodel's
+cuts reads the sensor instead.
 
 A model with modes, or an element whose law reads a bond variable outside
 its submodel (a modulated source), is refused with a located error.
@@ -315,7 +322,7 @@ def _submodel(c: _Whole, graph: _Graph, sensors: tuple[str, ...], nodes: frozens
     taken = parameters | inputs | set(graph.kind) | set(measurements)
     read_as = {r: _input_name(r, taken) for r in reads}
     num = c.numerics
-    y0 = dict(zip(c.equations.outputs, num.y0))
+    y_scale = dict(zip(c.equations.outputs, num.y_scale))
     initial = dict(zip(c.equations.state_elements, c.equations.initial))
 
     data: dict[str, Any] = {"name": name,
@@ -327,7 +334,7 @@ def _submodel(c: _Whole, graph: _Graph, sensors: tuple[str, ...], nodes: frozens
     data["inputs"] = {i: raw["inputs"][i] for i in raw.get("inputs", {}) if i in used & inputs}
     for r in reads:
         m = measurements[r]
-        entry: dict[str, Any] = {"signal": "constant", "value": _number(y0[r]),
+        entry: dict[str, Any] = {"signal": "constant", "value": _number(y_scale[r]),
                                  "description": f"sensor {r} of {model.name}, read as an input"}
         if m.unit:
             entry["unit"] = m.unit
@@ -381,8 +388,7 @@ def _submodel(c: _Whole, graph: _Graph, sensors: tuple[str, ...], nodes: frozens
         data["faults"] = faults
     if "simulation" in raw:
         data["simulation"] = dict(raw["simulation"])
-    if reads:
-        _input_noise(c, data, read_as)
+    _noise_levels(c, data, read_as)
     text = (f"# A submodel of {model.name} ({model.display_source}), written by bgc compile --decompose:\n"
             f"# it predicts {', '.join(sensors)}" + (f" and reads {', '.join(reads)} as inputs" if reads else "")
             + ".\n" + yaml.safe_dump(data, sort_keys=False, width=120, allow_unicode=True,
@@ -401,31 +407,34 @@ def _input_name(sensor: str, taken: set[str]) -> str:
     return name
 
 
-def _input_noise(c: _Whole, data: dict, read_as: dict[str, str]) -> None:
-    """Raise each storage's process-noise level by the noise its measured
-    inputs carry into it (module docstring), in place."""
-    from . import dbn, equations, load, numerics, tcg, validate, causality
+def _noise_levels(c: _Whole, data: dict, read_as: dict[str, str]) -> None:
+    """Write each storage's and each sensor's noise level (in place) so that
+    the submodel's absolute noise stds are the whole model's, each storage's
+    raised by the noise its read sensors carry into it (module docstring):
+    the levels are fractions of a signal's scale, and a submodel's scales
+    (from its own nominal run) need not be the whole plant's."""
+    from . import causality, dbn, equations, load, numerics, tcg, validate
 
     text = yaml.safe_dump(data, sort_keys=False)
     sub = validate.validate(load.loads(text, f"<submodel {data['name']}>"))
     ssm = equations.derive(tcg.build(causality.assign(sub)))
     num = numerics.derive(dbn.build(ssm))
     whole = c.numerics
-    sigma = {m.name: m.noise * s for m, s in zip(c.model.measurements, whole.y_scale)}
+    noise = whole.noise
+    sigma = dict(zip(c.equations.outputs, noise.measurement))
+    own = dict(zip(c.equations.state_elements, noise.process))
     point = {sym(p): v for p, v in zip(ssm.parameters, ssm.parameter_values)}
     point.update({sym(i.name): v for i, v in zip(sub.inputs, num.u0)})
     point.update({sym(x): v for x, v in zip(ssm.states, ssm.initial)})
     dt = sub.settings.dt
-    default = sub.settings.process_noise
-    for i, (x, rhs, el) in enumerate(zip(ssm.states, ssm.rhs, ssm.state_elements)):
+    for i, (rhs, el) in enumerate(zip(ssm.rhs, ssm.state_elements)):
         extra = math.sqrt(sum((_slope(rhs, sym(a), point) * sigma[r] * dt) ** 2 for r, a in read_as.items()))
-        if extra == 0.0:
-            continue
         scale = num.x_scale[i] * num.process_factor[i]
-        own = num.process_levels[i]
-        level = default if own is None else own
-        new = float(np.hypot(level * scale, extra) / scale)
-        data["elements"][el]["noise"] = _number(new)
+        data["elements"][el]["noise"] = _number(float(np.hypot(own[el], extra)) / scale)
+    for name, scale in zip(ssm.outputs, num.y_scale):
+        entry = data["measurements"][name]
+        entry = {"expr": entry} if isinstance(entry, str) else entry
+        data["measurements"][name] = {**entry, "noise": _number(sigma[name] / scale)}
 
 
 def _slope(expr, x, point: dict) -> float:
