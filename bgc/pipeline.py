@@ -111,6 +111,31 @@ def compile_model(path: str | Path, prior_scale: float = 1.0, *, text: str | Non
 
 
 @dataclass(frozen=True, slots=True)
+class Analysed:
+    """A model of one mode compiled as far as its signatures: what
+    ``bgc analyse``'s structural and qualitative levels read (no package is
+    generated: on a large plant that is most of a compilation)."""
+
+    raw: RawModel
+    model: BondGraph
+    equations: StateSpaceModel
+    signatures: FaultSignatures
+    modes: tuple = ()
+
+
+def analysis_model(path: str | Path) -> Analysed | Compiled:
+    """What ``bgc analyse`` reads of a model: its stages as far as the
+    signatures (:class:`Analysed`), or every stage of a model with modes
+    (:func:`compile_model`: each mode's signatures)."""
+    raw = load.load(path)
+    model = validate.validate(raw)
+    if model.modes is not None:
+        return compile_model(path, text=None)
+    ssm = equations.derive(tcg.build(causality.assign(model)))
+    return Analysed(raw, model, ssm, signatures.derive(ssm))
+
+
+@dataclass(frozen=True, slots=True)
 class Decomposed:
     """A model split into submodels (``bgc compile --decompose``): the
     whole model's file, IR and numbers, its :class:`~bgc.compiler.decompose.Decomposition`,

@@ -129,6 +129,21 @@ def test_the_two_tanks_signatures_by_hand():
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("path", PLANTS, ids=lambda p: p.name)
+def test_the_pairs_the_signatures_cannot_tell_apart_are_worked_out_at_once_as_one_by_one(path):
+    """The qualitative level finds the pairs of signatures nothing refutes for all pairs at once
+    (``isolability._alike``, arrays); each pair is checked against the rule read one pair at a time
+    (``isolability._refutes``, which says why)."""
+    from bgc.pipeline import analysis_model
+
+    sigs = analysis_model(path).signatures
+    every = sigs.signatures
+    alike = isolability._alike(every)
+    for a, sa in enumerate(every):
+        for b, sb in enumerate(every):
+            assert alike[a, b] == (isolability._refutes(sa, sb, sigs.measurements) is None), (sa.name, sb.name)
+
+
 def test_the_quantitative_level_is_bgc_distinguishs():
     """At the model's noise and constant inputs the capacitances change
     nothing at steady state (bgc check warns of it): not detected; every

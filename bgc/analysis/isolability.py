@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import networkx as nx
+import numpy as np
 
 from ..ir import FaultSignatures, Signature, expected_slope, first_symbol
 from . import structure
@@ -90,19 +91,23 @@ def structural(ssm, faults: Sequence[str], sensors: Mapping[str, str] | None = N
     return Level("structural", detectable, matrix, why), model
 
 
-def _refutes(a: Signature, b: Signature, measurements: Sequence[str]) -> str | None:
+def _read(s: Signature) -> tuple[tuple[str, str], ...]:
+    """Per sensor, the symbol fault ``s`` shows first and the slope after it."""
+    return tuple((first_symbol(x), expected_slope(x)) for x in s.symbols)
+
+
+def _refutes(a: Signature, b: Signature, measurements: Sequence[str], read=_read) -> str | None:
     """How fault ``a``'s symbols, once every sensor shows them, rule ``b``
     out (None: they cannot): a sensor one of them moves and the other does
     not, or moves the other way, or whose slope differs. A ``?`` (a stuck or
-    noisy reading: either sign, or none) rules out nothing."""
-    for m, sa, sb in zip(measurements, a.symbols, b.symbols):
-        fa, fb = first_symbol(sa), first_symbol(sb)
+    noisy reading: either sign, or none) rules out nothing. ``read``: each
+    signature's symbols per sensor (:func:`_read`, or a cache of it)."""
+    for m, (fa, ka), (fb, kb) in zip(measurements, read(a), read(b)):
         if "?" in (fa, fb):
             continue
         if fa != fb:
             return f"{m} moves {fa} under {a.name}, {fb} under {b.name}" if "0" not in (fa, fb) else \
                 f"{m} moves under {a.name if fb == '0' else b.name} only"
-        ka, kb = expected_slope(sa), expected_slope(sb)
         if ka in ("+", "-") and kb in ("+", "-") and ka != kb:
             return f"{m}'s slope is {ka} under {a.name}, {kb} under {b.name}"
     return None
@@ -110,12 +115,19 @@ def _refutes(a: Signature, b: Signature, measurements: Sequence[str]) -> str | N
 
 def qualitative(signatures: FaultSignatures, faults: Sequence[str]) -> Level:
     """The qualitative level: the signatures of each fault parameter (every
-    kind and direction) against each other's."""
-    by = {p: [s for s in signatures.signatures if s.parameter == p] for p in faults}
+    kind and direction) against each other's. Which pairs of signatures
+    :func:`_refutes` cannot tell apart is worked out for every pair at once
+    (arrays of the symbols each sensor shows first and the slopes after);
+    the reason a pair of faults stays together names the first such pair of
+    their signatures, in the models' order."""
+    every = signatures.signatures
+    by = {p: [k for k, s in enumerate(every) if s.parameter == p] for p in faults}
     ms = signatures.measurements
-    moves = {p: [s for s in by[p] if any(first_symbol(x) != "0" for x in s.symbols)] for p in faults}
+    alike = _alike(every)
+    moving = [any(first_symbol(x) != "0" for x in s.symbols) for s in every]
+    moves = {p: [k for k in by[p] if moving[k]] for p in faults}
     detectable = tuple(bool(moves[p]) for p in faults)
-    why, matrix = {}, []
+    why, matrix, shown = {}, [], {}
     for i, p in enumerate(faults):
         row = []
         if not detectable[i]:
@@ -124,12 +136,35 @@ def qualitative(signatures: FaultSignatures, faults: Sequence[str]) -> Level:
             if i == j or not detectable[i]:
                 row.append(False)
                 continue
-            alike = next(((a, b) for a in moves[p] for b in by[q] if _refutes(a, b, ms) is None), None)
-            row.append(alike is None)
-            if alike is not None:
-                why[i, j] = f"{alike[0].name} and {alike[1].name} show the same symbols: {_shown(alike[0], ms)}"
+            pair = next(((a, b) for a in moves[p] for b in by[q] if alike[a, b]), None)
+            row.append(pair is None)
+            if pair is not None:
+                a, b = pair
+                if a not in shown:
+                    shown[a] = _shown(every[a], ms)
+                why[i, j] = f"{every[a].name} and {every[b].name} show the same symbols: {shown[a]}"
         matrix.append(tuple(row))
     return Level("qualitative", detectable, tuple(matrix), why)
+
+
+_CODES = {"0": 0, "+": 1, "-": 2, "?": 3}
+
+
+def _alike(every: Sequence[Signature]) -> np.ndarray:
+    """``[a, b]``: whether :func:`_refutes` finds nothing that tells
+    signature a from b (every sensor shows both the same first symbol, or a
+    ``?``, and no sensor's slopes differ in sign)."""
+    if not every:
+        return np.zeros((0, 0), bool)
+    read = [_read(s) for s in every]
+    first = np.array([[_CODES[f] for f, _ in r] for r in read], dtype=np.int8).reshape(len(every), -1)
+    slope = np.array([[_CODES[k] for _, k in r] for r in read], dtype=np.int8).reshape(len(every), -1)
+    fa, fb = first[:, None, :], first[None, :, :]
+    ka, kb = slope[:, None, :], slope[None, :, :]
+    either = (fa == 3) | (fb == 3)
+    signed = ((ka == 1) | (ka == 2)) & ((kb == 1) | (kb == 2))
+    told = ~either & ((fa != fb) | (signed & (ka != kb)))
+    return ~told.any(axis=2)
 
 
 def _shown(s: Signature, measurements: Sequence[str]) -> str:

@@ -154,7 +154,7 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
             arguments.real(func, f"costs[{name!r}]", cost, 0.0, math.inf, "a cost >= 0, e.g. 1", low_ok=True)
     from ..analysis import isolability
     from ..compiler import load
-    from ..pipeline import compile_model
+    from ..pipeline import analysis_model
 
     say = progress or (lambda text: None)
     arguments.text(func, "modes", modes, optional=True)
@@ -165,7 +165,7 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     if modes is not None and not hybrid:
         raise ArgumentValueError(f"{func}: modes={modes!r}: {model} has no modes", None, "leave modes out")
     say("compiling the model")
-    c = compile_model(model)
+    c = analysis_model(model)
     faults = tuple(sorted({f.parameter for f in c.model.faults}))
     if not faults:
         raise ArgumentValueError(f"{func}: {c.model.name} declares no fault candidates", None,

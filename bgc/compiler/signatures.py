@@ -50,8 +50,10 @@ Faults whose every symbol is 0 are ``undetectable`` with these sensors.
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass
 
 import networkx as nx
+import numpy as np
 import sympy
 
 from ..ir import FaultSignatures, Signature, StateSpaceModel, sym, var_key
@@ -72,8 +74,8 @@ def derive(ssm: StateSpaceModel, extra: tuple[str, ...] = ()) -> FaultSignatures
     algebraic = nx.DiGraph()
     algebraic.add_nodes_from(g.nodes)
     algebraic.add_edges_from((u, v) for u, v, d in g.edges(data=True) if not d["temporal"])
-    order = _order(algebraic)
-    signatures = []
+    plan = _plan(g, _order(algebraic))
+    entries, jobs = [], []  # per signature: (fault, direction, kind, own symbols or the index of its propagation)
     for fault in model.faults:
         for kind in fault.kinds:
             shift = int(fault_kind(kind).drifts)
@@ -85,12 +87,18 @@ def derive(ssm: StateSpaceModel, extra: tuple[str, ...] = ()) -> FaultSignatures
                         own = ("?",) + ("0",) * depth
                     if fault_kind(kind).noise:  # a noise burst moves no mean: any symbol, at every order
                         own = ("?",) * (depth + 1)
-                    symbols = tuple(own if m == fault.subject else ("0",) * (depth + 1) for m in columns)
+                    entries.append((fault, direction, kind,
+                                    tuple(own if m == fault.subject else ("0",) * (depth + 1) for m in columns)))
                 else:
                     effects = _actuator_effects(g, model, fault, kind) if fault.target == "actuator" else None
-                    dev = _propagate(g, order, fault.parameter, direction, shift, depth, effects)
-                    symbols = tuple(tuple(dev[measured[m]]) for m in columns)
-                signatures.append(Signature(fault.parameter, direction, kind, symbols, _first(columns, symbols)))
+                    entries.append((fault, direction, kind, len(jobs)))
+                    jobs.append(_seeds(g, fault.parameter, direction, shift, depth, effects))
+    dev = _propagate(plan, jobs, depth)
+    signatures = []
+    for fault, direction, kind, symbols in entries:
+        if isinstance(symbols, int):
+            symbols = tuple(tuple(_SYMBOLS[c] for c in dev[plan.index[measured[m]], :, symbols]) for m in columns)
+        signatures.append(Signature(fault.parameter, direction, kind, symbols, _first(columns, symbols)))
     full = {s.name: (s.symbols, s.first) for s in signatures}
     groups = _groups(full)
     orders = next(k for k in range(depth + 1)
@@ -169,12 +177,52 @@ def _actuator_effects(g: nx.DiGraph, model, fault, kind: str) -> dict[str, int |
     return out
 
 
-def _propagate(g: nx.DiGraph, order: list[list[str]], parameter: str, direction: int, shift: int,
-               depth: int, effects: dict[str, int | None] | None = None) -> dict[str, list[str]]:
-    """Symbols of every node at orders 0..depth for one fault; ``effects``:
+#: The qualitative symbols as bits: + and - are one bit each, ? both, so that the qualitative sum
+#: (:func:`qsum`) is a bitwise or.
+_SYMBOLS = ("0", "+", "-", "?")
+_CODE = {c: i for i, c in enumerate(_SYMBOLS)}
+#: :func:`qmul` as a table, by an edge's sign: positive, negative, undetermined (None), zero.
+_TIMES = {1: np.array([0, 1, 2, 3], np.uint8), -1: np.array([0, 2, 1, 3], np.uint8),
+          None: np.array([0, 3, 3, 3], np.uint8), 0: np.array([0, 0, 0, 0], np.uint8)}
+
+
+def _sign(sign) -> int | None:
+    return None if sign is None else (0 if sign == 0 else (1 if sign > 0 else -1))
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """The TCG as :func:`_propagate` sweeps it, read once per model: each
+    node's row (``index``), the temporal edges (tails, heads, signs), and
+    per algebraic group (one variable or the members of a loop, in causal
+    order) its non-state members' rows, each with its algebraic in-edges
+    (tail's row, sign), and how many sweeps it takes."""
+
+    index: dict
+    temporal: tuple[np.ndarray, np.ndarray, tuple]
+    groups: tuple
+
+
+def _plan(g: nx.DiGraph, order: list[list[str]]) -> _Plan:
+    index = {n: i for i, n in enumerate(g.nodes)}
+    edges = [(index[u], index[v], _sign(d["sign"])) for u, v, d in g.edges(data=True) if d["temporal"]]
+    temporal = (np.array([e[0] for e in edges], dtype=np.intp), np.array([e[1] for e in edges], dtype=np.intp),
+                tuple(e[2] for e in edges))
+    groups = []
+    for group in order:
+        members = tuple((index[v], tuple((index[u], _sign(d["sign"])) for u, _, d in g.in_edges(v, data=True)
+                                         if not d["temporal"]))
+                        for v in group if g.nodes[v]["role"] != "state")
+        # a loop is swept until nothing changes (symbols only move up to '?')
+        groups.append((members, 2 * len(group) + 1 if len(group) > 1 else 1))
+    return _Plan(index, temporal, tuple(groups))
+
+
+def _seeds(g: nx.DiGraph, parameter: str, direction: int, shift: int, depth: int,
+           effects: dict[str, int | None] | None = None) -> dict[tuple[str, int], str]:
+    """Where one fault enters the TCG: (node, order) -> symbol; ``effects``:
     where it enters (node -> sign), when not at the nodes that hold the
     parameter."""
-    dev = {n: ["0"] * (depth + 1) for n in g.nodes}
     seeds: dict[tuple[str, int], str] = {}
     for n, d in g.nodes(data=True):
         effect = dict(d.get("effects", ())).get(parameter, 0) if effects is None else effects.get(n, 0)
@@ -183,25 +231,34 @@ def _propagate(g: nx.DiGraph, order: list[list[str]], parameter: str, direction:
         k = shift + (1 if d["role"] == "state" else 0)
         if k <= depth:
             seeds[(n, k)] = qmul(effect, "+" if direction > 0 else "-")
-    temporal = [(u, v, d["sign"]) for u, v, d in g.edges(data=True) if d["temporal"]]
+    return seeds
+
+
+def _propagate(plan: _Plan, jobs: list[dict[tuple[str, int], str]], depth: int) -> np.ndarray:
+    """Symbols (codes of :data:`_SYMBOLS`) of every node at orders 0..depth
+    for each fault's seeds (:func:`_seeds`), all faults at once: nodes x
+    orders x faults. At each order: the seeds, what the integrators carry
+    from the order below, then the algebraic relations in causal order (a
+    node's symbol is its seed plus the sum over its in-edges)."""
+    rows = len(plan.index)
+    seed = np.zeros((rows, depth + 1, len(jobs)), np.uint8)
+    for j, seeds in enumerate(jobs):
+        for (n, k), s in seeds.items():
+            seed[plan.index[n], k, j] |= _CODE[s]
+    dev = np.zeros_like(seed)
+    tails, heads, signs = plan.temporal
     for k in range(depth + 1):
-        for (n, at), s in seeds.items():
-            if at == k:
-                dev[n][k] = qsum(dev[n][k], s)
+        dev[:, k] |= seed[:, k]
         if k > 0:
-            for u, v, sign in temporal:
-                dev[v][k] = qsum(dev[v][k], qmul(sign, dev[u][k - 1]))
-        for group in order:
-            # a loop is swept until nothing changes (symbols only move up to '?')
-            for _ in range(2 * len(group) + 1 if len(group) > 1 else 1):
-                for v in group:
-                    if g.nodes[v]["role"] == "state":
-                        continue
-                    total = seeds.get((v, k), "0")
-                    for u, _, d in g.in_edges(v, data=True):
-                        if not d["temporal"]:
-                            total = qsum(total, qmul(d["sign"], dev[u][k]))
-                    dev[v][k] = total
+            for t, h, sign in zip(tails, heads, signs):
+                dev[h, k] |= _TIMES[sign][dev[t, k - 1]]
+        for members, sweeps in plan.groups:
+            for _ in range(sweeps):
+                for v, ins in members:
+                    total = seed[v, k].copy()
+                    for u, sign in ins:
+                        total |= _TIMES[sign][dev[u, k]]
+                    dev[v, k] = total
     return dev
 
 
@@ -228,7 +285,9 @@ def _structural(ssm: StateSpaceModel) -> tuple[tuple[str, ...], ...]:
     the model as one combination."""
     exprs = list(ssm.rhs) + list(ssm.output_exprs)
     params = sorted({f.parameter for f in ssm.model.faults})
-    grad = {p: [sympy.diff(e, sym(p)) for e in exprs] for p in params}
+    holds = [e.free_symbols for e in exprs]
+    zero = sympy.Integer(0)
+    grad = {p: [sympy.diff(e, sym(p)) if sym(p) in fs else zero for e, fs in zip(exprs, holds)] for p in params}
     constants = {sym(x) for x in ssm.parameters}
     linked = nx.Graph()
     linked.add_nodes_from(params)
