@@ -51,6 +51,8 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--particles", type=int, default=300)
     args = ap.parse_args()
+    if args.tanks < 4:
+        ap.error("--tanks: at least 4 (the scenarios strike the tanks around the middle one)")
     n = args.tanks
     mid = n // 2
     scenarios = ["none", f"R{mid - 1}:abrupt:0.5@50", f"C{mid}:abrupt:-0.4@50", f"p{mid + 1}:bias:0.5@50"]
@@ -79,9 +81,9 @@ def main() -> int:
                     if rep.diagnosis.verdict != "no fault":
                         alarmed.append(f"{s.outputs[0]}:{rep.diagnosis.verdict}")
                 ts = time.perf_counter() - t0
-                names = [a.split(":")[0] for a in alarmed]
-                touched = {s.outputs[0]: set(s.faults) for s in subs}
-                common = sorted(set.intersection(*(touched[x] for x in names))) if names else []
+                names = {f"chain{n}_{a.split(':')[0]}" for a in alarmed}
+                subjects = sorted({f for s in subs for f in s.faults})
+                common = [f for f in subjects if names <= set(d.decomposition.touching(f))] if names else []
                 print(f"{scenario:<22} {seed:>4}  {whole.diagnosis.verdict + ': ' + ', '.join(whole.diagnosis.candidates):<28.28} "
                       f"{tw:>6.1f}  {' '.join(alarmed) or '-':<40.40} {', '.join(common) or '-':<26.26} {ts:>6.1f}",
                       flush=True)

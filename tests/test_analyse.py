@@ -19,6 +19,7 @@ import pytest
 from bgc.analysis import isolability, structure
 from bgc.api.analyse import analyse
 from bgc.compiler import load
+from bgc.pipeline import compile_model
 
 from conftest import ROOT, bgc_cli, compiled
 
@@ -128,7 +129,6 @@ def test_the_two_tanks_signatures_by_hand():
     assert "show the same symbols: F10 + slope +, F12 - slope -, F20 - slope -" in why
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("path", PLANTS, ids=lambda p: p.name)
 def test_the_pairs_the_signatures_cannot_tell_apart_are_worked_out_at_once_as_one_by_one(path):
     """The qualitative level finds the pairs of signatures nothing refutes for all pairs at once
@@ -144,6 +144,7 @@ def test_the_pairs_the_signatures_cannot_tell_apart_are_worked_out_at_once_as_on
             assert alike[a, b] == (isolability._refutes(sa, sb, sigs.measurements) is None), (sa.name, sb.name)
 
 
+@pytest.mark.slow
 def test_the_quantitative_level_is_bgc_distinguishs():
     """At the model's noise and constant inputs the capacitances change
     nothing at steady state (bgc check warns of it): not detected; every
@@ -318,3 +319,20 @@ def test_a_relays_faults_across_its_modes_by_hand():
         assert not open_.detectable[aux] and closed.detectable[aux] and not closed.isolable[aux][load_]
     with pytest.raises(ValueError, match="place_sensors=True for a model with modes is not built yet"):
         analyse(ROOT / "docs" / "examples" / "relay.yaml", quantitative=False, place_sensors=True)
+
+
+def test_a_reading_whose_terms_cancel_is_sized_by_its_largest_term():
+    """A sensor on tank 1's net flow f2 = f_in - (e2 - e7)/R12 - e2/R10 reads 0 at the two tanks'
+    steady state (P1 = 20/9, P2 = 4/3): its noise, a fraction of its size, is a fraction of its largest
+    term, e2/R12 = 10/9, not of the rounding left of the cancellation (the sensor
+    `bgc analyse --place-sensors` proposed had a std of 1e-10)."""
+    text = (ROOT / "models" / "two_tank.yaml").read_text().replace(
+        "measurements:\n", "measurements:\n  net1: {expr: f2, noise: 0.02}\n")
+    c = compile_model("two_tank_net.yaml", text=text)
+    j = c.equations.outputs.index("net1")
+    assert abs(c.numerics.y0[j]) < 1e-6
+    assert c.numerics.y_scale[j] == pytest.approx(2.2222222 / 2.0, rel=1e-12)
+    assert c.numerics.noise.measurement[j] == pytest.approx(0.02 * 2.2222222 / 2.0, rel=1e-12)
+    others = [k for k in range(len(c.equations.outputs)) if k != j]
+    whole = compile_model(ROOT / "models" / "two_tank.yaml")
+    assert [c.numerics.y_scale[k] for k in others] == list(whole.numerics.y_scale)

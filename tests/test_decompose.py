@@ -236,3 +236,53 @@ def test_a_submodel_s_noise_is_the_whole_plant_s_where_its_scales_differ():
         for el, std in zip(part.equations.state_elements, noise.process):
             extra = 0.5 * math.hypot(*(sensor[y] / (R[r] * C[el]) for y, r in neighbours[el]))
             assert std == pytest.approx(math.hypot(state[el], extra), rel=1e-8)
+
+
+
+def test_what_cannot_be_split_is_refused_in_one_line(tmp_path):
+    """A model without sensors; a sensor whose part of the plant holds no storage (a resistor fed by a
+    source, beside a tank with its own sensor): each a located one-line error, no traceback."""
+    r = bgc_cli("compile", str(ROOT / "docs" / "examples" / "rc.yaml"), "--decompose", "-o", str(tmp_path / "o"))
+    assert r.returncode == 1 and r.stderr.count("\n") == 1 and "has no sensors" in r.stderr, r.stderr
+    model = tmp_path / "static.yaml"
+    model.write_text("""\
+name: static
+parameters: {R: 2.0, R2: 1.0, C: 1.0}
+inputs: {V: 1.0}
+elements: {V: {kind: Se}, j: {kind: "1"}, R: {kind: R}, V2: {kind: Se, value: V}, k: {kind: "1"}, R2: {kind: R},
+           C: {kind: C}}
+bonds: {1: [V, j], 2: [j, R], 3: [V2, k], 4: [k, R2], 5: [k, C]}
+measurements:
+  I: {expr: f2}
+  Q: {expr: e5}
+""")
+    r = bgc_cli("compile", str(model), "--decompose", "-o", str(tmp_path / "o"))
+    assert r.returncode == 1 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "static.yaml:8:3" in r.stderr and "sensor I" in r.stderr and "holds no storage" in r.stderr
+
+
+def test_a_sensor_written_as_its_bond_variable_alone_and_a_negative_reading():
+    """``e6:`` alone (the sensor named like the bond variable it reads), and a plant run backwards
+    (the inflow negative, every pressure negative): a read sensor's input starts at the plant's
+    reading, sign included (tank 2 at -2.5 is what tank 1 and tank 3 read)."""
+    text = CHAIN.replace("  p2: {expr: e6, noise: 0.02}", "  e6:").replace("inputs: {f_in: 1.0}",
+                                                                            "inputs: {f_in: -1.0}")
+    for v in ("4.5", "2.5", "1.5"):
+        text = text.replace(f"initial: {v}}}", f"initial: -{v}}}")
+    d = _split(text)
+    assert [s.outputs for s in d.submodels] == [("e6",), ("p1",), ("p3",)]
+    first = yaml.safe_load(d.submodels[1].text)
+    assert first["inputs"]["e6_reading"]["value"] == -2.5
+    assert yaml.safe_load(d.submodels[0].text)["inputs"]["p1"]["value"] == -4.5
+    for s in d.submodels:
+        compile_model(f"{s.name}.yaml", text=s.text)
+
+
+def test_long_names_are_kept_within_what_a_model_file_may_hold():
+    long_name = "a_chain_of_three_tanks_with_a_rather_long_name_for_its_model_file"[:64]
+    text = CHAIN.replace("name: chain3", f"name: {long_name}").replace("p2", "p2_" + "x" * 60)
+    d = _split(text)
+    for s in d.submodels:
+        assert len(s.name) <= 64
+        c = compile_model(f"{s.name}.yaml", text=s.text)
+        assert all(len(el.name) <= 64 for el in c.model.elements)

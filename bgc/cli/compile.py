@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         seconds = time.perf_counter() - start
         if args.decompose:
             n_dbn = sum(1 + len(part.dbn.faulty) for part in d.parts)
-            largest = max(len(part.equations.states) for part in d.parts)
+            largest = max((len(part.equations.states) for part in d.parts), default=0)
             print(f"{printable(str(path))}: wrote {printable(str(outdir))}/ ({len(files)} files: "
                   f"{len(d.parts)} submodels of at most {largest} of its {len(d.numerics.dbn.equations.states)} "
                   f"states, {n_dbn} DBNs{'' if args.no_pictures else ', pictures'}) in {seconds:.2f} s")

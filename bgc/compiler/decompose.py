@@ -11,7 +11,8 @@ The junction (with the same-kind junctions bonded to it: one common effort
 or flow) is a **cut**: the rest of the plant sees it as a source of the
 measured value. A sensor on a bond no such junction holds (an effort across
 a resistor of a 1-junction) cuts the bond itself, through a two-port
-junction of the measured kind put in its middle.
+junction of the measured kind put in its middle (the half at the bond's
+head keeps its number: a storage there keeps its state's name).
 
 The **submodel of a sensor** is the bond graph reached from its cut without
 crossing another sensor's cut; each other cut it touches becomes an effort
@@ -19,19 +20,19 @@ source (a 0-junction's cut) or a flow source (a 1-junction's) of that
 sensor's reading, an input of the submodel. It predicts its own sensor (the
 redundancy that makes a residual), and its states are only the storages
 between its neighbouring cuts: a chain of n measured tanks gives n submodels
-of one state each. Two sensors on one cut share one submodel (the first one
-is the reading the neighbours take). A sensor of an expression over several
+of one state each. Two sensors on one cut share one submodel (the first by
+name is the reading the neighbours take). A sensor of an expression over several
 bonds (``f3 * R10``) cuts nothing; it is predicted by the first submodel
 holding all its bonds, or by one of its own reached from them.
 
 Each submodel is written as a model file of its own (:attr:`Submodel.text`):
 the whole model's parameters, inputs and elements it holds, with their
 faults; the storages start from the whole model's initial state; a read
-sensor is a constant input at the whole model's size of its reading (its
-first value, or its largest over the nominal run when that is 0), the point
-the submodel's scales and priors are taken at. A fault of a sensor read as
-an input becomes a fault of that input (a bias or a drift of the reading is
-one of the value delivered: an actuator's). Noise levels are fractions of a
+sensor is a constant input at the whole model's reading at the initial
+state (for a reading that starts at 0, its value of largest magnitude over
+the nominal run), the point the submodel's scales and priors are taken at.
+A fault of a sensor read as an input becomes a fault of that input (a bias
+or a drift of the reading is one of the value delivered: an actuator's). Noise levels are fractions of a
 signal's scale, and a submodel's scales need not be the whole plant's: each
 storage's and each sensor's level is written so that its absolute std is
 the whole model's, each storage's raised by the noise its read sensors
@@ -65,6 +66,7 @@ import yaml
 
 from ..errors import CodegenError
 from ..ir import Numerics, RawModel, sym
+from . import numerics
 from ..kinds import element_kind
 
 
@@ -79,6 +81,8 @@ class _Whole:
     numerics: Numerics
 
 _BOND_VARIABLE = re.compile(r"([ef])([0-9]+)")
+#: The longest name a model file may give (docs/format.md).
+LONGEST = 64
 #: The fault kinds of a sensor that stay faults of the reading when it is read as an input (an actuator's).
 _AS_INPUT = ("bias", "drift")
 
@@ -112,8 +116,10 @@ class Decomposition:
 
     def touching(self, subject: str) -> tuple[str, ...]:
         """The submodels a fault of ``subject`` (a parameter, sensor or
-        input of the whole model) can move."""
-        return tuple(s.name for s in self.submodels if subject in s.faults)
+        input of the whole model) can move: those holding it, and those
+        reading it when it is a sensor (whatever its fault: a frozen reading
+        moves them too, though only its own submodel models it)."""
+        return tuple(s.name for s in self.submodels if subject in s.faults or subject in s.reads)
 
     def largest(self) -> int:
         """The most elements one submodel holds."""
@@ -135,6 +141,9 @@ def decompose(raw: RawModel, num: Numerics) -> Decomposition:
     if model.modes is not None:
         raise CodegenError(f"model {model.name} has modes: --decompose takes a model of one mode", model.source,
                            "drop --decompose")
+    if not model.measurements:
+        raise CodegenError(f"model {model.name} has no sensors: --decompose cuts a model at its sensors",
+                           model.source, "add a measurement, or drop --decompose")
     storages = {el.name for el in model.elements if element_kind(el.kind).role == "storage"}
     uncut: set[str] = set()
     while True:  # a submodel without a storage (a static relation among readings): its sensors cut nothing
@@ -143,6 +152,10 @@ def decompose(raw: RawModel, num: Numerics) -> Decomposition:
         static = next((sensors for sensors, nodes, _, _ in subs if not nodes & storages), None)
         if static is None:
             break
+        if set(static) <= uncut:  # cut nothing already: its part of the plant holds no storage at all
+            m = next(m for m in model.measurements if m.name == static[0])
+            raise CodegenError(f"--decompose: the part of the plant sensor {static[0]} reads holds no storage "
+                               "element, so it has no submodel", m.loc, "drop --decompose")
         uncut |= set(static)
     return Decomposition(model.name, tuple(_submodel(c, graph, *s) for s in subs))
 
@@ -229,8 +242,8 @@ class _Graph:
                     start += "_"
                 self.kind[start] = junction
                 self.virtual[start] = f"{var}{k}"
-                self.bonds[k] = (t, start)
-                self.bonds[self.next_bond] = (start, h)
+                self.bonds[k] = (start, h)  # the head's half keeps the number (a storage's bond: its state's name)
+                self.bonds[self.next_bond] = (t, start)
                 self.next_bond += 1
             if start in self.cut_of:
                 groups[self.cut_of[start]] += (m.name,)
@@ -290,7 +303,7 @@ def _free_names(el) -> set[str]:
 def _submodel(c: _Whole, graph: _Graph, sensors: tuple[str, ...], nodes: frozenset, inside: frozenset,
               boundary: tuple) -> Submodel:
     model, raw = c.model, c.raw.data
-    name = f"{model.name}_{sensors[0]}"
+    name = _fit(f"{model.name}_{sensors[0]}")
     elements = {el.name: el for el in model.elements}
     measurements = {m.name: m for m in model.measurements}
     parameters = {p.name for p in model.parameters}
@@ -322,7 +335,12 @@ def _submodel(c: _Whole, graph: _Graph, sensors: tuple[str, ...], nodes: frozens
     taken = parameters | inputs | set(graph.kind) | set(measurements)
     read_as = {r: _input_name(r, taken) for r in reads}
     num = c.numerics
-    y_scale = dict(zip(c.equations.outputs, num.y_scale))
+    extremes = None  # a reading that starts at 0: the plant's signed extreme over its nominal run
+    at = {}
+    for sensor, v in zip(c.equations.outputs, num.y0):
+        if v == 0.0 and extremes is None:
+            extremes = dict(zip(c.equations.outputs, numerics.nominal_extremes(c.equations, num.substeps)))
+        at[sensor] = v if v != 0.0 else extremes[sensor]
     initial = dict(zip(c.equations.state_elements, c.equations.initial))
 
     data: dict[str, Any] = {"name": name,
@@ -334,7 +352,7 @@ def _submodel(c: _Whole, graph: _Graph, sensors: tuple[str, ...], nodes: frozens
     data["inputs"] = {i: raw["inputs"][i] for i in raw.get("inputs", {}) if i in used & inputs}
     for r in reads:
         m = measurements[r]
-        entry: dict[str, Any] = {"signal": "constant", "value": _number(y_scale[r]),
+        entry: dict[str, Any] = {"signal": "constant", "value": _number(at[r]),
                                  "description": f"sensor {r} of {model.name}, read as an input"}
         if m.unit:
             entry["unit"] = m.unit
@@ -353,13 +371,13 @@ def _submodel(c: _Whole, graph: _Graph, sensors: tuple[str, ...], nodes: frozens
         for key in ("value", "law", "parameter"):
             for v, r in substitute.get(n, {}).items():
                 if isinstance(entry.get(key), str):
-                    entry[key] = re.sub(rf"\b{v}\b", read_as[r], entry[key])
+                    entry[key] = re.sub(rf"(?<![\w.]){v}(?![\w.])", read_as[r], entry[key])
         if n in initial:
             entry["initial"] = _number(initial[n])
         els[n] = entry
     sources = {}
     for k, inner, cut in boundary:
-        src = f"{graph.reading[cut]}_at_{k}"
+        src = _fit(f"{graph.reading[cut]}_at_{k}")
         while src in els or src in graph.kind:
             src += "_"
         sources[k] = (src, inner)
@@ -374,7 +392,7 @@ def _submodel(c: _Whole, graph: _Graph, sensors: tuple[str, ...], nodes: frozens
             t, h = (inner, src) if t == inner else (src, inner)
         bonds[str(k)] = [t, h]
     data["bonds"] = bonds
-    data["measurements"] = {s: raw["measurements"][s] for s in sensors}
+    data["measurements"] = {s: _entry(raw["measurements"][s]) for s in sensors}
     faults = {}
     for subject, entry in raw.get("faults", {}).items():
         if subject in used & (parameters | inputs) or subject in sensors:
@@ -388,35 +406,56 @@ def _submodel(c: _Whole, graph: _Graph, sensors: tuple[str, ...], nodes: frozens
         data["faults"] = faults
     if "simulation" in raw:
         data["simulation"] = dict(raw["simulation"])
-    _noise_levels(c, data, read_as)
-    text = (f"# A submodel of {model.name} ({model.display_source}), written by bgc compile --decompose:\n"
+    head = (f"# A submodel of {model.name} ({model.display_source}), written by bgc compile --decompose:\n"
             f"# it predicts {', '.join(sensors)}" + (f" and reads {', '.join(reads)} as inputs" if reads else "")
-            + ".\n" + yaml.safe_dump(data, sort_keys=False, width=120, allow_unicode=True,
-                                             default_flow_style=None))
+            + ".\n")
+    _noise_levels(c, data, read_as, head)
+    text = _text(head, data)
     seen = tuple(s for s in faults if s not in read_as.values()) + tuple(r for r in reads if read_as[r] in faults)
     return Submodel(name, tuple(sensors), reads, tuple(sorted(used & inputs)),
                     tuple(n for n in els if n in elements), seen, text, tuple(read_as.items()))
 
 
+def _text(head: str, data: dict) -> str:
+    """The submodel's file: ``head`` (comment lines), then ``data`` as YAML,
+    a line per element, bond and measurement (adding a key to one of them
+    moves no line)."""
+    return head + yaml.safe_dump(data, sort_keys=False, width=120, allow_unicode=True, default_flow_style=None)
+
+
+def _fit(name: str) -> str:
+    """``name`` within the 64 characters a model's names may have (a hash
+    of the rest keeps it unique)."""
+    if len(name) <= LONGEST:
+        return name
+    import hashlib
+
+    return f"{name[:LONGEST - 9]}_{hashlib.sha256(name.encode()).hexdigest()[:8]}"
+
+
+def _entry(entry) -> dict:
+    """A measurement's entry of the model file as a mapping (written ``F: f3`` or ``f2:`` alone)."""
+    return {} if entry is None else {"expr": entry} if isinstance(entry, str) else dict(entry)
+
+
 def _input_name(sensor: str, taken: set[str]) -> str:
     """The input a sensor's reading is in a submodel: its own name, unless
     that names a bond variable (a sensor called ``e11``) or something else."""
-    name = sensor if not _BOND_VARIABLE.fullmatch(sensor) else f"{sensor}_reading"
+    name = sensor if not _BOND_VARIABLE.fullmatch(sensor) else _fit(f"{sensor}_reading")
     while name != sensor and name in taken:
         name += "_"
     return name
 
 
-def _noise_levels(c: _Whole, data: dict, read_as: dict[str, str]) -> None:
+def _noise_levels(c: _Whole, data: dict, read_as: dict[str, str], head: str) -> None:
     """Write each storage's and each sensor's noise level (in place) so that
     the submodel's absolute noise stds are the whole model's, each storage's
     raised by the noise its read sensors carry into it (module docstring):
     the levels are fractions of a signal's scale, and a submodel's scales
     (from its own nominal run) need not be the whole plant's."""
-    from . import causality, dbn, equations, load, numerics, tcg, validate
+    from . import causality, dbn, equations, load, tcg, validate
 
-    text = yaml.safe_dump(data, sort_keys=False)
-    sub = validate.validate(load.loads(text, f"<submodel {data['name']}>"))
+    sub = validate.validate(load.loads(_text(head, data), f"submodels/{data['name']}.yaml"))
     ssm = equations.derive(tcg.build(causality.assign(sub)))
     num = numerics.derive(dbn.build(ssm))
     whole = c.numerics
@@ -432,8 +471,7 @@ def _noise_levels(c: _Whole, data: dict, read_as: dict[str, str]) -> None:
         scale = num.x_scale[i] * num.process_factor[i]
         data["elements"][el]["noise"] = _number(float(np.hypot(own[el], extra)) / scale)
     for name, scale in zip(ssm.outputs, num.y_scale):
-        entry = data["measurements"][name]
-        entry = {"expr": entry} if isinstance(entry, str) else entry
+        entry = _entry(data["measurements"][name])
         data["measurements"][name] = {**entry, "noise": _number(sigma[name] / scale)}
 
 

@@ -59,6 +59,9 @@ MAX_SUBSTEPS = 200
 #: The noise-free nominal run that sizes signals starting at 0 covers at most
 #: this many samples (it is a Python loop: a horizon of 1e9 steps must not spin).
 MAX_NOMINAL_RUN = 20_000
+#: A reading smaller than this fraction of its largest term at the operating point is a
+#: cancellation (a net flow at steady state: 0 up to rounding), sized by that term instead.
+CANCELLED = 1e-6
 #: The filters' RK4 must follow the noise-free nominal run to within this many
 #: measurement stds (open loop, at the model's noise levels): a tenth leaves
 #: room for data five times less noisy at half a std.
@@ -114,6 +117,10 @@ def derive(dbns: DbnModel, prior_scale: float = 1.0) -> Numerics:
         x_max, y_max = _nominal_magnitudes(ssm, first)
         x_scale = [v or m or 1.0 for v, m in zip(x_scale, x_max)]
         y_scale = [v or m or 1.0 for v, m in zip(y_scale, y_max)]
+    # a reading whose terms cancel at the operating point (a tank's net flow at steady state): the size of
+    # its largest term, not the rounding left of the cancellation
+    terms = [_largest_term(h, sub) for h in ssm.output_exprs]
+    y_scale = [t if s < CANCELLED * t else s for s, t in zip(y_scale, terms)]
     sigma = [m.noise * v for m, v in zip(model.measurements, y_scale)]
     substeps = _accurate_substeps(ssm, substeps, sigma, _outputs(ssm, first))
     own_levels = {el.name: el.noise for el in model.elements if element_kind(el.kind).role == "storage"}
@@ -158,6 +165,20 @@ def fault_scale(c, nominal: float, model, y_scale, u0) -> float:
         signal = model.inputs[i].signal
         return abs(u0[i]) or max(abs(signal.value), abs(signal.final or 0.0)) or 1.0
     return abs(nominal) or 1.0
+
+
+def _largest_term(h, point: dict) -> float:
+    """The largest magnitude among the additive terms of the measurement
+    expression ``h`` at ``point`` (0 when none is a finite number)."""
+    best = 0.0
+    for term in sympy.Add.make_args(sympy.expand(h)):
+        try:
+            v = complex(sympy.N(term.xreplace(point)))
+        except (TypeError, ValueError):
+            continue
+        if v.imag == 0 and math.isfinite(v.real):
+            best = max(best, abs(v.real))
+    return best
 
 
 def _check_finite(num: Numerics) -> None:
@@ -420,6 +441,16 @@ def _accurate_substeps(ssm: StateSpaceModel, substeps: int, sigma: list[float], 
             break
         substeps, y = 2 * substeps, finer
     return substeps
+
+
+def nominal_extremes(ssm: StateSpaceModel, substeps: int) -> list[float]:
+    """Per measurement, its value of largest magnitude over the noise-free
+    nominal run, with its sign (0 where it stays 0)."""
+    out = np.zeros(len(ssm.output_exprs))
+    for _, y in _nominal_run(ssm, substeps):
+        with np.errstate(invalid="ignore"):
+            out = np.where(np.isfinite(y) & (np.abs(y) > np.abs(out)), y, out)
+    return [float(v) for v in out]
 
 
 def _nominal_magnitudes(ssm: StateSpaceModel, run: list) -> tuple[list[float], list[float]]:
