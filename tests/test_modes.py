@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 import sympy
 
-from bgc.compiler import modes
-from bgc.compiler.load import load
+from bgc.compiler import causality, modes
+from bgc.compiler.load import load, loads
 from bgc.compiler.validate import validate
 from bgc.errors import BgcError
 from bgc.ir import sym
@@ -218,3 +218,57 @@ def test_bgc_show_dbn_draws_the_dbn_across_the_modes(tmp_path):
     drawn = bgc_cli("show", "dbn", "tests/data/hybrid/relay_rl.yaml", "--format", "png", "-o", picture,
                     "--engine", "matplotlib")
     assert drawn.returncode == 0 and picture.stat().st_size > 20_000
+
+
+#: Two effort sources and two resistors on a 1-junction J, and an inertia L joined to J through a
+#: switched 0-junction SW: with SW ON, L fixes J's flow, and both resistors take it (resistance form,
+#: e = R f); with SW OFF (zero effort on its bonds), J's flow is fixed by one resistor in conductance form
+#: (f = e / R), either one: an algebraic loop.
+LOOP_SWITCH = """\
+name: loop_switch
+parameters: {R1: 1.0, R2: 2.0, L: 0.5}
+inputs: {V1: 1.0, V2: 0.5}
+elements:
+  V1: {kind: Se}
+  V2: {kind: Se}
+  J: {kind: "1"}
+  R1: {kind: R}
+  R2: {kind: R}
+  SW: {kind: "0", switch: true}
+  L: {kind: I, initial: 0.0}
+bonds:
+  1: [V1, J]
+  2: [J, R1]
+  3: [J, R2]
+  4: [J, V2]
+  5: [J, SW]
+  6: [SW, L]
+measurements:
+  i: {expr: f6}
+modes:
+  with_l: {on: [SW]}
+  without_l: {on: []}
+transitions:
+  - {from: with_l, to: without_l}
+  - {from: without_l, to: with_l}
+"""
+
+
+def test_a_mode_keeps_the_causal_strokes_of_the_mode_it_is_entered_from():
+    """Hybrid SCAP (MoTHS): without L, one resistor must turn to conductance form. From scratch SCAP
+    takes its preferred one (R1, the first), which moves bond 2 although nothing forces it; reassigned
+    from the mode with L, R1 keeps the resistance form it had there (bond 2's effort from R1) and the
+    loop is closed by R2 (bond 3's effort now from J). The equations are the same: with SW OFF, L's
+    effort is 0 (di/dt = 0: it holds its current), and J's flow is (V1 - V2) / (R1 + R2)."""
+    m = validate(loads(LOOP_SWITCH, "loop_switch.yaml"))
+    with_l, without_l = modes.compile_modes(m)
+    strokes = {x.name: {c.bond: c.effort_by for c in x.causal.bonds} for x in (with_l, without_l)}
+    assert strokes["with_l"][2] == "R1" and strokes["with_l"][3] == "R2"  # both forced: resistance form
+    assert strokes["without_l"][2] == "R1" and strokes["without_l"][3] == "J"
+    assert modes.causality_changes(with_l, without_l) == ["bond 3: effort now from J (was R2)"]
+    scratch = causality.assign(without_l.graph)  # what SCAP alone gives: R1's bond moves instead
+    assert {c.bond: c.effort_by for c in scratch.bonds}[2] == "J"
+    assert sympy.simplify(without_l.equations.rhs[0]) == 0
+    V1, V2, R1, R2 = sympy.symbols("V1 V2 R1 R2")
+    f2 = dict(without_l.equations.variables)["f2"]
+    assert sympy.simplify(f2 - (V1 - V2) / (R1 + R2)) == 0

@@ -144,8 +144,15 @@ class _Solver:
             self.set(b, self.other(b, name) if zero else name, queue)
 
 
-def assign(model: BondGraph) -> CausalBondGraph:
-    """Run SCAP on a validated bond graph.
+def assign(model: BondGraph, previous: CausalBondGraph | None = None) -> CausalBondGraph:
+    """Run SCAP on a validated bond graph; ``previous``: the causality of
+    the mode a hybrid bond graph switches from (its other switches' states),
+    whose strokes the resistors and free bonds keep where they can (MoTHS'
+    incremental reassignment, HSCAP: after the sources, and the storage
+    elements' integral causality, a bond that keeps its two ends keeps its
+    stroke unless the switch forces it to move; from scratch, a resistor
+    forced into resistance form in one mode would flip back to its preferred
+    conductance form in the next).
 
     Raises
     ------
@@ -185,15 +192,21 @@ def assign(model: BondGraph) -> CausalBondGraph:
             bond = solver.ports[el.name][0]
             own = kinds[el.name].imposes == "effort"
             decisions.append((bond, el.name if own else solver.other(bond, el.name), None))
+    before = {c.bond: c.effort_by for c in previous.bonds} if previous is not None else {}
+
+    def kept(bond: int, prefer: str) -> str:
+        """The previous mode's stroke of ``bond`` when its ends are the same, else ``prefer``."""
+        return before[bond] if before.get(bond) in solver.ends[bond] else prefer
+
     for el in elements:
         if kinds[el.name].role == "resistor":
             bond = solver.ports[el.name][0]
             prefer = solver.other(bond, el.name)  # conductance form f = e/R
             if el.law is not None and el.law.output.startswith("e"):
                 prefer = el.name
-            decisions.append((bond, prefer, el.name))
+            decisions.append((bond, kept(bond, prefer), el.name))
     for b in sorted(solver.ends):
-        decisions.append((b, solver.ends[b][0], None))
+        decisions.append((b, kept(b, solver.ends[b][0]), None))
     after_sources = solver.snapshot()
     arbitrary: list[str] = []
     if not _search(solver, decisions, arbitrary):

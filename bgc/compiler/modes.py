@@ -437,13 +437,15 @@ def compile_modes(model: BondGraph) -> tuple[ModeModel, ...]:
     on :func:`mode_graph`), in the model's order. Errors of a mode's stages
     are the stages' own, prefixed with the mode; a reset of a state that is
     no state of the mode it enters is refused here."""
-    out, found = [], {}
-    for mode in model.modes.modes:
+    done, found = {}, {}
+    for mode, parent in _reached(model):  # each mode's causality kept from the mode it is first entered from
         try:
-            out.append(_compile_graph(model, mode.name, mode_graph(model, mode.name)))
+            previous = done[parent].causal if parent in done else None
+            done[mode.name] = _compile_graph(model, mode.name, mode_graph(model, mode.name), previous)
         except _Refused as exc:
             for kind, what, loc, fix in exc.found:
                 found.setdefault((kind, what, loc or mode.loc, fix), []).append(mode.name)
+    out = [done[m.name] for m in model.modes.modes if m.name in done]
     if found:
         raise ErrorGroup([kind(f"in mode{'s' if len(names) > 1 else ''} {', '.join(names)}: {what}", loc, fix)
                           for (kind, what, loc, fix), names in found.items()])
@@ -458,6 +460,25 @@ def compile_modes(model: BondGraph) -> tuple[ModeModel, ...]:
     if errors:
         raise ErrorGroup(errors)
     return _with_stuck(model, tuple(out))
+
+
+def _reached(model: BondGraph) -> list:
+    """The modes in the order the automaton first reaches them from the
+    first (breadth first, transitions in the model's order), each with the
+    mode it is first entered from (None for the first; a mode no transition
+    reaches, which validation refuses, last with None)."""
+    modes = {m.name: m for m in model.modes.modes}
+    first = model.modes.modes[0].name
+    order, parent, queue = [first], {first: None}, [first]
+    while queue:
+        here = queue.pop(0)
+        for t in model.modes.transitions:
+            if t.source == here and t.target not in parent:
+                parent[t.target] = here
+                order.append(t.target)
+                queue.append(t.target)
+    order += [m.name for m in model.modes.modes if m.name not in parent]
+    return [(modes[n], parent.get(n)) for n in order]
 
 
 def _with_stuck(model: BondGraph, compiled: tuple[ModeModel, ...]) -> tuple[ModeModel, ...]:
@@ -493,9 +514,12 @@ class _Refused(Exception):
         self.found = found
 
 
-def _compile_graph(model: BondGraph, name: str, graph: BondGraph) -> ModeModel:
+def _compile_graph(model: BondGraph, name: str, graph: BondGraph,
+                   previous: CausalBondGraph | None = None) -> ModeModel:
     """One configuration of the switches (``graph``: :func:`mode_graph`) as
-    far as its equations, signatures and DBNs, called ``name``. Raises
+    far as its equations, signatures and DBNs, called ``name``; its
+    causality kept from ``previous`` where it can (:func:`causality.assign
+    <bgc.compiler.causality.assign>`). Raises
     :class:`_Refused` with its stages' errors, the zero sources named as
     the junctions OFF they stand for."""
     from . import causality, dbn, equations, signatures, tcg
@@ -503,7 +527,7 @@ def _compile_graph(model: BondGraph, name: str, graph: BondGraph) -> ModeModel:
     own = {el.name for el in model.elements}
     off = {zero: f"{junction} (OFF)" for zero, junction in zero_sources(graph).items()}
     try:
-        causal = causality.assign(graph)
+        causal = causality.assign(graph, previous)
         causal = dataclasses.replace(causal, diagnostics=tuple(d for d in causal.diagnostics if d.element in own))
         temporal = tcg.build(causal)
         ssm = equations.derive(temporal)
@@ -547,7 +571,7 @@ def compile_stuck(model: BondGraph, compiled: tuple[ModeModel, ...], fault: Stuc
         if on not in made:
             name = f"{mode.name} with {fault.title}"
             try:
-                made[on] = _compile_graph(model, name, mode_graph(model, mode.name, on))
+                made[on] = _compile_graph(model, name, mode_graph(model, mode.name, on), by_name[mode.name].causal)
             except _Refused as exc:
                 raise ErrorGroup([kind(f"with {fault.title} in mode {mode.name}: {what}", loc or fault.loc, fix)
                                   for kind, what, loc, fix in exc.found]) from None
