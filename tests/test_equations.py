@@ -311,3 +311,87 @@ def test_state_equations_use_only_states_inputs_and_parameters(name):
     allowed = set(c.equations.states) | set(c.equations.inputs) | set(c.equations.parameters)
     for expr in c.equations.rhs + c.equations.output_exprs:
         assert {s.name for s in expr.free_symbols} <= allowed, expr
+
+
+# ---- storage elements in derivative causality, merged with the ones that fix them (issue 46, point 2)
+JOINED = ROOT / "docs" / "examples" / "joined_tanks.yaml"
+
+
+def test_two_tanks_joined_without_resistance_fill_as_one():
+    """One pressure node e holds both capacities: C1 de/dt + C2 de/dt = f_in - e/R, so
+    de/dt = (f_in - e/R) / (C1 + C2); the flow into tank 2 is C2 de/dt."""
+    c = compile_model(JOINED)
+    C1, C2, R, f_in, e2 = sympy.symbols("C1 C2 R f_in e2")
+    assert c.equations.states == ("e2",)
+    rate = (f_in - e2 / R) / (C1 + C2)
+    assert sympy.simplify(c.equations.rhs[0] - rate) == 0
+    out = dict(zip(c.equations.outputs, c.equations.output_exprs))
+    assert sympy.simplify(out["F2"] - C2 * rate) == 0 and out["P"] == e2
+
+
+def test_two_masses_joined_rigidly_move_as_one():
+    """A force F on two masses on one 1-junction (one velocity v) with a damper b: (m1 + m2) dv/dt = F - b v."""
+    text = """\
+name: rigid
+parameters: {m1: 2.0, m2: 3.0, b: 0.5}
+inputs: {F: 1.0}
+elements: {F: {kind: Se}, shaft: {kind: "1"}, m1: {kind: I}, m2: {kind: I}, b: {kind: R}}
+bonds: {1: [F, shaft], 2: [shaft, m1], 3: [shaft, m2], 4: [shaft, b]}
+measurements: {v: {expr: f2}}
+"""
+    c = compile_model("rigid.yaml", text=text)
+    m1, m2, b, F, f2 = sympy.symbols("m1 m2 b F f2")
+    assert c.equations.states == ("f2",)
+    assert sympy.simplify(c.equations.rhs[0] - (F - b * f2) / (m1 + m2)) == 0
+
+
+def test_a_constraint_that_moves_with_an_input_is_refused_in_one_line():
+    from bgc.errors import EquationError
+
+    with pytest.raises(EquationError) as err:
+        compile_model(ROOT / "docs" / "examples" / "deriv.yaml")
+    assert "C element C is in derivative causality" in str(err.value)
+    assert "it moves with input V" in str(err.value) and err.value.loc.line == 7
+
+
+def test_the_signatures_of_joined_tanks_by_hand():
+    """R up: the outflow falls, the node fills (P: 0 then +); the flow into tank 2 is C2 dP/dt, so it
+    jumps + when dP/dt does and then falls as the node settles (+ then -). A change of C2, the capacity
+    merged into the node, moves the readings by how fast the plant moves, not by a sign: '?' (never
+    ruled out by a symbol)."""
+    c = compile_model(JOINED)
+    sig = {s.name: dict(zip(c.signatures.measurements, (x[:2] for x in s.symbols))) for s in c.signatures.signatures}
+    assert sig["R+:abrupt"] == {"F2": ("+", "-"), "P": ("0", "+")}
+    assert sig["R-:abrupt"] == {"F2": ("-", "+"), "P": ("0", "-")}
+    assert sig["C2+:abrupt"] == {"F2": ("?", "?"), "P": ("?", "?")}
+
+
+def test_joined_tanks_diagnosed_on_data_from_their_hand_derived_equations():
+    """The outlet R steps from 4 to 6 at t = 50 s in data simulated by solve_ivp on
+    (C1 + C2) de/dt = f_in - e/R (noise 2 % of P = 4 and of F2's size, 0.33: f_in / (C1 + C2) * C2 at
+    the largest rate): the diagnosis isolates R's step and sizes it."""
+    import numpy as np
+    from scipy.integrate import solve_ivp
+
+    import bgc
+    from bgc.data import runs
+
+    C1, C2, f_in, R0, R1, onset = 2.0, 1.0, 1.0, 4.0, 6.0, 50.0
+
+    def rate(t, e):
+        return [(f_in - e[0] / (R1 if t >= onset else R0)) / (C1 + C2)]
+
+    t = np.arange(1, 201) * 0.5
+    sol = solve_ivp(rate, (0.0, 100.0), [4.0], t_eval=t, max_step=0.05, rtol=1e-9, atol=1e-12)
+    e = sol.y[0]
+    de = np.array([rate(tk, [ek])[0] for tk, ek in zip(t, e)])
+    rng = np.random.default_rng(7)
+    c = compile_model(JOINED)
+    std = dict(zip(c.equations.outputs, c.numerics.noise.measurement))
+    ys = {"P": e + rng.normal(0, std["P"], e.size), "F2": C2 * de + rng.normal(0, std["F2"], e.size)}
+    run = runs.Run(t, {"f_in": np.full(t.size, f_in)}, ys, {}, {}, ())
+    report = bgc.diagnose(JOINED, run, filter="ckf")
+    d = report.diagnosis
+    assert d.verdict == "isolated" and d.candidates == ("R_abrupt",)
+    best = next(h for h in d.hypotheses if h.name == "R_abrupt")
+    assert best.estimate.low <= R1 - R0 <= best.estimate.high

@@ -29,13 +29,18 @@ from ..ir import StateSpaceModel, TemporalCausalGraph, sym, var_key
 from ..kinds import fault_kind
 
 
-def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
-    """Derive the state and measurement equations.
+def derive(tcg: TemporalCausalGraph, differentiate: bool = True) -> StateSpaceModel:
+    """Derive the state and measurement equations; ``differentiate``: a
+    storage element in derivative causality whose imposed variable moves
+    with the states is resolved by differentiating the constraint
+    (:func:`_derivative_causality`; False: refused, as a mode of a hybrid
+    bond graph still is).
 
     Raises
     ------
     EquationError
-        An algebraic loop without a unique symbolic solution.
+        An algebraic loop without a unique symbolic solution; a storage
+        element in derivative causality that cannot be resolved.
     """
     g = tcg.graph
     model = tcg.model
@@ -49,6 +54,7 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
             algebraic.add_edge(u, v)
 
     resolved: dict[sympy.Symbol, sympy.Expr] = {sym(x): sym(x) for x in states}
+    rates: dict[str, sympy.Symbol] = {}  # per state, the symbol of its rate, once a derivative causality needs it
     loops: list[tuple[str, ...]] = []
     condensed = nx.condensation(algebraic)
     order = nx.lexicographical_topological_sort(
@@ -63,7 +69,8 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
             resolved[sym(v)] = _substitute(g.nodes[v]["definition"], resolved)
             if "differentiates" in g.nodes[v]:
                 resolved[sym(v)] = _derivative_causality(model, g, v, resolved,
-                                                         state_set | set(variables) | {i.name for i in model.inputs})
+                                                         state_set | set(variables) | {i.name for i in model.inputs},
+                                                         states if differentiate else None, rates)
             continue
         loops.append(tuple(members))
         resolved.update(_solve_loop(tcg, members, resolved))
@@ -72,6 +79,12 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
     outputs = []
     for m in model.measurements:
         outputs.append(_substitute(m.expr, resolved))
+    if rates:  # derivative causality: the states' rates appear on both sides, solve for them
+        solved = _solve_rates(model, g, states, rhs, rates)
+        rhs = tuple(solved[x] for x in states)
+        into = {rates[x]: solved[x] for x in states}
+        outputs = [sympy.simplify(e.xreplace(into)) for e in outputs]
+        resolved = {k: (e.xreplace(into) if e.free_symbols & set(into) else e) for k, e in resolved.items()}
     storage = {s.state: s.element for s in tcg.causal.states}
     initial = tuple(model.element(storage[x]).initial or 0.0 for x in states)
     bond_vars = [(v, resolved[sym(v)]) for v in variables]
@@ -93,20 +106,67 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
     )
 
 
-def _derivative_causality(model, g, v: str, resolved: dict, signals: set[str]) -> sympy.Expr:
-    """The variable ``v`` a storage element in derivative causality gives
-    (its parameter times the derivative of what the graph imposes on it): 0
-    when the imposed variable is constant in time (a switch's zero, a
-    source of a constant: the element is idle); otherwise refused, the
-    element named. ``signals``: the names that vary in time (states, bond
-    variables, inputs)."""
+def _derivative_causality(model, g, v: str, resolved: dict, signals: set[str], states: tuple[str, ...] | None,
+                          rates: dict[str, sympy.Symbol]) -> sympy.Expr:
+    """The variable ``v`` a storage element in derivative causality gives:
+    the time derivative of its parameter times what the graph imposes on it
+    (C: f = d(C e)/dt; I: e = d(I f)/dt).
+
+    - 0 when the imposed variable is constant in time (a switch's zero, a
+      source of a constant: the element is idle);
+    - when it is a function of the states alone (two capacitors on one
+      0-junction, two inertias on one 1-junction: storages joined with
+      nothing between them), the chain rule in the states' rates, each a
+      symbol of ``rates`` (:func:`_solve_rates` solves for them once every
+      state's equation is written): the storages are merged;
+    - refused, the element named, when it moves with an input (its
+      derivative would need the input's), with a rate already (a second
+      derivative), or ``states`` is None (a mode of a hybrid bond graph).
+
+    ``signals``: the names that vary in time (states, bond variables,
+    inputs)."""
     imposed = g.nodes[v]["differentiates"]
-    if not {s.name for s in resolved[sym(imposed)].free_symbols} & signals:
+    expr = resolved[sym(v)]  # the parameter times the imposed variable, in states, inputs and parameters
+    names = {s.name for s in expr.free_symbols}
+    if not names & signals:
         return sympy.Integer(0)
     el = model.element(g.nodes[v]["element"])
-    raise EquationError(f"{el.kind} element {el.name} is in derivative causality ({imposed} is imposed on it by the "
-                        "rest of the graph and varies); bgc cannot derive equations for it yet", el.loc,
-                        "merge it with the storage element that fixes it, or add a resistor in between")
+    moving_inputs = sorted(names & {i.name for i in model.inputs})
+    if states is None or moving_inputs or names & {r.name for r in rates.values()}:
+        why = (f"it moves with input {moving_inputs[0]}, whose derivative bgc does not take" if moving_inputs
+               else "its imposed variable moves with another derivative" if states is not None
+               else "in a model with modes bgc cannot derive equations for it yet")
+        raise EquationError(f"{el.kind} element {el.name} is in derivative causality ({imposed} is imposed on it by "
+                            f"the rest of the graph and varies): {why}", el.loc,
+                            "merge it with the storage element that fixes it, or add a resistor in between")
+    out = sympy.Integer(0)
+    for x in states:
+        slope = sympy.diff(expr, sym(x))
+        if slope != 0:
+            rate = rates.setdefault(x, sympy.Symbol(f"_rate_{x}"))
+            out += slope * rate
+    return out
+
+
+def _solve_rates(model, g, states: tuple[str, ...], rhs: tuple, rates: dict[str, sympy.Symbol]) -> dict[str, sympy.Expr]:
+    """The states' rates from ``rhs``, where a derivative causality put
+    some of them on the right (``dx/dt = f(x, u, dx/dt)``, linear in the
+    rates): the linear system solved symbolically; a located error when it
+    is not linear or has no unique solution."""
+    unknowns = [rates.get(x, sympy.Symbol(f"_rate_{x}")) for x in states]
+    eqs = [u - e for u, e in zip(unknowns, rhs)]
+    joined = sorted(g.nodes[v]["element"] for v, d in g.nodes(data=True) if d.get("differentiates"))
+    where = f"the storage elements in derivative causality ({', '.join(joined)}) and the states they follow"
+    try:
+        A, b = sympy.linear_eq_to_matrix(eqs, unknowns)
+    except NonlinearError:
+        raise EquationError(f"{where}: their equations are not linear in the states' rates", model.source,
+                            "add a resistor between the storage elements") from None
+    if A.det() == 0:
+        raise EquationError(f"{where}: the states' rates have no unique solution", model.source,
+                            "add a resistor between the storage elements")
+    sol = A.LUsolve(b)
+    return {x: sympy.simplify(sol[i]) for i, x in enumerate(states)}
 
 
 def _fault_symbols(model, rhs, outputs, bond_vars):
