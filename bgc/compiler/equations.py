@@ -29,12 +29,10 @@ from ..ir import StateSpaceModel, TemporalCausalGraph, sym, var_key
 from ..kinds import fault_kind
 
 
-def derive(tcg: TemporalCausalGraph, differentiate: bool = True) -> StateSpaceModel:
-    """Derive the state and measurement equations; ``differentiate``: a
-    storage element in derivative causality whose imposed variable moves
-    with the states is resolved by differentiating the constraint
-    (:func:`_derivative_causality`; False: refused, as a mode of a hybrid
-    bond graph still is).
+def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
+    """Derive the state and measurement equations (a storage element in
+    derivative causality whose imposed variable moves with the states is
+    merged with the storages that fix it: :func:`_derivative_causality`).
 
     Raises
     ------
@@ -70,7 +68,7 @@ def derive(tcg: TemporalCausalGraph, differentiate: bool = True) -> StateSpaceMo
             if "differentiates" in g.nodes[v]:
                 resolved[sym(v)] = _derivative_causality(model, g, v, resolved,
                                                          state_set | set(variables) | {i.name for i in model.inputs},
-                                                         states if differentiate else None, rates)
+                                                         states, rates)
             continue
         loops.append(tuple(members))
         resolved.update(_solve_loop(tcg, members, resolved))
@@ -106,7 +104,7 @@ def derive(tcg: TemporalCausalGraph, differentiate: bool = True) -> StateSpaceMo
     )
 
 
-def _derivative_causality(model, g, v: str, resolved: dict, signals: set[str], states: tuple[str, ...] | None,
+def _derivative_causality(model, g, v: str, resolved: dict, signals: set[str], states: tuple[str, ...],
                           rates: dict[str, sympy.Symbol]) -> sympy.Expr:
     """The variable ``v`` a storage element in derivative causality gives:
     the time derivative of its parameter times what the graph imposes on it
@@ -120,8 +118,13 @@ def _derivative_causality(model, g, v: str, resolved: dict, signals: set[str], s
       symbol of ``rates`` (:func:`_solve_rates` solves for them once every
       state's equation is written): the storages are merged;
     - refused, the element named, when it moves with an input (its
-      derivative would need the input's), with a rate already (a second
-      derivative), or ``states`` is None (a mode of a hybrid bond graph).
+      derivative would need the input's) or with a rate already (a second
+      derivative).
+
+    In a mode of a hybrid bond graph (a valve that joins two tanks) the
+    merge holds while the mode lasts; what the joined storages hold at the
+    switch (the volume shared out: a reset of the transition) is the
+    model's to say (docs/format.md section 10).
 
     ``signals``: the names that vary in time (states, bond variables,
     inputs)."""
@@ -132,10 +135,9 @@ def _derivative_causality(model, g, v: str, resolved: dict, signals: set[str], s
         return sympy.Integer(0)
     el = model.element(g.nodes[v]["element"])
     moving_inputs = sorted(names & {i.name for i in model.inputs})
-    if states is None or moving_inputs or names & {r.name for r in rates.values()}:
+    if moving_inputs or names & {r.name for r in rates.values()}:
         why = (f"it moves with input {moving_inputs[0]}, whose derivative bgc does not take" if moving_inputs
-               else "its imposed variable moves with another derivative" if states is not None
-               else "in a model with modes bgc cannot derive equations for it yet")
+               else "its imposed variable moves with another derivative")
         raise EquationError(f"{el.kind} element {el.name} is in derivative causality ({imposed} is imposed on it by "
                             f"the rest of the graph and varies): {why}", el.loc,
                             "merge it with the storage element that fixes it, or add a resistor in between")

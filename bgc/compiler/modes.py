@@ -530,7 +530,7 @@ def _compile_graph(model: BondGraph, name: str, graph: BondGraph,
         causal = causality.assign(graph, previous)
         causal = dataclasses.replace(causal, diagnostics=tuple(d for d in causal.diagnostics if d.element in own))
         temporal = tcg.build(causal)
-        ssm = equations.derive(temporal, differentiate=False)
+        ssm = equations.derive(temporal)
         sigs, dbns = signatures.derive(ssm), dbn.build(ssm)
     except BgcError as exc:
         found = []
