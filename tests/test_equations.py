@@ -395,3 +395,32 @@ def test_joined_tanks_diagnosed_on_data_from_their_hand_derived_equations():
     assert d.verdict == "isolated" and d.candidates == ("R_abrupt",)
     best = next(h for h in d.hypotheses if h.name == "R_abrupt")
     assert best.estimate.low <= R1 - R0 <= best.estimate.high
+
+
+def test_a_merged_pair_beside_a_tank_of_its_own():
+    """The joined tanks drain through R into a third tank (C3, outlet R4) through a pipe R3: only the
+    pair is merged; e2 = P: (C1 + C2) dP/dt = f_in - P/R - (P - Q)/R3, C3 dQ/dt = (P - Q)/R3 - Q/R4."""
+    text = """\
+name: j3
+parameters: {C1: 2.0, C2: 1.0, R: 4.0, C3: 1.0, R3: 2.0, R4: 1.0}
+inputs: {f_in: 1.0}
+elements:
+  Sf: {kind: Sf, value: f_in}
+  n: {kind: "0"}
+  C1: {kind: C, initial: 4.0}
+  C2: {kind: C}
+  R: {kind: R}
+  p: {kind: "1"}
+  R3: {kind: R}
+  m: {kind: "0"}
+  C3: {kind: C}
+  R4: {kind: R}
+bonds: {1: [Sf, n], 2: [n, C1], 3: [n, C2], 4: [n, R], 5: [n, p], 6: [p, R3], 7: [p, m], 8: [m, C3], 9: [m, R4]}
+measurements: {P: {expr: e2}, Q: {expr: e8}}
+"""
+    c = compile_model("j3.yaml", text=text)
+    C1, C2, C3, R, R3, R4, f_in, P, Q = sympy.symbols("C1 C2 C3 R R3 R4 f_in e2 e8")
+    rhs = dict(zip(c.equations.states, c.equations.rhs))
+    assert set(rhs) == {"e2", "e8"}
+    assert sympy.simplify(rhs["e2"] - (f_in - P / R - (P - Q) / R3) / (C1 + C2)) == 0
+    assert sympy.simplify(rhs["e8"] - ((P - Q) / R3 - Q / R4) / C3) == 0

@@ -80,7 +80,7 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
     if rates:  # derivative causality: the states' rates appear on both sides, solve for them
         solved = _solve_rates(model, g, states, rhs, rates)
         rhs = tuple(solved[x] for x in states)
-        into = {rates[x]: solved[x] for x in states}
+        into = {rates[x]: solved[x] for x in states if x in rates}
         outputs = [sympy.simplify(e.xreplace(into)) for e in outputs]
         resolved = {k: (e.xreplace(into) if e.free_symbols & set(into) else e) for k, e in resolved.items()}
     storage = {s.state: s.element for s in tcg.causal.states}
