@@ -354,16 +354,39 @@ def test_a_constraint_that_moves_with_an_input_is_refused_in_one_line():
     assert "it moves with input V" in str(err.value) and err.value.loc.line == 7
 
 
-def test_the_signatures_of_joined_tanks_by_hand():
-    """R up: the outflow falls, the node fills (P: 0 then +); the flow into tank 2 is C2 dP/dt, so it
-    jumps + when dP/dt does and then falls as the node settles (+ then -). A change of C2, the capacity
-    merged into the node, moves the readings by how fast the plant moves, not by a sign: '?' (never
-    ruled out by a symbol)."""
+def test_the_signatures_of_merged_storages_rule_nothing_out():
+    """The TCG's forward propagation does not follow merged storages yet (a review found it gave a
+    capacity's fault the outlet's signature): every fault of a model with one shows '?' at every order,
+    so no symbol rules the true fault out, and the filters weigh them."""
     c = compile_model(JOINED)
-    sig = {s.name: dict(zip(c.signatures.measurements, (x[:2] for x in s.symbols))) for s in c.signatures.signatures}
-    assert sig["R+:abrupt"] == {"F2": ("+", "-"), "P": ("0", "+")}
-    assert sig["R-:abrupt"] == {"F2": ("-", "+"), "P": ("0", "-")}
-    assert sig["C2+:abrupt"] == {"F2": ("?", "?"), "P": ("?", "?")}
+    for s in c.signatures.signatures:
+        assert all(set(x) == {"?"} for x in s.symbols), s.name
+
+
+def test_a_storage_in_derivative_causality_inside_an_algebraic_loop_is_refused():
+    """Two 0-junctions and a 1-junction in a cycle through a gyrator, an inertia on each 0-junction and
+    a capacitor on the 1-junction: I2's derivative causality sits in the algebraic loop, where its
+    derivative is not taken (the equations bgc gave before were wrong): a located one-line error."""
+    from bgc.errors import EquationError
+
+    text = """\
+name: gyloop
+parameters: {r: 1.5, I1: 2.17, I2: 1.39, C3: 0.68}
+elements:
+  J0: {kind: "0"}
+  J1: {kind: "0"}
+  J2: {kind: "1"}
+  G: {kind: GY, parameter: r}
+  I1: {kind: I, initial: -0.91}
+  I2: {kind: I, initial: 0.5}
+  C3: {kind: C, initial: 0.26}
+bonds: {1: [J1, J0], 2: [J1, G], 3: [G, J2], 4: [J0, J2], 5: [J0, I1], 6: [J1, I2], 7: [J2, C3]}
+measurements: {v1: {expr: f5, noise: 0.01}}
+"""
+    with pytest.raises(EquationError) as err:
+        compile_model("gyloop.yaml", text=text)
+    assert "I element I2 is in derivative causality inside an algebraic loop" in str(err.value)
+    assert err.value.loc.line == 9
 
 
 def test_joined_tanks_diagnosed_on_data_from_their_hand_derived_equations():

@@ -72,6 +72,16 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
             continue
         loops.append(tuple(members))
         resolved.update(_solve_loop(tcg, members, resolved))
+        for v in members:  # a storage in derivative causality inside the loop: its derivative is not taken there
+            if "differentiates" in g.nodes[v]:
+                imposed = resolved[sym(g.nodes[v]["differentiates"])]
+                if {x.name for x in imposed.free_symbols} & (state_set | {i.name for i in model.inputs}):
+                    el = model.element(g.nodes[v]["element"])
+                    raise EquationError(f"{el.kind} element {el.name} is in derivative causality inside an "
+                                        f"algebraic loop ({', '.join(members)}); bgc cannot derive equations "
+                                        "for it yet", el.loc,
+                                        "merge it with the storage element that fixes it, or add a resistor in between")
+                resolved[sym(v)] = sympy.Integer(0)  # what it follows is constant: idle
 
     rhs = tuple(_substitute(g.nodes[x]["derivative"], resolved) for x in states)
     outputs = []
@@ -81,7 +91,8 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
         solved = _solve_rates(model, g, states, rhs, rates)
         rhs = tuple(solved[x] for x in states)
         into = {rates[x]: solved[x] for x in states if x in rates}
-        outputs = [sympy.simplify(e.xreplace(into)) for e in outputs]
+        outputs = [sympy.factor_terms(sympy.cancel(e.xreplace(into))) if e.free_symbols & set(into) else e
+                   for e in outputs]
         resolved = {k: (e.xreplace(into) if e.free_symbols & set(into) else e) for k, e in resolved.items()}
     storage = {s.state: s.element for s in tcg.causal.states}
     initial = tuple(model.element(storage[x]).initial or 0.0 for x in states)
@@ -164,11 +175,17 @@ def _solve_rates(model, g, states: tuple[str, ...], rhs: tuple, rates: dict[str,
     except NonlinearError:
         raise EquationError(f"{where}: their equations are not linear in the states' rates", model.source,
                             "add a resistor between the storage elements") from None
-    if A.det() == 0:
+    # over the field of fractions of the symbols (sympy's generic det and simplify stall on a few merged storages)
+    from sympy.polys.matrices import DomainMatrix
+
+    n = len(unknowns)
+    both = DomainMatrix.from_Matrix(A.row_join(b)).to_field()  # one domain for both sides
+    dA, db = both.extract(list(range(n)), list(range(n))), both.extract(list(range(n)), [n])
+    if dA.det() == dA.domain.zero:
         raise EquationError(f"{where}: the states' rates have no unique solution", model.source,
                             "add a resistor between the storage elements")
-    sol = A.LUsolve(b)
-    return {x: sympy.simplify(sol[i]) for i, x in enumerate(states)}
+    sol = dA.lu_solve(db).to_Matrix()
+    return {x: sympy.factor_terms(sympy.cancel(sol[i])) for i, x in enumerate(states)}
 
 
 def _fault_symbols(model, rhs, outputs, bond_vars):

@@ -77,7 +77,7 @@ def derive(ssm: StateSpaceModel, extra: tuple[str, ...] = ()) -> FaultSignatures
     values = dict(ssm.variables)
     merged = {v: d["differentiates"] for v, d in g.nodes(data=True)  # storages joined to others (a varying constraint)
               if d.get("differentiates") and values.get(v, 0) != 0}
-    plan = _plan(g, _order(algebraic), merged)
+    plan = _plan(g, _order(algebraic))
     entries, jobs = [], []  # per signature: (fault, direction, kind, own symbols or the index of its propagation)
     for fault in model.faults:
         for kind in fault.kinds:
@@ -95,8 +95,8 @@ def derive(ssm: StateSpaceModel, extra: tuple[str, ...] = ()) -> FaultSignatures
                 else:
                     effects = _actuator_effects(g, model, fault, kind) if fault.target == "actuator" else None
                     seeds = _seeds(g, fault.parameter, direction, shift, depth, effects)
-                    if any(n in merged for n, _ in seeds):  # the merged capacity changes: which way the
-                        # readings move depends on how fast the plant moves, not a symbol: any, at every order
+                    if merged:  # storages merged (a varying derivative causality): the TCG's forward
+                        # propagation does not follow them yet; any symbol, at every order (none is ruled out)
                         entries.append((fault, direction, kind, tuple(("?",) * (depth + 1) for _ in columns)))
                         continue
                     entries.append((fault, direction, kind, len(jobs)))
@@ -204,46 +204,26 @@ class _Plan:
     node's row (``index``), the temporal edges (tails, heads, signs), and
     per algebraic group (one variable or the members of a loop, in causal
     order) its non-state members' rows, each with its algebraic in-edges
-    (tail's row, sign), and how many sweeps it takes; ``derived``: each
-    storage merged with the ones it is joined to (row, the row of what it
-    differentiates, sign: :func:`derive`), and ``reads``: the sensors of
-    their variables (row, in-edges), set after them."""
+    (tail's row, sign), and how many sweeps it takes."""
 
     index: dict
     temporal: tuple[np.ndarray, np.ndarray, tuple]
     groups: tuple
-    derived: tuple = ()
-    reads: tuple = ()
 
 
-def _plan(g: nx.DiGraph, order: list[list[str]], merged: dict[str, str] | None = None) -> _Plan:
-    """The sweep of :func:`_propagate`. A storage in derivative causality
-    whose constraint varies (``merged``: its variable -> what it
-    differentiates) gives the derivative of what the graph imposes on it:
-    its symbol at order k is that variable's at order k + 1 (times its
-    parameter's sign); what it feeds back into the storage it follows only
-    scales that storage's rate by a positive factor (C1 + C2 for two joined
-    capacitors), which no symbol sees, so its out-edges are left out."""
-    merged = merged or {}
+def _plan(g: nx.DiGraph, order: list[list[str]]) -> _Plan:
     index = {n: i for i, n in enumerate(g.nodes)}
-    late = {v for u in merged for _, v in g.out_edges(u) if g.nodes[v]["role"] == "measurement"}
-    edges = [(index[u], index[v], _sign(d["sign"])) for u, v, d in g.edges(data=True)
-             if d["temporal"] and u not in merged]
+    edges = [(index[u], index[v], _sign(d["sign"])) for u, v, d in g.edges(data=True) if d["temporal"]]
     temporal = (np.array([e[0] for e in edges], dtype=np.intp), np.array([e[1] for e in edges], dtype=np.intp),
                 tuple(e[2] for e in edges))
     groups = []
     for group in order:
         members = tuple((index[v], tuple((index[u], _sign(d["sign"])) for u, _, d in g.in_edges(v, data=True)
-                                         if not d["temporal"] and u not in merged))
-                        for v in group if g.nodes[v]["role"] != "state" and v not in merged and v not in late)
+                                         if not d["temporal"]))
+                        for v in group if g.nodes[v]["role"] != "state")
         # a loop is swept until nothing changes (symbols only move up to '?')
         groups.append((members, 2 * len(group) + 1 if len(group) > 1 else 1))
-    derived = tuple((index[v], index[imposed], _sign(g.edges[imposed, v]["sign"]) if g.has_edge(imposed, v) else None)
-                    for v, imposed in sorted(merged.items()))
-    # a sensor of a merged storage's variable: read once that variable is known, at every order
-    reads = tuple((index[v], tuple((index[u], _sign(d["sign"])) for u, _, d in g.in_edges(v, data=True)))
-                  for v in sorted(late, key=var_key))
-    return _Plan(index, temporal, tuple(groups), derived, reads)
+    return _Plan(index, temporal, tuple(groups))
 
 
 def _seeds(g: nx.DiGraph, parameter: str, direction: int, shift: int, depth: int,
@@ -287,13 +267,6 @@ def _propagate(plan: _Plan, jobs: list[dict[tuple[str, int], str]], depth: int) 
                     for u, sign in ins:
                         total |= _TIMES[sign][dev[u, k]]
                     dev[v, k] = total
-    for v, imposed, sign in plan.derived:  # only their sensors read them: after the sweep
-        dev[v, :depth] = seed[v, :depth] | _TIMES[sign][dev[imposed, 1:]]
-    for v, ins in plan.reads:
-        total = seed[v].copy()
-        for u, sign in ins:
-            total |= _TIMES[sign][dev[u]]
-        dev[v] = total
     return dev
 
 
