@@ -74,14 +74,14 @@ def main() -> int:
                 whole = bgc.diagnose(str(model), sim, particles=args.particles, seed=seed)
                 tw = time.perf_counter() - t0
                 t0 = time.perf_counter()
-                alarmed = []
+                alarmed, names = [], set()
                 for s in subs:
                     rep = bgc.diagnose(str(Path(tmp) / f"{s.name}.yaml"), part_of(sim.run, s),
                                        particles=args.particles, seed=seed)
                     if rep.diagnosis.verdict != "no fault":
                         alarmed.append(f"{s.outputs[0]}:{rep.diagnosis.verdict}")
+                        names.add(s.name)
                 ts = time.perf_counter() - t0
-                names = {f"chain{n}_{a.split(':')[0]}" for a in alarmed}
                 subjects = sorted({f for s in subs for f in s.faults})
                 common = [f for f in subjects if names <= set(d.decomposition.touching(f))] if names else []
                 print(f"{scenario:<22} {seed:>4}  {whole.diagnosis.verdict + ': ' + ', '.join(whole.diagnosis.candidates):<28.28} "

@@ -127,10 +127,10 @@ def analysis_model(path: str | Path) -> Analysed | Compiled:
     """What ``bgc analyse`` reads of a model: its stages as far as the
     signatures (:class:`Analysed`), or every stage of a model with modes
     (:func:`compile_model`: each mode's signatures)."""
+    if load.declares_modes(path):  # validated once, by compile_model
+        return compile_model(path)
     raw = load.load(path)
     model = validate.validate(raw)
-    if model.modes is not None:
-        return compile_model(path, text=None)
     ssm = equations.derive(tcg.build(causality.assign(model)))
     return Analysed(raw, model, ssm, signatures.derive(ssm))
 
@@ -157,9 +157,7 @@ def decompose_model(path: str | Path, prior_scale: float = 1.0, *, text: str | N
     writes."""
     raw = load.load(path) if text is None else load.loads(text, str(path))
     model = validate.validate(raw)
-    if model.modes is not None:
-        raise CodegenError(f"model {model.name} has modes: --decompose takes a model of one mode", model.source,
-                           "drop --decompose")
+    decompose.refuse_modes(model)
     ssm = equations.derive(tcg.build(causality.assign(model)))
     num = numerics.derive(dbn.build(ssm), prior_scale)
     d = decompose.decompose(raw, num)

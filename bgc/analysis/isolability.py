@@ -96,13 +96,13 @@ def _read(s: Signature) -> tuple[tuple[str, str], ...]:
     return tuple((first_symbol(x), expected_slope(x)) for x in s.symbols)
 
 
-def _refutes(a: Signature, b: Signature, measurements: Sequence[str], read=_read) -> str | None:
+def _refutes(a: Signature, b: Signature, measurements: Sequence[str]) -> str | None:
     """How fault ``a``'s symbols, once every sensor shows them, rule ``b``
     out (None: they cannot): a sensor one of them moves and the other does
     not, or moves the other way, or whose slope differs. A ``?`` (a stuck or
-    noisy reading: either sign, or none) rules out nothing. ``read``: each
-    signature's symbols per sensor (:func:`_read`, or a cache of it)."""
-    for m, (fa, ka), (fb, kb) in zip(measurements, read(a), read(b)):
+    noisy reading: either sign, or none) rules out nothing. The rule read
+    one pair at a time; :func:`_alike` applies it to every pair at once."""
+    for m, (fa, ka), (fb, kb) in zip(measurements, _read(a), _read(b)):
         if "?" in (fa, fb):
             continue
         if fa != fb:

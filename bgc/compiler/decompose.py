@@ -55,6 +55,7 @@ its submodel (a modulated source), is refused with a located error.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import re
 from dataclasses import dataclass
@@ -69,22 +70,27 @@ from ..ir import Numerics, RawModel, sym
 from . import numerics
 from ..kinds import element_kind
 
-
-
-@dataclass(frozen=True)
-class _Whole:
-    """What a submodel is written from: the whole model's file, IR, state equations and numbers."""
-
-    raw: RawModel
-    model: Any
-    equations: Any
-    numerics: Numerics
-
 _BOND_VARIABLE = re.compile(r"([ef])([0-9]+)")
 #: The longest name a model file may give (docs/format.md).
 LONGEST = 64
 #: The fault kinds of a sensor that stay faults of the reading when it is read as an input (an actuator's).
 _AS_INPUT = ("bias", "drift")
+
+
+@dataclass(frozen=True)
+class _Whole:
+    """What a submodel is written from: the whole model's file and its numbers."""
+
+    raw: RawModel
+    numerics: Numerics
+
+    @property
+    def equations(self):
+        return self.numerics.dbn.equations
+
+    @property
+    def model(self):
+        return self.equations.model
 
 
 @dataclass(frozen=True)
@@ -121,10 +127,6 @@ class Decomposition:
         moves them too, though only its own submodel models it)."""
         return tuple(s.name for s in self.submodels if subject in s.faults or subject in s.reads)
 
-    def largest(self) -> int:
-        """The most elements one submodel holds."""
-        return max((len(s.elements) for s in self.submodels), default=0)
-
 
 def decompose(raw: RawModel, num: Numerics) -> Decomposition:
     """The submodels of the model read as ``raw`` and compiled as far as its
@@ -136,11 +138,9 @@ def decompose(raw: RawModel, num: Numerics) -> Decomposition:
         The model has modes; an element reads a bond variable outside its
         submodel; a submodel does not compile (its message names it).
     """
-    c = _Whole(raw, num.dbn.equations.model, num.dbn.equations, num)
+    c = _Whole(raw, num)
     model = c.model
-    if model.modes is not None:
-        raise CodegenError(f"model {model.name} has modes: --decompose takes a model of one mode", model.source,
-                           "drop --decompose")
+    refuse_modes(model)
     if not model.measurements:
         raise CodegenError(f"model {model.name} has no sensors: --decompose cuts a model at its sensors",
                            model.source, "add a measurement, or drop --decompose")
@@ -160,6 +160,13 @@ def decompose(raw: RawModel, num: Numerics) -> Decomposition:
     return Decomposition(model.name, tuple(_submodel(c, graph, *s) for s in subs))
 
 
+def refuse_modes(model) -> None:
+    """The one-line error for a model with modes (--decompose takes a model of one mode)."""
+    if model.modes is not None:
+        raise CodegenError(f"model {model.name} has modes: --decompose takes a model of one mode", model.source,
+                           "drop --decompose")
+
+
 def _split(model, graph: "_Graph") -> list[list]:
     """Each submodel as [its sensors, its nodes, its bonds, its boundary]."""
     subs = []
@@ -176,7 +183,7 @@ def _split(model, graph: "_Graph") -> list[list]:
         if home is not None:
             home[0] = home[0] + (m.name,)
             continue
-        ends = frozenset(n for k in bonds for n in graph.ends(k))
+        ends = frozenset(n for k in bonds for n in graph.bonds[k])
         nodes, inside, boundary = graph.reach(None, ends)
         subs.append([(m.name,), nodes, inside, boundary])
     return subs
@@ -205,9 +212,7 @@ class _Graph:
         self.reading: dict[Any, str] = {}  # cut key -> the sensor its neighbours read
         self.measured: dict[Any, str] = {}  # cut key -> "e" or "f"
         self.next_bond = max(self.bonds, default=0) + 1
-
-    def ends(self, k: int) -> tuple[str, str]:
-        return self.bonds[k]
+        self.links: dict | None = None  # :meth:`reach`'s adjacency, once the cuts are made
 
     def _adjacent(self, signals: bool = False) -> dict[str, list[tuple[int, str, bool]]]:
         """Each node's bonds and the nodes at their other ends (and False);
@@ -226,7 +231,7 @@ class _Graph:
 
     def cut_groups(self) -> dict[Any, tuple[str, ...]]:
         """Each cut's key -> the sensors on it, in the model's order."""
-        groups: dict[Any, tuple[str, ...]] = {}
+        starts = []  # per sensor that cuts: (sensor, "e" or "f", its junction)
         for m in self.model.measurements:
             s = m.expr
             hit = _BOND_VARIABLE.fullmatch(s.name) if isinstance(s, sympy.Symbol) else None
@@ -245,23 +250,26 @@ class _Graph:
                 self.bonds[k] = (start, h)  # the head's half keeps the number (a storage's bond: its state's name)
                 self.bonds[self.next_bond] = (t, start)
                 self.next_bond += 1
+            starts.append((m.name, var, start))
+        adj = self._adjacent()  # the bonds as cut (a two-port junction joins no other of its kind)
+        groups: dict[Any, tuple[str, ...]] = {}
+        for name, var, start in starts:
             if start in self.cut_of:
-                groups[self.cut_of[start]] += (m.name,)
+                groups[self.cut_of[start]] += (name,)
                 continue
-            adj = self._adjacent()
             members, todo = {start}, [start]
             while todo:  # the same-kind junctions bonded to it share its effort (flow)
                 n = todo.pop()
                 for _, o, _ in adj[n]:
-                    if o not in members and self.kind[o] == junction:
+                    if o not in members and self.kind[o] == self.kind[start]:
                         members.add(o)
                         todo.append(o)
             key = frozenset(members)
             for n in members:
                 self.cut_of[n] = key
-            self.reading[key] = m.name
+            self.reading[key] = name
             self.measured[key] = var
-            groups[key] = (m.name,)
+            groups[key] = (name,)
         return groups
 
     def reach(self, key, seeds: Iterable[str] = ()) -> tuple[frozenset, frozenset, tuple]:
@@ -272,7 +280,9 @@ class _Graph:
         for n in seeds:
             start |= set(self.cut_of.get(n, {n}))
         own = {self.cut_of[n] for n in start if n in self.cut_of}
-        adj = self._adjacent(signals=True)
+        if self.links is None:  # the bonds and signal links as cut, the same for every submodel
+            self.links = self._adjacent(signals=True)
+        adj = self.links
         nodes, todo, boundary = set(start), list(start), []
         while todo:
             n = todo.pop()
@@ -428,8 +438,6 @@ def _fit(name: str) -> str:
     of the rest keeps it unique)."""
     if len(name) <= LONGEST:
         return name
-    import hashlib
-
     return f"{name[:LONGEST - 9]}_{hashlib.sha256(name.encode()).hexdigest()[:8]}"
 
 
@@ -466,21 +474,14 @@ def _noise_levels(c: _Whole, data: dict, read_as: dict[str, str], head: str) -> 
     point.update({sym(i.name): v for i, v in zip(sub.inputs, num.u0)})
     point.update({sym(x): v for x, v in zip(ssm.states, ssm.initial)})
     dt = sub.settings.dt
-    for i, (rhs, el) in enumerate(zip(ssm.rhs, ssm.state_elements)):
-        extra = math.sqrt(sum((_slope(rhs, sym(a), point) * sigma[r] * dt) ** 2 for r, a in read_as.items()))
+    slopes = numerics.jacobian_at(list(ssm.rhs), [sym(a) for a in read_as.values()], point)  # d rates / d readings
+    for i, el in enumerate(ssm.state_elements):
+        extra = math.sqrt(sum((slopes[i, k] * sigma[r] * dt) ** 2 for k, r in enumerate(read_as)))
         scale = num.x_scale[i] * num.process_factor[i]
         data["elements"][el]["noise"] = _number(float(np.hypot(own[el], extra)) / scale)
     for name, scale in zip(ssm.outputs, num.y_scale):
         entry = _entry(data["measurements"][name])
         data["measurements"][name] = {**entry, "noise": _number(sigma[name] / scale)}
-
-
-def _slope(expr, x, point: dict) -> float:
-    """d expr / d x at ``point``, a central difference (a law with a kink,
-    an orifice's sign and root, differentiates where it stands)."""
-    rest = expr.xreplace({k: v for k, v in point.items() if k != x})
-    h = 1e-6 * max(abs(point[x]), 1.0)
-    return float((rest.xreplace({x: point[x] + h}) - rest.xreplace({x: point[x] - h})) / (2 * h))
 
 
 def _number(v: float) -> float:

@@ -51,6 +51,7 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
         if not d["temporal"] and v in algebraic and u in algebraic:
             algebraic.add_edge(u, v)
 
+    signals = state_set | set(variables) | {i.name for i in model.inputs}  # what varies in time
     resolved: dict[sympy.Symbol, sympy.Expr] = {sym(x): sym(x) for x in states}
     rates: dict[str, sympy.Symbol] = {}  # per state, the symbol of its rate, once a derivative causality needs it
     loops: list[tuple[str, ...]] = []
@@ -66,16 +67,14 @@ def derive(tcg: TemporalCausalGraph) -> StateSpaceModel:
                                     "check the causality of the bonds around it")
             resolved[sym(v)] = _substitute(g.nodes[v]["definition"], resolved)
             if "differentiates" in g.nodes[v]:
-                resolved[sym(v)] = _derivative_causality(model, g, v, resolved,
-                                                         state_set | set(variables) | {i.name for i in model.inputs},
-                                                         states, rates)
+                resolved[sym(v)] = _derivative_causality(model, g, v, resolved, signals, states, rates)
             continue
         loops.append(tuple(members))
         resolved.update(_solve_loop(tcg, members, resolved))
         for v in members:  # a storage in derivative causality inside the loop: its derivative is not taken there
             if "differentiates" in g.nodes[v]:
                 imposed = resolved[sym(g.nodes[v]["differentiates"])]
-                if {x.name for x in imposed.free_symbols} & (state_set | {i.name for i in model.inputs}):
+                if {x.name for x in imposed.free_symbols} & signals:
                     el = model.element(g.nodes[v]["element"])
                     raise EquationError(f"{el.kind} element {el.name} is in derivative causality inside an "
                                         f"algebraic loop ({', '.join(members)}); bgc cannot derive equations "

@@ -446,21 +446,25 @@ def _accurate_substeps(ssm: StateSpaceModel, substeps: int, sigma: list[float], 
 def nominal_extremes(ssm: StateSpaceModel, substeps: int) -> list[float]:
     """Per measurement, its value of largest magnitude over the noise-free
     nominal run, with its sign (0 where it stays 0)."""
+    return [float(v) for v in _output_extremes(ssm, _nominal_run(ssm, substeps))]
+
+
+def _output_extremes(ssm: StateSpaceModel, run) -> np.ndarray:
+    """Per measurement, its value of largest magnitude over ``run`` (pairs
+    (x, y) of :func:`_nominal_run`), signed; 0 where it stays 0 or is never
+    a finite number."""
     out = np.zeros(len(ssm.output_exprs))
-    for _, y in _nominal_run(ssm, substeps):
+    for _, y in run:
         with np.errstate(invalid="ignore"):
             out = np.where(np.isfinite(y) & (np.abs(y) > np.abs(out)), y, out)
-    return [float(v) for v in out]
+    return out
 
 
 def _nominal_magnitudes(ssm: StateSpaceModel, run: list) -> tuple[list[float], list[float]]:
     """max |x_i(t)| and max |y_j(t)| over a run of :func:`_nominal_run`; 0
     where a signal stays 0 or the run leaves the finite numbers."""
     x_max = np.abs(np.array(ssm.initial, dtype=float))
-    y_max = np.zeros(len(ssm.output_exprs))
-    for x, y in run:
+    for x, _ in run:
         x_max = np.maximum(x_max, np.abs(x))
-        with np.errstate(invalid="ignore"):
-            y = np.abs(y)
-            y_max = np.where(np.isfinite(y), np.maximum(y_max, y), y_max)
+    y_max = np.abs(_output_extremes(ssm, run))
     return [float(v) for v in x_max], [float(v) for v in y_max]

@@ -75,8 +75,8 @@ def derive(ssm: StateSpaceModel, extra: tuple[str, ...] = ()) -> FaultSignatures
     algebraic.add_nodes_from(g.nodes)
     algebraic.add_edges_from((u, v) for u, v, d in g.edges(data=True) if not d["temporal"])
     values = dict(ssm.variables)
-    merged = {v: d["differentiates"] for v, d in g.nodes(data=True)  # storages joined to others (a varying constraint)
-              if d.get("differentiates") and values.get(v, 0) != 0}
+    merged = any(d.get("differentiates") and values.get(v, 0) != 0  # storages joined to others (a varying constraint)
+                 for v, d in g.nodes(data=True))
     plan = _plan(g, _order(algebraic))
     entries, jobs = [], []  # per signature: (fault, direction, kind, own symbols or the index of its propagation)
     for fault in model.faults:
