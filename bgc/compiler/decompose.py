@@ -385,33 +385,10 @@ def _submodel(c: _Whole, graph: _Graph, sensors: tuple[str, ...], nodes: frozens
         if n in initial:
             entry["initial"] = _number(initial[n])
         els[n] = entry
-    sources = {}
-    for k, inner, cut in boundary:
-        src = _fit(f"{graph.reading[cut]}_at_{k}")
-        while src in els or src in graph.kind:
-            src += "_"
-        sources[k] = (src, inner)
-        els[src] = {"kind": "Se" if graph.measured[cut] == "e" else "Sf", "value": read_as[graph.reading[cut]],
-                    "description": f"sensor {graph.reading[cut]}'s reading"}
     data["elements"] = els
-    bonds = {}
-    for k in sorted(bond_numbers):
-        t, h = graph.bonds[k]
-        if k in sources:
-            src, inner = sources[k]
-            t, h = (inner, src) if t == inner else (src, inner)
-        bonds[str(k)] = [t, h]
-    data["bonds"] = bonds
+    data["bonds"] = _sourced(graph, els, boundary, bond_numbers, read_as)
     data["measurements"] = {s: _entry(raw["measurements"][s]) for s in sensors}
-    faults = {}
-    for subject, entry in raw.get("faults", {}).items():
-        if subject in used & (parameters | inputs) or subject in sensors:
-            faults[subject] = entry
-        elif subject in reads:
-            kinds = entry if isinstance(entry, list) else entry.get("kinds", [])
-            kept = [k for k in kinds if k in _AS_INPUT]
-            if kept:
-                faults[read_as[subject]] = kept if isinstance(entry, list) else {**entry, "kinds": kept}
+    faults = _faults(raw.get("faults", {}), used & (parameters | inputs) | set(sensors), read_as)
     if faults:
         data["faults"] = faults
     if "simulation" in raw:
@@ -424,6 +401,43 @@ def _submodel(c: _Whole, graph: _Graph, sensors: tuple[str, ...], nodes: frozens
     seen = tuple(s for s in faults if s not in read_as.values()) + tuple(r for r in reads if read_as[r] in faults)
     return Submodel(name, tuple(sensors), reads, tuple(sorted(used & inputs)),
                     tuple(n for n in els if n in elements), seen, text, tuple(read_as.items()))
+
+
+def _sourced(graph: _Graph, els: dict, boundary: tuple, bond_numbers: set[int], read_as: dict[str, str]) -> dict:
+    """The submodel's bonds, each bond to another cut ending at a source of
+    that cut's reading (added to ``els``; the bond keeps its direction)."""
+    sources = {}
+    for k, inner, cut in boundary:
+        src = _fit(f"{graph.reading[cut]}_at_{k}")
+        while src in els or src in graph.kind:
+            src += "_"
+        sources[k] = (src, inner)
+        els[src] = {"kind": "Se" if graph.measured[cut] == "e" else "Sf", "value": read_as[graph.reading[cut]],
+                    "description": f"sensor {graph.reading[cut]}'s reading"}
+    bonds = {}
+    for k in sorted(bond_numbers):
+        t, h = graph.bonds[k]
+        if k in sources:
+            src, inner = sources[k]
+            t, h = (inner, src) if t == inner else (src, inner)
+        bonds[str(k)] = [t, h]
+    return bonds
+
+
+def _faults(declared: dict, kept: set[str], read_as: dict[str, str]) -> dict:
+    """The model file's faults a submodel keeps: those of ``kept``
+    (its parameters, inputs and sensors), and of each sensor it reads the
+    kinds an input takes, as that input's."""
+    faults = {}
+    for subject, entry in declared.items():
+        if subject in kept:
+            faults[subject] = entry
+        elif subject in read_as:
+            kinds = entry if isinstance(entry, list) else entry.get("kinds", [])
+            taken = [k for k in kinds if k in _AS_INPUT]
+            if taken:
+                faults[read_as[subject]] = taken if isinstance(entry, list) else {**entry, "kinds": taken}
+    return faults
 
 
 def _text(head: str, data: dict) -> str:
