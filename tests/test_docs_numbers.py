@@ -23,7 +23,7 @@ import pytest
 from bgc.api.detection import RUNS
 from bgc.cli.main import build_parser
 from bgc.diagnosis.detect import DetectorOptions, union_threshold
-from bgc.diagnosis.loop import _onsets
+from bgc.diagnosis.loop import onsets_tried
 from bgc.diagnosis.onsets import ONSET_GROWTH
 from bgc.diagnosis.options import DiagnosisOptions, KalmanOptions
 from bgc.diagnosis.values import Detection
@@ -83,11 +83,11 @@ ALARM, STEPS = Detection(200, "y", 1, 9.0, 4.0, 150), 400
 def test_a_steps_onset_window():
     """The loop's own window (its +2 is inline in _onsets): the README once
     said -5, docs/commands.md kept it. The Kalman filters' reach the alarm."""
-    near = _onsets(DEFAULT, ALARM, STEPS)[1]
+    near = onsets_tried(DEFAULT, ALARM, STEPS)[1]
     before, after = ALARM.onset_step - min(near), max(near) - ALARM.onset_step
     assert before == DEFAULT.near
     check(r"(\d+) before (?:it )?to (\d+) after", (before, after), places=2)
-    kalman = _onsets(DEFAULT, ALARM, STEPS)[4][False]
+    kalman = onsets_tried(DEFAULT, ALARM, STEPS)[4][False]
     assert (kalman[0], kalman[-1]) == (ALARM.onset_step - before, ALARM.step)
     check(r"every sample from (\d+) before the\s+detector's change point up to the alarm's", (before,))
 
@@ -153,7 +153,7 @@ def test_the_symbols_samples_after_the_alarm():
 def _spacing(options: DiagnosisOptions) -> int:
     """The particle filters' spacing of a drift's onsets near the alarm, as
     the loop lays them (inline in _onsets: 8 with the Kalman filters, else 4)."""
-    reach = _onsets(options, ALARM, STEPS)[0]  # also the change point and the sample before it
+    reach = onsets_tried(options, ALARM, STEPS)[0]  # also the change point and the sample before it
     return min(ALARM.step - k for k in reach if k < ALARM.step and k not in (ALARM.onset_step - 1, ALARM.onset_step))
 
 

@@ -9,19 +9,19 @@ step now try every sample from the change point - 4 up to the alarm.
 
 import pytest
 
-from bgc.diagnosis.loop import _onsets
+from bgc.diagnosis.loop import onsets_tried
 from bgc.diagnosis.options import DiagnosisOptions
 from bgc.diagnosis.values import Detection
 
 
 def test_a_steps_kalman_onsets_run_from_the_change_point_to_the_alarm():
     o = DiagnosisOptions()
-    _, near, _, onsets, kalman = _onsets(o, Detection(50, "y", 8, 5.0, 4.6, 40), 300)
+    _, near, _, onsets, kalman = onsets_tried(o, Detection(50, "y", 8, 5.0, 4.6, 40), 300)
     assert sorted(near) == list(range(36, 43))  # the particle filters': the change point -4 to +2
     assert onsets[False] == list(range(36, 43))
     assert kalman[False] == list(range(36, 51))  # the Kalman filters': up to the alarm's sample
     # an alarm at its change point: nothing more
-    assert _onsets(o, Detection(40, "y", 1, 5.0, 4.6, 40), 300)[4][False] == list(range(36, 42))
+    assert onsets_tried(o, Detection(40, "y", 1, 5.0, 4.6, 40), 300)[4][False] == list(range(36, 42))
 
 
 @pytest.mark.slow

@@ -450,7 +450,7 @@ def isolate(config: LoopConfig, pf_class, detection, clouds: dict, ys: np.ndarra
     from, the symbols read on the open-loop nominal prediction from the
     detector's onset, and the fault models they keep."""
     o, T, package = config.options, len(ys), config.package
-    reach, near, kalman_reach, onsets, kalman_onsets = _onsets(o, detection, T)
+    reach, near, kalman_reach, onsets, kalman_onsets = onsets_tried(o, detection, T)
     config.say("reading the symbols of the deviating sensors")
     onset = detection.onset_step
     steps = min(T - onset, detection.step - onset + 1 + o.symbol_steps)
@@ -502,7 +502,7 @@ def frozen_sensor(detection) -> str | None:
     return detection.sensor if detection.test == "frozen" else None
 
 
-def _onsets(o: DiagnosisOptions, detection, T: int):
+def onsets_tried(o: DiagnosisOptions, detection, T: int):
     """The onsets tried: (a drift's reach for the particle filters, the steps
     near the change point, a drift's reach for the Kalman filters, the
     particle filters' onsets and the Kalman filters' by whether the fault is

@@ -237,6 +237,10 @@ def _inside(lo: float, hi: float, vmin: float, vmax: float) -> tuple[float, floa
 #: At most this many rounds of the onset's refinement (:func:`static_posterior`).
 REFINE_ROUNDS = 6
 
+#: A grid whose best point's parabola peaks this much (log likelihood) above it between points is too
+#: coarse for the far-off test (:meth:`_Search._far_off`).
+COARSE = 2.0
+
 #: A burst of noise whose earliest onset's row fits the factor 1 within this of its best log likelihood
 #: is given up as a far one is (:meth:`_Search._nominal_fits`).
 NOMINAL = 2.0
@@ -429,12 +433,24 @@ class _Search:
                 return
 
     def _far_off(self) -> bool:
-        """Whether the most likely cell's residuals are far off the data (``far``)."""
+        """Whether the most likely cell's residuals are far off the data
+        (``far``), on a grid fine enough to tell: where the parabola through
+        the best point and its two neighbours peaks ``COARSE`` above it, the
+        peak lies between points the grid is too coarse for (a sensor's
+        bias of 0.3 between points 1.2 apart), and the best point's misfit
+        says nothing of the model's."""
         g = self.g
         row = int(np.argmax([np.max(ll) for ll in g.loglik]))
         onset = int(self.current[row])
+        ll = np.asarray(g.loglik[row], dtype=float)
+        j = int(np.argmax(ll))
+        if 0 < j < len(ll) - 1:
+            a, b, c = ll[j - 1], ll[j], ll[j + 1]
+            bend = a - 2.0 * b + c
+            if bend < 0 and np.isfinite(bend) and -(a - c) ** 2 / (8.0 * bend) > COARSE:
+                return False
         key = _row_key(onset, self.ranges[onset], self.counts[onset])
-        return bool(self.far(self.cache[key][1][onset:, int(np.argmax(g.loglik[row]))]))
+        return bool(self.far(self.cache[key][1][onset:, j]))
 
     def _nominal_fits(self) -> bool:
         """A burst of noise whose earliest onset's row fits the sensor's own

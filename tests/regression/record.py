@@ -38,7 +38,7 @@ whose change point is the data's second sample, leaves 1 sample before the fault
 that could vouch for the model: "unexplained" (k_s_abrupt the closest) before, "mismatch" now; its
 hypotheses' numbers moved in their last digits (the same code recorded them; the replay passes).
 Re-recorded on 2026-12-04 (--only two_tank_R20_drift_up_gpf_workers2 drivetrain_g_m_step_down_switch_gpf
---keep-runs) when a step's Kalman onsets came to reach the alarm (bgc.diagnosis.loop._onsets: from the
+--keep-runs) when a step's Kalman onsets came to reach the alarm (bgc.diagnosis.loop.onsets_tried: from the
 detector's change point - 4 up to the alarm's sample, not to the change point + 2 only; issue 48, point
 4: the sweep's two "unexplained" two-tank R12 steps, whose change point fell 3 samples before the true
 onset, are "isolated: R12_abrupt" now). These two cases' numbers moved: in
