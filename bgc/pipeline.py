@@ -148,11 +148,13 @@ class Decomposed:
     parts: tuple[Compiled, ...]
 
 
-def decompose_model(path: str | Path, prior_scale: float = 1.0, *, text: str | None = None) -> Decomposed:
+def decompose_model(path: str | Path, prior_scale: float = 1.0, *, text: str | None = None,
+                    parts: bool = True) -> Decomposed:
     """The model split into minimal submodels, each compiled with its own
     faults (:mod:`bgc.compiler.decompose`): the whole model is compiled as
     far as its numbers only (no fault model of the whole plant is
-    generated), each submodel to its package. A submodel's errors name it
+    generated), each submodel to its package (``parts`` False: none, the
+    caller compiles them, through the cache). A submodel's errors name it
     as ``submodels/<name>.yaml``, the file ``bgc compile --decompose``
     writes."""
     raw = load.load(path) if text is None else load.loads(text, str(path))
@@ -161,8 +163,9 @@ def decompose_model(path: str | Path, prior_scale: float = 1.0, *, text: str | N
     ssm = equations.derive(tcg.build(causality.assign(model)))
     num = numerics.derive(dbn.build(ssm), prior_scale)
     d = decompose.decompose(raw, num)
-    parts = tuple(compile_model(f"submodels/{s.name}.yaml", prior_scale, text=s.text) for s in d.submodels)
-    return Decomposed(raw, model, num, d, parts)
+    compiled = tuple(compile_model(f"submodels/{s.name}.yaml", prior_scale, text=s.text) for s in d.submodels) \
+        if parts else ()
+    return Decomposed(raw, model, num, d, compiled)
 
 
 def check_model(path: str | Path) -> Compiled | Hybrid:

@@ -21,6 +21,7 @@ from bgc.model.protocol import FaultModel
 from bgc.pipeline import decompose_model
 
 import chain_reference as chain
+from conftest import bgc_cli
 
 CKF = DiagnosisOptions(filter="ckf")
 
@@ -163,3 +164,34 @@ def test_whole_plant_ckf_finds_a_bias_between_its_first_grids_points(chain4, fau
     t, y = chain.run(4, fault, seed=0)
     d = bgc.diagnose(str(chain4), chain.as_run(t, y), filter="ckf").diagnosis
     assert (d.verdict, d.candidates) == ("isolated", (name,))
+
+
+def test_api_and_cli_diagnose_on_the_submodels(chain4, tmp_path):
+    """``bgc.diagnose(..., decompose=True)`` and ``bgc diagnose --decompose``:
+    the plan's verdict, a report that says what was weighed in place of
+    the signatures, and the submodels in report.json."""
+    t, y = chain.run(4, "R2:0.5", seed=2)
+    run = chain.as_run(t, y)
+    r = bgc.diagnose(str(chain4), run, decompose=True)
+    assert (r.diagnosis.verdict, r.diagnosis.candidates) == ("isolated", ("R2_abrupt",))
+    assert r.diagnosis.submodels == ("chain4_p1", "chain4_p2", "chain4_p3", "chain4_p4")
+    data = tmp_path / "run.csv"
+    from bgc.data.runs import run_csv
+    data.write_text(run_csv(run))
+    out = tmp_path / "report"
+    done = bgc_cli("diagnose", chain4, "--data", data, "--decompose", "-o", out)
+    assert done.returncode == 0, done.stderr
+    assert "isolated: R2_abrupt" in done.stdout
+    text = (out / "report.md").read_text()
+    assert "## Isolation on the submodels" in text and "TRANSCEND" not in text
+    import json
+    assert json.loads((out / "report.json").read_text())["settings"]["submodels"][0] == "chain4_p1"
+
+
+def test_decompose_refuses_what_it_cannot_do(chain4):
+    """Particle filters, other noise levels: one line each, no traceback."""
+    done = bgc_cli("diagnose", chain4, "--scenario", "none", "--decompose", "--filter", "apf")
+    assert done.returncode != 0 and "Traceback" not in done.stderr
+    assert "--decompose with --filter apf" in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    with pytest.raises(bgc.ArgumentValueError, match="decompose=True with process_noise="):
+        bgc.diagnose(str(chain4), scenario="none", decompose=True, process_noise=0.01)

@@ -166,8 +166,17 @@ def open_model(model: str | os.PathLike, prior_scale: float = 1.0) -> Opened:
     return dataclasses.replace(opened, seconds=time.perf_counter() - start)
 
 
-def _open(source: str, prior_scale: float) -> Opened:
-    text = _text_of(source)
+def open_text(text: str, source: str, prior_scale: float = 1.0) -> Opened:
+    """The compiled model of the model file text ``text`` (named
+    ``source`` in messages: a file bgc writes, a submodel of
+    ``bgc compile --decompose``), through the cache as a file of that text."""
+    start = time.perf_counter()
+    opened = _open(source, prior_scale, text.encode("utf-8"))
+    return dataclasses.replace(opened, seconds=time.perf_counter() - start)
+
+
+def _open(source: str, prior_scale: float, text: bytes | None = None) -> Opened:
+    text = _text_of(source) if text is None else text
     if text is None:
         return _uncached(source, prior_scale)
     entry = cache_root() / MODELS / key_of(text, prior_scale)

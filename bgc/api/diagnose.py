@@ -17,7 +17,9 @@ from ..data import runs
 from ..analysis import simulate
 from ..analysis import track
 from ..diagnosis.options import DiagnosisOptions
+from ..diagnosis.decomposed import Plan, diagnose as diagnose_decomposed
 from ..diagnosis.diagnose import IDENTIFY, diagnose as run_diagnosis
+from .decomposed import open_plan
 from ..data.sampler import grid_steps
 from .limits import (METHODS, check_diagnosis_steps, check_options,
                      with_horizon)
@@ -34,7 +36,7 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
              options: DiagnosisOptions | None = None, progress=None,
              prior_scale: float | None = None, backend: str | None = None, columns=None,
              inputs: Mapping[str, Any] | None = None, method: str | None = None,
-             modes: str | None = None) -> DiagnosisReport:
+             modes: str | None = None, decompose: bool = False) -> DiagnosisReport:
     """Diagnose ``data`` (a run file, a :class:`~bgc.data.runs.Run` or a :class:`Simulation`) or a
     simulated ``scenario`` (``NAME:KIND:MAGNITUDE@TIME``, or ``none`` for a
     fault-free run) of ``model``.
@@ -112,6 +114,14 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         mode over the simulated run, ``MODE@TIME,...`` as ``bgc simulate
         --modes`` takes them (the run starts in the first mode; the
         autonomous and timed changes happen by themselves).
+    decompose : bool
+        Diagnose on the model's submodels (``bgc diagnose --decompose``,
+        :mod:`bgc.diagnosis.decomposed`): the plant split at its sensors as
+        ``bgc compile --decompose`` splits it, each fault weighed on the
+        submodels it touches, by cubature Kalman filters (``filter`` "ckf"
+        or left out; the submodels carry the model's own noise levels, so
+        ``process_noise``, ``measurement_noise`` and ``generated`` are left
+        out). The diagnosis lists the sensors as the submodels predict them.
 
     Returns
     -------
@@ -151,6 +161,9 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         both = "both" if data is not None else "neither"
         raise ArgumentValueError(f"{func}: give either data or a scenario, not {both}", None,
                                  "e.g. data='run.csv' or scenario='R_pipe:incipient:0.5@165'")
+    arguments.flag(func, "decompose", decompose)
+    if decompose:
+        filter = _decomposed_filter(func, filter, method, process_noise, measurement_noise, generated)
     filter = arguments.renamed(func, "filter", filter, "method", method, "gpf")
     arguments.choice(func, "filter", filter, METHODS)
     arguments.choice(func, "identify", identify, IDENTIFY)
@@ -197,8 +210,32 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         scenario = scenario.text
     if simulated is not None:
         scenario, injected = simulated.scenario, simulated.fault
+    if decompose:
+        if session.noise != (None, None):
+            raise ArgumentValueError(f"{func}: decompose=True with a session of other noise levels: the "
+                                     "submodels carry the model's own", None, "open the session without them")
+        if tuple(opts.detectors) != ("mean",):
+            raise ArgumentValueError(f"{func}: decompose=True with the detectors {', '.join(opts.detectors)}: the "
+                                     "submodels are watched by the mean test alone", None,
+                                     "leave options.detectors (--detect) at mean")
+        plan = open_plan(session.model, session.prior_scale, say)
+        return _run(session.view, run, plan, scenario, injected, session.noise, session.levels, opts, say)
     return _run(session.view, run, session.package, scenario, injected, session.noise, session.levels, opts,
                 say)
+
+
+def _decomposed_filter(func: str, filter, method, process_noise, measurement_noise, generated) -> str:
+    """The filter of a decomposed diagnosis: ckf, the only one; the arguments it cannot take refused."""
+    chosen = filter if filter is not None else method  # options.filter: replaced by ckf
+    if chosen not in (None, "ckf"):
+        raise ArgumentValueError(f"{func}: decompose=True with filter={chosen!r}: the submodels are weighed by "
+                                 "cubature Kalman filters", None, "use filter='ckf', or leave filter out")
+    for name, value in (("process_noise", process_noise), ("measurement_noise", measurement_noise),
+                        ("generated", generated)):
+        if value is not None:
+            raise ArgumentValueError(f"{func}: decompose=True with {name}=: the submodels carry the model's own "
+                                     "noise levels and are compiled from it", None, f"drop {name}=")
+    return "ckf"
 
 
 def _scenario_run(session: Session, scenario, steps: int | None, seed: int, opts: DiagnosisOptions,
@@ -228,7 +265,9 @@ def _recorded_run(session: Session, run: runs.Run, opts: DiagnosisOptions) -> ru
 
 
 def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> DiagnosisReport:
-    track.check_request(run, package, "nominal", opts.particles, None, columns=False)
+    """The diagnosis of ``run`` with ``package`` (a :class:`~bgc.diagnosis.decomposed.Plan`: on the submodels)."""
+    if not isinstance(package, Plan):
+        track.check_request(run, package, "nominal", opts.particles, None, columns=False)
     opts = with_horizon(opts, c.model.settings)
     if scenario is not None and opts.input_timing == "start":
         raise ArgumentValueError(f"{arguments.spelled('bgc.diagnose: options.input_timing', '--input-timing')}="
@@ -238,6 +277,9 @@ def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> Diagn
                                  arguments.spelled("options.input_timing", "--input-timing"))
     if timing != (opts.input_timing or "end"):  # the header's word (None stays None: the default, as a stream's)
         opts = dataclasses.replace(opts, input_timing=timing)
-    result = run_diagnosis(run, package, isolation_signatures(c), c.priors, opts, say)
+    if isinstance(package, Plan):  # decompose=True: on the submodels
+        result = diagnose_decomposed(run, package, dataclasses.replace(opts, filter="ckf"), say)
+    else:
+        result = run_diagnosis(run, package, isolation_signatures(c), c.priors, opts, say)
     return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,
                            result, c.labels)

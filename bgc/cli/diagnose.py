@@ -24,6 +24,11 @@ def add_parser(sub) -> None:
                    help="gpf (the thesis's generic filter), apf (auxiliary), opf (the locally optimal proposal) or "
                         "ckf (cubature Kalman filters alone, no particles: exact on plants linear in their states, "
                         "for sensors sharp against the process noise, where particle filters degenerate)")
+    p.add_argument("--decompose", action="store_true",
+                   help="diagnose on the model's submodels (as bgc compile --decompose splits it): each fault "
+                        "weighed on the submodels it touches, by cubature Kalman filters (ckf, in place of the "
+                        "default gpf; apf and opf are refused); the cost grows with what a fault touches, not with "
+                        "the plant")
     p.add_argument("--particles", type=int, default=1000)
     p.add_argument("--seed", type=seed, default=0, help="random seed, an integer >= 0")
     p.add_argument("--noise", metavar="process=Q,measurement=R",
@@ -64,7 +69,11 @@ def run(args: argparse.Namespace) -> int:
     process, measurement = parse_noise(args.noise)
     progress = Progress()
     try:
-        options = DiagnosisOptions(filter=args.filter, particles=args.particles, seed=args.seed,
+        if args.decompose and args.filter not in ("gpf", "ckf"):  # gpf: the default, replaced
+            raise BgcError(f"--decompose with --filter {args.filter}: the submodels are weighed by cubature Kalman "
+                           "filters", None, "drop --filter, or give --filter ckf")
+        options = DiagnosisOptions(filter="ckf" if args.decompose else args.filter,
+                                   particles=args.particles, seed=args.seed,
                                    identify=args.identify, rank=args.rank, refine=args.refine,
                                    horizon=args.horizon, gap=args.gap, recheck=args.recheck, no_fault=args.no_fault,
                                    input_timing=args.input_timing, detectors=args.detect)
@@ -77,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
             raise BgcError("--columns applies to --data: a column map is for a logger's file", None,
                            "drop --columns, or give --data")
         r = api.diagnose(session, data=args.data, scenario=args.scenario, seed=args.seed, steps=args.steps,
-                         options=options, progress=progress, columns=args.columns)
+                         options=options, progress=progress, columns=args.columns, decompose=args.decompose)
     finally:
         progress.close()
     write_report(r, args.output or f"{r.model}-diagnosis", "diagnose")

@@ -274,7 +274,7 @@ def diagnose(run: Run, p: Plan, options: DiagnosisOptions = DiagnosisOptions(), 
                     np.asarray(whole.x_mean)[:T], np.asarray(whole.x_std)[:T], statistics, threshold, detection,
                     isolation, (), None, observer=whole)
     d = _decided(record, Setting(_View(views), p.priors, o, horizon, say), hyps, posteriors)
-    return replace(d, seconds=time.perf_counter() - started)
+    return replace(d, seconds=time.perf_counter() - started, submodels=tuple(part.name for part in p.parts))
 
 
 def _detect(z: np.ndarray, outputs: tuple[str, ...], present: np.ndarray, horizon: int, o: DiagnosisOptions):

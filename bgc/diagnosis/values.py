@@ -192,7 +192,8 @@ class Diagnosis:
     then hold the faults the diagnosis would have named, as possibilities);
     ``mode_split``: for an ambiguous verdict of a model with modes, the
     candidates another mode may separate (a :class:`ModeSplit`; None: none,
-    or no modes)."""
+    or no modes); ``submodels``: the submodels a decomposed diagnosis ran
+    on (:mod:`bgc.diagnosis.decomposed`; empty: the whole plant)."""
 
     model: str
     time: np.ndarray
@@ -218,6 +219,7 @@ class Diagnosis:
     data: DataSummary | None = None
     mode_split: ModeSplit | None = None
     fit: Fit | None = None
+    submodels: tuple[str, ...] = ()
 
     def __repr__(self) -> str:  # its arrays would flood a notebook: what a reader wants
         onset = "" if self.onset is None else f", onset t = {self.onset:.12g}"

@@ -132,7 +132,8 @@ def report_data(r) -> dict[str, Any]:
                      "no_fault": d.options.no_fault,
                      "interval": d.options.interval, "threshold": _num(d.threshold),
                      "process_noise": r.noise[0], "measurement_noise": r.noise[1],
-                     "time_unit": labels.time_unit, "input_timing": d.options.input_timing or "end"},
+                     "time_unit": labels.time_unit, "input_timing": d.options.input_timing or "end",
+                     "submodels": list(d.submodels)},
         "verdict": d.verdict,
         "detection": None if det is None else {
             "time": _time(_t(d, det.step)), "sensor": det.sensor, "window": det.window,
@@ -250,13 +251,24 @@ def heading(r, quote: Callable[[Any], str] = _same) -> tuple[str, str, str]:
     how = {"kalman": "magnitudes and hypotheses weighed with the magnitude held static (cubature Kalman filters "
                      "on a grid of onsets and magnitudes)",
            "filter": "magnitudes from the particle filters' own magnitude state"}[d.options.identify]
-    if d.options.filter == "ckf":
+    if d.submodels:
+        how = (f"Filter: CKF on the model's {len(d.submodels)} submodels (cubature Kalman filters: each "
+               f"submodel's nominal observer, and every hypothesis with its magnitude held static on a grid of "
+               f"onsets and magnitudes, on the submodels it touches); {noise}.")
+    elif d.options.filter == "ckf":
         how = (f"Filter: CKF (cubature Kalman filters: the nominal observer, and every hypothesis with its "
                f"magnitude held static on a grid of onsets and magnitudes); {noise}.")
     else:
         how = (f"Filter: {d.options.filter.upper()}, {d.options.particles} particles, seed {d.options.seed}; "
                f"{noise}; {how}.")
     return title, data, how
+
+
+def decomposed_text(d) -> str:
+    """What a decomposed diagnosis weighed in place of the signatures' isolation."""
+    return (f"The plant was diagnosed on its {len(d.submodels)} submodels (as bgc compile --decompose splits it), "
+            "no signatures read: every fault that can move the submodel of the sensor that alarmed "
+            f"({d.detection.sensor}) was weighed on the submodels it touches.")
 
 
 def _heading(r) -> list[str]:
@@ -442,11 +454,14 @@ def report_markdown(r) -> str:
         lines += [no_detection_text(d, labels), ""]
     else:
         lines += ["## Detection", ""] + [f"- {line}" for line in detection_lines(d, labels)] + [""]
-        lines += ["## Qualitative isolation (TRANSCEND signatures)", ""]
-        if d.symbols:
-            lines.append("Observed deviations: " + "; ".join(symbol_text(d, s) for s in d.symbols) + ".")
+        if d.submodels:
+            lines += ["## Isolation on the submodels", "", decomposed_text(d)]
+        elif d.symbols:
+            lines += ["## Qualitative isolation (TRANSCEND signatures)", "",
+                      "Observed deviations: " + "; ".join(symbol_text(d, s) for s in d.symbols) + "."]
         else:
-            lines.append("No sensor deviated significantly from the open-loop nominal prediction.")
+            lines += ["## Qualitative isolation (TRANSCEND signatures)", "",
+                      "No sensor deviated significantly from the open-loop nominal prediction."]
         if d.refuted:
             lines += ["", "Ruled out by their signatures:", ""]
             lines += [f"- {escape(n)}: {escape(why)}" for n, why in d.refuted]
@@ -505,6 +520,7 @@ def report_html(r, data: Mapping[str, Any], pictures: Mapping[str, bytes]) -> st
         detection=detection_lines(d, labels), no_detection=no_detection_text(d, labels),
         detection_pictures=html.pictures(pictures, DETECTION_PICTURES),
         isolation=d.detection is not None, symbols=symbols if symbols.rows else None,
+        decomposed=decomposed_text(d) if d.submodels and d.detection is not None else None,
         signatures=html.table(("signature", "outcome", "why"), signatures) if signatures else None,
         hypotheses=html.table(HYPOTHESIS_COLUMNS, [(*row[:-1], row[-1] or "-")
                                                    for row in hypothesis_rows(d, labels)])

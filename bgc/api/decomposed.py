@@ -1,0 +1,51 @@
+"""The decomposed plant a diagnosis runs on (``bgc diagnose --decompose``,
+``bgc.diagnose(..., decompose=True)``): the model split at its sensors
+(:func:`bgc.pipeline.decompose_model`), each submodel compiled through the
+cache as the file ``bgc compile --decompose`` writes, and the plan of which
+submodels model each fault (:func:`bgc.diagnosis.decomposed.plan`). Kept
+per process for the model file's text: a campaign of many runs splits the
+plant once."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import threading
+from pathlib import Path
+
+from .. import pipeline
+from ..diagnosis import decomposed
+from ..model.package import load_package
+from . import cache
+
+_PLANS: dict = {}
+_LOCK = threading.Lock()
+
+
+def open_plan(model: str | os.PathLike, prior_scale: float = 1.0, say=None) -> decomposed.Plan:
+    """The :class:`~bgc.diagnosis.decomposed.Plan` of the model file ``model``
+    (its faults' priors widened by ``prior_scale``).
+
+    Raises
+    ------
+    BgcError
+        The model's own errors, and those of the decomposition (a model with
+        modes, one without sensors: :mod:`bgc.compiler.decompose`).
+    """
+    text = Path(model).read_bytes()
+    key = (os.path.abspath(model), hashlib.sha256(text).hexdigest(), float(prior_scale))
+    with _LOCK:
+        if key in _PLANS:
+            return _PLANS[key]
+    if say is not None:
+        say("splitting the model at its sensors")
+    d = pipeline.decompose_model(model, prior_scale, text=text.decode("utf-8"), parts=False)
+    packages = []
+    for s in d.decomposition.submodels:
+        source = f"submodels/{s.name}.yaml"
+        opened = cache.open_text(s.text, source, prior_scale)
+        packages.append(load_package(opened.folder, opened.view.model.name, source))
+    plan = decomposed.plan(d, packages)
+    with _LOCK:
+        _PLANS[key] = plan
+    return plan
