@@ -13,8 +13,9 @@ submodels that did not end in "no fault", the faults that touch every one of
 them (what a single fault must explain), and the seconds of all the
 submodels' diagnoses.
 
-This measures the submodels' filters; combining their verdicts into one
-diagnosis is not built (bgc diagnose runs on the whole plant).
+This measures each submodel's own diagnosis; the one diagnosis made of the
+submodels' evidence (``bgc diagnose --decompose``) is measured by
+``bench/decomposed_diagnosis.py``.
 """
 
 from __future__ import annotations
