@@ -213,3 +213,40 @@ def test_a_leak_its_tanks_sensor_bias_mimics_is_unexplained(tmp_path):
     assert d.verdict == "unexplained"
     bias = next(h for h in d.hypotheses if h.name == "p3_offset_bias")
     assert bias.drop is not None and bias.drop.code == "static-test" and bias.static_alarm.window > 32
+
+
+def test_noisier_sensors_than_the_model_says_are_a_mismatch(chain4):
+    """Sensors 1.3 times as noisy as the model says: the fault's residuals
+    after its onset are too wide, which is noise the model lacks, said as
+    "mismatch" with the fault named as a possibility (the whole plant's
+    verdict), not "unexplained"."""
+    t, y = chain.run(4, "R2:0.5", seed=1, noise=0.013)
+    d = bgc.diagnose(str(chain4), chain.as_run(t, y), decompose=True).diagnosis
+    assert d.verdict == "mismatch" and "R2_abrupt" in d.candidates
+
+
+def test_a_reading_is_read_at_its_rows_time_whatever_the_inputs_timing(plan3):
+    """With ``input_timing="start"`` a row's input acts over the step that
+    starts at it; a reading read as an input is a measurement at its row's
+    time all the same, so every step gets the same held reading as with
+    ``end`` (the first step's, before any reading, aside)."""
+    from dataclasses import replace
+
+    t, y = chain.run(3, "R2:0.5", seed=0)
+    run = chain.as_run(t, y)
+    end = decomposed._data(run, plan3, CKF)
+    start = decomposed._data(run, plan3, replace(CKF, input_timing="start"))
+    for a, b, part in zip(end.us, start.us, plan3.parts):
+        read = [j for j, u in enumerate(part.nominal.INPUTS) if u != "f_in"]
+        np.testing.assert_allclose(a[1:, read], b[1:, read], rtol=1e-12)
+
+
+def test_refuses_what_it_does_not_weigh(plan3, chain4):
+    """A read sensor without a reading, and the particle filters' ranking and refining: one line each."""
+    t, y = chain.run(3, "none", seed=0)
+    run = chain.as_run(t, y)
+    run.measurements["p2"] = np.full(len(t), np.nan)
+    with pytest.raises(bgc.DataError, match=r"column y:p2, which submodel chain3_p1 reads as an input, has no"):
+        decomposed.diagnose(run, plan3, CKF)
+    with pytest.raises(bgc.ArgumentValueError, match="decompose=True with refine"):
+        bgc.diagnose(str(chain4), scenario="none", decompose=True, options=DiagnosisOptions(refine=True))

@@ -3,8 +3,9 @@
 (:func:`bgc.pipeline.decompose_model`), each submodel compiled through the
 cache as the file ``bgc compile --decompose`` writes, and the plan of which
 submodels model each fault (:func:`bgc.diagnosis.decomposed.plan`). Kept
-per process for the model file's text: a campaign of many runs splits the
-plant once."""
+per process for the model file's text (the last ``KEPT``): a campaign of
+many runs splits the plant once. The submodels' packages are the NumPy
+ones (their filters are small)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,8 @@ from ..model.package import load_package
 from . import cache
 
 _PLANS: dict = {}
+#: At most this many plans are kept per process.
+KEPT = 8
 _LOCK = threading.Lock()
 
 
@@ -48,4 +51,6 @@ def open_plan(model: str | os.PathLike, prior_scale: float = 1.0, say=None) -> d
     plan = decomposed.plan(d, packages)
     with _LOCK:
         _PLANS[key] = plan
+        while len(_PLANS) > KEPT:  # the oldest plan goes
+            _PLANS.pop(next(iter(_PLANS)))
     return plan

@@ -214,6 +214,10 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         if session.noise != (None, None):
             raise ArgumentValueError(f"{func}: decompose=True with a session of other noise levels: the "
                                      "submodels carry the model's own", None, "open the session without them")
+        if opts.rank or opts.refine:
+            raise ArgumentValueError(f"{func}: decompose=True with {'rank' if opts.rank else 'refine'}: the "
+                                     "submodels are weighed by cubature Kalman filters alone", None,
+                                     "leave options.rank and options.refine (--rank, --refine) off")
         if tuple(opts.detectors) != ("mean",):
             raise ArgumentValueError(f"{func}: decompose=True with the detectors {', '.join(opts.detectors)}: the "
                                      "submodels are watched by the mean test alone", None,

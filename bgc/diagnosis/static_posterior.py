@@ -238,7 +238,7 @@ def _inside(lo: float, hi: float, vmin: float, vmax: float) -> tuple[float, floa
 REFINE_ROUNDS = 6
 
 #: A grid whose best point's parabola peaks this much (log likelihood) above it between points is too
-#: coarse for the far-off test (:meth:`_Search._far_off`).
+#: coarse for the far-off test, which reads the cell at the vertex instead (:meth:`_Search._far_off`).
 COARSE = 2.0
 
 #: A burst of noise whose earliest onset's row fits the factor 1 within this of its best log likelihood
@@ -426,19 +426,22 @@ class _Search:
             self.g = _merge(self.current, groups, parts)
             if not math.isfinite(self.g.top) or turn == o.passes - 1:
                 return
-            if self.far is not None and (self._far_off() or self._nominal_fits()):
-                self.given_up = True
-                return
+            if self.far is not None:
+                far = yield from self._far_off()
+                if far or self._nominal_fits():
+                    self.given_up = True
+                    return
             if self._relaid(spans, widths):
                 return
 
-    def _far_off(self) -> bool:
+    def _far_off(self):
         """Whether the most likely cell's residuals are far off the data
-        (``far``), on a grid fine enough to tell: where the parabola through
+        (``far``); a generator (its value the answer), since a grid too
+        coarse to tell asks for one more cell: where the parabola through
         the best point and its two neighbours peaks ``COARSE`` above it, the
-        peak lies between points the grid is too coarse for (a sensor's
-        bias of 0.3 between points 1.2 apart), and the best point's misfit
-        says nothing of the model's."""
+        peak lies between points (a sensor's bias of 0.3 between points 1.2
+        apart), the best point's misfit says nothing of the model's, and the
+        test reads the cell at the parabola's vertex instead."""
         g = self.g
         row = int(np.argmax([np.max(ll) for ll in g.loglik]))
         onset = int(self.current[row])
@@ -448,7 +451,11 @@ class _Search:
             a, b, c = ll[j - 1], ll[j], ll[j + 1]
             bend = a - 2.0 * b + c
             if bend < 0 and np.isfinite(bend) and -(a - c) ** 2 / (8.0 * bend) > COARSE:
-                return False
+                m = np.asarray(g.magnitudes[row], dtype=float)
+                vertex = m[j] + (m[j + 1] - m[j]) * (a - c) / (2.0 * bend)
+                vertex = float(np.clip(vertex, *self.prior))
+                r = yield np.array([onset]), np.array([vertex]), self.start
+                return bool(self.far(np.asarray(r.z)[onset:, 0]))
         key = _row_key(onset, self.ranges[onset], self.counts[onset])
         return bool(self.far(self.cache[key][1][onset:, j]))
 

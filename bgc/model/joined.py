@@ -4,7 +4,7 @@ A plant split at its sensors (:mod:`bgc.compiler.decompose`) is a set of
 submodels, each predicting its own sensors from the plant's inputs and its
 neighbours' readings. Given the readings, the submodels are independent: their
 states, process noise and measurement noise are their own, so the likelihood
-of the data is the product of theirs. A fault of the whole plant moves the
+of their data given the readings is the product of theirs. A fault of the whole plant moves the
 submodels it touches, each through its own fault model of it: a parameter's
 through the same change in every submodel that holds it, a sensor's bias
 through its own submodel's reading and, with the opposite sign, through the
@@ -210,10 +210,11 @@ class Joined:
         u = np.asarray(u, dtype=float)
         y = np.concatenate([np.asarray(m.observe(self._part(i, X), u[..., self._u[i]], m.THETA), dtype=float)
                             .reshape(len(m.OUTPUTS), X.shape[1]) for i, m in enumerate(self._models)])
+        y = y[:, 0] if flat else y
         if out is not None:
             out[...] = y
             return out
-        return y[:, 0] if flat else y
+        return y
 
     def measurement_std(self, x):
         X, _ = self._columns(x)
