@@ -1,7 +1,7 @@
 """The whole regression corpus replayed: every case of
 tests/regression/cases.json diagnosed again and compared with what was
 recorded, as tests/test_regression.py compares the representative subset it
-runs (``REPRESENTATIVE``, 13 of the 42 cases; this script runs the rest
+runs (``REPRESENTATIVE``, 15 of the 42 cases; this script runs the rest
 too, about 90 s more of diagnoses than the test).
 
     .venv/bin/python bench/regression_corpus.py [--only TEXT]

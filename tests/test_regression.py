@@ -142,12 +142,15 @@ REPRESENTATIVE = {
     "two_tank_R20_step_up_every_fallback_gpf": "the every-fault-model fallback ending isolated; 300 particles",
     "ro_R_brine_drift_up_low_noise_every_fallback_gpf": "the RO; noise levels other than the model's; "
                                                         "the every-fault-model fallback ending unexplained",
-    "dc_motor_k_step_up_every_fallback_ckf": "the DC motor; the every-fault-model fallback on ckf; static alarm",
+    "dc_motor_k_step_up_every_fallback_ckf": "the DC motor on ckf; rivals dropped by their static tests (its "
+                                             "every-fault-model fallback ended on 2026-12-05: record.py)",
     "orifice_none_gpf": "the orifice tanks; a false alarm whose verdict is no fault (no fault weighed)",
     "drivetrain_b1_drift_up_opf": "the verdict ambiguous; opf's fault filters on a drift",
     "drivetrain_none_switch_gpf": "the degenerate observer's switch to ckf, fault-free",
     "drivetrain_g_m_step_down_switch_gpf": "the switch to ckf, then the fault's hypotheses on ckf",
     "drivetrain_none_no_switch_gpf": "a degenerate observer told not to switch (switch=False)",
+    "drivetrain_b2_step_up_switch_and_every_fallback_apf": "a survivor's static alarm (the verdict's fit test); "
+                                                           "the fallback after the switch, on apf",
 }
 
 

@@ -19,7 +19,6 @@ from ..analysis import track
 from ..diagnosis.options import DiagnosisOptions
 from ..diagnosis.decomposed import Plan, diagnose as diagnose_decomposed
 from ..diagnosis.diagnose import IDENTIFY, diagnose as run_diagnosis
-from .decomposed import open_plan
 from ..data.sampler import grid_steps
 from .limits import (METHODS, check_diagnosis_steps, check_options,
                      with_horizon)
@@ -222,6 +221,8 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
             raise ArgumentValueError(f"{func}: decompose=True with the detectors {', '.join(opts.detectors)}: the "
                                      "submodels are watched by the mean test alone", None,
                                      "leave options.detectors (--detect) at mean")
+        from .decomposed import open_plan  # the compiler splits the model: imported only when asked for
+
         plan = open_plan(session.model, session.prior_scale, say)
         return _run(session.view, run, plan, scenario, injected, session.noise, session.levels, opts, say)
     return _run(session.view, run, session.package, scenario, injected, session.noise, session.levels, opts,

@@ -71,7 +71,18 @@ alarms were "ambiguous: cd_incipient, cd_abrupt, R20_abrupt" (orifice_none_gpf) 
 record, which fits), their onset none; in drivetrain_b1_drift_up_opf no fault holds 1.4 % and every
 posterior moved by that share, its verdict ("ambiguous: g_m_incipient, b1_incipient") unchanged.
 Every other case is unchanged (bench/regression_corpus.py: 39 of 42 the same before the
-re-recording). A change that is meant to change
+re-recording).
+Re-recorded on 2026-12-05 (--only two_tank_R10_drift_down_ckf dc_motor_k_step_up_every_fallback_ckf
+msd_c_drift_up_ckf --keep-runs) when the static posterior's far-off test came to read the cell at the
+vertex of the parabola through its best grid point and their neighbours where the grid is too coarse to
+tell (bgc.diagnosis.static_posterior.COARSE; it gave up after the first pass on a best point that fell
+between the grid's points). Two verdicts changed, both to the truth: two_tank_R10_drift_down_ckf (R10's
+drift -0.02 from t = 40) was "mismatch", R12_incipient the possibility, and is "isolated: R10_incipient",
+-0.0206 in [-0.0213, -0.0198], onset step 81; dc_motor_k_step_up_every_fallback_ckf (k +0.02 from
+t = 100) was "unexplained" (k_abrupt dropped by its static test at step 106, then every fault model
+tried) and is "isolated: k_abrupt", 0.01998 in [0.01965, 0.02032], without the fallback. In
+msd_c_drift_up_ckf a rival's numbers moved (k_s_abrupt dropped at step 146, not 133), its verdict
+unchanged. Every other case is unchanged (39 of 42 the same before). A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
 ``bgc/`` holds exactly the code being committed, and commits the corpus with
 that code (the commit is the provenance; its message says why):
