@@ -29,34 +29,17 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
+import chain_reference  # noqa: E402
 from bgc import pipeline  # noqa: E402
 
 
 def chain_yaml(n: int) -> str:
-    """The model file of a chain of ``n`` tanks (module docstring); the
-    capacities and resistances vary a little from tank to tank."""
-    lines = [f"name: chain{n}", f"description: a chain of {n} tanks, a pressure sensor on each", "domain: hydraulic",
-             "parameters:"]
-    for i in range(1, n + 1):
-        lines += [f"  C{i}: {1.0 + 0.1 * (i % 3):g}", f"  R{i}: {1.0 + 0.2 * (i % 2):g}"]
-    lines += ["inputs: {f_in: 1.0}", "elements:", "  Sf_in: {kind: Sf, value: f_in}"]
-    for i in range(1, n + 1):
-        lines += [f"  tank{i}: {{kind: '0'}}", f"  C{i}: {{kind: C}}", f"  pipe{i}: {{kind: '1'}}", f"  R{i}: {{kind: R}}"]
-    lines += ["bonds:", "  1: [Sf_in, tank1]"]
-    b, sensors = 2, []
-    for i in range(1, n + 1):
-        sensors.append(f"  p{i}: {{expr: e{b}, noise: 0.01}}")
-        lines += [f"  {b}: [tank{i}, C{i}]", f"  {b + 1}: [tank{i}, pipe{i}]", f"  {b + 2}: [pipe{i}, R{i}]"]
-        b += 3
-        if i < n:
-            lines.append(f"  {b}: [pipe{i}, tank{i + 1}]")
-            b += 1
-    lines += ["measurements:", *sensors, "faults:"]
-    for i in range(1, n + 1):
-        lines += [f"  R{i}: [abrupt]", f"  C{i}: [abrupt]", f"  p{i}: [bias]"]
-    lines += ["simulation: {dt: 0.5, steps: 200}"]
-    return "\n".join(lines) + "\n"
+    """The model file of a chain of ``n`` tanks (module docstring), empty at
+    the start; the capacities and resistances vary a little from tank to
+    tank (tests/chain_reference.py writes it)."""
+    return chain_reference.chain_yaml(n, f"a chain of {n} tanks, a pressure sensor on each")
 
 
 def whole(text: str, name: str) -> tuple[float, int]:

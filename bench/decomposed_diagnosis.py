@@ -41,6 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 import bgc  # noqa: E402
 import chain_reference as chain  # noqa: E402
+from bgc.api.decomposed import open_plan  # noqa: E402
 
 SCENARIOS = ("none", "R2", "bias", "C2", "leak")
 #: The leak's outflow at the steady state, a fraction of the inflow.
@@ -81,7 +82,6 @@ def main() -> int:
             bgc.open(str(model))
             compiled = time.perf_counter() - t0
             t0 = time.perf_counter()
-            from bgc.api.decomposed import open_plan
             plan = open_plan(str(model))
             print(f"\nchain of {n} tanks: compiled whole in {compiled:.1f} s, split into {len(plan.parts)} "
                   f"submodels in {time.perf_counter() - t0:.1f} s (not timed below)", flush=True)

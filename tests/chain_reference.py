@@ -32,22 +32,21 @@ def steady(n: int, f_in: float = F_IN) -> list[float]:
     return [f_in * sum(R[i:]) for i in range(n)]
 
 
-def model_yaml(n: int, noise: float = 0.01, process: float = 0.003) -> str:
-    """The model file of the chain started at its steady state, every
-    pipe's resistance and tank's capacity and every sensor's bias faults;
-    sensor noise ``noise``, process noise ``process`` (fractions of the
-    readings and states: the tanks' pressures grow with the chain, and so
-    does their noise)."""
+def chain_yaml(n: int, description: str, initial: list[float] | None = None, noise: float = 0.01,
+               simulation: str = f"dt: {DT:g}, steps: {STEPS}") -> str:
+    """The model file of a chain of ``n`` tanks (``bench/chain_scale.py``'s
+    too): every pipe's resistance and tank's capacity and every sensor's
+    bias faults; the tanks' ``initial`` pressures (None: empty), the
+    sensors' ``noise`` and the ``simulation`` section's text."""
     C, R = values(n)
-    p0 = steady(n)
-    lines = [f"name: chain{n}", f"description: a chain of {n} tanks at their steady state, a pressure sensor on each",
-             "domain: hydraulic", "parameters:"]
+    lines = [f"name: chain{n}", f"description: {description}", "domain: hydraulic", "parameters:"]
     for i in range(1, n + 1):
         lines += [f"  C{i}: {C[i - 1]:g}", f"  R{i}: {R[i - 1]:g}"]
-    lines += [f"inputs: {{f_in: {F_IN:g}}}", "elements:", "  Sf_in: {kind: Sf, value: f_in}"]
+    lines += [f"inputs: {{f_in: {F_IN!r}}}", "elements:", "  Sf_in: {kind: Sf, value: f_in}"]
     for i in range(1, n + 1):
-        lines += [f"  tank{i}: {{kind: '0'}}", f"  C{i}: {{kind: C, initial: {p0[i - 1]:.12g}}}",
-                  f"  pipe{i}: {{kind: '1'}}", f"  R{i}: {{kind: R}}"]
+        start = "" if initial is None else f", initial: {initial[i - 1]:.12g}"
+        lines += [f"  tank{i}: {{kind: '0'}}", f"  C{i}: {{kind: C{start}}}", f"  pipe{i}: {{kind: '1'}}",
+                  f"  R{i}: {{kind: R}}"]
     lines += ["bonds:", "  1: [Sf_in, tank1]"]
     b, sensors = 2, []
     for i in range(1, n + 1):
@@ -60,8 +59,17 @@ def model_yaml(n: int, noise: float = 0.01, process: float = 0.003) -> str:
     lines += ["measurements:", *sensors, "faults:"]
     for i in range(1, n + 1):
         lines += [f"  R{i}: [abrupt]", f"  C{i}: [abrupt]", f"  p{i}: [bias]"]
-    lines += [f"simulation: {{dt: {DT:g}, steps: {STEPS}, process_noise: {process:g}}}"]
+    lines += [f"simulation: {{{simulation}}}"]
     return "\n".join(lines) + "\n"
+
+
+def model_yaml(n: int, noise: float = 0.01, process: float = 0.003) -> str:
+    """The model file of the chain started at its steady state (:func:`chain_yaml`);
+    sensor noise ``noise``, process noise ``process`` (fractions of the
+    readings and states: the tanks' pressures grow with the chain, and so
+    does their noise)."""
+    return chain_yaml(n, f"a chain of {n} tanks at their steady state, a pressure sensor on each", steady(n), noise,
+                      f"dt: {DT:g}, steps: {STEPS}, process_noise: {process:g}")
 
 
 def derivative(p, C, R, leak: tuple[int, float] | None = None) -> np.ndarray:

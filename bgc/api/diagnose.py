@@ -197,6 +197,7 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
     length = steps if scenario is not None else (len(data.time) or None) if isinstance(data, runs.Run) else None
     work = (opts.particles, length)  # auto's estimate (a run file's length: the model's)
     session = _session_of(func, model, process_noise, measurement_noise, generated, say, prior_scale, backend, work)
+    plan = _decomposed_plan(func, session, opts, say) if decompose else None  # refused before any simulation
     if scenario is not None:
         signals = input_signals(func, inputs, session.view.model)
         if modes is not None and not session.view.modes:
@@ -209,24 +210,27 @@ def diagnose(model: str | Path | Session, data: str | Path | runs.Run | None = N
         scenario = scenario.text
     if simulated is not None:
         scenario, injected = simulated.scenario, simulated.fault
-    if decompose:
-        if session.noise != (None, None):
-            raise ArgumentValueError(f"{func}: decompose=True with a session of other noise levels: the "
-                                     "submodels carry the model's own", None, "open the session without them")
-        if opts.rank or opts.refine:
-            raise ArgumentValueError(f"{func}: decompose=True with {'rank' if opts.rank else 'refine'}: the "
-                                     "submodels are weighed by cubature Kalman filters alone", None,
-                                     "leave options.rank and options.refine (--rank, --refine) off")
-        if tuple(opts.detectors) != ("mean",):
-            raise ArgumentValueError(f"{func}: decompose=True with the detectors {', '.join(opts.detectors)}: the "
-                                     "submodels are watched by the mean test alone", None,
-                                     "leave options.detectors (--detect) at mean")
-        from .decomposed import open_plan  # the compiler splits the model: imported only when asked for
+    return _run(session.view, run, plan if decompose else session.package, scenario, injected, session.noise,
+                session.levels, opts, say)
 
-        plan = open_plan(session.model, session.prior_scale, say)
-        return _run(session.view, run, plan, scenario, injected, session.noise, session.levels, opts, say)
-    return _run(session.view, run, session.package, scenario, injected, session.noise, session.levels, opts,
-                say)
+
+def _decomposed_plan(func: str, session: Session, opts: DiagnosisOptions, say) -> Plan:
+    """The submodels of ``session``'s model (:func:`bgc.api.decomposed.open_plan`), the session's
+    noise levels and the options a decomposed diagnosis cannot take refused."""
+    if session.noise != (None, None):
+        raise ArgumentValueError(f"{func}: decompose=True with a session of other noise levels: the "
+                                 "submodels carry the model's own", None, "open the session without them")
+    if opts.rank or opts.refine:
+        raise ArgumentValueError(f"{func}: decompose=True with {'rank' if opts.rank else 'refine'}: the "
+                                 "submodels are weighed by cubature Kalman filters alone", None,
+                                 "leave options.rank and options.refine (--rank, --refine) off")
+    if tuple(opts.detectors) != ("mean",):
+        raise ArgumentValueError(f"{func}: decompose=True with the detectors {', '.join(opts.detectors)}: the "
+                                 "submodels are watched by the mean test alone", None,
+                                 "leave options.detectors (--detect) at mean")
+    from .decomposed import open_plan  # the compiler splits the model: imported only when asked for
+
+    return open_plan(session.model, session.prior_scale, say)
 
 
 def _decomposed_filter(func: str, filter, method, process_noise, measurement_noise, generated) -> str:

@@ -422,16 +422,11 @@ def _weigh(p: Plan, detection, data: _Data, tracks, whole: NominalTrack, o: Diag
 
 def _columns(p: Plan, members: list[int]) -> tuple[np.ndarray, np.ndarray]:
     """The stacked columns of the sensors and of the physical states of the parts ``members``, in their order."""
-    ys, xs = [], []
-    y_at = x_at = 0
-    for i, part in enumerate(p.parts):
-        n_y, n_x = len(part.nominal.OUTPUTS), len(part.nominal.STATES)
-        if i in members:
-            ys.append((members.index(i), np.arange(y_at, y_at + n_y)))
-            xs.append((members.index(i), np.arange(x_at, x_at + n_x)))
-        y_at, x_at = y_at + n_y, x_at + n_x
-    return (np.concatenate([c for _, c in sorted(ys, key=lambda t: t[0])]),
-            np.concatenate([c for _, c in sorted(xs, key=lambda t: t[0])]))
+    n_y = [len(part.nominal.OUTPUTS) for part in p.parts]
+    n_x = [len(part.nominal.STATES) for part in p.parts]
+    y_at, x_at = np.cumsum([0] + n_y), np.cumsum([0] + n_x)
+    return (np.concatenate([np.arange(y_at[i], y_at[i] + n_y[i]) for i in members]),
+            np.concatenate([np.arange(x_at[i], x_at[i] + n_x[i]) for i in members]))
 
 
 def _completed(post: StaticPosterior, members: list[int], p: Plan, whole: NominalTrack, others: float,
@@ -446,7 +441,7 @@ def _completed(post: StaticPosterior, members: list[int], p: Plan, whole: Nomina
     n_x = whole.mean.shape[1]
 
     def sensors(mine, nominal):
-        out = np.array(nominal, dtype=float)[:T].copy()
+        out = np.array(nominal[:T], dtype=float)
         out[:, y_cols] = mine
         return out
 

@@ -122,19 +122,6 @@ class Joined:
         self.FAULT_PRIOR = None if prior is None else (float(prior[0]), float(prior[1]))
         self._varies = any(np.ndim(m.measurement_std(np.zeros((len(m.STATES), 1)))) == 2 for m in models)
 
-    @property
-    def parts(self) -> tuple[FaultModel, ...]:
-        """The parts' models, in order."""
-        return tuple(self._models)
-
-    def input_slices(self) -> tuple[slice, ...]:
-        """Each part's columns of the joined input vector."""
-        return tuple(self._u)
-
-    def output_slices(self) -> tuple[slice, ...]:
-        """Each part's columns of the joined output vector."""
-        return tuple(self._y)
-
     # -- the parts' states from the joined ones, and back ----------------------------------------------------
 
     def _part(self, i: int, x: np.ndarray) -> np.ndarray:
@@ -147,6 +134,17 @@ class Joined:
         if extra:
             xi[extra] = self._signs[i] * x[self._fault_rows]
         return xi
+
+    def _scatter(self, states: list[np.ndarray], into: np.ndarray) -> np.ndarray:
+        """Each part's state (``states``, in order) written into the joined
+        ``into``: its physical rows, and the fault rows from the first
+        holding part (divided by its sign)."""
+        for i, xi in enumerate(states):
+            physical, extra = self._local[i]
+            into[self._phys[i]] = xi[physical]
+            if i == self._ref:
+                into[self._fault_rows] = xi[extra] / self._signs[i]
+        return into
 
     @staticmethod
     def _columns(x) -> tuple[np.ndarray, bool]:
@@ -171,24 +169,15 @@ class Joined:
     def _step(self, x, u, dt, out, rng):
         X, flat = self._columns(x)
         u = np.asarray(u, dtype=float)
-        moved = []
-        fault = None
+        moved = []  # every part moved from the state before the step, then written back (``out`` may be ``x``)
         for i, m in enumerate(self._models):
             xi = self._part(i, X)
-            ui = u[..., self._u[i]]
             if rng is None:
-                m.predict(xi, ui, m.THETA, dt, out=xi)
+                m.predict(xi, u[..., self._u[i]], m.THETA, dt, out=xi)
             else:
-                m.transition(xi, ui, m.THETA, dt, rng, out=xi)
-            physical, extra = self._local[i]
-            moved.append(xi[physical])
-            if i == self._ref:
-                fault = xi[extra] / self._signs[i]
-        result = np.empty_like(X) if out is None else np.asarray(out).reshape(X.shape)
-        for i, rows in enumerate(self._phys):
-            result[rows] = moved[i]
-        if fault is not None:
-            result[self._fault_rows] = fault
+                m.transition(xi, u[..., self._u[i]], m.THETA, dt, rng, out=xi)
+            moved.append(xi)
+        result = self._scatter(moved, np.empty_like(X) if out is None else np.asarray(out).reshape(X.shape))
         if out is not None:
             return out
         return result[:, 0] if flat else result
@@ -197,12 +186,7 @@ class Joined:
         """Process noise added in place, each part's on its rows (the fault
         rows' by the first holding part)."""
         X, _ = self._columns(x)
-        for i, m in enumerate(self._models):
-            xi = m.perturb(self._part(i, X), rng)
-            physical, extra = self._local[i]
-            X[self._phys[i]] = xi[physical]
-            if i == self._ref:
-                X[self._fault_rows] = xi[extra] / self._signs[i]
+        self._scatter([m.perturb(self._part(i, X), rng) for i, m in enumerate(self._models)], X)
         return x
 
     def observe(self, x, u, theta, out=None):
@@ -233,14 +217,7 @@ class Joined:
         return total
 
     def initial_particles(self, rng, n: int) -> np.ndarray:
-        x = np.empty((len(self.STATES), n))
-        for i, m in enumerate(self._models):
-            xi = m.initial_particles(rng, n)
-            physical, extra = self._local[i]
-            x[self._phys[i]] = xi[physical]
-            if i == self._ref:
-                x[self._fault_rows] = xi[extra] / self._signs[i]
-        return x
+        return self._scatter([m.initial_particles(rng, n) for m in self._models], np.empty((len(self.STATES), n)))
 
     def augment(self, x_nominal, rng) -> np.ndarray:
         """Nominal states (the joined physical rows, N) lifted into this
