@@ -362,6 +362,37 @@ class NoFault:
 
 
 @dataclass(frozen=True, slots=True)
+class IntermittentTried:
+    """Fault model ``hypothesis`` was tried as a fault that comes and goes
+    (:mod:`bgc.diagnosis.intermittent`): its intermittent hypothesis's log
+    evidence exceeds its persistent one's by ``log_factor`` (before their
+    priors), with ``spans`` appearances; ``fits``: it passed its fit test."""
+
+    step: int
+    hypothesis: str
+    log_factor: float
+    spans: int
+    fits: bool
+
+
+@dataclass(frozen=True, slots=True)
+class Intermittent:
+    """The verdict names ``hypothesis`` a fault that comes and goes: its
+    magnitude while present ``value`` (interval ``low`` .. ``high``), and
+    the ``spans`` it was present over, (appearance, going away) steps of
+    the time grid (None: still present at the end); ``posterior``: its
+    share of the posterior (intermittent and persistent together)."""
+
+    step: int
+    hypothesis: str
+    value: float
+    low: float
+    high: float
+    spans: tuple
+    posterior: float
+
+
+@dataclass(frozen=True, slots=True)
 class SensorExcluded:
     """Sensor ``sensor``'s fault was isolated (``finding``, in words, at a
     checkpoint at time ``time``): the monitor took it out of the nominal
@@ -513,7 +544,8 @@ class Decided:
 Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorResumed | InputFromModel | InputHeld
          | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | ReadingFrozen | Started
          | Refined | Dropped
-         | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | NoFault | SensorExcluded
+         | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | NoFault | IntermittentTried | Intermittent
+         | SensorExcluded
          | EpisodeClosed | Repaired | Checkpoint | ModeHidden | ModeRead | ModesReread | Mismatched | Decided)
 
 

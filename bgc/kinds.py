@@ -389,3 +389,12 @@ def fault_kind(name: str) -> FaultKind:
         return FAULT_KINDS[name] if name in FAULT_KINDS else SWITCH_KINDS[name]
     except KeyError:
         raise KeyError(f"unknown fault kind '{name}' (valid: {', '.join(FAULT_KINDS)})") from None
+
+
+def comes_and_goes(name: str) -> bool:
+    """Whether a fault of kind ``name`` may be intermittent (come and go by
+    itself, :mod:`bgc.diagnosis.intermittent`): a step whose magnitude is a
+    bias that holds while present (``abrupt``, ``bias``, ``gain``,
+    ``noise``), not a drift, a stuck reading or a stuck switch."""
+    k = fault_kind(name)
+    return k.magnitude == "bias" and not k.drifts and not k.discrete and not k.replaces

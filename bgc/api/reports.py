@@ -63,10 +63,28 @@ class DiagnosisReport:
         parameter: ``spans`` (the (onset, end) it was present over, the end
         None while it is), ``values`` (the parameter's value estimated at
         each appearance) and their ``mean``; a repair of the parameter
-        starts its story again (a fault of it after the repair is a new one)."""
+        starts its story again (a fault of it after the repair is a new one).
+        A diagnosis that names a fault coming and going as one fault node
+        (:mod:`bgc.diagnosis.intermittent`) gives it too: its one value the
+        parameter's while present (a sensor's or actuator's: the magnitude),
+        ``magnitude`` with its ``interval``, the fault ``model``, and
+        ``appeared`` / ``went``, per span, the interval of its times."""
         from .. import events as ev
 
         out: dict[str, dict] = {}
+        d = getattr(self, "diagnosis", None)  # a monitor's fault log alone has none
+        for h in () if d is None else d.hypotheses:
+            i = h.intermittent
+            if i is None or h.name not in d.candidates:
+                continue
+            t = d.time_of
+            value = h.estimate.parameter_value if h.estimate.target == "parameter" else i.value
+            out[h.parameter] = {
+                "spans": [(t(s.on), None if s.off is None else t(s.off)) for s in i.spans],
+                "values": [value], "mean": value, "model": h.name, "magnitude": i.value,
+                "interval": (i.low, i.high),
+                "appeared": [(t(s.on_low), t(s.on_high)) for s in i.spans],
+                "went": [None if s.off is None else (t(s.off_low), t(s.off_high)) for s in i.spans]}
         for p in dict.fromkeys(e.parameter for e in self.fault_log if getattr(e, "action", None) == "ended"):
             last = max((i for i, e in enumerate(self.fault_log) if isinstance(e, ev.Repaired) and p in e.parameters),
                        default=-1)

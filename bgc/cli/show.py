@@ -17,6 +17,8 @@ def add_parser(sub) -> None:
     p.add_argument("model", metavar="MODEL")
     p.add_argument("--fault", metavar="PARAM:KIND",
                    help="with dbn: the faulty DBN, e.g. R_pipe:incipient, or a sensor's P_memb:bias")
+    p.add_argument("--intermittent", action="store_true",
+                   help="with dbn --fault: the fault's DBN as one that comes and goes (its indicator switching)")
     p.add_argument("--format", default="text", metavar="FORMAT",
                    help="text, json, dot, latex (equations) or a picture: svg, png (bondgraph, causality, tcg, dbn)")
     p.add_argument("-o", "--output", metavar="FILE", help="write to FILE (pictures default to MODEL-STAGE.FMT)")
@@ -28,12 +30,16 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .. import pipeline
+    from ..compiler import dbn as dbn_stage
     from ..compiler.hybrid_dbn import across_modes
     from ..output import artifacts, draw, render
 
     stage, fmt = args.stage, args.format
     if args.fault and stage != "dbn":
         raise BgcError("--fault applies to 'bgc show dbn' only", None, "drop --fault or show the dbn stage")
+    if args.intermittent and not (stage == "dbn" and args.fault):
+        raise BgcError("--intermittent applies to 'bgc show dbn --fault PARAM:KIND' only", None,
+                       "add --fault with a step fault, or drop --intermittent")
     texts = {
         ("bondgraph", "text"): lambda: render.bondgraph_text(causal),
         ("bondgraph", "json"): lambda: render.to_json(render.bondgraph_json(causal)),
@@ -72,6 +78,12 @@ def run(args: argparse.Namespace) -> int:
             d = across_modes(c.model, c.modes, name) if isinstance(c, pipeline.Hybrid) else c.dbn.get(name)
         except KeyError as exc:
             raise BgcError(str(exc.args[0]), None, "pick a fault candidate and kind the model declares") from None
+        if args.intermittent:
+            try:
+                d = dbn_stage.intermittent(d)
+            except KeyError as exc:
+                raise BgcError(f"--intermittent: {exc.args[0]}", None,
+                               "give --fault a step fault, e.g. --fault R_pipe:abrupt") from None
     if fmt in ("svg", "png"):
         if stage == "bondgraph":
             data = draw.bondgraph_picture(causal, fmt, args.engine)

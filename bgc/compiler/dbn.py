@@ -30,7 +30,10 @@ One faulty DBN per fault candidate and kind (thesis Fig. III.2 b, c; Fig. IV.5):
   small while E_i is false, much larger once it is true).
 
 A discrete fault-indicator node ``D_P`` (persistent) is the parent of the fault
-node, as in the thesis's Fig. III.1.
+node, as in the thesis's Fig. III.1. A step fault that comes and goes
+(:func:`intermittent`) has its indicator a two-state Markov chain instead
+(``switching`` from slice to slice), a parent of everything the fault's
+magnitude reaches: the fault acts as ``D_P * delta_P``.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ from __future__ import annotations
 import networkx as nx
 
 from ..ir import Dbn, DbnModel, StateSpaceModel, sym
-from ..kinds import fault_kind
+from ..kinds import comes_and_goes, fault_kind
 
 
 def node(variable: str, slice_: int) -> str:
@@ -148,3 +151,23 @@ def _faulty(ssm: StateSpaceModel, nominal: nx.DiGraph, parameter: str, kind: str
                     g.remove_edges_from([(u, m) for u in list(g.predecessors(m))])
                 g.add_edge(node(carrier, k), m, arc="fault")
     return Dbn(f"{parameter}:{kind}", parameter, kind, nx.freeze(g))
+
+
+def intermittent(d: Dbn) -> Dbn:
+    """Faulty DBN ``d`` of a step fault as one that comes and goes
+    (``PARAM:KIND:intermittent``): its indicator ``D_P`` is no longer
+    persistent but switches between present and absent from slice to slice
+    (a ``switching`` arc, with unknown rates), and is a parent of every node
+    its magnitude ``delta_P`` reaches, the fault acting as ``D_P *
+    delta_P`` (:mod:`bgc.diagnosis.intermittent`). KeyError for the nominal
+    DBN or a kind that cannot come and go (a drift, a stuck reading or switch)."""
+    if d.kind is None or d.parameter is None or not comes_and_goes(d.kind):
+        raise KeyError(f"{d.name} is no step fault: only a step (abrupt, bias, gain, noise) comes and goes")
+    g = nx.DiGraph(d.graph)
+    indicator, delta = f"D_{d.parameter}", f"delta_{d.parameter}"
+    g.edges[node(indicator, 0), node(indicator, 1)]["arc"] = "switching"
+    for k in (0, 1):
+        for child in d.graph.successors(node(delta, k)):
+            if d.graph.edges[node(delta, k), child]["arc"] == "fault":
+                g.add_edge(node(indicator, k), child, arc="fault")
+    return Dbn(f"{d.name}:intermittent", d.parameter, d.kind, nx.freeze(g))

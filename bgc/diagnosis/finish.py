@@ -28,6 +28,7 @@ from .. import events as ev
 from .estimate import estimate_of
 from .fit import LEAST, fit, timing_told
 from .hypothesis import hypothesis_job, log_density, run_job
+from .intermittent import revised
 from .onsets import earlier_onsets, onset_weights
 from .options import DiagnosisOptions
 from .parallel import parallel_map
@@ -113,6 +114,8 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     weighing_posteriors = {**posteriors, **static}
     null = nominal_evidence(r, s, observer) if weighing_posteriors and s.options.no_fault else None
     hyps, verdict, candidates, weighing = weighed(hyps + more, weighing_posteriors, r, s, null)
+    hyps, verdict, candidates, tried = revised(hyps, verdict, candidates, r, s, observer)  # faults that come and go
+    weighing += tried
     events = list(r.events) + silent + rescued + weighing
     best_onset = None if verdict == "no fault" else \
         next((h.onset_step for h in hyps if candidates and h.name == candidates[0]), iso.onset)
@@ -185,9 +188,12 @@ def noise_misfit(fitted: Fit, h: Hypothesis, outputs: tuple[str, ...]) -> Fit:
     while the data before the onset were too few to show it. Its findings
     are added to the fit's: the verdict is ``mismatch``."""
     p = h.static
-    if p is None or p.residuals is None or p.best is None:
+    if h.intermittent is not None:  # a fault that comes and goes: its residuals switched at its spans
+        z = np.asarray(h.intermittent.z, dtype=float)[h.intermittent.spans[0].on:]
+    elif p is None or p.residuals is None or p.best is None:
         return fitted
-    z = np.asarray(p.residuals, dtype=float)[int(p.best[0]):]
+    else:
+        z = np.asarray(p.residuals, dtype=float)[int(p.best[0]):]
     summaries = summary([z], outputs)
     wide = [(i, test) for i, test in failures(summaries, fitted.level, correlation=False, narrower=False)
             if test == "variance"]

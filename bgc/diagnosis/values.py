@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -113,6 +114,8 @@ class Hypothesis:
     filter_estimate: Estimate | None = None
     static_alarm: Detection | None = None
     ruled_out: str = ""
+    #: a fault that comes and goes: its :class:`~bgc.diagnosis.intermittent.Intermittence` (None: persistent)
+    intermittent: Any = None
 
     def __repr__(self) -> str:  # its arrays would flood a notebook: what a reader wants
         return (f"<Hypothesis {self.name}: posterior {self.posterior:.3g}, {self.estimate.magnitude} "

@@ -233,7 +233,7 @@ class _Filter:
         return std * std
 
     def step(self, y: np.ndarray, u: np.ndarray, m: np.ndarray, P: np.ndarray, fixed: np.ndarray,
-             onset: slice = slice(0, 0), dt: float | None = None):
+             onset: slice = slice(0, 0), dt: float | None = None, moved: np.ndarray | None = None):
         """One step (predict over ``dt``, default the model's ``DT``, with
         input ``u``, then update with ``y``; NaN: not measured) of every cell: log p(y | the past) (C,), mean (C, n)
         and covariance (C, n, n) after it, normalised residuals (C, n_y),
@@ -241,6 +241,10 @@ class _Filter:
         updates ``fixed`` (a drifting parameter moves). The cells ``onset``
         are at their onset sample: their transition is nominal (magnitude
         zero), their update sees the fault (``track.onset_transition``).
+        ``moved`` (C,): each cell's magnitude over the transition, where it
+        differs from the one its update sees (``fixed``'s): a fault that
+        comes and goes (:mod:`bgc.diagnosis.intermittent`) changes it at a
+        sample's instant both ways (always the NumPy arithmetic).
 
         The deviations of the update's points from their mean are +-sqrt(n) L,
         so the cross covariance is L (DY+ - DY-)' / 2n, DY+- the measurement
@@ -248,14 +252,14 @@ class _Filter:
         from the Cholesky factor of the innovation covariance by forward
         substitution (:func:`lower_solve`)."""
         model, n, C = self.model, self.n, m.shape[0]
-        if self.compiled:  # a compiled package's kernel
+        if self.compiled and moved is None:  # a compiled package's kernel
             return self._compiled_step(y, u, m, P, fixed, onset, dt)
         if self.buffer.shape[1] < 2 * n * C:
             self.buffer = np.empty((self.n_x, 2 * n * C))
         flat = self.buffer[:, :2 * n * C]
         X = flat.reshape(self.n_x, C, 2 * n)
         self._points(m, P, X)
-        self._predict_points(flat, X, u, fixed, onset, dt)
+        self._predict_points(flat, X, u, fixed, onset, dt, moved)
         Xp = self._physical(X)  # (C, n, 2n)
         mp = np.add.reduce(Xp, axis=2)
         mp *= self.inverse
@@ -271,6 +275,8 @@ class _Filter:
         L = self._points(mp, Pp, X)
         if self.extra and onset.stop > onset.start:  # the onset cells see their fault from this sample on
             X[self.extra[self.magnitude], onset] = fixed[self.magnitude][onset][:, None]
+        if self.extra and moved is not None:  # the update sees the magnitude of this sample
+            X[self.extra[self.magnitude]] = fixed[self.magnitude][:, None]
         R, rows = self._noise(seen)
         Y = model.observe(flat, u, model.THETA)
         if not every:
@@ -323,7 +329,7 @@ class _Filter:
             S[np.diag_indices_from(S)] += self.R
         return yh, S
 
-    def _predict_points(self, flat, X, u, fixed, onset, dt):
+    def _predict_points(self, flat, X, u, fixed, onset, dt, moved=None):
         """Move every cell's points (``flat`` (n_x, C 2n), ``X`` its (n_x, C,
         2n) view) through the model over one sample, in place: first each
         cell's fixed rows (``fixed``: the magnitude, a drifting parameter)
@@ -334,6 +340,8 @@ class _Filter:
             X[row] = fixed[j][:, None]
         if self.extra:
             X[self.extra[self.magnitude], onset] = 0.0
+            if moved is not None:
+                X[self.extra[self.magnitude]] = np.asarray(moved, dtype=float)[:, None]
         model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
         for j, row in enumerate(self.extra):  # a drifting parameter: the same in every point of a cell
             if j == self.magnitude:

@@ -114,14 +114,16 @@ def _dbn_picture(d: Dbn, fmt: str, engine: str) -> bytes:
     roles = {n: g.nodes[n]["role"] for n in g.nodes}
     present = {_MAGNITUDE_ROLES[0] if r in _MAGNITUDE_ROLES else r for r in roles.values()}
     legend = [("node", _ROLE_COLOR[r], text) for r, text in _DBN_ROLES if r in present]
-    legend.append(("edge", _HIGHLIGHT, "temporal arc: integration from slice t to t+1"))
+    switching = {(a, b) for a, b, k in g.edges(data="arc") if k == "switching"}
+    legend.append(("edge", _HIGHLIGHT, "temporal arc: integration from slice t to t+1"
+                   + ("; the indicator switching (a fault that comes and goes)" if switching else "")))
     legend.append(("edge", _EDGE, "other arcs: persistence, measurement, fault"
                    + (", mode (guard, timer, command, reset)" if "mode" in present else "")))
     x0, x1 = lay.slices[0][1] - 1.5, lay.slices[1][2] + 0.4
     y0, y1 = lay.bands[-1][1] - 0.6, lay.bands[0][1] + 0.85
     bottom = (0.25 + 0.2 * math.ceil(len(legend) / 2))
     size = (x1 - x0 + 0.2, (y1 - y0) / 0.92 + bottom + 0.4)
-    temporal = {(a, b) for a, b, k in g.edges(data="arc") if k == "temporal"}
+    temporal = {(a, b) for a, b, k in g.edges(data="arc") if k == "temporal"} | switching
     graph = _Graph(lay.positions, dbn_nodes(d), sorted(g.edges), {}, temporal, roles,
                    {n: g.nodes[n]["variable"] for n in g.nodes}, f"DBN '{d.name}': slice t (left), t+1 (right)",
                    size, tuple(legend), (x0, x1, y0, y1), lambda ax: _dbn_bands(ax, lay))

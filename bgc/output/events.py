@@ -125,6 +125,14 @@ def sentence(e, time_of) -> str:
             return (f"no fault at all (the alarm a false one) holds a posterior of {m:.3g}: the faults named "
                     f"cannot be promised at {lv:g} without it" + (f" (the likeliest, {b}, is favoured over no fault by "
                                                                    f"a Bayes factor of {math.exp(f):.3g})" if b else ""))
+        case ev.IntermittentTried(hypothesis=h, log_factor=f, spans=n, fits=ok):
+            return (f"{h} tried as a fault that comes and goes: {n} appearance(s)"
+                    + ("" if not math.isfinite(f) else f", its evidence {'above' if f >= 0 else 'below'} the "
+                       f"persistent fault's by a log Bayes factor of {abs(f):.3g}")
+                    + ("" if ok else "; it fails its fit test too"))
+        case ev.Intermittent(hypothesis=h, value=v, low=lo, high=hi, spans=sp, posterior=p):
+            return (f"{h} comes and goes: present {spans_text([(time_of(a), None if b is None else time_of(b)) for a, b in sp])}, "
+                    f"its magnitude {v:.4g} [{lo:.4g}, {hi:.4g}] (95 %) while present (posterior {p:.3g})")
         case ev.NoLikelihood(fallback=True):
             return ("the cubature Kalman filters found no finite likelihood: the particle filters' evidence and "
                     "estimates are reported")

@@ -506,6 +506,7 @@ def dbn_dot(d: Dbn) -> str:
         lines.append(f"  {names[b]} -> {_dot_id(bands[b][0])} [style=invis];")
     style = {"persistence": 'color="#808080"', "temporal": 'color="#b03030", style=bold', "intra": "color=black",
              "fault": 'color="#2060c0"', "drift": 'color="#2060c0", style=dashed', "indicator": "style=dotted",
+             "switching": 'color="#c06000", style=bold',
              "mode": 'color="#208040"', "guard": 'color="#208040", style=bold', "command": 'color="#208040"',
              "timer": 'color="#208040"', "reset": 'color="#208040", style=dotted'}
     for a, b, k in _arcs(d):

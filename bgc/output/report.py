@@ -182,6 +182,7 @@ def report_data(r) -> dict[str, Any]:
             "target": e.target, "subject": e.subject or e.parameter, "unit": e.unit,
             "magnitude_unit": magnitude_unit(h, labels),
             "ruled_out_by_symbols": h.ruled_out or None,
+            "intermittent": _intermittent_data(d, h.intermittent),
             "static_consistency_alarm": None if h.static_alarm is None else {
                 "sensor": h.static_alarm.sensor, "window": h.static_alarm.window,
                 "statistic": _num(h.static_alarm.statistic), "threshold": _num(h.static_alarm.threshold)},
@@ -189,6 +190,19 @@ def report_data(r) -> dict[str, Any]:
                 "value": _num(h.filter_estimate.value), "std": _num(h.filter_estimate.std),
                 "interval": [_num(h.filter_estimate.low), _num(h.filter_estimate.high)]}})
     return out
+
+
+def _intermittent_data(d, i) -> dict | None:
+    """A fault that comes and goes (:class:`~bgc.diagnosis.intermittent.Intermittence`) as plain data."""
+    if i is None:
+        return None
+    t = lambda k: None if k is None else _time(_t(d, k))  # noqa: E731
+    return {"magnitude": _num(i.value), "std": _num(i.std), "interval": [_num(i.low), _num(i.high)],
+            "level": i.level, "log_evidence": _num(i.log_evidence),
+            "mean_samples_present": _num(i.on), "mean_samples_absent": _num(i.off),
+            "spans": [{"appeared": t(s.on), "appeared_interval": [t(s.on_low), t(s.on_high)],
+                       "went": t(s.off), "went_interval": None if s.off is None else [t(s.off_low), t(s.off_high)]}
+                      for s in i.spans]}
 
 
 def magnitude_unit(h, labels: Labels) -> str | None:
@@ -205,8 +219,7 @@ def plain_words(d, labels: Labels = Labels()) -> list[str]:
     if d.verdict == "no fault" or not d.candidates:
         return []
     by = {h.name: h for h in d.hypotheses}
-    words = [events.fault_sentence(by[n].estimate, d.time_of(by[n].onset_step), labels.per_time)
-             for n in d.candidates if n in by]
+    words = [comes_and_goes(by[n], d.time_of, labels) for n in d.candidates if n in by]
     if d.verdict == "ambiguous":
         return [("either " if i == 0 else "or ") + w for i, w in enumerate(words)] + mode_split_lines(d)
     if d.verdict == "unexplained":
@@ -214,6 +227,18 @@ def plain_words(d, labels: Labels = Labels()) -> list[str]:
     if d.verdict == "mismatch":
         return [f"possibly, on the model as it stands: {w}" for w in words]
     return words
+
+
+def comes_and_goes(h, time_of, labels: Labels = Labels()) -> str:
+    """Hypothesis ``h``'s fault in plain words: since its onset, or, a
+    fault that comes and goes (``h.intermittent``), while present and over
+    which spans."""
+    i = h.intermittent
+    if i is None:
+        return events.fault_sentence(h.estimate, time_of(h.onset_step), labels.per_time)
+    spans = [(time_of(s.on), None if s.off is None else time_of(s.off)) for s in i.spans]
+    return (f"{events.fault_sentence(h.estimate, None, labels.per_time)}, a fault that comes and goes: present "
+            f"{events.spans_text(spans)}")
 
 
 def mode_split_lines(d) -> list[str]:

@@ -1,0 +1,559 @@
+"""A fault that comes and goes, as one fault node with two states (a loose
+connector, a sticking valve: the thesis's future direction V.2 (iii)).
+
+A step fault (a parameter's ``abrupt`` change, a sensor's or actuator's
+``bias`` or ``gain``, a sensor's ``noise``) may be *intermittent*: present
+(its magnitude ``c``) or absent (0), switching between the two by itself.
+Its node in the DBN is a Markov chain of three states, per sample:
+
+* ``before``: it has not appeared yet (the nominal model). It appears at a
+  given sample with the per-sample weight of a persistent fault's onset
+  (:func:`bgc.diagnosis.weigh.posterior`: a fault model's prior p is the
+  probability that it begins within the horizon, p / horizon per sample),
+  so the two hypotheses are weighed on one scale;
+* ``present``: it goes away at each sample with probability ``1 / on``;
+* ``absent`` (after an appearance): it comes back with probability ``1 / off``.
+
+The mean durations ``on`` and ``off`` (in samples) are not known: each
+lies on a geometric grid (:data:`DURATIONS` points from :data:`SHORTEST`
+samples to the record's span), every pair equally likely a priori. A
+change of state takes effect at a sample's instant, both ways, as the
+simulator injects it (the onset rule of :mod:`bgc.model.protocol`): the
+sample sees the new state, the transition into it the old one.
+
+Given ``c`` and the durations, the chain and the plant are a switching
+linear-Gaussian model (exactly, on a linear plant) whose likelihood a
+bank of cubature Kalman filters follows, one filter per state and the
+switches between them merged by moments at each sample (the generalised
+pseudo-Bayesian filter of order 1, GPB1, with the onset rule's six
+transitions between the three states as its pairs). The magnitude's
+uniform prior is integrated as the static posterior's is, on a grid
+refined around its peak (:func:`bgc.filters.quadrature.row_quadrature`),
+and the durations summed over their grid: the evidence ``log p(y |
+intermittent f)`` compares with the static posterior's ``log p(y |
+persistent f)``. The prior of the intermittent hypothesis is
+:data:`SHARE` times its fault model's.
+
+Each sample's probability that the fault is present comes from a
+backward pass over the forward pass's pairwise likelihoods (the
+forward-backward recursion of the hidden Markov model the switches make,
+with the filters' predictive densities as its emissions), averaged over
+the grid's cells by their posterior. The fault's spans are where that
+probability is above one half; each appearance's and disappearance's
+sample is read from the switches' smoothed probabilities around it (the
+most probable sample and a central interval).
+
+A diagnosis tries the intermittent hypothesis of its likeliest step faults
+when no persistent fault explains the data (:func:`revised`, from
+:func:`bgc.diagnosis.finish.finish`): a fault that went away fails the
+persistent model's fit tests. The intermittent model with its spans must
+then pass the same test (the windowed Z-test of section 5 on its
+residuals, the fault switched at the spans' samples).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..filters.cubature import NominalTrack, _Filter
+from ..filters.quadrature import row_quadrature
+from ..kinds import comes_and_goes
+from ..model.protocol import FaultModel, state_rows
+from .. import events as ev
+from .estimate import pressed
+from .values import Detection, Drop, Hypothesis
+
+__all__ = ["DURATIONS", "GRID", "Intermittence", "REFINE", "SHARE", "SHORTEST", "Span", "TRIED", "intermittence",
+           "revised"]
+
+#: The prior of a fault model's fault coming and going, as a share of its fault model's prior.
+SHARE = 0.1
+#: The points of each duration's geometric grid (the mean time present, and absent between appearances).
+DURATIONS = 3
+#: The shortest mean duration on that grid, in samples.
+SHORTEST = 4.0
+#: The points of each grid of magnitudes (the first over the prior, each next between the best one's neighbours).
+GRID = 9
+#: The most refinements of the magnitude's grid.
+REFINE = 4
+#: The refinements stop when the log likelihood changes by less than this between neighbouring points.
+SMOOTH = 3.0
+#: The most step faults a diagnosis tries as intermittent (the likeliest, by their persistent evidence).
+TRIED = 3
+#: The pairs of states (from, to) over one sample: before, present, absent.
+_PAIRS = ((0, 0), (0, 1), (1, 1), (1, 2), (2, 2), (2, 1))
+
+
+@dataclass(frozen=True, slots=True)
+class Span:
+    """One appearance of an intermittent fault: it appeared at sample
+    ``on`` (the most probable; ``on_low`` .. ``on_high`` a central interval
+    of probability ``level``) and went away at ``off`` (None: still present
+    at the record's end), steps of the time grid."""
+
+    on: int
+    on_low: int
+    on_high: int
+    off: int | None
+    off_low: int | None
+    off_high: int | None
+
+
+@dataclass(frozen=True, slots=True)
+class Intermittence:
+    """The intermittent hypothesis of fault model ``name``: ``log_evidence``,
+    log p(y | it comes and goes) on the static posterior's scale; the
+    magnitude while present (``value``, ``std`` and the central interval
+    ``low`` .. ``high`` of probability ``level``); the posterior means of
+    the mean durations present and absent (``on``, ``off``, samples);
+    ``present``: per step, the probability that it is present (0 before the
+    bank's first step); its ``spans``; ``z``: the normalised residuals of
+    its model switched at the spans' samples with the magnitude's posterior
+    mean (from the bank's first step ``start``: the nominal filter's before the
+    first appearance; NaN before it), and ``alarm``: their fit test's first
+    alarm over that stretch (None: it passes)."""
+
+    name: str
+    log_evidence: float
+    value: float
+    std: float
+    low: float
+    high: float
+    level: float
+    on: float
+    off: float
+    present: np.ndarray
+    spans: tuple[Span, ...]
+    z: np.ndarray
+    alarm: Detection | None
+    start: int
+    cells: int
+
+    def __repr__(self) -> str:
+        return (f"<Intermittence {self.name}: {self.value:.4g} [{self.low:.4g}, {self.high:.4g}] while present, "
+                f"{len(self.spans)} span(s)>")
+
+
+def durations(span: int) -> np.ndarray:
+    """The grid of mean durations (samples): :data:`DURATIONS` points,
+    geometric from :data:`SHORTEST` to ``span`` (at least 4 times it)."""
+    return np.geomspace(SHORTEST, max(float(span), 4.0 * SHORTEST), DURATIONS)
+
+
+@dataclass(frozen=True, slots=True)
+class _Pass:
+    """One bank over a grid: per cell (magnitude x durations), log p(y,
+    appeared) (``loglik``); with ``keep``, per step the log weights of the
+    three states after it (``alpha``, steps x 3 x cells) and each pair's
+    log predictive density (``pair``, steps x 6 x cells)."""
+
+    loglik: np.ndarray
+    alpha: np.ndarray | None
+    pair: np.ndarray | None
+    on: np.ndarray
+    off: np.ndarray
+    first: np.ndarray
+
+
+def _bank(model: FaultModel, ys, us, track: NominalTrack, start: int, magnitudes, on, off, fixed,
+          keep: bool = False) -> _Pass:
+    """The GPB1 bank of every cell (magnitude, mean duration present, mean
+    duration absent) from step ``start`` (the nominal filter's state
+    there) to the end of ``ys``."""
+    kf = _Filter(model)
+    G, D = len(magnitudes), len(on)
+    K = G * D
+    c = np.repeat(np.asarray(magnitudes, dtype=float), D)
+    leave, back = np.tile(1.0 / np.asarray(on, dtype=float), G), np.tile(1.0 / np.asarray(off, dtype=float), G)
+    with np.errstate(divide="ignore"):
+        logpi = np.stack([np.zeros(K), np.zeros(K), np.log1p(-leave), np.log(leave), np.log1p(-back),
+                          np.log(back)])  # (6, K): the pairs' log weights (an appearance: 1 per sample)
+    n = kf.n
+    m = np.repeat(np.asarray(track.mean[start], dtype=float)[None, None], 3, axis=0).repeat(K, axis=1)
+    P = np.repeat(np.asarray(track.cov[start], dtype=float)[None, None], 3, axis=0).repeat(K, axis=1)
+    logw = np.full((3, K), -math.inf)
+    logw[0] = float(track.loglik[start])
+    first = logw.copy()
+    src = np.array([a for a, _ in _PAIRS])
+    dst = np.array([b for _, b in _PAIRS])
+    seen_c = np.concatenate([c if b == 1 else np.zeros(K) for _, b in _PAIRS])  # the magnitude each update sees
+    moved_c = np.concatenate([c if a == 1 else np.zeros(K) for a, _ in _PAIRS])  # and each transition
+    states = np.repeat(np.asarray(fixed, dtype=float).reshape(-1, 1), 6 * K, axis=1)
+    states[kf.magnitude] = seen_c
+    T = len(ys)
+    alpha = np.full((T, 3, K), -math.inf) if keep else None
+    pair = np.full((T, 6, K), -math.inf) if keep else None
+    with np.errstate(all="ignore"):
+        for k in range(start, T):
+            M = m[src].reshape(6 * K, n)
+            V = P[src].reshape(6 * K, n, n)
+            ll, mu, Pu, _, _, _ = kf.step(ys[k], us[k], M, V, states.copy(), moved=moved_c)
+            ll = np.where(np.isfinite(ll), ll, -math.inf).reshape(6, K)
+            lw = logw[src] + logpi + ll  # (6, K)
+            mu, Pu = mu.reshape(6, K, n), Pu.reshape(6, K, n, n)
+            for s in range(3):
+                into = np.flatnonzero(dst == s)
+                w = lw[into]
+                top = w.max(axis=0)
+                alive = np.isfinite(top)
+                safe = np.where(alive, top, 0.0)
+                e = np.exp(w - safe)  # (pairs, K)
+                total = e.sum(axis=0)
+                logw[s] = np.where(alive, safe + np.log(np.where(total > 0, total, 1.0)), -math.inf)
+                if not alive.any():
+                    continue
+                share = e / np.where(total > 0, total, 1.0)
+                mean = np.einsum("pk,pkn->kn", share, mu[into])
+                d = mu[into] - mean[None]
+                cov = np.einsum("pk,pkij->kij", share, Pu[into] + d[..., :, None] * d[..., None, :])
+                m[s][alive], P[s][alive] = mean[alive], cov[alive]
+            if keep:
+                alpha[k], pair[k] = logw, ll
+    appeared = np.logaddexp(logw[1], logw[2])
+    return _Pass(np.where(np.isfinite(appeared), appeared, -math.inf), alpha, pair,
+                 np.tile(np.asarray(on, dtype=float), G), np.tile(np.asarray(off, dtype=float), G), first)
+
+
+def _smoothed(p: _Pass, weights: np.ndarray, start: int, T: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per step, the posterior probability that the fault is present, that
+    it appeared at that sample and that it went away at it, averaged over
+    the cells with ``weights`` (the backward pass over each cell's
+    pairwise predictive densities, the paths that end before any
+    appearance left out)."""
+    K = p.loglik.shape[0]
+    leave, back = 1.0 / p.on, 1.0 / p.off
+    with np.errstate(divide="ignore"):
+        logpi = np.stack([np.zeros(K), np.zeros(K), np.log1p(-leave), np.log(leave), np.log1p(-back), np.log(back)])
+    present, appear, vanish = np.zeros(T), np.zeros(T), np.zeros(T)
+    beta = np.zeros((3, K))
+    beta[0] = -math.inf  # never appeared: not the hypothesis
+    total = p.loglik  # log p(y, appeared | cell)
+    src = np.array([a for a, _ in _PAIRS])
+    dst = np.array([b for _, b in _PAIRS])
+    w = np.asarray(weights, dtype=float)
+    with np.errstate(all="ignore"):
+        for k in range(T - 1, start - 1, -1):
+            post = np.exp(p.alpha[k] + beta - total)  # (3, K): P(state at k | y)
+            post = np.where(np.isfinite(post), post, 0.0)
+            present[k] = float(post[1] @ w)
+            before = p.alpha[k - 1] if k > start else p.first
+            xi = np.exp(before[src] + logpi + p.pair[k] + beta[dst] - total)  # (6, K)
+            xi = np.where(np.isfinite(xi), xi, 0.0)
+            appear[k] = float((xi[1] + xi[5]) @ w)
+            vanish[k] = float(xi[3] @ w)
+            nxt = np.full((3, K), -math.inf)
+            for s in range(3):
+                out = np.flatnonzero(src == s)
+                nxt[s] = log_sum_exp_rows(logpi[out] + p.pair[k][out] + beta[dst[out]])
+            beta = nxt
+    return present, appear, vanish
+
+
+def log_sum_exp_rows(a: np.ndarray) -> np.ndarray:
+    """log sum exp over the first axis, -inf where every term is."""
+    top = a.max(axis=0)
+    safe = np.where(np.isfinite(top), top, 0.0)
+    with np.errstate(divide="ignore"):
+        return np.where(np.isfinite(top), safe + np.log(np.exp(a - safe).sum(axis=0)), -math.inf)
+
+
+def _interval(mass: np.ndarray, lo: int, hi: int, level: float) -> tuple[int, int, int]:
+    """The most probable step of ``mass`` over [lo, hi) and a central
+    interval of probability ``level`` of it there."""
+    part = np.clip(np.asarray(mass[lo:hi], dtype=float), 0.0, None)
+    if part.sum() <= 0:
+        return lo, lo, lo
+    cdf = np.cumsum(part) / part.sum()
+    tail = (1.0 - level) / 2.0
+    return (int(lo + np.argmax(part)), int(lo + np.searchsorted(cdf, tail)),
+            int(lo + min(int(np.searchsorted(cdf, 1.0 - tail)), hi - lo - 1)))
+
+
+def spans_of(present: np.ndarray, appear: np.ndarray, vanish: np.ndarray, start: int, level: float) \
+        -> tuple[Span, ...]:
+    """The fault's spans: the runs of steps where it is present with
+    probability above one half; each appearance's and disappearance's step
+    read from the switches' probabilities between the midpoints to the
+    neighbouring runs."""
+    on = present > 0.5
+    on[:start] = False
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], on.astype(int), [0]])))
+    runs = [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+    T = len(present)
+    out = []
+    for i, (a, b) in enumerate(runs):
+        lo = start if i == 0 else (runs[i - 1][1] + a) // 2
+        mid = (a + b) // 2 + 1
+        on_k, on_lo, on_hi = _interval(appear, lo, max(mid, lo + 1), level)
+        if b >= T:
+            out.append(Span(on_k, on_lo, on_hi, None, None, None))
+            continue
+        hi = T if i == len(runs) - 1 else (b + runs[i + 1][0]) // 2 + 1
+        off_k, off_lo, off_hi = _interval(vanish, (a + b) // 2 + 1, hi, level)
+        out.append(Span(on_k, on_lo, on_hi, off_k, off_lo, off_hi))
+    return tuple(out)
+
+
+def _narrower(values: np.ndarray, logd: np.ndarray) -> np.ndarray | None:
+    """The next grid of magnitudes, or None when ``values`` resolve the
+    peak of the log density ``logd`` (its fall between neighbouring points
+    near the peak under :data:`SMOOTH`): :data:`GRID` points over four
+    stds either side of the parabola's vertex through the best point and
+    its neighbours (its std from the parabola's curvature), within those
+    neighbours."""
+    best = int(np.argmax(logd))
+    if not np.isfinite(logd[best]) or len(values) < 3:
+        return None
+    near = logd[max(best - 1, 0):best + 2]
+    if np.all(np.isfinite(near)) and np.max(np.abs(np.diff(near))) < SMOOTH:
+        return None
+    a, b = values[max(best - 1, 0)], values[min(best + 1, len(values) - 1)]
+    h = values[1] - values[0]
+    centre, width = values[best], (b - a) / 2.0
+    if 0 < best < len(values) - 1 and np.all(np.isfinite(near)):
+        curve = (near[0] - 2.0 * near[1] + near[2]) / (h * h)
+        if curve < 0:
+            sd = math.sqrt(-1.0 / curve)
+            centre = values[best] - (near[2] - near[0]) / (2.0 * h * curve)
+            width = min(width, 4.0 * sd)
+    low, high = max(a, centre - width), min(b, centre + width)
+    if not high > low:
+        return None
+    return np.linspace(low, high, GRID)
+
+
+def switched_residuals(model: FaultModel, ys, us, track: NominalTrack, spans: tuple[Span, ...], value: float,
+                       fixed) -> np.ndarray:
+    """The normalised residuals (steps x outputs; NaN before the first
+    appearance) of one cubature Kalman filter of ``model`` with magnitude
+    ``value`` present over ``spans`` (their most probable samples) and 0
+    between them, the changes at the samples' instants both ways."""
+    kf = _Filter(model)
+    T, n_y = ys.shape
+    z = np.full((T, n_y), np.nan)
+    if not spans:
+        return z
+    present = np.zeros(T, dtype=bool)
+    for s in spans:
+        present[s.on:T if s.off is None else s.off] = True
+    first = spans[0].on
+    m, P = track.mean[first][None].copy(), track.cov[first][None].copy()
+    states = np.asarray(fixed, dtype=float).reshape(-1, 1).copy()
+    with np.errstate(all="ignore"):
+        for k in range(first, T):
+            states[kf.magnitude] = value if present[k] else 0.0
+            moved = np.array([value if k > 0 and present[k - 1] else 0.0])
+            _, m, P, zk, _, _ = kf.step(ys[k], us[k], m, P, states.copy(), moved=moved)
+            z[k] = zk[0]
+    return z
+
+
+def _searched(row, lo: float, hi: float):
+    """The magnitude's grid: :data:`GRID` points over the prior [``lo``,
+    ``hi``], narrowed around the peak (:func:`_narrower`) on banks of the
+    middle durations alone, then the last grid's bank over every pair of
+    durations: (that bank's pass, the grid, its log densities, the cells run)."""
+    values = np.linspace(lo, hi, GRID)
+    cells = 0
+    for _ in range(REFINE):
+        p, logd = row(values, False)
+        cells += p.loglik.size
+        narrower = _narrower(values, logd)
+        if narrower is None:
+            break
+        values = narrower
+    p, logd = row(values, True)
+    return p, values, logd, cells + p.loglik.size
+
+
+def _moments(x: np.ndarray, logm: np.ndarray, top: float, level: float) -> tuple[float, float, float, float]:
+    """The mean, std and central interval of probability ``level`` of the
+    magnitude, from quadrature nodes ``x`` and their log masses ``logm``
+    (largest ``top``)."""
+    q = np.exp(logm - top)
+    q /= q.sum()
+    mean = float(q @ x)
+    std = float(math.sqrt(max(q @ (x - mean) ** 2, 0.0)))
+    order = np.argsort(x)
+    cdf = np.cumsum(q[order])
+    tail = (1.0 - level) / 2.0
+    low = float(x[order][min(int(np.searchsorted(cdf, tail)), len(x) - 1)])
+    high = float(x[order][min(int(np.searchsorted(cdf, 1.0 - tail)), len(x) - 1)])
+    return mean, std, low, high
+
+
+def intermittence(model: FaultModel, ys, us, track: NominalTrack, start: int, fixed, outputs, rejection: float,
+                  windows, level: float = 0.95) -> Intermittence:
+    """The intermittent hypothesis of fault model ``model`` over the data
+    from step ``start`` (:mod:`this module <bgc.diagnosis.intermittent>`):
+    its evidence, magnitude while present, spans and fit test (the windowed
+    Z-test with probability ``rejection`` and ``windows``)."""
+    from .static import first_alarm
+
+    T = len(ys)
+    lo, hi = (float(v) for v in model.FAULT_PRIOR)
+    grid = durations(T - start)
+    on, off = np.repeat(grid, DURATIONS), np.tile(grid, DURATIONS)
+
+    def row(values, full: bool):  # full: every pair of durations (else the middle one's: to find the peak)
+        a, b = (on, off) if full else (grid[DURATIONS // 2:DURATIONS // 2 + 1],) * 2
+        p = _bank(model, ys, us, track, start, values, a, b, fixed, keep=full)
+        per = p.loglik.reshape(len(values), len(a))
+        return p, log_sum_exp_rows(per.T) - math.log(len(a))  # per magnitude, the durations summed (uniform prior)
+
+    p, values, logd, cells = _searched(row, lo, hi)
+    x, logm = row_quadrature(values, logd)
+    top = float(np.max(logm)) if len(logm) else -math.inf
+    if not math.isfinite(top):
+        return Intermittence(model.NAME, -math.inf, math.nan, math.nan, math.nan, math.nan, level, math.nan,
+                             math.nan, np.zeros(T), (), np.full(ys.shape, np.nan), None, start, cells)
+    evidence = top + math.log(np.exp(logm - top).sum()) - math.log(hi - lo)
+    mean, std, low, high = _moments(x, logm, top, level)
+    # the cells' posterior: each point of the magnitude's grid and pair of durations by its likelihood
+    w = np.exp(p.loglik - top_cell(p.loglik))
+    w = np.where(np.isfinite(w), w, 0.0)
+    w /= w.sum()
+    present, appear, vanish = _smoothed(p, w, start, T)
+    spans = spans_of(present, appear, vanish, start, level)
+    z = switched_residuals(model, ys, us, track, spans, mean, fixed)
+    if spans and track.z is not None:  # before the first appearance: the nominal filter's own residuals
+        z[start:spans[0].on] = track.z[start:spans[0].on]
+    alarm = first_alarm(z[start:], tuple(outputs), rejection, windows) if spans else None
+    if alarm is not None:
+        alarm = replace(alarm, step=alarm.step + start)
+    return Intermittence(model.NAME, evidence, mean, std, low, high, level, float(w @ p.on), float(w @ p.off),
+                         present, spans, z, alarm, start, cells)
+
+
+def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, ...], r, s, observer) \
+        -> tuple[tuple[Hypothesis, ...], str, tuple[str, ...], list]:
+    """The verdict with the likeliest step faults tried as intermittent
+    (:data:`TRIED` of them, by their persistent evidence and prior), when no
+    persistent fault explains the data (the verdict is ``unexplained``:
+    a fault that went away fails its persistent model's tests). Each intermittent
+    hypothesis that passes its own fit test, its magnitude not pressed
+    against a bound of its prior, is weighed beside the persistent
+    hypotheses still in the running (prior :data:`SHARE` times its fault
+    model's); the credible set of ``level`` over them all names the faults,
+    those that come and go carrying their :class:`Intermittence`
+    (``Hypothesis.intermittent``). Returns (the hypotheses, the verdict,
+    its candidates, the events)."""
+    T = len(r.time)
+    if observer is None or verdict != "unexplained":
+        return hyps, verdict, candidates, []
+    tried = _tried(hyps, candidates, s, T)
+    if not tried:
+        return hyps, verdict, candidates, []
+    s.say(f"trying {', '.join(h.name for h in tried)} as faults that come and go")
+    found = {}
+    for h in tried:
+        model = s.package.MODELS[h.name]
+        _, extra = state_rows(model)
+        fixed = model.augment(observer.mean[0][:, None], np.random.default_rng(0))[extra, 0]
+        start = max(0, min(h.static.onsets if _finite(h) else h.onset_steps) - 2)
+        found[h.name] = intermittence(model, r.ys, r.us, observer, start, fixed, r.outputs, s.options.rejection,
+                                      s.options.windows, 0.95)
+    by = hyps_by(hyps)
+    events = [ev.IntermittentTried(T - 1, name, i.log_evidence - by[name].static.log_evidence if _finite(by[name])
+                                   else math.nan, len(i.spans), i.alarm is None) for name, i in found.items()]
+    pool = _pool(hyps, found, s)
+    names, comes, weight = _credible(pool, s.options.isolation_level)
+    if not comes:
+        return hyps, verdict, candidates, events
+    out = tuple(_decided(h, names, comes, weight, found, T) for h in hyps)
+    events += [ev.Intermittent(T - 1, name, found[name].value, found[name].low, found[name].high,
+                               tuple((sp.on, sp.off) for sp in found[name].spans), weight[name])
+               for name in names if name in comes]
+    return out, ("isolated" if len(names) == 1 else "ambiguous"), names, events
+
+
+def _prior(h: Hypothesis, s) -> float:
+    """The log prior of hypothesis ``h``'s fault model (setting ``s``'s)."""
+    return math.log(max(s.priors.get(h.parameter, 0.01), 1e-300))
+
+
+def _finite(h: Hypothesis) -> bool:
+    """Whether ``h`` has a static posterior with a finite evidence."""
+    return h.static is not None and math.isfinite(h.static.log_evidence)
+
+
+def _tried(hyps, candidates, s, T: int) -> list:
+    """The step faults to try as intermittent: not refuted by their
+    signatures' symbols, in the running or dropped by a test of their fit
+    (their filters' online, or the static posterior's: a fault that went
+    away fails them); the verdict's candidates first, then those that
+    lasted longest, then the likeliest; :data:`TRIED` of them."""
+    steps = [h for h in hyps if comes_and_goes(h.kind) and not h.ruled_out
+             and (h.drop is None or h.drop.code in ("static-test", "bayes-factor", "inconsistent"))]
+    return sorted(steps, key=lambda h: (h.name not in candidates, -(h.dropped_step if h.drop else T),
+                                        -(_prior(h, s) + (h.static.log_evidence if _finite(h) else h.log_evidence))
+                                        ))[:TRIED]
+
+
+def _pool(hyps, found: dict, s) -> list[tuple[str, bool, float]]:
+    """(name, intermittent, log weight) of the persistent hypotheses still in
+    the running and of the intermittent ones that fit, their magnitude
+    within their prior."""
+    by = hyps_by(hyps)
+    pool = [(h.name, False, _prior(h, s) + h.static.log_evidence) for h in hyps
+            if _finite(h) and (h.drop is None or h.drop.code == "bayes-factor")]
+    pool += [(name, True, _prior(by[name], s) + math.log(SHARE) + i.log_evidence)
+             for name, i in found.items() if i.alarm is None and i.spans and math.isfinite(i.log_evidence)
+             and pressed(replace(by[name].estimate, value=i.value, low=i.low, high=i.high),
+                         tuple(float(v) for v in s.package.MODELS[name].FAULT_PRIOR)) is None]
+    return pool
+
+
+def _credible(pool, level: float) -> tuple[tuple[str, ...], set, dict]:
+    """The credible set of ``level`` over ``pool``: (the fault models named,
+    best first; those named as coming and going; each model's share of the
+    posterior, its two ways together)."""
+    if not pool:
+        return (), set(), {}
+    logs = np.array([v for _, _, v in pool])
+    share = np.exp(logs - logs.max())
+    share /= share.sum()
+    chosen, mass = [], 0.0
+    for i in np.argsort(-share):
+        chosen.append(int(i))
+        mass += share[i]
+        if mass >= level:
+            break
+    weight: dict[str, float] = {}
+    for (name, _, _), w in zip(pool, share):
+        weight[name] = weight.get(name, 0.0) + float(w)
+    return tuple(dict.fromkeys(pool[i][0] for i in chosen)), {pool[i][0] for i in chosen if pool[i][1]}, weight
+
+
+def _decided(h: Hypothesis, names, comes: set, weight: dict, found: dict, T: int) -> Hypothesis:
+    """Hypothesis ``h`` after the intermittent ones are weighed: named
+    (``names``; coming and going, ``comes``: its estimate the magnitude
+    while present), or dropped by the Bayes factor when it was in the running."""
+    w = weight.get(h.name, 0.0)
+    if h.name in names:
+        i = found.get(h.name) if h.name in comes else None
+        h = replace(h, drop=None, posterior=w, intermittent=i)
+        if i is not None:
+            h = replace(h, estimate=replace(h.estimate, value=i.value, std=i.std, low=i.low, high=i.high,
+                                            level=i.level, parameter_value=h.estimate.nominal + i.value,
+                                            method="kalman", bound=None))
+        return h
+    if h.drop is None:
+        best = names[0]
+        return replace(h, posterior=w, drop=Drop("bayes-factor", T - 1, (
+            f"the data favour {best}" + (" coming and going" if best in comes else "") + f" (posterior {w:.2g})")))
+    return replace(h, posterior=w)
+
+
+def top_cell(loglik: np.ndarray) -> float:
+    """The largest finite log likelihood of the cells (0 when none is)."""
+    finite = loglik[np.isfinite(loglik)]
+    return float(finite.max()) if len(finite) else 0.0
+
+
+def hyps_by(hyps) -> dict:
+    """The hypotheses by name."""
+    return {h.name: h for h in hyps}

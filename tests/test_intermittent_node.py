@@ -1,0 +1,172 @@
+"""A fault that comes and goes as one fault node with two states
+(bgc/diagnosis/intermittent.py; issue 47, point 3): the batch diagnosis of
+a record in which a fault appeared, went away and came back names it
+intermittent, with each appearance's and going away's time and its
+magnitude while present.
+
+The data come from the circuit simulated by the exact discretisation of its
+equations (tests/test_mismatch.py, tests/test_episodes.py's ``plant``),
+not from bgc's simulator; the expected spans and sizes are the changes the
+test makes. The bank's likelihood is checked against two identities that
+hold whatever the code: with no magnitude, every path of the fault's chain
+is the nominal model's (the nominal filter's likelihood times the number
+of samples the first appearance may fall on, its weight 1 per sample); and
+a fault that never goes away is the persistent fault with its onset summed
+over the samples (:func:`bgc.filters.cubature.run_bank`, one Kalman filter
+per onset: a separate code path).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import bgc
+from bgc import events as ev
+from bgc.diagnosis import intermittent as im
+from bgc.filters.cubature import nominal_track, run_bank
+from bgc.model.protocol import state_rows
+
+from conftest import ROOT, bgc_cli
+from test_episodes import plant
+from test_mismatch import NOMINAL
+
+CIRCUIT = ROOT / "models" / "circuit.yaml"
+
+
+def _bias_over(text: str, column: int, value: float, spans) -> str:
+    """The plant's CSV ``text`` with sensor column ``column`` (0: f2, 1: f6,
+    2: e11) reading ``value`` high over each (on, off) span of ``spans``
+    (off None: to the end), by the onset rule (a row at time t >= on and < off)."""
+    lines = text.splitlines()
+    out = [lines[0]]
+    for line in lines[1:]:
+        cells = line.split(",")
+        t = float(cells[0])
+        if any(t >= on - 1e-9 and (off is None or t < off - 1e-9) for on, off in spans):
+            cells[2 + column] = f"{float(cells[2 + column]) + value:.6g}"
+        out.append(",".join(cells))
+    return "\n".join(out) + "\n"
+
+
+@pytest.fixture(scope="module")
+def circuit():
+    """The circuit's package, a record of R2 stepping up at t = 5 (bgc's simulator: only the bank's
+    identities are checked on it), and the nominal filter's track over it."""
+    s = bgc.simulate(CIRCUIT, "R2:abrupt:1.2@5", seed=1, steps=200)
+    package = bgc.open(CIRCUIT).package
+    nominal = package.MODELS["nominal"]
+    ys = np.column_stack([s.measurements[y] for y in nominal.OUTPUTS])
+    us = np.column_stack([s.inputs[u] for u in nominal.INPUTS])
+    model = package.MODELS["R2_abrupt"]
+    track = nominal_track(nominal, ys, us, len(ys))
+    _, extra = state_rows(model)
+    fixed = model.augment(track.mean[0][:, None], np.random.default_rng(0))[extra, 0]
+    return model, ys, us, track, fixed
+
+
+def test_with_no_magnitude_every_path_is_the_nominal_model(circuit):
+    model, ys, us, track, fixed = circuit
+    T, start = len(ys), 80
+    p = im._bank(model, ys, us, track, start, [0.0], [10.0], [10.0], fixed)
+    assert p.loglik[0] == pytest.approx(track.loglik[T] + math.log(T - start), abs=1e-8)
+
+
+@pytest.mark.parametrize("c", [0.6, 1.2])
+def test_a_fault_that_never_goes_is_the_persistent_one_summed_over_its_onsets(circuit, c):
+    model, ys, us, track, fixed = circuit
+    T, start = len(ys), 80
+    p = im._bank(model, ys, us, track, start, [c], [1e12], [1e12], fixed)
+    onsets = np.arange(start, T)
+    reference = np.logaddexp.reduce(run_bank(model, ys, us, track, onsets, np.full(len(onsets), c), fixed).loglik)
+    assert p.loglik[0] == pytest.approx(reference, abs=1e-3)
+
+
+def test_the_spans_are_read_where_the_presence_crosses_one_half():
+    present = np.array([0, 0, 0.9, 0.95, 0.2, 0.1, 0.7, 0.8])
+    appear = np.array([0, 0, 0.9, 0, 0, 0, 0.6, 0.1])
+    vanish = np.array([0, 0, 0, 0.1, 0.8, 0, 0, 0])
+    spans = im.spans_of(present, appear, vanish, 0, 0.95)
+    assert [(s.on, s.off) for s in spans] == [(2, 4), (6, None)]
+    assert spans[1].on_low == 6 and spans[1].on_high == 7  # 0.6 then 0.1: the 97.5 % point falls on 7
+
+
+#: R2 at 1.6 times its value over t = 6 to 12 and from t = 20 (a step of +1.2 ohm while present).
+COMES_AND_GOES = [(6.0, {"R2": 1.6}), (12.0, {"R2": 1.0}), (20.0, {"R2": 1.6})]
+
+
+@pytest.fixture(scope="module")
+def comes_and_goes(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("comes_and_goes")
+    data = folder / "run.csv"
+    data.write_text(plant(600, COMES_AND_GOES, seed=3), encoding="utf-8")
+    return folder, data, bgc.diagnose(CIRCUIT, data)
+
+
+def test_a_fault_that_comes_and_goes_is_isolated_with_its_spans(comes_and_goes):
+    _, _, report = comes_and_goes
+    d = report.diagnosis
+    assert (d.verdict, d.candidates) == ("isolated", ("R2_abrupt",))
+    h = next(h for h in d.hypotheses if h.name == "R2_abrupt")
+    i = h.intermittent
+    assert i is not None and i.alarm is None
+    truth = [(6.0, 12.0), (20.0, None)]
+    assert len(i.spans) == 2
+    for s, (on, off) in zip(i.spans, truth):
+        assert d.time_of(s.on_low) <= on + 1e-9 and d.time_of(s.on_high) >= on - 1e-9
+        assert abs(d.time_of(s.on) - on) <= 0.05 + 1e-9  # within one sample (dt 0.05)
+        if off is None:
+            assert s.off is None
+        else:
+            assert abs(d.time_of(s.off) - off) <= 0.05 + 1e-9
+    assert i.low <= 0.6 * NOMINAL["R2"] <= i.high  # +1.2 ohm while present
+    assert h.estimate.value == i.value
+    assert report.intermittent["R2"]["spans"] == [(d.time_of(s.on), None if s.off is None else d.time_of(s.off))
+                                                  for s in i.spans]
+    said = [e for e in d.events if isinstance(e, ev.Intermittent)]
+    assert [e.hypothesis for e in said] == ["R2_abrupt"]
+    # between the spans the fault is absent: the presence probability says so
+    t = d.time
+    assert i.present[(t > 13) & (t < 19)].max() < 0.05 and i.present[(t > 7) & (t < 11)].min() > 0.95
+
+
+def test_the_report_says_it_comes_and_goes(comes_and_goes, tmp_path):
+    folder, _, report = comes_and_goes
+    report.write(tmp_path / "out")
+    data = json.loads((tmp_path / "out" / "report.json").read_text(encoding="utf-8"))
+    assert "comes and goes: present t = 6 to 12 and from t = 20" in data["in_words"][0]
+    (h,) = [h for h in data["hypotheses"] if h["intermittent"]]
+    assert [s["appeared"] for s in h["intermittent"]["spans"]] == [6.0, 20.0]
+    assert "comes and goes" in (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
+
+
+def test_a_persistent_fault_is_not_tried_as_one_that_comes_and_goes(tmp_path):
+    data = tmp_path / "run.csv"
+    data.write_text(plant(400, [(6.0, {"R2": 1.6})], seed=3), encoding="utf-8")
+    d = bgc.diagnose(CIRCUIT, data).diagnosis
+    assert (d.verdict, d.candidates) == ("isolated", ("R2_abrupt",))
+    assert not [e for e in d.events if isinstance(e, (ev.IntermittentTried, ev.Intermittent))]
+    assert all(h.intermittent is None for h in d.hypotheses)
+
+
+@pytest.mark.slow
+def test_a_sensors_bias_that_comes_and_goes_from_the_command_line(tmp_path):
+    spans = [(6.0, 11.0), (17.0, None)]
+    text = _bias_over(plant(500, [], seed=4), 1, 0.5, spans)  # f6 reads 0.5 A high over the spans
+    (tmp_path / "run.csv").write_text(text, encoding="utf-8")
+    p = bgc_cli("diagnose", CIRCUIT, "--data", tmp_path / "run.csv", "-o", tmp_path / "out")
+    assert p.returncode == 0, p.stderr
+    data = json.loads((tmp_path / "out" / "report.json").read_text(encoding="utf-8"))
+    assert data["verdict"] == "isolated" and data["diagnosis"] == ["f6_offset_bias"], data["in_words"]
+    (h,) = [h for h in data["hypotheses"] if h["intermittent"]]
+    got = [(s["appeared"], s["went"]) for s in h["intermittent"]["spans"]]
+    assert len(got) == 2
+    for (on, off), (a, b) in zip(spans, got):
+        assert abs(a - on) <= 0.05 + 1e-9 and (off is None) == (b is None)
+        assert off is None or abs(b - off) <= 0.05 + 1e-9
+    low, high = h["intermittent"]["interval"]
+    assert low <= 0.5 <= high
+    assert "sensor f6 reads" in p.stdout and "comes and goes" in p.stdout
