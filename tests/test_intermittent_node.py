@@ -94,6 +94,31 @@ def test_the_spans_are_read_where_the_presence_crosses_one_half():
     assert spans[1].on_low == 6 and spans[1].on_high == 7  # 0.6 then 0.1: the 97.5 % point falls on 7
 
 
+class _Static:
+    """A stand-in of a static posterior: its best cell's residuals from ``best``'s onset."""
+
+    def __init__(self, z, onset=0):
+        self.residuals, self.best = z, (onset, 0.0)
+
+
+class _Named:
+    def __init__(self, z, onset=0):
+        self.static = _Static(z, onset)
+
+
+def test_white_residuals_do_not_wander_and_a_mean_that_comes_and_goes_does():
+    rng = np.random.default_rng(7)
+    white = [im._wanders(_Named(rng.standard_normal((600, 3)))) for _ in range(200)]
+    assert sum(white) <= 3  # a level of 0.001: about 0.2 of 200 expected
+    z = rng.standard_normal((600, 3))
+    z[100:250, 0] += 0.6  # a stretch 0.6 std high, then low: what a persistent model leaves of a fault that went away
+    z[250:400, 0] -= 0.6
+    assert im._wanders(_Named(z))
+    z = rng.standard_normal((600, 3))
+    z[:50] += 3.0  # before the onset: not read
+    assert not im._wanders(_Named(z, onset=50))
+
+
 #: R2 at 1.6 times its value over t = 6 to 12 and from t = 20 (a step of +1.2 ohm while present).
 COMES_AND_GOES = [(6.0, {"R2": 1.6}), (12.0, {"R2": 1.0}), (20.0, {"R2": 1.6})]
 
@@ -170,3 +195,18 @@ def test_a_sensors_bias_that_comes_and_goes_from_the_command_line(tmp_path):
     low, high = h["intermittent"]["interval"]
     assert low <= 0.5 <= high
     assert "sensor f6 reads" in p.stdout and "comes and goes" in p.stdout
+
+
+def test_a_span_shorter_than_an_isolation_is_named_by_the_monitor(tmp_path):
+    """R2 present over t = 6 to 6.6 only (12 samples, gone before the first checkpoint could isolate it),
+    then from t = 14: the monitor's first episode names it gone (intermittent, present t = 6 to 6.6) and
+    watches the healthy model; the second accommodates it back."""
+    from test_episodes import run
+
+    text = plant(500, [(6.0, {"R2": 1.6}), (6.6, {"R2": 1.0}), (14.0, {"R2": 1.6})], seed=5)
+    _, report, log = run(tmp_path, text)
+    closed = [e for e in log if e["event"] == "EpisodeClosed"]
+    assert [(e["action"], e["parameter"]) for e in closed] == [("ended", "R2"), ("accommodated", "R2")]
+    assert closed[0]["present"] == [[6.0, 6.6]]
+    assert closed[1]["present"] == [[6.0, 6.6], [14.0, None]]
+    assert closed[1]["value"] == pytest.approx(1.6 * NOMINAL["R2"], rel=0.05)

@@ -22,11 +22,11 @@ simulator injects it (the onset rule of :mod:`bgc.model.protocol`): the
 sample sees the new state, the transition into it the old one.
 
 Given ``c`` and the durations, the chain and the plant are a switching
-linear-Gaussian model (exactly, on a linear plant) whose likelihood a
-bank of cubature Kalman filters follows, one filter per state and the
-switches between them merged by moments at each sample (the generalised
-pseudo-Bayesian filter of order 1, GPB1, with the onset rule's six
-transitions between the three states as its pairs). The magnitude's
+linear-Gaussian model (on a plant linear in its states) whose likelihood a
+bank of cubature Kalman filters follows: per state one Gaussian, and per
+sample each of the six transitions between the states filtered and merged
+into its state by moments (the generalised pseudo-Bayesian filter of order
+1, GPB1: exact for each path of switches, the merging its approximation). The magnitude's
 uniform prior is integrated as the static posterior's is, on a grid
 refined around its peak (:func:`bgc.filters.quadrature.row_quadrature`),
 and the durations summed over their grid: the evidence ``log p(y |
@@ -46,7 +46,8 @@ most probable sample and a central interval).
 A diagnosis tries the intermittent hypothesis of its likeliest step faults
 when no persistent fault explains the data (:func:`revised`, from
 :func:`bgc.diagnosis.finish.finish`): a fault that went away fails the
-persistent model's fit tests. The intermittent model with its spans must
+persistent model's fit tests; and of a fault it names whose residuals' mean
+wanders after the onset (:func:`_wanders`). The intermittent model with its spans must
 then pass the same test (the windowed Z-test of section 5 on its
 residuals, the fault switched at the spans' samples).
 """
@@ -83,6 +84,10 @@ REFINE = 4
 SMOOTH = 3.0
 #: The most step faults a diagnosis tries as intermittent (the likeliest, by their persistent evidence).
 TRIED = 3
+#: The segments (samples) over which a named fault's residual means are tested for wandering (:func:`_wanders`).
+SEGMENT = 20
+#: The level of that test: a named fault is tried as one that comes and goes when it fails it.
+WANDERS = 1e-3
 #: The pairs of states (from, to) over one sample: before, present, absent.
 _PAIRS = ((0, 0), (0, 1), (1, 1), (1, 2), (2, 2), (2, 1))
 
@@ -131,6 +136,9 @@ class Intermittence:
     alarm: Detection | None
     start: int
     cells: int
+    #: the plant's state at the end (mean, std) by the filter switched at the spans (None: no span)
+    x_end: np.ndarray | None = None
+    x_end_std: np.ndarray | None = None
 
     def __repr__(self) -> str:
         return (f"<Intermittence {self.name}: {self.value:.4g} [{self.low:.4g}, {self.high:.4g}] while present, "
@@ -162,11 +170,15 @@ def _bank(model: FaultModel, ys, us, track: NominalTrack, start: int, magnitudes
           keep: bool = False) -> _Pass:
     """The GPB1 bank of every cell (magnitude, mean duration present, mean
     duration absent) from step ``start`` (the nominal filter's state
-    there) to the end of ``ys``."""
+    there) to the end of ``ys``. The state ``before`` is the nominal filter
+    itself (``track``), the same in every cell, and an appearance from it
+    depends on the magnitude alone: the filters run per step are one per
+    magnitude for the appearances and four per cell for the other pairs."""
     kf = _Filter(model)
     G, D = len(magnitudes), len(on)
     K = G * D
-    c = np.repeat(np.asarray(magnitudes, dtype=float), D)
+    g = np.asarray(magnitudes, dtype=float)
+    c = np.repeat(g, D)
     leave, back = np.tile(1.0 / np.asarray(on, dtype=float), G), np.tile(1.0 / np.asarray(off, dtype=float), G)
     with np.errstate(divide="ignore"):
         logpi = np.stack([np.zeros(K), np.zeros(K), np.log1p(-leave), np.log(leave), np.log1p(-back),
@@ -179,42 +191,58 @@ def _bank(model: FaultModel, ys, us, track: NominalTrack, start: int, magnitudes
     first = logw.copy()
     src = np.array([a for a, _ in _PAIRS])
     dst = np.array([b for _, b in _PAIRS])
-    seen_c = np.concatenate([c if b == 1 else np.zeros(K) for _, b in _PAIRS])  # the magnitude each update sees
-    moved_c = np.concatenate([c if a == 1 else np.zeros(K) for a, _ in _PAIRS])  # and each transition
-    states = np.repeat(np.asarray(fixed, dtype=float).reshape(-1, 1), 6 * K, axis=1)
+    rest = _PAIRS[2:]  # present -> present, present -> absent, absent -> absent, absent -> present
+    seen_c = np.concatenate([g] + [c if b == 1 else np.zeros(K) for _, b in rest])  # the magnitude each update sees
+    moved_c = np.concatenate([np.zeros(G)] + [c if a == 1 else np.zeros(K) for a, _ in rest])  # and each transition
+    states = np.repeat(np.asarray(fixed, dtype=float).reshape(-1, 1), G + 4 * K, axis=1)
     states[kf.magnitude] = seen_c
     T = len(ys)
     alpha = np.full((T, 3, K), -math.inf) if keep else None
     pair = np.full((T, 6, K), -math.inf) if keep else None
+    ll, mu, Pu = np.empty((6, K)), np.empty((6, K, n)), np.empty((6, K, n, n))
     with np.errstate(all="ignore"):
         for k in range(start, T):
-            M = m[src].reshape(6 * K, n)
-            V = P[src].reshape(6 * K, n, n)
-            ll, mu, Pu, _, _, _ = kf.step(ys[k], us[k], M, V, states.copy(), moved=moved_c)
-            ll = np.where(np.isfinite(ll), ll, -math.inf).reshape(6, K)
-            lw = logw[src] + logpi + ll  # (6, K)
-            mu, Pu = mu.reshape(6, K, n), Pu.reshape(6, K, n, n)
-            for s in range(3):
-                into = np.flatnonzero(dst == s)
-                w = lw[into]
-                top = w.max(axis=0)
-                alive = np.isfinite(top)
-                safe = np.where(alive, top, 0.0)
-                e = np.exp(w - safe)  # (pairs, K)
-                total = e.sum(axis=0)
-                logw[s] = np.where(alive, safe + np.log(np.where(total > 0, total, 1.0)), -math.inf)
-                if not alive.any():
-                    continue
-                share = e / np.where(total > 0, total, 1.0)
-                mean = np.einsum("pk,pkn->kn", share, mu[into])
-                d = mu[into] - mean[None]
-                cov = np.einsum("pk,pkij->kij", share, Pu[into] + d[..., :, None] * d[..., None, :])
-                m[s][alive], P[s][alive] = mean[alive], cov[alive]
+            M = np.concatenate([np.repeat(np.asarray(track.mean[k], dtype=float)[None], G, axis=0),
+                                m[src[2:]].reshape(4 * K, n)])
+            V = np.concatenate([np.repeat(np.asarray(track.cov[k], dtype=float)[None], G, axis=0),
+                                P[src[2:]].reshape(4 * K, n, n)])
+            lk, mk, Pk, _, _, _ = kf.step(ys[k], us[k], M, V, states.copy(), moved=moved_c)
+            ll[0] = float(track.loglik[k + 1] - track.loglik[k])  # before -> before: the nominal filter
+            mu[0], Pu[0] = track.mean[k + 1], track.cov[k + 1]
+            ll[1], mu[1], Pu[1] = np.repeat(lk[:G], D), np.repeat(mk[:G], D, axis=0), np.repeat(Pk[:G], D, axis=0)
+            ll[2:], mu[2:], Pu[2:] = lk[G:].reshape(4, K), mk[G:].reshape(4, K, n), Pk[G:].reshape(4, K, n, n)
+            ll[~np.isfinite(ll)] = -math.inf
+            _merge(logw[src] + logpi + ll, mu, Pu, dst, logw, m, P)
             if keep:
                 alpha[k], pair[k] = logw, ll
     appeared = np.logaddexp(logw[1], logw[2])
     return _Pass(np.where(np.isfinite(appeared), appeared, -math.inf), alpha, pair,
                  np.tile(np.asarray(on, dtype=float), G), np.tile(np.asarray(off, dtype=float), G), first)
+
+
+def _merge(lw: np.ndarray, mu: np.ndarray, Pu: np.ndarray, dst: np.ndarray, logw: np.ndarray, m: np.ndarray,
+           P: np.ndarray) -> None:
+    """Each state's log weight (``logw``, 3 x cells) and Gaussian (``m``,
+    ``P``), in place, from the pairs into it: their log weights ``lw`` (6 x
+    cells: the source's weight, the transition's, the sample's predictive
+    density) and updated means and covariances (``mu``, ``Pu``), merged by
+    moments (a state no pair reaches keeps its Gaussian)."""
+    for s in range(3):
+        into = np.flatnonzero(dst == s)
+        w = lw[into]
+        top = w.max(axis=0)
+        alive = np.isfinite(top)
+        safe = np.where(alive, top, 0.0)
+        e = np.exp(w - safe)  # (pairs, K)
+        total = e.sum(axis=0)
+        logw[s] = np.where(alive, safe + np.log(np.where(total > 0, total, 1.0)), -math.inf)
+        if not alive.any():
+            continue
+        share = e / np.where(total > 0, total, 1.0)
+        mean = np.einsum("pk,pkn->kn", share, mu[into])
+        d = mu[into] - mean[None]
+        cov = np.einsum("pk,pkij->kij", share, Pu[into] + d[..., :, None] * d[..., None, :])
+        m[s][alive], P[s][alive] = mean[alive], cov[alive]
 
 
 def _smoothed(p: _Pass, weights: np.ndarray, start: int, T: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -326,16 +354,17 @@ def _narrower(values: np.ndarray, logd: np.ndarray) -> np.ndarray | None:
 
 
 def switched_residuals(model: FaultModel, ys, us, track: NominalTrack, spans: tuple[Span, ...], value: float,
-                       fixed) -> np.ndarray:
+                       fixed) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """The normalised residuals (steps x outputs; NaN before the first
     appearance) of one cubature Kalman filter of ``model`` with magnitude
     ``value`` present over ``spans`` (their most probable samples) and 0
-    between them, the changes at the samples' instants both ways."""
+    between them, the changes at the samples' instants both ways; and its
+    state's mean and std after the last step (None: no span)."""
     kf = _Filter(model)
     T, n_y = ys.shape
     z = np.full((T, n_y), np.nan)
     if not spans:
-        return z
+        return z, None, None
     present = np.zeros(T, dtype=bool)
     for s in spans:
         present[s.on:T if s.off is None else s.off] = True
@@ -348,7 +377,7 @@ def switched_residuals(model: FaultModel, ys, us, track: NominalTrack, spans: tu
             moved = np.array([value if k > 0 and present[k - 1] else 0.0])
             _, m, P, zk, _, _ = kf.step(ys[k], us[k], m, P, states.copy(), moved=moved)
             z[k] = zk[0]
-    return z
+    return z, m[0], np.sqrt(np.maximum(np.diagonal(P[0]), 0.0))
 
 
 def _searched(row, lo: float, hi: float):
@@ -418,14 +447,14 @@ def intermittence(model: FaultModel, ys, us, track: NominalTrack, start: int, fi
     w /= w.sum()
     present, appear, vanish = _smoothed(p, w, start, T)
     spans = spans_of(present, appear, vanish, start, level)
-    z = switched_residuals(model, ys, us, track, spans, mean, fixed)
+    z, x_end, x_end_std = switched_residuals(model, ys, us, track, spans, mean, fixed)
     if spans and track.z is not None:  # before the first appearance: the nominal filter's own residuals
         z[start:spans[0].on] = track.z[start:spans[0].on]
     alarm = first_alarm(z[start:], tuple(outputs), rejection, windows) if spans else None
     if alarm is not None:
         alarm = replace(alarm, step=alarm.step + start)
     return Intermittence(model.NAME, evidence, mean, std, low, high, level, float(w @ p.on), float(w @ p.off),
-                         present, spans, z, alarm, start, cells)
+                         present, spans, z, alarm, start, cells, x_end, x_end_std)
 
 
 def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, ...], r, s, observer) \
@@ -433,7 +462,10 @@ def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, .
     """The verdict with the likeliest step faults tried as intermittent
     (:data:`TRIED` of them, by their persistent evidence and prior), when no
     persistent fault explains the data (the verdict is ``unexplained``:
-    a fault that went away fails its persistent model's tests). Each intermittent
+    a fault that went away fails its persistent model's tests), or the
+    verdict's own step faults whose residual means wander after their onset
+    (:func:`_wanders`: a fault that went away briefly, or whose absence the
+    observer's states partly took in, passes those tests). Each intermittent
     hypothesis that passes its own fit test, its magnitude not pressed
     against a bound of its prior, is weighed beside the persistent
     hypotheses still in the running (prior :data:`SHARE` times its fault
@@ -442,9 +474,13 @@ def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, .
     (``Hypothesis.intermittent``). Returns (the hypotheses, the verdict,
     its candidates, the events)."""
     T = len(r.time)
-    if observer is None or verdict != "unexplained":
+    if observer is None or verdict not in ("unexplained", "isolated", "ambiguous"):
         return hyps, verdict, candidates, []
-    tried = _tried(hyps, candidates, s, T)
+    if verdict == "unexplained":
+        tried = _tried(hyps, s, T)
+    else:  # a named fault whose residuals' mean wanders after its onset: it may have gone and come back
+        by = hyps_by(hyps)
+        tried = [by[n] for n in candidates if n in by and comes_and_goes(by[n].kind) and _wanders(by[n])][:TRIED]
     if not tried:
         return hyps, verdict, candidates, []
     s.say(f"trying {', '.join(h.name for h in tried)} as faults that come and go")
@@ -470,6 +506,33 @@ def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, .
     return out, ("isolated" if len(names) == 1 else "ambiguous"), names, events
 
 
+def _wanders(h: Hypothesis) -> bool:
+    """Whether the residuals of ``h``'s static posterior's most likely cell,
+    from its onset on, have a mean that is not 0 throughout: over
+    consecutive segments of :data:`SEGMENT` samples, the sum of each
+    segment's and sensor's n mean^2 (chi-square with one degree of freedom
+    each, the residuals white N(0, 1) when the model holds) exceeds its
+    quantile of 1 - :data:`WANDERS`. A fault that went away and came back
+    leaves segments of one sign and then the other, which a persistent
+    model's windowed test, built to alarm within a horizon, can pass."""
+    p = h.static
+    if p is None or p.residuals is None or p.best is None:
+        return False
+    from scipy.stats import chi2
+
+    z = np.asarray(p.residuals, dtype=float)[int(p.best[0]):]
+    stat, terms = 0.0, 0
+    for lo in range(0, len(z) - SEGMENT + 1, SEGMENT):
+        seg = z[lo:lo + SEGMENT]
+        n = np.isfinite(seg).sum(axis=0)
+        with np.errstate(invalid="ignore"):
+            mean = np.nansum(seg, axis=0) / np.where(n > 0, n, 1)
+        use = n >= SEGMENT // 2
+        stat += float((n * mean * mean)[use].sum())
+        terms += int(use.sum())
+    return terms > 0 and float(chi2.sf(stat, terms)) < WANDERS
+
+
 def _prior(h: Hypothesis, s) -> float:
     """The log prior of hypothesis ``h``'s fault model (setting ``s``'s)."""
     return math.log(max(s.priors.get(h.parameter, 0.01), 1e-300))
@@ -480,17 +543,18 @@ def _finite(h: Hypothesis) -> bool:
     return h.static is not None and math.isfinite(h.static.log_evidence)
 
 
-def _tried(hyps, candidates, s, T: int) -> list:
+def _tried(hyps, s, T: int) -> list:
     """The step faults to try as intermittent: not refuted by their
     signatures' symbols, in the running or dropped by a test of their fit
     (their filters' online, or the static posterior's: a fault that went
-    away fails them); the verdict's candidates first, then those that
-    lasted longest, then the likeliest; :data:`TRIED` of them."""
+    away fails them); first those weighed with their magnitude held static,
+    likeliest first (their prior times their evidence: the closest to the
+    data as persistent faults), then the others, those that lasted longest
+    first; :data:`TRIED` of them."""
     steps = [h for h in hyps if comes_and_goes(h.kind) and not h.ruled_out
              and (h.drop is None or h.drop.code in ("static-test", "bayes-factor", "inconsistent"))]
-    return sorted(steps, key=lambda h: (h.name not in candidates, -(h.dropped_step if h.drop else T),
-                                        -(_prior(h, s) + (h.static.log_evidence if _finite(h) else h.log_evidence))
-                                        ))[:TRIED]
+    return sorted(steps, key=lambda h: (0, -(_prior(h, s) + h.static.log_evidence), 0.0) if _finite(h) else
+                  (1, -(h.dropped_step if h.drop else T), -(_prior(h, s) + h.log_evidence)))[:TRIED]
 
 
 def _pool(hyps, found: dict, s) -> list[tuple[str, bool, float]]:

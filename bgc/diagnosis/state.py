@@ -209,7 +209,8 @@ _ALLOWED = {("numpy", "ndarray"), ("numpy", "dtype"), ("numpy.core.multiarray", 
             ("builtins", "frozenset"), ("builtins", "slice"), ("copyreg", "_reconstructor"),
             ("builtins", "object"), ("builtins", "float"), ("builtins", "int"),
             ("numpy._core.numeric", "_frombuffer"), ("numpy.core.numeric", "_frombuffer"),
-            ("bgc.diagnosis.hidden", "DecoderState")}
+            ("bgc.diagnosis.hidden", "DecoderState"), ("bgc.diagnosis.intermittent", "Intermittence"),
+            ("bgc.diagnosis.intermittent", "Span")}
 
 
 class _Unpickler(pickle.Unpickler):

@@ -466,7 +466,9 @@ def diagnosis_estimate(r) -> Figure:
 def _estimate(ax, d, h, clock: TimeAxis) -> None:
     """Hypothesis ``h``'s magnitude: the particle filter's over time with its
     band and, when the estimate is the static posterior's (or ``--refine``'s
-    grid's), that estimate and its interval from the onset."""
+    grid's), that estimate and its interval from the onset; a fault that
+    comes and goes, its magnitude while present times the probability that
+    it is, per step, and its interval where it is."""
     e = h.estimate
     t = clock(d.time[h.start_step:])
     static = h.filter_estimate is not None
@@ -474,7 +476,15 @@ def _estimate(ax, d, h, clock: TimeAxis) -> None:
     ax.plot(t, h.magnitude, "-", lw=1.2, color=CYCLE[0], label="particle filter" if static else "estimate")
     ax.fill_between(t, h.magnitude_band[:, 0], h.magnitude_band[:, 1], color=CYCLE[0], alpha=0.2, lw=0,
                     label=f"{level} interval" + (" (particle filter)" if static else ""))
-    if static:
+    i = h.intermittent
+    if i is not None:  # a fault that comes and goes: its magnitude while present, times the probability it is
+        present = np.asarray(i.present, dtype=float)
+        on = present > 0.5
+        ax.plot(clock(d.time), i.value * present, "--", lw=1.4, color=CYCLE[1],
+                label="comes and goes: magnitude while\npresent x probability present")
+        ax.fill_between(clock(d.time), np.where(on, i.low, np.nan), np.where(on, i.high, np.nan), color=CYCLE[1],
+                        alpha=0.25, lw=0, label=f"its {level} interval while present")
+    elif static:
         span = clock(d.time[h.onset_step:])
         ax.plot(span, np.full(len(span), e.value), "--", lw=1.4, color=CYCLE[1],
                 label=("static posterior (Kalman filters)" if e.method == "kalman"

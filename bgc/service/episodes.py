@@ -100,7 +100,18 @@ class Episodes:
         held = e is not None and _held(e, d.nominal)  # a parameter's value the model can take
         action, parameter, value, out = "re-armed" if e is None else "not accommodated", None, None, list(sensors)
         number, appearance = len(self.episodes()) + 1, 0
-        if held and e.parameter in self.theta and not fault_kind(e.kind).drifts \
+        came = c.best.intermittent if e is not None and c.best is not None else None  # one fault node that comes and goes
+        if came is not None and held and e.parameter not in self.theta:
+            spans = [[c.time_of(sp.on), None if sp.off is None else c.time_of(sp.off), float(e.parameter_value)]
+                     for sp in came.spans]
+            self.spells.setdefault(e.parameter, []).extend(spans)
+            appearance = len(self.spells[e.parameter])
+            if spans[-1][1] is not None:  # gone again by the checkpoint: the model watched stays the file's
+                action, parameter, value = "ended", e.parameter, self._file_value(e.parameter)
+            else:
+                action, parameter, value = "accommodated", e.parameter, float(e.parameter_value)
+                self.theta[parameter], self.by[parameter] = value, number
+        elif held and e.parameter in self.theta and not fault_kind(e.kind).drifts \
                 and _returned(e, self._file_value(e.parameter)):  # a step back (a drift's slope is no value)
             action, parameter, value = "ended", e.parameter, self._file_value(e.parameter)
             del self.theta[parameter], self.by[parameter]
@@ -234,12 +245,18 @@ def _returned(e, file_value: float) -> bool:
 
 def _state_now(c, d) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Where the plant is at the end of checkpoint diagnosis ``c``: the
-    isolated hypothesis's state estimate, else the nominal observer's (None:
+    isolated hypothesis's state estimate (one that comes and goes: its
+    filter switched at its spans), else the nominal observer's (None:
     neither is finite)."""
     n = len(d.nominal.STATES)
     if c.verdict == "isolated":
         h = next((h for h in c.hypotheses if h.name == c.candidates[0]), None)
-        if h is not None and len(h.x_mean):
+        i = None if h is None else h.intermittent
+        if i is not None and i.x_end is not None:  # a fault that comes and goes: its filter switched at its spans
+            mean, std = np.asarray(i.x_end, dtype=float)[:n], np.asarray(i.x_end_std, dtype=float)[:n]
+            if np.all(np.isfinite(mean)) and np.all(np.isfinite(std)):
+                return mean, std
+        elif h is not None and len(h.x_mean):
             mean, std = np.asarray(h.x_mean[-1], dtype=float)[:n], np.asarray(h.x_std[-1], dtype=float)[:n]
             if np.all(np.isfinite(mean)) and np.all(np.isfinite(std)):
                 return mean, std
