@@ -119,6 +119,43 @@ def test_white_residuals_do_not_wander_and_a_mean_that_comes_and_goes_does():
     assert not im._wanders(_Named(z, onset=50))
 
 
+class _Row:
+    """A stand-in of a bank's pass over a grid of magnitudes: a log density known in closed form."""
+
+    def __init__(self, logd):
+        self.logd, self.calls = logd, 0
+
+    def __call__(self, values, full):
+        self.calls += 1
+
+        class Pass:
+            loglik = np.zeros(len(values))
+
+        return Pass(), self.logd(np.asarray(values))
+
+
+#: Log densities of the magnitude: a Gaussian peak of std 0.02; a Laplace peak; and a Gaussian peak on a
+#: plateau, what the bank gives far from the magnitude, where the fault node can stay absent (the parabola
+#: through three coarse points then puts its vertex off the peak by many of its stds).
+SHAPES = {"gaussian": lambda v, peak: -0.5 * ((v - peak) / 0.02) ** 2,
+          "laplace": lambda v, peak: -50.0 * np.abs(v - peak),
+          "plateau": lambda v, peak: np.maximum(-0.5 * ((v - peak) / 0.025) ** 2, -300.0)}
+
+
+@pytest.mark.parametrize("peak", [1.013, -4.2, 0.3])
+@pytest.mark.parametrize("shape", sorted(SHAPES))
+def test_the_magnitudes_grid_ends_around_the_peak_whatever_its_shape(peak, shape):
+    """A prior of (-5, 5): the last grid holds the peak, resolved (the log density falls by less than
+    SMOOTH between the best point and its neighbours: 2.4 stds apart at most for a Gaussian)."""
+    row = _Row(lambda v: SHAPES[shape](v, peak))
+    _, values, got, _ = im._searched(row, -5.0, 5.0)
+    assert values[0] <= peak <= values[-1]
+    best = int(np.argmax(got))
+    assert abs(values[best] - peak) <= values[1] - values[0]
+    assert np.max(np.abs(np.diff(got[max(best - 1, 0):best + 2]))) < im.SMOOTH
+    assert row.calls <= im.REFINE + 1
+
+
 #: R2 at 1.6 times its value over t = 6 to 12 and from t = 20 (a step of +1.2 ohm while present).
 COMES_AND_GOES = [(6.0, {"R2": 1.6}), (12.0, {"R2": 1.0}), (20.0, {"R2": 1.6})]
 

@@ -79,7 +79,7 @@ SHORTEST = 4.0
 #: The points of each grid of magnitudes (the first over the prior, each next between the best one's neighbours).
 GRID = 9
 #: The most refinements of the magnitude's grid.
-REFINE = 4
+REFINE = 6
 #: The refinements stop when the log likelihood changes by less than this between neighbouring points.
 SMOOTH = 3.0
 #: The most step faults a diagnosis tries as intermittent (the likeliest, by their persistent evidence).
@@ -325,32 +325,36 @@ def spans_of(present: np.ndarray, appear: np.ndarray, vanish: np.ndarray, start:
     return tuple(out)
 
 
-def _narrower(values: np.ndarray, logd: np.ndarray) -> np.ndarray | None:
+def _narrower(values: np.ndarray, logd: np.ndarray, lo: float, hi: float) -> np.ndarray | None:
     """The next grid of magnitudes, or None when ``values`` resolve the
     peak of the log density ``logd`` (its fall between neighbouring points
-    near the peak under :data:`SMOOTH`): :data:`GRID` points over four
-    stds either side of the parabola's vertex through the best point and
-    its neighbours (its std from the parabola's curvature), within those
+    near the peak under :data:`SMOOTH`). A peak at an end of the grid short
+    of the prior's bound (``lo``, ``hi``) moves the grid, as wide, to be
+    centred there; an interior one narrows it: :data:`GRID` points over
+    four stds either side of the parabola's vertex through the best point
+    and its neighbours (its std from the parabola's curvature), within those
     neighbours."""
     best = int(np.argmax(logd))
     if not np.isfinite(logd[best]) or len(values) < 3:
         return None
+    width = values[-1] - values[0]
+    if (best == 0 and values[0] > lo) or (best == len(values) - 1 and values[-1] < hi):
+        centre = values[best]
+        low, high = max(lo, centre - width / 2.0), min(hi, centre + width / 2.0)
+        return np.linspace(low, high, GRID) if high > low else None
     near = logd[max(best - 1, 0):best + 2]
     if np.all(np.isfinite(near)) and np.max(np.abs(np.diff(near))) < SMOOTH:
         return None
     a, b = values[max(best - 1, 0)], values[min(best + 1, len(values) - 1)]
     h = values[1] - values[0]
-    centre, width = values[best], (b - a) / 2.0
+    centre, half = values[best], (b - a) / 2.0
     if 0 < best < len(values) - 1 and np.all(np.isfinite(near)):
         curve = (near[0] - 2.0 * near[1] + near[2]) / (h * h)
         if curve < 0:
-            sd = math.sqrt(-1.0 / curve)
-            centre = values[best] - (near[2] - near[0]) / (2.0 * h * curve)
-            width = min(width, 4.0 * sd)
-    low, high = max(a, centre - width), min(b, centre + width)
-    if not high > low:
-        return None
-    return np.linspace(low, high, GRID)
+            centre = min(max(values[best] - (near[2] - near[0]) / (2.0 * h * curve), a), b)
+            half = min(half, 4.0 * math.sqrt(-1.0 / curve))
+    low, high = max(a, centre - half), min(b, centre + half)
+    return np.linspace(low, high, GRID) if high > low else None
 
 
 def switched_residuals(model: FaultModel, ys, us, track: NominalTrack, spans: tuple[Span, ...], value: float,
@@ -390,7 +394,7 @@ def _searched(row, lo: float, hi: float):
     for _ in range(REFINE):
         p, logd = row(values, False)
         cells += p.loglik.size
-        narrower = _narrower(values, logd)
+        narrower = _narrower(values, logd, lo, hi)
         if narrower is None:
             break
         values = narrower
