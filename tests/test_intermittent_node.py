@@ -247,3 +247,29 @@ def test_a_span_shorter_than_an_isolation_is_named_by_the_monitor(tmp_path):
     assert closed[0]["present"] == [[6.0, 6.6]]
     assert closed[1]["present"] == [[6.0, 6.6], [14.0, None]]
     assert closed[1]["value"] == pytest.approx(1.6 * NOMINAL["R2"], rel=0.05)
+
+
+@pytest.mark.slow
+def test_an_actuators_bias_that_comes_and_goes(tmp_path):
+    """The source delivers 1 V more than the 10 V logged over t = 6 to 12 and from t = 20 (the plant's
+    dynamics and readings see 11 V; the run file says 10): the actuator's bias, coming and going."""
+    from test_mismatch import DT, START, V, circuit, readings
+
+    rng = np.random.default_rng(11)
+    e, process, sensor = circuit(dict(NOMINAL), 1.0)
+    x, lines = np.array(START), ["time,u:V,y:f2,y:f6,y:e11"]
+    for k in range(1, 601):
+        t = k * DT
+        v = V + (1.0 if (6.0 - 1e-9 <= t < 12.0 - 1e-9) or t >= 20.0 - 1e-9 else 0.0)
+        # the sample at t sees the source of t; the step into it the source before it (the onset rule)
+        before = V + (1.0 if (6.0 - 1e-9 <= t - DT < 12.0 - 1e-9) or t - DT >= 20.0 - 1e-9 else 0.0)
+        x = e[:3, :3] @ x + e[:3, 3] * before + process * rng.standard_normal(3)
+        y = readings(NOMINAL, x, v) + sensor * rng.standard_normal(3)
+        lines.append(",".join(f"{val:.6g}" for val in (t, V, *y)))
+    (tmp_path / "run.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    d = bgc.diagnose(CIRCUIT, tmp_path / "run.csv").diagnosis
+    assert (d.verdict, d.candidates) == ("isolated", ("V_offset_bias",))
+    i = next(h for h in d.hypotheses if h.name == "V_offset_bias").intermittent
+    assert i is not None and i.low <= 1.0 <= i.high
+    assert [(d.time_of(s.on), None if s.off is None else d.time_of(s.off)) for s in i.spans] == \
+        [(pytest.approx(6.0), pytest.approx(12.0)), (pytest.approx(20.0), None)]
