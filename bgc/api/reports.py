@@ -96,8 +96,9 @@ class DiagnosisReport:
             for e in mine:
                 if e.action == "accommodated":
                     each[e.appearance] = e.value
-            values = [each[k] for k in sorted(each)]
-            out[p] = {"spans": mine[-1].present, "values": values, "mean": sum(values) / len(values)}
+            values = [each[k] for k in sorted(each)]  # none: named gone by a checkpoint's fault node at once
+            out[p] = {"spans": mine[-1].present, "values": values,
+                      "mean": sum(values) / len(values) if values else None}
         return out
 
     def write(self, folder: str | Path) -> Path:

@@ -31,6 +31,7 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import pipeline
     from ..compiler import dbn as dbn_stage
+    from ..kinds import comes_and_goes
     from ..compiler.hybrid_dbn import across_modes
     from ..output import artifacts, draw, render
 
@@ -82,8 +83,10 @@ def run(args: argparse.Namespace) -> int:
             try:
                 d = dbn_stage.intermittent(d)
             except KeyError as exc:
-                raise BgcError(f"--intermittent: {exc.args[0]}", None,
-                               "give --fault a step fault, e.g. --fault R_pipe:abrupt") from None
+                steps = [f.name for f in c.dbn.faulty if f.kind is not None and comes_and_goes(f.kind)] \
+                    if hasattr(c, "dbn") else []
+                raise BgcError(f"--intermittent: {exc.args[0]}", None, "give --fault a step fault"
+                               + (f", e.g. --fault {steps[0]}" if steps else ": this model lists none")) from None
     if fmt in ("svg", "png"):
         if stage == "bondgraph":
             data = draw.bondgraph_picture(causal, fmt, args.engine)

@@ -114,8 +114,9 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     weighing_posteriors = {**posteriors, **static}
     null = nominal_evidence(r, s, observer) if weighing_posteriors and s.options.no_fault else None
     hyps, verdict, candidates, weighing = weighed(hyps + more, weighing_posteriors, r, s, null)
-    hyps, verdict, candidates, tried = revised(hyps, verdict, candidates, r, s, observer)  # faults that come and go
-    weighing += tried
+    if not any(isinstance(e, ev.NoFault) for e in weighing):  # no fault holding a share: faults that come and go
+        hyps, verdict, candidates, tried = revised(hyps, verdict, candidates, r, s, observer)
+        weighing += tried
     events = list(r.events) + silent + rescued + weighing
     best_onset = None if verdict == "no fault" else \
         next((h.onset_step for h in hyps if candidates and h.name == candidates[0]), iso.onset)

@@ -136,6 +136,9 @@ class Intermittence:
     alarm: Detection | None
     start: int
     cells: int
+    #: log p(y | the fault persists) by the same bank, its durations endless: the persistent fault's onset
+    #: summed over every sample from ``start`` (the scale ``log_evidence`` is on)
+    persistent_evidence: float = -math.inf
     #: the plant's state at the end (mean, std) by the filter switched at the spans (None: no span)
     x_end: np.ndarray | None = None
     x_end_std: np.ndarray | None = None
@@ -402,6 +405,16 @@ def _searched(row, lo: float, hi: float):
     return p, values, logd, cells + p.loglik.size
 
 
+def _evidence(values: np.ndarray, logd: np.ndarray, lo: float, hi: float) -> float:
+    """The log of the density ``logd`` (known at the grid ``values``)
+    integrated over the magnitude's uniform prior on [``lo``, ``hi``]."""
+    x, logm = row_quadrature(values, logd)
+    top = float(np.max(logm)) if len(logm) else -math.inf
+    if not math.isfinite(top):
+        return -math.inf
+    return top + math.log(np.exp(logm - top).sum()) - math.log(hi - lo)
+
+
 def _moments(x: np.ndarray, logm: np.ndarray, top: float, level: float) -> tuple[float, float, float, float]:
     """The mean, std and central interval of probability ``level`` of the
     magnitude, from quadrature nodes ``x`` and their log masses ``logm``
@@ -437,13 +450,20 @@ def intermittence(model: FaultModel, ys, us, track: NominalTrack, start: int, fi
         per = p.loglik.reshape(len(values), len(a))
         return p, log_sum_exp_rows(per.T) - math.log(len(a))  # per magnitude, the durations summed (uniform prior)
 
+    def persists(values, full: bool):  # the fault that never goes away, on the same bank
+        p = _bank(model, ys, us, track, start, values, [math.inf], [math.inf], fixed)
+        return p, p.loglik
+
+    _, kept, logk, more = _searched(persists, lo, hi)
+    persistent = _evidence(kept, logk, lo, hi)
     p, values, logd, cells = _searched(row, lo, hi)
+    cells += more
     x, logm = row_quadrature(values, logd)
     top = float(np.max(logm)) if len(logm) else -math.inf
     if not math.isfinite(top):
         return Intermittence(model.NAME, -math.inf, math.nan, math.nan, math.nan, math.nan, level, math.nan,
-                             math.nan, np.zeros(T), (), np.full(ys.shape, np.nan), None, start, cells)
-    evidence = top + math.log(np.exp(logm - top).sum()) - math.log(hi - lo)
+                             math.nan, np.zeros(T), (), np.full(ys.shape, np.nan), None, start, cells, persistent)
+    evidence = _evidence(values, logd, lo, hi)
     mean, std, low, high = _moments(x, logm, top, level)
     # the cells' posterior: each point of the magnitude's grid and pair of durations by its likelihood
     w = np.exp(p.loglik - top_cell(p.loglik))
@@ -458,7 +478,7 @@ def intermittence(model: FaultModel, ys, us, track: NominalTrack, start: int, fi
     if alarm is not None:
         alarm = replace(alarm, step=alarm.step + start)
     return Intermittence(model.NAME, evidence, mean, std, low, high, level, float(w @ p.on), float(w @ p.off),
-                         present, spans, z, alarm, start, cells, x_end, x_end_std)
+                         present, spans, z, alarm, start, cells, persistent, x_end, x_end_std)
 
 
 def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, ...], r, s, observer) \
@@ -497,8 +517,8 @@ def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, .
         found[h.name] = intermittence(model, r.ys, r.us, observer, start, fixed, r.outputs, s.options.rejection,
                                       s.options.windows, 0.95)
     by = hyps_by(hyps)
-    events = [ev.IntermittentTried(T - 1, name, i.log_evidence - by[name].static.log_evidence if _finite(by[name])
-                                   else math.nan, len(i.spans), i.alarm is None) for name, i in found.items()]
+    events = [ev.IntermittentTried(T - 1, name, i.log_evidence - i.persistent_evidence, len(i.spans),
+                                   bool(i.spans) and i.alarm is None) for name, i in found.items()]
     pool = _pool(hyps, found, s)
     names, comes, weight = _credible(pool, s.options.isolation_level)
     if not comes:
@@ -512,29 +532,38 @@ def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, .
 
 def _wanders(h: Hypothesis) -> bool:
     """Whether the residuals of ``h``'s static posterior's most likely cell,
-    from its onset on, have a mean that is not 0 throughout: over
-    consecutive segments of :data:`SEGMENT` samples, the sum of each
-    segment's and sensor's n mean^2 (chi-square with one degree of freedom
-    each, the residuals white N(0, 1) when the model holds) exceeds its
-    quantile of 1 - :data:`WANDERS`. A fault that went away and came back
-    leaves segments of one sign and then the other, which a persistent
-    model's windowed test, built to alarm within a horizon, can pass."""
+    from its onset on, have a mean that is not 0, or a variance that is not
+    1, throughout: over consecutive segments of :data:`SEGMENT` samples, the
+    sum of each segment's and sensor's n mean^2 (chi-square with one degree
+    of freedom each, the residuals white N(0, 1) when the model holds), or
+    of its sum of squares made normal by Wilson and Hilferty's cube root and
+    squared (chi-square of one degree each), exceeds its quantile of 1 -
+    :data:`WANDERS` / 2. A fault that went away and came back leaves
+    segments of one sign and then the other (a burst of noise, segments too
+    wide and too narrow), which a persistent model's windowed test, built to
+    alarm within a horizon, can pass."""
     p = h.static
     if p is None or p.residuals is None or p.best is None:
         return False
     from scipy.stats import chi2
 
     z = np.asarray(p.residuals, dtype=float)[int(p.best[0]):]
-    stat, terms = 0.0, 0
+    stat, spread, terms = 0.0, 0.0, 0
     for lo in range(0, len(z) - SEGMENT + 1, SEGMENT):
         seg = z[lo:lo + SEGMENT]
         n = np.isfinite(seg).sum(axis=0)
         with np.errstate(invalid="ignore"):
             mean = np.nansum(seg, axis=0) / np.where(n > 0, n, 1)
+            square = np.nansum(seg * seg, axis=0)
         use = n >= SEGMENT // 2
         stat += float((n * mean * mean)[use].sum())
+        # the sum of squares, chi-square of n degrees of freedom: normal by Wilson and Hilferty's cube root
+        k = np.where(n > 0, n, 1).astype(float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            normal = (np.cbrt(square / k) - (1.0 - 2.0 / (9.0 * k))) / np.sqrt(2.0 / (9.0 * k))
+        spread += float((normal * normal)[use].sum())
         terms += int(use.sum())
-    return terms > 0 and float(chi2.sf(stat, terms)) < WANDERS
+    return terms > 0 and min(float(chi2.sf(stat, terms)), float(chi2.sf(spread, terms))) < WANDERS / 2.0
 
 
 def _prior(h: Hypothesis, s) -> float:
@@ -563,13 +592,22 @@ def _tried(hyps, s, T: int) -> list:
 
 def _pool(hyps, found: dict, s) -> list[tuple[str, bool, float]]:
     """(name, intermittent, log weight) of the persistent hypotheses still in
-    the running and of the intermittent ones that fit, their magnitude
-    within their prior."""
+    the running (a fault tried, by the larger of its static posterior's
+    evidence and the bank's persistent one: the static posterior sums its
+    onset over a grid, which can miss a few nats the bank's sum over every
+    sample has) and of the intermittent ones that fit, went away at least
+    once and whose magnitude is within their prior."""
     by = hyps_by(hyps)
-    pool = [(h.name, False, _prior(h, s) + h.static.log_evidence) for h in hyps
+
+    def persistent(h):  # a fault tried: the larger of its static evidence and the bank's own, on one scale
+        i = found.get(h.name)
+        return h.static.log_evidence if i is None else max(h.static.log_evidence, i.persistent_evidence)
+
+    pool = [(h.name, False, _prior(h, s) + persistent(h)) for h in hyps
             if _finite(h) and (h.drop is None or h.drop.code == "bayes-factor")]
     pool += [(name, True, _prior(by[name], s) + math.log(SHARE) + i.log_evidence)
-             for name, i in found.items() if i.alarm is None and i.spans and math.isfinite(i.log_evidence)
+             for name, i in found.items() if i.alarm is None and math.isfinite(i.log_evidence)
+             and any(sp.off is not None for sp in i.spans)  # it went away at least once
              and pressed(replace(by[name].estimate, value=i.value, low=i.low, high=i.high),
                          tuple(float(v) for v in s.package.MODELS[name].FAULT_PRIOR)) is None]
     return pool

@@ -111,6 +111,18 @@ class Episodes:
             else:
                 action, parameter, value = "accommodated", e.parameter, float(e.parameter_value)
                 self.theta[parameter], self.by[parameter] = value, number
+        elif came is not None and held:  # a fault accommodated: the node's spans are its absences (its step back)
+            parameter, spell = e.parameter, self.spells[e.parameter]
+            for sp in came.spans:
+                spell[-1][1] = c.time_of(sp.on)
+                if sp.off is not None:  # back again: a new appearance at the value it had
+                    spell.append([c.time_of(sp.off), None, self.theta[parameter]])
+            appearance = len(spell)
+            if came.spans[-1].off is None:  # absent at the checkpoint: gone
+                action, value = "ended", self._file_value(parameter)
+                del self.theta[parameter], self.by[parameter]
+            else:  # it went away and came back: still accommodated as it was
+                action, value = "accommodated", self.theta[parameter]
         elif held and e.parameter in self.theta and not fault_kind(e.kind).drifts \
                 and _returned(e, self._file_value(e.parameter)):  # a step back (a drift's slope is no value)
             action, parameter, value = "ended", e.parameter, self._file_value(e.parameter)
