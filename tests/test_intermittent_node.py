@@ -117,6 +117,11 @@ def test_white_residuals_do_not_wander_and_a_mean_that_comes_and_goes_does():
     z = rng.standard_normal((600, 3))
     z[:50] += 3.0  # before the onset: not read
     assert not im._wanders(_Named(z, onset=50))
+    # a plant noisier than its model and offset from it, throughout: that is a mismatch, nothing comes and goes
+    assert sum(im._wanders(_Named(1.5 * rng.standard_normal((600, 3)) + 0.3)) for _ in range(100)) <= 2
+    z = rng.standard_normal((600, 3))
+    z[100:250, 1] *= 3.0  # a burst of noise over 150 samples
+    assert im._wanders(_Named(z))
 
 
 class _Row:

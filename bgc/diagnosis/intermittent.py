@@ -532,38 +532,44 @@ def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, .
 
 def _wanders(h: Hypothesis) -> bool:
     """Whether the residuals of ``h``'s static posterior's most likely cell,
-    from its onset on, have a mean that is not 0, or a variance that is not
-    1, throughout: over consecutive segments of :data:`SEGMENT` samples, the
-    sum of each segment's and sensor's n mean^2 (chi-square with one degree
-    of freedom each, the residuals white N(0, 1) when the model holds), or
-    of its sum of squares made normal by Wilson and Hilferty's cube root and
-    squared (chi-square of one degree each), exceeds its quantile of 1 -
-    :data:`WANDERS` / 2. A fault that went away and came back leaves
-    segments of one sign and then the other (a burst of noise, segments too
-    wide and too narrow), which a persistent model's windowed test, built to
-    alarm within a horizon, can pass."""
+    from its onset on, change their mean or their spread along the stretch:
+    cut into consecutive segments of :data:`SEGMENT` samples, per sensor,
+    the segments' means differ (the between-segment sum of squares over the
+    stretch's variance, chi-square of k - 1 degrees of freedom when the mean
+    holds) or their variances do (Bartlett's statistic, chi-square of k - 1),
+    the sensors' statistics summed, beyond the quantile of 1 - :data:`WANDERS`
+    / 2 of either. A fault that went away and came back leaves segments of
+    one sign and then the other (a burst of noise, segments too wide and too
+    narrow), which a persistent model's windowed test, built to alarm within
+    a horizon, can pass; a plant noisier than its model, or offset from it,
+    throughout, does not wander."""
     p = h.static
     if p is None or p.residuals is None or p.best is None:
         return False
     from scipy.stats import chi2
 
     z = np.asarray(p.residuals, dtype=float)[int(p.best[0]):]
-    stat, spread, terms = 0.0, 0.0, 0
-    for lo in range(0, len(z) - SEGMENT + 1, SEGMENT):
-        seg = z[lo:lo + SEGMENT]
-        n = np.isfinite(seg).sum(axis=0)
-        with np.errstate(invalid="ignore"):
-            mean = np.nansum(seg, axis=0) / np.where(n > 0, n, 1)
-            square = np.nansum(seg * seg, axis=0)
-        use = n >= SEGMENT // 2
-        stat += float((n * mean * mean)[use].sum())
-        # the sum of squares, chi-square of n degrees of freedom: normal by Wilson and Hilferty's cube root
-        k = np.where(n > 0, n, 1).astype(float)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            normal = (np.cbrt(square / k) - (1.0 - 2.0 / (9.0 * k))) / np.sqrt(2.0 / (9.0 * k))
-        spread += float((normal * normal)[use].sum())
-        terms += int(use.sum())
-    return terms > 0 and min(float(chi2.sf(stat, terms)), float(chi2.sf(spread, terms))) < WANDERS / 2.0
+    means, spreads, dof = 0.0, 0.0, 0
+    for j in range(z.shape[1] if z.ndim == 2 else 0):
+        segments = [seg[np.isfinite(seg)] for seg in (z[lo:lo + SEGMENT, j]
+                                                      for lo in range(0, len(z) - SEGMENT + 1, SEGMENT))]
+        segments = [seg for seg in segments if len(seg) >= SEGMENT // 2]
+        k = len(segments)
+        if k < 3:
+            continue
+        n = np.array([len(seg) for seg in segments], dtype=float)
+        m = np.array([seg.mean() for seg in segments])
+        v = np.array([seg.var(ddof=1) for seg in segments])
+        N = n.sum()
+        grand = float((n * m).sum() / N)
+        pooled = float(((n - 1) * v).sum() / (N - k))
+        if not pooled > 0 or not np.all(v > 0):
+            continue
+        means += float((n * (m - grand) ** 2).sum()) / pooled
+        correction = 1.0 + (float((1.0 / (n - 1)).sum()) - 1.0 / (N - k)) / (3.0 * (k - 1))
+        spreads += ((N - k) * math.log(pooled) - float(((n - 1) * np.log(v)).sum())) / correction
+        dof += k - 1
+    return dof > 0 and min(float(chi2.sf(means, dof)), float(chi2.sf(spreads, dof))) < WANDERS / 2.0
 
 
 def _prior(h: Hypothesis, s) -> float:
