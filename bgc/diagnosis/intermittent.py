@@ -136,8 +136,8 @@ class Intermittence:
     alarm: Detection | None
     start: int
     cells: int
-    #: log p(y | the fault persists) by the same bank, its durations endless: the persistent fault's onset
-    #: summed over every sample from ``start`` (the scale ``log_evidence`` is on)
+    #: log p(y | the fault persists) by the same bank on the same grid of magnitudes, its durations endless:
+    #: the persistent fault's onset summed over every sample from ``start`` (the scale ``log_evidence`` is on)
     persistent_evidence: float = -math.inf
     #: the plant's state at the end (mean, std) by the filter switched at the spans (None: no span)
     x_end: np.ndarray | None = None
@@ -387,11 +387,13 @@ def switched_residuals(model: FaultModel, ys, us, track: NominalTrack, spans: tu
     return z, m[0], np.sqrt(np.maximum(np.diagonal(P[0]), 0.0))
 
 
-def _searched(row, lo: float, hi: float):
+def _searched(row, lo: float, hi: float, worth=None):
     """The magnitude's grid: :data:`GRID` points over the prior [``lo``,
     ``hi``], narrowed around the peak (:func:`_narrower`) on banks of the
     middle durations alone, then the last grid's bank over every pair of
-    durations: (that bank's pass, the grid, its log densities, the cells run)."""
+    durations: (that bank's pass, the grid, its log densities, the cells
+    run). ``worth(values, logd)``: asked of the last narrow grid; False
+    stops there (the pass returned is None)."""
     values = np.linspace(lo, hi, GRID)
     cells = 0
     for _ in range(REFINE):
@@ -401,6 +403,8 @@ def _searched(row, lo: float, hi: float):
         if narrower is None:
             break
         values = narrower
+    if worth is not None and not worth(values, logd):
+        return None, values, logd, cells
     p, logd = row(values, True)
     return p, values, logd, cells + p.loglik.size
 
@@ -450,16 +454,26 @@ def intermittence(model: FaultModel, ys, us, track: NominalTrack, start: int, fi
         per = p.loglik.reshape(len(values), len(a))
         return p, log_sum_exp_rows(per.T) - math.log(len(a))  # per magnitude, the durations summed (uniform prior)
 
-    def persists(values, full: bool):  # the fault that never goes away, on the same bank
-        p = _bank(model, ys, us, track, start, values, [math.inf], [math.inf], fixed)
-        return p, p.loglik
+    reference = {}
 
-    _, kept, logk, more = _searched(persists, lo, hi)
-    persistent = _evidence(kept, logk, lo, hi)
-    p, values, logd, cells = _searched(row, lo, hi)
-    cells += more
+    def worth(values, logd):
+        # the fault that never goes away, on the same bank and grid (its magnitude, where the data make the
+        # two ways alike, the one present; where they do not, the static posterior's evidence is the
+        # persistent one that counts: _pool takes the larger); coming and going must be likelier than
+        # persisting by more than its smaller prior, or it cannot be named: the last pass is not run
+        kept = _bank(model, ys, us, track, start, values, [math.inf], [math.inf], fixed)
+        reference.update(evidence=_evidence(values, kept.loglik, lo, hi), cells=kept.loglik.size)
+        return _evidence(values, logd, lo, hi) > reference["evidence"] - math.log(SHARE)
+
+    p, values, logd, cells = _searched(row, lo, hi, worth)
+    persistent = reference.get("evidence", -math.inf)
+    cells += reference.get("cells", 0)
     x, logm = row_quadrature(values, logd)
     top = float(np.max(logm)) if len(logm) else -math.inf
+    if p is None:  # no likelier than persisting: not tried further
+        return Intermittence(model.NAME, _evidence(values, logd, lo, hi), math.nan, math.nan, math.nan, math.nan,
+                             level, math.nan, math.nan, np.zeros(T), (), np.full(ys.shape, np.nan), None, start,
+                             cells, persistent)
     if not math.isfinite(top):
         return Intermittence(model.NAME, -math.inf, math.nan, math.nan, math.nan, math.nan, level, math.nan,
                              math.nan, np.zeros(T), (), np.full(ys.shape, np.nan), None, start, cells, persistent)
