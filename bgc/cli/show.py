@@ -30,9 +30,6 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .. import pipeline
-    from ..compiler import dbn as dbn_stage
-    from ..kinds import comes_and_goes
-    from ..compiler.hybrid_dbn import across_modes
     from ..output import artifacts, draw, render
 
     stage, fmt = args.stage, args.format
@@ -70,23 +67,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         c = _compiled(args.model, args.mode, stage)
         model_name = c.model.name
-    d = None
-    if stage == "dbn":
-        name = args.fault or "nominal"
-        if args.fault and name.count(":") != 1:
-            raise BgcError(f"--fault {name!r}: expected PARAM:KIND", None, "e.g. --fault R_pipe:incipient")
-        try:
-            d = across_modes(c.model, c.modes, name) if isinstance(c, pipeline.Hybrid) else c.dbn.get(name)
-        except KeyError as exc:
-            raise BgcError(str(exc.args[0]), None, "pick a fault candidate and kind the model declares") from None
-        if args.intermittent:
-            try:
-                d = dbn_stage.intermittent(d)
-            except KeyError as exc:
-                steps = [f.name for f in c.dbn.faulty if f.kind is not None and comes_and_goes(f.kind)] \
-                    if hasattr(c, "dbn") else []
-                raise BgcError(f"--intermittent: {exc.args[0]}", None, "give --fault a step fault"
-                               + (f", e.g. --fault {steps[0]}" if steps else ": this model lists none")) from None
+    d = _chosen_dbn(c, args) if stage == "dbn" else None
     if fmt in ("svg", "png"):
         if stage == "bondgraph":
             data = draw.bondgraph_picture(causal, fmt, args.engine)
@@ -110,6 +91,33 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write(text)
         sys.stdout.flush()
     return 0
+
+
+def _chosen_dbn(c, args: argparse.Namespace):
+    """The DBN ``bgc show dbn`` draws of compiled model ``c``: the nominal
+    one, or ``--fault``'s (across the modes of a model with modes), as one
+    that comes and goes with ``--intermittent``."""
+    from .. import pipeline
+    from ..compiler import dbn as dbn_stage
+    from ..compiler.hybrid_dbn import across_modes
+    from ..kinds import comes_and_goes
+
+    name = args.fault or "nominal"
+    if args.fault and name.count(":") != 1:
+        raise BgcError(f"--fault {name!r}: expected PARAM:KIND", None, "e.g. --fault R_pipe:incipient")
+    try:
+        d = across_modes(c.model, c.modes, name) if isinstance(c, pipeline.Hybrid) else c.dbn.get(name)
+    except KeyError as exc:
+        raise BgcError(str(exc.args[0]), None, "pick a fault candidate and kind the model declares") from None
+    if args.intermittent:
+        try:
+            d = dbn_stage.intermittent(d)
+        except KeyError as exc:
+            steps = [f.name for f in c.dbn.faulty if f.kind is not None and comes_and_goes(f.kind)] \
+                if hasattr(c, "dbn") else []
+            raise BgcError(f"--intermittent: {exc.args[0]}", None, "give --fault a step fault"
+                           + (f", e.g. --fault {steps[0]}" if steps else ": this model lists none")) from None
+    return d
 
 
 def _compiled(model: str, mode: str | None, stage: str):

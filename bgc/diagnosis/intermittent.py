@@ -182,10 +182,7 @@ def _bank(model: FaultModel, ys, us, track: NominalTrack, start: int, magnitudes
     K = G * D
     g = np.asarray(magnitudes, dtype=float)
     c = np.repeat(g, D)
-    leave, back = np.tile(1.0 / np.asarray(on, dtype=float), G), np.tile(1.0 / np.asarray(off, dtype=float), G)
-    with np.errstate(divide="ignore"):
-        logpi = np.stack([np.zeros(K), np.zeros(K), np.log1p(-leave), np.log(leave), np.log1p(-back),
-                          np.log(back)])  # (6, K): the pairs' log weights (an appearance: 1 per sample)
+    logpi = _log_transitions(np.tile(np.asarray(on, dtype=float), G), np.tile(np.asarray(off, dtype=float), G))
     n = kf.n
     m = np.repeat(np.asarray(track.mean[start], dtype=float)[None, None], 3, axis=0).repeat(K, axis=1)
     P = np.repeat(np.asarray(track.cov[start], dtype=float)[None, None], 3, axis=0).repeat(K, axis=1)
@@ -223,6 +220,17 @@ def _bank(model: FaultModel, ys, us, track: NominalTrack, start: int, magnitudes
                  np.tile(np.asarray(on, dtype=float), G), np.tile(np.asarray(off, dtype=float), G), first)
 
 
+def _log_transitions(on: np.ndarray, off: np.ndarray) -> np.ndarray:
+    """The log weights (6 x cells) of the pairs of :data:`_PAIRS` for each
+    cell's mean durations present ``on`` and absent ``off``: an appearance
+    weighs 1 per sample (the onset's weight, applied outside), going away
+    1 / on, coming back 1 / off."""
+    leave, back = 1.0 / np.asarray(on, dtype=float), 1.0 / np.asarray(off, dtype=float)
+    with np.errstate(divide="ignore"):
+        return np.stack([np.zeros(len(leave)), np.zeros(len(leave)), np.log1p(-leave), np.log(leave),
+                         np.log1p(-back), np.log(back)])
+
+
 def _merge(lw: np.ndarray, mu: np.ndarray, Pu: np.ndarray, dst: np.ndarray, logw: np.ndarray, m: np.ndarray,
            P: np.ndarray) -> None:
     """Each state's log weight (``logw``, 3 x cells) and Gaussian (``m``,
@@ -255,9 +263,7 @@ def _smoothed(p: _Pass, weights: np.ndarray, start: int, T: int) -> tuple[np.nda
     pairwise predictive densities, the paths that end before any
     appearance left out)."""
     K = p.loglik.shape[0]
-    leave, back = 1.0 / p.on, 1.0 / p.off
-    with np.errstate(divide="ignore"):
-        logpi = np.stack([np.zeros(K), np.zeros(K), np.log1p(-leave), np.log(leave), np.log1p(-back), np.log(back)])
+    logpi = _log_transitions(p.on, p.off)
     present, appear, vanish = np.zeros(T), np.zeros(T), np.zeros(T)
     beta = np.zeros((3, K))
     beta[0] = -math.inf  # never appeared: not the hypothesis
@@ -412,7 +418,12 @@ def _searched(row, lo: float, hi: float, worth=None):
 def _evidence(values: np.ndarray, logd: np.ndarray, lo: float, hi: float) -> float:
     """The log of the density ``logd`` (known at the grid ``values``)
     integrated over the magnitude's uniform prior on [``lo``, ``hi``]."""
-    x, logm = row_quadrature(values, logd)
+    return _integrated(row_quadrature(values, logd)[1], lo, hi)
+
+
+def _integrated(logm: np.ndarray, lo: float, hi: float) -> float:
+    """The log of the quadrature's log masses ``logm`` summed, over the
+    prior's width ``hi`` - ``lo`` (-inf: no mass)."""
     top = float(np.max(logm)) if len(logm) else -math.inf
     if not math.isfinite(top):
         return -math.inf
@@ -477,7 +488,7 @@ def intermittence(model: FaultModel, ys, us, track: NominalTrack, start: int, fi
     if not math.isfinite(top):
         return Intermittence(model.NAME, -math.inf, math.nan, math.nan, math.nan, math.nan, level, math.nan,
                              math.nan, np.zeros(T), (), np.full(ys.shape, np.nan), None, start, cells, persistent)
-    evidence = _evidence(values, logd, lo, hi)
+    evidence = _integrated(logm, lo, hi)
     mean, std, low, high = _moments(x, logm, top, level)
     # the cells' posterior: each point of the magnitude's grid and pair of durations by its likelihood
     w = np.exp(p.loglik - top_cell(p.loglik))
@@ -514,10 +525,10 @@ def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, .
     T = len(r.time)
     if observer is None or verdict not in ("unexplained", "isolated", "ambiguous"):
         return hyps, verdict, candidates, []
+    by = hyps_by(hyps)
     if verdict == "unexplained":
         tried = _tried(hyps, s, T)
     else:  # a named fault whose residuals' mean wanders after its onset: it may have gone and come back
-        by = hyps_by(hyps)
         tried = [by[n] for n in candidates if n in by and comes_and_goes(by[n].kind) and _wanders(by[n])][:TRIED]
     if not tried:
         return hyps, verdict, candidates, []
@@ -530,7 +541,6 @@ def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, .
         start = max(0, min(h.static.onsets if _finite(h) else h.onset_steps) - 2)
         found[h.name] = intermittence(model, r.ys, r.us, observer, start, fixed, r.outputs, s.options.rejection,
                                       s.options.windows, 0.95)
-    by = hyps_by(hyps)
     events = [ev.IntermittentTried(T - 1, name, i.log_evidence - i.persistent_evidence, len(i.spans),
                                    bool(i.spans) and i.alarm is None) for name, i in found.items()]
     pool = _pool(hyps, found, s)
