@@ -376,6 +376,22 @@ class IntermittentTried:
 
 
 @dataclass(frozen=True, slots=True)
+class Redated:
+    """Fault model ``hypothesis`` began after every onset it was tried from
+    (:mod:`bgc.diagnosis.later`): its most probable onset moved from step
+    ``was`` to step ``onset``, its evidence from there larger by the log
+    Bayes factor ``log_factor``; ``alarmed``: the alarm's step (before
+    ``onset``: a false alarm came before the fault)."""
+
+    step: int
+    hypothesis: str
+    was: int
+    onset: int
+    log_factor: float
+    alarmed: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class Intermittent:
     """The verdict names ``hypothesis`` a fault that comes and goes: its
     magnitude while present ``value`` (interval ``low`` .. ``high``), and
@@ -545,7 +561,7 @@ Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorRe
          | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | ReadingFrozen | Started
          | Refined | Dropped
          | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | NoFault | IntermittentTried | Intermittent
-         | SensorExcluded
+         | Redated | SensorExcluded
          | EpisodeClosed | Repaired | Checkpoint | ModeHidden | ModeRead | ModesReread | Mismatched | Decided)
 
 

@@ -195,6 +195,7 @@ def test_a_fault_that_comes_and_goes_is_isolated_with_its_spans(comes_and_goes):
                                                   for s in i.spans]
     said = [e for e in d.events if isinstance(e, ev.Intermittent)]
     assert [e.hypothesis for e in said] == ["R2_abrupt"]
+    assert not [e for e in d.events if isinstance(e, ev.Redated)]  # its first appearance is its onset
     # between the spans the fault is absent: the presence probability says so
     t = d.time
     assert i.present[(t > 13) & (t < 19)].max() < 0.05 and i.present[(t > 7) & (t < 11)].min() > 0.95

@@ -116,7 +116,7 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     hyps, verdict, candidates, weighing = weighed(hyps + more, weighing_posteriors, r, s, null)
     if not any(isinstance(e, ev.NoFault) for e in weighing):  # no fault holding a share: faults that come and go
         hyps, verdict, candidates, tried = revised(hyps, verdict, candidates, r, s, observer)
-        weighing += tried
+        weighing = redone(weighing, tried, hyps)
     events = list(r.events) + silent + rescued + weighing
     best_onset = None if verdict == "no fault" else \
         next((h.onset_step for h in hyps if candidates and h.name == candidates[0]), iso.onset)
@@ -130,6 +130,15 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     return Diagnosis(verdict=verdict, detection=r.detection, onset_step=best_onset, symbols=iso.symbols,
                      refuted=iso.refuted, hypotheses=hyps, candidates=candidates, events=ordered(final), fit=fitted,
                      **common)
+
+
+def redone(weighing: list, tried: list, hyps) -> list:
+    """The weighing's events and those of the tries of faults that come and
+    go (``tried``): a hypothesis dated anew (a ``Redated`` event) is told
+    truncated as its new static posterior is, not as its first one was."""
+    again = {e.hypothesis for e in tried if isinstance(e, ev.Redated)}
+    kept = [e for e in weighing if not (isinstance(e, ev.Truncated) and e.hypothesis in again)]
+    return kept + tried + [ev.Truncated(h.name) for h in hyps if h.name in again and h.static.truncated]
 
 
 def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str, ...], onset: int | None,

@@ -142,6 +142,8 @@ class Intermittence:
     #: the plant's state at the end (mean, std) by the filter switched at the spans (None: no span)
     x_end: np.ndarray | None = None
     x_end_std: np.ndarray | None = None
+    #: the magnitudes of the last grid the bank ran on (the persistent reference's too)
+    grid: np.ndarray | None = None
 
     def __repr__(self) -> str:
         return (f"<Intermittence {self.name}: {self.value:.4g} [{self.low:.4g}, {self.high:.4g}] while present, "
@@ -484,10 +486,11 @@ def intermittence(model: FaultModel, ys, us, track: NominalTrack, start: int, fi
     if p is None:  # no likelier than persisting: not tried further
         return Intermittence(model.NAME, _evidence(values, logd, lo, hi), math.nan, math.nan, math.nan, math.nan,
                              level, math.nan, math.nan, np.zeros(T), (), np.full(ys.shape, np.nan), None, start,
-                             cells, persistent)
+                             cells, persistent, grid=values)
     if not math.isfinite(top):
         return Intermittence(model.NAME, -math.inf, math.nan, math.nan, math.nan, math.nan, level, math.nan,
-                             math.nan, np.zeros(T), (), np.full(ys.shape, np.nan), None, start, cells, persistent)
+                             math.nan, np.zeros(T), (), np.full(ys.shape, np.nan), None, start, cells, persistent,
+                             grid=values)
     evidence = _integrated(logm, lo, hi)
     mean, std, low, high = _moments(x, logm, top, level)
     # the cells' posterior: each point of the magnitude's grid and pair of durations by its likelihood
@@ -503,7 +506,7 @@ def intermittence(model: FaultModel, ys, us, track: NominalTrack, start: int, fi
     if alarm is not None:
         alarm = replace(alarm, step=alarm.step + start)
     return Intermittence(model.NAME, evidence, mean, std, low, high, level, float(w @ p.on), float(w @ p.off),
-                         present, spans, z, alarm, start, cells, persistent, x_end, x_end_std)
+                         present, spans, z, alarm, start, cells, persistent, x_end, x_end_std, values)
 
 
 def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, ...], r, s, observer) \
@@ -533,19 +536,23 @@ def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, .
     if not tried:
         return hyps, verdict, candidates, []
     s.say(f"trying {', '.join(h.name for h in tried)} as faults that come and go")
-    found = {}
+    found, fixed_of = {}, {}
     for h in tried:
         model = s.package.MODELS[h.name]
         _, extra = state_rows(model)
-        fixed = model.augment(observer.mean[0][:, None], np.random.default_rng(0))[extra, 0]
+        fixed_of[h.name] = model.augment(observer.mean[0][:, None], np.random.default_rng(0))[extra, 0]
         start = max(0, min(h.static.onsets if _finite(h) else h.onset_steps) - 2)
-        found[h.name] = intermittence(model, r.ys, r.us, observer, start, fixed, r.outputs, s.options.rejection,
-                                      s.options.windows, 0.95)
+        found[h.name] = intermittence(model, r.ys, r.us, observer, start, fixed_of[h.name], r.outputs,
+                                      s.options.rejection, s.options.windows, 0.95)
     events = [ev.IntermittentTried(T - 1, name, i.log_evidence - i.persistent_evidence, len(i.spans),
                                    bool(i.spans) and i.alarm is None) for name, i in found.items()]
+    from .later import redated  # a fault that persists, but from after every onset tried
+
+    hyps, later = redated(hyps, found, r, s, observer, fixed_of)
+    events += later
     pool = _pool(hyps, found, s)
     names, comes, weight = _credible(pool, s.options.isolation_level)
-    if not comes:
+    if not comes and not later or not names:
         return hyps, verdict, candidates, events
     out = tuple(_decided(h, names, comes, weight, found, T) for h in hyps)
     events += [ev.Intermittent(T - 1, name, found[name].value, found[name].low, found[name].high,

@@ -130,6 +130,13 @@ def sentence(e, time_of) -> str:
                     + ("" if not math.isfinite(f) else f", its evidence {'above' if f >= 0 else 'below'} the "
                        f"persistent fault's by a log Bayes factor of {abs(f):.3g}")
                     + ("" if ok else "; it fails its fit test too"))
+        case ev.Redated(hypothesis=h, was=a, onset=b, log_factor=f, alarmed=k):
+            return (f"{h} began after every onset it was tried from: from t = {t(b)} rather than t = {t(a)} ("
+                    + (f"the data favour the later onset by a Bayes factor of {math.exp(f):.3g}" if f < 700.0 else
+                       "from the onsets tried its model could not follow the data at all")
+                    + ")"
+                    + (f"; the alarm at t = {t(k)} came before it: a false one" if k is not None and k < b else
+                       "; the detector's change point came before it"))
         case ev.Intermittent(hypothesis=h, value=v, low=lo, high=hi, spans=sp, posterior=p):
             return (f"{h} comes and goes: present {spans_text([(time_of(a), None if b is None else time_of(b)) for a, b in sp])}, "
                     f"its magnitude {v:.4g} [{lo:.4g}, {hi:.4g}] (95 %) while present (posterior {p:.3g})")
@@ -238,7 +245,7 @@ def _times(log_ratio: float) -> str:
 
 #: The fields of events that hold steps of the time grid besides ``step``: in :func:`record` each is a
 #: time, its step beside it as ``<name>_step`` (times in the model's unit wherever a value is public).
-STEP_FIELDS = frozenset({"since", "onset", "onsets", "first", "last", "start"})
+STEP_FIELDS = frozenset({"since", "onset", "onsets", "first", "last", "start", "was", "alarmed"})
 
 
 def record(e, time_of) -> dict:
@@ -272,7 +279,7 @@ def record(e, time_of) -> dict:
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped, ev.SensorResumed,
            ev.InputFromModel, ev.ModeHidden, ev.ModesReread, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate,
            ev.AllTried, ev.ReadingFrozen, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded,
-           ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.NoFault, ev.Mismatched)
+           ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.NoFault, ev.Redated, ev.Mismatched)
 
 
 def notes(events, time_of) -> list[str]:
