@@ -392,6 +392,24 @@ class Redated:
 
 
 @dataclass(frozen=True, slots=True)
+class FalseAlarm:
+    """The alarm at ``step`` (on ``sensor``, by the ``test``) was a false
+    one: the nominal model's residuals stay within its noise from step
+    ``again`` to step ``until`` (they pass the test of its fit), where the
+    data change again (fault model ``hypothesis`` explains them from there,
+    a :class:`Redated` of the first diagnosis; "": the detector armed anew
+    alarms there); the diagnosis was made again with the detector armed
+    anew from step ``again``."""
+
+    step: int
+    sensor: str
+    test: str
+    again: int
+    until: int
+    hypothesis: str = ""
+
+
+@dataclass(frozen=True, slots=True)
 class Intermittent:
     """The verdict names ``hypothesis`` a fault that comes and goes: its
     magnitude while present ``value`` (interval ``low`` .. ``high``), and
@@ -561,7 +579,7 @@ Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorRe
          | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | ReadingFrozen | Started
          | Refined | Dropped
          | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | NoFault | IntermittentTried | Intermittent
-         | Redated | SensorExcluded
+         | Redated | FalseAlarm | SensorExcluded
          | EpisodeClosed | Repaired | Checkpoint | ModeHidden | ModeRead | ModesReread | Mismatched | Decided)
 
 

@@ -288,6 +288,16 @@ class Detector:
         self._cumsum = deque([zero], maxlen=self._longest + 1)
         self._mc = deque([zero], maxlen=self._longest + 1)
         self.statistics: list[list[float]] = []  # max over windows of |S|, per sensor and step
+        self._noise = noise
+
+    def rearm(self) -> None:
+        """Forget the residuals taken so far: every window and test starts
+        again with the next step (a false alarm's excursion left behind, as
+        a fresh detector would), the steps still counted from the first."""
+        self._cumsum = deque([self._cumsum[-1]], maxlen=self._longest + 1)
+        self._mc = deque([self._mc[-1]], maxlen=self._longest + 1)
+        if self.more is not None:
+            self.more = Families(self.sensors, self.options, self._noise)
 
     def update(self, z, mc=None, y=None, spread=None, corr=None) -> Detection | None:
         """Take the normalised residuals of one step (NaN: sensor not read)
@@ -326,7 +336,7 @@ class Detector:
         m.append(m_now)
         best, at, top = -1.0, None, None
         for w in self._windows:
-            if w > k + 1:  # longer than the record: no test
+            if w > len(c) - 1:  # longer than the record (since the detector was armed): no test
                 continue
             s = [abs(a - b) / sqrt(w + (d := p - q) * d) for a, b, p, q in zip(c_now, c[-1 - w], m_now, m[-1 - w])]
             top = s if top is None else [x if x >= y else y for x, y in zip(top, s)]

@@ -46,13 +46,16 @@ import numpy as np
 from ..arguments import as_float, is_real, shown
 from ..data.runs import Run
 from ..data.sampler import Sample, Sampler
+from ..filters.residuals import failures, summary
 from ..errors import ArgumentTypeError, ArgumentValueError, DataError, TrackingError, printable
 from .hidden import ONSETS, REREAD, ModeDecoder, read_again, read_fault, read_head, readable
 from ..ir import FaultSignatures
 from ..model.package import accommodated, forget_started, started_package
 from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
+from .detect import Detector, DetectorOptions
 from .finish import ordered
+from .fit import LEVEL as FIT_LEVEL
 from .isolate import with_returns
 from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig, shifted_events
 from .options import DiagnosisOptions
@@ -306,20 +309,85 @@ class Diagnoser:
         mine = tuple(e for e in belief.events if not isinstance(e, ev.Alarmed)) + (switched,)
         return dataclasses.replace(inner, events=mine + tuple(e for e in inner.events if e not in told))
 
-    def replay(self, options: DiagnosisOptions, every: bool, lazy: bool | None = None) -> Loop:
+    def replay(self, options: DiagnosisOptions, every: bool, lazy: bool | None = None, after=None) -> Loop:
         """A loop with ``options`` that has taken every step of the record of
         the loop that runs now, its data events with them (``lazy``: None,
-        the configuration's)."""
+        the configuration's; ``after``: a false alarm, a
+        :class:`~bgc.diagnosis.detect.Detection`: its detector armed from the
+        next step and the alarm's window left out of the test of the
+        model's fit, :attr:`Loop.watch_from`, :attr:`Loop.excused`)."""
         loop = Loop(self._loop_config(options, every, self.config.lazy if lazy is None else lazy))
+        if after is not None:
+            loop.watch_from = after.step + 1
+            start = after.step - after.window + 1
+            loop.excused = (max(min(start, after.onset_step if after.onset_step is not None else start), 0),
+                            after.step + 1)
         for s in self.loop.samples:
             loop.take(s)
         return loop
 
-    def _retry(self, d: Diagnosis) -> bool:
-        """Whether an unexplained verdict is to be made again with every fault
-        model: some the symbols ruled out were not weighed (step 6b did not
-        run: no hypothesis the symbols kept survived its filters)."""
-        loop = self.loop
+    def _after_false_alarm(self, d: Diagnosis, truth: Run | None) -> Diagnosis:
+        """A diagnosis whose alarm was a false one (:meth:`_false_alarm`) is
+        made again with the detector armed anew after the alarm (its window
+        left out of the test of the model's fit: an excursion the
+        detector's budget allows): the fault's alarm, symbols and onsets
+        are then its own, and every fault model is weighed from there, not
+        only those the false alarm's symbols kept. A
+        :class:`~bgc.events.FalseAlarm` says so. Made once (not again on
+        the diagnosis made again); when the detector then raises no alarm,
+        ``d`` stands."""
+        told = self._false_alarm(d)
+        if told is None:
+            return d
+        first = d.detection
+        self.config.say(f"the alarm at t = {self.loop.samples[first.step].t:.12g} was a false one: watching again "
+                        f"from the next sample")
+        loop = self.replay(self.loop.options, self.loop.config.every, after=first)
+        redone = loop.finish(self.sampler.summary(), truth)
+        if self._retry(redone, loop):
+            loop = self.replay(dataclasses.replace(self.loop.options, switch=False), True, after=first)
+            redone = loop.finish(self.sampler.summary(), truth)
+        if redone.detection is None:
+            return d
+        said = ev.FalseAlarm(first.step, first.sensor, first.test, first.step + 1, *told)
+        return dataclasses.replace(redone, events=ordered([*redone.events, said]))
+
+    def _false_alarm(self, d: Diagnosis) -> tuple[int, str] | None:
+        """Whether the alarm of diagnosis ``d`` was a false one, a fault (or
+        none) beginning later: (the step the model's residuals stay within
+        its noise until, the fault model that explains the data from there
+        or ""), or None. Either a fault the diagnosis dated anew
+        (:class:`~bgc.events.Redated`, :mod:`bgc.diagnosis.later`) began
+        after the alarm, or the nominal observer's residuals after it, the
+        detector's mean test armed anew from the next step, stay within the
+        model's noise (the test of the model's fit, :mod:`bgc.diagnosis.fit`)
+        over at least the detector's longest window before they alarm
+        again. Not on a diagnosis made again (the detector armed anew once)."""
+        first = d.detection
+        if first is None or self.loop.watch_from:
+            return None
+        moved = [e for e in d.events if isinstance(e, ev.Redated) and e.alarmed is not None and e.alarmed < e.onset]
+        if moved:
+            return moved[0].onset, moved[0].hypothesis
+        o, present = self.loop.options, self.loop.present
+        sensors = tuple(y for y, read in zip(self.loop.outputs, present) if read)
+        z = np.asarray(d.nominal_z, dtype=float)[first.step + 1:][:, present]
+        detector = Detector(sensors, DetectorOptions(o.false_alarm, o.windows, self.loop.horizon))
+        again = next((a for a in map(detector.update, z) if a is not None), None)
+        if again is None:
+            return None
+        quiet = z[:again.onset_step if again.onset_step is not None else again.step]
+        if len(quiet) < max(o.windows) or failures(summary([quiet], sensors), FIT_LEVEL, correlation=False,
+                                                    narrower=False):
+            return None
+        return first.step + 1 + len(quiet), ""
+
+    def _retry(self, d: Diagnosis, loop: Loop | None = None) -> bool:
+        """Whether an unexplained verdict (of ``loop``, None: the loop that
+        runs now) is to be made again with every fault model: some the
+        symbols ruled out were not weighed (step 6b did not run: no
+        hypothesis the symbols kept survived its filters)."""
+        loop = self.loop if loop is None else loop
         if d.verdict != "unexplained" or loop.config.every or loop.isolation is None:
             return False
         untried = set(loop.isolation.untried(self.config.package)) - {h.name for h in d.hypotheses}  # 6b's weighed
@@ -352,6 +420,7 @@ class Diagnoser:
         if self._retry(diagnosis):
             again = self.replay(dataclasses.replace(self.loop.options, switch=False), True)
             diagnosis = again.finish(self.sampler.summary(), truth)
+        diagnosis = self._after_false_alarm(diagnosis, truth)
         if self.decoder is not None and diagnosis.detection is not None and diagnosis.verdict != "no fault":
             # (no fault after the alarm: the nominal reading stands; a fault model's own reading would be
             # weighed against no fault on that fault's modes, not on the nominal's)

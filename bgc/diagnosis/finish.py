@@ -73,6 +73,8 @@ class Record:
     clouds: Mapping = field(default_factory=dict)
     observer: kalman.NominalTrack | None = None
     tracked: Mapping = field(default_factory=dict)
+    #: steps (first, end) the test of the model's fit leaves out: a false alarm's window (None: none)
+    excused: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -163,7 +165,7 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
     drifts = bool(candidates) and candidates[0] in by and fault_kind(by[candidates[0]].kind).drifts
     first = None if quiet else r.detection.onset_step if drifts else end
     short = first is not None and first < LEAST
-    fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, short, track=track)
+    fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, short, track=track, skip=r.excused)
     if fitted.fits and verdict in ("isolated", "ambiguous") and candidates and candidates[0] in by:
         fitted = noise_misfit(fitted, by[candidates[0]], r.outputs)
     # an alarm, or a misfit, that the inputs read with the other timing explain (docs/format.md, section 9)

@@ -72,22 +72,27 @@ LEAST = 10
 
 
 def fit(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], end: int, short: bool = False,
-        level: float = LEVEL, track=None) -> Fit:
+        level: float = LEVEL, track=None, skip: tuple[int, int] | None = None) -> Fit:
     """The test of the nominal model ``nominal`` (a generated model) on the
     measurements ``ys`` and inputs ``us`` of steps ``0 .. end - 1``;
     ``short``: the caller's judgement that the data before the fault are
     too few to tell (fewer than :data:`LEAST`); ``track``: the nominal
     cubature Kalman filter's track over them or further
     (:class:`~bgc.filters.cubature.NominalTrack`), when the diagnosis
-    computed it already (else it is computed here)."""
+    computed it already (else it is computed here); ``skip``: steps (first,
+    end) left out (a false alarm's window, an excursion the detector's
+    budget allows)."""
     end = max(0, min(int(end), len(ys)))
     if track is None or track.z is None or len(track.z) < end:
         track = nominal_track(nominal, ys, us, end)
-    z = np.asarray(track.z, dtype=float)[:end].reshape(end, len(outputs))
-    summaries = summary([z], outputs)
-    offsets = []
+    z = np.array(track.z, dtype=float)[:end].reshape(end, len(outputs))
     with np.errstate(invalid="ignore"):
         gap = ys[:end] - np.asarray(track.y_mean, dtype=float)[:end].reshape(end, len(outputs))
+    if skip is not None:
+        z[skip[0]:skip[1]] = np.nan
+        gap[skip[0]:skip[1]] = np.nan
+    summaries = summary([z], outputs)
+    offsets = []
     for j, name in enumerate(outputs):
         read = gap[:, j][np.isfinite(gap[:, j])]
         if len(read) >= 3:

@@ -164,6 +164,11 @@ class Loop:
         self.trackers: dict[str, HypothesisTracker] = {}
         self.before: dict[str, float] = {}  # per tracker, the nominal log density before its first onset
         self.reported: set[str] = set()  # hypotheses whose Stopped event is out
+        #: the detector is re-armed at this step and raises no alarm before it (0: from the first sample; a
+        #: diagnosis made again after a false alarm, :meth:`bgc.diagnosis.diagnoser.Diagnoser.finish`)
+        self.watch_from = 0
+        #: steps (first, end) the test of the model's fit leaves out: a false alarm's window (None: none)
+        self.excused: tuple[int, int] | None = None
 
     @property
     def options(self) -> DiagnosisOptions:
@@ -211,10 +216,14 @@ class Loop:
                     self.clouds[k] = (self.pf.x.copy(), self.pf.logw.copy())
                     self.clouds.pop(k - o.history - 1, None)
                 present = self.present
+                if k == self.watch_from and k:
+                    self.detector.rearm()
                 detection = self.detector.update(np.asarray(zk)[present], None if mc is None else mc[present],
                                                  np.asarray(s.y, dtype=float)[present],
                                                  (np.asarray(sd, dtype=float) / self.noise)[present],
                                                  None if corr is None else corr[np.ix_(present, present)])
+        if detection is not None and k < self.watch_from:  # before the detector was armed: not an alarm
+            detection = None
         if detection is not None:
             # an onset older than the clouds and the record kept (a drift test's window reaches 256 steps back)
             earliest = max(detection.step - o.history, 0)
@@ -426,7 +435,7 @@ class Loop:
         return Record(self.nominal.MODEL, a["time"], a["ys"], a["us"], self.outputs, tuple(self.nominal.STATES),
                       self.present, a["y_mean"], a["y_std"], a["z"], a["x_mean"], a["x_std"], statistics,
                       self.detector.threshold, self.detection, self.isolation, tuple(self.events), data,
-                      self.clouds, self.kf.track() if self.kf is not None else None, tracked)
+                      self.clouds, self.kf.track() if self.kf is not None else None, tracked, self.excused)
 
     def finish(self, data: DataSummary | None, truth: Run | None = None) -> Diagnosis:
         """The diagnosis of the record (its ``seconds`` are the caller's)."""

@@ -137,6 +137,11 @@ def sentence(e, time_of) -> str:
                     + ")"
                     + (f"; the alarm at t = {t(k)} came before it: a false one" if k is not None and k < b else
                        "; the detector's change point came before it"))
+        case ev.FalseAlarm(step=k, sensor=y, test=test, again=a, until=u, hypothesis=h):
+            return (f"the alarm at t = {t(k)} on {y} ({test} test) was a false one: the model's residuals stay "
+                    f"within its noise from t = {t(a)} to t = {t(u)}"
+                    + (f", where {h} explains the data from" if h else ", where the data change again")
+                    + "; the diagnosis was made again, the detector armed anew after the alarm")
         case ev.Intermittent(hypothesis=h, value=v, low=lo, high=hi, spans=sp, posterior=p):
             return (f"{h} comes and goes: present {spans_text([(time_of(a), None if b is None else time_of(b)) for a, b in sp])}, "
                     f"its magnitude {v:.4g} [{lo:.4g}, {hi:.4g}] (95 %) while present (posterior {p:.3g})")
@@ -245,7 +250,8 @@ def _times(log_ratio: float) -> str:
 
 #: The fields of events that hold steps of the time grid besides ``step``: in :func:`record` each is a
 #: time, its step beside it as ``<name>_step`` (times in the model's unit wherever a value is public).
-STEP_FIELDS = frozenset({"since", "onset", "onsets", "first", "last", "start", "was", "alarmed"})
+STEP_FIELDS = frozenset({"since", "onset", "onsets", "first", "last", "start", "was", "alarmed", "again",
+                         "until"})
 
 
 def record(e, time_of) -> dict:
@@ -279,7 +285,7 @@ def record(e, time_of) -> dict:
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped, ev.SensorResumed,
            ev.InputFromModel, ev.ModeHidden, ev.ModesReread, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate,
            ev.AllTried, ev.ReadingFrozen, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded,
-           ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.NoFault, ev.Redated, ev.Mismatched)
+           ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.NoFault, ev.Redated, ev.FalseAlarm, ev.Mismatched)
 
 
 def notes(events, time_of) -> list[str]:
