@@ -101,7 +101,10 @@ def test_a_fault_after_a_false_alarm_is_dated_from_its_onset(tmp_path):
     (false,) = [e for e in d.events if isinstance(e, ev.FalseAlarm)]
     assert d.time_of(false.step) == pytest.approx(2.0) and false.sensor == "f6" and false.again == false.step + 1
     assert false.hypothesis == "R2_abrupt" and abs(d.time_of(false.until) - 8.0) <= 0.05 + 1e-9
-    assert "the alarm at t = 2 on f6 (mean test) was a false one" in sentence(false, d.time_of)
+    assert sentence(false, d.time_of) == (  # as docs/diagnosis.md section 6.2 prints it
+        "the alarm at t = 2 on f6 (mean test) was a false one: the model's residuals stay within its noise from "
+        "t = 2.05 to t = 8, R2_abrupt explaining them from there on; the diagnosis was made again, the detector "
+        "armed anew after the alarm")
     assert d.detection is not None and d.time_of(d.detection.step) >= 8.0 - 1e-9  # the fault's own alarm
     assert (d.verdict, d.candidates) == ("isolated", ("R2_abrupt",))
     assert abs(d.time_of(d.onset_step) - 8.0) <= 0.05 + 1e-9  # within one sample (dt 0.05)

@@ -332,44 +332,81 @@ class Diagnoser:
         left out of the test of the model's fit: an excursion the
         detector's budget allows): the fault's alarm, symbols and onsets
         are then its own, and every fault model is weighed from there, not
-        only those the false alarm's symbols kept. A
-        :class:`~bgc.events.FalseAlarm` says so. Made once (not again on
-        the diagnosis made again); when the detector then raises no alarm,
-        ``d`` stands."""
+        only those the false alarm's symbols kept. The diagnosis made again
+        is the verdict when it names a fault that explains the whole record
+        better than the first one's (:meth:`_support`: a fault that truly
+        began at the first alarm and showed only now and then, at an input's
+        transients or coming and going, explains the first alarm's samples
+        too), and a :class:`~bgc.events.FalseAlarm` says so. Made once (not
+        again on the diagnosis made again); not on a model whose mode the
+        data do not give (its modes are read again from each fault's onset,
+        :meth:`_reread`, with the detector as it was)."""
         told = self._false_alarm(d)
-        if told is None:
+        if told is None or self.decoder is not None:
             return d
         first = d.detection
-        self.config.say(f"the alarm at t = {self.loop.samples[first.step].t:.12g} was a false one: watching again "
+        self.config.say(f"the alarm at t = {self.loop.samples[first.step].t:.12g} may be a false one: watching again "
                         f"from the next sample")
-        loop = self.replay(self.loop.options, self.loop.config.every, after=first)
+        options = dataclasses.replace(self.loop.options, switch=False)  # the filters as they ended (as _retry)
+        loop = self.replay(options, self.loop.config.every, after=first)
         redone = loop.finish(self.sampler.summary(), truth)
         if self._retry(redone, loop):
-            loop = self.replay(dataclasses.replace(self.loop.options, switch=False), True, after=first)
+            loop = self.replay(options, True, after=first)
             redone = loop.finish(self.sampler.summary(), truth)
-        if redone.detection is None:
+        if redone.detection is None or not self._support(redone) > self._support(d):
             return d
-        said = ev.FalseAlarm(first.step, first.sensor, first.test, first.step + 1, *told)
+        again = redone.detection
+        until, name = told if told[1] else (again.step if again.onset_step is None else again.onset_step, "")
+        name = name if redone.candidates[:1] == (name,) else ""  # a fault the diagnosis made again does not name
+        said = ev.FalseAlarm(first.step, first.sensor, first.test, first.step + 1, until, name)
         return dataclasses.replace(redone, events=ordered([*redone.events, said]))
 
+    def _support(self, d: Diagnosis) -> float:
+        """How well diagnosis ``d``'s verdict explains the whole record: its
+        first candidate's log prior plus its log evidence (its static
+        posterior's, or coming and going, its intermittent one's with its
+        share of the prior, whichever is larger), on the scale every
+        diagnosis of the record shares (the onsets' likelihood summed over
+        the samples they stand for); -inf when it names no fault (a verdict
+        ``unexplained``, ``mismatch`` or ``no fault``, or no fault holding a
+        share beside the faults named: a :class:`~bgc.events.NoFault`)."""
+        from .intermittent import SHARE
+
+        if d.verdict not in ("isolated", "ambiguous") or not d.candidates \
+                or any(isinstance(e, ev.NoFault) for e in d.events):  # no fault still in play
+            return -math.inf
+        h = next((h for h in d.hypotheses if h.name == d.candidates[0]), None)
+        if h is None:
+            return -math.inf
+        evidence = h.static.log_evidence if h.static is not None else -math.inf
+        if h.intermittent is not None:
+            evidence = max(evidence, h.intermittent.log_evidence + math.log(SHARE))
+        return math.log(max(self.config.priors.get(h.parameter, 0.01), 1e-300)) + evidence
+
     def _false_alarm(self, d: Diagnosis) -> tuple[int, str] | None:
-        """Whether the alarm of diagnosis ``d`` was a false one, a fault (or
-        none) beginning later: (the step the model's residuals stay within
-        its noise until, the fault model that explains the data from there
-        or ""), or None. Either a fault the diagnosis dated anew
-        (:class:`~bgc.events.Redated`, :mod:`bgc.diagnosis.later`) began
-        after the alarm, or the nominal observer's residuals after it, the
-        detector's mean test armed anew from the next step, stay within the
-        model's noise (the test of the model's fit, :mod:`bgc.diagnosis.fit`)
-        over at least the detector's longest window before they alarm
-        again. Not on a diagnosis made again (the detector armed anew once)."""
+        """Whether the alarm of diagnosis ``d`` may be a false one, a fault
+        beginning later: (the step the model's residuals stay within its
+        noise until, the fault model that explains the data from there, or
+        "": the step where the windowed mean test armed anew alarms), or
+        None. Either a fault the verdict names (or keeps as a possibility)
+        was dated anew (:class:`~bgc.events.Redated`,
+        :mod:`bgc.diagnosis.later`) after the alarm, or the nominal
+        observer's residuals after it stay within the model's noise (the
+        test of the model's fit, :mod:`bgc.diagnosis.fit`) until the
+        windowed mean test, armed anew from the next step with the
+        detector's windows and budget, alarms again; the quiet stretch at
+        least the detector's longest window either way. Not an alarm of the
+        frozen-reading test (a frozen sensor's residuals are quiet), nor on
+        a diagnosis made again (the detector armed anew once)."""
         first = d.detection
-        if first is None or self.loop.watch_from:
+        if first is None or self.loop.watch_from or first.test == "frozen":
             return None
-        moved = [e for e in d.events if isinstance(e, ev.Redated) and e.alarmed is not None and e.alarmed < e.onset]
+        o, present = self.loop.options, self.loop.present
+        longest = max(o.windows)
+        moved = [e for e in d.events if isinstance(e, ev.Redated) and e.alarmed is not None and e.alarmed < e.onset
+                 and e.hypothesis in d.candidates and e.onset - first.step - 1 >= longest]
         if moved:
             return moved[0].onset, moved[0].hypothesis
-        o, present = self.loop.options, self.loop.present
         sensors = tuple(y for y, read in zip(self.loop.outputs, present) if read)
         z = np.asarray(d.nominal_z, dtype=float)[first.step + 1:][:, present]
         detector = Detector(sensors, DetectorOptions(o.false_alarm, o.windows, self.loop.horizon))
@@ -377,8 +414,8 @@ class Diagnoser:
         if again is None:
             return None
         quiet = z[:again.onset_step if again.onset_step is not None else again.step]
-        if len(quiet) < max(o.windows) or failures(summary([quiet], sensors), FIT_LEVEL, correlation=False,
-                                                    narrower=False):
+        if len(quiet) < longest or failures(summary([quiet], sensors), FIT_LEVEL, correlation=False,
+                                            narrower=False):
             return None
         return first.step + 1 + len(quiet), ""
 

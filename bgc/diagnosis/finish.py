@@ -435,8 +435,9 @@ def nominal_evidence(r: Record, s: Setting, track: kalman.NominalTrack | None) -
     that no fault and the faults are weighed like for like; None where the
     nominal model fails the consistency test the hypotheses pass (the
     windowed Z-test at ``rejection`` over its normalised residuals, the
-    sensors the data have): the alarm is then no false one, and no fault is
-    not weighed (:func:`bgc.diagnosis.weigh.no_fault`)."""
+    sensors the data have, a false alarm's window left out: ``r.excused``):
+    the alarm is then no false one, and no fault is not weighed
+    (:func:`bgc.diagnosis.weigh.no_fault`)."""
     T = len(r.time)
     if track is None or len(track.loglik) <= T or track.z is None or len(track.z) < T:
         track = kalman.nominal_track(nominal_model(s.package), r.ys, r.us, T)
@@ -444,7 +445,9 @@ def nominal_evidence(r: Record, s: Setting, track: kalman.NominalTrack | None) -
     if not math.isfinite(value):
         return None
     present = np.asarray(r.present, dtype=bool)
-    z = np.asarray(track.z, dtype=float)[:T][:, present]
+    z = np.array(track.z, dtype=float)[:T][:, present]
+    if r.excused is not None:  # a false alarm's window: an excursion the detector's budget allows
+        z[r.excused[0]:r.excused[1]] = np.nan
     outputs = tuple(y for y, here in zip(r.outputs, present) if here)
     if first_alarm(z, outputs, s.options.rejection, s.options.windows) is not None:
         return None

@@ -28,7 +28,9 @@ over the onsets the bank points to (its central interval of probability
 0.99, every sample of it, refined sample by sample), and it replaces the
 hypothesis's when its evidence is the larger: its onset, magnitude,
 interval, residuals and fit test are then those of the fault from that
-onset (it must pass that test, or the hypothesis stays as it was). A :class:`~bgc.events.Redated` event says so, the alarm before it
+onset (it must pass that test, and be decisively likelier than no fault at
+all, by the Bayes factor the verdict uses, or the hypothesis stays as it
+was). A :class:`~bgc.events.Redated` event says so, the alarm before it
 named a false one.
 
 Only step faults (those :func:`bgc.kinds.comes_and_goes` lists) are dated
@@ -118,8 +120,10 @@ def _quiet_before(r, s, observer: NominalTrack, onset: int) -> bool:
     first = (r.detection.step if r.detection is not None else 0) + 1
     if observer.z is None or onset <= first:
         return True
-    z = np.asarray(observer.z[first:onset], dtype=float)
-    return first_alarm(z, tuple(r.outputs), s.options.rejection, s.options.windows) is None
+    present = np.asarray(r.present, dtype=bool)  # the sensors the data have
+    z = np.asarray(observer.z[first:onset], dtype=float)[:, present]
+    outputs = tuple(y for y, here in zip(r.outputs, present) if here)
+    return first_alarm(z, outputs, s.options.rejection, s.options.windows) is None
 
 
 def _later(h: Hypothesis, i, r, s, observer: NominalTrack, fixed) -> Hypothesis | None:
@@ -150,12 +154,19 @@ def _later(h: Hypothesis, i, r, s, observer: NominalTrack, fixed) -> Hypothesis 
     o = s.options
     s.say(f"{h.name}: its fault likelier from later onsets (t = {r.time[lo]:g} to {r.time[hi]:g}); weighing it "
           f"from there")
-    p = run_static(StaticJob(s.package.__name__, h.name, r.ys, r.us, observer, tuple(int(k) for k in onsets),
-                             (float(i.grid[0]), float(i.grid[-1])), int(best), o.interval, o.kalman, (), record=True, refine=True,
+    grid = (float(i.grid[0]), float(i.grid[-1]))  # the magnitudes the bank found the fault at
+    p = run_static(StaticJob(s.package.__name__, h.name, r.ys, r.us, observer, tuple(int(k) for k in onsets), grid,
+                             int(best), o.interval, o.kalman, (), record=True, refine=True,
                              far=(tuple(r.outputs), o.rejection, o.windows)))
     alarm = static_alarm(p, tuple(r.outputs), o)
     if not (math.isfinite(p.log_evidence) and p.log_evidence > before) or alarm is not None:
         return None  # not the likelier, or it fails its fit test from there: the hypothesis stays as it was
+    # and decisively likelier than no fault at all (weighed as the verdict weighs them, its prior spread over the
+    # horizon): a fault from the record's last samples explains nothing, and costs nothing either
+    null = float(observer.loglik[T]) if len(observer.loglik) > T else -math.inf
+    weight = math.log(max(s.priors.get(h.parameter, 0.01), 1e-300)) - math.log(max(int(s.horizon), 1))
+    if not weight + p.log_evidence > null + math.log(o.bayes_factor):
+        return None
     k = kalman_hypothesis(h.name, h.signatures, s.package, p, None, r.time, r.ys, o)
     return replace(h, start_step=k.start_step, onset_steps=k.onset_steps, onset_posterior=k.onset_posterior,
                    y_mean=k.y_mean, y_std=k.y_std, z=k.z, x_mean=k.x_mean, x_std=k.x_std, magnitude=k.magnitude,

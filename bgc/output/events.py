@@ -140,7 +140,7 @@ def sentence(e, time_of) -> str:
         case ev.FalseAlarm(step=k, sensor=y, test=test, again=a, until=u, hypothesis=h):
             return (f"the alarm at t = {t(k)} on {y} ({test} test) was a false one: the model's residuals stay "
                     f"within its noise from t = {t(a)} to t = {t(u)}"
-                    + (f", where {h} explains the data from" if h else ", where the data change again")
+                    + (f", {h} explaining them from there on" if h else ", where they change again")
                     + "; the diagnosis was made again, the detector armed anew after the alarm")
         case ev.Intermittent(hypothesis=h, value=v, low=lo, high=hi, spans=sp, posterior=p):
             return (f"{h} comes and goes: present {spans_text([(time_of(a), None if b is None else time_of(b)) for a, b in sp])}, "
