@@ -33,26 +33,22 @@ say per seed both verdicts. Run::
 from __future__ import annotations
 
 import sys
-import tempfile
-import time
-from pathlib import Path
 
 import _claims  # noqa: F401  (the suite's set-up, before NumPy loads)
 import numpy as np
 
 from intermittent import SEEDS, circuit_rows, tank_rows
-from intermittent_node import model_name
+from intermittent_node import diagnosed as node_diagnosed, model_name
 
 MODELS = {"circuit": circuit_rows, "two_tank": tank_rows}
-ROOT = Path(__file__).resolve().parents[1]
 #: How far the false reading is off, in residual stds (the detector's one-sample threshold is about 4.6).
 OFF = (4.8, 5.5)
 
 
 def diagnosed(model: str, text: str, later: bool):
-    """``bgc.diagnose`` of the rows ``text`` (``later``: a fault's later
-    onsets tried, as bgc does) and its seconds."""
-    import bgc
+    """``bgc.diagnose`` of the rows ``text`` and its seconds
+    (bench/intermittent_node.py's); ``later``: as bgc does, else as before
+    the change."""
     from bgc.diagnosis import later as module
     from bgc.diagnosis.diagnoser import Diagnoser
 
@@ -61,12 +57,7 @@ def diagnosed(model: str, text: str, later: bool):
         module.LATER = 1.01  # a share above 1 is never reached: nothing dated anew
         Diagnoser._false_alarm = lambda self, d: None  # and no alarm found false: never made again
     try:
-        with tempfile.TemporaryDirectory() as folder:
-            path = Path(folder) / "run.csv"
-            path.write_text(text, encoding="utf-8")
-            started = time.perf_counter()
-            report = bgc.diagnose(ROOT / "models" / f"{model}.yaml", path)
-            return report.diagnosis, time.perf_counter() - started
+        return node_diagnosed(model, text)
     finally:
         module.LATER, Diagnoser._false_alarm = kept, told
 
@@ -74,16 +65,12 @@ def diagnosed(model: str, text: str, later: bool):
 def with_false_reading(model: str, text: str, truth: dict, seed: int) -> tuple[str, float]:
     """``text`` with one reading off before the fault's onset (module doc):
     (the rows, the false reading's time)."""
-    import bgc
-
     rng = np.random.default_rng((seed, 7))
     onset = truth["spans"][0][0]
     lines = text.splitlines()
     times = np.array([float(line.split(",", 1)[0]) for line in lines[1:]])
-    with tempfile.TemporaryDirectory() as folder:  # the residual's std of each sensor, fault-free
-        path = Path(folder) / "free.csv"
-        path.write_text("\n".join(lines[:1 + int(np.searchsorted(times, onset - 1e-9))]) + "\n", encoding="utf-8")
-        free = bgc.diagnose(ROOT / "models" / f"{model}.yaml", path).diagnosis
+    # the residual's std of each sensor, fault-free
+    free, _ = node_diagnosed(model, "\n".join(lines[:1 + int(np.searchsorted(times, onset - 1e-9))]) + "\n")
     candidates = np.flatnonzero((times > 0.15 * onset) & (times < 0.75 * onset))
     row = int(rng.choice(candidates))
     j = int(rng.integers(0, 3))

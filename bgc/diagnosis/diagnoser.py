@@ -57,6 +57,7 @@ from .detect import Detector, DetectorOptions
 from .finish import ordered
 from .fit import LEVEL as FIT_LEVEL
 from .isolate import with_returns
+from .onsets import log_prior
 from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig, shifted_events
 from .options import DiagnosisOptions
 from .values import Belief, Diagnosis
@@ -356,7 +357,9 @@ class Diagnoser:
         if redone.detection is None or not self._support(redone) > self._support(d):
             return d
         again = redone.detection
-        until, name = told if told[1] else (again.step if again.onset_step is None else again.onset_step, "")
+        until, name = told
+        if until is None:
+            until = again.step if again.onset_step is None else again.onset_step
         name = name if redone.candidates[:1] == (name,) else ""  # a fault the diagnosis made again does not name
         said = ev.FalseAlarm(first.step, first.sensor, first.test, first.step + 1, until, name)
         return dataclasses.replace(redone, events=ordered([*redone.events, said]))
@@ -381,13 +384,13 @@ class Diagnoser:
         evidence = h.static.log_evidence if h.static is not None else -math.inf
         if h.intermittent is not None:
             evidence = max(evidence, h.intermittent.log_evidence + math.log(SHARE))
-        return math.log(max(self.config.priors.get(h.parameter, 0.01), 1e-300)) + evidence
+        return log_prior(self.config.priors, h.parameter) + evidence
 
-    def _false_alarm(self, d: Diagnosis) -> tuple[int, str] | None:
+    def _false_alarm(self, d: Diagnosis) -> tuple[int | None, str] | None:
         """Whether the alarm of diagnosis ``d`` may be a false one, a fault
         beginning later: (the step the model's residuals stay within its
-        noise until, the fault model that explains the data from there, or
-        "": the step where the windowed mean test armed anew alarms), or
+        noise until, the fault model that explains the data from there; or
+        None and "": until the diagnosis made again alarms), or
         None. Either a fault the verdict names (or keeps as a possibility)
         was dated anew (:class:`~bgc.events.Redated`,
         :mod:`bgc.diagnosis.later`) after the alarm, or the nominal
@@ -417,7 +420,7 @@ class Diagnoser:
         if len(quiet) < longest or failures(summary([quiet], sensors), FIT_LEVEL, correlation=False,
                                             narrower=False):
             return None
-        return first.step + 1 + len(quiet), ""
+        return None, ""  # where the diagnosis made again alarms
 
     def _retry(self, d: Diagnosis, loop: Loop | None = None) -> bool:
         """Whether an unexplained verdict (of ``loop``, None: the loop that

@@ -32,7 +32,7 @@ from .intermittent import revised
 from .onsets import earlier_onsets, onset_weights
 from .options import DiagnosisOptions
 from .parallel import parallel_map
-from .static import StaticJob, first_alarm, kalman_hypotheses, run_static, run_statics, static_alarm
+from .static import StaticJob, kalman_hypotheses, read_alarm, run_static, run_statics, static_alarm
 from .static_posterior import EDGE, EXTEND
 from .values import Detection, Diagnosis, Drop, Fit, Hypothesis, Isolation, StaticPosterior
 from .weigh import weighed
@@ -444,12 +444,10 @@ def nominal_evidence(r: Record, s: Setting, track: kalman.NominalTrack | None) -
     value = float(track.loglik[T])
     if not math.isfinite(value):
         return None
-    present = np.asarray(r.present, dtype=bool)
-    z = np.array(track.z, dtype=float)[:T][:, present]
+    z = np.array(track.z, dtype=float)[:T]
     if r.excused is not None:  # a false alarm's window: an excursion the detector's budget allows
         z[r.excused[0]:r.excused[1]] = np.nan
-    outputs = tuple(y for y, here in zip(r.outputs, present) if here)
-    if first_alarm(z, outputs, s.options.rejection, s.options.windows) is not None:
+    if read_alarm(z, r.outputs, r.present, s.options.rejection, s.options.windows) is not None:
         return None
     return value
 

@@ -65,6 +65,7 @@ from ..kinds import comes_and_goes
 from ..model.protocol import FaultModel, state_rows
 from .. import events as ev
 from .estimate import pressed
+from .onsets import log_prior
 from .values import Detection, Drop, Hypothesis
 
 __all__ = ["DURATIONS", "GRID", "Intermittence", "REFINE", "SHARE", "SHORTEST", "Span", "TRIED", "intermittence",
@@ -552,7 +553,7 @@ def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, .
     events += later
     pool = _pool(hyps, found, s)
     names, comes, weight = _credible(pool, s.options.isolation_level)
-    if not comes and not later or not names:
+    if (not comes and not later) or not names:
         return hyps, verdict, candidates, events
     out = tuple(_decided(h, names, comes, weight, found, T) for h in hyps)
     events += [ev.Intermittent(T - 1, name, found[name].value, found[name].low, found[name].high,
@@ -605,7 +606,7 @@ def _wanders(h: Hypothesis) -> bool:
 
 def _prior(h: Hypothesis, s) -> float:
     """The log prior of hypothesis ``h``'s fault model (setting ``s``'s)."""
-    return math.log(max(s.priors.get(h.parameter, 0.01), 1e-300))
+    return log_prior(s.priors, h.parameter)
 
 
 def _finite(h: Hypothesis) -> bool:

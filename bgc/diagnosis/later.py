@@ -48,8 +48,9 @@ import numpy as np
 from .. import events as ev
 from ..filters.cubature import NominalTrack
 from ..model.protocol import FaultModel
+from .onsets import log_prior
 from .intermittent import _bank, _evidence, _interval, _smoothed, top_cell
-from .static import StaticJob, kalman_hypothesis, run_static, static_alarm, static_estimate
+from .static import StaticJob, kalman_hypothesis, read_alarm, run_static, static_alarm, static_estimate
 from .values import Hypothesis
 
 __all__ = ["LATER", "MOST", "onset_posterior", "redated"]
@@ -115,15 +116,10 @@ def _quiet_before(r, s, observer: NominalTrack, onset: int) -> bool:
     5's windowed Z-test) from the sample after the alarm up to ``onset``:
     the alarm one excursion, the plant healthy until the later onset (a
     fault present before it, gone and back, is the intermittent trial's)."""
-    from .static import first_alarm
-
     first = (r.detection.step if r.detection is not None else 0) + 1
     if observer.z is None or onset <= first:
         return True
-    present = np.asarray(r.present, dtype=bool)  # the sensors the data have
-    z = np.asarray(observer.z[first:onset], dtype=float)[:, present]
-    outputs = tuple(y for y, here in zip(r.outputs, present) if here)
-    return first_alarm(z, outputs, s.options.rejection, s.options.windows) is None
+    return read_alarm(observer.z[first:onset], r.outputs, r.present, s.options.rejection, s.options.windows) is None
 
 
 def _later(h: Hypothesis, i, r, s, observer: NominalTrack, fixed) -> Hypothesis | None:
@@ -164,8 +160,7 @@ def _later(h: Hypothesis, i, r, s, observer: NominalTrack, fixed) -> Hypothesis 
     # and decisively likelier than no fault at all (weighed as the verdict weighs them, its prior spread over the
     # horizon): a fault from the record's last samples explains nothing, and costs nothing either
     null = float(observer.loglik[T]) if len(observer.loglik) > T else -math.inf
-    weight = math.log(max(s.priors.get(h.parameter, 0.01), 1e-300)) - math.log(max(int(s.horizon), 1))
-    if not weight + p.log_evidence > null + math.log(o.bayes_factor):
+    if not log_prior(s.priors, h.parameter, s.horizon) + p.log_evidence > null + math.log(o.bayes_factor):
         return None
     k = kalman_hypothesis(h.name, h.signatures, s.package, p, None, r.time, r.ys, o)
     return replace(h, start_step=k.start_step, onset_steps=k.onset_steps, onset_posterior=k.onset_posterior,

@@ -66,7 +66,7 @@ from .finish import Record, Setting, finish
 from .hypothesis import HypothesisTracker, log_density, track_job, weighted_quantiles
 from .isolate import ModeSignatures, hypotheses as signature_hypotheses
 from .isolate import observed_symbols
-from .onsets import drift_onsets
+from .onsets import drift_onsets, log_prior
 from .openloop import cloud_before, gaussian_cloud, open_loop
 from .options import DiagnosisOptions
 from .values import Belief, Diagnosis, Isolation, Live
@@ -407,7 +407,7 @@ class Loop:
         if not evidence:
             return name, -math.inf, tracker.job.first, math.nan, math.nan, math.nan, True
         best = max(evidence, key=evidence.get)
-        prior = math.log(max(self.config.priors.get(tracker.module.FAULT["parameter"], 0.01), 1e-300))
+        prior = log_prior(self.config.priors, tracker.module.FAULT["parameter"])
         pf = tracker.filters.get(best)
         value = low = high = math.nan
         if pf is not None:

@@ -1,7 +1,8 @@
 """The onsets a hypothesis is tried from, and how they are weighed: a
 drift's grid back from the alarm (:func:`drift_onsets`), its extension
 further back (:func:`earlier_onsets`), the onset posterior
-(:func:`onset_weights`) and the seed of each onset's filter."""
+(:func:`onset_weights`), a fault's prior (:func:`log_prior`) and the seed
+of each onset's filter."""
 
 from __future__ import annotations
 
@@ -58,6 +59,14 @@ def drift_onsets(step: int, change_point: int, spacing: int, history: int) -> li
         out.add(step - d)
         d += max(spacing, int(d * ONSET_GROWTH))
     return sorted(out)
+
+
+def log_prior(priors, parameter: str, horizon: int = 1) -> float:
+    """The log prior of a fault of ``parameter`` (``priors``: by parameter,
+    the probability that it happens within the horizon, 0.01 when not
+    given), spread over ``horizon`` steps: the log weight of its onset at a
+    given step."""
+    return math.log(max(priors.get(parameter, 0.01), 1e-300)) - math.log(max(int(horizon), 1))
 
 
 def onset_weights(starts: list[int], evidence) -> tuple[np.ndarray, float]:

@@ -15,7 +15,7 @@ from .options import GridOptions
 from .static_posterior import onset_widths
 from .values import Drop, Estimate, Hypothesis
 from .options import DiagnosisOptions
-from .onsets import top_onsets
+from .onsets import log_prior, top_onsets
 from .openloop import cloud_before
 from .parallel import parallel_map
 
@@ -57,7 +57,7 @@ def ranked(hyps: tuple[Hypothesis, ...], weights: np.ndarray, priors: dict[str, 
         h = hyps[i]
         if fault_kind(h.kind).discrete:  # no size to hold on a grid: its filters' evidence over its onsets
             out[i] = dataclasses.replace(h, static_log_evidence=h.log_evidence)
-            log_w.append(math.log(max(priors.get(h.parameter, 0.01), 1e-300)) + h.log_evidence)
+            log_w.append(log_prior(priors, h.parameter) + h.log_evidence)
             continue
         g = grid_posterior(package, h.name, h.estimate, clouds, ys, us, chosen[i], options, [options.seed, 8], first,
                            options.rank_grid)
@@ -68,7 +68,7 @@ def ranked(hyps: tuple[Hypothesis, ...], weights: np.ndarray, priors: dict[str, 
         evidence = identify.log_evidence(g, tuple(package.MODELS[h.name].FAULT_PRIOR),
                                          [width[s] for s in g.onsets]) - math.log(covered)
         out[i] = dataclasses.replace(h, static_log_evidence=evidence)
-        log_w.append(math.log(max(priors.get(h.parameter, 0.01), 1e-300)) + evidence)
+        log_w.append(log_prior(priors, h.parameter) + evidence)
     log_w = np.array(log_w)
     weights = weights.copy()
     if np.isfinite(log_w).any():

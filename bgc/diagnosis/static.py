@@ -200,6 +200,16 @@ def static_alarm(p: StaticPosterior, outputs, options: DiagnosisOptions) -> Dete
     return first_alarm(p.residuals[p.best[0]:], outputs, options.rejection, options.windows)
 
 
+def read_alarm(z: np.ndarray, outputs: tuple[str, ...], present, rejection: float, windows: tuple[int, ...]) \
+        -> Detection | None:
+    """:func:`first_alarm` on the sensors the data have (``present``: per
+    output of ``outputs``, whether it is read) of the normalised residuals
+    ``z`` (steps x outputs)."""
+    present = np.asarray(present, dtype=bool)
+    return first_alarm(np.asarray(z, dtype=float)[:, present], tuple(y for y, here in zip(outputs, present) if here),
+                       rejection, windows)
+
+
 def first_alarm(z: np.ndarray, outputs: tuple[str, ...], rejection: float, windows: tuple[int, ...],
                  scale: float = 1.0) -> Detection | None:
     """The first alarm of the windowed Z-test of section 5 (probability

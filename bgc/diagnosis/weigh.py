@@ -17,6 +17,7 @@ import numpy as np
 from ..kinds import fault_kind
 from .. import events as ev
 from .estimate import pressed
+from .onsets import log_prior
 from .rank import ranked, refined
 from .static import checked, misfit_reason, static_estimate
 from .values import Drop, Hypothesis
@@ -118,7 +119,7 @@ def posterior(hyps: tuple[Hypothesis, ...], evidence_of: dict, priors: dict, bay
     one fault at a time). Returns (the hypotheses, their posteriors, no
     fault's posterior: None when not weighed)."""
     shift = 0.0 if null is None else math.log(max(int(horizon), 1))
-    logs = [math.log(max(priors.get(h.parameter, 0.01), 1e-300)) - shift + evidence_of[h.name] for h in hyps]
+    logs = [log_prior(priors, h.parameter) - shift + evidence_of[h.name] for h in hyps]
     every = np.array(logs + ([] if null is None else [null]), dtype=float)
     if np.isfinite(every).any():
         every = np.exp(every - every.max())
