@@ -410,6 +410,23 @@ class FalseAlarm:
 
 
 @dataclass(frozen=True, slots=True)
+class Glitch:
+    """The alarm at ``step`` was one reading of ``sensor``, ``statistic``
+    of its residual's stds from the model's prediction, and the nominal
+    model's residuals stay within its noise from the next step to the
+    data's last, ``until``: a glitch of that reading (a spike of the
+    sensor's line, a logger's slip), not a fault of the plant or a sensor
+    that persists or comes back. The diagnosis was made again with the
+    detector armed anew after it, the reading left out of the test of the
+    model's fit, and raised no alarm."""
+
+    step: int
+    sensor: str
+    statistic: float
+    until: int
+
+
+@dataclass(frozen=True, slots=True)
 class Intermittent:
     """The verdict names ``hypothesis`` a fault that comes and goes: its
     magnitude while present ``value`` (interval ``low`` .. ``high``), and
@@ -579,7 +596,7 @@ Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorRe
          | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | ReadingFrozen | Started
          | Refined | Dropped
          | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | NoFault | IntermittentTried | Intermittent
-         | Redated | FalseAlarm | SensorExcluded
+         | Redated | FalseAlarm | Glitch | SensorExcluded
          | EpisodeClosed | Repaired | Checkpoint | ModeHidden | ModeRead | ModesReread | Mismatched | Decided)
 
 

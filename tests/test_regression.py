@@ -144,7 +144,8 @@ REPRESENTATIVE = {
                                                         "the every-fault-model fallback ending unexplained",
     "dc_motor_k_step_up_every_fallback_ckf": "the DC motor on ckf; rivals dropped by their static tests (its "
                                              "every-fault-model fallback ended on 2026-12-05: record.py)",
-    "orifice_none_gpf": "the orifice tanks; a false alarm whose verdict is no fault (no fault weighed)",
+    "orifice_none_gpf": "the orifice tanks; a false alarm on one reading, found a glitch: no fault (since "
+                        "2026-12-05: record.py)",
     "drivetrain_b1_drift_up_opf": "the verdict ambiguous; opf's fault filters on a drift",
     "drivetrain_none_switch_gpf": "the degenerate observer's switch to ckf, fault-free",
     "drivetrain_g_m_step_down_switch_gpf": "the switch to ckf, then the fault's hypotheses on ckf",

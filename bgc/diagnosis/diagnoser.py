@@ -338,7 +338,12 @@ class Diagnoser:
         better than the first one's (:meth:`_support`: a fault that truly
         began at the first alarm and showed only now and then, at an input's
         transients or coming and going, explains the first alarm's samples
-        too), and a :class:`~bgc.events.FalseAlarm` says so. Made once (not
+        too), and a :class:`~bgc.events.FalseAlarm` says so. An alarm on one
+        reading after which the data stay quiet to their end was a glitch of
+        that reading (:class:`~bgc.events.Glitch`): the diagnosis made again,
+        which raises no alarm, is the verdict (no fault, or the model's
+        mismatch when the rest of the data do not fit it), whatever fault
+        the first one named to explain that reading. Made once (not
         again on the diagnosis made again); not on a model whose mode the
         data do not give (its modes are read again from each fault's onset,
         :meth:`_reread`, with the detector as it was)."""
@@ -354,10 +359,13 @@ class Diagnoser:
         if self._retry(redone, loop):
             loop = self.replay(options, True, after=first)
             redone = loop.finish(self.sampler.summary(), truth)
+        until, name = told
+        if redone.detection is None and until is not None and not name:  # one reading, quiet after it: a glitch
+            said = ev.Glitch(first.step, first.sensor, float(first.statistic), until)
+            return dataclasses.replace(redone, events=ordered([*redone.events, said]))
         if redone.detection is None or not self._support(redone) > self._support(d):
             return d
         again = redone.detection
-        until, name = told
         if until is None:
             until = again.step if again.onset_step is None else again.onset_step
         name = name if redone.candidates[:1] == (name,) else ""  # a fault the diagnosis made again does not name
@@ -390,15 +398,17 @@ class Diagnoser:
         """Whether the alarm of diagnosis ``d`` may be a false one, a fault
         beginning later: (the step the model's residuals stay within its
         noise until, the fault model that explains the data from there; or
-        None and "": until the diagnosis made again alarms), or
-        None. Either a fault the verdict names (or keeps as a possibility)
+        None and "": until the diagnosis made again alarms; or the data's
+        last step and "": a glitch, one reading off and the residuals quiet
+        after it to the end), or None. Either a fault the verdict names (or keeps as a possibility)
         was dated anew (:class:`~bgc.events.Redated`,
         :mod:`bgc.diagnosis.later`) after the alarm, or the nominal
         observer's residuals after it stay within the model's noise (the
         test of the model's fit, :mod:`bgc.diagnosis.fit`) until the
         windowed mean test, armed anew from the next step with the
-        detector's windows and budget, alarms again; the quiet stretch at
-        least the detector's longest window either way. Not an alarm of the
+        detector's windows and budget, alarms again, or to the data's end
+        when the alarm was one reading (the mean test's one-sample window);
+        the quiet stretch at least the detector's longest window each way. Not an alarm of the
         frozen-reading test (a frozen sensor's residuals are quiet), nor on
         a diagnosis made again (the detector armed anew once)."""
         first = d.detection
@@ -414,12 +424,14 @@ class Diagnoser:
         z = np.asarray(d.nominal_z, dtype=float)[first.step + 1:][:, present]
         detector = Detector(sensors, DetectorOptions(o.false_alarm, o.windows, self.loop.horizon))
         again = next((a for a in map(detector.update, z) if a is not None), None)
-        if again is None:
+        if again is None and (first.test != "mean" or first.window != 1):  # quiet after more than one reading
             return None
-        quiet = z[:again.onset_step if again.onset_step is not None else again.step]
+        quiet = z if again is None else z[:again.onset_step if again.onset_step is not None else again.step]
         if len(quiet) < longest or failures(summary([quiet], sensors), FIT_LEVEL, correlation=False,
                                             narrower=False):
             return None
+        if again is None:  # one reading off, the residuals quiet after it to the data's end: a glitch
+            return len(self.loop.samples) - 1, ""
         return None, ""  # where the diagnosis made again alarms
 
     def _retry(self, d: Diagnosis, loop: Loop | None = None) -> bool:

@@ -20,8 +20,11 @@ stretch; per sensor read, its normalised residuals, white N(0, 1) draws
 when the model fits, are summed up as ``bgc calibrate`` sums up the
 calibrated model's (:mod:`bgc.filters.residuals`): their mean, against its
 standard error 1 / sqrt(n), and their variance, against sqrt(2 / n), each
-sensor and test at :data:`LEVEL` over all of them (Bonferroni). Only a
-variance above 1 counts: residuals narrower than the filter predicts (a
+sensor and test at :data:`LEVEL` over all of them (Bonferroni). A
+variance above 1 counts when the variance without the sensor's farthest
+reading is above its own expectation too (one glitch of a reading is not
+a model whose noise is too small; :func:`bgc.filters.residuals.failures`).
+Only a variance above 1 counts: residuals narrower than the filter predicts (a
 plant quieter than its model, or a filter that spreads its prediction
 wider, as it does across the switches of a model with modes) make the
 detector more cautious, never confidently wrong. Ljung-Box's

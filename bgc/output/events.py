@@ -142,6 +142,11 @@ def sentence(e, time_of) -> str:
                     f"within its noise from t = {t(a)} to t = {t(u)}"
                     + (f", {h} explaining them from there on" if h else ", where they change again")
                     + "; the diagnosis was made again, the detector armed anew after the alarm")
+        case ev.Glitch(step=k, sensor=y, statistic=z, until=u):
+            return (f"the alarm at t = {t(k)} was one reading of {y}, {abs(z):.3g} of its stds from the model's "
+                    f"prediction, and the model's residuals stay within its noise after it to the data's end "
+                    f"(t = {t(k + 1)} to t = {t(u)}): a glitch of that reading, or chance, not a fault that persists "
+                    f"or comes back; the diagnosis was made again without it")
         case ev.Intermittent(hypothesis=h, value=v, low=lo, high=hi, spans=sp, posterior=p):
             return (f"{h} comes and goes: present {spans_text([(time_of(a), None if b is None else time_of(b)) for a, b in sp])}, "
                     f"its magnitude {v:.4g} [{lo:.4g}, {hi:.4g}] (95 %) while present (posterior {p:.3g})")
@@ -285,7 +290,8 @@ def record(e, time_of) -> dict:
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped, ev.SensorResumed,
            ev.InputFromModel, ev.ModeHidden, ev.ModesReread, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate,
            ev.AllTried, ev.ReadingFrozen, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded,
-           ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.NoFault, ev.Redated, ev.FalseAlarm, ev.Mismatched)
+           ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.NoFault, ev.Redated, ev.FalseAlarm, ev.Glitch,
+           ev.Mismatched)
 
 
 def notes(events, time_of) -> list[str]:

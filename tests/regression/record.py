@@ -82,7 +82,14 @@ drift -0.02 from t = 40) was "mismatch", R12_incipient the possibility, and is "
 t = 100) was "unexplained" (k_abrupt dropped by its static test at step 106, then every fault model
 tried) and is "isolated: k_abrupt", 0.01998 in [0.01965, 0.02032], without the fallback. In
 msd_c_drift_up_ckf a rival's numbers moved (k_s_abrupt dropped at step 146, not 133), its verdict
-unchanged. Every other case is unchanged (39 of 42 the same before). A change that is meant to change
+unchanged. Every other case is unchanged (39 of 42 the same before).
+Re-recorded on 2026-12-05 (--only orifice_none_gpf --keep-runs) when an alarm on one reading, the
+residuals quiet after it to the data's end, came to be found a glitch and the diagnosis made again
+without it (bgc.events.Glitch; issue 48): the fault-free run's false alarm (F_orifice at step 136, 5.13
+stds, the mean test's one-sample window) was "no fault" after weighing cd_incipient, cd_abrupt and
+R20_abrupt against no fault, and is "no fault" with no alarm, a Glitch event, no hypothesis tried. Every
+other case is unchanged (41 of 42 the same before, with the variance test of the model's fit that leaves
+the farthest reading out, bgc.filters.residuals). A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
 ``bgc/`` holds exactly the code being committed, and commits the corpus with
 that code (the commit is the provenance; its message says why):
