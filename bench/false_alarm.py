@@ -86,7 +86,7 @@ def with_false_reading(model: str, text: str, truth: dict, seed: int) -> tuple[s
 def claim(model: str):
     rows_of = MODELS[model]
     rows, counted, tally, seconds = [], 0, {True: [0, 0, 0], False: [0, 0, 0]}, {True: [], False: []}
-    alarmed, named, named_before, glitches = 0, 0, 0, 0
+    alarmed, named_now, named_before, glitches = 0, 0, 0, 0
     for seed in SEEDS:
         text, truth = rows_of(seed, True)
         text, when = with_false_reading(model, text, truth, seed)
@@ -117,7 +117,7 @@ def claim(model: str):
         c, _ = diagnosed(model, "\n".join(head) + "\n", True)
         c0, _ = diagnosed(model, "\n".join(head) + "\n", False)
         alarmed += c0.detection is not None
-        named += c.verdict in ("isolated", "ambiguous")
+        named_now += c.verdict in ("isolated", "ambiguous")
         named_before += c0.verdict in ("isolated", "ambiguous")
         glitches += any(type(e).__name__ == "Glitch" for e in c.events)
         said.append(f"healthy part: {c.verdict} {', '.join(c.candidates) or '-'}"
@@ -133,13 +133,13 @@ def claim(model: str):
     rows.append(f"  seconds per diagnosis, median: now {np.median(seconds[True]):.2f}, before "
                 f"{np.median(seconds[False]):.2f}, ratio {np.median(seconds[True]) / np.median(seconds[False]):.2f}")
     rows.append(f"  the rows before the fault alone (healthy): alarmed in {alarmed} (before the change); a fault named "
-                f"now in {named}, before in {named_before}; the false reading said a glitch in {glitches}")
+                f"now in {named_now}, before in {named_before}; the false reading said a glitch in {glitches}")
     checks = [(f"named right in {now[0]} of {counted} >= 90 %", counted > 0 and now[0] >= 0.9 * counted),
               (f"onset within a sample in {now[1]} of {now[0]} named >= 90 %", now[0] > 0 and now[1] >= 0.9 * now[0]),
               (f"interval holds the truth in {now[2]} of {now[0]} named >= 85 %",
                now[0] > 0 and now[2] >= 0.85 * now[0]),
               (f"before the change fewer dated right ({before[1]} < {now[1]})", before[1] < now[1]),
-              (f"the healthy rows before the fault: a fault named in {named} == 0", named == 0)]
+              (f"the healthy rows before the fault: a fault named in {named_now} == 0", named_now == 0)]
     return rows, checks
 
 

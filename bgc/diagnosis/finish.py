@@ -147,8 +147,11 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
                track: kalman.NominalTrack | None = None):
     """The test of the model on the data the verdict says are fault-free
     (:mod:`bgc.diagnosis.fit`): before the earlier of the change point and
-    the onset ``onset`` (the whole record without an alarm, or when the
-    verdict after one is no fault). A model that
+    the onset ``onset`` of the fault named (the change point alone when the
+    verdict is unexplained: its closest model explains nothing, though the
+    data before its onset are still the fewest that must vouch for the
+    model; the whole record without an alarm, or when the verdict after one
+    is no fault). A model that
     fails it, or data too short before an alarm to tell, make the verdict
     ``mismatch``, the faults it named kept as possibilities. Returns (the
     verdict, its candidates, the events, the :class:`~bgc.diagnosis.fit.Fit`). ``track``: the nominal
@@ -157,13 +160,15 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
     quiet = r.detection is None or verdict == "no fault"  # no fault, after an alarm too: the whole record
     if quiet:
         end = T
-    else:
-        end = min(k for k in (r.detection.onset_step, onset, r.detection.step) if k is not None)
+    else:  # an unexplained verdict's closest model explains nothing: its onset does not end the stretch
+        named = onset if verdict in ("isolated", "ambiguous") else None
+        end = min(k for k in (r.detection.onset_step, named, r.detection.step) if k is not None)
     # too short to tell: fewer than LEAST samples before the onset; a drift's by the detector's change point
     # (its own onset, weakly told by the data, may lie far before it and the truth)
     by = {h.name: h for h in hyps}
     drifts = bool(candidates) and candidates[0] in by and fault_kind(by[candidates[0]].kind).drifts
-    first = None if quiet else r.detection.onset_step if drifts else end
+    # (an unexplained verdict's closest onset too: the change it hints at may have begun there)
+    first = None if quiet else r.detection.onset_step if drifts else min(k for k in (end, onset) if k is not None)
     short = first is not None and first < LEAST
     fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, short, track=track, skip=r.excused)
     if fitted.fits and verdict in ("isolated", "ambiguous") and candidates and candidates[0] in by:

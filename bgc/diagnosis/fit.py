@@ -11,8 +11,11 @@ that does not fit this plant (a *model mismatch*), and the remedy is to
 calibrate it (``bgc calibrate``), not to repair the plant.
 
 **The stretch tested.** The data from the first step up to the earlier of
-the detector's change point and the diagnosis's onset (the whole record
-when nothing was detected): the data the verdict says are fault-free.
+the detector's change point and the diagnosis's onset (the change point
+alone when the verdict is unexplained, its closest model explaining
+nothing, though its onset still counts for "too short to tell" below;
+the whole record when nothing was detected): the data the verdict says
+are fault-free.
 
 **The test.** The nominal cubature Kalman filter (the observer of
 ``bgc calibrate``, exact on a plant linear in its states) runs over the
