@@ -491,7 +491,8 @@ class EpisodeClosed:
     #: An episode ``re-armed``: why (``rearm``: not isolated when ``--rearm`` had passed since its alarm;
     #: ``memory``: its record neared the most the diagnosis holds in memory, a fault never decided; ``no
     #: estimate``: isolated without an estimate to accommodate; ``false alarm``: the checkpoint's verdict
-    #: after the alarm is no fault, :class:`NoFault`; empty: the other actions).
+    #: after the alarm is no fault, :class:`NoFault`; ``glitch``: no fault, the alarm one reading off and
+    #: the data quiet after it, :class:`Glitch`; empty: the other actions).
     reason: str = ""
 
 

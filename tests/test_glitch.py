@@ -11,6 +11,7 @@ expected largest square against a Monte Carlo mean."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -21,7 +22,7 @@ from bgc import events as ev
 from bgc.filters import residuals
 from bgc.output.events import sentence
 
-from conftest import ROOT
+from conftest import ROOT, bgc_cli
 from test_episodes import plant
 from test_later_onset import _reading_off
 
@@ -102,3 +103,21 @@ def test_the_test_fails_only_where_the_plain_one_does():
         for _ in range(300):
             z = scale * rng.standard_normal(int(rng.integers(10, 200)))
             assert not _fails(z) or _plain(z)
+
+
+@pytest.mark.slow
+def test_a_monitor_closes_a_glitchs_episode_and_watches_on(tmp_path):
+    # the same glitch streamed through bgc monitor --episodes: the checkpoint after it says no fault, and
+    # the episode is closed as a glitch, the model watched as it was (nothing accommodated)
+    text = _reading_off(plant(400, [], seed=4), 6.0, 1, -0.8)
+    p = bgc_cli("monitor", CIRCUIT, "--data", "-", "--episodes", "--checkpoint", "5", "-o", tmp_path / "out",
+                input=text)
+    assert p.returncode == 0, p.stderr
+    report = json.loads((tmp_path / "out" / "report.json").read_text(encoding="utf-8"))
+    (closed,) = [e for e in report["events"] if e["event"] == "EpisodeClosed"]
+    assert (closed["verdict"], closed["action"], closed["reason"], closed["alarm"]) == \
+        ("no fault", "re-armed", "glitch", 6.0)
+    assert ("episode 1 closed at t = 12.6 (alarm at t = 6 on f6): no fault; the alarm was one reading off, the "
+            "data within the model's noise after it (a glitch of that reading, or chance): watching again on the "
+            "model as it was") in p.stdout
+    assert report["verdict"] == "no fault"

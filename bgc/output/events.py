@@ -184,6 +184,9 @@ def sentence(e, time_of) -> str:
                 did = "closed by the repair"
             elif act == "not accommodated":
                 did = "not accommodated (no parameter of the model holds it): watching again on the model as it was"
+            elif why == "glitch":
+                did = ("the alarm was one reading off, the data within the model's noise after it (a glitch of "
+                       "that reading, or chance): watching again on the model as it was")
             elif why == "false alarm":
                 did = ("no fault explains the data better than chance (a false alarm the detector's budget allows): "
                        "watching again on the model as it was")

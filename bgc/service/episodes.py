@@ -149,8 +149,10 @@ class Episodes:
         finding = frozen_finding(parameter) if e is None and action == "sensor out" else \
             "" if e is None else fault_sentence(e, c.onset, self.per_time)
         alarm, sensor = self.alarm
-        reason = ("" if action != "re-armed" else "false alarm" if c.verdict == "no fault" else "memory" if full
-                  else "rearm" if c.verdict != "isolated" else "no estimate")
+        glitch = any(isinstance(x, ev.Glitch) for x in c.events)  # one reading off, quiet after it
+        reason = ("" if action != "re-armed" else "glitch" if glitch and c.verdict == "no fault" else "false alarm"
+                  if c.verdict == "no fault" else "memory" if full else "rearm" if c.verdict != "isolated"
+                  else "no estimate")
         closed = ev.EpisodeClosed(number, alarm, sensor, now, c.verdict, tuple(c.candidates), c.onset, finding,
                                   action, parameter, value, None, appearance, self.present(parameter), reason)
         self.log.append(closed)
