@@ -343,12 +343,14 @@ class Diagnoser:
         that reading (:class:`~bgc.events.Glitch`): the diagnosis made again,
         which raises no alarm, is the verdict (no fault, or the model's
         mismatch when the rest of the data do not fit it), whatever fault
-        the first one named to explain that reading. Made once (not
+        the first one named to explain that reading (on a model whose mode
+        the data do not give too: no fault is not read again). Made once (not
         again on the diagnosis made again); not on a model whose mode the
         data do not give (its modes are read again from each fault's onset,
         :meth:`_reread`, with the detector as it was)."""
         told = self._false_alarm(d)
-        if told is None or self.decoder is not None:
+        glitch = told is not None and told[0] is not None and not told[1]  # one reading off, quiet to the end
+        if told is None or (self.decoder is not None and not glitch):  # (a glitch's "no fault" is not reread)
             return d
         first = d.detection
         self.config.say(f"the alarm at t = {self.loop.samples[first.step].t:.12g} may be a false one: watching again "
@@ -360,10 +362,10 @@ class Diagnoser:
             loop = self.replay(options, True, after=first)
             redone = loop.finish(self.sampler.summary(), truth)
         until, name = told
-        if redone.detection is None and until is not None and not name:  # one reading, quiet after it: a glitch
+        if redone.detection is None and glitch:  # one reading, quiet after it: a glitch
             said = ev.Glitch(first.step, first.sensor, float(first.statistic), until)
             return dataclasses.replace(redone, events=ordered([*redone.events, said]))
-        if redone.detection is None or not self._support(redone) > self._support(d):
+        if self.decoder is not None or redone.detection is None or not self._support(redone) > self._support(d):
             return d
         again = redone.detection
         if until is None:
