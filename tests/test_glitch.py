@@ -44,7 +44,7 @@ def test_one_reading_off_on_a_healthy_plant_is_a_glitch_not_a_fault(tmp_path):
     assert sentence(glitch, d.time_of) == (  # as docs/diagnosis.md section 6.2 prints it
         f"the alarm at t = 6 was one reading of f6, {abs(glitch.statistic):.3g} of its stds from the model's "
         "prediction, and the model's residuals stay within its noise after it to the data's end (t = 6.05 to "
-        "t = 20): a glitch of that reading, or chance, not a fault that persists or comes back; the diagnosis "
+        "t = 20): a glitch of that reading, not a fault that persists or comes back; the diagnosis "
         "was made again without it")
     assert not any(isinstance(e, ev.FalseAlarm) for e in d.events)
 
@@ -118,7 +118,7 @@ def test_a_monitor_closes_a_glitchs_episode_and_watches_on(tmp_path):
     assert (closed["verdict"], closed["action"], closed["reason"], closed["alarm"]) == \
         ("no fault", "re-armed", "glitch", 6.0)
     assert ("episode 1 closed at t = 12.6 (alarm at t = 6 on f6): no fault; the alarm was one reading off, the "
-            "data within the model's noise after it (a glitch of that reading, or chance): watching again on the "
+            "data within the model's noise after it (a glitch of that reading): watching again on the "
             "model as it was") in p.stdout
     assert report["verdict"] == "no fault"
 

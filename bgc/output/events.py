@@ -145,7 +145,7 @@ def sentence(e, time_of) -> str:
         case ev.Glitch(step=k, sensor=y, statistic=z, until=u):
             return (f"the alarm at t = {t(k)} was one reading of {y}, {abs(z):.3g} of its stds from the model's "
                     f"prediction, and the model's residuals stay within its noise after it to the data's end "
-                    f"(t = {t(k + 1)} to t = {t(u)}): a glitch of that reading, or chance, not a fault that persists "
+                    f"(t = {t(k + 1)} to t = {t(u)}): a glitch of that reading, not a fault that persists "
                     f"or comes back; the diagnosis was made again without it")
         case ev.Intermittent(hypothesis=h, value=v, low=lo, high=hi, spans=sp, posterior=p):
             return (f"{h} comes and goes: present {spans_text([(time_of(a), None if b is None else time_of(b)) for a, b in sp])}, "
@@ -186,7 +186,7 @@ def sentence(e, time_of) -> str:
                 did = "not accommodated (no parameter of the model holds it): watching again on the model as it was"
             elif why == "glitch":
                 did = ("the alarm was one reading off, the data within the model's noise after it (a glitch of "
-                       "that reading, or chance): watching again on the model as it was")
+                       "that reading): watching again on the model as it was")
             elif why == "false alarm":
                 did = ("no fault explains the data better than chance (a false alarm the detector's budget allows): "
                        "watching again on the model as it was")
