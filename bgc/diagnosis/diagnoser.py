@@ -362,9 +362,13 @@ class Diagnoser:
             loop = self.replay(options, True, after=first)
             redone = loop.finish(self.sampler.summary(), truth)
         until, name = told
-        if redone.detection is None and glitch:  # one reading, quiet after it: a glitch
+        if glitch and redone.detection is None:  # one reading, quiet after it: a glitch
+            if self._explained_after(d, first.step):  # unless a fault weighed explains what follows it
+                return d
             said = ev.Glitch(first.step, first.sensor, float(first.statistic), until)
             return dataclasses.replace(redone, events=ordered([*redone.events, said]))
+        if glitch:  # the diagnosis made again alarms after all: quiet until there
+            until = None
         if self.decoder is not None or redone.detection is None or not self._support(redone) > self._support(d):
             return d
         again = redone.detection
@@ -373,6 +377,46 @@ class Diagnoser:
         name = name if redone.candidates[:1] == (name,) else ""  # a fault the diagnosis made again does not name
         said = ev.FalseAlarm(first.step, first.sensor, first.test, first.step + 1, until, name)
         return dataclasses.replace(redone, events=ordered([*redone.events, said]))
+
+    def _explained_after(self, d: Diagnosis, step: int) -> bool:
+        """Whether a fault model diagnosis ``d`` weighed explains the data
+        after step ``step`` (an alarm on one reading) decisively better than
+        no fault: its residuals at its static posterior's most likely cell
+        (its Kalman filter's predicted means and stds, from its start) are
+        likelier over the samples after ``step`` than the nominal cubature
+        Kalman filter's, by more than the verdict's Bayes factor. A step of a
+        part that the nominal observer absorbs into its states leaves a
+        spike at its onset and a small shift after it, which the test of the
+        model's fit over a short stretch does not see; the fault's own model
+        does. A glitch's reading explains nothing after it (a sensor's
+        offset held from it is worse than none there)."""
+        from ..filters.cubature import nominal_track
+
+        a = self.loop.arrays()
+        ys, T = a["ys"].copy(), len(a["ys"])
+        if step + 1 >= T or not d.hypotheses or d.detection is None:
+            return False
+        # no fault with the reading left out: an observer that took it in carries it into the samples after
+        ys[step, list(self.loop.outputs).index(d.detection.sensor)] = np.nan
+        track = nominal_track(self.loop.nominal, ys, a["us"], T)
+
+        def loglik(z, std) -> np.ndarray:  # per step, over the sensors read
+            with np.errstate(invalid="ignore", divide="ignore"):
+                terms = -0.5 * np.asarray(z, dtype=float) ** 2 - np.log(np.asarray(std, dtype=float))
+            return np.nansum(np.where(np.isfinite(terms), terms, np.nan), axis=1)
+
+        null = loglik(track.z[:T], track.y_std[:T])
+        bound = math.log(self.loop.options.bayes_factor)
+        for h in d.hypotheses:
+            if h.z is None or not len(h.z):
+                continue
+            own = null.copy()
+            begin = h.start_step
+            own[begin:begin + len(h.z)] = loglik(h.z, h.y_std)[:T - begin]
+            gain = float(np.sum(own[step + 1:] - null[step + 1:]))
+            if gain > bound:
+                return True
+        return False
 
     def _support(self, d: Diagnosis) -> float:
         """How well diagnosis ``d``'s verdict explains the whole record: its

@@ -168,8 +168,9 @@ def finding(i: Innovations, test: str) -> str:
     if test == "mean":
         return (f"sensor {i.sensor}'s residuals average {i.mean:+.3g} stds, not 0: the model misses an offset or a "
                 "slow change of that reading")
-    return (f"sensor {i.sensor}'s residuals have variance {i.variance:.3g}, not 1: the model's noise does not fit "
-            "that reading")
+    rest = f" ({i.variance_but_one:.3g} without its farthest reading)" if math.isfinite(i.variance_but_one) else ""
+    return (f"sensor {i.sensor}'s residuals have variance {i.variance:.3g}{rest}, not 1: the model's noise does "
+            "not fit that reading")
 
 
 def findings(summaries: Sequence[Innovations], level: float, correlation: bool = True,

@@ -54,7 +54,8 @@ def report_data(r) -> dict[str, Any]:
         "correlation": {"estimates": list(c.correlated), "matrix": [list(map(_num, row)) for row in c.correlation]},
         "innovations": [{"sensor": i.sensor, "samples": i.samples, "mean": _num(i.mean),
                          "variance": _num(i.variance), "ljung_box": _num(i.ljung_box), "lags": i.lags,
-                         "p_value": _num(i.p_value)} for i in c.innovations],
+                         "p_value": _num(i.p_value), "variance_but_one": _num(i.variance_but_one)}
+                        for i in c.innovations],
     }
 
 
