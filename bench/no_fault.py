@@ -7,7 +7,9 @@ named or "unexplained").
 Fault-free runs of the three shipped plants (seeds 0 on) with the
 detector's false-alarm probability raised (``--false-alarm``, 0.3 per
 horizon, so that about a third of the runs alarm on chance alone): printed,
-the runs that alarmed and their verdicts each way. Then faulty runs (the
+the runs that alarmed and their verdicts each way (an alarm on one reading
+found a glitch, the diagnosis made again without it: "no fault (a
+glitch)", docs/diagnosis.md section 6.2). Then faulty runs (the
 documented scenarios of each plant, ``--faulty`` seeds from 0, at the default false-alarm
 probability): the verdicts each way and how often the verdict named the
 true fault (isolated on it, or it among an ambiguous verdict's candidates).
@@ -60,9 +62,10 @@ def main(argv=None) -> int:
             for weigh in (True, False):  # (the detection is the same both ways: a run that does not alarm, once)
                 d = bgc.diagnose(s, run, options=bgc.DiagnosisOptions(false_alarm=args.false_alarm,
                                                                       no_fault=weigh)).diagnosis
-                if d.detection is None:
+                glitch = any(type(e).__name__ == "Glitch" for e in d.events)  # alarmed, found a glitch
+                if d.detection is None and not glitch:
                     break
-                each[weigh][d.verdict] += 1
+                each[weigh][d.verdict + (" (a glitch)" if glitch else "")] += 1
         alarmed = sum(each[True].values())
         print(f"  {name:9s} {alarmed:3d} of {args.runs} alarmed | no fault weighed: "
               f"{dict(sorted(each[True].items()))} | faults alone: {dict(sorted(each[False].items()))}")
