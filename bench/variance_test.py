@@ -42,7 +42,7 @@ def rejections(z: np.ndarray) -> tuple[float, float]:
     diagnosis's: only a variance above 1)."""
     from statistics import NormalDist
 
-    from bgc.filters.residuals import largest_square
+    from bgc.filters.residuals import Innovations, _wider
 
     n = z.shape[1]
     cut = NormalDist().inv_cdf(1 - LEVEL / 2)  # the diagnosis's two-sided quantile, its variance side
@@ -51,10 +51,10 @@ def rejections(z: np.ndarray) -> tuple[float, float]:
     keep = np.ones_like(z, dtype=bool)
     keep[np.arange(len(z)), far] = False
     rest = z[keep].reshape(len(z), n - 1).var(axis=1)
-    plain = (v - 1) / math.sqrt(2 / n) > cut
-    expected = (n - largest_square(n)) / (n - 1)
-    now = plain & ((rest - expected) / math.sqrt(2 / (n - 1)) > cut)
-    return float(plain.mean()), float(now.mean())
+    plain = (v - 1) / math.sqrt(2 / n) > cut  # the test before
+    # the diagnosis's own test on each stretch's two variances (the other fields play no part in it)
+    now = [_wider(Innovations("y", n, 0.0, float(a), math.nan, 1, 1.0, float(b)), cut) for a, b in zip(v, rest)]
+    return float(plain.mean()), float(np.mean(now))
 
 
 def claim():

@@ -342,15 +342,14 @@ class Diagnoser:
         reading after which the data stay quiet to their end was a glitch of
         that reading (:class:`~bgc.events.Glitch`): the diagnosis made again,
         which raises no alarm, is the verdict (no fault, or the model's
-        mismatch when the rest of the data do not fit it), whatever fault
-        the first one named to explain that reading (on a model whose mode
-        the data do not give too: no fault is not read again). Made once (not
-        again on the diagnosis made again); not on a model whose mode the
-        data do not give (its modes are read again from each fault's onset,
-        :meth:`_reread`, with the detector as it was)."""
+        mismatch when the rest of the data do not fit it), unless a fault
+        model the first one weighed explains the samples after that reading
+        (:meth:`_explained_after`). Made once (not again on the diagnosis
+        made again); on a model whose mode the data do not give only for a
+        glitch (a fault's modes are read again from its onset,
+        :meth:`_reread`, with the detector as it was; no fault is not)."""
         told = self._false_alarm(d)
-        glitch = told is not None and told[0] is not None and not told[1]  # one reading off, quiet to the end
-        if told is None or (self.decoder is not None and not glitch):  # (a glitch's "no fault" is not reread)
+        if told is None or (self.decoder is not None and not told[2]):
             return d
         first = d.detection
         self.config.say(f"the alarm at t = {self.loop.samples[first.step].t:.12g} may be a false one: watching again "
@@ -361,14 +360,12 @@ class Diagnoser:
         if self._retry(redone, loop):
             loop = self.replay(options, True, after=first)
             redone = loop.finish(self.sampler.summary(), truth)
-        until, name = told
+        until, name, glitch = told
         if glitch and redone.detection is None:  # one reading, quiet after it: a glitch
             if self._explained_after(d, first.step):  # unless a fault weighed explains what follows it
                 return d
-            said = ev.Glitch(first.step, first.sensor, float(first.statistic), until)
+            said = ev.Glitch(first.step, first.sensor, float(first.statistic), len(self.loop.samples) - 1)
             return dataclasses.replace(redone, events=ordered([*redone.events, said]))
-        if glitch:  # the diagnosis made again alarms after all: quiet until there
-            until = None
         if self.decoder is not None or redone.detection is None or not self._support(redone) > self._support(d):
             return d
         again = redone.detection
@@ -391,30 +388,23 @@ class Diagnoser:
         does. A glitch's reading explains nothing after it (a sensor's
         offset held from it is worse than none there)."""
         from ..filters.cubature import nominal_track
+        from .hypothesis import log_density
 
         a = self.loop.arrays()
         ys, T = a["ys"].copy(), len(a["ys"])
-        if step + 1 >= T or not d.hypotheses or d.detection is None:
+        if step + 1 >= T or d.detection is None:
             return False
         # no fault with the reading left out: an observer that took it in carries it into the samples after
         ys[step, list(self.loop.outputs).index(d.detection.sensor)] = np.nan
         track = nominal_track(self.loop.nominal, ys, a["us"], T)
-
-        def loglik(z, std) -> np.ndarray:  # per step, over the sensors read
-            with np.errstate(invalid="ignore", divide="ignore"):
-                terms = -0.5 * np.asarray(z, dtype=float) ** 2 - np.log(np.asarray(std, dtype=float))
-            return np.nansum(np.where(np.isfinite(terms), terms, np.nan), axis=1)
-
-        null = loglik(track.z[:T], track.y_std[:T])
+        null = log_density(track.z[:T], track.y_std[:T])
         bound = math.log(self.loop.options.bayes_factor)
         for h in d.hypotheses:
-            if h.z is None or not len(h.z):
-                continue
-            own = null.copy()
-            begin = h.start_step
-            own[begin:begin + len(h.z)] = loglik(h.z, h.y_std)[:T - begin]
-            gain = float(np.sum(own[step + 1:] - null[step + 1:]))
-            if gain > bound:
+            # the nominal's where the hypothesis has no residual: before its start, or none at all (no finite cell)
+            own, z = null.copy(), np.asarray(h.z, dtype=float)[:T - h.start_step]
+            read = h.start_step + np.flatnonzero(np.isfinite(z).any(axis=1))
+            own[read] = log_density(z, np.asarray(h.y_std, dtype=float)[:len(z)])[read - h.start_step]
+            if float(np.sum(own[step + 1:] - null[step + 1:])) > bound:
                 return True
         return False
 
@@ -440,13 +430,13 @@ class Diagnoser:
             evidence = max(evidence, h.intermittent.log_evidence + math.log(SHARE))
         return log_prior(self.config.priors, h.parameter) + evidence
 
-    def _false_alarm(self, d: Diagnosis) -> tuple[int | None, str] | None:
+    def _false_alarm(self, d: Diagnosis) -> tuple[int | None, str, bool] | None:
         """Whether the alarm of diagnosis ``d`` may be a false one, a fault
         beginning later: (the step the model's residuals stay within its
-        noise until, the fault model that explains the data from there; or
-        None and "": until the diagnosis made again alarms; or the data's
-        last step and "": a glitch, one reading off and the residuals quiet
-        after it to the end), or None. Either a fault the verdict names (or keeps as a possibility)
+        noise until, the fault model that explains the data from there, or
+        None and "": until the diagnosis made again alarms; and whether it
+        was a glitch, one reading off and the residuals quiet after it to
+        the data's end), or None. Either a fault the verdict names (or keeps as a possibility)
         was dated anew (:class:`~bgc.events.Redated`,
         :mod:`bgc.diagnosis.later`) after the alarm, or the nominal
         observer's residuals after it stay within the model's noise (the
@@ -465,7 +455,7 @@ class Diagnoser:
         moved = [e for e in d.events if isinstance(e, ev.Redated) and e.alarmed is not None and e.alarmed < e.onset
                  and e.hypothesis in d.candidates and e.onset - first.step - 1 >= longest]
         if moved:
-            return moved[0].onset, moved[0].hypothesis
+            return moved[0].onset, moved[0].hypothesis, False
         sensors = tuple(y for y, read in zip(self.loop.outputs, present) if read)
         z = np.asarray(d.nominal_z, dtype=float)[first.step + 1:][:, present]
         detector = Detector(sensors, DetectorOptions(o.false_alarm, o.windows, self.loop.horizon))
@@ -476,9 +466,7 @@ class Diagnoser:
         if len(quiet) < longest or failures(summary([quiet], sensors), FIT_LEVEL, correlation=False,
                                             narrower=False):
             return None
-        if again is None:  # one reading off, the residuals quiet after it to the data's end: a glitch
-            return len(self.loop.samples) - 1, ""
-        return None, ""  # where the diagnosis made again alarms
+        return None, "", again is None  # quiet to where the diagnosis made again alarms, or to the end
 
     def _retry(self, d: Diagnosis, loop: Loop | None = None) -> bool:
         """Whether an unexplained verdict (of ``loop``, None: the loop that

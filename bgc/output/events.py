@@ -166,37 +166,8 @@ def sentence(e, time_of) -> str:
         case ev.SensorExcluded(sensor=y, finding=f, time=when):
             return (f"sensor {y} taken out of the nominal observer from t = {time_text(when)} ({f}): monitoring "
                     f"goes on with the other sensors")
-        case ev.EpisodeClosed(number=n, alarm=a, sensor=y, time=when, verdict=v, candidates=c, began=o, finding=f,
-                              action=act, parameter=p, value=x, appearance=k, present=spans, reason=why):
-            what = f"{v}: {', '.join(c)}" if c else v
-            since = "" if o is None else f", onset t = {time_text(o)}"
-            if act == "ended":
-                did = (f"the fault of {p} went away without a repair (intermittent: present {spans_text(spans)}): "
-                       f"the model watched from now on has {p} = {x:.6g}, its value in the model file")
-            elif act == "accommodated" and k > 1:
-                did = (f"the intermittent fault of {p} is back (appearance {k}; present {spans_text(spans)}): "
-                       f"accommodated, the model watched from now on has {p} = {x:.6g}")
-            elif act == "accommodated":
-                did = f"accommodated: the model watched from now on has {p} = {x:.6g}"
-            elif act == "sensor out":
-                did = f"sensor {p} taken out of the nominal observer"
-            elif act == "repaired":
-                did = "closed by the repair"
-            elif act == "not accommodated":
-                did = "not accommodated (no parameter of the model holds it): watching again on the model as it was"
-            elif why == "glitch":
-                did = ("the alarm was one reading off, the data within the model's noise after it (a glitch of "
-                       "that reading): watching again on the model as it was")
-            elif why == "false alarm":
-                did = ("no fault explains the data better than chance (a false alarm the detector's budget allows): "
-                       "watching again on the model as it was")
-            elif why == "memory":
-                did = ("not decided before its record reached the most this diagnosis holds in memory: watching "
-                       "again on the model as it was")
-            else:
-                did = "not decided: watching again on the model as it was"
-            return (f"episode {n} closed at t = {time_text(when)} (alarm at t = {time_text(a)} on {y}{since}): "
-                    f"{what}" + (f" ({f})" if f else "") + f"; {did}")
+        case ev.EpisodeClosed():
+            return _episode_sentence(e)
         case ev.Repaired(time=when, episodes=ns, parameters=ps):
             out = ", ".join(ps) if ps else "nothing accommodated"
             return (f"repaired at t = {time_text(when)}: " + (f"episode(s) {', '.join(map(str, ns))} taken out of the "
@@ -215,6 +186,40 @@ def spans_text(spans) -> str:
     return " and ".join("at an onset not known" if on is None else
                         f"t = {time_text(on)} to {time_text(off)}" if off is not None else f"from t = {time_text(on)}"
                         for on, off in spans) or "not known"
+
+
+def _episode_sentence(e: ev.EpisodeClosed) -> str:
+    """:func:`sentence` of an episode closed: its verdict, and what the monitor did."""
+    n, a, y, when, v, c, o, f = e.number, e.alarm, e.sensor, e.time, e.verdict, e.candidates, e.began, e.finding
+    act, p, x, k, spans, why = e.action, e.parameter, e.value, e.appearance, e.present, e.reason
+    what = f"{v}: {', '.join(c)}" if c else v
+    since = "" if o is None else f", onset t = {time_text(o)}"
+    if act == "ended":
+        did = (f"the fault of {p} went away without a repair (intermittent: present {spans_text(spans)}): "
+               f"the model watched from now on has {p} = {x:.6g}, its value in the model file")
+    elif act == "accommodated" and k > 1:
+        did = (f"the intermittent fault of {p} is back (appearance {k}; present {spans_text(spans)}): "
+               f"accommodated, the model watched from now on has {p} = {x:.6g}")
+    elif act == "accommodated":
+        did = f"accommodated: the model watched from now on has {p} = {x:.6g}"
+    elif act == "sensor out":
+        did = f"sensor {p} taken out of the nominal observer"
+    elif act == "repaired":
+        did = "closed by the repair"
+    elif act == "not accommodated":
+        did = "not accommodated (no parameter of the model holds it): watching again on the model as it was"
+    else:
+        did = _REARMED.get(why, "not decided") + ": watching again on the model as it was"
+    return (f"episode {n} closed at t = {time_text(when)} (alarm at t = {time_text(a)} on {y}{since}): "
+            f"{what}" + (f" ({f})" if f else "") + f"; {did}")
+
+
+#: Why an episode was closed re-armed (:attr:`bgc.events.EpisodeClosed.reason`), in words.
+_REARMED = {
+    "glitch": "the alarm was one reading off, the data within the model's noise after it (a glitch of that reading)",
+    "false alarm": "no fault explains the data better than chance (a false alarm the detector's budget allows)",
+    "memory": "not decided before its record reached the most this diagnosis holds in memory",
+}
 
 
 def mismatch_sentence(e: ev.Mismatched, time_of) -> str:
