@@ -196,6 +196,7 @@ class Calibration:
     outputs: tuple[str, ...] = ()
     residuals: tuple[np.ndarray, ...] = ()
     times: tuple[np.ndarray, ...] = ()
+    spread: tuple[tuple[str, float, float], ...] = ()
 
     @property
     def findings(self) -> tuple[str, ...]:
@@ -787,13 +788,48 @@ def calibrated(model: FaultModel, numerics: Numerics, records: Sequence[Record],
     estimates += _start_estimates(lik, starts, held, z, z0, z_low, z_high, k)
     corr = cov / np.outer(sd, sd) if len(z) else cov
     filters = lik.filters(z)
+    spread = _spread(lik, z, cov, outputs)
     return (Calibration(tuple(estimates), float(best), float(start_loglik), tuple(names),
                        tuple(tuple(float(c) for c in row) for row in corr), innovations(filters, outputs),
                        _sources(records), sum(int(np.isfinite(r.ys).any(axis=1).sum()) for r in records),
                        converged, message, evaluations, time.perf_counter() - start_time, tuple(outputs),
                        tuple(np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in filters),
                        tuple(np.asarray(r.ts if r.ts is not None else np.arange(len(r.ys)), dtype=float)
-                             for r in records)), lik.module(z), lik.starts(z))
+                             for r in records), tuple((s, *spread[s]) for s in outputs if s in spread)),
+            lik.module(z), lik.starts(z))
+
+
+def _spread(lik: _Likelihood, z: np.ndarray, cov: np.ndarray, outputs: Sequence[str]) -> dict[str, tuple[float, float]]:
+    """Per sensor read, the standard deviations of its normalised residuals'
+    mean and variance over the recordings that the estimates' own
+    uncertainty leaves (the delta method: the statistics' gradient in the
+    optimiser's coordinates ``z``, by central differences, through ``cov``,
+    the inverse Hessian of the log-likelihood). A fresh recording of the
+    same plant, filtered with the calibrated model, has residuals whose
+    mean and variance scatter by their sampling error and by this: the
+    estimates fitted this recording's noise too."""
+    if not len(z):
+        return {}
+
+    def moments(point: np.ndarray) -> np.ndarray:
+        with np.errstate(all="ignore"):
+            zs = [np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in lik.filters(point)]
+        read = np.concatenate(zs)
+        return np.array([[np.nanmean(read[:, j]), np.nanvar(read[:, j])] for j in range(len(outputs))])
+
+    h = _steps(z)
+    grads = np.zeros((len(outputs), 2, len(z)))
+    for i in range(len(z)):
+        e = np.zeros(len(z))
+        e[i] = h[i]
+        grads[:, :, i] = (moments(z + e) - moments(z - e)) / (2 * h[i])
+    out = {}
+    for j, name in enumerate(outputs):
+        g = grads[j]
+        if np.all(np.isfinite(g)):
+            spread = np.sqrt(np.maximum(np.einsum("ki,ij,kj->k", g, cov, g), 0.0))
+            out[name] = (float(spread[0]), float(spread[1]))
+    return out
 
 
 def _start_estimates(lik: _Likelihood, starts: dict[tuple[int, int], str], held: dict[str, str], z: np.ndarray,

@@ -55,7 +55,7 @@ from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
 from .detect import Detector, DetectorOptions
 from .finish import ordered
-from .fit import LEVEL as FIT_LEVEL
+from .fit import LEVEL as FIT_LEVEL, residual_sd
 from .isolate import with_returns
 from .onsets import log_prior
 from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig, shifted_events
@@ -464,7 +464,7 @@ class Diagnoser:
             return None
         quiet = z if again is None else z[:again.onset_step if again.onset_step is not None else again.step]
         if len(quiet) < longest or failures(summary([quiet], sensors), FIT_LEVEL, correlation=False,
-                                            narrower=False):
+                                            narrower=False, spread=residual_sd(self.nominal)):
             return None
         return None, "", again is None  # quiet to where the diagnosis made again alarms, or to the end
 

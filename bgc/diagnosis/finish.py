@@ -26,7 +26,7 @@ from ..kinds import fault_kind
 from ..model.protocol import Package, nominal_model
 from .. import events as ev
 from .estimate import estimate_of
-from .fit import LEAST, fit, timing_told
+from .fit import LEAST, fit, residual_sd, timing_told
 from .hypothesis import hypothesis_job, log_density, run_job
 from .intermittent import revised
 from .onsets import earlier_onsets, onset_weights
@@ -172,7 +172,7 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
     short = first is not None and first < LEAST
     fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, short, track=track, skip=r.excused)
     if fitted.fits and verdict in ("isolated", "ambiguous") and candidates and candidates[0] in by:
-        fitted = noise_misfit(fitted, by[candidates[0]], r.outputs)
+        fitted = noise_misfit(fitted, by[candidates[0]], r.outputs, residual_sd(nominal_model(s.package)))
     # an alarm, or a misfit, that the inputs read with the other timing explain (docs/format.md, section 9)
     timing = None if r.data is None or (fitted.fits and r.detection is None) else timing_told(
         nominal_model(s.package), r.ys, r.us, r.outputs,
@@ -195,7 +195,7 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
     return "mismatch", possible, [event], fitted
 
 
-def noise_misfit(fitted: Fit, h: Hypothesis, outputs: tuple[str, ...]) -> Fit:
+def noise_misfit(fitted: Fit, h: Hypothesis, outputs: tuple[str, ...], spread=None) -> Fit:
     """``fitted`` with the test of the named fault's own residuals after its
     onset (its static posterior's most likely cell, :mod:`bgc.diagnosis.fit`'s
     variance test, a variance above 1 only): a fault model explains a change
@@ -203,7 +203,8 @@ def noise_misfit(fitted: Fit, h: Hypothesis, outputs: tuple[str, ...]) -> Fit:
     than its model, whose alarm came late, leaves the named fault's
     residuals too wide (a variance of 2.2 for sensors 1.5 times noisier),
     while the data before the onset were too few to show it. Its findings
-    are added to the fit's: the verdict is ``mismatch``."""
+    are added to the fit's: the verdict is ``mismatch``. ``spread``: a
+    calibrated model's allowance (:func:`bgc.diagnosis.fit.residual_sd`)."""
     p = h.static
     if h.intermittent is not None:  # a fault that comes and goes: its residuals switched at its spans
         z = np.asarray(h.intermittent.z, dtype=float)[h.intermittent.spans[0].on:]
@@ -212,8 +213,8 @@ def noise_misfit(fitted: Fit, h: Hypothesis, outputs: tuple[str, ...]) -> Fit:
     else:
         z = np.asarray(p.residuals, dtype=float)[int(p.best[0]):]
     summaries = summary([z], outputs)
-    wide = [(i, test) for i, test in failures(summaries, fitted.level, correlation=False, narrower=False)
-            if test == "variance"]
+    wide = [(i, test) for i, test in failures(summaries, fitted.level, correlation=False, narrower=False,
+                                              spread=spread) if test == "variance"]
     if not wide:
         return fitted
     said = tuple(f"with {h.name}, {finding(i, test)}" for i, test in wide)

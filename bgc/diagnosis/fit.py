@@ -103,9 +103,18 @@ def fit(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], end: 
         read = gap[:, j][np.isfinite(gap[:, j])]
         if len(read) >= 3:
             offsets.append((name, float(read.mean())))
-    failed = failures(summaries, level, correlation=False, narrower=False)
+    failed = failures(summaries, level, correlation=False, narrower=False, spread=residual_sd(nominal))
     return Fit(end, LEAST, float(level), summaries, tuple(offsets), tuple(finding(i, t) for i, t in failed),
                bool(short), tuple(t for _, t in failed))
+
+
+def residual_sd(nominal) -> dict[str, tuple[float, float]]:
+    """Per sensor, the standard deviations a calibration's uncertainty
+    leaves on the normalised residuals' (mean, variance): the generated
+    model's ``RESIDUAL_SD`` (the model file's ``residual_mean_sd`` and
+    ``residual_variance_sd``, written by ``bgc calibrate``; a model with
+    modes: its first mode's module's); none for a model nobody calibrated."""
+    return dict(getattr(nominal, "RESIDUAL_SD", None) or {})
 
 
 def reread(us: np.ndarray, columns: list[int], timing: str) -> np.ndarray:

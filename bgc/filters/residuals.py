@@ -17,7 +17,7 @@ import functools
 import math
 from dataclasses import dataclass
 from statistics import NormalDist
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -118,7 +118,7 @@ def largest_square(n: int) -> float:
     return float(quad(above, 0, peak)[0] + quad(above, peak, math.inf)[0])
 
 
-def _wider(i: Innovations, cut: float) -> bool:
+def _wider(i: Innovations, cut: float, sd: float = 0.0) -> bool:
     """Whether sensor ``i``'s residuals are wider than N(0, 1) at the
     one-sided normal quantile ``cut``: their variance over its standard
     error sqrt(2 / n), and their variance without their farthest reading
@@ -126,36 +126,44 @@ def _wider(i: Innovations, cut: float) -> bool:
     and standard error sqrt(2 / (n - 1)): a glitch of one reading, however
     far, does not make the model's noise too small; a noise too small
     widens every reading. Requiring both, the test's size is at most the
-    first one's."""
+    first one's. ``sd``: a standard deviation the variance has beside its
+    sampling error (a calibrated model's, :func:`failures`)."""
     n = i.samples
-    if not (i.variance - 1) / math.sqrt(2 / n) > cut:
+    if not (i.variance - 1) / math.sqrt(2 / n + sd * sd) > cut:
         return False
     if not math.isfinite(i.variance_but_one) or n < 4:
         return True
     expected = (n - largest_square(n)) / (n - 1)
-    return (i.variance_but_one - expected) / math.sqrt(2 / (n - 1)) > cut
+    return (i.variance_but_one - expected) / math.sqrt(2 / (n - 1) + sd * sd) > cut
 
 
 def failures(summaries: Sequence[Innovations], level: float, correlation: bool = True,
-             narrower: bool = True) -> tuple[tuple[Innovations, str], ...]:
+             narrower: bool = True, spread: Mapping[str, tuple[float, float]] | None = None
+             ) -> tuple[tuple[Innovations, str], ...]:
     """The sensors of ``summaries`` that fail a test at ``level`` over every
     sensor and test (Bonferroni), each with the first test it fails:
     ``correlated`` (Ljung-Box; not tried without ``correlation``), ``mean``
     (off 0, against its standard error 1 / sqrt(n)) or ``variance`` (off 1,
     against its standard error sqrt(2 / n); above 1 only when their
     variance without their farthest reading is too, :func:`_wider`; without
-    ``narrower``, only a variance above 1)."""
+    ``narrower``, only a variance above 1). ``spread``: per sensor, the
+    standard deviations (of the mean, of the variance) that a calibrated
+    model's own uncertainty adds to the sampling errors (the model file's
+    ``residual_mean_sd`` and ``residual_variance_sd``, written by ``bgc
+    calibrate``: its estimates fitted one recording's noise too, and a
+    fresh recording's residuals scatter by both)."""
     if not summaries:
         return ()
     alpha = level / ((3 if correlation else 2) * len(summaries))
     cut = NormalDist().inv_cdf(1.0 - alpha / 2)
     out = []
     for i in summaries:
+        m, v = (spread or {}).get(i.sensor, (0.0, 0.0))
         if correlation and i.p_value < alpha:
             out.append((i, "correlated"))
-        elif abs(i.mean) * math.sqrt(i.samples) > cut:
+        elif abs(i.mean) * math.sqrt(i.samples / (1 + i.samples * m * m)) > cut:
             out.append((i, "mean"))
-        elif _wider(i, cut) or (narrower and (1 - i.variance) / math.sqrt(2 / i.samples) > cut):
+        elif _wider(i, cut, v) or (narrower and (1 - i.variance) / math.sqrt(2 / i.samples + v * v) > cut):
             out.append((i, "variance"))
     return tuple(out)
 

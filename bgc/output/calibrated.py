@@ -65,10 +65,12 @@ def calibrated_text(text: str, source: str, cal: Calibration, element_levels: di
     data = ", ".join(printable(s) for s in cal.sources)
     when = f" (recorded {', '.join(printable(d) for d in dates)})" if dates else ""
     changes: list[TextChange] = []
+    spread = {s: (m, v) for s, m, v in cal.spread}
     for e in cal.estimates:
         if e.kind == "measurement_noise":
             changes.append(TextChange(("measurements", e.subject, "noise"), _written(e, e.level),
                                    _comment(e, f"noise of sensor {e.subject}", data + when, "std")))
+            changes += _spread_changes(text, e.subject, spread.get(e.subject))
         elif e.kind == "process_noise":
             changes.append(TextChange(("simulation", "process_noise"), _written(e, e.level),
                                    _comment(e, "process noise level", data + when, None)))
@@ -83,6 +85,24 @@ def calibrated_text(text: str, source: str, cal: Calibration, element_levels: di
     out = edit_text(text, changes)
     head = f"# {MARK} calibrate from {printable(source)} on {data}\n"
     return head + out
+
+
+def _spread_changes(text: str, sensor: str, spread: tuple[float, float] | None) -> list[TextChange]:
+    """The calibration's allowance on ``sensor``'s residuals (its
+    ``residual_mean_sd`` and ``residual_variance_sd``), written beside its
+    noise; none when the measurement is written without fields (its
+    ``noise`` is then added as its only field)."""
+    if spread is None:
+        return []
+    entry = (yaml.safe_load(text) or {}).get("measurements", {}).get(sensor)
+    if not isinstance(entry, dict):
+        return []
+    m, v = spread
+    said = (f"# bgc calibrate: on other data of this plant, {sensor}'s normalised residuals' mean may lie {m:.3g} "
+            f"and their variance {v:.3g} (one std each) off 0 and 1 by the estimates' own uncertainty; the test of "
+            "the model's fit allows for it")
+    return [TextChange(("measurements", sensor, "residual_mean_sd"), number(m), said),
+            TextChange(("measurements", sensor, "residual_variance_sd"), number(v), "")]
 
 
 def _written(e: Estimate, value: float) -> str | None:
@@ -197,10 +217,11 @@ def edit_text(text: str, changes: Sequence[TextChange]) -> str:
     out: list[str] = []
     for i, line in enumerate(lines):
         indent = line[:len(line) - len(line.lstrip())]
-        out.extend(indent + c for c in above.get(i, []))
+        out.extend(indent + c for c in above.get(i, []) if c)
         out.append(line)
         for new, comment in after.get(i, []):
             pad = new[:len(new) - len(new.lstrip())]
-            out.append(pad + comment)
+            if comment:
+                out.append(pad + comment)
             out.append(new)
     return "\n".join(out)
