@@ -36,7 +36,8 @@ column.
 
     .venv/bin/python bench/mismatch.py --calibrated 40
 
-With ``--as-written RUNS``: its rows of the model as written only.
+With ``--as-written RUNS``: its rows of the model as written only; with
+``--calibrated RUNS --only-calibrated``, its rows of the calibrated model only.
 """
 
 from __future__ import annotations
@@ -105,14 +106,15 @@ def timing(runs: int) -> None:
                           + f" | {named} |", flush=True)
 
 
-def calibrated(runs: int, off: float, noise: float, calibrate: bool = True) -> None:
+def calibrated(runs: int, off: float, noise: float, calibrate: bool = True, written: bool = True) -> None:
     """Verdicts on a fresh healthy run of a plant off its model, with the model as written and calibrated
-    (``calibrate``: else as written only, without the calibrations' minutes)."""
+    (``calibrate``: else as written only, without the calibrations' minutes; ``written``: else calibrated
+    only)."""
     from bgc.diagnosis.detect import TESTS
 
     session = bgc.open(ROOT / "models" / "circuit.yaml")
     estimate = "noise," + ",".join(p.name for p in session.view.model.parameters)  # the model file's
-    models = ("as written", "calibrated") if calibrate else ("as written",)
+    models = (("as written",) if written else ()) + (("calibrated",) if calibrate else ())
     columns = [(model, tests) for model in models for tests in (("mean",), TESTS)]
     counts = {c: Counter() for c in columns}
     with tempfile.TemporaryDirectory() as folder:
@@ -146,9 +148,11 @@ def main(argv=None) -> int:
     p.add_argument("--calibrated", type=int, default=0, metavar="RUNS")
     p.add_argument("--as-written", type=int, default=0, metavar="RUNS",
                    help="--calibrated's rows of the model as written only (no calibration)")
+    p.add_argument("--only-calibrated", action="store_true", help="--calibrated's rows of the calibrated model only")
     a = p.parse_args(argv)
     if a.calibrated or a.as_written:
-        calibrated(a.calibrated or a.as_written, a.off, a.noise, calibrate=bool(a.calibrated))
+        calibrated(a.calibrated or a.as_written, a.off, a.noise, calibrate=bool(a.calibrated),
+                   written=not (a.calibrated and a.only_calibrated))
         return 0
     if a.timing:
         timing(a.timing)

@@ -386,9 +386,9 @@ class Measurement:
     unit: str | None
     description: str | None
     loc: SourceLoc
-    #: What a calibration's uncertainty leaves on the normalised residuals' (mean, variance), as standard
-    #: deviations (``residual_mean_sd``, ``residual_variance_sd``; written by ``bgc calibrate``).
-    residual_sd: tuple[float, float] = (0.0, 0.0)
+    #: The standard deviation a calibration's noise estimates leave on the normalised residuals' variance
+    #: on other data (``residual_variance_sd``, written by ``bgc calibrate``).
+    residual_variance_sd: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

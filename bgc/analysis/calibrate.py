@@ -179,7 +179,10 @@ class Calibration:
     ``evaluations`` and the ``seconds`` it took; ``residuals``: per
     recording, the calibrated model's normalised residuals (steps, sensors
     ``outputs``; NaN: not read), what the innovations sum up, at the
-    recording's ``times`` (steps,)."""
+    recording's ``times`` (steps,); ``spread``: per sensor, the standard
+    deviation the noise estimates' uncertainty leaves on a fresh
+    recording's residual variance (:func:`_spread`; the model file's
+    ``residual_variance_sd``)."""
 
     estimates: tuple[Estimate, ...]
     loglik: float
@@ -196,7 +199,7 @@ class Calibration:
     outputs: tuple[str, ...] = ()
     residuals: tuple[np.ndarray, ...] = ()
     times: tuple[np.ndarray, ...] = ()
-    spread: tuple[tuple[str, float, float], ...] = ()
+    spread: tuple[tuple[str, float], ...] = ()
 
     @property
     def findings(self) -> tuple[str, ...]:
@@ -690,7 +693,7 @@ def calibrated(model: FaultModel, numerics: Numerics, records: Sequence[Record],
     read = {s for r in records for j, s in enumerate(outputs) if np.isfinite(r.ys[:, j]).any()}
     silent = tuple(s for s in sensors if s not in read)
     asked = [s for s in sensors if s in read]
-    held: dict[str, str] = {s: "no sample of it in the data" for s in silent}
+    held: dict[str, str] = {f"noise {s}": "no sample of it in the data" for s in silent}
     settings = numerics.equations.model.settings
     y_scale = np.asarray(numerics.y_scale, dtype=float)
     zero = False  # the process level's likelihood is highest at 0: held there
@@ -795,40 +798,47 @@ def calibrated(model: FaultModel, numerics: Numerics, records: Sequence[Record],
                        converged, message, evaluations, time.perf_counter() - start_time, tuple(outputs),
                        tuple(np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in filters),
                        tuple(np.asarray(r.ts if r.ts is not None else np.arange(len(r.ys)), dtype=float)
-                             for r in records), tuple((s, *spread[s]) for s in outputs if s in spread)),
+                             for r in records), tuple((s, spread[s]) for s in outputs if s in spread)),
             lik.module(z), lik.starts(z))
 
 
-def _spread(lik: _Likelihood, z: np.ndarray, cov: np.ndarray, outputs: Sequence[str]) -> dict[str, tuple[float, float]]:
-    """Per sensor read, the standard deviations of its normalised residuals'
-    mean and variance over the recordings that the estimates' own
-    uncertainty leaves (the delta method: the statistics' gradient in the
-    optimiser's coordinates ``z``, by central differences, through ``cov``,
-    the inverse Hessian of the log-likelihood). A fresh recording of the
-    same plant, filtered with the calibrated model, has residuals whose
-    mean and variance scatter by their sampling error and by this: the
-    estimates fitted this recording's noise too."""
-    if not len(z):
+def _spread(lik: _Likelihood, z: np.ndarray, cov: np.ndarray, outputs: Sequence[str]) -> dict[str, float]:
+    """Per sensor read, the standard deviation of its normalised residuals'
+    variance that the noise estimates' own uncertainty leaves on a fresh
+    recording (the delta method: the variance over the recordings,
+    differentiated by central differences in the noise coordinates of
+    ``z``, the sensors' log levels and the process level's, through their
+    block of ``cov``, the inverse Hessian of the negative log-likelihood).
+    A calibration fits one recording's noise too: the calibrated model
+    predicts a fresh recording's residual variance as 1, off by this. The
+    noise coordinates only: a residual's variance scales with the noise
+    at every sample alike, whatever the recording's length, inputs or
+    start; what a parameter's or an initial state's error moves depends on
+    the stretch of data (a transient diluted over a longer one), and a
+    residual mean's derivative in a noise level is 0 on fresh data."""
+    k = len(lik.sensor_rows) + (1 if lik.process else 0)
+    if not k:
         return {}
+    zs = [np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in lik.filters(z)]
+    read = [j for j in range(len(outputs)) if any(np.isfinite(r[:, j]).sum() >= 3 for r in zs)]
 
-    def moments(point: np.ndarray) -> np.ndarray:
+    def variances(point: np.ndarray) -> np.ndarray:
         with np.errstate(all="ignore"):
-            zs = [np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in lik.filters(point)]
-        read = np.concatenate(zs)
-        return np.array([[np.nanmean(read[:, j]), np.nanvar(read[:, j])] for j in range(len(outputs))])
+            rs = np.concatenate([np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs))
+                                 for kf in lik.filters(point)])
+        return np.array([np.var(rs[np.isfinite(rs[:, j]), j]) for j in read])
 
     h = _steps(z)
-    grads = np.zeros((len(outputs), 2, len(z)))
-    for i in range(len(z)):
+    grads = np.zeros((len(read), k))
+    for i in range(k):
         e = np.zeros(len(z))
         e[i] = h[i]
-        grads[:, :, i] = (moments(z + e) - moments(z - e)) / (2 * h[i])
+        grads[:, i] = (variances(z + e) - variances(z - e)) / (2 * h[i])
+    block = np.asarray(cov, dtype=float)[:k, :k]
     out = {}
-    for j, name in enumerate(outputs):
-        g = grads[j]
+    for g, j in zip(grads, read):
         if np.all(np.isfinite(g)):
-            spread = np.sqrt(np.maximum(np.einsum("ki,ij,kj->k", g, cov, g), 0.0))
-            out[name] = (float(spread[0]), float(spread[1]))
+            out[outputs[j]] = float(np.sqrt(max(float(g @ block @ g), 0.0)))
     return out
 
 

@@ -371,8 +371,8 @@ def _model_context(dbns: DbnModel, num: Numerics, d) -> dict:
         "process_std": _floats(proc, "a process-noise std", where),
         "measurement_std": _floats(noise.measurement, "a measurement-noise std", where),
         "predictive_std": _floats(noise.predictive, "a predictive std", where),
-        "residual_sd": repr({m.name: tuple(float(v) for v in m.residual_sd) for m in model.measurements
-                             if any(m.residual_sd)}) if any(any(m.residual_sd) for m in model.measurements) else "",
+        "residual_variance_sd": repr({m.name: float(m.residual_variance_sd) for m in model.measurements
+                                      if m.residual_variance_sd > 0}),
         "fault": fault_ctx,
         "fault_dict": repr(_fault_dict(model, d)) if d.parameter else "None",
         "input_exprs": [input_code(i.signal, where) for i in model.inputs],

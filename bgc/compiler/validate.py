@@ -584,7 +584,7 @@ class _Validator:
                 continue
             out.append(Measurement(name, expr, str(text), float(spec.get("noise", default_noise)), spec.get("unit"),
                                    spec.get("description"), self.raw.key_loc(*path),
-                                   (float(spec.get("residual_mean_sd", 0.0)), float(spec.get("residual_variance_sd", 0.0)))))
+                                   float(spec.get("residual_variance_sd", 0.0))))
         return tuple(out)
 
     def faults(self, raw: dict, pnames: set[str], measurements: tuple[Measurement, ...],

@@ -26,7 +26,7 @@ from ..kinds import fault_kind
 from ..model.protocol import Package, nominal_model
 from .. import events as ev
 from .estimate import estimate_of
-from .fit import LEAST, fit, residual_sd, timing_told
+from .fit import LEAST, changed, fit, residual_sd, timing_told
 from .hypothesis import hypothesis_job, log_density, run_job
 from .intermittent import revised
 from .onsets import earlier_onsets, onset_weights
@@ -171,6 +171,8 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
     first = None if quiet else r.detection.onset_step if drifts else min(k for k in (end, onset) if k is not None)
     short = first is not None and first < LEAST
     fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, short, track=track, skip=r.excused)
+    if verdict == "unexplained" and fitted.fits and end < T:
+        fitted, end = unchanged_misfit(r, s, fitted, end, track)
     if fitted.fits and verdict in ("isolated", "ambiguous") and candidates and candidates[0] in by:
         fitted = noise_misfit(fitted, by[candidates[0]], r.outputs, residual_sd(nominal_model(s.package)))
     # an alarm, or a misfit, that the inputs read with the other timing explain (docs/format.md, section 9)
@@ -193,6 +195,36 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
                           *(timing or (None, False, 0.0)))
     s.say("the model does not fit these data" + ("" if not possible else f"; possibly {', '.join(possible)}"))
     return "mismatch", possible, [event], fitted
+
+
+def unchanged_misfit(r: Record, s: Setting, fitted: Fit, end: int,
+                     track: kalman.NominalTrack | None) -> tuple[Fit, int]:
+    """An unexplained alarm that saw no change: the whole record fails the
+    test of the model, and no sensor's residuals differ after the alarm's
+    change point ``end`` from before it beyond chance
+    (:func:`bgc.diagnosis.fit.changed`). A fault is a change; residuals as
+    wide, or as far off, before the change point as after it are a model
+    that does not fit from the start, the stretch before the change point
+    too short to show it (a plant 1.5 times noisier than its model whose
+    variance or pooled test alarmed after 16 to 21 samples). Returns (the
+    whole record's fit, with that said, and its end) then, else (``fitted``,
+    ``end``) as they were."""
+    T = len(r.time)
+    nominal = nominal_model(s.package)
+    if track is None or track.z is None or len(track.z) < T:
+        track = kalman.nominal_track(nominal, r.ys, r.us, T)
+    whole = fit(nominal, r.ys, r.us, r.outputs, T, track=track, skip=r.excused)
+    if whole.fits:
+        return fitted, end
+    z = np.array(track.z, dtype=float)[:T].reshape(T, len(r.outputs))
+    if r.excused is not None:
+        z[r.excused[0]:r.excused[1]] = np.nan
+    if changed(z, end, r.outputs):
+        return fitted, end
+    said = (f"no sensor's residuals changed at the alarm's change point (t = {float(r.time[end]):.6g}) beyond "
+            "chance, as wide and as far off before it as after: the alarm saw the misfit, not a fault that began "
+            "there")
+    return replace(whole, findings=whole.findings + (said,)), T
 
 
 def noise_misfit(fitted: Fit, h: Hypothesis, outputs: tuple[str, ...], spread=None) -> Fit:

@@ -23,7 +23,10 @@ stretch; per sensor read, its normalised residuals, white N(0, 1) draws
 when the model fits, are summed up as ``bgc calibrate`` sums up the
 calibrated model's (:mod:`bgc.filters.residuals`): their mean, against its
 standard error 1 / sqrt(n), and their variance, against sqrt(2 / n), each
-sensor and test at :data:`LEVEL` over all of them (Bonferroni). A
+sensor and test at :data:`LEVEL` over all of them (Bonferroni). On a
+model ``bgc calibrate`` wrote, the variance's standard error adds, in
+quadrature, what the calibration's noise estimates leave on it
+(:func:`residual_sd`: the estimates fitted one recording's noise too). A
 variance above 1 counts when the variance without the sensor's farthest
 reading is above its own expectation too (one glitch of a reading is not
 a model whose noise is too small; :func:`bgc.filters.residuals.failures`).
@@ -75,6 +78,9 @@ from .values import Fit
 LEVEL = 0.001
 #: The samples before a fault's onset below which it cannot be told from a model that does not fit.
 LEAST = 10
+#: The level of the test that the residuals changed at an unexplained alarm's change point (over every
+#: sensor and test): a change shown at it keeps the verdict unexplained (:func:`changed`).
+CHANGE_LEVEL = 0.05
 
 
 def fit(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], end: int, short: bool = False,
@@ -108,13 +114,41 @@ def fit(nominal, ys: np.ndarray, us: np.ndarray, outputs: tuple[str, ...], end: 
                bool(short), tuple(t for _, t in failed))
 
 
-def residual_sd(nominal) -> dict[str, tuple[float, float]]:
-    """Per sensor, the standard deviations a calibration's uncertainty
-    leaves on the normalised residuals' (mean, variance): the generated
-    model's ``RESIDUAL_SD`` (the model file's ``residual_mean_sd`` and
+def changed(z: np.ndarray, end: int, outputs: tuple[str, ...], level: float = CHANGE_LEVEL) -> tuple[str, ...]:
+    """The sensors whose normalised residuals ``z`` (steps x ``outputs``;
+    NaN: not read or left out) changed at step ``end``: the mean after it
+    against the mean before (Welch's statistic, (m2 - m1) / sqrt(v1 / n1 +
+    v2 / n2)) or the variance (the log of their ratio against its standard
+    error sqrt(2 / (n1 - 1) + 2 / (n2 - 1))), each two-sided at ``level``
+    over every sensor and test (Bonferroni). A sensor read fewer than 3
+    times on either side counts as changed: nothing says it did not."""
+    from statistics import NormalDist
+
+    read = [j for j in range(len(outputs)) if np.isfinite(z[:, j]).any()]
+    cut = NormalDist().inv_cdf(1 - level / (2 * 2 * max(len(read), 1)))
+    out = []
+    for j in read:
+        a, b = z[:end, j], z[end:, j]
+        a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+        if len(a) < 3 or len(b) < 3:
+            out.append(outputs[j])
+            continue
+        va, vb = float(a.var(ddof=1)), float(b.var(ddof=1))
+        mean = abs(b.mean() - a.mean()) / np.sqrt(va / len(a) + vb / len(b))
+        spread = abs(np.log(vb / va)) / np.sqrt(2 / (len(a) - 1) + 2 / (len(b) - 1)) if va > 0 and vb > 0 else np.inf
+        if not (mean <= cut and spread <= cut):
+            out.append(outputs[j])
+    return tuple(out)
+
+
+def residual_sd(nominal) -> dict[str, float]:
+    """Per sensor, the standard deviation a calibration's noise estimates
+    leave on the normalised residuals' variance on other data: the
+    generated model's ``RESIDUAL_VARIANCE_SD`` (the model file's
     ``residual_variance_sd``, written by ``bgc calibrate``; a model with
-    modes: its first mode's module's); none for a model nobody calibrated."""
-    return dict(getattr(nominal, "RESIDUAL_SD", None) or {})
+    modes: its first mode's module's; a decomposed plant: its parts'); none
+    for a model nobody calibrated."""
+    return dict(getattr(nominal, "RESIDUAL_VARIANCE_SD", None) or {})
 
 
 def reread(us: np.ndarray, columns: list[int], timing: str) -> np.ndarray:

@@ -138,7 +138,7 @@ def _wider(i: Innovations, cut: float, sd: float = 0.0) -> bool:
 
 
 def failures(summaries: Sequence[Innovations], level: float, correlation: bool = True,
-             narrower: bool = True, spread: Mapping[str, tuple[float, float]] | None = None
+             narrower: bool = True, spread: Mapping[str, float] | None = None
              ) -> tuple[tuple[Innovations, str], ...]:
     """The sensors of ``summaries`` that fail a test at ``level`` over every
     sensor and test (Bonferroni), each with the first test it fails:
@@ -147,21 +147,21 @@ def failures(summaries: Sequence[Innovations], level: float, correlation: bool =
     against its standard error sqrt(2 / n); above 1 only when their
     variance without their farthest reading is too, :func:`_wider`; without
     ``narrower``, only a variance above 1). ``spread``: per sensor, the
-    standard deviations (of the mean, of the variance) that a calibrated
-    model's own uncertainty adds to the sampling errors (the model file's
-    ``residual_mean_sd`` and ``residual_variance_sd``, written by ``bgc
-    calibrate``: its estimates fitted one recording's noise too, and a
-    fresh recording's residuals scatter by both)."""
+    standard deviation a calibrated model's noise estimates add to the
+    variance's sampling error, in quadrature (the model file's
+    ``residual_variance_sd``, written by ``bgc calibrate``: its estimates
+    fitted one recording's noise too, and a fresh recording's residual
+    variance scatters by both)."""
     if not summaries:
         return ()
     alpha = level / ((3 if correlation else 2) * len(summaries))
     cut = NormalDist().inv_cdf(1.0 - alpha / 2)
     out = []
     for i in summaries:
-        m, v = (spread or {}).get(i.sensor, (0.0, 0.0))
+        v = float((spread or {}).get(i.sensor, 0.0))
         if correlation and i.p_value < alpha:
             out.append((i, "correlated"))
-        elif abs(i.mean) * math.sqrt(i.samples / (1 + i.samples * m * m)) > cut:
+        elif abs(i.mean) * math.sqrt(i.samples) > cut:
             out.append((i, "mean"))
         elif _wider(i, cut, v) or (narrower and (1 - i.variance) / math.sqrt(2 / i.samples + v * v) > cut):
             out.append((i, "variance"))

@@ -105,6 +105,9 @@ class Joined:
             outputs += list(m.OUTPUTS)
         self.INPUTS = tuple(inputs)
         self.OUTPUTS = tuple(outputs)
+        # a calibration's allowance on each sensor's residual variance (bgc.diagnosis.fit.residual_sd)
+        self.RESIDUAL_VARIANCE_SD = {y: v for m in models for y, v in
+                                     (getattr(m, "RESIDUAL_VARIANCE_SD", None) or {}).items()}
         if len(set(outputs)) != len(outputs):
             raise ValueError(f"Joined: a sensor of {name} is predicted by two parts")
         if ref is not None:

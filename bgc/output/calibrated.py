@@ -65,12 +65,15 @@ def calibrated_text(text: str, source: str, cal: Calibration, element_levels: di
     data = ", ".join(printable(s) for s in cal.sources)
     when = f" (recorded {', '.join(printable(d) for d in dates)})" if dates else ""
     changes: list[TextChange] = []
-    spread = {s: (m, v) for s, m, v in cal.spread}
+    allowance = dict(cal.spread)
+    measurements = (yaml.safe_load(text) or {}).get("measurements") or {}
     for e in cal.estimates:
         if e.kind == "measurement_noise":
-            changes.append(TextChange(("measurements", e.subject, "noise"), _written(e, e.level),
+            written = _written(e, e.level)
+            if written is not None and measurements.get(e.subject, {}) is None and e.subject in allowance:
+                written += f", residual_variance_sd: {number(allowance[e.subject])}"  # ``e1:`` becomes a mapping
+            changes.append(TextChange(("measurements", e.subject, "noise"), written,
                                    _comment(e, f"noise of sensor {e.subject}", data + when, "std")))
-            changes += _spread_changes(text, e.subject, spread.get(e.subject))
         elif e.kind == "process_noise":
             changes.append(TextChange(("simulation", "process_noise"), _written(e, e.level),
                                    _comment(e, "process noise level", data + when, None)))
@@ -82,27 +85,24 @@ def calibrated_text(text: str, source: str, cal: Calibration, element_levels: di
         elif e.kind == "parameter":
             changes.append(TextChange(("parameters", e.subject), _written(e, e.value),
                                    _comment(e, e.subject, data + when, None)))
+    changes += _allowance_changes(text, cal)
     out = edit_text(text, changes)
     head = f"# {MARK} calibrate from {printable(source)} on {data}\n"
     return head + out
 
 
-def _spread_changes(text: str, sensor: str, spread: tuple[float, float] | None) -> list[TextChange]:
-    """The calibration's allowance on ``sensor``'s residuals (its
-    ``residual_mean_sd`` and ``residual_variance_sd``), written beside its
-    noise; none when the measurement is written without fields (its
-    ``noise`` is then added as its only field)."""
-    if spread is None:
-        return []
-    entry = (yaml.safe_load(text) or {}).get("measurements", {}).get(sensor)
-    if not isinstance(entry, dict):
-        return []
-    m, v = spread
-    said = (f"# bgc calibrate: on other data of this plant, {sensor}'s normalised residuals' mean may lie {m:.3g} "
-            f"and their variance {v:.3g} (one std each) off 0 and 1 by the estimates' own uncertainty; the test of "
-            "the model's fit allows for it")
-    return [TextChange(("measurements", sensor, "residual_mean_sd"), number(m), said),
-            TextChange(("measurements", sensor, "residual_variance_sd"), number(v), "")]
+def _allowance_changes(text: str, cal: Calibration) -> list[TextChange]:
+    """Per sensor of ``cal.spread``, its ``residual_variance_sd``: what
+    the calibration's noise estimates leave on its residuals' variance on
+    other data (:func:`bgc.analysis.calibrate._spread`). A measurement
+    written without fields (``e1:``) gets it with its noise
+    (:func:`calibrated_text`)."""
+    measurements = (yaml.safe_load(text) or {}).get("measurements") or {}
+    return [TextChange(("measurements", sensor, "residual_variance_sd"), number(v),
+                       f"# bgc calibrate: on other data of this plant, {sensor}'s normalised residuals' variance may "
+                       f"lie {v:.3g} (one std) off 1 by the noise estimates' own uncertainty; the test of the model's "
+                       "fit allows for it")
+            for sensor, v in cal.spread if isinstance(measurements.get(sensor), dict)]
 
 
 def _written(e: Estimate, value: float) -> str | None:
@@ -158,7 +158,8 @@ def edit_text(text: str, changes: Sequence[TextChange]) -> str:
     entry ``{key: value}``); each change's comment on a line above it."""
     root = yaml.compose(text, Loader=yaml.SafeLoader)
     shared = _shared(root)
-    spans: list[tuple[int, int, str]] = []  # (start, end, replacement) within one line
+    spans: list[tuple[int, int, int, str]] = []  # (start, end, order, replacement) within one line
+    inserted: set[int] = set()  # the closing braces a key was added before
     above: dict[int, list[str]] = {}  # original line -> comments to put above it
     after: dict[int, list[tuple[str, str]]] = {}  # original line -> new lines (indented text, comment) after it
     for ch in changes:
@@ -183,7 +184,7 @@ def edit_text(text: str, changes: Sequence[TextChange]) -> str:
                                        "would change every value the anchor gives", None,
                                        "write the value in place of the alias, then calibrate")
             if ch.text is not None:
-                spans.append((node.start_mark.index, node.end_mark.index, ch.text))
+                spans.append((node.start_mark.index, node.end_mark.index, len(spans), ch.text))
             continue
         if ch.text is None:  # kept, and not written in the file: the comment at the mapping
             line = (key_node.start_mark.line if key_node is not None else 0)
@@ -195,8 +196,9 @@ def edit_text(text: str, changes: Sequence[TextChange]) -> str:
             end = node.end_mark.index - 1  # the closing brace
             if text[end] != "}":
                 raise InternalError(f"a flow mapping of {'.'.join(ch.path[:depth])} without its closing brace")
-            sep = ", " if node.value else ""
-            spans.append((end, end, sep + entry))
+            bare = text[:end].rstrip().endswith(("{", ",")) and end not in inserted  # {} or {a: 1, }
+            inserted.add(end)
+            spans.append((end, end, len(spans), ("" if bare else ", ") + entry))
             above.setdefault(text.count("\n", 0, end), []).append(ch.comment)
         elif isinstance(node, yaml.MappingNode):  # block: a new line after its last entry
             indent = node.value[0][0].start_mark.column if node.value else 0
@@ -205,11 +207,11 @@ def edit_text(text: str, changes: Sequence[TextChange]) -> str:
             after.setdefault(line, []).append((" " * indent + entry, ch.comment))
         elif isinstance(node, yaml.ScalarNode) and node.tag.endswith(":null") and key_node is not None:
             start = key_node.end_mark.index
-            spans.append((start, max(node.end_mark.index, start + 1), ": {" + entry + "}"))
+            spans.append((start, max(node.end_mark.index, start + 1), len(spans), ": {" + entry + "}"))
             above.setdefault(key_node.start_mark.line, []).append(ch.comment)
         else:
             raise InternalError(f"cannot write {'.'.join(ch.path)} into the model file")
-    for start, end, new in sorted(spans, reverse=True):
+    for start, end, _, new in sorted(spans, reverse=True):  # at one place, the later change first: in order
         if "\n" in text[start:end]:
             raise InternalError("a calibrated value spans lines")
         text = text[:start] + new + text[end:]

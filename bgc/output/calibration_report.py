@@ -39,7 +39,7 @@ def _unit(units: dict[str, str | None], e: Estimate) -> str | None:
 def report_data(r) -> dict[str, Any]:
     """``report.json``: the calibration as data (NaN and infinity as null)."""
     c: Calibration = r.calibration
-    spread = {s: (m, v) for s, m, v in c.spread}
+    spread = dict(c.spread)
     return {
         "model": r.name, "model_file": r.model, "sources": list(c.sources), "samples": c.samples,
         "verdict": c.verdict, "findings": list(c.findings),
@@ -56,8 +56,7 @@ def report_data(r) -> dict[str, Any]:
         "innovations": [{"sensor": i.sensor, "samples": i.samples, "mean": _num(i.mean),
                          "variance": _num(i.variance), "ljung_box": _num(i.ljung_box), "lags": i.lags,
                          "p_value": _num(i.p_value), "variance_but_one": _num(i.variance_but_one),
-                         "residual_mean_sd": _num(spread[i.sensor][0]) if i.sensor in spread else None,
-                         "residual_variance_sd": _num(spread[i.sensor][1]) if i.sensor in spread else None}
+                         "residual_variance_sd": _num(spread[i.sensor]) if i.sensor in spread else None}
                         for i in c.innovations],
     }
 
