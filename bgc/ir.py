@@ -386,7 +386,7 @@ class Measurement:
     unit: str | None
     description: str | None
     loc: SourceLoc
-    #: The standard deviation a calibration's noise estimates leave on the normalised residuals' variance
+    #: The standard deviation a calibration's estimates leave on the normalised residuals' variance
     #: on other data (``residual_variance_sd``, written by ``bgc calibrate``).
     residual_variance_sd: float = 0.0
 

@@ -180,7 +180,7 @@ class Calibration:
     recording, the calibrated model's normalised residuals (steps, sensors
     ``outputs``; NaN: not read), what the innovations sum up, at the
     recording's ``times`` (steps,); ``spread``: per sensor, the standard
-    deviation the noise estimates' uncertainty leaves on a fresh
+    deviation the estimates' uncertainty leaves on a fresh
     recording's residual variance (:func:`_spread`; the model file's
     ``residual_variance_sd``)."""
 
@@ -804,20 +804,23 @@ def calibrated(model: FaultModel, numerics: Numerics, records: Sequence[Record],
 
 def _spread(lik: _Likelihood, z: np.ndarray, cov: np.ndarray, outputs: Sequence[str]) -> dict[str, float]:
     """Per sensor read, the standard deviation of its normalised residuals'
-    variance that the noise estimates' own uncertainty leaves on a fresh
+    variance that the estimates' own uncertainty leaves on a fresh
     recording (the delta method: the variance over the recordings,
-    differentiated by central differences in the noise coordinates of
-    ``z``, the sensors' log levels and the process level's, through their
-    block of ``cov``, the inverse Hessian of the negative log-likelihood).
+    differentiated by central differences in the coordinates of ``z``,
+    through ``cov``, the inverse Hessian of the negative log-likelihood).
     A calibration fits one recording's noise too: the calibrated model
-    predicts a fresh recording's residual variance as 1, off by this. The
-    noise coordinates only: a residual's variance scales with the noise
-    at every sample alike, whatever the recording's length, inputs or
-    start; what a parameter's or an initial state's error moves depends on
-    the stretch of data (a transient diluted over a longer one), and a
-    residual mean's derivative in a noise level is 0 on fresh data."""
-    k = len(lik.sensor_rows) + (1 if lik.process else 0)
-    if not k:
+    predicts a fresh recording's residual variance as 1, off by this. Every
+    estimate the model file keeps: the noise levels, whose errors scale
+    every residual alike, and the parameters, whose errors correlated with
+    them move the variance the other way too (the noise block alone
+    overstates it by up to 1.8 times on the circuit off its model,
+    bench/calibration_spread.py); not the recordings' initial states, which
+    the model file does not keep (their block of ``cov`` marginalised
+    out). No allowance on the residuals' mean: its derivative in a noise
+    level is 0 on fresh data, and what a parameter's error moves depends
+    on the stretch tested (a transient diluted over a longer one)."""
+    k = len(z) - len(lik.initial)
+    if not k or not (lik.sensor_rows or lik.process):
         return {}
     zs = [np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in lik.filters(z)]
     read = [j for j in range(len(outputs)) if any(np.isfinite(r[:, j]).sum() >= 3 for r in zs)]

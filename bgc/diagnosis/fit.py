@@ -25,7 +25,7 @@ calibrated model's (:mod:`bgc.filters.residuals`): their mean, against its
 standard error 1 / sqrt(n), and their variance, against sqrt(2 / n), each
 sensor and test at :data:`LEVEL` over all of them (Bonferroni). On a
 model ``bgc calibrate`` wrote, the variance's standard error adds, in
-quadrature, what the calibration's noise estimates leave on it
+quadrature, what the calibration's estimates leave on it
 (:func:`residual_sd`: the estimates fitted one recording's noise too). A
 variance above 1 counts when the variance without the sensor's farthest
 reading is above its own expectation too (one glitch of a reading is not
@@ -142,7 +142,7 @@ def changed(z: np.ndarray, end: int, outputs: tuple[str, ...], level: float = CH
 
 
 def residual_sd(nominal) -> dict[str, float]:
-    """Per sensor, the standard deviation a calibration's noise estimates
+    """Per sensor, the standard deviation a calibration's estimates
     leave on the normalised residuals' variance on other data: the
     generated model's ``RESIDUAL_VARIANCE_SD`` (the model file's
     ``residual_variance_sd``, written by ``bgc calibrate``; a model with

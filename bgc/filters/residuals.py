@@ -147,7 +147,7 @@ def failures(summaries: Sequence[Innovations], level: float, correlation: bool =
     against its standard error sqrt(2 / n); above 1 only when their
     variance without their farthest reading is too, :func:`_wider`; without
     ``narrower``, only a variance above 1). ``spread``: per sensor, the
-    standard deviation a calibrated model's noise estimates add to the
+    standard deviation a calibrated model's estimates add to the
     variance's sampling error, in quadrature (the model file's
     ``residual_variance_sd``, written by ``bgc calibrate``: its estimates
     fitted one recording's noise too, and a fresh recording's residual

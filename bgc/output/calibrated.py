@@ -93,14 +93,14 @@ def calibrated_text(text: str, source: str, cal: Calibration, element_levels: di
 
 def _allowance_changes(text: str, cal: Calibration) -> list[TextChange]:
     """Per sensor of ``cal.spread``, its ``residual_variance_sd``: what
-    the calibration's noise estimates leave on its residuals' variance on
+    the calibration's estimates leave on its residuals' variance on
     other data (:func:`bgc.analysis.calibrate._spread`). A measurement
     written without fields (``e1:``) gets it with its noise
     (:func:`calibrated_text`)."""
     measurements = (yaml.safe_load(text) or {}).get("measurements") or {}
     return [TextChange(("measurements", sensor, "residual_variance_sd"), number(v),
                        f"# bgc calibrate: on other data of this plant, {sensor}'s normalised residuals' variance may "
-                       f"lie {v:.3g} (one std) off 1 by the noise estimates' own uncertainty; the test of the model's "
+                       f"lie {v:.3g} (one std) off 1 by the estimates' own uncertainty; the test of the model's "
                        "fit allows for it")
             for sensor, v in cal.spread if isinstance(measurements.get(sensor), dict)]
 
