@@ -24,6 +24,7 @@ import pytest
 import yaml
 
 import bgc
+from bgc.errors import CalibrationError
 from bgc.diagnosis.fit import LEVEL, fit, residual_sd
 from bgc.filters.residuals import Innovations, failures, largest_square
 
@@ -62,11 +63,13 @@ def test_an_initial_state_estimated_beside_it_leaves_the_allowance_and_no_noise_
     least-squares one, uncorrelated with the noise's log: the allowance is
     the noise's alone). A calibration of parameters alone leaves the
     noise, and its allowance, as they were: none written."""
-    run, _, report, _ = calibrated
+    _, _, report, _ = calibrated
     session = bgc.open(RC)
     (_, alone), = report.calibration.spread
-    (_, with_start), = session.calibrate(run, "measurement_noise,initial").calibration.spread
-    assert with_start == pytest.approx(alone, rel=0.02)
+    started, _ = rc_run(session, 0.05, T, 4, start=0.8)  # the same noise, from 0.8 where the model says 1.0
+    (_, with_start), = session.calibrate(started, "measurement_noise,initial").calibration.spread
+    assert with_start == pytest.approx(alone, rel=0.05)  # with the start's gradient counted: 0.357 against 0.199
+    run = started
     parameters_only = session.calibrate(run, "R")
     assert parameters_only.calibration.spread == () and "residual_variance_sd" not in parameters_only.text
 
@@ -89,7 +92,7 @@ def test_the_calibrated_file_carries_it_and_a_second_calibration_replaces_it(cal
 
 
 @pytest.mark.parametrize("spelled", ["e1: {noise: 0.02}", "e1: {}", "e1: {noise: 0.02, }", "e1:",
-                                     "e1:\n    noise: 0.02", "e1: {unit: V}"])
+                                     "e1:\n    noise: 0.02", "e1: {unit: V}", "e1: {noise: 0.02,   # c\n    }"])
 def test_written_into_every_spelling_of_a_measurement(calibrated, tmp_path, spelled):
     """The measurement as a flow mapping (empty, or with a trailing comma),
     with no fields, or as a block mapping: the calibrated text reads back
@@ -170,3 +173,15 @@ def test_fresh_data_within_the_allowance_fit_the_calibrated_model(calibrated):
     finally:
         nominal.RESIDUAL_VARIANCE_SD = kept
     assert not plain.fits and plain.failed == ("variance",)
+
+
+def test_a_measurement_given_through_an_alias_is_refused_not_changed_everywhere(calibrated, tmp_path):
+    """``e1: &m {unit: V}`` and another sensor ``f2: *m``: adding the noise
+    and the allowance to the anchor's mapping would change f2 too; the
+    calibration is refused in one line, as a value given through an alias is."""
+    run, _, _, _ = calibrated
+    path = tmp_path / "alias.yaml"
+    path.write_text(RC.read_text(encoding="utf-8").replace("  e1: {noise: 0.02}\n", "  e1: &m {unit: V}\n  f2: *m\n"),
+                    encoding="utf-8")
+    with pytest.raises(CalibrationError, match="alias"):
+        bgc.open(path).calibrate(run, "measurement_noise")

@@ -472,9 +472,13 @@ class Diagnoser:
         """Whether an unexplained verdict (of ``loop``, None: the loop that
         runs now) is to be made again with every fault model: some the
         symbols ruled out were not weighed (step 6b did not run: no
-        hypothesis the symbols kept survived its filters)."""
+        hypothesis the symbols kept survived its filters). A mismatch made
+        of an unexplained alarm that saw no change
+        (:attr:`~bgc.diagnosis.values.Fit.unchanged`) too: a fault model the
+        symbols ruled out may explain the change all the same."""
         loop = self.loop if loop is None else loop
-        if d.verdict != "unexplained" or loop.config.every or loop.isolation is None:
+        unexplained = d.verdict == "unexplained" or (d.verdict == "mismatch" and d.fit is not None and d.fit.unchanged)
+        if not unexplained or loop.config.every or loop.isolation is None:
             return False
         untried = set(loop.isolation.untried(self.config.package)) - {h.name for h in d.hypotheses}  # 6b's weighed
         if untried:

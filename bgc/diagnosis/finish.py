@@ -26,7 +26,7 @@ from ..kinds import fault_kind
 from ..model.protocol import Package, nominal_model
 from .. import events as ev
 from .estimate import estimate_of
-from .fit import LEAST, changed, fit, residual_sd, timing_told
+from .fit import LEAST, changed, fit, misfit_before, residual_sd, timing_told
 from .hypothesis import hypothesis_job, log_density, run_job
 from .intermittent import revised
 from .onsets import earlier_onsets, onset_weights
@@ -200,15 +200,20 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
 def unchanged_misfit(r: Record, s: Setting, fitted: Fit, end: int,
                      track: kalman.NominalTrack | None) -> tuple[Fit, int]:
     """An unexplained alarm that saw no change: the whole record fails the
-    test of the model, and no sensor's residuals differ after the alarm's
+    test of the model, no sensor's residuals differ after the alarm's
     change point ``end`` from before it beyond chance
-    (:func:`bgc.diagnosis.fit.changed`). A fault is a change; residuals as
-    wide, or as far off, before the change point as after it are a model
-    that does not fit from the start, the stretch before the change point
-    too short to show it (a plant 1.5 times noisier than its model whose
-    variance or pooled test alarmed after 16 to 21 samples). Returns (the
-    whole record's fit, with that said, and its end) then, else (``fitted``,
-    ``end``) as they were."""
+    (:func:`bgc.diagnosis.fit.changed`), and the residuals before it are
+    likelier under the distribution of those after it than under the model
+    (:func:`bgc.diagnosis.fit.misfit_before` positive: evidence of no change,
+    not only no evidence of one, which a few samples before the change point
+    cannot give: a fault outside the model from the 15th sample, f6's noise
+    2.5 to 3 times its own added, passes the change test). A fault is a
+    change; residuals as wide, or as far off, before the change point as
+    after it are a model that does not fit from the start, the stretch
+    before the change point too short to show it (a plant 1.5 times noisier
+    than its model whose pooled test alarmed after 16 samples). Returns (the
+    whole record's fit, with that said and ``unchanged`` set, and its end)
+    then, else (``fitted``, ``end``) as they were."""
     T = len(r.time)
     nominal = nominal_model(s.package)
     if track is None or track.z is None or len(track.z) < T:
@@ -219,12 +224,12 @@ def unchanged_misfit(r: Record, s: Setting, fitted: Fit, end: int,
     z = np.array(track.z, dtype=float)[:T].reshape(T, len(r.outputs))
     if r.excused is not None:
         z[r.excused[0]:r.excused[1]] = np.nan
-    if changed(z, end, r.outputs):
+    if changed(z, end, r.outputs) or not misfit_before(z, end) > 0:
         return fitted, end
     said = (f"no sensor's residuals changed at the alarm's change point (t = {float(r.time[end]):.6g}) beyond "
             "chance, as wide and as far off before it as after: the alarm saw the misfit, not a fault that began "
             "there")
-    return replace(whole, findings=whole.findings + (said,)), T
+    return replace(whole, findings=whole.findings + (said,), unchanged=True), T
 
 
 def noise_misfit(fitted: Fit, h: Hypothesis, outputs: tuple[str, ...], spread=None) -> Fit:

@@ -141,6 +141,28 @@ def changed(z: np.ndarray, end: int, outputs: tuple[str, ...], level: float = CH
     return tuple(out)
 
 
+def misfit_before(z: np.ndarray, end: int) -> float:
+    """The log of how much likelier the normalised residuals ``z`` (steps
+    x sensors; NaN: not read or left out) before step ``end`` are under the
+    distribution of those after it (per sensor, the normal of their mean
+    and variance) than under the model's N(0, 1), summed over the sensors
+    read on both sides: positive when the data before the change point
+    look like the data after it (a misfit throughout), negative when they
+    look like the model (a change at the change point that
+    :func:`changed`, with few samples before it, may be too weak to show)."""
+    total = 0.0
+    for j in range(z.shape[1]):
+        a, b = z[:end, j], z[end:, j]
+        a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+        if len(a) < 1 or len(b) < 3:
+            continue
+        m, v = float(b.mean()), float(b.var())
+        if not v > 0:
+            return -np.inf
+        total += float(np.sum(-0.5 * np.log(v) - 0.5 * (a - m) ** 2 / v + 0.5 * a ** 2))
+    return total
+
+
 def residual_sd(nominal) -> dict[str, float]:
     """Per sensor, the standard deviation a calibration's estimates
     leave on the normalised residuals' variance on other data: the

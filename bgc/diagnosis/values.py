@@ -161,7 +161,10 @@ class Fit:
     name); ``findings``, a sentence per sensor that fails at ``level``
     (:func:`bgc.filters.residuals.findings`), and the test each failed
     (``failed``: ``mean`` or ``variance``); ``short``: fewer than ``least``
-    samples before an alarm's onset, too few to tell. ``fits``: neither."""
+    samples before an alarm's onset, too few to tell. ``fits``: neither.
+    ``unchanged``: an unexplained alarm's whole record, tested because its
+    residuals showed no change at the change point
+    (:func:`bgc.diagnosis.finish.unchanged_misfit`)."""
 
     end: int
     least: int
@@ -171,6 +174,7 @@ class Fit:
     findings: tuple[str, ...]
     short: bool
     failed: tuple[str, ...] = ()
+    unchanged: bool = False
 
     @property
     def fits(self) -> bool:

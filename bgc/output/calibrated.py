@@ -124,6 +124,18 @@ def _comment(e: Estimate, what: str, data: str, std: str | None) -> str:
             f"from {data} (was {e.start_level:.6g}){bound}")
 
 
+def _last_token(text: str, end: int) -> str:
+    """The last character of YAML before index ``end`` that is neither
+    blank nor in a comment (a flow mapping may span lines, a comment after
+    its trailing comma)."""
+    for line in reversed(text[:end].split("\n")):
+        cut = next((i for i, c in enumerate(line) if c == "#" and (i == 0 or line[i - 1] in " \t")), len(line))
+        kept = line[:cut].rstrip()
+        if kept:
+            return kept[-1]
+    return ""
+
+
 def _entry(node: yaml.Node | None, key: str) -> tuple[yaml.Node, yaml.Node] | None:
     """The (key, value) nodes of ``key`` in a mapping node."""
     if not isinstance(node, yaml.MappingNode):
@@ -190,13 +202,17 @@ def edit_text(text: str, changes: Sequence[TextChange]) -> str:
             line = (key_node.start_mark.line if key_node is not None else 0)
             above.setdefault(line, []).append(ch.comment)
             continue
+        if id(node) in shared:  # a key added to a mapping an alias gives elsewhere would change it there too
+            raise CalibrationError(f"{'.'.join(ch.path[:depth])} is written through a YAML alias (*name): adding "
+                                   f"{ch.path[depth]} to it would change every place the anchor gives", None,
+                                   "write the mapping in place of the alias, then calibrate")
         missing = ch.path[depth:]  # the keys to add: the first in this mapping, the others nested in flow style
         entry = f"{missing[0]}: " + "".join(f"{{{k}: " for k in missing[1:]) + ch.text + "}" * (len(missing) - 1)
         if isinstance(node, yaml.MappingNode) and node.flow_style:
             end = node.end_mark.index - 1  # the closing brace
             if text[end] != "}":
                 raise InternalError(f"a flow mapping of {'.'.join(ch.path[:depth])} without its closing brace")
-            bare = text[:end].rstrip().endswith(("{", ",")) and end not in inserted  # {} or {a: 1, }
+            bare = _last_token(text, end) in ("{", ",") and end not in inserted  # {} or {a: 1, }
             inserted.add(end)
             spans.append((end, end, len(spans), ("" if bare else ", ") + entry))
             above.setdefault(text.count("\n", 0, end), []).append(ch.comment)
