@@ -791,18 +791,25 @@ def calibrated(model: FaultModel, numerics: Numerics, records: Sequence[Record],
     estimates += _start_estimates(lik, starts, held, z, z0, z_low, z_high, k)
     corr = cov / np.outer(sd, sd) if len(z) else cov
     filters = lik.filters(z)
-    spread = _spread(lik, z, cov, outputs)
+    zs = _normalised(filters, len(outputs))
+    spread = _spread(lik, z, cov, outputs, zs)
     return (Calibration(tuple(estimates), float(best), float(start_loglik), tuple(names),
                        tuple(tuple(float(c) for c in row) for row in corr), innovations(filters, outputs),
                        _sources(records), sum(int(np.isfinite(r.ys).any(axis=1).sum()) for r in records),
                        converged, message, evaluations, time.perf_counter() - start_time, tuple(outputs),
-                       tuple(np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in filters),
+                       tuple(zs),
                        tuple(np.asarray(r.ts if r.ts is not None else np.arange(len(r.ys)), dtype=float)
                              for r in records), tuple((s, spread[s]) for s in outputs if s in spread)),
             lik.module(z), lik.starts(z))
 
 
-def _spread(lik: _Likelihood, z: np.ndarray, cov: np.ndarray, outputs: Sequence[str]) -> dict[str, float]:
+def _normalised(filters: Sequence[NominalKalman], sensors: int) -> list[np.ndarray]:
+    """Per recording, the normalised residuals of its nominal filter (steps x ``sensors``; NaN: not read)."""
+    return [np.array(kf.z, dtype=float).reshape(len(kf.z), sensors) for kf in filters]
+
+
+def _spread(lik: _Likelihood, z: np.ndarray, cov: np.ndarray, outputs: Sequence[str],
+            zs: Sequence[np.ndarray]) -> dict[str, float]:
     """Per sensor read, the standard deviation of its normalised residuals'
     variance that the estimates' own uncertainty leaves on a fresh
     recording (the delta method: the variance over the recordings,
@@ -818,17 +825,16 @@ def _spread(lik: _Likelihood, z: np.ndarray, cov: np.ndarray, outputs: Sequence[
     the model file does not keep (their block of ``cov`` marginalised
     out). No allowance on the residuals' mean: its derivative in a noise
     level is 0 on fresh data, and what a parameter's error moves depends
-    on the stretch tested (a transient diluted over a longer one)."""
+    on the stretch tested (a transient diluted over a longer one). ``zs``:
+    the residuals at ``z`` (:func:`_normalised`), which say the sensors read."""
     k = len(z) - len(lik.initial)
     if not k or not (lik.sensor_rows or lik.process):
         return {}
-    zs = [np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs)) for kf in lik.filters(z)]
     read = [j for j in range(len(outputs)) if any(np.isfinite(r[:, j]).sum() >= 3 for r in zs)]
 
     def variances(point: np.ndarray) -> np.ndarray:
         with np.errstate(all="ignore"):
-            rs = np.concatenate([np.array(kf.z, dtype=float).reshape(len(kf.z), len(outputs))
-                                 for kf in lik.filters(point)])
+            rs = np.concatenate(_normalised(lik.filters(point), len(outputs)))
         return np.array([np.var(rs[np.isfinite(rs[:, j]), j]) for j in read])
 
     h = _steps(z)

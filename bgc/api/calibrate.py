@@ -76,9 +76,9 @@ def _check_calibrated(text: str, result: calibration.Calibration, c) -> None:
         if got != want:
             raise InternalError(f"the calibrated model reads {e.name} as {got!r}, not {want!r}")
     allowed = {m.name: m.residual_variance_sd for m in model.measurements}
-    for s, v in result.spread:  # written beside a sensor's noise, unless the measurement has no fields
-        if allowed.get(s, 0.0) not in (0.0, float(number(v))):
-            raise InternalError(f"the calibrated model reads {s}'s residual_variance_sd as {allowed[s]!r}, "
+    for s, v in result.spread:
+        if allowed.get(s) != float(number(v)):
+            raise InternalError(f"the calibrated model reads {s}'s residual_variance_sd as {allowed.get(s)!r}, "
                                 f"not {float(number(v))!r}")
 
 

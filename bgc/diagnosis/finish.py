@@ -170,14 +170,15 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
     # (an unexplained verdict's closest onset too: the change it hints at may have begun there)
     first = None if quiet else r.detection.onset_step if drifts else min(k for k in (end, onset) if k is not None)
     short = first is not None and first < LEAST
-    fitted = fit(nominal_model(s.package), r.ys, r.us, r.outputs, end, short, track=track, skip=r.excused)
+    nominal = nominal_model(s.package)
+    fitted = fit(nominal, r.ys, r.us, r.outputs, end, short, track=track, skip=r.excused)
     if verdict == "unexplained" and fitted.fits and end < T:
-        fitted, end = unchanged_misfit(r, s, fitted, end, track)
+        fitted, end = unchanged_misfit(r, nominal, fitted, end, track)
     if fitted.fits and verdict in ("isolated", "ambiguous") and candidates and candidates[0] in by:
-        fitted = noise_misfit(fitted, by[candidates[0]], r.outputs, residual_sd(nominal_model(s.package)))
+        fitted = noise_misfit(fitted, by[candidates[0]], r.outputs, residual_sd(nominal))
     # an alarm, or a misfit, that the inputs read with the other timing explain (docs/format.md, section 9)
     timing = None if r.data is None or (fitted.fits and r.detection is None) else timing_told(
-        nominal_model(s.package), r.ys, r.us, r.outputs,
+        nominal, r.ys, r.us, r.outputs,
         [j for j, (_, where) in enumerate(r.data.inputs) if where == "data"], r.data.timing,
         factor=s.options.bayes_factor, track=track)
     if timing is not None and not timing[1] and fitted.fits:
@@ -197,7 +198,7 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
     return "mismatch", possible, [event], fitted
 
 
-def unchanged_misfit(r: Record, s: Setting, fitted: Fit, end: int,
+def unchanged_misfit(r: Record, nominal, fitted: Fit, end: int,
                      track: kalman.NominalTrack | None) -> tuple[Fit, int]:
     """An unexplained alarm that saw no change: the whole record fails the
     test of the model, no sensor's residuals differ after the alarm's
@@ -213,9 +214,9 @@ def unchanged_misfit(r: Record, s: Setting, fitted: Fit, end: int,
     before the change point too short to show it (a plant 1.5 times noisier
     than its model whose pooled test alarmed after 16 samples). Returns (the
     whole record's fit, with that said and ``unchanged`` set, and its end)
-    then, else (``fitted``, ``end``) as they were."""
+    then, else (``fitted``, ``end``) as they were. ``nominal``: the
+    generated nominal model."""
     T = len(r.time)
-    nominal = nominal_model(s.package)
     if track is None or track.z is None or len(track.z) < T:
         track = kalman.nominal_track(nominal, r.ys, r.us, T)
     whole = fit(nominal, r.ys, r.us, r.outputs, T, track=track, skip=r.excused)

@@ -68,6 +68,8 @@ mean and variance tests at this level fail on 3 of 360 runs, all on a mean
 
 from __future__ import annotations
 
+from statistics import NormalDist
+
 import numpy as np
 
 from ..filters.cubature import nominal_track
@@ -122,14 +124,11 @@ def changed(z: np.ndarray, end: int, outputs: tuple[str, ...], level: float = CH
     error sqrt(2 / (n1 - 1) + 2 / (n2 - 1))), each two-sided at ``level``
     over every sensor and test (Bonferroni). A sensor read fewer than 3
     times on either side counts as changed: nothing says it did not."""
-    from statistics import NormalDist
-
     read = [j for j in range(len(outputs)) if np.isfinite(z[:, j]).any()]
     cut = NormalDist().inv_cdf(1 - level / (2 * 2 * max(len(read), 1)))
     out = []
     for j in read:
-        a, b = z[:end, j], z[end:, j]
-        a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+        a, b = _sides(z, end, j)
         if len(a) < 3 or len(b) < 3:
             out.append(outputs[j])
             continue
@@ -139,6 +138,12 @@ def changed(z: np.ndarray, end: int, outputs: tuple[str, ...], level: float = CH
         if not (mean <= cut and spread <= cut):
             out.append(outputs[j])
     return tuple(out)
+
+
+def _sides(z: np.ndarray, end: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sensor ``j``'s residuals read (finite) before step ``end`` and from it on."""
+    a, b = z[:end, j], z[end:, j]
+    return a[np.isfinite(a)], b[np.isfinite(b)]
 
 
 def misfit_before(z: np.ndarray, end: int) -> float:
@@ -152,8 +157,7 @@ def misfit_before(z: np.ndarray, end: int) -> float:
     :func:`changed`, with few samples before it, may be too weak to show)."""
     total = 0.0
     for j in range(z.shape[1]):
-        a, b = z[:end, j], z[end:, j]
-        a, b = a[np.isfinite(a)], b[np.isfinite(b)]
+        a, b = _sides(z, end, j)
         if len(a) < 1 or len(b) < 3:
             continue
         m, v = float(b.mean()), float(b.var())

@@ -13,7 +13,10 @@ estimates go"):
   its own ``noise`` gets it scaled by the same ratio (the model's shape of
   the process noise is kept, as :meth:`bgc.ir.Numerics.noise_at` scales it);
 * a parameter: its value under ``parameters`` (``R1: 2.0`` or ``R1: {value:
-  2.0, ...}``).
+  2.0, ...}``);
+* what the estimates' uncertainty leaves on a sensor's residual variance:
+  the measurement's ``residual_variance_sd`` (a measurement written without
+  fields, ``e1:``, becomes one mapping of it and its noise).
 
 Each changed value gets a comment line above its line: the estimate, its
 95 % interval, the data it came from (and the date the data's header gives,
@@ -65,14 +68,9 @@ def calibrated_text(text: str, source: str, cal: Calibration, element_levels: di
     data = ", ".join(printable(s) for s in cal.sources)
     when = f" (recorded {', '.join(printable(d) for d in dates)})" if dates else ""
     changes: list[TextChange] = []
-    allowance = dict(cal.spread)
-    measurements = (yaml.safe_load(text) or {}).get("measurements") or {}
     for e in cal.estimates:
         if e.kind == "measurement_noise":
-            written = _written(e, e.level)
-            if written is not None and measurements.get(e.subject, {}) is None and e.subject in allowance:
-                written += f", residual_variance_sd: {number(allowance[e.subject])}"  # ``e1:`` becomes a mapping
-            changes.append(TextChange(("measurements", e.subject, "noise"), written,
+            changes.append(TextChange(("measurements", e.subject, "noise"), _written(e, e.level),
                                    _comment(e, f"noise of sensor {e.subject}", data + when, "std")))
         elif e.kind == "process_noise":
             changes.append(TextChange(("simulation", "process_noise"), _written(e, e.level),
@@ -85,24 +83,14 @@ def calibrated_text(text: str, source: str, cal: Calibration, element_levels: di
         elif e.kind == "parameter":
             changes.append(TextChange(("parameters", e.subject), _written(e, e.value),
                                    _comment(e, e.subject, data + when, None)))
-    changes += _allowance_changes(text, cal)
+    changes += [TextChange(("measurements", sensor, "residual_variance_sd"), number(v),
+                           f"# bgc calibrate: on other data of this plant, {sensor}'s normalised residuals' variance "
+                           f"may lie {v:.3g} (one std) off 1 by the estimates' own uncertainty; the test of the "
+                           "model's fit allows for it")
+                for sensor, v in cal.spread]  # bgc.analysis.calibrate._spread
     out = edit_text(text, changes)
     head = f"# {MARK} calibrate from {printable(source)} on {data}\n"
     return head + out
-
-
-def _allowance_changes(text: str, cal: Calibration) -> list[TextChange]:
-    """Per sensor of ``cal.spread``, its ``residual_variance_sd``: what
-    the calibration's estimates leave on its residuals' variance on
-    other data (:func:`bgc.analysis.calibrate._spread`). A measurement
-    written without fields (``e1:``) gets it with its noise
-    (:func:`calibrated_text`)."""
-    measurements = (yaml.safe_load(text) or {}).get("measurements") or {}
-    return [TextChange(("measurements", sensor, "residual_variance_sd"), number(v),
-                       f"# bgc calibrate: on other data of this plant, {sensor}'s normalised residuals' variance may "
-                       f"lie {v:.3g} (one std) off 1 by the estimates' own uncertainty; the test of the model's "
-                       "fit allows for it")
-            for sensor, v in cal.spread if isinstance(measurements.get(sensor), dict)]
 
 
 def _written(e: Estimate, value: float) -> str | None:
@@ -172,6 +160,7 @@ def edit_text(text: str, changes: Sequence[TextChange]) -> str:
     shared = _shared(root)
     spans: list[tuple[int, int, int, str]] = []  # (start, end, order, replacement) within one line
     inserted: set[int] = set()  # the closing braces a key was added before
+    opened: dict[int, int] = {}  # an empty entry (``e1:``) made a mapping -> its span's index
     above: dict[int, list[str]] = {}  # original line -> comments to put above it
     after: dict[int, list[tuple[str, str]]] = {}  # original line -> new lines (indented text, comment) after it
     for ch in changes:
@@ -222,8 +211,13 @@ def edit_text(text: str, changes: Sequence[TextChange]) -> str:
             line = last.line - 1 if last.column == 0 else last.line
             after.setdefault(line, []).append((" " * indent + entry, ch.comment))
         elif isinstance(node, yaml.ScalarNode) and node.tag.endswith(":null") and key_node is not None:
-            start = key_node.end_mark.index
-            spans.append((start, max(node.end_mark.index, start + 1), len(spans), ": {" + entry + "}"))
+            if id(node) in opened:  # another key into the same empty entry: one mapping of them all
+                start, stop, order, new = spans[opened[id(node)]]
+                spans[opened[id(node)]] = (start, stop, order, new[:-1] + ", " + entry + "}")
+            else:
+                opened[id(node)] = len(spans)
+                start = key_node.end_mark.index
+                spans.append((start, max(node.end_mark.index, start + 1), len(spans), ": {" + entry + "}"))
             above.setdefault(key_node.start_mark.line, []).append(ch.comment)
         else:
             raise InternalError(f"cannot write {'.'.join(ch.path)} into the model file")
