@@ -20,6 +20,8 @@ from scipy.stats import norm
 
 import bgc
 from bgc.diagnosis import state as states
+from bgc.diagnosis.diagnoser import Diagnoser
+from bgc.filters.cubature import CubatureKalmanFilter
 from bgc.diagnosis.detect import (DRIFT_MEANS, DRIFT_RAMPS, POOLED_WINDOWS, TESTS, VARIANCE_WINDOWS, Detector,
                                   DetectorOptions, Families)
 
@@ -76,6 +78,71 @@ def test_a_ramp_is_found_by_the_drift_test_at_its_closed_form_and_dated_at_its_s
     if shape == "ramp":
         # the template of the ramp from its first step fits it exactly: by Cauchy-Schwarz no other start scores as much
         assert alarm.onset_step == start
+
+
+def test_the_drift_family_tests_an_exact_observers_residuals_with_no_allowance():
+    """Given ``exact`` (a Kalman observer's residuals beside a particle
+    one), the drift family's statistics are those of ``exact`` with no Monte
+    Carlo allowance however large the particle filter's shares, and the
+    other families still take ``z`` and its shares: the same ramp fed as
+    ``z`` with shares of 0.3 alarms later than the ramp fed as ``exact``, or not at all."""
+    steps, start, slope = 300, 40, 0.006
+    ramp = np.where(np.arange(steps) >= start, slope * (np.arange(steps) - start + 1), 0.0)
+    noise = np.random.default_rng(5).standard_normal(steps) * 0.1
+    options = DetectorOptions(0.01, (1, 8, 32), steps, ("mean", "drift"))
+    c_drift = options.drift_threshold(1)
+    expected = next(k for k in range(steps) if max(_ramp_stats(ramp, k).values(), default=0.0) > c_drift)
+    given, shared = Detector(("y",), options), Detector(("y",), options)
+    alarms = {}
+    for i in range(steps):
+        for name, d, z, exact in (("given", given, noise[i], ramp[i]), ("shared", shared, ramp[i], None)):
+            if name not in alarms:
+                alarm = d.update([z], [0.3], exact=None if exact is None else [exact])
+                if alarm is not None:
+                    alarms[name] = alarm
+    alarm = alarms["given"]
+    stats = _ramp_stats(ramp, expected)
+    assert (alarm.step, alarm.test) == (expected, "drift")
+    assert alarm.statistic == pytest.approx(max(stats.values()), rel=1e-9)
+    assert alarm.onset_step == start
+    # with the shares' allowance, fully correlated over the window, the same ramp alarms later or not at all
+    assert "shared" not in alarms or alarms["shared"].step > expected
+
+
+def test_a_particle_observer_runs_the_drift_familys_kalman_observer_beside_it():
+    """Beside a particle observer (and only with the drift family), the loop
+    runs the nominal model's cubature Kalman filter, whose residuals the
+    drift family takes; its state goes with the diagnoser's (the round trip
+    of tests/test_state.py) and a state without it is refused."""
+    from conftest import MODELS, fast_session
+
+    session = fast_session("two_tank")
+    sim = bgc.simulate(session, "R12:abrupt:0.8@60", seed=3)
+    rows = [(float(t), {n: v[k] for n, v in sim.inputs.items()}, {n: v[k] for n, v in sim.measurements.items()})
+            for k, t in enumerate(sim.time)]
+    options = bgc.DiagnosisOptions(workers=1, particles=100, seed=4, detectors=("mean", "drift"))
+    whole = session.diagnoser(options)
+    assert whole.loop.companion is not None
+    assert session.diagnoser(bgc.DiagnosisOptions(workers=1, particles=100)).loop.companion is None
+    assert session.diagnoser(bgc.DiagnosisOptions(workers=1, filter="ckf", detectors=("mean", "drift"))
+                             ).loop.companion is None  # the observer is a Kalman filter already
+    cut = 50
+    for row in rows[:cut]:
+        whole.step(*row)
+    kf = CubatureKalmanFilter(session.package.MODELS["nominal"])
+    for t, u, y in rows[:cut]:  # the companion is the nominal Kalman filter from the model's prior
+        kf.step(np.array([y[n] for n in whole.nominal.OUTPUTS]), np.array([u[n] for n in whole.nominal.INPUTS]))
+    np.testing.assert_allclose(whole.loop.companion.mean, kf.mean, rtol=1e-12, atol=1e-12)
+    state = states.DiagnoserState.from_bytes(whole.to_state().to_bytes())
+    resumed = Diagnoser.from_state(whole.config, state)
+    np.testing.assert_array_equal(resumed.loop.companion.cov, whole.loop.companion.cov)
+    later = [(whole.step(*row).alarm, resumed.step(*row).alarm) for row in rows[cut:]]
+    assert all(a == b for a, b in later) and any(a is not None for a, _ in later)
+    import dataclasses
+
+    loop = dataclasses.replace(state.loop, companion=None)
+    with pytest.raises(bgc.Error, match="drift family's Kalman observer missing"):
+        Diagnoser.from_state(whole.config, dataclasses.replace(state, loop=loop))
 
 
 def test_the_mean_test_alone_is_unchanged_and_the_bank_shares_its_budget():
@@ -660,9 +727,9 @@ def test_a_model_with_modes_gets_the_correlation_of_the_mode_its_cloud_agrees_on
     seen = []
     original = detect.Detector.update
 
-    def spy(self, z, mc=None, y=None, spread=None, corr=None):
+    def spy(self, z, mc=None, y=None, spread=None, corr=None, exact=None):
         seen.append((np.array(z, dtype=float), corr))
-        return original(self, z, mc, y, spread, corr)
+        return original(self, z, mc, y, spread, corr, exact)
 
     monkeypatch.setattr(detect.Detector, "update", spy)
     from conftest import MODELS
@@ -685,3 +752,5 @@ def test_a_model_with_modes_gets_the_correlation_of_the_mode_its_cloud_agrees_on
     cov = np.cov(np.array(white).T)
     assert np.abs(np.diagonal(cov) - 1.0).max() < 0.1, cov
     assert np.abs(cov[~np.eye(len(cov), dtype=bool)]).max() < 0.1, cov
+    # the drift family's Kalman observer does not follow a mode: a model with modes has none
+    assert s.diagnoser(bgc.DiagnosisOptions(detectors=("mean", "drift"), particles=100)).loop.companion is None

@@ -82,6 +82,16 @@ probability per horizon stays at most ``alpha``:
   N(0, 1) without a fault, with the Monte Carlo allowance of the mean test
   in the ramp's weights. At an alarm, the onset is the change point of a
   ramp (of a mean shift for a long mean) over the longest window.
+  The allowance takes a particle filter's prediction errors as fully
+  correlated over the window, which a long window pays dearly for: at
+  ``a = 0.07`` (1000 particles) a 256-sample ramp's ``(sum_i i a)^2`` is
+  5.9e6 against its ``sum_i i^2`` of 5.6e6, the statistic's std 1.43 times
+  the innovations'. So beside a particle observer the diagnoser runs the
+  nominal model's cubature Kalman filter, which has no Monte Carlo error,
+  and the drift family tests its normalised residuals instead
+  (:meth:`Detector.update`'s ``exact``), with no allowance; not for a
+  model with modes (a Kalman filter does not follow a hidden mode), whose
+  drift family tests the particle observer's as above.
 * ``variance``: a burst of noise raises the residuals' variance, a frozen
   sensor lowers it (the filter follows the stuck reading and the residual
   keeps only what the prediction wanders). Over ``W`` samples (``W`` in
@@ -299,7 +309,7 @@ class Detector:
         if self.more is not None:
             self.more = Families(self.sensors, self.options, self._noise)
 
-    def update(self, z, mc=None, y=None, spread=None, corr=None) -> Detection | None:
+    def update(self, z, mc=None, y=None, spread=None, corr=None, exact=None) -> Detection | None:
         """Take the normalised residuals of one step (NaN: sensor not read)
         and, from a particle filter, the Monte Carlo std of its prediction in
         units of its predicted std (:func:`monte_carlo_share`; none: an exact
@@ -309,13 +319,16 @@ class Detector:
         residual in units of that noise, ``z * spread``; none: 1) and
         ``corr``, the correlation matrix of the step's residuals as the
         observer predicts them (the pooled test's; none: no pooled test over
-        a window holding this step); return the alarm when this step raises
-        one. ``z``, ``mc``, ``y``, ``spread``: arrays or sequences of floats,
-        one per sensor; ``corr``: sensors x sensors."""
+        a window holding this step) and ``exact``, the normalised residuals
+        of an observer with no Monte Carlo error beside a particle one (the
+        drift family's, tested with no allowance; none: ``z`` with ``mc``'s);
+        return the alarm when this step raises one. ``z``, ``mc``, ``y``,
+        ``spread``, ``exact``: arrays or sequences of floats, one per sensor;
+        ``corr``: sensors x sensors."""
         alarm = self._mean(z, mc)
         if self.more is None:
             return alarm
-        found = self.more.update(z, mc, y, spread, corr)
+        found = self.more.update(z, mc, y, spread, corr, exact)
         if alarm is not None:
             found.insert(0, (alarm, _normal_excess(alarm.statistic, alarm.threshold)))
         if not found:
@@ -484,10 +497,12 @@ class Families:
         longest = max(((*DRIFT_RAMPS, *DRIFT_MEANS) if self.drift else ())
                       + (VARIANCE_WINDOWS if self.variance else ()) + (POOLED_WINDOWS if self.pooled else ()) + (1,))
         zero = (0.0,) * n
-        # running sums (the newest last) of z, of those sums, of a_k and of theirs, of z^2, of the readings taken,
-        # and of the residual in units of the sensor's own noise, e = (y - mean) / r, and of e^2 (the lower tail's)
-        self._c, self._cc, self._a, self._aa, self._sq, self._n, self._e, self._ee = (
-            deque([zero, zero], maxlen=longest + 2) for _ in range(8))
+        # running sums (the newest last) of z, of a_k, of z^2, of the readings taken, of the residual in units of
+        # the sensor's own noise, e = (y - mean) / r, and of e^2 (the lower tail's); and the drift family's: of
+        # its residuals (z, or an exact observer's: ``update``'s ``exact``), of those sums, of their Monte Carlo
+        # shares (none for an exact observer's) and of theirs
+        self._c, self._a, self._sq, self._n, self._e, self._ee, self._g, self._gg, self._b, self._bb = (
+            deque([zero, zero], maxlen=longest + 2) for _ in range(10))
         # the pooled test's running sums, one array per step: of z, of a_k, of the predicted correlation
         # matrices (flattened, row by row; a sensor not read: its row and column 0; a step whose correlation
         # was not given: 0) and, last, of the steps whose correlation was not given
@@ -537,7 +552,7 @@ class Families:
     # -- the state as plain data ---------------------------------------------------------------------------
 
     def _rings(self) -> tuple:
-        return self._c, self._cc, self._a, self._aa, self._sq, self._n, self._e, self._ee
+        return self._c, self._a, self._sq, self._n, self._e, self._ee, self._g, self._gg, self._b, self._bb
 
     def state(self) -> tuple:
         """Everything :meth:`update` carries from step to step, as plain tuples, lists and dicts."""
@@ -564,7 +579,7 @@ class Families:
 
     # -- one step --------------------------------------------------------------------------------------------
 
-    def update(self, z, mc=None, y=None, spread=None, corr=None) -> list[tuple[Detection, float]]:
+    def update(self, z, mc=None, y=None, spread=None, corr=None, exact=None) -> list[tuple[Detection, float]]:
         """Take one step (:meth:`Detector.update`'s arguments); the alarms it
         raises (steps counted by the caller), each with its excess."""
         row = z.tolist() if isinstance(z, np.ndarray) else [float(v) for v in z]
@@ -578,8 +593,16 @@ class Families:
             a_now = tuple(a + (b if isfinite(b) else 0.0) for a, b in zip(self._a[-1], a_row))
         self._a.append(a_now)
         if self.drift:  # the rings only a family that is on reads
-            self._cc.append(tuple(a + b for a, b in zip(self._cc[-1], c_now)))
-            self._aa.append(tuple(a + b for a, b in zip(self._aa[-1], a_now)))
+            if exact is None:
+                g_now, b_now = c_now, a_now
+            else:  # an exact observer's residuals: no Monte Carlo share
+                other = exact.tolist() if isinstance(exact, np.ndarray) else [float(v) for v in exact]
+                g_now = tuple(a + (b if isfinite(b) else 0.0) for a, b in zip(self._g[-1], other))
+                b_now = self._b[-1]
+            self._g.append(g_now)
+            self._b.append(b_now)
+            self._gg.append(tuple(a + b for a, b in zip(self._gg[-1], g_now)))
+            self._bb.append(tuple(a + b for a, b in zip(self._bb[-1], b_now)))
         if self.variance:
             if spread is None:
                 es = zs
@@ -638,7 +661,7 @@ class Families:
             self._last[j] = v
 
     def _drift(self) -> list[tuple[Detection, float]]:
-        c, cc, a, aa, threshold = self._c, self._cc, self._a, self._aa, self.drift_threshold
+        c, cc, a, aa, threshold = self._g, self._gg, self._b, self._bb, self.drift_threshold
         best, at = -1.0, None
         for w in DRIFT_RAMPS:  # sum_i i z_(k-w+i), i = 1..w: w C_k - (D_k-1 - D_k-1-w)
             if w > self.taken:
@@ -661,7 +684,7 @@ class Families:
         if at is None or not best > threshold:
             return []
         w, j, shape = at
-        onset = self._ramp_onset() if shape == "ramp" else self._mean_onset(max(DRIFT_MEANS))
+        onset = self._ramp_onset() if shape == "ramp" else self._mean_onset(self._g, max(DRIFT_MEANS))
         return [(Detection(0, self.sensors[j], w, best, threshold, onset, "drift"), _normal_excess(best, threshold))]
 
     def _variances(self, readings: list[float] | None) -> list[tuple[Detection, float]]:
@@ -823,15 +846,15 @@ class Families:
         array = np.array(rows)
         return array, self.taken - len(array)
 
-    def _mean_onset(self, longest: int) -> int:
-        cumsum, first = self._local(self._c)
+    def _mean_onset(self, sums: deque, longest: int) -> int:
+        cumsum, first = self._local(sums)
         return max(first + 1 + change_point(cumsum, len(cumsum) - 2, min(longest, self.taken)), 0)
 
     def _ramp_onset(self) -> int:
         """The GLR change point of a ramp from an unknown step, every sensor's
         residuals: argmax_t sum_j R_j(t)^2 / sum_i i^2, R_j(t) = sum_i i z_(t-1+i)."""
-        c, _ = self._local(self._c)
-        cc, _ = self._local(self._cc)
+        c, _ = self._local(self._g)
+        cc, _ = self._local(self._gg)
         last = len(c) - 1
         best, at = -1.0, self.taken - 1
         for n in range(1, min(max(DRIFT_RAMPS), last - 1, self.taken) + 1):

@@ -55,7 +55,7 @@ import numpy as np
 
 from ..arguments import spelled
 from ..data.sampler import DataSummary, Sample
-from ..filters.cubature import NominalKalman, _Filter as CubatureRule
+from ..filters.cubature import CubatureKalmanFilter, NominalKalman, _Filter as CubatureRule
 from ..filters.registry import check_particles, filter_class
 from ..ir import FaultSignatures
 from ..kinds import fault_kind
@@ -138,6 +138,11 @@ class Loop:
                                  self.noise[self.present])
         self.pf = None if config.ckf else self.pf_class(nominal, o.particles, np.random.default_rng([o.seed, 0]))
         self.kf = NominalKalman(nominal, len(self.outputs)) if config.ckf else None
+        # beside a particle observer, the drift family's observer with no Monte Carlo error (bgc.diagnosis.detect,
+        # "A bank of tests"); not for a model with modes, which a Kalman filter does not follow
+        self.companion = CubatureKalmanFilter(nominal) if self.pf is not None and "drift" in o.detectors else None
+        if self.companion is not None and len(self.companion.kf.carried):  # a mode (and its dwell) carried
+            self.companion = None
         # the pooled test's predicted correlation of the residuals (a particle filter gives each sensor's std only)
         self.rule = None if "pooled" not in o.detectors else (self.kf.kf if self.kf is not None
                                                                else CubatureRule(nominal))
@@ -191,7 +196,7 @@ class Loop:
     def _observe(self, s: Sample) -> None:
         """The nominal observer's step, and the detector's while watching."""
         k, o = s.k, self.options
-        mc = detection = None
+        mc = detection = exact = None
         with np.errstate(all="ignore"):  # one context for the step's arithmetic (NaN: a sensor not read)
             corr = self._correlation(s.u) if self.rule is not None and self.detection is None else None
             if self.kf is not None:
@@ -204,6 +209,9 @@ class Loop:
                 zk = (s.y - r.y_mean) / r.y_std
                 if self.detection is None:
                     mc = monte_carlo_share(r.y_std, self.nominal.MEASUREMENT_STD, self.ess, o.particles)
+            if self.companion is not None:  # every step: the windows after a re-arming need its state
+                c = self.companion.step(s.y, s.u)
+                exact = ((s.y - c.y_mean) / c.y_std)[self.present]
             self.y_mean.append(ym)
             self.y_std.append(sd)
             self.z.append(zk)
@@ -221,7 +229,7 @@ class Loop:
                 detection = self.detector.update(np.asarray(zk)[present], None if mc is None else mc[present],
                                                  np.asarray(s.y, dtype=float)[present],
                                                  (np.asarray(sd, dtype=float) / self.noise)[present],
-                                                 None if corr is None else corr[np.ix_(present, present)])
+                                                 None if corr is None else corr[np.ix_(present, present)], exact)
         if detection is not None and k < self.watch_from:  # before the detector was armed: not an alarm
             detection = None
         if detection is not None:
@@ -535,3 +543,4 @@ def shifted_events(events, cut: int) -> tuple:
     """Data events with their steps ``cut`` earlier, those before the record kept left out."""
     moved = (ev.shifted(e, cut) for e in events)
     return tuple(e for e in moved if e is not None)
+

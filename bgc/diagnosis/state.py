@@ -38,10 +38,11 @@ from .options import DiagnosisOptions
 from .values import Detection, Isolation
 
 #: The state's format; a state of another format is refused.
-VERSION = 8  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
+VERSION = 9  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
 # parameters of faults accommodated (2026-12-04); 5: the detector's other families of tests (2026-12-04); 6: their
 # residuals in units of the sensors' noise, and what the readings tell (2026-12-04); 7: the pooled test's sums of
-# the residuals' predicted correlation (2026-12-04); 8: the options' no_fault (2026-12-04)
+# the residuals' predicted correlation (2026-12-04); 8: the options' no_fault (2026-12-04); 9: the drift family's
+# Kalman observer beside a particle one, and its rings (2026-12-05)
 #: The first bytes of a state file.
 MAGIC = b"bgc-diagnoser-state\n"
 
@@ -149,6 +150,8 @@ class LoopState:
     trackers: tuple
     before: tuple
     reported: tuple
+    #: the drift family's Kalman observer beside a particle one (mean, covariance; None: none)
+    companion: tuple | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -262,7 +265,8 @@ def loop_state(loop) -> LoopState:
         observer, loop.ess, loop.ess_sum, loop.ess_steps, detector_state(loop.detector),
         tuple((k, x.copy(), logw.copy()) for k, (x, logw) in loop.clouds.items()),
         tuple((name, tracker_state(t)) for name, t in loop.trackers.items()), tuple(loop.before.items()),
-        tuple(sorted(loop.reported)))
+        tuple(sorted(loop.reported)),
+        None if loop.companion is None else (loop.companion.mean.copy(), loop.companion.cov.copy()))
 
 
 def filter_state(pf) -> FilterState:
@@ -353,6 +357,12 @@ def restore_loop(config, s: LoopState):
         set_filter(loop.pf, s.observer)
     loop.ess, loop.ess_sum, loop.ess_steps = s.ess, s.ess_sum, s.ess_steps
     restore_detector(loop.detector, s.detector)
+    if (loop.companion is None) != (s.companion is None):
+        raise ArgumentValueError("Diagnoser.from_state: a state with the drift family's Kalman observer "
+                                 f"{'missing' if s.companion is None else 'where none is'}", None,
+                                 "take it up with the options it was made with")
+    if loop.companion is not None:
+        loop.companion.mean, loop.companion.cov = s.companion[0].copy(), s.companion[1].copy()
     loop.clouds = {k: (x.copy(), logw.copy()) for k, x, logw in s.clouds}
     loop.phase, loop.detection, loop.isolation, loop.events = s.phase, s.detection, s.isolation, list(s.events)
     loop.trackers = {name: restore_tracker(t) for name, t in s.trackers}
