@@ -114,7 +114,7 @@ def test_a_particle_observer_runs_the_drift_familys_kalman_observer_beside_it():
     runs the nominal model's cubature Kalman filter, whose residuals the
     drift family takes; its state goes with the diagnoser's (the round trip
     of tests/test_state.py) and a state without it is refused."""
-    from conftest import MODELS, fast_session
+    from conftest import fast_session
 
     session = fast_session("two_tank")
     sim = bgc.simulate(session, "R12:abrupt:0.8@60", seed=3)
@@ -279,6 +279,92 @@ def test_white_residuals_alarm_each_family_at_most_at_its_share():
     share = alpha / len(ALL)
     for test, count in first.items():
         assert count <= share * runs + 3 * math.sqrt(runs * share * (1 - share)), first
+
+
+def _crossing(c: float, rho: float) -> float:
+    """P(X > c, X' <= c) for a standard normal pair of correlation rho, by quadrature (not Owen's T)."""
+    from scipy import integrate
+
+    s = math.sqrt(1.0 - rho * rho)
+    return integrate.quad(lambda x: norm.pdf(x) * norm.cdf((c - rho * x) / s), c, c + 15.0,
+                          epsabs=0.0, epsrel=1e-11, limit=200)[0]
+
+
+def test_the_chain_bound_is_met_at_its_threshold_and_below_the_union_bound():
+    """The drift family's threshold on an exact observer's residuals: the
+    Hunter-Worsley bound summed over sensors and windows, each window's
+    lag-one correlation from its weights (the dot product of the weights
+    and themselves shifted by one step), the crossing probability by
+    quadrature, equals the family's share at it; it is below the union
+    bound's threshold."""
+    from bgc.diagnosis.detect import chain_threshold, lag_one
+
+    for steps, sensors in ((300, 3), (400, 4), (120, 1)):
+        options = DetectorOptions(0.01, (1, 8, 32), steps, ALL)
+        c = options.drift_threshold(sensors, exact=True)
+        rhos = []
+        for w in DRIFT_RAMPS:
+            weights = np.arange(1, w + 2, dtype=float)  # a window and the one a step after, over w + 1 samples
+            now, before = np.r_[0.0, weights[:-1]], np.r_[weights[:-1], 0.0]
+            rhos.append(now @ before / (now @ now))
+            assert lag_one(w, True) == pytest.approx(rhos[-1], rel=1e-12)
+        for w in DRIFT_MEANS:
+            rhos.append((w - 1) / w)
+            assert lag_one(w, False) == pytest.approx(rhos[-1], rel=1e-12)
+        # P(|X| > c, |X'| <= c) <= P(X > c, X' <= c) + P(X < -c, X' >= -c), the two equal
+        bound = sensors * sum(2 * norm.sf(c) + (steps - 1) * 2 * _crossing(c, r) for r in rhos)
+        assert bound == pytest.approx(options.share, rel=1e-6)
+        assert c < options.drift_threshold(sensors) - 0.15
+    assert chain_threshold(0.01, 300, (0.0,)) == pytest.approx(norm.isf(0.01 / 600), abs=0.05)
+
+
+def test_white_residuals_cross_the_chain_threshold_at_most_at_the_share():
+    """White N(0, 1) residuals of 3 sensors over 300 steps, every drift
+    window tested from the step it fits in (computed here by convolution):
+    the runs in which any statistic passes the chain bound's threshold are at
+    most the share (3 standard errors of slack over 4000 runs), and the
+    threshold is not far above what the runs need (the bound is not empty:
+    at the union bound's threshold they cross far less often)."""
+    runs, steps, sensors = 4000, 300, 3
+    options = DetectorOptions(0.1, (1, 8, 32), steps, ("mean", "drift"))  # a share of 5 %: countable
+    c = options.drift_threshold(sensors, exact=True)
+    rng = np.random.default_rng(11)
+    z = rng.standard_normal((runs, sensors, steps))
+    top = np.zeros(runs)
+    for w in DRIFT_RAMPS:
+        weights = np.arange(1, w + 1, dtype=float)
+        for j in range(sensors):
+            stats = np.stack([np.convolve(row, weights[::-1], mode="valid") for row in z[:, j]]) / np.sqrt(weights @ weights)
+            top = np.maximum(top, np.abs(stats).max(axis=1))
+    for w in DRIFT_MEANS:
+        csum = np.concatenate([np.zeros((runs, sensors, 1)), np.cumsum(z, axis=2)], axis=2)
+        top = np.maximum(top, (np.abs(csum[:, :, w:] - csum[:, :, :-w]) / math.sqrt(w)).max(axis=(1, 2)))
+    share = options.share
+    crossed = int((top > c).sum())
+    assert crossed <= share * runs + 3 * math.sqrt(runs * share * (1 - share)), crossed
+    assert crossed > int((top > options.drift_threshold(sensors)).sum())
+
+
+def test_an_exact_observers_drift_window_is_tested_only_whole():
+    """On an exact observer's residuals a drift window with a sample not
+    read is not tested (the chain bound is for the whole series): a ramp
+    that alarms at step k alarms later when a reading inside every window
+    that would have alarmed is missing, never with a window holding it."""
+    steps, start, slope = 300, 40, 0.006
+    ramp = np.where(np.arange(steps) >= start, slope * (np.arange(steps) - start + 1), 0.0)
+    options = DetectorOptions(0.01, (1, 8, 32), steps, ("mean", "drift"))
+
+    def first(series):
+        d = Detector(("y",), options, exact=True)
+        return next(a for a in (d.update([0.0], exact=[v]) for v in series) if a is not None)
+
+    whole = first(ramp)
+    assert whole.test == "drift" and whole.threshold == options.drift_threshold(1, exact=True)
+    gap = ramp.copy()
+    missing = whole.step - 10
+    gap[missing] = np.nan
+    alarm = first(gap)
+    assert alarm.step > whole.step and alarm.step - alarm.window + 1 > missing
 
 
 def test_the_banks_state_round_trips_and_the_run_goes_on_as_if_never_stopped():

@@ -133,16 +133,7 @@ class Loop:
         self.pf_class = filter_class(config.package, "gpf" if config.ckf else o.filter)  # ckf: the open loop's
         self.present = np.array([y in config.present for y in self.outputs])
         self.noise = np.asarray(nominal.MEASUREMENT_STD, dtype=float)  # the sensors' own noise std
-        self.detector = Detector(tuple(y for y in self.outputs if y in config.present),
-                                 DetectorOptions(o.false_alarm, o.windows, self.horizon, o.detectors),
-                                 self.noise[self.present])
-        self.pf = None if config.ckf else self.pf_class(nominal, o.particles, np.random.default_rng([o.seed, 0]))
-        self.kf = NominalKalman(nominal, len(self.outputs)) if config.ckf else None
-        # beside a particle observer, the drift family's observer with no Monte Carlo error (bgc.diagnosis.detect,
-        # "A bank of tests"); not for a model with modes, which a Kalman filter does not follow
-        self.companion = CubatureKalmanFilter(nominal) if self.pf is not None and "drift" in o.detectors else None
-        if self.companion is not None and len(self.companion.kf.carried):  # a mode (and its dwell) carried
-            self.companion = None
+        self._observers(config)
         # the pooled test's predicted correlation of the residuals (a particle filter gives each sensor's std only)
         self.rule = None if "pooled" not in o.detectors else (self.kf.kf if self.kf is not None
                                                                else CubatureRule(nominal))
@@ -174,6 +165,24 @@ class Loop:
         self.watch_from = 0
         #: steps (first, end) the test of the model's fit leaves out: a false alarm's window (None: none)
         self.excused: tuple[int, int] | None = None
+
+    def _observers(self, config: LoopConfig) -> None:
+        """The nominal observer (a particle filter, or with ``ckf`` the
+        Kalman filter), the drift family's Kalman observer beside a particle
+        one (no Monte Carlo error: bgc.diagnosis.detect, "A bank of tests";
+        not for a model with modes, which a Kalman filter does not follow),
+        and the detector."""
+        o, nominal = config.options, self.nominal
+        self.pf = None if config.ckf else self.pf_class(nominal, o.particles, np.random.default_rng([o.seed, 0]))
+        self.kf = NominalKalman(nominal, len(self.outputs)) if config.ckf else None
+        self.companion = CubatureKalmanFilter(nominal) if self.pf is not None and "drift" in o.detectors else None
+        if self.companion is not None and len(self.companion.kf.carried):  # a mode (and its dwell) carried
+            self.companion = None
+        # the drift family's residuals are exact from a Kalman observer of a model without modes, or the companion
+        exact = self.companion is not None or (self.kf is not None and not len(self.kf.kf.carried))
+        self.detector = Detector(tuple(y for y in self.outputs if y in config.present),
+                                 DetectorOptions(o.false_alarm, o.windows, self.horizon, o.detectors),
+                                 self.noise[self.present], exact=exact)
 
     @property
     def options(self) -> DiagnosisOptions:
