@@ -109,7 +109,7 @@ def test_the_drift_family_tests_an_exact_observers_residuals_with_no_allowance()
     assert "shared" not in alarms or alarms["shared"].step > expected
 
 
-def test_a_particle_observer_runs_the_drift_familys_kalman_observer_beside_it():
+def test_a_particle_observer_runs_the_drift_familys_kalman_observer_beside_it(monkeypatch):
     """Beside a particle observer (and only with the drift family), the loop
     runs the nominal model's cubature Kalman filter, whose residuals the
     drift family takes; its state goes with the diagnoser's (the round trip
@@ -121,6 +121,14 @@ def test_a_particle_observer_runs_the_drift_familys_kalman_observer_beside_it():
     rows = [(float(t), {n: v[k] for n, v in sim.inputs.items()}, {n: v[k] for n, v in sim.measurements.items()})
             for k, t in enumerate(sim.time)]
     options = bgc.DiagnosisOptions(workers=1, particles=100, seed=4, detectors=("mean", "drift"))
+    given = []
+    original = Detector.update
+
+    def spy(self, z, mc=None, y=None, spread=None, corr=None, exact=None):
+        given.append(np.array(exact, dtype=float))
+        return original(self, z, mc, y, spread, corr, exact)
+
+    monkeypatch.setattr(Detector, "update", spy)
     whole = session.diagnoser(options)
     assert whole.loop.companion is not None
     assert session.diagnoser(bgc.DiagnosisOptions(workers=1, particles=100)).loop.companion is None
@@ -130,12 +138,19 @@ def test_a_particle_observer_runs_the_drift_familys_kalman_observer_beside_it():
     for row in rows[:cut]:
         whole.step(*row)
     kf = CubatureKalmanFilter(session.package.MODELS["nominal"])
+    expected = []
     for t, u, y in rows[:cut]:  # the companion is the nominal Kalman filter from the model's prior
-        kf.step(np.array([y[n] for n in whole.nominal.OUTPUTS]), np.array([u[n] for n in whole.nominal.INPUTS]))
+        y = np.array([y[n] for n in whole.nominal.OUTPUTS])
+        r = kf.step(y, np.array([u[n] for n in whole.nominal.INPUTS]))
+        expected.append((y - r.y_mean) / r.y_std)
     np.testing.assert_allclose(whole.loop.companion.mean, kf.mean, rtol=1e-12, atol=1e-12)
+    # and the detector took its residuals as the drift family's, a detector told they are exact
+    np.testing.assert_allclose(np.array(given), np.array(expected), rtol=1e-9, atol=1e-12)
+    assert whole.loop.detector.exact and whole.loop.detector.more.exact
     state = states.DiagnoserState.from_bytes(whole.to_state().to_bytes())
     resumed = Diagnoser.from_state(whole.config, state)
     np.testing.assert_array_equal(resumed.loop.companion.cov, whole.loop.companion.cov)
+    monkeypatch.setattr(Detector, "update", original)
     later = [(whole.step(*row).alarm, resumed.step(*row).alarm) for row in rows[cut:]]
     assert all(a == b for a, b in later) and any(a is not None for a, _ in later)
     import dataclasses
@@ -292,7 +307,8 @@ def _crossing(c: float, rho: float) -> float:
 
 def test_the_chain_bound_is_met_at_its_threshold_and_below_the_union_bound():
     """The drift family's threshold on an exact observer's residuals: the
-    Hunter-Worsley bound summed over sensors and windows, each window's
+    Hunter-Worsley bound summed over sensors and windows (on 0.9 of the
+    share; the windows with a gap hold 0.1 by the union bound), each window's
     lag-one correlation from its weights (the dot product of the weights
     and themselves shifted by one step), the crossing probability by
     quadrature, equals the family's share at it; it is below the union
@@ -313,7 +329,9 @@ def test_the_chain_bound_is_met_at_its_threshold_and_below_the_union_bound():
             assert lag_one(w, False) == pytest.approx(rhos[-1], rel=1e-12)
         # P(|X| > c, |X'| <= c) <= P(X > c, X' <= c) + P(X < -c, X' >= -c), the two equal
         bound = sensors * sum(2 * norm.sf(c) + (steps - 1) * 2 * _crossing(c, r) for r in rhos)
-        assert bound == pytest.approx(options.share, rel=1e-6)
+        assert bound == pytest.approx(0.9 * options.share, rel=1e-6)  # the rest: the windows with a gap
+        gapped = options.drift_gapped_threshold(sensors)
+        assert 2 * norm.sf(gapped) * steps * sensors * len(rhos) == pytest.approx(0.1 * options.share, rel=1e-6)
         assert c < options.drift_threshold(sensors) - 0.15
     assert chain_threshold(0.01, 300, (0.0,)) == pytest.approx(norm.isf(0.01 / 600), abs=0.05)
 
@@ -345,26 +363,47 @@ def test_white_residuals_cross_the_chain_threshold_at_most_at_the_share():
     assert crossed > int((top > options.drift_threshold(sensors)).sum())
 
 
-def test_an_exact_observers_drift_window_is_tested_only_whole():
-    """On an exact observer's residuals a drift window with a sample not
-    read is not tested (the chain bound is for the whole series): a ramp
-    that alarms at step k alarms later when a reading inside every window
-    that would have alarmed is missing, never with a window holding it."""
+def test_an_exact_observers_drift_window_with_a_reading_missing_is_held_to_the_gapped_threshold():
+    """On an exact observer's residuals a drift window read whole is held
+    to the chain bound's threshold, at (1 - DRIFT_GAPPED) of the share; one
+    with a sample not read (its term 0) to the union bound's over every
+    window at DRIFT_GAPPED of it: a ramp with one reading missing alarms
+    either on a window without the gap or on one with it at that threshold,
+    and a sensor read every other step is still tested, later. A re-armed
+    detector keeps its residuals' kind."""
+    from bgc.diagnosis.detect import DRIFT_GAPPED, chain_threshold, lag_one
+
     steps, start, slope = 300, 40, 0.006
     ramp = np.where(np.arange(steps) >= start, slope * (np.arange(steps) - start + 1), 0.0)
     options = DetectorOptions(0.01, (1, 8, 32), steps, ("mean", "drift"))
+    shapes = [lag_one(w, True) for w in DRIFT_RAMPS] + [lag_one(w, False) for w in DRIFT_MEANS]
+    chain = chain_threshold(0.9 * options.share, steps, tuple(shapes))
+    gapped = norm.isf(DRIFT_GAPPED * options.share / (2 * steps * len(shapes)))
+    assert DRIFT_GAPPED == 0.1 and chain < options.drift_threshold(1) < gapped
 
-    def first(series):
-        d = Detector(("y",), options, exact=True)
+    def first(series, detector=None):
+        d = detector or Detector(("y",), options, exact=True)
         return next(a for a in (d.update([0.0], exact=[v]) for v in series) if a is not None)
 
     whole = first(ramp)
-    assert whole.test == "drift" and whole.threshold == options.drift_threshold(1, exact=True)
+    assert whole.test == "drift" and whole.threshold == pytest.approx(chain, rel=1e-9)
     gap = ramp.copy()
     missing = whole.step - 10
     gap[missing] = np.nan
     alarm = first(gap)
-    assert alarm.step > whole.step and alarm.step - alarm.window + 1 > missing
+    holds = alarm.step - alarm.window + 1 <= missing
+    assert alarm.threshold == pytest.approx(gapped if holds else chain, rel=1e-9)
+    assert alarm.step >= whole.step
+    halves = ramp.copy()
+    halves[::2] = np.nan
+    late = first(halves)
+    assert late.step > whole.step and late.threshold == pytest.approx(gapped, rel=1e-9)
+    rearmed = Detector(("y",), options, exact=True)
+    rearmed.update([0.0], exact=[0.0])
+    rearmed.rearm()
+    assert rearmed.more.exact and first(ramp, rearmed).threshold == pytest.approx(chain, rel=1e-9)
+    with pytest.raises(ValueError, match="exact"):  # told exact, given a particle filter's shares instead
+        Detector(("y",), options, exact=True).update([0.1], [0.05])
 
 
 def test_the_banks_state_round_trips_and_the_run_goes_on_as_if_never_stopped():

@@ -218,7 +218,7 @@ class Loop:
                 zk = (s.y - r.y_mean) / r.y_std
                 if self.detection is None:
                     mc = monte_carlo_share(r.y_std, self.nominal.MEASUREMENT_STD, self.ess, o.particles)
-            if self.companion is not None:  # every step: the windows after a re-arming need its state
+            if self.companion is not None and self.detection is None:  # the drift family's, while watching
                 c = self.companion.step(s.y, s.u)
                 exact = ((s.y - c.y_mean) / c.y_std)[self.present]
             self.y_mean.append(ym)
