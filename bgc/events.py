@@ -427,6 +427,25 @@ class Glitch:
 
 
 @dataclass(frozen=True, slots=True)
+class ChangeMissed:
+    """No alarm was raised, yet the whole record fails the test of the
+    model while the data before step ``change`` pass it and the residuals
+    of ``sensors`` differ after it from before (:func:`bgc.diagnosis.fit.changed`;
+    the data before it likelier under the model than like those after it,
+    :func:`bgc.diagnosis.fit.misfit_before`): a change the detector's tests
+    ``tests`` did not alarm on (a slow drift), not a model that does not fit
+    from the start. The diagnosis was made again with every test of the
+    detector's bank; ``found``: whether it then alarmed (its verdict is
+    the diagnosis's; if not, the model's misfit stands)."""
+
+    step: int
+    change: int
+    sensors: tuple[str, ...]
+    tests: tuple[str, ...]
+    found: bool
+
+
+@dataclass(frozen=True, slots=True)
 class Intermittent:
     """The verdict names ``hypothesis`` a fault that comes and goes: its
     magnitude while present ``value`` (interval ``low`` .. ``high``), and
@@ -597,7 +616,7 @@ Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorRe
          | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | ReadingFrozen | Started
          | Refined | Dropped
          | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | NoFault | IntermittentTried | Intermittent
-         | Redated | FalseAlarm | Glitch | SensorExcluded
+         | Redated | FalseAlarm | Glitch | ChangeMissed | SensorExcluded
          | EpisodeClosed | Repaired | Checkpoint | ModeHidden | ModeRead | ModesReread | Mismatched | Decided)
 
 

@@ -141,3 +141,36 @@ def test_an_early_fault_outside_the_model_the_change_test_cannot_show_stays_unex
     assert d.detection is not None and d.detection.onset_step < 20
     assert d.verdict == "unexplained", (d.verdict, d.candidates, d.fit.findings)
     assert not d.fit.unchanged
+
+
+@pytest.mark.slow
+def test_a_drift_the_mean_test_misses_is_a_change_not_a_mismatch(tmp_path):
+    """R3 drifting up from t = 6 to 20 % above its value at the data's end
+    (t = 15; the circuit by the exact solution of its equations, seed 0):
+    the mean test alone raises no alarm, and the whole record fails the
+    test of the model, so the diagnosis was "mismatch: calibrate", on data
+    holding a fault. The data before the residuals' change point fit the
+    model and the residuals changed there: the diagnosis is made again with
+    the detector's whole bank, whose drift test alarms, and names R3's
+    drift, its slope's interval holding the truth; a ChangeMissed event
+    says so. A plant 1.3 times noisier than its model, which raises no
+    alarm either, shows no such change: mismatch, and no bank run."""
+    from test_episodes import DT, plant
+
+    steps, start, total = 300, 6.0, 0.2
+    changes = [(k * DT, {"R3": 1 + total * (k * DT - start) / (steps * DT - start)})
+               for k in range(1, steps + 1) if k * DT >= start]
+    (tmp_path / "drift.csv").write_text(plant(steps, changes, seed=0), encoding="utf-8")
+    d = bgc.diagnose(fast_session("circuit"), tmp_path / "drift.csv").diagnosis
+    said = [e for e in d.events if type(e).__name__ == "ChangeMissed"]
+    assert len(said) == 1 and said[0].found and said[0].tests == ("mean",)
+    assert 6.0 <= float(d.time[said[0].change]) <= 15.0
+    assert d.detection is not None and d.detection.test == "drift" and d.detection.step * DT > start
+    assert d.verdict == "isolated" and d.candidates == ("R3_incipient",), (d.verdict, d.candidates)
+    slope = total * 1.0 / (steps * DT - start)  # R3 is 1 ohm in the model file: ohm per s
+    h = next(h for h in d.hypotheses if h.name == "R3_incipient")
+    assert h.estimate.low <= slope <= h.estimate.high, (h.estimate.low, slope, h.estimate.high)
+    plant_csv(tmp_path / "noisier.csv", 0, 0.0, 1.3)
+    off = bgc.diagnose(fast_session("circuit"), tmp_path / "noisier.csv").diagnosis
+    assert off.detection is None and off.verdict == "mismatch"
+    assert not any(type(e).__name__ == "ChangeMissed" for e in off.events)

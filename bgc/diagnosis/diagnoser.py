@@ -53,9 +53,9 @@ from ..ir import FaultSignatures
 from ..model.package import accommodated, forget_started, started_package
 from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
-from .detect import Detector, DetectorOptions
+from .detect import TESTS, Detector, DetectorOptions, change_point
 from .finish import ordered
-from .fit import LEVEL as FIT_LEVEL, residual_sd
+from .fit import LEAST, LEVEL as FIT_LEVEL, changed, fit, misfit_before, residual_sd
 from .isolate import with_returns
 from .onsets import log_prior
 from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig, shifted_events
@@ -511,6 +511,7 @@ class Diagnoser:
             again = self.replay(dataclasses.replace(self.loop.options, switch=False), True)
             diagnosis = again.finish(self.sampler.summary(), truth)
         diagnosis = self._after_false_alarm(diagnosis, truth)
+        diagnosis = self._missed_change(diagnosis, truth)
         if self.decoder is not None and diagnosis.detection is not None and diagnosis.verdict != "no fault":
             # (no fault after the alarm: the nominal reading stands; a fault model's own reading would be
             # weighed against no fault on that fault's modes, not on the nominal's)
@@ -518,6 +519,47 @@ class Diagnoser:
         if self.switched:
             diagnosis = dataclasses.replace(diagnosis, events=ordered(list(self.switched) + list(diagnosis.events)))
         return dataclasses.replace(diagnosis, seconds=time.perf_counter() - self.started)
+
+    def _missed_change(self, d: Diagnosis, truth: Run | None) -> Diagnosis:
+        """A mismatch without an alarm, from a detector without the drift
+        test, that is a change the detector missed rather than a model that
+        does not fit: the whole record fails the test of the model, but the
+        data before the residuals' change point (the generalised likelihood
+        ratio's of a mean shift over the record, every sensor; at least
+        :data:`~bgc.diagnosis.fit.LEAST` samples) pass it, some sensor's
+        residuals differ after it from before beyond chance
+        (:func:`~bgc.diagnosis.fit.changed`) and the data before it are
+        likelier under the model than like those after it
+        (:func:`~bgc.diagnosis.fit.misfit_before` negative). A model that
+        does not fit from the start passes none of this. The diagnosis is
+        then made again with every test of the detector's bank, and is that
+        one when it alarms; a :class:`~bgc.events.ChangeMissed` says so."""
+        o = self.loop.options
+        if d.verdict != "mismatch" or d.detection is not None or "drift" in o.detectors or self.decoder is not None:
+            return d
+        from ..filters.cubature import nominal_track
+
+        samples = self.loop.samples
+        T = len(samples)
+        ys = np.array([s.y for s in samples], dtype=float).reshape(T, len(self.nominal.OUTPUTS))
+        us = np.array([s.u for s in samples], dtype=float).reshape(T, len(self.nominal.INPUTS))
+        track = nominal_track(self.nominal, ys, us, T)
+        z = np.array(track.z, dtype=float)[:T].reshape(T, len(d.outputs))
+        z[:, ~self.loop.present] = np.nan
+        cumsum = np.concatenate([np.zeros((1, z.shape[1])), np.cumsum(np.nan_to_num(z), axis=0)])
+        at = change_point(cumsum, T - 1, T)
+        if at < LEAST or T - at < LEAST or not fit(self.nominal, ys, us, d.outputs, at, track=track).fits:
+            return d
+        moved = changed(z, at, d.outputs)
+        if not moved or not misfit_before(z, at) < 0:
+            return d
+        self.config.say(f"no alarm, but the residuals changed at t = {float(d.time[at]):.6g}: diagnosing again "
+                        "with every test of the detector's bank")
+        again = self.replay(dataclasses.replace(o, detectors=TESTS, switch=False), False)
+        made = again.finish(self.sampler.summary(), truth)
+        said = ev.ChangeMissed(T - 1, at, tuple(moved), tuple(o.detectors), made.detection is not None)
+        chosen = made if made.detection is not None else d
+        return dataclasses.replace(chosen, events=ordered([*chosen.events, said]))
 
     def _reread(self, d: Diagnosis, truth: Run | None) -> Diagnosis:
         """The policy for a hidden mode read with the nominal model: a fault

@@ -147,6 +147,12 @@ def sentence(e, time_of) -> str:
                     f"prediction, and the model's residuals stay within its noise after it to the data's end "
                     f"(t = {t(k + 1)} to t = {t(u)}): a glitch of that reading, not a fault that persists "
                     f"or comes back; the diagnosis was made again without it")
+        case ev.ChangeMissed(change=c, sensors=ys, tests=tests, found=a):
+            return (f"no alarm, yet the model fits the data before t = {t(c)} and {', '.join(ys)}'s residuals "
+                    f"changed there: a change the {', '.join(tests)} test{'s' if len(tests) > 1 else ''} did not "
+                    "alarm on, not a model that does not fit from the start; the diagnosis was made again with "
+                    "every test of the detector's bank (--detect all), "
+                    + ("which alarmed" if a else "which did not alarm either: the model's misfit stands"))
         case ev.Intermittent(hypothesis=h, value=v, low=lo, high=hi, spans=sp, posterior=p):
             return (f"{h} comes and goes: present {spans_text([(time_of(a), None if b is None else time_of(b)) for a, b in sp])}, "
                     f"its magnitude {v:.4g} [{lo:.4g}, {hi:.4g}] (95 %) while present (posterior {p:.3g})")
@@ -299,7 +305,7 @@ NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped
            ev.InputFromModel, ev.ModeHidden, ev.ModesReread, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate,
            ev.AllTried, ev.ReadingFrozen, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded,
            ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.NoFault, ev.Redated, ev.FalseAlarm, ev.Glitch,
-           ev.Mismatched)
+           ev.ChangeMissed, ev.Mismatched)
 
 
 def notes(events, time_of) -> list[str]:
