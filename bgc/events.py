@@ -435,8 +435,9 @@ class ChangeMissed:
     :func:`bgc.diagnosis.fit.misfit_before`): a change the detector's tests
     ``tests`` did not alarm on (a slow drift), not a model that does not fit
     from the start. The diagnosis was made again with every test of the
-    detector's bank; ``found``: whether it then alarmed (its verdict is
-    the diagnosis's; if not, the model's misfit stands)."""
+    detector's bank; ``found``: whether it then alarmed and named a fault
+    (its verdict is then the diagnosis's; if not, the model's misfit
+    stands)."""
 
     step: int
     change: int

@@ -526,39 +526,53 @@ class Diagnoser:
         does not fit: the whole record fails the test of the model, but the
         data before the residuals' change point (the generalised likelihood
         ratio's of a mean shift over the record, every sensor; at least
-        :data:`~bgc.diagnosis.fit.LEAST` samples) pass it, some sensor's
-        residuals differ after it from before beyond chance
-        (:func:`~bgc.diagnosis.fit.changed`) and the data before it are
-        likelier under the model than like those after it
-        (:func:`~bgc.diagnosis.fit.misfit_before` negative). A model that
-        does not fit from the start passes none of this. The diagnosis is
-        then made again with every test of the detector's bank, and is that
-        one when it alarms; a :class:`~bgc.events.ChangeMissed` says so."""
-        o = self.loop.options
-        if d.verdict != "mismatch" or d.detection is not None or "drift" in o.detectors or self.decoder is not None:
+        :data:`~bgc.diagnosis.fit.LEAST` samples each side) pass it, some
+        sensor read on both sides has residuals that differ after it from
+        before beyond chance (:func:`~bgc.diagnosis.fit.changed`), the data
+        before it are likelier under the model than like those after it
+        (:func:`~bgc.diagnosis.fit.misfit_before` negative), and the inputs
+        after it stay within the range they had before (a model whose misfit
+        only a new operating point excites, a capacitance off that an input
+        step shows, passes the other tests: it stays a mismatch). Not after
+        an alarm (a false one, or a glitch, made again), nor when the inputs
+        read with the other timing explain the misfit. The diagnosis is then
+        made again with every test of the detector's bank, and is that one
+        when it names a fault (isolated or ambiguous); a
+        :class:`~bgc.events.ChangeMissed` says so either way."""
+        o, loop = self.loop.options, self.loop
+        if (d.verdict != "mismatch" or d.detection is not None or loop.detection is not None
+                or "drift" in o.detectors or self.decoder is not None
+                or any(isinstance(e, ev.Mismatched) and e.timing is not None for e in d.events)):
             return d
         from ..filters.cubature import nominal_track
 
-        samples = self.loop.samples
-        T = len(samples)
-        ys = np.array([s.y for s in samples], dtype=float).reshape(T, len(self.nominal.OUTPUTS))
-        us = np.array([s.u for s in samples], dtype=float).reshape(T, len(self.nominal.INPUTS))
-        track = nominal_track(self.nominal, ys, us, T)
+        T = len(loop.samples)
+        ys = np.array([s.y for s in loop.samples], dtype=float).reshape(T, len(self.nominal.OUTPUTS))
+        us = np.array([s.u for s in loop.samples], dtype=float).reshape(T, len(self.nominal.INPUTS))
+        track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
         z = np.array(track.z, dtype=float)[:T].reshape(T, len(d.outputs))
-        z[:, ~self.loop.present] = np.nan
+        z[:, ~loop.present] = np.nan
         cumsum = np.concatenate([np.zeros((1, z.shape[1])), np.cumsum(np.nan_to_num(z), axis=0)])
         at = change_point(cumsum, T - 1, T)
         if at < LEAST or T - at < LEAST or not fit(self.nominal, ys, us, d.outputs, at, track=track).fits:
             return d
-        moved = changed(z, at, d.outputs)
+        both = [j for j in range(z.shape[1]) if (np.isfinite(z[:at, j]).sum() >= LEAST
+                                                  and np.isfinite(z[at:, j]).sum() >= LEAST)]
+        moved = changed(z[:, both], at, tuple(d.outputs[j] for j in both)) if both else ()
         if not moved or not misfit_before(z, at) < 0:
             return d
+        with np.errstate(all="ignore"):
+            low, high = np.nanmin(us[:at], axis=0), np.nanmax(us[:at], axis=0)
+            slack = 1e-9 * np.maximum(np.abs(low), np.abs(high)) + 1e-12
+            if np.any((us[at:] < low - slack) | (us[at:] > high + slack)):
+                return d  # a new operating point: a misfit it excites is not told from a fault
         self.config.say(f"no alarm, but the residuals changed at t = {float(d.time[at]):.6g}: diagnosing again "
                         "with every test of the detector's bank")
-        again = self.replay(dataclasses.replace(o, detectors=TESTS, switch=False), False)
+        again = self.replay(dataclasses.replace(o, detectors=TESTS, switch=False), loop.config.every)
         made = again.finish(self.sampler.summary(), truth)
-        said = ev.ChangeMissed(T - 1, at, tuple(moved), tuple(o.detectors), made.detection is not None)
-        chosen = made if made.detection is not None else d
+        named = made.detection is not None and made.verdict in ("isolated", "ambiguous")
+        said = ev.ChangeMissed(T - 1, at, tuple(moved), tuple(o.detectors), named)
+        chosen = made if named else d
         return dataclasses.replace(chosen, events=ordered([*chosen.events, said]))
 
     def _reread(self, d: Diagnosis, truth: Run | None) -> Diagnosis:

@@ -152,7 +152,8 @@ def sentence(e, time_of) -> str:
                     f"changed there: a change the {', '.join(tests)} test{'s' if len(tests) > 1 else ''} did not "
                     "alarm on, not a model that does not fit from the start; the diagnosis was made again with "
                     "every test of the detector's bank (--detect all), "
-                    + ("which alarmed" if a else "which did not alarm either: the model's misfit stands"))
+                    + ("which alarmed and named a fault" if a else
+                       "which named no fault: the model's misfit stands"))
         case ev.Intermittent(hypothesis=h, value=v, low=lo, high=hi, spans=sp, posterior=p):
             return (f"{h} comes and goes: present {spans_text([(time_of(a), None if b is None else time_of(b)) for a, b in sp])}, "
                     f"its magnitude {v:.4g} [{lo:.4g}, {hi:.4g}] (95 %) while present (posterior {p:.3g})")
@@ -270,7 +271,7 @@ def _times(log_ratio: float) -> str:
 #: The fields of events that hold steps of the time grid besides ``step``: in :func:`record` each is a
 #: time, its step beside it as ``<name>_step`` (times in the model's unit wherever a value is public).
 STEP_FIELDS = frozenset({"since", "onset", "onsets", "first", "last", "start", "was", "alarmed", "again",
-                         "until"})
+                         "until", "change"})
 
 
 def record(e, time_of) -> dict:

@@ -399,10 +399,11 @@ class _Monitor:
         if not before < self.fit_steps <= self._taken():
             return
         c = self.d.checkpoint()
-        if c.verdict == "mismatch":
+        missed = any(isinstance(e, ev.ChangeMissed) and e.found for e in c.events)
+        if c.verdict == "mismatch" or missed:  # a misfit, or a change the detector missed (said, not hidden)
             self.mismatch_said = True
             self.tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)]
-                      + [e for e in c.events if isinstance(e, ev.Mismatched)])
+                      + [e for e in c.events if isinstance(e, (ev.Mismatched, ev.ChangeMissed))])
 
     def _checkpoint(self, belief, t: float) -> None:
         """While hypotheses are tracked, every ``checkpoint``: the diagnosis of
