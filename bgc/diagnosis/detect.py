@@ -333,7 +333,7 @@ class DetectorOptions:
         tested whole): by the chain bound over each sensor's and window's
         steps (:func:`chain_threshold`), the union bound over those."""
         if not exact:
-            return union_threshold(self.share, self._tests(sensors, len(DRIFT_RAMPS) + len(DRIFT_MEANS)))
+            return union_threshold(self.share, self._drift_tests(sensors))
         shapes = tuple(lag_one(w, True) for w in DRIFT_RAMPS) + tuple(lag_one(w, False) for w in DRIFT_MEANS)
         return chain_threshold((1.0 - DRIFT_GAPPED) * self.share, self.steps, shapes * max(1, sensors))
 
@@ -342,7 +342,10 @@ class DetectorOptions:
         window with a sample not read alarms: the union bound over every
         step, sensor and window on :data:`DRIFT_GAPPED` of the family's
         share (the chain bound holds the rest)."""
-        return union_threshold(DRIFT_GAPPED * self.share, self._tests(sensors, len(DRIFT_RAMPS) + len(DRIFT_MEANS)))
+        return union_threshold(DRIFT_GAPPED * self.share, self._drift_tests(sensors))
+
+    def _drift_tests(self, sensors: int) -> int:
+        return self._tests(sensors, len(DRIFT_RAMPS) + len(DRIFT_MEANS))
 
     def variance_level(self, sensors: int) -> float:
         """The probability of each tail of each variance test, each step."""
@@ -684,6 +687,9 @@ class Families:
             a_now = tuple(a + (b if isfinite(b) else 0.0) for a, b in zip(self._a[-1], a_row))
         self._a.append(a_now)
         if self.drift:  # the rings only a family that is on reads
+            if self.exact and exact is None and mc is not None and any(v != 0.0 for v in a_row if isfinite(v)):
+                raise ValueError("a detector told its drift residuals are exact was given Monte Carlo shares and "
+                                 "no exact residuals")
             self._drift_sums(row, c_now, a_now, exact)
         if self.variance:
             if spread is None:
@@ -726,9 +732,6 @@ class Families:
         its sums ``c_now`` and its shares' ``a_now``), or of an exact
         observer's residuals ``exact`` with no Monte Carlo share."""
         if exact is None:
-            if self.exact and any(v != 0.0 for v in a_now):
-                raise ValueError("a detector told its drift residuals are exact was given Monte Carlo shares and "
-                                 "no exact residuals")
             g_now, b_now, series = c_now, a_now, row
         else:
             series = exact.tolist() if isinstance(exact, np.ndarray) else [float(v) for v in exact]

@@ -546,9 +546,8 @@ class Diagnoser:
             return d
         from ..filters.cubature import nominal_track
 
-        T = len(loop.samples)
-        ys = np.array([s.y for s in loop.samples], dtype=float).reshape(T, len(self.nominal.OUTPUTS))
-        us = np.array([s.u for s in loop.samples], dtype=float).reshape(T, len(self.nominal.INPUTS))
+        record = loop.arrays()
+        ys, us, T = record["ys"], record["us"], len(record["ys"])
         track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
         z = np.array(track.z, dtype=float)[:T].reshape(T, len(d.outputs))
         z[:, ~loop.present] = np.nan

@@ -552,4 +552,3 @@ def shifted_events(events, cut: int) -> tuple:
     """Data events with their steps ``cut`` earlier, those before the record kept left out."""
     moved = (ev.shifted(e, cut) for e in events)
     return tuple(e for e in moved if e is not None)
-
