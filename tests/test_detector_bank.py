@@ -210,6 +210,55 @@ def test_a_swinging_and_a_flat_residual_alarm_the_variance_test_with_its_ratio()
         assert abs(alarm.onset_step - 150) <= 3
 
 
+def _change_point(z: np.ndarray, longest: int, mean_term: bool = True) -> int:
+    """The GLR change point of a residual's mean and variance by brute force:
+    the start of the span of ``m`` last samples (2 <= m <= ``longest``) that
+    maximises S2 - m - m log v (``v`` the span's mean square about its mean,
+    ``S2`` its sum of squares); without ``mean_term``, m (v' - 1 - log v')
+    with ``v'`` the centred variance (the form that ignores the mean)."""
+    best, at = -np.inf, None
+    for m in range(2, longest + 1):
+        span = z[-m:]
+        if mean_term:
+            v = float(np.mean((span - span.mean()) ** 2))
+            score = float(span @ span) - m - m * np.log(v)
+        else:
+            v = float(np.sum((span - span.mean()) ** 2)) / (m - 1)
+            score = m * (v - 1.0 - np.log(v))
+        if score > best:
+            best, at = score, len(z) - m
+    return at
+
+
+def test_the_variance_tests_onset_is_where_the_mean_or_the_variance_changed():
+    # a bias or a stuck sensor can reach the variance test first (a step raises the variance of the windows that
+    # straddle it); its onset is then where the mean stepped, not the start of the longest straddling window
+    steps, at, longest = 160, 150, max(VARIANCE_WINDOWS)
+    options = DetectorOptions(0.01, (1, 8, 32), 300, ("mean", "variance"))
+    near, near_centred = 0, 0
+    for seed in range(100):
+        rng = np.random.default_rng(seed)
+        z = rng.standard_normal(steps)
+        z[at:] += 3.0 if seed % 2 else -3.0
+        detector = Detector(("y",), options)
+        for v in z:
+            detector.update([v])
+        more = detector.more
+        onset = more._variance_onset(more._c, more._sq)
+        assert onset == _change_point(z, longest)
+        near += abs(onset - at) <= 2
+        near_centred += abs(_change_point(z, longest, mean_term=False) - at) <= 2
+    assert near >= 90
+    assert near_centred <= 20  # the variance alone puts the change a window early
+    # a sensor stuck at a constant: no variance after the step, and the onset is the step
+    z = np.random.default_rng(7).standard_normal(steps)
+    z[at:] = 1.7
+    detector = Detector(("y",), options)
+    for v in z:
+        detector.update([v])
+    assert detector.more._variance_onset(detector.more._c, detector.more._sq) == at
+
+
 def _quantised(rng, n: int, step: float, r: float) -> list[float]:
     """Readings around 2 (one decimal exponent: one resolution), noise r, written to ``step``."""
     values = np.round((2.0 + r * rng.standard_normal(n)) / step) * step

@@ -138,9 +138,11 @@ tighter bound, below.)
   the centring, ``D`` the variances over ``r^2``), each at least ``C``'s
   (Ostrowski): it is stochastically larger than chi-square with ``W - 1``
   degrees of freedom, and the ``p`` quantile of that law bounds its lower
-  tail. The onset is the change point of the variance (the likelihood ratio
-  ``m (v - 1 - log v)`` of the ``m`` samples from ``t``, ``v`` their centred
-  mean square, of ``z`` or of ``e``, the series that alarmed).
+  tail. The onset is the change point of the mean and variance together
+  (the likelihood ratio ``m (v + mu^2 - 1 - log v)`` of the ``m`` samples
+  from ``t``, ``mu`` their mean and ``v`` their mean square about it, of
+  ``z`` or of ``e``, the series that alarmed): a bias or a stuck sensor can
+  reach the variance test first, and its onset is where the mean stepped.
 * ``frozen``: a sensor whose reading repeats to the last digit. A reading is
   the plant's value plus the sensor's noise, at least N(0, r^2) (``r`` the
   model's std), independent of the past, so the chance that it falls in the
@@ -990,9 +992,14 @@ class Families:
         return at
 
     def _variance_onset(self, sums: deque, squares: deque) -> int:
-        """The GLR change point of the residuals' variance: argmax_t sum_j
-        m (v - 1 - log v), v the centred mean square of the m samples from t
-        (of the residuals whose running sums are ``sums`` and ``squares``)."""
+        """The GLR change point of the residuals' mean and variance together:
+        argmax_t sum_j m (v + mu^2 - 1 - log v) = sum_j (S2 - m - m log v),
+        ``mu`` and ``v`` the mean and mean square about it (maximum likelihood)
+        of the m samples from t, ``S2`` their sum of squares (of the residuals
+        whose running sums are ``sums`` and ``squares``). Without ``mu^2``, a
+        step in the mean (a bias, a stuck sensor: the variance test can see
+        these first) raises ``v`` of every span that straddles it, and the
+        longest such span wins: the onset falls a window early."""
         c, _ = self._local(sums)
         sq, _ = self._local(squares)
         n, _ = self._local(self._n)
@@ -1001,9 +1008,10 @@ class Families:
         for m in range(2, min(max(VARIANCE_WINDOWS), last, self.taken) + 1):
             count = n[last] - n[last - m]
             s1 = c[last] - c[last - m]
-            v = np.maximum(sq[last] - sq[last - m] - np.where(count > 0, s1 * s1 / np.maximum(count, 1), 0.0), 1e-12)
-            v = v / np.maximum(count - 1, 1)
-            score = float(np.sum(np.where(count >= 2, count * (v - 1.0 - np.log(v)), 0.0)))
+            s2 = sq[last] - sq[last - m]
+            v = np.maximum(s2 - np.where(count > 0, s1 * s1 / np.maximum(count, 1), 0.0), 0.0) / np.maximum(count, 1)
+            v = np.maximum(v, 1e-12)
+            score = float(np.sum(np.where(count >= 2, s2 - count - count * np.log(v), 0.0)))
             if score > best:
                 best, at = score, self.taken - m
         return at
