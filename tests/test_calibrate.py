@@ -540,6 +540,46 @@ def test_ljung_box_against_its_formula_and_its_power():
     assert count == n - 1 and abs(q_holed - q) < 0.1 * q
 
 
+def _ar1(rng, phi: float, n: int, draws: int) -> np.ndarray:
+    """``draws`` stationary AR(1) series of coefficient ``phi`` and unit variance, ``n`` samples each."""
+    e = rng.standard_normal((draws, n + 100))
+    x = np.zeros_like(e)
+    for t in range(1, n + 100):
+        x[:, t] = phi * x[:, t - 1] + e[:, t]
+    return x[:, 100:] * math.sqrt(1.0 - phi * phi)
+
+
+def test_the_mean_test_holds_its_level_on_residuals_correlated_from_step_to_step():
+    """The mean of n residuals correlated as an AR(1) of coefficient phi has
+    variance (1 + phi) / (1 - phi) / n, not 1 / n: the correlation time is
+    that ratio, and the mean test widened by it holds its level, where the
+    white-noise standard error fails it three to four times as often."""
+    from dataclasses import replace
+    from statistics import NormalDist
+
+    rng = np.random.default_rng(5)
+    long = _ar1(rng, 0.5, 20000, 1)[0]
+    assert residuals.correlation_time([long]) == pytest.approx(3.0, rel=0.1)
+    assert residuals.correlation_time([rng.standard_normal(20000)]) == pytest.approx(1.0, abs=0.1)
+    level, draws = 0.05, 1500
+    nominal = 2 * (1 - NormalDist().cdf(NormalDist().inv_cdf(1 - level / 4)))  # the mean's share, two-sided
+
+    def rate(x: np.ndarray, widen: bool) -> float:
+        failed = 0
+        for row in x:
+            s = residuals.summary([row[:, None]], ("y",))
+            if not widen:
+                s = (replace(s[0], correlation_time=1.0),)
+            failed += any(t == "mean" for _, t in residuals.failures(s, level, correlation=False, narrower=False))
+        return failed / len(x)
+
+    correlated = _ar1(rng, 0.3, 300, draws)
+    assert rate(correlated, widen=False) > 3 * nominal  # 1 / sqrt(n) is too small for them
+    assert rate(correlated, widen=True) < 2 * nominal
+    white = rng.standard_normal((draws, 300))
+    assert 0.4 * nominal < rate(white, widen=True) < 1.5 * nominal  # on white residuals it costs little
+
+
 def test_a_maximum_by_its_own_test_is_converged_whatever_the_optimisers_flag(monkeypatch):
     """L-BFGS-B's line search can end "abnormally" on a likelihood that is not
     smooth at the finite differences' scale (a model's switches) while at its

@@ -210,6 +210,13 @@ class Distinction:
         ``divergence`` and variance twice that)."""
         return _normal_above(self.divergence, math.sqrt(2.0 * self.divergence))
 
+    def power(self, false_alarm: float) -> float:
+        """The probability that the ideal detector, the likelihood-ratio test
+        of this fault (its onset and magnitude known) against no fault, held
+        at the false-alarm probability ``false_alarm``, detects it
+        (:func:`ideal_power`)."""
+        return ideal_power(self.detectability, false_alarm)
+
     @property
     def label(self) -> str:
         """``PARAM+:kind`` or ``PARAM-:kind``, as the signatures name a fault."""
@@ -714,6 +721,29 @@ def _fit(w: np.ndarray, ww: float, G: np.ndarray, bounds: tuple[float, float]) -
     r = 0.5 * (ww - 2.0 * c * wg + c * c * gg)
     j = int(np.argmin(r))
     return max(float(r[j]), 0.0), j, float(c[j])
+
+
+def ideal_power(detectability: float, false_alarm: float) -> float:
+    """The power of the likelihood-ratio test of a fault (onset and
+    magnitude known) against no fault, at the false-alarm probability
+    ``false_alarm``, from the fault's ``detectability`` (the probability
+    that the data favour it at equal priors, :attr:`Distinction.detectability`).
+    The log likelihood ratio is N(D, 2 D) under the fault and N(-D, 2 D)
+    under no fault (D the divergence), so detectability = Phi(sqrt(D / 2))
+    and the test that alarms above the no-fault law's 1 - ``false_alarm``
+    quantile detects with probability Phi(sqrt(2 D) - z), z =
+    Phi^-1(1 - ``false_alarm``), sqrt(2 D) = 2 Phi^-1(detectability): the
+    "ideal detector" against which a detector holding the same false-alarm
+    rate is measured.
+
+    >>> round(ideal_power(0.5, 0.01), 4), round(ideal_power(0.95, 0.05), 4), round(ideal_power(0.95, 0.01), 4)
+    (0.01, 0.95, 0.8323)
+    """
+    from statistics import NormalDist
+
+    normal = NormalDist()
+    d = min(max(float(detectability), 1e-300), 1.0 - 1e-16)
+    return normal.cdf(2.0 * normal.inv_cdf(d) - normal.inv_cdf(1.0 - false_alarm))
 
 
 def _normal_above(mean: float, std: float) -> float:

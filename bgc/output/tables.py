@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from typing import Any, Iterable, NamedTuple
 
-from ..analysis.distinguish import LEVEL
+from ..analysis.distinguish import LEVEL, ideal_power
 from . import html, render
 from .markdown import comment as _comment
 from .markdown import escape
@@ -183,6 +183,11 @@ def table_markdown(spec, rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: The false-alarm probability per run the campaigns' detector holds (bgc's default per horizon, a run's
+#: length: :class:`~bgc.diagnosis.options.DiagnosisOptions`), at which the ideal detector is held too.
+FALSE_ALARM = 0.01
+
+
 def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
     """Per group, filter, noise level and particle count: how the runs went.
     Isolation is counted among the faulty runs whose fault was detected at or
@@ -194,10 +199,12 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
     scenario are predicted not to separate (the row's ``separable``,
     :mod:`bgc.analysis.distinguish`; rows without it are not counted there).
     Detection is also counted among the faulty runs whose data are predicted
-    to show the fault (``detectability`` at least ``distinguish.LEVEL``: an
-    ideal test that knew the fault's onset and magnitude would favour it over
-    no fault with that probability), the detector's power against that
-    bound."""
+    to show the fault: the ideal detector, the likelihood-ratio test that
+    knows the fault's onset and magnitude, held at the detector's own
+    false-alarm probability per run (:data:`FALSE_ALARM`), detects it with
+    probability at least ``distinguish.LEVEL``
+    (:func:`~bgc.analysis.distinguish.ideal_power` of the row's
+    ``detectability``): the detector's power against that bound."""
     def key(r):
         return r["group"], r["filter"], r["noise"], f"{r['particles']}" + (" +grid" if r.get("refine") else "")
 
@@ -211,7 +218,7 @@ def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
         seen = [r for r in faulty if r["delay"] is not None]  # detected at or after the onset
         plain = [r for r in seen if not r.get("ambiguous")]
         separated = [r for r in plain if r.get("separable")]
-        shown = [r for r in faulty if (r.get("detectability") or 0.0) >= LEVEL]
+        shown = [r for r in faulty if ideal_power(r.get("detectability") or 0.0, FALSE_ALARM) >= LEVEL]
         isolated = [r for r in seen if r["verdict"] == "isolated"]
         out.append({
             "group": g, "filter": f, "noise": noise, "particles": n, "runs": len(mine),
