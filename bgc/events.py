@@ -447,6 +447,21 @@ class ChangeMissed:
 
 
 @dataclass(frozen=True, slots=True)
+class ObserverRestarted:
+    """The Kalman observer run beside the particle one, whose residuals the
+    drift test reads (:mod:`bgc.diagnosis.detect`, "A bank of tests"), lost
+    its estimate at step ``step`` (its mean or covariance no longer finite:
+    a plant far off its model, a state driven where the model has no
+    numbers): it starts again there from the particle observer's cloud (its
+    mean and covariance), and the drift test's windows holding that step are
+    held to the threshold of windows with a reading missing. ``times``: how
+    often it has restarted so far in this diagnosis."""
+
+    step: int
+    times: int
+
+
+@dataclass(frozen=True, slots=True)
 class Intermittent:
     """The verdict names ``hypothesis`` a fault that comes and goes: its
     magnitude while present ``value`` (interval ``low`` .. ``high``), and

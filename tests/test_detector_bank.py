@@ -160,6 +160,55 @@ def test_a_particle_observer_runs_the_drift_familys_kalman_observer_beside_it(mo
         Diagnoser.from_state(whole.config, dataclasses.replace(state, loop=loop))
 
 
+def test_a_kalman_observer_that_loses_its_estimate_starts_again_from_the_particle_cloud_and_says_so(monkeypatch):
+    """The drift family's Kalman observer whose estimate is no longer finite
+    (forced here at one step) starts again from the particle observer's
+    cloud after that step (its mean and covariance), the step's residuals go
+    to the drift test as not read, an event says so, and the drift test goes
+    on with the restarted observer's residuals."""
+    from conftest import fast_session
+
+    session = fast_session("two_tank")
+    sim = bgc.simulate(session, "none", seed=3)
+    rows = [(float(t), {n: v[k] for n, v in sim.inputs.items()}, {n: v[k] for n, v in sim.measurements.items()})
+            for k, t in enumerate(sim.time)]
+    d = session.diagnoser(bgc.DiagnosisOptions(workers=1, particles=100, seed=4, detectors=("mean", "drift")))
+    given = []
+    original = Detector.update
+
+    def spy(self, z, mc=None, y=None, spread=None, corr=None, exact=None):
+        given.append(np.array(exact, dtype=float))
+        return original(self, z, mc, y, spread, corr, exact)
+
+    monkeypatch.setattr(Detector, "update", spy)
+    broken, at = [], 30
+    for k, row in enumerate(rows[:60]):
+        if k == at:  # the observer loses its estimate on this step
+            companion = d.loop.companion
+            step = companion.step
+
+            def lost(y, u, dt=None, step=step, companion=companion):
+                r = step(y, u, dt)
+                companion.mean = companion.mean * np.nan
+                return r
+
+            companion.step = lost
+            broken.append(companion)
+        d.step(*row)
+        if k == at:
+            x = d.loop.pf.x[d.loop.companion.kf.physical]
+            np.testing.assert_allclose(d.loop.companion.mean, x.mean(axis=1), rtol=1e-12)
+            np.testing.assert_allclose(d.loop.companion.cov, np.cov(x), rtol=1e-12)
+    assert d.loop.companion is not broken[0]
+    said = [e for e in d.loop.events if isinstance(e, bgc.events.ObserverRestarted)]
+    assert said == [bgc.events.ObserverRestarted(at, 1)]
+    assert np.isnan(given[at]).all()
+    assert np.isfinite(given[at - 1]).all() and np.isfinite(given[at + 1:]).all()
+    from bgc.output.events import sentence
+
+    assert "starts again there from the particle observer's cloud" in sentence(said[0], lambda k: k * 0.5)
+
+
 def test_the_mean_test_alone_is_unchanged_and_the_bank_shares_its_budget():
     steps, sensors = 400, 3
     alone = DetectorOptions(0.01, (1, 8, 32), steps)

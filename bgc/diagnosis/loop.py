@@ -221,6 +221,8 @@ class Loop:
             if self.companion is not None and self.detection is None:  # the drift family's, while watching
                 c = self.companion.step(s.y, s.u)
                 exact = ((s.y - c.y_mean) / c.y_std)[self.present]
+                if not (np.isfinite(self.companion.mean).all() and np.isfinite(self.companion.cov).all()):
+                    exact = self._restart_companion(k)
             self.y_mean.append(ym)
             self.y_std.append(sd)
             self.z.append(zk)
@@ -252,6 +254,18 @@ class Loop:
             if self.detection is None or k < self.detection.step:  # before the alarm: a fault degenerates it too
                 self.ess_sum += 0.0 if r.recovered else r.ess
                 self.ess_steps += 1
+
+    def _restart_companion(self, k: int) -> np.ndarray:
+        """The drift family's Kalman observer lost its estimate at step ``k``
+        (not finite): start it again from the particle observer's cloud after
+        the step (its mean and covariance), say so
+        (:class:`~bgc.events.ObserverRestarted`), and return the step's
+        residuals for the drift test: none (NaN: a window holding the step is
+        a window with a reading missing)."""
+        self.companion = CubatureKalmanFilter(self.nominal, x=self.pf.x)
+        times = 1 + sum(isinstance(e, ev.ObserverRestarted) for e in self.events)
+        self.events.append(ev.ObserverRestarted(k, times))
+        return np.full(int(np.count_nonzero(self.present)), np.nan)
 
     def _correlation(self, u) -> np.ndarray | None:
         """The correlation matrix of the next step's residuals as the

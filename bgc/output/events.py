@@ -154,6 +154,11 @@ def sentence(e, time_of) -> str:
                     "every test of the detector's bank (--detect all), "
                     + ("which alarmed and named a fault" if a else
                        "which named no fault: the model's misfit stands"))
+        case ev.ObserverRestarted(step=k, times=n):
+            return (f"the Kalman observer whose residuals the drift test reads lost its estimate at t = {t(k)} "
+                    f"(not finite){'' if n == 1 else f', for the {n}th time'}: it starts again there from the "
+                    "particle observer's cloud, the drift test's windows holding that sample held to the threshold "
+                    "of windows with a reading missing")
         case ev.Intermittent(hypothesis=h, value=v, low=lo, high=hi, spans=sp, posterior=p):
             return (f"{h} comes and goes: present {spans_text([(time_of(a), None if b is None else time_of(b)) for a, b in sp])}, "
                     f"its magnitude {v:.4g} [{lo:.4g}, {hi:.4g}] (95 %) while present (posterior {p:.3g})")
@@ -306,7 +311,7 @@ NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped
            ev.InputFromModel, ev.ModeHidden, ev.ModesReread, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate,
            ev.AllTried, ev.ReadingFrozen, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded,
            ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.NoFault, ev.Redated, ev.FalseAlarm, ev.Glitch,
-           ev.ChangeMissed, ev.Mismatched)
+           ev.ChangeMissed, ev.Mismatched, ev.ObserverRestarted)
 
 
 def notes(events, time_of) -> list[str]:
