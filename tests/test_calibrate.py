@@ -553,13 +553,18 @@ def test_the_mean_test_holds_its_level_on_residuals_correlated_from_step_to_step
     """The mean of n residuals correlated as an AR(1) of coefficient phi has
     variance (1 + phi) / (1 - phi) / n, not 1 / n: the correlation time is
     that ratio, and the mean test widened by it holds its level, where the
-    white-noise standard error fails it three to four times as often."""
+    white-noise standard error fails it three to four times as often (more
+    than 2.5 times here: 1500 runs hold the rate within about 15 %)."""
     from dataclasses import replace
     from statistics import NormalDist
 
     rng = np.random.default_rng(5)
     long = _ar1(rng, 0.5, 20000, 1)[0]
     assert residuals.correlation_time([long]) == pytest.approx(3.0, rel=0.1)
+    # read every other step: successive readings correlate by phi^2, their mean by (1 + phi^2) / (1 - phi^2)
+    every_other = long.copy()
+    every_other[1::2] = np.nan
+    assert residuals.correlation_time([every_other]) == pytest.approx(1.25 / 0.75, rel=0.1)
     assert residuals.correlation_time([rng.standard_normal(20000)]) == pytest.approx(1.0, abs=0.1)
     level, draws = 0.05, 1500
     nominal = 2 * (1 - NormalDist().cdf(NormalDist().inv_cdf(1 - level / 4)))  # the mean's share, two-sided
@@ -574,7 +579,7 @@ def test_the_mean_test_holds_its_level_on_residuals_correlated_from_step_to_step
         return failed / len(x)
 
     correlated = _ar1(rng, 0.3, 300, draws)
-    assert rate(correlated, widen=False) > 3 * nominal  # 1 / sqrt(n) is too small for them
+    assert rate(correlated, widen=False) > 2.5 * nominal  # 1 / sqrt(n) is too small for them
     assert rate(correlated, widen=True) < 2 * nominal
     white = rng.standard_normal((draws, 300))
     assert 0.4 * nominal < rate(white, widen=True) < 1.5 * nominal  # on white residuals it costs little

@@ -505,3 +505,28 @@ def test_the_ideal_detectors_power_at_a_false_alarm_rate_is_the_likelihood_ratio
         cut = float(np.quantile(null, 0.99))
         power = float(np.mean(alt > cut))
         assert distinguish.ideal_power(detectability, 0.01) == pytest.approx(power, abs=0.006)
+
+
+def test_the_detector_is_set_beside_the_ideal_detector_held_at_its_own_false_alarm_rate():
+    """A fault the equal-prior test favours with P 0.96 (D = 6.1) is seen
+    by the likelihood-ratio test held at 1 % per run in only
+    Phi(2 Phi^-1(0.96) - 2.326) = 0.81 of runs: bgc's detector at 0.80 is
+    that bound's equal, and nothing says a diagnosis will show less; the
+    line before it says what the ideal detector sees at that rate."""
+    from types import SimpleNamespace
+
+    from bgc.api.detection import DetectorRate
+    from bgc.output.render import distinguishability_text
+
+    rate = DetectorRate(50, 40, 0, 0.67, 0.89, 30.0, "gpf", 1000, 0.01, 150.0, 0, "s")
+    d = distinguish.Distinction("R12_abrupt", 0.1, 149, 6.1, 0.0, ())
+    assert d.detectability == pytest.approx(0.96, abs=0.005)
+    r = SimpleNamespace(model="two_tank", noise=(None, None), steps=300, dt=0.5, distinctions=(d,), signals=(),
+                        scenario="R12:abrupt:0.1@75", detector=rate)
+    text = distinguishability_text(r)
+    from statistics import NormalDist
+
+    n = NormalDist()
+    held = n.cdf(2 * n.inv_cdf(d.detectability) - n.inv_cdf(0.99))
+    assert f"held at bgc's detector's false-alarm probability (0.01 over the run): P {held:.3f}" in text
+    assert "what a diagnosis will show" not in text  # against the equal-prior 0.96 it would be said

@@ -258,11 +258,11 @@ class Loop:
     def _restart_companion(self, k: int) -> np.ndarray:
         """The drift family's Kalman observer lost its estimate at step ``k``
         (not finite): start it again from the particle observer's cloud after
-        the step (its mean and covariance), say so
+        the step (its weighted mean and covariance), say so
         (:class:`~bgc.events.ObserverRestarted`), and return the step's
         residuals for the drift test: none (NaN: a window holding the step is
         a window with a reading missing)."""
-        self.companion = CubatureKalmanFilter(self.nominal, x=self.pf.x)
+        self.companion = CubatureKalmanFilter(self.nominal, x=self.pf.x, w=self.pf._weights())
         times = 1 + sum(isinstance(e, ev.ObserverRestarted) for e in self.events)
         self.events.append(ev.ObserverRestarted(k, times))
         return np.full(int(np.count_nonzero(self.present)), np.nan)

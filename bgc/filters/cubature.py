@@ -788,10 +788,10 @@ class CubatureKalmanFilter:
     particles, rng, x=None)``: it has no particles and draws no random
     numbers, so ``particles`` and ``rng`` are only kept. From the model's
     prior (``X0``, ``X0_STD``), or from particles ``x`` (n_x, N): their mean
-    and covariance."""
+    and covariance, weighted by ``w`` (N, normalised) when given."""
 
     def __init__(self, model: FaultModel, particles: int | None = None, rng: np.random.Generator | None = None,
-                 x: np.ndarray | None = None, fixed: np.ndarray | None = None):
+                 x: np.ndarray | None = None, fixed: np.ndarray | None = None, w: np.ndarray | None = None):
         self.model, self.particles, self.rng = model, particles, rng
         self.kf = kf = _Filter(model)
         if x is None:
@@ -800,9 +800,15 @@ class CubatureKalmanFilter:
             self.cov = np.diag(np.asarray(model.X0_STD, dtype=float)[kf.physical] ** 2)
         else:
             x = np.asarray(x, dtype=float)
-            start = x.mean(axis=1)
+            if w is None:
+                start = x.mean(axis=1)
+                self.cov = np.atleast_2d(np.cov(x[kf.physical]))
+            else:  # a weighted cloud: its weighted moments (the unbiased ones, as np.cov's for equal weights)
+                w = np.asarray(w, dtype=float)
+                start = x @ w
+                d = x[kf.physical] - start[kf.physical][:, None]
+                self.cov = np.atleast_2d((d * w) @ d.T / max(1.0 - float(w @ w), 1e-12))
             self.mean = start[kf.physical]
-            self.cov = np.atleast_2d(np.cov(x[kf.physical]))
         held = start[kf.extra] if fixed is None else np.asarray(fixed, dtype=float)
         self.fixed = held.reshape(len(kf.extra), 1)  # (f, 1): one cell
         self.recoveries = 0

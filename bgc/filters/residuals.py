@@ -89,7 +89,10 @@ LONGEST_LAG = 50
 
 def correlation_time(z: Sequence[np.ndarray]) -> float:
     """The integrated autocorrelation time of the residual series ``z`` (one
-    per recording, NaN: not read; :func:`autocorrelations`), tau = 1 + 2
+    per recording, NaN: not read), over each recording's readings in the
+    order read (a sensor read every tenth step: its successive readings,
+    whose correlation is what widens their mean; :func:`autocorrelations`
+    of those), tau = 1 + 2
     sum_(k=1..M) r_k, the window M the first lag at least :data:`SOKAL`
     times tau so far (Sokal's rule; at most :data:`LONGEST_LAG` lags or a
     tenth of the samples): the factor by which the variance of their mean
@@ -102,8 +105,8 @@ def correlation_time(z: Sequence[np.ndarray]) -> float:
     >>> round(correlation_time([np.array([1.0, -1.0] * 50)]), 6)  # alternating: its mean cancels at once
     -0.98
     """
-    parts = [np.asarray(a, dtype=float) for a in z]
-    n = sum(int(np.isfinite(a).sum()) for a in parts)
+    parts = [a[np.isfinite(a)] for a in (np.asarray(a, dtype=float) for a in z)]  # the readings, in order
+    n = sum(len(a) for a in parts)
     lags = min(LONGEST_LAG, n // 10)
     if lags < 1:
         return 1.0

@@ -156,9 +156,9 @@ def sentence(e, time_of) -> str:
                        "which named no fault: the model's misfit stands"))
         case ev.ObserverRestarted(step=k, times=n):
             return (f"the Kalman observer whose residuals the drift test reads lost its estimate at t = {t(k)} "
-                    f"(not finite){'' if n == 1 else f', for the {n}th time'}: it starts again there from the "
-                    "particle observer's cloud, the drift test's windows holding that sample held to the threshold "
-                    "of windows with a reading missing")
+                    f"(not finite; restart {n}): it starts again there from the particle observer's cloud, the "
+                    "drift test's windows holding that sample held to the threshold of windows with a reading "
+                    "missing")
         case ev.Intermittent(hypothesis=h, value=v, low=lo, high=hi, spans=sp, posterior=p):
             return (f"{h} comes and goes: present {spans_text([(time_of(a), None if b is None else time_of(b)) for a, b in sp])}, "
                     f"its magnitude {v:.4g} [{lo:.4g}, {hi:.4g}] (95 %) while present (posterior {p:.3g})")
@@ -318,11 +318,20 @@ def notes(events, time_of) -> list[str]:
     """The :data:`NOTABLE` events among ``events`` in words, for the command
     line: two or more :class:`~bgc.events.Overruled` are one
     sentence naming them all, in the place of the first (the report keeps
-    one sentence each, with the symbol that ruled each out)."""
+    one sentence each, with the symbol that ruled each out), and so are two
+    or more :class:`~bgc.events.ObserverRestarted`."""
     overruled = [e.hypothesis for e in events if isinstance(e, ev.Overruled)]
+    restarts = [e for e in events if isinstance(e, ev.ObserverRestarted)]
     out, said = [], False
     for e in events:
         if not isinstance(e, NOTABLE):
+            continue
+        if isinstance(e, ev.ObserverRestarted) and len(restarts) > 1:
+            if e is restarts[0]:  # one line for them all, in the place of the first
+                out.append(f"the Kalman observer whose residuals the drift test reads lost its estimate "
+                           f"{len(restarts)} times, from t = {_t(time_of, restarts[0].step)} to t = "
+                           f"{_t(time_of, restarts[-1].step)}, and started again each time from the particle "
+                           "observer's cloud (the report lists each)")
             continue
         if isinstance(e, ev.Overruled) and len(overruled) > 1:
             if not said:

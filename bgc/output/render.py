@@ -669,8 +669,13 @@ def distinguishability_text(r) -> str:
         lines.append(f"divergence from no fault: {d.divergence:.4g} (an ideal detector's P of telling it from no "
                      f"fault {d.detectability:.3f}: a likelihood test of the whole run that knows the fault's shape)")
         rate = getattr(r, "detector", None)
-        if rate is not None:
-            lines += detector_lines(rate, d.detectability, r.dt)
+        if rate is not None:  # the ideal detector held at bgc's detector's false-alarm probability over the run
+            per_run = min(1.0, rate.false_alarm * r.steps * r.dt / rate.horizon) if rate.horizon else rate.false_alarm
+            held = d.power(per_run)
+            if f"{held:.3f}" != f"{d.detectability:.3f}":
+                lines.append(f"the ideal detector held at bgc's detector's false-alarm probability ({per_run:.3g} "
+                             f"over the run): P {held:.3f}")
+            lines += detector_lines(rate, held, r.dt)
         width = max([len(x.name) for x in d.rivals] + [5])
         lines.append(f"{'rival':<{width}}  {'E':>10}  {'sd':>9}  {'P':>6}  best fit (magnitude from t)")
         for x in d.rivals:
@@ -816,8 +821,9 @@ def placement_lines(p) -> list[str]:
 
 def detector_lines(rate, ideal: float, dt: float) -> list[str]:
     """bgc's detector on a scenario (:class:`bgc.api.detection.DetectorRate`)
-    beside the ideal detector's probability ``ideal``: the rate, how it was
-    had, and which of the two the user will see when they differ."""
+    beside the ideal detector's probability ``ideal`` (held at the same
+    false-alarm probability): the rate, how it was had, and which of the
+    two the user will see when they differ."""
     unit = f" {rate.time_unit}" if rate.time_unit else " time units"
     delay = f", median delay {rate.median_delay:g}{unit}" if rate.median_delay is not None else ""
     tests = getattr(rate, "detectors", ("mean",))
