@@ -91,8 +91,11 @@ def correlation_time(z: Sequence[np.ndarray]) -> float:
     """The integrated autocorrelation time of the residual series ``z`` (one
     per recording, NaN: not read), over each recording's readings in the
     order read (a sensor read every tenth step: its successive readings,
-    whose correlation is what widens their mean; :func:`autocorrelations`
-    of those), tau = 1 + 2
+    whose correlation is what widens their mean), each recording's straight
+    line through them taken off (a slow change of the mean, a drift the
+    model misses, is what the mean test looks for, not noise that widens
+    its standard error: left in, it would read as a long correlation and
+    hide itself), tau = 1 + 2
     sum_(k=1..M) r_k, the window M the first lag at least :data:`SOKAL`
     times tau so far (Sokal's rule; at most :data:`LONGEST_LAG` lags or a
     tenth of the samples): the factor by which the variance of their mean
@@ -105,7 +108,7 @@ def correlation_time(z: Sequence[np.ndarray]) -> float:
     >>> round(correlation_time([np.array([1.0, -1.0] * 50)]), 6)  # alternating: its mean cancels at once
     -0.98
     """
-    parts = [a[np.isfinite(a)] for a in (np.asarray(a, dtype=float) for a in z)]  # the readings, in order
+    parts = [_detrended(a[np.isfinite(a)]) for a in (np.asarray(a, dtype=float) for a in z)]  # the readings, in order
     n = sum(len(a) for a in parts)
     lags = min(LONGEST_LAG, n // 10)
     if lags < 1:
@@ -117,6 +120,15 @@ def correlation_time(z: Sequence[np.ndarray]) -> float:
         if k >= SOKAL * tau:
             break
     return tau
+
+
+def _detrended(x: np.ndarray) -> np.ndarray:
+    """``x`` less its least-squares straight line over its positions (less
+    its mean when it has fewer than 3 values)."""
+    if len(x) < 3:
+        return x - x.mean() if len(x) else x
+    t = np.arange(len(x), dtype=float) - (len(x) - 1) / 2.0
+    return x - x.mean() - t * float(t @ x) / float(t @ t)
 
 
 def innovations(filters: Sequence, outputs: Sequence[str]) -> tuple[Innovations, ...]:
