@@ -565,13 +565,24 @@ def test_the_mean_test_holds_its_level_on_residuals_correlated_from_step_to_step
     every_other = long.copy()
     every_other[1::2] = np.nan
     assert residuals.correlation_time([every_other]) == pytest.approx(1.25 / 0.75, rel=0.1)
-    # a slow drift of the mean is what the mean test looks for: the correlation time is the noise's about it, and
-    # the drift's mean still fails the test (counted as a correlation, it would widen its own standard error)
+    # a slow drift of the mean is what the mean test looks for: the correlation time is the noise's about the
+    # recording's line, and a drift from the middle of the record to 1.2 stds still fails the test (its mean 5.2
+    # white standard errors); counted as a correlation, it would widen its own standard error and pass
     white = rng.standard_normal(300)
-    drift = white - white.mean() + np.linspace(0.0, 0.6, 300)
-    assert residuals.correlation_time([drift]) == pytest.approx(residuals.correlation_time([white]), abs=1e-9)
-    assert [t for _, t in residuals.failures(residuals.summary([drift[:, None]], ("y",)), 0.001,
-                                             correlation=False, narrower=False)] == ["mean"]
+    ramp = np.linspace(0.0, 0.6, 300)
+    assert residuals.correlation_time([white + ramp]) == pytest.approx(residuals.correlation_time([white]), abs=1e-9)
+
+    def failed_mean(draws) -> int:
+        return sum([t for _, t in residuals.failures(residuals.summary([x[:, None]], ("y",)), 0.001,
+                                                     correlation=False, narrower=False)] == ["mean"] for x in draws)
+
+    late = np.concatenate([np.zeros(150), np.linspace(0.0, 1.2, 150)])
+    drifts = [x - x.mean() + late for x in rng.standard_normal((40, 300))]
+    assert failed_mean(drifts) >= 36
+    import unittest.mock
+
+    with unittest.mock.patch.object(residuals, "_detrended", lambda x: x - x.mean()):
+        assert failed_mean(drifts) <= 10  # without the line: the drift hides itself
     assert residuals.correlation_time([rng.standard_normal(20000)]) == pytest.approx(1.0, abs=0.1)
     level, draws = 0.05, 1500
     nominal = 2 * (1 - NormalDist().cdf(NormalDist().inv_cdf(1 - level / 4)))  # the mean's share, two-sided
