@@ -109,18 +109,16 @@ def test_the_drift_family_tests_an_exact_observers_residuals_with_no_allowance()
     assert "shared" not in alarms or alarms["shared"].step > expected
 
 
-def test_a_particle_observer_runs_the_drift_familys_kalman_observer_beside_it(monkeypatch):
-    """Beside a particle observer (and only with the drift family), the loop
-    runs the nominal model's cubature Kalman filter, whose residuals the
-    drift family takes; its state goes with the diagnoser's (the round trip
-    of tests/test_state.py) and a state without it is refused."""
-    from conftest import fast_session
-
-    session = fast_session("two_tank")
-    sim = bgc.simulate(session, "R12:abrupt:0.8@60", seed=3)
-    rows = [(float(t), {n: v[k] for n, v in sim.inputs.items()}, {n: v[k] for n, v in sim.measurements.items()})
+def _rows(session, scenario: str) -> list:
+    """The (time, inputs, measurements) rows of ``scenario`` simulated on ``session`` (seed 3), as
+    :meth:`Diagnoser.step` takes them."""
+    sim = bgc.simulate(session, scenario, seed=3)
+    return [(float(t), {n: v[k] for n, v in sim.inputs.items()}, {n: v[k] for n, v in sim.measurements.items()})
             for k, t in enumerate(sim.time)]
-    options = bgc.DiagnosisOptions(workers=1, particles=100, seed=4, detectors=("mean", "drift"))
+
+
+def _spy_on_exact(monkeypatch) -> list:
+    """The residuals every detector is given as ``exact`` from now on (a list filled as they come)."""
     given = []
     original = Detector.update
 
@@ -129,6 +127,21 @@ def test_a_particle_observer_runs_the_drift_familys_kalman_observer_beside_it(mo
         return original(self, z, mc, y, spread, corr, exact)
 
     monkeypatch.setattr(Detector, "update", spy)
+    return given
+
+
+def test_a_particle_observer_runs_the_drift_familys_kalman_observer_beside_it(monkeypatch):
+    """Beside a particle observer (and only with the drift family), the loop
+    runs the nominal model's cubature Kalman filter, whose residuals the
+    drift family takes; its state goes with the diagnoser's (the round trip
+    of tests/test_state.py) and a state without it is refused."""
+    from conftest import fast_session
+
+    session = fast_session("two_tank")
+    rows = _rows(session, "R12:abrupt:0.8@60")
+    options = bgc.DiagnosisOptions(workers=1, particles=100, seed=4, detectors=("mean", "drift"))
+    original = Detector.update
+    given = _spy_on_exact(monkeypatch)
     whole = session.diagnoser(options)
     assert whole.loop.companion is not None
     assert session.diagnoser(bgc.DiagnosisOptions(workers=1, particles=100)).loop.companion is None
@@ -169,20 +182,11 @@ def test_a_kalman_observer_that_loses_its_estimate_starts_again_from_the_particl
     from conftest import fast_session
 
     session = fast_session("two_tank")
-    sim = bgc.simulate(session, "none", seed=3)
-    rows = [(float(t), {n: v[k] for n, v in sim.inputs.items()}, {n: v[k] for n, v in sim.measurements.items()})
-            for k, t in enumerate(sim.time)]
+    rows = _rows(session, "none")
     # the optimal-proposal filter resamples only when its weights grow uneven: the cloud's moments are weighted
     d = session.diagnoser(bgc.DiagnosisOptions(workers=1, particles=100, seed=4, detectors=("mean", "drift"),
                                                filter="opf"))
-    given = []
-    original = Detector.update
-
-    def spy(self, z, mc=None, y=None, spread=None, corr=None, exact=None):
-        given.append(np.array(exact, dtype=float))
-        return original(self, z, mc, y, spread, corr, exact)
-
-    monkeypatch.setattr(Detector, "update", spy)
+    given = _spy_on_exact(monkeypatch)
     broken, at = [], 30
     for k, row in enumerate(rows[:60]):
         if k == at:  # the observer loses its estimate on this step

@@ -4,12 +4,13 @@ N(0, 1) draws they are when the model fits the plant?
 Per sensor, over the samples read: their mean (0 when the model fits; its
 standard error sqrt(tau / n), ``tau`` their integrated autocorrelation time,
 1 for white residuals and never taken below it: :func:`correlation_time`),
-their variance (1; standard error sqrt(2 / n)) and the Ljung-Box portmanteau statistic (Ljung and Box 1978)
-over ``lags`` lags, chi-square with ``lags`` degrees of freedom when they are
-white. ``bgc calibrate`` reports them for the calibrated model
-(:mod:`bgc.analysis.calibrate`), and the diagnosis for the model as written
-over the data before a fault (:mod:`bgc.diagnosis.fit`): both say what fails
-in the same sentences (:func:`findings`).
+their variance (1; standard error sqrt(2 / n)) and the Ljung-Box
+portmanteau statistic (Ljung and Box 1978) over ``lags`` lags, chi-square
+with ``lags`` degrees of freedom when they are white. ``bgc calibrate``
+reports them for the calibrated model (:mod:`bgc.analysis.calibrate`), and
+the diagnosis for the model as written over the data before a fault
+(:mod:`bgc.diagnosis.fit`): both say what fails in the same sentences
+(:func:`findings`).
 """
 
 from __future__ import annotations
@@ -95,9 +96,8 @@ def correlation_time(z: Sequence[np.ndarray]) -> float:
     line through them taken off (a slow change of the mean, a drift the
     model misses, is what the mean test looks for, not noise that widens
     its standard error: left in, it would read as a long correlation and
-    hide itself), tau = 1 + 2
-    sum_(k=1..M) r_k, the window M the first lag at least :data:`SOKAL`
-    times tau so far (Sokal's rule; at most :data:`LONGEST_LAG` lags or a
+    hide itself), tau = 1 + 2 sum_(k=1..M) r_k, the window M the first lag
+    at least :data:`SOKAL` times tau so far (Sokal's rule; at most :data:`LONGEST_LAG` lags or a
     tenth of the samples): the factor by which the variance of their mean
     exceeds 1 / n. White residuals have 1; a filter whose first, heavily
     weighted samples over-correct (a plant that starts nearer the model's
@@ -108,7 +108,7 @@ def correlation_time(z: Sequence[np.ndarray]) -> float:
     >>> round(correlation_time([np.array([1.0, -1.0] * 50)]), 6)  # alternating: its mean cancels at once
     -0.98
     """
-    parts = [_detrended(a[np.isfinite(a)]) for a in (np.asarray(a, dtype=float) for a in z)]  # the readings, in order
+    parts = [_detrended(a[np.isfinite(a)]) for a in (np.asarray(b, dtype=float) for b in z)]  # each one's readings
     n = sum(len(a) for a in parts)
     lags = min(LONGEST_LAG, n // 10)
     if lags < 1:

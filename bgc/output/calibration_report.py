@@ -54,7 +54,8 @@ def report_data(r) -> dict[str, Any]:
                       for e in c.estimates],
         "correlation": {"estimates": list(c.correlated), "matrix": [list(map(_num, row)) for row in c.correlation]},
         "innovations": [{"sensor": i.sensor, "samples": i.samples, "mean": _num(i.mean),
-                         "correlation_time": _num(i.correlation_time), "variance": _num(i.variance), "ljung_box": _num(i.ljung_box), "lags": i.lags,
+                         "correlation_time": _num(i.correlation_time), "variance": _num(i.variance),
+                         "ljung_box": _num(i.ljung_box), "lags": i.lags,
                          "p_value": _num(i.p_value), "variance_but_one": _num(i.variance_but_one),
                          "residual_variance_sd": _num(spread[i.sensor]) if i.sensor in spread else None}
                         for i in c.innovations],

@@ -99,7 +99,8 @@ def _fit_data(d) -> dict[str, Any] | None:
     return {"t_last": _time(_t(d, f.end - 1)) if f.end else None, "samples": f.end, "least": f.least,
             "level": f.level, "short": f.short, "unchanged": f.unchanged, "findings": list(f.findings),
             "sensors": [{"sensor": i.sensor, "samples": i.samples, "mean_std": _num(i.mean),
-                         "correlation_time": _num(i.correlation_time), "variance": _num(i.variance), "variance_but_one": _num(i.variance_but_one),
+                         "correlation_time": _num(i.correlation_time), "variance": _num(i.variance),
+                         "variance_but_one": _num(i.variance_but_one),
                          "mean_offset": _num(offsets.get(i.sensor))}
                         for i in f.innovations]}
 
