@@ -220,12 +220,15 @@ def test_cli_prints_a_scenarios_rivals_and_every_candidates_group(capsys, tmp_pa
     out = capsys.readouterr().out
     assert "truth: R1:abrupt:0.3@30.5 (R1_abrupt, from sample 60)" in out
     assert "predicted ambiguity group: R2_abrupt" in out
+    assert "the fastest detector at a false-alarm probability of " in out  # the least delay any detector has
     assert cli.main(["distinguish", str(PIPES), "--format", "json", "-o", str(tmp_path / "d.json"),
                      "--plot", str(tmp_path / "d.png")]) == 0
     data = json.loads("\n".join(ln for ln in (tmp_path / "d.json").read_text().splitlines()
                                 if not ln.startswith("//")))
     groups = {f["fault"]: f["group"] for f in data["faults"]}
     assert groups["R1+:abrupt"][0] == "R2_abrupt" and groups["R3+:abrupt"] == []
+    bounds = [f["ideal_delay"] for f in data["faults"]]  # no measured detector: held at the campaigns' 1 %
+    assert all(b["false_alarm"] == 0.01 and (b["delay"] is None or b["delay"] >= 0) for b in bounds)
     assert (tmp_path / "d.png").read_bytes()[:4] == b"\x89PNG"
 
 
@@ -530,3 +533,44 @@ def test_the_detector_is_set_beside_the_ideal_detector_held_at_its_own_false_ala
     held = n.cdf(2 * n.inv_cdf(d.detectability) - n.inv_cdf(0.99))
     assert f"held at bgc's detector's false-alarm probability (0.01 over the run): P {held:.3f}" in text
     assert "what a diagnosis will show" not in text  # against the equal-prior 0.96 it would be said
+
+
+def test_the_least_median_delay_is_where_the_data_up_to_a_sample_first_carry_the_likelihood_ratios_power():
+    """R12 up by 0.1 from sample 30 of the two tanks (80 samples): from the
+    hand-derived maps, densely, V_k = d_k' S_k^-1 d_k of the data up to each
+    sample k (d_k the fault's noise-free deviation, S_k the nominal
+    measurements' covariance), no Kalman filter: the prediction's ``reach``
+    is that sequence from the onset, and its delay bound the first k with
+    V_k >= 2.326^2. Simulated: the likelihood-ratio test of the data up to
+    that sample, held at 1 % by the no-fault draws' own quantile, detects
+    in at least half of the draws with the fault, and the same test one
+    sample earlier in under half."""
+    T, onset, bias = 80, 30, 0.1
+    package, fam = two_tank(T)
+    d = distinguish.distinguish(fam, "R12_abrupt", bias, onset, {})
+    P0, Q, R = noise(package)
+    _, S = stacked([tank_map(2.0)] * T, package.MODELS["nominal"].X0, P0, Q, R)
+    run = noise_free(package)
+    dev = (run(fault_maps(T, onset, R12=2.0 + bias)) - run([tank_map(2.0)] * T)).ravel()
+    n_y = 3
+
+    def reach(k):  # the data up to sample k
+        m = n_y * (k + 1)
+        return float(dev[:m] @ np.linalg.solve(S[:m, :m], dev[:m]))
+
+    dense = [reach(k) for k in range(onset, T)]
+    assert np.allclose(d.reach, dense, rtol=1e-6, atol=1e-9)
+    z2 = 2.3263478740408408 ** 2
+    first = next(i for i, v in enumerate(dense) if v >= z2)
+    assert d.ideal_delay(0.01) == first and 3 <= first <= 20
+    assert d.ideal_delay(0.2) < first and d.ideal_delay(1e-12) is None  # a looser rate alarms sooner
+    rng = np.random.default_rng(5)
+    for k, above in ((onset + first, True), (onset + first - 1, False)):
+        m = n_y * (k + 1)
+        L = np.linalg.cholesky(S[:m, :m])
+        weights = np.linalg.solve(S[:m, :m], dev[:m])  # the log ratio: weights' y - V / 2
+        noise_draws = L @ rng.standard_normal((m, 20_000))
+        null = weights @ noise_draws
+        alt = weights @ (noise_draws + dev[:m, None])
+        power = float(np.mean(alt > np.quantile(null, 0.99)))
+        assert (power > 0.5 - 0.01) if above else (power < 0.5 + 0.01)  # 20,000 draws: a sd of 0.0035

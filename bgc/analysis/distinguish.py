@@ -90,7 +90,7 @@ from __future__ import annotations
 from .. import arguments
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -105,6 +105,10 @@ from ..model.protocol import FaultModel, Package, magnitude_row, nominal_model, 
 LEVEL = 0.95
 #: Most onsets per family: a longer run takes every k-th sample as an onset.
 MAX_ONSETS = 400
+#: The false-alarm probability per run (bgc's detector's default per horizon, a run's length:
+#: :class:`~bgc.diagnosis.options.DiagnosisOptions`) at which the ideal detector is held where a
+#: campaign or a prediction without measured runs compares with it.
+FALSE_ALARM = 0.01
 #: Memory the arrays of one prediction may take (:func:`memory`); a longer run
 #: is refused before any work (:func:`check_steps`).
 MAX_BYTES = 2_000_000_000
@@ -184,7 +188,11 @@ class Distinction:
     (its detectability: 0 when no sensor sees it); ``misfit``: that from its
     own linearised family's best fit (the linearisation's error); the
     ``rivals``, least separable first; ``level``: the probability under which
-    a rival is in the predicted ambiguity group."""
+    a rival is in the predicted ambiguity group; ``reach``: the squared norm
+    of the truth's whitened deviation from no fault summed from the onset to
+    each sample (``reach[i]`` to sample ``onset + i``; twice the divergence
+    of the data up to it; empty for a noise fault), what
+    :meth:`ideal_delay` reads."""
 
     truth: str
     magnitude: float
@@ -193,6 +201,7 @@ class Distinction:
     misfit: float
     rivals: tuple[Rival, ...]
     level: float = LEVEL
+    reach: tuple[float, ...] = field(default=(), repr=False)
 
     @property
     def group(self) -> tuple[str, ...]:
@@ -216,6 +225,36 @@ class Distinction:
         at the false-alarm probability ``false_alarm``, detects it
         (:func:`ideal_power`)."""
         return ideal_power(self.detectability, false_alarm)
+
+    def ideal_delay(self, false_alarm: float) -> int | None:
+        """The fewest samples after the onset by which any detector holding
+        the false-alarm probability ``false_alarm`` over the run can alarm in
+        half of the runs with this fault (its median delay's lower bound);
+        None when even the whole run does not let it (or for a noise fault,
+        whose ``reach`` is not kept).
+
+        An alarm by sample k is a test of no fault against this fault on the
+        data up to k, whose size is at most ``false_alarm`` (it is at most
+        the run's false-alarm probability). By Neyman and Pearson no such
+        test detects more often than the likelihood-ratio test of this fault,
+        its onset and magnitude known; on the whitened innovations its log
+        ratio is N(V/2, V) under the fault and N(-V/2, V) under no fault,
+        V = ``reach`` up to k, so its power is Phi(sqrt(V) - z), z =
+        Phi^-1(1 - ``false_alarm``): at least a half once V >= z^2. Exact for
+        a fault that shifts the residuals' mean on a plant linear in its
+        states (the approximations of the module's docstring otherwise); a
+        detector that does not know the fault's shape, onset or size, and
+        holds its rate over windows, needs longer.
+
+        >>> d = Distinction("R_drift", 1.0, 10, 8.0, 0.0, (), reach=(1.0, 3.0, 5.5, 8.0))
+        >>> d.ideal_delay(0.01), d.ideal_delay(0.05), d.ideal_delay(0.001)
+        (2, 1, None)
+        """
+        from statistics import NormalDist
+
+        z = NormalDist().inv_cdf(1.0 - false_alarm)
+        need = z * z if z > 0 else 0.0
+        return next((i for i, v in enumerate(self.reach) if v >= need), None)
 
     @property
     def label(self) -> str:
@@ -524,7 +563,9 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
                 probability = _normal_above(expected - threshold, std)
         rivals.append(Rival(other, expected, std, probability, fit_onset, fit_magnitude))
     rivals.sort(key=lambda r: (r.probability, r.expected, r.name))
-    return Distinction(name, float(magnitude), int(onset), 0.5 * ww, own_r, tuple(rivals), level)
+    energy = (w.reshape(len(families.y), -1) ** 2).sum(axis=1)[onset:]  # nothing before the onset
+    return Distinction(name, float(magnitude), int(onset), 0.5 * ww, own_r, tuple(rivals), level,
+                       tuple(float(v) for v in np.cumsum(energy)))
 
 
 def noisy_row(model: FaultModel) -> int | None:

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..analysis.distinguish import FALSE_ALARM
 from ..errors import (BgcError, printable)
 from ..model import DEFAULT_BACKEND
 
@@ -133,12 +134,20 @@ def _separation(spec: RunSpec) -> dict[str, Any]:
     predicted ambiguity group), ``rivals`` (those in it), ``separation``
     (the smallest probability that the data name the truth over a rival) and
     ``detectability`` (the probability that they favour the fault over no
-    fault, were its onset and magnitude known: what an ideal detector sees);
-    empty when the prediction fails (the diagnosis's row stands). It depends
-    on the scenario, noise levels and length only, not on the filter or the
-    seed: a process computes it once per scenario."""
-    return dict(_prediction(model_file(spec), _scenario(spec), spec.process_noise, spec.measurement_noise,
-                            spec.steps, spec.modes))
+    fault, were its onset and magnitude known: what an ideal detector sees),
+    ``ideal_delay`` (the least time from the onset by which any detector
+    holding the campaigns' 1 % false-alarm probability per run alarms in half
+    of such runs: :meth:`~bgc.analysis.distinguish.Distinction.ideal_delay`;
+    none when not even the whole run lets it); empty when the prediction
+    fails (the diagnosis's row stands). It depends on the scenario, noise
+    levels and length only, not on the filter or the seed: a process
+    computes it once per scenario."""
+    out = dict(_prediction(model_file(spec), _scenario(spec), spec.process_noise, spec.measurement_noise,
+                           spec.steps, spec.modes))
+    alarm = out.pop("ideal_alarm", None)  # the time of that sample: its delay from the fault's own time
+    if out and spec.onset is not None:
+        out["ideal_delay"] = None if alarm is None else max(alarm - spec.onset, 0.0)
+    return out
 
 
 def _scenario(spec: RunSpec):
@@ -154,11 +163,13 @@ def _prediction(model_file: str, scenario, process_noise: float | None, measurem
 
     try:
         compiled = next((v for k, v in _SESSIONS.items() if k[:2] == (os.getpid(), model_file)), model_file)
-        d = api.distinguishability(compiled, scenario, process_noise=process_noise,  # the run's session: compiled
-                                   measurement_noise=measurement_noise, steps=steps,
-                                   modes=modes).distinctions[0]
+        report = api.distinguishability(compiled, scenario, process_noise=process_noise,  # the run's session
+                                        measurement_noise=measurement_noise, steps=steps, modes=modes)
+        d = report.distinctions[0]
     except Exception:  # noqa: BLE001 - the prediction is an extra: the diagnosis's row stands without it
         return ()
+    late = d.ideal_delay(FALSE_ALARM)  # samples after the onset's; the sample k's time is (k + 1) dt
     return (("separable", d.separable), ("rivals", SEPARATOR.join(d.group) or None),
             ("separation", min((r.probability for r in d.rivals), default=1.0)),
-            ("detectability", d.detectability))
+            ("detectability", d.detectability),
+            ("ideal_alarm", None if late is None else (d.onset + late + 1) * report.dt))

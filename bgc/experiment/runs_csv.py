@@ -37,7 +37,7 @@ COLUMNS = (
     "mse", "nmse", "ct", "detected", "detection_time", "delay", "false_alarm", "verdict",
     "diagnosed", "candidates", "right", "in_candidates", "estimate", "low", "high", "estimate_method", "est_error",
     "parameter", "parameter_truth", "param_error", "covers", "refine", "separable", "rivals", "separation",
-    "detectability", "target", "diagnosed_target", "expected", "detectors",
+    "detectability", "target", "diagnosed_target", "expected", "detectors", "ideal_delay",
 )
 
 #: A state's MSE column: ``mse_e2`` for the state ``e2`` (a number; empty when the run did not compute it).
@@ -63,7 +63,7 @@ _BOOL = {"ambiguous", "detected", "false_alarm", "right", "in_candidates", "cove
 
 _FLOAT = {"magnitude", "onset", "process_noise", "measurement_noise", "rt", "mse", "nmse", "ct", "detection_time",
           "delay", "estimate", "low", "high", "est_error", "parameter", "parameter_truth", "param_error",
-          "separation", "detectability"}
+          "separation", "detectability", "ideal_delay"}
 
 
 #: The real-valued columns (besides each state's ``mse_<state>``): NaN where a value is missing.

@@ -669,8 +669,9 @@ def distinguishability_text(r) -> str:
         lines.append(f"divergence from no fault: {d.divergence:.4g} (an ideal detector's P of telling it from no "
                      f"fault {d.detectability:.3f}: a likelihood test of the whole run that knows the fault's shape)")
         rate = getattr(r, "detector", None)
+        per_run = _per_run(r)
+        lines += ideal_delay_lines(r, d, per_run)
         if rate is not None:  # the ideal detector held at bgc's detector's false-alarm probability over the run
-            per_run = min(1.0, rate.false_alarm * r.steps * r.dt / rate.horizon) if rate.horizon else rate.false_alarm
             held = d.power(per_run)
             if f"{held:.3f}" != f"{d.detectability:.3f}":
                 lines.append(f"the ideal detector held at bgc's detector's false-alarm probability ({per_run:.3g} "
@@ -819,6 +820,45 @@ def placement_lines(p) -> list[str]:
     return lines
 
 
+def _per_run(r) -> float:
+    """The false-alarm probability over the run of a prediction's scenario at
+    which the ideal detector is held: bgc's detector's, scaled from its
+    horizon to the run, when its runs were measured; else the campaigns' 1 %
+    (:data:`bgc.analysis.distinguish.FALSE_ALARM`)."""
+    from ..analysis.distinguish import FALSE_ALARM
+
+    rate = getattr(r, "detector", None)
+    if rate is None:
+        return FALSE_ALARM
+    return min(1.0, rate.false_alarm * r.steps * r.dt / rate.horizon) if rate.horizon else rate.false_alarm
+
+
+def _ideal_delay(r, d, per_run: float) -> float | None:
+    """The bound of :meth:`~bgc.analysis.distinguish.Distinction.ideal_delay`
+    in time units after the first sample that sees the fault; None: none."""
+    late = d.ideal_delay(per_run) if getattr(d, "reach", ()) else None
+    return None if late is None else late * r.dt
+
+
+def ideal_delay_lines(r, d, per_run: float) -> list[str]:
+    """What the fastest detector holding ``per_run`` false alarms over the
+    run could do on scenario ``d``: the least delay by which half of its runs
+    alarm (Neyman and Pearson), beside bgc's detector's median when measured."""
+    if not getattr(d, "reach", ()):
+        return []
+    delay = _ideal_delay(r, d, per_run)
+    rate = getattr(r, "detector", None)
+    unit = f" {rate.time_unit}" if rate is not None and rate.time_unit else ""
+    head = (f"the fastest detector at a false-alarm probability of {per_run:.3g} over the run (the likelihood ratio "
+            "that knows the fault's onset and size; Neyman-Pearson) alarms in half of the runs ")
+    if delay is None:
+        return [head + "not even by the run's end"]
+    mine = "" if rate is None or rate.median_delay is None else \
+        f"; bgc's detector: median {rate.median_delay:g}{unit} over the runs it detected"
+    return [head + f"{delay:g}{unit} after the first sample that sees the fault; no detector holding that rate "
+            f"does so sooner{mine}"]
+
+
 def detector_lines(rate, ideal: float, dt: float) -> list[str]:
     """bgc's detector on a scenario (:class:`bgc.api.detection.DetectorRate`)
     beside the ideal detector's probability ``ideal`` (held at the same
@@ -860,6 +900,8 @@ def distinguishability_json(r) -> dict:
         "faults": [{
             "fault": d.label, "model": d.truth, "magnitude": d.magnitude, "onset_sample": d.onset,
             "divergence": d.divergence, "detectability": d.detectability, "misfit": d.misfit, "level": d.level,
+            "ideal_delay": {"false_alarm": _per_run(r), "delay": _ideal_delay(r, d, _per_run(r))}
+            if getattr(d, "reach", ()) else None,
             "group": list(d.group),
             "rivals": [{"model": x.name, "expected": x.expected, "std": x.std, "probability": x.probability,
                         "onset_sample": x.onset, "magnitude": x.magnitude} for x in d.rivals],

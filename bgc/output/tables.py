@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from typing import Any, Iterable, NamedTuple
 
-from ..analysis.distinguish import LEVEL, ideal_power
+from ..analysis.distinguish import FALSE_ALARM, LEVEL, ideal_power
 from . import html, render
 from .markdown import comment as _comment
 from .markdown import escape
@@ -183,9 +183,6 @@ def table_markdown(spec, rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-#: The false-alarm probability per run the campaigns' detector holds (bgc's default per horizon, a run's
-#: length: :class:`~bgc.diagnosis.options.DiagnosisOptions`), at which the ideal detector is held too.
-FALSE_ALARM = 0.01
 
 
 def summary_rows(rows: list[dict]) -> list[dict[str, Any]]:
