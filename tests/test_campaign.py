@@ -437,11 +437,11 @@ def test_detect_is_a_setting_the_runs_take_and_rows_of_an_older_runs_csv_are_the
     """
     c = campaign_file.load_campaign(write(tmp_path, text))
     assert [s.detectors for s in c.specs] == [("mean",), ("mean", "drift", "variance"),
-                                              ("mean", "drift", "variance", "frozen", "pooled")]
+                                              ("mean", "drift", "variance", "frozen", "pooled", "matched")]
     assert len({s.id for s in c.specs}) == 3
     plain = campaign_file.load_campaign(write(tmp_path, text.replace('        detect: [mean, "variance,drift", all]\n', "")))
     assert plain.specs[0].id == c.specs[0].id and plain.specs[0].detectors == ("mean",)
-    assert c.specs[2].identity()["detectors"] == "mean,drift,variance,frozen,pooled"
+    assert c.specs[2].identity()["detectors"] == "mean,drift,variance,frozen,pooled,matched"
     seen = []
 
     def diagnose(session, **kw):
@@ -456,7 +456,7 @@ def test_detect_is_a_setting_the_runs_take_and_rows_of_an_older_runs_csv_are_the
         "mean,drift,variance"
     with pytest.raises(BgcError, match=r"c.yaml:6:.*detect: 'all' names the same tests as an item before it"):
         campaign_file.load_campaign(write(tmp_path, text.replace('"variance,drift", all]',
-                                                                 '"mean,drift,variance,frozen,pooled", all]')))
+                                                                 '"mean,drift,variance,frozen,pooled,matched", all]')))
     with pytest.raises(BgcError, match=r"detect"):
         campaign_file.load_campaign(write(tmp_path, text.replace('"variance,drift"', '"slope"')))
     old = runs_csv.COLUMNS[:runs_csv.COLUMNS.index("detectors")]

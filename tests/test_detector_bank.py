@@ -122,9 +122,9 @@ def _spy_on_exact(monkeypatch) -> list:
     given = []
     original = Detector.update
 
-    def spy(self, z, mc=None, y=None, spread=None, corr=None, exact=None):
+    def spy(self, z, mc=None, y=None, spread=None, corr=None, exact=None, whitened=None):
         given.append(np.array(exact, dtype=float))
-        return original(self, z, mc, y, spread, corr, exact)
+        return original(self, z, mc, y, spread, corr, exact, whitened)
 
     monkeypatch.setattr(Detector, "update", spy)
     return given
@@ -231,11 +231,12 @@ def test_the_mean_test_alone_is_unchanged_and_the_bank_shares_its_budget():
     alone = DetectorOptions(0.01, (1, 8, 32), steps)
     assert alone.threshold(sensors) == pytest.approx(norm.isf(0.01 / (2 * steps * sensors * 3)), rel=1e-9)
     bank = DetectorOptions(0.01, (1, 8, 32), steps, ALL)
-    assert len(ALL) == 5  # the mean test and four families: 0.2 % each
-    assert bank.threshold(sensors) == pytest.approx(norm.isf(0.002 / (2 * steps * sensors * 3)), rel=1e-9)
-    assert bank.variance_level(sensors) == pytest.approx(0.002 / (2 * steps * sensors * len(VARIANCE_WINDOWS)))
-    assert bank.frozen_level(sensors) == pytest.approx(0.002 / (steps * sensors))
-    assert bank.pooled_level() == pytest.approx(0.002 / (steps * len(POOLED_WINDOWS)))
+    assert len(ALL) == 6  # the mean test and five families: a sixth of 1 % each
+    share = 0.01 / 6
+    assert bank.threshold(sensors) == pytest.approx(norm.isf(share / (2 * steps * sensors * 3)), rel=1e-9)
+    assert bank.variance_level(sensors) == pytest.approx(share / (2 * steps * sensors * len(VARIANCE_WINDOWS)))
+    assert bank.frozen_level(sensors) == pytest.approx(share / (steps * sensors))
+    assert bank.pooled_level() == pytest.approx(share / (steps * len(POOLED_WINDOWS)))
 
 
 def _chi2_even_sf(x: float, df: int) -> float:
@@ -554,7 +555,7 @@ def test_the_options_refuse_a_bank_without_the_mean_test_or_an_unknown_family():
         bgc.diagnose("models/circuit.yaml", scenario="none", steps=20,
                      options=bgc.DiagnosisOptions(detectors=("drift",)))
     out = bgc_cli("diagnose", "models/circuit.yaml", "--scenario", "none", "--detect", "slope")
-    assert out.returncode == 2 and "'slope': give some of mean, drift, variance, frozen, pooled" in out.stderr
+    assert out.returncode == 2 and "'slope': give some of mean, drift, variance, frozen, pooled, matched" in out.stderr
     assert "Traceback" not in out.stderr
 
 
@@ -967,9 +968,9 @@ def test_a_model_with_modes_gets_the_correlation_of_the_mode_its_cloud_agrees_on
     seen = []
     original = detect.Detector.update
 
-    def spy(self, z, mc=None, y=None, spread=None, corr=None, exact=None):
+    def spy(self, z, mc=None, y=None, spread=None, corr=None, exact=None, whitened=None):
         seen.append((np.array(z, dtype=float), corr))
-        return original(self, z, mc, y, spread, corr, exact)
+        return original(self, z, mc, y, spread, corr, exact, whitened)
 
     monkeypatch.setattr(detect.Detector, "update", spy)
     from conftest import MODELS

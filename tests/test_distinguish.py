@@ -28,6 +28,7 @@ from bgc import api, cli
 from bgc.api import distinguish as api_distinguish
 
 from bgc.analysis import distinguish
+from bgc.model import linear
 from bgc.model import package as track
 
 from conftest import ROOT, TEST_MODELS, bgc_cli, compiled, fast_session, peak_memory, session, tank_map
@@ -42,7 +43,7 @@ def two_tank(steps: int):
     samples, once per test process and run length (the tests that read the
     same length share them: they read them, never change them)."""
     package = track.load_package(ROOT / "generated", "two_tank")
-    return package, distinguish.prepare(package, distinguish.scenario_inputs(package, steps))
+    return package, distinguish.prepare(package, linear.scenario_inputs(package, steps))
 
 
 def stacked(maps, x0, P0, Q, R):
@@ -194,7 +195,7 @@ def test_the_bayes_factor_over_data_sets_has_the_predicted_mean_and_spread():
 
 def test_two_parameters_that_enter_as_their_sum_are_predicted_inseparable():
     package = track.load_package(session(PIPES).folder, "series_pipes")
-    fam = distinguish.prepare(package, distinguish.scenario_inputs(package, 120))
+    fam = distinguish.prepare(package, linear.scenario_inputs(package, 120))
     equal = {"R1": 0.02, "R2": 0.02, "R3": 0.01}
     d = distinguish.distinguish(fam, "R1_abrupt", 0.3, 60, equal)
     r2 = next(r for r in d.rivals if r.name == "R2_abrupt")
@@ -453,10 +454,10 @@ def test_the_detectors_reach_is_the_windowed_whitened_response_of_the_hand_deriv
     e = fam.whitening.apply(slope[:, :, None])[:, :, 0] * 1.0
     expected = max(abs(e[k - w + 1:k + 1].sum(axis=0)).max() / math.sqrt(w) for w in (1, 8, 32)
                    for k in range(w - 1, T))
-    reach = distinguish.detector_reach(package, distinguish.scenario_inputs(package, T), onset, (1, 8, 32))
+    reach = distinguish.detector_reach(package, linear.scenario_inputs(package, T), onset, (1, 8, 32))
     assert reach["R12_abrupt"] == pytest.approx((1.0, expected), rel=1e-5)
     assert reach["C1_abrupt"][1] < 1e-6
-    assert distinguish.typical_size(-1.0, 2.0) == pytest.approx((1 * 0.5 + 2 * 2 / 2) / 3)  # 1/3 on -1..0, 2/3 on 0..2
+    assert linear.typical_size(-1.0, 2.0) == pytest.approx((1 * 0.5 + 2 * 2 / 2) / 3)  # 1/3 on -1..0, 2/3 on 0..2
 
 
 def test_bgc_check_says_a_burst_of_noise_moves_no_mean_not_that_an_input_test_would_show_it():

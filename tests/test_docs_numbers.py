@@ -210,11 +210,11 @@ def test_bgc_distinguishs_detector_runs():
 
 def test_the_drift_tests_thresholds_on_a_kalman_observers_residuals():
     """docs/diagnosis.md section 2.1's thresholds of the drift test (three
-    sensors over 300 steps, all five tests at the default alpha): the chain
+    sensors over 300 steps, all six tests at the default alpha): the chain
     bound's for a window read whole, the gapped windows', the union bound's."""
     from bgc.diagnosis.detect import TESTS
 
     o = DetectorOptions(DEFAULT.false_alarm, DEFAULT.windows, 300, TESTS)
     figures = (o.drift_threshold(3, exact=True), o.drift_gapped_threshold(3), o.drift_threshold(3))
-    check(r"With all five tests at 1 %, three sensors over 300 steps: " + NUMBER + r" for a window read whole and "
+    check(r"With all six tests at 1 %, three sensors over 300 steps: " + NUMBER + r" for a window read whole and "
           + NUMBER + r" for one with a gap, instead of " + NUMBER, tuple(round(v, 2) for v in figures))

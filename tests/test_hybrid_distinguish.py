@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import bgc
-from bgc.analysis import distinguish
+from bgc.model import linear
 from bgc.errors import ArgumentValueError
 from bgc.model.protocol import nominal_model
 from bgc.output import render
@@ -60,7 +60,7 @@ def test_the_mode_column_of_a_prediction_is_the_noise_free_plants_run_through_it
     np.testing.assert_array_equal(own, sim.modes)
     assert set(np.unique(own)) == {1.0, 2.0}
     package = relay.package  # the generated model's own guards give the same column, to a sample at a switch
-    guards = distinguish.scenario_inputs(package, 300)[:, nominal_model(package).MODE_INPUT]
+    guards = linear.scenario_inputs(package, 300)[:, nominal_model(package).MODE_INPUT]
     assert np.mean(guards != own) < 0.02
 
 

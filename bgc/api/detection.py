@@ -29,6 +29,7 @@ import numpy as np
 
 from ..analysis import simulate
 from ..diagnosis.options import DiagnosisOptions
+from ..model import linear
 from ..model.protocol import onset_sample
 from .session import Session
 
@@ -188,7 +189,7 @@ def unseen(c, options: DiagnosisOptions | None = None) -> list[Unseen]:
     horizon = horizon_steps(opts.horizon, settings.dt, steps)
     threshold = DetectorOptions(opts.false_alarm, tuple(opts.windows), horizon,
                                 tuple(opts.detectors)).threshold(len(c.model.measurements))
-    reach = distinction.detector_reach(package, distinction.scenario_inputs(package, steps), steps // 2,
+    reach = distinction.detector_reach(package, linear.scenario_inputs(package, steps), steps // 2,
                                        tuple(opts.windows))
     bursts = {name for name in reach if fault_kind(package.MODELS[name].FAULT["kind"]).noise}
     return [Unseen(name, size, r, threshold, r < 1e-6 * threshold and name not in bursts, name in bursts)

@@ -16,6 +16,7 @@ from ..errors import (
 from ..kinds import DIRECTIONS, fault_kind
 from ..analysis import distinguish as distinction
 from ..analysis import hybrid, simulate
+from ..model import linear
 from ..model import package as packages
 from . import cache
 from .folders import _LOCK
@@ -268,7 +269,7 @@ def _families(package, steps: int, need: int = 0, progress=None, signals: tuple 
         while _FAMILIES and (len(_FAMILIES) >= _FAMILIES_KEPT
                              or sum(map(_nbytes, _FAMILIES.values())) + need > distinction.MAX_BYTES):
             _FAMILIES.pop(next(iter(_FAMILIES)))
-        _FAMILIES[key] = distinction.prepare(package, distinction.scenario_inputs(package, steps, signals, modes),
+        _FAMILIES[key] = distinction.prepare(package, linear.scenario_inputs(package, steps, signals, modes),
                                              progress)
     return _FAMILIES[key]
 

@@ -218,8 +218,9 @@ def add_data_options(p: argparse.ArgumentParser) -> None:
                    help="the detector's tests, comma-separated: mean (the residuals' windowed mean, always), drift "
                         "(long and ramp-weighted windows: slow drifts), variance (a burst of noise, a frozen "
                         "sensor), frozen (readings that repeat to the last digit), pooled (every sensor's residuals at "
-                        "once, whitened: a fault that moves several a little each), or all; they share the "
-                        "false-alarm rate (default: mean)")
+                        "once, whitened: a fault that moves several a little each), matched (each fault model's own response, "
+                        "matched against the Kalman observer's whitened innovations: a listed fault soonest), or "
+                        "all; they share the false-alarm rate (default: mean)")
     p.add_argument("--gap", type=float, default=None, metavar="TIME",
                    help="missing samples longer than this are reported as a gap (default: 10 steps of dt)")
     p.add_argument("--input-timing", choices=("end", "start"), default=None,

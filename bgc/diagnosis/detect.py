@@ -64,7 +64,7 @@ in every sensor's residuals (Basseville and Nikiforov, 1993, ch. 2):
 ``L`` the longest window.
 
 **A bank of tests** (``DetectorOptions.tests``; ``--detect``). The mean test
-is always on; four families may join it, and the families share the
+is always on; five families may join it, and the families share the
 false-alarm probability ``alpha`` equally (``alpha / F`` each, ``F`` the
 families on), each holding its share by the union bound over its own tests
 (steps x sensors x windows), so that the detector's whole false-alarm
@@ -114,7 +114,7 @@ tighter bound, below.)
   (``T(h, a)`` Owen's function), summed over sensors and windows
   (:func:`chain_threshold`), on ``1 - DRIFT_GAPPED`` (0.9) of the family's
   share: 4.84 instead of 5.05 for three sensors over 300 steps at a share
-  of 0.2 %. It holds for the whole series of residuals, so it is the
+  of 0.2 % (five families on; 4.87 and 5.08 with all six). It holds for the whole series of residuals, so it is the
   threshold of a window read whole, which is the value the whole series
   takes there (the samples not read, drawn anew and independent of the
   rest, would not change it); a window with a sample not read (its term 0)
@@ -195,6 +195,25 @@ describe. Its upper tail is widened by the window's Monte Carlo share,
 within the window adds up to ``a_k^2`` to each residual's variance; the
 bound of a sum of weighted chi-squares, Ostrowski, as for the lower tail).
 
+* ``matched``: a fault of the model's list, by its own response. Over
+  ``W`` samples (``W`` in :data:`bgc.diagnosis.matched.MATCHED_WINDOWS`) and
+  per fault model, the projection of the exact observer's innovations,
+  whitened by the Cholesky factor of their predicted covariance
+  (:meth:`Detector.update`'s ``whitened``), on the fault model's whitened
+  unit response from the window's start (its kernel,
+  :func:`bgc.diagnosis.matched.kernels`), over the response's norm: the
+  generalised likelihood ratio of that fault, of unknown size, from the
+  window's start (Willsky and Jones 1976). N(0, 1) without a fault whatever
+  the kernel, so the family holds its share by the chain bound over each
+  kernel's steps (its lag-one correlation on white innovations is the sum of
+  its neighbouring products), the union bound over the kernels
+  (:meth:`DetectorOptions.matched_threshold`); a window holding a step not
+  read whole is not tested. The onset is the change point of the fault
+  models' responses: the start and the model whose response projects most
+  of the innovations. Only beside an exact observer and with every sensor
+  read (the caller gives no kernels otherwise: the family's share is spent
+  on nothing, as the pooled test's without correlations).
+
 When several families alarm at one step, the alarm is the one furthest past
 its own level (the log of its p-value over its level). The alarm names the
 family (:class:`~bgc.diagnosis.values.Detection`'s ``test``).
@@ -271,7 +290,7 @@ def lag_one(w: int, ramp: bool) -> float:
 
 
 #: The detector's families of tests, in the order an alarm names them on a tie (module docstring).
-TESTS = ("mean", "drift", "variance", "frozen", "pooled")
+TESTS = ("mean", "drift", "variance", "frozen", "pooled", "matched")
 
 
 def tests_named(text: str) -> tuple[str, ...] | None:
@@ -281,7 +300,7 @@ def tests_named(text: str) -> tuple[str, ...] | None:
     none or one bgc does not have.
 
     >>> tests_named("variance,drift"), tests_named("all"), tests_named("mean"), tests_named("slope")
-    (('mean', 'drift', 'variance'), ('mean', 'drift', 'variance', 'frozen', 'pooled'), ('mean',), None)
+    (('mean', 'drift', 'variance'), ('mean', 'drift', 'variance', 'frozen', 'pooled', 'matched'), ('mean',), None)
     """
     names = [t.strip() for t in str(text).split(",") if t.strip()]
     if names == ["all"]:
@@ -361,6 +380,12 @@ class DetectorOptions:
         """The probability of each pooled test (one per step and window: it takes every sensor at once)."""
         return self.share / self._tests(1, len(POOLED_WINDOWS))
 
+    def matched_threshold(self, correlations: tuple[float, ...]) -> float:
+        """The |S| above which a matched test alarms: the chain bound over
+        each kernel's steps (``correlations``: each kernel's lag-one
+        correlation), the union bound over the kernels (:func:`chain_threshold`)."""
+        return chain_threshold(self.share, self.steps, correlations)
+
 
 class Detector:
     """The sliding-window Z-test, one step at a time (:meth:`update`).
@@ -375,13 +400,15 @@ class Detector:
     windows and the onset's search reach no further back."""
 
     def __init__(self, sensors: tuple[str, ...], options: DetectorOptions = DetectorOptions(), noise=None,
-                 exact: bool = False):
+                 exact: bool = False, kernels=None):
         self.sensors = sensors
         self.options = options
         # the drift, variance and frozen tests (``noise``: the sensors' noise std, which the frozen test needs;
-        # ``exact``: the drift family's residuals come from an observer with no Monte Carlo error)
+        # ``exact``: the drift family's residuals come from an observer with no Monte Carlo error; ``kernels``:
+        # the matched test's, bgc.diagnosis.matched.Kernels over these sensors)
         self.exact = exact
-        self.more = Families(sensors, options, noise, exact) if len(options.tests) > 1 else None
+        self.kernels = kernels
+        self.more = Families(sensors, options, noise, exact, kernels) if len(options.tests) > 1 else None
         self.threshold = options.threshold(len(sensors))
         self._windows = tuple(int(w) for w in options.windows)
         self._longest = max(self._windows)
@@ -399,9 +426,9 @@ class Detector:
         self._cumsum = deque([self._cumsum[-1]], maxlen=self._longest + 1)
         self._mc = deque([self._mc[-1]], maxlen=self._longest + 1)
         if self.more is not None:
-            self.more = Families(self.sensors, self.options, self._noise, self.exact)
+            self.more = Families(self.sensors, self.options, self._noise, self.exact, self.kernels)
 
-    def update(self, z, mc=None, y=None, spread=None, corr=None, exact=None) -> Detection | None:
+    def update(self, z, mc=None, y=None, spread=None, corr=None, exact=None, whitened=None) -> Detection | None:
         """Take the normalised residuals of one step (NaN: sensor not read)
         and, from a particle filter, the Monte Carlo std of its prediction in
         units of its predicted std (:func:`monte_carlo_share`; none: an exact
@@ -413,14 +440,17 @@ class Detector:
         observer predicts them (the pooled test's; none: no pooled test over
         a window holding this step) and ``exact``, the normalised residuals
         of an observer with no Monte Carlo error beside a particle one (the
-        drift family's, tested with no allowance; none: ``z`` with ``mc``'s);
-        return the alarm when this step raises one. ``z``, ``mc``, ``y``,
-        ``spread``, ``exact``: arrays or sequences of floats, one per sensor;
-        ``corr``: sensors x sensors."""
+        drift family's, tested with no allowance; none: ``z`` with ``mc``'s)
+        and ``whitened``, that observer's innovations whitened by the
+        Cholesky factor of their predicted covariance (the matched test's;
+        none, or a value not finite: no matched test over a window holding
+        this step); return the alarm when this step raises one. ``z``,
+        ``mc``, ``y``, ``spread``, ``exact``, ``whitened``: arrays or
+        sequences of floats, one per sensor; ``corr``: sensors x sensors."""
         alarm = self._mean(z, mc)
         if self.more is None:
             return alarm
-        found = self.more.update(z, mc, y, spread, corr, exact)
+        found = self.more.update(z, mc, y, spread, corr, exact, whitened)
         if alarm is not None:
             found.insert(0, (alarm, _normal_excess(alarm.statistic, alarm.threshold)))
         if not found:
@@ -575,7 +605,8 @@ class Families:
     step, and before that), so that a window is tested from the step it
     fits in."""
 
-    def __init__(self, sensors: tuple[str, ...], options: DetectorOptions, noise=None, exact: bool = False):
+    def __init__(self, sensors: tuple[str, ...], options: DetectorOptions, noise=None, exact: bool = False,
+                 kernels=None):
         unknown = [t for t in options.tests if t not in TESTS]
         if unknown or "mean" not in options.tests:
             raise ValueError(f"detector tests {options.tests!r}: the mean test and some of {TESTS[1:]!r}")
@@ -627,6 +658,25 @@ class Families:
         if self.pooled:
             self._pooled_level = options.pooled_level()
             self._pooled_high: dict[int, float] = {}  # per degrees of freedom: the chi-square's upper quantile
+        self._matched_setup(kernels if "matched" in options.tests else None, options, n)
+
+    def _matched_setup(self, kernels, options: DetectorOptions, n: int) -> None:
+        """The matched test (``kernels``: bgc.diagnosis.matched.Kernels over
+        the ``n`` sensors; none: not run): the whitened innovations of the
+        last L steps, each row written twice in a ring of 2 L rows so that
+        the L rows up to the newest are always one slice, and how many steps
+        in a row were read whole."""
+        self.kernels = kernels
+        if kernels is None:
+            return
+        if kernels.K.shape[2] != n:
+            raise ValueError(f"matched kernels over {kernels.K.shape[2]} sensors for a detector of {n}")
+        L = kernels.longest
+        self._w = np.zeros((2 * L, n))
+        self._at = 0  # the ring's next row
+        self._whole = 0
+        self._flat = kernels.K.reshape(len(kernels.K), -1)
+        self._matched_threshold = options.matched_threshold(kernels.rho)
 
     def bounds(self, df: int) -> tuple[float, float]:
         """The variance test's bounds on the centred sum of squares of a
@@ -655,13 +705,19 @@ class Families:
         rings = tuple(tuple(d) for d in self._rings()) + (tuple(tuple(row.tolist()) for row in self._p),)
         readings = (tuple(self._last), tuple(self._since), tuple(self._run), tuple(self._longest),
                     tuple(dict(s) for s in self._steps))
-        return rings, self.taken, readings
+        matched = () if self.kernels is None else (self._recent().tolist(), self._whole)
+        return rings, self.taken, readings, matched
 
     def restore(self, state: tuple) -> None:
         """Put the tests in ``state`` (:meth:`state`)."""
-        rings, taken, readings = state
-        if len(rings) != len(self._rings()) + 1 or len(readings) != 5:
+        rings, taken, readings, matched = state
+        if len(rings) != len(self._rings()) + 1 or len(readings) != 5 or bool(matched) != (self.kernels is not None):
             raise ValueError("a detector state of another shape")
+        if matched:
+            recent, whole = matched
+            L = self.kernels.longest
+            self._w[:L] = self._w[L:] = np.asarray(recent, dtype=float).reshape(L, -1)
+            self._at, self._whole = 0, int(whole)
         self.taken = int(taken)
         for d, rows in zip(self._rings(), rings):
             d.clear()
@@ -675,7 +731,8 @@ class Families:
 
     # -- one step --------------------------------------------------------------------------------------------
 
-    def update(self, z, mc=None, y=None, spread=None, corr=None, exact=None) -> list[tuple[Detection, float]]:
+    def update(self, z, mc=None, y=None, spread=None, corr=None, exact=None,
+               whitened=None) -> list[tuple[Detection, float]]:
         """Take one step (:meth:`Detector.update`'s arguments); the alarms it
         raises (steps counted by the caller), each with its excess."""
         row = z.tolist() if isinstance(z, np.ndarray) else [float(v) for v in z]
@@ -714,6 +771,8 @@ class Families:
             self._p.append(self._p[-1] + np.concatenate([np.where(seen, values, 0.0),
                                                          np.where(np.isfinite(share), share, 0.0),
                                                          block.ravel(), [0.0 if given else 1.0]]))
+        if self.kernels is not None:
+            self._take_whitened(whitened, len(row))
         self.taken += 1
         readings = None if y is None else (y.tolist() if isinstance(y, np.ndarray) else [float(v) for v in y])
         if readings is not None and (self.variance or self.frozen):  # the lower tail's resolution, the repeats
@@ -727,7 +786,67 @@ class Families:
             found += self._frozen(readings)
         if self.pooled:
             found += self._pool()
+        if self.kernels is not None:
+            found += self._matched()
         return found
+
+    def _take_whitened(self, whitened, n: int) -> None:
+        """The matched test's step: the whitened innovations into the ring (a
+        step not read whole: zeros, and no window holding it is tested)."""
+        values = np.full(n, np.nan) if whitened is None else np.asarray(whitened, dtype=float).reshape(n)
+        whole = bool(np.isfinite(values).all())
+        row = values if whole else np.zeros(n)
+        L = self.kernels.longest
+        self._w[self._at] = self._w[self._at + L] = row
+        self._at = (self._at + 1) % L
+        self._whole = self._whole + 1 if whole else 0
+
+    def _recent(self) -> np.ndarray:
+        """The whitened innovations of the last L steps (L, n), the newest last."""
+        L = self.kernels.longest
+        return self._w[self._at:self._at + L]
+
+    def _matched(self) -> list[tuple[Detection, float]]:
+        """Every matched kernel over the windows read whole: |S| against the
+        family's threshold (module docstring, "A bank of tests")."""
+        kernels = self.kernels
+        fits = kernels.window <= self._whole
+        if not fits.any():
+            return []
+        recent = self._recent()
+        values = np.abs(self._flat @ recent.ravel())  # every kernel (no copy of the kernels), then the fitting
+        values[~fits] = 0.0
+        index = int(np.argmax(values))
+        value, threshold = float(values[index]), self._matched_threshold
+        if not value > threshold:
+            return []
+        w = int(kernels.window[index])
+        share = np.abs((kernels.K[index] * recent).sum(axis=0))  # each whitened component's part
+        j = int(np.argmax(share))
+        onset = self._matched_onset(recent)
+        return [(Detection(0, self.sensors[j], w, value, threshold, onset, "matched"),
+                 _normal_excess(value, threshold))]
+
+    def _matched_onset(self, recent: np.ndarray) -> int:
+        """The GLR change point of a fault model's response of unknown size,
+        the model unknown too: argmax over the onsets t the steps read whole
+        reach and the fault models f of (sum_m g_f(m)' e_(t+m))^2 / sum_m
+        |g_f(m)|^2 (a window's kernel that alarmed can be another model's
+        than the one that fits from the true onset)."""
+        g = self.kernels.g  # (faults, L, n)
+        L = g.shape[1]
+        energy = np.cumsum((g * g).sum(axis=2), axis=1)  # (faults, L): over the first m samples at m - 1
+        best, at = -1.0, self.taken - 1
+        for m in range(1, min(L, self._whole, self.taken) + 1):
+            dot = np.einsum("fmj,mj->f", g[:, :m], recent[L - m:])
+            norm = energy[:, m - 1]
+            live = norm > 0.0
+            if not live.any():
+                continue
+            score = float(np.max(dot[live] ** 2 / norm[live]))
+            if score > best:
+                best, at = score, self.taken - m
+        return at
 
     def _drift_sums(self, row: list[float], c_now: tuple, a_now: tuple, exact) -> None:
         """The drift family's running sums after a step: of ``z`` (``row``;

@@ -175,14 +175,23 @@ class Loop:
         o, nominal = config.options, self.nominal
         self.pf = None if config.ckf else self.pf_class(nominal, o.particles, np.random.default_rng([o.seed, 0]))
         self.kf = NominalKalman(nominal, len(self.outputs)) if config.ckf else None
-        self.companion = CubatureKalmanFilter(nominal) if self.pf is not None and "drift" in o.detectors else None
+        wanted = "drift" in o.detectors or "matched" in o.detectors  # the families that read an exact observer
+        self.companion = CubatureKalmanFilter(nominal) if self.pf is not None and wanted else None
         if self.companion is not None and len(self.companion.kf.carried):  # a mode (and its dwell) carried
             self.companion = None
         # the drift family's residuals are exact from a Kalman observer of a model without modes, or the companion
         exact = self.companion is not None or (self.kf is not None and not len(self.kf.kf.carried))
+        # the matched test's kernels: the fault models' responses as that observer sees them, over every sensor
+        # (bgc.diagnosis.matched; none for a model with modes, or with a sensor the data do not have)
+        kernels = None
+        if "matched" in o.detectors and exact and bool(self.present.all()):
+            from .matched import kernels as matched_kernels
+
+            kernels = matched_kernels(config.package)
+        self.matched = kernels is not None
         self.detector = Detector(tuple(y for y in self.outputs if y in config.present),
                                  DetectorOptions(o.false_alarm, o.windows, self.horizon, o.detectors),
-                                 self.noise[self.present], exact=exact)
+                                 self.noise[self.present], exact=exact, kernels=kernels)
 
     @property
     def options(self) -> DiagnosisOptions:
@@ -205,9 +214,10 @@ class Loop:
     def _observe(self, s: Sample) -> None:
         """The nominal observer's step, and the detector's while watching."""
         k, o = s.k, self.options
-        mc = detection = exact = None
+        mc = detection = exact = whitened = None
         with np.errstate(all="ignore"):  # one context for the step's arithmetic (NaN: a sensor not read)
             corr = self._correlation(s.u) if self.rule is not None and self.detection is None else None
+            predicted = self._exact_prediction(s.u) if self.matched and self.detection is None else None
             if self.kf is not None:
                 self.kf.step(s.y, s.u)
                 ym, sd, zk = self.kf.y_mean[-1], self.kf.y_std[-1], self.kf.z[-1]
@@ -223,6 +233,9 @@ class Loop:
                 exact = ((s.y - c.y_mean) / c.y_std)[self.present]
                 if not (np.isfinite(self.companion.mean).all() and np.isfinite(self.companion.cov).all()):
                     exact = self._restart_companion(k)
+                    predicted = None
+            if predicted is not None:
+                whitened = _whiten(np.asarray(s.y, dtype=float) - predicted[0], predicted[1])
             self.y_mean.append(ym)
             self.y_std.append(sd)
             self.z.append(zk)
@@ -240,7 +253,8 @@ class Loop:
                 detection = self.detector.update(np.asarray(zk)[present], None if mc is None else mc[present],
                                                  np.asarray(s.y, dtype=float)[present],
                                                  (np.asarray(sd, dtype=float) / self.noise)[present],
-                                                 None if corr is None else corr[np.ix_(present, present)], exact)
+                                                 None if corr is None else corr[np.ix_(present, present)], exact,
+                                                 whitened)
         if detection is not None and k < self.watch_from:  # before the detector was armed: not an alarm
             detection = None
         if detection is not None:
@@ -254,6 +268,16 @@ class Loop:
             if self.detection is None or k < self.detection.step:  # before the alarm: a fault degenerates it too
                 self.ess_sum += 0.0 if r.recovered else r.ess
                 self.ess_steps += 1
+
+    def _exact_prediction(self, u) -> tuple[np.ndarray, np.ndarray] | None:
+        """The next measurement's mean and covariance as the exact observer
+        (the Kalman filter, or the companion beside a particle filter)
+        predicts it before its step: the matched test whitens the step's
+        innovations with it (:meth:`bgc.filters.cubature._Filter.predicted_measurement`,
+        the rule of the observer's own step)."""
+        if self.kf is not None:
+            return self.kf.kf.predicted_measurement(self.kf.m[0], self.kf.P[0], u)
+        return self.companion.kf.predicted_measurement(self.companion.mean, self.companion.cov, u)
 
     def _restart_companion(self, k: int) -> np.ndarray:
         """The drift family's Kalman observer lost its estimate at step ``k``
@@ -566,3 +590,18 @@ def shifted_events(events, cut: int) -> tuple:
     """Data events with their steps ``cut`` earlier, those before the record kept left out."""
     moved = (ev.shifted(e, cut) for e in events)
     return tuple(e for e in moved if e is not None)
+
+
+def _whiten(e: np.ndarray, S: np.ndarray) -> np.ndarray | None:
+    """Innovations ``e`` whitened by the lower Cholesky factor of their
+    covariance ``S``: L^-1 e, white N(0, I) on an exact observer without a
+    fault; None when a sensor was not read or ``S`` is not positive definite."""
+    if not (np.isfinite(e).all() and np.isfinite(S).all()):
+        return None
+    try:
+        L = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        return None
+    from scipy.linalg import solve_triangular
+
+    return solve_triangular(L, e, lower=True, check_finite=False)

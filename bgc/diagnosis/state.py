@@ -38,11 +38,12 @@ from .options import DiagnosisOptions
 from .values import Detection, Isolation
 
 #: The state's format; a state of another format is refused.
-VERSION = 9  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
+VERSION = 10  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
 # parameters of faults accommodated (2026-12-04); 5: the detector's other families of tests (2026-12-04); 6: their
 # residuals in units of the sensors' noise, and what the readings tell (2026-12-04); 7: the pooled test's sums of
 # the residuals' predicted correlation (2026-12-04); 8: the options' no_fault (2026-12-04); 9: the drift family's
-# Kalman observer beside a particle one, and its rings (2026-12-05)
+# Kalman observer beside a particle one, and its rings (2026-12-05); 10: the matched test's whitened innovations
+# (2026-12-05)
 #: The first bytes of a state file.
 MAGIC = b"bgc-diagnoser-state\n"
 
