@@ -221,7 +221,7 @@ def test_cli_prints_a_scenarios_rivals_and_every_candidates_group(capsys, tmp_pa
     out = capsys.readouterr().out
     assert "truth: R1:abrupt:0.3@30.5 (R1_abrupt, from sample 60)" in out
     assert "predicted ambiguity group: R2_abrupt" in out
-    assert "the fastest detector at a false-alarm probability of " in out  # the least delay any detector has
+    assert "no detector at a false-alarm probability of 0.01 over the run alarms in half of the runs " in out
     assert cli.main(["distinguish", str(PIPES), "--format", "json", "-o", str(tmp_path / "d.json"),
                      "--plot", str(tmp_path / "d.png")]) == 0
     data = json.loads("\n".join(ln for ln in (tmp_path / "d.json").read_text().splitlines()
@@ -229,7 +229,8 @@ def test_cli_prints_a_scenarios_rivals_and_every_candidates_group(capsys, tmp_pa
     groups = {f["fault"]: f["group"] for f in data["faults"]}
     assert groups["R1+:abrupt"][0] == "R2_abrupt" and groups["R3+:abrupt"] == []
     bounds = [f["ideal_delay"] for f in data["faults"]]  # no measured detector: held at the campaigns' 1 %
-    assert all(b["false_alarm"] == 0.01 and (b["delay"] is None or b["delay"] >= 0) for b in bounds)
+    assert all(b is None or (b["false_alarm"] == 0.01 and (b["delay"] is None or b["delay"] >= 0)) for b in bounds)
+    assert any(b is not None and b["delay"] is not None for b in bounds)
     assert (tmp_path / "d.png").read_bytes()[:4] == b"\x89PNG"
 
 

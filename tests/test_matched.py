@@ -145,13 +145,16 @@ def test_white_innovations_alarm_the_matched_test_at_most_at_its_share():
     share = alpha / 2
     assert matched <= share * runs + 3 * math.sqrt(runs * share * (1 - share)), matched
     detector = Detector(SENSORS, options, exact=True, kernels=K)
-    big = np.tile(K.g[K.names.index("R12_abrupt")][:1] * 50.0, (20, 1))
-    for k in range(20):
+    big = np.tile(K.g[K.names.index("R12_abrupt")][:1] * 50.0, (24, 1))
+    alarmed = []
+    for k in range(24):
         row = np.array([np.nan, 0.0, 0.0]) if k == 12 else big[k]
-        alarm = detector.update(np.zeros(3), None, None, None, None, None, row)
-        assert alarm is None or k < 12  # windows of 8 from step 5 on alarm; none holds step 12 until step 19
+        if detector.update(np.zeros(3), None, None, None, None, None, row) is not None:
+            alarmed.append(k)
         if k >= 12:
             assert detector.more._whole == k - 12
+    # a window of 8 first fits at step 7; those holding step 12 (ending at 12 to 19) are not tested
+    assert alarmed == [7, 8, 9, 10, 11, 20, 21, 22, 23], alarmed
 
 
 def test_the_matched_state_round_trips_and_the_run_goes_on_as_if_never_stopped():

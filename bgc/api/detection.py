@@ -61,6 +61,17 @@ class DetectorRate:
     first_seed: int
     time_unit: str | None = None
     detectors: tuple[str, ...] = ("mean",)
+    #: The delays of the runs it detected (time units, in the order of the runs)
+    delays: tuple[float, ...] = ()
+
+    @property
+    def median_over_runs(self) -> float:
+        """The median delay over every run, a run not detected at or after
+        the onset counted as never (inf when half of them were): what a
+        bound on the median delay of any detector
+        (:meth:`bgc.analysis.distinguish.Distinction.ideal_delay`) bounds."""
+        every = sorted(self.delays) + [math.inf] * (self.runs - len(self.delays))
+        return float(np.median(every)) if every else math.nan
 
     @property
     def probability(self) -> float:
@@ -116,7 +127,7 @@ def detector_rate(session: Session, injection: simulate.FaultInjection, steps: i
     low, high = wilson(detected, runs)
     return DetectorRate(runs, detected, false, low, high, float(np.median(delays)) if delays else None,
                         opts.filter, opts.particles, opts.false_alarm, opts.horizon, seed,
-                        session.view.model.settings.time_unit, tuple(opts.detectors))
+                        session.view.model.settings.time_unit, tuple(opts.detectors), tuple(delays))
 
 
 def _simulated(session: Session, injection, steps: int, seed: int, signals: tuple, schedule: tuple):

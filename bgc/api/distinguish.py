@@ -213,7 +213,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
                                     scenario if isinstance(scenario, str) or scenario is None else scenario.text,
                                     None if scenario else change, None if scenario else at, tuple(out),
                                     warning, rate, signals, (modes or "") if c.modes else None,
-                                    first)
+                                    first, c.model.settings.time_unit)
 
 
 

@@ -280,6 +280,8 @@ class DistinguishabilityReport:
     #: An intermittent fault that goes away inside the run: ``steps`` are those before it first does
     #: (its first appearance is told apart, as a step)
     first_appearance: bool = False
+    #: The model's time unit (None: not named)
+    time_unit: str | None = None
 
 
 #: The columns of :meth:`DiagnosisReport.table` ``("hypotheses")``.

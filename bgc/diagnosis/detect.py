@@ -821,8 +821,7 @@ class Families:
         if not value > threshold:
             return []
         w = int(kernels.window[index])
-        share = np.abs((kernels.K[index] * recent).sum(axis=0))  # each whitened component's part
-        j = int(np.argmax(share))
+        j = kernels.sensor(index)  # the sensor its fault model moves most (a whitened component mixes them)
         onset = self._matched_onset(recent)
         return [(Detection(0, self.sensors[j], w, value, threshold, onset, "matched"),
                  _normal_excess(value, threshold))]

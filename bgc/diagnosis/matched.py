@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import BgcError
 from ..kinds import fault_kind
 from ..model.linear import linearised, scenario_inputs, typical_size, unit_responses
 from ..model.protocol import Package, nominal_model, sized_models
@@ -59,7 +60,9 @@ class Kernels:
     window; per kernel its fault model (``fault``, an index into ``names``),
     its window (``window``) and its lag-one correlation on white innovations
     (``rho``); ``g`` (faults, L, n_y): each fault model's whitened response
-    from its onset, unnormalised (the onset's search)."""
+    from its onset, unnormalised (the onset's search); ``raw`` (faults, L,
+    n_y): its response in each sensor's own units of noise, not whitened
+    (the sensor an alarm names: whitening mixes the sensors)."""
 
     names: tuple[str, ...]
     K: np.ndarray
@@ -67,6 +70,14 @@ class Kernels:
     window: np.ndarray
     rho: tuple[float, ...]
     g: np.ndarray
+    raw: np.ndarray
+
+    def sensor(self, index: int) -> int:
+        """The sensor kernel ``index``'s fault model moves most over its
+        window, in units of each sensor's noise."""
+        w = int(self.window[index])
+        part = self.raw[int(self.fault[index]), :w]
+        return int(np.argmax((part * part).sum(axis=0)))
 
     @property
     def longest(self) -> int:
@@ -76,14 +87,22 @@ class Kernels:
 def kernels(package: Package, windows: tuple[int, ...] = MATCHED_WINDOWS) -> Kernels | None:
     """The package's kernels (:class:`Kernels`), one per fault model that
     moves a mean (not a noise fault, not a replaced reading; its response
-    not negligible, :data:`SEEN`) and window; None when there is none, or
-    for a model with modes (its Kalman observer would not know the mode)."""
+    not negligible, :data:`SEEN`) and window; None when there is none, for
+    a model with modes (its Kalman observer would not know the mode), or
+    when the nominal run over the kernels' length (:data:`KERNEL_AT` and the
+    longest window) is not finite."""
     return _kernels(package, tuple(int(w) for w in windows))
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=4)
 def _kernels(package: Package, windows: tuple[int, ...]) -> Kernels | None:
+    try:
+        return _made(package, windows)
+    except BgcError:  # the nominal run over the kernels' length not finite, its covariance singular: no test
+        return None
 
+
+def _made(package: Package, windows: tuple[int, ...]) -> Kernels | None:
     nominal = nominal_model(package)
     if getattr(nominal, "MODE_INPUT", None) is not None:
         return None
@@ -98,7 +117,8 @@ def _kernels(package: Package, windows: tuple[int, ...]) -> Kernels | None:
     with np.errstate(all="ignore"):
         x_before, x_after, _, F, H, whitening = linearised(package, us)
     n_y = H.shape[1]
-    K, fault, window, rho, g = [], [], [], [], []
+    sigma = np.asarray(nominal.MEASUREMENT_STD, dtype=float)
+    K, fault, window, rho, g, raw = [], [], [], [], [], []
     kept = []
     for name in names:
         with np.errstate(all="ignore"):
@@ -110,6 +130,7 @@ def _kernels(package: Package, windows: tuple[int, ...]) -> Kernels | None:
         i = len(kept)
         kept.append(name)
         g.append(w)
+        raw.append(G[KERNEL_AT:, :, 0] / np.where(sigma > 0, sigma, 1.0))
         for width in windows:
             k = np.zeros((longest, n_y))
             k[longest - width:] = w[:width]
@@ -122,4 +143,5 @@ def _kernels(package: Package, windows: tuple[int, ...]) -> Kernels | None:
             rho.append(float((k[1:] * k[:-1]).sum()) / norm)
     if not K:
         return None
-    return Kernels(tuple(kept), np.array(K), np.array(fault), np.array(window), tuple(rho), np.array(g))
+    return Kernels(tuple(kept), np.array(K), np.array(fault), np.array(window), tuple(rho), np.array(g),
+                   np.array(raw))

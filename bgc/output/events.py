@@ -422,7 +422,7 @@ def alarm_text(test: str, window: int, statistic: float, threshold: float) -> st
                 f"(chi-square, threshold {threshold:.1f}; this sensor's share the largest)")
     if test == "matched":
         return (f"the matched test of a fault model's response over {window} sample(s) reached {statistic:.1f} "
-                f"(threshold {threshold:.1f}; this sensor's part the largest)")
+                f"(threshold {threshold:.1f}; the sensor that model moves most)")
     if test == "frozen":
         return (f"its reading repeated {statistic:.0f} times to the last digit (a frozen sensor; "
                 f"{threshold:.0f} repeats alarm at the data's resolution)")
