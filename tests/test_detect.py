@@ -169,6 +169,28 @@ def test_a_detector_bank_gives_each_row_what_its_own_detector_gives(seed):
     assert alarms > 10
 
 
+def test_a_detector_bank_announced_short_takes_a_row_that_starts_far_past_its_room():
+    """A bank made with room for no step (the trackers' own) whose rows
+    step at 0 to 59 and then a row that starts at step 139 (an onset tried
+    well after the first): it makes room up to that step (it once grew by
+    its own size only and failed with an IndexError at step 139 of 130; a
+    sweep's run at commit b99c47d, its room 65 steps), and that row alarms
+    as its own detector."""
+    rng = np.random.default_rng(0)
+    sensors = ("a", "b", "c")
+    starts = [0, 139]
+    options = [DetectorOptions(0.01, (1, 8, 32), 300)] * 2
+    bank = DetectorBank(sensors, starts, options, 0)
+    alone = Detector(sensors, options[1])
+    for k in range(60):  # room for 65 steps made at step 0
+        bank.update(k, [0], rng.standard_normal((1, 3)), np.zeros((1, 3)))
+    for k in range(139, 160):
+        z = rng.standard_normal((1, 3)) + (6.0 if k >= 150 else 0.0)
+        got = bank.update(k, [1], z, np.zeros((1, 3)))
+        assert got[0] == alone.update(z[0], np.zeros(3)), k
+    assert got[0] is not None
+
+
 @pytest.mark.parametrize("windows", [(1, 8, 32), (32, 1, 8), (5,)])
 def test_the_statistics_are_the_window_sums_computed_directly(windows):
     """Every step's statistic, per sensor the largest over the windows that

@@ -543,7 +543,9 @@ class DetectorBank:
         stays off the data alarms at every step)."""
         rows = np.asarray(rows, dtype=int)
         if k + 1 >= self._cumsum.shape[1]:  # longer than announced: room for as many steps again, and more
-            grow = np.zeros((len(self.starts), max(self._cumsum.shape[1], 64), len(self.sensors)))
+            # (at least to step k: a row may start well after the last step taken, k jumps)
+            more = max(self._cumsum.shape[1], 64, k + 2 - self._cumsum.shape[1])
+            grow = np.zeros((len(self.starts), more, len(self.sensors)))
             self._cumsum = np.concatenate([self._cumsum, grow], axis=1)
             self._mc = np.concatenate([self._mc, grow], axis=1)
         c, m = self._cumsum, self._mc
