@@ -923,6 +923,17 @@ def _first_alarm(s, path, tests):
     return None
 
 
+def first_alarms(s, path, write, seeds, banks) -> dict:
+    """Per bank of tests in ``banks``, the first alarm (:func:`_first_alarm`)
+    of each seed's run, ``write(path, seed)`` writing it, in the seeds' order."""
+    out = {tests: [] for tests in banks}
+    for seed in seeds:
+        write(path, seed)
+        for tests in banks:
+            out[tests].append(_first_alarm(s, path, tests))
+    return out
+
+
 @pytest.mark.slow
 def test_a_source_a_little_low_is_seen_sooner_by_the_pooled_test(tmp_path):
     """The circuit's source 5 % below what its column says from step 150
@@ -935,16 +946,12 @@ def test_a_source_a_little_low_is_seen_sooner_by_the_pooled_test(tmp_path):
     from conftest import fast_session
 
     s = fast_session("circuit")
-    delays = {("mean",): [], ("mean", "pooled"): []}
-    named = []
-    for seed in range(8):
-        _source_low(tmp_path / "run.csv", seed, 0.05)
-        for tests in delays:
-            alarm = _first_alarm(s, tmp_path / "run.csv", tests)
-            assert alarm is not None and alarm.step >= 149, (seed, tests, alarm)
-            delays[tests].append(alarm.step - 149)
-            if tests == ("mean", "pooled"):
-                named.append(alarm.test)
+    alarms = first_alarms(s, tmp_path / "run.csv", lambda path, seed: _source_low(path, seed, 0.05), range(8),
+                          (("mean",), ("mean", "pooled")))
+    for tests, found in alarms.items():
+        assert all(a is not None and a.step >= 149 for a in found), (tests, found)
+    delays = {tests: [a.step - 149 for a in found] for tests, found in alarms.items()}
+    named = [a.test for a in alarms[("mean", "pooled")]]
     assert np.median(delays[("mean", "pooled")]) <= 0.5 * np.median(delays[("mean",)]), delays
     assert named.count("pooled") >= 5, named
     for seed in range(2):

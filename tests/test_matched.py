@@ -10,6 +10,7 @@ another simulator (tests/test_mismatch.py's exact solution of the circuit)
 against the bank without the matched test.
 """
 
+import functools
 import math
 import pickle
 
@@ -29,7 +30,9 @@ from conftest import ROOT, tank_map
 SENSORS = ("F10", "F12", "F20")
 
 
+@functools.lru_cache(maxsize=None)
 def two_tank_kernels():
+    """The two tanks' kernels, made once per test process (read them, do not change them)."""
     return kernels(track.load_package(ROOT / "generated", "two_tank"))
 
 
@@ -215,20 +218,16 @@ def test_a_slow_drift_is_seen_sooner_with_the_matched_test_and_dated_at_its_star
     matched test named in half the runs, each time within 5 samples of the
     start, and no alarm on the same simulator's fault-free run."""
     from conftest import fast_session
-    from test_detector_bank import _first_alarm
+    from test_detector_bank import _first_alarm, first_alarms
 
     s = fast_session("circuit")
     without = ("mean", "drift", "variance", "frozen", "pooled")
-    delays = {without: [], without + ("matched",): []}
-    named = []
-    for seed in range(6):
-        _circuit_drift(tmp_path / "run.csv", seed, 0.4)
-        for tests in delays:
-            alarm = _first_alarm(s, tmp_path / "run.csv", tests)
-            assert alarm is not None and alarm.step >= 99, (seed, tests, alarm)
-            delays[tests].append(alarm.step - 99)
-            if "matched" in tests and alarm.test == "matched":
-                named.append(alarm.onset_step)
+    alarms = first_alarms(s, tmp_path / "run.csv", lambda path, seed: _circuit_drift(path, seed, 0.4), range(6),
+                          (without, without + ("matched",)))
+    for tests, found in alarms.items():
+        assert all(a is not None and a.step >= 99 for a in found), (tests, found)
+    delays = {tests: [a.step - 99 for a in found] for tests, found in alarms.items()}
+    named = [a.onset_step for a in alarms[without + ("matched",)] if a.test == "matched"]
     assert np.median(delays[without + ("matched",)]) <= 0.85 * np.median(delays[without]), delays
     assert len(named) >= 3 and all(abs(onset - 99) <= 5 for onset in named), named
     _circuit_drift(tmp_path / "run.csv", 100, 0.0)

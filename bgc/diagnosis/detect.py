@@ -838,7 +838,7 @@ class Families:
         L = g.shape[1]
         energy = np.cumsum((g * g).sum(axis=2), axis=1)  # (faults, L): over the first m samples at m - 1
         best, at = -1.0, self.taken - 1
-        for m in range(1, min(L, self._whole, self.taken) + 1):
+        for m in range(1, min(L, self._whole) + 1):  # (the steps read whole are at most the steps taken)
             dot = np.einsum("fmj,mj->f", g[:, :m], recent[L - m:])
             norm = energy[:, m - 1]
             live = norm > 0.0

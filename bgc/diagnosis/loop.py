@@ -55,7 +55,7 @@ import numpy as np
 
 from ..arguments import spelled
 from ..data.sampler import DataSummary, Sample
-from ..filters.cubature import CubatureKalmanFilter, NominalKalman, _Filter as CubatureRule
+from ..filters.cubature import CubatureKalmanFilter, NominalKalman, _Filter as CubatureRule, lower_solve
 from ..filters.registry import check_particles, filter_class
 from ..ir import FaultSignatures
 from ..kinds import fault_kind
@@ -602,6 +602,4 @@ def _whiten(e: np.ndarray, S: np.ndarray) -> np.ndarray | None:
         L = np.linalg.cholesky(S)
     except np.linalg.LinAlgError:
         return None
-    from scipy.linalg import solve_triangular
-
-    return solve_triangular(L, e, lower=True, check_finite=False)
+    return lower_solve(L[None], e[None, :, None])[0, :, 0]

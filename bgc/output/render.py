@@ -836,7 +836,7 @@ def _per_run(r) -> float:
 def _ideal_delay(r, d, per_run: float) -> float | None:
     """The bound of :meth:`~bgc.analysis.distinguish.Distinction.ideal_delay`
     in time units after the first sample that sees the fault; None: none."""
-    late = d.ideal_delay(per_run) if getattr(d, "reach", ()) else None
+    late = d.ideal_delay(per_run)  # None for a noise fault, whose reach is not kept
     return None if late is None else late * r.dt
 
 
@@ -882,6 +882,7 @@ def detector_lines(rate, ideal: float, dt: float) -> list[str]:
 
 def distinguishability_json(r) -> dict:
     rate = getattr(r, "detector", None)
+    per_run = _per_run(r)
     return {
         "inputs": {name: dataclasses.asdict(signal) for name, signal in r.signals},
         "detector": None if rate is None else {
@@ -897,7 +898,7 @@ def distinguishability_json(r) -> dict:
         "faults": [{
             "fault": d.label, "model": d.truth, "magnitude": d.magnitude, "onset_sample": d.onset,
             "divergence": d.divergence, "detectability": d.detectability, "misfit": d.misfit, "level": d.level,
-            "ideal_delay": {"false_alarm": _per_run(r), "delay": _ideal_delay(r, d, _per_run(r))}
+            "ideal_delay": {"false_alarm": per_run, "delay": _ideal_delay(r, d, per_run)}
             if getattr(d, "reach", ()) else None,
             "group": list(d.group),
             "rivals": [{"model": x.name, "expected": x.expected, "std": x.std, "probability": x.probability,
