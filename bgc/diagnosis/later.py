@@ -47,10 +47,12 @@ import numpy as np
 
 from .. import events as ev
 from ..filters.cubature import NominalTrack
+from ..kinds import fault_kind
 from ..model.protocol import FaultModel
 from .onsets import log_prior
 from .intermittent import _bank, _evidence, _interval, _smoothed, top_cell
-from .static import StaticJob, kalman_hypothesis, read_alarm, run_static, static_alarm, static_estimate
+from .static import (StaticJob, kalman_hypothesis, read_alarm, run_static, static_alarm, static_estimate,
+                     stretch_tested)
 from .values import Hypothesis
 
 __all__ = ["LATER", "MOST", "onset_posterior", "redated"]
@@ -155,6 +157,8 @@ def _later(h: Hypothesis, i, r, s, observer: NominalTrack, fixed) -> Hypothesis 
                              int(best), o.interval, o.kalman, (), record=True, refine=True,
                              far=(tuple(r.outputs), o.rejection, o.windows)))
     alarm = static_alarm(p, tuple(r.outputs), o)
+    if alarm is None and fault_kind(model.FAULT["kind"]).noise:  # its spread fitted: its mean against that spread
+        alarm = stretch_tested(replace(h, drop=None, static_alarm=None), p, tuple(r.outputs)).static_alarm
     if not (math.isfinite(p.log_evidence) and p.log_evidence > before) or alarm is not None:
         return None  # not the likelier, or it fails its fit test from there: the hypothesis stays as it was
     # and decisively likelier than no fault at all (weighed as the verdict weighs them, its prior spread over the

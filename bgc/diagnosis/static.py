@@ -31,6 +31,8 @@ from .estimate import struck, truth_of
 from .onsets import earlier_onsets
 from .parallel import parallel_map
 from ..model.protocol import nominal_model
+from ..filters.residuals import summary
+from .fit import LEVEL
 
 
 @dataclass(frozen=True, slots=True)
@@ -189,6 +191,54 @@ def checked(h: Hypothesis, outputs, options: DiagnosisOptions) -> Hypothesis:
     or None."""
     alarm = None if h.static is None else static_alarm(h.static, outputs, options)
     return h if alarm is None else dataclasses.replace(h, static_alarm=alarm)
+
+
+def stretch_tested(h: Hypothesis, p: StaticPosterior | None, outputs: tuple[str, ...],
+                   level: float = LEVEL) -> Hypothesis:
+    """``h`` (not dropped yet) with a misfit (its ``static_alarm``) when the
+    normalised residuals of its static posterior ``p``'s most likely cell,
+    over the whole stretch from that cell's onset, have a mean off 0 on some
+    sensor: beyond their standard error, their own spread over the square
+    root of their count (a t-test), at ``level`` over every sensor (and two
+    tests, as the test of the model before a fault counts them,
+    :mod:`bgc.diagnosis.fit`). A variance above 1 is noise the model lacks,
+    which the test of the verdict's fit says ("mismatch",
+    :func:`bgc.diagnosis.finish.noise_misfit`).
+
+    A submodel's residuals are narrow (its process noise holds its
+    neighbours' readings' noise, and the filter predicts wider than the
+    data spread), so the windowed test of the whole plant's diagnosis,
+    built to alarm within a horizon, misses a fault that misfits a little
+    at every step: a leak of the middle tank of a chain, which the tank's
+    sensor bias mimics in its own submodel, leaves its neighbours' residuals
+    5 to 11 of their standard errors off 0 over the stretch, where the true
+    fault's stay within 2.6 (chains of 8 and 16 tanks, bench/decomposed_diagnosis.py;
+    their lag-1 autocorrelation is -0.06, so the t-test errs on the safe side).
+
+    A noise fault of the whole plant's diagnosis (the ``noise`` kind: a
+    sensor's spread widened by 1 + b) takes the same test: its magnitude
+    is fitted to the spread of its sensor's residuals, so the windowed
+    test, which measures a mean in units of that spread, is blunted
+    exactly where the fault model is wrong. A drift or a step the model
+    does not name moves the residuals' mean and widens their spread; a
+    noise fault widened enough passes the windowed test, and would be named
+    for a change it cannot make (a burst of noise moves no mean). Against
+    their own spread, such residuals are many standard errors off 0
+    (tests/test_noise_fault.py), and the true noise fault's are a t
+    statistic."""
+    if h.drop is not None or h.static_alarm is not None or p is None or p.residuals is None or p.best is None:
+        return h  # one the windowed test dropped already, or without a most likely cell
+    z = np.asarray(p.residuals, dtype=float)[int(p.best[0]):]
+    summaries = [i for i in summary([z], outputs) if i.variance > 0]
+    if not summaries:
+        return h
+    cut = NormalDist().inv_cdf(1.0 - level / (2 * len(summaries)) / 2)
+    t = {i.sensor: abs(i.mean) / math.sqrt(i.variance / i.samples) for i in summaries}
+    worst = max(summaries, key=lambda i: t[i.sensor])
+    if t[worst.sensor] <= cut:
+        return h
+    return dataclasses.replace(h, static_alarm=Detection(len(z) - 1, worst.sensor, worst.samples, t[worst.sensor], cut, None,
+                                             "mean"))
 
 
 def static_alarm(p: StaticPosterior, outputs, options: DiagnosisOptions) -> Detection | None:
