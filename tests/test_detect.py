@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from bgc.diagnosis.detect import Detector, DetectorBank, DetectorOptions, monte_carlo_share
+from bgc.diagnosis import detect
 
 
 def normal_quantile(p: float) -> float:
@@ -211,3 +212,20 @@ def test_the_statistics_are_the_window_sums_computed_directly(windows):
         want = (np.max([np.abs(zs[-w:].sum(axis=0)) / np.sqrt(w + as_[-w:].sum(axis=0) ** 2) for w in fits], axis=0)
                 if fits else np.zeros(n))
         np.testing.assert_allclose(det.statistics[k], want, rtol=1e-11, atol=1e-13)
+
+
+def test_the_chi_squares_quantiles_and_log_tails_are_scipy_stats_own():
+    """The detector's chi-square quantiles and log tails (scipy.special's
+    functions, so that a diagnosis does not import scipy.stats, a second in
+    every process) give scipy.stats.chi2's numbers to the bit, on both sides
+    of the median where its log tails switch between log and log1p."""
+    from scipy.stats import chi2
+
+    df = np.arange(1, 256)
+    for level in (1e-3, 2.5e-5, 0.01 / 7):
+        assert np.array_equal(detect.chi2_ppf(level, df), chi2.ppf(level, df))
+        assert np.array_equal(detect.chi2_isf(level, df), chi2.isf(level, df))
+    for q in (0.0, 1e-9, 0.3, 0.99, 1.0, 4.0, 31.0, 120.0, 900.0):
+        for k in (1, 2, 5, 31, 64):
+            assert detect.chi2_logcdf(q, k) == float(chi2.logcdf(q, k)), (q, k)
+            assert detect.chi2_logsf(q, k) == float(chi2.logsf(q, k)), (q, k)

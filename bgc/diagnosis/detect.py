@@ -265,16 +265,54 @@ def chain_threshold(alpha: float, steps: int, correlations: tuple[float, ...]) -
     return _chain_threshold(float(alpha), max(1, int(steps)), tuple(float(r) for r in correlations))
 
 
+# The chi-square's quantiles and log tails, as scipy.stats.chi2 computes them inside its support
+# (scipy.special's functions, the same expressions): scipy.stats costs a second to import in every
+# process that would otherwise need it for these alone.
+def chi2_ppf(p, df):
+    """The chi-square's quantile of ``p`` with ``df`` degrees of freedom."""
+    from scipy.special import gammaincinv
+
+    return 2 * gammaincinv(np.asarray(df) / 2, p)
+
+
+def chi2_isf(p, df):
+    """The chi-square's upper quantile of ``p`` with ``df`` degrees of freedom."""
+    from scipy.special import chdtri
+
+    return chdtri(df, p)
+
+
+def chi2_logcdf(q: float, df) -> float:
+    """log P(chi-square with ``df`` degrees of freedom <= ``q``): the log of
+    the distribution function below the median, of one less the tail above."""
+    from scipy.special import chdtr, chdtrc
+
+    with np.errstate(divide="ignore"):
+        if q < float(chi2_ppf(0.5, df)):
+            return float(np.log(chdtr(df, q)))
+        return float(np.log1p(-chdtrc(df, q)))
+
+
+def chi2_logsf(q: float, df) -> float:
+    """log P(chi-square with ``df`` degrees of freedom > ``q``): the log of
+    the tail above the median, of one less the distribution function below."""
+    from scipy.special import chdtr, chdtrc
+
+    with np.errstate(divide="ignore"):
+        if q > float(chi2_ppf(0.5, df)):
+            return float(np.log(chdtrc(df, q)))
+        return float(np.log1p(-chdtr(df, q)))
+
+
 @functools.lru_cache(maxsize=64)
 def _chain_threshold(alpha: float, steps: int, correlations: tuple[float, ...]) -> float:
     from scipy.optimize import brentq
-    from scipy.special import owens_t
-    from scipy.stats import norm
+    from scipy.special import ndtr, owens_t
 
     slopes = [sqrt((1.0 - r) / (1.0 + r)) for r in correlations]
 
     def excess(c: float) -> float:
-        return sum(2.0 * norm.sf(c) + (steps - 1) * 4.0 * owens_t(c, a) for a in slopes) - alpha
+        return sum(2.0 * ndtr(-c) + (steps - 1) * 4.0 * owens_t(c, a) for a in slopes) - alpha
 
     high = union_threshold(alpha, steps * len(correlations))
     return float(brentq(excess, 0.0, high + 1e-9, xtol=1e-12, rtol=1e-12)) if excess(high) < 0.0 else high
@@ -647,13 +685,11 @@ class Families:
             self.drift_threshold = options.drift_threshold(n, exact)
             self.drift_gapped = options.drift_gapped_threshold(n) if exact else self.drift_threshold
         if self.variance:
-            from scipy.stats import chi2
-
             level = options.variance_level(n)
             df = np.arange(1, max(VARIANCE_WINDOWS))
             # per degrees of freedom (index df - 1): the bounds of the centred sum of squares
-            self._low = tuple(chi2.ppf(level, df).tolist())
-            self._high = tuple(chi2.isf(level, df).tolist())
+            self._low = tuple(chi2_ppf(level, df).tolist())
+            self._high = tuple(chi2_isf(level, df).tolist())
             self._level = level
         if self.frozen:
             self._log_frozen = log(options.frozen_level(n))
@@ -991,9 +1027,7 @@ class Families:
         return max(squares[-1][j] - squares[-1 - w][j] - s1 * s1 / count, 0.0)
 
     def _chi2_excess(self, q: float, df: int) -> float:
-        from scipy.stats import chi2
-
-        tail = min(float(chi2.logcdf(q, df)), float(chi2.logsf(q, df)))
+        tail = min(chi2_logcdf(q, df), chi2_logsf(q, df))
         return tail - log(self._level)
 
     def _frozen(self, readings: list[float]) -> list[tuple[Detection, float]]:
@@ -1066,18 +1100,16 @@ class Families:
         (:meth:`_scores`): ``s' M^-1 s`` is at most chi-square with as many
         degrees of freedom as sensors read (module docstring). The alarm
         names the sensor whose own share ``s_j^2 / M_jj`` is the largest."""
-        from scipy.stats import chi2
-
         widths = [w for w in POOLED_WINDOWS if w <= self.taken]
         worst, at = 0.0, None
         for w, t, s, M, keep in (self._scores(widths) if widths else ()):
             df = len(keep)
             high = self._pooled_high.get(df)
             if high is None:
-                high = self._pooled_high[df] = float(chi2.isf(self._pooled_level, df))
+                high = self._pooled_high[df] = float(chi2_isf(self._pooled_level, df))
             if t is None or not t > high:
                 continue
-            excess = float(chi2.logsf(t, df)) - log(self._pooled_level)
+            excess = chi2_logsf(t, df) - log(self._pooled_level)
             if at is None or excess < worst:
                 j = int(keep[np.argmax(s * s / np.diagonal(M))])
                 worst, at = excess, (w, j, t, high)
