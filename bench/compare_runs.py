@@ -1,6 +1,8 @@
 """Compare two campaigns' runs.csv row by row (by run id): every column but
 the run times (``rt``, ``ct``). A change that must not alter the diagnoses
-(a refactor) shows "different: 0".
+(a refactor) shows "different: 0". Then, per detector set (the ``detectors``
+column), the verdicts before and after: runs isolated (right, wrong), runs
+"unexplained", and runs whose diagnosis is right (the ``right`` column).
 
     .venv/bin/python bench/compare_runs.py BEFORE/runs.csv AFTER/runs.csv
 """
@@ -37,6 +39,20 @@ def main(before_path: str, after_path: str) -> None:
     print(f"rows in both: {same + different}; equal but {', '.join(sorted(TIMES))}: {same}; different: {different}; "
           f"only before: {len(set(before) - set(after))}; only after: {len(set(after) - set(before))}")
     print("differing columns:", columns)
+    print()
+    print("| detectors | isolated (right, wrong) before | after | unexplained before | after | right before | after |")
+    print("|---|---|---|---|---|---|---|")
+    for detectors in sorted({r.get("detectors", "") for r in (*before.values(), *after.values())}):
+        counts = [verdicts([r for r in side.values() if r.get("detectors", "") == detectors]) for side in (before, after)]
+        (i0, w0, u0, r0), (i1, w1, u1, r1) = counts
+        print(f"| {detectors or '-'} | {i0} ({i0 - w0}, {w0}) | {i1} ({i1 - w1}, {w1}) | {u0} | {u1} | {r0} | {r1} |")
+
+
+def verdicts(rows: list[dict[str, str]]) -> tuple[int, int, int, int]:
+    """(runs isolated, of them wrong, runs unexplained, runs right) of ``rows``."""
+    isolated = [r for r in rows if r.get("verdict") == "isolated"]
+    return (len(isolated), sum(r.get("right") != "true" for r in isolated),
+            sum(r.get("verdict") == "unexplained" for r in rows), sum(r.get("right") == "true" for r in rows))
 
 
 if __name__ == "__main__":
