@@ -42,8 +42,9 @@ def main(before_path: str, after_path: str) -> None:
     print()
     print("| detectors | isolated (right, wrong) before | after | unexplained before | after | right before | after |")
     print("|---|---|---|---|---|---|---|")
-    for detectors in sorted({r.get("detectors", "") for r in (*before.values(), *after.values())}):
-        counts = [verdicts([r for r in side.values() if r.get("detectors", "") == detectors]) for side in (before, after)]
+    for detectors in sorted({r.get("detectors") or "" for r in (*before.values(), *after.values())}):
+        counts = [verdicts([r for r in side.values() if (r.get("detectors") or "") == detectors])
+                  for side in (before, after)]
         (i0, w0, u0, r0), (i1, w1, u1, r1) = counts
         print(f"| {detectors or '-'} | {i0} ({i0 - w0}, {w0}) | {i1} ({i1 - w1}, {w1}) | {u0} | {u1} | {r0} | {r1} |")
 
@@ -51,8 +52,9 @@ def main(before_path: str, after_path: str) -> None:
 def verdicts(rows: list[dict[str, str]]) -> tuple[int, int, int, int]:
     """(runs isolated, of them wrong, runs unexplained, runs right) of ``rows``."""
     isolated = [r for r in rows if r.get("verdict") == "isolated"]
-    return (len(isolated), sum(r.get("right") != "true" for r in isolated),
-            sum(r.get("verdict") == "unexplained" for r in rows), sum(r.get("right") == "true" for r in rows))
+    right = [str(r.get("right") or "").lower() == "true" for r in rows]
+    return (len(isolated), sum(str(r.get("right") or "").lower() != "true" for r in isolated),
+            sum(r.get("verdict") == "unexplained" for r in rows), sum(right))
 
 
 if __name__ == "__main__":

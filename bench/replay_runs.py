@@ -46,6 +46,9 @@ def main(argv: list[str] | None = None) -> None:
         rows = [r for r in csv.DictReader(line for line in f if not line.startswith("#"))]
     chosen = {r["id"]: r for r in rows
               if (r["id"] in a.ids or (conditions and not a.ids)) and all(r.get(c) == v for c, v in conditions)}
+    unknown = sorted(set(a.ids) - {r["id"] for r in rows})
+    if unknown:
+        parser.error(f"run ids not in {a.runs}: {', '.join(unknown[:5])}")
     if not chosen:
         parser.error("no run of the runs file matches")
     specs = {s.id: s for s in load_campaign(a.campaign).specs if s.id in chosen}
@@ -57,11 +60,12 @@ def main(argv: list[str] | None = None) -> None:
     print("|---|---|---|---|---|---|---|")
     for key, r in chosen.items():
         row = one_run.run_one(specs[key])
-        was = f"{r['verdict']} {r['diagnosed']}".strip()
+        was = f"{r.get('verdict')} {r.get('diagnosed') or ''}".strip()
         is_ = f"{row.get('verdict')} {row.get('diagnosed') or ''}".strip()
-        then[r["verdict"]] += 1
+        then[r.get("verdict")] += 1
         now[row.get("verdict")] += 1
-        print(f"| {key} | {r['scenario']} | {r['noise']} | {r['filter']} | {r['detectors']} | {was} | {is_} |",
+        print(f"| {key} | {r.get('scenario')} | {r.get('noise')} | {r.get('filter')} | {r.get('detectors')} | {was} "
+              f"| {is_} |",
               flush=True)
     print(f"\n{len(chosen)} runs; verdicts then: {dict(then)}; now: {dict(now)}")
 

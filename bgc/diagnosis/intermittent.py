@@ -61,11 +61,12 @@ import numpy as np
 
 from ..filters.cubature import NominalTrack, _Filter
 from ..filters.quadrature import row_quadrature
-from ..kinds import comes_and_goes
+from ..kinds import comes_and_goes, fault_kind
 from ..model.protocol import FaultModel, state_rows
 from .. import events as ev
 from .estimate import pressed
 from .onsets import log_prior
+from .static import mean_alarm
 from .values import Detection, Drop, Hypothesis
 
 __all__ = ["DURATIONS", "GRID", "Intermittence", "REFINE", "SHARE", "SHORTEST", "Span", "TRIED", "intermittence",
@@ -551,7 +552,7 @@ def revised(hyps: tuple[Hypothesis, ...], verdict: str, candidates: tuple[str, .
 
     hyps, later = redated(hyps, found, r, s, observer, fixed_of)
     events += later
-    pool = _pool(hyps, found, s)
+    pool = _pool(hyps, found, s, tuple(r.outputs))
     names, comes, weight = _credible(pool, s.options.isolation_level)
     if (not comes and not later) or not names:
         return hyps, verdict, candidates, events
@@ -628,7 +629,7 @@ def _tried(hyps, s, T: int) -> list:
                   (1, -(h.dropped_step if h.drop else T), -(_prior(h, s) + h.log_evidence)))[:TRIED]
 
 
-def _pool(hyps, found: dict, s) -> list[tuple[str, bool, float]]:
+def _pool(hyps, found: dict, s, outputs: tuple[str, ...]) -> list[tuple[str, bool, float]]:
     """(name, intermittent, log weight) of the persistent hypotheses still in
     the running (a fault tried, by the larger of its static posterior's
     evidence and the bank's persistent one: the static posterior sums its
@@ -646,6 +647,8 @@ def _pool(hyps, found: dict, s) -> list[tuple[str, bool, float]]:
     pool += [(name, True, _prior(by[name], s) + math.log(SHARE) + i.log_evidence)
              for name, i in found.items() if i.alarm is None and math.isfinite(i.log_evidence)
              and any(sp.off is not None for sp in i.spans)  # it went away at least once
+             and not (fault_kind(by[name].kind).noise  # a burst moves no mean while on either
+                      and mean_alarm(np.asarray(i.z, dtype=float)[i.spans[0].on:], outputs) is not None)
              and pressed(replace(by[name].estimate, value=i.value, low=i.low, high=i.high),
                          tuple(float(v) for v in s.package.MODELS[name].FAULT_PRIOR)) is None]
     return pool

@@ -158,7 +158,7 @@ def _later(h: Hypothesis, i, r, s, observer: NominalTrack, fixed) -> Hypothesis 
                              far=(tuple(r.outputs), o.rejection, o.windows)))
     alarm = static_alarm(p, tuple(r.outputs), o)
     if alarm is None and fault_kind(model.FAULT["kind"]).noise:  # its spread fitted: its mean against that spread
-        alarm = stretch_tested(replace(h, drop=None, static_alarm=None), p, tuple(r.outputs)).static_alarm
+        alarm = stretch_tested(replace(h, drop=None, static_alarm=None), p, tuple(r.outputs), noise=True).static_alarm
     if not (math.isfinite(p.log_evidence) and p.log_evidence > before) or alarm is not None:
         return None  # not the likelier, or it fails its fit test from there: the hypothesis stays as it was
     # and decisively likelier than no fault at all (weighed as the verdict weighs them, its prior spread over the

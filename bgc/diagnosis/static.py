@@ -194,7 +194,7 @@ def checked(h: Hypothesis, outputs, options: DiagnosisOptions) -> Hypothesis:
 
 
 def stretch_tested(h: Hypothesis, p: StaticPosterior | None, outputs: tuple[str, ...],
-                   level: float = LEVEL) -> Hypothesis:
+                   level: float = LEVEL, noise: bool = False) -> Hypothesis:
     """``h`` (not dropped yet) with a misfit (its ``static_alarm``) when the
     normalised residuals of its static posterior ``p``'s most likely cell,
     over the whole stretch from that cell's onset, have a mean off 0 on some
@@ -225,10 +225,16 @@ def stretch_tested(h: Hypothesis, p: StaticPosterior | None, outputs: tuple[str,
     for a change it cannot make (a burst of noise moves no mean). Against
     their own spread, such residuals are many standard errors off 0
     (tests/test_noise_fault.py), and the true noise fault's are a t
-    statistic."""
+    statistic. With ``noise`` the test is :func:`mean_alarm`'s: Student's
+    t with the residuals' correlation time, on sensors read 10 times or
+    more (a true burst's residuals may run correlated where the model is a
+    little off, and a short stretch's variance is itself uncertain)."""
     if h.drop is not None or h.static_alarm is not None or p is None or p.residuals is None or p.best is None:
         return h  # one the windowed test dropped already, or without a most likely cell
     z = np.asarray(p.residuals, dtype=float)[int(p.best[0]):]
+    if noise:
+        alarm = mean_alarm(z, outputs, level)
+        return h if alarm is None else dataclasses.replace(h, static_alarm=alarm)
     summaries = [i for i in summary([z], outputs) if i.variance > 0]
     if not summaries:
         return h
@@ -239,6 +245,39 @@ def stretch_tested(h: Hypothesis, p: StaticPosterior | None, outputs: tuple[str,
         return h
     return dataclasses.replace(h, static_alarm=Detection(len(z) - 1, worst.sensor, worst.samples, t[worst.sensor], cut, None,
                                              "mean"))
+
+
+#: The fewest readings of a sensor :func:`mean_alarm` tests.
+LEAST_READINGS = 10
+
+
+def mean_alarm(z: np.ndarray, outputs: tuple[str, ...], level: float = LEVEL) -> Detection | None:
+    """A mean of the normalised residuals ``z`` (steps x outputs, NaN: not
+    read) off 0 against their own spread: per sensor read at least
+    :data:`LEAST_READINGS` times, Student's t of their mean with n - 1
+    degrees of freedom, its standard error their unbiased variance times
+    their correlation time (about their straight line, at least 1) over n,
+    at ``level`` over the sensors and two tests (as the test of the model
+    before a fault counts them, :mod:`bgc.diagnosis.fit`), two-sided. The
+    sensor most off, as a :class:`Detection` at the last step (its window the
+    readings, its statistic |t| and its threshold the quantile); None when
+    every sensor passes."""
+    from scipy.special import stdtrit
+
+    summaries = [i for i in summary([np.asarray(z, dtype=float)], outputs)
+                 if i.samples >= LEAST_READINGS and i.variance > 0]
+    if not summaries:
+        return None
+    alpha = level / (2 * len(summaries))
+    t, cut = {}, {}
+    for i in summaries:
+        n = i.samples
+        t[i.sensor] = abs(i.mean) / math.sqrt(i.variance * n / (n - 1) * max(i.correlation_time, 1.0) / n)
+        cut[i.sensor] = float(stdtrit(n - 1, 1.0 - alpha / 2))
+    worst = max(summaries, key=lambda i: t[i.sensor] / cut[i.sensor])
+    if t[worst.sensor] <= cut[worst.sensor]:
+        return None
+    return Detection(len(z) - 1, worst.sensor, worst.samples, t[worst.sensor], cut[worst.sensor], None, "mean")
 
 
 def static_alarm(p: StaticPosterior, outputs, options: DiagnosisOptions) -> Detection | None:

@@ -52,7 +52,7 @@ def weighed(hyps: tuple[Hypothesis, ...], posteriors: dict, r, s, null: float | 
                      if h.name in candidates and not fault_kind(h.kind).discrete else h for h in hyps)
     hyps = tuple(checked(h, r.outputs, o) if h.name in candidates and static else h for h in hyps)
     # a noise fault's spread is fitted to the data: its residuals' mean is tested against their own spread
-    hyps = tuple(stretch_tested(h, h.static, r.outputs) if h.name in candidates and static
+    hyps = tuple(stretch_tested(h, h.static, r.outputs, noise=True) if h.name in candidates and static
                  and fault_kind(h.kind).noise else h for h in hyps)
     hyps = misfits(hyps, lambda k: float(r.time[k]))
     prior_of = {h.name: tuple(float(v) for v in s.package.MODELS[h.name].FAULT_PRIOR) for h in hyps}
