@@ -647,7 +647,7 @@ def _pool(hyps, found: dict, s, outputs: tuple[str, ...]) -> list[tuple[str, boo
     pool += [(name, True, _prior(by[name], s) + math.log(SHARE) + i.log_evidence)
              for name, i in found.items() if i.alarm is None and math.isfinite(i.log_evidence)
              and any(sp.off is not None for sp in i.spans)  # it went away at least once
-             and not (fault_kind(by[name].kind).noise  # a burst moves no mean while on either
+             and not (fault_kind(by[name].kind).noise  # a burst moves no mean, on or off
                       and mean_alarm(np.asarray(i.z, dtype=float)[i.spans[0].on:], outputs) is not None)
              and pressed(replace(by[name].estimate, value=i.value, low=i.low, high=i.high),
                          tuple(float(v) for v in s.package.MODELS[name].FAULT_PRIOR)) is None]
