@@ -16,7 +16,6 @@ line per run and the counts of verdicts then and now.
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 from collections import Counter
 from pathlib import Path
@@ -26,6 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 from bgc.experiment import one_run  # noqa: E402
 from bgc.experiment.campaign_file import load_campaign  # noqa: E402
+from compare_runs import rows  # noqa: E402  (this folder: the same reading of a runs.csv)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -42,11 +42,10 @@ def main(argv: list[str] | None = None) -> None:
         if not sep:
             parser.error(f"--where {w!r}: write COLUMN=VALUE")
         conditions.append((column, value))
-    with open(a.runs, newline="") as f:
-        rows = [r for r in csv.DictReader(line for line in f if not line.startswith("#"))]
-    chosen = {r["id"]: r for r in rows
-              if (r["id"] in a.ids or (conditions and not a.ids)) and all(r.get(c) == v for c, v in conditions)}
-    unknown = sorted(set(a.ids) - {r["id"] for r in rows})
+    by_id = rows(a.runs)
+    chosen = {key: r for key, r in by_id.items()
+              if (key in a.ids or (conditions and not a.ids)) and all(r.get(c) == v for c, v in conditions)}
+    unknown = sorted(set(a.ids) - set(by_id))
     if unknown:
         parser.error(f"run ids not in {a.runs}: {', '.join(unknown[:5])}")
     if not chosen:

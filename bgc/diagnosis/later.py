@@ -51,8 +51,8 @@ from ..kinds import fault_kind
 from ..model.protocol import FaultModel
 from .onsets import log_prior
 from .intermittent import _bank, _evidence, _interval, _smoothed, top_cell
-from .static import (StaticJob, kalman_hypothesis, read_alarm, run_static, static_alarm, static_estimate,
-                     stretch_tested)
+from .static import (StaticJob, kalman_hypothesis, noise_alarm, read_alarm, run_static, static_alarm,
+                     static_estimate)
 from .values import Hypothesis
 
 __all__ = ["LATER", "MOST", "onset_posterior", "redated"]
@@ -158,7 +158,7 @@ def _later(h: Hypothesis, i, r, s, observer: NominalTrack, fixed) -> Hypothesis 
                              far=(tuple(r.outputs), o.rejection, o.windows)))
     alarm = static_alarm(p, tuple(r.outputs), o)
     if alarm is None and fault_kind(model.FAULT["kind"]).noise:  # its spread fitted: its mean against that spread
-        alarm = stretch_tested(replace(h, drop=None, static_alarm=None), p, tuple(r.outputs), noise=True).static_alarm
+        alarm = noise_alarm(p, tuple(r.outputs))
     if not (math.isfinite(p.log_evidence) and p.log_evidence > before) or alarm is not None:
         return None  # not the likelier, or it fails its fit test from there: the hypothesis stays as it was
     # and decisively likelier than no fault at all (weighed as the verdict weighs them, its prior spread over the

@@ -188,63 +188,12 @@ def checked(h: Hypothesis, outputs, options: DiagnosisOptions) -> Hypothesis:
     Z-test of section 5 (a probability ``rejection`` of an alarm on the true
     model over the run) on the normalised residuals of its static
     posterior's most likely cell, from that cell's onset; its first alarm,
-    or None."""
+    or None. A noise fault not dropped that passes it takes
+    :func:`noise_alarm` too."""
     alarm = None if h.static is None else static_alarm(h.static, outputs, options)
+    if alarm is None and h.drop is None and fault_kind(h.kind).noise:
+        alarm = noise_alarm(h.static, outputs)
     return h if alarm is None else dataclasses.replace(h, static_alarm=alarm)
-
-
-def stretch_tested(h: Hypothesis, p: StaticPosterior | None, outputs: tuple[str, ...],
-                   level: float = LEVEL, noise: bool = False) -> Hypothesis:
-    """``h`` (not dropped yet) with a misfit (its ``static_alarm``) when the
-    normalised residuals of its static posterior ``p``'s most likely cell,
-    over the whole stretch from that cell's onset, have a mean off 0 on some
-    sensor: beyond their standard error, their own spread over the square
-    root of their count (a t-test), at ``level`` over every sensor (and two
-    tests, as the test of the model before a fault counts them,
-    :mod:`bgc.diagnosis.fit`). A variance above 1 is noise the model lacks,
-    which the test of the verdict's fit says ("mismatch",
-    :func:`bgc.diagnosis.finish.noise_misfit`).
-
-    A submodel's residuals are narrow (its process noise holds its
-    neighbours' readings' noise, and the filter predicts wider than the
-    data spread), so the windowed test of the whole plant's diagnosis,
-    built to alarm within a horizon, misses a fault that misfits a little
-    at every step: a leak of the middle tank of a chain, which the tank's
-    sensor bias mimics in its own submodel, leaves its neighbours' residuals
-    5 to 11 of their standard errors off 0 over the stretch, where the true
-    fault's stay within 2.6 (chains of 8 and 16 tanks, bench/decomposed_diagnosis.py;
-    their lag-1 autocorrelation is -0.06, so the t-test errs on the safe side).
-
-    A noise fault of the whole plant's diagnosis (the ``noise`` kind: a
-    sensor's spread widened by 1 + b) takes the same test: its magnitude
-    is fitted to the spread of its sensor's residuals, so the windowed
-    test, which measures a mean in units of that spread, is blunted
-    exactly where the fault model is wrong. A drift or a step the model
-    does not name moves the residuals' mean and widens their spread; a
-    noise fault widened enough passes the windowed test, and would be named
-    for a change it cannot make (a burst of noise moves no mean). Against
-    their own spread, such residuals are many standard errors off 0
-    (tests/test_noise_fault.py), and the true noise fault's are a t
-    statistic. With ``noise`` the test is :func:`mean_alarm`'s: Student's
-    t with the residuals' correlation time, on sensors read 10 times or
-    more (a true burst's residuals may run correlated where the model is a
-    little off, and a short stretch's variance is itself uncertain)."""
-    if h.drop is not None or h.static_alarm is not None or p is None or p.residuals is None or p.best is None:
-        return h  # one the windowed test dropped already, or without a most likely cell
-    z = np.asarray(p.residuals, dtype=float)[int(p.best[0]):]
-    if noise:
-        alarm = mean_alarm(z, outputs, level)
-        return h if alarm is None else dataclasses.replace(h, static_alarm=alarm)
-    summaries = [i for i in summary([z], outputs) if i.variance > 0]
-    if not summaries:
-        return h
-    cut = NormalDist().inv_cdf(1.0 - level / (2 * len(summaries)) / 2)
-    t = {i.sensor: abs(i.mean) / math.sqrt(i.variance / i.samples) for i in summaries}
-    worst = max(summaries, key=lambda i: t[i.sensor])
-    if t[worst.sensor] <= cut:
-        return h
-    return dataclasses.replace(h, static_alarm=Detection(len(z) - 1, worst.sensor, worst.samples, t[worst.sensor], cut, None,
-                                             "mean"))
 
 
 #: The fewest readings of a sensor :func:`mean_alarm` tests.
@@ -278,6 +227,24 @@ def mean_alarm(z: np.ndarray, outputs: tuple[str, ...], level: float = LEVEL) ->
     if t[worst.sensor] <= cut[worst.sensor]:
         return None
     return Detection(len(z) - 1, worst.sensor, worst.samples, t[worst.sensor], cut[worst.sensor], None, "mean")
+
+
+def noise_alarm(p: StaticPosterior | None, outputs: tuple[str, ...]) -> Detection | None:
+    """:func:`mean_alarm` on the normalised residuals of a noise fault's
+    static posterior ``p``'s most likely cell, from that cell's onset (None:
+    it passes, or ``p`` has no such cell). A noise fault (the ``noise``
+    kind: a sensor's spread widened by 1 + b) has its magnitude fitted to
+    the spread of its sensor's residuals, so the windowed test, which
+    measures a mean in units of that spread, is blunted exactly where the
+    fault model is wrong: a drift or a step the model does not name moves
+    the residuals' mean and widens their spread, and a noise fault widened
+    enough passes it, to be named for a change it cannot make (a burst of
+    noise moves no mean). Against their own spread such residuals are many
+    standard errors off 0 (tests/test_noise_fault.py); a true burst's are a
+    t statistic."""
+    if p is None or p.residuals is None or p.best is None:
+        return None
+    return mean_alarm(np.asarray(p.residuals, dtype=float)[int(p.best[0]):], outputs)
 
 
 def static_alarm(p: StaticPosterior, outputs, options: DiagnosisOptions) -> Detection | None:

@@ -19,7 +19,7 @@ from .. import events as ev
 from .estimate import pressed
 from .onsets import log_prior
 from .rank import ranked, refined
-from .static import checked, misfit_reason, static_estimate, stretch_tested
+from .static import checked, misfit_reason, static_estimate
 from .values import Drop, Hypothesis
 
 
@@ -51,9 +51,6 @@ def weighed(hyps: tuple[Hypothesis, ...], posteriors: dict, r, s, null: float | 
         hyps = tuple(refined(h, reuse.get(h.name), s.package, r.clouds, r.ys, r.us, o)
                      if h.name in candidates and not fault_kind(h.kind).discrete else h for h in hyps)
     hyps = tuple(checked(h, r.outputs, o) if h.name in candidates and static else h for h in hyps)
-    # a noise fault's spread is fitted to the data: its residuals' mean is tested against their own spread
-    hyps = tuple(stretch_tested(h, h.static, r.outputs, noise=True) if h.name in candidates and static
-                 and fault_kind(h.kind).noise else h for h in hyps)
     hyps = misfits(hyps, lambda k: float(r.time[k]))
     prior_of = {h.name: tuple(float(v) for v in s.package.MODELS[h.name].FAULT_PRIOR) for h in hyps}
     hyps, more = at_bounds(hyps, prior_of, T, lambda h: h.drop is None)
