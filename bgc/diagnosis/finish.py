@@ -32,7 +32,7 @@ from .intermittent import revised
 from .onsets import earlier_onsets, onset_weights
 from .options import DiagnosisOptions
 from .parallel import parallel_map
-from .static import StaticJob, kalman_hypotheses, read_alarm, run_static, run_statics, static_alarm
+from .static import StaticJob, kalman_hypotheses, read_alarm, run_statics, static_alarm
 from .static_posterior import EDGE, EXTEND
 from .values import Detection, Diagnosis, Drop, Fit, Hypothesis, Isolation, StaticPosterior
 from .weigh import weighed
@@ -289,12 +289,13 @@ def tracked(r: Record, s: Setting, truth: Run | None):
     # Kalman filters on a grid of onsets and magnitudes, from the nominal cubature Kalman filter's state
     observer = _nominal_track(r, s)
     kept = [h for h in hyps if h.drop is None]
-    landed = run_statics([_static_job(h, r, s, observer) for h in kept], o.workers)
+    again = [h for h in hyps if _retried(h, bool(kept), results, r)]
+    if again:
+        s.say(f"testing {', '.join(h.name for h in again)} with the magnitude held static")
+    landed = run_statics([_static_job(h, r, s, observer) for h in kept + again], o.workers)
     posteriors = {h.name: p for h, p in zip(kept, landed)}
-    if posteriors:
-        return hyps, posteriors, observer, []
-    hyps, posteriors, events = _rescued(hyps, results, r, s, observer)
-    return hyps, posteriors, observer, events
+    hyps, rescued, events = _rescued(hyps, dict(zip((h.name for h in again), landed[len(kept):])), r, s)
+    return hyps, {**posteriors, **rescued}, observer, events
 
 
 def _filters(r: Record, s: Setting) -> tuple[dict, dict]:
@@ -410,22 +411,45 @@ def _static_job(h: Hypothesis, r: Record, s: Setting, observer: kalman.NominalTr
                      h.start_step, o.interval, o.kalman, earlier)
 
 
-def _rescued(hyps: tuple[Hypothesis, ...], results: dict, r: Record, s: Setting, observer: kalman.NominalTrack):
-    """None passed its particle filters' test: each whose most probable
-    onset's filter still ran to the end (only just off the data: a drift's
-    filters start on a coarser grid of onsets than its Kalman filters') is
-    tested as its fault model states it, the magnitude held static, and
-    kept when it passes (a ``Rescued`` event). Returns (hypotheses, static
-    posteriors by name, events)."""
+def _retried(h: Hypothesis, kept: bool, results: dict, r: Record) -> bool:
+    """Whether hypothesis ``h``, dropped by its particle filters' test, is
+    tested again as its fault model states it, the magnitude held static
+    (:func:`_rescued`):
+
+    - a drift its particle filters' test dropped, whether or not another
+      hypothesis passed, and whether its filters ran to the end or stopped:
+      a drift's particle filters start on a coarser grid of onsets than its
+      Kalman filters, and reach back no further than ``search`` steps
+      before the alarm (``identify = "kalman"``); a drift that began before
+      them carries the change it had made by then, which a filter whose
+      parameter starts at the model's value cannot follow, and it fails
+      wherever they start, while its Kalman filters reach back to its onset.
+      Otherwise another drift, whose filters happened to pass, is named in
+      its place (two tanks whose R12 drifted from t = 150, found 50 to 65 s
+      later: named R10's drift, posterior 0.999);
+    - when no hypothesis passed its particle filters' test (``kept``
+      False), any other whose most probable onset's filter still ran to the
+      end (only off the data by the test's margin, not stopped)."""
+    if h.drop is None:
+        return False
+    if h.drop.code == "inconsistent" and r.isolation.drifts[h.name]:
+        return True
+    return not kept and math.isfinite(results[(h.name, h.start_step)]["evidence"])
+
+
+def _rescued(hyps: tuple[Hypothesis, ...], static: Mapping[str, StaticPosterior], r: Record, s: Setting):
+    """The hypotheses tested again with the magnitude held static
+    (:func:`_retried`; ``static``: their static posteriors by name): each
+    whose static posterior passes the consistency test is kept (a
+    ``Rescued`` event). Returns (hypotheses, the static posteriors of those
+    kept by name, events)."""
     posteriors, events, out = {}, [], []
     for h in hyps:
-        if math.isfinite(results[(h.name, h.start_step)]["evidence"]):
-            s.say(f"testing {h.name} with its magnitude held static")
-            p = run_static(_static_job(h, r, s, observer))
-            if math.isfinite(p.log_evidence) and static_alarm(p, r.outputs, s.options) is None:
-                posteriors[h.name] = p
-                events.append(ev.Rescued(h.name, h.reason, h.dropped_step))
-                h = replace(h, drop=None)
+        p = static.get(h.name)
+        if p is not None and math.isfinite(p.log_evidence) and static_alarm(p, r.outputs, s.options) is None:
+            posteriors[h.name] = p
+            events.append(ev.Rescued(h.name, h.reason, h.dropped_step))
+            h = replace(h, drop=None)
         out.append(h)
     return tuple(out), posteriors, events
 

@@ -168,7 +168,8 @@ def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, floa
     else 4 times wider); a coarse one (std under ``resolution`` spacings)
     over 4 stds either side of its mean, or, pressed against a bound, over 10
     stds from the bound (an exponential's density falls to 5e-5 there, a
-    half-Gaussian's to 1e-7)."""
+    half-Gaussian's to 1e-7). Far from a parabola (:func:`_quadratic`), a
+    coarse row is laid between its best point's neighbours (:func:`_past_end` at an end)."""
     vmin, vmax = bounds
     if not np.isfinite(logd).any():  # wholly beyond a bound (a late onset's share of a common first grid): moved inside
         lo, hi = float(changes[0]), float(changes[-1])
@@ -180,12 +181,10 @@ def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, floa
     top_at = int(np.argmax(logd))
     spacing = float(changes[1] - changes[0]) if len(changes) > 1 else 0.0
     vertex, sd_parabola = _parabola(changes, logd, first, last, top_at, spacing)
+    trusted = _quadratic(logd, first, last, top_at)
     at_low, at_high = top_at == first and open_low, top_at == last and open_high
-    if at_low or at_high:  # the peak lies beyond an end
-        if vertex is not None and (vertex < lo if at_low else vertex > hi):
-            return _inside(vertex - 4.0 * sd_parabola, vertex + 4.0 * sd_parabola, vmin, vmax), math.inf
-        span = max(hi - lo, spacing)
-        return ((max(lo - span, vmin), hi) if at_low else (lo, min(hi + span, vmax))), math.inf
+    if at_low or at_high:  # the peak lies beyond an end, or between it and its neighbour
+        return _past_end(changes, first, last, at_low, bounds, spacing, vertex, sd_parabola, trusted), math.inf
     x, logm = row_quadrature(changes, logd, kernel)
     peak = float(np.max(logm))
     m = np.exp(logm - peak)
@@ -201,11 +200,42 @@ def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, floa
             sd = max(sd, hi - lo)
     elif sd >= options.resolution * spacing:
         return None, mass
+    elif not trusted and first < top_at < last:  # coarse, far from a parabola: the peak lies between
+        new = (float(changes[top_at - 1]), float(changes[top_at + 1]))  # the best point's neighbours
+        return (None if np.allclose(new, (lo, hi), rtol=1e-9, atol=0.0) else new), mass
     if top_at in (first, last) and not edge:  # pressed against a bound: a fall like an exponential's, 10 stds
         new = (max(hi - 10.0 * sd, vmin), hi) if top_at == last else (lo, min(lo + 10.0 * sd, vmax))
     else:
         new = _inside(mean - 4.0 * sd, mean + 4.0 * sd, vmin, vmax)
     return (None if np.allclose(new, (lo, hi), rtol=1e-9, atol=0.0) else new), mass
+
+
+#: A row's log density is read as a parabola around its best point only where the second differences
+#: beside it agree within this factor (:func:`_quadratic`).
+BEND = 2.0
+
+
+def _quadratic(logd: np.ndarray, first: int, last: int, top_at: int) -> bool:
+    """Whether a row's log density looks like a parabola around its best
+    point ``top_at`` (between ``first`` and ``last``, the points inside the
+    prior): the second difference of the three points around it and those of
+    the triples beside them agree within a factor ``BEND`` (each negative).
+    A Gaussian's log density is a parabola at any spacing; a fault whose
+    parameter enters the model nonlinearly (a resistance's slope over a long
+    record: the first grid spans R10 from 0.2 to 6 times its value) gives
+    a log likelihood whose parabola through three coarse points puts the
+    vertex far from the peak, and the next pass laid over it around the
+    vertex misses the peak: True where there are fewer than four points to
+    tell (nothing says otherwise)."""
+    if last - first < 3:
+        return True
+    k = min(max(top_at, first + 1), last - 1)
+    bends = [float(logd[j - 1] - 2.0 * logd[j] + logd[j + 1]) for j in (k - 1, k, k + 1) if first < j < last]
+    if len(bends) < 2 or not all(math.isfinite(b) for b in bends):
+        return True
+    if not all(b < 0.0 for b in bends):  # bent the other way beside it
+        return False
+    return max(bends) / min(bends) >= 1.0 / BEND  # the smaller magnitude over the larger
 
 
 def _parabola(changes: np.ndarray, logd: np.ndarray, first: int, last: int, top_at: int,
@@ -221,6 +251,25 @@ def _parabola(changes: np.ndarray, logd: np.ndarray, first: int, last: int, top_
     if not bend < 0.0:
         return None, None
     return float(changes[k] + spacing * (l0 - l2) / (2.0 * bend)), spacing / math.sqrt(-bend)
+
+
+def _past_end(changes: np.ndarray, first: int, last: int, at_low: bool, bounds: tuple[float, float],
+              spacing: float, vertex: float | None, sd: float | None, trusted: bool) -> tuple[float, float]:
+    """The next range of a row whose best point is its first (``at_low``)
+    or last inside the prior, short of a bound: to where the parabola
+    through its three points nearest the end puts the peak (``vertex``,
+    ``sd``), else a span further; where the row is far from a parabola
+    (``trusted`` False), a span further and back to the end's neighbour,
+    since the peak may lie on either side of the end."""
+    vmin, vmax = bounds
+    lo, hi = float(changes[first]), float(changes[last])
+    span = max(hi - lo, spacing)
+    if not trusted:
+        return (max(lo - span, vmin), float(changes[first + 1])) if at_low else \
+            (float(changes[last - 1]), min(hi + span, vmax))
+    if vertex is not None and (vertex < lo if at_low else vertex > hi):
+        return _inside(vertex - 4.0 * sd, vertex + 4.0 * sd, vmin, vmax)
+    return (max(lo - span, vmin), hi) if at_low else (lo, min(hi + span, vmax))
 
 
 def _inside(lo: float, hi: float, vmin: float, vmax: float) -> tuple[float, float]:
