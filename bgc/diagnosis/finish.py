@@ -289,7 +289,7 @@ def tracked(r: Record, s: Setting, truth: Run | None):
     # Kalman filters on a grid of onsets and magnitudes, from the nominal cubature Kalman filter's state
     observer = _nominal_track(r, s)
     kept = [h for h in hyps if h.drop is None]
-    again = [h for h in hyps if _retried(h, bool(kept), results, r)]
+    again = [h for h in hyps if _retried(h, kept, results, r)]
     if again:
         s.say(f"testing {', '.join(h.name for h in again)} with the magnitude held static")
     landed = run_statics([_static_job(h, r, s, observer) for h in kept + again], o.workers)
@@ -411,28 +411,33 @@ def _static_job(h: Hypothesis, r: Record, s: Setting, observer: kalman.NominalTr
                      h.start_step, o.interval, o.kalman, earlier)
 
 
-def _retried(h: Hypothesis, kept: bool, results: dict, r: Record) -> bool:
+def _retried(h: Hypothesis, kept: list[Hypothesis], results: dict, r: Record) -> bool:
     """Whether hypothesis ``h``, dropped by its particle filters' test, is
     tested again as its fault model states it, the magnitude held static
     (:func:`_rescued`):
 
-    - a drift its particle filters' test dropped, whether or not another
-      hypothesis passed, and whether its filters ran to the end or stopped:
-      a drift's particle filters start on a coarser grid of onsets than its
+    - a drift its particle filters' test dropped while another drift passed
+      (one of ``kept``) or none did, whether its filters ran to the end or
+      stopped: a
+      drift's particle filters start on a coarser grid of onsets than its
       Kalman filters, and reach back no further than ``search`` steps
       before the alarm (``identify = "kalman"``); a drift that began before
       them carries the change it had made by then, which a filter whose
       parameter starts at the model's value cannot follow, and it fails
-      wherever they start, while its Kalman filters reach back to its onset.
-      Otherwise another drift, whose filters happened to pass, is named in
+      wherever they start, while its Kalman filters reach back to its
+      onset. Otherwise the drift whose filters happened to pass is named in
       its place (two tanks whose R12 drifted from t = 150, found 50 to 65 s
-      later: named R10's drift, posterior 0.999);
+      later: named R10's drift, posterior 0.999). Where only steps passed,
+      the drifts are not tested again (a step that explains a record is no
+      drift's stand-in: the drift moves on; and each test costs a static
+      posterior);
     - when no hypothesis passed its particle filters' test (``kept``
-      False), any other whose most probable onset's filter still ran to the
-      end (only off the data by the test's margin, not stopped)."""
+      empty), any other too whose most probable onset's filter still ran to
+      the end (only off the data by the test's margin, not stopped)."""
+    drifts = r.isolation.drifts
     if h.drop is None:
         return False
-    if h.drop.code == "inconsistent" and r.isolation.drifts[h.name]:
+    if h.drop.code == "inconsistent" and drifts[h.name] and (not kept or any(drifts[k.name] for k in kept)):
         return True
     return not kept and math.isfinite(results[(h.name, h.start_step)]["evidence"])
 
