@@ -31,7 +31,13 @@ near 1 ("isolated"), before the changes they pin:
   such a row is laid between its best point's neighbours
   (bgc.diagnosis.static_posterior._quadratic).
 
-docs/results.md section 57 counts it over more seeds and the sweep.
+And a plant quieter than its model (no process noise where the model
+says there is some) had its faults ranked by the spread each fault model
+predicts rather than by how well it fits the readings: R10's drift was
+"isolated: R12_incipient". Now that is a mismatch
+(bgc.diagnosis.finish.quiet_misfit).
+
+docs/results.md section 57 counts these over more seeds (bench/late_drifts.py).
 """
 
 from __future__ import annotations
@@ -41,6 +47,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import bgc
+from bgc import events as ev
 from bgc.data import runs
 from bgc.diagnosis import static_posterior as sp
 from bgc.diagnosis.options import DiagnosisOptions, KalmanOptions
@@ -57,11 +64,13 @@ PROCESS = np.array([0.040824828638138, 0.0298142389546412])
 MEASUREMENT = np.array([0.011111111, 0.008888889, 0.008888888666666667])
 
 
-def drifting_tanks(parameter: str, slope: float, onset: float, end: float, seed: int) -> runs.Run:
+def drifting_tanks(parameter: str, slope: float, onset: float, end: float, seed: int, process: float = 1.0,
+                   measurement: float = 1.0) -> runs.Run:
     """The readings of the two tanks written out above, ``parameter``
     changing by ``slope`` per second from ``onset``, sampled every DT up to
     ``end``; the process noise drawn from ``default_rng(seed + 1000)``, the
-    sensors' from ``default_rng(seed)``."""
+    sensors' from ``default_rng(seed)``, their stds ``process`` and
+    ``measurement`` times the model's."""
     def resistances(t: float) -> dict:
         r = dict(HEALTHY)
         if t >= onset:
@@ -77,11 +86,12 @@ def drifting_tanks(parameter: str, slope: float, onset: float, end: float, seed:
     time = DT * np.arange(1, int(round(end / DT)) + 1)
     p, before, y = np.array([20.0 / 9.0, 4.0 / 3.0]), 0.0, []
     for t in time:
-        p = solve_ivp(flow, (before, t), p, rtol=1e-9, atol=1e-11).y[:, -1] + PROCESS * shakes.standard_normal(2)
+        p = solve_ivp(flow, (before, t), p, rtol=1e-9, atol=1e-11).y[:, -1] \
+            + process * PROCESS * shakes.standard_normal(2)
         r = resistances(t)
         y.append([p[0] / r["R10"], (p[0] - p[1]) / r["R12"], p[1] / r["R20"]])
         before = t
-    y = np.array(y) + MEASUREMENT * np.random.default_rng(seed).standard_normal((len(time), 3))
+    y = np.array(y) + measurement * MEASUREMENT * np.random.default_rng(seed).standard_normal((len(time), 3))
     return runs.Run(time, {"f_in": np.ones(len(time))}, {"F10": y[:, 0], "F12": y[:, 1], "F20": y[:, 2]}, {}, {},
                     ("made by tests/test_late_drift.py",), "tanks.csv")
 
@@ -130,3 +140,27 @@ def test_a_coarse_row_far_from_a_parabola_is_laid_where_its_peak_can_be():
     assert sp._quadratic(gaussian, 0, 8, int(np.argmax(gaussian)))
     (lo, hi), _ = sp._next_range(changes, gaussian, (-3.8507, 19.2533), options)
     assert lo == pytest.approx(2.0 - 4 * 0.05, abs=1e-9) and hi == pytest.approx(2.0 + 4 * 0.05, abs=1e-9)
+
+
+@pytest.mark.slow
+def test_a_plant_quieter_than_its_model_gets_mismatch_not_the_wrong_drift():
+    """The two tanks without process noise, their sensors 1.3 times noisier
+    than the model says, R10 drifting down by 0.004 per s from t = 150
+    (seed 2). The model's process noise makes F12's predicted spread
+    shrink as R12 grows (F12 = (P1 - P2)/R12 reads the levels' noise less),
+    so R12's drift won by the spread it predicts, which these data do not
+    have (F12's residuals' variance about 0.34): "isolated: R12_incipient",
+    posterior 1, while R10's drift fits the readings better. Now the verdict
+    is mismatch, R10's drift among the possibilities, the finding says the
+    plant is quieter than the model, and the user is told to calibrate the
+    noise (bgc.diagnosis.finish.quiet_misfit). The same quiet plant without
+    a drift is "no fault": a quieter plant alone is no misfit."""
+    s = session("two_tank")
+    run = drifting_tanks("R10", -0.004, 150.0, 330.0, 2, process=0.0, measurement=1.3)
+    d = bgc.diagnose(s, data=run, options=DiagnosisOptions(seed=2)).diagnosis
+    assert d.verdict == "mismatch" and "R10_incipient" in d.candidates, report.plain_words(d)
+    assert any("quieter than the model" in f for f in d.fit.findings)
+    told = [e for e in d.events if isinstance(e, ev.Mismatched)]
+    assert told and "noise" in told[0].estimate and "R10" in told[0].estimate
+    healthy = drifting_tanks("R10", 0.0, 150.0, 330.0, 2, process=0.0, measurement=1.3)
+    assert bgc.diagnose(s, data=healthy, options=DiagnosisOptions(seed=2)).diagnosis.verdict == "no fault"

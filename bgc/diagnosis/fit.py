@@ -30,10 +30,12 @@ quadrature, what the calibration's estimates leave on it
 variance above 1 counts when the variance without the sensor's farthest
 reading is above its own expectation too (one glitch of a reading is not
 a model whose noise is too small; :func:`bgc.filters.residuals.failures`).
-Only a variance above 1 counts: residuals narrower than the filter predicts (a
+Only a variance above 1 counts here: residuals narrower than the filter predicts (a
 plant quieter than its model, or a filter that spreads its prediction
 wider, as it does across the switches of a model with modes) make the
-detector more cautious, never confidently wrong. Ljung-Box's
+detector more cautious. They can still rank the faults wrongly, a fault
+model winning by the narrower spread it predicts: the named fault's
+residuals are tested for that (:func:`bgc.diagnosis.finish.quiet_misfit`). Ljung-Box's
 whiteness test, which ``bgc calibrate`` adds, is left out of the verdict: on
 data of the model itself it fails more often than its level says (a
 portmanteau over 20 lags is sensitive to the slight slow wander a
