@@ -341,7 +341,8 @@ def _decided(r: Record, s: Setting, hyps: tuple, posteriors: dict) -> Diagnosis:
     hyps, verdict, candidates, events = weighed(hyps, posteriors, r, s, null)
     best_onset = None if verdict == "no fault" else \
         next((h.onset_step for h in hyps if candidates and h.name == candidates[0]), r.detection.onset_step)
-    verdict, candidates, judged, fitted = judged_fit(r, s, hyps, verdict, candidates, best_onset, r.observer)
+    verdict, candidates, judged, fitted = judged_fit(r, s, hyps, verdict, candidates, best_onset, r.observer,
+                                                     quieter=False)  # a submodel's residuals are narrow by design
     events = events + judged + [ev.Decided(T - 1, verdict, candidates)]
     s.say(f"done: {verdict}" + (f", {', '.join(candidates)}" if candidates else ""))
     return Diagnosis(verdict=verdict, detection=r.detection, onset_step=best_onset, symbols=(), refuted=(),

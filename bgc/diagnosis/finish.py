@@ -144,7 +144,7 @@ def redone(weighing: list, tried: list, hyps) -> list:
 
 
 def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str, ...], onset: int | None,
-               track: kalman.NominalTrack | None = None):
+               track: kalman.NominalTrack | None = None, quieter: bool = True):
     """The test of the model on the data the verdict says are fault-free
     (:mod:`bgc.diagnosis.fit`): before the earlier of the change point and
     the onset ``onset`` of the fault named (the change point alone when the
@@ -155,7 +155,8 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
     fails it, or data too short before an alarm to tell, make the verdict
     ``mismatch``, the faults it named kept as possibilities. Returns (the
     verdict, its candidates, the events, the :class:`~bgc.diagnosis.fit.Fit`). ``track``: the nominal
-    cubature Kalman filter's, when the diagnosis ran it."""
+    cubature Kalman filter's, when the diagnosis ran it. ``quieter``: test a plant quieter than its model
+    (:func:`quiet_misfit`; not on submodels, whose residuals are narrow by design)."""
     T = len(r.time)
     quiet = r.detection is None or verdict == "no fault"  # no fault, after an alarm too: the whole record
     if quiet:
@@ -176,8 +177,8 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
         fitted, end = unchanged_misfit(r, nominal, fitted, end, track)
     if fitted.fits and verdict in ("isolated", "ambiguous") and candidates and candidates[0] in by:
         fitted = noise_misfit(fitted, by[candidates[0]], r.outputs, residual_sd(nominal))
-    if fitted.fits and verdict in ("isolated", "ambiguous") and candidates and candidates[0] in by:
-        fitted, candidates = quiet_misfit(fitted, by[candidates[0]], hyps, candidates, r, nominal)
+    if quieter and fitted.fits and verdict in ("isolated", "ambiguous") and candidates and candidates[0] in by:
+        fitted, candidates = quiet_misfit(fitted, by[candidates[0]], hyps, candidates, r, s, nominal)
     # an alarm, or a misfit, that the inputs read with the other timing explain (docs/format.md, section 9)
     timing = None if r.data is None or (fitted.fits and r.detection is None) else timing_told(
         nominal, r.ys, r.us, r.outputs,
@@ -261,14 +262,15 @@ def noise_misfit(fitted: Fit, h: Hypothesis, outputs: tuple[str, ...], spread=No
     return replace(fitted, findings=fitted.findings + said, failed=fitted.failed + tuple(t for _, t in wide))
 
 
-def quiet_misfit(fitted: Fit, h: Hypothesis, hyps, candidates: tuple[str, ...], r: Record,
+def quiet_misfit(fitted: Fit, h: Hypothesis, hyps, candidates: tuple[str, ...], r: Record, s: Setting,
                  nominal) -> tuple[Fit, tuple[str, ...]]:
     """``fitted`` and ``candidates`` with the test of a plant quieter than its
     model: the named fault ``h``'s residuals after its onset (its static
     posterior's most likely cell) narrower than the model's noise on some
-    sensor (the variance test below 1, at the fit's level), and a rival that
-    passed its own test of fit (a candidate, or dropped by the Bayes factor
-    alone) whose residuals are smaller (the sum of their squares, over the
+    sensor (the variance test below 1, at the fit's level, a calibrated
+    model's allowance added as :func:`noise_misfit` adds it), and a rival
+    that passes the consistency test with its magnitude held static (a
+    candidate, or dropped by the Bayes factor alone) whose residuals are smaller (the sum of their squares, over the
     steps both have from the later onset on). The likelihood of a fault
     model is its residuals' fit and the spread it predicts; ``h`` wins by
     the spread alone, a spread these data do not have: its parameter makes
@@ -286,7 +288,8 @@ def quiet_misfit(fitted: Fit, h: Hypothesis, hyps, candidates: tuple[str, ...], 
         return fitted, candidates
     start = int(p.best[0])
     z = np.asarray(p.residuals, dtype=float)
-    narrow = [(i, test) for i, test in failures(summary([z[start:]], r.outputs), fitted.level, correlation=False)
+    narrow = [(i, test) for i, test in failures(summary([z[start:]], r.outputs), fitted.level, correlation=False,
+                                                spread=residual_sd(nominal))
               if test == "variance" and i.variance < 1.0]
     if not narrow:
         return fitted, candidates
@@ -294,7 +297,8 @@ def quiet_misfit(fitted: Fit, h: Hypothesis, hyps, candidates: tuple[str, ...], 
     for g in hyps:
         q = g.static
         if g.name == h.name or q is None or q.residuals is None or q.best is None or g.intermittent is not None \
-                or not (g.drop is None or g.drop.code == "bayes-factor"):
+                or not (g.drop is None or g.drop.code == "bayes-factor") \
+                or static_alarm(q, r.outputs, s.options) is not None:
             continue
         w = np.asarray(q.residuals, dtype=float)
         k = max(start, int(q.best[0]))

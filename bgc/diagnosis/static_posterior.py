@@ -226,13 +226,15 @@ def _quadratic(logd: np.ndarray, first: int, last: int, top_at: int) -> bool:
     a log likelihood whose parabola through three coarse points puts the
     vertex far from the peak, and the next pass laid over it around the
     vertex misses the peak: True where there are fewer than four points to
-    tell (nothing says otherwise)."""
+    tell (nothing says otherwise), and where no second difference reaches
+    1 (a row broad at its spacing, a flat one too: its parabola errs by
+    little)."""
     if last - first < 3:
         return True
     k = min(max(top_at, first + 1), last - 1)
     bends = [float(logd[j - 1] - 2.0 * logd[j] + logd[j + 1]) for j in (k - 1, k, k + 1) if first < j < last]
-    if len(bends) < 2 or not all(math.isfinite(b) for b in bends):
-        return True
+    if len(bends) < 2 or not all(math.isfinite(b) for b in bends) or max(abs(b) for b in bends) < 1.0:
+        return True  # too few to tell, or bent less than a unit of log density per spacing: a broad row
     if not all(b < 0.0 for b in bends):  # bent the other way beside it
         return False
     return max(bends) / min(bends) >= 1.0 / BEND  # the smaller magnitude over the larger
