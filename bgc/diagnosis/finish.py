@@ -177,8 +177,8 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
         fitted, end = unchanged_misfit(r, nominal, fitted, end, track)
     if fitted.fits and verdict in ("isolated", "ambiguous") and candidates and candidates[0] in by:
         fitted = noise_misfit(fitted, by[candidates[0]], r.outputs, residual_sd(nominal))
-    if quieter and fitted.fits and verdict in ("isolated", "ambiguous") and candidates and candidates[0] in by:
-        fitted, candidates = quiet_misfit(fitted, by[candidates[0]], hyps, candidates, r, s, nominal)
+        if quieter and fitted.fits:
+            fitted, candidates = quiet_misfit(fitted, by[candidates[0]], hyps, candidates, r, s, nominal)
     # an alarm, or a misfit, that the inputs read with the other timing explain (docs/format.md, section 9)
     timing = None if r.data is None or (fitted.fits and r.detection is None) else timing_told(
         nominal, r.ys, r.us, r.outputs,

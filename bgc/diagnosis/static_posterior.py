@@ -200,10 +200,9 @@ def _next_range(changes: np.ndarray, logd: np.ndarray, bounds: tuple[float, floa
             sd = max(sd, hi - lo)
     elif sd >= options.resolution * spacing:
         return None, mass
-    elif not trusted and first < top_at < last:  # coarse, far from a parabola: the peak lies between
-        new = (float(changes[top_at - 1]), float(changes[top_at + 1]))  # the best point's neighbours
-        return (None if np.allclose(new, (lo, hi), rtol=1e-9, atol=0.0) else new), mass
-    if top_at in (first, last) and not edge:  # pressed against a bound: a fall like an exponential's, 10 stds
+    if not edge and not trusted and first < top_at < last:  # coarse, far from a parabola: the peak lies
+        new = (float(changes[top_at - 1]), float(changes[top_at + 1]))  # between the best point's neighbours
+    elif top_at in (first, last) and not edge:  # pressed against a bound: a fall like an exponential's, 10 stds
         new = (max(hi - 10.0 * sd, vmin), hi) if top_at == last else (lo, min(lo + 10.0 * sd, vmax))
     else:
         new = _inside(mean - 4.0 * sd, mean + 4.0 * sd, vmin, vmax)
