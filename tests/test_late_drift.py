@@ -142,6 +142,20 @@ def test_a_coarse_row_far_from_a_parabola_is_laid_where_its_peak_can_be():
     assert lo == pytest.approx(2.0 - 4 * 0.05, abs=1e-9) and hi == pytest.approx(2.0 + 4 * 0.05, abs=1e-9)
 
 
+def test_a_point_with_no_likelihood_beside_the_best_gives_no_parabola():
+    """A row whose best point has a neighbour with no likelihood (-inf: a
+    filter that lost the data at that magnitude): the parabola through the
+    three is not defined (it was a NaN vertex and a std of 0), and the next
+    range still holds the best point, with a width of its own."""
+    changes = np.linspace(0.0, 1.0, 9)
+    for gap in (4, 6):
+        logd = -0.5 * ((changes - 0.625) / 0.1) ** 2
+        logd[gap] = -np.inf
+        assert sp._parabola(changes, logd, 0, 8, 5, 0.125) == (None, None)
+        (lo, hi), _ = sp._next_range(changes, logd, (-5.0, 5.0), KalmanOptions())
+        assert lo < 0.625 < hi and hi - lo > 0.125, (gap, lo, hi)
+
+
 @pytest.mark.slow
 def test_a_plant_quieter_than_its_model_gets_mismatch_not_the_wrong_drift():
     """The two tanks without process noise, their sensors 1.3 times noisier

@@ -243,13 +243,14 @@ def _parabola(changes: np.ndarray, logd: np.ndarray, first: int, last: int, top_
               spacing: float) -> tuple[float | None, float | None]:
     """The vertex and std of the parabola through a row's three points
     around its highest (``top_at``, between ``first`` and ``last``); None,
-    None when it is not concave or the row has fewer than three points."""
+    None when it is not concave, the row has fewer than three points, or one
+    of the three has no likelihood (-inf: a filter that lost the data)."""
     if last - first < 2:
         return None, None
     k = min(max(top_at, first + 1), last - 1)
     l0, l1, l2 = logd[k - 1:k + 2] - logd[top_at]
     bend = l0 - 2.0 * l1 + l2
-    if not bend < 0.0:
+    if not (math.isfinite(bend) and bend < 0.0):
         return None, None
     return float(changes[k] + spacing * (l0 - l2) / (2.0 * bend)), spacing / math.sqrt(-bend)
 
