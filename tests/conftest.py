@@ -38,6 +38,10 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
 # BGC_BACKEND=numba make test.
 os.environ.setdefault("BGC_BACKEND", "numpy")
 os.environ.setdefault("MPLBACKEND", "Agg")  # no display: as make test sets it
+# A command (bgc diagnose, bgc monitor) weighs its hypotheses in its own process: the suite's two
+# processes already fill the two cores, and a forked pool beside them only adds work (docs/commands.md,
+# --workers). The tests of the forked pool ask for it by name (DiagnosisOptions(workers=2)).
+os.environ.setdefault("BGC_WORKERS", "1")
 
 ROOT = Path(__file__).resolve().parent.parent
 MODELS = ROOT / "models"
@@ -205,9 +209,9 @@ def bgc_cli(*args, cwd=ROOT, input: str | None = None, env: dict | None = None) 
     ``subprocess.run(..., capture_output=True, text=True)`` returns them. An
     exception that would be a traceback is raised here. A test that needs a
     real process (a pipe, a signal, a fresh interpreter) starts one instead.
-    ``bgc diagnose`` forks its hypotheses' workers as the command does
-    (DiagnosisOptions' default, which no flag changes), and ``bgc
-    experiment`` its campaign's workers."""
+    ``bgc diagnose`` and ``bgc monitor`` weigh their hypotheses on
+    ``--workers`` processes (the suite's ``BGC_WORKERS``: 1, this one), and
+    ``bgc experiment`` runs its campaign on its workers."""
     from bgc.cli import main
 
     argv = [str(a) for a in args]

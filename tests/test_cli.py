@@ -108,6 +108,18 @@ def test_run_time_options_out_of_range_are_one_line_errors(tmp_path):
     assert line.startswith("--start 60 is outside the run (1 to 20)")  # samples at t = 1..20 (dt = 1)
 
 
+def test_workers_out_of_range_are_one_line_errors(tmp_path):
+    """``--workers`` and the environment's ``BGC_WORKERS`` that sets its
+    default: a count of processes >= 1, else a one-line error naming it."""
+    for value in ("0", "two", "-1"):
+        r = run("diagnose", "models/circuit.yaml", "--scenario", "none", "--steps", "5", "-o", str(tmp_path / "d"),
+                env={"BGC_WORKERS": value})
+        assert r.returncode == 1 and not (tmp_path / "d").exists(), r.stderr
+        assert one_line_error(r).startswith(f"BGC_WORKERS={value!r} in the environment: not a number of processes")
+    r = run("monitor", "models/circuit.yaml", "--data", "-", "--workers", "0", "-o", str(tmp_path / "m"))
+    assert r.returncode == 2 and "--workers: 0: give an integer >= 1" in r.stderr and "Traceback" not in r.stderr
+
+
 def test_filter_on_a_plant_without_sensors_says_there_is_nothing_to_filter(tmp_path):
     model = tmp_path / "blind.yaml"
     model.write_text(RC % ("1.0", "2.0", ""))

@@ -6,8 +6,8 @@ import argparse
 from pathlib import Path
 
 from ..errors import BgcError
-from .common import (Progress, add_backend_option, add_data_options, add_prior_option, backend_note, check_times,
-    parse_noise, refuse_input_in_output, rows_of, seed, write_report)
+from .common import (Progress, add_backend_option, add_data_options, add_prior_option, add_workers_option, backend_note,
+    check_times, parse_noise, refuse_input_in_output, rows_of, seed, workers, write_report)
 
 
 def add_parser(sub) -> None:
@@ -51,6 +51,7 @@ def add_parser(sub) -> None:
     add_prior_option(p)
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-diagnosis)")
     add_backend_option(p)
+    add_workers_option(p)
     p.set_defaults(run=run)
 
 
@@ -76,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
                                    particles=args.particles, seed=args.seed,
                                    identify=args.identify, rank=args.rank, refine=args.refine,
                                    horizon=args.horizon, gap=args.gap, recheck=args.recheck, no_fault=args.no_fault,
-                                   input_timing=args.input_timing, detectors=args.detect)
+                                   input_timing=args.input_timing, detectors=args.detect, workers=workers(args))
         steps = args.steps if args.scenario is not None else rows_of(args.data)  # auto's estimate of the work
         session = api.open(args.model, process_noise=process, measurement_noise=measurement,
                            generated=args.generated, prior_scale=args.prior_scale, backend=args.backend,

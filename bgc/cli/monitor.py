@@ -10,8 +10,8 @@ from pathlib import Path
 
 from ..errors import BgcError
 from ..data.runs import open_stream
-from .common import (add_backend_option, add_data_options, add_prior_option, backend_note, check_times,
-    parse_noise, refuse_input_in_output, rows_of, seed, write_report)
+from .common import (add_backend_option, add_data_options, add_prior_option, add_workers_option, backend_note,
+    check_times, parse_noise, refuse_input_in_output, rows_of, seed, workers, write_report)
 
 
 def add_parser(sub) -> None:
@@ -59,6 +59,7 @@ def add_parser(sub) -> None:
     add_prior_option(p)
     p.add_argument("-o", "--output", metavar="DIR", help="report folder (default: MODEL-monitor)")
     add_backend_option(p)
+    add_workers_option(p)
     p.set_defaults(run=run)
 
 
@@ -88,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     process, measurement = parse_noise(args.noise)
     options = DiagnosisOptions(filter=args.filter, particles=args.particles, seed=args.seed, horizon=args.horizon,
                                gap=args.gap, recheck=args.recheck, no_fault=args.no_fault, input_timing=args.input_timing,
-                               keep=args.keep, detectors=args.detect)
+                               keep=args.keep, detectors=args.detect, workers=workers(args))
     rows = None if args.follow else rows_of(args.data)  # a stream followed, or standard input: not known
     session = api.open(args.model, process_noise=process, measurement_noise=measurement, generated=args.generated,
                        prior_scale=args.prior_scale, backend=args.backend,

@@ -65,6 +65,10 @@ class Saved:
     stream: tuple = (0, None)
 
 
+#: The options a state holds to none: they do not change a number (the processes the hypotheses run on).
+UNBOUND = ("workers",)
+
+
 def identity(session, options, checkpoint: float | None, columns: list[str], exclude_faulty: bool = False,
              reading=None, episodes: bool = False, rearm: float | None = None) -> dict:
     """What a state is valid for: the same bgc, model, noise (a relative
@@ -72,13 +76,14 @@ def identity(session, options, checkpoint: float | None, columns: list[str], exc
     exclusion of faulty sensors, episodes and their re-arming, columns and
     column map (``reading``'s). The
     backend is not part of it: both give the same numbers (their packages
-    are checked against each other)."""
+    are checked against each other); nor are the processes the hypotheses
+    run on (``UNBOUND``)."""
     from ..api.cache import code_digest
 
     text = Path(session.model).read_bytes() if Path(session.model).is_file() else str(session.model).encode()
     return {"bgc": __version__, "code": code_digest(), "model": hashlib.sha256(text).hexdigest(),
             "noise": [1.0 if n is None else float(n) for n in session.noise], "prior_scale": session.prior_scale,
-            "options": _plain(dataclasses.asdict(options)),
+            "options": _plain({k: v for k, v in dataclasses.asdict(options).items() if k not in UNBOUND}),
             "column_map": hashlib.sha256(repr(getattr(reading, "columns", None)).encode()).hexdigest(),
             "checkpoint": checkpoint, "exclude_faulty": bool(exclude_faulty), "episodes": bool(episodes),
             "rearm": rearm, "columns": list(columns)}
