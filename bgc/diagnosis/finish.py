@@ -164,13 +164,8 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
     else:  # an unexplained verdict's closest model explains nothing: its onset does not end the stretch
         named = onset if verdict in ("isolated", "ambiguous") else None
         end = min(k for k in (r.detection.onset_step, named, r.detection.step) if k is not None)
-    # too short to tell: fewer than LEAST samples before the onset; a drift's by the detector's change point
-    # (its own onset, weakly told by the data, may lie far before it and the truth)
     by = {h.name: h for h in hyps}
-    drifts = bool(candidates) and candidates[0] in by and fault_kind(by[candidates[0]].kind).drifts
-    # (an unexplained verdict's closest onset too: the change it hints at may have begun there)
-    first = None if quiet else r.detection.onset_step if drifts else min(k for k in (end, onset) if k is not None)
-    short = first is not None and first < LEAST
+    short = not quiet and _too_short(r, by, verdict, candidates, end, onset)
     nominal = nominal_model(s.package)
     fitted = fit(nominal, r.ys, r.us, r.outputs, end, short, track=track, skip=r.excused)
     if verdict == "unexplained" and fitted.fits and end < T:
@@ -199,6 +194,23 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
                           *(timing or (None, False, 0.0)))
     s.say("the model does not fit these data" + ("" if not possible else f"; possibly {', '.join(possible)}"))
     return "mismatch", possible, [event], fitted
+
+
+def _too_short(r: Record, by: dict, verdict: str, candidates: tuple[str, ...], end: int, onset: int | None) -> bool:
+    """Whether fewer than LEAST samples come before the fault's onset (the
+    earlier of ``end``, the stretch tested's, and ``onset``; an unexplained
+    verdict's closest onset too: the change it hints at may have begun
+    there). A drift's count to the detector's change point (its own onset,
+    weakly told by the data, may lie far before it and the truth), unless
+    the drift named has its onset within the first LEAST samples: a drift
+    since the data's start is what a model that does not fit looks like,
+    and the stretch tested ends at its onset (an unexplained verdict's ends
+    at the change point, whatever its closest model's onset)."""
+    drifts = bool(candidates) and candidates[0] in by and fault_kind(by[candidates[0]].kind).drifts
+    first = min(k for k in (end, onset) if k is not None)
+    if drifts and (first >= LEAST or verdict == "unexplained"):
+        first = r.detection.onset_step
+    return first < LEAST
 
 
 def unchanged_misfit(r: Record, nominal, fitted: Fit, end: int,

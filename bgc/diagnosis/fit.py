@@ -47,7 +47,12 @@ point and the diagnosis's) leaves fewer than :data:`LEAST` samples before
 it, their mean and variance say too little to vouch for the model: a fault
 since the data's start and a model that does not fit give the same data.
 For a drift, the detector's change point alone: a drift's onset is weakly
-told by the data, and its most probable one may lie far before the truth.
+told by the data, and its most probable one may lie far before the truth;
+but a drift named (isolated or ambiguous) whose onset is within the first
+:data:`LEAST` samples leaves that few before it too, and the stretch tested
+ends there: a drift since the data's start is the shape a model that does
+not fit takes (a plant 2 % off its model, a sensor fault on it: "R10
+drifts up since t = 1.5" was isolated; tests/test_off_model_fault.py).
 
 **The named fault's noise** (:func:`bgc.diagnosis.finish.noise_misfit`):
 when the stretch fits and the diagnosis names a fault, the same variance test

@@ -105,6 +105,15 @@ dc_motor_k_step_up_every_fallback_ckf, msd_c_drift_up_ckf, drivetrain_g_m_step_d
 drivetrain_b2_step_up_switch_and_every_fallback_apf a row of a grid moved, and the numbers with it
 (the verdict's estimate and interval by 1.3e-4 of themselves at most, a rival's interval's end by up to
 1.2 %). Their verdicts and candidates are unchanged (33 of 42 the same before).
+
+Re-recorded on 2026-12-06 (--only msd_c_drift_up_ckf, --keep-runs) when a drift named with its onset
+within the first LEAST (10) samples came to make the data before it too short to vouch for the model
+(bgc.diagnosis.finish.judged_fit; tests/test_off_model_fault.py). Its verdict changed from "isolated:
+c_incipient" to "mismatch", c_incipient kept as the possibility: the truth is c's drift of 0.01 per
+unit time from t = 50, beyond the model's prior for it (at most 0.00667), and the drift named began at
+step 7 with a slope of 0.00644 pressed against that bound, its interval [0.00589, 0.00666] not holding
+the truth: a model that does not fit these data (its prior), not a drift since t = 8. The other 41
+cases are unchanged.
 A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
 ``bgc/`` holds exactly the code being committed, and commits the corpus with
