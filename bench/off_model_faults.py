@@ -11,7 +11,8 @@ none), the record to t = 150. Each scenario runs on two plants: the
 model's own parameters, and R10 and C1 ``--off`` above and R20 ``--off``
 below them (the plant's own steady state). Seeds ``--first`` on. Each
 record is diagnosed with the default options (``bgc.diagnose``, one
-process each). Prints per plant and scenario the count of each outcome:
+process each), on the NumPy backend (importing the test module runs
+tests/conftest.py, which sets ``BGC_BACKEND=numpy``). Prints per plant and scenario the count of each outcome:
 isolated on the truth, isolated on another fault (a confident wrong
 answer), ambiguous with the truth among the candidates or without it,
 and the other verdicts; then the seeds of the wrong ones. A change's effect

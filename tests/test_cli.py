@@ -120,6 +120,22 @@ def test_workers_out_of_range_are_one_line_errors(tmp_path):
     assert r.returncode == 2 and "--workers: 0: give an integer >= 1" in r.stderr and "Traceback" not in r.stderr
 
 
+def test_workers_come_from_the_flag_then_the_environment_then_the_default(monkeypatch):
+    """``--workers`` first, else ``BGC_WORKERS``, else DiagnosisOptions' 2;
+    a bad environment value is not read when the flag is given."""
+    import argparse
+
+    from bgc.cli.common import workers
+
+    monkeypatch.delenv("BGC_WORKERS", raising=False)
+    assert workers(argparse.Namespace(workers=None)) == 2
+    monkeypatch.setenv("BGC_WORKERS", "3")
+    assert workers(argparse.Namespace(workers=None)) == 3
+    assert workers(argparse.Namespace(workers=1)) == 1
+    monkeypatch.setenv("BGC_WORKERS", "none")
+    assert workers(argparse.Namespace(workers=2)) == 2
+
+
 def test_filter_on_a_plant_without_sensors_says_there_is_nothing_to_filter(tmp_path):
     model = tmp_path / "blind.yaml"
     model.write_text(RC % ("1.0", "2.0", ""))

@@ -16,7 +16,7 @@ detector alarms at t = 29, before the sensor fault, on that disagreement.
 The diagnosis named "R10 drifts up since t = 1.5", isolated (seeds 101 and
 102): a drift since the data's start absorbs a model that does not fit
 (docs/diagnosis.md, model mismatch). The test of the model on the data
-before a drift's onset ran on the one sample before it, and a drift's
+before a drift's onset ran on the two samples before it, and a drift's
 onset did not count toward "too short to tell" (its change point did: 27
 samples). Now a drift named with its onset within the first LEAST samples
 makes the data too short to vouch for the model: the verdict is "mismatch",
@@ -36,6 +36,7 @@ from bgc.data import runs
 from bgc.diagnosis.fit import LEAST
 from bgc.diagnosis.options import DiagnosisOptions
 from bgc.output import report
+from bgc.output.events import mismatch_sentence
 
 from conftest import session
 
@@ -96,7 +97,10 @@ def test_a_sensor_fault_on_a_plant_off_its_model_is_a_mismatch_not_a_drift_since
     assert d.verdict == "mismatch", report.plain_words(d)
     assert d.time_of(d.detection.step) < 75.0  # the alarm is the plant's disagreement, before the sensor fault
     (said,) = [e for e in d.events if isinstance(e, ev.Mismatched)]
-    assert said.short and said.least == LEAST
+    assert said.short
+    note = mismatch_sentence(said, d.time_of)
+    assert note.startswith("the model may not fit this plant: the fault's onset leaves")
+    assert "bgc calibrate" in note and "R10_incipient" in note, note
     named = [h for h in d.hypotheses if h.name in d.candidates]
     assert any(h.onset_step < LEAST and h.name.endswith("_incipient") for h in named), d.candidates
     same = bgc.diagnose(session("two_tank"), data=tanks(MODEL, "F10", -0.035, 75.0, 150.0, seed),

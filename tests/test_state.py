@@ -226,6 +226,17 @@ def test_a_state_is_taken_up_only_by_a_diagnoser_of_its_model(sessions):
         Diagnoser.from_state(other.config, d.to_state())
 
 
+def test_a_diagnoser_taken_up_runs_on_its_own_count_of_processes(sessions):
+    """The processes a diagnosis's hypotheses run on change no number, so a
+    state holds to none (a monitor started again with another --workers):
+    the diagnoser taken up runs on its configuration's, not the saver's."""
+    tanks = _session(sessions, MODELS / "two_tank.yaml")
+    d = tanks.diagnoser(DiagnosisOptions(particles=50, workers=1))
+    d.step(0.5, y={"F10": 0.1, "F12": 0.2, "F20": 0.1})
+    again = tanks.diagnoser(DiagnosisOptions(particles=50, workers=2))
+    assert Diagnoser.from_state(again.config, d.to_state()).loop.options.workers == 2
+
+
 @pytest.mark.numba
 def test_a_diagnoser_on_the_compiled_backend_is_taken_up_alike():
     """The compiled kernels draw through a handle of each filter's generator:

@@ -210,7 +210,7 @@ def _too_short(r: Record, by: dict, verdict: str, candidates: tuple[str, ...], e
     first = min(k for k in (end, onset) if k is not None)
     if drifts and (first >= LEAST or verdict == "unexplained"):
         first = r.detection.onset_step
-    return first < LEAST
+    return first is not None and first < LEAST
 
 
 def unchanged_misfit(r: Record, nominal, fitted: Fit, end: int,

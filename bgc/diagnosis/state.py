@@ -24,7 +24,7 @@ from __future__ import annotations
 import io
 import pickle
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -331,7 +331,9 @@ def restore_diagnoser(cls, config, state: DiagnoserState):
         start = (None, None) if state.start is None else (np.array(state.start[0], dtype=float),
                                                            np.array(state.start[1], dtype=float))
         d._started(started_package(config.package, *start, theta={k: float(v) for k, v in state.theta}))
-    d.loop = restore_loop(d._loop_config(state.loop.options, state.loop.every, state.loop.lazy), state.loop)
+    # the processes the hypotheses run on are this run's (they change no number: a state holds to none)
+    options = replace(state.loop.options, workers=config.options.workers)
+    d.loop = restore_loop(d._loop_config(options, state.loop.every, state.loop.lazy), state.loop)
     d.switched, d.infer_inputs, d.busy, d.finished = tuple(state.switched), state.infer_inputs, state.busy, \
         state.finished
     decoder = getattr(state, "decoder", None)

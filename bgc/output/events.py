@@ -255,7 +255,7 @@ def mismatch_sentence(e: ev.Mismatched, time_of) -> str:
                 f"MODEL --data FILE --estimate {','.join(e.estimate)})"
                 + (f"; possibly a fault all the same: {', '.join(e.possible)}" if e.possible else ""))
     if e.short:
-        why = (f"the model may not fit this plant: the alarm's onset leaves {samples} sample(s) before it, fewer than "
+        why = (f"the model may not fit this plant: the fault's onset leaves {samples} sample(s) before it, fewer than "
                f"the {e.least} that would show the model fitted the plant before a fault; a fault since the data's "
                f"start and a model that does not fit give the same data")
     else:

@@ -8,8 +8,8 @@ moment leaves the last whole state). It holds, after the first line
 
 - one line of JSON, the header: the format, what the state is valid for (the
   identity: bgc's version and the digest of its code, the model file's
-  digest, the noise levels, the prior scale, the backend, the diagnosis's
-  options, the checkpoint period, whether faulty sensors are taken out, the
+  digest, the noise levels, the prior scale, the diagnosis's options but the
+  processes it runs on (neither those nor the backend change a number), the checkpoint period, whether faulty sensors are taken out, the
   data's columns) and where the input stands (the rows taken, the last
   row's time, the last checkpoint's time, the sensors taken out so far);
 - the rows the diagnoser took (since the last sensor was taken out), as a NumPy array file (``allow_pickle=False``):

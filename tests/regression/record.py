@@ -113,7 +113,8 @@ c_incipient" to "mismatch", c_incipient kept as the possibility: the truth is c'
 unit time from t = 50, beyond the model's prior for it (at most 0.00667), and the drift named began at
 step 7 with a slope of 0.00644 pressed against that bound, its interval [0.00589, 0.00666] not holding
 the truth: a model that does not fit these data (its prior), not a drift since t = 8. The other 41
-cases are unchanged.
+cases are unchanged. Recorded again in the same session when the note of a mismatch too short to tell
+came to say "the fault's onset leaves 7 sample(s)" (it said "the alarm's", and the 7 were the drift's).
 A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
 ``bgc/`` holds exactly the code being committed, and commits the corpus with
