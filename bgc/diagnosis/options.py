@@ -184,6 +184,10 @@ class DiagnosisOptions:
             object.__setattr__(self, "filter", method)
 
 
+#: The options that change no number of a diagnosis (the processes its hypotheses run on): a saved
+#: diagnoser's state and a monitor's hold to none of them (bgc.diagnosis.state, bgc.service.resume).
+UNBOUND = ("workers",)
+
 #: The options of each stage of the loop (every field of DiagnosisOptions in one).
 STAGES = {
     "filters": ("filter", "particles", "seed", "shrinkage", "switch", "workers"),

@@ -34,7 +34,7 @@ from ..filters.cubature import NominalKalman
 from .hidden import DecoderState
 from ..filters.registry import filter_class
 from .hypothesis import HypothesisTracker, TrackJob
-from .options import DiagnosisOptions
+from .options import UNBOUND, DiagnosisOptions
 from .values import Detection, Isolation
 
 #: The state's format; a state of another format is refused.
@@ -331,8 +331,8 @@ def restore_diagnoser(cls, config, state: DiagnoserState):
         start = (None, None) if state.start is None else (np.array(state.start[0], dtype=float),
                                                            np.array(state.start[1], dtype=float))
         d._started(started_package(config.package, *start, theta={k: float(v) for k, v in state.theta}))
-    # the processes the hypotheses run on are this run's (they change no number: a state holds to none)
-    options = replace(state.loop.options, workers=config.options.workers)
+    # the options that change no number (the processes the hypotheses run on) are this run's
+    options = replace(state.loop.options, **{k: getattr(config.options, k) for k in UNBOUND})
     d.loop = restore_loop(d._loop_config(options, state.loop.every, state.loop.lazy), state.loop)
     d.switched, d.infer_inputs, d.busy, d.finished = tuple(state.switched), state.infer_inputs, state.busy, \
         state.finished

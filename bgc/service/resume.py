@@ -9,8 +9,9 @@ moment leaves the last whole state). It holds, after the first line
 - one line of JSON, the header: the format, what the state is valid for (the
   identity: bgc's version and the digest of its code, the model file's
   digest, the noise levels, the prior scale, the diagnosis's options but the
-  processes it runs on (neither those nor the backend change a number), the checkpoint period, whether faulty sensors are taken out, the
-  data's columns) and where the input stands (the rows taken, the last
+  processes it runs on (neither those nor the backend change a number), the
+  checkpoint period, whether faulty sensors are taken out, the data's
+  columns) and where the input stands (the rows taken, the last
   row's time, the last checkpoint's time, the sensors taken out so far);
 - the rows the diagnoser took (since the last sensor was taken out), as a NumPy array file (``allow_pickle=False``):
   the final report is made of them, also when the files they came from are
@@ -37,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from ..diagnosis.options import UNBOUND
 from ..errors import BgcError, printable
 
 #: The first line of a state file.
@@ -65,10 +67,6 @@ class Saved:
     stream: tuple = (0, None)
 
 
-#: The options a state holds to none: they do not change a number (the processes the hypotheses run on).
-UNBOUND = ("workers",)
-
-
 def identity(session, options, checkpoint: float | None, columns: list[str], exclude_faulty: bool = False,
              reading=None, episodes: bool = False, rearm: float | None = None) -> dict:
     """What a state is valid for: the same bgc, model, noise (a relative
@@ -77,7 +75,7 @@ def identity(session, options, checkpoint: float | None, columns: list[str], exc
     column map (``reading``'s). The
     backend is not part of it: both give the same numbers (their packages
     are checked against each other); nor are the processes the hypotheses
-    run on (``UNBOUND``)."""
+    run on (:data:`bgc.diagnosis.options.UNBOUND`)."""
     from ..api.cache import code_digest
 
     text = Path(session.model).read_bytes() if Path(session.model).is_file() else str(session.model).encode()
