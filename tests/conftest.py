@@ -7,7 +7,7 @@ test but those marked ``slow`` (end-to-end scenarios, seeded statistics, any tes
 a fresh interpreter, a Dask cluster, a notebook kernel; or forks the worker
 pool it tests), ``numba`` (compiles kernels), ``install`` and ``browser``;
 ``make test``, which CI runs, runs them all. A diagnosis runs its filters in
-this process (``DiagnosisOptions(workers=1)``) unless workers are what the
+this process (``BGC_WORKERS=1``, below) unless workers are what the
 test is about; a command runs in this process (:func:`bgc_cli`) unless it
 needs a real one; a shipped model is compiled once (:func:`compiled`,
 :func:`session`, and :func:`compiled_once` for what bgc compiles itself).
@@ -38,9 +38,10 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
 # BGC_BACKEND=numba make test.
 os.environ.setdefault("BGC_BACKEND", "numpy")
 os.environ.setdefault("MPLBACKEND", "Agg")  # no display: as make test sets it
-# A command (bgc diagnose, bgc monitor) weighs its hypotheses in its own process: the suite's two
-# processes already fill the two cores, and a forked pool beside them only adds work (docs/commands.md,
-# --workers). The tests of the forked pool ask for it by name (DiagnosisOptions(workers=2)).
+# A diagnosis (bgc diagnose, bgc monitor, bgc.diagnose, a Diagnoser) weighs its hypotheses in its own
+# process: the suite's two processes already fill the two cores, and a forked pool beside them only adds
+# work (docs/commands.md, --workers; the API's default reads the variable too). The tests of the forked
+# pool ask for it by name (DiagnosisOptions(workers=2)).
 os.environ.setdefault("BGC_WORKERS", "1")
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -136,6 +136,28 @@ def test_workers_come_from_the_flag_then_the_environment_then_the_default(monkey
     assert workers(argparse.Namespace(workers=2)) == 2
 
 
+def test_the_apis_default_count_of_processes_is_the_environments_when_the_work_starts(monkeypatch):
+    """``DiagnosisOptions()`` leaves ``workers`` None: the environment's
+    ``BGC_WORKERS`` read when a map of jobs starts, else 2; a bad value is a
+    one-line ArgumentValueError naming it there (not when options are made)."""
+    import os
+
+    from bgc.diagnosis.options import DiagnosisOptions, processes
+    from bgc.diagnosis.parallel import parallel_map
+    from bgc.errors import ArgumentValueError
+
+    assert DiagnosisOptions().workers is None and processes(3) == 3
+    monkeypatch.delenv("BGC_WORKERS", raising=False)
+    assert processes(None) == 2
+    monkeypatch.setenv("BGC_WORKERS", "1")
+    assert processes(None) == 1
+    assert len(set(parallel_map(lambda _: os.getpid(), [0, 1], None))) == 1  # one process: a lambda need not pickle
+    monkeypatch.setenv("BGC_WORKERS", "0")
+    DiagnosisOptions()  # made without reading it
+    with pytest.raises(ArgumentValueError, match="BGC_WORKERS='0' in the environment: not a number of processes"):
+        parallel_map(abs, [1, 2], None)
+
+
 def test_filter_on_a_plant_without_sensors_says_there_is_nothing_to_filter(tmp_path):
     model = tmp_path / "blind.yaml"
     model.write_text(RC % ("1.0", "2.0", ""))

@@ -164,7 +164,7 @@ def check_options(options: DiagnosisOptions, func: str = "bgc.diagnose", o: str 
                                  f"{', '.join(map(str, wrong))} is not a family of the detector's tests", None,
                                  f"give the mean test and any of {', '.join(TESTS[1:])}, each once "
                                  f"(e.g. {arguments.spelled(repr(TESTS), ','.join(TESTS))})")
-    for name in ("history", "search", "symbol_steps", "workers"):
+    for name in ("history", "search", "symbol_steps") + (("workers",) if options.workers is not None else ()):
         arguments.integer(func, o + name, getattr(options, name), 1, "give at least 1", f"{name}=1")
     arguments.integer(func, o + "near", options.near, 0, "is negative", "near=4")
     if options.spacing is not None:

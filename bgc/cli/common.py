@@ -181,37 +181,21 @@ def add_backend_option(p: argparse.ArgumentParser) -> None:
                         "'bgc[fast]'); auto (default): numba when installed (BGC_BACKEND first). The result does "
                         "not depend on it")
 
-#: The environment variable that sets ``--workers``'s default (bgc diagnose, bgc monitor).
-WORKERS_ENV = "BGC_WORKERS"
-
-
 def add_workers_option(p: argparse.ArgumentParser) -> None:
     """``--workers N``: the processes a diagnosis weighs its hypotheses on (:func:`workers`)."""
+    from ..diagnosis.options import WORKERS, WORKERS_ENV
+
     p.add_argument("--workers", type=positive, default=None, metavar="N",
                    help=f"processes the hypotheses' filters run on (1: this one); default: {WORKERS_ENV} when set, "
-                        "else 2. The result does not depend on it")
+                        f"else {WORKERS}. The result does not depend on it")
 
 
 def workers(args: argparse.Namespace) -> int:
-    """``--workers``, else the environment's ``BGC_WORKERS``, else
-    DiagnosisOptions' default (2). A machine whose cores are already busy
-    (a shared server, a test suite running on every core) gains nothing from
-    more processes and pays for starting them: 1 there."""
-    from ..diagnosis.options import DiagnosisOptions
+    """``--workers``, else the environment's ``BGC_WORKERS``, else 2
+    (:func:`bgc.diagnosis.options.default_workers`, the API's default too)."""
+    from ..diagnosis.options import default_workers
 
-    if args.workers is not None:
-        return args.workers
-    text = os.environ.get(WORKERS_ENV, "").strip()
-    if not text:
-        return DiagnosisOptions.__dataclass_fields__["workers"].default
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise BgcError(f"{WORKERS_ENV}={printable(text)!r} in the environment: not a number of processes", None,
-                       f"set {WORKERS_ENV} to an integer >= 1, or unset it (2 processes), or give --workers N")
-    return value
+    return args.workers if args.workers is not None else default_workers()
 
 
 def add_columns_option(p: argparse.ArgumentParser) -> None:

@@ -5,10 +5,11 @@ its parts that have their own (the static posterior's grid,
 
 from __future__ import annotations
 
+import os
 import warnings
 from dataclasses import InitVar, dataclass
 
-from ..errors import ArgumentValueError
+from ..errors import ArgumentValueError, printable
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,6 +57,42 @@ class GridOptions:
     widen: float = 0.2
 
 
+
+#: The environment variable that sets the processes a diagnosis runs on when no one says
+#: (DiagnosisOptions.workers, bgc diagnose's and bgc monitor's --workers).
+WORKERS_ENV = "BGC_WORKERS"
+#: The processes without it: one per core of a 2-core machine.
+WORKERS = 2
+
+
+def processes(workers: int | None) -> int:
+    """``workers`` (:attr:`DiagnosisOptions.workers`), or when None
+    :func:`default_workers`: the processes the work runs on."""
+    return workers if workers is not None else default_workers()
+
+
+def default_workers() -> int:
+    """The environment's ``BGC_WORKERS``, else :data:`WORKERS` (2): the
+    processes a diagnosis weighs its hypotheses on when no one says. A machine
+    whose cores are already busy (a shared server, a cluster's job given one
+    core, a test suite running on every core) gains nothing from more
+    processes and pays for starting them: 1 there. A value that is not a
+    whole number >= 1 is an :class:`~bgc.errors.ArgumentValueError` naming
+    the variable."""
+    text = os.environ.get(WORKERS_ENV, "").strip()
+    if not text:
+        return WORKERS
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise ArgumentValueError(f"{WORKERS_ENV}={printable(text)!r} in the environment: not a number of processes",
+                                 None, f"set {WORKERS_ENV} to an integer >= 1, or unset it ({WORKERS} processes), "
+                                       "or give the number of processes (--workers N, workers=N)")
+    return value
+
+
 @dataclass(frozen=True, slots=True)
 class DiagnosisOptions:
     """The diagnosis's options, stage by stage (:data:`STAGES`; the loop of
@@ -74,7 +111,8 @@ class DiagnosisOptions:
     before the alarm under ``DEGENERATE`` of its particles), diagnose with
     ``ckf`` instead (a ``Switched`` event; a campaign comparing filters turns
     it off); ``workers``: processes for the hypotheses' filters in a batch
-    diagnosis (1: in this process).
+    diagnosis (1: in this process; None, the default: the environment's
+    ``BGC_WORKERS`` when the work starts, else 2: :func:`processes`).
 
     **Data** (:mod:`bgc.data.sampler`): ``gap``: missing samples in a row
     longer than this (time units; None: ``GAP_STEPS`` steps) are a ``Gap``
@@ -162,7 +200,7 @@ class DiagnosisOptions:
     recheck: bool = True
     no_fault: bool = True
     shrinkage: float = 0.98
-    workers: int = 2
+    workers: int | None = None
     identify: str = "kalman"
     kalman: KalmanOptions = KalmanOptions()
     rank: bool = False

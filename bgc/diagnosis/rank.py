@@ -14,7 +14,7 @@ from . import identify
 from .options import GridOptions
 from .static_posterior import onset_widths
 from .values import Drop, Estimate, Hypothesis
-from .options import DiagnosisOptions
+from .options import DiagnosisOptions, processes
 from .onsets import log_prior, top_onsets
 from .openloop import cloud_before
 from .parallel import parallel_map
@@ -27,7 +27,7 @@ def grid_posterior(package, name: str, estimate: Estimate, clouds: dict, ys, us,
     first = min(onsets) if first is None else first
     return identify.refine(package, name, cloud_before(clouds, first), ys, us, onsets,
                            estimate.low, estimate.high, tuple(package.MODELS[name].FAULT_PRIOR), options.interval,
-                           grid or options.grid, seed, parts=max(1, options.workers),
+                           grid or options.grid, seed, parts=max(1, processes(options.workers)),
                            mapper=lambda fn, jobs: parallel_map(fn, jobs, options.workers), first=first)
 
 

@@ -26,7 +26,7 @@ from .values import StaticPosterior
 from .options import KalmanOptions
 from ..data.runs import Run
 from .values import Drop, Estimate, Hypothesis
-from .options import DiagnosisOptions
+from .options import DiagnosisOptions, processes
 from .estimate import struck, truth_of
 from .onsets import earlier_onsets
 from .parallel import parallel_map
@@ -80,14 +80,16 @@ def run_static(job: StaticJob) -> StaticPosterior:
     return dataclasses.replace(p, seconds=time.perf_counter() - started)
 
 
-def run_statics(jobs: list[StaticJob], workers: int) -> list[StaticPosterior]:
+def run_statics(jobs: list[StaticJob], workers: int | None) -> list[StaticPosterior]:
     """``[run_static(job) for job in jobs]``: on ``workers`` processes
     (:func:`parallel_map`) when there are more than one, else in this
     process with the searches side by side
     (:func:`bgc.diagnosis.static_posterior.static_posteriors`; the jobs of one
     record, the same numbers), their paths recorded together
     (:func:`bgc.diagnosis.static_posterior.record_paths`); ``seconds``: each
-    one's share of the time."""
+    one's share of the time. ``workers`` None: the environment's
+    (:func:`bgc.diagnosis.options.processes`)."""
+    workers = processes(workers)
     first = jobs[0] if jobs else None
     if workers > 1 or len(jobs) <= 1 or any(job.ys is not first.ys or job.us is not first.us
                                             or job.track is not first.track for job in jobs):

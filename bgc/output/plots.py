@@ -524,10 +524,11 @@ def diagnosis_figures(r) -> dict[str, bytes]:
     diagnosis's ``workers`` processes (forked once matplotlib is imported,
     each drawing whole pictures; the bytes do not depend on where a picture
     was drawn), in this process when there is one."""
+    from ..diagnosis.options import processes
     from ..diagnosis.parallel import parallel_map
 
     names = diagnosis_plot_names(r)
-    workers = getattr(getattr(r, "options", None), "workers", 1)
+    workers = processes(getattr(getattr(r, "options", None), "workers", 1))
     if workers > 1:
         import matplotlib.backends.backend_agg  # noqa: F401  (imported once, before the fork)
         import matplotlib.figure  # noqa: F401
