@@ -20,11 +20,16 @@ response differs from what the mode column says (the same run with no
 fault) by more than 3 measurement-noise stds on some sensor for at least 10
 samples: otherwise no diagnosis could tell it (a switch stuck in the
 position the operator never moves it from changes nothing). The exact
-reference is that noise-free difference itself. The table gives, per fault
-kind: the runs, those separable, and of those how many were isolated as the
-right fault, named among ambiguous candidates, called another fault,
-unexplained, or not detected; and for the runs with no fault or a
-parametric one, how often a stuck switch was named.
+reference is that noise-free difference itself. It is *predicted separable*
+when ``bgc distinguish`` of the run's scenario, through the run's modes at
+the model's noise, predicts no rival in its ambiguity group and an ideal
+detector held at 1 % false alarms per run that sees it with probability
+0.95 or more (the issue's target: isolated in 95 % of those runs). The
+tables give, per fault kind, by each of the two: the runs, those separable,
+and of those how many were isolated as the right fault, named among
+ambiguous candidates, called another fault, unexplained, or not detected;
+and for the runs with no fault or a parametric one, how often a stuck
+switch was named.
 
 ``--plant ro``: the RO plant of models/ro_hybrid_valve.yaml (its valve set
 by an operator through its cycle, primary, secondary, purge, primary, a
@@ -122,21 +127,44 @@ def outcome_of(d, fault: str) -> str:
     return d.verdict
 
 
-def table(rows: list, faults, what: str) -> None:
+def predicted(session, column, times, fault: str, onset: float, modes: str | None = None) -> bool:
+    """Whether ``bgc distinguish`` predicts stuck switch ``fault`` from
+    ``onset`` separable (module docstring) over the run's mode column
+    ``column`` (the mode's number per sample) at the model's noise: through
+    the API where the model lets the run's changes be its controlled ones
+    (``modes``: the schedule's text), else by the prediction's own functions
+    on that column (the relay's guard-driven changes an operator forces)."""
+    import bgc
+    from bgc.analysis import distinguish as distinction
+    from bgc.model import linear
+    from bgc.model.protocol import onset_sample
+
+    if modes is not None:
+        (d,) = bgc.distinguishability(session, f"{fault}@{onset:g}", steps=len(times), modes=modes).distinctions
+    else:
+        package = session.package
+        families = distinction.prepare(package, linear.scenario_inputs(package, len(times), (), column))
+        priors = {f.parameter: f.prior for f in session.view.model.faults}
+        d = distinction.distinguish(families, fault.replace(":", "_"), 1.0, onset_sample(times, onset), priors)
+    return d.power(0.01) >= 0.95 and not d.group
+
+
+def table(rows: list, faults, what: str, which: int = 1, title: str = "separable") -> None:
     """Print, per fault of ``faults``, its runs (``rows``: fault, separable,
-    outcome, ...), those separable and their outcomes, and the share of
-    the separable ones isolated right (``what``: how the faults are called)."""
-    print("| fault | runs | separable | isolated right | among candidates | another fault | unexplained | "
+    outcome, ..., predicted separable), those separable (``which``: the
+    row's entry that says it) and their outcomes, and the share of the
+    separable ones isolated right (``what``: how the faults are called)."""
+    print(f"| fault | runs | {title} | isolated right | among candidates | another fault | unexplained | "
           "not detected |")
     print("|---|---|---|---|---|---|---|---|")
     for fault in faults:
         mine = [r for r in rows if r[0] == fault]
-        c = Counter(r[2] for r in mine if r[1])
-        print(f"| {fault} | {len(mine)} | {sum(r[1] for r in mine)} | {c['right']} | {c['among candidates']} | "
-              f"{c['another fault']} | {c['unexplained']} | {c['not detected']} |")
-    sep = [r for r in rows if r[0] in faults and r[1]]
+        c = Counter(r[2] for r in mine if r[which])
+        print(f"| {fault} | {len(mine)} | {sum(bool(r[which]) for r in mine)} | {c['right']} | "
+              f"{c['among candidates']} | {c['another fault']} | {c['unexplained']} | {c['not detected']} |")
+    sep = [r for r in rows if r[0] in faults and r[which]]
     right = sum(r[2] == "right" for r in sep)
-    print(f"\n{what} isolated right where separable: {right} of {len(sep)} ({100 * right / max(len(sep), 1):.1f} %)")
+    print(f"\n{what} isolated right where {title}: {right} of {len(sep)} ({100 * right / max(len(sep), 1):.1f} %)")
 
 
 def run_text(times, modes, ys) -> str:
@@ -183,12 +211,16 @@ def main(argv=None) -> int:
                              seed=k).diagnosis
         outcome = outcome_of(d, fault)
         stuck_named = any("stuck" in c for c in d.candidates)
-        rows.append((fault, separable, outcome, stuck_named, noise))
-        print(f"run {k:3d} {fault:14s} onset {onset:5.2f} noise {noise:.2f} separable {separable!s:5s} -> "
-              f"{d.verdict}: {', '.join(d.candidates) or '-'}", flush=True)
+        column = [[m for at, m in modes if t >= at - 1e-9][-1] for t in times]
+        told = predicted(session, column, times, fault, onset) if "stuck" in fault else False
+        rows.append((fault, separable, outcome, stuck_named, noise, told))
+        print(f"run {k:3d} {fault:14s} onset {onset:5.2f} noise {noise:.2f} separable {separable!s:5s} "
+              f"predicted {told!s:5s} -> {d.verdict}: {', '.join(d.candidates) or '-'}", flush=True)
     seconds = time.process_time() - started
     print()
     table(rows, FAULTS[:3], "stuck switches")
+    print()
+    table(rows, FAULTS[:3], "stuck switches", 5, "predicted separable")
     for fault in FAULTS[3:]:
         mine = [r for r in rows if r[0] == fault]
         c = Counter(r[2] for r in mine)
@@ -236,12 +268,15 @@ def ro(args) -> int:
         separable = int((np.abs(y - y0) > 3 * std).any(axis=1).sum()) >= 10
         sim = bgc.simulate(RO, scenario, seed=k, steps=args.steps, modes=modes)
         d = bgc.diagnose(session, sim, particles=500, seed=k).diagnosis
-        rows.append((fault, separable, outcome_of(d, fault)))
-        print(f"run {k:3d} {fault:17s} onset {onset:6.1f} modes {modes[:60]:60s} separable {separable!s:5s} -> "
-              f"{d.verdict}: {', '.join(d.candidates) or '-'}", flush=True)
+        told = predicted(session, None, sim.time, fault, onset, modes)
+        rows.append((fault, separable, outcome_of(d, fault), told))
+        print(f"run {k:3d} {fault:17s} onset {onset:6.1f} modes {modes[:60]:60s} separable {separable!s:5s} "
+              f"predicted {told!s:5s} -> {d.verdict}: {', '.join(d.candidates) or '-'}", flush=True)
     seconds = time.process_time() - started
     print()
     table(rows, RO_FAULTS, "stuck valves")
+    print()
+    table(rows, RO_FAULTS, "stuck valves", 3, "predicted separable")
     print(f"CPU {seconds:.0f} s ({seconds / max(args.runs, 1):.1f} s per run)")
     return 0
 

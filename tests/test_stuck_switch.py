@@ -258,14 +258,14 @@ def test_the_packages_of_a_model_with_modes_pass_pyflakes(model):
     assert out.getvalue() + err.getvalue() == ""
 
 
-def test_bgc_distinguish_of_a_stuck_switch_says_it_cannot_predict_it_yet():
-    """bgc distinguish's prediction is linear in a fault's size; a stuck
-    switch has none: a one-line error pointing to the diagnosis (it used to
-    say the switch was no candidate and its diagnosis would end
-    unexplained, which is no longer so)."""
+def test_bgc_distinguish_predicts_a_stuck_switch():
+    """bgc distinguish of a stuck switch (it used to refuse one in a line:
+    its prediction was linear in a fault's size, and a stuck switch has
+    none): the switch's own runs are its family (tests/test_stuck_distinguish.py
+    checks the numbers against the exact Gaussians)."""
     from conftest import bgc_cli
 
     r = bgc_cli("distinguish", str(RELAY), "--scenario", "K:stuck_off@1", "--steps", "300")
-    assert r.returncode != 0 and "Traceback" not in r.stderr
-    line, = r.stderr.strip().splitlines()
-    assert "does not predict a stuck switch yet" in line and "bgc diagnose MODEL --scenario K:stuck_off@1" in line
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert "truth: K:stuck_off@1 (K_stuck_off, from sample 99)" in r.stdout
+    assert any(line.startswith("K_stuck_on ") for line in r.stdout.splitlines()), r.stdout

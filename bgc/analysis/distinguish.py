@@ -83,6 +83,24 @@ divergence, variance twice it). A noise fault as the rival of a fault that
 moves the mean explains the share of the deviation on its own sensor by a
 wider noise (its best factor and onset on a grid), and nothing of the
 other sensors' (:func:`_noise_fit`).
+
+Stuck switches
+--------------
+A switched junction stuck ON or OFF (a model with modes; ``bgc.kinds``'
+``stuck_on``, ``stuck_off``) has no size: its fault model's magnitude is a
+flag. Its family is its own noise-free runs from every onset of the grid, by
+the fault model itself (nonlinear, not linearised): as the truth, its
+deviation from the nominal run is its run from the scenario's onset, and its
+own family's best fit is itself (no misfit); as a rival, its best fit is the
+onset whose run comes nearest the truth's whitened deviation, or no fault
+when none comes nearer than no fault does (:func:`_stuck_fit`). The rest is
+as for any fault: a rival the truth's name is less than ``SURE`` likely
+against is judged again with both runs' own covariances (:func:`divergence`:
+a stuck switch changes the plant's dynamics, and so its noise's colour). On
+a plant whose transitions its own guards make, the truth's run follows the
+faulty plant's own modes (the scenario's ``us``: a relay welded shut keeps
+the voltage under the guard that would have opened it), the rivals' runs the
+nominal plant's.
 """
 
 from __future__ import annotations
@@ -96,7 +114,7 @@ import numpy as np
 
 from ..errors import TrackingError
 from ..ir import Numerics
-from ..kinds import fault_kind
+from ..kinds import fault_kind, stuck_title
 from .simulate import MAX_STEPS
 from ..model.protocol import FaultModel, Package, magnitude_row, nominal_model, sized_models
 from ..model.linear import (Whitening, jacobian as _jacobian, linearised as _linearised, noise as _noise,
@@ -124,7 +142,9 @@ class Families:
     sample k; ``x_after[k]``: after it; ``y``: its measurements), the
     whitening operator, and per fault model (``names``) its whitened unit
     responses (T n_y, onsets) from each of ``onsets`` and the bounds of its
-    magnitude's prior (``bounds``)."""
+    magnitude's prior (``bounds``); ``stuck``: the stuck switches' fault
+    models, whose families are their own runs from each onset (no size:
+    nothing linearised is kept for them)."""
 
     package: Package
     us: np.ndarray
@@ -136,6 +156,7 @@ class Families:
     names: tuple[str, ...]
     responses: tuple[np.ndarray, ...]
     bounds: tuple[tuple[float, float], ...]
+    stuck: tuple[str, ...] = ()
 
     def response(self, name: str) -> np.ndarray:
         return self.responses[self.names.index(name)]
@@ -147,7 +168,8 @@ class Rival:
     log Bayes factor of the truth against it over the data sets the noise can
     produce; ``probability`` that the data, with the priors, name the truth
     over it; its best fit to the truth's deviation: ``onset`` (a sample) and
-    ``magnitude`` (linearised)."""
+    ``magnitude`` (linearised; ``stuck``, a stuck switch: 1, stuck from the
+    onset, or 0, no fault fits better)."""
 
     name: str
     expected: float
@@ -155,6 +177,7 @@ class Rival:
     probability: float
     onset: int
     magnitude: float
+    stuck: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -235,7 +258,11 @@ class Distinction:
 
     @property
     def label(self) -> str:
-        """``PARAM+:kind`` or ``PARAM-:kind``, as the signatures name a fault."""
+        """``PARAM+:kind`` or ``PARAM-:kind``, as the signatures name a fault;
+        a stuck switch as ``K stuck ON``."""
+        for kind in ("stuck_on", "stuck_off"):
+            if self.truth.endswith("_" + kind):
+                return stuck_title(self.truth[:-len(kind) - 1], kind)
         parameter, kind = self.truth.rsplit("_", 1)
         return f"{parameter}{'+' if self.magnitude >= 0 else '-'}:{kind}"
 
@@ -318,7 +345,7 @@ def prepare(package: Package, us: np.ndarray, progress=None) -> Families:
     stride = max(1, math.ceil(T / MAX_ONSETS))
     onsets = np.arange(0, T, stride)
     names, responses, bounds = [], [], []
-    faulty = sized_models(package)  # (a stuck switch's is weighed over its onsets alone: not here)
+    faulty = sized_models(package)  # a stuck switch's family is its own runs (stuck_models): nothing to keep
     for i, name in enumerate(faulty, start=1):
         say(f"preparing the families: fault model {i} of {len(faulty)} ({name})")
         model = package.MODELS[name]
@@ -328,7 +355,14 @@ def prepare(package: Package, us: np.ndarray, progress=None) -> Families:
         lo, hi = (float(b) for b in model.FAULT_PRIOR)
         bounds.append((lo, hi))
     return Families(package, us, x_before, x_after, y, whitening, onsets, tuple(names), tuple(responses),
-                    tuple(bounds))
+                    tuple(bounds), tuple(stuck_models(package)))
+
+
+def stuck_models(package: Package) -> list[str]:
+    """The names of the package's stuck switches' fault models (sorted): a
+    magnitude that is a flag (:attr:`bgc.kinds.FaultKind.discrete`)."""
+    return [name for name in sorted(package.MODELS) if name != "nominal"
+            and fault_kind(package.MODELS[name].FAULT["kind"]).discrete]
 
 
 def detector_reach(package: Package, us: np.ndarray, onset: int, windows: tuple[int, ...]) -> dict[str, tuple]:
@@ -359,27 +393,34 @@ def detector_reach(package: Package, us: np.ndarray, onset: int, windows: tuple[
     return out
 
 
-def deviations(families: Families, name: str, magnitudes, onsets) -> np.ndarray:
+def deviations(families: Families, name: str, magnitudes, onsets, us: np.ndarray | None = None) -> np.ndarray:
     """The noise-free deviations (T, n_y, M) of fault model ``name``'s
     measurements from the nominal run's, column m with ``magnitudes[m]``
-    from sample ``onsets[m]`` (zero before it), by the fault model itself."""
-    return _fault_runs(families, name, magnitudes, onsets)[2] - families.y[:, :, None]
+    from sample ``onsets[m]`` (zero before it), by the fault model itself;
+    ``us``: its inputs (None: the families')."""
+    return _fault_runs(families, name, magnitudes, onsets, us)[2] - families.y[:, :, None]
 
 
-def _fault_runs(families: Families, name: str, magnitudes, onsets) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _fault_runs(families: Families, name: str, magnitudes, onsets,
+                us: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fault model ``name``'s noise-free runs, column m with ``magnitudes[m]``
     from sample ``onsets[m]``: its states before and after each step (T, n_z,
     M) and its measurements (T, n_y, M); before its onset a column is the
     nominal run (its fault states nominal). The transition into an onset
     sample is nominal, the sample sees the fault (``track.onset_transition``).
     Every column runs from the earliest onset; until its own, its magnitude
-    is zero, which is the nominal model."""
+    is zero, which is the nominal model. ``us``: the inputs from the
+    earliest onset on (None: the families'; a model with modes: a mode
+    column the fault makes its own)."""
     model = families.package.MODELS[name]
+    us = families.us if us is None else us
     T, n = families.x_after.shape
     magnitudes = np.asarray(magnitudes, dtype=float).ravel()
     onsets = np.asarray(onsets, dtype=int).ravel()
     M = len(onsets)
     fixed = np.tile(np.asarray(model.X0, dtype=float)[n:], (T, 1))
+    row = magnitude_row(model)
+    fixed[:, row - n] = 0.0  # the magnitude nominal before the onset (a stuck switch's flag starts at 1 in X0)
     before = np.repeat(np.hstack([families.x_before, fixed])[:, :, None], M, axis=2)
     after = np.repeat(np.hstack([families.x_after, fixed])[:, :, None], M, axis=2)
     y = np.repeat(families.y[:, :, None], M, axis=2)
@@ -387,7 +428,6 @@ def _fault_runs(families: Families, name: str, magnitudes, onsets) -> tuple[np.n
     if first >= T:
         return before, after, y
     theta = np.asarray(model.THETA, dtype=float)
-    row = magnitude_row(model)
     z = after[first].copy()
     z[row] = 0.0  # the onset rule: the transition into an onset sample is nominal
     with np.errstate(all="ignore"):
@@ -395,38 +435,46 @@ def _fault_runs(families: Families, name: str, magnitudes, onsets) -> tuple[np.n
             if k > first:
                 moved = onsets < k  # past their onset: the states before this step are the fault model's
                 before[k][:, moved] = z[:, moved]
-                z = model.predict(z, families.us[k], theta, model.DT)
+                z = model.predict(z, us[k], theta, model.DT)
             starting = onsets == k
             z[row, starting] = magnitudes[starting]
             seen = onsets <= k
             after[k][:, seen] = z[:, seen]
-            y[k][:, seen] = model.observe(z, families.us[k], theta)[:, seen]
+            y[k][:, seen] = model.observe(z, us[k], theta)[:, seen]
     return before, after, y
 
 
 def distinguish(families: Families, name: str, magnitude: float, onset: int, priors: dict[str, float],
-                level: float = LEVEL) -> Distinction:
+                level: float = LEVEL, us: np.ndarray | None = None) -> Distinction:
     """Predicted distinguishability of fault model ``name`` (its ``magnitude``
-    from sample ``onset``) from every other fault model of the package;
-    ``priors``: each fault parameter's prior probability (the model's).
+    from sample ``onset``; a stuck switch's: 1) from every other fault model
+    of the package; ``priors``: each fault parameter's prior probability
+    (the model's; a stuck switch's by its junction); ``us``: the truth's
+    inputs (None: the families'; a stuck switch on a plant whose guards
+    switch it: the mode column of the faulty plant's own run).
 
     Every rival is fitted to the truth's deviation within its linearised
-    family; a rival whose linearised fit leaves the truth's name less than
-    ``SURE`` likely is fitted again by its fault model itself, on a grid of
-    onsets and magnitudes around the linearised fit and then at the vertex
-    of a parabola in the magnitude (:func:`_exact_fit`); the divergence of the
-    truth from that fit is then computed with both runs' own means and
-    covariances (:func:`divergence`), against the truth's own exact fit (the
-    truth itself, divergence 0). Not when the truth's mean is not expected to
-    be told from no fault (the detector would not see it), nor when the
-    rival's run does not stay finite (the linearised fit stands)."""
+    family (a stuck switch: its own runs, :func:`_stuck_fit`); a rival whose
+    fit leaves the truth's name less than ``SURE`` likely is fitted again by
+    its fault model itself, on a grid of onsets and magnitudes around the
+    linearised fit and then at the vertex of a parabola in the magnitude
+    (:func:`_exact_fit`; a stuck switch's fit is already its own run); the
+    divergence of the truth from that fit is then computed with both runs'
+    own means and covariances (:func:`divergence`), against the truth's own
+    exact fit (the truth itself, divergence 0). Not when the truth's mean is
+    not expected to be told from no fault (the detector would not see it),
+    nor when the rival's run does not stay finite (the linearised fit
+    stands)."""
     package = families.package
-    if name not in families.names:
-        raise TrackingError(f"no fault model {name!r}", None, "pick one of: " + ", ".join(families.names))
-    prior_of = {m: float(priors.get(package.MODELS[m].FAULT["parameter"], 0.01)) for m in families.names}
+    if name not in families.names and name not in families.stuck:
+        raise TrackingError(f"no fault model {name!r}", None,
+                            "pick one of: " + ", ".join(families.names + families.stuck))
+    every = families.names + families.stuck
+    prior_of = {m: float(priors.get(package.MODELS[m].FAULT["parameter"], 0.01)) for m in every}
     if noisy_row(package.MODELS[name]) is not None:
         return _distinguish_noise(families, name, magnitude, onset, prior_of, level)
-    d = deviations(families, name, [magnitude], [onset])
+    stuck = name in families.stuck
+    d = deviations(families, name, [1.0 if stuck else magnitude], [onset], us)
     if not np.all(np.isfinite(d)):
         raise TrackingError(f"the noise-free run of {name} with magnitude {magnitude:g} is not finite", None,
                             "choose a smaller magnitude")
@@ -434,15 +482,23 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
     ww = float(w @ w)
     fits = {other: _fit(w, ww, families.response(other), families.bounds[i])
             for i, other in enumerate(families.names)}
-    own_r, own_col, own_c = fits[name]
-    own = own_c * families.response(name)[:, own_col]
+    if stuck:  # its own family is its own runs: the truth itself fits, exactly
+        own_r, own = 0.0, w
+    else:
+        own_r, own_col, own_c = fits[name]
+        own = own_c * families.response(name)[:, own_col]
+    fitted_vectors = {other: c * families.response(other)[:, col] for other, (_, col, c) in fits.items()}
+    for other in families.stuck:
+        if other != name:
+            r, col, c, vector = _stuck_fit(families, other, w, ww)
+            fits[other], fitted_vectors[other] = (r, col, c), vector
     for other in families.names:  # a noise rival: its sensor's share of the deviation by a wider noise
         if noisy_row(package.MODELS[other]) is not None:
             fits[other] = _noise_fit(families, w, ww, other)
     seen = _normal_above(0.5 * ww, math.sqrt(ww))  # the mean's divergence from no fault: can it be detected
     truth = None
     rivals = []
-    for other in families.names:
+    for other in every:
         if other == name:
             continue
         r, col, c = fits[other]
@@ -451,26 +507,44 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
             expected, std = r, math.sqrt(2.0 * r)
         else:
             expected = r - own_r
-            std = float(np.linalg.norm(own - c * families.response(other)[:, col]))
+            std = float(np.linalg.norm(own - fitted_vectors[other]))
         threshold = _threshold(prior_of, other, name)
         probability = _normal_above(expected - threshold, std)
         fit_onset, fit_magnitude = int(families.onsets[col]), c
         if SURE > probability and seen >= level and not noise_rival:
-            exact, fit_onset, fit_magnitude = (_exact_fit(families, other, w, fit_onset, c) if c != 0.0
-                                               else (0.5 * ww, fit_onset, 0.0))
-            if not exact < 0.5 * ww:  # no magnitude fits better than no fault
-                fit_magnitude = 0.0
-            truth = truth or path(families, name, magnitude, onset)
+            if other not in families.stuck:
+                exact, fit_onset, fit_magnitude = (_exact_fit(families, other, w, fit_onset, c) if c != 0.0
+                                                   else (0.5 * ww, fit_onset, 0.0))
+                if not exact < 0.5 * ww:  # no magnitude fits better than no fault
+                    fit_magnitude = 0.0
+            truth = truth or path(families, name, 1.0 if stuck else magnitude, onset, us)
             fitted = path(families, other, fit_magnitude, fit_onset)
             exact = math.nan if truth is None or fitted is None else divergence(families, truth, fitted)
             if math.isfinite(exact):  # else (the rival's run diverges) the linearised fit stands
                 expected, std = exact, math.sqrt(2.0 * exact)
                 probability = _normal_above(expected - threshold, std)
-        rivals.append(Rival(other, expected, std, probability, fit_onset, fit_magnitude))
+        rivals.append(Rival(other, expected, std, probability, fit_onset, fit_magnitude, other in families.stuck))
     rivals.sort(key=lambda r: (r.probability, r.expected, r.name))
     energy = (w.reshape(len(families.y), -1) ** 2).sum(axis=1)[onset:]  # nothing before the onset
-    return Distinction(name, float(magnitude), int(onset), 0.5 * ww, own_r, tuple(rivals), level,
+    return Distinction(name, 1.0 if stuck else float(magnitude), int(onset), 0.5 * ww, own_r, tuple(rivals), level,
                        tuple(float(v) for v in np.cumsum(energy)))
+
+
+def _stuck_fit(families: Families, name: str, w: np.ndarray, ww: float) -> tuple[float, int, float, np.ndarray]:
+    """The best fit of whitened target ``w`` by stuck switch ``name``'s own
+    noise-free runs from each onset of the families' grid (nonlinear: a
+    stuck switch has no size to linearise in), or by no fault when none
+    comes nearer: (half the squared residual, the onset's index, 1 (stuck
+    from it) or 0 (no fault), the fit's whitened deviation)."""
+    dev = deviations(families, name, np.ones(len(families.onsets)), families.onsets)
+    wz = families.whitening.apply(dev).reshape(-1, dev.shape[2])
+    with np.errstate(invalid="ignore", over="ignore"):
+        r = 0.5 * ((wz - w[:, None]) ** 2).sum(axis=0)
+    r[~np.isfinite(r)] = math.inf
+    j = int(np.argmin(r))
+    if not r[j] < 0.5 * ww * (1.0 - 1e-9):  # no onset nearer the truth than no fault (a late one: as near, to rounding)
+        return 0.5 * ww, len(families.onsets) - 1, 0.0, np.zeros_like(w)
+    return max(float(r[j]), 0.0), j, 1.0, wz[:, j]
 
 
 def noisy_row(model: FaultModel) -> int | None:
@@ -522,10 +596,11 @@ def _distinguish_noise(families: Families, name: str, magnitude: float, onset: i
     D = noise_divergence(families, name, magnitude, onset)
     std = math.sqrt(2.0 * D)
     rivals = []
-    for other in families.names:
+    for other in families.names + families.stuck:
         if other != name:
             threshold = _threshold(prior_of, other, name)
-            rivals.append(Rival(other, D, std, _normal_above(D - threshold, std), int(onset), 0.0))
+            rivals.append(Rival(other, D, std, _normal_above(D - threshold, std), int(onset), 0.0,
+                                other in families.stuck))
     rivals.sort(key=lambda r: (r.probability, r.expected, r.name))
     return Distinction(name, float(magnitude), int(onset), D, 0.0, tuple(rivals), level)
 
@@ -567,19 +642,21 @@ class FaultRun:
     whitening: Whitening
 
 
-def path(families: Families, name: str, magnitude: float, onset: int) -> FaultRun | None:
+def path(families: Families, name: str, magnitude: float, onset: int, us: np.ndarray | None = None) -> FaultRun | None:
     """Fault model ``name``'s noise-free run with ``magnitude`` from sample
-    ``onset`` (the nominal run before it) and its linearisation; None when
-    the run does not stay finite."""
+    ``onset`` (the nominal run before it; ``us``: its inputs, None: the
+    families') and its linearisation; None when the run does not stay
+    finite."""
     model = families.package.MODELS[name]
     n = families.x_after.shape[1]
     theta = np.asarray(model.THETA, dtype=float)
-    before, after, y = (a[:, :, 0] for a in _fault_runs(families, name, [magnitude], [onset]))
+    before, after, y = (a[:, :, 0] for a in _fault_runs(families, name, [magnitude], [onset], us))
+    us = families.us if us is None else us
     if not (np.isfinite(y).all() and np.isfinite(after).all()):
         return None
     scale = _scales(model, families.x_before)
-    F = _jacobian(lambda X, u: model.predict(X, u, theta, model.DT)[:n], before, range(n), scale, families.us)
-    H = _jacobian(lambda X, u: model.observe(X, u, theta), after, range(n), scale, families.us)
+    F = _jacobian(lambda X, u: model.predict(X, u, theta, model.DT)[:n], before, range(n), scale, us)
+    H = _jacobian(lambda X, u: model.observe(X, u, theta), after, range(n), scale, us)
     return FaultRun(y, _whitening(model, F, H))
 
 

@@ -26,7 +26,7 @@ from .reports import DistinguishabilityReport
 from .session import Session, input_signals, scenario_of
 from .simulate import _schedule
 from .session import open as open_session
-from ..model.protocol import onset_sample
+from ..model.protocol import nominal_model, onset_sample
 
 
 def check_prediction(func: str, change, at, process_noise, measurement_noise, steps, level, progress) -> None:
@@ -160,16 +160,18 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
                               "list the faults to tell apart under 'faults' in the model file")
     times = dt * np.arange(1, T + 1)
     first = False  # an intermittent fault cut to its first appearance
+    stuck = _stuck_candidates(c)
     if scenario is not None:
         inj = scenario_of(func, scenario, num)
         if inj is None:
             raise SimulationError("a fault-free scenario has no fault to tell apart", None,
                                   "give a fault, e.g. R_pipe:incipient:0.5@165, or no scenario for every candidate")
-        if inj.stuck:  # (a listed one is a candidate, weighed by the diagnosis; its families would have no size)
-            raise SimulationError(f"{inj.text}: bgc distinguish does not predict a stuck switch yet (its prediction "
-                                  "is linear in a fault's size, and a stuck switch has none)", None,
-                                  f"simulate and diagnose it instead: bgc diagnose MODEL --scenario {inj.text}")
-        if all(f.name != f"{inj.parameter}:{inj.kind}" for f in num.faults):
+        if inj.stuck and all(s.name != f"{inj.subject}:{inj.kind}" for s in stuck):
+            raise SimulationError(f"{inj.text} is not a fault candidate of {c.model.name}: no fault model to tell "
+                                  "apart from the others (its diagnosis should end unexplained)", None,
+                                  "candidates: " + ", ".join([f"{f.parameter}:{f.kind}" for f in num.faults]
+                                                             + [s.name for s in stuck]))
+        if not inj.stuck and all(f.name != f"{inj.parameter}:{inj.kind}" for f in num.faults):
             raise SimulationError(f"{inj.subject or inj.parameter}:{inj.kind} is not a fault candidate of "
                                   f"{c.model.name}: no fault model to tell apart from the others (its diagnosis "
                                   "should end unexplained)", None,
@@ -190,6 +192,9 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
             for sign in (1,) if fault_kind(f.kind).replaces else DIRECTIONS[candidate.direction]:
                 magnitude = simulate.change_magnitude(num, f.name, sign * change, (T - 1 - onset) * dt)  # at the end
                 injected.append(simulate.FaultInjection(f.parameter, f.kind, magnitude, float(times[onset])))
+        for s in stuck:  # a stuck switch: no size, stuck from the onset
+            injected.append(simulate.FaultInjection(s.junction, s.kind, math.nan, float(times[int(at * T)]),
+                                                    "switch", s.junction))
     levels = num.noise_at(process_noise, measurement_noise)
     custom = levels if (process_noise, measurement_noise) != (None, None) else None
     need = distinction.memory(T, *(len(x) for x in (num.equations.states, num.equations.outputs,
@@ -202,10 +207,13 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
     priors = {f.parameter: f.prior for f in c.model.faults}
     out = []
     for i, inj in enumerate(injected, start=1):
-        say(f"scenario {i} of {len(injected)}: {inj.parameter}:{inj.kind}:{inj.magnitude:.4g}@{inj.time:g}")
+        say(f"scenario {i} of {len(injected)}: " + (inj.describe() if inj.stuck else
+                                                   f"{inj.parameter}:{inj.kind}:{inj.magnitude:.4g}@{inj.time:g}"))
         onset = onset_sample(times, inj.time)
-        out.append(distinction.distinguish(families, f"{inj.parameter}_{inj.kind}", inj.magnitude, onset, priors,
-                                           level))
+        # a stuck switch: the truth runs through the modes the faulty plant itself takes (its guards see it)
+        own = _stuck_inputs(func, c, families, T, schedule, signals, inj) if inj.stuck else None
+        out.append(distinction.distinguish(families, f"{inj.subject if inj.stuck else inj.parameter}_{inj.kind}",
+                                           1.0 if inj.stuck else inj.magnitude, onset, priors, level, own))
     warning = simulate.outside_prior(injected[0], num) if scenario is not None else None
     rate = _detector_rate(model, injected[0], T, detector_runs, seed, detecting, (process_noise, measurement_noise),
                           progress, signals, schedule) if detector_runs else None
@@ -240,17 +248,38 @@ _FAMILIES: dict[tuple, distinction.Families] = {}
 _FAMILIES_KEPT = 4
 
 
-def _automaton_modes(func: str, c, steps: int, schedule: tuple, signals: tuple) -> np.ndarray:
+def _stuck_candidates(c) -> tuple:
+    """The stuck switches the compiled model ``c`` lists among its fault
+    candidates (:class:`bgc.ir.StuckSwitch`; none for a model without modes)."""
+    from .simulate import _checked
+
+    return _checked(c)[0].model.modes.stuck if c.modes else ()
+
+
+def _stuck_inputs(func: str, c, families: distinction.Families, steps: int, schedule: tuple, signals: tuple,
+                  injection) -> np.ndarray:
+    """The inputs of the families with the mode column of the noise-free
+    plant's run with the stuck switch ``injection`` (the same controlled
+    changes; its guards see what the stuck switch makes: a relay welded
+    shut keeps the voltage under the guard that would have opened it)."""
+    us = np.array(families.us, dtype=float)
+    column = getattr(nominal_model(families.package), "MODE_INPUT", None)
+    if column is not None:
+        us[:, column] = _automaton_modes(func, c, steps, schedule, signals, injection)
+    return us
+
+
+def _automaton_modes(func: str, c, steps: int, schedule: tuple, signals: tuple, fault=None) -> np.ndarray:
     """The mode's number at each of ``steps`` samples of the noise-free run
     of the model with modes ``c`` through its automaton (its guards, timed
-    transitions and the controlled changes ``schedule``), as the truth
-    simulator runs it; a change the model does not allow is a one-line
-    error."""
+    transitions and the controlled changes ``schedule``; ``fault``: with
+    that fault), as the truth simulator runs it; a change the model does not
+    allow is a one-line error."""
     from .simulate import _checked
 
     h, nums = _checked(c)
     options = simulate.SimulationOptions(steps=steps, process_noise=0.0, measurement_noise=0.0, seed=0,
-                                         signals=signals)
+                                         signals=signals, fault=fault)
     try:
         return np.asarray(hybrid.simulate(h, nums, options, schedule).modes, dtype=float)
     except SimulationError as exc:

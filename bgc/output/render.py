@@ -680,7 +680,8 @@ def distinguishability_text(r) -> str:
         width = max([len(x.name) for x in d.rivals] + [5])
         lines.append(f"{'rival':<{width}}  {'E':>10}  {'sd':>9}  {'P':>6}  best fit (magnitude from t)")
         for x in d.rivals:
-            fit = f"{x.magnitude:.4g} from t = {(x.onset + 1) * r.dt:g}" if x.magnitude != 0 else "no fault"
+            fit = "no fault" if x.magnitude == 0 else f"{'stuck' if getattr(x, 'stuck', False) else f'{x.magnitude:.4g}'}" \
+                f" from t = {(x.onset + 1) * r.dt:g}"
             lines.append(f"{x.name:<{width}}  {x.expected:>10.4g}  {x.std:>9.3g}  {x.probability:>6.3f}  {fit}")
         lines.append("predicted ambiguity group: " + (", ".join(d.group) or "none"))
         return "\n".join(lines) + "\n"
