@@ -367,6 +367,20 @@ SWITCH_KINDS: Mapping[str, FaultKind] = {
     for name, state in (("stuck_on", "ON"), ("stuck_off", "OFF"))}
 
 
+def fault_parameter(name: str) -> str:
+    """What a fault model's name (``R1_abrupt``, ``v_C_offset_bias``,
+    ``K_stuck_on``) is a fault of: its parameter (a sensor's or an input's
+    offset or gain), or a stuck switch's junction.
+
+    >>> fault_parameter("R1_abrupt"), fault_parameter("v_C_offset_bias"), fault_parameter("K_stuck_on")
+    ('R1', 'v_C_offset', 'K')
+    """
+    for kind in SWITCH_KINDS:
+        if name.endswith("_" + kind):
+            return name[:-len(kind) - 1]
+    return name.rsplit("_", 1)[0]
+
+
 def stuck_state(kind: str) -> str:
     """Where a stuck switch of ``kind`` (stuck_on, stuck_off) stays: ``ON`` or ``OFF``."""
     return "ON" if kind == "stuck_on" else "OFF"

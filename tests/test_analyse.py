@@ -287,11 +287,15 @@ HYBRID = sorted(p for p in [*(ROOT / "models").glob("*.yaml"), *(ROOT / "docs" /
 def test_each_modes_structure_equals_the_fault_diagnosis_toolboxs(path):
     from bgc.pipeline import compile_model
 
+    from bgc.api.analyse import _stuck_equations
+
     c = compile_model(path)
-    faults = tuple(sorted({f.parameter for f in c.model.faults}))
+    stuck = c.model.modes.stuck  # a switch that may stick: a fault in the equations its configurations change
+    faults = tuple(sorted({f.parameter for f in c.model.faults} | {f.junction for f in stuck}))
     sensors = {f.parameter: f.subject for f in c.model.faults if f.target == "sensor"}
+    enters = _stuck_equations(c, stuck)
     for m in c.modes:
-        level, model = isolability.structural(m.equations, faults, sensors)
+        level, model = isolability.structural(m.equations, faults, sensors, enters[m.name])
         tool = fdt_model(model)
         detected, _ = tool.DetectabilityAnalysis()
         assert set(detected) == {f for f, d in zip(faults, level.detectable) if d}, m.name
@@ -319,6 +323,40 @@ def test_a_relays_faults_across_its_modes_by_hand():
         assert not open_.detectable[aux] and closed.detectable[aux] and not closed.isolable[aux][load_]
     with pytest.raises(ValueError, match="place_sensors=True for a model with modes is not built yet"):
         analyse(ROOT / "docs" / "examples" / "relay.yaml", quantitative=False, place_sensors=True)
+
+
+def test_a_relays_stuck_switches_across_its_modes_by_hand():
+    """The relay's switches that may stick (K: stuck_on, stuck_off; S:
+    stuck_off) are faults of the analysis too. By hand (i the coil's
+    current, v the capacitor's voltage; open: S on, K off; closed: both on;
+    unpowered: both off, i no state): K stuck ON in open or unpowered, or
+    OFF in closed, changes C dv/dt (R_aux on or off the capacitor), so K is
+    in v's dynamic equation in every mode, where R_load is too: neither is
+    told from the other structurally, in any mode; K is told from R_aux (in
+    open, where R_aux is in no equation), R_aux not from K (closed: the same
+    equation). S stuck OFF cuts the supply in open and closed (i no state:
+    i's and v's equations change) and leaves unpowered as it is (not
+    detected there). Its signatures are "?" where it acts (either way), so
+    qualitatively K is told from nothing and nothing from K (it acts in
+    every mode), S from nothing, and only what moves a sensor in unpowered
+    (R_load and v_C's offset; R_aux is off the circuit there) is told from
+    S, by the mode S leaves as it is; the quantitative level (bgc
+    distinguish through the guards' run) tells K from R_load, which neither
+    other level can."""
+    r = analyse(ROOT / "docs" / "examples" / "relay.yaml", steps=1000)
+    assert r.faults == ("K", "R_aux", "R_load", "S", "v_C_offset")
+    assert r.targets[0] == r.targets[3] == "switch" and r.subjects[0] == "K"
+    k, aux, load_, s, off = range(5)
+    for mode in ("open", "closed", "unpowered"):
+        structural = r.by_mode[mode][0]
+        assert structural.detectable[k] and not structural.isolable[k][load_] and not structural.isolable[load_][k]
+    assert r.by_mode["unpowered"][0].detectable[s] is False and r.by_mode["open"][0].detectable[s]
+    S, Q, N = (r.get(name) for name in ("structural", "qualitative", "quantitative"))
+    assert S.isolable[k][aux] and not S.isolable[aux][k] and S.isolable[k][s] and S.isolable[s][k]
+    assert not any(Q.isolable[k]) and not any(Q.isolable[i][k] for i in range(5))
+    assert not any(Q.isolable[s]) and [Q.isolable[i][s] for i in range(5)] == [False, False, True, False, True]
+    assert N.detectable[k] and N.detectable[s] and N.isolable[k][load_]
+    assert ("K", "R_load") in r.more("quantitative", "structural")
 
 
 def test_a_reading_whose_terms_cancel_is_sized_by_its_largest_term():

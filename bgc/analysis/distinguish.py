@@ -114,7 +114,7 @@ import numpy as np
 
 from ..errors import TrackingError
 from ..ir import Numerics
-from ..kinds import fault_kind, stuck_title
+from ..kinds import SWITCH_KINDS, fault_kind, fault_parameter, stuck_title
 from .simulate import MAX_STEPS
 from ..model.protocol import FaultModel, Package, magnitude_row, nominal_model, sized_models
 from ..model.linear import (Whitening, jacobian as _jacobian, linearised as _linearised, noise as _noise,
@@ -260,10 +260,10 @@ class Distinction:
     def label(self) -> str:
         """``PARAM+:kind`` or ``PARAM-:kind``, as the signatures name a fault;
         a stuck switch as ``K stuck ON``."""
-        for kind in ("stuck_on", "stuck_off"):
-            if self.truth.endswith("_" + kind):
-                return stuck_title(self.truth[:-len(kind) - 1], kind)
-        parameter, kind = self.truth.rsplit("_", 1)
+        parameter = fault_parameter(self.truth)
+        kind = self.truth[len(parameter) + 1:]
+        if kind in SWITCH_KINDS:
+            return stuck_title(parameter, kind)
         return f"{parameter}{'+' if self.magnitude >= 0 else '-'}:{kind}"
 
 

@@ -36,6 +36,7 @@ import networkx as nx
 import numpy as np
 
 from ..ir import FaultSignatures, Signature, expected_slope, first_symbol
+from ..kinds import fault_parameter
 from . import structure
 
 #: The levels, in the order they are shown.
@@ -72,12 +73,13 @@ class Level:
         return {(i, j) for i in range(n) for j in range(n) if self.isolable[i][j]}
 
 
-def structural(ssm, faults: Sequence[str], sensors: Mapping[str, str] | None = None
-               ) -> tuple[Level, structure.StructuralModel]:
+def structural(ssm, faults: Sequence[str], sensors: Mapping[str, str] | None = None,
+               enters: Mapping[str, frozenset] | None = None) -> tuple[Level, structure.StructuralModel]:
     """The structural level of the state equations ``ssm`` with the fault
     parameters ``faults`` (``sensors``: a sensor fault's parameter -> its
-    sensor, :func:`.structure.of_equations`)."""
-    model = structure.of_equations(ssm, {p: p for p in faults}, sensors)
+    sensor; ``enters``: a stuck switch's junction -> the equations its stuck
+    configurations change, :func:`.structure.of_equations`)."""
+    model = structure.of_equations(ssm, {p: p for p in faults}, sensors, enters)
     names, matrix = model.matrix()
     plus = model.overdetermined()
     detectable = tuple(model.faults[p] in plus for p in names)
@@ -177,9 +179,7 @@ def _shown(s: Signature, measurements: Sequence[str]) -> str:
 def quantitative(distinctions: Sequence, faults: Sequence[str], level: float) -> Level:
     """The quantitative level from ``bgc distinguish``'s distinctions (one
     per fault model of every candidate, kind and direction)."""
-    def parameter(name: str) -> str:
-        return name.rsplit("_", 1)[0]
-
+    parameter = fault_parameter
     by = {p: [d for d in distinctions if parameter(d.truth) == p] for p in faults}
     seen = {p: [d for d in by[p] if d.detectability >= level] for p in faults}
     detectable = tuple(bool(seen[p]) for p in faults)

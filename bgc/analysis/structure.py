@@ -15,7 +15,13 @@ The structural model is written from the state equations bgc derives
   parameter enters, and the fault enters that one equation only. A
   parameter of a bond graph element (a resistance) enters several state
   equations once the bond variables are eliminated; its fault stays one
-  fault in one equation, as in the element's constitutive law it came from.
+  fault in one equation, as in the element's constitutive law it came from;
+- a switched junction that may stick (a model with modes): its fault
+  ``v_K = f_K`` is an unknown in every equation the stuck configuration
+  changes in that mode (a state's dynamic equation, a measurement's), and
+  the fault enters its own equation only, as a parameter's does; a mode the
+  stuck switch leaves as it is holds it in no other equation (there it is
+  not detectable).
 
 Unknowns: the states, their derivatives and the faulty parameters. Known:
 the inputs and the measurements. A fault is **structurally detectable** when
@@ -38,7 +44,7 @@ an unknown z only the third holds takes it up (a fault there is not):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Iterable, Mapping
 
 import networkx as nx
 
@@ -97,14 +103,17 @@ class StructuralModel:
         return names, tuple(tuple(i != j and self.faults[i] in cut[j] for j in names) for i in names)
 
 
-def of_equations(ssm, faults: Mapping[str, str], sensors: Mapping[str, str] | None = None) -> StructuralModel:
+def of_equations(ssm, faults: Mapping[str, str], sensors: Mapping[str, str] | None = None,
+                 enters: Mapping[str, Iterable[str]] | None = None) -> StructuralModel:
     """The structural model of the state equations ``ssm``
     (:class:`~bgc.ir.StateSpaceModel`) with ``faults``: each fault's name ->
     the parameter its fault changes (module docstring). ``sensors``: the
     parameter of a sensor's fault -> the sensor; the fault is in that
     sensor's measurement equation also where its parameter is not (a stuck
     reading, a noise burst: the generated fault model replaces or widens the
-    reading)."""
+    reading). ``enters``: a parameter no equation holds (a switched junction
+    that may stick) -> the equations it is in (``dyn_<state>``,
+    ``meas_<sensor>``: :func:`stuck_equations`)."""
     states, inputs, outputs = tuple(ssm.states), set(ssm.inputs), tuple(ssm.outputs)
     parameters = sorted(set(faults.values()))
     faulty = {p: f"v_{p}" for p in parameters}
@@ -114,10 +123,15 @@ def of_equations(ssm, faults: Mapping[str, str], sensors: Mapping[str, str] | No
         return ({x for x in states if x in names} | {faulty[p] for p in parameters if p in names},
                 names & inputs)
 
+    extra: dict[str, set] = {}
+    for p, names in (enters or {}).items():
+        for e in names if p in faulty else ():
+            extra.setdefault(e, set()).add(faulty[p])
     equations, holds, known, kind = [], {}, {}, {}
     for x, rhs in zip(states, ssm.rhs):
         unknown, given = variables(rhs)
         e, d = f"dyn_{x}", f"diff_{x}"
+        unknown |= extra.get(e, set())
         equations += [e, d]
         holds[e], known[e], kind[e] = frozenset(unknown | {f"d{x}"}), frozenset(given), "dynamic"
         holds[d], known[d], kind[d] = frozenset({f"d{x}", x}), frozenset(), "differential"
@@ -125,6 +139,7 @@ def of_equations(ssm, faults: Mapping[str, str], sensors: Mapping[str, str] | No
         unknown, given = variables(h)
         unknown |= {faulty[p] for p, sensor in (sensors or {}).items() if sensor == y and p in faulty}
         e = f"meas_{y}"
+        unknown |= extra.get(e, set())
         equations.append(e)
         holds[e], known[e], kind[e] = frozenset(unknown), frozenset(given | {y}), "measurement"
     for p in parameters:
@@ -134,3 +149,27 @@ def of_equations(ssm, faults: Mapping[str, str], sensors: Mapping[str, str] | No
     unknowns = (*states, *(f"d{x}" for x in states), *(faulty[p] for p in parameters))
     return StructuralModel(tuple(equations), unknowns, holds, {f: f"fault_{p}" for f, p in faults.items()},
                            known, kind)
+
+
+def stuck_equations(mode, config) -> frozenset:
+    """The equations of mode ``mode``'s structural model (a
+    :class:`~bgc.compiler.modes.ModeModel`) a stuck switch changes when it
+    runs the plant in configuration ``config`` there: the dynamic equation
+    of every state of the mode that is no state of the configuration or
+    whose right-hand side differs, and the measurement equation of every
+    sensor whose expression differs (none when the configuration is the
+    mode's own)."""
+    import sympy
+
+    if config is mode:
+        return frozenset()
+    a, b = mode.equations, config.equations
+
+    def differ(x, y) -> bool:
+        return x != y and sympy.simplify(x - y) != 0
+
+    rhs = dict(zip(b.states, b.rhs))
+    out = {f"dyn_{x}" for x, f in zip(a.states, a.rhs) if x not in rhs or differ(f, rhs[x])}
+    read = dict(zip(b.outputs, b.output_exprs))
+    out |= {f"meas_{y}" for y, h in zip(a.outputs, a.output_exprs) if y not in read or differ(h, read[y])}
+    return frozenset(out)

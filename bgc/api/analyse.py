@@ -11,6 +11,7 @@ from .distinguish import check_prediction
 from collections.abc import Mapping
 
 from ..errors import ArgumentTypeError, ArgumentValueError, printable
+from ..kinds import fault_parameter
 
 
 @dataclass(frozen=True)
@@ -166,19 +167,22 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
         raise ArgumentValueError(f"{func}: modes={modes!r}: {model} has no modes", None, "leave modes out")
     say("compiling the model")
     c = analysis_model(model)
-    faults = tuple(sorted({f.parameter for f in c.model.faults}))
+    stuck = c.model.modes.stuck if hybrid else ()
+    of = {f.parameter: (f.target, f.subject) for f in c.model.faults} | {s.junction: ("switch", s.junction)
+                                                                        for s in stuck}
+    faults = tuple(sorted(of))
     if not faults:
         raise ArgumentValueError(f"{func}: {c.model.name} declares no fault candidates", None,
                                  "list its faults in the model's faults: section (docs/format.md)")
-    of = {f.parameter: f for f in c.model.faults}
     say("structural analysis")
     sensors = {f.parameter: f.subject for f in c.model.faults if f.target == "sensor"}
     structural, model_ = isolability.structural(c.equations, faults, sensors)
     levels = [structural, isolability.qualitative(c.signatures, faults)]
     by_mode = {}
-    if hybrid:  # each mode by itself, and across them
+    if hybrid:  # each mode by itself, and across them; a stuck switch in the equations its configurations change
         names = tuple(m.name for m in c.modes)
-        by_mode = {m.name: (isolability.structural(m.equations, faults, sensors)[0],
+        enters = _stuck_equations(c, stuck)
+        by_mode = {m.name: (isolability.structural(m.equations, faults, sensors, enters[m.name])[0],
                             isolability.qualitative(m.signatures, faults)) for m in c.modes}
         levels = [isolability.across([by_mode[m][k] for m in names], names) for k in range(2)]
     settings = None, c.model.settings.dt
@@ -202,10 +206,26 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     if place_sensors:
         say("sensor placement")
         placed = _place(func, c, model_, costs, most, place_by == "qualitative")
-    return AnalysisReport(c.model.name, str(model), faults, tuple(of[p].target for p in faults),
-                          tuple(of[p].subject for p in faults), tuple(c.equations.outputs), tuple(levels), model_,
+    return AnalysisReport(c.model.name, str(model), faults, tuple(of[p][0] for p in faults),
+                          tuple(of[p][1] for p in faults), tuple(c.equations.outputs), tuple(levels), model_,
                           settings[0], settings[1], change, at, (process_noise, measurement_noise), level, placed, tests,
                           by_mode, modes, steps is not None)
+
+
+def _stuck_equations(c, stuck) -> dict[str, dict[str, frozenset]]:
+    """Per mode of the compiled model with modes ``c``, per junction of the
+    stuck switches ``stuck``: the equations of the mode's structural model
+    its stuck configurations (each kind's, together) change there
+    (:func:`bgc.analysis.structure.stuck_equations`)."""
+    from ..analysis.structure import stuck_equations
+    from ..compiler.modes import compile_stuck
+
+    out: dict[str, dict[str, set]] = {m.name: {} for m in c.modes}
+    for fault in stuck:
+        configs = compile_stuck(c.model, c.modes, fault).configs
+        for mode, config in zip(c.modes, configs):
+            out[mode.name].setdefault(fault.junction, set()).update(stuck_equations(mode, config))
+    return {m: {j: frozenset(e) for j, e in by.items()} for m, by in out.items()}
 
 
 def _input_tests(session, c, faults, r, quantitative, settings: dict, say) -> tuple:
@@ -217,7 +237,7 @@ def _input_tests(session, c, faults, r, quantitative, settings: dict, say) -> tu
         return ()
 
     def detection(report, fault):
-        return max((d.detectability for d in report.distinctions if d.truth.rsplit("_", 1)[0] == fault), default=0.0)
+        return max((d.detectability for d in report.distinctions if fault_parameter(d.truth) == fault), default=0.0)
 
     before = {f: detection(r, f) for f in missed}
     best: dict = {}
