@@ -57,6 +57,11 @@ class Placement:
     reachable_qualitative: tuple[frozenset, frozenset] | None = None
     #: Whether more sets of that cost are enough than the MOST_SETS given
     more: bool = False
+    #: The quantitative level's check of each set (``bgc distinguish`` of the model with it added:
+    #: faults detected, ordered pairs told apart; ``sets`` then ordered by it, most pairs first), and
+    #: of the model as it is; None: not checked (no quantitative level, or no set to check)
+    checked: tuple[tuple[int, int], ...] | None = None
+    checked_now: tuple[int, int] | None = None
 
 
 def candidates(ssm, measured_exprs: Sequence, costs: Mapping[str, float] | None = None) -> tuple[Candidate, ...]:
@@ -128,6 +133,18 @@ def _qualitative(signatures, faults: Sequence[str], columns: Sequence[str]) -> t
     level = qualitative(view, faults)
     return (frozenset(f for f, d in zip(faults, level.detectable) if d),
             frozenset((faults[i], faults[j]) for i, j in level.pairs()))
+
+
+def checked(p: Placement, counts: Sequence[tuple[int, int]], now: tuple[int, int]) -> Placement:
+    """``p`` with the quantitative level's ``counts`` (faults detected,
+    ordered pairs told apart) of the model with each of its sets, ``now``
+    the model's as it is: the sets ordered by it, the most pairs told apart
+    first, then the most faults detected (the cost and the structure being
+    equal, what the data are predicted to tell decides; a tie keeps the
+    order found)."""
+    order = sorted(range(len(p.sets)), key=lambda i: (-counts[i][1], -counts[i][0]))
+    return replace(p, sets=tuple(p.sets[i] for i in order), checked=tuple(tuple(counts[i]) for i in order),
+                   checked_now=tuple(now))
 
 
 def _covers(got: tuple[frozenset, frozenset], want: tuple[frozenset, frozenset]) -> bool:

@@ -104,7 +104,10 @@ def _placement_dict(p) -> dict:
             {"detected_now": sorted(p.now_qualitative[0]), "detected_at_most": sorted(p.reachable_qualitative[0]),
              "pairs_now": len(p.now_qualitative[1]), "pairs_at_most": len(p.reachable_qualitative[1])},
             "never_detected": sorted(set(p.faults) - p.reachable[0]),
-            "never_told_apart": [[a, b] for a, b in sorted(_untold(p))]}
+            "never_told_apart": [[a, b] for a, b in sorted(_untold(p))],
+            "quantitative": None if p.checked is None else
+            {"now": {"detected": p.checked_now[0], "pairs": p.checked_now[1]},
+             "sets": [{"detected": d, "pairs": n} for d, n in p.checked]}}
 
 
 def _untold(p) -> set:
@@ -206,6 +209,10 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     if place_sensors:
         say("sensor placement")
         placed = _place(func, c, model_, costs, most, place_by == "qualitative")
+        if quantitative and placed.sets and placed.sets[0]:
+            placed = _check_sets(model, placed, faults, levels[-1], dict(
+                change=change, at=at, process_noise=process_noise, measurement_noise=measurement_noise, steps=steps,
+                level=level), say)
     return AnalysisReport(c.model.name, str(model), faults, tuple(of[p][0] for p in faults),
                           tuple(of[p][1] for p in faults), tuple(c.equations.outputs), tuple(levels), model_,
                           settings[0], settings[1], change, at, (process_noise, measurement_noise), level, placed, tests,
@@ -261,6 +268,29 @@ def _input_tests(session, c, faults, r, quantitative, settings: dict, say) -> tu
 def _signal_text(spec: dict) -> str:
     """A signal as a model's ``inputs`` section and ``--input`` write it."""
     return "{" + ", ".join(f"{k}: {v:.6g}" if isinstance(v, float) else f"{k}: {v}" for k, v in spec.items()) + "}"
+
+
+def _check_sets(model, placed, faults, now, settings: dict, say):
+    """``placed`` checked at the quantitative level: each set's sensors
+    added to the model (:func:`with_sensors`, a file in a folder of bgc's
+    own, removed after) and the faults detected and ordered pairs told
+    apart by :func:`distinguishability` at the analysis's ``settings``
+    (``now``: the model's own quantitative level), the sets ordered by it
+    (:func:`bgc.analysis.placement.checked`)."""
+    import tempfile
+
+    from ..analysis import isolability, placement
+    from .distinguish import distinguishability
+
+    counts = []
+    with tempfile.TemporaryDirectory(prefix="bgc-placed-") as folder:
+        for i, names in enumerate(placed.sets, start=1):
+            say(f"sensor placement: set {i} of {len(placed.sets)} checked by bgc distinguish ({', '.join(names)})")
+            path = with_sensors(model, names, Path(folder) / f"placed_{i}.yaml")
+            r = distinguishability(path, **settings)
+            lv = isolability.quantitative(r.distinctions, faults, settings["level"])
+            counts.append((sum(lv.detectable), len(lv.pairs())))
+    return placement.checked(placed, counts, (sum(now.detectable), len(now.pairs())))
 
 
 def _place(func: str, c, model_, costs, most: int, qualitative: bool):

@@ -818,6 +818,10 @@ def placement_lines(p) -> list[str]:
         lines.append(f"  the cheapest sets (cost {p.cost:g}), each enough" + (f" (the first {len(p.sets)}; there are "
                      "more)" if p.more else "") + ":")
         lines += [f"    {', '.join(f'{v} (= {reads[v]})' for v in s)}" for s in p.sets]
+        if getattr(p, "checked", None):
+            lines.append(f"  checked by bgc distinguish (the quantitative level; now {p.checked_now[0]} faults detected "
+                         f"and {p.checked_now[1]} ordered pairs told apart), the sets in its order, --write the first:")
+            lines += [f"    {', '.join(s)}: {d} and {n}" for s, (d, n) in zip(p.sets, p.checked)]
     return lines
 
 
