@@ -37,6 +37,9 @@ class Candidate:
     name: str
     expr: object
     cost: float = 1.0
+    #: Faults no symbol of ``expr`` holds that change what it reads all the same (a switch that may
+    #: stick, in a mode whose stuck configuration changes this variable: :func:`with_sensors`)
+    also: frozenset = frozenset()
 
 
 @dataclass(frozen=True)
@@ -94,7 +97,8 @@ def with_sensors(model: StructuralModel, ssm, added: Sequence[Candidate]) -> Str
         names = {s.name for s in c.expr.free_symbols}
         e = f"meas_added_{c.name}"
         equations.append(e)
-        holds[e] = frozenset({x for x in states if x in names} | {v for p, v in by_parameter.items() if p in names})
+        holds[e] = frozenset({x for x in states if x in names} | {v for p, v in by_parameter.items() if p in names}
+                             | {by_parameter[p] for p in c.also if p in by_parameter})
         known[e], kind[e] = frozenset(names & set(ssm.inputs)) | {c.name}, "measurement"
     return replace(model, equations=tuple(equations), holds=holds, kind=kind, known=known)
 
@@ -184,3 +188,75 @@ def place(model: StructuralModel, ssm, cands: Sequence[Candidate], most: int = 2
             found.append(names)
             cost = total
     return Placement(tuple(found), cost, tuple(cands), now, reachable, faults, q_now, q_all, more)
+
+
+@dataclass(frozen=True)
+class ModePart:
+    """One mode of a model with modes, for :func:`place_across`: its
+    structural model, state equations, candidate sensors (a bond variable
+    that reads nothing in the mode, its junction OFF, is none there) and,
+    for the qualitative level, the signatures read at its sensors and then
+    at each of its candidates (None: structurally only)."""
+
+    model: StructuralModel
+    ssm: object
+    candidates: tuple[Candidate, ...]
+    signatures: object = None
+
+
+def _across(parts: Sequence[ModePart], names: Sequence[str], qualitative: bool) -> tuple:
+    """What the sensors ``names`` added give across the modes: (structural,
+    qualitative or None), each (faults detected, ordered pairs told apart),
+    a fault detected and a pair told apart when some mode does it (the data
+    are read in every mode the plant visits)."""
+    s_det, s_pairs, q_det, q_pairs = set(), set(), set(), set()
+    for part in parts:
+        added = [c for c in part.candidates if c.name in names]
+        detected, pairs = _gives(with_sensors(part.model, part.ssm, added))
+        s_det |= detected
+        s_pairs |= pairs
+        if qualitative:
+            detected, pairs = _qualitative(part.signatures, tuple(part.model.faults),
+                                           tuple(part.ssm.outputs) + tuple(c.name for c in added))
+            q_det |= detected
+            q_pairs |= pairs
+    return (frozenset(s_det), frozenset(s_pairs)), ((frozenset(q_det), frozenset(q_pairs)) if qualitative else None)
+
+
+def place_across(parts: Sequence[ModePart], most: int = 2) -> Placement:
+    """:func:`place` for a model with modes: a sensor reads its bond variable
+    in every mode it has one, and a set is enough when, across the modes
+    (:func:`_across`), it gives what every candidate together gives, at the
+    structural level and, when the parts carry signatures, the qualitative
+    one. A candidate's expression shown is its first mode's; its cost the
+    least any mode gives it."""
+    qualitative = all(p.signatures is not None for p in parts)
+    cands: dict[str, Candidate] = {}
+    for part in parts:
+        for c in part.candidates:
+            if c.name not in cands or c.cost < cands[c.name].cost:
+                cands[c.name] = c if c.name not in cands else replace(cands[c.name], cost=c.cost)
+    every = tuple(cands.values())
+    now, q_now = _across(parts, (), qualitative)
+    reachable, q_all = _across(parts, tuple(cands), qualitative)
+    faults = tuple(parts[0].model.faults)
+    if now == reachable and q_now == q_all:
+        return Placement(((),), 0.0, every, now, reachable, faults, q_now, q_all)
+    subsets = sorted((s for k in range(1, most + 1) for s in itertools.combinations(every, k)),
+                     key=lambda s: (sum(c.cost for c in s), len(s)))
+    found, cost, more = [], None, False
+    for s in subsets:
+        total = sum(c.cost for c in s)
+        if cost is not None and total > cost:
+            break
+        names = tuple(c.name for c in s)
+        if any(set(f) <= set(names) for f in found):  # a set that holds one found already is not the cheapest
+            continue
+        got, q_got = _across(parts, names, qualitative)
+        if _covers(got, reachable) and (not qualitative or _covers(q_got, q_all)):
+            if len(found) == MOST_SETS:
+                more = True
+                break
+            found.append(names)
+            cost = total
+    return Placement(tuple(found), cost, every, now, reachable, faults, q_now, q_all, more)

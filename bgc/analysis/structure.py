@@ -173,3 +173,18 @@ def stuck_equations(mode, config) -> frozenset:
     read = dict(zip(b.outputs, b.output_exprs))
     out |= {f"meas_{y}" for y, h in zip(a.outputs, a.output_exprs) if y not in read or differ(h, read[y])}
     return frozenset(out)
+
+
+def stuck_readings(mode, config) -> frozenset:
+    """The bond variables of mode ``mode`` whose value a stuck switch
+    changes when it runs the plant in configuration ``config`` there (their
+    expression differs, or the configuration has none): what a sensor
+    placed on one of them would read of the stuck switch (none when the
+    configuration is the mode's own)."""
+    import sympy
+
+    if config is mode:
+        return frozenset()
+    other = dict(config.equations.variables)
+    return frozenset(name for name, expr in mode.equations.variables
+                     if name not in other or (expr != other[name] and sympy.simplify(expr - other[name]) != 0))

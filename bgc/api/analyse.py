@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -135,8 +136,7 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     Raises
     ------
     ArgumentTypeError, ArgumentValueError
-        An argument of the wrong type or out of range; sensor placement on a
-        model with modes (not built yet).
+        An argument of the wrong type or out of range.
     """
     func = "bgc.analyse"
     arguments.path(func, "model", model)
@@ -163,9 +163,6 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     say = progress or (lambda text: None)
     arguments.text(func, "modes", modes, optional=True)
     hybrid = load.declares_modes(model)
-    if hybrid and place_sensors:
-        raise ArgumentValueError(f"{func}: place_sensors=True for a model with modes is not built yet", None,
-                                 "place the sensors on a model of each mode by itself")
     if modes is not None and not hybrid:
         raise ArgumentValueError(f"{func}: modes={modes!r}: {model} has no modes", None, "leave modes out")
     say("compiling the model")
@@ -182,6 +179,7 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     structural, model_ = isolability.structural(c.equations, faults, sensors)
     levels = [structural, isolability.qualitative(c.signatures, faults)]
     by_mode = {}
+    enters = {}
     if hybrid:  # each mode by itself, and across them; a stuck switch in the equations its configurations change
         names = tuple(m.name for m in c.modes)
         enters = _stuck_equations(c, stuck)
@@ -208,30 +206,33 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     placed = None
     if place_sensors:
         say("sensor placement")
-        placed = _place(func, c, model_, costs, most, place_by == "qualitative")
+        placed = _place_modes(func, c, faults, sensors, enters, costs, most, place_by == "qualitative") if hybrid \
+            else _place(func, c, model_, costs, most, place_by == "qualitative")
         if quantitative and placed.sets and placed.sets[0]:
             placed = _check_sets(model, placed, faults, levels[-1], dict(
                 change=change, at=at, process_noise=process_noise, measurement_noise=measurement_noise, steps=steps,
-                level=level), say)
+                level=level, modes=modes if hybrid else None), say)
     return AnalysisReport(c.model.name, str(model), faults, tuple(of[p][0] for p in faults),
                           tuple(of[p][1] for p in faults), tuple(c.equations.outputs), tuple(levels), model_,
                           settings[0], settings[1], change, at, (process_noise, measurement_noise), level, placed, tests,
                           by_mode, modes, steps is not None)
 
 
-def _stuck_equations(c, stuck) -> dict[str, dict[str, frozenset]]:
+def _stuck_equations(c, stuck, what=None) -> dict[str, dict[str, frozenset]]:
     """Per mode of the compiled model with modes ``c``, per junction of the
     stuck switches ``stuck``: the equations of the mode's structural model
     its stuck configurations (each kind's, together) change there
-    (:func:`bgc.analysis.structure.stuck_equations`)."""
+    (``what``: the function that says it, of the mode and the
+    configuration; default :func:`bgc.analysis.structure.stuck_equations`)."""
     from ..analysis.structure import stuck_equations
     from ..compiler.modes import compile_stuck
 
+    what = what or stuck_equations
     out: dict[str, dict[str, set]] = {m.name: {} for m in c.modes}
     for fault in stuck:
         configs = compile_stuck(c.model, c.modes, fault).configs
         for mode, config in zip(c.modes, configs):
-            out[mode.name].setdefault(fault.junction, set()).update(stuck_equations(mode, config))
+            out[mode.name].setdefault(fault.junction, set()).update(what(mode, config))
     return {m: {j: frozenset(e) for j, e in by.items()} for m, by in out.items()}
 
 
@@ -293,17 +294,52 @@ def _check_sets(model, placed, faults, now, settings: dict, say):
     return placement.checked(placed, counts, (sum(now.detectable), len(now.pairs())))
 
 
+def _place_modes(func: str, c, faults, sensors, enters, costs, most: int, qualitative: bool):
+    """The placement of the sensors of the compiled model with modes ``c``
+    across its modes (:func:`bgc.analysis.placement.place_across`): per mode
+    its structural model (its stuck switches in ``enters``), its candidates
+    and, ``qualitative``, its signatures read at them (a stuck switch's
+    too)."""
+    import sympy
+
+    from ..analysis import placement, structure
+    from ..compiler import signatures
+    from ..compiler.modes import stuck_signatures
+
+    _known_costs(func, c, costs, {name for m in c.modes for name, _ in m.equations.variables})
+    offsets = {sympy.Symbol(f.parameter): 0 for f in c.model.faults if f.target == "sensor"}
+    read = _stuck_equations(c, c.model.modes.stuck, structure.stuck_readings)  # what a sensor reads of a stuck switch
+    parts = []
+    for m, mode in zip(c.modes, c.model.modes.modes):
+        ssm = m.equations
+        cands = tuple(dataclasses.replace(x, also=frozenset(j for j, names in read[m.name].items() if x.name in names))
+                      for x in placement.candidates(ssm, [e.subs(offsets) for e in ssm.output_exprs], costs))
+        every = None
+        if qualitative:
+            extra = tuple(x.name for x in cands)
+            every = signatures.derive(ssm, extra)
+            every = dataclasses.replace(every, signatures=every.signatures + tuple(
+                stuck_signatures(c.model, mode, ssm, tuple(ssm.outputs) + extra)))
+        parts.append(placement.ModePart(structure.of_equations(ssm, {p: p for p in faults}, sensors,
+                                                               enters.get(m.name)), ssm, cands, every))
+    return placement.place_across(parts, most)
+
+
+def _known_costs(func: str, c, costs, names: set) -> None:
+    """A one-line error when ``costs`` names what is no bond variable of ``c`` (its ``names``)."""
+    unknown = sorted(set(costs or ()) - names)
+    if unknown:
+        raise ArgumentValueError(f"{func}: costs names {unknown[0]!r}, not a bond variable of {c.model.name}", None,
+                                 f"name efforts and flows of its bonds, e.g. {sorted(names)[0]}")
+
+
 def _place(func: str, c, model_, costs, most: int, qualitative: bool):
     """The placement of compilation ``c``'s sensors (:func:`analyse`)."""
     import sympy
 
     from ..analysis import placement
 
-    names = {name for name, _ in c.equations.variables}
-    unknown = sorted(set(costs or ()) - names)
-    if unknown:
-        raise ArgumentValueError(f"{func}: costs names {unknown[0]!r}, not a bond variable of {c.model.name}", None,
-                                 f"name efforts and flows of its bonds, e.g. {sorted(names)[0]}")
+    _known_costs(func, c, costs, {name for name, _ in c.equations.variables})
     from ..compiler import signatures
 
     offsets = {sympy.Symbol(f.parameter): 0 for f in c.model.faults if f.target == "sensor"}

@@ -491,19 +491,26 @@ def _with_stuck(model: BondGraph, compiled: tuple[ModeModel, ...]) -> tuple[Mode
     effect in a mode is listed among the mode's undetectable faults."""
     if not model.modes.stuck:
         return compiled
-    added: list[list[Signature]] = [[] for _ in compiled]
-    for fault in model.modes.stuck:
-        for i, (m, mode) in enumerate(zip(compiled, model.modes.modes)):
-            ssm = m.equations
-            depth = len(ssm.states) + 2  # as signatures.derive: through every integrator, plus a drift's order
-            symbol = "0" if fault.on(mode.on) == tuple(sorted(mode.on)) else "?"  # the mode's own configuration
-            added[i].append(Signature(fault.junction, 1 if fault.kind == "stuck_on" else -1, fault.kind,
-                                      tuple((symbol,) * (depth + 1) for _ in ssm.outputs),
-                                      ssm.outputs if symbol == "?" else ()))
+    added = [stuck_signatures(model, mode, m.equations, m.equations.outputs)
+             for m, mode in zip(compiled, model.modes.modes)]
     return tuple(dataclasses.replace(m, signatures=dataclasses.replace(
         m.signatures, signatures=m.signatures.signatures + tuple(more),
         undetectable=m.signatures.undetectable + tuple(s.name for s in more if not s.first)))
         for m, more in zip(compiled, added))
+
+
+def stuck_signatures(model: BondGraph, mode, ssm, columns: tuple[str, ...]) -> list[Signature]:
+    """The signatures of ``model``'s switches that may stick in mode
+    ``mode`` (its state equations ``ssm``), read at ``columns`` (its sensors,
+    and bond variables a sensor placed would read): "0" everywhere where
+    the stuck configuration is the mode's own, else "?" (:func:`_with_stuck`)."""
+    depth = len(ssm.states) + 2  # as signatures.derive: through every integrator, plus a drift's order
+    out = []
+    for fault in model.modes.stuck:
+        symbol = "0" if fault.on(mode.on) == tuple(sorted(mode.on)) else "?"  # the mode's own configuration
+        out.append(Signature(fault.junction, 1 if fault.kind == "stuck_on" else -1, fault.kind,
+                             tuple((symbol,) * (depth + 1) for _ in columns), tuple(columns) if symbol == "?" else ()))
+    return out
 
 
 class _Refused(Exception):
