@@ -144,7 +144,10 @@ def predicted(session, column, times, fault: str, onset: float, modes: str | Non
     else:
         package = session.package
         families = distinction.prepare(package, linear.scenario_inputs(package, len(times), (), column))
-        priors = {f.parameter: f.prior for f in session.view.model.faults}
+        from bgc.api.distinguish import _stuck_candidates
+
+        priors = {f.parameter: f.prior for f in session.view.model.faults} | \
+            {s.junction: s.prior for s in _stuck_candidates(session.view)}
         d = distinction.distinguish(families, fault.replace(":", "_"), 1.0, onset_sample(times, onset), priors)
     return d.power(0.01) >= 0.95 and not d.group
 

@@ -107,6 +107,7 @@ from __future__ import annotations
 
 from .. import arguments
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -157,6 +158,8 @@ class Families:
     responses: tuple[np.ndarray, ...]
     bounds: tuple[tuple[float, float], ...]
     stuck: tuple[str, ...] = ()
+    #: Per stuck switch, its whitened noise-free runs (T n_y, onsets) from each of ``onsets``: its family
+    stuck_runs: tuple[np.ndarray, ...] = ()
 
     def response(self, name: str) -> np.ndarray:
         return self.responses[self.names.index(name)]
@@ -267,7 +270,7 @@ class Distinction:
         return f"{parameter}{'+' if self.magnitude >= 0 else '-'}:{kind}"
 
 
-def memory(steps: int, states: int, outputs: int, inputs: int, fault_models: int) -> int:
+def memory(steps: int, states: int, outputs: int, inputs: int, fault_models: int, stuck: int = 0) -> int:
     """The bytes the largest arrays of a prediction over ``steps`` samples
     take at once, for a model of ``states`` states, ``outputs`` sensors,
     ``inputs`` inputs and ``fault_models`` fault models (each with up to 2
@@ -287,7 +290,10 @@ def memory(steps: int, states: int, outputs: int, inputs: int, fault_models: int
     (the circuit: 132 kB a sample, measured 127 kB at 800 and 1600 samples
     and 120 kB at 3000; the RO plant: 178 kB, measured 172 and 162 kB at
     800 and 3000), up to about twice it just past a multiple of
-    ``MAX_ONSETS`` (the two tanks at 450 samples, 225 onsets: 1.7 times)."""
+    ``MAX_ONSETS`` (the two tanks at 450 samples, 225 onsets: 1.7 times).
+    ``stuck`` stuck switches (a model with modes): each one's whitened runs
+    from every onset kept (n_y x onsets), and one's runs being made (their
+    states before and after each step, measurements and deviations)."""
     n, n_y, n_u, n_f = states, outputs, inputs, fault_models
     n_z = n + 2
     onsets = min(steps, MAX_ONSETS)  # prepare takes every k-th sample: between half this and this many
@@ -296,14 +302,16 @@ def memory(steps: int, states: int, outputs: int, inputs: int, fault_models: int
                 + n * n + 2 * n * n_y + n_y * n_y              # F, H, K, Linv
                 + 4 * n_z * n_z                                # central differences
                 + n_f * n_y * onsets                           # the whitened unit responses
-                + max(n_y * onsets, grid * (2 * n_z + 3 * n_y))  # one family being whitened, or the exact fit
+                + max(n_y * onsets, grid * (2 * n_z + 3 * n_y),  # one family being whitened, or the exact fit,
+                      onsets * (2 * n_z + 3 * n_y) if stuck else 0)  # or one stuck switch's runs being made
+                + stuck * n_y * onsets                         # the stuck switches' whitened runs
                 + 2 * (n_z * n + 2 * n * n_y + n_y * n_y + n_y))  # two linearised fault runs
     return 8 * steps * per_step
 
 
-def most_steps(num: Numerics) -> int:
-    """The longest run whose prediction stays within ``MAX_BYTES``."""
-    size = _sizes(num)
+def most_steps(num: Numerics, stuck: int = 0) -> int:
+    """The longest run whose prediction stays within ``MAX_BYTES`` (``stuck``: the model's stuck switches)."""
+    size = (*_sizes(num), stuck)
     lo, hi = 0, MAX_STEPS  # no run is longer than bgc simulates
     while lo < hi:  # memory grows with the steps
         mid = (lo + hi + 1) // 2
@@ -314,13 +322,14 @@ def most_steps(num: Numerics) -> int:
     return lo
 
 
-def check_steps(steps: int, num: Numerics, where: str) -> None:
+def check_steps(steps: int, num: Numerics, where: str, stuck: int = 0) -> None:
     """Refuse, before any work, a prediction over ``steps`` samples whose
-    arrays would take more than ``MAX_BYTES`` (:func:`memory`); ``where``
-    names the request (``--steps``, or the model's ``simulation.steps``)."""
-    need = memory(steps, *_sizes(num))
+    arrays would take more than ``MAX_BYTES`` (:func:`memory`; ``stuck``:
+    the model's stuck switches); ``where`` names the request (``--steps``,
+    or the model's ``simulation.steps``)."""
+    need = memory(steps, *_sizes(num), stuck)
     if need > MAX_BYTES:
-        most = most_steps(num)
+        most = most_steps(num, stuck)
         what = "bgc distinguish" if arguments.DOOR.get() == "cli" else "the prediction"
         raise TrackingError(f"{where}: {steps} steps: {what} would take about {need / 1e9:.3g} GB for "
                             f"{num.equations.model.name} (at most {most} steps for this model)", None,
@@ -354,8 +363,15 @@ def prepare(package: Package, us: np.ndarray, progress=None) -> Families:
         names.append(name)
         lo, hi = (float(b) for b in model.FAULT_PRIOR)
         bounds.append((lo, hi))
-    return Families(package, us, x_before, x_after, y, whitening, onsets, tuple(names), tuple(responses),
-                    tuple(bounds), tuple(stuck_models(package)))
+    stuck = tuple(stuck_models(package))
+    families = Families(package, us, x_before, x_after, y, whitening, onsets, tuple(names), tuple(responses),
+                        tuple(bounds), stuck)
+    runs = []
+    for i, name in enumerate(stuck, start=1):
+        say(f"preparing the families: stuck switch {i} of {len(stuck)} ({name})")
+        dev = deviations(families, name, np.ones(len(onsets)), onsets)
+        runs.append(whitening.apply(dev).reshape(-1, len(onsets)))
+    return dataclasses.replace(families, stuck_runs=tuple(runs)) if runs else families
 
 
 def stuck_models(package: Package) -> list[str]:
@@ -536,8 +552,7 @@ def _stuck_fit(families: Families, name: str, w: np.ndarray, ww: float) -> tuple
     stuck switch has no size to linearise in), or by no fault when none
     comes nearer: (half the squared residual, the onset's index, 1 (stuck
     from it) or 0 (no fault), the fit's whitened deviation)."""
-    dev = deviations(families, name, np.ones(len(families.onsets)), families.onsets)
-    wz = families.whitening.apply(dev).reshape(-1, dev.shape[2])
+    wz = families.stuck_runs[families.stuck.index(name)]  # its runs from every onset, whitened (prepare)
     with np.errstate(invalid="ignore", over="ignore"):
         r = 0.5 * ((wz - w[:, None]) ** 2).sum(axis=0)
     r[~np.isfinite(r)] = math.inf

@@ -176,13 +176,14 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
                                  "list its faults in the model's faults: section (docs/format.md)")
     say("structural analysis")
     sensors = {f.parameter: f.subject for f in c.model.faults if f.target == "sensor"}
-    structural, model_ = isolability.structural(c.equations, faults, sensors)
+    # a model with modes: a stuck switch in the equations its configurations change, mode by mode
+    enters = _stuck_equations(c, stuck) if hybrid else {}
+    structural, model_ = isolability.structural(c.equations, faults, sensors,  # (the first mode's: the report's)
+                                                enters.get(c.modes[0].name) if hybrid else None)
     levels = [structural, isolability.qualitative(c.signatures, faults)]
     by_mode = {}
-    enters = {}
-    if hybrid:  # each mode by itself, and across them; a stuck switch in the equations its configurations change
+    if hybrid:  # each mode by itself, and across them
         names = tuple(m.name for m in c.modes)
-        enters = _stuck_equations(c, stuck)
         by_mode = {m.name: (isolability.structural(m.equations, faults, sensors, enters[m.name])[0],
                             isolability.qualitative(m.signatures, faults)) for m in c.modes}
         levels = [isolability.across([by_mode[m][k] for m in names], names) for k in range(2)]

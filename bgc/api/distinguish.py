@@ -151,16 +151,16 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
     dt = c.model.settings.dt
     where = arguments.spelled(f"{func}: steps", "--steps") if steps is not None else \
         f"{printable(c.model.source)}: simulation.steps"
-    distinction.check_steps(T, num, where)
+    stuck = _stuck_candidates(c)
+    distinction.check_steps(T, num, where, len(stuck))
     if scenario is None and not int(at * T) < T - 1:
         raise SimulationError(f"change {change:g} at {at:g} of the run", None,
                               "give a change above 0 and an onset inside the run, a fraction between 0 and 1")
-    if not num.faults:
+    if not num.faults and not stuck:
         raise SimulationError(f"{c.model.name} declares no fault candidates", None,
                               "list the faults to tell apart under 'faults' in the model file")
     times = dt * np.arange(1, T + 1)
     first = False  # an intermittent fault cut to its first appearance
-    stuck = _stuck_candidates(c)
     if scenario is not None:
         inj = scenario_of(func, scenario, num)
         if inj is None:
@@ -198,13 +198,13 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
     levels = num.noise_at(process_noise, measurement_noise)
     custom = levels if (process_noise, measurement_noise) != (None, None) else None
     need = distinction.memory(T, *(len(x) for x in (num.equations.states, num.equations.outputs,
-                                                     num.equations.inputs, num.faults)))
+                                                     num.equations.inputs, num.faults)), len(stuck))
     # a model with modes: the modes of the noise-free plant's run through its automaton and the schedule
     column = _automaton_modes(func, c, T, schedule, signals) if c.modes else None
     with _LOCK:
         package = packages.load_package(private, c.model.name, str(model), custom)
         families = _families(package, T, need, say, signals, schedule, column)
-    priors = {f.parameter: f.prior for f in c.model.faults}
+    priors = {f.parameter: f.prior for f in c.model.faults} | {s.junction: s.prior for s in stuck}
     out = []
     for i, inj in enumerate(injected, start=1):
         say(f"scenario {i} of {len(injected)}: " + (inj.describe() if inj.stuck else

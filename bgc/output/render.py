@@ -907,7 +907,8 @@ def distinguishability_json(r) -> dict:
             if getattr(d, "reach", ()) else None,
             "group": list(d.group),
             "rivals": [{"model": x.name, "expected": x.expected, "std": x.std, "probability": x.probability,
-                        "onset_sample": x.onset, "magnitude": x.magnitude} for x in d.rivals],
+                        "onset_sample": x.onset, "magnitude": x.magnitude, "stuck": getattr(x, "stuck", False)}
+                       for x in d.rivals],
         } for d in r.distinctions],
     }
 

@@ -240,8 +240,10 @@ def right_parameter(row: dict) -> bool:
     """The diagnosed fault model (``PARAM_KIND``) names the injected parameter,
     whatever the kind (a slow drift taken for a step still points at the
     right component)."""
+    from ..kinds import fault_parameter
+
     said = row.get("diagnosed") or ""
-    return bool(row.get("fault")) and "_" in said and said.rsplit("_", 1)[0] == row["fault"]
+    return bool(row.get("fault")) and "_" in said and fault_parameter(said) == row["fault"]
 
 
 def _frac(k: int, n: int) -> str:
