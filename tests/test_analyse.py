@@ -360,23 +360,30 @@ def test_a_relays_stuck_switches_across_its_modes_by_hand():
 @pytest.mark.slow
 def test_a_sensor_placed_across_the_relays_modes_reads_its_stuck_contact(tmp_path):
     """Placement on a model with modes (docs/examples/relay.yaml): a sensor
-    reads its bond variable in every mode where it is not 0, and a set is
-    enough when, across the modes, it detects and tells apart what every
-    candidate does. By hand: K (the relay's contact, stuck either way) and
-    R_load are both in the capacitor's equation C dv/dt = i - v/R_load [-
-    v/R_aux with K closed] in every mode, so no structure of the two sensors
-    (v and i) tells them apart. A sensor on R_aux's current f9 = v/R_aux
-    (closed only; K stuck OFF makes it 0, so its reading holds K's fault
-    too) tells K from R_load both ways and R_aux from K: the one sensor
-    enough, of cost 1. A sensor on R_load's current f7 = v/R_load tells K
-    from R_load but not R_aux from K (both then only in C's equation). The
-    model written with f9, compiled afresh in every mode with its stuck
+    reads its bond variable in every mode where it reads something, or where
+    a switch stuck there changes it, and a set is enough when, across the
+    modes, it detects and tells apart what every candidate does. By hand: K
+    (the relay's contact, stuck either way) and R_load are both in the
+    capacitor's equation in every mode (C dv/dt = i - v/R_load [- v/R_aux
+    with K closed]; unpowered, no i), so no structure of the two sensors (v
+    and i) tells them apart: of the 20 ordered pairs of the 5 faults, K from
+    R_load, R_load from K, R_aux from K and R_aux from R_load are not told
+    now (16). A sensor on R_aux's current f9 (v/R_aux with K closed, else 0;
+    K stuck ON makes it read in open and unpowered, K stuck OFF silences it
+    in closed: its reading holds K's fault in every mode) gives all four:
+    the one sensor enough, of cost 1. A sensor on R_load's current f7 =
+    v/R_load gives three (not R_aux from K, both then only in C's equation
+    and f9's absent). R_aux from K is a structural separation: both move f9
+    the same way, so the data may tell them apart only by the change's size.
+    The model written with f9, compiled afresh in every mode with its stuck
     configurations, tells every pair apart structurally."""
     relay = ROOT / "docs" / "examples" / "relay.yaml"
     r = analyse(relay, quantitative=False, place_sensors=True)
     p = r.placement
     assert p.sets == (("f9",),) and p.cost == 1.0
     assert len(p.now[1]) == 16 and len(p.reachable[1]) == 20  # 5 faults: 20 ordered pairs, 4 untold now
+    assert str(next(c.expr for c in p.candidates if c.name == "f9")) == \
+        "0 in open; e6/R_aux in closed; 0 in unpowered"  # read in every mode: 0 but for K stuck
     from conftest import bgc_cli
 
     out = tmp_path / "relay_f9.yaml"

@@ -202,43 +202,55 @@ class ModePart:
     ssm: object
     candidates: tuple[Candidate, ...]
     signatures: object = None
+    #: The mode's name (what a candidate reads there is shown with it)
+    mode: str = ""
 
 
-def _across(parts: Sequence[ModePart], names: Sequence[str], qualitative: bool) -> tuple:
+def _across(parts: Sequence[ModePart], names: Sequence[str], qualitative: bool,
+            structural: tuple[frozenset, frozenset] | None = None) -> tuple:
     """What the sensors ``names`` added give across the modes: (structural,
     qualitative or None), each (faults detected, ordered pairs told apart),
     a fault detected and a pair told apart when some mode does it (the data
-    are read in every mode the plant visits)."""
+    are read in every mode the plant visits). ``structural``: a structural
+    target; when the set misses it, its qualitative level is not worked
+    out (None)."""
     s_det, s_pairs, q_det, q_pairs = set(), set(), set(), set()
     for part in parts:
         added = [c for c in part.candidates if c.name in names]
         detected, pairs = _gives(with_sensors(part.model, part.ssm, added))
         s_det |= detected
         s_pairs |= pairs
-        if qualitative:
-            detected, pairs = _qualitative(part.signatures, tuple(part.model.faults),
-                                           tuple(part.ssm.outputs) + tuple(c.name for c in added))
-            q_det |= detected
-            q_pairs |= pairs
-    return (frozenset(s_det), frozenset(s_pairs)), ((frozenset(q_det), frozenset(q_pairs)) if qualitative else None)
+    got = (frozenset(s_det), frozenset(s_pairs))
+    if not qualitative or (structural is not None and not _covers(got, structural)):
+        return got, None
+    for part in parts:
+        added = [c.name for c in part.candidates if c.name in names]
+        detected, pairs = _qualitative(part.signatures, tuple(part.model.faults), tuple(part.ssm.outputs) + tuple(added))
+        q_det |= detected
+        q_pairs |= pairs
+    return got, (frozenset(q_det), frozenset(q_pairs))
 
 
 def place_across(parts: Sequence[ModePart], most: int = 2) -> Placement:
     """:func:`place` for a model with modes: a sensor reads its bond variable
-    in every mode it has one, and a set is enough when, across the modes
-    (:func:`_across`), it gives what every candidate together gives, at the
-    structural level and, when the parts carry signatures, the qualitative
-    one. A candidate's expression shown is its first mode's; its cost the
-    least any mode gives it."""
+    in every mode where its part lists it, and a set is enough when, across
+    the modes (:func:`_across`), it gives what every candidate together
+    gives, at the structural level and, when the parts carry signatures, the
+    qualitative one. A candidate's expression shown is its own where it is
+    the same in every mode that lists it, else each mode's, named."""
     qualitative = all(p.signatures is not None for p in parts)
-    cands: dict[str, Candidate] = {}
+    reads: dict[str, list] = {}
     for part in parts:
         for c in part.candidates:
-            if c.name not in cands or c.cost < cands[c.name].cost:
-                cands[c.name] = c if c.name not in cands else replace(cands[c.name], cost=c.cost)
-    every = tuple(cands.values())
+            reads.setdefault(c.name, []).append((part.mode, c))
+    every = []
+    for name, seen in reads.items():
+        shown = {str(c.expr) for _, c in seen}
+        expr = seen[0][1].expr if len(shown) == 1 else "; ".join(f"{c.expr} in {mode}" for mode, c in seen)
+        every.append(Candidate(name, expr, min(c.cost for _, c in seen)))
+    every = tuple(every)
     now, q_now = _across(parts, (), qualitative)
-    reachable, q_all = _across(parts, tuple(cands), qualitative)
+    reachable, q_all = _across(parts, tuple(reads), qualitative)
     faults = tuple(parts[0].model.faults)
     if now == reachable and q_now == q_all:
         return Placement(((),), 0.0, every, now, reachable, faults, q_now, q_all)
@@ -252,8 +264,8 @@ def place_across(parts: Sequence[ModePart], most: int = 2) -> Placement:
         names = tuple(c.name for c in s)
         if any(set(f) <= set(names) for f in found):  # a set that holds one found already is not the cheapest
             continue
-        got, q_got = _across(parts, names, qualitative)
-        if _covers(got, reachable) and (not qualitative or _covers(q_got, q_all)):
+        got, q_got = _across(parts, names, qualitative, reachable)
+        if _covers(got, reachable) and (not qualitative or (q_got is not None and _covers(q_got, q_all))):
             if len(found) == MOST_SETS:
                 more = True
                 break

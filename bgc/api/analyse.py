@@ -177,7 +177,8 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     say("structural analysis")
     sensors = {f.parameter: f.subject for f in c.model.faults if f.target == "sensor"}
     # a model with modes: a stuck switch in the equations its configurations change, mode by mode
-    enters = _stuck_equations(c, stuck) if hybrid else {}
+    configs = _stuck_configs(c, stuck) if hybrid else ()
+    enters = _stuck_equations(c, stuck, configs=configs) if hybrid else {}
     structural, model_ = isolability.structural(c.equations, faults, sensors,  # (the first mode's: the report's)
                                                 enters.get(c.modes[0].name) if hybrid else None)
     levels = [structural, isolability.qualitative(c.signatures, faults)]
@@ -207,7 +208,8 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     placed = None
     if place_sensors:
         say("sensor placement")
-        placed = _place_modes(func, c, faults, sensors, enters, costs, most, place_by == "qualitative") if hybrid \
+        placed = _place_modes(func, c, faults, sensors, enters, configs, costs, most, place_by == "qualitative") \
+            if hybrid \
             else _place(func, c, model_, costs, most, place_by == "qualitative")
         if quantitative and placed.sets and placed.sets[0]:
             placed = _check_sets(model, placed, faults, levels[-1], dict(
@@ -219,20 +221,27 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
                           by_mode, modes, steps is not None)
 
 
-def _stuck_equations(c, stuck, what=None) -> dict[str, dict[str, frozenset]]:
+def _stuck_configs(c, stuck) -> tuple:
+    """Per stuck switch of ``stuck``, (the switch, each mode's configuration
+    with it stuck: :func:`bgc.compiler.modes.compile_stuck`), compiled once."""
+    from ..compiler.modes import compile_stuck
+
+    return tuple((fault, compile_stuck(c.model, c.modes, fault).configs) for fault in stuck)
+
+
+def _stuck_equations(c, stuck, what=None, configs=None) -> dict[str, dict[str, frozenset]]:
     """Per mode of the compiled model with modes ``c``, per junction of the
     stuck switches ``stuck``: the equations of the mode's structural model
     its stuck configurations (each kind's, together) change there
     (``what``: the function that says it, of the mode and the
-    configuration; default :func:`bgc.analysis.structure.stuck_equations`)."""
+    configuration; default :func:`bgc.analysis.structure.stuck_equations`;
+    ``configs``: :func:`_stuck_configs`, when made already)."""
     from ..analysis.structure import stuck_equations
-    from ..compiler.modes import compile_stuck
 
     what = what or stuck_equations
     out: dict[str, dict[str, set]] = {m.name: {} for m in c.modes}
-    for fault in stuck:
-        configs = compile_stuck(c.model, c.modes, fault).configs
-        for mode, config in zip(c.modes, configs):
+    for fault, configs_ in configs if configs is not None else _stuck_configs(c, stuck):
+        for mode, config in zip(c.modes, configs_):
             out[mode.name].setdefault(fault.junction, set()).update(what(mode, config))
     return {m: {j: frozenset(e) for j, e in by.items()} for m, by in out.items()}
 
@@ -295,35 +304,86 @@ def _check_sets(model, placed, faults, now, settings: dict, say):
     return placement.checked(placed, counts, (sum(now.detectable), len(now.pairs())))
 
 
-def _place_modes(func: str, c, faults, sensors, enters, costs, most: int, qualitative: bool):
+def _place_modes(func: str, c, faults, sensors, enters, configs, costs, most: int, qualitative: bool):
     """The placement of the sensors of the compiled model with modes ``c``
     across its modes (:func:`bgc.analysis.placement.place_across`): per mode
-    its structural model (its stuck switches in ``enters``), its candidates
-    and, ``qualitative``, its signatures read at them (a stuck switch's
-    too)."""
+    its structural model (its stuck switches in ``enters``; ``configs``:
+    their configurations), its candidates (:func:`_mode_candidates`) and,
+    ``qualitative``, its signatures read at them (:func:`_mode_signatures`)."""
+    from ..analysis import placement, structure
+
+    _known_costs(func, c, costs, {name for m in c.modes for name, _ in m.equations.variables})
+    read = _stuck_equations(c, c.model.modes.stuck, structure.stuck_readings, configs)  # what a sensor reads of one
+    by_mode = _mode_candidates(c, read, costs)
+    parts = [placement.ModePart(structure.of_equations(m.equations, {p: p for p in faults}, sensors,
+                                                       enters.get(m.name)), m.equations, by_mode[m.name],
+                                _mode_signatures(c, m, mode, by_mode[m.name]) if qualitative else None, m.name)
+             for m, mode in zip(c.modes, c.model.modes.modes)]
+    return placement.place_across(parts, most)
+
+
+def _mode_candidates(c, read, costs) -> dict[str, tuple]:
+    """Per mode of ``c``, its candidate sensors: every bond variable of some
+    mode (those ``costs`` names, when given), in the first mode's order of
+    them, with its expression in each mode. In a mode a variable is a
+    candidate where it reads something no sensor there reads already, or a
+    switch stuck there changes it (``read``: :func:`structure.stuck_readings`
+    per mode and junction; it then reads 0 but for the stuck switch, which
+    its ``also`` names). Variables that read the same in every mode are one
+    candidate (the cheapest, then the first)."""
     import sympy
 
-    from ..analysis import placement, structure
+    from ..analysis import placement
+
+    offsets = {sympy.Symbol(f.parameter): 0 for f in c.model.faults if f.target == "sensor"}
+    exprs = {m.name: dict(m.equations.variables) for m in c.modes}
+    measured = {m.name: {str(e.subs(offsets)) for e in m.equations.output_exprs} for m in c.modes}
+    order = list(dict.fromkeys(name for m in c.modes for name, _ in m.equations.variables))
+    per_name: dict[str, dict[str, placement.Candidate]] = {}
+    kept: dict[tuple, str] = {}
+    for name in order:
+        if costs is not None and name not in costs:
+            continue
+        cost = 1.0 if costs is None else float(costs[name])
+        here = {}
+        for m in c.modes:
+            expr = exprs[m.name].get(name)
+            also = frozenset(j for j, names in read[m.name].items() if name in names)
+            if expr is not None and expr.free_symbols and str(expr) not in measured[m.name]:
+                here[m.name] = placement.Candidate(name, expr, cost, also)
+            elif also:  # it reads nothing there, but for the stuck switch
+                here[m.name] = placement.Candidate(name, sympy.Integer(0), cost, also)
+        if not here:
+            continue
+        key = tuple((str(here[m.name].expr), tuple(sorted(here[m.name].also))) if m.name in here else None
+                    for m in c.modes)
+        if key in kept and per_name[kept[key]][next(iter(here))].cost <= cost:
+            continue
+        if key in kept:
+            del per_name[kept[key]]
+        kept[key] = name
+        per_name[name] = here
+    return {m.name: tuple(here[m.name] for here in per_name.values() if m.name in here) for m in c.modes}
+
+
+def _mode_signatures(c, m, mode, cands):
+    """The signatures of mode ``m`` (its model's ``mode``) read at its
+    sensors and then at each candidate of ``cands``: a bond variable's own
+    symbols (:func:`bgc.compiler.signatures.derive`), one that reads 0 in the
+    mode "0" for every fault but a stuck switch's, and the stuck switches'
+    (:func:`bgc.compiler.modes.stuck_signatures`)."""
     from ..compiler import signatures
     from ..compiler.modes import stuck_signatures
 
-    _known_costs(func, c, costs, {name for m in c.modes for name, _ in m.equations.variables})
-    offsets = {sympy.Symbol(f.parameter): 0 for f in c.model.faults if f.target == "sensor"}
-    read = _stuck_equations(c, c.model.modes.stuck, structure.stuck_readings)  # what a sensor reads of a stuck switch
-    parts = []
-    for m, mode in zip(c.modes, c.model.modes.modes):
-        ssm = m.equations
-        cands = tuple(dataclasses.replace(x, also=frozenset(j for j, names in read[m.name].items() if x.name in names))
-                      for x in placement.candidates(ssm, [e.subs(offsets) for e in ssm.output_exprs], costs))
-        every = None
-        if qualitative:
-            extra = tuple(x.name for x in cands)
-            every = signatures.derive(ssm, extra)
-            every = dataclasses.replace(every, signatures=every.signatures + tuple(
-                stuck_signatures(c.model, mode, ssm, tuple(ssm.outputs) + extra)))
-        parts.append(placement.ModePart(structure.of_equations(ssm, {p: p for p in faults}, sensors,
-                                                               enters.get(m.name)), ssm, cands, every))
-    return placement.place_across(parts, most)
+    ssm = m.equations
+    live = tuple(x.name for x in cands if x.expr.free_symbols)
+    zero = tuple(x.name for x in cands if not x.expr.free_symbols)
+    every = signatures.derive(ssm, live)
+    nothing = ("0",) * (len(ssm.states) + 3)  # as deep as derive's: every integrator, a drift's order, and the value
+    columns = tuple(ssm.outputs) + live + zero
+    own = tuple(dataclasses.replace(s, symbols=s.symbols + (nothing,) * len(zero)) for s in every.signatures)
+    return dataclasses.replace(every, measurements=columns,
+                               signatures=own + tuple(stuck_signatures(c.model, mode, ssm, columns)))
 
 
 def _known_costs(func: str, c, costs, names: set) -> None:
