@@ -3,14 +3,16 @@ docs/examples/relay.yaml (its contactor S and relay K switched by an
 operator: the data's mode column), solved by scipy's solve_ivp on its
 equations derived by hand, piece by piece between the plant's switches.
 
-    .venv/bin/python bench/stuck_switches.py [--runs 60] [--steps 600] [--seed 1]
+    .venv/bin/python bench/stuck_switches.py [--runs 60] [--steps 600] [--seed 1] [--late]
     .venv/bin/python bench/stuck_switches.py --plant ro [--runs 30] [--steps 600]
 
 Each run draws an operator's schedule (a change of mode every 0.6 to 1.5 s
 among open, closed and unpowered: the supply on with the relay open or
 closed, or off), a fault (K stuck ON, K stuck OFF, S stuck OFF, a step of
 R_aux or R_load, or none, in turn), its onset (uniform over the first
-two-thirds of the run), and the measurement noise (the model's 0.01, or
+two-thirds of the run; with ``--late``, over its last 12 %: the fault then
+acts over a few dozen samples at most, which puts many runs near the edge of
+what the data can tell), and the measurement noise (the model's 0.01, or
 twice it). The plant runs in the configuration the fault makes (a stuck
 switch from its onset, whatever the mode says). bgc diagnoses each run with
 the model as written (GPF, 500 particles).
@@ -189,6 +191,9 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=600)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--plant", choices=("relay", "ro"), default="relay")
+    parser.add_argument("--late", action="store_true",
+                        help="the relay's onsets over the run's last 12 %% only: a fault seen over a few dozen "
+                             "samples at most, many runs near the edge of what the data can tell")
     args = parser.parse_args(argv)
     if args.plant == "ro":
         return ro(args)
@@ -201,7 +206,7 @@ def main(argv=None) -> int:
         rng = np.random.default_rng([args.seed, k])
         fault = FAULTS[k % len(FAULTS)]
         modes = schedule(rng, end)
-        onset = float(rng.uniform(0.1, 2 * end / 3))
+        onset = float(rng.uniform(0.88 * end, end - DT)) if args.late else float(rng.uniform(0.1, 2 * end / 3))
         size = float(rng.uniform(0.3, 0.8)) * (R_AUX if fault.startswith("R_aux") else R_LOAD)
         noise = 0.01 * (1 + k % 2)
         x = truth(times, modes, fault, onset, size)
