@@ -63,11 +63,11 @@ def main() -> int:
         seconds = time.perf_counter() - t
         n = len(r.faults)
         if load.declares_modes(path):
-            from bgc.api.analyse import _stuck_equations
+            from bgc.api.analyse import _stuck_configs, _stuck_equations
 
             c = compile_model(path)
             sensors = {f.parameter: f.subject for f in c.model.faults if f.target == "sensor"}
-            enters = _stuck_equations(c, c.model.modes.stuck)  # a stuck switch in the equations it changes
+            enters = _stuck_equations(c, _stuck_configs(c, c.model.modes.stuck))  # a stuck switch in what it changes
             for m in c.modes:
                 s, model = isolability.structural(m.equations, r.faults, sensors, enters[m.name])
                 q = r.by_mode[m.name][1]

@@ -286,13 +286,13 @@ HYBRID = sorted(p for p in [*(ROOT / "models").glob("*.yaml"), *(ROOT / "docs" /
 def test_each_modes_structure_equals_the_fault_diagnosis_toolboxs(path):
     from bgc.pipeline import compile_model
 
-    from bgc.api.analyse import _stuck_equations
+    from bgc.api.analyse import _stuck_configs, _stuck_equations
 
     c = compile_model(path)
     stuck = c.model.modes.stuck  # a switch that may stick: a fault in the equations its configurations change
     faults = tuple(sorted({f.parameter for f in c.model.faults} | {f.junction for f in stuck}))
     sensors = {f.parameter: f.subject for f in c.model.faults if f.target == "sensor"}
-    enters = _stuck_equations(c, stuck)
+    enters = _stuck_equations(c, _stuck_configs(c, stuck))
     for m in c.modes:
         level, model = isolability.structural(m.equations, faults, sensors, enters[m.name])
         tool = fdt_model(model)

@@ -117,7 +117,7 @@ from ..errors import TrackingError
 from ..ir import Numerics
 from ..kinds import SWITCH_KINDS, fault_kind, fault_parameter, stuck_title
 from .simulate import MAX_STEPS
-from ..model.protocol import FaultModel, Package, magnitude_row, nominal_model, sized_models
+from ..model.protocol import FaultModel, Package, magnitude_row, nominal_model, sized_models, stuck_models
 from ..model.linear import (Whitening, jacobian as _jacobian, linearised as _linearised, noise as _noise,
                             scales as _scales, typical_size, unit_responses as _unit_responses,
                             whitening as _whitening)
@@ -374,13 +374,6 @@ def prepare(package: Package, us: np.ndarray, progress=None) -> Families:
     return dataclasses.replace(families, stuck_runs=tuple(runs)) if runs else families
 
 
-def stuck_models(package: Package) -> list[str]:
-    """The names of the package's stuck switches' fault models (sorted): a
-    magnitude that is a flag (:attr:`bgc.kinds.FaultKind.discrete`)."""
-    return [name for name in sorted(package.MODELS) if name != "nominal"
-            and fault_kind(package.MODELS[name].FAULT["kind"]).discrete]
-
-
 def detector_reach(package: Package, us: np.ndarray, onset: int, windows: tuple[int, ...]) -> dict[str, tuple]:
     """How far each fault model, at the size its prior expects
     (:func:`typical_size`) from sample ``onset``, moves bgc's detector:
@@ -489,28 +482,16 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
     prior_of = {m: float(priors.get(package.MODELS[m].FAULT["parameter"], 0.01)) for m in every}
     if noisy_row(package.MODELS[name]) is not None:
         return _distinguish_noise(families, name, magnitude, onset, prior_of, level)
-    stuck = name in families.stuck
-    d = deviations(families, name, [1.0 if stuck else magnitude], [onset], us)
+    if name in families.stuck:
+        magnitude = 1.0  # a stuck switch's flag
+    d = deviations(families, name, [magnitude], [onset], us)
     if not np.all(np.isfinite(d)):
         raise TrackingError(f"the noise-free run of {name} with magnitude {magnitude:g} is not finite", None,
                             "choose a smaller magnitude")
     w = families.whitening.apply(d).ravel()
     ww = float(w @ w)
-    fits = {other: _fit(w, ww, families.response(other), families.bounds[i])
-            for i, other in enumerate(families.names)}
-    if stuck:  # its own family is its own runs: the truth itself fits, exactly
-        own_r, own = 0.0, w
-    else:
-        own_r, own_col, own_c = fits[name]
-        own = own_c * families.response(name)[:, own_col]
-    fitted_vectors = {other: c * families.response(other)[:, col] for other, (_, col, c) in fits.items()}
-    for other in families.stuck:
-        if other != name:
-            r, col, c, vector = _stuck_fit(families, other, w, ww)
-            fits[other], fitted_vectors[other] = (r, col, c), vector
-    for other in families.names:  # a noise rival: its sensor's share of the deviation by a wider noise
-        if noisy_row(package.MODELS[other]) is not None:
-            fits[other] = _noise_fit(families, w, ww, other)
+    fits, fitted_vectors = _rival_fits(families, name, w, ww)
+    own_r, own = (0.0, w) if name in families.stuck else (fits[name][0], fitted_vectors[name])  # (a stuck: itself)
     seen = _normal_above(0.5 * ww, math.sqrt(ww))  # the mean's divergence from no fault: can it be detected
     truth = None
     rivals = []
@@ -533,7 +514,7 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
                                                    else (0.5 * ww, fit_onset, 0.0))
                 if not exact < 0.5 * ww:  # no magnitude fits better than no fault
                     fit_magnitude = 0.0
-            truth = truth or path(families, name, 1.0 if stuck else magnitude, onset, us)
+            truth = truth or path(families, name, magnitude, onset, us)
             fitted = path(families, other, fit_magnitude, fit_onset)
             exact = math.nan if truth is None or fitted is None else divergence(families, truth, fitted)
             if math.isfinite(exact):  # else (the rival's run diverges) the linearised fit stands
@@ -542,8 +523,30 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
         rivals.append(Rival(other, expected, std, probability, fit_onset, fit_magnitude, other in families.stuck))
     rivals.sort(key=lambda r: (r.probability, r.expected, r.name))
     energy = (w.reshape(len(families.y), -1) ** 2).sum(axis=1)[onset:]  # nothing before the onset
-    return Distinction(name, 1.0 if stuck else float(magnitude), int(onset), 0.5 * ww, own_r, tuple(rivals), level,
+    return Distinction(name, float(magnitude), int(onset), 0.5 * ww, own_r, tuple(rivals), level,
                        tuple(float(v) for v in np.cumsum(energy)))
+
+
+def _rival_fits(families: Families, name: str, w: np.ndarray, ww: float) -> tuple[dict, dict]:
+    """Every fault model's best fit to the whitened deviation ``w`` of
+    truth ``name`` (``ww``: its squared norm): (half the squared residual,
+    the onset's index, the magnitude) by name, within its linearised family
+    (:func:`_fit`), a stuck switch's over its own runs (:func:`_stuck_fit`;
+    not the truth's own: it fits itself) and a noise fault's by a wider
+    noise (:func:`_noise_fit`); and the fit's whitened deviation by name (a
+    noise fault's: none)."""
+    fits, vectors = {}, {}
+    for i, other in enumerate(families.names):
+        if noisy_row(families.package.MODELS[other]) is not None:  # its sensor's share by a wider noise
+            fits[other] = _noise_fit(families, w, ww, other)
+            continue
+        r, col, c = fits[other] = _fit(w, ww, families.response(other), families.bounds[i])
+        vectors[other] = c * families.response(other)[:, col]
+    for other in families.stuck:
+        if other != name:
+            r, col, c, vectors[other] = _stuck_fit(families, other, w, ww)
+            fits[other] = (r, col, c)
+    return fits, vectors
 
 
 def _stuck_fit(families: Families, name: str, w: np.ndarray, ww: float) -> tuple[float, int, float, np.ndarray]:

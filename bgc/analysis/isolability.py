@@ -179,8 +179,7 @@ def _shown(s: Signature, measurements: Sequence[str]) -> str:
 def quantitative(distinctions: Sequence, faults: Sequence[str], level: float) -> Level:
     """The quantitative level from ``bgc distinguish``'s distinctions (one
     per fault model of every candidate, kind and direction)."""
-    parameter = fault_parameter
-    by = {p: [d for d in distinctions if parameter(d.truth) == p] for p in faults}
+    by = {p: [d for d in distinctions if fault_parameter(d.truth) == p] for p in faults}
     seen = {p: [d for d in by[p] if d.detectability >= level] for p in faults}
     detectable = tuple(bool(seen[p]) for p in faults)
     why, matrix = {}, []
@@ -194,7 +193,7 @@ def quantitative(distinctions: Sequence, faults: Sequence[str], level: float) ->
             if i == j or not detectable[i]:
                 row.append(False)
                 continue
-            close = min(((d, r) for d in seen[p] for r in d.rivals if parameter(r.name) == q),
+            close = min(((d, r) for d in seen[p] for r in d.rivals if fault_parameter(r.name) == q),
                         key=lambda dr: dr[1].probability, default=None)
             told = close is None or close[1].probability >= level
             row.append(told)

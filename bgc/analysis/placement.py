@@ -170,9 +170,23 @@ def place(model: StructuralModel, ssm, cands: Sequence[Candidate], most: int = 2
         q_all = _qualitative(signatures, faults, outputs + tuple(c.name for c in cands))
     if now == reachable and q_now == q_all:
         return Placement(((),), 0.0, tuple(cands), now, reachable, faults, q_now, q_all)
+
+    def enough(s, names) -> bool:
+        return _enough(with_sensors(model, ssm, s), reachable) and \
+            (q_all is None or _covers(_qualitative(signatures, faults, outputs + names), q_all))
+
+    sets, cost, more = _cheapest(cands, most, enough)
+    return Placement(sets, cost, tuple(cands), now, reachable, faults, q_now, q_all, more)
+
+
+def _cheapest(cands: Sequence[Candidate], most: int, enough) -> tuple[tuple, float | None, bool]:
+    """The cheapest sets of at most ``most`` of ``cands`` that are
+    ``enough(set, names)``: tried by their cost, the fewest sensors first
+    among equal costs, up to ``MOST_SETS`` of them; (the sets' names, their
+    cost (None: none), whether more of that cost are enough)."""
     subsets = sorted((s for k in range(1, most + 1) for s in itertools.combinations(cands, k)),
                      key=lambda s: (sum(c.cost for c in s), len(s)))
-    found, cost, more = [], None, False
+    found, cost = [], None
     for s in subsets:
         total = sum(c.cost for c in s)
         if cost is not None and total > cost:
@@ -180,14 +194,12 @@ def place(model: StructuralModel, ssm, cands: Sequence[Candidate], most: int = 2
         names = tuple(c.name for c in s)
         if any(set(f) <= set(names) for f in found):  # a set that holds one found already is not the cheapest
             continue
-        if _enough(with_sensors(model, ssm, s), reachable) and \
-                (q_all is None or _covers(_qualitative(signatures, faults, outputs + names), q_all)):
+        if enough(s, names):
             if len(found) == MOST_SETS:
-                more = True
-                break
+                return tuple(found), cost, True
             found.append(names)
             cost = total
-    return Placement(tuple(found), cost, tuple(cands), now, reachable, faults, q_now, q_all, more)
+    return tuple(found), cost, False
 
 
 @dataclass(frozen=True)
@@ -254,21 +266,10 @@ def place_across(parts: Sequence[ModePart], most: int = 2) -> Placement:
     faults = tuple(parts[0].model.faults)
     if now == reachable and q_now == q_all:
         return Placement(((),), 0.0, every, now, reachable, faults, q_now, q_all)
-    subsets = sorted((s for k in range(1, most + 1) for s in itertools.combinations(every, k)),
-                     key=lambda s: (sum(c.cost for c in s), len(s)))
-    found, cost, more = [], None, False
-    for s in subsets:
-        total = sum(c.cost for c in s)
-        if cost is not None and total > cost:
-            break
-        names = tuple(c.name for c in s)
-        if any(set(f) <= set(names) for f in found):  # a set that holds one found already is not the cheapest
-            continue
+
+    def enough(s, names) -> bool:
         got, q_got = _across(parts, names, qualitative, reachable)
-        if _covers(got, reachable) and (not qualitative or (q_got is not None and _covers(q_got, q_all))):
-            if len(found) == MOST_SETS:
-                more = True
-                break
-            found.append(names)
-            cost = total
-    return Placement(tuple(found), cost, every, now, reachable, faults, q_now, q_all, more)
+        return _covers(got, reachable) and (not qualitative or (q_got is not None and _covers(q_got, q_all)))
+
+    sets, cost, more = _cheapest(every, most, enough)
+    return Placement(sets, cost, every, now, reachable, faults, q_now, q_all, more)

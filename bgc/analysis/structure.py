@@ -159,20 +159,21 @@ def stuck_equations(mode, config) -> frozenset:
     whose right-hand side differs, and the measurement equation of every
     sensor whose expression differs (none when the configuration is the
     mode's own)."""
-    import sympy
-
     if config is mode:
         return frozenset()
     a, b = mode.equations, config.equations
-
-    def differ(x, y) -> bool:
-        return x != y and sympy.simplify(x - y) != 0
-
     rhs = dict(zip(b.states, b.rhs))
-    out = {f"dyn_{x}" for x, f in zip(a.states, a.rhs) if x not in rhs or differ(f, rhs[x])}
+    out = {f"dyn_{x}" for x, f in zip(a.states, a.rhs) if _changed(f, rhs.get(x))}
     read = dict(zip(b.outputs, b.output_exprs))
-    out |= {f"meas_{y}" for y, h in zip(a.outputs, a.output_exprs) if y not in read or differ(h, read[y])}
+    out |= {f"meas_{y}" for y, h in zip(a.outputs, a.output_exprs) if _changed(h, read.get(y))}
     return frozenset(out)
+
+
+def _changed(expr, other) -> bool:
+    """Whether ``other`` (None: there is none) is not the same expression as ``expr``."""
+    import sympy
+
+    return other is None or (expr != other and sympy.simplify(expr - other) != 0)
 
 
 def stuck_readings(mode, config) -> frozenset:
@@ -181,10 +182,7 @@ def stuck_readings(mode, config) -> frozenset:
     expression differs, or the configuration has none): what a sensor
     placed on one of them would read of the stuck switch (none when the
     configuration is the mode's own)."""
-    import sympy
-
     if config is mode:
         return frozenset()
     other = dict(config.equations.variables)
-    return frozenset(name for name, expr in mode.equations.variables
-                     if name not in other or (expr != other[name] and sympy.simplify(expr - other[name]) != 0))
+    return frozenset(name for name, expr in mode.equations.variables if _changed(expr, other.get(name)))

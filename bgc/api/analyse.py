@@ -178,7 +178,7 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
     sensors = {f.parameter: f.subject for f in c.model.faults if f.target == "sensor"}
     # a model with modes: a stuck switch in the equations its configurations change, mode by mode
     configs = _stuck_configs(c, stuck) if hybrid else ()
-    enters = _stuck_equations(c, stuck, configs=configs) if hybrid else {}
+    enters = _stuck_equations(c, configs) if hybrid else {}
     structural, model_ = isolability.structural(c.equations, faults, sensors,  # (the first mode's: the report's)
                                                 enters.get(c.modes[0].name) if hybrid else None)
     levels = [structural, isolability.qualitative(c.signatures, faults)]
@@ -189,32 +189,26 @@ def analyse(model: str | Path, *, quantitative: bool = True, change: float = 0.3
                             isolability.qualitative(m.signatures, faults)) for m in c.modes}
         levels = [isolability.across([by_mode[m][k] for m in names], names) for k in range(2)]
     settings = None, c.model.settings.dt
+    # the quantitative level's prediction, as bgc distinguish takes it (its input tests' and placed sets' too)
+    predicting = dict(change=change, at=at, process_noise=process_noise, measurement_noise=measurement_noise,
+                      steps=steps, level=level, modes=modes if hybrid else None)
     if quantitative:
         from .distinguish import distinguishability
         from .session import open as open_session
 
         session = open_session(model)  # compiled once, for every prediction
         say("distinguishability of every fault model")
-        r = distinguishability(session, change=change, at=at, process_noise=process_noise,
-                               measurement_noise=measurement_noise, steps=steps, level=level, progress=progress,
-                               modes=modes if hybrid else None)
+        r = distinguishability(session, progress=progress, **predicting)
         levels.append(isolability.quantitative(r.distinctions, faults, level))
         settings = r.steps, r.dt
-    tests = None
-    if design_inputs:
-        tests = _input_tests(session, c, faults, r, levels[-1], dict(change=change, at=at, process_noise=process_noise,
-                             measurement_noise=measurement_noise, steps=steps, level=level,
-                             modes=modes if hybrid else None), say)
+    tests = _input_tests(session, c, faults, r, levels[-1], predicting, say) if design_inputs else None
     placed = None
     if place_sensors:
         say("sensor placement")
         placed = _place_modes(func, c, faults, sensors, enters, configs, costs, most, place_by == "qualitative") \
-            if hybrid \
-            else _place(func, c, model_, costs, most, place_by == "qualitative")
+            if hybrid else _place(func, c, model_, costs, most, place_by == "qualitative")
         if quantitative and placed.sets and placed.sets[0]:
-            placed = _check_sets(model, placed, faults, levels[-1], dict(
-                change=change, at=at, process_noise=process_noise, measurement_noise=measurement_noise, steps=steps,
-                level=level, modes=modes if hybrid else None), say)
+            placed = _check_sets(model, placed, faults, levels[-1], predicting, say)
     return AnalysisReport(c.model.name, str(model), faults, tuple(of[p][0] for p in faults),
                           tuple(of[p][1] for p in faults), tuple(c.equations.outputs), tuple(levels), model_,
                           settings[0], settings[1], change, at, (process_noise, measurement_noise), level, placed, tests,
@@ -229,19 +223,19 @@ def _stuck_configs(c, stuck) -> tuple:
     return tuple((fault, compile_stuck(c.model, c.modes, fault).configs) for fault in stuck)
 
 
-def _stuck_equations(c, stuck, what=None, configs=None) -> dict[str, dict[str, frozenset]]:
+def _stuck_equations(c, configs, what=None) -> dict[str, dict[str, frozenset]]:
     """Per mode of the compiled model with modes ``c``, per junction of the
-    stuck switches ``stuck``: the equations of the mode's structural model
-    its stuck configurations (each kind's, together) change there
-    (``what``: the function that says it, of the mode and the
-    configuration; default :func:`bgc.analysis.structure.stuck_equations`;
-    ``configs``: :func:`_stuck_configs`, when made already)."""
+    stuck switches of ``configs`` (:func:`_stuck_configs`): the equations of
+    the mode's structural model its stuck configurations (each kind's,
+    together) change there (``what``: the function that says it, of the mode
+    and the configuration; default
+    :func:`bgc.analysis.structure.stuck_equations`)."""
     from ..analysis.structure import stuck_equations
 
     what = what or stuck_equations
     out: dict[str, dict[str, set]] = {m.name: {} for m in c.modes}
-    for fault, configs_ in configs if configs is not None else _stuck_configs(c, stuck):
-        for mode, config in zip(c.modes, configs_):
+    for fault, each in configs:
+        for mode, config in zip(c.modes, each):
             out[mode.name].setdefault(fault.junction, set()).update(what(mode, config))
     return {m: {j: frozenset(e) for j, e in by.items()} for m, by in out.items()}
 
@@ -313,7 +307,7 @@ def _place_modes(func: str, c, faults, sensors, enters, configs, costs, most: in
     from ..analysis import placement, structure
 
     _known_costs(func, c, costs, {name for m in c.modes for name, _ in m.equations.variables})
-    read = _stuck_equations(c, c.model.modes.stuck, structure.stuck_readings, configs)  # what a sensor reads of one
+    read = _stuck_equations(c, configs, structure.stuck_readings)  # what a sensor reads of a stuck switch
     by_mode = _mode_candidates(c, read, costs)
     parts = [placement.ModePart(structure.of_equations(m.equations, {p: p for p in faults}, sensors,
                                                        enters.get(m.name)), m.equations, by_mode[m.name],

@@ -166,16 +166,11 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
         if inj is None:
             raise SimulationError("a fault-free scenario has no fault to tell apart", None,
                                   "give a fault, e.g. R_pipe:incipient:0.5@165, or no scenario for every candidate")
-        if inj.stuck and all(s.name != f"{inj.subject}:{inj.kind}" for s in stuck):
-            raise SimulationError(f"{inj.text} is not a fault candidate of {c.model.name}: no fault model to tell "
-                                  "apart from the others (its diagnosis should end unexplained)", None,
-                                  "candidates: " + ", ".join([f"{f.parameter}:{f.kind}" for f in num.faults]
-                                                             + [s.name for s in stuck]))
-        if not inj.stuck and all(f.name != f"{inj.parameter}:{inj.kind}" for f in num.faults):
+        listed = [f"{f.parameter}:{f.kind}" for f in num.faults] + [s.name for s in stuck]
+        if f"{inj.subject if inj.stuck else inj.parameter}:{inj.kind}" not in listed:
             raise SimulationError(f"{inj.subject or inj.parameter}:{inj.kind} is not a fault candidate of "
                                   f"{c.model.name}: no fault model to tell apart from the others (its diagnosis "
-                                  "should end unexplained)", None,
-                                  "candidates: " + ", ".join(f"{f.parameter}:{f.kind}" for f in num.faults))
+                                  "should end unexplained)", None, "candidates: " + ", ".join(listed))
         if not 0 < inj.time <= times[-1]:
             raise SimulationError(f"onset {inj.time:g} is outside the run (0 to {times[-1]:g})", None,
                                   f"choose an onset inside the run, or more {arguments.spelled('steps', '--steps')}")
@@ -185,16 +180,7 @@ def distinguishability(model: str | Path | Session, scenario: str | simulate.Fau
             T = max(int(np.sum(times < inj.spans[0][1] - 1e-9 * dt)), onset_sample(times, inj.time) + 2)
             times = times[:T]
     else:
-        injected = []
-        for f in num.faults:
-            onset = int(at * T)
-            candidate = next(x for x in c.model.faults if x.parameter == f.parameter)
-            for sign in (1,) if fault_kind(f.kind).replaces else DIRECTIONS[candidate.direction]:
-                magnitude = simulate.change_magnitude(num, f.name, sign * change, (T - 1 - onset) * dt)  # at the end
-                injected.append(simulate.FaultInjection(f.parameter, f.kind, magnitude, float(times[onset])))
-        for s in stuck:  # a stuck switch: no size, stuck from the onset
-            injected.append(simulate.FaultInjection(s.junction, s.kind, math.nan, float(times[int(at * T)]),
-                                                    "switch", s.junction))
+        injected = _every_candidate(c, stuck, change, times[int(at * T)], T - 1 - int(at * T))
     levels = num.noise_at(process_noise, measurement_noise)
     custom = levels if (process_noise, measurement_noise) != (None, None) else None
     need = distinction.memory(T, *(len(x) for x in (num.equations.states, num.equations.outputs,
@@ -246,6 +232,21 @@ _FAMILIES: dict[tuple, distinction.Families] = {}
 
 
 _FAMILIES_KEPT = 4
+
+
+def _every_candidate(c, stuck, change: float, onset: float, samples: int) -> list:
+    """A scenario of each fault candidate of compiled model ``c`` from time
+    ``onset``: a relative ``change`` of its scale, each direction the model
+    gives it (a drift reaching it ``samples`` samples later, at the run's
+    end), and each stuck switch of ``stuck`` (no size)."""
+    num, dt, out = c.numerics, c.model.settings.dt, []
+    for f in num.faults:
+        candidate = next(x for x in c.model.faults if x.parameter == f.parameter)
+        for sign in (1,) if fault_kind(f.kind).replaces else DIRECTIONS[candidate.direction]:
+            magnitude = simulate.change_magnitude(num, f.name, sign * change, samples * dt)
+            out.append(simulate.FaultInjection(f.parameter, f.kind, magnitude, float(onset)))
+    return out + [simulate.FaultInjection(s.junction, s.kind, math.nan, float(onset), "switch", s.junction)
+                  for s in stuck]
 
 
 def _stuck_candidates(c) -> tuple:

@@ -112,6 +112,14 @@ def sized_models(package: Package) -> list[str]:
             and not fault_kind(package.MODELS[name].FAULT["kind"]).discrete]
 
 
+def stuck_models(package: Package) -> list[str]:
+    """The names of the package's stuck switches' fault models (sorted): the
+    rest of :func:`sized_models`'s, their magnitude a flag
+    (:attr:`bgc.kinds.FaultKind.discrete`)."""
+    sized = set(sized_models(package))
+    return [name for name in sorted(package.MODELS) if name != NOMINAL and name not in sized]
+
+
 #: The kinds of states the filters carry as the plant's (the rest are a fault model's fault states).
 CARRIED = ("physical", "mode", "dwell", "threshold")
 
