@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 import numpy as np
 
 from .errors import SourceLoc
-from .kinds import SWITCH_KINDS, element_kind, stuck_title
+from .kinds import SWITCH_KINDS, element_kind, releases, stuck_state, stuck_title
 
 if TYPE_CHECKING:
     import sympy
@@ -143,7 +143,8 @@ class Mode:
     loc: SourceLoc
 
 
-#: The fault kinds of a switched junction: it stays ON, or OFF, whatever the mode says.
+#: The fault kinds of a switched junction: it stays ON, or OFF, whatever the mode says (stuck), or
+#: turns so without a command until a mode asks for it so (uncommanded).
 SWITCH_FAULTS = tuple(SWITCH_KINDS)
 
 
@@ -151,8 +152,10 @@ SWITCH_FAULTS = tuple(SWITCH_KINDS)
 class StuckSwitch:
     """A switched junction that may stick (a valve that does not move): from
     the fault's onset it is ON (``stuck_on``) or OFF (``stuck_off``) in every
-    mode, the rest of each mode's junctions as the mode says; ``prior``: the
-    fault's probability before any data."""
+    mode, the rest of each mode's junctions as the mode says; or that may
+    move by itself (``uncommanded_on``, ``uncommanded_off``): ON, or OFF, from
+    the onset as if stuck, until a mode asks for it in that state
+    (:attr:`releases`); ``prior``: the fault's probability before any data."""
 
     junction: str
     kind: str
@@ -170,8 +173,25 @@ class StuckSwitch:
 
     def on(self, on: tuple[str, ...]) -> tuple[str, ...]:
         """The junctions ON in a mode whose own are ``on``, with this fault."""
-        kept = set(on) | {self.junction} if self.kind == "stuck_on" else set(on) - {self.junction}
+        kept = set(on) | {self.junction} if self.state == "ON" else set(on) - {self.junction}
         return tuple(sorted(kept))
+
+    @property
+    def state(self) -> str:
+        """Where the fault puts the switch: ``ON`` or ``OFF``."""
+        return stuck_state(self.kind)
+
+    @property
+    def releases(self) -> bool:
+        """The fault ends where a mode asks for the switch in :attr:`state`
+        (an uncommanded change, which the controller's next command of the
+        switch takes back); a stuck switch's lasts."""
+        return releases(self.kind)
+
+    def released(self, on: tuple[str, ...]) -> bool:
+        """Whether a mode whose ON junctions are ``on`` ends this fault: it
+        releases and the mode asks for the switch where the fault put it."""
+        return self.releases and (self.junction in on) == (self.state == "ON")
 
 
 @dataclass(frozen=True, slots=True)

@@ -356,15 +356,25 @@ FAULT_KINDS: Mapping[str, FaultKind] = {
 }
 
 
-#: The fault kinds of a switched junction (a valve that does not move): from the onset it is ON, or
-#: OFF, whatever the mode says. Not a change of a symbol: its fault model runs the plant in the
-#: configuration the stuck switch makes in each mode (bgc.compiler.modes.compile_stuck), its
-#: magnitude state ``<junction>_stuck`` a flag (:attr:`FaultKind.discrete`).
+#: The fault kinds of a switched junction. A valve that does not move (``stuck_on``, ``stuck_off``):
+#: from the onset it is ON, or OFF, whatever the mode says. A valve that moves by itself
+#: (``uncommanded_on``, ``uncommanded_off``): at the onset it turns ON, or OFF, though its mode
+#: asks for the other, and stays so until a mode asks for it in that state (the controller's next
+#: command of the switch), from when it follows the modes again. Not a change of a symbol: its
+#: fault model runs the plant in the configuration the faulty switch makes in each mode
+#: (bgc.compiler.modes.compile_stuck), its magnitude state ``<junction>_<suffix>`` a flag
+#: (:attr:`FaultKind.discrete`), which a mode asking for the switch's state clears
+#: (:func:`releases`).
 SWITCH_KINDS: Mapping[str, FaultKind] = {
-    name: FaultKind(name, "switch", False, {d: (1.0, 1.0) for d in ("increase", "decrease", "both")}, 0.0,
-                    "prior", f"a switched junction stuck {state} from the onset, whatever the mode says",
-                    ("switch",), "stuck")
-    for name, state in (("stuck_on", "ON"), ("stuck_off", "OFF"))}
+    **{name: FaultKind(name, "switch", False, {d: (1.0, 1.0) for d in ("increase", "decrease", "both")}, 0.0,
+                       "prior", f"a switched junction stuck {state} from the onset, whatever the mode says",
+                       ("switch",), "stuck")
+       for name, state in (("stuck_on", "ON"), ("stuck_off", "OFF"))},
+    **{name: FaultKind(name, "switch", False, {d: (1.0, 1.0) for d in ("increase", "decrease", "both")}, 0.0,
+                       "prior", f"a switched junction turned {state} at the onset without a command, until a "
+                       f"mode asks for it {state} (the controller's next command of the switch)",
+                       ("switch",), "uncommanded")
+       for name, state in (("uncommanded_on", "ON"), ("uncommanded_off", "OFF"))}}
 
 
 def fault_parameter(name: str) -> str:
@@ -382,12 +392,22 @@ def fault_parameter(name: str) -> str:
 
 
 def stuck_state(kind: str) -> str:
-    """Where a stuck switch of ``kind`` (stuck_on, stuck_off) stays: ``ON`` or ``OFF``."""
-    return "ON" if kind == "stuck_on" else "OFF"
+    """Where a switch's fault of ``kind`` (stuck_on, stuck_off, uncommanded_on,
+    uncommanded_off) puts the switch: ``ON`` or ``OFF``."""
+    return "ON" if kind.endswith("_on") else "OFF"
+
+
+def releases(kind: str) -> bool:
+    """Whether a switch's fault of ``kind`` ends when a mode asks for the
+    state it put the switch in (an uncommanded change: the controller's next
+    command of the switch takes it back), rather than lasting (stuck)."""
+    return kind.startswith("uncommanded")
 
 
 def stuck_title(junction: str, kind: str) -> str:
-    """A stuck switch in words: ``K stuck OFF``."""
+    """A switch's fault in words: ``K stuck OFF``, ``K turned OFF without a command``."""
+    if releases(kind):
+        return f"{junction} turned {stuck_state(kind)} without a command"
     return f"{junction} stuck {stuck_state(kind)}"
 
 

@@ -507,7 +507,7 @@ def distinguish(families: Families, name: str, magnitude: float, onset: int, pri
             std = float(np.linalg.norm(own - fitted_vectors[other]))
         threshold = _threshold(prior_of, other, name)
         probability = _normal_above(expected - threshold, std)
-        fit_onset, fit_magnitude = int(families.onsets[col]), c
+        fit_onset, fit_magnitude = (int(col) if other in families.stuck else int(families.onsets[col])), c
         if SURE > probability and seen >= level and not noise_rival:
             if other not in families.stuck:
                 exact, fit_onset, fit_magnitude = (_exact_fit(families, other, w, fit_onset, c) if c != 0.0
@@ -531,8 +531,8 @@ def _rival_fits(families: Families, name: str, w: np.ndarray, ww: float) -> tupl
     """Every fault model's best fit to the whitened deviation ``w`` of
     truth ``name`` (``ww``: its squared norm): (half the squared residual,
     the onset's index, the magnitude) by name, within its linearised family
-    (:func:`_fit`), a stuck switch's over its own runs (:func:`_stuck_fit`;
-    not the truth's own: it fits itself) and a noise fault's by a wider
+    (:func:`_fit`), a stuck switch's over its own runs (:func:`_stuck_fit`,
+    its onset a sample, not an index; not the truth's own: it fits itself) and a noise fault's by a wider
     noise (:func:`_noise_fit`); and the fit's whitened deviation by name (a
     noise fault's: none)."""
     fits, vectors = {}, {}
@@ -552,17 +552,33 @@ def _rival_fits(families: Families, name: str, w: np.ndarray, ww: float) -> tupl
 def _stuck_fit(families: Families, name: str, w: np.ndarray, ww: float) -> tuple[float, int, float, np.ndarray]:
     """The best fit of whitened target ``w`` by stuck switch ``name``'s own
     noise-free runs from each onset of the families' grid (nonlinear: a
-    stuck switch has no size to linearise in), or by no fault when none
-    comes nearer: (half the squared residual, the onset's index, 1 (stuck
-    from it) or 0 (no fault), the fit's whitened deviation)."""
+    stuck switch has no size to linearise in), then from every sample
+    between the best one's neighbours on the grid (a switch's fault moves
+    the readings at once: one sample off the truth's onset can cost more
+    than a whole run's difference, and a stuck switch and an uncommanded
+    change of it are the same run until a mode asks for the switch), or by
+    no fault when none comes nearer: (half the squared residual, the onset
+    sample, 1 (from it) or 0 (no fault), the fit's whitened deviation)."""
     wz = families.stuck_runs[families.stuck.index(name)]  # its runs from every onset, whitened (prepare)
     with np.errstate(invalid="ignore", over="ignore"):
         r = 0.5 * ((wz - w[:, None]) ** 2).sum(axis=0)
     r[~np.isfinite(r)] = math.inf
     j = int(np.argmin(r))
-    if not r[j] < 0.5 * ww * (1.0 - 1e-9):  # no onset nearer the truth than no fault (a late one: as near, to rounding)
-        return 0.5 * ww, len(families.onsets) - 1, 0.0, np.zeros_like(w)
-    return max(float(r[j]), 0.0), j, 1.0, wz[:, j]
+    best = (float(r[j]), int(families.onsets[j]), wz[:, j])
+    grid = [int(o) for o in families.onsets]
+    between = [k for k in range(grid[max(j - 1, 0)] + 1, grid[min(j + 1, len(grid) - 1)]) if k not in grid]
+    if between:
+        dev = deviations(families, name, np.ones(len(between)), between)
+        wk = families.whitening.apply(dev).reshape(-1, len(between))
+        with np.errstate(invalid="ignore", over="ignore"):
+            rk = 0.5 * ((wk - w[:, None]) ** 2).sum(axis=0)
+        rk[~np.isfinite(rk)] = math.inf
+        i = int(np.argmin(rk))
+        if rk[i] < best[0]:
+            best = (float(rk[i]), between[i], wk[:, i])
+    if not best[0] < 0.5 * ww * (1.0 - 1e-9):  # no onset nearer the truth than no fault (a late one: as near, to rounding)
+        return 0.5 * ww, grid[-1], 0.0, np.zeros_like(w)
+    return max(best[0], 0.0), best[1], 1.0, best[2]
 
 
 def noisy_row(model: FaultModel) -> int | None:

@@ -38,7 +38,8 @@ import numpy as np
 
 from ..arguments import spelled
 from ..errors import SimulationError, printable
-from ..ir import sym
+from ..ir import StuckSwitch, sym
+from ..kinds import releases
 from ..data.runs import to_csv as csv_text
 from .simulate import TRUTH_REFINEMENT, SimulationOptions, SimulationResult, columns as simulation_columns
 
@@ -202,6 +203,9 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
     if configs:  # from the onset, each mode's configuration with the switch stuck
         after = {m.name: _Mode(c, every) for m, c in zip(hybrid.modes, configs)}
         automaton.stuck = (after, *_transitions(model, after), fault.time)
+        if releases(fault.kind):  # an uncommanded change: until a mode asks for the switch so
+            switch = StuckSwitch(fault.subject, fault.kind, 0.0, None)
+            automaton.release = frozenset(m.name for m in model.modes.modes if switch.released(m.on))
     rng = np.random.default_rng(options.seed)
     times = dt * np.arange(1, steps + 1)
     out_x, out_y = np.empty((steps, len(every))), np.empty((steps, len(first.outputs)))
@@ -241,7 +245,6 @@ def _stuck_configurations(hybrid, fault) -> tuple:
     if fault is None or not fault.stuck:
         return ()
     from ..compiler.modes import compile_stuck
-    from ..ir import StuckSwitch
 
     switches = hybrid.model.modes.switches
     if fault.subject not in switches:
@@ -321,6 +324,11 @@ class _Automaton:
         #: a stuck switch: (each mode's configuration with it, their guards, their resets, the onset), taken
         #: in place of the modes' at the onset
         self.stuck = None
+        #: an uncommanded change of a switch: the modes that ask for the switch where the fault puts it,
+        #: whose entry ends the fault (the modes' own configurations back); at the onset in one of them,
+        #: the fault changes nothing
+        self.release: frozenset[str] | None = None
+        self.nominal = (modes, guards, resets)
 
     def _draw(self, mode: str) -> None:
         """The thresholds of the transitions out of ``mode`` with a tolerance, for the visit it starts."""
@@ -347,9 +355,10 @@ class _Automaton:
         (0: only the changes due at ``t``), through the changes of mode on the way."""
         self.x, self.u, self.t = x, u, t
         if self.stuck is not None and t >= self.stuck[3] - 1e-12:  # the switch sticks: the configurations from now
-            self.modes, self.guards, self.resets = self.stuck[:3]
+            if self.release is None or self.current not in self.release:
+                self.modes, self.guards, self.resets = self.stuck[:3]
+                self.x = self.modes[self.current].settle(self.x, u, self.theta_at(t))
             self.stuck = None
-            self.x = self.modes[self.current].settle(self.x, u, self.theta_at(t))
         remaining, zero = h, 0
         while True:
             fired = self._due(0.0)  # what holds at once (a guard on entering a mode, a time reached)
@@ -437,6 +446,9 @@ class _Automaton:
             x[mode.every.index(state)] = value
         if tr.kind == "controlled":
             self.pending.pop(0)
+        if self.release is not None and self.stuck is None and tr.target in self.release:
+            self.modes, self.guards, self.resets = self.nominal  # commanded as the fault put it: over
+            self.release = None
         self.x = self.modes[tr.target].settle(x, self.u, th)
         self.switches.append(Switch(self.t, self.current, tr.target, tr.kind))
         self.current, self.entered = tr.target, self.t

@@ -33,7 +33,7 @@ from ..arguments import spelled
 from ..compiler.rk4 import rk4_sample
 from ..errors import SimulationError, printable
 from ..ir import Numerics, Signal
-from ..kinds import FAULT_KINDS, fault_kind, kinds_for, stuck_title
+from ..kinds import FAULT_KINDS, fault_kind, kinds_for, releases, stuck_title
 from ..data.runs import to_csv as _csv_text
 
 TRUTH_REFINEMENT = 8
@@ -79,7 +79,7 @@ class FaultInjection:
 
     @property
     def stuck(self) -> bool:
-        """A switched junction stuck ON or OFF (a model with modes; no magnitude)."""
+        """A switched junction's fault, stuck or uncommanded (a model with modes; no magnitude)."""
         return self.target == "switch"
 
     @property
@@ -96,7 +96,8 @@ class FaultInjection:
 
     def describe(self) -> str:
         if self.stuck:
-            return f"switch {stuck_title(self.subject, self.kind)} from t = {self.time:g}"
+            return f"switch {stuck_title(self.subject, self.kind)} {'at' if releases(self.kind) else 'from'} " \
+                f"t = {self.time:g}"
         kind = fault_kind(self.kind)
         size = (f"std {kind.noise_factor(self.magnitude):g} times its own (magnitude {self.magnitude:g})"
                 if kind.noise else f"{kind.magnitude} {self.magnitude:g}")
@@ -205,8 +206,9 @@ _FAULT = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([a-z]+):([-+0-9.eE]+)@([0-9.eE+
 #: An intermittent fault: NAME:KIND:MAGNITUDE@ON-OFF,ON-OFF[,ON] (present over each span, the last
 #: one open to the run's end when it has no OFF).
 _SPANS = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):([a-z]+):([-+0-9.eE]+)@([0-9.]+-[0-9.]+(?:,[0-9.]+(?:-[0-9.]+)?)*)$")
-#: A switched junction stuck from a time on: NAME:stuck_on@TIME or NAME:stuck_off@TIME (no magnitude).
-_STUCK = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):(stuck_on|stuck_off)@([0-9.eE+]+)$")
+#: A switched junction stuck from a time on, NAME:stuck_on@TIME or NAME:stuck_off@TIME, or turned so
+#: without a command, NAME:uncommanded_on@TIME or NAME:uncommanded_off@TIME (no magnitude).
+_STUCK = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):((?:stuck|uncommanded)_(?:on|off))@([0-9.eE+]+)$")
 
 
 def parse_fault(text: str, num: Numerics, what: str | None = None) -> FaultInjection:
@@ -283,7 +285,8 @@ def _spans(text: str, whole: str, what: str) -> tuple[tuple[float, float], ...]:
 
 
 def _stuck(m, text: str, model, what: str) -> FaultInjection:
-    """``J:stuck_on@TIME`` or ``J:stuck_off@TIME``: a switched junction of a model with modes."""
+    """``J:stuck_on@TIME``, ``J:stuck_off@TIME``, ``J:uncommanded_on@TIME`` or
+    ``J:uncommanded_off@TIME``: a switched junction of a model with modes."""
     name, kind, time = m.groups()
     from ..compiler.modes import switches_of
 
@@ -291,7 +294,8 @@ def _stuck(m, text: str, model, what: str) -> FaultInjection:
     if name not in switches:
         raise SimulationError(f"{what}: '{name}' is no switched junction of {model.name}", None,
                               f"its switched junctions: {', '.join(switches)}" if switches else
-                              "stuck_on and stuck_off are a switched junction's faults, in a model with modes")
+                              "stuck_on, stuck_off, uncommanded_on and uncommanded_off are a switched junction's "
+                              "faults, in a model with modes")
     try:
         onset = float(time)
     except ValueError:
@@ -380,7 +384,8 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
     if fault is not None and fault.stuck:
         raise SimulationError(f"{spelled('scenario', '--fault')} {fault.text}: '{fault.subject}' is no switched "
                               f"junction of {model.name}", None,
-                              "stuck_on and stuck_off are a switched junction's faults, in a model with modes")
+                              "stuck_on, stuck_off, uncommanded_on and uncommanded_off are a switched junction's "
+                              "faults, in a model with modes")
     if fault is not None and not 0 <= fault.time < steps * dt:  # a fault from the start is a plant as it came
         raise SimulationError(f"{spelled('scenario', '--fault')} {fault.text}: "
                               f"onset {fault.time:g} is outside the run (0 to {steps * dt:g})", None,

@@ -51,6 +51,13 @@ runtime's protocol (:mod:`bgc.model.protocol`) with a mode axis:
   guards, resets and transitions are the modes' (the data still say the
   mode the controller asked for). A configuration with a state no mode has
   is refused in one line.
+* **An uncommanded change of a switch** (``uncommanded_on``,
+  ``uncommanded_off``) is a stuck switch's model whose flag,
+  ``K_uncommanded``, clears where a particle's mode asks for the switch
+  where the fault put it (``_RELEASE``, per mode): the controller's next
+  command of the switch takes it back, and the particle follows its modes
+  again. Cleared on entering such a mode, at the end of every step, and
+  where the flag is set (``augment``, ``initial_particles``).
 * **Noise levels** are those the simulator uses: a state's process noise is
   that of the first mode it is a state of, the measurement noise the first
   mode's.
@@ -77,9 +84,10 @@ DWELL = "dwell"
 #: margin at the end of the last step, before its process noise; ``proposal`` the log importance
 #: weight of the last step's switches (a particle filter adds it to the particle's log-weight).
 THRESHOLD, MARGIN, PROPOSAL = "threshold", "margin", "proposal"
-#: A stuck switch's fault state, ``<junction>_stuck`` (its kind ``switch``): its flag, 0 before the
-#: onset and 1 from it (:attr:`bgc.kinds.FaultKind.discrete`).
-FLAG, FLAG_KIND = "stuck", "switch"
+#: A switch's fault state, ``<junction>_stuck`` or ``<junction>_uncommanded`` (the kind's suffix; its
+#: state kind ``switch``): its flag, 0 before the onset and 1 from it (:attr:`bgc.kinds.FaultKind.discrete`),
+#: an uncommanded change's cleared where a mode asks for the switch where the fault put it.
+FLAG_KIND = "switch"
 
 
 def generate(model, modes: tuple[ModeModel, ...], nums: tuple) -> GeneratedPackage:
@@ -168,7 +176,7 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
     n = len(every)
     fault = codegen.fault_rows(num0, d0) if d0.parameter is not None else None
     fault_states = fault.states if fault else []
-    flag = [] if stuck is None else [f"{stuck[0].junction}_{FLAG}"]
+    flag = [] if stuck is None else [f"{stuck[0].junction}_{fault_kind(stuck[0].kind).suffix}"]
     timed = any(t.after is not None for t in model.modes.transitions)
     carried = [MODE] + ([DWELL] if timed else [])  # the mode, and the time in it when a transition is timed
     # a guard with a tolerance: each particle's uniform draw for the step, with which it crosses the threshold
@@ -202,6 +210,7 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
     configs, stuck_ctx = list(mode_ctx), None
     if stuck is not None:
         more, stuck_ctx = _stuck(model, stuck, every, row, at[flag[0]], len(mode_ctx))
+        stuck_ctx["releases"] = [stuck[0].released(m.on) for m in model.modes.modes] if stuck[0].releases else None
         configs += more
     transitions = _transitions(model, modes, row, d0, fault_row, at, spread)
     n_inputs = len(ssm0.inputs)

@@ -29,7 +29,11 @@ with the fault's indicator ``D_J_stuck_on`` (persisting from slice to
 slice) and a ``fault`` arc from it into every state whose equation, and
 every measurement whose expression, differs between a mode and the
 configuration the plant runs in with the switch stuck in that mode
-(:func:`bgc.compiler.modes.compile_stuck`), naming those modes.
+(:func:`bgc.compiler.modes.compile_stuck`), naming those modes. An
+uncommanded change of a switch (``J:uncommanded_on``, ``J:uncommanded_off``)
+has the same arcs and one more, ``mode@t+1 -> D@t+1`` (``release``): a mode
+that asks for the switch where the fault put it clears the indicator (the
+controller's next command of the switch ends the fault).
 """
 
 from __future__ import annotations
@@ -50,7 +54,7 @@ MODE, DWELL = "mode", "dwell"
 def across_modes(model, modes: tuple, name: str = "nominal") -> Dbn:
     """The DBN ``name`` (``nominal``, ``PARAM:KIND`` as
     :meth:`bgc.ir.DbnModel.get` takes it, or a switch's ``J:stuck_on``,
-    ``J:stuck_off``) of the model with modes ``model`` across its compiled
+    ``J:stuck_off``, ``J:uncommanded_on``, ``J:uncommanded_off``) of the model with modes ``model`` across its compiled
     ``modes`` (:class:`bgc.compiler.modes.ModeModel`), the mode a node
     (module docstring). Raises KeyError for a name no mode has."""
     fault = stuck_switch(model, name)
@@ -111,9 +115,10 @@ def across_modes(model, modes: tuple, name: str = "nominal") -> Dbn:
 
 
 def stuck_switch(model, name: str) -> StuckSwitch | None:
-    """The stuck switch ``name`` names (``K:stuck_off``): the model's own
-    declaration, or any switched junction of it with either kind (a plant may
-    fail in ways its model does not list); None for another name."""
+    """The switch's fault ``name`` names (``K:stuck_off``,
+    ``K:uncommanded_on``): the model's own declaration, or any switched
+    junction of it with any of the kinds (a plant may fail in ways its model
+    does not list); None for another name."""
     junction, _, kind = name.partition(":")
     if kind not in SWITCH_FAULTS or model.modes is None or junction not in model.modes.switches:
         return None
@@ -129,6 +134,9 @@ def _stuck(model, modes: tuple, fault: StuckSwitch) -> Dbn:
     for k in (0, 1):
         g.add_node(node(indicator, k), variable=indicator, slice=k, role="fault_indicator", element=fault.junction)
     g.add_edge(node(indicator, 0), node(indicator, 1), arc="persistence")
+    if fault.releases:  # a mode asking for the switch where the fault put it ends the fault
+        g.add_edge(node(MODE, 1), node(indicator, 1), arc="release",
+                   modes=",".join(m.name for m in model.modes.modes if fault.released(m.on)))
     states = tuple(sorted({x for m in (*modes, *stuck.configs) for x in m.equations.states}))
     changed: dict[tuple[str, str], list[str]] = {}
     for m, config in zip(modes, stuck.configs):

@@ -121,8 +121,11 @@ def read(v, data: dict, elements: tuple[Element, ...], bonds: tuple[Bond, ...], 
 
 
 def _stuck(v, raw: dict, switches: tuple[str, ...]) -> tuple[StuckSwitch, ...]:
-    """The switches the model's ``faults:`` says may stick (the validator
-    left them to the modes: :meth:`bgc.compiler.validate.Validator.faults`)."""
+    """The switches the model's ``faults:`` says may stick or move by
+    themselves (the validator left them to the modes:
+    :meth:`bgc.compiler.validate.Validator.faults`; a switch ON in every mode,
+    or OFF in every one, it refuses, so an uncommanded change can always
+    happen in some mode)."""
     out = []
     for name in switches:
         spec = raw.get(name)
@@ -133,7 +136,8 @@ def _stuck(v, raw: dict, switches: tuple[str, ...]) -> tuple[StuckSwitch, ...]:
         extra = sorted(set(spec) - {"kinds", "prior", "description"}) if isinstance(spec, dict) else []
         if extra:
             v.error(f"a stuck switch takes no '{extra[0]}'", ("faults", name, extra[0]),
-                    "give a switched junction's fault its kinds (stuck_on, stuck_off) and a prior only", key=True)
+                    "give a switched junction's fault its kinds (stuck_on, stuck_off, uncommanded_on, uncommanded_off) "
+                    "and a prior only", key=True)
             continue
         for kind in sorted(kinds):
             if kind in SWITCH_FAULTS:
@@ -508,7 +512,7 @@ def stuck_signatures(model: BondGraph, mode, ssm, columns: tuple[str, ...]) -> l
     out = []
     for fault in model.modes.stuck:
         symbol = "0" if fault.on(mode.on) == tuple(sorted(mode.on)) else "?"  # the mode's own configuration
-        out.append(Signature(fault.junction, 1 if fault.kind == "stuck_on" else -1, fault.kind,
+        out.append(Signature(fault.junction, 1 if fault.state == "ON" else -1, fault.kind,
                              tuple((symbol,) * (depth + 1) for _ in columns), tuple(columns) if symbol == "?" else ()))
     return out
 

@@ -610,7 +610,8 @@ class _Validator:
             if stuck:
                 self.error(f"fault kind '{stuck[0]}' is a switched junction's, and {name} is "
                            f"{'a switched junction with other kinds too' if switch else 'none'}", path + ("kinds",),
-                           "give stuck_on and stuck_off to a junction with 'switch: true', and to nothing else")
+                           "give stuck_on, stuck_off, uncommanded_on and uncommanded_off to a junction with "
+                           "'switch: true', and to nothing else")
                 continue
             if target is None:
                 element = next((el for el in elements if el.name == name), None)

@@ -16,7 +16,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-from ..kinds import fault_kind
+from ..kinds import fault_kind, releases
 from ..filters import cubature as kalman
 from . import static_posterior
 from .detect import Detector, DetectorOptions
@@ -169,17 +169,21 @@ def kalman_hypothesis(name: str, signatures: tuple[str, ...], package, p: Static
     mean, std = p.trace[start:, 0], p.trace[start:, 1]
     alarm = static_alarm(p, outputs, options)
     drop = None if alarm is None else Drop("static-test", p.best[0] + alarm.step,
-                                           misfit_reason(estimate.magnitude, p.best[1], times[p.best[0]], alarm))
+                                           misfit_reason(estimate.magnitude, p.best[1], times[p.best[0]], alarm,
+                                                         estimate.kind))
     return Hypothesis(start_step=start, y_mean=y_mean, y_std=y_std, z=(ys[start:] - y_mean) / y_std,
                       x_mean=path.x_mean[start:, 0, :n], x_std=path.x_std[start:, 0, :n], magnitude=mean,
                       magnitude_band=np.column_stack([mean - q * std, mean + q * std]), drop=drop, **common)
 
 
-def misfit_reason(magnitude: str, value: float, start: float, alarm: Detection) -> str:
-    """Why a fault model with its magnitude held static fails the consistency test."""
-    held = ("stuck from t = {start:.12g} (its most probable onset)" if magnitude == "switch" else  # no size
-            f"with its {magnitude} held at {value:.4g} from t = {start:.12g} (the most probable magnitude and onset; "
-            f"its estimate is the mean over all of them)").format(start=start)
+def misfit_reason(magnitude: str, value: float, start: float, alarm: Detection, kind: str = "") -> str:
+    """Why a fault model with its magnitude held static fails the consistency test (``kind``: its fault's)."""
+    if magnitude == "switch":  # no size
+        held = f"{'moved without a command at' if releases(kind) else 'stuck from'} t = {start:.12g} (its most " \
+               "probable onset)"
+    else:
+        held = (f"with its {magnitude} held at {value:.4g} from t = {start:.12g} (the most probable magnitude and "
+                "onset; its estimate is the mean over all of them)")
     return (f"{held}, its residual "
             f"of {alarm.sensor} over {alarm.window} sample(s) reached {alarm.statistic:.1f} (threshold "
             f"{alarm.threshold:.1f})")

@@ -181,7 +181,8 @@ def misfits(hyps: tuple[Hypothesis, ...], time_of) -> tuple[Hypothesis, ...]:
         if h.static_alarm is not None and h.drop is None:
             alarm, (start, value) = h.static_alarm, h.static.best
             h = replace(h, drop=Drop("static-test", start + alarm.step,
-                                     misfit_reason(h.estimate.magnitude, value, time_of(start), alarm)))
+                                     misfit_reason(h.estimate.magnitude, value, time_of(start), alarm,
+                                                   h.estimate.kind)))
         out.append(h)
     return tuple(out)
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .particle import FilterRun, StepResult, run_filter
+from ..kinds import releases
 from ..model.protocol import FaultModel, magnitude_row, state_rows
 
 LOG_2PI = math.log(2.0 * math.pi)
@@ -154,6 +155,9 @@ class _Filter:
         #: the magnitude's place among the fault states (the onset rule holds it at 0 over the transition into
         #: the onset sample: :mod:`bgc.model.protocol`); None for the nominal model
         self.magnitude = self.extra.index(magnitude_row(model)) if self.extra else None
+        #: an uncommanded change of a switch: its flag, which a mode asking for the switch so clears within
+        #: the prediction, for good (bgc.kinds.releases), is read back after each prediction
+        self.released = bool(self.extra) and releases((getattr(model, "FAULT", None) or {}).get("kind", ""))
         n = len(self.physical)
         self.n, self.n_x = n, len(model.STATES)
         # the physical rows of the points: a slice (a view) when they come first, as generated
@@ -347,6 +351,17 @@ class _Filter:
             if j == self.magnitude:
                 continue
             fixed[j] = X[row, :, 0]
+        if self.released:
+            self._read_flag(X[self.extra[self.magnitude]], fixed, onset)
+
+    def _read_flag(self, flags: np.ndarray, fixed, onset: slice) -> None:
+        """An uncommanded change's flag after a prediction (``flags`` (C, 2n):
+        each cell's points'; a mode asking for the switch so cleared it) into
+        ``fixed``: set where most of a cell's points keep it. Not in the onset
+        cells, whose transition ran with it at 0 (the onset rule)."""
+        kept = (np.add.reduce(flags, axis=1) * self.inverse > 0.5).astype(float)
+        kept[onset] = fixed[self.magnitude][onset]
+        fixed[self.magnitude] = kept
 
     def _compiled_step(self, y, u, m, P, fixed, onset, dt):
         """:meth:`step` with a compiled package's kernel: the arithmetic
@@ -364,6 +379,8 @@ class _Filter:
         model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
         mp, Pp, L = kernel.cubature_after(flat, phys, self.extra_rows, held, self.inverse, self.scale, self.Q,
                                           self.root, onset)  # the cells innermost: (n, C), (n, n, C)
+        if self.released:  # (the points point by point, the cells innermost)
+            self._read_flag(flat[self.extra[self.magnitude]].reshape(2 * n, C).T, held, onset)
         if held is not fixed:
             fixed[...] = held
         seen = np.isfinite(y)

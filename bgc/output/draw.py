@@ -118,7 +118,9 @@ def _dbn_picture(d: Dbn, fmt: str, engine: str) -> bytes:
     legend.append(("edge", _HIGHLIGHT, "temporal arc: integration from slice t to t+1"
                    + ("; the indicator switching (a fault that comes and goes)" if switching else "")))
     legend.append(("edge", _EDGE, "other arcs: persistence, measurement, fault"
-                   + (", mode (guard, timer, command, reset)" if "mode" in present else "")))
+                   + (", mode (guard, timer, command, reset"
+                      + (", release" if any(k == "release" for _, _, k in g.edges(data="arc")) else "") + ")"
+                      if "mode" in present else "")))
     x0, x1 = lay.slices[0][1] - 1.5, lay.slices[1][2] + 0.4
     y0, y1 = lay.bands[-1][1] - 0.6, lay.bands[0][1] + 0.85
     bottom = (0.25 + 0.2 * math.ceil(len(legend) / 2))

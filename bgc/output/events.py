@@ -168,7 +168,8 @@ def sentence(e, time_of) -> str:
         case ev.NoLikelihood():
             return "the cubature Kalman filters found no finite likelihood for any hypothesis"
         case ev.Misfit(hypothesis=h, magnitude=m, value=v, start=s, sensor=y, window=w, statistic=z, threshold=c):
-            held = (f"stuck from t = {t(s)} (its most probable onset)" if m == "switch" else
+            held = (f"{'moved without a command at' if '_uncommanded_' in h else 'stuck from'} t = {t(s)} "
+                    f"(its most probable onset)" if m == "switch" else
                     f"with its {m} held at {v:.4g} from t = {t(s)} (the most probable magnitude and onset; its "
                     f"estimate is the mean over all of them)")
             return (f"{h} {held}: its residual of {y} "
@@ -366,8 +367,10 @@ def fault_sentence(e, since, per_time: str = "per unit time") -> str:
     >>> e = Estimate("K", "stuck_off", "switch", 1.0, 0.0, 1.0, 1.0, 0.95, 1.0, 0.0, target="switch", subject="K")
     >>> fault_sentence(e, 0.99)
     'switch K is stuck OFF, at the latest since t = 0.99'
+    >>> fault_sentence(dataclasses.replace(e, kind="uncommanded_on"), 0.99)
+    'switch K turned ON without a command at t = 0.99'
     """
-    from ..kinds import fault_kind, stuck_state
+    from ..kinds import fault_kind, releases, stuck_state
 
     v = e.value
     if not math.isfinite(v):
@@ -391,6 +394,8 @@ def fault_sentence(e, since, per_time: str = "per unit time") -> str:
             text = f"actuator {name} delivers {size} {'more' if up else 'less'} than commanded"
         case ("actuator", "drift"):
             text = f"actuator {name}'s output drifts {'up' if up else 'down'} by {rate} from the command"
+        case ("switch", kind) if releases(kind):
+            text = f"switch {name} turned {stuck_state(kind)} without a command"
         case ("switch", _):
             text = f"switch {name} is stuck {stuck_state(e.kind)}"
         case (_, "incipient"):
@@ -398,7 +403,9 @@ def fault_sentence(e, since, per_time: str = "per unit time") -> str:
         case _:
             percent = f" ({100 * v / abs(e.nominal):+.3g} %)" if e.nominal else ""
             text = f"parameter {name} {'rose' if up else 'fell'} by {size}{percent}"
-    if since is not None and math.isfinite(since):
+    if since is not None and math.isfinite(since) and e.target == "switch" and releases(e.kind):
+        text += f" at t = {time_text(since)}"  # (it shows at once: the mode asks for the other state)
+    elif since is not None and math.isfinite(since):
         # a stuck switch shows only when a mode asks it to move: it stuck at that latest
         text += f"{', at the latest' if e.target == 'switch' else ''} since t = {time_text(since)}"
     if e.bound is not None:

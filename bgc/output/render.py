@@ -508,7 +508,8 @@ def dbn_dot(d: Dbn) -> str:
              "fault": 'color="#2060c0"', "drift": 'color="#2060c0", style=dashed', "indicator": "style=dotted",
              "switching": 'color="#c06000", style=bold',
              "mode": 'color="#208040"', "guard": 'color="#208040", style=bold', "command": 'color="#208040"',
-             "timer": 'color="#208040"', "reset": 'color="#208040", style=dotted'}
+             "timer": 'color="#208040"', "reset": 'color="#208040", style=dotted',
+             "release": 'color="#208040", style=dashed'}
     for a, b, k in _arcs(d):
         modes = g.edges[a, b].get("modes")  # a model with modes: an arc of some modes only, dashed and named
         extra = f', style=dashed, tooltip={_dot_id("in " + modes)}' if modes else ""
@@ -616,20 +617,24 @@ def hybrid_summary(model, modes) -> str:
     lines.append("  measurements: " + (", ".join(measured) or "none"))
     lines.append("  fault candidates: " + (fault_candidates_text(m) or "none"))
     if m.modes.stuck:
-        lines.append(f"  stuck switches: {len(m.modes.stuck)} (fault models with no size: the diagnosis weighs them "
+        lines.append(f"  switch faults: {len(m.modes.stuck)} (fault models with no size: the diagnosis weighs them "
                      "over their onsets)")
     for fault in m.modes.stuck:
         stuck = compile_stuck(m, modes, fault)
         runs = [f"{mode.name} runs as {same}" if same else f"{mode.name} runs in a configuration of its own"
                 for mode, same in zip(modes, stuck.same) if same != mode.name]
         none = [mode.name for mode, same in zip(modes, stuck.same) if same == mode.name]
-        lines.append(f"    {fault.title}: " + "; ".join(runs) + (f"; no effect in {', '.join(none)}" if none else ""))
+        if fault.releases:  # until a mode asks for the switch so: the modes where it cannot happen end it
+            lines.append(f"    {fault.title}: " + "; ".join(runs) + f", until a mode with {fault.junction} "
+                         f"{fault.state} (" + ", ".join(none) + ") ends it")
+        else:
+            lines.append(f"    {fault.title}: " + "; ".join(runs) + (f"; no effect in {', '.join(none)}" if none
+                                                                       else ""))
     # a storage element in derivative causality is listed under its mode (an idle one: a switch cut it off)
     warnings = sorted({d.message for mode in modes for d in mode.causal.diagnostics
                        if d.severity == "warning" and "derivative causality" not in d.message})
     lines.append(f"  warnings: {len(warnings) or 'none'}")
     lines.extend(f"    warning: {w}" for w in warnings)
-    lines.append("  not built yet for a model with modes: a transition the controller did not command")
     return "\n".join(printable(line) for line in lines)
 
 
@@ -680,7 +685,8 @@ def distinguishability_text(r) -> str:
         width = max([len(x.name) for x in d.rivals] + [5])
         lines.append(f"{'rival':<{width}}  {'E':>10}  {'sd':>9}  {'P':>6}  best fit (magnitude from t)")
         for x in d.rivals:
-            fit = "no fault" if x.magnitude == 0 else f"{'stuck' if getattr(x, 'stuck', False) else f'{x.magnitude:.4g}'}" \
+            moved = "moved" if "_uncommanded_" in x.name else "stuck"  # a switch's fault: no size
+            fit = "no fault" if x.magnitude == 0 else f"{moved if getattr(x, 'stuck', False) else f'{x.magnitude:.4g}'}" \
                 f" from t = {(x.onset + 1) * r.dt:g}"
             lines.append(f"{x.name:<{width}}  {x.expected:>10.4g}  {x.std:>9.3g}  {x.probability:>6.3f}  {fit}")
         lines.append("predicted ambiguity group: " + (", ".join(d.group) or "none"))

@@ -15,7 +15,7 @@ from typing import Any, Callable, Mapping
 
 from ..diagnosis.fit import LEVEL as FIT_LEVEL
 from .. import events as ev
-from ..kinds import fault_kind
+from ..kinds import fault_kind, releases
 from . import events, html, plots
 from .artifacts import manifest
 from .labels import Labels
@@ -412,7 +412,7 @@ def hypothesis_rows(d, labels: Labels = Labels()) -> list[tuple[str, ...]]:
 
 
 def _stuck_text(e) -> str:
-    """A stuck switch's estimate in words: ``K stuck OFF``."""
+    """A switch's fault in words: ``K stuck OFF``, ``K turned ON without a command``."""
     from ..kinds import stuck_title
 
     return stuck_title(e.subject or e.parameter, e.kind)
@@ -429,7 +429,10 @@ def identification_lines(d, labels: Labels = Labels()) -> list[tuple[str, str | 
         h = next(x for x in d.hypotheses if x.name == name)
         e = h.estimate
         if e.magnitude == "switch":  # no size: its onset alone
-            out.append((f"{name}: {_stuck_text(e)}, at the latest from t = {_tt(d, h.onset_step)} (a stuck switch "
+            out.append((f"{name}: {_stuck_text(e)}, at t = {_tt(d, h.onset_step)} (it shows at once, its mode "
+                        f"asking for the other state, until a mode asks for it so; weighed over its onsets by "
+                        f"cubature Kalman filters)" if releases(e.kind) else
+                        f"{name}: {_stuck_text(e)}, at the latest from t = {_tt(d, h.onset_step)} (a stuck switch "
                         f"shows only when a mode asks it to move; weighed over its onsets by cubature Kalman "
                         f"filters)", None))
             continue

@@ -1,0 +1,264 @@
+"""A switch that moves by itself (``uncommanded_on``, ``uncommanded_off``): at
+its onset the switch turns ON, or OFF, though its mode asks for the other
+state, and stays so until a mode asks for it in that state (the controller's
+next command of the switch), from when it follows the modes again. Its
+truth simulator, its generated fault model, its DBN, and the diagnosis that
+tells it from a stuck switch once the controller commands the switch again,
+all against the plant of docs/examples/switched_rc.yaml derived by hand:
+
+    S ON  (mode closed): C dv/dt = (V - v)/R_s - v/R_load,   i_s = (V - v)/R_s
+    S OFF (mode open):   C dv/dt = -v/R_load,                i_s = 0
+
+v = e5 the capacitor's voltage from rest, i_s = f2 the supply's current, so
+that with the switch's state s constant from time a, v(t) = v_inf + (v(a) -
+v_inf) exp(-(t - a)/tau): ON tau = C R_s R_load/(R_s + R_load) = 0.8 s and
+v_inf = V R_load/(R_s + R_load) = 8 V; OFF tau = R_load C = 4 s and v_inf = 0.
+
+The controller's schedule throughout: closed from 0, open at 5 s, closed at
+15 s, open at 22 s (the run file's mode column says it). Where the switch
+is, by hand, for each fault:
+
+    no fault                 ON [0, 5)  OFF [5, 15)  ON [15, 22)  OFF [22, ...)
+    S:uncommanded_off@2      ON [0, 2)  OFF [2, 15)  ON [15, 22)  OFF [22, ...)   (open at 5 asks OFF: it ends)
+    S:stuck_off@2            ON [0, 2)  OFF [2, ...)
+    S:uncommanded_on@2       as no fault (closed asks ON already: nothing moves)
+    S:uncommanded_on@7       ON [0, 5)  OFF [5, 7)   ON [7, 22)   OFF [22, ...)   (closed at 15 asks ON: it ends)
+
+The diagnoses read data from solve_ivp on the same equations, not from bgc's
+simulator.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+import bgc
+from bgc.compiler import modes
+from bgc.compiler.hybrid_dbn import across_modes
+from bgc.compiler.load import load
+from bgc.compiler.validate import validate
+from bgc.data import runs
+
+ROOT = Path(__file__).resolve().parent.parent
+MODEL = ROOT / "docs" / "examples" / "switched_rc.yaml"
+V, R_S, C, R_LOAD = 10.0, 1.0, 1.0, 4.0
+DT, STEPS = 0.05, 600
+#: The sensors' noise stds the model declares (``noise: 0.02`` of each reading's scale; the package's
+#: MEASUREMENT_STD, checked below): the data are made at them.
+NOISE = {"v_C": 0.16, "i_s": 0.2}
+SCHEDULE = ((0.0, "closed"), (5.0, "open"), (15.0, "closed"), (22.0, "open"))
+MODES = "open@5,closed@15,open@22"
+NUMBER = {"closed": 1, "open": 2}
+NOMINAL = ((0.0, True), (5.0, False), (15.0, True), (22.0, False))
+#: Where the switch is, by hand (module docstring): (from time, ON) pieces.
+BY_HAND = {
+    "none": NOMINAL,
+    "S:uncommanded_off@2": ((0.0, True), (2.0, False), (15.0, True), (22.0, False)),
+    "S:stuck_off@2": ((0.0, True), (2.0, False)),
+    "S:uncommanded_on@2": NOMINAL,
+    "S:uncommanded_on@7": ((0.0, True), (5.0, False), (7.0, True), (22.0, False)),
+    "S:uncommanded_off@16.5": ((0.0, True), (5.0, False), (15.0, True), (16.5, False)),
+    "S:stuck_off@16.5": ((0.0, True), (5.0, False), (15.0, True), (16.5, False)),
+}
+
+
+def _at(pieces, t: float):
+    """The piece's value at time ``t`` (the last whose start is at or before it)."""
+    return [value for start, value in pieces if start <= t + 1e-9][-1]
+
+
+def exact(pieces, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """v and i_s at ``times`` from rest, the switch ON or OFF by ``pieces``,
+    by the closed form of the module docstring (a sample at a change sees
+    the switch's new state: its row holds the state after the changes due
+    at its time)."""
+    on_tau, on_inf = C * R_S * R_LOAD / (R_S + R_LOAD), V * R_LOAD / (R_S + R_LOAD)
+    off_tau = R_LOAD * C
+    v = np.empty(len(times))
+    start, value = 0.0, 0.0
+    edges = [a for a, _ in pieces[1:]] + [math.inf]
+    k = 0
+    for j, t in enumerate(times):
+        while t > edges[k] + 1e-12:  # carry v to the next change
+            on = _at(pieces, start)
+            tau, inf = (on_tau, on_inf) if on else (off_tau, 0.0)
+            value = inf + (value - inf) * math.exp(-(edges[k] - start) / tau)
+            start = edges[k]
+            k += 1
+        on = _at(pieces, start)
+        tau, inf = (on_tau, on_inf) if on else (off_tau, 0.0)
+        v[j] = inf + (value - inf) * math.exp(-(t - start) / tau)
+    current = np.array([(V - x) / R_S if _at(pieces, t) else 0.0 for t, x in zip(times, v)])
+    return v, current
+
+
+def run_text(scenario: str, seed: int) -> str:
+    """A run file of the plant with the switch as ``BY_HAND[scenario]`` says,
+    solved by solve_ivp piece by piece, with the sensors' noise."""
+    pieces = BY_HAND[scenario]
+    times = DT * np.arange(1, STEPS + 1)
+    v = np.empty(STEPS)
+    x = 0.0
+    edges = [a for a, _ in pieces] + [times[-1] + DT]
+    for (a, on), b in zip(pieces, edges[1:]):
+        inside = (times >= a - 1e-9) & (times < b - 1e-9)
+        inside |= np.isclose(times, b) & (b == edges[-1])
+        sol = solve_ivp(lambda _, y: [((V - y[0]) / R_S if on else 0.0) / C - y[0] / (R_LOAD * C)], (a, b), [x],
+                        dense_output=True, rtol=1e-11, atol=1e-13)
+        v[inside] = sol.sol(times[inside])[0]
+        x = float(sol.sol(b)[0])
+    i_s = np.array([(V - x) / R_S if _at(pieces, t) else 0.0 for t, x in zip(times, v)])
+    rng = np.random.default_rng(seed)
+    lines = ["time,mode,u:V,y:v_C,y:i_s"]
+    for t, a, b in zip(times, v + NOISE["v_C"] * rng.standard_normal(STEPS),
+                       i_s + NOISE["i_s"] * rng.standard_normal(STEPS)):
+        lines.append(f"{t:.10g},{NUMBER[_at(SCHEDULE, t)]},{V},{float(a)!r},{float(b)!r}")
+    return "\n".join(lines) + "\n"
+
+
+def test_the_closed_form_is_solve_ivps():
+    """The closed form the tests use, against solve_ivp on the equations (the reference's own check)."""
+    times = DT * np.arange(1, STEPS + 1)
+    text = run_text("S:uncommanded_off@2", 0).splitlines()[1:]
+    v = np.array([float(line.split(",")[3]) for line in text])
+    assert np.max(np.abs(exact(BY_HAND["S:uncommanded_off@2"], times)[0] - v)) < 5 * NOISE["v_C"]
+
+
+@pytest.mark.parametrize("scenario", ["S:uncommanded_off@2", "S:stuck_off@2", "S:uncommanded_on@2",
+                                      "S:uncommanded_on@7"])
+def test_the_truth_simulator_moves_the_switch_until_the_controller_asks_for_it_so(scenario):
+    """bgc's truth simulator (no process noise) against the closed form for
+    the switch's pieces by hand: v to 1e-6, and i_s (a sensor of no noise
+    here) zero exactly where the switch is OFF."""
+    sim = bgc.simulate(MODEL, scenario, steps=STEPS, process_noise=0.0, measurement_noise=1e-12, modes=MODES, seed=3)
+    v, current = exact(BY_HAND[scenario], sim.time)
+    assert np.max(np.abs(sim.run.states["e5"] - v)) < 1e-6
+    y = sim.run.measurements["i_s"]
+    assert np.max(np.abs(y - current)) < 1e-5
+    assert [NUMBER[_at(SCHEDULE, t)] for t in sim.time] == list(sim.modes)
+
+
+@pytest.fixture(scope="module")
+def session():
+    return bgc.open(MODEL, backend="numpy")
+
+
+def test_the_generated_flag_clears_when_a_mode_asks_for_the_switch_so(session):
+    """The generated model S_uncommanded_off stepped by hand on the data's
+    mode column, its flag set at the onset sample (2 s): the flag stays 1
+    until the controller opens S (5 s: mode open asks OFF), 0 from then on;
+    its v_C follows the closed form of the switch OFF from 2 s to 15 s and
+    ON again from 15 s (a stuck switch's model would stay OFF). Set where
+    the mode asks for the switch so already (7 s, open), the flag clears at
+    once and the model is the nominal one."""
+    package = session.package
+    m = package.MODELS["S_uncommanded_off"]
+    assert dict(zip(m.OUTPUTS, m.MEASUREMENT_STD)) == pytest.approx(NOISE)
+    assert list(m._RELEASE) == [False, True] and list(package.MODELS["S_uncommanded_on"]._RELEASE) == [True, False]
+    assert not hasattr(package.MODELS["S_stuck_off"], "_RELEASE")
+    assert m.STATES[-1] == "S_uncommanded" and m.STATE_KINDS[-1] == "switch"
+    times = DT * np.arange(1, STEPS + 1)
+    theta = np.asarray(m.THETA, dtype=float)
+    v_row, y_row = m.STATES.index("e5"), list(m.OUTPUTS).index("v_C")
+    for onset, pieces in ((2.0, BY_HAND["S:uncommanded_off@2"]), (7.0, NOMINAL)):
+        x = np.array(m.X0, dtype=float)[:, None].copy()
+        x[v_row], x[-1] = 0.0, 0.0
+        flags, readings = [], []
+        for t in times:
+            u = np.array([V, NUMBER[_at(SCHEDULE, t)]], dtype=float)
+            x = m.predict(x, u, theta, m.DT)
+            if abs(t - onset) < 1e-9:
+                x = m.augment(x[:-1], np.random.default_rng(0))  # (the API's way to set it: the mode decides)
+            flags.append(float(x[-1, 0]))
+            readings.append(float(m.observe(x, u, theta)[y_row, 0]))
+        v, _ = exact(pieces, times)
+        assert np.max(np.abs(np.array(readings) - v)) < 1e-4
+        set_ = np.array(flags) > 0.5
+        if onset == 2.0:
+            assert np.array_equal(set_, (times >= 2.0 - 1e-9) & (times < 5.0 - 1e-9))
+        else:
+            assert not set_.any()
+
+
+@pytest.fixture(scope="module")
+def compiled():
+    model = validate(load(MODEL))
+    return model, modes.compile_modes(model)
+
+
+def test_its_dbn_is_the_stuck_switchs_with_the_mode_releasing_its_indicator(compiled):
+    """By hand: S carries the supply's current, so OFF where the mode has it
+    ON (closed) it changes v's equation and i_s's reading there, as S stuck
+    OFF does; and mode open, which asks S OFF, ends it: an arc mode@t+1 ->
+    D@t+1 (release) in open. A stuck switch has no such arc."""
+    model, ordered = compiled
+    g = across_modes(model, ordered, "S:uncommanded_off").graph
+    stuck = across_modes(model, ordered, "S:stuck_off").graph
+    faults = {(a, b): d.get("modes") for a, b, d in g.edges(data=True) if d["arc"] == "fault"}
+    assert faults == {("D_S_uncommanded_off@t", "e5@t+1"): "closed", ("D_S_uncommanded_off@t+1", "i_s@t+1"): "closed"}
+    assert {(a.replace("stuck", "uncommanded"), b): d.get("modes") for a, b, d in stuck.edges(data=True)
+            if d["arc"] == "fault"} == faults
+    assert g.edges["mode@t+1", "D_S_uncommanded_off@t+1"] == {"arc": "release", "modes": "open"}
+    assert not [e for e in stuck.edges(data="arc") if e[2] == "release"]
+    on = across_modes(model, ordered, "S:uncommanded_on").graph
+    assert on.edges["mode@t+1", "D_S_uncommanded_on@t+1"]["modes"] == "closed"
+
+
+def _diagnose(session, scenario: str, seed: int):
+    return bgc.diagnose(session, runs.parse_run(run_text(scenario, seed), "switched_rc.csv"), seed=1).diagnosis
+
+
+@pytest.mark.parametrize("scenario, named, seed", [
+    ("S:uncommanded_off@2", "S_uncommanded_off", 1),
+    ("S:stuck_off@2", "S_stuck_off", 2),
+    ("S:uncommanded_on@7", "S_uncommanded_on", 3),
+])
+def test_the_diagnosis_tells_a_switch_that_moved_from_one_that_stuck_after_the_next_command(session, scenario,
+                                                                                             named, seed):
+    """Data from solve_ivp: the switch that moved by itself and followed the
+    controller from its next command is isolated as such, the stuck one as
+    stuck (they differ from the controller's command at 15 s on: closed,
+    where the stuck switch stays OFF), each from its onset."""
+    d = _diagnose(session, scenario, seed)
+    assert d.verdict == "isolated" and d.candidates == (named,), (d.verdict, d.candidates)
+    onset = float(scenario.rsplit("@", 1)[1])
+    assert abs(d.time_of(d.onset_step) - onset) < DT + 1e-9
+    e = d.best.estimate
+    assert e.target == "switch" and e.kind == named.split("_", 1)[1]
+
+
+def test_before_the_next_command_the_two_are_one_and_the_diagnosis_says_ambiguous(session):
+    """S OFF at 16.5 s, the controller opening it at 22 s and never closing
+    it again in the run: a stuck switch and one that moved are the same
+    plant here, so the diagnosis is ambiguous between them, at equal
+    priors half and half, and bgc distinguish predicts it (its rival fits
+    the truth exactly: E = 0); at 2 s (the command at 15 s to come) it
+    predicts them told apart."""
+    d = _diagnose(session, "S:uncommanded_off@16.5", 4)
+    assert d.verdict == "ambiguous" and set(d.candidates) == {"S_stuck_off", "S_uncommanded_off"}
+    posterior = {h.name: h.posterior for h in d.hypotheses}
+    assert posterior["S_stuck_off"] == pytest.approx(0.5, abs=0.01)
+    late = bgc.distinguishability(session, "S:uncommanded_off@16.5", modes=MODES, steps=STEPS)
+    rival = next(r for r in late.distinctions[0].rivals if r.name == "S_stuck_off")
+    assert abs(rival.expected) < 1e-6 and "S_stuck_off" in late.distinctions[0].group
+    early = bgc.distinguishability(session, "S:uncommanded_off@2", modes=MODES, steps=STEPS)
+    assert early.distinctions[0].group == ()
+
+
+@pytest.mark.numba
+def test_the_compiled_kernels_read_the_flag_back_as_numpy_does(session):
+    """The compiled package's cubature step reads the flag back from its own
+    layout of the points (bgc/filters/cubature.py): the same posteriors and
+    onset as the NumPy package's on the run where the controller's command
+    at 15 s ends the fault."""
+    run = runs.parse_run(run_text("S:uncommanded_off@2", 1), "switched_rc.csv")
+    a = bgc.diagnose(session, run, seed=1).diagnosis
+    b = bgc.diagnose(bgc.open(MODEL, backend="numba"), run, seed=1).diagnosis
+    assert (b.verdict, b.candidates, b.onset_step) == (a.verdict, a.candidates, a.onset_step)
+    assert {h.name: h.posterior for h in b.hypotheses} == pytest.approx({h.name: h.posterior for h in a.hypotheses},
+                                                                        abs=1e-6)
