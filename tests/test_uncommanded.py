@@ -143,6 +143,14 @@ def test_the_truth_simulator_moves_the_switch_until_the_controller_asks_for_it_s
     assert [NUMBER[_at(SCHEDULE, t)] for t in sim.time] == list(sim.modes)
 
 
+def test_an_onset_outside_the_run_is_refused_as_on_a_plant_of_one_mode():
+    """30 s of data: a fault at 40 s (a switch's or a parameter's) is refused in one line, as a model
+    of one mode refuses it (the simulator of a model with modes ran it as no fault)."""
+    for scenario in ("S:uncommanded_off@40", "R_load:abrupt:1@40"):
+        with pytest.raises(bgc.ArgumentValueError, match="onset 40 is outside the run"):
+            bgc.simulate(MODEL, scenario, steps=STEPS, modes=MODES)
+
+
 @pytest.fixture(scope="module")
 def session():
     return bgc.open(MODEL, backend="numpy")

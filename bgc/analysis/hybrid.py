@@ -41,7 +41,8 @@ from ..errors import SimulationError, printable
 from ..ir import StuckSwitch, sym
 from ..kinds import releases
 from ..data.runs import to_csv as csv_text
-from .simulate import TRUTH_REFINEMENT, SimulationOptions, SimulationResult, columns as simulation_columns
+from .simulate import (TRUTH_REFINEMENT, SimulationOptions, SimulationResult, columns as simulation_columns,
+                       onset_inside)
 
 
 #: The switches a run file's header lists (the mode column has them all).
@@ -178,6 +179,7 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
     modes = {m.name: _Mode(m, every) for m in hybrid.modes}
     first = hybrid.modes[0].equations
     steps, dt = options.steps or model.settings.steps, model.settings.dt
+    onset_inside(fault, steps, dt)
     substeps = max(n.substeps for n in numerics) * TRUTH_REFINEMENT
     h = dt / substeps
     process, measurement = _noise(hybrid, numerics, every, options)

@@ -373,6 +373,15 @@ def check_steps(steps: int, num: Numerics, where: str) -> None:
                               f"simulate fewer steps, e.g. {spelled('steps=300', '--steps 300')}")
 
 
+def onset_inside(fault: FaultInjection | None, steps: int, dt: float) -> None:
+    """Refuse a fault whose onset is outside a run of ``steps`` samples of ``dt`` (one from the start is
+    a plant as it came, not a fault)."""
+    if fault is not None and not 0 <= fault.time < steps * dt:
+        raise SimulationError(f"{spelled('scenario', '--fault')} {fault.text}: "
+                              f"onset {fault.time:g} is outside the run (0 to {steps * dt:g})", None,
+                              f"choose an onset inside the run, or more {spelled('steps', '--steps')}")
+
+
 def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
     """Simulate the plant of ``num`` (its equations, at its noise scales)."""
     ssm = num.equations
@@ -386,10 +395,7 @@ def simulate(num: Numerics, options: SimulationOptions) -> SimulationResult:
                               f"junction of {model.name}", None,
                               "stuck_on, stuck_off, uncommanded_on and uncommanded_off are a switched junction's "
                               "faults, in a model with modes")
-    if fault is not None and not 0 <= fault.time < steps * dt:  # a fault from the start is a plant as it came
-        raise SimulationError(f"{spelled('scenario', '--fault')} {fault.text}: "
-                              f"onset {fault.time:g} is outside the run (0 to {steps * dt:g})", None,
-                              f"choose an onset inside the run, or more {spelled('steps', '--steps')}")
+    onset_inside(fault, steps, dt)
     noise = num.noise_at(options.process_noise, options.measurement_noise)
     substeps = num.substeps * TRUTH_REFINEMENT
     h = dt / substeps
