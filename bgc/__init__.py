@@ -68,7 +68,7 @@ API = ("open", "Session", "diagnose", "DiagnosisReport", "distinguishability", "
 #: The campaign wing's public names (:mod:`bgc.experiment.public`; imported on first use).
 CAMPAIGN = ("run_campaign", "CampaignResult")
 #: The service wing's public names (:mod:`bgc.service.public`; imported on first use).
-SERVICE = ("monitor",)
+SERVICE = ("monitor", "Monitor")
 
 __all__ = [*API, *CAMPAIGN, *SERVICE, "Error", "ModelError", "DataError", "ArgumentError", "ArgumentTypeError",
            "ArgumentValueError",

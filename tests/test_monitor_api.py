@@ -69,3 +69,75 @@ def test_keep_beside_options_is_the_monitors_record():
     lines = ["time,u:V,y:f2,y:f6,y:e11"] + [f"{0.05 * k:.2f},10,2.5,2.5,2.5" for k in range(1, 301)]
     report = bgc.monitor(session("circuit"), lines, options=bgc.DiagnosisOptions(particles=50), keep=300 * 0.05)
     assert report.options.keep == pytest.approx(15.0) and report.stream == (300, pytest.approx(0.05))
+
+
+# ------------------------------------------------------------------ bgc.Monitor: the monitor stepped
+def _lines(scenario: str, steps: int) -> list[str]:
+    """The circuit with ``scenario`` (bgc's simulator), the run file's lines from the column names on."""
+    from bgc.data.runs import run_csv
+
+    lines = run_csv(bgc.simulate(CIRCUIT, scenario, seed=2, steps=steps).run).splitlines()
+    return lines[next(i for i, line in enumerate(lines) if line.startswith("time")):]
+
+
+@pytest.mark.slow
+def test_a_monitor_stepped_row_by_row_keeps_the_fault_log_bgc_monitor_keeps():
+    """The rows fed one at a time: the fault log follows the plant (R2 accommodated when it steps,
+    named gone when it returns, accommodated again), each event is returned by the row that made
+    it, and the log, the events and the report are those of bgc.monitor on the same rows."""
+    lines = _lines("R2:abrupt:1.2@2-8,12", 340)  # R2 up at 2 s, back at 8 s, up again at 12 s
+    m = bgc.Monitor(session("circuit"), lines[0], checkpoint=1, episodes=True, particles=300)
+    returned = [said for line in lines[1:] for said in m.feed(line)]
+    assert [(e.action, e.parameter) for e in m.fault_log] == [("accommodated", "R2"), ("ended", "R2"),
+                                                             ("accommodated", "R2")]
+    heard = []
+    report = bgc.monitor(session("circuit"), lines, checkpoint=1, episodes=True, particles=300, events=heard.append)
+    mine = m.report()
+    assert mine.fault_log == report.fault_log and mine.diagnosis.verdict == report.diagnosis.verdict
+    assert tuple(returned) == m.events[:len(returned)] and m.events == tuple(heard)
+    with pytest.raises(ArgumentValueError, match="has made its report"):
+        m.feed(lines[-1])
+
+
+@pytest.mark.slow
+def test_a_repair_said_from_python_is_the_streams_repair_line():
+    """R2 up from 2 s to 6 s, the operator saying it was repaired before the row of t = 6:
+    ``Monitor.repaired('R2')`` does what a ``# repaired: R2`` line of the stream there does (the
+    same fault log: R2 accommodated, then repaired at that row's time), and the repaired plant
+    raises no alarm after it."""
+    lines = _lines("R2:abrupt:1.2@2-6", 200)
+    at = next(i for i, line in enumerate(lines) if i and float(line.split(",")[0]) >= 6.0 - 1e-9)
+    m = bgc.Monitor(session("circuit"), lines[0], checkpoint=1, episodes=True, particles=300)
+    after = []
+    for i, line in enumerate(lines[1:], start=1):
+        if i == at:
+            m.repaired("R2")
+        said = m.feed(line)
+        if i >= at:
+            after += said
+    streamed = bgc.monitor(session("circuit"), lines[:at] + ["# repaired: R2"] + lines[at:], checkpoint=1,
+                           episodes=True, particles=300)
+    assert m.fault_log == streamed.fault_log
+    assert [(type(e).__name__, getattr(e, "action", None)) for e in m.fault_log] == [
+        ("EpisodeClosed", "accommodated"), ("Repaired", None)]
+    done = m.fault_log[-1]
+    assert done.parameters == ("R2",) and done.time == pytest.approx(float(lines[at].split(",")[0]))
+    assert not [line for line in after if "alarm" in line], after
+
+
+def test_a_stepped_monitors_arguments_and_rows_are_checked():
+    with pytest.raises(ArgumentTypeError, match="columns is int"):
+        bgc.Monitor(CIRCUIT, 5)
+    with pytest.raises(ArgumentValueError, match="episodes=True without a checkpoint"):
+        bgc.Monitor(CIRCUIT, "time,u:V,y:f2,y:f6,y:e11", episodes=True)
+    m = bgc.Monitor(session("circuit"), ["time", "u:V", "y:f2", "y:f6", "y:e11"], particles=50)
+    assert m.columns == ("time", "u:V", "y:f2", "y:f6", "y:e11")
+    with pytest.raises(ArgumentValueError, match="no column 'y:f9'"):
+        m.feed({"time": 0.05, "y:f9": 1.0})
+    with pytest.raises(ArgumentValueError, match="a comment or blank line is no row"):
+        m.feed("# repaired")
+    with pytest.raises(ArgumentValueError, match="parameters are the model's names"):
+        m.repaired("R2 and R1")
+    with pytest.raises(DataError, match="3 fields, expected 5"):
+        m.feed([0.05, 10.0, 2.0])
+    assert m.feed({"time": 0.05, "u:V": 10.0, "y:f2": 2.5, "y:f6": 2.5}) == ()  # e11 not measured

@@ -12,10 +12,12 @@
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import dataclasses
 import io
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 
 from .. import arguments
@@ -100,28 +102,15 @@ def monitor(model: str | Path | Session, data, *, checkpoint: float | None = Non
         before it) raises without one.
     """
     func = "bgc.monitor"
-    if not isinstance(model, Session):
-        arguments.path(func, "model", model)
-    for name, value in (("checkpoint", checkpoint), ("rearm", rearm), ("keep", keep)):
-        if value is not None:
-            arguments.real(func, name, value, 0.0, math.inf, f"a time above 0 in the model's unit, e.g. {name}=10")
     if state is not None:
         arguments.path(func, "state", state)
     arguments.integer(func, "state_every", state_every, 1, "is below 1", f"state_every={STATE_EVERY}")
     if state is None and state_every != STATE_EVERY:
         raise ArgumentValueError(f"{func}: state_every without a state folder", None,
                                  "give state='monitor-state', or drop state_every")
-    arguments.noise_levels(func, process_noise, measurement_noise)
-    if episodes and checkpoint is None:
-        raise ArgumentValueError(f"{func}: episodes=True without a checkpoint: a fault is isolated there", None,
-                                 "give checkpoint=10, e.g.")
-    if rearm is not None and not episodes:
-        raise ArgumentValueError(f"{func}: rearm applies to episodes", None, "give episodes=True, or drop rearm")
-    if exclude_faulty_sensor and checkpoint is None:
-        raise ArgumentValueError(f"{func}: exclude_faulty_sensor acts at checkpoints", None, "give checkpoint=10, e.g.")
-    options = _options(func, options, keep, filter=filter, particles=particles, seed=seed)
-    session = model if isinstance(model, Session) else open_session(
-        model, process_noise=process_noise, measurement_noise=measurement_noise)
+    session, options = _checked(func, model, checkpoint, episodes, rearm, exclude_faulty_sensor, keep,
+                                process_noise, measurement_noise, options, filter=filter, particles=particles,
+                                seed=seed)
     stream, name = _stream(func, data)
     from . import monitor as service
 
@@ -136,6 +125,157 @@ def monitor(model: str | Path | Session, data, *, checkpoint: float | None = Non
         failure.report = report
         raise failure
     return report
+
+
+class Monitor:
+    """``bgc monitor`` stepped from Python: the rows fed one at a time
+    (:meth:`feed`), the events as they happen and the fault log as it grows,
+    a repair said from Python (:meth:`repaired`), and the report of the rows
+    so far (:meth:`report`). The same diagnosis as :func:`monitor` of the same
+    rows (its arguments by the same names; no state folder: a program that
+    steps the monitor keeps it alive itself).
+
+    ``columns``: the run file's column names (``time`` first; a model with
+    modes may have ``mode``), as a list or as the CSV's header line.
+
+    For example (tests/test_monitor_api.py runs it)::
+
+        m = bgc.Monitor("models/circuit.yaml", ["time", "u:V", "y:f2", "y:f6", "y:e11"],
+                        checkpoint=1, episodes=True)
+        for t, v, f2, f6, e11 in logger:          # the plant's rows as they come
+            for line in m.feed([t, v, f2, f6, e11]):
+                print(line)                          # "t = 4.05: alarm ...", an episode closed
+        m.repaired("R2")                             # the operator's word, before the next row
+        m.fault_log                                  # EpisodeClosed and Repaired events so far
+    """
+
+    def __init__(self, model: str | Path | Session, columns: str | Iterable[str], *, checkpoint: float | None = None,
+                 episodes: bool = False, rearm: float | None = None, exclude_faulty_sensor: bool = False,
+                 keep: float | None = None, filter: str = _DEFAULT.filter, particles: int = _DEFAULT.particles,
+                 seed: int = _DEFAULT.seed, process_noise: float | None = None, measurement_noise: float | None = None,
+                 options: DiagnosisOptions | None = None, name: str = "<rows>"):
+        func = "bgc.Monitor"
+        names = list(columns) if isinstance(columns, Iterable) and not isinstance(columns, str) else None
+        if isinstance(columns, str):
+            header = columns.rstrip("\r\n")
+        elif names is not None and all(isinstance(c, str) for c in names):
+            header = ",".join(names)
+        else:
+            raise ArgumentTypeError(f"{func}: columns is {type(columns).__name__}", None,
+                                    "give the column names, ['time', 'u:V', 'y:v_C'], or the CSV's header line")
+        session, options = _checked(func, model, checkpoint, episodes, rearm, exclude_faulty_sensor, keep,
+                                    process_noise, measurement_noise, options, filter=filter, particles=particles,
+                                    seed=seed)
+        from . import monitor as service
+
+        self._queue: collections.deque[bytes] = collections.deque([(header + "\n").encode("utf-8")])
+        self._stream = _Queue(self._queue)
+        self._said: list[str] = []
+        self._run = service._Monitor(session, self._stream, name, options, self._said.append, checkpoint, None,
+                                     exclude_faulty_sensor, None, None, STATE_EVERY, rearm if episodes else None,
+                                     episodes)
+        self._rows = iter(self._run.reader)
+        self._done = False
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """bgc's names of the columns each row gives, ``time`` first."""
+        return tuple(self._run.columns)
+
+    def feed(self, row) -> tuple[str, ...]:
+        """Take one row: a CSV line, or its numbers in :attr:`columns`' order
+        (a sequence), or by column name (a mapping; a name left out: not
+        measured). Returns the event lines the row made (an alarm, a
+        checkpoint's verdict, an episode closed), as ``bgc monitor`` prints
+        them. A malformed row is a one-line DataError naming it; the monitor
+        goes on with the next."""
+        if self._done:
+            raise ArgumentValueError("bgc.Monitor.feed: the monitor has made its report", None,
+                                     "open a new bgc.Monitor for more rows")
+        if isinstance(row, str):
+            line = row.rstrip("\r\n")
+        elif isinstance(row, Mapping):
+            unknown = sorted(set(row) - set(self._run.columns))
+            if unknown:
+                raise ArgumentValueError(f"bgc.Monitor.feed: no column {unknown[0]!r}", None,
+                                         "name the columns: " + ", ".join(self._run.columns))
+            line = ",".join(repr(float(row[c])) if c in row else "" for c in self._run.columns)
+        elif isinstance(row, Iterable):
+            line = ",".join(repr(float(v)) for v in row)
+        else:
+            raise ArgumentTypeError(f"bgc.Monitor.feed: row is {type(row).__name__}", None,
+                                    "give a CSV line, a sequence of numbers, or a mapping of column to number")
+        if line.startswith("#") or not line.strip():
+            raise ArgumentValueError("bgc.Monitor.feed: a comment or blank line is no row", None,
+                                     "give a data row (say a repair with Monitor.repaired)")
+        start = len(self._said)
+        self._queue.append((line + "\n").encode("utf-8"))
+        try:
+            values, number = next(self._rows)
+        except DataError:  # the row is refused; the rows after it are read afresh
+            self._rows = iter(self._run.reader)
+            raise
+        self._run.row(values, number, contextlib.nullcontext())
+        return tuple(self._said[start:])
+
+    def repaired(self, *parameters: str) -> None:
+        """The operator says the plant was repaired (all the faults
+        accommodated, or those of ``parameters``): it takes effect before the
+        next row, as a ``# repaired`` line of the stream does."""
+        if not all(isinstance(p, str) and p.isidentifier() for p in parameters):
+            raise ArgumentValueError("bgc.Monitor.repaired: parameters are the model's names", None,
+                                     "give names, e.g. m.repaired('R2'), or none for every fault accommodated")
+        self._queue.append(f"# repaired{': ' + ', '.join(parameters) if parameters else ''}\n".encode("utf-8"))
+
+    @property
+    def events(self) -> tuple[str, ...]:
+        """Every event line said so far, in order."""
+        return tuple(self._said)
+
+    @property
+    def fault_log(self) -> tuple:
+        """The closed episodes and repairs so far (with ``episodes``; else empty):
+        :class:`~bgc.events.EpisodeClosed` and :class:`~bgc.events.Repaired`."""
+        return tuple(self._run.log.log) if self._run.log is not None else ()
+
+    def report(self) -> DiagnosisReport:
+        """The report of the rows so far, as :func:`monitor` returns it at the
+        data's end; the monitor takes no row after it."""
+        self._done = True
+        return self._run.finish(self._stream)
+
+
+class _Queue:
+    """The byte stream of a :class:`Monitor`: the lines fed, one per read (none: the end, for now)."""
+
+    def __init__(self, queue):
+        self._queue = queue
+
+    def readline(self, limit: int = -1) -> bytes:
+        return self._queue.popleft() if self._queue else b""
+
+
+def _checked(func: str, model, checkpoint, episodes: bool, rearm, exclude_faulty_sensor: bool, keep, process_noise,
+             measurement_noise, options, **filters) -> tuple[Session, DiagnosisOptions]:
+    """The session and the diagnosis options of :func:`monitor` and
+    :class:`Monitor`, their arguments checked (one-line errors naming them)."""
+    if not isinstance(model, Session):
+        arguments.path(func, "model", model)
+    for name, value in (("checkpoint", checkpoint), ("rearm", rearm), ("keep", keep)):
+        if value is not None:
+            arguments.real(func, name, value, 0.0, math.inf, f"a time above 0 in the model's unit, e.g. {name}=10")
+    arguments.noise_levels(func, process_noise, measurement_noise)
+    if episodes and checkpoint is None:
+        raise ArgumentValueError(f"{func}: episodes=True without a checkpoint: a fault is isolated there", None,
+                                 "give checkpoint=10, e.g.")
+    if rearm is not None and not episodes:
+        raise ArgumentValueError(f"{func}: rearm applies to episodes", None, "give episodes=True, or drop rearm")
+    if exclude_faulty_sensor and checkpoint is None:
+        raise ArgumentValueError(f"{func}: exclude_faulty_sensor acts at checkpoints", None, "give checkpoint=10, e.g.")
+    options = _options(func, options, keep, **filters)
+    session = model if isinstance(model, Session) else open_session(
+        model, process_noise=process_noise, measurement_noise=measurement_noise)
+    return session, options
 
 
 def _options(func: str, options: DiagnosisOptions | None, keep: float | None, **filters) -> DiagnosisOptions:
@@ -180,4 +320,4 @@ def _stream(func: str, data):
     return _Lines(data), "<lines>"
 
 
-__all__ = ["monitor"]
+__all__ = ["monitor", "Monitor"]
