@@ -193,6 +193,10 @@ class StuckSwitch:
         releases and the mode asks for the switch where the fault put it."""
         return self.releases and (self.junction in on) == (self.state == "ON")
 
+    def releasing(self, modes) -> tuple[str, ...]:
+        """The names of the modes of ``modes`` (:class:`Mode`) that end this fault (none for a stuck switch)."""
+        return tuple(m.name for m in modes if self.released(m.on))
+
 
 @dataclass(frozen=True, slots=True)
 class Modes:

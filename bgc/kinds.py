@@ -366,15 +366,13 @@ FAULT_KINDS: Mapping[str, FaultKind] = {
 #: (:attr:`FaultKind.discrete`), which a mode asking for the switch's state clears
 #: (:func:`releases`).
 SWITCH_KINDS: Mapping[str, FaultKind] = {
-    **{name: FaultKind(name, "switch", False, {d: (1.0, 1.0) for d in ("increase", "decrease", "both")}, 0.0,
-                       "prior", f"a switched junction stuck {state} from the onset, whatever the mode says",
-                       ("switch",), "stuck")
-       for name, state in (("stuck_on", "ON"), ("stuck_off", "OFF"))},
-    **{name: FaultKind(name, "switch", False, {d: (1.0, 1.0) for d in ("increase", "decrease", "both")}, 0.0,
-                       "prior", f"a switched junction turned {state} at the onset without a command, until a "
-                       f"mode asks for it {state} (the controller's next command of the switch)",
-                       ("switch",), "uncommanded")
-       for name, state in (("uncommanded_on", "ON"), ("uncommanded_off", "OFF"))}}
+    f"{suffix}_{state.lower()}": FaultKind(
+        f"{suffix}_{state.lower()}", "switch", False, {d: (1.0, 1.0) for d in ("increase", "decrease", "both")}, 0.0,
+        "prior", f"a switched junction {what.format(state=state)}", ("switch",), suffix)
+    for suffix, what in (("stuck", "stuck {state} from the onset, whatever the mode says"),
+                         ("uncommanded", "turned {state} at the onset without a command, until a mode asks for it "
+                                         "{state} (the controller's next command of the switch)"))
+    for state in ("ON", "OFF")}
 
 
 def fault_parameter(name: str) -> str:
@@ -391,6 +389,15 @@ def fault_parameter(name: str) -> str:
     return name.rsplit("_", 1)[0]
 
 
+def kind_of(name: str) -> str:
+    """The kind of a fault model by its name (``R1_abrupt``, ``K_uncommanded_on``).
+
+    >>> kind_of("R1_abrupt"), kind_of("K_uncommanded_on"), kind_of("v_C_offset_bias")
+    ('abrupt', 'uncommanded_on', 'bias')
+    """
+    return name[len(fault_parameter(name)) + 1:]
+
+
 def stuck_state(kind: str) -> str:
     """Where a switch's fault of ``kind`` (stuck_on, stuck_off, uncommanded_on,
     uncommanded_off) puts the switch: ``ON`` or ``OFF``."""
@@ -401,7 +408,7 @@ def releases(kind: str) -> bool:
     """Whether a switch's fault of ``kind`` ends when a mode asks for the
     state it put the switch in (an uncommanded change: the controller's next
     command of the switch takes it back), rather than lasting (stuck)."""
-    return kind.startswith("uncommanded")
+    return kind in SWITCH_KINDS and SWITCH_KINDS[kind].suffix == "uncommanded"
 
 
 def stuck_title(junction: str, kind: str) -> str:

@@ -23,6 +23,8 @@ is, by hand, for each fault:
     S:stuck_off@2            ON [0, 2)  OFF [2, ...)
     S:uncommanded_on@2       as no fault (closed asks ON already: nothing moves)
     S:uncommanded_on@7       ON [0, 5)  OFF [5, 7)   ON [7, 22)   OFF [22, ...)   (closed at 15 asks ON: it ends)
+    S:uncommanded_on@4.95    as no fault (closed still asks ON at 4.95)
+    S:uncommanded_on@5       ON [0, 22)              OFF [22, ...)   (at the command's own sample: it stays ON)
 
 The diagnoses read data from solve_ivp on the same equations, not from bgc's
 simulator.
@@ -38,11 +40,15 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import bgc
+from bgc.analysis import track
 from bgc.compiler import modes
 from bgc.compiler.hybrid_dbn import across_modes
 from bgc.compiler.load import load
 from bgc.compiler.validate import validate
 from bgc.data import runs
+from bgc.diagnosis.static_posterior import fault_start
+from bgc.filters.cubature import nominal_track, run_bank
+from bgc.model.protocol import nominal_model, onset_transition
 
 ROOT = Path(__file__).resolve().parent.parent
 MODEL = ROOT / "docs" / "examples" / "switched_rc.yaml"
@@ -62,6 +68,8 @@ BY_HAND = {
     "S:stuck_off@2": ((0.0, True), (2.0, False)),
     "S:uncommanded_on@2": NOMINAL,
     "S:uncommanded_on@7": ((0.0, True), (5.0, False), (7.0, True), (22.0, False)),
+    "S:uncommanded_on@4.95": NOMINAL,
+    "S:uncommanded_on@5": ((0.0, True), (22.0, False)),
     "S:uncommanded_off@16.5": ((0.0, True), (5.0, False), (15.0, True), (16.5, False)),
     "S:stuck_off@16.5": ((0.0, True), (5.0, False), (15.0, True), (16.5, False)),
 }
@@ -97,9 +105,8 @@ def exact(pieces, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return v, current
 
 
-def run_text(scenario: str, seed: int) -> str:
-    """A run file of the plant with the switch as ``BY_HAND[scenario]`` says,
-    solved by solve_ivp piece by piece, with the sensors' noise."""
+def solved(scenario: str) -> tuple[np.ndarray, np.ndarray]:
+    """v and i_s at the samples, the switch as ``BY_HAND[scenario]`` says, by solve_ivp piece by piece."""
     pieces = BY_HAND[scenario]
     times = DT * np.arange(1, STEPS + 1)
     v = np.empty(STEPS)
@@ -112,7 +119,14 @@ def run_text(scenario: str, seed: int) -> str:
                         dense_output=True, rtol=1e-11, atol=1e-13)
         v[inside] = sol.sol(times[inside])[0]
         x = float(sol.sol(b)[0])
-    i_s = np.array([(V - x) / R_S if _at(pieces, t) else 0.0 for t, x in zip(times, v)])
+    return v, np.array([(V - x) / R_S if _at(pieces, t) else 0.0 for t, x in zip(times, v)])
+
+
+def run_text(scenario: str, seed: int) -> str:
+    """A run file of the plant with the switch as ``BY_HAND[scenario]`` says (:func:`solved`), with the
+    sensors' noise."""
+    times = DT * np.arange(1, STEPS + 1)
+    v, i_s = solved(scenario)
     rng = np.random.default_rng(seed)
     lines = ["time,mode,u:V,y:v_C,y:i_s"]
     for t, a, b in zip(times, v + NOISE["v_C"] * rng.standard_normal(STEPS),
@@ -121,16 +135,16 @@ def run_text(scenario: str, seed: int) -> str:
     return "\n".join(lines) + "\n"
 
 
-def test_the_closed_form_is_solve_ivps():
+@pytest.mark.parametrize("scenario", sorted(BY_HAND))
+def test_the_closed_form_is_solve_ivps(scenario):
     """The closed form the tests use, against solve_ivp on the equations (the reference's own check)."""
     times = DT * np.arange(1, STEPS + 1)
-    text = run_text("S:uncommanded_off@2", 0).splitlines()[1:]
-    v = np.array([float(line.split(",")[3]) for line in text])
-    assert np.max(np.abs(exact(BY_HAND["S:uncommanded_off@2"], times)[0] - v)) < 5 * NOISE["v_C"]
+    for a, b in zip(exact(BY_HAND[scenario], times), solved(scenario)):
+        assert np.max(np.abs(a - b)) < 1e-8
 
 
 @pytest.mark.parametrize("scenario", ["S:uncommanded_off@2", "S:stuck_off@2", "S:uncommanded_on@2",
-                                      "S:uncommanded_on@7"])
+                                      "S:uncommanded_on@7", "S:uncommanded_on@4.95", "S:uncommanded_on@5"])
 def test_the_truth_simulator_moves_the_switch_until_the_controller_asks_for_it_so(scenario):
     """bgc's truth simulator (no process noise) against the closed form for
     the switch's pieces by hand: v to 1e-6, and i_s (a sensor of no noise
@@ -156,41 +170,72 @@ def session():
     return bgc.open(MODEL, backend="numpy")
 
 
-def test_the_generated_flag_clears_when_a_mode_asks_for_the_switch_so(session):
-    """The generated model S_uncommanded_off stepped by hand on the data's
-    mode column, its flag set at the onset sample (2 s): the flag stays 1
-    until the controller opens S (5 s: mode open asks OFF), 0 from then on;
-    its v_C follows the closed form of the switch OFF from 2 s to 15 s and
-    ON again from 15 s (a stuck switch's model would stay OFF). Set where
-    the mode asks for the switch so already (7 s, open), the flag clears at
-    once and the model is the nominal one."""
+@pytest.mark.parametrize("name, onset, scenario, flagged", [
+    ("S_uncommanded_off", 2.0, "S:uncommanded_off@2", (2.0, 5.0)),  # until the controller opens S at 5 s
+    ("S_uncommanded_off", 7.0, "none", (7.0, 7.0 + DT)),  # open asks OFF already: the onset sample only
+    ("S_uncommanded_on", 4.95, "none", (4.95, 5.0)),  # closed asks ON still
+    ("S_uncommanded_on", 5.0, "S:uncommanded_on@5", (5.0, 15.0)),  # at the command's own sample
+])
+def test_the_generated_flag_clears_when_a_mode_asks_for_the_switch_so(session, name, onset, scenario, flagged):
+    """A generated model stepped by hand on the data's mode column as the
+    filters step it: the nominal cloud lifted into the fault model before
+    the transition into the onset sample (``augment``), that transition
+    nominal and the flag set for the sample (``onset_transition``), then
+    the model's own steps. Its flag is set over ``flagged`` (by hand: until
+    a mode asks for the switch where the fault put it; only the onset sample
+    where the mode asks for it already) and its v_C follows the closed form
+    of the switch's pieces by hand."""
     package = session.package
-    m = package.MODELS["S_uncommanded_off"]
+    m = package.MODELS[name]
     assert dict(zip(m.OUTPUTS, m.MEASUREMENT_STD)) == pytest.approx(NOISE)
-    assert list(m._RELEASE) == [False, True] and list(package.MODELS["S_uncommanded_on"]._RELEASE) == [True, False]
-    assert not hasattr(package.MODELS["S_stuck_off"], "_RELEASE")
     assert m.STATES[-1] == "S_uncommanded" and m.STATE_KINDS[-1] == "switch"
+    nominal = nominal_model(package)
     times = DT * np.arange(1, STEPS + 1)
     theta = np.asarray(m.THETA, dtype=float)
-    v_row, y_row = m.STATES.index("e5"), list(m.OUTPUTS).index("v_C")
-    for onset, pieces in ((2.0, BY_HAND["S:uncommanded_off@2"]), (7.0, NOMINAL)):
-        x = np.array(m.X0, dtype=float)[:, None].copy()
-        x[v_row], x[-1] = 0.0, 0.0
-        flags, readings = [], []
-        for t in times:
-            u = np.array([V, NUMBER[_at(SCHEDULE, t)]], dtype=float)
+    y_row = list(m.OUTPUTS).index("v_C")
+    x = np.array(nominal.X0, dtype=float)[:, None].copy()
+    x[nominal.STATES.index("e5")] = 0.0
+    flags, readings = [], []
+    for t in times:
+        u = np.array([V, NUMBER[_at(SCHEDULE, t)]], dtype=float)
+        if abs(t - onset) < 1e-9:
+            x = m.augment(x, np.random.default_rng(0))
+            onset_transition(m, x, u, theta)
+        elif x.shape[0] == len(m.STATES):
             x = m.predict(x, u, theta, m.DT)
-            if abs(t - onset) < 1e-9:
-                x = m.augment(x[:-1], np.random.default_rng(0))  # (the API's way to set it: the mode decides)
-            flags.append(float(x[-1, 0]))
-            readings.append(float(m.observe(x, u, theta)[y_row, 0]))
-        v, _ = exact(pieces, times)
-        assert np.max(np.abs(np.array(readings) - v)) < 1e-4
-        set_ = np.array(flags) > 0.5
-        if onset == 2.0:
-            assert np.array_equal(set_, (times >= 2.0 - 1e-9) & (times < 5.0 - 1e-9))
         else:
-            assert not set_.any()
+            x = nominal.predict(x, u, theta, nominal.DT)
+        flags.append(float(x[-1, 0]) if x.shape[0] == len(m.STATES) else 0.0)
+        readings.append(float((m if x.shape[0] == len(m.STATES) else nominal).observe(x, u, theta)[y_row, 0]))
+    v, _ = exact(BY_HAND[scenario], times)
+    assert np.max(np.abs(np.array(readings) - v)) < 1e-4
+    assert np.array_equal(np.array(flags) > 0.5, (times >= flagged[0] - 1e-9) & (times < flagged[1] - 1e-9))
+    assert list(m._RELEASE) == ([False, True] if name.endswith("off") else [True, False])
+    assert not hasattr(package.MODELS["S_stuck_off"], "_RELEASE")
+
+
+def _bank(package, scenario: str, name: str, onsets_at):
+    """Cubature Kalman filters of fault model ``name`` from the samples at times ``onsets_at`` on the
+    data of ``scenario`` (seed 1): their log-likelihoods, and the nominal filter's."""
+    run = runs.parse_run(run_text(scenario, 1), "switched_rc.csv")
+    nominal = nominal_model(package)
+    ys, us = track.run_arrays(run, package, "nominal")
+    base = nominal_track(nominal, ys, us, len(ys))
+    model = package.MODELS[name]
+    onsets = [int(np.searchsorted(run.time, t - 1e-9)) for t in onsets_at]
+    bank = run_bank(model, ys, us, base, onsets, np.ones(len(onsets)), fault_start(model, base, onsets[0]))
+    return np.asarray(bank.loglik, dtype=float), float(base.loglik[len(ys)])
+
+
+def test_the_cubature_banks_read_the_flag_back_from_each_step(session):
+    """S turned ON by itself at 5 s, the sample of the controller's command
+    to open it: a bank's cell from that onset explains the data far better
+    than no fault; one from the sample before (4.95 s, the mode still
+    closed: no change) is the nominal filter, to rounding; one from 2 s (the
+    mode closed until 5 s: its flag cleared at once) too."""
+    loglik, nominal = _bank(session.package, "S:uncommanded_on@5", "S_uncommanded_on", [2.0, 4.95, 5.0])
+    assert loglik[0] == pytest.approx(nominal, rel=1e-9) and loglik[1] == pytest.approx(nominal, rel=1e-9)
+    assert loglik[2] > nominal + 1000.0
 
 
 @pytest.fixture(scope="module")
@@ -246,7 +291,8 @@ def test_before_the_next_command_the_two_are_one_and_the_diagnosis_says_ambiguou
     plant here, so the diagnosis is ambiguous between them, at equal
     priors half and half, and bgc distinguish predicts it (its rival fits
     the truth exactly: E = 0); at 2 s (the command at 15 s to come) it
-    predicts them told apart."""
+    predicts them told apart; at 4.95 s, S turned ON where the mode asks it
+    ON, it predicts nothing to see."""
     d = _diagnose(session, "S:uncommanded_off@16.5", 4)
     assert d.verdict == "ambiguous" and set(d.candidates) == {"S_stuck_off", "S_uncommanded_off"}
     posterior = {h.name: h.posterior for h in d.hypotheses}
@@ -256,17 +302,20 @@ def test_before_the_next_command_the_two_are_one_and_the_diagnosis_says_ambiguou
     assert abs(rival.expected) < 1e-6 and "S_stuck_off" in late.distinctions[0].group
     early = bgc.distinguishability(session, "S:uncommanded_off@2", modes=MODES, steps=STEPS)
     assert early.distinctions[0].group == ()
+    # S turned ON at 4.95 s, while closed still asks it ON: no change at all, nothing to tell from no fault
+    none = bgc.distinguishability(session, "S:uncommanded_on@4.95", modes=MODES, steps=STEPS)
+    assert abs(none.distinctions[0].divergence) < 1e-9
 
 
 @pytest.mark.numba
 def test_the_compiled_kernels_read_the_flag_back_as_numpy_does(session):
     """The compiled package's cubature step reads the flag back from its own
-    layout of the points (bgc/filters/cubature.py): the same posteriors and
-    onset as the NumPy package's on the run where the controller's command
-    at 15 s ends the fault."""
-    run = runs.parse_run(run_text("S:uncommanded_off@2", 1), "switched_rc.csv")
-    a = bgc.diagnose(session, run, seed=1).diagnosis
-    b = bgc.diagnose(bgc.open(MODEL, backend="numba"), run, seed=1).diagnosis
-    assert (b.verdict, b.candidates, b.onset_step) == (a.verdict, a.candidates, a.onset_step)
-    assert {h.name: h.posterior for h in b.hypotheses} == pytest.approx({h.name: h.posterior for h in a.hypotheses},
-                                                                        abs=1e-6)
+    layout of the points (point p of cell c in column p C + c): a bank's
+    log-likelihoods from onsets before, at and after the controller's
+    commands (the flag cleared at once, or at 15 s, or held) are the NumPy
+    package's."""
+    at = [2.0, 4.95, 5.0, 7.0, 14.95, 15.0, 16.5]
+    mine, _ = _bank(session.package, "S:uncommanded_on@5", "S_uncommanded_on", at)
+    compiled, _ = _bank(bgc.open(MODEL, backend="numba").package, "S:uncommanded_on@5", "S_uncommanded_on", at)
+    np.testing.assert_allclose(compiled, mine, rtol=1e-9)
+    assert len(set(np.round(mine, 3))) >= 3  # the onsets differ: the read-back decides

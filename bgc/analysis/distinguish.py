@@ -566,7 +566,8 @@ def _stuck_fit(families: Families, name: str, w: np.ndarray, ww: float) -> tuple
     j = int(np.argmin(r))
     best = (float(r[j]), int(families.onsets[j]), wz[:, j])
     grid = [int(o) for o in families.onsets]
-    between = [k for k in range(grid[max(j - 1, 0)] + 1, grid[min(j + 1, len(grid) - 1)]) if k not in grid]
+    end = grid[j + 1] if j + 1 < len(grid) else families.x_after.shape[0]  # (after the grid's last: to the run's end)
+    between = [k for k in range(grid[max(j - 1, 0)] + 1, end) if k not in grid]
     if between:
         dev = deviations(families, name, np.ones(len(between)), between)
         wk = families.whitening.apply(dev).reshape(-1, len(between))
@@ -576,7 +577,7 @@ def _stuck_fit(families: Families, name: str, w: np.ndarray, ww: float) -> tuple
         i = int(np.argmin(rk))
         if rk[i] < best[0]:
             best = (float(rk[i]), between[i], wk[:, i])
-    if not best[0] < 0.5 * ww * (1.0 - 1e-9):  # no onset nearer the truth than no fault (a late one: as near, to rounding)
+    if not best[0] < 0.5 * ww * (1.0 - 1e-9):  # no onset nearer than no fault (a late one: as near, to rounding)
         return 0.5 * ww, grid[-1], 0.0, np.zeros_like(w)
     return max(best[0], 0.0), best[1], 1.0, best[2]
 

@@ -207,7 +207,7 @@ def simulate(hybrid, numerics: tuple, options: SimulationOptions,
         automaton.stuck = (after, *_transitions(model, after), fault.time)
         if releases(fault.kind):  # an uncommanded change: until a mode asks for the switch so
             switch = StuckSwitch(fault.subject, fault.kind, 0.0, None)
-            automaton.release = frozenset(m.name for m in model.modes.modes if switch.released(m.on))
+            automaton.release = frozenset(switch.releasing(model.modes.modes))
     rng = np.random.default_rng(options.seed)
     times = dt * np.arange(1, steps + 1)
     out_x, out_y = np.empty((steps, len(every))), np.empty((steps, len(first.outputs)))
@@ -360,6 +360,8 @@ class _Automaton:
             if self.release is None or self.current not in self.release:
                 self.modes, self.guards, self.resets = self.stuck[:3]
                 self.x = self.modes[self.current].settle(self.x, u, self.theta_at(t))
+            else:  # an uncommanded change to where the mode has the switch already: no change, no fault
+                self.release = None
             self.stuck = None
         remaining, zero = h, 0
         while True:

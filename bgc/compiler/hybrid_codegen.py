@@ -56,8 +56,10 @@ runtime's protocol (:mod:`bgc.model.protocol`) with a mode axis:
   ``K_uncommanded``, clears where a particle's mode asks for the switch
   where the fault put it (``_RELEASE``, per mode): the controller's next
   command of the switch takes it back, and the particle follows its modes
-  again. Cleared on entering such a mode, at the end of every step, and
-  where the flag is set (``augment``, ``initial_particles``).
+  again. Cleared on entering such a mode and at the start of every step
+  (a flag set where the mode already asks for the switch so, as at an
+  onset: the filters set it after the transition into the onset sample,
+  whose mode then decides).
 * **Noise levels** are those the simulator uses: a state's process noise is
   that of the first mode it is a state of, the measurement noise the first
   mode's.
@@ -210,7 +212,8 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
     configs, stuck_ctx = list(mode_ctx), None
     if stuck is not None:
         more, stuck_ctx = _stuck(model, stuck, every, row, at[flag[0]], len(mode_ctx))
-        stuck_ctx["releases"] = [stuck[0].released(m.on) for m in model.modes.modes] if stuck[0].releases else None
+        ends = stuck[0].releasing(model.modes.modes)
+        stuck_ctx["releases"] = [m.name in ends for m in model.modes.modes] if stuck[0].releases else None
         configs += more
     transitions = _transitions(model, modes, row, d0, fault_row, at, spread)
     n_inputs = len(ssm0.inputs)

@@ -136,7 +136,7 @@ def _stuck(model, modes: tuple, fault: StuckSwitch) -> Dbn:
     g.add_edge(node(indicator, 0), node(indicator, 1), arc="persistence")
     if fault.releases:  # a mode asking for the switch where the fault put it ends the fault
         g.add_edge(node(MODE, 1), node(indicator, 1), arc="release",
-                   modes=",".join(m.name for m in model.modes.modes if fault.released(m.on)))
+                   modes=",".join(fault.releasing(model.modes.modes)))
     states = tuple(sorted({x for m in (*modes, *stuck.configs) for x in m.equations.states}))
     changed: dict[tuple[str, str], list[str]] = {}
     for m, config in zip(modes, stuck.configs):

@@ -360,4 +360,12 @@ def track_job(name: str, starts, package, clouds: dict, options: DiagnosisOption
                     {s - f: hypothesis_seed(options.seed, name, s) for s in starts},
                     {s - f: cloud_before(clouds, s) for s in starts},
                     {s - f: rejection_options(options.rejection, options.windows, horizon, s) for s in starts},
-                    options.interval, options.shrinkage, tuple(outputs), bar)
+                    options.interval, _shrinkage(package.MODELS[name], options.shrinkage), tuple(outputs), bar)
+
+
+def _shrinkage(model, shrinkage: float) -> float:
+    """The kernel shrinkage of a fault model's magnitude: none (1) for a flag
+    (:attr:`bgc.kinds.FaultKind.discrete`: 0 or 1, which a kernel move would
+    spread between them where the particles disagree, an uncommanded switch
+    cleared in some)."""
+    return 1.0 if fault_kind(model.FAULT["kind"]).discrete else shrinkage

@@ -8,6 +8,7 @@ import dataclasses
 import math
 
 from .. import events as ev
+from ..kinds import kind_of, releases
 
 
 def time_text(t) -> str:
@@ -168,7 +169,7 @@ def sentence(e, time_of) -> str:
         case ev.NoLikelihood():
             return "the cubature Kalman filters found no finite likelihood for any hypothesis"
         case ev.Misfit(hypothesis=h, magnitude=m, value=v, start=s, sensor=y, window=w, statistic=z, threshold=c):
-            held = (f"{'moved without a command at' if '_uncommanded_' in h else 'stuck from'} t = {t(s)} "
+            held = (f"{'moved without a command at' if releases(kind_of(h)) else 'stuck from'} t = {t(s)} "
                     f"(its most probable onset)" if m == "switch" else
                     f"with its {m} held at {v:.4g} from t = {t(s)} (the most probable magnitude and onset; its "
                     f"estimate is the mean over all of them)")
@@ -370,7 +371,7 @@ def fault_sentence(e, since, per_time: str = "per unit time") -> str:
     >>> fault_sentence(dataclasses.replace(e, kind="uncommanded_on"), 0.99)
     'switch K turned ON without a command at t = 0.99'
     """
-    from ..kinds import fault_kind, releases, stuck_state
+    from ..kinds import fault_kind, stuck_state
 
     v = e.value
     if not math.isfinite(v):

@@ -13,7 +13,7 @@ from typing import Any
 
 from ..errors import printable
 from ..ir import CausalBondGraph, Dbn, FaultSignatures, Numerics, StateSpaceModel, TemporalCausalGraph, var_key
-from ..kinds import ELEMENT_KINDS, FAULT_KINDS, ROLES
+from ..kinds import ELEMENT_KINDS, FAULT_KINDS, ROLES, kind_of, releases
 from .labels import Labels
 from .layout import DBN_BANDS, dbn_band, signal_links
 
@@ -685,9 +685,9 @@ def distinguishability_text(r) -> str:
         width = max([len(x.name) for x in d.rivals] + [5])
         lines.append(f"{'rival':<{width}}  {'E':>10}  {'sd':>9}  {'P':>6}  best fit (magnitude from t)")
         for x in d.rivals:
-            moved = "moved" if "_uncommanded_" in x.name else "stuck"  # a switch's fault: no size
-            fit = "no fault" if x.magnitude == 0 else f"{moved if getattr(x, 'stuck', False) else f'{x.magnitude:.4g}'}" \
-                f" from t = {(x.onset + 1) * r.dt:g}"
+            size = ("moved" if releases(kind_of(x.name)) else "stuck") if getattr(x, "stuck", False) else \
+                f"{x.magnitude:.4g}"  # a switch's fault: no size
+            fit = "no fault" if x.magnitude == 0 else f"{size} from t = {(x.onset + 1) * r.dt:g}"
             lines.append(f"{x.name:<{width}}  {x.expected:>10.4g}  {x.std:>9.3g}  {x.probability:>6.3f}  {fit}")
         lines.append("predicted ambiguity group: " + (", ".join(d.group) or "none"))
         return "\n".join(lines) + "\n"
