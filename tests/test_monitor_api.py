@@ -5,6 +5,7 @@ the arguments are checked before any work."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 import bgc
@@ -81,20 +82,38 @@ def _lines(scenario: str, steps: int) -> list[str]:
 
 
 @pytest.mark.slow
-def test_a_monitor_stepped_row_by_row_keeps_the_fault_log_bgc_monitor_keeps():
-    """The rows fed one at a time: the fault log follows the plant (R2 accommodated when it steps,
-    named gone when it returns, accommodated again), each event is returned by the row that made
-    it, and the log, the events and the report are those of bgc.monitor on the same rows."""
+def test_a_monitor_stepped_row_by_row_says_what_bgc_monitor_says_row_for_row():
+    """The rows fed one at a time (as CSV lines, as lists of numbers and as
+    mappings, in turn): the fault log follows the plant (R2 accommodated
+    when it steps, named gone when it returns, accommodated again), and each
+    row returns the event lines bgc.monitor says while that row is the last
+    one its generator gave; the report is bgc.monitor's (its events, its
+    verdict, the rows read)."""
     lines = _lines("R2:abrupt:1.2@2-8,12", 340)  # R2 up at 2 s, back at 8 s, up again at 12 s
+    given, heard = [], []
+
+    def rows():
+        for line in lines:
+            given.append(line)
+            yield line
+
+    report = bgc.monitor(session("circuit"), rows(), checkpoint=1, episodes=True, particles=300,
+                         events=lambda line: heard.append((len(given) - 1, line)))
     m = bgc.Monitor(session("circuit"), lines[0], checkpoint=1, episodes=True, particles=300)
-    returned = [said for line in lines[1:] for said in m.feed(line)]
+    columns = m.columns
+    returned = []
+    for i, line in enumerate(lines[1:], start=1):
+        numbers = [float(v) for v in line.split(",")]
+        row = (line, numbers, dict(zip(columns, numbers)))[i % 3]
+        returned += [(i, said) for said in m.feed(row)]
+    mine = m.report()
     assert [(e.action, e.parameter) for e in m.fault_log] == [("accommodated", "R2"), ("ended", "R2"),
                                                              ("accommodated", "R2")]
-    heard = []
-    report = bgc.monitor(session("circuit"), lines, checkpoint=1, episodes=True, particles=300, events=heard.append)
-    mine = m.report()
-    assert mine.fault_log == report.fault_log and mine.diagnosis.verdict == report.diagnosis.verdict
-    assert tuple(returned) == m.events[:len(returned)] and m.events == tuple(heard)
+    assert returned == [(i, said) for i, said in heard if i < len(lines)][:len(returned)]
+    assert len(returned) > 10 and m.events == tuple(said for _, said in heard)
+    assert mine.fault_log == report.fault_log and mine.diagnosis.events == report.diagnosis.events
+    assert mine.diagnosis.verdict == report.diagnosis.verdict and mine.stream == report.stream
+    assert m.report() is mine
     with pytest.raises(ArgumentValueError, match="has made its report"):
         m.feed(lines[-1])
 
@@ -126,18 +145,43 @@ def test_a_repair_said_from_python_is_the_streams_repair_line():
 
 
 def test_a_stepped_monitors_arguments_and_rows_are_checked():
+    """One-line errors for what a program gets wrong; a refused row leaves
+    the monitor as it was (the next row is taken, a repair said before it
+    still waits), and a report needs a row."""
     with pytest.raises(ArgumentTypeError, match="columns is int"):
         bgc.Monitor(CIRCUIT, 5)
     with pytest.raises(ArgumentValueError, match="episodes=True without a checkpoint"):
         bgc.Monitor(CIRCUIT, "time,u:V,y:f2,y:f6,y:e11", episodes=True)
-    m = bgc.Monitor(session("circuit"), ["time", "u:V", "y:f2", "y:f6", "y:e11"], particles=50)
+    plain = bgc.Monitor(session("circuit"), "time,u:V,y:f2,y:f6,y:e11", particles=50)
+    with pytest.raises(ArgumentValueError, match="a monitor without episodes accommodates no fault"):
+        plain.repaired()
+    with pytest.raises(DataError, match="no data row arrived"):
+        plain.report()
+    m = bgc.Monitor(session("circuit"), ["time", "u:V", "y:f2", "y:f6", "y:e11"], particles=50, checkpoint=1,
+                    episodes=True)
     assert m.columns == ("time", "u:V", "y:f2", "y:f6", "y:e11")
     with pytest.raises(ArgumentValueError, match="no column 'y:f9'"):
         m.feed({"time": 0.05, "y:f9": 1.0})
+    with pytest.raises(ArgumentValueError, match="the row has no time"):
+        m.feed({"y:f2": 1.0})
+    with pytest.raises(ArgumentTypeError, match="not a number"):
+        m.feed([0.05, None, 2.0, 2.0, 2.0])
+    with pytest.raises(ArgumentTypeError, match="row is bytes"):
+        m.feed(b"0.05,10,2,2,2")
     with pytest.raises(ArgumentValueError, match="a comment or blank line is no row"):
         m.feed("# repaired")
     with pytest.raises(ArgumentValueError, match="parameters are the model's names"):
         m.repaired("R2 and R1")
     with pytest.raises(DataError, match="3 fields, expected 5"):
         m.feed([0.05, 10.0, 2.0])
-    assert m.feed({"time": 0.05, "u:V": 10.0, "y:f2": 2.5, "y:f6": 2.5}) == ()  # e11 not measured
+    m.feed({"time": 0.05, "u:V": 10.0, "y:f2": 2.5, "y:f6": 2.5})  # e11 not measured
+    assert np.isnan(m._run.rows[-1][4]) and m._run.rows[-1][:4] == [0.05, 10.0, 2.5, 2.5]
+    m.repaired("R2")
+    with pytest.raises(DataError, match="time 0.05 is not after the last row's"):
+        m.feed([0.05, 10.0, 2.5, 2.5, 2.5])
+    with pytest.raises(ArgumentValueError, match="a repair was said after the last row"):
+        m.report()
+    m.feed([0.1, 10.0, 2.5, 2.5, 2.5])  # the repair taken here: nothing accommodated, nothing to take out
+    assert [type(e).__name__ for e in m.fault_log] == ["Repaired"] and m.fault_log[0].time == 0.1
+    report = m.report()  # the record of the diagnoser watching since the repair; the rows read in all
+    assert list(report.run.time) == [0.1] and report.stream == (2, 0.05)

@@ -132,19 +132,20 @@ class Monitor:
     (:meth:`feed`), the events as they happen and the fault log as it grows,
     a repair said from Python (:meth:`repaired`), and the report of the rows
     so far (:meth:`report`). The same diagnosis as :func:`monitor` of the same
-    rows (its arguments by the same names; no state folder: a program that
-    steps the monitor keeps it alive itself).
+    rows, event for event (its arguments by the same names; no state folder:
+    a program that steps the monitor keeps it alive itself).
 
     ``columns``: the run file's column names (``time`` first; a model with
-    modes may have ``mode``), as a list or as the CSV's header line.
-
-    For example (tests/test_monitor_api.py runs it)::
+    modes may have ``mode``), as a list or as the CSV's header line; ``name``:
+    the rows' source in messages. The inputs' timing is the options' (a run
+    file's header could say it: ``options=DiagnosisOptions(input_timing=...)``).
+    For example::
 
         m = bgc.Monitor("models/circuit.yaml", ["time", "u:V", "y:f2", "y:f6", "y:e11"],
                         checkpoint=1, episodes=True)
-        for t, v, f2, f6, e11 in logger:          # the plant's rows as they come
+        for t, v, f2, f6, e11 in rows:           # the plant's rows as they come
             for line in m.feed([t, v, f2, f6, e11]):
-                print(line)                          # "t = 4.05: alarm ...", an episode closed
+                print(line)                          # "t = 2: alarm on f6: ...", an episode closed
         m.repaired("R2")                             # the operator's word, before the next row
         m.fault_log                                  # EpisodeClosed and Repaired events so far
     """
@@ -155,7 +156,7 @@ class Monitor:
                  seed: int = _DEFAULT.seed, process_noise: float | None = None, measurement_noise: float | None = None,
                  options: DiagnosisOptions | None = None, name: str = "<rows>"):
         func = "bgc.Monitor"
-        names = list(columns) if isinstance(columns, Iterable) and not isinstance(columns, str) else None
+        names = list(columns) if isinstance(columns, Iterable) and not isinstance(columns, (str, bytes)) else None
         if isinstance(columns, str):
             header = columns.rstrip("\r\n")
         elif names is not None and all(isinstance(c, str) for c in names):
@@ -175,7 +176,8 @@ class Monitor:
                                      exclude_faulty_sensor, None, None, STATE_EVERY, rearm if episodes else None,
                                      episodes)
         self._rows = iter(self._run.reader)
-        self._done = False
+        self._pending: tuple[str, ...] | None = None  # a repair said since the last row
+        self._report: DiagnosisReport | None = None
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -184,48 +186,82 @@ class Monitor:
 
     def feed(self, row) -> tuple[str, ...]:
         """Take one row: a CSV line, or its numbers in :attr:`columns`' order
-        (a sequence), or by column name (a mapping; a name left out: not
-        measured). Returns the event lines the row made (an alarm, a
-        checkpoint's verdict, an episode closed), as ``bgc monitor`` prints
-        them. A malformed row is a one-line DataError naming it; the monitor
-        goes on with the next."""
-        if self._done:
-            raise ArgumentValueError("bgc.Monitor.feed: the monitor has made its report", None,
+        (a sequence), or by column name (a mapping with ``time``; another
+        column left out: not measured). Returns the event lines the row made
+        (an alarm, a checkpoint's verdict, an episode closed), as ``bgc
+        monitor`` prints them. A malformed row, or one whose time is not after
+        the last row's, is a one-line DataError naming it, and the monitor
+        goes on with the next row (a repair said before it still waits)."""
+        func = "bgc.Monitor.feed"
+        if self._report is not None:
+            raise ArgumentValueError(f"{func}: the monitor has made its report", None,
                                      "open a new bgc.Monitor for more rows")
-        if isinstance(row, str):
-            line = row.rstrip("\r\n")
-        elif isinstance(row, Mapping):
-            unknown = sorted(set(row) - set(self._run.columns))
-            if unknown:
-                raise ArgumentValueError(f"bgc.Monitor.feed: no column {unknown[0]!r}", None,
-                                         "name the columns: " + ", ".join(self._run.columns))
-            line = ",".join(repr(float(row[c])) if c in row else "" for c in self._run.columns)
-        elif isinstance(row, Iterable):
-            line = ",".join(repr(float(v)) for v in row)
-        else:
-            raise ArgumentTypeError(f"bgc.Monitor.feed: row is {type(row).__name__}", None,
-                                    "give a CSV line, a sequence of numbers, or a mapping of column to number")
-        if line.startswith("#") or not line.strip():
-            raise ArgumentValueError("bgc.Monitor.feed: a comment or blank line is no row", None,
-                                     "give a data row (say a repair with Monitor.repaired)")
-        start = len(self._said)
+        line = self._line(func, row)
+        self._queue.clear()
+        if self._pending is not None:
+            self._queue.append(_repair_line(self._pending))
         self._queue.append((line + "\n").encode("utf-8"))
+        run, lines = self._run, self._run.reader.lines
+        lines.offset = 0  # (the reader's cap on a file's bytes: a monitor fed for months reads no file)
         try:
             values, number = next(self._rows)
-        except DataError:  # the row is refused; the rows after it are read afresh
-            self._rows = iter(self._run.reader)
+            t, last = values[0], run.rows_time
+            if not math.isfinite(t) or (last is not None and not t > last):
+                raise DataError(f"{printable(run.name)}:{number}: time {t!r} is not after the last row's "
+                                f"({last!r})" if last is not None else f"{printable(run.name)}:{number}: time {t!r} "
+                                "is not a number", None, "feed the rows in the order of their times")
+        except DataError:  # the row is refused (a repair read with it waits for the next: not yet taken)
+            if self._pending is not None and lines.header and lines.header[-1].startswith("repaired"):
+                lines.header.pop()
+            self._queue.clear()
+            self._rows = iter(run.reader)
             raise
-        self._run.row(values, number, contextlib.nullcontext())
+        start = len(self._said)
+        run.row(values, number, contextlib.nullcontext())
+        self._pending = None
         return tuple(self._said[start:])
+
+    def _line(self, func: str, row) -> str:
+        """A row as a CSV line (module :meth:`feed`'s three forms), its numbers checked."""
+        if isinstance(row, str):
+            line = row.rstrip("\r\n")
+            if line.startswith("#") or not line.strip():
+                raise ArgumentValueError(f"{func}: a comment or blank line is no row", None,
+                                         "give a data row (say a repair with Monitor.repaired)")
+            return line
+        if isinstance(row, Mapping):
+            unknown = sorted(set(row) - set(self._run.columns))
+            if unknown:
+                raise ArgumentValueError(f"{func}: no column {unknown[0]!r}", None,
+                                         "name the columns: " + ", ".join(self._run.columns))
+            if "time" not in row:
+                raise ArgumentValueError(f"{func}: the row has no time", None, "give row['time']")
+            values = [row.get(c) for c in self._run.columns]
+        elif isinstance(row, Iterable) and not isinstance(row, (bytes, bytearray)):
+            values = list(row)
+        else:
+            raise ArgumentTypeError(f"{func}: row is {type(row).__name__}", None,
+                                    "give a CSV line, a sequence of numbers, or a mapping of column to number")
+        try:
+            return ",".join("" if isinstance(row, Mapping) and v is None else repr(float(v)) for v in values)
+        except (TypeError, ValueError):
+            raise ArgumentTypeError(f"{func}: the row holds something that is not a number", None,
+                                    "give numbers (NaN: not measured)") from None
 
     def repaired(self, *parameters: str) -> None:
         """The operator says the plant was repaired (all the faults
         accommodated, or those of ``parameters``): it takes effect before the
-        next row, as a ``# repaired`` line of the stream does."""
-        if not all(isinstance(p, str) and p.isidentifier() for p in parameters):
-            raise ArgumentValueError("bgc.Monitor.repaired: parameters are the model's names", None,
+        next row, as a ``# repaired`` line of the stream does (with
+        ``episodes``: a monitor without them accommodates nothing)."""
+        func = "bgc.Monitor.repaired"
+        if self._run.log is None:
+            raise ArgumentValueError(f"{func}: a monitor without episodes accommodates no fault to repair", None,
+                                     "open the monitor with episodes=True")
+        if not all(isinstance(p, str) and p.isidentifier() and len(p) <= 200 for p in parameters):
+            raise ArgumentValueError(f"{func}: parameters are the model's names", None,
                                      "give names, e.g. m.repaired('R2'), or none for every fault accommodated")
-        self._queue.append(f"# repaired{': ' + ', '.join(parameters) if parameters else ''}\n".encode("utf-8"))
+        self._pending = tuple(sorted(set(self._pending or ()) | set(parameters))) \
+            if parameters and self._pending != () else ()
 
     @property
     def events(self) -> tuple[str, ...]:
@@ -240,9 +276,20 @@ class Monitor:
 
     def report(self) -> DiagnosisReport:
         """The report of the rows so far, as :func:`monitor` returns it at the
-        data's end; the monitor takes no row after it."""
-        self._done = True
-        return self._run.finish(self._stream)
+        data's end; the monitor takes no row after it (a second call gives the
+        same report). A repair said after the last row is refused: it takes
+        effect at a row."""
+        if self._report is None:
+            if self._pending is not None:
+                raise ArgumentValueError("bgc.Monitor.report: a repair was said after the last row", None,
+                                         "feed the row after the repair first: the repair takes effect at it")
+            self._report = self._run.finish(self._stream)
+        return self._report
+
+
+def _repair_line(parameters: tuple[str, ...]) -> bytes:
+    """The stream's comment line of a repair (:func:`bgc.service.episodes.repair_of` reads it)."""
+    return f"# repaired{': ' + ', '.join(parameters) if parameters else ''}\n".encode("utf-8")
 
 
 class _Queue:
