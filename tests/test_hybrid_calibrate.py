@@ -70,8 +70,8 @@ def test_data_without_the_mode_column_of_a_controlled_switch_are_refused_in_one_
     session = bgc.open(RELAY, backend="numpy")
     with pytest.raises(DataError, match="the data have no mode column") as info:
         session.calibrate(exact_run(0.5, 0.5, seed=1, modes=False))
-    assert "cannot be read from the measurements: its transition" in info.value.line()
-    assert "is controlled (set from outside)" in info.value.line() and "\n" not in info.value.line()
+    assert "cannot be read from the measurements: its transitions open -> unpowered, closed -> unpowered are " \
+        "controlled (set from outside)" in info.value.line() and "\n" not in info.value.line()
 
 
 @pytest.mark.slow

@@ -115,7 +115,8 @@ def readable(model) -> str | None:
     controlled = [t for t in model.TRANSITIONS if t[2] is None and t[3] is None]
     if controlled:
         names = ", ".join(f"{model.MODES[t[0] - 1]} -> {model.MODES[t[1] - 1]}" for t in controlled)
-        return f"its transition {names} is controlled (set from outside), which only the data can say"
+        which = f"transition {names} is" if len(controlled) == 1 else f"transitions {names} are"
+        return f"its {which} controlled (set from outside), which only the data can say"
     return None
 
 
