@@ -185,3 +185,15 @@ def test_a_stepped_monitors_arguments_and_rows_are_checked():
     assert [type(e).__name__ for e in m.fault_log] == ["Repaired"] and m.fault_log[0].time == 0.1
     report = m.report()  # the record of the diagnoser watching since the repair; the rows read in all
     assert list(report.run.time) == [0.1] and report.stream == (2, 0.05)
+
+
+def test_a_stepped_monitor_keeps_the_last_event_lines_only(monkeypatch):
+    """A monitor that runs for months keeps a bounded memory: ``events`` holds
+    the last ``EVENTS_KEPT`` lines, and each row still returns its own."""
+    from bgc.service import public
+
+    monkeypatch.setattr(public, "EVENTS_KEPT", 2)
+    lines = _lines("R2:abrupt:1.2@2-6", 200)
+    m = bgc.Monitor(session("circuit"), lines[0], checkpoint=1, episodes=True, particles=300)
+    returned = [said for line in lines[1:] for said in m.feed(line)]
+    assert len(returned) > 2 and m.events == tuple(returned[-2:])

@@ -29,6 +29,8 @@ from ..diagnosis.options import DiagnosisOptions
 from ..errors import ArgumentTypeError, ArgumentValueError, DataError, printable
 from .monitor import STATE_EVERY
 
+#: The event lines a :class:`Monitor` keeps for :attr:`Monitor.events` (the last ones).
+EVENTS_KEPT = 10_000
 #: The filters' settings :func:`monitor` takes by name, at their defaults.
 _DEFAULT = DiagnosisOptions()
 
@@ -171,8 +173,9 @@ class Monitor:
 
         self._queue: collections.deque[bytes] = collections.deque([(header + "\n").encode("utf-8")])
         self._stream = _Queue(self._queue)
-        self._said: list[str] = []
-        self._run = service._Monitor(session, self._stream, name, options, self._said.append, checkpoint, None,
+        self._said: collections.deque[str] = collections.deque(maxlen=EVENTS_KEPT)
+        self._count = 0  # the event lines said so far
+        self._run = service._Monitor(session, self._stream, name, options, self._say, checkpoint, None,
                                      exclude_faulty_sensor, None, None, STATE_EVERY, rearm if episodes else None,
                                      episodes)
         self._rows = iter(self._run.reader)
@@ -216,10 +219,14 @@ class Monitor:
             self._queue.clear()
             self._rows = iter(run.reader)
             raise
-        start = len(self._said)
+        start = self._count
         run.row(values, number, contextlib.nullcontext())
         self._pending = None
-        return tuple(self._said[start:])
+        return tuple(self._said)[len(self._said) - (self._count - start):] if self._count > start else ()
+
+    def _say(self, line: str) -> None:
+        self._said.append(line)
+        self._count += 1
 
     def _line(self, func: str, row) -> str:
         """A row as a CSV line (module :meth:`feed`'s three forms), its numbers checked."""
@@ -265,7 +272,9 @@ class Monitor:
 
     @property
     def events(self) -> tuple[str, ...]:
-        """Every event line said so far, in order."""
+        """The event lines said so far, in order: the last ``EVENTS_KEPT`` of
+        them (a monitor that runs for months keeps a bounded memory; the fault
+        log keeps every episode)."""
         return tuple(self._said)
 
     @property
