@@ -552,18 +552,21 @@ def _rival_fits(families: Families, name: str, w: np.ndarray, ww: float) -> tupl
 def _stuck_fit(families: Families, name: str, w: np.ndarray, ww: float) -> tuple[float, int, float, np.ndarray]:
     """The best fit of whitened target ``w`` by stuck switch ``name``'s own
     noise-free runs from each onset of the families' grid (nonlinear: a
-    stuck switch has no size to linearise in), then from every sample
-    between the best one's neighbours on the grid (a switch's fault moves
-    the readings at once: one sample off the truth's onset can cost more
-    than a whole run's difference, and a stuck switch and an uncommanded
-    change of it are the same run until a mode asks for the switch), or by
-    no fault when none comes nearer: (half the squared residual, the onset
-    sample, 1 (from it) or 0 (no fault), the fit's whitened deviation)."""
+    stuck switch has no size to linearise in), then, where the best of them
+    comes nearer than no fault, from every sample between its neighbours on
+    the grid (a switch's fault moves the readings at once: one sample off
+    the truth's onset can cost more than a whole run's difference, and a
+    stuck switch and an uncommanded change of it are the same run until a
+    mode asks for the switch), or by no fault when none comes nearer: (half
+    the squared residual, the onset sample, 1 (from it) or 0 (no fault), the
+    fit's whitened deviation)."""
     wz = families.stuck_runs[families.stuck.index(name)]  # its runs from every onset, whitened (prepare)
     with np.errstate(invalid="ignore", over="ignore"):
         r = 0.5 * ((wz - w[:, None]) ** 2).sum(axis=0)
     r[~np.isfinite(r)] = math.inf
     j = int(np.argmin(r))
+    if not r[j] < 0.5 * ww * (1.0 - 1e-9):  # no grid onset nearer than no fault (a late one: as near, to rounding)
+        return 0.5 * ww, int(families.onsets[-1]), 0.0, np.zeros_like(w)
     best = (float(r[j]), int(families.onsets[j]), wz[:, j])
     grid = [int(o) for o in families.onsets]
     end = grid[j + 1] if j + 1 < len(grid) else families.x_after.shape[0]  # (after the grid's last: to the run's end)
@@ -577,8 +580,6 @@ def _stuck_fit(families: Families, name: str, w: np.ndarray, ww: float) -> tuple
         i = int(np.argmin(rk))
         if rk[i] < best[0]:
             best = (float(rk[i]), between[i], wk[:, i])
-    if not best[0] < 0.5 * ww * (1.0 - 1e-9):  # no onset nearer than no fault (a late one: as near, to rounding)
-        return 0.5 * ww, grid[-1], 0.0, np.zeros_like(w)
     return max(best[0], 0.0), best[1], 1.0, best[2]
 
 
