@@ -185,12 +185,30 @@ def table(rows: list, faults, what: str, which: int = 1, title: str = "separable
     print(f"\n{what} isolated right where {title}: {right} of {len(sep)} ({100 * right / max(len(sep), 1):.1f} %)")
 
 
-def run_text(times, modes, ys) -> str:
-    lines = ["time,mode,u:V,y:i_L,y:v_C"]
-    for t, (i, v) in zip(times, ys):
-        mode = [m for at, m in modes if t >= at - 1e-9][-1]
-        lines.append(f"{t:.10g},{mode},{V},{float(i)!r},{float(v)!r}")
+def mode_at(modes: list[tuple[float, int]], t: float) -> int:
+    """The mode number an operator's changes ``modes`` ((time, mode) pairs, from time 0) have at ``t``."""
+    return [m for at, m in modes if at <= t + 1e-9][-1]
+
+
+def run_text(times, modes, ys, sensors=("i_L", "v_C"), voltage: float = V) -> str:
+    """A run file of readings ``ys`` (of ``sensors``) under the supply ``voltage``, its mode column the operator's."""
+    lines = ["time,mode,u:V," + ",".join(f"y:{y}" for y in sensors)]
+    for t, row in zip(times, ys):
+        lines.append(f"{t:.10g},{mode_at(modes, t)},{voltage}," + ",".join(repr(float(v)) for v in row))
     return "\n".join(lines) + "\n"
+
+
+def summary(rows: list, faults, others, what: str, which: int, seconds: float, runs: int, other_line) -> None:
+    """Print the tables of the switch faults ``faults`` (separable by the
+    noise-free criterion, then by the prediction: the row's entry ``which``),
+    a line per other fault of ``others`` (``other_line(fault, its rows)``), and the CPU."""
+    print()
+    table(rows, faults, what)
+    print()
+    table(rows, faults, what, which, "predicted separable")
+    for fault in others:
+        print(other_line(fault, [r for r in rows if r[0] == fault]))
+    print(f"CPU {seconds:.0f} s ({seconds / max(runs, 1):.1f} s per run)")
 
 
 def main(argv=None) -> int:
@@ -234,22 +252,17 @@ def main(argv=None) -> int:
                              seed=k).diagnosis
         outcome = outcome_of(d, fault)
         stuck_named = any("stuck" in c for c in d.candidates)
-        column = [[m for at, m in modes if t >= at - 1e-9][-1] for t in times]
+        column = [mode_at(modes, t) for t in times]
         told = predicted(session, column, times, fault, onset) if "stuck" in fault else False
         rows.append((fault, separable, outcome, stuck_named, noise, told))
         print(f"run {k:3d} {fault:14s} onset {onset:5.2f} noise {noise:.2f} separable {separable!s:5s} "
               f"predicted {told!s:5s} -> {d.verdict}: {', '.join(d.candidates) or '-'}", flush=True)
-    seconds = time.process_time() - started
-    print()
-    table(rows, FAULTS[:3], "stuck switches")
-    print()
-    table(rows, FAULTS[:3], "stuck switches", 5, "predicted separable")
-    for fault in FAULTS[3:]:
-        mine = [r for r in rows if r[0] == fault]
+    def other_line(fault, mine):
         c = Counter(r[2] for r in mine)
-        print(f"{fault}: {len(mine)} runs; {c['right']} isolated right, a stuck switch named in "
-              f"{sum(r[3] for r in mine)}; outcomes {dict(c)}")
-    print(f"CPU {seconds:.0f} s ({seconds / max(args.runs, 1):.1f} s per run)")
+        return (f"{fault}: {len(mine)} runs; {c['right']} isolated right, a stuck switch named in "
+                f"{sum(r[3] for r in mine)}; outcomes {dict(c)}")
+
+    summary(rows, FAULTS[:3], FAULTS[3:], "stuck switches", 5, time.process_time() - started, args.runs, other_line)
     return 0
 
 
@@ -295,12 +308,7 @@ def ro(args) -> int:
         rows.append((fault, separable, outcome_of(d, fault), told))
         print(f"run {k:3d} {fault:17s} onset {onset:6.1f} modes {modes[:60]:60s} separable {separable!s:5s} "
               f"predicted {told!s:5s} -> {d.verdict}: {', '.join(d.candidates) or '-'}", flush=True)
-    seconds = time.process_time() - started
-    print()
-    table(rows, RO_FAULTS, "stuck valves")
-    print()
-    table(rows, RO_FAULTS, "stuck valves", 3, "predicted separable")
-    print(f"CPU {seconds:.0f} s ({seconds / max(args.runs, 1):.1f} s per run)")
+    summary(rows, RO_FAULTS, (), "stuck valves", 3, time.process_time() - started, args.runs, None)
     return 0
 
 
@@ -317,7 +325,7 @@ def switch_state(fault: str, onset: float, modes: list[tuple[float, int]], t: fl
     asks it ON; mode 2, open, OFF): as commanded, stuck from the onset, or
     moved by itself at the onset until the first command (at or after it)
     that asks for it in that state, by hand."""
-    commanded = [m for at, m in modes if at <= t + 1e-12][-1] == 1
+    commanded = mode_at(modes, t) == 1
     name, _, kind = fault.partition(":")
     if name != "S" or t < onset - 1e-12:
         return commanded
@@ -325,7 +333,7 @@ def switch_state(fault: str, onset: float, modes: list[tuple[float, int]], t: fl
     if kind.startswith("stuck"):
         return state
     asks = [onset] + [at for at, _ in modes if onset < at <= t + 1e-12]  # the commands since the onset
-    released = any(([m for at, m in modes if at <= a + 1e-12][-1] == 1) == state for a in asks)
+    released = any((mode_at(modes, a) == 1) == state for a in asks)
     return commanded if released else state
 
 
@@ -381,26 +389,16 @@ def supply(args) -> int:
         separable = int((np.abs(y - supply_run(times, modes, "none", onset, 0.0)) > 3 * scale * SUPPLY_STD)
                         .any(axis=1).sum()) >= 10
         ys = y + scale * SUPPLY_STD * rng.standard_normal(y.shape)
-        lines = ["time,mode,u:V,y:v_C,y:i_s"] + [
-            f"{tk:.10g},{[m for at, m in modes if at <= tk + 1e-9][-1]},{SUPPLY_V},{float(a)!r},{float(b)!r}"
-            for tk, (a, b) in zip(times, ys)]
+        text_run = run_text(times, modes, ys, ("v_C", "i_s"), SUPPLY_V)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            d = bgc.diagnose(session, runs.parse_run("\n".join(lines) + "\n", f"run{k}.csv"), seed=k).diagnosis
+            d = bgc.diagnose(session, runs.parse_run(text_run, f"run{k}.csv"), seed=k).diagnosis
         told = predicted(session, None, times, fault, onset, text) if fault.startswith("S:") else False
         rows.append((fault, separable, outcome_of(d, fault), told))
         print(f"run {k:3d} {fault:18s} onset {onset:5.2f} separable {separable!s:5s} "
               f"predicted {told!s:5s} -> {d.verdict}: {', '.join(d.candidates) or '-'}", flush=True)
-    seconds = time.process_time() - started
-    print()
-    table(rows, SUPPLY_FAULTS[:4], "switch faults")
-    print()
-    table(rows, SUPPLY_FAULTS[:4], "switch faults", 3, "predicted separable")
-    for fault in SUPPLY_FAULTS[4:]:
-        mine = [r for r in rows if r[0] == fault]
-        c = Counter(r[2] for r in mine)
-        print(f"{fault}: {len(mine)} runs; outcomes {dict(c)}")
-    print(f"CPU {seconds:.0f} s ({seconds / max(args.runs, 1):.1f} s per run)")
+    summary(rows, SUPPLY_FAULTS[:4], SUPPLY_FAULTS[4:], "switch faults", 3, time.process_time() - started,
+            args.runs, lambda fault, mine: f"{fault}: {len(mine)} runs; outcomes {dict(Counter(r[2] for r in mine))}")
     return 0
 
 

@@ -411,6 +411,16 @@ def releases(kind: str) -> bool:
     return kind in SWITCH_KINDS and SWITCH_KINDS[kind].suffix == "uncommanded"
 
 
+def switch_held(kind: str) -> str:
+    """How a switch's fault of ``kind`` holds from its onset, in words before
+    the onset's time.
+
+    >>> switch_held("stuck_on"), switch_held("uncommanded_off")
+    ('stuck from', 'moved without a command at')
+    """
+    return "moved without a command at" if releases(kind) else "stuck from"
+
+
 def stuck_title(junction: str, kind: str) -> str:
     """A switch's fault in words: ``K stuck OFF``, ``K turned OFF without a command``."""
     if releases(kind):

@@ -196,17 +196,16 @@ def test_the_generated_flag_clears_when_a_mode_asks_for_the_switch_so(session, n
     x = np.array(nominal.X0, dtype=float)[:, None].copy()
     x[nominal.STATES.index("e5")] = 0.0
     flags, readings = [], []
+    model = nominal  # the fault model from the onset on
     for t in times:
         u = np.array([V, NUMBER[_at(SCHEDULE, t)]], dtype=float)
         if abs(t - onset) < 1e-9:
-            x = m.augment(x, np.random.default_rng(0))
+            model, x = m, m.augment(x, np.random.default_rng(0))
             onset_transition(m, x, u, theta)
-        elif x.shape[0] == len(m.STATES):
-            x = m.predict(x, u, theta, m.DT)
         else:
-            x = nominal.predict(x, u, theta, nominal.DT)
-        flags.append(float(x[-1, 0]) if x.shape[0] == len(m.STATES) else 0.0)
-        readings.append(float((m if x.shape[0] == len(m.STATES) else nominal).observe(x, u, theta)[y_row, 0]))
+            x = model.predict(x, u, theta, model.DT)
+        flags.append(float(x[-1, 0]) if model is m else 0.0)
+        readings.append(float(model.observe(x, u, theta)[y_row, 0]))
     v, _ = exact(BY_HAND[scenario], times)
     assert np.max(np.abs(np.array(readings) - v)) < 1e-4
     assert np.array_equal(np.array(flags) > 0.5, (times >= flagged[0] - 1e-9) & (times < flagged[1] - 1e-9))

@@ -212,8 +212,7 @@ def _context(model, modes: tuple[ModeModel, ...], nums: tuple, every: tuple[str,
     configs, stuck_ctx = list(mode_ctx), None
     if stuck is not None:
         more, stuck_ctx = _stuck(model, stuck, every, row, at[flag[0]], len(mode_ctx))
-        ends = stuck[0].releasing(model.modes.modes)
-        stuck_ctx["releases"] = [m.name in ends for m in model.modes.modes] if stuck[0].releases else None
+        stuck_ctx["releases"] = [stuck[0].released(m.on) for m in model.modes.modes] if stuck[0].releases else None
         configs += more
     transitions = _transitions(model, modes, row, d0, fault_row, at, spread)
     n_inputs = len(ssm0.inputs)

@@ -16,7 +16,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-from ..kinds import fault_kind, releases
+from ..kinds import fault_kind, switch_held
 from ..filters import cubature as kalman
 from . import static_posterior
 from .detect import Detector, DetectorOptions
@@ -179,8 +179,7 @@ def kalman_hypothesis(name: str, signatures: tuple[str, ...], package, p: Static
 def misfit_reason(magnitude: str, value: float, start: float, alarm: Detection, kind: str = "") -> str:
     """Why a fault model with its magnitude held static fails the consistency test (``kind``: its fault's)."""
     if magnitude == "switch":  # no size
-        held = f"{'moved without a command at' if releases(kind) else 'stuck from'} t = {start:.12g} (its most " \
-               "probable onset)"
+        held = f"{switch_held(kind)} t = {start:.12g} (its most probable onset)"
     else:
         held = (f"with its {magnitude} held at {value:.4g} from t = {start:.12g} (the most probable magnitude and "
                 "onset; its estimate is the mean over all of them)")

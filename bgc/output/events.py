@@ -8,7 +8,7 @@ import dataclasses
 import math
 
 from .. import events as ev
-from ..kinds import kind_of, releases
+from ..kinds import kind_of, releases, switch_held
 
 
 def time_text(t) -> str:
@@ -169,8 +169,7 @@ def sentence(e, time_of) -> str:
         case ev.NoLikelihood():
             return "the cubature Kalman filters found no finite likelihood for any hypothesis"
         case ev.Misfit(hypothesis=h, magnitude=m, value=v, start=s, sensor=y, window=w, statistic=z, threshold=c):
-            held = (f"{'moved without a command at' if releases(kind_of(h)) else 'stuck from'} t = {t(s)} "
-                    f"(its most probable onset)" if m == "switch" else
+            held = (f"{switch_held(kind_of(h))} t = {t(s)} (its most probable onset)" if m == "switch" else
                     f"with its {m} held at {v:.4g} from t = {t(s)} (the most probable magnitude and onset; its "
                     f"estimate is the mean over all of them)")
             return (f"{h} {held}: its residual of {y} "

@@ -222,7 +222,8 @@ class Monitor:
         start = self._count
         run.row(values, number, contextlib.nullcontext())
         self._pending = None
-        return tuple(self._said)[len(self._said) - (self._count - start):] if self._count > start else ()
+        made = self._count - start
+        return tuple(self._said)[-made:] if made else ()
 
     def _say(self, line: str) -> None:
         self._said.append(line)
