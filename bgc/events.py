@@ -435,15 +435,18 @@ class ChangeMissed:
     :func:`bgc.diagnosis.fit.misfit_before`): a change the detector's tests
     ``tests`` did not alarm on (a slow drift), not a model that does not fit
     from the start. The diagnosis was made again with every test of the
-    detector's bank; ``found``: whether it then alarmed and named a fault
-    (its verdict is then the diagnosis's; if not, the model's misfit
-    stands)."""
+    detector's bank, and when that named no fault, from an alarm raised at
+    the change point; ``found``: whether one of them named a fault or found
+    none that explains the change (its verdict is then the diagnosis's; if
+    not, the model's misfit stands); ``at_change``: the one from the change
+    point."""
 
     step: int
     change: int
     sensors: tuple[str, ...]
     tests: tuple[str, ...]
     found: bool
+    at_change: bool = False
 
 
 @dataclass(frozen=True, slots=True)

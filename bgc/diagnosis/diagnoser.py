@@ -55,12 +55,12 @@ from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
 from .detect import TESTS, Detector, DetectorOptions, change_point
 from .finish import ordered
-from .fit import LEAST, LEVEL as FIT_LEVEL, changed, fit, misfit_before, residual_sd
+from .fit import LEAST, LEVEL as FIT_LEVEL, change_statistics, fit, misfit_before, residual_sd
 from .isolate import with_returns
 from .onsets import log_prior
 from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig, shifted_events
 from .options import DiagnosisOptions
-from .values import Belief, Diagnosis
+from .values import Belief, Detection, Diagnosis
 
 __all__ = ["Diagnoser", "DiagnoserConfig", "IDENTIFY", "KALMAN_METHOD"]
 
@@ -310,14 +310,18 @@ class Diagnoser:
         mine = tuple(e for e in belief.events if not isinstance(e, ev.Alarmed)) + (switched,)
         return dataclasses.replace(inner, events=mine + tuple(e for e in inner.events if e not in told))
 
-    def replay(self, options: DiagnosisOptions, every: bool, lazy: bool | None = None, after=None) -> Loop:
+    def replay(self, options: DiagnosisOptions, every: bool, lazy: bool | None = None, after=None,
+               forced=None) -> Loop:
         """A loop with ``options`` that has taken every step of the record of
         the loop that runs now, its data events with them (``lazy``: None,
         the configuration's; ``after``: a false alarm, a
         :class:`~bgc.diagnosis.detect.Detection`: its detector armed from the
         next step and the alarm's window left out of the test of the
-        model's fit, :attr:`Loop.watch_from`, :attr:`Loop.excused`)."""
+        model's fit, :attr:`Loop.watch_from`, :attr:`Loop.excused`;
+        ``forced``: an alarm, a ``Detection``, raised at its step unless the
+        detector alarmed first, :attr:`Loop.forced`)."""
         loop = Loop(self._loop_config(options, every, self.config.lazy if lazy is None else lazy))
+        loop.forced = forced
         if after is not None:
             loop.watch_from = after.step + 1
             start = after.step - after.window + 1
@@ -531,14 +535,21 @@ class Diagnoser:
         before beyond chance (:func:`~bgc.diagnosis.fit.changed`), the data
         before it are likelier under the model than like those after it
         (:func:`~bgc.diagnosis.fit.misfit_before` negative), and the inputs
-        after it stay within the range they had before (a model whose misfit
-        only a new operating point excites, a capacitance off that an input
-        step shows, passes the other tests: it stays a mismatch). Not after
-        an alarm (a false one, or a glitch, made again), nor when the inputs
-        read with the other timing explain the misfit. The diagnosis is then
-        made again with every test of the detector's bank, and is that one
-        when it names a fault (isolated or ambiguous); a
-        :class:`~bgc.events.ChangeMissed` says so either way."""
+        after it stay within the range they had before, the modes among
+        those seen before (a model whose misfit only a new operating point
+        excites, a capacitance off that an input step shows, passes the
+        other tests: it stays a mismatch). Not after an alarm (a false one,
+        or a glitch, made again), nor when the inputs read with the other
+        timing explain the misfit. The diagnosis is then made again with
+        every test of the detector's bank, and is that one when it names a
+        fault (isolated or ambiguous). When it does not (a change the
+        observer follows, its residuals off by a fraction of their noise for
+        long: no window of any test reaches its threshold), the diagnosis is
+        made from an alarm raised at the change point itself (test
+        ``change``, the statistic of :func:`~bgc.diagnosis.fit.changed`): its
+        verdict stands when it names a fault or finds none that explains the
+        change (unexplained: the plant changed, the model fitted it before).
+        A :class:`~bgc.events.ChangeMissed` says which."""
         o, loop = self.loop.options, self.loop
         if (d.verdict != "mismatch" or d.detection is not None or loop.detection is not None
                 or "drift" in o.detectors or self.decoder is not None
@@ -557,21 +568,25 @@ class Diagnoser:
             return d
         both = [j for j in range(z.shape[1]) if (np.isfinite(z[:at, j]).sum() >= LEAST
                                                   and np.isfinite(z[at:, j]).sum() >= LEAST)]
-        moved = changed(z[:, both], at, tuple(d.outputs[j] for j in both)) if both else ()
-        if not moved or not misfit_before(z, at) < 0:
+        statistics, cut = change_statistics(z[:, both], at) if both else ({}, np.inf)
+        moved = [d.outputs[both[i]] for i, value in statistics.items() if not value <= cut]
+        if not moved or not misfit_before(z, at) < 0 or _new_point(self.nominal, us, at):
             return d
-        with np.errstate(all="ignore"):
-            low, high = np.nanmin(us[:at], axis=0), np.nanmax(us[:at], axis=0)
-            slack = 1e-9 * np.maximum(np.abs(low), np.abs(high)) + 1e-12
-            if np.any((us[at:] < low - slack) | (us[at:] > high + slack)):
-                return d  # a new operating point: a misfit it excites is not told from a fault
         self.config.say(f"no alarm, but the residuals changed at t = {float(d.time[at]):.6g}: diagnosing again "
                         "with every test of the detector's bank")
-        again = self.replay(dataclasses.replace(o, detectors=TESTS, switch=False), loop.config.every)
-        made = again.finish(self.sampler.summary(), truth)
-        named = made.detection is not None and made.verdict in ("isolated", "ambiguous")
-        said = ev.ChangeMissed(T - 1, at, tuple(moved), tuple(o.detectors), named)
-        chosen = made if named else d
+        options = dataclasses.replace(o, detectors=TESTS, switch=False)
+        made = self.replay(options, loop.config.every).finish(self.sampler.summary(), truth)
+        found = "bank" if made.detection is not None and made.verdict in ("isolated", "ambiguous") else ""
+        if not found:
+            self.config.say(f"diagnosing from an alarm at the change point, t = {float(d.time[at]):.6g}")
+            i = max(statistics, key=lambda i: np.nan_to_num(statistics[i], nan=np.inf))
+            alarm = Detection(at, d.outputs[both[i]], T - at, statistics[i], cut, at, "change")
+            made = self.replay(dataclasses.replace(o, switch=False), loop.config.every,
+                               forced=alarm).finish(self.sampler.summary(), truth)
+            if made.detection is not None and made.verdict in ("isolated", "ambiguous", "unexplained"):
+                found = "change"
+        said = ev.ChangeMissed(T - 1, at, tuple(moved), tuple(o.detectors), bool(found), found == "change")
+        chosen = made if found else d
         return dataclasses.replace(chosen, events=ordered([*chosen.events, said]))
 
     def _reread(self, d: Diagnosis, truth: Run | None) -> Diagnosis:
@@ -658,6 +673,23 @@ class Diagnoser:
         from .state import restore_diagnoser
 
         return restore_diagnoser(cls, config, state)
+
+
+def _new_point(nominal, us: np.ndarray, at: int) -> bool:
+    """Whether the inputs ``us`` (steps x inputs) from step ``at`` on leave
+    the range they had before it, or a mode column (the model's
+    ``MODE_INPUT``) reads a mode not read before it: a new operating point,
+    where a model's misfit that it alone excites cannot be told from a fault."""
+    with np.errstate(all="ignore"):
+        low, high = np.nanmin(us[:at], axis=0), np.nanmax(us[:at], axis=0)
+        slack = 1e-9 * np.maximum(np.abs(low), np.abs(high)) + 1e-12
+        if np.any((us[at:] < low - slack) | (us[at:] > high + slack)):
+            return True
+    column = getattr(nominal, "MODE_INPUT", None)
+    if column is None:
+        return False
+    seen = set(us[:at, column][np.isfinite(us[:at, column])].tolist())
+    return any(m not in seen for m in us[at:, column][np.isfinite(us[at:, column])].tolist())
 
 
 def _time(t, line) -> float:

@@ -131,20 +131,27 @@ def changed(z: np.ndarray, end: int, outputs: tuple[str, ...], level: float = CH
     error sqrt(2 / (n1 - 1) + 2 / (n2 - 1))), each two-sided at ``level``
     over every sensor and test (Bonferroni). A sensor read fewer than 3
     times on either side counts as changed: nothing says it did not."""
-    read = [j for j in range(len(outputs)) if np.isfinite(z[:, j]).any()]
+    statistics, cut = change_statistics(z, end, level)
+    return tuple(outputs[j] for j, value in statistics.items() if not value <= cut)
+
+
+def change_statistics(z: np.ndarray, end: int, level: float = CHANGE_LEVEL) -> tuple[dict[int, float], float]:
+    """Per sensor read in ``z`` (its column), the larger of :func:`changed`'s
+    two statistics at step ``end`` (infinite: read fewer than 3 times on a
+    side; NaN: not computable, counted changed), and the threshold they are held to at ``level``."""
+    read = [j for j in range(z.shape[1]) if np.isfinite(z[:, j]).any()]
     cut = NormalDist().inv_cdf(1 - level / (2 * 2 * max(len(read), 1)))
-    out = []
+    out = {}
     for j in read:
         a, b = _sides(z, end, j)
         if len(a) < 3 or len(b) < 3:
-            out.append(outputs[j])
+            out[j] = np.inf
             continue
         va, vb = float(a.var(ddof=1)), float(b.var(ddof=1))
         mean = abs(b.mean() - a.mean()) / np.sqrt(va / len(a) + vb / len(b))
         spread = abs(np.log(vb / va)) / np.sqrt(2 / (len(a) - 1) + 2 / (len(b) - 1)) if va > 0 and vb > 0 else np.inf
-        if not (mean <= cut and spread <= cut):
-            out.append(outputs[j])
-    return tuple(out)
+        out[j] = float(np.nan if np.isnan(mean) or np.isnan(spread) else max(mean, spread))  # NaN: changed
+    return out, float(cut)
 
 
 def _sides(z: np.ndarray, end: int, j: int) -> tuple[np.ndarray, np.ndarray]:

@@ -165,6 +165,9 @@ class Loop:
         self.watch_from = 0
         #: steps (first, end) the test of the model's fit leaves out: a false alarm's window (None: none)
         self.excused: tuple[int, int] | None = None
+        #: an alarm raised at its step whatever the detector says (None: none): a change of the residuals found
+        #: over the whole record that no test alarmed on (:meth:`bgc.diagnosis.diagnoser.Diagnoser._missed_change`)
+        self.forced = None
 
     def _observers(self, config: LoopConfig) -> None:
         """The nominal observer (a particle filter, or with ``ckf`` the
@@ -257,6 +260,8 @@ class Loop:
                                                  whitened)
         if detection is not None and k < self.watch_from:  # before the detector was armed: not an alarm
             detection = None
+        if self.detection is None and self.forced is not None and k == self.forced.step:
+            detection = detection or self.forced
         if detection is not None:
             # an onset older than the clouds and the record kept (a drift test's window reaches 256 steps back)
             earliest = max(detection.step - o.history, 0)

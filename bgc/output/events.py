@@ -148,13 +148,19 @@ def sentence(e, time_of) -> str:
                     f"prediction, and the model's residuals stay within its noise after it to the data's end "
                     f"(t = {t(k + 1)} to t = {t(u)}): a glitch of that reading, not a fault that persists "
                     f"or comes back; the diagnosis was made again without it")
-        case ev.ChangeMissed(change=c, sensors=ys, tests=tests, found=a):
+        case ev.ChangeMissed(change=c, sensors=ys, tests=tests, found=a, at_change=from_change):
+            if a and not from_change:
+                then = "which alarmed and named a fault"
+            elif a:
+                then = ("which named no fault; it was then made from an alarm raised at that change point, and "
+                        "its verdict stands")
+            else:
+                then = ("which named no fault, nor did the diagnosis from an alarm raised at that change point: "
+                        "the model's misfit stands")
             return (f"no alarm, yet the model fits the data before t = {t(c)} and {', '.join(ys)}'s residuals "
                     f"changed there: a change the {', '.join(tests)} test{'s' if len(tests) > 1 else ''} did not "
                     "alarm on, not a model that does not fit from the start; the diagnosis was made again with "
-                    "every test of the detector's bank (--detect all), "
-                    + ("which alarmed and named a fault" if a else
-                       "which named no fault: the model's misfit stands"))
+                    f"every test of the detector's bank (--detect all), {then}")
         case ev.ObserverRestarted(step=k, times=n):
             return (f"the Kalman observer whose residuals the drift test reads lost its estimate at t = {t(k)} "
                     f"(not finite; restart {n}): it starts again there from the particle observer's cloud, the "
@@ -430,6 +436,10 @@ def alarm_text(test: str, window: int, statistic: float, threshold: float) -> st
     if test == "matched":
         return (f"the matched test of a fault model's response over {window} sample(s) reached {statistic:.1f} "
                 f"(threshold {threshold:.1f}; the sensor that model moves most)")
+    if test == "change":
+        return (f"no test alarmed, but its residuals after that point differ from those before by {statistic:.1f} "
+                f"(Welch's statistic over the record's {window} last sample(s), or their variances' ratio; "
+                f"threshold {threshold:.1f})")
     if test == "frozen":
         return (f"its reading repeated {statistic:.0f} times to the last digit (a frozen sensor; "
                 f"{threshold:.0f} repeats alarm at the data's resolution)")

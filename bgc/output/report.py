@@ -13,7 +13,7 @@ import json
 import math
 from typing import Any, Callable, Mapping
 
-from ..diagnosis.fit import LEVEL as FIT_LEVEL
+from ..diagnosis.fit import CHANGE_LEVEL, LEVEL as FIT_LEVEL
 from .. import events as ev
 from ..kinds import fault_kind, releases
 from . import events, html, plots
@@ -383,8 +383,14 @@ def detection_lines(d, labels: Labels = Labels()) -> list[str]:
         seen = f"sensor {det.sensor}, the {det.test} test: {said}"
     tests = d.options.detectors
     shared = "" if len(tests) == 1 else f", shared by the tests {', '.join(tests)}"
-    return [f"alarm at t = {_tt(d, det.step)}: {seen} (false-alarm probability "
-            f"{d.options.false_alarm:g} per {_per(d, labels)}{shared})",
+    if det.test == "change":  # no test alarmed: the whole record's misfit, found at its end to begin there
+        first = (f"alarm at the data's end: the model does not fit the whole record (the test of the model, level "
+                 f"{FIT_LEVEL:g}) but fits it before t = {_tt(d, det.step)}, where {seen} (level {CHANGE_LEVEL:g} "
+                 "over every sensor and test)")
+    else:
+        first = (f"alarm at t = {_tt(d, det.step)}: {seen} (false-alarm probability {d.options.false_alarm:g} per "
+                 f"{_per(d, labels)}{shared})")
+    return [first,
             f"change point of the residuals: t = {_tt(d, det.onset_step)}; onset of the diagnosis: "
             + ("none (no fault)" if d.onset_step is None else f"t = {_tt(d, d.onset_step)}")]
 
