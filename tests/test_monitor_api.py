@@ -197,3 +197,35 @@ def test_a_stepped_monitor_keeps_the_last_event_lines_only(monkeypatch):
     m = bgc.Monitor(session("circuit"), lines[0], checkpoint=1, episodes=True, particles=300)
     returned = [said for line in lines[1:] for said in m.feed(line)]
     assert len(returned) > 2 and m.events == tuple(returned[-2:])
+
+
+def test_a_monitor_takes_more_repairs_and_bytes_than_a_run_file_may_hold(monkeypatch):
+    """A monitor runs for months: its stream has no bound on its bytes, and
+    a repair line may come as often as the plant is repaired. With a run
+    file's bounds set to 6 comment lines and 3000 bytes, a fault-free stream
+    of 200 rows (some 9000 bytes) with a ``# repaired`` line after every
+    tenth row (20 of them) is read to its end, each repair taken at the row
+    after it, where a run file of these lines is refused (as it was, the
+    stream too, at its seventh comment line)."""
+    from bgc.data import runs
+
+    monkeypatch.setattr(runs, "MAX_COMMENT_LINES", 6)
+    monkeypatch.setattr(runs, "MAX_RUN_BYTES", 3000)
+    lines = plant(200, []).splitlines(keepends=True)
+    out, repaired_before = [], []
+    for line in lines:
+        out.append(line)
+        if line[:1].isdigit() and round(float(line.split(",")[0]) / 0.05) % 10 == 5:
+            out.append("# repaired\n")
+            repaired_before.append(len([x for x in out if x[:1].isdigit()]))  # the row the repair comes before
+    rows = [line for line in lines if line[:1].isdigit()]
+    assert len(repaired_before) == 20 and sum(map(len, out)) > 3000
+    said = []
+    report = bgc.monitor(session("circuit"), out, checkpoint=3.0, episodes=True, particles=200, seed=1,
+                         events=said.append)
+    times = [float(rows[k].split(",")[0]) for k in repaired_before]
+    assert [line for line in said if line.startswith("repaired at t = ")] == [
+        f"repaired at t = {t:g}: watching on the model as it was" for t in times]
+    assert report.diagnosis.time[-1] == pytest.approx(float(rows[-1].split(",")[0]))
+    with pytest.raises(DataError):
+        runs.parse_run("".join(out), "plant.csv")

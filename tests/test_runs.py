@@ -278,3 +278,36 @@ def test_daily_files_whose_names_do_not_sort_in_time_are_read_in_time_order(tmp_
     for name, rows in (("log.2.csv", "1,10,2.0\n"), ("log.1.csv", "2,10,2.1\n"), ("log.csv", "3,10,2.2\n")):
         (folder / name).write_text(DAY + rows)
     assert runs.read_run(folder).time.tolist() == [1.0, 2.0, 3.0]
+
+
+def test_a_stream_read_row_by_row_has_no_byte_bound_and_bounds_its_comment_lines_between_rows(monkeypatch):
+    """A monitor's stream (RowReader) goes on past MAX_RUN_BYTES, holds the
+    comment lines since the row before the last one only (those before it
+    were read with it), and bounds the comment and blank lines between two
+    rows, not over the stream: by hand, 40 rows each after two comment lines
+    and a blank line, the bounds set to 3 comment lines (before the first
+    row the file's header counts with them), one blank line and 300 bytes."""
+    import io
+
+    monkeypatch.setattr(runs, "MAX_COMMENT_LINES", 3)
+    monkeypatch.setattr(runs, "MAX_BLANK_LINES", 1)
+    monkeypatch.setattr(runs, "MAX_RUN_BYTES", 300)
+    text = "# header\ntime,y:a\n" + "".join(f"# note {k}a\n# note {k}b\n\n{k},1\n" for k in range(1, 41))
+    reader = runs.RowReader(io.BytesIO(text.encode()), "s.csv")
+    assert reader.header == ("header",)
+    held = []
+    for values, line in reader:
+        held.append(len(reader.lines.header))
+        k = int(values[0])
+        assert reader.lines.comments == 1 + 2 * k  # every comment line counted, those forgotten too
+        assert reader.lines.since(1 + 2 * (k - 1)) == [f"note {k}a", f"note {k}b"]  # the ones before this row
+        assert line == 2 + 4 * k
+    assert len(held) == 40 and max(held) <= 1 + 2 * 2  # this row's two, the last row's two (and the header's)
+    assert len(text) > 300
+    for flood, what in (("# w\n# x\n# y\n# z\n", "more than 3 comment lines"), ("\n\n", "more than 1 blank lines")):
+        bad = "time,y:a\n1,1\n" + flood + "2,1\n"
+        with pytest.raises(DataError) as info:
+            list(runs.RowReader(io.BytesIO(bad.encode()), "s.csv"))
+        assert what in info.value.line(), info.value.line()
+    # a file is bounded as a whole, as before
+    assert error("time,y:a\n" + "".join(f"{k},1\n" for k in range(1, 100))).startswith("bad.csv: more than 300 bytes")

@@ -17,7 +17,10 @@ else the file holds. Its header is a few lines (bgc simulate writes five):
 at most ``MAX_COMMENT_LINES`` comment lines of at most ``MAX_COMMENT``
 characters, at most ``MAX_BLANK_LINES`` blank lines, at most ``MAX_COLUMNS``
 columns and ``MAX_VALUES`` numbers; a line of more than ``MAX_LINE``
-characters is refused without being held in memory.
+characters is refused without being held in memory. A stream read row by
+row for as long as it goes on (:class:`RowReader`, a monitor's) has no
+bound on its bytes, and its bounds on comment and blank lines hold between
+two rows, the comment lines before the last row but one forgotten.
 
 :func:`check_run` holds what a run must be (times finite and increasing,
 columns of numbers as long as the time, no infinite value): the CSV reader
@@ -284,12 +287,19 @@ class _Lines:
     and blank lines are skipped, both counted and bounded. ``number`` is the
     number of the line last read (from 1)."""
 
-    def __init__(self, stream: IO, name: str):
+    def __init__(self, stream: IO, name: str, endless: bool = False):
         self.stream = stream
         self.name = name
+        #: a stream read for as long as it goes on (a monitor's): no bound on the bytes read, and the bounds on
+        #: comment and blank lines hold between two rows, not over the whole stream (:attr:`header`)
+        self.endless = endless
         self.number = 0
         self.offset = 0  # bytes (characters, for text) read so far
+        #: the comment lines read (endless: those since the row before the last one; :meth:`since`)
         self.header: list[str] = []
+        self.dropped = 0  # comment lines no longer held (endless)
+        self._mark = 0  # the comment lines read when the last row came (endless)
+        self.named = False  # whether the column names were read
         self.blank = 0
         self.length = 0  # of the line last returned
 
@@ -307,7 +317,7 @@ class _Lines:
                                  "numbers only")
             start = self.offset
             self.offset += len(raw)
-            if self.offset > MAX_RUN_BYTES:
+            if self.offset > MAX_RUN_BYTES and not self.endless:
                 raise DataError(f"{self.name}: more than {MAX_RUN_BYTES} bytes", None,
                                 "split the run into shorter records")
             if isinstance(raw, bytes):
@@ -321,7 +331,7 @@ class _Lines:
             if self.number == 1 and line.startswith("\ufeff"):  # a byte-order mark, as a spreadsheet saves it
                 line = line[1:]
             if line.startswith("#"):
-                if len(self.header) == MAX_COMMENT_LINES:
+                if self.comments - (self._mark if self.endless else 0) == MAX_COMMENT_LINES:
                     raise self.error(f"more than {MAX_COMMENT_LINES} comment lines", "a run's header is a few "
                                      "# lines (bgc simulate writes 5): remove the others")
                 text = line.rstrip("\r\n")
@@ -335,7 +345,29 @@ class _Lines:
                     raise self.error(f"more than {MAX_BLANK_LINES} blank lines", "remove the blank lines")
             else:
                 self.length = len(line)
+                if self.endless and self.named:  # a row: the comment lines before the last one were read with it
+                    cut = self._mark - self.dropped
+                    del self.header[:cut]
+                    self.dropped += cut
+                    self._mark, self.blank = self.comments, 0
+                self.named = True  # (the first line that is no comment: the column names)
                 return line
+
+    @property
+    def comments(self) -> int:
+        """The comment lines read so far (those forgotten too)."""
+        return self.dropped + len(self.header)
+
+    def since(self, count: int) -> list[str]:
+        """The comment lines read after the first ``count`` of them (endless:
+        those still held, every one since the row before the last)."""
+        return self.header[max(count - self.dropped, 0):]
+
+    def take_back(self) -> None:
+        """The last comment line read, as if it had not been read (a row
+        refused after it: the line is read again before the next one)."""
+        self.header.pop()
+        self._mark = min(self._mark, self.comments)
 
     def _rest(self, head) -> int:
         """The length in characters of a line too long to keep: ``head`` and
@@ -369,7 +401,7 @@ class RowReader:
 
     def __init__(self, stream: IO, name: str, reading: Reading | None = None):
         self.name = name
-        self.lines = _Lines(stream, name)
+        self.lines = _Lines(stream, name, endless=True)
         self.reader = csv.reader(self.lines)
         self.layout = _columns(self.reader, self.lines, name, reading or Reading())
         #: bgc's names of the columns each row gives, ``time`` first

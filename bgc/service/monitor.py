@@ -341,7 +341,7 @@ class _Monitor:
         if self.saved is not None and t <= self.saved.last_time:
             self.keep.same(values, line, self.name)  # diagnosed before the restart: the same row as then
             if self.log is not None:  # and the repairs before it taken then
-                self.log.remarks = max(self.log.remarks, len(self.reader.lines.header))
+                self.log.remarks = max(self.log.remarks, self.reader.lines.comments)
             return
         u = {name_: values[j] for j, name_ in self.groups["u"]}
         y = {name_: values[j] for j, name_ in self.groups["y"]}
@@ -367,7 +367,7 @@ class _Monitor:
     def _repairs(self, t: float) -> None:
         """The stream's comment lines read since the last row: a repair takes
         effect before the row of time ``t`` (the row is the repaired plant's)."""
-        for text in self.reader.lines.header[self.log.remarks:]:
+        for text in self.reader.lines.since(self.log.remarks):
             self.log.remarks += 1
             which = repair_of(text)
             if which is None:

@@ -205,7 +205,6 @@ class Monitor:
             self._queue.append(_repair_line(self._pending))
         self._queue.append((line + "\n").encode("utf-8"))
         run, lines = self._run, self._run.reader.lines
-        lines.offset = 0  # (the reader's cap on a file's bytes: a monitor fed for months reads no file)
         try:
             values, number = next(self._rows)
             t, last = values[0], run.rows_time
@@ -215,7 +214,7 @@ class Monitor:
                                 "is not a number", None, "feed the rows in the order of their times")
         except DataError:  # the row is refused (a repair read with it waits for the next: not yet taken)
             if self._pending is not None and lines.header and lines.header[-1].startswith("repaired"):
-                lines.header.pop()
+                lines.take_back()
             self._queue.clear()
             self._rows = iter(run.reader)
             raise
