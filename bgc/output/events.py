@@ -437,9 +437,9 @@ def alarm_text(test: str, window: int, statistic: float, threshold: float) -> st
         return (f"the matched test of a fault model's response over {window} sample(s) reached {statistic:.1f} "
                 f"(threshold {threshold:.1f}; the sensor that model moves most)")
     if test == "change":
-        return (f"no test alarmed, but its residuals after that point differ from those before by {statistic:.1f} "
-                f"(Welch's statistic over the record's {window} last sample(s), or their variances' ratio; "
-                f"threshold {threshold:.1f})")
+        return (f"found over the whole record at its end, no test having alarmed while it ran: its residuals from "
+                f"here on differ from those before by {statistic:.1f} (Welch's statistic over the record's {window} "
+                f"last sample(s), or their variances' ratio; threshold {threshold:.1f})")
     if test == "frozen":
         return (f"its reading repeated {statistic:.0f} times to the last digit (a frozen sensor; "
                 f"{threshold:.0f} repeats alarm at the data's resolution)")

@@ -385,8 +385,10 @@ def detection_lines(d, labels: Labels = Labels()) -> list[str]:
     shared = "" if len(tests) == 1 else f", shared by the tests {', '.join(tests)}"
     if det.test == "change":  # no test alarmed: the whole record's misfit, found at its end to begin there
         first = (f"alarm at the data's end: the model does not fit the whole record (the test of the model, level "
-                 f"{FIT_LEVEL:g}) but fits it before t = {_tt(d, det.step)}, where {seen} (level {CHANGE_LEVEL:g} "
-                 "over every sensor and test)")
+                 f"{FIT_LEVEL:g}) but fits it before t = {_tt(d, det.step)}; sensor {det.sensor}'s residuals from "
+                 f"there on differ from those before by {det.statistic:.1f} (Welch's statistic over the record's "
+                 f"{det.window} last sample(s), or their variances' ratio; threshold {det.threshold:.1f} at level "
+                 f"{CHANGE_LEVEL:g} over every sensor and test)")
     else:
         first = (f"alarm at t = {_tt(d, det.step)}: {seen} (false-alarm probability {d.options.false_alarm:g} per "
                  f"{_per(d, labels)}{shared})")
