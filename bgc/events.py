@@ -439,7 +439,8 @@ class ChangeMissed:
     the change point; ``found``: whether one of them named a fault or found
     none that explains the change (its verdict is then the diagnosis's; if
     not, the model's misfit stands); ``at_change``: the one from the change
-    point."""
+    point; ``bank``: whether the bank's diagnosis was made (not when every
+    test of it had run)."""
 
     step: int
     change: int
@@ -447,6 +448,7 @@ class ChangeMissed:
     tests: tuple[str, ...]
     found: bool
     at_change: bool = False
+    bank: bool = True
 
 
 @dataclass(frozen=True, slots=True)

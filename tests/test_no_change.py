@@ -249,3 +249,24 @@ def test_a_step_the_observer_follows_is_diagnosed_from_the_change_point(seed):
 
     text = sentence(said[0], d.time_of)
     assert "from an alarm raised at that change point, and its verdict stands" in text, text
+
+
+@pytest.mark.slow
+def test_with_the_whole_bank_the_same_step_is_diagnosed_from_its_change_point_alone():
+    """The same step (seed 2) with every test of the detector's bank from the
+    start (``--detect all``): none alarms either, and the diagnosis goes to
+    the alarm at the change point at once (no diagnosis again with the bank
+    that ran already): the same verdict and size as with the mean test."""
+    from bgc.data import runs
+    from bgc.output.events import sentence
+    from test_uncommanded import MODEL
+
+    session = bgc.open(MODEL, backend="numpy")
+    data = runs.parse_run(_supply_stepped(8.0, 2.0, 2), "stepped.csv")
+    d = bgc.diagnose(session, data, seed=1, options=bgc.DiagnosisOptions(detectors=TESTS)).diagnosis
+    said = [e for e in d.events if type(e).__name__ == "ChangeMissed"]
+    assert len(said) == 1 and said[0].found and said[0].at_change and not said[0].bank, said
+    assert d.verdict == "isolated" and d.candidates == ("R_load_abrupt",), (d.verdict, d.candidates)
+    assert d.best.estimate.low <= 2.0 <= d.best.estimate.high
+    assert "made again with an alarm raised at that change point, and its verdict stands" in sentence(said[0],
+                                                                                                      d.time_of)

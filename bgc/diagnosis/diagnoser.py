@@ -541,8 +541,8 @@ class Diagnoser:
         other tests: it stays a mismatch). Not after an alarm (a false one,
         or a glitch, made again), nor when the inputs read with the other
         timing explain the misfit. The diagnosis is then made again with
-        every test of the detector's bank, and is that one when it names a
-        fault (isolated or ambiguous). When it does not (a change the
+        every test of the detector's bank (unless they all ran), and is that
+        one when it names a fault (isolated or ambiguous). When it does not (a change the
         observer follows, its residuals off by a fraction of their noise for
         long: no window of any test reaches its threshold), the diagnosis is
         made from an alarm raised at the change point itself (test
@@ -552,7 +552,7 @@ class Diagnoser:
         A :class:`~bgc.events.ChangeMissed` says which."""
         o, loop = self.loop.options, self.loop
         if (d.verdict != "mismatch" or d.detection is not None or loop.detection is not None
-                or "drift" in o.detectors or self.decoder is not None
+                or self.decoder is not None
                 or any(isinstance(e, ev.Mismatched) and e.timing is not None for e in d.events)):
             return d
         from ..filters.cubature import nominal_track
@@ -572,11 +572,13 @@ class Diagnoser:
         moved = [d.outputs[both[i]] for i, value in statistics.items() if not value <= cut]
         if not moved or not misfit_before(z, at) < 0 or _new_point(self.nominal, us, at):
             return d
-        self.config.say(f"no alarm, but the residuals changed at t = {float(d.time[at]):.6g}: diagnosing again "
-                        "with every test of the detector's bank")
-        options = dataclasses.replace(o, detectors=TESTS, switch=False)
-        made = self.replay(options, loop.config.every).finish(self.sampler.summary(), truth)
-        found = "bank" if made.detection is not None and made.verdict in ("isolated", "ambiguous") else ""
+        found = ""
+        if set(o.detectors) != set(TESTS):  # (the bank ran already: the same diagnosis again)
+            self.config.say(f"no alarm, but the residuals changed at t = {float(d.time[at]):.6g}: diagnosing again "
+                            "with every test of the detector's bank")
+            options = dataclasses.replace(o, detectors=TESTS, switch=False)
+            made = self.replay(options, loop.config.every).finish(self.sampler.summary(), truth)
+            found = "bank" if made.detection is not None and made.verdict in ("isolated", "ambiguous") else ""
         if not found:
             self.config.say(f"diagnosing from an alarm at the change point, t = {float(d.time[at]):.6g}")
             i = max(statistics, key=lambda i: np.nan_to_num(statistics[i], nan=np.inf))
@@ -585,7 +587,8 @@ class Diagnoser:
                                forced=alarm).finish(self.sampler.summary(), truth)
             if made.detection is not None and made.verdict in ("isolated", "ambiguous", "unexplained"):
                 found = "change"
-        said = ev.ChangeMissed(T - 1, at, tuple(moved), tuple(o.detectors), bool(found), found == "change")
+        said = ev.ChangeMissed(T - 1, at, tuple(moved), tuple(o.detectors), bool(found), found == "change",
+                               set(o.detectors) != set(TESTS))
         chosen = made if found else d
         return dataclasses.replace(chosen, events=ordered([*chosen.events, said]))
 

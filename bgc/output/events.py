@@ -148,19 +148,22 @@ def sentence(e, time_of) -> str:
                     f"prediction, and the model's residuals stay within its noise after it to the data's end "
                     f"(t = {t(k + 1)} to t = {t(u)}): a glitch of that reading, not a fault that persists "
                     f"or comes back; the diagnosis was made again without it")
-        case ev.ChangeMissed(change=c, sensors=ys, tests=tests, found=a, at_change=from_change):
-            if a and not from_change:
-                then = "which alarmed and named a fault"
+        case ev.ChangeMissed(change=c, sensors=ys, tests=tests, found=a, at_change=from_change, bank=rerun):
+            bank = "every test of the detector's bank (--detect all), which "
+            if not rerun:  # the bank had run: only the diagnosis from the change point
+                bank = "an alarm raised at that change point, and its verdict stands" if a else \
+                    "an alarm raised at that change point, which named no fault: the model's misfit stands"
+            elif a and not from_change:
+                bank += "alarmed and named a fault"
             elif a:
-                then = ("which named no fault; it was then made from an alarm raised at that change point, and "
-                        "its verdict stands")
+                bank += ("named no fault; it was then made from an alarm raised at that change point, and its "
+                         "verdict stands")
             else:
-                then = ("which named no fault, nor did the diagnosis from an alarm raised at that change point: "
-                        "the model's misfit stands")
+                bank += ("named no fault, nor did the diagnosis from an alarm raised at that change point: the "
+                         "model's misfit stands")
             return (f"no alarm, yet the model fits the data before t = {t(c)} and {', '.join(ys)}'s residuals "
                     f"changed there: a change the {', '.join(tests)} test{'s' if len(tests) > 1 else ''} did not "
-                    "alarm on, not a model that does not fit from the start; the diagnosis was made again with "
-                    f"every test of the detector's bank (--detect all), {then}")
+                    f"alarm on, not a model that does not fit from the start; the diagnosis was made again with {bank}")
         case ev.ObserverRestarted(step=k, times=n):
             return (f"the Kalman observer whose residuals the drift test reads lost its estimate at t = {t(k)} "
                     f"(not finite; restart {n}): it starts again there from the particle observer's cloud, the "
