@@ -23,20 +23,21 @@ from bgc import events as ev
 from bgc.filters import residuals
 from bgc.output.events import sentence
 
-from conftest import ROOT, bgc_cli
+from conftest import ROOT, bgc_cli, fast_backend, fast_session
 from test_episodes import plant
 from test_later_onset import _reading_off
 
 CIRCUIT = ROOT / "models" / "circuit.yaml"
 
 
+@pytest.mark.slow
 def test_one_reading_off_on_a_healthy_plant_is_a_glitch_not_a_fault(tmp_path):
     # f6 reads 0.8 A low at t = 6 alone (about 7 of its residual's stds: the detector's one-sample window
     # alarms); the plant stays healthy to the end (t = 20). Before, the verdict named whichever fault model
     # explained that reading best (an offset of f6 from t = 6, or a part changed by a few per cent).
     data = tmp_path / "run.csv"
     data.write_text(_reading_off(plant(400, [], seed=4), 6.0, 1, -0.8), encoding="utf-8")
-    d = bgc.diagnose(CIRCUIT, data).diagnosis
+    d = bgc.diagnose(fast_session("circuit"), data).diagnosis
     assert (d.verdict, d.candidates, d.detection) == ("no fault", (), None)
     (glitch,) = [e for e in d.events if isinstance(e, ev.Glitch)]
     assert d.time_of(glitch.step) == pytest.approx(6.0) and glitch.sensor == "f6"
@@ -50,6 +51,7 @@ def test_one_reading_off_on_a_healthy_plant_is_a_glitch_not_a_fault(tmp_path):
     assert not any(isinstance(e, ev.FalseAlarm) for e in d.events)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [3, 133])
 def test_a_parts_step_whose_spike_alone_alarms_is_not_a_glitch(tmp_path, seed):
     # R3 10 % low from t = 6, the record ending at t = 8.5: the nominal observer takes most of the step into its
@@ -59,19 +61,20 @@ def test_a_parts_step_whose_spike_alone_alarms_is_not_a_glitch(tmp_path, seed):
     # spike's reading left out by far more than the verdict's Bayes factor: the first diagnosis stands
     data = tmp_path / "run.csv"
     data.write_text(plant(170, [(6.0, {"R3": 0.9})], seed=seed), encoding="utf-8")
-    d = bgc.diagnose(CIRCUIT, data).diagnosis
+    d = bgc.diagnose(fast_session("circuit"), data).diagnosis
     assert d.detection is not None and d.detection.window == 1 and d.time_of(d.detection.step) == pytest.approx(6.0)
     assert not any(isinstance(e, ev.Glitch) for e in d.events)
     assert (d.verdict, d.candidates) == ("isolated", ("R3_abrupt",))
 
 
+@pytest.mark.slow
 def test_two_readings_off_are_not_one_glitch(tmp_path):
     # the same reading and the next one off: the detector armed anew after the first alarm alarms again at
     # once; no quiet stretch follows the alarm, and nothing is called a glitch
     data = tmp_path / "run.csv"
     text = _reading_off(_reading_off(plant(400, [], seed=4), 6.0, 1, -0.8), 6.05, 1, -0.8)
     data.write_text(text, encoding="utf-8")
-    d = bgc.diagnose(CIRCUIT, data).diagnosis
+    d = bgc.diagnose(fast_session("circuit"), data).diagnosis
     assert d.detection is not None and d.time_of(d.detection.step) == pytest.approx(6.0)
     assert not any(isinstance(e, (ev.Glitch, ev.FalseAlarm)) for e in d.events)
 
@@ -126,7 +129,8 @@ def test_a_monitor_closes_a_glitchs_episode_and_watches_on(tmp_path):
     # the same glitch streamed through bgc monitor --episodes: the checkpoint after it says no fault, and
     # the episode is closed as a glitch, the model watched as it was (nothing accommodated)
     text = _reading_off(plant(400, [], seed=4), 6.0, 1, -0.8)
-    p = bgc_cli("monitor", CIRCUIT, "--data", "-", "--episodes", "--checkpoint", "5", "-o", tmp_path / "out",
+    p = bgc_cli("monitor", CIRCUIT, "--data", "-", "--episodes", "--checkpoint", "5", *fast_backend("circuit"),
+                "-o", tmp_path / "out",
                 input=text)
     assert p.returncode == 0, p.stderr
     report = json.loads((tmp_path / "out" / "report.json").read_text(encoding="utf-8"))

@@ -30,7 +30,7 @@ from bgc.diagnosis import intermittent as im
 from bgc.filters.cubature import nominal_track, run_bank
 from bgc.model.protocol import state_rows
 
-from conftest import ROOT, bgc_cli
+from conftest import ROOT, bgc_cli, fast_backend, fast_session
 from test_episodes import plant
 from test_mismatch import NOMINAL
 
@@ -170,9 +170,10 @@ def comes_and_goes(tmp_path_factory):
     folder = tmp_path_factory.mktemp("comes_and_goes")
     data = folder / "run.csv"
     data.write_text(plant(600, COMES_AND_GOES, seed=3), encoding="utf-8")
-    return folder, data, bgc.diagnose(CIRCUIT, data)
+    return folder, data, bgc.diagnose(fast_session("circuit"), data)
 
 
+@pytest.mark.slow
 def test_a_fault_that_comes_and_goes_is_isolated_with_its_spans(comes_and_goes):
     _, _, report = comes_and_goes
     d = report.diagnosis
@@ -201,6 +202,7 @@ def test_a_fault_that_comes_and_goes_is_isolated_with_its_spans(comes_and_goes):
     assert i.present[(t > 13) & (t < 19)].max() < 0.05 and i.present[(t > 7) & (t < 11)].min() > 0.95
 
 
+@pytest.mark.slow
 def test_the_report_says_it_comes_and_goes(comes_and_goes, tmp_path):
     folder, _, report = comes_and_goes
     report.write(tmp_path / "out")
@@ -211,10 +213,11 @@ def test_the_report_says_it_comes_and_goes(comes_and_goes, tmp_path):
     assert "comes and goes" in (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
 
 
+@pytest.mark.slow
 def test_a_persistent_fault_is_not_tried_as_one_that_comes_and_goes(tmp_path):
     data = tmp_path / "run.csv"
     data.write_text(plant(400, [(6.0, {"R2": 1.6})], seed=3), encoding="utf-8")
-    d = bgc.diagnose(CIRCUIT, data).diagnosis
+    d = bgc.diagnose(fast_session("circuit"), data).diagnosis
     assert (d.verdict, d.candidates) == ("isolated", ("R2_abrupt",))
     assert not [e for e in d.events if isinstance(e, (ev.IntermittentTried, ev.Intermittent))]
     assert all(h.intermittent is None for h in d.hypotheses)
@@ -225,7 +228,8 @@ def test_a_sensors_bias_that_comes_and_goes_from_the_command_line(tmp_path):
     spans = [(6.0, 11.0), (17.0, None)]
     text = _bias_over(plant(500, [], seed=4), 1, 0.5, spans)  # f6 reads 0.5 A high over the spans
     (tmp_path / "run.csv").write_text(text, encoding="utf-8")
-    p = bgc_cli("diagnose", CIRCUIT, "--data", tmp_path / "run.csv", "-o", tmp_path / "out")
+    p = bgc_cli("diagnose", CIRCUIT, "--data", tmp_path / "run.csv", *fast_backend("circuit"), "-o",
+                tmp_path / "out")
     assert p.returncode == 0, p.stderr
     data = json.loads((tmp_path / "out" / "report.json").read_text(encoding="utf-8"))
     assert data["verdict"] == "isolated" and data["diagnosis"] == ["f6_offset_bias"], data["in_words"]
@@ -273,7 +277,7 @@ def test_an_actuators_bias_that_comes_and_goes(tmp_path):
         y = readings(NOMINAL, x, v) + sensor * rng.standard_normal(3)
         lines.append(",".join(f"{val:.6g}" for val in (t, V, *y)))
     (tmp_path / "run.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
-    d = bgc.diagnose(CIRCUIT, tmp_path / "run.csv").diagnosis
+    d = bgc.diagnose(fast_session("circuit"), tmp_path / "run.csv").diagnosis
     assert (d.verdict, d.candidates) == ("isolated", ("V_offset_bias",))
     i = next(h for h in d.hypotheses if h.name == "V_offset_bias").intermittent
     assert i is not None and i.low <= 1.0 <= i.high
@@ -281,6 +285,7 @@ def test_an_actuators_bias_that_comes_and_goes(tmp_path):
         [(pytest.approx(6.0), pytest.approx(12.0)), (pytest.approx(20.0), None)]
 
 
+@pytest.mark.slow
 def test_a_persistent_fault_forced_through_the_bank_loses_to_itself(tmp_path, monkeypatch):
     """The intermittent hypothesis's evidence and the persistent one's on one scale: a persistent sensor
     bias (f6 reading 0.2 high from t = 6), tried as one that comes and goes (the wander test forced),
@@ -290,7 +295,7 @@ def test_a_persistent_fault_forced_through_the_bank_loses_to_itself(tmp_path, mo
     monkeypatch.setattr(im, "_wanders", lambda h: True)
     data = tmp_path / "run.csv"
     data.write_text(plant(400, [], seed=0, bias=(6.0, 1, 0.2)), encoding="utf-8")
-    d = bgc.diagnose(CIRCUIT, data).diagnosis
+    d = bgc.diagnose(fast_session("circuit"), data).diagnosis
     assert (d.verdict, d.candidates) == ("isolated", ("f6_offset_bias",))
     (tried,) = [e for e in d.events if isinstance(e, ev.IntermittentTried)]
     assert tried.log_factor < 0
@@ -311,12 +316,13 @@ def test_an_accommodated_fault_that_goes_away_briefly_stays_accommodated(tmp_pat
     assert report["verdict"] == "no fault"
 
 
+@pytest.mark.slow
 def test_a_fault_gone_before_its_first_checkpoint_is_in_the_reports_intermittent():
     """bgc.monitor on R2 present over t = 6 to 6.6 only: the fault log's one episode ends it, and the
     report's ``intermittent`` lists its span (no value while accommodated: it never was)."""
     text = plant(400, [(6.0, {"R2": 1.6}), (6.6, {"R2": 1.0})], seed=5)
-    report = bgc.monitor(CIRCUIT, text.splitlines(keepends=True), checkpoint=1, episodes=True, particles=300,
-                         seed=3)
+    report = bgc.monitor(fast_session("circuit"), text.splitlines(keepends=True), checkpoint=1, episodes=True,
+                         particles=300, seed=3)
     assert [(e.action, e.parameter) for e in report.fault_log] == [("ended", "R2")]
     got = report.intermittent["R2"]
     assert [tuple(round(t, 6) if t is not None else None for t in span) for span in got["spans"]] == [(6.0, 6.6)]
@@ -327,7 +333,7 @@ def test_a_fault_gone_before_its_first_checkpoint_is_in_the_reports_intermittent
 def test_a_burst_of_noise_that_comes_and_goes():
     """RO's permeate flow sensor five times as noisy over samples 100 to 150 and from 200 (bgc's simulator:
     the variance half of the wander test is what sees it)."""
-    d = bgc.diagnose(ROOT / "models" / "ro.yaml", bgc.simulate(ROOT / "models" / "ro.yaml",
+    d = bgc.diagnose(fast_session("ro"), bgc.simulate(ROOT / "models" / "ro.yaml",
                                                             "F_perm:noise:4@100-150,200", seed=2, steps=300))
     r = d.diagnosis
     assert (r.verdict, r.candidates) == ("isolated", ("F_perm_noise_noise",))

@@ -53,7 +53,7 @@ from bgc.diagnosis import static_posterior as sp
 from bgc.diagnosis.options import DiagnosisOptions, KalmanOptions
 from bgc.output import report
 
-from conftest import session
+from conftest import fast_session
 
 C1, C2, F_IN = 2.0, 1.5, 1.0
 HEALTHY = {"R10": 4.0, "R12": 2.0, "R20": 3.0}
@@ -104,7 +104,7 @@ def test_a_drift_found_long_after_it_began_is_isolated_and_sized(parameter, slop
     grid) from t = 150, the record to t = 330: isolated, the slope's
     interval holding the truth, the onset within 10 s of it."""
     run = drifting_tanks(parameter, slope, 150.0, 330.0, seed)
-    d = bgc.diagnose(session("two_tank"), data=run, options=DiagnosisOptions(seed=seed)).diagnosis
+    d = bgc.diagnose(fast_session("two_tank"), data=run, options=DiagnosisOptions(seed=seed)).diagnosis
     assert d.verdict == "isolated" and d.candidates == (f"{parameter}_incipient",), report.plain_words(d)
     assert d.time_of(d.detection.step) - 150.0 > 30.0  # found long after it began
     e = d.estimate
@@ -169,7 +169,7 @@ def test_a_plant_quieter_than_its_model_gets_mismatch_not_the_wrong_drift():
     plant is quieter than the model, and the user is told to calibrate the
     noise (bgc.diagnosis.finish.quiet_misfit). The same quiet plant without
     a drift is "no fault": a quieter plant alone is no misfit."""
-    s = session("two_tank")
+    s = fast_session("two_tank")
     run = drifting_tanks("R10", -0.004, 150.0, 330.0, 2, process=0.0, measurement=1.3)
     d = bgc.diagnose(s, data=run, options=DiagnosisOptions(seed=2)).diagnosis
     assert d.verdict == "mismatch" and "R10_incipient" in d.candidates, report.plain_words(d)

@@ -30,7 +30,7 @@ import bgc
 from bgc.diagnosis import fit as fit_module
 from bgc.filters import residuals
 
-from conftest import bgc_cli, fast_session, session
+from conftest import bgc_cli, fast_backend, fast_session, session
 
 NOMINAL = dict(R1=1.0, C1=0.5, R2=2.0, C2=1.0, L=0.5, R3=1.0)
 V, DT, STEPS, START = 10.0, 0.05, 300, (7.5, 2.5, 2.5)
@@ -218,7 +218,8 @@ def test_the_monitor_says_why_the_model_does_not_fit_at_its_first_mismatch_check
     the later checkpoints say their verdict only, and the end says it again."""
     data = tmp_path / "plant.csv"
     plant_csv(data, 3, 0.03, 1.5)
-    r = bgc_cli("monitor", "models/circuit.yaml", "--data", str(data), "--checkpoint", "3", "-o", str(tmp_path / "m"))
+    r = bgc_cli("monitor", "models/circuit.yaml", "--data", str(data), "--checkpoint", "3", *fast_backend("circuit"),
+                "-o", str(tmp_path / "m"))
     assert r.returncode == 0, r.stderr
     lines = r.stdout.splitlines()
     first = next(i for i, line in enumerate(lines) if line.endswith("checkpoint: mismatch")
@@ -241,7 +242,8 @@ def test_the_monitor_says_a_misfit_while_watching_without_an_alarm(tmp_path):
     monitor says nothing of a misfit (one test per diagnoser: its level)."""
     data = tmp_path / "plant.csv"
     plant_csv(data, 0, 0.0, 1.3)
-    r = bgc_cli("monitor", "models/circuit.yaml", "--data", str(data), "--checkpoint", "5", "-o", str(tmp_path / "m"))
+    r = bgc_cli("monitor", "models/circuit.yaml", "--data", str(data), "--checkpoint", "5", *fast_backend("circuit"),
+                "-o", str(tmp_path / "m"))
     assert r.returncode == 0, r.stderr
     lines = r.stdout.splitlines()
     said = [line for line in lines if "the model does not fit this plant" in line]
@@ -250,5 +252,6 @@ def test_the_monitor_says_a_misfit_while_watching_without_an_alarm(tmp_path):
     assert lines[lines.index(said[0]) - 1] == "t = 5: checkpoint: mismatch"
     assert not any("fault detected" in line or "alarm" in line for line in lines), lines
     plant_csv(data, 0, 0.0, 1.0)
-    r = bgc_cli("monitor", "models/circuit.yaml", "--data", str(data), "--checkpoint", "5", "-o", str(tmp_path / "n"))
+    r = bgc_cli("monitor", "models/circuit.yaml", "--data", str(data), "--checkpoint", "5", *fast_backend("circuit"),
+                "-o", str(tmp_path / "n"))
     assert r.returncode == 0 and "does not fit" not in r.stdout and "circuit: no fault" in r.stdout, r.stdout

@@ -38,7 +38,7 @@ from bgc.diagnosis.options import DiagnosisOptions
 from bgc.output import report
 from bgc.output.events import mismatch_sentence
 
-from conftest import session
+from conftest import fast_session
 
 MODEL = {"R10": 4.0, "R12": 2.0, "R20": 3.0, "C1": 2.0, "C2": 1.5}
 #: The plant: R10 and C1 2 % above the model file's, R20 2 % below.
@@ -92,7 +92,7 @@ def tanks(plant: dict, fault: str | None, size: float, onset: float, end: float,
 @pytest.mark.slow
 def test_a_sensor_fault_on_a_plant_off_its_model_is_a_mismatch_not_a_drift_since_the_start():
     seed = 101  # 102 too (docs/results.md section 59 counts more)
-    d = bgc.diagnose(session("two_tank"), data=tanks(OFF, "F10", -0.035, 75.0, 150.0, seed),
+    d = bgc.diagnose(fast_session("two_tank"), data=tanks(OFF, "F10", -0.035, 75.0, 150.0, seed),
                      options=DiagnosisOptions(seed=seed, workers=1)).diagnosis
     assert d.verdict == "mismatch", report.plain_words(d)
     assert d.time_of(d.detection.step) < 75.0  # the alarm is the plant's disagreement, before the sensor fault
@@ -103,7 +103,7 @@ def test_a_sensor_fault_on_a_plant_off_its_model_is_a_mismatch_not_a_drift_since
     assert "bgc calibrate" in note and "R10_incipient" in note, note
     named = [h for h in d.hypotheses if h.name in d.candidates]
     assert any(h.onset_step < LEAST and h.name.endswith("_incipient") for h in named), d.candidates
-    same = bgc.diagnose(session("two_tank"), data=tanks(MODEL, "F10", -0.035, 75.0, 150.0, seed),
+    same = bgc.diagnose(fast_session("two_tank"), data=tanks(MODEL, "F10", -0.035, 75.0, 150.0, seed),
                         options=DiagnosisOptions(seed=seed, workers=1)).diagnosis
     assert same.verdict in ("isolated", "ambiguous") and "F10_offset_bias" in same.candidates, \
         report.plain_words(same)

@@ -12,7 +12,7 @@ import bgc
 from bgc.api import session as session_module
 from bgc.service import monitor as monitor_module
 
-from conftest import session
+from conftest import fast_session
 from test_episodes import DT, plant
 
 #: The most steps the diagnosis may hold, made small for the test (RO's real one is about 15,500).
@@ -26,7 +26,7 @@ def test_an_episode_never_decided_is_closed_before_the_memory_rule_and_the_monit
     # only rises, tests/test_episodes.py), never isolated, and no --rearm
     text = plant(600, [(6.0, {"R2": 0.6})])
     said = []
-    report = bgc.monitor(session("circuit"), text.splitlines(keepends=True), checkpoint=3.0, episodes=True,
+    report = bgc.monitor(fast_session("circuit"), text.splitlines(keepends=True), checkpoint=3.0, episodes=True,
                          keep=100 * DT, particles=300, seed=3, events=said.append)
     log = report.fault_log
     assert log, said
