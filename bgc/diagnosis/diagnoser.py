@@ -555,24 +555,11 @@ class Diagnoser:
                 or self.decoder is not None
                 or any(isinstance(e, ev.Mismatched) and e.timing is not None for e in d.events)):
             return d
-        from ..filters.cubature import nominal_track
-
-        record = loop.arrays()
-        ys, us, T = record["ys"], record["us"], len(record["ys"])
-        track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
-        z = np.array(track.z, dtype=float)[:T].reshape(T, len(d.outputs))
-        z[:, ~loop.present] = np.nan
-        cumsum = np.concatenate([np.zeros((1, z.shape[1])), np.cumsum(np.nan_to_num(z), axis=0)])
-        at = change_point(cumsum, T - 1, T)
-        if at < LEAST or T - at < LEAST or not fit(self.nominal, ys, us, d.outputs, at, track=track).fits:
+        change = self._change(d)
+        if change is None:
             return d
-        both = [j for j in range(z.shape[1]) if (np.isfinite(z[:at, j]).sum() >= LEAST
-                                                  and np.isfinite(z[at:, j]).sum() >= LEAST)]
-        statistics, cut = change_statistics(z[:, both], at) if both else ({}, np.inf)
-        moved = [d.outputs[both[i]] for i, value in statistics.items() if not value <= cut]
-        if not moved or not misfit_before(z, at) < 0 or _new_point(self.nominal, us, at):
-            return d
-        found = ""
+        alarm, moved = change
+        found, at = "", alarm.step
         if set(o.detectors) != set(TESTS):  # (the bank ran already: the same diagnosis again)
             self.config.say(f"no alarm, but the residuals changed at t = {float(d.time[at]):.6g}: diagnosing again "
                             "with every test of the detector's bank")
@@ -581,16 +568,41 @@ class Diagnoser:
             found = "bank" if made.detection is not None and made.verdict in ("isolated", "ambiguous") else ""
         if not found:
             self.config.say(f"diagnosing from an alarm at the change point, t = {float(d.time[at]):.6g}")
-            i = max(statistics, key=lambda i: np.nan_to_num(statistics[i], nan=np.inf))
-            alarm = Detection(at, d.outputs[both[i]], T - at, statistics[i], cut, at, "change")
             made = self.replay(dataclasses.replace(o, switch=False), loop.config.every,
                                forced=alarm).finish(self.sampler.summary(), truth)
             if made.detection is not None and made.verdict in ("isolated", "ambiguous", "unexplained"):
                 found = "change"
-        said = ev.ChangeMissed(T - 1, at, tuple(moved), tuple(o.detectors), bool(found), found == "change",
+        said = ev.ChangeMissed(len(d.time) - 1, at, moved, tuple(o.detectors), bool(found), found == "change",
                                set(o.detectors) != set(TESTS))
         chosen = made if found else d
         return dataclasses.replace(chosen, events=ordered([*chosen.events, said]))
+
+    def _change(self, d: Diagnosis) -> tuple[Detection, tuple[str, ...]] | None:
+        """The change of :meth:`_missed_change` in the record, as an alarm
+        at its change point (test ``change``: the sensor whose residuals
+        changed most, the statistic of :func:`~bgc.diagnosis.fit.changed`,
+        its window the samples from there to the end) and the sensors whose
+        residuals changed; None where there is none (the rules of :meth:`_missed_change`)."""
+        from ..filters.cubature import nominal_track
+
+        loop = self.loop
+        record = loop.arrays()
+        ys, us, T = record["ys"], record["us"], len(record["ys"])
+        track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
+        z = np.array(track.z, dtype=float)[:T].reshape(T, len(d.outputs))
+        z[:, ~loop.present] = np.nan
+        cumsum = np.concatenate([np.zeros((1, z.shape[1])), np.cumsum(np.nan_to_num(z), axis=0)])
+        at = change_point(cumsum, T - 1, T)
+        if at < LEAST or T - at < LEAST or not fit(self.nominal, ys, us, d.outputs, at, track=track).fits:
+            return None
+        both = [j for j in range(z.shape[1]) if (np.isfinite(z[:at, j]).sum() >= LEAST
+                                                  and np.isfinite(z[at:, j]).sum() >= LEAST)]
+        statistics, cut = change_statistics(z[:, both], at) if both else ({}, np.inf)
+        moved = tuple(d.outputs[both[i]] for i, value in statistics.items() if not value <= cut)
+        if not moved or not misfit_before(z, at) < 0 or _new_point(self.nominal, us, at):
+            return None
+        i = max(statistics, key=lambda i: np.nan_to_num(statistics[i], nan=np.inf))
+        return Detection(at, d.outputs[both[i]], T - at, statistics[i], cut, at, "change"), moved
 
     def _reread(self, d: Diagnosis, truth: Run | None) -> Diagnosis:
         """The policy for a hidden mode read with the nominal model: a fault
