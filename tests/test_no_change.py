@@ -196,7 +196,8 @@ def _supply_stepped(onset: float, size: float, seed: int) -> str:
     schedule: closed, open at 5 s, closed at 15 s, open at 22 s) with R_load
     ``size`` ohm higher from ``onset``, solved by solve_ivp piece by piece on
     its equations by hand (C dv/dt = (V - v)/R_s - v/R_load closed,
-    -v/R_load open; i_s = (V - v)/R_s closed, 0 open), at the model's noise."""
+    -v/R_load open; i_s = (V - v)/R_s closed, 0 open), at the model's noise;
+    the true capacitor voltage (the model's state e5) beside the readings."""
     from scipy.integrate import solve_ivp
 
     from test_uncommanded import C, DT, NOISE, NUMBER, R_LOAD, R_S, SCHEDULE, STEPS, V, _at
@@ -213,9 +214,10 @@ def _supply_stepped(onset: float, size: float, seed: int) -> str:
         x = float(sol.sol(b)[0])
     i_s = np.array([(V - y) / R_S if _at(SCHEDULE, t) == "closed" else 0.0 for t, y in zip(times, v)])
     rng = np.random.default_rng(seed)
-    rows = zip(times, v + NOISE["v_C"] * rng.standard_normal(STEPS), i_s + NOISE["i_s"] * rng.standard_normal(STEPS))
-    return "time,mode,u:V,y:v_C,y:i_s\n" + "".join(
-        f"{t:.10g},{NUMBER[_at(SCHEDULE, t)]},{V},{float(a)!r},{float(b)!r}\n" for t, a, b in rows)
+    rows = zip(times, v + NOISE["v_C"] * rng.standard_normal(STEPS), i_s + NOISE["i_s"] * rng.standard_normal(STEPS),
+               v)
+    return "time,mode,u:V,y:v_C,y:i_s,x:e5\n" + "".join(
+        f"{t:.10g},{NUMBER[_at(SCHEDULE, t)]},{V},{float(a)!r},{float(b)!r},{float(x)!r}\n" for t, a, b, x in rows)
 
 
 @pytest.mark.slow
@@ -237,7 +239,8 @@ def test_a_step_the_observer_follows_is_diagnosed_from_the_change_point(seed):
     from test_uncommanded import MODEL
 
     session = bgc.open(MODEL, backend="numpy")
-    d = bgc.diagnose(session, runs.parse_run(_supply_stepped(8.0, 2.0, seed), "stepped.csv"), seed=1).diagnosis
+    data = runs.parse_run(_supply_stepped(8.0, 2.0, seed), "stepped.csv")
+    d = bgc.diagnose(session, data, seed=1).diagnosis
     said = [e for e in d.events if type(e).__name__ == "ChangeMissed"]
     assert len(said) == 1 and said[0].found and said[0].at_change, said
     assert d.detection is not None and d.detection.test == "change" and d.detection.step == said[0].change
@@ -245,6 +248,12 @@ def test_a_step_the_observer_follows_is_diagnosed_from_the_change_point(seed):
     e = d.best.estimate
     assert e.low <= 2.0 <= e.high, (e.low, e.value, e.high)
     assert abs(d.onset - 8.0) <= 0.25, d.onset
+    # a campaign counts the alarm where it was raised, at the data's end: not a false alarm before the onset,
+    # nor a delay of nothing
+    from bgc.experiment import metrics
+
+    m = metrics.measure(d, data, metrics.Truth("R_load", "abrupt", 2.0, 8.0))
+    assert m.detected and not m.false_alarm and m.delay == pytest.approx(float(data.time[-1]) - 8.0)
     from bgc.output.events import sentence
 
     text = sentence(said[0], d.time_of)

@@ -20,7 +20,8 @@ columns and ``MAX_VALUES`` numbers; a line of more than ``MAX_LINE``
 characters is refused without being held in memory. A stream read row by
 row for as long as it goes on (:class:`RowReader`, a monitor's) has no
 bound on its bytes, and its bounds on comment and blank lines hold between
-two rows, the comment lines before the last row but one forgotten.
+two rows (before the first row, the header's lines count with those after
+the column names), the comment lines before the last row but one forgotten.
 
 :func:`check_run` holds what a run must be (times finite and increasing,
 columns of numbers as long as the time, no infinite value): the CSV reader

@@ -525,31 +525,26 @@ class Diagnoser:
         return dataclasses.replace(diagnosis, seconds=time.perf_counter() - self.started)
 
     def _missed_change(self, d: Diagnosis, truth: Run | None) -> Diagnosis:
-        """A mismatch without an alarm, from a detector without the drift
-        test, that is a change the detector missed rather than a model that
-        does not fit: the whole record fails the test of the model, but the
-        data before the residuals' change point (the generalised likelihood
-        ratio's of a mean shift over the record, every sensor; at least
-        :data:`~bgc.diagnosis.fit.LEAST` samples each side) pass it, some
-        sensor read on both sides has residuals that differ after it from
-        before beyond chance (:func:`~bgc.diagnosis.fit.changed`), the data
-        before it are likelier under the model than like those after it
-        (:func:`~bgc.diagnosis.fit.misfit_before` negative), and the inputs
-        after it stay within the range they had before, the modes among
-        those seen before (a model whose misfit only a new operating point
-        excites, a capacitance off that an input step shows, passes the
-        other tests: it stays a mismatch). Not after an alarm (a false one,
-        or a glitch, made again), nor when the inputs read with the other
-        timing explain the misfit. The diagnosis is then made again with
-        every test of the detector's bank (unless they all ran), and is that
-        one when it names a fault (isolated or ambiguous). When it does not (a change the
-        observer follows, its residuals off by a fraction of their noise for
-        long: no window of any test reaches its threshold), the diagnosis is
-        made from an alarm raised at the change point itself (test
-        ``change``, the statistic of :func:`~bgc.diagnosis.fit.changed`): its
-        verdict stands when it names a fault or finds none that explains the
-        change (unexplained: the plant changed, the model fitted it before).
-        A :class:`~bgc.events.ChangeMissed` says which."""
+        """A mismatch without an alarm that is a change the detector missed rather than a model that does not fit:
+        the whole record fails the test of the model, but the data before the residuals' change point
+        (the generalised likelihood ratio's of a mean shift over the record, every sensor; at least
+        :data:`~bgc.diagnosis.fit.LEAST` samples each side) pass it, some sensor read on both sides has
+        residuals that differ after it from before beyond chance (:func:`~bgc.diagnosis.fit.changed`),
+        the data before it are likelier under the model than like those after it
+        (:func:`~bgc.diagnosis.fit.misfit_before` negative), and the inputs after it stay within the
+        range they had before, the modes among those seen before (a model whose misfit only a new
+        operating point excites, a capacitance off that an input step shows, passes the other tests: it
+        stays a mismatch). Not after an alarm (a false one, or a glitch, made again), nor when the
+        inputs read with the other timing explain the misfit. The diagnosis is then made again with
+        every test of the detector's bank (unless they all ran), and is that one when it names a fault
+        (isolated or ambiguous). When no test of the bank alarms (a change the observer follows, its
+        residuals off by a fraction of their noise for long: no window of any test reaches its
+        threshold; a bank that alarmed and named no fault judged the misfit itself), the diagnosis is
+        made from an alarm raised at the change point (test ``change``, the statistic of
+        :func:`~bgc.diagnosis.fit.changed`; an unexplained verdict made again with every fault model,
+        :meth:`_retry`): its verdict stands when it names a fault whose residuals pass the test of the
+        model's fit (:meth:`_explains`), or finds none that explains the change (unexplained: the plant
+        changed, the model fitted it before). A :class:`~bgc.events.ChangeMissed` says which."""
         o, loop = self.loop.options, self.loop
         if (d.verdict != "mismatch" or d.detection is not None or loop.detection is not None
                 or self.decoder is not None
@@ -559,23 +554,45 @@ class Diagnoser:
         if change is None:
             return d
         alarm, moved = change
-        found, at = "", alarm.step
+        found, at, made = "", alarm.step, None
         if set(o.detectors) != set(TESTS):  # (the bank ran already: the same diagnosis again)
             self.config.say(f"no alarm, but the residuals changed at t = {float(d.time[at]):.6g}: diagnosing again "
                             "with every test of the detector's bank")
             options = dataclasses.replace(o, detectors=TESTS, switch=False)
             made = self.replay(options, loop.config.every).finish(self.sampler.summary(), truth)
             found = "bank" if made.detection is not None and made.verdict in ("isolated", "ambiguous") else ""
-        if not found:
+        if made is None or made.detection is None:  # (a bank that alarmed and named no fault judged the misfit)
             self.config.say(f"diagnosing from an alarm at the change point, t = {float(d.time[at]):.6g}")
-            made = self.replay(dataclasses.replace(o, switch=False), loop.config.every,
-                               forced=alarm).finish(self.sampler.summary(), truth)
-            if made.detection is not None and made.verdict in ("isolated", "ambiguous", "unexplained"):
+            options, every = dataclasses.replace(o, switch=False), loop.config.every
+            again = self.replay(options, every, forced=alarm)
+            made = again.finish(self.sampler.summary(), truth)
+            if self._retry(made, again):  # unexplained: with every fault model, as any unexplained verdict
+                made = self.replay(options, True, forced=alarm).finish(self.sampler.summary(), truth)
+            if made.detection is not None and (made.verdict == "unexplained" or (
+                    made.verdict in ("isolated", "ambiguous") and self._explains(made))):
                 found = "change"
         said = ev.ChangeMissed(len(d.time) - 1, at, moved, tuple(o.detectors), bool(found), found == "change",
                                set(o.detectors) != set(TESTS))
         chosen = made if found else d
         return dataclasses.replace(chosen, events=ordered([*chosen.events, said]))
+
+    def _explains(self, d: Diagnosis) -> bool:
+        """Whether a fault that diagnosis ``d`` names (from an alarm at the
+        change point) explains the record: its static posterior's residuals
+        from its most likely onset pass the test of the model's fit, mean and
+        variance (:mod:`bgc.diagnosis.fit`; the windowed tests of its filters
+        are as weak as the detector's were, which saw nothing); a fault the
+        particle filters sized (no static posterior) is taken as named."""
+        tested = [h for h in d.hypotheses if h.name in d.candidates]
+        for h in tested:
+            p = h.static
+            if p is None or p.residuals is None or p.best is None:
+                return True
+            z = np.asarray(p.residuals, dtype=float)[int(p.best[0]):]
+            if not failures(summary([z], d.outputs), FIT_LEVEL, correlation=False, narrower=False,
+                            spread=residual_sd(self.nominal)):
+                return True
+        return False
 
     def _change(self, d: Diagnosis) -> tuple[Detection, tuple[str, ...]] | None:
         """The change of :meth:`_missed_change` in the record, as an alarm

@@ -346,7 +346,11 @@ class Detection:
     ``onset_step``: the estimated first faulty step (None: not estimated, see
     :meth:`DetectorBank.update`); ``test``: the family of tests that fired
     (:data:`bgc.diagnosis.detect.TESTS`: ``mean``, ``drift``, ``variance``,
-    ``frozen``; for ``variance`` the statistic is the window's variance
+    ``frozen``, ``pooled``, ``matched``; and ``change``, an alarm raised at
+    the end of a record no test alarmed on, at the change point found then,
+    :meth:`bgc.diagnosis.diagnoser.Diagnoser._missed_change`: its statistic
+    the change test's, its window the samples from there to the end; for
+    ``variance`` the statistic is the window's variance
     ratio and the threshold the bound it crossed, for ``frozen`` the
     statistic is the readings repeated and the threshold the repeats that
     alarm)."""
