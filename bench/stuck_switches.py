@@ -49,7 +49,10 @@ command (from its onset until the operator next asks for S in that state),
 a step of R_load, or none; the data from solve_ivp on the supply's
 equations derived by hand (docs/examples/switched_rc.yaml), at the model's
 noise (twice it is a plant noisier than its model, which the diagnosis
-calls a mismatch: not this bench's question). A stuck switch and one that moved by itself are the same
+calls a mismatch: not this bench's question). The steps of R_load isolated
+are set against the simulator's: each run's line says the test that alarmed
+and the size's estimate and interval, and a last line the size's error, the
+interval's coverage and the onset's error over them. A stuck switch and one that moved by itself are the same
 plant until the operator's next command of the switch: where none comes
 after the onset, ``bgc distinguish`` puts the other in the ambiguity group,
 and the run is not predicted separable.
@@ -369,7 +372,7 @@ def supply(args) -> int:
     times = SUPPLY_DT * np.arange(1, args.steps + 1)
     end = float(times[-1])
     names = {1: "closed", 2: "open"}
-    rows = []
+    rows, steps = [], []
     started = time.process_time()
     for k in range(args.runs):
         rng = np.random.default_rng([args.seed, 200, k])
@@ -395,10 +398,21 @@ def supply(args) -> int:
             d = bgc.diagnose(session, runs.parse_run(text_run, f"run{k}.csv"), seed=k).diagnosis
         told = predicted(session, None, times, fault, onset, text) if fault.startswith("S:") else False
         rows.append((fault, separable, outcome_of(d, fault), told))
+        sized = ""
+        if fault == "R_load:abrupt" and rows[-1][2] == "right":  # the step's size and onset against the truth
+            e = d.best.estimate
+            steps.append((e.value / size - 1.0, e.low <= size <= e.high, d.onset - onset))
+            sized = (f" (the {d.detection.test} test; size {e.value:.3f} [{e.low:.3f}, {e.high:.3f}] against "
+                     f"{size:.3f}, onset {d.onset:.2f})")
         print(f"run {k:3d} {fault:18s} onset {onset:5.2f} separable {separable!s:5s} "
-              f"predicted {told!s:5s} -> {d.verdict}: {', '.join(d.candidates) or '-'}", flush=True)
+              f"predicted {told!s:5s} -> {d.verdict}: {', '.join(d.candidates) or '-'}{sized}", flush=True)
     summary(rows, SUPPLY_FAULTS[:4], SUPPLY_FAULTS[4:], "switch faults", 3, time.process_time() - started,
             args.runs, lambda fault, mine: f"{fault}: {len(mine)} runs; outcomes {dict(Counter(r[2] for r in mine))}")
+    if steps:
+        errors, covers, onsets = zip(*steps)
+        print(f"R_load's steps isolated: size error {100 * min(errors):+.1f} to {100 * max(errors):+.1f} % (mean "
+              f"|error| {100 * float(np.mean(np.abs(errors))):.1f} %), the 95 % interval holding the truth in "
+              f"{sum(covers)} of {len(covers)}, onset error {min(onsets):+.2f} to {max(onsets):+.2f} s")
     return 0
 
 
