@@ -252,3 +252,37 @@ def test_a_restart_from_the_state_saved_as_an_episode_closed_gives_the_uninterru
     again = run("again", 180, "--state", state)
     assert again.stdout.startswith(f"resumed from {state}: 0 rows, to t = {closed['time']:g};")
     assert report(tmp_path / "again") == report(tmp_path / "whole")
+
+
+@pytest.mark.slow
+def test_a_restart_on_a_pipe_of_the_new_rows_takes_the_repair_said_in_it(tmp_path):
+    """A repair said before the first row of a restarted input that holds
+    only the rows after the state (a pipe of what the logger writes from now
+    on): it is taken there, as the uninterrupted stream takes it, although
+    the state counted the first input's comment lines (a ``# repaired`` at
+    t = 2, before the fault). The fault log of the two readings is the
+    uninterrupted one's: R2 accommodated, then repaired at t = 12 (the first
+    row of the second input), the restarted report holding the whole log."""
+    from test_episodes import OPTIONS as EPISODES, plant
+
+    lines = plant(400, [(6.0, {"R2": 1.6}), (12.0, {"R2": 1.0})]).splitlines(keepends=True)
+    head, rows = lines[0], lines[1:]
+    cut = next(i for i, line in enumerate(rows) if float(line.split(",")[0]) > 12.0 - 1e-9)  # the row of t = 12
+    early = next(i for i, line in enumerate(rows) if float(line.split(",")[0]) > 2.0 - 1e-9)
+    first = [head] + rows[:early] + ["# repaired\n"] + rows[early:cut]
+    then = [head, "# repaired: R2\n"] + rows[cut:]
+
+    def run(out: str, text: list[str], *more):
+        p = bgc_cli("monitor", CIRCUIT, "--data", "-", *EPISODES, *fast_backend("circuit"), "-o", tmp_path / out,
+                    *more, input="".join(text))
+        assert p.returncode == 0, p.stderr
+        return [e for e in report(tmp_path / out)["events"] if e["event"] in ("EpisodeClosed", "Repaired")]
+
+    whole = run("whole", first + then[1:])
+    assert [e["event"] for e in whole] == ["Repaired", "EpisodeClosed", "Repaired"], whole
+    assert whole[-1]["parameters"] == ["R2"] and whole[-1]["time"] == pytest.approx(float(rows[cut].split(",")[0]))
+    state = tmp_path / "state"
+    before = run("before", first, "--state", state)
+    assert before == whole[:2]
+    after = run("after", then, "--state", state)
+    assert after == whole, after

@@ -74,6 +74,9 @@ class Episodes:
         #: per parameter accommodated at least once, its appearances: [onset, end (None: present), value]
         self.spells: dict[str, list[list]] = {}
         self.remarks = 0  # the stream's comment lines read so far (a repair is one)
+        #: of them, those read before the last row was taken: the ones after it, taken already, are
+        #: ``remarks - at_row`` (a restart takes none of them twice, :meth:`bgc.service.monitor.Monitor.row`)
+        self.at_row = 0
 
     def watch(self, belief, d) -> None:
         """Note the alarm of a belief (the open episode's)."""
@@ -197,7 +200,8 @@ class Episodes:
     def plain(self) -> dict:
         """The log, the faults accommodated and the open episode's alarm as
         JSON data (a monitor's state, :mod:`bgc.service.resume`)."""
-        return {"theta": dict(self.theta), "by": dict(self.by), "remarks": self.remarks, "spells": self.spells,
+        return {"theta": dict(self.theta), "by": dict(self.by), "remarks": self.remarks, "at_row": self.at_row,
+                "spells": self.spells,
                 "alarm": None if self.alarm is None else list(self.alarm),
                 "log": [[type(e).__name__, {f.name: getattr(e, f.name) for f in dataclasses.fields(e)}]
                         for e in self.log]}
@@ -207,6 +211,7 @@ class Episodes:
         self.theta = {str(k): float(v) for k, v in data["theta"].items()}
         self.by = {str(k): int(v) for k, v in data["by"].items()}
         self.remarks = int(data["remarks"])
+        self.at_row = int(data.get("at_row", self.remarks))
         self.spells = {str(p): [list(spell) for spell in spells] for p, spells in data.get("spells", {}).items()}
         self.alarm = None if data["alarm"] is None else (float(data["alarm"][0]), str(data["alarm"][1]))
         kinds = {"EpisodeClosed": ev.EpisodeClosed, "Repaired": ev.Repaired}

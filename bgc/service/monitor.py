@@ -281,6 +281,7 @@ class _Monitor:
         self.log = Episodes(session.package, rearm, exclude_faulty, session.view.labels.per_time) if episodes else None
         self.keep = _Keeper(session, options, checkpoint, self.columns, state, state_every, exclude_faulty, reading,
                             self.log)
+        self.after_saved = 0  # a restart's comment lines after its last saved row, taken before it
         self.saved = self.keep.load()
         self.ended = None  # (diagnoser, rows) of the episode closed or repaired last, until the next row
         self.rows_time = None  # the last row's time
@@ -299,6 +300,10 @@ class _Monitor:
         self.excluded = [ev.SensorExcluded(*e) for e in saved.excluded]
         if self.log is not None and saved.episodes is not None:
             self.log.restore(saved.episodes)
+            # the comment lines are counted afresh in this reading of the input: those of the rows it reads
+            # again are taken, and after the last of them the repairs taken before the restart (none when the
+            # input reads no row again: a pipe of the new rows only, every comment line in it new)
+            self.after_saved, self.log.remarks = self.log.remarks - self.log.at_row, 0
         self.taken_out = {e.sensor for e in self.excluded} | (set() if self.log is None else self.log.sensors_out())
         if self.taken_out:  # the diagnoser the state is of watches the other sensors
             self.sensors = [y for y in self.sensors if y not in self.taken_out]
@@ -340,13 +345,14 @@ class _Monitor:
         t = values[0]
         if self.saved is not None and t <= self.saved.last_time:
             self.keep.same(values, line, self.name)  # diagnosed before the restart: the same row as then
-            if self.log is not None:  # and the repairs before it taken then
-                self.log.remarks = max(self.log.remarks, self.reader.lines.comments)
+            if self.log is not None:  # and the repairs before it taken then: those after the last one saved too
+                self.log.remarks = self.reader.lines.comments + self.after_saved
             return
         u = {name_: values[j] for j, name_ in self.groups["u"]}
         y = {name_: values[j] for j, name_ in self.groups["y"]}
         if self.log is not None:
             self._repairs(t)
+            self.log.at_row = self.log.remarks
         with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
             before = self._taken()
             belief = self.d.step(t, u, y, line)
