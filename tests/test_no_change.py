@@ -198,26 +198,9 @@ def _supply_stepped(onset: float, size: float, seed: int) -> str:
     its equations by hand (C dv/dt = (V - v)/R_s - v/R_load closed,
     -v/R_load open; i_s = (V - v)/R_s closed, 0 open), at the model's noise;
     the true capacitor voltage (the model's state e5) beside the readings."""
-    from scipy.integrate import solve_ivp
+    from test_uncommanded import run_text
 
-    from test_uncommanded import C, DT, NOISE, NUMBER, R_LOAD, R_S, SCHEDULE, STEPS, V, _at
-
-    times = DT * np.arange(1, STEPS + 1)
-    cuts = sorted({a for a, _ in SCHEDULE} | {onset, float(times[-1]) + DT})
-    v, x = np.empty(STEPS), 0.0
-    for a, b in zip(cuts[:-1], cuts[1:]):
-        on, r = _at(SCHEDULE, a) == "closed", R_LOAD + (size if a >= onset - 1e-12 else 0.0)
-        inside = (times >= a - 1e-9) & (times < b - 1e-9)
-        sol = solve_ivp(lambda _, y, on=on, r=r: [((V - y[0]) / R_S if on else 0.0) / C - y[0] / (r * C)], (a, b),
-                        [x], dense_output=True, rtol=1e-11, atol=1e-13)
-        v[inside] = sol.sol(times[inside])[0]
-        x = float(sol.sol(b)[0])
-    i_s = np.array([(V - y) / R_S if _at(SCHEDULE, t) == "closed" else 0.0 for t, y in zip(times, v)])
-    rng = np.random.default_rng(seed)
-    rows = zip(times, v + NOISE["v_C"] * rng.standard_normal(STEPS), i_s + NOISE["i_s"] * rng.standard_normal(STEPS),
-               v)
-    return "time,mode,u:V,y:v_C,y:i_s,x:e5\n" + "".join(
-        f"{t:.10g},{NUMBER[_at(SCHEDULE, t)]},{V},{float(a)!r},{float(b)!r},{float(x)!r}\n" for t, a, b, x in rows)
+    return run_text("none", seed, (onset, size), truth=True)
 
 
 @pytest.mark.slow

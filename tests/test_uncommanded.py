@@ -105,33 +105,37 @@ def exact(pieces, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return v, current
 
 
-def solved(scenario: str) -> tuple[np.ndarray, np.ndarray]:
-    """v and i_s at the samples, the switch as ``BY_HAND[scenario]`` says, by solve_ivp piece by piece."""
+def solved(scenario: str, r_load: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """v and i_s at the samples, the switch as ``BY_HAND[scenario]`` says, by solve_ivp piece by piece;
+    ``r_load``: (onset, size), R_load that much higher from the onset on (a step of the load)."""
     pieces = BY_HAND[scenario]
     times = DT * np.arange(1, STEPS + 1)
+    cuts = sorted({a for a, _ in pieces} | ({r_load[0]} if r_load else set()) | {float(times[-1]) + DT})
     v = np.empty(STEPS)
     x = 0.0
-    edges = [a for a, _ in pieces] + [times[-1] + DT]
-    for (a, on), b in zip(pieces, edges[1:]):
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        on = _at(pieces, a)
+        r = R_LOAD + (r_load[1] if r_load and a >= r_load[0] - 1e-12 else 0.0)
         inside = (times >= a - 1e-9) & (times < b - 1e-9)
-        inside |= np.isclose(times, b) & (b == edges[-1])
-        sol = solve_ivp(lambda _, y: [((V - y[0]) / R_S if on else 0.0) / C - y[0] / (R_LOAD * C)], (a, b), [x],
-                        dense_output=True, rtol=1e-11, atol=1e-13)
+        sol = solve_ivp(lambda _, y, on=on, r=r: [((V - y[0]) / R_S if on else 0.0) / C - y[0] / (r * C)], (a, b),
+                        [x], dense_output=True, rtol=1e-11, atol=1e-13)
         v[inside] = sol.sol(times[inside])[0]
         x = float(sol.sol(b)[0])
     return v, np.array([(V - x) / R_S if _at(pieces, t) else 0.0 for t, x in zip(times, v)])
 
 
-def run_text(scenario: str, seed: int) -> str:
-    """A run file of the plant with the switch as ``BY_HAND[scenario]`` says (:func:`solved`), with the
-    sensors' noise."""
+def run_text(scenario: str, seed: int, r_load: tuple[float, float] | None = None, truth: bool = False) -> str:
+    """A run file of the plant with the switch as ``BY_HAND[scenario]`` says (:func:`solved`, ``r_load``
+    its step of the load), with the sensors' noise; ``truth``: the capacitor's voltage (the model's state
+    e5) beside the readings."""
     times = DT * np.arange(1, STEPS + 1)
-    v, i_s = solved(scenario)
+    v, i_s = solved(scenario, r_load)
     rng = np.random.default_rng(seed)
-    lines = ["time,mode,u:V,y:v_C,y:i_s"]
-    for t, a, b in zip(times, v + NOISE["v_C"] * rng.standard_normal(STEPS),
-                       i_s + NOISE["i_s"] * rng.standard_normal(STEPS)):
-        lines.append(f"{t:.10g},{NUMBER[_at(SCHEDULE, t)]},{V},{float(a)!r},{float(b)!r}")
+    lines = ["time,mode,u:V,y:v_C,y:i_s" + (",x:e5" if truth else "")]
+    for t, a, b, x in zip(times, v + NOISE["v_C"] * rng.standard_normal(STEPS),
+                          i_s + NOISE["i_s"] * rng.standard_normal(STEPS), v):
+        lines.append(f"{t:.10g},{NUMBER[_at(SCHEDULE, t)]},{V},{float(a)!r},{float(b)!r}"
+                     + (f",{float(x)!r}" if truth else ""))
     return "\n".join(lines) + "\n"
 
 

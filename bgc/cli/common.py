@@ -142,11 +142,11 @@ def write_report(r, output: str, command: str) -> Path:
     d = r.diagnosis
     print(f"{r.model}: {d.verdict}" + (f": {', '.join(d.candidates)}" if d.candidates else ""))
     if d.detection is not None:
-        test = "" if d.detection.test == "mean" else f", the {d.detection.test} test"
-        at = f"t = {events.time_text(d.time_of(d.detection.step))} ({d.detection.sensor}{test})"  # Unix time in full
-        if d.detection.test == "change":  # found over the whole record, at its end
-            at = f"the data's end (the change test: the residuals of {d.detection.sensor} changed at t = " \
-                 f"{events.time_text(d.time_of(d.detection.step))})"
+        det, when = d.detection, events.time_text(d.time_of(d.detection.step))  # Unix time in full
+        if det.test == "change":  # found over the whole record, at its end
+            at = f"the data's end (the change test: the residuals of {det.sensor} changed at t = {when})"
+        else:
+            at = f"t = {when} ({det.sensor}{'' if det.test == 'mean' else f', the {det.test} test'})"
         print(f"  alarm at {at}: no fault explains the data better than chance" if d.onset is None  # a false one
               else f"  detected at {at}, onset t = {events.time_text(d.onset)}")
     for line in report.plain_words(d, r.labels):

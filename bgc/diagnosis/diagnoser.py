@@ -46,7 +46,6 @@ import numpy as np
 from ..arguments import as_float, is_real, shown
 from ..data.runs import Run
 from ..data.sampler import Sample, Sampler
-from ..filters.residuals import failures, summary
 from ..errors import ArgumentTypeError, ArgumentValueError, DataError, TrackingError, printable
 from .hidden import ONSETS, REREAD, ModeDecoder, read_again, read_fault, read_head, readable
 from ..ir import FaultSignatures
@@ -55,7 +54,7 @@ from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
 from .detect import TESTS, Detector, DetectorOptions, change_point
 from .finish import ordered
-from .fit import LEAST, LEVEL as FIT_LEVEL, change_statistics, fit, misfit_before, residual_sd
+from .fit import LEAST, change_statistics, fails, fit, misfit_before
 from .isolate import with_returns
 from .onsets import log_prior
 from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig, shifted_events
@@ -467,8 +466,7 @@ class Diagnoser:
         if again is None and (first.test != "mean" or first.window != 1):  # quiet after more than one reading
             return None
         quiet = z if again is None else z[:again.onset_step if again.onset_step is not None else again.step]
-        if len(quiet) < longest or failures(summary([quiet], sensors), FIT_LEVEL, correlation=False,
-                                            narrower=False, spread=residual_sd(self.nominal)):
+        if len(quiet) < longest or fails(self.nominal, quiet, sensors):
             return None
         return None, "", again is None  # quiet to where the diagnosis made again alarms, or to the end
 
@@ -555,7 +553,8 @@ class Diagnoser:
             return d
         alarm, moved = change
         found, at, made = "", alarm.step, None
-        if set(o.detectors) != set(TESTS):  # (the bank ran already: the same diagnosis again)
+        rerun = set(o.detectors) != set(TESTS)  # (the bank ran already: the same diagnosis again)
+        if rerun:
             self.config.say(f"no alarm, but the residuals changed at t = {float(d.time[at]):.6g}: diagnosing again "
                             "with every test of the detector's bank")
             options = dataclasses.replace(o, detectors=TESTS, switch=False)
@@ -571,8 +570,7 @@ class Diagnoser:
             if made.detection is not None and (made.verdict == "unexplained" or (
                     made.verdict in ("isolated", "ambiguous") and self._explains(made))):
                 found = "change"
-        said = ev.ChangeMissed(len(d.time) - 1, at, moved, tuple(o.detectors), bool(found), found == "change",
-                               set(o.detectors) != set(TESTS))
+        said = ev.ChangeMissed(len(d.time) - 1, at, moved, tuple(o.detectors), bool(found), found == "change", rerun)
         chosen = made if found else d
         return dataclasses.replace(chosen, events=ordered([*chosen.events, said]))
 
@@ -589,8 +587,7 @@ class Diagnoser:
             if p is None or p.residuals is None or p.best is None:
                 return True
             z = np.asarray(p.residuals, dtype=float)[int(p.best[0]):]
-            if not failures(summary([z], d.outputs), FIT_LEVEL, correlation=False, narrower=False,
-                            spread=residual_sd(self.nominal)):
+            if not fails(self.nominal, z, d.outputs):
                 return True
         return False
 

@@ -181,6 +181,15 @@ def misfit_before(z: np.ndarray, end: int) -> float:
     return total
 
 
+def fails(nominal, z: np.ndarray, outputs: tuple[str, ...], level: float = LEVEL) -> list:
+    """The failures (index, test) of the test of ``nominal``'s fit, every
+    test but the residuals' correlation and a variance too small, at
+    ``level`` on normalised residuals ``z`` (steps x ``outputs``; NaN: not
+    read), a calibrated model's allowance with them (:func:`residual_sd`):
+    the test :func:`fit` holds a record to, on residuals already in hand."""
+    return failures(summary([z], outputs), level, correlation=False, narrower=False, spread=residual_sd(nominal))
+
+
 def residual_sd(nominal) -> dict[str, float]:
     """Per sensor, the standard deviation a calibration's estimates
     leave on the normalised residuals' variance on other data: the

@@ -27,42 +27,11 @@ def sentence(e, time_of) -> str:
     none). The event's own time is not in the sentence: the report and the
     monitor put it in front."""
     t = lambda step: _t(time_of, step)  # noqa: E731
+    for family in (_data_sentence, _weighing_sentence):
+        said = family(e, t, time_of)
+        if said is not None:
+            return said
     match e:
-        case ev.SensorMissing(sensor=s):
-            return f"the data have no column y:{s}: diagnosed with the other sensors"
-        case ev.ColumnIgnored(column=c):
-            return f"the data's column {c} is no sensor or input of the model: not used"
-        case ev.SensorSilent(sensor=s):
-            return f"sensor y:{s} has no sample in the run: every value of its column is empty or nan, so nothing " \
-                   "is diagnosed from it"
-        case ev.SensorStopped(sensor=y, since=k):
-            return (f"sensor y:{y} has no sample since t = {t(k)}, longer than the gap limit: diagnosed with the "
-                    f"other sensors until it resumes")
-        case ev.SensorResumed(sensor=y, since=k, step=j):
-            return f"sensor y:{y} gives samples again after {j - k} step(s) without one (from t = {t(k)})"
-        case ev.InputFromModel(input=u, reason="absent"):
-            return f"the data have no column u:{u}: the model's declared input is used"
-        case ev.InputFromModel(input=u):
-            return f"input u:{u} has no value yet: the model's declared input is used until its first value"
-        case ev.ModeHidden(lag=lag):
-            return ("the data have no mode column: the mode is read from the measurements by a bank of Kalman filters "
-                    f"over the modes' histories, each sample's decided once the data settle it (at most {lag} samples "
-                    "later)")
-        case ev.ModeRead(source=a, target=b, share=w):
-            tail = "" if w >= 0.999 else f" (the likeliest history's, weight {w:.2f}: the data did not settle it)"
-            return f"the mode read from the data changes from {a} to {b}" + tail
-        case ev.ModesReread(hypothesis=h, changed=n, explains=yes):
-            head = f"the modes read again with {h}'s own equations (its onset and size): "
-            moved = f"{n} sample(s)' mode differ from the nominal model's reading" if n else "the same modes"
-            return head + moved + ("; with them it explains the data" if yes else "; it does not explain the data")
-        case ev.InputHeld(input=u, step=k, value=v):
-            return f"input u:{u} is empty: its last value {v:g} is held until a value arrives"
-        case ev.Gap(step=k, steps=n):
-            return f"no sample for {n} steps from t = {t(k)} to t = {t(k + n - 1)}: the filters predict across the gap"
-        case ev.SampleSkipped(step=k, line=line, time=when):
-            where = f" (line {line})" if line is not None else ""
-            return (f"the sample at t = {time_text(when)}{where} falls on a step of the model's grid a sample already took "
-                    f"(t = {t(k)}): skipped; give the model a dt no longer than the sampling interval to use every one")
         case ev.Alarmed(step=k, sensor=s, window=w, statistic=z, threshold=c, onset=o, test=test):
             return f"alarm on {s}: {alarm_text(test, w, z, c)}; estimated onset t = {t(o)}"
         case ev.Degenerate(method=m, ess=e_, particles=n, switched=sw):
@@ -114,6 +83,73 @@ def sentence(e, time_of) -> str:
         case ev.Overruled(hypothesis=h, why=w):
             return (f"{h}: ruled out by the symbols ({w}), but with its magnitude held static it explains the data "
                     f"as well as the others: a candidate all the same")
+        case ev.SensorExcluded(sensor=y, finding=f, time=when):
+            return (f"sensor {y} taken out of the nominal observer from t = {time_text(when)} ({f}): monitoring "
+                    f"goes on with the other sensors")
+        case ev.EpisodeClosed():
+            return _episode_sentence(e)
+        case ev.Repaired(time=when, episodes=ns, parameters=ps):
+            out = ", ".join(ps) if ps else "nothing accommodated"
+            return (f"repaired at t = {time_text(when)}: " + (f"episode(s) {', '.join(map(str, ns))} taken out of the "
+                    f"model ({out}); " if ns else "") + "watching on the model as it was")
+        case ev.Checkpoint(step=k, verdict=v, candidates=c):
+            return f"checkpoint: {v}" + (f": {', '.join(c)}" if c else "")
+        case ev.Mismatched():
+            return mismatch_sentence(e, time_of)
+        case ev.Decided(step=k, verdict=v, candidates=c):
+            return f"decided: {v}" + (f": {', '.join(c)}" if c else "")
+    return type(e).__name__
+
+
+def _data_sentence(e, t, time_of) -> str | None:
+    """:func:`sentence` of an event of the data (sensors, inputs, modes, the
+    time grid; ``t``: a step's time as text); None for another event."""
+    match e:
+        case ev.SensorMissing(sensor=s):
+            return f"the data have no column y:{s}: diagnosed with the other sensors"
+        case ev.ColumnIgnored(column=c):
+            return f"the data's column {c} is no sensor or input of the model: not used"
+        case ev.SensorSilent(sensor=s):
+            return f"sensor y:{s} has no sample in the run: every value of its column is empty or nan, so nothing " \
+                   "is diagnosed from it"
+        case ev.SensorStopped(sensor=y, since=k):
+            return (f"sensor y:{y} has no sample since t = {t(k)}, longer than the gap limit: diagnosed with the "
+                    f"other sensors until it resumes")
+        case ev.SensorResumed(sensor=y, since=k, step=j):
+            return f"sensor y:{y} gives samples again after {j - k} step(s) without one (from t = {t(k)})"
+        case ev.InputFromModel(input=u, reason="absent"):
+            return f"the data have no column u:{u}: the model's declared input is used"
+        case ev.InputFromModel(input=u):
+            return f"input u:{u} has no value yet: the model's declared input is used until its first value"
+        case ev.ModeHidden(lag=lag):
+            return ("the data have no mode column: the mode is read from the measurements by a bank of Kalman filters "
+                    f"over the modes' histories, each sample's decided once the data settle it (at most {lag} samples "
+                    "later)")
+        case ev.ModeRead(source=a, target=b, share=w):
+            tail = "" if w >= 0.999 else f" (the likeliest history's, weight {w:.2f}: the data did not settle it)"
+            return f"the mode read from the data changes from {a} to {b}" + tail
+        case ev.ModesReread(hypothesis=h, changed=n, explains=yes):
+            head = f"the modes read again with {h}'s own equations (its onset and size): "
+            moved = f"{n} sample(s)' mode differ from the nominal model's reading" if n else "the same modes"
+            return head + moved + ("; with them it explains the data" if yes else "; it does not explain the data")
+        case ev.InputHeld(input=u, step=k, value=v):
+            return f"input u:{u} is empty: its last value {v:g} is held until a value arrives"
+        case ev.Gap(step=k, steps=n):
+            return f"no sample for {n} steps from t = {t(k)} to t = {t(k + n - 1)}: the filters predict across the gap"
+        case ev.SampleSkipped(step=k, line=line, time=when):
+            where = f" (line {line})" if line is not None else ""
+            return (f"the sample at t = {time_text(when)}{where} falls on a step of the model's grid a sample already took "
+                    f"(t = {t(k)}): skipped; give the model a dt no longer than the sampling interval to use every one")
+    return None
+
+
+def _weighing_sentence(e, t, time_of) -> str | None:
+    """:func:`sentence` of an event of the weighing of the hypotheses and of
+    what the verdict was checked against (the verdict's posterior, no fault,
+    faults that come and go, a later onset, a false alarm or a glitch, a
+    change no test alarmed on, the Kalman observer restarted, a misfit;
+    ``t``: a step's time as text); None for another event."""
+    match e:
         case ev.Uncertain(candidates=c, mass=m, level=lv, kept=k, posteriors=p):
             return (f"{', '.join(c)} hold(s) a posterior of {m:.3g} only, under the {lv:g} a verdict promises: "
                     f"{', '.join(f'{n} ({q:.2g})' for n, q in zip(k, p))} kept as candidates too")
@@ -148,22 +184,8 @@ def sentence(e, time_of) -> str:
                     f"prediction, and the model's residuals stay within its noise after it to the data's end "
                     f"(t = {t(k + 1)} to t = {t(u)}): a glitch of that reading, not a fault that persists "
                     f"or comes back; the diagnosis was made again without it")
-        case ev.ChangeMissed(change=c, sensors=ys, tests=tests, found=a, at_change=from_change, bank=rerun):
-            bank = "every test of the detector's bank (--detect all), which "
-            if not rerun:  # the bank had run: only the diagnosis from the change point
-                bank = "an alarm raised at that change point, and its verdict stands" if a else \
-                    "an alarm raised at that change point, which named no fault: the model's misfit stands"
-            elif a and not from_change:
-                bank += "alarmed and named a fault"
-            elif a:
-                bank += ("named no fault; it was then made from an alarm raised at that change point, and its "
-                         "verdict stands")
-            else:
-                bank += ("named no fault, nor did the diagnosis from an alarm raised at that change point: the "
-                         "model's misfit stands")
-            return (f"no alarm, yet the model fits the data before t = {t(c)} and {', '.join(ys)}'s residuals "
-                    f"changed there: a change the {', '.join(tests)} test{'s' if len(tests) > 1 else ''} did not "
-                    f"alarm on, not a model that does not fit from the start; the diagnosis was made again with {bank}")
+        case ev.ChangeMissed():
+            return _change_missed_sentence(e, t)
         case ev.ObserverRestarted(step=k, times=n):
             return (f"the Kalman observer whose residuals the drift test reads lost its estimate at t = {t(k)} "
                     f"(not finite; restart {n}): it starts again there from the particle observer's cloud, the "
@@ -185,22 +207,7 @@ def sentence(e, time_of) -> str:
                     f"over {w} sample(s) reached {z:.1f} (threshold {c:.1f}); the fault model as stated (or the "
                     f"Kalman filters' Gaussian approximation) does not explain these data: it fails the "
                     f"goodness-of-fit test")
-        case ev.SensorExcluded(sensor=y, finding=f, time=when):
-            return (f"sensor {y} taken out of the nominal observer from t = {time_text(when)} ({f}): monitoring "
-                    f"goes on with the other sensors")
-        case ev.EpisodeClosed():
-            return _episode_sentence(e)
-        case ev.Repaired(time=when, episodes=ns, parameters=ps):
-            out = ", ".join(ps) if ps else "nothing accommodated"
-            return (f"repaired at t = {time_text(when)}: " + (f"episode(s) {', '.join(map(str, ns))} taken out of the "
-                    f"model ({out}); " if ns else "") + "watching on the model as it was")
-        case ev.Checkpoint(step=k, verdict=v, candidates=c):
-            return f"checkpoint: {v}" + (f": {', '.join(c)}" if c else "")
-        case ev.Mismatched():
-            return mismatch_sentence(e, time_of)
-        case ev.Decided(step=k, verdict=v, candidates=c):
-            return f"decided: {v}" + (f": {', '.join(c)}" if c else "")
-    return type(e).__name__
+    return None
 
 
 def spans_text(spans) -> str:
@@ -208,6 +215,25 @@ def spans_text(spans) -> str:
     return " and ".join("at an onset not known" if on is None else
                         f"t = {time_text(on)} to {time_text(off)}" if off is not None else f"from t = {time_text(on)}"
                         for on, off in spans) or "not known"
+
+
+def _change_missed_sentence(e: ev.ChangeMissed, t) -> str:
+    """:func:`sentence` of a change no test alarmed on (``t``: a step's time as text)."""
+    bank = "every test of the detector's bank (--detect all), which "
+    if not e.bank:  # the bank had run: only the diagnosis from the change point
+        bank = "an alarm raised at that change point, and its verdict stands" if e.found else \
+            "an alarm raised at that change point, which named no fault: the model's misfit stands"
+    elif e.found and not e.at_change:
+        bank += "alarmed and named a fault"
+    elif e.found:
+        bank += "named no fault; it was then made from an alarm raised at that change point, and its verdict stands"
+    else:
+        bank += ("named no fault, nor did the diagnosis from an alarm raised at that change point: the model's "
+                 "misfit stands")
+    tests = e.tests
+    return (f"no alarm, yet the model fits the data before t = {t(e.change)} and {', '.join(e.sensors)}'s residuals "
+            f"changed there: a change the {', '.join(tests)} test{'s' if len(tests) > 1 else ''} did not alarm on, "
+            f"not a model that does not fit from the start; the diagnosis was made again with {bank}")
 
 
 def _episode_sentence(e: ev.EpisodeClosed) -> str:
@@ -422,6 +448,13 @@ def fault_sentence(e, since, per_time: str = "per unit time") -> str:
     return text
 
 
+def change_text(window: int, statistic: float, threshold: float) -> str:
+    """What the change test saw at its change point (the ``change`` alarm,
+    :meth:`bgc.diagnosis.diagnoser.Diagnoser._missed_change`)."""
+    return (f"its residuals from there on differ from those before by {statistic:.1f} (Welch's statistic over the "
+            f"record's {window} last sample(s), or their variances' ratio; threshold {threshold:.1f})")
+
+
 def alarm_text(test: str, window: int, statistic: float, threshold: float) -> str:
     """What the detector's test ``test`` saw (:class:`bgc.diagnosis.values.Detection`)."""
     if test == "drift":
@@ -440,9 +473,8 @@ def alarm_text(test: str, window: int, statistic: float, threshold: float) -> st
         return (f"the matched test of a fault model's response over {window} sample(s) reached {statistic:.1f} "
                 f"(threshold {threshold:.1f}; the sensor that model moves most)")
     if test == "change":
-        return (f"found over the whole record at its end, no test having alarmed while it ran: its residuals from "
-                f"here on differ from those before by {statistic:.1f} (Welch's statistic over the record's {window} "
-                f"last sample(s), or their variances' ratio; threshold {threshold:.1f})")
+        return ("found over the whole record at its end, no test having alarmed while it ran: "
+                + change_text(window, statistic, threshold))
     if test == "frozen":
         return (f"its reading repeated {statistic:.0f} times to the last digit (a frozen sensor; "
                 f"{threshold:.0f} repeats alarm at the data's resolution)")

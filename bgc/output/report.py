@@ -114,7 +114,7 @@ def report_data(r) -> dict[str, Any]:
     """The report as plain data (what ``report.json`` holds)."""
     d, labels = r.diagnosis, plots.report_labels(r)
     det = d.detection
-    out: dict[str, Any] = {
+    return {
         "generated_by": "bgc",
         "model": r.model,
         "source": r.source,
@@ -146,7 +146,7 @@ def report_data(r) -> dict[str, Any]:
                      "statistic": _num(s.statistic), "slope": s.slope or None,
                      "slope_statistic": _num(s.slope_statistic)} for s in d.symbols],
         "refuted_by_signatures": [{"fault": n, "why": why} for n, why in d.refuted],
-        "hypotheses": [],
+        "hypotheses": [_hypothesis_data(d, h, labels) for h in d.hypotheses],
         "diagnosis": list(d.candidates),
         # where the diagnosed fault's estimate comes from: kalman (the magnitude held static on a grid of cubature
         # Kalman filters), filter (the particle filters' own magnitude state) or grid (--refine); None: no estimate
@@ -167,31 +167,33 @@ def report_data(r) -> dict[str, Any]:
             "dt": d.data.dt},
         "seconds": _num(d.seconds),
     }
-    for h in d.hypotheses:
-        e = h.estimate
-        out["hypotheses"].append({
-            "model": h.name, "parameter": h.parameter, "kind": h.kind, "signatures": list(h.signatures),
-            "onset": _time(_t(d, h.onset_step)), "filter_onset": _time(_t(d, h.start_step)),
-            "posterior": _num(h.posterior),
-            "log_evidence": _num(h.log_evidence), "static_log_evidence": _num(h.static_log_evidence),
-            "dropped": None if h.dropped_step is None else {"time": _time(_t(d, h.dropped_step)), "why": h.reason,
-                                                       "reason": _drop_reason(d, h.name)},
-            "estimate": {"magnitude": e.magnitude, "value": _num(e.value), "std": _num(e.std),
-                         "interval": [_num(e.low), _num(e.high)], "level": e.level,
-                         "parameter_value": _num(e.parameter_value), "nominal": _num(e.nominal),
-                         "truth": _num(e.truth), "covers_truth": e.covers, "method": e.method,
-                         "at_prior_bound": e.bound},
-            "target": e.target, "subject": e.subject or e.parameter, "unit": e.unit,
-            "magnitude_unit": magnitude_unit(h, labels),
-            "ruled_out_by_symbols": h.ruled_out or None,
-            "intermittent": _intermittent_data(d, h.intermittent),
-            "static_consistency_alarm": None if h.static_alarm is None else {
-                "sensor": h.static_alarm.sensor, "window": h.static_alarm.window,
-                "statistic": _num(h.static_alarm.statistic), "threshold": _num(h.static_alarm.threshold)},
-            "filter_estimate": None if h.filter_estimate is None else {
-                "value": _num(h.filter_estimate.value), "std": _num(h.filter_estimate.std),
-                "interval": [_num(h.filter_estimate.low), _num(h.filter_estimate.high)]}})
-    return out
+
+
+def _hypothesis_data(d, h, labels) -> dict[str, Any]:
+    """One weighed hypothesis of diagnosis ``d`` as plain data (report.json's ``hypotheses``)."""
+    e = h.estimate
+    return {
+        "model": h.name, "parameter": h.parameter, "kind": h.kind, "signatures": list(h.signatures),
+        "onset": _time(_t(d, h.onset_step)), "filter_onset": _time(_t(d, h.start_step)),
+        "posterior": _num(h.posterior),
+        "log_evidence": _num(h.log_evidence), "static_log_evidence": _num(h.static_log_evidence),
+        "dropped": None if h.dropped_step is None else {"time": _time(_t(d, h.dropped_step)), "why": h.reason,
+                                                    "reason": _drop_reason(d, h.name)},
+        "estimate": {"magnitude": e.magnitude, "value": _num(e.value), "std": _num(e.std),
+                     "interval": [_num(e.low), _num(e.high)], "level": e.level,
+                     "parameter_value": _num(e.parameter_value), "nominal": _num(e.nominal),
+                     "truth": _num(e.truth), "covers_truth": e.covers, "method": e.method,
+                     "at_prior_bound": e.bound},
+        "target": e.target, "subject": e.subject or e.parameter, "unit": e.unit,
+        "magnitude_unit": magnitude_unit(h, labels),
+        "ruled_out_by_symbols": h.ruled_out or None,
+        "intermittent": _intermittent_data(d, h.intermittent),
+        "static_consistency_alarm": None if h.static_alarm is None else {
+            "sensor": h.static_alarm.sensor, "window": h.static_alarm.window,
+            "statistic": _num(h.static_alarm.statistic), "threshold": _num(h.static_alarm.threshold)},
+        "filter_estimate": None if h.filter_estimate is None else {
+            "value": _num(h.filter_estimate.value), "std": _num(h.filter_estimate.std),
+            "interval": [_num(h.filter_estimate.low), _num(h.filter_estimate.high)]}}
 
 
 def _intermittent_data(d, i) -> dict | None:
@@ -385,10 +387,9 @@ def detection_lines(d, labels: Labels = Labels()) -> list[str]:
     shared = "" if len(tests) == 1 else f", shared by the tests {', '.join(tests)}"
     if det.test == "change":  # no test alarmed: the whole record's misfit, found at its end to begin there
         first = (f"alarm at the data's end: the model does not fit the whole record (the test of the model, level "
-                 f"{FIT_LEVEL:g}) but fits it before t = {_tt(d, det.step)}; sensor {det.sensor}'s residuals from "
-                 f"there on differ from those before by {det.statistic:.1f} (Welch's statistic over the record's "
-                 f"{det.window} last sample(s), or their variances' ratio; threshold {det.threshold:.1f} at level "
-                 f"{CHANGE_LEVEL:g} over every sensor and test)")
+                 f"{FIT_LEVEL:g}) but fits it before t = {_tt(d, det.step)}; sensor {det.sensor}: "
+                 f"{events.change_text(det.window, det.statistic, det.threshold)}, at level {CHANGE_LEVEL:g} over "
+                 "every sensor and test")
     else:
         first = (f"alarm at t = {_tt(d, det.step)}: {seen} (false-alarm probability {d.options.false_alarm:g} per "
                  f"{_per(d, labels)}{shared})")
