@@ -440,7 +440,12 @@ class ChangeMissed:
     none that explains the change (its verdict is then the diagnosis's; if
     not, the model's misfit stands); ``at_change``: the one from the change
     point; ``bank``: whether the bank's diagnosis was made (not when every
-    test of it had run)."""
+    test of it had run); ``watching``: found while watching, in a record
+    bounded by ``keep`` about to be halved (:meth:`bgc.diagnosis.diagnoser.Diagnoser._changed_while_watching`):
+    the record's test at step ``step``, and the diagnosis goes on from an
+    alarm raised at the change point (``found`` and ``at_change``), the
+    record's test of the model's fit at ``level``
+    (:func:`bgc.diagnosis.diagnoser.watch_level`; None: the fit test's own)."""
 
     step: int
     change: int
@@ -449,6 +454,8 @@ class ChangeMissed:
     found: bool
     at_change: bool = False
     bank: bool = True
+    watching: bool = False
+    level: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -143,8 +143,10 @@ def write_report(r, output: str, command: str) -> Path:
     print(f"{r.model}: {d.verdict}" + (f": {', '.join(d.candidates)}" if d.candidates else ""))
     if d.detection is not None:
         det, when = d.detection, events.time_text(d.time_of(d.detection.step))  # Unix time in full
-        if det.test == "change":  # found over the whole record, at its end
-            at = f"the data's end (the change test: the residuals of {det.sensor} changed at t = {when})"
+        if det.test == "change":  # found over the record at its end (the whole one, or the one kept while watching)
+            end = ("the data's end" if det.raised >= len(d.time) - 1
+                   else f"t = {events.time_text(d.time_of(det.raised))}")
+            at = f"{end} (the change test: the residuals of {det.sensor} changed at t = {when})"
         else:
             at = f"t = {when} ({det.sensor}{'' if det.test == 'mean' else f', the {det.test} test'})"
         print(f"  alarm at {at}: no fault explains the data better than chance" if d.onset is None  # a false one

@@ -28,7 +28,13 @@ steps of the loop:
   record to a new loop with cubature Kalman filters
   (:class:`~bgc.events.Switched`);
 * a verdict "unexplained" after the symbols ruled fault models out is made
-  again with every fault model (:class:`~bgc.events.AllTried`).
+  again with every fault model (:class:`~bgc.events.AllTried`);
+* a record bounded while watching (``options.keep``) is tested before its
+  older half is forgotten (:meth:`Diagnoser._changed_while_watching`): a
+  change no test of the detector alarmed on (the nominal observer follows
+  the faulty plant, its residuals off by a fraction of their noise) raises
+  an alarm at its change point there, before the data that show it are
+  forgotten (:class:`~bgc.events.ChangeMissed`, ``watching``).
 """
 
 from __future__ import annotations
@@ -54,7 +60,7 @@ from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
 from .detect import TESTS, Detector, DetectorOptions, change_point
 from .finish import ordered
-from .fit import LEAST, change_statistics, fails, fit, misfit_before
+from .fit import LEAST, LEVEL as FIT_LEVEL, change_statistics, fails, fit, misfit_before
 from .isolate import with_returns
 from .onsets import log_prior
 from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig, shifted_events
@@ -179,24 +185,25 @@ class Diagnoser:
             self.infer_inputs = False
             self.sampler.data_inputs = tuple(name for name in self.nominal.INPUTS if name in u)
         rows = self.sampler.push(t, u, y, line)
-        self._forget_if_full()  # once per row: the steps of a row (a gap's) are counted from one start
-        if len(rows) == 1:  # the usual row: one step, its belief as it is
+        said = self._forget_if_full()  # once per row: the steps of a row (a gap's) are counted from one start
+        if len(rows) == 1 and not said:  # the usual row: one step, its belief as it is
             return self._decoded(rows[0])
         belief = None
-        collected: list = []
+        collected: list = list(said)
         for s in rows:
             belief = self._decoded(s)
             collected += belief.events
         if belief is None:  # a row on a step already taken: the belief stands
-            return self.loop.belief(len(self.loop.events))
+            belief = self.loop.belief(len(self.loop.events))
         return dataclasses.replace(belief, events=tuple(collected))
 
     def take(self, s: Sample) -> Belief:
         """Take one step of the grid (a :class:`~bgc.data.sampler.Sample`);
         with the mode read from the data, the steps whose mode it decided
         (none: the belief stands)."""
-        self._forget_if_full()
-        return self._decoded(s)
+        said = self._forget_if_full()
+        belief = self._decoded(s)
+        return dataclasses.replace(belief, events=(*said, *belief.events)) if said else belief
 
     def _decoded(self, s: Sample) -> Belief:
         """:meth:`take` without forgetting first (the caller did)."""
@@ -234,12 +241,65 @@ class Diagnoser:
         finally:
             self.busy += time.perf_counter() - started
 
-    def _forget_if_full(self) -> None:
-        """Watching, with ``keep`` steps to keep and twice that in the record: forget its older half."""
+    def _forget_if_full(self) -> tuple:
+        """Watching, with ``keep`` steps to keep and twice that in the record:
+        forget its older half, unless the record shows a change no test
+        alarmed on (:meth:`_changed_while_watching`: an alarm at its change
+        point instead). Returns the events of that alarm (none: ()), for the
+        belief of the step that comes next."""
         loop = self.loop
         if self.keep is not None and len(loop.samples) >= 2 * self.keep and loop.detection is None \
                 and not self.switched and not self.finished:
+            said = self._changed_while_watching()
+            if said:
+                return said
             self._forget(len(loop.samples) - self.keep)
+        return ()
+
+    def _changed_while_watching(self) -> tuple:
+        """The test of the record about to be halved (:meth:`_forget_if_full`):
+        when it fails the test of the model's fit (:func:`~bgc.diagnosis.fit.fit`,
+        at its level, the record's excused window left out) and the record
+        shows a change as :meth:`_missed_change` finds one at a diagnosis's
+        end (:meth:`_change`: the data before the change point fit, the
+        residuals changed there, at the same operating point), the loop is
+        made again with an alarm raised at the change point (test
+        ``change``): the diagnosis goes on from there as from any alarm.
+        Returns the events said: a :class:`~bgc.events.ChangeMissed`
+        (``watching``) and the new loop's from its alarm on; () when the
+        record passes, or fails without such a change (a model that does
+        not fit, said at the end as ever). The record holds ``2 keep``
+        steps at each test and the next test comes ``keep`` steps later, so
+        every change is tested with at least ``keep`` steps on its one side
+        or the other. The fit test, which every alarm of this rule needs,
+        holds a level of its own (:func:`watch_level`): the tests add at most
+        :data:`WATCH_SHARE` of the detector's false-alarm budget per horizon."""
+        from ..filters.cubature import nominal_track
+
+        loop = self.loop
+        if self.decoder is not None:  # (the mode read from the data: no change test, as at the end)
+            return ()
+        record = loop.arrays()
+        ys, us, T = record["ys"], record["us"], len(record["ys"])
+        track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
+        level = watch_level(loop.options.false_alarm, self.keep, self.config.horizon)
+        if fit(self.nominal, ys, us, loop.outputs, T, level=level, track=track, skip=loop.excused).fits:
+            return ()
+        change = self._change(loop.outputs, track)
+        if change is None:
+            return ()
+        alarm, moved = change
+        o = loop.options
+        self.config.say(f"watching: no alarm, but the residuals changed at t = {self.time_of(alarm.step):.6g}: "
+                        "an alarm at that change point")
+        again = self.replay(dataclasses.replace(o, switch=False), loop.config.every, forced=alarm)
+        if again.detection is None:
+            return ()
+        first = next((i for i, e in enumerate(again.events) if isinstance(e, ev.Alarmed)), len(again.events))
+        again.events.insert(first, ev.ChangeMissed(T - 1, alarm.step, moved, tuple(o.detectors), True, True, False,
+                                                   True, level))
+        self.loop = again
+        return tuple(again.events[first:])
 
     def _forget(self, cut: int) -> None:
         """Watching, with ``keep`` steps to keep: forget the record's first
@@ -548,7 +608,7 @@ class Diagnoser:
                 or self.decoder is not None
                 or any(isinstance(e, ev.Mismatched) and e.timing is not None for e in d.events)):
             return d
-        change = self._change(d)
+        change = self._change(d.outputs)
         if change is None:
             return d
         alarm, moved = change
@@ -591,32 +651,35 @@ class Diagnoser:
                 return True
         return False
 
-    def _change(self, d: Diagnosis) -> tuple[Detection, tuple[str, ...]] | None:
+    def _change(self, outputs: tuple[str, ...], track=None) -> tuple[Detection, tuple[str, ...]] | None:
         """The change of :meth:`_missed_change` in the record, as an alarm
         at its change point (test ``change``: the sensor whose residuals
         changed most, the statistic of :func:`~bgc.diagnosis.fit.changed`,
         its window the samples from there to the end) and the sensors whose
-        residuals changed; None where there is none (the rules of :meth:`_missed_change`)."""
+        residuals changed; None where there is none (the rules of :meth:`_missed_change`).
+        ``outputs``: the record's sensors; ``track``: the nominal cubature Kalman
+        filter's over the record, when the caller has it."""
         from ..filters.cubature import nominal_track
 
         loop = self.loop
         record = loop.arrays()
         ys, us, T = record["ys"], record["us"], len(record["ys"])
-        track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
-        z = np.array(track.z, dtype=float)[:T].reshape(T, len(d.outputs))
+        if track is None:
+            track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
+        z = np.array(track.z, dtype=float)[:T].reshape(T, len(outputs))
         z[:, ~loop.present] = np.nan
         cumsum = np.concatenate([np.zeros((1, z.shape[1])), np.cumsum(np.nan_to_num(z), axis=0)])
         at = change_point(cumsum, T - 1, T)
-        if at < LEAST or T - at < LEAST or not fit(self.nominal, ys, us, d.outputs, at, track=track).fits:
+        if at < LEAST or T - at < LEAST or not fit(self.nominal, ys, us, outputs, at, track=track).fits:
             return None
         both = [j for j in range(z.shape[1]) if (np.isfinite(z[:at, j]).sum() >= LEAST
                                                   and np.isfinite(z[at:, j]).sum() >= LEAST)]
         statistics, cut = change_statistics(z[:, both], at) if both else ({}, np.inf)
-        moved = tuple(d.outputs[both[i]] for i, value in statistics.items() if not value <= cut)
+        moved = tuple(outputs[both[i]] for i, value in statistics.items() if not value <= cut)
         if not moved or not misfit_before(z, at) < 0 or _new_point(self.nominal, us, at):
             return None
         i = max(statistics, key=lambda i: np.nan_to_num(statistics[i], nan=np.inf))
-        return Detection(at, d.outputs[both[i]], T - at, statistics[i], cut, at, "change"), moved
+        return Detection(at, outputs[both[i]], T - at, statistics[i], cut, at, "change"), moved
 
     def _reread(self, d: Diagnosis, truth: Run | None) -> Diagnosis:
         """The policy for a hidden mode read with the nominal model: a fault
@@ -804,6 +867,25 @@ def mode_hidden(nominal, inputs, source: str) -> bool:
                         "lists)")
     return True
 
+
+
+#: The share of the detector's false-alarm budget per horizon the test of the record kept while watching
+#: may take (:func:`watch_level`).
+WATCH_SHARE = 0.05
+
+
+def watch_level(false_alarm: float, keep: int, horizon: int) -> float:
+    """The level of the test of the model's fit on the record kept while
+    watching (:meth:`Diagnoser._changed_while_watching`): one test every
+    ``keep`` steps is ``horizon / keep`` tests per horizon (``horizon`` in
+    steps), so a level of ``WATCH_SHARE * false_alarm * keep / horizon``
+    holds them to :data:`WATCH_SHARE` of the detector's budget
+    ``false_alarm`` per horizon (the union bound); never above the fit
+    test's own level (:data:`~bgc.diagnosis.fit.LEVEL`). With bgc's defaults
+    (1 % per horizon, a monitor's 1024 steps kept) that is LEVEL for a
+    horizon up to 512 steps, and the tests then take LEVEL * horizon / keep
+    of the budget (0.03 % per horizon of 300 steps)."""
+    return min(FIT_LEVEL, WATCH_SHARE * false_alarm * keep / max(horizon, 1))
 
 
 def keep_steps(options: DiagnosisOptions, dt: float) -> int | None:

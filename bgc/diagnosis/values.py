@@ -348,8 +348,10 @@ class Detection:
     (:data:`bgc.diagnosis.detect.TESTS`: ``mean``, ``drift``, ``variance``,
     ``frozen``, ``pooled``, ``matched``; and ``change``, an alarm raised at
     the end of a record no test alarmed on, at the change point found then,
-    :meth:`bgc.diagnosis.diagnoser.Diagnoser._missed_change`: its statistic
-    the change test's, its window the samples from there to the end; for
+    :meth:`bgc.diagnosis.diagnoser.Diagnoser._missed_change`, or of the
+    record kept while watching, :meth:`~bgc.diagnosis.diagnoser.Diagnoser._changed_while_watching`:
+    its statistic the change test's, its window the samples from there to
+    that end (:attr:`raised`); for
     ``variance`` the statistic is the window's variance
     ratio and the threshold the bound it crossed, for ``frozen`` the
     statistic is the readings repeated and the threshold the repeats that
@@ -362,6 +364,12 @@ class Detection:
     threshold: float
     onset_step: int | None
     test: str = "mean"
+
+    @property
+    def raised(self) -> int:
+        """The step at which the alarm was raised: ``step``, but for the
+        ``change`` test the end of the record it tested (``step + window - 1``)."""
+        return self.step + self.window - 1 if self.test == "change" else self.step
 
 
 @dataclass(frozen=True, slots=True)

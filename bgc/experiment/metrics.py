@@ -141,9 +141,8 @@ def measure(d: Diagnosis, run: Run, truth: Truth) -> RunMetrics:
     onset_step = 0 if truth.onset is None else onset_sample(run.time, truth.onset)
     ct_step = convergence_step(mean, true, std, min(onset_step, len(run.time) - 1))
     detected = d.detection is not None
-    # the change test's alarm was raised at the data's end (its step: the change point it found then)
-    t_alarm = (None if not detected else float(d.time[-1]) if d.detection.test == "change"
-               else d.time_of(d.detection.step))
+    # the change test's alarm was raised at the end of the record it tested (its step: the change point it found then)
+    t_alarm = None if not detected else d.time_of(d.detection.raised)
     false_alarm = detected and (truth.onset is None or t_alarm < truth.onset)
     delay = t_alarm - truth.onset if detected and truth.onset is not None and not false_alarm else None
     # an 'unexplained' verdict has no survivor: nothing is diagnosed

@@ -219,6 +219,12 @@ def spans_text(spans) -> str:
 
 def _change_missed_sentence(e: ev.ChangeMissed, t) -> str:
     """:func:`sentence` of a change no test alarmed on (``t``: a step's time as text)."""
+    tests = e.tests
+    if e.watching:  # the record kept while watching, tested before its older half is forgotten
+        return (f"the record kept while watching fails the test of the model, yet the model fits it before "
+                f"t = {t(e.change)} and {', '.join(e.sensors)}'s residuals changed there: a change the "
+                f"{', '.join(tests)} test{'s' if len(tests) > 1 else ''} did not alarm on; an alarm is raised at that "
+                "change point, and the diagnosis goes on from there")
     bank = "every test of the detector's bank (--detect all), which "
     if not e.bank:  # the bank had run: only the diagnosis from the change point
         bank = "an alarm raised at that change point, and its verdict stands" if e.found else \
@@ -230,7 +236,6 @@ def _change_missed_sentence(e: ev.ChangeMissed, t) -> str:
     else:
         bank += ("named no fault, nor did the diagnosis from an alarm raised at that change point: the model's "
                  "misfit stands")
-    tests = e.tests
     return (f"no alarm, yet the model fits the data before t = {t(e.change)} and {', '.join(e.sensors)}'s residuals "
             f"changed there: a change the {', '.join(tests)} test{'s' if len(tests) > 1 else ''} did not alarm on, "
             f"not a model that does not fit from the start; the diagnosis was made again with {bank}")
@@ -473,7 +478,8 @@ def alarm_text(test: str, window: int, statistic: float, threshold: float) -> st
         return (f"the matched test of a fault model's response over {window} sample(s) reached {statistic:.1f} "
                 f"(threshold {threshold:.1f}; the sensor that model moves most)")
     if test == "change":
-        return ("found over the whole record at its end, no test having alarmed while it ran: "
+        return ("found over the record at its end (the whole record, or the one kept while watching), no test "
+                "having alarmed while it ran: "
                 + change_text(window, statistic, threshold))
     if test == "frozen":
         return (f"its reading repeated {statistic:.0f} times to the last digit (a frozen sensor; "

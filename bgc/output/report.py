@@ -385,9 +385,13 @@ def detection_lines(d, labels: Labels = Labels()) -> list[str]:
         seen = f"sensor {det.sensor}, the {det.test} test: {said}"
     tests = d.options.detectors
     shared = "" if len(tests) == 1 else f", shared by the tests {', '.join(tests)}"
-    if det.test == "change":  # no test alarmed: the whole record's misfit, found at its end to begin there
-        first = (f"alarm at the data's end: the model does not fit the whole record (the test of the model, level "
-                 f"{FIT_LEVEL:g}) but fits it before t = {_tt(d, det.step)}; sensor {det.sensor}: "
+    if det.test == "change":  # no test alarmed: the record's misfit, found at its end to begin there
+        watched = next((e for e in d.events if isinstance(e, ev.ChangeMissed) and e.watching), None)
+        whole = ("the data's end: the model does not fit the whole record" if watched is None else
+                 f"t = {_tt(d, det.raised)}: the model does not fit the record kept while watching up to there")
+        level = FIT_LEVEL if watched is None or watched.level is None else watched.level
+        first = (f"alarm at {whole} (the test of the model, level "
+                 f"{level:.3g}) but fits it before t = {_tt(d, det.step)}; sensor {det.sensor}: "
                  f"{events.change_text(det.window, det.statistic, det.threshold)}, at level {CHANGE_LEVEL:g} over "
                  "every sensor and test")
     else:

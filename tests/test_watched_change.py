@@ -1,0 +1,133 @@
+"""A change the observer follows, found while watching before the record
+that shows it is forgotten (bgc.diagnosis.diagnoser.Diagnoser._changed_while_watching).
+
+A monitor keeps, while watching, the last ``keep`` of its record and forgets
+the older half once it holds twice that. A fault whose residuals the
+nominal observer follows raises no alarm of the detector's windows; before
+this test, the record kept at the stream's end held only the faulty plant,
+and the verdict was "mismatch: calibrate the model". The plant here is the
+supply of docs/examples/switched_rc.yaml (a contactor S charging C
+through R_s, R_load draining it), its contactor closed 5 s and open 10 s
+over and over (the data's mode column), solved by solve_ivp piece by piece
+on its equations derived by hand:
+
+    closed:  C dv/dt = (V - v)/R_s - v/R_load,   i_s = (V - v)/R_s
+    open:    C dv/dt = -v/R_load,                 i_s = 0
+
+with the sensors' noise the model declares.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from bgc.diagnosis.diagnoser import WATCH_SHARE, watch_level
+from bgc.diagnosis.fit import LEVEL
+
+from conftest import ROOT, bgc_cli
+
+MODEL = ROOT / "docs" / "examples" / "switched_rc.yaml"
+V, R_S, C, R_LOAD, DT = 10.0, 1.0, 1.0, 4.0, 0.05
+NOISE = {"v_C": 0.16, "i_s": 0.2}  # the model's noise: 0.02 of each reading's scale (tests/test_uncommanded.py)
+CLOSED, OPEN = 5.0, 10.0
+
+
+def closed_at(t: float) -> bool:
+    return (t + 1e-9) % (CLOSED + OPEN) < CLOSED
+
+
+def supply(steps: int, onset: float | None, size: float, seed: int) -> str:
+    """The run file: R_load ``size`` ohm higher from ``onset`` (None: healthy)."""
+    times = DT * np.arange(1, steps + 1)
+    end = float(times[-1]) + DT
+    edges = {k * (CLOSED + OPEN) + d for k in range(int(end // (CLOSED + OPEN)) + 1) for d in (0.0, CLOSED)}
+    if onset is not None:
+        edges.add(onset)
+    cuts = sorted(e for e in edges if e < end) + [end]
+    v, x = np.empty(steps), 0.0
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        on = closed_at(a)
+        r = R_LOAD + (size if onset is not None and a >= onset - 1e-12 else 0.0)
+        inside = (times >= a - 1e-9) & (times < b - 1e-9)
+        sol = solve_ivp(lambda _, y, on=on, r=r: [((V - y[0]) / R_S if on else 0.0) / C - y[0] / (r * C)], (a, b),
+                        [x], dense_output=True, rtol=1e-11, atol=1e-13)
+        v[inside] = sol.sol(times[inside])[0]
+        x = float(sol.sol(b)[0])
+    i_s = np.array([(V - x) / R_S if closed_at(t) else 0.0 for t, x in zip(times, v)])
+    rng = np.random.default_rng(seed)
+    lines = ["time,mode,u:V,y:v_C,y:i_s"]
+    for t, a, b in zip(times, v + NOISE["v_C"] * rng.standard_normal(steps),
+                       i_s + NOISE["i_s"] * rng.standard_normal(steps)):
+        lines.append(f"{t:.10g},{1 if closed_at(t) else 2},{V},{float(a)!r},{float(b)!r}")
+    return "\n".join(lines) + "\n"
+
+
+def test_the_supply_made_here_is_its_closed_form():
+    """The run file's noise-free readings against the exponentials by hand
+    (closed: tau = C R_s R_load / (R_s + R_load) toward V R_load / (R_s +
+    R_load); open: tau = R_load C toward 0), the load's step at 45 s."""
+    times = DT * np.arange(1, 1201)
+    cuts = sorted({k * 15.0 + d for k in range(5) for d in (0.0, 5.0)} | {45.0})
+    value, start, expected = 0.0, 0.0, []
+    for t in times:
+        while any(start < c <= t + 1e-9 for c in cuts):
+            c = min(c for c in cuts if start < c <= t + 1e-9)
+            value = _piece(value, start, c)
+            start = c
+        expected.append(_piece(value, start, t))
+    noise_free = supply(1200, 45.0, 3.0, 0).splitlines()[1:]
+    rng = np.random.default_rng(0)
+    drawn = NOISE["v_C"] * rng.standard_normal(1200)
+    read = np.array([float(line.split(",")[3]) for line in noise_free]) - drawn
+    assert np.max(np.abs(read - np.array(expected))) < 1e-8
+
+
+def _piece(value: float, start: float, t: float) -> float:
+    on = closed_at(start)
+    r = R_LOAD + (3.0 if start >= 45.0 - 1e-9 else 0.0)
+    tau, inf = (C * R_S * r / (R_S + r), V * r / (R_S + r)) if on else (r * C, 0.0)
+    return inf + (value - inf) * math.exp(-(t - start) / tau)
+
+
+def test_the_watching_tests_level_holds_its_share_of_the_budget():
+    """One test every ``keep`` steps is horizon / keep tests per horizon: at
+    a level of share * budget * keep / horizon their union is at most the
+    share of the budget; never above the fit test's own level."""
+    assert watch_level(0.01, 1024, 300) == LEVEL  # 0.05 * 0.01 * 1024 / 300 = 0.0017: the fit test's own
+    assert watch_level(0.01, 1024, 100_000) == pytest.approx(WATCH_SHARE * 0.01 * 1024 / 100_000)
+    assert watch_level(0.01, 1024, 100_000) * 100_000 / 1024 == pytest.approx(WATCH_SHARE * 0.01)
+
+
+@pytest.mark.slow
+def test_a_load_step_the_observer_follows_is_found_before_its_record_is_forgotten(tmp_path):
+    """R_load 3 ohm higher from t = 45 s, monitored keeping 15 s (300
+    steps): no test of the detector alarms (the observer follows the
+    plant). The record is tested each time it reaches 600 steps, at t = 30,
+    45, 60, ...; at t = 60 it holds t = 30.05 to 60, fails the test of the
+    model, fits it before the change point and changed there: the alarm is
+    raised at the change point, the monitor says it as the data come, and
+    the diagnosis names R_load's step, its interval holding the 3 ohm and
+    its onset within 0.5 s of 45 s. The healthy plant (the same noise)
+    raises no alarm over the same stream."""
+    out = tmp_path / "out"
+    p = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", out,
+                input=supply(1800, 45.0, 3.0, 2))
+    assert p.returncode == 0, p.stderr
+    assert "detected at t = 60 (the change test: the residuals of" in p.stdout, p.stdout
+    report = json.loads((out / "report.json").read_text(encoding="utf-8"))
+    said = [e for e in report["events"] if e["event"] == "ChangeMissed"]
+    assert len(said) == 1 and said[0]["watching"] and said[0]["found"], said
+    assert report["verdict"] == "isolated" and report["diagnosis"] == ["R_load_abrupt"], report["verdict"]
+    (best,) = [h["estimate"] for h in report["hypotheses"] if h["model"] == "R_load_abrupt"]
+    assert best["interval"][0] <= 3.0 <= best["interval"][1], best
+    assert abs(report["onset"] - 45.0) <= 0.5, report["onset"]
+    assert "the record kept while watching fails the test of the model" in p.stdout
+    healthy = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", tmp_path / "h",
+                      input=supply(1800, None, 0.0, 2))
+    assert healthy.returncode == 0, healthy.stderr
+    assert "switched_rc: no fault" in healthy.stdout and "change test" not in healthy.stdout, healthy.stdout
