@@ -441,11 +441,12 @@ class ChangeMissed:
     not, the model's misfit stands); ``at_change``: the one from the change
     point; ``bank``: whether the bank's diagnosis was made (not when every
     test of it had run); ``watching``: found while watching, in a record
-    bounded by ``keep`` about to be halved (:meth:`bgc.diagnosis.diagnoser.Diagnoser._changed_while_watching`):
+    bounded by ``keep`` about to be halved (:meth:`bgc.diagnosis.diagnoser.Diagnoser._changed_while_watching`:
+    the record failed the test of the model's fit or the CUSUM test of a
+    shift of its residuals' mean, each at ``level``,
+    :func:`bgc.diagnosis.diagnoser.watch_level`; None: the fit test's own):
     the record's test at step ``step``, and the diagnosis goes on from an
-    alarm raised at the change point (``found`` and ``at_change``), the
-    record's test of the model's fit at ``level``
-    (:func:`bgc.diagnosis.diagnoser.watch_level`; None: the fit test's own)."""
+    alarm raised at the change point (``found`` and ``at_change``)."""
 
     step: int
     change: int

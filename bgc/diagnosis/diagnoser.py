@@ -60,7 +60,7 @@ from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
 from .detect import TESTS, Detector, DetectorOptions, change_point
 from .finish import ordered
-from .fit import LEAST, LEVEL as FIT_LEVEL, change_statistics, fails, fit, misfit_before
+from .fit import LEAST, LEVEL as FIT_LEVEL, change_statistics, fails, fit, misfit_before, shifted
 from .isolate import with_returns
 from .onsets import log_prior
 from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig, shifted_events
@@ -259,21 +259,27 @@ class Diagnoser:
     def _changed_while_watching(self) -> tuple:
         """The test of the record about to be halved (:meth:`_forget_if_full`):
         when it fails the test of the model's fit (:func:`~bgc.diagnosis.fit.fit`,
-        at its level, the record's excused window left out) and the record
+        the record's excused window left out) or some sensor's residuals
+        shift their mean within it (:func:`~bgc.diagnosis.fit.shifted`, the
+        CUSUM test: a change in the middle of the record, which the record's
+        mean dilutes), each at the level below, and the record
         shows a change as :meth:`_missed_change` finds one at a diagnosis's
         end (:meth:`_change`: the data before the change point fit, the
         residuals changed there, at the same operating point), the loop is
         made again with an alarm raised at the change point (test
-        ``change``): the diagnosis goes on from there as from any alarm.
-        Returns the events said: a :class:`~bgc.events.ChangeMissed`
-        (``watching``) and the new loop's from its alarm on; () when the
+        ``change``, :attr:`Loop.forced`, kept in the diagnoser's state and
+        raised again when the diagnosis is made again): the diagnosis goes
+        on from there as from any alarm. Returns the events said: a
+        :class:`~bgc.events.ChangeMissed` (``watching``) and the new loop's
+        from its alarm on, the data's aside (said as they came); () when the
         record passes, or fails without such a change (a model that does
         not fit, said at the end as ever). The record holds ``2 keep``
         steps at each test and the next test comes ``keep`` steps later, so
         every change is tested with at least ``keep`` steps on its one side
-        or the other. The fit test, which every alarm of this rule needs,
-        holds a level of its own (:func:`watch_level`): the tests add at most
-        :data:`WATCH_SHARE` of the detector's false-alarm budget per horizon."""
+        or the other. The two tests, one of which every alarm of this rule
+        needs, hold a level of their own (:func:`watch_level`, each; their
+        union twice it): they add at most :data:`WATCH_SHARE` of the
+        detector's false-alarm budget per horizon."""
         from ..filters.cubature import nominal_track
 
         loop = self.loop
@@ -283,7 +289,8 @@ class Diagnoser:
         ys, us, T = record["ys"], record["us"], len(record["ys"])
         track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
         level = watch_level(loop.options.false_alarm, self.keep, self.config.horizon)
-        if fit(self.nominal, ys, us, loop.outputs, T, level=level, track=track, skip=loop.excused).fits:
+        if fit(self.nominal, ys, us, loop.outputs, T, level=level, track=track, skip=loop.excused).fits \
+                and not shifted(_residuals(track, loop, T), level):
             return ()
         change = self._change(loop.outputs, track)
         if change is None:
@@ -299,7 +306,8 @@ class Diagnoser:
         again.events.insert(first, ev.ChangeMissed(T - 1, alarm.step, moved, tuple(o.detectors), True, True, False,
                                                    True, level))
         self.loop = again
-        return tuple(again.events[first:])
+        told = {e for sample in again.samples for e in sample.events}  # the data's, said as they came
+        return tuple(e for e in again.events[first:] if e not in told)
 
     def _forget(self, cut: int) -> None:
         """Watching, with ``keep`` steps to keep: forget the record's first
@@ -508,10 +516,11 @@ class Diagnoser:
         detector's windows and budget, alarms again, or to the data's end
         when the alarm was one reading (the mean test's one-sample window);
         the quiet stretch at least the detector's longest window each way. Not an alarm of the
-        frozen-reading test (a frozen sensor's residuals are quiet), nor on
-        a diagnosis made again (the detector armed anew once)."""
+        frozen-reading test (a frozen sensor's residuals are quiet), nor of
+        the change test (raised at a change point after the record showed
+        the change), nor on a diagnosis made again (the detector armed anew once)."""
         first = d.detection
-        if first is None or self.loop.watch_from or first.test == "frozen":
+        if first is None or self.loop.watch_from or first.test in ("frozen", "change"):
             return None
         o, present = self.loop.options, self.loop.present
         longest = max(o.windows)
@@ -569,8 +578,8 @@ class Diagnoser:
                 if degenerate.switched:
                     self._switch(degenerate)
         diagnosis = self.loop.finish(self.sampler.summary(), truth)
-        if self._retry(diagnosis):
-            again = self.replay(dataclasses.replace(self.loop.options, switch=False), True)
+        if self._retry(diagnosis):  # (an alarm the record's test raised while watching is raised again)
+            again = self.replay(dataclasses.replace(self.loop.options, switch=False), True, forced=self.loop.forced)
             diagnosis = again.finish(self.sampler.summary(), truth)
         diagnosis = self._after_false_alarm(diagnosis, truth)
         diagnosis = self._missed_change(diagnosis, truth)
@@ -666,8 +675,7 @@ class Diagnoser:
         ys, us, T = record["ys"], record["us"], len(record["ys"])
         if track is None:
             track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
-        z = np.array(track.z, dtype=float)[:T].reshape(T, len(outputs))
-        z[:, ~loop.present] = np.nan
+        z = _residuals(track, loop, T)
         cumsum = np.concatenate([np.zeros((1, z.shape[1])), np.cumsum(np.nan_to_num(z), axis=0)])
         at = change_point(cumsum, T - 1, T)
         if at < LEAST or T - at < LEAST or not fit(self.nominal, ys, us, outputs, at, track=track).fits:
@@ -765,6 +773,14 @@ class Diagnoser:
         from .state import restore_diagnoser
 
         return restore_diagnoser(cls, config, state)
+
+
+def _residuals(track, loop: Loop, T: int) -> np.ndarray:
+    """The nominal track's normalised residuals over the record's ``T``
+    steps (steps x sensors), NaN where a sensor has no column."""
+    z = np.array(track.z, dtype=float)[:T].reshape(T, len(loop.outputs))
+    z[:, ~loop.present] = np.nan
+    return z
 
 
 def _new_point(nominal, us: np.ndarray, at: int) -> bool:
@@ -875,17 +891,17 @@ WATCH_SHARE = 0.05
 
 
 def watch_level(false_alarm: float, keep: int, horizon: int) -> float:
-    """The level of the test of the model's fit on the record kept while
-    watching (:meth:`Diagnoser._changed_while_watching`): one test every
-    ``keep`` steps is ``horizon / keep`` tests per horizon (``horizon`` in
-    steps), so a level of ``WATCH_SHARE * false_alarm * keep / horizon``
-    holds them to :data:`WATCH_SHARE` of the detector's budget
-    ``false_alarm`` per horizon (the union bound); never above the fit
-    test's own level (:data:`~bgc.diagnosis.fit.LEVEL`). With bgc's defaults
-    (1 % per horizon, a monitor's 1024 steps kept) that is LEVEL for a
-    horizon up to 512 steps, and the tests then take LEVEL * horizon / keep
-    of the budget (0.03 % per horizon of 300 steps)."""
-    return min(FIT_LEVEL, WATCH_SHARE * false_alarm * keep / max(horizon, 1))
+    """The level of each of the two tests of the record kept while
+    watching (the model's fit and the CUSUM test of a shift,
+    :meth:`Diagnoser._changed_while_watching`): one pair every ``keep``
+    steps is ``horizon / keep`` pairs per horizon (``horizon`` in steps), so
+    a level of ``WATCH_SHARE * false_alarm * keep / horizon / 2`` holds them
+    to :data:`WATCH_SHARE` of the detector's budget ``false_alarm`` per
+    horizon (the union bound); never above the fit test's own level
+    (:data:`~bgc.diagnosis.fit.LEVEL`). With bgc's defaults (1 % per
+    horizon, a monitor's 1024 steps kept) that is LEVEL for a horizon up to
+    256 steps; over a horizon of 300 steps, 0.00085."""
+    return min(FIT_LEVEL, WATCH_SHARE * false_alarm * keep / max(horizon, 1) / 2)
 
 
 def keep_steps(options: DiagnosisOptions, dt: float) -> int | None:

@@ -75,6 +75,7 @@ mean and variance tests at this level fail on 3 of 360 runs, all on a mean
 
 from __future__ import annotations
 
+import math
 from statistics import NormalDist
 
 import numpy as np
@@ -152,6 +153,39 @@ def change_statistics(z: np.ndarray, end: int, level: float = CHANGE_LEVEL) -> t
         spread = abs(np.log(vb / va)) / np.sqrt(2 / (len(a) - 1) + 2 / (len(b) - 1)) if va > 0 and vb > 0 else np.inf
         out[j] = float(np.nan if np.isnan(mean) or np.isnan(spread) else max(mean, spread))  # NaN: changed
     return out, float(cut)
+
+
+def shifted(z: np.ndarray, level: float) -> tuple[int, ...]:
+    """The columns of normalised residuals ``z`` (steps x sensors; NaN: not
+    read) whose mean changed somewhere in them, by the CUSUM test of a mean
+    shift at an unknown step on residuals (the OLS-residual CUSUM of
+    Ploberger and Kraemer, 1992, with a known model's residuals): per sensor, its
+    ``n`` readings' partial sums about their mean, ``S_k = sum_{i <= k} (z_i
+    - mean)``, their largest ``|S_k|`` over ``sqrt(n)`` times the readings'
+    standard deviation; with no change that is the supremum of a Brownian
+    bridge's absolute value (Kolmogorov's distribution, its tail
+    ``2 sum_j (-1)^(j-1) exp(-2 j^2 x^2)``: :func:`scipy.special.kolmogorov`)
+    as ``n`` grows, whatever the mean and the spread, for residuals that are
+    white (serially correlated ones, a model whose dynamics do not fit,
+    exceed it more often: the rules that follow it, :meth:`bgc.diagnosis.diagnoser.Diagnoser._change`,
+    ask more of a change). Each sensor at
+    ``level`` over all of them (Bonferroni); a sensor read fewer than
+    2 :data:`LEAST` times is not tested. A shift in the middle of a record
+    shows here where the record's mean, diluted by the samples before it,
+    does not (:func:`fit`)."""
+    from scipy.special import kolmogorov
+
+    read = [j for j in range(z.shape[1]) if np.isfinite(z[:, j]).sum() >= 2 * LEAST]
+    out = []
+    for j in read:
+        a = z[:, j][np.isfinite(z[:, j])]
+        spread = float(a.std(ddof=1))
+        if not spread > 0:
+            continue
+        statistic = float(np.max(np.abs(np.cumsum(a - a.mean())))) / (math.sqrt(len(a)) * spread)
+        if float(kolmogorov(statistic)) < level / len(read):
+            out.append(j)
+    return tuple(out)
 
 
 def _sides(z: np.ndarray, end: int, j: int) -> tuple[np.ndarray, np.ndarray]:

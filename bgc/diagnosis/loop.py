@@ -166,7 +166,8 @@ class Loop:
         #: steps (first, end) the test of the model's fit leaves out: a false alarm's window (None: none)
         self.excused: tuple[int, int] | None = None
         #: an alarm raised at its step whatever the detector says (None: none): a change of the residuals found
-        #: over the whole record that no test alarmed on (:meth:`bgc.diagnosis.diagnoser.Diagnoser._missed_change`)
+        #: over the whole record that no test alarmed on (:meth:`bgc.diagnosis.diagnoser.Diagnoser._missed_change`),
+        #: or over the record kept while watching (:meth:`~bgc.diagnosis.diagnoser.Diagnoser._changed_while_watching`)
         self.forced = None
 
     def _observers(self, config: LoopConfig) -> None:

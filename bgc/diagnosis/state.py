@@ -38,12 +38,12 @@ from .options import UNBOUND, DiagnosisOptions
 from .values import Detection, Isolation
 
 #: The state's format; a state of another format is refused.
-VERSION = 10  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
+VERSION = 11  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
 # parameters of faults accommodated (2026-12-04); 5: the detector's other families of tests (2026-12-04); 6: their
 # residuals in units of the sensors' noise, and what the readings tell (2026-12-04); 7: the pooled test's sums of
 # the residuals' predicted correlation (2026-12-04); 8: the options' no_fault (2026-12-04); 9: the drift family's
 # Kalman observer beside a particle one, and its rings (2026-12-05); 10: the matched test's whitened innovations
-# (2026-12-05)
+# (2026-12-05); 11: the alarm raised at a change point while watching (2026-12-06)
 #: The first bytes of a state file.
 MAGIC = b"bgc-diagnoser-state\n"
 
@@ -153,6 +153,8 @@ class LoopState:
     reported: tuple
     #: the drift family's Kalman observer beside a particle one (mean, covariance; None: none)
     companion: tuple | None = None
+    #: the alarm raised at a change point the record's test found while watching (``Loop.forced``; None: none)
+    forced: Detection | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -267,7 +269,7 @@ def loop_state(loop) -> LoopState:
         tuple((k, x.copy(), logw.copy()) for k, (x, logw) in loop.clouds.items()),
         tuple((name, tracker_state(t)) for name, t in loop.trackers.items()), tuple(loop.before.items()),
         tuple(sorted(loop.reported)),
-        None if loop.companion is None else (loop.companion.mean.copy(), loop.companion.cov.copy()))
+        None if loop.companion is None else (loop.companion.mean.copy(), loop.companion.cov.copy()), loop.forced)
 
 
 def filter_state(pf) -> FilterState:
@@ -368,6 +370,7 @@ def restore_loop(config, s: LoopState):
         loop.companion.mean, loop.companion.cov = s.companion[0].copy(), s.companion[1].copy()
     loop.clouds = {k: (x.copy(), logw.copy()) for k, x, logw in s.clouds}
     loop.phase, loop.detection, loop.isolation, loop.events = s.phase, s.detection, s.isolation, list(s.events)
+    loop.forced = s.forced
     loop.trackers = {name: restore_tracker(t) for name, t in s.trackers}
     loop.before, loop.reported = dict(s.before), set(s.reported)
     return loop

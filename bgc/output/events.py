@@ -221,7 +221,8 @@ def _change_missed_sentence(e: ev.ChangeMissed, t) -> str:
     """:func:`sentence` of a change no test alarmed on (``t``: a step's time as text)."""
     tests = e.tests
     if e.watching:  # the record kept while watching, tested before its older half is forgotten
-        return (f"the record kept while watching fails the test of the model, yet the model fits it before "
+        return (f"the record kept while watching fails the test of the model or its residuals' mean shifts within it "
+                f"(the CUSUM test), yet the model fits it before "
                 f"t = {t(e.change)} and {', '.join(e.sensors)}'s residuals changed there: a change the "
                 f"{', '.join(tests)} test{'s' if len(tests) > 1 else ''} did not alarm on; an alarm is raised at that "
                 "change point, and the diagnosis goes on from there")

@@ -388,7 +388,8 @@ def detection_lines(d, labels: Labels = Labels()) -> list[str]:
     if det.test == "change":  # no test alarmed: the record's misfit, found at its end to begin there
         watched = next((e for e in d.events if isinstance(e, ev.ChangeMissed) and e.watching), None)
         whole = ("the data's end: the model does not fit the whole record" if watched is None else
-                 f"t = {_tt(d, det.raised)}: the model does not fit the record kept while watching up to there")
+                 f"t = {_tt(d, det.raised)}: the record kept while watching up to there fails the test of the model "
+                 "or shows a shift of its residuals' mean (the CUSUM test)")
         level = FIT_LEVEL if watched is None or watched.level is None else watched.level
         first = (f"alarm at {whole} (the test of the model, level "
                  f"{level:.3g}) but fits it before t = {_tt(d, det.step)}; sensor {det.sensor}: "

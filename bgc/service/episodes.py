@@ -80,8 +80,8 @@ class Episodes:
 
     def watch(self, belief, d) -> None:
         """Note the alarm of a belief (the open episode's)."""
-        if self.alarm is None and belief.alarm is not None:
-            self.alarm = (d.time_of(belief.alarm.step), belief.alarm.sensor)
+        if self.alarm is None and belief.alarm is not None:  # (the change test's: when the record's test raised it)
+            self.alarm = (d.time_of(belief.alarm.raised), belief.alarm.sensor)
 
     def due(self, c, now: float) -> bool:
         """Whether checkpoint diagnosis ``c`` at time ``now`` closes the open episode."""
