@@ -126,6 +126,8 @@ def test_a_load_step_the_observer_follows_is_found_before_its_record_is_forgotte
     assert p.stdout.count("input u:V is empty") == 1, p.stdout
     assert "detected at t = 60 (the change test: the residuals of" in p.stdout, p.stdout
     report = json.loads((out / "report.json").read_text(encoding="utf-8"))
+    det = report["detection"]  # dated at the change point, raised when the record was tested
+    assert det["test"] == "change" and det["raised"] == pytest.approx(60.0) and 45.0 <= det["time"] <= 46.0, det
     said = [e for e in report["events"] if e["event"] == "ChangeMissed"]
     assert len(said) == 1 and said[0]["watching"] and said[0]["found"], said
     assert report["verdict"] == "isolated" and report["diagnosis"] == ["R_load_abrupt"], report["verdict"]

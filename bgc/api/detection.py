@@ -117,10 +117,10 @@ def detector_rate(session: Session, injection: simulate.FaultInjection, steps: i
         d = session.diagnoser(dataclasses.replace(opts, seed=seed + i))
         for k, t in enumerate(time):
             alarm = d.step(float(t), *rows(k)).alarm
-            if alarm is not None:
-                if alarm.step >= onset:
+            if alarm is not None:  # (the change test's: when the record's test raised it)
+                if alarm.raised >= onset:
                     detected += 1
-                    delays.append((alarm.step - onset) * dt)
+                    delays.append((alarm.raised - onset) * dt)
                 else:
                     false += 1
                 break

@@ -140,7 +140,8 @@ def report_data(r) -> dict[str, Any]:
         "detection": None if det is None else {
             "time": _time(_t(d, det.step)), "sensor": det.sensor, "window": det.window,
             "statistic": _num(det.statistic), "threshold": _num(det.threshold),
-            "onset_change_point": _time(_t(d, det.onset_step)), "test": det.test},
+            "onset_change_point": _time(_t(d, det.onset_step)), "test": det.test,
+            "raised": _time(_t(d, det.raised))},
         "onset": _time(_t(d, d.onset_step)),
         "symbols": [{"sensor": s.sensor, "sign": s.sign, "time": _time(_t(d, s.step)), "window": s.window,
                      "statistic": _num(s.statistic), "slope": s.slope or None,
