@@ -279,7 +279,12 @@ class Diagnoser:
         or the other. The two tests, one of which every alarm of this rule
         needs, hold a level of their own (:func:`watch_level`, each; their
         union twice it): they add at most :data:`WATCH_SHARE` of the
-        detector's false-alarm budget per horizon."""
+        detector's false-alarm budget per horizon. They read the nominal
+        cubature Kalman filter's residuals (the end's test's observer), which
+        a particle observer does not run: its own residuals screen the record
+        first, the same tests at :data:`SCREEN` times the level (a record
+        they pass is not tested further: the Kalman track over ``2 keep``
+        steps would cost more than the particle filter's steps in between)."""
         from ..filters.cubature import nominal_track
 
         loop = self.loop
@@ -287,8 +292,13 @@ class Diagnoser:
             return ()
         record = loop.arrays()
         ys, us, T = record["ys"], record["us"], len(record["ys"])
-        track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
         level = watch_level(loop.options.false_alarm, self.keep, self.config.horizon)
+        if loop.kf is None:  # a particle observer's own residuals screen the record first (the Kalman track costs)
+            z = np.array(loop.z, dtype=float).reshape(T, len(loop.outputs))
+            z[:, ~loop.present] = np.nan
+            if not fails(self.nominal, z, loop.outputs, SCREEN * level) and not shifted(z, SCREEN * level):
+                return ()
+        track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
         if fit(self.nominal, ys, us, loop.outputs, T, level=level, track=track, skip=loop.excused).fits \
                 and not shifted(_residuals(track, loop, T), level):
             return ()
@@ -885,6 +895,9 @@ def mode_hidden(nominal, inputs, source: str) -> bool:
 
 
 
+#: A particle observer's residuals screen the record kept while watching at this many times the watching
+#: level before its Kalman track is computed (:meth:`Diagnoser._changed_while_watching`).
+SCREEN = 10
 #: The share of the detector's false-alarm budget per horizon the test of the record kept while watching
 #: may take (:func:`watch_level`).
 WATCH_SHARE = 0.05
