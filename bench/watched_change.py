@@ -3,7 +3,7 @@ found before the record that shows it is forgotten
 (bgc.diagnosis.diagnoser.Diagnoser._changed_while_watching), measured
 against the diagnosis of the whole record on the same data.
 
-    .venv/bin/python bench/watched_change.py [--runs 20] [--sizes 2,3] [--keep 15] [--steps 1800]
+    .venv/bin/python bench/watched_change.py [--runs 20] [--sizes 2,3] [--keep 15] [--steps 1800] [--onset 45]
 
 The plant is docs/examples/switched_rc.yaml's supply, its contactor closed 5 s
 and open 10 s over and over (the data's mode column), solved by solve_ivp
@@ -11,7 +11,7 @@ piece by piece on its equations derived by hand (tests/test_watched_change.py,
 which checks the solution against the exponentials by hand), with the
 sensors' noise the model declares (seeds 1 to ``--runs``). Each seed gives a
 healthy stream and, per size, a stream whose R_load is that many ohm higher
-from t = 45 s. Each stream is diagnosed twice, side by side: as a monitor
+from t = ``--onset`` s. Each stream is diagnosed twice, side by side: as a monitor
 would (``keep``: the last ``--keep`` seconds of the record while watching)
 and with the whole record kept (``bgc diagnose``: the reference, whose end
 tests the whole record). The table prints, per size (0: healthy) and way,
@@ -47,7 +47,8 @@ def main() -> int:
     p.add_argument("--steps", type=int, default=1800)
     p.add_argument("--onset", type=float, default=45.0)
     a = p.parse_args()
-    print(f"bench/watched_change.py --runs {a.runs} --sizes {a.sizes} --keep {a.keep:g} --steps {a.steps}")
+    print(f"bench/watched_change.py --runs {a.runs} --sizes {a.sizes} --keep {a.keep:g} --steps {a.steps} "
+          f"--onset {a.onset:g}")
     session = bgc.open(MODEL, backend="numpy")
     sizes = [0.0] + [float(s) for s in a.sizes.split(",")]
     rows = collections.defaultdict(list)
