@@ -293,11 +293,8 @@ class Diagnoser:
         record = loop.arrays()
         ys, us, T = record["ys"], record["us"], len(record["ys"])
         level = watch_level(loop.options.false_alarm, self.keep, self.config.horizon)
-        if loop.kf is None:  # a particle observer's own residuals screen the record first (the Kalman track costs)
-            z = np.array(loop.z, dtype=float).reshape(T, len(loop.outputs))
-            z[:, ~loop.present] = np.nan
-            if not fails(self.nominal, z, loop.outputs, SCREEN * level) and not shifted(z, SCREEN * level):
-                return ()
+        if loop.kf is None and not self._screened(T, SCREEN * level):  # (the Kalman track costs)
+            return ()
         track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
         if fit(self.nominal, ys, us, loop.outputs, T, level=level, track=track, skip=loop.excused).fits \
                 and not shifted(_residuals(track, loop, T), level):
@@ -669,6 +666,15 @@ class Diagnoser:
             if not fails(self.nominal, z, d.outputs):
                 return True
         return False
+
+    def _screened(self, T: int, level: float) -> bool:
+        """Whether a particle observer's own residuals over the record's ``T``
+        steps flag it (:meth:`_changed_while_watching`'s screen): its fit
+        test's failures or the CUSUM test's shift at ``level``."""
+        loop = self.loop
+        z = np.array(loop.z, dtype=float).reshape(T, len(loop.outputs))
+        z[:, ~loop.present] = np.nan
+        return bool(fails(self.nominal, z, loop.outputs, level)) or bool(shifted(z, level))
 
     def _change(self, outputs: tuple[str, ...], track=None) -> tuple[Detection, tuple[str, ...]] | None:
         """The change of :meth:`_missed_change` in the record, as an alarm
