@@ -285,21 +285,18 @@ class Diagnoser:
         first, the same tests at :data:`SCREEN` times the level (a record
         they pass is not tested further: the Kalman track over ``2 keep``
         steps would cost more than the particle filter's steps in between)."""
-        from ..filters.cubature import nominal_track
-
         loop = self.loop
         if self.decoder is not None:  # (the mode read from the data: no change test, as at the end)
             return ()
-        record = loop.arrays()
-        ys, us, T = record["ys"], record["us"], len(record["ys"])
         level = watch_level(loop.options.false_alarm, self.keep, self.config.horizon)
-        if loop.kf is None and not self._screened(T, SCREEN * level):  # (the Kalman track costs)
+        if loop.kf is None and not self._screened(SCREEN * level):  # (the Kalman track costs)
             return ()
-        track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
+        ys, us, track = self._tracked()
+        T = len(ys)
         if fit(self.nominal, ys, us, loop.outputs, T, level=level, track=track, skip=loop.excused).fits \
-                and not shifted(_residuals(track, loop, T), level):
+                and not shifted(_residuals(track.z, loop, T), level):
             return ()
-        change = self._change(loop.outputs, track)
+        change = self._change(loop.outputs, (ys, us, track))
         if change is None:
             return ()
         alarm, moved = change
@@ -667,31 +664,37 @@ class Diagnoser:
                 return True
         return False
 
-    def _screened(self, T: int, level: float) -> bool:
-        """Whether a particle observer's own residuals over the record's ``T``
-        steps flag it (:meth:`_changed_while_watching`'s screen): its fit
-        test's failures or the CUSUM test's shift at ``level``."""
+    def _screened(self, level: float) -> bool:
+        """Whether a particle observer's own residuals over the record flag
+        it (:meth:`_changed_while_watching`'s screen): its fit test's
+        failures or the CUSUM test's shift at ``level``."""
         loop = self.loop
-        z = np.array(loop.z, dtype=float).reshape(T, len(loop.outputs))
-        z[:, ~loop.present] = np.nan
+        z = _residuals(loop.z, loop, len(loop.samples))
         return bool(fails(self.nominal, z, loop.outputs, level)) or bool(shifted(z, level))
 
-    def _change(self, outputs: tuple[str, ...], track=None) -> tuple[Detection, tuple[str, ...]] | None:
+    def _tracked(self) -> tuple:
+        """The record's measurements and inputs (steps x ...) and the
+        nominal cubature Kalman filter's track over it (the Kalman observer's
+        own, else computed)."""
+        from ..filters.cubature import nominal_track
+
+        loop = self.loop
+        record = loop.arrays()
+        ys, us = record["ys"], record["us"]
+        return ys, us, loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, len(ys))
+
+    def _change(self, outputs: tuple[str, ...], tracked=None) -> tuple[Detection, tuple[str, ...]] | None:
         """The change of :meth:`_missed_change` in the record, as an alarm
         at its change point (test ``change``: the sensor whose residuals
         changed most, the statistic of :func:`~bgc.diagnosis.fit.changed`,
         its window the samples from there to the end) and the sensors whose
         residuals changed; None where there is none (the rules of :meth:`_missed_change`).
-        ``outputs``: the record's sensors; ``track``: the nominal cubature Kalman
-        filter's over the record, when the caller has it."""
-        from ..filters.cubature import nominal_track
-
+        ``outputs``: the record's sensors; ``tracked``: :meth:`_tracked`'s
+        (the record and the nominal Kalman track), when the caller has it."""
         loop = self.loop
-        record = loop.arrays()
-        ys, us, T = record["ys"], record["us"], len(record["ys"])
-        if track is None:
-            track = loop.kf.track() if loop.kf is not None else nominal_track(self.nominal, ys, us, T)
-        z = _residuals(track, loop, T)
+        ys, us, track = self._tracked() if tracked is None else tracked
+        T = len(ys)
+        z = _residuals(track.z, loop, T)
         cumsum = np.concatenate([np.zeros((1, z.shape[1])), np.cumsum(np.nan_to_num(z), axis=0)])
         at = change_point(cumsum, T - 1, T)
         if at < LEAST or T - at < LEAST or not fit(self.nominal, ys, us, outputs, at, track=track).fits:
@@ -791,10 +794,11 @@ class Diagnoser:
         return restore_diagnoser(cls, config, state)
 
 
-def _residuals(track, loop: Loop, T: int) -> np.ndarray:
-    """The nominal track's normalised residuals over the record's ``T``
-    steps (steps x sensors), NaN where a sensor has no column."""
-    z = np.array(track.z, dtype=float)[:T].reshape(T, len(loop.outputs))
+def _residuals(values, loop: Loop, T: int) -> np.ndarray:
+    """Normalised residuals ``values`` (a track's or an observer's, per
+    step) over the record's ``T`` steps (steps x sensors), NaN where a
+    sensor has no column."""
+    z = np.array(values, dtype=float)[:T].reshape(T, len(loop.outputs))
     z[:, ~loop.present] = np.nan
     return z
 
