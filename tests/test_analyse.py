@@ -235,11 +235,55 @@ def test_sensors_placed_by_the_signatures_too_are_the_cheapest_that_reach_both_l
         out = tmp_path / f"m{k}.yaml"
         from bgc.api.analyse import with_sensors
 
-        with_sensors(TWO_TANK, sensors, out)
+        with_sensors(TWO_TANK, p.variables(sensors), out)
         a = analyse(out, quantitative=False)
         reaches = len(a.get("structural").pairs()) == len(p.reachable[1]) and \
             len(a.get("qualitative").pairs()) == len(p.reachable_qualitative[1])
         assert reaches == (len(sensors) == 2), sensors
+
+
+def test_a_second_gauge_on_the_measured_pressure_splits_its_offset_from_the_drain(tmp_path):
+    """docs/examples/level_gauge.yaml: one state, the tank's pressure e2, read
+    by the gauge p = e2 + p_offset; the drain's R in the junction's flow.
+    Structurally the gauge's one redundancy (the tank's balance, C de2/dt =
+    f_in - e2/R, checked against p) holds both faults: not told apart either
+    way. A second gauge p' = e2 holds no p_offset: {p, p'} is a redundancy
+    of the offset alone and {the balance, p'} of R alone, so it splits them
+    both ways; so does a flow meter on the drain (f3 = e2/R) or on the tank
+    (f2), which give e2's derivative without the gauge. A second sensor is a
+    candidate only beside a sensor a fault is declared on (the two tanks
+    with sensors: F12, not F10 or F20), or where a costs file names the
+    measured quantity; with flow meters four times a gauge's cost it is the
+    one set, and the model written with it, read back and analysed afresh
+    (a model with two measurements, no placement in it), tells the two
+    faults apart at every level."""
+    gauge = ROOT / "docs" / "examples" / "level_gauge.yaml"
+    p = analyse(gauge, quantitative=False, place_sensors=True, place_by="structural").placement
+    assert p.now == (frozenset({"R", "p_offset"}), frozenset())
+    assert p.reachable[1] == {("R", "p_offset"), ("p_offset", "R")}
+    assert p.cost == 1 and set(p.sets) == {("f2",), ("f3",), ("p'",)}
+    twin = {c.name: c for c in p.candidates}["p'"]
+    assert (twin.reads, twin.beside, str(twin.expr)) == ("e2", "p", "e2")
+    sensors = analyse(ROOT / "tests" / "data" / "models" / "two_tank_sensors.yaml", quantitative=False,
+                      place_sensors=True).placement
+    assert {c.name for c in sensors.candidates if c.beside} == {"F12'"}
+    costs = {"e2": 1, "f2": 4, "f3": 4}
+    assert analyse(gauge, quantitative=False, place_sensors=True, costs=costs).placement.sets == (("p'",),)
+    written = tmp_path / "costs.yaml"
+    written.write_text("{e2: 1, f2: 4, f3: 4}\n", encoding="utf-8")
+    out = tmp_path / "two_gauges.yaml"
+    run = bgc_cli("analyse", gauge, "--no-quantitative", "--place-sensors", "--costs", written, "--write", out)
+    assert run.returncode == 0, run.stderr
+    assert "p' (= e2, a second sensor beside p)" in run.stdout and "with p' added" in run.stdout
+    assert "  # bgc analyse --place-sensors: a sensor added on e2\n  e2: {expr: e2}\n" in out.read_text(encoding="utf-8")
+    placed = analyse(out, quantitative=False)
+    assert placed.get("structural").classes(placed.faults) == ()
+    i, j = placed.faults.index("R"), placed.faults.index("p_offset")
+    assert {(i, j), (j, i)} <= placed.get("qualitative").pairs()
+    for r, told in ((analyse(gauge, quantitative=False), False), (placed, True)):  # the toolbox agrees
+        im = fdt_model(r.structure).IsolabilityAnalysis()  # im[a][b] = 1: a cannot be told from b
+        a, b = r.faults.index("R"), r.faults.index("p_offset")
+        assert (not im[a][b], not im[b][a]) == (told, told), (r.faults, im)
 
 
 def test_sensor_placement_refuses_what_it_cannot_do_in_one_line(tmp_path):

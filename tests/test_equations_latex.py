@@ -22,12 +22,12 @@ from conftest import ROOT
 #: Every shipped model: the three of models/ and the plants of docs/examples.
 SHIPPED = ["models/circuit.yaml", "models/two_tank.yaml", "models/ro.yaml", "docs/examples/dc_motor.yaml",
            "docs/examples/rc.yaml", "docs/examples/shaker.yaml", "docs/examples/two_mass.yaml",
-           "docs/examples/joined_tanks.yaml", "docs/examples/tank_chain.yaml"]
+           "docs/examples/joined_tanks.yaml", "docs/examples/tank_chain.yaml", "docs/examples/level_gauge.yaml"]
 #: The YAML files of docs/examples that are not plants of one mode bgc compiles (errors on purpose, a
-#: campaign, a column map, a capacitor in derivative causality, models with modes: tests/test_modes.py,
-#: tests/test_hidden_mode.py, tests/test_uncommanded.py).
-NOT_PLANTS = {"broken_two_tank.yaml", "campaign.yaml", "deriv.yaml", "tank_logger.yaml", "relay.yaml",
-              "relay_switched.yaml", "level.yaml", "valve_tanks.yaml", "switched_rc.yaml"}
+#: campaign, a column map, a sensor placement's costs, a capacitor in derivative causality, models with
+#: modes: tests/test_modes.py, tests/test_hidden_mode.py, tests/test_uncommanded.py).
+NOT_PLANTS = {"broken_two_tank.yaml", "campaign.yaml", "deriv.yaml", "tank_logger.yaml", "level_gauge_costs.yaml",
+              "relay.yaml", "relay_switched.yaml", "level.yaml", "valve_tanks.yaml", "switched_rc.yaml"}
 ENGINE = shutil.which("pdflatex") or shutil.which("latex")
 
 

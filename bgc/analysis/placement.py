@@ -5,8 +5,12 @@ level of :mod:`.isolability`, a sensor's signature the TRANSCEND symbols its
 bond variable shows), as far as the candidate sensors can.
 
 The candidates are the bond graph's efforts and flows (each different
-expression once, the first bond's name for it; none already measured), or
-those a candidates file names, each with a cost (1 by default). A set is
+expression once, the first bond's name for it; none already measured), and a
+second sensor on each measured quantity whose sensor may fail (a sensor fault
+declared on it: hardware redundancy, the second reading holds none of the
+first's faults; named after the sensor with a prime, ``p'``), or those a
+candidates file names, each with a cost (1 by default; a measured quantity
+named there is a second sensor on it). A set is
 *enough* when the model with those sensors added detects every fault the
 model with every candidate added detects, and tells apart every ordered pair
 that one tells apart, at both levels: what no candidate can give is not
@@ -40,6 +44,15 @@ class Candidate:
     #: Faults no symbol of ``expr`` holds that change what it reads all the same (a switch that may
     #: stick, in a mode whose stuck configuration changes this variable: :func:`with_sensors`)
     also: frozenset = frozenset()
+    #: The bond variable it reads when its name is not that (a second sensor: ``variable``, beside the
+    #: sensor ``beside`` that reads it already)
+    variable: str = ""
+    beside: str = ""
+
+    @property
+    def reads(self) -> str:
+        """The bond variable the sensor reads."""
+        return self.variable or self.name
 
 
 @dataclass(frozen=True)
@@ -66,24 +79,46 @@ class Placement:
     checked: tuple[tuple[int, int], ...] | None = None
     checked_now: tuple[int, int] | None = None
 
+    def variables(self, names: Sequence[str]) -> list[str]:
+        """The bond variables the candidates ``names`` read (a second sensor's is its measured quantity's)."""
+        by = {c.name: c for c in self.candidates}
+        return [by[n].reads if n in by else n for n in names]
 
-def candidates(ssm, measured_exprs: Sequence, costs: Mapping[str, float] | None = None) -> tuple[Candidate, ...]:
+
+def second(sensor: str) -> str:
+    """The name of a second sensor beside ``sensor``."""
+    return sensor + "'"
+
+
+def candidates(ssm, measured_exprs: Sequence, costs: Mapping[str, float] | None = None,
+               faulty: Sequence[str] = (), declared: Mapping[str, str] | None = None) -> tuple[Candidate, ...]:
     """Every bond variable of ``ssm`` with an expression of its own that no
     sensor reads already (``measured_exprs``: the sensors' expressions
-    without their offsets), or the variables ``costs`` names with their
-    costs; of variables with one expression, the cheapest (then the first
-    bond's)."""
-    seen = {str(e) for e in measured_exprs}
+    without their offsets, in the order of ``ssm.outputs``), then a second
+    sensor on the quantity of each sensor of ``faulty`` (those a sensor
+    fault is declared on), or the variables ``costs`` names with their
+    costs (a measured one: a second sensor on it); of variables with one
+    expression, the cheapest (then the first bond's; for a second sensor,
+    the variable its sensor's model text names, ``declared``, when it is one)."""
+    declared = declared or {}
+    seen = {str(e): name for name, e in zip(ssm.outputs, measured_exprs)}
     best: dict[str, Candidate] = {}
+    twins: dict[str, Candidate] = {}
     for name, expr in ssm.variables:
-        if costs is not None and name not in costs:
+        if (costs is not None and name not in costs) or not expr.free_symbols:
             continue
-        if str(expr) in seen or not expr.free_symbols:
-            continue
-        c = Candidate(name, expr, 1.0 if costs is None else float(costs[name]))
-        if str(expr) not in best or c.cost < best[str(expr)].cost:
-            best[str(expr)] = c
-    return tuple(best.values())
+        cost = 1.0 if costs is None else float(costs[name])
+        sensor = seen.get(str(expr))
+        if sensor is None:
+            c = Candidate(name, expr, cost)
+            if str(expr) not in best or c.cost < best[str(expr)].cost:
+                best[str(expr)] = c
+        elif costs is not None or sensor in faulty:
+            c = Candidate(second(sensor), expr, cost, variable=name, beside=sensor)
+            if sensor not in twins or c.cost < twins[sensor].cost or \
+                    (c.cost == twins[sensor].cost and name == declared.get(sensor)):
+                twins[sensor] = c
+    return tuple(best.values()) + tuple(twins[s] for s in ssm.outputs if s in twins)
 
 
 def with_sensors(model: StructuralModel, ssm, added: Sequence[Candidate]) -> StructuralModel:

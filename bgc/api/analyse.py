@@ -98,7 +98,8 @@ class AnalysisReport:
 
 def _placement_dict(p) -> dict:
     return {"sets": [list(x) for x in p.sets], "cost": p.cost, "more_sets": p.more,
-            "candidates": [{"name": c.name, "reads": str(c.expr), "cost": c.cost} for c in p.candidates],
+            "candidates": [{"name": c.name, "reads": str(c.expr), "cost": c.cost}
+                           | ({"variable": c.variable, "beside": c.beside} if c.beside else {}) for c in p.candidates],
             "detected_now": sorted(p.now[0]), "detected_at_most": sorted(p.reachable[0]),
             "pairs_now": len(p.now[1]), "pairs_at_most": len(p.reachable[1]),
             "qualitative": None if p.reachable_qualitative is None else
@@ -291,7 +292,7 @@ def _check_sets(model, placed, faults, now, settings: dict, say):
     with tempfile.TemporaryDirectory(prefix="bgc-placed-") as folder:
         for i, names in enumerate(placed.sets, start=1):
             say(f"sensor placement: set {i} of {len(placed.sets)} checked by bgc distinguish ({', '.join(names)})")
-            path = with_sensors(model, names, Path(folder) / f"placed_{i}.yaml")
+            path = with_sensors(model, placed.variables(names), Path(folder) / f"placed_{i}.yaml")
             r = distinguishability(path, **settings)
             lv = isolability.quantitative(r.distinctions, faults, settings["level"])
             counts.append((sum(lv.detectable), len(lv.pairs())))
@@ -399,8 +400,11 @@ def _place(func: str, c, model_, costs, most: int, qualitative: bool):
 
     offsets = {sympy.Symbol(f.parameter): 0 for f in c.model.faults if f.target == "sensor"}
     measured = [e.subs(offsets) for e in c.equations.output_exprs]
-    cands = placement.candidates(c.equations, measured, costs)
-    every = signatures.derive(c.equations, tuple(x.name for x in cands)) if qualitative else None  # each one's symbols
+    faulty = {f.subject for f in c.model.faults if f.target == "sensor"}  # a second sensor beside each of these
+    cands = placement.candidates(c.equations, measured, costs, tuple(faulty),
+                                 {m.name: m.text.strip() for m in c.model.measurements})
+    every = signatures.derive(c.equations, tuple(x.name for x in cands), {x.name: x.reads for x in cands}) \
+        if qualitative else None  # each one's symbols
     return placement.place(model_, c.equations, cands, most, every)
 
 

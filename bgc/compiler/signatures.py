@@ -60,15 +60,17 @@ from ..ir import FaultSignatures, Signature, StateSpaceModel, sym, var_key
 from ..kinds import DIRECTIONS, fault_kind
 
 
-def derive(ssm: StateSpaceModel, extra: tuple[str, ...] = ()) -> FaultSignatures:
+def derive(ssm: StateSpaceModel, extra: tuple[str, ...] = (), reads: dict[str, str] | None = None) -> FaultSignatures:
     """Signatures of every fault candidate, direction and kind of the model;
     ``extra``: bond variables read as if a sensor were on each (after the
     model's, in this order: what a sensor added there would show; ``bgc
-    analyse --place-sensors``)."""
+    analyse --place-sensors``); ``reads``: the bond variable of an extra
+    column named otherwise (a second sensor on a measured quantity, which
+    none of the first sensor's faults moves)."""
     tcg = ssm.tcg
     g = tcg.graph
     model = ssm.model
-    measured = _measured_nodes(g, ssm.outputs) | {v: v for v in extra}
+    measured = _measured_nodes(g, ssm.outputs) | {v: (reads or {}).get(v, v) for v in extra}
     columns = tuple(ssm.outputs) + tuple(extra)
     depth = len(ssm.states) + 2  # a path through every integrator, plus a drift's order
     algebraic = nx.DiGraph()

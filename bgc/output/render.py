@@ -801,8 +801,11 @@ def distinguish_options(r) -> str:
 def placement_lines(p) -> list[str]:
     """``bgc analyse --place-sensors``'s answer, as lines."""
     detected, pairs = p.reachable
+    twins = sum(1 for c in p.candidates if getattr(c, "beside", ""))
     lines = [f"sensor placement (structural{' and qualitative' if p.reachable_qualitative else ''}; candidates: "
-             f"{len(p.candidates)} bond variables no sensor reads): structurally now {len(p.now[0])} faults "
+             f"{len(p.candidates) - twins} bond variables no sensor reads"
+             + (f", {twins} second sensor(s) on a measured quantity" if twins else "")
+             + f"): structurally now {len(p.now[0])} faults "
              f"detected and {len(p.now[1])} ordered pairs told apart, with every candidate {len(detected)} and "
              f"{len(pairs)}"]
     if p.reachable_qualitative:
@@ -820,10 +823,11 @@ def placement_lines(p) -> list[str]:
     elif p.sets == ((),):
         lines.append("  no sensor to add: the sensors there give what every candidate would")
     else:
-        reads = {c.name: c.expr for c in p.candidates}
+        reads = {c.name: f"= {c.expr}" + (f", a second sensor beside {c.beside}" if getattr(c, "beside", "") else "")
+                 for c in p.candidates}
         lines.append(f"  the cheapest sets (cost {p.cost:g}), each enough" + (f" (the first {len(p.sets)}; there are "
                      "more)" if p.more else "") + ":")
-        lines += [f"    {', '.join(f'{v} (= {reads[v]})' for v in s)}" for s in p.sets]
+        lines += [f"    {', '.join(f'{v} ({reads[v]})' for v in s)}" for s in p.sets]
         if getattr(p, "checked", None):
             lines.append(f"  checked by bgc distinguish (the quantitative level; now {p.checked_now[0]} faults detected "
                          f"and {p.checked_now[1]} ordered pairs told apart), the sets in its order, --write the first:")
