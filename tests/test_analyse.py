@@ -17,7 +17,7 @@ import json
 import pytest
 
 from bgc.analysis import isolability, structure
-from bgc.api.analyse import analyse
+from bgc.api.analyse import analyse, with_sensors
 from bgc.compiler import load
 from bgc.output import render
 from bgc.pipeline import compile_model
@@ -233,8 +233,6 @@ def test_sensors_placed_by_the_signatures_too_are_the_cheapest_that_reach_both_l
     assert p.cost == 2 and p.sets and all(len(s) == 2 for s in p.sets)
     for k, sensors in enumerate([*((c.name,) for c in p.candidates), p.sets[0]]):
         out = tmp_path / f"m{k}.yaml"
-        from bgc.api.analyse import with_sensors
-
         with_sensors(TWO_TANK, p.variables(sensors), out)
         a = analyse(out, quantitative=False)
         reaches = len(a.get("structural").pairs()) == len(p.reachable[1]) and \
@@ -284,6 +282,36 @@ def test_a_second_gauge_on_the_measured_pressure_splits_its_offset_from_the_drai
         im = fdt_model(r.structure).IsolabilityAnalysis()  # im[a][b] = 1: a cannot be told from b
         a, b = r.faults.index("R"), r.faults.index("p_offset")
         assert (not im[a][b], not im[b][a]) == (told, told), (r.faults, im)
+
+
+def test_a_second_gauge_is_placed_across_the_modes_of_a_pumped_tank(tmp_path):
+    """tests/data/models/pumped_gauge.yaml: the gauge's tank with a pump
+    switched on and off. In both modes the tank's balance, C de4/dt = (E -
+    e4)/R_p - e4/R or -e4/R, is the gauge's one redundancy and holds both
+    faults; a second gauge p' = e4 splits them in both (its own redundancy
+    with p holds the offset alone). Priced below every other bond variable,
+    it is the one set; the model written with it, read back, has each
+    mode's structure equal to the Fault Diagnosis Toolbox's and the two
+    faults told apart in every mode."""
+    from bgc.api.analyse import _stuck_configs, _stuck_equations
+
+    pumped = ROOT / "tests" / "data" / "models" / "pumped_gauge.yaml"
+    p = analyse(pumped, quantitative=False, place_sensors=True).placement
+    assert p.now[1] == frozenset() and p.reachable[1] == {("R", "p_offset"), ("p_offset", "R")}
+    assert ("p'",) in p.sets and p.variables(["p'"]) == ["e4"]
+    costs = {name: 4 for name in ("e2", "f1", "f4", "f5")} | {"e4": 1}
+    p = analyse(pumped, quantitative=False, place_sensors=True, costs=costs).placement
+    assert p.sets == (("p'",),) and p.cost == 1
+    out = tmp_path / "two_gauges.yaml"
+    with_sensors(pumped, p.variables(p.sets[0]), out)
+    c = compile_model(out)
+    faults = ("R", "p_offset")
+    sensors = {f.parameter: f.subject for f in c.model.faults if f.target == "sensor"}
+    enters = _stuck_equations(c, _stuck_configs(c, c.model.modes.stuck))
+    for m in c.modes:
+        level, model = isolability.structural(m.equations, faults, sensors, enters[m.name])
+        im = fdt_model(model).IsolabilityAnalysis()
+        assert level.isolable[0][1] and level.isolable[1][0] and not im[0][1] and not im[1][0], m.name
 
 
 def test_sensor_placement_refuses_what_it_cannot_do_in_one_line(tmp_path):

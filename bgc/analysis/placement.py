@@ -294,7 +294,8 @@ def place_across(parts: Sequence[ModePart], most: int = 2) -> Placement:
     for name, seen in reads.items():
         shown = {str(c.expr) for _, c in seen}
         expr = seen[0][1].expr if len(shown) == 1 else "; ".join(f"{c.expr} in {mode}" for mode, c in seen)
-        every.append(Candidate(name, expr, min(c.cost for _, c in seen)))
+        every.append(Candidate(name, expr, min(c.cost for _, c in seen), variable=seen[0][1].variable,
+                               beside=seen[0][1].beside))
     every = tuple(every)
     now, q_now = _across(parts, (), qualitative)
     reachable, q_all = _across(parts, tuple(reads), qualitative)

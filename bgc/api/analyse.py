@@ -325,7 +325,8 @@ def _mode_candidates(c, read, costs) -> dict[str, tuple]:
     switch stuck there changes it (``read``: :func:`structure.stuck_readings`
     per mode and junction; it then reads 0 but for the stuck switch, which
     its ``also`` names). Variables that read the same in every mode are one
-    candidate (the cheapest, then the first)."""
+    candidate (the cheapest, then the first). Then the second sensors
+    (:func:`_mode_twins`)."""
     import sympy
 
     from ..analysis import placement
@@ -358,7 +359,33 @@ def _mode_candidates(c, read, costs) -> dict[str, tuple]:
             del per_name[kept[key]]
         kept[key] = name
         per_name[name] = here
+    per_name |= _mode_twins(c, exprs, read, costs)
     return {m.name: tuple(here[m.name] for here in per_name.values() if m.name in here) for m in c.modes}
+
+
+def _mode_twins(c, exprs, read, costs) -> dict[str, dict]:
+    """Per second sensor of a model with modes (:func:`bgc.analysis.placement.candidates`'
+    rule: beside a sensor a fault is declared on, or on a measured variable ``costs``
+    names), per mode where it reads something (or a stuck switch changes it), its
+    candidate: a sensor whose model text is one bond variable, read again."""
+    from ..analysis import placement
+
+    faulty = {f.subject for f in c.model.faults if f.target == "sensor"}
+    twins: dict[str, dict] = {}
+    for sensor in c.model.measurements:
+        name = sensor.text.strip()
+        if (costs is None and sensor.name not in faulty) or (costs is not None and name not in costs):
+            continue
+        cost = 1.0 if costs is None else float(costs[name])
+        here = {}
+        for m in c.modes:
+            expr = exprs[m.name].get(name)
+            also = frozenset(j for j, names in read[m.name].items() if name in names)
+            if expr is not None and (expr.free_symbols or also):
+                here[m.name] = placement.Candidate(placement.second(sensor.name), expr, cost, also, name, sensor.name)
+        if here:
+            twins[placement.second(sensor.name)] = here
+    return twins
 
 
 def _mode_signatures(c, m, mode, cands):
@@ -373,7 +400,7 @@ def _mode_signatures(c, m, mode, cands):
     ssm = m.equations
     live = tuple(x.name for x in cands if x.expr.free_symbols)
     zero = tuple(x.name for x in cands if not x.expr.free_symbols)
-    every = signatures.derive(ssm, live)
+    every = signatures.derive(ssm, live, {x.name: x.reads for x in cands})
     nothing = ("0",) * (len(ssm.states) + 3)  # as deep as derive's: every integrator, a drift's order, and the value
     columns = tuple(ssm.outputs) + live + zero
     own = tuple(dataclasses.replace(s, symbols=s.symbols + (nothing,) * len(zero)) for s in every.signatures)
