@@ -10,7 +10,9 @@ bench/watched_change.py measures the faults it finds).
 noise, seeds 1000 on), 2049 samples each, diagnosed keeping 1024 steps: the
 record is tested once, at its 2048th sample. Printed per model: the runs, those
 whose record failed the fit test at the watching level, those where the CUSUM
-test found a shift, the alarms the test raised, and the runs with any alarm
+test found a shift, the alarms the test raised, the runs where it said the
+model does not fit (a misfit without a change, said as the data come: a
+``Mismatched`` event of a step), and the runs with any alarm
 (the detector's own included: its budget is 1 % per horizon of the model's
 declared length, and the runs are several horizons long).
 
@@ -67,7 +69,8 @@ def own(models: list[str], runs: int) -> None:
         return out
 
     D.fit, D.shifted = fit_seen, shifted_seen
-    print(f"{'model':10s} {'runs':>5} {'fit failed':>10} {'shift':>6} {'alarms':>7} {'any alarm':>10}")
+    print(f"{'model':10s} {'runs':>5} {'fit failed':>10} {'shift':>6} {'alarms':>7} {'misfit said':>11} "
+          f"{'any alarm':>10}")
     for name in models:
         s = bgc.open(ROOT / "models" / f"{name}.yaml", backend="numpy")
         dt = float(s.package.MODELS["nominal"].DT)
@@ -86,9 +89,10 @@ def own(models: list[str], runs: int) -> None:
             counts["fit"] += bool(seen.get("fit"))
             counts["shift"] += bool(seen.get("shift"))
             counts["alarm"] += any(type(e).__name__ == "ChangeMissed" for e in events)
+            counts["said"] += any(type(e).__name__ == "Mismatched" for e in events)
             counts["any"] += any(type(e).__name__ == "Alarmed" for e in events)
-        print(f"{name:10s} {runs:5d} {counts['fit']:10d} {counts['shift']:6d} {counts['alarm']:7d} {counts['any']:10d}",
-              flush=True)
+        print(f"{name:10s} {runs:5d} {counts['fit']:10d} {counts['shift']:6d} {counts['alarm']:7d} {counts['said']:11d} "
+              f"{counts['any']:10d}", flush=True)
 
 
 def off(runs: int, factor: float, plants: list[str]) -> None:

@@ -139,6 +139,53 @@ def test_a_load_step_the_observer_follows_is_found_before_its_record_is_forgotte
                       input=supply(1800, None, 0.0, 2))
     assert healthy.returncode == 0, healthy.stderr
     assert "switched_rc: no fault" in healthy.stdout and "change test" not in healthy.stdout, healthy.stdout
+    assert "does not fit" not in healthy.stdout, healthy.stdout
+
+
+@pytest.mark.slow
+def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_the_record(tmp_path):
+    """R_load 6 ohm where the model says 4, from the first sample: the
+    observer follows the plant (no alarm), and a larger load drains the
+    capacitor less, so v_C reads above the model's prediction: its
+    residuals' mean is positive throughout, with no change in the record.
+    Kept 15 s (300 steps), the record is first tested when it holds 600
+    samples, at t = 30: the monitor says then that the model does not fit,
+    naming v_C, a positive offset and R_load among what to calibrate, not
+    only at the stream's end; once (the record tested again at t = 45, 60,
+    75 says nothing more), also through a state saved and taken up. With
+    the load 5 ohm, nothing is said while watching, and the end's test
+    passes too."""
+    import bgc
+    from bgc.diagnosis.diagnoser import Diagnoser
+    from bgc.diagnosis.options import DiagnosisOptions
+    from bgc.diagnosis.state import DiagnoserState
+
+    text = supply(1800, 0.0, 2.0, 2)
+    p = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", tmp_path / "out",
+                input=text)
+    assert p.returncode == 0, p.stderr
+    said = [line for line in p.stdout.splitlines() if "the model does not fit this plant" in line]
+    assert said[0].startswith("t = 30: the model does not fit this plant: over the whole record (t = 0.05 to 30, "
+                              "600 samples) sensor v_C's residuals average +"), p.stdout
+    assert said[0].endswith("--estimate noise,R_load)"), said[0]
+    assert len(said) == 2 and said[1].startswith("t = 90: "), said  # the second: the end's verdict
+    assert "switched_rc: mismatch" in p.stdout and "detected at" not in p.stdout, p.stdout
+    nearer = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", tmp_path / "near",
+                     input=supply(1800, 0.0, 1.0, 2))  # 5 ohm: within what the watching level lets pass
+    assert nearer.returncode == 0 and "does not fit" not in nearer.stdout, nearer.stdout
+    assert "switched_rc: no fault" in nearer.stdout, nearer.stdout
+    session = bgc.open(MODEL, backend="numpy")
+    rows = [line.split(",") for line in text.splitlines()[1:]]
+    d = session.diagnoser(DiagnosisOptions(keep=15.0, workers=1))
+    events = []
+    for k, row in enumerate(rows):
+        if k == 900:  # a restart at t = 45: the state taken up says nothing again
+            d = Diagnoser.from_state(d.config, DiagnoserState.from_bytes(d.to_state().to_bytes()))
+        belief = d.step(float(row[0]), {"V": float(row[2]), "mode": float(row[1])},
+                        {"v_C": float(row[3]), "i_s": float(row[4])})
+        events += [(k, type(e).__name__) for e in belief.events]
+    # tested as the 601st row comes (the record holds 600 samples), said in that row's belief
+    assert [e for e in events if e[1] in ("Mismatched", "Alarmed", "ChangeMissed")] == [(600, "Mismatched")], events
 
 
 def _kolmogorov_tail(x: float) -> float:

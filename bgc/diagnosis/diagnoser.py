@@ -59,7 +59,7 @@ from ..model.package import accommodated, forget_started, started_package
 from ..model.protocol import Package, nominal_model, state_rows
 from .. import events as ev
 from .detect import TESTS, Detector, DetectorOptions, change_point
-from .finish import ordered
+from .finish import misfit_event, ordered
 from .fit import LEAST, LEVEL as FIT_LEVEL, change_statistics, fails, fit, misfit_before, shifted
 from .isolate import with_returns
 from .onsets import log_prior
@@ -133,6 +133,9 @@ class Diagnoser:
         self.decoder: ModeDecoder | None = None  # a hidden mode's reader (the data have no mode column)
         self.keep = keep_steps(config.options, self.nominal.DT)  # the record kept while watching (None: all)
         self.offset = 0  # the steps of the grid forgotten (step k of the loop is step offset + k of the data)
+        #: the watching test found the model not fitting the record, without a change in it, and said so (once)
+        self.misfit_told = False
+        self._misfit_now = False  # ... on the row just taken: the record, its sentence's, is halved on the next
 
     def hide(self) -> None:
         """Read the mode from the data (they have no mode column): every
@@ -250,9 +253,12 @@ class Diagnoser:
         loop = self.loop
         if self.keep is not None and len(loop.samples) >= 2 * self.keep and loop.detection is None \
                 and not self.switched and not self.finished:
-            said = self._changed_while_watching()
-            if said:
-                return said
+            if self._misfit_now:  # the misfit said on the last row read the record whole: halved now
+                self._misfit_now = False
+            else:
+                said = self._changed_while_watching()
+                if said:
+                    return said
             self._forget(len(loop.samples) - self.keep)
         return ()
 
@@ -293,12 +299,12 @@ class Diagnoser:
             return ()
         ys, us, track = self._tracked()
         T = len(ys)
-        if fit(self.nominal, ys, us, loop.outputs, T, level=level, track=track, skip=loop.excused).fits \
-                and not shifted(_residuals(track.z, loop, T), level):
+        fitted = fit(self.nominal, ys, us, loop.outputs, T, level=level, track=track, skip=loop.excused)
+        if fitted.fits and not shifted(_residuals(track.z, loop, T), level):
             return ()
         change = self._change(loop.outputs, (ys, us, track))
         if change is None:
-            return ()
+            return self._misfit(fitted, T)
         alarm, moved = change
         o = loop.options
         self.config.say(f"watching: no alarm, but the residuals changed at t = {self.time_of(alarm.step):.6g}: "
@@ -312,6 +318,22 @@ class Diagnoser:
         self.loop = again
         told = {e for sample in again.samples for e in sample.events}  # the data's, said as they came
         return tuple(e for e in again.events[first:] if e not in told)
+
+    def _misfit(self, fitted, T: int) -> tuple:
+        """The record about to be halved fails the test of the model's fit
+        (``fitted``, at the watching level) with no change in it: the model
+        does not fit this plant, said as the data come (a
+        :class:`~bgc.events.Mismatched` over the record's ``T`` steps, what
+        to calibrate; once per diagnoser, kept in its state), not left to
+        the stream's end; the record is halved on the next row (its
+        sentence reads the record whole). () when it passed the fit test
+        (the CUSUM test alone flagged it) or was said already."""
+        if fitted.fits or self.misfit_told:
+            return ()
+        self.misfit_told = self._misfit_now = True
+        self.config.say(f"watching: the model does not fit the record kept (t = {self.time_of(0):.6g} to "
+                        f"{self.time_of(T - 1):.6g}), with no change in it")
+        return (misfit_event(self.config.package, T, fitted),)
 
     def _forget(self, cut: int) -> None:
         """Watching, with ``keep`` steps to keep: forget the record's first

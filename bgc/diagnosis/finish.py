@@ -186,14 +186,32 @@ def judged_fit(r: Record, s: Setting, hyps, verdict: str, candidates: tuple[str,
         return verdict, candidates, [], fitted
     possible = candidates if verdict in ("isolated", "ambiguous") else ()
     parameters = [by[n].parameter for n in possible if n in by and by[n].estimate.target == "parameter"]
-    if not parameters and (short or "mean" in fitted.failed):
-        parameters = [m.FAULT["parameter"] for m in s.package.MODELS.values()
-                      if getattr(m, "FAULT", None) and m.FAULT.get("target") == "parameter"]
-    estimate = tuple(dict.fromkeys(["noise", *parameters]))
+    estimate = _to_calibrate(s.package, parameters, short or "mean" in fitted.failed)
     event = ev.Mismatched(T - 1, max(end - 1, 0), fitted.findings, short, LEAST, possible, estimate,
                           *(timing or (None, False, 0.0)))
     s.say("the model does not fit these data" + ("" if not possible else f"; possibly {', '.join(possible)}"))
     return "mismatch", possible, [event], fitted
+
+
+def _to_calibrate(package, parameters: list, every: bool) -> tuple[str, ...]:
+    """What a calibration should estimate (``bgc calibrate --estimate``'s
+    words): the noise, the ``parameters`` of the faults kept as
+    possibilities, or, with none and ``every`` (a misfit of the residuals'
+    mean, or too few data to tell), every parameter a fault is declared on."""
+    if not parameters and every:
+        parameters = [m.FAULT["parameter"] for m in package.MODELS.values()
+                      if getattr(m, "FAULT", None) and m.FAULT.get("target") == "parameter"]
+    return tuple(dict.fromkeys(["noise", *parameters]))
+
+
+def misfit_event(package, T: int, fitted: Fit) -> ev.Mismatched:
+    """A record of ``T`` steps that fails the test of the model's fit
+    (``fitted``) with no fault in view (a monitor's watching test,
+    :meth:`bgc.diagnosis.diagnoser.Diagnoser._misfit`): its
+    :class:`~bgc.events.Mismatched`, what to calibrate as
+    :func:`judged_fit` would say of the same record."""
+    return ev.Mismatched(T - 1, T - 1, fitted.findings, False, LEAST, (),
+                         _to_calibrate(package, [], "mean" in fitted.failed))
 
 
 def _too_short(r: Record, by: dict, verdict: str, candidates: tuple[str, ...], end: int, onset: int | None) -> bool:

@@ -364,6 +364,8 @@ class _Monitor:
                 self.rows, self.told = _kept(self.rows, self.told, self.d, self.d.offset - self.forgot)
                 self.forgot = self.d.offset
         self.tell(belief.events)
+        if any(isinstance(e, ev.Mismatched) for e in belief.events):  # said while watching: not again at a checkpoint
+            self.mismatch_said = True
         if self.log is not None:
             self.log.watch(belief, self.d)
         self._fits(belief, before)
