@@ -133,9 +133,9 @@ class Diagnoser:
         self.decoder: ModeDecoder | None = None  # a hidden mode's reader (the data have no mode column)
         self.keep = keep_steps(config.options, self.nominal.DT)  # the record kept while watching (None: all)
         self.offset = 0  # the steps of the grid forgotten (step k of the loop is step offset + k of the data)
-        #: the watching test found the model not fitting the record, without a change in it, and said so (once)
-        self.misfit_told = False
-        self._misfit_now = False  # ... on the row just taken: the record, its sentence's, is halved on the next
+        #: the watching test said, on the row just taken, that the model does not fit the record (with no change
+        #: in it): the record, its sentence's, is halved on the next row
+        self._misfit_now = False
 
     def hide(self) -> None:
         """Read the mode from the data (they have no mode column): every
@@ -320,17 +320,21 @@ class Diagnoser:
         return tuple(e for e in again.events[first:] if e not in told)
 
     def _misfit(self, fitted, T: int) -> tuple:
-        """The record about to be halved fails the test of the model's fit
-        (``fitted``, at the watching level) with no change in it: the model
-        does not fit this plant, said as the data come (a
-        :class:`~bgc.events.Mismatched` over the record's ``T`` steps, what
-        to calibrate; once per diagnoser, kept in its state), not left to
-        the stream's end; the record is halved on the next row (its
-        sentence reads the record whole). () when it passed the fit test
-        (the CUSUM test alone flagged it) or was said already."""
-        if fitted.fits or self.misfit_told:
+        """The record about to be halved for the first time fails the test
+        of the model's fit (``fitted``, at the watching level) with no
+        change in it: the model does not fit this plant, said as the data
+        come (a :class:`~bgc.events.Mismatched` over the record's ``T``
+        steps, what to calibrate), not left to the stream's end; the record
+        is halved on the next row (its sentence reads the record whole).
+        One test per diagnoser (its first record of ``2 keep`` steps; kept
+        in its state), as the monitor's checkpoint test of the fit: tested
+        at every halving of a stream that runs for months, a healthy plant
+        would be said off its model by chance in the end; a misfit that
+        begins later is a change, the change test's. () when it passed the
+        fit test (the CUSUM test alone flagged it), or on a later record."""
+        if fitted.fits or self.offset:
             return ()
-        self.misfit_told = self._misfit_now = True
+        self._misfit_now = True
         self.config.say(f"watching: the model does not fit the record kept (t = {self.time_of(0):.6g} to "
                         f"{self.time_of(T - 1):.6g}), with no change in it")
         return (misfit_event(self.config.package, T, fitted),)

@@ -183,8 +183,7 @@ class DiagnoserState:
     start: tuple | None = None
     #: the parameters at other values than the model's ((name, value), ...: faults accommodated)
     theta: tuple = ()
-    #: the watching test said the model does not fit the record (once per diagnoser); and on its last row
-    misfit_told: bool = False
+    #: the watching test said, on the last row, that the model does not fit the record (halved on the next)
     misfit_now: bool = False
 
     def to_bytes(self) -> bytes:
@@ -240,7 +239,7 @@ def diagnoser_state(d) -> DiagnoserState:
     return DiagnoserState(VERSION, d.nominal.MODEL, d.offset + len(d.loop.samples), d.sampler.state(),
                           loop_state(d.loop), tuple(d.switched), d.infer_inputs, d.busy, d.finished,
                           None if d.decoder is None else d.decoder.state(), d.offset, *package_state(d.config.package),
-                          d.misfit_told, d._misfit_now)
+                          d._misfit_now)
 
 
 def package_state(package) -> tuple:
@@ -334,7 +333,7 @@ def restore_diagnoser(cls, config, state: DiagnoserState):
                             config.options.gap, config.options.input_timing or "end"))
     d.sampler.restore(state.sampler)
     d.offset = state.offset
-    d.misfit_told, d._misfit_now = state.misfit_told, state.misfit_now
+    d._misfit_now = state.misfit_now
     if state.start is not None or state.theta:  # a record started elsewhere, faults accommodated: its models'
         start = (None, None) if state.start is None else (np.array(state.start[0], dtype=float),
                                                            np.array(state.start[1], dtype=float))
