@@ -618,7 +618,9 @@ class Mismatched:
     decisively likelier with the data's inputs read that way
     (:func:`bgc.diagnosis.fit.timing_told`), None otherwise;
     ``timing_fits``: whether the model then fits it; ``timing_ratio``: the
-    log of that likelihood ratio."""
+    log of that likelihood ratio; ``span``: the first and last times of the
+    data tested and their samples, when those are not the record's steps 0
+    to ``last`` (a monitor's record tested while watching, then halved)."""
 
     step: int
     last: int
@@ -630,6 +632,7 @@ class Mismatched:
     timing: str | None = None
     timing_fits: bool = False
     timing_ratio: float = 0.0
+    span: tuple | None = None
 
 
 @dataclass(frozen=True, slots=True)

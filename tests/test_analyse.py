@@ -272,7 +272,7 @@ def test_a_second_gauge_on_the_measured_pressure_splits_its_offset_from_the_drai
     out = tmp_path / "two_gauges.yaml"
     run = bgc_cli("analyse", gauge, "--no-quantitative", "--place-sensors", "--costs", written, "--write", out)
     assert run.returncode == 0, run.stderr
-    assert "p' (= e2, a second sensor beside p)" in run.stdout and "with p' added" in run.stdout
+    assert "p' (= e2, a second sensor beside p)" in run.stdout and "with p' (as e2) added" in run.stdout
     assert "  # bgc analyse --place-sensors: a sensor added on e2\n  e2: {expr: e2}\n" in out.read_text(encoding="utf-8")
     placed = analyse(out, quantitative=False)
     assert placed.get("structural").classes(placed.faults) == ()
@@ -302,6 +302,8 @@ def test_a_second_gauge_is_placed_across_the_modes_of_a_pumped_tank(tmp_path):
     costs = {name: 4 for name in ("e2", "f1", "f4", "f5")} | {"e4": 1}
     p = analyse(pumped, quantitative=False, place_sensors=True, costs=costs).placement
     assert p.sets == (("p'",),) and p.cost == 1
+    other = analyse(pumped, quantitative=False, place_sensors=True, costs={"e5": 1, "f5": 4}).placement
+    assert other.sets == (("p'",),) and other.variables(["p'"]) == ["e5"]  # the tank's pressure by another bond
     out = tmp_path / "two_gauges.yaml"
     with_sensors(pumped, p.variables(p.sets[0]), out)
     c = compile_model(out)

@@ -153,12 +153,16 @@ def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_th
     naming v_C, a positive offset and R_load among what to calibrate, not
     only at the stream's end; once (one test per diagnoser: the record
     tested again at t = 45, 60, 75 says nothing more), also through a state
-    saved and taken up on the next row. With the load 5 ohm, nothing is said
+    saved and taken up on the next row; its sentence, read at the stream's
+    end, still names the record it tested. With --checkpoint 20 the
+    checkpoint's test says it first, at t = 20 (400 samples), and the
+    watching test does not say it again. With the load 5 ohm, nothing is said
     while watching, and the end's test passes too."""
     import bgc
     from bgc.diagnosis.diagnoser import Diagnoser
     from bgc.diagnosis.options import DiagnosisOptions
     from bgc.diagnosis.state import DiagnoserState
+    from bgc.output.events import sentence
 
     text = supply(1800, 0.0, 2.0, 2)
     p = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", tmp_path / "out",
@@ -170,6 +174,11 @@ def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_th
     assert said[0].endswith("--estimate noise,R_load)"), said[0]
     assert len(said) == 2 and said[1].startswith("t = 90: "), said  # the second: the end's verdict
     assert "switched_rc: mismatch" in p.stdout and "detected at" not in p.stdout, p.stdout
+    checked = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--checkpoint", "20", "--backend", "numpy",
+                      "-o", tmp_path / "checked", input=text)  # the checkpoint's test says it first, at t = 20
+    said = [line for line in checked.stdout.splitlines() if "the model does not fit this plant" in line]
+    assert checked.returncode == 0 and len(said) == 2, checked.stdout  # not again at t = 30; the end's
+    assert said[0].startswith("t = 20: ") and said[1].startswith("t = 90: "), said
     nearer = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", tmp_path / "near",
                      input=supply(1800, 0.0, 1.0, 2))  # 5 ohm: within what the watching level lets pass
     assert nearer.returncode == 0 and "does not fit" not in nearer.stdout, nearer.stdout
@@ -177,15 +186,18 @@ def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_th
     session = bgc.open(MODEL, backend="numpy")
     rows = [line.split(",") for line in text.splitlines()[1:]]
     d = session.diagnoser(DiagnosisOptions(keep=15.0, workers=1))
-    events = []
+    events, kept = [], []
     for k, row in enumerate(rows):
-        if k == 601:  # a restart on the row after the one that said it: the state taken up halves, not tests
+        if k == 601:  # a restart on the row after the one that said it: the record halved, not tested again
             d = Diagnoser.from_state(d.config, DiagnoserState.from_bytes(d.to_state().to_bytes()))
         belief = d.step(float(row[0]), {"V": float(row[2]), "mode": float(row[1])},
                         {"v_C": float(row[3]), "i_s": float(row[4])})
         events += [(k, type(e).__name__) for e in belief.events]
+        kept += [e for e in belief.events if type(e).__name__ == "Mismatched"]
     # tested as the 601st row comes (the record holds 600 samples), said in that row's belief
     assert [e for e in events if e[1] in ("Mismatched", "Alarmed", "ChangeMissed")] == [(600, "Mismatched")], events
+    # its sentence read at the end, the record halved many times since, still names the record it tested
+    assert "over the whole record (t = 0.05 to 30, 600 samples)" in sentence(kept[0], d.time_of)
 
 
 def _kolmogorov_tail(x: float) -> float:

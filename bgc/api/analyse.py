@@ -347,7 +347,7 @@ def _mode_candidates(c, read, costs) -> dict[str, tuple]:
             also = frozenset(j for j, names in read[m.name].items() if name in names)
             if expr is not None and expr.free_symbols and str(expr) not in measured[m.name]:
                 here[m.name] = placement.Candidate(name, expr, cost, also)
-            elif also:  # it reads nothing there, but for the stuck switch
+            elif also and (expr is None or not expr.free_symbols):  # it reads nothing there, but for the stuck switch
                 here[m.name] = placement.Candidate(name, sympy.Integer(0), cost, also)
         if not here:
             continue
@@ -366,15 +366,21 @@ def _mode_candidates(c, read, costs) -> dict[str, tuple]:
 def _mode_twins(c, exprs, read, costs) -> dict[str, dict]:
     """Per second sensor of a model with modes (:func:`bgc.analysis.placement.candidates`'
     rule: beside a sensor a fault is declared on, or on a measured variable ``costs``
-    names), per mode where it reads something (or a stuck switch changes it), its
-    candidate: a sensor whose model text is one bond variable, read again."""
+    names: the sensor's own, or one that reads the same in every mode), per mode where
+    it reads something (or a stuck switch changes it), its candidate: a sensor whose
+    model text is one bond variable, read again (one whose text is an expression gets
+    none)."""
     from ..analysis import placement
 
     faulty = {f.subject for f in c.model.faults if f.target == "sensor"}
     twins: dict[str, dict] = {}
     for sensor in c.model.measurements:
         name = sensor.text.strip()
-        if (costs is None and sensor.name not in faulty) or (costs is not None and name not in costs):
+        if costs is not None:  # the cheapest variable it names that reads the sensor's quantity in every mode
+            same = [v for v in costs if v == name or all(str(exprs[m.name].get(v)) == str(exprs[m.name].get(name))
+                                                          for m in c.modes)]
+            name = min(same, key=lambda v: (float(costs[v]), v != name), default=None)
+        if name is None or (costs is None and sensor.name not in faulty):
             continue
         cost = 1.0 if costs is None else float(costs[name])
         here = {}

@@ -91,8 +91,11 @@ def run(args: argparse.Namespace) -> int:
         if not r.placement.sets or not r.placement.sets[0]:
             raise BgcError("--write: no sensor to add" + ("" if r.placement.sets else f" within --most {args.most}"),
                            None, "drop --write" if r.placement.sets else "raise --most")
-        with_sensors(args.model, r.placement.variables(r.placement.sets[0]), args.write)
-        text += f"wrote {printable(args.write)}: {args.model} with {', '.join(r.placement.sets[0])} added\n"
+        first = r.placement.sets[0]
+        read = r.placement.variables(first)
+        with_sensors(args.model, read, args.write)
+        named = [n if n == v else f"{n} (as {v})" for n, v in zip(first, read)]  # a second sensor: its variable
+        text += f"wrote {printable(args.write)}: {args.model} with {', '.join(named)} added\n"
     data = render.to_json(r.to_dict())
     if not args.output:
         sys.stdout.write(data if args.format == "json" else text)

@@ -133,9 +133,6 @@ class Diagnoser:
         self.decoder: ModeDecoder | None = None  # a hidden mode's reader (the data have no mode column)
         self.keep = keep_steps(config.options, self.nominal.DT)  # the record kept while watching (None: all)
         self.offset = 0  # the steps of the grid forgotten (step k of the loop is step offset + k of the data)
-        #: the watching test said, on the row just taken, that the model does not fit the record (with no change
-        #: in it): the record, its sentence's, is halved on the next row
-        self._misfit_now = False
 
     def hide(self) -> None:
         """Read the mode from the data (they have no mode column): every
@@ -253,13 +250,13 @@ class Diagnoser:
         loop = self.loop
         if self.keep is not None and len(loop.samples) >= 2 * self.keep and loop.detection is None \
                 and not self.switched and not self.finished:
-            if self._misfit_now:  # the misfit said on the last row read the record whole: halved now
-                self._misfit_now = False
-            else:
-                said = self._changed_while_watching()
-                if said:
-                    return said
-            self._forget(len(loop.samples) - self.keep)
+            said = self._changed_while_watching()
+            if said and not isinstance(said[0], ev.Mismatched):  # an alarm at a change point: the record stays
+                return said
+            cut = len(loop.samples) - self.keep
+            self._forget(cut)
+            # a misfit said (its times its own): its steps those of the record kept
+            return tuple(dataclasses.replace(e, step=e.step - cut, last=e.last - cut) for e in said)
         return ()
 
     def _changed_while_watching(self) -> tuple:
@@ -324,9 +321,9 @@ class Diagnoser:
         of the model's fit (``fitted``, at the watching level) with no
         change in it: the model does not fit this plant, said as the data
         come (a :class:`~bgc.events.Mismatched` over the record's ``T``
-        steps, what to calibrate), not left to the stream's end; the record
-        is halved on the next row (its sentence reads the record whole).
-        One test per diagnoser (its first record of ``2 keep`` steps; kept
+        steps, what to calibrate, the times and count of the record tested
+        its own: the record is halved right after), not left to the
+        stream's end. One test per diagnoser (its first record of ``2 keep`` steps; kept
         in its state), as the monitor's checkpoint test of the fit: tested
         at every halving of a stream that runs for months, a healthy plant
         would be said off its model by chance in the end; a misfit that
@@ -334,10 +331,10 @@ class Diagnoser:
         fit test (the CUSUM test alone flagged it), or on a later record."""
         if fitted.fits or self.offset:
             return ()
-        self._misfit_now = True
-        self.config.say(f"watching: the model does not fit the record kept (t = {self.time_of(0):.6g} to "
-                        f"{self.time_of(T - 1):.6g}), with no change in it")
-        return (misfit_event(self.config.package, T, fitted),)
+        span = (self.time_of(0), self.time_of(T - 1), T)
+        self.config.say(f"watching: the model does not fit the record kept (t = {span[0]:.6g} to {span[1]:.6g}), "
+                        "with no change in it")
+        return (misfit_event(self.config.package, T, fitted, span),)
 
     def _forget(self, cut: int) -> None:
         """Watching, with ``keep`` steps to keep: forget the record's first

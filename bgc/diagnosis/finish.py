@@ -204,14 +204,15 @@ def _to_calibrate(package, parameters: list, every: bool) -> tuple[str, ...]:
     return tuple(dict.fromkeys(["noise", *parameters]))
 
 
-def misfit_event(package, T: int, fitted: Fit) -> ev.Mismatched:
+def misfit_event(package, T: int, fitted: Fit, span: tuple | None = None) -> ev.Mismatched:
     """A record of ``T`` steps that fails the test of the model's fit
     (``fitted``) with no fault in view (a monitor's watching test,
     :meth:`bgc.diagnosis.diagnoser.Diagnoser._misfit`): its
     :class:`~bgc.events.Mismatched`, what to calibrate as
-    :func:`judged_fit` would say of the same record."""
+    :func:`judged_fit` would say of the same record; ``span``: the
+    record's first and last times and its samples (it is then halved)."""
     return ev.Mismatched(T - 1, T - 1, fitted.findings, False, LEAST, (),
-                         _to_calibrate(package, [], "mean" in fitted.failed))
+                         _to_calibrate(package, [], "mean" in fitted.failed), span=span)
 
 
 def _too_short(r: Record, by: dict, verdict: str, candidates: tuple[str, ...], end: int, onset: int | None) -> bool:

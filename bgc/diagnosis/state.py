@@ -38,13 +38,12 @@ from .options import UNBOUND, DiagnosisOptions
 from .values import Detection, Isolation
 
 #: The state's format; a state of another format is refused.
-VERSION = 12  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
+VERSION = 11  # 2: the options' input_timing (2026-12-03); 3: a record with its first steps forgotten; 4: the
 # parameters of faults accommodated (2026-12-04); 5: the detector's other families of tests (2026-12-04); 6: their
 # residuals in units of the sensors' noise, and what the readings tell (2026-12-04); 7: the pooled test's sums of
 # the residuals' predicted correlation (2026-12-04); 8: the options' no_fault (2026-12-04); 9: the drift family's
 # Kalman observer beside a particle one, and its rings (2026-12-05); 10: the matched test's whitened innovations
-# (2026-12-05); 11: the alarm raised at a change point while watching (2026-12-06); 12: the misfit said while
-# watching (2026-12-06)
+# (2026-12-05); 11: the alarm raised at a change point while watching (2026-12-06)
 #: The first bytes of a state file.
 MAGIC = b"bgc-diagnoser-state\n"
 
@@ -183,8 +182,6 @@ class DiagnoserState:
     start: tuple | None = None
     #: the parameters at other values than the model's ((name, value), ...: faults accommodated)
     theta: tuple = ()
-    #: the watching test said, on the last row, that the model does not fit the record (halved on the next)
-    misfit_now: bool = False
 
     def to_bytes(self) -> bytes:
         """The state as bytes (:meth:`from_bytes` reads them)."""
@@ -238,8 +235,7 @@ def diagnoser_state(d) -> DiagnoserState:
     """The state of diagnoser ``d``."""
     return DiagnoserState(VERSION, d.nominal.MODEL, d.offset + len(d.loop.samples), d.sampler.state(),
                           loop_state(d.loop), tuple(d.switched), d.infer_inputs, d.busy, d.finished,
-                          None if d.decoder is None else d.decoder.state(), d.offset, *package_state(d.config.package),
-                          d._misfit_now)
+                          None if d.decoder is None else d.decoder.state(), d.offset, *package_state(d.config.package))
 
 
 def package_state(package) -> tuple:
@@ -333,7 +329,6 @@ def restore_diagnoser(cls, config, state: DiagnoserState):
                             config.options.gap, config.options.input_timing or "end"))
     d.sampler.restore(state.sampler)
     d.offset = state.offset
-    d._misfit_now = state.misfit_now
     if state.start is not None or state.theta:  # a record started elsewhere, faults accommodated: its models'
         start = (None, None) if state.start is None else (np.array(state.start[0], dtype=float),
                                                            np.array(state.start[1], dtype=float))

@@ -363,8 +363,9 @@ class _Monitor:
             if self.d.offset != self.forgot:  # the diagnoser forgot its record's first steps: the rows before go too
                 self.rows, self.told = _kept(self.rows, self.told, self.d, self.d.offset - self.forgot)
                 self.forgot = self.d.offset
-        self.tell(belief.events)
-        if any(isinstance(e, ev.Mismatched) for e in belief.events):  # said while watching: not again at a checkpoint
+        said = self.mismatch_said  # a misfit said already (a checkpoint's): the watching test's not said again
+        self.tell([e for e in belief.events if not (said and isinstance(e, ev.Mismatched))])
+        if any(isinstance(e, ev.Mismatched) for e in belief.events):  # and one said here: not again at a checkpoint
             self.mismatch_said = True
         if self.log is not None:
             self.log.watch(belief, self.d)
