@@ -82,7 +82,7 @@ class Placement:
     def variables(self, names: Sequence[str]) -> list[str]:
         """The bond variables the candidates ``names`` read (a second sensor's is its measured quantity's)."""
         by = {c.name: c for c in self.candidates}
-        return [by[n].reads if n in by else n for n in names]
+        return [by[n].reads for n in names]
 
 
 def second(sensor: str) -> str:

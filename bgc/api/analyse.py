@@ -342,13 +342,11 @@ def _mode_candidates(c, read, costs) -> dict[str, tuple]:
             continue
         cost = 1.0 if costs is None else float(costs[name])
         here = {}
-        for m in c.modes:
-            expr = exprs[m.name].get(name)
-            also = frozenset(j for j, names in read[m.name].items() if name in names)
-            if expr is not None and expr.free_symbols and str(expr) not in measured[m.name]:
-                here[m.name] = placement.Candidate(name, expr, cost, also)
+        for mode, expr, also in _in_modes(c, exprs, read, name):
+            if expr is not None and expr.free_symbols and str(expr) not in measured[mode]:
+                here[mode] = placement.Candidate(name, expr, cost, also)
             elif also and (expr is None or not expr.free_symbols):  # it reads nothing there, but for the stuck switch
-                here[m.name] = placement.Candidate(name, sympy.Integer(0), cost, also)
+                here[mode] = placement.Candidate(name, sympy.Integer(0), cost, also)
         if not here:
             continue
         key = tuple((str(here[m.name].expr), tuple(sorted(here[m.name].also))) if m.name in here else None
@@ -361,6 +359,14 @@ def _mode_candidates(c, read, costs) -> dict[str, tuple]:
         per_name[name] = here
     per_name |= _mode_twins(c, exprs, read, costs)
     return {m.name: tuple(here[m.name] for here in per_name.values() if m.name in here) for m in c.modes}
+
+
+def _in_modes(c, exprs, read, name: str):
+    """Per mode of ``c``: its name, the expression of bond variable ``name``
+    there (``exprs``; None: no variable of that mode) and the stuck switches
+    that change it there (``read``: :func:`structure.stuck_readings`)."""
+    for m in c.modes:
+        yield m.name, exprs[m.name].get(name), frozenset(j for j, names in read[m.name].items() if name in names)
 
 
 def _mode_twins(c, exprs, read, costs) -> dict[str, dict]:
@@ -384,11 +390,9 @@ def _mode_twins(c, exprs, read, costs) -> dict[str, dict]:
             continue
         cost = 1.0 if costs is None else float(costs[name])
         here = {}
-        for m in c.modes:
-            expr = exprs[m.name].get(name)
-            also = frozenset(j for j, names in read[m.name].items() if name in names)
+        for mode, expr, also in _in_modes(c, exprs, read, name):
             if expr is not None and (expr.free_symbols or also):
-                here[m.name] = placement.Candidate(placement.second(sensor.name), expr, cost, also, name, sensor.name)
+                here[mode] = placement.Candidate(placement.second(sensor.name), expr, cost, also, name, sensor.name)
         if here:
             twins[placement.second(sensor.name)] = here
     return twins

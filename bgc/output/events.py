@@ -300,14 +300,11 @@ def mismatch_sentence(e: ev.Mismatched, time_of) -> str:
         why = (f"the model may not fit this plant: the fault's onset leaves {samples} sample(s) before it, fewer than "
                f"the {e.least} that would show the model fitted the plant before a fault; a fault since the data's "
                f"start and a model that does not fit give the same data")
-    elif e.span is not None:  # a record tested while watching, halved since: its times its own
-        first, last, count = e.span
-        why = (f"the model does not fit this plant: over the whole record (t = {time_text(first)} to "
-               f"{time_text(last)}, {count} samples) " + "; ".join(e.findings))
-    else:
-        span = "the whole record" if e.last == e.step else "the data before the fault"
-        why = (f"the model does not fit this plant: over {span} (t = {_t(time_of, 0)} to "
-               f"{_t(time_of, e.last)}, {samples} samples) " + "; ".join(e.findings))
+    else:  # a record tested while watching, halved since, carries its own times (span)
+        first, last, count = e.span or (time_of(0), time_of(e.last), samples)
+        span = "the whole record" if e.span is not None or e.last == e.step else "the data before the fault"
+        why = (f"the model does not fit this plant: over {span} (t = {'' if first is None else time_text(first)} to "
+               f"{'' if last is None else time_text(last)}, {count} samples) " + "; ".join(e.findings))
     if e.possible:
         why += f"; possibly a fault all the same: {', '.join(e.possible)}"
     words = ",".join(e.estimate)

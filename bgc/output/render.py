@@ -801,7 +801,7 @@ def distinguish_options(r) -> str:
 def placement_lines(p) -> list[str]:
     """``bgc analyse --place-sensors``'s answer, as lines."""
     detected, pairs = p.reachable
-    twins = sum(1 for c in p.candidates if getattr(c, "beside", ""))
+    twins = sum(1 for c in p.candidates if c.beside)
     lines = [f"sensor placement (structural{' and qualitative' if p.reachable_qualitative else ''}; candidates: "
              f"{len(p.candidates) - twins} bond variables no sensor reads"
              + (f", {twins} second sensor(s) on a measured quantity" if twins else "")
@@ -823,7 +823,7 @@ def placement_lines(p) -> list[str]:
     elif p.sets == ((),):
         lines.append("  no sensor to add: the sensors there give what every candidate would")
     else:
-        reads = {c.name: f"= {c.expr}" + (f", a second sensor beside {c.beside}" if getattr(c, "beside", "") else "")
+        reads = {c.name: f"= {c.expr}" + (f", a second sensor beside {c.beside}" if c.beside else "")
                  for c in p.candidates}
         lines.append(f"  the cheapest sets (cost {p.cost:g}), each enough" + (f" (the first {len(p.sets)}; there are "
                      "more)" if p.more else "") + ":")
