@@ -620,7 +620,11 @@ class Mismatched:
     ``timing_fits``: whether the model then fits it; ``timing_ratio``: the
     log of that likelihood ratio; ``span``: the first and last times of the
     data tested and their samples, when those are not the record's steps 0
-    to ``last`` (a monitor's record tested while watching, then halved)."""
+    to ``last`` (a monitor's record tested while watching, then halved);
+    ``said``: the time a monitor said it, on data its record has forgotten
+    since (``bgc monitor``'s report keeps it: ``step`` and ``last`` then
+    count the steps of the record as it was, and ``span`` holds the times),
+    None otherwise."""
 
     step: int
     last: int
@@ -633,6 +637,7 @@ class Mismatched:
     timing_fits: bool = False
     timing_ratio: float = 0.0
     span: tuple | None = None
+    said: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -316,6 +316,59 @@ def test_a_second_gauge_is_placed_across_the_modes_of_a_pumped_tank(tmp_path):
         assert level.isolable[0][1] and level.isolable[1][0] and not im[0][1] and not im[1][0], m.name
 
 
+def test_a_second_differential_gauge_on_an_expression_no_bond_carries(tmp_path):
+    """tests/data/models/three_tanks_dp.yaml: three tanks in a row, one
+    differential gauge dP = e2 - e10 across the first and the last (no bond
+    carries that difference: the pipes' efforts are e2 - e6 and e6 - e10),
+    which may drift off zero. Its one redundancy holds every equation: R12,
+    R23 and dP_offset are not told apart at all. A second gauge dP' on the
+    same expression holds no offset; with it the model less either pipe's
+    equation is still overdetermined (the two gauges fix e2 - e10 twice), and
+    so is the model less dP's equation: every fault told from every other
+    structurally. By the signatures dP' shows what dP shows of the pipes (a
+    rise of either resistance raises the first tank's pressure against the
+    last's) and nothing of dP's offset: the offset is told from both pipes
+    both ways, the pipes not from each other. Written (named dP_2, its text
+    the first gauge's), read back and analysed afresh, with the Fault
+    Diagnosis Toolbox agreeing; and a gauge whose text is an expression on a
+    model with modes (the pumped tank's gauge read as 2*e4) gets its second
+    in every mode."""
+    dp = ROOT / "tests" / "data" / "models" / "three_tanks_dp.yaml"
+    before = analyse(dp, quantitative=False)
+    assert before.get("structural").pairs() == set() and before.get("qualitative").pairs() == set()
+    p = analyse(dp, quantitative=False, place_sensors=True, place_by="structural").placement
+    twin = {c.name: c for c in p.candidates}["dP'"]
+    assert (twin.reads, twin.beside, twin.shows, str(twin.expr), twin.written) == \
+        ("e2 - e10", "dP", "dP", "-e10 + e2", ("dP_2", "e2 - e10"))
+    assert ("dP'",) in p.sets and p.written(["dP'"]) == [("dP_2", "e2 - e10")]
+    out = tmp_path / "two_gauges.yaml"
+    run = bgc_cli("analyse", dp, "--no-quantitative", "--place-sensors", "--place-by", "structural")
+    assert run.returncode == 0, run.stderr
+    assert "dP' (= -e10 + e2, a second sensor beside dP)" in run.stdout, run.stdout
+    with_sensors(dp, [twin.written], out)
+    assert "  dP_2: {expr: e2 - e10}\n" in out.read_text(encoding="utf-8")
+    placed = analyse(out, quantitative=False)
+    i, j, k = (placed.faults.index(f) for f in ("R12", "R23", "dP_offset"))
+    assert placed.get("structural").pairs() == {(a, b) for a in (i, j, k) for b in (i, j, k) if a != b}
+    assert placed.get("qualitative").pairs() == {(i, k), (k, i), (j, k), (k, j)}
+    im = fdt_model(placed.structure).IsolabilityAnalysis()  # im[a][b] = 1: a cannot be told from b
+    assert all(not im[a][b] for a in range(3) for b in range(3) if a != b), im
+    pumped = tmp_path / "scaled_gauge.yaml"
+    pumped.write_text((ROOT / "tests" / "data" / "models" / "pumped_gauge.yaml").read_text(encoding="utf-8")
+                      .replace("p: {expr: e4,", "p: {expr: 2*e4,"), encoding="utf-8")
+    q = analyse(pumped, quantitative=False, place_sensors=True).placement
+    assert ("p'",) in q.sets and q.written(["p'"]) == [("p_2", "2*e4")]
+    assert {str(c.expr) for c in q.candidates if c.name == "p'"} == {"2*e4"}
+    scaled = tmp_path / "two_scaled_gauges.yaml"
+    with_sensors(pumped, q.written(["p'"]), scaled)
+    c = compile_model(scaled)
+    sensors = {f.parameter: f.subject for f in c.model.faults if f.target == "sensor"}
+    for m in c.modes:  # in both modes the offset and the drain told apart both ways, as with the gauge on e4
+        level, model = isolability.structural(m.equations, ("R", "p_offset"), sensors, {})
+        im = fdt_model(model).IsolabilityAnalysis()
+        assert level.isolable[0][1] and level.isolable[1][0] and not im[0][1] and not im[1][0], m.name
+
+
 def test_sensor_placement_refuses_what_it_cannot_do_in_one_line(tmp_path):
     costs = tmp_path / "costs.yaml"
     for args, what in ((("--write", tmp_path / "x.yaml"), "--write applies to --place-sensors"),

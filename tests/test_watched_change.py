@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -174,11 +175,28 @@ def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_th
     assert said[0].endswith("--estimate noise,R_load)"), said[0]
     assert len(said) == 2 and said[1].startswith("t = 90: "), said  # the second: the end's verdict
     assert "switched_rc: mismatch" in p.stdout and "detected at" not in p.stdout, p.stdout
+    # the report keeps what was said at t = 30, on data its record (the last 15 s) forgot since, and the end's
+    kept = _misfits(tmp_path / "out")
+    assert [(e["time"], e["span"]) for e in kept] == [(30.0, [0.05, 30.0, 600]), (90.0, None)], kept
+    assert kept[0]["text"] == said[0][len("t = 30: "):] and kept[0]["step"] is None and kept[0]["last"] is None
+    assert f"- {said[0]}" in (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
+    # and so does the report of a monitor restarted from its state after it was said: the state holds it
+    head = "\n".join(text.splitlines()[:700]) + "\n"
+    first = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "--state",
+                    tmp_path / "state", "-o", tmp_path / "first", input=head)
+    assert first.returncode == 0 and said[0] in first.stdout, first.stdout
+    again = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "--state",
+                    tmp_path / "state", "-o", tmp_path / "again", input=text)
+    assert again.returncode == 0 and said[0] not in again.stdout, again.stdout  # said before the restart
+    assert [(e["time"], e["span"]) for e in _misfits(tmp_path / "again")] == [(30.0, [0.05, 30.0, 600]),
+                                                                              (90.0, None)]
     checked = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--checkpoint", "20", "--backend", "numpy",
                       "-o", tmp_path / "checked", input=text)  # the checkpoint's test says it first, at t = 20
     said = [line for line in checked.stdout.splitlines() if "the model does not fit this plant" in line]
     assert checked.returncode == 0 and len(said) == 2, checked.stdout  # not again at t = 30; the end's
     assert said[0].startswith("t = 20: ") and said[1].startswith("t = 90: "), said
+    assert [(e["time"], e["span"]) for e in _misfits(tmp_path / "checked")] == [(20.0, [0.05, 20.0, 400]),
+                                                                                (90.0, None)]
     nearer = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", tmp_path / "near",
                      input=supply(1800, 0.0, 1.0, 2))  # 5 ohm: within what the watching level lets pass
     assert nearer.returncode == 0 and "does not fit" not in nearer.stdout, nearer.stdout
@@ -198,6 +216,12 @@ def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_th
     assert [e for e in events if e[1] in ("Mismatched", "Alarmed", "ChangeMissed")] == [(600, "Mismatched")], events
     # its sentence read at the end, the record halved many times since, still names the record it tested
     assert "over the whole record (t = 0.05 to 30, 600 samples)" in sentence(kept[0], d.time_of)
+
+
+def _misfits(folder: Path) -> list[dict]:
+    """The misfits a monitor's report.json holds, in its order."""
+    report = json.loads((folder / "report.json").read_text(encoding="utf-8"))
+    return [e for e in report["events"] if e["event"] == "Mismatched"]
 
 
 def _kolmogorov_tail(x: float) -> float:

@@ -8,7 +8,8 @@ The candidates are the bond graph's efforts and flows (each different
 expression once, the first bond's name for it; none already measured), and a
 second sensor on each measured quantity whose sensor may fail (a sensor fault
 declared on it: hardware redundancy, the second reading holds none of the
-first's faults; named after the sensor with a prime, ``p'``), or those a
+first's faults; named after the sensor with a prime, ``p'``; on the sensor's
+expression when no bond variable equals it, a differential gauge's), or those a
 candidates file names, each with a cost (1 by default; a measured quantity
 named there is a second sensor on it). A set is
 *enough* when the model with those sensors added detects every fault the
@@ -45,14 +46,29 @@ class Candidate:
     #: stick, in a mode whose stuck configuration changes this variable: :func:`with_sensors`)
     also: frozenset = frozenset()
     #: The bond variable it reads when its name is not that (a second sensor: ``variable``, beside the
-    #: sensor ``beside`` that reads it already)
+    #: sensor ``beside`` that reads it already; the sensor's model text when that is an expression no bond
+    #: variable equals, a differential pressure across two tanks)
     variable: str = ""
     beside: str = ""
+    #: The temporal causal graph's node whose symbols it shows when that is not ``reads`` (a second
+    #: sensor on an expression: its sensor's own measurement node)
+    node: str = ""
 
     @property
     def reads(self) -> str:
-        """The bond variable the sensor reads."""
+        """The bond variable the sensor reads (its model text, for a second sensor on an expression)."""
         return self.variable or self.name
+
+    @property
+    def shows(self) -> str:
+        """The temporal causal graph's node whose symbols the sensor shows."""
+        return self.node or self.reads
+
+    @property
+    def written(self) -> tuple[str, str]:
+        """(name, model text) of the sensor in a model file: a bond variable's own name, or a second
+        sensor's on an expression named after its sensor (``dP_2``)."""
+        return (f"{self.beside}_2", self.reads) if self.node else (self.reads, self.reads)
 
 
 @dataclass(frozen=True)
@@ -80,9 +96,15 @@ class Placement:
     checked_now: tuple[int, int] | None = None
 
     def variables(self, names: Sequence[str]) -> list[str]:
-        """The bond variables the candidates ``names`` read (a second sensor's is its measured quantity's)."""
+        """The bond variables the candidates ``names`` read (a second sensor's is its measured quantity's;
+        on an expression, its model text)."""
         by = {c.name: c for c in self.candidates}
         return [by[n].reads for n in names]
+
+    def written(self, names: Sequence[str]) -> list[tuple[str, str]]:
+        """(name, model text) of each of the candidates ``names`` in a model file (:attr:`Candidate.written`)."""
+        by = {c.name: c for c in self.candidates}
+        return [by[n].written for n in names]
 
 
 def second(sensor: str) -> str:
@@ -99,7 +121,10 @@ def candidates(ssm, measured_exprs: Sequence, costs: Mapping[str, float] | None 
     fault is declared on), or the variables ``costs`` names with their
     costs (a measured one: a second sensor on it); of variables with one
     expression, the cheapest (then the first bond's; for a second sensor,
-    the variable its sensor's model text names, ``declared``, when it is one)."""
+    the variable its sensor's model text names, ``declared``, when it is one). A
+    sensor of ``faulty`` whose expression no bond variable has (its model text an
+    expression: a differential pressure across two tanks) gets a second sensor on
+    that expression, without a costs file (which prices bond variables)."""
     declared = declared or {}
     seen = {str(e): name for name, e in zip(ssm.outputs, measured_exprs)}
     best: dict[str, Candidate] = {}
@@ -118,6 +143,10 @@ def candidates(ssm, measured_exprs: Sequence, costs: Mapping[str, float] | None 
             if sensor not in twins or c.cost < twins[sensor].cost or \
                     (c.cost == twins[sensor].cost and name == declared.get(sensor)):
                 twins[sensor] = c
+    for sensor, expr in zip(ssm.outputs, measured_exprs):
+        if costs is None and sensor in faulty and sensor not in twins and expr.free_symbols:
+            twins[sensor] = Candidate(second(sensor), expr, 1.0, variable=declared.get(sensor, str(expr)),
+                                      beside=sensor, node=sensor)
     return tuple(best.values()) + tuple(twins[s] for s in ssm.outputs if s in twins)
 
 
@@ -295,7 +324,7 @@ def place_across(parts: Sequence[ModePart], most: int = 2) -> Placement:
         shown = {str(c.expr) for _, c in seen}
         expr = seen[0][1].expr if len(shown) == 1 else "; ".join(f"{c.expr} in {mode}" for mode, c in seen)
         every.append(Candidate(name, expr, min(c.cost for _, c in seen), variable=seen[0][1].variable,
-                               beside=seen[0][1].beside))
+                               beside=seen[0][1].beside, node=seen[0][1].node))
     every = tuple(every)
     now, q_now = _across(parts, (), qualitative)
     reachable, q_all = _across(parts, tuple(reads), qualitative)

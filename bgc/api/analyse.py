@@ -292,7 +292,7 @@ def _check_sets(model, placed, faults, now, settings: dict, say):
     with tempfile.TemporaryDirectory(prefix="bgc-placed-") as folder:
         for i, names in enumerate(placed.sets, start=1):
             say(f"sensor placement: set {i} of {len(placed.sets)} checked by bgc distinguish ({', '.join(names)})")
-            path = with_sensors(model, placed.variables(names), Path(folder) / f"placed_{i}.yaml")
+            path = with_sensors(model, placed.written(names), Path(folder) / f"placed_{i}.yaml")
             r = distinguishability(path, **settings)
             lv = isolability.quantitative(r.distinctions, faults, settings["level"])
             counts.append((sum(lv.detectable), len(lv.pairs())))
@@ -374,14 +374,24 @@ def _mode_twins(c, exprs, read, costs) -> dict[str, dict]:
     rule: beside a sensor a fault is declared on, or on a measured variable ``costs``
     names: the sensor's own, or one that reads the same in every mode), per mode where
     it reads something (or a stuck switch changes it), its candidate: a sensor whose
-    model text is one bond variable, read again (one whose text is an expression gets
-    none)."""
+    model text is one bond variable, read again; one whose text is an expression no
+    bond variable equals, that expression (each mode's, without a costs file: it
+    prices bond variables), changed by the stuck switches that change any of its
+    variables."""
+    import sympy
+
     from ..analysis import placement
 
     faulty = {f.subject for f in c.model.faults if f.target == "sensor"}
+    offsets = {sympy.Symbol(f.parameter): 0 for f in c.model.faults if f.target == "sensor"}
     twins: dict[str, dict] = {}
     for sensor in c.model.measurements:
         name = sensor.text.strip()
+        if costs is None and sensor.name in faulty and not any(name in exprs[m.name] for m in c.modes):
+            here = _expression_twin(c, read, sensor, offsets)
+            if here:
+                twins[placement.second(sensor.name)] = here
+            continue
         if costs is not None:  # the cheapest variable it names that reads the sensor's quantity in every mode
             same = [v for v in costs if v == name or all(str(exprs[m.name].get(v)) == str(exprs[m.name].get(name))
                                                           for m in c.modes)]
@@ -398,6 +408,23 @@ def _mode_twins(c, exprs, read, costs) -> dict[str, dict]:
     return twins
 
 
+def _expression_twin(c, read, sensor, offsets) -> dict:
+    """Per mode of ``c`` where ``sensor`` (its model text an expression) reads
+    something or a stuck switch changes one of its variables, the second
+    sensor on that expression (:func:`_mode_twins`)."""
+    from ..analysis import placement
+
+    variables = {s.name for s in sensor.expr.free_symbols}
+    here = {}
+    for m in c.modes:
+        expr = m.equations.output_exprs[list(m.equations.outputs).index(sensor.name)].subs(offsets)
+        also = frozenset(j for j, names in read[m.name].items() if variables & set(names))
+        if expr.free_symbols or also:
+            here[m.name] = placement.Candidate(placement.second(sensor.name), expr, 1.0, also, sensor.text.strip(),
+                                               sensor.name, sensor.name)
+    return here
+
+
 def _mode_signatures(c, m, mode, cands):
     """The signatures of mode ``m`` (its model's ``mode``) read at its
     sensors and then at each candidate of ``cands``: a bond variable's own
@@ -410,7 +437,7 @@ def _mode_signatures(c, m, mode, cands):
     ssm = m.equations
     live = tuple(x.name for x in cands if x.expr.free_symbols)
     zero = tuple(x.name for x in cands if not x.expr.free_symbols)
-    every = signatures.derive(ssm, live, {x.name: x.reads for x in cands})
+    every = signatures.derive(ssm, live, {x.name: x.shows for x in cands})
     nothing = ("0",) * (len(ssm.states) + 3)  # as deep as derive's: every integrator, a drift's order, and the value
     columns = tuple(ssm.outputs) + live + zero
     own = tuple(dataclasses.replace(s, symbols=s.symbols + (nothing,) * len(zero)) for s in every.signatures)
@@ -440,7 +467,7 @@ def _place(func: str, c, model_, costs, most: int, qualitative: bool):
     faulty = {f.subject for f in c.model.faults if f.target == "sensor"}  # a second sensor beside each of these
     cands = placement.candidates(c.equations, measured, costs, tuple(faulty),
                                  {m.name: m.text.strip() for m in c.model.measurements})
-    every = signatures.derive(c.equations, tuple(x.name for x in cands), {x.name: x.reads for x in cands}) \
+    every = signatures.derive(c.equations, tuple(x.name for x in cands), {x.name: x.shows for x in cands}) \
         if qualitative else None  # each one's symbols
     return placement.place(model_, c.equations, cands, most, every)
 
@@ -448,7 +475,9 @@ def _place(func: str, c, model_, costs, most: int, qualitative: bool):
 def with_sensors(model: str | Path, sensors, out: str | Path) -> Path:
     """Write ``model`` with measurements of the bond variables ``sensors``
     added (each named after its variable, or ``<variable>_sensor`` when that
-    name is taken; its noise the model's default) to the new file ``out``,
+    name is taken; its noise the model's default; an item may also be a pair
+    (name, model text): a second sensor on an expression, ``("dP_2", "e2 -
+    e10")``, :meth:`bgc.analysis.placement.Placement.written`) to the new file ``out``,
     never the model itself; the text is the model's, with a line per sensor
     and a comment above it, and reads back (checked). Returns ``out``."""
     from ..compiler import load, validate
@@ -471,8 +500,9 @@ def with_sensors(model: str | Path, sensors, out: str | Path) -> Path:
     bg = validate.validate(load.loads(text, str(model)))
     taken = {m.name for m in bg.measurements} | {p.name for p in bg.parameters} | {u.name for u in bg.inputs}
     changes = []
-    for v in sensors:
-        name = v if v not in taken else f"{v}_sensor"
+    pairs = [(v, v) if isinstance(v, str) else tuple(v) for v in sensors]
+    for wanted, v in pairs:
+        name = wanted if wanted not in taken else f"{wanted}_sensor"
         taken.add(name)
         changes.append(TextChange(("measurements", name), f"{{expr: {v}}}",
                                   f"# bgc analyse --place-sensors: a sensor added on {v}"))
@@ -483,6 +513,7 @@ def with_sensors(model: str | Path, sensors, out: str | Path) -> Path:
         from ..errors import InternalError
 
         raise InternalError(f"the model with its sensors does not read back with them ({sorted(added)})")
-    head = f"# {artifacts.MARK} analyse --place-sensors from {printable(str(model))}: {', '.join(sensors)} added\n"
+    head = (f"# {artifacts.MARK} analyse --place-sensors from {printable(str(model))}: "
+            f"{', '.join(v for _, v in pairs)} added\n")
     artifacts.write_file(target, head + out_text)
     return target

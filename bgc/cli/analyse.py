@@ -92,9 +92,10 @@ def run(args: argparse.Namespace) -> int:
             raise BgcError("--write: no sensor to add" + ("" if r.placement.sets else f" within --most {args.most}"),
                            None, "drop --write" if r.placement.sets else "raise --most")
         first = r.placement.sets[0]
-        read = r.placement.variables(first)
-        with_sensors(args.model, read, args.write)
-        named = [n if n == v else f"{n} (as {v})" for n, v in zip(first, read)]  # a second sensor: its variable
+        written = r.placement.written(first)
+        with_sensors(args.model, written, args.write)
+        named = [n if n == w else f"{n} (as {w}{'' if w == v else f': {v}'})"  # a second sensor: its variable
+                 for n, (w, v) in zip(first, written)]
         text += f"wrote {printable(args.write)}: {args.model} with {', '.join(named)} added\n"
     data = render.to_json(r.to_dict())
     if not args.output:

@@ -333,11 +333,16 @@ def record(e, time_of) -> dict:
         return None if t is None or not math.isfinite(t) else float(time_text(t))
 
     step = getattr(e, "step", None)
-    if step is not None:
+    said = getattr(e, "said", None)  # a misfit a monitor said on data its record forgot: its steps are the record's then
+    if said is not None:
+        out["time"] = float(time_text(said))
+    elif step is not None:
         out["time"] = when(step)
     for f in dataclasses.fields(e):
         v = getattr(e, f.name)
-        if f.name in STEP_FIELDS and v is not None:
+        if said is not None and f.name in STEP_FIELDS | {"step"}:
+            v = None
+        elif f.name in STEP_FIELDS and v is not None:
             out[f"{f.name}_step"] = list(v) if isinstance(v, tuple) else v
             v = [when(k) for k in v] if isinstance(v, tuple) else when(v)
         elif isinstance(v, float):

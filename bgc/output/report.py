@@ -27,6 +27,9 @@ def _same(text: Any) -> str:
 
 
 def _when(d, e) -> str:
+    said = getattr(e, "said", None)  # a misfit a monitor said on data its record forgot since
+    if said is not None:
+        return f"t = {events.time_text(said)}: "
     step = getattr(e, "step", None)
     return "" if step is None else f"t = {_tt(d, step)}: "
 

@@ -12,6 +12,7 @@ and the same report as ``bgc diagnose``'s is made.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import signal
 import stat
@@ -273,6 +274,9 @@ class _Monitor:
         self.told: set = set()
         #: the finding of a checkpoint whose verdict is mismatch was said (once per diagnoser)
         self.mismatch_said = False
+        #: every misfit said as the data came (:class:`~bgc.events.Mismatched`, dated: its ``said`` and ``span``
+        #: times), for the report of a record that forgot the data it was said on (:meth:`finish`), and the state
+        self.misfits: list[ev.Mismatched] = []
         #: the steps of a diagnoser's record at which its fit is tested while watching (:meth:`_fits`)
         self.fit_steps = None if checkpoint is None else max(
             FIT_STEPS, int(round(checkpoint / float(session.package.MODELS["nominal"].DT))))
@@ -280,7 +284,7 @@ class _Monitor:
         self.taken_out: set[str] = set()
         self.log = Episodes(session.package, rearm, exclude_faulty, session.view.labels.per_time) if episodes else None
         self.keep = _Keeper(session, options, checkpoint, self.columns, state, state_every, exclude_faulty, reading,
-                            self.log)
+                            self.log, self.misfits)
         self.after_saved = 0  # a restart's comment lines after its last saved row, taken before it
         self.saved = self.keep.load()
         self.ended = None  # (diagnoser, rows) of the episode closed or repaired last, until the next row
@@ -298,6 +302,7 @@ class _Monitor:
         from ..output.events import time_text
 
         self.excluded = [ev.SensorExcluded(*e) for e in saved.excluded]
+        self.misfits[:] = saved.misfits
         if self.log is not None and saved.episodes is not None:
             self.log.restore(saved.episodes)
             # the comment lines are counted afresh in this reading of the input: those of the rows it reads
@@ -320,13 +325,16 @@ class _Monitor:
     def time_of(self, step):
         return self.d.time_of(step)
 
-    def tell(self, events, time_of=None) -> None:
-        """Say ``events`` as lines, each with its time (``time_of``: of a step; default the diagnoser's)."""
+    def tell(self, events, time_of=None, final: bool = False) -> None:
+        """Say ``events`` as lines, each with its time (``time_of``: of a step; default the diagnoser's);
+        a misfit said as the data come (not ``final``: the end's) is kept, dated (:attr:`misfits`)."""
         from ..output.events import sentence, time_text
 
         time_of = time_of or self.time_of
         for e in events:
             self.told.add(e)
+            if isinstance(e, ev.Mismatched) and not final:
+                self.misfits.append(_dated(e, time_of))
             if isinstance(e, ev.SensorMissing) and e.sensor in self.taken_out:
                 continue  # taken out by the monitor, not missing from the data: said by its SensorExcluded
             step = getattr(e, "step", None)
@@ -495,13 +503,17 @@ class _Monitor:
         if self.excluded or self.taken_out:
             diagnosis = _with_exclusions(diagnosis, self.excluded, self.taken_out)
             told.update(self.excluded)
-        if self.log is not None and self.log.log:  # the fault log leads the events
-            diagnosis = dataclasses.replace(diagnosis, events=tuple(self.log.log) + tuple(diagnosis.events))
-            told.update(self.log.log)
+        # the fault log leads the events, then the misfits said on data the record forgot since (the end's test
+        # is of the data it kept: those said on the same data are its to say again)
+        first = d.loop.samples[0].t if d.loop.samples else math.inf
+        lead = ([] if self.log is None else list(self.log.log)) + [m for m in self.misfits if m.span[0] < first]
+        if lead:
+            diagnosis = dataclasses.replace(diagnosis, events=tuple(lead) + tuple(diagnosis.events))
+            told.update(lead)
         gone = {e.hypothesis for e in told if isinstance(e, (ev.Dropped, ev.Stopped))}  # dropped online: said
         self.tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))
                    and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
-                  diagnosis.time_of)  # what only the end says: the weighing's drops, the verdict
+                  diagnosis.time_of, final=True)  # what only the end says: the weighing's drops, the verdict
         return dataclasses.replace(self.session.report(run, diagnosis), stream=self.keep.stream)
 
 
@@ -520,6 +532,14 @@ def _nearly_full(d) -> bool:
     return most is not None and len(d.loop.samples) >= max(most - FULL_ROOM, most // 2)
 
 
+def _dated(e: ev.Mismatched, time_of) -> ev.Mismatched:
+    """Misfit ``e`` said as the data came, with the time it was said and
+    the times of the data it was said on (``time_of``: the diagnoser's
+    then): its sentence and time stay right once the record forgets them."""
+    first, last, count = e.span if e.span is not None else (time_of(0), time_of(e.last), e.last + 1)
+    return dataclasses.replace(e, said=float(time_of(e.step)), span=(float(first), float(last), int(count)))
+
+
 def _kept(rows: list, told: set, d, cut: int) -> tuple[list, set]:
     """The rows of the steps diagnoser ``d`` keeps in its record, and the
     events told with their steps ``cut`` earlier (those of the steps it
@@ -533,7 +553,7 @@ class _Keeper:
     """The monitor's state on disk, when a folder is given (:mod:`bgc.service.resume`)."""
 
     def __init__(self, session, options, checkpoint, columns, where, every: int, exclude_faulty: bool, reading=None,
-                 log: Episodes | None = None):
+                 log: Episodes | None = None, misfits: list | None = None):
         self.where = None if where is None else resume.folder(where)
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise BgcError(f"--state-every {every!r}: give the rows between saves, an integer >= 1", None,
@@ -542,6 +562,7 @@ class _Keeper:
                                                                  exclude_faulty, reading, log is not None,
                                                                  None if log is None else log.rearm)
         self.log = log
+        self.misfits = [] if misfits is None else misfits  # the monitor's list: the misfits said so far
         self.period, self.count = every, 0
         self.before: dict = {}
         self.stream: tuple = (0, None)  # the rows read in all and the first one's time, saved with the state
@@ -573,7 +594,7 @@ class _Keeper:
         if self.where is not None:
             resume.save(self.where, self.ident, rows, rows[-1][0] if rows else last_time, last_check, d,
                         tuple((e.sensor, e.finding, e.time, e.step) for e in excluded),
-                        None if self.log is None else self.log.plain(), self.stream)
+                        None if self.log is None else self.log.plain(), self.stream, self.misfits)
 
 
 def _with_exclusions(diagnosis, excluded: list, taken_out: set[str]):

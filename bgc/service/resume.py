@@ -16,6 +16,8 @@ moment leaves the last whole state). It holds, after the first line
 - the rows the diagnoser took (since the last sensor was taken out), as a NumPy array file (``allow_pickle=False``):
   the final report is made of them, also when the files they came from are
   gone;
+- the misfits the monitor said as the data came (dated: said at, the data's
+  times), in the header, for the report of a record that forgot their data;
 - the diagnoser's state (:meth:`~bgc.diagnosis.state.DiagnoserState.to_bytes`,
   read back by an unpickler that makes nothing but a state's types).
 
@@ -65,6 +67,8 @@ class Saved:
     episodes: dict | None = None
     #: the stream's rows read to here, in all, and the first one's time (the report says them)
     stream: tuple = (0, None)
+    #: the misfits said as the data came (:class:`~bgc.events.Mismatched`, dated: ``said`` and ``span``)
+    misfits: tuple = ()
 
 
 def identity(session, options, checkpoint: float | None, columns: list[str], exclude_faulty: bool = False,
@@ -119,10 +123,11 @@ def _head(path: Path) -> bytes:
 
 
 def save(where: Path, ident: dict, rows: list, last_time: float, last_check: float | None, d,
-         excluded: tuple = (), episodes: dict | None = None, stream: tuple = (0, None)) -> None:
+         excluded: tuple = (), episodes: dict | None = None, stream: tuple = (0, None), misfits=()) -> None:
     """Write the state of diagnoser ``d`` after ``rows``, atomically
     (``excluded``: the sensors taken out before; ``episodes``: the fault
     log; ``stream``: the rows read in all and the first one's time;
+    ``misfits``: those said so far;
     :class:`Saved`): a new
     file, made afresh (never through a link), flushed to the disk, renamed
     over the last state."""
@@ -132,7 +137,7 @@ def save(where: Path, ident: dict, rows: list, last_time: float, last_check: flo
     payload = table.getvalue() + d.to_state().to_bytes()
     header = {"format": FORMAT, "identity": ident, "rows": len(rows), "last_time": last_time,
               "last_check": last_check, "excluded": [list(e) for e in excluded], "episodes": episodes,
-              "stream": list(stream)}
+              "stream": list(stream), "misfits": [_plain(dataclasses.asdict(m)) for m in misfits]}
     header["sha256"] = _digest(header, payload)
     data = b"".join([MAGIC, json.dumps(header).encode("utf-8"), b"\n", payload])
     tmp = where / PARTIAL
@@ -198,6 +203,7 @@ def load(where: Path, ident: dict) -> Saved | None:
         last_time, last_check = float(header["last_time"]), header.get("last_check")
         read, first = header.get("stream", (0, None))
         stream = (int(read), None if first is None else float(first))
+        misfits = tuple(_misfit(m) for m in header.get("misfits", ()))
     except (ValueError, TypeError, EOFError, OSError, BgcError) as exc:
         raise BgcError(f"{where_}: the state cannot be read ({printable(str(exc).splitlines()[0])})", None,
                        fix) from None
@@ -207,7 +213,18 @@ def load(where: Path, ident: dict) -> Saved | None:
     if episodes is not None and not isinstance(episodes, dict):
         raise BgcError(f"{where_}: the state's fault log cannot be read", None, fix)
     return Saved(rows, last_time, last_check if last_check is None else float(last_check), state, excluded,
-                 episodes, stream)
+                 episodes, stream, misfits)
+
+
+def _misfit(plain: dict):
+    """A misfit said (:class:`~bgc.events.Mismatched`) from the header's plain data; a
+    ValueError or TypeError when it is not one."""
+    from ..events import Mismatched
+
+    if not isinstance(plain, dict) or not isinstance(plain.get("span"), list) or plain.get("said") is None:
+        raise ValueError("a misfit said cannot be read")
+    return Mismatched(**{k: tuple(tuple(x) if isinstance(x, list) else x for x in v) if isinstance(v, list) else v
+                         for k, v in plain.items()})
 
 
 def _digest(header: dict, payload: bytes) -> str:
