@@ -25,7 +25,8 @@ circuit by the matrix exponential of its equations (tests/test_mismatch.py's
 docs/examples/switched_rc.yaml by solve_ivp (tests/test_watched_change.py's
 ``supply``), 1800 samples kept 15 s (two tests). Printed: the runs, those the
 detector's own tests alarmed on (a record with an alarm is not tested), the alarms
-the watching test raised, the verdicts. Each run on NumPy, cubature Kalman
+the watching test raised, the runs where it said the model does not fit (the
+diagnosis's events hold that misfit, dated), the verdicts. Each run on NumPy, cubature Kalman
 filters for the circuit (the test reads the nominal Kalman track either way).
 
 ``cost``: one test's seconds, the screen a particle observer's residuals get
@@ -101,11 +102,11 @@ def off(runs: int, factor: float, plants: list[str]) -> None:
     import test_mismatch as M
     import test_watched_change as W
 
-    print(f"{'plant':8s} {'runs':>5} {'detector':>9} {'alarms':>7}  verdicts")
+    print(f"{'plant':8s} {'runs':>5} {'detector':>9} {'alarms':>7} {'misfit said':>11}  verdicts")
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "run.csv"
         for plant in plants:
-            verdicts, alarms, detected = collections.Counter(), 0, 0
+            verdicts, alarms, detected, said = collections.Counter(), 0, 0, 0
             if plant == "supply":
                 s = bgc.open(W.MODEL, backend="numpy")
                 base, noise = (W.R_S, W.C, W.R_LOAD), dict(W.NOISE)
@@ -130,12 +131,13 @@ def off(runs: int, factor: float, plants: list[str]) -> None:
                     options = DiagnosisOptions(keep=KEEP * M.DT, filter="ckf", workers=1)
                 d = bgc.diagnose(s, path, options=options).diagnosis
                 alarms += any(type(e).__name__ == "ChangeMissed" and e.watching for e in d.events)
+                said += any(type(e).__name__ == "Mismatched" and e.said is not None for e in d.events)
                 verdicts[d.verdict] += 1
                 detected += d.detection is not None and d.detection.test != "change"
             if plant == "supply":
                 W.R_S, W.C, W.R_LOAD = base
                 W.NOISE = noise
-            print(f"{plant:8s} {runs:5d} {detected:9d} {alarms:7d}  "
+            print(f"{plant:8s} {runs:5d} {detected:9d} {alarms:7d} {said:11d}  "
                   f"{', '.join(f'{k} {n}' for k, n in sorted(verdicts.items()))}", flush=True)
 
 

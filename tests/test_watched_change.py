@@ -144,6 +144,40 @@ def test_a_load_step_the_observer_follows_is_found_before_its_record_is_forgotte
 
 
 @pytest.mark.slow
+def test_a_verdict_made_again_with_every_fault_model_keeps_the_watching_alarm(monkeypatch):
+    """When the verdict at the end is made again with every fault model (an
+    unexplained verdict with fault models the symbols ruled out:
+    Diagnoser._retry), the alarm the record's test raised at a change point
+    while watching is raised again in the record made anew (Loop.forced):
+    its detector does not alarm either, so without it the replay would see
+    no fault. The load step of the test above, the retry asked for once
+    here: the diagnosis made again alarms at the same change point and
+    names R_load's step."""
+    import bgc
+    from bgc.diagnosis.diagnoser import Diagnoser
+    from bgc.diagnosis.options import DiagnosisOptions
+
+    asked = []
+    retry = Diagnoser._retry
+
+    def once(self, d, loop=None):
+        if not asked and (self.loop if loop is None else loop).forced is not None:
+            asked.append(d.detection)
+            return True
+        return retry(self, d, loop)
+
+    monkeypatch.setattr(Diagnoser, "_retry", once)
+    d = bgc.open(MODEL, backend="numpy").diagnoser(DiagnosisOptions(keep=15.0, workers=1))
+    for row in supply(1800, 45.0, 3.0, 2).splitlines()[1:]:
+        t, mode, v, v_c, i_s = (float(x) for x in row.split(","))
+        d.step(t, {"V": v, "mode": mode}, {"v_C": v_c, "i_s": i_s})
+    final = d.finish()
+    assert asked and asked[0].test == "change", asked
+    assert final.detection.test == "change" and final.detection.step == asked[0].step, final.detection
+    assert final.verdict == "isolated" and final.candidates[0] == "R_load_abrupt", (final.verdict, final.candidates)
+
+
+@pytest.mark.slow
 def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_the_record(tmp_path):
     """R_load 6 ohm where the model says 4, from the first sample: the
     observer follows the plant (no alarm), and a larger load drains the
@@ -216,6 +250,11 @@ def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_th
     assert [e for e in events if e[1] in ("Mismatched", "Alarmed", "ChangeMissed")] == [(600, "Mismatched")], events
     # its sentence read at the end, the record halved many times since, still names the record it tested
     assert "over the whole record (t = 0.05 to 30, 600 samples)" in sentence(kept[0], d.time_of)
+    # a batch diagnosis keeping 15 s says it too, dated, among the final diagnosis's events
+    (tmp_path / "run.csv").write_text(text, encoding="utf-8")
+    batch = bgc.diagnose(session, tmp_path / "run.csv", options=DiagnosisOptions(keep=15.0, workers=1)).diagnosis
+    said = [e for e in batch.events if type(e).__name__ == "Mismatched" and e.said is not None]
+    assert [(e.said, e.span) for e in said] == [(30.0, (0.05, 30.0, 600))], batch.events
 
 
 def _misfits(folder: Path) -> list[dict]:

@@ -93,10 +93,13 @@ onset's weighted mean plus or minus the normal quantile times its weighted std.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 from ..ir import FaultSignatures
 from ..data.sampler import grid_steps, samples
+from .. import events as ev
 from .diagnoser import IDENTIFY, KALMAN_METHOD, Diagnoser
+from .finish import dated_misfit, forgotten_misfits
 from .openloop import PATHS
 from ..data.runs import Run, input_columns
 from .values import Belief, Diagnosis, Estimate, Hypothesis, Live
@@ -127,9 +130,12 @@ def diagnose(run: Run, package: Package, signatures: FaultSignatures, priors: di
     d = Diagnoser(package, signatures, priors, options, horizon_steps(options.horizon, nominal.DT, steps),
                   inputs=input_columns(run), sensors=run.measurements, source=run.source, lazy=True, every=every,
                   progress=progress)
+    said = []  # the misfits said while watching, dated: the record may forget their data after
     for s in samples(run, d.sampler):
-        d.take(s)
-    return d.finish(run)
+        said += [dated_misfit(e, d.time_of) for e in d.take(s).events if isinstance(e, ev.Mismatched)]
+    diagnosis = d.finish(run)
+    lead = forgotten_misfits(said, diagnosis)
+    return replace(diagnosis, events=(*lead, *diagnosis.events)) if lead else diagnosis
 
 
 def horizon_steps(horizon: float | None, dt: float, record: int) -> int:

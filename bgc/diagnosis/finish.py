@@ -215,6 +215,24 @@ def misfit_event(package, T: int, fitted: Fit, span: tuple | None = None) -> ev.
                          _to_calibrate(package, [], "mean" in fitted.failed), span=span)
 
 
+def dated_misfit(e: ev.Mismatched, time_of) -> ev.Mismatched:
+    """Misfit ``e`` said as the data came (a diagnoser's watching test, a
+    monitor's checkpoint), with the time it was said and the times of the
+    data it was said on (``time_of``: the diagnoser's then): its sentence and
+    time stay right once the record forgets them."""
+    first, last, count = e.span if e.span is not None else (time_of(0), time_of(e.last), e.last + 1)
+    return replace(e, said=float(time_of(e.step)), span=(float(first), float(last), int(count)))
+
+
+def forgotten_misfits(said, d: Diagnosis) -> list[ev.Mismatched]:
+    """The misfits ``said`` as the data came (:func:`dated_misfit`) on data
+    the record of diagnosis ``d`` no longer holds (from before its first
+    step): those its events are led by. Those said on data it still holds
+    are its own test's to say again."""
+    first = float(d.time[0]) if len(d.time) else math.inf
+    return [e for e in said if e.span[0] < first]
+
+
 def _too_short(r: Record, by: dict, verdict: str, candidates: tuple[str, ...], end: int, onset: int | None) -> bool:
     """Whether fewer than LEAST samples come before the fault's onset (the
     earlier of ``end``, the stretch tested's, and ``onset``; an unexplained

@@ -231,7 +231,8 @@ def _quadratic(logd: np.ndarray, first: int, last: int, top_at: int) -> bool:
     if last - first < 3:
         return True
     k = min(max(top_at, first + 1), last - 1)
-    bends = [float(logd[j - 1] - 2.0 * logd[j] + logd[j + 1]) for j in (k - 1, k, k + 1) if first < j < last]
+    with np.errstate(invalid="ignore"):  # a point without a likelihood (-inf): a bend of nan, said below
+        bends = [float(logd[j - 1] - 2.0 * logd[j] + logd[j + 1]) for j in (k - 1, k, k + 1) if first < j < last]
     if len(bends) < 2 or not all(math.isfinite(b) for b in bends) or max(abs(b) for b in bends) < 1.0:
         return True  # too few to tell, or bent less than a unit of log density per spacing: a broad row
     if not all(b < 0.0 for b in bends):  # bent the other way beside it

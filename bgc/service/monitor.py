@@ -12,7 +12,6 @@ and the same report as ``bgc diagnose``'s is made.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import signal
 import stat
@@ -29,6 +28,7 @@ from .. import events as ev
 from ..data import runs
 from ..data.columns import MODE, Reading
 from ..analysis import track
+from ..diagnosis.finish import dated_misfit, forgotten_misfits
 from ..diagnosis.options import DiagnosisOptions
 from . import resume
 from .episodes import Episodes, frozen_finding, frozen_unsized, repair_of
@@ -334,7 +334,7 @@ class _Monitor:
         for e in events:
             self.told.add(e)
             if isinstance(e, ev.Mismatched) and not final:
-                self.misfits.append(_dated(e, time_of))
+                self.misfits.append(dated_misfit(e, time_of))
             if isinstance(e, ev.SensorMissing) and e.sensor in self.taken_out:
                 continue  # taken out by the monitor, not missing from the data: said by its SensorExcluded
             step = getattr(e, "step", None)
@@ -505,8 +505,7 @@ class _Monitor:
             told.update(self.excluded)
         # the fault log leads the events, then the misfits said on data the record forgot since (the end's test
         # is of the data it kept: those said on the same data are its to say again)
-        first = d.loop.samples[0].t if d.loop.samples else math.inf
-        lead = ([] if self.log is None else list(self.log.log)) + [m for m in self.misfits if m.span[0] < first]
+        lead = ([] if self.log is None else list(self.log.log)) + forgotten_misfits(self.misfits, diagnosis)
         if lead:
             diagnosis = dataclasses.replace(diagnosis, events=tuple(lead) + tuple(diagnosis.events))
             told.update(lead)
@@ -530,14 +529,6 @@ def _nearly_full(d) -> bool:
     monitor with the memory rule's error)."""
     most = d.config.most
     return most is not None and len(d.loop.samples) >= max(most - FULL_ROOM, most // 2)
-
-
-def _dated(e: ev.Mismatched, time_of) -> ev.Mismatched:
-    """Misfit ``e`` said as the data came, with the time it was said and
-    the times of the data it was said on (``time_of``: the diagnoser's
-    then): its sentence and time stay right once the record forgets them."""
-    first, last, count = e.span if e.span is not None else (time_of(0), time_of(e.last), e.last + 1)
-    return dataclasses.replace(e, said=float(time_of(e.step)), span=(float(first), float(last), int(count)))
 
 
 def _kept(rows: list, told: set, d, cut: int) -> tuple[list, set]:
