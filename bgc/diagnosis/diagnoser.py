@@ -726,7 +726,11 @@ class Diagnoser:
                                                   and np.isfinite(z[at:, j]).sum() >= LEAST)]
         statistics, cut = change_statistics(z[:, both], at) if both else ({}, np.inf)
         moved = tuple(outputs[both[i]] for i, value in statistics.items() if not value <= cut)
-        if not moved or not misfit_before(z, at) < 0 or _new_point(self.nominal, us, at):
+        # the data before the change point vouch for the model only where they are decisively (the Bayes factor)
+        # likelier under it than like the data after it: a few samples before a misfit's start (the observer's
+        # first steps, a record's first after it was halved) cannot tell a change from a model that never fitted
+        if not moved or not misfit_before(z, at) < -math.log(loop.options.bayes_factor) \
+                or _new_point(self.nominal, us, at):
             return None
         i = max(statistics, key=lambda i: np.nan_to_num(statistics[i], nan=np.inf))
         return Detection(at, outputs[both[i]], T - at, statistics[i], cut, at, "change"), moved
