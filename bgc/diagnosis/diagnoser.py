@@ -624,8 +624,10 @@ class Diagnoser:
         (the generalised likelihood ratio's of a mean shift over the record, every sensor; at least
         :data:`~bgc.diagnosis.fit.LEAST` samples each side) pass it, some sensor read on both sides has
         residuals that differ after it from before beyond chance (:func:`~bgc.diagnosis.fit.changed`),
-        the data before it are likelier under the model than like those after it
-        (:func:`~bgc.diagnosis.fit.misfit_before` negative), and the inputs after it stay within the
+        the data before it are decisively likelier under the model than like those after it
+        (:func:`~bgc.diagnosis.fit.misfit_before` under minus the log of the options' ``bayes_factor``:
+        a few samples before a change point at a record's start cannot vouch for the model), and the
+        inputs after it stay within the
         range they had before, the modes among those seen before (a model whose misfit only a new
         operating point excites, a capacitance off that an input step shows, passes the other tests: it
         stays a mismatch). Not after an alarm (a false one, or a glitch, made again), nor when the
