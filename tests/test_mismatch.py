@@ -134,6 +134,31 @@ def test_a_change_at_a_records_start_is_no_change_of_a_plant_off_its_model(tmp_p
 
 
 @pytest.mark.slow
+def test_a_fault_named_after_a_misfit_said_on_data_before_it_is_a_possibility_beside_the_mismatch(tmp_path):
+    """The same circuit's plant of seed 6: its record, tested when it holds
+    2048 samples (t = 0.05 to 102.4), fails the test of the fit (e11's
+    residuals average +0.12 stds) and is said off the model, then halved;
+    at the next sample the detector's mean test alarms (a window of 32
+    samples). The record kept (from t = 51.25) fits before the fault's
+    onset (t = 90.45) at the end's level, and L's faults were named
+    "ambiguous". But most of the data the misfit was said on (t = 0.05 to
+    90.45 of 102.4) precede that onset: the model did not fit the plant
+    before the fault. The verdict is mismatch, L's faults possibilities,
+    the misfit said carrying them."""
+    from bgc.diagnosis.options import DiagnosisOptions
+
+    plant_csv(tmp_path / "run.csv", 506, 0.03, 1.0, steps=2100)
+    d = bgc.diagnose(session("circuit"), tmp_path / "run.csv",
+                     options=DiagnosisOptions(keep=1024 * DT, filter="ckf", workers=1)).diagnosis
+    assert d.detection is not None and d.detection.test == "mean"
+    assert d.verdict == "mismatch" and set(d.candidates) == {"L_incipient", "L_abrupt"}, (d.verdict, d.candidates)
+    said = [e for e in d.events if type(e).__name__ == "Mismatched" and e.said is not None]
+    assert [(e.said, e.span, set(e.possible)) for e in said] == [(102.4, (0.05, 102.4, 2048),
+                                                                   {"L_incipient", "L_abrupt"})], said
+    assert float(d.time[d.onset_step]) - 0.05 >= 0.5 * (102.4 - 0.05)  # most of its data before the onset
+
+
+@pytest.mark.slow
 def test_the_same_simulator_with_the_models_numbers_gives_no_fault(tmp_path):
     """The test is no alarm on everything another simulator makes: with the
     model's parameters and noise, its runs fit (two seeds; the rate over

@@ -93,13 +93,12 @@ onset's weighted mean plus or minus the normal quantile times its weighted std.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 from ..ir import FaultSignatures
 from ..data.sampler import grid_steps, samples
 from .. import events as ev
 from .diagnoser import IDENTIFY, KALMAN_METHOD, Diagnoser
-from .finish import dated_misfit, forgotten_misfits
+from .finish import dated_misfit, with_misfits_said
 from .openloop import PATHS
 from ..data.runs import Run, input_columns
 from .values import Belief, Diagnosis, Estimate, Hypothesis, Live
@@ -133,9 +132,7 @@ def diagnose(run: Run, package: Package, signatures: FaultSignatures, priors: di
     said = []  # the misfits said while watching, dated: the record may forget their data after
     for s in samples(run, d.sampler):
         said += [dated_misfit(e, d.time_of) for e in d.take(s).events if isinstance(e, ev.Mismatched)]
-    diagnosis = d.finish(run)
-    lead = forgotten_misfits(said, diagnosis)
-    return replace(diagnosis, events=(*lead, *diagnosis.events)) if lead else diagnosis
+    return with_misfits_said(d.finish(run), said)
 
 
 def horizon_steps(horizon: float | None, dt: float, record: int) -> int:

@@ -233,6 +233,32 @@ def forgotten_misfits(said, d: Diagnosis) -> list[ev.Mismatched]:
     return [e for e in said if e.span[0] < first]
 
 
+def with_misfits_said(d: Diagnosis, said) -> Diagnosis:
+    """Diagnosis ``d`` with the misfits ``said`` as the data came on data
+    its record forgot since (:func:`forgotten_misfits`) leading its events;
+    and a verdict that names faults made ``mismatch``, the faults kept as
+    possibilities, when one of those misfits was said on data most of which
+    precede the fault's onset (its span's first half, at least): the model
+    was found not to fit the plant before the fault, on data the end's test
+    of the fit before the onset no longer reads (a record bounded while
+    watching keeps its last part only). A fault over less than half of those
+    data would have had to move them twice as far as their misfit, within
+    the detector's reach, and it raised no alarm before the misfit was
+    said. The last such misfit carries the possibilities."""
+    lead = forgotten_misfits(said, d)
+    if not lead:
+        return d
+    verdict, events = d.verdict, list(d.events)
+    if d.verdict in ("isolated", "ambiguous") and d.onset_step is not None:
+        onset = float(d.time[min(d.onset_step, len(d.time) - 1)])
+        before = [i for i, e in enumerate(lead) if onset - e.span[0] >= 0.5 * (e.span[1] - e.span[0])]
+        if before:
+            verdict = "mismatch"
+            lead[before[-1]] = replace(lead[before[-1]], possible=tuple(d.candidates))
+            events = [replace(e, verdict=verdict) if isinstance(e, ev.Decided) else e for e in events]
+    return replace(d, verdict=verdict, events=(*lead, *events))
+
+
 def _too_short(r: Record, by: dict, verdict: str, candidates: tuple[str, ...], end: int, onset: int | None) -> bool:
     """Whether fewer than LEAST samples come before the fault's onset (the
     earlier of ``end``, the stretch tested's, and ``onset``; an unexplained

@@ -28,7 +28,7 @@ from .. import events as ev
 from ..data import runs
 from ..data.columns import MODE, Reading
 from ..analysis import track
-from ..diagnosis.finish import dated_misfit, forgotten_misfits
+from ..diagnosis.finish import dated_misfit, forgotten_misfits, with_misfits_said
 from ..diagnosis.options import DiagnosisOptions
 from . import resume
 from .episodes import Episodes, frozen_finding, frozen_unsized, repair_of
@@ -275,8 +275,10 @@ class _Monitor:
         #: the finding of a checkpoint whose verdict is mismatch was said (once per diagnoser)
         self.mismatch_said = False
         #: every misfit said as the data came (:class:`~bgc.events.Mismatched`, dated: its ``said`` and ``span``
-        #: times), for the report of a record that forgot the data it was said on (:meth:`finish`), and the state
+        #: times), for the report of a record that forgot the data it was said on (:meth:`finish`), and the state:
+        #: the diagnoser's that watches now (they weigh on its verdict), and those of the diagnosers before it
         self.misfits: list[ev.Mismatched] = []
+        self.earlier_misfits: list[ev.Mismatched] = []
         #: the steps of a diagnoser's record at which its fit is tested while watching (:meth:`_fits`)
         self.fit_steps = None if checkpoint is None else max(
             FIT_STEPS, int(round(checkpoint / float(session.package.MODELS["nominal"].DT))))
@@ -284,7 +286,7 @@ class _Monitor:
         self.taken_out: set[str] = set()
         self.log = Episodes(session.package, rearm, exclude_faulty, session.view.labels.per_time) if episodes else None
         self.keep = _Keeper(session, options, checkpoint, self.columns, state, state_every, exclude_faulty, reading,
-                            self.log, self.misfits)
+                            self.log, (self.earlier_misfits, self.misfits))
         self.after_saved = 0  # a restart's comment lines after its last saved row, taken before it
         self.saved = self.keep.load()
         self.ended = None  # (diagnoser, rows) of the episode closed or repaired last, until the next row
@@ -302,7 +304,7 @@ class _Monitor:
         from ..output.events import time_text
 
         self.excluded = [ev.SensorExcluded(*e) for e in saved.excluded]
-        self.misfits[:] = saved.misfits
+        self.earlier_misfits[:], self.misfits[:] = saved.misfits
         if self.log is not None and saved.episodes is not None:
             self.log.restore(saved.episodes)
             # the comment lines are counted afresh in this reading of the input: those of the rows it reads
@@ -345,6 +347,12 @@ class _Monitor:
         """A new diagnoser took over (an episode closed, a repair): its record starts empty."""
         self.rows, self.last_check, self.forgot, self.told = [], None, 0, set()
         self.mismatch_said = False
+        self._misfits_earlier()
+
+    def _misfits_earlier(self) -> None:
+        """The misfits said so far are an earlier diagnoser's: in the report, not on the next one's verdict."""
+        self.earlier_misfits.extend(self.misfits)
+        self.misfits.clear()
 
     # -- a row -------------------------------------------------------------------------------------------------
 
@@ -477,6 +485,7 @@ class _Monitor:
         self.d = self._diagnoser()
         self.rows, self.last_check, self.forgot = [], None, 0
         self.mismatch_said = False
+        self._misfits_earlier()
 
     # -- the end -----------------------------------------------------------------------------------------------
 
@@ -498,17 +507,20 @@ class _Monitor:
         cols = self.columns
         run = runs.run_of(cols, np.array(rows, dtype=float).reshape(len(rows), len(cols)), self.reader.header,
                           self.name)
-        diagnosis = d.finish(run)
+        # led by the misfits said on data the record forgot (this diagnoser's weigh on its verdict), and those
+        # of the diagnosers before it
+        diagnosis = with_misfits_said(d.finish(run), self.misfits)
+        if self.earlier_misfits:
+            diagnosis = dataclasses.replace(diagnosis, events=(*self.earlier_misfits, *diagnosis.events))
         told = self.told
+        told.update(self.earlier_misfits)
         if self.excluded or self.taken_out:
             diagnosis = _with_exclusions(diagnosis, self.excluded, self.taken_out)
             told.update(self.excluded)
-        # the fault log leads the events, then the misfits said on data the record forgot since (the end's test
-        # is of the data it kept: those said on the same data are its to say again)
-        lead = ([] if self.log is None else list(self.log.log)) + forgotten_misfits(self.misfits, diagnosis)
-        if lead:
-            diagnosis = dataclasses.replace(diagnosis, events=tuple(lead) + tuple(diagnosis.events))
-            told.update(lead)
+        told.update(forgotten_misfits(self.misfits, diagnosis))  # said as the data came (one given possibilities: anew)
+        if self.log is not None and self.log.log:  # the fault log leads the events
+            diagnosis = dataclasses.replace(diagnosis, events=tuple(self.log.log) + tuple(diagnosis.events))
+            told.update(self.log.log)
         gone = {e.hypothesis for e in told if isinstance(e, (ev.Dropped, ev.Stopped))}  # dropped online: said
         self.tell([e for e in diagnosis.events if e not in told and not isinstance(e, (ev.Started, ev.Isolated))
                    and not (isinstance(e, ev.Dropped) and e.hypothesis in gone)],
@@ -553,7 +565,8 @@ class _Keeper:
                                                                  exclude_faulty, reading, log is not None,
                                                                  None if log is None else log.rearm)
         self.log = log
-        self.misfits = [] if misfits is None else misfits  # the monitor's list: the misfits said so far
+        #: the monitor's lists of the misfits said so far: (the earlier diagnosers', the one watching now's)
+        self.misfits = ([], []) if misfits is None else misfits
         self.period, self.count = every, 0
         self.before: dict = {}
         self.stream: tuple = (0, None)  # the rows read in all and the first one's time, saved with the state

@@ -67,8 +67,9 @@ class Saved:
     episodes: dict | None = None
     #: the stream's rows read to here, in all, and the first one's time (the report says them)
     stream: tuple = (0, None)
-    #: the misfits said as the data came (:class:`~bgc.events.Mismatched`, dated: ``said`` and ``span``)
-    misfits: tuple = ()
+    #: the misfits said as the data came (:class:`~bgc.events.Mismatched`, dated: ``said`` and ``span``): those
+    #: of the diagnosers before the one saved, and the saved one's
+    misfits: tuple = ((), ())
 
 
 def identity(session, options, checkpoint: float | None, columns: list[str], exclude_faulty: bool = False,
@@ -123,11 +124,11 @@ def _head(path: Path) -> bytes:
 
 
 def save(where: Path, ident: dict, rows: list, last_time: float, last_check: float | None, d,
-         excluded: tuple = (), episodes: dict | None = None, stream: tuple = (0, None), misfits=()) -> None:
+         excluded: tuple = (), episodes: dict | None = None, stream: tuple = (0, None), misfits=((), ())) -> None:
     """Write the state of diagnoser ``d`` after ``rows``, atomically
     (``excluded``: the sensors taken out before; ``episodes``: the fault
     log; ``stream``: the rows read in all and the first one's time;
-    ``misfits``: those said so far;
+    ``misfits``: those said so far, the earlier diagnosers' and the saved one's;
     :class:`Saved`): a new
     file, made afresh (never through a link), flushed to the disk, renamed
     over the last state."""
@@ -137,7 +138,7 @@ def save(where: Path, ident: dict, rows: list, last_time: float, last_check: flo
     payload = table.getvalue() + d.to_state().to_bytes()
     header = {"format": FORMAT, "identity": ident, "rows": len(rows), "last_time": last_time,
               "last_check": last_check, "excluded": [list(e) for e in excluded], "episodes": episodes,
-              "stream": list(stream), "misfits": [_plain(dataclasses.asdict(m)) for m in misfits]}
+              "stream": list(stream), "misfits": [[_plain(dataclasses.asdict(m)) for m in part] for part in misfits]}
     header["sha256"] = _digest(header, payload)
     data = b"".join([MAGIC, json.dumps(header).encode("utf-8"), b"\n", payload])
     tmp = where / PARTIAL
@@ -203,7 +204,8 @@ def load(where: Path, ident: dict) -> Saved | None:
         last_time, last_check = float(header["last_time"]), header.get("last_check")
         read, first = header.get("stream", (0, None))
         stream = (int(read), None if first is None else float(first))
-        misfits = tuple(_misfit(m) for m in header.get("misfits", ()))
+        earlier, now = header.get("misfits", ((), ()))
+        misfits = (tuple(_misfit(m) for m in earlier), tuple(_misfit(m) for m in now))
     except (ValueError, TypeError, EOFError, OSError, BgcError) as exc:
         raise BgcError(f"{where_}: the state cannot be read ({printable(str(exc).splitlines()[0])})", None,
                        fix) from None
