@@ -309,3 +309,32 @@ def test_the_cusum_tests_level_on_white_residuals():
     z = rng.standard_normal((1000, 4000))
     rejected = sum(bool(shifted(z[:, [j]], 0.05)) for j in range(4000)) / 4000
     assert 0.035 <= rejected <= 0.055, rejected
+
+
+def test_a_misfit_said_before_keeps_its_own_time_and_leaves_the_ends_timing_advice():
+    """A misfit said while watching, dated (said at t = 102.4 over t = 0.05
+    to 102.4, 2048 samples, its steps those of a record forgotten since),
+    leading a report's events: report.json gives it its own time and span,
+    no steps; report.md's line its own time, whatever the record's steps
+    now mean; its sentence the record it was said on. The end's own misfit,
+    which names the other input timing, still gives the report's advice
+    (the first misfit of the events names none)."""
+    from types import SimpleNamespace
+
+    from bgc import events as ev
+    from bgc.output import events as words
+    from bgc.output import report
+
+    said = ev.Mismatched(1023, 1023, ("sensor e11's residuals average +0.12 stds",), False, 10, (), ("noise",),
+                         said=102.4, span=(0.05, 102.4, 2048))
+    end = ev.Mismatched(60, 60, (), False, 10, (), ("noise",), timing="start", timing_fits=True, timing_ratio=9.0)
+
+    def time_of(k):  # the record kept: from t = 51.25, 200 steps
+        return 51.25 + 0.05 * k if 0 <= k < 200 else float("nan")
+
+    plain = words.record(said, time_of)
+    assert (plain["time"], plain["said"], plain["span"], plain["step"], plain["last"]) == \
+        (102.4, 102.4, [0.05, 102.4, 2048], None, None), plain
+    assert "over the whole record (t = 0.05 to 102.4, 2048 samples)" in plain["text"]
+    d = SimpleNamespace(events=(said, end), time_of=time_of)
+    assert report._when(d, said) == "t = 102.4: " and report._timing(d) == "start"

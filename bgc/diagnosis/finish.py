@@ -244,14 +244,20 @@ def with_misfits_said(d: Diagnosis, said) -> Diagnosis:
     watching keeps its last part only). A fault over less than half of those
     data would have had to move them twice as far as their misfit, within
     the detector's reach, and it raised no alarm before the misfit was
-    said. The last such misfit carries the possibilities."""
+    said. Only a misfit said on data that reach into the record kept
+    counts so (a halving's test, a checkpoint's since): one said long before
+    (a monitor that ran on for months) is in the events, the end's test on
+    the newer data is the verdict's. The last such misfit carries the
+    possibilities."""
     lead = forgotten_misfits(said, d)
     if not lead:
         return d
     verdict, events = d.verdict, list(d.events)
     if d.verdict in ("isolated", "ambiguous") and d.onset_step is not None:
         onset = float(d.time[min(d.onset_step, len(d.time) - 1)])
-        before = [i for i, e in enumerate(lead) if onset - e.span[0] >= 0.5 * (e.span[1] - e.span[0])]
+        first = float(d.time[0])  # a misfit said on data that reach into the record kept: not one long gone
+        before = [i for i, e in enumerate(lead)
+                  if onset - e.span[0] >= 0.5 * (e.span[1] - e.span[0]) and e.span[1] >= first]
         if before:
             verdict = "mismatch"
             lead[before[-1]] = replace(lead[before[-1]], possible=tuple(d.candidates))

@@ -302,7 +302,7 @@ def mismatch_sentence(e: ev.Mismatched, time_of) -> str:
                f"start and a model that does not fit give the same data")
     else:  # a record tested while watching, halved since, carries its own times (span)
         first, last, count = e.span or (time_of(0), time_of(e.last), samples)
-        span = "the whole record" if e.span is not None or e.last == e.step else "the data before the fault"
+        span = "the whole record" if e.last == e.step else "the data before the fault"
         why = (f"the model does not fit this plant: over {span} (t = {'' if first is None else time_text(first)} to "
                f"{'' if last is None else time_text(last)}, {count} samples) " + "; ".join(e.findings))
     if e.possible:
@@ -342,6 +342,10 @@ def record(e, time_of) -> dict:
         v = getattr(e, f.name)
         if said is not None and f.name in STEP_FIELDS | {"step"}:
             v = None
+        elif f.name == "said" and v is not None:
+            v = float(time_text(v))
+        elif f.name == "span" and v is not None:
+            v = [float(time_text(v[0])), float(time_text(v[1])), int(v[2])]
         elif f.name in STEP_FIELDS and v is not None:
             out[f"{f.name}_step"] = list(v) if isinstance(v, tuple) else v
             v = [when(k) for k in v] if isinstance(v, tuple) else when(v)

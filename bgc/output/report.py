@@ -331,7 +331,7 @@ def verdict_text(d) -> str:
 
 def _timing(d) -> str | None:
     """The other input timing a mismatch names (:class:`~bgc.events.Mismatched`), if any."""
-    return next((e.timing for e in d.events if isinstance(e, ev.Mismatched)), None)
+    return next((e.timing for e in d.events if isinstance(e, ev.Mismatched) and e.timing is not None), None)
 
 
 def verdict_definition(verdict: str, settings: Mapping[str, Any]) -> str:

@@ -289,7 +289,8 @@ class _Monitor:
                             self.log, (self.earlier_misfits, self.misfits))
         self.after_saved = 0  # a restart's comment lines after its last saved row, taken before it
         self.saved = self.keep.load()
-        self.ended = None  # (diagnoser, rows) of the episode closed or repaired last, until the next row
+        #: (diagnoser, rows, its misfits said) of the episode closed or repaired last, until the next row
+        self.ended = None
         self.rows_time = None  # the last row's time
         if self.saved is not None:
             self._resume(self.saved)
@@ -317,6 +318,7 @@ class _Monitor:
             self.d = self._diagnoser()
         self.d = type(self.d).from_state(self.d.config, saved.diagnoser)
         self.rows, self.last_check = [list(r) for r in saved.rows], saved.last_check
+        self.mismatch_said = bool(self.misfits)  # said before the restart: not again by this diagnoser
         self.told.update(self.d.loop.events, self.d.switched, [] if self.log is None else self.log.log)  # said before
         self.forgot = self.d.offset
         self.rows_time = saved.last_time
@@ -339,8 +341,9 @@ class _Monitor:
                 self.misfits.append(dated_misfit(e, time_of))
             if isinstance(e, ev.SensorMissing) and e.sensor in self.taken_out:
                 continue  # taken out by the monitor, not missing from the data: said by its SensorExcluded
-            step = getattr(e, "step", None)
-            when = "" if step is None else f"t = {time_text(time_of(step))}: "
+            step, said = getattr(e, "step", None), getattr(e, "said", None)  # a misfit said before: its own time
+            when = f"t = {time_text(said)}: " if said is not None else "" if step is None else \
+                f"t = {time_text(time_of(step))}: "
             self.say(f"{when}{printable(sentence(e, time_of))}")
 
     def _afresh(self) -> None:
@@ -397,7 +400,7 @@ class _Monitor:
             which = repair_of(text)
             if which is None:
                 continue
-            self.ended = (self.d, self.rows) if self.rows else self.ended
+            self.ended = (self.d, self.rows, list(self.misfits)) if self.rows else self.ended
             self.d, done = self.log.repaired(self.d, t, which)
             self.tell([done])
             self._afresh()
@@ -460,7 +463,7 @@ class _Monitor:
     def _close(self, c, now: float, t: float, full: bool) -> None:
         """Close the open episode on checkpoint diagnosis ``c`` at time ``now``
         (the row of time ``t``): a new diagnoser watches from the next row."""
-        self.ended = (self.d, self.rows)  # its report, should the stream end before the next row
+        self.ended = (self.d, self.rows, list(self.misfits))  # its report, should the stream end before the next row
         self.d, self.sensors, closed = self.log.close(c, self.d, now, self.sensors, full=full)
         if closed.action == "sensor out":
             self.taken_out.add(closed.parameter)
@@ -492,8 +495,10 @@ class _Monitor:
     def finish(self, stream) -> api.DiagnosisReport:
         """The report of the rows the last diagnoser took (the closed episode's when the input ended on it)."""
         d, rows = self.d, self.rows
+        current, earlier = self.misfits, self.earlier_misfits
         if not rows and self.ended is not None:  # the stream ended as an episode closed: the report is the closed one's
-            d, rows = self.ended
+            d, rows, current = self.ended
+            earlier = [m for m in self.earlier_misfits if m not in current]
         if getattr(stream, "unfinished", b""):
             self.say(f"the input ended in the middle of a line ({len(stream.unfinished)} bytes without an end of "
                      "line): that line is not read")
@@ -509,15 +514,15 @@ class _Monitor:
                           self.name)
         # led by the misfits said on data the record forgot (this diagnoser's weigh on its verdict), and those
         # of the diagnosers before it
-        diagnosis = with_misfits_said(d.finish(run), self.misfits)
-        if self.earlier_misfits:
-            diagnosis = dataclasses.replace(diagnosis, events=(*self.earlier_misfits, *diagnosis.events))
+        diagnosis = with_misfits_said(d.finish(run), current)
+        if earlier:
+            diagnosis = dataclasses.replace(diagnosis, events=(*earlier, *diagnosis.events))
         told = self.told
-        told.update(self.earlier_misfits)
+        told.update(earlier)
         if self.excluded or self.taken_out:
             diagnosis = _with_exclusions(diagnosis, self.excluded, self.taken_out)
             told.update(self.excluded)
-        told.update(forgotten_misfits(self.misfits, diagnosis))  # said as the data came (one given possibilities: anew)
+        told.update(forgotten_misfits(current, diagnosis))  # said as the data came (one given possibilities: anew)
         if self.log is not None and self.log.log:  # the fault log leads the events
             diagnosis = dataclasses.replace(diagnosis, events=tuple(self.log.log) + tuple(diagnosis.events))
             told.update(self.log.log)
