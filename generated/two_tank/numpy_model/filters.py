@@ -159,6 +159,18 @@ def mode_probabilities(model, x, logw) -> np.ndarray:
     return np.bincount(numbers - 1, weights=w, minlength=count) / w.sum()
 
 
+def quiet(step):
+    """A filter's ``step`` with NumPy's floating-point warnings off: a
+    particle that diverges (an overflow, inf - inf) is the step's own to
+    handle (its weight fails, the step recovers: ``recovered``), not a
+    warning on the caller's standard error."""
+    def quietly(self, *args, **kwargs):
+        with np.errstate(all="ignore"):
+            return step(self, *args, **kwargs)
+    quietly.__name__, quietly.__qualname__, quietly.__doc__ = step.__name__, step.__qualname__, step.__doc__
+    return quietly
+
+
 def run_filter(f, ys, us, dt=None):
     """Filter a whole record with ``f`` (any filter of the protocol, on a
     model with ``STATES``): its ``step`` over ys (T, n_y) and us (T, n_u), in
@@ -307,6 +319,7 @@ class _Filter:
 class GenericParticleFilter(_Filter):
     """Thesis Algorithm 1: sample from the prior p(x_k | x_k-1), weight by p(y_k | x_k)."""
 
+    @quiet
     def step(self, y, u, dt=None, predicted=False):
         """One step with measurement y (NaN: not read) and input u.
         ``predicted``: the particles were already moved by ``model.predict``
@@ -419,6 +432,7 @@ class AuxiliaryParticleFilter(_Filter):
     mu[ancestors] plus process noise.
     """
 
+    @quiet
     def step(self, y, u, dt=None, predicted=False):
         """As :meth:`GenericParticleFilter.step`."""
         dt = self.model.DT if dt is None else dt
@@ -490,6 +504,7 @@ class OptimalProposalParticleFilter(_Filter):
     particle (a noise fault) has its own R per particle, at its prediction.
     """
 
+    @quiet
     def step(self, y, u, dt=None, predicted=False):
         """As :meth:`GenericParticleFilter.step`."""
         model = self.model
