@@ -621,10 +621,11 @@ class Mismatched:
     log of that likelihood ratio; ``span``: the first and last times of the
     data tested and their samples, when those are not the record's steps 0
     to ``last`` (a monitor's record tested while watching, then halved);
-    ``said``: the time a monitor said it, on data its record has forgotten
-    since (``bgc monitor``'s report keeps it: ``step`` and ``last`` then
-    count the steps of the record as it was, and ``span`` holds the times),
-    None otherwise."""
+    ``said``: the time it was said as the data came (a bounded record's
+    test while watching, a monitor's checkpoint), when the record has since
+    forgotten those data and the final diagnosis keeps it: ``step`` and
+    ``last`` then count the steps of the record as it was, and ``span``
+    holds the times; None otherwise."""
 
     step: int
     last: int

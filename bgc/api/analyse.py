@@ -317,6 +317,14 @@ def _place_modes(func: str, c, faults, sensors, enters, configs, costs, most: in
     return placement.place_across(parts, most)
 
 
+def _no_offsets(c) -> dict:
+    """Each sensor fault's offset parameter of compilation ``c`` at 0: a sensor's expression as a
+    second sensor beside it would read it (none of the first one's faults)."""
+    import sympy
+
+    return {sympy.Symbol(f.parameter): 0 for f in c.model.faults if f.target == "sensor"}
+
+
 def _mode_candidates(c, read, costs) -> dict[str, tuple]:
     """Per mode of ``c``, its candidate sensors: every bond variable of some
     mode (those ``costs`` names, when given), in the first mode's order of
@@ -331,7 +339,7 @@ def _mode_candidates(c, read, costs) -> dict[str, tuple]:
 
     from ..analysis import placement
 
-    offsets = {sympy.Symbol(f.parameter): 0 for f in c.model.faults if f.target == "sensor"}
+    offsets = _no_offsets(c)
     exprs = {m.name: dict(m.equations.variables) for m in c.modes}
     measured = {m.name: {str(e.subs(offsets)) for e in m.equations.output_exprs} for m in c.modes}
     order = list(dict.fromkeys(name for m in c.modes for name, _ in m.equations.variables))
@@ -378,12 +386,10 @@ def _mode_twins(c, exprs, read, costs) -> dict[str, dict]:
     bond variable equals, that expression (each mode's, without a costs file: it
     prices bond variables), changed by the stuck switches that change any of its
     variables."""
-    import sympy
-
     from ..analysis import placement
 
     faulty = {f.subject for f in c.model.faults if f.target == "sensor"}
-    offsets = {sympy.Symbol(f.parameter): 0 for f in c.model.faults if f.target == "sensor"}
+    offsets = _no_offsets(c)
     twins: dict[str, dict] = {}
     for sensor in c.model.measurements:
         name = sensor.text.strip()
@@ -420,8 +426,8 @@ def _expression_twin(c, read, sensor, offsets) -> dict:
         expr = m.equations.output_exprs[list(m.equations.outputs).index(sensor.name)].subs(offsets)
         also = frozenset(j for j, names in read[m.name].items() if variables & set(names))
         if expr.free_symbols or also:
-            here[m.name] = placement.Candidate(placement.second(sensor.name), expr, 1.0, also, sensor.text.strip(),
-                                               sensor.name, sensor.name)
+            here[m.name] = placement.Candidate(placement.second(sensor.name), expr, 1.0, also,
+                                               variable=sensor.text.strip(), beside=sensor.name, node=sensor.name)
     return here
 
 
@@ -455,14 +461,12 @@ def _known_costs(func: str, c, costs, names: set) -> None:
 
 def _place(func: str, c, model_, costs, most: int, qualitative: bool):
     """The placement of compilation ``c``'s sensors (:func:`analyse`)."""
-    import sympy
-
     from ..analysis import placement
 
     _known_costs(func, c, costs, {name for name, _ in c.equations.variables})
     from ..compiler import signatures
 
-    offsets = {sympy.Symbol(f.parameter): 0 for f in c.model.faults if f.target == "sensor"}
+    offsets = _no_offsets(c)
     measured = [e.subs(offsets) for e in c.equations.output_exprs]
     faulty = {f.subject for f in c.model.faults if f.target == "sensor"}  # a second sensor beside each of these
     cands = placement.candidates(c.equations, measured, costs, tuple(faulty),
