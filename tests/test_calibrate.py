@@ -219,6 +219,32 @@ def tank_run(session, process: float, measurement: float, steps: int, seed: int)
     return runs.parse_run(simulate.to_csv(result), f"tanks-{seed}.csv")
 
 
+def test_the_points_of_a_difference_evaluated_together_give_each_points_likelihood_bit_for_bit(tanks):
+    """The likelihood at several points at once (a gradient's, a Hessian's:
+    :meth:`_Likelihood.many`, the filters run side by side) is the
+    likelihood at each point alone, to the bit: over two recordings, one
+    with readings missing and a row with none, the sensors' noise, the
+    process level, a parameter and the initial states all moved; so the
+    calibration's optimiser takes the same path as it did one point at a
+    time."""
+    from bgc.model.protocol import nominal_model
+
+    nominal = nominal_model(tanks.package)
+    first = cal.record_of(tank_run(tanks, 0.02, 0.01, 60, seed=5), nominal)
+    ys = first.ys.copy()
+    ys[10, 0] = ys[20:25, 1] = np.nan
+    ys[30] = np.nan
+    second = cal.Record("gaps.csv", ys, first.us, first.ts)
+    lik = cal._Likelihood(nominal, tanks.view.numerics, [first, second], list(nominal.OUTPUTS), True, ["R12"],
+                          initial=[(0, 0), (1, 1)])
+    z0 = lik.start()
+    rng = np.random.default_rng(3)
+    zs = [z0] + [z0 + 0.05 * rng.standard_normal(len(z0)) for _ in range(4)]
+    one_by_one = [lik(z) for z in zs]
+    assert lik.many(zs) == one_by_one and len(set(one_by_one)) == len(zs), one_by_one
+    assert lik.evaluations == 2 * len(zs)
+
+
 @pytest.mark.slow
 def test_two_tank_noise_levels_near_the_truth(tanks):
     """Data simulated (RK4 with 8 substeps, not the filter's own step) at a

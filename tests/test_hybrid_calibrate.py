@@ -63,6 +63,23 @@ def test_a_state_takes_the_process_noise_of_the_first_mode_it_is_a_state_of():
     assert np.isfinite(lik(lik.start()))
 
 
+def test_a_switched_plants_likelihood_at_several_points_at_once_is_each_points_to_the_bit():
+    """The filters of several calibration points run side by side
+    (:meth:`_Likelihood.many`) on a plant whose mode the data say: each
+    model factors its known mode's rows out of its covariance as its own
+    filter does, so each point's likelihood is the one it has alone."""
+    session = bgc.open(RELAY, backend="numpy")
+    nominal = nominal_model(session.package)
+    record = calibration.record_of(exact_run(0.45, 4.0, seed=7), nominal)  # four closings
+    lik = calibration._Likelihood(nominal, session.view.numerics, [record], ["i_L"], True, ["R_aux"],
+                                  modes=tuple(m.numerics for m in session.view.modes))
+    z0 = lik.start()
+    zs = [z0, z0 + [0.1, 0.0, 0.0], z0 + [0.0, -0.2, 0.05], z0 + [0.0, 0.0, -0.1]]
+    one_by_one = [lik(z) for z in zs]
+    assert all(np.isfinite(one_by_one)) and len(set(one_by_one)) == len(zs), one_by_one
+    assert lik.many(zs) == one_by_one
+
+
 def test_data_without_the_mode_column_of_a_controlled_switch_are_refused_in_one_line():
     """The relay's supply is switched from outside (a controlled transition):
     only the data can say when, so its data without a mode column cannot be

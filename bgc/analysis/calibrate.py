@@ -79,7 +79,7 @@ from ..ir import Numerics
 from ..data import sampler as data_grid
 from ..filters import residuals
 from ..filters.residuals import Innovations, innovations
-from ..filters.cubature import NominalKalman
+from ..filters.cubature import NominalKalman, nominal_logliks
 from ..data.runs import Run, header_timing, input_columns
 from ..model.protocol import FaultModel
 
@@ -408,6 +408,35 @@ class _Likelihood:
             total = float(sum(kf.logliks[-1] for kf in self.filters(np.asarray(z, dtype=float))))
         return total if math.isfinite(total) else -math.inf
 
+    def many(self, zs: Sequence[np.ndarray]) -> list[float]:
+        """``[self(z) for z in zs]``, the same numbers bit for bit, the filters
+        of all the points run side by side over each record
+        (:func:`bgc.filters.cubature.nominal_logliks`): a finite difference's
+        points, or a gradient's with the point itself, for about the cost of
+        one or two filters instead of one each (on the NumPy backend; a
+        compiled one's run one at a time)."""
+        zs = [np.asarray(z, dtype=float) for z in zs]
+        if len(zs) < 2:
+            return [self(z) for z in zs]
+        self.evaluations += len(zs)
+        modules = [self.module(z) for z in zs]
+        starts = [self.starts(z) for z in zs]
+        per_record = []
+        with np.errstate(all="ignore"):
+            for r, record in enumerate(self.records):
+                models = []
+                for ns, x0 in zip(modules, starts):
+                    one = types.ModuleType(ns.__name__)  # this record's initial state (filters() sets ns.X0)
+                    one.__dict__.update(vars(ns))
+                    one.X0 = x0[r]
+                    models.append(one)
+                per_record.append(nominal_logliks(models, record.ys, record.us))
+            out = []
+            for i in range(len(zs)):
+                total = float(sum(lls[i] for lls in per_record))
+                out.append(total if math.isfinite(total) else -math.inf)
+        return out
+
 
 def _sources_of(model: FaultModel, numerics: Numerics, physical: list[int],
                 modes: tuple[Numerics, ...]) -> list[tuple[FaultModel, Numerics, int]]:
@@ -426,34 +455,62 @@ def _sources_of(model: FaultModel, numerics: Numerics, physical: list[int],
     return out
 
 
+class _Negated:
+    """``-lik``, for the finite differences (of a :class:`_Likelihood`, its
+    points evaluated together: :meth:`_Likelihood.many`)."""
+
+    def __init__(self, lik):
+        self.lik = lik
+
+    def __call__(self, v) -> float:
+        return -self.lik(v)
+
+    def many(self, vs) -> list[float]:
+        return [-value for value in _many(self.lik, vs)]
+
+
+def _many(f, points: list) -> list[float]:
+    """``[f(p) for p in points]``, by ``f.many`` where ``f`` has it (the same numbers, together)."""
+    together = getattr(f, "many", None)
+    return list(together(points)) if together is not None else [f(p) for p in points]
+
+
+def _unit(p: int, i: int, h: float) -> np.ndarray:
+    e = np.zeros(p)
+    e[i] = h
+    return e
+
+
 def _hessian(f, z: np.ndarray, h: np.ndarray, f0: float) -> tuple[np.ndarray, np.ndarray]:
-    """The gradient and Hessian of ``f`` at ``z`` by central differences of steps ``h``."""
+    """The gradient and Hessian of ``f`` at ``z`` by central differences of
+    steps ``h`` (every point of the differences evaluated together: :func:`_many`)."""
     p = len(z)
     g = np.zeros(p)
     H = np.zeros((p, p))
-    plus, minus = np.zeros(p), np.zeros(p)
+    pairs = [(i, j) for i in range(p) for j in range(i + 1, p)]
+    points = [z + sign * _unit(p, i, h[i]) for i in range(p) for sign in (1.0, -1.0)]
+    for i, j in pairs:
+        ei, ej = _unit(p, i, h[i]), _unit(p, j, h[j])
+        points += [z + ei + ej, z + ei - ej, z - ei + ej, z - ei - ej]
+    values = _many(f, points)
+    plus, minus = np.array(values[0:2 * p:2]), np.array(values[1:2 * p:2])
     for i in range(p):
-        e = np.zeros(p)
-        e[i] = h[i]
-        plus[i], minus[i] = f(z + e), f(z - e)
         g[i] = (plus[i] - minus[i]) / (2 * h[i])
         H[i, i] = (plus[i] - 2 * f0 + minus[i]) / h[i] ** 2
-    for i in range(p):
-        for j in range(i + 1, p):
-            ei, ej = np.zeros(p), np.zeros(p)
-            ei[i], ej[j] = h[i], h[j]
-            v = (f(z + ei + ej) - f(z + ei - ej) - f(z - ei + ej) + f(z - ei - ej)) / (4 * h[i] * h[j])
-            H[i, j] = H[j, i] = v
+    for k, (i, j) in enumerate(pairs):
+        a, b, c, d = values[2 * p + 4 * k:2 * p + 4 * k + 4]
+        H[i, j] = H[j, i] = (a - b - c + d) / (4 * h[i] * h[j])
     return g, H
 
 
 def _gradient(f, z: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """The gradient of ``f`` at ``z`` by central differences of steps ``h``."""
-    g = np.zeros(len(z))
-    for i in range(len(z)):
-        e = np.zeros(len(z))
-        e[i] = h[i]
-        g[i] = (f(z + e) - f(z - e)) / (2 * h[i])
+    """The gradient of ``f`` at ``z`` by central differences of steps ``h``
+    (the points evaluated together: :func:`_many`)."""
+    p = len(z)
+    values = _many(f, [z + sign * _unit(p, i, h[i]) for i in range(p) for sign in (1.0, -1.0)])
+    g = np.zeros(p)
+    for i in range(p):
+        g[i] = (values[2 * i] - values[2 * i + 1]) / (2 * h[i])
     return g
 
 
@@ -478,7 +535,7 @@ def _fit(lik: _Likelihood, z0: np.ndarray, stop=None) -> tuple[np.ndarray, float
 
     if len(z0) == 0:
         return z0, lik(z0), np.zeros((0, 0)), True, "nothing to estimate"
-    neg = lambda v: -lik(v)  # noqa: E731 - the negative log-likelihood, for the differences
+    neg = _Negated(lik)  # the negative log-likelihood, for the differences
     bounds = [(v - REACH, v + REACH) for v in z0]
     z = z0
     for _ in range(RESTARTS + 1):
@@ -494,8 +551,12 @@ def _fit(lik: _Likelihood, z0: np.ndarray, stop=None) -> tuple[np.ndarray, float
             if stop is not None and stop(intermediate_result.x):
                 raise StopIteration
 
-        res = minimize(objective, z, method="L-BFGS-B", bounds=bounds, callback=enough,
-                       options={"maxiter": 1000, "ftol": 1e-12, "gtol": 1e-9, "maxfun": 20000})
+        options = {"maxiter": 1000, "ftol": 1e-12, "gtol": 1e-9, "maxfun": 20000}
+        if getattr(lik, "many", None) is not None:  # the value and its forward differences evaluated together
+            res = minimize(_with_differences(lik, scale, high, bounds), z, jac=True, method="L-BFGS-B",
+                           bounds=bounds, callback=enough, options=options)
+        else:
+            res = minimize(objective, z, method="L-BFGS-B", bounds=bounds, callback=enough, options=options)
         z, best = np.asarray(res.x, dtype=float), lik(np.asarray(res.x, dtype=float))
         g, H = _hessian(neg, z, _steps(z), -best)
         for _ in range(3):  # Newton steps (the Hessian kept): the optimiser stops on a relative change
@@ -524,6 +585,38 @@ def _fit(lik: _Likelihood, z0: np.ndarray, stop=None) -> tuple[np.ndarray, float
         if stop is not None and stop(z):
             return z, best, H, bool(res.success), str(res.message)
     return z, best, H, False, f"no maximum reached after {RESTARTS + 1} starts ({res.message})"
+
+
+#: L-BFGS-B's finite-difference step (SciPy's ``eps`` default), which :func:`_with_differences` takes.
+_LBFGSB_STEP = 1e-8
+
+
+def _with_differences(lik: _Likelihood, scale: float, high: float, bounds: list):
+    """The objective of :func:`_fit`'s L-BFGS-B (-lik / ``scale``; ``high``
+    where the likelihood is not finite) with its gradient: the forward
+    differences L-BFGS-B takes without a gradient (SciPy's
+    ``approx_derivative``, its step and bounds), the point and the
+    difference points evaluated together (:meth:`_Likelihood.many`) instead
+    of the point first and then each difference point; the same numbers."""
+    from scipy.optimize._numdiff import approx_derivative
+
+    lower, upper = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
+
+    def objective(value: float) -> float:
+        return -value / scale if math.isfinite(value) else high
+
+    def both(v: np.ndarray) -> tuple[float, np.ndarray]:
+        v = np.asarray(v, dtype=float)
+        points: list = []
+        approx_derivative(lambda x: points.append(np.array(x, dtype=float)) or 0.0, v, method="2-point",
+                          abs_step=_LBFGSB_STEP, bounds=(lower, upper), f0=0.0)
+        values = iter(lik.many([v] + points))
+        f0 = objective(next(values))
+        g = approx_derivative(lambda x: objective(next(values)), v, method="2-point", abs_step=_LBFGSB_STEP,
+                              bounds=(lower, upper), f0=f0)
+        return f0, np.asarray(g, dtype=float)
+
+    return both
 
 
 def _at_maximum(g: np.ndarray, H: np.ndarray) -> bool:

@@ -483,7 +483,7 @@ def run_bank(model: FaultModel, ys: np.ndarray, us: np.ndarray, track: NominalTr
 
 
 def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.ndarray, P: np.ndarray,
-                  fixed: list, onsets: list):
+                  fixed: list, onsets: list, state_factor=None):
     """:meth:`_Filter.step` of several models' filters at once, one block of
     cells each (``kfs[i]``'s cells ``blocks[i]``, a slice of the stack; its
     fault states ``fixed[i]``, its onset cells ``onsets[i]``, a slice of its
@@ -495,7 +495,10 @@ def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.n
     along a cell's own points), so each cell's numbers are those of its
     model's step, bit for bit (tests/test_kalman.py), for one set of array
     operations instead of one per model. A stack LAPACK refuses to factor is
-    factored block by block, as each model's step would."""
+    factored block by block, as each model's step would. ``state_factor``
+    (the stack of state covariances -> their factors): instead of that, where
+    each model's own step factors them otherwise (a model with modes,
+    :meth:`_Filter._factor`)."""
     kf0 = kfs[0]
     n, C = kf0.n, m.shape[0]
 
@@ -506,7 +509,7 @@ def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.n
             return np.concatenate([cholesky(P[b]) for b in blocks])
 
     def points(m, P, Xs):  # _Filter._points of every block's points, each into its model's own buffer
-        L = factor(P)
+        L = (state_factor or factor)(P)
         L *= kf0.root
         Lt = L.transpose(1, 0, 2)
         plus, minus = m.T[:, :, None] + Lt, m.T[:, :, None] - Lt
@@ -736,6 +739,39 @@ def run_paths(models: list, ys: np.ndarray, us: np.ndarray, track: NominalTrack,
         out[i] = BankResult(total[cell].copy(), m[cell].copy(), P[cell].copy(), z[:, cell].copy(),
                             increments[:, cell].copy(), **{name: a[:, cell].copy() for name, a in kept.items()})
     return out
+
+
+def nominal_logliks(models: list, ys: np.ndarray, us: np.ndarray) -> np.ndarray:
+    """``[NominalKalman(model, n_y)`` stepped over ``ys``, ``us``: its last
+    ``logliks`` entry ``for model in models]``: the log-likelihoods of one
+    record under several nominal models of the same states (a calibration's
+    points: THETA and the noise differ), their filters run side by side
+    (:func:`_side_by_side`, one cell each: every model's numbers those of
+    its own filter, bit for bit, for one set of array operations a step).
+    Models of a compiled kernel, or of other states than the first's, run
+    one at a time."""
+    kalmans = [NominalKalman(model, ys.shape[1]) for model in models]
+    kfs = [k.kf for k in kalmans]
+    if len(kfs) < 2 or any(kf.compiled or kf.n != kfs[0].n or kf.extra for kf in kfs):
+        for k in kalmans:
+            for y, u in zip(ys, us):
+                k.step(y, u)
+        return np.array([k.logliks[-1] for k in kalmans], dtype=float)
+    K = len(kfs)
+    blocks = [slice(i, i + 1) for i in range(K)]
+    none, onsets = [np.zeros((0, 1))] * K, [slice(0, 0)] * K
+    state_factor = None
+    if len(kfs[0].carried):  # each model's own factoring of its known modes (_Filter._factor)
+        def state_factor(P):
+            return np.concatenate([kf._factor(P[b]) for kf, b in zip(kfs, blocks)])
+    m = np.concatenate([k.m for k in kalmans])
+    P = np.concatenate([k.P for k in kalmans])
+    total = np.zeros(K)  # NominalKalman's logliks[-1], added to step by step as it adds
+    with np.errstate(all="ignore"):
+        for y, u in zip(ys, us):
+            ll, m, P, _, _, _ = _side_by_side(kfs, blocks, y, u, m, P, none, onsets, state_factor)
+            total = total + ll
+    return total
 
 
 class NominalKalman:
