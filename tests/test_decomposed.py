@@ -17,7 +17,7 @@ from bgc.diagnosis import decomposed
 from bgc.diagnosis.options import DiagnosisOptions
 from bgc.filters.cubature import nominal_track
 from bgc.model.joined import Joined
-from bgc.model.protocol import FaultModel
+from bgc.model.protocol import FaultModel, nominal_model
 from bgc.pipeline import decompose_model
 
 import chain_reference as chain
@@ -164,6 +164,39 @@ def test_whole_plant_ckf_finds_a_bias_between_its_first_grids_points(chain4, fau
     t, y = chain.run(4, fault, seed=0)
     d = bgc.diagnose(str(chain4), chain.as_run(t, y), filter="ckf").diagnosis
     assert (d.verdict, d.candidates) == ("isolated", (name,))
+
+
+@pytest.mark.slow
+def test_the_submodels_alarm_where_the_whole_plant_does(chain4, seed=3):
+    """The detector watches the whole plant's nominal filter (the model
+    without its faults), so the decomposed diagnosis alarms at the sample
+    and on the sensor the whole plant's ``--filter ckf`` diagnoser does
+    (stepped row by row to its alarm), on a leak of 0.05 from tank 2
+    (outside the model): the submodels' own residuals, wider (each reads
+    its neighbours' noisy readings), alarmed 50 samples later on this run
+    (21 to 50 on seeds 0 to 3)."""
+    import dataclasses
+
+    from bgc import events
+    from bgc.api.decomposed import open_plan
+
+    t, y = chain.run(4, "leak2:0.05", seed=seed)
+    run = chain.as_run(t, y)
+    plan = open_plan(str(chain4))
+    whole_nominal = nominal_model(plan.whole)  # the four tanks' pressures, no fault state
+    assert (len(whole_nominal.STATES), whole_nominal.OUTPUTS) == (4, ("p1", "p2", "p3", "p4"))
+    split = decomposed.diagnose(run, plan, DiagnosisOptions(no_fault=False)).detection
+    d = bgc.open(str(chain4)).diagnoser(DiagnosisOptions(filter="ckf", workers=1))
+    alarm = None
+    for k, time in enumerate(run.time):
+        belief = d.step(time, {"f_in": run.inputs["f_in"][k]}, {s: run.measurements[s][k] for s in run.measurements})
+        alarm = next((e for e in belief.events if isinstance(e, events.Alarmed)), None)
+        if alarm is not None:
+            break
+    assert alarm is not None and (split.sensor, split.step) == (alarm.sensor, alarm.step), (split, alarm)
+    parts_alone = decomposed.diagnose(run, dataclasses.replace(plan, whole=None),
+                                      DiagnosisOptions(no_fault=False)).detection
+    assert parts_alone is None or parts_alone.step > split.step, (parts_alone, split)
 
 
 def test_api_and_cli_diagnose_on_the_submodels(chain4, tmp_path):

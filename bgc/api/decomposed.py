@@ -2,7 +2,9 @@
 ``bgc.diagnose(..., decompose=True)``): the model split at its sensors
 (:func:`bgc.pipeline.decompose_model`), each submodel compiled through the
 cache as the file ``bgc compile --decompose`` writes, and the plan of which
-submodels model each fault (:func:`bgc.diagnosis.decomposed.plan`). Kept
+submodels model each fault (:func:`bgc.diagnosis.decomposed.plan`), with the
+whole plant's nominal package (the model without its faults: the
+detector's filter). Kept
 per process for the model file's text (the last ``KEPT``): a campaign of
 many runs splits the plant once. The submodels' packages are the NumPy
 ones (their filters are small)."""
@@ -15,6 +17,7 @@ import threading
 from pathlib import Path
 
 from .. import pipeline
+from ..compiler import decompose
 from ..diagnosis import decomposed
 from ..model.package import load_package
 from . import cache
@@ -48,7 +51,11 @@ def open_plan(model: str | os.PathLike, prior_scale: float = 1.0, say=None) -> d
         source = f"submodels/{s.name}.yaml"
         opened = cache.open_text(s.text, source, prior_scale)
         packages.append(load_package(opened.folder, opened.view.model.name, source))
-    plan = decomposed.plan(d, packages)
+    # the whole plant's nominal filter, the detector's: the model without its faults (one package of a few
+    # modules, where the whole plant's fault models are what makes its compilation long)
+    opened = cache.open_text(decompose.nominal_text(d.raw), f"{d.model.name}_nominal.yaml", prior_scale)
+    whole = load_package(opened.folder, opened.view.model.name, f"{d.model.name}_nominal.yaml")
+    plan = decomposed.plan(d, packages, whole)
     with _LOCK:
         _PLANS[key] = plan
         while len(_PLANS) > KEPT:  # the oldest plan goes

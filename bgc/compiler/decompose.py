@@ -160,6 +160,17 @@ def decompose(raw: RawModel, num: Numerics) -> Decomposition:
     return Decomposition(model.name, tuple(_submodel(c, graph, *s) for s in subs))
 
 
+def nominal_text(raw: RawModel) -> str:
+    """The whole model's file without its faults (the model read as
+    ``raw``): the plant's nominal filter, which the decomposed diagnosis's
+    detector runs on (:mod:`bgc.diagnosis.decomposed`), generated without
+    the fault models that make the whole plant's package large."""
+    data = {key: value for key, value in raw.data.items() if key != "faults"}
+    head = (f"# {data.get('name', 'the model')} ({raw.path}) without its faults, written by bgc for the "
+            "decomposed diagnosis's detector.\n")
+    return _text(head, data)
+
+
 def refuse_modes(model) -> None:
     """The one-line error for a model with modes (--decompose takes a model of one mode)."""
     if model.modes is not None:

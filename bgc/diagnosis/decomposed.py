@@ -17,11 +17,20 @@ neighbours', so the Bayes factors between hypotheses are the composite's
 rests on the fit tests as much as on them. The diagnosis is the method of
 ``--filter ckf`` (:mod:`bgc.diagnosis.diagnose`) on these factors:
 
-1. **Track and detect.** Each submodel's nominal cubature Kalman filter runs
-   over its data (its own sensors; the readings it takes as inputs held
-   over a sample at the mean of the sample's two readings); the detector
-   (the windowed Z-test, its false-alarm probability over all the plant's
-   sensors) runs on their normalised residuals side by side.
+1. **Track and detect.** The detector (the windowed Z-test, its
+   false-alarm probability over all the plant's sensors) runs on the
+   normalised residuals of the whole plant's nominal cubature Kalman filter
+   (the model without its faults, :attr:`Plan.whole`: one filter, cheap
+   beside the submodels' fault models), as the whole plant's diagnosis
+   does, so both alarm on the same data at the same sample. A submodel's
+   residuals are wider than the whole plant's (it reads its neighbours'
+   noisy readings as inputs, and its process noise holds their noise): on
+   them alone a fault the whole plant sees can go unseen (the leak of a
+   chain of 32 tanks, bench/decomposed_diagnosis.py). Each submodel's
+   nominal cubature Kalman filter runs over its data too (its own sensors;
+   the readings it takes as inputs held over a sample at the mean of the
+   sample's two readings): the weighing's nominal tracks, and the
+   detector's residuals when there is no whole plant's package.
 2. **Candidates.** The faults that touch the submodel of the sensor that
    alarmed (those that can move it: structurally, no other fault can), each
    tried from the onsets the whole plant's diagnosis tries.
@@ -132,11 +141,15 @@ class Plan:
     faults: Mapping[str, Fault]
     priors: Mapping[str, float]
     steps: int
+    #: the whole plant's nominal package (the model without its faults), whose filter the detector reads;
+    #: None: the submodels' filters' residuals side by side instead
+    whole: Package | None = None
 
 
-def plan(decomposed, packages: list[Package]) -> Plan:
+def plan(decomposed, packages: list[Package], whole: Package | None = None) -> Plan:
     """The :class:`Plan` of a decomposed model (:func:`bgc.pipeline.decompose_model`)
-    whose submodels' packages are ``packages`` (in its order)."""
+    whose submodels' packages are ``packages`` (in its order), ``whole``
+    the whole plant's nominal package (:attr:`Plan.whole`)."""
     d = decomposed.decomposition
     parts = tuple(Part(s.name, p, s.inputs, s.read_as) for s, p in zip(d.submodels, packages))
     index = {s.name: i for i, s in enumerate(d.submodels)}
@@ -159,7 +172,7 @@ def plan(decomposed, packages: list[Package]) -> Plan:
             if models and (c.parameter, kind) in bounds:
                 faults[name] = Fault(name, c.parameter, kind, bounds[(c.parameter, kind)], tuple(models), touching)
     priors = {c.parameter: c.prior for c in decomposed.model.faults}
-    return Plan(decomposed.model.name, parts, faults, priors, int(decomposed.model.settings.steps))
+    return Plan(decomposed.model.name, parts, faults, priors, int(decomposed.model.settings.steps), whole)
 
 
 # -- the data ------------------------------------------------------------------------------------------------
@@ -225,6 +238,23 @@ def _data(run: Run, p: Plan, options: DiagnosisOptions) -> _Data:
     return _Data(times, tuple(ys), tuple(us))
 
 
+def _plant(run: Run, nominal, options: DiagnosisOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The whole plant's measurements and inputs on the model's grid, for its
+    nominal filter ``nominal`` (through the :class:`~bgc.data.sampler.Sampler`
+    as :func:`_data` reads each part's): (times, ys, us)."""
+    given = input_columns(run)
+    inputs = {u: given[u] for u in nominal.INPUTS if u in given}
+    outputs = tuple(nominal.OUTPUTS)
+    mine = Run(run.time, inputs, {y: run.measurements[y] for y in outputs if y in run.measurements}, {}, {}, (),
+               run.source)
+    sampler = Sampler(nominal, tuple(inputs), tuple(mine.measurements), run.source, options.gap,
+                      options.input_timing or "end")
+    rows = list(samples(mine, sampler))
+    return (np.array([s.t for s in rows]),
+            np.array([s.y for s in rows], dtype=float).reshape(len(rows), len(outputs)),
+            np.array([s.u for s in rows], dtype=float).reshape(len(rows), len(nominal.INPUTS)))
+
+
 # -- the nominal tracks side by side -------------------------------------------------------------------------
 
 
@@ -284,7 +314,16 @@ def diagnose(run: Run, p: Plan, options: DiagnosisOptions = DiagnosisOptions(), 
     outputs = tuple(nominal.OUTPUTS)
     present = np.array([y in run.measurements for y in outputs])
     horizon = max(int(round(o.horizon / nominal.DT)) if o.horizon is not None else p.steps, 1)
-    detection, statistics, threshold = _detect(np.asarray(whole.z, dtype=float)[:T], outputs, present, horizon, o)
+    z = np.asarray(whole.z, dtype=float)[:T]
+    if p.whole is not None:  # the detector on the whole plant's nominal filter, as the whole plant's diagnosis
+        plant = nominal_model(p.whole)
+        say("watching with the whole plant's nominal cubature Kalman filter")
+        times, plant_ys, plant_us = _plant(run, plant, o)
+        if len(times) == T and np.array_equal(times, data.time) and set(plant.OUTPUTS) == set(outputs):
+            plant_z = np.asarray(kalman.nominal_track(plant, plant_ys, plant_us, T).z, dtype=float)[:T]
+            column = {y: i for i, y in enumerate(plant.OUTPUTS)}
+            z = np.column_stack([plant_z[:, column[y]] for y in outputs])  # in the parts' order
+    detection, statistics, threshold = _detect(z, outputs, present, horizon, o)
     views: dict = {NOMINAL: nominal}
     isolation, hyps, posteriors = None, (), {}
     if detection is not None:
