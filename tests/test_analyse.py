@@ -369,6 +369,48 @@ def test_a_second_differential_gauge_on_an_expression_no_bond_carries(tmp_path):
         assert level.isolable[0][1] and level.isolable[1][0] and not im[0][1] and not im[1][0], m.name
 
 
+def test_a_costs_file_prices_a_second_gauge_on_an_expression_by_the_gauges_name(tmp_path):
+    """A costs file prices bond variables, and no bond variable carries
+    the differential gauge's e2 - e10 (tests/data/models/three_tanks_dp.yaml):
+    named by the gauge's own name, ``dP``, it prices the second gauge on
+    the gauge's model text. The second gauge alone tells every fault from
+    every other structurally (the test above, the Fault Diagnosis Toolbox
+    agreeing): with the pipes' flows priced 5 and dP 3, it is the one
+    cheapest set, of cost 3, and the file written holds dP_2 on e2 - e10;
+    with dP not named it is no candidate. On a model with modes the
+    pumped tank's gauge read as 2*e4 is priced the same way in every mode.
+    A name that is neither a bond variable nor a sensor is refused in one
+    line."""
+    dp = ROOT / "tests" / "data" / "models" / "three_tanks_dp.yaml"
+    flows = {"f4": 5, "f8": 5}
+    p = analyse(dp, quantitative=False, place_sensors=True, place_by="structural", costs=flows | {"dP": 3}).placement
+    twin = {c.name: c for c in p.candidates}["dP'"]
+    assert (twin.cost, twin.written, str(twin.expr)) == (3.0, ("dP_2", "e2 - e10"), "-e10 + e2")
+    assert (p.sets, p.cost) == ((("dP'",),), 3.0)
+    listed = {c["name"]: c for c in analyse(dp, quantitative=False, place_sensors=True, place_by="structural",
+                                            costs=flows | {"dP": 3}).to_dict()["placement"]["candidates"]}
+    assert listed["dP'"]["written"] == {"name": "dP_2", "expr": "e2 - e10"} and listed["dP'"]["cost"] == 3.0
+    unnamed = analyse(dp, quantitative=False, place_sensors=True, place_by="structural", costs=flows).placement
+    assert "dP'" not in {c.name for c in unnamed.candidates}
+    costs = tmp_path / "costs.yaml"
+    costs.write_text("{f4: 5, f8: 5, dP: 3}\n", encoding="utf-8")
+    out = tmp_path / "two_gauges.yaml"
+    run = bgc_cli("analyse", dp, "--no-quantitative", "--place-sensors", "--place-by", "structural", "--costs", costs,
+                  "--write", out)
+    assert run.returncode == 0, run.stderr
+    assert "  dP_2: {expr: e2 - e10}\n" in out.read_text(encoding="utf-8")
+    pumped = tmp_path / "scaled_gauge.yaml"
+    pumped.write_text((ROOT / "tests" / "data" / "models" / "pumped_gauge.yaml").read_text(encoding="utf-8")
+                      .replace("p: {expr: e4,", "p: {expr: 2*e4,"), encoding="utf-8")
+    q = analyse(pumped, quantitative=False, place_sensors=True, costs={"p": 2, "f1": 9}).placement
+    assert {(c.name, c.cost, str(c.expr)) for c in q.candidates if c.beside} == {("p'", 2.0, "2*e4")}
+    assert q.sets == (("p'",),) and q.written(["p'"]) == [("p_2", "2*e4")]
+    costs.write_text("{dQ: 1}\n", encoding="utf-8")
+    refused = bgc_cli("analyse", dp, "--no-quantitative", "--place-sensors", "--costs", costs)
+    assert refused.returncode != 0 and "'dQ', neither a bond variable nor a sensor of" in refused.stderr
+    assert len(refused.stderr.strip().splitlines()) == 1, refused.stderr
+
+
 def test_sensor_placement_refuses_what_it_cannot_do_in_one_line(tmp_path):
     costs = tmp_path / "costs.yaml"
     for args, what in ((("--write", tmp_path / "x.yaml"), "--write applies to --place-sensors"),
@@ -381,7 +423,7 @@ def test_sensor_placement_refuses_what_it_cannot_do_in_one_line(tmp_path):
     assert p.returncode != 0 and "not a mapping of bond variables to costs >= 0" in p.stderr
     costs.write_text("{x99: 1}\n", encoding="utf-8")
     p = bgc_cli("analyse", TWO_TANK, "--no-quantitative", "--place-sensors", "--costs", costs)
-    assert p.returncode != 0 and "costs names 'x99', not a bond variable of two_tank" in p.stderr
+    assert p.returncode != 0 and "costs names 'x99', neither a bond variable nor a sensor of two_tank" in p.stderr
 
 
 @pytest.mark.slow

@@ -124,7 +124,9 @@ def candidates(ssm, measured_exprs: Sequence, costs: Mapping[str, float] | None 
     the variable its sensor's model text names, ``declared``, when it is one). A
     sensor of ``faulty`` whose expression no bond variable has (its model text an
     expression: a differential pressure across two tanks) gets a second sensor on
-    that expression, without a costs file (which prices bond variables)."""
+    that expression without a costs file; with one, a sensor ``costs`` names
+    gets a second sensor on its model text at that cost (unless a bond
+    variable it names is cheaper): the way to price one on an expression."""
     declared = declared or {}
     seen = {str(e): name for name, e in zip(ssm.outputs, measured_exprs)}
     best: dict[str, Candidate] = {}
@@ -144,9 +146,15 @@ def candidates(ssm, measured_exprs: Sequence, costs: Mapping[str, float] | None 
                     (c.cost == twins[sensor].cost and name == declared.get(sensor)):
                 twins[sensor] = c
     for sensor, expr in zip(ssm.outputs, measured_exprs):
-        if costs is None and sensor in faulty and sensor not in twins and expr.free_symbols:
+        if not expr.free_symbols:
+            continue
+        if costs is None and sensor in faulty and sensor not in twins:
             twins[sensor] = Candidate(second(sensor), expr, 1.0, variable=declared.get(sensor, str(expr)),
                                       beside=sensor, node=sensor)
+        elif costs is not None and sensor in costs and (sensor not in twins
+                                                         or float(costs[sensor]) < twins[sensor].cost):
+            twins[sensor] = Candidate(second(sensor), expr, float(costs[sensor]),
+                                      variable=declared.get(sensor, str(expr)), beside=sensor, node=sensor)
     return tuple(best.values()) + tuple(twins[s] for s in ssm.outputs if s in twins)
 
 

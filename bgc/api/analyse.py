@@ -98,7 +98,8 @@ class AnalysisReport:
 
 def _placement_dict(p) -> dict:
     return {"sets": [list(x) for x in p.sets], "cost": p.cost, "more_sets": p.more,
-            "candidates": [{"name": c.name, "reads": str(c.expr), "cost": c.cost}
+            "candidates": [{"name": c.name, "reads": str(c.expr), "cost": c.cost,
+                            "written": {"name": c.written[0], "expr": c.written[1]}}  # as --write adds it
                            | ({"variable": c.variable, "beside": c.beside} if c.beside else {}) for c in p.candidates],
             "detected_now": sorted(p.now[0]), "detected_at_most": sorted(p.reachable[0]),
             "pairs_now": len(p.now[1]), "pairs_at_most": len(p.reachable[1]),
@@ -393,18 +394,22 @@ def _mode_twins(c, exprs, read, costs) -> dict[str, dict]:
     twins: dict[str, dict] = {}
     for sensor in c.model.measurements:
         name = sensor.text.strip()
-        if costs is None and sensor.name in faulty and not any(name in exprs[m.name] for m in c.modes):
-            here = _expression_twin(c, read, sensor, offsets)
+        priced = costs is not None and sensor.name in costs  # a second sensor beside it, at that cost
+        if (priced or (costs is None and sensor.name in faulty)) and not any(name in exprs[m.name] for m in c.modes):
+            here = _expression_twin(c, read, sensor, offsets, float(costs[sensor.name]) if priced else 1.0)
             if here:
                 twins[placement.second(sensor.name)] = here
             continue
+        priced_here = costs
+        if priced and (name not in costs or float(costs[sensor.name]) < float(costs[name])):
+            priced_here = {**costs, name: costs[sensor.name]}  # its name prices its own quantity (its model text)
         if costs is not None:  # the cheapest variable it names that reads the sensor's quantity in every mode
-            same = [v for v in costs if v == name or all(str(exprs[m.name].get(v)) == str(exprs[m.name].get(name))
-                                                          for m in c.modes)]
-            name = min(same, key=lambda v: (float(costs[v]), v != name), default=None)
+            same = [v for v in priced_here if v == name or all(str(exprs[m.name].get(v)) ==
+                                                               str(exprs[m.name].get(name)) for m in c.modes)]
+            name = min(same, key=lambda v: (float(priced_here[v]), v != name), default=None)
         if name is None or (costs is None and sensor.name not in faulty):
             continue
-        cost = 1.0 if costs is None else float(costs[name])
+        cost = 1.0 if costs is None else float(priced_here[name])
         here = {}
         for mode, expr, also in _in_modes(c, exprs, read, name):
             if expr is not None and (expr.free_symbols or also):
@@ -414,10 +419,10 @@ def _mode_twins(c, exprs, read, costs) -> dict[str, dict]:
     return twins
 
 
-def _expression_twin(c, read, sensor, offsets) -> dict:
+def _expression_twin(c, read, sensor, offsets, cost: float = 1.0) -> dict:
     """Per mode of ``c`` where ``sensor`` (its model text an expression) reads
     something or a stuck switch changes one of its variables, the second
-    sensor on that expression (:func:`_mode_twins`)."""
+    sensor on that expression, of ``cost`` (:func:`_mode_twins`)."""
     from ..analysis import placement
 
     variables = {s.name for s in sensor.expr.free_symbols}
@@ -426,7 +431,7 @@ def _expression_twin(c, read, sensor, offsets) -> dict:
         expr = m.equations.output_exprs[list(m.equations.outputs).index(sensor.name)].subs(offsets)
         also = frozenset(j for j, names in read[m.name].items() if variables & set(names))
         if expr.free_symbols or also:
-            here[m.name] = placement.Candidate(placement.second(sensor.name), expr, 1.0, also,
+            here[m.name] = placement.Candidate(placement.second(sensor.name), expr, cost, also,
                                                variable=sensor.text.strip(), beside=sensor.name, node=sensor.name)
     return here
 
@@ -452,11 +457,16 @@ def _mode_signatures(c, m, mode, cands):
 
 
 def _known_costs(func: str, c, costs, names: set) -> None:
-    """A one-line error when ``costs`` names what is no bond variable of ``c`` (its ``names``)."""
-    unknown = sorted(set(costs or ()) - names)
+    """A one-line error when ``costs`` names what is neither a bond variable
+    of ``c`` (its ``names``) nor one of its sensors (whose name prices a
+    second sensor beside it: the only way to price one on a sensor whose
+    model text is an expression no bond variable carries)."""
+    sensors = {m.name for m in c.model.measurements}
+    unknown = sorted(set(costs or ()) - names - sensors)
     if unknown:
-        raise ArgumentValueError(f"{func}: costs names {unknown[0]!r}, not a bond variable of {c.model.name}", None,
-                                 f"name efforts and flows of its bonds, e.g. {sorted(names)[0]}")
+        raise ArgumentValueError(f"{func}: costs names {unknown[0]!r}, neither a bond variable nor a sensor of "
+                                 f"{c.model.name}", None, f"name efforts and flows of its bonds, e.g. "
+                                 f"{sorted(names)[0]}, or a sensor, for a second sensor beside it")
 
 
 def _place(func: str, c, model_, costs, most: int, qualitative: bool):

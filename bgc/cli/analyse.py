@@ -79,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
     except BgcError as exc:
         if costs is not None and "costs names" in str(exc):  # said of the file, not of the API's argument
             raise BgcError(f"--costs {printable(args.costs)}: {str(exc).split(': ', 1)[1].split(' (')[0]}", None,
-                           "name efforts and flows of the model's bonds (bgc show bondgraph MODEL lists them)") \
+                           "name efforts and flows of the model's bonds (bgc show bondgraph MODEL lists them), "
+                           "or a sensor, for a second sensor beside it") \
                 from None
         raise
     finally:
