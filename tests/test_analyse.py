@@ -389,7 +389,7 @@ def test_a_costs_file_prices_a_second_gauge_on_an_expression_by_the_gauges_name(
     assert (p.sets, p.cost) == ((("dP'",),), 3.0)
     listed = {c["name"]: c for c in analyse(dp, quantitative=False, place_sensors=True, place_by="structural",
                                             costs=flows | {"dP": 3}).to_dict()["placement"]["candidates"]}
-    assert listed["dP'"]["written"] == {"name": "dP_2", "expr": "e2 - e10"} and listed["dP'"]["cost"] == 3.0
+    assert listed["dP'"]["model_text"] == "e2 - e10" and listed["dP'"]["cost"] == 3.0
     unnamed = analyse(dp, quantitative=False, place_sensors=True, place_by="structural", costs=flows).placement
     assert "dP'" not in {c.name for c in unnamed.candidates}
     costs = tmp_path / "costs.yaml"

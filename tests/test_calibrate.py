@@ -219,6 +219,37 @@ def tank_run(session, process: float, measurement: float, steps: int, seed: int)
     return runs.parse_run(simulate.to_csv(result), f"tanks-{seed}.csv")
 
 
+def test_the_optimiser_given_its_differences_together_takes_the_path_it_takes_alone():
+    """_fit of a likelihood that evaluates several points together (L-BFGS-B
+    given the value with its forward differences from one call:
+    ``_with_differences``) ends where the same likelihood evaluated one
+    point at a time ends (SciPy taking the differences itself): the same
+    maximum, log-likelihood, Hessian, message and evaluations, to the bit; on
+    a function that is not quadratic and is -inf over part of the search
+    (where the objective is ``high``), so a wrong step, bound or order of
+    the differences moves the path."""
+    class Alone:
+        def __init__(self):
+            self.evaluations = 0
+
+        def __call__(self, z):
+            self.evaluations += 1
+            z = np.asarray(z, dtype=float)
+            if z[0] > 2.2:
+                return -math.inf
+            return -float(3.0 * (z[0] - 1.3) ** 2 + 0.5 * (z[1] + 2.0) ** 4 + 0.2 * math.sin(z[0] * z[1]))
+
+    class Together(Alone):
+        def many(self, zs):
+            return [self(z) for z in zs]
+
+    alone, together = Alone(), Together()
+    a = cal._fit(alone, np.array([0.5, 0.0]))
+    b = cal._fit(together, np.array([0.5, 0.0]))
+    assert np.array_equal(a[0], b[0]) and a[1] == b[1] and np.array_equal(a[2], b[2]), (a, b)
+    assert a[3:] == b[3:] and a[3] and alone.evaluations == together.evaluations, (a[3:], b[3:])
+
+
 def test_the_points_of_a_difference_evaluated_together_give_each_points_likelihood_bit_for_bit(tanks):
     """The likelihood at several points at once (a gradient's, a Hessian's:
     :meth:`_Likelihood.many`, the filters run side by side) is the

@@ -174,7 +174,8 @@ def test_the_submodels_alarm_where_the_whole_plant_does(chain4, seed=3):
     (stepped row by row to its alarm), on a leak of 0.05 from tank 2
     (outside the model): the submodels' own residuals, wider (each reads
     its neighbours' noisy readings), alarmed 50 samples later on this run
-    (21 to 50 on seeds 0 to 3)."""
+    (17 to 50 on seeds 0 to 3). The report's residuals are the whole
+    plant's filter's, which the detector read."""
     import dataclasses
 
     from bgc import events

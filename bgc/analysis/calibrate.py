@@ -419,10 +419,10 @@ class _Likelihood:
         if len(zs) < 2:
             return [self(z) for z in zs]
         self.evaluations += len(zs)
-        modules = [self.module(z) for z in zs]
-        starts = [self.starts(z) for z in zs]
         per_record = []
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"):  # as __call__ builds its models (filters())
+            modules = [self.module(z) for z in zs]
+            starts = [self.starts(z) for z in zs]
             for r, record in enumerate(self.records):
                 models = []
                 for ns, x0 in zip(modules, starts):
@@ -553,8 +553,12 @@ def _fit(lik: _Likelihood, z0: np.ndarray, stop=None) -> tuple[np.ndarray, float
 
         options = {"maxiter": 1000, "ftol": 1e-12, "gtol": 1e-9, "maxfun": 20000}
         if getattr(lik, "many", None) is not None:  # the value and its forward differences evaluated together
+            # SciPy counts each difference point against maxfun when it takes the differences itself, one
+            # evaluation per call here: the same limit is maxfun // (n + 1) calls (k (n + 1) > maxfun iff
+            # k > maxfun // (n + 1))
+            together = dict(options, maxfun=options["maxfun"] // (len(z) + 1))
             res = minimize(_with_differences(lik, scale, high, bounds), z, jac=True, method="L-BFGS-B",
-                           bounds=bounds, callback=enough, options=options)
+                           bounds=bounds, callback=enough, options=together)
         else:
             res = minimize(objective, z, method="L-BFGS-B", bounds=bounds, callback=enough, options=options)
         z, best = np.asarray(res.x, dtype=float), lik(np.asarray(res.x, dtype=float))

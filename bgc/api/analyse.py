@@ -99,7 +99,7 @@ class AnalysisReport:
 def _placement_dict(p) -> dict:
     return {"sets": [list(x) for x in p.sets], "cost": p.cost, "more_sets": p.more,
             "candidates": [{"name": c.name, "reads": str(c.expr), "cost": c.cost,
-                            "written": {"name": c.written[0], "expr": c.written[1]}}  # as --write adds it
+                            "model_text": c.written[1]}  # its expr in a model file (--write names it)
                            | ({"variable": c.variable, "beside": c.beside} if c.beside else {}) for c in p.candidates],
             "detected_now": sorted(p.now[0]), "detected_at_most": sorted(p.reachable[0]),
             "pairs_now": len(p.now[1]), "pairs_at_most": len(p.reachable[1]),

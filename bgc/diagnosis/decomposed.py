@@ -315,14 +315,20 @@ def diagnose(run: Run, p: Plan, options: DiagnosisOptions = DiagnosisOptions(), 
     present = np.array([y in run.measurements for y in outputs])
     horizon = max(int(round(o.horizon / nominal.DT)) if o.horizon is not None else p.steps, 1)
     z = np.asarray(whole.z, dtype=float)[:T]
+    shown = None  # the residuals the report draws under the detector's statistics: its filter's
     if p.whole is not None:  # the detector on the whole plant's nominal filter, as the whole plant's diagnosis
         plant = nominal_model(p.whole)
-        say("watching with the whole plant's nominal cubature Kalman filter")
         times, plant_ys, plant_us = _plant(run, plant, o)
         if len(times) == T and np.array_equal(times, data.time) and set(plant.OUTPUTS) == set(outputs):
-            plant_z = np.asarray(kalman.nominal_track(plant, plant_ys, plant_us, T).z, dtype=float)[:T]
-            column = {y: i for i, y in enumerate(plant.OUTPUTS)}
-            z = np.column_stack([plant_z[:, column[y]] for y in outputs])  # in the parts' order
+            say("watching with the whole plant's nominal cubature Kalman filter")
+            plant_track = kalman.nominal_track(plant, plant_ys, plant_us, T)
+            column = [list(plant.OUTPUTS).index(y) for y in outputs]  # in the parts' order
+
+            def ordered_as_parts(values):
+                return np.asarray(values, dtype=float)[:T][:, column]
+
+            z = ordered_as_parts(plant_track.z)
+            shown = (ordered_as_parts(plant_track.y_mean), ordered_as_parts(plant_track.y_std), z)
     detection, statistics, threshold = _detect(z, outputs, present, horizon, o)
     views: dict = {NOMINAL: nominal}
     isolation, hyps, posteriors = None, (), {}
@@ -336,7 +342,7 @@ def diagnose(run: Run, p: Plan, options: DiagnosisOptions = DiagnosisOptions(), 
                     np.asarray(whole.y_mean)[:T], np.asarray(whole.y_std)[:T], np.asarray(whole.z)[:T],
                     np.asarray(whole.x_mean)[:T], np.asarray(whole.x_std)[:T], statistics, threshold, detection,
                     isolation, (), None, observer=whole)
-    d = _decided(record, Setting(_View(views), p.priors, o, horizon, say), hyps, posteriors)
+    d = _decided(record, Setting(_View(views), p.priors, o, horizon, say), hyps, posteriors, shown)
     return replace(d, seconds=time.perf_counter() - started, submodels=tuple(part.name for part in p.parts))
 
 
@@ -362,13 +368,18 @@ def _detect(z: np.ndarray, outputs: tuple[str, ...], present: np.ndarray, horizo
     return detection, statistics, detector.threshold
 
 
-def _decided(r: Record, s: Setting, hyps: tuple, posteriors: dict) -> Diagnosis:
+def _decided(r: Record, s: Setting, hyps: tuple, posteriors: dict, shown=None) -> Diagnosis:
     """Step 4: the hypotheses weighed and the verdict, and the test of the
     model on the data the verdict says are fault-free, as the whole plant's
-    diagnosis decides them (:func:`bgc.diagnosis.finish.finish`)."""
+    diagnosis decides them (:func:`bgc.diagnosis.finish.finish`), on the
+    submodels' nominal filters (``r``). ``shown``: the nominal predictions'
+    mean and std and the normalised residuals the diagnosis reports (its
+    pictures draw them under the detector's statistics): the whole plant's
+    filter's, which the detector read (None: ``r``'s)."""
     T = len(r.time)
-    common = dict(model=r.model, time=r.time, outputs=r.outputs, states=r.states, nominal_y_mean=r.y_mean,
-                  nominal_y_std=r.y_std, nominal_z=r.z, nominal_x_mean=r.x_mean, nominal_x_std=r.x_std,
+    y_mean, y_std, z = shown if shown is not None else (r.y_mean, r.y_std, r.z)
+    common = dict(model=r.model, time=r.time, outputs=r.outputs, states=r.states, nominal_y_mean=y_mean,
+                  nominal_y_std=y_std, nominal_z=z, nominal_x_mean=r.x_mean, nominal_x_std=r.x_std,
                   statistics=r.statistics, threshold=r.threshold, options=s.options, data=None, seconds=0.0)
     if r.detection is None:
         verdict, candidates, judged, fitted = judged_fit(r, s, (), "no fault", (), None, r.observer)
