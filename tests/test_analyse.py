@@ -451,7 +451,8 @@ HYBRID = sorted(p for p in [*(ROOT / "models").glob("*.yaml"), *(ROOT / "docs" /
                 if load.declares_modes(p))
 
 
-@pytest.mark.parametrize("path", HYBRID, ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.slow) if p.stem == "ro_hybrid_valve" else p
+                                  for p in HYBRID], ids=lambda p: p.stem)  # (the RO's three valve settings: 5 s)
 def test_each_modes_structure_equals_the_fault_diagnosis_toolboxs(path):
     from bgc.pipeline import compile_model
 

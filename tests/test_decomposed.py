@@ -231,6 +231,7 @@ def test_decompose_refuses_what_it_cannot_do(chain4):
         bgc.diagnose(str(chain4), scenario="none", decompose=True, process_noise=0.01)
 
 
+@pytest.mark.slow
 def test_a_leak_its_tanks_sensor_bias_mimics_is_unexplained(tmp_path):
     """A quarter of the inflow leaking from tank 3 of six: in tank 3's own
     submodel a negative bias of its sensor mimics it, and the windowed test

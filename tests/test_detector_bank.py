@@ -388,6 +388,7 @@ def test_readings_that_a_logger_writes_twice_need_a_longer_run_to_be_frozen():
     assert (alarm.test, alarm.statistic, alarm.onset_step) == ("frozen", 3.0, 199)  # runs of 1 before: 3 repeats
 
 
+@pytest.mark.slow
 def test_white_residuals_alarm_each_family_at_most_at_its_share():
     """300-step runs (every window of every family tested) of white
     residuals, readings written to 5 decimals (a repeat now and then), their
@@ -809,6 +810,7 @@ def test_a_small_shift_in_every_sensor_is_found_by_the_pooled_test_at_its_closed
     assert other is None or other.step > alarm.step
 
 
+@pytest.mark.slow
 def test_the_pooled_test_holds_its_share_only_with_the_residuals_own_correlation():
     """White residuals whose correlation swings between +0.9 and -0.6 every
     50 steps (a transient changes how the observer's spread and the
