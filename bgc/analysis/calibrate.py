@@ -389,13 +389,22 @@ class _Likelihood:
         ns.X0_STD = x0_std
         return ns
 
-    def filters(self, z: np.ndarray) -> list[NominalKalman]:
-        """The nominal filter run over each record at ``z``."""
+    def record_models(self, z: np.ndarray) -> list[FaultModel]:
+        """Per record, :meth:`module` at ``z`` starting where that record starts (:meth:`starts`)."""
         ns = self.module(z)
         out = []
-        for r, x0 in zip(self.records, self.starts(z)):
-            ns.X0 = x0
-            kf = NominalKalman(ns, r.ys.shape[1])
+        for x0 in self.starts(z):
+            one = types.ModuleType(ns.__name__)
+            one.__dict__.update(vars(ns))
+            one.X0 = x0
+            out.append(one)
+        return out
+
+    def filters(self, z: np.ndarray) -> list[NominalKalman]:
+        """The nominal filter run over each record at ``z``."""
+        out = []
+        for r, model in zip(self.records, self.record_models(z)):
+            kf = NominalKalman(model, r.ys.shape[1])
             for k in range(len(r.ys)):
                 kf.step(r.ys[k], r.us[k])
             out.append(kf)
@@ -419,18 +428,10 @@ class _Likelihood:
         if len(zs) < 2:
             return [self(z) for z in zs]
         self.evaluations += len(zs)
-        per_record = []
         with np.errstate(all="ignore"):  # as __call__ builds its models (filters())
-            modules = [self.module(z) for z in zs]
-            starts = [self.starts(z) for z in zs]
-            for r, record in enumerate(self.records):
-                models = []
-                for ns, x0 in zip(modules, starts):
-                    one = types.ModuleType(ns.__name__)  # this record's initial state (filters() sets ns.X0)
-                    one.__dict__.update(vars(ns))
-                    one.X0 = x0[r]
-                    models.append(one)
-                per_record.append(nominal_logliks(models, record.ys, record.us))
+            models = [self.record_models(z) for z in zs]  # per point, per record
+            per_record = [nominal_logliks([m[r] for m in models], record.ys, record.us)
+                          for r, record in enumerate(self.records)]
             out = []
             for i in range(len(zs)):
                 total = float(sum(lls[i] for lls in per_record))
@@ -543,9 +544,11 @@ def _fit(lik: _Likelihood, z0: np.ndarray, stop=None) -> tuple[np.ndarray, float
         scale = max(float(np.linalg.norm(g)) / FIRST_STEP, 1e-300) if np.all(np.isfinite(g)) else 1.0
         high = abs(lik(z)) / scale + 1e6  # what a non-finite likelihood costs: above any value seen from here
 
-        def objective(v, scale=scale, high=high):
-            value = lik(v)
+        def scaled(value, scale=scale, high=high):  # a log-likelihood as the optimiser's objective
             return -value / scale if math.isfinite(value) else high
+
+        def objective(v, scaled=scaled):
+            return scaled(lik(v))
 
         def enough(intermediate_result):  # the caller takes it from there (SciPy >= 1.11 stops on StopIteration)
             if stop is not None and stop(intermediate_result.x):
@@ -557,7 +560,7 @@ def _fit(lik: _Likelihood, z0: np.ndarray, stop=None) -> tuple[np.ndarray, float
             # evaluation per call here: the same limit is maxfun // (n + 1) calls (k (n + 1) > maxfun iff
             # k > maxfun // (n + 1))
             together = dict(options, maxfun=options["maxfun"] // (len(z) + 1))
-            res = minimize(_with_differences(lik, scale, high, bounds), z, jac=True, method="L-BFGS-B",
+            res = minimize(_with_differences(lik, scaled, bounds), z, jac=True, method="L-BFGS-B",
                            bounds=bounds, callback=enough, options=together)
         else:
             res = minimize(objective, z, method="L-BFGS-B", bounds=bounds, callback=enough, options=options)
@@ -595,9 +598,10 @@ def _fit(lik: _Likelihood, z0: np.ndarray, stop=None) -> tuple[np.ndarray, float
 _LBFGSB_STEP = 1e-8
 
 
-def _with_differences(lik: _Likelihood, scale: float, high: float, bounds: list):
-    """The objective of :func:`_fit`'s L-BFGS-B (-lik / ``scale``; ``high``
-    where the likelihood is not finite) with its gradient: the forward
+def _with_differences(lik: _Likelihood, objective, bounds: list):
+    """The objective of :func:`_fit`'s L-BFGS-B (``objective`` of the
+    likelihood's value: -lik scaled, a fixed high value where it is not
+    finite) with its gradient: the forward
     differences L-BFGS-B takes without a gradient (SciPy's
     ``approx_derivative``, its step and bounds), the point and the
     difference points evaluated together (:meth:`_Likelihood.many`) instead
@@ -605,9 +609,6 @@ def _with_differences(lik: _Likelihood, scale: float, high: float, bounds: list)
     from scipy.optimize._numdiff import approx_derivative
 
     lower, upper = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
-
-    def objective(value: float) -> float:
-        return -value / scale if math.isfinite(value) else high
 
     def both(v: np.ndarray) -> tuple[float, np.ndarray]:
         v = np.asarray(v, dtype=float)

@@ -25,6 +25,7 @@ resistance, gives the same structure: both sets are listed).
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
@@ -148,13 +149,14 @@ def candidates(ssm, measured_exprs: Sequence, costs: Mapping[str, float] | None 
     for sensor, expr in zip(ssm.outputs, measured_exprs):
         if not expr.free_symbols:
             continue
-        if costs is None and sensor in faulty and sensor not in twins:
-            twins[sensor] = Candidate(second(sensor), expr, 1.0, variable=declared.get(sensor, str(expr)),
+        if costs is None:  # beside a sensor of faulty without a twin on a bond variable
+            cost, wanted = 1.0, sensor in faulty and sensor not in twins
+        else:  # priced by its name, below a twin on a bond variable
+            cost = float(costs.get(sensor, math.inf))
+            wanted = cost < (twins[sensor].cost if sensor in twins else math.inf)
+        if wanted:
+            twins[sensor] = Candidate(second(sensor), expr, cost, variable=declared.get(sensor, str(expr)),
                                       beside=sensor, node=sensor)
-        elif costs is not None and sensor in costs and (sensor not in twins
-                                                         or float(costs[sensor]) < twins[sensor].cost):
-            twins[sensor] = Candidate(second(sensor), expr, float(costs[sensor]),
-                                      variable=declared.get(sensor, str(expr)), beside=sensor, node=sensor)
     return tuple(best.values()) + tuple(twins[s] for s in ssm.outputs if s in twins)
 
 

@@ -46,18 +46,19 @@ def open_plan(model: str | os.PathLike, prior_scale: float = 1.0, say=None) -> d
     if say is not None:
         say("splitting the model at its sensors")
     d = pipeline.decompose_model(model, prior_scale, text=text.decode("utf-8"), parts=False)
-    packages = []
-    for s in d.decomposition.submodels:
-        source = f"submodels/{s.name}.yaml"
-        opened = cache.open_text(s.text, source, prior_scale)
-        packages.append(load_package(opened.folder, opened.view.model.name, source))
+    packages = [_package(s.text, f"submodels/{s.name}.yaml", prior_scale) for s in d.decomposition.submodels]
     # the whole plant's nominal filter, the detector's: the model without its faults (one package of a few
     # modules, where the whole plant's fault models are what makes its compilation long)
-    opened = cache.open_text(decompose.nominal_text(d.raw), f"{d.model.name}_nominal.yaml", prior_scale)
-    whole = load_package(opened.folder, opened.view.model.name, f"{d.model.name}_nominal.yaml")
+    whole = _package(decompose.nominal_text(d.raw), f"{d.model.name}_nominal.yaml", prior_scale)
     plan = decomposed.plan(d, packages, whole)
     with _LOCK:
         _PLANS[key] = plan
         while len(_PLANS) > KEPT:  # the oldest plan goes
             _PLANS.pop(next(iter(_PLANS)))
     return plan
+
+
+def _package(text: str, source: str, prior_scale: float):
+    """The generated package of the model file text ``text`` (named ``source``), compiled through the cache."""
+    opened = cache.open_text(text, source, prior_scale)
+    return load_package(opened.folder, opened.view.model.name, source)

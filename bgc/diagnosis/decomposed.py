@@ -225,34 +225,35 @@ def _data(run: Run, p: Plan, options: DiagnosisOptions) -> _Data:
             # a reading is a measurement at its row's time, whatever the inputs' timing: the mean over the
             # sample that ends at a row, at that row (end), or at the row before, where a start row's value acts
             inputs[name] = np.append(reading[1:], reading[-1]) if timing == "start" else reading
-        outputs = tuple(part.nominal.OUTPUTS)
-        mine = Run(run.time, inputs, {y: run.measurements[y] for y in outputs if y in run.measurements}, {}, {},
-                   (), run.source)
-        sampler = Sampler(part.nominal, tuple(inputs), tuple(mine.measurements), run.source, options.gap, timing)
-        rows = list(samples(mine, sampler))
-        t = np.array([s.t for s in rows])
+        t, y, u = _sampled(run, part.nominal, inputs, timing, options)
         if times is None:
             times = t
-        ys.append(np.array([s.y for s in rows], dtype=float).reshape(len(rows), len(outputs)))
-        us.append(np.array([s.u for s in rows], dtype=float).reshape(len(rows), len(part.nominal.INPUTS)))
+        ys.append(y)
+        us.append(u)
     return _Data(times, tuple(ys), tuple(us))
 
 
-def _plant(run: Run, nominal, options: DiagnosisOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The whole plant's measurements and inputs on the model's grid, for its
-    nominal filter ``nominal`` (through the :class:`~bgc.data.sampler.Sampler`
-    as :func:`_data` reads each part's): (times, ys, us)."""
-    given = input_columns(run)
-    inputs = {u: given[u] for u in nominal.INPUTS if u in given}
+def _sampled(run: Run, nominal, inputs: dict, timing: str, options: DiagnosisOptions):
+    """The measurements of ``nominal``'s sensors in ``run`` and the input
+    columns ``inputs`` on the model's grid, through the
+    :class:`~bgc.data.sampler.Sampler` (its gaps, its held inputs): (times,
+    ys, us)."""
     outputs = tuple(nominal.OUTPUTS)
     mine = Run(run.time, inputs, {y: run.measurements[y] for y in outputs if y in run.measurements}, {}, {}, (),
                run.source)
-    sampler = Sampler(nominal, tuple(inputs), tuple(mine.measurements), run.source, options.gap,
-                      options.input_timing or "end")
+    sampler = Sampler(nominal, tuple(inputs), tuple(mine.measurements), run.source, options.gap, timing)
     rows = list(samples(mine, sampler))
     return (np.array([s.t for s in rows]),
             np.array([s.y for s in rows], dtype=float).reshape(len(rows), len(outputs)),
             np.array([s.u for s in rows], dtype=float).reshape(len(rows), len(nominal.INPUTS)))
+
+
+def _plant(run: Run, nominal, options: DiagnosisOptions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The whole plant's measurements and inputs on the model's grid, for its
+    nominal filter ``nominal``, as :func:`_data` reads each part's: (times, ys, us)."""
+    given = input_columns(run)
+    return _sampled(run, nominal, {u: given[u] for u in nominal.INPUTS if u in given},
+                    options.input_timing or "end", options)
 
 
 # -- the nominal tracks side by side -------------------------------------------------------------------------
