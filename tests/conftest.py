@@ -151,7 +151,7 @@ def fast_backend(model: str) -> tuple[str, str]:
 
 
 #: Folders of model files no test writes to: their compilations may be shared.
-_READ_ONLY = (MODELS, TEST_MODELS, ROOT / "tests" / "regression" / "models")
+_READ_ONLY = (MODELS, TEST_MODELS, ROOT / "tests" / "regression" / "models", ROOT / "docs" / "examples")
 _COMPILED: dict = {}
 
 

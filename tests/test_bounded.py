@@ -140,6 +140,46 @@ def test_a_gap_is_told_at_its_time_and_one_before_the_record_kept_is_forgotten()
     assert len(kept) == 1 and diagnosis.time[kept[0].step] == pytest.approx(after[0] * DT)
 
 
+
+def test_the_forgotten_started_packages_are_freed_every_few_cuts(monkeypatch):
+    """Each cut starts the record's models from a package of their own and
+    forgets the last one: cycles only the cyclic collector frees. With its
+    automatic passes off, the diagnoser's own full collection, after every
+    COLLECT_EVERY (here 2) packages forgotten, frees them: the three cuts of
+    1500 steps kept 300 forget the model's own package (kept: it is the
+    session's), then two started ones; the first one's functions are all
+    freed at the second's forgetting, the second's wait for the fourth
+    (with no collection of its own, neither would be freed)."""
+    import gc
+    import sys
+    import types
+    import weakref
+
+    from bgc.diagnosis import diagnoser as module
+
+    forgotten = []
+
+    def forget(package):  # the package's functions: a module's functions and its globals are the cycles
+        if getattr(package, STARTED_FROM, None) is not None:
+            modules = [m for name, m in sys.modules.items() if name.startswith(package.__name__)]
+            forgotten.append([weakref.ref(f) for m in modules for f in vars(m).values()
+                              if isinstance(f, types.FunctionType) and f.__module__ == m.__name__])
+        forget_started(package)
+
+    monkeypatch.setattr(module, "forget_started", forget)
+    monkeypatch.setattr(module, "COLLECT_EVERY", 2)
+    monkeypatch.setattr(module, "_forgotten", 0)
+    d = diagnoser(KEEP, fast=False)
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        feed(d, plant(onset=None))
+        freed = [[ref() is None for ref in refs] for refs in forgotten]
+    finally:
+        if was:
+            gc.enable()
+    assert len(freed) == 2 and all(freed[0]) and not any(freed[1]) and all(forgotten), freed
+
 @pytest.mark.slow
 def test_a_gap_across_the_moment_the_record_is_cut_keeps_its_time():
     missing = tuple(range(2 * KEEP - 10, 2 * KEEP + 10))  # the row after the gap brings the steps past the cut
