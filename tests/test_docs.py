@@ -20,9 +20,11 @@ The blocks of one document run in order in one folder (a command may read
 what an earlier one wrote), which holds a link to every top-level entry of
 the repository (``models``, ``docs``, ``tests``, ...): the paths read as they
 do from the root, and what the commands write lands in the test's temporary
-folder, never in the checkout. The backend is NumPy (``BGC_BACKEND=numpy``):
-the numba backend gives the same numbers, and may print a line about its
-kernels on standard error.
+folder, never in the checkout. A document's fast blocks run on NumPy
+(``BGC_BACKEND=numpy``: ``make check`` compiles no kernel), its slow test on
+the compiled backend when numba is installed (conftest.FAST; a user's
+install chooses it too), whose kernels the suite's lasting cache keeps from
+run to run: the two backends print the same lines (tests/test_backend.py).
 
 The printed output must equal what the command prints now, except for the
 parts that vary from run to run, which are marked:
@@ -59,6 +61,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+
+from conftest import FAST
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = (ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")))
@@ -238,6 +242,10 @@ def _runs(block: Block, slow: bool) -> bool:
     return block.mark is None or (slow and block.mark == "slow")
 
 
+#: A slow test's marks: it runs on the FAST backend, numba's kernels compiled or loaded when installed.
+_SLOW_MARKS = [pytest.mark.slow, *([pytest.mark.numba] if FAST == "numba" else [])]
+
+
 def _doc_params():
     """(document, slow): its fast blocks in a fast test, and all of them in
     a slow one when some are slow."""
@@ -245,17 +253,17 @@ def _doc_params():
         found, name = blocks(doc), str(doc.relative_to(ROOT))
         if _all_slow(doc):
             if any(_runs(b, True) for b in found):
-                yield pytest.param(doc, True, id=name, marks=[pytest.mark.slow])
+                yield pytest.param(doc, True, id=name, marks=_SLOW_MARKS)
             continue
         if any(_runs(b, False) for b in found):
             yield pytest.param(doc, False, id=name)
         if any(b.mark == "slow" for b in found):
-            yield pytest.param(doc, True, id=f"{name}, with its slow blocks", marks=[pytest.mark.slow])
+            yield pytest.param(doc, True, id=f"{name}, with its slow blocks", marks=_SLOW_MARKS)
 
 
 @pytest.mark.parametrize(("doc", "slow"), list(_doc_params()))
 def test_transcripts_run_as_printed(doc: Path, slow: bool, tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setenv("BGC_BACKEND", "numpy")
+    monkeypatch.setenv("BGC_BACKEND", FAST if slow else "numpy")
     monkeypatch.setenv("MPLBACKEND", "Agg")
     folder = _checkout_view(tmp_path)
     wrong = []
