@@ -124,7 +124,7 @@ def test_a_change_at_a_records_start_is_no_change_of_a_plant_off_its_model(tmp_p
     from bgc.diagnosis.options import DiagnosisOptions
 
     plant_csv(tmp_path / "run.csv", 502, 0.03, 1.0, steps=2100)
-    d = bgc.diagnose(session("circuit"), tmp_path / "run.csv",
+    d = bgc.diagnose(fast_session("circuit"), tmp_path / "run.csv",
                      options=DiagnosisOptions(keep=1024 * DT, filter="ckf", workers=1)).diagnosis
     assert d.detection is None and d.verdict in ("mismatch", "no fault") and d.candidates == (), (d.verdict,
                                                                                                   d.candidates)
@@ -148,7 +148,7 @@ def test_a_fault_named_after_a_misfit_said_on_data_before_it_is_a_possibility_be
     from bgc.diagnosis.options import DiagnosisOptions
 
     plant_csv(tmp_path / "run.csv", 506, 0.03, 1.0, steps=2100)
-    d = bgc.diagnose(session("circuit"), tmp_path / "run.csv",
+    d = bgc.diagnose(fast_session("circuit"), tmp_path / "run.csv",
                      options=DiagnosisOptions(keep=1024 * DT, filter="ckf", workers=1)).diagnosis
     assert d.detection is not None and d.detection.test == "mean"
     assert d.verdict == "mismatch" and d.candidates, (d.verdict, d.candidates)  # faults named: possibilities
