@@ -205,7 +205,7 @@ def _supply_stepped(onset: float, size: float, seed: int) -> str:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [2, 3])
-def test_a_step_the_observer_follows_is_diagnosed_from_the_change_point(seed):
+def test_a_step_the_observer_follows_is_diagnosed_from_the_change_point(seed, stepped):
     """R_load 50 % higher from t = 8 s, in the supply's open mode (it sets
     only the capacitor's decay there: tau 4 s -> 6 s): the model declares
     process noise large enough (0.085 V per step against a change of the
@@ -222,7 +222,7 @@ def test_a_step_the_observer_follows_is_diagnosed_from_the_change_point(seed):
     from test_uncommanded import MODEL
 
     session = bgc.open(MODEL, backend="numpy")
-    data = runs.parse_run(_supply_stepped(8.0, 2.0, seed), "stepped.csv")
+    data = runs.parse_run(stepped(seed), "stepped.csv")
     d = bgc.diagnose(session, data, seed=1).diagnosis
     said = [e for e in d.events if type(e).__name__ == "ChangeMissed"]
     assert len(said) == 1 and said[0].found and said[0].at_change, said
@@ -244,7 +244,7 @@ def test_a_step_the_observer_follows_is_diagnosed_from_the_change_point(seed):
 
 
 @pytest.mark.slow
-def test_with_the_whole_bank_the_same_step_is_diagnosed_from_its_change_point_alone():
+def test_with_the_whole_bank_the_same_step_is_diagnosed_from_its_change_point_alone(stepped):
     """The same step (seed 2) with every test of the detector's bank from the
     start (``--detect all``): none alarms either, and the diagnosis goes to
     the alarm at the change point at once (no diagnosis again with the bank
@@ -254,7 +254,7 @@ def test_with_the_whole_bank_the_same_step_is_diagnosed_from_its_change_point_al
     from test_uncommanded import MODEL
 
     session = bgc.open(MODEL, backend="numpy")
-    data = runs.parse_run(_supply_stepped(8.0, 2.0, 2), "stepped.csv")
+    data = runs.parse_run(stepped(2), "stepped.csv")
     d = bgc.diagnose(session, data, seed=1, options=bgc.DiagnosisOptions(detectors=TESTS)).diagnosis
     said = [e for e in d.events if type(e).__name__ == "ChangeMissed"]
     assert len(said) == 1 and said[0].found and said[0].at_change and not said[0].bank, said
@@ -262,3 +262,17 @@ def test_with_the_whole_bank_the_same_step_is_diagnosed_from_its_change_point_al
     assert d.best.estimate.low <= 2.0 <= d.best.estimate.high
     assert "made again with an alarm raised at that change point, and its verdict stands" in sentence(said[0],
                                                                                                       d.time_of)
+
+
+@pytest.fixture(scope="module")
+def stepped():
+    """:func:`_supply_stepped` (R_load 2 ohm higher from t = 8) of a seed, made once per seed for
+    this module's tests of it (the same rows each time: a seeded simulation)."""
+    made = {}
+
+    def of(seed: int) -> str:
+        if seed not in made:
+            made[seed] = _supply_stepped(8.0, 2.0, seed)
+        return made[seed]
+
+    return of

@@ -116,11 +116,13 @@ def test_a_load_step_the_observer_follows_is_found_before_its_record_is_forgotte
     the diagnosis names R_load's step, its interval holding the 3 ohm and
     its onset within 0.5 s of 45 s. The input's cell left empty at t = 50
     (between the change point and the test) is said once, as it comes, not
-    again when the record is taken from the change point. The healthy
-    plant (the same noise) raises no alarm over the same stream."""
+    again when the record is taken from the change point. The stream is
+    the run's first 65 s (:data:`STEPPED`: the test at t = 60 and 5 s
+    after it). The healthy plant (the same noise) raises no alarm over
+    the whole 90 s (1800 steps)."""
     out = tmp_path / "out"
     rows = [",".join(["50", "2", "", *row.split(",")[3:]]) if row.startswith("50,") else row
-            for row in supply(1800, 45.0, 3.0, 2).splitlines()]
+            for row in first_rows(supply(1800, 45.0, 3.0, 2), STEPPED).splitlines()]
     p = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", out,
                 input="\n".join(rows) + "\n")
     assert p.returncode == 0, p.stderr
@@ -150,9 +152,9 @@ def test_a_verdict_made_again_with_every_fault_model_keeps_the_watching_alarm(mo
     Diagnoser._retry), the alarm the record's test raised at a change point
     while watching is raised again in the record made anew (Loop.forced):
     its detector does not alarm either, so without it the replay would see
-    no fault. The load step of the test above, the retry asked for once
-    here: the diagnosis made again alarms at the same change point and
-    names R_load's step."""
+    no fault. The load step of the test above (its first 65 s, the same
+    rows), the retry asked for once here: the diagnosis made again alarms
+    at the same change point and names R_load's step."""
     import bgc
     from bgc.diagnosis.diagnoser import Diagnoser
     from bgc.diagnosis.options import DiagnosisOptions
@@ -168,7 +170,7 @@ def test_a_verdict_made_again_with_every_fault_model_keeps_the_watching_alarm(mo
 
     monkeypatch.setattr(Diagnoser, "_retry", once)
     d = bgc.open(MODEL, backend="numpy").diagnoser(DiagnosisOptions(keep=15.0, workers=1))
-    for row in supply(1800, 45.0, 3.0, 2).splitlines()[1:]:
+    for row in first_rows(supply(1800, 45.0, 3.0, 2), STEPPED).splitlines()[1:]:
         t, mode, v, v_c, i_s = (float(x) for x in row.split(","))
         d.step(t, {"V": v, "mode": mode}, {"v_C": v_c, "i_s": i_s})
     final = d.finish()
@@ -191,15 +193,19 @@ def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_th
     saved and taken up on the next row; its sentence, read at the stream's
     end, still names the record it tested. With --checkpoint 20 the
     checkpoint's test says it first, at t = 20 (400 samples), and the
-    watching test does not say it again. With the load 5 ohm, nothing is said
-    while watching, and the end's test passes too."""
+    watching test does not say it again. The 6 ohm stream is the run's
+    first 76 s (:data:`OFF`: its record's tests at t = 30, 45, 60 and 75
+    all made, the end's verdict at t = 76). With the load 5 ohm, nothing is
+    said while watching over the whole 90 s, and the end's test passes
+    too."""
     import bgc
     from bgc.diagnosis.diagnoser import Diagnoser
     from bgc.diagnosis.options import DiagnosisOptions
     from bgc.diagnosis.state import DiagnoserState
     from bgc.output.events import sentence
 
-    text = supply(1800, 0.0, 2.0, 2)
+    text = first_rows(supply(1800, 0.0, 2.0, 2), OFF)
+    end = float(f"{OFF * DT:.10g}")  # the last row's time (76): the end's verdict
     p = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", tmp_path / "out",
                 input=text)
     assert p.returncode == 0, p.stderr
@@ -207,11 +213,11 @@ def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_th
     assert said[0].startswith("t = 30: the model does not fit this plant: over the whole record (t = 0.05 to 30, "
                               "600 samples) sensor v_C's residuals average +"), p.stdout
     assert said[0].endswith("--estimate noise,R_load)"), said[0]
-    assert len(said) == 2 and said[1].startswith("t = 90: "), said  # the second: the end's verdict
+    assert len(said) == 2 and said[1].startswith(f"t = {end:g}: "), said  # the second: the end's verdict
     assert "switched_rc: mismatch" in p.stdout and "detected at" not in p.stdout, p.stdout
     # the report keeps what was said at t = 30, on data its record (the last 15 s) forgot since, and the end's
     kept = _misfits(tmp_path / "out")
-    assert [(e["time"], e["span"]) for e in kept] == [(30.0, [0.05, 30.0, 600]), (90.0, None)], kept
+    assert [(e["time"], e["span"]) for e in kept] == [(30.0, [0.05, 30.0, 600]), (end, None)], kept
     assert kept[0]["text"] == said[0][len("t = 30: "):] and kept[0]["step"] is None and kept[0]["last"] is None
     assert f"- {said[0]}" in (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
     # and so does the report of a monitor restarted from its state after it was said: the state holds it
@@ -223,14 +229,14 @@ def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_th
                     tmp_path / "state", "-o", tmp_path / "again", input=text)
     assert again.returncode == 0 and said[0] not in again.stdout, again.stdout  # said before the restart
     assert [(e["time"], e["span"]) for e in _misfits(tmp_path / "again")] == [(30.0, [0.05, 30.0, 600]),
-                                                                              (90.0, None)]
+                                                                              (end, None)]
     checked = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--checkpoint", "20", "--backend", "numpy",
                       "-o", tmp_path / "checked", input=text)  # the checkpoint's test says it first, at t = 20
     said = [line for line in checked.stdout.splitlines() if "the model does not fit this plant" in line]
     assert checked.returncode == 0 and len(said) == 2, checked.stdout  # not again at t = 30; the end's
-    assert said[0].startswith("t = 20: ") and said[1].startswith("t = 90: "), said
+    assert said[0].startswith("t = 20: ") and said[1].startswith(f"t = {end:g}: "), said
     assert [(e["time"], e["span"]) for e in _misfits(tmp_path / "checked")] == [(20.0, [0.05, 20.0, 400]),
-                                                                                (90.0, None)]
+                                                                                (end, None)]
     nearer = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", tmp_path / "near",
                      input=supply(1800, 0.0, 1.0, 2))  # 5 ohm: within what the watching level lets pass
     assert nearer.returncode == 0 and "does not fit" not in nearer.stdout, nearer.stdout
@@ -338,3 +344,19 @@ def test_a_misfit_said_before_keeps_its_own_time_and_leaves_the_ends_timing_advi
     assert "over the whole record (t = 0.05 to 102.4, 2048 samples)" in plain["text"]
     d = SimpleNamespace(events=(said, end), time_of=time_of)
     assert report._when(d, said) == "t = 102.4: " and report._timing(d) == "start"
+
+
+#: The rows of the load step's run (R_load 3 ohm higher from t = 45) the two tests of it stream: t = 0.05
+#: to 65, the record's test at t = 60 (as the 1201st row comes) and 5 s of the faulty plant after it: the
+#: rows of the 90 s run after those only lengthened the hypotheses' tracking after the alarm.
+STEPPED = 1300
+#: The rows of the run of R_load 6 ohm from the start the misfit test streams: t = 0.05 to 76, each of
+#: its record's tests (as the rows of t = 30.05, 45.05, 60.05 and 75.05 come) made, as over the 90 s run
+#: (whose next, at t = 90.05, never came), and the end's own test.
+OFF = 1520
+
+
+def first_rows(text: str, steps: int) -> str:
+    """A run file's header and its first ``steps`` rows (the same readings: the rows after cut off)."""
+    lines = text.splitlines()
+    return "\n".join(lines[: 1 + steps]) + "\n"
