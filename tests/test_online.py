@@ -213,28 +213,27 @@ def test_a_clock_that_jumps_is_refused_not_predicted_across_for_hours():
         d.step(float(jumped.time[20]), None, [jumped.measurements[y][20] for y in ("e11", "f2", "f6")], line=23)
 
 
-def ramp_run() -> runs.Run:
+def ramp_run(folder: Path) -> runs.Run:
     """A fault-free circuit run whose recorded source voltage ramps from 10 V
-    to 13 V (a model variant that declares the ramp made it): the
-    circuit's own model declares a constant 10 V."""
+    to 13 V (a model variant, written in ``folder``, that declares the ramp
+    made it): the circuit's own model declares a constant 10 V."""
     text = CIRCUIT.read_text().replace("V: {signal: constant, value: 10.0,",
                                        "V: {signal: ramp, value: 10.0, slope: 0.2, start: 0.0,")
     assert "signal: ramp" in text
-    variant = Path(os.environ.get("TMPDIR", "/tmp")) / f"bgc-ramp-{os.getpid()}" / "circuit.yaml"
-    variant.parent.mkdir(exist_ok=True)
+    variant = folder / "circuit.yaml"
     variant.write_text(text)
     return simulated(variant, seed=3)
 
 
 @pytest.mark.slow
-def test_a_recorded_input_is_used_and_a_blank_cell_holds_the_last_value():
+def test_a_recorded_input_is_used_and_a_blank_cell_holds_the_last_value(tmp_path):
     """The data's u:V (a ramp) is used, not the model's declared constant;
     one blank cell holds the last value with an event (before: the whole
     recorded input was dropped for the model's, with a false alarm); with
     no u:V column at all the model's input is used, and the report says so
     (diagnosed on the FAST backend: conftest.fast_session, the slow tier
     only)."""
-    run = ramp_run()
+    run = ramp_run(tmp_path)
     assert run.inputs["V"][-1] > 12.5
     circuit = fast_session("circuit")
     d = bgc.diagnose(circuit, data=run, options=OPTIONS).diagnosis
