@@ -383,12 +383,12 @@ def test_a_costs_file_prices_a_second_gauge_on_an_expression_by_the_gauges_name(
     line."""
     dp = ROOT / "tests" / "data" / "models" / "three_tanks_dp.yaml"
     flows = {"f4": 5, "f8": 5}
-    p = analyse(dp, quantitative=False, place_sensors=True, place_by="structural", costs=flows | {"dP": 3}).placement
+    priced = analyse(dp, quantitative=False, place_sensors=True, place_by="structural", costs=flows | {"dP": 3})
+    p = priced.placement
     twin = {c.name: c for c in p.candidates}["dP'"]
     assert (twin.cost, twin.written, str(twin.expr)) == (3.0, ("dP_2", "e2 - e10"), "-e10 + e2")
     assert (p.sets, p.cost) == ((("dP'",),), 3.0)
-    listed = {c["name"]: c for c in analyse(dp, quantitative=False, place_sensors=True, place_by="structural",
-                                            costs=flows | {"dP": 3}).to_dict()["placement"]["candidates"]}
+    listed = {c["name"]: c for c in priced.to_dict()["placement"]["candidates"]}  # the same analysis, as JSON
     assert listed["dP'"]["model_text"] == "e2 - e10" and listed["dP'"]["cost"] == 3.0
     unnamed = analyse(dp, quantitative=False, place_sensors=True, place_by="structural", costs=flows).placement
     assert "dP'" not in {c.name for c in unnamed.candidates}

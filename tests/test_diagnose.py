@@ -381,7 +381,7 @@ def test_a_drift_found_long_after_it_began_gets_its_onset_grid_extended_back():
     assert abs(h.onset_step - 106) <= 12 and d.onset_step == h.onset_step, h.onset_step
     circuit = fast_session("circuit")  # as run() above
     f = bgc.diagnose(circuit, scenario="R3:incipient:0.0308906@5.3", seed=473362393,
-                     options=DiagnosisOptions(seed=473362393, identify="filter", spacing=4)).diagnosis  # 2 workers
+                     options=DiagnosisOptions(seed=473362393, workers=2, identify="filter", spacing=4)).diagnosis
     h = f.best
     assert f.candidates[0] == "R3_incipient" and min(h.onset_steps) < f.detection.step - 64
     assert abs(h.start_step - 106) <= 12, h.start_step

@@ -439,31 +439,66 @@ def kalman_loglik(y: np.ndarray, factors: np.ndarray, onsets: np.ndarray, proces
     diag(process^2)); y = H x + v, v ~ N(0, diag(SIGMA^2)), F12's std times
     1 + b from the onset on), started at the steady state with P =
     diag(process^2): the exact likelihood of the linear plant, every (onset,
-    factor) cell at once."""
+    factor) cell at once. Before its onset a cell is the fault-free filter:
+    that filter is stepped once (row 0) for every cell whose onset is still
+    to come, and each onset's cells start from it (its mean, covariance and
+    log-likelihood so far) at their onset (``onsets`` ascending). ``y`` may
+    hold several records (records x steps x 3, one grid each): the
+    covariances do not depend on the readings, and are computed once for
+    all of them."""
     M, c, H = tank_map(R12)
     Q = np.diag(process ** 2)
-    f = np.broadcast_to(factors[None, :], (len(onsets), len(factors))).ravel()
-    o = np.broadcast_to(onsets[:, None], (len(onsets), len(factors))).ravel()
-    n = len(f)
-    x = np.tile([20.0 / 9.0, 4.0 / 3.0], (n, 1))
-    P = np.tile(Q, (n, 1, 1))
-    out = np.zeros(n)
-    for k, yk in enumerate(y):
-        x, P = x @ M.T + c, M @ P @ M.T + Q
-        r2 = np.tile(np.array(SIGMA) ** 2, (n, 1))
-        r2[:, 1] *= np.where(k >= o, f ** 2, 1.0)
-        S = H @ P @ H.T + r2[:, :, None] * np.eye(3)
-        e = yk - x @ H.T
+    y = np.asarray(y)
+    records = y[None] if y.ndim == 2 else y
+    onsets = np.asarray(onsets)
+    assert np.all(np.diff(onsets) > 0)
+    f2 = np.tile(np.asarray(factors) ** 2, len(onsets))  # the cells, onset by onset
+    o = np.repeat(onsets, len(factors))
+    n = len(f2)
+    x = np.tile([20.0 / 9.0, 4.0 / 3.0], (len(records), n + 1, 1))
+    P = np.tile(Q, (n + 1, 1, 1))
+    out = np.zeros((len(records), n + 1))
+    for k in range(records.shape[1]):
+        # rows 1 .. on - 1: the cells whose onset has come; now .. on - 1: those whose onset is this step
+        now, on = 1 + np.searchsorted(o, k, side="left"), 1 + np.searchsorted(o, k, side="right")
+        x[:, now:on], P[now:on], out[:, now:on] = x[:, :1], P[0], out[:, :1]
+        xs, Ps = x[:, :on] @ M.T + c, M @ P[:on] @ M.T + Q
+        r2 = np.tile(np.array(SIGMA) ** 2, (on, 1))
+        r2[1:, 1] *= f2[:on - 1]
+        S = H @ Ps @ H.T + r2[:, :, None] * np.eye(3)
+        e = records[:, k, None, :] - xs @ H.T
         Si = np.linalg.inv(S)
-        out += -0.5 * (np.einsum("ni,nij,nj->n", e, Si, e) + np.linalg.slogdet(2.0 * np.pi * S)[1])
-        K = P @ H.T @ Si
-        x, P = x + np.einsum("nij,nj->ni", K, e), P - K @ S @ K.transpose(0, 2, 1)
-    return out.reshape(len(onsets), len(factors))
+        out[:, :on] += -0.5 * (np.einsum("rni,nij,rnj->rn", e, Si, e) + np.linalg.slogdet(2.0 * np.pi * S)[1])
+        K = Ps @ H.T @ Si
+        x[:, :on], P[:on] = xs + np.einsum("nij,rnj->rni", K, e), Ps - K @ S @ K.transpose(0, 2, 1)
+    out = out[:, 1:].reshape(len(records), len(onsets), len(factors))
+    return out[0] if y.ndim == 2 else out
+
+
+#: The records of the test below: their seeds, length, the burst's step, and the exact posterior's grids of
+#: the factor's b and of the onset.
+BURST_SEEDS, BURST_STEPS, BURST_ONSET = (3, 8), 300, 120
+BURST_B = np.linspace(1.5, 8.0, 66)
+BURST_ONSETS = np.arange(BURST_ONSET - 60, BURST_ONSET + 61)
+
+
+@pytest.fixture(scope="module")
+def burst_records(session) -> dict:
+    """Per seed of BURST_SEEDS, the record made for the test below (rng of
+    the seed, tank_readings with the model's process noise, F12's noise
+    five times SIGMA from step BURST_ONSET) and its log p(y | b, onset) on
+    the grids BURST_ONSETS x BURST_B (kalman_loglik, every record's at
+    once)."""
+    process = np.array(session.compiled.numerics.noise_at().process)
+    ys = np.array([tank_readings(np.random.default_rng(seed), BURST_STEPS, process, burst_from=BURST_ONSET)
+                   for seed in BURST_SEEDS])
+    lls = kalman_loglik(ys, 1.0 + BURST_B, BURST_ONSETS, process)
+    return {seed: (y, ll) for seed, y, ll in zip(BURST_SEEDS, ys, lls)}
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [3, 8])
-def test_the_factors_interval_is_the_exact_posteriors_on_data_made_here(session, seed):
+@pytest.mark.parametrize("seed", BURST_SEEDS)
+def test_the_factors_interval_is_the_exact_posteriors_on_data_made_here(session, burst_records, seed):
     """The 95 % interval of the factor against the exact posterior of the
     same data (docs/results.md section 32 counts both over 200 runs). The
     data are made here, not by bgc simulate: the two tanks' linear step
@@ -481,19 +516,15 @@ def test_the_factors_interval_is_the_exact_posteriors_on_data_made_here(session,
     3 % and 7 % of the width off; before a noise fault's onsets were
     searched sample by sample at all, on a grid 11 samples apart, 6 % and
     9.5 %)."""
-    rng = np.random.default_rng(seed)
-    steps, onset = 300, 120
+    steps = BURST_STEPS  # 300
     time = 0.5 * np.arange(1, steps + 1)
-    process = np.array(session.compiled.numerics.noise_at().process)
-    y = tank_readings(rng, steps, process, burst_from=onset)
+    y, ll = burst_records[seed]  # the data of the seed, and the exact log-likelihood of its grid
     run = runs.Run(time, {"f_in": np.ones(steps)}, {"F10": y[:, 0], "F12": y[:, 1], "F20": y[:, 2]}, {}, {},
                    ("made by tests/test_noise_fault.py",), "burst.csv")
     d = bgc.diagnose(session, data=run, options=DiagnosisOptions(particles=500, seed=seed, workers=1)).diagnosis
     assert d.verdict == "isolated" and d.candidates == (NAME,), report.plain_words(d)
-    b = np.linspace(1.5, 8.0, 66)
-    onsets = np.arange(onset - 60, onset + 61)
-    ll = kalman_loglik(y, 1.0 + b, onsets, process)
-    ll -= ll.max()
+    b = BURST_B  # 1.5 to 8 by 0.1; the onsets: the steps 60 on either side of the truth (BURST_ONSETS)
+    ll = ll - ll.max()
     by_onset, by_b = np.logaddexp.reduce(ll, axis=1), np.logaddexp.reduce(ll, axis=0)
     assert max(by_onset[[0, -1]]) < by_onset.max() - 14 and max(by_b[[0, -1]]) < by_b.max() - 14  # the grids hold it
     fine = np.linspace(b[0], b[-1], 6501)

@@ -128,7 +128,13 @@ def test_the_cycling_valve_ro_raises_no_alarm_at_its_switches(valve):
 
 
 def test_a_pipe_clogging_in_the_second_cycle_is_named(valve):
-    sim = bgc.simulate(valve, "R_pipe:incipient:0.5@140", seed=4, steps=300, modes=CYCLES)
+    """R_pipe clogs from t = 140 (the second cycle's primary setting) and is
+    named. The record ends at 250, ten samples past the second cycle's
+    return to primary at 240 (the whole second cycle, its switches at 180,
+    220 and 240 after the onset, is in it); the samples of the third cycle
+    after that are not needed to name the fault."""
+    sim = bgc.simulate(valve, "R_pipe:incipient:0.5@140", seed=4, steps=250, modes=CYCLES)
+    assert [w.time for w in sim.switches] == [60.0, 100.0, 120.0, 180.0, 220.0, 240.0]
     d = bgc.diagnose(valve, data=sim).diagnosis
     assert d.verdict == "isolated" and d.candidates == ("R_pipe_incipient",), (d.verdict, d.candidates)
     assert d.detection.step > 140

@@ -27,8 +27,11 @@ def test_a_steps_kalman_onsets_run_from_the_change_point_to_the_alarm():
 @pytest.mark.slow
 def test_the_sweeps_unexplained_r12_steps_are_isolated_and_sized():
     """The sweep's two runs (GPF and APF at the model's noise), replayed from
-    the campaign file: isolated as R12's step, the interval holding the truth."""
-    from conftest import ROOT
+    the campaign file: isolated as R12's step, the interval holding the truth.
+    (On the FAST backend, conftest.fast_backend: the campaign's model is the
+    shipped two tanks, and a run's row does not depend on the backend; the
+    slow tier only.)"""
+    from conftest import ROOT, fast_backend
 
     from bgc.experiment.campaign_file import load_campaign
     from bgc.experiment.one_run import run_one
@@ -37,7 +40,9 @@ def test_the_sweeps_unexplained_r12_steps_are_isolated_and_sized():
     specs = [s for s in campaign.specs if s.group == "two_tank" and s.noise == "model"
              and s.scenario.startswith("R12:abrupt:0.821637@78.5")]
     assert [s.filter for s in specs] == ["gpf", "apf"]
+    assert {s.model_text for s in specs} == {(ROOT / "models" / "two_tank.yaml").read_text(encoding="utf-8")}
+    _, backend = fast_backend("two_tank")
     for spec in specs:
-        r = run_one(spec)
+        r = run_one(spec, backend)
         assert (r["verdict"], r["candidates"]) == ("isolated", "R12_abrupt"), r
         assert r["low"] <= 0.821637 <= r["high"]
