@@ -126,7 +126,10 @@ def numba_folder(name: str) -> Path:
 
 
 #: The backend of the slow tests of the shipped models (many seeded diagnoses): the compiled one when
-#: numba is installed (the same diagnoses, tests/test_backend.py checks it, about 3x faster), else NumPy.
+#: numba is installed (the same diagnoses, tests/test_backend.py checks it, about 3x faster), else NumPy;
+#: also of the docs' slow transcripts (tests/test_docs.py), so of the slow tests of the docs/examples
+#: models those transcripts diagnose (switched_rc.yaml, level.yaml): their kernels are compiled once into
+#: the suite's lasting cache either way.
 FAST = "numba" if importlib.util.find_spec("numba") else "numpy"
 
 

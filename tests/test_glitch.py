@@ -23,7 +23,7 @@ from bgc import events as ev
 from bgc.filters import residuals
 from bgc.output.events import sentence
 
-from conftest import ROOT, bgc_cli, fast_backend, fast_session
+from conftest import FAST, ROOT, bgc_cli, fast_backend, fast_session
 from test_episodes import plant
 from test_later_onset import _reading_off
 
@@ -155,7 +155,7 @@ def test_a_glitch_on_a_plant_whose_mode_the_data_do_not_give(tmp_path):
     y_p = np.array(y_p, dtype=float)
     y_p[200] += 7 * LEVEL_NOISE
     data = level_csv(tmp_path / "run.csv", times, modes, y_p, y_q, with_mode=False)
-    d = bgc.diagnose(ROOT / "docs" / "examples" / "level.yaml", data).diagnosis
+    d = bgc.diagnose(ROOT / "docs" / "examples" / "level.yaml", data, backend=FAST).diagnosis  # (conftest.FAST)
     assert (d.verdict, d.candidates, d.detection) == ("no fault", (), None)
     (glitch,) = [e for e in d.events if isinstance(e, ev.Glitch)]
     assert d.time_of(glitch.step) == pytest.approx(10.05) and glitch.sensor == "p"

@@ -108,10 +108,10 @@ def test_a_plant_that_switches_by_itself_is_calibrated_without_its_mode_column(t
     for it): one calibration, not the same one twice."""
     from hybrid_reference import LEVEL_DT, level_csv, level_run
 
-    from conftest import bgc_cli
+    from conftest import FAST, bgc_cli
 
     level = ROOT / "docs" / "examples" / "level.yaml"
-    session = bgc.open(level, backend="numpy")
+    session = bgc.open(level, backend=FAST)
     times, modes, y_p, y_q, switches = level_run(4, fault=(0.0, "R_out", 1.65), steps=240)
     given = level_csv(tmp_path / "given.csv", times, modes, y_p, y_q, True)
     hidden = level_csv(tmp_path / "hidden.csv", times, modes, y_p, y_q, False)
@@ -126,7 +126,7 @@ def test_a_plant_that_switches_by_itself_is_calibrated_without_its_mode_column(t
 
     with monkeypatch.context() as patch:
         patch.setattr(bgc.Session, "calibrate", kept)
-        out = bgc_cli("calibrate", str(level), "--data", str(hidden), "--estimate", "R_out", "--backend", "numpy",
+        out = bgc_cli("calibrate", str(level), "--data", str(hidden), "--estimate", "R_out", "--backend", FAST,
                       "-o", str(tmp_path / "cal.yaml"))
     assert out.returncode == 0, out.stderr
     (report,) = made

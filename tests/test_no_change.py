@@ -22,7 +22,7 @@ import bgc
 from bgc.diagnosis.detect import TESTS
 from bgc.diagnosis.fit import CHANGE_LEVEL, changed, misfit_before
 
-from conftest import fast_session
+from conftest import FAST, fast_session
 from test_mismatch import plant_csv
 
 
@@ -221,7 +221,7 @@ def test_a_step_the_observer_follows_is_diagnosed_from_the_change_point(seed, st
     from bgc.data import runs
     from test_uncommanded import MODEL
 
-    session = bgc.open(MODEL, backend="numpy")
+    session = bgc.open(MODEL, backend=FAST)
     data = runs.parse_run(stepped(seed), "stepped.csv")
     d = bgc.diagnose(session, data, seed=1).diagnosis
     said = [e for e in d.events if type(e).__name__ == "ChangeMissed"]
@@ -253,7 +253,7 @@ def test_with_the_whole_bank_the_same_step_is_diagnosed_from_its_change_point_al
     from bgc.output.events import sentence
     from test_uncommanded import MODEL
 
-    session = bgc.open(MODEL, backend="numpy")
+    session = bgc.open(MODEL, backend=FAST)
     data = runs.parse_run(stepped(2), "stepped.csv")
     d = bgc.diagnose(session, data, seed=1, options=bgc.DiagnosisOptions(detectors=TESTS)).diagnosis
     said = [e for e in d.events if type(e).__name__ == "ChangeMissed"]

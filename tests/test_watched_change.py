@@ -30,7 +30,7 @@ from scipy.integrate import solve_ivp
 from bgc.diagnosis.diagnoser import WATCH_SHARE, watch_level
 from bgc.diagnosis.fit import LEVEL
 
-from conftest import ROOT, bgc_cli
+from conftest import FAST, ROOT, bgc_cli
 
 MODEL = ROOT / "docs" / "examples" / "switched_rc.yaml"
 V, R_S, C, R_LOAD, DT = 10.0, 1.0, 1.0, 4.0, 0.05
@@ -123,7 +123,7 @@ def test_a_load_step_the_observer_follows_is_found_before_its_record_is_forgotte
     out = tmp_path / "out"
     rows = [",".join(["50", "2", "", *row.split(",")[3:]]) if row.startswith("50,") else row
             for row in first_rows(supply(1800, 45.0, 3.0, 2), STEPPED).splitlines()]
-    p = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", out,
+    p = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", FAST, "-o", out,
                 input="\n".join(rows) + "\n")
     assert p.returncode == 0, p.stderr
     assert p.stdout.count("input u:V is empty") == 1, p.stdout
@@ -138,7 +138,7 @@ def test_a_load_step_the_observer_follows_is_found_before_its_record_is_forgotte
     assert best["interval"][0] <= 3.0 <= best["interval"][1], best
     assert abs(report["onset"] - 45.0) <= 0.5, report["onset"]
     assert "the record kept while watching fails the test of the model" in p.stdout
-    healthy = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", tmp_path / "h",
+    healthy = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", FAST, "-o", tmp_path / "h",
                       input=supply(1800, None, 0.0, 2))
     assert healthy.returncode == 0, healthy.stderr
     assert "switched_rc: no fault" in healthy.stdout and "change test" not in healthy.stdout, healthy.stdout
@@ -169,7 +169,7 @@ def test_a_verdict_made_again_with_every_fault_model_keeps_the_watching_alarm(mo
         return retry(self, d, loop)
 
     monkeypatch.setattr(Diagnoser, "_retry", once)
-    d = bgc.open(MODEL, backend="numpy").diagnoser(DiagnosisOptions(keep=15.0, workers=1))
+    d = bgc.open(MODEL, backend=FAST).diagnoser(DiagnosisOptions(keep=15.0, workers=1))
     for row in first_rows(supply(1800, 45.0, 3.0, 2), STEPPED).splitlines()[1:]:
         t, mode, v, v_c, i_s = (float(x) for x in row.split(","))
         d.step(t, {"V": v, "mode": mode}, {"v_C": v_c, "i_s": i_s})
@@ -206,7 +206,7 @@ def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_th
 
     text = first_rows(supply(1800, 0.0, 2.0, 2), OFF)
     end = float(f"{OFF * DT:.10g}")  # the last row's time (76): the end's verdict
-    p = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", tmp_path / "out",
+    p = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", FAST, "-o", tmp_path / "out",
                 input=text)
     assert p.returncode == 0, p.stderr
     said = [line for line in p.stdout.splitlines() if "the model does not fit this plant" in line]
@@ -222,26 +222,26 @@ def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_th
     assert f"- {said[0]}" in (tmp_path / "out" / "report.md").read_text(encoding="utf-8")
     # and so does the report of a monitor restarted from its state after it was said: the state holds it
     head = "\n".join(text.splitlines()[:700]) + "\n"
-    first = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "--state",
+    first = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", FAST, "--state",
                     tmp_path / "state", "-o", tmp_path / "first", input=head)
     assert first.returncode == 0 and said[0] in first.stdout, first.stdout
-    again = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "--state",
+    again = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", FAST, "--state",
                     tmp_path / "state", "-o", tmp_path / "again", input=text)
     assert again.returncode == 0 and said[0] not in again.stdout, again.stdout  # said before the restart
     assert [(e["time"], e["span"]) for e in _misfits(tmp_path / "again")] == [(30.0, [0.05, 30.0, 600]),
                                                                               (end, None)]
-    checked = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--checkpoint", "20", "--backend", "numpy",
+    checked = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--checkpoint", "20", "--backend", FAST,
                       "-o", tmp_path / "checked", input=text)  # the checkpoint's test says it first, at t = 20
     said = [line for line in checked.stdout.splitlines() if "the model does not fit this plant" in line]
     assert checked.returncode == 0 and len(said) == 2, checked.stdout  # not again at t = 30; the end's
     assert said[0].startswith("t = 20: ") and said[1].startswith(f"t = {end:g}: "), said
     assert [(e["time"], e["span"]) for e in _misfits(tmp_path / "checked")] == [(20.0, [0.05, 20.0, 400]),
                                                                                 (end, None)]
-    nearer = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", "numpy", "-o", tmp_path / "near",
+    nearer = bgc_cli("monitor", MODEL, "--data", "-", "--keep", "15", "--backend", FAST, "-o", tmp_path / "near",
                      input=supply(1800, 0.0, 1.0, 2))  # 5 ohm: within what the watching level lets pass
     assert nearer.returncode == 0 and "does not fit" not in nearer.stdout, nearer.stdout
     assert "switched_rc: no fault" in nearer.stdout, nearer.stdout
-    session = bgc.open(MODEL, backend="numpy")
+    session = bgc.open(MODEL, backend=FAST)
     rows = [line.split(",") for line in text.splitlines()[1:]]
     d = session.diagnoser(DiagnosisOptions(keep=15.0, workers=1))
     events, kept = [], []
