@@ -37,7 +37,7 @@ from bgc.experiment import metrics
 from bgc.analysis import simulate as sim
 from bgc.data import runs
 
-from conftest import TEST_MODELS, tank_map
+from conftest import FAST, TEST_MODELS, tank_map
 
 PLANT = TEST_MODELS / "two_tank_sensors.yaml"
 NAME = "F12_noise_noise"
@@ -50,6 +50,13 @@ SIGMA = (0.02 * 2.2222222 / R10, 0.02 * (2.2222222 - 1.3333333) / R12, 0.02 * 1.
 @pytest.fixture(scope="module")
 def session():
     return bgc.open(PLANT)
+
+
+@pytest.fixture(scope="module")
+def fast():
+    """The plant on the FAST backend, for the slow tests' diagnoses (docs/format.md's slow transcript
+    diagnoses it on that backend too: its kernels are in the suite's lasting cache)."""
+    return bgc.open(PLANT, backend=FAST)
 
 
 @pytest.fixture(scope="module")
@@ -310,11 +317,11 @@ def test_a_simulated_burst_multiplies_the_sensors_noise_from_the_onset(session):
 
 # ------------------------------------------------------------------ diagnosis
 @pytest.mark.slow
-def test_a_burst_of_noise_on_f12_is_named_sized_and_dated(session):
+def test_a_burst_of_noise_on_f12_is_named_sized_and_dated(fast):
     """Named, its interval covering b = 4, and its onset found near t = 60
     although the detector (a test of the residuals' mean) alarms much later:
     a noise fault's onsets are searched back from the alarm as a drift's."""
-    r = bgc.diagnose(session, scenario="F12:noise:4@60", seed=1, options=DiagnosisOptions(particles=500, seed=1, workers=1))
+    r = bgc.diagnose(fast, scenario="F12:noise:4@60", seed=1, options=DiagnosisOptions(particles=500, seed=1, workers=1))
     d = r.diagnosis
     assert d.verdict == "isolated" and d.candidates == (NAME,)
     assert d.estimate.low <= 4.0 <= d.estimate.high
@@ -498,7 +505,7 @@ def burst_records(session) -> dict:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", BURST_SEEDS)
-def test_the_factors_interval_is_the_exact_posteriors_on_data_made_here(session, burst_records, seed):
+def test_the_factors_interval_is_the_exact_posteriors_on_data_made_here(fast, burst_records, seed):
     """The 95 % interval of the factor against the exact posterior of the
     same data (docs/results.md section 32 counts both over 200 runs). The
     data are made here, not by bgc simulate: the two tanks' linear step
@@ -521,7 +528,7 @@ def test_the_factors_interval_is_the_exact_posteriors_on_data_made_here(session,
     y, ll = burst_records[seed]  # the data of the seed, and the exact log-likelihood of its grid
     run = runs.Run(time, {"f_in": np.ones(steps)}, {"F10": y[:, 0], "F12": y[:, 1], "F20": y[:, 2]}, {}, {},
                    ("made by tests/test_noise_fault.py",), "burst.csv")
-    d = bgc.diagnose(session, data=run, options=DiagnosisOptions(particles=500, seed=seed, workers=1)).diagnosis
+    d = bgc.diagnose(fast, data=run, options=DiagnosisOptions(particles=500, seed=seed, workers=1)).diagnosis
     assert d.verdict == "isolated" and d.candidates == (NAME,), report.plain_words(d)
     b = BURST_B  # 1.5 to 8 by 0.1; the onsets: the steps 60 on either side of the truth (BURST_ONSETS)
     ll = ll - ll.max()
