@@ -25,9 +25,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "out" / "suite-profile"
 #: The entry points docs/results.md section 71 tabulates, by the name cProfile gives them.
-ENTRIES = ("static_posterior.py:.*(static_posteriors)", "hypothesis.py:.*(step)", "diagnoser.py:.*(step)",
-           "session.py:.*(calibrate)", "pipeline.py:.*(compile_model)", "plots.py:.*(diagnosis_figures)",
-           "intermittent.py:.*(revised)", "gc.collect")
+ENTRIES = (r"static_posterior\.py:\d+\(static_posteriors\)", r"hypothesis\.py:\d+\(step\)",
+           r"diagnoser\.py:\d+\(step\)", r"session\.py:\d+\(calibrate\)", r"pipeline\.py:\d+\(compile_model\)",
+           r"plots\.py:\d+\(diagnosis_figures\)", r"intermittent\.py:\d+\(revised\)", r"gc\.collect")
 
 _profile = None
 
@@ -72,7 +72,7 @@ def show(count: int) -> int:
     if not files:
         print(f"no profile in {OUT.relative_to(ROOT)}: run `bench/suite_profile.py run` first", file=sys.stderr)
         return 1
-    stats = pstats.Stats(str(files[0]), stream=open(os.devnull, "w"))
+    stats = pstats.Stats(str(files[0]))
     for f in files[1:]:
         stats.add(str(f))
     rows = [(ct, nc, f"{Path(file).relative_to(ROOT) if file.startswith(str(ROOT)) else file}:{line}({name})")

@@ -140,7 +140,6 @@ def test_a_gap_is_told_at_its_time_and_one_before_the_record_kept_is_forgotten()
     assert len(kept) == 1 and diagnosis.time[kept[0].step] == pytest.approx(after[0] * DT)
 
 
-
 def test_the_forgotten_started_packages_are_freed_every_few_cuts(monkeypatch):
     """Each cut starts the record's models from a package of their own and
     forgets the last one: cycles only the cyclic collector frees. With its
@@ -179,6 +178,7 @@ def test_the_forgotten_started_packages_are_freed_every_few_cuts(monkeypatch):
         if was:
             gc.enable()
     assert len(freed) == 2 and all(freed[0]) and not any(freed[1]) and all(forgotten), freed
+
 
 @pytest.mark.slow
 def test_a_gap_across_the_moment_the_record_is_cut_keeps_its_time():

@@ -13,6 +13,7 @@ onset, and stays "unexplained", also when the samples before its change
 point are too few for the change test."""
 
 import math
+from functools import cache
 from statistics import NormalDist
 
 import numpy as np
@@ -23,6 +24,7 @@ from bgc.diagnosis.detect import TESTS
 from bgc.diagnosis.fit import CHANGE_LEVEL, changed, misfit_before
 
 from conftest import FAST, fast_session
+from conftest import session as open_once
 from test_mismatch import plant_csv
 
 
@@ -191,6 +193,7 @@ def test_a_drift_the_mean_test_misses_is_a_change_not_a_mismatch(tmp_path):
     assert not any(type(e).__name__ == "ChangeMissed" for e in off.events)
 
 
+@cache  # a seeded simulation: the same rows each time, made once for the tests that read it
 def _supply_stepped(onset: float, size: float, seed: int) -> str:
     """The supply of docs/examples/switched_rc.yaml (tests/test_uncommanded.py's
     schedule: closed, open at 5 s, closed at 15 s, open at 22 s) with R_load
@@ -205,7 +208,7 @@ def _supply_stepped(onset: float, size: float, seed: int) -> str:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [2, 3])
-def test_a_step_the_observer_follows_is_diagnosed_from_the_change_point(seed, stepped):
+def test_a_step_the_observer_follows_is_diagnosed_from_the_change_point(seed):
     """R_load 50 % higher from t = 8 s, in the supply's open mode (it sets
     only the capacitor's decay there: tau 4 s -> 6 s): the model declares
     process noise large enough (0.085 V per step against a change of the
@@ -221,8 +224,8 @@ def test_a_step_the_observer_follows_is_diagnosed_from_the_change_point(seed, st
     from bgc.data import runs
     from test_uncommanded import MODEL
 
-    session = bgc.open(MODEL, backend=FAST)
-    data = runs.parse_run(stepped(seed), "stepped.csv")
+    session = open_once(MODEL, backend=FAST)
+    data = runs.parse_run(_supply_stepped(8.0, 2.0, seed), "stepped.csv")
     d = bgc.diagnose(session, data, seed=1).diagnosis
     said = [e for e in d.events if type(e).__name__ == "ChangeMissed"]
     assert len(said) == 1 and said[0].found and said[0].at_change, said
@@ -244,7 +247,7 @@ def test_a_step_the_observer_follows_is_diagnosed_from_the_change_point(seed, st
 
 
 @pytest.mark.slow
-def test_with_the_whole_bank_the_same_step_is_diagnosed_from_its_change_point_alone(stepped):
+def test_with_the_whole_bank_the_same_step_is_diagnosed_from_its_change_point_alone():
     """The same step (seed 2) with every test of the detector's bank from the
     start (``--detect all``): none alarms either, and the diagnosis goes to
     the alarm at the change point at once (no diagnosis again with the bank
@@ -253,8 +256,8 @@ def test_with_the_whole_bank_the_same_step_is_diagnosed_from_its_change_point_al
     from bgc.output.events import sentence
     from test_uncommanded import MODEL
 
-    session = bgc.open(MODEL, backend=FAST)
-    data = runs.parse_run(stepped(2), "stepped.csv")
+    session = open_once(MODEL, backend=FAST)
+    data = runs.parse_run(_supply_stepped(8.0, 2.0, 2), "stepped.csv")
     d = bgc.diagnose(session, data, seed=1, options=bgc.DiagnosisOptions(detectors=TESTS)).diagnosis
     said = [e for e in d.events if type(e).__name__ == "ChangeMissed"]
     assert len(said) == 1 and said[0].found and said[0].at_change and not said[0].bank, said
@@ -263,16 +266,3 @@ def test_with_the_whole_bank_the_same_step_is_diagnosed_from_its_change_point_al
     assert "made again with an alarm raised at that change point, and its verdict stands" in sentence(said[0],
                                                                                                       d.time_of)
 
-
-@pytest.fixture(scope="module")
-def stepped():
-    """:func:`_supply_stepped` (R_load 2 ohm higher from t = 8) of a seed, made once per seed for
-    this module's tests of it (the same rows each time: a seeded simulation)."""
-    made = {}
-
-    def of(seed: int) -> str:
-        if seed not in made:
-            made[seed] = _supply_stepped(8.0, 2.0, seed)
-        return made[seed]
-
-    return of

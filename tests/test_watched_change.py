@@ -31,6 +31,7 @@ from bgc.diagnosis.diagnoser import WATCH_SHARE, watch_level
 from bgc.diagnosis.fit import LEVEL
 
 from conftest import FAST, ROOT, bgc_cli
+from conftest import session as open_once
 
 MODEL = ROOT / "docs" / "examples" / "switched_rc.yaml"
 V, R_S, C, R_LOAD, DT = 10.0, 1.0, 1.0, 4.0, 0.05
@@ -155,7 +156,6 @@ def test_a_verdict_made_again_with_every_fault_model_keeps_the_watching_alarm(mo
     no fault. The load step of the test above (its first 65 s, the same
     rows), the retry asked for once here: the diagnosis made again alarms
     at the same change point and names R_load's step."""
-    import bgc
     from bgc.diagnosis.diagnoser import Diagnoser
     from bgc.diagnosis.options import DiagnosisOptions
 
@@ -169,7 +169,7 @@ def test_a_verdict_made_again_with_every_fault_model_keeps_the_watching_alarm(mo
         return retry(self, d, loop)
 
     monkeypatch.setattr(Diagnoser, "_retry", once)
-    d = bgc.open(MODEL, backend=FAST).diagnoser(DiagnosisOptions(keep=15.0, workers=1))
+    d = open_once(MODEL, backend=FAST).diagnoser(DiagnosisOptions(keep=15.0, workers=1))
     for row in first_rows(supply(1800, 45.0, 3.0, 2), STEPPED).splitlines()[1:]:
         t, mode, v, v_c, i_s = (float(x) for x in row.split(","))
         d.step(t, {"V": v, "mode": mode}, {"v_C": v_c, "i_s": i_s})
@@ -241,7 +241,7 @@ def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_th
                      input=supply(1800, 0.0, 1.0, 2))  # 5 ohm: within what the watching level lets pass
     assert nearer.returncode == 0 and "does not fit" not in nearer.stdout, nearer.stdout
     assert "switched_rc: no fault" in nearer.stdout, nearer.stdout
-    session = bgc.open(MODEL, backend=FAST)
+    session = open_once(MODEL, backend=FAST)
     rows = [line.split(",") for line in text.splitlines()[1:]]
     d = session.diagnoser(DiagnosisOptions(keep=15.0, workers=1))
     events, kept = [], []

@@ -119,6 +119,7 @@ def _collect_forgotten() -> None:
         _forgotten = 0
         gc.collect()
 
+
 class Diagnoser:
     """The diagnosis of one plant's data, one sample at a time (module
     docstring); built as ``Diagnoser(package, signatures, priors, options,
