@@ -1,11 +1,16 @@
-# The commands: `make demo`, `make check` (the fast tier, for a contributor every few minutes) and
-# `make test` (every test, what CI runs). Each creates .venv when missing.
+# The commands: `make demo`, `make check` (the fast tier, for a contributor every few minutes),
+# `make test` (every test but the long runs, what CI runs) and `make long` (the long runs: tests of
+# 4 s or more). Each creates .venv when missing.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.bgc-installed
 #: The markers `make check` leaves out (pyproject.toml says what each means).
-FULL_ONLY := slow or process or numba or install or browser
+FULL_ONLY := slow or process or numba or install or browser or long
+#: The long runs (tests of 4 s or more: seeded statistics, memory peaks, long streams, campaigns, the
+#: slower end-to-end scenarios): `make long` runs them, with a table of their times, and `make test`
+#: does not (long runs are benchmarks).
+LONG := long
 #: Test processes (pytest-xdist; a test file stays on one): one per core of the 2-core machine (three
 #: were slower, measured); `make test TEST_JOBS=0` runs in this one.
 TEST_JOBS ?= 2
@@ -13,7 +18,7 @@ TEST_JOBS ?= 2
 #: beside them only contend (measured: 5 to 9 % off the wall time of three test files each way).
 PYTEST := OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MPLBACKEND=Agg $(BIN)/python -m pytest -n $(TEST_JOBS) --dist loadfile
 
-.PHONY: demo check test clean
+.PHONY: demo check test long clean
 
 # Print a CSV's lines one at a time, a pause between rows: a plant's logger, for the monitor.
 define REPLAY
@@ -68,7 +73,11 @@ check: $(STAMP)
 
 test: $(STAMP)
 	$(BYTECODE)
-	$(PYTEST)
+	$(PYTEST) -m "not $(LONG)"
+
+long: $(STAMP)
+	$(BYTECODE)
+	$(PYTEST) -m "$(LONG)" --durations=0
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis "$${XDG_CACHE_HOME:-$$HOME/.cache}/bgc-tests"

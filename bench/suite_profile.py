@@ -4,7 +4,8 @@
     .venv/bin/python bench/suite_profile.py show [COUNT]
 
 ``run`` runs make test's command (two xdist processes, a file to a
-process) with this file loaded as a pytest plugin: each test process
+process; ``-m "not long"`` unless PYTEST ARGUMENTS are given: ``-m long``
+profiles make long's tier) with this file loaded as a pytest plugin: each test process
 profiles itself from its session's start to its end and writes
 ``out/suite-profile/<process>.prof``. The processes the tests start (a
 command through a pipe, a worker pool, a Dask cluster) are not profiled.
@@ -59,7 +60,7 @@ def run(arguments: list[str]) -> int:
                MPLBACKEND="Agg", PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT / "bench"),
                                                                           os.environ.get("PYTHONPATH")])))
     command = [sys.executable, "-m", "pytest", "-n", "2", "--dist", "loadfile", "-q", "-p", "suite_profile",
-               *arguments]
+               *(arguments or ["-m", "not long"])]
     print("$ BGC_SUITE_PROFILE=out/suite-profile " + " ".join(command[1:]), flush=True)
     return subprocess.run(command, cwd=ROOT, env=env).returncode
 

@@ -5,8 +5,11 @@ The tiers (markers registered in pyproject.toml): ``make check`` runs every
 test but those marked ``slow`` (end-to-end scenarios, seeded statistics, any test of more than about 4 s),
 ``process`` (starts a real process: a CLI through a pipe, Ctrl-C, --follow,
 a fresh interpreter, a Dask cluster, a notebook kernel; or forks the worker
-pool it tests), ``numba`` (compiles kernels), ``install`` and ``browser``;
-``make test``, which CI runs, runs them all. A diagnosis runs its filters in
+pool it tests), ``numba`` (compiles kernels), ``install``, ``browser`` and
+``long``; ``make test``, which CI runs, runs them all but ``long``: the long
+runs (a test of 4 s or more, measured: seeded statistics, memory peaks, long
+streams, campaigns, the slower end-to-end scenarios), which ``make long``
+runs, as a benchmark is run. A diagnosis runs its filters in
 this process (``BGC_WORKERS=1``, below) unless workers are what the
 test is about; a command runs in this process (:func:`bgc_cli`) unless it
 needs a real one; a shipped model is compiled once (:func:`compiled`,

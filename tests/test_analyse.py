@@ -146,6 +146,7 @@ def test_the_pairs_the_signatures_cannot_tell_apart_are_worked_out_at_once_as_on
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_the_quantitative_level_is_bgc_distinguishs():
     """At the model's noise and constant inputs the capacitances change
     nothing at steady state (bgc check warns of it): not detected; every
@@ -453,6 +454,7 @@ HYBRID = sorted(p for p in [*(ROOT / "models").glob("*.yaml"), *(ROOT / "docs" /
 
 @pytest.mark.parametrize("path", [pytest.param(p, marks=pytest.mark.slow) if p.stem == "ro_hybrid_valve" else p
                                   for p in HYBRID], ids=lambda p: p.stem)  # (the RO's three valve settings: 5 s)
+@pytest.mark.long
 def test_each_modes_structure_equals_the_fault_diagnosis_toolboxs(path):
     from bgc.pipeline import compile_model
 

@@ -233,6 +233,7 @@ def test_a_long_recorded_run_is_refused_by_the_same_rule(monkeypatch):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_the_rule_bounds_the_memory_a_diagnosis_takes():
     """tracemalloc's peak of a diagnosis (one process, a drift found and
     sized) stays under the rule's bound. Before it, a shorter diagnosis of the
@@ -490,6 +491,7 @@ def test_figures_are_the_reports_plots_as_live_matplotlib_figures(hostile_report
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_write_gives_the_folder_bgc_diagnose_writes_and_refuses_foreign_files(hostile_model, hostile_report, written,
                                                                              tmp_path, capsys):
     import json

@@ -165,6 +165,7 @@ def new_cache(tmp_path_factory):
 
 @pytest.mark.numba
 @pytest.mark.process
+@pytest.mark.long
 def test_a_second_process_loads_the_compiled_kernels_from_the_disk_cache(new_cache):
     """The first session of a model text compiles its kernels, a later
     process loads them from numba's disk cache (the package lives in a
@@ -253,6 +254,7 @@ def test_a_package_instance_at_other_noise_levels_uses_its_own_noise_on_both_bac
 
 
 @pytest.mark.numba
+@pytest.mark.long
 def test_the_static_posterior_and_its_verdict_do_not_depend_on_the_backend():
     """The cubature Kalman filters' banks (onset cells, held magnitudes, a
     drifting parameter) on the RO plant, through a whole ckf diagnosis: the
@@ -276,6 +278,7 @@ def test_the_static_posterior_and_its_verdict_do_not_depend_on_the_backend():
 
 @pytest.mark.numba
 @pytest.mark.process
+@pytest.mark.long
 def test_the_cli_runs_a_diagnosis_and_a_campaign_on_the_compiled_backend(tmp_path, new_cache):
     """``bgc diagnose --backend numba -v`` says in one line how its kernels were
     had (compiled or loaded) and writes the same verdict as on NumPy; a

@@ -320,6 +320,7 @@ def compile_from_text(text: str):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_two_tank_parameter_interval_covers_the_truth(tanks, tmp_path):
     """A model whose R12 is 20 % off (2.4, the plant's is 2.0): calibrated on
     healthy data of the plant, R12's 95 % interval holds the truth and not
@@ -551,6 +552,7 @@ def test_data_of_another_model_is_refused(rc, tanks):
 
 # ------------------------------------------------------------------- innovations
 @pytest.mark.slow
+@pytest.mark.long
 def test_innovations_tell_a_model_that_misses_the_plant(rc, tmp_path):
     """The innovations of the calibrated model: white on data of the model's
     own plant; correlated (a tiny Ljung-Box p-value) and off 0 when the

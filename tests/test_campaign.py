@@ -210,6 +210,7 @@ def local_run(tmp_path_factory):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_local_campaign_writes_rows_tables_and_plots(local_run):
     c, r, folder = local_run
     out = folder / "out"

@@ -302,6 +302,7 @@ def test_filter_without_the_compiled_package_names_generated(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_successful_run_is_quiet_on_stderr_and_says_what_it_chose_with_v(tmp_path, capsys):
     """stderr holds errors and warnings only: a diagnosis that succeeds
     writes nothing there; with -v (after the command or before it) it says

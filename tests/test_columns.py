@@ -168,6 +168,7 @@ def _iso(seconds: float) -> str:
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_the_commands_take_a_column_map(tmp_path):
     """``--columns`` on diagnose, monitor (through a stream), filter and
     calibrate; a map that does not fit is one line with its file and line."""

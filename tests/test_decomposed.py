@@ -167,6 +167,7 @@ def test_whole_plant_ckf_finds_a_bias_between_its_first_grids_points(chain4, fau
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_the_submodels_alarm_where_the_whole_plant_does(chain4, seed=3):
     """The detector watches the whole plant's nominal filter (the model
     without its faults), so the decomposed diagnosis alarms at the sample
@@ -200,6 +201,7 @@ def test_the_submodels_alarm_where_the_whole_plant_does(chain4, seed=3):
     assert parts_alone is None or parts_alone.step > split.step, (parts_alone, split)
 
 
+@pytest.mark.long
 def test_api_and_cli_diagnose_on_the_submodels(chain4, tmp_path):
     """``bgc.diagnose(..., decompose=True)`` and ``bgc diagnose --decompose``:
     the plan's verdict, a report that says what was weighed in place of
@@ -232,6 +234,7 @@ def test_decompose_refuses_what_it_cannot_do(chain4):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_leak_its_tanks_sensor_bias_mimics_is_unexplained(tmp_path):
     """A quarter of the inflow leaking from tank 3 of six: in tank 3's own
     submodel a negative bias of its sensor mimics it, and the windowed test

@@ -389,6 +389,7 @@ def test_readings_that_a_logger_writes_twice_need_a_longer_run_to_be_frozen():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_white_residuals_alarm_each_family_at_most_at_its_share():
     """300-step runs (every window of every family tested) of white
     residuals, readings written to 5 decimals (a repeat now and then), their
@@ -811,6 +812,7 @@ def test_a_small_shift_in_every_sensor_is_found_by_the_pooled_test_at_its_closed
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_the_pooled_test_holds_its_share_only_with_the_residuals_own_correlation():
     """White residuals whose correlation swings between +0.9 and -0.6 every
     50 steps (a transient changes how the observer's spread and the
@@ -963,6 +965,7 @@ def test_a_source_a_little_low_is_seen_sooner_by_the_pooled_test(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("model, controlled", [("ro_hybrid_valve", True), ("ro_hybrid", False)])
+@pytest.mark.long
 def test_a_model_with_modes_gets_the_correlation_of_the_mode_its_cloud_agrees_on(model, controlled, monkeypatch):
     """RO with its three valve settings, the mode in the data (controlled)
     and hidden (the guards): the particle cloud agrees on the mode at every

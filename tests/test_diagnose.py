@@ -113,6 +113,7 @@ def test_the_filters_of_a_diagnosis_run_in_worker_processes_with_the_same_result
 
 # ------------------------------------------------------------------- the CLI (in this process: conftest.bgc_cli)
 @pytest.mark.slow
+@pytest.mark.long
 def test_bgc_diagnose_writes_a_report_and_plots(tmp_path):
     """On the FAST backend, --backend (conftest.fast_session's kernels; the
     result does not depend on it: tests/test_backend.py; the slow tier
@@ -359,6 +360,7 @@ def test_each_onset_weighs_the_span_of_samples_it_stands_for():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_drift_found_long_after_it_began_gets_its_onset_grid_extended_back():
     """R3 drifting from t = 5.3 (sample 106) in the circuit, detected more
     than 64 samples later (a drift of the sweep, bgc's seed 473362393): the
@@ -466,6 +468,7 @@ def test_a_parameter_a_sensor_sees_is_sized_right_when_it_changes_at_a_sample():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_drift_whose_particle_filters_start_off_its_onset_is_tested_as_its_fault_model_states_it():
     """The RO membrane's drift (slope 0.2 from t = 165) at the thesis's noise,
     APF, 200 particles, seed 0: the drift's particle filters start every 8
@@ -486,6 +489,7 @@ def test_a_drift_whose_particle_filters_start_off_its_onset_is_tested_as_its_fau
 
 @pytest.mark.slow
 @pytest.mark.parametrize("method", ["gpf", "apf"])
+@pytest.mark.long
 def test_a_drifts_onset_is_marginalised_sample_by_sample_where_its_posterior_is(method):
     """The DC motor's armature resistance drifting from t = 93 at 0.5 %/1 %
     noise: given its onset, the slope is known to 0.3 %, far sharper than the
@@ -565,6 +569,7 @@ def test_a_sensor_sharp_against_the_process_noise_degenerates_the_particle_filte
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_cubature_kalman_filters_alone_isolate_and_size_a_fault_the_particle_filters_cannot_follow():
     """The drivetrain's motor torque gain g_m down by 0.2 at t = 8 s (sample
     160): the speeds answer with the drivetrain's 10 s time constant, so the
@@ -581,6 +586,7 @@ def test_cubature_kalman_filters_alone_isolate_and_size_a_fault_the_particle_fil
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_cubature_kalman_filters_alone_find_the_static_posterior_the_particle_filters_hint_at():
     """--filter ckf lays its first grid over the magnitude's whole prior; the
     particle filters' path starts from their interval. The adaptive grid

@@ -270,6 +270,7 @@ def test_a_noiseless_sensor_is_refused_before_any_work(capsys):
 
 # ------------------------------------------------------------ memory and progress
 @pytest.mark.slow
+@pytest.mark.long
 def test_the_memory_estimate_bounds_the_peak_closely():
     """distinguish.memory against tracemalloc's peak of a whole prediction
     (every candidate, 400 samples: MAX_ONSETS onsets), fresh families: at or

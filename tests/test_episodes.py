@@ -120,6 +120,7 @@ def test_a_repair_said_in_the_stream_takes_the_fault_out_and_without_it_the_faul
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_an_episode_not_decided_is_closed_after_rearm_and_the_monitor_watches_again(tmp_path):
     # R2 falls: outside the prior of every fault model (R2_abrupt rises), never isolated. 240 rows (t = 12):
     # the first episode (alarm from t = 6, closed by alarm + 4.05) and the watch after it fit in with room
@@ -134,6 +135,7 @@ def test_an_episode_not_decided_is_closed_after_rearm_and_the_monitor_watches_ag
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_sensor_bias_is_accommodated_as_its_offset_or_the_sensor_taken_out(tmp_path):
     text = plant(420, [(16.0, {"R2": 1.6})], bias=(6.0, 0, 0.5))  # f2 reads 0.5 high from t = 6
     _, _, log = run(tmp_path / "kept", text)
@@ -148,6 +150,7 @@ def test_a_sensor_bias_is_accommodated_as_its_offset_or_the_sensor_taken_out(tmp
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_restart_in_the_second_episode_goes_on_with_the_first_accommodated(tmp_path, two):
     text = plant(600, TWO)
     lines = text.splitlines(keepends=True)
@@ -164,6 +167,7 @@ def test_a_restart_in_the_second_episode_goes_on_with_the_first_accommodated(tmp
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_stream_that_ends_as_an_episode_closes_reports_it_and_a_restart_takes_no_repair_twice(tmp_path, said):
     text, (_, _, log) = said
     lines = text.splitlines(keepends=True)

@@ -31,6 +31,7 @@ CIRCUIT = ROOT / "models" / "circuit.yaml"
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_one_reading_off_on_a_healthy_plant_is_a_glitch_not_a_fault(tmp_path):
     # f6 reads 0.8 A low at t = 6 alone (about 7 of its residual's stds: the detector's one-sample window
     # alarms); the plant stays healthy to the end (t = 20). Before, the verdict named whichever fault model
@@ -125,6 +126,7 @@ def test_the_test_fails_only_where_the_plain_one_does():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_monitor_closes_a_glitchs_episode_and_watches_on(tmp_path):
     # the same glitch streamed through bgc monitor --episodes: the checkpoint after it says no fault, and
     # the episode is closed as a glitch, the model watched as it was (nothing accommodated)
@@ -144,6 +146,7 @@ def test_a_monitor_closes_a_glitchs_episode_and_watches_on(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_glitch_on_a_plant_whose_mode_the_data_do_not_give(tmp_path):
     # docs/examples/level.yaml's tank, its pump switched by the tank's pressure and no mode column (the modes
     # decoded from the data): a healthy run by solve_ivp on its hand-derived equations, one reading of p seven

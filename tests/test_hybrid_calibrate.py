@@ -36,6 +36,7 @@ def exact_run(r_aux: float, end: float, seed: int, modes: bool = True) -> runs.R
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_load_behind_the_relay_is_calibrated_through_its_switches():
     """R_aux carries current only while the relay is closed: the plant's 0.45 ohm (the model
     file says 0.5) is found from 4 s of data holding four closings and openings."""
@@ -92,6 +93,7 @@ def test_data_without_the_mode_column_of_a_controlled_switch_are_refused_in_one_
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_plant_that_switches_by_itself_is_calibrated_without_its_mode_column(tmp_path, monkeypatch):
     """The level plant (a pump switched by the tank's pressure: autonomous
     transitions) by solve_ivp on its hand-derived equations

@@ -35,6 +35,7 @@ def test_a_groups_modes_that_do_not_fit_its_model_are_a_located_line(tmp_path, m
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_campaign_runs_the_relay_through_its_switches(tmp_path):
     """Each run is simulated through the automaton with the group's trip of the supply at 6 s
     (the relay's own closings and openings besides), diagnosed with the data's mode column."""

@@ -55,6 +55,7 @@ def test_a_relay_cycling_without_a_fault_raises_no_alarm():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_fault_only_the_closed_relay_shows_is_isolated_and_sized():
     """R_aux carries current only with the relay closed: its fault is seen there, and the
     symbols read over a stretch in that mode keep it while an open relay's signatures would not."""
@@ -73,6 +74,7 @@ def test_a_fault_only_the_closed_relay_shows_is_isolated_and_sized():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_stepping_the_diagnoser_through_the_switches_gives_the_batch_diagnosis():
     """Online (a sample at a time, the mode among the inputs as a stream's column) and batch
     give the same diagnosis of the relay through its switches."""

@@ -151,6 +151,7 @@ def test_a_stuck_switch_is_asked_for_in_one_line(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_campaign_runs_a_stuck_relay_and_its_diagnosis_says_unexplained(tmp_path):
     """A model that lists no stuck switch: a run whose relay sticks open at 3 s comes out
     "unexplained" (no fault model explains it), and the campaign counts it as a fault the model

@@ -174,6 +174,7 @@ def comes_and_goes(tmp_path_factory):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_fault_that_comes_and_goes_is_isolated_with_its_spans(comes_and_goes):
     _, _, report = comes_and_goes
     d = report.diagnosis
@@ -224,6 +225,7 @@ def test_a_persistent_fault_is_not_tried_as_one_that_comes_and_goes(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_sensors_bias_that_comes_and_goes_from_the_command_line(tmp_path):
     spans = [(6.0, 11.0), (17.0, None)]
     text = _bias_over(plant(500, [], seed=4), 1, 0.5, spans)  # f6 reads 0.5 A high over the spans
@@ -260,6 +262,7 @@ def test_a_span_shorter_than_an_isolation_is_named_by_the_monitor(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_an_actuators_bias_that_comes_and_goes(tmp_path):
     """The source delivers 1 V more than the 10 V logged over t = 6 to 12 and from t = 20 (the plant's
     dynamics and readings see 11 V; the run file says 10): the actuator's bias, coming and going."""
@@ -286,6 +289,7 @@ def test_an_actuators_bias_that_comes_and_goes(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_persistent_fault_forced_through_the_bank_loses_to_itself(tmp_path, monkeypatch):
     """The intermittent hypothesis's evidence and the persistent one's on one scale: a persistent sensor
     bias (f6 reading 0.2 high from t = 6), tried as one that comes and goes (the wander test forced),
@@ -330,6 +334,7 @@ def test_a_fault_gone_before_its_first_checkpoint_is_in_the_reports_intermittent
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_burst_of_noise_that_comes_and_goes():
     """RO's permeate flow sensor five times as noisy over samples 100 to 150 and from 200 (bgc's simulator:
     the variance half of the wander test is what sees it)."""

@@ -100,6 +100,7 @@ def drifting_tanks(parameter: str, slope: float, onset: float, end: float, seed:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("parameter, slope, seed", [("R12", 0.0055, 13), ("R10", -0.005, 15)])
+@pytest.mark.long
 def test_a_drift_found_long_after_it_began_is_isolated_and_sized(parameter, slope, seed):
     """R12's drift (seed 13: its particle filters all fail, from onsets 20
     to 30 s before the alarm) and R10's (seed 15: its static posterior's
@@ -166,6 +167,7 @@ def test_a_point_with_no_likelihood_beside_the_best_gives_no_parabola():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_plant_quieter_than_its_model_gets_mismatch_not_the_wrong_drift():
     """The two tanks without process noise, their sensors 1.3 times noisier
     than the model says, R10 drifting down by 0.004 per s from t = 150

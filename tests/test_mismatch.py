@@ -96,6 +96,7 @@ def test_the_models_sensors_share_one_noise_level():  # plant_csv draws every se
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_plant_off_its_model_gets_mismatch_and_never_a_fault(tmp_path):
     # an alarm at t = 2, and at the data's start (bench/mismatch.py runs twelve: a sensor offset "since
     # t = 0.5" among them)
@@ -242,6 +243,7 @@ def test_a_late_alarm_on_a_noisier_plant_is_a_mismatch_not_a_fault(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_an_unexplained_alarm_on_a_noisier_plant_tests_the_model_up_to_the_change_point(tmp_path):
     """Seed 6's second recording (3 % off, noise 1.5 times the model's): the
     alarm at t = 3 on e11, no fault model explains the data, the closest a
@@ -258,6 +260,7 @@ def test_an_unexplained_alarm_on_a_noisier_plant_tests_the_model_up_to_the_chang
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_the_monitor_says_why_the_model_does_not_fit_at_its_first_mismatch_checkpoint(tmp_path):
     """The circuit 3 % off its model with 1.5 times its noise (plant_csv, the
     exact solution: not bgc's simulator), streamed by bgc monitor with a

@@ -82,6 +82,7 @@ def _lines(scenario: str, steps: int) -> list[str]:
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_monitor_stepped_row_by_row_says_what_bgc_monitor_says_row_for_row():
     """The rows fed one at a time (as CSV lines, as lists of numbers and as
     mappings, in turn): the fault log follows the plant (R2 accommodated

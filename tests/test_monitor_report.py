@@ -22,6 +22,7 @@ def _monitor(lines, **more):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_the_report_counts_the_rows_read_beside_the_record_kept(tmp_path):
     lines = plant(ROWS, []).splitlines(keepends=True)
     report = _monitor(lines)

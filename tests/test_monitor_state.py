@@ -90,6 +90,7 @@ def whole(tmp_path_factory):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_monitor_started_again_on_its_state_gives_the_uninterrupted_diagnosis(tmp_path, whole):
     lines = plant_lines()
     # The first 100 rows, then the input ends (the state saved every 30 rows, and at the end).
@@ -205,6 +206,7 @@ def test_a_monitor_killed_mid_stream_goes_on_from_its_last_state(tmp_path, whole
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_restart_after_a_sensor_was_taken_out_goes_on_without_it(tmp_path):
     """f2 reads 0.5 high from t = 6: a checkpoint every time unit isolates
     it and the monitor takes it out (--exclude-faulty-sensor); stopped

@@ -81,6 +81,7 @@ def test_a_sensor_not_read_on_one_side_counts_as_changed_and_one_never_read_does
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_noisier_plants_pooled_alarm_with_no_change_is_a_mismatch(tmp_path):
     """Seed 37's second recording (3 % off, noise 1.5 times the model's),
     the detector's bank: its pooled test alarmed at the 17th sample, no
@@ -119,6 +120,7 @@ def noisier_from(path, seed: int, start: float, extra: float, draws: int) -> Non
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_fault_outside_the_model_changes_the_residuals_and_stays_unexplained(tmp_path):
     """f6's noise five times larger from t = 7.5 (noise of sqrt(24) times
     its std added): the whole record fails the test of the model, but f6's
@@ -132,6 +134,7 @@ def test_a_fault_outside_the_model_changes_the_residuals_and_stays_unexplained(t
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_an_early_fault_outside_the_model_the_change_test_cannot_show_stays_unexplained(tmp_path):
     """f6's noise from the 15th sample (3 times its std added, seed 8: a
     helper's review found it): the change point falls 14 samples in, too
@@ -149,6 +152,7 @@ def test_an_early_fault_outside_the_model_the_change_test_cannot_show_stays_unex
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_drift_the_mean_test_misses_is_a_change_not_a_mismatch(tmp_path):
     """R3 drifting up from t = 6 to 20 % above its value at the data's end
     (t = 15; the circuit by the exact solution of its equations, seed 0):

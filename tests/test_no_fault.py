@@ -77,6 +77,7 @@ def test_a_fault_far_likelier_than_no_fault_but_misfit_keeps_no_fault_out():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_false_alarms_on_another_simulators_fault_free_runs_name_no_fault(tmp_path):
     """Fault-free runs of the exact circuit with the model's numbers, the
     false-alarm probability 0.3 per horizon: every run that alarms ends "no

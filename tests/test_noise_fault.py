@@ -586,6 +586,7 @@ def noise_only(tmp_path_factory):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("sigmas, seed", [(3.0, 1), (1.5, 3)])
+@pytest.mark.long
 def test_a_drift_of_a_reading_is_not_named_a_burst_of_noise(noise_only, sigmas, seed):
     """F12's reading drifting from t = 75.5 by ``sigmas`` of its noise std
     every 30 s (made here: tank_readings, the two tanks' linear step from

@@ -90,6 +90,7 @@ def tanks(plant: dict, fault: str | None, size: float, onset: float, end: float,
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_sensor_fault_on_a_plant_off_its_model_is_a_mismatch_not_a_drift_since_the_start():
     seed = 101  # 102 too (docs/results.md section 59 counts more)
     d = bgc.diagnose(fast_session("two_tank"), data=tanks(OFF, "F10", -0.035, 75.0, 150.0, seed),

@@ -226,6 +226,7 @@ def ramp_run(folder: Path) -> runs.Run:
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_recorded_input_is_used_and_a_blank_cell_holds_the_last_value(tmp_path):
     """The data's u:V (a ramp) is used, not the model's declared constant;
     one blank cell holds the last value with an event (before: the whole
@@ -451,6 +452,7 @@ def test_a_refused_row_leaves_the_stream_as_it_was_and_a_finished_diagnoser_take
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_an_alarm_on_the_first_sample_is_not_called_a_degenerate_filter():
     """On the FAST backend (conftest.fast_session; the slow tier only)."""
     run = simulated(CIRCUIT)  # healthy: nothing after the first row alarms again (no diagnosis made again)

@@ -113,6 +113,7 @@ def test_the_noise_free_line_of_a_run_carries_no_process_noise():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_the_hypotheses_legend_keeps_the_most_probable_and_groups_the_others(ro_report):
     d = ro_report.diagnosis
     fig = plots.diagnosis_hypotheses(ro_report)

@@ -218,6 +218,7 @@ def test_cse_prefix_is_used_and_model_names_are_never_reused():
 
 
 @pytest.mark.process  # fresh interpreters: the hash seed is chosen at start
+@pytest.mark.long
 def test_cse_numbering_does_not_depend_on_the_hash_seed():
     """Same CSE text in fresh interpreters with different PYTHONHASHSEED (set/dict order changes)."""
     from conftest import compiled

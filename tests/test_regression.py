@@ -153,6 +153,8 @@ REPRESENTATIVE = {
     "drivetrain_b2_step_up_switch_and_every_fallback_apf": "a survivor's static alarm (the verdict's fit test); "
                                                            "the fallback after the switch, on apf",
 }
+#: The cases of 4 s or more (measured, docs/results.md section 72): long runs, in make long's tier.
+LONG = {"drivetrain_b2_step_up_switch_and_every_fallback_apf", "drivetrain_g_m_step_down_switch_gpf", "orifice_none_gpf"}
 
 
 def test_the_cases_diagnosed_here_cover_every_filter_plant_fallback_and_verdict():
@@ -224,7 +226,8 @@ def differences(case: dict) -> list[str]:
 @pytest.mark.skipif(os.environ.get("OPENBLAS_CORETYPE", "").lower() != RECORDED_CORETYPE.lower(),
                     reason=f"the corpus's numbers are those of OpenBLAS's {RECORDED_CORETYPE} kernels, which this "
                            "CPU cannot run (no AVX2) or OPENBLAS_CORETYPE sets others: another rounding")
-@pytest.mark.parametrize("case", [c for c in CASES if c["name"] in REPRESENTATIVE],
+@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.long if c["name"] in LONG else ())
+                                  for c in CASES if c["name"] in REPRESENTATIVE],
                          ids=[c["name"] for c in CASES if c["name"] in REPRESENTATIVE])
 def test_a_refactor_does_not_change_the_diagnosis(case):
     """The cases of ``REPRESENTATIVE``; the whole corpus: bench/regression_corpus.py."""

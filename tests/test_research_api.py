@@ -214,6 +214,7 @@ def test_help_of_bgc_lists_the_public_api():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_campaigns_frame_has_the_columns_pandas_reads_from_its_runs_csv(tmp_path):
     pd = pytest.importorskip("pandas")
     # on the FAST backend (the rows do not depend on it but for the run time: docs/experiments.md), its

@@ -127,6 +127,7 @@ def test_the_cycling_valve_ro_raises_no_alarm_at_its_switches(valve):
     assert report.diagnosis.verdict == "no fault", report.diagnosis.candidates
 
 
+@pytest.mark.long
 def test_a_pipe_clogging_in_the_second_cycle_is_named(valve):
     """R_pipe clogs from t = 140 (the second cycle's primary setting) and is
     named. The record ends at 250, ten samples past the second cycle's

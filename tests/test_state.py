@@ -119,6 +119,8 @@ def _round_trip(session, rows, run, cut: float | int, **options):
 #: compiled step and its caches), so each (filter, backend) is a path of its own through a restored state.
 CASES = [("two_tank", "gpf"), ("circuit", "apf"), ("circuit", "opf"), ("circuit", "ckf"),
          ("ro", "gpf"), ("two_tank", "apf"), ("two_tank", "opf"), ("two_tank", "ckf")]
+#: The cases of 4 s or more (measured, docs/results.md section 72): long runs, in make long's tier.
+LONG = {("two_tank", "opf")}
 
 
 def _fast(name: str, method: str) -> bool:
@@ -156,7 +158,8 @@ def _case(name: str, method: str):
 
 
 @pytest.mark.parametrize("name, method", [
-    pytest.param(name, method, marks=() if (name, method) == ("two_tank", "gpf") else pytest.mark.slow)
+    pytest.param(name, method, marks=() if (name, method) == ("two_tank", "gpf") else
+                 (pytest.mark.slow, pytest.mark.long) if (name, method) in LONG else pytest.mark.slow)
     for name, method in CASES])
 def test_a_diagnoser_taken_up_from_its_state_goes_on_as_if_it_never_stopped(name, method):
     """The circuit on NumPy (APF, OPF, CKF) and the two tanks' GPF, in the

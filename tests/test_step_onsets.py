@@ -25,6 +25,7 @@ def test_a_steps_kalman_onsets_run_from_the_change_point_to_the_alarm():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_the_sweeps_unexplained_r12_steps_are_isolated_and_sized():
     """The sweep's two runs (GPF and APF at the model's noise), replayed from
     the campaign file: isolated as R12's step, the interval holding the truth.

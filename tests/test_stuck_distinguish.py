@@ -300,6 +300,7 @@ def test_a_stuck_switchs_own_prior_weighs_it_as_a_rival(relay):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_stuck_truth_on_a_guard_switched_plant_runs_through_the_faulty_plants_own_modes():
     """docs/examples/relay.yaml (the relay K by its voltage guards, the
     contactor S an operator trips and closes again after 5 s): S stuck OFF

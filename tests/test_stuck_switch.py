@@ -211,6 +211,7 @@ def test_a_relay_that_moves_as_commanded_raises_no_alarm(relay):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_campaign_counts_a_listed_stuck_relay_named_as_right(relay, tmp_path):
     """bgc's simulator, the relay sticking open at 3 s after the automaton
     closed it (the model lists the stuck switch): the campaign's row says

@@ -20,6 +20,7 @@ MOST = 300
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_an_episode_never_decided_is_closed_before_the_memory_rule_and_the_monitor_goes_on(monkeypatch):
     monkeypatch.setattr(session_module, "most_steps", lambda numerics, options: MOST)
     # R2 falls to 0.6 of its value at t = 6 and stays there: outside the prior of every fault model (R2_abrupt

@@ -107,6 +107,7 @@ def test_the_watching_tests_level_holds_its_share_of_the_budget():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_load_step_the_observer_follows_is_found_before_its_record_is_forgotten(tmp_path):
     """R_load 3 ohm higher from t = 45 s, monitored keeping 15 s (300
     steps): no test of the detector alarms (the observer follows the
@@ -147,6 +148,7 @@ def test_a_load_step_the_observer_follows_is_found_before_its_record_is_forgotte
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_verdict_made_again_with_every_fault_model_keeps_the_watching_alarm(monkeypatch):
     """When the verdict at the end is made again with every fault model (an
     unexplained verdict with fault models the symbols ruled out:
@@ -180,6 +182,7 @@ def test_a_verdict_made_again_with_every_fault_model_keeps_the_watching_alarm(mo
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_plant_off_its_model_from_the_start_is_said_so_at_the_first_test_of_the_record(tmp_path):
     """R_load 6 ohm where the model says 4, from the first sample: the
     observer follows the plant (no alarm), and a larger load drains the
