@@ -99,8 +99,10 @@ against is judged again with both runs' own covariances (:func:`divergence`:
 a stuck switch changes the plant's dynamics, and so its noise's colour). On
 a plant whose transitions its own guards make, the truth's run follows the
 faulty plant's own modes (the scenario's ``us``: a relay welded shut keeps
-the voltage under the guard that would have opened it), the rivals' runs the
-nominal plant's.
+the voltage under the guard that would have opened it); a stuck rival's runs
+follow their own too, by the generated model's guards and timers and the
+nominal run's commands (:func:`_own_modes`); a sized rival's family is
+linearised along the nominal run, through the nominal plant's modes.
 """
 
 from __future__ import annotations
@@ -422,6 +424,7 @@ def _fault_runs(families: Families, name: str, magnitudes, onsets,
     earliest onset on (None: the families'; a model with modes: a mode
     column the fault makes its own)."""
     model = families.package.MODELS[name]
+    own = _own_modes(families, model) if us is None else None
     us = families.us if us is None else us
     T, n = families.x_after.shape
     magnitudes = np.asarray(magnitudes, dtype=float).ravel()
@@ -444,13 +447,45 @@ def _fault_runs(families: Families, name: str, magnitudes, onsets,
             if k > first:
                 moved = onsets < k  # past their onset: the states before this step are the fault model's
                 before[k][:, moved] = z[:, moved]
-                z = model.predict(z, us[k], theta, model.DT)
+                if own is None or not moved.any():
+                    z = model.predict(z, us[k], theta, model.DT)
+                else:  # the columns past their onset through their own modes, the others the nominal run's
+                    z[:, moved] = model.predict(z[:, moved], own[k], theta, model.DT)
+                    if not moved.all():
+                        z[:, ~moved] = model.predict(z[:, ~moved], us[k], theta, model.DT)
             starting = onsets == k
             z[row, starting] = magnitudes[starting]
             seen = onsets <= k
             after[k][:, seen] = z[:, seen]
             y[k][:, seen] = model.observe(z, us[k], theta)[:, seen]
     return before, after, y
+
+
+def _own_modes(families: Families, model: FaultModel) -> np.ndarray | None:
+    """For a stuck switch's fault model on a plant some of whose transitions
+    its own guards or timers make: the families' inputs with the mode column
+    blank (NaN: the generated model's hidden-mode step takes each column
+    through the guards and timers its own states meet) but at the samples
+    where the nominal run changes mode by a controlled transition (the
+    schedule's commands, which the faulty plant takes too: the mode
+    commanded); None for any other model (a size's family is linearised
+    along the nominal run, and a plant switched by commands alone takes the
+    nominal run's modes)."""
+    nominal = nominal_model(families.package)
+    column = getattr(nominal, "MODE_INPUT", None)
+    transitions = getattr(nominal, "TRANSITIONS", ())
+    fault = getattr(model, "FAULT", None)
+    autonomous = any(g is not None or t is not None for _, _, g, t, *_ in transitions)
+    if column is None or not fault or not fault_kind(fault["kind"]).discrete or not autonomous:
+        return None
+    commanded = {(a, b) for a, b, g, t, *_ in transitions if g is None and t is None}
+    modes = np.rint(np.asarray(families.us[:, column], dtype=float))
+    own = np.array(families.us, dtype=float)
+    own[:, column] = np.nan
+    for k in range(1, len(modes)):
+        if (int(modes[k - 1]), int(modes[k])) in commanded:
+            own[k, column] = modes[k]
+    return own
 
 
 def distinguish(families: Families, name: str, magnitude: float, onset: int, priors: dict[str, float],
@@ -687,6 +722,10 @@ def path(families: Families, name: str, magnitude: float, onset: int, us: np.nda
     n = families.x_after.shape[1]
     theta = np.asarray(model.THETA, dtype=float)
     before, after, y = (a[:, :, 0] for a in _fault_runs(families, name, [magnitude], [onset], us))
+    if us is None and _own_modes(families, model) is not None:  # linearised through the modes its run took
+        nominal = nominal_model(families.package)
+        us = np.array(families.us, dtype=float)
+        us[:, nominal.MODE_INPUT] = np.rint(after[:, nominal.MODE_ROW])
     us = families.us if us is None else us
     if not (np.isfinite(y).all() and np.isfinite(after).all()):
         return None
