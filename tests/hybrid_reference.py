@@ -109,11 +109,16 @@ def level_run(seed: int, fault: tuple[float, str, float] | None = None, steps: i
     std LEVEL_NOISE (the model's declared levels). Returns the times, the
     true mode per sample (1 filling, 2 draining), p and q_out as read, and
     the switch times; ``fault``: (time, name, value): R_in, R_out or C_t
-    takes the value from then on, or sensor p reads the value more."""
+    takes the value from then on, or sensor p reads the value more, or
+    (name ``P``, the value unused) the pump's contactor turns ON without a
+    command: the pump runs from then on, whatever the mode, until the level
+    switch asks for it ON (the mode filling entered), and after that as the
+    modes say."""
     rng = np.random.default_rng(seed)
     times = LEVEL_DT * np.arange(1, steps + 1)
     p, mode, t = 0.6, 1, 0.0
     truth, modes, switches = [], [], []
+    released = False  # the uncommanded pump's flag, cleared by a mode that asks for the pump ON
 
     def value(name: str, nominal: float, at: float) -> float:
         return fault[2] if fault and fault[1] == name and at >= fault[0] - 1e-12 else nominal
@@ -123,18 +128,20 @@ def level_run(seed: int, fault: tuple[float, str, float] | None = None, steps: i
         while t < end - 1e-12:
             stop = fault[0] if fault and t < fault[0] - 1e-12 < end else end
             r_in, r_out, c = value("R_in", LEVEL_R_IN, t), value("R_out", LEVEL_R_OUT, t), value("C_t", LEVEL_C, t)
-            on = mode == 1
+            forced = bool(fault and fault[1] == "P" and t >= fault[0] - 1e-12 and not released)
+            on = mode == 1 or forced
 
             def f(_, x, r_in=r_in, r_out=r_out, c=c, on=on, w=w):
                 return [(((LEVEL_E - x[0]) / r_in if on else 0.0) - x[0] / r_out + w) / c]
 
-            def crossed(_, x, on=on):
-                return x[0] - (LEVEL_HIGH if on else LEVEL_LOW)
+            def crossed(_, x, filling=mode == 1):  # the level switch's guards: the mode's, not the pump's
+                return x[0] - (LEVEL_HIGH if filling else LEVEL_LOW)
 
-            crossed.terminal, crossed.direction = True, 1 if on else -1
+            crossed.terminal, crossed.direction = True, 1 if mode == 1 else -1
             sol = solve_ivp(f, (t, stop), [p], events=crossed, rtol=1e-10, atol=1e-12)
             if sol.status == 1:
-                t, p, mode = float(sol.t_events[0][0]), float(sol.y_events[0][0][0]), 2 if on else 1
+                t, p, mode = float(sol.t_events[0][0]), float(sol.y_events[0][0][0]), 2 if mode == 1 else 1
+                released = released or (forced and mode == 1)
                 switches.append(t)
             else:
                 t, p = stop, float(sol.y[0, -1])

@@ -162,3 +162,37 @@ def test_a_glitch_on_a_plant_whose_mode_the_data_do_not_give(tmp_path):
     assert (d.verdict, d.candidates, d.detection) == ("no fault", (), None)
     (glitch,) = [e for e in d.events if isinstance(e, ev.Glitch)]
     assert d.time_of(glitch.step) == pytest.approx(10.05) and glitch.sensor == "p"
+
+
+@pytest.mark.slow
+@pytest.mark.long
+def test_a_reading_off_then_a_pump_turned_on_by_itself_on_a_plant_whose_mode_the_data_do_not_give(tmp_path):
+    # docs/examples/level.yaml's tank with its pump's contactor declared to stick ON or turn ON without a
+    # command, no mode column: a run by solve_ivp on its hand-derived equations (tests/hybrid_reference.py),
+    # one reading of p seven noise stds high at t = 3.6 while the tank drains, and the pump turned on by
+    # itself at t = 4.9, 26 samples later, never released (the tank then stays over the level that would
+    # ask for the pump). The alarm on the reading is a false one (one reading, the residuals quiet after it
+    # until the fault's alarm, more than the detector's middle window), and the fault is dated from its own
+    # onset, where the two kinds are the same plant until a mode asks for the pump: ambiguous (so on seeds
+    # 4 to 6 as well, measured). Was "unexplained: p_offset_bias" from t = 3.55: with the mode from the
+    # data's readings, an alarm was not taken for a false one unless it was a glitch to the data's end, and
+    # the quiet stretch had to be the detector's longest window (32 samples); every fault model was fitted
+    # from the reading, where the pump still ran as the modes said.
+    from hybrid_reference import LEVEL_NOISE, level_csv, level_run
+
+    text = (ROOT / "docs" / "examples" / "level.yaml").read_text(encoding="utf-8")
+    model = tmp_path / "level.yaml"
+    model.write_text(text.replace("  p: [bias]\n", "  p: [bias]\n  P: {kinds: [stuck_on, uncommanded_on], prior: 0.02}\n"),
+                     encoding="utf-8")
+    times, modes, y_p, y_q, switches = level_run(3, fault=(4.9, "P", 1.0), steps=200)
+    assert modes[times >= 4.9].tolist() == [2] * int(np.sum(times >= 4.9))  # never released: draining on
+    y_p = np.array(y_p, dtype=float)
+    glitch = int(np.flatnonzero(np.isclose(times, 3.6))[0])
+    assert modes[glitch] == 2 and times[glitch] > max(s for s in switches if s < 3.6)  # in the draining stretch
+    y_p[glitch] += 7 * LEVEL_NOISE
+    data = level_csv(tmp_path / "run.csv", times, modes, y_p, y_q, with_mode=False)
+    d = bgc.diagnose(model, data, backend="numpy").diagnosis
+    (false,) = [e for e in d.events if isinstance(e, ev.FalseAlarm)]
+    assert d.time_of(false.step) == pytest.approx(3.6)
+    assert (d.verdict, set(d.candidates)) == ("ambiguous", {"P_stuck_on", "P_uncommanded_on"})
+    assert abs(d.time_of(d.onset_step) - 4.9) <= 2 * 0.05

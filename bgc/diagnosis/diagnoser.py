@@ -463,11 +463,12 @@ class Diagnoser:
         mismatch when the rest of the data do not fit it), unless a fault
         model the first one weighed explains the samples after that reading
         (:meth:`_explained_after`). Made once (not again on the diagnosis
-        made again); on a model whose mode the data do not give only for a
-        glitch (a fault's modes are read again from its onset,
-        :meth:`_reread`, with the detector as it was; no fault is not)."""
+        made again); on a model whose mode the data do not give as well (a
+        reading off at a switch its guard made within a step, then a fault:
+        both diagnoses read each fault's modes again from its onset,
+        :meth:`_reread`, so their support compares alike)."""
         told = self._false_alarm(d)
-        if told is None or (self.decoder is not None and not told[2]):
+        if told is None:
             return d
         first = d.detection
         self.config.say(f"the alarm at t = {self.loop.samples[first.step].t:.12g} may be a false one: watching again "
@@ -484,7 +485,7 @@ class Diagnoser:
                 return d
             said = ev.Glitch(first.step, first.sensor, float(first.statistic), len(self.loop.samples) - 1)
             return dataclasses.replace(redone, events=ordered([*redone.events, said]))
-        if self.decoder is not None or redone.detection is None or not self._support(redone) > self._support(d):
+        if redone.detection is None or not self._support(redone) > self._support(d):
             return d
         again = redone.detection
         if until is None:
@@ -562,7 +563,9 @@ class Diagnoser:
         windowed mean test, armed anew from the next step with the
         detector's windows and budget, alarms again, or to the data's end
         when the alarm was one reading (the mean test's one-sample window);
-        the quiet stretch at least the detector's longest window each way. Not an alarm of the
+        the quiet stretch at least the detector's longest window each way,
+        or between an alarm on one reading and the next alarm the detector's
+        next window (:func:`quiet_enough`). Not an alarm of the
         frozen-reading test (a frozen sensor's residuals are quiet), nor of
         the change test (raised at a change point after the record showed
         the change), nor on a diagnosis made again (the detector armed anew once)."""
@@ -582,7 +585,7 @@ class Diagnoser:
         if again is None and (first.test != "mean" or first.window != 1):  # quiet after more than one reading
             return None
         quiet = z if again is None else z[:again.onset_step if again.onset_step is not None else again.step]
-        if len(quiet) < longest or fails(self.nominal, quiet, sensors):
+        if len(quiet) < quiet_enough(first, o.windows, again is not None) or fails(self.nominal, quiet, sensors):
             return None
         return None, "", again is None  # quiet to where the diagnosis made again alarms, or to the end
 
@@ -841,6 +844,25 @@ class Diagnoser:
         from .state import restore_diagnoser
 
         return restore_diagnoser(cls, config, state)
+
+
+def quiet_enough(first, windows: tuple[int, ...], again: bool) -> int:
+    """The fewest samples of a quiet stretch after alarm ``first`` that make
+    it a false one (:meth:`Diagnoser._false_alarm`), with the detector's
+    ``windows``: the longest window (quiet to the data's end after one
+    reading, a glitch, or after a longer window's alarm), or between an
+    alarm on one reading (the mean test's one-sample window) and the next
+    alarm (``again``) the next window after the shortest. One reading off
+    is the false alarm the budget allows most often, and the diagnosis made
+    again is the verdict only when it explains the whole record better
+    (:meth:`Diagnoser._support`): a guard crossed within a step on a plant
+    whose mode the data do not give leaves one such reading at the switch,
+    and a fault a few tens of samples later would otherwise be sized from
+    the switch, where it had not begun."""
+    ordered_windows = sorted(windows)
+    if again and first.test == "mean" and first.window == ordered_windows[0] == 1 and len(ordered_windows) > 1:
+        return ordered_windows[1]
+    return ordered_windows[-1]
 
 
 def _residuals(values, loop: Loop, T: int) -> np.ndarray:
