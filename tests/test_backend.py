@@ -139,6 +139,35 @@ def test_a_bank_of_filters_is_the_same_on_both_backends(name):
     assert difference(outs[0].reshape(len(ys), -1), outs[1].reshape(len(ys), -1)) <= TOLERANCE
 
 
+@pytest.mark.parametrize("fault", ["R12_abrupt", "F12_offset_bias"])
+@pytest.mark.numba
+def test_a_fault_that_comes_and_goes_is_weighed_alike_on_both_backends(fault):
+    """The bank of a fault that comes and goes (bgc.diagnosis.intermittent:
+    each cell's magnitude over a transition its own, and the update's that
+    of the sample: ``moved``) on the compiled kernel's cubature step and on
+    the NumPy arithmetic: the same log likelihoods and state weights, for a
+    part of the two tanks that the transition sees and a sensor's offset
+    that the update sees (the record: the first fault model's, from a third
+    of the run)."""
+    from bgc.diagnosis import intermittent
+    from bgc.model.protocol import state_rows
+
+    ys, us = record("two_tank")
+    out = []
+    for i, p in enumerate(packages("two_tank")):
+        nominal, model = p.MODELS["nominal"], p.MODELS[fault]
+        assert kalman._Filter(model).compiled == (i == 1)  # NumPy's arithmetic, then the kernel's step
+        track = kalman.nominal_track(nominal, ys, us, len(ys))
+        _, extra = state_rows(model)
+        fixed = model.augment(track.mean[0][:, None], np.random.default_rng(0))[extra, 0]
+        bank = intermittent._bank(model, ys, us, track, 30, [0.5, 1.0, 2.0], [4.0, 40.0], [8.0, 80.0], fixed,
+                                  keep=True)
+        finite = lambda a: np.where(np.isfinite(a), a, np.nan)  # noqa: E731  (a state not reached: -inf)
+        out.append((finite(bank.loglik), finite(bank.alpha[30:])))
+    assert difference(out[0][0][:, None], out[1][0][:, None]) <= TOLERANCE
+    assert difference(out[0][1].reshape(len(out[0][1]), -1), out[1][1].reshape(len(out[1][1]), -1)) <= TOLERANCE
+
+
 @pytest.mark.numba
 def test_a_diagnosis_does_not_depend_on_the_backend():
     import bgc

@@ -248,7 +248,7 @@ class _Filter:
         ``moved`` (C,): each cell's magnitude over the transition, where it
         differs from the one its update sees (``fixed``'s): a fault that
         comes and goes (:mod:`bgc.diagnosis.intermittent`) changes it at a
-        sample's instant both ways (always the NumPy arithmetic).
+        sample's instant both ways.
 
         The deviations of the update's points from their mean are +-sqrt(n) L,
         so the cross covariance is L (DY+ - DY-)' / 2n, DY+- the measurement
@@ -256,8 +256,8 @@ class _Filter:
         from the Cholesky factor of the innovation covariance by forward
         substitution (:func:`lower_solve`)."""
         model, n, C = self.model, self.n, m.shape[0]
-        if self.compiled and moved is None:  # a compiled package's kernel
-            return self._compiled_step(y, u, m, P, fixed, onset, dt)
+        if self.compiled:  # a compiled package's kernel
+            return self._compiled_step(y, u, m, P, fixed, onset, dt, moved)
         if self.buffer.shape[1] < 2 * n * C:
             self.buffer = np.empty((self.n_x, 2 * n * C))
         flat = self.buffer[:, :2 * n * C]
@@ -363,24 +363,31 @@ class _Filter:
         kept[onset] = fixed[self.magnitude][onset]
         fixed[self.magnitude] = kept
 
-    def _compiled_step(self, y, u, m, P, fixed, onset, dt):
+    def _compiled_step(self, y, u, m, P, fixed, onset, dt, moved=None):
         """:meth:`step` with a compiled package's kernel: the arithmetic
         between the model's calls (points and fault states, moments, the
         update) in compiled loops over the cells, one call each side of the
         prediction and one for the update. The points are laid out point by
         point, the cells innermost (point p of cell c in column p C + c), and
         so are the prediction's moments, so that the kernel's loops run over
-        the cells in vector instructions."""
+        the cells in vector instructions. ``moved``: each cell's magnitude
+        over the transition, written into its points' magnitude row before
+        the prediction, and ``fixed``'s after it, for the update (as
+        :meth:`_predict_points` and :meth:`step` do)."""
         model, n, C, kernel = self.model, self.n, m.shape[0], self.model._kernel
         phys = self.phys
         flat = np.empty((self.n_x, 2 * n * C))
         held = kernel.contiguous(fixed)  # a drifting parameter is read back into it
         kernel.cubature_prepare(m, P, self.root, flat, phys, self.extra_rows, held, onset)
+        if moved is not None:  # the transition sees each cell's magnitude over it (every point of the cell)
+            flat[self.extra[self.magnitude]].reshape(2 * n, C)[:] = np.asarray(moved, dtype=float)
         model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
         mp, Pp, L = kernel.cubature_after(flat, phys, self.extra_rows, held, self.inverse, self.scale, self.Q,
                                           self.root, onset)  # the cells innermost: (n, C), (n, n, C)
         if self.released:  # (the points point by point, the cells innermost)
             self._read_flag(flat[self.extra[self.magnitude]].reshape(2 * n, C).T, held, onset)
+        if moved is not None:  # the update sees the magnitude of this sample
+            flat[self.extra[self.magnitude]].reshape(2 * n, C)[:] = held[self.magnitude]
         if held is not fixed:
             fixed[...] = held
         seen = np.isfinite(y)
