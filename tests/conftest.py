@@ -2,7 +2,7 @@
 models compiled once per session, and ``bgc ...`` run in this process.
 
 The tiers (markers registered in pyproject.toml): ``make check`` runs every
-test but those marked ``slow`` (end-to-end scenarios, seeded statistics, any test of more than about 4 s),
+test but those marked ``slow`` (end-to-end scenarios, seeded statistics, any test of more than a second or two),
 ``process`` (starts a real process: a CLI through a pipe, Ctrl-C, --follow,
 a fresh interpreter, a Dask cluster, a notebook kernel; or forks the worker
 pool it tests), ``numba`` (compiles kernels), ``install``, ``browser`` and

@@ -217,7 +217,6 @@ def test_clear_unused_days_keeps_what_was_used_since(root, tanks, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.long
 def test_a_hit_imports_neither_sympy_nor_the_compiler(root):
     """A diagnosis of a scenario (the truth simulated, then diagnosed) and
     its report, served by the cache: sympy, networkx and the compiler's

@@ -202,6 +202,7 @@ def test_the_submodels_alarm_where_the_whole_plant_does(chain4, seed=3):
 
 
 @pytest.mark.long
+@pytest.mark.slow
 def test_api_and_cli_diagnose_on_the_submodels(chain4, tmp_path):
     """``bgc.diagnose(..., decompose=True)`` and ``bgc diagnose --decompose``:
     the plan's verdict, a report that says what was weighed in place of

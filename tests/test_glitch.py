@@ -31,7 +31,6 @@ CIRCUIT = ROOT / "models" / "circuit.yaml"
 
 
 @pytest.mark.slow
-@pytest.mark.long
 def test_one_reading_off_on_a_healthy_plant_is_a_glitch_not_a_fault(tmp_path):
     # f6 reads 0.8 A low at t = 6 alone (about 7 of its residual's stds: the detector's one-sample window
     # alarms); the plant stays healthy to the end (t = 20). Before, the verdict named whichever fault model
@@ -196,3 +195,22 @@ def test_a_reading_off_then_a_pump_turned_on_by_itself_on_a_plant_whose_mode_the
     assert d.time_of(false.step) == pytest.approx(3.6)
     assert (d.verdict, set(d.candidates)) == ("ambiguous", {"P_stuck_on", "P_uncommanded_on"})
     assert abs(d.time_of(d.onset_step) - 4.9) <= 2 * 0.05
+
+
+def test_the_quiet_stretch_that_makes_an_alarm_false_is_the_next_window_only_between_a_reading_and_an_alarm():
+    # Diagnoser._false_alarm's rule: the detector's longest window of quiet residuals, but between an alarm on
+    # one reading (the mean test's one-sample window) and the detector's next alarm its next window; windows
+    # read as a set (a window given twice is one window)
+    from types import SimpleNamespace
+
+    from bgc.diagnosis.diagnoser import quiet_enough
+
+    one, wide = SimpleNamespace(test="mean", window=1), SimpleNamespace(test="mean", window=8)
+    assert quiet_enough(one, (1, 8, 32), again=True) == 8
+    assert quiet_enough(one, (32, 1, 8), again=True) == 8  # in any order
+    assert quiet_enough(one, (1, 8, 32), again=False) == 32  # quiet to the data's end: a glitch's stretch
+    assert quiet_enough(wide, (1, 8, 32), again=True) == 32  # an alarm over a window of readings
+    assert quiet_enough(SimpleNamespace(test="drift", window=1), (1, 8, 32), again=True) == 32
+    assert quiet_enough(one, (1, 1, 32), again=True) == 32  # (1, 1, 32): the next window is 32
+    assert quiet_enough(one, (1,), again=True) == 1  # one window: it is also the longest
+    assert quiet_enough(wide, (8, 16), again=True) == 16  # no one-sample window

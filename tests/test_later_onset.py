@@ -91,7 +91,6 @@ def _reading_off(text: str, time: float, column: int, by: float) -> str:
 
 
 @pytest.mark.slow
-@pytest.mark.long
 def test_a_fault_after_a_false_alarm_is_dated_from_its_onset(tmp_path):
     # f6 reads 0.5 A low at t = 2 alone (about 6 of its residual's stds: an alarm the budget allows), and R2
     # rises to 1.6 times its value (+1.2 ohm) from t = 8. Tried around the alarm, R2's model fails its fit test

@@ -129,9 +129,11 @@ RECORDED_CORETYPE = "Haswell"
 
 #: The cases diagnosed here, each for what no other of them covers (the filter kind, the plant, the
 #: fallback, the verdict, an option); every case of the corpus, these included, is replayed by
-#: bench/regression_corpus.py (all 42: about 125 s of diagnoses, these 13 about 33 s), which exits 1
+#: bench/regression_corpus.py (all 42: about 85 s of diagnoses, these 15 about 40 s), which exits 1
 #: when a case differs. The choice is checked below: every filter, every plant, both fallbacks, each
-#: fallback's way out, every verdict and every note kind stay covered when the corpus changes.
+#: fallback's way out, every verdict and every note kind stay covered when the corpus changes, by make
+#: test's cases and make long's (LONG, below: the orifice tanks' only case and the drivetrain's switch
+#: to ckf followed by hypotheses, and its fallback after the switch, run in the long tier only).
 REPRESENTATIVE = {
     "circuit_R3_step_up_filter_apf": "the circuit; apf sizing a fault; identify='filter'",
     "circuit_R3_step_down_ckf": "ckf from the start; an abrupt fault down; grid edge",
@@ -158,8 +160,9 @@ LONG = {"drivetrain_b2_step_up_switch_and_every_fallback_apf", "drivetrain_g_m_s
 
 
 def test_the_cases_diagnosed_here_cover_every_filter_plant_fallback_and_verdict():
-    """The subset above still covers what the corpus does, read from the
-    corpus (so a re-recording that moves a verdict or a note is caught)."""
+    """The subset above (make test's cases and make long's) still covers
+    what the corpus does, read from the corpus (so a re-recording that moves
+    a verdict or a note is caught)."""
     by_name = {c["name"]: c for c in CASES}
     assert set(REPRESENTATIVE) <= set(by_name), set(REPRESENTATIVE) - set(by_name)
     kept = [by_name[name] for name in REPRESENTATIVE]

@@ -289,6 +289,7 @@ def test_the_diagnosis_tells_a_switch_that_moved_from_one_that_stuck_after_the_n
 
 
 @pytest.mark.long
+@pytest.mark.slow
 def test_before_the_next_command_the_two_are_one_and_the_diagnosis_says_ambiguous(session):
     """S OFF at 16.5 s, the controller opening it at 22 s and never closing
     it again in the run: a stuck switch and one that moved are the same

@@ -475,15 +475,19 @@ def _own_modes(families: Families, model: FaultModel) -> np.ndarray | None:
     column = getattr(nominal, "MODE_INPUT", None)
     transitions = getattr(nominal, "TRANSITIONS", ())
     fault = getattr(model, "FAULT", None)
-    autonomous = any(g is not None or t is not None for _, _, g, t, *_ in transitions)
-    if column is None or not fault or not fault_kind(fault["kind"]).discrete or not autonomous:
+    autonomous = {(a, b) for a, b, g, t, *_ in transitions if g is not None or t is not None}
+    if column is None or not fault or not fault_kind(fault["kind"]).discrete or not autonomous \
+            or getattr(nominal, "PROPOSAL_ROW", None) is not None:
+        # (guards with a tolerance: the hidden-mode step draws where each column switches, a noise-free
+        # run's modes are the nominal run's, as a sized rival's are)
         return None
-    commanded = {(a, b) for a, b, g, t, *_ in transitions if g is None and t is None}
-    modes = np.rint(np.asarray(families.us[:, column], dtype=float))
+    # a change the nominal run made by a command (a pair no guard or timer also makes: that one is its own)
+    commanded = {(a, b) for a, b, g, t, *_ in transitions if g is None and t is None} - autonomous
+    modes = np.asarray(families.us[:, column], dtype=float)
     own = np.array(families.us, dtype=float)
     own[:, column] = np.nan
     for k in range(1, len(modes)):
-        if (int(modes[k - 1]), int(modes[k])) in commanded:
+        if np.isfinite(modes[k - 1:k + 1]).all() and (int(round(modes[k - 1])), int(round(modes[k]))) in commanded:
             own[k, column] = modes[k]
     return own
 
@@ -722,7 +726,8 @@ def path(families: Families, name: str, magnitude: float, onset: int, us: np.nda
     n = families.x_after.shape[1]
     theta = np.asarray(model.THETA, dtype=float)
     before, after, y = (a[:, :, 0] for a in _fault_runs(families, name, [magnitude], [onset], us))
-    if us is None and _own_modes(families, model) is not None:  # linearised through the modes its run took
+    if us is None and getattr(model, "FAULT", None) and fault_kind(model.FAULT["kind"]).discrete \
+            and _own_modes(families, model) is not None:  # linearised through the modes its run took
         nominal = nominal_model(families.package)
         us = np.array(families.us, dtype=float)
         us[:, nominal.MODE_INPUT] = np.rint(after[:, nominal.MODE_ROW])

@@ -436,11 +436,7 @@ class Diagnoser:
         detector alarmed first, :attr:`Loop.forced`)."""
         loop = Loop(self._loop_config(options, every, self.config.lazy if lazy is None else lazy))
         loop.forced = forced
-        if after is not None:
-            loop.watch_from = after.step + 1
-            start = after.step - after.window + 1
-            loop.excused = (max(min(start, after.onset_step if after.onset_step is not None else start), 0),
-                            after.step + 1)
+        _armed_after(loop, after)
         for s in self.loop.samples:
             loop.take(s)
         return loop
@@ -464,9 +460,13 @@ class Diagnoser:
         model the first one weighed explains the samples after that reading
         (:meth:`_explained_after`). Made once (not again on the diagnosis
         made again); on a model whose mode the data do not give as well (a
-        reading off at a switch its guard made within a step, then a fault:
-        both diagnoses read each fault's modes again from its onset,
-        :meth:`_reread`, so their support compares alike)."""
+        reading off at a switch its guard made within a step, then a fault):
+        the two diagnoses compare on the nominal model's reading of the
+        modes, and the one chosen has its faults' modes read again from
+        their onsets (:meth:`_reread`), from after the false alarm when it
+        is the diagnosis made again (the alarm armed past, its
+        :class:`~bgc.events.FalseAlarm` kept)."""
+        self.false_alarm = None  # (the alarm and its FalseAlarm, when the diagnosis made again is the verdict)
         told = self._false_alarm(d)
         if told is None:
             return d
@@ -492,6 +492,7 @@ class Diagnoser:
             until = again.step if again.onset_step is None else again.onset_step
         name = name if redone.candidates[:1] == (name,) else ""  # a fault the diagnosis made again does not name
         said = ev.FalseAlarm(first.step, first.sensor, first.test, first.step + 1, until, name)
+        self.false_alarm = (first, said)  # the modes read again (_reread) are watched from after it too
         return dataclasses.replace(redone, events=ordered([*redone.events, said]))
 
     def _explained_after(self, d: Diagnosis, step: int) -> bool:
@@ -783,16 +784,18 @@ class Diagnoser:
             u[index] = np.nan
             raw.append(dataclasses.replace(s, u=u, events=tuple(e for e in s.events if not isinstance(e, ev.ModeRead))))
         said, explained, heads = [], [], {}
+        first, false = self.false_alarm or (None, None)
         for name in names:
             samples = self._read_with(next(h for h in d.hypotheses if h.name == name), raw, heads)
             changed = int(np.sum(np.array([s.u[index] for s in samples]) != read))
-            again = d if not changed else self._loop_of(samples).finish(self.sampler.summary(), truth)
+            again = d if not changed else self._loop_of(samples, after=first).finish(self.sampler.summary(), truth)
             explains = again.verdict == "isolated" and again.candidates == (name,)
             said.append(ev.ModesReread(len(read) - 1, name, changed, explains))
             if explains:
                 explained.append(again)
         chosen = explained[0] if len(explained) == 1 else d
-        return dataclasses.replace(chosen, events=ordered(list(chosen.events) + said))
+        kept = [false] if false is not None and chosen is not d else []  # the false alarm, said again
+        return dataclasses.replace(chosen, events=ordered(list(chosen.events) + kept + said))
 
     def _read_with(self, h, raw: list[Sample], heads: dict) -> list[Sample]:
         """The samples ``raw`` (mode NaN) with the modes hypothesis ``h``'s
@@ -814,9 +817,13 @@ class Diagnoser:
         onset, start[-1] = read_fault(model, raw, onsets, start, value, head)
         return read_again(model, raw, (onset, start), head)
 
-    def _loop_of(self, samples: list[Sample]) -> Loop:
-        """A loop of this diagnoser's options that has taken ``samples``."""
-        loop = Loop(self._loop_config(self.loop.options, self.loop.config.every, self.config.lazy))
+    def _loop_of(self, samples: list[Sample], after=None) -> Loop:
+        """A loop of this diagnoser's options that has taken ``samples``
+        (``after``: a false alarm, as :meth:`replay` takes it: the options'
+        switch off, as the diagnosis made again after it had them)."""
+        options = self.loop.options if after is None else dataclasses.replace(self.loop.options, switch=False)
+        loop = Loop(self._loop_config(options, self.loop.config.every, self.config.lazy))
+        _armed_after(loop, after)
         for s in samples:
             loop.take(s)
         return loop
@@ -846,6 +853,18 @@ class Diagnoser:
         return restore_diagnoser(cls, config, state)
 
 
+def _armed_after(loop: Loop, after) -> None:
+    """``loop``'s detector armed from the step after the false alarm
+    ``after`` (a :class:`~bgc.diagnosis.detect.Detection`; None: nothing),
+    the alarm's window left out of the test of the model's fit
+    (:attr:`Loop.watch_from`, :attr:`Loop.excused`)."""
+    if after is None:
+        return
+    loop.watch_from = after.step + 1
+    start = after.step - after.window + 1
+    loop.excused = (max(min(start, after.onset_step if after.onset_step is not None else start), 0), after.step + 1)
+
+
 def quiet_enough(first, windows: tuple[int, ...], again: bool) -> int:
     """The fewest samples of a quiet stretch after alarm ``first`` that make
     it a false one (:meth:`Diagnoser._false_alarm`), with the detector's
@@ -859,7 +878,7 @@ def quiet_enough(first, windows: tuple[int, ...], again: bool) -> int:
     whose mode the data do not give leaves one such reading at the switch,
     and a fault a few tens of samples later would otherwise be sized from
     the switch, where it had not begun."""
-    ordered_windows = sorted(windows)
+    ordered_windows = sorted(set(windows))
     if again and first.test == "mean" and first.window == ordered_windows[0] == 1 and len(ordered_windows) > 1:
         return ordered_windows[1]
     return ordered_windows[-1]
