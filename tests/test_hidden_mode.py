@@ -118,3 +118,40 @@ def test_a_model_whose_transition_only_the_data_can_say_refuses_data_without_the
     assert done.returncode != 0 and "Traceback" not in done.stderr
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert len(lines) <= 2 and "no mode column" in lines[0] and "open -> unpowered" in lines[0], lines
+
+
+@pytest.mark.slow
+@pytest.mark.long
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_pump_turned_on_by_itself_where_its_level_switch_would_is_as_likely_stuck(tmp_path, seed):
+    # docs/examples/level.yaml's tank, its pump's contactor declared to stick ON or turn ON without a
+    # command, no mode column; a run by solve_ivp on its hand-derived equations (tests/hybrid_reference.py),
+    # the pump turned on by itself two samples before the level switch would have asked for it, never
+    # released after (the tank then stays over the level that asks for it). The nominal reading of the
+    # modes takes the pump for the level switch's own switch; read again with either fault's equations,
+    # the modes stay in draining and the two kinds are the same plant: ambiguous, from the pump's onset.
+    # Was "isolated: P_stuck_on" (the uncommanded change was not among the readings tried, and a reading
+    # on which the pair came out ambiguous did not count as explaining the data).
+    from hybrid_reference import LEVEL_DT, level_csv, level_run
+
+    text = (ROOT / "docs" / "examples" / "level.yaml").read_text(encoding="utf-8")
+    model = tmp_path / "level.yaml"
+    model.write_text(text.replace("  p: [bias]\n", "  p: [bias]\n  P: {kinds: [stuck_on, uncommanded_on], prior: 0.02}\n"),
+                     encoding="utf-8")
+    times, modes, _, _, switches = level_run(seed, steps=200)
+    into_filling = next(t for t in switches if t > 3 and modes[np.searchsorted(times, t)] == 1)
+    at = round((into_filling - 2 * LEVEL_DT) / LEVEL_DT) * LEVEL_DT
+    times, modes, y_p, y_q, _ = level_run(seed, fault=(at, "P", 1.0), steps=200)
+    assert (modes[times >= at] == 2).all()  # the level switch never asks for the pump again
+    d = bgc.diagnose(model, level_csv(tmp_path / "run.csv", times, modes, y_p, y_q, with_mode=False),
+                     backend="numpy").diagnosis
+    assert (d.verdict, set(d.candidates)) == ("ambiguous", {"P_stuck_on", "P_uncommanded_on"})
+    assert abs(d.time_of(d.onset_step) - at) <= 2 * LEVEL_DT
+
+
+def test_a_switchs_twin_is_the_same_switch_turned_the_same_way():
+    from bgc.diagnosis.diagnoser import _twin
+
+    assert _twin("P_stuck_on") == "P_uncommanded_on" and _twin("P_uncommanded_on") == "P_stuck_on"
+    assert _twin("K_stuck_off") == "K_uncommanded_off" and _twin("K_uncommanded_off") == "K_stuck_off"
+    assert _twin("R_in_abrupt") == "" and _twin("p_offset_bias") == ""

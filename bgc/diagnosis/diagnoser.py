@@ -765,15 +765,20 @@ class Diagnoser:
         """The policy for a hidden mode read with the nominal model: a fault
         may move the switches (a guard crossed early), and then the faulty
         plant's modes are not those the nominal model reads. The
-        :data:`REREAD` likeliest hypotheses (the verdict's candidates first)
+        :data:`REREAD` likeliest hypotheses (the verdict's candidates first),
+        and the twin of a candidate that is a switch's fault (:func:`_twin`),
         read the modes again each with its own equations from its most likely
         onset and size, and the diagnosis is made again on each reading that
-        differs; a hypothesis that it then isolates explains the data with the
-        modes it reads itself. One such: its diagnosis is the verdict; none,
-        or several: ``d`` stands, the readings said
+        differs; a hypothesis that it then isolates, or names ambiguous with
+        its twin alone (the two the same plant on that reading), explains the
+        data with the modes it reads itself. One such, or several whose
+        diagnoses agree: that diagnosis is the verdict; none, or several that
+        disagree: ``d`` stands, the readings said
         (:class:`~bgc.events.ModesReread`)."""
         ranked = sorted(d.hypotheses, key=lambda h: (h.name not in d.candidates, -h.posterior, -h.log_evidence))
         names = [h.name for h in ranked if math.isfinite(h.estimate.value)][:REREAD]
+        weighed = {h.name for h in d.hypotheses if math.isfinite(h.estimate.value)}
+        names += [twin for twin in map(_twin, d.candidates) if twin in weighed and twin not in names]
         if not names:
             return d
         index = self.nominal.MODE_INPUT
@@ -789,11 +794,16 @@ class Diagnoser:
             samples = self._read_with(next(h for h in d.hypotheses if h.name == name), raw, heads)
             changed = int(np.sum(np.array([s.u[index] for s in samples]) != read))
             again = d if not changed else self._loop_of(samples, after=first).finish(self.sampler.summary(), truth)
-            explains = again.verdict == "isolated" and again.candidates == (name,)
+            explains = (again.verdict == "isolated" and again.candidates == (name,)) or (
+                again.verdict == "ambiguous" and set(again.candidates) == {name, _twin(name)})
             said.append(ev.ModesReread(len(read) - 1, name, changed, explains))
             if explains:
                 explained.append(again)
-        chosen = explained[0] if len(explained) == 1 else d
+        # one reading that explains the data, or several whose diagnoses agree (a stuck switch's and its
+        # twin's: each reads the other's modes, and both come out as the same pair)
+        agree = all((e.verdict, set(e.candidates)) == (explained[0].verdict, set(explained[0].candidates))
+                    for e in explained)
+        chosen = explained[0] if explained and agree else d
         kept = [false] if false is not None and chosen is not d else []  # the false alarm, said again
         return dataclasses.replace(chosen, events=ordered(list(chosen.events) + kept + said))
 
@@ -851,6 +861,21 @@ class Diagnoser:
         from .state import restore_diagnoser
 
         return restore_diagnoser(cls, config, state)
+
+
+def _twin(name: str) -> str:
+    """A switch's fault model that is the same plant as fault model ``name``
+    until a mode asks for the switch where the fault put it: a stuck switch's
+    and the uncommanded change of the same switch the same way
+    (``K_stuck_on`` and ``K_uncommanded_on``); "" for any other."""
+    from ..kinds import SWITCH_KINDS, fault_parameter, kind_of
+
+    kind = kind_of(name)
+    if kind not in SWITCH_KINDS:
+        return ""
+    way = kind.rsplit("_", 1)[1]
+    other = f"uncommanded_{way}" if kind.startswith("stuck") else f"stuck_{way}"
+    return f"{fault_parameter(name)}_{other}" if other in SWITCH_KINDS else ""
 
 
 def _armed_after(loop: Loop, after) -> None:
