@@ -726,8 +726,7 @@ def path(families: Families, name: str, magnitude: float, onset: int, us: np.nda
     n = families.x_after.shape[1]
     theta = np.asarray(model.THETA, dtype=float)
     before, after, y = (a[:, :, 0] for a in _fault_runs(families, name, [magnitude], [onset], us))
-    if us is None and getattr(model, "FAULT", None) and fault_kind(model.FAULT["kind"]).discrete \
-            and _own_modes(families, model) is not None:  # linearised through the modes its run took
+    if us is None and _own_modes(families, model) is not None:  # linearised through the modes its run took
         nominal = nominal_model(families.package)
         us = np.array(families.us, dtype=float)
         us[:, nominal.MODE_INPUT] = np.rint(after[:, nominal.MODE_ROW])

@@ -873,9 +873,8 @@ def _twin(name: str) -> str:
     kind = kind_of(name)
     if kind not in SWITCH_KINDS:
         return ""
-    way = kind.rsplit("_", 1)[1]
-    other = f"uncommanded_{way}" if kind.startswith("stuck") else f"stuck_{way}"
-    return f"{fault_parameter(name)}_{other}" if other in SWITCH_KINDS else ""
+    suffix, way = kind.split("_")
+    return f"{fault_parameter(name)}_{'stuck' if suffix == 'uncommanded' else 'uncommanded'}_{way}"
 
 
 def _armed_after(loop: Loop, after) -> None:

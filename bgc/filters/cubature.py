@@ -379,15 +379,17 @@ class _Filter:
         flat = np.empty((self.n_x, 2 * n * C))
         held = kernel.contiguous(fixed)  # a drifting parameter is read back into it
         kernel.cubature_prepare(m, P, self.root, flat, phys, self.extra_rows, held, onset)
+        # the points' magnitude row, point by point, the cells innermost (a view: (2n, C))
+        magnitudes = flat[self.extra[self.magnitude]].reshape(2 * n, C) if self.extra else None
         if moved is not None:  # the transition sees each cell's magnitude over it (every point of the cell)
-            flat[self.extra[self.magnitude]].reshape(2 * n, C)[:] = np.asarray(moved, dtype=float)
+            magnitudes[:] = np.asarray(moved, dtype=float)
         model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
         mp, Pp, L = kernel.cubature_after(flat, phys, self.extra_rows, held, self.inverse, self.scale, self.Q,
                                           self.root, onset)  # the cells innermost: (n, C), (n, n, C)
-        if self.released:  # (the points point by point, the cells innermost)
-            self._read_flag(flat[self.extra[self.magnitude]].reshape(2 * n, C).T, held, onset)
+        if self.released:
+            self._read_flag(magnitudes.T, held, onset)
         if moved is not None:  # the update sees the magnitude of this sample
-            flat[self.extra[self.magnitude]].reshape(2 * n, C)[:] = held[self.magnitude]
+            magnitudes[:] = held[self.magnitude]
         if held is not fixed:
             fixed[...] = held
         seen = np.isfinite(y)
@@ -548,16 +550,8 @@ def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.n
         nan = np.full((C, len(y)), np.nan)
         return np.zeros(C), mp, Pp, nan, nan, nan
     L = points(mp, Pp, Xs)
-    Ys = []
-    for kf, b, flat, X, f, onset in zip(kfs, blocks, flats, Xs, fixed, onsets):
-        if kf.extra and onset.stop > onset.start:
-            X[kf.extra[kf.magnitude], onset] = f[kf.magnitude][onset][:, None]
-        Y = kf.model.observe(flat, u, kf.model.THETA)
-        if not every:
-            Y = Y[kf._noise(seen)[1]]
-        Ys.append(Y.reshape(-1, b.stop - b.start, 2 * n))
-    R, rows = kf0._noise(seen)
-    Y = np.concatenate(Ys, axis=1)  # (k, C, 2n)
+    _, rows = kf0._noise(seen)
+    Y = _observed(kfs, blocks, flats, Xs, fixed, onsets, u, None if every else rows)  # (k, C, 2n)
     yh = np.add.reduce(Y, axis=2)
     yh *= kf0.inverse
     DY = (Y - yh[:, :, None]).transpose(1, 0, 2)  # (C, k, 2n)
@@ -571,6 +565,23 @@ def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.n
         else:
             Syy[b] += kf._noise(seen)[0]
     return _update(y, rows, every, yh, DY, L, Syy, mp, Pp, kf0.inverse, factor)
+
+
+def _observed(kfs: list, blocks: list, flats: list, Xs: list, fixed: list, onsets: list, u: np.ndarray,
+              rows: np.ndarray | None) -> np.ndarray:
+    """The measurements (k, C, 2n) of every block's update points
+    (:func:`_side_by_side`), each model observing its own, the cells at
+    their onset given their magnitude first; ``rows``: the sensors read
+    (None: every one)."""
+    Ys = []
+    for kf, b, flat, X, f, onset in zip(kfs, blocks, flats, Xs, fixed, onsets):
+        if kf.extra and onset.stop > onset.start:
+            X[kf.extra[kf.magnitude], onset] = f[kf.magnitude][onset][:, None]
+        Y = kf.model.observe(flat, u, kf.model.THETA)
+        if rows is not None:
+            Y = Y[rows]
+        Ys.append(Y.reshape(-1, b.stop - b.start, X.shape[2]))
+    return np.concatenate(Ys, axis=1)
 
 
 def _update(y, rows, every: bool, yh, DY, L, Syy, mp, Pp, inverse: float, factor):
