@@ -38,6 +38,8 @@ column.
 
 With ``--as-written RUNS``: its rows of the model as written only; with
 ``--calibrated RUNS --only-calibrated``, its rows of the calibrated model only.
+``--first SEED``: the plants' seeds start there (default 0), so that two
+processes can each take a share of the seeds (their tables add up).
 """
 
 from __future__ import annotations
@@ -106,10 +108,11 @@ def timing(runs: int) -> None:
                           + f" | {named} |", flush=True)
 
 
-def calibrated(runs: int, off: float, noise: float, calibrate: bool = True, written: bool = True) -> None:
+def calibrated(runs: int, off: float, noise: float, calibrate: bool = True, written: bool = True,
+               first: int = 0) -> None:
     """Verdicts on a fresh healthy run of a plant off its model, with the model as written and calibrated
     (``calibrate``: else as written only, without the calibrations' minutes; ``written``: else calibrated
-    only)."""
+    only; ``first``: the first seed)."""
     from bgc.diagnosis.detect import TESTS
 
     session = bgc.open(ROOT / "models" / "circuit.yaml")
@@ -119,7 +122,7 @@ def calibrated(runs: int, off: float, noise: float, calibrate: bool = True, writ
     counts = {c: Counter() for c in columns}
     with tempfile.TemporaryDirectory() as folder:
         healthy, fresh, model = (Path(folder) / name for name in ("healthy.csv", "fresh.csv", "calibrated.yaml"))
-        for seed in range(runs):
+        for seed in range(first, first + runs):
             plant_csv(healthy, seed, off, noise)
             plant_csv(fresh, seed, off, noise, noise_seed=1)
             if calibrate:
@@ -132,7 +135,8 @@ def calibrated(runs: int, off: float, noise: float, calibrate: bool = True, writ
                 counts[column][d.verdict] += 1
                 said.append(d.verdict)
             print(f"seed {seed}: " + ", ".join(said), file=sys.stderr, flush=True)
-    print(f"| model ({runs} plants, off {100 * off:g} %, noise x{noise:g}) | detector | " + " | ".join(VERDICTS) + " |")
+    seeds = f"seeds {first} to {first + runs - 1}, " if first else ""
+    print(f"| model ({runs} plants, {seeds}off {100 * off:g} %, noise x{noise:g}) | detector | " + " | ".join(VERDICTS) + " |")
     print("|---|---|" + "---|" * len(VERDICTS))
     for (name, tests), c in counts.items():
         print(f"| {name} | {'mean' if len(tests) == 1 else 'all'} | " + " | ".join(str(c[v]) for v in VERDICTS) + " |")
@@ -149,10 +153,11 @@ def main(argv=None) -> int:
     p.add_argument("--as-written", type=int, default=0, metavar="RUNS",
                    help="--calibrated's rows of the model as written only (no calibration)")
     p.add_argument("--only-calibrated", action="store_true", help="--calibrated's rows of the calibrated model only")
+    p.add_argument("--first", type=int, default=0, metavar="SEED", help="--calibrated's and --as-written's first seed")
     a = p.parse_args(argv)
     if a.calibrated or a.as_written:
         calibrated(a.calibrated or a.as_written, a.off, a.noise, calibrate=bool(a.calibrated),
-                   written=not (a.calibrated and a.only_calibrated))
+                   written=not (a.calibrated and a.only_calibrated), first=a.first)
         return 0
     if a.timing:
         timing(a.timing)

@@ -5,8 +5,9 @@ of the same plant, filtered with the calibrated model, has residuals whose
 variance scatters by its sampling error and by what the estimates'
 uncertainty leaves (the delta method through the inverse Hessian,
 bgc.analysis.calibrate._spread). The calibrated model file carries
-it per sensor (``residual_variance_sd``), and the fit test adds it to the
-variance's standard error in quadrature (bgc.filters.residuals.failures).
+it per sensor (``residual_variance_sd``), and the fit test averages the
+variance's chi-square tail over a log-normal factor of that log-std
+(bgc.filters.residuals.failures, variance_z).
 
 Checked against a closed form on the RC drain of tests/test_calibrate.py
 with no process noise: the filter's residuals are then the readings' errors
@@ -128,24 +129,71 @@ def cut(tests: int) -> float:
     return NormalDist().inv_cdf(1 - LEVEL / tests / 2)
 
 
-@pytest.mark.parametrize("sd", [0.05, 0.2])
-def test_the_fit_tests_standard_errors_add_the_allowance(sd):
-    n, c = 300, cut(2)
-    plain, allowed = math.sqrt(2 / n), math.sqrt(2 / n + sd * sd)
-    between = 1 + c * (plain + allowed) / 2  # wider than the plain test allows, within the widened one
+def exact_tail(n: int, variance: float, sd: float, above: bool = True) -> float:
+    """The probability that ``n`` N(0, 1) residuals, their variance about
+    their mean (n - 1 degrees of freedom), show a variance beyond
+    ``variance`` (above it, or below it without ``above``) when their
+    model's variance is itself off by a log-normal factor of log-std ``sd``
+    (a calibration's error, normal in the noise's log): scipy.stats' chi-square
+    averaged over that factor by adaptive quadrature."""
+    from scipy.integrate import quad
+    from scipy.stats import chi2, norm
+
+    tail = chi2.sf if above else chi2.cdf
+    if sd == 0:
+        return float(tail(n * variance, n - 1))
+    return float(quad(lambda x: tail(n * variance / math.exp(sd * x), n - 1) * norm.pdf(x), -12, 12,
+                      epsabs=1e-13, limit=200)[0])
+
+
+def threshold(n: int, sd: float, narrower: bool) -> float:
+    """The variance at which ``failures`` starts to fail a sensor of ``n``
+    residuals (above 1, or below it with ``narrower``), by bisection; the
+    variance without the farthest reading left unset (NaN), the mean 0."""
+    def fails(v: float) -> bool:
+        i = Innovations("y", n, 0.0, v, 0.0, 1, 1.0)
+        return bool(failures([i], LEVEL, correlation=False, narrower=narrower, spread={"y": sd}))
+
+    lo, hi = (1.0, 50.0) if not narrower else (1e-9, 1.0)
+    for _ in range(80):
+        mid = (lo + hi) / 2
+        if fails(mid) == narrower:  # a failure below 1: the threshold is above mid; above 1: below it
+            lo = mid
+        else:
+            hi = mid
+    return (lo + hi) / 2
+
+
+@pytest.mark.parametrize("n", [45, 300])
+@pytest.mark.parametrize("sd", [0.0, 0.05, 0.2])
+def test_the_variance_test_has_its_size_on_either_side(n, sd):
+    # each tail of the variance test rejects a fitting model as often as its level says (LEVEL over two
+    # tests, two-sided), against the chi-square's exact tail: the variance's own scale rejected 2.8 (n = 300)
+    # to 7 (n = 45) times as often above 1 and a fifth as often or less below it
+    alpha = LEVEL / 2 / 2
+    above = exact_tail(n, threshold(n, sd, narrower=False), sd)
+    below = exact_tail(n, threshold(n, sd, narrower=True), sd, above=False)
+    assert above == pytest.approx(alpha, rel=0.01)
+    assert below == pytest.approx(alpha, rel=0.01)
+
+
+def test_the_fit_tests_standard_errors_add_the_allowance():
+    n, sd = 300, 0.1
+    between = (threshold(n, 0.0, False) + threshold(n, sd, False)) / 2  # beyond the plain test, within the widened
     wide = Innovations("y", n, 0.0, between, 0.0, 1, 1.0)
     assert failures([wide], LEVEL, correlation=False, narrower=False) == ((wide, "variance"),)
     assert failures([wide], LEVEL, correlation=False, narrower=False, spread={"y": sd}) == ()
     assert failures([wide], LEVEL, correlation=False, narrower=False, spread={"other": sd})
-    beyond = Innovations("y", n, 0.0, 1 + 1.01 * c * allowed, 0.0, 1, 1.0)
-    assert failures([beyond], LEVEL, correlation=False, narrower=False, spread={"y": sd})
-    # the variance without the farthest reading: against its own expectation, the same allowance beside it
+    # the variance without the farthest reading: against its own expectation (n - E[the largest square]) / (n -
+    # 1), the same allowance beside it; a glitch leaves it there however far the one reading was
     expected = (n - largest_square(n)) / (n - 1)
-    se = math.sqrt(2 / (n - 1) + sd * sd)
-    for but_one, fails in ((expected + 0.99 * c * se, False), (expected + 1.01 * c * se, True)):
-        i = Innovations("y", n, 0.0, 1 + 1.5 * c * allowed, 0.0, 1, 1.0, but_one)
-        assert bool(failures([i], LEVEL, correlation=False, narrower=False, spread={"y": sd})) is fails
+    far = 1.5 * threshold(n, sd, False)
+    glitch = Innovations("y", n, 0.0, far, 0.0, 1, 1.0, expected)
+    assert failures([glitch], LEVEL, correlation=False, narrower=False, spread={"y": sd}) == ()
+    noisy = Innovations("y", n, 0.0, far, 0.0, 1, 1.0, expected * far)
+    assert failures([noisy], LEVEL, correlation=False, narrower=False, spread={"y": sd}) == ((noisy, "variance"),)
     # the mean's test takes no allowance
+    c = cut(2)
     off = Innovations("y", n, 1.01 * c / math.sqrt(n), 1.0, 0.0, 1, 1.0)
     assert failures([off], LEVEL, correlation=False, narrower=False, spread={"y": sd}) == ((off, "mean"),)
 
@@ -160,7 +208,7 @@ def test_fresh_data_within_the_allowance_fit_the_calibrated_model(calibrated):
     sigma = float(nominal.MEASUREMENT_STD[0])
     (_, variance_sd), = report.calibration.spread
     n = 400
-    ratio = 1 + cut(2) * (math.sqrt(2 / n) + math.sqrt(2 / n + variance_sd ** 2)) / 2
+    ratio = (threshold(n, 0.0, False) + threshold(n, variance_sd, False)) / 2
     fresh, clean = rc_run(session, 0.0, n, 0)
     draws = np.random.default_rng(11).standard_normal(n)
     errors = (draws - draws.mean()) / draws.std() * sigma * math.sqrt(ratio)

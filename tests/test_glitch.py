@@ -98,7 +98,7 @@ def _fails(z: np.ndarray) -> bool:
 def _plain(z: np.ndarray) -> bool:
     """The variance and mean tests without the reading left out: the test before."""
     n, cut = len(z), NormalDist().inv_cdf(1 - 0.001 / 2 / 2)  # failures' quantile: level 0.001 over two tests
-    return bool(abs(z.mean()) * math.sqrt(n) > cut or (z.var() - 1) / math.sqrt(2 / n) > cut)
+    return bool(abs(z.mean()) * math.sqrt(n) > cut or residuals.variance_z(z.var() * n / (n - 1), n - 1) > cut)
 
 
 def test_one_far_reading_does_not_make_the_noise_too_small_and_a_wider_noise_still_does():

@@ -24,7 +24,7 @@ import math
 import numpy as np
 import pytest
 from scipy.linalg import expm
-from scipy.stats import norm
+from scipy.stats import chi2, norm
 
 import bgc
 from bgc.diagnosis import fit as fit_module
@@ -203,11 +203,17 @@ def test_the_fit_findings_against_their_closed_forms():
     assert len(said) == 1 and said[0].startswith("sensor a's residuals average")
     under = np.column_stack([base + cut / math.sqrt(n) * 0.99, base])
     assert residuals.findings(residuals.summary([under], ("a", "b")), level, correlation=False) == ()
-    scale = math.sqrt(1 + cut * math.sqrt(2 / n) * 1.01)  # variance just over 1 + cut sqrt(2 / n)
+    # the variance, about the mean (n - 1 degrees of freedom), just beyond the chi-square's quantile each side
+    tail = level / (2 * 2) / 2
+    scale = math.sqrt(chi2.isf(tail, n - 1) / n * 1.01)
     wide = np.column_stack([base, base * scale])
     said = residuals.findings(residuals.summary([wide], ("a", "b")), level, correlation=False)
     assert len(said) == 1 and "sensor b's residuals have variance" in said[0]
-    narrow = np.column_stack([base, base * math.sqrt(1 - cut * math.sqrt(2 / n) * 1.01)])
+    within = np.column_stack([base, base * math.sqrt(chi2.isf(tail, n - 1) / n * 0.99)])
+    assert residuals.findings(residuals.summary([within], ("a", "b")), level, correlation=False) == ()
+    within = np.column_stack([base, base * math.sqrt(chi2.ppf(tail, n - 1) / n * 1.01)])
+    assert residuals.findings(residuals.summary([within], ("a", "b")), level, correlation=False) == ()
+    narrow = np.column_stack([base, base * math.sqrt(chi2.ppf(tail, n - 1) / n * 0.99)])
     assert len(residuals.findings(residuals.summary([narrow], ("a", "b")), level, correlation=False)) == 1
     # the diagnosis's test: a variance under 1 (a filter more cautious than the plant) is no misfit
     assert residuals.findings(residuals.summary([narrow], ("a", "b")), level, correlation=False,

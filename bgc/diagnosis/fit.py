@@ -22,10 +22,11 @@ are fault-free.
 stretch; per sensor read, its normalised residuals, white N(0, 1) draws
 when the model fits, are summed up as ``bgc calibrate`` sums up the
 calibrated model's (:mod:`bgc.filters.residuals`): their mean, against its
-standard error 1 / sqrt(n), and their variance, against sqrt(2 / n), each
+standard error 1 / sqrt(n), and their variance, by the chi-square's exact
+tail (n - 1 degrees of freedom), each
 sensor and test at :data:`LEVEL` over all of them (Bonferroni). On a
-model ``bgc calibrate`` wrote, the variance's standard error adds, in
-quadrature, what the calibration's estimates leave on it
+model ``bgc calibrate`` wrote, that tail is averaged over what the
+calibration's estimates leave on the variance, a log-normal factor
 (:func:`residual_sd`: the estimates fitted one recording's noise too). A
 variance above 1 counts when the variance without the sensor's farthest
 reading is above its own expectation too (one glitch of a reading is not
