@@ -131,6 +131,26 @@ def test_a_map_naming_a_column_the_file_lacks_says_which_columns_there_are(tmp_p
         read_map(tmp_path / "missing.yaml")
 
 
+def test_a_map_naming_a_sensor_or_input_the_model_lacks_is_refused_at_its_line():
+    # a typo in a target (y:F21 for y:F20) would leave the column unread and the sensor missing
+    typo = parse_map(MAP.replace("name: y:F20", "name: y:F21"), "rig2.yaml")
+    with pytest.raises(DataError, match=r"^rig2\.yaml:7: column 'flow20_lps' is mapped to y:F21, and the model has no "
+                                        r"sensor F21 \(did you mean y:F20\? map it to one of u:f_in, y:F10"):
+        runs.parse_run(_logger(ROWS), "rig2.csv", Reading(typo, TANKS_COLUMNS))
+    pump = parse_map(MAP.replace("pump_flow: u:f_in", "pump_flow: u:pump"), "rig2.yaml")
+    with pytest.raises(DataError, match=r"^rig2\.yaml:4: .* the model has no input pump "):
+        runs.parse_run(_logger(ROWS), "rig2.csv", Reading(pump, TANKS_COLUMNS))
+    assert runs.parse_run(_logger(ROWS), "rig2.csv", Reading(pump))  # a reader told nothing of the model: as before
+
+
+def test_a_mode_beyond_the_models_is_refused_at_its_line():
+    text = "time,mode,y:v\n0.5,1,0.1\n1.0,2,0.1\n1.5,3,0.1\n"
+    reading = Reading(expected=("y:v",), modes=("open", "closed"), model="relay")
+    with pytest.raises(DataError, match=r"^m\.csv:4: mode 3 is no mode of relay \(1 to 2: open, closed\)"):
+        runs.parse_run(text, "m.csv", reading)
+    assert runs.parse_run(text.replace(",3,", ",2,"), "m.csv", reading).modes.tolist() == [1, 2, 2]
+
+
 @pytest.mark.slow
 def test_a_diagnosis_of_the_loggers_file_is_the_diagnosis_of_bgcs_own(tmp_path):
     """The two tanks' scenario run written as a logger would (its names, ISO

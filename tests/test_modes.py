@@ -106,6 +106,17 @@ def test_bgc_check_lists_the_modes_their_states_and_the_transitions():
     assert "    unpowered -> open: after 5; reset f3 := 0" in out
 
 
+def test_a_relay_with_no_gap_between_its_thresholds_is_warned_of_and_one_with_a_gap_is_not(tmp_path):
+    assert "  warnings: none" in bgc_cli("check", RELAY).stdout  # v_C > 6, then v_C < 4: a gap of 2
+    for back in ("v_C < 6", "6 >= v_C"):  # the same value the other way round, however written
+        path = tmp_path / "relay.yaml"
+        path.write_text(RELAY.read_text(encoding="utf-8").replace('"v_C < 4"', f'"{back}"'), encoding="utf-8")
+        done = bgc_cli("check", path)
+        assert done.returncode == 0, done.stderr
+        assert ("  warnings: 1\n    warning: open -> closed (v_C > 6) and closed -> open "
+                f"({back}) switch at the same value, 6: no hysteresis") in done.stdout, done.stdout
+
+
 @pytest.mark.slow
 def test_bgc_diagnoses_a_run_of_a_model_with_modes_and_refuses_what_is_not_built_in_one_line(tmp_path):
     run = bgc_cli("simulate", "tests/data/hybrid/relay_rl.yaml", "--steps", "200", "-o", tmp_path / "r.csv")

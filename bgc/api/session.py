@@ -426,7 +426,8 @@ def reading_of(view, columns=None, func: str = "bgc.Session.reading") -> Reading
     m = view.model
     expected = tuple([f"u:{u.name}" for u in m.inputs] + [f"y:{y.name}" for y in m.measurements])
     unit = m.settings.time_unit
-    return Reading(mapping, expected, unit_seconds(unit), unit)
+    modes = tuple(mode.name for mode in view.modes) if view.modes else ()
+    return Reading(mapping, expected, unit_seconds(unit), unit, modes, m.name)
 
 
 def choose_backend(backend: str | None, numba: Path, work: int | None) -> tuple[str, str]:

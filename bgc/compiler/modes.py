@@ -364,6 +364,30 @@ def _no_chatter(v, transitions: tuple[Transition, ...], measurements: dict[str, 
                     f"{'above' if rising else 'below'} {c1:g} must not satisfy {u.guard.text}"))
 
 
+def no_hysteresis(transitions: tuple[Transition, ...], values: dict[str, float]) -> tuple[str, ...]:
+    """The warnings of guards with no gap: a transition and one out of the
+    mode it enters that compare the same variable with the same number the
+    other way (``e8 > 21``, then ``e8 < 21``). Not an error (the plant must
+    cross back first: :func:`_no_chatter` refuses a guard that holds at
+    once), but an ideal comparator: with any noise on the variable near the
+    threshold the plant switches back and forth from step to step."""
+    out, told = [], set()
+    for t in transitions:
+        first = _threshold(t.guard, values) if t.guard and not t.tolerance else None
+        if first is None:
+            continue
+        for u in transitions:
+            second = _threshold(u.guard, values) if u.guard and u.source == t.target and not u.tolerance else None
+            if second is None or second[0] != first[0] or second[2] != first[2] or \
+                    (first[1][0] == second[1][0]) or frozenset((id(t), id(u))) in told:  # the same way round
+                continue
+            told.add(frozenset((id(t), id(u))))
+            out.append(f"{t.source} -> {t.target} ({t.guard.text}) and {u.source} -> {u.target} ({u.guard.text}) "
+                       f"switch at the same value, {first[2]:g}: no hysteresis, so noise near it switches the "
+                       "plant back and forth (give the thresholds a gap)")
+    return tuple(out)
+
+
 def _closest(name, options) -> str | None:
     """Stage 2's nearest name (:mod:`bgc.compiler.validate` reads the modes: it is loaded by then)."""
     from .validate import _closest as closest

@@ -34,6 +34,7 @@ list the columns the model expects and the map line that would fix them.
 from __future__ import annotations
 
 import datetime
+import difflib
 import math
 import stat
 from dataclasses import dataclass
@@ -100,6 +101,14 @@ class ColumnMap:
             if e.column not in columns:
                 raise DataError(f"{self.source}:{e.line}: column {printable(repr(e.column))} is not in "
                                 f"{where or 'the data'}", None, f"its columns are {_listed(columns)}: map those")
+            if reading.expected and e.name and e.name[:2] in ("u:", "y:") and e.name not in reading.expected:
+                kind = "sensor" if e.name.startswith("y:") else "input"
+                close = difflib.get_close_matches(e.name, reading.expected, n=1)
+                hint = f"did you mean {close[0]}? " if close else ""
+                raise DataError(f"{self.source}:{e.line}: column {printable(repr(e.column))} is mapped to "
+                                f"{printable(e.name)}, and the model has no {kind} {printable(e.name[2:])}", None,
+                                f"{hint}map it to one of {_listed(list(reading.expected))}, or write "
+                                f"'{printable(e.column)}: skip'")
         out: list[str | None] = []
         for c in columns:
             if c == self.time:
@@ -116,12 +125,17 @@ class Reading:
     (None: none), the columns the model reads (``expected``: ``u:NAME`` and
     ``y:NAME``, for the messages), and the seconds in one of the model's
     time units (ISO timestamps are converted to it; None: the model's unit
-    is not one of :data:`SECONDS`, and a timestamp is refused)."""
+    is not one of :data:`SECONDS`, and a timestamp is refused); a model
+    with modes: their names (``modes``) and the model's (``model``), for a
+    mode column's cells."""
 
     columns: ColumnMap | None = None
     expected: tuple[str, ...] = ()
     seconds_per_unit: float | None = 1.0
     time_unit: str | None = None
+    #: a model with modes: its modes' names in order (a mode column's cell is a number from 1 to their count)
+    modes: tuple[str, ...] = ()
+    model: str = ""
 
     def unknown_column(self, column: str, columns: list[str], where: str) -> DataError:
         """The error of a column that is neither bgc's nor mapped: the

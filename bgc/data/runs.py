@@ -567,7 +567,15 @@ def _parse(stream: IO, name: str, reading: Reading | None = None) -> Run:
     if layout.scaling:
         data *= layout.scale
         data += layout.offset
-    return check_run(run_of(cols, data, tuple(lines.header), name), numbers)
+    run = check_run(run_of(cols, data, tuple(lines.header), name), numbers)
+    if reading is not None and reading.modes and run.modes is not None:
+        beyond = np.isfinite(run.modes) & (run.modes > len(reading.modes))
+        if beyond.any():
+            k = int(np.argmax(beyond))
+            raise DataError(f"{name}:{int(numbers[k])}: mode {run.modes[k]:g} is no mode of {reading.model} (1 to "
+                            f"{len(reading.modes)}: {', '.join(reading.modes)})", None,
+                            "give each row's mode as its number in the model's order, 1 for the first")
+    return run
 
 
 def run_of(columns: list[str], data: np.ndarray, header: tuple[str, ...], name: str) -> Run:
@@ -678,7 +686,7 @@ def check_run(run: Run, lines: np.ndarray | None = None) -> Run:
         step = np.diff(t)
         if not np.all(step > 0):
             k = int(np.argmax(step <= 0)) + 1
-            raise DataError(f"{at(k)}: time {t[k]:g} does not increase (the row before has {t[k - 1]:g})", None,
+            raise DataError(f"{at(k)}: time {t[k]:.12g} does not increase (the row before has {t[k - 1]:.12g})", None,
                             "sort the rows by time, one row per sample")
     groups = []
     for prefix, group in (("u", run.inputs), ("y", run.measurements), ("x", run.states), ("theta", run.parameters)):

@@ -580,7 +580,7 @@ def hybrid_summary(model, modes) -> str:
     then each mode (the switched junctions ON, its states, derivative
     causality, algebraic loops), the transitions (kind, guard or time,
     resets) with the causality each changes, and the warnings."""
-    from ..compiler.modes import causality_changes, compile_stuck, states
+    from ..compiler.modes import causality_changes, compile_stuck, no_hysteresis, states
 
     m = model
     lines = [f"{m.source}: ok: {m.name}" + (f" ({m.description})" if m.description else "")]
@@ -633,6 +633,7 @@ def hybrid_summary(model, modes) -> str:
     # a storage element in derivative causality is listed under its mode (an idle one: a switch cut it off)
     warnings = sorted({d.message for mode in modes for d in mode.causal.diagnostics
                        if d.severity == "warning" and "derivative causality" not in d.message})
+    warnings += no_hysteresis(m.modes.transitions, {p.name: p.value for p in m.parameters})
     lines.append(f"  warnings: {len(warnings) or 'none'}")
     lines.extend(f"    warning: {w}" for w in warnings)
     return "\n".join(printable(line) for line in lines)
