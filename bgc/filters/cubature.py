@@ -139,6 +139,10 @@ def _cholesky_2(P: np.ndarray) -> np.ndarray | None:
     return L
 
 
+#: The draws at which :meth:`_Filter._switch_spread` carries a cell's mean through a step with a switch.
+SWITCH_QUANTILES = 16
+
+
 class _Filter:
     """The cubature Kalman filter's arithmetic for a model: one step of a
     stack of cells, each with its own mean, covariance and fault states (the
@@ -178,6 +182,11 @@ class _Filter:
         #: a compiled package's kernel does the step's arithmetic (:meth:`_compiled_step`); asked once, not per step
         self.compiled = hasattr(getattr(model, "_kernel", None), "cubature_update")
         self._seen: dict = {}
+        # a model with modes whose guards have a tolerance: the draws placing a switch within its step, the
+        # mode's row among the physical ones, and which of those are physical states (:meth:`_switch_spread`)
+        self.draws = np.array([i for i, k in enumerate(kinds) if k == "threshold"], dtype=np.intp)
+        self.mode = self.physical.index(model.MODE_ROW) if len(self.draws) else None
+        self.states = np.array([kinds[i] == "physical" for i in self.physical]) if len(self.draws) else None
 
     def _points(self, m: np.ndarray, P: np.ndarray, X: np.ndarray) -> np.ndarray:
         """Write the cubature points m +- sqrt(n) L e_i of N(m, P) of every
@@ -211,6 +220,43 @@ class _Filter:
                 L[:, keep[:, None], keep] = cholesky(P[:, keep[:, None], keep])
                 return L
         return cholesky(P)
+
+    def _switch_spread(self, m: np.ndarray, fixed: np.ndarray, u: np.ndarray, onset: slice, dt,
+                       moved=None) -> np.ndarray | None:
+        """A model with modes whose guards have a tolerance, at a step where
+        the data's mode differs from a cell's (a switch the data say happened
+        in the step): the covariance (C, n, n) the switch's unknown place
+        within the step adds to each cell's prediction, its physical states'
+        rows and columns only; None at any other step. The plant's threshold
+        is uncertain, so the data's switch lies anywhere on the guard's path
+        through the step (the generated ``_fraction``: the place is the
+        quantile ``draw`` of the threshold's distribution along it); the
+        points all take the median draw (0.5), which alone gives no spread,
+        and a cubature point along a draw of the uniform would lie outside
+        it. Each cell's mean is carried through the step at the draws' J =
+        :data:`SWITCH_QUANTILES` midpoint quantiles (j + 1/2) / J, as its
+        points are (its fault states, the onset rule), and the covariance of
+        those predictions is the spread (the midpoint rule of the uniform
+        draw's integral)."""
+        if self.mode is None or not np.isfinite(u[self.model.MODE_INPUT]) or \
+                not (np.rint(m[:, self.mode]) != np.rint(u[self.model.MODE_INPUT])).any():
+            return None
+        C, J = m.shape[0], SWITCH_QUANTILES
+        X = np.empty((self.n_x, C, J))
+        X[self.physical] = m.T[:, :, None]
+        for j, row in enumerate(self.extra):
+            X[row] = fixed[j][:, None]
+        if self.extra:
+            X[self.extra[self.magnitude], onset] = 0.0
+            if moved is not None:
+                X[self.extra[self.magnitude]] = np.asarray(moved, dtype=float)[:, None]
+        X[self.draws] = (np.arange(J) + 0.5) / J
+        flat = X.reshape(self.n_x, C * J)
+        self.model.predict(flat, u, self.model.THETA, self.model.DT if dt is None else dt, out=flat)
+        D = X[self.physical].transpose(1, 0, 2)  # (C, n, J)
+        D = D - D.mean(axis=2, keepdims=True)
+        D[:, ~self.states] = 0.0  # the mode, its time and the draws: no spread of their own
+        return np.matmul(D, D.transpose(0, 2, 1)) / J
 
     def _physical(self, X: np.ndarray) -> np.ndarray:
         """The physical rows of the points ``X`` (n_x, C, 2n) as (C, n, 2n)."""
@@ -256,7 +302,8 @@ class _Filter:
         from the Cholesky factor of the innovation covariance by forward
         substitution (:func:`lower_solve`)."""
         model, n, C = self.model, self.n, m.shape[0]
-        if self.compiled:  # a compiled package's kernel
+        spread = self._switch_spread(m, fixed, u, onset, dt, moved) if self.mode is not None else None
+        if self.compiled and spread is None:  # a compiled package's kernel (a switch's spread: the step below)
             return self._compiled_step(y, u, m, P, fixed, onset, dt, moved)
         if self.buffer.shape[1] < 2 * n * C:
             self.buffer = np.empty((self.n_x, 2 * n * C))
@@ -271,6 +318,8 @@ class _Filter:
         D *= self.scale  # sqrt(1 / 2n): D D' is the points' covariance
         Pp = np.matmul(D, D.transpose(0, 2, 1))
         Pp += self.Q
+        if spread is not None:
+            Pp += spread
         seen = np.isfinite(y)
         every = bool(seen.all())
         if not every and not seen.any():
@@ -526,6 +575,8 @@ def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.n
             X[kf.rows] = np.concatenate([plus[:, b], minus[:, b]], axis=2)
         return L
 
+    spreads = [kf._switch_spread(m[b], f, u, onset, None) if kf.mode is not None else None
+               for kf, b, f, onset in zip(kfs, blocks, fixed, onsets)]
     flats = [np.empty((kf.n_x, 2 * n * (b.stop - b.start))) for kf, b in zip(kfs, blocks)]
     Xs = [flat.reshape(kf.n_x, b.stop - b.start, 2 * n) for kf, flat, b in zip(kfs, flats, blocks)]
     points(m, P, Xs)
@@ -544,6 +595,9 @@ def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.n
     else:
         for kf, b in zip(kfs, blocks):
             Pp[b] += kf.Q
+    for b, spread in zip(blocks, spreads):  # a switch within the step whose place a tolerance leaves unknown
+        if spread is not None:
+            Pp[b] += spread
     seen = np.isfinite(y)
     every = bool(seen.all())
     if not every and not seen.any():
