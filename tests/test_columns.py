@@ -215,3 +215,14 @@ def test_the_commands_take_a_column_map(tmp_path):
         assert out.stderr.strip().splitlines()[-1].startswith(f"{tmp_path / 'bad.yaml'}:4: column 'flow_10' is not in ")
     out = bgc_cli("diagnose", model, "--scenario", "none", "--columns", tmp_path / "m.yaml")
     assert out.returncode != 0 and "--columns applies to --data" in out.stderr
+
+
+def test_an_input_a_logger_writes_when_it_changes_is_one_note_not_one_per_change():
+    from bgc import events
+    from bgc.output.events import notes
+
+    held = [events.InputHeld("Q", k, v) for k, v in ((3, 250.0), (203, 150.0), (403, 250.0))]
+    lines = notes([*held, events.InputHeld("T_amb", 9, 20.0)], lambda k: k * 1.0)
+    assert lines == ["input u:Q is empty 3 times, from t = 3 to t = 403: each time its last value is held until a "
+                     "value arrives (a logger that writes it when it changes; the report lists each)",
+                     "input u:T_amb is empty: its last value 20 is held until a value arrives"]

@@ -50,7 +50,12 @@ direction it takes part in, when its correlation with another estimate is
 above 0.99 in magnitude (parameters that enter only as a product), or when
 its interval spans more than a factor of 100 (a flat likelihood): it is
 named, keeps the model's value, and the others are estimated again with it
-held there. A process level whose likelihood is highest at 0 (it falls
+held there. Of a flat direction or of correlated estimates one is held at a
+time (the one most in the direction, or in the most correlated pairs), and
+the others estimated again: they then tell the combination the data see,
+carrying the held one's error (holding them all left the combination at the
+model's value, and the calibrated model no more fitting the plant than the
+model file: a user told again to calibrate what had just been calibrated). A process level whose likelihood is highest at 0 (it falls
 1000 times below its start) is 0, with a one-sided bound (Self and Liang
 1987). Where the optimiser stops short of a maximum it is started again from
 there; where none is found, a :class:`~bgc.errors.CalibrationError` says so.
@@ -644,34 +649,47 @@ def _at_maximum(g: np.ndarray, H: np.ndarray) -> bool:
 
 
 def _unidentifiable(names: Sequence[str], H: np.ndarray, logs: Sequence[bool]) -> dict[str, str]:
-    """The estimates the data cannot tell, each with why: on a flat or
-    negative direction of the Hessian ``H``, correlated above
-    ``MAX_CORRELATION`` with another, or an interval spanning more than a
-    factor ``MAX_SPAN`` (a coordinate in ``logs``)."""
+    """The estimates to hold at the model's values before the others are
+    estimated again, each with why. Of a flat or negative direction of the
+    Hessian ``H`` (the flattest), or of estimates correlated above
+    ``MAX_CORRELATION`` (parameters that enter only as a product), one alone:
+    the one most in that direction (of the correlated ones, the one in the
+    most such pairs), the later listed on a tie; the others of the direction
+    or the pairs are then estimated with it held, which tells their
+    combination, and they carry its error (holding them all would leave the
+    combination at the model's value, a model that still does not fit the
+    plant). Every estimate whose interval spans more than a factor
+    ``MAX_SPAN`` (a coordinate in ``logs``; a flat likelihood of its own)."""
     why: dict[str, str] = {}
     p = len(names)
     if p == 0:
         return why
+
+    def last_largest(values: np.ndarray) -> int:  # the later index on a tie (to 1e-9)
+        top = float(np.max(values))
+        return int(np.flatnonzero(values >= top - 1e-9 * max(abs(top), 1.0))[-1])
+
     w, V = np.linalg.eigh(H)
     top = max(float(np.max(np.abs(w))), 1e-300)
-    for k in range(p):
-        if w[k] <= FLAT * top:
-            for i in np.flatnonzero(np.abs(V[:, k]) > 0.2):
-                others = [names[j] for j in np.flatnonzero(np.abs(V[:, k]) > 0.2) if j != i]
-                why.setdefault(names[i], "the likelihood is flat along it"
-                               + (f" and {', '.join(others)} together" if others else ""))
-    if why:
-        return why
+    if w[0] <= FLAT * top:
+        along = np.abs(V[:, 0])
+        i = last_largest(along)
+        others = [names[j] for j in np.flatnonzero(along > 0.2) if j != i]
+        return {names[i]: "the likelihood is flat along it" + (
+            f" and {', '.join(others)} together ({', '.join(others)} estimated with it held, carrying its "
+            "error)" if others else "")}
     cov = np.linalg.inv(H)
     sd = np.sqrt(np.diag(cov))
     corr = cov / np.outer(sd, sd)
+    tied = (np.abs(corr) > MAX_CORRELATION) & ~np.eye(p, dtype=bool)
+    if tied.any():
+        i = last_largest(tied.sum(axis=1).astype(float))
+        others = [names[j] for j in np.flatnonzero(tied[i])]
+        j = int(np.flatnonzero(tied[i])[np.argmax(np.abs(corr[i, tied[i]]))])
+        return {names[i]: f"correlated {corr[i, j]:+.3f} with {names[j]}: the data tell only a combination "
+                          f"({', '.join(others)} estimated with it held, carrying its error)"}
     for i in range(p):
-        for j in range(p):
-            if i != j and abs(corr[i, j]) > MAX_CORRELATION:
-                why.setdefault(names[i], f"correlated {corr[i, j]:+.3f} with {names[j]}: the data tell only "
-                                         "a combination of the two")
-    for i in range(p):
-        if logs[i] and names[i] not in why and 2 * Z95 * sd[i] > math.log(MAX_SPAN):
+        if logs[i] and 2 * Z95 * sd[i] > math.log(MAX_SPAN):
             span = 2 * Z95 * sd[i]
             why[names[i]] = ("the likelihood is nearly flat: its 95 % interval spans a factor of "
                              + (f"{math.exp(span):.3g}" if span < 690 else "more than 1e300"))

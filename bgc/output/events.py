@@ -371,12 +371,25 @@ def notes(events, time_of) -> list[str]:
     line: two or more :class:`~bgc.events.Overruled` are one
     sentence naming them all, in the place of the first (the report keeps
     one sentence each, with the symbol that ruled each out), and so are two
-    or more :class:`~bgc.events.ObserverRestarted`."""
+    or more :class:`~bgc.events.ObserverRestarted`, and two or more
+    :class:`~bgc.events.InputHeld` of one input (a logger that writes an
+    input when it changes holds it at every change)."""
     overruled = [e.hypothesis for e in events if isinstance(e, ev.Overruled)]
     restarts = [e for e in events if isinstance(e, ev.ObserverRestarted)]
+    held: dict[str, list] = {}
+    for e in events:
+        if isinstance(e, ev.InputHeld):
+            held.setdefault(e.input, []).append(e)
     out, said = [], False
     for e in events:
         if not isinstance(e, NOTABLE):
+            continue
+        if isinstance(e, ev.InputHeld) and len(held[e.input]) > 1:
+            runs = held[e.input]
+            if e is runs[0]:  # one line for the input, in the place of its first hold
+                out.append(f"input u:{e.input} is empty {len(runs)} times, from t = {_t(time_of, runs[0].step)} to "
+                           f"t = {_t(time_of, runs[-1].step)}: each time its last value is held until a value "
+                           "arrives (a logger that writes it when it changes; the report lists each)")
             continue
         if isinstance(e, ev.ObserverRestarted) and len(restarts) > 1:
             if e is restarts[0]:  # one line for them all, in the place of the first
