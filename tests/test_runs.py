@@ -314,3 +314,12 @@ def test_a_stream_read_row_by_row_has_no_byte_bound_and_bounds_its_comment_lines
         assert what in info.value.line(), info.value.line()
     # a file is bounded as a whole, as before
     assert error("time,y:a\n" + "".join(f"{k},1\n" for k in range(1, 100))).startswith("bad.csv: more than 300 bytes")
+
+
+def test_what_loggers_write_for_a_reading_not_taken_is_an_empty_cell():
+    text = "time,y:a,y:b\n1,NA,2\n2,n/a,#N/A\n3, null ,---\n4,None,-\n5,4,--\n"
+    run = runs.parse_run(text, "logger.csv")
+    assert np.isnan(run.measurements["a"][:4]).all() and run.measurements["a"][4] == 4.0
+    assert run.measurements["b"][0] == 2.0 and np.isnan(run.measurements["b"][1:]).all()
+    with pytest.raises(DataError, match=r"^logger\.csv:2: 'NAN!' in column y:a is not a number"):
+        runs.parse_run("time,y:a\n1,NAN!\n", "logger.csv")

@@ -631,9 +631,14 @@ def _fields(fields: list[str], lines: _Lines) -> None:
         raise lines.error(f"a field of {longest} characters", "a field holds one number or one column name")
 
 
+#: What loggers and spreadsheets write in a cell for a reading not taken (compared without case or spaces),
+#: read as an empty cell: NaN.
+MISSING = frozenset({"na", "n/a", "#n/a", "nan", "null", "none", "-", "--", "---"})
+
+
 def _number(text: str, column: str, lines: _Lines) -> float:
-    """A cell's number: empty is NaN (not measured)."""
-    if not text.strip():
+    """A cell's number: empty, or one of :data:`MISSING`, is NaN (not measured)."""
+    if not text.strip() or text.strip().lower() in MISSING:
         return math.nan
     try:
         if "_" in text:
@@ -641,7 +646,7 @@ def _number(text: str, column: str, lines: _Lines) -> float:
         return float(text)
     except ValueError:
         raise lines.error(f"{printable(repr(text[:40]))} in column {printable(column)} is not a number",
-                          "write numbers only (empty or nan: not measured)") from None
+                          "write numbers only (empty, nan or NA: not measured)") from None
 
 
 def check_run(run: Run, lines: np.ndarray | None = None) -> Run:
