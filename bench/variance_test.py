@@ -10,15 +10,17 @@ Per stretch length n (samples of one sensor), 100,000 stretches of each:
 
 Each is tested as the diagnosis tests one sensor at the level it gives one
 test (0.001 over 3 sensors and 2 tests: 0.001 / 6): ``plain``, the variance
-over its standard error sqrt(2 / n) as before (the mean test left out here),
-and ``now``, that and the variance without the farthest reading against its
-own expectation (``largest_square``). The rows: the share of stretches
+alone against the chi-square's exact tail (n times it, n - 1 degrees of
+freedom: ``variance_z``'s test; the mean test left out here), and ``now``,
+the diagnosis's: that and the variance without the farthest reading against
+its own expectation (``largest_square``). The rows: the share of stretches
 each calls too wide. The claims: on the null, ``now`` at most the plain
 test's share (both tests must fail: by construction) at every n; on the
 glitch, ``now`` at most 1 % at every n; on a noise 1.5 times the model's,
 ``now`` at least 90 % of the plain test's power at n >= 60. (The plain
-test's own share on the null is above the level at every n: the normal
-approximation of the chi-square's upper tail is short of its skew.) Run::
+test's share on the null is the level, its tail being exact; before
+2026-12-07 it was the normal approximation sqrt(2 / n), whose share on the
+null was above the level at every n, the chi-square's skew left out.) Run::
 
     .venv/bin/python bench/variance_test.py
 """
@@ -42,6 +44,8 @@ def rejections(z: np.ndarray) -> tuple[float, float]:
     diagnosis's: only a variance above 1)."""
     from statistics import NormalDist
 
+    from scipy.stats import chi2
+
     from bgc.filters.residuals import Innovations, _wider
 
     n = z.shape[1]
@@ -51,7 +55,7 @@ def rejections(z: np.ndarray) -> tuple[float, float]:
     keep = np.ones_like(z, dtype=bool)
     keep[np.arange(len(z)), far] = False
     rest = z[keep].reshape(len(z), n - 1).var(axis=1)
-    plain = (v - 1) / math.sqrt(2 / n) > cut  # the test before
+    plain = v > chi2.isf(LEVEL / 2, n - 1) / n  # the variance alone, by its exact tail
     # the diagnosis's own test on each stretch's two variances (the other fields play no part in it)
     now = [_wider(Innovations("y", n, 0.0, float(a), math.nan, 1, 1.0, float(b)), cut) for a, b in zip(v, rest)]
     return float(plain.mean()), float(np.mean(now))

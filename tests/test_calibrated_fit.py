@@ -164,7 +164,7 @@ def threshold(n: int, sd: float, narrower: bool) -> float:
     return (lo + hi) / 2
 
 
-@pytest.mark.parametrize("n", [45, 300])
+@pytest.mark.parametrize("n", [45, 300, 20000])
 @pytest.mark.parametrize("sd", [0.0, 0.05, 0.2])
 def test_the_variance_test_has_its_size_on_either_side(n, sd):
     # each tail of the variance test rejects a fitting model as often as its level says (LEVEL over two

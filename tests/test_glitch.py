@@ -96,7 +96,8 @@ def _fails(z: np.ndarray) -> bool:
 
 
 def _plain(z: np.ndarray) -> bool:
-    """The variance and mean tests without the reading left out: the test before."""
+    """The variance and mean tests without the reading left out (the variance by its exact tail, as
+    ``failures``' first half): what the glitch rule adds its second half to."""
     n, cut = len(z), NormalDist().inv_cdf(1 - 0.001 / 2 / 2)  # failures' quantile: level 0.001 over two tests
     return bool(abs(z.mean()) * math.sqrt(n) > cut or residuals.variance_z(z.var() * n / (n - 1), n - 1) > cut)
 

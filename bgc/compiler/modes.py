@@ -377,7 +377,8 @@ def no_hysteresis(transitions: tuple[Transition, ...], values: dict[str, float])
         if first is None:
             continue
         for u in transitions:
-            second = _threshold(u.guard, values) if u.guard and u.source == t.target and not u.tolerance else None
+            second = _threshold(u.guard, values) if u.guard and u.source == t.target and u.target == t.source \
+                and not u.tolerance else None
             if second is None or second[0] != first[0] or second[2] != first[2] or \
                     (first[1][0] == second[1][0]) or frozenset((id(t), id(u))) in told:  # the same way round
                 continue

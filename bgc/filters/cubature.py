@@ -184,7 +184,7 @@ class _Filter:
         self._seen: dict = {}
         # a model with modes whose guards have a tolerance: the draws placing a switch within its step, the
         # mode's row among the physical ones, and which of those are physical states (:meth:`_switch_spread`)
-        self.draws = np.array([i for i, k in enumerate(kinds) if k == "threshold"], dtype=np.intp)
+        self.draws = np.asarray(getattr(model, "_THRESHOLD_ROWS", ()), dtype=np.intp)  # the draws alone
         self.mode = self.physical.index(model.MODE_ROW) if len(self.draws) else None
         self.states = np.array([kinds[i] == "physical" for i in self.physical]) if len(self.draws) else None
 
@@ -235,14 +235,20 @@ class _Filter:
         and a cubature point along a draw of the uniform would lie outside
         it. Each cell's mean is carried through the step at the draws' J =
         :data:`SWITCH_QUANTILES` midpoint quantiles (j + 1/2) / J, as its
-        points are (its fault states, the onset rule), and the covariance of
-        those predictions is the spread (the midpoint rule of the uniform
-        draw's integral)."""
-        if self.mode is None or not np.isfinite(u[self.model.MODE_INPUT]) or \
-                not (np.rint(m[:, self.mode]) != np.rint(u[self.model.MODE_INPUT])).any():
+        points are (its fault states, the onset rule), and the second moment
+        of those predictions about the median draw's, which the points
+        predict, is the spread (the midpoint rule of the uniform draw's
+        integral). A cell whose mode is not a number (a filter that
+        diverged) switches nothing. The hidden-mode bank's histories
+        (:mod:`bgc.diagnosis.hidden`) give each its mode through the input
+        too: a history that switches spreads by it as well."""
+        if self.mode is None or not np.isfinite(u[self.model.MODE_INPUT]):
+            return None
+        modes = m[:, self.mode]
+        if not (np.isfinite(modes) & (np.rint(modes) != np.rint(u[self.model.MODE_INPUT]))).any():
             return None
         C, J = m.shape[0], SWITCH_QUANTILES
-        X = np.empty((self.n_x, C, J))
+        X = np.empty((self.n_x, C, J + 1))
         X[self.physical] = m.T[:, :, None]
         for j, row in enumerate(self.extra):
             X[row] = fixed[j][:, None]
@@ -250,12 +256,13 @@ class _Filter:
             X[self.extra[self.magnitude], onset] = 0.0
             if moved is not None:
                 X[self.extra[self.magnitude]] = np.asarray(moved, dtype=float)[:, None]
-        X[self.draws] = (np.arange(J) + 0.5) / J
-        flat = X.reshape(self.n_x, C * J)
+        X[self.draws] = np.append((np.arange(J) + 0.5) / J, 0.5)  # the quantiles, then the median
+        flat = X.reshape(self.n_x, C * (J + 1))
         self.model.predict(flat, u, self.model.THETA, self.model.DT if dt is None else dt, out=flat)
-        D = X[self.physical].transpose(1, 0, 2)  # (C, n, J)
-        D = D - D.mean(axis=2, keepdims=True)
+        P = X[self.physical].transpose(1, 0, 2)  # (C, n, J + 1)
+        D = P[:, :, :J] - P[:, :, J:]
         D[:, ~self.states] = 0.0  # the mode, its time and the draws: no spread of their own
+        D[~np.isfinite(D).all(axis=(1, 2))] = 0.0  # a cell the model cannot carry: none (its filter says so)
         return np.matmul(D, D.transpose(0, 2, 1)) / J
 
     def _physical(self, X: np.ndarray) -> np.ndarray:
@@ -359,7 +366,9 @@ class _Filter:
         not give (their predicted std is per sensor): the detector's pooled
         test whitens the residual vector with them (:mod:`bgc.diagnosis.detect`).
         Always the NumPy arithmetic (one cell: a compiled kernel saves
-        nothing)."""
+        nothing). Without :meth:`_switch_spread` (a model whose guards have
+        a tolerance, at a switch: the pooled test's correlation, which it
+        barely moves)."""
         n = self.n
         if self.extra:
             raise ValueError("predicted_measurement: a nominal model's (a fault model has fault states)")
