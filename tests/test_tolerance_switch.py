@@ -112,6 +112,12 @@ def test_the_spread_is_the_switchs_alone():
     # the largest spread the step allows: heating for none of it against all of it, T_r's rate (T_s - T_r) /
     # (R_v C_r) = 25 over half a step each way, a uniform place: std about 25 * 0.5 / sqrt(12)
     assert np.sqrt(spread[0, 0, 0]) < 25 * DT / np.sqrt(12) * 1.2
+    # the predicted measurement the pooled test whitens with spreads the same way at the switch
+    P = np.diag([0.01, 0.01] + [0.0] * (kf.n - 2))
+    _, still = kf.predicted_measurement(m[0], P, np.array([T_S, 2.0]))
+    _, switching = kf.predicted_measurement(m[0], P, np.array([T_S, 1.0]))
+    rad = nominal.OUTPUTS.index("T_rad")
+    assert switching[rad, rad] > still[rad, rad] + 0.5 * spread[0, 0, 0]
 
 
 

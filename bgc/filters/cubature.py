@@ -366,20 +366,23 @@ class _Filter:
         not give (their predicted std is per sensor): the detector's pooled
         test whitens the residual vector with them (:mod:`bgc.diagnosis.detect`).
         Always the NumPy arithmetic (one cell: a compiled kernel saves
-        nothing). Without :meth:`_switch_spread` (a model whose guards have
-        a tolerance, at a switch: the pooled test's correlation, which it
-        barely moves)."""
+        nothing). A switch within the step whose place a tolerance leaves
+        unknown spreads it as it spreads :meth:`step`'s (:meth:`_switch_spread`)."""
         n = self.n
         if self.extra:
             raise ValueError("predicted_measurement: a nominal model's (a fault model has fault states)")
         flat = np.zeros((self.n_x, 2 * n))
         X = flat.reshape(self.n_x, 1, 2 * n)
+        spread = self._switch_spread(np.asarray(m, dtype=float)[None], np.zeros((0, 1)), u, slice(0, 0), dt) \
+            if self.mode is not None else None
         self._points(np.asarray(m, dtype=float)[None], np.asarray(P, dtype=float)[None], X)
         self.model.predict(flat, u, self.model.THETA, self.model.DT if dt is None else dt, out=flat)
         Xp = self._physical(X)[0]  # (n, 2n)
         mp = np.add.reduce(Xp, axis=1) * self.inverse
         D = (Xp - mp[:, None]) * self.scale
         Pp = D @ D.T + self.Q
+        if spread is not None:
+            Pp += spread[0]
         self._points(mp[None], Pp[None], X)
         Y = np.asarray(self.model.observe(flat, u, self.model.THETA), dtype=float)
         yh = np.add.reduce(Y, axis=1) * self.inverse
