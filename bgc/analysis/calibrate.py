@@ -55,10 +55,11 @@ time (the one most in the direction, or in the most correlated pairs), and
 the others estimated again: they then tell the combination the data see,
 carrying the held one's error (holding them all left the combination at the
 model's value, and the calibrated model no more fitting the plant than the
-model file: a user told again to calibrate what had just been calibrated). A process level whose likelihood is highest at 0 (it falls
-1000 times below its start) is 0, with a one-sided bound (Self and Liang
-1987). Where the optimiser stops short of a maximum it is started again from
-there; where none is found, a :class:`~bgc.errors.CalibrationError` says so.
+model file: a user told again to calibrate what had just been calibrated). A
+process level whose likelihood is highest at 0 (it falls 1000 times below its
+start) is 0, with a one-sided bound (Self and Liang 1987). Where the optimiser
+stops short of a maximum it is started again from there; where none is found,
+a :class:`~bgc.errors.CalibrationError` says so.
 
 **The innovations** of the calibrated model on the data (the normalised
 residuals of the nominal filter, which are white N(0, 1) when the model

@@ -572,10 +572,14 @@ def _parse(stream: IO, name: str, reading: Reading | None = None) -> Run:
         beyond = np.isfinite(run.modes) & (run.modes > len(reading.modes))
         if beyond.any():
             k = int(np.argmax(beyond))
-            raise DataError(f"{name}:{int(numbers[k])}: mode {run.modes[k]:g} is no mode of {reading.model} (1 to "
-                            f"{len(reading.modes)}: {', '.join(reading.modes)})", None,
-                            "give each row's mode as its number in the model's order, 1 for the first")
+            raise no_mode(f"{name}:{int(numbers[k])}", float(run.modes[k]), reading.model, reading.modes)
     return run
+
+
+def no_mode(where: str, mode: float, model: str, modes) -> DataError:
+    """The error of a row whose mode (a number) is none of ``model``'s ``modes`` (their names, in order)."""
+    return DataError(f"{where}: mode {mode:g} is no mode of {model} (1 to {len(modes)}: {', '.join(modes)})", None,
+                     "give each row's mode as its number in the model's order, 1 for the first")
 
 
 def run_of(columns: list[str], data: np.ndarray, header: tuple[str, ...], name: str) -> Run:

@@ -48,7 +48,7 @@ import numpy as np
 
 from ..errors import DataError, printable
 from .. import events as ev
-from .runs import Run, input_columns
+from .runs import Run, input_columns, no_mode
 from ..model.protocol import FaultModel
 
 #: Missing steps in a row, by default, beyond which a gap is an event.
@@ -220,11 +220,8 @@ class Sampler:
         index = getattr(self.model, "MODE_INPUT", None)
         if index is None or not math.isfinite(u[index]):
             return
-        count = len(self.model.MODES)
-        if not (1 <= u[index] <= count and u[index] == round(u[index])):
-            raise DataError(f"{self._where(line)}: mode {u[index]:g} is no mode of {self.model.MODEL} (1 to {count}: "
-                            f"{', '.join(self.model.MODES)})", None,
-                            "give each row's mode as its number in the model's order, 1 for the first")
+        if not (1 <= u[index] <= len(self.model.MODES) and u[index] == round(u[index])):
+            raise no_mode(self._where(line), float(u[index]), self.model.MODEL, self.model.MODES)
 
     def _inputs(self, t: float, row: dict[str, float], k: int, events: list | None) -> np.ndarray:
         """The inputs over the step that ends at ``t``: the row's, the last one

@@ -250,12 +250,7 @@ class _Filter:
         C, J = m.shape[0], SWITCH_QUANTILES
         X = np.empty((self.n_x, C, J + 1))
         X[self.physical] = m.T[:, :, None]
-        for j, row in enumerate(self.extra):
-            X[row] = fixed[j][:, None]
-        if self.extra:
-            X[self.extra[self.magnitude], onset] = 0.0
-            if moved is not None:
-                X[self.extra[self.magnitude]] = np.asarray(moved, dtype=float)[:, None]
+        self._write_fixed(X, fixed, onset, moved)
         X[self.draws] = np.append((np.arange(J) + 0.5) / J, 0.5)  # the quantiles, then the median
         flat = X.reshape(self.n_x, C * (J + 1))
         self.model.predict(flat, u, self.model.THETA, self.model.DT if dt is None else dt, out=flat)
@@ -309,7 +304,7 @@ class _Filter:
         from the Cholesky factor of the innovation covariance by forward
         substitution (:func:`lower_solve`)."""
         model, n, C = self.model, self.n, m.shape[0]
-        spread = self._switch_spread(m, fixed, u, onset, dt, moved) if self.mode is not None else None
+        spread = self._switch_spread(m, fixed, u, onset, dt, moved)
         if self.compiled and spread is None:  # a compiled package's kernel (a switch's spread: the step below)
             return self._compiled_step(y, u, m, P, fixed, onset, dt, moved)
         if self.buffer.shape[1] < 2 * n * C:
@@ -373,9 +368,9 @@ class _Filter:
             raise ValueError("predicted_measurement: a nominal model's (a fault model has fault states)")
         flat = np.zeros((self.n_x, 2 * n))
         X = flat.reshape(self.n_x, 1, 2 * n)
-        spread = self._switch_spread(np.asarray(m, dtype=float)[None], np.zeros((0, 1)), u, slice(0, 0), dt) \
-            if self.mode is not None else None
-        self._points(np.asarray(m, dtype=float)[None], np.asarray(P, dtype=float)[None], X)
+        m = np.asarray(m, dtype=float)[None]
+        spread = self._switch_spread(m, np.zeros((0, 1)), u, slice(0, 0), dt)
+        self._points(m, np.asarray(P, dtype=float)[None], X)
         self.model.predict(flat, u, self.model.THETA, self.model.DT if dt is None else dt, out=flat)
         Xp = self._physical(X)[0]  # (n, 2n)
         mp = np.add.reduce(Xp, axis=1) * self.inverse
@@ -401,12 +396,7 @@ class _Filter:
         written into its points, the magnitude 0 in the cells before their
         onset; after it a drifting parameter read back into ``fixed``."""
         model = self.model
-        for j, row in enumerate(self.extra):
-            X[row] = fixed[j][:, None]
-        if self.extra:
-            X[self.extra[self.magnitude], onset] = 0.0
-            if moved is not None:
-                X[self.extra[self.magnitude]] = np.asarray(moved, dtype=float)[:, None]
+        self._write_fixed(X, fixed, onset, moved)
         model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
         for j, row in enumerate(self.extra):  # a drifting parameter: the same in every point of a cell
             if j == self.magnitude:
@@ -414,6 +404,18 @@ class _Filter:
             fixed[j] = X[row, :, 0]
         if self.released:
             self._read_flag(X[self.extra[self.magnitude]], fixed, onset)
+
+    def _write_fixed(self, X, fixed, onset: slice, moved=None) -> None:
+        """Each cell's fault states ``fixed`` (f, C) into every column of its
+        block of ``X`` (n_x, C, columns): the magnitude 0 in the cells at
+        their onset (the onset rule), or each cell's ``moved`` over the
+        transition (a fault that comes and goes)."""
+        for j, row in enumerate(self.extra):
+            X[row] = fixed[j][:, None]
+        if self.extra:
+            X[self.extra[self.magnitude], onset] = 0.0
+            if moved is not None:
+                X[self.extra[self.magnitude]] = np.asarray(moved, dtype=float)[:, None]
 
     def _read_flag(self, flags: np.ndarray, fixed, onset: slice) -> None:
         """An uncommanded change's flag after a prediction (``flags`` (C, 2n):
@@ -587,8 +589,7 @@ def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.n
             X[kf.rows] = np.concatenate([plus[:, b], minus[:, b]], axis=2)
         return L
 
-    spreads = [kf._switch_spread(m[b], f, u, onset, None) if kf.mode is not None else None
-               for kf, b, f, onset in zip(kfs, blocks, fixed, onsets)]
+    spreads = [kf._switch_spread(m[b], f, u, onset, None) for kf, b, f, onset in zip(kfs, blocks, fixed, onsets)]
     flats = [np.empty((kf.n_x, 2 * n * (b.stop - b.start))) for kf, b in zip(kfs, blocks)]
     Xs = [flat.reshape(kf.n_x, b.stop - b.start, 2 * n) for kf, flat, b in zip(kfs, flats, blocks)]
     points(m, P, Xs)

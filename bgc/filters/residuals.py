@@ -236,7 +236,13 @@ def _averaged(tail, dof: int, ratio: float, sd: float) -> float:
     return float(quad(f, -12.0, 12.0, points=points, limit=200, epsabs=1e-15, epsrel=1e-10)[0])
 
 
-def _wider(i: Innovations, cut: float, sd: float = 0.0) -> bool:
+def _whole(i: Innovations, sd: float = 0.0) -> float:
+    """:func:`variance_z` of sensor ``i``'s variance, n - 1 degrees of freedom about their mean."""
+    n = i.samples
+    return variance_z(i.variance * n / max(n - 1, 1), n - 1, sd)
+
+
+def _wider(i: Innovations, cut: float, sd: float = 0.0, whole: float | None = None) -> bool:
     """Whether sensor ``i``'s residuals are wider than N(0, 1) at the
     one-sided normal quantile ``cut``: their variance, n - 1 degrees of
     freedom about their mean (:func:`variance_z`), and their variance
@@ -245,9 +251,10 @@ def _wider(i: Innovations, cut: float, sd: float = 0.0) -> bool:
     far, does not make the model's noise too small; a noise too small
     widens every reading. Requiring both, the test's size is at most the
     first one's. ``sd``: a standard deviation the variance has beside its
-    sampling error (a calibrated model's, :func:`failures`)."""
+    sampling error (a calibrated model's, :func:`failures`); ``whole``: the
+    first test's statistic, when the caller has it (:func:`_whole`)."""
     n = i.samples
-    if not variance_z(i.variance * n / max(n - 1, 1), n - 1, sd) > cut:
+    if not (_whole(i, sd) if whole is None else whole) > cut:
         return False
     if not math.isfinite(i.variance_but_one) or n < 4:
         return True
@@ -282,8 +289,7 @@ def failures(summaries: Sequence[Innovations], level: float, correlation: bool =
             out.append((i, "correlated"))
         elif abs(i.mean) * math.sqrt(i.samples / max(i.correlation_time, 1.0)) > cut:
             out.append((i, "mean"))
-        elif _wider(i, cut, v) or (narrower and -variance_z(i.variance * i.samples / max(i.samples - 1, 1),
-                                                            i.samples - 1, v) > cut):
+        elif _wider(i, cut, v, whole := _whole(i, v)) or (narrower and -whole > cut):
             out.append((i, "variance"))
     return tuple(out)
 
