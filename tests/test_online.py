@@ -718,9 +718,12 @@ def test_exclude_faulty_sensor_needs_checkpoints():
 def test_bgc_diagnose_prints_a_loggers_unix_times_in_full(tmp_path):
     """A logger's Unix time stamps (1.76e9 s, the plant's own clock): the
     command line's detection line gives the alarm's and the onset's times
-    to the sample (R2's step at 5 s after the start, at 1763686400 + 5),
-    not rounded to six digits (1.76369e+09). (On the FAST backend, --backend:
-    conftest.fast_session's kernels, the slow tier only.)"""
+    to the sample (R2's step at 5 s after the start, at 1763686400 + 5), as
+    ISO 8601 timestamps (tests/test_iso_times.py), not rounded to six digits
+    (1.76369e+09). (On the FAST backend, --backend: conftest.fast_session's
+    kernels, the slow tier only.)"""
+    import datetime
+
     if FAST == "numba":
         numba_package("circuit")  # the kernels the command loads, compiled once per test run
     start = 1763686400.0
@@ -732,7 +735,8 @@ def test_bgc_diagnose_prints_a_loggers_unix_times_in_full(tmp_path):
                 "-o", tmp_path / "d")
     assert r.returncode == 0, r.stderr
     line = next(l for l in r.stdout.splitlines() if "detected at t = " in l)
-    detected, onset = (float(part.split("t = ")[1].split()[0].rstrip(",")) for part in line.split(", onset"))
+    stamps = [part.split("t = ")[1].split()[0].rstrip(",") for part in line.split(", onset")]
+    detected, onset = (datetime.datetime.fromisoformat(t.replace("Z", "+00:00")).timestamp() for t in stamps)
     assert "e+09" not in line
     assert start + 4.5 <= onset <= detected <= start + 7.0, line
 

@@ -289,6 +289,7 @@ def _run(c, run, package, scenario, injected, noise, levels, opts, say) -> Diagn
     if isinstance(package, Plan):  # decompose=True: on the submodels
         result = diagnose_decomposed(run, package, dataclasses.replace(opts, filter="ckf"), say)
     else:
-        result = run_diagnosis(run, package, isolation_signatures(c), c.priors, opts, say)
+        result = run_diagnosis(run, package, isolation_signatures(c), c.priors, opts, say,
+                               time_unit=c.model.settings.time_unit)
     return DiagnosisReport(c.model.name, c.model.display_source, run, scenario, injected, noise, levels, opts,
                            result, c.labels)

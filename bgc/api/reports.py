@@ -148,7 +148,7 @@ class DiagnosisReport:
         if what == "events":
             from ..output import events
 
-            rows = [events.record(e, d.time_of) for e in d.events]
+            rows = [events.record(e, d.time_of, clock=d.clock) for e in d.events]
             return Table.of([{"time": r["time"], "event": r["event"], "sentence": r["text"]}
                              for r in rows], ("time", "event", "sentence"))
         columns = {"time": d.time}

@@ -250,8 +250,9 @@ class Session:
         arguments.callable_or_none(func, "progress", progress)
         nominal = nominal_model(self.package)
         return Diagnoser(self.package, isolation_signatures(self.view), self.priors, opts,
-                         horizon_steps(opts.horizon, nominal.DT, 0), inputs=inputs, sensors=sensors, source=source,
-                         progress=progress, most=most_steps(self.view.numerics, opts))
+                         horizon_steps(opts.horizon, nominal.DT, 0), time_unit=self.view.model.settings.time_unit,
+                         inputs=inputs, sensors=sensors, source=source, progress=progress,
+                         most=most_steps(self.view.numerics, opts))
 
     def calibrate(self, data, estimate: str | tuple[str, ...] = "noise", *, progress=None,
                   columns=None, input_timing: str | None = None) -> CalibrationReport:

@@ -133,7 +133,8 @@ def write_report(r, output: str, command: str) -> Path:
     """Write diagnosis report ``r`` into folder ``output`` (report.json,
     report.md, report.html, plots, the run when simulated:
     :func:`bgc.output.report.report_files`), print its verdict, estimate and
-    notable events, and return the folder."""
+    notable events (the run's times as the diagnosis's clock writes them:
+    ISO 8601 timestamps for a run of absolute times), and return the folder."""
     from ..output import artifacts, events, report
 
     files = report.report_files(r, command)
@@ -142,15 +143,15 @@ def write_report(r, output: str, command: str) -> Path:
     d = r.diagnosis
     print(f"{r.model}: {d.verdict}" + (f": {', '.join(d.candidates)}" if d.candidates else ""))
     if d.detection is not None:
-        det, when = d.detection, events.time_text(d.time_of(d.detection.step))  # Unix time in full
+        det, when = d.detection, d.clock.text(d.time_of(d.detection.step))
         if det.test == "change":  # found over the record at its end (the whole one, or the one kept while watching)
             end = ("the data's end" if det.raised >= len(d.time) - 1
-                   else f"t = {events.time_text(d.time_of(det.raised))}")
+                   else f"t = {d.clock.text(d.time_of(det.raised))}")
             at = f"{end} (the change test: the residuals of {det.sensor} changed at t = {when})"
         else:
             at = f"t = {when} ({det.sensor}{'' if det.test == 'mean' else f', the {det.test} test'})"
         print(f"  alarm at {at}: no fault explains the data better than chance" if d.onset is None  # a false one
-              else f"  detected at {at}, onset t = {events.time_text(d.onset)}")
+              else f"  detected at {at}, onset t = {d.clock.text(d.onset)}")
     for line in report.plain_words(d, r.labels):
         print(f"  {printable(line)}")
     e = d.estimate
@@ -160,7 +161,7 @@ def write_report(r, output: str, command: str) -> Path:
         print(f"  {e.magnitude} of {e.parameter}: {e.value:.4g} in [{e.low:.4g}, {e.high:.4g}] "
               f"({100 * e.level:.0f} %{edge.get(e.bound, '')}){truth}")
     if command == "diagnose":
-        for line in events.notes(d.events, d.time_of):
+        for line in events.notes(d.events, d.time_of, clock=d.clock):
             print(f"  note: {printable(line)}")
     print(f"wrote {printable(str(out))}/: report.md, report.json, report.html, {len(files) - 4} more files "
           f"(diagnosis {d.seconds:.1f} s)")

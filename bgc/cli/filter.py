@@ -50,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from ..api.session import choose_backend, reading_of
     from ..ir import NUMBA_PACKAGE
     from ..output import artifacts
+    from ..data.clock import Clock
     from ..data import runs
     from ..analysis import track
     from ..model import package as packages
@@ -95,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
             true_text = ""
             if est.truth is not None:
                 true_text = f" (true {est.truth:.4g}, error {100 * est.relative_error:.1f} %)"
-            print(f"  estimate of {est.what} at t = {est.time:g}: {est.value:.4g} +- {est.std:.2g}{true_text}")
+            when = Clock.of(run.time, c.labels.time_unit).text(est.time)
+            print(f"  estimate of {est.what} at t = {when}: {est.value:.4g} +- {est.std:.2g}{true_text}")
     if args.plot:
         from ..output import plots
 

@@ -85,6 +85,7 @@ from ..filters.cubature import NominalTrack
 from ..kinds import fault_kind
 from ..model.joined import Joined
 from ..model.protocol import NOMINAL, Package, nominal_model
+from ..data.clock import Clock
 from . import static_posterior
 from ..filters.residuals import summary
 from .detect import Detector, DetectorOptions
@@ -134,13 +135,16 @@ class Plan:
     """A decomposed plant ready to diagnose: its ``model``'s name, its
     ``parts``, its faults by name and each fault's prior probability by
     parameter (``priors``); ``steps``: the model's run length (the
-    detector's horizon when the options name none)."""
+    detector's horizon when the options name none); ``time_unit``: the
+    model's (None: none declared), by which a run's times are told absolute
+    or not (:class:`~bgc.data.clock.Clock`)."""
 
     model: str
     parts: tuple[Part, ...]
     faults: Mapping[str, Fault]
     priors: Mapping[str, float]
     steps: int
+    time_unit: str | None
     #: the whole plant's nominal package (the model without its faults), whose filter the detector reads;
     #: None: the submodels' filters' residuals side by side instead
     whole: Package | None = None
@@ -172,7 +176,8 @@ def plan(decomposed, packages: list[Package], whole: Package | None = None) -> P
             if models and (c.parameter, kind) in bounds:
                 faults[name] = Fault(name, c.parameter, kind, bounds[(c.parameter, kind)], tuple(models), touching)
     priors = {c.parameter: c.prior for c in decomposed.model.faults}
-    return Plan(decomposed.model.name, parts, faults, priors, int(decomposed.model.settings.steps), whole)
+    return Plan(decomposed.model.name, parts, faults, priors, int(decomposed.model.settings.steps),
+                decomposed.model.settings.time_unit, whole)
 
 
 # -- the data ------------------------------------------------------------------------------------------------
@@ -307,6 +312,7 @@ def diagnose(run: Run, p: Plan, options: DiagnosisOptions = DiagnosisOptions(), 
     o = options
     data = _data(run, p, o)
     T = len(data.time)
+    clock = Clock.of(data.time, p.time_unit)
     say(f"tracking {len(p.parts)} submodels with their nominal cubature Kalman filters")
     tracks = [kalman.nominal_track(part.nominal, y, u, T) for part, y, u in zip(p.parts, data.ys, data.us)]
     nominal = Joined(f"{p.model}:{NOMINAL}", [part.nominal for part in p.parts], model=p.model)
@@ -334,15 +340,15 @@ def diagnose(run: Run, p: Plan, options: DiagnosisOptions = DiagnosisOptions(), 
     views: dict = {NOMINAL: nominal}
     isolation, hyps, posteriors = None, (), {}
     if detection is not None:
-        say(f"alarm at t = {data.time[detection.step]:.6g} on {detection.sensor}")
+        say(f"alarm at t = {clock.text(data.time[detection.step])} on {detection.sensor}")
         isolation, posteriors, joined = _weigh(p, detection, data, tracks, whole, o, every, say)
         views.update(joined)
-        hyps = tuple(kalman_hypothesis(name, (), _View(views), posteriors[name], run, data.time, ys, o)
+        hyps = tuple(kalman_hypothesis(name, (), _View(views), posteriors[name], run, data.time, ys, o, clock=clock)
                      for name in isolation.names)
     record = Record(p.model, data.time, ys, us, outputs, tuple(nominal.STATES), present,
                     np.asarray(whole.y_mean)[:T], np.asarray(whole.y_std)[:T], np.asarray(whole.z)[:T],
                     np.asarray(whole.x_mean)[:T], np.asarray(whole.x_std)[:T], statistics, threshold, detection,
-                    isolation, (), None, observer=whole)
+                    isolation, (), None, clock, observer=whole)
     d = _decided(record, Setting(_View(views), p.priors, o, horizon, say), hyps, posteriors, shown)
     return replace(d, seconds=time.perf_counter() - started, submodels=tuple(part.name for part in p.parts))
 
@@ -381,7 +387,8 @@ def _decided(r: Record, s: Setting, hyps: tuple, posteriors: dict, shown=None) -
     y_mean, y_std, z = shown if shown is not None else (r.y_mean, r.y_std, r.z)
     common = dict(model=r.model, time=r.time, outputs=r.outputs, states=r.states, nominal_y_mean=y_mean,
                   nominal_y_std=y_std, nominal_z=z, nominal_x_mean=r.x_mean, nominal_x_std=r.x_std,
-                  statistics=r.statistics, threshold=r.threshold, options=s.options, data=None, seconds=0.0)
+                  statistics=r.statistics, threshold=r.threshold, options=s.options, data=None, seconds=0.0,
+                  clock=r.clock)
     if r.detection is None:
         verdict, candidates, judged, fitted = judged_fit(r, s, (), "no fault", (), None, r.observer)
         return Diagnosis(verdict=verdict, detection=None, onset_step=None, symbols=(), refuted=(), hypotheses=(),

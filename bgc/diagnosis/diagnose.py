@@ -111,7 +111,8 @@ __all__ = ["diagnose", "horizon_steps", "Belief", "Diagnosis", "DiagnosisOptions
 
 
 def diagnose(run: Run, package: Package, signatures: FaultSignatures, priors: dict[str, float],
-             options: DiagnosisOptions = DiagnosisOptions(), progress=None, every: bool = False) -> Diagnosis:
+             options: DiagnosisOptions = DiagnosisOptions(), progress=None, every: bool = False, *,
+             time_unit: str | None) -> Diagnosis:
     """Diagnose a recorded run with a generated package and the model's
     signatures: the online :class:`~bgc.diagnosis.diagnoser.Diagnoser` over
     its samples (:func:`bgc.data.sampler.samples`: the model's time grid,
@@ -123,12 +124,14 @@ def diagnose(run: Run, package: Package, signatures: FaultSignatures, priors: di
     being done. ``every``: try every fault model, those the symbols rule out
     too. ``options.horizon`` None here: the detector's horizon is the
     record's length (:func:`bgc.diagnose` fills in the model's run length).
+    ``time_unit``: the model's (None: none declared), by which the run's
+    times are written (:attr:`bgc.diagnosis.values.Diagnosis.clock`).
     """
     nominal = nominal_model(package)
     steps = grid_steps(run.time, nominal.DT)  # the record's length on the grid, for a horizon of None
     d = Diagnoser(package, signatures, priors, options, horizon_steps(options.horizon, nominal.DT, steps),
-                  inputs=input_columns(run), sensors=run.measurements, source=run.source, lazy=True, every=every,
-                  progress=progress)
+                  time_unit=time_unit, inputs=input_columns(run), sensors=run.measurements, source=run.source,
+                  lazy=True, every=every, progress=progress)
     said = []  # the misfits said while watching, dated: the record may forget their data after
     for s in samples(run, d.sampler):
         said += [dated_misfit(e, d.time_of) for e in d.take(s).events if isinstance(e, ev.Mismatched)]

@@ -57,6 +57,7 @@ from .hidden import ONSETS, REREAD, ModeDecoder, read_again, read_fault, read_he
 from ..ir import FaultSignatures
 from ..model.package import accommodated, forget_started, started_package
 from ..model.protocol import Package, nominal_model, state_rows
+from ..data.clock import Clock
 from .. import events as ev
 from .detect import TESTS, Detector, DetectorOptions, change_point
 from .finish import misfit_event, ordered
@@ -75,7 +76,9 @@ class DiagnoserConfig:
     """A diagnoser's configuration: ``package``, the generated package;
     ``signatures``, ``priors``: the model's fault signatures and each fault
     candidate's prior; ``options``; ``horizon``: the detector's horizon in
-    steps; ``inputs``, ``sensors``: the input and sensor names the data have
+    steps; ``time_unit``: the model's (None: none declared), by which the
+    run's times are told absolute or not (:attr:`Diagnoser.clock`);
+    ``inputs``, ``sensors``: the input and sensor names the data have
     columns for (None: the sensors, all of the model's; the inputs, those the
     first row gives); ``source``: the data's name in messages; ``lazy``:
     leave the hypotheses' tracking to the end (a batch diagnosis: the
@@ -88,6 +91,7 @@ class DiagnoserConfig:
     priors: Mapping[str, float]
     options: DiagnosisOptions
     horizon: int
+    time_unit: str | None
     inputs: tuple[str, ...] | None = None
     sensors: tuple[str, ...] | None = None
     source: str = "<stream>"
@@ -123,14 +127,15 @@ def _collect_forgotten() -> None:
 class Diagnoser:
     """The diagnosis of one plant's data, one sample at a time (module
     docstring); built as ``Diagnoser(package, signatures, priors, options,
-    horizon, inputs=..., sensors=..., source=..., lazy=..., every=...,
-    progress=..., most=...)`` (the fields of :class:`DiagnoserConfig`)."""
+    horizon, time_unit=..., inputs=..., sensors=..., source=..., lazy=...,
+    every=..., progress=..., most=...)`` (the fields of :class:`DiagnoserConfig`)."""
 
     def __init__(self, package: Package, signatures: FaultSignatures, priors: Mapping[str, float],
-                 options: DiagnosisOptions, horizon: int, *, inputs=None, sensors=None, source: str = "<stream>",
-                 lazy: bool = False, every: bool = False, progress=None, most: int | None = None):
+                 options: DiagnosisOptions, horizon: int, *, time_unit: str | None = None, inputs=None, sensors=None,
+                 source: str = "<stream>", lazy: bool = False, every: bool = False, progress=None,
+                 most: int | None = None):
         hidden = inputs is not None and mode_hidden(nominal_model(package), inputs, source)
-        config = DiagnoserConfig(package, signatures, priors, options, max(int(horizon), 1),
+        config = DiagnoserConfig(package, signatures, priors, options, max(int(horizon), 1), time_unit,
                                  None if inputs is None else tuple(inputs),
                                  None if sensors is None else tuple(sensors), source, lazy, every, most, progress)
         self._open(config, Sampler(nominal_model(package), nominal_model(package).INPUTS if inputs is None else inputs,
@@ -163,7 +168,7 @@ class Diagnoser:
         c = self.config
         # a fault accommodated (the package holds it) may go away: its step back is a candidate too
         return LoopConfig(c.package, with_returns(c.signatures, accommodated(c.package)), c.priors, options,
-                          c.horizon, self.sampler.present, lazy, every, c.say)
+                          c.horizon, self.sampler.present, c.time_unit, lazy, every, c.say)
 
     @property
     def options(self) -> DiagnosisOptions:
@@ -172,6 +177,12 @@ class Diagnoser:
     @property
     def source(self) -> str:
         return self.config.source
+
+    @property
+    def clock(self) -> Clock:
+        """How the record's times are written in words (the loop's:
+        :attr:`bgc.diagnosis.loop.Loop.clock`)."""
+        return self.loop.clock
 
     @property
     def detector(self):
@@ -249,7 +260,8 @@ class Diagnoser:
             most = self.config.most
             if most is not None and len(self.loop.samples) >= most:
                 where = self.source if s.line is None else f"{self.source}:{s.line}"
-                raise TrackingError(f"{where}: the stream reached {most} steps of the model's grid (t = {s.t:.12g}), "
+                raise TrackingError(f"{where}: the stream reached {most} steps of the model's grid "
+                                    f"(t = {self.clock.text(s.t)}), "
                                     "the most a diagnosis of this model with these options holds in memory (4 GB "
                                     "by bgc.api.limits.diagnosis_memory's rule)", None,
                                     "finish this diagnoser and start another for the rest of the stream, or use "
@@ -323,7 +335,8 @@ class Diagnoser:
             return self._misfit(fitted, T)
         alarm, moved = change
         o = loop.options
-        self.config.say(f"watching: no alarm, but the residuals changed at t = {self.time_of(alarm.step):.6g}: "
+        self.config.say(f"watching: no alarm, but the residuals changed at t = "
+                        f"{self.clock.text(self.time_of(alarm.step))}: "
                         "an alarm at that change point")
         again = self.replay(dataclasses.replace(o, switch=False), loop.config.every, forced=alarm)
         if again.detection is None:
@@ -351,7 +364,8 @@ class Diagnoser:
         if fitted.fits or self.offset:
             return ()
         span = (self.time_of(0), self.time_of(T - 1), T)
-        self.config.say(f"watching: the model does not fit the record kept (t = {span[0]:.6g} to {span[1]:.6g}), "
+        self.config.say(f"watching: the model does not fit the record kept (t = {self.clock.text(span[0])} to "
+                        f"{self.clock.text(span[1])}), "
                         "with no change in it")
         return (misfit_event(self.config.package, T, fitted, span),)
 
@@ -370,7 +384,8 @@ class Diagnoser:
         if forgot:  # after the diagnoser let go of it: the collection frees it too
             _collect_forgotten()
         self.offset += cut
-        self.config.say(f"watching: the record keeps the last {self.keep} steps (from t = {self.loop.samples[0].t:.12g})")
+        self.config.say(f"watching: the record keeps the last {self.keep} steps (from t = "
+                        f"{self.clock.text(self.loop.samples[0].t)})")
 
     def _started(self, package) -> None:
         """Run on ``package`` (a started package) from now on."""
@@ -388,7 +403,8 @@ class Diagnoser:
         ``sensors`` (None: this one's)."""
         c = self.config
         return Diagnoser(c.package if package is None else package, c.signatures, c.priors, c.options, c.horizon,
-                         inputs=c.inputs, sensors=c.sensors if sensors is None else sensors, source=c.source,
+                         time_unit=c.time_unit, inputs=c.inputs, sensors=c.sensors if sensors is None else sensors,
+                         source=c.source,
                          lazy=c.lazy, every=c.every, progress=c.progress, most=c.most)
 
     def time_of(self, step: int) -> float:
@@ -471,7 +487,8 @@ class Diagnoser:
         if told is None:
             return d
         first = d.detection
-        self.config.say(f"the alarm at t = {self.loop.samples[first.step].t:.12g} may be a false one: watching again "
+        self.config.say(f"the alarm at t = {self.clock.text(self.loop.samples[first.step].t)} may be a false one: "
+                        f"watching again "
                         f"from the next sample")
         options = dataclasses.replace(self.loop.options, switch=False)  # the filters as they ended (as _retry)
         loop = self.replay(options, self.loop.config.every, after=first)
@@ -677,13 +694,13 @@ class Diagnoser:
         found, at, made = "", alarm.step, None
         rerun = set(o.detectors) != set(TESTS)  # (the bank ran already: the same diagnosis again)
         if rerun:
-            self.config.say(f"no alarm, but the residuals changed at t = {float(d.time[at]):.6g}: diagnosing again "
+            self.config.say(f"no alarm, but the residuals changed at t = {d.clock.text(d.time[at])}: diagnosing again "
                             "with every test of the detector's bank")
             options = dataclasses.replace(o, detectors=TESTS, switch=False)
             made = self.replay(options, loop.config.every).finish(self.sampler.summary(), truth)
             found = "bank" if made.detection is not None and made.verdict in ("isolated", "ambiguous") else ""
         if made is None or made.detection is None:  # (a bank that alarmed and named no fault judged the misfit)
-            self.config.say(f"diagnosing from an alarm at the change point, t = {float(d.time[at]):.6g}")
+            self.config.say(f"diagnosing from an alarm at the change point, t = {d.clock.text(d.time[at])}")
             options, every = dataclasses.replace(o, switch=False), loop.config.every
             again = self.replay(options, every, forced=alarm)
             made = again.finish(self.sampler.summary(), truth)

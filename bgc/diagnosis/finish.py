@@ -24,6 +24,7 @@ from ..filters import cubature as kalman
 from ..filters.residuals import failures, finding, summary
 from ..kinds import fault_kind
 from ..model.protocol import Package, nominal_model
+from ..data.clock import Clock
 from .. import events as ev
 from .estimate import estimate_of
 from .fit import LEAST, changed, fit, misfit_before, residual_sd, timing_told
@@ -50,7 +51,10 @@ class Record:
     ``history`` steps before the alarm (``clouds``), the cubature Kalman
     observer's track (``observer``, method ``ckf``) and, for the hypotheses
     tracked online, their trackers' results (``tracked``: name -> (per onset
-    its filter's output, the trace of the best running evidence))."""
+    its filter's output, the trace of the best running evidence)).
+    ``clock``: how the record's times are written in words (a
+    :class:`~bgc.data.clock.Clock` of ``time`` and the model's time
+    unit), by every sentence the end makes and by the diagnosis."""
 
     model: str
     time: np.ndarray
@@ -70,6 +74,7 @@ class Record:
     isolation: Isolation | None
     events: tuple
     data: DataSummary | None
+    clock: Clock
     clouds: Mapping = field(default_factory=dict)
     observer: kalman.NominalTrack | None = None
     tracked: Mapping = field(default_factory=dict)
@@ -101,7 +106,8 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     T = len(r.time)
     common = dict(model=r.model, time=r.time, outputs=r.outputs, states=r.states, nominal_y_mean=r.y_mean,
                   nominal_y_std=r.y_std, nominal_z=r.z, nominal_x_mean=r.x_mean, nominal_x_std=r.x_std,
-                  statistics=r.statistics, threshold=r.threshold, options=s.options, data=r.data, seconds=0.0)
+                  statistics=r.statistics, threshold=r.threshold, options=s.options, data=r.data, seconds=0.0,
+                  clock=r.clock)
     # a sensor never read (its column empty or nan throughout) tells nothing: the diagnosis says so
     silent = [ev.SensorSilent(y) for j, y in enumerate(r.outputs)
               if r.present[j] and not np.isfinite(r.ys[:, j]).any()]
@@ -311,7 +317,7 @@ def unchanged_misfit(r: Record, nominal, fitted: Fit, end: int,
         z[r.excused[0]:r.excused[1]] = np.nan
     if changed(z, end, r.outputs) or not misfit_before(z, end) > 0:
         return fitted, end
-    said = (f"no sensor's residuals changed at the alarm's change point (t = {float(r.time[end]):.6g}) beyond "
+    said = (f"no sensor's residuals changed at the alarm's change point (t = {r.clock.text(r.time[end])}) beyond "
             "chance, as wide and as far off before it as after: the alarm saw the misfit, not a fault that began "
             "there")
     return replace(whole, findings=whole.findings + (said,), unchanged=True), T
@@ -389,10 +395,10 @@ def quiet_misfit(fitted: Fit, h: Hypothesis, hyps, candidates: tuple[str, ...], 
             better.append((g.name, theirs, mine, k))
     if not better:
         return fitted, candidates
-    said = tuple(f"with {h.name} from its onset (t = {float(r.time[start]):.6g}), {finding(i, test)}: the plant is "
+    said = tuple(f"with {h.name} from its onset (t = {r.clock.text(r.time[start])}), {finding(i, test)}: the plant is "
                  "quieter than the model says" for i, test in narrow)
     said += tuple(f"{name} fits the data better (the sum of its squared residuals {theirs:.1f} against {mine:.1f} "
-                  f"from t = {float(r.time[k]):.6g}) and loses to {h.name} only by the spread the model predicts, "
+                  f"from t = {r.clock.text(r.time[k])}) and loses to {h.name} only by the spread the model predicts, "
                   "which these data do not have" for name, theirs, mine, k in better)
     rivals = tuple(name for name, *_ in better if name not in candidates)
     return replace(fitted, findings=fitted.findings + said, failed=fitted.failed + ("variance",)), \
@@ -419,7 +425,7 @@ def tracked(r: Record, s: Setting, truth: Run | None):
     iso, o = r.isolation, s.options
     if s.ckf:  # 4-6. every hypothesis with its magnitude held static, by cubature Kalman filters alone
         hyps, posteriors = kalman_hypotheses(iso.names, iso.models, s.package, truth, r.time, r.ys, r.us, r.observer,
-                                             iso.kalman_onsets, iso.kalman_reach, iso.drifts, o, s.say)
+                                             iso.kalman_onsets, iso.kalman_reach, iso.drifts, o, s.say, clock=r.clock)
         return hyps, posteriors, r.observer, []
     results, starts_of = _filters(r, s)
     hyps = tuple(_assemble(name, starts_of[name], results, r, s, truth) for name in iso.names)
@@ -447,8 +453,8 @@ def _filters(r: Record, s: Setting) -> tuple[dict, dict]:
     starts_of = {name: list(iso.starts_of[name]) for name in iso.names}
     s.say(f"tracking {len(iso.names)} fault hypotheses ({', '.join(iso.names)}) from "
           f"{sum(len(starts_of[n]) for n in iso.names)} onsets and hypotheses "
-          f"(t = {r.time[min((min(v) for v in starts_of.values()), default=iso.onset)]:.12g} to "
-          f"{r.time[r.detection.step]:.12g})")
+          f"(t = {r.clock.text(r.time[min((min(v) for v in starts_of.values()), default=iso.onset)])} to "
+          f"{r.clock.text(r.time[r.detection.step])})")
     density = log_density(r.z, r.y_std)  # the nominal observer's, per step
     results: dict[tuple[str, int], dict] = {}
     best_of: dict[str, np.ndarray] = {}  # per hypothesis and step, the best running evidence over [0, step]
@@ -629,7 +635,7 @@ def rechecked(r: Record, s: Setting, truth: Run | None, hyps: tuple[Hypothesis, 
     drifts = {name: fault_kind(s.package.MODELS[name].FAULT["kind"]).drifts for name in untried}
     s.say(f"weighing the {len(untried)} fault models the symbols ruled out too")
     more, static = kalman_hypotheses(untried, models, s.package, truth, r.time, r.ys, r.us, observer,
-                                     iso.kalman_onsets, iso.kalman_reach, drifts, o, s.say)
+                                     iso.kalman_onsets, iso.kalman_reach, drifts, o, s.say, clock=r.clock)
     return tuple(replace(h, ruled_out=why_of[h.name]) for h in more), static
 
 

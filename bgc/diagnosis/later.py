@@ -150,8 +150,8 @@ def _later(h: Hypothesis, i, r, s, observer: NominalTrack, fixed) -> Hypothesis 
     if len(onsets) > MOST:
         onsets = np.unique(np.linspace(onsets[0], onsets[-1], MOST).round().astype(int))
     o = s.options
-    s.say(f"{h.name}: its fault likelier from later onsets (t = {r.time[lo]:g} to {r.time[hi]:g}); weighing it "
-          f"from there")
+    s.say(f"{h.name}: its fault likelier from later onsets (t = {r.clock.text(r.time[lo])} to "
+          f"{r.clock.text(r.time[hi])}); weighing it from there")
     grid = (float(i.grid[0]), float(i.grid[-1]))  # the magnitudes the bank found the fault at
     p = run_static(StaticJob(s.package.__name__, h.name, r.ys, r.us, observer, tuple(int(k) for k in onsets), grid,
                              int(best), o.interval, o.kalman, (), record=True, refine=True,
@@ -166,7 +166,7 @@ def _later(h: Hypothesis, i, r, s, observer: NominalTrack, fixed) -> Hypothesis 
     null = float(observer.loglik[T]) if len(observer.loglik) > T else -math.inf
     if not log_prior(s.priors, h.parameter, s.horizon) + p.log_evidence > null + math.log(o.bayes_factor):
         return None
-    k = kalman_hypothesis(h.name, h.signatures, s.package, p, None, r.time, r.ys, o)
+    k = kalman_hypothesis(h.name, h.signatures, s.package, p, None, r.time, r.ys, o, clock=r.clock)
     return replace(h, start_step=k.start_step, onset_steps=k.onset_steps, onset_posterior=k.onset_posterior,
                    y_mean=k.y_mean, y_std=k.y_std, z=k.z, x_mean=k.x_mean, x_std=k.x_std, magnitude=k.magnitude,
                    magnitude_band=k.magnitude_band, log_evidence=p.log_evidence, static=p,

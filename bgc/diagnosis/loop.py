@@ -60,6 +60,7 @@ from ..filters.registry import check_particles, filter_class
 from ..ir import FaultSignatures
 from ..kinds import fault_kind
 from ..model.protocol import Package, nominal_model
+from ..data.clock import Clock
 from .. import events as ev
 from .detect import Detector, DetectorOptions, monte_carlo_share
 from .finish import Record, Setting, finish
@@ -92,9 +93,10 @@ class LoopConfig:
     """What a loop is made with and never changes: the generated package,
     the model's fault signatures, each fault candidate's prior, the options,
     the detector's horizon in steps, the sensors the data have a column for
-    (``present``), ``lazy`` (leave the hypotheses' tracking to the end: a
-    batch diagnosis), ``every`` (try every fault model, those the symbols
-    rule out too) and ``say(text)``, told what is done."""
+    (``present``), the model's ``time_unit`` (None: none declared), ``lazy``
+    (leave the hypotheses' tracking to the end: a batch diagnosis),
+    ``every`` (try every fault model, those the symbols rule out too) and
+    ``say(text)``, told what is done."""
 
     package: Package
     signatures: FaultSignatures
@@ -102,6 +104,7 @@ class LoopConfig:
     options: DiagnosisOptions
     horizon: int
     present: tuple[str, ...]
+    time_unit: str | None
     lazy: bool = False
     every: bool = False
     say: Callable[[str], None] = field(default=lambda text: None, compare=False)
@@ -331,9 +334,17 @@ class Loop:
             return None
         return S / np.outer(std, std)
 
+    @property
+    def clock(self) -> Clock:
+        """How the record's times are written in words: the
+        :class:`~bgc.data.clock.Clock` of its first time and the model's
+        time unit (a record not begun: numbers)."""
+        return Clock.of([s.t for s in self.samples[:1]], self.config.time_unit)
+
     def _alarm(self, detection) -> None:
         self.detection = detection
-        self.config.say(f"fault detected at t = {self.samples[detection.step].t:.12g} on {detection.sensor}")
+        self.config.say(f"fault detected at t = {self.clock.text(self.samples[detection.step].t)} on "
+                        f"{detection.sensor}")
         self.events.append(ev.Alarmed(detection.step, detection.sensor, detection.window, detection.statistic,
                                       detection.threshold, detection.onset_step, detection.test))
         degenerate = self.degenerate()
@@ -496,7 +507,7 @@ class Loop:
         return Record(self.nominal.MODEL, a["time"], a["ys"], a["us"], self.outputs, tuple(self.nominal.STATES),
                       self.present, a["y_mean"], a["y_std"], a["z"], a["x_mean"], a["x_std"], statistics,
                       self.detector.threshold, self.detection, self.isolation, tuple(self.events), data,
-                      self.clouds, self.kf.track() if self.kf is not None else None, tracked, self.excused)
+                      self.clock, self.clouds, self.kf.track() if self.kf is not None else None, tracked, self.excused)
 
     def finish(self, data: DataSummary | None, truth: Run | None = None) -> Diagnosis:
         """The diagnosis of the record (its ``seconds`` are the caller's)."""

@@ -32,6 +32,7 @@ from .onsets import earlier_onsets
 from .parallel import parallel_map
 from ..model.protocol import nominal_model
 from ..filters.residuals import summary
+from ..data.clock import Clock
 from .fit import LEVEL
 
 
@@ -110,13 +111,15 @@ def run_statics(jobs: list[StaticJob], workers: int | None) -> list[StaticPoster
 
 def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, times, ys, us,
                       observer: kalman.NominalTrack, onsets: dict, reach: list[int], drifts: dict,
-                      options: DiagnosisOptions, say) -> tuple[tuple[Hypothesis, ...], dict[str, StaticPosterior]]:
+                      options: DiagnosisOptions, say, *, clock: Clock) \
+        -> tuple[tuple[Hypothesis, ...], dict[str, StaticPosterior]]:
     """``--filter ckf``: each hypothesis's static posterior (:mod:`bgc.diagnosis.static_posterior`)
     over its onsets (``onsets[drifts]``; a drift reaching back over
     ``reach``) with its magnitude's whole prior as the first grid's span,
     the jobs on ``options.workers`` processes; then each as a
-    :class:`Hypothesis` (:func:`kalman_hypothesis`). Returns the hypotheses
-    and their static posteriors by name."""
+    :class:`Hypothesis` (:func:`kalman_hypothesis`; ``clock``: how the
+    record's ``times`` are written). Returns the hypotheses and their static
+    posteriors by name."""
     say(f"weighing {len(names)} fault hypotheses ({', '.join(names)}) with cubature Kalman filters over their "
         f"onsets and magnitudes")
     outputs = tuple(nominal_model(package).OUTPUTS)
@@ -132,19 +135,20 @@ def kalman_hypotheses(names: list[str], models: dict, package, run: Run | None, 
                               options.interval, options.kalman, earlier, record=True, refine=True,
                               far=(outputs, options.rejection, options.windows)))
     posteriors = dict(zip(names, run_statics(jobs, options.workers)))
-    hyps = tuple(kalman_hypothesis(name, tuple(models[name]), package, posteriors[name], run, times, ys, options)
-                 for name in names)
+    hyps = tuple(kalman_hypothesis(name, tuple(models[name]), package, posteriors[name], run, times, ys, options,
+                                   clock=clock) for name in names)
     return hyps, posteriors
 
 
 def kalman_hypothesis(name: str, signatures: tuple[str, ...], package, p: StaticPosterior, run: Run | None, times,
-                      ys, options: DiagnosisOptions) -> Hypothesis:
+                      ys, options: DiagnosisOptions, *, clock: Clock) -> Hypothesis:
     """Hypothesis ``name`` from its static posterior ``p`` alone: its most
     probable onset's filter (posterior mean magnitude) gives the predicted
     measurements and state estimates, the sequential posterior the magnitude
     over time, and the consistency test of the most likely cell (section 5's
-    windowed Z-test) drops it (``static-test``). Its estimate is filled in
-    when it is weighed (:func:`static_estimate`)."""
+    windowed Z-test) drops it (``static-test``, the reason's onset written as
+    ``clock`` writes ``times``). Its estimate is filled in when it is
+    weighed (:func:`static_estimate`)."""
     T = len(ys)
     module = package.MODELS[name]
     outputs = tuple(nominal_model(package).OUTPUTS)
@@ -170,19 +174,22 @@ def kalman_hypothesis(name: str, signatures: tuple[str, ...], package, p: Static
     alarm = static_alarm(p, outputs, options)
     drop = None if alarm is None else Drop("static-test", p.best[0] + alarm.step,
                                            misfit_reason(estimate.magnitude, p.best[1], times[p.best[0]], alarm,
-                                                         estimate.kind))
+                                                         estimate.kind, clock))
     return Hypothesis(start_step=start, y_mean=y_mean, y_std=y_std, z=(ys[start:] - y_mean) / y_std,
                       x_mean=path.x_mean[start:, 0, :n], x_std=path.x_std[start:, 0, :n], magnitude=mean,
                       magnitude_band=np.column_stack([mean - q * std, mean + q * std]), drop=drop, **common)
 
 
-def misfit_reason(magnitude: str, value: float, start: float, alarm: Detection, kind: str = "") -> str:
-    """Why a fault model with its magnitude held static fails the consistency test (``kind``: its fault's)."""
+def misfit_reason(magnitude: str, value: float, start: float, alarm: Detection, kind: str = "",
+                  clock: Clock = Clock()) -> str:
+    """Why a fault model with its magnitude held static fails the consistency
+    test (``kind``: its fault's; ``start``: the time of its onset, written
+    as ``clock`` says: a caller that gives no clock has it as a number)."""
     if magnitude == "switch":  # no size
-        held = f"{switch_held(kind)} t = {start:.12g} (its most probable onset)"
+        held = f"{switch_held(kind)} t = {clock.text(start)} (its most probable onset)"
     else:
-        held = (f"with its {magnitude} held at {value:.4g} from t = {start:.12g} (the most probable magnitude and "
-                "onset; its estimate is the mean over all of them)")
+        held = (f"with its {magnitude} held at {value:.4g} from t = {clock.text(start)} (the most probable "
+                "magnitude and onset; its estimate is the mean over all of them)")
     return (f"{held}, its residual "
             f"of {alarm.sensor} over {alarm.window} sample(s) reached {alarm.statistic:.1f} (threshold "
             f"{alarm.threshold:.1f})")

@@ -15,6 +15,7 @@ import numpy as np
 from ..data.sampler import DataSummary
 from ..filters.cubature import BankResult
 from ..filters.residuals import Innovations
+from ..data.clock import Clock
 from .options import DiagnosisOptions
 
 
@@ -200,7 +201,11 @@ class Diagnosis:
     ``mode_split``: for an ambiguous verdict of a model with modes, the
     candidates another mode may separate (a :class:`ModeSplit`; None: none,
     or no modes); ``submodels``: the submodels a decomposed diagnosis ran
-    on (:mod:`bgc.diagnosis.decomposed`; empty: the whole plant)."""
+    on (:mod:`bgc.diagnosis.decomposed`; empty: the whole plant);
+    ``clock``: how its times are written in words (a
+    :class:`~bgc.data.clock.Clock` of ``time`` and the model's time unit:
+    ISO 8601 timestamps for a run of absolute times), by its sentences, its
+    report and the command line."""
 
     model: str
     time: np.ndarray
@@ -222,6 +227,7 @@ class Diagnosis:
     threshold: float
     options: DiagnosisOptions
     seconds: float
+    clock: Clock
     events: tuple = field(default=())
     data: DataSummary | None = None
     mode_split: ModeSplit | None = None
@@ -229,7 +235,7 @@ class Diagnosis:
     submodels: tuple[str, ...] = ()
 
     def __repr__(self) -> str:  # its arrays would flood a notebook: what a reader wants
-        onset = "" if self.onset is None else f", onset t = {self.onset:.12g}"
+        onset = "" if self.onset is None else f", onset t = {self.clock.text(self.onset)}"
         return (f"<Diagnosis of {self.model}: {self.verdict}"
                 + (f": {', '.join(self.candidates)}" if self.candidates else "")
                 + f"{onset}, {len(self.hypotheses)} hypotheses, {len(self.time)} steps>")

@@ -14,6 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..data.clock import Clock
 from ..kinds import fault_kind
 from .. import events as ev
 from .estimate import pressed
@@ -51,7 +52,7 @@ def weighed(hyps: tuple[Hypothesis, ...], posteriors: dict, r, s, null: float | 
         hyps = tuple(refined(h, reuse.get(h.name), s.package, r.clouds, r.ys, r.us, o)
                      if h.name in candidates and not fault_kind(h.kind).discrete else h for h in hyps)
     hyps = tuple(checked(h, r.outputs, o) if h.name in candidates and static else h for h in hyps)
-    hyps = misfits(hyps, lambda k: float(r.time[k]))
+    hyps = misfits(hyps, lambda k: float(r.time[k]), r.clock)
     prior_of = {h.name: tuple(float(v) for v in s.package.MODELS[h.name].FAULT_PRIOR) for h in hyps}
     hyps, more = at_bounds(hyps, prior_of, T, lambda h: h.drop is None)
     events += more
@@ -166,7 +167,7 @@ def no_fault(hyps: tuple[Hypothesis, ...], decided: str, candidates: tuple[str, 
         ev.NoFault(mass, name, factor, level, False, T - 1)]
 
 
-def misfits(hyps: tuple[Hypothesis, ...], time_of) -> tuple[Hypothesis, ...]:
+def misfits(hyps: tuple[Hypothesis, ...], time_of, clock: Clock = Clock()) -> tuple[Hypothesis, ...]:
     """The goodness-of-fit test of a survivor: its fault model with the
     magnitude held at its most probable value from its most probable onset
     (the static posterior's best cell) must pass the consistency test of the
@@ -175,14 +176,14 @@ def misfits(hyps: tuple[Hypothesis, ...], time_of) -> tuple[Hypothesis, ...]:
     A survivor that fails it is dropped (``static-test``): it does not
     explain the data, and a fault the model does not list ends "unexplained"
     instead of named as the candidate that mimics it best. (Its Misfit
-    event says by how much.)"""
+    event says by how much; ``clock``: how its onset's time is written.)"""
     out = []
     for h in hyps:
         if h.static_alarm is not None and h.drop is None:
             alarm, (start, value) = h.static_alarm, h.static.best
             h = replace(h, drop=Drop("static-test", start + alarm.step,
                                      misfit_reason(h.estimate.magnitude, value, time_of(start), alarm,
-                                                   h.estimate.kind)))
+                                                   h.estimate.kind, clock)))
         out.append(h)
     return tuple(out)
 

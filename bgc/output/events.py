@@ -1,6 +1,9 @@
 """Events (:mod:`bgc.events`) as sentences and as plain data: the one
 place they are put into words (the report, ``bgc diagnose``'s and ``bgc
-monitor``'s lines)."""
+monitor``'s lines). A sentence writes the run's times as the ``clock``
+it is given says (:class:`~bgc.data.clock.Clock`: an ISO 8601 timestamp
+for a run of absolute times; ``Clock()``, the default, a number); the
+plain data keep numbers, in the model's time unit."""
 
 from __future__ import annotations
 
@@ -9,26 +12,22 @@ import math
 
 from .. import events as ev
 from ..kinds import kind_of, releases, switch_held
+from ..data.clock import Clock, time_text
 
 
-def time_text(t) -> str:
-    """A time as the report and the monitor print it: 12 significant digits
-    (a logger's Unix time keeps its fraction of a second)."""
-    return f"{t:.12g}"
-
-
-def _t(time_of, step) -> str:
+def _t(time_of, step, clock: Clock) -> str:
+    """The time of step ``step`` in words (``""``: none)."""
     t = time_of(step)
-    return "" if t is None else time_text(t)
+    return "" if t is None else clock.text(t)
 
 
-def sentence(e, time_of) -> str:
+def sentence(e, time_of, *, clock: Clock = Clock()) -> str:
     """Event ``e`` in words; ``time_of(step)``: the time of a step (None:
-    none). The event's own time is not in the sentence: the report and the
-    monitor put it in front."""
-    t = lambda step: _t(time_of, step)  # noqa: E731
+    none), written as ``clock`` says. The event's own time is not in the
+    sentence: the report and the monitor put it in front."""
+    t = lambda step: _t(time_of, step, clock)  # noqa: E731
     for family in (_data_sentence, _weighing_sentence):
-        said = family(e, t, time_of)
+        said = family(e, t, time_of, clock)
         if said is not None:
             return said
     match e:
@@ -84,26 +83,27 @@ def sentence(e, time_of) -> str:
             return (f"{h}: ruled out by the symbols ({w}), but with its magnitude held static it explains the data "
                     f"as well as the others: a candidate all the same")
         case ev.SensorExcluded(sensor=y, finding=f, time=when):
-            return (f"sensor {y} taken out of the nominal observer from t = {time_text(when)} ({f}): monitoring "
+            return (f"sensor {y} taken out of the nominal observer from t = {clock.text(when)} ({f}): monitoring "
                     f"goes on with the other sensors")
         case ev.EpisodeClosed():
-            return _episode_sentence(e)
+            return _episode_sentence(e, clock)
         case ev.Repaired(time=when, episodes=ns, parameters=ps):
             out = ", ".join(ps) if ps else "nothing accommodated"
-            return (f"repaired at t = {time_text(when)}: " + (f"episode(s) {', '.join(map(str, ns))} taken out of the "
+            return (f"repaired at t = {clock.text(when)}: " + (f"episode(s) {', '.join(map(str, ns))} taken out of the "
                     f"model ({out}); " if ns else "") + "watching on the model as it was")
         case ev.Checkpoint(step=k, verdict=v, candidates=c):
             return f"checkpoint: {v}" + (f": {', '.join(c)}" if c else "")
         case ev.Mismatched():
-            return mismatch_sentence(e, time_of)
+            return mismatch_sentence(e, time_of, clock=clock)
         case ev.Decided(step=k, verdict=v, candidates=c):
             return f"decided: {v}" + (f": {', '.join(c)}" if c else "")
     return type(e).__name__
 
 
-def _data_sentence(e, t, time_of) -> str | None:
+def _data_sentence(e, t, time_of, clock: Clock) -> str | None:
     """:func:`sentence` of an event of the data (sensors, inputs, modes, the
-    time grid; ``t``: a step's time as text); None for another event."""
+    time grid; ``t``: a step's time as text, ``clock``: how a time is
+    written); None for another event."""
     match e:
         case ev.SensorMissing(sensor=s):
             return f"the data have no column y:{s}: diagnosed with the other sensors"
@@ -138,17 +138,19 @@ def _data_sentence(e, t, time_of) -> str | None:
             return f"no sample for {n} steps from t = {t(k)} to t = {t(k + n - 1)}: the filters predict across the gap"
         case ev.SampleSkipped(step=k, line=line, time=when):
             where = f" (line {line})" if line is not None else ""
-            return (f"the sample at t = {time_text(when)}{where} falls on a step of the model's grid a sample already took "
-                    f"(t = {t(k)}): skipped; give the model a dt no longer than the sampling interval to use every one")
+            return (f"the sample at t = {clock.text(when)}{where} falls on a step of the model's grid a sample "
+                    f"already took (t = {t(k)}): skipped; give the model a dt no longer than the sampling interval to "
+                    "use every one")
     return None
 
 
-def _weighing_sentence(e, t, time_of) -> str | None:
+def _weighing_sentence(e, t, time_of, clock: Clock) -> str | None:
     """:func:`sentence` of an event of the weighing of the hypotheses and of
     what the verdict was checked against (the verdict's posterior, no fault,
     faults that come and go, a later onset, a false alarm or a glitch, a
     change no test alarmed on, the Kalman observer restarted, a misfit;
-    ``t``: a step's time as text); None for another event."""
+    ``t``: a step's time as text, ``clock``: how a time is written); None
+    for another event."""
     match e:
         case ev.Uncertain(candidates=c, mass=m, level=lv, kept=k, posteriors=p):
             return (f"{', '.join(c)} hold(s) a posterior of {m:.3g} only, under the {lv:g} a verdict promises: "
@@ -192,7 +194,8 @@ def _weighing_sentence(e, t, time_of) -> str | None:
                     "drift test's windows holding that sample held to the threshold of windows with a reading "
                     "missing")
         case ev.Intermittent(hypothesis=h, value=v, low=lo, high=hi, spans=sp, posterior=p):
-            return (f"{h} comes and goes: present {spans_text([(time_of(a), None if b is None else time_of(b)) for a, b in sp])}, "
+            spans = [(time_of(a), None if b is None else time_of(b)) for a, b in sp]
+            return (f"{h} comes and goes: present {spans_text(spans, clock=clock)}, "
                     f"its magnitude {v:.4g} [{lo:.4g}, {hi:.4g}] (95 %) while present (posterior {p:.3g})")
         case ev.NoLikelihood(fallback=True):
             return ("the cubature Kalman filters found no finite likelihood: the particle filters' evidence and "
@@ -210,10 +213,12 @@ def _weighing_sentence(e, t, time_of) -> str | None:
     return None
 
 
-def spans_text(spans) -> str:
-    """The spans a fault was present over, in words: ``t = 6.05 to 14.1 and from t = 22``."""
+def spans_text(spans, *, clock: Clock = Clock()) -> str:
+    """The spans a fault was present over, in words, its times as ``clock``
+    writes them: ``t = 6.05 to 14.1 and from t = 22``."""
     return " and ".join("at an onset not known" if on is None else
-                        f"t = {time_text(on)} to {time_text(off)}" if off is not None else f"from t = {time_text(on)}"
+                        f"t = {clock.text(on)} to {clock.text(off)}" if off is not None else
+                        f"from t = {clock.text(on)}"
                         for on, off in spans) or "not known"
 
 
@@ -242,17 +247,18 @@ def _change_missed_sentence(e: ev.ChangeMissed, t) -> str:
             f"not a model that does not fit from the start; the diagnosis was made again with {bank}")
 
 
-def _episode_sentence(e: ev.EpisodeClosed) -> str:
-    """:func:`sentence` of an episode closed: its verdict, and what the monitor did."""
+def _episode_sentence(e: ev.EpisodeClosed, clock: Clock) -> str:
+    """:func:`sentence` of an episode closed: its verdict, and what the
+    monitor did (its times as ``clock`` writes them)."""
     n, a, y, when, v, c, o, f = e.number, e.alarm, e.sensor, e.time, e.verdict, e.candidates, e.began, e.finding
     act, p, x, k, spans, why = e.action, e.parameter, e.value, e.appearance, e.present, e.reason
     what = f"{v}: {', '.join(c)}" if c else v
-    since = "" if o is None else f", onset t = {time_text(o)}"
+    since = "" if o is None else f", onset t = {clock.text(o)}"
     if act == "ended":
-        did = (f"the fault of {p} went away without a repair (intermittent: present {spans_text(spans)}): "
+        did = (f"the fault of {p} went away without a repair (intermittent: present {spans_text(spans, clock=clock)}): "
                f"the model watched from now on has {p} = {x:.6g}, its value in the model file")
     elif act == "accommodated" and k > 1:
-        did = (f"the intermittent fault of {p} is back (appearance {k}; present {spans_text(spans)}): "
+        did = (f"the intermittent fault of {p} is back (appearance {k}; present {spans_text(spans, clock=clock)}): "
                f"accommodated, the model watched from now on has {p} = {x:.6g}")
     elif act == "accommodated":
         did = f"accommodated: the model watched from now on has {p} = {x:.6g}"
@@ -264,7 +270,7 @@ def _episode_sentence(e: ev.EpisodeClosed) -> str:
         did = "not accommodated (no parameter of the model holds it): watching again on the model as it was"
     else:
         did = _REARMED.get(why, "not decided") + ": watching again on the model as it was"
-    return (f"episode {n} closed at t = {time_text(when)} (alarm at t = {time_text(a)} on {y}{since}): "
+    return (f"episode {n} closed at t = {clock.text(when)} (alarm at t = {clock.text(a)} on {y}{since}): "
             f"{what}" + (f" ({f})" if f else "") + f"; {did}")
 
 
@@ -276,10 +282,10 @@ _REARMED = {
 }
 
 
-def mismatch_sentence(e: ev.Mismatched, time_of) -> str:
+def mismatch_sentence(e: ev.Mismatched, time_of, *, clock: Clock = Clock()) -> str:
     """A :class:`~bgc.events.Mismatched` in words: why the model does not
     fit (or may not), the faults kept as possibilities, and what to
-    calibrate."""
+    calibrate (its times as ``clock`` writes them)."""
     samples = e.last + 1
     read = {"start": "set at each row's time, acting until the next row",
             "end": "held over the step that ends at each row's time"}
@@ -303,8 +309,8 @@ def mismatch_sentence(e: ev.Mismatched, time_of) -> str:
     else:  # a record tested while watching, halved since, carries its own times (span)
         first, last, count = e.span or (time_of(0), time_of(e.last), samples)
         span = "the whole record" if e.last == e.step else "the data before the fault"
-        why = (f"the model does not fit this plant: over {span} (t = {'' if first is None else time_text(first)} to "
-               f"{'' if last is None else time_text(last)}, {count} samples) " + "; ".join(e.findings))
+        why = (f"the model does not fit this plant: over {span} (t = {'' if first is None else clock.text(first)} to "
+               f"{'' if last is None else clock.text(last)}, {count} samples) " + "; ".join(e.findings))
     if e.possible:
         why += f"; possibly a fault all the same: {', '.join(e.possible)}"
     words = ",".join(e.estimate)
@@ -322,10 +328,11 @@ STEP_FIELDS = frozenset({"since", "onset", "onsets", "first", "last", "start", "
                          "until", "change"})
 
 
-def record(e, time_of) -> dict:
+def record(e, time_of, *, clock: Clock = Clock()) -> dict:
     """Event ``e`` as plain data: its type, time, fields and sentence (a
     field holding a step, :data:`STEP_FIELDS`, as a time, with
-    ``<name>_step`` its step)."""
+    ``<name>_step`` its step). The times are numbers in the model's time
+    unit; the sentence writes them as ``clock`` says."""
     out = {"event": type(e).__name__, "time": None}
 
     def when(step):
@@ -354,7 +361,7 @@ def record(e, time_of) -> dict:
         elif isinstance(v, tuple):
             v = [list(x) if isinstance(x, tuple) else x for x in v]
         out[f.name] = v
-    out["text"] = sentence(e, time_of)
+    out["text"] = sentence(e, time_of, clock=clock)
     return out
 
 
@@ -366,9 +373,9 @@ NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped
            ev.ChangeMissed, ev.Mismatched, ev.ObserverRestarted)
 
 
-def notes(events, time_of) -> list[str]:
-    """The :data:`NOTABLE` events among ``events`` in words, for the command
-    line: two or more :class:`~bgc.events.Overruled` are one
+def notes(events, time_of, *, clock: Clock = Clock()) -> list[str]:
+    """The :data:`NOTABLE` events among ``events`` in words (their times as
+    ``clock`` writes them), for the command line: two or more :class:`~bgc.events.Overruled` are one
     sentence naming them all, in the place of the first (the report keeps
     one sentence each, with the symbol that ruled each out), and so are two
     or more :class:`~bgc.events.ObserverRestarted`, and two or more
@@ -387,15 +394,16 @@ def notes(events, time_of) -> list[str]:
         if isinstance(e, ev.InputHeld) and len(held[e.input]) > 1:
             runs = held[e.input]
             if e is runs[0]:  # one line for the input, in the place of its first hold
-                out.append(f"input u:{e.input} is empty {len(runs)} times, from t = {_t(time_of, runs[0].step)} to "
-                           f"t = {_t(time_of, runs[-1].step)}: each time its last value is held until a value "
+                out.append(f"input u:{e.input} is empty {len(runs)} times, from t = "
+                           f"{_t(time_of, runs[0].step, clock)} to "
+                           f"t = {_t(time_of, runs[-1].step, clock)}: each time its last value is held until a value "
                            "arrives (a logger that writes it when it changes; the report lists each)")
             continue
         if isinstance(e, ev.ObserverRestarted) and len(restarts) > 1:
             if e is restarts[0]:  # one line for them all, in the place of the first
                 out.append(f"the Kalman observer whose residuals the drift test reads lost its estimate "
-                           f"{len(restarts)} times, from t = {_t(time_of, restarts[0].step)} to t = "
-                           f"{_t(time_of, restarts[-1].step)}, and started again each time from the particle "
+                           f"{len(restarts)} times, from t = {_t(time_of, restarts[0].step, clock)} to t = "
+                           f"{_t(time_of, restarts[-1].step, clock)}, and started again each time from the particle "
                            "observer's cloud (the report lists each)")
             continue
         if isinstance(e, ev.Overruled) and len(overruled) > 1:
@@ -405,23 +413,26 @@ def notes(events, time_of) -> list[str]:
                            f"which symbol ruled out each)")
                 said = True
             continue
-        out.append(sentence(e, time_of))
+        out.append(sentence(e, time_of, clock=clock))
     return out
 
 
-def fault_sentence(e, since, per_time: str = "per unit time") -> str:
+def fault_sentence(e, since, per_time: str = "per unit time", *, clock: Clock = Clock()) -> str:
     """What a fault estimate ``e`` (:class:`~bgc.diagnosis.values.Estimate`)
     says in plain words: which kind of thing failed (a sensor, an actuator,
     a part of the plant), how and how much, ``since`` the onset's time
     (None: not known). A magnitude that presses against its prior's bound
     says "or more". ``per_time``: a drift's rate is so much ``per s``
-    (:attr:`bgc.output.labels.Labels.per_time`).
+    (:attr:`bgc.output.labels.Labels.per_time`); ``clock``: how ``since``
+    is written (:class:`~bgc.data.clock.Clock`; the default: as a number).
 
     >>> from bgc.diagnosis.values import Estimate
     >>> e = Estimate("P_offset", "bias", "bias", 3.1, 0.1, 2.9, 3.3, 0.95, 3.1, 0.0,
     ...              target="sensor", subject="P", unit="bar")
     >>> fault_sentence(e, 140.0)
     'sensor P reads 3.1 bar high since t = 140'
+    >>> fault_sentence(e, 1772433060.5, clock=Clock.of([1772433000.5], "s"))
+    'sensor P reads 3.1 bar high since t = 2026-03-02T06:31:00.5Z'
     >>> e = Estimate("R", "abrupt", "bias", 2.0, 0.1, 1.9, 2.0, 0.95, 4.0, 2.0, bound="high", subject="R", unit="ohm")
     >>> print(fault_sentence(e, None))
     parameter R rose by 2 ohm (+100 %), or more: the model's prior ends there
@@ -468,10 +479,10 @@ def fault_sentence(e, since, per_time: str = "per unit time") -> str:
             percent = f" ({100 * v / abs(e.nominal):+.3g} %)" if e.nominal else ""
             text = f"parameter {name} {'rose' if up else 'fell'} by {size}{percent}"
     if since is not None and math.isfinite(since) and e.target == "switch" and releases(e.kind):
-        text += f" at t = {time_text(since)}"  # (it shows at once: the mode asks for the other state)
+        text += f" at t = {clock.text(since)}"  # (it shows at once: the mode asks for the other state)
     elif since is not None and math.isfinite(since):
         # a stuck switch shows only when a mode asks it to move: it stuck at that latest
-        text += f"{', at the latest' if e.target == 'switch' else ''} since t = {time_text(since)}"
+        text += f"{', at the latest' if e.target == 'switch' else ''} since t = {clock.text(since)}"
     if e.bound is not None:
         text += ", or more: the model's prior ends there"
     return text

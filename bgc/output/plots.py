@@ -9,7 +9,6 @@ is left open."""
 
 from __future__ import annotations
 
-import datetime
 import io
 import re
 import textwrap
@@ -19,10 +18,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..data.columns import unit_seconds
 from ..errors import printable
 from ..kinds import fault_kind
 from .artifacts import mark_picture
+from ..data.clock import Clock
 from .labels import Labels, with_unit
 
 if TYPE_CHECKING:
@@ -40,11 +39,6 @@ MEASURED, TRUTH, DETECTION = OKABE_ITO["vermillion"], OKABE_ITO["black"], OKABE_
 GREY, LIGHT_GREY = "#808080", "#b8b8b8"
 
 
-#: A run whose first time is this many seconds after 1970-01-01 UTC or later (1973-03-03) has absolute
-#: times: a logger's Unix seconds, or ISO timestamps as bgc reads them (bgc.data.columns.iso_seconds).
-ABSOLUTE_SECONDS = 1e8
-
-
 @dataclass(frozen=True, slots=True)
 class TimeAxis:
     """How a plot's time axis shows a run's times: as the time elapsed
@@ -60,15 +54,13 @@ class TimeAxis:
 
 def time_axis(time, labels: Labels = Labels()) -> TimeAxis:
     """The time axis of a plot of ``time`` (in the model's time unit):
-    when the times are absolute (the first, once in seconds, at least
-    :data:`ABSOLUTE_SECONDS` and a date of the next 3000 years; no unit is
-    read as seconds, as an ISO timestamp is), the time since the first
-    sample, its date in the label: ``time since 2025-12-02 10:00:00 UTC
-    [s]``; else the times as they are, ``time [s]``."""
+    when the times are absolute (:class:`~bgc.data.clock.Clock`, the rule
+    messages and reports write them by), the time since the first sample,
+    its date in the label: ``time since 2025-12-02 10:00:00 UTC [s]``; else
+    the times as they are, ``time [s]``."""
     t = np.asarray(time, dtype=float).ravel()
-    seconds = unit_seconds(labels.time_unit)
-    if t.size and np.isfinite(t[0]) and seconds is not None and ABSOLUTE_SECONDS <= t[0] * seconds < 1e11:
-        start = datetime.datetime.fromtimestamp(float(t[0]) * seconds, tz=datetime.timezone.utc)
+    start = Clock.of(t, labels.time_unit).instant(t[0]) if t.size else None
+    if start is not None:
         return TimeAxis(float(t[0]), with_unit(f"time since {start:%Y-%m-%d %H:%M:%S} UTC", labels.time_unit))
     return TimeAxis(0.0, labels.time)
 

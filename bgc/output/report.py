@@ -5,7 +5,11 @@ The sentences and table cells are made once, as plain text, by the helpers
 here (:func:`heading`, :func:`verdict_text`, :func:`detection_lines`,
 :func:`hypothesis_rows`, ...); text from outside goes through ``quote``:
 :func:`bgc.output.markdown.escape` for Markdown, nothing for the HTML page,
-whose template escapes every value (:mod:`bgc.output.html`)."""
+whose template escapes every value (:mod:`bgc.output.html`). The run's
+times are written as the diagnosis's :class:`~bgc.data.clock.Clock` says
+(ISO 8601 timestamps for a run of absolute times), in the sentences and
+tables; ``report.json`` keeps them as numbers in the model's time unit
+(``settings.absolute_times``: true when they count from 1970-01-01 UTC)."""
 
 from __future__ import annotations
 
@@ -26,12 +30,21 @@ def _same(text: Any) -> str:
     return str(text)
 
 
-def _when(d, e) -> str:
-    said = getattr(e, "said", None)  # a misfit a monitor said on data its record forgot since
+def _event_time(d, e, clock: events.Clock) -> str:
+    """Event ``e``'s time as ``clock`` writes it (the diagnosis's; a misfit
+    a monitor said on data its record forgot since: the time it was said;
+    "": an event of no time)."""
+    said = getattr(e, "said", None)
     if said is not None:
-        return f"t = {events.time_text(said)}: "
+        return clock.text(said)
     step = getattr(e, "step", None)
-    return "" if step is None else f"t = {_tt(d, step)}: "
+    return "" if step is None else clock.text(d.time_of(step))
+
+
+def _when(d, e, clock: events.Clock = events.Clock()) -> str:
+    """Event ``e``'s time before its sentence: ``t = ...: `` (:func:`_event_time`)."""
+    t = _event_time(d, e, clock)
+    return f"t = {t}: " if t else ""
 
 
 def per_horizon(horizon: float | None, time_word: str) -> str:
@@ -76,9 +89,11 @@ def _t(d, step: int | None) -> float | None:
     return d.time_of(step)
 
 
-def _tt(d, step: int | None) -> str:
-    """A step's time as the report prints it (12 significant digits)."""
-    return events.time_text(d.time_of(step))
+def _tt(d, step: int) -> str:
+    """A step's time as the report writes it (:attr:`Diagnosis.clock
+    <bgc.diagnosis.values.Diagnosis>`: an ISO 8601 timestamp, or 12
+    significant digits)."""
+    return d.clock.text(d.time_of(step))
 
 
 def _time(v: float | None) -> float | None:
@@ -137,7 +152,8 @@ def report_data(r) -> dict[str, Any]:
                      "no_fault": d.options.no_fault,
                      "interval": d.options.interval, "threshold": _num(d.threshold),
                      "process_noise": r.noise[0], "measurement_noise": r.noise[1],
-                     "time_unit": labels.time_unit, "input_timing": d.options.input_timing or "end",
+                     "time_unit": labels.time_unit, "absolute_times": d.clock.absolute,
+                     "input_timing": d.options.input_timing or "end",
                      "submodels": list(d.submodels)},
         "verdict": d.verdict,
         "detection": None if det is None else {
@@ -161,7 +177,7 @@ def report_data(r) -> dict[str, Any]:
             "modes_seen": list(d.mode_split.seen),
             "pairs": [{"faults": [one, other], "differ_in": list(modes)} for one, other, modes in d.mode_split.pairs]},
         "fit": _fit_data(d),
-        "events": [events.record(e, d.time_of) for e in d.events],
+        "events": [events.record(e, d.time_of, clock=d.clock) for e in d.events],
         "data_semantics": None if d.data is None else {
             "inputs": [{"input": u, "from": src, "holds": dict(d.data.holds).get(u, 0)} for u, src in d.data.inputs],
             "sensors": list(d.data.sensors), "sensors_missing": list(d.data.missing),
@@ -227,7 +243,7 @@ def plain_words(d, labels: Labels = Labels()) -> list[str]:
     if d.verdict == "no fault" or not d.candidates:
         return []
     by = {h.name: h for h in d.hypotheses}
-    words = [comes_and_goes(by[n], d.time_of, labels) for n in d.candidates if n in by]
+    words = [comes_and_goes(by[n], d.time_of, labels, d.clock) for n in d.candidates if n in by]
     if d.verdict == "ambiguous":
         return [("either " if i == 0 else "or ") + w for i, w in enumerate(words)] + mode_split_lines(d)
     if d.verdict == "unexplained":
@@ -237,16 +253,16 @@ def plain_words(d, labels: Labels = Labels()) -> list[str]:
     return words
 
 
-def comes_and_goes(h, time_of, labels: Labels = Labels()) -> str:
+def comes_and_goes(h, time_of, labels: Labels = Labels(), clock: events.Clock = events.Clock()) -> str:
     """Hypothesis ``h``'s fault in plain words: since its onset, or, a
     fault that comes and goes (``h.intermittent``), while present and over
-    which spans."""
+    which spans (its times as ``clock`` writes them)."""
     i = h.intermittent
     if i is None:
-        return events.fault_sentence(h.estimate, time_of(h.onset_step), labels.per_time)
+        return events.fault_sentence(h.estimate, time_of(h.onset_step), labels.per_time, clock=clock)
     spans = [(time_of(s.on), None if s.off is None else time_of(s.off)) for s in i.spans]
-    return (f"{events.fault_sentence(h.estimate, None, labels.per_time)}, a fault that comes and goes: present "
-            f"{events.spans_text(spans)}")
+    return (f"{events.fault_sentence(h.estimate, None, labels.per_time, clock=clock)}, a fault that comes and goes: "
+            f"present {events.spans_text(spans, clock=clock)}")
 
 
 def mode_split_lines(d) -> list[str]:
@@ -275,7 +291,7 @@ def heading(r, quote: Callable[[Any], str] = _same) -> tuple[str, str, str]:
              f"{rows} samples on {len(d.time)} steps of the model's time grid")
     kept = ("" if r.stream is None or r.stream[0] <= rows else  # a monitor's: the record kept, not the stream
             f": the record the monitor kept of the {r.stream[0]} rows it read from "
-            f"t = {events.time_text(r.stream[1])} on")
+            f"t = {d.clock.text(r.stream[1])} on")
     scenario = f"simulated scenario {quote(r.scenario)}, " if r.scenario else ""
     data = f"Data: {scenario}{count} ({span}){kept}."
     noise = ("the model's noise levels" if r.noise == (None, None) else
@@ -527,7 +543,8 @@ def report_markdown(r) -> str:
                     lines.append(f"  - {sub}")
     lines += _data_lines(d, labels)
     if d.events:
-        lines += ["", "## Events", ""] + [f"- {_when(d, e)}{escape(events.sentence(e, d.time_of))}" for e in d.events]
+        lines += ["", "## Events", ""] + [
+            f"- {_when(d, e, d.clock)}{escape(events.sentence(e, d.time_of, clock=d.clock))}" for e in d.events]
     lines += ["", f"Diagnosis computed in {d.seconds:.2f} s.", ""]
     return "\n".join(lines)
 
@@ -557,9 +574,9 @@ def report_html(r, data: Mapping[str, Any], pictures: Mapping[str, bytes]) -> st
     title, data_line, filter_line = heading(r)
     symbols = html.table(
         ("sensor", "deviation", "seen at t", "window (samples)", "Z", "slope", "slope Z"),
-        [(s["sensor"], s["sign"], events.time_text(s["time"]) if s["time"] is not None else "-", s["window"],
+        [(s["sensor"], s["sign"], _tt(d, symbol.step), s["window"],
           _g(s["statistic"], ".1f"), s["slope"] or "not significant", _g(s["slope_statistic"], ".1f"))
-         for s in data["symbols"]])
+         for symbol, s in zip(d.symbols, data["symbols"])])  # (the times unrounded: report.json's have 12 digits)
     signatures = signature_rows(d)
     return html.page(
         "diagnosis.html.j2", r.source, title=title, data_line=data_line, filter_line=filter_line,
@@ -577,8 +594,8 @@ def report_html(r, data: Mapping[str, Any], pictures: Mapping[str, bytes]) -> st
         identification=identification_lines(d, labels),
         estimate_pictures=html.pictures(pictures, ESTIMATE_PICTURES),
         data_lines=data_lines(d, labels=labels),
-        events=html.table(("t", "event"), [("" if e["time"] is None else events.time_text(e["time"]), e["text"])
-                                           for e in data["events"]]) if data["events"] else None,
+        events=html.table(("t", "event"), [(_event_time(d, e, d.clock), row["text"])
+                                           for e, row in zip(d.events, data["events"])]) if data["events"] else None,
         seconds=f"{d.seconds:.2f}")
 
 

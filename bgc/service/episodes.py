@@ -150,7 +150,7 @@ class Episodes:
             self.theta[parameter] = value
             self.by[parameter] = number
         finding = frozen_finding(parameter) if e is None and action == "sensor out" else \
-            "" if e is None else fault_sentence(e, c.onset, self.per_time)
+            "" if e is None else fault_sentence(e, c.onset, self.per_time, clock=c.clock)
         alarm, sensor = self.alarm
         glitch = any(isinstance(x, ev.Glitch) for x in c.events)  # one reading off, quiet after it
         reason = ("" if action != "re-armed" else "glitch" if glitch and c.verdict == "no fault" else "false alarm"

@@ -30,6 +30,7 @@ from ..data.columns import MODE, Reading
 from ..analysis import track
 from ..diagnosis.finish import dated_misfit, forgotten_misfits, with_misfits_said
 from ..diagnosis.options import DiagnosisOptions
+from ..data.clock import Clock
 from . import resume
 from .episodes import Episodes, frozen_finding, frozen_unsized, repair_of
 from ..model.package import forget_started
@@ -302,8 +303,6 @@ class _Monitor:
 
     def _resume(self, saved) -> None:
         """Take up a state saved before a restart."""
-        from ..output.events import time_text
-
         self.excluded = [ev.SensorExcluded(*e) for e in saved.excluded]
         self.earlier_misfits[:], self.misfits[:] = saved.misfits
         if self.log is not None and saved.episodes is not None:
@@ -324,7 +323,15 @@ class _Monitor:
         self.rows_time = saved.last_time
         self.keep.stream = saved.stream
         self.say(f"resumed from {printable(str(self.keep.where))}: {len(self.rows)} rows, to t = "
-                 f"{time_text(saved.last_time)}; the input's rows after it are read on")
+                 f"{self.clock.text(saved.last_time)}; the input's rows after it are read on")
+
+    @property
+    def clock(self) -> Clock:
+        """How the monitor's lines write the stream's times: the
+        :class:`~bgc.data.clock.Clock` of the first row's time (read in
+        all, kept across a restart) and the model's time unit."""
+        first = self.keep.stream[1]
+        return Clock.of([] if first is None else [first], self.session.view.labels.time_unit)
 
     def time_of(self, step):
         return self.d.time_of(step)
@@ -332,9 +339,9 @@ class _Monitor:
     def tell(self, events, time_of=None, final: bool = False) -> None:
         """Say ``events`` as lines, each with its time (``time_of``: of a step; default the diagnoser's);
         a misfit said as the data come (not ``final``: the end's) is kept, dated (:attr:`misfits`)."""
-        from ..output.events import sentence, time_text
+        from ..output.events import sentence
 
-        time_of = time_of or self.time_of
+        time_of, clock = time_of or self.time_of, self.clock
         for e in events:
             self.told.add(e)
             if isinstance(e, ev.Mismatched) and not final:
@@ -342,9 +349,9 @@ class _Monitor:
             if isinstance(e, ev.SensorMissing) and e.sensor in self.taken_out:
                 continue  # taken out by the monitor, not missing from the data: said by its SensorExcluded
             step, said = getattr(e, "step", None), getattr(e, "said", None)  # a misfit said before: its own time
-            when = f"t = {time_text(said)}: " if said is not None else "" if step is None else \
-                f"t = {time_text(time_of(step))}: "
-            self.say(f"{when}{printable(sentence(e, time_of))}")
+            when = f"t = {clock.text(said)}: " if said is not None else "" if step is None else \
+                f"t = {clock.text(time_of(step))}: "
+            self.say(f"{when}{printable(sentence(e, time_of, clock=clock))}")
 
     def _afresh(self) -> None:
         """A new diagnoser took over (an episode closed, a repair): its record starts empty."""
@@ -478,7 +485,7 @@ class _Monitor:
         from ..output.events import fault_sentence
 
         finding = (frozen_finding(faulty) if c.estimate is None or c.verdict != "isolated"
-                   else fault_sentence(c.estimate, c.onset, self.session.view.labels.per_time))
+                   else fault_sentence(c.estimate, c.onset, self.session.view.labels.per_time, clock=c.clock))
         out = ev.SensorExcluded(faulty, finding, now)
         self.excluded.append(out)
         self.taken_out.add(faulty)

@@ -1,0 +1,241 @@
+"""A run's times as people read them (bgc/data/clock.py): a run of
+absolute times (ISO 8601 timestamps, a logger's Unix seconds) has them
+written back as ISO 8601 UTC timestamps by the command line, the monitor and
+the report, by the one rule the plots' time axis follows; a run counted from
+its start keeps its numbers. Every expected timestamp is derived here with
+Python's datetime, from a known instant or from the data file's own cells,
+not read back from bgc."""
+
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+
+import bgc
+from bgc import events as ev
+from bgc.data.clock import Clock
+from bgc.output import plots
+from bgc.output.events import fault_sentence, sentence
+from bgc.output.labels import Labels
+
+from conftest import ROOT, bgc_cli, session
+
+UTC = dt.timezone.utc
+EPOCH = dt.datetime(1970, 1, 1, tzinfo=UTC)
+LOGGER = ROOT / "docs" / "examples" / "tank_logger.csv"
+LOGGER_MAP = ROOT / "docs" / "examples" / "tank_logger.yaml"
+#: Seconds in one unit of the model's time, as docs/format.md section 9 lists them (None: seconds).
+UNIT_SECONDS = {None: 1.0, "s": 1.0, "ms": 1e-3, "min": 60.0, "h": 3600.0, "day": 86400.0}
+#: An ISO 8601 UTC timestamp as bgc writes it: the fraction of a second without trailing zeros.
+ISO = re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d*[1-9])?Z")
+#: A Unix time in seconds: ten digits, not inside a longer number nor after a decimal point.
+UNIX = re.compile(r"(?<![\d.])\d{10}(?!\d)")
+
+
+def _iso(when: dt.datetime) -> str:
+    """``when`` as an ISO 8601 UTC timestamp, by datetime's own isoformat:
+    to the microsecond, then the fraction's trailing zeros (and a bare
+    point) dropped, ``Z`` for UTC."""
+    text = when.astimezone(UTC).replace(tzinfo=None).isoformat(timespec="microseconds")
+    return text.rstrip("0").rstrip(".") + "Z"
+
+
+def _instant(stamp: str) -> dt.datetime:
+    """An ISO 8601 timestamp (``Z`` or an offset) as an aware datetime."""
+    return dt.datetime.fromisoformat(stamp.replace("Z", "+00:00"))
+
+
+def _in_unit(when: dt.datetime, unit: str | None) -> float:
+    """``when`` as bgc reads a timestamp: time since 1970-01-01 UTC in ``unit``."""
+    return ((when - EPOCH) / dt.timedelta(microseconds=1)) / 1e6 / UNIT_SECONDS[unit]
+
+
+def _logger_stamps() -> list[str]:
+    """The timestamp column of docs/examples/tank_logger.csv, as written."""
+    with LOGGER.open(encoding="utf-8") as f:
+        rows = [r for r in csv.reader(line for line in f if not line.startswith("#"))]
+    return [r[0] for r in rows[1:]]
+
+
+# -- the rule ------------------------------------------------------------------------------------------------
+
+INSTANTS = [dt.datetime(2026, 3, 2, 6, 31, 0, 500000, tzinfo=UTC),  # a logger's half second
+            dt.datetime(2026, 3, 2, 6, 31, 0, tzinfo=UTC),  # a whole second: no fraction
+            dt.datetime(2025, 11, 21, 0, 55, 20, 123456, tzinfo=UTC),  # to the microsecond
+            dt.datetime(2026, 3, 2, 6, 31, 10, 250000, tzinfo=UTC),  # 10 s: the zero before the point stays
+            dt.datetime(1999, 12, 31, 23, 59, 59, 999999, tzinfo=UTC),
+            dt.datetime(2026, 3, 2, 6, 31, 0, 1, tzinfo=UTC)]
+
+
+@pytest.mark.parametrize("unit", [None, "s", "ms", "min", "h", "day"])
+@pytest.mark.parametrize("when", INSTANTS, ids=lambda w: w.isoformat())
+def test_an_absolute_time_is_written_as_its_iso_timestamp_in_any_unit(unit, when):
+    """A known instant, read as bgc reads a timestamp (time since 1970 in
+    the model's unit), is written back as that instant, to the microsecond."""
+    start = _in_unit(dt.datetime(2026, 3, 2, 6, 30, 0, 500000, tzinfo=UTC), unit)
+    clock = Clock.of([start, start + 1.0], unit)
+    assert clock.absolute
+    assert clock.text(_in_unit(when, unit)) == _iso(when)
+    assert ISO.fullmatch(clock.text(_in_unit(when, unit)))
+
+
+def test_the_fraction_keeps_its_digits_as_far_as_they_are_not_zero():
+    """The fraction of a second to the microsecond, its trailing zeros dropped; none for a whole second."""
+    clock = Clock.of([1.0e9], "s")
+    base = dt.datetime(2026, 3, 2, 6, 31, 0, tzinfo=UTC)
+    for micro, tail in ((500000, ".5"), (120000, ".12"), (123456, ".123456"), (1, ".000001"), (0, "")):
+        assert clock.text(_in_unit(base + dt.timedelta(microseconds=micro), "s")) == f"2026-03-02T06:31:00{tail}Z"
+
+
+@pytest.mark.parametrize("first, unit, absolute", [
+    (0.0, "s", False),
+    (99_999_999.0, "s", False),  # 1973-03-03 less a second
+    (1e8, "s", True),
+    (1.7724330605e9, "s", True),
+    (1.7724330605e9, None, True),  # no unit: seconds, as a timestamp is read
+    (1.7724330605e12, "ms", True),
+    (1.7724330605e9, "ms", False),  # 20 days after 1970
+    (29540550.0, "min", True),
+    (1.7724330605e9, "min", False),  # past the year 5000
+    (99_999_999_999.0, "s", True),
+    (1e11, "s", False),
+    (math.nan, "s", False),
+    (1.7724330605e9, "fortnight", False),  # a unit bgc does not convert
+])
+def test_which_runs_are_absolute_the_messages_and_the_plots_agree(first, unit, absolute):
+    """The one rule: the first time, in seconds, from 1e8 (1973-03-03) to
+    below 1e11; the plots' time axis and the messages' clock decide alike."""
+    clock = Clock.of([first, first + 1.0], unit)
+    axis = plots.time_axis(np.array([first, first + 1.0]), Labels(unit))
+    assert clock.absolute == absolute
+    assert ("since" in axis.label) == absolute and (axis.origin != 0.0) == absolute
+
+
+def test_times_not_absolute_stay_numbers_of_12_significant_digits():
+    """A run counted from its start, or no clock: numbers, 12 significant digits."""
+    clock = Clock.of([0.5, 1.0], "s")
+    assert not clock.absolute
+    assert [clock.text(t) for t in (60.5, 60.0, 0.1 + 0.2, 1.0 / 3.0, 1772433060.5)] == \
+        ["60.5", "60", "0.3", "0.333333333333", "1772433060.5"]
+    assert Clock().text(1772433060.5) == "1772433060.5"  # no clock said: a number
+
+
+def test_a_sentence_writes_times_by_its_clock_and_durations_as_numbers():
+    """An event's sentence and a fault's words write a run's times as the
+    clock says (the same sentence without one: numbers); a gap's steps stay
+    a number."""
+    start = dt.datetime(2026, 3, 2, 6, 30, 0, 500000, tzinfo=UTC)
+    times = [_in_unit(start + dt.timedelta(seconds=0.5 * k), "s") for k in range(40)]
+    clock = Clock.of(times, "s")
+    said = sentence(ev.Gap(step=10, steps=20), lambda k: times[k], clock=clock)
+    assert said == (f"no sample for 20 steps from t = {_iso(start + dt.timedelta(seconds=5))} to t = "
+                    f"{_iso(start + dt.timedelta(seconds=14.5))}: the filters predict across the gap")
+    assert sentence(ev.Gap(step=10, steps=20), lambda k: 0.5 * k) == \
+        "no sample for 20 steps from t = 5 to t = 14.5: the filters predict across the gap"
+    from bgc.diagnosis.values import Estimate
+
+    e = Estimate("R12", "abrupt", "bias", 1.0, 0.01, 0.98, 1.02, 0.95, 3.0, 2.0, subject="R12")
+    assert fault_sentence(e, times[21], clock=clock).endswith(f"since t = {_iso(start + dt.timedelta(seconds=10.5))}")
+
+
+# -- the commands ------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def logger_diagnosis(tmp_path_factory):
+    """``bgc diagnose`` of docs/examples/tank_logger.csv through its column
+    map, as docs/format.md section 9 runs it: (what it printed, its folder)."""
+    folder = tmp_path_factory.mktemp("iso") / "rig-b"
+    out = bgc_cli("diagnose", "models/two_tank.yaml", "--data", LOGGER, "--columns", LOGGER_MAP, "-o", folder)
+    assert out.returncode == 0, out.stderr
+    return out.stdout, folder
+
+
+@pytest.mark.slow
+def test_a_loggers_iso_times_are_printed_as_the_files_own_timestamps(logger_diagnosis):
+    """The detection, the onset and the fault's "since" are printed as ISO
+    timestamps that are instants of the file's own time column (the grid
+    starts at its first row, every step a row of it), no Unix number in the
+    lines or report.md; report.json keeps the numbers and says they are
+    absolute."""
+    stdout, folder = logger_diagnosis
+    stamps = {_instant(s) for s in _logger_stamps()}
+    detected = re.search(r"detected at t = (\S+) \(\w+\), onset t = (\S+)\n", stdout)
+    since = re.search(r"since t = (\S+)\n", stdout)
+    assert detected and since, stdout
+    printed = [*detected.groups(), since.group(1)]
+    for stamp in printed:  # each an ISO timestamp, and an instant of the file's own time column
+        assert ISO.fullmatch(stamp) and _instant(stamp) in stamps, (stamp, stdout)
+    assert not UNIX.search(stdout), stdout
+    report = (folder / "report.md").read_text(encoding="utf-8")
+    assert not UNIX.search(report) and f"alarm at t = {detected.group(1)}:" in report
+    # report.json keeps numbers: seconds since 1970 (the model's unit), and says they are absolute
+    data = json.loads((folder / "report.json").read_text(encoding="utf-8"))
+    assert data["settings"]["absolute_times"] is True
+    assert data["detection"]["time"] == pytest.approx(_in_unit(_instant(detected.group(1)), "s"), abs=1e-6)
+    assert data["onset"] == pytest.approx(_in_unit(_instant(detected.group(2)), "s"), abs=1e-6)
+
+
+@pytest.mark.slow
+def test_a_run_of_plain_numbers_prints_numbers(tmp_path):
+    """A simulated run, its times counted from 0: the detection line prints
+    numbers, each a time of the run's own (run.csv), and no timestamp."""
+    out = bgc_cli("diagnose", "models/two_tank.yaml", "--scenario", "R12:abrupt:1.0@20", "--steps", "80",
+                  "--particles", "200", "-o", tmp_path / "d")
+    assert out.returncode == 0, out.stderr
+    detected = re.search(r"detected at t = (\S+) \(\w+\), onset t = (\S+)\n", out.stdout)
+    assert detected, out.stdout
+    with (tmp_path / "d" / "run.csv").open(encoding="utf-8") as f:
+        times = {float(r[0]) for r in csv.reader(line for line in f if not line.startswith("#")) if r[0] != "time"}
+    for printed in detected.groups():  # a number, and a time of the run's own
+        assert re.fullmatch(r"\d+(\.\d+)?", printed), out.stdout
+        assert min(abs(float(printed) - t) for t in times) < 1e-9, (printed, out.stdout)
+    assert not ISO.search(out.stdout), out.stdout
+    data = json.loads((tmp_path / "d" / "report.json").read_text(encoding="utf-8"))
+    assert data["settings"]["absolute_times"] is False
+
+
+@pytest.mark.slow
+def test_the_monitor_writes_a_loggers_unix_seconds_as_timestamps():
+    """A logger that writes Unix seconds (numbers): the monitor's lines, its
+    diagnosis's repr and the report's events write them as timestamps; a
+    hole in the rows is said with its times as dates, its steps a number."""
+    stamps = _logger_stamps()
+    with LOGGER.open(encoding="utf-8") as f:
+        rows = [r for r in csv.reader(line for line in f if not line.startswith("#"))][1:]
+    hole = range(20, 35)  # 15 rows of 0.5 s missing: more than the 10 steps of the gap limit
+    m = bgc.Monitor(session("two_tank"), ["time", "u:f_in", "y:F10", "y:F12", "y:F20"], particles=200)
+    lines = []
+    for k, r in enumerate(rows[:150]):
+        if k in hole:
+            continue
+        t = _in_unit(_instant(stamps[k]), "s")
+        lines += m.feed([t, *(0.001 * float(v) for v in r[1:5])])
+    report = m.report()
+    gap = next(line for line in lines if "no sample for" in line)
+    first, last = (_iso(_instant(stamps[k])) for k in (hole[0], hole[-1]))
+    assert gap == (f"t = {first}: no sample for {len(hole)} steps from t = {first} to t = {last}: the filters "
+                   "predict across the gap")
+    alarm = next(line for line in lines if "alarm on" in line)
+    assert ISO.fullmatch(alarm.split(": ")[0].removeprefix("t = "))
+    assert not any(UNIX.search(line) for line in lines), lines
+    d = report.diagnosis
+    onset = EPOCH + dt.timedelta(seconds=d.onset)
+    assert onset in {_instant(s) for s in stamps} and f"onset t = {_iso(onset)}," in repr(d)
+    sentences = report.table("events").column("sentence")
+    assert sentences and not any(UNIX.search(text) for text in sentences), sentences
+
+
+def test_bgc_filter_says_when_its_estimate_is_as_a_timestamp():
+    """``bgc filter`` on the logger's file: its estimate at the last row, that row's timestamp."""
+    out = bgc_cli("filter", "models/two_tank.yaml", LOGGER, "--columns", LOGGER_MAP, "--fault", "R12:abrupt",
+                  "--filter", "gpf", "--particles", "50", "--generated", "generated")
+    assert out.returncode == 0, out.stderr
+    last = _iso(_instant(_logger_stamps()[-1]))
+    assert re.search(rf"estimate of R12\b.* at t = {re.escape(last)}: ", out.stdout), out.stdout
