@@ -31,20 +31,23 @@ LOW, HIGH, TOLERANCE, DT = 18.0, 21.0, 0.15, 0.5
 SENSOR_STD = (0.3, 0.095, 0.8)  # T_rad, T_room, q_s: the model's noise (relative 0.01, 0.005, 0.02 of 30, 19, 40)
 
 
-def plant(seed: int, steps: int = 600) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def plant(seed: int, steps: int = 600, r_w: tuple[float, float] | None = None, tolerance: float = TOLERANCE,
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(time, mode (1 heating, 2 idle), readings T_rad, T_room, q_s) of the thermostat from T_r = 30,
-    T_a = 19, heating."""
+    T_a = 19, heating; ``r_w``: (onset, value): the walls' resistance R_w is ``value`` from ``onset`` (a
+    sample's time) on; ``tolerance``: the thresholds' std."""
     rng = np.random.default_rng(seed)
     x, on, t = np.array([30.0, 19.0]), True, 0.0
-    threshold = HIGH + rng.normal(0.0, TOLERANCE)
+    threshold = HIGH + rng.normal(0.0, tolerance)
     times, modes, readings = [], [], []
     for k in range(1, steps + 1):
         end = k * DT
         wr, wa = rng.normal(0.0, 0.2), rng.normal(0.0, 0.3)  # heat disturbances over the step
+        walls = R_W if r_w is None or end - DT < r_w[0] - 1e-9 else r_w[1]
         while t < end - 1e-12:
             def rhs(_, s, heating=on):
                 q = (T_S - s[0]) / R_V if heating else 0.0
-                return [(q - (s[0] - s[1]) / R_RA + wr) / C_R, ((s[0] - s[1]) / R_RA - s[1] / R_W + wa) / C_A]
+                return [(q - (s[0] - s[1]) / R_RA + wr) / C_R, ((s[0] - s[1]) / R_RA - s[1] / walls + wa) / C_A]
 
             def crossing(_, s, level=threshold):
                 return s[1] - level
@@ -53,7 +56,7 @@ def plant(seed: int, steps: int = 600) -> tuple[np.ndarray, np.ndarray, np.ndarr
             x, t = sol.y[:, -1], float(sol.t[-1])
             if sol.status == 1:  # the room reached this visit's threshold: the valve moves, a new threshold
                 on = not on
-                threshold = (HIGH if on else LOW) + rng.normal(0.0, TOLERANCE)
+                threshold = (HIGH if on else LOW) + rng.normal(0.0, tolerance)
             if end - t < 1e-12:
                 t = end
         q = (T_S - x[0]) / R_V if on else 0.0
@@ -63,10 +66,11 @@ def plant(seed: int, steps: int = 600) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return np.array(times), np.array(modes, dtype=float), np.array(readings)
 
 
-def write(path: Path, seed: int, modes: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def write(path: Path, seed: int, modes: bool = True, steps: int = 600, r_w: tuple[float, float] | None = None,
+          tolerance: float = TOLERANCE) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The plant's run (:func:`plant`'s arrays, returned) as a run file (without ``modes``, no mode
     column: the mode read from the data)."""
-    t, mode, y = plant(seed)
+    t, mode, y = plant(seed, steps, r_w, tolerance)
     rows = ["time,mode,u:T_s,y:T_rad,y:T_room,y:q_s" if modes else "time,u:T_s,y:T_rad,y:T_room,y:q_s"]
     rows += [f"{a:.6g}," + (f"{int(m)}," if modes else "") + f"{T_S:g},{b:.9g},{c:.9g},{d:.9g}"
              for a, m, (b, c, d) in zip(t, mode, y)]

@@ -810,7 +810,7 @@ class Diagnoser:
         for name in names:
             samples = self._read_with(next(h for h in d.hypotheses if h.name == name), raw, heads)
             changed = int(np.sum(np.array([s.u[index] for s in samples]) != read))
-            again = d if not changed else self._loop_of(samples, after=first).finish(self.sampler.summary(), truth)
+            again = d if not changed else self._made_on(samples, first, truth)
             explains = (again.verdict == "isolated" and again.candidates == (name,)) or (
                 again.verdict == "ambiguous" and set(again.candidates) == {name, _twin(name)})
             said.append(ev.ModesReread(len(read) - 1, name, changed, explains))
@@ -844,12 +844,29 @@ class Diagnoser:
         onset, start[-1] = read_fault(model, raw, onsets, start, value, head)
         return read_again(model, raw, (onset, start), head)
 
-    def _loop_of(self, samples: list[Sample], after=None) -> Loop:
+    def _made_on(self, samples: list[Sample], after, truth: Run | None) -> Diagnosis:
+        """The diagnosis made again on ``samples`` (another reading of the
+        modes; ``after``: a false alarm, :meth:`_loop_of`), by the policy the
+        first one had: unexplained, made again with every fault model
+        (:meth:`_retry`). A fault moves the switches, and the symbols read
+        over a switch the fault moved can rule that fault out (a thermostat's
+        wall losing more heat keeps its heater on longer, and the radiator's
+        temperature reads above the nominal's, where the fault's own
+        signature says below)."""
+        loop = self._loop_of(samples, after)
+        again = loop.finish(self.sampler.summary(), truth)
+        if self._retry(again, loop):
+            again = self._loop_of(samples, after, every=True).finish(self.sampler.summary(), truth)
+        return again
+
+    def _loop_of(self, samples: list[Sample], after=None, every: bool | None = None) -> Loop:
         """A loop of this diagnoser's options that has taken ``samples``
         (``after``: a false alarm, as :meth:`replay` takes it: the options'
-        switch off, as the diagnosis made again after it had them)."""
+        switch off, as the diagnosis made again after it had them; ``every``:
+        every fault model weighed, None: as this diagnoser's loop)."""
         options = self.loop.options if after is None else dataclasses.replace(self.loop.options, switch=False)
-        loop = Loop(self._loop_config(options, self.loop.config.every, self.config.lazy))
+        every = self.loop.config.every if every is None else every
+        loop = Loop(self._loop_config(options, every, self.config.lazy))
         _armed_after(loop, after)
         for s in samples:
             loop.take(s)
