@@ -1,6 +1,7 @@
 """A mode the data do not give, diagnosed, against the same data with the mode given.
 
     .venv/bin/python bench/hidden_mode.py [--runs 5] [--seed 1]
+    .venv/bin/python bench/hidden_mode.py --plant thermostat [--sharp] [--runs 5] [--seed 1]
     .venv/bin/python bench/hidden_mode.py --plant ro [--runs 4] [--seed 1]
 
 The level plant of docs/examples/level.yaml (a tank a pump fills, its
@@ -17,6 +18,16 @@ exact reference on the same data: the modes the plant was in). The table
 gives per fault and per way the verdicts (isolated right, among candidates,
 another fault, unexplained, not detected), the mean size error of those
 isolated right, and the seconds per diagnosis, the two ways side by side.
+
+``--plant thermostat``: tests/data/hybrid/thermostat.yaml's room heated by a
+radiator whose valve a thermostat opens under 18 and shuts over 21 (about 12
+switches in 200 samples), its data from solve_ivp on its equations derived
+by hand (tests/hybrid_reference.py, ``thermostat_run``): fault-free, the
+walls' R_w -30 %, the radiator's R_ra +50 %, the supply's R_v +50 %, the
+room's sensor biased by 0.4 (about 4 of its noise stds) and the valve
+stuck shut, each from an onset drawn from 40 to 60 min of a 100-min run;
+``--sharp``: the thresholds exact (the model's tolerance taken out, the
+plant's thresholds not drawn).
 
 ``--plant ro``: the autonomous RO plant of models/ro_hybrid.yaml (its three
 valve settings switched by guards on the conductivity and the membrane
@@ -41,7 +52,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
 import bgc  # noqa: E402
-from hybrid_reference import LEVEL_C, LEVEL_R_IN, LEVEL_R_OUT, level_csv, level_run  # noqa: E402
+from hybrid_reference import (LEVEL_C, LEVEL_R_IN, LEVEL_R_OUT, THERMO_R_RA, THERMO_R_V, THERMO_R_W,  # noqa: E402
+                              THERMO_TOLERANCE, level_csv, level_run, thermostat_csv, thermostat_run)
 from stuck_switches import outcome_of  # noqa: E402  (bench/, the script's folder)
 
 LEVEL = ROOT / "docs" / "examples" / "level.yaml"
@@ -53,6 +65,16 @@ LEVEL_FAULTS = {
     "R_in +50 %": ("R_in", 1.5 * LEVEL_R_IN, "R_in_abrupt", 0.5 * LEVEL_R_IN),
     "C_t -25 %": ("C_t", 0.75 * LEVEL_C, "C_t_abrupt", -0.25 * LEVEL_C),
     "p bias +0.03": ("p", 0.03, "p_offset_bias", 0.03),
+}
+THERMOSTAT = ROOT / "tests" / "data" / "hybrid" / "thermostat.yaml"
+#: The thermostat's faults: (name, the value it takes, the fault model, its size).
+THERMOSTAT_FAULTS = {
+    "none": None,
+    "R_w -30 %": ("R_w", 0.7 * THERMO_R_W, "R_w_abrupt", -0.3 * THERMO_R_W),
+    "R_ra +50 %": ("R_ra", 1.5 * THERMO_R_RA, "R_ra_abrupt", 0.5 * THERMO_R_RA),
+    "R_v +50 %": ("R_v", 1.5 * THERMO_R_V, "R_v_abrupt", 0.5 * THERMO_R_V),
+    "T_room bias +0.4": ("T_room", 0.4, "T_room_offset_bias", 0.4),
+    "V stuck shut": ("V", 0.0, "V_stuck_off", None),
 }
 WAYS = ("hidden", "given")
 
@@ -87,6 +109,27 @@ def level_rows(runs: int, seed: int, folder: Path) -> list:
             times, modes, y_p, y_q, _ = level_run(run_seed, None if fault is None else (onset, fault[0], fault[1]))
             hidden = level_csv(folder / f"h{r}.csv", times, modes, y_p, y_q, False)
             given = level_csv(folder / f"g{r}.csv", times, modes, y_p, y_q, True)
+            diagnose_both(session, hidden, given, None if fault is None else fault[2],
+                          None if fault is None else fault[3], rows, label)
+    return rows
+
+
+def thermostat_rows(runs: int, seed: int, folder: Path, sharp: bool) -> list:
+    model = THERMOSTAT
+    if sharp:  # the thresholds exact: the model's tolerance taken out
+        model = folder / "thermostat.yaml"
+        model.write_text(THERMOSTAT.read_text(encoding="utf-8").replace(", tolerance: 0.15", ""), encoding="utf-8")
+    session = bgc.open(model)
+    rng = np.random.default_rng(seed)
+    rows: list = []
+    for label, fault in THERMOSTAT_FAULTS.items():
+        for r in range(runs):
+            run_seed = int(rng.integers(1 << 30))
+            onset = float(np.round(rng.uniform(40.0, 60.0) * 2) / 2)  # a sample's time
+            run = thermostat_run(run_seed, 200, None if fault is None else (onset, fault[0], fault[1]),
+                                 0.0 if sharp else THERMO_TOLERANCE)
+            hidden = thermostat_csv(folder / f"h{r}.csv", *run, False)
+            given = thermostat_csv(folder / f"g{r}.csv", *run, True)
             diagnose_both(session, hidden, given, None if fault is None else fault[2],
                           None if fault is None else fault[3], rows, label)
     return rows
@@ -139,14 +182,18 @@ def table(rows: list, labels) -> None:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--plant", choices=("level", "ro"), default="level")
-    p.add_argument("--runs", type=int, default=None, help="runs per fault (level: 5, ro: 4)")
+    p.add_argument("--plant", choices=("level", "thermostat", "ro"), default="level")
+    p.add_argument("--runs", type=int, default=None, help="runs per fault (level, thermostat: 5, ro: 4)")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--sharp", action="store_true", help="the thermostat's thresholds exact")
     a = p.parse_args()
     with tempfile.TemporaryDirectory() as folder:
         if a.plant == "level":
             rows = level_rows(a.runs or 5, a.seed, Path(folder))
             table(rows, LEVEL_FAULTS)
+        elif a.plant == "thermostat":
+            rows = thermostat_rows(a.runs or 5, a.seed, Path(folder), a.sharp)
+            table(rows, THERMOSTAT_FAULTS)
         else:
             rows = ro_rows(a.runs or 4, a.seed, Path(folder))
             table(rows, ("none", "R_pipe +31"))

@@ -161,3 +161,76 @@ def level_csv(path: Path, times, modes, y_p, y_q, with_mode: bool) -> Path:
         lines.append(f"{t:.10g}," + (f"{m}," if with_mode else "") + f"{LEVEL_E},{float(a)!r},{float(b)!r}")
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+#: The thermostat of tests/data/hybrid/thermostat.yaml: its values (the model file's), its thresholds and their
+#: std, its sample period, its sensors' noise (the model's: relative 0.01, 0.005, 0.02 of 30, 19, 40) and the heat
+#: disturbances into the radiator and the room (held over each sample period).
+THERMO_R_V, THERMO_C_R, THERMO_R_RA, THERMO_C_A, THERMO_R_W, THERMO_T_S = 0.5, 2.0, 1.0, 20.0, 2.0, 50.0
+THERMO_LOW, THERMO_HIGH, THERMO_TOLERANCE, THERMO_DT = 18.0, 21.0, 0.15, 0.5
+THERMO_NOISE, THERMO_DISTURBANCE = (0.3, 0.095, 0.8), (0.2, 0.3)
+THERMO_SENSORS = ("T_rad", "T_room", "q_s")
+
+
+def thermostat_run(seed: int, steps: int = 600, fault: tuple[float, str, float] | None = None,
+                   tolerance: float = THERMO_TOLERANCE) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The thermostat (a room heated by a radiator whose valve opens when the
+    room falls under 18 and shuts over 21) by solve_ivp on its equations
+    derived by hand, from T_r = 30, T_a = 19, heating: C_r T_r' = (T_s -
+    T_r)/R_v [valve open] - (T_r - T_a)/R_ra + w_r, C_a T_a' = (T_r -
+    T_a)/R_ra - T_a/R_w + w_a; each threshold drawn N(0, ``tolerance``^2)
+    about its value anew at each visit of the mode; the valve's moves found
+    by solve_ivp's events. Returns the times, the mode per sample (1
+    heating, 2 idle) and the readings T_rad, T_room, q_s (the supply's heat
+    flow, 0 with the valve shut), each with Gaussian noise of
+    :data:`THERMO_NOISE`. ``fault``: (time, name, value), the time a
+    sample's: R_v, R_ra or R_w takes the value from then on, or sensor
+    T_room or T_rad reads the value more, or (name ``V``, the value unused)
+    the valve sticks shut."""
+    rng = np.random.default_rng(seed)
+    x, on, t = np.array([30.0, 19.0]), True, 0.0
+    threshold = THERMO_HIGH + rng.normal(0.0, tolerance)
+    times, modes, readings = [], [], []
+
+    def value(name: str, nominal: float, at: float) -> float:
+        return fault[2] if fault and fault[1] == name and at >= fault[0] - 1e-9 else nominal
+
+    for k in range(1, steps + 1):
+        end = k * THERMO_DT
+        wr, wa = rng.normal(0.0, THERMO_DISTURBANCE[0]), rng.normal(0.0, THERMO_DISTURBANCE[1])
+        start = end - THERMO_DT  # the step's values (a fault's time is a sample's)
+        r_v, r_ra, r_w = (value(n, v, start) for n, v in (("R_v", THERMO_R_V), ("R_ra", THERMO_R_RA),
+                                                           ("R_w", THERMO_R_W)))
+        stuck = bool(fault and fault[1] == "V" and start >= fault[0] - 1e-9)
+        while t < end - 1e-12:
+            heating = on and not stuck
+
+            def rhs(_, s, heating=heating):
+                q = (THERMO_T_S - s[0]) / r_v if heating else 0.0
+                return [(q - (s[0] - s[1]) / r_ra + wr) / THERMO_C_R, ((s[0] - s[1]) / r_ra - s[1] / r_w + wa) / THERMO_C_A]
+
+            def crossing(_, s, level=threshold):
+                return s[1] - level
+            crossing.terminal, crossing.direction = True, (1 if on else -1)
+            sol = solve_ivp(rhs, (t, end), x, events=crossing, rtol=1e-10, atol=1e-10)
+            x, t = sol.y[:, -1], float(sol.t[-1])
+            if sol.status == 1:  # the room reached this visit's threshold: the mode changes, a new threshold
+                on = not on
+                threshold = (THERMO_HIGH if on else THERMO_LOW) + rng.normal(0.0, tolerance)
+            if end - t < 1e-12:
+                t = end
+        q = (THERMO_T_S - x[0]) / r_v if on and not stuck else 0.0
+        times.append(end)
+        modes.append(1 if on else 2)
+        bias = np.array([value("T_rad", 0.0, end), value("T_room", 0.0, end), 0.0])
+        readings.append(np.array([x[0], x[1], q]) + bias + rng.normal(0.0, 1.0, 3) * THERMO_NOISE)
+    return np.array(times), np.array(modes, dtype=float), np.array(readings)
+
+
+def thermostat_csv(path: Path, times, modes, readings, with_mode: bool) -> Path:
+    """A run file of :func:`thermostat_run`'s samples, with the mode column or without."""
+    rows = ["time," + ("mode," if with_mode else "") + "u:T_s," + ",".join(f"y:{y}" for y in THERMO_SENSORS)]
+    rows += [f"{a:.6g}," + (f"{int(m)}," if with_mode else "") + f"{THERMO_T_S:g},{b:.9g},{c:.9g},{d:.9g}"
+             for a, m, (b, c, d) in zip(times, modes, readings)]
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
+    return path

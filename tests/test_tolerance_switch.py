@@ -8,73 +8,33 @@ switches in 600 samples came out "mismatch" on bgc's own simulation of its
 own model. The prediction now spreads by the switch's place
 (bgc.filters.cubature._Filter._switch_spread).
 
-The plant is simulated here, not by bgc: a room heated by a radiator whose
-valve opens when the room falls under 18 and shuts over 21, each threshold
-drawn N(0, 0.15^2) per visit, integrated by solve_ivp with the switch as an
-event on the equations derived by hand (tests/data/hybrid/thermostat.yaml's
-comment), heat disturbances held over each step."""
+The plant is simulated by tests/hybrid_reference.py, not by bgc: a room
+heated by a radiator whose valve opens when the room falls under 18 and
+shuts over 21, each threshold drawn N(0, 0.15^2) per visit, integrated by
+solve_ivp with the switch as an event on the equations derived by hand
+(tests/data/hybrid/thermostat.yaml's comment), heat disturbances held over
+each step."""
 
 from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
 
 import bgc
 from bgc.filters.cubature import _Filter, nominal_track
 
 from conftest import session
+from hybrid_reference import THERMO_DT, THERMO_T_S, thermostat_csv, thermostat_run
 
 MODEL = Path(__file__).resolve().parent / "data" / "hybrid" / "thermostat.yaml"
-R_V, C_R, R_RA, C_A, R_W, T_S = 0.5, 2.0, 1.0, 20.0, 2.0, 50.0
-LOW, HIGH, TOLERANCE, DT = 18.0, 21.0, 0.15, 0.5
-SENSOR_STD = (0.3, 0.095, 0.8)  # T_rad, T_room, q_s: the model's noise (relative 0.01, 0.005, 0.02 of 30, 19, 40)
+T_S, DT = THERMO_T_S, THERMO_DT
 
 
-def plant(seed: int, steps: int = 600, r_w: tuple[float, float] | None = None, tolerance: float = TOLERANCE,
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(time, mode (1 heating, 2 idle), readings T_rad, T_room, q_s) of the thermostat from T_r = 30,
-    T_a = 19, heating; ``r_w``: (onset, value): the walls' resistance R_w is ``value`` from ``onset`` (a
-    sample's time) on; ``tolerance``: the thresholds' std."""
-    rng = np.random.default_rng(seed)
-    x, on, t = np.array([30.0, 19.0]), True, 0.0
-    threshold = HIGH + rng.normal(0.0, tolerance)
-    times, modes, readings = [], [], []
-    for k in range(1, steps + 1):
-        end = k * DT
-        wr, wa = rng.normal(0.0, 0.2), rng.normal(0.0, 0.3)  # heat disturbances over the step
-        walls = R_W if r_w is None or end - DT < r_w[0] - 1e-9 else r_w[1]
-        while t < end - 1e-12:
-            def rhs(_, s, heating=on):
-                q = (T_S - s[0]) / R_V if heating else 0.0
-                return [(q - (s[0] - s[1]) / R_RA + wr) / C_R, ((s[0] - s[1]) / R_RA - s[1] / walls + wa) / C_A]
-
-            def crossing(_, s, level=threshold):
-                return s[1] - level
-            crossing.terminal, crossing.direction = True, (1 if on else -1)
-            sol = solve_ivp(rhs, (t, end), x, events=crossing, rtol=1e-10, atol=1e-10)
-            x, t = sol.y[:, -1], float(sol.t[-1])
-            if sol.status == 1:  # the room reached this visit's threshold: the valve moves, a new threshold
-                on = not on
-                threshold = (HIGH if on else LOW) + rng.normal(0.0, tolerance)
-            if end - t < 1e-12:
-                t = end
-        q = (T_S - x[0]) / R_V if on else 0.0
-        times.append(end)
-        modes.append(1 if on else 2)
-        readings.append(np.array([x[0], x[1], q]) + rng.normal(0.0, 1.0, 3) * SENSOR_STD)
-    return np.array(times), np.array(modes, dtype=float), np.array(readings)
-
-
-def write(path: Path, seed: int, modes: bool = True, steps: int = 600, r_w: tuple[float, float] | None = None,
-          tolerance: float = TOLERANCE) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The plant's run (:func:`plant`'s arrays, returned) as a run file (without ``modes``, no mode
-    column: the mode read from the data)."""
-    t, mode, y = plant(seed, steps, r_w, tolerance)
-    rows = ["time,mode,u:T_s,y:T_rad,y:T_room,y:q_s" if modes else "time,u:T_s,y:T_rad,y:T_room,y:q_s"]
-    rows += [f"{a:.6g}," + (f"{int(m)}," if modes else "") + f"{T_S:g},{b:.9g},{c:.9g},{d:.9g}"
-             for a, m, (b, c, d) in zip(t, mode, y)]
-    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
+def write(path: Path, seed: int, modes: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The plant's run (:func:`hybrid_reference.thermostat_run`'s arrays, returned) as a run file (without
+    ``modes``, no mode column: the mode read from the data)."""
+    t, mode, y = thermostat_run(seed)
+    thermostat_csv(path, t, mode, y, modes)
     return t, mode, y
 
 

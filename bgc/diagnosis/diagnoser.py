@@ -781,22 +781,21 @@ class Diagnoser:
     def _reread(self, d: Diagnosis, truth: Run | None) -> Diagnosis:
         """The policy for a hidden mode read with the nominal model: a fault
         may move the switches (a guard crossed early), and then the faulty
-        plant's modes are not those the nominal model reads. The
-        :data:`REREAD` likeliest hypotheses (the verdict's candidates first),
-        and the twin of a candidate that is a switch's fault (:func:`_twin`),
-        read the modes again each with its own equations from its most likely
-        onset and size, and the diagnosis is made again on each reading that
-        differs; a hypothesis that it then isolates, or names ambiguous with
-        its twin alone (the two the same plant on that reading), explains the
-        data with the modes it reads itself. One such, or several whose
-        diagnoses agree: that diagnosis is the verdict; none, or several that
-        disagree: ``d`` stands, the readings said
+        plant's modes are not those the nominal model reads. Every hypothesis
+        weighed reads the modes with its own equations at the onset and size
+        that make the data likeliest with the modes hidden (:func:`read_fault`);
+        the :data:`REREAD` likeliest so (the nominal reading's weighing is no
+        ranking here: its misread switches weigh against the very fault that
+        moved them), and the twin of a candidate that is a switch's fault
+        (:func:`_twin`), take their readings, and the diagnosis is made again
+        on each reading that differs; a hypothesis that it then isolates, or
+        names ambiguous with its twin alone (the two the same plant on that
+        reading), explains the data with the modes it reads itself. One such,
+        or several whose diagnoses agree: that diagnosis is the verdict; none,
+        or several that disagree: ``d`` stands, the readings said
         (:class:`~bgc.events.ModesReread`)."""
-        ranked = sorted(d.hypotheses, key=lambda h: (h.name not in d.candidates, -h.posterior, -h.log_evidence))
-        names = [h.name for h in ranked if math.isfinite(h.estimate.value)][:REREAD]
-        weighed = {h.name for h in d.hypotheses if math.isfinite(h.estimate.value)}
-        names += [twin for twin in map(_twin, d.candidates) if twin in weighed and twin not in names]
-        if not names:
+        weighed = [h for h in d.hypotheses if math.isfinite(h.estimate.value)]
+        if not weighed:
             return d
         index = self.nominal.MODE_INPUT
         read = np.array([s.u[index] for s in self.loop.samples])
@@ -805,10 +804,16 @@ class Diagnoser:
             u = s.u.copy()
             u[index] = np.nan
             raw.append(dataclasses.replace(s, u=u, events=tuple(e for e in s.events if not isinstance(e, ev.ModeRead))))
-        said, explained, heads = [], [], {}
+        heads: dict = {}
+        readings = {h.name: self._fault_reading(h, raw, heads) for h in weighed}
+        ranked = sorted(readings, key=lambda name: -readings[name][2])
+        names = ranked[:REREAD]
+        names += [twin for twin in map(_twin, d.candidates) if twin in readings and twin not in names]
+        said, explained = [], []
         first, false = self.false_alarm or (None, None)
         for name in names:
-            samples = self._read_with(next(h for h in d.hypotheses if h.name == name), raw, heads)
+            onset, start, _, head = readings[name]
+            samples = read_again(self.config.package.MODELS[name], raw, (onset, start), head)
             changed = int(np.sum(np.array([s.u[index] for s in samples]) != read))
             again = d if not changed else self._made_on(samples, first, truth)
             explains = (again.verdict == "isolated" and again.candidates == (name,)) or (
@@ -824,13 +829,14 @@ class Diagnoser:
         kept = [false] if false is not None and chosen is not d else []  # the false alarm, said again
         return dataclasses.replace(chosen, events=ordered(list(chosen.events) + kept + said))
 
-    def _read_with(self, h, raw: list[Sample], heads: dict) -> list[Sample]:
-        """The samples ``raw`` (mode NaN) with the modes hypothesis ``h``'s
-        fault model reads from them, at the onset (within ONSETS samples
+    def _fault_reading(self, h, raw: list[Sample], heads: dict) -> tuple:
+        """Where hypothesis ``h``'s fault model reads the modes of the
+        samples ``raw`` (mode NaN) from: the onset (within ONSETS samples
         before its diagnosis's to 2 after) and size that make the data
         likeliest with the modes hidden (:func:`read_fault`, its diagnosis's
-        estimate a hint; ``heads``: the nominal readings before each first
-        onset so far)."""
+        estimate a hint): (the onset, its fault states there, the
+        log-likelihood of the data so, the nominal reading before the
+        onsets: ``heads``, those so far, by first onset)."""
         onset, value = h.static.best if h.static is not None and h.static.best else (h.onset_step, h.estimate.value)
         model = self.config.package.MODELS[h.name]
         onsets = [k for k in range(onset - ONSETS, onset + 3) if 0 <= k < len(raw)]
@@ -841,8 +847,8 @@ class Diagnoser:
         if onsets[0] not in heads:  # the nominal reading before an onset, shared by the hypotheses from it
             heads[onsets[0]] = read_head(self.nominal, raw, onsets[0])
         head = heads[onsets[0]]
-        onset, start[-1] = read_fault(model, raw, onsets, start, value, head)
-        return read_again(model, raw, (onset, start), head)
+        onset, start[-1], loglik = read_fault(model, raw, onsets, start, value, head)
+        return onset, start, loglik, head
 
     def _made_on(self, samples: list[Sample], after, truth: Run | None) -> Diagnosis:
         """The diagnosis made again on ``samples`` (another reading of the

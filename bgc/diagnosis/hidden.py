@@ -524,19 +524,22 @@ def _taken_up(decoder: ModeDecoder, head) -> ModeDecoder:
     return decoder
 
 
-def read_fault(model, samples, onsets, start: np.ndarray, hint: float, head=None) -> tuple[int, float]:
+def read_fault(model, samples, onsets, start: np.ndarray, hint: float, head=None) -> tuple[int, float, float]:
     """The onset (one of ``onsets``) and size of fault model ``model``
     (``start``: its fault states at the onset, the magnitude last) that make
     the samples likeliest with the modes hidden (a bank of
     :class:`ModeDecoder` per onset and size, weighed together, from
     ``head``): every onset with a grid of :data:`GRID` sizes over the
-    fault's prior and ``hint``; then, at the best onset, :data:`REFINE`
-    times a grid of as many sizes between the best one's neighbours. A
-    fault with no size (a stuck switch's flag) is its one point."""
+    fault's prior and ``hint`` (NaN: none); then, at the best onset,
+    :data:`REFINE` times a grid of as many sizes between the best one's
+    neighbours. A fault with no size (a stuck switch's flag) is its one
+    point. Returns the onset, the size and the log-likelihood of every
+    sample with the modes hidden at them (the head's with the rest's:
+    comparable between fault models)."""
     low, high = (float(v) for v in model.FAULT_PRIOR)
     onsets = np.asarray(sorted(set(int(k) for k in onsets)), dtype=np.intp)
-    sizes = np.array([low]) if high <= low else np.unique(np.append(np.linspace(low, high, GRID),
-                                                                    np.clip(hint, low, high)))
+    hints = [np.clip(hint, low, high)] if math.isfinite(hint) else []
+    sizes = np.array([low]) if high <= low else np.unique(np.append(np.linspace(low, high, GRID), hints))
     cells_onset, cells_size = np.repeat(onsets, len(sizes)), np.tile(sizes, len(onsets))
     for _ in range(REFINE + 1 if high > low else 1):
         faults = np.repeat(np.asarray(start, dtype=float)[:, None], len(cells_size), axis=1)
@@ -545,13 +548,13 @@ def read_fault(model, samples, onsets, start: np.ndarray, hint: float, head=None
         for s in samples[0 if head is None else len(head[1]):]:
             decoder.push(s)
         best = int(np.argmax(np.where(np.isfinite(decoder.logliks), decoder.logliks, -np.inf)))
-        onset, size = int(cells_onset[best]), float(cells_size[best])
+        onset, size, loglik = int(cells_onset[best]), float(cells_size[best]), float(decoder.logliks[best])
         mine = np.flatnonzero(cells_onset == onset)
         where = int(np.searchsorted(cells_size[mine], size))
         a, b = cells_size[mine][max(where - 1, 0)], cells_size[mine][min(where + 1, len(mine) - 1)]
         cells_size = np.linspace(a, b, GRID)
         cells_onset = np.full(GRID, onset)
-    return onset, size
+    return onset, size, loglik
 
 
 def _group_log_sum_exp(lw: np.ndarray, index: np.ndarray, top: np.ndarray, groups: int) -> np.ndarray:
