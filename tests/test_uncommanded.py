@@ -48,7 +48,7 @@ from bgc.compiler.validate import validate
 from bgc.data import runs
 from bgc.diagnosis.static_posterior import fault_start
 from bgc.filters.cubature import nominal_track, run_bank
-from bgc.model.protocol import nominal_model, onset_transition
+from bgc.model.protocol import PLACES, nominal_model, onset_transition
 
 ROOT = Path(__file__).resolve().parent.parent
 MODEL = ROOT / "docs" / "examples" / "switched_rc.yaml"
@@ -183,12 +183,14 @@ def session():
 def test_the_generated_flag_clears_when_a_mode_asks_for_the_switch_so(session, name, onset, scenario, flagged):
     """A generated model stepped by hand on the data's mode column as the
     filters step it: the nominal cloud lifted into the fault model before
-    the transition into the onset sample (``augment``), that transition
-    nominal and the flag set for the sample (``onset_transition``), then
-    the model's own steps. Its flag is set over ``flagged`` (by hand: until
-    a mode asks for the switch where the fault put it; only the onset sample
-    where the mode asks for it already) and its v_C follows the closed form
-    of the switch's pieces by hand."""
+    the transition into the onset sample (``augment``), the switch's fault
+    placed within that transition (``onset_transition``: a switch fails at
+    any instant; its one particle at the first of the PLACES places, half a
+    PLACES-th of the step before the sample), then the model's own steps.
+    Its flag is set over ``flagged`` (by hand: until a mode asks for the
+    switch where the fault put it; only the onset sample where the mode asks
+    for it already) and its v_C follows the closed form of the switch's
+    pieces by hand, the fault's piece from that place."""
     package = session.package
     m = package.MODELS[name]
     assert dict(zip(m.OUTPUTS, m.MEASUREMENT_STD)) == pytest.approx(NOISE)
@@ -210,7 +212,10 @@ def test_the_generated_flag_clears_when_a_mode_asks_for_the_switch_so(session, n
             x = model.predict(x, u, theta, model.DT)
         flags.append(float(x[-1, 0]) if model is m else 0.0)
         readings.append(float(model.observe(x, u, theta)[y_row, 0]))
-    v, _ = exact(BY_HAND[scenario], times)
+    place = onset - 0.5 / PLACES * DT
+    pieces = tuple((place if scenario != "none" and abs(start - onset) < 1e-9 else start, on)
+                   for start, on in BY_HAND[scenario])
+    v, _ = exact(pieces, times)
     assert np.max(np.abs(np.array(readings) - v)) < 1e-4
     assert np.array_equal(np.array(flags) > 0.5, (times >= flagged[0] - 1e-9) & (times < flagged[1] - 1e-9))
     assert list(m._RELEASE) == ([False, True] if name.endswith("off") else [True, False])

@@ -28,7 +28,7 @@ import numpy as np
 
 from .particle import FilterRun, StepResult, run_filter
 from ..kinds import releases
-from ..model.protocol import FaultModel, magnitude_row, state_rows
+from ..model.protocol import FaultModel, magnitude_row, placed_within, state_rows
 
 LOG_2PI = math.log(2.0 * math.pi)
 
@@ -162,6 +162,9 @@ class _Filter:
         #: an uncommanded change of a switch: its flag, which a mode asking for the switch so clears within
         #: the prediction, for good (bgc.kinds.releases), is read back after each prediction
         self.released = bool(self.extra) and releases((getattr(model, "FAULT", None) or {}).get("kind", ""))
+        #: a switch's fault (stuck, or turned without a command): its onset within the step before the onset
+        #: sample, at a place the data do not say (:meth:`_onset_spread`)
+        self.within = bool(self.extra) and placed_within(model)
         n = len(self.physical)
         self.n, self.n_x = n, len(model.STATES)
         # the physical rows of the points: a slice (a view) when they come first, as generated
@@ -187,6 +190,8 @@ class _Filter:
         self.draws = np.asarray(getattr(model, "_THRESHOLD_ROWS", ()), dtype=np.intp)  # the draws alone
         self.mode = self.physical.index(model.MODE_ROW) if len(self.draws) else None
         self.states = np.array([kinds[i] == "physical" for i in self.physical]) if len(self.draws) else None
+        #: the physical states' rows among the carried ones (a model with modes: not its mode, its time in it)
+        self.own = np.array([not kinds or kinds[i] == "physical" for i in self.physical])
 
     def _points(self, m: np.ndarray, P: np.ndarray, X: np.ndarray) -> np.ndarray:
         """Write the cubature points m +- sqrt(n) L e_i of N(m, P) of every
@@ -260,6 +265,49 @@ class _Filter:
         D[~np.isfinite(D).all(axis=(1, 2))] = 0.0  # a cell the model cannot carry: none (its filter says so)
         return np.matmul(D, D.transpose(0, 2, 1)) / J
 
+    def _onset_spread(self, m: np.ndarray, fixed: np.ndarray, u: np.ndarray, onset: slice, dt,
+                      moved=None) -> np.ndarray | None:
+        """A switch's fault (stuck, or turned without a command) at the cells
+        ``onset``: the covariance (C, n, n) its unknown place within the step
+        before the onset sample adds to those cells' predictions, their
+        physical states' rows and columns only (0 for the other cells); None
+        where no cell is at its onset, for any other fault, and for a fault
+        that comes and goes (``moved``). A switch moves the plant's states by a
+        whole mode's difference within a step, and a real switch fails at any
+        instant: the part phi of the step after it, uniform on (0, 1). The
+        points take the middle of the step (:meth:`_predict_points`, phi 1/2);
+        each onset cell's mean is carried through the step at the J =
+        :data:`SWITCH_QUANTILES` midpoint quantiles (j + 1/2) / J of phi, and
+        the second moment of those predictions about the middle's is the
+        spread (the midpoint rule of the uniform's integral)."""
+        if not self.within or moved is not None or onset.stop <= onset.start:
+            return None
+        C, n, J = m.shape[0], self.n, SWITCH_QUANTILES
+        cells = np.arange(C)[onset]
+        X = np.empty((self.n_x, len(cells), J + 1))
+        X[self.physical] = m[cells].T[:, :, None]
+        self._write_fixed(X, fixed[:, cells], slice(0, len(cells)))
+        out = np.empty_like(X)
+        step = self.model.DT if dt is None else dt
+        for q, phi in enumerate(np.append((np.arange(J) + 0.5) / J, 0.5)):  # the quantiles, then the middle
+            out[:, :, q] = self._placed(X[:, :, q], fixed[self.magnitude, cells], u, step, phi)
+        P = out[self.physical].transpose(1, 0, 2)  # (cells, n, J + 1)
+        D = P[:, :, :J] - P[:, :, J:]
+        D[:, ~self.own] = 0.0  # the mode, its time: no spread of their own
+        D[~np.isfinite(D).all(axis=(1, 2))] = 0.0  # a cell the model cannot carry: none (its filter says so)
+        spread = np.zeros((C, n, n))
+        spread[cells] = np.matmul(D, D.transpose(0, 2, 1)) / J
+        return spread
+
+    def _placed(self, X: np.ndarray, magnitude: np.ndarray, u: np.ndarray, dt: float, phi: float) -> np.ndarray:
+        """Points ``X`` (n_x, columns; their magnitude 0) of cells at their
+        onset carried through a step of ``dt`` whose last part ``phi`` has
+        the fault, its ``magnitude`` (one per column) from there."""
+        X = np.array(X, dtype=float)
+        self.model.predict(X, u, self.model.THETA, (1.0 - phi) * dt, out=X)
+        X[self.extra[self.magnitude]] = magnitude
+        return self.model.predict(X, u, self.model.THETA, phi * dt, out=X)
+
     def _physical(self, X: np.ndarray) -> np.ndarray:
         """The physical rows of the points ``X`` (n_x, C, 2n) as (C, n, 2n)."""
         return X[self.rows].transpose(1, 0, 2)
@@ -305,6 +353,9 @@ class _Filter:
         substitution (:func:`lower_solve`)."""
         model, n, C = self.model, self.n, m.shape[0]
         spread = self._switch_spread(m, fixed, u, onset, dt, moved)
+        placed = self._onset_spread(m, fixed, u, onset, dt, moved)
+        if placed is not None:
+            spread = placed if spread is None else spread + placed
         if self.compiled and spread is None:  # a compiled package's kernel (a switch's spread: the step below)
             return self._compiled_step(y, u, m, P, fixed, onset, dt, moved)
         if self.buffer.shape[1] < 2 * n * C:
@@ -397,7 +448,15 @@ class _Filter:
         onset; after it a drifting parameter read back into ``fixed``."""
         model = self.model
         self._write_fixed(X, fixed, onset, moved)
-        model.predict(flat, u, model.THETA, model.DT if dt is None else dt, out=flat)
+        within = self.within and moved is None and onset.stop > onset.start  # a switch's fault at its onset
+        if within:
+            before = X[:, onset].reshape(self.n_x, -1).copy()
+        step = model.DT if dt is None else dt
+        model.predict(flat, u, model.THETA, step, out=flat)
+        if within:  # the onset cells take the fault from the step's middle (:meth:`_onset_spread`)
+            columns = X[:, onset].shape[1:]
+            magnitude = np.repeat(fixed[self.magnitude][onset], columns[1])
+            X[:, onset] = self._placed(before, magnitude, u, step, 0.5).reshape(self.n_x, *columns)
         for j, row in enumerate(self.extra):  # a drifting parameter: the same in every point of a cell
             if j == self.magnitude:
                 continue

@@ -27,7 +27,16 @@ shares are here, and only here:
   prediction apply it to their cells by holding the magnitude
   (:func:`magnitude_row`) at 0 over that one transition. The onset sample
   of a fault that strikes at time t is the first sample at t or later
-  (:func:`onset_sample`).
+  (:func:`onset_sample`). A switch's fault (stuck, or turned without a
+  command: :func:`placed_within`) is the exception: a switch moves the
+  plant's states by a whole mode's difference within a step, and a real one
+  fails at any instant, so the filters place its onset anywhere within the
+  step before the onset sample, uniformly (the particles at the quantiles
+  of that place, :func:`onset_transition`; the cubature Kalman filters'
+  points at its middle, with the spread of the quantiles' predictions,
+  :meth:`bgc.filters.cubature._Filter._onset_spread`). The simulator and the
+  distinguishability prediction keep the rule (the switch at the sample's
+  instant), a place the filters' allow.
 * **The nominal model** of a package is :func:`nominal_model`.
 """
 
@@ -139,17 +148,42 @@ def magnitude_row(model: FaultModel) -> int:
     return len(model.STATES) - 1
 
 
+#: The places within the step before its onset sample at which a switch's fault is tried
+#: (:func:`onset_transition`; the cubature Kalman filters' spread, bgc.filters.cubature).
+PLACES = 16
+
+
+def placed_within(model: FaultModel) -> bool:
+    """Whether fault model ``model``'s onset is placed within the step
+    before its onset sample (a switch's fault: module docstring)."""
+    from ..kinds import fault_kind
+
+    fault = getattr(model, "FAULT", None)
+    return bool(fault) and fault_kind(fault["kind"]).discrete
+
+
 def onset_transition(model: FaultModel, x: np.ndarray, u: np.ndarray, theta) -> np.ndarray:
     """The noise-free transition into a fault's onset sample, in place on a
     fault model's particles ``x`` (the onset rule, module docstring): the
     magnitude state is held at zero for this one transition, then restored;
-    a drifting parameter's own state stays at its nominal value. The
-    filter's step then adds the process noise and weighs the particles with
-    the fault in (``step(y, u, predicted=True)``)."""
+    a drifting parameter's own state stays at its nominal value. A switch's
+    fault (:func:`placed_within`) strikes within the step instead: particle
+    i from the part (i mod J + 1/2) / J of the step before the sample, J =
+    :data:`PLACES` (the place's uniform distribution, stratified over the
+    particles). The filter's step then adds the process noise and weighs
+    the particles with the fault in (``step(y, u, predicted=True)``)."""
     row = magnitude_row(model)
     magnitude = x[row].copy()
     x[row] = 0.0
-    model.predict(x, u, theta, model.DT, out=x)
+    if not placed_within(model):
+        model.predict(x, u, theta, model.DT, out=x)
+    else:
+        share = (np.arange(x.shape[1]) % PLACES + 0.5) / PLACES
+        for phi in np.unique(share):
+            columns = np.flatnonzero(share == phi)
+            part = model.predict(x[:, columns], u, theta, (1.0 - phi) * model.DT)
+            part[row] = magnitude[columns]
+            x[:, columns] = model.predict(part, u, theta, phi * model.DT)
     x[row] = magnitude
     return x
 

@@ -1,0 +1,89 @@
+"""A switch fails at any instant: the filters place a switch fault's onset
+anywhere within the step before its onset sample.
+
+The onset rule (bgc/model/protocol.py) changes a fault's parameter at the
+instant of its onset sample: the transition into the sample nominal, the
+sample seeing the fault. For a parameter that is nearly right whenever the
+fault strikes within the step before: a step's share of its effect is small.
+A switch's is not: the thermostat's valve (tests/data/hybrid/thermostat.yaml)
+shut for a whole step of 0.5 min leaves the radiator about 10 degrees colder
+than open, 33 of its sensor's stds. A valve that stuck shut just after a
+sample was "unexplained: R_ra_abrupt" on the data with their mode column:
+neither onset sample fits it (the one before sees the supply's flow still
+running; the one after, the radiator heated by the open valve over the step
+before it). The cubature Kalman filters now carry a switch fault's onset
+cells through the step at quantiles of the place, the points at its middle
+and the quantiles' spread around it (``_Filter._onset_spread``); the particle
+filters draw the place per particle (``protocol.onset_transition``,
+tests/test_uncommanded.py checks it against the closed form)."""
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+import bgc
+from bgc.filters.cubature import SWITCH_QUANTILES, _Filter
+
+from conftest import ROOT, session
+from hybrid_reference import (THERMO_C_A as C_A, THERMO_C_R as C_R, THERMO_DT as DT, THERMO_R_RA as R_RA,
+                              THERMO_R_V as R_V, THERMO_R_W as R_W, THERMO_T_S as T_S, thermostat_csv, thermostat_run)
+
+MODEL = ROOT / "tests" / "data" / "hybrid" / "thermostat.yaml"
+
+
+def by_hand(x, heating: bool, dt: float) -> np.ndarray:
+    """The room and radiator (T_r, T_a) after ``dt`` from ``x``, the valve
+    open or shut: the thermostat's linear equations (hybrid_reference.py's
+    ``thermostat_run``) by the matrix exponential, the supply as a constant
+    input (Van Loan's block)."""
+    block = np.zeros((3, 3))
+    block[:2, :2] = [[-1 / (R_RA * C_R) - (1 / (R_V * C_R) if heating else 0.0), 1 / (R_RA * C_R)],
+                     [1 / (R_RA * C_A), -1 / (R_RA * C_A) - 1 / (R_W * C_A)]]
+    block[0, 2] = T_S / (R_V * C_R) if heating else 0.0
+    return (expm(block * dt) @ np.append(x, 1.0))[:2]
+
+
+def test_a_stuck_valves_onset_spreads_the_prediction_over_its_place_in_the_step():
+    package = session(MODEL).package
+    model = package.MODELS["V_stuck_off"]
+    kf = _Filter(model)
+    assert kf.within and not _Filter(package.MODELS["R_w_abrupt"]).within
+    m = np.zeros((2, kf.n))
+    m[:, :2] = [30.0, 19.5]  # heating, the room between its thresholds: no switch of the mode in the step
+    m[:, kf.physical.index(model.MODE_ROW)] = 1.0
+    draws = [kf.physical.index(int(i)) for i in getattr(model, "_THRESHOLD_ROWS", ())]
+    m[:, draws] = 0.5
+    fixed = np.asarray(model.X0, dtype=float)[kf.extra][:, None].repeat(2, axis=1)
+    fixed[kf.magnitude] = 1.0  # stuck
+    u = np.array([T_S, 1.0])
+    assert kf._onset_spread(m, fixed, u, slice(0, 0), None) is None  # no cell at its onset
+    spread = kf._onset_spread(m, fixed, u, slice(1, 2), None)
+    assert np.allclose(spread[0], 0.0)  # the cell not at its onset
+    # the place phi of the step after the valve shut, uniform: the radiator's temperature runs between the
+    # step heated whole and not heated at all, nearly linearly in phi: a std of the difference / sqrt(12) (the
+    # midpoint rule of J points: times sqrt(1 - 1/J^2))
+    shut, heated = by_hand(m[1, :2], False, DT), by_hand(m[1, :2], True, DT)
+    expected = abs(heated[0] - shut[0]) / np.sqrt(12) * np.sqrt(1 - 1 / SWITCH_QUANTILES ** 2)
+    assert np.sqrt(spread[1, 0, 0]) == pytest.approx(expected, rel=0.05)
+    assert np.all(np.linalg.eigvalsh(spread[1]) > -1e-9)
+    assert np.allclose(spread[1][~kf.own], 0.0) and np.allclose(spread[1][:, ~kf.own], 0.0)
+    # the points at the middle of the step: half of it heated
+    middle = by_hand(by_hand(m[1, :2], True, DT / 2), False, DT / 2)
+    flat = np.zeros((kf.n_x, 2 * 2 * kf.n))
+    X = flat.reshape(kf.n_x, 2, 2 * kf.n)
+    kf._points(m, np.zeros((2, kf.n, kf.n)), X)
+    kf._predict_points(flat, X, u, fixed, slice(1, 2), None)
+    assert X[:2, 1, 0] == pytest.approx(middle, abs=0.02)  # RK4 on the generated model's step
+    assert X[:2, 0, 0] == pytest.approx(by_hand(m[0, :2], False, DT), abs=0.02)  # stuck: the step shut
+
+
+@pytest.mark.parametrize("seed, onset", [(395222144, 53.0)])
+def test_a_valve_stuck_just_after_a_sample_is_isolated(tmp_path, seed, onset):
+    # the valve shut from the sample at t = 53 on (the step after it shut whole), heating: by the onset rule
+    # neither sample 53 nor 53.5 fits it
+    run = thermostat_run(seed, 200, (onset, "V", 0.0))
+    assert run[1][int(round(onset / DT)) - 1] == 1.0  # heating at the sample
+    path = thermostat_csv(tmp_path / "stuck.csv", *run, with_mode=True)
+    d = bgc.diagnose(session(MODEL), path).diagnosis
+    assert (d.verdict, d.candidates) == ("isolated", ("V_stuck_off",)), (d.verdict, d.candidates)
+    assert onset <= d.onset <= onset + DT
