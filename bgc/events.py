@@ -593,8 +593,8 @@ class ModeRead:
 @dataclass(frozen=True, slots=True)
 class ModesReread:
     """The mode hidden: the modes read again from the data with fault model
-    ``hypothesis``'s own equations (its onset and size as the diagnosis
-    estimated them, read with the nominal model's modes): ``changed``
+    ``hypothesis``'s own equations (at the onset and size that make the data
+    likeliest with the modes hidden, near the diagnosis's): ``changed``
     samples' modes differ from the nominal model's reading; ``explains``:
     whether the diagnosis with them isolates ``hypothesis`` (the verdict then
     stands on them)."""

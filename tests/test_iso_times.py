@@ -34,8 +34,9 @@ LOGGER_MAP = ROOT / "docs" / "examples" / "tank_logger.yaml"
 UNIT_SECONDS = {None: 1.0, "s": 1.0, "ms": 1e-3, "min": 60.0, "h": 3600.0, "day": 86400.0}
 #: An ISO 8601 UTC timestamp as bgc writes it: the fraction of a second without trailing zeros.
 ISO = re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d*[1-9])?Z")
-#: A Unix time in seconds: ten digits, not inside a longer number nor after a decimal point.
-UNIX = re.compile(r"(?<![\d.])\d{10}(?!\d)")
+#: A Unix time as a number: ten digits (seconds) to thirteen (milliseconds), not inside a longer number nor
+#: after a decimal point, or written short with an exponent (``1.77243e+09``).
+UNIX = re.compile(r"(?<![\d.])\d{10,13}(?!\d)|\d\.\d+e\+0?(9|1[0-2])\b")
 
 
 def _iso(when: dt.datetime) -> str:
@@ -239,3 +240,18 @@ def test_bgc_filter_says_when_its_estimate_is_as_a_timestamp():
     assert out.returncode == 0, out.stderr
     last = _iso(_instant(_logger_stamps()[-1]))
     assert re.search(rf"estimate of R12\b.* at t = {re.escape(last)}: ", out.stdout), out.stdout
+
+
+def test_report_json_keeps_an_events_own_time_in_full():
+    """An event that holds a time itself (a sensor taken out, a sample
+    skipped, an episode's alarm and onset) keeps it in report.json with 12
+    significant digits, as every time there is, not a value's 6: a logger's
+    Unix seconds and their fraction."""
+    from bgc import events as ev
+    from bgc.output.events import record
+
+    t = 1772433061.5
+    clock = Clock.of([t], "s")
+    out = record(ev.SensorExcluded("F12", "frozen", t), lambda k: None, clock=clock)
+    assert out["time"] == t and "2026-03-02T06:31:01.5Z" in out["text"]
+    assert not UNIX.search(out["text"])

@@ -6,8 +6,8 @@ instant of its onset sample: the transition into the sample nominal, the
 sample seeing the fault. For a parameter that is nearly right whenever the
 fault strikes within the step before: a step's share of its effect is small.
 A switch's is not: the thermostat's valve (tests/data/hybrid/thermostat.yaml)
-shut for a whole step of 0.5 min leaves the radiator about 10 degrees colder
-than open, 33 of its sensor's stds. A valve that stuck shut just after a
+shut for a whole step of 0.5 min leaves the radiator about 4.5 degrees colder
+than open (at 40 degrees), 15 of its sensor's stds. A valve that stuck shut just after a
 sample was "unexplained: R_ra_abrupt" on the data with their mode column:
 neither onset sample fits it (the one before sees the supply's flow still
 running; the one after, the radiator heated by the open valve over the step
@@ -87,3 +87,70 @@ def test_a_valve_stuck_just_after_a_sample_is_isolated(tmp_path, seed, onset):
     d = bgc.diagnose(session(MODEL), path).diagnosis
     assert (d.verdict, d.candidates) == ("isolated", ("V_stuck_off",)), (d.verdict, d.candidates)
     assert onset <= d.onset <= onset + DT
+
+
+def _thermostat_arrays(tmp_path, seed: int = 395222144, onset: float = 53.0):
+    """The thermostat's run with its valve stuck shut from ``onset``, as the
+    filters take it: measurements (model order) and inputs (T_s, the mode)."""
+    package = session(MODEL).package
+    nominal = package.MODELS["nominal"]
+    times, modes, readings = thermostat_run(seed, 200, (onset, "V", 0.0))
+    order = [("T_rad", "T_room", "q_s").index(name) for name in nominal.OUTPUTS]
+    return package, readings[:, order], np.column_stack([np.full(len(times), T_S), modes]), modes
+
+
+def test_the_filters_side_by_side_spread_a_switch_faults_onset_as_each_alone(tmp_path):
+    """run_paths (every hypothesis's recorded path at once) gives a switch
+    fault's filter, at its onset too, what run_bank of that model alone
+    gives: the onset's spread in both. (To rounding, not bit for bit as on
+    a plant without modes: a model with modes factors its covariances with
+    the mode's rows apart, and the two paths floor an entry of 1e-300
+    differently.)"""
+    from bgc.diagnosis import static_posterior
+    from bgc.filters import cubature as kalman
+
+    package, ys, us, modes = _thermostat_arrays(tmp_path)
+    t = kalman.nominal_track(package.MODELS["nominal"], ys, us, len(ys))
+    models = [package.MODELS["V_stuck_off"], package.MODELS["R_w_abrupt"]]
+    onsets = [106, 90]  # the valve's at t = 53.5, in heating
+    assert modes[105] == 1.0 and modes[106] == 1.0
+    magnitudes = [1.0, -0.5]
+    fixed = [static_posterior.fault_start(m, t, o) for m, o in zip(models, onsets)]
+    together = kalman.run_paths(models, ys, us, t, onsets, magnitudes, fixed)
+    for m, o, c, f, r in zip(models, onsets, magnitudes, fixed, together):
+        alone = kalman.run_bank(m, ys, us, t, [o], [c], f, residuals=True, record=True)
+        for field in ("loglik", "mean", "cov", "z", "y_mean", "y_std", "x_mean", "x_std"):
+            a, b = getattr(alone, field), getattr(r, field)
+            assert a.shape == b.shape, (m.NAME, field)
+            np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12, equal_nan=True, err_msg=f"{m.NAME} {field}")
+    # the valve's onset spread its prediction: the radiator's predicted std at the onset sample is wider than the
+    # other fault's at the same sample (its onset long before)
+    rad = list(package.MODELS["nominal"].OUTPUTS).index("T_rad")
+    assert together[0].y_std[106, 0, rad] > 2 * together[1].y_std[106, 0, rad]
+
+
+def test_a_switch_the_data_give_in_the_onset_step_keeps_the_rule():
+    """Where the data's mode changes in the step into the onset sample, the
+    generated step places that switch within the step it is given, so a step
+    split at the fault's place would move the switch into its first part:
+    such a cell keeps the onset rule (the step without the fault), and its
+    onset adds no spread."""
+    package = session(MODEL).package
+    model = package.MODELS["V_stuck_off"]
+    kf = _Filter(model)
+    m = np.zeros((1, kf.n))
+    m[0, :2] = [30.0, 18.05]  # idle, the room just over its lower threshold
+    m[0, kf.physical.index(model.MODE_ROW)] = 2.0
+    draws = [kf.physical.index(int(i)) for i in getattr(model, "_THRESHOLD_ROWS", ())]
+    m[0, draws] = 0.5
+    fixed = np.asarray(model.X0, dtype=float)[kf.extra][:, None].copy()
+    fixed[kf.magnitude] = 1.0
+    u = np.array([T_S, 1.0])  # the data: heating at the sample
+    X = np.zeros((kf.n_x, 1))
+    X[kf.physical, 0] = m[0]
+    X[kf.extra, 0] = fixed[:, 0]
+    X[kf.extra[kf.magnitude]] = 0.0
+    rule = model.predict(X.copy(), u, model.THETA, DT)
+    np.testing.assert_array_equal(kf._placed(X, np.ones(1), u, DT, 0.5)[kf.physical], rule[kf.physical])
+    spread = kf._onset_spread(m, fixed, u, slice(0, 1), None)
+    assert np.allclose(spread, 0.0)

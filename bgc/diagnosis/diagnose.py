@@ -112,7 +112,7 @@ __all__ = ["diagnose", "horizon_steps", "Belief", "Diagnosis", "DiagnosisOptions
 
 def diagnose(run: Run, package: Package, signatures: FaultSignatures, priors: dict[str, float],
              options: DiagnosisOptions = DiagnosisOptions(), progress=None, every: bool = False, *,
-             time_unit: str | None) -> Diagnosis:
+             time_unit: str | None = None) -> Diagnosis:
     """Diagnose a recorded run with a generated package and the model's
     signatures: the online :class:`~bgc.diagnosis.diagnoser.Diagnoser` over
     its samples (:func:`bgc.data.sampler.samples`: the model's time grid,

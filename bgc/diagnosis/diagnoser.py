@@ -53,7 +53,7 @@ from ..arguments import as_float, is_real, shown
 from ..data.runs import Run
 from ..data.sampler import Sample, Sampler
 from ..errors import ArgumentTypeError, ArgumentValueError, DataError, TrackingError, printable
-from .hidden import ONSETS, REREAD, ModeDecoder, read_again, read_fault, read_head, readable
+from .hidden import ONSETS, POOL, REREAD, ModeDecoder, read_again, read_fault, read_head, readable
 from ..ir import FaultSignatures
 from ..model.package import accommodated, forget_started, started_package
 from ..model.protocol import Package, nominal_model, state_rows
@@ -781,12 +781,13 @@ class Diagnoser:
     def _reread(self, d: Diagnosis, truth: Run | None) -> Diagnosis:
         """The policy for a hidden mode read with the nominal model: a fault
         may move the switches (a guard crossed early), and then the faulty
-        plant's modes are not those the nominal model reads. Every hypothesis
-        weighed reads the modes with its own equations at the onset and size
+        plant's modes are not those the nominal model reads. The :data:`POOL`
+        hypotheses the diagnosis weighed likeliest (the verdict's candidates
+        first) read the modes with their own equations at the onset and size
         that make the data likeliest with the modes hidden (:func:`read_fault`);
-        the :data:`REREAD` likeliest so (the nominal reading's weighing is no
-        ranking here: its misread switches weigh against the very fault that
-        moved them), and the twin of a candidate that is a switch's fault
+        the :data:`REREAD` likeliest so (the nominal reading's weighing alone
+        is no ranking here: its misread switches weigh against the very fault
+        that moved them), and the twin of a candidate that is a switch's fault
         (:func:`_twin`), take their readings, and the diagnosis is made again
         on each reading that differs; a hypothesis that it then isolates, or
         names ambiguous with its twin alone (the two the same plant on that
@@ -794,7 +795,8 @@ class Diagnoser:
         or several whose diagnoses agree: that diagnosis is the verdict; none,
         or several that disagree: ``d`` stands, the readings said
         (:class:`~bgc.events.ModesReread`)."""
-        weighed = [h for h in d.hypotheses if math.isfinite(h.estimate.value)]
+        ranked = sorted(d.hypotheses, key=lambda h: (h.name not in d.candidates, -h.posterior, -h.log_evidence))
+        weighed = [h for h in ranked if math.isfinite(h.estimate.value)][:POOL]
         if not weighed:
             return d
         index = self.nominal.MODE_INPUT
@@ -806,8 +808,10 @@ class Diagnoser:
             raw.append(dataclasses.replace(s, u=u, events=tuple(e for e in s.events if not isinstance(e, ev.ModeRead))))
         heads: dict = {}
         readings = {h.name: self._fault_reading(h, raw, heads) for h in weighed}
-        ranked = sorted(readings, key=lambda name: -readings[name][2])
-        names = ranked[:REREAD]
+        for h in ranked:  # a candidate switch fault's twin, read too
+            if h.name in map(_twin, d.candidates) and h.name not in readings and math.isfinite(h.estimate.value):
+                readings[h.name] = self._fault_reading(h, raw, heads)
+        names = sorted(readings, key=lambda name: -readings[name][2])[:REREAD]
         names += [twin for twin in map(_twin, d.candidates) if twin in readings and twin not in names]
         said, explained = [], []
         first, false = self.false_alarm or (None, None)
@@ -861,16 +865,18 @@ class Diagnoser:
         signature says below)."""
         loop = self._loop_of(samples, after)
         again = loop.finish(self.sampler.summary(), truth)
-        if self._retry(again, loop):
-            again = self._loop_of(samples, after, every=True).finish(self.sampler.summary(), truth)
+        if self._retry(again, loop):  # (as finish's retry: the options' switch off)
+            again = self._loop_of(samples, after, every=True, switch=False).finish(self.sampler.summary(), truth)
         return again
 
-    def _loop_of(self, samples: list[Sample], after=None, every: bool | None = None) -> Loop:
+    def _loop_of(self, samples: list[Sample], after=None, every: bool | None = None, switch: bool = True) -> Loop:
         """A loop of this diagnoser's options that has taken ``samples``
         (``after``: a false alarm, as :meth:`replay` takes it: the options'
         switch off, as the diagnosis made again after it had them; ``every``:
-        every fault model weighed, None: as this diagnoser's loop)."""
-        options = self.loop.options if after is None else dataclasses.replace(self.loop.options, switch=False)
+        every fault model weighed, None: as this diagnoser's loop; ``switch``
+        False: the options' switch off)."""
+        options = self.loop.options if after is None and switch else dataclasses.replace(self.loop.options,
+                                                                                         switch=False)
         every = self.loop.config.every if every is None else every
         loop = Loop(self._loop_config(options, every, self.config.lazy))
         _armed_after(loop, after)

@@ -65,8 +65,8 @@ from .. import events as ev
 from ..filters.cubature import _Filter
 from .identify import log_sum_exp
 
-__all__ = ["AGREE", "BRANCHES", "DecoderState", "FLOOR", "GRID", "LAG", "ModeDecoder", "ONSETS", "REFINE", "REREAD",
-           "read_again", "read_fault", "read_head", "readable"]
+__all__ = ["AGREE", "BRANCHES", "DecoderState", "FLOOR", "GRID", "LAG", "ModeDecoder", "ONSETS", "POOL", "REFINE",
+           "REREAD", "read_again", "read_fault", "read_head", "readable"]
 
 #: The most steps a sample waits for its mode to be decided.
 LAG = 10
@@ -79,6 +79,9 @@ FLOOR = 1e-12
 #: The most hypotheses whose own equations read the modes again after a diagnosis
 #: (:meth:`bgc.diagnosis.diagnoser.Diagnoser.finish`).
 REREAD = 3
+#: The most hypotheses, the diagnosis's likeliest, that read the modes to be ranked by that reading (of
+#: which :data:`REREAD` take theirs): a bound on what a plant of many fault models pays.
+POOL = 2 * REREAD
 #: A fault's onset read with the hidden mode: from this many samples before its diagnosis's onset to 2 after.
 ONSETS = 4
 #: The points of the first grid over a fault's prior on which its size is read with the hidden mode.

@@ -28,7 +28,7 @@ import numpy as np
 
 from .particle import FilterRun, StepResult, run_filter
 from ..kinds import releases
-from ..model.protocol import FaultModel, magnitude_row, placed_within, state_rows
+from ..model.protocol import FaultModel, magnitude_row, placed_apart, placed_within, state_rows
 
 LOG_2PI = math.log(2.0 * math.pi)
 
@@ -265,6 +265,19 @@ class _Filter:
         D[~np.isfinite(D).all(axis=(1, 2))] = 0.0  # a cell the model cannot carry: none (its filter says so)
         return np.matmul(D, D.transpose(0, 2, 1)) / J
 
+    def _spread(self, m: np.ndarray, fixed: np.ndarray, u: np.ndarray, onset: slice, dt,
+                moved=None) -> np.ndarray | None:
+        """What the step's prediction spreads by beyond its points (C, n, n):
+        a switch the data say happened in the step at a place a tolerance
+        leaves unknown (:meth:`_switch_spread`), a switch fault's unknown place
+        within the step before its onset sample (:meth:`_onset_spread`); None
+        where neither."""
+        spread = self._switch_spread(m, fixed, u, onset, dt, moved)
+        placed = self._onset_spread(m, fixed, u, onset, dt, moved)
+        if placed is None:
+            return spread
+        return placed if spread is None else spread + placed
+
     def _onset_spread(self, m: np.ndarray, fixed: np.ndarray, u: np.ndarray, onset: slice, dt,
                       moved=None) -> np.ndarray | None:
         """A switch's fault (stuck, or turned without a command) at the cells
@@ -272,9 +285,11 @@ class _Filter:
         before the onset sample adds to those cells' predictions, their
         physical states' rows and columns only (0 for the other cells); None
         where no cell is at its onset, for any other fault, and for a fault
-        that comes and goes (``moved``). A switch moves the plant's states by a
-        whole mode's difference within a step, and a real switch fails at any
-        instant: the part phi of the step after it, uniform on (0, 1). The
+        that comes and goes (``moved``); nothing for a cell whose mode the
+        data change in the step (:func:`~bgc.model.protocol.placed_apart`: the
+        rule). A switch moves the plant's states by a whole mode's difference
+        within a step, and a real switch fails at any instant: the part phi of
+        the step after it, uniform on (0, 1). The
         points take the middle of the step (:meth:`_predict_points`, phi 1/2);
         each onset cell's mean is carried through the step at the J =
         :data:`SWITCH_QUANTILES` midpoint quantiles (j + 1/2) / J of phi, and
@@ -302,11 +317,19 @@ class _Filter:
     def _placed(self, X: np.ndarray, magnitude: np.ndarray, u: np.ndarray, dt: float, phi: float) -> np.ndarray:
         """Points ``X`` (n_x, columns; their magnitude 0) of cells at their
         onset carried through a step of ``dt`` whose last part ``phi`` has
-        the fault, its ``magnitude`` (one per column) from there."""
+        the fault, its ``magnitude`` (one per column) from there; a column
+        whose mode the data change in the step (:func:`~bgc.model.protocol.placed_apart`)
+        by the onset rule, the whole step without it."""
+        model = self.model
         X = np.array(X, dtype=float)
-        self.model.predict(X, u, self.model.THETA, (1.0 - phi) * dt, out=X)
+        apart = placed_apart(model, X, u)
+        whole = model.predict(X[:, apart], u, model.THETA, dt) if apart.any() else None
+        model.predict(X, u, model.THETA, (1.0 - phi) * dt, out=X)
         X[self.extra[self.magnitude]] = magnitude
-        return self.model.predict(X, u, self.model.THETA, phi * dt, out=X)
+        model.predict(X, u, model.THETA, phi * dt, out=X)
+        if whole is not None:
+            X[:, apart] = whole
+        return X
 
     def _physical(self, X: np.ndarray) -> np.ndarray:
         """The physical rows of the points ``X`` (n_x, C, 2n) as (C, n, 2n)."""
@@ -352,10 +375,7 @@ class _Filter:
         from the Cholesky factor of the innovation covariance by forward
         substitution (:func:`lower_solve`)."""
         model, n, C = self.model, self.n, m.shape[0]
-        spread = self._switch_spread(m, fixed, u, onset, dt, moved)
-        placed = self._onset_spread(m, fixed, u, onset, dt, moved)
-        if placed is not None:
-            spread = placed if spread is None else spread + placed
+        spread = self._spread(m, fixed, u, onset, dt, moved)
         if self.compiled and spread is None:  # a compiled package's kernel (a switch's spread: the step below)
             return self._compiled_step(y, u, m, P, fixed, onset, dt, moved)
         if self.buffer.shape[1] < 2 * n * C:
@@ -480,7 +500,8 @@ class _Filter:
         """An uncommanded change's flag after a prediction (``flags`` (C, 2n):
         each cell's points'; a mode asking for the switch so cleared it) into
         ``fixed``: set where most of a cell's points keep it. Not in the onset
-        cells, whose transition ran with it at 0 (the onset rule)."""
+        cells, which take it at the sample (the onset rule; the part of the
+        step it held there, :meth:`_onset_spread`, does not clear it)."""
         kept = (np.add.reduce(flags, axis=1) * self.inverse > 0.5).astype(float)
         kept[onset] = fixed[self.magnitude][onset]
         fixed[self.magnitude] = kept
@@ -648,7 +669,7 @@ def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.n
             X[kf.rows] = np.concatenate([plus[:, b], minus[:, b]], axis=2)
         return L
 
-    spreads = [kf._switch_spread(m[b], f, u, onset, None) for kf, b, f, onset in zip(kfs, blocks, fixed, onsets)]
+    spreads = [kf._spread(m[b], f, u, onset, None) for kf, b, f, onset in zip(kfs, blocks, fixed, onsets)]
     flats = [np.empty((kf.n_x, 2 * n * (b.stop - b.start))) for kf, b in zip(kfs, blocks)]
     Xs = [flat.reshape(kf.n_x, b.stop - b.start, 2 * n) for kf, flat, b in zip(kfs, flats, blocks)]
     points(m, P, Xs)
@@ -667,7 +688,7 @@ def _side_by_side(kfs: list, blocks: list, y: np.ndarray, u: np.ndarray, m: np.n
     else:
         for kf, b in zip(kfs, blocks):
             Pp[b] += kf.Q
-    for b, spread in zip(blocks, spreads):  # a switch within the step whose place a tolerance leaves unknown
+    for b, spread in zip(blocks, spreads):  # a switch within the step at a place the data do not say
         if spread is not None:
             Pp[b] += spread
     seen = np.isfinite(y)

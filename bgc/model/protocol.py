@@ -162,6 +162,19 @@ def placed_within(model: FaultModel) -> bool:
     return bool(fault) and fault_kind(fault["kind"]).discrete
 
 
+def placed_apart(model: FaultModel, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Per column of ``x`` (a fault model's particles or points at their
+    onset), whether the data's mode (``u``'s mode input) differs from the
+    column's, a switch the data give within the step: the generated step
+    places that switch within the step it is given, so a step split at the
+    fault's place would move it into the first part; such a column keeps the
+    onset rule (the two events within one step, their order not told)."""
+    row, column = getattr(model, "MODE_ROW", None), getattr(model, "MODE_INPUT", None)
+    if row is None or column is None or not np.isfinite(u[column]):
+        return np.zeros(x.shape[1], dtype=bool)
+    return np.rint(np.asarray(x[row], dtype=float)) != np.rint(u[column])
+
+
 def onset_transition(model: FaultModel, x: np.ndarray, u: np.ndarray, theta) -> np.ndarray:
     """The noise-free transition into a fault's onset sample, in place on a
     fault model's particles ``x`` (the onset rule, module docstring): the
@@ -170,8 +183,10 @@ def onset_transition(model: FaultModel, x: np.ndarray, u: np.ndarray, theta) -> 
     fault (:func:`placed_within`) strikes within the step instead: particle
     i from the part (i mod J + 1/2) / J of the step before the sample, J =
     :data:`PLACES` (the place's uniform distribution, stratified over the
-    particles). The filter's step then adds the process noise and weighs
-    the particles with the fault in (``step(y, u, predicted=True)``)."""
+    particles), but for a particle whose mode the data change in the step
+    (:func:`placed_apart`: the rule). The filter's step then adds the
+    process noise and weighs the particles with the fault in (``step(y, u,
+    predicted=True)``)."""
     row = magnitude_row(model)
     magnitude = x[row].copy()
     x[row] = 0.0
@@ -179,8 +194,11 @@ def onset_transition(model: FaultModel, x: np.ndarray, u: np.ndarray, theta) -> 
         model.predict(x, u, theta, model.DT, out=x)
     else:
         share = (np.arange(x.shape[1]) % PLACES + 0.5) / PLACES
-        for phi in np.unique(share):
-            columns = np.flatnonzero(share == phi)
+        apart = placed_apart(model, x, u)  # the data's mode changes in the step: the rule
+        if apart.any():
+            x[:, apart] = model.predict(x[:, apart], u, theta, model.DT)
+        for phi in np.unique(share[~apart]):
+            columns = np.flatnonzero((share == phi) & ~apart)
             part = model.predict(x[:, columns], u, theta, (1.0 - phi) * model.DT)
             part[row] = magnitude[columns]
             x[:, columns] = model.predict(part, u, theta, phi * model.DT)

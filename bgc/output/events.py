@@ -326,6 +326,9 @@ def _times(log_ratio: float) -> str:
 #: time, its step beside it as ``<name>_step`` (times in the model's unit wherever a value is public).
 STEP_FIELDS = frozenset({"since", "onset", "onsets", "first", "last", "start", "was", "alarmed", "again",
                          "until", "change"})
+#: The fields of events that hold a time (in the model's unit) itself: written with 12 significant digits, as
+#: every time of a record is (a logger's Unix seconds keep their fraction), not a value's 6.
+TIME_FIELDS = frozenset({"time", "alarm", "began"})
 
 
 def record(e, time_of, *, clock: Clock = Clock()) -> dict:
@@ -356,6 +359,8 @@ def record(e, time_of, *, clock: Clock = Clock()) -> dict:
         elif f.name in STEP_FIELDS and v is not None:
             out[f"{f.name}_step"] = list(v) if isinstance(v, tuple) else v
             v = [when(k) for k in v] if isinstance(v, tuple) else when(v)
+        elif isinstance(v, float) and f.name in TIME_FIELDS:
+            v = float(time_text(v)) if math.isfinite(v) else None
         elif isinstance(v, float):
             v = float(f"{v:.6g}") if math.isfinite(v) else None
         elif isinstance(v, tuple):
