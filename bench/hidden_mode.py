@@ -52,8 +52,9 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
 import bgc  # noqa: E402
-from hybrid_reference import (LEVEL_C, LEVEL_R_IN, LEVEL_R_OUT, THERMO_R_RA, THERMO_R_V, THERMO_R_W,  # noqa: E402
-                              THERMO_TOLERANCE, level_csv, level_run, thermostat_csv, thermostat_run)
+from hybrid_reference import (LEVEL_C, LEVEL_R_IN, LEVEL_R_OUT, THERMO_MODEL, THERMO_R_RA, THERMO_R_V,  # noqa: E402
+                              THERMO_R_W, THERMO_TOLERANCE, level_csv, level_run, thermostat_csv, thermostat_run,
+                              thermostat_sharp)
 from stuck_switches import outcome_of  # noqa: E402  (bench/, the script's folder)
 
 LEVEL = ROOT / "docs" / "examples" / "level.yaml"
@@ -66,7 +67,6 @@ LEVEL_FAULTS = {
     "C_t -25 %": ("C_t", 0.75 * LEVEL_C, "C_t_abrupt", -0.25 * LEVEL_C),
     "p bias +0.03": ("p", 0.03, "p_offset_bias", 0.03),
 }
-THERMOSTAT = ROOT / "tests" / "data" / "hybrid" / "thermostat.yaml"
 #: The thermostat's faults: (name, the value it takes, the fault model, its size).
 THERMOSTAT_FAULTS = {
     "none": None,
@@ -98,41 +98,40 @@ def diagnose_both(session, hidden: Path, given: Path, right, size, rows: list, l
         print(f"  {label}, {way}: {d.verdict} {','.join(d.candidates)} ({seconds:.1f} s)", file=sys.stderr)
 
 
-def level_rows(runs: int, seed: int, folder: Path) -> list:
-    session = bgc.open(LEVEL)
+def plant_rows(session, faults: dict, runs: int, seed: int, folder: Path, onset_of, files) -> list:
+    """The rows of ``runs`` runs per fault of ``faults`` (label: (name, value, fault model, size), or None),
+    each run's seed and onset drawn in turn (``onset_of(rng)``), its files hidden and given written by
+    ``files(run_seed, fault, onset, hidden path, given path)``, diagnosed both ways."""
     rng = np.random.default_rng(seed)
     rows: list = []
-    for label, fault in LEVEL_FAULTS.items():
+    for label, fault in faults.items():
         for r in range(runs):
             run_seed = int(rng.integers(1 << 30))
-            onset = float(np.round(rng.uniform(8.0, 20.0), 2))
-            times, modes, y_p, y_q, _ = level_run(run_seed, None if fault is None else (onset, fault[0], fault[1]))
-            hidden = level_csv(folder / f"h{r}.csv", times, modes, y_p, y_q, False)
-            given = level_csv(folder / f"g{r}.csv", times, modes, y_p, y_q, True)
+            onset = onset_of(rng)
+            hidden, given = files(run_seed, None if fault is None else (onset, fault[0], fault[1]),
+                                  folder / f"h{r}.csv", folder / f"g{r}.csv")
             diagnose_both(session, hidden, given, None if fault is None else fault[2],
                           None if fault is None else fault[3], rows, label)
     return rows
+
+
+def level_rows(runs: int, seed: int, folder: Path) -> list:
+    def files(run_seed, fault, hidden, given):
+        times, modes, y_p, y_q, _ = level_run(run_seed, fault)
+        return (level_csv(hidden, times, modes, y_p, y_q, False), level_csv(given, times, modes, y_p, y_q, True))
+
+    return plant_rows(bgc.open(LEVEL), LEVEL_FAULTS, runs, seed, folder,
+                      lambda rng: float(np.round(rng.uniform(8.0, 20.0), 2)), files)
 
 
 def thermostat_rows(runs: int, seed: int, folder: Path, sharp: bool) -> list:
-    model = THERMOSTAT
-    if sharp:  # the thresholds exact: the model's tolerance taken out
-        model = folder / "thermostat.yaml"
-        model.write_text(THERMOSTAT.read_text(encoding="utf-8").replace(", tolerance: 0.15", ""), encoding="utf-8")
-    session = bgc.open(model)
-    rng = np.random.default_rng(seed)
-    rows: list = []
-    for label, fault in THERMOSTAT_FAULTS.items():
-        for r in range(runs):
-            run_seed = int(rng.integers(1 << 30))
-            onset = float(np.round(rng.uniform(40.0, 60.0) * 2) / 2)  # a sample's time
-            run = thermostat_run(run_seed, 200, None if fault is None else (onset, fault[0], fault[1]),
-                                 0.0 if sharp else THERMO_TOLERANCE)
-            hidden = thermostat_csv(folder / f"h{r}.csv", *run, False)
-            given = thermostat_csv(folder / f"g{r}.csv", *run, True)
-            diagnose_both(session, hidden, given, None if fault is None else fault[2],
-                          None if fault is None else fault[3], rows, label)
-    return rows
+    def files(run_seed, fault, hidden, given):
+        run = thermostat_run(run_seed, 200, fault, 0.0 if sharp else THERMO_TOLERANCE)
+        return thermostat_csv(hidden, *run, False), thermostat_csv(given, *run, True)
+
+    model = thermostat_sharp(folder) if sharp else THERMO_MODEL  # sharp: the thresholds exact
+    return plant_rows(bgc.open(model), THERMOSTAT_FAULTS, runs, seed, folder,
+                      lambda rng: float(np.round(rng.uniform(40.0, 60.0) * 2) / 2), files)  # a sample's time
 
 
 def ro_rows(runs: int, seed: int, folder: Path) -> list:

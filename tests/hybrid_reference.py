@@ -170,6 +170,19 @@ THERMO_R_V, THERMO_C_R, THERMO_R_RA, THERMO_C_A, THERMO_R_W, THERMO_T_S = 0.5, 2
 THERMO_LOW, THERMO_HIGH, THERMO_TOLERANCE, THERMO_DT = 18.0, 21.0, 0.15, 0.5
 THERMO_NOISE, THERMO_DISTURBANCE = (0.3, 0.095, 0.8), (0.2, 0.3)
 THERMO_SENSORS = ("T_rad", "T_room", "q_s")
+#: Its model file.
+THERMO_MODEL = Path(__file__).resolve().parent / "data" / "hybrid" / "thermostat.yaml"
+
+
+def thermostat_sharp(folder: Path) -> Path:
+    """The thermostat's model with its thresholds exact (the guards'
+    tolerance taken out), written into ``folder``."""
+    text = THERMO_MODEL.read_text(encoding="utf-8")
+    sharp = text.replace(f", tolerance: {THERMO_TOLERANCE:g}", "")
+    assert sharp != text and "tolerance" not in sharp.split("transitions:")[1]
+    path = Path(folder) / "thermostat.yaml"
+    path.write_text(sharp, encoding="utf-8")
+    return path
 
 
 def thermostat_run(seed: int, steps: int = 600, fault: tuple[float, str, float] | None = None,

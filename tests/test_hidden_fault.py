@@ -32,10 +32,8 @@ import pytest
 import bgc
 from bgc import events as ev
 
-from conftest import ROOT, session
-from hybrid_reference import THERMO_R_W as R_W, thermostat_csv, thermostat_run
-
-MODEL = ROOT / "tests" / "data" / "hybrid" / "thermostat.yaml"
+from conftest import session
+from hybrid_reference import THERMO_R_W as R_W, thermostat_csv, thermostat_run, thermostat_sharp
 
 FALLEN = 1.4
 
@@ -43,10 +41,7 @@ FALLEN = 1.4
 @pytest.fixture(scope="module")
 def sharp(tmp_path_factory):
     """The thermostat's model with its thresholds exact (the guards' tolerance taken out)."""
-    path = tmp_path_factory.mktemp("sharp") / "thermostat.yaml"
-    path.write_text(MODEL.read_text(encoding="utf-8").replace(", tolerance: 0.15", ""), encoding="utf-8")
-    assert "tolerance" not in path.read_text(encoding="utf-8").split("transitions:")[1]
-    return session(path)
+    return session(thermostat_sharp(tmp_path_factory.mktemp("sharp")))
 
 
 @pytest.mark.slow

@@ -22,13 +22,15 @@ import pytest
 from scipy.linalg import expm
 
 import bgc
-from bgc.filters.cubature import SWITCH_QUANTILES, _Filter
+from bgc.filters.cubature import _Filter
+from bgc.model.protocol import PLACES, placed_transition
 
-from conftest import ROOT, session
+from conftest import session
 from hybrid_reference import (THERMO_C_A as C_A, THERMO_C_R as C_R, THERMO_DT as DT, THERMO_R_RA as R_RA,
-                              THERMO_R_V as R_V, THERMO_R_W as R_W, THERMO_T_S as T_S, thermostat_csv, thermostat_run)
+                              THERMO_MODEL, THERMO_R_V as R_V, THERMO_R_W as R_W, THERMO_T_S as T_S,
+                              thermostat_csv, thermostat_run)
 
-MODEL = ROOT / "tests" / "data" / "hybrid" / "thermostat.yaml"
+MODEL = THERMO_MODEL
 
 
 def by_hand(x, heating: bool, dt: float) -> np.ndarray:
@@ -63,7 +65,7 @@ def test_a_stuck_valves_onset_spreads_the_prediction_over_its_place_in_the_step(
     # step heated whole and not heated at all, nearly linearly in phi: a std of the difference / sqrt(12) (the
     # midpoint rule of J points: times sqrt(1 - 1/J^2))
     shut, heated = by_hand(m[1, :2], False, DT), by_hand(m[1, :2], True, DT)
-    expected = abs(heated[0] - shut[0]) / np.sqrt(12) * np.sqrt(1 - 1 / SWITCH_QUANTILES ** 2)
+    expected = abs(heated[0] - shut[0]) / np.sqrt(12) * np.sqrt(1 - 1 / PLACES ** 2)
     assert np.sqrt(spread[1, 0, 0]) == pytest.approx(expected, rel=0.05)
     assert np.all(np.linalg.eigvalsh(spread[1]) > -1e-9)
     assert np.allclose(spread[1][~kf.own], 0.0) and np.allclose(spread[1][:, ~kf.own], 0.0)
@@ -151,6 +153,7 @@ def test_a_switch_the_data_give_in_the_onset_step_keeps_the_rule():
     X[kf.extra, 0] = fixed[:, 0]
     X[kf.extra[kf.magnitude]] = 0.0
     rule = model.predict(X.copy(), u, model.THETA, DT)
-    np.testing.assert_array_equal(kf._placed(X, np.ones(1), u, DT, 0.5)[kf.physical], rule[kf.physical])
+    placed = placed_transition(model, X, u, model.THETA, DT, 0.5, np.ones(1))
+    np.testing.assert_array_equal(placed[kf.physical], rule[kf.physical])
     spread = kf._onset_spread(m, fixed, u, slice(0, 1), None)
     assert np.allclose(spread, 0.0)

@@ -24,9 +24,9 @@ import bgc
 from bgc.filters.cubature import _Filter, nominal_track
 
 from conftest import session
-from hybrid_reference import THERMO_DT, THERMO_T_S, thermostat_csv, thermostat_run
+from hybrid_reference import THERMO_DT, THERMO_MODEL, THERMO_T_S, thermostat_csv, thermostat_run
 
-MODEL = Path(__file__).resolve().parent / "data" / "hybrid" / "thermostat.yaml"
+MODEL = THERMO_MODEL
 T_S, DT = THERMO_T_S, THERMO_DT
 
 
@@ -71,7 +71,7 @@ def test_the_spread_is_the_switchs_alone():
     spread = kf._switch_spread(m, fixed, u, slice(0, 0), None)
     assert spread.shape == (2, kf.n, kf.n) and np.allclose(spread[0], spread[1])
     assert spread[0, 0, 0] > 0  # the radiator's temperature: heated for an unknown part of the step
-    assert np.allclose(spread[0][~kf.states], 0.0) and np.allclose(spread[0][:, ~kf.states], 0.0)
+    assert np.allclose(spread[0][~kf.own], 0.0) and np.allclose(spread[0][:, ~kf.own], 0.0)
     assert np.all(np.linalg.eigvalsh(spread[0]) > -1e-12)
     # the largest spread the step allows: heating for none of it against all of it, T_r's rate (T_s - T_r) /
     # (R_v C_r) = 25 over half a step each way, a uniform place: std about 25 * 0.5 / sqrt(12)

@@ -28,7 +28,7 @@ import numpy as np
 
 from .particle import FilterRun, StepResult, run_filter
 from ..kinds import releases
-from ..model.protocol import FaultModel, magnitude_row, placed_apart, placed_within, state_rows
+from ..model.protocol import PHI, FaultModel, magnitude_row, placed_transition, placed_within, state_rows
 
 LOG_2PI = math.log(2.0 * math.pi)
 
@@ -139,8 +139,6 @@ def _cholesky_2(P: np.ndarray) -> np.ndarray | None:
     return L
 
 
-#: The draws at which :meth:`_Filter._switch_spread` carries a cell's mean through a step with a switch.
-SWITCH_QUANTILES = 16
 
 
 class _Filter:
@@ -189,8 +187,8 @@ class _Filter:
         # mode's row among the physical ones, and which of those are physical states (:meth:`_switch_spread`)
         self.draws = np.asarray(getattr(model, "_THRESHOLD_ROWS", ()), dtype=np.intp)  # the draws alone
         self.mode = self.physical.index(model.MODE_ROW) if len(self.draws) else None
-        self.states = np.array([kinds[i] == "physical" for i in self.physical]) if len(self.draws) else None
-        #: the physical states' rows among the carried ones (a model with modes: not its mode, its time in it)
+        #: the physical states' rows among the carried ones (a model with modes: not its mode, its time in it,
+        #: its threshold's draws)
         self.own = np.array([not kinds or kinds[i] == "physical" for i in self.physical])
 
     def _points(self, m: np.ndarray, P: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -238,8 +236,8 @@ class _Filter:
         quantile ``draw`` of the threshold's distribution along it); the
         points all take the median draw (0.5), which alone gives no spread,
         and a cubature point along a draw of the uniform would lie outside
-        it. Each cell's mean is carried through the step at the draws' J =
-        :data:`SWITCH_QUANTILES` midpoint quantiles (j + 1/2) / J, as its
+        it. Each cell's mean is carried through the step at the draws' J
+        midpoint quantiles (j + 1/2) / J (:data:`~bgc.model.protocol.PHI`), as its
         points are (its fault states, the onset rule), and the second moment
         of those predictions about the median draw's, which the points
         predict, is the spread (the midpoint rule of the uniform draw's
@@ -252,16 +250,16 @@ class _Filter:
         modes = m[:, self.mode]
         if not (np.isfinite(modes) & (np.rint(modes) != np.rint(u[self.model.MODE_INPUT]))).any():
             return None
-        C, J = m.shape[0], SWITCH_QUANTILES
+        C, J = m.shape[0], len(PHI)
         X = np.empty((self.n_x, C, J + 1))
         X[self.physical] = m.T[:, :, None]
         self._write_fixed(X, fixed, onset, moved)
-        X[self.draws] = np.append((np.arange(J) + 0.5) / J, 0.5)  # the quantiles, then the median
+        X[self.draws] = np.append(PHI, 0.5)  # the quantiles, then the median
         flat = X.reshape(self.n_x, C * (J + 1))
         self.model.predict(flat, u, self.model.THETA, self.model.DT if dt is None else dt, out=flat)
         P = X[self.physical].transpose(1, 0, 2)  # (C, n, J + 1)
         D = P[:, :, :J] - P[:, :, J:]
-        D[:, ~self.states] = 0.0  # the mode, its time and the draws: no spread of their own
+        D[:, ~self.own] = 0.0  # the mode, its time and the draws: no spread of their own
         D[~np.isfinite(D).all(axis=(1, 2))] = 0.0  # a cell the model cannot carry: none (its filter says so)
         return np.matmul(D, D.transpose(0, 2, 1)) / J
 
@@ -291,21 +289,22 @@ class _Filter:
         within a step, and a real switch fails at any instant: the part phi of
         the step after it, uniform on (0, 1). The
         points take the middle of the step (:meth:`_predict_points`, phi 1/2);
-        each onset cell's mean is carried through the step at the J =
-        :data:`SWITCH_QUANTILES` midpoint quantiles (j + 1/2) / J of phi, and
+        each onset cell's mean is carried through the step at the J places of
+        :data:`~bgc.model.protocol.PHI` (the midpoint quantiles of phi), and
         the second moment of those predictions about the middle's is the
         spread (the midpoint rule of the uniform's integral)."""
-        if not self.within or moved is not None or onset.stop <= onset.start:
+        if not self._placed(onset, moved):
             return None
-        C, n, J = m.shape[0], self.n, SWITCH_QUANTILES
+        C, n, J = m.shape[0], self.n, len(PHI)
         cells = np.arange(C)[onset]
         X = np.empty((self.n_x, len(cells), J + 1))
         X[self.physical] = m[cells].T[:, :, None]
         self._write_fixed(X, fixed[:, cells], slice(0, len(cells)))
         out = np.empty_like(X)
-        step = self.model.DT if dt is None else dt
-        for q, phi in enumerate(np.append((np.arange(J) + 0.5) / J, 0.5)):  # the quantiles, then the middle
-            out[:, :, q] = self._placed(X[:, :, q], fixed[self.magnitude, cells], u, step, phi)
+        model, step = self.model, self.model.DT if dt is None else dt
+        for q, phi in enumerate(np.append(PHI, 0.5)):  # the places, then the middle
+            out[:, :, q] = placed_transition(model, X[:, :, q], u, model.THETA, step, phi,
+                                             fixed[self.magnitude, cells])
         P = out[self.physical].transpose(1, 0, 2)  # (cells, n, J + 1)
         D = P[:, :, :J] - P[:, :, J:]
         D[:, ~self.own] = 0.0  # the mode, its time: no spread of their own
@@ -314,22 +313,10 @@ class _Filter:
         spread[cells] = np.matmul(D, D.transpose(0, 2, 1)) / J
         return spread
 
-    def _placed(self, X: np.ndarray, magnitude: np.ndarray, u: np.ndarray, dt: float, phi: float) -> np.ndarray:
-        """Points ``X`` (n_x, columns; their magnitude 0) of cells at their
-        onset carried through a step of ``dt`` whose last part ``phi`` has
-        the fault, its ``magnitude`` (one per column) from there; a column
-        whose mode the data change in the step (:func:`~bgc.model.protocol.placed_apart`)
-        by the onset rule, the whole step without it."""
-        model = self.model
-        X = np.array(X, dtype=float)
-        apart = placed_apart(model, X, u)
-        whole = model.predict(X[:, apart], u, model.THETA, dt) if apart.any() else None
-        model.predict(X, u, model.THETA, (1.0 - phi) * dt, out=X)
-        X[self.extra[self.magnitude]] = magnitude
-        model.predict(X, u, model.THETA, phi * dt, out=X)
-        if whole is not None:
-            X[:, apart] = whole
-        return X
+    def _placed(self, onset: slice, moved) -> bool:
+        """Whether cells ``onset`` are at the onset of a fault placed within
+        the step before it (a switch's; not one that comes and goes, ``moved``)."""
+        return self.within and moved is None and onset.stop > onset.start
 
     def _physical(self, X: np.ndarray) -> np.ndarray:
         """The physical rows of the points ``X`` (n_x, C, 2n) as (C, n, 2n)."""
@@ -468,15 +455,16 @@ class _Filter:
         onset; after it a drifting parameter read back into ``fixed``."""
         model = self.model
         self._write_fixed(X, fixed, onset, moved)
-        within = self.within and moved is None and onset.stop > onset.start  # a switch's fault at its onset
-        if within:
+        placed = self._placed(onset, moved)  # a switch's fault at its onset
+        if placed:
             before = X[:, onset].reshape(self.n_x, -1).copy()
         step = model.DT if dt is None else dt
         model.predict(flat, u, model.THETA, step, out=flat)
-        if within:  # the onset cells take the fault from the step's middle (:meth:`_onset_spread`)
+        if placed:  # the onset cells take the fault from the step's middle (:meth:`_onset_spread`)
             columns = X[:, onset].shape[1:]
             magnitude = np.repeat(fixed[self.magnitude][onset], columns[1])
-            X[:, onset] = self._placed(before, magnitude, u, step, 0.5).reshape(self.n_x, *columns)
+            X[:, onset] = placed_transition(model, before, u, model.THETA, step, 0.5,
+                                            magnitude).reshape(self.n_x, *columns)
         for j, row in enumerate(self.extra):  # a drifting parameter: the same in every point of a cell
             if j == self.magnitude:
                 continue

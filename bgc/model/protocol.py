@@ -149,8 +149,10 @@ def magnitude_row(model: FaultModel) -> int:
 
 
 #: The places within the step before its onset sample at which a switch's fault is tried
-#: (:func:`onset_transition`; the cubature Kalman filters' spread, bgc.filters.cubature).
+#: (:func:`onset_transition`; the cubature Kalman filters' spread, bgc.filters.cubature), and those
+#: places as the part phi of the step after the fault: the midpoint quantiles (j + 1/2) / J of the uniform.
 PLACES = 16
+PHI = (np.arange(PLACES) + 0.5) / PLACES
 
 
 def placed_within(model: FaultModel) -> bool:
@@ -175,6 +177,24 @@ def placed_apart(model: FaultModel, x: np.ndarray, u: np.ndarray) -> np.ndarray:
     return np.rint(np.asarray(x[row], dtype=float)) != np.rint(u[column])
 
 
+def placed_transition(model: FaultModel, x: np.ndarray, u: np.ndarray, theta, dt: float, phi: float,
+                      magnitude: np.ndarray) -> np.ndarray:
+    """Columns ``x`` of a fault model's states (their magnitude 0) at their
+    onset carried through a step of ``dt`` whose last part ``phi`` has the
+    fault, its ``magnitude`` (one per column) from there; a column whose
+    mode the data change in the step (:func:`placed_apart`) by the onset
+    rule, the whole step without it. A new array."""
+    x = np.array(x, dtype=float)
+    apart = placed_apart(model, x, u)
+    whole = model.predict(x[:, apart], u, theta, dt) if apart.any() else None
+    model.predict(x, u, theta, (1.0 - phi) * dt, out=x)
+    x[magnitude_row(model)] = magnitude
+    model.predict(x, u, theta, phi * dt, out=x)
+    if whole is not None:
+        x[:, apart] = whole
+    return x
+
+
 def onset_transition(model: FaultModel, x: np.ndarray, u: np.ndarray, theta) -> np.ndarray:
     """The noise-free transition into a fault's onset sample, in place on a
     fault model's particles ``x`` (the onset rule, module docstring): the
@@ -193,15 +213,10 @@ def onset_transition(model: FaultModel, x: np.ndarray, u: np.ndarray, theta) -> 
     if not placed_within(model):
         model.predict(x, u, theta, model.DT, out=x)
     else:
-        share = (np.arange(x.shape[1]) % PLACES + 0.5) / PLACES
-        apart = placed_apart(model, x, u)  # the data's mode changes in the step: the rule
-        if apart.any():
-            x[:, apart] = model.predict(x[:, apart], u, theta, model.DT)
-        for phi in np.unique(share[~apart]):
-            columns = np.flatnonzero((share == phi) & ~apart)
-            part = model.predict(x[:, columns], u, theta, (1.0 - phi) * model.DT)
-            part[row] = magnitude[columns]
-            x[:, columns] = model.predict(part, u, theta, phi * model.DT)
+        share = PHI[np.arange(x.shape[1]) % PLACES]
+        for phi in np.unique(share):
+            columns = np.flatnonzero(share == phi)
+            x[:, columns] = placed_transition(model, x[:, columns], u, theta, model.DT, phi, magnitude[columns])
     x[row] = magnitude
     return x
 
