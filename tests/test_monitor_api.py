@@ -230,3 +230,26 @@ def test_a_monitor_takes_more_repairs_and_bytes_than_a_run_file_may_hold(monkeyp
     assert report.diagnosis.time[-1] == pytest.approx(float(rows[-1].split(",")[0]))
     with pytest.raises(DataError):
         runs.parse_run("".join(out), "plant.csv")
+
+
+@pytest.mark.slow
+def test_the_monitors_lines_never_go_back_in_time_and_a_late_drop_says_its_own_time():
+    """A hypothesis dropped while its filters caught up on past samples, or by
+    the weighing at the end, is learnt after lines dated later: its line is
+    dated by the latest time said, and ends with the drop's own time (at
+    the end: the step of its event in the report)."""
+    from bgc.events import Dropped
+
+    heard = []
+    report = bgc.monitor(session("circuit"), _lines("R2:abrupt:0.6@5", 300), particles=300, events=heard.append)
+    dated = [(float(line.split(":")[0].removeprefix("t = ")), line) for line in heard if line.startswith("t = ")]
+    assert [t for t, _ in dated] == sorted(t for t, _ in dated)
+    late = [(t, line.split(": ", 1)[1].split(" dropped")[0], float(line.rsplit(", at t = ", 1)[1]))
+            for t, line in dated if " dropped " in line and ", at t = " in line]
+    assert late and all(own < t for t, _, own in late)
+    assert any(t < dated[-1][0] for t, _, _ in late)  # while the stream ran too, not only at its end
+    end = report.diagnosis.time_of(len(report.diagnosis.time) - 1)
+    drops = {e.hypothesis: report.diagnosis.time_of(e.step) for e in report.diagnosis.events
+             if isinstance(e, Dropped)}
+    at_end = [(name, own) for t, name, own in late if t == end]
+    assert at_end and all(drops[name] == pytest.approx(own) for name, own in at_end)

@@ -194,7 +194,6 @@ def _bank(model: FaultModel, ys, us, track: NominalTrack, start: int, magnitudes
     logw[0] = float(track.loglik[start])
     first = logw.copy()
     src = np.array([a for a, _ in _PAIRS])
-    dst = np.array([b for _, b in _PAIRS])
     rest = _PAIRS[2:]  # present -> present, present -> absent, absent -> absent, absent -> present
     seen_c = np.concatenate([g] + [c if b == 1 else np.zeros(K) for _, b in rest])  # the magnitude each update sees
     moved_c = np.concatenate([np.zeros(G)] + [c if a == 1 else np.zeros(K) for a, _ in rest])  # and each transition
@@ -216,7 +215,7 @@ def _bank(model: FaultModel, ys, us, track: NominalTrack, start: int, magnitudes
             ll[1], mu[1], Pu[1] = np.repeat(lk[:G], D), np.repeat(mk[:G], D, axis=0), np.repeat(Pk[:G], D, axis=0)
             ll[2:], mu[2:], Pu[2:] = lk[G:].reshape(4, K), mk[G:].reshape(4, K, n), Pk[G:].reshape(4, K, n, n)
             ll[~np.isfinite(ll)] = -math.inf
-            _merge(logw[src] + logpi + ll, mu, Pu, dst, logw, m, P)
+            _merge(logw[src] + logpi + ll, mu, Pu, logw, m, P)
             if keep:
                 alpha[k], pair[k] = logw, ll
     appeared = np.logaddexp(logw[1], logw[2])
@@ -235,15 +234,21 @@ def _log_transitions(on: np.ndarray, off: np.ndarray) -> np.ndarray:
                          np.log1p(-back), np.log(back)])
 
 
-def _merge(lw: np.ndarray, mu: np.ndarray, Pu: np.ndarray, dst: np.ndarray, logw: np.ndarray, m: np.ndarray,
-           P: np.ndarray) -> None:
+#: The pairs of :data:`_PAIRS` into the states present and absent (the state before has one, its own).
+_INTO = tuple((s, np.array([i for i, (_, b) in enumerate(_PAIRS) if b == s])) for s in (1, 2))
+
+
+def _merge(lw: np.ndarray, mu: np.ndarray, Pu: np.ndarray, logw: np.ndarray, m: np.ndarray, P: np.ndarray) -> None:
     """Each state's log weight (``logw``, 3 x cells) and Gaussian (``m``,
-    ``P``), in place, from the pairs into it: their log weights ``lw`` (6 x
-    cells: the source's weight, the transition's, the sample's predictive
-    density) and updated means and covariances (``mu``, ``Pu``), merged by
-    moments (a state no pair reaches keeps its Gaussian)."""
-    for s in range(3):
-        into = np.flatnonzero(dst == s)
+    ``P``), in place, from the pairs of :data:`_PAIRS` into it: their log
+    weights ``lw`` (6 x cells: the source's weight, the transition's, the
+    sample's predictive density) and updated means and covariances (``mu``,
+    ``Pu``), merged by moments (a state no pair reaches keeps its Gaussian;
+    the state before, one pair into it, takes that pair's)."""
+    before = np.isfinite(lw[0])
+    logw[0] = np.where(before, lw[0], -math.inf)
+    m[0][before], P[0][before] = mu[0][before], Pu[0][before]
+    for s, into in _INTO:
         w = lw[into]
         top = w.max(axis=0)
         alive = np.isfinite(top)

@@ -12,6 +12,7 @@ and the same report as ``bgc diagnose``'s is made.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import signal
 import stat
@@ -293,6 +294,8 @@ class _Monitor:
         #: (diagnoser, rows, its misfits said) of the episode closed or repaired last, until the next row
         self.ended = None
         self.rows_time = None  # the last row's time
+        #: the latest time a line said: a line found later of an earlier time is dated by it, its own time in it
+        self.latest = -math.inf
         if self.saved is not None:
             self._resume(self.saved)
 
@@ -320,7 +323,7 @@ class _Monitor:
         self.mismatch_said = bool(self.misfits)  # said before the restart: not again by this diagnoser
         self.told.update(self.d.loop.events, self.d.switched, [] if self.log is None else self.log.log)  # said before
         self.forgot = self.d.offset
-        self.rows_time = saved.last_time
+        self.rows_time = self.latest = saved.last_time
         self.keep.stream = saved.stream
         self.say(f"resumed from {printable(str(self.keep.where))}: {len(self.rows)} rows, to t = "
                  f"{self.clock.text(saved.last_time)}; the input's rows after it are read on")
@@ -338,20 +341,32 @@ class _Monitor:
 
     def tell(self, events, time_of=None, final: bool = False) -> None:
         """Say ``events`` as lines, each with its time (``time_of``: of a step; default the diagnoser's);
-        a misfit said as the data come (not ``final``: the end's) is kept, dated (:attr:`misfits`)."""
+        a misfit said as the data come (not ``final``: the end's) is kept, dated (:attr:`misfits`). The lines'
+        times never go back: an event of a time before a line said already (a hypothesis the end's weighing
+        dropped) is dated by the latest time said (``final``: the latest of the end's events, the record's
+        end), its own time written after it."""
         from ..output.events import sentence
 
         time_of, clock = time_of or self.time_of, self.clock
+
+        def at(e):  # an event's own time (a misfit said before: when it was said); None: none
+            step, said = getattr(e, "step", None), getattr(e, "said", None)
+            return said if said is not None else None if step is None else float(time_of(step))
+
+        if final:  # what only the end says, said at the end: no line dated before one said already
+            self.latest = max([self.latest, *(t for t in map(at, events) if t is not None)])
         for e in events:
             self.told.add(e)
             if isinstance(e, ev.Mismatched) and not final:
                 self.misfits.append(dated_misfit(e, time_of))
             if isinstance(e, ev.SensorMissing) and e.sensor in self.taken_out:
                 continue  # taken out by the monitor, not missing from the data: said by its SensorExcluded
-            step, said = getattr(e, "step", None), getattr(e, "said", None)  # a misfit said before: its own time
-            when = f"t = {clock.text(said)}: " if said is not None else "" if step is None else \
-                f"t = {clock.text(time_of(step))}: "
-            self.say(f"{when}{printable(sentence(e, time_of, clock=clock))}")
+            t, text = at(e), printable(sentence(e, time_of, clock=clock))
+            if t is not None and t < self.latest:  # found after a line dated later was said: said now, dated within
+                text, t = f"{text}, at t = {clock.text(t)}", self.latest
+            if t is not None:
+                self.latest = max(self.latest, t)
+            self.say(f"{'' if t is None else f't = {clock.text(t)}: '}{text}")
 
     def _afresh(self) -> None:
         """A new diagnoser took over (an episode closed, a repair): its record starts empty."""
