@@ -255,3 +255,57 @@ def test_report_json_keeps_an_events_own_time_in_full():
     out = record(ev.SensorExcluded("F12", "frozen", t), lambda k: None, clock=clock)
     assert out["time"] == t and "2026-03-02T06:31:01.5Z" in out["text"]
     assert not UNIX.search(out["text"])
+
+
+# -- errors about the file's own rows --------------------------------------------------------------------------
+
+def _logger_lines() -> list[str]:
+    return LOGGER.read_text(encoding="utf-8").splitlines(keepends=True)
+
+
+def test_a_row_out_of_order_in_an_iso_file_is_named_by_its_own_timestamps(tmp_path):
+    """Two rows swapped in the logger's ISO file: the error names the later
+    line, and its time and the row before's as the file writes them (the
+    instants of its own cells, by datetime), from `bgc diagnose` and from
+    `bgc monitor` reading the same rows through a pipe."""
+    lines = _logger_lines()
+    data = [i for i, line in enumerate(lines) if line[:1].isdigit()]
+    a, b = data[9], data[10]
+    lines[a], lines[b] = lines[b], lines[a]
+    path = tmp_path / "swapped.csv"
+    path.write_text("".join(lines), encoding="utf-8")
+    early, late = (_iso(_instant(lines[i].split(",")[0])) for i in (b, a))
+    said = f"swapped.csv:{b + 1}: time {early} does not increase (the row before has {late})"
+    out = bgc_cli("diagnose", "models/two_tank.yaml", "--data", path, "--columns", LOGGER_MAP, "-o", tmp_path / "d")
+    assert out.returncode != 0 and said in out.stderr and "Traceback" not in out.stderr, out.stderr
+    out = bgc_cli("monitor", "models/two_tank.yaml", "--data", "-", "--columns", LOGGER_MAP, "--particles", "100",
+                  "-o", tmp_path / "m", input="".join(lines))
+    assert f"<stdin>:{b + 1}: time {early} does not increase (the row before has {late})" in out.stderr, out.stderr
+    assert not UNIX.search(out.stderr), out.stderr
+
+
+def test_a_clock_that_jumps_past_the_monitors_memory_is_refused_whole_in_one_line(tmp_path):
+    """The logger's clock jumps three hours (21,600 steps of 0.5 s, more than
+    a diagnosis of the two tanks holds in memory) and the rows go on: the
+    monitor stops at that row with a one-line error naming its line and its
+    timestamp, no traceback, and writes the report of the rows before it (no
+    step of the refused row in it: the gap is not half taken)."""
+    lines = _logger_lines()
+    data = [i for i, line in enumerate(lines) if line[:1].isdigit()]
+    jump = data[30]
+    for i in data[30:]:
+        stamp = lines[i].split(",")[0]
+        later = _instant(stamp) + dt.timedelta(hours=3)
+        lines[i] = lines[i].replace(stamp, later.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z", 1)
+    out = bgc_cli("monitor", "models/two_tank.yaml", "--data", "-", "--columns", LOGGER_MAP, "-o", tmp_path / "m",
+                  input="".join(lines))
+    first = _iso(_instant(lines[jump].split(",")[0]))
+    steps = round((_instant(lines[jump].split(",")[0]) - _instant(lines[data[29]].split(",")[0]))
+                  / dt.timedelta(seconds=0.5)) - 1
+    assert out.returncode != 0 and "Traceback" not in out.stderr, out.stderr
+    error = [line for line in out.stderr.splitlines() if line.startswith("<stdin>:")]
+    assert len(error) == 1 and error[0].startswith(f"<stdin>:{jump + 1}: time {first} is {steps} steps of dt = 0.5 "
+                                                   "after the sample before it, more than the "), out.stderr
+    report = json.loads((tmp_path / "m" / "report.json").read_text(encoding="utf-8"))
+    before = _in_unit(_instant(lines[data[29]].split(",")[0]), "s")
+    assert report["data"]["steps"] == 30 and report["data"]["t_last"] == pytest.approx(before, abs=1e-6)

@@ -173,9 +173,10 @@ def test_a_folder_without_run_files_or_a_missing_file_is_one_line(tmp_path):
     ("time,y:a\n1,2\ninf,3\n", "bad.csv:3: time inf is not a finite number"),
     ("time,y:a\n1,2\n\n1,3\n", "bad.csv:4: time 1 does not increase (the row before has 1)"),
     ("time,y:a\n2,2\n1,3\n", "bad.csv:3: time 1 does not increase (the row before has 2)"),
-    # Unix seconds, a second apart: both printed whole (six digits would print 1.77788e+09 twice)
+    # a logger's Unix seconds, a quarter of a second apart: written as the diagnosis writes absolute times,
+    # ISO 8601 UTC (datetime.fromtimestamp(1777881601.25, UTC) is 2026-05-04 08:00:01.25)
     ("time,y:a\n1777881601.5,2\n1777881601.25,3\n",
-     "bad.csv:3: time 1777881601.25 does not increase (the row before has 1777881601.5)"),
+     "bad.csv:3: time 2026-05-04T08:00:01.25Z does not increase (the row before has 2026-05-04T08:00:01.5Z)"),
     ("time,y:a\n1,2\n2,x\n", "bad.csv:3: 'x' in column y:a is not a number"),
     ("time\n", "bad.csv: the run has no data rows, only column names"),
     ("\n\n# only comments\n", "bad.csv: no data"),

@@ -56,6 +56,7 @@ import numpy as np
 
 from ..arguments import spelled
 from ..errors import DataError, printable
+from .clock import Clock
 from .columns import MODE, PREFIXES, Reading, bgc_name, iso_seconds
 
 #: A run file larger than this is refused before it is read (a 300-step run of
@@ -220,7 +221,7 @@ def read_run(path: str | Path, reading: Reading | None = None) -> Run:
     files = run_files(path)
     if files is not None:  # in time order: by each file's first time (names need not sort so: log.2, log.1)
         return join_runs(sorted((read_run(f, reading) for f in files), key=lambda r: float(r.time[0])),
-                         printable(str(path)))
+                         printable(str(path)), None if reading is None else reading.time_unit)
     name = printable(str(path))
     p = Path(path)
     try:
@@ -241,13 +242,15 @@ def read_run(path: str | Path, reading: Reading | None = None) -> Run:
         raise DataError(f"{name}: cannot read: {exc.strerror}", None, _FIX) from None
 
 
-def join_runs(parts: list[Run], source: str) -> Run:
+def join_runs(parts: list[Run], source: str, time_unit: str | None = None) -> Run:
     """Runs read from consecutive files (a logger's daily files) as one run
     named ``source``: the same columns in each (each its own header: the
     first's is kept, and a file that states another input timing is
     refused), each file's rows going on in time from the one before's;
-    every mistake a one-line :class:`~bgc.errors.DataError` naming the file."""
+    every mistake a one-line :class:`~bgc.errors.DataError` naming the file
+    (its times written by the model's ``time_unit``, :class:`~bgc.data.clock.Clock`)."""
     first = parts[0]
+    clock = Clock.of(first.time[:1], time_unit)
 
     def columns(r: Run) -> tuple:
         return (tuple(r.inputs), tuple(r.measurements), tuple(r.states), tuple(r.parameters), r.modes is None)
@@ -260,8 +263,8 @@ def join_runs(parts: list[Run], source: str) -> Run:
             raise DataError(f"{r.source}: its header states another input timing than {first.source}'s", None,
                             "give files of one logger, with one input timing")
         if not r.time[0] > before.time[-1]:
-            raise DataError(f"{r.source}: its first time {r.time[0]:.12g} does not go on from the last time of "
-                            f"{before.source} ({before.time[-1]:.12g})", None,
+            raise DataError(f"{r.source}: its first time {clock.text(r.time[0])} does not go on from the last time "
+                            f"of {before.source} ({clock.text(before.time[-1])})", None,
                             "name the files so that they sort in time order; files that overlap are not one run")
     if sum(len(r.time) * (1 + len(r.inputs) + len(r.measurements) + len(r.states) + len(r.parameters))
            for r in parts) > MAX_VALUES:
@@ -567,7 +570,7 @@ def _parse(stream: IO, name: str, reading: Reading | None = None) -> Run:
     if layout.scaling:
         data *= layout.scale
         data += layout.offset
-    run = check_run(run_of(cols, data, tuple(lines.header), name), numbers)
+    run = check_run(run_of(cols, data, tuple(lines.header), name), numbers, layout.time_unit)
     if reading is not None and reading.modes and run.modes is not None:
         beyond = np.isfinite(run.modes) & (run.modes > len(reading.modes))
         if beyond.any():
@@ -653,7 +656,7 @@ def _number(text: str, column: str, lines: _Lines) -> float:
                           "write numbers only (empty, nan or NA: not measured)") from None
 
 
-def check_run(run: Run, lines: np.ndarray | None = None) -> Run:
+def check_run(run: Run, lines: np.ndarray | None = None, time_unit: str | None = None) -> Run:
     """``run`` as the runtime takes it, or a :class:`~bgc.errors.DataError`
     naming its ``source`` (and with ``lines``, the line number of each row
     in its file, the line): at least one row; the time finite and strictly
@@ -662,6 +665,9 @@ def check_run(run: Run, lines: np.ndarray | None = None) -> Run:
     the time, finite or NaN (not measured: an infinite value is an error);
     names non-empty text; ``header`` lines of text, bounded as a file's.
     Returns the run with every array as float64 (no copy when it is one).
+    ``time_unit``: the model's, by which an error writes the times as the
+    diagnosis does (:class:`~bgc.data.clock.Clock`: a logger's absolute
+    times as ISO 8601).
 
     >>> t = np.array([0.1, 0.2, 0.2])
     >>> check_run(Run(t, {}, {"f2": np.ones(3)}, {}, {}, ()))  # doctest: +ELLIPSIS
@@ -695,8 +701,9 @@ def check_run(run: Run, lines: np.ndarray | None = None) -> Run:
         step = np.diff(t)
         if not np.all(step > 0):
             k = int(np.argmax(step <= 0)) + 1
-            raise DataError(f"{at(k)}: time {t[k]:.12g} does not increase (the row before has {t[k - 1]:.12g})", None,
-                            "sort the rows by time, one row per sample")
+            clock = Clock.of(t[:1], time_unit)
+            raise DataError(f"{at(k)}: time {clock.text(t[k])} does not increase (the row before has "
+                            f"{clock.text(t[k - 1])})", None, "sort the rows by time, one row per sample")
     groups = []
     for prefix, group in (("u", run.inputs), ("y", run.measurements), ("x", run.states), ("theta", run.parameters)):
         if not isinstance(group, Mapping):

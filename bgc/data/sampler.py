@@ -47,6 +47,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import DataError, printable
+from .clock import Clock
 from .. import events as ev
 from .runs import Run, input_columns, no_mode
 from ..model.protocol import FaultModel
@@ -85,8 +86,9 @@ class Sampler:
     (module docstring)."""
 
     def __init__(self, model: FaultModel, inputs, sensors, source: str, gap: float | None = None,
-                 timing: str = "end"):
+                 timing: str = "end", time_unit: str | None = None):
         self.model = model
+        self.time_unit = time_unit
         self.timing = timing
         self.dt = float(model.DT)
         self.source = source
@@ -141,10 +143,14 @@ class Sampler:
         absent = tuple(ev.InputFromModel(u, "absent") for u in self.model.INPUTS if u not in self.data_inputs)
         return missing + absent
 
-    def push(self, t: float, u: dict[str, float], y: dict[str, float], line: int | None = None) -> list[Sample]:
+    def push(self, t: float, u: dict[str, float], y: dict[str, float], line: int | None = None,
+             room: int | None = None) -> list[Sample]:
         """The samples a data row at time ``t`` gives: the steps with no sample
         before it, then its own (none when it is skipped). ``u``, ``y``: the
-        row's cells by input and sensor name (NaN: empty)."""
+        row's cells by input and sensor name (NaN: empty); ``room``: the most
+        steps a row after a gap may give (the diagnosis's memory; None: no
+        limit but :data:`MAX_GAP_STEPS`), a row beyond it refused as a
+        clock that jumped."""
         if not math.isfinite(t) or t <= self.last_t:
             self._refuse(t, line)
         t0 = t if self.t0 is None else self.t0
@@ -156,11 +162,13 @@ class Sampler:
                 self._pending.append(ev.SampleSkipped(k, line, t))
             return []
         missing = k - self.k - 1
-        if missing > MAX_GAP_STEPS:
+        if missing > MAX_GAP_STEPS or (missing > 0 and room is not None and missing + 1 > room):
             where = self._where(line)
             many = f"{missing}" if missing < 1e15 else f"{float(missing):.3g}"
-            raise DataError(f"{where}: time {t:.12g} is {many} steps of dt = {self.dt:g} after the sample "
-                            f"before it, more than {MAX_GAP_STEPS}", None,
+            most = f"more than {MAX_GAP_STEPS}" if missing > MAX_GAP_STEPS else \
+                f"more than the {max(room - 1, 0)} the diagnosis can still hold in memory"
+            raise DataError(f"{where}: time {self.clock(t).text(t)} is {many} steps of dt = {self.dt:g} after the "
+                            f"sample before it, {most}", None,
                             "check the time column (a clock that jumped?), or split the data at the gap")
         self.last_t, self.t0 = t, t0  # the row is taken: a refused one leaves the sampler as it was
         out = []
@@ -211,8 +219,15 @@ class Sampler:
         where = self._where(line)
         if not math.isfinite(t):
             raise DataError(f"{where}: time {t!r} is not a finite number", None, "give every row its time")
-        raise DataError(f"{where}: time {t:.12g} does not increase (the row before has {self.last_t:.12g})", None,
-                        "sort the rows by time, one row per sample")
+        clock = self.clock(t)
+        raise DataError(f"{where}: time {clock.text(t)} does not increase (the row before has "
+                        f"{clock.text(self.last_t)})", None, "sort the rows by time, one row per sample")
+
+    def clock(self, t: float) -> Clock:
+        """How the messages write the data's times: as the diagnosis does,
+        by the first row's time (``t`` before it: the row's) and the time
+        unit (:class:`~bgc.data.clock.Clock`)."""
+        return Clock.of([t if self.t0 is None else self.t0], self.time_unit)
 
     def _check_mode(self, u: np.ndarray, line: int | None) -> None:
         """A model with modes: refuse a row whose mode is not one of the

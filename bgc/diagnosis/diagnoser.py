@@ -140,7 +140,7 @@ class Diagnoser:
                                  None if sensors is None else tuple(sensors), source, lazy, every, most, progress)
         self._open(config, Sampler(nominal_model(package), nominal_model(package).INPUTS if inputs is None else inputs,
                                    nominal_model(package).OUTPUTS if sensors is None else sensors, source,
-                                   options.gap, options.input_timing or "end"))
+                                   options.gap, options.input_timing or "end", time_unit))
         if hidden:
             self.hide()
         config.say("tracking the nominal model")
@@ -214,7 +214,7 @@ class Diagnoser:
                 self.hide()
             self.infer_inputs = False
             self.sampler.data_inputs = tuple(name for name in self.nominal.INPUTS if name in u)
-        rows = self.sampler.push(t, u, y, line)
+        rows = self.sampler.push(t, u, y, line, self._room())
         said = self._forget_if_full()  # once per row: the steps of a row (a gap's) are counted from one start
         if len(rows) == 1 and not said:  # the usual row: one step, its belief as it is
             return self._decoded(rows[0])
@@ -226,6 +226,17 @@ class Diagnoser:
         if belief is None:  # a row on a step already taken: the belief stands
             belief = self.loop.belief(len(self.loop.events))
         return dataclasses.replace(belief, events=tuple(collected))
+
+    def _room(self) -> int | None:
+        """The most steps the next row may give (a row after a gap gives
+        one per step): the most the diagnosis holds in memory less the steps
+        it holds (the record's, and those waiting for their mode to be
+        read); None: no limit. A row that would pass it is refused whole, as
+        a clock that jumped, before any of its steps is taken."""
+        most = self.config.most
+        if most is None:
+            return None
+        return most - len(self.loop.samples) - (len(self.decoder.waiting) if self.decoder is not None else 0)
 
     def take(self, s: Sample) -> Belief:
         """Take one step of the grid (a :class:`~bgc.data.sampler.Sample`);

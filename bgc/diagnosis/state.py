@@ -326,7 +326,7 @@ def restore_diagnoser(cls, config, state: DiagnoserState):
     d = cls.__new__(cls)
     d._open(config, Sampler(nominal, nominal.INPUTS if config.inputs is None else config.inputs,
                             nominal.OUTPUTS if config.sensors is None else config.sensors, config.source,
-                            config.options.gap, config.options.input_timing or "end"))
+                            config.options.gap, config.options.input_timing or "end", config.time_unit))
     d.sampler.restore(state.sampler)
     d.offset = state.offset
     if state.start is not None or state.theta:  # a record started elsewhere, faults accommodated: its models'
