@@ -502,11 +502,8 @@ class Diagnoser:
                         f"watching again "
                         f"from the next sample")
         options = dataclasses.replace(self.loop.options, switch=False)  # the filters as they ended (as _retry)
-        loop = self.replay(options, self.loop.config.every, after=first)
-        redone = loop.finish(self.sampler.summary(), truth)
-        if self._retry(redone, loop):
-            loop = self.replay(options, True, after=first)
-            redone = loop.finish(self.sampler.summary(), truth)
+        redone = self._finished(self.replay(options, self.loop.config.every, after=first),
+                                lambda: self.replay(options, True, after=first), truth)
         until, name, glitch = told
         if glitch and redone.detection is None:  # one reading, quiet after it: a glitch
             if self._explained_after(d, first.step):  # unless a fault weighed explains what follows it
@@ -618,6 +615,15 @@ class Diagnoser:
             return None
         return None, "", again is None  # quiet to where the diagnosis made again alarms, or to the end
 
+    def _finished(self, loop: Loop, again: Callable[[], Loop], truth: Run | None) -> Diagnosis:
+        """The diagnosis of ``loop`` (it has taken the record), by the policy
+        for an unexplained verdict: made again on the loop ``again`` builds
+        (every fault model weighed) when :meth:`_retry` says so."""
+        d = loop.finish(self.sampler.summary(), truth)
+        if self._retry(d, loop):
+            d = again().finish(self.sampler.summary(), truth)
+        return d
+
     def _retry(self, d: Diagnosis, loop: Loop | None = None) -> bool:
         """Whether an unexplained verdict (of ``loop``, None: the loop that
         runs now) is to be made again with every fault model: some the
@@ -656,10 +662,9 @@ class Diagnoser:
                 self.loop.events.append(degenerate)
                 if degenerate.switched:
                     self._switch(degenerate)
-        diagnosis = self.loop.finish(self.sampler.summary(), truth)
-        if self._retry(diagnosis):  # (an alarm the record's test raised while watching is raised again)
-            again = self.replay(dataclasses.replace(self.loop.options, switch=False), True, forced=self.loop.forced)
-            diagnosis = again.finish(self.sampler.summary(), truth)
+        # (made again: an alarm the record's test raised while watching raised again)
+        diagnosis = self._finished(self.loop, lambda: self.replay(
+            dataclasses.replace(self.loop.options, switch=False), True, forced=self.loop.forced), truth)
         diagnosis = self._after_false_alarm(diagnosis, truth)
         diagnosis = self._missed_change(diagnosis, truth)
         if self.decoder is not None and diagnosis.detection is not None and diagnosis.verdict != "no fault":
@@ -713,10 +718,8 @@ class Diagnoser:
         if made is None or made.detection is None:  # (a bank that alarmed and named no fault judged the misfit)
             self.config.say(f"diagnosing from an alarm at the change point, t = {d.clock.text(d.time[at])}")
             options, every = dataclasses.replace(o, switch=False), loop.config.every
-            again = self.replay(options, every, forced=alarm)
-            made = again.finish(self.sampler.summary(), truth)
-            if self._retry(made, again):  # unexplained: with every fault model, as any unexplained verdict
-                made = self.replay(options, True, forced=alarm).finish(self.sampler.summary(), truth)
+            made = self._finished(self.replay(options, every, forced=alarm),
+                                  lambda: self.replay(options, True, forced=alarm), truth)
             if made.detection is not None and (made.verdict == "unexplained" or (
                     made.verdict in ("isolated", "ambiguous") and self._explains(made))):
                 found = "change"
@@ -874,11 +877,8 @@ class Diagnoser:
         wall losing more heat keeps its heater on longer, and the radiator's
         temperature reads above the nominal's, where the fault's own
         signature says below)."""
-        loop = self._loop_of(samples, after)
-        again = loop.finish(self.sampler.summary(), truth)
-        if self._retry(again, loop):  # (as finish's retry: the options' switch off)
-            again = self._loop_of(samples, after, every=True, switch=False).finish(self.sampler.summary(), truth)
-        return again
+        return self._finished(self._loop_of(samples, after),
+                              lambda: self._loop_of(samples, after, every=True, switch=False), truth)
 
     def _loop_of(self, samples: list[Sample], after=None, every: bool | None = None, switch: bool = True) -> Loop:
         """A loop of this diagnoser's options that has taken ``samples``
