@@ -157,6 +157,8 @@ class Diagnoser:
         self.decoder: ModeDecoder | None = None  # a hidden mode's reader (the data have no mode column)
         self.keep = keep_steps(config.options, self.nominal.DT)  # the record kept while watching (None: all)
         self.offset = 0  # the steps of the grid forgotten (step k of the loop is step offset + k of the data)
+        #: whether the diagnoses made now try faults that come and go (off while the modes are read again)
+        self.intermittent = True
 
     def hide(self) -> None:
         """Read the mode from the data (they have no mode column): every
@@ -619,10 +621,16 @@ class Diagnoser:
         """The diagnosis of ``loop`` (it has taken the record), by the policy
         for an unexplained verdict: made again on the loop ``again`` builds
         (every fault model weighed) when :meth:`_retry` says so."""
-        d = loop.finish(self.sampler.summary(), truth)
+        return self._finished_loop(loop, again, truth)[0]
+
+    def _finished_loop(self, loop: Loop, again: Callable[[], Loop], truth: Run | None) -> tuple[Diagnosis, Loop]:
+        """:meth:`_finished`, and the loop whose diagnosis it is (faults that
+        come and go tried as :attr:`intermittent` says)."""
+        d = loop.finish(self.sampler.summary(), truth, self.intermittent)
         if self._retry(d, loop):
-            d = again().finish(self.sampler.summary(), truth)
-        return d
+            loop = again()
+            d = loop.finish(self.sampler.summary(), truth, self.intermittent)
+        return d, loop
 
     def _retry(self, d: Diagnosis, loop: Loop | None = None) -> bool:
         """Whether an unexplained verdict (of ``loop``, None: the loop that
@@ -662,18 +670,36 @@ class Diagnoser:
                 self.loop.events.append(degenerate)
                 if degenerate.switched:
                     self._switch(degenerate)
-        # (made again: an alarm the record's test raised while watching raised again)
-        diagnosis = self._finished(self.loop, lambda: self.replay(
-            dataclasses.replace(self.loop.options, switch=False), True, forced=self.loop.forced), truth)
-        diagnosis = self._after_false_alarm(diagnosis, truth)
-        diagnosis = self._missed_change(diagnosis, truth)
-        if self.decoder is not None and diagnosis.detection is not None and diagnosis.verdict != "no fault":
-            # (no fault after the alarm: the nominal reading stands; a fault model's own reading would be
-            # weighed against no fault on that fault's modes, not on the nominal's)
-            diagnosis = self._reread(diagnosis, truth)
+        if self.decoder is None:
+            diagnosis = self._first(truth)
+        else:  # faults that come and go tried once the modes are read, on the reading chosen (_reread)
+            diagnosis = self._without_intermittence(self._first, truth)
+            if diagnosis.detection is not None and diagnosis.verdict != "no fault":
+                # (no fault after the alarm: the nominal reading stands; a fault model's own reading would be
+                # weighed against no fault on that fault's modes, not on the nominal's)
+                diagnosis = self._reread(diagnosis, truth)
         if self.switched:
             diagnosis = dataclasses.replace(diagnosis, events=ordered(list(self.switched) + list(diagnosis.events)))
         return dataclasses.replace(diagnosis, seconds=time.perf_counter() - self.started)
+
+    def _first(self, truth: Run | None) -> Diagnosis:
+        """The diagnosis of the record as the loop took it: the loop's (made
+        again with every fault model when unexplained, :meth:`_retry`; an
+        alarm the record's test raised while watching raised again), after a
+        false alarm (:meth:`_after_false_alarm`), and of a change the
+        detector missed (:meth:`_missed_change`)."""
+        diagnosis = self._finished(self.loop, lambda: self.replay(
+            dataclasses.replace(self.loop.options, switch=False), True, forced=self.loop.forced), truth)
+        diagnosis = self._after_false_alarm(diagnosis, truth)
+        return self._missed_change(diagnosis, truth)
+
+    def _without_intermittence(self, make: Callable, *args):
+        """``make(*args)`` with faults that come and go not tried (:attr:`intermittent`)."""
+        self.intermittent = False
+        try:
+            return make(*args)
+        finally:
+            self.intermittent = True
 
     def _missed_change(self, d: Diagnosis, truth: Run | None) -> Diagnosis:
         """A mismatch without an alarm that is a change the detector missed rather than a model that does not fit:
@@ -808,11 +834,16 @@ class Diagnoser:
         reading), explains the data with the modes it reads itself. One such,
         or several whose diagnoses agree: that diagnosis is the verdict; none,
         or several that disagree: ``d`` stands, the readings said
-        (:class:`~bgc.events.ModesReread`)."""
+        (:class:`~bgc.events.ModesReread`). ``d`` did not try faults that
+        come and go (a reading is likely to be chosen over it): when it
+        stands, it is made again with them tried (:meth:`_first`), as the
+        diagnoses on the readings tried them (a fault that persists from
+        after every onset tried is dated anew by their banks,
+        :func:`~bgc.diagnosis.later.redated`)."""
         ranked = sorted(d.hypotheses, key=lambda h: (h.name not in d.candidates, -h.posterior, -h.log_evidence))
         weighed = [h for h in ranked if math.isfinite(h.estimate.value)][:POOL]
         if not weighed:
-            return d
+            return self._first(truth)
         index = self.nominal.MODE_INPUT
         read = np.array([s.u[index] for s in self.loop.samples])
         raw = []
@@ -833,18 +864,20 @@ class Diagnoser:
             onset, start, _, head = readings[name]
             samples = read_again(self.config.package.MODELS[name], raw, (onset, start), head)
             changed = int(np.sum(np.array([s.u[index] for s in samples]) != read))
-            again = d if not changed else self._made_on(samples, first, truth)
+            again, loop = (d, None) if not changed else self._made_on(samples, first, truth)
             explains = (again.verdict == "isolated" and again.candidates == (name,)) or (
                 again.verdict == "ambiguous" and set(again.candidates) == {name, _twin(name)})
             said.append(ev.ModesReread(len(read) - 1, name, changed, explains))
             if explains:
-                explained.append(again)
+                explained.append((again, loop))
         # one reading that explains the data, or several whose diagnoses agree (a stuck switch's and its
         # twin's: each reads the other's modes, and both come out as the same pair)
-        agree = all((e.verdict, set(e.candidates)) == (explained[0].verdict, set(explained[0].candidates))
-                    for e in explained)
-        chosen = explained[0] if explained and agree else d
-        kept = [false] if false is not None and chosen is not d else []  # the false alarm, said again
+        agree = all((e.verdict, set(e.candidates)) == (explained[0][0].verdict, set(explained[0][0].candidates))
+                    for e, _ in explained)
+        chosen, loop = explained[0] if explained and agree else (d, None)
+        if loop is None:  # d stands: made again with faults that come and go tried
+            chosen = self._first(truth)
+        kept = [false] if false is not None and loop is not None else []  # the false alarm, said again
         return dataclasses.replace(chosen, events=ordered(list(chosen.events) + kept + said))
 
     def _fault_reading(self, h, raw: list[Sample], heads: dict) -> tuple:
@@ -868,7 +901,7 @@ class Diagnoser:
         onset, start[-1], loglik = read_fault(model, raw, onsets, start, value, head)
         return onset, start, loglik, head
 
-    def _made_on(self, samples: list[Sample], after, truth: Run | None) -> Diagnosis:
+    def _made_on(self, samples: list[Sample], after, truth: Run | None) -> tuple[Diagnosis, Loop]:
         """The diagnosis made again on ``samples`` (another reading of the
         modes; ``after``: a false alarm, :meth:`_loop_of`), by the policy the
         first one had: unexplained, made again with every fault model
@@ -876,9 +909,9 @@ class Diagnoser:
         over a switch the fault moved can rule that fault out (a thermostat's
         wall losing more heat keeps its heater on longer, and the radiator's
         temperature reads above the nominal's, where the fault's own
-        signature says below)."""
-        return self._finished(self._loop_of(samples, after),
-                              lambda: self._loop_of(samples, after, every=True, switch=False), truth)
+        signature says below). Returns it and the loop it is of."""
+        return self._finished_loop(self._loop_of(samples, after),
+                                   lambda: self._loop_of(samples, after, every=True, switch=False), truth)
 
     def _loop_of(self, samples: list[Sample], after=None, every: bool | None = None, switch: bool = True) -> Loop:
         """A loop of this diagnoser's options that has taken ``samples``

@@ -86,13 +86,17 @@ class Record:
 class Setting:
     """What the end takes of the diagnoser's configuration: the generated
     package, each fault candidate's prior, the options, the detector's
-    horizon in steps, and ``say(text)``, told what is being done."""
+    horizon in steps, ``say(text)``, told what is being done, and
+    ``intermittent``: whether faults that come and go are tried
+    (:func:`~bgc.diagnosis.intermittent.revised`; off for a diagnosis on a
+    reading of hidden modes that may not be the one chosen)."""
 
     package: Package
     priors: Mapping[str, float]
     options: DiagnosisOptions
     horizon: int
     say: Callable[[str], None] = field(default=lambda text: None, compare=False)
+    intermittent: bool = True
 
     @property
     def ckf(self) -> bool:
@@ -122,7 +126,7 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     weighing_posteriors = {**posteriors, **static}
     null = nominal_evidence(r, s, observer) if weighing_posteriors and s.options.no_fault else None
     hyps, verdict, candidates, weighing = weighed(hyps + more, weighing_posteriors, r, s, null)
-    if not any(isinstance(e, ev.NoFault) for e in weighing):  # no fault holding a share: faults that come and go
+    if s.intermittent and not any(isinstance(e, ev.NoFault) for e in weighing):  # no fault holding a share: faults that come and go
         hyps, verdict, candidates, tried = revised(hyps, verdict, candidates, r, s, observer)
         weighing = redone(weighing, tried, hyps)
     events = list(r.events) + silent + rescued + weighing

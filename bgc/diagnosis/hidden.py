@@ -535,8 +535,8 @@ def read_fault(model, samples, onsets, start: np.ndarray, hint: float, head=None
     ``head``): every onset with a grid of :data:`GRID` sizes over the
     fault's prior and ``hint`` (NaN: none); then, at the best onset,
     :data:`REFINE` times a grid of as many sizes between the best one's
-    neighbours. A fault with no size (a stuck switch's flag) is its one
-    point. Returns the onset, the size and the log-likelihood of every
+    neighbours, the best one among them. A fault with no size (a stuck
+    switch's flag) is its one point. Returns the onset, the size and the log-likelihood of every
     sample with the modes hidden at them (the head's with the rest's:
     comparable between fault models)."""
     low, high = (float(v) for v in model.FAULT_PRIOR)
@@ -555,8 +555,11 @@ def read_fault(model, samples, onsets, start: np.ndarray, hint: float, head=None
         mine = np.flatnonzero(cells_onset == onset)
         where = int(np.searchsorted(cells_size[mine], size))
         a, b = cells_size[mine][max(where - 1, 0)], cells_size[mine][min(where + 1, len(mine) - 1)]
-        cells_size = np.linspace(a, b, GRID)
-        cells_onset = np.full(GRID, onset)
+        # the best point in the finer grid's middle, each side in as many steps (the hint spaced the first grid
+        # unevenly): no grid's best is less likely than the one before's
+        half = GRID // 2 + 1
+        cells_size = np.unique(np.concatenate([np.linspace(a, size, half), np.linspace(size, b, half)]))
+        cells_onset = np.full(len(cells_size), onset)
     return onset, size, loglik
 
 

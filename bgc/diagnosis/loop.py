@@ -509,13 +509,14 @@ class Loop:
                       self.detector.threshold, self.detection, self.isolation, tuple(self.events), data,
                       self.clock, self.clouds, self.kf.track() if self.kf is not None else None, tracked, self.excused)
 
-    def finish(self, data: DataSummary | None, truth: Run | None = None) -> Diagnosis:
-        """The diagnosis of the record (its ``seconds`` are the caller's)."""
+    def finish(self, data: DataSummary | None, truth: Run | None = None, intermittent: bool = True) -> Diagnosis:
+        """The diagnosis of the record (its ``seconds`` are the caller's;
+        ``intermittent``: whether faults that come and go are tried, :class:`~bgc.diagnosis.finish.Setting`)."""
         if self.detection is not None and self.isolation is None:  # the data ended before the symbols' samples
             self.isolate()
         c = self.config
         record = self.record(data)
-        d = finish(record, Setting(c.package, c.priors, c.options, self.horizon, c.say), truth)
+        d = finish(record, Setting(c.package, c.priors, c.options, self.horizon, c.say, intermittent), truth)
         if d.verdict == "ambiguous" and isinstance(c.signatures, ModeSignatures) and d.onset_step is not None:
             # which other mode's signatures would separate the candidates, over the modes since the onset
             mode = nominal_model(c.package).MODE_INPUT
