@@ -913,10 +913,11 @@ def nominal_logliks(models: list, ys: np.ndarray, us: np.ndarray) -> np.ndarray:
     K = len(kfs)
     blocks = [slice(i, i + 1) for i in range(K)]
     none, onsets = [np.zeros((0, 1))] * K, [slice(0, 0)] * K
-    state_factor = None
-    if len(kfs[0].carried):  # each model's own factoring of its known modes (_Filter._factor)
-        def state_factor(P):
-            return np.concatenate([kf._factor(P[b]) for kf, b in zip(kfs, blocks)])
+
+    def joined(P):  # each model's own factoring of its known modes (_Filter._factor)
+        return np.concatenate([kf._factor(P[b]) for kf, b in zip(kfs, blocks)])
+
+    state_factor = joined if len(kfs[0].carried) else None
     m = np.concatenate([k.m for k in kalmans])
     P = np.concatenate([k.P for k in kalmans])
     total = np.zeros(K)  # NominalKalman's logliks[-1], added to step by step as it adds
