@@ -846,11 +846,7 @@ class Diagnoser:
             return self._first(truth)
         index = self.nominal.MODE_INPUT
         read = np.array([s.u[index] for s in self.loop.samples])
-        raw = []
-        for s in self.loop.samples:
-            u = s.u.copy()
-            u[index] = np.nan
-            raw.append(dataclasses.replace(s, u=u, events=tuple(e for e in s.events if not isinstance(e, ev.ModeRead))))
+        raw = [_unread(s, index) for s in self.loop.samples]
         heads: dict = {}
         readings = {h.name: self._fault_reading(h, raw, heads) for h in weighed}
         for h in ranked:  # a candidate switch fault's twin, read too
@@ -951,6 +947,14 @@ class Diagnoser:
         from .state import restore_diagnoser
 
         return restore_diagnoser(cls, config, state)
+
+
+def _unread(s: Sample, index: int) -> Sample:
+    """Sample ``s`` with its mode (input ``index``) not read: NaN, its
+    :class:`~bgc.events.ModeRead` events gone."""
+    u = s.u.copy()
+    u[index] = np.nan
+    return dataclasses.replace(s, u=u, events=tuple(e for e in s.events if not isinstance(e, ev.ModeRead)))
 
 
 def _twin(name: str) -> str:
