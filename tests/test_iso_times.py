@@ -309,3 +309,59 @@ def test_a_clock_that_jumps_past_the_monitors_memory_is_refused_whole_in_one_lin
     report = json.loads((tmp_path / "m" / "report.json").read_text(encoding="utf-8"))
     before = _in_unit(_instant(lines[data[29]].split(",")[0]), "s")
     assert report["data"]["steps"] == 30 and report["data"]["t_last"] == pytest.approx(before, abs=1e-6)
+
+
+def test_a_folders_bad_row_is_named_by_its_own_file_and_line(tmp_path):
+    """A folder of a logger's two files whose second starts before the first
+    ends: `bgc monitor` reads them one after the other and names the bad row
+    by its own file and line (the second file's first row, line 3: a comment
+    and the column names before it), not by the folder and a count over
+    both."""
+    lines = _logger_lines()
+    head = [line for line in lines if not line[:1].isdigit()]
+    data = [line for line in lines if line[:1].isdigit()]
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    (folder / "d1.csv").write_text("".join(head + data[:60]), encoding="utf-8")
+    (folder / "d2.csv").write_text("".join(head + data[50:100]), encoding="utf-8")
+    out = bgc_cli("monitor", "models/two_tank.yaml", "--data", folder, "--columns", LOGGER_MAP, "--particles",
+                  "100", "-o", tmp_path / "m")
+    early, late = (_iso(_instant(row.split(",")[0])) for row in (data[50], data[59]))
+    bad = f"{folder / 'd2.csv'}:{len(head) + 1}: time {early} does not increase (the row before has {late})"
+    assert out.returncode != 0 and bad in out.stderr, out.stderr
+
+
+def test_a_clock_two_days_ahead_is_refused_as_a_jump_before_the_memory_rule(tmp_path):
+    """`bgc diagnose` of the logger's file with its clock two days ahead from
+    its 41st row: the refusal of a clock that jumped (its data row and time,
+    the steps of the gap, derived here), not the memory rule's."""
+    lines = _logger_lines()
+    data = [i for i, line in enumerate(lines) if line[:1].isdigit()]
+    for i in data[40:]:
+        stamp = lines[i].split(",")[0]
+        later = _instant(stamp) + dt.timedelta(days=2)
+        lines[i] = lines[i].replace(stamp, later.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z", 1)
+    path = tmp_path / "jumped.csv"
+    path.write_text("".join(lines), encoding="utf-8")
+    out = bgc_cli("diagnose", "models/two_tank.yaml", "--data", path, "--columns", LOGGER_MAP, "-o", tmp_path / "d")
+    after, before = (_instant(lines[i].split(",")[0]) for i in (data[40], data[39]))
+    steps = round((after - before) / dt.timedelta(seconds=0.5)) - 1
+    said = (f"jumped.csv, data row 41: time {_iso(after)} is {steps} steps of dt = 0.5 after the row before it, more "
+            "than 100000")
+    assert out.returncode != 0 and said in out.stderr and "GB" not in out.stderr, out.stderr
+
+
+def test_report_json_keeps_the_streams_first_time_in_full(tmp_path):
+    """report.json's ``data.stream.t_first_read`` (the first row the monitor
+    read) is the logger's first timestamp to the half second, as
+    ``data.t_first`` is (it was rounded to 6 digits: 50 minutes early)."""
+    lines = _logger_lines()
+    first = next(line for line in lines if line[:1].isdigit()).split(",")[0]
+    head = [line for line in lines if not line[:1].isdigit()]
+    rows = [line for line in lines if line[:1].isdigit()][:60]
+    out = bgc_cli("monitor", "models/two_tank.yaml", "--data", "-", "--columns", LOGGER_MAP, "--particles", "100",
+                  "-o", tmp_path / "m", input="".join(head + rows))
+    assert out.returncode == 0, out.stderr
+    data = json.loads((tmp_path / "m" / "report.json").read_text(encoding="utf-8"))["data"]
+    assert data["stream"]["t_first_read"] == pytest.approx(_in_unit(_instant(first), "s"), abs=1e-6)
+    assert data["stream"]["rows_read"] == 60

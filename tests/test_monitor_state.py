@@ -104,7 +104,7 @@ def test_a_monitor_started_again_on_its_state_gives_the_uninterrupted_diagnosis(
     assert again.returncode == 0, again.stderr
     said = again.stdout.splitlines()
     assert said[0] == "resumed from " + str(tmp_path / "state") + \
-        ": 100 rows, to t = 5; the input's rows after it are read on"
+        ": 100 rows read, to t = 5 (the record the diagnosis keeps: the last 100); the input's rows after it are read on"
     assert report(tmp_path / "again") == whole[1]
     assert said[1:-1] == whole[0].splitlines()[:-1]  # every event: none was said before t = 5
     assert said[-1].startswith("wrote ")
@@ -154,7 +154,7 @@ def test_a_restart_on_other_rows_than_the_state_was_saved_with_is_refused(tmp_pa
     assert fast_monitor(tmp_path, lines[:61], "a", "--state", tmp_path / "s").returncode == 0
     other = lines[:30] + [lines[30].replace(",10,", ",10.5,", 1)] + lines[31:]
     p = fast_monitor(tmp_path, other, "b", "--state", tmp_path / "s")
-    assert p.returncode != 0 and "line 31: the row of t = 1.5 differs from the one the state" in p.stderr, p.stderr
+    assert p.returncode != 0 and "<stdin>:31: the row of t = 1.5 differs from the one the state" in p.stderr, p.stderr
 
 
 def test_the_state_options_are_checked_before_the_input_is_read(tmp_path):
@@ -201,7 +201,8 @@ def test_a_monitor_killed_mid_stream_goes_on_from_its_last_state(tmp_path, whole
     again = subprocess.run(cmd("again"), input="".join(lines), capture_output=True, text=True, timeout=300,
                            env=dict(os.environ, MPLBACKEND="Agg"))
     assert again.returncode == 0, again.stderr
-    assert again.stdout.startswith(f"resumed from {state}: {rows} rows")
+    assert again.stdout.startswith(f"resumed from {state}: ") and f"(the record the diagnosis keeps: the last {rows})" \
+        in again.stdout.splitlines()[0]
     assert report(tmp_path / "again") == whole[1]
 
 
@@ -252,7 +253,9 @@ def test_a_restart_from_the_state_saved_as_an_episode_closed_gives_the_uninterru
     first = run("first", round(closed["time"] / DT), "--state", state)  # up to the row it closed on
     assert "episode 1 closed" in first.stdout and (state / resume.NAME).is_file() and saved_rows(state) == 0
     again = run("again", 180, "--state", state)
-    assert again.stdout.startswith(f"resumed from {state}: 0 rows, to t = {closed['time']:g};")
+    read = round(closed["time"] / DT)  # every row up to the one the episode closed on, none kept
+    assert again.stdout.startswith(f"resumed from {state}: {read} rows read, to t = {closed['time']:g} (the record "
+                                   "the diagnosis keeps: the last 0);")
     assert report(tmp_path / "again") == report(tmp_path / "whole")
 
 

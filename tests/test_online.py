@@ -198,12 +198,14 @@ def test_a_gap_limit_in_time_units_and_samples_on_a_taken_step():
 
 
 def test_a_clock_that_jumps_is_refused_not_predicted_across_for_hours():
-    """A file whose time jumps by 9e6 s: the grid it asks for is beyond the
-    diagnosis's memory, refused before any work; in a stream, the row that
-    jumps is refused with its line."""
+    """A file whose time jumps by 9e6 s (180,000,000 steps of 0.05 s, past
+    the 100,000 of a clock that jumped): refused before any work, its data
+    row named (not the memory rule its grid would also fail); in a stream,
+    the row that jumps is refused with its line."""
     run = simulated(CIRCUIT, steps=40)
     jumped = with_columns(run, time=np.where(np.arange(40) < 20, run.time, run.time + 9e6))
-    with pytest.raises(bgc.errors.TrackingError, match=r"circuit.csv: 40 samples over 180000040 steps of dt"):
+    with pytest.raises(DataError, match=r"circuit.csv, data row 21: time 9000001.05 is 180000000 steps of dt = "
+                                        r"0.05 after the row before it, more than 100000"):
         bgc.diagnose(session(CIRCUIT), data=jumped, options=OPTIONS)
     d = session(CIRCUIT).diagnoser(OPTIONS, source="log.csv")
     for i in range(20):

@@ -180,6 +180,14 @@ def test_a_folder_without_run_files_or_a_missing_file_is_one_line(tmp_path):
     ("time,y:a\n1,2\n2,x\n", "bad.csv:3: 'x' in column y:a is not a number"),
     ("time\n", "bad.csv: the run has no data rows, only column names"),
     ("\n\n# only comments\n", "bad.csv: no data"),
+    # a spreadsheet's export with semicolons (or tabs): one column of it all, said so
+    ("# x\ntime;y:a\n1;2\n", "bad.csv:2: the column names are separated by ';', not by commas"),
+    ("time\ty:a\n1\t2\n", "bad.csv:1: the column names are separated by '\\t', not by commas"),
+    # a logger that restarted and wrote its header again within the file
+    ("time,y:a\n1,2\ntime,y:a\n2,3\n", "bad.csv:3: the column names again, within the file"),
+    # the last line without its end of line (still being written), and a short row that is not the last
+    ("time,y:a\n1,2\n2", "bad.csv:3: 1 fields, expected 2: the file's last line, without its end of line"),
+    ("time,y:a\n1,2\n2\n3,4\n", "bad.csv:3: 1 fields, expected 2 (give every row one value per column)"),
 ])
 def test_times_and_cells_are_located(text, what):
     assert error(text).startswith(what), error(text)

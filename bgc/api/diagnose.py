@@ -19,7 +19,7 @@ from ..analysis import track
 from ..diagnosis.options import DiagnosisOptions
 from ..diagnosis.decomposed import Plan, diagnose as diagnose_decomposed
 from ..diagnosis.diagnose import IDENTIFY, diagnose as run_diagnosis
-from ..data.sampler import grid_steps
+from ..data.sampler import check_jumps, grid_steps
 from .limits import (METHODS, check_diagnosis_steps, check_options,
                      with_horizon)
 from .reports import DiagnosisReport
@@ -266,6 +266,7 @@ def _recorded_run(session: Session, run: runs.Run, opts: DiagnosisOptions) -> ru
     """A recorded run (read by :meth:`Session.read_run`), checked: its grid
     within the diagnosis's memory."""
     c = session.view
+    check_jumps(run.time, c.model.settings.dt, run.source, c.model.settings.time_unit)  # before the memory rule
     grid = grid_steps(run.time, c.model.settings.dt)  # the model's time grid: a gap's steps count too
     check_diagnosis_steps(grid, c.numerics, opts.particles, opts.filter,
                           f"{printable(run.source)}: {len(run.time)} samples"

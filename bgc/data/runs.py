@@ -306,6 +306,7 @@ class _Lines:
         self.named = False  # whether the column names were read
         self.blank = 0
         self.length = 0  # of the line last returned
+        self.ended = True  # whether it had its end of line (the last line of a file may not: still being written)
 
     def __iter__(self):
         return self
@@ -349,6 +350,7 @@ class _Lines:
                     raise self.error(f"more than {MAX_BLANK_LINES} blank lines", "remove the blank lines")
             else:
                 self.length = len(line)
+                self.ended = line.endswith("\n")
                 if self.endless and self.named:  # a row: the comment lines before the last one were read with it
                     cut = self._mark - self.dropped
                     del self.header[:cut]
@@ -356,6 +358,16 @@ class _Lines:
                     self._mark, self.blank = self.comments, 0
                 self.named = True  # (the first line that is no comment: the column names)
                 return line
+
+    def miscounted(self, fields: int, width: int) -> DataError:
+        """The error for a row of ``fields`` fields where the columns are
+        ``width``: the line last read; one without its end of line (the
+        file's last, a row the logger was still writing) says so."""
+        if fields < width and not self.ended:
+            return self.error(f"{fields} fields, expected {width}: the file's last line, without its end of line "
+                              "(a row the logger was still writing?)", "read the file once the row is complete, or "
+                              "follow it as it grows: bgc monitor --follow takes each row when its line ends")
+        return self.error(f"{fields} fields, expected {width}", "give every row one value per column")
 
     @property
     def comments(self) -> int:
@@ -419,8 +431,7 @@ class RowReader:
             if fields is None:
                 return
             if len(fields) != layout.width:
-                raise lines.error(f"{len(fields)} fields, expected {layout.width}",
-                                  "give every row one value per column")
+                raise lines.miscounted(len(fields), layout.width)
             if lines.length > MAX_FIELD:
                 _fields(fields, lines)
             values = layout.row(fields, lines)
@@ -452,9 +463,16 @@ class _Layout:
     time_unit: str | None = None
     #: whether a scale or an offset is not 1 or 0 (decided once, not per row)
     scaling: bool = False
+    #: the file's column names, as its header line has them
+    header: tuple[str, ...] = ()
 
     def row(self, fields: list[str], lines: _Lines) -> list[float]:
         """One row's numbers (its fields as the file has them), in bgc's column order, unscaled."""
+        if tuple(fields) == self.header:
+            raise lines.error("the column names again, within the file (a logger that restarted and wrote its "
+                              "header anew?): a file has one header line",
+                              "delete that line, or start a new file there (a folder of a logger's files reads "
+                              "as one run, each file with its header)")
         out = [_number(fields[j], c, lines) for j, c in zip(self.index[1:], self.names[1:])]
         return [self.time(fields[self.index[0]], lines), *out]
 
@@ -484,6 +502,11 @@ def _columns(reader, lines: _Lines, name: str, reading: Reading) -> _Layout:
     first_line = lines.number
     _fields(cols, lines)
     where = f"{name}:{first_line}"
+    if len(cols) == 1 and any(sep in cols[0] for sep in ";\t|"):  # another separator: one column of it all
+        sep = next(sep for sep in ";\t|" if sep in cols[0])
+        raise DataError(f"{where}: the column names are separated by {sep!r}, not by commas: bgc reads "
+                        "comma-separated files (a decimal point, not a comma)", None,
+                        "export the logger's file with commas between the fields and points in the numbers")
     mapping = reading.columns
     if mapping is None and cols and sum(c != "time" and not bgc_name(c) for c in cols) > 1:
         raise reading.foreign_columns(cols, where)
@@ -524,7 +547,7 @@ def _columns(reader, lines: _Lines, name: str, reading: Reading) -> _Layout:
         offset.insert(at, entry.offset if entry is not None else 0.0)
     scales, offsets = np.array(scale), np.array(offset)
     return _Layout(out, index, len(cols), scales, offsets, reading.seconds_per_unit, reading.time_unit,
-                   bool(np.any(scales != 1.0) or np.any(offsets != 0.0)))
+                   bool(np.any(scales != 1.0) or np.any(offsets != 0.0)), tuple(cols))
 
 
 def _parse(stream: IO, name: str, reading: Reading | None = None) -> Run:
@@ -546,8 +569,7 @@ def _parse(stream: IO, name: str, reading: Reading | None = None) -> Run:
     try:
         for fields in reader:
             if len(fields) != layout.width:
-                raise lines.error(f"{len(fields)} fields, expected {layout.width}",
-                                  "give every row one value per column")
+                raise lines.miscounted(len(fields), layout.width)
             if lines.length > MAX_FIELD:
                 _fields(fields, lines)
             picked = fields if plain else [fields[j] for j in layout.index]

@@ -343,6 +343,25 @@ class DataSummary:
     timing: str = "end"
 
 
+def check_jumps(time, dt: float, source: str, time_unit: str | None = None) -> None:
+    """Refuse a recorded run (times ``time``, increasing, on a grid of
+    ``dt``) with a gap of more than :data:`MAX_GAP_STEPS` steps, as a
+    :class:`Sampler` refuses its row (a clock that jumped), naming the data
+    row after it and its time (``time_unit``: the model's, by which it is
+    written, :class:`~bgc.data.clock.Clock`), before any work on the run."""
+    t = np.asarray(time, dtype=float)
+    if len(t) < 2:
+        return
+    missing = np.rint(np.diff(t) / dt) - 1
+    if not missing.max() > MAX_GAP_STEPS:
+        return
+    k = int(np.argmax(missing > MAX_GAP_STEPS)) + 1
+    many = f"{int(missing[k - 1])}" if missing[k - 1] < 1e15 else f"{float(missing[k - 1]):.3g}"
+    raise DataError(f"{printable(source)}, data row {k + 1}: time {Clock.of(t[:1], time_unit).text(t[k])} is {many} "
+                    f"steps of dt = {dt:g} after the row before it, more than {MAX_GAP_STEPS}", None,
+                    "check the time column (a clock that jumped?), or split the data at the gap")
+
+
 def grid_steps(time, dt: float) -> int:
     """The steps of the model's time grid (of ``dt``) that samples at ``time``
     (increasing) cover: the first to the last, the steps between them too."""

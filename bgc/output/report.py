@@ -139,10 +139,10 @@ def report_data(r) -> dict[str, Any]:
         "data": {"scenario": r.scenario, "steps": int(len(d.time)), "t_first": _time(float(d.time[0])),
                  "t_last": _time(float(d.time[-1])),
                  "stream": None if r.stream is None else {"rows_read": int(r.stream[0]),
-                                                          "t_first_read": _num(r.stream[1])},
+                                                          "t_first_read": _time(r.stream[1])},
                  "injected": None if r.injected is None else {
                      "parameter": r.injected.parameter, "kind": r.injected.kind,
-                     "magnitude": _num(r.injected.magnitude), "time": _num(r.injected.time)}},
+                     "magnitude": _num(r.injected.magnitude), "time": _time(r.injected.time)}},
         "settings": {"filter": d.options.filter, "particles": d.options.particles, "seed": d.options.seed,
                      "identify": d.options.identify,
                      "false_alarm_per_horizon": d.options.false_alarm, "rejection": d.options.rejection,

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import re
 import signal
 import stat
 import threading
@@ -79,6 +80,13 @@ class Follow:
         self.inode = os.fstat(stream.fileno()).st_ino
         self.names: bytes | None = None  # the first file's column line
         self.skipping = False  # a new file's header lines are skipped
+        self.first = path  # the file read first
+        self.file_line = 0  # the lines read from the file read now (a header's skipped ones too)
+        self.returned = 0  # the lines given to the reader, all files
+        #: per file read after the first (or the same path rotated): (the reader's number of its first line
+        #: given, its path, that line's number in it), for :meth:`located`
+        self.starts: list[tuple[int, str, int]] = []
+        self.fresh = False  # a file opened: its first line given starts an entry of starts
 
     def readline(self, limit: int = -1) -> bytes:
         waited = 0.0
@@ -89,8 +97,13 @@ class Follow:
                 self.pending += chunk
                 if self.pending.endswith(b"\n") or 0 < limit <= len(self.pending):
                     line, self.pending = self.pending, b""
+                    self.file_line += 1
                     if self._header(line):
                         continue
+                    self.returned += 1
+                    if self.fresh:
+                        self.starts.append((self.returned, str(self.path), self.file_line))
+                        self.fresh = False
                     return line
                 continue
             if self._rotated():
@@ -101,6 +114,17 @@ class Follow:
                 return b""
             time.sleep(self.poll)
             waited += self.poll
+
+    def located(self, line: int) -> tuple[str, int] | None:
+        """The file and its line of the reader's line ``line`` (its count
+        over every file read), None when only one file was read as given."""
+        if not self.starts and self.pattern is None:
+            return None
+        path, base, local = str(self.first), 1, 1
+        for given, p, at in self.starts:
+            if given <= line:
+                path, base, local = p, given, at
+        return path, local + line - base
 
     def _header(self, line: bytes) -> bool:
         """Whether ``line`` is a new file's header line, skipped; the first
@@ -122,7 +146,7 @@ class Follow:
         name = printable(self.path or "the followed file")
         if os.fstat(self.stream.fileno()).st_size < self.stream.tell():
             self.stream.seek(0)
-            self.pending, self.skipping = b"", True
+            self.pending, self.skipping, self.file_line, self.fresh = b"", True, 0, True
             self.say(f"{name} was truncated (rotated by copy and truncate): reading it again from its start")
             return True
         if self.path is None:
@@ -169,7 +193,7 @@ class Follow:
                             "follow regular files")
         self.stream.close()
         self.stream, self.inode, self.path = fresh, os.fstat(fresh.fileno()).st_ino, path
-        self.pending, self.skipping = b"", True
+        self.pending, self.skipping, self.file_line, self.fresh = b"", True, 0, True
         return True
 
 
@@ -232,6 +256,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     except KeyboardInterrupt:
         say("interrupted: finishing the diagnosis of the data so far")
     except BgcError as exc:  # a bad row, a followed file replaced by no regular file, the memory rule: the rows so far are diagnosed
+        _located(exc, stream, name)
         if not run.rows:
             raise
         failure = exc
@@ -241,6 +266,17 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
         if run.rows:
             run.keep.save(run.rows, run.last_check, run.d, run.excluded)  # where the input ended: a restart goes on from there
     return run.finish(stream), failure
+
+
+def _located(exc: BgcError, stream, name: str) -> None:
+    """Error ``exc`` about line N of the input ``name`` (``NAME:N: ...``)
+    made to name the file and its line instead, where ``stream`` read
+    several files one after the other (:meth:`Follow.located`)."""
+    match = re.match(rf"{re.escape(printable(name))}:(\d+): ", exc.what)
+    where = stream.located(int(match.group(1))) if match and hasattr(stream, "located") else None
+    if where is not None:
+        exc.what = f"{printable(where[0])}:{where[1]}: {exc.what[match.end():]}"
+        exc.args = (exc.line(),)
 
 
 class _Monitor:
@@ -325,8 +361,9 @@ class _Monitor:
         self.forgot = self.d.offset
         self.rows_time = self.latest = saved.last_time
         self.keep.stream = saved.stream
-        self.say(f"resumed from {printable(str(self.keep.where))}: {len(self.rows)} rows, to t = "
-                 f"{self.clock.text(saved.last_time)}; the input's rows after it are read on")
+        self.say(f"resumed from {printable(str(self.keep.where))}: {self.keep.stream[0]} rows read, to t = "
+                 f"{self.clock.text(saved.last_time)} (the record the diagnosis keeps: the last {len(self.rows)}); "
+                 "the input's rows after it are read on")
 
     @property
     def clock(self) -> Clock:
@@ -385,7 +422,7 @@ class _Monitor:
         """Take one row of the input (``guard``: Ctrl-C waits for the end of its step)."""
         t = values[0]
         if self.saved is not None and t <= self.saved.last_time:
-            self.keep.same(values, line, self.name)  # diagnosed before the restart: the same row as then
+            self.keep.same(values, line, self.name, self.clock)  # diagnosed before the restart: the same row as then
             if self.log is not None:  # and the repairs before it taken then: those after the last one saved too
                 self.log.remarks = self.reader.lines.comments + self.after_saved
             return
@@ -604,12 +641,13 @@ class _Keeper:
             self.before = {float(r[0]): r for r in saved.rows}
         return saved
 
-    def same(self, values, line, name: str) -> None:
+    def same(self, values, line, name: str, clock: Clock) -> None:
         """Refuse a row passed over on a restart that differs from the row of
-        that time the state was saved with (when it holds one)."""
+        that time the state was saved with (when it holds one; ``clock``:
+        how the message writes its time)."""
         then = self.before.get(float(values[0]))
         if then is not None and not np.array_equal(np.asarray(values, dtype=float), then, equal_nan=True):
-            raise DataError(f"{printable(name)}, line {line}: the row of t = {values[0]:.12g} differs from the one "
+            raise DataError(f"{printable(name)}:{line}: the row of t = {clock.text(values[0])} differs from the one "
                             f"the state in {printable(str(self.where))} was saved with", None,
                             "give the input the monitor read before the restart, or start afresh with another "
                             "--state folder")
