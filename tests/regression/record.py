@@ -115,6 +115,18 @@ step 7 with a slope of 0.00644 pressed against that bound, its interval [0.00589
 the truth: a model that does not fit these data (its prior), not a drift since t = 8. The other 41
 cases are unchanged. Recorded again in the same session when the note of a mismatch too short to tell
 came to say "the fault's onset leaves 7 sample(s)" (it said "the alarm's", and the 7 were the drift's).
+Re-recorded on 2026-12-07 (--only ro_R_pipe_drift_up_gpf drivetrain_none_no_switch_gpf --keep-runs) when
+a hypothesis its particle filters' test dropped while others passed, its most probable onset's filter
+having run to the end, came to be tested again with its magnitude held static
+(bgc.diagnosis.finish._retried; tests/test_rescued.py: the two tanks' R12 step named "isolated:
+R10_abrupt" after R12's filter crossed its threshold on one sample). Their verdicts and candidates are
+unchanged. In ro_R_pipe_drift_up_gpf ("ambiguous", the truth R_pipe's drift among the candidates) the
+rival R_rp_abrupt, dropped by its filters at step 239, is tested again and dropped at step 249 from its
+static posterior's onset (its estimate 0.0573, was 0.0442). In drivetrain_none_no_switch_gpf (fault-free,
+"no fault" after a false alarm) b2_abrupt and b2_incipient, dropped by their filters at step 4, pass
+their static tests and are weighed (posteriors 0.014 and 0.0015; no fault's share holds the verdict), the
+others' posteriors moving by 1.6 % of themselves. The other 40 cases are unchanged.
+
 A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
 ``bgc/`` holds exactly the code being committed, and commits the corpus with
