@@ -291,3 +291,35 @@ def test_a_restart_on_a_pipe_of_the_new_rows_takes_the_repair_said_in_it(tmp_pat
     assert before == whole[:2]
     after = run("after", then, "--state", state)
     assert after == whole, after
+
+
+@pytest.mark.slow
+def test_a_state_is_for_what_the_column_map_does_not_for_its_comments(tmp_path):
+    """A logger's file monitored with its column map and a state, then again
+    with the map moved, a comment added and a scale written 0.00100: the
+    state is taken up (the same map); with one scale changed it is refused
+    in one line naming the column map."""
+    logger = ROOT / "docs" / "examples" / "tank_logger.csv"
+    text = (ROOT / "docs" / "examples" / "tank_logger.yaml").read_text(encoding="utf-8")
+    lines = logger.read_text(encoding="utf-8").splitlines(keepends=True)
+    first = "".join(lines[:62])
+    (tmp_path / "map.yaml").write_text(text, encoding="utf-8")
+    (tmp_path / "other").mkdir()
+    same = (tmp_path / "other" / "map.yaml")
+    same.write_text("# the same map, with a comment\n" + text.replace("drain1_Lps: {name: y:F10, scale: 0.001}",
+                                                                      "drain1_Lps: {name: y:F10, scale: 0.00100}"),
+                    encoding="utf-8")
+    changed = tmp_path / "changed.yaml"
+    changed.write_text(text.replace("drain1_Lps: {name: y:F10, scale: 0.001}",
+                                    "drain1_Lps: {name: y:F10, scale: 0.0011}"), encoding="utf-8")
+
+    def monitor(columns, out, data):
+        return bgc_cli("monitor", "models/two_tank.yaml", "--data", "-", "--columns", columns, "--particles", "100",
+                       "--state", tmp_path / "s", "-o", tmp_path / out, input=data)
+
+    assert monitor(tmp_path / "map.yaml", "a", first).returncode == 0
+    again = monitor(same, "b", "".join(lines))
+    assert again.returncode == 0 and again.stdout.startswith(f"resumed from {tmp_path / 's'}: 60 rows read"), \
+        again.stdout + again.stderr
+    refused = monitor(changed, "c", "".join(lines))
+    assert refused.returncode != 0 and "another column map" in refused.stderr, refused.stderr

@@ -77,7 +77,7 @@ def identity(session, options, checkpoint: float | None, columns: list[str], exc
     """What a state is valid for: the same bgc, model, noise (a relative
     level of 1 is the model's), prior scale, options, checkpoint period,
     exclusion of faulty sensors, episodes and their re-arming, columns and
-    column map (``reading``'s). The
+    what the column map does (``reading``'s, :func:`_mapping`). The
     backend is not part of it: both give the same numbers (their packages
     are checked against each other); nor are the processes the hypotheses
     run on (:data:`bgc.diagnosis.options.UNBOUND`)."""
@@ -87,9 +87,19 @@ def identity(session, options, checkpoint: float | None, columns: list[str], exc
     return {"bgc": __version__, "code": code_digest(), "model": hashlib.sha256(text).hexdigest(),
             "noise": [1.0 if n is None else float(n) for n in session.noise], "prior_scale": session.prior_scale,
             "options": _plain({k: v for k, v in dataclasses.asdict(options).items() if k not in UNBOUND}),
-            "column_map": hashlib.sha256(repr(getattr(reading, "columns", None)).encode()).hexdigest(),
+            "column_map": hashlib.sha256(repr(_mapping(getattr(reading, "columns", None))).encode()).hexdigest(),
             "checkpoint": checkpoint, "exclude_faulty": bool(exclude_faulty), "episodes": bool(episodes),
             "rearm": rearm, "columns": list(columns)}
+
+
+def _mapping(columns) -> tuple | None:
+    """What a column map (:class:`~bgc.data.columns.ColumnMap`; None: none)
+    does to the data: its time column and, per logger column, bgc's name,
+    scale and offset; not where its file is or on which lines it says so (a
+    comment added, ``0.00100`` for ``0.001``: the same map)."""
+    if columns is None:
+        return None
+    return columns.time, tuple(sorted((e.column, e.name or "", e.scale, e.offset) for e in columns.entries))
 
 
 def _plain(value):
