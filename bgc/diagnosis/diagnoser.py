@@ -674,6 +674,9 @@ class Diagnoser:
             diagnosis = self._first(truth)
         else:  # faults that come and go tried once the modes are read, on the reading chosen (_reread)
             diagnosis = self._without_intermittence(self._first, truth)
+            if self.loop.detection is not None and (diagnosis.detection is None or diagnosis.verdict == "no fault"):
+                # an alarm the trial bears on all the same: a glitch's test reads the faults it dates anew
+                diagnosis = self._first(truth)
             if diagnosis.detection is not None and diagnosis.verdict != "no fault":
                 # (no fault after the alarm: the nominal reading stands; a fault model's own reading would be
                 # weighed against no fault on that fault's modes, not on the nominal's)

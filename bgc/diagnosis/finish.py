@@ -584,7 +584,8 @@ def _retried(h: Hypothesis, kept: list[Hypothesis], results: dict, r: Record) ->
     - any other whose most probable onset's filter still ran to the end
       (only off the data by the test's margin, not stopped): when no
       hypothesis passed its particle filters' test (``kept`` empty), and
-      when others did, one the test dropped (``inconsistent``). That test
+      when others did, one the test dropped (``inconsistent``; a drift not
+      where only steps passed, as above). That test
       is one window's statistic past its threshold at the rejection level,
       which the true fault's filters cross too now and then over a long
       record; dropped for good, it left the fault that passed isolated with
@@ -598,6 +599,8 @@ def _retried(h: Hypothesis, kept: list[Hypothesis], results: dict, r: Record) ->
         return False
     if h.drop.code == "inconsistent" and drifts[h.name] and (not kept or any(drifts[k.name] for k in kept)):
         return True
+    if drifts[h.name] and kept and not any(drifts[k.name] for k in kept):
+        return False  # only steps passed: a drift is not tested again (above)
     ran = math.isfinite(results[(h.name, h.start_step)]["evidence"])
     return ran and (not kept or h.drop.code == "inconsistent")
 

@@ -246,8 +246,12 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
     if episodes and checkpoint is None:
         raise BgcError("--episodes are closed at checkpoints: a fault is isolated there", None,
                        "add --checkpoint TIME, e.g. --checkpoint 10")
-    run = _Monitor(session, stream, name, options, say, checkpoint, progress, exclude_faulty, reading,
-                   state, state_every, rearm if episodes else None, episodes)
+    try:
+        run = _Monitor(session, stream, name, options, say, checkpoint, progress, exclude_faulty, reading,
+                       state, state_every, rearm if episodes else None, episodes)
+    except BgcError as exc:  # the column names: a folder's first file's
+        _located(exc, stream, name)
+        raise
     guard = _Guard()
     failure = None
     try:

@@ -123,9 +123,10 @@ R10_abrupt" after R12's filter crossed its threshold on one sample). Their verdi
 unchanged. In ro_R_pipe_drift_up_gpf ("ambiguous", the truth R_pipe's drift among the candidates) the
 rival R_rp_abrupt, dropped by its filters at step 239, is tested again and dropped at step 249 from its
 static posterior's onset (its estimate 0.0573, was 0.0442). In drivetrain_none_no_switch_gpf (fault-free,
-"no fault" after a false alarm) b2_abrupt and b2_incipient, dropped by their filters at step 4, pass
-their static tests and are weighed (posteriors 0.014 and 0.0015; no fault's share holds the verdict), the
-others' posteriors moving by 1.6 % of themselves. The other 40 cases are unchanged.
+"no fault" after a false alarm) b2_abrupt, dropped by its filters at step 4, passes its static test and
+is weighed (posterior 0.014; no fault's share, 0.985, holds the verdict), the others' posteriors moving
+by about 1.5 % of themselves; b2_incipient, a drift where only steps passed, is not tested again (a
+review's finding: the first version tested it too, posterior 0.0015). The other 40 cases are unchanged.
 
 A change that is meant to change
 diagnoses re-records the corpus with this script, from a checkout whose
