@@ -502,8 +502,8 @@ def _columns(reader, lines: _Lines, name: str, reading: Reading) -> _Layout:
     first_line = lines.number
     _fields(cols, lines)
     where = f"{name}:{first_line}"
-    if len(cols) == 1 and any(sep in cols[0] for sep in ";\t|"):  # another separator: one column of it all
-        sep = next(sep for sep in ";\t|" if sep in cols[0])
+    sep = next((c for c in ";\t|" if c in cols[0]), None) if len(cols) == 1 else None  # one column of it all
+    if sep is not None:
         raise DataError(f"{where}: the column names are separated by {sep!r}, not by commas: bgc reads "
                         "comma-separated files (a decimal point, not a comma)", None,
                         "export the logger's file with commas between the fields and points in the numbers")

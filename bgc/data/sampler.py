@@ -163,13 +163,8 @@ class Sampler:
             return []
         missing = k - self.k - 1
         if missing > MAX_GAP_STEPS or (missing > 0 and room is not None and missing + 1 > room):
-            where = self._where(line)
-            many = f"{missing}" if missing < 1e15 else f"{float(missing):.3g}"
-            most = f"more than {MAX_GAP_STEPS}" if missing > MAX_GAP_STEPS else \
-                f"more than the {max(room - 1, 0)} the diagnosis can still hold in memory"
-            raise DataError(f"{where}: time {self.clock(t).text(t)} is {many} steps of dt = {self.dt:g} after the "
-                            f"sample before it, {most}", None,
-                            "check the time column (a clock that jumped?), or split the data at the gap")
+            raise jumped(self._where(line), self.clock(t).text(t), missing, self.dt, "sample",
+                         None if missing > MAX_GAP_STEPS else max(room - 1, 0))
         self.last_t, self.t0 = t, t0  # the row is taken: a refused one leaves the sampler as it was
         out = []
         first = self.k + 1
@@ -356,10 +351,20 @@ def check_jumps(time, dt: float, source: str, time_unit: str | None = None) -> N
     if not missing.max() > MAX_GAP_STEPS:
         return
     k = int(np.argmax(missing > MAX_GAP_STEPS)) + 1
-    many = f"{int(missing[k - 1])}" if missing[k - 1] < 1e15 else f"{float(missing[k - 1]):.3g}"
-    raise DataError(f"{printable(source)}, data row {k + 1}: time {Clock.of(t[:1], time_unit).text(t[k])} is {many} "
-                    f"steps of dt = {dt:g} after the row before it, more than {MAX_GAP_STEPS}", None,
-                    "check the time column (a clock that jumped?), or split the data at the gap")
+    raise jumped(f"{printable(source)}, data row {k + 1}", Clock.of(t[:1], time_unit).text(t[k]), missing[k - 1], dt,
+                 "row")
+
+
+def jumped(where: str, when: str, missing: float, dt: float, before: str, room: int | None = None) -> DataError:
+    """The refusal of a row ``where`` (its time written ``when``) after
+    ``missing`` steps of ``dt`` with no sample, from the ``before`` (sample
+    or row) before it: more than :data:`MAX_GAP_STEPS` (a clock that
+    jumped), or than ``room``, the steps the diagnosis can still hold."""
+    many = f"{int(missing)}" if missing < 1e15 else f"{float(missing):.3g}"
+    most = f"more than {MAX_GAP_STEPS}" if room is None else \
+        f"more than the {room} the diagnosis can still hold in memory"
+    return DataError(f"{where}: time {when} is {many} steps of dt = {dt:g} after the {before} before it, {most}", None,
+                     "check the time column (a clock that jumped?), or split the data at the gap")
 
 
 def grid_steps(time, dt: float) -> int:

@@ -620,17 +620,12 @@ class Diagnoser:
     def _finished(self, loop: Loop, again: Callable[[], Loop], truth: Run | None) -> Diagnosis:
         """The diagnosis of ``loop`` (it has taken the record), by the policy
         for an unexplained verdict: made again on the loop ``again`` builds
-        (every fault model weighed) when :meth:`_retry` says so."""
-        return self._finished_loop(loop, again, truth)[0]
-
-    def _finished_loop(self, loop: Loop, again: Callable[[], Loop], truth: Run | None) -> tuple[Diagnosis, Loop]:
-        """:meth:`_finished`, and the loop whose diagnosis it is (faults that
-        come and go tried as :attr:`intermittent` says)."""
+        (every fault model weighed) when :meth:`_retry` says so; faults that
+        come and go tried as :attr:`intermittent` says."""
         d = loop.finish(self.sampler.summary(), truth, self.intermittent)
         if self._retry(d, loop):
-            loop = again()
-            d = loop.finish(self.sampler.summary(), truth, self.intermittent)
-        return d, loop
+            d = again().finish(self.sampler.summary(), truth, self.intermittent)
+        return d
 
     def _retry(self, d: Diagnosis, loop: Loop | None = None) -> bool:
         """Whether an unexplained verdict (of ``loop``, None: the loop that
@@ -673,7 +668,7 @@ class Diagnoser:
         if self.decoder is None:
             diagnosis = self._first(truth)
         else:  # faults that come and go tried once the modes are read, on the reading chosen (_reread)
-            diagnosis = self._without_intermittence(self._first, truth)
+            diagnosis = self._first(truth, intermittent=False)
             if self.loop.detection is not None and (diagnosis.detection is None or diagnosis.verdict == "no fault"):
                 # an alarm the trial bears on all the same: a glitch's test reads the faults it dates anew
                 diagnosis = self._first(truth)
@@ -685,22 +680,20 @@ class Diagnoser:
             diagnosis = dataclasses.replace(diagnosis, events=ordered(list(self.switched) + list(diagnosis.events)))
         return dataclasses.replace(diagnosis, seconds=time.perf_counter() - self.started)
 
-    def _first(self, truth: Run | None) -> Diagnosis:
+    def _first(self, truth: Run | None, intermittent: bool = True) -> Diagnosis:
         """The diagnosis of the record as the loop took it: the loop's (made
         again with every fault model when unexplained, :meth:`_retry`; an
         alarm the record's test raised while watching raised again), after a
         false alarm (:meth:`_after_false_alarm`), and of a change the
-        detector missed (:meth:`_missed_change`)."""
-        diagnosis = self._finished(self.loop, lambda: self.replay(
-            dataclasses.replace(self.loop.options, switch=False), True, forced=self.loop.forced), truth)
-        diagnosis = self._after_false_alarm(diagnosis, truth)
-        return self._missed_change(diagnosis, truth)
-
-    def _without_intermittence(self, make: Callable, *args):
-        """``make(*args)`` with faults that come and go not tried (:attr:`intermittent`)."""
-        self.intermittent = False
+        detector missed (:meth:`_missed_change`); ``intermittent`` False:
+        faults that come and go not tried (:attr:`intermittent`, for its
+        course)."""
+        self.intermittent = intermittent
         try:
-            return make(*args)
+            diagnosis = self._finished(self.loop, lambda: self.replay(
+                dataclasses.replace(self.loop.options, switch=False), True, forced=self.loop.forced), truth)
+            diagnosis = self._after_false_alarm(diagnosis, truth)
+            return self._missed_change(diagnosis, truth)
         finally:
             self.intermittent = True
 
@@ -863,20 +856,20 @@ class Diagnoser:
             onset, start, _, head = readings[name]
             samples = read_again(self.config.package.MODELS[name], raw, (onset, start), head)
             changed = int(np.sum(np.array([s.u[index] for s in samples]) != read))
-            again, loop = (d, None) if not changed else self._made_on(samples, first, truth)
+            again = d if not changed else self._made_on(samples, first, truth)
             explains = (again.verdict == "isolated" and again.candidates == (name,)) or (
                 again.verdict == "ambiguous" and set(again.candidates) == {name, _twin(name)})
             said.append(ev.ModesReread(len(read) - 1, name, changed, explains))
             if explains:
-                explained.append((again, loop))
+                explained.append((again, bool(changed)))
         # one reading that explains the data, or several whose diagnoses agree (a stuck switch's and its
         # twin's: each reads the other's modes, and both come out as the same pair)
         agree = all((e.verdict, set(e.candidates)) == (explained[0][0].verdict, set(explained[0][0].candidates))
                     for e, _ in explained)
-        chosen, loop = explained[0] if explained and agree else (d, None)
-        if loop is None:  # d stands: made again with faults that come and go tried
+        chosen, read = explained[0] if explained and agree else (d, False)
+        if not read:  # d stands: made again with faults that come and go tried
             chosen = self._first(truth)
-        kept = [false] if false is not None and loop is not None else []  # the false alarm, said again
+        kept = [false] if false is not None and read else []  # the false alarm, said again
         return dataclasses.replace(chosen, events=ordered(list(chosen.events) + kept + said))
 
     def _fault_reading(self, h, raw: list[Sample], heads: dict) -> tuple:
@@ -900,7 +893,7 @@ class Diagnoser:
         onset, start[-1], loglik = read_fault(model, raw, onsets, start, value, head)
         return onset, start, loglik, head
 
-    def _made_on(self, samples: list[Sample], after, truth: Run | None) -> tuple[Diagnosis, Loop]:
+    def _made_on(self, samples: list[Sample], after, truth: Run | None) -> Diagnosis:
         """The diagnosis made again on ``samples`` (another reading of the
         modes; ``after``: a false alarm, :meth:`_loop_of`), by the policy the
         first one had: unexplained, made again with every fault model
@@ -908,9 +901,9 @@ class Diagnoser:
         over a switch the fault moved can rule that fault out (a thermostat's
         wall losing more heat keeps its heater on longer, and the radiator's
         temperature reads above the nominal's, where the fault's own
-        signature says below). Returns it and the loop it is of."""
-        return self._finished_loop(self._loop_of(samples, after),
-                                   lambda: self._loop_of(samples, after, every=True, switch=False), truth)
+        signature says below)."""
+        return self._finished(self._loop_of(samples, after),
+                              lambda: self._loop_of(samples, after, every=True, switch=False), truth)
 
     def _loop_of(self, samples: list[Sample], after=None, every: bool | None = None, switch: bool = True) -> Loop:
         """A loop of this diagnoser's options that has taken ``samples``

@@ -126,7 +126,8 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
     weighing_posteriors = {**posteriors, **static}
     null = nominal_evidence(r, s, observer) if weighing_posteriors and s.options.no_fault else None
     hyps, verdict, candidates, weighing = weighed(hyps + more, weighing_posteriors, r, s, null)
-    if s.intermittent and not any(isinstance(e, ev.NoFault) for e in weighing):  # no fault holding a share: faults that come and go
+    # no fault holding a share (and the setting's leave): faults that come and go
+    if s.intermittent and not any(isinstance(e, ev.NoFault) for e in weighing):
         hyps, verdict, candidates, tried = revised(hyps, verdict, candidates, r, s, observer)
         weighing = redone(weighing, tried, hyps)
     events = list(r.events) + silent + rescued + weighing

@@ -536,9 +536,9 @@ def read_fault(model, samples, onsets, start: np.ndarray, hint: float, head=None
     fault's prior and ``hint`` (NaN: none); then, at the best onset,
     :data:`REFINE` times a grid of as many sizes between the best one's
     neighbours, the best one among them. A fault with no size (a stuck
-    switch's flag) is its one point. Returns the onset, the size and the log-likelihood of every
-    sample with the modes hidden at them (the head's with the rest's:
-    comparable between fault models)."""
+    switch's flag) is its one point. Returns the onset, the size and the
+    log-likelihood of every sample with the modes hidden at them (the
+    head's with the rest's: comparable between fault models)."""
     low, high = (float(v) for v in model.FAULT_PRIOR)
     onsets = np.asarray(sorted(set(int(k) for k in onsets)), dtype=np.intp)
     hints = [np.clip(hint, low, high)] if math.isfinite(hint) else []
