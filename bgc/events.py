@@ -505,6 +505,21 @@ class SensorExcluded:
 
 
 @dataclass(frozen=True, slots=True)
+class Bridged:
+    """No row from time ``began`` to time ``time`` (``steps`` steps with no
+    sample): more than the diagnosis holds in memory, or a clock that
+    jumped. The monitor was watching: a new diagnoser takes the row of time
+    ``time`` as its first, its observer started from the last estimate run
+    on ``ran`` steps by the model with that row's inputs, its spread widened
+    (:mod:`bgc.diagnosis.bridge`)."""
+
+    began: float
+    time: float
+    steps: int
+    ran: int
+
+
+@dataclass(frozen=True, slots=True)
 class EpisodeClosed:
     """Fault episode ``number`` of a monitor's stream (``bgc monitor
     --episodes``), closed at time ``time`` by a checkpoint's diagnosis: the
@@ -537,7 +552,8 @@ class EpisodeClosed:
     appearance: int = 0
     present: tuple = ()
     #: An episode ``re-armed``: why (``rearm``: not isolated when ``--rearm`` had passed since its alarm;
-    #: ``memory``: its record neared the most the diagnosis holds in memory, a fault never decided; ``no
+    #: ``memory``: its record neared the most the diagnosis holds in memory, a fault never decided; ``gap``:
+    #: not decided before a gap longer than the diagnosis holds (:class:`Bridged`); ``no
     #: estimate``: isolated without an estimate to accommodate; ``false alarm``: the checkpoint's verdict
     #: after the alarm is no fault, :class:`NoFault`; ``glitch``: no fault, the alarm one reading off and
     #: the data quiet after it, :class:`Glitch`; empty: the other actions).
@@ -654,7 +670,7 @@ Event = (SensorMissing | ColumnIgnored | SensorSilent | SensorStopped | SensorRe
          | Gap | SampleSkipped | Alarmed | Degenerate | Switched | Isolated | AllTried | ReadingFrozen | Started
          | Refined | Dropped
          | Rescued | Truncated | NoLikelihood | Misfit | AtPriorBound | Overruled | Uncertain | NoFault | IntermittentTried | Intermittent
-         | Redated | FalseAlarm | Glitch | ChangeMissed | SensorExcluded
+         | Redated | FalseAlarm | Glitch | ChangeMissed | SensorExcluded | Bridged
          | EpisodeClosed | Repaired | Checkpoint | ModeHidden | ModeRead | ModesReread | Mismatched | Decided)
 
 

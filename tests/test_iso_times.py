@@ -284,12 +284,12 @@ def test_a_row_out_of_order_in_an_iso_file_is_named_by_its_own_timestamps(tmp_pa
     assert not UNIX.search(out.stderr), out.stderr
 
 
-def test_a_clock_that_jumps_past_the_monitors_memory_is_refused_whole_in_one_line(tmp_path):
+def test_a_clock_that_jumps_past_the_monitors_memory_is_bridged_and_said_in_the_files_own_times(tmp_path):
     """The logger's clock jumps three hours (21,600 steps of 0.5 s, more than
-    a diagnosis of the two tanks holds in memory) and the rows go on: the
-    monitor stops at that row with a one-line error naming its line and its
-    timestamp, no traceback, and writes the report of the rows before it (no
-    step of the refused row in it: the gap is not half taken)."""
+    a diagnosis of the two tanks holds in memory) and the rows go on, while
+    the monitor watches: it bridges the gap (tests/test_bridge.py) and says
+    so in one line dated by the file's own timestamps; its report's record
+    starts at the row after the jump (no step of the gap in it)."""
     lines = _logger_lines()
     data = [i for i, line in enumerate(lines) if line[:1].isdigit()]
     jump = data[30]
@@ -299,16 +299,17 @@ def test_a_clock_that_jumps_past_the_monitors_memory_is_refused_whole_in_one_lin
         lines[i] = lines[i].replace(stamp, later.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z", 1)
     out = bgc_cli("monitor", "models/two_tank.yaml", "--data", "-", "--columns", LOGGER_MAP, "-o", tmp_path / "m",
                   input="".join(lines))
-    first = _iso(_instant(lines[jump].split(",")[0]))
-    steps = round((_instant(lines[jump].split(",")[0]) - _instant(lines[data[29]].split(",")[0]))
-                  / dt.timedelta(seconds=0.5)) - 1
-    assert out.returncode != 0 and "Traceback" not in out.stderr, out.stderr
-    error = [line for line in out.stderr.splitlines() if line.startswith("<stdin>:")]
-    assert len(error) == 1 and error[0].startswith(f"<stdin>:{jump + 1}: time {first} is {steps} steps of dt = 0.5 "
-                                                   "after the sample before it, more than the "), out.stderr
+    before, first = (_instant(lines[i].split(",")[0]) for i in (data[29], jump))
+    steps = round((first - before) / dt.timedelta(seconds=0.5)) - 1
+    assert out.returncode == 0 and out.stderr == "", out.stderr
+    said = [line for line in out.stdout.splitlines() if "no data from" in line]
+    assert said == [f"t = {_iso(first)}: no data from t = {_iso(before)} to t = {_iso(first)} ({steps} steps, more "
+                    f"than the diagnosis holds): " + said[0].split("holds): ", 1)[1]] and steps == 21600, out.stdout
     report = json.loads((tmp_path / "m" / "report.json").read_text(encoding="utf-8"))
-    before = _in_unit(_instant(lines[data[29]].split(",")[0]), "s")
-    assert report["data"]["steps"] == 30 and report["data"]["t_last"] == pytest.approx(before, abs=1e-6)
+    assert report["data"]["steps"] == len(data) - 30
+    assert report["data"]["t_first"] == pytest.approx(_in_unit(first, "s"), abs=1e-6)
+    bridged = [e for e in report["events"] if e["event"] == "Bridged"]
+    assert len(bridged) == 1 and bridged[0]["began"] == pytest.approx(_in_unit(before, "s"), abs=1e-6)
 
 
 def test_a_folders_bad_row_is_named_by_its_own_file_and_line(tmp_path):

@@ -163,8 +163,9 @@ class Sampler:
             return []
         missing = k - self.k - 1
         if missing > MAX_GAP_STEPS or (missing > 0 and room is not None and missing + 1 > room):
-            raise jumped(self._where(line), self.clock(t).text(t), missing, self.dt, "sample",
-                         None if missing > MAX_GAP_STEPS else max(room - 1, 0))
+            error = jumped(self._where(line), self.clock(t).text(t), missing, self.dt, "sample",
+                           None if missing > MAX_GAP_STEPS else max(room - 1, 0))
+            raise ClockJumped(error.what, error.loc, error.fix, since=self.last_t, missing=missing)
         self.last_t, self.t0 = t, t0  # the row is taken: a refused one leaves the sampler as it was
         out = []
         first = self.k + 1
@@ -232,6 +233,18 @@ class Sampler:
             return
         if not (1 <= u[index] <= len(self.model.MODES) and u[index] == round(u[index])):
             raise no_mode(self._where(line), float(u[index]), self.model.MODEL, self.model.MODES)
+
+    def row_inputs(self, t: float, row: dict[str, float]) -> np.ndarray:
+        """The inputs a row at time ``t`` says (by name): its own values, the
+        last one held where a cell is empty, the model's where none was; the
+        sampler is left as it was."""
+        declared = np.asarray(self.model.inputs(t), dtype=float) if self.model.INPUTS else np.zeros(0)
+        u = []
+        for i, name in enumerate(self.model.INPUTS):
+            value = float(row.get(name, math.nan)) if name in self.data_inputs else math.nan
+            held = self.held.get(name) if name in self.data_inputs else None
+            u.append(value if math.isfinite(value) else float(declared[i]) if held is None else float(held))
+        return np.array(u, dtype=float)
 
     def _inputs(self, t: float, row: dict[str, float], k: int, events: list | None) -> np.ndarray:
         """The inputs over the step that ends at ``t``: the row's, the last one
@@ -353,6 +366,17 @@ def check_jumps(time, dt: float, source: str, time_unit: str | None = None) -> N
     k = int(np.argmax(missing > MAX_GAP_STEPS)) + 1
     raise jumped(f"{printable(source)}, data row {k + 1}", Clock.of(t[:1], time_unit).text(t[k]), missing[k - 1], dt,
                  "row")
+
+
+class ClockJumped(DataError):
+    """:func:`jumped`'s refusal of a row by :meth:`Sampler.push`, with the
+    time of the sample before the gap (``since``) and the steps with no
+    sample (``missing``): a monitor watching may bridge it
+    (:meth:`bgc.diagnosis.diagnoser.Diagnoser.bridged`)."""
+
+    def __init__(self, *args, since: float, missing: int):
+        super().__init__(*args)
+        self.since, self.missing = since, missing
 
 
 def jumped(where: str, when: str, missing: float, dt: float, before: str, room: int | None = None) -> DataError:

@@ -229,6 +229,18 @@ class Diagnoser:
             belief = self.loop.belief(len(self.loop.events))
         return dataclasses.replace(belief, events=tuple(collected))
 
+    def flush(self) -> Belief | None:
+        """With the mode read from the data, take the steps still waiting for
+        their mode (each with its likeliest: the data stop here, for now, as
+        before a gap the monitor bridges); the belief after them, with their
+        events (None: none was waiting)."""
+        if self.decoder is None or not self.decoder.waiting:
+            return None
+        mark = len(self.loop.events)
+        for s in self.decoder.flush():
+            self._take(s)
+        return self.loop.belief(mark)
+
     def _room(self) -> int | None:
         """The most steps the next row may give (a row after a gap gives
         one per step): the most the diagnosis holds in memory less the steps

@@ -85,6 +85,11 @@ def sentence(e, time_of, *, clock: Clock = Clock()) -> str:
         case ev.SensorExcluded(sensor=y, finding=f, time=when):
             return (f"sensor {y} taken out of the nominal observer from t = {clock.text(when)} ({f}): monitoring "
                     f"goes on with the other sensors")
+        case ev.Bridged(began=a, time=b, steps=n, ran=r):
+            start = (f"where the model takes its last estimate in {r} steps at this row's inputs" if r
+                     else "from its last estimate")
+            return (f"no data from t = {clock.text(a)} to t = {clock.text(b)} ({n} steps, more than the diagnosis "
+                    f"holds): watching again from this row, the observer started {start}, its spread widened")
         case ev.EpisodeClosed():
             return _episode_sentence(e, clock)
         case ev.Repaired(time=when, episodes=ns, parameters=ps):
@@ -279,6 +284,7 @@ _REARMED = {
     "glitch": "the alarm was one reading off, the data within the model's noise after it (a glitch of that reading)",
     "false alarm": "no fault explains the data better than chance (a false alarm the detector's budget allows)",
     "memory": "not decided before its record reached the most this diagnosis holds in memory",
+    "gap": "not decided before a gap in the data longer than the diagnosis holds",
 }
 
 
@@ -346,6 +352,8 @@ def record(e, time_of, *, clock: Clock = Clock()) -> dict:
     said = getattr(e, "said", None)  # a misfit a monitor said on data its record forgot: its steps are the record's then
     if said is not None:
         out["time"] = float(time_text(said))
+    elif isinstance(e, ev.Bridged):  # the row after the gap
+        out["time"] = float(time_text(e.time))
     elif step is not None:
         out["time"] = when(step)
     for f in dataclasses.fields(e):
@@ -374,6 +382,7 @@ def record(e, time_of, *, clock: Clock = Clock()) -> dict:
 NOTABLE = (ev.SensorMissing, ev.ColumnIgnored, ev.SensorSilent, ev.SensorStopped, ev.SensorResumed,
            ev.InputFromModel, ev.ModeHidden, ev.ModesReread, ev.InputHeld, ev.Gap, ev.SampleSkipped, ev.Degenerate,
            ev.AllTried, ev.ReadingFrozen, ev.Rescued, ev.Truncated, ev.AtPriorBound, ev.NoLikelihood, ev.Misfit, ev.SensorExcluded,
+           ev.Bridged,
            ev.EpisodeClosed, ev.Repaired, ev.Overruled, ev.Uncertain, ev.NoFault, ev.Redated, ev.FalseAlarm, ev.Glitch,
            ev.ChangeMissed, ev.Mismatched, ev.ObserverRestarted)
 

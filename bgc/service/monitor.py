@@ -28,6 +28,8 @@ from .. import api
 from ..errors import BgcError, DataError, printable
 from .. import events as ev
 from ..data import runs
+from ..data.sampler import ClockJumped
+from ..diagnosis.bridge import bridged
 from ..data.columns import MODE, Reading
 from ..analysis import track
 from ..diagnosis.finish import dated_misfit, forgotten_misfits, with_misfits_said
@@ -325,10 +327,12 @@ class _Monitor:
         self.fit_steps = None if checkpoint is None else max(
             FIT_STEPS, int(round(checkpoint / float(session.package.MODELS["nominal"].DT))))
         self.excluded: list[ev.SensorExcluded] = []
+        self.bridges: list[ev.Bridged] = []  # the gaps longer than the diagnosis holds, bridged while watching
+        self.hidden_said: set = set()  # the data have no mode column: said once
         self.taken_out: set[str] = set()
         self.log = Episodes(session.package, rearm, exclude_faulty, session.view.labels.per_time) if episodes else None
         self.keep = _Keeper(session, options, checkpoint, self.columns, state, state_every, exclude_faulty, reading,
-                            self.log, (self.earlier_misfits, self.misfits))
+                            self.log, (self.earlier_misfits, self.misfits), self.bridges)
         self.after_saved = 0  # a restart's comment lines after its last saved row, taken before it
         self.saved = self.keep.load()
         #: (diagnoser, rows, its misfits said) of the episode closed or repaired last, until the next row
@@ -347,6 +351,7 @@ class _Monitor:
     def _resume(self, saved) -> None:
         """Take up a state saved before a restart."""
         self.excluded = [ev.SensorExcluded(*e) for e in saved.excluded]
+        self.bridges[:] = saved.bridged
         self.earlier_misfits[:], self.misfits[:] = saved.misfits
         if self.log is not None and saved.episodes is not None:
             self.log.restore(saved.episodes)
@@ -391,6 +396,8 @@ class _Monitor:
         time_of, clock = time_of or self.time_of, self.clock
 
         def at(e):  # an event's own time (a misfit said before: when it was said); None: none
+            if isinstance(e, ev.Bridged):  # the row after the gap
+                return e.time
             step, said = getattr(e, "step", None), getattr(e, "said", None)
             return said if said is not None else None if step is None else float(time_of(step))
 
@@ -402,6 +409,10 @@ class _Monitor:
                 self.misfits.append(dated_misfit(e, time_of))
             if isinstance(e, ev.SensorMissing) and e.sensor in self.taken_out:
                 continue  # taken out by the monitor, not missing from the data: said by its SensorExcluded
+            if isinstance(e, ev.ModeHidden) and e in self.hidden_said:
+                continue  # said by the diagnoser before (one after a gap bridged says it again)
+            if isinstance(e, ev.ModeHidden):
+                self.hidden_said.add(e)
             t, text = at(e), printable(sentence(e, time_of, clock=clock))
             if t is not None and t < self.latest:  # found after a line dated later was said: said now, dated within
                 text, t = f"{text}, at t = {clock.text(t)}", self.latest
@@ -437,7 +448,12 @@ class _Monitor:
             self.log.at_row = self.log.remarks
         with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
             before = self._taken()
-            belief = self.d.step(t, u, y, line)
+            try:
+                belief = self.d.step(t, u, y, line)
+            except ClockJumped as jump:  # a gap longer than the diagnosis holds: bridged when watching
+                self._bridge(jump, t, u)
+                before = self._taken()
+                belief = self.d.step(t, u, y, line)
             self.rows.append(values)
             read, first = self.keep.stream
             self.keep.stream = (read + 1, t if first is None else first)  # counted once taken, as its row is
@@ -454,6 +470,33 @@ class _Monitor:
         self._fits(belief, before)
         self._checkpoint(belief, t)
         self.keep.every(self.rows, self.last_check, self.d, self.excluded)  # after the checkpoint: its time is saved
+
+    def _bridge(self, jump: ClockJumped, t: float, u: dict) -> None:
+        """The row of time ``t`` (inputs ``u``) comes after a gap longer
+        than the diagnosis holds (``jump``, the refusal): while watching, a
+        new diagnoser takes it as its first (:mod:`bgc.diagnosis.bridge`);
+        with an episode in progress (``--episodes``) the episode is closed
+        first on the rows before the gap; an alarm in progress without
+        episodes stops the monitor with ``jump`` (its diagnosis: the rows
+        before the gap)."""
+        waited = self.d.flush()  # the steps waiting for their modes: taken, the data stop here
+        if waited is not None:
+            self.tell(waited.events)
+            if self.log is not None:
+                self.log.watch(waited, self.d)
+        belief = self.d.belief()
+        if belief.phase != "watching":
+            if self.log is None:
+                raise DataError(jump.what, jump.loc, "an alarm was in progress: the report is the diagnosis of the "
+                                "rows before the gap; with --episodes the monitor closes the episode there and goes "
+                                "on after the gap")
+            c = self.d.checkpoint()
+            self.tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)])
+            self._close(c, belief.time, self.rows_time, full=True, gap=True)
+        self.d, said = bridged(self.d, t, u, jump.since, jump.missing)
+        self.bridges.append(said)
+        self.tell([said])
+        self._afresh()
 
     def _repairs(self, t: float) -> None:
         """The stream's comment lines read since the last row: a repair takes
@@ -523,11 +566,12 @@ class _Monitor:
             if faulty is not None:
                 self._exclude(c, faulty, belief.time)
 
-    def _close(self, c, now: float, t: float, full: bool) -> None:
+    def _close(self, c, now: float, t: float, full: bool, gap: bool = False) -> None:
         """Close the open episode on checkpoint diagnosis ``c`` at time ``now``
-        (the row of time ``t``): a new diagnoser watches from the next row."""
+        (the row of time ``t``; ``full``, ``gap``: why, :meth:`Episodes.close
+        <bgc.service.episodes.Episodes.close>`): a new diagnoser watches from the next row."""
         self.ended = (self.d, self.rows, list(self.misfits))  # its report, should the stream end before the next row
-        self.d, self.sensors, closed = self.log.close(c, self.d, now, self.sensors, full=full)
+        self.d, self.sensors, closed = self.log.close(c, self.d, now, self.sensors, full=full, gap=gap)
         if closed.action == "sensor out":
             self.taken_out.add(closed.parameter)
         self.tell([closed])
@@ -586,6 +630,9 @@ class _Monitor:
             diagnosis = _with_exclusions(diagnosis, self.excluded, self.taken_out)
             told.update(self.excluded)
         told.update(forgotten_misfits(current, diagnosis))  # said as the data came (one given possibilities: anew)
+        if self.bridges:
+            diagnosis = dataclasses.replace(diagnosis, events=(*self.bridges, *diagnosis.events))
+            told.update(self.bridges)
         if self.log is not None and self.log.log:  # the fault log leads the events
             diagnosis = dataclasses.replace(diagnosis, events=tuple(self.log.log) + tuple(diagnosis.events))
             told.update(self.log.log)
@@ -624,7 +671,7 @@ class _Keeper:
     """The monitor's state on disk, when a folder is given (:mod:`bgc.service.resume`)."""
 
     def __init__(self, session, options, checkpoint, columns, where, every: int, exclude_faulty: bool, reading=None,
-                 log: Episodes | None = None, misfits: list | None = None):
+                 log: Episodes | None = None, misfits: list | None = None, bridges: list | None = None):
         self.where = None if where is None else resume.folder(where)
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise BgcError(f"--state-every {every!r}: give the rows between saves, an integer >= 1", None,
@@ -635,6 +682,7 @@ class _Keeper:
         self.log = log
         #: the monitor's lists of the misfits said so far: (the earlier diagnosers', the one watching now's)
         self.misfits = ([], []) if misfits is None else misfits
+        self.bridges = [] if bridges is None else bridges  # the monitor's list of the gaps bridged
         self.period, self.count = every, 0
         self.before: dict = {}
         self.stream: tuple = (0, None)  # the rows read in all and the first one's time, saved with the state
@@ -667,7 +715,8 @@ class _Keeper:
         if self.where is not None:
             resume.save(self.where, self.ident, rows, rows[-1][0] if rows else last_time, last_check, d,
                         tuple((e.sensor, e.finding, e.time, e.step) for e in excluded),
-                        None if self.log is None else self.log.plain(), self.stream, self.misfits)
+                        None if self.log is None else self.log.plain(), self.stream, self.misfits,
+                        tuple(self.bridges))
 
 
 def _with_exclusions(diagnosis, excluded: list, taken_out: set[str]):

@@ -99,9 +99,10 @@ def monitor(model: str | Path | Session, data, *, checkpoint: float | None = Non
         An argument of the wrong type or out of range.
     DataError, BgcError
         A malformed row, or the stream past what the diagnosis may hold in
-        memory (without ``episodes``): the rows before it are diagnosed, their
-        report is the exception's ``report``; a malformed first row (no row
-        before it) raises without one.
+        memory (without ``episodes``; a gap longer than that while watching is
+        bridged, and with an alarm in progress refused): the rows before it
+        are diagnosed, their report is the exception's ``report``; a
+        malformed first row (no row before it) raises without one.
     """
     func = "bgc.monitor"
     if state is not None:

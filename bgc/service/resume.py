@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from .. import events as ev
 from ..diagnosis.options import UNBOUND
 from ..errors import BgcError, printable
 
@@ -70,6 +71,8 @@ class Saved:
     #: the misfits said as the data came (:class:`~bgc.events.Mismatched`, dated: ``said`` and ``span``): those
     #: of the diagnosers before the one saved, and the saved one's
     misfits: tuple = ((), ())
+    #: the gaps bridged so far (:class:`~bgc.events.Bridged`: began, time, steps, ran)
+    bridged: tuple = ()
 
 
 def identity(session, options, checkpoint: float | None, columns: list[str], exclude_faulty: bool = False,
@@ -134,11 +137,13 @@ def _head(path: Path) -> bytes:
 
 
 def save(where: Path, ident: dict, rows: list, last_time: float, last_check: float | None, d,
-         excluded: tuple = (), episodes: dict | None = None, stream: tuple = (0, None), misfits=((), ())) -> None:
+         excluded: tuple = (), episodes: dict | None = None, stream: tuple = (0, None), misfits=((), ()),
+         bridged: tuple = ()) -> None:
     """Write the state of diagnoser ``d`` after ``rows``, atomically
     (``excluded``: the sensors taken out before; ``episodes``: the fault
     log; ``stream``: the rows read in all and the first one's time;
     ``misfits``: those said so far, the earlier diagnosers' and the saved one's;
+    ``bridged``: the gaps bridged so far;
     :class:`Saved`): a new
     file, made afresh (never through a link), flushed to the disk, renamed
     over the last state."""
@@ -148,7 +153,8 @@ def save(where: Path, ident: dict, rows: list, last_time: float, last_check: flo
     payload = table.getvalue() + d.to_state().to_bytes()
     header = {"format": FORMAT, "identity": ident, "rows": len(rows), "last_time": last_time,
               "last_check": last_check, "excluded": [list(e) for e in excluded], "episodes": episodes,
-              "stream": list(stream), "misfits": [[_plain(dataclasses.asdict(m)) for m in part] for part in misfits]}
+              "stream": list(stream), "misfits": [[_plain(dataclasses.asdict(m)) for m in part] for part in misfits],
+              "bridged": [[e.began, e.time, e.steps, e.ran] for e in bridged]}
     header["sha256"] = _digest(header, payload)
     data = b"".join([MAGIC, json.dumps(header).encode("utf-8"), b"\n", payload])
     tmp = where / PARTIAL
@@ -216,6 +222,7 @@ def load(where: Path, ident: dict) -> Saved | None:
         stream = (int(read), None if first is None else float(first))
         earlier, now = header.get("misfits", ((), ()))
         misfits = (tuple(_misfit(m) for m in earlier), tuple(_misfit(m) for m in now))
+        bridged = tuple(ev.Bridged(float(a), float(b), int(n), int(r)) for a, b, n, r in header.get("bridged", ()))
     except (ValueError, TypeError, EOFError, OSError, BgcError) as exc:
         raise BgcError(f"{where_}: the state cannot be read ({printable(str(exc).splitlines()[0])})", None,
                        fix) from None
@@ -225,7 +232,7 @@ def load(where: Path, ident: dict) -> Saved | None:
     if episodes is not None and not isinstance(episodes, dict):
         raise BgcError(f"{where_}: the state's fault log cannot be read", None, fix)
     return Saved(rows, last_time, last_check if last_check is None else float(last_check), state, excluded,
-                 episodes, stream, misfits)
+                 episodes, stream, misfits, bridged)
 
 
 def _misfit(plain: dict):

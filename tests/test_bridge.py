@@ -1,0 +1,245 @@
+"""A logger's outage longer than the diagnosis holds, bridged by a monitor
+that is watching (issue 47, point 5: "a clock that jumps (refused or
+bridged as a gap, documented)"; bgc.diagnosis.bridge).
+
+The plants are simulated here, not by bgc: the circuit of models/circuit.yaml
+by the exact solution of its linear equations (tests/test_mismatch.py, the
+matrix exponential over each sample period), the two tanks by scipy's
+solve_ivp on the hand-derived equations (tests/two_tank_reference.py). The
+plant goes on through the gap at another input (the source or the inflow
+moved while nobody logged), so the state after the gap is not the one
+before; the expectations are the simulator's truth: no fault, or the fault
+put in after the gap, at its time and size. The steps the model is run on
+across the gap are derived here from the circuit's matrix, not read from bgc.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import bgc
+from bgc import events as ev
+from bgc.diagnosis import bridge
+
+from conftest import ROOT, bgc_cli
+from test_mismatch import DT, NOMINAL, START, circuit, readings
+import two_tank_reference as tanks
+
+CIRCUIT = ROOT / "models" / "circuit.yaml"
+TWO_TANK = ROOT / "models" / "two_tank.yaml"
+#: Three hours with no row: 216,000 steps of the circuit's 0.05 s, past a clock jump's 100,000.
+HOURS3 = 3 * 3600.0
+
+
+def circuit_rows(seed: int, v_after: float, fault_after: tuple | None = None, before: int = 400,
+                 after: int = 400, gap: float = HOURS3, fault_before: float | None = None) -> list[str]:
+    """The circuit's rows as a logger's CSV lines: ``before`` rows at V = 10
+    from its steady state, no row for ``gap``, then ``after`` rows at V =
+    ``v_after`` from where the plant settled at that source (400 unlogged
+    steps from its steady state: 20 s, 17 of its slowest time constants);
+    ``fault_after`` (seconds after the gap, parameter, factor): that fault
+    from then on; ``fault_before`` (a time): R2 at 1.6 times its value from
+    then on, through the gap too."""
+    rng = np.random.default_rng(seed)
+    lines = ["time,u:V,y:f2,y:f6,y:e11"]
+    nominal = dict(NOMINAL)
+
+    def run(x, v, t0, n, changes, write):
+        for k in range(1, n + 1):
+            t = t0 + k * DT
+            p = dict(nominal)
+            for since, name, factor in changes:
+                if t >= since - 1e-9:
+                    p[name] = factor * NOMINAL[name]
+            e, process, sensor = circuit(p, 1.0)
+            x = e[:3, :3] @ x + e[:3, 3] * v + process * rng.standard_normal(3)
+            if write:
+                y = readings(p, x, v) + sensor * rng.standard_normal(3)
+                lines.append(f"{t:.12g}," + ",".join(f"{w:.9g}" for w in (v, *y)))
+        return x
+
+    early = [] if fault_before is None else [(fault_before, "R2", 1.6)]
+    run(np.array(START), 10.0, 0.0, before, early, True)
+    settled = run(np.array(START) * v_after / 10.0, v_after, -1e9, 400, [(-1e10, "R2", 1.6)] if early else [], False)
+    t1 = before * DT + gap
+    late = list(early) if fault_after is None else [(t1 + fault_after[0], fault_after[1], fault_after[2])]
+    run(settled, v_after, t1 - DT, after, [(-1e10, n, f) for _, n, f in early] or late, True)
+    return lines
+
+
+def test_the_model_is_run_on_ten_of_its_slowest_time_constants():
+    """168 steps: 10 / 1.1933 / 0.05, the slowest eigenvalue of the circuit's
+    matrix (derived here from its parameters) 1.1933 in real part."""
+    p = NOMINAL
+    a = np.array([[-(1 / p["R2"] + 1 / p["R1"]) / p["C1"], 1 / (p["R2"] * p["C1"]), 0.0],
+                  [1 / (p["R2"] * p["C2"]), -1 / (p["R2"] * p["C2"]), -1 / p["C2"]],
+                  [0.0, 1 / p["L"], -p["R3"] / p["L"]]])
+    slowest = min(-np.linalg.eigvals(a).real)
+    expected = math.ceil(10.0 / slowest / DT)
+    assert expected == 168
+    nominal = bgc.open(CIRCUIT).package.MODELS["nominal"]
+    assert bridge.settle_steps(nominal) == expected
+    assert bridge.settle_steps(type("M", (), {"EIGENVALUES": ((0.0, 0.0), (1e-3, 0.0)), "DT": 1.0})) == 0
+
+
+def _monitor(lines, **kw):
+    said: list[str] = []
+    report = bgc.monitor(CIRCUIT, iter(lines), seed=3, particles=500, events=said.append, **kw)
+    return report, said
+
+
+@pytest.mark.parametrize("v_after", [10.0, 12.0, 7.0])
+def test_a_three_hour_outage_while_watching_is_bridged_and_a_healthy_plant_stays_no_fault(v_after):
+    report, said = _monitor(circuit_rows(1, v_after))
+    d = report.diagnosis
+    assert d.verdict == "no fault" and d.detection is None, said
+    assert [e for e in d.events if isinstance(e, ev.Bridged)] == [ev.Bridged(20.0, 20.0 + HOURS3, 215999, 168)]
+    assert report.run.time[0] == pytest.approx(20.0 + HOURS3)  # the report's record: the rows after the gap
+    assert any(line.startswith("t = 10820: no data from t = 20 to t = 10820 (215999 steps") for line in said)
+
+
+def test_without_running_the_model_on_a_moved_input_would_alarm(monkeypatch):
+    """The control: the observer started where it was before the gap, its
+    spread widened by the model's initial spread only (no run on), alarms
+    or calls the model off at the moved source. The run on is what the
+    previous test's verdicts rest on."""
+    monkeypatch.setattr(bridge, "SETTLE", 0.0)
+    report, said = _monitor(circuit_rows(2, 7.0))
+    assert report.diagnosis.verdict != "no fault" or report.diagnosis.detection is not None
+
+
+@pytest.mark.slow
+def test_a_fault_after_the_outage_is_isolated_at_its_time_and_size():
+    """R1 at 1.5 times its value 10 s after the gap, the source moved to 12:
+    R1 isolated from t = 10830, +0.5 ohm."""
+    report, said = _monitor(circuit_rows(3, 12.0, fault_after=(10.0, "R1", 1.5), after=600))
+    d = report.diagnosis
+    assert d.verdict == "isolated" and d.candidates[0].startswith("R1_"), said
+    assert d.onset == pytest.approx(20.0 + HOURS3 + 10.0, abs=3 * DT)
+    e = d.estimate
+    assert e.low <= 0.5 <= e.high or abs(e.value - 0.5) < 0.05 * 0.5, e
+
+
+@pytest.mark.slow
+def test_the_two_tanks_after_a_gap_past_the_memory_with_the_inflow_moved_name_the_fault(tmp_path):
+    """40,000 steps with no row (beyond the 18,951 the diagnosis holds, under
+    a clock jump's 100,000), the inflow from 1 to 1.3 meanwhile, R12 up by
+    0.6 50 s after the gap (solve_ivp): R12 isolated, its onset the first
+    sample after the step the fault starts in, its size 0.6."""
+    t1 = 200.0 + 20000.0
+    rows = tanks.run(5, steps=400) + tanks.run(6, ("R12", 0.6, t1 + 50.0), steps=600, inflow=1.3,
+                                               start=tanks.P0 * 1.3, t0=t1 - 0.5)
+    data = tanks.write(tmp_path / "tanks.csv", rows, [1.0] * 400 + [1.3] * 600)
+    said: list[str] = []
+    report = bgc.monitor(TWO_TANK, data, seed=3, particles=500, events=said.append)
+    d = report.diagnosis
+    bridged = [e for e in d.events if isinstance(e, ev.Bridged)]
+    assert len(bridged) == 1 and bridged[0].steps == 39999 and bridged[0].began == 200.0
+    assert d.verdict == "isolated" and d.candidates == ("R12_abrupt",), said
+    assert d.onset == pytest.approx(t1 + 50.5)
+    assert abs(d.estimate.value - 0.6) < 0.06
+
+
+@pytest.mark.slow
+def test_an_episode_open_at_the_gap_is_closed_on_the_rows_before_it_then_the_gap_bridged():
+    """R2 up from t = 19.3, 0.7 s before a three-hour gap: the alarm comes,
+    no checkpoint decides it before the gap; the episode closes there (its
+    reason the gap), and the monitor watches again after it."""
+    lines = circuit_rows(1, 10.0, fault_before=19.3, after=60)
+    report, said = _monitor(lines, checkpoint=1.0, episodes=True)
+    log = report.fault_log
+    assert len(log) >= 1 and log[0].alarm == pytest.approx(19.3, abs=2 * DT), said
+    assert log[0].time == pytest.approx(20.0) and log[0].action in ("re-armed", "accommodated")
+    if log[0].action == "re-armed":
+        assert log[0].reason == "gap"
+    assert any("no data from t = 20 to t = 10820" in line for line in said)
+
+
+def test_without_episodes_an_alarm_open_at_the_gap_stops_with_the_rows_before_it(tmp_path):
+    """No episodes: one diagnosis of one record; the gap comes during the
+    alarm, so the monitor stops there (exit 1, one line, no traceback), its
+    report the diagnosis of the rows before the gap."""
+    path = tmp_path / "plant.csv"
+    path.write_text("\n".join(circuit_rows(1, 10.0, fault_before=18.0)) + "\n", encoding="utf-8")
+    p = bgc_cli("monitor", CIRCUIT, "--data", path, "--seed", "3", "-o", tmp_path / "out")
+    assert p.returncode == 1 and "Traceback" not in p.stderr
+    assert "plant.csv:402: time 10820 is 215999 steps" in p.stderr.strip().splitlines()[-1]
+    assert "an alarm was in progress" in p.stderr
+    assert "isolated: R2_abrupt" in p.stdout
+
+
+@pytest.mark.slow
+def test_a_restart_across_the_gap_gives_the_uninterrupted_runs_report(tmp_path):
+    """The state saved before the gap (the input cut there, as a kill would),
+    then the whole input again: the same events and verdict as one run."""
+    lines = circuit_rows(4, 12.0, fault_after=(3.0, "R2", 1.6), after=160)
+    whole, _ = _monitor(lines)
+    state = tmp_path / "state"
+    _monitor(lines[:401], state=state, state_every=7)
+    again, said = _monitor(lines, state=state, state_every=7)
+    assert said[0].startswith("resumed from")
+    assert again.diagnosis.verdict == whole.diagnosis.verdict == "isolated"
+    assert again.diagnosis.events == whole.diagnosis.events
+    assert again.diagnosis.estimate == whole.diagnosis.estimate
+
+
+def test_row_inputs_read_a_row_without_moving_the_sampler():
+    from bgc.data.sampler import Sampler
+
+    session = bgc.open(CIRCUIT)
+    s = Sampler(session.package.MODELS["nominal"], ("V",), ("f2", "f6", "e11"), "plant.csv")
+    s.push(0.05, {"V": 9.0}, {"f2": 1.0, "f6": 1.0, "e11": 1.0})
+    held = dict(s.held)
+    assert s.row_inputs(10.0, {"V": 11.0}).tolist() == [11.0]
+    assert s.row_inputs(10.0, {"V": math.nan}).tolist() == [9.0]  # an empty cell: the input held
+    assert s.held == held
+
+
+#: The shipped example of an outage (docs/commands.md, "A logger that was down"): made by :func:`outage_lines`.
+OUTAGE = ROOT / "docs" / "examples" / "tank_outage.csv"
+
+
+def outage_lines() -> str:
+    """docs/examples/tank_outage.csv: the two tanks by solve_ivp, 300 rows
+    of 0.5 s at f_in = 1, no row for six hours while the inflow moved to
+    1.3, then 300 rows with R12 up by 0.6 from t = 21800."""
+    t1 = 150.0 + 6 * 3600.0
+    rows = tanks.run(11, steps=300) + tanks.run(12, ("R12", 0.6, t1 + 50.0), steps=300, inflow=1.3,
+                                                start=tanks.P0 * 1.3, t0=t1 - 0.5)
+    text = ["# two tanks of models/two_tank.yaml, by scipy's solve_ivp on its hand-derived equations",
+            "# (tests/two_tank_reference.py, seeds 11 and 12): f_in = 1 to t = 150, no row for six hours",
+            "# while f_in moved to 1.3, R12 up by 0.6 from t = 21800 (tests/test_bridge.py makes this file)",
+            "time,u:f_in,y:F10,y:F12,y:F20"]
+    for (t, a, b, c), u in zip(rows, [1.0] * 300 + [1.3] * 300):
+        text.append(f"{t:.12g},{u:g},{a:.9g},{b:.9g},{c:.9g}")
+    return "\n".join(text) + "\n"
+
+
+def test_the_shipped_outage_example_is_this_simulators_run():
+    assert OUTAGE.read_text(encoding="utf-8") == outage_lines()
+
+
+def test_a_plant_whose_mode_is_read_from_the_data_is_bridged_from_its_last_estimate():
+    """The level plant of docs/examples/level.yaml (its pump switched by the
+    tank's level; the data have no mode column), by solve_ivp
+    (tests/hybrid_reference.py), its clock 10^5 s ahead from its 301st row,
+    the pump's mode another there than at the row before: no fault; the
+    observer started from its last estimate (a state holding a mode is not
+    run on); "the data have no mode column" said once."""
+    import hybrid_reference as hybrid
+
+    times, modes, y_p, y_q, _ = hybrid.level_run(0)
+    assert modes[299] != modes[300]
+    shift = np.where(np.arange(len(times)) >= 300, 1e5, 0.0)
+    lines = ["time,u:E,y:p,y:q_out"] + [f"{t + s:.12g},{hybrid.LEVEL_E},{float(a)!r},{float(b)!r}"
+                                        for t, s, a, b in zip(times, shift, y_p, y_q)]
+    said: list[str] = []
+    report = bgc.monitor(ROOT / "docs" / "examples" / "level.yaml", iter(lines), seed=3, events=said.append)
+    d = report.diagnosis
+    assert d.verdict == "no fault" and d.detection is None, said
+    assert [e for e in d.events if isinstance(e, ev.Bridged)] == [ev.Bridged(15.0, 1e5 + 15.05, 2000000, 0)]
+    assert sum("the data have no mode column" in line for line in said) == 1, said
