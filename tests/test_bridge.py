@@ -243,3 +243,20 @@ def test_a_plant_whose_mode_is_read_from_the_data_is_bridged_from_its_last_estim
     assert d.verdict == "no fault" and d.detection is None, said
     assert [e for e in d.events if isinstance(e, ev.Bridged)] == [ev.Bridged(15.0, 1e5 + 15.05, 2000000, 0)]
     assert sum("the data have no mode column" in line for line in said) == 1, said
+
+
+@pytest.mark.slow
+def test_a_step_whose_change_point_fell_before_every_onset_its_filters_took_is_tested_again():
+    """bench/outage.py's circuit seed 9 (docs/results.md section 77): R2 at
+    1.5 times its value from 10 s after the gap, the source moved to 7 V.
+    The alarm comes on the fault's first sample (t = 10830, one reading of
+    f6), the detector's change point 13 samples before it; R2's particle
+    filters, from the change point -4 to +2, all stop. Before, a step whose
+    every filter stopped was not tested again: "unexplained". Its static
+    posterior, whose onsets reach the alarm, names it."""
+    report, said = _monitor(circuit_rows(9, 7.0, fault_after=(10.0, "R2", 1.5)))
+    d = report.diagnosis
+    assert any(isinstance(e, ev.Rescued) and e.hypothesis == "R2_abrupt" for e in d.events), said
+    assert d.verdict == "isolated" and d.candidates == ("R2_abrupt",), said
+    assert d.onset == pytest.approx(20.0 + HOURS3 + 10.0, abs=1.5 * DT)
+    assert abs(d.estimate.value - 1.0) < 0.1
