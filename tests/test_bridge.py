@@ -260,3 +260,89 @@ def test_a_step_whose_change_point_fell_before_every_onset_its_filters_took_is_t
     assert d.verdict == "isolated" and d.candidates == ("R2_abrupt",), said
     assert d.onset == pytest.approx(20.0 + HOURS3 + 10.0, abs=1.5 * DT)
     assert abs(d.estimate.value - 1.0) < 0.1
+
+
+@pytest.mark.slow
+def test_a_repair_said_during_the_outage_still_bridges_the_gap():
+    """R2 up from t = 6 (accommodated by an episode), then the logger goes
+    down at t = 20 and a `# repaired` line comes before its first row back,
+    three hours later, the source moved to 7 V and R2 mended. The repair's
+    new diagnoser has taken no row: it bridges the gap too (no alarm after
+    it, no fault), not started unwidened where the plant was."""
+    lines = circuit_rows(5, 7.0, fault_before=6.0, after=200)
+    healthy = circuit_rows(5, 7.0, after=200)  # the same noise; R2 as in the file after the gap
+    lines = lines[:401] + ["# repaired"] + healthy[401:]
+    report, said = _monitor(lines, checkpoint=1.0, episodes=True)
+    kinds = [type(e).__name__ for e in report.fault_log]
+    assert kinds[0] == "EpisodeClosed" and report.fault_log[0].parameter == "R2", said
+    assert "Repaired" in kinds, said
+    d = report.diagnosis
+    assert [e.began for e in d.events if isinstance(e, ev.Bridged)] == [20.0], said
+    assert d.verdict == "no fault" and d.detection is None, said
+
+
+@pytest.mark.slow
+def test_a_kill_after_an_episode_closed_at_the_gap_resumes_to_the_uninterrupted_report(tmp_path):
+    """The episode open at the gap is closed (and its state saved) while the
+    row after the gap is taken; killed before the next save, the restart
+    takes up the closing diagnoser, which meets the gap itself: it bridges it
+    as the uninterrupted run did (the same events, fault log and estimate)."""
+    from bgc.service import monitor as service
+    from bgc.diagnosis.options import DiagnosisOptions
+
+    lines = circuit_rows(1, 12.0, fault_before=19.3, after=80)
+    whole, _ = _monitor(lines, checkpoint=1.0, episodes=True)
+    session = bgc.open(CIRCUIT)
+    options = DiagnosisOptions(particles=500, seed=3)
+    stream = iter([line + "\n" for line in lines])
+
+    class Lines:
+        def readline(self, limit=-1):
+            return next(stream, "").encode()
+
+    state = tmp_path / "state"
+    run = service._Monitor(session, Lines(), "plant", options, lambda line: None, 1.0, None, False, None, state,
+                           10000, None, True)
+    guard = service._Guard()
+    try:
+        for values, line in run.reader:
+            run.row(values, line, guard)
+            if values[0] > 1000.0:  # the row after the gap taken; the process killed here, no save after it
+                break
+    finally:
+        guard.close()
+    saved = service.resume.load(state, run.keep.ident)
+    assert saved is not None and saved.last_time == pytest.approx(20.0) and len(saved.rows) == 0
+    again, said = _monitor(lines, checkpoint=1.0, episodes=True, state=state, state_every=10000)
+    assert said[0].startswith("resumed from")
+    assert again.fault_log == whole.fault_log
+    assert again.diagnosis.events == whole.diagnosis.events
+    assert again.diagnosis.verdict == whole.diagnosis.verdict
+
+
+def test_the_spread_is_widened_by_the_model_files_initial_spread_after_the_record_forgot():
+    """A diagnoser that watched long enough to forget its record's older half
+    runs on a started package whose initial spread is the observer's at the
+    cut; the bridge widens by the model file's X0_STD all the same:
+    std^2 = s^2 + s0^2 + d^2 per state (s the observer's last std, d how far
+    the run on moved the mean, both read here from the diagnoser)."""
+    from bgc.diagnosis.options import DiagnosisOptions
+    from bgc.model.protocol import nominal_model
+
+    session = bgc.open(CIRCUIT)
+    d = session.diagnoser(DiagnosisOptions(particles=200, seed=1, keep=20 * DT), inputs=["V"])
+    n = 2 * d.keep + 10  # past twice the record kept: its older half forgotten
+    lines = circuit_rows(6, 10.0, before=n, after=1)
+    for line in lines[1:n + 1]:
+        t, v, f2, f6, e11 = map(float, line.split(","))
+        d.step(t, {"V": v}, {"f2": f2, "f6": f6, "e11": e11})
+    assert d.offset > 0  # the record forgot its older half: a started package
+    started = nominal_model(d.config.package)
+    file_std = np.asarray(session.package.MODELS["nominal"].X0_STD, dtype=float)
+    assert not np.allclose(np.asarray(started.X0_STD, dtype=float), file_std)
+    last_mean, last_std = np.asarray(d.loop.x_mean[-1]), np.asarray(d.loop.x_std[-1])
+    new, said = bridge.bridged(d, n * DT + HOURS3, {"V": 12.0}, n * DT, 215999)
+    m = nominal_model(new.config.package)
+    moved = np.asarray(m.X0, dtype=float) - last_mean
+    assert said.ran == 168 and np.all(np.abs(moved) > 0)
+    assert np.allclose(np.asarray(m.X0_STD, dtype=float), np.sqrt(last_std ** 2 + file_std ** 2 + moved ** 2))

@@ -378,6 +378,13 @@ class ClockJumped(DataError):
         super().__init__(*args)
         self.since, self.missing = since, missing
 
+    def __reduce__(self):  # its keyword arguments too (an error raised in a worker process comes back whole)
+        return _clock_jumped, (self.what, self.loc, self.fix, self.since, self.missing)
+
+
+def _clock_jumped(what, loc, fix, since, missing) -> ClockJumped:
+    return ClockJumped(what, loc, fix, since=since, missing=missing)
+
 
 def jumped(where: str, when: str, missing: float, dt: float, before: str, room: int | None = None) -> DataError:
     """The refusal of a row ``where`` (its time written ``when``) after

@@ -12,13 +12,14 @@ first, its observer started where the plant may be after the gap:
   the model (noise-free) with the inputs of the row after the gap held
   (its empty cells: the inputs held before), for the gap's steps but at
   most :data:`SETTLE` times the slowest time constant of the model's
-  linearisation (its ``EIGENVALUES``): a stable plant has forgotten where
-  it was by then, and a longer run would only add the cost. A model with
+  linearisation (its ``EIGENVALUES``) and :data:`MOST_STEPS`: a stable
+  plant has forgotten where it was by then, and a longer run would only
+  add the cost. A model with
   no stable eigenvalue, or one whose state holds a mode, is not run on (its
   mean is the last estimate);
 - **spread**: each physical state's std grows to ``sqrt(s^2 + s0^2 + d^2)``,
-  ``s`` the observer's std before the gap, ``s0`` the model's initial
-  spread (``X0_STD``) and ``d`` how far the run on moved it: what happened
+  ``s`` the observer's std before the gap, ``s0`` the model file's initial
+  spread (``X0_STD``; not a started package's, whose start is an estimate's) and ``d`` how far the run on moved it: what happened
   in the gap is not known (the inputs may have moved, and back), and the
   observer's first rows after it settle where the data say.
 
@@ -35,10 +36,13 @@ import math
 import numpy as np
 
 from .. import events as ev
-from ..model.package import forget_started, started_package
+from ..model.package import base_package, forget_started, started_package
+from ..model.protocol import nominal_model
 
 #: Time constants (of the slowest stable eigenvalue) the nominal model is run on across a gap.
 SETTLE = 10.0
+#: The most steps the model is run on (a plant this slow has hardly moved after them, and each costs a step).
+MOST_STEPS = 20000
 
 
 def bridged(d, t: float, u: dict, since: float, missing: int):
@@ -54,7 +58,7 @@ def bridged(d, t: float, u: dict, since: float, missing: int):
     else:  # a diagnoser that took no row yet (an episode closed): its start
         last = np.asarray(nominal.X0, dtype=float), np.asarray(nominal.X0_STD, dtype=float)
     mean, std = last[0].copy(), last[1].copy()
-    steps = min(missing + 1, settle_steps(nominal)) if all(k in ("physical",) for k in kinds) else 0
+    steps = min(missing + 1, settle_steps(nominal), MOST_STEPS) if all(k == "physical" for k in kinds) else 0
     if steps:
         x = mean[:, None].copy()
         uk = d.sampler.row_inputs(t, u)
@@ -68,7 +72,7 @@ def bridged(d, t: float, u: dict, since: float, missing: int):
             steps = 0
     moved = mean - last[0]
     physical = np.array([k == "physical" for k in kinds])
-    x0_std = np.asarray(nominal.X0_STD, dtype=float)
+    x0_std = np.asarray(nominal_model(base_package(d.config.package)).X0_STD, dtype=float)  # the model file's
     std = np.where(physical, np.sqrt(std ** 2 + x0_std ** 2 + moved ** 2), std)
     old = d.config.package
     package = started_package(old, mean, std)

@@ -236,10 +236,11 @@ class Diagnoser:
         events (None: none was waiting)."""
         if self.decoder is None or not self.decoder.waiting:
             return None
-        mark = len(self.loop.events)
-        for s in self.decoder.flush():
-            self._take(s)
-        return self.loop.belief(mark)
+        belief, collected = None, []
+        for s in self.decoder.flush():  # each step's events (a step may switch the loop)
+            belief = self._take(s)
+            collected += belief.events
+        return dataclasses.replace(belief, events=tuple(collected))
 
     def _room(self) -> int | None:
         """The most steps the next row may give (a row after a gap gives

@@ -167,6 +167,12 @@ STARTED_FROM = "BGC_STARTED_FROM"
 STARTED_AT, STARTED_THETA = "BGC_STARTED_AT", "BGC_STARTED_THETA"
 
 
+def base_package(package: Package) -> Package:
+    """The generated package a started package (:func:`started_package`)
+    was started from: the model file's; ``package`` itself when it is one."""
+    return sys.modules.get(getattr(package, STARTED_FROM, package.__name__), package)
+
+
 def started_package(package: Package, mean=None, std=None, theta: dict | None = None) -> Package:
     """Generated ``package`` with its record starting elsewhere than the
     model's ``X0``, or some of its parameters at other values: another
@@ -191,7 +197,7 @@ def started_package(package: Package, mean=None, std=None, theta: dict | None = 
     same start and parameters is the same module."""
     from .protocol import CARRIED, nominal_model
 
-    base = sys.modules.get(getattr(package, STARTED_FROM, package.__name__), package)
+    base = base_package(package)
     if mean is None:
         mean, std = getattr(package, STARTED_AT, None) or (None, None)
     if theta is None:
@@ -262,7 +268,7 @@ def accommodated(package: Package) -> tuple[str, ...]:
     """The parameters a started package (:func:`started_package`) holds at
     other values than the model file's (faults accommodated), in its order."""
     theta = getattr(package, STARTED_THETA, None) or {}
-    base = sys.modules.get(getattr(package, STARTED_FROM, package.__name__), package)
+    base = base_package(package)
     from .protocol import nominal_model
 
     nominal = nominal_model(base)

@@ -28,7 +28,8 @@ from .. import api
 from ..errors import BgcError, DataError, printable
 from .. import events as ev
 from ..data import runs
-from ..data.sampler import ClockJumped
+from ..data.sampler import MAX_GAP_STEPS, ClockJumped
+from ..diagnosis.hidden import LAG
 from ..diagnosis.bridge import bridged
 from ..data.columns import MODE, Reading
 from ..analysis import track
@@ -263,7 +264,7 @@ def monitor(session: api.Session, stream: IO, name: str, options: DiagnosisOptio
         say("interrupted: finishing the diagnosis of the data so far")
     except BgcError as exc:  # a bad row, a followed file replaced by no regular file, the memory rule: the rows so far are diagnosed
         _located(exc, stream, name)
-        if not run.rows:
+        if not run.rows and run.ended is None:
             raise
         failure = exc
         say(f"stopped: {printable(str(exc))}")
@@ -364,6 +365,8 @@ class _Monitor:
             self.sensors = [y for y in self.sensors if y not in self.taken_out]
             self.d = self._diagnoser()
         self.d = type(self.d).from_state(self.d.config, saved.diagnoser)
+        if self.d.decoder is not None:  # said before the restart: "the data have no mode column"
+            self.hidden_said.add(ev.ModeHidden(LAG))
         self.rows, self.last_check = [list(r) for r in saved.rows], saved.last_check
         self.mismatch_said = bool(self.misfits)  # said before the restart: not again by this diagnoser
         self.told.update(self.d.loop.events, self.d.switched, [] if self.log is None else self.log.log)  # said before
@@ -447,6 +450,8 @@ class _Monitor:
             self._repairs(t)
             self.log.at_row = self.log.remarks
         with guard:  # a Ctrl-C during a step waits for its end: the record stays whole
+            if self.d.sampler.k < 0 and self.rows_time is not None and self._beyond(t):
+                self._bridge(None, t, u)  # a new diagnoser (an episode closed, a repair) meets the gap: bridged too
             before = self._taken()
             try:
                 belief = self.d.step(t, u, y, line)
@@ -471,14 +476,27 @@ class _Monitor:
         self._checkpoint(belief, t)
         self.keep.every(self.rows, self.last_check, self.d, self.excluded)  # after the checkpoint: its time is saved
 
-    def _bridge(self, jump: ClockJumped, t: float, u: dict) -> None:
+    def _gap(self, t: float) -> int:
+        """The steps with no row between the last row taken and time ``t``."""
+        return int(round((t - self.rows_time) / float(self.d.nominal.DT))) - 1
+
+    def _beyond(self, t: float) -> bool:
+        """Whether a row of time ``t`` comes after a gap a diagnoser that
+        took no row yet could not take (:meth:`_bridge`)."""
+        missing, room = self._gap(t), self.d._room()
+        return missing > MAX_GAP_STEPS or (missing > 0 and room is not None and missing + 1 > room)
+
+    def _bridge(self, jump: ClockJumped | None, t: float, u: dict) -> None:
         """The row of time ``t`` (inputs ``u``) comes after a gap longer
-        than the diagnosis holds (``jump``, the refusal): while watching, a
-        new diagnoser takes it as its first (:mod:`bgc.diagnosis.bridge`);
-        with an episode in progress (``--episodes``) the episode is closed
-        first on the rows before the gap; an alarm in progress without
-        episodes stops the monitor with ``jump`` (its diagnosis: the rows
-        before the gap)."""
+        than the diagnosis holds (``jump``, the refusal; None: met by a
+        diagnoser that took no row yet, an episode's or a repair's): while
+        watching, a new diagnoser takes it as its first
+        (:mod:`bgc.diagnosis.bridge`); with an episode in progress
+        (``--episodes``) the episode is closed first on the rows before the
+        gap; an alarm in progress without episodes stops the monitor with
+        ``jump`` (its diagnosis: the rows before the gap). The gap's steps
+        are counted from the last row's time either way (a restart from a
+        state saved between the two meets the same)."""
         waited = self.d.flush()  # the steps waiting for their modes: taken, the data stop here
         if waited is not None:
             self.tell(waited.events)
@@ -488,12 +506,14 @@ class _Monitor:
         if belief.phase != "watching":
             if self.log is None:
                 raise DataError(jump.what, jump.loc, "an alarm was in progress: the report is the diagnosis of the "
-                                "rows before the gap; with --episodes the monitor closes the episode there and goes "
-                                "on after the gap")
+                                "rows before the gap; with episodes (--episodes) the monitor closes the episode there "
+                                "and goes on after the gap")
             c = self.d.checkpoint()
             self.tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)])
             self._close(c, belief.time, self.rows_time, full=True, gap=True)
-        self.d, said = bridged(self.d, t, u, jump.since, jump.missing)
+        if self.rows:  # their report, should the row after the gap fail
+            self.ended = (self.d, self.rows, list(self.misfits))
+        self.d, said = bridged(self.d, t, u, self.rows_time, self._gap(t))
         self.bridges.append(said)
         self.tell([said])
         self._afresh()
