@@ -102,6 +102,8 @@ def test_a_three_hour_outage_while_watching_is_bridged_and_a_healthy_plant_stays
     assert any(line.startswith("t = 10820: no data from t = 20 to t = 10820 (215999 steps") for line in said)
 
 
+@pytest.mark.slow
+@pytest.mark.long
 def test_without_running_the_model_on_a_moved_input_would_alarm(monkeypatch):
     """The control: the observer started where it was before the gap, its
     spread widened by the model's initial spread only (no run on), alarms
@@ -113,6 +115,7 @@ def test_without_running_the_model_on_a_moved_input_would_alarm(monkeypatch):
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_fault_after_the_outage_is_isolated_at_its_time_and_size():
     """R1 at 1.5 times its value 10 s after the gap, the source moved to 12:
     R1 isolated from t = 10830, +0.5 ohm."""
@@ -125,6 +128,7 @@ def test_a_fault_after_the_outage_is_isolated_at_its_time_and_size():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_the_two_tanks_after_a_gap_past_the_memory_with_the_inflow_moved_name_the_fault(tmp_path):
     """40,000 steps with no row (beyond the 18,951 the diagnosis holds, under
     a clock jump's 100,000), the inflow from 1 to 1.3 meanwhile, R12 up by
@@ -145,6 +149,7 @@ def test_the_two_tanks_after_a_gap_past_the_memory_with_the_inflow_moved_name_th
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_an_episode_open_at_the_gap_is_closed_on_the_rows_before_it_then_the_gap_bridged():
     """R2 up from t = 19.3, 0.7 s before a three-hour gap: the alarm comes,
     no checkpoint decides it before the gap; the episode closes there (its
@@ -159,6 +164,8 @@ def test_an_episode_open_at_the_gap_is_closed_on_the_rows_before_it_then_the_gap
     assert any("no data from t = 20 to t = 10820" in line for line in said)
 
 
+@pytest.mark.slow
+@pytest.mark.long
 def test_without_episodes_an_alarm_open_at_the_gap_stops_with_the_rows_before_it(tmp_path):
     """No episodes: one diagnosis of one record; the gap comes during the
     alarm, so the monitor stops there (exit 1, one line, no traceback), its
@@ -173,6 +180,7 @@ def test_without_episodes_an_alarm_open_at_the_gap_stops_with_the_rows_before_it
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_restart_across_the_gap_gives_the_uninterrupted_runs_report(tmp_path):
     """The state saved before the gap (the input cut there, as a kill would),
     then the whole input again: the same events and verdict as one run."""
@@ -223,6 +231,8 @@ def test_the_shipped_outage_example_is_this_simulators_run():
     assert OUTAGE.read_text(encoding="utf-8") == outage_lines()
 
 
+@pytest.mark.slow
+@pytest.mark.long
 def test_a_plant_whose_mode_is_read_from_the_data_is_bridged_from_its_last_estimate():
     """The level plant of docs/examples/level.yaml (its pump switched by the
     tank's level; the data have no mode column), by solve_ivp
@@ -246,6 +256,7 @@ def test_a_plant_whose_mode_is_read_from_the_data_is_bridged_from_its_last_estim
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_step_whose_change_point_fell_before_every_onset_its_filters_took_is_tested_again():
     """bench/outage.py's circuit seed 9 (docs/results.md section 77): R2 at
     1.5 times its value from 10 s after the gap, the source moved to 7 V.
@@ -263,6 +274,7 @@ def test_a_step_whose_change_point_fell_before_every_onset_its_filters_took_is_t
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_repair_said_during_the_outage_still_bridges_the_gap():
     """R2 up from t = 6 (accommodated by an episode), then the logger goes
     down at t = 20 and a `# repaired` line comes before its first row back,
@@ -282,6 +294,7 @@ def test_a_repair_said_during_the_outage_still_bridges_the_gap():
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_a_kill_after_an_episode_closed_at_the_gap_resumes_to_the_uninterrupted_report(tmp_path):
     """The episode open at the gap is closed (and its state saved) while the
     row after the gap is taken; killed before the next save, the restart
