@@ -162,10 +162,10 @@ class Sampler:
                 self._pending.append(ev.SampleSkipped(k, line, t))
             return []
         missing = k - self.k - 1
-        if missing > MAX_GAP_STEPS or (missing > 0 and room is not None and missing + 1 > room):
+        if beyond(missing, room):
             error = jumped(self._where(line), self.clock(t).text(t), missing, self.dt, "sample",
                            None if missing > MAX_GAP_STEPS else max(room - 1, 0))
-            raise ClockJumped(error.what, error.loc, error.fix, since=self.last_t, missing=missing)
+            raise ClockJumped(error.what, error.loc, error.fix)
         self.last_t, self.t0 = t, t0  # the row is taken: a refused one leaves the sampler as it was
         out = []
         first = self.k + 1
@@ -369,21 +369,16 @@ def check_jumps(time, dt: float, source: str, time_unit: str | None = None) -> N
 
 
 class ClockJumped(DataError):
-    """:func:`jumped`'s refusal of a row by :meth:`Sampler.push`, with the
-    time of the sample before the gap (``since``) and the steps with no
-    sample (``missing``): a monitor watching may bridge it
-    (:meth:`bgc.diagnosis.diagnoser.Diagnoser.bridged`)."""
-
-    def __init__(self, *args, since: float, missing: int):
-        super().__init__(*args)
-        self.since, self.missing = since, missing
-
-    def __reduce__(self):  # its keyword arguments too (an error raised in a worker process comes back whole)
-        return _clock_jumped, (self.what, self.loc, self.fix, self.since, self.missing)
+    """:func:`jumped`'s refusal of a row by :meth:`Sampler.push` (a gap
+    :func:`beyond` what the diagnosis takes): a monitor watching bridges it
+    (:mod:`bgc.diagnosis.bridge`)."""
 
 
-def _clock_jumped(what, loc, fix, since, missing) -> ClockJumped:
-    return ClockJumped(what, loc, fix, since=since, missing=missing)
+def beyond(missing: int, room: int | None) -> bool:
+    """Whether a row after ``missing`` steps with no sample is refused: more
+    than :data:`MAX_GAP_STEPS` (a clock that jumped), or than ``room``, the
+    steps the diagnosis can still hold (None: no limit) less the row's own."""
+    return missing > MAX_GAP_STEPS or (missing > 0 and room is not None and missing + 1 > room)
 
 
 def jumped(where: str, when: str, missing: float, dt: float, before: str, room: int | None = None) -> DataError:

@@ -53,12 +53,13 @@ def bridged(d, t: float, u: dict, since: float, missing: int):
     start is the new one's)."""
     nominal = d.nominal
     kinds = getattr(nominal, "STATE_KINDS", ("physical",) * len(nominal.STATES))
+    physical = np.array([k == "physical" for k in kinds])
     if d.loop.samples:
         last = np.asarray(d.loop.x_mean[-1], dtype=float), np.asarray(d.loop.x_std[-1], dtype=float)
     else:  # a diagnoser that took no row yet (an episode closed): its start
         last = np.asarray(nominal.X0, dtype=float), np.asarray(nominal.X0_STD, dtype=float)
     mean, std = last[0].copy(), last[1].copy()
-    steps = min(missing + 1, settle_steps(nominal), MOST_STEPS) if all(k == "physical" for k in kinds) else 0
+    steps = min(missing + 1, settle_steps(nominal), MOST_STEPS) if physical.all() else 0
     if steps:
         x = mean[:, None].copy()
         uk = d.sampler.row_inputs(t, u)
@@ -71,7 +72,6 @@ def bridged(d, t: float, u: dict, since: float, missing: int):
         else:  # the model ran off: the last estimate
             steps = 0
     moved = mean - last[0]
-    physical = np.array([k == "physical" for k in kinds])
     x0_std = np.asarray(nominal_model(base_package(d.config.package)).X0_STD, dtype=float)  # the model file's
     std = np.where(physical, np.sqrt(std ** 2 + x0_std ** 2 + moved ** 2), std)
     old = d.config.package

@@ -220,14 +220,20 @@ class Diagnoser:
         said = self._forget_if_full()  # once per row: the steps of a row (a gap's) are counted from one start
         if len(rows) == 1 and not said:  # the usual row: one step, its belief as it is
             return self._decoded(rows[0])
-        belief = None
-        collected: list = list(said)
-        for s in rows:
-            belief = self._decoded(s)
-            collected += belief.events
+        belief = self._through(rows, self._decoded, said)
         if belief is None:  # a row on a step already taken: the belief stands
-            belief = self.loop.belief(len(self.loop.events))
-        return dataclasses.replace(belief, events=tuple(collected))
+            belief = dataclasses.replace(self.loop.belief(len(self.loop.events)), events=tuple(said))
+        return belief
+
+    @staticmethod
+    def _through(samples, take, said=()) -> Belief | None:
+        """``take`` of each of ``samples`` in turn: the belief after the last,
+        with every one's events, led by ``said`` (None: no sample)."""
+        belief, collected = None, list(said)
+        for s in samples:
+            belief = take(s)
+            collected += belief.events
+        return None if belief is None else dataclasses.replace(belief, events=tuple(collected))
 
     def flush(self) -> Belief | None:
         """With the mode read from the data, take the steps still waiting for
@@ -236,11 +242,7 @@ class Diagnoser:
         events (None: none was waiting)."""
         if self.decoder is None or not self.decoder.waiting:
             return None
-        belief, collected = None, []
-        for s in self.decoder.flush():  # each step's events (a step may switch the loop)
-            belief = self._take(s)
-            collected += belief.events
-        return dataclasses.replace(belief, events=tuple(collected))
+        return self._through(self.decoder.flush(), self._take)  # each step's events (a step may switch the loop)
 
     def _room(self) -> int | None:
         """The most steps the next row may give (a row after a gap gives
@@ -268,14 +270,8 @@ class Diagnoser:
         started = time.perf_counter()
         decided = self.decoder.push(s)
         self.busy += time.perf_counter() - started
-        belief = None
-        collected: list = []
-        for d in decided:
-            belief = self._take(d)
-            collected += belief.events
-        if belief is None:
-            return self.loop.belief(len(self.loop.events))
-        return belief if len(decided) == 1 else dataclasses.replace(belief, events=tuple(collected))
+        belief = self._through(decided, self._take)
+        return self.loop.belief(len(self.loop.events)) if belief is None else belief
 
     def _take(self, s: Sample) -> Belief:
         """The loop's step of the grid (a :class:`~bgc.data.sampler.Sample`)."""

@@ -85,11 +85,6 @@ def sentence(e, time_of, *, clock: Clock = Clock()) -> str:
         case ev.SensorExcluded(sensor=y, finding=f, time=when):
             return (f"sensor {y} taken out of the nominal observer from t = {clock.text(when)} ({f}): monitoring "
                     f"goes on with the other sensors")
-        case ev.Bridged(began=a, time=b, steps=n, ran=r):
-            start = (f"where the model takes its last estimate in {r} steps at this row's inputs" if r
-                     else "from its last estimate")
-            return (f"no data from t = {clock.text(a)} to t = {clock.text(b)} ({n} steps, more than the diagnosis "
-                    f"holds): watching again from this row, the observer started {start}, its spread widened")
         case ev.EpisodeClosed():
             return _episode_sentence(e, clock)
         case ev.Repaired(time=when, episodes=ns, parameters=ps):
@@ -139,6 +134,11 @@ def _data_sentence(e, t, time_of, clock: Clock) -> str | None:
             return head + moved + ("; with them it explains the data" if yes else "; it does not explain the data")
         case ev.InputHeld(input=u, step=k, value=v):
             return f"input u:{u} is empty: its last value {v:g} is held until a value arrives"
+        case ev.Bridged(began=a, time=b, steps=n, ran=r):
+            start = (f"where the model takes its last estimate in {r} steps at this row's inputs" if r
+                     else "from its last estimate")
+            return (f"no data from t = {clock.text(a)} to t = {clock.text(b)} ({n} steps, more than the diagnosis "
+                    f"holds): watching again from this row, the observer started {start}, its spread widened")
         case ev.Gap(step=k, steps=n):
             return f"no sample for {n} steps from t = {t(k)} to t = {t(k + n - 1)}: the filters predict across the gap"
         case ev.SampleSkipped(step=k, line=line, time=when):

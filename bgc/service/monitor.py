@@ -28,7 +28,7 @@ from .. import api
 from ..errors import BgcError, DataError, printable
 from .. import events as ev
 from ..data import runs
-from ..data.sampler import MAX_GAP_STEPS, ClockJumped
+from ..data.sampler import ClockJumped, beyond
 from ..diagnosis.hidden import LAG
 from ..diagnosis.bridge import bridged
 from ..data.columns import MODE, Reading
@@ -483,8 +483,7 @@ class _Monitor:
     def _beyond(self, t: float) -> bool:
         """Whether a row of time ``t`` comes after a gap a diagnoser that
         took no row yet could not take (:meth:`_bridge`)."""
-        missing, room = self._gap(t), self.d._room()
-        return missing > MAX_GAP_STEPS or (missing > 0 and room is not None and missing + 1 > room)
+        return beyond(self._gap(t), self.d._room())
 
     def _bridge(self, jump: ClockJumped | None, t: float, u: dict) -> None:
         """The row of time ``t`` (inputs ``u``) comes after a gap longer
