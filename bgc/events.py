@@ -511,12 +511,18 @@ class Bridged:
     jumped. The monitor was watching: a new diagnoser takes the row of time
     ``time`` as its first, its observer started from the last estimate run
     on ``ran`` steps by the model with that row's inputs, its spread widened
-    (:mod:`bgc.diagnosis.bridge`)."""
+    (:mod:`bgc.diagnosis.bridge`); a model whose state holds its mode
+    (``settled``): anywhere on the course the model settles into (the
+    observer's estimates before the gap where ``ran`` is 0), the mode read
+    from the data starting among ``modes``, those the course visits (empty:
+    the data give the mode)."""
 
     began: float
     time: float
     steps: int
     ran: int
+    settled: bool = False
+    modes: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)

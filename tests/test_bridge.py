@@ -16,7 +16,6 @@ across the gap are derived here from the circuit's matrix, not read from bgc.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -231,28 +230,127 @@ def test_the_shipped_outage_example_is_this_simulators_run():
     assert OUTAGE.read_text(encoding="utf-8") == outage_lines()
 
 
+#: The level plant's slowest time constant, by hand: draining, C_t p' = -p/R_out, 1/(R_out C_t) = 1/3 per
+#: second, which its generated mode module writes to 10 digits (-0.3333333333): ten of them, in steps of 0.05 s,
+#: ceil(10 / 0.3333333333 / 0.05) = ceil(600.00000006) = 601.
+LEVEL_SETTLE = 601
+
+
+def _level_lines(times, y_p, y_q) -> list[str]:
+    import hybrid_reference as hybrid
+
+    return ["time,u:E,y:p,y:q_out"] + [f"{t:.12g},{hybrid.LEVEL_E},{float(a)!r},{float(b)!r}"
+                                       for t, a, b in zip(times, y_p, y_q)]
+
+
 @pytest.mark.slow
 @pytest.mark.long
-def test_a_plant_whose_mode_is_read_from_the_data_is_bridged_from_its_last_estimate():
+def test_a_plant_whose_mode_is_read_from_the_data_is_bridged_from_its_settled_course():
     """The level plant of docs/examples/level.yaml (its pump switched by the
     tank's level; the data have no mode column), by solve_ivp
     (tests/hybrid_reference.py), its clock 10^5 s ahead from its 301st row,
     the pump's mode another there than at the row before: no fault; the
-    observer started from its last estimate (a state holding a mode is not
-    run on); "the data have no mode column" said once."""
+    observer started anywhere on the course the model settles into (its
+    slowest time constant ten times over, LEVEL_SETTLE steps), the mode one
+    of the two (its cycle, of about 3 s, visits both in the course's second
+    half); "the data have no mode column" said once."""
     import hybrid_reference as hybrid
 
     times, modes, y_p, y_q, _ = hybrid.level_run(0)
     assert modes[299] != modes[300]
     shift = np.where(np.arange(len(times)) >= 300, 1e5, 0.0)
-    lines = ["time,u:E,y:p,y:q_out"] + [f"{t + s:.12g},{hybrid.LEVEL_E},{float(a)!r},{float(b)!r}"
-                                        for t, s, a, b in zip(times, shift, y_p, y_q)]
     said: list[str] = []
-    report = bgc.monitor(ROOT / "docs" / "examples" / "level.yaml", iter(lines), seed=3, events=said.append)
+    report = bgc.monitor(ROOT / "docs" / "examples" / "level.yaml", iter(_level_lines(times + shift, y_p, y_q)),
+                         seed=3, events=said.append)
     d = report.diagnosis
     assert d.verdict == "no fault" and d.detection is None, said
-    assert [e for e in d.events if isinstance(e, ev.Bridged)] == [ev.Bridged(15.0, 1e5 + 15.05, 2000000, 0)]
+    assert [e for e in d.events if isinstance(e, ev.Bridged)] == [
+        ev.Bridged(15.0, 1e5 + 15.05, 2000000, LEVEL_SETTLE, True, ("filling", "draining"))]
     assert sum("the data have no mode column" in line for line in said) == 1, said
+    assert sum("the mode one of filling, draining" in line for line in said) == 1, said
+
+
+def _cycling_lines(seed: int) -> list[str]:
+    """The level plant's rows: 300 of one run, no row for 10^5 s, then those of
+    another run from a point of its cycle where the mode is another and the
+    level a quarter of the band or more away (the test below)."""
+    import hybrid_reference as hybrid
+
+    times, modes, y_p, y_q, _ = hybrid.level_run(seed)
+    _, after_modes, after_p, after_q, _ = hybrid.level_run(seed + 10)
+    start = next(k for k in range(300, 600) if after_modes[k] != modes[299] and abs(after_p[k] - y_p[299]) > 0.1)
+    later = 1e5 + hybrid.LEVEL_DT * np.arange(600 - start)
+    return _level_lines(np.concatenate([times[:300], later]), np.concatenate([y_p[:300], after_p[start:]]),
+                        np.concatenate([y_q[:300], after_q[start:]]))
+
+
+@pytest.mark.slow
+@pytest.mark.long
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_cycling_plant_found_elsewhere_in_its_cycle_after_an_outage_is_watched_without_an_alarm(seed):
+    """The level plant by solve_ivp, 300 rows, then nothing for 10^5 s, then
+    rows of another run of it (its own noise) from another point of its cycle
+    (the mode other than at the last row, the level a quarter of the band
+    or more away): the plant cycles between p = 0.4 and 0.8 all the while,
+    and where in its cycle it is after the outage nothing before it says.
+    Started from its last estimate, the observer met the first row 25
+    standard deviations off and the monitor said a mismatch; started
+    anywhere on its settled course, in either mode, no fault."""
+    said: list[str] = []
+    report = bgc.monitor(ROOT / "docs" / "examples" / "level.yaml", iter(_cycling_lines(seed)), seed=3,
+                         events=said.append)
+    d = report.diagnosis
+    assert d.verdict == "no fault" and d.detection is None, said
+    assert [(e.ran, e.settled) for e in d.events if isinstance(e, ev.Bridged)] == [(LEVEL_SETTLE, True)]
+
+
+@pytest.mark.slow
+@pytest.mark.long
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_thermostat_found_in_its_other_mode_after_an_outage_is_watched_without_an_alarm(seed):
+    """The thermostat of tests/data/hybrid/thermostat.yaml (a radiator's valve
+    opened under 18 and shut over 21 by the room's temperature, each
+    threshold drawn anew at each visit; no mode column) by solve_ivp: 300
+    rows, the clock 10^6 s ahead, then rows of another run from a sample
+    whose valve is the other way. Started from its last estimate, the first
+    row after the gap alarmed on T_room and the verdict was a mismatch
+    (seed 1: "mismatch: T_room_offset_bias"); started anywhere on its
+    settled course, the valve either way, no fault."""
+    import hybrid_reference as hybrid
+
+    times, modes, readings = hybrid.thermostat_run(seed)
+    _, after_modes, after_readings = hybrid.thermostat_run(seed + 20)
+    start = next(k for k in range(300, 600) if after_modes[k] != modes[299])
+    later = 1e6 + hybrid.THERMO_DT * np.arange(600 - start)
+    lines = ["time,u:T_s," + ",".join(f"y:{y}" for y in hybrid.THERMO_SENSORS)]
+    lines += [f"{t:.12g},{hybrid.THERMO_T_S:g}," + ",".join(f"{v:.9g}" for v in r)
+              for t, r in zip(np.concatenate([times[:300], later]),
+                              np.concatenate([readings[:300], after_readings[start:]]))]
+    said: list[str] = []
+    d = bgc.monitor(hybrid.THERMO_MODEL, iter(lines), seed=3, events=said.append).diagnosis
+    assert d.verdict == "no fault" and d.detection is None, said
+    assert [(e.settled, e.modes) for e in d.events if isinstance(e, ev.Bridged)] == [(True, ("heating", "idle"))]
+
+
+@pytest.mark.slow
+@pytest.mark.long
+@pytest.mark.parametrize("cut", [300, 340])
+def test_a_restart_of_a_cycling_plants_monitor_across_its_outage_gives_the_uninterrupted_report(tmp_path, cut):
+    """The cycling level plant's outage, its monitor's state saved before the
+    gap (``cut`` 300 rows) or after it (340: its branches over the modes
+    taken and the gap's event in the state), then the whole input again: the
+    same events (the gap's, whose mode reader started among the modes) and
+    verdict as one run."""
+    model, lines = ROOT / "docs" / "examples" / "level.yaml", _cycling_lines(1)
+    whole = bgc.monitor(model, iter(lines), seed=3)
+    state = tmp_path / "state"
+    bgc.monitor(model, iter(lines[:cut + 1]), seed=3, state=state, state_every=7)
+    said: list[str] = []
+    again = bgc.monitor(model, iter(lines), seed=3, state=state, state_every=7, events=said.append)
+    assert said[0].startswith("resumed from")
+    assert again.diagnosis.verdict == whole.diagnosis.verdict == "no fault"
+    assert again.diagnosis.events == whole.diagnosis.events
+    assert [e.modes for e in again.diagnosis.events if isinstance(e, ev.Bridged)] == [("filling", "draining")]
 
 
 @pytest.mark.slow

@@ -15,13 +15,25 @@ first, its observer started where the plant may be after the gap:
   linearisation (its ``EIGENVALUES``) and :data:`MOST_STEPS`: a stable
   plant has forgotten where it was by then, and a longer run would only
   add the cost. A model with
-  no stable eigenvalue, or one whose state holds a mode, is not run on (its
-  mean is the last estimate);
+  no stable eigenvalue is not run on (its mean is the last estimate);
+  a model with modes takes the slowest time constant of any of its modes,
+  and its hidden mode (the data have no mode column) follows its guards in
+  the run on;
 - **spread**: each physical state's std grows to ``sqrt(s^2 + s0^2 + d^2)``,
   ``s`` the observer's std before the gap, ``s0`` the model file's initial
   spread (``X0_STD``; not a started package's, whose start is an estimate's) and ``d`` how far the run on moved it: what happened
   in the gap is not known (the inputs may have moved, and back), and the
   observer's first rows after it settle where the data say.
+
+A model whose state holds its mode may be anywhere on the course it settles
+into (a level switch cycling a pump: at an unknown point of the cycle, in
+either mode): its start is the mean of the run on's second half (none: of
+the observer's estimates before the gap), each physical state's spread
+widened by that half's variance too, and the mode's reader (the data have
+no mode column) starts from one branch per mode visited there, at that
+mode's points' mean and spread (the time in the mode too; a threshold drawn
+at each visit with the model file's spread), weighed by their share
+(:meth:`~bgc.diagnosis.hidden.ModeDecoder.start_among`).
 
 The detector's residuals are normalised by the observer's own predicted
 spread, so a wide start raises no alarm; the new diagnoser's record, its
@@ -58,34 +70,99 @@ def bridged(d, t: float, u: dict, since: float, missing: int):
         last = np.asarray(d.loop.x_mean[-1], dtype=float), np.asarray(d.loop.x_std[-1], dtype=float)
     else:  # a diagnoser that took no row yet (an episode closed): its start
         last = np.asarray(nominal.X0, dtype=float), np.asarray(nominal.X0_STD, dtype=float)
-    mean, std = last[0].copy(), last[1].copy()
-    steps = min(missing + 1, settle_steps(nominal), MOST_STEPS) if physical.all() else 0
-    if steps:
-        x = mean[:, None].copy()
-        uk = d.sampler.row_inputs(t, u)
-        theta = np.asarray(nominal.THETA, dtype=float)
-        with np.errstate(all="ignore"):
-            for _ in range(steps):
-                nominal.predict(x, uk, theta, nominal.DT, out=x)
-        if np.all(np.isfinite(x)):
-            mean = x[:, 0]
-        else:  # the model ran off: the last estimate
-            steps = 0
-    moved = mean - last[0]
     x0_std = np.asarray(nominal_model(base_package(d.config.package)).X0_STD, dtype=float)  # the model file's
-    std = np.where(physical, np.sqrt(std ** 2 + x0_std ** 2 + moved ** 2), std)
+    uk = d.sampler.row_inputs(t, u)
+    moded = getattr(nominal, "MODE_ROW", None) is not None
+    if moded and d.decoder is not None:  # the mode hidden: the model switches by its own guards in the run on
+        uk[nominal.MODE_INPUT] = np.nan
+    steps = min(missing + 1, settle_steps(nominal), MOST_STEPS)
+    course = _run_on(nominal, last[0], uk, steps)
+    if course is None:
+        steps = 0
     old = d.config.package
+    if not moded:
+        mean = last[0] if course is None else course[-1]
+        moved = mean - last[0]
+        std = np.where(physical, np.sqrt(last[1] ** 2 + x0_std ** 2 + moved ** 2), last[1])
+        branches = None
+    else:
+        mean, std, branches = _settled(nominal, course, d, last, x0_std)
     package = started_package(old, mean, std)
     if package is not old:
         forget_started(old)
-    event = ev.Bridged(float(since), float(t), int(missing), int(steps))
-    return d.again(package), event
+    modes = ()
+    new = d.again(package)
+    if branches is not None and d.decoder is not None:
+        new.start_among(*branches)
+        modes = tuple(nominal.MODES[int(m[nominal.MODE_ROW]) - 1] for m in branches[0])
+    return new, ev.Bridged(float(since), float(t), int(missing), int(steps), moded, modes)
+
+
+def _run_on(nominal, x: np.ndarray, u: np.ndarray, steps: int) -> np.ndarray | None:
+    """The model's noise-free course from state ``x`` at inputs ``u`` over
+    ``steps`` steps (steps x states, the state after each); None when there
+    are none or it ran off (not finite)."""
+    if not steps:
+        return None
+    x = np.asarray(x, dtype=float)[:, None].copy()
+    theta = np.asarray(nominal.THETA, dtype=float)
+    course = np.empty((steps, len(x)))
+    with np.errstate(all="ignore"):
+        for k in range(steps):
+            nominal.predict(x, u, theta, nominal.DT, out=x)
+            course[k] = x[:, 0]
+    return course if np.all(np.isfinite(course)) else None
+
+
+def _settled(nominal, course: np.ndarray | None, d, last: tuple, x0_std: np.ndarray):
+    """A model whose state holds its mode, after a gap: where it may be is
+    anywhere on its settled course (a plant that cycles through its modes
+    is at an unknown point of its cycle), the second half of the run on
+    (``course``; none: the observer's estimates over the record before the
+    gap). Returns the start's mean and std (the course's over that half,
+    each physical state's widened as in the module docstring, the mode and
+    time in it the last point's) and the mode reader's branches: one per
+    mode visited there, at that mode's points' mean and spread, weighed by
+    their share."""
+    kinds = getattr(nominal, "STATE_KINDS", ("physical",) * len(nominal.STATES))
+    physical = np.array([k == "physical" for k in kinds])
+    if course is not None:
+        points = course[len(course) // 2:]
+    else:
+        points = np.asarray(d.loop.x_mean, dtype=float) if d.loop.samples else last[0][None]
+    s, s0 = last[1], x0_std
+    mean = points.mean(axis=0)
+    mean[~physical] = points[-1][~physical]
+    moved = mean - last[0]
+    std = np.where(physical, np.sqrt(s ** 2 + s0 ** 2 + points.var(axis=0) + moved ** 2), s)
+    row = nominal.MODE_ROW
+    modes = np.rint(points[:, row]).astype(int)
+    means, stds, weights = [], [], []
+    for mode in np.unique(modes):
+        mine = points[modes == mode]
+        m = mine.mean(axis=0)
+        m[~physical] = mine[-1][~physical]
+        m[row] = mode
+        spread = np.sqrt(s ** 2 + s0 ** 2 + mine.var(axis=0))
+        std_b = np.where(physical, spread, 0.0)
+        for i, k in enumerate(kinds):
+            if k == "dwell":  # the time in the mode: anywhere its points had it
+                std_b[i] = float(mine[:, i].std())
+                m[i] = float(mine[:, i].mean())
+            elif k == "threshold":  # a threshold drawn at each visit: the model file's spread
+                std_b[i] = float(s0[i])
+        means.append(m)
+        stds.append(std_b)
+        weights.append(len(mine))
+    return mean, std, (np.array(means), np.array(stds), np.array(weights, dtype=float))
 
 
 def settle_steps(nominal) -> int:
     """The steps of :data:`SETTLE` times the slowest stable time constant of
-    ``nominal``'s linearisation (0: no stable eigenvalue given)."""
-    rates = [-float(re) for re, _ in getattr(nominal, "EIGENVALUES", ()) if float(re) < 0.0]
+    ``nominal``'s linearisation (a model with modes: of any of its modes'
+    modules; 0: no stable eigenvalue given)."""
+    modules = (nominal,) + tuple(getattr(nominal, "_MODULES", ()))
+    rates = [-float(re) for m in modules for re, _ in getattr(m, "EIGENVALUES", ()) if float(re) < 0.0]
     if not rates:
         return 0
     return int(math.ceil(SETTLE / min(rates) / float(nominal.DT)))

@@ -155,6 +155,9 @@ class Diagnoser:
         self.busy = 0.0  # seconds spent in steps (not waiting for data)
         self.started = time.perf_counter()
         self.decoder: ModeDecoder | None = None  # a hidden mode's reader (the data have no mode column)
+        #: where a hidden mode's reader starts when the model's start is not known (means, stds, weights of its
+        #: branches: after a logger's outage, :mod:`bgc.diagnosis.bridge`; None: the package's start)
+        self.branches: tuple | None = None
         self.keep = keep_steps(config.options, self.nominal.DT)  # the record kept while watching (None: all)
         self.offset = 0  # the steps of the grid forgotten (step k of the loop is step offset + k of the data)
         #: whether the diagnoses made now try faults that come and go (off while the modes are read again)
@@ -165,6 +168,17 @@ class Diagnoser:
         sample goes through a :class:`~bgc.diagnosis.hidden.ModeDecoder` first."""
         self.config.say("the data have no mode column: reading the mode from the measurements")
         self.decoder = ModeDecoder(self.nominal)
+        if self.branches is not None:
+            self.decoder.start_among(*self.branches)
+
+    def start_among(self, means, stds, weights) -> None:
+        """Where the mode is read from the data (now or from the first row),
+        start its reader from these branches (:meth:`ModeDecoder.start_among
+        <bgc.diagnosis.hidden.ModeDecoder.start_among>`) instead of the
+        package's start; before the first row."""
+        self.branches = (means, stds, weights)
+        if self.decoder is not None:
+            self.decoder.start_among(means, stds, weights)
 
     def _loop_config(self, options: DiagnosisOptions, every: bool, lazy: bool) -> LoopConfig:
         c = self.config

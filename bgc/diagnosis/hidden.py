@@ -200,6 +200,27 @@ class ModeDecoder:
         #: per bank, log p(y_0 .. y_k) of the samples taken over its branches (those pruned as they stood)
         self.logliks = np.zeros(cells)
 
+    def start_among(self, means: np.ndarray, stds: np.ndarray, weights: np.ndarray) -> None:
+        """Start a decoder that took no sample from several branches instead
+        of the model's one start: branch b at the carried states ``means[b]``
+        (each a full state of the model: its mode among them) with spread
+        ``stds[b]``, weighed by ``weights[b]`` (a plant whose mode is not
+        known when the data begin again, :mod:`bgc.diagnosis.bridge`)."""
+        if self.k or self.waiting or self.fault is not None or not self.decide:
+            raise ValueError("a decoder starts among branches before its first sample, nominal and deciding")
+        rows = self.kf.physical
+        means, stds = np.atleast_2d(np.asarray(means, dtype=float)), np.atleast_2d(np.asarray(stds, dtype=float))
+        weights = np.asarray(weights, dtype=float)
+        self.m = means[:, rows].copy()
+        self.P = np.stack([np.diag(s[rows] ** 2) for s in stds])
+        with np.errstate(divide="ignore"):
+            self.logw = np.log(weights / weights.sum())
+        self.cell = np.zeros(len(means), dtype=np.intp)
+        self.history = np.zeros((len(means), 0), dtype=np.intp)
+        self.fixed = np.zeros((len(self.kf.extra), len(means)))
+        self.held = self._held(self.m, self.P, np.asarray(self.model.inputs(0.0), dtype=float))
+        self.before = self.held.copy()
+
     # -- the bank -------------------------------------------------------------------------------------------
 
     def _modes(self, m: np.ndarray) -> np.ndarray:

@@ -134,9 +134,15 @@ def _data_sentence(e, t, time_of, clock: Clock) -> str | None:
             return head + moved + ("; with them it explains the data" if yes else "; it does not explain the data")
         case ev.InputHeld(input=u, step=k, value=v):
             return f"input u:{u} is empty: its last value {v:g} is held until a value arrives"
-        case ev.Bridged(began=a, time=b, steps=n, ran=r):
-            start = (f"where the model takes its last estimate in {r} steps at this row's inputs" if r
-                     else "from its last estimate")
+        case ev.Bridged(began=a, time=b, steps=n, ran=r, settled=settled, modes=modes):
+            if settled:
+                start = (f"anywhere on the course the model settles into in {r} steps at this row's inputs" if r
+                         else "anywhere its estimates before the gap were")
+                start += f", the mode one of {', '.join(modes)}" if len(modes) > 1 else \
+                    f", the mode {modes[0]}" if modes else ""
+            else:
+                start = (f"where the model takes its last estimate in {r} steps at this row's inputs" if r
+                         else "from its last estimate")
             return (f"no data from t = {clock.text(a)} to t = {clock.text(b)} ({n} steps, more than the diagnosis "
                     f"holds): watching again from this row, the observer started {start}, its spread widened")
         case ev.Gap(step=k, steps=n):

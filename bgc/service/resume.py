@@ -71,7 +71,7 @@ class Saved:
     #: the misfits said as the data came (:class:`~bgc.events.Mismatched`, dated: ``said`` and ``span``): those
     #: of the diagnosers before the one saved, and the saved one's
     misfits: tuple = ((), ())
-    #: the gaps bridged so far (:class:`~bgc.events.Bridged`: began, time, steps, ran)
+    #: the gaps bridged so far (:class:`~bgc.events.Bridged`: began, time, steps, ran, settled, modes)
     bridged: tuple = ()
 
 
@@ -154,7 +154,7 @@ def save(where: Path, ident: dict, rows: list, last_time: float, last_check: flo
     header = {"format": FORMAT, "identity": ident, "rows": len(rows), "last_time": last_time,
               "last_check": last_check, "excluded": [list(e) for e in excluded], "episodes": episodes,
               "stream": list(stream), "misfits": [[_plain(dataclasses.asdict(m)) for m in part] for part in misfits],
-              "bridged": [[e.began, e.time, e.steps, e.ran] for e in bridged]}
+              "bridged": [[e.began, e.time, e.steps, e.ran, e.settled, list(e.modes)] for e in bridged]}
     header["sha256"] = _digest(header, payload)
     data = b"".join([MAGIC, json.dumps(header).encode("utf-8"), b"\n", payload])
     tmp = where / PARTIAL
@@ -222,7 +222,9 @@ def load(where: Path, ident: dict) -> Saved | None:
         stream = (int(read), None if first is None else float(first))
         earlier, now = header.get("misfits", ((), ()))
         misfits = (tuple(_misfit(m) for m in earlier), tuple(_misfit(m) for m in now))
-        bridged = tuple(ev.Bridged(float(a), float(b), int(n), int(r)) for a, b, n, r in header.get("bridged", ()))
+        bridged = tuple(ev.Bridged(float(a), float(b), int(n), int(r), bool(rest[0]) if rest else False,
+                                   tuple(rest[1]) if len(rest) > 1 else ())
+                        for a, b, n, r, *rest in header.get("bridged", ()))
     except (ValueError, TypeError, EOFError, OSError, BgcError) as exc:
         raise BgcError(f"{where_}: the state cannot be read ({printable(str(exc).splitlines()[0])})", None,
                        fix) from None
