@@ -512,10 +512,11 @@ class Bridged:
     ``time`` as its first, its observer started from the last estimate run
     on ``ran`` steps by the model with that row's inputs, its spread widened
     (:mod:`bgc.diagnosis.bridge`); a model whose state holds its mode
-    (``settled``): anywhere on the course the model settles into (the
-    observer's estimates before the gap where ``ran`` is 0), the mode read
-    from the data starting among ``modes``, those the course visits (empty:
-    the data give the mode)."""
+    (``settled``): anywhere on the course the model settles into, the mode
+    read from the data starting among ``modes``, those the course visits;
+    where ``ran`` is 0 (the data set the mode, or no eigenvalue is stable)
+    anywhere the observer's estimates before the gap were (in the row's mode,
+    where the data give it; ``modes`` empty)."""
 
     began: float
     time: float

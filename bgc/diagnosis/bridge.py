@@ -18,7 +18,10 @@ first, its observer started where the plant may be after the gap:
   no stable eigenvalue is not run on (its mean is the last estimate);
   a model with modes takes the slowest time constant of any of its modes,
   and its hidden mode (the data have no mode column) follows its guards in
-  the run on;
+  the run on; where the data set the mode (a controlled transition) it is
+  not run on: what the modes were in the gap is not known, and a mode held
+  alone need not settle where the plant's cycle keeps it (RO's secondary
+  valve setting fills its tank until a purge);
 - **spread**: each physical state's std grows to ``sqrt(s^2 + s0^2 + d^2)``,
   ``s`` the observer's std before the gap, ``s0`` the model file's initial
   spread (``X0_STD``; not a started package's, whose start is an estimate's) and ``d`` how far the run on moved it: what happened
@@ -28,12 +31,14 @@ first, its observer started where the plant may be after the gap:
 A model whose state holds its mode may be anywhere on the course it settles
 into (a level switch cycling a pump: at an unknown point of the cycle, in
 either mode): its start is the mean of the run on's second half (none: of
-the observer's estimates before the gap), each physical state's spread
+the observer's estimates before the gap, those in the row's mode where the
+data give it and the record has two or more), each physical state's spread
 widened by that half's variance too, and the mode's reader (the data have
 no mode column) starts from one branch per mode visited there, at that
-mode's points' mean and spread (the time in the mode too; a threshold drawn
-at each visit with the model file's spread), weighed by their share
-(:meth:`~bgc.diagnosis.hidden.ModeDecoder.start_among`).
+mode's points' mean and covariance (the physical states and the time in
+the mode together), weighed by their share
+(:meth:`~bgc.diagnosis.hidden.ModeDecoder.start_among`); the mode before is
+not known, so the first mode decided is no change of mode.
 
 The detector's residuals are normalised by the observer's own predicted
 spread, so a wide start raises no alarm; the new diagnoser's record, its
@@ -75,7 +80,9 @@ def bridged(d, t: float, u: dict, since: float, missing: int):
     moded = getattr(nominal, "MODE_ROW", None) is not None
     if moded and d.decoder is not None:  # the mode hidden: the model switches by its own guards in the run on
         uk[nominal.MODE_INPUT] = np.nan
-    steps = min(missing + 1, settle_steps(nominal), MOST_STEPS)
+    # a mode the data set (a controlled transition): what the modes were in the gap is not known, and one mode
+    # held alone need not settle (RO's secondary setting fills its tank until a purge), so no run on
+    steps = 0 if moded and d.decoder is None else min(missing + 1, settle_steps(nominal), MOST_STEPS)
     course = _run_on(nominal, last[0], uk, steps)
     if course is None:
         steps = 0
@@ -86,7 +93,7 @@ def bridged(d, t: float, u: dict, since: float, missing: int):
         std = np.where(physical, np.sqrt(last[1] ** 2 + x0_std ** 2 + moved ** 2), last[1])
         branches = None
     else:
-        mean, std, branches = _settled(nominal, course, d, last, x0_std)
+        mean, std, branches = _settled(nominal, course, d, last, x0_std, float(uk[nominal.MODE_INPUT]))
     package = started_package(old, mean, std)
     if package is not old:
         forget_started(old)
@@ -114,22 +121,27 @@ def _run_on(nominal, x: np.ndarray, u: np.ndarray, steps: int) -> np.ndarray | N
     return course if np.all(np.isfinite(course)) else None
 
 
-def _settled(nominal, course: np.ndarray | None, d, last: tuple, x0_std: np.ndarray):
+def _settled(nominal, course: np.ndarray | None, d, last: tuple, x0_std: np.ndarray, mode: float = math.nan):
     """A model whose state holds its mode, after a gap: where it may be is
     anywhere on its settled course (a plant that cycles through its modes
     is at an unknown point of its cycle), the second half of the run on
-    (``course``; none: the observer's estimates over the record before the
-    gap). Returns the start's mean and std (the course's over that half,
-    each physical state's widened as in the module docstring, the mode and
-    time in it the last point's) and the mode reader's branches: one per
-    mode visited there, at that mode's points' mean and spread, weighed by
-    their share."""
+    (``course``); with none (the data set the mode), anywhere the observer's
+    estimates over the record before the gap were in the row's ``mode``
+    (all of them where none was). Returns the start's mean and std (those
+    points', each physical state's widened as in the module docstring, the
+    mode and time in it the last point's) and the mode reader's branches:
+    one per mode visited there, at that mode's points' mean and covariance
+    (the physical states' widened as the start's, the time in the mode
+    with them; other rows, a threshold's draw, the last point's), weighed
+    by their share."""
     kinds = getattr(nominal, "STATE_KINDS", ("physical",) * len(nominal.STATES))
     physical = np.array([k == "physical" for k in kinds])
     if course is not None:
         points = course[len(course) // 2:]
     else:
         points = np.asarray(d.loop.x_mean, dtype=float) if d.loop.samples else last[0][None]
+        mine = points[np.rint(points[:, nominal.MODE_ROW]) == mode] if math.isfinite(mode) else points[:0]
+        points = mine if len(mine) >= 2 else points
     s, s0 = last[1], x0_std
     mean = points.mean(axis=0)
     mean[~physical] = points[-1][~physical]
@@ -137,24 +149,22 @@ def _settled(nominal, course: np.ndarray | None, d, last: tuple, x0_std: np.ndar
     std = np.where(physical, np.sqrt(s ** 2 + s0 ** 2 + points.var(axis=0) + moved ** 2), s)
     row = nominal.MODE_ROW
     modes = np.rint(points[:, row]).astype(int)
-    means, stds, weights = [], [], []
+    # the physical states and the time in the mode move along the course together (a timed mode's level and
+    # its time in it): their covariance over the mode's points, the rest (a threshold's draw) the last point's
+    moving = np.array([k in ("physical", "dwell") for k in kinds])
+    means, covariances, weights = [], [], []
     for mode in np.unique(modes):
         mine = points[modes == mode]
-        m = mine.mean(axis=0)
-        m[~physical] = mine[-1][~physical]
+        m = np.where(moving, mine.mean(axis=0), mine[-1])
         m[row] = mode
-        spread = np.sqrt(s ** 2 + s0 ** 2 + mine.var(axis=0))
-        std_b = np.where(physical, spread, 0.0)
-        for i, k in enumerate(kinds):
-            if k == "dwell":  # the time in the mode: anywhere its points had it
-                std_b[i] = float(mine[:, i].std())
-                m[i] = float(mine[:, i].mean())
-            elif k == "threshold":  # a threshold drawn at each visit: the model file's spread
-                std_b[i] = float(s0[i])
+        centred = (mine - m)[:, moving]
+        cov = np.zeros((len(kinds), len(kinds)))
+        cov[np.ix_(moving, moving)] = centred.T @ centred / len(mine)
+        cov[physical, physical] += (s ** 2 + s0 ** 2)[physical]
         means.append(m)
-        stds.append(std_b)
+        covariances.append(cov)
         weights.append(len(mine))
-    return mean, std, (np.array(means), np.array(stds), np.array(weights, dtype=float))
+    return mean, std, (np.array(means), np.array(covariances), np.array(weights, dtype=float))
 
 
 def settle_steps(nominal) -> int:

@@ -171,14 +171,14 @@ class Diagnoser:
         if self.branches is not None:
             self.decoder.start_among(*self.branches)
 
-    def start_among(self, means, stds, weights) -> None:
+    def start_among(self, means, covariances, weights) -> None:
         """Where the mode is read from the data (now or from the first row),
         start its reader from these branches (:meth:`ModeDecoder.start_among
         <bgc.diagnosis.hidden.ModeDecoder.start_among>`) instead of the
         package's start; before the first row."""
-        self.branches = (means, stds, weights)
+        self.branches = (means, covariances, weights)
         if self.decoder is not None:
-            self.decoder.start_among(means, stds, weights)
+            self.decoder.start_among(means, covariances, weights)
 
     def _loop_config(self, options: DiagnosisOptions, every: bool, lazy: bool) -> LoopConfig:
         c = self.config
@@ -911,7 +911,7 @@ class Diagnoser:
         start = np.asarray(model.augment(nominal, np.random.default_rng(0)), dtype=float)[extra, 0]
         self.config.say(f"reading the modes again with {h.name}'s equations")
         if onsets[0] not in heads:  # the nominal reading before an onset, shared by the hypotheses from it
-            heads[onsets[0]] = read_head(self.nominal, raw, onsets[0])
+            heads[onsets[0]] = read_head(self.nominal, raw, onsets[0], self.branches)
         head = heads[onsets[0]]
         onset, start[-1], loglik = read_fault(model, raw, onsets, start, value, head)
         return onset, start, loglik, head

@@ -200,19 +200,23 @@ class ModeDecoder:
         #: per bank, log p(y_0 .. y_k) of the samples taken over its branches (those pruned as they stood)
         self.logliks = np.zeros(cells)
 
-    def start_among(self, means: np.ndarray, stds: np.ndarray, weights: np.ndarray) -> None:
+    def start_among(self, means: np.ndarray, covariances: np.ndarray, weights: np.ndarray) -> None:
         """Start a decoder that took no sample from several branches instead
         of the model's one start: branch b at the carried states ``means[b]``
-        (each a full state of the model: its mode among them) with spread
-        ``stds[b]``, weighed by ``weights[b]`` (a plant whose mode is not
-        known when the data begin again, :mod:`bgc.diagnosis.bridge`)."""
+        (each a full state of the model: its mode among them) with covariance
+        ``covariances[b]`` (states x states), weighed by ``weights[b]`` (a
+        plant whose mode is not known when the data begin again,
+        :mod:`bgc.diagnosis.bridge`). The mode before is not known: the
+        first sample decided says no change of mode."""
         if self.k or self.waiting or self.fault is not None or not self.decide:
             raise ValueError("a decoder starts among branches before its first sample, nominal and deciding")
         rows = self.kf.physical
-        means, stds = np.atleast_2d(np.asarray(means, dtype=float)), np.atleast_2d(np.asarray(stds, dtype=float))
+        means = np.atleast_2d(np.asarray(means, dtype=float))
+        covariances = np.asarray(covariances, dtype=float).reshape(len(means), means.shape[1], means.shape[1])
         weights = np.asarray(weights, dtype=float)
         self.m = means[:, rows].copy()
-        self.P = np.stack([np.diag(s[rows] ** 2) for s in stds])
+        self.P = covariances[:, rows][:, :, rows].copy()
+        self.mode = 0  # (not known)
         with np.errstate(divide="ignore"):
             self.logw = np.log(weights / weights.sum())
         self.cell = np.zeros(len(means), dtype=np.intp)
@@ -482,7 +486,7 @@ class ModeDecoder:
             name = self.model.INPUTS[self.input]
             events = tuple(ev.ModeHidden(LAG) if isinstance(e, ev.InputFromModel) and e.input == name else e
                            for e in s.events)
-            if mode != self.mode:
+            if mode != self.mode and self.mode:  # (0: the mode before not known, after an outage)
                 events += (ev.ModeRead(s.k, self.model.MODES[self.mode - 1], self.model.MODES[mode - 1],
                                        float(share)),)
                 self.mode = mode
@@ -504,12 +508,17 @@ class ModeDecoder:
 
 
 
-def read_head(model, samples, onset: int) -> tuple[DecoderState, list[Sample]] | None:
+def read_head(model, samples, onset: int, branches: tuple | None = None) \
+        -> tuple[DecoderState, list[Sample]] | None:
     """The nominal ``model``'s reading of ``samples`` up to the last sample
     before step ``onset`` at which no sample waits: its state there and the
     samples it decided (None: none such), where every reading of a fault
-    from that onset starts (:func:`read_again`)."""
+    from that onset starts (:func:`read_again`); ``branches``: where the
+    reading starts (:meth:`ModeDecoder.start_among`'s arguments; None: the
+    model's start)."""
     decoder = ModeDecoder(model)
+    if branches is not None:
+        decoder.start_among(*branches)
     decided: list[Sample] = []
     head = None
     for s in samples[:max(onset, 0)]:

@@ -137,7 +137,7 @@ def _data_sentence(e, t, time_of, clock: Clock) -> str | None:
         case ev.Bridged(began=a, time=b, steps=n, ran=r, settled=settled, modes=modes):
             if settled:
                 start = (f"anywhere on the course the model settles into in {r} steps at this row's inputs" if r
-                         else "anywhere its estimates before the gap were")
+                         else "anywhere its estimates before the gap were" + ("" if modes else " in this row's mode"))
                 start += f", the mode one of {', '.join(modes)}" if len(modes) > 1 else \
                     f", the mode {modes[0]}" if modes else ""
             else:
