@@ -511,3 +511,25 @@ def test_the_spread_is_widened_by_the_model_files_initial_spread_after_the_recor
     moved = np.asarray(m.X0, dtype=float) - last_mean
     assert said.ran == 168 and np.all(np.abs(moved) > 0)
     assert np.allclose(np.asarray(m.X0_STD, dtype=float), np.sqrt(last_std ** 2 + file_std ** 2 + moved ** 2))
+
+
+@pytest.mark.slow
+@pytest.mark.long
+def test_a_diagnoser_that_took_no_row_yet_bridges_a_hidden_mode_from_its_settled_course_too():
+    """A diagnoser that took no row yet (an episode's or a repair's, the
+    monitor's next one) meets the gap: its reader of the mode is made at the
+    first row, so whether the mode is hidden is the row's columns' (no
+    ``mode``): the level plant is run on with its guards from its start and
+    the reader starts among both modes; the rows of a run of the plant
+    from another point of its cycle then raise no alarm."""
+    import hybrid_reference as hybrid
+    from bgc.diagnosis.options import DiagnosisOptions
+
+    session = bgc.open(ROOT / "docs" / "examples" / "level.yaml")
+    d = session.diagnoser(DiagnosisOptions(particles=200, seed=1))
+    new, said = bridge.bridged(d, 1e5, {"E": hybrid.LEVEL_E}, 0.0, 2_000_000)
+    assert (said.ran, said.settled, said.modes) == (LEVEL_SETTLE, True, ("filling", "draining"))
+    _, _, y_p, y_q, _ = hybrid.level_run(4)
+    for k in range(337, 537):
+        belief = new.step(1e5 + (k - 337) * hybrid.LEVEL_DT, {"E": hybrid.LEVEL_E}, {"p": y_p[k], "q_out": y_q[k]})
+    assert belief.alarm is None and new.finish().verdict == "no fault"

@@ -78,11 +78,13 @@ def bridged(d, t: float, u: dict, since: float, missing: int):
     x0_std = np.asarray(nominal_model(base_package(d.config.package)).X0_STD, dtype=float)  # the model file's
     uk = d.sampler.row_inputs(t, u)
     moded = getattr(nominal, "MODE_ROW", None) is not None
-    if moded and d.decoder is not None:  # the mode hidden: the model switches by its own guards in the run on
+    # the mode hidden (no mode column; a diagnoser that took no row yet, an episode's, reads it from the first)
+    hidden = moded and (d.decoder is not None or nominal.INPUTS[nominal.MODE_INPUT] not in u)
+    if hidden:  # the model switches by its own guards in the run on
         uk[nominal.MODE_INPUT] = np.nan
     # a mode the data set (a controlled transition): what the modes were in the gap is not known, and one mode
     # held alone need not settle (RO's secondary setting fills its tank until a purge), so no run on
-    steps = 0 if moded and d.decoder is None else min(missing + 1, settle_steps(nominal), MOST_STEPS)
+    steps = 0 if moded and not hidden else min(missing + 1, settle_steps(nominal), MOST_STEPS)
     course = _run_on(nominal, last[0], uk, steps)
     if course is None:
         steps = 0
@@ -99,7 +101,7 @@ def bridged(d, t: float, u: dict, since: float, missing: int):
         forget_started(old)
     modes = ()
     new = d.again(package)
-    if branches is not None and d.decoder is not None:
+    if branches is not None and hidden:
         new.start_among(*branches)
         modes = tuple(nominal.MODES[int(m[nominal.MODE_ROW]) - 1] for m in branches[0])
     return new, ev.Bridged(float(since), float(t), int(missing), int(steps), moded, modes)
