@@ -513,8 +513,6 @@ def test_the_spread_is_widened_by_the_model_files_initial_spread_after_the_recor
     assert np.allclose(np.asarray(m.X0_STD, dtype=float), np.sqrt(last_std ** 2 + file_std ** 2 + moved ** 2))
 
 
-@pytest.mark.slow
-@pytest.mark.long
 def test_a_diagnoser_that_took_no_row_yet_bridges_a_hidden_mode_from_its_settled_course_too():
     """A diagnoser that took no row yet (an episode's or a repair's, the
     monitor's next one) meets the gap: its reader of the mode is made at the
@@ -533,3 +531,27 @@ def test_a_diagnoser_that_took_no_row_yet_bridges_a_hidden_mode_from_its_settled
     for k in range(337, 537):
         belief = new.step(1e5 + (k - 337) * hybrid.LEVEL_DT, {"E": hybrid.LEVEL_E}, {"p": y_p[k], "q_out": y_q[k]})
     assert belief.alarm is None and new.finish().verdict == "no fault"
+
+
+def test_a_bridged_diagnosers_state_before_its_first_row_keeps_where_its_mode_reader_starts():
+    """A diagnoser of the API bridged before it took a row (its reader of the
+    mode made at the first row), its state taken then and taken up again:
+    the same branches, and the same numbers over the rows after as the
+    diagnoser that never stopped."""
+    import hybrid_reference as hybrid
+    from bgc.diagnosis.diagnoser import Diagnoser
+    from bgc.diagnosis.options import DiagnosisOptions
+    from bgc.diagnosis.state import DiagnoserState
+
+    session = bgc.open(ROOT / "docs" / "examples" / "level.yaml")
+    d = session.diagnoser(DiagnosisOptions(particles=100, seed=1))
+    new, _ = bridge.bridged(d, 1e5, {"E": hybrid.LEVEL_E}, 0.0, 2_000_000)
+    again = Diagnoser.from_state(new.config, DiagnoserState.from_bytes(new.to_state().to_bytes()))
+    assert all(np.array_equal(a, b) for a, b in zip(again.branches, new.branches))
+    _, _, y_p, y_q, _ = hybrid.level_run(4)
+    for k in range(337, 377):
+        row = (1e5 + (k - 337) * hybrid.LEVEL_DT, {"E": hybrid.LEVEL_E}, {"p": y_p[k], "q_out": y_q[k]})
+        new.step(*row)
+        again.step(*row)
+    for name, value in new.arrays().items():
+        assert np.array_equal(np.asarray(again.arrays()[name]), np.asarray(value), equal_nan=True), name

@@ -182,6 +182,9 @@ class DiagnoserState:
     start: tuple | None = None
     #: the parameters at other values than the model's ((name, value), ...: faults accommodated)
     theta: tuple = ()
+    #: where the reader of a hidden mode starts, not made yet (its first row to come after an outage:
+    #: :attr:`~bgc.diagnosis.diagnoser.Diagnoser.branches`; None: the package's start)
+    branches: tuple | None = None
 
     def to_bytes(self) -> bytes:
         """The state as bytes (:meth:`from_bytes` reads them)."""
@@ -235,7 +238,8 @@ def diagnoser_state(d) -> DiagnoserState:
     """The state of diagnoser ``d``."""
     return DiagnoserState(VERSION, d.nominal.MODEL, d.offset + len(d.loop.samples), d.sampler.state(),
                           loop_state(d.loop), tuple(d.switched), d.infer_inputs, d.busy, d.finished,
-                          None if d.decoder is None else d.decoder.state(), d.offset, *package_state(d.config.package))
+                          None if d.decoder is None else d.decoder.state(), d.offset, *package_state(d.config.package),
+                          d.branches if d.decoder is None else None)
 
 
 def package_state(package) -> tuple:
@@ -342,6 +346,8 @@ def restore_diagnoser(cls, config, state: DiagnoserState):
     if decoder is not None:
         d.hide()
         d.decoder.restore(decoder)
+    else:  # (a state before the field: None)
+        d.branches = getattr(state, "branches", None)
     return d
 
 
