@@ -2,6 +2,7 @@
 modes).
 
 Run: .venv/bin/python bench/cycling_outage.py [--seed 3] [--starts 53000 53013 53031 53047] [--valve]
+     [--stitched FIRST LAST]
 
 The level plant of docs/examples/level.yaml (a pump a level switch turns on under p = 0.4 and off over 0.8; the
 data have no mode column) is simulated by an independent simulator (tests/hybrid_reference.py: scipy's solve_ivp
@@ -15,6 +16,10 @@ start, the pump's true mode before and after the outage, the verdict at the end 
 cycles in 300 s), by bgc's own simulator (``bgc.simulate``, seeds 4 and 5: no other simulator of RO ships): the
 rows of the first run to a point of its cycle, the clock 2 * 10^5 s ahead, then the rows of the second from another
 point of its cycle.
+
+``--stitched FIRST LAST``: tests/test_bridge.py's three stitched outages (the level plant and the thermostat by
+solve_ivp, the switched supply of docs/examples/switched_rc.yaml by the exact solution of its equations, its mode
+in the data), each for the seeds FIRST to LAST (the tests use 1 and 2): per plant, the runs that say "no fault".
 """
 
 from __future__ import annotations
@@ -43,9 +48,13 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--starts", type=int, nargs="+", default=[53000, 53013, 53031, 53047])
     ap.add_argument("--valve", action="store_true", help="the RO plant whose valve setting the data give")
+    ap.add_argument("--stitched", type=int, nargs=2, metavar=("FIRST", "LAST"),
+                    help="tests/test_bridge.py's stitched outages for these seeds")
     args = ap.parse_args()
     if args.valve:
         return valve()
+    if args.stitched:
+        return stitched(*args.stitched)
     print(f"command: .venv/bin/python bench/cycling_outage.py --seed {args.seed} --starts "
           + " ".join(map(str, args.starts)))
     t0 = time.perf_counter()
@@ -100,6 +109,49 @@ def valve() -> int:
         print(f"| 0 to {end - 1} | {names[before - 1]} | {start} | {names[after - 1]} | {said} | {alarm} | "
               f"{time.perf_counter() - t0:.1f} |", flush=True)
     return 0
+
+
+def stitched(first: int, last: int) -> int:
+    import test_bridge as tb
+
+    print(f"command: .venv/bin/python bench/cycling_outage.py --stitched {first} {last}")
+    supply = ROOT / "docs" / "examples" / "switched_rc.yaml"
+    plants = {"level (mode hidden)": lambda seed: (MODEL, tb._cycling_lines(seed)),
+              "thermostat (mode hidden)": lambda seed: (hybrid.THERMO_MODEL, _thermostat_lines(seed)),
+              "switched supply (mode in the data)": lambda seed: (supply, _supply_lines(tb, seed))}
+    print("\n| plant | seeds | no fault | other verdicts |")
+    print("|---|---|---|---|")
+    for name, make in plants.items():
+        said = []
+        for seed in range(first, last + 1):
+            model, lines = make(seed)
+            said.append((seed, bgc.monitor(str(model), iter(lines), seed=3).diagnosis.verdict))
+        other = ", ".join(f"seed {s}: {v}" for s, v in said if v != "no fault") or "-"
+        print(f"| {name} | {first} to {last} | {sum(v == 'no fault' for _, v in said)} of {len(said)} | {other} |",
+              flush=True)
+    return 0
+
+
+def _thermostat_lines(seed: int) -> list[str]:
+    """tests/test_bridge.py's thermostat outage: 300 rows, 10^6 s ahead, another run from its valve the other way."""
+    times, modes, readings = hybrid.thermostat_run(seed)
+    _, after_modes, after_readings = hybrid.thermostat_run(seed + 20)
+    start = next(k for k in range(300, 600) if after_modes[k] != modes[299])
+    later = 1e6 + hybrid.THERMO_DT * np.arange(600 - start)
+    lines = ["time,u:T_s," + ",".join(f"y:{y}" for y in hybrid.THERMO_SENSORS)]
+    return lines + [f"{t:.12g},{hybrid.THERMO_T_S:g}," + ",".join(f"{v:.9g}" for v in r)
+                    for t, r in zip(np.concatenate([times[:300], later]),
+                                    np.concatenate([readings[:300], after_readings[start:]]))]
+
+
+def _supply_lines(tb, seed: int) -> list[str]:
+    """tests/test_bridge.py's switched supply outage: 300 rows, 10^5 s ahead, the same cycle elsewhere."""
+    steps = 3000
+    modes, values, readings = tb._supply_cycling(steps, seed)
+    start = next(k for k in range(2000, steps) if modes[k] != modes[299] and abs(values[k] - values[299]) > 1.5)
+    times = np.concatenate([0.05 * np.arange(300), 1e5 + 0.05 * np.arange(steps - start)])
+    return ["time,mode,u:V,y:v_C,y:i_s"] + [f"{t:.12g},{modes[k]},10,{readings[k, 0]:.9g},{readings[k, 1]:.9g}"
+                                            for t, k in zip(times, np.r_[0:300, start:steps])]
 
 
 if __name__ == "__main__":
