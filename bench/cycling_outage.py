@@ -38,6 +38,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import bgc  # noqa: E402
 import hybrid_reference as hybrid  # noqa: E402
+import test_bridge as tb  # noqa: E402  (the tests' logger files of the stitched outages)
 
 MODEL = ROOT / "docs" / "examples" / "level.yaml"
 BEFORE, AFTER, STEPS = 400, 300, 53500
@@ -64,8 +65,7 @@ def main() -> int:
     print("|---|---|---|---|---|---|")
     for start in args.starts:
         keep = np.r_[0:BEFORE, start:start + AFTER]
-        lines = ["time,u:E,y:p,y:q_out"] + [f"{times[k]:.10g},{hybrid.LEVEL_E},{float(y_p[k])!r},{float(y_q[k])!r}"
-                                            for k in keep]
+        lines = tb._level_lines(times[keep], y_p[keep], y_q[keep])
         t0 = time.perf_counter()
         d = bgc.monitor(str(MODEL), iter(lines)).diagnosis
         alarm = "-" if d.detection is None else f"t = {float(d.time[d.detection.step]):.6g}"
@@ -112,46 +112,20 @@ def valve() -> int:
 
 
 def stitched(first: int, last: int) -> int:
-    import test_bridge as tb
-
     print(f"command: .venv/bin/python bench/cycling_outage.py --stitched {first} {last}")
     supply = ROOT / "docs" / "examples" / "switched_rc.yaml"
-    plants = {"level (mode hidden)": lambda seed: (MODEL, tb._cycling_lines(seed)),
-              "thermostat (mode hidden)": lambda seed: (hybrid.THERMO_MODEL, _thermostat_lines(seed)),
-              "switched supply (mode in the data)": lambda seed: (supply, _supply_lines(tb, seed))}
+    plants = {"level (mode hidden)": (MODEL, tb._cycling_lines),
+              "thermostat (mode hidden)": (hybrid.THERMO_MODEL, tb._thermostat_lines),
+              "switched supply (mode in the data)": (supply, tb._supply_lines)}
     print("\n| plant | seeds | no fault | other verdicts |")
     print("|---|---|---|---|")
-    for name, make in plants.items():
-        said = []
-        for seed in range(first, last + 1):
-            model, lines = make(seed)
-            said.append((seed, bgc.monitor(str(model), iter(lines), seed=3).diagnosis.verdict))
+    for name, (model, lines) in plants.items():
+        said = [(seed, bgc.monitor(str(model), iter(lines(seed)), seed=3).diagnosis.verdict)
+                for seed in range(first, last + 1)]
         other = ", ".join(f"seed {s}: {v}" for s, v in said if v != "no fault") or "-"
         print(f"| {name} | {first} to {last} | {sum(v == 'no fault' for _, v in said)} of {len(said)} | {other} |",
               flush=True)
     return 0
-
-
-def _thermostat_lines(seed: int) -> list[str]:
-    """tests/test_bridge.py's thermostat outage: 300 rows, 10^6 s ahead, another run from its valve the other way."""
-    times, modes, readings = hybrid.thermostat_run(seed)
-    _, after_modes, after_readings = hybrid.thermostat_run(seed + 20)
-    start = next(k for k in range(300, 600) if after_modes[k] != modes[299])
-    later = 1e6 + hybrid.THERMO_DT * np.arange(600 - start)
-    lines = ["time,u:T_s," + ",".join(f"y:{y}" for y in hybrid.THERMO_SENSORS)]
-    return lines + [f"{t:.12g},{hybrid.THERMO_T_S:g}," + ",".join(f"{v:.9g}" for v in r)
-                    for t, r in zip(np.concatenate([times[:300], later]),
-                                    np.concatenate([readings[:300], after_readings[start:]]))]
-
-
-def _supply_lines(tb, seed: int) -> list[str]:
-    """tests/test_bridge.py's switched supply outage: 300 rows, 10^5 s ahead, the same cycle elsewhere."""
-    steps = 3000
-    modes, values, readings = tb._supply_cycling(steps, seed)
-    start = next(k for k in range(2000, steps) if modes[k] != modes[299] and abs(values[k] - values[299]) > 1.5)
-    times = np.concatenate([0.05 * np.arange(300), 1e5 + 0.05 * np.arange(steps - start)])
-    return ["time,mode,u:V,y:v_C,y:i_s"] + [f"{t:.12g},{modes[k]},10,{readings[k, 0]:.9g},{readings[k, 1]:.9g}"
-                                            for t, k in zip(times, np.r_[0:300, start:steps])]
 
 
 if __name__ == "__main__":

@@ -306,6 +306,21 @@ def test_a_cycling_plant_found_elsewhere_in_its_cycle_after_an_outage_is_watched
     assert not [e for e in d.events if isinstance(e, ev.ModeRead) and e.step == 0], said
 
 
+def _thermostat_lines(seed: int) -> list[str]:
+    """The thermostat's rows: 300 of one run, the clock 10^6 s ahead, then those of
+    another run from a sample whose valve is the other way (the test below)."""
+    import hybrid_reference as hybrid
+
+    times, modes, readings = hybrid.thermostat_run(seed)
+    _, after_modes, after_readings = hybrid.thermostat_run(seed + 20)
+    start = next(k for k in range(300, 600) if after_modes[k] != modes[299])
+    later = 1e6 + hybrid.THERMO_DT * np.arange(600 - start)
+    lines = ["time,u:T_s," + ",".join(f"y:{y}" for y in hybrid.THERMO_SENSORS)]
+    return lines + [f"{t:.12g},{hybrid.THERMO_T_S:g}," + ",".join(f"{v:.9g}" for v in r)
+                    for t, r in zip(np.concatenate([times[:300], later]),
+                                    np.concatenate([readings[:300], after_readings[start:]]))]
+
+
 @pytest.mark.slow
 @pytest.mark.long
 @pytest.mark.parametrize("seed", [1, 2])
@@ -320,16 +335,8 @@ def test_a_thermostat_found_in_its_other_mode_after_an_outage_is_watched_without
     settled course, the valve either way, no fault."""
     import hybrid_reference as hybrid
 
-    times, modes, readings = hybrid.thermostat_run(seed)
-    _, after_modes, after_readings = hybrid.thermostat_run(seed + 20)
-    start = next(k for k in range(300, 600) if after_modes[k] != modes[299])
-    later = 1e6 + hybrid.THERMO_DT * np.arange(600 - start)
-    lines = ["time,u:T_s," + ",".join(f"y:{y}" for y in hybrid.THERMO_SENSORS)]
-    lines += [f"{t:.12g},{hybrid.THERMO_T_S:g}," + ",".join(f"{v:.9g}" for v in r)
-              for t, r in zip(np.concatenate([times[:300], later]),
-                              np.concatenate([readings[:300], after_readings[start:]]))]
     said: list[str] = []
-    d = bgc.monitor(hybrid.THERMO_MODEL, iter(lines), seed=3, events=said.append).diagnosis
+    d = bgc.monitor(hybrid.THERMO_MODEL, iter(_thermostat_lines(seed)), seed=3, events=said.append).diagnosis
     assert d.verdict == "no fault" and d.detection is None, said
     assert [(e.settled, e.modes) for e in d.events if isinstance(e, ev.Bridged)] == [(True, ("heating", "idle"))]
     assert not [e for e in d.events if isinstance(e, ev.ModeRead) and e.step == 0], said
@@ -359,6 +366,18 @@ def _supply_cycling(steps: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.n
     return modes, values, readings
 
 
+def _supply_lines(seed: int) -> list[str]:
+    """The cycling supply's rows: 300 from its start, the clock 10^5 s ahead, then
+    the same cycle from a point where the contactor is the other way and the
+    voltage 1.5 V or more away (the test below)."""
+    steps = 3000
+    modes, values, readings = _supply_cycling(steps, seed)
+    start = next(k for k in range(2000, steps) if modes[k] != modes[299] and abs(values[k] - values[299]) > 1.5)
+    times = np.concatenate([0.05 * np.arange(300), 1e5 + 0.05 * np.arange(steps - start)])
+    return ["time,mode,u:V,y:v_C,y:i_s"] + [f"{t:.12g},{modes[k]},10,{readings[k, 0]:.9g},{readings[k, 1]:.9g}"
+                                            for t, k in zip(times, np.r_[0:300, start:steps])]
+
+
 @pytest.mark.slow
 @pytest.mark.long
 @pytest.mark.parametrize("seed", [1, 2])
@@ -372,15 +391,8 @@ def test_a_plant_whose_modes_the_data_set_is_started_where_the_record_saw_it_in_
     record's estimates were in the row's mode, with their spread: no fault,
     no run on (a mode held alone need not settle where the cycle keeps the
     plant)."""
-    steps = 3000
-    modes, values, readings = _supply_cycling(steps, seed)
-    start = next(k for k in range(2000, steps) if modes[k] != modes[299] and abs(values[k] - values[299]) > 1.5)
-    times = np.concatenate([0.05 * np.arange(300), 1e5 + 0.05 * np.arange(steps - start)])
-    kept = np.r_[0:300, start:steps]
-    lines = ["time,mode,u:V,y:v_C,y:i_s"] + [f"{t:.12g},{modes[k]},10,{readings[k, 0]:.9g},"
-                                              f"{readings[k, 1]:.9g}" for t, k in zip(times, kept)]
     said: list[str] = []
-    d = bgc.monitor(ROOT / "docs" / "examples" / "switched_rc.yaml", iter(lines), seed=3,
+    d = bgc.monitor(ROOT / "docs" / "examples" / "switched_rc.yaml", iter(_supply_lines(seed)), seed=3,
                     events=said.append).diagnosis
     assert d.verdict == "no fault" and d.detection is None, said
     assert [(e.ran, e.settled, e.modes) for e in d.events if isinstance(e, ev.Bridged)] == [(0, True, ())]

@@ -101,7 +101,7 @@ def bridged(d, t: float, u: dict, since: float, missing: int):
         forget_started(old)
     modes = ()
     new = d.again(package)
-    if branches is not None and hidden:
+    if hidden:  # (a model with modes: its branches)
         new.start_among(*branches)
         modes = tuple(nominal.MODES[int(m[nominal.MODE_ROW]) - 1] for m in branches[0])
     return new, ev.Bridged(float(since), float(t), int(missing), int(steps), moded, modes)

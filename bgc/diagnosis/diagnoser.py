@@ -155,7 +155,7 @@ class Diagnoser:
         self.busy = 0.0  # seconds spent in steps (not waiting for data)
         self.started = time.perf_counter()
         self.decoder: ModeDecoder | None = None  # a hidden mode's reader (the data have no mode column)
-        #: where a hidden mode's reader starts when the model's start is not known (means, stds, weights of its
+        #: where a hidden mode's reader starts when the model's start is not known (means, covariances, weights of its
         #: branches: after a logger's outage, :mod:`bgc.diagnosis.bridge`; None: the package's start)
         self.branches: tuple | None = None
         self.keep = keep_steps(config.options, self.nominal.DT)  # the record kept while watching (None: all)

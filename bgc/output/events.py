@@ -138,8 +138,8 @@ def _data_sentence(e, t, time_of, clock: Clock) -> str | None:
             if settled:
                 start = (f"anywhere on the course the model settles into in {r} steps at this row's inputs" if r
                          else "anywhere its estimates before the gap were" + ("" if modes else " in this row's mode"))
-                start += f", the mode one of {', '.join(modes)}" if len(modes) > 1 else \
-                    f", the mode {modes[0]}" if modes else ""
+                if modes:
+                    start += ", the mode " + ("one of " if len(modes) > 1 else "") + ", ".join(modes)
             else:
                 start = (f"where the model takes its last estimate in {r} steps at this row's inputs" if r
                          else "from its last estimate")
