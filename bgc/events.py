@@ -620,12 +620,17 @@ class ModesReread:
     likeliest with the modes hidden, near the diagnosis's): ``changed``
     samples' modes differ from the nominal model's reading; ``explains``:
     whether the diagnosis with them isolates ``hypothesis`` (the verdict then
-    stands on them)."""
+    stands on them); ``below``: the hypothesis whose own reading makes the
+    data decisively likelier (by ``by`` nats, more than the log of the
+    options' Bayes factor), the diagnosis then not made again on this one
+    ("": it was made, or the modes are the same)."""
 
     step: int
     hypothesis: str
     changed: int
     explains: bool
+    below: str = ""
+    by: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

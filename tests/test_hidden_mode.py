@@ -155,3 +155,33 @@ def test_a_switchs_twin_is_the_same_switch_turned_the_same_way():
     assert _twin("P_stuck_on") == "P_uncommanded_on" and _twin("P_uncommanded_on") == "P_stuck_on"
     assert _twin("K_stuck_off") == "K_uncommanded_off" and _twin("K_uncommanded_off") == "K_stuck_off"
     assert _twin("R_in_abrupt") == "" and _twin("p_offset_bias") == ""
+
+
+@pytest.mark.slow
+@pytest.mark.long
+def test_a_reading_the_data_find_decisively_less_likely_is_not_diagnosed_again(monkeypatch):
+    """The docs' level run (solve_ivp, the tank's capacitance a quarter less
+    from t = 15, no mode column): the modes read again with p_offset_bias's
+    equations make the data thousands of nats less likely than with
+    C_t_abrupt's (its readings' log-likelihoods), far past the Bayes factor's
+    log: that reading is weighed out, the diagnosis made again only on the
+    readings within it that differ from the nominal one."""
+    import math
+
+    made = []
+    original = Diagnoser._made_on
+
+    def counted(self, samples, *rest):
+        made.append(len(samples))
+        return original(self, samples, *rest)
+
+    monkeypatch.setattr(Diagnoser, "_made_on", counted)
+    d = bgc.diagnose(LEVEL, LEVEL.with_name("level_run.csv")).diagnosis
+    assert (d.verdict, d.candidates) == ("isolated", ("C_t_abrupt",)), (d.verdict, d.candidates)
+    reread = {e.hypothesis: e for e in d.events if isinstance(e, ev.ModesReread)}
+    assert reread["C_t_abrupt"].explains and not reread["C_t_abrupt"].below, reread
+    screened = [e for e in reread.values() if e.below]
+    assert screened, reread
+    for e in screened:
+        assert e.below == "C_t_abrupt" and e.by > math.log(d.options.bayes_factor) and not e.explains, e
+    assert len(made) == sum(1 for e in reread.values() if e.changed and not e.below), (made, reread)

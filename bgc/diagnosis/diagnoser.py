@@ -53,7 +53,7 @@ from ..arguments import as_float, is_real, shown
 from ..data.runs import Run
 from ..data.sampler import Sample, Sampler
 from ..errors import ArgumentTypeError, ArgumentValueError, DataError, TrackingError, printable
-from .hidden import ONSETS, POOL, REREAD, ModeDecoder, read_again, read_fault, read_head, readable
+from .hidden import ONSETS, POOL, REREAD, ModeDecoder, read_again, read_head, read_job, readable
 from ..ir import FaultSignatures
 from ..model.package import accommodated, forget_started, started_package
 from ..model.protocol import Package, nominal_model, state_rows
@@ -66,6 +66,7 @@ from .isolate import with_returns
 from .onsets import log_prior
 from .loop import IDENTIFY, KALMAN_METHOD, Loop, LoopConfig, shifted_events
 from .options import DiagnosisOptions
+from .parallel import parallel_map
 from .values import Belief, Detection, Diagnosis
 
 __all__ = ["Diagnoser", "DiagnoserConfig", "IDENTIFY", "KALMAN_METHOD"]
@@ -843,12 +844,15 @@ class Diagnoser:
         plant's modes are not those the nominal model reads. The :data:`POOL`
         hypotheses the diagnosis weighed likeliest (the verdict's candidates
         first) read the modes with their own equations at the onset and size
-        that make the data likeliest with the modes hidden (:func:`read_fault`);
+        that make the data likeliest with the modes hidden (:func:`~bgc.diagnosis.hidden.read_fault`);
         the :data:`REREAD` likeliest so (the nominal reading's weighing alone
         is no ranking here: its misread switches weigh against the very fault
         that moved them), and the twin of a candidate that is a switch's fault
         (:func:`_twin`), take their readings, and the diagnosis is made again
-        on each reading that differs; a hypothesis that it then isolates, or
+        on each reading that differs, but for a reading under which the data
+        are decisively less likely (the options' Bayes factor, as the weighing
+        drops a hypothesis) than under the likeliest: that hypothesis, its
+        modes its own, is weighed out there; a hypothesis that it then isolates, or
         names ambiguous with its twin alone (the two the same plant on that
         reading), explains the data with the modes it reads itself. One such,
         or several whose diagnoses agree: that diagnosis is the verdict; none,
@@ -866,19 +870,22 @@ class Diagnoser:
         index = self.nominal.MODE_INPUT
         read = np.array([s.u[index] for s in self.loop.samples])
         raw = [_unread(s, index) for s in self.loop.samples]
-        heads: dict = {}
-        readings = {h.name: self._fault_reading(h, raw, heads) for h in weighed}
-        for h in ranked:  # a candidate switch fault's twin, read too
-            if h.name in map(_twin, d.candidates) and h.name not in readings and math.isfinite(h.estimate.value):
-                readings[h.name] = self._fault_reading(h, raw, heads)
+        twins = [h for h in ranked if h.name in map(_twin, d.candidates) and h not in weighed
+                 and math.isfinite(h.estimate.value)]  # a candidate switch fault's twin, read too
+        readings = self._fault_readings(weighed + twins, raw)
         names = sorted(readings, key=lambda name: -readings[name][2])[:REREAD]
         names += [twin for twin in map(_twin, d.candidates) if twin in readings and twin not in names]
         said, explained = [], []
         first, false = self.false_alarm or (None, None)
+        best, cut = names[0], math.log(self.loop.options.bayes_factor)
         for name in names:
-            onset, start, _, head = readings[name]
+            onset, start, loglik, head = readings[name]
             samples = read_again(self.config.package.MODELS[name], raw, (onset, start), head)
             changed = int(np.sum(np.array([s.u[index] for s in samples]) != read))
+            below = readings[best][2] - loglik
+            if below > cut:  # decisively less likely with its own modes than the best with its: weighed out
+                said.append(ev.ModesReread(len(read) - 1, name, changed, False, best, float(below)))
+                continue
             again = d if not changed else self._made_on(samples, first, truth)
             explains = (again.verdict == "isolated" and again.candidates == (name,)) or (
                 again.verdict == "ambiguous" and set(again.candidates) == {name, _twin(name)})
@@ -895,26 +902,36 @@ class Diagnoser:
         kept = [false] if false is not None and read else []  # the false alarm, said again
         return dataclasses.replace(chosen, events=ordered(list(chosen.events) + kept + said))
 
-    def _fault_reading(self, h, raw: list[Sample], heads: dict) -> tuple:
-        """Where hypothesis ``h``'s fault model reads the modes of the
-        samples ``raw`` (mode NaN) from: the onset (within ONSETS samples
-        before its diagnosis's to 2 after) and size that make the data
-        likeliest with the modes hidden (:func:`read_fault`, its diagnosis's
-        estimate a hint): (the onset, its fault states there, the
-        log-likelihood of the data so, the nominal reading before the
-        onsets: ``heads``, those so far, by first onset)."""
-        onset, value = h.static.best if h.static is not None and h.static.best else (h.onset_step, h.estimate.value)
-        model = self.config.package.MODELS[h.name]
-        onsets = [k for k in range(onset - ONSETS, onset + 3) if 0 <= k < len(raw)]
-        nominal = np.asarray(self.loop.x_mean[max(onsets[0] - 1, 0)], dtype=float)[:, None]
-        _, extra = state_rows(model)
-        start = np.asarray(model.augment(nominal, np.random.default_rng(0)), dtype=float)[extra, 0]
-        self.config.say(f"reading the modes again with {h.name}'s equations")
-        if onsets[0] not in heads:  # the nominal reading before an onset, shared by the hypotheses from it
-            heads[onsets[0]] = read_head(self.nominal, raw, onsets[0], self.branches)
-        head = heads[onsets[0]]
-        onset, start[-1], loglik = read_fault(model, raw, onsets, start, value, head)
-        return onset, start, loglik, head
+    def _fault_readings(self, hyps: list, raw: list[Sample]) -> dict:
+        """Where each hypothesis of ``hyps`` reads the modes of the samples
+        ``raw`` (mode NaN) with its fault model: the onset (within ONSETS
+        samples before its diagnosis's to 2 after) and size that make the
+        data likeliest with the modes hidden (:func:`~bgc.diagnosis.hidden.read_fault`, its
+        diagnosis's estimate a hint), the readings on the options' worker
+        processes (:func:`~bgc.diagnosis.parallel.parallel_map`). By name:
+        (the onset, its fault states there, the log-likelihood of the data
+        so, the nominal reading before the onsets, shared by the hypotheses
+        read from the same first onset)."""
+        heads: dict = {}
+        jobs = []
+        for h in hyps:
+            onset, value = h.static.best if h.static is not None and h.static.best else (h.onset_step, h.estimate.value)
+            model = self.config.package.MODELS[h.name]
+            onsets = [k for k in range(onset - ONSETS, onset + 3) if 0 <= k < len(raw)]
+            nominal = np.asarray(self.loop.x_mean[max(onsets[0] - 1, 0)], dtype=float)[:, None]
+            _, extra = state_rows(model)
+            start = np.asarray(model.augment(nominal, np.random.default_rng(0)), dtype=float)[extra, 0]
+            if onsets[0] not in heads:  # the nominal reading before an onset, shared by the hypotheses from it
+                heads[onsets[0]] = read_head(self.nominal, raw, onsets[0], self.branches)
+            jobs.append((self.config.package.__name__, h.name, raw, onsets, start, value, heads[onsets[0]]))
+        self.config.say(f"reading the modes again with the equations of {', '.join(h.name for h in hyps)}")
+        readings = {}
+        for job, (onset, size, loglik) in zip(jobs, parallel_map(read_job, jobs, self.options.workers)):
+            _, name, _, _, start, _, head = job
+            start = start.copy()
+            start[-1] = size
+            readings[name] = (onset, start, loglik, head)
+        return readings
 
     def _made_on(self, samples: list[Sample], after, truth: Run | None) -> Diagnosis:
         """The diagnosis made again on ``samples`` (another reading of the

@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,7 +67,7 @@ from ..filters.cubature import _Filter
 from .identify import log_sum_exp
 
 __all__ = ["AGREE", "BRANCHES", "DecoderState", "FLOOR", "GRID", "LAG", "ModeDecoder", "ONSETS", "POOL", "REFINE",
-           "REREAD", "read_again", "read_fault", "read_head", "readable"]
+           "REREAD", "read_again", "read_fault", "read_head", "read_job", "readable"]
 
 #: The most steps a sample waits for its mode to be decided.
 LAG = 10
@@ -591,6 +592,15 @@ def read_fault(model, samples, onsets, start: np.ndarray, hint: float, head=None
         cells_size = np.unique(np.concatenate([np.linspace(a, size, half), np.linspace(size, b, half)]))
         cells_onset = np.full(len(cells_size), onset)
     return onset, size, loglik
+
+
+def read_job(job: tuple) -> tuple[int, float, float]:
+    """:func:`read_fault` of one fault model (in a worker process): ``job``
+    is (the generated package's module name, the fault model's name, the
+    samples, the onsets, the fault states at the onset, the size's hint, the
+    nominal reading before the onsets)."""
+    package_name, name, samples, onsets, start, hint, head = job
+    return read_fault(sys.modules[package_name].MODELS[name], samples, onsets, start, hint, head)
 
 
 def _group_log_sum_exp(lw: np.ndarray, index: np.ndarray, top: np.ndarray, groups: int) -> np.ndarray:
