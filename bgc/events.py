@@ -622,8 +622,9 @@ class ModesReread:
     whether the diagnosis with them isolates ``hypothesis`` (the verdict then
     stands on them); ``below``: the hypothesis whose own reading makes the
     data decisively likelier (by ``by`` nats, more than the log of the
-    options' Bayes factor), the diagnosis then not made again on this one
-    ("": it was made, or the modes are the same)."""
+    options' Bayes factor), this one then weighed out, its modes not
+    compared (``changed`` 0) nor the diagnosis made again on them ("": it
+    was weighed)."""
 
     step: int
     hypothesis: str

@@ -880,12 +880,12 @@ class Diagnoser:
         best, cut = names[0], math.log(self.loop.options.bayes_factor)
         for name in names:
             onset, start, loglik, head = readings[name]
-            samples = read_again(self.config.package.MODELS[name], raw, (onset, start), head)
-            changed = int(np.sum(np.array([s.u[index] for s in samples]) != read))
             below = readings[best][2] - loglik
             if below > cut:  # decisively less likely with its own modes than the best with its: weighed out
-                said.append(ev.ModesReread(len(read) - 1, name, changed, False, best, float(below)))
+                said.append(ev.ModesReread(len(read) - 1, name, 0, False, best, float(below)))
                 continue
+            samples = read_again(self.config.package.MODELS[name], raw, (onset, start), head)
+            changed = int(np.sum(np.array([s.u[index] for s in samples]) != read))
             again = d if not changed else self._made_on(samples, first, truth)
             explains = (again.verdict == "isolated" and again.candidates == (name,)) or (
                 again.verdict == "ambiguous" and set(again.candidates) == {name, _twin(name)})

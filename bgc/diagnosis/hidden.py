@@ -66,7 +66,7 @@ from .. import events as ev
 from ..filters.cubature import _Filter
 from .identify import log_sum_exp
 
-__all__ = ["AGREE", "BRANCHES", "DecoderState", "FLOOR", "GRID", "LAG", "ModeDecoder", "ONSETS", "POOL", "REFINE",
+__all__ = ["AGREE", "BRANCHES", "DecoderState", "FLOOR", "GRID", "LAG", "ModeDecoder", "ONSETS", "POOL", "FINER",
            "REREAD", "read_again", "read_fault", "read_head", "read_job", "readable"]
 
 #: The most steps a sample waits for its mode to be decided.
@@ -87,8 +87,9 @@ POOL = 2 * REREAD
 ONSETS = 4
 #: The points of the first grid over a fault's prior on which its size is read with the hidden mode.
 GRID = 7
-#: The refinements of that grid: each a grid of as many points between the best point's neighbours.
-REFINE = 3
+#: How many times finer than the first grid's spacing the one grid after it, between the best point's
+#: neighbours, is on each side of it (three zooms of that grid's points each, in one pass).
+FINER = 27
 #: A mode with a timed exit entered by a guard: the least probability given to its entry at the step's
 #: start (the last sample's noise carried the plant across) and to its entry within the step.
 PLACED = 0.01
@@ -564,10 +565,12 @@ def read_fault(model, samples, onsets, start: np.ndarray, hint: float, head=None
     the samples likeliest with the modes hidden (a bank of
     :class:`ModeDecoder` per onset and size, weighed together, from
     ``head``): every onset with a grid of :data:`GRID` sizes over the
-    fault's prior and ``hint`` (NaN: none); then, at the best onset,
-    :data:`REFINE` times a grid of as many sizes between the best one's
-    neighbours, the best one among them. A fault with no size (a stuck
-    switch's flag) is its one point. Returns the onset, the size and the
+    fault's prior and ``hint`` (NaN: none); then, at the best onset, a grid
+    between the best size's neighbours, :data:`FINER` steps each side of it
+    (one pass: a decoder's step costs about as much for eight banks as for
+    sixty, so three zooms of a few points, one pass each, cost twice as much
+    for the same spacing), the best one among them. A fault with no size (a
+    stuck switch's flag) is its one point. Returns the onset, the size and the
     log-likelihood of every sample with the modes hidden at them (the
     head's with the rest's: comparable between fault models)."""
     low, high = (float(v) for v in model.FAULT_PRIOR)
@@ -575,7 +578,7 @@ def read_fault(model, samples, onsets, start: np.ndarray, hint: float, head=None
     hints = [np.clip(hint, low, high)] if math.isfinite(hint) else []
     sizes = np.array([low]) if high <= low else np.unique(np.append(np.linspace(low, high, GRID), hints))
     cells_onset, cells_size = np.repeat(onsets, len(sizes)), np.tile(sizes, len(onsets))
-    for _ in range(REFINE + 1 if high > low else 1):
+    for _ in range(2 if high > low else 1):
         faults = np.repeat(np.asarray(start, dtype=float)[:, None], len(cells_size), axis=1)
         faults[-1] = cells_size
         decoder = _taken_up(ModeDecoder(model, (cells_onset, faults), decide=False), head)
@@ -588,8 +591,7 @@ def read_fault(model, samples, onsets, start: np.ndarray, hint: float, head=None
         a, b = cells_size[mine][max(where - 1, 0)], cells_size[mine][min(where + 1, len(mine) - 1)]
         # the best point in the finer grid's middle, each side in as many steps (the hint spaced the first grid
         # unevenly): no grid's best is less likely than the one before's
-        half = GRID // 2 + 1
-        cells_size = np.unique(np.concatenate([np.linspace(a, size, half), np.linspace(size, b, half)]))
+        cells_size = np.unique(np.concatenate([np.linspace(a, size, FINER + 1), np.linspace(size, b, FINER + 1)]))
         cells_onset = np.full(len(cells_size), onset)
     return onset, size, loglik
 

@@ -129,11 +129,12 @@ def _data_sentence(e, t, time_of, clock: Clock) -> str | None:
             tail = "" if w >= 0.999 else f" (the likeliest history's, weight {w:.2f}: the data did not settle it)"
             return f"the mode read from the data changes from {a} to {b}" + tail
         case ev.ModesReread(hypothesis=h, changed=n, explains=yes, below=other, by=nats):
+            if other:
+                return (f"the modes read again with {h}'s own equations (its onset and size) make the data "
+                        f"{nats:,.0f} nats less likely than {other}'s own reading, "
+                        "beyond the Bayes factor: it does not explain them")
             head = f"the modes read again with {h}'s own equations (its onset and size): "
             moved = f"{n} sample(s)' mode differ from the nominal model's reading" if n else "the same modes"
-            if other:
-                return head + moved + (f"; the data are {nats:,.0f} nats less likely so than with {other}'s own "
-                                       "reading, beyond the Bayes factor: it does not explain them")
             return head + moved + ("; with them it explains the data" if yes else "; it does not explain the data")
         case ev.InputHeld(input=u, step=k, value=v):
             return f"input u:{u} is empty: its last value {v:g} is held until a value arrives"
