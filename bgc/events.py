@@ -622,9 +622,9 @@ class ModesReread:
     whether the diagnosis with them isolates ``hypothesis`` (the verdict then
     stands on them); ``below``: the hypothesis whose own reading makes the
     data decisively likelier (by ``by`` nats, more than the log of the
-    options' Bayes factor), this one then weighed out, its modes not
-    compared (``changed`` 0) nor the diagnosis made again on them ("": it
-    was weighed)."""
+    options' Bayes factor) and explains them, this one then weighed out:
+    its modes not compared with the nominal reading (``changed`` 0 then
+    says nothing) nor the diagnosis made again on them ("": not weighed out)."""
 
     step: int
     hypothesis: str

@@ -185,3 +185,26 @@ def test_a_reading_the_data_find_decisively_less_likely_is_not_diagnosed_again(m
     for e in screened:
         assert e.below == "C_t_abrupt" and e.by > math.log(d.options.bayes_factor) and not e.explains, e
     assert len(made) == sum(1 for e in reread.values() if e.changed and not e.below), (made, reread)
+
+
+@pytest.mark.process
+def test_the_readings_on_worker_processes_are_those_made_in_this_one(level):
+    """The modes read again with fault models' equations on forked worker
+    processes (:func:`~bgc.diagnosis.parallel.parallel_map`, as a diagnosis
+    with two workers runs them) give the numbers read in this process: the
+    samples, onsets, fault states and nominal reading before the onsets
+    carried to the workers, each model found there by its package's module
+    name (a solve_ivp run of the level plant, C_t 2 -> 1.5 from t = 15)."""
+    import math
+
+    from bgc.diagnosis.hidden import read_head, read_job
+    from bgc.diagnosis.parallel import parallel_map
+
+    times, _, y_p, y_q, _ = level_run(1, fault=(15.0, "C_t", 1.5), steps=330)
+    samples = [Sample(k, float(t), np.array([E, np.nan]), np.array([y_p[k], y_q[k]])) for k, t in enumerate(times)]
+    head = read_head(nominal_model(level.package), samples, 296)
+    jobs = [(level.package.__name__, name, samples, list(range(296, 303)), np.zeros(1), hint, head)
+            for name, hint in (("C_t_abrupt", -0.4), ("p_offset_bias", math.nan))]
+    here = [read_job(job) for job in jobs]
+    assert parallel_map(read_job, jobs, 2) == here
+    assert here[0][2] > here[1][2], here  # (the fault's own model reads the data likelier)

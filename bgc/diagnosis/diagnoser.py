@@ -849,10 +849,8 @@ class Diagnoser:
         is no ranking here: its misread switches weigh against the very fault
         that moved them), and the twin of a candidate that is a switch's fault
         (:func:`_twin`), take their readings, and the diagnosis is made again
-        on each reading that differs, but for a reading under which the data
-        are decisively less likely (the options' Bayes factor, as the weighing
-        drops a hypothesis) than under the likeliest: that hypothesis, its
-        modes its own, is weighed out there; a hypothesis that it then isolates, or
+        on each reading that differs (:meth:`_on_readings`: one weighed out
+        by the Bayes factor is not); a hypothesis that a diagnosis made again isolates, or
         names ambiguous with its twin alone (the two the same plant on that
         reading), explains the data with the modes it reads itself. One such,
         or several whose diagnoses agree: that diagnosis is the verdict; none,
@@ -875,13 +873,42 @@ class Diagnoser:
         readings = self._fault_readings(weighed + twins, raw)
         names = sorted(readings, key=lambda name: -readings[name][2])[:REREAD]
         names += [twin for twin in map(_twin, d.candidates) if twin in readings and twin not in names]
+        said, explained = self._on_readings(d, names, readings, raw, read, truth)
+        _, false = self.false_alarm or (None, None)
+        # one reading that explains the data, or several whose diagnoses agree (a stuck switch's and its
+        # twin's: each reads the other's modes, and both come out as the same pair)
+        agree = all((e.verdict, set(e.candidates)) == (explained[0][0].verdict, set(explained[0][0].candidates))
+                    for e, _, _ in explained)
+        chosen, read, _ = explained[0] if explained and agree else (d, False, "")
+        if not read:  # d stands: made again with faults that come and go tried
+            chosen = self._first(truth)
+        kept = [false] if false is not None and read else []  # the false alarm, said again
+        return dataclasses.replace(chosen, events=ordered(list(chosen.events) + kept + said))
+
+    def _on_readings(self, d: Diagnosis, names: list[str], readings: dict, raw: list[Sample], read: np.ndarray,
+                     truth: Run | None) -> tuple[list, list]:
+        """The diagnosis made again on the readings of hypotheses ``names``
+        (the likeliest first; ``readings``: :meth:`_fault_readings`'s) of
+        the samples ``raw`` whose nominal reading is ``read``, on each that
+        differs (``d`` on one that does not). When the likeliest reading
+        explains the data, a reading under which the data are less likely
+        than under it by more than the log of the options' Bayes factor (each
+        at its likeliest onset and size: a profile likelihood, compared as
+        the weighing compares evidence) is weighed out, neither compared nor
+        diagnosed again, unless its hypothesis is one of ``d``'s candidates
+        or their twins. Returns the readings' events and the diagnoses that
+        explain the data with the modes their hypothesis reads (each with
+        whether its modes differ, and the hypothesis)."""
+        index = self.nominal.MODE_INPUT
         said, explained = [], []
-        first, false = self.false_alarm or (None, None)
+        first, _ = self.false_alarm or (None, None)
         best, cut = names[0], math.log(self.loop.options.bayes_factor)
+        kept = set(d.candidates) | set(map(_twin, d.candidates))
         for name in names:
             onset, start, loglik, head = readings[name]
             below = readings[best][2] - loglik
-            if below > cut:  # decisively less likely with its own modes than the best with its: weighed out
+            if explained and explained[0][2] == best and name not in kept and below > cut:
+                # decisively less likely with its own modes than the likeliest, which explains the data: weighed out
                 said.append(ev.ModesReread(len(read) - 1, name, 0, False, best, float(below)))
                 continue
             samples = read_again(self.config.package.MODELS[name], raw, (onset, start), head)
@@ -891,16 +918,8 @@ class Diagnoser:
                 again.verdict == "ambiguous" and set(again.candidates) == {name, _twin(name)})
             said.append(ev.ModesReread(len(read) - 1, name, changed, explains))
             if explains:
-                explained.append((again, bool(changed)))
-        # one reading that explains the data, or several whose diagnoses agree (a stuck switch's and its
-        # twin's: each reads the other's modes, and both come out as the same pair)
-        agree = all((e.verdict, set(e.candidates)) == (explained[0][0].verdict, set(explained[0][0].candidates))
-                    for e, _ in explained)
-        chosen, read = explained[0] if explained and agree else (d, False)
-        if not read:  # d stands: made again with faults that come and go tried
-            chosen = self._first(truth)
-        kept = [false] if false is not None and read else []  # the false alarm, said again
-        return dataclasses.replace(chosen, events=ordered(list(chosen.events) + kept + said))
+                explained.append((again, bool(changed), name))
+        return said, explained
 
     def _fault_readings(self, hyps: list, raw: list[Sample]) -> dict:
         """Where each hypothesis of ``hyps`` reads the modes of the samples

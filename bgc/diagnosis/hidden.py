@@ -66,7 +66,7 @@ from .. import events as ev
 from ..filters.cubature import _Filter
 from .identify import log_sum_exp
 
-__all__ = ["AGREE", "BRANCHES", "DecoderState", "FLOOR", "GRID", "LAG", "ModeDecoder", "ONSETS", "POOL", "FINER",
+__all__ = ["AGREE", "BRANCHES", "DecoderState", "FINER", "FLOOR", "GRID", "LAG", "ModeDecoder", "ONSETS", "POOL",
            "REREAD", "read_again", "read_fault", "read_head", "read_job", "readable"]
 
 #: The most steps a sample waits for its mode to be decided.
@@ -87,8 +87,8 @@ POOL = 2 * REREAD
 ONSETS = 4
 #: The points of the first grid over a fault's prior on which its size is read with the hidden mode.
 GRID = 7
-#: How many times finer than the first grid's spacing the one grid after it, between the best point's
-#: neighbours, is on each side of it (three zooms of that grid's points each, in one pass).
+#: The steps each side of the best size in the one grid after the first, between the best point's
+#: neighbours: 27 times finer than the first grid's spacing, the spacing three zooms of 7 points reach.
 FINER = 27
 #: A mode with a timed exit entered by a guard: the least probability given to its entry at the step's
 #: start (the last sample's noise carried the plant across) and to its entry within the step.
