@@ -104,9 +104,12 @@ class Setting:
         return self.options.filter == "ckf"
 
 
-def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
+def finish(r: Record, s: Setting, truth: Run | None = None, memo: dict | None = None) -> Diagnosis:
     """The diagnosis of record ``r`` (``truth``: the run, when it records
-    the true fault); its ``seconds`` are the caller's to fill in."""
+    the true fault); its ``seconds`` are the caller's to fill in. ``memo``:
+    where steps 4 to 6b of the same record and setting, but for
+    ``intermittent``, which they do not read, were kept (the hypotheses
+    tracked and rechecked), taken from there, else kept there."""
     T = len(r.time)
     common = dict(model=r.model, time=r.time, outputs=r.outputs, states=r.states, nominal_y_mean=r.y_mean,
                   nominal_y_std=r.y_std, nominal_z=r.z, nominal_x_mean=r.x_mean, nominal_x_std=r.x_std,
@@ -121,8 +124,13 @@ def finish(r: Record, s: Setting, truth: Run | None = None) -> Diagnosis:
         return Diagnosis(verdict=verdict, detection=None, onset_step=None, symbols=(), refuted=(), hypotheses=(),
                          candidates=candidates, events=ordered(events), fit=fitted, **common)
     iso = r.isolation
-    hyps, posteriors, observer, rescued = tracked(r, s, truth)
-    more, static = rechecked(r, s, truth, hyps, posteriors, observer)
+    if memo is not None and "tracked" in memo:
+        hyps, posteriors, observer, rescued, more, static = memo["tracked"]
+    else:
+        hyps, posteriors, observer, rescued = tracked(r, s, truth)
+        more, static = rechecked(r, s, truth, hyps, posteriors, observer)
+        if memo is not None:
+            memo["tracked"] = (hyps, posteriors, observer, rescued, more, static)
     weighing_posteriors = {**posteriors, **static}
     null = nominal_evidence(r, s, observer) if weighing_posteriors and s.options.no_fault else None
     hyps, verdict, candidates, weighing = weighed(hyps + more, weighing_posteriors, r, s, null)

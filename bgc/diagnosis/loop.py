@@ -168,6 +168,8 @@ class Loop:
         self.watch_from = 0
         #: steps (first, end) the test of the model's fit leaves out: a false alarm's window (None: none)
         self.excused: tuple[int, int] | None = None
+        #: a cache, not the loop's state: steps 4 to 6b of the last record finished, with what it was
+        self._memo: tuple = (None, {})
         #: an alarm raised at its step whatever the detector says (None: none): a change of the residuals found
         #: over the whole record that no test alarmed on (:meth:`bgc.diagnosis.diagnoser.Diagnoser._missed_change`),
         #: or over the record kept while watching (:meth:`~bgc.diagnosis.diagnoser.Diagnoser._changed_while_watching`)
@@ -516,7 +518,14 @@ class Loop:
             self.isolate()
         c = self.config
         record = self.record(data)
-        d = finish(record, Setting(c.package, c.priors, c.options, self.horizon, c.say, intermittent), truth)
+        # the record's steps 4 to 6b, kept for a diagnosis of the same record asked again (faults that come and
+        # go tried then, which those steps do not read): the same samples, alarm, symbols, armed detector, truth
+        key = (len(self.samples), id(self.samples[-1]) if self.samples else None, id(self.detection),
+               id(self.isolation), self.watch_from, self.excused, id(truth))
+        if self._memo[0] != key:
+            self._memo = (key, {})
+        d = finish(record, Setting(c.package, c.priors, c.options, self.horizon, c.say, intermittent), truth,
+                   self._memo[1])
         if d.verdict == "ambiguous" and isinstance(c.signatures, ModeSignatures) and d.onset_step is not None:
             # which other mode's signatures would separate the candidates, over the modes since the onset
             mode = nominal_model(c.package).MODE_INPUT
