@@ -868,7 +868,8 @@ class Diagnoser:
         index = self.nominal.MODE_INPUT
         read = np.array([s.u[index] for s in self.loop.samples])
         raw = [_unread(s, index) for s in self.loop.samples]
-        twins = [h for h in ranked if h.name in map(_twin, d.candidates) and h not in weighed
+        pooled = {h.name for h in weighed}
+        twins = [h for h in ranked if h.name in map(_twin, d.candidates) and h.name not in pooled
                  and math.isfinite(h.estimate.value)]  # a candidate switch fault's twin, read too
         readings = self._fault_readings(weighed + twins, raw)
         names = sorted(readings, key=lambda name: -readings[name][2])[:REREAD]
@@ -879,10 +880,10 @@ class Diagnoser:
         # twin's: each reads the other's modes, and both come out as the same pair)
         agree = all((e.verdict, set(e.candidates)) == (explained[0][0].verdict, set(explained[0][0].candidates))
                     for e, _, _ in explained)
-        chosen, read, _ = explained[0] if explained and agree else (d, False, "")
-        if not read:  # d stands: made again with faults that come and go tried
+        chosen, moved, _ = explained[0] if explained and agree else (d, False, "")
+        if not moved:  # d stands: made again with faults that come and go tried
             chosen = self._first(truth)
-        kept = [false] if false is not None and read else []  # the false alarm, said again
+        kept = [false] if false is not None and moved else []  # the false alarm, said again
         return dataclasses.replace(chosen, events=ordered(list(chosen.events) + kept + said))
 
     def _on_readings(self, d: Diagnosis, names: list[str], readings: dict, raw: list[Sample], read: np.ndarray,

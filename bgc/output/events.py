@@ -130,8 +130,8 @@ def _data_sentence(e, t, time_of, clock: Clock) -> str | None:
             return f"the mode read from the data changes from {a} to {b}" + tail
         case ev.ModesReread(hypothesis=h, changed=n, explains=yes, below=other, by=nats):
             if other:
-                size = f"{nats:,.0f}" if nats >= 10 else f"{nats:.2g}"
-                return (f"the modes read again with {h}'s own equations (its onset and size) make the data {size} "
+                amount = f"{nats:,.0f}" if nats >= 10 else f"{nats:.2g}"
+                return (f"the modes read again with {h}'s own equations (its onset and size) make the data {amount} "
                         f"nats less likely than {other}'s own reading, which explains them: beyond the Bayes factor, "
                         "weighed out (not diagnosed again)")
             head = f"the modes read again with {h}'s own equations (its onset and size): "
