@@ -90,13 +90,14 @@ class Episodes:
         return c.verdict in ("isolated", "no fault") or frozen_unsized(c) is not None \
             or (self.rearm is not None and now - self.alarm[0] >= self.rearm)
 
-    def close(self, c, d, now: float, sensors: list[str], full: bool = False, gap: bool = False):
+    def close(self, c, d, now: float, sensors: list[str], forced: str | None = None):
         """Close the open episode on checkpoint diagnosis ``c`` of diagnoser
         ``d`` at time ``now``: (the next diagnoser, its sensors, the
-        :class:`~bgc.events.EpisodeClosed` event). ``full``: its record
-        reached the most the diagnosis holds in memory (``gap``: a gap longer
-        than that came); not isolated, it is re-armed for that reason
-        (``--rearm`` or not)."""
+        :class:`~bgc.events.EpisodeClosed` event). ``forced``: why the
+        episode is closed before its checkpoint decides it, ``"memory"`` (its
+        record reached the most the diagnosis holds in memory) or ``"gap"``
+        (a gap longer than that came); not isolated, it is re-armed for that
+        reason (``--rearm`` or not)."""
         from ..kinds import fault_kind
         from ..output.events import fault_sentence
 
@@ -155,7 +156,7 @@ class Episodes:
         alarm, sensor = self.alarm
         glitch = any(isinstance(x, ev.Glitch) for x in c.events)  # one reading off, quiet after it
         reason = ("" if action != "re-armed" else "glitch" if glitch and c.verdict == "no fault" else "false alarm"
-                  if c.verdict == "no fault" else "gap" if gap else "memory" if full else "rearm" if c.verdict != "isolated"
+                  if c.verdict == "no fault" else forced if forced else "rearm" if c.verdict != "isolated"
                   else "no estimate")
         closed = ev.EpisodeClosed(number, alarm, sensor, now, c.verdict, tuple(c.candidates), c.onset, finding,
                                   action, parameter, value, None, appearance, self.present(parameter), reason)

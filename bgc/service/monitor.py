@@ -509,7 +509,7 @@ class _Monitor:
                                 "and goes on after the gap")
             c = self.d.checkpoint()
             self.tell([ev.Checkpoint(belief.step, c.verdict, c.candidates)])
-            self._close(c, belief.time, self.rows_time, full=True, gap=True)
+            self._close(c, belief.time, self.rows_time, "gap")
         if self.rows:  # their report, should the row after the gap fail
             self.ended = (self.d, self.rows, list(self.misfits))
         self.d, said = bridged(self.d, t, u, self.rows_time, self._gap(t))
@@ -579,18 +579,19 @@ class _Monitor:
             self.mismatch_said = True
             self.tell([e for e in c.events if isinstance(e, ev.Mismatched)])
         if self.log is not None and (full or self.log.due(c, belief.time)):
-            self._close(c, belief.time, t, full)
+            self._close(c, belief.time, t, "memory" if full else None)
         elif self.exclude_faulty and self.log is None:
             faulty = _faulty_sensor(c, self.sensors)
             if faulty is not None:
                 self._exclude(c, faulty, belief.time)
 
-    def _close(self, c, now: float, t: float, full: bool, gap: bool = False) -> None:
+    def _close(self, c, now: float, t: float, forced: str | None = None) -> None:
         """Close the open episode on checkpoint diagnosis ``c`` at time ``now``
-        (the row of time ``t``; ``full``, ``gap``: why, :meth:`Episodes.close
-        <bgc.service.episodes.Episodes.close>`): a new diagnoser watches from the next row."""
+        (the row of time ``t``; ``forced``: why before its checkpoint decides
+        it, :meth:`Episodes.close <bgc.service.episodes.Episodes.close>`): a
+        new diagnoser watches from the next row."""
         self.ended = (self.d, self.rows, list(self.misfits))  # its report, should the stream end before the next row
-        self.d, self.sensors, closed = self.log.close(c, self.d, now, self.sensors, full=full, gap=gap)
+        self.d, self.sensors, closed = self.log.close(c, self.d, now, self.sensors, forced)
         if closed.action == "sensor out":
             self.taken_out.add(closed.parameter)
         self.tell([closed])
