@@ -301,7 +301,9 @@ class Misfit:
     """Hypothesis ``hypothesis`` with its ``magnitude`` held at its most
     probable value ``value`` from step ``start``: its residual of ``sensor``
     over ``window`` samples reached ``statistic`` (threshold
-    ``threshold``)."""
+    ``threshold``); ``stretch``: the mean of its residuals over the whole
+    stretch from its onset, ``statistic`` standard errors off 0
+    (:func:`bgc.diagnosis.static.stretch_alarm`)."""
 
     hypothesis: str
     magnitude: str
@@ -312,6 +314,7 @@ class Misfit:
     statistic: float
     threshold: float
     step: int | None = None
+    stretch: bool = False
 
 
 @dataclass(frozen=True, slots=True)

@@ -47,11 +47,10 @@ import numpy as np
 
 from .. import events as ev
 from ..filters.cubature import NominalTrack
-from ..kinds import fault_kind
 from ..model.protocol import FaultModel
 from .onsets import log_prior
 from .intermittent import _bank, _evidence, _interval, _smoothed, top_cell
-from .static import (StaticJob, kalman_hypothesis, noise_alarm, read_alarm, run_static, static_alarm,
+from .static import (StaticJob, kalman_hypothesis, read_alarm, stretch_alarm, run_static, static_alarm,
                      static_estimate)
 from .values import Hypothesis
 
@@ -157,8 +156,8 @@ def _later(h: Hypothesis, i, r, s, observer: NominalTrack, fixed) -> Hypothesis 
                              int(best), o.interval, o.kalman, (), record=True, refine=True,
                              far=(tuple(r.outputs), o.rejection, o.windows)))
     alarm = static_alarm(p, tuple(r.outputs), o)
-    if alarm is None and fault_kind(model.FAULT["kind"]).noise:  # its spread fitted: its mean against that spread
-        alarm = noise_alarm(p, tuple(r.outputs))
+    if alarm is None:  # and its mean over the whole stretch
+        alarm = stretch_alarm(p, tuple(r.outputs))
     if not (math.isfinite(p.log_evidence) and p.log_evidence > before) or alarm is not None:
         return None  # not the likelier, or it fails its fit test from there: the hypothesis stays as it was
     # and decisively likelier than no fault at all (weighed as the verdict weighs them, its prior spread over the

@@ -20,7 +20,7 @@ from .. import events as ev
 from .estimate import pressed
 from .onsets import log_prior
 from .rank import ranked, refined
-from .static import checked, misfit_reason, static_estimate
+from .static import STRETCH, checked, misfit_reason, static_estimate
 from .values import Drop, Hypothesis
 
 
@@ -270,7 +270,7 @@ def notes(hyps: tuple[Hypothesis, ...], decided: str, candidates: tuple[str, ...
         if h.static_alarm is not None:
             alarm, (start, value) = h.static_alarm, h.static.best
             events.append(ev.Misfit(h.name, h.estimate.magnitude, value, start, alarm.sensor, alarm.window,
-                                    alarm.statistic, alarm.threshold))
+                                    alarm.statistic, alarm.threshold, stretch=alarm.test == STRETCH))
         if h.drop is not None:
             events.append(ev.Dropped(h.drop.step, h.name, h.drop.code, h.drop.reason))
     return events

@@ -218,12 +218,14 @@ def _weighing_sentence(e, t, time_of, clock: Clock) -> str | None:
                     "estimates are reported")
         case ev.NoLikelihood():
             return "the cubature Kalman filters found no finite likelihood for any hypothesis"
-        case ev.Misfit(hypothesis=h, magnitude=m, value=v, start=s, sensor=y, window=w, statistic=z, threshold=c):
+        case ev.Misfit(hypothesis=h, magnitude=m, value=v, start=s, sensor=y, window=w, statistic=z, threshold=c,
+                       stretch=stretch):
             held = (f"{switch_held(kind_of(h))} t = {t(s)} (its most probable onset)" if m == "switch" else
                     f"with its {m} held at {v:.4g} from t = {t(s)} (the most probable magnitude and onset; its "
                     f"estimate is the mean over all of them)")
-            return (f"{h} {held}: its residual of {y} "
-                    f"over {w} sample(s) reached {z:.1f} (threshold {c:.1f}); the fault model as stated (or the "
+            from ..diagnosis.static import residual_misfit  # (here: the diagnosis's modules load only when told)
+
+            return (f"{h} {held}: {residual_misfit(y, w, z, c, stretch)}; the fault model as stated (or the "
                     f"Kalman filters' Gaussian approximation) does not explain these data: it fails the "
                     f"goodness-of-fit test")
     return None

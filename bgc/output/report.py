@@ -209,7 +209,7 @@ def _hypothesis_data(d, h, labels) -> dict[str, Any]:
         "ruled_out_by_symbols": h.ruled_out or None,
         "intermittent": _intermittent_data(d, h.intermittent),
         "static_consistency_alarm": None if h.static_alarm is None else {
-            "sensor": h.static_alarm.sensor, "window": h.static_alarm.window,
+            "test": h.static_alarm.test, "sensor": h.static_alarm.sensor, "window": h.static_alarm.window,
             "statistic": _num(h.static_alarm.statistic), "threshold": _num(h.static_alarm.threshold)},
         "filter_estimate": None if h.filter_estimate is None else {
             "value": _num(h.filter_estimate.value), "std": _num(h.filter_estimate.std),
