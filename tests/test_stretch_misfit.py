@@ -54,10 +54,11 @@ OUTPUTS = ("T1", "T2", "q_out")
 LEVEL = 0.001
 
 
-def heated(leak: float, bias: float, onset: float, steps: int, seed: int) -> runs.Run:
+def heated(leak: float, bias: float, onset: float, steps: int, seed: int, stuck: float | None = None) -> runs.Run:
     """The readings of the plant above: from ``onset`` a heat loss of the
-    block of ``leak`` W/K, and T1 reading ``bias`` off; the model's process
-    and measurement noise, drawn from ``default_rng(seed)``."""
+    block of ``leak`` W/K, T1 reading ``bias`` off, and T2 reading ``stuck``
+    exactly (None: T2 reads); the model's process and measurement noise,
+    drawn from ``default_rng(seed)``."""
     nominal = nominal_model(session(MODEL).package)
     process, measurement = np.asarray(nominal.PROCESS_STD)[:2], np.asarray(nominal.MEASUREMENT_STD)
     rng = np.random.default_rng(seed)
@@ -80,6 +81,8 @@ def heated(leak: float, bias: float, onset: float, steps: int, seed: int) -> run
         x = solve_ivp(flow, (t - DT, t), x, args=(w,), rtol=1e-10, atol=1e-10).y[:, -1]
         y.append([x[0] + (bias if t >= onset else 0.0), x[1], (x[1] - TA) / p["R2a"]])
     y = np.array(y) + measurement * rng.standard_normal((steps, 3))
+    if stuck is not None:
+        y[time >= onset, 1] = stuck
     ones = np.ones(steps)
     return runs.Run(time, {"Q": Q * ones, "Ta": TA * ones}, dict(zip(OUTPUTS, y.T)), {}, {},
                     ("made by tests/test_stretch_misfit.py",), "heated.csv")
@@ -151,3 +154,41 @@ def test_a_heat_loss_outside_the_model_is_unexplained_and_a_true_sensor_bias_iso
     assert bias.verdict == "isolated" and bias.candidates == ("T1_offset_bias",), report.plain_words(bias)
     (h,) = [h for h in bias.hypotheses if h.name == "T1_offset_bias"]
     assert h.estimate.low <= -0.9 <= h.estimate.high, h.estimate
+
+
+def test_a_misfit_of_the_named_faults_own_residuals_is_not_said_of_the_data_before_the_fault():
+    """A mismatch whose only finding is the named fault's residuals after
+    its onset (``with NAME ...``) does not say it "over the data before the
+    fault": those fitted. With a finding of its own, the span leads that
+    finding alone."""
+    from bgc import events as ev
+    from bgc.output.events import mismatch_sentence
+
+    after = "with R_abrupt, sensor y's residuals have variance 2.2 (2.1 without its farthest reading), not 1"
+    alone = mismatch_sentence(ev.Mismatched(99, 49, (after,), False, 10, ("R_abrupt",), ("noise",)), float)
+    assert alone.startswith(f"the model does not fit this plant: {after}; possibly"), alone
+    assert "before the fault" not in alone
+    before = "sensor y's residuals have a mean 0.4, not 0"
+    both = mismatch_sentence(ev.Mismatched(99, 49, (before, after), False, 10, (), ("noise",)), float)
+    assert both.startswith("the model does not fit this plant: over the data before the fault (t = 0 to 49, "
+                           f"50 samples) {before}; {after}; calibrate"), both
+
+
+@pytest.mark.slow
+@pytest.mark.long
+def test_a_frozen_sensor_is_not_a_plant_quieter_than_its_model():
+    """T2 reading 58.46 exactly from t = 300 (the plant's own temperature
+    there is about 58.46, so only its noise stops), seed 3 of this file's
+    simulator. The stuck model's residuals of T2 are the reading less the
+    value it holds, 0 once frozen: the test of a plant quieter than its model
+    (:func:`bgc.diagnosis.finish.quiet_misfit`) read them as "sensor T2's
+    residuals have variance 0: the plant is quieter than the model says",
+    and the verdict was "mismatch" (seeds 1 and 3; a helper's run of bgc's own
+    simulator, seed 1, too), said "over the data before the fault", which
+    were noisy. The sensor a stuck fault replaces is left out of that test:
+    "isolated: T2_stuck_stuck", its value's interval holding 58.46."""
+    d = bgc.diagnose(session(MODEL), data=heated(0.0, 0.0, 300.0, 600, seed=3, stuck=58.46),
+                     options=DiagnosisOptions(seed=3, workers=1)).diagnosis
+    assert d.verdict == "isolated" and d.candidates == ("T2_stuck_stuck",), report.plain_words(d)
+    (h,) = [h for h in d.hypotheses if h.name == "T2_stuck_stuck"]
+    assert h.estimate.low <= 58.46 <= h.estimate.high, h.estimate

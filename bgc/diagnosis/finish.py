@@ -388,9 +388,12 @@ def quiet_misfit(fitted: Fit, h: Hypothesis, hyps, candidates: tuple[str, ...], 
         return fitted, candidates
     start = int(p.best[0])
     z = np.asarray(p.residuals, dtype=float)
+    # a sensor whose reading the named fault replaces (a stuck one: its residuals the reading less the value it
+    # holds, 0 once frozen) is narrow by the fault itself, not by a quieter plant
+    replaced = h.estimate.subject if fault_kind(h.kind).replaces else None
     narrow = [(i, test) for i, test in failures(summary([z[start:]], r.outputs), fitted.level, correlation=False,
                                                 spread=residual_sd(nominal))
-              if test == "variance" and i.variance < 1.0]
+              if test == "variance" and i.variance < 1.0 and i.sensor != replaced]
     if not narrow:
         return fitted, candidates
     better = []
@@ -408,11 +411,12 @@ def quiet_misfit(fitted: Fit, h: Hypothesis, hyps, candidates: tuple[str, ...], 
             better.append((g.name, theirs, mine, k))
     if not better:
         return fitted, candidates
-    said = tuple(f"with {h.name} from its onset (t = {r.clock.text(r.time[start])}), {finding(i, test)}: the plant is "
-                 "quieter than the model says" for i, test in narrow)
-    said += tuple(f"{name} fits the data better (the sum of its squared residuals {theirs:.1f} against {mine:.1f} "
-                  f"from t = {r.clock.text(r.time[k])}) and loses to {h.name} only by the spread the model predicts, "
-                  "which these data do not have" for name, theirs, mine, k in better)
+    said = ["; ".join([f"with {h.name} from its onset (t = {r.clock.text(r.time[start])}), {finding(i, test)}: the "
+                       "plant is quieter than the model says" for i, test in narrow]
+                      + [f"{name} fits the data better (the sum of its squared residuals {theirs:.1f} against "
+                         f"{mine:.1f} from t = {r.clock.text(r.time[k])}) and loses to {h.name} only by the spread the "
+                         "model predicts, which these data do not have" for name, theirs, mine, k in better])]
+    said = tuple(said)  # one finding: the named fault's after its onset (output.events.mismatch_sentence)
     rivals = tuple(name for name, *_ in better if name not in candidates)
     return replace(fitted, findings=fitted.findings + said, failed=fitted.failed + ("variance",)), \
         candidates + rivals
