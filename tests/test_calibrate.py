@@ -204,7 +204,10 @@ def test_rc_product_of_parameters_is_not_identifiable(rc):
     c = r.calibration
     held = c.estimate("C")
     assert not held.identifiable and held.value == held.start
-    assert "correlated" in held.why and "R estimated with it held, carrying its error" in held.why, held.why
+    # the product R C: a direction the likelihood is flat along, or the two estimates correlated (which of the two
+    # the curvature at the optimum shows is a matter of its last digits; both hold C and estimate R)
+    assert ("correlated" in held.why or "flat along it and R together" in held.why) \
+        and "R estimated with it held, carrying its error" in held.why, held.why
     free = c.estimate("R")
     assert free.identifiable and free.low < 2.0 < free.high
     noise = c.estimate("noise e1")

@@ -192,3 +192,19 @@ def test_a_frozen_sensor_is_not_a_plant_quieter_than_its_model():
     assert d.verdict == "isolated" and d.candidates == ("T2_stuck_stuck",), report.plain_words(d)
     (h,) = [h for h in d.hypotheses if h.name == "T2_stuck_stuck"]
     assert h.estimate.low <= 58.46 <= h.estimate.high, h.estimate
+
+
+def test_the_reading_a_stuck_fault_replaces_is_left_out_of_the_stretch():
+    """A stuck sensor's residuals are its reading less the value the fault
+    holds: 0 to the last digits once frozen (a dead F12 held at 3e-16, its
+    residual a constant 1e-14 of its std), a mean "many standard errors off
+    0" of no noise at all. The two tanks' dead F12 was "unexplained" by it
+    (tests/test_sensor_faults.py) until the sensor the fault replaces was left
+    out; the other sensors are still tested."""
+    rng = np.random.default_rng(5)
+    z = rng.standard_normal((180, 3))
+    z[:, 1] = -1e-14 + 1e-30 * rng.standard_normal(180)
+    assert stretch_alarm(_cell(z), OUTPUTS).sensor == "T2"
+    assert stretch_alarm(_cell(z), OUTPUTS, replaced="T2") is None
+    z[:, 0] += 0.5
+    assert stretch_alarm(_cell(z), OUTPUTS, replaced="T2").sensor == "T1"

@@ -33,7 +33,7 @@ from .intermittent import revised
 from .onsets import earlier_onsets, onset_weights
 from .options import DiagnosisOptions
 from .parallel import parallel_map
-from .static import StaticJob, kalman_hypotheses, read_alarm, run_statics, static_alarm
+from .static import StaticJob, kalman_hypotheses, read_alarm, replaced_sensor, run_statics, static_alarm
 from .static_posterior import EDGE, EXTEND
 from .values import Detection, Diagnosis, Drop, Fit, Hypothesis, Isolation, StaticPosterior
 from .weigh import weighed
@@ -390,7 +390,7 @@ def quiet_misfit(fitted: Fit, h: Hypothesis, hyps, candidates: tuple[str, ...], 
     z = np.asarray(p.residuals, dtype=float)
     # a sensor whose reading the named fault replaces (a stuck one: its residuals the reading less the value it
     # holds, 0 once frozen) is narrow by the fault itself, not by a quieter plant
-    replaced = h.estimate.subject if fault_kind(h.kind).replaces else None
+    replaced = replaced_sensor(h.kind, h.estimate.subject)
     narrow = [(i, test) for i, test in failures(summary([z[start:]], r.outputs), fitted.level, correlation=False,
                                                 spread=residual_sd(nominal))
               if test == "variance" and i.variance < 1.0 and i.sensor != replaced]

@@ -50,7 +50,7 @@ from ..filters.cubature import NominalTrack
 from ..model.protocol import FaultModel
 from .onsets import log_prior
 from .intermittent import _bank, _evidence, _interval, _smoothed, top_cell
-from .static import (StaticJob, kalman_hypothesis, read_alarm, stretch_alarm, run_static, static_alarm,
+from .static import (StaticJob, kalman_hypothesis, read_alarm, replaced_sensor, stretch_alarm, run_static, static_alarm,
                      static_estimate)
 from .values import Hypothesis
 
@@ -157,7 +157,7 @@ def _later(h: Hypothesis, i, r, s, observer: NominalTrack, fixed) -> Hypothesis 
                              far=(tuple(r.outputs), o.rejection, o.windows)))
     alarm = static_alarm(p, tuple(r.outputs), o)
     if alarm is None:  # and its mean over the whole stretch
-        alarm = stretch_alarm(p, tuple(r.outputs))
+        alarm = stretch_alarm(p, tuple(r.outputs), replaced_sensor(model.FAULT["kind"], model.FAULT.get("subject")))
     if not (math.isfinite(p.log_evidence) and p.log_evidence > before) or alarm is not None:
         return None  # not the likelier, or it fails its fit test from there: the hypothesis stays as it was
     # and decisively likelier than no fault at all (weighed as the verdict weighs them, its prior spread over the

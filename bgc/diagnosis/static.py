@@ -212,7 +212,7 @@ def checked(h: Hypothesis, outputs, options: DiagnosisOptions) -> Hypothesis:
     too: the mean of those residuals over the whole stretch."""
     alarm = None if h.static is None else static_alarm(h.static, outputs, options)
     if alarm is None and h.drop is None:
-        alarm = stretch_alarm(h.static, outputs)
+        alarm = stretch_alarm(h.static, outputs, replaced_sensor(h.kind, h.estimate.subject))
     return h if alarm is None else dataclasses.replace(h, static_alarm=alarm)
 
 
@@ -267,10 +267,18 @@ def held_correlation_time(z: np.ndarray, tau: float) -> float:
     return max(tau, lag_one_time(z), 1.0)
 
 
-def stretch_alarm(p: StaticPosterior | None, outputs: tuple[str, ...]) -> Detection | None:
+def replaced_sensor(kind: str, subject: str | None) -> str | None:
+    """The sensor whose reading a fault of ``kind`` on ``subject`` replaces
+    (a stuck sensor's), None for any other fault."""
+    return subject if fault_kind(kind).replaces else None
+
+
+def stretch_alarm(p: StaticPosterior | None, outputs: tuple[str, ...], replaced: str | None = None) \
+        -> Detection | None:
     """:func:`mean_alarm` on the normalised residuals of a static
     posterior ``p``'s most likely cell, over the whole stretch from that
-    cell's onset (None: it passes, or ``p`` has no such cell).
+    cell's onset (None: it passes, or ``p`` has no such cell); ``replaced``:
+    the sensor whose reading the fault replaces (a stuck one's), left out.
 
     The windowed test (:func:`static_alarm`) is built to alarm within a
     horizon: its longest window is 32 samples, its threshold the union
@@ -293,7 +301,10 @@ def stretch_alarm(p: StaticPosterior | None, outputs: tuple[str, ...]) -> Detect
     tests/test_noise_fault.py)."""
     if p is None or p.residuals is None or p.best is None:
         return None
-    return mean_alarm(np.asarray(p.residuals, dtype=float)[int(p.best[0]):], outputs)
+    z = np.array(p.residuals, dtype=float)[int(p.best[0]):]
+    if replaced in outputs:  # the reading less the value it holds: 0 once frozen, no noise to test a mean against
+        z[:, outputs.index(replaced)] = np.nan
+    return mean_alarm(z, outputs)
 
 
 def static_alarm(p: StaticPosterior, outputs, options: DiagnosisOptions) -> Detection | None:
