@@ -769,6 +769,31 @@ def test_bgc_monitor_reads_a_folder_of_daily_files_as_one_stream(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.slow
+def test_a_followed_file_the_logger_creates_later_is_waited_for(tmp_path):
+    """--follow on a file that does not exist yet (a logger that starts
+    after the monitor): the monitor waits for it, then reads it as it
+    grows; every row is diagnosed (the report's steps are the file's rows).
+    A file that does not appear within --idle is refused as before, in one
+    line naming it. (The command in this process, conftest.bgc_cli; the
+    logger a thread that creates the file half a second after the start.)"""
+    lines = runs.run_csv(simulated(CIRCUIT, steps=60)).splitlines(keepends=True)
+    rows = sum(1 for line in lines if line[:1].isdigit())
+    path = tmp_path / "later.csv"
+
+    def logger():
+        time.sleep(0.5)
+        path.write_text("".join(lines))
+
+    p = monitor_with_logger(logger, "--data", str(path), "--follow", "--idle", "1.5", "--particles", "50",
+                            "-o", str(tmp_path / "mon"))
+    assert p.returncode == 0, p.stderr
+    assert f'"steps": {rows}' in (tmp_path / "mon" / "report.json").read_text()
+    p = monitor_cli("--data", str(tmp_path / "never.csv"), "--follow", "--idle", "0.3", "-o", str(tmp_path / "b"))
+    assert p.returncode == 1 and "never.csv: No such file or directory" in p.stderr and "Traceback" not in p.stderr, \
+        p.stderr
+
+
 def test_a_followed_folder_takes_up_the_days_file_when_it_appears(tmp_path):
     """--follow on a folder: the last file there is followed, and a file
     that appears later (the next day's) is read when the one before ends.

@@ -11,7 +11,7 @@ from pathlib import Path
 from ..errors import BgcError
 from ..data.runs import open_stream
 from .common import (add_backend_option, add_data_options, add_prior_option, add_workers_option, backend_note,
-    check_times, parse_noise, refuse_input_in_output, rows_of, seed, workers, write_report)
+    check_times, parse_noise, refuse_input_in_output, rows_of, seed, status, workers, write_report)
 
 
 def add_parser(sub) -> None:
@@ -123,6 +123,10 @@ def run(args: argparse.Namespace) -> int:
                                 say=say, pattern=args.data)
         name = args.data
     else:
+        if args.follow and not os.path.exists(args.data):  # a logger that starts later: its file comes
+            status(args, f"waiting for {args.data} to appear" + ("" if args.idle is None else
+                                                                 f" (at most {args.idle:g} s)"))
+            monitor.appeared(args.data, args.idle)
         stream, name = open_stream(args.data), args.data
         if args.follow:
             stream = monitor.Follow(stream, args.idle, path=args.data, say=say)

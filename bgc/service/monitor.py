@@ -47,6 +47,17 @@ STATE_EVERY = 100
 KEEP_STEPS = 1024
 
 
+def appeared(path: str, idle: float | None, poll: float = 0.1) -> None:
+    """Wait for ``path`` to exist, a file a logger has not created yet
+    (``bgc monitor --follow``): polling every ``poll`` seconds, at most
+    ``idle`` seconds (None: until it appears, or Ctrl-C). It returns either
+    way; opening a file still missing is the caller's error to give."""
+    waited = 0.0
+    while not os.path.exists(path) and (idle is None or waited < idle):
+        time.sleep(poll)
+        waited += poll
+
+
 class Follow:
     """A file read as another program appends to it: :meth:`readline` waits
     for a whole line (polling every ``poll`` seconds) and ends the input
