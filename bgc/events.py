@@ -641,7 +641,9 @@ class ModesReread:
 class Mismatched:
     """The model does not fit this plant (:mod:`bgc.diagnosis.fit`): the
     data the verdict says are fault-free, steps 0 to ``last``, fail the
-    test of the model (``findings``: a sentence per sensor), or (``short``)
+    test of the model (``findings``: a sentence per sensor; one that starts
+    ``with NAME`` is of the named fault's own residuals after its onset),
+    or (``short``)
     are fewer than ``least`` samples, too few to tell a fault since the
     data's start from a model that does not fit. ``possible``: the faults
     the diagnosis would have named, kept as possibilities; ``estimate``:

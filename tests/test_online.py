@@ -769,7 +769,6 @@ def test_bgc_monitor_reads_a_folder_of_daily_files_as_one_stream(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.slow
 def test_a_followed_file_the_logger_creates_later_is_waited_for(tmp_path):
     """--follow on a file that does not exist yet (a logger that starts
     after the monitor): the monitor waits for it, then reads it as it
@@ -794,6 +793,7 @@ def test_a_followed_file_the_logger_creates_later_is_waited_for(tmp_path):
         p.stderr
 
 
+@pytest.mark.slow
 def test_a_followed_folder_takes_up_the_days_file_when_it_appears(tmp_path):
     """--follow on a folder: the last file there is followed, and a file
     that appears later (the next day's) is read when the one before ends.

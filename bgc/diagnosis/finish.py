@@ -411,12 +411,12 @@ def quiet_misfit(fitted: Fit, h: Hypothesis, hyps, candidates: tuple[str, ...], 
             better.append((g.name, theirs, mine, k))
     if not better:
         return fitted, candidates
-    said = ["; ".join([f"with {h.name} from its onset (t = {r.clock.text(r.time[start])}), {finding(i, test)}: the "
+    # one finding, the named fault's own after its onset ("with NAME ...": output.events.mismatch_sentence)
+    said = ("; ".join([f"with {h.name} from its onset (t = {r.clock.text(r.time[start])}), {finding(i, test)}: the "
                        "plant is quieter than the model says" for i, test in narrow]
                       + [f"{name} fits the data better (the sum of its squared residuals {theirs:.1f} against "
                          f"{mine:.1f} from t = {r.clock.text(r.time[k])}) and loses to {h.name} only by the spread the "
-                         "model predicts, which these data do not have" for name, theirs, mine, k in better])]
-    said = tuple(said)  # one finding: the named fault's after its onset (output.events.mismatch_sentence)
+                         "model predicts, which these data do not have" for name, theirs, mine, k in better]),)
     rivals = tuple(name for name, *_ in better if name not in candidates)
     return replace(fitted, findings=fitted.findings + said, failed=fitted.failed + ("variance",)), \
         candidates + rivals

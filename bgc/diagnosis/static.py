@@ -263,7 +263,8 @@ def held_correlation_time(z: np.ndarray, tau: float) -> float:
     residuals correlated 0.8 from step to step failed the test 53 times as
     often as the level's share says over 296 samples, 0.5: 14 times (6000
     draws each); with the AR(1) floor 7 and 1 times, at a cost of 1 % of the
-    power against an offset of 0.3 of their spread (tests/test_stretch_misfit.py)."""
+    power against an offset of 0.3 of their spread (docs/results.md §81; the rates at 500
+    draws: tests/test_stretch_misfit.py)."""
     return max(tau, lag_one_time(z), 1.0)
 
 

@@ -328,13 +328,13 @@ def mismatch_sentence(e: ev.Mismatched, time_of, *, clock: Clock = Clock()) -> s
     else:  # a record tested while watching, halved since, carries its own times (span)
         first, last, count = e.span or (time_of(0), time_of(e.last), samples)
         span = "the whole record" if e.last == e.step else "the data before the fault"
-        # the named fault's own residuals after its onset say so themselves ("with NAME ..."): not the span's
+        # a finding of the named fault's own residuals after its onset ("with NAME ...") is not the span's
         before = [f for f in e.findings if not f.startswith("with ")]
-        after = [f for f in e.findings if f.startswith("with ")]
-        why = "the model does not fit this plant: " + "; ".join(
-            ([f"over {span} (t = {'' if first is None else clock.text(first)} to "
-              f"{'' if last is None else clock.text(last)}, {count} samples) " + "; ".join(before)] if before else [])
-            + after)
+        said = [f for f in e.findings if f.startswith("with ")]
+        if before:
+            said.insert(0, f"over {span} (t = {'' if first is None else clock.text(first)} to "
+                           f"{'' if last is None else clock.text(last)}, {count} samples) " + "; ".join(before))
+        why = "the model does not fit this plant: " + "; ".join(said)
     if e.possible:
         why += f"; possibly a fault all the same: {', '.join(e.possible)}"
     words = ",".join(e.estimate)
